@@ -1,0 +1,136 @@
+"""Command line: ``skillkit list | reproduce | runs | compare | demo``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+
+def _cmd_list(args: argparse.Namespace) -> int:
+    from skillkit.experiments import registry
+    from skillkit.tasks import names
+
+    print("experiments:")
+    for exp_id in registry.ids():
+        exp = registry.get(exp_id)
+        print(f"  {exp_id:<12} {exp.title}")
+    print("tasks:")
+    for name in names():
+        print(f"  {name}")
+    return 0
+
+
+def _cmd_reproduce(args: argparse.Namespace) -> int:
+    from skillkit.experiments.runner import reproduce
+
+    folder = reproduce(args.id, scale=args.scale, trials=args.trials, seed=args.seed, out=args.out,
+                       progress=not args.quiet, executor=args.executor, workers=args.workers,
+                       address=args.address, fresh=args.fresh)
+    summary = json.loads((folder / "result.json").read_text())["summary"]
+    print(f"wrote {folder}/result.json, figure.html, figure.png")
+    print(json.dumps(summary, indent=1))
+    return 0
+
+
+def _cmd_runs(args: argparse.Namespace) -> int:
+    from skillkit.experiments.store import list_runs
+
+    runs = list_runs(args.root)
+    if not runs:
+        print(f"no runs under {args.root}")
+    for r in runs:
+        wall = r["wall_time_s"]
+        wall_s = f"{wall:9.1f}s" if isinstance(wall, (int, float)) else "         ?"
+        print(f"{r['path']:<50} {r['id']:<10} {r['scale']:<6} seed={r['seed']:<4} trials={r['trials']:<3} "
+              f"{r['executor']:<8}{wall_s}")
+    return 0
+
+
+def _cmd_compare(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from skillkit.experiments.store import compare
+    from skillkit.viz.plots import write_figures
+
+    rows, merged = compare(args.run_a, args.run_b)
+    width = max([len(k) for k, _, _ in rows] + [10])
+    print(f"{'':<{width}}  {'A':>18}  {'B':>18}")
+    for key, va, vb in rows:
+        fmt = (lambda v: f"{v:18.6g}" if isinstance(v, (int, float)) and not isinstance(v, bool) else f"{v!s:>18}")
+        print(f"{key:<{width}}  {fmt(va)}  {fmt(vb)}")
+    if args.out:
+        out = Path(args.out)
+        out.mkdir(parents=True, exist_ok=True)
+        write_figures(merged, out)
+        print(f"wrote {out}/figure.html and figure.png")
+    return 0
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    from skillkit.experiments.runner import reproduce
+
+    for exp_id in ("fig2.10", "sanity3"):
+        folder = reproduce(exp_id, scale="quick", seed=args.seed, out=args.out, progress=not args.quiet)
+        summary = json.loads((folder / "result.json").read_text())["summary"]
+        print(f"{exp_id}: wrote {folder}")
+        print(json.dumps(summary, indent=1))
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="skillkit", description=__doc__)
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("list", help="list experiment ids and tasks")
+    p.set_defaults(func=_cmd_list)
+
+    p = sub.add_parser("reproduce", help="reproduce a thesis figure or table")
+    p.add_argument("id", help="experiment id, e.g. fig2.10 (see `skillkit list`)")
+    p.add_argument("--scale", choices=("quick", "paper"), default="quick")
+    p.add_argument("--trials", type=int, default=None, help="independent trials (default: per experiment)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", default="runs", help="output folder (default: runs/)")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.add_argument("--executor", choices=("local", "process", "ray"), default="local",
+                   help="run trials sequentially, on all cores, or on Ray (default: local)")
+    p.add_argument("--workers", type=int, default=None, help="processes / Ray CPUs (default: all cores)")
+    p.add_argument("--address", default=None, help="address of an existing Ray cluster")
+    p.add_argument("--fresh", action="store_true", help="discard this run's checkpoints and start over")
+    p.set_defaults(func=_cmd_reproduce)
+
+    p = sub.add_parser("runs", help="list finished runs in the results store")
+    p.add_argument("--root", default="runs", help="results folder (default: runs/)")
+    p.set_defaults(func=_cmd_runs)
+
+    p = sub.add_parser("compare", help="two runs' summaries and curves side by side")
+    p.add_argument("run_a", help="run folder (or its result.json)")
+    p.add_argument("run_b", help="run folder (or its result.json)")
+    p.add_argument("--out", default=None, help="also write an overlay figure into this folder")
+    p.set_defaults(func=_cmd_compare)
+
+    p = sub.add_parser("demo", help="run the quick fig2.10 and sanity3 experiments")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", default="runs")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=_cmd_demo)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    from skillkit.experiments.checkpoint import CheckpointError
+
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return args.func(args)
+    except (ValueError, CheckpointError) as exc:
+        print(f"skillkit: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("skillkit: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

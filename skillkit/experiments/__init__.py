@@ -1,0 +1,12 @@
+"""Thesis experiments: one module per chapter, each registering its figure/table ids."""
+
+from skillkit.experiments.registry import Experiment, Series, get, ids, register
+
+# Chapter modules register their experiments on import (one line per module).
+from skillkit.experiments import ch2  # noqa: E402,F401  isort: skip
+from skillkit.experiments import sanity  # noqa: E402,F401  isort: skip
+from skillkit.experiments import ch3_throwing  # noqa: E402,F401  isort: skip
+from skillkit.experiments import ch3_table_tennis  # noqa: E402,F401  isort: skip
+from skillkit.experiments import ch3_hockey  # noqa: E402,F401  isort: skip
+
+__all__ = ["Experiment", "Series", "get", "ids", "register"]

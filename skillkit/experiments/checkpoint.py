@@ -1,0 +1,106 @@
+"""Atomic, self-checking checkpoints for experiment trials.
+
+A checkpoint file is ``MAGIC + header length + JSON header + pickled payload``. The header
+records what the payload belongs to — experiment id, settings, trial seed, skillkit version
+and a hash of the experiment module's source — and the SHA-256 of the payload. Loading checks
+all of it: a truncated or corrupted file, or one written for other settings, another trial
+or other code, raises :class:`CheckpointError` (never silently resumed from). Writes go to a
+temporary file that is renamed into place, so a crash mid-write leaves the old checkpoint.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import inspect
+import json
+import os
+import pickle
+import struct
+from pathlib import Path
+from typing import Any
+
+MAGIC = b"SKILLKIT-CKPT-1\n"
+
+
+class CheckpointError(RuntimeError):
+    """A checkpoint exists but cannot be trusted (corrupt, truncated or foreign)."""
+
+
+def code_fingerprint(func) -> str:
+    """skillkit version plus a hash of the source file defining ``func`` (its experiment module)."""
+    import skillkit
+
+    try:
+        source = Path(inspect.getsourcefile(func)).read_bytes()
+    except (TypeError, OSError):
+        source = getattr(func, "__qualname__", repr(func)).encode()
+    return f"{skillkit.__version__}:{hashlib.sha256(source).hexdigest()[:16]}"
+
+
+def identity(exp_id: str, settings: dict, trial: int, seed: int, code: str) -> dict:
+    """What a trial's checkpoint must match to be resumed from."""
+    return {"experiment": exp_id, "settings": json.loads(json.dumps(settings, sort_keys=True, default=str)),
+            "trial": int(trial), "seed": int(seed), "code": code}
+
+
+def save(path: str | Path, ident: dict, payload: Any, kind: str) -> None:
+    """Write ``payload`` atomically with a header binding it to ``ident``.
+
+    Parameters
+    ----------
+    path : path
+        Destination file.
+    ident : dict
+        From :func:`identity`.
+    payload : any picklable object
+        The state (``kind="state"``: mid-trial state; ``kind="result"``: the finished trial).
+    kind : {"state", "result"}
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    body = pickle.dumps(payload, protocol=pickle.HIGHEST_PROTOCOL)
+    header = json.dumps({**ident, "kind": kind, "sha256": hashlib.sha256(body).hexdigest(),
+                         "size": len(body)}, sort_keys=True).encode()
+    tmp = path.with_name(path.name + f".tmp{os.getpid()}")
+    with open(tmp, "wb") as fh:
+        fh.write(MAGIC + struct.pack("<I", len(header)) + header + body)
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
+
+
+def load(path: str | Path, ident: dict) -> tuple[str, Any] | None:
+    """Load a checkpoint written by :func:`save`; ``None`` if there is none.
+
+    Returns
+    -------
+    (kind, payload)
+
+    Raises
+    ------
+    CheckpointError
+        Truncated/corrupted file, or a header that does not match ``ident`` (the message says
+        which field differs).
+    """
+    path = Path(path)
+    if not path.exists():
+        return None
+    raw = path.read_bytes()
+    if not raw.startswith(MAGIC) or len(raw) < len(MAGIC) + 4:
+        raise CheckpointError(f"{path}: not a skillkit checkpoint (bad magic bytes or truncated)")
+    (n,) = struct.unpack("<I", raw[len(MAGIC):len(MAGIC) + 4])
+    start = len(MAGIC) + 4
+    try:
+        header = json.loads(raw[start:start + n])
+    except (ValueError, UnicodeDecodeError):
+        raise CheckpointError(f"{path}: unreadable header (file truncated or corrupted)") from None
+    body = raw[start + n:]
+    if len(body) != header.get("size") or hashlib.sha256(body).hexdigest() != header.get("sha256"):
+        raise CheckpointError(f"{path}: payload does not match its checksum (truncated or corrupted)")
+    for key, value in ident.items():
+        if header.get(key) != value:
+            raise CheckpointError(
+                f"{path}: checkpoint belongs to another run ({key}: {header.get(key)!r} != {value!r}); "
+                "use --fresh to start over"
+            )
+    return header["kind"], pickle.loads(body)

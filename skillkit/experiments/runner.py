@@ -1,0 +1,294 @@
+"""``reproduce``: run an experiment's trials (locally, on all cores or on Ray), checkpoint and
+resume them, and write ``result.json``, ``figure.html``, ``figure.png`` and ``trials.npz``.
+
+Trial ``i`` of a run with root seed ``seed`` always uses the ``i``-th child of
+``SeedSequence(seed)``, so the numbers do not depend on the executor, on how many trials run
+at once, or on interruptions: every finished trial, and every state an experiment saves
+mid-trial through :meth:`TrialContext.save`, is checkpointed atomically under
+``<out>/<id>-<scale>-s<seed>/trials/``, and rerunning the same command resumes from there.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import shutil
+import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from multiprocessing import get_context
+from pathlib import Path
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from skillkit.experiments import checkpoint
+from skillkit.experiments.registry import get
+
+EXECUTORS = ("local", "process", "ray")
+
+
+def versions() -> dict[str, str]:
+    """Versions of Python, skillkit and the numerical libraries the results depend on."""
+    from importlib import metadata
+
+    out = {"python": platform.python_version()}
+    for pkg in ("skillkit", "numpy", "scipy", "torch", "gpytorch", "mujoco", "dm-control", "pymunk"):
+        try:
+            out[pkg] = metadata.version(pkg)
+        except metadata.PackageNotFoundError:
+            pass
+    return out
+
+
+def to_jsonable(obj):
+    """Convert numpy containers and scalars to plain JSON types (NaN/inf become None)."""
+    if isinstance(obj, dict):
+        return {str(k): to_jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [to_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return to_jsonable(obj.tolist())
+    if isinstance(obj, (np.floating, float)):
+        v = float(obj)
+        return v if np.isfinite(v) else None
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    return obj
+
+
+class TrialContext:
+    """What ``run_trial(settings, rng, progress)`` receives as ``progress``: a progress bar
+    (``reset(total=)``, ``update(n)``, ``set_postfix(...)``) that can also checkpoint.
+
+    An experiment that wants to survive interruption mid-trial calls :meth:`resume` once at
+    the start (restoring the generator's state and returning its last saved state, or None)
+    and :meth:`save` after every policy update.
+    """
+
+    def __init__(self, bar, path: Path | None = None, ident: dict | None = None,
+                 state: tuple | None = None):
+        self.bar = bar
+        self.path = path
+        self.ident = ident
+        self._state = state  # (payload, rng_state) loaded from disk, if any
+
+    def reset(self, total: int | None = None) -> None:
+        self.bar.reset(total=total)
+
+    def update(self, n: int = 1) -> None:
+        self.bar.update(n)
+
+    def set_postfix(self, *args, **kwargs) -> None:
+        self.bar.set_postfix(*args, **kwargs)
+
+    def save(self, state, rng: np.random.Generator) -> None:
+        """Checkpoint ``state`` (any picklable object) and the generator's state atomically."""
+        if self.path is not None:
+            checkpoint.save(self.path, self.ident, (state, rng.bit_generator.state), kind="state")
+
+    def resume(self, rng: np.random.Generator):
+        """The last saved state (restoring ``rng`` to where it was then), or None."""
+        if self._state is None:
+            return None
+        payload, rng_state = self._state
+        rng.bit_generator.state = rng_state
+        return payload
+
+
+class _NullBar:
+    def reset(self, total=None):
+        pass
+
+    def update(self, n=1):
+        pass
+
+    def set_postfix(self, *args, **kwargs):
+        pass
+
+    def close(self):
+        pass
+
+
+def _execute_trial(exp_id: str, settings: dict, seed_seq: np.random.SeedSequence, index: int,
+                   ckpt_path: str | None, ident: dict | None, show_progress: bool) -> dict:
+    """Run (or resume) one trial; checkpoint its result. Module-level so workers can pickle it."""
+    exp = get(exp_id)
+    state = None
+    if ckpt_path is not None:
+        found = checkpoint.load(ckpt_path, ident)
+        if found is not None:
+            kind, payload = found
+            if kind == "result":
+                return payload
+            state = payload
+    bar = tqdm(desc=f"{exp_id} trial {index + 1}", leave=False) if show_progress else _NullBar()
+    try:
+        ctx = TrialContext(bar, None if ckpt_path is None else Path(ckpt_path), ident, state)
+        result = exp.run_trial(settings, np.random.default_rng(seed_seq), ctx)
+    finally:
+        bar.close()
+    if ckpt_path is not None:
+        checkpoint.save(ckpt_path, ident, result, kind="result")
+    return result
+
+
+def _run_pending(exp_id, settings, jobs, executor, workers, address, progress) -> dict[int, dict]:
+    """Run jobs = [(index, seed_seq, ckpt_path, ident)] with the chosen executor."""
+    results: dict[int, dict] = {}
+    if not jobs:
+        return results
+    if executor == "local":
+        for i, seq, path, ident in jobs:
+            results[i] = _execute_trial(exp_id, settings, seq, i, path, ident, progress)
+        return results
+    outer = tqdm(total=len(jobs), desc=f"{exp_id} trials ({executor})", disable=not progress)
+    try:
+        if executor == "process":
+            n = workers or os.cpu_count() or 1
+            with ProcessPoolExecutor(max_workers=n, mp_context=get_context("spawn")) as pool:
+                futures = {pool.submit(_execute_trial, exp_id, settings, seq, i, path, ident, False): i
+                           for i, seq, path, ident in jobs}
+                for fut in as_completed(futures):
+                    results[futures[fut]] = fut.result()
+                    outer.update()
+        else:
+            try:
+                import ray
+            except ImportError:
+                raise ValueError("executor: 'ray' needs the ray extra (pip install -e '.[ray]')") from None
+            started = not ray.is_initialized()
+            if started:
+                kwargs = {"address": address} if address else {"num_cpus": workers or os.cpu_count()}
+                ray.init(include_dashboard=False, log_to_driver=False, **kwargs)
+            try:
+                remote = ray.remote(_execute_trial)
+                refs = {remote.remote(exp_id, settings, seq, i, path, ident, False): i
+                        for i, seq, path, ident in jobs}
+                pending = list(refs)
+                while pending:
+                    done, pending = ray.wait(pending, num_returns=1)
+                    results[refs[done[0]]] = ray.get(done[0])
+                    outer.update()
+            finally:
+                if started:
+                    ray.shutdown()
+    finally:
+        outer.close()
+    return results
+
+
+def run_trials(exp_id: str, scale: str = "quick", trials: int | None = None, seed: int = 0,
+               progress: bool = True, *, executor: str = "local", workers: int | None = None,
+               address: str | None = None, checkpoint_dir: str | Path | None = None,
+               **overrides) -> dict:
+    """Run the trials of an experiment and return the result dict.
+
+    Parameters
+    ----------
+    exp_id : str
+        Experiment id (``skillkit list`` shows them).
+    scale : {"quick", "paper"}
+        Settings scale.
+    trials : int, optional
+        Number of independent trials (default: the experiment's default for the scale).
+    seed : int
+        Root seed; trial ``i`` uses the ``i``-th child of ``SeedSequence(seed)``.
+    progress : bool
+        Show tqdm progress bars.
+    executor : {"local", "process", "ray"}
+        Run trials one after another, in a pool of processes (all cores by default) or as Ray
+        tasks (a local Ray instance, or the cluster at ``address``).
+    workers : int, optional
+        Number of processes / Ray CPUs (default: all cores).
+    address : str, optional
+        Address of an existing Ray cluster.
+    checkpoint_dir : path, optional
+        Where trial checkpoints live; existing ones are resumed from (after validation).
+    **overrides
+        Replace individual settings.
+    """
+    exp = get(exp_id)
+    settings = exp.settings_for(scale, **overrides)
+    n_trials = exp.trials[scale] if trials is None else int(trials)
+    if n_trials < 1:
+        raise ValueError(f"trials: expected a positive number of trials, got {trials}")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed: expected a non-negative integer, got {seed!r}")
+    if executor not in EXECUTORS:
+        raise ValueError(f"executor: expected one of {EXECUTORS}, got {executor!r}")
+    if workers is not None and int(workers) < 1:
+        raise ValueError(f"workers: expected a positive number of workers, got {workers}")
+    children = np.random.SeedSequence(int(seed)).spawn(n_trials)
+    code = checkpoint.code_fingerprint(exp.run_trial)
+    jobs = []
+    for i, child in enumerate(children):
+        if checkpoint_dir is None:
+            jobs.append((i, child, None, None))
+        else:
+            path = str(Path(checkpoint_dir) / f"trial_{i:03d}.ckpt")
+            jobs.append((i, child, path, checkpoint.identity(exp.id, settings, i, int(seed), code)))
+    t0 = time.perf_counter()
+    done = _run_pending(exp.id, settings, jobs, executor, workers, address, progress)
+    results = [done[i] for i in range(n_trials)]
+    series, summary = exp.summarize(settings, results)
+    return {
+        "id": exp.id,
+        "title": exp.title,
+        "claim": exp.claim,
+        "scale": scale,
+        "settings": to_jsonable(settings),
+        "seed": int(seed),
+        "trials": n_trials,
+        "executor": executor,
+        "versions": versions(),
+        "machine": {"platform": platform.platform(), "processor": platform.machine(),
+                    "cpus": os.cpu_count()},
+        "wall_time_s": time.perf_counter() - t0,
+        "series": [to_jsonable(s.to_dict()) for s in series],
+        "summary": to_jsonable(summary),
+        "_trials": results,
+    }
+
+
+def run_folder(exp_id: str, scale: str, seed: int, out: str | Path) -> Path:
+    """The folder a run writes to: ``<out>/<id>-<scale>-s<seed>``."""
+    return Path(out) / f"{exp_id}-{scale}-s{seed}"
+
+
+def reproduce(exp_id: str, scale: str = "quick", trials: int | None = None, seed: int = 0,
+              out: str | Path = "runs", progress: bool = True, *, executor: str = "local",
+              workers: int | None = None, address: str | None = None, fresh: bool = False,
+              **overrides) -> Path:
+    """Run an experiment, resuming from its checkpoints, and write its results.
+
+    Writes ``result.json``, ``figure.html``, ``figure.png`` and ``trials.npz`` into
+    :func:`run_folder` and returns that folder. ``fresh=True`` deletes earlier checkpoints
+    of this run first. Other arguments as in :func:`run_trials`.
+    """
+    from skillkit.viz.plots import write_figures
+
+    folder = run_folder(exp_id, scale, seed, out)
+    ckpt_dir = folder / "trials"
+    if fresh and ckpt_dir.exists():
+        shutil.rmtree(ckpt_dir)
+    result = run_trials(exp_id, scale, trials, seed, progress, executor=executor, workers=workers,
+                        address=address, checkpoint_dir=ckpt_dir, **overrides)
+    folder.mkdir(parents=True, exist_ok=True)
+    trial_arrays = {}
+    for i, tr in enumerate(result.pop("_trials")):
+        for k, v in tr.items():
+            try:
+                arr = np.asarray(v)
+            except ValueError:  # ragged
+                continue
+            if arr.dtype != object:
+                trial_arrays[f"trial{i}__{k}"] = arr
+    np.savez_compressed(folder / "trials.npz", **trial_arrays)
+    tmp = folder / "result.json.tmp"
+    tmp.write_text(json.dumps(result, indent=1))
+    tmp.replace(folder / "result.json")
+    write_figures(result, folder)
+    return folder

@@ -1,0 +1,1 @@
+"""Kernels, GP forward models, trajectory sampling, moment matching, kernel embeddings."""

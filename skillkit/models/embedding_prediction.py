@@ -1,0 +1,196 @@
+"""Trajectory and reward prediction with kernel embeddings (thesis Sec. 5.2, Tables 5.1–5.2).
+
+A :class:`~skillkit.models.embedding.ConditionalEmbedding` fitted on observed transitions
+(inputs ``z_i``, successor states ``x'_i``) is the dynamics operator
+:math:`\\mathcal C_{x'|z}`. :func:`predict` rolls an initial state distribution forward:
+
+* **fixed policy** (``policy=None``, Table 5.1): ``z = x``; the embedding of x_{t+1} is
+  :math:`\\Phi_{x'}\\beta_t` and :math:`\\beta_{t+1} = (K + \\lambda I)^{-1} \\tilde K
+  \\beta_t`, :math:`\\tilde K_{ij} = k(x_i, x'_j)` (Eqs. 5.9–5.12);
+* **arbitrary, time-dependent policy** (Table 5.2, Eq. 5.14): ``z = [x, u]``; at every step
+  the observed successor states are paired with the new policy's controls,
+  :math:`z^\\pi_{j,t} = [x'_j, \\pi(x'_j, t)]`, and :math:`\\beta_{t+1} = (G + \\lambda I)^{-1}
+  \\tilde G^\\pi_t \\beta_t` with :math:`\\tilde G^\\pi_t = \\Phi_z^\\top \\Phi_{z^\\pi_t}`.
+
+Immediate rewards are embedded with a linear reward kernel, so the expected reward is
+:math:`\\mathbb E[r_t] = r'^\\top_t \\beta_t` with :math:`r'_{t,j} = r(z^\\pi_{j,t})`, the
+reward of the observed successor states under the evaluated policy (Sec. 5.4).
+
+Time indexing is 0-based and matches the rows of a :class:`~skillkit.trajectory.Trajectory`:
+row 0 is the initial state x_0, the policy is called as ``policy(states, t)`` at row ``t``,
+and ``betas[t - 1]`` holds the weights of the embedding of row ``t``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from skillkit._validation import check_array
+from skillkit.models.embedding import ConditionalEmbedding, conditional_weights, rollout_weights
+
+__all__ = ["TrajectoryEmbedding", "predict"]
+
+Policy = Callable[[np.ndarray, int], np.ndarray]
+Reward = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+
+@dataclass
+class TrajectoryEmbedding:
+    """Predicted embedding of a batch of B trajectory distributions over T rows.
+
+    Attributes
+    ----------
+    initial : ndarray, shape (B, n_x)
+        Mean of each initial state distribution (row 0).
+    betas : ndarray, shape (T - 1, N, B)
+        ``betas[t - 1]`` are the weights of the embedding of row t over the observed
+        successor states, :math:`\\mu_{x_t} = \\Phi_{x'} \\beta`.
+    rewards : ndarray, shape (T, B) or None
+        Expected immediate rewards E[r_t]; row 0 is the exact average over the initial
+        samples, rows t ≥ 1 are :math:`r'^\\top_t \\beta_t`.
+    """
+
+    initial: np.ndarray
+    betas: np.ndarray
+    rewards: np.ndarray | None = None
+
+    @property
+    def n_steps(self) -> int:
+        """Number of rows T (initial state included)."""
+        return self.betas.shape[0] + 1
+
+    def total_reward(self) -> np.ndarray:
+        """Expected trajectory reward :math:`\\sum_t \\mathbb E[r_t]`, shape (B,)."""
+        if self.rewards is None:
+            raise ValueError("rewards: this prediction was made without a reward function")
+        return self.rewards.sum(axis=0)
+
+    def means(self, model: ConditionalEmbedding) -> np.ndarray:
+        """Expected states :math:`X'^\\top \\beta_t` (linear read-out), shape (T, B, n_x)."""
+        body = np.stack([model.mean(b) for b in self.betas]) if len(self.betas) else np.zeros(
+            (0,) + self.initial.shape)
+        return np.concatenate([self.initial[None], body])
+
+    def preimages(self, model: ConditionalEmbedding, **kwargs) -> np.ndarray:
+        """Most likely states per row (Eq. 2.45, :meth:`ConditionalEmbedding.preimage`),
+        shape (T, B, n_x); row 0 is the initial mean."""
+        b = self.betas
+        flat = b.transpose(1, 0, 2).reshape(b.shape[1], -1)           # (N, (T-1) B)
+        decoded = model.preimage(flat, **kwargs).reshape(b.shape[0], b.shape[2], -1)
+        return np.concatenate([self.initial[None], decoded])
+
+
+def predict(model: ConditionalEmbedding, initial, n_steps: int, policy: Policy | None = None,
+            reward: Reward | None = None, time_invariant: bool = False) -> TrajectoryEmbedding:
+    """Kernel trajectory prediction, Table 5.1 (fixed policy) and Table 5.2 (any policy).
+
+    Parameters
+    ----------
+    model : ConditionalEmbedding
+        Dynamics operator fitted on transitions: inputs ``x_i`` (fixed policy) or
+        ``[x_i, u_i]`` (with ``policy``), targets the successor states ``x'_i``.
+    initial : array_like, shape (B, n_x) or (B, L, n_x)
+        B deterministic initial states, or B initial distributions given by L samples each
+        (Eq. 5.6).
+    n_steps : int
+        Number of rows T ≥ 2 of the predicted trajectories (initial state included).
+    policy : callable, optional
+        ``policy(states, t) -> controls``: states of shape (b, M, n_x) with b ∈ {1, B}
+        give controls of shape (b', M, n_u), b' ∈ {1, B}, broadcasting over the batch (a
+        per-query policy, e.g. one gain matrix per query, returns b' = B). Deterministic
+        (e.g. the commanded torque of a feedback law). ``None`` means the data were
+        collected with the fixed policy being predicted (Table 5.1).
+    reward : callable, optional
+        ``reward(states, controls) -> r`` with shapes (b, M, n_x), (b, M, n_u) → (b, M)
+        (controls have n_u = 0 without a policy). Gives :attr:`TrajectoryEmbedding.rewards`.
+    time_invariant : bool
+        The policy ignores ``t``: :math:`\\tilde G^\\pi` is computed once instead of per step.
+
+    Returns
+    -------
+    TrajectoryEmbedding
+    """
+    n_x = model.target_dim
+    x0 = check_array(initial, "initial", ndim=(2, 3))
+    if x0.shape[-1] != n_x:
+        raise ValueError(f"initial: expected states with {n_x} columns like the model's targets, "
+                         f"got shape {x0.shape}")
+    samples = x0 if x0.ndim == 3 else x0[:, None, :]                   # (B, L, n_x)
+    n_rows = int(n_steps)
+    if n_rows < 2:
+        raise ValueError(f"n_steps: expected at least 2 rows (initial state + one prediction), "
+                         f"got {n_steps}")
+    if policy is None and model.input_dim != n_x:
+        raise ValueError(f"policy: the model's inputs have {model.input_dim} columns but its "
+                         f"targets {n_x}; a state-action model needs a policy (Table 5.2)")
+    fixed = policy is None or time_invariant
+
+    def inputs_at(states: np.ndarray, t: int) -> tuple[np.ndarray, np.ndarray]:
+        if policy is None:
+            controls = np.zeros(states.shape[:-1] + (0,))
+        else:
+            controls = check_array(policy(states, t), "policy(states, t)", ndim=3)
+        if controls.shape[1] != states.shape[1] or controls.shape[0] not in (
+                1, states.shape[0], samples.shape[0]):
+            raise ValueError("policy(states, t): expected controls of shape "
+                             f"(b, {states.shape[1]}, n_u) for states of shape {states.shape}, "
+                             f"got {controls.shape}")
+        b = max(states.shape[0], controls.shape[0])
+        s = np.broadcast_to(states, (b,) + states.shape[1:])
+        c = np.broadcast_to(controls, (b,) + controls.shape[1:])
+        z = np.concatenate([s, c], axis=-1)
+        if z.shape[-1] != model.input_dim:
+            raise ValueError(f"policy(states, t): state-action inputs have {z.shape[-1]} columns, "
+                             f"the model was trained on {model.input_dim}")
+        return z, c
+
+    def rewards_at(states: np.ndarray, controls: np.ndarray) -> np.ndarray:
+        r = check_array(reward(np.broadcast_to(states, controls.shape[:-1] + states.shape[-1:]),
+                               controls), "reward(states, controls)", ndim=2)
+        if r.shape != controls.shape[:-1]:
+            raise ValueError(f"reward(states, controls): expected shape {controls.shape[:-1]}, "
+                             f"got {r.shape}")
+        return r
+
+    successors = model.targets[None]                                     # (1, N, n_x)
+    grams: dict[int, torch.Tensor] = {}
+    reward_vectors: dict[int, np.ndarray] = {}
+
+    def transition(t: int) -> torch.Tensor:
+        """G̃ at row t (maps the weights of row t to those of row t + 1)."""
+        key = 1 if fixed else t
+        if key not in grams:
+            z, c = inputs_at(successors, key)
+            g = model.cross_kernel(torch.from_numpy(np.ascontiguousarray(z)))   # (b, N, N)
+            grams.clear()                      # time-dependent: keep only the current step
+            grams[key] = g[0] if g.shape[0] == 1 else g
+            if reward is not None:
+                reward_vectors[key] = rewards_at(successors, c)
+        return grams[key]
+
+    def reward_vector(t: int) -> np.ndarray:
+        """r'_t = r(x'_j, π(x'_j, t)) over the observed successors, shape (b, N)."""
+        key = 1 if fixed else t
+        if key not in reward_vectors:
+            reward_vectors[key] = rewards_at(successors, inputs_at(successors, key)[1])
+        return reward_vectors[key]
+
+    n_batch = samples.shape[0]
+    with torch.no_grad():
+        z1, c1 = inputs_at(samples, 0)                                    # (B, L, d_z)
+        cross = model.cross_kernel(torch.from_numpy(np.ascontiguousarray(z1)))  # (B, N, L)
+        beta1 = conditional_weights(model.chol, cross.mean(-1).T.contiguous())  # (N, B)
+        betas = rollout_weights(model.chol, beta1, transition, n_rows - 1).numpy()
+
+    rewards = None
+    if reward is not None:
+        rewards = np.empty((n_rows, n_batch))
+        rewards[0] = rewards_at(samples, c1).mean(axis=1)
+        for t in range(1, n_rows):
+            r_t = np.broadcast_to(reward_vector(t), (n_batch, model.n))
+            rewards[t] = np.einsum("bn,nb->b", r_t, betas[t - 1])
+    return TrajectoryEmbedding(initial=samples.mean(axis=1), betas=betas, rewards=rewards)

@@ -1,0 +1,812 @@
+"""Exact GP regression and GP forward models (thesis 2.3, 4.2; Eqs 2.24–2.28).
+
+Pieces, in the order they are used:
+
+* :class:`ExactGP` — one GP per output dimension, all outputs batched in one GPyTorch
+  ``ExactGP`` (batch shape ``(E,)``) with the squared-exponential ARD kernel of Eq. (2.25).
+  Hyper-parameters θ = {w, σ_f, σ_ε} maximise the log marginal likelihood (2.28), summed over
+  outputs, with L-BFGS (strong-Wolfe line search; default) or Adam, on GPyTorch's *raw*
+  parameters (positive quantities are ``softplus(raw)``, so the optimiser is unconstrained
+  like the thesis's log-parameters, App. B.1). The objective is evaluated exactly (Cholesky,
+  at every size; no CG/Lanczos approximations) with its analytic gradient
+  (:func:`neg_log_marginal_likelihood`).
+* :class:`GPPredictor` — the trained model frozen into the few tensors every prediction
+  needs: support inputs, length-scales, σ_f², σ_ε², ``beta`` and ``iK`` (PILCO's names), so
+  that for a query x (per output a)
+
+  .. math:: \\mu_a(x) = k_a(x)^\\top \\beta_a, \\qquad
+            \\sigma_a^2(x) = \\sigma_{f,a}^2 - k_a(x)^\\top iK_a\\, k_a(x) + \\sigma_{\\varepsilon,a}^2
+            = \\sigma_{f,a}^2 - \\|R_a k_a(x)\\|^2 + \\sigma_{\\varepsilon,a}^2
+
+  With ``beta = (K + σ_ε²I)⁻¹y``, ``iK = (K + σ_ε²I)⁻¹`` and ``R = L⁻¹`` (all from one cached
+  Cholesky factor K + σ_ε²I = L Lᵀ) this is Eqs (2.26)–(2.27); the sparse GPs of
+  :mod:`skillkit.models.sparse` fill the same fields with their own ``beta``,
+  ``iK = K_mm⁻¹ − Σ`` and a factor R with RᵀR = iK. Predictions use the factor form: it costs
+  the same one (M × M) product per query as kᵀ iK k but its round-off grows with
+  √cond(K) instead of cond(K). Moment matching uses ``iK``. The trajectory sampler and
+  moment matching consume only this object.
+* :class:`ForwardModel` — a GP fitted on transitions (x_t, u_t) → x_{t+1}. By default the
+  GP learns the *difference* Δx = x_{t+1} − x_t (``target="delta"``, as PILCO does: the
+  zero-mean prior then means "the state stays", which extrapolates far better than "the
+  state jumps to 0"); ``target="next"`` learns x_{t+1} directly.
+
+Numerical policy (every safeguard is explicit and reported, never silent):
+
+* **Target standardisation.** Targets are centred and scaled per output, ``(y − m)/s``
+  (``standardize=True``); the prior mean is then the training mean m. A constant output
+  (s = 0) keeps s = 1 and is listed in ``diagnostics["constant_outputs"]``.
+* **Additive target noise (Sec. 4.2.3).** Before training, i.i.d. N(0, σ_add²) noise with
+  σ_add = α·10⁻²·std(y) (``additive_noise=α``, default 1 as in the thesis) is added to each
+  output column, drawn from ``rng``; ``α = 0`` turns it off.
+* **Noise floor.** σ_ε² ≥ ``noise_floor``·s² (a GPyTorch ``GreaterThan`` constraint, so the
+  optimiser can never cross it). If the trained noise ends within 1 % of the floor, the
+  outputs are listed in ``diagnostics["noise_at_floor"]`` and a :class:`GPNumericalWarning`
+  is issued.
+* **Jitter.** :func:`robust_cholesky` adds diagonal jitter only if a factorisation fails,
+  growing from 10⁻¹² to 10⁻⁴ × mean(diag) by factors of 100; the jitter used is recorded in
+  ``diagnostics["jitter"]`` and warned about. During training no jitter is added: an
+  objective evaluation whose matrix cannot be factorised counts as a failed step (below).
+* **Optimisation safety.** The best finite objective seen is kept; if an evaluation fails
+  (non-positive-definite matrix, non-finite value) the optimiser stops, the best parameters
+  are restored and ``diagnostics["stopped_early"]`` says why.
+* **Variance clamping.** The latent variance σ_f² − ‖Rk‖² is non-negative in exact
+  arithmetic; round-off can make it slightly negative near training inputs. Such values are
+  set to 0, counted (``Moments.n_clamped``), and a warning is issued when one is below
+  −10⁻⁶ σ_f² (beyond round-off).
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import gpytorch
+import numpy as np
+import torch
+from gpytorch.constraints import GreaterThan
+from linear_operator.utils.errors import NanError, NotPSDError
+
+from skillkit._validation import as_generator, check_array, check_positive
+from skillkit.models.kernels import SquaredExponential, se_kernel, se_kernel_scaled
+
+__all__ = [
+    "DTYPE",
+    "ExactGP",
+    "ForwardModel",
+    "GPNumericalError",
+    "GPNumericalWarning",
+    "GPPredictor",
+    "Moments",
+    "robust_cholesky",
+]
+
+DTYPE = torch.float64
+#: Latent variances below −VARIANCE_TOL·σ_f² are reported as beyond round-off.
+VARIANCE_TOL = 1e-6
+_JITTER_LEVELS = (1e-12, 1e-10, 1e-8, 1e-6, 1e-4)
+
+
+class GPNumericalWarning(RuntimeWarning):
+    """A numerical safeguard (jitter, noise floor, variance clamp, early stop) kicked in."""
+
+
+class GPNumericalError(RuntimeError):
+    """A matrix stayed non-positive-definite even with the largest allowed jitter."""
+
+
+# ---------------------------------------------------------------------------- linear algebra
+def robust_cholesky(A: torch.Tensor, what: str = "matrix") -> tuple[torch.Tensor, float]:
+    """Cholesky factor of a (batch of) symmetric positive-definite matrices, jitter only if needed.
+
+    Policy: factorise ``A``; if that fails for any batch entry, add ``j · mean(diag A) · I``
+    to the failing entries with ``j`` = 1e-12, 1e-10, 1e-8, 1e-6, 1e-4 in turn (a
+    :class:`GPNumericalWarning` reports the level that worked).
+
+    Parameters
+    ----------
+    A : Tensor, shape (..., n, n)
+    what : str
+        Name of the matrix for messages.
+
+    Returns
+    -------
+    L : Tensor, shape (..., n, n)
+        Lower-triangular factor, ``L Lᵀ = A + jitter``.
+    jitter : float
+        The relative jitter j that was needed (0.0 if none).
+
+    Raises
+    ------
+    GPNumericalError
+        If ``A`` has non-finite entries or is not positive definite even with j = 1e-4.
+    """
+    if not torch.isfinite(A).all():
+        raise GPNumericalError(f"{what}: contains non-finite entries")
+    L, info = torch.linalg.cholesky_ex(A)
+    if not torch.any(info):
+        return L, 0.0
+    scale = A.diagonal(dim1=-2, dim2=-1).mean(-1).abs().clamp_min(torch.finfo(A.dtype).tiny)
+    eye = torch.eye(A.shape[-1], dtype=A.dtype, device=A.device)
+    failed = info > 0
+    for j in _JITTER_LEVELS:
+        shift = torch.where(failed, j * scale, torch.zeros_like(scale))
+        L2, info2 = torch.linalg.cholesky_ex(A + shift[..., None, None] * eye)
+        if not torch.any(info2):
+            warnings.warn(f"{what}: not numerically positive definite; added jitter {j:.0e} x mean(diag) "
+                          f"to {int(failed.sum())} of {failed.numel()} matrices", GPNumericalWarning,
+                          stacklevel=2)
+            return torch.where(failed[..., None, None], L2, L), j
+    raise GPNumericalError(f"{what}: not positive definite even with jitter {_JITTER_LEVELS[-1]:.0e} x mean(diag)")
+
+
+# ---------------------------------------------------------------------------- predictor
+class Moments(NamedTuple):
+    """Per-output predictive moments of a batch of queries.
+
+    Attributes
+    ----------
+    mean, var : Tensor, shape (n, E)
+        Predictive mean and variance (raw target units).
+    n_clamped : Tensor, shape ()
+        How many latent variances were negative (round-off) and set to 0.
+    worst : Tensor, shape ()
+        The most negative latent variance relative to σ_f² (0 if none).
+    """
+
+    mean: torch.Tensor
+    var: torch.Tensor
+    n_clamped: torch.Tensor
+    worst: torch.Tensor
+
+
+@dataclass(frozen=True)
+class GPPredictor:
+    """A trained SE-kernel GP (exact or sparse) frozen for prediction, batched over E outputs.
+
+    Everything that does not depend on the query is precomputed here once, so predictions
+    are two batched matrix products (the trajectory sampler calls :meth:`moments` at every
+    step; moment matching reads the fields directly).
+
+    Attributes
+    ----------
+    support : Tensor, shape (E, M, d)
+        Training inputs (exact GP, M = N, shared by all outputs) or pseudo-inputs (sparse).
+    lengthscale : Tensor, shape (E, d)
+        ARD length-scales w (Eq. 2.25).
+    outputscale : Tensor, shape (E,)
+        σ_f² in standardised units.
+    noise : Tensor, shape (E,)
+        σ_ε² in standardised units.
+    beta : Tensor, shape (E, M)
+        Mean weights: μ = kᵀβ (Eq. 2.26: β = (K + σ_ε²I)⁻¹y).
+    iK : Tensor, shape (E, M, M)
+        Variance matrix: σ² = σ_f² − kᵀ iK k + σ_ε² (Eq. 2.27: iK = (K + σ_ε²I)⁻¹; for
+        FITC/VFE iK = K_mm⁻¹ − Σ).
+    var_factor : Tensor, shape (E, M, M)
+        R with RᵀR = iK (L⁻¹ for the exact GP), used for the predictive variance.
+    y_mean, y_scale : Tensor, shape (E,)
+        Target standardisation: raw = y_mean + y_scale · standardised.
+    """
+
+    support: torch.Tensor
+    lengthscale: torch.Tensor
+    outputscale: torch.Tensor
+    noise: torch.Tensor
+    beta: torch.Tensor
+    iK: torch.Tensor
+    var_factor: torch.Tensor
+    y_mean: torch.Tensor
+    y_scale: torch.Tensor
+    _scaled_support: torch.Tensor = field(init=False, repr=False)
+    _support_sqnorm: torch.Tensor = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        E, M, d = self.support.shape
+        expected = {"lengthscale": (E, d), "outputscale": (E,), "noise": (E,), "beta": (E, M),
+                    "iK": (E, M, M), "var_factor": (E, M, M), "y_mean": (E,), "y_scale": (E,)}
+        for name, shape in expected.items():
+            if tuple(getattr(self, name).shape) != shape:
+                raise ValueError(f"{name}: expected shape {shape}, got {tuple(getattr(self, name).shape)}")
+        b = self.support / self.lengthscale[:, None, :]
+        object.__setattr__(self, "_scaled_support", b.contiguous())
+        object.__setattr__(self, "_support_sqnorm", (b * b).sum(-1))
+
+    @property
+    def input_dim(self) -> int:
+        return int(self.support.shape[2])
+
+    @property
+    def output_dim(self) -> int:
+        return int(self.support.shape[0])
+
+    @property
+    def n_support(self) -> int:
+        return int(self.support.shape[1])
+
+    @property
+    def device(self) -> torch.device:
+        return self.support.device
+
+    @property
+    def dtype(self) -> torch.dtype:
+        return self.support.dtype
+
+    def to(self, device=None, dtype: torch.dtype | None = None) -> GPPredictor:
+        """A copy on ``device`` / in ``dtype`` (self if nothing changes)."""
+        device = self.device if device is None else torch.device(device)
+        dtype = self.dtype if dtype is None else dtype
+        if device == self.device and dtype == self.dtype:
+            return self
+        fields = ("support", "lengthscale", "outputscale", "noise", "beta", "iK", "var_factor", "y_mean",
+                  "y_scale")
+        return GPPredictor(**{f: getattr(self, f).to(device=device, dtype=dtype) for f in fields})
+
+    def kernel_vectors(self, x: torch.Tensor) -> torch.Tensor:
+        """k_a(x, support_a) for every output: Tensor (E, n, M), for queries x of shape (n, d)."""
+        a = x.unsqueeze(0) / self.lengthscale[:, None, :]
+        return se_kernel_scaled(a, self._scaled_support, self._support_sqnorm, self.outputscale)
+
+    def moments(self, x: torch.Tensor, include_noise: bool = True) -> Moments:
+        """Predictive mean and variance (Eqs 2.26–2.27) at queries ``x``.
+
+        Parameters
+        ----------
+        x : Tensor, shape (n, d)
+            Queries on this predictor's device and dtype (not validated: hot path).
+        include_noise : bool
+            Add σ_ε² (the distribution of a noisy observation y) or not (latent f).
+
+        Returns
+        -------
+        Moments
+            ``mean`` and ``var`` of shape (n, E) in raw target units.
+        """
+        k = self.kernel_vectors(x)  # (E, n, M)
+        mean = torch.bmm(k, self.beta.unsqueeze(-1)).squeeze(-1)  # (E, n)
+        v = torch.bmm(k, self.var_factor.transpose(-1, -2))  # (R k)ᵀ, (E, n, M)
+        quad = (v * v).sum(-1)
+        var = self.outputscale[:, None] - quad
+        rel = var / self.outputscale[:, None]
+        neg = rel < 0
+        n_clamped = neg.sum()
+        worst = rel.min().clamp_max(0.0) if rel.numel() else torch.zeros((), dtype=x.dtype, device=x.device)
+        var = var.clamp_min(0.0)
+        if include_noise:
+            var = var + self.noise[:, None]
+        mean = self.y_mean[:, None] + self.y_scale[:, None] * mean
+        var = self.y_scale[:, None] ** 2 * var
+        return Moments(mean.T, var.T, n_clamped, worst)
+
+    def latent_covariance(self, x: torch.Tensor) -> torch.Tensor:
+        """Joint posterior covariance of f at queries x: Tensor (E, n, n), raw units.
+
+        ``K(x, x) − K(x, Z) iK K(Z, x)``, the covariance of p(f_* | x_*, D) used to draw
+        posterior function samples (Fig. 2.12).
+        """
+        xs = x.unsqueeze(0).expand(self.output_dim, *x.shape)
+        kxx = se_kernel(xs, xs, self.lengthscale[:, None, :], self.outputscale)
+        k = self.kernel_vectors(x)
+        v = k @ self.var_factor.transpose(-1, -2)
+        cov = kxx - v @ v.transpose(-1, -2)
+        cov = 0.5 * (cov + cov.transpose(-1, -2))
+        return self.y_scale[:, None, None] ** 2 * cov
+
+
+def warn_if_clamped(m: Moments, where: str) -> None:
+    """Issue a :class:`GPNumericalWarning` if a latent variance was negative beyond round-off."""
+    worst = float(m.worst)
+    if worst < -VARIANCE_TOL:
+        warnings.warn(f"{where}: {int(m.n_clamped)} predictive variance(s) were negative (worst "
+                      f"{worst:.2e} x sigma_f^2, beyond round-off) and were set to 0; the model is "
+                      "ill-conditioned (raise noise_floor or additive_noise)", GPNumericalWarning, stacklevel=3)
+
+
+# ---------------------------------------------------------------------------- training helpers
+class _Diverged(Exception):
+    pass
+
+
+def optimize(parameters: list[torch.nn.Parameter], loss_fn: Callable[[], torch.Tensor], n_steps: int,
+             method: str = "lbfgs", learning_rate: float = 0.05) -> dict:
+    """Minimise ``loss_fn`` over ``parameters``, keeping the best finite value seen.
+
+    Parameters
+    ----------
+    parameters : list of Parameter
+        Unconstrained (raw) parameters.
+    loss_fn : callable
+        Returns the scalar objective (e.g. the negative log marginal likelihood per datum).
+    n_steps : int
+        L-BFGS iterations (each may evaluate ``loss_fn`` a few times in the strong-Wolfe
+        line search) or Adam steps. 0 leaves the parameters unchanged.
+    method : {"lbfgs", "adam"}
+    learning_rate : float
+        Adam step size (L-BFGS uses unit steps with a line search).
+
+    Returns
+    -------
+    dict
+        ``trace`` (objective per evaluation), ``n_evaluations``, ``n_iterations``,
+        ``best`` (the final, best objective) and ``stopped_early`` (reason or None).
+    """
+    _check_method(method)
+    trace: list[float] = []
+    best = {"value": math.inf, "state": None}
+    stopped = None
+
+    def evaluate() -> torch.Tensor:
+        try:
+            loss = loss_fn()
+        except (GPNumericalError, NotPSDError, NanError) as exc:
+            raise _Diverged(str(exc)) from exc
+        value = float(loss.detach())
+        if not math.isfinite(value):
+            raise _Diverged(f"non-finite objective {value}")
+        trace.append(value)
+        if value < best["value"]:
+            best["value"] = value
+            best["state"] = [p.detach().clone() for p in parameters]
+        return loss
+
+    n_iter = 0
+    if n_steps > 0:
+        try:
+            if method == "lbfgs":
+                opt = torch.optim.LBFGS(parameters, lr=1.0, max_iter=n_steps, max_eval=int(n_steps * 1.25) + 5,
+                                        tolerance_grad=1e-9, tolerance_change=1e-12, history_size=50,
+                                        line_search_fn="strong_wolfe")
+
+                def closure():
+                    opt.zero_grad()
+                    loss = evaluate()
+                    loss.backward()
+                    for p in parameters:
+                        if p.grad is not None and not torch.isfinite(p.grad).all():
+                            raise _Diverged("non-finite gradient")
+                    return loss
+
+                opt.step(closure)
+                n_iter = int(opt.state[opt._params[0]].get("n_iter", 0))
+            else:
+                opt = torch.optim.Adam(parameters, lr=learning_rate)
+                for _ in range(n_steps):
+                    opt.zero_grad()
+                    loss = evaluate()
+                    loss.backward()
+                    opt.step()
+                    n_iter += 1
+        except _Diverged as exc:
+            stopped = str(exc)
+    if best["state"] is not None:
+        with torch.no_grad():
+            for p, v in zip(parameters, best["state"]):
+                p.copy_(v)
+    elif n_steps == 0 or stopped is not None:
+        with torch.no_grad():
+            try:
+                value = float(loss_fn().detach())
+            except (GPNumericalError, NotPSDError, NanError):
+                value = math.nan
+        best["value"] = value
+    if stopped is not None:
+        warnings.warn(f"hyper-parameter optimisation stopped early ({stopped}); restored the best "
+                      f"parameters seen (objective {best['value']:.6g})", GPNumericalWarning, stacklevel=3)
+    return {"trace": trace, "n_evaluations": len(trace), "n_iterations": n_iter, "best": best["value"],
+            "stopped_early": stopped}
+
+
+def _check_method(method: str) -> str:
+    if method not in ("lbfgs", "adam"):
+        raise ValueError(f"optimizer: expected 'lbfgs' or 'adam', got {method!r}")
+    return method
+
+
+# ---------------------------------------------------------------------------- GP base
+class _GPRegression:
+    """Shared plumbing of :class:`ExactGP` and the sparse GPs: validation, additive noise,
+    standardisation, training loop, predictor, diagnostics. Subclasses implement
+    ``_build``, ``_loss``, ``_parameters`` and ``_make_predictor``."""
+
+    def __init__(self, *, lengthscale=None, outputscale: float | None = None, noise: float | None = None,
+                 noise_floor: float = 1e-6, additive_noise: float = 1.0, n_steps: int = 150,
+                 optimizer: str = "lbfgs", learning_rate: float = 0.05, standardize: bool = True):
+        self.init_lengthscale = None if lengthscale is None else check_array(lengthscale, "lengthscale", ndim=(0, 1, 2))
+        if self.init_lengthscale is not None and np.any(self.init_lengthscale <= 0):
+            raise ValueError(f"lengthscale: expected positive values, got {lengthscale}")
+        self.init_outputscale = None if outputscale is None else check_positive(outputscale, "outputscale")
+        self.init_noise = None if noise is None else check_positive(noise, "noise")
+        self.noise_floor = check_positive(noise_floor, "noise_floor")
+        self.additive_noise = check_positive(additive_noise, "additive_noise", allow_zero=True)
+        if int(n_steps) != n_steps or n_steps < 0:
+            raise ValueError(f"n_steps: expected a non-negative integer, got {n_steps!r}")
+        self.n_steps = int(n_steps)
+        self.optimizer = _check_method(optimizer)
+        self.learning_rate = check_positive(learning_rate, "learning_rate")
+        self.standardize = bool(standardize)
+        self.predictor: GPPredictor | None = None
+        self.diagnostics: dict = {}
+
+    # -- fitting
+    def fit(self, X, Y, rng=None) -> _GPRegression:
+        """Fit hyper-parameters and cache the predictor.
+
+        Parameters
+        ----------
+        X : array_like, shape (N, d)
+            Training inputs.
+        Y : array_like, shape (N, E) or (N,)
+            Training targets (one independent GP per column).
+        rng : Generator, int or None
+            Randomness of the additive target noise and of pseudo-input initialisation.
+
+        Returns
+        -------
+        self
+        """
+        X = check_array(X, "X", ndim=2)
+        Y = check_array(Y, "Y", ndim=(1, 2))
+        self._squeeze = Y.ndim == 1
+        Y = Y[:, None] if Y.ndim == 1 else Y
+        if X.shape[0] != Y.shape[0]:
+            raise ValueError(f"Y: expected {X.shape[0]} rows like X, got shape {Y.shape}")
+        if X.shape[0] < 1 or X.shape[1] < 1 or Y.shape[1] < 1:
+            raise ValueError(f"X: expected at least one row and one column, got shape {X.shape}")
+        rng = as_generator(rng)
+        N, E = Y.shape
+        diag: dict = {"n_data": N, "input_dim": X.shape[1], "output_dim": E}
+        # Additive target noise (Sec. 4.2.3): sigma_add = alpha * 1e-2 * std(y), per output.
+        raw_std = Y.std(axis=0)
+        sigma_add = self.additive_noise * 1e-2 * raw_std
+        if self.additive_noise > 0:
+            Y = Y + sigma_add * rng.standard_normal(Y.shape)
+        diag["additive_noise_std"] = sigma_add
+        # Standardisation.
+        if self.standardize:
+            m, s = Y.mean(axis=0), Y.std(axis=0)
+            const = s <= 1e-12 * (1.0 + np.abs(m))
+            s = np.where(const, 1.0, s)
+        else:
+            m, s, const = np.zeros(E), np.ones(E), np.zeros(E, dtype=bool)
+        diag["constant_outputs"] = np.flatnonzero(const).tolist()
+        self.y_mean, self.y_scale = m, s
+        self.X = torch.as_tensor(X, dtype=DTYPE)
+        self.Y = torch.as_tensor(((Y - m) / s).T.copy(), dtype=DTYPE)  # (E, N), standardised
+        self._init = self._initial_hypers(X)
+        self._build(rng)
+        res = optimize(self._parameters(), lambda: self._loss() / N, self.n_steps, self.optimizer,
+                       self.learning_rate)
+        diag.update({"objective_trace": res["trace"], "n_evaluations": res["n_evaluations"],
+                     "n_iterations": res["n_iterations"], "stopped_early": res["stopped_early"]})
+        with torch.no_grad():
+            self.predictor, extra = self._make_predictor()
+        diag.update(extra)
+        noise = self.predictor.noise.cpu().numpy()
+        at_floor = np.flatnonzero(noise < 1.01 * self.noise_floor).tolist()
+        diag["noise_at_floor"] = at_floor
+        if at_floor:
+            warnings.warn(f"noise variance of output(s) {at_floor} is at the floor noise_floor="
+                          f"{self.noise_floor:g} (x std(y)^2): the data look noise-free to the model",
+                          GPNumericalWarning, stacklevel=2)
+        self.diagnostics = diag
+        return self
+
+    def _initial_hypers(self, X: np.ndarray) -> dict:
+        """Initial values in standardised units (PILCO's rule: w = std(x), σ_f² = var(y), σ_ε² = σ_f²/100)."""
+        E, d = self.Y.shape[0], X.shape[1]
+        if self.init_lengthscale is None:
+            sd = X.std(axis=0)
+            ls = np.where(sd > 0, sd, 1.0)
+        else:
+            ls = self.init_lengthscale
+        try:
+            ls = np.broadcast_to(ls, (E, d)).copy()
+        except ValueError:
+            raise ValueError(f"lengthscale: expected a scalar, shape ({d},) or ({E}, {d}), got shape "
+                             f"{np.shape(self.init_lengthscale)}") from None
+        scale2 = self.y_scale**2
+        os = np.ones(E) if self.init_outputscale is None else self.init_outputscale / scale2
+        nz = 1e-2 * os if self.init_noise is None else self.init_noise / scale2
+        nz = np.maximum(nz, 1.5 * self.noise_floor)
+        return {"lengthscale": ls, "outputscale": np.broadcast_to(os, (E,)).copy(), "noise": nz}
+
+    # -- prediction
+    def _check_fitted(self) -> GPPredictor:
+        if self.predictor is None:
+            raise RuntimeError(f"{type(self).__name__}: call fit() before predicting")
+        return self.predictor
+
+    def predict(self, X, include_noise: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        """Predictive mean and variance (Eqs 2.26–2.27) at ``X``.
+
+        Parameters
+        ----------
+        X : array_like, shape (n, d)
+        include_noise : bool
+            Include σ_ε² (predict y) or not (predict f).
+
+        Returns
+        -------
+        mean, var : ndarray, shape (n, E) (or (n,) if fitted on 1-D targets)
+        """
+        pred = self._check_fitted()
+        x = check_array(X, "X", ndim=2)
+        if x.shape[1] != pred.input_dim:
+            raise ValueError(f"X: expected {pred.input_dim} columns, got shape {x.shape}")
+        with torch.no_grad():
+            m = pred.moments(torch.as_tensor(x, dtype=pred.dtype, device=pred.device), include_noise)
+        warn_if_clamped(m, type(self).__name__)
+        mean, var = m.mean.cpu().numpy(), m.var.cpu().numpy()
+        return (mean[:, 0], var[:, 0]) if self._squeeze else (mean, var)
+
+    @property
+    def hyperparameters(self) -> dict[str, np.ndarray]:
+        """Trained θ = {w (E, d), σ_f² (E,), σ_ε² (E,)} in raw target units."""
+        pred = self._check_fitted()
+        s2 = torch.as_tensor(self.y_scale**2, dtype=pred.dtype)
+        return {"lengthscale": pred.lengthscale.cpu().numpy(),
+                "outputscale": (pred.outputscale.cpu() * s2).numpy(),
+                "noise": (pred.noise.cpu() * s2).numpy()}
+
+    def _standardisation_tensors(self) -> tuple[torch.Tensor, torch.Tensor]:
+        return torch.as_tensor(self.y_mean, dtype=DTYPE), torch.as_tensor(self.y_scale, dtype=DTYPE)
+
+
+# ---------------------------------------------------------------------------- exact GP
+class _SENegLogML(torch.autograd.Function):
+    """Σ_a −log p(y_a | X, θ_a), Eq. (2.28) per output a, with its analytic gradient.
+
+    With K_y = K_f + σ_ε²I, α = K_y⁻¹y and W = K_y⁻¹ − ααᵀ, the gradient of the negative log
+    marginal likelihood w.r.t. K_y is ½W (Rasmussen & Williams Eq. 5.9); chained through
+    the SE kernel (the derivatives of App. B.1), with P = W ∘ K_f:
+
+    * ∂/∂σ_ε² = ½ tr W
+    * ∂/∂σ_f² = ½ ΣP / σ_f²
+    * ∂/∂w_d = ½ Σ_ij P_ij (x_id − x_jd)² / w_d³ = (Σ_i x_id² (P1)_i − x_dᵀ P x_d) / w_d³
+
+    One Cholesky factorisation and one inverse per evaluation; autograd through a generic
+    Cholesky backward costs about twice as much at N = 1000.
+    """
+
+    @staticmethod
+    def forward(ctx, lengthscale, outputscale, noise, X, Y):
+        a = X.unsqueeze(0) / lengthscale[:, None, :]
+        K = se_kernel_scaled(a, a, (a * a).sum(-1), outputscale)
+        K.diagonal(dim1=-2, dim2=-1).add_(noise[:, None])
+        L, info = torch.linalg.cholesky_ex(K)
+        K.diagonal(dim1=-2, dim2=-1).sub_(noise[:, None])  # back to K_f (saves an N x N copy)
+        if torch.any(info):
+            raise GPNumericalError("K + noise*I is not numerically positive definite at these hyper-parameters")
+        alpha = torch.cholesky_solve(Y.unsqueeze(-1), L).squeeze(-1)
+        N = X.shape[0]
+        value = (0.5 * (Y * alpha).sum() + torch.log(L.diagonal(dim1=-2, dim2=-1)).sum()
+                 + 0.5 * N * Y.shape[0] * math.log(2 * math.pi))
+        ctx.save_for_backward(lengthscale, outputscale, X, K, L, alpha)
+        return value
+
+    @staticmethod
+    def backward(ctx, grad):
+        lengthscale, outputscale, X, Kf, L, alpha = ctx.saved_tensors
+        W = torch.cholesky_inverse(L)
+        W.sub_(alpha[:, :, None] * alpha[:, None, :])
+        g_noise = 0.5 * W.diagonal(dim1=-2, dim2=-1).sum(-1)
+        P = W.mul_(Kf)
+        g_os = 0.5 * P.sum((-2, -1)) / outputscale
+        r = P.sum(-1)  # (E, N)
+        PX = P @ X  # (E, N, d)
+        s = (X.unsqueeze(0) ** 2 * r[..., None]).sum(1) - (X.unsqueeze(0) * PX).sum(1)  # (E, d)
+        g_ls = s / lengthscale**3
+        return grad * g_ls, grad * g_os, grad * g_noise, None, None
+
+
+def neg_log_marginal_likelihood(X: torch.Tensor, Y: torch.Tensor, lengthscale: torch.Tensor,
+                                outputscale: torch.Tensor, noise: torch.Tensor) -> torch.Tensor:
+    """−Σ_a log p(y_a | X, θ_a) of Eq. (2.28) for E independent SE-kernel GPs (differentiable).
+
+    Parameters
+    ----------
+    X : Tensor, shape (N, d)
+        Inputs shared by all outputs.
+    Y : Tensor, shape (E, N)
+        Targets, one row per output.
+    lengthscale : Tensor, shape (E, d)
+    outputscale, noise : Tensor, shape (E,)
+
+    Returns
+    -------
+    Tensor, shape ()
+        The summed negative log marginal likelihood; its gradient w.r.t. the three
+        hyper-parameter tensors is analytic (see :class:`_SENegLogML`).
+    """
+    return _SENegLogML.apply(lengthscale, outputscale, noise, X, Y)
+
+
+class _BatchedExactGP(gpytorch.models.ExactGP):
+    """E independent zero-mean GPs with SE-ARD kernels, batched (GPyTorch batch-independent outputs)."""
+
+    def __init__(self, x: torch.Tensor, y: torch.Tensor, likelihood, kernel):
+        super().__init__(x, y, likelihood)
+        self.mean_module = gpytorch.means.ZeroMean(batch_shape=y.shape[:1])
+        self.covar_module = kernel
+
+    def forward(self, x):
+        return gpytorch.distributions.MultivariateNormal(self.mean_module(x), self.covar_module(x))
+
+
+class ExactGP(_GPRegression):
+    """Standard (full) GP regression, one GP per output, batched in one GPyTorch model.
+
+    The hyper-parameters live in a GPyTorch ``ExactGP`` (``self.model``, batch shape (E,),
+    kernel :class:`~skillkit.models.kernels.SquaredExponential`, ``GaussianLikelihood`` with
+    the noise floor as its constraint), so GPyTorch tools apply to it unchanged. Training
+    minimises the negative of Eq. (2.28) summed over outputs via
+    :func:`neg_log_marginal_likelihood` (same value as GPyTorch's
+    ``ExactMarginalLogLikelihood``, analytic gradient) w.r.t. GPyTorch's raw parameters.
+
+    Parameters
+    ----------
+    lengthscale : float or array_like, shape (d,) or (E, d), optional
+        Initial ARD length-scales (default: per-input standard deviation).
+    outputscale, noise : float, optional
+        Initial σ_f² and σ_ε² in raw target units (default: var(y) and var(y)/100).
+    noise_floor : float
+        Lower bound of σ_ε² relative to var(y) (default 1e-6).
+    additive_noise : float
+        α of Sec. 4.2.3: targets get N(0, (α·10⁻²·std(y))²) noise before training (default 1;
+        0 disables).
+    n_steps : int
+        Optimisation steps on the log marginal likelihood (2.28) (default 150, the thesis's
+        setting; 0 keeps the initial values).
+    optimizer : {"lbfgs", "adam"}
+    learning_rate : float
+        Adam step size.
+    standardize : bool
+        Centre and scale targets per output (default True).
+
+    Examples
+    --------
+    >>> gp = ExactGP(additive_noise=0.0).fit(X, Y, rng=0)      # doctest: +SKIP
+    >>> mean, var = gp.predict(X_test)                          # doctest: +SKIP
+    """
+
+    def _build(self, rng: np.random.Generator) -> None:
+        E, N = self.Y.shape
+        d = self.X.shape[1]
+        init = self._init
+        kernel = SquaredExponential(d, batch_shape=torch.Size([E]))
+        kernel.lengthscale = torch.as_tensor(init["lengthscale"], dtype=DTYPE)[:, None, :]
+        kernel.outputscale = torch.as_tensor(init["outputscale"], dtype=DTYPE)
+        likelihood = gpytorch.likelihoods.GaussianLikelihood(
+            batch_shape=torch.Size([E]), noise_constraint=GreaterThan(self.noise_floor)).double()
+        likelihood.noise = torch.as_tensor(init["noise"], dtype=DTYPE)[:, None]
+        self.model = _BatchedExactGP(self.X.expand(E, N, d), self.Y, likelihood, kernel).double()
+        self.likelihood = likelihood
+
+    def _parameters(self) -> list[torch.nn.Parameter]:
+        return list(self.model.parameters())
+
+    def _hypers(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        kern = self.model.covar_module
+        return kern.lengthscale[:, 0, :], kern.outputscale, self.likelihood.noise[:, 0]
+
+    def _loss(self) -> torch.Tensor:
+        """Negative log marginal likelihood (2.28), summed over outputs (standardised units)."""
+        return neg_log_marginal_likelihood(self.X, self.Y, *self._hypers())
+
+    def _make_predictor(self) -> tuple[GPPredictor, dict]:
+        self.model.eval()
+        ls, os, noise = (t.detach() for t in self._hypers())
+        E, N = self.Y.shape
+        X = self.X.expand(E, *self.X.shape)
+        K = se_kernel(X, X, ls[:, None, :], os)
+        K.diagonal(dim1=-2, dim2=-1).add_(noise[:, None])
+        L, jitter = robust_cholesky(K, "K + noise*I")
+        alpha = torch.cholesky_solve(self.Y.unsqueeze(-1), L).squeeze(-1)
+        iK = torch.cholesky_inverse(L)
+        iK = 0.5 * (iK + iK.transpose(-1, -2))
+        R = torch.linalg.solve_triangular(L, torch.eye(N, dtype=DTYPE).expand_as(L), upper=False)
+        y_mean, y_scale = self._standardisation_tensors()
+        self.cholesky = L
+        # Eq. (2.28) per output, in raw target units (standardisation is a change of variables).
+        lml = (-0.5 * (self.Y * alpha).sum(-1) - torch.log(L.diagonal(dim1=-2, dim2=-1)).sum(-1)
+               - 0.5 * N * math.log(2 * math.pi) - N * torch.log(y_scale))
+        pred = GPPredictor(X, ls, os, noise, alpha, iK, R, y_mean, y_scale)
+        return pred, {"jitter": jitter, "log_marginal_likelihood": lml.numpy()}
+
+
+# ---------------------------------------------------------------------------- forward model
+class ForwardModel:
+    """A GP forward model of the dynamics fitted on transitions (Sec. 4.2).
+
+    ``target="delta"`` (default): x_{t+1} = x_t + f(x_t, u_t) + ε, the GP learns Δx
+    (PILCO's choice; the zero-mean prior predicts "no change" far from data).
+    ``target="next"``: x_{t+1} = f(x_t, u_t) + ε.
+    The GP input is z = [x_t, u_t]; each state dimension has its own GP.
+
+    Parameters
+    ----------
+    gp : ExactGP, FITC or VFE
+        An unfitted GP regression object (its settings are used as given).
+    target : {"delta", "next"}
+    """
+
+    def __init__(self, gp: _GPRegression, target: str = "delta"):
+        if not isinstance(gp, _GPRegression):
+            raise ValueError(f"gp: expected an ExactGP, FITC or VFE instance, got {type(gp).__name__}")
+        if target not in ("delta", "next"):
+            raise ValueError(f"target: expected 'delta' or 'next', got {target!r}")
+        self.gp = gp
+        self.target = target
+        self.state_dim = 0
+        self.control_dim = 0
+        self._predictor: GPPredictor | None = None
+
+    @property
+    def delta(self) -> bool:
+        return self.target == "delta"
+
+    @property
+    def predictor(self) -> GPPredictor:
+        if self._predictor is None:
+            raise RuntimeError("ForwardModel: call fit() first")
+        return self._predictor
+
+    def fit(self, states, controls, next_states, rng=None) -> ForwardModel:
+        """Fit the GP on transitions (x_t, u_t) → x_{t+1}.
+
+        Parameters
+        ----------
+        states : array_like, shape (N, n_x)
+        controls : array_like, shape (N, n_u)
+        next_states : array_like, shape (N, n_x)
+        rng : Generator, int or None
+            Passed to the GP (additive noise, pseudo-input initialisation).
+        """
+        x = check_array(states, "states", ndim=2)
+        u = check_array(controls, "controls", ndim=2)
+        xn = check_array(next_states, "next_states", ndim=2)
+        if u.shape[0] != x.shape[0]:
+            raise ValueError(f"controls: expected {x.shape[0]} rows like states, got shape {u.shape}")
+        if xn.shape != x.shape:
+            raise ValueError(f"next_states: expected shape {x.shape} like states, got {xn.shape}")
+        self.state_dim, self.control_dim = x.shape[1], u.shape[1]
+        y = xn - x if self.delta else xn
+        self.gp.fit(np.hstack([x, u]), y, rng)
+        self._predictor = self.gp.predictor
+        return self
+
+    def to(self, device=None, dtype: torch.dtype | None = None) -> ForwardModel:
+        """A shallow copy whose predictor lives on ``device`` in ``dtype``."""
+        out = ForwardModel.__new__(ForwardModel)
+        out.__dict__.update(self.__dict__)
+        out._predictor = self.predictor.to(device, dtype)
+        return out
+
+    def next_state_moments(self, x: torch.Tensor, u: torch.Tensor) -> Moments:
+        """Per-dimension Gaussian p(x_{t+1} | x_t, u_t) for a batch (tensors, hot path).
+
+        Parameters
+        ----------
+        x : Tensor, shape (n, n_x)
+        u : Tensor, shape (n, n_u)
+
+        Returns
+        -------
+        Moments
+            mean and var of shape (n, n_x).
+        """
+        m = self.predictor.moments(torch.cat([x, u], dim=-1))
+        return m._replace(mean=x + m.mean) if self.delta else m
+
+    def predict(self, states, controls) -> tuple[np.ndarray, np.ndarray]:
+        """Mean and variance of x_{t+1} for arrays of states (n, n_x) and controls (n, n_u)."""
+        pred = self.predictor
+        x = check_array(states, "states", shape=(None, self.state_dim))
+        u = check_array(controls, "controls", shape=(x.shape[0], self.control_dim))
+        with torch.no_grad():
+            m = self.next_state_moments(torch.as_tensor(x, dtype=pred.dtype, device=pred.device),
+                                        torch.as_tensor(u, dtype=pred.dtype, device=pred.device))
+        warn_if_clamped(m, "ForwardModel")
+        return m.mean.cpu().numpy(), m.var.cpu().numpy()

@@ -1,0 +1,271 @@
+"""Deterministic long-term prediction: exact moment matching and linearisation (Sec. 2.1.2).
+
+For a GP with SE kernels (exact or sparse, any :class:`~skillkit.models.gp.GPPredictor`)
+and a Gaussian input z ~ N(m, S), the predictive distribution of y = f(z) + ε is not
+Gaussian; these functions return Gaussian approximations of it (Figs 2.6–2.7):
+
+* :func:`moment_match` — the exact first and second moments of y and the exact input–output
+  covariance cov(z, y), as in PILCO (Deisenroth 2010, Sec. 2.3; Quiñonero-Candela et al.
+  2003). Per output a, with Λ_a = diag(w_a²), ν_i = z_i − m and support inputs z_i:
+
+  .. math::
+      q_{ai} &= \\sigma_{f,a}^2 |S\\Lambda_a^{-1} + I|^{-1/2}
+                \\exp\\big(-\\tfrac12 \\nu_i^\\top (S + \\Lambda_a)^{-1} \\nu_i\\big), \\qquad
+      \\mathbb{E}[y_a] = \\beta_a^\\top q_a, \\\\
+      \\mathrm{cov}(z, y_a) &= \\textstyle\\sum_i \\beta_{ai} q_{ai} S (S + \\Lambda_a)^{-1} \\nu_i, \\\\
+      Q^{ab}_{ij} &= k_a(z_i, m) k_b(z_j, m) |R|^{-1/2}
+                  \\exp\\big(\\tfrac12 \\zeta_{ij}^\\top R^{-1} S \\zeta_{ij}\\big), \\quad
+                  R = S(\\Lambda_a^{-1} + \\Lambda_b^{-1}) + I, \\;
+                  \\zeta_{ij} = \\Lambda_a^{-1}\\nu_i + \\Lambda_b^{-1}\\nu_j, \\\\
+      \\mathrm{cov}(y_a, y_b) &= \\beta_a^\\top Q^{ab} \\beta_b - \\mathbb{E}[y_a]\\mathbb{E}[y_b]
+          + \\delta_{ab}\\big(\\sigma_{f,a}^2 - \\mathrm{tr}(iK_a Q^{aa}) + \\sigma_{\\varepsilon,a}^2\\big).
+
+  ``beta`` and ``iK`` are the predictor's fields, so the same code serves exact GPs
+  (iK = (K + σ_ε²I)⁻¹) and FITC/VFE (iK = K_mm⁻¹ − Σ). Every Q^{ab} is formed in the log
+  domain from one (M × d)(d × M) product; its entries never exceed σ_{f,a}² σ_{f,b}², so
+  nothing overflows.
+* :func:`linearize` — the first-order alternative of Fig. 2.6: the predictive mean μ(m),
+  its Jacobian J at m (analytic), cov(y) ≈ J S Jᵀ + diag σ²(m), cov(z, y) ≈ S Jᵀ.
+* :func:`propagate` — long-term prediction p(x_0) → p(x_1) → … → p(x_T) (Eq. 4.4) through a
+  :class:`~skillkit.models.gp.ForwardModel` with a linear, possibly time-varying controller
+  u_t = K_t x_t + k_t (a PD tracker is one), so that z_t = [x_t, u_t] is Gaussian; with the
+  Δx model x_{t+1} = x_t + Δ, cov(x_{t+1}) = S + cov(Δ) + cov(x, Δ) + cov(x, Δ)ᵀ.
+  Torque limits are not representable (that is the sampling approach's advantage, Sec. 4.2.1).
+
+All computations are in torch float64; results are torch tensors.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from skillkit._validation import check_array
+from skillkit.models.gp import DTYPE, VARIANCE_TOL, ForwardModel, GPNumericalWarning, GPPredictor
+
+__all__ = ["GaussianPrediction", "linearize", "moment_match", "propagate"]
+
+
+@dataclass
+class GaussianPrediction:
+    """A Gaussian approximation of p(y) for a Gaussian input z ~ N(m, S).
+
+    Attributes
+    ----------
+    mean : Tensor, shape (E,)
+    cov : Tensor, shape (E, E)
+    input_output_cov : Tensor, shape (D, E)
+        cov(z, y) (not PILCO's S⁻¹cov(z, y)).
+    """
+
+    mean: torch.Tensor
+    cov: torch.Tensor
+    input_output_cov: torch.Tensor
+
+
+def _check_gaussian(mean, cov, dim: int, name: str = "mean") -> tuple[torch.Tensor, torch.Tensor]:
+    m = mean if isinstance(mean, torch.Tensor) else torch.as_tensor(check_array(mean, name, shape=(dim,)))
+    S = cov if isinstance(cov, torch.Tensor) else torch.as_tensor(check_array(cov, "cov", shape=(dim, dim)))
+    m, S = m.to(DTYPE), S.to(DTYPE)
+    if tuple(m.shape) != (dim,):
+        raise ValueError(f"{name}: expected shape ({dim},), got {tuple(m.shape)}")
+    if tuple(S.shape) != (dim, dim):
+        raise ValueError(f"cov: expected shape ({dim}, {dim}), got {tuple(S.shape)}")
+    if not (torch.isfinite(m).all() and torch.isfinite(S).all()):
+        raise ValueError(f"{name}, cov: contain non-finite values")
+    scale = float(S.abs().max()) if S.numel() else 0.0
+    if float((S - S.T).abs().max()) > 1e-9 * (1.0 + scale):
+        raise ValueError("cov: expected a symmetric matrix")
+    if dim and float(torch.linalg.eigvalsh(S).min()) < -1e-9 * (1.0 + scale):
+        raise ValueError("cov: expected a positive semi-definite matrix")
+    return m, 0.5 * (S + S.T)
+
+
+def moment_match(predictor: GPPredictor, mean, cov, include_noise: bool = True) -> GaussianPrediction:
+    """Exact mean, covariance and input–output covariance of a GP's prediction at z ~ N(m, S).
+
+    Parameters
+    ----------
+    predictor : GPPredictor
+        SE-kernel GP (exact or sparse), E outputs, D inputs.
+    mean : array_like or Tensor, shape (D,)
+    cov : array_like or Tensor, shape (D, D)
+        Symmetric positive semi-definite (degenerate covariances, e.g. z = [x, Kx + k], are
+        fine).
+    include_noise : bool
+        Include σ_ε² (distribution of y) or not (distribution of f).
+
+    Returns
+    -------
+    GaussianPrediction
+        In raw target units.
+    """
+    pred = predictor.to("cpu", DTYPE)
+    E, M, D = pred.support.shape
+    m, S = _check_gaussian(mean, cov, D)
+    iL = 1.0 / pred.lengthscale  # (E, D)
+    sf2 = pred.outputscale
+    eye = torch.eye(D, dtype=DTYPE)
+    nu = pred.support - m  # (E, M, D)
+    nut = nu * iL[:, None, :]  # Λ^{-1/2} ν
+    # Mean and input-output covariance: (S + Λ_a)^{-1} = Λ_a^{-1/2} (Λ_a^{-1/2} S Λ_a^{-1/2} + I)^{-1} Λ_a^{-1/2}.
+    Sa = iL[:, :, None] * S * iL[:, None, :] + eye
+    Lsa = torch.linalg.cholesky(Sa)
+    sol = torch.cholesky_solve(nut.transpose(-1, -2), Lsa)  # (E, D, M)
+    quad = (nut * sol.transpose(-1, -2)).sum(-1)
+    logdet_sa = 2.0 * torch.log(Lsa.diagonal(dim1=-2, dim2=-1)).sum(-1)
+    q = sf2[:, None] * torch.exp(-0.5 * quad - 0.5 * logdet_sa[:, None])
+    bq = pred.beta * q
+    mu = bq.sum(-1)  # (E,)
+    io = S @ (iL * (sol @ bq[..., None]).squeeze(-1)).T  # (D, E)
+    # Second moments.
+    logk = torch.log(sf2)[:, None] - 0.5 * (nut * nut).sum(-1)  # (E, M)
+    zeta = nut * iL[:, None, :]  # Λ^{-1} ν, (E, M, D)
+    second = torch.empty((E, E), dtype=DTYPE)
+    latent_var = torch.empty(E, dtype=DTYPE)
+    for a in range(E):
+        b = torch.arange(a, E)
+        dab = iL[a] ** 2 + iL[b] ** 2  # (nb, D): Λ_a^{-1} + Λ_b^{-1}
+        sd = dab.sqrt()
+        P = sd[:, :, None] * S * sd[:, None, :]
+        LR = torch.linalg.cholesky(P + eye)  # R is similar to P + I
+        T = torch.cholesky_solve(P, LR) / (sd[:, :, None] * sd[:, None, :])  # R^{-1} S
+        T = 0.5 * (T + T.transpose(-1, -2))
+        logdet_r = 2.0 * torch.log(LR.diagonal(dim1=-2, dim2=-1)).sum(-1)
+        za = zeta[a].expand(len(b), M, D)
+        Ta = za @ T  # (nb, M, D)
+        qa = 0.5 * (Ta * za).sum(-1)
+        qb = 0.5 * ((zeta[b] @ T) * zeta[b]).sum(-1)
+        logQ = torch.baddbmm((logk[a] + qa)[:, :, None] + (logk[b] + qb)[:, None, :]
+                             - 0.5 * logdet_r[:, None, None], Ta, zeta[b].transpose(-1, -2))
+        Q = torch.exp(logQ)  # (nb, M, M)
+        vals = ((Q @ pred.beta[b].unsqueeze(-1)).squeeze(-1) * pred.beta[a]).sum(-1)
+        second[a, a:] = vals
+        second[a:, a] = vals
+        latent_var[a] = sf2[a] - (pred.iK[a] * Q[0]).sum()
+    _report_clamp(latent_var / sf2, "moment_match")
+    V = second - mu[:, None] * mu[None, :]
+    V = V + torch.diag(latent_var.clamp_min(0.0) + (pred.noise if include_noise else 0.0))
+    V = 0.5 * (V + V.T)
+    s = pred.y_scale
+    return GaussianPrediction(pred.y_mean + s * mu, s[:, None] * V * s[None, :], io * s[None, :])
+
+
+def linearize(predictor: GPPredictor, mean, cov, include_noise: bool = True) -> GaussianPrediction:
+    """First-order (Taylor) Gaussian approximation at z ~ N(m, S) (Fig. 2.6).
+
+    μ(m) and σ²(m) from Eqs (2.26)–(2.27); J = ∂μ/∂z at m, analytic for the SE kernel:
+    J_a = Σ_i β_ai k_a(z_i, m) Λ_a⁻¹ (z_i − m). Then cov(y) = J S Jᵀ + diag σ²(m) and
+    cov(z, y) = S Jᵀ.
+
+    Parameters and returns as :func:`moment_match`.
+    """
+    pred = predictor.to("cpu", DTYPE)
+    E, M, D = pred.support.shape
+    m, S = _check_gaussian(mean, cov, D)
+    k = pred.kernel_vectors(m[None, :])[:, 0, :]  # (E, M)
+    mom = pred.moments(m[None, :], include_noise)
+    _report_clamp(mom.worst.reshape(1), "linearize")
+    J = ((pred.beta * k)[:, :, None] * (pred.support - m)).sum(1) / pred.lengthscale**2  # (E, D)
+    J = pred.y_scale[:, None] * J
+    V = J @ S @ J.T + torch.diag(mom.var[0])
+    return GaussianPrediction(mom.mean[0], 0.5 * (V + V.T), S @ J.T)
+
+
+def _report_clamp(rel: torch.Tensor, where: str) -> None:
+    worst = float(rel.min())
+    if worst < -VARIANCE_TOL:
+        warnings.warn(f"{where}: an expected latent variance was negative ({worst:.2e} x sigma_f^2, beyond "
+                      "round-off) and was set to 0", GPNumericalWarning, stacklevel=3)
+
+
+def propagate(model: ForwardModel, mean0, cov0, horizon: int, gain, offset=None,
+              method: str = "moment_matching") -> tuple[torch.Tensor, torch.Tensor]:
+    """Long-term Gaussian prediction of the state distribution with a linear controller.
+
+    Parameters
+    ----------
+    model : ForwardModel
+        Fitted GP forward model (``target`` "delta" or "next").
+    mean0 : array_like, shape (n_x,)
+    cov0 : array_like, shape (n_x, n_x)
+        p(x_0) = N(mean0, cov0).
+    horizon : int
+        T.
+    gain : array_like, shape (n_u, n_x) or (T, n_u, n_x)
+        K (or K_t) of u_t = K_t x_t + k_t.
+    offset : array_like, shape (n_u,) or (T, n_u), optional
+        k (or k_t); default 0.
+    method : {"moment_matching", "linearization"}
+
+    Returns
+    -------
+    means : Tensor, shape (T + 1, n_x)
+    covs : Tensor, shape (T + 1, n_x, n_x)
+    """
+    if method not in ("moment_matching", "linearization"):
+        raise ValueError(f"method: expected 'moment_matching' or 'linearization', got {method!r}")
+    step = moment_match if method == "moment_matching" else linearize
+    if int(horizon) != horizon or horizon < 1:
+        raise ValueError(f"horizon: expected a positive integer, got {horizon!r}")
+    T, n_x, n_u = int(horizon), model.state_dim, model.control_dim
+    m, S = _check_gaussian(mean0, cov0, n_x, "mean0")
+    K = torch.as_tensor(check_array(gain, "gain", ndim=(2, 3)))
+    K = K.expand(T, *K.shape) if K.ndim == 2 else K
+    if tuple(K.shape) != (T, n_u, n_x):
+        raise ValueError(f"gain: expected shape ({n_u}, {n_x}) or ({T}, {n_u}, {n_x}), got {tuple(K.shape)}")
+    k = torch.zeros((T, n_u), dtype=DTYPE) if offset is None else torch.as_tensor(
+        check_array(offset, "offset", ndim=(1, 2)))
+    k = k.expand(T, n_u) if k.ndim == 1 else k
+    if tuple(k.shape) != (T, n_u):
+        raise ValueError(f"offset: expected shape ({n_u},) or ({T}, {n_u}), got {tuple(k.shape)}")
+    predictor = model.predictor.to("cpu", DTYPE)
+    means = torch.empty((T + 1, n_x), dtype=DTYPE)
+    covs = torch.empty((T + 1, n_x, n_x), dtype=DTYPE)
+    means[0], covs[0] = m, S
+    eye = torch.eye(n_x, dtype=DTYPE)
+    with torch.no_grad():
+        for t in range(T):
+            A = torch.cat([eye, K[t]], dim=0)  # z = A x + [0; k_t]
+            mz = A @ m + torch.cat([torch.zeros(n_x, dtype=DTYPE), k[t]])
+            Sz = A @ S @ A.T
+            g = step(predictor, mz, 0.5 * (Sz + Sz.T))
+            if model.delta:
+                cx = g.input_output_cov[:n_x]  # cov(x_t, Δ)
+                m = m + g.mean
+                S = S + g.cov + cx + cx.T
+            else:
+                m, S = g.mean, g.cov
+            S = 0.5 * (S + S.T)
+            means[t + 1], covs[t + 1] = m, S
+    return means, covs
+
+
+def gaussian_kl(mean_p, cov_p, mean_q, cov_q) -> np.ndarray:
+    """KL(N(m_p, S_p) || N(m_q, S_q)) for batches (numpy, float64).
+
+    .. math:: \\tfrac12\\big(\\mathrm{tr}(S_q^{-1}S_p) + (m_q - m_p)^\\top S_q^{-1}(m_q - m_p)
+              - d + \\log|S_q| - \\log|S_p|\\big)
+
+    Parameters
+    ----------
+    mean_p, mean_q : array_like, shape (..., d)
+    cov_p, cov_q : array_like, shape (..., d, d)
+        Positive definite.
+
+    Returns
+    -------
+    ndarray, shape (...)
+    """
+    mp, mq = np.asarray(mean_p, float), np.asarray(mean_q, float)
+    Sp, Sq = np.asarray(cov_p, float), np.asarray(cov_q, float)
+    d = mp.shape[-1]
+    Lq = np.linalg.cholesky(Sq)
+    Lp = np.linalg.cholesky(Sp)
+    A = np.linalg.solve(Lq, Lp)
+    diff = np.linalg.solve(Lq, (mq - mp)[..., None])[..., 0]
+    logdet = 2.0 * (np.log(np.diagonal(Lq, axis1=-2, axis2=-1)).sum(-1) - np.log(np.diagonal(Lp, axis1=-2, axis2=-1)).sum(-1))
+    return 0.5 * ((A**2).sum((-2, -1)) + (diff**2).sum(-1) - d + logdet)

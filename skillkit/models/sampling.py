@@ -1,0 +1,227 @@
+"""Batched stochastic trajectory prediction with a learned forward model (Secs 2.1.2, 4.2.1).
+
+The one trajectory sampler every forward model uses. For B (context, ω) pairs and L
+trajectories each it draws, in one vectorised loop over time (Eq. 4.3, Fig. 2.4),
+
+.. math:: u_t = \\pi_\\omega(t, x_t), \\qquad x_{t+1} \\sim p(x_{t+1} \\mid x_t, u_t),
+
+for all B·L trajectories at once: every step is a few batched matrix products (the GP
+predictor's kernel vectors, ``kᵀβ`` and ``kᵀ iK k``), which is why sampling parallelises so
+well (Sec. 4.2.1).
+
+Design:
+
+* **Model protocol.** Any object with ``state_dim``, ``control_dim``,
+  ``to(device, dtype)`` and ``next_state_moments(x, u) -> (mean, var, ...)`` (per-dimension
+  Gaussian, tensors of shape (n, n_x)) can be sampled; :class:`~skillkit.models.gp.ForwardModel`
+  (exact, FITC or VFE GP) is the one in this package.
+* **Policy.** ``policy(t, x, pair) -> u`` with ``x`` of shape (n, n_x), ``pair`` the index
+  (n,) of each row's (context, ω) pair (so a policy gathers its per-pair parameters, e.g.
+  PD gains or a reference trajectory), returning (n, n_u). Anything goes (nonlinear
+  feedback, DMP tracking); an optional ``control_limit`` saturates u (torque limits) and the
+  saturated entries are counted.
+* **Caching.** The model is moved to the device once; the predictor's step-invariant
+  quantities (scaled support inputs, their norms, β, iK) are computed when it is built.
+* **Memory.** Trajectories are processed in chunks of rows, each chunk over the whole
+  horizon; the chunk size bounds the (E, chunk, M) kernel work arrays by ``max_chunk_bytes``.
+  The Gaussian noise of all trajectories is drawn up front from one stream (shape
+  (B·L, T, n_x)), so results do not depend on the chunk size.
+* **Randomness.** ``rng`` (numpy Generator, int, SeedSequence or None) seeds a torch
+  generator on the device: the same seed gives the same samples.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+import torch
+
+from skillkit._validation import as_generator, check_positive
+from skillkit.models.gp import DTYPE, VARIANCE_TOL, GPNumericalWarning
+
+__all__ = ["SampledTrajectories", "StepModel", "sample_trajectories", "sampler_flops_per_step"]
+
+
+class StepModel(Protocol):
+    """What :func:`sample_trajectories` needs from a forward model."""
+
+    state_dim: int
+    control_dim: int
+
+    def to(self, device=None, dtype: torch.dtype | None = None) -> StepModel: ...
+
+    def next_state_moments(self, x: torch.Tensor, u: torch.Tensor): ...
+
+
+Policy = Callable[[int, torch.Tensor, torch.Tensor], torch.Tensor]
+
+
+@dataclass
+class SampledTrajectories:
+    """Trajectories sampled for B (context, ω) pairs × L repetitions.
+
+    Attributes
+    ----------
+    states : Tensor, shape (B, L, T + 1, n_x)
+        x_0 … x_T.
+    controls : Tensor, shape (B, L, T, n_u)
+        u_0 … u_{T−1} (after saturation).
+    n_saturated : int
+        Number of control entries clipped to ``control_limit``.
+    n_variance_clamped : int
+        Number of predictive variances that were negative from round-off and set to 0
+        (see :mod:`skillkit.models.gp`).
+    worst_variance : float
+        The most negative latent variance relative to σ_f² (0 if none).
+    """
+
+    states: torch.Tensor
+    controls: torch.Tensor
+    n_saturated: int
+    n_variance_clamped: int
+    worst_variance: float
+
+    def numpy(self) -> tuple[np.ndarray, np.ndarray]:
+        """States and controls as numpy arrays."""
+        return self.states.cpu().numpy(), self.controls.cpu().numpy()
+
+
+def sample_trajectories(model: StepModel, x0, policy: Policy, horizon: int, n_trajectories: int = 1,
+                        rng=None, *, control_limit=None, device=None, dtype: torch.dtype = DTYPE,
+                        max_chunk_bytes: int = 2**28) -> SampledTrajectories:
+    """Sample L trajectories for each of B start conditions / policies in one vectorised call.
+
+    Parameters
+    ----------
+    model : StepModel
+        Fitted forward model, e.g. :class:`~skillkit.models.gp.ForwardModel`.
+    x0 : array_like or Tensor, shape (B, n_x) or (B, L, n_x)
+        Start states: one per pair (shared by its L trajectories) or one per trajectory
+        (e.g. drawn from the task's initial-state distribution p(x_0; s), Eq. 4.3).
+    policy : callable
+        ``policy(t, x, pair) -> u``: ``t`` the step (int), ``x`` Tensor (n, n_x), ``pair``
+        LongTensor (n,) in [0, B); returns Tensor (n, n_u) on the same device and dtype.
+    horizon : int
+        T, the number of transitions.
+    n_trajectories : int
+        L, trajectories per pair.
+    rng : Generator, int, SeedSequence or None
+        Randomness.
+    control_limit : float or array_like, shape (n_u,), optional
+        Saturate ``|u| ≤ control_limit`` (counted in ``n_saturated``).
+    device : str or torch.device, optional
+        Where to compute (default: the CPU).
+    dtype : torch.dtype
+        Floating point type (float64 by default).
+    max_chunk_bytes : int
+        Bound on the kernel work arrays per chunk of trajectories (default 256 MiB).
+
+    Returns
+    -------
+    SampledTrajectories
+
+    Raises
+    ------
+    ValueError
+        On bad shapes, non-finite start states, a policy returning the wrong shape or
+        non-finite controls.
+    """
+    device = torch.device("cpu" if device is None else device)
+    n_x, n_u = int(model.state_dim), int(model.control_dim)
+    if int(horizon) != horizon or horizon < 1:
+        raise ValueError(f"horizon: expected a positive integer, got {horizon!r}")
+    if int(n_trajectories) != n_trajectories or n_trajectories < 1:
+        raise ValueError(f"n_trajectories: expected a positive integer, got {n_trajectories!r}")
+    T, L = int(horizon), int(n_trajectories)
+    x0 = torch.as_tensor(x0, dtype=dtype, device=device) if not isinstance(x0, torch.Tensor) else x0.to(device, dtype)
+    if x0.ndim == 2 and x0.shape[1] == n_x:
+        x0 = x0[:, None, :].expand(x0.shape[0], L, n_x)
+    elif not (x0.ndim == 3 and x0.shape[1:] == (L, n_x)):
+        raise ValueError(f"x0: expected shape (B, {n_x}) or (B, {L}, {n_x}), got {tuple(x0.shape)}")
+    if not torch.isfinite(x0).all():
+        raise ValueError("x0: contains non-finite values")
+    B = x0.shape[0]
+    if B < 1:
+        raise ValueError("x0: expected at least one start state (B >= 1)")
+    limit = None
+    if control_limit is not None:
+        lim = np.broadcast_to(np.asarray(control_limit, dtype=float), (n_u,))
+        for v in lim:
+            check_positive(v, "control_limit")
+        limit = torch.as_tensor(lim.copy(), dtype=dtype, device=device)
+
+    model = model.to(device, dtype)
+    gen = torch.Generator(device=device)
+    gen.manual_seed(int(as_generator(rng).integers(2**63 - 1)))
+    n = B * L
+    eps = torch.randn((n, T, n_x), generator=gen, dtype=dtype, device=device)
+    pair = torch.arange(B, device=device).repeat_interleave(L)
+    states = torch.empty((n, T + 1, n_x), dtype=dtype, device=device)
+    controls = torch.empty((n, T, n_u), dtype=dtype, device=device)
+    states[:, 0] = x0.reshape(n, n_x)
+    chunk = _chunk_rows(model, max_chunk_bytes, n)
+    n_sat = torch.zeros((), dtype=torch.long, device=device)
+    n_clamp = torch.zeros((), dtype=torch.long, device=device)
+    worst = torch.zeros((), dtype=dtype, device=device)
+    with torch.no_grad():
+        for lo in range(0, n, chunk):
+            hi = min(lo + chunk, n)
+            x = states[lo:hi, 0]
+            p = pair[lo:hi]
+            for t in range(T):
+                u = policy(t, x, p)
+                if t == 0 and lo == 0:
+                    _check_control(u, hi - lo, n_u, dtype, device)
+                if limit is not None:
+                    n_sat += (u.abs() > limit).sum()
+                    u = torch.maximum(torch.minimum(u, limit), -limit)
+                m = model.next_state_moments(x, u)
+                x = m[0] + m[1].sqrt() * eps[lo:hi, t]
+                states[lo:hi, t + 1] = x
+                controls[lo:hi, t] = u
+                if len(m) > 2:
+                    n_clamp += m[2]
+                    worst = torch.minimum(worst, m[3])
+    if not torch.isfinite(controls).all():
+        raise ValueError("policy: returned non-finite controls")
+    worst_f = float(worst)
+    if worst_f < -VARIANCE_TOL:
+        warnings.warn(f"sample_trajectories: {int(n_clamp)} predictive variances were negative (worst "
+                      f"{worst_f:.2e} x sigma_f^2, beyond round-off) and set to 0", GPNumericalWarning,
+                      stacklevel=2)
+    return SampledTrajectories(states.reshape(B, L, T + 1, n_x), controls.reshape(B, L, T, n_u),
+                               int(n_sat), int(n_clamp), worst_f)
+
+
+def _check_control(u, n: int, n_u: int, dtype, device) -> None:
+    if not isinstance(u, torch.Tensor):
+        raise ValueError(f"policy: expected a torch.Tensor of shape ({n}, {n_u}), got {type(u).__name__}")
+    if tuple(u.shape) != (n, n_u):
+        raise ValueError(f"policy: expected controls of shape ({n}, {n_u}), got {tuple(u.shape)}")
+    if u.dtype != dtype or u.device != torch.device(device):
+        raise ValueError(f"policy: expected controls as {dtype} on {device}, got {u.dtype} on {u.device}")
+
+
+def _chunk_rows(model, max_bytes: int, n: int) -> int:
+    """Rows per chunk so that ~3 (E, rows, M) work arrays fit in ``max_bytes``."""
+    pred = getattr(model, "predictor", None)
+    if pred is None:
+        return n
+    per_row = 3 * pred.output_dim * pred.n_support * pred.support.element_size()
+    return int(max(1, min(n, max_bytes // max(per_row, 1))))
+
+
+def sampler_flops_per_step(output_dim: int, n_support: int, input_dim: int) -> int:
+    """Floating-point operations of one sampled transition of one trajectory with a GP model.
+
+    Per output: the scaled squared distances to the M support points (a (1 × d)(d × M)
+    product plus norms, ≈ 2Md + 3M), the exponential (counted as 1 per entry), the mean
+    kᵀβ (2M) and the variance kᵀ iK k (2M² + 2M). Used by the benchmark to compare the
+    sampler with the machine's matmul peak.
+    """
+    E, M, d = int(output_dim), int(n_support), int(input_dim)
+    return E * (2 * M * d + 3 * M + M + 2 * M + 2 * M * M + 2 * M)

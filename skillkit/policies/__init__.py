@@ -1,0 +1,1 @@
+"""Upper-level policies π(ω|s), context features and Dynamic Movement Primitives."""

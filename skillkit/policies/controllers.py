@@ -1,0 +1,366 @@
+"""Low-level trajectory trackers: a PD law and a MuJoCo reference-tracking loop.
+
+The thesis's robot tasks (Appendix C) turn a desired joint trajectory (from a DMP, Eqs
+2.21–2.23) into torques with a PD tracking controller. This module holds that piece once:
+
+* :func:`pd_torque` is the pure, vectorised PD law
+  ``u = kp (q_ref − q) + kd (q̇_ref − q̇) + bias``.
+* :func:`run_feedback` runs a compiled MuJoCo model under any state-feedback law with
+  zero-order-hold torques computed at the control rate.
+* :func:`track_reference` is that loop with the PD law, optionally adding MuJoCo's bias
+  forces (``data.qfrc_bias`` = gravity + Coriolis/centrifugal terms c(q, q̇)) as gravity
+  compensation, and optionally in its inertia-weighted (computed-torque) form
+  u = M(q)(q̈_ref + kp e + kd ė) + c(q, q̇).
+
+Torques are applied through ``data.qfrc_applied`` on the tracked joints' degrees of freedom,
+so the tracker works on any model whose tracked joints are hinges or slides, with or
+without ``<motor>`` actuators (``data.ctrl`` is left untouched).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import mujoco
+import numpy as np
+
+from skillkit._validation import check_array, check_positive
+
+__all__ = ["control_substeps", "joint_addresses", "pd_torque", "run_feedback", "track_reference"]
+
+_INSTABILITY_WARNINGS = (
+    mujoco.mjtWarning.mjWARN_BADQACC,
+    mujoco.mjtWarning.mjWARN_BADQPOS,
+    mujoco.mjtWarning.mjWARN_BADQVEL,
+)
+
+
+def pd_torque(q, qd, q_ref, qd_ref, kp, kd, bias=None) -> np.ndarray:
+    """PD tracking torque ``u = kp ⊙ (q_ref − q) + kd ⊙ (q̇_ref − q̇) + bias``.
+
+    Pure and vectorised: every argument broadcasts against the joint axis (the last one).
+
+    Parameters
+    ----------
+    q, qd : array_like, shape (..., n)
+        Joint positions and velocities.
+    q_ref, qd_ref : array_like, shape (..., n)
+        Desired positions and velocities.
+    kp, kd : float or array_like, shape (n,)
+        Proportional and derivative gains (diagonal gain matrices), non-negative.
+    bias : array_like, shape (..., n), optional
+        Feed-forward torque added to the PD term, e.g. gravity compensation.
+
+    Returns
+    -------
+    ndarray, shape (..., n)
+        Joint torques.
+    """
+    q = check_array(q, "q")
+    qd = check_array(qd, "qd")
+    q_ref = check_array(q_ref, "q_ref")
+    qd_ref = check_array(qd_ref, "qd_ref")
+    n = q.shape[-1] if q.ndim else 1
+    kp = _gain(kp, "kp", n)
+    kd = _gain(kd, "kd", n)
+    bias = None if bias is None else check_array(bias, "bias")
+    try:
+        return _pd(q, qd, q_ref, qd_ref, kp, kd, bias)
+    except ValueError as exc:
+        raise ValueError(f"q, qd, q_ref, qd_ref, bias: shapes do not broadcast ({exc})") from None
+
+
+def _pd(q, qd, q_ref, qd_ref, kp, kd, bias=None) -> np.ndarray:
+    """The PD law of :func:`pd_torque` without input validation (inner loops)."""
+    u = kp * (q_ref - q) + kd * (qd_ref - qd)
+    return u if bias is None else u + bias
+
+
+def _instability_count(data: mujoco.MjData) -> int:
+    """Total count of MuJoCo's instability warnings (bad qpos, qvel, qacc) so far."""
+    return sum(data.warning[w].number for w in _INSTABILITY_WARNINGS)
+
+
+def joint_addresses(
+    model: mujoco.MjModel, joint_ids: Sequence[int] | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Joint ids and their ``qpos`` and ``qvel``/dof addresses.
+
+    Parameters
+    ----------
+    model : mujoco.MjModel
+        Compiled model.
+    joint_ids : sequence of int, optional
+        Joints to address (default: every joint). Each must be a hinge or a slide.
+
+    Returns
+    -------
+    ids, qpos_adr, dof_adr : ndarray of int, shape (n,)
+    """
+    ids = np.arange(model.njnt) if joint_ids is None else np.asarray(joint_ids, dtype=int).ravel()
+    if ids.size == 0:
+        raise ValueError("joint_ids: expected at least one joint")
+    if np.any(ids < 0) or np.any(ids >= model.njnt):
+        raise ValueError(f"joint_ids: expected ids in [0, {model.njnt}), got {ids.tolist()}")
+    one_dof = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
+    bad = [int(j) for j in ids if int(model.jnt_type[j]) not in one_dof]
+    if bad:
+        raise ValueError(
+            f"joint_ids: joints {bad} are not hinge or slide joints (free/ball joints "
+            "cannot be PD-tracked here)"
+        )
+    return ids, model.jnt_qposadr[ids].copy(), model.jnt_dofadr[ids].copy()
+
+
+def run_feedback(
+    model: mujoco.MjModel,
+    data: mujoco.MjData,
+    controller: Callable[[int, np.ndarray, np.ndarray, mujoco.MjData], np.ndarray],
+    n_steps: int,
+    control_dt: float,
+    *,
+    joint_ids: Sequence[int] | None = None,
+    on_step: Callable[[int, mujoco.MjData], None] | None = None,
+) -> dict[str, np.ndarray]:
+    """Run MuJoCo under a state-feedback law with zero-order-hold torques.
+
+    For each control step ``t = 0..n_steps-1`` the loop
+
+    1. computes the position/velocity-dependent quantities of the current state
+       (``mujoco.mj_step1``; ``mj_forward`` for the RK4 integrator), so kinematics
+       (``site_xpos``) and the bias force ``qfrc_bias`` are current; records ``q[t], q̇[t]``
+       of the controlled joints and calls ``on_step(t, data)``;
+    2. asks ``u[t] = controller(t, q[t], q̇[t], data)``;
+    3. holds ``u[t]`` in ``data.qfrc_applied`` on the controlled joints' degrees of freedom
+       for ``control_dt / model.opt.timestep`` physics steps (``mj_step2`` then
+       ``mj_step(nstep=...)``).
+
+    After the call ``data`` holds the state at time ``n_steps · control_dt``, one control
+    step after the last recorded row.
+
+    Parameters
+    ----------
+    model, data : mujoco.MjModel, mujoco.MjData
+        Compiled model and its data, set to the initial state (advanced in place).
+    controller : callable
+        ``controller(t, q, qd, data) -> u`` with ``q, qd, u`` of shape (n,).
+    n_steps : int
+        Number of control steps T.
+    control_dt : float
+        Control period in seconds; a whole multiple of ``model.opt.timestep``.
+    joint_ids : sequence of int, optional
+        The ``n`` controlled joints (hinge or slide). Default: every joint.
+    on_step : callable, optional
+        ``on_step(t, data)``, called after the state of step ``t`` is recorded.
+
+    Returns
+    -------
+    dict
+        ``q``, ``qd``: (T, n) joint positions and velocities at the control steps;
+        ``u``: (T, n) applied torques.
+
+    Raises
+    ------
+    SimulationFailure
+        If the state or a torque becomes non-finite, or MuJoCo flags an instability (it
+        would otherwise silently reset the simulation).
+    """
+    ids, qadr, dadr = joint_addresses(model, joint_ids)
+    n = ids.size
+    qadr, dadr = _as_slice(qadr), _as_slice(dadr)
+    if int(n_steps) != n_steps or n_steps < 0:
+        raise ValueError(f"n_steps: expected a non-negative integer, got {n_steps!r}")
+    n_steps = int(n_steps)
+    substeps = control_substeps(model, control_dt)
+    rk4 = int(model.opt.integrator) == int(mujoco.mjtIntegrator.mjINT_RK4)
+
+    q_out = np.empty((n_steps, n))
+    qd_out = np.empty((n_steps, n))
+    u_out = np.empty((n_steps, n))
+    warn0 = _instability_count(data)
+    data.qfrc_applied[dadr] = 0.0
+    for t in range(n_steps):
+        if rk4:
+            mujoco.mj_forward(model, data)
+        else:
+            mujoco.mj_step1(model, data)
+        q_out[t] = data.qpos[qadr]
+        qd_out[t] = data.qvel[dadr]
+        if on_step is not None:
+            on_step(t, data)
+        u_out[t] = controller(t, q_out[t], qd_out[t], data)
+        data.qfrc_applied[dadr] = u_out[t]
+        if rk4:
+            mujoco.mj_step(model, data)
+        else:
+            mujoco.mj_step2(model, data)
+        if substeps > 1:
+            mujoco.mj_step(model, data, nstep=substeps - 1)
+    data.qfrc_applied[dadr] = 0.0
+    # MuJoCo checks qpos/qvel/qacc every step and, on NaN/inf or huge values, warns and resets
+    # the state; so one check of its warning counters (and of our outputs) after the loop
+    # catches every blow-up without a per-step cost.
+    # Imported here: skillkit.tasks imports this module (a top-level import would be circular).
+    from skillkit.tasks.base import SimulationFailure
+
+    if _instability_count(data) != warn0:
+        raise SimulationFailure(
+            "MuJoCo flagged an unstable simulation (non-finite or huge "
+            "positions, velocities or accelerations) and reset it"
+        )
+    for name, arr in (("joint state", q_out), ("joint velocity", qd_out), ("torque", u_out)):
+        bad = ~np.isfinite(arr).all(axis=1)
+        if bad.any():
+            t = int(np.argmax(bad))
+            raise SimulationFailure(
+                f"non-finite {name} at control step {t} (t = {t * control_dt:.3f} s)"
+            )
+    return {"q": q_out, "qd": qd_out, "u": u_out}
+
+
+def track_reference(
+    model: mujoco.MjModel,
+    data: mujoco.MjData,
+    q_ref,
+    qd_ref,
+    control_dt: float,
+    kp,
+    kd,
+    *,
+    joint_ids: Sequence[int] | None = None,
+    gravity_compensation: bool = True,
+    torque_limit=None,
+    on_step: Callable[[int, mujoco.MjData], None] | None = None,
+    qdd_ref=None,
+    inertia_weighted: bool = False,
+) -> dict[str, np.ndarray]:
+    """Track a joint reference with zero-order-hold PD torques in MuJoCo.
+
+    At control step ``t`` the torque is (:func:`pd_torque`)
+
+    ``u[t] = kp ⊙ (q_ref[t] − q[t]) + kd ⊙ (q̇_ref[t] − q̇[t]) + c(q[t], q̇[t])``
+
+    where ``c`` is MuJoCo's bias force ``qfrc_bias`` (gravity plus Coriolis/centrifugal
+    terms, evaluated at the start of the step; only with ``gravity_compensation``), saturated
+    at ``±torque_limit`` if given, and held for ``control_dt`` (:func:`run_feedback` runs
+    the loop).
+
+    With ``inertia_weighted`` the PD acceleration is mapped through the joint-space inertia
+    M(q) (MuJoCo's ``qM``, the block of the tracked joints), plus an optional feed-forward
+    reference acceleration — the computed-torque (inverse-dynamics) tracker
+
+    ``u[t] = M(q[t]) (q̈_ref[t] + kp ⊙ e[t] + kd ⊙ ė[t]) + c(q[t], q̇[t])``.
+
+    Every joint-space mode then has the same natural frequency √kp and damping kd, which a
+    diagonal PD cannot achieve on robots whose inertia matrix is badly conditioned (light
+    distal links on heavy proximal ones) without destabilising the fast modes at a finite
+    control rate.
+
+    Parameters
+    ----------
+    model, data : mujoco.MjModel, mujoco.MjData
+        Compiled model and its data, already set to the initial state (``data`` is advanced
+        in place).
+    q_ref, qd_ref : array_like, shape (T, n)
+        Desired joint positions and velocities at the control steps.
+    control_dt : float
+        Control period in seconds; must be a whole multiple of ``model.opt.timestep``.
+    kp, kd : float or array_like, shape (n,)
+        PD gains.
+    joint_ids : sequence of int, optional
+        The ``n`` tracked joints (hinge or slide), in the column order of ``q_ref``.
+        Default: every joint of the model.
+    gravity_compensation : bool
+        Add ``qfrc_bias`` to the PD torque.
+    torque_limit : float or array_like, shape (n,), optional
+        Actuator saturation ``|u| ≤ torque_limit``; the number of saturated (step, joint)
+        entries is returned as ``n_saturated`` so it is reported, not hidden.
+    on_step : callable, optional
+        ``on_step(t, data)`` called at every control step after the state is recorded.
+    qdd_ref : array_like, shape (T, n), optional
+        Reference accelerations, fed forward (only with ``inertia_weighted``).
+    inertia_weighted : bool
+        Use the computed-torque form above (``kp`` in 1/s², ``kd`` in 1/s).
+
+    Returns
+    -------
+    dict
+        ``q``, ``qd``: (T, n) joint positions and velocities at the control steps;
+        ``u``: (T, n) applied torques; ``n_saturated``: int.
+
+    Raises
+    ------
+    SimulationFailure
+        If the state becomes non-finite or MuJoCo flags an instability.
+    ValueError
+        On bad shapes, gains or a control period that is not a multiple of the time step.
+    """
+    ids, _, dadr = joint_addresses(model, joint_ids)
+    n = ids.size
+    dadr = _as_slice(dadr)
+    q_ref = check_array(q_ref, "q_ref", shape=(None, n))
+    qd_ref = check_array(qd_ref, "qd_ref", shape=(q_ref.shape[0], n))
+    kp = _gain(kp, "kp", n)
+    kd = _gain(kd, "kd", n)
+    limit = None if torque_limit is None else _gain(torque_limit, "torque_limit", n)
+    if qdd_ref is not None:
+        if not inertia_weighted:
+            raise ValueError("qdd_ref: the feed-forward acceleration needs inertia_weighted=True")
+        qdd_ref = check_array(qdd_ref, "qdd_ref", shape=(q_ref.shape[0], n))
+    n_saturated = 0
+    full_m = np.zeros((model.nv, model.nv))
+    block = np.ix_(np.arange(model.nv)[dadr], np.arange(model.nv)[dadr])
+
+    def pd(t: int, q: np.ndarray, qd: np.ndarray, d: mujoco.MjData) -> np.ndarray:
+        nonlocal n_saturated
+        bias = d.qfrc_bias[dadr] if gravity_compensation else None
+        if inertia_weighted:
+            acc = _pd(q, qd, q_ref[t], qd_ref[t], kp, kd)
+            if qdd_ref is not None:
+                acc = acc + qdd_ref[t]
+            mujoco.mj_fullM(model, d, full_m)
+            u = full_m[block] @ acc
+            u = u if bias is None else u + bias
+        else:
+            u = _pd(q, qd, q_ref[t], qd_ref[t], kp, kd, bias)
+        if limit is not None:
+            n_saturated += int(np.count_nonzero(np.abs(u) > limit))
+            u = np.clip(u, -limit, limit)
+        return u
+
+    out = run_feedback(model, data, pd, q_ref.shape[0], control_dt, joint_ids=ids, on_step=on_step)
+    out["n_saturated"] = n_saturated
+    return out
+
+
+def control_substeps(model: mujoco.MjModel, control_dt: float) -> int:
+    """Number of physics steps per control period, ``control_dt / model.opt.timestep``.
+
+    Raises ``ValueError`` unless the ratio is a positive whole number.
+    """
+    control_dt = check_positive(control_dt, "control_dt")
+    ratio = control_dt / model.opt.timestep
+    substeps = int(round(ratio))
+    if substeps < 1 or abs(ratio - substeps) > 1e-6 * max(ratio, 1.0):
+        raise ValueError(
+            f"control_dt: expected a whole multiple of the model time step "
+            f"{model.opt.timestep:g} s, got {control_dt:g} s"
+        )
+    return substeps
+
+
+def _as_slice(index: np.ndarray) -> slice | np.ndarray:
+    """A contiguous increasing index array as a slice (cheaper views in inner loops)."""
+    if index.size and np.array_equal(index, np.arange(index[0], index[0] + index.size)):
+        return slice(int(index[0]), int(index[0]) + index.size)
+    return index
+
+
+def _gain(value, name: str, n: int) -> np.ndarray:
+    """A non-negative gain, scalar or per joint, as shape (n,) (or () for a scalar)."""
+    g = check_array(value, name, ndim=(0, 1))
+    if g.ndim == 1 and g.shape[0] != n:
+        raise ValueError(f"{name}: expected a scalar or shape ({n},), got {g.shape}")
+    if np.any(g < 0):
+        raise ValueError(f"{name}: expected non-negative gains, got {g.tolist()}")
+    return g

@@ -1,0 +1,555 @@
+"""Discrete Dynamic Movement Primitives (thesis Sec. 2.2.1, Eqs. 2.21–2.23).
+
+Several joints share one phase variable z (Eq. 2.22, z_0 = 1), whose closed-form solution
+
+    z(t) = exp(-tau * alpha_z * t)
+
+drives a forcing term f(z) = phi(z)^T v per joint, built from K normalised Gaussian basis
+functions multiplied by z. Each joint follows the spring-damper transformation system
+(Eq. 2.21) with the final-velocity (moving goal) extension of Kober et al. (2010,
+"Movement templates for learning of hitting and batting"), written in real time t:
+
+    g_t   = g + gd * (t - T_end),            T_end = duration / tau,
+    qdd_t = tau^2 alpha_x (beta_x (g_t - q_t) + (gd - qd_t) / tau) + tau^2 f(z_t; v).
+
+The moving goal g_t travels with the desired final velocity gd (ġ) and passes g at the
+nominal end of the movement T_end; with gd = 0 it is the fixed attractor g of Eq. 2.21.
+
+Two deliberate readings of the thesis's equations:
+
+* The damping term carries ``qd / tau`` (Ijspeert et al. 2013; Kober et al. [34]); the
+  thesis prints it as ``-qd``, which is the same at tau = 1. With it, tau is an exact time
+  scaling: a rollout at tau' equals the tau rollout evaluated
+  at time t * tau' / tau (gd, a real-time velocity, scales along). At tau = 1 the
+  equation is exactly Eq. 2.21 as printed, and the fit target Y below is exactly Eq. 2.23.
+* Integration is *exact* for the linear part: the transformation system is a linear
+  time-invariant ODE per joint driven by u(t) = tau^2 alpha_x beta_x g_t + tau alpha_x gd
+  + tau^2 f(z_t); it is discretised with the matrix exponential and a first-order hold
+  on u between grid nodes (step at most ``dt``). The phase is evaluated in closed form.
+  With v = 0 the rollout equals the analytic solution to rounding error; with v ≠ 0 the
+  only error is the O(dt^2) linear interpolation of the smooth forcing term.
+
+Basis functions (fixed by ``n_basis``, ``alpha_z`` and ``duration``): centres
+c_i = exp(-alpha_z * s_i) at times s_i evenly spaced on [0, duration] (tau = 1), and
+bandwidths sigma_i = (c_i - c_{i+1}) / sqrt(2) (the last one reuses its neighbour's gap),
+so neighbouring Gaussians cross at exp(-1/4) of their peak. One basis function has sigma = 1
+(after normalisation it is simply z).
+"""
+
+from __future__ import annotations
+
+import copy
+import functools
+import warnings
+from collections.abc import Sequence
+
+import numpy as np
+from scipy.signal import lfilter
+
+from skillkit._validation import check_array, check_positive
+
+__all__ = ["DMP", "DMPParameters"]
+
+_LEARNABLE = ("weights", "goal", "goal_velocity", "tau")
+
+
+def _expm_small(m: np.ndarray) -> np.ndarray:
+    """exp(m) for a small dense matrix: scaling and squaring of a degree-12 Taylor polynomial.
+
+    After scaling, ||m / 2^s||_1 <= 1/4, so the truncation error is below 0.25^13 / 13! ~ 2e-18
+    (relative). Used instead of :func:`scipy.linalg.expm`, whose threaded BLAS calls cost
+    milliseconds per 4x4 matrix on a busy machine.
+    """
+    norm = float(np.abs(m).sum(axis=0).max())
+    s = max(0, int(np.ceil(np.log2(norm / 0.25)))) if norm > 0 else 0
+    x = m / 2.0**s
+    term = np.eye(m.shape[0])
+    out = term.copy()
+    for j in range(1, 13):
+        term = term @ x / j
+        out += term
+    for _ in range(s):
+        out = out @ out
+    return out
+
+
+@functools.lru_cache(maxsize=64)
+def _discretise(h: float, stiffness: float, damping: float):
+    """Exact discretisation of q'' = -stiffness q - damping q' + u, u linear on [0, h].
+
+    With s = [q, q'], A = [[0, 1], [-stiffness, -damping]], B = [0, 1]^T and the augmented
+    matrix M = [[A, B, 0], [0, 0, 1], [0, 0, 0]] (input u and its slope u'), exp(M h) gives
+
+        s(h) = Phi s(0) + g_u u(0) + g_du u'   (Phi = exp(A h)).
+
+    Returns
+    -------
+    phi : ndarray, shape (2, 2)
+    g_u, g_du : ndarray, shape (2,)
+        Read-only (the result is cached).
+    """
+    m = np.zeros((4, 4))
+    m[0, 1] = 1.0
+    m[1, 0], m[1, 1], m[1, 2] = -stiffness, -damping, 1.0
+    m[2, 3] = 1.0
+    e = _expm_small(m * h)
+    out = e[:2, :2].copy(), e[:2, 2].copy(), e[:2, 3].copy()
+    for a in out:
+        a.flags.writeable = False
+    return out
+
+
+def _check_count(value, name: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise ValueError(f"{name}: expected an integer >= 1, got {value!r}")
+    return int(value)
+
+
+class DMP:
+    """Discrete DMP for ``n_joints`` joints sharing one phase (Eqs. 2.21–2.23).
+
+    Parameters
+    ----------
+    n_joints : int
+        Number of joints (transformation systems).
+    n_basis : int
+        Number K of basis functions per joint.
+    alpha_x, beta_x : float
+        Spring-damper gains of Eq. 2.21 (beta_x = alpha_x / 4 is critically damped).
+    alpha_z : float
+        Phase decay rate of Eq. 2.22 (1/s at tau = 1).
+    dt : float
+        Largest integration step in seconds.
+    duration : float
+        Nominal movement duration at tau = 1 (s): basis centres are spaced evenly in time
+        over [0, duration] and the moving goal reaches g at ``duration / tau``.
+        :meth:`fit` replaces it by the demonstration's duration times tau.
+
+    Attributes
+    ----------
+    weights : ndarray, shape (n_joints, n_basis)
+        Shape parameters v (zero until fitted).
+    goal : ndarray, shape (n_joints,) or None
+        Attractor g (None until fitted or set).
+    goal_velocity : ndarray, shape (n_joints,)
+        Final velocity gd (zero by default).
+    tau : float
+        Time scaling (> 0).
+    """
+
+    def __init__(
+        self,
+        n_joints: int,
+        n_basis: int = 10,
+        alpha_x: float = 25.0,
+        beta_x: float = 6.25,
+        alpha_z: float = 3.0,
+        dt: float = 1e-3,
+        duration: float = 1.0,
+    ) -> None:
+        self.n_joints = _check_count(n_joints, "n_joints")
+        self.n_basis = _check_count(n_basis, "n_basis")
+        self.alpha_x = check_positive(alpha_x, "alpha_x")
+        self.beta_x = check_positive(beta_x, "beta_x")
+        self.alpha_z = check_positive(alpha_z, "alpha_z")
+        self.dt = check_positive(dt, "dt")
+        self.duration = check_positive(duration, "duration")
+        self.weights = np.zeros((self.n_joints, self.n_basis))
+        self.goal: np.ndarray | None = None
+        self.goal_velocity = np.zeros(self.n_joints)
+        self.tau = 1.0
+
+    # ------------------------------------------------------------------ basis
+    @property
+    def centers(self) -> np.ndarray:
+        """Basis centres c_i in phase space, shape (n_basis,), decreasing from 1."""
+        s = np.linspace(0.0, self.duration, self.n_basis)
+        return np.exp(-self.alpha_z * s)
+
+    @property
+    def widths(self) -> np.ndarray:
+        """Basis bandwidths sigma_i, shape (n_basis,) (see the module docstring)."""
+        c = self.centers
+        if self.n_basis == 1:
+            return np.ones(1)
+        gaps = -np.diff(c)
+        return np.append(gaps, gaps[-1]) / np.sqrt(2.0)
+
+    def phase(self, t, tau: float | None = None) -> np.ndarray:
+        """Phase z(t) = exp(-tau alpha_z t), the solution of Eq. 2.22 with z_0 = 1.
+
+        Parameters
+        ----------
+        t : array_like
+            Times since the start of the movement (s), any shape.
+        tau : float, optional
+            Time scaling (default: ``self.tau``).
+        """
+        tau = self.tau if tau is None else check_positive(tau, "tau")
+        return np.exp(-tau * self.alpha_z * np.asarray(t, dtype=np.float64))
+
+    def basis(self, z) -> np.ndarray:
+        """Basis vector phi(z) of the forcing term f(z; v) = phi(z)^T v.
+
+        phi_i(z) = z exp(-(z - c_i)^2 / (2 sigma_i^2)) / sum_j exp(-(z - c_j)^2 / (2 sigma_j^2)).
+
+        Parameters
+        ----------
+        z : array_like, shape (n,)
+            Phase values.
+
+        Returns
+        -------
+        ndarray, shape (n, n_basis)
+        """
+        z = check_array(z, "z", ndim=1)
+        log_psi = -((z[:, None] - self.centers) ** 2) / (2.0 * self.widths**2)
+        log_psi -= log_psi.max(axis=1, keepdims=True)  # normalise stably
+        psi = np.exp(log_psi)
+        return psi / psi.sum(axis=1, keepdims=True) * z[:, None]
+
+    # -------------------------------------------------------------- parameters
+    def replace(self, *, weights=None, goal=None, goal_velocity=None, tau=None) -> DMP:
+        """A copy with some of {weights, goal, goal_velocity, tau} replaced (validated).
+
+        Parameters
+        ----------
+        weights : array_like, shape (n_joints, n_basis), optional
+        goal, goal_velocity : array_like, shape (n_joints,), optional
+        tau : float, optional
+            Must be > 0.
+        """
+        new = copy.deepcopy(self)
+        J, K = self.n_joints, self.n_basis
+        if weights is not None:
+            new.weights = check_array(weights, "weights", shape=(J, K)).copy()
+        if goal is not None:
+            new.goal = check_array(goal, "goal", shape=(J,)).copy()
+        if goal_velocity is not None:
+            new.goal_velocity = check_array(goal_velocity, "goal_velocity", shape=(J,)).copy()
+        if tau is not None:
+            new.tau = check_positive(tau, "tau")
+        return new
+
+    # --------------------------------------------------------------------- fit
+    def fit(self, times, q, qd, qdd, tau: float = 1.0, ridge: float = 0.0) -> DMP:
+        """Fit the shape weights v to a demonstration by least squares (Eq. 2.23).
+
+        Sets ``goal`` to the last demonstrated position, ``goal_velocity`` to the last
+        demonstrated velocity, ``tau`` to ``tau`` and ``duration`` to
+        tau * (times[-1] - times[0]); then solves, for all joints at once,
+
+            v = argmin ||Phi v - Y||^2 + ridge ||v||^2,
+            Y = qdd / tau^2 - alpha_x (beta_x (g_t - q) + (gd - qd) / tau),
+
+        with Phi[t, :] = phi(z(times[t] - times[0])). At tau = 1, gd = 0 this is Eq. 2.23.
+
+        Parameters
+        ----------
+        times : array_like, shape (N,)
+            Strictly increasing time stamps (s); the movement starts at ``times[0]``.
+        q, qd, qdd : array_like, shape (N, n_joints)
+            Demonstrated positions, velocities and accelerations.
+        tau : float
+            Time scaling at which the demonstration was performed (> 0).
+        ridge : float
+            Tikhonov regulariser (>= 0); use a small value when the demonstration does
+            not excite every basis function.
+
+        Returns
+        -------
+        DMP
+            ``self``, fitted.
+
+        Warns
+        -----
+        RuntimeWarning
+            If the basis matrix is rank deficient and ``ridge`` is 0 (the minimum-norm
+            solution is returned).
+        """
+        times = check_array(times, "times", ndim=1)
+        n = times.shape[0]
+        if n < 2:
+            raise ValueError(f"times: expected at least 2 time stamps, got {n}")
+        if np.any(np.diff(times) <= 0):
+            raise ValueError("times: expected strictly increasing time stamps")
+        shape = (n, self.n_joints)
+        q = check_array(q, "q", shape=shape)
+        qd = check_array(qd, "qd", shape=shape)
+        qdd = check_array(qdd, "qdd", shape=shape)
+        tau = check_positive(tau, "tau")
+        ridge = check_positive(ridge, "ridge", allow_zero=True)
+
+        t = times - times[0]
+        goal, goal_velocity = q[-1].copy(), qd[-1].copy()
+        self.tau, self.duration = tau, tau * t[-1]
+        g_t = self._moving_goal(t, goal, goal_velocity, tau)
+        a, b = self.alpha_x, self.beta_x
+        target = qdd / tau**2 - a * (b * (g_t - q) + (goal_velocity - qd) / tau)
+        phi = self.basis(self.phase(t, tau))
+        if ridge > 0:
+            phi = np.vstack([phi, np.sqrt(ridge) * np.eye(self.n_basis)])
+            target = np.vstack([target, np.zeros((self.n_basis, self.n_joints))])
+        v, _, rank, _ = np.linalg.lstsq(phi, target, rcond=None)
+        if rank < self.n_basis:
+            warnings.warn(
+                f"DMP.fit: the basis matrix has rank {rank} < n_basis={self.n_basis}; "
+                "the demonstration does not excite every basis function (pass ridge > 0)",
+                RuntimeWarning,
+                stacklevel=2,
+            )
+        self.weights, self.goal, self.goal_velocity = v.T.copy(), goal, goal_velocity
+        return self
+
+    # ----------------------------------------------------------------- rollout
+    def grid(self, duration: float) -> np.ndarray:
+        """The output time grid used by :meth:`rollout` for a scalar ``duration``.
+
+        ``n = ceil(duration / dt)`` equal steps, so the grid ends exactly at ``duration``.
+
+        Returns
+        -------
+        ndarray, shape (n + 1,)
+        """
+        duration = check_positive(duration, "duration")
+        n = max(1, int(np.ceil(duration / self.dt - 1e-9)))
+        return np.linspace(0.0, duration, n + 1)
+
+    def forcing(self, t, tau: float | None = None, weights=None) -> np.ndarray:
+        """Forcing term f(z_t; v) = phi(z_t)^T v of Eq. 2.21.
+
+        Parameters
+        ----------
+        t : array_like, shape (n,)
+            Times since the start of the movement (s).
+        tau, weights : optional
+            Override ``self.tau`` and ``self.weights`` (n_joints, n_basis).
+
+        Returns
+        -------
+        ndarray, shape (n, n_joints)
+        """
+        tau = self.tau if tau is None else check_positive(tau, "tau")
+        w = (
+            self.weights
+            if weights is None
+            else check_array(weights, "weights", shape=(self.n_joints, self.n_basis))
+        )
+        t = check_array(t, "t", ndim=1)
+        return self.basis(self.phase(t, tau)) @ w.T
+
+    def rollout(
+        self,
+        times,
+        q0,
+        qd0=None,
+        goal=None,
+        goal_velocity=None,
+        tau: float | None = None,
+        weights=None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Integrate the DMP (Eqs. 2.21–2.22 with the moving goal) from (q0, qd0).
+
+        Parameters
+        ----------
+        times : float or array_like, shape (T,)
+            A duration (s), giving the grid :meth:`grid` ``(duration)``; or uniformly
+            spaced, increasing time stamps, the movement starting at ``times[0]``.
+            Between output stamps the integrator takes equal substeps of at most ``dt``.
+        q0 : array_like, shape (n_joints,)
+            Initial positions.
+        qd0 : array_like, shape (n_joints,), optional
+            Initial velocities (default zero).
+        goal, goal_velocity, tau, weights : optional
+            Override the DMP's g (n_joints,), gd (n_joints,), tau (> 0) and v
+            (n_joints, n_basis) for this rollout.
+
+        Returns
+        -------
+        q, qd, qdd : ndarray, shape (T, n_joints)
+            Positions, velocities and accelerations at the output time stamps.
+
+        Raises
+        ------
+        ValueError
+            On malformed input (naming the argument), or if the DMP has no goal.
+        FloatingPointError
+            If the integration overflowed (e.g. an extreme tau); tasks report this as a
+            failed rollout.
+        """
+        J = self.n_joints
+        times = self._check_times(times)
+        q0 = check_array(q0, "q0", shape=(J,))
+        qd0 = np.zeros(J) if qd0 is None else check_array(qd0, "qd0", shape=(J,))
+        if goal is None:
+            if self.goal is None:
+                raise ValueError("goal: the DMP has no goal yet; pass goal= or fit() it first")
+            goal = self.goal
+        goal = check_array(goal, "goal", shape=(J,))
+        gd = self.goal_velocity if goal_velocity is None else goal_velocity
+        gd = check_array(gd, "goal_velocity", shape=(J,))
+        tau = self.tau if tau is None else check_positive(tau, "tau")
+        w = (
+            self.weights
+            if weights is None
+            else check_array(weights, "weights", shape=(J, self.n_basis))
+        )
+
+        t_out = times - times[0]
+        if t_out.shape[0] == 1:
+            sub, t = 1, t_out
+        else:
+            sub = max(1, int(np.ceil(t_out[1] / self.dt - 1e-9)))
+            t = np.linspace(0.0, t_out[-1], (t_out.shape[0] - 1) * sub + 1)
+        a, b = self.alpha_x, self.beta_x
+        stiffness, damping = tau**2 * a * b, tau * a
+        u = (
+            stiffness * self._moving_goal(t, goal, gd, tau)
+            + damping * gd
+            + tau**2 * (self.basis(self.phase(t, tau)) @ w.T)
+        )  # (N, J)
+
+        s = np.empty((t.shape[0], 2, J))
+        s[0] = q0, qd0
+        if t.shape[0] > 1:
+            s = self._integrate(s[0], u, t[1] - t[0], stiffness, damping)
+        q, qd = s[::sub, 0], s[::sub, 1]
+        qdd = -stiffness * q - damping * qd + u[::sub]
+        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd))):
+            raise FloatingPointError("DMP.rollout: the integration produced non-finite values")
+        return q, qd, qdd
+
+    # ---------------------------------------------------------------- helpers
+    def _moving_goal(self, t, goal, goal_velocity, tau) -> np.ndarray:
+        """g_t = g + gd (t - duration / tau), shape (len(t), n_joints)."""
+        return goal + goal_velocity * (t[:, None] - self.duration / tau)
+
+    def _check_times(self, times) -> np.ndarray:
+        if np.ndim(times) == 0:
+            return self.grid(times)
+        times = check_array(times, "times", ndim=1)
+        if times.shape[0] == 0:
+            raise ValueError("times: expected at least one time stamp")
+        if times.shape[0] > 1:
+            steps = np.diff(times)
+            if np.any(steps <= 0):
+                raise ValueError("times: expected strictly increasing time stamps")
+            if np.max(np.abs(steps - steps[0])) > 1e-6 * steps[0]:
+                raise ValueError("times: expected uniformly spaced time stamps")
+        return times
+
+    @staticmethod
+    def _integrate(s0, u, h, stiffness, damping) -> np.ndarray:
+        """Exact discretisation of s' = A s + B u with u linear between nodes.
+
+        s_{n+1} = Phi s_n + w_n with Phi = exp(A h) and w_n from the augmented matrix
+        exponential (first-order hold, see :func:`_discretise`). The recursion runs as a
+        second-order linear filter over all joints at once (Cayley–Hamilton:
+        s_{n+1} = tr s_n - det s_{n-1} + w_n + (Phi - tr I) w_{n-1}).
+
+        Parameters
+        ----------
+        s0 : ndarray, shape (2, J)
+            Initial [q; qd].
+        u : ndarray, shape (N, J)
+            Input at the grid nodes.
+        h : float
+            Grid step.
+
+        Returns
+        -------
+        ndarray, shape (N, 2, J)
+        """
+        phi, g_u, g_du = _discretise(h, stiffness, damping)
+        du = np.diff(u, axis=0) / h
+        w = g_u[None, :, None] * u[:-1, None, :] + g_du[None, :, None] * du[:, None, :]
+        tr, det = phi[0, 0] + phi[1, 1], phi[0, 0] * phi[1, 1] - phi[0, 1] * phi[1, 0]
+        r = np.empty((u.shape[0], 2, u.shape[1]))
+        r[0] = s0
+        r[1] = phi @ s0 + w[0] - tr * s0
+        r[2:] = w[1:] + (phi - tr * np.eye(2)) @ w[:-1]
+        return lfilter([1.0], [1.0, -tr, det], r, axis=0)
+
+
+class DMPParameters:
+    """Flat parameter vector ω over a chosen subset of a DMP's parameters.
+
+    The learned entries are, in this fixed order (whatever the order of ``learn``):
+    shape weights v (joint-major: ``w[j,i]`` is joint j, basis i), goal g (``g[j]``),
+    final velocity gd (``gd[j]``) and time scaling tau (``tau``). Everything not learned
+    stays as in ``dmp``.
+
+    Parameters
+    ----------
+    dmp : DMP
+        The template (usually fitted from a demonstration); it is not modified.
+    learn : sequence of {"weights", "goal", "goal_velocity", "tau"}
+        The parameters that form ω.
+
+    Examples
+    --------
+    Table tennis (Sec. 3.5.3): fixed weights, learned g, gd and tau for 7 joints gives
+    ``DMPParameters(dmp, learn=("goal", "goal_velocity", "tau")).dim == 15``.
+    """
+
+    def __init__(self, dmp: DMP, learn: Sequence[str] = _LEARNABLE) -> None:
+        if not isinstance(dmp, DMP):
+            raise ValueError(f"dmp: expected a DMP, got {type(dmp).__name__}")
+        if isinstance(learn, str):
+            learn = (learn,)
+        learn = tuple(learn)
+        unknown = [p for p in learn if p not in _LEARNABLE]
+        if unknown or not learn or len(set(learn)) != len(learn):
+            raise ValueError(
+                f"learn: expected a non-empty subset of {_LEARNABLE} without repeats, got {learn}"
+            )
+        if "goal" in learn and dmp.goal is None:
+            raise ValueError("dmp: has no goal to learn from; fit() it or set its goal first")
+        self.dmp = dmp
+        self.learn = tuple(p for p in _LEARNABLE if p in learn)
+        J, K = dmp.n_joints, dmp.n_basis
+        sizes = {"weights": J * K, "goal": J, "goal_velocity": J, "tau": 1}
+        labels = {
+            "weights": [f"w[{j},{i}]" for j in range(J) for i in range(K)],
+            "goal": [f"g[{j}]" for j in range(J)],
+            "goal_velocity": [f"gd[{j}]" for j in range(J)],
+            "tau": ["tau"],
+        }
+        self._slices: dict[str, slice] = {}
+        start = 0
+        for p in self.learn:
+            self._slices[p] = slice(start, start + sizes[p])
+            start += sizes[p]
+        self.dim = start
+        self.names = [n for p in self.learn for n in labels[p]]
+
+    def to_vector(self, dmp: DMP | None = None) -> np.ndarray:
+        """ω of ``dmp`` (default: the template), shape (dim,)."""
+        dmp = self.dmp if dmp is None else dmp
+        parts = {
+            "weights": lambda: dmp.weights.ravel(),
+            "goal": lambda: dmp.goal,
+            "goal_velocity": lambda: dmp.goal_velocity,
+            "tau": lambda: np.array([dmp.tau]),
+        }
+        return np.concatenate([np.asarray(parts[p](), dtype=np.float64) for p in self.learn])
+
+    def from_vector(self, omega) -> DMP:
+        """A copy of the template DMP with the learned parameters taken from ω.
+
+        Parameters
+        ----------
+        omega : array_like, shape (dim,)
+            Finite; its ``tau`` entry (if learned) must be > 0.
+        """
+        omega = check_array(omega, "omega", shape=(self.dim,))
+        J, K = self.dmp.n_joints, self.dmp.n_basis
+        kw = {p: omega[self._slices[p]] for p in self.learn}
+        if "weights" in kw:
+            kw["weights"] = kw["weights"].reshape(J, K)
+        if "tau" in kw:
+            tau = float(kw["tau"][0])
+            if tau <= 0:
+                raise ValueError(f"omega: its tau entry must be > 0, got {tau:g}")
+            kw["tau"] = tau
+        return self.dmp.replace(**kw)

@@ -1,0 +1,469 @@
+"""Upper-level Gaussian policies π(ω) and π(ω|s) = N(a + Aφ(s), Σ) (Secs. 2.1.1, 3.3).
+
+:class:`LinearGaussianPolicy` is the contextual linear-Gaussian policy of Eq. (3.13) with
+pluggable context features φ (:mod:`skillkit.policies.features`); :class:`GaussianPolicy` is
+its context-free special case N(μ, Σ) used by episode-based REPS (2.12–2.15).
+
+Policies are immutable values: :meth:`LinearGaussianPolicy.fit` returns a new policy (the
+weighted maximum-likelihood M-step of Eqs. 3.11–3.13 with a deliberate, documented
+regularisation) and leaves the old one untouched, so a learning loop can compare the two.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import linalg
+
+from skillkit._validation import as_generator, check_array, check_positive
+from skillkit.policies.features import (
+    FeatureName,
+    check_feature_name,
+    context_features,
+    feature_dim,
+)
+
+_LOG_2PI = float(np.log(2.0 * np.pi))
+
+
+@dataclass(frozen=True)
+class FitInfo:
+    """What a weighted maximum-likelihood fit (Eqs. 3.11–3.13) did.
+
+    Attributes
+    ----------
+    n_samples : int
+        Number of samples N.
+    effective_samples : float
+        Kish effective sample size (Σ p)² / Σ p² of the weights.
+    ridge : float
+        Relative ridge used in the regression of the mean (0 = plain Eq. 3.11).
+    cov_shrinkage : float
+        Weight κ of the previous Σ in Σ = (1 − κ) Σ_ML + κ Σ_old.
+    min_cov_ratio : float
+        Smallest eigenvalue of Σ_old^{-1/2} Σ Σ_old^{-1/2} before the floor (how much the
+        narrowest direction shrank relative to the previous policy).
+    n_floored : int
+        Number of those eigenvalues raised to the floor ``cov_floor`` (0 when the floor was
+        inactive).
+    """
+
+    n_samples: int
+    effective_samples: float
+    ridge: float
+    cov_shrinkage: float
+    min_cov_ratio: float
+    n_floored: int
+
+
+def effective_sample_size(weights: np.ndarray) -> float:
+    """Kish effective sample size (Σ w)² / Σ w² of non-negative weights, shape (N,)."""
+    w = np.asarray(weights, dtype=np.float64)
+    w = w / w.max()
+    return float(w.sum() ** 2 / np.dot(w, w))
+
+
+def _cholesky(cov: np.ndarray, name: str) -> np.ndarray:
+    try:
+        return linalg.cholesky(cov, lower=True)
+    except linalg.LinAlgError:
+        eig = np.linalg.eigvalsh(cov)
+        raise ValueError(
+            f"{name}: expected a symmetric positive definite matrix; "
+            f"smallest eigenvalue is {eig.min():.3g}"
+        ) from None
+
+
+class LinearGaussianPolicy:
+    r"""Contextual linear-Gaussian upper-level policy π(ω|s) = N(ω | a + A φ(s), Σ), Eq. (3.13).
+
+    Parameters
+    ----------
+    mean : array_like, shape (d,)
+        Offset a (the mean for φ(s) = 0; the mean itself for context-free policies).
+    cov : array_like, shape (d, d)
+        Covariance Σ, symmetric positive definite.
+    gain : array_like, shape (d, F), optional
+        Gain A on the context features (zeros if omitted); F = ``feature_dim(context_dim,
+        features)``.
+    context_dim : int
+        Dimension of the context s (0 for a context-free policy).
+    features : {"linear", "quadratic"}
+        Context feature map φ (:mod:`skillkit.policies.features`).
+
+    Notes
+    -----
+    Context arguments accept a batch of shape (n, context_dim) or a single context of shape
+    (context_dim,); a context-free policy takes ``np.zeros((n, 0))`` or ``None`` (one sample).
+    """
+
+    def __init__(
+        self, mean, cov, gain=None, context_dim: int = 0, features: FeatureName = "linear"
+    ):
+        self._features = check_feature_name(features)
+        n_feat = feature_dim(context_dim, features)  # validates context_dim
+        self._context_dim = int(context_dim)
+        a = check_array(mean, "mean", ndim=1)
+        d = a.shape[0]
+        if d < 1:
+            raise ValueError("mean: expected at least one parameter dimension, got shape (0,)")
+        cov = check_array(cov, "cov", shape=(d, d))
+        scale = max(float(np.max(np.abs(cov))), np.finfo(float).tiny)
+        if np.max(np.abs(cov - cov.T)) > 1e-10 * scale:
+            raise ValueError("cov: expected a symmetric matrix")
+        cov = 0.5 * (cov + cov.T)
+        self._chol = _cholesky(cov, "cov")
+        gain = (
+            np.zeros((d, n_feat)) if gain is None else check_array(gain, "gain", shape=(d, n_feat))
+        )
+        self._mean, self._cov, self._gain = a.copy(), cov, gain.copy()
+        for arr in (self._mean, self._cov, self._gain, self._chol):
+            arr.setflags(write=False)
+
+    # ----------------------------------------------------------------- properties
+    @property
+    def dim(self) -> int:
+        """Dimension d of ω."""
+        return int(self._mean.shape[0])
+
+    @property
+    def context_dim(self) -> int:
+        """Dimension of the context s."""
+        return self._context_dim
+
+    @property
+    def features(self) -> str:
+        """Name of the context feature map φ."""
+        return self._features
+
+    @property
+    def n_features(self) -> int:
+        """Number of context features F."""
+        return int(self._gain.shape[1])
+
+    @property
+    def mean(self) -> np.ndarray:
+        """Offset a, shape (d,) (read-only)."""
+        return self._mean
+
+    @property
+    def cov(self) -> np.ndarray:
+        """Covariance Σ, shape (d, d) (read-only)."""
+        return self._cov
+
+    @property
+    def gain(self) -> np.ndarray:
+        """Gain A, shape (d, F) (read-only)."""
+        return self._gain
+
+    @property
+    def coefficients(self) -> np.ndarray:
+        """[a, A] stacked column-wise, shape (d, 1 + F): the mean is [a, A] [1, φ(s)]."""
+        return np.column_stack([self._mean, self._gain])
+
+    # ----------------------------------------------------------------- evaluation
+    def phi(self, contexts, name: str = "contexts") -> tuple[np.ndarray, bool]:
+        """Features of validated contexts: (φ, shape (n, F); whether a single context was given)."""
+        if contexts is None:
+            if self._context_dim:
+                raise ValueError(
+                    f"{name}: this policy needs contexts of shape (n, {self._context_dim}), "
+                    "got None"
+                )
+            return np.zeros((1, 0)), True
+        s = check_array(contexts, name, ndim=(1, 2))
+        if s.shape[-1] != self._context_dim:
+            raise ValueError(
+                f"{name}: expected shape (n, {self._context_dim}) or ({self._context_dim},), "
+                f"got {s.shape}"
+            )
+        single = s.ndim == 1
+        phi = context_features(s[None, :] if single else s, self._features)
+        return phi, single
+
+    def mean_of(self, contexts=None) -> np.ndarray:
+        """Policy mean a + A φ(s) (Eq. 3.13).
+
+        Parameters
+        ----------
+        contexts : array_like, shape (n, context_dim) or (context_dim,), optional
+
+        Returns
+        -------
+        ndarray, shape (n, d) or (d,)
+        """
+        phi, single = self.phi(contexts)
+        mu = self._mean + phi @ self._gain.T
+        return mu[0] if single else mu
+
+    def sample(self, contexts=None, rng=None) -> np.ndarray:
+        """Draw ω ~ N(a + A φ(s), Σ) for each context.
+
+        Parameters
+        ----------
+        contexts : array_like, shape (n, context_dim) or (context_dim,), optional
+        rng : Generator, int or None
+
+        Returns
+        -------
+        ndarray, shape (n, d) or (d,)
+        """
+        rng = as_generator(rng)
+        phi, single = self.phi(contexts)
+        z = rng.standard_normal((phi.shape[0], self.dim))
+        omega = self._mean + phi @ self._gain.T + z @ self._chol.T
+        return omega[0] if single else omega
+
+    def log_prob(self, omegas, contexts=None) -> np.ndarray | float:
+        """Log-density log N(ω | a + A φ(s), Σ).
+
+        Parameters
+        ----------
+        omegas : array_like, shape (n, d) or (d,)
+        contexts : array_like, shape (n, context_dim) or (context_dim,), optional
+            One context per ω (a context-free policy accepts ``None``).
+
+        Returns
+        -------
+        ndarray, shape (n,), or float for a single ω
+        """
+        w = check_array(omegas, "omegas", ndim=(1, 2))
+        if w.shape[-1] != self.dim:
+            raise ValueError(
+                f"omegas: expected shape (n, {self.dim}) or ({self.dim},), got {w.shape}"
+            )
+        single = w.ndim == 1
+        w2 = w[None, :] if single else w
+        if contexts is None and self._context_dim == 0:
+            contexts = np.zeros((w2.shape[0], 0))
+        phi, single_ctx = self.phi(contexts)
+        if single_ctx != single or phi.shape[0] != w2.shape[0]:
+            raise ValueError(
+                f"contexts: expected one context per ω ({w2.shape[0]}), got {np.shape(contexts)}"
+            )
+        diff = w2 - self._mean - phi @ self._gain.T
+        maha = np.sum(linalg.solve_triangular(self._chol, diff.T, lower=True) ** 2, axis=0)
+        out = -0.5 * (self.dim * _LOG_2PI + self.log_det_cov() + maha)
+        return float(out[0]) if single else out
+
+    def log_det_cov(self) -> float:
+        """log det Σ."""
+        return float(2.0 * np.sum(np.log(np.diag(self._chol))))
+
+    def entropy(self) -> float:
+        """Differential entropy ½ log det(2πe Σ) of π(ω|s) (the same for every context)."""
+        return 0.5 * (self.dim * (_LOG_2PI + 1.0) + self.log_det_cov())
+
+    def kl(self, other: LinearGaussianPolicy, contexts=None) -> float:
+        r"""KL(self ‖ other) averaged over contexts, in closed form.
+
+        .. math:: \frac1n \sum_i \tfrac12\big[\mathrm{tr}(\Sigma_2^{-1}\Sigma_1)
+                  + \delta_i^\top \Sigma_2^{-1} \delta_i - d
+                  + \log\det\Sigma_2 - \log\det\Sigma_1\big],
+                  \quad \delta_i = \mu_2(s_i) - \mu_1(s_i)
+
+        Parameters
+        ----------
+        other : LinearGaussianPolicy
+            Same ``dim`` and ``context_dim`` (its features may differ).
+        contexts : array_like, shape (n, context_dim) or (context_dim,), optional
+            Contexts to average over (not needed for context-free policies).
+        """
+        if not isinstance(other, LinearGaussianPolicy):
+            raise ValueError(f"other: expected a LinearGaussianPolicy, got {type(other).__name__}")
+        if other.dim != self.dim or other.context_dim != self.context_dim:
+            raise ValueError(
+                f"other: expected dim={self.dim}, context_dim={self.context_dim}; "
+                f"got dim={other.dim}, context_dim={other.context_dim}"
+            )
+        mu1 = np.atleast_2d(self.mean_of(contexts))
+        mu2 = np.atleast_2d(other.mean_of(contexts))
+        l2 = other._chol
+        trace = np.sum(linalg.solve_triangular(l2, self._chol, lower=True) ** 2)
+        maha = np.sum(linalg.solve_triangular(l2, (mu2 - mu1).T, lower=True) ** 2, axis=0)
+        kl = 0.5 * (trace + maha - self.dim + other.log_det_cov() - self.log_det_cov())
+        return float(np.mean(kl))
+
+    # ----------------------------------------------------------------- M-step
+    def fit(
+        self,
+        contexts,
+        omegas,
+        weights,
+        *,
+        ridge: float = 1e-6,
+        cov_shrinkage: float = 0.0,
+        cov_floor: float = 1e-4,
+        min_effective_samples: float | None = None,
+    ) -> LinearGaussianPolicy:
+        """Weighted maximum-likelihood policy (Eqs. 3.11–3.13); see :meth:`fit_with_info`."""
+        return self.fit_with_info(
+            contexts,
+            omegas,
+            weights,
+            ridge=ridge,
+            cov_shrinkage=cov_shrinkage,
+            cov_floor=cov_floor,
+            min_effective_samples=min_effective_samples,
+        )[0]
+
+    def fit_with_info(
+        self,
+        contexts,
+        omegas,
+        weights,
+        *,
+        ridge: float = 1e-6,
+        cov_shrinkage: float = 0.0,
+        cov_floor: float = 1e-4,
+        min_effective_samples: float | None = None,
+    ) -> tuple[LinearGaussianPolicy, FitInfo]:
+        r"""Weighted maximum-likelihood estimate of a, A, Σ (Eqs. 3.11–3.13), regularised.
+
+        With normalised weights p_i = w_i / Σ w and Φ the feature rows φ(s_i):
+
+        1. **Mean (3.11) with a relative ridge.** Centring with the weighted means φ̄, ω̄,
+           A = Xᵀ(C + Λ)⁻¹ and a = ω̄ − A φ̄, where C = Σ p_i (φ_i − φ̄)(φ_i − φ̄)ᵀ,
+           X = Σ p_i (φ_i − φ̄)(ω_i − ω̄)ᵀ and Λ = ``ridge`` · diag(C) (a feature constant over
+           the weighted samples gets ``ridge`` · tr(C)/F instead). With ``ridge=0`` this is
+           exactly (SᵀPS)⁻¹SᵀPB of Eq. (3.11); the offset is never penalised.
+        2. **Covariance (3.12)**: Σ_ML = Σ p_i r_i r_iᵀ with residuals r_i = ω_i − a − A φ_i.
+        3. **Shrinkage towards the previous Σ**: Σ = (1 − κ) Σ_ML + κ Σ_old, κ = ``cov_shrinkage``.
+        4. **Floor relative to the previous Σ**: eigenvalues of Σ_old^{-1/2} Σ Σ_old^{-1/2} below
+           ``cov_floor`` are raised to it, so no direction shrinks by more than that factor in
+           one update and Σ stays positive definite even when the samples span fewer than d
+           directions. How often this happened is reported in :class:`FitInfo`.
+
+        Parameters
+        ----------
+        contexts : array_like, shape (N, context_dim)
+            Contexts s_i (``np.zeros((N, 0))`` or ``None`` for a context-free policy).
+        omegas : array_like, shape (N, d)
+            Parameters ω_i.
+        weights : array_like, shape (N,)
+            Non-negative sample weights p_i (need not sum to one).
+        ridge : float
+            Relative ridge ≥ 0 on the gain regression.
+        cov_shrinkage : float
+            κ in [0, 1).
+        cov_floor : float
+            Relative eigenvalue floor in (0, 1].
+        min_effective_samples : float, optional
+            Smallest acceptable Kish effective sample size (default d + 1: fewer cannot
+            determine a d×d covariance).
+
+        Returns
+        -------
+        (LinearGaussianPolicy, FitInfo)
+            The new policy (same class, features and context dimension) and what the fit did.
+
+        Raises
+        ------
+        ValueError
+            Wrong shapes, negative or non-finite weights, an effective sample size below
+            ``min_effective_samples`` (argument ``weights``), or weighted contexts without any
+            spread when the policy has a gain to fit (argument ``contexts``).
+        """
+        ridge = check_positive(ridge, "ridge", allow_zero=True)
+        kappa = check_positive(cov_shrinkage, "cov_shrinkage", allow_zero=True)
+        if kappa >= 1.0:
+            raise ValueError(f"cov_shrinkage: expected a value in [0, 1), got {cov_shrinkage!r}")
+        floor = check_positive(cov_floor, "cov_floor")
+        if floor > 1.0:
+            raise ValueError(f"cov_floor: expected a value in (0, 1], got {cov_floor!r}")
+        d = self.dim
+        B = check_array(omegas, "omegas", ndim=2)
+        if B.shape[1] != d:
+            raise ValueError(f"omegas: expected shape (N, {d}), got {B.shape}")
+        n = B.shape[0]
+        if contexts is None and self._context_dim == 0:
+            contexts = np.zeros((n, 0))
+        phi, single = self.phi(contexts)
+        if single or phi.shape[0] != n:
+            raise ValueError(
+                f"contexts: expected shape ({n}, {self._context_dim}), got {np.shape(contexts)}"
+            )
+        w = check_array(weights, "weights", shape=(n,))
+        if np.any(w < 0) or not np.any(w > 0):
+            raise ValueError("weights: expected non-negative weights with a positive sum")
+        p = w / w.sum()
+        ess = effective_sample_size(p)
+        need = d + 1.0 if min_effective_samples is None else float(min_effective_samples)
+        if ess < need:
+            raise ValueError(
+                f"weights: effective sample size {ess:.3g} (of {n} samples) is below the "
+                f"{need:g} needed "
+                f"to fit the {d}x{d} covariance Σ (Eq. 3.12)"
+            )
+
+        # 1. mean: weighted, centred ridge regression (Eq. 3.11)
+        phibar, wbar = p @ phi, p @ B
+        n_feat = phi.shape[1]
+        if n_feat:
+            pc = phi - phibar
+            C = (pc * p[:, None]).T @ pc
+            X = (pc * p[:, None]).T @ (B - wbar)
+            tr = float(np.trace(C))
+            if not tr > 0:
+                raise ValueError(
+                    "contexts: the weighted contexts have no spread, so the gain A cannot be fitted"
+                )
+            diag = np.diag(C).copy()
+            diag[diag <= 0] = tr / n_feat
+            try:
+                A = linalg.solve(C + np.diag(ridge * diag), X, assume_a="pos").T
+            except linalg.LinAlgError:
+                raise ValueError(
+                    "contexts: the weighted feature covariance is singular; use ridge > 0"
+                ) from None
+            a = wbar - A @ phibar
+        else:
+            A, a = np.zeros((d, 0)), wbar
+        # 2. covariance (Eq. 3.12)
+        r = B - a - phi @ A.T
+        cov = (r * p[:, None]).T @ r
+        cov = 0.5 * (cov + cov.T)
+        # 3. shrinkage and 4. floor, both relative to the previous Σ
+        cov = (1.0 - kappa) * cov + kappa * self._cov
+        m = linalg.solve_triangular(
+            self._chol, linalg.solve_triangular(self._chol, cov, lower=True).T, lower=True
+        )
+        lam, vec = np.linalg.eigh(0.5 * (m + m.T))
+        n_floored = int(np.sum(lam < floor))
+        if n_floored:
+            root = self._chol @ vec
+            cov = (root * np.maximum(lam, floor)) @ root.T
+            cov = 0.5 * (cov + cov.T)
+        info = FitInfo(n, ess, ridge, kappa, float(lam.min()), n_floored)
+        return self._new(a, cov, A), info
+
+    def _new(self, mean: np.ndarray, cov: np.ndarray, gain: np.ndarray) -> LinearGaussianPolicy:
+        return LinearGaussianPolicy(mean, cov, gain, self._context_dim, self._features)
+
+    def __repr__(self) -> str:
+        return (
+            f"{type(self).__name__}(dim={self.dim}, context_dim={self.context_dim}, "
+            f"features={self.features!r})"
+        )
+
+
+class GaussianPolicy(LinearGaussianPolicy):
+    """Context-free upper-level policy π(ω) = N(μ, Σ) (episode-based REPS, Eqs. 2.12–2.15).
+
+    The special case ``context_dim=0`` of :class:`LinearGaussianPolicy`; every method accepts
+    ``contexts=None`` (one sample) or ``np.zeros((n, 0))`` (n samples).
+
+    Parameters
+    ----------
+    mean : array_like, shape (d,)
+        μ.
+    cov : array_like, shape (d, d)
+        Σ, symmetric positive definite.
+    """
+
+    def __init__(self, mean, cov):
+        super().__init__(mean, cov, None, 0, "linear")
+
+    def _new(self, mean: np.ndarray, cov: np.ndarray, gain: np.ndarray) -> GaussianPolicy:
+        return GaussianPolicy(mean, cov)

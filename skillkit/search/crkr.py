@@ -1,0 +1,236 @@
+r"""Cost-regularized Kernel Regression (CrKR, Kober et al.), Eqs. (2.19)–(2.20).
+
+CrKR represents the upper-level policy non-parametrically by its samples. For a query
+context s*, π(ω|s*) = N(μ(s*), σ²(s*) D) with
+
+.. math::
+    \mu(s_*) = m_0(s_*) + k(s_*)^\top (K + \lambda C)^{-1} (\Omega - m_0(S)),  \quad (2.19)
+
+    \sigma^2(s_*) = k(s_*, s_*) + \lambda - k(s_*)^\top (K + \lambda C)^{-1} k(s_*),  \quad (2.20)
+
+with the Gram matrix K of the sample contexts, k(s*) the kernel between the samples and s*, and
+the cost matrix C = W⁻¹, W = diag(w), w_i = exp(β (R_i − max R)) (the RWR weights, with β
+chosen by :func:`~skillkit.search.rwr.rwr_beta`). Kernels come from
+:mod:`skillkit.models.kernels` (one implementation for GPs, embeddings and CrKR).
+
+Our choices, beyond Eqs. (2.19)–(2.20)
+--------------------------------------
+* **Prior mean** m₀(s): the mean of the initial policy (Eq. 2.19 is the case m₀ = 0). Before
+  the first update the policy *is* the initial policy.
+* **Numerics**: (K + λC)⁻¹ = W^{1/2} (W^{1/2} K W^{1/2} + λ I)⁻¹ W^{1/2}, factorised by Cholesky.
+  The middle matrix has eigenvalues ≥ λ, and samples whose weight underflows to 0 (infinite
+  cost) simply drop out instead of producing inf.
+* **Per-dimension scale**: Eq. (2.20) gives one variance for all dimensions of ω (the
+  kernel is shared); ``variance_scale`` (D = diag(variance_scale)) rescales it per dimension,
+  default ones, as in the thesis.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import linalg
+
+from skillkit._validation import as_generator, check_array, check_positive
+from skillkit.models.kernels import gram
+from skillkit.policies.gaussian import LinearGaussianPolicy, effective_sample_size
+from skillkit.search.reps import SampleBuffer, check_batch, kl_from_uniform
+from skillkit.search.rwr import rwr_beta, rwr_weights
+
+
+class CrKRPolicy:
+    """The CrKR policy N(μ(s), σ²(s) D) of Eqs. (2.19)–(2.20) for fixed samples and weights.
+
+    Parameters
+    ----------
+    prior : LinearGaussianPolicy
+        Supplies the prior mean m₀(s) and the dimensions.
+    kernel : gpytorch kernel
+        Kernel on contexts, e.g. :class:`skillkit.models.kernels.Linear` or
+        :class:`~skillkit.models.kernels.SquaredExponential` (evaluated with
+        :func:`~skillkit.models.kernels.gram`).
+    contexts : array_like, shape (N, context_dim)
+        Sample contexts S.
+    omegas : array_like, shape (N, d)
+        Sample parameters Ω.
+    weights : array_like, shape (N,)
+        Non-negative weights w (any scale; C = W⁻¹).
+    lam : float
+        λ > 0.
+    variance_scale : array_like, shape (d,), optional
+        Per-dimension scale of σ² (default ones).
+    """
+
+    def __init__(
+        self,
+        prior: LinearGaussianPolicy,
+        kernel,
+        contexts,
+        omegas,
+        weights,
+        lam: float,
+        variance_scale=None,
+    ):
+        self.prior = prior
+        self.kernel = kernel
+        self.lam = check_positive(lam, "lam")
+        d, s_dim = prior.dim, prior.context_dim
+        w_omega = check_array(omegas, "omegas", ndim=2)
+        s, w_omega, _ = check_batch(contexts, w_omega, np.zeros(w_omega.shape[0]), d, s_dim)
+        w = check_array(weights, "weights", shape=(s.shape[0],))
+        if np.any(w < 0) or not np.any(w > 0):
+            raise ValueError("weights: expected non-negative weights with a positive sum")
+        self.variance_scale = (
+            np.ones(d)
+            if variance_scale is None
+            else check_array(variance_scale, "variance_scale", shape=(d,))
+        )
+        if np.any(self.variance_scale <= 0):
+            raise ValueError("variance_scale: expected positive values")
+        self._s = s
+        self._u = np.sqrt(w / w.max())
+        m = self._u[:, None] * gram(kernel, s) * self._u[None, :]
+        m[np.diag_indices_from(m)] += self.lam
+        self._chol = linalg.cho_factor(m, lower=True)
+        resid = w_omega - prior.mean_of(s)
+        self._alpha = linalg.cho_solve(self._chol, self._u[:, None] * resid)  # (N, d)
+
+    @property
+    def dim(self) -> int:
+        """Dimension d of ω."""
+        return self.prior.dim
+
+    @property
+    def context_dim(self) -> int:
+        """Dimension of the context s."""
+        return self.prior.context_dim
+
+    def _query(self, contexts) -> tuple[np.ndarray, bool]:
+        s = check_array(contexts, "contexts", ndim=(1, 2))
+        if s.shape[-1] != self.context_dim:
+            raise ValueError(
+                f"contexts: expected shape (n, {self.context_dim}) or ({self.context_dim},), "
+                f"got {s.shape}"
+            )
+        return (s[None, :], True) if s.ndim == 1 else (s, False)
+
+    def mean_of(self, contexts) -> np.ndarray:
+        """μ(s*) of Eq. (2.19): shape (n, d) for contexts (n, context_dim), (d,) for one."""
+        s, single = self._query(contexts)
+        b = self._u[:, None] * gram(self.kernel, self._s, s)  # (N, n): W^{1/2} k(s*)
+        mu = self.prior.mean_of(s) + b.T @ self._alpha
+        return mu[0] if single else mu
+
+    def variance_of(self, contexts) -> np.ndarray:
+        """σ²(s*) of Eq. (2.20): shape (n,) for contexts (n, context_dim), float for one."""
+        s, single = self._query(contexts)
+        b = self._u[:, None] * gram(self.kernel, self._s, s)
+        k_ss = np.diag(gram(self.kernel, s)) if s.shape[0] else np.zeros(0)
+        var = k_ss + self.lam - np.sum(b * linalg.cho_solve(self._chol, b), axis=0)
+        return float(var[0]) if single else var
+
+    def sample(self, contexts, rng=None) -> np.ndarray:
+        """ω ~ N(μ(s), σ²(s) D) per context: shape (n, d), or (d,) for one context."""
+        rng = as_generator(rng)
+        s, single = self._query(contexts)
+        mu = np.atleast_2d(self.mean_of(s))
+        var = np.atleast_1d(self.variance_of(s))
+        if np.any(var <= 0):
+            raise FloatingPointError(f"CrKR variance σ²(s) ≤ 0 (min {var.min():.3g}); increase lam")
+        omega = mu + np.sqrt(var)[:, None] * np.sqrt(self.variance_scale) * rng.standard_normal(
+            mu.shape
+        )
+        return omega[0] if single else omega
+
+
+@dataclass(frozen=True)
+class CrKRDiagnostics:
+    """What one :meth:`CrKR.update` did.
+
+    Attributes
+    ----------
+    n_samples : int
+        Samples the policy now rests on.
+    beta : float
+        β of the weights w = exp(β (R − max R)).
+    kl : float
+        KL(w/Σw ‖ uniform).
+    ess : float
+        Kish effective sample size of the weights.
+    mean_reward : float
+        Mean reward of the newest batch.
+    """
+
+    n_samples: int
+    beta: float
+    kl: float
+    ess: float
+    mean_reward: float
+
+
+class CrKR:
+    """Cost-regularized Kernel Regression (Eqs. 2.19–2.20) as a policy-search algorithm.
+
+    Parameters
+    ----------
+    prior : LinearGaussianPolicy
+        Initial policy: sampled from until the first update, then the prior mean m₀(s).
+    kernel : gpytorch kernel
+        Kernel on contexts (from :mod:`skillkit.models.kernels`).
+    lam : float
+        λ > 0 in Eqs. (2.19)–(2.20): the regulariser, and the smallest exploration variance.
+    beta_scale : float
+        β = ``beta_scale`` / std(R) (:func:`~skillkit.search.rwr.rwr_beta`).
+    n_reuse_batches : int or None
+        Batches kept (``None``: all samples, as in Kober et al.; memory and time grow as N², N³).
+    variance_scale : array_like, shape (d,), optional
+        Per-dimension scale of σ².
+    """
+
+    def __init__(
+        self,
+        prior: LinearGaussianPolicy,
+        kernel,
+        lam: float = 1.0,
+        beta_scale: float = 1.0,
+        n_reuse_batches: int | None = None,
+        variance_scale=None,
+    ):
+        if not isinstance(prior, LinearGaussianPolicy):
+            raise ValueError(f"prior: expected a LinearGaussianPolicy, got {type(prior).__name__}")
+        self.kernel = kernel
+        self.lam = check_positive(lam, "lam")
+        self.beta_scale = check_positive(beta_scale, "beta_scale")
+        self.variance_scale = variance_scale
+        self._prior = prior
+        self._policy: LinearGaussianPolicy | CrKRPolicy = prior
+        self._buffer = SampleBuffer(n_reuse_batches)
+
+    @property
+    def policy(self) -> LinearGaussianPolicy | CrKRPolicy:
+        """The current policy (the prior before the first update)."""
+        return self._policy
+
+    def update(self, contexts, omegas, rewards) -> CrKRDiagnostics:
+        """Add a batch and rebuild the kernel policy on the kept samples.
+
+        Parameters
+        ----------
+        contexts : array_like, shape (N, context_dim)
+        omegas : array_like, shape (N, d)
+        rewards : array_like, shape (N,)
+            Must be finite.
+        """
+        prior = self._prior
+        s, w, r = check_batch(contexts, omegas, rewards, prior.dim, prior.context_dim)
+        self._buffer.add(s, w, r)
+        s_all, w_all, r_all = self._buffer.arrays()
+        beta = rwr_beta(r_all, self.beta_scale)
+        p = rwr_weights(r_all, beta)
+        self._policy = CrKRPolicy(
+            prior, self.kernel, s_all, w_all, p, self.lam, self.variance_scale
+        )
+        return CrKRDiagnostics(
+            int(r_all.size), beta, kl_from_uniform(p), effective_sample_size(p), float(r.mean())
+        )

@@ -1,0 +1,454 @@
+r"""Relative Entropy Policy Search: episode-based (2.12–2.15) and contextual (3.3–3.13).
+
+The maths is in two functions, in the style of bolero's C-REPS:
+
+* :func:`reps_dual` — the sample-based dual g(η, γ; D) of Eq. (3.9)/(A.10) and its analytic
+  gradient (A.11, A.12), a pure function of its arguments;
+* :func:`reps_weights` — minimises the dual with scipy's L-BFGS-B and returns the sample
+  weights p_i ∝ exp((R_i − V(s_i))/η) of Eq. (3.10) with diagnostics.
+
+:class:`ContextualREPS` only holds state (the policy and the last L batches of samples) and
+runs Table 3.1: weights from the dual, then the weighted maximum-likelihood policy
+(Eqs. 3.11–3.13, :meth:`~skillkit.policies.gaussian.LinearGaussianPolicy.fit`). Episode-based
+REPS is the same code path with a context-free policy (no context features, V ≡ 0).
+
+Numerics of :func:`reps_weights`
+--------------------------------
+* Rewards are shifted by their maximum and divided by their standard deviation, and the
+  baseline features are centred at their sample mean φ̂ and whitened. The weights are
+  invariant to both transforms (g(η, γ; σR + c) = σ g(η/σ, γ/σ; R) + c, and the feature
+  constraint (3.5) is the same set for any invertible linear map of φ), so the optimiser always
+  sees rewards of unit spread, whatever their magnitude (1e-6 … 1e6).
+* η > 0 is enforced by optimising over log η (bounded to [1e-8, 1e8] in normalised units);
+  the log-sum-exp is evaluated with a max shift, so no exponential overflows.
+* At the optimum ∂g/∂η = ε − KL(p ‖ uniform), so the KL bound (3.4) is met with equality.
+  If ε exceeds the largest KL the samples allow (ε ≥ log N for distinct rewards), η runs to its
+  lower bound; this is reported (``kl_bound_active=False``), not hidden.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import optimize
+
+from skillkit._validation import check_array, check_positive
+from skillkit.policies.features import FeatureName, check_feature_name, context_features
+from skillkit.policies.gaussian import FitInfo, LinearGaussianPolicy, effective_sample_size
+
+#: Bounds of η in normalised reward units (rewards divided by their standard deviation).
+ETA_BOUNDS = (1e-8, 1e8)
+
+
+# --------------------------------------------------------------------------- the dual
+def _dual(params: np.ndarray, rewards: np.ndarray, features: np.ndarray, epsilon: float):
+    """Unchecked core of :func:`reps_dual`; also returns the weights p (softmax)."""
+    eta, gamma = params[0], params[1:]
+    adv = rewards - features @ gamma
+    a = adv / eta
+    m = a.max()
+    z = np.exp(a - m)
+    total = z.sum()
+    p = z / total
+    log_mean_z = m + np.log(total) - np.log(rewards.shape[0])
+    phihat = features.mean(axis=0)
+    value = eta * log_mean_z + eta * epsilon + gamma @ phihat
+    grad = np.empty_like(params)
+    grad[0] = epsilon + log_mean_z - (p @ adv) / eta  # (A.11)
+    grad[1:] = phihat - p @ features  # (A.12)
+    return value, grad, p
+
+
+def reps_dual(params, rewards, features, epsilon: float) -> tuple[float, np.ndarray]:
+    r"""Sample-based REPS dual (Eq. 3.9 / A.10) and its gradient (A.11, A.12).
+
+    .. math::
+        g(\eta, \gamma) = \eta \log\Big(\frac1N \sum_i
+            \exp\Big(\frac{R_i - \gamma^\top\phi(s_i)}{\eta}\Big)\Big)
+            + \eta\epsilon + \gamma^\top\hat\phi,
+        \qquad \hat\phi = \frac1N \sum_i \phi(s_i)
+
+    Parameters
+    ----------
+    params : array_like, shape (1 + F,)
+        [η, γ_1, …, γ_F] with η > 0.
+    rewards : array_like, shape (N,)
+        Rewards R_i.
+    features : array_like, shape (N, F)
+        Baseline features φ(s_i) (F = 0 for episode-based REPS).
+    epsilon : float
+        KL bound ε > 0.
+
+    Returns
+    -------
+    value : float
+        g(η, γ).
+    grad : ndarray, shape (1 + F,)
+        [∂g/∂η (A.11), ∂g/∂γ (A.12)]. Note ∂g/∂η = ε − KL(p ‖ uniform) with the weights p of
+        Eq. (3.10).
+    """
+    r, phi = _check_samples(rewards, features)
+    x = check_array(params, "params", shape=(1 + phi.shape[1],))
+    if not x[0] > 0:
+        raise ValueError(f"params: η = params[0] must be > 0, got {x[0]!r}")
+    value, grad, _ = _dual(x, r, phi, check_positive(epsilon, "epsilon"))
+    return float(value), grad
+
+
+# --------------------------------------------------------------------------- weights
+@dataclass(frozen=True)
+class REPSWeights:
+    """Solution of the REPS dual on a set of samples.
+
+    Attributes
+    ----------
+    weights : ndarray, shape (N,)
+        p_i of Eq. (3.10), summing to one.
+    eta : float
+        Temperature η (in reward units).
+    gamma : ndarray, shape (F,)
+        Baseline coefficients γ (in reward units per feature unit).
+    baseline : ndarray, shape (N,)
+        V(s_i) = γᵀφ(s_i) at the samples.
+    dual : float
+        g(η, γ) at the solution (reward units).
+    kl : float
+        KL(p ‖ uniform) = Σ p_i log(N p_i) actually achieved (≤ ε up to solver tolerance).
+    ess : float
+        Kish effective sample size 1 / Σ p_i².
+    feature_error : float
+        max |Σ p_i φ(s_i) − φ̂| (constraint 3.5 residual, feature units).
+    kl_bound_active : bool
+        False when ε exceeds what the samples allow and η sits at its lower bound, or when all
+        rewards are equal (uniform weights).
+    success : bool
+        The optimiser converged and the constraints hold (KL within 1e-3 ε of ε when active).
+    message : str
+        Optimiser message.
+    n_iterations : int
+        L-BFGS-B iterations.
+    """
+
+    weights: np.ndarray
+    eta: float
+    gamma: np.ndarray
+    baseline: np.ndarray
+    dual: float
+    kl: float
+    ess: float
+    feature_error: float
+    kl_bound_active: bool
+    success: bool
+    message: str
+    n_iterations: int
+
+
+def reps_weights(rewards, features=None, epsilon: float = 1.0) -> REPSWeights:
+    r"""Solve the REPS dual (3.9) and return the sample weights (3.10) with diagnostics.
+
+    Minimises g(η, γ) of :func:`reps_dual` with scipy's L-BFGS-B over (log η, γ) after
+    normalising rewards and whitening features (see the module notes), then maps η, γ back to
+    the original units.
+
+    Parameters
+    ----------
+    rewards : array_like, shape (N,)
+        Finite rewards R_i.
+    features : array_like, shape (N, F), optional
+        Baseline features φ(s_i); ``None`` or F = 0 gives episode-based REPS (Eq. 2.15).
+    epsilon : float
+        KL bound ε > 0 (Eq. 3.4).
+
+    Returns
+    -------
+    REPSWeights
+    """
+    eps = check_positive(epsilon, "epsilon")
+    r, phi = _check_samples(rewards, features)
+    n, n_feat = phi.shape
+    phihat = phi.mean(axis=0)
+    r_max, r_scale = float(r.max()), float(r.std())
+    if not r_scale > 0:
+        w = np.full(n, 1.0 / n)
+        return REPSWeights(
+            w,
+            np.inf,
+            np.zeros(n_feat),
+            np.zeros(n),
+            r_max,
+            0.0,
+            float(n),
+            0.0,
+            False,
+            True,
+            "all rewards are equal: uniform weights",
+            0,
+        )
+
+    # Normalise: unit-spread rewards with maximum 0; centred, whitened features.
+    r_n = (r - r_max) / r_scale
+    centred = phi - phihat
+    if n_feat:
+        _, sv, vt = np.linalg.svd(centred / np.sqrt(n), full_matrices=False)
+        keep = sv > 1e-10 * sv.max() if sv.size and sv.max() > 0 else np.zeros(sv.shape, bool)
+        transform = vt[keep].T / sv[keep]  # (F, k): ψ = (φ − φ̂) T has identity covariance
+    else:
+        transform = np.zeros((0, 0))
+    psi = centred @ transform
+
+    def objective(y):
+        x = np.concatenate([[np.exp(y[0])], y[1:]])
+        value, grad, _ = _dual(x, r_n, psi, eps)
+        grad[0] *= x[0]  # chain rule for log η
+        return value, grad
+
+    lo, hi = np.log(ETA_BOUNDS[0]), np.log(ETA_BOUNDS[1])
+    y0 = np.zeros(1 + psi.shape[1])
+    res = optimize.minimize(
+        objective,
+        y0,
+        jac=True,
+        method="L-BFGS-B",
+        bounds=[(lo, hi)] + [(None, None)] * psi.shape[1],
+        options={"maxiter": 2000, "maxcor": 30, "ftol": 1e-15, "gtol": 1e-11},
+    )
+    eta_n = float(np.exp(res.x[0]))
+    theta = res.x[1:]
+    value_n, _, p = _dual(np.concatenate([[eta_n], theta]), r_n, psi, eps)
+
+    eta = eta_n * r_scale
+    gamma = r_scale * (transform @ theta)
+    kl = kl_from_uniform(p)
+    feature_error = float(np.max(np.abs(p @ phi - phihat))) if n_feat else 0.0
+    at_lower = res.x[0] <= lo + 1e-9
+    kl_ok = abs(kl - eps) <= 1e-3 * eps or (at_lower and kl <= eps)
+    scale_phi = float(np.max(np.abs(centred))) if n_feat else 0.0
+    features_ok = feature_error <= 1e-6 * max(scale_phi, np.finfo(float).tiny) or n_feat == 0
+    return REPSWeights(
+        weights=p,
+        eta=eta,
+        gamma=gamma,
+        baseline=phi @ gamma,
+        dual=float(r_scale * value_n + r_max),
+        kl=kl,
+        ess=effective_sample_size(p),
+        feature_error=feature_error,
+        kl_bound_active=not at_lower,
+        success=bool(kl_ok and features_ok),
+        message=str(res.message),
+        n_iterations=int(res.nit),
+    )
+
+
+def kl_from_uniform(weights: np.ndarray) -> float:
+    """KL(p ‖ uniform) = Σ p_i log(N p_i) of normalised weights p, shape (N,) (0 log 0 = 0)."""
+    p = np.asarray(weights, dtype=np.float64)
+    q = p[p > 0]
+    return float(np.sum(q * np.log(p.size * q)))
+
+
+def _check_samples(rewards, features) -> tuple[np.ndarray, np.ndarray]:
+    r = check_array(rewards, "rewards", ndim=1)
+    if r.shape[0] == 0:
+        raise ValueError("rewards: expected at least one sample, got shape (0,)")
+    if features is None:
+        return r, np.zeros((r.shape[0], 0))
+    phi = check_array(features, "features", ndim=2)
+    if phi.shape[0] != r.shape[0]:
+        raise ValueError(
+            f"features: expected {r.shape[0]} rows (one per reward), got shape {phi.shape}"
+        )
+    return r, phi
+
+
+# --------------------------------------------------------------------------- samples
+def check_batch(contexts, omegas, rewards, dim: int, context_dim: int):
+    """Validate one batch of samples for a policy of dimension ``dim`` and ``context_dim``.
+
+    Parameters
+    ----------
+    contexts : array_like, shape (N, context_dim)
+        ``None`` is accepted for context-free policies.
+    omegas : array_like, shape (N, dim)
+    rewards : array_like, shape (N,)
+        Must be finite (NaN/inf raise ``ValueError`` naming ``rewards``).
+
+    Returns
+    -------
+    (contexts, omegas, rewards) as float64 arrays of shapes (N, context_dim), (N, dim), (N,).
+    """
+    w = check_array(omegas, "omegas", ndim=2)
+    if w.shape[1] != dim:
+        raise ValueError(f"omegas: expected shape (N, {dim}), got {w.shape}")
+    n = w.shape[0]
+    if n == 0:
+        raise ValueError("omegas: expected at least one sample, got 0 rows")
+    if contexts is None and context_dim == 0:
+        contexts = np.zeros((n, 0))
+    s = check_array(contexts, "contexts", shape=(n, context_dim))
+    r = check_array(rewards, "rewards", shape=(n,))
+    return s, w, r
+
+
+class SampleBuffer:
+    """The last ``n_batches`` batches of (context, ω, reward) samples (data reuse, Table 3.1).
+
+    Parameters
+    ----------
+    n_batches : int or None
+        Number of batches kept, the newest included (``None`` keeps all).
+    """
+
+    def __init__(self, n_batches: int | None):
+        if n_batches is not None and (
+            isinstance(n_batches, bool) or int(n_batches) != n_batches or n_batches < 1
+        ):
+            raise ValueError(
+                f"n_reuse_batches: expected a positive integer or None, got {n_batches!r}"
+            )
+        self._batches: deque = deque(maxlen=None if n_batches is None else int(n_batches))
+
+    def add(self, contexts: np.ndarray, omegas: np.ndarray, rewards: np.ndarray) -> None:
+        """Append a validated batch (oldest batch dropped when full)."""
+        self._batches.append((contexts, omegas, rewards))
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """All kept samples: contexts (N, s), omegas (N, d), rewards (N,), oldest first."""
+        s, w, r = (np.concatenate(parts) for parts in zip(*self._batches, strict=True))
+        return s, w, r
+
+    def __len__(self) -> int:
+        return sum(b[2].shape[0] for b in self._batches)
+
+
+# --------------------------------------------------------------------------- algorithm
+@dataclass(frozen=True)
+class REPSDiagnostics:
+    """What one :meth:`ContextualREPS.update` did.
+
+    Attributes
+    ----------
+    n_samples : int
+        Samples used (the last L batches).
+    eta, gamma, baseline, dual, kl, ess, feature_error, kl_bound_active, success, message
+        From :class:`REPSWeights` (``baseline`` is V(s_i) at the samples used).
+    policy_kl : float
+        KL(π_new ‖ π_old) averaged over the contexts used.
+    mean_reward : float
+        Mean reward of the newest batch.
+    fit : FitInfo
+        What the weighted maximum-likelihood fit did (effective samples, floor hits).
+    """
+
+    n_samples: int
+    eta: float
+    gamma: np.ndarray
+    baseline: np.ndarray
+    dual: float
+    kl: float
+    ess: float
+    feature_error: float
+    kl_bound_active: bool
+    success: bool
+    message: str
+    policy_kl: float
+    mean_reward: float
+    fit: FitInfo
+
+
+class ContextualREPS:
+    """Contextual (and, with a context-free policy, episode-based) REPS, Table 3.1.
+
+    Parameters
+    ----------
+    policy : LinearGaussianPolicy
+        Initial upper-level policy π(ω|s) (a :class:`~skillkit.policies.gaussian.GaussianPolicy`
+        gives episode-based REPS).
+    epsilon : float
+        KL bound ε > 0 (Eq. 3.4); the thesis uses 0.5–1.
+    n_reuse_batches : int or None
+        L: the dual and the fit use the last L batches, the newest included (``None``: all).
+        The thesis's throwing setting (25 rollouts per update, reuse the last 200) is L = 8.
+    baseline_features : {"linear", "quadratic"}
+        Features φ(s) of the baseline V(s) = γᵀφ(s) and of constraint (3.5). ``"quadratic"``
+        matches the mean and second moments of μ(s) and captures rewards whose expectation is
+        quadratic in s.
+    ridge, cov_shrinkage, cov_floor, min_effective_samples
+        Regularisation of the weighted ML fit, see
+        :meth:`~skillkit.policies.gaussian.LinearGaussianPolicy.fit_with_info`.
+    """
+
+    def __init__(
+        self,
+        policy: LinearGaussianPolicy,
+        epsilon: float,
+        n_reuse_batches: int | None = 1,
+        baseline_features: FeatureName = "quadratic",
+        ridge: float = 1e-6,
+        cov_shrinkage: float = 0.0,
+        cov_floor: float = 1e-4,
+        min_effective_samples: float | None = None,
+    ):
+        if not isinstance(policy, LinearGaussianPolicy):
+            raise ValueError(
+                f"policy: expected a LinearGaussianPolicy, got {type(policy).__name__}"
+            )
+        self.epsilon = check_positive(epsilon, "epsilon")
+        self.baseline_features = check_feature_name(baseline_features, "baseline_features")
+        self._fit_kwargs = {
+            "ridge": ridge,
+            "cov_shrinkage": cov_shrinkage,
+            "cov_floor": cov_floor,
+            "min_effective_samples": min_effective_samples,
+        }
+        self._policy = policy
+        self._buffer = SampleBuffer(n_reuse_batches)
+
+    @property
+    def policy(self) -> LinearGaussianPolicy:
+        """The current upper-level policy."""
+        return self._policy
+
+    def update(self, contexts, omegas, rewards) -> REPSDiagnostics:
+        """Add a batch, solve the dual on the last L batches and refit the policy.
+
+        Parameters
+        ----------
+        contexts : array_like, shape (N, context_dim)
+            Contexts s_i (``None`` for a context-free policy).
+        omegas : array_like, shape (N, d)
+            Parameters ω_i ~ π(ω|s_i).
+        rewards : array_like, shape (N,)
+            Rewards R(τ_i, s_i); must be finite.
+
+        Returns
+        -------
+        REPSDiagnostics
+        """
+        pol = self._policy
+        s, w, r = check_batch(contexts, omegas, rewards, pol.dim, pol.context_dim)
+        self._buffer.add(s, w, r)
+        s_all, w_all, r_all = self._buffer.arrays()
+        phi = context_features(s_all, self.baseline_features) if pol.context_dim else None
+        sol = reps_weights(r_all, phi, self.epsilon)
+        new, info = pol.fit_with_info(s_all, w_all, sol.weights, **self._fit_kwargs)
+        policy_kl = new.kl(pol, s_all)
+        self._policy = new
+        return REPSDiagnostics(
+            n_samples=int(r_all.shape[0]),
+            eta=sol.eta,
+            gamma=sol.gamma,
+            baseline=sol.baseline,
+            dual=sol.dual,
+            kl=sol.kl,
+            ess=sol.ess,
+            feature_error=sol.feature_error,
+            kl_bound_active=sol.kl_bound_active,
+            success=sol.success,
+            message=sol.message,
+            policy_kl=policy_kl,
+            mean_reward=float(r.mean()),
+            fit=info,
+        )

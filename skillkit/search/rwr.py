@@ -1,0 +1,162 @@
+r"""Contextual Reward-Weighted Regression (RWR), Eq. (2.18).
+
+RWR fits the same linear-Gaussian policy N(ω | a + Aφ(s), Σ) as contextual REPS, but with
+the heuristic weights w_i = exp(β R_i) instead of the REPS weights (3.10): no KL bound, no
+context-dependent baseline. The M-step is the weighted maximum-likelihood fit of
+:meth:`~skillkit.policies.gaussian.LinearGaussianPolicy.fit_with_info` (Eq. 2.18 for the mean,
+the weighted residual covariance for Σ).
+
+Choice of β (our rule; the thesis leaves it to the user)
+--------------------------------------------------------
+β = ``beta_scale`` / std(R) over the samples used. The weights are then invariant to the
+reward scale, and for roughly Gaussian rewards the weights' KL from uniform is about
+``beta_scale``² / 2 (so ``beta_scale=1`` is comparable to REPS with ε ≈ 0.5, minus the baseline).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from skillkit._validation import check_array, check_positive
+from skillkit.policies.gaussian import FitInfo, LinearGaussianPolicy, effective_sample_size
+from skillkit.search.reps import SampleBuffer, check_batch, kl_from_uniform
+
+
+def rwr_beta(rewards, beta_scale: float = 1.0) -> float:
+    """β = ``beta_scale`` / std(R) (0 when all rewards are equal, giving uniform weights).
+
+    Parameters
+    ----------
+    rewards : array_like, shape (N,)
+    beta_scale : float
+        Dimensionless scale > 0.
+    """
+    r = check_array(rewards, "rewards", ndim=1)
+    kappa = check_positive(beta_scale, "beta_scale")
+    sd = float(r.std()) if r.size else 0.0
+    return kappa / sd if sd > 0 else 0.0
+
+
+def rwr_weights(rewards, beta: float) -> np.ndarray:
+    """Normalised weights w_i ∝ exp(β R_i) (Eq. 2.18), computed as exp(β (R_i − max R)).
+
+    Parameters
+    ----------
+    rewards : array_like, shape (N,)
+    beta : float
+        β ≥ 0.
+
+    Returns
+    -------
+    ndarray, shape (N,)
+        Weights summing to one.
+    """
+    r = check_array(rewards, "rewards", ndim=1)
+    if r.size == 0:
+        raise ValueError("rewards: expected at least one sample, got shape (0,)")
+    b = check_positive(beta, "beta", allow_zero=True)
+    w = np.exp(b * (r - r.max()))
+    return w / w.sum()
+
+
+@dataclass(frozen=True)
+class RWRDiagnostics:
+    """What one :meth:`RWR.update` did.
+
+    Attributes
+    ----------
+    n_samples : int
+        Samples used (the last L batches).
+    beta : float
+        β used (reward units⁻¹).
+    kl : float
+        KL(w ‖ uniform) of the weights.
+    ess : float
+        Kish effective sample size of the weights.
+    policy_kl : float
+        KL(π_new ‖ π_old) averaged over the contexts used.
+    mean_reward : float
+        Mean reward of the newest batch.
+    fit : FitInfo
+        What the weighted maximum-likelihood fit did.
+    """
+
+    n_samples: int
+    beta: float
+    kl: float
+    ess: float
+    policy_kl: float
+    mean_reward: float
+    fit: FitInfo
+
+
+class RWR:
+    """Contextual Reward-Weighted Regression (Eq. 2.18) on a linear-Gaussian policy.
+
+    Parameters
+    ----------
+    policy : LinearGaussianPolicy
+        Initial upper-level policy.
+    beta_scale : float
+        β = ``beta_scale`` / std(R) (module notes).
+    n_reuse_batches : int or None
+        Use the last L batches, the newest included (``None``: all).
+    ridge, cov_shrinkage, cov_floor, min_effective_samples
+        Regularisation of the weighted ML fit, see
+        :meth:`~skillkit.policies.gaussian.LinearGaussianPolicy.fit_with_info`.
+    """
+
+    def __init__(
+        self,
+        policy: LinearGaussianPolicy,
+        beta_scale: float = 1.0,
+        n_reuse_batches: int | None = 1,
+        ridge: float = 1e-6,
+        cov_shrinkage: float = 0.0,
+        cov_floor: float = 1e-4,
+        min_effective_samples: float | None = None,
+    ):
+        if not isinstance(policy, LinearGaussianPolicy):
+            raise ValueError(
+                f"policy: expected a LinearGaussianPolicy, got {type(policy).__name__}"
+            )
+        self.beta_scale = check_positive(beta_scale, "beta_scale")
+        self._fit_kwargs = {
+            "ridge": ridge,
+            "cov_shrinkage": cov_shrinkage,
+            "cov_floor": cov_floor,
+            "min_effective_samples": min_effective_samples,
+        }
+        self._policy = policy
+        self._buffer = SampleBuffer(n_reuse_batches)
+
+    @property
+    def policy(self) -> LinearGaussianPolicy:
+        """The current upper-level policy."""
+        return self._policy
+
+    def update(self, contexts, omegas, rewards) -> RWRDiagnostics:
+        """Add a batch, weight the last L batches by exp(βR) and refit the policy.
+
+        Parameters
+        ----------
+        contexts : array_like, shape (N, context_dim)
+        omegas : array_like, shape (N, d)
+        rewards : array_like, shape (N,)
+            Must be finite.
+        """
+        pol = self._policy
+        s, w, r = check_batch(contexts, omegas, rewards, pol.dim, pol.context_dim)
+        self._buffer.add(s, w, r)
+        s_all, w_all, r_all = self._buffer.arrays()
+        beta = rwr_beta(r_all, self.beta_scale)
+        p = rwr_weights(r_all, beta)
+        new, info = pol.fit_with_info(s_all, w_all, p, **self._fit_kwargs)
+        kl = kl_from_uniform(p)
+        policy_kl = new.kl(pol, s_all)
+        self._policy = new
+        return RWRDiagnostics(
+            int(r_all.size), beta, kl, effective_sample_size(p), policy_kl, float(r.mean()), info
+        )

@@ -1,0 +1,145 @@
+"""The single-link pendulum of Sec. 5.4 (and the stochastic pendulum of Fig. 4.8).
+
+Dynamics (Sec. 5.4)::
+
+    α̈ = −9.81 sin α + u,       |u| ≤ 3,       Δt = 0.1 s
+
+controlled by the stochastic linear state feedback u ~ N(Kᵀx, σ_u²), x = [α, α̇], clipped
+to the torque limit |u| ≤ 3 (the actuator's limit, part of the model, as in the thesis).
+The lower-level parameters are the feedback gains ω = K (thesis value K = [−3, −1]); the
+context is the initial state s = x_0. Between control steps the torque is held constant and
+the ODE is integrated with classical Runge–Kutta (4th order, 10 sub-steps of 10 ms), which is
+accurate to ~1e-9 here, so the discrete-time map is effectively exact.
+
+The trajectory reward is R(τ, s) = −Σ_{t=1}^{T} (α_t² + 0.1 α̇_t²), the sum of immediate
+quadratic rewards r(x_t) Fig. 4.8 refers to (the thesis gives no constants; these are ours).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from skillkit.tasks.base import Task
+from skillkit.tasks.registry import register
+from skillkit.trajectory import Trajectory
+
+GRAVITY = 9.81
+TORQUE_LIMIT = 3.0
+THESIS_GAINS = np.array([-3.0, -1.0])
+
+
+def pendulum_dynamics(x: np.ndarray, u: np.ndarray, dt: float = 0.1, substeps: int = 10) -> np.ndarray:
+    """Deterministic successor state of α̈ = −9.81 sin α + u with u held for ``dt`` (RK4).
+
+    Parameters
+    ----------
+    x : ndarray, shape (..., 2)
+        States [α, α̇].
+    u : ndarray, shape (...)
+        Torques (already limited).
+    dt : float
+        Control period.
+    substeps : int
+        RK4 steps per control period.
+
+    Returns
+    -------
+    ndarray, shape (..., 2)
+    """
+    x = np.asarray(x, dtype=np.float64)
+    u = np.asarray(u, dtype=np.float64)
+    h = dt / substeps
+
+    def f(state):
+        return np.stack([state[..., 1], -GRAVITY * np.sin(state[..., 0]) + u], axis=-1)
+
+    for _ in range(substeps):
+        k1 = f(x)
+        k2 = f(x + 0.5 * h * k1)
+        k3 = f(x + 0.5 * h * k2)
+        k4 = f(x + h * k3)
+        x = x + (h / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4)
+    return x
+
+
+def feedback_torque(x: np.ndarray, gains: np.ndarray, noise: np.ndarray | float = 0.0) -> np.ndarray:
+    """u = clip(Kᵀx + noise, −3, 3) for states of shape (..., 2)."""
+    return np.clip(np.asarray(x) @ np.asarray(gains) + noise, -TORQUE_LIMIT, TORQUE_LIMIT)
+
+
+class Pendulum(Task):
+    """Single-link pendulum under stochastic linear feedback (Sec. 5.4, Fig. 4.8).
+
+    Parameters
+    ----------
+    horizon : int
+        Number of control steps T (20 in Sec. 5.4).
+    control_noise : float
+        Standard deviation σ_u of the Gaussian torque noise (0.05 in Sec. 5.4).
+    dt : float
+        Control period Δt in seconds (0.1).
+    alpha_range, velocity_range : float
+        The context (initial state) is uniform on [−alpha_range, alpha_range] ×
+        [−velocity_range, velocity_range].
+    """
+
+    context_names = ("alpha0", "alpha_dot0")
+    parameter_dim = 2
+    context_dim = 2
+    trajectory_depends_on_context = True
+    worst_reward = -1e6
+
+    def __init__(self, horizon: int = 20, control_noise: float = 0.05, dt: float = 0.1,
+                 alpha_range: float = np.pi, velocity_range: float = 4.0, name: str = "pendulum"):
+        if int(horizon) < 1:
+            raise ValueError(f"horizon: expected a positive number of steps, got {horizon}")
+        if not control_noise >= 0:
+            raise ValueError(f"control_noise: expected a standard deviation >= 0, got {control_noise}")
+        if not dt > 0:
+            raise ValueError(f"dt: expected a positive control period, got {dt}")
+        self.name = name
+        self.horizon = int(horizon)
+        self.control_noise = float(control_noise)
+        self.dt = float(dt)
+        self.context_low = np.array([-alpha_range, -velocity_range], dtype=float)
+        self.context_high = -self.context_low
+
+    def _simulate(self, omega: np.ndarray, context: np.ndarray, rng: np.random.Generator) -> Trajectory:
+        T = self.horizon
+        states = np.empty((T + 1, 2))
+        controls = np.zeros((T + 1, 1))
+        states[0] = context
+        noise = self.control_noise * rng.standard_normal(T)
+        for t in range(T):
+            u = feedback_torque(states[t], omega, noise[t])
+            controls[t, 0] = u
+            states[t + 1] = pendulum_dynamics(states[t], u, self.dt)
+        return Trajectory(times=self.dt * np.arange(T + 1), states=states, controls=controls,
+                          info={"gains": omega.tolist()})
+
+    def _reward(self, trajectory: Trajectory, context: np.ndarray) -> float:
+        x = trajectory.states[1:]
+        return -float(np.sum(x[:, 0] ** 2 + 0.1 * x[:, 1] ** 2))
+
+    def initial_policy(self):
+        """π(ω|s) = N(K_thesis, diag(0.5², 0.25²)), independent of the context."""
+        from skillkit.policies.gaussian import LinearGaussianPolicy
+
+        return LinearGaussianPolicy(mean=THESIS_GAINS.copy(), cov=np.diag([0.5**2, 0.25**2]),
+                                    context_dim=self.context_dim)
+
+
+@register("pendulum", "pendulum", "contextual")
+def pendulum(**kwargs) -> Pendulum:
+    """Sec. 5.4 setting: T = 20, σ_u = 0.05, context = initial state."""
+    return Pendulum(**kwargs)
+
+
+@register("pendulum-stochastic", "pendulum", "contextual")
+def pendulum_stochastic(**kwargs) -> Pendulum:
+    """Fig. 4.8 setting: the same pendulum with strong torque noise (σ_u = 1.5) and T = 30, so
+    single rollouts of the same (s, ω) give widely different rewards."""
+    kwargs.setdefault("control_noise", 1.5)
+    kwargs.setdefault("horizon", 30)
+    kwargs.setdefault("name", "pendulum-stochastic")
+    return Pendulum(**kwargs)

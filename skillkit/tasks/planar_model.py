@@ -1,0 +1,121 @@
+"""The planar 4-link robot of Appendix C.1 as a MuJoCo model built with ``dm_control.mjcf``.
+
+The robot is "roughly modeled as a human with ankle, knee, hip and shoulder joints"
+(Sec. 3.4.1, Fig. 3.1): four links in one vertical plane,
+
+==========  =====  ========  ===========================================
+link        mass   length    joint at its lower end (hinge about +y)
+==========  =====  ========  ===========================================
+shin        17.5   0.5 m     ankle, fixed to the ground at the origin
+thigh       17.5   0.5 m     knee
+torso       26.5   1.0 m     hip
+arm          8.5   1.0 m     shoulder, at the top of the torso
+==========  =====  ========  ===========================================
+
+(total 70 kg, standing height 2 m, as in Sec. 4.3.1). Conventions:
+
+* MuJoCo's x–z plane is the robot's plane: +x is forward (towards the targets), +z up.
+  The thesis's 2-D coordinates ``[x, y]`` of Appendix C.1 are MuJoCo's ``[x, z]``.
+* The **base is fixed to the ground**: the ankle hinge is attached to the world, so the
+  robot cannot tip over as a whole or slide; "losing balance" means the links fall
+  around the ankle.
+* All hinge axes are +y, so a positive angle tilts a link that points up forwards (+x).
+  With ``q = 0`` shin, thigh and torso stand upright and the arm hangs down along the
+  torso; the arm points straight up at ``q_4 = π``. The upright posture of the thesis is
+  therefore ``q = [0, 0, 0, π]``, and the joint limits of Appendix C.1 read naturally:
+  the knee only flexes (``q_2 ≤ 0.05``), the hip flexes forwards (``q_3 ≤ 2``) and the arm
+  turns from hanging (0) backwards, over the head (π) to pointing forwards (1.5π).
+* Links are uniform thin rods: mass ``m`` at the middle of the link and moment of inertia
+  ``m l² / 12`` about the centre (the thesis gives no inertia; this is our assumption).
+* No joint limits, damping, friction or contacts are modelled (every geom has
+  ``contype = conaffinity = 0``): the thesis's limits are soft, enforced by the reward, and
+  links may pass through the ground. All four joints carry a ``<motor>`` actuator (gear 1,
+  unlimited), i.e. all are torque-actuated.
+* The default time step is 1 ms with MuJoCo's semi-implicit Euler integrator.
+
+A site ``hand`` marks the tip of the arm (where the ball is held in the throwing task).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from dm_control import mjcf
+
+LINK_NAMES = ("shin", "thigh", "torso", "arm")
+JOINT_NAMES = ("ankle", "knee", "hip", "shoulder")
+LINK_MASSES = np.array([17.5, 17.5, 26.5, 8.5])
+LINK_LENGTHS = np.array([0.5, 0.5, 1.0, 1.0])
+UPRIGHT = np.array([0.0, 0.0, 0.0, np.pi])
+"""Upright posture q = [0, 0, 0, π] (rad): legs and torso vertical, arm pointing up."""
+TIMESTEP = 1e-3
+"""Physics time step in seconds."""
+
+
+def build_planar_robot(timestep: float = TIMESTEP) -> mjcf.RootElement:
+    """MJCF model of the planar 4-link robot (Appendix C.1).
+
+    Parameters
+    ----------
+    timestep : float
+        Physics time step in seconds.
+
+    Returns
+    -------
+    dm_control.mjcf.RootElement
+        The model; compile with ``mjcf.Physics.from_mjcf_model``.
+    """
+    root = mjcf.RootElement(model="planar_4link")
+    root.option.timestep = timestep
+    root.option.gravity = [0.0, 0.0, -9.81]
+    root.option.integrator = "Euler"
+    root.compiler.angle = "radian"
+    root.default.geom.contype = 0
+    root.default.geom.conaffinity = 0
+    root.default.geom.rgba = [0.55, 0.6, 0.7, 1.0]
+    root.worldbody.add("light", pos=[0, -6, 4], dir=[0, 1, -0.5])
+    root.worldbody.add(
+        "geom",
+        name="ground",
+        type="plane",
+        size=[20, 2, 0.1],
+        pos=[7, 0, 0],
+        rgba=[0.85, 0.85, 0.8, 1],
+    )
+
+    parent = root.worldbody
+    attach_z = 0.0
+    for i, (link, joint) in enumerate(zip(LINK_NAMES, JOINT_NAMES, strict=True)):
+        m, length = float(LINK_MASSES[i]), float(LINK_LENGTHS[i])
+        sign = -1.0 if link == "arm" else 1.0  # the arm hangs down from the shoulder at q4 = 0
+        body = parent.add("body", name=link, pos=[0, 0, attach_z])
+        body.add("joint", name=joint, type="hinge", axis=[0, 1, 0], pos=[0, 0, 0])
+        i_rod = m * length**2 / 12.0
+        body.add(
+            "inertial",
+            pos=[0, 0, sign * length / 2],
+            mass=m,
+            diaginertia=[i_rod, i_rod, 1e-6 * max(i_rod, 1.0)],
+        )
+        body.add(
+            "geom",
+            name=f"{link}_geom",
+            type="capsule",
+            size=[0.04 if link != "torso" else 0.08],
+            fromto=[0, 0, 0, 0, 0, sign * length],
+            mass=0,
+        )
+        root.actuator.add("motor", name=f"{joint}_motor", joint=body.find("joint", joint), gear=[1])
+        parent, attach_z = body, length
+    parent.add(
+        "site", name="hand", pos=[0, 0, -LINK_LENGTHS[3]], size=[0.06], rgba=[0.9, 0.2, 0.2, 1]
+    )
+    return root
+
+
+def compile_planar_robot(timestep: float = TIMESTEP) -> mjcf.Physics:
+    """Compile :func:`build_planar_robot` into a ``dm_control.mjcf.Physics``.
+
+    Use ``physics.model.ptr`` / ``physics.data.ptr`` (raw ``mujoco.MjModel``/``MjData``)
+    with ``mujoco.mj_step`` in inner loops.
+    """
+    return mjcf.Physics.from_mjcf_model(build_planar_robot(timestep))

@@ -1,0 +1,97 @@
+"""The :class:`Trajectory` record every task rollout and every model prediction produces."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+
+@dataclass
+class Trajectory:
+    """One episode, stored time-major.
+
+    Attributes
+    ----------
+    times : ndarray, shape (T,)
+        Time stamps in seconds.
+    states : ndarray, shape (T, n_x)
+        Robot state x_t = [q_t, q̇_t] (or the task's state) at each time stamp.
+    controls : ndarray, shape (T, n_u)
+        Control u_t applied from ``times[t]`` on (the last row is the control at the final
+        time stamp, usually zero or repeated).
+    signals : dict of str to ndarray
+        Named task signals, time-major (first axis is time, not necessarily of length T),
+        e.g. ``"ball"`` with shape (T_b, 2) or ``"racket"`` with shape (T, 3).
+    info : dict
+        Scalars describing the episode (release time, hit flag, ...). JSON-serialisable.
+    failed : bool
+        True when the simulation broke down (NaN, instability); ``message`` says why. The
+        task's reward for a failed trajectory is its worst-case reward.
+    message : str
+        Why the rollout failed, empty otherwise.
+    """
+
+    times: np.ndarray
+    states: np.ndarray
+    controls: np.ndarray
+    signals: dict[str, np.ndarray] = field(default_factory=dict)
+    info: dict = field(default_factory=dict)
+    failed: bool = False
+    message: str = ""
+
+    def __post_init__(self) -> None:
+        self.times = np.asarray(self.times, dtype=np.float64)
+        self.states = np.asarray(self.states, dtype=np.float64)
+        self.controls = np.asarray(self.controls, dtype=np.float64)
+        if self.times.ndim != 1:
+            raise ValueError(f"times: expected shape (T,), got {self.times.shape}")
+        n = self.times.shape[0]
+        for name in ("states", "controls"):
+            arr = getattr(self, name)
+            if arr.ndim != 2 or arr.shape[0] != n:
+                raise ValueError(f"{name}: expected shape ({n}, ?), got {arr.shape}")
+        self.signals = {k: np.asarray(v, dtype=np.float64) for k, v in self.signals.items()}
+
+    @property
+    def n_steps(self) -> int:
+        """Number of time stamps T."""
+        return int(self.times.shape[0])
+
+    def transitions(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """One-step transitions (x_t, u_t, x_{t+1}) for model learning.
+
+        Returns
+        -------
+        x : ndarray, shape (T-1, n_x)
+        u : ndarray, shape (T-1, n_u)
+        x_next : ndarray, shape (T-1, n_x)
+        """
+        return self.states[:-1], self.controls[:-1], self.states[1:]
+
+    def save(self, path: str | Path) -> Path:
+        """Write the trajectory to a compressed ``.npz`` file and return its path."""
+        path = Path(path)
+        arrays = {"times": self.times, "states": self.states, "controls": self.controls}
+        arrays.update({f"signal__{k}": v for k, v in self.signals.items()})
+        meta = {"info": self.info, "failed": self.failed, "message": self.message}
+        np.savez_compressed(path, __meta__=np.array(json.dumps(meta)), **arrays)
+        return path if path.suffix == ".npz" else path.with_suffix(path.suffix + ".npz")
+
+    @classmethod
+    def load(cls, path: str | Path) -> Trajectory:
+        """Read a trajectory written by :meth:`save`."""
+        with np.load(Path(path), allow_pickle=False) as data:
+            meta = json.loads(str(data["__meta__"]))
+            signals = {k[len("signal__"):]: data[k] for k in data.files if k.startswith("signal__")}
+            return cls(
+                times=data["times"],
+                states=data["states"],
+                controls=data["controls"],
+                signals=signals,
+                info=meta["info"],
+                failed=bool(meta["failed"]),
+                message=meta["message"],
+            )

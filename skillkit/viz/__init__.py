@@ -1,0 +1,1 @@
+"""Figures (plotly HTML, matplotlib PNG) and, later, viser scenes."""

@@ -1,0 +1,1094 @@
+"""Task scenes for the viser viewer: functions that add scene nodes and return their handles.
+
+Everything here works on a :class:`viser.SceneApi` (``server.scene``) and needs no browser, so
+scenes are tested headless. Node names are paths (``/arm/link3``, ``/ball``, ``/pucks/target``,
+``/table``, ``/target``, ``/trails/ball``); +z is up and quaternions are ``wxyz`` (MuJoCo and
+viser agree).
+
+Three layers:
+
+* **Primitives** — :func:`add_ball`, :func:`add_puck`, :func:`add_target`, :func:`add_table`,
+  :func:`add_trail` (a tube through one or many 3-D paths, optionally transparent) and the
+  meshes behind them (:func:`capsule_mesh`, :func:`tube_mesh`).
+* **MuJoCo models** — :func:`add_mujoco_model` turns any ``mujoco.MjModel`` into viser
+  primitives (box, sphere, capsule, ellipsoid, cylinder, plane, mesh): one frame per body
+  (``<root>/<body>``, posed in world coordinates) holding its geoms at their constant
+  body-local poses; :meth:`MujocoScene.set_qpos` runs ``mujoco.mj_kinematics`` and moves the
+  body frames.
+* **Task scenes** — :class:`TaskScene` adapters that know how a task's
+  :class:`~skillkit.trajectory.Trajectory` maps onto the scene: the robot's joint positions
+  per time step, the task objects read from ``Trajectory.signals`` (ball, pucks, racket),
+  the target from the context, trails, and the 3-D point of a state (where predicted state
+  trajectories are drawn). :func:`task_scene` picks the adapter for a task.
+
+Signals that are sampled on their own clock carry it as another signal (``ball_times`` for
+``ball``, ``puck_times`` for the pucks); a signal without one is taken to be sampled at the
+trajectory's period from ``times[0]`` (:func:`signal_times`). Objects are shown at a time t
+by linear interpolation between samples; before the first and after the last sample an
+object rests where its record starts or ends (a landed ball stays on the ground).
+"""
+
+from __future__ import annotations
+
+import re
+import warnings
+from abc import ABC, abstractmethod
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import mujoco
+import numpy as np
+
+from skillkit._validation import check_array, check_positive
+from skillkit.trajectory import Trajectory
+
+__all__ = [
+    "COLORS",
+    "HockeyScene",
+    "MujocoScene",
+    "MujocoTaskScene",
+    "PendulumScene",
+    "PlanarScene",
+    "TableTennisScene",
+    "TaskScene",
+    "ThrowingScene",
+    "add_ball",
+    "add_mujoco_model",
+    "add_puck",
+    "add_table",
+    "add_target",
+    "add_trail",
+    "capsule_mesh",
+    "interpolate",
+    "signal_times",
+    "task_model",
+    "task_scene",
+    "tube_mesh",
+]
+
+RGB = tuple[int, int, int]
+
+COLORS: dict[str, RGB] = {
+    "robot": (160, 170, 190),
+    "ball": (245, 130, 30),
+    "control_puck": (30, 30, 30),
+    "target_puck": (200, 30, 40),
+    "target": (40, 170, 60),
+    "table": (60, 110, 170),
+    "trail": (30, 100, 220),
+    "prediction": (220, 40, 160),
+}
+"""Default colours (RGB, 0–255) of the scene objects."""
+
+_MJ_DEFAULT_RGBA = np.array([0.5, 0.5, 0.5, 1.0])
+_INFINITE_PLANE_HALF_SIZE = 10.0
+_NAME_RE = re.compile(r"[^A-Za-z0-9_.\-]")
+
+
+# ============================================================================ geometry helpers
+def _node_name(name: str) -> str:
+    """A path component: MuJoCo names with ``/`` or spaces made safe."""
+    return _NAME_RE.sub("_", name)
+
+
+def _check_path(name: str, argname: str = "name") -> str:
+    if not isinstance(name, str) or not name.startswith("/") or name.endswith("/") or "//" in name:
+        raise ValueError(f"{argname}: expected a scene path like '/arm/link3', got {name!r}")
+    return name
+
+
+def _rgb(color, argname: str = "color") -> RGB:
+    c = check_array(color, argname, shape=(3,))
+    if np.any(c < 0) or np.any(c > 255):
+        raise ValueError(f"{argname}: expected RGB values in [0, 255], got {c.tolist()}")
+    return (int(round(c[0])), int(round(c[1])), int(round(c[2])))
+
+
+def _opacity(opacity, argname: str = "opacity") -> float | None:
+    if opacity is None:
+        return None
+    v = float(opacity)
+    if not 0.0 < v <= 1.0:
+        raise ValueError(f"{argname}: expected a value in (0, 1] or None, got {opacity!r}")
+    return None if v == 1.0 else v
+
+
+def capsule_mesh(
+    radius: float, half_length: float, segments: int = 16, rings: int = 4
+) -> tuple[np.ndarray, np.ndarray]:
+    """Triangle mesh of a capsule along z, centred at the origin (MuJoCo's capsule).
+
+    Parameters
+    ----------
+    radius : float
+        Radius r of the cylinder and the two hemispherical caps.
+    half_length : float
+        Half-length h ≥ 0 of the cylindrical part; the capsule spans z ∈ [−h − r, h + r].
+    segments : int
+        Vertices around the axis (≥ 3).
+    rings : int
+        Latitude rings per hemisphere (≥ 1).
+
+    Returns
+    -------
+    vertices : ndarray, shape (2 + 2·rings·segments, 3)
+    faces : ndarray, shape (4·rings·segments, 3), int
+        Counter-clockwise seen from outside (outward normals).
+    """
+    radius = check_positive(radius, "radius")
+    half_length = check_positive(half_length, "half_length", allow_zero=True)
+    if int(segments) < 3 or int(rings) < 1:
+        raise ValueError(
+            f"segments, rings: expected segments >= 3 and rings >= 1, got {segments}, {rings}"
+        )
+    segments, rings = int(segments), int(rings)
+    polar = np.linspace(0.0, np.pi / 2, rings + 1)[1:]  # from the pole, the equator included
+    z_rho = [(half_length + radius * np.cos(p), radius * np.sin(p)) for p in polar]
+    z_rho += [(-half_length - radius * np.cos(p), radius * np.sin(p)) for p in polar[::-1]]
+    theta = 2.0 * np.pi * np.arange(segments) / segments
+    ring_vertices = [
+        np.column_stack([rho * np.cos(theta), rho * np.sin(theta), np.full(segments, z)])
+        for z, rho in z_rho
+    ]
+    top = np.array([[0.0, 0.0, half_length + radius]])
+    bottom = np.array([[0.0, 0.0, -half_length - radius]])
+    vertices = np.vstack([top, *ring_vertices, bottom])
+    n_rings = len(z_rho)
+    k = np.arange(segments)
+    k1 = (k + 1) % segments
+    first = 1
+    faces = [np.column_stack([np.zeros(segments, int), first + k, first + k1])]
+    for i in range(n_rings - 1):
+        a, b = first + i * segments + k, first + i * segments + k1
+        c, d = first + (i + 1) * segments + k1, first + (i + 1) * segments + k
+        faces += [np.column_stack([a, d, c]), np.column_stack([a, c, b])]
+    last = first + (n_rings - 1) * segments
+    faces.append(np.column_stack([np.full(segments, vertices.shape[0] - 1), last + k1, last + k]))
+    return vertices, np.vstack(faces).astype(np.int64)
+
+
+def tube_mesh(paths, radius: float, sides: int = 6) -> tuple[np.ndarray, np.ndarray]:
+    """Triangle mesh of tubes of constant radius along one or many polylines.
+
+    The cross-section at each point lies in the plane normal to the local tangent (central
+    differences); its orientation is carried along by parallel transport, so the tube does
+    not twist. Repeated points (an object at rest) reuse the previous tangent.
+
+    Parameters
+    ----------
+    paths : array_like, shape (T, 3) or (L, T, 3)
+        One or L polylines with T ≥ 2 points each.
+    radius : float
+        Tube radius.
+    sides : int
+        Vertices per cross-section (≥ 3).
+
+    Returns
+    -------
+    vertices : ndarray, shape (L·T·sides, 3)
+    faces : ndarray, shape (2·L·(T−1)·sides, 3), int
+        Open-ended tubes; render double-sided.
+    """
+    p = check_array(paths, "paths", ndim=(2, 3))
+    if p.ndim == 2:
+        p = p[None]
+    if p.shape[-1] != 3 or p.shape[1] < 2:
+        raise ValueError(
+            f"paths: expected shape (T, 3) or (L, T, 3) with T >= 2, got {np.shape(paths)}"
+        )
+    radius = check_positive(radius, "radius")
+    if int(sides) < 3:
+        raise ValueError(f"sides: expected at least 3 sides, got {sides}")
+    sides = int(sides)
+    n_paths, n_points, _ = p.shape
+    tangent = np.gradient(p, axis=1)
+    norm = np.linalg.norm(tangent, axis=-1)
+    scale = max(float(np.max(np.abs(p))), 1.0)
+    degenerate = norm <= 1e-12 * scale
+    tangent = np.divide(
+        tangent, norm[..., None], out=np.zeros_like(tangent), where=~degenerate[..., None]
+    )
+    normals = np.empty_like(p)
+    previous_t = np.tile([1.0, 0.0, 0.0], (n_paths, 1))
+    previous_n = np.tile([0.0, 0.0, 1.0], (n_paths, 1))
+    for t in range(n_points):
+        tan = np.where(degenerate[:, t, None], previous_t, tangent[:, t])
+        n = previous_n - np.sum(previous_n * tan, axis=1, keepdims=True) * tan
+        n_len = np.linalg.norm(n, axis=1, keepdims=True)
+        # The tangent turned parallel to the carried normal: restart from any perpendicular.
+        lost = n_len[:, 0] < 1e-6
+        if np.any(lost):
+            alt = np.cross(tan[lost], [0.0, 0.0, 1.0])
+            bad = np.linalg.norm(alt, axis=1) < 1e-6
+            alt[bad] = np.cross(tan[lost][bad], [1.0, 0.0, 0.0])
+            n[lost] = alt
+            n_len = np.linalg.norm(n, axis=1, keepdims=True)
+        n = n / n_len
+        normals[:, t], previous_t[:], previous_n[:] = n, tan, n
+        tangent[:, t] = tan
+    binormals = np.cross(tangent, normals)
+    angle = 2.0 * np.pi * np.arange(sides) / sides
+    ring = (
+        np.cos(angle)[:, None] * normals[:, :, None, :]
+        + np.sin(angle)[:, None] * binormals[:, :, None, :]
+    )
+    vertices = (p[:, :, None, :] + radius * ring).reshape(-1, 3)
+    k = np.arange(sides)
+    k1 = (k + 1) % sides
+    base = (np.arange(n_paths)[:, None] * n_points + np.arange(n_points - 1)[None, :]).reshape(
+        -1, 1
+    ) * sides
+    a, b = base + k, base + k1
+    c, d = base + sides + k1, base + sides + k
+    faces = np.concatenate([np.stack([a, b, c], -1), np.stack([a, c, d], -1)], axis=1)
+    return vertices, faces.reshape(-1, 3).astype(np.int64)
+
+
+def interpolate(times, values, t: float) -> np.ndarray:
+    """Values at time ``t``, linearly interpolated between samples.
+
+    Parameters
+    ----------
+    times : array_like, shape (T,)
+        Non-decreasing sample times.
+    values : array_like, shape (T, ...)
+        Samples.
+    t : float
+        Query time. Before ``times[0]`` the first sample and after ``times[-1]`` the last one is
+        returned (the object rests where its record starts or ends).
+
+    Returns
+    -------
+    ndarray, shape values.shape[1:]
+    """
+    times = np.asarray(times, dtype=np.float64)
+    values = np.asarray(values, dtype=np.float64)
+    if times.ndim != 1 or values.shape[:1] != times.shape or times.shape[0] == 0:
+        raise ValueError(
+            f"values: expected shape ({times.shape[0] if times.ndim == 1 else '?'}, ...) "
+            f"matching times of shape (T,), got times {times.shape}, values {values.shape}"
+        )
+    i = int(np.searchsorted(times, t, side="right"))
+    if i == 0:
+        return values[0].copy()
+    if i >= times.shape[0]:
+        return values[-1].copy()
+    t0, t1 = times[i - 1], times[i]
+    w = 0.0 if t1 <= t0 else (t - t0) / (t1 - t0)
+    return (1.0 - w) * values[i - 1] + w * values[i]
+
+
+def signal_times(trajectory: Trajectory, key: str, times_key: str | None = None) -> np.ndarray:
+    """Time stamps of ``trajectory.signals[key]``, shape (T_s,).
+
+    ``signals[times_key]`` when given (default ``key + "_times"`` if present); otherwise the
+    trajectory's ``times`` when the lengths agree, else samples taken at the trajectory's
+    period from ``times[0]`` (a signal recorded at the control rate beyond the arm's motion).
+    """
+    signals = trajectory.signals
+    if key not in signals:
+        raise ValueError(f"trajectory: has no signal {key!r} (signals: {sorted(signals)})")
+    n = signals[key].shape[0]
+    times_key = times_key or (f"{key}_times" if f"{key}_times" in signals else None)
+    if times_key is not None:
+        if times_key not in signals or signals[times_key].shape != (n,):
+            raise ValueError(
+                f"trajectory: signal {times_key!r} must hold the {n} time stamps of {key!r}"
+            )
+        return signals[times_key]
+    t = trajectory.times
+    if n == t.shape[0]:
+        return t
+    if t.shape[0] < 2:
+        raise ValueError(f"trajectory: signal {key!r} has {n} samples and no time stamps")
+    return t[0] + (t[1] - t[0]) * np.arange(n)
+
+
+# ============================================================================ primitives
+def add_ball(
+    scene,
+    name: str = "/ball",
+    radius: float = 0.05,
+    color=COLORS["ball"],
+    *,
+    opacity: float | None = None,
+    position=(0.0, 0.0, 0.0),
+    visible: bool = True,
+):
+    """A ball (icosphere) of ``radius`` metres at ``position``; returns its handle."""
+    return scene.add_icosphere(
+        _check_path(name),
+        radius=check_positive(radius, "radius"),
+        color=_rgb(color),
+        opacity=_opacity(opacity),
+        subdivisions=2,
+        position=tuple(check_array(position, "position", shape=(3,))),
+        visible=visible,
+    )
+
+
+def add_puck(
+    scene,
+    name: str,
+    radius: float,
+    height: float,
+    color=COLORS["control_puck"],
+    *,
+    position=(0.0, 0.0, 0.0),
+):
+    """A puck: a cylinder along z of ``radius`` and ``height``, centred at ``position``."""
+    return scene.add_cylinder(
+        _check_path(name),
+        radius=check_positive(radius, "radius"),
+        height=check_positive(height, "height"),
+        color=_rgb(color),
+        position=tuple(check_array(position, "position", shape=(3,))),
+    )
+
+
+def add_target(
+    scene,
+    name: str = "/target",
+    radius: float = 0.1,
+    color=COLORS["target"],
+    *,
+    opacity: float | None = 0.6,
+    position=(0.0, 0.0, 0.0),
+    flat: bool = False,
+):
+    """A target marker: a translucent sphere, or a thin disc on a surface (``flat=True``)."""
+    name, color, opacity = _check_path(name), _rgb(color), _opacity(opacity)
+    radius = check_positive(radius, "radius")
+    position = tuple(check_array(position, "position", shape=(3,)))
+    if flat:
+        return scene.add_cylinder(
+            name, radius=radius, height=0.004, color=color, opacity=opacity, position=position
+        )
+    return scene.add_icosphere(
+        name, radius=radius, color=color, opacity=opacity, subdivisions=2, position=position
+    )
+
+
+def add_table(
+    scene,
+    name: str = "/table",
+    size=(2.74, 1.525),
+    height: float = 0.76,
+    *,
+    center=(0.0, 0.0),
+    thickness: float = 0.03,
+    color=COLORS["table"],
+):
+    """A table top: a box of ``size`` (x, y) metres whose upper surface is at ``height``."""
+    size = check_array(size, "size", shape=(2,))
+    if np.any(size <= 0):
+        raise ValueError(f"size: expected positive table dimensions, got {size.tolist()}")
+    thickness = check_positive(thickness, "thickness")
+    cx, cy = check_array(center, "center", shape=(2,))
+    return scene.add_box(
+        _check_path(name),
+        color=_rgb(color),
+        dimensions=(float(size[0]), float(size[1]), thickness),
+        position=(cx, cy, float(height) - thickness / 2),
+    )
+
+
+def add_trail(
+    scene,
+    name: str,
+    paths,
+    color=COLORS["trail"],
+    *,
+    radius: float = 0.008,
+    opacity: float | None = None,
+    visible: bool = True,
+):
+    """Trails: a tube through each of one or L paths (:func:`tube_mesh`), as one mesh node.
+
+    Parameters
+    ----------
+    scene : viser.SceneApi
+    name : str
+        Node path, e.g. ``/trails/ball``.
+    paths : array_like, shape (T, 3) or (L, T, 3)
+        World-frame points, T ≥ 2.
+    color : RGB
+    radius : float
+        Tube radius (m).
+    opacity : float in (0, 1], optional
+        Transparency (predicted trajectories are drawn translucent).
+    """
+    vertices, faces = tube_mesh(paths, radius)
+    return scene.add_mesh_simple(
+        _check_path(name),
+        vertices,
+        faces,
+        color=_rgb(color),
+        opacity=_opacity(opacity),
+        side="double",
+        cast_shadow=False,
+        receive_shadow=False,
+        visible=visible,
+    )
+
+
+# ============================================================================ MuJoCo models
+@dataclass
+class MujocoScene:
+    """Viser nodes of a MuJoCo model (built by :func:`add_mujoco_model`).
+
+    Attributes
+    ----------
+    model : mujoco.MjModel
+    data : mujoco.MjData
+        Scratch data for the kinematics (not the simulator's).
+    root : str
+        Path prefix of the body frames.
+    bodies : dict of str to FrameHandle
+        ``<root>/<body>`` frame of every body with a visible geom, posed in world coordinates.
+    geoms : dict of str to handle
+        Every geom node by path.
+    body_ids : dict of str to int
+        MuJoCo body id of each body frame path.
+    skipped : list of str
+        Geoms not drawn and why (unsupported type, hidden group, fully transparent).
+    """
+
+    model: mujoco.MjModel
+    data: mujoco.MjData
+    root: str
+    bodies: dict = field(default_factory=dict)
+    geoms: dict = field(default_factory=dict)
+    body_ids: dict = field(default_factory=dict)
+    skipped: list = field(default_factory=list)
+
+    def set_qpos(self, qpos) -> None:
+        """Pose the body frames for joint positions ``qpos`` (nq,) with ``mujoco.mj_kinematics``."""
+        q = check_array(qpos, "qpos", shape=(self.model.nq,))
+        self.data.qpos[:] = q
+        mujoco.mj_kinematics(self.model, self.data)
+        for path, b in self.body_ids.items():
+            handle = self.bodies[path]
+            handle.position = self.data.xpos[b].copy()
+            handle.wxyz = self.data.xquat[b].copy()
+
+    def site_positions(self, qpos, site: int) -> np.ndarray:
+        """World positions of site ``site`` for joint positions of shape (N, nq) → (N, 3)."""
+        q = check_array(qpos, "qpos", ndim=2)
+        if q.shape[1] != self.model.nq:
+            raise ValueError(f"qpos: expected shape (N, {self.model.nq}), got {q.shape}")
+        data = mujoco.MjData(self.model)
+        out = np.empty((q.shape[0], 3))
+        for i, row in enumerate(q):
+            data.qpos[:] = row
+            mujoco.mj_kinematics(self.model, data)
+            out[i] = data.site_xpos[site]
+        return out
+
+    @property
+    def nodes(self) -> dict:
+        """Every node of the model by path (body frames and geoms)."""
+        return {**self.bodies, **self.geoms}
+
+
+def _geom_color(model: mujoco.MjModel, g: int) -> tuple[RGB, float]:
+    rgba = np.asarray(model.geom_rgba[g], dtype=np.float64)
+    mat = int(model.geom_matid[g])
+    if mat >= 0 and np.allclose(rgba, _MJ_DEFAULT_RGBA):
+        rgba = np.asarray(model.mat_rgba[mat], dtype=np.float64)
+    rgb = tuple(int(round(255 * float(np.clip(c, 0.0, 1.0)))) for c in rgba[:3])
+    return rgb, float(rgba[3])
+
+
+def add_geom(scene, name: str, model: mujoco.MjModel, geom: int, *, position=None, wxyz=None):
+    """Add MuJoCo geom ``geom`` as a viser primitive at ``name``, or return None if unsupported.
+
+    The node's pose is the geom's pose in its body frame (``geom_pos``, ``geom_quat``) unless
+    ``position``/``wxyz`` are given. Sizes follow MuJoCo: sphere (r), capsule (r, half-length),
+    ellipsoid (3 semi-axes), cylinder (r, half-height), box (3 half-sizes), plane (2
+    half-sizes, 0 = infinite, drawn 10 m), mesh (the compiled vertices in the geom frame).
+    """
+    gtype = int(model.geom_type[geom])
+    size = np.asarray(model.geom_size[geom], dtype=np.float64)
+    color, alpha = _geom_color(model, geom)
+    opacity = None if alpha >= 1.0 else alpha
+    pose = {
+        "position": tuple(
+            np.asarray(model.geom_pos[geom] if position is None else position, float)
+        ),
+        "wxyz": tuple(np.asarray(model.geom_quat[geom] if wxyz is None else wxyz, float)),
+    }
+    T = mujoco.mjtGeom
+    if gtype == T.mjGEOM_SPHERE:
+        return scene.add_icosphere(name, radius=size[0], color=color, opacity=opacity, **pose)
+    if gtype == T.mjGEOM_ELLIPSOID:
+        return scene.add_icosphere(
+            name, radius=1.0, color=color, opacity=opacity, scale=tuple(size), **pose
+        )
+    if gtype == T.mjGEOM_CAPSULE:
+        v, f = capsule_mesh(size[0], size[1])
+        return scene.add_mesh_simple(name, v, f, color=color, opacity=opacity, **pose)
+    if gtype == T.mjGEOM_CYLINDER:
+        return scene.add_cylinder(
+            name, radius=size[0], height=2.0 * size[1], color=color, opacity=opacity, **pose
+        )
+    if gtype == T.mjGEOM_BOX:
+        return scene.add_box(
+            name, color=color, dimensions=tuple(2.0 * size[:3]), opacity=opacity, **pose
+        )
+    if gtype == T.mjGEOM_PLANE:
+        hx, hy = (s if s > 0 else _INFINITE_PLANE_HALF_SIZE for s in size[:2])
+        v = np.array([[-hx, -hy, 0.0], [hx, -hy, 0.0], [hx, hy, 0.0], [-hx, hy, 0.0]])
+        f = np.array([[0, 1, 2], [0, 2, 3]])
+        return scene.add_mesh_simple(
+            name, v, f, color=color, opacity=opacity, side="double", cast_shadow=False, **pose
+        )
+    if gtype == T.mjGEOM_MESH:
+        m = int(model.geom_dataid[geom])
+        va, vn = int(model.mesh_vertadr[m]), int(model.mesh_vertnum[m])
+        fa, fn = int(model.mesh_faceadr[m]), int(model.mesh_facenum[m])
+        return scene.add_mesh_simple(
+            name,
+            np.asarray(model.mesh_vert[va : va + vn], float),
+            np.asarray(model.mesh_face[fa : fa + fn]),
+            color=color,
+            opacity=opacity,
+            **pose,
+        )
+    return None
+
+
+def add_mujoco_model(
+    scene,
+    model: mujoco.MjModel,
+    root: str = "/arm",
+    *,
+    world_paths: Mapping[str, str] | None = None,
+    skip_geoms: Sequence[str] = (),
+    max_group: int = 2,
+) -> MujocoScene:
+    """Add every visible geom of a MuJoCo model, one frame per body.
+
+    Body ``b`` becomes a frame ``<root>/<body name>`` (``body<b>`` if unnamed; the world body
+    is ``<root>/world``) posed at the body's world pose; its geoms are children
+    ``<root>/<body>/<geom name>`` at their constant body-local poses, so a time step only
+    moves the body frames (:meth:`MujocoScene.set_qpos`). The initial pose is ``qpos0``.
+
+    Parameters
+    ----------
+    scene : viser.SceneApi
+    model : mujoco.MjModel
+    root : str
+        Path prefix, e.g. ``/arm``.
+    world_paths : mapping of str to str, optional
+        Paths for named geoms of the world body (static scenery), e.g. ``{"table": "/table"}``.
+    skip_geoms : sequence of str
+        Names of geoms not to draw.
+    max_group : int
+        Geoms in groups above this are not drawn (MuJoCo's viewer shows groups 0–2).
+
+    Returns
+    -------
+    MujocoScene
+        Geoms of unsupported types (height fields, SDFs) are listed in ``skipped`` and reported
+        with a ``RuntimeWarning``.
+    """
+    if not isinstance(model, mujoco.MjModel):
+        raise ValueError(f"model: expected a mujoco.MjModel, got {type(model).__name__}")
+    root = _check_path(root, "root")
+    world_paths = dict(world_paths or {})
+    for p in world_paths.values():
+        _check_path(p, "world_paths")
+    geom_names = {model.geom(g).name for g in range(model.ngeom)}
+    unknown = (set(world_paths) | set(skip_geoms)) - geom_names
+    if unknown:
+        raise ValueError(f"world_paths/skip_geoms: model has no geom named {sorted(unknown)}")
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    out = MujocoScene(model, data, root)
+    unsupported = []
+    for g in range(model.ngeom):
+        gname = model.geom(g).name
+        label = _node_name(gname) if gname else f"geom{g}"
+        b = int(model.geom_bodyid[g])
+        if gname in skip_geoms:
+            out.skipped.append(f"{label}: skipped on request")
+            continue
+        if int(model.geom_group[g]) > max_group:
+            out.skipped.append(f"{label}: group {int(model.geom_group[g])} > {max_group}")
+            continue
+        if _geom_color(model, g)[1] <= 0.0:
+            out.skipped.append(f"{label}: fully transparent")
+            continue
+        if gname in world_paths:
+            if b != 0:
+                raise ValueError(
+                    f"world_paths: geom {gname!r} is not static (it belongs to body "
+                    f"{model.body(b).name!r}, not the world body)"
+                )
+            handle = add_geom(scene, world_paths[gname], model, g)
+            if handle is None:
+                unsupported.append(label)
+                continue
+            out.geoms[world_paths[gname]] = handle
+            continue
+        bname = model.body(b).name
+        body_path = f"{root}/{_node_name(bname) if bname else f'body{b}'}" if b else f"{root}/world"
+        if body_path not in out.bodies:
+            out.bodies[body_path] = scene.add_frame(
+                body_path, show_axes=False, position=tuple(data.xpos[b]), wxyz=tuple(data.xquat[b])
+            )
+            out.body_ids[body_path] = b
+        path = f"{body_path}/{label}"
+        handle = add_geom(scene, path, model, g)
+        if handle is None:
+            unsupported.append(label)
+            continue
+        out.geoms[path] = handle
+    if unsupported:
+        out.skipped += [f"{u}: unsupported geom type" for u in unsupported]
+        warnings.warn(
+            f"add_mujoco_model: geoms of unsupported types not drawn: {unsupported}",
+            RuntimeWarning,
+            stacklevel=2,
+        )
+    return out
+
+
+def task_model(task) -> mujoco.MjModel | None:
+    """The compiled MuJoCo model a task simulates, or None.
+
+    Looked up, in order, as ``task.scene_model()``, ``task.model`` and ``task.robot.model``.
+    """
+    getter = getattr(task, "scene_model", None)
+    if callable(getter):
+        return getter()
+    for candidate in (
+        getattr(task, "model", None),
+        getattr(getattr(task, "robot", None), "model", None),
+    ):
+        if isinstance(candidate, mujoco.MjModel):
+            return candidate
+    return None
+
+
+# ============================================================================ task scenes
+class TaskScene(ABC):
+    """How one task's trajectories appear in a viser scene.
+
+    Subclasses build their nodes in ``__init__`` and implement :meth:`show` (pose everything
+    at a time t of a trajectory), :meth:`trails` (named 3-D paths of a trajectory) and
+    :meth:`points` (the 3-D point of a state, where predicted state trajectories are drawn).
+
+    Attributes
+    ----------
+    task : Task
+    scene : viser.SceneApi
+    nodes : dict of str to handle
+        Every node the scene built, by path.
+    camera_position, camera_look_at : tuple of float
+        A good initial view.
+    """
+
+    camera_position: tuple[float, float, float] = (3.0, -3.0, 2.0)
+    camera_look_at: tuple[float, float, float] = (0.0, 0.0, 0.5)
+
+    def __init__(self, scene, task) -> None:
+        self.scene = scene
+        self.task = task
+        self.nodes: dict = {}
+
+    def _add(self, handle):
+        self.nodes[handle.name] = handle
+        return handle
+
+    @classmethod
+    @abstractmethod
+    def accepts(cls, task) -> bool:
+        """Whether this adapter draws ``task``."""
+
+    @abstractmethod
+    def show(self, trajectory: Trajectory, t: float) -> None:
+        """Pose the scene at time ``t`` (seconds) of ``trajectory``."""
+
+    @abstractmethod
+    def trails(self, trajectory: Trajectory) -> dict[str, np.ndarray]:
+        """Named world-frame paths of a trajectory, each of shape (T_k, 3)."""
+
+    @abstractmethod
+    def points(self, states) -> np.ndarray:
+        """3-D point of each state, shape (..., n_x) → (..., 3)."""
+
+    def set_context(self, context) -> None:  # noqa: B027  (optional hook)
+        """Show the context (e.g. move the target); the default shows nothing."""
+
+    def time_range(self, trajectory: Trajectory) -> tuple[float, float]:
+        """First and last time stamp of the trajectory and of its timed signals."""
+        t0, t1 = float(trajectory.times[0]), float(trajectory.times[-1])
+        for key in trajectory.signals:
+            if key.endswith("_times") and trajectory.signals[key].size:
+                t1 = max(t1, float(trajectory.signals[key][-1]))
+        return t0, t1
+
+    @property
+    @abstractmethod
+    def state_dim(self) -> int:
+        """Dimension n_x of the states :meth:`points` accepts."""
+
+
+class PendulumScene(TaskScene):
+    """The single-link pendulum of Sec. 5.4, drawn from primitives (it has no MuJoCo model).
+
+    A pivot at ``PIVOT`` and a rod of length ``LENGTH`` with a bob, swinging in the x–z plane:
+    the bob is at pivot + l (sin α, 0, −cos α), so α = 0 hangs down and α > 0 swings to +x.
+    Nodes: ``/pendulum/pivot``, ``/pendulum/link1`` (rotates with α), ``/pendulum/link1/rod``,
+    ``/pendulum/link1/bob``.
+    """
+
+    LENGTH = 1.0
+    PIVOT = (0.0, 0.0, 1.2)
+    camera_position = (0.0, -4.0, 1.2)
+    camera_look_at = (0.0, 0.0, 1.0)
+    state_dim = 2
+
+    def __init__(self, scene, task) -> None:
+        super().__init__(scene, task)
+        length = self.LENGTH
+        self._add(
+            scene.add_icosphere(
+                "/pendulum/pivot", radius=0.05, color=(60, 60, 60), position=self.PIVOT
+            )
+        )
+        self.link = self._add(
+            scene.add_frame("/pendulum/link1", show_axes=False, position=self.PIVOT)
+        )
+        v, f = capsule_mesh(0.02, length / 2)
+        self._add(
+            scene.add_mesh_simple(
+                "/pendulum/link1/rod", v, f, color=COLORS["robot"], position=(0.0, 0.0, -length / 2)
+            )
+        )
+        self._add(
+            scene.add_icosphere(
+                "/pendulum/link1/bob",
+                radius=0.08,
+                color=COLORS["ball"],
+                position=(0.0, 0.0, -length),
+            )
+        )
+        self._add(scene.add_grid("/ground", width=4.0, height=4.0))
+
+    @classmethod
+    def accepts(cls, task) -> bool:
+        from skillkit.tasks.pendulum import Pendulum
+
+        return isinstance(task, Pendulum)
+
+    def set_angle(self, alpha: float) -> None:
+        """Rotate the link to angle α (rad) about the −y axis through the pivot."""
+        a = float(alpha)
+        self.link.wxyz = (np.cos(a / 2), 0.0, -np.sin(a / 2), 0.0)
+
+    def show(self, trajectory: Trajectory, t: float) -> None:
+        self.set_angle(interpolate(trajectory.times, trajectory.states[:, 0], t))
+
+    def points(self, states) -> np.ndarray:
+        x = check_array(states, "states")
+        if x.shape[-1] != 2:
+            raise ValueError(f"states: expected shape (..., 2) = [α, α̇], got {x.shape}")
+        a = x[..., 0]
+        pivot = np.asarray(self.PIVOT)
+        return pivot + self.LENGTH * np.stack([np.sin(a), np.zeros_like(a), -np.cos(a)], axis=-1)
+
+    def trails(self, trajectory: Trajectory) -> dict[str, np.ndarray]:
+        return {"bob": self.points(trajectory.states)}
+
+
+class MujocoTaskScene(TaskScene):
+    """Any task that exposes its MuJoCo model (:func:`task_model`) with states x = [q, q̇].
+
+    The robot is drawn by :func:`add_mujoco_model` under ``/arm``; the joint positions at a time
+    step are ``states[:, :nq]`` (the task may instead provide ``qpos(trajectory)`` returning
+    shape (T, nq)). The 3-D point of a state is the position of site :attr:`effector_site`
+    (default: the model's first site, else the last body's origin).
+    """
+
+    effector_site: str | None = None
+    world_paths: dict[str, str] = {}
+    skip_geoms: tuple[str, ...] = ()
+
+    def __init__(self, scene, task) -> None:
+        super().__init__(scene, task)
+        model = task_model(task)
+        if model is None:
+            raise ValueError(
+                f"task: {type(task).__name__} exposes no MuJoCo model "
+                "(needs scene_model(), model or robot.model)"
+            )
+        self.robot = add_mujoco_model(
+            scene, model, "/arm", world_paths=self.world_paths, skip_geoms=self.skip_geoms
+        )
+        self.nodes.update(self.robot.nodes)
+        if self.effector_site is not None:
+            self._site = model.site(self.effector_site).id
+        else:
+            self._site = 0 if model.nsite else None
+
+    @classmethod
+    def accepts(cls, task) -> bool:
+        return task_model(task) is not None
+
+    @property
+    def state_dim(self) -> int:
+        m = self.robot.model
+        return m.nq + m.nv
+
+    def qpos(self, trajectory: Trajectory) -> np.ndarray:
+        """Joint positions per time step, shape (T, nq)."""
+        getter = getattr(self.task, "qpos", None)
+        if callable(getter):
+            return np.asarray(getter(trajectory), dtype=np.float64)
+        m = self.robot.model
+        x = trajectory.states
+        if x.shape[1] != m.nq + m.nv:
+            raise ValueError(
+                f"trajectory: states have {x.shape[1]} columns; expected [q, q̇] with "
+                f"nq + nv = {m.nq + m.nv} for the model of task {self.task.name!r}"
+            )
+        return x[:, : m.nq]
+
+    def show(self, trajectory: Trajectory, t: float) -> None:
+        self.robot.set_qpos(interpolate(trajectory.times, self.qpos(trajectory), t))
+
+    def points(self, states) -> np.ndarray:
+        m = self.robot.model
+        x = check_array(states, "states")
+        if x.shape[-1] != m.nq + m.nv:
+            raise ValueError(f"states: expected shape (..., {m.nq + m.nv}) = [q, q̇], got {x.shape}")
+        q = x[..., : m.nq].reshape(-1, m.nq)
+        if self._site is not None:
+            p = self.robot.site_positions(q, self._site)
+        else:
+            data = mujoco.MjData(m)
+            p = np.empty((q.shape[0], 3))
+            for i, row in enumerate(q):
+                data.qpos[:] = row
+                mujoco.mj_kinematics(m, data)
+                p[i] = data.xpos[m.nbody - 1]
+        return p.reshape(*x.shape[:-1], 3)
+
+    def trails(self, trajectory: Trajectory) -> dict[str, np.ndarray]:
+        m = self.robot.model
+        q = self.qpos(trajectory)
+        return {"effector": self.points(np.hstack([q, np.zeros((q.shape[0], m.nv))]))}
+
+
+def _plane_to_3d(xy: np.ndarray) -> np.ndarray:
+    """The planar robot's [x, y] (y up) → world [x, 0, y]."""
+    return np.stack([xy[..., 0], np.zeros_like(xy[..., 0]), xy[..., 1]], axis=-1)
+
+
+class PlanarScene(MujocoTaskScene):
+    """The planar 4-link robot of Appendix C.1 (balancing, Sec. 4.3.1): the robot in the x–z
+    plane on its ground; the 3-D point of a state is the hand."""
+
+    effector_site = "hand"
+    camera_position = (1.0, -6.0, 1.6)
+    camera_look_at = (0.3, 0.0, 1.1)
+
+    @classmethod
+    def accepts(cls, task) -> bool:
+        from skillkit.tasks.planar import Balancing
+
+        return isinstance(task, Balancing)
+
+
+class ThrowingScene(PlanarScene):
+    """Ball throwing with the planar 4-link robot (Sec. 3.4.1, Appendix C.1).
+
+    Adds ``/ball`` (signal ``ball`` in the robot plane [x, y] on ``ball_times``) and
+    ``/target`` (the context [x, y]); trails ``effector`` (hand) and ``ball``.
+    """
+
+    camera_position = (7.0, -15.0, 3.0)
+    camera_look_at = (7.0, 0.0, 1.2)
+
+    def __init__(self, scene, task) -> None:
+        super().__init__(scene, task)
+        self.ball = self._add(add_ball(scene, "/ball", 0.08))
+        self.target = self._add(add_target(scene, "/target", 0.2))
+        self.set_context(0.5 * (np.asarray(task.context_low) + np.asarray(task.context_high)))
+
+    @classmethod
+    def accepts(cls, task) -> bool:
+        from skillkit.tasks.planar import Throwing
+
+        return isinstance(task, Throwing)
+
+    def set_context(self, context) -> None:
+        s = self.task.check_context(context)
+        self.target.position = tuple(_plane_to_3d(s))
+
+    def show(self, trajectory: Trajectory, t: float) -> None:
+        super().show(trajectory, t)
+        ball = interpolate(signal_times(trajectory, "ball"), trajectory.signals["ball"], t)
+        self.ball.position = tuple(_plane_to_3d(ball))
+
+    def trails(self, trajectory: Trajectory) -> dict[str, np.ndarray]:
+        return {**super().trails(trajectory), "ball": _plane_to_3d(trajectory.signals["ball"])}
+
+
+class HockeyScene(MujocoTaskScene):
+    """Robot hockey (Appendix C.2): the arm with its racket, the table, two pucks, the target.
+
+    ``/pucks/control`` and ``/pucks/target`` follow the signals ``control_puck`` and
+    ``target_puck`` (on ``puck_times``); ``/target`` is a translucent disc of radius d*
+    around the target puck's start b (the context [b_x, b_y, d*]): the target puck should
+    end on its rim. Trails: ``effector`` (blade), ``control_puck``, ``target_puck``.
+    """
+
+    effector_site = "blade"
+    world_paths = {"table": "/table"}
+    camera_position = (0.2, -2.6, 2.4)
+    camera_look_at = (1.3, 0.4, 0.0)
+
+    def __init__(self, scene, task) -> None:
+        super().__init__(scene, task)
+        phys = task.physics
+        self._half_height = phys.puck_height / 2
+        from skillkit.tasks.hockey import CONTROL_PUCK_START
+
+        start = np.append(CONTROL_PUCK_START, self._half_height)
+        self.control_puck = self._add(
+            add_puck(
+                scene,
+                "/pucks/control",
+                phys.puck_radius,
+                phys.puck_height,
+                COLORS["control_puck"],
+                position=start,
+            )
+        )
+        self.target_puck = self._add(
+            add_puck(
+                scene, "/pucks/target", phys.puck_radius, phys.puck_height, COLORS["target_puck"]
+            )
+        )
+        self.target = self._add(
+            add_target(scene, "/target", phys.puck_radius, flat=True, opacity=0.35)
+        )
+        self.set_context(0.5 * (np.asarray(task.context_low) + np.asarray(task.context_high)))
+
+    @classmethod
+    def accepts(cls, task) -> bool:
+        from skillkit.tasks.hockey import Hockey
+
+        return isinstance(task, Hockey)
+
+    def set_context(self, context) -> None:
+        s = self.task.check_context(context)
+        self.target_puck.position = (s[0], s[1], self._half_height)
+        self.target.position = (s[0], s[1], 0.002)
+        self.target.radius = max(float(s[2]), self.task.physics.puck_radius)
+
+    def show(self, trajectory: Trajectory, t: float) -> None:
+        super().show(trajectory, t)
+        times = signal_times(trajectory, "control_puck", "puck_times")
+        for handle, key in ((self.control_puck, "control_puck"), (self.target_puck, "target_puck")):
+            xy = interpolate(times, trajectory.signals[key], t)
+            handle.position = (xy[0], xy[1], self._half_height)
+
+    def trails(self, trajectory: Trajectory) -> dict[str, np.ndarray]:
+        out = super().trails(trajectory)
+        for key in ("control_puck", "target_puck"):
+            xy = trajectory.signals[key]
+            out[key] = np.column_stack([xy, np.full(xy.shape[0], self._half_height)])
+        return out
+
+
+class TableTennisScene(MujocoTaskScene):
+    """Robot table tennis (Appendix C.3): the arm, the table and net, the ball, the target.
+
+    ``/ball`` follows signal ``ball`` (T, 3); ``/target`` is a flat disc at the return target
+    b = context[3:5] on the table surface. Trails: ``effector`` (racket centre) and ``ball``.
+    """
+
+    effector_site = "racket"
+    camera_position = (-4.0, -3.2, 2.6)
+    camera_look_at = (-0.6, 0.0, 0.8)
+
+    def __init__(self, scene, task) -> None:
+        super().__init__(scene, task)
+        from skillkit.tasks import table_tennis as tt
+
+        self._height = tt.TABLE_HEIGHT
+        self._add(add_table(scene, "/table", (tt.TABLE_LENGTH, tt.TABLE_WIDTH), tt.TABLE_HEIGHT))
+        net_width = tt.TABLE_WIDTH + 2 * tt.NET_OVERHANG
+        self._add(
+            scene.add_box(
+                "/net",
+                color=(240, 240, 240),
+                opacity=0.7,
+                dimensions=(0.01, net_width, tt.NET_HEIGHT),
+                position=(0.0, 0.0, tt.TABLE_HEIGHT + tt.NET_HEIGHT / 2),
+            )
+        )
+        self.ball = self._add(add_ball(scene, "/ball", task.ball.radius))
+        self.target = self._add(
+            add_target(scene, "/target", 0.1, flat=True, position=(0.5, 0.0, self._height + 0.003))
+        )
+        self.set_context(0.5 * (np.asarray(task.context_low) + np.asarray(task.context_high)))
+
+    @classmethod
+    def accepts(cls, task) -> bool:
+        from skillkit.tasks.table_tennis import TableTennis
+
+        return isinstance(task, TableTennis)
+
+    def set_context(self, context) -> None:
+        s = self.task.check_context(context)
+        self.target.position = (s[3], s[4], self._height + 0.003)
+
+    def show(self, trajectory: Trajectory, t: float) -> None:
+        super().show(trajectory, t)
+        self.ball.position = tuple(
+            interpolate(signal_times(trajectory, "ball"), trajectory.signals["ball"], t)
+        )
+
+    def trails(self, trajectory: Trajectory) -> dict[str, np.ndarray]:
+        return {**super().trails(trajectory), "ball": trajectory.signals["ball"]}
+
+
+_ADAPTERS: tuple[type[TaskScene], ...] = (
+    PendulumScene,
+    PlanarScene,
+    ThrowingScene,
+    HockeyScene,
+    TableTennisScene,
+    MujocoTaskScene,
+)
+
+
+def task_scene(scene, task) -> TaskScene:
+    """Build the scene of ``task`` with the first adapter that accepts it.
+
+    Specific adapters (pendulum, throwing, hockey, table tennis) come first; any other task
+    exposing a MuJoCo model (:func:`task_model`) gets the generic :class:`MujocoTaskScene`.
+
+    Raises
+    ------
+    ValueError
+        No adapter draws the task (argument ``task``).
+    """
+    for adapter in _ADAPTERS:
+        try:
+            accepted = adapter.accepts(task)
+        except ImportError:  # the task module is not there (yet)
+            accepted = False
+        if accepted:
+            return adapter(scene, task)
+    raise ValueError(
+        f"task: no viewer scene for {type(task).__name__} {getattr(task, 'name', '')!r}: "
+        "it is not a known task and exposes no MuJoCo model "
+        "(scene_model(), model or robot.model)"
+    )

@@ -1,0 +1,1125 @@
+"""The browser viewer: a viser server showing a task's rollouts, model predictions and learning.
+
+:class:`Viewer` serves one task scene (:mod:`skillkit.viz.scenes`) with
+
+* a **timeline** slider and play/pause for the current rollout, and its trails;
+* **context** sliders (one per context dimension, within the task's range) that re-run the
+  policy: the rollout uses the policy mean ω = a + A φ(s) (Eq. 3.13), or a sample
+  ω ~ π(ω|s) on request; every rollout uses the same episode seed (common random numbers),
+  so the same (ω, s) always gives the same trajectory;
+* **predicted vs real** layers (:meth:`Viewer.add_prediction_layer`): any model's sampled
+  trajectories (L, T, n) drawn translucent in their own colour with their mean, each layer
+  switchable by a checkbox — GP sampling and embedding pre-images plug in the same way;
+* **learning playback**: step through the policies of a saved run (:class:`PolicyHistory`)
+  and watch the rollout change, optionally with the trails of earlier updates.
+
+The server binds to 127.0.0.1 unless told otherwise. A port already in use raises
+:class:`PortInUseError` naming the port (viser itself would silently move to the next free
+port); :meth:`Viewer.stop` closes the server and frees the port.
+
+Files
+-----
+**Policy history** (``.npz``, written by :func:`save_policy_history`; one policy is a history
+of length 1). Keys, K the number of updates and d = dim ω:
+
+==========================  ===============  ==========================================
+``format``                  str              ``"skillkit-policy-history-v1"``
+``policy_mean``             (K+1, d)         offsets a of π(ω|s) = N(a + A φ(s), Σ)
+``policy_cov``              (K+1, d, d)      covariances Σ
+``policy_gain``             (K+1, d, F)      gains A (F context features)
+``policy_context_dim``      int              context dimension
+``policy_features``         str              ``"linear"`` or ``"quadratic"``
+``task``                    str              task name ("" if unknown)
+``rollouts``                (K+1,), optional rollouts used before each policy
+``mean_reward``             (K+1,), optional reward of each policy's mean
+==========================  ===============  ==========================================
+
+A **run folder** written by ``skillkit reproduce`` holds the same ``policy_*`` arrays (and
+optionally ``rollouts``/``mean_reward``) per trial in ``trials.npz`` as
+``trial<i>__policy_mean`` …, when the experiment's ``run_trial`` returned
+:meth:`PolicyRecorder.arrays` in its result.
+
+**Prediction layers** (``.npz``, :func:`save_predictions`): for each layer ``<name>`` an array
+``<name>`` of shape (L, T, n) and optionally ``<name>__color`` (3,) RGB 0–255,
+``<name>__opacity`` (), ``<name>__times`` (T,) and ``<name>__space`` (``"state"`` or
+``"points"``).
+"""
+
+from __future__ import annotations
+
+import base64
+import errno
+import json
+import shutil
+import socket
+import subprocess
+import tempfile
+import threading
+import time
+import urllib.request
+import zipfile
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from skillkit._validation import as_generator, check_array
+from skillkit.policies.gaussian import LinearGaussianPolicy
+from skillkit.trajectory import Trajectory
+from skillkit.viz.scenes import COLORS, TaskScene, add_trail, task_scene
+
+__all__ = [
+    "DEFAULT_HOST",
+    "DEFAULT_PORT",
+    "HISTORY_FORMAT",
+    "HeadlessBrowser",
+    "PolicyHistory",
+    "PolicyRecorder",
+    "PortInUseError",
+    "PredictionLayer",
+    "Viewer",
+    "load_policy_history",
+    "load_predictions",
+    "save_policy_history",
+    "save_predictions",
+]
+
+DEFAULT_HOST = "127.0.0.1"
+DEFAULT_PORT = 8080
+HISTORY_FORMAT = "skillkit-policy-history-v1"
+PREDICTION_COLORS = [(220, 40, 160), (150, 70, 220), (20, 170, 170), (230, 160, 0)]
+"""Colours given to prediction layers in turn when none is specified."""
+MAX_GHOST_UPDATES = 12
+"""At most this many earlier updates get ghost trails in learning playback."""
+
+
+class PortInUseError(OSError):
+    """The viewer's port is taken by another process."""
+
+
+# ============================================================================ policy histories
+@dataclass(frozen=True)
+class PolicyHistory:
+    """The upper-level policies of a learning run, one per update (k = 0 … K).
+
+    Attributes
+    ----------
+    policies : tuple of LinearGaussianPolicy
+        π_0 (initial) … π_K.
+    rollouts : ndarray, shape (K+1,), optional
+        Rollouts used before each policy.
+    mean_reward : ndarray, shape (K+1,), optional
+        Reward of each policy's mean, as the learning loop evaluated it.
+    task : str
+        Name of the task it was learned on ("" if unknown).
+    """
+
+    policies: tuple
+    rollouts: np.ndarray | None = None
+    mean_reward: np.ndarray | None = None
+    task: str = ""
+
+    def __post_init__(self) -> None:
+        if not self.policies:
+            raise ValueError("policies: expected at least one policy")
+        for i, p in enumerate(self.policies):
+            if not isinstance(p, LinearGaussianPolicy):
+                raise ValueError(
+                    f"policies: entry {i} is a {type(p).__name__}, not a LinearGaussianPolicy"
+                )
+        first = self.policies[0]
+        if any((p.dim, p.context_dim) != (first.dim, first.context_dim) for p in self.policies):
+            raise ValueError("policies: expected the same dim and context_dim for every update")
+        n = len(self.policies)
+        for name in ("rollouts", "mean_reward"):
+            value = getattr(self, name)
+            if value is not None:
+                object.__setattr__(self, name, check_array(value, name, shape=(n,), finite=False))
+
+    def __len__(self) -> int:
+        return len(self.policies)
+
+    def __getitem__(self, k: int) -> LinearGaussianPolicy:
+        return self.policies[k]
+
+
+def _policy_arrays(policies: Sequence[LinearGaussianPolicy]) -> dict[str, np.ndarray]:
+    history = PolicyHistory(tuple(policies))
+    first = history.policies[0]
+    return {
+        "policy_mean": np.stack([p.mean for p in history.policies]),
+        "policy_cov": np.stack([p.cov for p in history.policies]),
+        "policy_gain": np.stack([p.gain for p in history.policies]),
+        "policy_context_dim": np.asarray(first.context_dim),
+        "policy_features": np.asarray(first.features),
+    }
+
+
+class PolicyRecorder:
+    """Records the policy after every update of a learning run.
+
+    Pass it as ``callback`` to :func:`skillkit.search.loop.learn` (it is called with
+    ``(k, algorithm)`` for k = 0 … K) and save with :meth:`save`, or return :meth:`arrays`
+    from an experiment's ``run_trial`` so ``skillkit reproduce`` stores them in
+    ``trials.npz``.
+    """
+
+    def __init__(self) -> None:
+        self.policies: list[LinearGaussianPolicy] = []
+
+    def __call__(self, k: int, algorithm) -> None:
+        if k != len(self.policies):
+            raise ValueError(f"k: expected update {len(self.policies)}, got {k}")
+        self.policies.append(algorithm.policy)
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The ``policy_*`` arrays of the file format (see the module docstring)."""
+        return _policy_arrays(self.policies)
+
+    def save(self, path, *, result: Mapping | None = None, task: str = "") -> Path:
+        """Write the history; ``result`` (the dict ``learn`` returns) adds rollouts and rewards."""
+        result = result or {}
+        return save_policy_history(
+            path,
+            self.policies,
+            rollouts=result.get("rollouts"),
+            mean_reward=result.get("mean_reward"),
+            task=task,
+        )
+
+
+def save_policy_history(
+    path,
+    policies: Sequence[LinearGaussianPolicy],
+    *,
+    rollouts=None,
+    mean_reward=None,
+    task: str = "",
+) -> Path:
+    """Write policies π_0 … π_K to a policy-history ``.npz`` (format in the module docstring).
+
+    Parameters
+    ----------
+    path : str or Path
+        Output file (``.npz`` is appended if missing).
+    policies : sequence of LinearGaussianPolicy
+        One per update, same dimensions.
+    rollouts, mean_reward : array_like, shape (K+1,), optional
+    task : str
+        Task name.
+    """
+    history = PolicyHistory(tuple(policies), rollouts, mean_reward, str(task))
+    arrays = _policy_arrays(history.policies)
+    arrays.update(format=np.asarray(HISTORY_FORMAT), task=np.asarray(history.task))
+    if history.rollouts is not None:
+        arrays["rollouts"] = history.rollouts
+    if history.mean_reward is not None:
+        arrays["mean_reward"] = history.mean_reward
+    path = Path(path)
+    if path.suffix != ".npz":
+        path = path.with_name(path.name + ".npz")
+    np.savez_compressed(path, **arrays)
+    return path
+
+
+def _history_from(arrays: Mapping[str, np.ndarray], prefix: str, source: str) -> PolicyHistory:
+    def get(key: str, required: bool = True):
+        full = prefix + key
+        if full not in arrays:
+            if required:
+                raise ValueError(
+                    f"policy: {source} has no {full!r} array (not a skillkit policy "
+                    "history; see skillkit.viz.viewer)"
+                )
+            return None
+        return np.asarray(arrays[full])
+
+    mean, cov, gain = get("policy_mean"), get("policy_cov"), get("policy_gain")
+    context_dim, features = get("policy_context_dim"), get("policy_features")
+    if (
+        mean.ndim != 2
+        or cov.ndim != 3
+        or gain.ndim != 3
+        or not (mean.shape[0] == cov.shape[0] == gain.shape[0])
+    ):
+        raise ValueError(
+            f"policy: {source} has inconsistent shapes policy_mean {mean.shape}, "
+            f"policy_cov {cov.shape}, policy_gain {gain.shape}"
+        )
+    try:
+        policies = tuple(
+            LinearGaussianPolicy(m, c, g, context_dim=int(context_dim), features=str(features))
+            for m, c, g in zip(mean, cov, gain, strict=True)
+        )
+    except (ValueError, TypeError) as exc:
+        raise ValueError(f"policy: {source} holds an invalid policy ({exc})") from None
+    extra = {}
+    for key in ("rollouts", "mean_reward"):
+        value = get(key, required=False)
+        if value is not None and value.shape == (len(policies),):
+            extra[key] = value.astype(np.float64)
+    task = get("task", required=False)
+    return PolicyHistory(policies, task="" if task is None else str(task), **extra)
+
+
+def load_policy_history(path, trial: int = 0) -> PolicyHistory:
+    """Read a policy history: a ``.npz`` file or a ``skillkit reproduce`` run folder.
+
+    Parameters
+    ----------
+    path : str or Path
+        A file written by :func:`save_policy_history`, or a run folder whose ``trials.npz``
+        holds ``trial<i>__policy_*`` arrays.
+    trial : int
+        Which trial of a run folder.
+
+    Raises
+    ------
+    ValueError
+        Missing, unreadable or malformed file (argument ``policy``), or no such trial.
+    """
+    path = Path(path)
+    if path.is_dir():
+        file, prefix = path / "trials.npz", f"trial{int(trial)}__"
+    else:
+        file, prefix = path, ""
+    if not file.exists():
+        raise ValueError(f"policy: no such file {file}")
+    try:
+        with np.load(file, allow_pickle=False) as data:
+            arrays = {k: data[k] for k in data.files}
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+        raise ValueError(f"policy: {file} is not a readable .npz file ({exc})") from None
+    if prefix and not any(k.startswith(prefix) for k in arrays):
+        n = len({k.split("__")[0] for k in arrays if k.startswith("trial")})
+        raise ValueError(f"trial: {file} has no trial {trial} (it has {n} trials)")
+    fmt = arrays.get("format")
+    if not prefix and fmt is not None and str(fmt) != HISTORY_FORMAT:
+        raise ValueError(f"policy: {file} has format {str(fmt)!r}, expected {HISTORY_FORMAT!r}")
+    return _history_from(arrays, prefix, str(file))
+
+
+# ============================================================================ prediction layers
+def save_predictions(
+    path,
+    layers: Mapping[str, np.ndarray],
+    *,
+    colors: Mapping | None = None,
+    opacities: Mapping | None = None,
+    times: Mapping | None = None,
+    space: str = "state",
+) -> Path:
+    """Write prediction layers ``{name: (L, T, n)}`` for ``skillkit view --predictions``."""
+    arrays = {}
+    for name, value in layers.items():
+        if "__" in name or not name:
+            raise ValueError(f"layers: layer names must be non-empty without '__', got {name!r}")
+        arrays[name] = check_array(value, f"layers[{name!r}]", ndim=3)
+        arrays[f"{name}__space"] = np.asarray(space)
+        for key, table in (("color", colors), ("opacity", opacities), ("times", times)):
+            if table and name in table:
+                arrays[f"{name}__{key}"] = np.asarray(table[name], dtype=np.float64)
+    path = Path(path)
+    np.savez_compressed(path, **arrays)
+    return path if path.suffix == ".npz" else path.with_name(path.name + ".npz")
+
+
+def load_predictions(path) -> list[dict]:
+    """Read a prediction-layer file: keyword dicts for :meth:`Viewer.add_prediction_layer`."""
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            arrays = {k: data[k] for k in data.files}
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+        raise ValueError(f"predictions: {path} is not a readable .npz file ({exc})") from None
+    layers = []
+    for name in sorted(k for k in arrays if "__" not in k):
+        spec = {"name": name, "trajectories": arrays[name]}
+        for key in ("color", "opacity", "times"):
+            if f"{name}__{key}" in arrays:
+                spec[key] = arrays[f"{name}__{key}"]
+        if f"{name}__space" in arrays:
+            spec["space"] = str(arrays[f"{name}__space"])
+        layers.append(spec)
+    if not layers:
+        raise ValueError(f"predictions: {path} holds no layers")
+    return layers
+
+
+@dataclass
+class PredictionLayer:
+    """One model's predicted trajectories in the scene.
+
+    Attributes
+    ----------
+    name : str
+    points : ndarray, shape (L, T, 3)
+        World-frame paths drawn (the scene's point of each predicted state).
+    times : ndarray, shape (T,)
+    color : tuple of int
+    opacity : float
+    nodes : dict of str to handle
+        ``/predictions/<name>/samples`` (translucent tubes), ``…/mean`` (the mean path) and
+        ``…/now`` (the L predicted points at the timeline's time).
+    checkbox : GuiCheckboxHandle or None
+    """
+
+    name: str
+    points: np.ndarray
+    times: np.ndarray
+    color: tuple
+    opacity: float
+    nodes: dict = field(default_factory=dict)
+    checkbox: object = None
+
+    @property
+    def visible(self) -> bool:
+        return bool(self.nodes[f"/predictions/{self.name}/samples"].visible)
+
+    @visible.setter
+    def visible(self, value: bool) -> None:
+        for handle in self.nodes.values():
+            handle.visible = bool(value)
+
+    def at(self, t: float) -> np.ndarray:
+        """The L predicted points at time ``t`` (linear interpolation), shape (L, 3)."""
+        from skillkit.viz.scenes import interpolate
+
+        return interpolate(self.times, np.swapaxes(self.points, 0, 1), t)
+
+
+# ============================================================================ the viewer
+def _check_port(host: str, port: int) -> None:
+    """Raise :class:`PortInUseError` if ``host:port`` cannot be bound because it is taken."""
+    try:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
+    except socket.gaierror as exc:
+        raise ValueError(f"host: cannot resolve {host!r} ({exc.strerror})") from None
+    family, _, _, _, address = infos[0]
+    with socket.socket(family, socket.SOCK_STREAM) as sock:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as the server will
+        try:
+            sock.bind(address)
+        except OSError as exc:
+            if exc.errno == errno.EADDRINUSE:
+                raise PortInUseError(
+                    errno.EADDRINUSE,
+                    f"port {port} on {host} is already in use; choose another with --port",
+                ) from None
+            raise ValueError(f"host: cannot listen on {host}:{port} ({exc.strerror})") from None
+
+
+class Viewer:
+    """A viser server showing one task: rollouts, predictions and learning playback.
+
+    Parameters
+    ----------
+    task : Task or str
+        The task, or its registry name.
+    policy : LinearGaussianPolicy, optional
+        Upper-level policy π(ω|s) (default: the task's initial policy, or the last policy of
+        ``history``).
+    context : array_like, shape (context_dim,), optional
+        Initial context (default: the middle of the task's range).
+    history : PolicyHistory, optional
+        Policies of a learning run, for learning playback.
+    host : str
+        Interface to bind (127.0.0.1: this machine only).
+    port : int
+        TCP port (0: any free port).
+    seed : int
+        Episode seed of every rollout, and seed of the ω samples.
+
+    Examples
+    --------
+    >>> with Viewer("pendulum", port=0) as viewer:       # doctest: +SKIP
+    ...     viewer.set_context([1.0, 0.0])
+    ...     viewer.add_prediction_layer("gp", samples)  # (L, T, n_x)
+    """
+
+    def __init__(
+        self,
+        task,
+        policy: LinearGaussianPolicy | None = None,
+        context=None,
+        *,
+        history: PolicyHistory | None = None,
+        host: str = DEFAULT_HOST,
+        port: int = DEFAULT_PORT,
+        seed: int = 0,
+    ) -> None:
+        from skillkit.tasks import Task, make
+
+        self.task = make(task) if isinstance(task, str) else task
+        if not isinstance(self.task, Task):
+            raise ValueError(
+                f"task: expected a Task or a registered task name, got {type(task).__name__}"
+            )
+        if history is not None and not isinstance(history, PolicyHistory):
+            raise ValueError(f"history: expected a PolicyHistory, got {type(history).__name__}")
+        if history is not None and history.task and history.task != self.task.name:
+            raise ValueError(
+                f"policy: the history was recorded on task {history.task!r}, not {self.task.name!r}"
+            )
+        self.history = history
+        if policy is None:
+            policy = history[-1] if history is not None else self.task.initial_policy()
+        self.policy = self._check_policy(policy, "policy")
+        if history is not None:
+            self._check_policy(history[0], "policy")
+        if context is None:
+            context = 0.5 * (np.asarray(self.task.context_low) + np.asarray(self.task.context_high))
+        self.context = self.task.check_context(context)
+        if (
+            not isinstance(port, (int, np.integer))
+            or isinstance(port, bool)
+            or not 0 <= port < 65536
+        ):
+            raise ValueError(f"port: expected an integer in [0, 65535], got {port!r}")
+        if not isinstance(host, str) or not host:
+            raise ValueError(f"host: expected a host name or address, got {host!r}")
+        self.host, self._requested_port, self.seed = host, int(port), int(seed)
+        self._omega_rng = as_generator(self.seed)
+        self.server = None
+        self.scene: TaskScene | None = None
+        self.trajectory: Trajectory | None = None
+        self.omega: np.ndarray | None = None
+        self.time = 0.0
+        self.update_index = len(history) - 1 if history is not None else None
+        self.layers: dict[str, PredictionLayer] = {}
+        self._trail_nodes: dict = {}
+        self._ghost_nodes: dict = {}
+        self._lock = threading.RLock()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.playing = False
+        self.stepping_updates = False
+        self.gui: dict = {}
+        self._quiet = False  # set while the viewer itself moves a slider: skip its callback
+
+    def _check_policy(self, policy, name: str) -> LinearGaussianPolicy:
+        if not isinstance(policy, LinearGaussianPolicy):
+            raise ValueError(
+                f"{name}: expected a LinearGaussianPolicy, got {type(policy).__name__}"
+            )
+        t = self.task
+        if policy.dim != t.parameter_dim or policy.context_dim != t.context_dim:
+            raise ValueError(
+                f"{name}: has dim={policy.dim}, context_dim={policy.context_dim}; task "
+                f"{t.name!r} needs dim={t.parameter_dim}, context_dim={t.context_dim}"
+            )
+        return policy
+
+    # ----------------------------------------------------------------- lifecycle
+    @property
+    def port(self) -> int:
+        """The bound port (the requested one; the OS's choice for port 0)."""
+        return self.server.get_port() if self.server is not None else self._requested_port
+
+    @property
+    def url(self) -> str:
+        host = f"[{self.host}]" if ":" in self.host else self.host
+        return f"http://{host}:{self.port}/"
+
+    def start(self) -> Viewer:
+        """Start the server, build the scene and the GUI and show the first rollout.
+
+        Raises
+        ------
+        PortInUseError
+            The port is taken (the message names it).
+        """
+        import viser
+
+        if self.server is not None:
+            raise ValueError("viewer: already started")
+        if self._requested_port:
+            _check_port(self.host, self._requested_port)
+        server = viser.ViserServer(
+            host=self.host,
+            port=self._requested_port,
+            verbose=False,
+            label=f"skillkit · {self.task.name}",
+        )
+        if self._requested_port and server.get_port() != self._requested_port:
+            bound = server.get_port()
+            server.stop()  # viser moved on to the next free port: refuse that
+            raise PortInUseError(
+                errno.EADDRINUSE,
+                f"port {self._requested_port} on {self.host} is already in use "
+                f"(it was taken while starting; viser offered {bound})",
+            )
+        self.server = server
+        try:
+            with self._lock:
+                self.scene = task_scene(server.scene, self.task)
+                self.scene.set_context(self.context)
+                cam = server.initial_camera
+                cam.position, cam.look_at = self.scene.camera_position, self.scene.camera_look_at
+                self._build_gui()
+                self._rerun()
+            self._stop.clear()
+            self._thread = threading.Thread(
+                target=self._animate, name="skillkit-viewer-play", daemon=True
+            )
+            self._thread.start()
+        except BaseException:
+            self.stop()
+            raise
+        return self
+
+    def stop(self) -> None:
+        """Stop playback and the server and free the port (idempotent)."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+            self._thread = None
+        if self.server is not None:
+            self.server.stop()
+            self.server = None
+
+    def __enter__(self) -> Viewer:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    def serve_forever(self) -> None:
+        """Block until Ctrl-C, then stop."""
+        try:
+            while not self._stop.wait(0.5):
+                pass
+        except KeyboardInterrupt:
+            pass
+        finally:
+            self.stop()
+
+    # ----------------------------------------------------------------- GUI
+    def _build_gui(self) -> None:
+        gui, task = self.server.gui, self.task
+        g = self.gui
+        g["status"] = gui.add_markdown("")
+        with gui.add_folder("Playback"):
+            g["time"] = gui.add_slider("time [s]", min=0.0, max=1.0, step=0.01, initial_value=0.0)
+            g["play"] = gui.add_button("Play", icon="player-play")
+            g["trails"] = gui.add_checkbox("trails", True)
+        g["time"].on_update(lambda _: self._quiet or self.set_time(g["time"].value))
+        g["play"].on_click(lambda _: self.set_playing(not self.playing))
+        g["trails"].on_update(lambda _: self._draw_trails())
+        if task.context_dim:
+            with gui.add_folder("Context s"):
+                g["context"] = []
+                for i in range(task.context_dim):
+                    lo, hi = float(task.context_low[i]), float(task.context_high[i])
+                    label = task.context_names[i] if i < len(task.context_names) else f"s[{i}]"
+                    step = (hi - lo) / 100 if hi > lo else 1.0
+                    slider = gui.add_slider(
+                        label, min=lo, max=hi, step=step, initial_value=float(self.context[i])
+                    )
+                    slider.on_update(lambda _: self._context_from_gui())
+                    g["context"].append(slider)
+        with gui.add_folder("Policy"):
+            g["sample"] = gui.add_button("Sample ω ~ π(ω|s)")
+            g["mean"] = gui.add_button("Use the mean ω")
+        g["sample"].on_click(lambda _: self._rerun(sample=True))
+        g["mean"].on_click(lambda _: self._rerun())
+        if self.history is not None:
+            with gui.add_folder("Learning playback"):
+                K = len(self.history) - 1
+                g["update"] = gui.add_slider(
+                    "policy update k",
+                    min=0,
+                    max=max(K, 1),
+                    step=1,
+                    initial_value=K,
+                    disabled=K == 0,
+                )
+                g["step_updates"] = gui.add_button("Step through updates", icon="player-play")
+                g["ghosts"] = gui.add_checkbox("trails of earlier updates", False)
+                g["history_info"] = gui.add_markdown("")
+            g["update"].on_update(lambda _: self._quiet or self.set_update(int(g["update"].value)))
+            g["step_updates"].on_click(lambda _: self._toggle_update_stepping())
+            g["ghosts"].on_update(lambda _: self._draw_ghosts())
+        g["predictions"] = gui.add_folder("Predictions", visible=False)
+        with gui.add_folder("Scene tree", expand_by_default=False):
+            g["tree"] = gui.add_markdown(self._tree_markdown())
+
+    def _tree_markdown(self) -> str:
+        return "\n".join(f"- `{n}`" for n in self.node_names())
+
+    def node_names(self) -> list[str]:
+        """Paths of every scene node the viewer made (task scene, trails, predictions)."""
+        names = set(self.scene.nodes) if self.scene is not None else set()
+        names |= set(self._trail_nodes) | set(self._ghost_nodes)
+        for layer in self.layers.values():
+            names |= set(layer.nodes)
+        return sorted(names)
+
+    def _refresh_tree(self) -> None:
+        if "tree" in self.gui:
+            self.gui["tree"].content = self._tree_markdown()
+
+    # ----------------------------------------------------------------- rollouts
+    def _require_started(self) -> None:
+        if self.server is None:
+            raise ValueError("viewer: not started; call start() first")
+
+    def _rerun(self, sample: bool = False) -> Trajectory:
+        """Roll out the policy in the current context (mean ω, or a sample) and show it."""
+        with self._lock:
+            s = self.context if self.task.context_dim else None
+            ctx = self.context[None, :] if self.task.context_dim else np.zeros((1, 0))
+            if sample:
+                omega = np.atleast_2d(self.policy.sample(ctx, self._omega_rng))[0]
+            else:
+                omega = np.atleast_2d(self.policy.mean_of(ctx))[0]
+            traj = self.task.rollout(omega, s, np.random.default_rng(self.seed))
+            self.omega, self.trajectory = omega, traj
+            status = "sampled ω" if sample else "mean ω"
+            if traj.failed:
+                self.gui["status"].content = f"**rollout failed** ({status}): {traj.message}"
+                self._draw_trails()
+                return traj
+            reward = self.task.reward(traj, s)
+            self.gui["status"].content = f"reward R = {reward:.4g} ({status})"
+            t0, t1 = self.scene.time_range(traj)
+            slider = self.gui["time"]
+            dt = float(np.median(np.diff(traj.times))) if traj.n_steps > 1 else (t1 - t0) / 100
+            slider.min, slider.max, slider.step = t0, max(t1, t0 + dt), max(dt, 1e-3)
+            self._draw_trails()
+            self.set_time(min(max(self.time, t0), t1))
+            return traj
+
+    def set_context(self, context) -> Trajectory:
+        """Validate and set the context s, move the target and re-run the policy mean."""
+        self._require_started()
+        s = self.task.check_context(context)
+        with self._lock:
+            self.context = s
+            self.scene.set_context(s)
+            sliders = self.gui.get("context", [])
+            self._set_quietly([(sl, float(v)) for sl, v in zip(sliders, s, strict=True)])
+            return self._rerun()
+
+    def _set_quietly(self, pairs) -> None:
+        """Move GUI inputs to values without running their callbacks."""
+        with self._lock:
+            self._quiet = True
+            try:
+                for handle, value in pairs:
+                    handle.value = value
+            finally:
+                self._quiet = False
+
+    def _context_from_gui(self) -> None:
+        if self._quiet:
+            return
+        values = [float(slider.value) for slider in self.gui["context"]]
+        with self._lock:
+            if np.array_equal(values, self.context):
+                return
+            self.context = self.task.check_context(values)
+            self.scene.set_context(self.context)
+            self._rerun()
+
+    def set_time(self, t: float) -> None:
+        """Show the current rollout, trails' markers and prediction layers at time ``t``."""
+        self._require_started()
+        with self._lock:
+            self.time = float(t)
+            traj = self.trajectory
+            with self.server.atomic():
+                if traj is not None and not traj.failed:
+                    self.scene.show(traj, self.time)
+                for layer in self.layers.values():
+                    layer.nodes[f"/predictions/{layer.name}/now"].points = layer.at(self.time)
+            self._set_quietly([(self.gui["time"], self.time)])
+
+    def set_playing(self, playing: bool) -> None:
+        """Start or pause playback of the timeline (loops at the end)."""
+        self.playing = bool(playing)
+        button = self.gui.get("play")
+        if button is not None:
+            button.label = "Pause" if self.playing else "Play"
+            button.icon = "player-pause" if self.playing else "player-play"
+
+    def _animate(self) -> None:
+        period, last, last_update = 1 / 30, time.monotonic(), time.monotonic()
+        while not self._stop.wait(period):
+            now = time.monotonic()
+            elapsed, last = now - last, now
+            try:
+                if self.playing and self.trajectory is not None and not self.trajectory.failed:
+                    slider = self.gui["time"]
+                    t = self.time + elapsed
+                    self.set_time(slider.min if t > slider.max else t)
+                if self.stepping_updates and now - last_update >= 1.0:
+                    last_update = now
+                    self.set_update((self.update_index + 1) % len(self.history))
+            except Exception as exc:  # keep serving; show what went wrong
+                self.playing = self.stepping_updates = False
+                if "status" in self.gui and self.server is not None:
+                    self.gui["status"].content = f"**playback stopped**: {exc}"
+
+    # ----------------------------------------------------------------- trails
+    def _remove(self, nodes: dict) -> None:
+        for handle in nodes.values():
+            handle.remove()
+        nodes.clear()
+
+    def _draw_trails(self) -> None:
+        with self._lock:
+            self._remove(self._trail_nodes)
+            traj = self.trajectory
+            if traj is not None and not traj.failed and self.gui["trails"].value:
+                for key, path in self.scene.trails(traj).items():
+                    if path.shape[0] >= 2:
+                        color = COLORS["ball"] if key == "ball" else COLORS["trail"]
+                        handle = add_trail(self.server.scene, f"/trails/{key}", path, color)
+                        self._trail_nodes[handle.name] = handle
+            self._refresh_tree()
+
+    # ----------------------------------------------------------------- learning playback
+    def set_update(self, k: int) -> Trajectory:
+        """Show policy π_k of the history (learning playback) and re-run it."""
+        self._require_started()
+        if self.history is None:
+            raise ValueError("update: this viewer has no policy history")
+        K = len(self.history) - 1
+        if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 0 <= k <= K:
+            raise ValueError(f"update: expected an integer in [0, {K}], got {k!r}")
+        with self._lock:
+            self.update_index, self.policy = int(k), self.history[int(k)]
+            self._set_quietly([(self.gui["update"], int(k))])
+            info = [f"update {k} of {K}"]
+            if self.history.rollouts is not None:
+                info.append(f"{int(self.history.rollouts[k])} rollouts")
+            if self.history.mean_reward is not None:
+                info.append(f"mean reward {self.history.mean_reward[k]:.4g}")
+            self.gui["history_info"].content = " · ".join(info)
+            return self._rerun()
+
+    def _toggle_update_stepping(self) -> None:
+        self.stepping_updates = not self.stepping_updates
+        self.gui["step_updates"].label = "Stop" if self.stepping_updates else "Step through updates"
+
+    def ghost_updates(self) -> list[int]:
+        """The updates whose trails learning playback draws (at most ``MAX_GHOST_UPDATES``)."""
+        K = len(self.history) - 1
+        return sorted(set(np.linspace(0, K, min(K + 1, MAX_GHOST_UPDATES)).round().astype(int)))
+
+    def _draw_ghosts(self) -> None:
+        """Trails of earlier updates' rollouts, fading from old (light) to new."""
+        with self._lock:
+            self._remove(self._ghost_nodes)
+            if self.history is None or not self.gui["ghosts"].value:
+                self._refresh_tree()
+                return
+            s = self.context if self.task.context_dim else None
+            ctx = self.context[None, :] if self.task.context_dim else np.zeros((1, 0))
+            updates = self.ghost_updates()
+            for i, k in enumerate(updates):
+                omega = np.atleast_2d(self.history[k].mean_of(ctx))[0]
+                traj = self.task.rollout(omega, s, np.random.default_rng(self.seed))
+                if traj.failed:
+                    continue
+                opacity = 0.15 + 0.6 * (i + 1) / len(updates)
+                for key, path in self.scene.trails(traj).items():
+                    if path.shape[0] >= 2:
+                        handle = add_trail(
+                            self.server.scene,
+                            f"/history/update{k}/{key}",
+                            path,
+                            (120, 120, 120),
+                            radius=0.005,
+                            opacity=opacity,
+                        )
+                        self._ghost_nodes[handle.name] = handle
+            self._refresh_tree()
+
+    # ----------------------------------------------------------------- predictions
+    def add_prediction_layer(
+        self,
+        name: str,
+        trajectories,
+        color=None,
+        opacity: float = 0.3,
+        *,
+        times=None,
+        space: str = "state",
+    ) -> PredictionLayer:
+        """Overlay a model's predicted trajectories on the real rollout.
+
+        Parameters
+        ----------
+        name : str
+            Layer name (a path component, e.g. ``"gp"`` or ``"embedding"``); replaces a layer
+            of the same name.
+        trajectories : array_like, shape (L, T, n)
+            L sampled (or pre-image) trajectories of T steps: states (n = the task's state
+            dimension, drawn at the scene's point of a state, e.g. the end effector) or 3-D
+            points (n = 3 with ``space="points"``).
+        color : RGB, optional
+            Layer colour (default: the next of :data:`PREDICTION_COLORS`).
+        opacity : float in (0, 1]
+            Opacity of the sampled paths; the mean path is drawn at twice it (at most 1).
+        times : array_like, shape (T,), optional
+            Time stamps (default: the current rollout's first T times).
+        space : {"state", "points"}
+
+        Returns
+        -------
+        PredictionLayer
+            Its nodes are ``/predictions/<name>/samples``, ``…/mean`` and ``…/now``; a checkbox
+            in the "Predictions" folder switches it on and off.
+        """
+        self._require_started()
+        from skillkit.viz.scenes import _check_path, _node_name, _opacity, _rgb
+
+        if not isinstance(name, str) or not name or _node_name(name) != name:
+            raise ValueError(
+                f"name: expected a layer name of letters, digits, '_', '.', '-', got {name!r}"
+            )
+        x = check_array(trajectories, "trajectories", ndim=3)
+        L, T, n = x.shape
+        if L < 1 or T < 2:
+            raise ValueError(
+                f"trajectories: expected shape (L, T, n) with L >= 1, T >= 2, got {x.shape}"
+            )
+        if space == "state":
+            if n != self.scene.state_dim:
+                raise ValueError(
+                    f"trajectories: expected states of dimension {self.scene.state_dim} "
+                    f"for task {self.task.name!r}, got shape {x.shape} "
+                    "(pass space='points' for 3-D points)"
+                )
+            points = self.scene.points(x)
+        elif space == "points":
+            if n != 3:
+                raise ValueError(
+                    f"trajectories: space='points' needs shape (L, T, 3), got {x.shape}"
+                )
+            points = x
+        else:
+            raise ValueError(f"space: expected 'state' or 'points', got {space!r}")
+        if times is None:
+            base = self.trajectory.times if self.trajectory is not None else np.zeros(0)
+            if base.shape[0] >= T:
+                times = base[:T]
+            else:
+                dt = float(base[1] - base[0]) if base.shape[0] > 1 else 1.0
+                times = (base[0] if base.shape[0] else 0.0) + dt * np.arange(T)
+        times = check_array(times, "times", shape=(T,))
+        if np.any(np.diff(times) < 0):
+            raise ValueError("times: expected non-decreasing time stamps")
+        color = _rgb(
+            PREDICTION_COLORS[len(self.layers) % len(PREDICTION_COLORS)] if color is None else color
+        )
+        opacity = _opacity(opacity) or 1.0
+        with self._lock:
+            self.remove_prediction_layer(name)
+            base = _check_path(f"/predictions/{name}")
+            scene = self.server.scene
+            layer = PredictionLayer(name, points, times, color, opacity)
+            layer.nodes[f"{base}/samples"] = add_trail(
+                scene, f"{base}/samples", points, color, radius=0.004, opacity=opacity
+            )
+            layer.nodes[f"{base}/mean"] = add_trail(
+                scene,
+                f"{base}/mean",
+                points.mean(axis=0),
+                color,
+                radius=0.008,
+                opacity=min(1.0, 2 * opacity),
+            )
+            layer.nodes[f"{base}/now"] = scene.add_point_cloud(
+                f"{base}/now", layer.at(self.time), color, point_size=0.03, point_shape="circle"
+            )
+            folder = self.gui["predictions"]
+            folder.visible = True
+            with folder:
+                layer.checkbox = self.server.gui.add_checkbox(
+                    f"{name} (L={L})", True, hint=f"show the {L} trajectories predicted by {name}"
+                )
+            layer.checkbox.on_update(lambda _: setattr(layer, "visible", layer.checkbox.value))
+            self.layers[name] = layer
+            self._refresh_tree()
+            return layer
+
+    def remove_prediction_layer(self, name: str) -> None:
+        """Remove a prediction layer and its checkbox (no-op if absent)."""
+        with self._lock:
+            layer = self.layers.pop(name, None)
+            if layer is None:
+                return
+            self._remove(layer.nodes)
+            if layer.checkbox is not None:
+                layer.checkbox.remove()
+            self._refresh_tree()
+
+
+# ============================================================================ headless browser
+class HeadlessBrowser:
+    """Headless Chromium driven over the DevTools protocol (for screenshots and browser tests).
+
+    Starts ``chromium --headless`` with a fresh profile and a DevTools port chosen by the OS,
+    then talks to the page over its websocket (the ``websockets`` package viser depends on).
+
+    Parameters
+    ----------
+    size : tuple of int
+        Viewport (width, height) in CSS pixels.
+    executable : str, optional
+        Chromium binary (default: ``chromium`` on the PATH, else ``/usr/bin/chromium``).
+    timeout : float
+        Seconds to wait for Chromium to start.
+    """
+
+    FLAGS = (
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--disable-quic",
+        "--no-first-run",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        "--hide-scrollbars",
+        "--mute-audio",
+    )
+
+    def __init__(
+        self,
+        size: tuple[int, int] = (1024, 700),
+        executable: str | None = None,
+        timeout: float = 30.0,
+    ) -> None:
+        exe = executable or shutil.which("chromium") or "/usr/bin/chromium"
+        if not Path(exe).exists() and shutil.which(exe) is None:
+            raise ValueError(f"executable: no Chromium at {exe!r} (apt-get install chromium)")
+        width, height = (int(v) for v in size)
+        self.size = (width, height)
+        self._profile = tempfile.mkdtemp(prefix="skillkit-chromium-")
+        self._proc = subprocess.Popen(
+            [
+                exe,
+                *self.FLAGS,
+                f"--user-data-dir={self._profile}",
+                f"--window-size={width},{height}",
+                "--remote-debugging-port=0",
+                "about:blank",
+            ],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
+        self._ws = None
+        self._id = 0
+        try:
+            port_file = Path(self._profile) / "DevToolsActivePort"
+            deadline = time.monotonic() + timeout
+            while not (port_file.exists() and port_file.read_text().strip()):
+                if self._proc.poll() is not None or time.monotonic() > deadline:
+                    raise RuntimeError(f"chromium did not start (exit code {self._proc.poll()})")
+                time.sleep(0.05)
+            devtools_port = int(port_file.read_text().split()[0])
+            with urllib.request.urlopen(
+                f"http://127.0.0.1:{devtools_port}/json", timeout=timeout
+            ) as r:
+                pages = [t for t in json.load(r) if t.get("type") == "page"]
+            from websockets.sync.client import connect
+
+            self._ws = connect(
+                pages[0]["webSocketDebuggerUrl"], max_size=2**28, open_timeout=timeout
+            )
+            self.call(
+                "Emulation.setDeviceMetricsOverride",
+                width=width,
+                height=height,
+                deviceScaleFactor=1,
+                mobile=False,
+            )
+        except BaseException:
+            self.close()
+            raise
+
+    def call(self, method: str, timeout: float = 60.0, **params) -> dict:
+        """Send one DevTools command and return its ``result``."""
+        self._id += 1
+        self._ws.send(json.dumps({"id": self._id, "method": method, "params": params}))
+        deadline = time.monotonic() + timeout
+        while True:
+            message = json.loads(self._ws.recv(timeout=max(deadline - time.monotonic(), 0.01)))
+            if message.get("id") == self._id:
+                if "error" in message:
+                    raise RuntimeError(f"{method}: {message['error']}")
+                return message.get("result", {})
+
+    def open(self, url: str) -> None:
+        """Navigate to ``url``."""
+        self.call("Page.navigate", url=url)
+
+    def text(self) -> str:
+        """The page's whole text content (hidden elements included)."""
+        result = self.call(
+            "Runtime.evaluate", expression="document.body ? document.body.textContent : ''"
+        )
+        return str(result.get("result", {}).get("value", ""))
+
+    def wait_for_text(self, needles: Sequence[str], timeout: float = 60.0) -> str:
+        """Poll the page until its text contains every needle; return the text."""
+        deadline = time.monotonic() + timeout
+        while True:
+            text = self.text()
+            missing = [n for n in needles if n not in text]
+            if not missing:
+                return text
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"page text still lacks {missing} after {timeout:g} s")
+            time.sleep(0.25)
+
+    def screenshot(self) -> np.ndarray:
+        """The viewport as an RGB array of shape (height, width, 3), uint8."""
+        from io import BytesIO
+
+        from PIL import Image
+
+        data = base64.b64decode(self.call("Page.captureScreenshot", format="png")["data"])
+        return np.asarray(Image.open(BytesIO(data)).convert("RGB"))
+
+    def settled_screenshot(self, timeout: float = 30.0, tolerance: float = 0.5) -> np.ndarray:
+        """A screenshot once two consecutive ones (0.5 s apart) differ by less than
+        ``tolerance`` grey levels on average (fade-in animations have finished)."""
+        deadline = time.monotonic() + timeout
+        previous = self.screenshot()
+        while True:
+            time.sleep(0.5)
+            image = self.screenshot()
+            if np.mean(np.abs(image.astype(float) - previous)) < tolerance:
+                return image
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"the page kept changing for {timeout:g} s")
+            previous = image
+
+    def close(self) -> None:
+        """Quit Chromium and delete its profile."""
+        if self._ws is not None:
+            try:
+                self._ws.close()
+            except Exception:  # already gone
+                pass
+            self._ws = None
+        if self._proc.poll() is None:
+            self._proc.terminate()
+            try:
+                self._proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                self._proc.kill()
+                self._proc.wait()
+        shutil.rmtree(self._profile, ignore_errors=True)
+
+    def __enter__(self) -> HeadlessBrowser:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

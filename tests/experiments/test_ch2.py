@@ -1,0 +1,77 @@
+"""Tests of the chapter-2 experiment fig2.10 (Figs. 2.9–2.11)."""
+
+import json
+
+import numpy as np
+import pytest
+
+from skillkit.experiments.ch2 import reach_demonstration
+from skillkit.experiments.runner import reproduce, run_trials
+
+
+@pytest.fixture(scope="module")
+def result():
+    return run_trials("fig2.10", scale="quick", seed=3, progress=False)
+
+
+def test_fitted_dmp_reproduces_the_demonstration(result):
+    s = result["summary"]
+    assert s["n_basis"] == 10
+    assert s["rmse_q_fraction_of_range"] < 0.01
+    assert s["end_error_to_goal_rad"] < 0.01 * s["demo_range_rad"]
+    assert s["claim_holds"] is True
+    # Fig. 2.10(a): without the forcing term the DMP reaches g but misses the shape
+    assert s["rmse_q_fraction_without_forcing"] > 0.1
+    assert s["end_error_without_forcing_rad"] < 1e-3
+
+
+def test_series_cover_figures_2_9_to_2_11(result):
+    series = result["series"]
+    panels = {s["panel"] for s in series}
+    assert len(panels) == 4
+    names = {s["name"] for s in series}
+    assert any("Fig. 2.9" in n for n in names)
+    assert any("2.10a" in n for n in names)
+    assert any("2.11" in n for n in names)
+    n_steps = len(series[0]["x"])
+    assert all(len(s["x"]) == len(s["y"]) == n_steps for s in series)
+    # the demonstration series is the analytic demonstration
+    times, q, _, _ = reach_demonstration()
+    demo = next(s for s in series if "Fig. 2.9" in s["name"] and s["panel"].startswith("position"))
+    np.testing.assert_allclose(demo["y"], q[:, 0])
+    np.testing.assert_allclose(demo["x"], times)
+
+
+def test_same_seed_gives_identical_series(result):
+    again = run_trials("fig2.10", scale="quick", seed=3, progress=False)
+    assert again["series"] == result["series"]
+    assert again["summary"] == result["summary"]
+
+
+def test_fewer_basis_functions_fit_worse(result):
+    coarse = run_trials("fig2.10", scale="quick", seed=0, progress=False, n_basis=3)["summary"]
+    assert coarse["rmse_q_fraction_of_range"] > 5 * result["summary"]["rmse_q_fraction_of_range"]
+
+
+@pytest.mark.slow  # plotly + matplotlib figure writing: ~10 s on a loaded machine
+def test_reproduce_writes_the_summary(tmp_path, result):
+    folder = reproduce("fig2.10", scale="paper", seed=3, out=tmp_path, progress=False)
+    written = json.loads((folder / "result.json").read_text())
+    assert written["summary"] == pytest.approx(result["summary"])
+    assert (folder / "figure.html").exists() and (folder / "figure.png").exists()
+
+
+def test_demonstration_is_smooth_with_exact_derivatives():
+    times, q, qd, qdd = reach_demonstration(duration=1.5, dt=1e-3, q_start=-0.2, q_goal=0.8)
+    assert times.shape == (1501,) and q.shape == qd.shape == qdd.shape == (1501, 1)
+    np.testing.assert_allclose([q[0, 0], q[-1, 0]], [-0.2, 0.8], atol=1e-14)
+    np.testing.assert_allclose([qd[0, 0], qd[-1, 0], qdd[0, 0], qdd[-1, 0]], 0.0, atol=1e-12)
+    assert q.max() > 0.8 + 0.03  # it overshoots the goal, so the forcing term matters
+    np.testing.assert_allclose(np.gradient(q[:, 0], times, edge_order=2), qd[:, 0], atol=5e-5)
+    np.testing.assert_allclose(np.gradient(qd[:, 0], times, edge_order=2), qdd[:, 0], atol=5e-4)
+
+
+@pytest.mark.parametrize("kwargs, name", [({"duration": 0.0}, "duration"), ({"dt": -1e-3}, "dt")])
+def test_demonstration_bad_input_raises(kwargs, name):
+    with pytest.raises(ValueError, match=name):
+        reach_demonstration(**kwargs)

@@ -1,0 +1,101 @@
+"""fig3.7 (table tennis, contextual REPS): a tiny deterministic run and the summary's
+arithmetic on hand-made trials."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from skillkit.experiments import get
+from skillkit.experiments.ch3_table_tennis import OUTCOMES, run_trial, summarize
+
+TINY = {
+    "epsilon": 0.6,
+    "rollouts_per_update": 12,
+    "n_reuse_batches": 2,
+    "baseline_features": "linear",
+    "min_effective_samples": 3.0,
+    "cov_shrinkage": 0.2,
+    "n_updates": 2,
+    "n_eval_contexts": 2,
+    "n_final_contexts": 3,
+}
+
+
+class _Bar:
+    def __init__(self):
+        self.total, self.n = None, 0
+
+    def reset(self, total=None):
+        self.total, self.n = total, 0
+
+    def update(self, n=1):
+        self.n += n
+
+
+@pytest.fixture(scope="module")
+def tiny_runs():
+    bars = [_Bar(), _Bar()]
+    runs = [run_trial(dict(TINY), np.random.default_rng(7), bar) for bar in bars]
+    return runs, bars
+
+
+def test_registered_with_thesis_settings():
+    exp = get("fig3.7")
+    for scale in ("quick", "paper"):
+        s = exp.settings_for(scale)
+        assert s["epsilon"] == 0.6
+        assert s["rollouts_per_update"] * s["n_reuse_batches"] == 200  # reuse the last 200
+    paper = exp.settings_for("paper")
+    assert paper["n_updates"] * paper["rollouts_per_update"] >= 4000  # thesis: ~4000 rollouts
+    assert exp.trials["paper"] >= 3
+
+
+def test_tiny_run_is_deterministic_and_well_formed(tiny_runs):
+    (a, b), bars = tiny_runs
+    assert bars[0].total == TINY["n_updates"] and bars[0].n == TINY["n_updates"]
+    np.testing.assert_array_equal(a["mean_reward"], b["mean_reward"])
+    np.testing.assert_array_equal(a["final_rewards"], b["final_rewards"])
+    assert a["final_outcomes"] == b["final_outcomes"]
+    assert a["rollouts"].tolist() == [0, 12, 24]
+    assert a["mean_reward"].shape == (3,) and a["explore_reward"].shape == (2,)
+    assert a["final_rewards"].shape == (3,)
+    assert np.all(np.isfinite(a["mean_reward"])) and np.all(a["mean_reward"] < 0)
+    assert set(a["final_outcomes"]) <= set(OUTCOMES)
+    series, summary = summarize(TINY, [a, b])
+    final = float(np.mean(a["final_rewards"]))
+    assert summary["final_reward_per_trial"] == [pytest.approx(final)] * 2
+    assert sum(summary["outcome_fractions_mean"].values()) == pytest.approx(1.0)
+    assert {s.panel for s in series} == {"learning curve", "final policy outcomes"}
+
+
+def _trial(final_rewards, outcomes, curve, errors):
+    return {
+        "rollouts": np.array([0, 25, 50]),
+        "mean_reward": np.array(curve),
+        "explore_reward": np.array(curve[1:]),
+        "n_failed": 0,
+        "final_rewards": np.array(final_rewards),
+        "final_outcomes": list(outcomes),
+        "final_landing_error": np.array(errors),
+    }
+
+
+def test_summary_arithmetic_on_hand_made_trials():
+    good = _trial([-0.01, -0.015, -0.012, -0.013], ["returned"] * 4, [-0.2, -0.05, -0.01],
+                  [0.05, 0.1, 0.08, 0.12])
+    netty = _trial([-0.03, -0.04, -0.012, -0.3], ["net", "net", "returned", "missed"],
+                   [-0.2, -0.1, -0.03], [0.3, 0.4, 0.1, 2.9])
+    _, summary = summarize({}, [good, netty])
+    assert summary["final_reward_per_trial"] == pytest.approx([-0.0125, -0.0955])
+    assert summary["fraction_runs_above_-0.02"] == 0.5
+    assert summary["net_fraction_per_trial"] == [0.0, 0.5]
+    assert summary["net_fraction_mean"] == 0.25
+    assert summary["fraction_runs_with_net_failures_above_10pct"] == 0.5
+    assert summary["outcome_fractions_mean"] == {"returned": 0.625, "net": 0.25, "out": 0.0,
+                                                 "missed": 0.125}
+    # returns only: errors 0.05, 0.1, 0.08, 0.12 and 0.1 -> median 0.1
+    assert summary["median_landing_error_of_returns_m"] == pytest.approx(0.1)
+    # mean curve: -0.2, -0.075, -0.02 -> never strictly above -0.02
+    assert summary["rollouts_to_mean_curve_above_-0.02"] is None
+    assert summary["initial_reward"] == pytest.approx(-0.2)

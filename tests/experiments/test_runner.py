@@ -1,0 +1,174 @@
+"""The experiment runner and CLI: registry, result.json contents, determinism, bad input."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from skillkit.cli import main
+from skillkit.experiments import registry
+from skillkit.experiments.registry import Experiment, Series, mean_band
+from skillkit.experiments.runner import reproduce, run_trials
+
+
+CRASH = {"at": None}
+
+
+class Crash(Exception):
+    pass
+
+
+def _trial(settings, rng, progress):
+    """A random walk that checkpoints after every step (like a policy update)."""
+    progress.reset(total=settings["n"])
+    state = progress.resume(rng) or {"k": 0, "steps": []}
+    for k in range(state["k"], settings["n"]):
+        state["steps"].append(float(rng.normal()))
+        state["k"] = k + 1
+        progress.save(state, rng)
+        progress.update()
+        if CRASH["at"] == k:
+            CRASH["at"] = None
+            raise Crash
+    walk = np.cumsum(state["steps"])
+    return {"walk": walk, "last": float(walk[-1])}
+
+
+def _summarize(settings, trials):
+    curves = np.array([t["walk"] for t in trials])
+    m, lo, hi = mean_band(curves)
+    series = [Series("walk", list(range(settings["n"])), m, lower=lo, upper=hi, panel="a", xlabel="t")]
+    return series, {"mean_last": float(np.mean([t["last"] for t in trials]))}
+
+
+@pytest.fixture
+def toy(monkeypatch):
+    exp = Experiment("toy1.1", "random walk", {"quick": {"n": 5}, "paper": {"n": 50}}, _trial, _summarize,
+                     trials={"quick": 3, "paper": 2}, claim="walks wander")
+    registry._load_all()
+    monkeypatch.setitem(registry._EXPERIMENTS, exp.id, exp)
+    return exp
+
+
+def test_same_seed_same_series_and_different_seed_differs(toy):
+    a = run_trials("toy1.1", seed=3, progress=False)
+    b = run_trials("toy1.1", seed=3, progress=False)
+    c = run_trials("toy1.1", seed=4, progress=False)
+    assert a["series"] == b["series"] and a["summary"] == b["summary"]
+    assert a["series"] != c["series"]
+    assert a["trials"] == 3 and a["settings"] == {"n": 5}
+
+
+def test_trials_are_independent_of_how_many_run(toy):
+    """Trial i uses the i-th child seed, so running more trials keeps the first ones."""
+    two = run_trials("toy1.1", trials=2, seed=0, progress=False)["_trials"]
+    three = run_trials("toy1.1", trials=3, seed=0, progress=False)["_trials"]
+    np.testing.assert_array_equal(two[1]["walk"], three[1]["walk"])
+
+
+def test_reproduce_writes_result_figures_and_arrays(toy, tmp_path):
+    folder = reproduce("toy1.1", scale="paper", seed=1, out=tmp_path, progress=False)
+    result = json.loads((folder / "result.json").read_text())
+    assert result["id"] == "toy1.1" and result["scale"] == "paper" and result["trials"] == 2
+    assert {"settings", "seed", "versions", "series", "summary", "wall_time_s", "claim"} <= result.keys()
+    assert result["versions"]["numpy"] == np.__version__
+    assert len(result["series"][0]["y"]) == 50
+    assert (folder / "figure.html").stat().st_size > 10_000
+    assert (folder / "figure.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    with np.load(folder / "trials.npz") as arrays:
+        np.testing.assert_allclose(arrays["trial1__walk"][-1], arrays["trial1__last"])
+
+
+def test_overrides_and_bad_arguments(toy):
+    assert run_trials("toy1.1", n=2, progress=False)["settings"] == {"n": 2}
+    with pytest.raises(ValueError, match="nope"):
+        run_trials("toy1.1", nope=1, progress=False)
+    with pytest.raises(ValueError, match="scale"):
+        run_trials("toy1.1", scale="huge", progress=False)
+    with pytest.raises(ValueError, match="trials"):
+        run_trials("toy1.1", trials=0, progress=False)
+    with pytest.raises(ValueError, match="seed"):
+        run_trials("toy1.1", seed=-1, progress=False)
+    with pytest.raises(ValueError, match="unknown experiment"):
+        run_trials("fig99.9", progress=False)
+
+
+def test_duplicate_registration_is_refused(toy):
+    with pytest.raises(ValueError, match="already registered"):
+        registry.register(toy)
+
+
+def test_mean_band_matches_numpy():
+    curves = np.random.default_rng(0).normal(size=(4, 6))
+    m, lo, hi = mean_band(curves)
+    np.testing.assert_allclose(m, curves.mean(0))
+    np.testing.assert_allclose(np.array(hi) - np.array(m), curves.std(0, ddof=1))
+    _, lo95, hi95 = mean_band(curves, kind="ci95")
+    np.testing.assert_allclose(np.array(hi95) - np.array(lo95), 2 * 1.96 * curves.std(0, ddof=1) / 2)
+
+
+def test_cli_list_reproduce_and_errors(toy, tmp_path, capsys):
+    assert main(["list"]) == 0
+    out = capsys.readouterr().out
+    assert "toy1.1" in out and "pendulum" in out
+    assert main(["reproduce", "toy1.1", "--out", str(tmp_path), "--quiet", "--seed", "2"]) == 0
+    assert json.loads((tmp_path / "toy1.1-quick-s2" / "result.json").read_text())["seed"] == 2
+    assert main(["reproduce", "nope", "--out", str(tmp_path), "--quiet"]) == 2
+    assert "unknown experiment" in capsys.readouterr().err
+
+
+def test_interrupted_run_resumes_to_identical_numbers(toy, tmp_path):
+    clean = reproduce("toy1.1", scale="paper", seed=5, out=tmp_path / "clean", progress=False)
+    CRASH["at"] = 17  # crash in trial 0 after 18 of 50 steps
+    with pytest.raises(Crash):
+        reproduce("toy1.1", scale="paper", seed=5, out=tmp_path / "resumed", progress=False)
+    assert (tmp_path / "resumed" / "toy1.1-paper-s5" / "trials" / "trial_000.ckpt").exists()
+    resumed = reproduce("toy1.1", scale="paper", seed=5, out=tmp_path / "resumed", progress=False)
+    a = json.loads((clean / "result.json").read_text())
+    b = json.loads((resumed / "result.json").read_text())
+    assert a["series"] == b["series"] and a["summary"] == b["summary"]
+
+
+def test_finished_trials_are_not_rerun_and_fresh_starts_over(toy, tmp_path, monkeypatch):
+    reproduce("toy1.1", seed=1, out=tmp_path, progress=False)
+    calls = []
+    original = toy.run_trial
+    monkeypatch.setattr(toy, "run_trial", lambda *a: calls.append(1) or original(*a))
+    reproduce("toy1.1", seed=1, out=tmp_path, progress=False)
+    assert calls == []
+    reproduce("toy1.1", seed=1, out=tmp_path, progress=False, fresh=True)
+    assert len(calls) == 3
+
+
+def test_foreign_or_corrupt_checkpoint_is_reported(toy, tmp_path, capsys):
+    folder = reproduce("toy1.1", seed=1, out=tmp_path, progress=False)
+    ckpt = folder / "trials" / "trial_001.ckpt"
+    ckpt.write_bytes(ckpt.read_bytes()[:-5])
+    assert main(["reproduce", "toy1.1", "--seed", "1", "--out", str(tmp_path), "--quiet"]) == 2
+    assert "trial_001.ckpt" in capsys.readouterr().err
+    # Other settings written into the same folder are refused too.
+    assert main(["reproduce", "toy1.1", "--seed", "1", "--out", str(tmp_path), "--quiet", "--fresh"]) == 0
+    from skillkit.experiments import checkpoint
+    from skillkit.experiments.checkpoint import CheckpointError
+
+    ident = checkpoint.identity("toy1.1", {"n": 6}, 0, 1, checkpoint.code_fingerprint(_trial))
+    with pytest.raises(CheckpointError, match="settings"):
+        checkpoint.load(folder / "trials" / "trial_000.ckpt", ident)
+
+
+def test_runs_and_compare(toy, tmp_path, capsys):
+    reproduce("toy1.1", seed=1, out=tmp_path, progress=False)
+    reproduce("toy1.1", seed=2, out=tmp_path, progress=False)
+    assert main(["runs", "--root", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "toy1.1-quick-s1" in out and "toy1.1-quick-s2" in out
+    a, b = tmp_path / "toy1.1-quick-s1", tmp_path / "toy1.1-quick-s2"
+    assert main(["compare", str(a), str(b), "--out", str(tmp_path / "cmp")]) == 0
+    out = capsys.readouterr().out
+    ra = json.loads((a / "result.json").read_text())["summary"]["mean_last"]
+    line = next(l for l in out.splitlines() if l.startswith("summary.mean_last"))
+    assert float(line.split()[1]) == pytest.approx(ra, rel=1e-5)
+    assert (tmp_path / "cmp" / "figure.png").exists()
+    assert main(["compare", str(a), str(tmp_path / "missing")]) == 2

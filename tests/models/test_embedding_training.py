@@ -1,0 +1,251 @@
+"""Hyper-parameter learning for kernel embeddings (Sec. 5.3, Eqs. 5.15–5.26)."""
+
+import numpy as np
+import pytest
+import torch
+
+from skillkit.models.embedding import ConditionalEmbedding
+from skillkit.models.embedding_prediction import predict
+from skillkit.models.embedding_training import (
+    fit_hyperparameters,
+    kfold_splits,
+    state_embedding_error,
+    state_embedding_loss,
+    step_reward_error,
+    step_reward_loss,
+    trajectory_reward_error,
+    trajectory_reward_loss,
+    transitions,
+)
+from skillkit.models.kernels import Linear, SquaredExponential, gram
+
+
+def _se_np(a, b, ls):
+    d = (a[:, None, :] - b[None, :, :]) / ls
+    return np.exp(-0.5 * (d**2).sum(-1))
+
+
+def _central_difference(f, theta, h=1e-6):
+    return np.array([(f(theta + h * e) - f(theta - h * e)) / (2 * h) for e in np.eye(theta.size)])
+
+
+def _rollouts(rng, m=6, t_len=7):
+    """Small nonlinear system, one linear feedback policy per trajectory."""
+    gains = np.array([[-1.0, -0.5]]) + 0.3 * rng.normal(size=(m, 1, 2))
+    x = np.zeros((m, t_len, 2))
+    u = np.zeros((m, t_len, 1))
+    x[:, 0] = rng.normal(size=(m, 2))
+    for t in range(t_len):
+        u[:, t] = np.einsum("mij,mj->mi", gains, x[:, t])
+        if t < t_len - 1:
+            acc = -np.sin(x[:, t, 0]) + u[:, t, 0]
+            x[:, t + 1] = x[:, t] + 0.1 * np.stack([x[:, t, 1], acc], -1)
+            x[:, t + 1] += 0.01 * rng.normal(size=(m, 2))
+
+    def reward(s, c):
+        return -(s**2).sum(-1) - 0.01 * (c**2).sum(-1)
+
+    def policy(s, t):
+        return np.einsum("mij,bkj->mki", gains, s)
+
+    return x, u, reward(x, u), policy, reward, gains
+
+
+# --------------------------------------------------------------------------- folds
+@pytest.mark.parametrize("n,k", [(10, 10), (23, 10), (7, 3), (100, 2)])
+def test_kfold_splits_partition_the_data(n, k):
+    folds = kfold_splits(n, k, rng=3)
+    assert len(folds) == k
+    vals = np.concatenate([va for _, va in folds])
+    np.testing.assert_array_equal(np.sort(vals), np.arange(n))  # disjoint and covering
+    for tr, va in folds:
+        np.testing.assert_array_equal(np.sort(np.r_[tr, va]), np.arange(n))
+        assert np.intersect1d(tr, va).size == 0
+        assert abs(len(va) - n / k) < 1
+    assert all(
+        np.array_equal(a[1], b[1]) for a, b in zip(folds, kfold_splits(n, k, rng=3), strict=True)
+    )
+
+
+def test_kfold_splits_keep_groups_together():
+    groups = np.repeat(np.arange(15), 20)
+    for tr, va in kfold_splits(groups.size, 10, rng=0, groups=groups):
+        assert np.intersect1d(groups[tr], groups[va]).size == 0
+        assert len(va) % 20 == 0
+    with pytest.raises(ValueError, match="k"):
+        kfold_splits(groups.size, 16, groups=groups)
+    with pytest.raises(ValueError, match="k"):
+        kfold_splits(10, 1)
+    with pytest.raises(ValueError, match="groups"):
+        kfold_splits(10, 2, groups=np.zeros(9))
+
+
+def test_transitions_flatten_trajectories():
+    x = np.arange(2 * 4 * 2, dtype=float).reshape(2, 4, 2)
+    u = -np.arange(2 * 4, dtype=float).reshape(2, 4, 1)
+    z, xn, g = transitions(x, u)
+    np.testing.assert_array_equal(z[4], np.r_[x[1, 1], u[1, 1]])
+    np.testing.assert_array_equal(xn[4], x[1, 2])
+    np.testing.assert_array_equal(g, [0, 0, 0, 1, 1, 1])
+    with pytest.raises(ValueError, match="controls"):
+        transitions(x, u[:, :3])
+
+
+# --------------------------------------------------------------------------- objectives
+def test_objectives_equal_independent_numpy_computations():
+    rng = np.random.default_rng(0)
+    z, y = rng.normal(size=(20, 3)), rng.normal(size=(20, 2))
+    zv, yv = rng.normal(size=(5, 3)), rng.normal(size=(5, 2))
+    ls, lam = np.array([0.8, 1.1, 1.5]), 3e-2
+    theta = torch.tensor(np.r_[np.log(ls), np.log(lam)])
+    beta = np.linalg.solve(_se_np(z, z, ls) + lam * np.eye(20), _se_np(z, zv, ls))
+    # Eq. 5.16 with a linear target kernel is the squared error of the mean, with explicit features.
+    lin = Linear()
+    gy, gyc = gram(lin, y), gram(lin, yv, y)
+    value = state_embedding_error(
+        theta,
+        *(torch.from_numpy(a) for a in (z, zv, gy, gyc, np.diag(gram(lin, yv)))),
+    )
+    np.testing.assert_allclose(float(value), ((yv - beta.T @ y) ** 2).sum(), rtol=1e-10)
+    # Eq. 5.19.
+    r, rv = rng.normal(size=20), rng.normal(size=5)
+    value = step_reward_error(theta, *(torch.from_numpy(a) for a in (z, r, zv, rv)))
+    np.testing.assert_allclose(float(value), ((rv - r @ beta) ** 2).sum(), rtol=1e-10)
+
+
+def test_trajectory_error_equals_prediction_module():
+    """Eq. 5.23 uses the same propagation as Table 5.2 (``predict``)."""
+    rng = np.random.default_rng(1)
+    x, u, r, _, reward, gains = _rollouts(rng)
+    ls, lam = np.array([0.9, 1.3, 2.0]), 1e-2
+    z, xn, _ = transitions(x[:4], u[:4])
+    model = ConditionalEmbedding(z, xn, SquaredExponential(3, lengthscale=ls), lam=lam)
+    val_gains = gains[4:]  # (2, n_u, n_x)
+
+    def policy(s, t):
+        return np.einsum("bij,bmj->bmi", val_gains, np.broadcast_to(s, (2,) + s.shape[1:]))
+
+    pred = predict(model, x[4:, 0], x.shape[1], policy=policy, reward=reward, time_invariant=True)
+    expected = ((r[4:, 1:] - pred.rewards[1:].T) ** 2).sum()
+    c = policy(xn[None], 1)
+    bases = np.concatenate([np.broadcast_to(xn, (2,) + xn.shape), c], -1)
+    data = (z, np.hstack([x[4:, 0], u[4:, 0]]), bases, reward(xn[None], c), r[4:])
+    value = trajectory_reward_error(
+        torch.tensor(np.r_[np.log(ls), np.log(lam)]),
+        *(torch.from_numpy(np.ascontiguousarray(a)) for a in data),
+    )
+    np.testing.assert_allclose(float(value), expected, rtol=1e-10)
+
+
+def test_one_step_trajectory_error_equals_step_error():
+    rng = np.random.default_rng(2)
+    z, r = rng.normal(size=(15, 3)), rng.normal(size=15)
+    z0, r1 = rng.normal(size=(4, 3)), rng.normal(size=(4, 2))
+    theta = torch.tensor([0.1, -0.3, 0.2, np.log(1e-2)])
+    bases = torch.from_numpy(rng.normal(size=(4, 15, 3)))
+    traj = trajectory_reward_error(
+        theta,
+        torch.from_numpy(z),
+        torch.from_numpy(z0),
+        bases,
+        torch.from_numpy(np.broadcast_to(r, (4, 15)).copy()),
+        torch.from_numpy(r1),
+    )
+    step = step_reward_error(
+        theta,
+        torch.from_numpy(z),
+        torch.from_numpy(r),
+        torch.from_numpy(z0),
+        torch.from_numpy(r1[:, 1]),
+    )
+    np.testing.assert_allclose(float(traj), float(step), rtol=1e-12)
+
+
+def _losses(rng):
+    x, u, r, policy, reward, _ = _rollouts(rng)
+    z, xn, groups = transitions(x, u)
+    r_next = r[:, 1:].ravel()
+    folds = kfold_splits(z.shape[0], 3, rng=1, groups=groups)
+    return {
+        "state (5.16)": state_embedding_loss(
+            z, xn, folds, SquaredExponential(2, lengthscale=xn.std(0))
+        ),
+        "step reward (5.19)": step_reward_loss(z, r_next, folds),
+        "trajectory reward (5.23)": trajectory_reward_loss(
+            x, u, r, policy, reward, kfold_splits(x.shape[0], 3, rng=2), chunk=1
+        ),
+    }
+
+
+@pytest.mark.parametrize("name", ["state (5.16)", "step reward (5.19)", "trajectory reward (5.23)"])
+def test_gradients_match_finite_differences(name):
+    loss = _losses(np.random.default_rng(3))[name]
+    for theta in (
+        np.array([0.1, -0.2, 0.3, np.log(1e-2)]),
+        np.array([-0.5, 0.4, 1.0, np.log(0.2)]),
+    ):
+        value, grad = loss.value_and_grad(theta)
+        np.testing.assert_allclose(value, loss(theta), rtol=1e-12)
+        fd = _central_difference(loss, theta)
+        np.testing.assert_allclose(grad, fd, rtol=1e-5, atol=1e-8 * max(1.0, abs(value)))
+
+
+def test_time_dependent_trajectory_error_gradient():
+    rng = np.random.default_rng(4)
+    z, z0 = rng.normal(size=(12, 2)), rng.normal(size=(3, 2))
+    bases = torch.from_numpy(rng.normal(size=(4, 3, 12, 2)))  # T - 2 = 4 rows
+    br = torch.from_numpy(rng.normal(size=(5, 3, 12)))
+    rew = torch.from_numpy(rng.normal(size=(3, 6)))
+
+    def f(th):
+        return float(
+            trajectory_reward_error(
+                torch.from_numpy(th), torch.from_numpy(z), torch.from_numpy(z0), bases, br, rew
+            )
+        )
+
+    theta = np.array([0.2, -0.1, np.log(3e-2)])
+    t = torch.tensor(theta, requires_grad=True)
+    trajectory_reward_error(t, torch.from_numpy(z), torch.from_numpy(z0), bases, br, rew).backward()
+    np.testing.assert_allclose(t.grad.numpy(), _central_difference(f, theta), rtol=1e-5)
+
+
+# --------------------------------------------------------------------------- fitting
+def test_fit_reduces_the_loss_and_finds_the_irrelevant_input():
+    """r' depends only on z_0: ARD must give z_1 (pure noise) a much longer length-scale."""
+    rng = np.random.default_rng(5)
+    z = rng.uniform(-2, 2, size=(60, 2))
+    r = np.sin(2.0 * z[:, 0]) + 0.01 * rng.normal(size=60)
+    loss = step_reward_loss(z, r, kfold_splits(60, 3, rng=0))
+    fit = fit_hyperparameters(loss, lengthscale=[1.0, 1.0], lam=1e-2, max_iter=30)
+    assert fit.loss < 0.2 * fit.initial_loss
+    assert fit.lengthscale[1] > 5 * fit.lengthscale[0]
+    fixed = [
+        fit_hyperparameters(loss, lengthscale=[1.0, 1.0], lam=1e-2, learn_lam=False, max_iter=4)
+        for _ in range(2)
+    ]
+    assert fixed[0].lam == 1e-2
+    np.testing.assert_array_equal(fixed[0].lengthscale, fixed[1].lengthscale)  # deterministic
+
+
+def test_bad_input_raises_naming_the_argument():
+    rng = np.random.default_rng(6)
+    z, r = rng.normal(size=(20, 2)), rng.normal(size=20)
+    folds = kfold_splits(20, 4, rng=0)
+    loss = step_reward_loss(z, r, folds)
+    with pytest.raises(ValueError, match="theta"):
+        loss.value_and_grad(np.zeros(2))
+    with pytest.raises(ValueError, match="theta"):
+        loss(np.array([0.0, np.nan, 0.0]))
+    with pytest.raises(ValueError, match="rewards"):
+        step_reward_loss(z, r[:19], folds)
+    with pytest.raises(ValueError, match="folds"):
+        step_reward_loss(z, r, [(np.arange(10), np.arange(15, 25))])
+    with pytest.raises(ValueError, match="targets"):
+        state_embedding_loss(z, z[:5], folds, SquaredExponential(2))
+    with pytest.raises(ValueError, match="lengthscale"):
+        fit_hyperparameters(loss, lengthscale=[1.0, -1.0])
+    with pytest.raises(ValueError, match="lam"):
+        fit_hyperparameters(loss, lengthscale=1.0, lam=0.0)
+    with pytest.raises(ValueError, match="lam"):
+        fit_hyperparameters(loss, lengthscale=1.0, lam=10.0, lam_bounds=(1e-6, 1.0))

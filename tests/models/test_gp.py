@@ -1,0 +1,255 @@
+"""Exact GP (Eqs 2.24–2.28), its numerical safeguards, and the transition forward model."""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import gpytorch
+import numpy as np
+import pytest
+import torch
+
+from skillkit.models.gp import (
+    ExactGP,
+    ForwardModel,
+    GPNumericalError,
+    GPNumericalWarning,
+    neg_log_marginal_likelihood,
+    optimize,
+    robust_cholesky,
+)
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_thread():
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
+def _data(n=40, seed=0, noise=0.1):
+    rng = np.random.default_rng(seed)
+    X = rng.uniform(-3, 3, size=(n, 2))
+    Y = np.stack([np.sin(X[:, 0]) + X[:, 1] ** 2 / 5, np.cos(X[:, 1]) * X[:, 0]], axis=1)
+    return X, Y + noise * rng.standard_normal(Y.shape)
+
+
+def _numpy_gp(X, y, Xs, ls, sf2, sn2):
+    """Direct evaluation of Eqs (2.26), (2.27), (2.28) for one output (raw units)."""
+    def k(a, b):
+        return sf2 * np.exp(-0.5 * (((a[:, None, :] - b[None, :, :]) / ls) ** 2).sum(-1))
+
+    Ky = k(X, X) + sn2 * np.eye(len(X))
+    ks = k(X, Xs)
+    mean = ks.T @ np.linalg.solve(Ky, y)
+    var = sn2 + sf2 - np.einsum("ij,ij->j", ks, np.linalg.solve(Ky, ks))
+    sign, logdet = np.linalg.slogdet(Ky)
+    lml = -0.5 * y @ np.linalg.solve(Ky, y) - 0.5 * logdet - 0.5 * len(y) * np.log(2 * np.pi)
+    return mean, var, lml
+
+
+@pytest.mark.parametrize("standardize", [False, True])
+def test_prediction_equals_numpy_eqs_2_26_2_27_2_28(standardize):
+    X, Y = _data()
+    gp = ExactGP(additive_noise=0.0, n_steps=15, standardize=standardize).fit(X, Y, rng=0)
+    Xs = np.random.default_rng(1).uniform(-4, 4, size=(25, 2))
+    mean, var = gp.predict(Xs)
+    fmean, fvar = gp.predict(Xs, include_noise=False)
+    h = gp.hyperparameters
+    for a in range(2):
+        m = Y[:, a].mean() if standardize else 0.0  # the constant prior mean of standardisation
+        ref_mean, ref_var, ref_lml = _numpy_gp(X, Y[:, a] - m, Xs, h["lengthscale"][a], h["outputscale"][a],
+                                               h["noise"][a])
+        np.testing.assert_allclose(mean[:, a], ref_mean + m, rtol=1e-8, atol=1e-10)
+        np.testing.assert_allclose(var[:, a], ref_var, rtol=1e-8, atol=1e-12)
+        np.testing.assert_allclose(fvar[:, a], ref_var - h["noise"][a], rtol=1e-7, atol=1e-12)
+        np.testing.assert_allclose(fmean[:, a], mean[:, a])
+        np.testing.assert_allclose(gp.diagnostics["log_marginal_likelihood"][a], ref_lml, rtol=1e-10)
+
+
+def test_objective_matches_gpytorch_mll_and_has_exact_gradient():
+    X, Y = _data(30)
+    gp = ExactGP(additive_noise=0.0, n_steps=0).fit(X, Y)
+    with torch.no_grad():
+        ours = float(gp._loss())
+    gp.model.train()
+    mll = gpytorch.mlls.ExactMarginalLogLikelihood(gp.likelihood, gp.model)
+    with gpytorch.settings.max_cholesky_size(10**6):
+        theirs = -float((mll(gp.model(*gp.model.train_inputs), gp.Y) * gp.Y.shape[1]).sum())
+    assert ours == pytest.approx(theirs, rel=1e-10)
+    rng = np.random.default_rng(2)
+    Xt = torch.as_tensor(rng.normal(size=(12, 3)))
+    Yt = torch.as_tensor(rng.normal(size=(2, 12)))
+    ls = torch.as_tensor(rng.uniform(0.5, 2.0, (2, 3))).requires_grad_()
+    os = torch.tensor([1.3, 0.6], dtype=torch.float64, requires_grad=True)
+    sn = torch.tensor([0.1, 0.3], dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda a, b, c: neg_log_marginal_likelihood(Xt, Yt, a, b, c), (ls, os, sn))
+
+
+def test_training_raises_likelihood_and_recovers_noise_level():
+    X, Y = _data(150, seed=3, noise=0.1)
+    gp = ExactGP(additive_noise=0.0).fit(X, Y, rng=0)
+    trace = gp.diagnostics["objective_trace"]
+    assert min(trace) < trace[0] - 0.1
+    # The true noise variance is 0.01 in both outputs.
+    assert np.all((gp.hyperparameters["noise"] > 0.005) & (gp.hyperparameters["noise"] < 0.02))
+    Xs = np.random.default_rng(4).uniform(-2.5, 2.5, size=(200, 2))
+    truth = np.stack([np.sin(Xs[:, 0]) + Xs[:, 1] ** 2 / 5, np.cos(Xs[:, 1]) * Xs[:, 0]], axis=1)
+    mean, var = gp.predict(Xs)
+    assert np.sqrt(np.mean((mean - truth) ** 2)) < 0.1
+
+
+def test_adam_optimizer_also_improves():
+    X, Y = _data(40)
+    gp = ExactGP(additive_noise=0.0, optimizer="adam", n_steps=40, learning_rate=0.05).fit(X, Y)
+    trace = gp.diagnostics["objective_trace"]
+    assert gp.diagnostics["n_iterations"] == 40 and trace[-1] < trace[0]
+
+
+def test_additive_noise_is_alpha_percent_of_std_and_seeded():
+    X, Y = _data(50, noise=0.0)
+    gp = ExactGP(additive_noise=2.0, n_steps=0).fit(X, Y, rng=5)
+    np.testing.assert_allclose(gp.diagnostics["additive_noise_std"], 2.0 * 1e-2 * Y.std(axis=0))
+    added = gp.Y.numpy().T * gp.y_scale + gp.y_mean - Y
+    np.testing.assert_allclose(added.std(axis=0) / (2e-2 * Y.std(axis=0)), 1.0, atol=0.35)
+    same = ExactGP(additive_noise=2.0, n_steps=0).fit(X, Y, rng=5)
+    other = ExactGP(additive_noise=2.0, n_steps=0).fit(X, Y, rng=6)
+    assert torch.equal(gp.Y, same.Y) and not torch.equal(gp.Y, other.Y)
+    clean = ExactGP(additive_noise=0.0, n_steps=0, standardize=False).fit(X, Y, rng=5)
+    np.testing.assert_array_equal(clean.Y.numpy().T, Y)
+
+
+def test_same_seed_same_fit():
+    X, Y = _data(40)
+    a = ExactGP(n_steps=10).fit(X, Y, rng=11)
+    b = ExactGP(n_steps=10).fit(X, Y, rng=11)
+    for k in a.hyperparameters:
+        np.testing.assert_array_equal(a.hyperparameters[k], b.hyperparameters[k])
+
+
+def test_ill_conditioned_duplicates_and_constant_targets():
+    rng = np.random.default_rng(7)
+    base = rng.uniform(-1, 1, size=(40, 2))
+    X = np.repeat(base, 10, axis=0)  # every input 10 times
+    Y = np.stack([np.sin(3 * X[:, 0]), np.full(len(X), 2.5)], axis=1)  # second output constant
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        gp = ExactGP(additive_noise=0.0, n_steps=30).fit(X, Y, rng=0)
+    assert gp.diagnostics["constant_outputs"] == [1]
+    assert 1 in gp.diagnostics["noise_at_floor"]
+    assert any(issubclass(w.category, GPNumericalWarning) and "floor" in str(w.message) for w in caught)
+    Xs = np.vstack([base, rng.uniform(-3, 3, size=(50, 2))])
+    mean, var = gp.predict(Xs)
+    fmean, fvar = gp.predict(Xs, include_noise=False)
+    assert np.all(np.isfinite(mean)) and np.all(var > 0) and np.all(fvar >= 0)
+    np.testing.assert_allclose(mean[:, 1], 2.5, atol=1e-6)
+    np.testing.assert_allclose(mean[:40, 0], np.sin(3 * base[:, 0]), atol=1e-3)
+
+
+@pytest.mark.slow
+def test_ten_thousand_points_train_without_crash():
+    rng = np.random.default_rng(8)
+    X = np.repeat(rng.uniform(-2, 2, size=(2000, 3)), 5, axis=0)  # 10,000 points, duplicates
+    y = np.sin(X).sum(1)
+    gp = ExactGP(additive_noise=1.0, n_steps=3).fit(X, y, rng=0)
+    mean, var = gp.predict(rng.uniform(-3, 3, size=(100, 3)))
+    assert np.all(np.isfinite(mean)) and np.all(var >= 0)
+
+
+def test_latent_covariance_diagonal_matches_variance():
+    X, Y = _data(30)
+    gp = ExactGP(n_steps=5).fit(X, Y, rng=0)
+    Xs = torch.as_tensor(np.random.default_rng(2).uniform(-3, 3, size=(10, 2)))
+    cov = gp.predictor.latent_covariance(Xs)
+    _, fvar = gp.predict(Xs.numpy(), include_noise=False)
+    np.testing.assert_allclose(cov.diagonal(dim1=-2, dim2=-1).numpy().T, fvar, rtol=1e-7, atol=1e-12)
+    assert np.linalg.eigvalsh(cov.numpy()).min() > -1e-9
+
+
+def test_robust_cholesky_jitter_policy():
+    A = torch.ones(3, 3, dtype=torch.float64)  # rank one
+    with pytest.warns(GPNumericalWarning, match="jitter"):
+        L, j = robust_cholesky(A, "A")
+    assert j > 0
+    torch.testing.assert_close(L @ L.T, A + j * torch.eye(3, dtype=torch.float64))
+    L, j = robust_cholesky(torch.eye(2, dtype=torch.float64))
+    assert j == 0.0
+    with pytest.raises(GPNumericalError, match="non-finite"):
+        robust_cholesky(torch.tensor([[float("nan")]], dtype=torch.float64))
+    with pytest.raises(GPNumericalError, match="not positive definite"):
+        robust_cholesky(-torch.eye(2, dtype=torch.float64))
+
+
+def test_optimizer_stops_on_failure_and_restores_best():
+    p = torch.nn.Parameter(torch.tensor([3.0], dtype=torch.float64))
+    calls = {"n": 0}
+
+    def loss():
+        calls["n"] += 1
+        if calls["n"] > 4:
+            raise GPNumericalError("boom")
+        return (p - 1.0).pow(2).sum()
+
+    with pytest.warns(GPNumericalWarning, match="stopped early"):
+        res = optimize([p], loss, 20, "adam", 0.5)
+    assert res["stopped_early"] == "boom"
+    assert res["best"] == min(res["trace"])
+    assert float((p.detach() - 1.0) ** 2) == pytest.approx(res["best"])
+
+
+@pytest.mark.filterwarnings("ignore:noise variance:skillkit.models.gp.GPNumericalWarning")
+def test_forward_model_delta_and_next_targets():
+    rng = np.random.default_rng(9)
+    A = np.array([[1.0, 0.1], [-0.1, 0.95]])
+    B = np.array([[0.0], [0.1]])
+    x = rng.uniform(-1, 1, size=(120, 2))
+    u = rng.uniform(-1, 1, size=(120, 1))
+    xn = x @ A.T + u @ B.T
+    xs, us = rng.uniform(-0.8, 0.8, size=(20, 2)), rng.uniform(-0.8, 0.8, size=(20, 1))
+    for target in ("delta", "next"):
+        fm = ForwardModel(ExactGP(additive_noise=0.0, n_steps=40), target=target).fit(x, u, xn, rng=0)
+        mean, var = fm.predict(xs, us)
+        np.testing.assert_allclose(mean, xs @ A.T + us @ B.T, atol=5e-3)
+        assert var.shape == (20, 2) and np.all(var > 0)
+    assert fm.state_dim == 2 and fm.control_dim == 1
+
+
+def test_bad_input():
+    X, Y = _data(10)
+    with pytest.raises(ValueError, match="X"):
+        ExactGP().fit(X[:, 0], Y)
+    with pytest.raises(ValueError, match="Y"):
+        ExactGP().fit(X, Y[:5])
+    Xn = X.copy()
+    Xn[0, 0] = np.nan
+    with pytest.raises(ValueError, match="X"):
+        ExactGP().fit(Xn, Y)
+    with pytest.raises(ValueError, match="Y"):
+        ExactGP().fit(X, np.full_like(Y, np.inf))
+    gp = ExactGP(n_steps=0).fit(X, Y)
+    with pytest.raises(ValueError, match="X"):
+        gp.predict(np.zeros((3, 5)))
+    with pytest.raises(RuntimeError, match="fit"):
+        ExactGP().predict(X)
+    with pytest.raises(ValueError, match="optimizer"):
+        ExactGP(optimizer="sgd")
+    with pytest.raises(ValueError, match="n_steps"):
+        ExactGP(n_steps=-1)
+    with pytest.raises(ValueError, match="noise_floor"):
+        ExactGP(noise_floor=0.0)
+    with pytest.raises(ValueError, match="additive_noise"):
+        ExactGP(additive_noise=-1.0)
+    with pytest.raises(ValueError, match="lengthscale"):
+        ExactGP(lengthscale=[1.0, 2.0, 3.0], n_steps=0).fit(X, Y)
+    fm = ForwardModel(ExactGP(n_steps=0))
+    with pytest.raises(ValueError, match="next_states"):
+        fm.fit(X, X[:, :1], X[:5])
+    with pytest.raises(ValueError, match="controls"):
+        fm.fit(X, X[:5, :1], X)
+    with pytest.raises(ValueError, match="target"):
+        ForwardModel(ExactGP(), target="state")
+    with pytest.raises(ValueError, match="gp"):
+        ForwardModel(object())
+    assert math.isfinite(ExactGP(n_steps=0).fit(X, Y).diagnostics["log_marginal_likelihood"].sum())

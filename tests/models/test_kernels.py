@@ -1,0 +1,154 @@
+"""Kernel contract: every kernel class in skillkit.models.kernels passes the same checks."""
+
+from __future__ import annotations
+
+import gpytorch
+import numpy as np
+import pytest
+import torch
+
+from skillkit.models import kernels
+from skillkit.models.kernels import Linear, SquaredExponential, gram, linear_kernel, se_kernel, se_kernel_scaled
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_thread():
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
+def _se():
+    return SquaredExponential(3, lengthscale=[0.5, 1.0, 2.0], outputscale=1.7)
+
+
+def _se_batch():
+    k = SquaredExponential(3, batch_shape=torch.Size([2]))
+    k.lengthscale = torch.tensor([[[0.5, 1.0, 2.0]], [[1.5, 0.7, 0.9]]], dtype=torch.float64)
+    k.outputscale = torch.tensor([1.7, 0.4], dtype=torch.float64)
+    return k
+
+
+def _linear():
+    return Linear(variance=0.8, bias=0.3)
+
+
+def _linear_batch():
+    k = Linear(variance=1.0, bias=0.1, batch_shape=torch.Size([2]))
+    k.variance = torch.tensor([0.8, 2.5], dtype=torch.float64)
+    return k
+
+
+FACTORIES = {"se": _se, "se_batch": _se_batch, "linear": _linear, "linear_batch": _linear_batch}
+CLASSES = {SquaredExponential, Linear}
+
+
+def test_contract_covers_every_kernel_in_the_module():
+    defined = {obj for obj in vars(kernels).values()
+               if isinstance(obj, type) and issubclass(obj, gpytorch.kernels.Kernel)
+               and obj.__module__ == kernels.__name__}
+    assert defined == CLASSES
+    assert {type(f()) for f in FACTORIES.values()} == CLASSES
+
+
+def _x(n=7, seed=0):
+    return np.random.default_rng(seed).normal(size=(n, 3))
+
+
+@pytest.mark.parametrize("name", ["se", "linear"])
+def test_gram_symmetric_psd(name):
+    k = FACTORIES[name]()
+    G = gram(k, _x(12))
+    assert G.shape == (12, 12)
+    np.testing.assert_allclose(G, G.T, atol=1e-12)
+    assert np.linalg.eigvalsh(G).min() > -1e-10 * np.abs(G).max()
+
+
+@pytest.mark.parametrize("name", list(FACTORIES))
+def test_diag_matches_full(name):
+    k = FACTORIES[name]()
+    x = torch.as_tensor(_x(6))
+    full = k.forward(x, x)
+    diag = k.forward(x, x, diag=True)
+    torch.testing.assert_close(diag, full.diagonal(dim1=-2, dim2=-1), rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("name", ["se", "linear"])
+def test_gram_equals_forward_and_gpytorch_call(name):
+    k = FACTORIES[name]()
+    X, Z = _x(5, 1), _x(4, 2)
+    G = gram(k, X, Z)
+    fwd = k.forward(torch.as_tensor(X), torch.as_tensor(Z)).detach().numpy()
+    called = k(torch.as_tensor(X), torch.as_tensor(Z)).to_dense().detach().numpy()
+    np.testing.assert_allclose(G, fwd, rtol=1e-14)
+    np.testing.assert_allclose(G, called, rtol=1e-12)
+
+
+@pytest.mark.parametrize("batch,single", [("se_batch", "se"), ("linear_batch", "linear")])
+def test_batch_shapes_and_entries(batch, single):
+    kb = FACTORIES[batch]()
+    x1 = torch.as_tensor(np.random.default_rng(3).normal(size=(2, 5, 3)))
+    x2 = torch.as_tensor(np.random.default_rng(4).normal(size=(2, 4, 3)))
+    out = kb.forward(x1, x2)
+    assert out.shape == (2, 5, 4)
+    assert kb.forward(x1, x1, diag=True).shape == (2, 5)
+    # Each batch entry equals an unbatched kernel with that entry's parameters.
+    for i in range(2):
+        if batch == "se_batch":
+            ki = SquaredExponential(3, lengthscale=kb.lengthscale[i, 0].detach().numpy(),
+                                    outputscale=float(kb.outputscale[i].detach()))
+        else:
+            ki = Linear(variance=float(kb.variance[i].detach()), bias=kb.bias)
+        torch.testing.assert_close(out[i], ki.forward(x1[i], x2[i]), rtol=1e-12, atol=1e-14)
+
+
+def test_se_closed_form_eq_2_25():
+    X, Z = _x(4, 5), _x(3, 6)
+    w = np.array([0.5, 1.0, 2.0])
+    ref = 1.7 * np.exp(-0.5 * (((X[:, None, :] - Z[None, :, :]) / w) ** 2).sum(-1))
+    np.testing.assert_allclose(gram(_se(), X, Z), ref, rtol=1e-13)
+    np.testing.assert_allclose(gram(_se(), X, X).diagonal(), 1.7, rtol=1e-15)
+
+
+def test_linear_closed_form():
+    X, Z = _x(4, 5), _x(3, 6)
+    np.testing.assert_allclose(gram(_linear(), X, Z), 0.8 * X @ Z.T + 0.3, rtol=1e-13)
+    x = torch.as_tensor(X)
+    torch.testing.assert_close(linear_kernel(x, x, 2.0, diag=True), 2.0 * (x * x).sum(-1))
+
+
+def test_se_kernel_scaled_equals_se_kernel():
+    x1 = torch.as_tensor(np.random.default_rng(7).normal(size=(2, 5, 3)))
+    x2 = torch.as_tensor(np.random.default_rng(8).normal(size=(2, 6, 3)))
+    ls = torch.tensor([[[0.5, 1.0, 2.0]], [[1.5, 0.7, 0.9]]], dtype=torch.float64)
+    os = torch.tensor([1.7, 0.4], dtype=torch.float64)
+    a, b = x1 / ls, x2 / ls
+    torch.testing.assert_close(se_kernel_scaled(a, b, (b * b).sum(-1), os), se_kernel(x1, x2, ls, os))
+
+
+def test_se_kernel_gradcheck():
+    rng = np.random.default_rng(9)
+    x1 = torch.as_tensor(rng.normal(size=(4, 2)), dtype=torch.float64).requires_grad_()
+    x2 = torch.as_tensor(rng.normal(size=(3, 2)), dtype=torch.float64)
+    ls = torch.tensor([[0.8, 1.3]], dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda a, w: se_kernel(a, x2, w, 1.3), (x1, ls))
+
+
+def test_bad_input():
+    with pytest.raises(ValueError, match="Z"):
+        gram(_se(), _x(3), np.zeros((2, 2)))
+    with pytest.raises(ValueError, match="X"):
+        gram(_se(), np.array([[np.nan, 0.0, 0.0]]))
+    with pytest.raises(ValueError, match="X"):
+        gram(_se(), np.zeros(3))
+    with pytest.raises(ValueError, match="lengthscale"):
+        SquaredExponential(2, lengthscale=[-1.0, 1.0])
+    with pytest.raises(ValueError, match="input_dim"):
+        SquaredExponential(0)
+    with pytest.raises(ValueError, match="outputscale"):
+        SquaredExponential(2, outputscale=0.0)
+    with pytest.raises(ValueError, match="variance"):
+        Linear(variance=-1.0)
+    with pytest.raises(ValueError, match="bias"):
+        Linear(bias=-0.5)

@@ -1,0 +1,280 @@
+"""Table tennis (Sec. 3.4.3, App. C.3): ball physics against closed forms, the racket impact
+law against hand computations, the context range, the reward, determinism and bad input."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+from skillkit.tasks import make, names
+from skillkit.tasks.table_tennis import (
+    DEMO_PATH,
+    LANDING_ZONE,
+    NET_HEIGHT,
+    SERVE_POSITION,
+    TABLE_HEIGHT,
+    TABLE_LENGTH,
+    VELOCITY_HIGH,
+    VELOCITY_LOW,
+    BallPhysics,
+    RacketPath,
+    TableTennis,
+    arm_model,
+    forehand_demonstration,
+    load_demonstration,
+    min_segment_distance,
+    nominal_context,
+    simulate_ball,
+)
+from skillkit.trajectory import Trajectory
+
+G = 9.81
+R_BALL = 0.02
+PLANE = TABLE_HEIGHT + R_BALL  # height of the ball centre when it touches the table plane
+
+
+@pytest.fixture(scope="module")
+def task() -> TableTennis:
+    return make("table-tennis")
+
+
+# ----------------------------------------------------------------------------- ball flight
+def test_drag_free_flight_is_the_closed_form_parabola():
+    p0, v0 = np.array([3.0, 0.5, 2.0]), np.array([1.5, -0.3, 2.0])  # off the table: no bounce
+    flight = simulate_ball(p0, v0, 1.0, dt=0.01, physics=BallPhysics(drag=0.0))
+    t_land = (v0[2] + np.sqrt(v0[2] ** 2 + 2 * G * (p0[2] - PLANE))) / G
+    before = flight.times < t_land
+    t = flight.times[before, None]
+    expected = p0 + v0 * t + 0.5 * np.array([0.0, 0.0, -G]) * t**2
+    np.testing.assert_allclose(flight.positions[before], expected, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(flight.velocities[before], v0 + np.array([0, 0, -G]) * t, atol=1e-12)
+    end = flight.terminal
+    assert end.kind == "plane" and len(flight.events) == 1  # off the table: terminal at once
+    assert end.time == pytest.approx(t_land, abs=1e-12)
+    np.testing.assert_allclose(end.position, p0 + v0 * t_land + [0, 0, -0.5 * G * t_land**2],
+                               atol=1e-10)
+
+
+def test_drag_matches_an_accurate_ode_solution_and_falls_short():
+    physics = BallPhysics()
+    assert physics.drag == pytest.approx(1.2 * 0.5 * np.pi * 0.02**2 / (2 * 0.0027))
+    p0, v0 = np.array([3.0, 0.0, 2.0]), np.array([6.0, 1.0, 3.0])
+    flight = simulate_ball(p0, v0, 0.8, dt=0.01, physics=physics)
+
+    def rhs(_, y):
+        v = y[3:]
+        return np.concatenate([v, -physics.drag * np.linalg.norm(v) * v - [0, 0, G]])
+
+    ref = solve_ivp(rhs, (0, 0.8), np.concatenate([p0, v0]), t_eval=flight.times,
+                    rtol=1e-12, atol=1e-12, method="DOP853")
+    alive = flight.times < flight.terminal.time
+    assert alive.sum() > 50
+    np.testing.assert_allclose(flight.positions[alive], ref.y[:3, alive].T, atol=2e-5)
+    free = simulate_ball(p0, v0, 0.8, dt=0.01, physics=BallPhysics(drag=0.0))
+    x_drag, x_free = flight.terminal.position[0], free.terminal.position[0]
+    assert x_drag < x_free - 0.2  # several metres of flight lose > 20 cm to drag
+    assert flight.terminal.time < free.terminal.time
+
+
+def test_table_bounce_reverses_vz_with_the_restitution():
+    h, e = 0.3, 0.9
+    physics = BallPhysics(drag=0.0, table_restitution=e)
+    flight = simulate_ball([-0.5, 0.2, PLANE + h], [0.4, 0.0, 0.0], 1.0, dt=0.005,
+                           physics=physics)
+    bounce, land = flight.events
+    assert bounce.kind == "table" and land.kind == "plane"  # second touch ends the rally
+    assert bounce.time == pytest.approx(np.sqrt(2 * h / G), abs=1e-12)
+    vz = np.sqrt(2 * G * h)
+    np.testing.assert_allclose(bounce.velocity_before, [0.4, 0.0, -vz], atol=1e-12)
+    np.testing.assert_allclose(bounce.velocity_after, [0.4, 0.0, e * vz], atol=1e-12)
+    assert bounce.position[2] == pytest.approx(PLANE)
+    assert land.time - bounce.time == pytest.approx(2 * e * vz / G, abs=1e-12)
+    apex = flight.positions[(flight.times > bounce.time) & (flight.times < land.time), 2].max()
+    assert apex == pytest.approx(PLANE + e**2 * h, abs=1e-4)
+
+
+CORNERS = list(itertools.product(*zip(VELOCITY_LOW, VELOCITY_HIGH, strict=True)))
+
+
+@pytest.mark.parametrize("velocity", CORNERS)
+def test_corners_of_the_context_range_bounce_once_in_the_landing_zone(velocity):
+    flight = simulate_ball(SERVE_POSITION, velocity, 1.5)
+    kinds = [e.kind for e in flight.events]
+    assert kinds == ["table", "plane"], kinds  # over the net, one bounce, then off the table
+    bounce, end = flight.events
+    (x_lo, y_lo), (x_hi, y_hi) = LANDING_ZONE
+    assert x_lo <= bounce.position[0] <= x_hi and y_lo <= bounce.position[1] <= y_hi
+    assert end.position[0] < -0.5 * TABLE_LENGTH  # the unhit ball leaves past the robot's end
+    crossing = np.flatnonzero(np.diff(np.sign(flight.positions[:, 0])))[0]
+    assert flight.positions[crossing, 2] > TABLE_HEIGHT + NET_HEIGHT + R_BALL  # clears the net
+
+
+def test_net_stops_a_low_ball_and_lets_a_high_one_pass():
+    straight = BallPhysics(drag=0.0, gravity=1e-9)  # (almost) straight lines
+    low = simulate_ball([-1.0, 0.3, TABLE_HEIGHT + 0.1], [4.0, 0.0, 0.0], 1.0, physics=straight)
+    assert [e.kind for e in low.events] == ["net"]
+    assert low.terminal.time == pytest.approx(0.25, abs=1e-9)
+    np.testing.assert_allclose(low.terminal.position, [0.0, 0.3, TABLE_HEIGHT + 0.1], atol=1e-9)
+    high = simulate_ball([-1.0, 0.3, TABLE_HEIGHT + NET_HEIGHT + 0.03], [4.0, 0.0, 0.0], 0.5,
+                         physics=straight)
+    assert high.events == []
+
+
+# ----------------------------------------------------------------------------- racket impact
+@pytest.mark.parametrize("tilt", [0.0, 0.35])
+def test_racket_at_rest_returns_the_ball_by_the_impact_law(tilt):
+    e_r = 0.8
+    physics = BallPhysics(drag=0.0, racket_restitution=e_r)
+    n = np.array([np.cos(tilt), 0.0, np.sin(tilt)])
+    center = np.array([-1.5, 0.0, 1.3])
+    racket = RacketPath.at_rest(center, n, 1.0)
+    v0 = np.array([-4.0, 0.0, 0.0])
+    flight = simulate_ball(center + [0.4, 0.0, 0.0], v0, 0.5, dt=0.002, physics=physics,
+                           racket=racket)
+    hit = flight.first("racket")
+    assert hit is not None
+    # hand computation: the ball falls freely until contact, then v' = v − (1 + e)(v·n) n
+    t = hit.time
+    v_in = v0 + [0.0, 0.0, -G * t]
+    np.testing.assert_allclose(hit.velocity_before, v_in, atol=1e-12)
+    np.testing.assert_allclose(hit.velocity_after, v_in - (1 + e_r) * (v_in @ n) * n, atol=1e-12)
+    # touching the face (the gap is interpolated linearly over a 1 ms step: error ≤ g h²/8)
+    assert (hit.position - center) @ n == pytest.approx(R_BALL, abs=2e-6)
+    assert hit.velocity_after[0] > 0  # returned towards the opponent
+    assert flight.velocities[-1, 0] >= 0  # and it stays returned
+
+
+def test_moving_racket_adds_its_normal_velocity():
+    e_r, u = 0.8, 1.5  # racket moving at u m/s along its normal (+x)
+    physics = BallPhysics(drag=0.0, gravity=1e-9, racket_restitution=e_r)
+    times = np.linspace(0.0, 0.5, 126)
+    center = np.column_stack([-1.5 + u * times, np.zeros_like(times), np.full_like(times, 1.2)])
+    n = np.tile([1.0, 0.0, 0.0], (times.size, 1))
+    racket = RacketPath(times, center, n, np.tile([u, 0.0, 0.0], (times.size, 1)),
+                        np.zeros((times.size, 3)))
+    flight = simulate_ball([-0.5, 0.03, 1.2], [-3.0, 0.0, 0.0], 0.5, dt=0.004, physics=physics,
+                           racket=racket)
+    hit = flight.first("racket")
+    # relative normal speed −3 − 1.5 = −4.5 reflects to +3.6, plus the racket's 1.5
+    assert hit.velocity_after[0] == pytest.approx(u + e_r * (3.0 + u), abs=1e-6)
+    assert hit.velocity_after[1] == pytest.approx(0.0, abs=1e-12)
+    # contact when the gap closes: 1.0 m − r at a closing speed of 4.5 m/s
+    assert hit.time == pytest.approx((1.0 - R_BALL) / 4.5, abs=1e-9)
+
+
+def test_ball_passing_beside_the_blade_is_not_hit():
+    racket = RacketPath.at_rest([-1.5, 0.0, 1.3], [1, 0, 0], 1.0)
+    flight = simulate_ball([-0.9, 0.15, 1.3], [-4.0, 0.0, 0.0], 0.5,
+                           physics=BallPhysics(drag=0.0, gravity=1e-9), racket=racket)
+    assert flight.first("racket") is None  # 15 cm off-centre > 8 cm blade radius
+
+
+# ----------------------------------------------------------------------------- the task
+def test_registered_with_thesis_dimensions(task):
+    assert "table-tennis" in names("contextual")
+    assert task.context_dim == 5 and task.parameter_dim == 17
+    assert task.trajectory_depends_on_context
+    model = arm_model()
+    assert model.nq == model.nv == 8
+    kinds = [int(model.jnt_type[j]) for j in range(8)]
+    assert kinds == [2, 2, 3, 3, 3, 3, 3, 3]  # two slides, six hinges (mjtJoint)
+    assert model.body_mass.sum() < 12.0  # light arm on an 8 kg platform
+
+
+def test_demonstration_file_is_the_deterministic_design():
+    shipped = load_demonstration(DEMO_PATH)
+    fresh = forehand_demonstration()
+    for key in ("times", "q", "qd", "qdd"):
+        np.testing.assert_allclose(shipped[key], fresh[key], rtol=1e-7, atol=1e-8)
+
+
+def test_initial_policy_mean_returns_the_nominal_ball(task):
+    s = nominal_context()
+    omega = task.initial_policy().mean_of(s)
+    r, traj = task.evaluate(omega, s)
+    assert traj.info["hit"] and traj.info["outcome"] == "returned", traj.info
+    assert r > -0.02  # within 20 cm of the target: the demonstration is a good stroke
+    assert traj.signals["ball"].shape == traj.signals["racket"].shape == (traj.n_steps, 3)
+    assert traj.states.shape == (traj.n_steps, 16) and traj.controls.shape == (traj.n_steps, 8)
+
+
+def test_reward_is_the_hand_computed_eq_c1(task):
+    times = np.array([0.0, 0.1, 0.2, 0.3])
+    ball = np.array([[2.0, 0.0, 1.0], [1.0, 0.0, 1.0], [0.0, 0.0, 1.0], [-1.0, 0.0, 1.0]])
+    racket = np.array([[0.5, 0.3, 1.0], [0.5, 0.3, 1.0], [0.5, 0.3, 1.0], [0.5, 0.3, 1.0]])
+    traj = Trajectory(times, np.zeros((4, 16)), np.zeros((4, 8)),
+                      signals={"ball": ball, "racket": racket},
+                      info={"incoming_end": 0.25, "landing_point": [0.7, -0.1]})
+    s = np.array([-5.4, 0.0, 2.25, 0.5, 0.2])
+    # the ball passes the racket at 0.3 m between the 2nd and 3rd samples (x = 0.5)
+    expected = -0.1 * 0.3 - 0.1 * np.hypot(0.5 - 0.7, 0.2 + 0.1)
+    assert task.reward(traj, s) == pytest.approx(expected, abs=1e-14)
+    # only the incoming ball counts: cut before the closest approach, the minimum is 0.5 away
+    traj.info["incoming_end"] = 0.1
+    expected = -0.1 * np.hypot(0.5, 0.3) - 0.1 * np.hypot(0.5 - 0.7, 0.2 + 0.1)
+    assert task.reward(traj, s) == pytest.approx(expected, abs=1e-14)
+
+
+def test_reward_of_a_rollout_matches_a_dense_recomputation(task):
+    s = task.sample_context(3)
+    omega = task.initial_policy().sample(s, np.random.default_rng(3))
+    r, traj = task.evaluate(omega, s)
+    keep = traj.times <= traj.info["incoming_end"]
+    rel = traj.signals["ball"][keep] - traj.signals["racket"][keep]
+    u = np.linspace(0, 1, 2001)[:, None, None]
+    dense = rel[:-1] + u * np.diff(rel, axis=0)  # straight segments between samples
+    d_min = np.linalg.norm(dense, axis=-1).min()
+    p = np.array(traj.info["landing_point"])
+    assert r == pytest.approx(-0.1 * d_min - 0.1 * np.linalg.norm(s[3:] - p), abs=1e-9)
+
+
+def test_min_segment_distance_brute_force():
+    rng = np.random.default_rng(0)
+    rel = rng.normal(size=(7, 3))
+    u = np.linspace(0, 1, 100001)[:, None, None]
+    brute = np.linalg.norm(rel[:-1] + u * np.diff(rel, axis=0), axis=-1).min()
+    assert min_segment_distance(rel) == pytest.approx(brute, abs=1e-8)
+    assert min_segment_distance(rel[:1]) == pytest.approx(np.linalg.norm(rel[0]))
+
+
+def test_same_seed_same_trajectory(task):
+    s = task.sample_context(5)
+    omega = task.initial_policy().sample(s, np.random.default_rng(5))
+    a, b = task.rollout(omega, s, rng=1), task.rollout(omega, s, rng=1)
+    np.testing.assert_array_equal(a.states, b.states)
+    for key in ("ball", "racket", "racket_normal"):
+        np.testing.assert_array_equal(a.signals[key], b.signals[key])
+    assert a.info == b.info
+
+
+def test_bad_omega_and_context_raise(task):
+    s = nominal_context()
+    omega = task.initial_policy().mean_of(s)
+    with pytest.raises(ValueError, match="omega"):
+        task.rollout(omega[:16], s)
+    with pytest.raises(ValueError, match="omega"):
+        task.rollout(np.where(np.arange(17) == 3, np.nan, omega), s)
+    bad_tau = omega.copy()
+    bad_tau[16] = 0.0
+    with pytest.raises(ValueError, match="tau"):
+        task.rollout(bad_tau, s)
+    with pytest.raises(ValueError, match="context"):
+        task.rollout(omega, s[:4])
+    too_fast = s.copy()
+    too_fast[0] = VELOCITY_LOW[0] - 1.0
+    with pytest.raises(ValueError, match="v_x"):
+        task.rollout(omega, too_fast)
+
+
+def test_bad_ball_inputs_raise():
+    with pytest.raises(ValueError, match="velocity"):
+        simulate_ball(SERVE_POSITION, [1.0, 2.0], 1.0)
+    with pytest.raises(ValueError, match="duration"):
+        simulate_ball(SERVE_POSITION, [1.0, 2.0, 3.0], -1.0)
+    with pytest.raises(ValueError, match="table_restitution"):
+        BallPhysics(table_restitution=1.5)
+    with pytest.raises(ValueError, match="normal"):
+        RacketPath.at_rest([0, 0, 1], [0, 0, 0], 1.0)

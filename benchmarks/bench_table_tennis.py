@@ -20,14 +20,17 @@ from skillkit.tasks import make
 from skillkit.tasks.table_tennis import SERVE_POSITION, RacketPath, simulate_ball
 
 
-def _rate(fn, n: int, rounds: int) -> tuple[float, float]:
-    rates = []
+def _rate(fn, n: int, rounds: int) -> tuple[float, float, float]:
+    """Median and slowest wall-clock rate over the rounds, and the rate per CPU-second of
+    this process (the load-independent figure on a shared machine)."""
+    rates, cpu = [], []
     for _ in range(rounds):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         for i in range(n):
             fn(i)
         rates.append(n / (time.perf_counter() - t0))
-    return float(np.median(rates)), float(np.min(rates))
+        cpu.append(n / (time.process_time() - c0))
+    return float(np.median(rates)), float(np.min(rates)), float(np.median(cpu))
 
 
 def main() -> None:
@@ -43,21 +46,23 @@ def main() -> None:
     print(f"platform: {platform.platform()}, python {platform.python_version()}, "
           f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}")
 
-    med, low = _rate(lambda i: task.rollout(omegas[i], contexts[i]), args.rollouts, args.rounds)
-    print(f"full rollout:         {med:7.1f} rollouts/s (median), {low:7.1f} (slowest round)")
+    med, low, cpu = _rate(lambda i: task.rollout(omegas[i], contexts[i]), args.rollouts,
+                          args.rounds)
+    print(f"full rollout:         {med:7.1f} rollouts/s (median), {low:7.1f} (slowest round), "
+          f"{cpu:7.1f} per CPU-second")
 
     dmp = task.parameters.from_vector(omegas[0])
-    med, low = _rate(lambda i: dmp.rollout(task.times, task.q0), args.rollouts, args.rounds)
-    print(f"  DMP reference only: {med:7.1f} /s")
+    med, _, cpu = _rate(lambda i: dmp.rollout(task.times, task.q0), args.rollouts, args.rounds)
+    print(f"  DMP reference only: {med:7.1f} /s, {cpu:7.1f} per CPU-second")
 
     traj = task.rollout(omegas[0], contexts[0])
     racket = RacketPath(traj.times, traj.signals["racket"], traj.signals["racket_normal"],
                         np.gradient(traj.signals["racket"], traj.times, axis=0),
                         np.zeros_like(traj.signals["racket"]))
-    med, low = _rate(lambda i: simulate_ball(SERVE_POSITION, contexts[i, :3], task.duration,
-                                             dt=task.control_dt, racket=racket),
-                     args.rollouts, args.rounds)
-    print(f"  ball flight only:   {med:7.1f} /s")
+    med, _, cpu = _rate(lambda i: simulate_ball(SERVE_POSITION, contexts[i, :3], task.duration,
+                                                dt=task.control_dt, racket=racket),
+                        args.rollouts, args.rounds)
+    print(f"  ball flight only:   {med:7.1f} /s, {cpu:7.1f} per CPU-second")
 
 
 if __name__ == "__main__":

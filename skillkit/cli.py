@@ -21,12 +21,26 @@ def _cmd_list(args: argparse.Namespace) -> int:
     return 0
 
 
+def _overrides(pairs: list[str]) -> dict:
+    """``KEY=VALUE`` strings to settings overrides (VALUE parsed as JSON, else kept as text)."""
+    out = {}
+    for pair in pairs:
+        key, sep, value = pair.partition("=")
+        if not sep or not key:
+            raise ValueError(f"--set: expected KEY=VALUE, got {pair!r}")
+        try:
+            out[key] = json.loads(value)
+        except ValueError:
+            out[key] = value
+    return out
+
+
 def _cmd_reproduce(args: argparse.Namespace) -> int:
     from skillkit.experiments.runner import reproduce
 
     folder = reproduce(args.id, scale=args.scale, trials=args.trials, seed=args.seed, out=args.out,
                        progress=not args.quiet, executor=args.executor, workers=args.workers,
-                       address=args.address, fresh=args.fresh)
+                       address=args.address, fresh=args.fresh, **_overrides(args.set))
     summary = json.loads((folder / "result.json").read_text())["summary"]
     print(f"wrote {folder}/result.json, figure.html, figure.png")
     print(json.dumps(summary, indent=1))
@@ -97,6 +111,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=int, default=None, help="processes / Ray CPUs (default: all cores)")
     p.add_argument("--address", default=None, help="address of an existing Ray cluster")
     p.add_argument("--fresh", action="store_true", help="discard this run's checkpoints and start over")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override one setting of the scale (repeatable), e.g. --set n_updates=50")
     p.set_defaults(func=_cmd_reproduce)
 
     p = sub.add_parser("runs", help="list finished runs in the results store")

@@ -125,17 +125,19 @@ def heldout_scores(task, policy, contexts, rng=None) -> dict[str, float]:
     dict
         ``reward`` (mean R), ``hit_rate``, ``displacement_error`` (mean |d_T − d*| over all
         contexts; a miss leaves d_T = 0), ``displacement_error_hits`` (over hits; NaN if none),
-        ``failed`` (count).
+        ``blade_lowest`` (lowest blade corner over all rollouts, m: below 0 the blade went
+        through the table, which the arm model does not prevent), ``failed`` (count).
     """
     from skillkit._validation import as_generator
 
     rng = as_generator(rng)
     means = np.atleast_2d(policy.mean_of(contexts))
-    rewards, hits, errors, failed = [], [], [], 0
+    rewards, hits, errors, failed, lowest = [], [], [], 0, np.inf
     for w, s in zip(means, contexts, strict=True):
         r, traj = task.evaluate(w, s, rng)
         rewards.append(r)
         failed += int(traj.failed)
+        lowest = min(lowest, float(traj.info.get("blade_lowest", np.inf)))
         hit = bool(traj.info.get("hit", False))
         hits.append(hit)
         errors.append(abs(float(traj.info.get("displacement", 0.0)) - float(s[2])))
@@ -145,6 +147,7 @@ def heldout_scores(task, policy, contexts, rng=None) -> dict[str, float]:
         "hit_rate": float(hits.mean()),
         "displacement_error": float(errors.mean()),
         "displacement_error_hits": float(errors[hits].mean()) if hits.any() else float("nan"),
+        "blade_lowest": lowest,
         "failed": failed,
     }
 
@@ -199,7 +202,13 @@ def _run_trial(settings: dict, rng: np.random.Generator, progress) -> dict:
         out[f"{name}_explore_reward"] = res["explore_reward"]
         out[f"{name}_n_failed"] = res["n_failed"]
         out[f"{name}_heldout_rollouts"] = np.array([p[0] for p in points])
-        for key in ("reward", "hit_rate", "displacement_error", "displacement_error_hits"):
+        for key in (
+            "reward",
+            "hit_rate",
+            "displacement_error",
+            "displacement_error_hits",
+            "blade_lowest",
+        ):
             out[f"{name}_heldout_{key}"] = np.array([p[1][key] for p in points])
         out[f"{name}_wall_time_s"] = time.perf_counter() - t0
     return out
@@ -257,6 +266,12 @@ def _summarize(settings: dict, trials: list[dict]) -> tuple[list[Series], dict]:
             vals = _stack(trials, f"{name}_{key}")
             stats[f"initial_{key}"] = _nan_stats(vals[:, 0])[0]
             stats[f"final_{key}"], stats[f"final_{key}_std"] = _nan_stats(vals[:, -1])
+        lowest = [
+            np.min(t[f"{name}_heldout_blade_lowest"])
+            for t in trials
+            if f"{name}_heldout_blade_lowest" in t
+        ]
+        stats["heldout_blade_lowest_m"] = float(min(lowest)) if lowest else float("nan")
         stats["failed_rollouts"] = int(sum(int(np.sum(t[f"{name}_n_failed"])) for t in trials))
         stats["wall_time_s"] = float(np.mean([t[f"{name}_wall_time_s"] for t in trials]))
         summary[name] = stats

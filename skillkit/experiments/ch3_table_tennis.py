@@ -36,12 +36,16 @@ _COMMON = {
     "cov_shrinkage": 0.2,
 }
 SETTINGS = {
-    "quick": {**_COMMON, "n_updates": 50, "n_eval_contexts": 8, "n_final_contexts": 40},
-    "paper": {**_COMMON, "n_updates": 240, "n_eval_contexts": 20, "n_final_contexts": 200},
+    "quick": {**_COMMON, "n_updates": 40, "n_eval_contexts": 8, "n_final_contexts": 40},
+    "paper": {**_COMMON, "n_updates": 240, "n_eval_contexts": 12, "n_final_contexts": 200},
 }
-"""``n_updates`` × ``rollouts_per_update`` exploratory rollouts per trial (paper: 6000, as
-in Fig. 3.7's axis; quick: 1250). ``n_eval_contexts``: contexts of the learning curve;
-``n_final_contexts``: fresh contexts on which the final policy is classified."""
+"""``n_updates`` × ``rollouts_per_update`` exploratory rollouts per trial (paper: 6000, past
+the thesis's ~4000; quick: 1000). ``n_eval_contexts``: contexts of the learning curve (their
+rollouts are not counted); ``n_final_contexts``: fresh contexts on which the final policy
+mean is classified. ``min_effective_samples`` and ``cov_shrinkage`` regularise the weighted
+ML fit (:meth:`~skillkit.policies.gaussian.LinearGaussianPolicy.fit_with_info`): the first
+updates see only 25–50 samples for a 17×17 covariance (Kish ESS ≈ 13 at ε = 0.6), so Σ is
+shrunk 20% towards the previous one instead of being fitted from too few samples."""
 
 
 def run_trial(settings: dict, rng: np.random.Generator, progress) -> dict:
@@ -111,9 +115,8 @@ def summarize(settings: dict, trials: list[dict]) -> tuple[list[Series], dict]:
 
     mean_curve = np.asarray(m)
     reached = np.flatnonzero(mean_curve > THESIS_GOOD_REWARD)
-    returned_errors = np.concatenate([
-        np.asarray(t["final_landing_error"])[np.asarray(t["final_outcomes"]) == "returned"]
-        for t in trials])
+    returned_errors = _pooled(trials, "final_landing_error", "returned")
+    net_rewards = _pooled(trials, "final_rewards", "net")
     summary = {
         "initial_reward": float(curves[:, 0].mean()),
         "final_reward_per_trial": final.tolist(),
@@ -125,8 +128,13 @@ def summarize(settings: dict, trials: list[dict]) -> tuple[list[Series], dict]:
         "fraction_runs_with_net_failures_above_10pct":
             float(np.mean(np.array(fractions["net"]) > 0.1)),
         "outcome_fractions_mean": {o: float(np.mean(fractions[o])) for o in OUTCOMES},
-        "median_landing_error_of_returns_m":
-            float(np.median(returned_errors)) if returned_errors.size else None,
+        "net_shot_reward_mean": float(net_rewards.mean()) if net_rewards.size else None,
+        "net_shot_reward_range": [float(net_rewards.min()), float(net_rewards.max())]
+        if net_rewards.size
+        else None,
+        "median_landing_error_of_returns_m": float(np.median(returned_errors))
+        if returned_errors.size
+        else None,
         "rollouts_to_mean_curve_above_-0.02": float(x[reached[0]]) if reached.size else None,
         "total_rollouts_per_trial": float(x[-1]),
         "failed_rollouts": int(sum(t["n_failed"] for t in trials)),
@@ -140,6 +148,14 @@ def summarize(settings: dict, trials: list[dict]) -> tuple[list[Series], dict]:
         "learned": bool(final.mean() > curves[:, 0].mean() + 0.05),
     }
     return series, summary
+
+
+def _pooled(trials: list[dict], key: str, outcome: str) -> np.ndarray:
+    """``key`` values of the final-policy shots with a given outcome, pooled over trials."""
+    picked = [
+        np.asarray(t[key], dtype=float)[np.asarray(t["final_outcomes"]) == outcome] for t in trials
+    ]
+    return np.concatenate(picked)
 
 
 register(

@@ -7,11 +7,14 @@ the 10-fold cross-validated state-embedding error (Eq. 5.16) and (b) a GP forwar
 (one GP per state dimension, marginal likelihood Eq. 2.28). On a grid of query states they
 predict the expected successor state (single step: ``fig5.3`` e_α, ``fig5.4`` e_α̇) and the
 expected 20-step trajectory (``fig5.5``, Σ_t e_{x_t}); the ground truth is a Monte Carlo
-average through the true dynamics. Embedding states are decoded with the pre-image
-(Eq. 2.45, Table 5.1); the linear read-out X'ᵀβ is reported as well. The GP's multi-step
-prediction averages sampled trajectories (:func:`~skillkit.models.sampling.sample_trajectories`).
-Both models see the same data with the same fixed policy (the GP models x → x' like the
-embedding; it learns Δx, the GP module's default).
+average through the true dynamics. The embedding's predictive mean is the expected value of
+the state read out with the observed successors, E[x'] = X'ᵀβ (as E[r] = r'ᵀβ for rewards);
+the error of the pre-image decoding (most likely state, Eq. 2.45) is reported as well. The
+GP's multi-step prediction averages sampled trajectories
+(:func:`~skillkit.models.sampling.sample_trajectories`). Both models see the same data with
+the same fixed policy (the GP models x → x' like the embedding); the GP learns Δx by default
+(``gp_target="delta"``, the GP module's default; ``"next"`` learns x' with a zero prior mean,
+like the embedding).
 
 ``fig5.6``, ``fig5.7`` (Sec. 5.4, balancing the planar 4-link robot, T = 40, initial std
 0.3, torque noise 4 in ``fig5.6`` and varied in ``fig5.7``): expected trajectory reward
@@ -28,7 +31,9 @@ controllers are discrete LQR gains of the robot linearised at upright for random
 Q = diag(q_task ⊙ e^{ξ}), R = r₀ e^{ξ'}, ξ ~ N(0, s²) (``gain_spread`` s), which stabilise
 the robot by construction (entry-wise perturbations of a single gain diverge too often); the
 controller of each observed trajectory is drawn the same way; the target kernel of Eq. 5.16
-is an SE kernel with the successor states' standard deviations as fixed length-scales.
+is fixed (learning it with θ makes the error vanish trivially): by default an SE kernel with
+the successor states' standard deviations as length-scales (``target_kernel="se"``), or
+linear (``"linear"``: Eq. 5.16 becomes the squared error of the mean read-out).
 """
 
 from __future__ import annotations
@@ -53,7 +58,7 @@ from skillkit.models.embedding_training import (
     transitions,
 )
 from skillkit.models.gp import ExactGP, ForwardModel
-from skillkit.models.kernels import SquaredExponential
+from skillkit.models.kernels import Linear, SquaredExponential
 from skillkit.models.sampling import sample_trajectories
 from skillkit.tasks import make
 from skillkit.tasks.pendulum import THESIS_GAINS, feedback_torque, pendulum_dynamics
@@ -77,19 +82,31 @@ def _initial_lengthscales(x: np.ndarray) -> np.ndarray:
 
 
 # =========================================================================== pendulum
+def _target_kernel(kind: str, targets: np.ndarray):
+    """Fixed target-feature kernel of Eq. 5.16: SE with the targets' standard deviations as
+    length-scales, or linear (then Eq. 5.16 is the squared error of the mean read-out)."""
+    if kind == "se":
+        return SquaredExponential(targets.shape[1], lengthscale=_initial_lengthscales(targets))
+    if kind == "linear":
+        return Linear()
+    raise ValueError(f"target_kernel: expected 'se' or 'linear', got {kind!r}")
+
+
 _PENDULUM = {
     "quick": {
         "n_trajectories": 15,  # observed trajectories (thesis: 15)
         "horizon": 20,  # steps per trajectory and predicted horizon (thesis: 20)
         "control_noise": 0.05,  # σ_u of u ~ N(Kᵀx, σ_u²) (thesis: 0.05)
-        "grid": 21,  # query grid points per axis over the context range
+        "grid": 17,  # query grid points per axis over the context range
         "truth_samples": 200,  # Monte Carlo samples of the true successor per query
         "truth_rollouts": 50,  # Monte Carlo rollouts of the true 20-step trajectory per query
-        "gp_samples": 50,  # trajectories sampled from the GP per query
+        "gp_samples": 30,  # trajectories sampled from the GP per query
         "cv_folds": 10,  # cross-validation folds over trajectories (thesis: 10)
         "max_iter": 50,  # L-BFGS-B iterations of the embedding hyper-parameters
         "lam0": 1e-3,  # initial regulariser λ
         "gp_steps": 150,  # marginal-likelihood optimisation steps of the GP
+        "gp_target": "delta",  # GP learns Δx ("delta") or x' ("next")
+        "target_kernel": "se",  # Eq. 5.16 target features: SE (std length-scales) or "linear"
     },
     "paper": {
         "n_trajectories": 15,
@@ -103,6 +120,8 @@ _PENDULUM = {
         "max_iter": 100,
         "lam0": 1e-3,
         "gp_steps": 150,
+        "gp_target": "delta",
+        "target_kernel": "se",
     },
 }
 
@@ -119,7 +138,7 @@ def _pendulum_trial(settings: dict, rng: np.random.Generator, progress, multi_st
 
     # Embedding: Eq. 5.16 with 10-fold cross-validation over trajectories.
     folds = kfold_splits(len(x), min(int(settings["cv_folds"]), n_traj), rng, groups=groups)
-    target_kernel = SquaredExponential(2, lengthscale=_initial_lengthscales(xn))
+    target_kernel = _target_kernel(settings["target_kernel"], xn)
     loss = state_embedding_loss(x, xn, folds, target_kernel)
     fit = fit_hyperparameters(
         loss, _initial_lengthscales(x), settings["lam0"], max_iter=settings["max_iter"]
@@ -129,7 +148,8 @@ def _pendulum_trial(settings: dict, rng: np.random.Generator, progress, multi_st
 
     # GP forward model on the same transitions (fixed policy: no control input).
     no_u = np.zeros((len(x), 0))
-    gp = ForwardModel(ExactGP(n_steps=settings["gp_steps"])).fit(x, no_u, xn, rng=rng)
+    gp = ForwardModel(ExactGP(n_steps=settings["gp_steps"]), target=settings["gp_target"])
+    gp.fit(x, no_u, xn, rng=rng)
     progress.update()
 
     n = int(settings["grid"])
@@ -161,7 +181,7 @@ def _pendulum_trial(settings: dict, rng: np.random.Generator, progress, multi_st
         gp_mean = gp.predict(query, np.zeros((len(query), 0)))[0]
         out["time_gp"] = time.perf_counter() - t0
         progress.update()
-        for name, pred in (("emb", pre), ("emb_linear", lin), ("gp", gp_mean)):
+        for name, pred in (("emb", lin), ("emb_preimage", pre), ("gp", gp_mean)):
             err = (pred - truth) ** 2
             out[f"{name}_e_alpha"] = err[:, 0].reshape(n, n)
             out[f"{name}_e_alpha_dot"] = err[:, 1].reshape(n, n)
@@ -194,7 +214,7 @@ def _pendulum_trial(settings: dict, rng: np.random.Generator, progress, multi_st
     )
     gp_mean = sampled.states.mean(dim=1).numpy().transpose(1, 0, 2)  # (T+1, G, 2)
     out["time_gp"] = time.perf_counter() - t0
-    for name, pred in (("emb", pre), ("emb_linear", lin), ("gp", gp_mean)):
+    for name, pred in (("emb", lin), ("emb_preimage", pre), ("gp", gp_mean)):
         out[f"{name}_e_traj"] = ((pred[1:] - truth[1:]) ** 2).sum(axis=(0, 2)).reshape(n, n)
     progress.update()
     return out
@@ -210,7 +230,7 @@ def _pendulum_summary(key: str, label: str):
     def summarize(settings: dict, trials: list[dict]) -> tuple[list[Series], dict]:
         maps = {
             m: np.mean([t[f"{m}_{key}"] for t in trials], axis=0)
-            for m in ("emb", "emb_linear", "gp")
+            for m in ("emb", "emb_preimage", "gp")
         }
         logs = {m: np.log10(v) for m, v in maps.items()}
         finite = np.concatenate([logs[m][np.isfinite(logs[m])] for m in ("emb", "gp")])
@@ -255,7 +275,10 @@ def _pendulum_summary(key: str, label: str):
             "error": label,
             "mean_error_embedding": mean_emb,
             "mean_error_gp": mean_gp,
-            "mean_error_embedding_linear_readout": float(np.mean(maps["emb_linear"])),
+            "mean_error_embedding_preimage": float(np.mean(maps["emb_preimage"])),
+            "fraction_of_grid_where_embedding_preimage_better": float(
+                np.mean(maps["emb_preimage"] < maps["gp"])
+            ),
             "median_log10_error_embedding": float(np.median(logs["emb"])),
             "median_log10_error_gp": float(np.median(logs["gp"])),
             "fraction_of_grid_where_embedding_better": better,
@@ -445,6 +468,7 @@ def _balancing_case(
             pred[lo : lo + chunk] = traj.rewards[1:].sum(axis=0)
         out[f"time_{name}"] = time.perf_counter() - t0
         out[f"e_r_{name}"] = float(np.mean((pred - truth) ** 2))
+        out[f"median_sq_err_{name}"] = float(np.median((pred - truth) ** 2))
         out[f"lengthscale_{name}"] = fit.lengthscale
         out[f"lam_{name}"] = fit.lam
         out[f"cv_loss_{name}"] = fit.loss
@@ -469,9 +493,9 @@ def _balancing_case(
     out["time_gp"] = time.perf_counter() - t0
     finite = np.isfinite(gp_pred)
     out["gp_nonfinite_predictions"] = int(np.sum(~finite))
-    out["e_r_gp"] = (
-        float(np.mean((gp_pred[finite] - truth[finite]) ** 2)) if finite.any() else np.nan
-    )
+    sq = (gp_pred[finite] - truth[finite]) ** 2
+    out["e_r_gp"] = float(np.mean(sq)) if finite.any() else np.nan
+    out["median_sq_err_gp"] = float(np.median(sq)) if finite.any() else np.nan
     progress.update()
     return out
 
@@ -568,7 +592,7 @@ _FIG57 = {
 }
 
 _METHODS = (
-    ("gp", "GP sampling (M=100)"),
+    ("gp", "GP sampling (M={gp_samples})"),
     ("step", "embedding, step-based (5.17)"),
     ("trajectory", "embedding, trajectory-based (5.23)"),
 )
@@ -608,12 +632,13 @@ def _fig57_trial(settings: dict, rng: np.random.Generator, progress) -> dict:
     levels = list(settings["torque_noise"])
     progress.reset(total=4 * len(levels))
     x0 = _initial_samples(settings, rng)
-    gains, cases, floors, rejected, failed = None, [], [], 0, 0
+    gains, cases, floors, rejected, failed, stats = None, [], [], 0, 0, []
     for noise in levels:
         task = _task(settings, noise)
         gains, truth, truth_var, rej, fail = _balancing_truth(task, settings, rng, gains)
         rejected, failed = rejected + rej, failed + fail
         floors.append(float(np.mean(truth_var)))
+        stats.append((float(np.mean(truth)), float(np.std(truth))))
         progress.update()
         cases.append(
             _balancing_case(
@@ -624,6 +649,8 @@ def _fig57_trial(settings: dict, rng: np.random.Generator, progress) -> dict:
         "x": levels,
         "cases": cases,
         "truth_mc_floor": floors,
+        "truth_reward_mean": [m for m, _ in stats],
+        "truth_reward_std": [sd for _, sd in stats],
         "rejected_test_controllers": rejected,
         "failed_truth_rollouts": failed,
     }
@@ -640,7 +667,7 @@ def _reward_summary(xlabel: str, fig: str):
             y, lo, hi = mean_band(err[m])
             series.append(
                 Series(
-                    name=label,
+                    name=label.format(**settings),
                     x=x,
                     y=y,
                     lower=lo,
@@ -675,6 +702,19 @@ def _reward_summary(xlabel: str, fig: str):
             "claim": CLAIMS[fig],
             "x": x,
             "mean_e_r": {m: mean[m].tolist() for m, _ in _METHODS},
+            "median_squared_error": {
+                m: np.mean(
+                    [[c[f"median_sq_err_{m}"] for c in t["cases"]] for t in trials], 0
+                ).tolist()
+                for m, _ in _METHODS
+            },
+            "embedding_lam": {
+                m: [[c[f"lam_{m}"] for c in t["cases"]] for t in trials]
+                for m in ("step", "trajectory")
+            },
+            "truth_reward_mean_std": [
+                [t.get("truth_reward_mean"), t.get("truth_reward_std")] for t in trials
+            ],
             "gp_over_trajectory_based_ratio": (mean["gp"] / mean["trajectory"]).tolist(),
             "truth_mc_variance_floor": floor.tolist(),
             "embedding_below_gp": emb_below_gp,

@@ -63,17 +63,19 @@ class TrialContext:
     """What ``run_trial(settings, rng, progress)`` receives as ``progress``: a progress bar
     (``reset(total=)``, ``update(n)``, ``set_postfix(...)``) that can also checkpoint.
 
-    An experiment that wants to survive interruption mid-trial calls :meth:`resume` once at
-    the start (restoring the generator's state and returning its last saved state, or None)
-    and :meth:`save` after every policy update.
+    An experiment (or :func:`skillkit.search.loop.learn`, given ``checkpoint=progress``) that
+    wants to survive interruption mid-trial calls :meth:`resume` with a key when it starts
+    (restoring the generator's state and returning the state last saved under that key, or
+    None) and :meth:`save` with the same key after every policy update. Several keys (one per
+    algorithm learning in the trial) share the trial's checkpoint file.
     """
 
     def __init__(self, bar, path: Path | None = None, ident: dict | None = None,
-                 state: tuple | None = None):
+                 states: dict | None = None):
         self.bar = bar
         self.path = path
         self.ident = ident
-        self._state = state  # (payload, rng_state) loaded from disk, if any
+        self._states: dict = dict(states or {})  # key -> (payload, rng_state)
 
     def reset(self, total: int | None = None) -> None:
         self.bar.reset(total=total)
@@ -84,16 +86,18 @@ class TrialContext:
     def set_postfix(self, *args, **kwargs) -> None:
         self.bar.set_postfix(*args, **kwargs)
 
-    def save(self, state, rng: np.random.Generator) -> None:
-        """Checkpoint ``state`` (any picklable object) and the generator's state atomically."""
+    def save(self, key: str, state, rng: np.random.Generator) -> None:
+        """Checkpoint ``state`` (any picklable object) and the generator's state under ``key``,
+        atomically, together with the other keys' latest states."""
+        self._states[key] = (state, rng.bit_generator.state)
         if self.path is not None:
-            checkpoint.save(self.path, self.ident, (state, rng.bit_generator.state), kind="state")
+            checkpoint.save(self.path, self.ident, self._states, kind="state")
 
-    def resume(self, rng: np.random.Generator):
-        """The last saved state (restoring ``rng`` to where it was then), or None."""
-        if self._state is None:
+    def resume(self, key: str, rng: np.random.Generator):
+        """The state last saved under ``key`` (restoring ``rng`` to where it was then), or None."""
+        if key not in self._states:
             return None
-        payload, rng_state = self._state
+        payload, rng_state = self._states[key]
         rng.bit_generator.state = rng_state
         return payload
 
@@ -116,17 +120,17 @@ def _execute_trial(exp_id: str, settings: dict, seed_seq: np.random.SeedSequence
                    ckpt_path: str | None, ident: dict | None, show_progress: bool) -> dict:
     """Run (or resume) one trial; checkpoint its result. Module-level so workers can pickle it."""
     exp = get(exp_id)
-    state = None
+    states = None
     if ckpt_path is not None:
         found = checkpoint.load(ckpt_path, ident)
         if found is not None:
             kind, payload = found
             if kind == "result":
                 return payload
-            state = payload
+            states = payload
     bar = tqdm(desc=f"{exp_id} trial {index + 1}", leave=False) if show_progress else _NullBar()
     try:
-        ctx = TrialContext(bar, None if ckpt_path is None else Path(ckpt_path), ident, state)
+        ctx = TrialContext(bar, None if ckpt_path is None else Path(ckpt_path), ident, states)
         result = exp.run_trial(settings, np.random.default_rng(seed_seq), ctx)
     finally:
         bar.close()

@@ -130,7 +130,6 @@ def run_trial(settings: dict, rng: np.random.Generator, progress) -> dict:
     streams = rng.spawn(len(ALGORITHMS))
     for name, stream in zip(ALGORITHMS, streams, strict=True):
         alg = make_algorithm(name, task, settings)
-        errors: list[float] = []
         res = learn(
             task,
             alg,
@@ -139,11 +138,11 @@ def run_trial(settings: dict, rng: np.random.Generator, progress) -> dict:
             stream,
             progress=progress,
             eval_contexts=grid,
-            callback=lambda k, a, errors=errors: errors.append(
-                parameter_error(a.policy, optimum, grid)
-            ),
+            callback=lambda k, a: parameter_error(a.policy, optimum, grid),
+            checkpoint=progress if hasattr(progress, "save") else None,
+            checkpoint_key=name,
         )
-        errors_arr = np.array(errors)
+        errors_arr = np.array(res["callback"])
         below = np.flatnonzero(errors_arr < settings["threshold"])
         out[f"{name}_rollouts"] = res["rollouts"]
         out[f"{name}_error"] = errors_arr

@@ -433,32 +433,33 @@ def _se_preimage(y: np.ndarray, beta: np.ndarray, kern: SquaredExponential, max_
     """Fixed-point pre-image for an SE kernel; returns (points (B, d), converged (B,)).
 
     The score β^T k_Y(y) equals the local weight mass Σ_i w_i, so it is tracked for free.
+    The step Σ_i w_i (y_i − y) / Σ_i w_i is evaluated as (w Y − (Σ_i w_i) y) / Σ_i w_i, which
+    is exactly 0 for a one-hot β at its training point; only unfinished columns are iterated.
     """
     yt = torch.from_numpy(y)
-    bt = torch.from_numpy(beta).T                                   # (B, N)
+    bt = torch.from_numpy(beta).T.contiguous()  # (B, N)
     with torch.no_grad():
         scores = bt @ kern.forward(yt, yt)                          # (B, N): β^T k_Y(y_j)
         best_score, start = scores.max(dim=1)
-        x = yt[start].clone()                                       # (B, d)
-        best = x.clone()
-        active = torch.ones(x.shape[0], dtype=torch.bool)
-        converged = torch.zeros(x.shape[0], dtype=torch.bool)
+        best = yt[start].clone()  # (B, d)
+        converged = torch.zeros(best.shape[0], dtype=torch.bool)
+        idx = torch.arange(best.shape[0])  # unfinished columns
+        x = best.clone()
         for _ in range(max_iter):
-            w = kern.forward(x, yt) * bt                            # (B, N): β_i k(y, y_i)
-            mass = w.sum(dim=1)                                     # = score at x
-            better = active & (mass >= best_score)
-            best[better] = x[better]
-            best_score = torch.where(better, mass, best_score)
-            active &= mass > 0
-            if not bool(active.any()):
+            w = kern.forward(x, yt) * bt[idx]  # β_i k(y, y_i)
+            mass = w.sum(dim=1)  # = score at x
+            better = mass >= best_score[idx]
+            best[idx[better]] = x[better]
+            best_score[idx[better]] = mass[better]
+            ok = mass > 0  # else: stop, keep the best
+            idx, x, w, mass = idx[ok], x[ok], w[ok], mass[ok]
+            if idx.numel() == 0:
                 break
-            safe = torch.where(active, mass, torch.ones_like(mass))
-            step = torch.einsum("bn,bnd->bd", w, yt[None] - x[:, None]) / safe[:, None]
-            step[~active] = 0.0
-            done = active & (step.norm(dim=1) <= tol * (1.0 + x.norm(dim=1)))
-            converged |= done
-            x = x + step
-            active &= ~done
-            if not bool(active.any()):
+            step = (w @ yt - mass[:, None] * x) / mass[:, None]
+            done = step.norm(dim=1) <= tol * (1.0 + x.norm(dim=1))
+            converged[idx[done]] = True
+            keep = ~done
+            idx, x = idx[keep], (x + step)[keep]
+            if idx.numel() == 0:
                 break
     return best.numpy(), converged.numpy()

@@ -15,7 +15,8 @@ Pieces, in the order they are used:
   that for a query x (per output a)
 
   .. math:: \\mu_a(x) = k_a(x)^\\top \\beta_a, \\qquad
-            \\sigma_a^2(x) = \\sigma_{f,a}^2 - k_a(x)^\\top iK_a\\, k_a(x) + \\sigma_{\\varepsilon,a}^2
+            \\sigma_a^2(x) = \\sigma_{f,a}^2 - k_a(x)^\\top iK_a\\, k_a(x)
+                             + \\sigma_{\\varepsilon,a}^2
             = \\sigma_{f,a}^2 - \\|R_a k_a(x)\\|^2 + \\sigma_{\\varepsilon,a}^2
 
   With ``beta = (K + σ_ε²I)⁻¹y``, ``iK = (K + σ_ε²I)⁻¹`` and ``R = L⁻¹`` (all from one cached
@@ -70,7 +71,12 @@ from gpytorch.constraints import GreaterThan
 from linear_operator.utils.errors import NanError, NotPSDError
 
 from skillkit._validation import as_generator, check_array, check_positive
-from skillkit.models.kernels import SquaredExponential, se_kernel, se_kernel_scaled
+from skillkit.models.kernels import (
+    SquaredExponential,
+    se_kernel,
+    se_kernel_from_operands,
+    se_operands,
+)
 
 __all__ = [
     "DTYPE",
@@ -135,11 +141,16 @@ def robust_cholesky(A: torch.Tensor, what: str = "matrix") -> tuple[torch.Tensor
         shift = torch.where(failed, j * scale, torch.zeros_like(scale))
         L2, info2 = torch.linalg.cholesky_ex(A + shift[..., None, None] * eye)
         if not torch.any(info2):
-            warnings.warn(f"{what}: not numerically positive definite; added jitter {j:.0e} x mean(diag) "
-                          f"to {int(failed.sum())} of {failed.numel()} matrices", GPNumericalWarning,
-                          stacklevel=2)
+            warnings.warn(
+                f"{what}: not numerically positive definite; added jitter {j:.0e} x mean(diag) "
+                f"to {int(failed.sum())} of {failed.numel()} matrices",
+                GPNumericalWarning,
+                stacklevel=2,
+            )
             return torch.where(failed[..., None, None], L2, L), j
-    raise GPNumericalError(f"{what}: not positive definite even with jitter {_JITTER_LEVELS[-1]:.0e} x mean(diag)")
+    raise GPNumericalError(
+        f"{what}: not positive definite even with jitter {_JITTER_LEVELS[-1]:.0e} x mean(diag)"
+    )
 
 
 # ---------------------------------------------------------------------------- predictor
@@ -200,19 +211,41 @@ class GPPredictor:
     var_factor: torch.Tensor
     y_mean: torch.Tensor
     y_scale: torch.Tensor
-    _scaled_support: torch.Tensor = field(init=False, repr=False)
-    _support_sqnorm: torch.Tensor = field(init=False, repr=False)
+    _support_operand: torch.Tensor = field(init=False, repr=False)
+    _log_outputscale: torch.Tensor = field(init=False, repr=False)
+    _weights: torch.Tensor = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         E, M, d = self.support.shape
-        expected = {"lengthscale": (E, d), "outputscale": (E,), "noise": (E,), "beta": (E, M),
-                    "iK": (E, M, M), "var_factor": (E, M, M), "y_mean": (E,), "y_scale": (E,)}
+        expected = {
+            "lengthscale": (E, d),
+            "outputscale": (E,),
+            "noise": (E,),
+            "beta": (E, M),
+            "iK": (E, M, M),
+            "var_factor": (E, M, M),
+            "y_mean": (E,),
+            "y_scale": (E,),
+        }
         for name, shape in expected.items():
             if tuple(getattr(self, name).shape) != shape:
-                raise ValueError(f"{name}: expected shape {shape}, got {tuple(getattr(self, name).shape)}")
-        b = self.support / self.lengthscale[:, None, :]
-        object.__setattr__(self, "_scaled_support", b.contiguous())
-        object.__setattr__(self, "_support_sqnorm", (b * b).sum(-1))
+                raise ValueError(
+                    f"{name}: expected shape {shape}, got {tuple(getattr(self, name).shape)}"
+                )
+        # Step-invariant caches: the SE support operand and [Rᵀ | β] (one product gives v and μ).
+        object.__setattr__(
+            self,
+            "_support_operand",
+            se_operands(self.support, self.lengthscale[:, None, :], self.outputscale).contiguous(),
+        )
+        object.__setattr__(self, "_log_outputscale", torch.log(self.outputscale))
+        object.__setattr__(
+            self,
+            "_weights",
+            torch.cat(
+                [self.var_factor.transpose(-1, -2), self.beta[..., None]], dim=-1
+            ).contiguous(),
+        )
 
     @property
     def input_dim(self) -> int:
@@ -240,14 +273,23 @@ class GPPredictor:
         dtype = self.dtype if dtype is None else dtype
         if device == self.device and dtype == self.dtype:
             return self
-        fields = ("support", "lengthscale", "outputscale", "noise", "beta", "iK", "var_factor", "y_mean",
-                  "y_scale")
+        fields = (
+            "support",
+            "lengthscale",
+            "outputscale",
+            "noise",
+            "beta",
+            "iK",
+            "var_factor",
+            "y_mean",
+            "y_scale",
+        )
         return GPPredictor(**{f: getattr(self, f).to(device=device, dtype=dtype) for f in fields})
 
     def kernel_vectors(self, x: torch.Tensor) -> torch.Tensor:
         """k_a(x, support_a) for every output: Tensor (E, n, M), for queries x of shape (n, d)."""
-        a = x.unsqueeze(0) / self.lengthscale[:, None, :]
-        return se_kernel_scaled(a, self._scaled_support, self._support_sqnorm, self.outputscale)
+        query = se_operands(x.unsqueeze(0), self.lengthscale[:, None, :])
+        return se_kernel_from_operands(query, self._support_operand, self._log_outputscale)
 
     def moments(self, x: torch.Tensor, include_noise: bool = True) -> Moments:
         """Predictive mean and variance (Eqs 2.26–2.27) at queries ``x``.
@@ -265,14 +307,18 @@ class GPPredictor:
             ``mean`` and ``var`` of shape (n, E) in raw target units.
         """
         k = self.kernel_vectors(x)  # (E, n, M)
-        mean = torch.bmm(k, self.beta.unsqueeze(-1)).squeeze(-1)  # (E, n)
-        v = torch.bmm(k, self.var_factor.transpose(-1, -2))  # (R k)ᵀ, (E, n, M)
-        quad = (v * v).sum(-1)
+        out = torch.bmm(k, self._weights)  # [(R k)ᵀ, kᵀβ], (E, n, M + 1)
+        mean = out[..., -1]
+        quad = torch.linalg.vector_norm(out[..., :-1], dim=-1).square()  # ‖R k‖²
         var = self.outputscale[:, None] - quad
         rel = var / self.outputscale[:, None]
         neg = rel < 0
         n_clamped = neg.sum()
-        worst = rel.min().clamp_max(0.0) if rel.numel() else torch.zeros((), dtype=x.dtype, device=x.device)
+        worst = (
+            rel.min().clamp_max(0.0)
+            if rel.numel()
+            else torch.zeros((), dtype=x.dtype, device=x.device)
+        )
         var = var.clamp_min(0.0)
         if include_noise:
             var = var + self.noise[:, None]
@@ -299,9 +345,13 @@ def warn_if_clamped(m: Moments, where: str) -> None:
     """Issue a :class:`GPNumericalWarning` if a latent variance was negative beyond round-off."""
     worst = float(m.worst)
     if worst < -VARIANCE_TOL:
-        warnings.warn(f"{where}: {int(m.n_clamped)} predictive variance(s) were negative (worst "
-                      f"{worst:.2e} x sigma_f^2, beyond round-off) and were set to 0; the model is "
-                      "ill-conditioned (raise noise_floor or additive_noise)", GPNumericalWarning, stacklevel=3)
+        warnings.warn(
+            f"{where}: {int(m.n_clamped)} predictive variance(s) were negative (worst "
+            f"{worst:.2e} x sigma_f^2, beyond round-off) and were set to 0; the model is "
+            "ill-conditioned (raise noise_floor or additive_noise)",
+            GPNumericalWarning,
+            stacklevel=3,
+        )
 
 
 # ---------------------------------------------------------------------------- training helpers
@@ -309,8 +359,13 @@ class _Diverged(Exception):
     pass
 
 
-def optimize(parameters: list[torch.nn.Parameter], loss_fn: Callable[[], torch.Tensor], n_steps: int,
-             method: str = "lbfgs", learning_rate: float = 0.05) -> dict:
+def optimize(
+    parameters: list[torch.nn.Parameter],
+    loss_fn: Callable[[], torch.Tensor],
+    n_steps: int,
+    method: str = "lbfgs",
+    learning_rate: float = 0.05,
+) -> dict:
     """Minimise ``loss_fn`` over ``parameters``, keeping the best finite value seen.
 
     Parameters
@@ -355,9 +410,16 @@ def optimize(parameters: list[torch.nn.Parameter], loss_fn: Callable[[], torch.T
     if n_steps > 0:
         try:
             if method == "lbfgs":
-                opt = torch.optim.LBFGS(parameters, lr=1.0, max_iter=n_steps, max_eval=int(n_steps * 1.25) + 5,
-                                        tolerance_grad=1e-9, tolerance_change=1e-12, history_size=50,
-                                        line_search_fn="strong_wolfe")
+                opt = torch.optim.LBFGS(
+                    parameters,
+                    lr=1.0,
+                    max_iter=n_steps,
+                    max_eval=int(n_steps * 1.25) + 5,
+                    tolerance_grad=1e-9,
+                    tolerance_change=1e-12,
+                    history_size=50,
+                    line_search_fn="strong_wolfe",
+                )
 
                 def closure():
                     opt.zero_grad()
@@ -382,7 +444,7 @@ def optimize(parameters: list[torch.nn.Parameter], loss_fn: Callable[[], torch.T
             stopped = str(exc)
     if best["state"] is not None:
         with torch.no_grad():
-            for p, v in zip(parameters, best["state"]):
+            for p, v in zip(parameters, best["state"], strict=True):
                 p.copy_(v)
     elif n_steps == 0 or stopped is not None:
         with torch.no_grad():
@@ -392,10 +454,19 @@ def optimize(parameters: list[torch.nn.Parameter], loss_fn: Callable[[], torch.T
                 value = math.nan
         best["value"] = value
     if stopped is not None:
-        warnings.warn(f"hyper-parameter optimisation stopped early ({stopped}); restored the best "
-                      f"parameters seen (objective {best['value']:.6g})", GPNumericalWarning, stacklevel=3)
-    return {"trace": trace, "n_evaluations": len(trace), "n_iterations": n_iter, "best": best["value"],
-            "stopped_early": stopped}
+        warnings.warn(
+            f"hyper-parameter optimisation stopped early ({stopped}); restored the best "
+            f"parameters seen (objective {best['value']:.6g})",
+            GPNumericalWarning,
+            stacklevel=3,
+        )
+    return {
+        "trace": trace,
+        "n_evaluations": len(trace),
+        "n_iterations": n_iter,
+        "best": best["value"],
+        "stopped_early": stopped,
+    }
 
 
 def _check_method(method: str) -> str:
@@ -410,13 +481,27 @@ class _GPRegression:
     standardisation, training loop, predictor, diagnostics. Subclasses implement
     ``_build``, ``_loss``, ``_parameters`` and ``_make_predictor``."""
 
-    def __init__(self, *, lengthscale=None, outputscale: float | None = None, noise: float | None = None,
-                 noise_floor: float = 1e-6, additive_noise: float = 1.0, n_steps: int = 150,
-                 optimizer: str = "lbfgs", learning_rate: float = 0.05, standardize: bool = True):
-        self.init_lengthscale = None if lengthscale is None else check_array(lengthscale, "lengthscale", ndim=(0, 1, 2))
+    def __init__(
+        self,
+        *,
+        lengthscale=None,
+        outputscale: float | None = None,
+        noise: float | None = None,
+        noise_floor: float = 1e-6,
+        additive_noise: float = 1.0,
+        n_steps: int = 150,
+        optimizer: str = "lbfgs",
+        learning_rate: float = 0.05,
+        standardize: bool = True,
+    ):
+        self.init_lengthscale = (
+            None if lengthscale is None else check_array(lengthscale, "lengthscale", ndim=(0, 1, 2))
+        )
         if self.init_lengthscale is not None and np.any(self.init_lengthscale <= 0):
             raise ValueError(f"lengthscale: expected positive values, got {lengthscale}")
-        self.init_outputscale = None if outputscale is None else check_positive(outputscale, "outputscale")
+        self.init_outputscale = (
+            None if outputscale is None else check_positive(outputscale, "outputscale")
+        )
         self.init_noise = None if noise is None else check_positive(noise, "noise")
         self.noise_floor = check_positive(noise_floor, "noise_floor")
         self.additive_noise = check_positive(additive_noise, "additive_noise", allow_zero=True)
@@ -476,10 +561,21 @@ class _GPRegression:
         self.Y = torch.as_tensor(((Y - m) / s).T.copy(), dtype=DTYPE)  # (E, N), standardised
         self._init = self._initial_hypers(X)
         self._build(rng)
-        res = optimize(self._parameters(), lambda: self._loss() / N, self.n_steps, self.optimizer,
-                       self.learning_rate)
-        diag.update({"objective_trace": res["trace"], "n_evaluations": res["n_evaluations"],
-                     "n_iterations": res["n_iterations"], "stopped_early": res["stopped_early"]})
+        res = optimize(
+            self._parameters(),
+            lambda: self._loss() / N,
+            self.n_steps,
+            self.optimizer,
+            self.learning_rate,
+        )
+        diag.update(
+            {
+                "objective_trace": res["trace"],
+                "n_evaluations": res["n_evaluations"],
+                "n_iterations": res["n_iterations"],
+                "stopped_early": res["stopped_early"],
+            }
+        )
         with torch.no_grad():
             self.predictor, extra = self._make_predictor()
         diag.update(extra)
@@ -487,14 +583,20 @@ class _GPRegression:
         at_floor = np.flatnonzero(noise < 1.01 * self.noise_floor).tolist()
         diag["noise_at_floor"] = at_floor
         if at_floor:
-            warnings.warn(f"noise variance of output(s) {at_floor} is at the floor noise_floor="
-                          f"{self.noise_floor:g} (x std(y)^2): the data look noise-free to the model",
-                          GPNumericalWarning, stacklevel=2)
+            warnings.warn(
+                f"noise variance of output(s) {at_floor} is at the floor noise_floor="
+                f"{self.noise_floor:g} (x std(y)^2): the data look noise-free to the model",
+                GPNumericalWarning,
+                stacklevel=2,
+            )
         self.diagnostics = diag
         return self
 
     def _initial_hypers(self, X: np.ndarray) -> dict:
-        """Initial values in standardised units (PILCO's rule: w = std(x), σ_f² = var(y), σ_ε² = σ_f²/100)."""
+        """Initial values in standardised units.
+
+        PILCO's rule: w = std(x), σ_f² = var(y), σ_ε² = σ_f²/100.
+        """
         E, d = self.Y.shape[0], X.shape[1]
         if self.init_lengthscale is None:
             sd = X.std(axis=0)
@@ -504,8 +606,10 @@ class _GPRegression:
         try:
             ls = np.broadcast_to(ls, (E, d)).copy()
         except ValueError:
-            raise ValueError(f"lengthscale: expected a scalar, shape ({d},) or ({E}, {d}), got shape "
-                             f"{np.shape(self.init_lengthscale)}") from None
+            raise ValueError(
+                f"lengthscale: expected a scalar, shape ({d},) or ({E}, {d}), got shape "
+                f"{np.shape(self.init_lengthscale)}"
+            ) from None
         scale2 = self.y_scale**2
         os = np.ones(E) if self.init_outputscale is None else self.init_outputscale / scale2
         nz = 1e-2 * os if self.init_noise is None else self.init_noise / scale2
@@ -536,7 +640,9 @@ class _GPRegression:
         if x.shape[1] != pred.input_dim:
             raise ValueError(f"X: expected {pred.input_dim} columns, got shape {x.shape}")
         with torch.no_grad():
-            m = pred.moments(torch.as_tensor(x, dtype=pred.dtype, device=pred.device), include_noise)
+            m = pred.moments(
+                torch.as_tensor(x, dtype=pred.dtype, device=pred.device), include_noise
+            )
         warn_if_clamped(m, type(self).__name__)
         mean, var = m.mean.cpu().numpy(), m.var.cpu().numpy()
         return (mean[:, 0], var[:, 0]) if self._squeeze else (mean, var)
@@ -546,9 +652,11 @@ class _GPRegression:
         """Trained θ = {w (E, d), σ_f² (E,), σ_ε² (E,)} in raw target units."""
         pred = self._check_fitted()
         s2 = torch.as_tensor(self.y_scale**2, dtype=pred.dtype)
-        return {"lengthscale": pred.lengthscale.cpu().numpy(),
-                "outputscale": (pred.outputscale.cpu() * s2).numpy(),
-                "noise": (pred.noise.cpu() * s2).numpy()}
+        return {
+            "lengthscale": pred.lengthscale.cpu().numpy(),
+            "outputscale": (pred.outputscale.cpu() * s2).numpy(),
+            "noise": (pred.noise.cpu() * s2).numpy(),
+        }
 
     def _standardisation_tensors(self) -> tuple[torch.Tensor, torch.Tensor]:
         return torch.as_tensor(self.y_mean, dtype=DTYPE), torch.as_tensor(self.y_scale, dtype=DTYPE)
@@ -572,17 +680,21 @@ class _SENegLogML(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, lengthscale, outputscale, noise, X, Y):
-        a = X.unsqueeze(0) / lengthscale[:, None, :]
-        K = se_kernel_scaled(a, a, (a * a).sum(-1), outputscale)
+        K = se_kernel(X, X, lengthscale[:, None, :], outputscale)
         K.diagonal(dim1=-2, dim2=-1).add_(noise[:, None])
         L, info = torch.linalg.cholesky_ex(K)
         K.diagonal(dim1=-2, dim2=-1).sub_(noise[:, None])  # back to K_f (saves an N x N copy)
         if torch.any(info):
-            raise GPNumericalError("K + noise*I is not numerically positive definite at these hyper-parameters")
+            raise GPNumericalError(
+                "K + noise*I is not numerically positive definite at these hyper-parameters"
+            )
         alpha = torch.cholesky_solve(Y.unsqueeze(-1), L).squeeze(-1)
         N = X.shape[0]
-        value = (0.5 * (Y * alpha).sum() + torch.log(L.diagonal(dim1=-2, dim2=-1)).sum()
-                 + 0.5 * N * Y.shape[0] * math.log(2 * math.pi))
+        value = (
+            0.5 * (Y * alpha).sum()
+            + torch.log(L.diagonal(dim1=-2, dim2=-1)).sum()
+            + 0.5 * N * Y.shape[0] * math.log(2 * math.pi)
+        )
         ctx.save_for_backward(lengthscale, outputscale, X, K, L, alpha)
         return value
 
@@ -601,8 +713,13 @@ class _SENegLogML(torch.autograd.Function):
         return grad * g_ls, grad * g_os, grad * g_noise, None, None
 
 
-def neg_log_marginal_likelihood(X: torch.Tensor, Y: torch.Tensor, lengthscale: torch.Tensor,
-                                outputscale: torch.Tensor, noise: torch.Tensor) -> torch.Tensor:
+def neg_log_marginal_likelihood(
+    X: torch.Tensor,
+    Y: torch.Tensor,
+    lengthscale: torch.Tensor,
+    outputscale: torch.Tensor,
+    noise: torch.Tensor,
+) -> torch.Tensor:
     """−Σ_a log p(y_a | X, θ_a) of Eq. (2.28) for E independent SE-kernel GPs (differentiable).
 
     Parameters
@@ -624,7 +741,7 @@ def neg_log_marginal_likelihood(X: torch.Tensor, Y: torch.Tensor, lengthscale: t
 
 
 class _BatchedExactGP(gpytorch.models.ExactGP):
-    """E independent zero-mean GPs with SE-ARD kernels, batched (GPyTorch batch-independent outputs)."""
+    """E independent zero-mean SE-ARD GPs, batched (GPyTorch batch-independent outputs)."""
 
     def __init__(self, x: torch.Tensor, y: torch.Tensor, likelihood, kernel):
         super().__init__(x, y, likelihood)
@@ -679,7 +796,8 @@ class ExactGP(_GPRegression):
         kernel.lengthscale = torch.as_tensor(init["lengthscale"], dtype=DTYPE)[:, None, :]
         kernel.outputscale = torch.as_tensor(init["outputscale"], dtype=DTYPE)
         likelihood = gpytorch.likelihoods.GaussianLikelihood(
-            batch_shape=torch.Size([E]), noise_constraint=GreaterThan(self.noise_floor)).double()
+            batch_shape=torch.Size([E]), noise_constraint=GreaterThan(self.noise_floor)
+        ).double()
         likelihood.noise = torch.as_tensor(init["noise"], dtype=DTYPE)[:, None]
         self.model = _BatchedExactGP(self.X.expand(E, N, d), self.Y, likelihood, kernel).double()
         self.likelihood = likelihood
@@ -710,8 +828,12 @@ class ExactGP(_GPRegression):
         y_mean, y_scale = self._standardisation_tensors()
         self.cholesky = L
         # Eq. (2.28) per output, in raw target units (standardisation is a change of variables).
-        lml = (-0.5 * (self.Y * alpha).sum(-1) - torch.log(L.diagonal(dim1=-2, dim2=-1)).sum(-1)
-               - 0.5 * N * math.log(2 * math.pi) - N * torch.log(y_scale))
+        lml = (
+            -0.5 * (self.Y * alpha).sum(-1)
+            - torch.log(L.diagonal(dim1=-2, dim2=-1)).sum(-1)
+            - 0.5 * N * math.log(2 * math.pi)
+            - N * torch.log(y_scale)
+        )
         pred = GPPredictor(X, ls, os, noise, alpha, iK, R, y_mean, y_scale)
         return pred, {"jitter": jitter, "log_marginal_likelihood": lml.numpy()}
 
@@ -734,7 +856,9 @@ class ForwardModel:
 
     def __init__(self, gp: _GPRegression, target: str = "delta"):
         if not isinstance(gp, _GPRegression):
-            raise ValueError(f"gp: expected an ExactGP, FITC or VFE instance, got {type(gp).__name__}")
+            raise ValueError(
+                f"gp: expected an ExactGP, FITC or VFE instance, got {type(gp).__name__}"
+            )
         if target not in ("delta", "next"):
             raise ValueError(f"target: expected 'delta' or 'next', got {target!r}")
         self.gp = gp
@@ -768,7 +892,9 @@ class ForwardModel:
         u = check_array(controls, "controls", ndim=2)
         xn = check_array(next_states, "next_states", ndim=2)
         if u.shape[0] != x.shape[0]:
-            raise ValueError(f"controls: expected {x.shape[0]} rows like states, got shape {u.shape}")
+            raise ValueError(
+                f"controls: expected {x.shape[0]} rows like states, got shape {u.shape}"
+            )
         if xn.shape != x.shape:
             raise ValueError(f"next_states: expected shape {x.shape} like states, got {xn.shape}")
         self.state_dim, self.control_dim = x.shape[1], u.shape[1]
@@ -806,7 +932,9 @@ class ForwardModel:
         x = check_array(states, "states", shape=(None, self.state_dim))
         u = check_array(controls, "controls", shape=(x.shape[0], self.control_dim))
         with torch.no_grad():
-            m = self.next_state_moments(torch.as_tensor(x, dtype=pred.dtype, device=pred.device),
-                                        torch.as_tensor(u, dtype=pred.dtype, device=pred.device))
+            m = self.next_state_moments(
+                torch.as_tensor(x, dtype=pred.dtype, device=pred.device),
+                torch.as_tensor(u, dtype=pred.dtype, device=pred.device),
+            )
         warn_if_clamped(m, "ForwardModel")
         return m.mean.cpu().numpy(), m.var.cpu().numpy()

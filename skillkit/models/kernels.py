@@ -16,8 +16,13 @@ from gpytorch.constraints import Positive
 from skillkit._validation import check_array
 
 
-def se_kernel(x1: torch.Tensor, x2: torch.Tensor, lengthscale: torch.Tensor, outputscale: torch.Tensor,
-              diag: bool = False) -> torch.Tensor:
+def se_kernel(
+    x1: torch.Tensor,
+    x2: torch.Tensor,
+    lengthscale: torch.Tensor,
+    outputscale: torch.Tensor,
+    diag: bool = False,
+) -> torch.Tensor:
     r"""Squared-exponential kernel with ARD, Eq. (2.25).
 
     .. math:: k(x, x') = \sigma_f^2 \exp\big(-\tfrac12 (x - x')^\top W^{-1} (x - x')\big),
@@ -38,53 +43,87 @@ def se_kernel(x1: torch.Tensor, x2: torch.Tensor, lengthscale: torch.Tensor, out
     -------
     Tensor, shape (..., n, m) (or (..., n) with ``diag``)
     """
-    a = x1 / lengthscale
-    b = x2 / lengthscale
-    os = torch.as_tensor(outputscale, dtype=a.dtype, device=a.device)
+    os = torch.as_tensor(outputscale, dtype=x1.dtype, device=x1.device)
     if diag:
-        d2 = ((a - b) ** 2).sum(-1)
+        d2 = (((x1 - x2) / lengthscale) ** 2).sum(-1)
         return os[..., None] * torch.exp(-0.5 * d2) if os.ndim else os * torch.exp(-0.5 * d2)
-    return se_kernel_scaled(a, b, (b * b).sum(-1), os)
+    return se_kernel_from_operands(
+        se_operands(x1, lengthscale), se_operands(x2, lengthscale, os), torch.log(os)
+    )
 
 
-def se_kernel_scaled(a: torch.Tensor, b: torch.Tensor, b_sqnorm: torch.Tensor,
-                     outputscale: torch.Tensor) -> torch.Tensor:
-    r"""Eq. (2.25) on inputs already divided by the length-scales (the body of :func:`se_kernel`).
+def se_operands(
+    x: torch.Tensor, lengthscale: torch.Tensor, outputscale: torch.Tensor | float | None = None
+) -> torch.Tensor:
+    r"""Augmented operands that turn Eq. (2.25) into one matrix product.
 
-    Callers that evaluate the kernel against the same second argument many times (the
-    trajectory sampler: the training or pseudo-inputs never change between steps) cache
-    ``b = x2 / w`` and ``b_sqnorm = ||b||²`` once and call this.
+    With a = x / w (element-wise), the query operand is ``[a, −½‖a‖², 1]`` and the support
+    operand (``outputscale`` given) is ``[b, 1, −½‖b‖² + log σ_f²]``, so that
 
-    .. math:: k = \sigma_f^2 \exp\big(-\tfrac12 (\|a\|^2 + \|b\|^2 - 2 a^\top b)\big)
+    .. math:: [a, -\tfrac12\|a\|^2, 1] \cdot [b, 1, -\tfrac12\|b\|^2 + \log\sigma_f^2]
+              = -\tfrac12\|a - b\|^2 + \log\sigma_f^2 = \log k(x, x').
 
-    The squared distance is clamped at 0 against round-off (it is a sum of squares).
+    Callers that evaluate the kernel against fixed support points many times (the trajectory
+    sampler: training or pseudo-inputs never change between steps) build the support operand
+    once and call :func:`se_kernel_from_operands` with fresh query operands.
 
     Parameters
     ----------
-    a : Tensor, shape (..., n, d)
-        ``x1 / lengthscale``.
-    b : Tensor, shape (..., m, d)
-        ``x2 / lengthscale``.
-    b_sqnorm : Tensor, shape (..., m)
-        ``(b * b).sum(-1)``.
-    outputscale : Tensor, shape (...) or scalar
-        σ_f².
+    x : Tensor, shape (..., n, d)
+    lengthscale : Tensor, shape (..., 1, d) or broadcastable
+    outputscale : Tensor of shape (...), float, or None
+        σ_f² for a support operand; None for a query operand.
+
+    Returns
+    -------
+    Tensor, shape (..., n, d + 2)
+    """
+    a = x / lengthscale
+    half_sq = -0.5 * (a * a).sum(-1, keepdim=True)
+    ones = torch.ones_like(half_sq)
+    if outputscale is None:
+        return torch.cat([a, half_sq, ones], dim=-1)
+    log_os = torch.log(torch.as_tensor(outputscale, dtype=a.dtype, device=a.device))
+    return torch.cat(
+        [a, ones, half_sq + (log_os[..., None, None] if log_os.ndim else log_os)], dim=-1
+    )
+
+
+def se_kernel_from_operands(
+    query: torch.Tensor, support: torch.Tensor, log_outputscale: torch.Tensor
+) -> torch.Tensor:
+    """k = exp(min(query · supportᵀ, log σ_f²)): Eq. (2.25) from :func:`se_operands`.
+
+    The minimum is the round-off guard ‖a − b‖² ≥ 0 (k ≤ σ_f²). When no gradient is needed
+    the product is exponentiated in place (one work array; this is the sampler's hot path).
+
+    Parameters
+    ----------
+    query : Tensor, shape (..., n, d + 2)
+    support : Tensor, shape (..., m, d + 2)
+    log_outputscale : Tensor, shape (...) or ()
 
     Returns
     -------
     Tensor, shape (..., n, m)
     """
-    os = torch.as_tensor(outputscale, dtype=a.dtype, device=a.device)
-    # ||a||^2 + ||b||^2 - 2 a.b in one fused batched matmul.
-    d2 = torch.baddbmm((a * a).sum(-1)[..., :, None] + b_sqnorm[..., None, :], a, b.transpose(-1, -2),
-                       alpha=-2.0) if a.ndim == 3 and b.ndim == 3 else (
-        (a * a).sum(-1)[..., :, None] + b_sqnorm[..., None, :] - 2.0 * a @ b.transpose(-1, -2))
-    k = torch.exp(-0.5 * d2.clamp_min(0.0))
-    return k * os[..., None, None] if os.ndim else k * os
+    lim = log_outputscale[..., None, None] if log_outputscale.ndim else log_outputscale
+    e = query @ support.transpose(-1, -2)
+    if torch.is_grad_enabled() and (
+        query.requires_grad or support.requires_grad or lim.requires_grad
+    ):
+        return torch.exp(torch.minimum(e, lim))
+    torch.minimum(e, lim, out=e)
+    return e.exp_()
 
 
-def linear_kernel(x1: torch.Tensor, x2: torch.Tensor, variance: torch.Tensor, bias: torch.Tensor | float = 0.0,
-                  diag: bool = False) -> torch.Tensor:
+def linear_kernel(
+    x1: torch.Tensor,
+    x2: torch.Tensor,
+    variance: torch.Tensor,
+    bias: torch.Tensor | float = 0.0,
+    diag: bool = False,
+) -> torch.Tensor:
     r"""Linear kernel :math:`k(x, x') = \sigma^2 x^\top x' + c` (CrKR, reward embeddings in Ch. 5).
 
     Parameters
@@ -104,7 +143,9 @@ def linear_kernel(x1: torch.Tensor, x2: torch.Tensor, variance: torch.Tensor, bi
         prod = (x1 * x2).sum(-1)
         return (var[..., None] if var.ndim else var) * prod + (c[..., None] if c.ndim else c)
     prod = x1 @ x2.transpose(-1, -2)
-    return (var[..., None, None] if var.ndim else var) * prod + (c[..., None, None] if c.ndim else c)
+    return (var[..., None, None] if var.ndim else var) * prod + (
+        c[..., None, None] if c.ndim else c
+    )
 
 
 class SquaredExponential(gpytorch.kernels.Kernel):
@@ -125,15 +166,28 @@ class SquaredExponential(gpytorch.kernels.Kernel):
 
     has_lengthscale = True
 
-    def __init__(self, input_dim: int, lengthscale=1.0, outputscale: float = 1.0,
-                 batch_shape: torch.Size | None = None, **kwargs):
+    def __init__(
+        self,
+        input_dim: int,
+        lengthscale=1.0,
+        outputscale: float = 1.0,
+        batch_shape: torch.Size | None = None,
+        **kwargs,
+    ):
         if int(input_dim) < 1:
             raise ValueError(f"input_dim: expected a positive integer, got {input_dim}")
-        super().__init__(ard_num_dims=int(input_dim), batch_shape=batch_shape or torch.Size([]), **kwargs)
-        self.register_parameter("raw_outputscale", torch.nn.Parameter(torch.zeros(self.batch_shape)))
+        super().__init__(
+            ard_num_dims=int(input_dim), batch_shape=batch_shape or torch.Size([]), **kwargs
+        )
+        self.register_parameter(
+            "raw_outputscale", torch.nn.Parameter(torch.zeros(self.batch_shape))
+        )
         self.register_constraint("raw_outputscale", Positive())
-        self.double()  # float64 by default (DESIGN.md); before the values are set, so they are exact
-        ls = torch.as_tensor(np.broadcast_to(np.asarray(lengthscale, dtype=float), (int(input_dim),)).copy())
+        # float64 by default (DESIGN.md); before the values are set, so they are exact
+        self.double()
+        ls = torch.as_tensor(
+            np.broadcast_to(np.asarray(lengthscale, dtype=float), (int(input_dim),)).copy()
+        )
         if torch.any(ls <= 0) or not torch.all(torch.isfinite(ls)):
             raise ValueError(f"lengthscale: expected positive finite values, got {lengthscale}")
         if not (np.isfinite(outputscale) and outputscale > 0):
@@ -147,7 +201,9 @@ class SquaredExponential(gpytorch.kernels.Kernel):
 
     @outputscale.setter
     def outputscale(self, value) -> None:
-        value = torch.as_tensor(value, dtype=self.raw_outputscale.dtype, device=self.raw_outputscale.device)
+        value = torch.as_tensor(
+            value, dtype=self.raw_outputscale.dtype, device=self.raw_outputscale.device
+        )
         self.initialize(raw_outputscale=self.raw_outputscale_constraint.inverse_transform(value))
 
     def forward(self, x1, x2, diag: bool = False, **params):
@@ -165,7 +221,13 @@ class Linear(gpytorch.kernels.Kernel):
         Constant offset c ≥ 0 (fixed, not learned).
     """
 
-    def __init__(self, variance: float = 1.0, bias: float = 0.0, batch_shape: torch.Size | None = None, **kwargs):
+    def __init__(
+        self,
+        variance: float = 1.0,
+        bias: float = 0.0,
+        batch_shape: torch.Size | None = None,
+        **kwargs,
+    ):
         super().__init__(batch_shape=batch_shape or torch.Size([]), **kwargs)
         if not (np.isfinite(variance) and variance > 0):
             raise ValueError(f"variance: expected a positive finite value, got {variance}")
@@ -183,7 +245,9 @@ class Linear(gpytorch.kernels.Kernel):
 
     @variance.setter
     def variance(self, value) -> None:
-        value = torch.as_tensor(value, dtype=self.raw_variance.dtype, device=self.raw_variance.device)
+        value = torch.as_tensor(
+            value, dtype=self.raw_variance.dtype, device=self.raw_variance.device
+        )
         self.initialize(raw_variance=self.raw_variance_constraint.inverse_transform(value))
 
     def forward(self, x1, x2, diag: bool = False, **params):
@@ -211,6 +275,8 @@ def gram(kernel: gpytorch.kernels.Kernel, X, Z=None) -> np.ndarray:
         raise ValueError(f"Z: expected {x.shape[1]} columns like X, got shape {z.shape}")
     param = next(kernel.parameters(), torch.zeros((), dtype=torch.float64))
     with torch.no_grad():
-        out = kernel.forward(torch.as_tensor(x, dtype=param.dtype, device=param.device),
-                             torch.as_tensor(z, dtype=param.dtype, device=param.device))
+        out = kernel.forward(
+            torch.as_tensor(x, dtype=param.dtype, device=param.device),
+            torch.as_tensor(z, dtype=param.dtype, device=param.device),
+        )
     return out.detach().cpu().numpy().astype(np.float64)

@@ -12,13 +12,15 @@ Gaussian; these functions return Gaussian approximations of it (Figs 2.6–2.7):
       q_{ai} &= \\sigma_{f,a}^2 |S\\Lambda_a^{-1} + I|^{-1/2}
                 \\exp\\big(-\\tfrac12 \\nu_i^\\top (S + \\Lambda_a)^{-1} \\nu_i\\big), \\qquad
       \\mathbb{E}[y_a] = \\beta_a^\\top q_a, \\\\
-      \\mathrm{cov}(z, y_a) &= \\textstyle\\sum_i \\beta_{ai} q_{ai} S (S + \\Lambda_a)^{-1} \\nu_i, \\\\
+      \\mathrm{cov}(z, y_a) &= \\textstyle\\sum_i \\beta_{ai} q_{ai}
+                                 S (S + \\Lambda_a)^{-1} \\nu_i, \\\\
       Q^{ab}_{ij} &= k_a(z_i, m) k_b(z_j, m) |R|^{-1/2}
                   \\exp\\big(\\tfrac12 \\zeta_{ij}^\\top R^{-1} S \\zeta_{ij}\\big), \\quad
                   R = S(\\Lambda_a^{-1} + \\Lambda_b^{-1}) + I, \\;
                   \\zeta_{ij} = \\Lambda_a^{-1}\\nu_i + \\Lambda_b^{-1}\\nu_j, \\\\
       \\mathrm{cov}(y_a, y_b) &= \\beta_a^\\top Q^{ab} \\beta_b - \\mathbb{E}[y_a]\\mathbb{E}[y_b]
-          + \\delta_{ab}\\big(\\sigma_{f,a}^2 - \\mathrm{tr}(iK_a Q^{aa}) + \\sigma_{\\varepsilon,a}^2\\big).
+          + \\delta_{ab}\\big(\\sigma_{f,a}^2 - \\mathrm{tr}(iK_a Q^{aa})
+                              + \\sigma_{\\varepsilon,a}^2\\big).
 
   ``beta`` and ``iK`` are the predictor's fields, so the same code serves exact GPs
   (iK = (K + σ_ε²I)⁻¹) and FITC/VFE (iK = K_mm⁻¹ − Σ). Every Q^{ab} is formed in the log
@@ -67,8 +69,16 @@ class GaussianPrediction:
 
 
 def _check_gaussian(mean, cov, dim: int, name: str = "mean") -> tuple[torch.Tensor, torch.Tensor]:
-    m = mean if isinstance(mean, torch.Tensor) else torch.as_tensor(check_array(mean, name, shape=(dim,)))
-    S = cov if isinstance(cov, torch.Tensor) else torch.as_tensor(check_array(cov, "cov", shape=(dim, dim)))
+    m = (
+        mean
+        if isinstance(mean, torch.Tensor)
+        else torch.as_tensor(check_array(mean, name, shape=(dim,)))
+    )
+    S = (
+        cov
+        if isinstance(cov, torch.Tensor)
+        else torch.as_tensor(check_array(cov, "cov", shape=(dim, dim)))
+    )
     m, S = m.to(DTYPE), S.to(DTYPE)
     if tuple(m.shape) != (dim,):
         raise ValueError(f"{name}: expected shape ({dim},), got {tuple(m.shape)}")
@@ -84,7 +94,9 @@ def _check_gaussian(mean, cov, dim: int, name: str = "mean") -> tuple[torch.Tens
     return m, 0.5 * (S + S.T)
 
 
-def moment_match(predictor: GPPredictor, mean, cov, include_noise: bool = True) -> GaussianPrediction:
+def moment_match(
+    predictor: GPPredictor, mean, cov, include_noise: bool = True
+) -> GaussianPrediction:
     """Exact mean, covariance and input–output covariance of a GP's prediction at z ~ N(m, S).
 
     Parameters
@@ -111,7 +123,8 @@ def moment_match(predictor: GPPredictor, mean, cov, include_noise: bool = True) 
     eye = torch.eye(D, dtype=DTYPE)
     nu = pred.support - m  # (E, M, D)
     nut = nu * iL[:, None, :]  # Λ^{-1/2} ν
-    # Mean and input-output covariance: (S + Λ_a)^{-1} = Λ_a^{-1/2} (Λ_a^{-1/2} S Λ_a^{-1/2} + I)^{-1} Λ_a^{-1/2}.
+    # Mean and input-output covariance:
+    # (S + Λ_a)^{-1} = Λ_a^{-1/2} (Λ_a^{-1/2} S Λ_a^{-1/2} + I)^{-1} Λ_a^{-1/2}.
     Sa = iL[:, :, None] * S * iL[:, None, :] + eye
     Lsa = torch.linalg.cholesky(Sa)
     sol = torch.cholesky_solve(nut.transpose(-1, -2), Lsa)  # (E, D, M)
@@ -139,8 +152,11 @@ def moment_match(predictor: GPPredictor, mean, cov, include_noise: bool = True) 
         Ta = za @ T  # (nb, M, D)
         qa = 0.5 * (Ta * za).sum(-1)
         qb = 0.5 * ((zeta[b] @ T) * zeta[b]).sum(-1)
-        logQ = torch.baddbmm((logk[a] + qa)[:, :, None] + (logk[b] + qb)[:, None, :]
-                             - 0.5 * logdet_r[:, None, None], Ta, zeta[b].transpose(-1, -2))
+        logQ = torch.baddbmm(
+            (logk[a] + qa)[:, :, None] + (logk[b] + qb)[:, None, :] - 0.5 * logdet_r[:, None, None],
+            Ta,
+            zeta[b].transpose(-1, -2),
+        )
         Q = torch.exp(logQ)  # (nb, M, M)
         vals = ((Q @ pred.beta[b].unsqueeze(-1)).squeeze(-1) * pred.beta[a]).sum(-1)
         second[a, a:] = vals
@@ -178,12 +194,23 @@ def linearize(predictor: GPPredictor, mean, cov, include_noise: bool = True) -> 
 def _report_clamp(rel: torch.Tensor, where: str) -> None:
     worst = float(rel.min())
     if worst < -VARIANCE_TOL:
-        warnings.warn(f"{where}: an expected latent variance was negative ({worst:.2e} x sigma_f^2, beyond "
-                      "round-off) and was set to 0", GPNumericalWarning, stacklevel=3)
+        warnings.warn(
+            f"{where}: an expected latent variance was negative ({worst:.2e} x sigma_f^2, beyond "
+            "round-off) and was set to 0",
+            GPNumericalWarning,
+            stacklevel=3,
+        )
 
 
-def propagate(model: ForwardModel, mean0, cov0, horizon: int, gain, offset=None,
-              method: str = "moment_matching") -> tuple[torch.Tensor, torch.Tensor]:
+def propagate(
+    model: ForwardModel,
+    mean0,
+    cov0,
+    horizon: int,
+    gain,
+    offset=None,
+    method: str = "moment_matching",
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Long-term Gaussian prediction of the state distribution with a linear controller.
 
     Parameters
@@ -213,15 +240,12 @@ def propagate(model: ForwardModel, mean0, cov0, horizon: int, gain, offset=None,
         raise ValueError(f"horizon: expected a positive integer, got {horizon!r}")
     T, n_x, n_u = int(horizon), model.state_dim, model.control_dim
     m, S = _check_gaussian(mean0, cov0, n_x, "mean0")
-    K = torch.as_tensor(check_array(gain, "gain", ndim=(2, 3)))
-    K = K.expand(T, *K.shape) if K.ndim == 2 else K
-    if tuple(K.shape) != (T, n_u, n_x):
-        raise ValueError(f"gain: expected shape ({n_u}, {n_x}) or ({T}, {n_u}, {n_x}), got {tuple(K.shape)}")
-    k = torch.zeros((T, n_u), dtype=DTYPE) if offset is None else torch.as_tensor(
-        check_array(offset, "offset", ndim=(1, 2)))
-    k = k.expand(T, n_u) if k.ndim == 1 else k
-    if tuple(k.shape) != (T, n_u):
-        raise ValueError(f"offset: expected shape ({n_u},) or ({T}, {n_u}), got {tuple(k.shape)}")
+    K = _per_step(gain, "gain", (n_u, n_x), T)
+    k = (
+        torch.zeros((T, n_u), dtype=DTYPE)
+        if offset is None
+        else _per_step(offset, "offset", (n_u,), T)
+    )
     predictor = model.predictor.to("cpu", DTYPE)
     means = torch.empty((T + 1, n_x), dtype=DTYPE)
     covs = torch.empty((T + 1, n_x, n_x), dtype=DTYPE)
@@ -242,6 +266,16 @@ def propagate(model: ForwardModel, mean0, cov0, horizon: int, gain, offset=None,
             S = 0.5 * (S + S.T)
             means[t + 1], covs[t + 1] = m, S
     return means, covs
+
+
+def _per_step(value, name: str, shape: tuple[int, ...], T: int) -> torch.Tensor:
+    """A constant (shape) or per-step (T, *shape) controller term as a (T, *shape) tensor."""
+    arr = check_array(value, name, ndim=(len(shape), len(shape) + 1))
+    if arr.shape == shape:
+        arr = np.broadcast_to(arr, (T, *shape))
+    elif arr.shape != (T, *shape):
+        raise ValueError(f"{name}: expected shape {shape} or {(T, *shape)}, got {arr.shape}")
+    return torch.as_tensor(np.ascontiguousarray(arr), dtype=DTYPE)
 
 
 def gaussian_kl(mean_p, cov_p, mean_q, cov_q) -> np.ndarray:
@@ -267,5 +301,8 @@ def gaussian_kl(mean_p, cov_p, mean_q, cov_q) -> np.ndarray:
     Lp = np.linalg.cholesky(Sp)
     A = np.linalg.solve(Lq, Lp)
     diff = np.linalg.solve(Lq, (mq - mp)[..., None])[..., 0]
-    logdet = 2.0 * (np.log(np.diagonal(Lq, axis1=-2, axis2=-1)).sum(-1) - np.log(np.diagonal(Lp, axis1=-2, axis2=-1)).sum(-1))
+    logdet = 2.0 * (
+        np.log(np.diagonal(Lq, axis1=-2, axis2=-1)).sum(-1)
+        - np.log(np.diagonal(Lp, axis1=-2, axis2=-1)).sum(-1)
+    )
     return 0.5 * ((A**2).sum((-2, -1)) + (diff**2).sum(-1) - d + logdet)

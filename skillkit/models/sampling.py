@@ -90,9 +90,19 @@ class SampledTrajectories:
         return self.states.cpu().numpy(), self.controls.cpu().numpy()
 
 
-def sample_trajectories(model: StepModel, x0, policy: Policy, horizon: int, n_trajectories: int = 1,
-                        rng=None, *, control_limit=None, device=None, dtype: torch.dtype = DTYPE,
-                        max_chunk_bytes: int = 2**28) -> SampledTrajectories:
+def sample_trajectories(
+    model: StepModel,
+    x0,
+    policy: Policy,
+    horizon: int,
+    n_trajectories: int = 1,
+    rng=None,
+    *,
+    control_limit=None,
+    device=None,
+    dtype: torch.dtype = DTYPE,
+    max_chunk_bytes: int = 2**25,
+) -> SampledTrajectories:
     """Sample L trajectories for each of B start conditions / policies in one vectorised call.
 
     Parameters
@@ -118,7 +128,8 @@ def sample_trajectories(model: StepModel, x0, policy: Policy, horizon: int, n_tr
     dtype : torch.dtype
         Floating point type (float64 by default).
     max_chunk_bytes : int
-        Bound on the kernel work arrays per chunk of trajectories (default 256 MiB).
+        Bound on the kernel work arrays per chunk of trajectories (default 32 MiB: small
+        arrays are recycled by the allocator and stay in cache; see the benchmark).
 
     Returns
     -------
@@ -137,7 +148,11 @@ def sample_trajectories(model: StepModel, x0, policy: Policy, horizon: int, n_tr
     if int(n_trajectories) != n_trajectories or n_trajectories < 1:
         raise ValueError(f"n_trajectories: expected a positive integer, got {n_trajectories!r}")
     T, L = int(horizon), int(n_trajectories)
-    x0 = torch.as_tensor(x0, dtype=dtype, device=device) if not isinstance(x0, torch.Tensor) else x0.to(device, dtype)
+    x0 = (
+        torch.as_tensor(x0, dtype=dtype, device=device)
+        if not isinstance(x0, torch.Tensor)
+        else x0.to(device, dtype)
+    )
     if x0.ndim == 2 and x0.shape[1] == n_x:
         x0 = x0[:, None, :].expand(x0.shape[0], L, n_x)
     elif not (x0.ndim == 3 and x0.shape[1:] == (L, n_x)):
@@ -190,20 +205,32 @@ def sample_trajectories(model: StepModel, x0, policy: Policy, horizon: int, n_tr
         raise ValueError("policy: returned non-finite controls")
     worst_f = float(worst)
     if worst_f < -VARIANCE_TOL:
-        warnings.warn(f"sample_trajectories: {int(n_clamp)} predictive variances were negative (worst "
-                      f"{worst_f:.2e} x sigma_f^2, beyond round-off) and set to 0", GPNumericalWarning,
-                      stacklevel=2)
-    return SampledTrajectories(states.reshape(B, L, T + 1, n_x), controls.reshape(B, L, T, n_u),
-                               int(n_sat), int(n_clamp), worst_f)
+        warnings.warn(
+            f"sample_trajectories: {int(n_clamp)} predictive variances were negative (worst "
+            f"{worst_f:.2e} x sigma_f^2, beyond round-off) and set to 0",
+            GPNumericalWarning,
+            stacklevel=2,
+        )
+    return SampledTrajectories(
+        states.reshape(B, L, T + 1, n_x),
+        controls.reshape(B, L, T, n_u),
+        int(n_sat),
+        int(n_clamp),
+        worst_f,
+    )
 
 
 def _check_control(u, n: int, n_u: int, dtype, device) -> None:
     if not isinstance(u, torch.Tensor):
-        raise ValueError(f"policy: expected a torch.Tensor of shape ({n}, {n_u}), got {type(u).__name__}")
+        raise ValueError(
+            f"policy: expected a torch.Tensor of shape ({n}, {n_u}), got {type(u).__name__}"
+        )
     if tuple(u.shape) != (n, n_u):
         raise ValueError(f"policy: expected controls of shape ({n}, {n_u}), got {tuple(u.shape)}")
     if u.dtype != dtype or u.device != torch.device(device):
-        raise ValueError(f"policy: expected controls as {dtype} on {device}, got {u.dtype} on {u.device}")
+        raise ValueError(
+            f"policy: expected controls as {dtype} on {device}, got {u.dtype} on {u.device}"
+        )
 
 
 def _chunk_rows(model, max_bytes: int, n: int) -> int:

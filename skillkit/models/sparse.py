@@ -14,7 +14,8 @@ With Λ = diag(K_nn − Q_nn) + σ_ε²I (FITC) or σ_ε²I (VFE) and Σ = (K_mm
 both predict
 
 .. math:: \\mu(x) = k_m(x)^\\top \\Sigma K_{mn} \\Lambda^{-1} y, \\qquad
-          \\sigma^2(x) = \\sigma_f^2 - k_m(x)^\\top (K_{mm}^{-1} - \\Sigma) k_m(x) + \\sigma_\\varepsilon^2,
+          \\sigma^2(x) = \\sigma_f^2 - k_m(x)^\\top (K_{mm}^{-1} - \\Sigma) k_m(x)
+                        + \\sigma_\\varepsilon^2,
 
 which is a :class:`~skillkit.models.gp.GPPredictor` with ``beta = Σ K_mn Λ⁻¹ y``,
 ``iK = K_mm⁻¹ − Σ`` (PILCO's sparse form) and the variance factor
@@ -92,13 +93,22 @@ class _SparseGP(_GPRegression):
 
     _method = "fitc"
 
-    def __init__(self, n_inducing: int = 100, *, inducing=None, optimize_inducing: bool = True,
-                 jitter: float = 1e-8, **kwargs):
+    def __init__(
+        self,
+        n_inducing: int = 100,
+        *,
+        inducing=None,
+        optimize_inducing: bool = True,
+        jitter: float = 1e-8,
+        **kwargs,
+    ):
         super().__init__(**kwargs)
         if int(n_inducing) != n_inducing or n_inducing < 1:
             raise ValueError(f"n_inducing: expected a positive integer, got {n_inducing!r}")
         self.n_inducing = int(n_inducing)
-        self.init_inducing = None if inducing is None else check_array(inducing, "inducing", ndim=(2, 3))
+        self.init_inducing = (
+            None if inducing is None else check_array(inducing, "inducing", ndim=(2, 3))
+        )
         self.optimize_inducing = bool(optimize_inducing)
         self.jitter = check_positive(jitter, "jitter")
 
@@ -109,7 +119,9 @@ class _SparseGP(_GPRegression):
         if self.init_inducing is not None:
             Z = self.init_inducing
             if Z.shape[-1] != d or (Z.ndim == 3 and Z.shape[0] != E):
-                raise ValueError(f"inducing: expected shape (M, {d}) or ({E}, M, {d}), got {Z.shape}")
+                raise ValueError(
+                    f"inducing: expected shape (M, {d}) or ({E}, M, {d}), got {Z.shape}"
+                )
             Z = np.broadcast_to(Z, (E, *Z.shape[-2:])).copy()
         elif self.n_inducing >= N:
             Z = np.broadcast_to(X, (E, N, d)).copy()
@@ -118,12 +130,15 @@ class _SparseGP(_GPRegression):
             idx = kmeans_pp(X / np.where(sd > 0, sd, 1.0), self.n_inducing, rng)
             Z = np.broadcast_to(X[idx], (E, self.n_inducing, d)).copy()
         self.diagnostics_init = {"n_inducing": Z.shape[1]}
-        self.inducing = torch.nn.Parameter(torch.as_tensor(Z, dtype=DTYPE), requires_grad=self.optimize_inducing)
+        self.inducing = torch.nn.Parameter(
+            torch.as_tensor(Z, dtype=DTYPE), requires_grad=self.optimize_inducing
+        )
         kernel = SquaredExponential(d, batch_shape=torch.Size([E]))
         kernel.lengthscale = torch.as_tensor(self._init["lengthscale"], dtype=DTYPE)[:, None, :]
         kernel.outputscale = torch.as_tensor(self._init["outputscale"], dtype=DTYPE)
         likelihood = gpytorch.likelihoods.GaussianLikelihood(
-            batch_shape=torch.Size([E]), noise_constraint=GreaterThan(self.noise_floor)).double()
+            batch_shape=torch.Size([E]), noise_constraint=GreaterThan(self.noise_floor)
+        ).double()
         likelihood.noise = torch.as_tensor(self._init["noise"], dtype=DTYPE)[:, None]
         self.kernel, self.likelihood = kernel, likelihood
 
@@ -163,8 +178,13 @@ class _SparseGP(_GPRegression):
         LA = factor(A, "I + V inv(Lambda) V^T")
         ys = self.Y / sq
         c = torch.linalg.solve_triangular(LA, Vs @ ys.unsqueeze(-1), upper=False).squeeze(-1)
-        value = (0.5 * ((ys * ys).sum() - (c * c).sum()) + 0.5 * torch.log(lam).sum()
-                 + torch.log(LA.diagonal(dim1=-2, dim2=-1)).sum() + 0.5 * N * E * math.log(2 * math.pi) + trace)
+        value = (
+            0.5 * ((ys * ys).sum() - (c * c).sum())
+            + 0.5 * torch.log(lam).sum()
+            + torch.log(LA.diagonal(dim1=-2, dim2=-1)).sum()
+            + 0.5 * N * E * math.log(2 * math.pi)
+            + trace
+        )
         return value, Lm, LA, c
 
     def _loss(self) -> torch.Tensor:
@@ -181,8 +201,11 @@ class _SparseGP(_GPRegression):
         value, Lm, LA, c = self._terms(factor)
         M = Lm.shape[-1]
         eye = torch.eye(M, dtype=DTYPE)
-        beta = torch.linalg.solve_triangular(Lm.transpose(-1, -2), torch.linalg.solve_triangular(
-            LA.transpose(-1, -2), c.unsqueeze(-1), upper=True), upper=True).squeeze(-1)
+        beta = torch.linalg.solve_triangular(
+            Lm.transpose(-1, -2),
+            torch.linalg.solve_triangular(LA.transpose(-1, -2), c.unsqueeze(-1), upper=True),
+            upper=True,
+        ).squeeze(-1)
         # iK = K_mm^-1 - Σ = Lm^-T (I - A^-1) Lm^-1 and its factor R = diag(√(1 - 1/a)) Uᵀ Lm^-1
         # from A = U diag(a) Uᵀ (a ≥ 1; 1 - 1/a is clamped at 0 against round-off).
         Lm_inv = torch.linalg.solve_triangular(Lm, eye.expand_as(Lm), upper=False)
@@ -192,19 +215,32 @@ class _SparseGP(_GPRegression):
         iK = Lm_inv.transpose(-1, -2) @ (eye - torch.cholesky_inverse(LA)) @ Lm_inv
         iK = 0.5 * (iK + iK.transpose(-1, -2))
         y_mean, y_scale = self._standardisation_tensors()
-        pred = GPPredictor(self.inducing.detach().clone(), self.kernel.lengthscale.detach()[:, 0, :],
-                           self.kernel.outputscale.detach(), self.likelihood.noise.detach()[:, 0], beta, iK, R,
-                           y_mean, y_scale)
+        pred = GPPredictor(
+            self.inducing.detach().clone(),
+            self.kernel.lengthscale.detach()[:, 0, :],
+            self.kernel.outputscale.detach(),
+            self.likelihood.noise.detach()[:, 0],
+            beta,
+            iK,
+            R,
+            y_mean,
+            y_scale,
+        )
         N = self.Y.shape[1]
         objective = -float(value) - N * float(torch.log(y_scale).sum())
-        return pred, {**self.diagnostics_init, "jitter": max(jit.values()),
-                      "log_marginal_likelihood": objective}
+        return pred, {
+            **self.diagnostics_init,
+            "jitter": max(jit.values()),
+            "log_marginal_likelihood": objective,
+        }
 
 
 def _plain_cholesky(A: torch.Tensor, what: str) -> torch.Tensor:
     L, info = torch.linalg.cholesky_ex(A)
     if torch.any(info):
-        raise GPNumericalError(f"{what}: not numerically positive definite at these hyper-parameters")
+        raise GPNumericalError(
+            f"{what}: not numerically positive definite at these hyper-parameters"
+        )
     return L
 
 

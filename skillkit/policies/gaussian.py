@@ -14,6 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy import linalg
 
 from skillkit._validation import as_generator, check_array, check_positive
@@ -25,6 +26,7 @@ from skillkit.policies.features import (
 )
 
 _LOG_2PI = float(np.log(2.0 * np.pi))
+RNG = np.random.Generator | np.random.SeedSequence | int | None
 
 
 @dataclass(frozen=True)
@@ -163,7 +165,7 @@ class LinearGaussianPolicy:
         return np.column_stack([self._mean, self._gain])
 
     # ----------------------------------------------------------------- evaluation
-    def phi(self, contexts, name: str = "contexts") -> tuple[np.ndarray, bool]:
+    def phi(self, contexts: ArrayLike | None, name: str = "contexts") -> tuple[np.ndarray, bool]:
         """Features of validated contexts: (φ, shape (n, F); whether a single context was given)."""
         if contexts is None:
             if self._context_dim:
@@ -182,7 +184,7 @@ class LinearGaussianPolicy:
         phi = context_features(s[None, :] if single else s, self._features)
         return phi, single
 
-    def mean_of(self, contexts=None) -> np.ndarray:
+    def mean_of(self, contexts: ArrayLike | None = None) -> np.ndarray:
         """Policy mean a + A φ(s) (Eq. 3.13).
 
         Parameters
@@ -197,7 +199,7 @@ class LinearGaussianPolicy:
         mu = self._mean + phi @ self._gain.T
         return mu[0] if single else mu
 
-    def sample(self, contexts=None, rng=None) -> np.ndarray:
+    def sample(self, contexts: ArrayLike | None = None, rng: RNG = None) -> np.ndarray:
         """Draw ω ~ N(a + A φ(s), Σ) for each context.
 
         Parameters
@@ -215,7 +217,7 @@ class LinearGaussianPolicy:
         omega = self._mean + phi @ self._gain.T + z @ self._chol.T
         return omega[0] if single else omega
 
-    def log_prob(self, omegas, contexts=None) -> np.ndarray | float:
+    def log_prob(self, omegas: ArrayLike, contexts: ArrayLike | None = None) -> np.ndarray | float:
         """Log-density log N(ω | a + A φ(s), Σ).
 
         Parameters
@@ -236,7 +238,7 @@ class LinearGaussianPolicy:
         single = w.ndim == 1
         w2 = w[None, :] if single else w
         if contexts is None and self._context_dim == 0:
-            contexts = np.zeros((w2.shape[0], 0))
+            contexts = np.zeros(0) if single else np.zeros((w2.shape[0], 0))
         phi, single_ctx = self.phi(contexts)
         if single_ctx != single or phi.shape[0] != w2.shape[0]:
             raise ValueError(
@@ -255,7 +257,7 @@ class LinearGaussianPolicy:
         """Differential entropy ½ log det(2πe Σ) of π(ω|s) (the same for every context)."""
         return 0.5 * (self.dim * (_LOG_2PI + 1.0) + self.log_det_cov())
 
-    def kl(self, other: LinearGaussianPolicy, contexts=None) -> float:
+    def kl(self, other: LinearGaussianPolicy, contexts: ArrayLike | None = None) -> float:
         r"""KL(self ‖ other) averaged over contexts, in closed form.
 
         .. math:: \frac1n \sum_i \tfrac12\big[\mathrm{tr}(\Sigma_2^{-1}\Sigma_1)
@@ -325,9 +327,10 @@ class LinearGaussianPolicy:
 
         1. **Mean (3.11) with a relative ridge.** Centring with the weighted means φ̄, ω̄,
            A = Xᵀ(C + Λ)⁻¹ and a = ω̄ − A φ̄, where C = Σ p_i (φ_i − φ̄)(φ_i − φ̄)ᵀ,
-           X = Σ p_i (φ_i − φ̄)(ω_i − ω̄)ᵀ and Λ = ``ridge`` · diag(C) (a feature constant over
-           the weighted samples gets ``ridge`` · tr(C)/F instead). With ``ridge=0`` this is
-           exactly (SᵀPS)⁻¹SᵀPB of Eq. (3.11); the offset is never penalised.
+           X = Σ p_i (φ_i − φ̄)(ω_i − ω̄)ᵀ and Λ = ``ridge`` · diag(C). With ``ridge=0`` this is
+           exactly (SᵀPS)⁻¹SᵀPB of Eq. (3.11); the offset is never penalised. A feature whose
+           weighted spread is at round-off level (≤ 1e-10 of its magnitude) is treated as
+           constant: the data say nothing about its gain column, which is set to 0.
         2. **Covariance (3.12)**: Σ_ML = Σ p_i r_i r_iᵀ with residuals r_i = ω_i − a − A φ_i.
         3. **Shrinkage towards the previous Σ**: Σ = (1 − κ) Σ_ML + κ Σ_old, κ = ``cov_shrinkage``.
         4. **Floor relative to the previous Σ**: eigenvalues of Σ_old^{-1/2} Σ Σ_old^{-1/2} below
@@ -402,6 +405,10 @@ class LinearGaussianPolicy:
         n_feat = phi.shape[1]
         if n_feat:
             pc = phi - phibar
+            # A feature whose weighted spread is at round-off level carries no information
+            # about its gain column: treat it as exactly constant (its gain becomes 0).
+            spread = np.sqrt(np.maximum(p @ pc**2, 0.0))
+            pc[:, spread <= 1e-10 * np.max(np.abs(phi), axis=0)] = 0.0
             C = (pc * p[:, None]).T @ pc
             X = (pc * p[:, None]).T @ (B - wbar)
             tr = float(np.trace(C))
@@ -409,10 +416,10 @@ class LinearGaussianPolicy:
                 raise ValueError(
                     "contexts: the weighted contexts have no spread, so the gain A cannot be fitted"
                 )
-            diag = np.diag(C).copy()
-            diag[diag <= 0] = tr / n_feat
+            lam = ridge * np.diag(C)
+            lam[np.diag(C) <= 0] = tr / n_feat  # constant features: X is 0 there, so A is 0
             try:
-                A = linalg.solve(C + np.diag(ridge * diag), X, assume_a="pos").T
+                A = linalg.solve(C + np.diag(lam), X, assume_a="pos").T
             except linalg.LinAlgError:
                 raise ValueError(
                     "contexts: the weighted feature covariance is singular; use ridge > 0"

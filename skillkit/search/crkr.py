@@ -30,13 +30,27 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy import linalg
 
 from skillkit._validation import as_generator, check_array, check_positive
-from skillkit.models.kernels import gram
-from skillkit.policies.gaussian import LinearGaussianPolicy, effective_sample_size
+from skillkit.policies.gaussian import RNG, LinearGaussianPolicy, effective_sample_size
 from skillkit.search.reps import SampleBuffer, check_batch, kl_from_uniform
 from skillkit.search.rwr import rwr_beta, rwr_weights
+
+
+def gram(kernel, X, Z=None) -> np.ndarray:
+    """:func:`skillkit.models.kernels.gram`, imported on first use so that importing
+    :mod:`skillkit.search` (REPS, RWR) does not load torch/gpytorch."""
+    from skillkit.models.kernels import gram as kernel_gram
+
+    return kernel_gram(kernel, X, Z)
+
+
+def kernel_diag(kernel, X: np.ndarray, chunk: int = 256) -> np.ndarray:
+    """k(x_i, x_i) for the rows of X, shape (n,), in chunks (never an n × n matrix)."""
+    parts = [np.diag(gram(kernel, X[i : i + chunk])) for i in range(0, X.shape[0], chunk)]
+    return np.concatenate(parts) if parts else np.zeros(0)
 
 
 class CrKRPolicy:
@@ -115,22 +129,22 @@ class CrKRPolicy:
             )
         return (s[None, :], True) if s.ndim == 1 else (s, False)
 
-    def mean_of(self, contexts) -> np.ndarray:
+    def mean_of(self, contexts: ArrayLike) -> np.ndarray:
         """μ(s*) of Eq. (2.19): shape (n, d) for contexts (n, context_dim), (d,) for one."""
         s, single = self._query(contexts)
         b = self._u[:, None] * gram(self.kernel, self._s, s)  # (N, n): W^{1/2} k(s*)
         mu = self.prior.mean_of(s) + b.T @ self._alpha
         return mu[0] if single else mu
 
-    def variance_of(self, contexts) -> np.ndarray:
+    def variance_of(self, contexts: ArrayLike) -> np.ndarray | float:
         """σ²(s*) of Eq. (2.20): shape (n,) for contexts (n, context_dim), float for one."""
         s, single = self._query(contexts)
         b = self._u[:, None] * gram(self.kernel, self._s, s)
-        k_ss = np.diag(gram(self.kernel, s)) if s.shape[0] else np.zeros(0)
+        k_ss = kernel_diag(self.kernel, s)
         var = k_ss + self.lam - np.sum(b * linalg.cho_solve(self._chol, b), axis=0)
         return float(var[0]) if single else var
 
-    def sample(self, contexts, rng=None) -> np.ndarray:
+    def sample(self, contexts: ArrayLike, rng: RNG = None) -> np.ndarray:
         """ω ~ N(μ(s), σ²(s) D) per context: shape (n, d), or (d,) for one context."""
         rng = as_generator(rng)
         s, single = self._query(contexts)
@@ -212,7 +226,7 @@ class CrKR:
         """The current policy (the prior before the first update)."""
         return self._policy
 
-    def update(self, contexts, omegas, rewards) -> CrKRDiagnostics:
+    def update(self, contexts: ArrayLike, omegas: ArrayLike, rewards: ArrayLike) -> CrKRDiagnostics:
         """Add a batch and rebuild the kernel policy on the kept samples.
 
         Parameters

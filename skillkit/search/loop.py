@@ -58,7 +58,9 @@ def learn(
     progress=None,
     extra_contexts: int = 0,
     eval_contexts=None,
-    callback: Callable[[int, SearchAlgorithm], None] | None = None,
+    callback: Callable[[int, SearchAlgorithm], Any] | None = None,
+    checkpoint=None,
+    checkpoint_key: str = "learn",
 ) -> dict:
     """Run model-free policy search on a task (Table 3.1).
 
@@ -85,7 +87,17 @@ def learn(
         drawn from the task at the start).
     callback : callable, optional
         ``callback(k, algorithm)`` after the initial evaluation (k = 0) and after each update
-        k = 1..K (e.g. to record parameter errors).
+        k = 1..K (e.g. to record parameter errors). Its return values are collected in the
+        result's ``callback`` list (K + 1 entries), which survives checkpoint and resume —
+        record through return values, not through side effects, in resumable experiments.
+    checkpoint : TrialContext-like, optional
+        An object with ``save(key, state, rng)`` and ``resume(key, rng)`` (the ``progress``
+        argument :func:`skillkit.experiments.runner.reproduce` gives ``run_trial``). The loop's
+        state — algorithm, curves, diagnostics, callback values and the generator — is saved
+        after every update, and a call with the same key resumes where the last one stopped,
+        giving the same numbers as an uninterrupted run.
+    checkpoint_key : str
+        Key of this loop's state (distinct per ``learn`` call within a trial).
 
     Returns
     -------
@@ -94,7 +106,8 @@ def learn(
         ``mean_reward`` (K + 1,) average reward of the policy mean on ``eval_contexts``;
         ``explore_rollouts`` (K,) and ``explore_reward`` (K,) for the exploratory rollouts;
         ``n_failed`` (K,) failed rollouts per batch; ``diagnostics`` (list of K update
-        diagnostics); ``eval_contexts`` (m, context_dim); ``policy`` (the final policy).
+        diagnostics); ``callback`` (list of K + 1 callback return values);
+        ``eval_contexts`` (m, context_dim); ``policy`` (the final policy).
     """
     if not isinstance(task, Task):
         raise ValueError(f"task: expected a Task, got {type(task).__name__}")
@@ -140,11 +153,22 @@ def learn(
 
     if progress is not None:
         progress.reset(total=n_updates)
-    mean_reward = [evaluate()]
-    if callback is not None:
-        callback(0, algorithm)
-    explore_reward, n_failed, diagnostics = [], [], []
-    for k in range(1, n_updates + 1):
+    saved = None if checkpoint is None else checkpoint.resume(checkpoint_key, rng)
+    if saved is not None:
+        # Resume: restore the algorithm's state in place (the caller holds this object) and the
+        # records; the generator was restored by ``resume``.
+        vars(algorithm).update(vars(saved["algorithm"]))
+        start, eval_s, eval_seed = saved["k"] + 1, saved["eval_contexts"], saved["eval_seed"]
+        mean_reward, explore_reward = saved["mean_reward"], saved["explore_reward"]
+        n_failed, diagnostics, cb_values = saved["n_failed"], saved["diagnostics"], saved["callback"]
+        if progress is not None:
+            progress.update(saved["k"])
+    else:
+        start = 1
+        mean_reward = [evaluate()]
+        cb_values = [None if callback is None else callback(0, algorithm)]
+        explore_reward, n_failed, diagnostics = [], [], []
+    for k in range(start, n_updates + 1):
         contexts = task.sample_context(rng, n=n_roll)
         omegas = np.atleast_2d(algorithm.policy.sample(contexts, rng))
         trajs = [task.rollout(w, s, rng) for w, s in zip(omegas, contexts, strict=True)]
@@ -161,8 +185,12 @@ def learn(
             rewards = np.concatenate([rewards, extra_r.reshape(-1)])
         diagnostics.append(algorithm.update(contexts, omegas, rewards))
         mean_reward.append(evaluate())
-        if callback is not None:
-            callback(k, algorithm)
+        cb_values.append(None if callback is None else callback(k, algorithm))
+        if checkpoint is not None:
+            checkpoint.save(checkpoint_key, {
+                "k": k, "algorithm": algorithm, "eval_contexts": eval_s, "eval_seed": eval_seed,
+                "mean_reward": mean_reward, "explore_reward": explore_reward, "n_failed": n_failed,
+                "diagnostics": diagnostics, "callback": cb_values}, rng)
         if progress is not None:
             progress.update()
     return {
@@ -172,6 +200,7 @@ def learn(
         "explore_reward": np.array(explore_reward),
         "n_failed": np.array(n_failed, dtype=int),
         "diagnostics": diagnostics,
+        "callback": cb_values,
         "eval_contexts": eval_s,
         "policy": algorithm.policy,
     }

@@ -32,6 +32,7 @@ from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy import optimize
 
 from skillkit._validation import check_array, check_positive
@@ -61,7 +62,9 @@ def _dual(params: np.ndarray, rewards: np.ndarray, features: np.ndarray, epsilon
     return value, grad, p
 
 
-def reps_dual(params, rewards, features, epsilon: float) -> tuple[float, np.ndarray]:
+def reps_dual(
+    params: ArrayLike, rewards: ArrayLike, features: ArrayLike, epsilon: float
+) -> tuple[float, np.ndarray]:
     r"""Sample-based REPS dual (Eq. 3.9 / A.10) and its gradient (A.11, A.12).
 
     .. math::
@@ -107,7 +110,7 @@ class REPSWeights:
     weights : ndarray, shape (N,)
         p_i of Eq. (3.10), summing to one.
     eta : float
-        Temperature η (in reward units).
+        Temperature η (in reward units); ``inf`` when all rewards are equal (uniform weights).
     gamma : ndarray, shape (F,)
         Baseline coefficients γ (in reward units per feature unit).
     baseline : ndarray, shape (N,)
@@ -145,7 +148,9 @@ class REPSWeights:
     n_iterations: int
 
 
-def reps_weights(rewards, features=None, epsilon: float = 1.0) -> REPSWeights:
+def reps_weights(
+    rewards: ArrayLike, features: ArrayLike | None = None, epsilon: float = 1.0
+) -> REPSWeights:
     r"""Solve the REPS dual (3.9) and return the sample weights (3.10) with diagnostics.
 
     Minimises g(η, γ) of :func:`reps_dual` with scipy's L-BFGS-B over (log η, γ) after
@@ -171,21 +176,11 @@ def reps_weights(rewards, features=None, epsilon: float = 1.0) -> REPSWeights:
     phihat = phi.mean(axis=0)
     r_max, r_scale = float(r.max()), float(r.std())
     if not r_scale > 0:
-        w = np.full(n, 1.0 / n)
         return REPSWeights(
-            w,
-            np.inf,
-            np.zeros(n_feat),
-            np.zeros(n),
-            r_max,
-            0.0,
-            float(n),
-            0.0,
-            False,
-            True,
-            "all rewards are equal: uniform weights",
-            0,
-        )
+            weights=np.full(n, 1.0 / n), eta=np.inf, gamma=np.zeros(n_feat), baseline=np.zeros(n),
+            dual=r_max, kl=0.0, ess=float(n), feature_error=0.0, kl_bound_active=False,
+            success=True, message="all rewards are equal: uniform weights", n_iterations=0,
+        )  # fmt: skip
 
     # Normalise: unit-spread rewards with maximum 0; centred, whitened features.
     r_n = (r - r_max) / r_scale
@@ -264,7 +259,9 @@ def _check_samples(rewards, features) -> tuple[np.ndarray, np.ndarray]:
 
 
 # --------------------------------------------------------------------------- samples
-def check_batch(contexts, omegas, rewards, dim: int, context_dim: int):
+def check_batch(
+    contexts: ArrayLike | None, omegas: ArrayLike, rewards: ArrayLike, dim: int, context_dim: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Validate one batch of samples for a policy of dimension ``dim`` and ``context_dim``.
 
     Parameters
@@ -411,7 +408,9 @@ class ContextualREPS:
         """The current upper-level policy."""
         return self._policy
 
-    def update(self, contexts, omegas, rewards) -> REPSDiagnostics:
+    def update(
+        self, contexts: ArrayLike | None, omegas: ArrayLike, rewards: ArrayLike
+    ) -> REPSDiagnostics:
         """Add a batch, solve the dual on the last L batches and refit the policy.
 
         Parameters

@@ -18,13 +18,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from skillkit._validation import check_array, check_positive
 from skillkit.policies.gaussian import FitInfo, LinearGaussianPolicy, effective_sample_size
 from skillkit.search.reps import SampleBuffer, check_batch, kl_from_uniform
 
 
-def rwr_beta(rewards, beta_scale: float = 1.0) -> float:
+def rwr_beta(rewards: ArrayLike, beta_scale: float = 1.0) -> float:
     """β = ``beta_scale`` / std(R) (0 when all rewards are equal, giving uniform weights).
 
     Parameters
@@ -39,7 +40,7 @@ def rwr_beta(rewards, beta_scale: float = 1.0) -> float:
     return kappa / sd if sd > 0 else 0.0
 
 
-def rwr_weights(rewards, beta: float) -> np.ndarray:
+def rwr_weights(rewards: ArrayLike, beta: float) -> np.ndarray:
     """Normalised weights w_i ∝ exp(β R_i) (Eq. 2.18), computed as exp(β (R_i − max R)).
 
     Parameters
@@ -137,7 +138,9 @@ class RWR:
         """The current upper-level policy."""
         return self._policy
 
-    def update(self, contexts, omegas, rewards) -> RWRDiagnostics:
+    def update(
+        self, contexts: ArrayLike | None, omegas: ArrayLike, rewards: ArrayLike
+    ) -> RWRDiagnostics:
         """Add a batch, weight the last L batches by exp(βR) and refit the policy.
 
         Parameters

@@ -37,9 +37,10 @@ moving-goal final velocity) whose shape weights are fitted to the shipped demons
 lasts ``duration / τ`` (0.5 s at τ = 1), then a follow-through extends the reference
 with exponentially decaying velocity (time constant :data:`FOLLOW_THROUGH_TAU`, for
 :data:`FOLLOW_THROUGH` seconds), after which the racket is lifted off the table. A PD
-tracker with gravity/Coriolis compensation (:func:`skillkit.policies.controllers.track_reference`,
-torque saturation at the LWR limits) follows the reference at 250 Hz (MuJoCo steps at 500 Hz); the thesis used
-inverse-dynamics control, so our tracking lag is larger and part of what is learned.
+tracker with gravity/Coriolis compensation
+(:func:`skillkit.policies.controllers.track_reference`, torque saturation at the LWR limits)
+follows the reference at 250 Hz (MuJoCo steps at 500 Hz); the thesis used inverse-dynamics
+control, so our tracking lag is larger and part of what is learned.
 τ outside :data:`TAU_RANGE` is reported as a failed rollout (the stroke would be
 unexecutably slow or fast), not clipped.
 
@@ -47,7 +48,8 @@ Pucks (pymunk 2-D, :class:`PuckTable`)
 -------------------------------------
 Top-down, so pymunk has no gravity; sliding friction is Coulomb friction applied in each
 puck's velocity update (:func:`coulomb_friction`): the speed drops by μ g Δt per step until
-the puck stops, so a puck launched at v₀ stops after v₀²/(2 μ g) (μ = 0.05 by default).
+the puck stops, so a puck launched at v₀ stops after v₀²/(2 μ g) (μ = 0.05 by default; plus
+v₀ Δt / 2 from pymunk's semi-implicit stepping, see :class:`TablePhysics`).
 Puck–puck collisions have restitution 0.9 and no tangential friction, racket–puck
 collisions restitution 0.6 and friction 0.2 (set per contact in a pre-solve callback).
 The racket blade is a kinematic pymunk box (its 20 cm × 1.6 cm footprint) whose pose on the
@@ -101,15 +103,20 @@ from skillkit.trajectory import Trajectory
 
 __all__ = [
     "Hockey",
+    "Observation",
     "PuckTable",
     "TablePhysics",
     "arm_forward_kinematics",
+    "arm_model",
+    "blade_pose",
     "build_arm_mjcf",
     "butterworth_smooth",
     "coulomb_friction",
+    "demonstration_path",
     "hockey_reward",
     "load_demonstration",
     "make_demonstration",
+    "save_demonstration",
 ]
 
 # ----------------------------------------------------------------------------- arm constants

@@ -28,7 +28,8 @@ rather than through soft-contact penetration. Free flight follows
 
 (ρ = 1.2 kg/m³, C_d = 0.5, A = π r², m = 2.7 g; :class:`BallPhysics`), integrated with the
 explicit midpoint rule at 2 ms (two steps per control period; exact for the drag-free
-parabola, O(h²) with drag: < 2e-5 m over a flight against an accurate ODE solution). Events are located inside a step and handled exactly:
+parabola, O(h²) with drag: < 2e-5 m over a flight against an accurate ODE solution).
+Events are located inside a step and handled exactly:
 
 * table bounce: v_z ← −e_t v_z with e_t = 0.9 (ITTF: a drop from 30.5 cm rebounds
   23–25 cm, e ∈ [0.87, 0.91]); the horizontal velocity is kept (no spin, no friction);
@@ -36,7 +37,7 @@ parabola, O(h²) with drag: < 2e-5 m over a flight against an accurate ODE solut
   with v_rel = v_b − v_p (v_p the racket's velocity at the contact point),
   v_b ← v_b − (1 + e_r)(v_rel · n) n, e_r = 0.8 (frictionless, no spin; the racket is so
   much heavier than the ball that its motion is unaffected: one-way coupling). Rim/edge
-  contacts are ignored;
+  contacts are ignored, and the ball touches no other part of the robot;
 * net: the ball centre crossing x = 0 less than one radius above the net top, within the
   net's width, ends the rally there.
 
@@ -257,7 +258,8 @@ class BallEvent:
     kind : {"table", "racket", "net", "plane"}
         ``table``: a bounce on the table that does not end the rally (the incoming bounce);
         ``racket``: a racket impact; ``net``: the ball touches the net (terminal);
-        ``plane``: the armed ball touches the table plane, on or off the table (terminal).
+        ``plane``: a terminal touch of the table plane — by the armed ball, on or off the
+        table, or by a ball that has not bounced yet, off the table.
     time : float
         Event time (s).
     position : ndarray, shape (3,)
@@ -331,8 +333,7 @@ def _first_crossing(d0: float, rate: float, accel: float, h: float) -> float:
     disc = rate * rate - 2.0 * accel * d0
     if disc < 0:
         return h
-    sq = np.sqrt(disc)
-    q = -0.5 * (rate + np.copysign(sq, rate))
+    q = -0.5 * (rate + math.copysign(math.sqrt(disc), rate))
     roots = [r for r in (q / (0.5 * accel), d0 / q if q != 0 else np.inf) if r > 0]
     return min(min(roots), h) if roots else h
 
@@ -379,6 +380,10 @@ def simulate_ball(position, velocity, duration: float, dt: float = 0.002, *,
     BallFlight
     """
     physics = BallPhysics() if physics is None else physics
+    if not isinstance(physics, BallPhysics):
+        raise ValueError(f"physics: expected a BallPhysics, got {type(physics).__name__}")
+    if racket is not None and not isinstance(racket, RacketPath):
+        raise ValueError(f"racket: expected a RacketPath or None, got {type(racket).__name__}")
     p = tuple(check_array(position, "position", shape=(3,)).tolist())
     v = tuple(check_array(velocity, "velocity", shape=(3,)).tolist())
     duration = check_positive(duration, "duration")
@@ -869,6 +874,8 @@ class TableTennis(Task):
         self.control_dt = check_positive(control_dt, "control_dt")
         self.physics_dt = check_positive(physics_dt, "physics_dt")
         self.ball = BallPhysics() if ball is None else ball
+        if not isinstance(self.ball, BallPhysics):
+            raise ValueError(f"ball: expected a BallPhysics, got {type(ball).__name__}")
         self.name = name
         demo = load_demonstration() if demonstration is None else demonstration
         self.dmp = DMP(len(JOINT_NAMES), n_basis=10, alpha_z=4.0, dt=self.control_dt).fit(
@@ -955,10 +962,13 @@ class TableTennis(Task):
 
     def _reward(self, trajectory: Trajectory, context: np.ndarray) -> float:
         """R = −c₁ min_t ‖τ_b − τ_r‖ − c₂ ‖b − p‖ (Eq. C.1); the minimum is over the incoming
-        ball (times ≤ ``incoming_end``), between samples along straight segments."""
+        ball — the samples up to ``incoming_end`` and the first one after it, so the segment
+        across a racket contact counts — between samples along straight segments."""
         c1, c2 = self.reward_weights
         t = trajectory.times
-        keep = max(int(np.searchsorted(t, trajectory.info["incoming_end"], side="right")), 1)
+        keep = min(
+            int(np.searchsorted(t, trajectory.info["incoming_end"], side="right")) + 1, t.shape[0]
+        )
         rel = trajectory.signals["ball"][:keep] - trajectory.signals["racket"][:keep]
         d_min = min_segment_distance(rel)
         p = np.asarray(trajectory.info["landing_point"], dtype=np.float64)

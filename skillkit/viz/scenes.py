@@ -472,8 +472,9 @@ class MujocoScene:
             handle.position = self.data.xpos[b].copy()
             handle.wxyz = self.data.xquat[b].copy()
 
-    def site_positions(self, qpos, site: int) -> np.ndarray:
-        """World positions of site ``site`` for joint positions of shape (N, nq) → (N, 3)."""
+    def positions(self, qpos, site: int | None = None) -> np.ndarray:
+        """World position of a site (or, if ``site`` is None, of the last body's origin) for
+        each row of joint positions, shape (N, nq) → (N, 3); the display is not moved."""
         q = check_array(qpos, "qpos", ndim=2)
         if q.shape[1] != self.model.nq:
             raise ValueError(f"qpos: expected shape (N, {self.model.nq}), got {q.shape}")
@@ -482,7 +483,7 @@ class MujocoScene:
         for i, row in enumerate(q):
             data.qpos[:] = row
             mujoco.mj_kinematics(self.model, data)
-            out[i] = data.site_xpos[site]
+            out[i] = data.xpos[self.model.nbody - 1] if site is None else data.site_xpos[site]
         return out
 
     @property
@@ -747,8 +748,8 @@ class PendulumScene(TaskScene):
 
     LENGTH = 1.0
     PIVOT = (0.0, 0.0, 1.2)
-    camera_position = (0.0, -4.0, 1.2)
-    camera_look_at = (0.0, 0.0, 1.0)
+    camera_position = (0.0, -3.2, 1.2)
+    camera_look_at = (0.0, 0.0, 0.9)
     state_dim = 2
 
     def __init__(self, scene, task) -> None:
@@ -866,21 +867,10 @@ class MujocoTaskScene(TaskScene):
         if x.shape[-1] != m.nq + m.nv:
             raise ValueError(f"states: expected shape (..., {m.nq + m.nv}) = [q, q̇], got {x.shape}")
         q = x[..., : m.nq].reshape(-1, m.nq)
-        if self._site is not None:
-            p = self.robot.site_positions(q, self._site)
-        else:
-            data = mujoco.MjData(m)
-            p = np.empty((q.shape[0], 3))
-            for i, row in enumerate(q):
-                data.qpos[:] = row
-                mujoco.mj_kinematics(m, data)
-                p[i] = data.xpos[m.nbody - 1]
-        return p.reshape(*x.shape[:-1], 3)
+        return self.robot.positions(q, self._site).reshape(*x.shape[:-1], 3)
 
     def trails(self, trajectory: Trajectory) -> dict[str, np.ndarray]:
-        m = self.robot.model
-        q = self.qpos(trajectory)
-        return {"effector": self.points(np.hstack([q, np.zeros((q.shape[0], m.nv))]))}
+        return {"effector": self.robot.positions(self.qpos(trajectory), self._site)}
 
 
 def _plane_to_3d(xy: np.ndarray) -> np.ndarray:
@@ -893,8 +883,8 @@ class PlanarScene(MujocoTaskScene):
     plane on its ground; the 3-D point of a state is the hand."""
 
     effector_site = "hand"
-    camera_position = (1.0, -6.0, 1.6)
-    camera_look_at = (0.3, 0.0, 1.1)
+    camera_position = (2.6, -4.2, 1.8)
+    camera_look_at = (0.2, 0.0, 1.0)
 
     @classmethod
     def accepts(cls, task) -> bool:
@@ -910,8 +900,8 @@ class ThrowingScene(PlanarScene):
     ``/target`` (the context [x, y]); trails ``effector`` (hand) and ``ball``.
     """
 
-    camera_position = (7.0, -15.0, 3.0)
-    camera_look_at = (7.0, 0.0, 1.2)
+    camera_position = (5.5, -8.0, 2.6)
+    camera_look_at = (5.5, 0.0, 1.6)
 
     def __init__(self, scene, task) -> None:
         super().__init__(scene, task)
@@ -949,7 +939,7 @@ class HockeyScene(MujocoTaskScene):
 
     effector_site = "blade"
     world_paths = {"table": "/table"}
-    camera_position = (0.2, -2.6, 2.4)
+    camera_position = (-0.6, -1.8, 1.8)
     camera_look_at = (1.3, 0.4, 0.0)
 
     def __init__(self, scene, task) -> None:
@@ -1014,8 +1004,8 @@ class TableTennisScene(MujocoTaskScene):
     """
 
     effector_site = "racket"
-    camera_position = (-4.0, -3.2, 2.6)
-    camera_look_at = (-0.6, 0.0, 0.8)
+    camera_position = (-3.0, -2.2, 1.9)
+    camera_look_at = (-0.6, 0.1, 0.85)
 
     def __init__(self, scene, task) -> None:
         super().__init__(scene, task)

@@ -67,7 +67,17 @@ import numpy as np
 from skillkit._validation import as_generator, check_array
 from skillkit.policies.gaussian import LinearGaussianPolicy
 from skillkit.trajectory import Trajectory
-from skillkit.viz.scenes import COLORS, TaskScene, add_trail, task_scene
+from skillkit.viz.scenes import (
+    COLORS,
+    TaskScene,
+    _check_path,
+    _node_name,
+    _opacity,
+    _rgb,
+    add_trail,
+    interpolate,
+    task_scene,
+)
 
 __all__ = [
     "DEFAULT_HOST",
@@ -95,7 +105,19 @@ MAX_GHOST_UPDATES = 12
 
 
 class PortInUseError(OSError):
-    """The viewer's port is taken by another process."""
+    """The viewer's port is taken by another process (``errno`` EADDRINUSE).
+
+    Attributes
+    ----------
+    host : str
+    port : int
+    """
+
+    def __init__(self, host: str, port: int, detail: str = "") -> None:
+        super().__init__(
+            f"port {port} on {host} is already in use{detail}; choose another with --port"
+        )
+        self.errno, self.host, self.port = errno.EADDRINUSE, host, port
 
 
 # ============================================================================ policy histories
@@ -384,8 +406,6 @@ class PredictionLayer:
 
     def at(self, t: float) -> np.ndarray:
         """The L predicted points at time ``t`` (linear interpolation), shape (L, 3)."""
-        from skillkit.viz.scenes import interpolate
-
         return interpolate(self.times, np.swapaxes(self.points, 0, 1), t)
 
 
@@ -403,10 +423,7 @@ def _check_port(host: str, port: int) -> None:
             sock.bind(address)
         except OSError as exc:
             if exc.errno == errno.EADDRINUSE:
-                raise PortInUseError(
-                    errno.EADDRINUSE,
-                    f"port {port} on {host} is already in use; choose another with --port",
-                ) from None
+                raise PortInUseError(host, port) from None
             raise ValueError(f"host: cannot listen on {host}:{port} ({exc.strerror})") from None
 
 
@@ -430,6 +447,9 @@ class Viewer:
         TCP port (0: any free port).
     seed : int
         Episode seed of every rollout, and seed of the ω samples.
+    environment : bool
+        Light the scene with viser's HDRI environment map (default). False uses a hemisphere
+        light instead, which renders far faster in browsers without a GPU (software WebGL).
 
     Examples
     --------
@@ -448,6 +468,7 @@ class Viewer:
         host: str = DEFAULT_HOST,
         port: int = DEFAULT_PORT,
         seed: int = 0,
+        environment: bool = True,
     ) -> None:
         from skillkit.tasks import Task, make
 
@@ -480,6 +501,7 @@ class Viewer:
         if not isinstance(host, str) or not host:
             raise ValueError(f"host: expected a host name or address, got {host!r}")
         self.host, self._requested_port, self.seed = host, int(port), int(seed)
+        self.environment = bool(environment)
         self._omega_rng = as_generator(self.seed)
         self.server = None
         self.scene: TaskScene | None = None
@@ -496,7 +518,7 @@ class Viewer:
         self.playing = False
         self.stepping_updates = False
         self.gui: dict = {}
-        self._quiet = False  # set while the viewer itself moves a slider: skip its callback
+        self._local = threading.local()  # .quiet: this thread is moving a GUI input itself
 
     def _check_policy(self, policy, name: str) -> LinearGaussianPolicy:
         if not isinstance(policy, LinearGaussianPolicy):
@@ -546,15 +568,21 @@ class Viewer:
             bound = server.get_port()
             server.stop()  # viser moved on to the next free port: refuse that
             raise PortInUseError(
-                errno.EADDRINUSE,
-                f"port {self._requested_port} on {self.host} is already in use "
-                f"(it was taken while starting; viser offered {bound})",
+                self.host, self._requested_port, f" (taken while starting; viser offered {bound})"
             )
         self.server = server
         try:
             with self._lock:
                 self.scene = task_scene(server.scene, self.task)
                 self.scene.set_context(self.context)
+                if not self.environment:
+                    server.scene.configure_environment_map(None)
+                    server.scene.add_light_hemisphere(
+                        "/lights/hemisphere",
+                        sky_color=(255, 255, 255),
+                        ground_color=(120, 120, 120),
+                        intensity=2.0,
+                    )
                 cam = server.initial_camera
                 cam.position, cam.look_at = self.scene.camera_position, self.scene.camera_look_at
                 self._build_gui()
@@ -604,7 +632,7 @@ class Viewer:
             g["time"] = gui.add_slider("time [s]", min=0.0, max=1.0, step=0.01, initial_value=0.0)
             g["play"] = gui.add_button("Play", icon="player-play")
             g["trails"] = gui.add_checkbox("trails", True)
-        g["time"].on_update(lambda _: self._quiet or self.set_time(g["time"].value))
+        g["time"].on_update(self._on_time_slider)
         g["play"].on_click(lambda _: self.set_playing(not self.playing))
         g["trails"].on_update(lambda _: self._draw_trails())
         if task.context_dim:
@@ -617,7 +645,7 @@ class Viewer:
                     slider = gui.add_slider(
                         label, min=lo, max=hi, step=step, initial_value=float(self.context[i])
                     )
-                    slider.on_update(lambda _: self._context_from_gui())
+                    slider.on_update(lambda _event: self._context_from_gui())
                     g["context"].append(slider)
         with gui.add_folder("Policy"):
             g["sample"] = gui.add_button("Sample ω ~ π(ω|s)")
@@ -638,7 +666,7 @@ class Viewer:
                 g["step_updates"] = gui.add_button("Step through updates", icon="player-play")
                 g["ghosts"] = gui.add_checkbox("trails of earlier updates", False)
                 g["history_info"] = gui.add_markdown("")
-            g["update"].on_update(lambda _: self._quiet or self.set_update(int(g["update"].value)))
+            g["update"].on_update(self._on_update_slider)
             g["step_updates"].on_click(lambda _: self._toggle_update_stepping())
             g["ghosts"].on_update(lambda _: self._draw_ghosts())
         g["predictions"] = gui.add_folder("Predictions", visible=False)
@@ -703,17 +731,28 @@ class Viewer:
             return self._rerun()
 
     def _set_quietly(self, pairs) -> None:
-        """Move GUI inputs to values without running their callbacks."""
-        with self._lock:
-            self._quiet = True
-            try:
-                for handle, value in pairs:
-                    handle.value = value
-            finally:
-                self._quiet = False
+        """Move GUI inputs to values without running their callbacks (viser runs the callbacks
+        of a value assigned in Python synchronously, in the assigning thread)."""
+        self._local.quiet = True
+        try:
+            for handle, value in pairs:
+                handle.value = value
+        finally:
+            self._local.quiet = False
+
+    def _quiet(self) -> bool:
+        return getattr(self._local, "quiet", False)
+
+    def _on_time_slider(self, _event) -> None:
+        if not self._quiet():
+            self.set_time(self.gui["time"].value)
+
+    def _on_update_slider(self, _event) -> None:
+        if not self._quiet():
+            self.set_update(int(self.gui["update"].value))
 
     def _context_from_gui(self) -> None:
-        if self._quiet:
+        if self._quiet():
             return
         values = [float(slider.value) for slider in self.gui["context"]]
         with self._lock:
@@ -875,8 +914,6 @@ class Viewer:
             in the "Predictions" folder switches it on and off.
         """
         self._require_started()
-        from skillkit.viz.scenes import _check_path, _node_name, _opacity, _rgb
-
         if not isinstance(name, str) or not name or _node_name(name) != name:
             raise ValueError(
                 f"name: expected a layer name of letters, digits, '_', '.', '-', got {name!r}"
@@ -1066,6 +1103,16 @@ class HeadlessBrowser:
         )
         return str(result.get("result", {}).get("value", ""))
 
+    def hide(self, selector: str) -> int:
+        """Hide the elements matching CSS ``selector`` (e.g. notifications); return how many."""
+        script = (
+            f"(() => {{ const found = document.querySelectorAll({json.dumps(selector)}); "
+            "found.forEach(e => e.style.setProperty('display', 'none', 'important')); "
+            "return found.length; })()"
+        )
+        result = self.call("Runtime.evaluate", expression=script)
+        return int(result.get("result", {}).get("value", 0))
+
     def wait_for_text(self, needles: Sequence[str], timeout: float = 60.0) -> str:
         """Poll the page until its text contains every needle; return the text."""
         deadline = time.monotonic() + timeout
@@ -1078,28 +1125,47 @@ class HeadlessBrowser:
                 raise TimeoutError(f"page text still lacks {missing} after {timeout:g} s")
             time.sleep(0.25)
 
-    def screenshot(self) -> np.ndarray:
+    def screenshot(self, timeout: float = 300.0) -> np.ndarray:
         """The viewport as an RGB array of shape (height, width, 3), uint8."""
         from io import BytesIO
 
         from PIL import Image
 
-        data = base64.b64decode(self.call("Page.captureScreenshot", format="png")["data"])
+        result = self.call("Page.captureScreenshot", timeout=timeout, format="png")
+        data = base64.b64decode(result["data"])
         return np.asarray(Image.open(BytesIO(data)).convert("RGB"))
 
-    def settled_screenshot(self, timeout: float = 30.0, tolerance: float = 0.5) -> np.ndarray:
-        """A screenshot once two consecutive ones (0.5 s apart) differ by less than
-        ``tolerance`` grey levels on average (fade-in animations have finished)."""
+    def wait_frames(self, n: int = 3, timeout: float = 120.0) -> None:
+        """Wait until the page has rendered ``n`` more animation frames."""
+        script = (
+            f"new Promise(done => {{ let k = {int(n)}; const f = () => "
+            "(--k > 0 ? requestAnimationFrame(f) : done(true)); requestAnimationFrame(f); })"
+        )
+        self.call("Runtime.evaluate", timeout=timeout, expression=script, awaitPromise=True)
+
+    def settled_screenshot(
+        self, timeout: float = 120.0, tolerance: float = 0.05, frames: int = 3
+    ) -> np.ndarray:
+        """A screenshot once the page has stopped changing.
+
+        Takes screenshots ``frames`` rendered animation frames apart (so a renderer that is
+        still busy loading is not mistaken for a settled one) until two consecutive
+        comparisons differ by less than ``tolerance`` grey levels on average.
+        """
         deadline = time.monotonic() + timeout
-        previous = self.screenshot()
-        while True:
-            time.sleep(0.5)
-            image = self.screenshot()
-            if np.mean(np.abs(image.astype(float) - previous)) < tolerance:
-                return image
+        self.wait_frames(frames, timeout)
+        previous, stable = self.screenshot(timeout), 0
+        while stable < 2:
             if time.monotonic() > deadline:
                 raise TimeoutError(f"the page kept changing for {timeout:g} s")
+            self.wait_frames(frames, timeout)
+            time.sleep(0.2)
+            image = self.screenshot(timeout)
+            stable = (
+                stable + 1 if np.mean(np.abs(image.astype(float) - previous)) < tolerance else 0
+            )
             previous = image
+        return previous
 
     def close(self) -> None:
         """Quit Chromium and delete its profile."""

@@ -79,6 +79,7 @@ def _fake_trial(reps_final: tuple[float, float, float], crkr_final: tuple[float,
         trial[f"{name}_heldout_hit_rate"] = np.array([0.3, hit])
         trial[f"{name}_heldout_displacement_error"] = np.array([0.5, err])
         trial[f"{name}_heldout_displacement_error_hits"] = np.array([0.4, err])
+        trial[f"{name}_heldout_blade_lowest"] = np.array([0.001, -0.002])
         trial[f"{name}_wall_time_s"] = 1.0
     return trial
 
@@ -94,6 +95,7 @@ def test_summary_checks_against_thesis_claims():
     assert summary["reps"]["final_heldout_displacement_error"] == pytest.approx(0.16)
     assert summary["reps"]["final_heldout_hit_rate_std"] == pytest.approx(0.02)
     assert summary["crkr"]["failed_rollouts"] == 2
+    assert summary["reps"]["heldout_blade_lowest_m"] == -0.002
     assert all(summary["checks"].values())
     band = next(s for s in series if s.name == ch.LABELS["reps"] and "hit rate" in s.panel)
     np.testing.assert_allclose(band.y, [0.3, 0.98])
@@ -140,6 +142,7 @@ def test_heldout_scores_closed_form_on_a_fixed_policy():
     assert errors[1] == pytest.approx(0.7)
     assert scores["displacement_error"] == pytest.approx(np.mean(errors))
     assert scores["displacement_error_hits"] == pytest.approx(errors[0])
+    assert scores["blade_lowest"] == min(t.info["blade_lowest"] for t in trajs)
     assert scores["reward"] == pytest.approx(
         np.mean([task.reward(t, s) for t, s in zip(trajs, contexts, strict=True)])
     )

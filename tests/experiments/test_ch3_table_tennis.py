@@ -99,3 +99,5 @@ def test_summary_arithmetic_on_hand_made_trials():
     # mean curve: -0.2, -0.075, -0.02 -> never strictly above -0.02
     assert summary["rollouts_to_mean_curve_above_-0.02"] is None
     assert summary["initial_reward"] == pytest.approx(-0.2)
+    assert summary["net_shot_reward_mean"] == pytest.approx(-0.035)
+    assert summary["net_shot_reward_range"] == pytest.approx([-0.04, -0.03])

@@ -23,11 +23,11 @@ class Crash(Exception):
 def _trial(settings, rng, progress):
     """A random walk that checkpoints after every step (like a policy update)."""
     progress.reset(total=settings["n"])
-    state = progress.resume(rng) or {"k": 0, "steps": []}
+    state = progress.resume("walk", rng) or {"k": 0, "steps": []}
     for k in range(state["k"], settings["n"]):
         state["steps"].append(float(rng.normal()))
         state["k"] = k + 1
-        progress.save(state, rng)
+        progress.save("walk", state, rng)
         progress.update()
         if CRASH["at"] == k:
             CRASH["at"] = None
@@ -172,3 +172,35 @@ def test_runs_and_compare(toy, tmp_path, capsys):
     assert float(line.split()[1]) == pytest.approx(ra, rel=1e-5)
     assert (tmp_path / "cmp" / "figure.png").exists()
     assert main(["compare", str(a), str(tmp_path / "missing")]) == 2
+
+
+def test_kill_9_mid_run_then_resume_gives_identical_numbers(tmp_path):
+    """A real ``kill -9`` of ``skillkit reproduce`` mid-trial, then a rerun of the same command."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    args = ["reproduce", "sanity3", "--trials", "1", "--seed", "9", "--quiet", "--set", "n_updates=30"]
+    assert main(args + ["--out", str(tmp_path / "clean")]) == 0
+    cmd = [sys.executable, "-m", "skillkit.cli"] + args + ["--out", str(tmp_path / "killed")]
+    ckpt = tmp_path / "killed" / "sanity3-quick-s9" / "trials" / "trial_000.ckpt"
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 300
+    while not ckpt.exists() and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert proc.poll() is None, "the run finished before it could be killed"
+    time.sleep(1.0)  # let it get a few updates further
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    assert not (ckpt.parent.parent / "result.json").exists()
+    from skillkit.experiments import checkpoint as ck
+
+    raw = ckpt.read_bytes()
+    assert raw.startswith(ck.MAGIC)
+    assert main(args + ["--out", str(tmp_path / "killed")]) == 0
+    a = json.loads((tmp_path / "clean" / "sanity3-quick-s9" / "result.json").read_text())
+    b = json.loads((tmp_path / "killed" / "sanity3-quick-s9" / "result.json").read_text())
+    assert a["series"] == b["series"]
+    assert a["summary"] == b["summary"]

@@ -38,6 +38,7 @@ def _data(n=40, seed=0, noise=0.1):
 
 def _numpy_gp(X, y, Xs, ls, sf2, sn2):
     """Direct evaluation of Eqs (2.26), (2.27), (2.28) for one output (raw units)."""
+
     def k(a, b):
         return sf2 * np.exp(-0.5 * (((a[:, None, :] - b[None, :, :]) / ls) ** 2).sum(-1))
 
@@ -60,13 +61,16 @@ def test_prediction_equals_numpy_eqs_2_26_2_27_2_28(standardize):
     h = gp.hyperparameters
     for a in range(2):
         m = Y[:, a].mean() if standardize else 0.0  # the constant prior mean of standardisation
-        ref_mean, ref_var, ref_lml = _numpy_gp(X, Y[:, a] - m, Xs, h["lengthscale"][a], h["outputscale"][a],
-                                               h["noise"][a])
+        ref_mean, ref_var, ref_lml = _numpy_gp(
+            X, Y[:, a] - m, Xs, h["lengthscale"][a], h["outputscale"][a], h["noise"][a]
+        )
         np.testing.assert_allclose(mean[:, a], ref_mean + m, rtol=1e-8, atol=1e-10)
         np.testing.assert_allclose(var[:, a], ref_var, rtol=1e-8, atol=1e-12)
         np.testing.assert_allclose(fvar[:, a], ref_var - h["noise"][a], rtol=1e-7, atol=1e-12)
         np.testing.assert_allclose(fmean[:, a], mean[:, a])
-        np.testing.assert_allclose(gp.diagnostics["log_marginal_likelihood"][a], ref_lml, rtol=1e-10)
+        np.testing.assert_allclose(
+            gp.diagnostics["log_marginal_likelihood"][a], ref_lml, rtol=1e-10
+        )
 
 
 def test_objective_matches_gpytorch_mll_and_has_exact_gradient():
@@ -85,7 +89,9 @@ def test_objective_matches_gpytorch_mll_and_has_exact_gradient():
     ls = torch.as_tensor(rng.uniform(0.5, 2.0, (2, 3))).requires_grad_()
     os = torch.tensor([1.3, 0.6], dtype=torch.float64, requires_grad=True)
     sn = torch.tensor([0.1, 0.3], dtype=torch.float64, requires_grad=True)
-    assert torch.autograd.gradcheck(lambda a, b, c: neg_log_marginal_likelihood(Xt, Yt, a, b, c), (ls, os, sn))
+    assert torch.autograd.gradcheck(
+        lambda a, b, c: neg_log_marginal_likelihood(Xt, Yt, a, b, c), (ls, os, sn)
+    )
 
 
 def test_training_raises_likelihood_and_recovers_noise_level():
@@ -139,7 +145,9 @@ def test_ill_conditioned_duplicates_and_constant_targets():
         gp = ExactGP(additive_noise=0.0, n_steps=30).fit(X, Y, rng=0)
     assert gp.diagnostics["constant_outputs"] == [1]
     assert 1 in gp.diagnostics["noise_at_floor"]
-    assert any(issubclass(w.category, GPNumericalWarning) and "floor" in str(w.message) for w in caught)
+    assert any(
+        issubclass(w.category, GPNumericalWarning) and "floor" in str(w.message) for w in caught
+    )
     Xs = np.vstack([base, rng.uniform(-3, 3, size=(50, 2))])
     mean, var = gp.predict(Xs)
     fmean, fvar = gp.predict(Xs, include_noise=False)
@@ -164,7 +172,9 @@ def test_latent_covariance_diagonal_matches_variance():
     Xs = torch.as_tensor(np.random.default_rng(2).uniform(-3, 3, size=(10, 2)))
     cov = gp.predictor.latent_covariance(Xs)
     _, fvar = gp.predict(Xs.numpy(), include_noise=False)
-    np.testing.assert_allclose(cov.diagonal(dim1=-2, dim2=-1).numpy().T, fvar, rtol=1e-7, atol=1e-12)
+    np.testing.assert_allclose(
+        cov.diagonal(dim1=-2, dim2=-1).numpy().T, fvar, rtol=1e-7, atol=1e-12
+    )
     assert np.linalg.eigvalsh(cov.numpy()).min() > -1e-9
 
 
@@ -209,7 +219,9 @@ def test_forward_model_delta_and_next_targets():
     xn = x @ A.T + u @ B.T
     xs, us = rng.uniform(-0.8, 0.8, size=(20, 2)), rng.uniform(-0.8, 0.8, size=(20, 1))
     for target in ("delta", "next"):
-        fm = ForwardModel(ExactGP(additive_noise=0.0, n_steps=40), target=target).fit(x, u, xn, rng=0)
+        fm = ForwardModel(ExactGP(additive_noise=0.0, n_steps=40), target=target).fit(
+            x, u, xn, rng=0
+        )
         mean, var = fm.predict(xs, us)
         np.testing.assert_allclose(mean, xs @ A.T + us @ B.T, atol=5e-3)
         assert var.shape == (20, 2) and np.all(var > 0)

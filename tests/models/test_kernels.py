@@ -8,7 +8,15 @@ import pytest
 import torch
 
 from skillkit.models import kernels
-from skillkit.models.kernels import Linear, SquaredExponential, gram, linear_kernel, se_kernel, se_kernel_scaled
+from skillkit.models.kernels import (
+    Linear,
+    SquaredExponential,
+    gram,
+    linear_kernel,
+    se_kernel,
+    se_kernel_from_operands,
+    se_operands,
+)
 
 
 @pytest.fixture(autouse=True, scope="module")
@@ -45,9 +53,13 @@ CLASSES = {SquaredExponential, Linear}
 
 
 def test_contract_covers_every_kernel_in_the_module():
-    defined = {obj for obj in vars(kernels).values()
-               if isinstance(obj, type) and issubclass(obj, gpytorch.kernels.Kernel)
-               and obj.__module__ == kernels.__name__}
+    defined = {
+        obj
+        for obj in vars(kernels).values()
+        if isinstance(obj, type)
+        and issubclass(obj, gpytorch.kernels.Kernel)
+        and obj.__module__ == kernels.__name__
+    }
     assert defined == CLASSES
     assert {type(f()) for f in FACTORIES.values()} == CLASSES
 
@@ -96,8 +108,11 @@ def test_batch_shapes_and_entries(batch, single):
     # Each batch entry equals an unbatched kernel with that entry's parameters.
     for i in range(2):
         if batch == "se_batch":
-            ki = SquaredExponential(3, lengthscale=kb.lengthscale[i, 0].detach().numpy(),
-                                    outputscale=float(kb.outputscale[i].detach()))
+            ki = SquaredExponential(
+                3,
+                lengthscale=kb.lengthscale[i, 0].detach().numpy(),
+                outputscale=float(kb.outputscale[i].detach()),
+            )
         else:
             ki = Linear(variance=float(kb.variance[i].detach()), bias=kb.bias)
         torch.testing.assert_close(out[i], ki.forward(x1[i], x2[i]), rtol=1e-12, atol=1e-14)
@@ -118,13 +133,29 @@ def test_linear_closed_form():
     torch.testing.assert_close(linear_kernel(x, x, 2.0, diag=True), 2.0 * (x * x).sum(-1))
 
 
-def test_se_kernel_scaled_equals_se_kernel():
-    x1 = torch.as_tensor(np.random.default_rng(7).normal(size=(2, 5, 3)))
-    x2 = torch.as_tensor(np.random.default_rng(8).normal(size=(2, 6, 3)))
-    ls = torch.tensor([[[0.5, 1.0, 2.0]], [[1.5, 0.7, 0.9]]], dtype=torch.float64)
-    os = torch.tensor([1.7, 0.4], dtype=torch.float64)
-    a, b = x1 / ls, x2 / ls
-    torch.testing.assert_close(se_kernel_scaled(a, b, (b * b).sum(-1), os), se_kernel(x1, x2, ls, os))
+def test_cached_operands_equal_closed_form_with_and_without_grad():
+    rng = np.random.default_rng(7)
+    x1, x2 = rng.normal(size=(2, 5, 3)), rng.normal(size=(2, 6, 3))
+    ls = np.array([[[0.5, 1.0, 2.0]], [[1.5, 0.7, 0.9]]])
+    os = np.array([1.7, 0.4])
+    ref = os[:, None, None] * np.exp(
+        -0.5 * (((x1[:, :, None, :] - x2[:, None, :, :]) / ls[:, :, None, :]) ** 2).sum(-1)
+    )
+    t = {k: torch.as_tensor(v) for k, v in dict(x1=x1, x2=x2, ls=ls, os=os).items()}
+    support = se_operands(t["x2"], t["ls"], t["os"])
+    with torch.no_grad():  # in-place path
+        k = se_kernel_from_operands(se_operands(t["x1"], t["ls"]), support, torch.log(t["os"]))
+    np.testing.assert_allclose(k.numpy(), ref, rtol=1e-12)
+    q = se_operands(t["x1"].requires_grad_(), t["ls"])  # autograd path
+    k = se_kernel_from_operands(q, support, torch.log(t["os"]))
+    np.testing.assert_allclose(k.detach().numpy(), ref, rtol=1e-12)
+    # k(x, x) = σ_f² exactly (the round-off guard), never above.
+    with torch.no_grad():
+        kxx = se_kernel(t["x1"], t["x1"], t["ls"], t["os"])
+    assert torch.all(kxx <= t["os"][:, None, None])
+    torch.testing.assert_close(
+        kxx.diagonal(dim1=-2, dim2=-1), t["os"][:, None].expand(2, 5), rtol=1e-15, atol=0
+    )
 
 
 def test_se_kernel_gradcheck():

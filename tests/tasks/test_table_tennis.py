@@ -212,8 +212,9 @@ def test_reward_is_the_hand_computed_eq_c1(task):
     # the ball passes the racket at 0.3 m between the 2nd and 3rd samples (x = 0.5)
     expected = -0.1 * 0.3 - 0.1 * np.hypot(0.5 - 0.7, 0.2 + 0.1)
     assert task.reward(traj, s) == pytest.approx(expected, abs=1e-14)
-    # only the incoming ball counts: cut before the closest approach, the minimum is 0.5 away
-    traj.info["incoming_end"] = 0.1
+    # only the incoming ball counts (samples up to the end and one after): ending at 0.05 s
+    # keeps the first segment only, whose closest point is its end
+    traj.info["incoming_end"] = 0.05
     expected = -0.1 * np.hypot(0.5, 0.3) - 0.1 * np.hypot(0.5 - 0.7, 0.2 + 0.1)
     assert task.reward(traj, s) == pytest.approx(expected, abs=1e-14)
 
@@ -222,8 +223,8 @@ def test_reward_of_a_rollout_matches_a_dense_recomputation(task):
     s = task.sample_context(3)
     omega = task.initial_policy().sample(s, np.random.default_rng(3))
     r, traj = task.evaluate(omega, s)
-    keep = traj.times <= traj.info["incoming_end"]
-    rel = traj.signals["ball"][keep] - traj.signals["racket"][keep]
+    keep = np.count_nonzero(traj.times <= traj.info["incoming_end"]) + 1  # and one after
+    rel = traj.signals["ball"][:keep] - traj.signals["racket"][:keep]
     u = np.linspace(0, 1, 2001)[:, None, None]
     dense = rel[:-1] + u * np.diff(rel, axis=0)  # straight segments between samples
     d_min = np.linalg.norm(dense, axis=-1).min()

@@ -1,0 +1,111 @@
+"""``skillkit view TASK``: serve a task scene in the browser (:class:`skillkit.viz.viewer.Viewer`).
+
+Wire it into ``skillkit/cli.py`` with ``add_view_parser(sub)`` after the other sub-commands;
+``python -m skillkit.viz.cli_view TASK ...`` runs it on its own. Bad input (unknown task,
+malformed policy file, context outside the task's range, port in use) prints one line
+``skillkit view: error: ...`` and exits with code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from skillkit.viz.viewer import DEFAULT_HOST, DEFAULT_PORT, PortInUseError
+
+
+def add_view_parser(subparsers) -> argparse.ArgumentParser:
+    """Add the ``view`` sub-command to an ``argparse`` sub-parsers object and return it."""
+    p = subparsers.add_parser(
+        "view",
+        help="serve a task scene in the browser (viser)",
+        description="Serve a task's rollouts, model predictions and learning playback in the "
+        "browser. Open the printed URL; Ctrl-C stops the server.",
+    )
+    p.add_argument("task", help="task name (see `skillkit list`)")
+    p.add_argument(
+        "--policy",
+        metavar="FILE",
+        help="policy history .npz (skillkit.viz.viewer.save_policy_history) or a "
+        "`skillkit reproduce` run folder; enables learning playback",
+    )
+    p.add_argument("--trial", type=int, default=0, help="trial of a run folder (default 0)")
+    p.add_argument(
+        "--context",
+        type=float,
+        nargs="+",
+        metavar="S",
+        help="initial context s, one number per context dimension (default: mid-range)",
+    )
+    p.add_argument(
+        "--predictions",
+        metavar="FILE",
+        help="prediction layers .npz (skillkit.viz.viewer.save_predictions) to overlay",
+    )
+    p.add_argument("--port", type=int, default=DEFAULT_PORT, help=f"port (default {DEFAULT_PORT})")
+    p.add_argument(
+        "--host",
+        default=DEFAULT_HOST,
+        help=f"interface to bind (default {DEFAULT_HOST}: this machine only)",
+    )
+    p.add_argument("--seed", type=int, default=0, help="episode seed of the rollouts")
+    p.add_argument(
+        "--no-envmap",
+        action="store_true",
+        help="light without the HDRI environment map: much faster in browsers without a GPU",
+    )
+    p.set_defaults(func=run_view)
+    return p
+
+
+def build_viewer(args: argparse.Namespace):
+    """The :class:`~skillkit.viz.viewer.Viewer` the arguments describe (not started)."""
+    from skillkit.tasks import make
+    from skillkit.viz.viewer import Viewer, load_policy_history
+
+    task = make(args.task)
+    history = None if args.policy is None else load_policy_history(args.policy, args.trial)
+    return Viewer(
+        task,
+        context=args.context,
+        history=history,
+        host=args.host,
+        port=args.port,
+        seed=args.seed,
+        environment=not args.no_envmap,
+    )
+
+
+def run_view(args: argparse.Namespace) -> int:
+    """Start the viewer and serve until Ctrl-C; bad input → one-line message, exit code 2."""
+    from skillkit.viz.viewer import load_predictions
+
+    try:
+        viewer = build_viewer(args)
+        layers = [] if args.predictions is None else load_predictions(args.predictions)
+        viewer.start()
+    except (ValueError, PortInUseError) as exc:
+        print(f"skillkit view: error: {exc}", file=sys.stderr)
+        return 2
+    try:
+        for spec in layers:
+            viewer.add_prediction_layer(**spec)
+    except ValueError as exc:
+        viewer.stop()
+        print(f"skillkit view: error: predictions: {exc}", file=sys.stderr)
+        return 2
+    print(f"skillkit view: serving {viewer.task.name} at {viewer.url} (Ctrl-C to stop)", flush=True)
+    viewer.serve_forever()
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m skillkit.viz.cli_view TASK ...``: the ``view`` sub-command on its own."""
+    parser = argparse.ArgumentParser(prog="skillkit")
+    add_view_parser(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(["view", *(sys.argv[1:] if argv is None else argv)])
+    return args.func(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,90 @@
+"""fig2.12 (GP regression) and fig2.7 (linearisation vs moment matching vs the truth)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from skillkit.experiments.ch2_gp import fig2_7_function, successor_density
+from skillkit.experiments.runner import run_trials
+from skillkit.models.gp import ExactGP
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_thread():
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
+@pytest.fixture(scope="module")
+def fig212():
+    return run_trials("fig2.12", "quick", seed=1, progress=False)
+
+
+@pytest.fixture(scope="module")
+def fig27():
+    return run_trials("fig2.7", "quick", seed=2, progress=False, n_monte_carlo=100_000, n_steps=40)
+
+
+def test_fig2_12_variance_shrinks_and_samples_converge(fig212):
+    s = fig212["summary"]
+    per = s["per_n_points"]
+    assert s["claim_holds"] is True
+    assert per["1"]["mean_std"] > per["4"]["mean_std"] > per["25"]["mean_std"]
+    assert per["25"]["rmse"] < 0.5 * per["1"]["rmse"]
+    assert per["25"]["coverage95"] > 0.9
+    panels = {x["panel"] for x in fig212["series"]}
+    assert panels == {"1 sample", "4 samples", "25 samples"}
+
+
+def test_fig2_12_one_point_posterior_closed_form(fig212):
+    series = [x for x in fig212["series"] if x["panel"] == "1 sample"]
+    obs = next(x for x in series if x["name"] == "observations")
+    band = next(x for x in series if x["name"].startswith("GP mean"))
+    x1, y1 = obs["x"][0], obs["y"][0]
+    grid = np.array(band["x"])
+    # With one point the posterior mean is k(x, x1) / (σ_f² + σ_n²) · y1 (zero prior mean).
+    k = np.exp(-0.5 * ((grid - x1) / 0.8) ** 2)
+    np.testing.assert_allclose(band["y"], k / (1.0 + 0.01) * y1, rtol=1e-10, atol=1e-12)
+    half = 1.96 * np.sqrt(1.0 + 0.01 - k**2 / 1.01)
+    np.testing.assert_allclose(np.array(band["upper"]) - band["y"], half, rtol=1e-9)
+
+
+def test_fig2_12_same_seed_same_numbers(fig212):
+    again = run_trials("fig2.12", "quick", seed=1, progress=False)
+    assert again["series"] == fig212["series"] and again["summary"] == fig212["summary"]
+
+
+def test_fig2_7_moment_matching_exact_and_better_than_linearisation(fig27):
+    s = fig27["summary"]
+    assert s["claim_holds"] is True
+    assert s["density_mass"] == pytest.approx(1.0, abs=1e-6)
+    assert s["mm_mean_error"] < 1e-5 and s["mm_var_rel_error"] < 1e-4
+    assert s["kl_mm"] < s["kl_lin"]
+    assert s["lin_mean_error"] > 0.05  # the tangent at the input mean misses the skew
+    # Monte Carlo agrees with the quadrature truth within its error.
+    assert abs(s["mc_mean"] - s["true_mean"]) < 5 * np.sqrt(s["true_var"] / 100_000)
+
+
+def test_successor_density_of_a_linear_model_is_gaussian():
+    rng = np.random.default_rng(0)
+    X = rng.uniform(-3, 3, size=(30, 1))
+    # A very long length-scale makes the GP mean practically linear over the input's support.
+    gp = ExactGP(
+        lengthscale=200.0,
+        outputscale=1e4,
+        noise=0.01,
+        n_steps=0,
+        additive_noise=0.0,
+        standardize=False,
+    ).fit(X, 0.5 * X[:, 0])
+    y = np.linspace(-3, 3, 3001)
+    p = successor_density(gp.predictor, 0.2, 0.3, y)
+    mean = gp.predict(np.array([[0.2]]))[0][0]
+    var = 0.25 * 0.09 + gp.predict(np.array([[0.2]]))[1][0]
+    ref = np.exp(-0.5 * (y - mean) ** 2 / var) / np.sqrt(2 * np.pi * var)
+    np.testing.assert_allclose(p, ref, atol=2e-3 * ref.max())
+    assert fig2_7_function(np.pi / 4) == pytest.approx(1.0)

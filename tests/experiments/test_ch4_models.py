@@ -1,0 +1,149 @@
+"""fig4.3, fig4.4, fig4.5 on tiny settings (the planar balancing robot) and their helpers."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from skillkit.experiments.ch4_models import (
+    _balancing_rewards,
+    collect_balancing,
+    feedback_policy,
+    gaussian_fit,
+)
+from skillkit.experiments.runner import run_trials
+from skillkit.tasks import make
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_thread():
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
+TINY_4_3 = dict(
+    n_data=120,
+    n_pseudo=20,
+    horizon=6,
+    n_start=4,
+    n_ground_truth=150,
+    sample_sizes=[10, 40],
+    n_opt_steps=5,
+)
+TINY_4_5 = dict(
+    defaults={"additive_noise": 1.0, "n_opt_steps": 5, "torque_noise_std": 0.5, "n_train": 3},
+    additive_noise_values=[1.0, 10.0],
+    n_opt_steps_values=[5],
+    torque_noise_std_values=[0.5],
+    n_train_values=[2, 3],
+    n_pairs=4,
+    horizon=5,
+    n_predicted=4,
+)
+
+
+@pytest.fixture(scope="module")
+def fig43():
+    return run_trials("fig4.3", "quick", seed=0, progress=False, **TINY_4_3)
+
+
+def test_collect_balancing_transitions_are_consecutive():
+    task = make("balancing", n_steps=5, torque_noise_std=0.5)
+    data = collect_balancing(task, 3, np.random.default_rng(0))
+    assert (
+        data["x"].shape == (15, 8)
+        and data["u"].shape == (15, 4)
+        and data["omegas"].shape == (3, 32)
+    )
+    np.testing.assert_array_equal(data["x"][1:5], data["x_next"][:4])
+    np.testing.assert_allclose(data["u"][:5], data["trajectories"][0].controls[:5])
+
+
+def test_reward_of_states_equals_task_reward_and_policy_is_the_feedback():
+    task = make("balancing", n_steps=5, torque_noise_std=0.0)
+    data = collect_balancing(task, 2, np.random.default_rng(1))
+    G = data["omegas"].reshape(-1, 4, 8)
+    states = np.stack([t.states for t in data["trajectories"]])[:, None]  # (B, 1, T+1, 8)
+    got = _balancing_rewards(task, states, G)[:, 0]
+    np.testing.assert_allclose(got, [task.reward(t) for t in data["trajectories"]], rtol=1e-12)
+    pol = feedback_policy(torch.as_tensor(G))
+    x = torch.as_tensor(states[:, 0, 0])
+    u = pol(0, x, torch.arange(2)).numpy()
+    np.testing.assert_allclose(u, data["u"][[0, 5]], rtol=1e-10, atol=1e-10)
+
+
+def test_gaussian_fit_is_unbiased_moments():
+    s = np.random.default_rng(2).normal(size=(50, 3, 2))
+    mean, cov = gaussian_fit(s)
+    np.testing.assert_allclose(mean, s.mean(0))
+    np.testing.assert_allclose(cov[1], np.cov(s[:, 1].T))
+
+
+def test_fig4_3_normalised_scores(fig43):
+    s = fig43["summary"]
+    med = s["percentiles"]["50"]
+    assert all(np.isfinite(v) and v > 0 for q in s["percentiles"].values() for v in q.values())
+    assert med["40"] < med["10"]  # more samples, better Gaussian fits
+    assert s["n_start_states"] == 4 and s["n_variance_clamped"] == 0
+    mm = next(x for x in fig43["series"] if x["name"] == "moment matching")
+    assert mm["y"] == [100.0, 100.0]
+    trial = fig43["_trials"][0]
+    scores = 100 * trial["kl_samples"].sum(-1) / trial["kl_mm"].sum(-1)[:, None]
+    np.testing.assert_allclose(
+        np.percentile(scores, 95, axis=0), list(s["percentiles"]["95"].values())
+    )
+
+
+def test_fig4_3_same_seed_same_numbers(fig43):
+    again = run_trials("fig4.3", "quick", seed=0, progress=False, **TINY_4_3)
+    assert again["summary"] == fig43["summary"]
+
+
+def test_fig4_3_rejects_tiny_sample_sizes():
+    with pytest.raises(ValueError, match="sample_sizes"):
+        run_trials(
+            "fig4.3", "quick", seed=0, progress=False, **dict(TINY_4_3, sample_sizes=[5, 40])
+        )
+
+
+def test_fig4_4_timings_and_thread_count_restored():
+    before = torch.get_num_threads()
+    r = run_trials(
+        "fig4.4",
+        "quick",
+        seed=0,
+        progress=False,
+        n_data=100,
+        n_pseudo=20,
+        horizon=5,
+        n_trajectories=[10, 50],
+        threads=[1],
+        repeats=1,
+        n_opt_steps=3,
+    )
+    assert torch.get_num_threads() == before
+    s = r["summary"]
+    assert s["mm_time_s"]["1"] > 0 and all(t > 0 for t in s["sampling_time_s"]["1"].values())
+    assert s["trajectories_in_mm_time"]["1"] > 0
+    assert s["model"]["n_pseudo_inputs"] == 20
+
+
+def test_fig4_5_panels_share_the_default_setting():
+    r = run_trials("fig4.5", "quick", seed=0, progress=False, **TINY_4_5)
+    s = r["summary"]
+    assert set(s["panels"]) == {"additive_noise", "n_opt_steps", "torque_noise_std", "n_train"}
+    d = s["default_squared_error"]
+    for kind in ("standard", "sparse"):
+        assert np.isfinite(d[kind]) and d[kind] >= 0
+        assert (
+            s["panels"]["additive_noise"][kind]["1.0"]
+            == d[kind]
+            == s["panels"]["n_train"][kind]["3"]
+        )
+    assert len(r["_trials"][0]["results"]) == 3  # default, alpha = 10, two training trajectories
+    assert s["mean_real_reward"] < 0
+    again = run_trials("fig4.5", "quick", seed=0, progress=False, **TINY_4_5)
+    assert again["summary"]["panels"] == s["panels"]

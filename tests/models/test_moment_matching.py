@@ -1,0 +1,207 @@
+"""Moment matching (PILCO) and linearisation vs Monte Carlo, closed forms, finite differences."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from skillkit.models.gp import ExactGP, ForwardModel
+from skillkit.models.moment_matching import gaussian_kl, linearize, moment_match, propagate
+from skillkit.models.sampling import sample_trajectories
+from skillkit.models.sparse import FITC
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_thread():
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
+def _random_gp(kind: str, seed: int, D=3, E=2, N=25):
+    rng = np.random.default_rng(seed)
+    X = rng.normal(size=(N, D))
+    Y = rng.normal(size=(N, E)) + 0.5
+    kw = dict(
+        lengthscale=rng.uniform(0.6, 1.5, size=(E, D)),
+        outputscale=float(rng.uniform(0.5, 2.0)),
+        noise=0.05,
+        n_steps=0,
+        additive_noise=0.0,
+    )
+    if kind == "exact":
+        return ExactGP(**kw).fit(X, Y)
+    return FITC(inducing=rng.normal(size=(8, D)), optimize_inducing=False, **kw).fit(X, Y)
+
+
+def _predict_chunked(gp, z, chunk=20_000):
+    """Predict in chunks that keep the work arrays small (large fresh allocations are slow here)."""
+    out = [gp.predict(z[lo : lo + chunk]) for lo in range(0, len(z), chunk)]
+    return np.concatenate([o[0] for o in out]), np.concatenate([o[1] for o in out])
+
+
+def _random_gaussian(seed: int, D=3):
+    rng = np.random.default_rng(seed + 100)
+    A = 0.5 * rng.normal(size=(D, D))
+    return 0.4 * rng.normal(size=D), A @ A.T + 0.05 * np.eye(D)
+
+
+@pytest.mark.parametrize("kind,seed", [("exact", 0), ("exact", 1), ("fitc", 2)])
+def test_moments_equal_monte_carlo(kind, seed):
+    gp = _random_gp(kind, seed)
+    m, S = _random_gaussian(seed)
+    mm = moment_match(gp.predictor, m, S)
+    n = 10**6
+    z = np.random.default_rng(seed + 7).multivariate_normal(m, S, size=n)
+    mu, var = _predict_chunked(gp, z)
+    # Law of total (co)variance: E[y] = E[μ(z)], cov(y) = cov(μ(z)) + diag E[σ²(z)],
+    # cov(z, y) = cov(z, μ(z)).
+    dmu, dz = mu - mu.mean(0), z - z.mean(0)
+    mean_mc, se_mean = mu.mean(0), mu.std(0) / np.sqrt(n)
+    prod = dmu[:, :, None] * dmu[:, None, :] + np.einsum("na,ab->nab", var, np.eye(2))
+    cov_mc, se_cov = prod.mean(0), prod.std(0) / np.sqrt(n)
+    io = dz[:, :, None] * dmu[:, None, :]
+    io_mc, se_io = io.mean(0), io.std(0) / np.sqrt(n)
+    assert np.all(np.abs(mm.mean.numpy() - mean_mc) < 5 * se_mean)
+    assert np.all(np.abs(mm.cov.numpy() - cov_mc) < 5 * se_cov + 1e-12)
+    assert np.all(np.abs(mm.input_output_cov.numpy() - io_mc) < 5 * se_io + 1e-12)
+
+
+def test_point_input_reduces_to_gp_prediction():
+    gp = _random_gp("exact", 3)
+    m = np.array([0.3, -0.2, 0.1])
+    mean, var = gp.predict(m[None])
+    for fn in (moment_match, linearize):
+        g = fn(gp.predictor, m, np.zeros((3, 3)))
+        np.testing.assert_allclose(g.mean.numpy(), mean[0], rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(g.cov.numpy(), np.diag(var[0]), rtol=1e-8, atol=1e-10)
+        np.testing.assert_allclose(g.input_output_cov.numpy(), 0.0, atol=1e-14)
+    latent = moment_match(gp.predictor, m, np.zeros((3, 3)), include_noise=False)
+    np.testing.assert_allclose(
+        np.diag(latent.cov.numpy()), var[0] - gp.hyperparameters["noise"], rtol=1e-7
+    )
+
+
+def test_linearization_jacobian_equals_finite_differences():
+    gp = _random_gp("fitc", 4)
+    m = np.array([0.2, 0.1, -0.4])
+    J = linearize(gp.predictor, m, np.eye(3)).input_output_cov.numpy().T  # S Jᵀ with S = I
+    h = 1e-6
+    fd = np.stack(
+        [
+            (gp.predict((m + h * e)[None])[0][0] - gp.predict((m - h * e)[None])[0][0]) / (2 * h)
+            for e in np.eye(3)
+        ],
+        axis=1,
+    )
+    np.testing.assert_allclose(J, fd, rtol=1e-6, atol=1e-8)
+
+
+def test_linearization_is_worse_than_moment_matching_for_a_wide_input():
+    rng = np.random.default_rng(5)
+    X = rng.uniform(-3, 3, size=(40, 1))
+    gp = ExactGP(lengthscale=0.7, outputscale=1.0, noise=1e-3, n_steps=0, additive_noise=0.0).fit(
+        X, np.sin(2 * X)
+    )
+    m, S = np.array([0.3]), np.array([[0.6]])
+    z = rng.normal(0.3, np.sqrt(0.6), size=200_000)[:, None]
+    mu, var = _predict_chunked(gp, z)
+    true_mean, true_var = mu.mean(), mu.var() + var.mean()
+    mm, lin = moment_match(gp.predictor, m, S), linearize(gp.predictor, m, S)
+    assert abs(float(mm.mean[0]) - true_mean) < 0.01 < abs(float(lin.mean[0]) - true_mean)
+    assert abs(float(mm.cov[0, 0]) - true_var) < 0.01 < abs(float(lin.cov[0, 0]) - true_var)
+
+
+def _forward_model():
+    rng = np.random.default_rng(6)
+    x = rng.uniform(-1.5, 1.5, size=(120, 2))
+    u = rng.uniform(-1.5, 1.5, size=(120, 1))
+    xn = x + 0.2 * np.stack([x[:, 1], -np.sin(2 * x[:, 0]) + u[:, 0]], axis=1)
+    return ForwardModel(
+        ExactGP(additive_noise=0.0, noise=1e-3, n_steps=0, lengthscale=[1.0, 1.0, 1.5])
+    ).fit(x, u, xn, rng=0)
+
+
+def test_propagate_first_step_equals_sampling_and_point_prediction():
+    fm = _forward_model()
+    K = np.array([[-0.5, -0.3]])
+    k = np.array([0.1])
+    x0 = np.array([0.4, -0.2])
+    means, covs = propagate(fm, x0, np.zeros((2, 2)), 1, K, k)
+    mean, var = fm.predict(x0[None], (K @ x0 + k)[None])
+    np.testing.assert_allclose(means[1].numpy(), mean[0], rtol=1e-10)
+    np.testing.assert_allclose(covs[1].numpy(), np.diag(var[0]), rtol=1e-8, atol=1e-12)
+    # From a Gaussian start the first step's moments are exact: compare with the sampler.
+    S0 = np.array([[0.05, 0.01], [0.01, 0.03]])
+    means, covs = propagate(fm, x0, S0, 3, K, k)
+    L = 100_000
+    x_start = np.random.default_rng(7).multivariate_normal(x0, S0, size=L)[None]
+    Kt, kt = torch.as_tensor(K), torch.as_tensor(k)
+    res = sample_trajectories(fm, x_start, lambda t, x, p: x @ Kt.T + kt, 1, L, rng=8)
+    x1 = res.states[0, :, 1].numpy()
+    S1 = covs[1].numpy()
+    assert np.all(np.abs(x1.mean(0) - means[1].numpy()) < 5 * np.sqrt(np.diag(S1) / L))
+    se = np.sqrt((np.outer(np.diag(S1), np.diag(S1)) + S1**2) / L)
+    assert np.all(np.abs(np.cov(x1.T) - S1) < 5 * se)
+    assert np.all(np.linalg.eigvalsh(covs.numpy()) > 0)
+
+
+def test_propagate_time_varying_gain_and_linearization():
+    fm = _forward_model()
+    T = 4
+    K = np.stack([[[-0.5, -0.3]]] * T) * np.linspace(1, 2, T)[:, None, None]
+    k = np.linspace(0, 0.3, T)[:, None]
+    for method in ("moment_matching", "linearization"):
+        means, covs = propagate(fm, [0.2, 0.1], 0.01 * np.eye(2), T, K, k, method=method)
+        assert means.shape == (T + 1, 2) and covs.shape == (T + 1, 2, 2)
+        np.testing.assert_allclose(covs.numpy(), np.swapaxes(covs.numpy(), 1, 2))
+    # A time-varying gain equals the constant gain when all slices are equal.
+    a = propagate(fm, [0.2, 0.1], 0.01 * np.eye(2), T, np.stack([K[0]] * T))
+    b = propagate(fm, [0.2, 0.1], 0.01 * np.eye(2), T, K[0])
+    torch.testing.assert_close(a[1], b[1])
+
+
+def test_gaussian_kl_closed_form():
+    assert gaussian_kl(np.zeros(2), np.eye(2), np.zeros(2), np.eye(2)) == pytest.approx(
+        0.0, abs=1e-14
+    )
+    m1, s1, m2, s2 = 0.3, 0.7, -0.2, 1.3
+    ref = np.log(s2 / s1) + (s1**2 + (m1 - m2) ** 2) / (2 * s2**2) - 0.5
+    # Diagonal case = sum of 1-D KLs.
+    got = gaussian_kl([m1, 0.0], np.diag([s1**2, 1.0]), [m2, 0.0], np.diag([s2**2, 1.0]))
+    assert got == pytest.approx(ref, rel=1e-12)
+    batch = gaussian_kl(
+        np.zeros((3, 2)),
+        np.eye(2)[None].repeat(3, 0),
+        np.ones((3, 2)),
+        2 * np.eye(2)[None].repeat(3, 0),
+    )
+    assert batch.shape == (3,) and np.allclose(batch, batch[0])
+
+
+def test_bad_input():
+    gp = _random_gp("exact", 0)
+    m, S = _random_gaussian(0)
+    with pytest.raises(ValueError, match="mean"):
+        moment_match(gp.predictor, m[:2], S)
+    with pytest.raises(ValueError, match="cov"):
+        moment_match(gp.predictor, m, S[:2])
+    with pytest.raises(ValueError, match="cov"):
+        moment_match(gp.predictor, m, S + np.triu(np.ones((3, 3)), 1))
+    with pytest.raises(ValueError, match="cov"):
+        moment_match(gp.predictor, m, -np.eye(3))
+    with pytest.raises(ValueError, match="mean"):
+        linearize(gp.predictor, np.full(3, np.nan), S)
+    fm = _forward_model()
+    with pytest.raises(ValueError, match="gain"):
+        propagate(fm, [0.0, 0.0], np.eye(2), 3, np.zeros((2, 2)))
+    with pytest.raises(ValueError, match="offset"):
+        propagate(fm, [0.0, 0.0], np.eye(2), 3, np.zeros((1, 2)), np.zeros(2))
+    with pytest.raises(ValueError, match="method"):
+        propagate(fm, [0.0, 0.0], np.eye(2), 3, np.zeros((1, 2)), method="unscented")
+    with pytest.raises(ValueError, match="horizon"):
+        propagate(fm, [0.0, 0.0], np.eye(2), 0, np.zeros((1, 2)))
+    with pytest.raises(ValueError, match="mean0"):
+        propagate(fm, [0.0], np.eye(2), 2, np.zeros((1, 2)))

@@ -1,0 +1,163 @@
+"""Batched trajectory sampler: statistics, seeding, chunking, policies, limits, bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from skillkit.models.gp import ExactGP, ForwardModel, Moments
+from skillkit.models.sampling import sample_trajectories, sampler_flops_per_step
+from skillkit.models.sparse import FITC
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_thread():
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
+class LinearGaussian:
+    """x' = A x + B u + N(0, diag q): closed-form reference for the sampling loop."""
+
+    state_dim, control_dim = 2, 1
+
+    def __init__(self):
+        self.A = torch.tensor([[1.0, 0.1], [-0.2, 0.9]], dtype=torch.float64)
+        self.B = torch.tensor([[0.0], [0.5]], dtype=torch.float64)
+        self.q = torch.tensor([0.01, 0.04], dtype=torch.float64)
+
+    def to(self, device=None, dtype=None):
+        return self
+
+    def next_state_moments(self, x, u):
+        mean = x @ self.A.T + u @ self.B.T
+        z = torch.zeros((), dtype=torch.long)
+        return Moments(mean, self.q.expand_as(mean), z, torch.zeros((), dtype=x.dtype))
+
+
+@pytest.fixture(scope="module")
+def gp_model():
+    rng = np.random.default_rng(0)
+    x = rng.uniform(-1, 1, size=(150, 2))
+    u = rng.uniform(-1, 1, size=(150, 1))
+    xn = (
+        x
+        + 0.1 * np.stack([x[:, 1], -np.sin(2 * x[:, 0]) + u[:, 0]], axis=1)
+        + 0.02 * rng.standard_normal((150, 2))
+    )
+    return ForwardModel(ExactGP(n_steps=25)).fit(x, u, xn, rng=0)
+
+
+def _feedback(t, x, pair):
+    return -0.5 * x[:, :1] - 0.1 * pair[:, None].to(x.dtype)
+
+
+def test_multi_step_statistics_match_closed_form_linear_gaussian():
+    model = LinearGaussian()
+    K = torch.tensor([[-0.4, -0.6]], dtype=torch.float64)
+    x0 = np.array([[1.0, -0.5], [0.0, 0.8]])
+    T, L = 5, 40000
+    res = sample_trajectories(model, x0, lambda t, x, p: x @ K.T, T, L, rng=1)
+    F = (model.A + model.B @ K).numpy()
+    for b in range(2):
+        m, S = x0[b], np.zeros((2, 2))
+        for t in range(1, T + 1):
+            m, S = F @ m, F @ S @ F.T + np.diag(model.q.numpy())
+            xs = res.states[b, :, t].numpy()
+            se = np.sqrt(np.diag(S) / L)
+            assert np.all(np.abs(xs.mean(0) - m) < 5 * se)
+            # Sample covariance: standard error of entry ij ≈ sqrt((S_ii S_jj + S_ij²) / L).
+            se_cov = np.sqrt((np.outer(np.diag(S), np.diag(S)) + S**2) / L)
+            assert np.all(np.abs(np.cov(xs.T) - S) < 5 * se_cov)
+    np.testing.assert_allclose(
+        res.controls[:, :, 0].numpy(), res.states[:, :, 0].numpy() @ K.numpy().T
+    )
+
+
+def test_one_step_matches_gp_predictive_distribution(gp_model):
+    x0 = np.array([[0.5, 0.0], [-0.3, 0.4], [0.1, -0.7]])
+    L = 20000
+    res = sample_trajectories(gp_model, x0, _feedback, 1, L, rng=2)
+    u0 = -0.5 * x0[:, :1] - 0.1 * np.arange(3)[:, None]
+    mean, var = gp_model.predict(x0, u0)
+    x1 = res.states[:, :, 1].numpy()
+    assert np.all(np.abs(x1.mean(1) - mean) < 5 * np.sqrt(var / L))
+    # var of a sample variance of a Gaussian: 2 σ⁴ / (L - 1).
+    assert np.all(np.abs(x1.var(1, ddof=1) - var) < 5 * var * np.sqrt(2.0 / (L - 1)))
+    np.testing.assert_allclose(res.controls[:, 0, 0, 0].numpy(), u0[:, 0])
+
+
+def test_same_seed_same_samples_and_chunking_invariance(gp_model):
+    x0 = np.array([[0.5, 0.0], [0.0, 0.5]])
+    a = sample_trajectories(gp_model, x0, _feedback, 8, 64, rng=3)
+    b = sample_trajectories(gp_model, x0, _feedback, 8, 64, rng=3)
+    c = sample_trajectories(gp_model, x0, _feedback, 8, 64, rng=4)
+    d = sample_trajectories(gp_model, x0, _feedback, 8, 64, rng=3, max_chunk_bytes=5000)
+    assert torch.equal(a.states, b.states) and torch.equal(a.controls, b.controls)
+    assert not torch.allclose(a.states, c.states)
+    torch.testing.assert_close(a.states, d.states, rtol=0, atol=1e-9)
+    assert a.states.shape == (2, 64, 9, 2) and a.controls.shape == (2, 64, 8, 1)
+    assert a.states.dtype == torch.float64
+
+
+def test_per_trajectory_start_states_and_sparse_model():
+    rng = np.random.default_rng(5)
+    x = rng.uniform(-1, 1, size=(100, 2))
+    u = rng.uniform(-1, 1, size=(100, 1))
+    model = ForwardModel(FITC(20, n_steps=10)).fit(x, u, 0.9 * x + 0.1 * u, rng=0)
+    x0 = rng.uniform(-0.5, 0.5, size=(3, 7, 2))
+    res = sample_trajectories(model, x0, _feedback, 4, 7, rng=0)
+    np.testing.assert_array_equal(res.states[:, :, 0].numpy(), x0)
+    assert res.n_variance_clamped == 0 and np.isfinite(res.states.numpy()).all()
+
+
+def test_control_limit_saturates_and_counts(gp_model):
+    x0 = np.array([[0.9, 0.9]])
+    res = sample_trajectories(
+        gp_model,
+        x0,
+        lambda t, x, p: torch.full((x.shape[0], 1), 3.0, dtype=x.dtype),
+        3,
+        10,
+        rng=0,
+        control_limit=1.0,
+    )
+    assert res.n_saturated == 30
+    assert torch.all(res.controls == 1.0)
+
+
+def test_bad_input(gp_model):
+    ok = np.zeros((2, 2))
+    with pytest.raises(ValueError, match="x0"):
+        sample_trajectories(gp_model, np.zeros((2, 3)), _feedback, 3, 2)
+    with pytest.raises(ValueError, match="x0"):
+        sample_trajectories(gp_model, np.full((2, 2), np.nan), _feedback, 3, 2)
+    with pytest.raises(ValueError, match="x0"):
+        sample_trajectories(gp_model, np.zeros((2, 5, 2)), _feedback, 3, 2)
+    with pytest.raises(ValueError, match="horizon"):
+        sample_trajectories(gp_model, ok, _feedback, 0, 2)
+    with pytest.raises(ValueError, match="n_trajectories"):
+        sample_trajectories(gp_model, ok, _feedback, 3, 0)
+    with pytest.raises(ValueError, match="policy"):
+        sample_trajectories(gp_model, ok, lambda t, x, p: x, 3, 2)
+    with pytest.raises(ValueError, match="policy"):
+        sample_trajectories(gp_model, ok, lambda t, x, p: np.zeros((x.shape[0], 1)), 3, 2)
+    with pytest.raises(ValueError, match="policy"):
+        sample_trajectories(
+            gp_model,
+            ok,
+            lambda t, x, p: torch.full((x.shape[0], 1), float("nan"), dtype=x.dtype),
+            3,
+            2,
+        )
+    with pytest.raises(ValueError, match="control_limit"):
+        sample_trajectories(gp_model, ok, _feedback, 3, 2, control_limit=-1.0)
+
+
+def test_flop_count():
+    # E = 1, M = 2, d = 1: 2·2·1 + 3·2 + 2 + 2·2 + 2·4 + 2·2 = 28
+    assert sampler_flops_per_step(1, 2, 1) == 28
+    assert sampler_flops_per_step(8, 300, 12) == 8 * sampler_flops_per_step(1, 300, 12)

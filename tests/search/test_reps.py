@@ -1,0 +1,219 @@
+"""REPS: dual and gradients (3.9, A.10–A.12), weights vs the primal (3.3–3.6), stability,
+episode-based and contextual updates, data reuse, bad input."""
+
+import numpy as np
+import pytest
+from scipy import optimize
+
+from skillkit.policies.features import context_features
+from skillkit.policies.gaussian import GaussianPolicy, LinearGaussianPolicy
+from skillkit.search.reps import ETA_BOUNDS, ContextualREPS, reps_dual, reps_weights
+
+
+def solve_primal(rewards, features, epsilon):
+    """Eqs. 3.3–3.6 over the N samples as a discrete distribution p (q uniform), by SLSQP.
+
+    Solved for x = N p (entries of order one, constraints as averages), which SLSQP handles
+    far better than p itself.
+    """
+    n = rewards.shape[0]
+    phihat = features.mean(axis=0)
+    cons = [
+        {"type": "eq", "fun": lambda x: x.mean() - 1.0, "jac": lambda x: np.full(n, 1.0 / n)},
+        {
+            "type": "ineq",
+            "fun": lambda x: epsilon - np.mean(x * np.log(x)),
+            "jac": lambda x: -(np.log(x) + 1.0) / n,
+        },
+    ]
+    if features.shape[1]:
+        cons.append(
+            {
+                "type": "eq",
+                "fun": lambda x: x @ features / n - phihat,
+                "jac": lambda x: features.T / n,
+            }
+        )
+    res = optimize.minimize(
+        lambda x: -(x @ rewards) / n,
+        np.ones(n),
+        jac=lambda x: -rewards / n,
+        method="SLSQP",
+        bounds=[(1e-12, n)] * n,
+        constraints=cons,
+        options={"ftol": 1e-12, "maxiter": 1000},
+    )
+    assert res.success, res.message
+    return res.x / n
+
+
+def random_problem(seed):
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(30, 101))
+    s = rng.uniform(-1, 1, size=(n, 2))
+    kind = ["none", "linear", "quadratic"][seed % 3]
+    phi = np.zeros((n, 0)) if kind == "none" else context_features(s, kind)
+    rewards = -np.sum((s - 0.3) ** 2, axis=1) + rng.normal(size=n)
+    return rewards, phi, float(rng.uniform(0.1, 1.0))
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_weights_equal_primal_solution(seed):
+    rewards, phi, eps = random_problem(seed)
+    sol = reps_weights(rewards, phi, eps)
+    p = solve_primal(rewards, phi, eps)
+    assert sol.success and sol.kl_bound_active
+    assert np.max(np.abs(sol.weights - p)) < 2e-4
+    assert sol.kl <= eps * (1 + 1e-3)
+    assert sol.kl == pytest.approx(eps, rel=1e-3)  # the bound is active at the optimum
+    np.testing.assert_allclose(sol.weights @ phi, phi.mean(axis=0), atol=1e-8)
+    # strong duality: the dual optimum equals the primal optimum (expected reward)
+    assert sol.dual == pytest.approx(p @ rewards, abs=1e-4 * np.std(rewards))
+    np.testing.assert_allclose(sol.baseline, phi @ sol.gamma)
+    assert sol.weights.sum() == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_dual_gradient_matches_finite_differences(seed):
+    rewards, phi, eps = random_problem(seed)
+    rng = np.random.default_rng(100 + seed)
+    x = np.concatenate([[rng.uniform(0.3, 3.0)], rng.normal(size=phi.shape[1])])
+    value, grad = reps_dual(x, rewards, phi, eps)
+    h = 1e-6
+    fd = np.array(
+        [
+            (
+                reps_dual(x + h * e, rewards, phi, eps)[0]
+                - reps_dual(x - h * e, rewards, phi, eps)[0]
+            )
+            / (2 * h)
+            for e in np.eye(x.size)
+        ]
+    )
+    np.testing.assert_allclose(grad, fd, rtol=1e-6, atol=1e-8)
+    # direct evaluation of Eq. A.10
+    a = (rewards - phi @ x[1:]) / x[0]
+    direct = x[0] * np.log(np.mean(np.exp(a))) + x[0] * eps + x[1:] @ phi.mean(axis=0)
+    assert value == pytest.approx(direct, rel=1e-12)
+
+
+def test_eta_gradient_is_epsilon_minus_weight_kl():
+    rewards, phi, eps = random_problem(4)
+    x = np.concatenate([[0.7], np.full(phi.shape[1], 0.2)])
+    _, grad = reps_dual(x, rewards, phi, eps)
+    a = (rewards - phi @ x[1:]) / x[0]
+    p = np.exp(a - a.max())
+    p /= p.sum()
+    assert grad[0] == pytest.approx(eps - np.sum(p * np.log(len(p) * p)), abs=1e-12)
+
+
+@pytest.mark.parametrize("scale", [1e-6, 1e-3, 1.0, 1e3, 1e6])
+def test_stable_and_scale_invariant_for_reward_magnitudes(scale):
+    rewards, phi, eps = random_problem(2)
+    ref = reps_weights(rewards, phi, eps)
+    sol = reps_weights(scale * rewards, phi, eps)
+    assert np.all(np.isfinite(sol.weights)) and sol.success
+    assert sol.kl <= eps * (1 + 1e-3)
+    np.testing.assert_allclose(sol.weights, ref.weights, atol=1e-7)
+    assert sol.eta == pytest.approx(scale * ref.eta, rel=1e-5)
+    # large offsets: rewards around ±1e6 with unit spread
+    shifted = reps_weights(rewards + np.sign(np.log10(scale) + 0.5) * 1e6, phi, eps)
+    np.testing.assert_allclose(shifted.weights, ref.weights, atol=1e-6)
+
+
+def test_epsilon_beyond_log_n_is_reported():
+    rewards = np.arange(5.0)  # distinct rewards: the largest KL is log 5 ≈ 1.61
+    sol = reps_weights(rewards, None, 3.0)
+    assert not sol.kl_bound_active and sol.success
+    assert sol.kl <= np.log(5) + 1e-12
+    assert sol.eta == pytest.approx(ETA_BOUNDS[0] * np.std(rewards))
+    assert sol.weights[-1] == pytest.approx(1.0)
+
+
+def test_equal_rewards_give_uniform_weights():
+    sol = reps_weights(np.full(7, -3.0), np.random.default_rng(0).normal(size=(7, 2)), 0.5)
+    np.testing.assert_allclose(sol.weights, np.full(7, 1 / 7))
+    assert sol.kl == 0.0 and not sol.kl_bound_active
+
+
+def test_episode_based_reps_solves_a_quadratic_bowl():
+    rng = np.random.default_rng(0)
+    target = np.array([1.0, -2.0])
+    reps = ContextualREPS(GaussianPolicy(np.zeros(2), np.eye(2)), epsilon=0.5, n_reuse_batches=2)
+    for _ in range(40):
+        w = reps.policy.sample(np.zeros((30, 0)), rng)
+        diag = reps.update(None, w, -np.sum((w - target) ** 2, axis=1))
+        assert diag.success and diag.kl == pytest.approx(0.5, rel=1e-3)
+        assert diag.baseline.shape == (diag.n_samples,) and np.all(diag.baseline == 0)
+    assert isinstance(reps.policy, GaussianPolicy)
+    np.testing.assert_allclose(reps.policy.mean, target, atol=1e-2)
+
+
+def test_contextual_update_uses_reuse_buffer_and_reports_diagnostics():
+    rng = np.random.default_rng(1)
+    pol = LinearGaussianPolicy(np.zeros(2), np.eye(2), context_dim=2)
+    reps = ContextualREPS(pol, epsilon=0.8, n_reuse_batches=2)
+    sizes = []
+    for k in range(3):
+        s = rng.uniform(-1, 1, size=(20 + k, 2))
+        w = reps.policy.sample(s, rng)
+        r = -np.sum((w - s) ** 2, axis=1)
+        d = reps.update(s, w, r)
+        sizes.append(d.n_samples)
+        assert d.kl <= 0.8 * (1 + 1e-3) and d.ess > 1 and d.policy_kl > 0
+        assert d.mean_reward == pytest.approx(r.mean())
+        assert d.gamma.shape == (5,)  # quadratic baseline features of a 2-D context
+        assert d.fit.n_samples == d.n_samples
+    assert sizes == [20, 41, 43]  # the last two batches
+    assert pol.kl(pol, np.zeros((1, 2))) == 0.0  # the initial policy object is untouched
+
+
+def test_weights_match_features_used_for_baseline():
+    rng = np.random.default_rng(2)
+    pol = LinearGaussianPolicy(np.zeros(1), np.eye(1), context_dim=1)
+    reps = ContextualREPS(pol, epsilon=0.5, baseline_features="linear")
+    s = rng.uniform(-1, 1, size=(50, 1))
+    w = pol.sample(s, rng)
+    r = -((w - 2 * s) ** 2).ravel()
+    d = reps.update(s, w, r)
+    ref = reps_weights(r, s, 0.5)
+    assert d.eta == pytest.approx(ref.eta) and d.dual == pytest.approx(ref.dual)
+
+
+def test_bad_input_names_the_argument():
+    pol = LinearGaussianPolicy(np.zeros(2), np.eye(2), context_dim=1)
+    s, w, r = np.zeros((10, 1)), np.zeros((10, 2)), np.zeros(10)
+    with pytest.raises(ValueError, match="epsilon"):
+        ContextualREPS(pol, epsilon=0.0)
+    with pytest.raises(ValueError, match="epsilon"):
+        ContextualREPS(pol, epsilon=-1.0)
+    with pytest.raises(ValueError, match="policy"):
+        ContextualREPS("not a policy", epsilon=1.0)
+    with pytest.raises(ValueError, match="n_reuse_batches"):
+        ContextualREPS(pol, epsilon=1.0, n_reuse_batches=0)
+    with pytest.raises(ValueError, match="baseline_features"):
+        ContextualREPS(pol, epsilon=1.0, baseline_features="cubic")
+    reps = ContextualREPS(pol, epsilon=1.0)
+    for bad in (np.nan, np.inf, -np.inf):
+        rr = r.copy()
+        rr[3] = bad
+        with pytest.raises(ValueError, match="rewards"):
+            reps.update(s, w, rr)
+    with pytest.raises(ValueError, match="rewards"):
+        reps.update(s, w, np.zeros(9))
+    with pytest.raises(ValueError, match="contexts"):
+        reps.update(np.zeros((10, 2)), w, r)
+    with pytest.raises(ValueError, match="contexts"):
+        reps.update(None, w, r)
+    with pytest.raises(ValueError, match="omegas"):
+        reps.update(s, np.zeros((10, 3)), r)
+    with pytest.raises(ValueError, match="epsilon"):
+        reps_weights(r, None, 0.0)
+    with pytest.raises(ValueError, match="rewards"):
+        reps_weights([1.0, np.nan], None, 1.0)
+    with pytest.raises(ValueError, match="features"):
+        reps_weights(np.zeros(3), np.zeros((4, 1)), 1.0)
+    with pytest.raises(ValueError, match="params"):
+        reps_dual([0.0, 1.0], np.zeros(3), np.zeros((3, 1)), 1.0)
+    with pytest.raises(ValueError, match="params"):
+        reps_dual([1.0], np.zeros(3), np.zeros((3, 1)), 1.0)

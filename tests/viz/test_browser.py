@@ -1,0 +1,77 @@
+"""The viewer in a real browser: Debian's headless Chromium opens the page, the scene arrives,
+the canvas is not blank and the scene tree lists the expected node names."""
+
+from __future__ import annotations
+
+import os
+import socket
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from skillkit.viz.viewer import HeadlessBrowser, Viewer
+
+CHROMIUM = Path("/usr/bin/chromium")
+
+pytestmark = [
+    pytest.mark.browser,
+    pytest.mark.skipif(
+        not CHROMIUM.exists(),
+        reason="needs Debian's headless Chromium at /usr/bin/chromium (apt-get install chromium)",
+    ),
+]
+
+EXPECTED_NODES = [
+    "/arm/link3",
+    "/arm/link7/blade",
+    "/table",
+    "/pucks/control",
+    "/pucks/target",
+    "/target",
+    "/trails/effector",
+    "/trails/target_puck",
+]
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_hockey_scene_renders_in_headless_chromium(tmp_path):
+    # environment=False: no HDRI environment map, whose set-up takes Chromium's software WebGL
+    # tens of seconds on a loaded machine; everything else is the viewer as users get it.
+    with Viewer("hockey", context=[2.0, 0.75, 0.5], port=free_port(), environment=False) as viewer:
+        t0, t1 = viewer.scene.time_range(viewer.trajectory)
+        viewer.set_time(t0 + 0.2 * (t1 - t0))
+        for name in EXPECTED_NODES:  # the server-side scene tree
+            assert viewer.server.scene.get_handle_by_name(name) is not None, name
+        with HeadlessBrowser(size=(800, 560), executable=str(CHROMIUM)) as browser:
+            browser.open(viewer.url)
+            # The page's DOM: the GUI's "Scene tree" folder lists the node paths.
+            text = browser.wait_for_text([*EXPECTED_NODES, "reward R ="], timeout=120)
+            assert "skillkit · hockey" in text
+            assert viewer.server.get_clients(), "the page did not connect over the websocket"
+            shown = browser.settled_screenshot(timeout=90)
+            viewer.server.scene.set_global_visibility(False)
+            hidden = browser.settled_screenshot(timeout=90)
+    out = Path(os.environ.get("SKILLKIT_BROWSER_ARTIFACTS", tmp_path))
+    out.mkdir(parents=True, exist_ok=True)
+    from PIL import Image
+
+    Image.fromarray(shown).save(out / "browser_hockey.png")
+    Image.fromarray(hidden).save(out / "browser_hockey_hidden.png")
+
+    assert shown.shape == (560, 800, 3)
+    # The 3-D canvas away from the GUI panel (right), the notification (top left) and the
+    # orientation gizmo (bottom left).
+    canvas_shown = shown[170:490, :460].astype(float)
+    canvas_hidden = hidden[170:490, :460].astype(float)
+    # With every scene node hidden the canvas is blank (one background colour) ...
+    assert canvas_hidden.std() < 2.0, f"hidden scene not blank: std {canvas_hidden.std():.2f}"
+    # ... and with the scene shown it is not: a good part of it was drawn by our nodes.
+    drawn = np.any(np.abs(canvas_shown - canvas_hidden) > 8, axis=-1).mean()
+    assert drawn > 0.05, f"canvas looks blank: {drawn:.1%} of its pixels show the scene"
+    assert canvas_shown.std() > 5.0

@@ -31,7 +31,12 @@ import time
 import numpy as np
 import torch
 
-from skillkit.experiments.ch4_models import X_UP, _train_balancing_model, stable_gains, time_predictions
+from skillkit.experiments.ch4_models import (
+    X_UP,
+    _train_balancing_model,
+    stable_gains,
+    time_predictions,
+)
 from skillkit.models.sampling import sampler_flops_per_step
 
 

@@ -12,9 +12,9 @@ from collections.abc import Sequence
 import numpy as np
 
 
-
-
-def as_generator(rng: np.random.Generator | np.random.SeedSequence | int | None) -> np.random.Generator:
+def as_generator(
+    rng: np.random.Generator | np.random.SeedSequence | int | None,
+) -> np.random.Generator:
     """Return a :class:`numpy.random.Generator` for ``rng``.
 
     Parameters
@@ -32,7 +32,8 @@ def as_generator(rng: np.random.Generator | np.random.SeedSequence | int | None)
             raise ValueError(f"rng: a seed must be a non-negative integer, got {rng}")
         return np.random.default_rng(int(rng))
     raise ValueError(
-        f"rng: expected a numpy Generator, SeedSequence, non-negative int or None, got {type(rng).__name__}"
+        "rng: expected a numpy Generator, SeedSequence, non-negative int or None, "
+        f"got {type(rng).__name__}"
     )
 
 
@@ -70,14 +71,22 @@ def check_array(
     try:
         arr = np.asarray(value, dtype=dtype)
     except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name}: could not convert to a {np.dtype(dtype).name} array ({exc})") from None
+        raise ValueError(
+            f"{name}: could not convert to a {np.dtype(dtype).name} array ({exc})"
+        ) from None
     if ndim is not None:
         allowed = (ndim,) if isinstance(ndim, int) else tuple(ndim)
         if arr.ndim not in allowed:
-            raise ValueError(f"{name}: expected {' or '.join(map(str, allowed))} dimensions, got shape {arr.shape}")
+            raise ValueError(
+                f"{name}: expected {' or '.join(map(str, allowed))} dimensions, "
+                f"got shape {arr.shape}"
+            )
     if shape is not None:
-        if arr.ndim != len(shape) or any(s is not None and s != a for s, a in zip(shape, arr.shape)):
-            expected = "(" + ", ".join("?" if s is None else str(s) for s in shape) + ")"
+        if arr.ndim != len(shape) or any(
+            s is not None and s != a for s, a in zip(shape, arr.shape, strict=True)
+        ):
+            dims = ["?" if s is None else str(s) for s in shape]
+            expected = "(" + ", ".join(dims) + ("," if len(dims) == 1 else "") + ")"
             raise ValueError(f"{name}: expected shape {expected}, got {arr.shape}")
     if finite and arr.size and not np.all(np.isfinite(arr)):
         bad = int(np.size(arr) - np.count_nonzero(np.isfinite(arr)))

@@ -1,4 +1,4 @@
-"""Command line: ``skillkit list | reproduce | runs | compare | demo``."""
+"""Command line: ``skillkit list | reproduce | runs | compare | view | demo``."""
 
 from __future__ import annotations
 
@@ -36,14 +36,33 @@ def _overrides(pairs: list[str]) -> dict:
 
 
 def _cmd_reproduce(args: argparse.Namespace) -> int:
+    from skillkit.experiments.registry import get, ids
     from skillkit.experiments.runner import reproduce
 
-    folder = reproduce(args.id, scale=args.scale, trials=args.trials, seed=args.seed, out=args.out,
-                       progress=not args.quiet, executor=args.executor, workers=args.workers,
-                       address=args.address, fresh=args.fresh, **_overrides(args.set))
-    summary = json.loads((folder / "result.json").read_text())["summary"]
-    print(f"wrote {folder}/result.json, figure.html, figure.png")
-    print(json.dumps(summary, indent=1))
+    exp_ids = ids() if args.ids == ["all"] else args.ids
+    for exp_id in exp_ids:
+        get(exp_id)  # fail on an unknown id before running anything
+    overrides = _overrides(args.set)
+    if overrides and len(exp_ids) > 1:
+        raise ValueError("--set: overrides apply to one experiment at a time")
+    for exp_id in exp_ids:
+        folder = reproduce(
+            exp_id,
+            scale=args.scale,
+            trials=args.trials,
+            seed=args.seed,
+            out=args.out,
+            progress=not args.quiet,
+            executor=args.executor,
+            workers=args.workers,
+            address=args.address,
+            fresh=args.fresh,
+            html=not args.no_html,
+            **overrides,
+        )
+        summary = json.loads((folder / "result.json").read_text())["summary"]
+        print(f"wrote {folder}/result.json, figure.html, figure.png")
+        print(json.dumps(summary, indent=1))
     return 0
 
 
@@ -56,9 +75,18 @@ def _cmd_runs(args: argparse.Namespace) -> int:
     for r in runs:
         wall = r["wall_time_s"]
         wall_s = f"{wall:9.1f}s" if isinstance(wall, (int, float)) else "         ?"
-        print(f"{r['path']:<50} {r['id']:<10} {r['scale']:<6} seed={r['seed']:<4} trials={r['trials']:<3} "
-              f"{r['executor']:<8}{wall_s}")
+        print(
+            f"{r['path']:<50} {r['id']:<10} {r['scale']:<6} seed={r['seed']:<4} "
+            f"trials={r['trials']:<3} {r['executor']:<8}{wall_s}"
+        )
     return 0
+
+
+def _cell(v) -> str:
+    """A right-aligned table cell: numbers with 6 significant digits, anything else as text."""
+    if isinstance(v, (int, float)) and not isinstance(v, bool):
+        return f"{v:18.6g}"
+    return f"{v!s:>18}"
 
 
 def _cmd_compare(args: argparse.Namespace) -> int:
@@ -71,8 +99,7 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     width = max([len(k) for k, _, _ in rows] + [10])
     print(f"{'':<{width}}  {'A':>18}  {'B':>18}")
     for key, va, vb in rows:
-        fmt = (lambda v: f"{v:18.6g}" if isinstance(v, (int, float)) and not isinstance(v, bool) else f"{v!s:>18}")
-        print(f"{key:<{width}}  {fmt(va)}  {fmt(vb)}")
+        print(f"{key:<{width}}  {_cell(va)}  {_cell(vb)}")
     if args.out:
         out = Path(args.out)
         out.mkdir(parents=True, exist_ok=True)
@@ -85,7 +112,9 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     from skillkit.experiments.runner import reproduce
 
     for exp_id in ("fig2.10", "sanity3"):
-        folder = reproduce(exp_id, scale="quick", seed=args.seed, out=args.out, progress=not args.quiet)
+        folder = reproduce(
+            exp_id, scale="quick", seed=args.seed, out=args.out, progress=not args.quiet
+        )
         summary = json.loads((folder / "result.json").read_text())["summary"]
         print(f"{exp_id}: wrote {folder}")
         print(json.dumps(summary, indent=1))
@@ -100,19 +129,40 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_list)
 
     p = sub.add_parser("reproduce", help="reproduce a thesis figure or table")
-    p.add_argument("id", help="experiment id, e.g. fig2.10 (see `skillkit list`)")
+    p.add_argument(
+        "ids",
+        nargs="+",
+        metavar="ID",
+        help="experiment id(s), e.g. fig2.10 (see `skillkit list`), or `all`",
+    )
     p.add_argument("--scale", choices=("quick", "paper"), default="quick")
-    p.add_argument("--trials", type=int, default=None, help="independent trials (default: per experiment)")
+    p.add_argument(
+        "--trials", type=int, default=None, help="independent trials (default: per experiment)"
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", default="runs", help="output folder (default: runs/)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
-    p.add_argument("--executor", choices=("local", "process", "ray"), default="local",
-                   help="run trials sequentially, on all cores, or on Ray (default: local)")
-    p.add_argument("--workers", type=int, default=None, help="processes / Ray CPUs (default: all cores)")
+    p.add_argument(
+        "--executor",
+        choices=("local", "process", "ray"),
+        default="local",
+        help="run trials sequentially, on all cores, or on Ray (default: local)",
+    )
+    p.add_argument(
+        "--workers", type=int, default=None, help="processes / Ray CPUs (default: all cores)"
+    )
     p.add_argument("--address", default=None, help="address of an existing Ray cluster")
-    p.add_argument("--fresh", action="store_true", help="discard this run's checkpoints and start over")
-    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                   help="override one setting of the scale (repeatable), e.g. --set n_updates=50")
+    p.add_argument(
+        "--fresh", action="store_true", help="discard this run's checkpoints and start over"
+    )
+    p.add_argument("--no-html", action="store_true", help="skip the self-contained HTML figure")
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override one setting of the scale (repeatable), e.g. --set n_updates=50",
+    )
     p.set_defaults(func=_cmd_reproduce)
 
     p = sub.add_parser("runs", help="list finished runs in the results store")
@@ -130,6 +180,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="runs")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_demo)
+
+    from skillkit.viz.cli_view import add_view_parser
+
+    add_view_parser(sub)
     return parser
 
 

@@ -85,7 +85,9 @@ class Trajectory:
         """Read a trajectory written by :meth:`save`."""
         with np.load(Path(path), allow_pickle=False) as data:
             meta = json.loads(str(data["__meta__"]))
-            signals = {k[len("signal__"):]: data[k] for k in data.files if k.startswith("signal__")}
+            signals = {
+                k[len("signal__") :]: data[k] for k in data.files if k.startswith("signal__")
+            }
             return cls(
                 times=data["times"],
                 states=data["states"],

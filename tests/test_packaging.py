@@ -4,8 +4,9 @@ the README quickstart and .ci/run agree, and the pinned simulator stack imports.
 from __future__ import annotations
 
 import re
-import tomllib
 from pathlib import Path
+
+import tomllib
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -22,7 +23,7 @@ def _environment_pip_requirements() -> set[str]:
     lines = (ROOT / "environment.yml").read_text().splitlines()
     start = next(i for i, line in enumerate(lines) if line.strip() == "- pip:")
     reqs = set()
-    for line in lines[start + 1:]:
+    for line in lines[start + 1 :]:
         stripped = line.strip()
         if not stripped or stripped.startswith("#"):
             continue
@@ -48,7 +49,9 @@ def test_torch_pin_satisfies_the_pyproject_range():
 def test_ci_installs_as_the_readme_says_and_runs_its_test_command():
     readme = (ROOT / "README.md").read_text()
     ci = (ROOT / ".ci" / "run").read_text()
-    install = re.search(r"^(pip install torch==2\.13\.0 && pip install -e .+)$", readme, re.M).group(1)
+    install = re.search(
+        r"^(pip install torch==2\.13\.0 && pip install -e .+)$", readme, re.M
+    ).group(1)
     test_cmd = re.search(r"^(python -m pytest.*)$", readme, re.M).group(1)
     assert install.replace("pip install", "python -m pip install") in ci
     assert re.search(rf"^{re.escape(test_cmd)}$", ci, re.M)

@@ -57,9 +57,10 @@ X_UP = np.concatenate([UPRIGHT, np.zeros(4)])
 
 
 # ---------------------------------------------------------------------------- shared pieces
-def stable_gains(task: Balancing, n: int, rng: np.random.Generator, max_spectral_radius: float = 0.98
-                 ) -> np.ndarray:
-    """``n`` parameter vectors ω ~ π(ω) (the task's initial policy) whose feedback balances robustly.
+def stable_gains(
+    task: Balancing, n: int, rng: np.random.Generator, max_spectral_radius: float = 0.98
+) -> np.ndarray:
+    """``n`` samples ω ~ π(ω) (the task's initial policy) whose feedback balances robustly.
 
     ω is kept if the closed loop of the task's linearisation at upright (Δt = control period)
     is stable with margin: ρ(A_c + B_c G) ≤ ``max_spectral_radius``, G = ω as (4, 8). About
@@ -78,16 +79,25 @@ def stable_gains(task: Balancing, n: int, rng: np.random.Generator, max_spectral
         batch = policy.sample(np.zeros((max(n, 16), 0)), rng=rng)
         for w in batch:
             tried += 1
-            if len(out) < n and np.abs(np.linalg.eigvals(A + B @ w.reshape(4, 8))).max() <= max_spectral_radius:
+            if (
+                len(out) < n
+                and np.abs(np.linalg.eigvals(A + B @ w.reshape(4, 8))).max() <= max_spectral_radius
+            ):
                 out.append(w)
         if tried > 100 * n:
-            raise RuntimeError(f"stable_gains: only {len(out)} of {tried} samples have spectral radius "
-                               f"<= {max_spectral_radius}")
+            raise RuntimeError(
+                f"stable_gains: only {len(out)} of {tried} samples have spectral radius "
+                f"<= {max_spectral_radius}"
+            )
     return np.array(out)
 
 
-def collect_balancing(task: Balancing, n_trajectories: int, rng: np.random.Generator,
-                      max_spectral_radius: float = 0.98) -> dict:
+def collect_balancing(
+    task: Balancing,
+    n_trajectories: int,
+    rng: np.random.Generator,
+    max_spectral_radius: float = 0.98,
+) -> dict:
     """Roll out ``n_trajectories`` robustly balancing ω (:func:`stable_gains`) from random x_0.
 
     Failed rollouts (the robot fell or diverged) are replaced by new ones and counted.
@@ -99,8 +109,11 @@ def collect_balancing(task: Balancing, n_trajectories: int, rng: np.random.Gener
         stacked transitions, ``n_failed``.
     """
     omegas, trajs, n_failed = [], [], 0
+    candidates = list(stable_gains(task, n_trajectories, rng, max_spectral_radius))
     while len(trajs) < n_trajectories:
-        omega = stable_gains(task, 1, rng, max_spectral_radius)[0]
+        if not candidates:
+            candidates = list(stable_gains(task, 1, rng, max_spectral_radius))
+        omega = candidates.pop(0)
         traj = task.rollout(omega, rng=rng)
         if traj.failed:
             n_failed += 1

@@ -39,8 +39,13 @@ def code_fingerprint(func) -> str:
 
 def identity(exp_id: str, settings: dict, trial: int, seed: int, code: str) -> dict:
     """What a trial's checkpoint must match to be resumed from."""
-    return {"experiment": exp_id, "settings": json.loads(json.dumps(settings, sort_keys=True, default=str)),
-            "trial": int(trial), "seed": int(seed), "code": code}
+    return {
+        "experiment": exp_id,
+        "settings": json.loads(json.dumps(settings, sort_keys=True, default=str)),
+        "trial": int(trial),
+        "seed": int(seed),
+        "code": code,
+    }
 
 
 def save(path: str | Path, ident: dict, payload: Any, kind: str) -> None:
@@ -59,8 +64,10 @@ def save(path: str | Path, ident: dict, payload: Any, kind: str) -> None:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     body = pickle.dumps(payload, protocol=pickle.HIGHEST_PROTOCOL)
-    header = json.dumps({**ident, "kind": kind, "sha256": hashlib.sha256(body).hexdigest(),
-                         "size": len(body)}, sort_keys=True).encode()
+    header = json.dumps(
+        {**ident, "kind": kind, "sha256": hashlib.sha256(body).hexdigest(), "size": len(body)},
+        sort_keys=True,
+    ).encode()
     tmp = path.with_name(path.name + f".tmp{os.getpid()}")
     with open(tmp, "wb") as fh:
         fh.write(MAGIC + struct.pack("<I", len(header)) + header + body)
@@ -88,19 +95,21 @@ def load(path: str | Path, ident: dict) -> tuple[str, Any] | None:
     raw = path.read_bytes()
     if not raw.startswith(MAGIC) or len(raw) < len(MAGIC) + 4:
         raise CheckpointError(f"{path}: not a skillkit checkpoint (bad magic bytes or truncated)")
-    (n,) = struct.unpack("<I", raw[len(MAGIC):len(MAGIC) + 4])
+    (n,) = struct.unpack("<I", raw[len(MAGIC) : len(MAGIC) + 4])
     start = len(MAGIC) + 4
     try:
-        header = json.loads(raw[start:start + n])
+        header = json.loads(raw[start : start + n])
     except (ValueError, UnicodeDecodeError):
         raise CheckpointError(f"{path}: unreadable header (file truncated or corrupted)") from None
-    body = raw[start + n:]
+    body = raw[start + n :]
     if len(body) != header.get("size") or hashlib.sha256(body).hexdigest() != header.get("sha256"):
-        raise CheckpointError(f"{path}: payload does not match its checksum (truncated or corrupted)")
+        raise CheckpointError(
+            f"{path}: payload does not match its checksum (truncated or corrupted)"
+        )
     for key, value in ident.items():
         if header.get(key) != value:
             raise CheckpointError(
-                f"{path}: checkpoint belongs to another run ({key}: {header.get(key)!r} != {value!r}); "
-                "use --fresh to start over"
+                f"{path}: checkpoint belongs to another run "
+                f"({key}: {header.get(key)!r} != {value!r}); use --fresh to start over"
             )
     return header["kind"], pickle.loads(body)

@@ -102,7 +102,9 @@ class Experiment:
         s = dict(self.settings[scale])
         for k, v in overrides.items():
             if k not in s:
-                raise ValueError(f"{k}: not a setting of experiment {self.id!r} (settings: {sorted(s)})")
+                raise ValueError(
+                    f"{k}: not a setting of experiment {self.id!r} (settings: {sorted(s)})"
+                )
             s[k] = v
         return s
 
@@ -135,7 +137,10 @@ def ids() -> list[str]:
 
     def key(i: str):
         head = "".join(c for c in i if c.isalpha())
-        nums = [int(p) if p.isdigit() else 0 for p in "".join(c if c.isdigit() else " " for c in i).split()]
+        nums = [
+            int(p) if p.isdigit() else 0
+            for p in "".join(c if c.isdigit() else " " for c in i).split()
+        ]
         return (nums, head)
 
     return sorted(_EXPERIMENTS, key=key)

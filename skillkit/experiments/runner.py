@@ -33,7 +33,16 @@ def versions() -> dict[str, str]:
     from importlib import metadata
 
     out = {"python": platform.python_version()}
-    for pkg in ("skillkit", "numpy", "scipy", "torch", "gpytorch", "mujoco", "dm-control", "pymunk"):
+    for pkg in (
+        "skillkit",
+        "numpy",
+        "scipy",
+        "torch",
+        "gpytorch",
+        "mujoco",
+        "dm-control",
+        "pymunk",
+    ):
         try:
             out[pkg] = metadata.version(pkg)
         except metadata.PackageNotFoundError:
@@ -70,8 +79,9 @@ class TrialContext:
     algorithm learning in the trial) share the trial's checkpoint file.
     """
 
-    def __init__(self, bar, path: Path | None = None, ident: dict | None = None,
-                 states: dict | None = None):
+    def __init__(
+        self, bar, path: Path | None = None, ident: dict | None = None, states: dict | None = None
+    ):
         self.bar = bar
         self.path = path
         self.ident = ident
@@ -116,8 +126,15 @@ class _NullBar:
         pass
 
 
-def _execute_trial(exp_id: str, settings: dict, seed_seq: np.random.SeedSequence, index: int,
-                   ckpt_path: str | None, ident: dict | None, show_progress: bool) -> dict:
+def _execute_trial(
+    exp_id: str,
+    settings: dict,
+    seed_seq: np.random.SeedSequence,
+    index: int,
+    ckpt_path: str | None,
+    ident: dict | None,
+    show_progress: bool,
+) -> dict:
     """Run (or resume) one trial; checkpoint its result. Module-level so workers can pickle it."""
     exp = get(exp_id)
     states = None
@@ -153,8 +170,10 @@ def _run_pending(exp_id, settings, jobs, executor, workers, address, progress) -
         if executor == "process":
             n = workers or os.cpu_count() or 1
             with ProcessPoolExecutor(max_workers=n, mp_context=get_context("spawn")) as pool:
-                futures = {pool.submit(_execute_trial, exp_id, settings, seq, i, path, ident, False): i
-                           for i, seq, path, ident in jobs}
+                futures = {
+                    pool.submit(_execute_trial, exp_id, settings, seq, i, path, ident, False): i
+                    for i, seq, path, ident in jobs
+                }
                 for fut in as_completed(futures):
                     results[futures[fut]] = fut.result()
                     outer.update()
@@ -162,15 +181,21 @@ def _run_pending(exp_id, settings, jobs, executor, workers, address, progress) -
             try:
                 import ray
             except ImportError:
-                raise ValueError("executor: 'ray' needs the ray extra (pip install -e '.[ray]')") from None
+                raise ValueError(
+                    "executor: 'ray' needs the ray extra (pip install -e '.[ray]')"
+                ) from None
             started = not ray.is_initialized()
             if started:
-                kwargs = {"address": address} if address else {"num_cpus": workers or os.cpu_count()}
+                kwargs = (
+                    {"address": address} if address else {"num_cpus": workers or os.cpu_count()}
+                )
                 ray.init(include_dashboard=False, log_to_driver=False, **kwargs)
             try:
                 remote = ray.remote(_execute_trial)
-                refs = {remote.remote(exp_id, settings, seq, i, path, ident, False): i
-                        for i, seq, path, ident in jobs}
+                refs = {
+                    remote.remote(exp_id, settings, seq, i, path, ident, False): i
+                    for i, seq, path, ident in jobs
+                }
                 pending = list(refs)
                 while pending:
                     done, pending = ray.wait(pending, num_returns=1)
@@ -184,10 +209,19 @@ def _run_pending(exp_id, settings, jobs, executor, workers, address, progress) -
     return results
 
 
-def run_trials(exp_id: str, scale: str = "quick", trials: int | None = None, seed: int = 0,
-               progress: bool = True, *, executor: str = "local", workers: int | None = None,
-               address: str | None = None, checkpoint_dir: str | Path | None = None,
-               **overrides) -> dict:
+def run_trials(
+    exp_id: str,
+    scale: str = "quick",
+    trials: int | None = None,
+    seed: int = 0,
+    progress: bool = True,
+    *,
+    executor: str = "local",
+    workers: int | None = None,
+    address: str | None = None,
+    checkpoint_dir: str | Path | None = None,
+    **overrides,
+) -> dict:
     """Run the trials of an experiment and return the result dict.
 
     Parameters
@@ -248,8 +282,11 @@ def run_trials(exp_id: str, scale: str = "quick", trials: int | None = None, see
         "trials": n_trials,
         "executor": executor,
         "versions": versions(),
-        "machine": {"platform": platform.platform(), "processor": platform.machine(),
-                    "cpus": os.cpu_count()},
+        "machine": {
+            "platform": platform.platform(),
+            "processor": platform.machine(),
+            "cpus": os.cpu_count(),
+        },
         "wall_time_s": time.perf_counter() - t0,
         "series": [to_jsonable(s.to_dict()) for s in series],
         "summary": to_jsonable(summary),
@@ -262,15 +299,27 @@ def run_folder(exp_id: str, scale: str, seed: int, out: str | Path) -> Path:
     return Path(out) / f"{exp_id}-{scale}-s{seed}"
 
 
-def reproduce(exp_id: str, scale: str = "quick", trials: int | None = None, seed: int = 0,
-              out: str | Path = "runs", progress: bool = True, *, executor: str = "local",
-              workers: int | None = None, address: str | None = None, fresh: bool = False,
-              **overrides) -> Path:
+def reproduce(
+    exp_id: str,
+    scale: str = "quick",
+    trials: int | None = None,
+    seed: int = 0,
+    out: str | Path = "runs",
+    progress: bool = True,
+    *,
+    executor: str = "local",
+    workers: int | None = None,
+    address: str | None = None,
+    fresh: bool = False,
+    html: bool = True,
+    **overrides,
+) -> Path:
     """Run an experiment, resuming from its checkpoints, and write its results.
 
     Writes ``result.json``, ``figure.html``, ``figure.png`` and ``trials.npz`` into
     :func:`run_folder` and returns that folder. ``fresh=True`` deletes earlier checkpoints
-    of this run first. Other arguments as in :func:`run_trials`.
+    of this run first; ``html=False`` skips the (4–5 MB, self-contained) HTML figure. Other
+    arguments as in :func:`run_trials`.
     """
     from skillkit.viz.plots import write_figures
 
@@ -278,8 +327,18 @@ def reproduce(exp_id: str, scale: str = "quick", trials: int | None = None, seed
     ckpt_dir = folder / "trials"
     if fresh and ckpt_dir.exists():
         shutil.rmtree(ckpt_dir)
-    result = run_trials(exp_id, scale, trials, seed, progress, executor=executor, workers=workers,
-                        address=address, checkpoint_dir=ckpt_dir, **overrides)
+    result = run_trials(
+        exp_id,
+        scale,
+        trials,
+        seed,
+        progress,
+        executor=executor,
+        workers=workers,
+        address=address,
+        checkpoint_dir=ckpt_dir,
+        **overrides,
+    )
     folder.mkdir(parents=True, exist_ok=True)
     trial_arrays = {}
     for i, tr in enumerate(result.pop("_trials")):
@@ -294,5 +353,5 @@ def reproduce(exp_id: str, scale: str = "quick", trials: int | None = None, seed
     tmp = folder / "result.json.tmp"
     tmp.write_text(json.dumps(result, indent=1))
     tmp.replace(folder / "result.json")
-    write_figures(result, folder)
+    write_figures(result, folder, html=html)
     return folder

@@ -26,9 +26,18 @@ def list_runs(root: str | Path = "runs") -> list[dict]:
             r = json.loads(path.read_text())
         except (OSError, ValueError):
             continue
-        runs.append({"path": str(path.parent), "id": r.get("id"), "scale": r.get("scale"),
-                     "seed": r.get("seed"), "trials": r.get("trials"), "executor": r.get("executor", "local"),
-                     "wall_time_s": r.get("wall_time_s"), "summary": r.get("summary", {})})
+        runs.append(
+            {
+                "path": str(path.parent),
+                "id": r.get("id"),
+                "scale": r.get("scale"),
+                "seed": r.get("seed"),
+                "trials": r.get("trials"),
+                "executor": r.get("executor", "local"),
+                "wall_time_s": r.get("wall_time_s"),
+                "summary": r.get("summary", {}),
+            }
+        )
     return runs
 
 
@@ -55,7 +64,9 @@ def _flatten(d: dict, prefix: str = "") -> dict:
     return out
 
 
-def compare(path_a: str | Path, path_b: str | Path) -> tuple[list[tuple[str, object, object]], dict]:
+def compare(
+    path_a: str | Path, path_b: str | Path
+) -> tuple[list[tuple[str, object, object]], dict]:
     """Two runs side by side.
 
     Returns
@@ -67,10 +78,22 @@ def compare(path_a: str | Path, path_b: str | Path) -> tuple[list[tuple[str, obj
         and `` [B]``), ready for :func:`skillkit.viz.plots.write_figures`.
     """
     a, b = load_run(path_a), load_run(path_b)
-    fa = _flatten({"summary": a.get("summary", {}), "settings": a.get("settings", {}),
-                   "wall_time_s": a.get("wall_time_s"), "trials": a.get("trials")})
-    fb = _flatten({"summary": b.get("summary", {}), "settings": b.get("settings", {}),
-                   "wall_time_s": b.get("wall_time_s"), "trials": b.get("trials")})
+    fa = _flatten(
+        {
+            "summary": a.get("summary", {}),
+            "settings": a.get("settings", {}),
+            "wall_time_s": a.get("wall_time_s"),
+            "trials": a.get("trials"),
+        }
+    )
+    fb = _flatten(
+        {
+            "summary": b.get("summary", {}),
+            "settings": b.get("settings", {}),
+            "wall_time_s": b.get("wall_time_s"),
+            "trials": b.get("trials"),
+        }
+    )
     rows = [(k, fa.get(k), fb.get(k)) for k in sorted(set(fa) | set(fb))]
     series = []
     for tag, r in (("A", a), ("B", b)):
@@ -78,6 +101,10 @@ def compare(path_a: str | Path, path_b: str | Path) -> tuple[list[tuple[str, obj
             fields = {k: v for k, v in s.items() if k in Series.__dataclass_fields__}
             fields["name"] = f"{s['name']} [{tag}]"
             series.append(fields)
-    merged = {"id": f"{a.get('id')} vs {b.get('id')}", "title": "comparison", "scale": "",
-              "series": series}
+    merged = {
+        "id": f"{a.get('id')} vs {b.get('id')}",
+        "title": "comparison",
+        "scale": "",
+        "series": series,
+    }
     return rows, merged

@@ -79,7 +79,10 @@ class Task(ABC):
         if context is None:
             if self.context_dim == 0:
                 return np.zeros(0)
-            raise ValueError(f"{name}: task {self.name!r} needs a context of shape ({self.context_dim},), got None")
+            raise ValueError(
+                f"{name}: task {self.name!r} needs a context of shape ({self.context_dim},), "
+                "got None"
+            )
         s = check_array(context, name, shape=(self.context_dim,))
         low, high = np.asarray(self.context_low), np.asarray(self.context_high)
         tol = 1e-9 * (1.0 + np.abs(high - low))
@@ -88,7 +91,8 @@ class Task(ABC):
             i = int(np.flatnonzero(outside)[0])
             label = self.context_names[i] if i < len(self.context_names) else f"[{i}]"
             raise ValueError(
-                f"{name}: {label}={s[i]:g} is outside task {self.name!r}'s range [{low[i]:g}, {high[i]:g}]"
+                f"{name}: {label}={s[i]:g} is outside task {self.name!r}'s range "
+                f"[{low[i]:g}, {high[i]:g}]"
             )
         return s
 
@@ -130,11 +134,19 @@ class Task(ABC):
         return traj
 
     def _failed(self, omega: np.ndarray, context: np.ndarray, message: str) -> Trajectory:
-        warnings.warn(f"{self.name}: rollout failed ({message}); reward set to {self.worst_reward:g}",
-                      RuntimeWarning, stacklevel=3)
-        return Trajectory(np.zeros(1), np.zeros((1, 1)), np.zeros((1, 1)),
-                          info={"omega": omega.tolist(), "context": context.tolist()},
-                          failed=True, message=message)
+        warnings.warn(
+            f"{self.name}: rollout failed ({message}); reward set to {self.worst_reward:g}",
+            RuntimeWarning,
+            stacklevel=3,
+        )
+        return Trajectory(
+            np.zeros(1),
+            np.zeros((1, 1)),
+            np.zeros((1, 1)),
+            info={"omega": omega.tolist(), "context": context.tolist()},
+            failed=True,
+            message=message,
+        )
 
     def reward(self, trajectory: Trajectory, context=None) -> float:
         """Reward R(τ, s) of a trajectory in a context (a pure function of both).
@@ -146,8 +158,11 @@ class Task(ABC):
             return float(self.worst_reward)
         r = float(self._reward(trajectory, s))
         if not np.isfinite(r):
-            warnings.warn(f"{self.name}: non-finite reward; set to {self.worst_reward:g}", RuntimeWarning,
-                          stacklevel=2)
+            warnings.warn(
+                f"{self.name}: non-finite reward; set to {self.worst_reward:g}",
+                RuntimeWarning,
+                stacklevel=2,
+            )
             return float(self.worst_reward)
         return r
 
@@ -158,7 +173,9 @@ class Task(ABC):
 
     # ----------------------------------------------------------------- subclass hooks
     @abstractmethod
-    def _simulate(self, omega: np.ndarray, context: np.ndarray, rng: np.random.Generator) -> Trajectory:
+    def _simulate(
+        self, omega: np.ndarray, context: np.ndarray, rng: np.random.Generator
+    ) -> Trajectory:
         """Simulate one episode (inputs already validated)."""
 
     @abstractmethod
@@ -170,4 +187,7 @@ class Task(ABC):
         """The thesis's initial upper-level policy π(ω|s) (imitation / thesis setting)."""
 
     def __repr__(self) -> str:
-        return f"{type(self).__name__}(name={self.name!r}, context_dim={self.context_dim}, parameter_dim={self.parameter_dim})"
+        return (
+            f"{type(self).__name__}(name={self.name!r}, context_dim={self.context_dim}, "
+            f"parameter_dim={self.parameter_dim})"
+        )

@@ -28,7 +28,9 @@ TORQUE_LIMIT = 3.0
 THESIS_GAINS = np.array([-3.0, -1.0])
 
 
-def pendulum_dynamics(x: np.ndarray, u: np.ndarray, dt: float = 0.1, substeps: int = 10) -> np.ndarray:
+def pendulum_dynamics(
+    x: np.ndarray, u: np.ndarray, dt: float = 0.1, substeps: int = 10
+) -> np.ndarray:
     """Deterministic successor state of α̈ = −9.81 sin α + u with u held for ``dt`` (RK4).
 
     Parameters
@@ -62,7 +64,9 @@ def pendulum_dynamics(x: np.ndarray, u: np.ndarray, dt: float = 0.1, substeps: i
     return x
 
 
-def feedback_torque(x: np.ndarray, gains: np.ndarray, noise: np.ndarray | float = 0.0) -> np.ndarray:
+def feedback_torque(
+    x: np.ndarray, gains: np.ndarray, noise: np.ndarray | float = 0.0
+) -> np.ndarray:
     """u = clip(Kᵀx + noise, −3, 3) for states of shape (..., 2)."""
     return np.clip(np.asarray(x) @ np.asarray(gains) + noise, -TORQUE_LIMIT, TORQUE_LIMIT)
 
@@ -89,12 +93,21 @@ class Pendulum(Task):
     trajectory_depends_on_context = True
     worst_reward = -1e6
 
-    def __init__(self, horizon: int = 20, control_noise: float = 0.05, dt: float = 0.1,
-                 alpha_range: float = np.pi, velocity_range: float = 4.0, name: str = "pendulum"):
+    def __init__(
+        self,
+        horizon: int = 20,
+        control_noise: float = 0.05,
+        dt: float = 0.1,
+        alpha_range: float = np.pi,
+        velocity_range: float = 4.0,
+        name: str = "pendulum",
+    ):
         if int(horizon) < 1:
             raise ValueError(f"horizon: expected a positive number of steps, got {horizon}")
         if not control_noise >= 0:
-            raise ValueError(f"control_noise: expected a standard deviation >= 0, got {control_noise}")
+            raise ValueError(
+                f"control_noise: expected a standard deviation >= 0, got {control_noise}"
+            )
         if not dt > 0:
             raise ValueError(f"dt: expected a positive control period, got {dt}")
         self.name = name
@@ -104,7 +117,9 @@ class Pendulum(Task):
         self.context_low = np.array([-alpha_range, -velocity_range], dtype=float)
         self.context_high = -self.context_low
 
-    def _simulate(self, omega: np.ndarray, context: np.ndarray, rng: np.random.Generator) -> Trajectory:
+    def _simulate(
+        self, omega: np.ndarray, context: np.ndarray, rng: np.random.Generator
+    ) -> Trajectory:
         T = self.horizon
         states = np.empty((T + 1, 2))
         controls = np.zeros((T + 1, 1))
@@ -114,8 +129,12 @@ class Pendulum(Task):
             u = feedback_torque(states[t], omega, noise[t])
             controls[t, 0] = u
             states[t + 1] = pendulum_dynamics(states[t], u, self.dt)
-        return Trajectory(times=self.dt * np.arange(T + 1), states=states, controls=controls,
-                          info={"gains": omega.tolist()})
+        return Trajectory(
+            times=self.dt * np.arange(T + 1),
+            states=states,
+            controls=controls,
+            info={"gains": omega.tolist()},
+        )
 
     def _reward(self, trajectory: Trajectory, context: np.ndarray) -> float:
         x = trajectory.states[1:]
@@ -125,8 +144,9 @@ class Pendulum(Task):
         """π(ω|s) = N(K_thesis, diag(0.5², 0.25²)), independent of the context."""
         from skillkit.policies.gaussian import LinearGaussianPolicy
 
-        return LinearGaussianPolicy(mean=THESIS_GAINS.copy(), cov=np.diag([0.5**2, 0.25**2]),
-                                    context_dim=self.context_dim)
+        return LinearGaussianPolicy(
+            mean=THESIS_GAINS.copy(), cov=np.diag([0.5**2, 0.25**2]), context_dim=self.context_dim
+        )
 
 
 @register("pendulum", "pendulum", "contextual")

@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from skillkit.viz.viewer import DEFAULT_HOST, DEFAULT_PORT, PortInUseError
+from skillkit.viz import DEFAULT_HOST, DEFAULT_PORT
 
 
 def add_view_parser(subparsers) -> argparse.ArgumentParser:
@@ -78,7 +78,7 @@ def build_viewer(args: argparse.Namespace):
 
 def run_view(args: argparse.Namespace) -> int:
     """Start the viewer and serve until Ctrl-C; bad input → one-line message, exit code 2."""
-    from skillkit.viz.viewer import load_predictions
+    from skillkit.viz.viewer import PortInUseError, load_predictions
 
     try:
         viewer = build_viewer(args)

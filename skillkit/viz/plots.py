@@ -38,24 +38,67 @@ def plotly_figure(result: dict):
         kind = s.get("kind", "line")
         show = sum(1 for t in fig.data if t.name == s["name"]) == 0
         if kind == "heatmap":
-            fig.add_trace(go.Heatmap(x=s["x"], y=s["y"], z=s["z"], name=s["name"], colorscale="Viridis",
-                                     showscale=idx == 0), row=row, col=col)
+            fig.add_trace(
+                go.Heatmap(
+                    x=s["x"],
+                    y=s["y"],
+                    z=s["z"],
+                    name=s["name"],
+                    colorscale="Viridis",
+                    showscale=idx == 0,
+                ),
+                row=row,
+                col=col,
+            )
         elif kind == "bar":
-            fig.add_trace(go.Bar(x=s["x"], y=s["y"], name=s["name"], marker_color=color, showlegend=show),
-                          row=row, col=col)
+            fig.add_trace(
+                go.Bar(x=s["x"], y=s["y"], name=s["name"], marker_color=color, showlegend=show),
+                row=row,
+                col=col,
+            )
         else:
             if s.get("lower") is not None and s.get("upper") is not None:
-                fig.add_trace(go.Scatter(x=list(s["x"]) + list(s["x"])[::-1],
-                                         y=list(s["upper"]) + list(s["lower"])[::-1], fill="toself",
-                                         line={"width": 0}, fillcolor=color, opacity=0.2, hoverinfo="skip",
-                                         showlegend=False, name=s["name"]), row=row, col=col)
+                fig.add_trace(
+                    go.Scatter(
+                        x=list(s["x"]) + list(s["x"])[::-1],
+                        y=list(s["upper"]) + list(s["lower"])[::-1],
+                        fill="toself",
+                        line={"width": 0},
+                        fillcolor=color,
+                        opacity=0.2,
+                        hoverinfo="skip",
+                        showlegend=False,
+                        name=s["name"],
+                    ),
+                    row=row,
+                    col=col,
+                )
             mode = {"line": "lines", "markers": "markers"}.get(kind, kind)
-            fig.add_trace(go.Scatter(x=s["x"], y=s["y"], mode=mode, name=s["name"], line={"color": color},
-                                     marker={"color": color}, showlegend=show), row=row, col=col)
-        fig.update_xaxes(title_text=s.get("xlabel", ""), type="log" if s.get("log_x") else None, row=row, col=col)
-        fig.update_yaxes(title_text=s.get("ylabel", ""), type="log" if s.get("log_y") else None, row=row, col=col)
-    fig.update_layout(title=f"{result['id']}: {result['title']} ({result.get('scale', '')})",
-                      height=380 * nrows, width=560 * ncols, template="plotly_white")
+            fig.add_trace(
+                go.Scatter(
+                    x=s["x"],
+                    y=s["y"],
+                    mode=mode,
+                    name=s["name"],
+                    line={"color": color},
+                    marker={"color": color},
+                    showlegend=show,
+                ),
+                row=row,
+                col=col,
+            )
+        fig.update_xaxes(
+            title_text=s.get("xlabel", ""), type="log" if s.get("log_x") else None, row=row, col=col
+        )
+        fig.update_yaxes(
+            title_text=s.get("ylabel", ""), type="log" if s.get("log_y") else None, row=row, col=col
+        )
+    fig.update_layout(
+        title=f"{result['id']}: {result['title']} ({result.get('scale', '')})",
+        height=380 * nrows,
+        width=560 * ncols,
+        template="plotly_white",
+    )
     return fig
 
 
@@ -78,8 +121,15 @@ def matplotlib_figure(result: dict):
         color = colors.setdefault(s["name"], _COLORS[len(colors) % len(_COLORS)])
         kind = s.get("kind", "line")
         if kind == "heatmap":
-            mesh = ax.pcolormesh(s["x"], s["y"], s["z"], shading="auto", cmap="viridis",
-                                 vmin=s.get("zmin"), vmax=s.get("zmax"))
+            mesh = ax.pcolormesh(
+                s["x"],
+                s["y"],
+                s["z"],
+                shading="auto",
+                cmap="viridis",
+                vmin=s.get("zmin"),
+                vmax=s.get("zmax"),
+            )
             fig.colorbar(mesh, ax=ax)
         elif kind == "bar":
             ax.bar([str(v) for v in s["x"]], s["y"], color=color, label=s["name"])
@@ -107,15 +157,18 @@ def matplotlib_figure(result: dict):
     return fig
 
 
-def write_figures(result: dict, folder: str | Path) -> tuple[Path, Path]:
-    """Write ``figure.html`` (plotly) and ``figure.png`` (matplotlib) into ``folder``."""
+def write_figures(result: dict, folder: str | Path, html: bool = True) -> tuple[Path | None, Path]:
+    """Write ``figure.html`` (plotly, self-contained; skipped with ``html=False``) and
+    ``figure.png`` (matplotlib) into ``folder``."""
     import matplotlib.pyplot as plt
 
     folder = Path(folder)
-    html = folder / "figure.html"
-    plotly_figure(result).write_html(html, include_plotlyjs=True)
+    html_path = None
+    if html:
+        html_path = folder / "figure.html"
+        plotly_figure(result).write_html(html_path, include_plotlyjs=True)
     png = folder / "figure.png"
     fig = matplotlib_figure(result)
     fig.savefig(png, dpi=90)
     plt.close(fig)
-    return html, png
+    return html_path, png

@@ -67,6 +67,7 @@ import numpy as np
 from skillkit._validation import as_generator, check_array
 from skillkit.policies.gaussian import LinearGaussianPolicy
 from skillkit.trajectory import Trajectory
+from skillkit.viz import DEFAULT_HOST, DEFAULT_PORT
 from skillkit.viz.scenes import (
     COLORS,
     TaskScene,
@@ -95,8 +96,6 @@ __all__ = [
     "save_predictions",
 ]
 
-DEFAULT_HOST = "127.0.0.1"
-DEFAULT_PORT = 8080
 HISTORY_FORMAT = "skillkit-policy-history-v1"
 PREDICTION_COLORS = [(220, 40, 160), (150, 70, 220), (20, 170, 170), (230, 160, 0)]
 """Colours given to prediction layers in turn when none is specified."""

@@ -114,7 +114,7 @@ def test_crkr_starts_with_the_initial_diagonal_exploration():
     crkr = ch.make_algorithm("crkr", task, settings)
     centre = 0.5 * (task.context_low + task.context_high)
     k_cc = float(gram(crkr.kernel, centre[None, :])[0, 0])
-    assert k_cc == pytest.approx(1.0 + 1.0)  # v ‖s̄‖² + c with v = 1/‖s̄‖², c = 1
+    assert k_cc == pytest.approx(1.0)  # z = 0 at the centre: only the intercept c = 1
     start = np.asarray(crkr.variance_scale) * (k_cc + crkr.lam)
     np.testing.assert_allclose(start, np.diag(task.initial_policy().cov))
     reps = ch.make_algorithm("reps", task, settings)
@@ -146,3 +146,16 @@ def test_heldout_scores_closed_form_on_a_fixed_policy():
     assert scores["reward"] == pytest.approx(
         np.mean([task.reward(t, s) for t, s in zip(trajs, contexts, strict=True)])
     )
+
+
+def test_normalised_linear_kernel_closed_form():
+    centre, scale = np.array([2.0, 0.75, 0.5]), np.array([0.5, 0.25, 0.5])
+    kernel = ch.NormalisedLinear(centre, scale, variance=2.0, bias=0.5)
+    rng = np.random.default_rng(0)
+    a, b = rng.uniform(1.5, 2.5, (4, 3)), rng.uniform(1.5, 2.5, (3, 3))
+    za, zb = (a - centre) / scale, (b - centre) / scale
+    np.testing.assert_allclose(gram(kernel, a, b), 2.0 * za @ zb.T + 0.5, rtol=1e-12)
+    with pytest.raises(ValueError, match="scale"):
+        ch.NormalisedLinear(centre, np.array([0.5, 0.0, 1.0]))
+    with pytest.raises(ValueError, match="centre"):
+        ch.NormalisedLinear(centre[:2], scale)

@@ -53,8 +53,16 @@ def test_corrupted_payload_and_foreign_file_are_refused(tmp_path):
         checkpoint.load(path, _ident())
 
 
-@pytest.mark.parametrize("field, value", [("settings", {"eps": 0.5, "n": 3}), ("code", "0.1.0:def"),
-                                          ("trial", 2), ("seed", 8), ("experiment", "fig3.5")])
+@pytest.mark.parametrize(
+    "field, value",
+    [
+        ("settings", {"eps": 0.5, "n": 3}),
+        ("code", "0.1.0:def"),
+        ("trial", 2),
+        ("seed", 8),
+        ("experiment", "fig3.5"),
+    ],
+)
 def test_other_settings_trial_or_code_are_refused(tmp_path, field, value):
     path = tmp_path / "t.ckpt"
     checkpoint.save(path, _ident(), {"a": 1}, kind="state")

@@ -20,14 +20,18 @@ def _same(a, b):
 
 
 def test_process_pool_matches_local(local_result):
-    result = run_trials("sanity3", trials=2, seed=3, progress=False, executor="process", workers=2, **SMALL)
+    result = run_trials(
+        "sanity3", trials=2, seed=3, progress=False, executor="process", workers=2, **SMALL
+    )
     assert result["executor"] == "process"
     _same(result, local_result)
 
 
 def test_local_ray_instance_matches_local(local_result):
     pytest.importorskip("ray")
-    result = run_trials("sanity3", trials=2, seed=3, progress=False, executor="ray", workers=2, **SMALL)
+    result = run_trials(
+        "sanity3", trials=2, seed=3, progress=False, executor="ray", workers=2, **SMALL
+    )
     assert result["executor"] == "ray"
     _same(result, local_result)
 

@@ -12,7 +12,6 @@ from skillkit.experiments import registry
 from skillkit.experiments.registry import Experiment, Series, mean_band
 from skillkit.experiments.runner import reproduce, run_trials
 
-
 CRASH = {"at": None}
 
 
@@ -39,14 +38,23 @@ def _trial(settings, rng, progress):
 def _summarize(settings, trials):
     curves = np.array([t["walk"] for t in trials])
     m, lo, hi = mean_band(curves)
-    series = [Series("walk", list(range(settings["n"])), m, lower=lo, upper=hi, panel="a", xlabel="t")]
+    series = [
+        Series("walk", list(range(settings["n"])), m, lower=lo, upper=hi, panel="a", xlabel="t")
+    ]
     return series, {"mean_last": float(np.mean([t["last"] for t in trials]))}
 
 
 @pytest.fixture
 def toy(monkeypatch):
-    exp = Experiment("toy1.1", "random walk", {"quick": {"n": 5}, "paper": {"n": 50}}, _trial, _summarize,
-                     trials={"quick": 3, "paper": 2}, claim="walks wander")
+    exp = Experiment(
+        "toy1.1",
+        "random walk",
+        {"quick": {"n": 5}, "paper": {"n": 50}},
+        _trial,
+        _summarize,
+        trials={"quick": 3, "paper": 2},
+        claim="walks wander",
+    )
     registry._load_all()
     monkeypatch.setitem(registry._EXPERIMENTS, exp.id, exp)
     return exp
@@ -72,7 +80,15 @@ def test_reproduce_writes_result_figures_and_arrays(toy, tmp_path):
     folder = reproduce("toy1.1", scale="paper", seed=1, out=tmp_path, progress=False)
     result = json.loads((folder / "result.json").read_text())
     assert result["id"] == "toy1.1" and result["scale"] == "paper" and result["trials"] == 2
-    assert {"settings", "seed", "versions", "series", "summary", "wall_time_s", "claim"} <= result.keys()
+    assert {
+        "settings",
+        "seed",
+        "versions",
+        "series",
+        "summary",
+        "wall_time_s",
+        "claim",
+    } <= result.keys()
     assert result["versions"]["numpy"] == np.__version__
     assert len(result["series"][0]["y"]) == 50
     assert (folder / "figure.html").stat().st_size > 10_000
@@ -106,7 +122,9 @@ def test_mean_band_matches_numpy():
     np.testing.assert_allclose(m, curves.mean(0))
     np.testing.assert_allclose(np.array(hi) - np.array(m), curves.std(0, ddof=1))
     _, lo95, hi95 = mean_band(curves, kind="ci95")
-    np.testing.assert_allclose(np.array(hi95) - np.array(lo95), 2 * 1.96 * curves.std(0, ddof=1) / 2)
+    np.testing.assert_allclose(
+        np.array(hi95) - np.array(lo95), 2 * 1.96 * curves.std(0, ddof=1) / 2
+    )
 
 
 def test_cli_list_reproduce_and_errors(toy, tmp_path, capsys):
@@ -149,7 +167,10 @@ def test_foreign_or_corrupt_checkpoint_is_reported(toy, tmp_path, capsys):
     assert main(["reproduce", "toy1.1", "--seed", "1", "--out", str(tmp_path), "--quiet"]) == 2
     assert "trial_001.ckpt" in capsys.readouterr().err
     # Other settings written into the same folder are refused too.
-    assert main(["reproduce", "toy1.1", "--seed", "1", "--out", str(tmp_path), "--quiet", "--fresh"]) == 0
+    assert (
+        main(["reproduce", "toy1.1", "--seed", "1", "--out", str(tmp_path), "--quiet", "--fresh"])
+        == 0
+    )
     from skillkit.experiments import checkpoint
     from skillkit.experiments.checkpoint import CheckpointError
 
@@ -182,7 +203,17 @@ def test_kill_9_mid_run_then_resume_gives_identical_numbers(tmp_path):
     import sys
     import time
 
-    args = ["reproduce", "sanity3", "--trials", "1", "--seed", "9", "--quiet", "--set", "n_updates=30"]
+    args = [
+        "reproduce",
+        "sanity3",
+        "--trials",
+        "1",
+        "--seed",
+        "9",
+        "--quiet",
+        "--set",
+        "n_updates=30",
+    ]
     assert main(args + ["--out", str(tmp_path / "clean")]) == 0
     cmd = [sys.executable, "-m", "skillkit.cli"] + args + ["--out", str(tmp_path / "killed")]
     ckpt = tmp_path / "killed" / "sanity3-quick-s9" / "trials" / "trial_000.ckpt"

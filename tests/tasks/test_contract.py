@@ -137,7 +137,9 @@ def test_nan_trajectory_is_reported(task, monkeypatch):
     good = task.rollout(omega, s, rng=0)
     states = good.states.copy()
     states[-1, 0] = np.nan
-    monkeypatch.setattr(task, "_simulate", lambda *a, **k: Trajectory(good.times, states, good.controls))
+    monkeypatch.setattr(
+        task, "_simulate", lambda *a, **k: Trajectory(good.times, states, good.controls)
+    )
     with pytest.warns(RuntimeWarning, match="non-finite"):
         traj = task.rollout(omega, s)
     assert traj.failed

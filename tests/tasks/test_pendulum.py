@@ -13,7 +13,9 @@ def test_rk4_step_matches_adaptive_ode_solver():
     for _ in range(5):
         x0 = rng.uniform([-3, -4], [3, 4])
         u = rng.uniform(-3, 3)
-        sol = solve_ivp(lambda t, x: [x[1], -9.81 * np.sin(x[0]) + u], (0, 0.1), x0, rtol=1e-12, atol=1e-12)
+        sol = solve_ivp(
+            lambda t, x, u=u: [x[1], -9.81 * np.sin(x[0]) + u], (0, 0.1), x0, rtol=1e-12, atol=1e-12
+        )
         np.testing.assert_allclose(pendulum_dynamics(x0, u), sol.y[:, -1], atol=1e-8)
 
 
@@ -69,8 +71,10 @@ def test_stochastic_variant_has_wide_reward_distribution():
     assert np.std(rewards) > 5 * np.std(quiet_rewards)
 
 
-@pytest.mark.parametrize("kwargs, arg", [({"horizon": 0}, "horizon"), ({"control_noise": -1}, "control_noise"),
-                                         ({"dt": 0}, "dt")])
+@pytest.mark.parametrize(
+    "kwargs, arg",
+    [({"horizon": 0}, "horizon"), ({"control_noise": -1}, "control_noise"), ({"dt": 0}, "dt")],
+)
 def test_bad_settings_raise(kwargs, arg):
     with pytest.raises(ValueError, match=arg):
         make("pendulum", **kwargs)

@@ -201,7 +201,11 @@ class _SharedBar:
 
 
 def _run_trial(settings: dict, rng: np.random.Generator, progress) -> dict:
-    """Both algorithms, same task, same evaluation and held-out contexts."""
+    """Both algorithms, same task, same evaluation and held-out contexts.
+
+    Each ``learn`` call checkpoints after every update when ``progress`` can (the runner's
+    trial context), so an interrupted paper-scale trial resumes with the same numbers.
+    """
     from skillkit.search.loop import learn
 
     task = make(settings["task"])
@@ -211,31 +215,33 @@ def _run_trial(settings: dict, rng: np.random.Generator, progress) -> dict:
     eval_contexts = task.sample_context(rng, n=int(settings["n_eval_contexts"]))
     heldout_seed = int(rng.integers(2**63))
     progress.reset(total=len(ALGORITHMS) * K)
+
+    def record(k: int, alg) -> dict | None:
+        if k % every == 0 or k == K:
+            return heldout_scores(task, alg.policy, heldout, heldout_seed)
+        return None
+
     out: dict = {"heldout_contexts": heldout}
     for name, alg_rng in zip(ALGORITHMS, rng.spawn(len(ALGORITHMS)), strict=True):
         t0 = time.perf_counter()
-        algorithm = make_algorithm(name, task, settings)
-        points: list[tuple[int, dict]] = []
-
-        def record(k: int, alg, points: list = points) -> None:
-            if k % every == 0 or k == K:
-                points.append((k * N, heldout_scores(task, alg.policy, heldout, heldout_seed)))
-
         res = learn(
             task,
-            algorithm,
+            make_algorithm(name, task, settings),
             K,
             N,
             alg_rng,
             progress=_SharedBar(progress),
             eval_contexts=eval_contexts,
             callback=record,
+            checkpoint=progress if hasattr(progress, "save") else None,
+            checkpoint_key=name,
         )
         out[f"{name}_rollouts"] = res["rollouts"]
         out[f"{name}_mean_reward"] = res["mean_reward"]
         out[f"{name}_explore_rollouts"] = res["explore_rollouts"]
         out[f"{name}_explore_reward"] = res["explore_reward"]
         out[f"{name}_n_failed"] = res["n_failed"]
+        points = [(k * N, v) for k, v in enumerate(res["callback"]) if v is not None]
         out[f"{name}_heldout_rollouts"] = np.array([p[0] for p in points])
         for key in (
             "reward",
@@ -245,7 +251,7 @@ def _run_trial(settings: dict, rng: np.random.Generator, progress) -> dict:
             "blade_lowest",
         ):
             out[f"{name}_heldout_{key}"] = np.array([p[1][key] for p in points])
-        out[f"{name}_wall_time_s"] = time.perf_counter() - t0
+        out[f"{name}_wall_time_s"] = time.perf_counter() - t0  # this process's share
     return out
 
 

@@ -15,9 +15,9 @@ otherwise the maximal error was smaller than 10 cm".
 
 Numerics: with fewer effective samples than parameters in early updates the ML covariance is
 rank deficient, so the fit floors every direction at ``cov_floor`` times its previous
-variance; and since REPS keeps shrinking some directions geometrically, the policies are
-:class:`ConditionedPolicy` objects that keep Σ's condition number below 1e12 (how often that
-guard fired is in the summary).
+variance; and since REPS keeps shrinking some directions geometrically, the fit's
+condition-number guard keeps Σ's condition number below 1e12 (how many updates it fired in is
+in the summary).
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from skillkit.policies.gaussian import LinearGaussianPolicy
 from skillkit.search import ContextualREPS, learn
 from skillkit.tasks import make
 
-__all__ = ["ConditionedPolicy", "run_trial", "summarize", "target_grid"]
+__all__ = ["run_trial", "summarize", "target_grid"]
 
 METHODS = ("REPS", "REPS + extra context")
 FAR_X = 13.0
@@ -55,37 +55,6 @@ SETTINGS = {
     "quick": {**_COMMON, "n_updates": 40, "n_eval_contexts": 8},
     "paper": {**_COMMON, "n_updates": 200, "n_eval_contexts": 20},
 }
-
-
-class ConditionedPolicy(LinearGaussianPolicy):
-    """Linear-Gaussian policy whose refits keep Σ numerically positive definite.
-
-    Contextual REPS with sample reuse shrinks some directions of Σ geometrically (on
-    throwing, the narrowest direction by a factor ≈ 0.4 per update, measured): after
-    ~100 updates Σ's condition number passes 1e16 and round-off makes its smallest eigenvalue
-    negative (the Cholesky factorisation fails). :meth:`_new` therefore raises eigenvalues
-    below ``min_relative_eigenvalue`` · λ_max to that value — a numerical guard that
-    leaves every direction with at least 1e-6 of the widest direction's standard deviation
-    — and counts how often it did so (:attr:`n_conditioned`, reported in the summary).
-    """
-
-    min_relative_eigenvalue = 1e-12
-
-    def __init__(self, mean, cov, gain=None, context_dim=0, features="linear", n_conditioned=0):
-        super().__init__(mean, cov, gain, context_dim, features)
-        self.n_conditioned = int(n_conditioned)
-
-    def _new(self, mean, cov, gain) -> ConditionedPolicy:
-        cov = 0.5 * (cov + cov.T)
-        lam, vec = np.linalg.eigh(cov)
-        low = self.min_relative_eigenvalue * lam[-1]
-        fired = bool(lam[0] < low)
-        if fired:
-            cov = (vec * np.maximum(lam, low)) @ vec.T
-            cov = 0.5 * (cov + cov.T)
-        return ConditionedPolicy(
-            mean, cov, gain, self.context_dim, self.features, self.n_conditioned + fired
-        )
 
 
 def target_grid(settings: dict) -> np.ndarray:
@@ -130,7 +99,7 @@ def run_trial(settings: dict, rng: np.random.Generator, progress) -> dict:
         ("reps", "extra"), (0, settings["extra_contexts"]), seeds, strict=True
     ):
         init = task.initial_policy()
-        init = ConditionedPolicy(
+        init = LinearGaussianPolicy(
             init.mean, init.cov, context_dim=task.context_dim, features=settings["policy_features"]
         )
         algo = ContextualREPS(
@@ -151,6 +120,8 @@ def run_trial(settings: dict, rng: np.random.Generator, progress) -> dict:
             progress=progress,
             extra_contexts=extra,
             eval_contexts=eval_contexts,
+            checkpoint=progress if hasattr(progress, "save") else None,
+            checkpoint_key=key,
         )
         dist, pen = _final_errors(task, curves["policy"], targets)
         out["rollouts"] = curves["rollouts"]
@@ -159,7 +130,7 @@ def run_trial(settings: dict, rng: np.random.Generator, progress) -> dict:
         out[f"{key}_failed"] = curves["n_failed"]
         out[f"{key}_distance"] = dist
         out[f"{key}_penalty"] = pen
-        out[f"{key}_conditioned"] = curves["policy"].n_conditioned
+        out[f"{key}_conditioned"] = sum(d.fit.n_conditioned > 0 for d in curves["diagnostics"])
     return out
 
 

@@ -40,7 +40,6 @@ from __future__ import annotations
 
 import time
 import warnings
-from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -64,16 +63,7 @@ from skillkit.tasks import make
 from skillkit.tasks.pendulum import THESIS_GAINS, feedback_torque, pendulum_dynamics
 from skillkit.tasks.planar import UPRIGHT
 
-__all__ = ["HeatmapSeries", "balancing_reward", "random_lqr_gains"]
-
-
-@dataclass
-class HeatmapSeries(Series):
-    """A heatmap :class:`Series` with an explicit colour range, so that panels compared by eye
-    share one scale (``zmin``/``zmax`` are read by :mod:`skillkit.viz.plots`)."""
-
-    zmin: float | None = None
-    zmax: float | None = None
+__all__ = ["balancing_reward", "random_lqr_gains"]
 
 
 def _initial_lengthscales(x: np.ndarray) -> np.ndarray:
@@ -240,7 +230,7 @@ def _pendulum_summary(key: str, label: str):
         for m, title in (("emb", "(a) kernel embedding"), ("gp", "(b) GP regression")):
             panel = f"{title}: log10 {label}"
             series.append(
-                HeatmapSeries(
+                Series(
                     name=f"log10 {label}, {title[4:]}",
                     x=t0["alpha"],
                     y=t0["alpha_dot"],

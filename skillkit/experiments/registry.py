@@ -46,6 +46,8 @@ class Series:
         Axis labels of the panel.
     log_x, log_y : bool
         Logarithmic axes.
+    zmin, zmax : float, optional
+        Colour range of a heatmap (give panels compared by eye the same range).
     """
 
     name: str
@@ -60,6 +62,8 @@ class Series:
     ylabel: str = ""
     log_x: bool = False
     log_y: bool = False
+    zmin: float | None = None
+    zmax: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {k: v for k, v in asdict(self).items() if v is not None}

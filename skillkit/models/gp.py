@@ -431,7 +431,7 @@ def optimize(
                     return loss
 
                 opt.step(closure)
-                n_iter = int(opt.state[opt._params[0]].get("n_iter", 0))
+                n_iter = int(opt.state[parameters[0]].get("n_iter", 0))
             else:
                 opt = torch.optim.Adam(parameters, lr=learning_rate)
                 for _ in range(n_steps):

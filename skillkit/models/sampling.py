@@ -25,7 +25,8 @@ Design:
 * **Memory.** Trajectories are processed in chunks of rows, each chunk over the whole
   horizon; the chunk size bounds the (E, chunk, M) kernel work arrays by ``max_chunk_bytes``.
   The Gaussian noise of all trajectories is drawn up front from one stream (shape
-  (B·L, T, n_x)), so results do not depend on the chunk size.
+  (B·L, T, n_x)), so results do not depend on the chunk size (up to round-off: the BLAS
+  blocking of a product depends on its size).
 * **Randomness.** ``rng`` (numpy Generator, int, SeedSequence or None) seeds a torch
   generator on the device: the same seed gives the same samples.
 """

@@ -49,6 +49,9 @@ class FitInfo:
     n_floored : int
         Number of those eigenvalues raised to the floor ``cov_floor`` (0 when the floor was
         inactive).
+    n_conditioned : int
+        Number of eigenvalues of the new Σ raised to :data:`MIN_RELATIVE_EIGENVALUE` times its
+        largest one (the condition-number guard; 0 when inactive).
     """
 
     n_samples: int
@@ -57,6 +60,12 @@ class FitInfo:
     cov_shrinkage: float
     min_cov_ratio: float
     n_floored: int
+    n_conditioned: int = 0
+
+
+#: Condition-number guard of :meth:`LinearGaussianPolicy.fit_with_info`: no eigenvalue of a
+#: fitted Σ is left below this fraction of its largest one (condition number ≤ 1e12).
+MIN_RELATIVE_EIGENVALUE = 1e-12
 
 
 def effective_sample_size(weights: np.ndarray) -> float:
@@ -337,6 +346,10 @@ class LinearGaussianPolicy:
            ``cov_floor`` are raised to it, so no direction shrinks by more than that factor in
            one update and Σ stays positive definite even when the samples span fewer than d
            directions. How often this happened is reported in :class:`FitInfo`.
+        5. **Condition-number guard**: eigenvalues of the new Σ below
+           :data:`MIN_RELATIVE_EIGENVALUE` (1e-12) times its largest are raised to that value,
+           so Σ stays numerically positive definite however long REPS keeps shrinking it
+           (counted in :attr:`FitInfo.n_conditioned`).
 
         Parameters
         ----------
@@ -442,7 +455,17 @@ class LinearGaussianPolicy:
             root = self._chol @ vec
             cov = (root * np.maximum(lam, floor)) @ root.T
             cov = 0.5 * (cov + cov.T)
-        info = FitInfo(n, ess, ridge, kappa, float(lam.min()), n_floored)
+        # 5. condition-number guard: REPS with sample reuse can shrink some directions
+        # geometrically (factor ~0.4 per update measured on throwing) until round-off makes Σ
+        # indefinite; eigenvalues below MIN_RELATIVE_EIGENVALUE·λ_max are raised to that value
+        # and counted in the FitInfo.
+        ev, evec = np.linalg.eigh(cov)
+        low = MIN_RELATIVE_EIGENVALUE * ev[-1]
+        n_conditioned = int(np.sum(ev < low))
+        if n_conditioned:
+            cov = (evec * np.maximum(ev, low)) @ evec.T
+            cov = 0.5 * (cov + cov.T)
+        info = FitInfo(n, ess, ridge, kappa, float(lam.min()), n_floored, n_conditioned)
         return self._new(a, cov, A), info
 
     def _new(self, mean: np.ndarray, cov: np.ndarray, gain: np.ndarray) -> LinearGaussianPolicy:

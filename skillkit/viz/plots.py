@@ -7,6 +7,7 @@ same series (no browser needed), so both files always show the same numbers.
 from __future__ import annotations
 
 import math
+import textwrap
 from pathlib import Path
 
 _COLORS = ["#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#17becf"]
@@ -45,6 +46,8 @@ def plotly_figure(result: dict):
                     z=s["z"],
                     name=s["name"],
                     colorscale="Viridis",
+                    zmin=s.get("zmin"),
+                    zmax=s.get("zmax"),
                     showscale=idx == 0,
                 ),
                 row=row,
@@ -152,7 +155,8 @@ def matplotlib_figure(result: dict):
                 ax.legend(fontsize=8)
     for k in range(len(panels), nrows * ncols):
         axes[k // ncols][k % ncols].axis("off")
-    fig.suptitle(f"{result['id']}: {result['title']} ({result.get('scale', '')})", fontsize=11)
+    title = f"{result['id']}: {result['title']} ({result.get('scale', '')})"
+    fig.suptitle(textwrap.fill(title, width=int(95 * ncols / 2) + 10), fontsize=10)
     fig.tight_layout()
     return fig
 

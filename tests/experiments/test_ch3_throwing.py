@@ -79,19 +79,3 @@ def test_summary_has_the_promised_keys(tiny_runs):
     assert trial["reps_distance"].shape == (2,)
     names = {s["name"] for s in first["series"]}
     assert names == {"REPS", "REPS + extra context"}
-
-
-def test_conditioned_policy_keeps_the_covariance_positive_definite():
-    from skillkit.experiments.ch3_throwing import ConditionedPolicy
-
-    pol = ConditionedPolicy(np.zeros(3), np.eye(3), context_dim=1)
-    vec = np.linalg.qr(np.random.default_rng(0).normal(size=(3, 3)))[0]
-    bad = (vec * np.array([-1e-15, 1e-3, 1.0])) @ vec.T  # round-off made it indefinite
-    new = pol._new(np.ones(3), bad, np.zeros((3, 1)))
-    lam = np.linalg.eigvalsh(new.cov)
-    assert lam[0] == pytest.approx(1e-12, rel=1e-3) and lam[-1] == pytest.approx(1.0)
-    np.testing.assert_allclose(new.cov, (vec * np.array([1e-12, 1e-3, 1.0])) @ vec.T, atol=1e-14)
-    assert new.n_conditioned == 1 and isinstance(new, ConditionedPolicy)
-    fine = new._new(np.ones(3), np.diag([1e-3, 1.0, 2.0]), np.zeros((3, 1)))
-    assert fine.n_conditioned == 1  # well-conditioned: untouched, not counted
-    np.testing.assert_array_equal(fine.cov, np.diag([1e-3, 1.0, 2.0]))

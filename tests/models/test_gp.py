@@ -156,12 +156,12 @@ def test_ill_conditioned_duplicates_and_constant_targets():
     np.testing.assert_allclose(mean[:40, 0], np.sin(3 * base[:, 0]), atol=1e-3)
 
 
-@pytest.mark.slow
+@pytest.mark.slow  # one N = 10,000 Cholesky + inverse per evaluation: minutes on a loaded machine
 def test_ten_thousand_points_train_without_crash():
     rng = np.random.default_rng(8)
     X = np.repeat(rng.uniform(-2, 2, size=(2000, 3)), 5, axis=0)  # 10,000 points, duplicates
     y = np.sin(X).sum(1)
-    gp = ExactGP(additive_noise=1.0, n_steps=3).fit(X, y, rng=0)
+    gp = ExactGP(additive_noise=1.0, n_steps=1).fit(X, y, rng=0)
     mean, var = gp.predict(rng.uniform(-3, 3, size=(100, 3)))
     assert np.all(np.isfinite(mean)) and np.all(var >= 0)
 

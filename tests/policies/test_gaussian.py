@@ -218,3 +218,20 @@ def test_bad_input_names_the_argument():
         pol.fit(np.zeros((6, 2)), np.zeros((6, 2)), np.ones(6), cov_shrinkage=1.0)
     with pytest.raises(ValueError, match="other"):
         pol.kl(GaussianPolicy(np.zeros(2), np.eye(2)), np.zeros((1, 2)))
+
+
+def test_condition_number_guard_keeps_the_fitted_covariance_positive_definite():
+    """Samples without spread in one direction would make Σ singular; the guard raises that
+    eigenvalue to 1e-12 of the largest and reports it (FitInfo.n_conditioned)."""
+    from skillkit.policies.gaussian import MIN_RELATIVE_EIGENVALUE
+
+    rng = np.random.default_rng(0)
+    pol = LinearGaussianPolicy(np.zeros(3), np.eye(3))
+    omegas = np.column_stack([rng.normal(size=200), 0.1 * rng.normal(size=200), np.zeros(200)])
+    new, info = pol.fit_with_info(np.zeros((200, 0)), omegas, np.ones(200), cov_floor=1e-300)
+    lam = np.linalg.eigvalsh(new.cov)
+    assert info.n_conditioned == 1
+    assert lam[0] == pytest.approx(MIN_RELATIVE_EIGENVALUE * lam[-1], rel=1e-6)
+    np.linalg.cholesky(new.cov)  # positive definite
+    _, fine = pol.fit_with_info(np.zeros((200, 0)), rng.normal(size=(200, 3)), np.ones(200))
+    assert fine.n_conditioned == 0

@@ -327,11 +327,10 @@ def _summarize(settings: dict, trials: list[dict]) -> tuple[list[Series], dict]:
         "reps_hit_rate_at_least_95pct": reps["final_heldout_hit_rate"] >= THESIS["reps_hit_rate"],
         "reps_displacement_error_below_20cm": reps["final_heldout_displacement_error"]
         < THESIS["reps_displacement_error_m"],
-        "crkr_worse_than_reps": bool(
-            crkr["final_heldout_reward"] < reps["final_heldout_reward"]
-            and crkr["final_heldout_hit_rate"] <= reps["final_heldout_hit_rate"]
-            and crkr["final_heldout_displacement_error"] > reps["final_heldout_displacement_error"]
-        ),
+        "crkr_lower_reward": crkr["final_heldout_reward"] < reps["final_heldout_reward"],
+        "crkr_lower_hit_rate": crkr["final_heldout_hit_rate"] < reps["final_heldout_hit_rate"],
+        "crkr_larger_displacement_error": crkr["final_heldout_displacement_error"]
+        > reps["final_heldout_displacement_error"],
     }
     return series, summary
 

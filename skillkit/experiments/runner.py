@@ -15,6 +15,7 @@ import os
 import platform
 import shutil
 import time
+import warnings
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from multiprocessing import get_context
 from pathlib import Path
@@ -156,6 +157,24 @@ def _execute_trial(
     return result
 
 
+def _start_ray(ray, kwargs: dict, attempts: int = 3) -> None:
+    """``ray.init`` with retries: a local Ray node can time out while starting on a busy
+    machine (its raylet waits a fixed 15 s for the metrics agent; ray-project/ray#65983)."""
+    for attempt in range(1, attempts + 1):
+        try:
+            ray.init(include_dashboard=False, log_to_driver=False, **kwargs)
+            return
+        except Exception as exc:  # Ray raises a bare Exception for a start-up time-out
+            if "timed out during startup" not in str(exc) or attempt == attempts:
+                raise
+            ray.shutdown()
+            warnings.warn(
+                f"Ray start-up timed out (attempt {attempt}/{attempts}); retrying",
+                RuntimeWarning,
+                stacklevel=2,
+            )
+
+
 def _run_pending(exp_id, settings, jobs, executor, workers, address, progress) -> dict[int, dict]:
     """Run jobs = [(index, seed_seq, ckpt_path, ident)] with the chosen executor."""
     results: dict[int, dict] = {}
@@ -189,7 +208,7 @@ def _run_pending(exp_id, settings, jobs, executor, workers, address, progress) -
                 kwargs = (
                     {"address": address} if address else {"num_cpus": workers or os.cpu_count()}
                 )
-                ray.init(include_dashboard=False, log_to_driver=False, **kwargs)
+                _start_ray(ray, kwargs)
             try:
                 remote = ray.remote(_execute_trial)
                 refs = {

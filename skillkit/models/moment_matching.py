@@ -275,7 +275,7 @@ def _per_step(value, name: str, shape: tuple[int, ...], T: int) -> torch.Tensor:
         arr = np.broadcast_to(arr, (T, *shape))
     elif arr.shape != (T, *shape):
         raise ValueError(f"{name}: expected shape {shape} or {(T, *shape)}, got {arr.shape}")
-    return torch.as_tensor(np.ascontiguousarray(arr), dtype=DTYPE)
+    return torch.as_tensor(np.array(arr, dtype=np.float64), dtype=DTYPE)
 
 
 def gaussian_kl(mean_p, cov_p, mean_q, cov_q) -> np.ndarray:

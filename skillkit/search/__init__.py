@@ -14,7 +14,7 @@ from skillkit.search.reps import (
     reps_dual,
     reps_weights,
 )
-from skillkit.search.rwr import RWR, RWRDiagnostics, rwr_beta, rwr_weights
+from skillkit.search.rwr import RWR, RWRDiagnostics, rwr_beta, rwr_weighting, rwr_weights
 
 __all__ = [
     "RWR",
@@ -29,5 +29,6 @@ __all__ = [
     "reps_dual",
     "reps_weights",
     "rwr_beta",
+    "rwr_weighting",
     "rwr_weights",
 ]

@@ -34,9 +34,9 @@ from numpy.typing import ArrayLike
 from scipy import linalg
 
 from skillkit._validation import as_generator, check_array, check_positive
-from skillkit.policies.gaussian import RNG, LinearGaussianPolicy, effective_sample_size
-from skillkit.search.reps import SampleBuffer, check_batch, kl_from_uniform
-from skillkit.search.rwr import rwr_beta, rwr_weights
+from skillkit.policies.gaussian import RNG, LinearGaussianPolicy
+from skillkit.search.base import SampleBuffer, check_batch
+from skillkit.search.rwr import rwr_weighting
 
 
 def gram(kernel, X, Z=None) -> np.ndarray:
@@ -240,11 +240,8 @@ class CrKR:
         s, w, r = check_batch(contexts, omegas, rewards, prior.dim, prior.context_dim)
         self._buffer.add(s, w, r)
         s_all, w_all, r_all = self._buffer.arrays()
-        beta = rwr_beta(r_all, self.beta_scale)
-        p = rwr_weights(r_all, beta)
+        p, weighting = rwr_weighting(r_all, self.beta_scale)
         self._policy = CrKRPolicy(
             prior, self.kernel, s_all, w_all, p, self.lam, self.variance_scale
         )
-        return CrKRDiagnostics(
-            int(r_all.size), beta, kl_from_uniform(p), effective_sample_size(p), float(r.mean())
-        )
+        return CrKRDiagnostics(n_samples=int(r_all.size), mean_reward=float(r.mean()), **weighting)

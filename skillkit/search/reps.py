@@ -9,8 +9,9 @@ The maths is in two functions, in the style of bolero's C-REPS:
 
 :class:`ContextualREPS` only holds state (the policy and the last L batches of samples) and
 runs Table 3.1: weights from the dual, then the weighted maximum-likelihood policy
-(Eqs. 3.11–3.13, :meth:`~skillkit.policies.gaussian.LinearGaussianPolicy.fit`). Episode-based
-REPS is the same code path with a context-free policy (no context features, V ≡ 0).
+(Eqs. 3.11–3.13, :meth:`~skillkit.policies.gaussian.LinearGaussianPolicy.fit`); that loop is
+:class:`~skillkit.search.base.WeightedMLSearch`, shared with RWR. Episode-based REPS is the
+same code path with a context-free policy (no context features, V ≡ 0).
 
 Numerics of :func:`reps_weights`
 --------------------------------
@@ -28,8 +29,7 @@ Numerics of :func:`reps_weights`
 
 from __future__ import annotations
 
-from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -38,6 +38,9 @@ from scipy import optimize
 from skillkit._validation import check_array, check_positive
 from skillkit.policies.features import FeatureName, check_feature_name, context_features
 from skillkit.policies.gaussian import FitInfo, LinearGaussianPolicy, effective_sample_size
+from skillkit.search.base import Fields, WeightedMLSearch
+from skillkit.search.base import SampleBuffer as SampleBuffer  # re-exported (and old pickles)
+from skillkit.search.base import check_batch as check_batch  # re-exported
 
 #: Bounds of η in normalised reward units (rewards divided by their standard deviation).
 ETA_BOUNDS = (1e-8, 1e8)
@@ -102,13 +105,12 @@ def reps_dual(
 
 # --------------------------------------------------------------------------- weights
 @dataclass(frozen=True)
-class REPSWeights:
-    """Solution of the REPS dual on a set of samples.
+class DualSolution:
+    """What the minimiser of the REPS dual says, shared by :class:`REPSWeights` and
+    :class:`REPSDiagnostics`.
 
     Attributes
     ----------
-    weights : ndarray, shape (N,)
-        p_i of Eq. (3.10), summing to one.
     eta : float
         Temperature η (in reward units); ``inf`` when all rewards are equal (uniform weights).
     gamma : ndarray, shape (F,)
@@ -130,11 +132,8 @@ class REPSWeights:
         The optimiser converged and the constraints hold (KL within 1e-3 ε of ε when active).
     message : str
         Optimiser message.
-    n_iterations : int
-        L-BFGS-B iterations.
     """
 
-    weights: np.ndarray
     eta: float
     gamma: np.ndarray
     baseline: np.ndarray
@@ -145,6 +144,23 @@ class REPSWeights:
     kl_bound_active: bool
     success: bool
     message: str
+
+
+@dataclass(frozen=True)
+class REPSWeights(DualSolution):
+    """Solution of the REPS dual on a set of samples.
+
+    Attributes
+    ----------
+    eta, gamma, baseline, dual, kl, ess, feature_error, kl_bound_active, success, message
+        See :class:`DualSolution`.
+    weights : ndarray, shape (N,)
+        p_i of Eq. (3.10), summing to one.
+    n_iterations : int
+        L-BFGS-B iterations.
+    """
+
+    weights: np.ndarray
     n_iterations: int
 
 
@@ -258,79 +274,17 @@ def _check_samples(rewards, features) -> tuple[np.ndarray, np.ndarray]:
     return r, phi
 
 
-# --------------------------------------------------------------------------- samples
-def check_batch(
-    contexts: ArrayLike | None, omegas: ArrayLike, rewards: ArrayLike, dim: int, context_dim: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Validate one batch of samples for a policy of dimension ``dim`` and ``context_dim``.
-
-    Parameters
-    ----------
-    contexts : array_like, shape (N, context_dim)
-        ``None`` is accepted for context-free policies.
-    omegas : array_like, shape (N, dim)
-    rewards : array_like, shape (N,)
-        Must be finite (NaN/inf raise ``ValueError`` naming ``rewards``).
-
-    Returns
-    -------
-    (contexts, omegas, rewards) as float64 arrays of shapes (N, context_dim), (N, dim), (N,).
-    """
-    w = check_array(omegas, "omegas", ndim=2)
-    if w.shape[1] != dim:
-        raise ValueError(f"omegas: expected shape (N, {dim}), got {w.shape}")
-    n = w.shape[0]
-    if n == 0:
-        raise ValueError("omegas: expected at least one sample, got 0 rows")
-    if contexts is None and context_dim == 0:
-        contexts = np.zeros((n, 0))
-    s = check_array(contexts, "contexts", shape=(n, context_dim))
-    r = check_array(rewards, "rewards", shape=(n,))
-    return s, w, r
-
-
-class SampleBuffer:
-    """The last ``n_batches`` batches of (context, ω, reward) samples (data reuse, Table 3.1).
-
-    Parameters
-    ----------
-    n_batches : int or None
-        Number of batches kept, the newest included (``None`` keeps all).
-    """
-
-    def __init__(self, n_batches: int | None):
-        if n_batches is not None and (
-            isinstance(n_batches, bool) or int(n_batches) != n_batches or n_batches < 1
-        ):
-            raise ValueError(
-                f"n_reuse_batches: expected a positive integer or None, got {n_batches!r}"
-            )
-        self._batches: deque = deque(maxlen=None if n_batches is None else int(n_batches))
-
-    def add(self, contexts: np.ndarray, omegas: np.ndarray, rewards: np.ndarray) -> None:
-        """Append a validated batch (oldest batch dropped when full)."""
-        self._batches.append((contexts, omegas, rewards))
-
-    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """All kept samples: contexts (N, s), omegas (N, d), rewards (N,), oldest first."""
-        s, w, r = (np.concatenate(parts) for parts in zip(*self._batches, strict=True))
-        return s, w, r
-
-    def __len__(self) -> int:
-        return sum(b[2].shape[0] for b in self._batches)
-
-
 # --------------------------------------------------------------------------- algorithm
 @dataclass(frozen=True)
-class REPSDiagnostics:
+class REPSDiagnostics(DualSolution):
     """What one :meth:`ContextualREPS.update` did.
 
     Attributes
     ----------
-    n_samples : int
-        Samples used (the last L batches).
     eta, gamma, baseline, dual, kl, ess, feature_error, kl_bound_active, success, message
         From :class:`REPSWeights` (``baseline`` is V(s_i) at the samples used).
+    n_samples : int
+        Samples used (the last L batches).
     policy_kl : float
         KL(π_new ‖ π_old) averaged over the contexts used.
     mean_reward : float
@@ -340,23 +294,16 @@ class REPSDiagnostics:
     """
 
     n_samples: int
-    eta: float
-    gamma: np.ndarray
-    baseline: np.ndarray
-    dual: float
-    kl: float
-    ess: float
-    feature_error: float
-    kl_bound_active: bool
-    success: bool
-    message: str
     policy_kl: float
     mean_reward: float
     fit: FitInfo
 
 
-class ContextualREPS:
+class ContextualREPS(WeightedMLSearch[REPSDiagnostics]):
     """Contextual (and, with a context-free policy, episode-based) REPS, Table 3.1.
+
+    :meth:`update` adds a batch, solves the dual (3.9) on the last L batches for the weights
+    (3.10) and refits the policy (3.11–3.13); see :class:`~skillkit.search.base.WeightedMLSearch`.
 
     Parameters
     ----------
@@ -373,8 +320,7 @@ class ContextualREPS:
         matches the mean and second moments of μ(s) and captures rewards whose expectation is
         quadratic in s.
     ridge, cov_shrinkage, cov_floor, min_effective_samples
-        Regularisation of the weighted ML fit, see
-        :meth:`~skillkit.policies.gaussian.LinearGaussianPolicy.fit_with_info`.
+        Regularisation of the weighted ML fit (:class:`~skillkit.search.base.WeightedMLSearch`).
     """
 
     def __init__(
@@ -388,66 +334,16 @@ class ContextualREPS:
         cov_floor: float = 1e-4,
         min_effective_samples: float | None = None,
     ):
-        if not isinstance(policy, LinearGaussianPolicy):
-            raise ValueError(
-                f"policy: expected a LinearGaussianPolicy, got {type(policy).__name__}"
-            )
+        super().__init__(
+            policy, n_reuse_batches, ridge, cov_shrinkage, cov_floor, min_effective_samples
+        )
         self.epsilon = check_positive(epsilon, "epsilon")
         self.baseline_features = check_feature_name(baseline_features, "baseline_features")
-        self._fit_kwargs = {
-            "ridge": ridge,
-            "cov_shrinkage": cov_shrinkage,
-            "cov_floor": cov_floor,
-            "min_effective_samples": min_effective_samples,
-        }
-        self._policy = policy
-        self._buffer = SampleBuffer(n_reuse_batches)
 
-    @property
-    def policy(self) -> LinearGaussianPolicy:
-        """The current upper-level policy."""
-        return self._policy
+    _diagnostics = REPSDiagnostics
 
-    def update(
-        self, contexts: ArrayLike | None, omegas: ArrayLike, rewards: ArrayLike
-    ) -> REPSDiagnostics:
-        """Add a batch, solve the dual on the last L batches and refit the policy.
-
-        Parameters
-        ----------
-        contexts : array_like, shape (N, context_dim)
-            Contexts s_i (``None`` for a context-free policy).
-        omegas : array_like, shape (N, d)
-            Parameters ω_i ~ π(ω|s_i).
-        rewards : array_like, shape (N,)
-            Rewards R(τ_i, s_i); must be finite.
-
-        Returns
-        -------
-        REPSDiagnostics
-        """
-        pol = self._policy
-        s, w, r = check_batch(contexts, omegas, rewards, pol.dim, pol.context_dim)
-        self._buffer.add(s, w, r)
-        s_all, w_all, r_all = self._buffer.arrays()
-        phi = context_features(s_all, self.baseline_features) if pol.context_dim else None
-        sol = reps_weights(r_all, phi, self.epsilon)
-        new, info = pol.fit_with_info(s_all, w_all, sol.weights, **self._fit_kwargs)
-        policy_kl = new.kl(pol, s_all)
-        self._policy = new
-        return REPSDiagnostics(
-            n_samples=int(r_all.shape[0]),
-            eta=sol.eta,
-            gamma=sol.gamma,
-            baseline=sol.baseline,
-            dual=sol.dual,
-            kl=sol.kl,
-            ess=sol.ess,
-            feature_error=sol.feature_error,
-            kl_bound_active=sol.kl_bound_active,
-            success=sol.success,
-            message=sol.message,
-            policy_kl=policy_kl,
-            mean_reward=float(r.mean()),
-            fit=info,
-        )
+    def _weigh(self, contexts: np.ndarray, rewards: np.ndarray) -> tuple[np.ndarray, Fields]:
+        """Weights (3.10) from the dual (3.9) with baseline features φ(s) of the contexts."""
+        phi = context_features(contexts, self.baseline_features) if contexts.shape[1] else None
+        sol = reps_weights(rewards, phi, self.epsilon)
+        return sol.weights, {f.name: getattr(sol, f.name) for f in fields(DualSolution)}

@@ -22,7 +22,8 @@ from numpy.typing import ArrayLike
 
 from skillkit._validation import check_array, check_positive
 from skillkit.policies.gaussian import FitInfo, LinearGaussianPolicy, effective_sample_size
-from skillkit.search.reps import SampleBuffer, check_batch, kl_from_uniform
+from skillkit.search.base import Fields, WeightedMLSearch
+from skillkit.search.reps import kl_from_uniform
 
 
 def rwr_beta(rewards: ArrayLike, beta_scale: float = 1.0) -> float:
@@ -62,6 +63,28 @@ def rwr_weights(rewards: ArrayLike, beta: float) -> np.ndarray:
     return w / w.sum()
 
 
+def rwr_weighting(rewards: ArrayLike, beta_scale: float = 1.0) -> tuple[np.ndarray, Fields]:
+    """Weights w_i ∝ exp(β R_i) (Eq. 2.18) with β from :func:`rwr_beta`, and their diagnostics.
+
+    Parameters
+    ----------
+    rewards : array_like, shape (N,)
+    beta_scale : float
+        Dimensionless scale > 0.
+
+    Returns
+    -------
+    weights : ndarray, shape (N,)
+        Weights summing to one.
+    fields : dict
+        ``beta`` (β used), ``kl`` (KL(w ‖ uniform)) and ``ess`` (Kish effective sample size),
+        as in :class:`RWRDiagnostics` and :class:`~skillkit.search.crkr.CrKRDiagnostics`.
+    """
+    beta = rwr_beta(rewards, beta_scale)
+    p = rwr_weights(rewards, beta)
+    return p, {"beta": beta, "kl": kl_from_uniform(p), "ess": effective_sample_size(p)}
+
+
 @dataclass(frozen=True)
 class RWRDiagnostics:
     """What one :meth:`RWR.update` did.
@@ -93,8 +116,11 @@ class RWRDiagnostics:
     fit: FitInfo
 
 
-class RWR:
+class RWR(WeightedMLSearch[RWRDiagnostics]):
     """Contextual Reward-Weighted Regression (Eq. 2.18) on a linear-Gaussian policy.
+
+    :meth:`update` adds a batch, weights the last L batches by exp(βR) (:func:`rwr_weighting`)
+    and refits the policy; see :class:`~skillkit.search.base.WeightedMLSearch`.
 
     Parameters
     ----------
@@ -105,8 +131,7 @@ class RWR:
     n_reuse_batches : int or None
         Use the last L batches, the newest included (``None``: all).
     ridge, cov_shrinkage, cov_floor, min_effective_samples
-        Regularisation of the weighted ML fit, see
-        :meth:`~skillkit.policies.gaussian.LinearGaussianPolicy.fit_with_info`.
+        Regularisation of the weighted ML fit (:class:`~skillkit.search.base.WeightedMLSearch`).
     """
 
     def __init__(
@@ -119,47 +144,13 @@ class RWR:
         cov_floor: float = 1e-4,
         min_effective_samples: float | None = None,
     ):
-        if not isinstance(policy, LinearGaussianPolicy):
-            raise ValueError(
-                f"policy: expected a LinearGaussianPolicy, got {type(policy).__name__}"
-            )
-        self.beta_scale = check_positive(beta_scale, "beta_scale")
-        self._fit_kwargs = {
-            "ridge": ridge,
-            "cov_shrinkage": cov_shrinkage,
-            "cov_floor": cov_floor,
-            "min_effective_samples": min_effective_samples,
-        }
-        self._policy = policy
-        self._buffer = SampleBuffer(n_reuse_batches)
-
-    @property
-    def policy(self) -> LinearGaussianPolicy:
-        """The current upper-level policy."""
-        return self._policy
-
-    def update(
-        self, contexts: ArrayLike | None, omegas: ArrayLike, rewards: ArrayLike
-    ) -> RWRDiagnostics:
-        """Add a batch, weight the last L batches by exp(βR) and refit the policy.
-
-        Parameters
-        ----------
-        contexts : array_like, shape (N, context_dim)
-        omegas : array_like, shape (N, d)
-        rewards : array_like, shape (N,)
-            Must be finite.
-        """
-        pol = self._policy
-        s, w, r = check_batch(contexts, omegas, rewards, pol.dim, pol.context_dim)
-        self._buffer.add(s, w, r)
-        s_all, w_all, r_all = self._buffer.arrays()
-        beta = rwr_beta(r_all, self.beta_scale)
-        p = rwr_weights(r_all, beta)
-        new, info = pol.fit_with_info(s_all, w_all, p, **self._fit_kwargs)
-        kl = kl_from_uniform(p)
-        policy_kl = new.kl(pol, s_all)
-        self._policy = new
-        return RWRDiagnostics(
-            int(r_all.size), beta, kl, effective_sample_size(p), policy_kl, float(r.mean()), info
+        super().__init__(
+            policy, n_reuse_batches, ridge, cov_shrinkage, cov_floor, min_effective_samples
         )
+        self.beta_scale = check_positive(beta_scale, "beta_scale")
+
+    _diagnostics = RWRDiagnostics
+
+    def _weigh(self, contexts: np.ndarray, rewards: np.ndarray) -> tuple[np.ndarray, Fields]:
+        """Weights exp(βR) (Eq. 2.18) of the kept samples."""
+        return rwr_weighting(rewards, self.beta_scale)

@@ -60,7 +60,9 @@ def test_tiny_run_is_deterministic_and_complete(tiny_runs):
         "reps_learns",
         "reps_hit_rate_at_least_95pct",
         "reps_displacement_error_below_20cm",
-        "crkr_worse_than_reps",
+        "crkr_lower_reward",
+        "crkr_lower_hit_rate",
+        "crkr_larger_displacement_error",
     }
     panels = {s["panel"] for s in a["series"]}
     assert len(panels) == 3 and len(a["series"]) == 6
@@ -105,7 +107,13 @@ def test_summary_checks_against_thesis_claims():
     assert checks["reps_learns"]
     assert not checks["reps_hit_rate_at_least_95pct"]
     assert not checks["reps_displacement_error_below_20cm"]
-    assert not checks["crkr_worse_than_reps"]
+    assert not checks["crkr_lower_reward"]
+    assert not checks["crkr_lower_hit_rate"]
+    assert not checks["crkr_larger_displacement_error"]
+    tie = [_fake_trial((-0.2, 1.0, 0.05), (-0.3, 1.0, 0.2))]  # paper scale: both always hit
+    checks = ch._summarize(settings, tie)[1]["checks"]
+    assert checks["crkr_lower_reward"] and checks["crkr_larger_displacement_error"]
+    assert not checks["crkr_lower_hit_rate"]
 
 
 def test_crkr_starts_with_the_initial_diagonal_exploration():

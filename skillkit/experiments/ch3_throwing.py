@@ -27,6 +27,7 @@ import numpy as np
 from skillkit.experiments.registry import Experiment, Series, mean_band, register
 from skillkit.policies.gaussian import LinearGaussianPolicy
 from skillkit.search import ContextualREPS, learn
+from skillkit.search.loop import policy_history_arrays
 from skillkit.tasks import make
 
 __all__ = ["run_trial", "summarize", "target_grid"]
@@ -131,6 +132,8 @@ def run_trial(settings: dict, rng: np.random.Generator, progress) -> dict:
         out[f"{key}_distance"] = dist
         out[f"{key}_penalty"] = pen
         out[f"{key}_conditioned"] = sum(d.fit.n_conditioned > 0 for d in curves["diagnostics"])
+        if key == "reps":  # the plain-REPS policies, for `skillkit view throwing --policy RUN`
+            out.update(policy_history_arrays(curves["policies"]))
     return out
 
 

@@ -107,7 +107,9 @@ def learn(
         ``explore_rollouts`` (K,) and ``explore_reward`` (K,) for the exploratory rollouts;
         ``n_failed`` (K,) failed rollouts per batch; ``diagnostics`` (list of K update
         diagnostics); ``callback`` (list of K + 1 callback return values);
-        ``eval_contexts`` (m, context_dim); ``policy`` (the final policy).
+        ``eval_contexts`` (m, context_dim); ``policy`` (the final policy); ``policies``
+        (the K + 1 policies, before the first update and after each one: what the viewer's
+        learning playback steps through, see :func:`policy_history_arrays`).
     """
     if not isinstance(task, Task):
         raise ValueError(f"task: expected a Task, got {type(task).__name__}")
@@ -160,7 +162,12 @@ def learn(
         vars(algorithm).update(vars(saved["algorithm"]))
         start, eval_s, eval_seed = saved["k"] + 1, saved["eval_contexts"], saved["eval_seed"]
         mean_reward, explore_reward = saved["mean_reward"], saved["explore_reward"]
-        n_failed, diagnostics, cb_values = saved["n_failed"], saved["diagnostics"], saved["callback"]
+        n_failed, diagnostics, cb_values = (
+            saved["n_failed"],
+            saved["diagnostics"],
+            saved["callback"],
+        )
+        policies = saved["policies"]
         if progress is not None:
             progress.update(saved["k"])
     else:
@@ -168,6 +175,7 @@ def learn(
         mean_reward = [evaluate()]
         cb_values = [None if callback is None else callback(0, algorithm)]
         explore_reward, n_failed, diagnostics = [], [], []
+        policies = [algorithm.policy]
     for k in range(start, n_updates + 1):
         contexts = task.sample_context(rng, n=n_roll)
         omegas = np.atleast_2d(algorithm.policy.sample(contexts, rng))
@@ -186,11 +194,24 @@ def learn(
         diagnostics.append(algorithm.update(contexts, omegas, rewards))
         mean_reward.append(evaluate())
         cb_values.append(None if callback is None else callback(k, algorithm))
+        policies.append(algorithm.policy)
         if checkpoint is not None:
-            checkpoint.save(checkpoint_key, {
-                "k": k, "algorithm": algorithm, "eval_contexts": eval_s, "eval_seed": eval_seed,
-                "mean_reward": mean_reward, "explore_reward": explore_reward, "n_failed": n_failed,
-                "diagnostics": diagnostics, "callback": cb_values}, rng)
+            checkpoint.save(
+                checkpoint_key,
+                {
+                    "k": k,
+                    "algorithm": algorithm,
+                    "eval_contexts": eval_s,
+                    "eval_seed": eval_seed,
+                    "mean_reward": mean_reward,
+                    "explore_reward": explore_reward,
+                    "n_failed": n_failed,
+                    "diagnostics": diagnostics,
+                    "callback": cb_values,
+                    "policies": policies,
+                },
+                rng,
+            )
         if progress is not None:
             progress.update()
     return {
@@ -203,6 +224,35 @@ def learn(
         "callback": cb_values,
         "eval_contexts": eval_s,
         "policy": algorithm.policy,
+        "policies": policies,
+    }
+
+
+def policy_history_arrays(policies) -> dict[str, np.ndarray]:
+    """The ``policy_*`` arrays of a learning run's policies (linear-Gaussian ones), the format
+    :func:`skillkit.viz.viewer.load_policy_history` reads from a run folder's ``trials.npz``.
+
+    Parameters
+    ----------
+    policies : sequence of LinearGaussianPolicy
+        E.g. ``learn(...)["policies"]`` (K + 1 policies).
+
+    Returns
+    -------
+    dict
+        ``policy_mean`` (K+1, d), ``policy_cov`` (K+1, d, d), ``policy_gain`` (K+1, d, F),
+        ``policy_context_dim`` and ``policy_features``.
+    """
+    from skillkit.policies.gaussian import LinearGaussianPolicy
+
+    if not policies or not all(isinstance(p, LinearGaussianPolicy) for p in policies):
+        raise ValueError("policies: expected a non-empty sequence of LinearGaussianPolicy objects")
+    return {
+        "policy_mean": np.stack([p.mean for p in policies]),
+        "policy_cov": np.stack([p.cov for p in policies]),
+        "policy_gain": np.stack([p.gain for p in policies]),
+        "policy_context_dim": np.asarray(policies[0].context_dim),
+        "policy_features": np.asarray(policies[0].features),
     }
 
 

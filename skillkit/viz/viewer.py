@@ -166,15 +166,9 @@ class PolicyHistory:
 
 
 def _policy_arrays(policies: Sequence[LinearGaussianPolicy]) -> dict[str, np.ndarray]:
-    history = PolicyHistory(tuple(policies))
-    first = history.policies[0]
-    return {
-        "policy_mean": np.stack([p.mean for p in history.policies]),
-        "policy_cov": np.stack([p.cov for p in history.policies]),
-        "policy_gain": np.stack([p.gain for p in history.policies]),
-        "policy_context_dim": np.asarray(first.context_dim),
-        "policy_features": np.asarray(first.features),
-    }
+    from skillkit.search.loop import policy_history_arrays
+
+    return policy_history_arrays(PolicyHistory(tuple(policies)).policies)
 
 
 class PolicyRecorder:

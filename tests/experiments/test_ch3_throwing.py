@@ -79,3 +79,15 @@ def test_summary_has_the_promised_keys(tiny_runs):
     assert trial["reps_distance"].shape == (2,)
     names = {s["name"] for s in first["series"]}
     assert names == {"REPS", "REPS + extra context"}
+
+
+def test_saved_run_has_the_policy_history_the_viewer_plays_back(tmp_path):
+    from skillkit.experiments.runner import reproduce
+    from skillkit.viz.viewer import load_policy_history
+
+    folder = reproduce("fig3.3", trials=1, seed=5, out=tmp_path, progress=False, html=False, **TINY)
+    history = load_policy_history(folder, trial=0)
+    assert len(history.policies) == TINY["n_updates"] + 1
+    assert history.policies[0].dim == 41 and history.policies[0].context_dim == 2
+    # The first entry is the initial policy, the others differ from it (REPS updated them).
+    assert not np.allclose(history.policies[-1].mean, history.policies[0].mean)

@@ -15,15 +15,6 @@ from skillkit.experiments.ch4_models import (
 from skillkit.experiments.runner import run_trials
 from skillkit.tasks import make
 
-
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
-
 TINY_4_3 = dict(
     n_data=120,
     n_pseudo=20,

@@ -21,14 +21,6 @@ from skillkit.models.gp import (
 )
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
-
 def _data(n=40, seed=0, noise=0.1):
     rng = np.random.default_rng(seed)
     X = rng.uniform(-3, 3, size=(n, 2))

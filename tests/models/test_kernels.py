@@ -19,14 +19,6 @@ from skillkit.models.kernels import (
 )
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
-
 def _se():
     return SquaredExponential(3, lengthscale=[0.5, 1.0, 2.0], outputscale=1.7)
 

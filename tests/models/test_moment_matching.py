@@ -12,14 +12,6 @@ from skillkit.models.sampling import sample_trajectories
 from skillkit.models.sparse import FITC
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
-
 def _random_gp(kind: str, seed: int, D=3, E=2, N=25):
     rng = np.random.default_rng(seed)
     X = rng.normal(size=(N, D))

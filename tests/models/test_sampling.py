@@ -11,14 +11,6 @@ from skillkit.models.sampling import sample_trajectories, sampler_flops_per_step
 from skillkit.models.sparse import FITC
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
-
 class LinearGaussian:
     """x' = A x + B u + N(0, diag q): closed-form reference for the sampling loop."""
 

@@ -10,14 +10,6 @@ from skillkit.models.gp import ExactGP
 from skillkit.models.sparse import FITC, VFE, kmeans_pp
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
-
 def _data(n=50, seed=0):
     rng = np.random.default_rng(seed)
     X = rng.uniform(-3, 3, size=(n, 2))

@@ -24,9 +24,13 @@ import warnings
 import numpy as np
 import torch
 
-from skillkit.experiments.ch5 import _X_UP, balancing_reward, random_lqr_gains
+from skillkit.experiments.ch5 import (
+    _X_UP,
+    balancing_reward,
+    embedding_expected_rewards,
+    random_lqr_gains,
+)
 from skillkit.models.embedding import ConditionalEmbedding
-from skillkit.models.embedding_prediction import predict
 from skillkit.models.embedding_training import transitions
 from skillkit.models.gp import ExactGP, ForwardModel
 from skillkit.models.kernels import SquaredExponential
@@ -71,23 +75,7 @@ def main() -> None:
     )
 
     t0 = time.perf_counter()
-    chunk = max(1, int(2e7 // n**2))
-    r_emb = np.empty(args.queries)
-    for lo in range(0, args.queries, chunk):
-        g = test[lo : lo + chunk]
-
-        def policy(s, t, g=g):
-            return np.einsum("bij,bkj->bki", g, np.broadcast_to(s - _X_UP, (len(g),) + s.shape[1:]))
-
-        pred = predict(
-            emb,
-            np.broadcast_to(x0, (len(g),) + x0.shape),
-            horizon + 1,
-            policy=policy,
-            reward=reward,
-            time_invariant=True,
-        )
-        r_emb[lo : lo + chunk] = pred.rewards[1:].sum(axis=0)
+    r_emb = embedding_expected_rewards(emb, x0, test, horizon, reward)
     t_emb = time.perf_counter() - t0
 
     g_t, up = torch.from_numpy(test), torch.from_numpy(_X_UP)

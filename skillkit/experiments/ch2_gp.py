@@ -157,8 +157,7 @@ register(
         trials={"quick": 1, "paper": 1},
         claim=(
             "Without observations the prediction variance is high; with more samples it shrinks "
-            "rapidly "
-            "and the sampled functions converge to the underlying function (Fig. 2.12)."
+            "rapidly and the sampled functions converge to the underlying function (Fig. 2.12)."
         ),
     )
 )

@@ -314,8 +314,7 @@ register(
         trials={"quick": 1, "paper": 1},
         claim=(
             "About 20 sampled trajectories match the accuracy of moment matching in 75% of the "
-            "start "
-            "states and about 50 in 95% (Fig. 4.3)."
+            "start states and about 50 in 95% (Fig. 4.3)."
         ),
     )
 )
@@ -487,8 +486,7 @@ register(
         trials={"quick": 1, "paper": 1},
         claim=(
             "Sampling produces about 1000 trajectories in the computation time of one "
-            "moment-matching "
-            "prediction on a single CPU core (Fig. 4.4)."
+            "moment-matching prediction on a single CPU core (Fig. 4.4)."
         ),
     )
 )

@@ -71,6 +71,49 @@ def _initial_lengthscales(x: np.ndarray) -> np.ndarray:
     return np.where(sd > 0, sd, 1.0)
 
 
+def embedding_expected_rewards(
+    model, x0: np.ndarray, gains: np.ndarray, horizon: int, reward
+) -> np.ndarray:
+    """Expected trajectory rewards Σ_t E[r_t] of balancing feedback gains by the embedding.
+
+    Parameters
+    ----------
+    model : ConditionalEmbedding
+        Embedding of the transitions z = [x, u] → x'.
+    x0 : ndarray, shape (n, 8)
+        Samples of the initial state (the embedding of p(x_0)).
+    gains : ndarray, shape (B, 4, 8)
+        Feedback gains G of the controllers u = G (x − x_up) to score.
+    horizon : int
+        Number of steps T.
+    reward : callable
+        Immediate reward of the training samples (linear reward kernel, E[r_t] = r'ᵀβ_t).
+
+    Returns
+    -------
+    ndarray, shape (B,)
+        Predicted expected rewards, computed in chunks that bound the memory of the β's.
+    """
+    chunk = max(1, int(2e7 // len(model.inputs) ** 2))
+    out = np.empty(len(gains))
+    for lo in range(0, len(gains), chunk):
+        g = gains[lo : lo + chunk]
+
+        def policy(s, t, g=g):
+            return np.einsum("bij,bkj->bki", g, np.broadcast_to(s - _X_UP, (len(g),) + s.shape[1:]))
+
+        traj = predict(
+            model,
+            np.broadcast_to(x0, (len(g),) + x0.shape),
+            horizon + 1,
+            policy=policy,
+            reward=reward,
+            time_invariant=True,
+        )
+        out[lo : lo + chunk] = traj.rewards[1:].sum(axis=0)
+    return out
+
+
 # =========================================================================== pendulum
 def _target_kernel(kind: str, targets: np.ndarray):
     """Fixed target-feature kernel of Eq. 5.16: SE with the targets' standard deviations as
@@ -436,26 +479,8 @@ def _balancing_case(
         model = ConditionalEmbedding(
             z, xn, SquaredExponential(12, lengthscale=fit.lengthscale), fit.lam
         )
-        chunk = max(1, int(2e7 // len(z) ** 2))
         t0 = time.perf_counter()
-        pred = np.empty(n_test)
-        for lo in range(0, n_test, chunk):
-            g = test_gains[lo : lo + chunk]
-
-            def policy(s, t, g=g):
-                return np.einsum(
-                    "bij,bkj->bki", g, np.broadcast_to(s - _X_UP, (len(g),) + s.shape[1:])
-                )
-
-            traj = predict(
-                model,
-                np.broadcast_to(x0, (len(g),) + x0.shape),
-                horizon + 1,
-                policy=policy,
-                reward=reward,
-                time_invariant=True,
-            )
-            pred[lo : lo + chunk] = traj.rewards[1:].sum(axis=0)
+        pred = embedding_expected_rewards(model, x0, test_gains, horizon, reward)
         out[f"time_{name}"] = time.perf_counter() - t0
         out[f"e_r_{name}"] = float(np.mean((pred - truth) ** 2))
         out[f"median_sq_err_{name}"] = float(np.median((pred - truth) ** 2))

@@ -43,25 +43,38 @@ def main() -> None:
     rng = np.random.default_rng(0)
     contexts = task.sample_context(rng, n=args.rollouts)
     omegas = task.initial_policy().sample(contexts, rng)
-    print(f"platform: {platform.platform()}, python {platform.python_version()}, "
-          f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}")
+    print(
+        f"platform: {platform.platform()}, python {platform.python_version()}, "
+        f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}"
+    )
 
-    med, low, cpu = _rate(lambda i: task.rollout(omegas[i], contexts[i]), args.rollouts,
-                          args.rounds)
-    print(f"full rollout:         {med:7.1f} rollouts/s (median), {low:7.1f} (slowest round), "
-          f"{cpu:7.1f} per CPU-second")
+    med, low, cpu = _rate(
+        lambda i: task.rollout(omegas[i], contexts[i]), args.rollouts, args.rounds
+    )
+    print(
+        f"full rollout:         {med:7.1f} rollouts/s (median), {low:7.1f} (slowest round), "
+        f"{cpu:7.1f} per CPU-second"
+    )
 
     dmp = task.parameters.from_vector(omegas[0])
     med, _, cpu = _rate(lambda i: dmp.rollout(task.times, task.q0), args.rollouts, args.rounds)
     print(f"  DMP reference only: {med:7.1f} /s, {cpu:7.1f} per CPU-second")
 
     traj = task.rollout(omegas[0], contexts[0])
-    racket = RacketPath(traj.times, traj.signals["racket"], traj.signals["racket_normal"],
-                        np.gradient(traj.signals["racket"], traj.times, axis=0),
-                        np.zeros_like(traj.signals["racket"]))
-    med, _, cpu = _rate(lambda i: simulate_ball(SERVE_POSITION, contexts[i, :3], task.duration,
-                                                dt=task.control_dt, racket=racket),
-                        args.rollouts, args.rounds)
+    racket = RacketPath(
+        traj.times,
+        traj.signals["racket"],
+        traj.signals["racket_normal"],
+        np.gradient(traj.signals["racket"], traj.times, axis=0),
+        np.zeros_like(traj.signals["racket"]),
+    )
+    med, _, cpu = _rate(
+        lambda i: simulate_ball(
+            SERVE_POSITION, contexts[i, :3], task.duration, dt=task.control_dt, racket=racket
+        ),
+        args.rollouts,
+        args.rounds,
+    )
     print(f"  ball flight only:   {med:7.1f} /s, {cpu:7.1f} per CPU-second")
 
 

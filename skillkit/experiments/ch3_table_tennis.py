@@ -73,14 +73,24 @@ def run_trial(settings: dict, rng: np.random.Generator, progress) -> dict:
     from skillkit.tasks import make
 
     task = make("table-tennis")
-    algorithm = ContextualREPS(task.initial_policy(), settings["epsilon"],
-                               n_reuse_batches=settings["n_reuse_batches"],
-                               baseline_features=settings["baseline_features"],
-                               min_effective_samples=settings["min_effective_samples"],
-                               cov_shrinkage=settings["cov_shrinkage"])
+    algorithm = ContextualREPS(
+        task.initial_policy(),
+        settings["epsilon"],
+        n_reuse_batches=settings["n_reuse_batches"],
+        baseline_features=settings["baseline_features"],
+        min_effective_samples=settings["min_effective_samples"],
+        cov_shrinkage=settings["cov_shrinkage"],
+    )
     eval_contexts = task.sample_context(rng, n=settings["n_eval_contexts"])
-    curves = learn(task, algorithm, settings["n_updates"], settings["rollouts_per_update"], rng,
-                   progress=progress, eval_contexts=eval_contexts)
+    curves = learn(
+        task,
+        algorithm,
+        settings["n_updates"],
+        settings["rollouts_per_update"],
+        rng,
+        progress=progress,
+        eval_contexts=eval_contexts,
+    )
     contexts = task.sample_context(rng, n=settings["n_final_contexts"])
     omegas = np.atleast_2d(curves["policy"].mean_of(contexts))
     rewards, outcomes, errors = [], [], []
@@ -108,20 +118,50 @@ def summarize(settings: dict, trials: list[dict]) -> tuple[list[Series], dict]:
     curves = np.array([t["mean_reward"] for t in trials], dtype=float)
     m, lo, hi = mean_band(curves)
     panel, ylabel = "learning curve", "reward of the policy mean"
-    series = [Series("contextual REPS (mean ± std)", x, m, panel, "line", lo, hi,
-                     xlabel="rollouts", ylabel=ylabel)]
+    series = [
+        Series(
+            "contextual REPS (mean ± std)",
+            x,
+            m,
+            panel,
+            "line",
+            lo,
+            hi,
+            xlabel="rollouts",
+            ylabel=ylabel,
+        )
+    ]
     for i, c in enumerate(curves):
-        series.append(Series(f"trial {i + 1}", x, c.tolist(), panel, "line", xlabel="rollouts",
-                             ylabel=ylabel))
-    series.append(Series("thesis: good policy (−0.02)", [x[0], x[-1]], [THESIS_GOOD_REWARD] * 2,
-                         panel, "line", xlabel="rollouts", ylabel=ylabel))
+        series.append(
+            Series(f"trial {i + 1}", x, c.tolist(), panel, "line", xlabel="rollouts", ylabel=ylabel)
+        )
+    series.append(
+        Series(
+            "thesis: good policy (−0.02)",
+            [x[0], x[-1]],
+            [THESIS_GOOD_REWARD] * 2,
+            panel,
+            "line",
+            xlabel="rollouts",
+            ylabel=ylabel,
+        )
+    )
 
     final = np.array([float(np.mean(t["final_rewards"])) for t in trials])
-    fractions = {o: [float(np.mean(np.asarray(t["final_outcomes"]) == o)) for t in trials]
-                 for o in OUTCOMES}
-    series.append(Series("final policy: share of shots", list(OUTCOMES),
-                         [float(np.mean(fractions[o])) for o in OUTCOMES], "final policy outcomes",
-                         "bar", xlabel="outcome", ylabel="fraction of shots"))
+    fractions = {
+        o: [float(np.mean(np.asarray(t["final_outcomes"]) == o)) for t in trials] for o in OUTCOMES
+    }
+    series.append(
+        Series(
+            "final policy: share of shots",
+            list(OUTCOMES),
+            [float(np.mean(fractions[o])) for o in OUTCOMES],
+            "final policy outcomes",
+            "bar",
+            xlabel="outcome",
+            ylabel="fraction of shots",
+        )
+    )
 
     mean_curve = np.asarray(m)
     reached = np.flatnonzero(mean_curve > THESIS_GOOD_REWARD)
@@ -135,8 +175,9 @@ def summarize(settings: dict, trials: list[dict]) -> tuple[list[Series], dict]:
         "fraction_runs_above_-0.02": float(np.mean(final > THESIS_GOOD_REWARD)),
         "net_fraction_per_trial": fractions["net"],
         "net_fraction_mean": float(np.mean(fractions["net"])),
-        "fraction_runs_with_net_failures_above_10pct":
-            float(np.mean(np.array(fractions["net"]) > 0.1)),
+        "fraction_runs_with_net_failures_above_10pct": float(
+            np.mean(np.array(fractions["net"]) > 0.1)
+        ),
         "outcome_fractions_mean": {o: float(np.mean(fractions[o])) for o in OUTCOMES},
         "net_shot_reward_mean": float(net_rewards.mean()) if net_rewards.size else None,
         "net_shot_reward_range": [float(net_rewards.min()), float(net_rewards.max())]
@@ -150,7 +191,7 @@ def summarize(settings: dict, trials: list[dict]) -> tuple[list[Series], dict]:
         "failed_rollouts": int(sum(t["n_failed"] for t in trials)),
         "thesis": {
             "claim": "reward > −0.02 (within 20–30 cm) after ~4000 rollouts in most runs; "
-                     "some runs converge to hitting the net (reward in [−0.05, −0.02])",
+            "some runs converge to hitting the net (reward in [−0.05, −0.02])",
             "good_reward": THESIS_GOOD_REWARD,
             "net_band": list(THESIS_NET_BAND),
             "rollouts": THESIS_ROLLOUTS,
@@ -176,8 +217,10 @@ register(
         run_trial=run_trial,
         summarize=summarize,
         trials={"quick": 1, "paper": 3},
-        claim=("Contextual REPS learns to return the ball to within 20–30 cm of the target "
-               "(reward > −0.02) after ~4000 rollouts in most runs; some runs converge to a "
-               "sub-optimal policy hitting the net (reward in [−0.05, −0.02])."),
+        claim=(
+            "Contextual REPS learns to return the ball to within 20–30 cm of the target "
+            "(reward > −0.02) after ~4000 rollouts in most runs; some runs converge to a "
+            "sub-optimal policy hitting the net (reward in [−0.05, −0.02])."
+        ),
     )
 )

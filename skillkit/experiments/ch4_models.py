@@ -223,39 +223,55 @@ def _run_4_3(settings: dict, rng: np.random.Generator, progress) -> dict:
             f"sample_sizes: a Gaussian fit in 8-D needs at least 10 samples, got {min(sizes)}"
         )
     B, T, n_gt = settings["n_start"], settings["horizon"], settings["n_ground_truth"]
-    progress.reset(total=2 + B)
-    task, model, data = _train_balancing_model(settings, rng)
-    progress.update()
-    m0 = X_UP + task.initial_std * rng.standard_normal((B, 8))
-    lo, hi = np.log(settings["initial_std_range"])
-    sigma0 = np.exp(rng.uniform(lo, hi, B))
-    G = stable_gains(task, B, rng).reshape(B, 4, 8)
     L = n_gt + sum(sizes)
-    x0 = m0[:, None, :] + sigma0[:, None, None] * rng.standard_normal((B, L, 8))
-    res = sample_trajectories(model, x0, feedback_policy(torch.as_tensor(G)), T, L, rng)
-    states = res.states[:, :, 1:].numpy()
-    progress.update()
-    kl_mm = np.empty((B, T))
-    kl_n = np.empty((B, len(sizes), T))
-    for b in range(B):
-        gt_mean, gt_cov = gaussian_fit(states[b, :n_gt])
+    progress.reset(total=1 + B)
+    # Resumable after every start state: the trained model, the start states and the KLs so far.
+    ckpt = progress if hasattr(progress, "save") else None
+    st = ckpt.resume("fig4.3", rng) if ckpt else None
+    if st is None:
+        task, model, data = _train_balancing_model(settings, rng)
+        lo, hi = np.log(settings["initial_std_range"])
+        st = {
+            "model": model,
+            "m0": X_UP + task.initial_std * rng.standard_normal((B, 8)),
+            "sigma0": np.exp(rng.uniform(lo, hi, B)),
+            "G": stable_gains(task, B, rng).reshape(B, 4, 8),
+            "kl_mm": np.full((B, T), np.nan),
+            "kl_samples": np.full((B, len(sizes), T), np.nan),
+            "done": 0,
+            "n_variance_clamped": 0,
+            "n_data": len(data["x"]),
+            "n_failed_rollouts": data["n_failed"],
+        }
+        if ckpt:
+            ckpt.save("fig4.3", st, rng)
+    progress.update(1 + st["done"])
+    model, m0, sigma0, G = st["model"], st["m0"], st["sigma0"], st["G"]
+    for b in range(st["done"], B):
+        # L trajectories from N(m0_b, σ0_b² I): the first n_gt are the ground truth, the rest
+        # are split into the sample sizes compared with moment matching.
+        x0 = m0[b] + sigma0[b] * rng.standard_normal((1, L, 8))
+        res = sample_trajectories(
+            model, x0, feedback_policy(torch.as_tensor(G[b : b + 1])), T, L, rng
+        )
+        states = res.states[0, :, 1:].numpy()
+        gt_mean, gt_cov = gaussian_fit(states[:n_gt])
         means, covs = propagate(model, m0[b], sigma0[b] ** 2 * np.eye(8), T, G[b], -G[b] @ X_UP)
-        kl_mm[b] = gaussian_kl(gt_mean, gt_cov, means[1:].numpy(), covs[1:].numpy())
+        st["kl_mm"][b] = gaussian_kl(gt_mean, gt_cov, means[1:].numpy(), covs[1:].numpy())
         offset = n_gt
         for i, n in enumerate(sizes):
-            mean, cov = gaussian_fit(states[b, offset : offset + n])
-            kl_n[b, i] = gaussian_kl(gt_mean, gt_cov, mean, cov)
+            mean, cov = gaussian_fit(states[offset : offset + n])
+            st["kl_samples"][b, i] = gaussian_kl(gt_mean, gt_cov, mean, cov)
             offset += n
+        st["n_variance_clamped"] += res.n_variance_clamped
+        st["done"] = b + 1
+        if ckpt:
+            ckpt.save("fig4.3", st, rng)
         progress.update()
-    return {
-        "kl_mm": kl_mm,
-        "kl_samples": kl_n,
-        "sigma0": sigma0,
-        "n_data": len(data["x"]),
-        "n_failed_rollouts": data["n_failed"],
-        "n_variance_clamped": res.n_variance_clamped,
-        "model_jitter": model.gp.diagnostics["jitter"],
-    }
+    out = {k: st[k] for k in ("kl_mm", "kl_samples", "sigma0", "n_data", "n_failed_rollouts")}
+    out["n_variance_clamped"] = st["n_variance_clamped"]
+    out["model_jitter"] = model.gp.diagnostics["jitter"]
+    return out
 
 
 def _first_reaching(sizes, values, level=100.0):
@@ -613,9 +629,13 @@ def _run_4_5(settings: dict, rng: np.random.Generator, progress) -> dict:
             if cfg not in configs:
                 configs.append(cfg)
     progress.reset(total=len(configs))
-    results = []
-    for cfg in configs:
+    ckpt = progress if hasattr(progress, "save") else None  # resumable after every setting
+    results = list((ckpt.resume("fig4.5", rng) if ckpt else None) or [])
+    progress.update(len(results))
+    for cfg in configs[len(results) :]:
         results.append({"config": cfg, **_evaluate_4_5(cfg, settings, root)})
+        if ckpt:
+            ckpt.save("fig4.5", list(results), rng)
         progress.update()
     return {"results": results}
 

@@ -626,48 +626,84 @@ def _fig56_trial(settings: dict, rng: np.random.Generator, progress) -> dict:
     counts = list(settings["n_trajectories"])
     progress.reset(total=1 + 3 * len(counts))
     task = _task(settings, settings["torque_noise"])
-    gains, truth, truth_var, rejected, failed = _balancing_truth(task, settings, rng)
-    x0 = _initial_samples(settings, rng)
-    progress.update()
-    cases = [
-        _balancing_case(task, int(m), gains, truth, x0, settings, rng, progress) for m in counts
-    ]
+    # Resumable after the ground truth and after every case.
+    ckpt = progress if hasattr(progress, "save") else None
+    st = ckpt.resume("fig5.6", rng) if ckpt else None
+    if st is None:
+        gains, truth, truth_var, rejected, failed = _balancing_truth(task, settings, rng)
+        st = {
+            "gains": gains,
+            "truth": truth,
+            "truth_var": truth_var,
+            "rejected": rejected,
+            "failed": failed,
+            "x0": _initial_samples(settings, rng),
+            "cases": [],
+        }
+        if ckpt:
+            ckpt.save("fig5.6", st, rng)
+    progress.update(1 + 3 * len(st["cases"]))
+    for m in counts[len(st["cases"]) :]:
+        st["cases"].append(
+            _balancing_case(
+                task, int(m), st["gains"], st["truth"], st["x0"], settings, rng, progress
+            )
+        )
+        if ckpt:
+            ckpt.save("fig5.6", st, rng)
     return {
         "x": counts,
-        "cases": cases,
-        "truth_mc_floor": float(np.mean(truth_var)),
-        "truth_reward_mean": float(np.mean(truth)),
-        "truth_reward_std": float(np.std(truth)),
-        "rejected_test_controllers": rejected,
-        "failed_truth_rollouts": failed,
+        "cases": st["cases"],
+        "truth_mc_floor": float(np.mean(st["truth_var"])),
+        "truth_reward_mean": float(np.mean(st["truth"])),
+        "truth_reward_std": float(np.std(st["truth"])),
+        "rejected_test_controllers": st["rejected"],
+        "failed_truth_rollouts": st["failed"],
     }
 
 
 def _fig57_trial(settings: dict, rng: np.random.Generator, progress) -> dict:
     levels = list(settings["torque_noise"])
     progress.reset(total=4 * len(levels))
-    x0 = _initial_samples(settings, rng)
-    gains, cases, floors, rejected, failed, stats = None, [], [], 0, 0, []
-    for noise in levels:
+    # Resumable after every noise level.
+    ckpt = progress if hasattr(progress, "save") else None
+    st = ckpt.resume("fig5.7", rng) if ckpt else None
+    if st is None:
+        st = {"x0": _initial_samples(settings, rng), "gains": None, "cases": [], "floors": []}
+        st.update({"rejected": 0, "failed": 0, "stats": []})
+    progress.update(4 * len(st["cases"]))
+    for noise in levels[len(st["cases"]) :]:
         task = _task(settings, noise)
-        gains, truth, truth_var, rej, fail = _balancing_truth(task, settings, rng, gains)
-        rejected, failed = rejected + rej, failed + fail
-        floors.append(float(np.mean(truth_var)))
-        stats.append((float(np.mean(truth)), float(np.std(truth))))
+        st["gains"], truth, truth_var, rej, fail = _balancing_truth(
+            task, settings, rng, st["gains"]
+        )
+        st["rejected"] += rej
+        st["failed"] += fail
+        st["floors"].append(float(np.mean(truth_var)))
+        st["stats"].append((float(np.mean(truth)), float(np.std(truth))))
         progress.update()
-        cases.append(
+        st["cases"].append(
             _balancing_case(
-                task, int(settings["n_trajectories"]), gains, truth, x0, settings, rng, progress
+                task,
+                int(settings["n_trajectories"]),
+                st["gains"],
+                truth,
+                st["x0"],
+                settings,
+                rng,
+                progress,
             )
         )
+        if ckpt:
+            ckpt.save("fig5.7", st, rng)
     return {
         "x": levels,
-        "cases": cases,
-        "truth_mc_floor": floors,
-        "truth_reward_mean": [m for m, _ in stats],
-        "truth_reward_std": [sd for _, sd in stats],
-        "rejected_test_controllers": rejected,
-        "failed_truth_rollouts": failed,
+        "cases": st["cases"],
+        "truth_mc_floor": st["floors"],
+        "truth_reward_mean": [m for m, _ in st["stats"]],
+        "truth_reward_std": [sd for _, sd in st["stats"]],
+        "rejected_test_controllers": st["rejected"],
+        "failed_truth_rollouts": st["failed"],
     }
 
 

@@ -75,7 +75,8 @@ def regularized_cholesky(gram_matrix: torch.Tensor, lam: float | torch.Tensor) -
         lam_v = float(lam.detach()) if isinstance(lam, torch.Tensor) else float(lam)
         raise np.linalg.LinAlgError(
             f"lam: G + λI is not numerically positive definite at λ={lam_v:.3g} (N={n}); "
-            "increase lam")
+            "increase lam"
+        )
     return chol
 
 
@@ -97,8 +98,9 @@ def conditional_weights(chol: torch.Tensor, cross: torch.Tensor) -> torch.Tensor
     return torch.cholesky_solve(cross, chol)
 
 
-def rollout_weights(chol: torch.Tensor, beta1: torch.Tensor, transition: Transition,
-                    n_steps: int) -> torch.Tensor:
+def rollout_weights(
+    chol: torch.Tensor, beta1: torch.Tensor, transition: Transition, n_steps: int
+) -> torch.Tensor:
     """Propagate embedding weights through time, Eqs. (5.11) and (5.14).
 
     .. math:: \\beta_{t+1} = (G + \\lambda I)^{-1} \\tilde G_t \\beta_t,
@@ -136,7 +138,8 @@ def rollout_weights(chol: torch.Tensor, beta1: torch.Tensor, transition: Transit
             v = torch.einsum("bij,jb->ib", g_t, beta)
         else:
             raise ValueError(
-                f"transition: expected shape (N, N) or (B, N, N), got {tuple(g_t.shape)}")
+                f"transition: expected shape (N, N) or (B, N, N), got {tuple(g_t.shape)}"
+            )
         beta = conditional_weights(chol, v)
         betas.append(beta)
     return torch.stack(betas)
@@ -193,13 +196,20 @@ class ConditionalEmbedding:
         ``kernel`` when targets and inputs have the same dimension (state → successor state).
     """
 
-    def __init__(self, inputs, targets, kernel: gpytorch.kernels.Kernel, lam: float = 1e-3,
-                 target_kernel: gpytorch.kernels.Kernel | None = None):
+    def __init__(
+        self,
+        inputs,
+        targets,
+        kernel: gpytorch.kernels.Kernel,
+        lam: float = 1e-3,
+        target_kernel: gpytorch.kernels.Kernel | None = None,
+    ):
         z = check_array(inputs, "inputs", ndim=2)
         y = check_array(targets, "targets", ndim=2)
         if y.shape[0] != z.shape[0]:
             raise ValueError(
-                f"targets: expected {z.shape[0]} rows like inputs, got shape {y.shape}")
+                f"targets: expected {z.shape[0]} rows like inputs, got shape {y.shape}"
+            )
         if z.shape[0] < 1:
             raise ValueError("inputs: expected at least one training pair, got none")
         self.lam = check_positive(lam, "lam")
@@ -245,8 +255,10 @@ class ConditionalEmbedding:
         Tensor, shape (N, M) or (B, N, M)
         """
         if points.shape[-1] != self.input_dim:
-            raise ValueError(f"points: expected {self.input_dim} columns like the training inputs, "
-                             f"got shape {tuple(points.shape)}")
+            raise ValueError(
+                f"points: expected {self.input_dim} columns like the training inputs, "
+                f"got shape {tuple(points.shape)}"
+            )
         with torch.no_grad():
             return self.kernel.forward(self._z, points.to(torch.float64))
 
@@ -254,8 +266,10 @@ class ConditionalEmbedding:
     def _points(self, value, name: str, ndim) -> np.ndarray:
         arr = check_array(value, name, ndim=ndim)
         if arr.shape[-1] != self.input_dim:
-            raise ValueError(f"{name}: expected {self.input_dim} columns like the training inputs, "
-                             f"got shape {arr.shape}")
+            raise ValueError(
+                f"{name}: expected {self.input_dim} columns like the training inputs, "
+                f"got shape {arr.shape}"
+            )
         return arr
 
     def weights(self, queries) -> np.ndarray:
@@ -289,8 +303,8 @@ class ConditionalEmbedding:
         """
         s = self._points(samples, "samples", (2, 3))
         single = s.ndim == 2
-        st = torch.from_numpy(s[None] if single else s)            # (B, L, d)
-        mean_k = self.cross_kernel(st).mean(-1).T                   # (N, B)
+        st = torch.from_numpy(s[None] if single else s)  # (B, L, d)
+        mean_k = self.cross_kernel(st).mean(-1).T  # (N, B)
         beta = conditional_weights(self._chol, mean_k).numpy()
         return beta[:, 0] if single else beta
 
@@ -341,7 +355,8 @@ class ConditionalEmbedding:
         b = check_array(beta, "beta", ndim=(1, 2))
         if b.shape[0] != self.n:
             raise ValueError(
-                f"beta: expected {self.n} rows (one per training pair), got shape {b.shape}")
+                f"beta: expected {self.n} rows (one per training pair), got shape {b.shape}"
+            )
         return b
 
     def expected(self, values, beta) -> np.ndarray:
@@ -365,7 +380,8 @@ class ConditionalEmbedding:
         v = check_array(values, "values", ndim=(1, 2))
         if v.shape[0] != self.n:
             raise ValueError(
-                f"values: expected {self.n} rows (one per training pair), got shape {v.shape}")
+                f"values: expected {self.n} rows (one per training pair), got shape {v.shape}"
+            )
         return b.T @ v
 
     def mean(self, beta) -> np.ndarray:
@@ -412,24 +428,33 @@ class ConditionalEmbedding:
         b = self._beta(beta)
         kern = self.target_kernel
         if kern is None:
-            raise ValueError("target_kernel: a target kernel is needed for pre-images when "
-                             "targets and inputs differ in dimension")
+            raise ValueError(
+                "target_kernel: a target kernel is needed for pre-images when "
+                "targets and inputs differ in dimension"
+            )
         if isinstance(kern, Linear):
             return self.mean(b)
         if not isinstance(kern, SquaredExponential):
-            raise ValueError("target_kernel: pre-images are implemented for SquaredExponential "
-                             f"and Linear kernels, got {type(kern).__name__}")
+            raise ValueError(
+                "target_kernel: pre-images are implemented for SquaredExponential "
+                f"and Linear kernels, got {type(kern).__name__}"
+            )
         single = b.ndim == 1
         x, ok = _se_preimage(self.targets, b.reshape(self.n, -1), kern, int(max_iter), float(tol))
         if not np.all(ok):
-            warnings.warn(f"preimage: fixed-point iteration stopped early for {int(np.sum(~ok))} "
-                          f"of {ok.size} embedding(s) (non-positive local weight mass or no "
-                          "convergence); returned the best iterate", RuntimeWarning, stacklevel=2)
+            warnings.warn(
+                f"preimage: fixed-point iteration stopped early for {int(np.sum(~ok))} "
+                f"of {ok.size} embedding(s) (non-positive local weight mass or no "
+                "convergence); returned the best iterate",
+                RuntimeWarning,
+                stacklevel=2,
+            )
         return x[0] if single else x
 
 
-def _se_preimage(y: np.ndarray, beta: np.ndarray, kern: SquaredExponential, max_iter: int,
-                 tol: float) -> tuple[np.ndarray, np.ndarray]:
+def _se_preimage(
+    y: np.ndarray, beta: np.ndarray, kern: SquaredExponential, max_iter: int, tol: float
+) -> tuple[np.ndarray, np.ndarray]:
     """Fixed-point pre-image for an SE kernel; returns (points (B, d), converged (B,)).
 
     The score β^T k_Y(y) equals the local weight mass Σ_i w_i, so it is tracked for free.
@@ -439,7 +464,7 @@ def _se_preimage(y: np.ndarray, beta: np.ndarray, kern: SquaredExponential, max_
     yt = torch.from_numpy(y)
     bt = torch.from_numpy(beta).T.contiguous()  # (B, N)
     with torch.no_grad():
-        scores = bt @ kern.forward(yt, yt)                          # (B, N): β^T k_Y(y_j)
+        scores = bt @ kern.forward(yt, yt)  # (B, N): β^T k_Y(y_j)
         best_score, start = scores.max(dim=1)
         best = yt[start].clone()  # (B, d)
         converged = torch.zeros(best.shape[0], dtype=torch.bool)

@@ -71,21 +71,30 @@ class TrajectoryEmbedding:
 
     def means(self, model: ConditionalEmbedding) -> np.ndarray:
         """Expected states :math:`X'^\\top \\beta_t` (linear read-out), shape (T, B, n_x)."""
-        body = np.stack([model.mean(b) for b in self.betas]) if len(self.betas) else np.zeros(
-            (0,) + self.initial.shape)
+        body = (
+            np.stack([model.mean(b) for b in self.betas])
+            if len(self.betas)
+            else np.zeros((0,) + self.initial.shape)
+        )
         return np.concatenate([self.initial[None], body])
 
     def preimages(self, model: ConditionalEmbedding, **kwargs) -> np.ndarray:
         """Most likely states per row (Eq. 2.45, :meth:`ConditionalEmbedding.preimage`),
         shape (T, B, n_x); row 0 is the initial mean."""
         b = self.betas
-        flat = b.transpose(1, 0, 2).reshape(b.shape[1], -1)           # (N, (T-1) B)
+        flat = b.transpose(1, 0, 2).reshape(b.shape[1], -1)  # (N, (T-1) B)
         decoded = model.preimage(flat, **kwargs).reshape(b.shape[0], b.shape[2], -1)
         return np.concatenate([self.initial[None], decoded])
 
 
-def predict(model: ConditionalEmbedding, initial, n_steps: int, policy: Policy | None = None,
-            reward: Reward | None = None, time_invariant: bool = False) -> TrajectoryEmbedding:
+def predict(
+    model: ConditionalEmbedding,
+    initial,
+    n_steps: int,
+    policy: Policy | None = None,
+    reward: Reward | None = None,
+    time_invariant: bool = False,
+) -> TrajectoryEmbedding:
     """Kernel trajectory prediction, Table 5.1 (fixed policy) and Table 5.2 (any policy).
 
     Parameters
@@ -117,16 +126,21 @@ def predict(model: ConditionalEmbedding, initial, n_steps: int, policy: Policy |
     n_x = model.target_dim
     x0 = check_array(initial, "initial", ndim=(2, 3))
     if x0.shape[-1] != n_x:
-        raise ValueError(f"initial: expected states with {n_x} columns like the model's targets, "
-                         f"got shape {x0.shape}")
-    samples = x0 if x0.ndim == 3 else x0[:, None, :]                   # (B, L, n_x)
+        raise ValueError(
+            f"initial: expected states with {n_x} columns like the model's targets, "
+            f"got shape {x0.shape}"
+        )
+    samples = x0 if x0.ndim == 3 else x0[:, None, :]  # (B, L, n_x)
     n_rows = int(n_steps)
     if n_rows < 2:
-        raise ValueError(f"n_steps: expected at least 2 rows (initial state + one prediction), "
-                         f"got {n_steps}")
+        raise ValueError(
+            f"n_steps: expected at least 2 rows (initial state + one prediction), got {n_steps}"
+        )
     if policy is None and model.input_dim != n_x:
-        raise ValueError(f"policy: the model's inputs have {model.input_dim} columns but its "
-                         f"targets {n_x}; a state-action model needs a policy (Table 5.2)")
+        raise ValueError(
+            f"policy: the model's inputs have {model.input_dim} columns but its "
+            f"targets {n_x}; a state-action model needs a policy (Table 5.2)"
+        )
     fixed = policy is None or time_invariant
 
     def inputs_at(states: np.ndarray, t: int) -> tuple[np.ndarray, np.ndarray]:
@@ -135,28 +149,39 @@ def predict(model: ConditionalEmbedding, initial, n_steps: int, policy: Policy |
         else:
             controls = check_array(policy(states, t), "policy(states, t)", ndim=3)
         if controls.shape[1] != states.shape[1] or controls.shape[0] not in (
-                1, states.shape[0], samples.shape[0]):
-            raise ValueError("policy(states, t): expected controls of shape "
-                             f"(b, {states.shape[1]}, n_u) for states of shape {states.shape}, "
-                             f"got {controls.shape}")
+            1,
+            states.shape[0],
+            samples.shape[0],
+        ):
+            raise ValueError(
+                "policy(states, t): expected controls of shape "
+                f"(b, {states.shape[1]}, n_u) for states of shape {states.shape}, "
+                f"got {controls.shape}"
+            )
         b = max(states.shape[0], controls.shape[0])
         s = np.broadcast_to(states, (b,) + states.shape[1:])
         c = np.broadcast_to(controls, (b,) + controls.shape[1:])
         z = np.concatenate([s, c], axis=-1)
         if z.shape[-1] != model.input_dim:
-            raise ValueError(f"policy(states, t): state-action inputs have {z.shape[-1]} columns, "
-                             f"the model was trained on {model.input_dim}")
+            raise ValueError(
+                f"policy(states, t): state-action inputs have {z.shape[-1]} columns, "
+                f"the model was trained on {model.input_dim}"
+            )
         return z, c
 
     def rewards_at(states: np.ndarray, controls: np.ndarray) -> np.ndarray:
-        r = check_array(reward(np.broadcast_to(states, controls.shape[:-1] + states.shape[-1:]),
-                               controls), "reward(states, controls)", ndim=2)
+        r = check_array(
+            reward(np.broadcast_to(states, controls.shape[:-1] + states.shape[-1:]), controls),
+            "reward(states, controls)",
+            ndim=2,
+        )
         if r.shape != controls.shape[:-1]:
-            raise ValueError(f"reward(states, controls): expected shape {controls.shape[:-1]}, "
-                             f"got {r.shape}")
+            raise ValueError(
+                f"reward(states, controls): expected shape {controls.shape[:-1]}, got {r.shape}"
+            )
         return r
 
-    successors = model.targets[None]                                     # (1, N, n_x)
+    successors = model.targets[None]  # (1, N, n_x)
     grams: dict[int, torch.Tensor] = {}
     reward_vectors: dict[int, np.ndarray] = {}
 
@@ -165,8 +190,8 @@ def predict(model: ConditionalEmbedding, initial, n_steps: int, policy: Policy |
         key = 1 if fixed else t
         if key not in grams:
             z, c = inputs_at(successors, key)
-            g = model.cross_kernel(torch.from_numpy(np.ascontiguousarray(z)))   # (b, N, N)
-            grams.clear()                      # time-dependent: keep only the current step
+            g = model.cross_kernel(torch.from_numpy(np.ascontiguousarray(z)))  # (b, N, N)
+            grams.clear()  # time-dependent: keep only the current step
             grams[key] = g[0] if g.shape[0] == 1 else g
             if reward is not None:
                 reward_vectors[key] = rewards_at(successors, c)
@@ -181,7 +206,7 @@ def predict(model: ConditionalEmbedding, initial, n_steps: int, policy: Policy |
 
     n_batch = samples.shape[0]
     with torch.no_grad():
-        z1, c1 = inputs_at(samples, 0)                                    # (B, L, d_z)
+        z1, c1 = inputs_at(samples, 0)  # (B, L, d_z)
         cross = model.cross_kernel(torch.from_numpy(np.ascontiguousarray(z1)))  # (B, N, L)
         beta1 = conditional_weights(model.chol, cross.mean(-1).T.contiguous())  # (N, B)
         betas = rollout_weights(model.chol, beta1, transition, n_rows - 1).numpy()

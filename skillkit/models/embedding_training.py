@@ -118,7 +118,8 @@ def transitions(states, controls=None) -> tuple[np.ndarray, np.ndarray, np.ndarr
     m, t, n_x = x.shape
     if t < 2:
         raise ValueError(
-            f"states: expected at least 2 time steps per trajectory, got shape {x.shape}")
+            f"states: expected at least 2 time steps per trajectory, got shape {x.shape}"
+        )
     z = x
     if controls is not None:
         u = check_array(controls, "controls", ndim=3)
@@ -134,8 +135,10 @@ def transitions(states, controls=None) -> tuple[np.ndarray, np.ndarray, np.ndarr
 # --------------------------------------------------------------------------- objectives
 def _unpack(theta: torch.Tensor, dim: int) -> tuple[torch.Tensor, torch.Tensor]:
     if theta.shape != (dim + 1,):
-        raise ValueError(f"theta: expected [log lengthscales ({dim}), log lam], i.e. shape "
-                         f"({dim + 1},), got {tuple(theta.shape)}")
+        raise ValueError(
+            f"theta: expected [log lengthscales ({dim}), log lam], i.e. shape "
+            f"({dim + 1},), got {tuple(theta.shape)}"
+        )
     return torch.exp(theta[:dim]), torch.exp(theta[dim])
 
 
@@ -146,9 +149,14 @@ def _weights(theta: torch.Tensor, inputs: torch.Tensor, queries: torch.Tensor):
     return chol, ls, conditional_weights(chol, se_kernel(inputs, queries, ls, 1.0))
 
 
-def state_embedding_error(theta: torch.Tensor, inputs: torch.Tensor, val_inputs: torch.Tensor,
-                          target_gram: torch.Tensor, target_cross: torch.Tensor,
-                          target_diag: torch.Tensor) -> torch.Tensor:
+def state_embedding_error(
+    theta: torch.Tensor,
+    inputs: torch.Tensor,
+    val_inputs: torch.Tensor,
+    target_gram: torch.Tensor,
+    target_cross: torch.Tensor,
+    target_diag: torch.Tensor,
+) -> torch.Tensor:
     """Squared RKHS error of predicted successor embeddings, Eqs. (5.15)–(5.16).
 
     .. math:: J(\\theta) = \\sum_v g_y(y_v, y_v) - 2\\, g_y(y_v)^\\top \\beta_v
@@ -176,13 +184,21 @@ def state_embedding_error(theta: torch.Tensor, inputs: torch.Tensor, val_inputs:
     -------
     Tensor, scalar
     """
-    _, _, beta = _weights(theta, inputs, val_inputs)                    # (N, V)
-    return (target_diag.sum() - 2.0 * (target_cross * beta.T).sum()
-            + (beta * (target_gram @ beta)).sum())
+    _, _, beta = _weights(theta, inputs, val_inputs)  # (N, V)
+    return (
+        target_diag.sum()
+        - 2.0 * (target_cross * beta.T).sum()
+        + (beta * (target_gram @ beta)).sum()
+    )
 
 
-def step_reward_error(theta: torch.Tensor, inputs: torch.Tensor, rewards: torch.Tensor,
-                      val_inputs: torch.Tensor, val_rewards: torch.Tensor) -> torch.Tensor:
+def step_reward_error(
+    theta: torch.Tensor,
+    inputs: torch.Tensor,
+    rewards: torch.Tensor,
+    val_inputs: torch.Tensor,
+    val_rewards: torch.Tensor,
+) -> torch.Tensor:
     """One-step reward error with a linear reward kernel, Eqs. (5.17)–(5.19).
 
     .. math:: J(\\theta) = \\sum_v (r'_v - r'^\\top \\beta_v)^2,
@@ -206,9 +222,14 @@ def step_reward_error(theta: torch.Tensor, inputs: torch.Tensor, rewards: torch.
     return ((val_rewards - rewards @ beta) ** 2).sum()
 
 
-def trajectory_reward_error(theta: torch.Tensor, inputs: torch.Tensor, initial_inputs: torch.Tensor,
-                            bases: torch.Tensor, basis_rewards: torch.Tensor,
-                            rewards: torch.Tensor) -> torch.Tensor:
+def trajectory_reward_error(
+    theta: torch.Tensor,
+    inputs: torch.Tensor,
+    initial_inputs: torch.Tensor,
+    bases: torch.Tensor,
+    basis_rewards: torch.Tensor,
+    rewards: torch.Tensor,
+) -> torch.Tensor:
     """Long-term reward prediction error of whole trajectories, Eqs. (5.22)–(5.23).
 
     .. math:: J(\\theta) = \\sum_i \\sum_{t \\ge 1} (r^i_t - r'^{\\pi_i \\top}_t \\beta^i_t)^2,
@@ -239,16 +260,18 @@ def trajectory_reward_error(theta: torch.Tensor, inputs: torch.Tensor, initial_i
     Tensor, scalar
     """
     n_rows = rewards.shape[1]
-    chol, ls, beta1 = _weights(theta, inputs, initial_inputs)            # (N, M)
+    chol, ls, beta1 = _weights(theta, inputs, initial_inputs)  # (N, M)
     if bases.ndim == 3:
-        g = se_kernel(inputs, bases, ls, 1.0)                             # (M, N, N)
+        g = se_kernel(inputs, bases, ls, 1.0)  # (M, N, N)
 
         def transition(t):
             return g
     else:
+
         def transition(t):
             return se_kernel(inputs, bases[t - 1], ls, 1.0)
-    betas = rollout_weights(chol, beta1, transition, n_rows - 1)          # (T-1, N, M)
+
+    betas = rollout_weights(chol, beta1, transition, n_rows - 1)  # (T-1, N, M)
     r_basis = basis_rewards if basis_rewards.ndim == 3 else basis_rewards[None]
     predicted = torch.einsum("tmn,tnm->tm", r_basis.expand(n_rows - 1, -1, -1), betas)
     return ((rewards[:, 1:].T - predicted) ** 2).sum()
@@ -301,8 +324,13 @@ def _check_folds(folds: Folds, n: int) -> list[tuple[np.ndarray, np.ndarray]]:
     out = []
     for i, (tr, va) in enumerate(folds):
         tr, va = np.asarray(tr, dtype=int), np.asarray(va, dtype=int)
-        if tr.size == 0 or va.size == 0 or tr.min(initial=0) < 0 or va.min(initial=0) < 0 or max(
-                tr.max(initial=0), va.max(initial=0)) >= n:
+        if (
+            tr.size == 0
+            or va.size == 0
+            or tr.min(initial=0) < 0
+            or va.min(initial=0) < 0
+            or max(tr.max(initial=0), va.max(initial=0)) >= n
+        ):
             raise ValueError(f"folds: fold {i} has empty or out-of-range indices for {n} samples")
         out.append((tr, va))
     if not out:
@@ -310,8 +338,9 @@ def _check_folds(folds: Folds, n: int) -> list[tuple[np.ndarray, np.ndarray]]:
     return out
 
 
-def state_embedding_loss(inputs, targets, folds: Folds,
-                         target_kernel: gpytorch.kernels.Kernel) -> CrossValidatedLoss:
+def state_embedding_loss(
+    inputs, targets, folds: Folds, target_kernel: gpytorch.kernels.Kernel
+) -> CrossValidatedLoss:
     """Cross-validated state-embedding error, Eq. (5.16) summed over folds.
 
     Parameters
@@ -332,8 +361,13 @@ def state_embedding_loss(inputs, targets, folds: Folds,
     g_y = gram(target_kernel, y)
     fns = []
     for tr, va in _check_folds(folds, z.shape[0]):
-        args = (_t(z[tr]), _t(z[va]), _t(g_y[np.ix_(tr, tr)]), _t(g_y[np.ix_(va, tr)]),
-                _t(np.diag(g_y)[va]))
+        args = (
+            _t(z[tr]),
+            _t(z[va]),
+            _t(g_y[np.ix_(tr, tr)]),
+            _t(g_y[np.ix_(va, tr)]),
+            _t(np.diag(g_y)[va]),
+        )
         fns.append(lambda th, a=args: state_embedding_error(th, *a))
     return CrossValidatedLoss(fns, z.shape[1], sum(len(va) for _, va in folds))
 
@@ -358,8 +392,9 @@ def step_reward_loss(inputs, rewards, folds: Folds) -> CrossValidatedLoss:
     return CrossValidatedLoss(fns, z.shape[1], sum(len(va) for _, va in folds))
 
 
-def trajectory_reward_loss(states, controls, rewards, policy, reward, folds: Folds,
-                           chunk: int = 8) -> CrossValidatedLoss:
+def trajectory_reward_loss(
+    states, controls, rewards, policy, reward, folds: Folds, chunk: int = 8
+) -> CrossValidatedLoss:
     """Cross-validated trajectory reward error, Eq. (5.23), folds over whole trajectories.
 
     Parameters
@@ -396,11 +431,13 @@ def trajectory_reward_loss(states, controls, rewards, policy, reward, folds: Fol
         z_tr, xp_tr, _ = transitions(x[tr], u[tr])
         c = check_array(policy(xp_tr[None], 1), "policy(states, t)", ndim=3)
         if c.shape[0] not in (1, m) or c.shape[1] != xp_tr.shape[0]:
-            raise ValueError(f"policy(states, t): expected controls of shape ({m} or 1, "
-                             f"{xp_tr.shape[0]}, n_u), got {c.shape}")
+            raise ValueError(
+                f"policy(states, t): expected controls of shape ({m} or 1, "
+                f"{xp_tr.shape[0]}, n_u), got {c.shape}"
+            )
         c = np.broadcast_to(c, (m,) + c.shape[1:])[va]
         s = np.broadcast_to(xp_tr[None], (len(va),) + xp_tr.shape)
-        bases = np.concatenate([s, c], axis=-1)                            # (V, N, d)
+        bases = np.concatenate([s, c], axis=-1)  # (V, N, d)
         basis_r = check_array(reward(s, c), "reward(states, controls)", shape=(len(va), len(s[0])))
         for lo in range(0, len(va), int(chunk)):
             sl = slice(lo, lo + int(chunk))
@@ -443,10 +480,15 @@ class FitResult:
     at_bound: list[str] = field(default_factory=list)
 
 
-def fit_hyperparameters(loss: CrossValidatedLoss, lengthscale, lam: float = 1e-3,
-                        learn_lam: bool = True, lengthscale_factor: float = 100.0,
-                        lam_bounds: tuple[float, float] = (1e-6, 1.0),
-                        max_iter: int = 100) -> FitResult:
+def fit_hyperparameters(
+    loss: CrossValidatedLoss,
+    lengthscale,
+    lam: float = 1e-3,
+    learn_lam: bool = True,
+    lengthscale_factor: float = 100.0,
+    lam_bounds: tuple[float, float] = (1e-6, 1.0),
+    max_iter: int = 100,
+) -> FitResult:
     """Minimise a cross-validated embedding error over log length-scales (and log λ).
 
     Uses L-BFGS-B with the analytic (reverse-mode) gradient; the thesis suggests conjugate
@@ -487,23 +529,38 @@ def fit_hyperparameters(loss: CrossValidatedLoss, lengthscale, lam: float = 1e-3
     theta0 = np.append(np.log(w0), np.log(lam))
 
     if learn_lam:
+
         def fun(th):
             return loss.value_and_grad(th)
+
         x0, bnds = theta0, bounds + [(np.log(lo_l), np.log(hi_l))]
     else:
+
         def fun(th):
             v, g = loss.value_and_grad(np.append(th, np.log(lam)))
             return v, g[:d]
+
         x0, bnds = theta0[:d], bounds
 
     initial = loss(theta0)
-    res = minimize(fun, x0, jac=True, method="L-BFGS-B", bounds=bnds,
-                   options={"maxiter": int(max_iter)})
+    res = minimize(
+        fun, x0, jac=True, method="L-BFGS-B", bounds=bnds, options={"maxiter": int(max_iter)}
+    )
     theta = res.x if learn_lam else np.append(res.x, np.log(lam))
     names = [f"lengthscale[{i}]" for i in range(d)] + (["lam"] if learn_lam else [])
-    at_bound = [n for n, v, (lo, hi) in zip(names, res.x, bnds, strict=True)
-                if np.isclose(v, lo, atol=1e-6) or np.isclose(v, hi, atol=1e-6)]
+    at_bound = [
+        n
+        for n, v, (lo, hi) in zip(names, res.x, bnds, strict=True)
+        if np.isclose(v, lo, atol=1e-6) or np.isclose(v, hi, atol=1e-6)
+    ]
     lam_fit = float(np.exp(theta[d])) if learn_lam else lam
-    return FitResult(lengthscale=np.exp(theta[:d]), lam=lam_fit,
-                     loss=float(res.fun), initial_loss=float(initial), n_evaluations=int(res.nfev),
-                     success=bool(res.success), message=str(res.message), at_bound=at_bound)
+    return FitResult(
+        lengthscale=np.exp(theta[:d]),
+        lam=lam_fit,
+        loss=float(res.fun),
+        initial_loss=float(initial),
+        n_evaluations=int(res.nfev),
+        success=bool(res.success),
+        message=str(res.message),
+        at_bound=at_bound,
+    )

@@ -150,7 +150,8 @@ class BallPhysics:
             e = getattr(self, name)
             if not 0.0 <= e <= 1.0:
                 raise ValueError(
-                    f"{name}: expected a coefficient of restitution in [0, 1], got {e!r}")
+                    f"{name}: expected a coefficient of restitution in [0, 1], got {e!r}"
+                )
 
 
 # ----------------------------------------------------------------------------- racket path
@@ -202,8 +203,12 @@ class RacketPath:
     def max_speed(self) -> float:
         """Largest speed of a blade point over the samples: max_k ‖v_k‖ + ‖ω_k‖ R_max, with
         R_max = 0.1 m covering the blade (used to size the proximity test)."""
-        return float(np.max(np.linalg.norm(self.velocity, axis=1)
-                            + 0.1 * np.linalg.norm(self.angular_velocity, axis=1)))
+        return float(
+            np.max(
+                np.linalg.norm(self.velocity, axis=1)
+                + 0.1 * np.linalg.norm(self.angular_velocity, axis=1)
+            )
+        )
 
     @classmethod
     def at_rest(cls, center, normal, t_end: float) -> RacketPath:
@@ -321,8 +326,9 @@ def _advance(p, v, h: float, drag: float, gravity: float):
     ax, ay, az = _acceleration(v[0], v[1], v[2], drag, gravity)
     hh = 0.5 * h * h
     p_new = (p[0] + h * v[0] + hh * ax, p[1] + h * v[1] + hh * ay, p[2] + h * v[2] + hh * az)
-    mx, my, mz = _acceleration(v[0] + 0.5 * h * ax, v[1] + 0.5 * h * ay, v[2] + 0.5 * h * az,
-                               drag, gravity)
+    mx, my, mz = _acceleration(
+        v[0] + 0.5 * h * ax, v[1] + 0.5 * h * ay, v[2] + 0.5 * h * az, drag, gravity
+    )
     return p_new, (v[0] + h * mx, v[1] + h * my, v[2] + h * mz)
 
 
@@ -346,9 +352,17 @@ def _on_table(x: float, y: float) -> bool:
     return abs(x) <= 0.5 * TABLE_LENGTH and abs(y) <= 0.5 * TABLE_WIDTH
 
 
-def simulate_ball(position, velocity, duration: float, dt: float = 0.002, *,
-                  physics: BallPhysics | None = None, racket: RacketPath | None = None,
-                  substeps: int = 2, max_extra_time: float = 3.0) -> BallFlight:
+def simulate_ball(
+    position,
+    velocity,
+    duration: float,
+    dt: float = 0.002,
+    *,
+    physics: BallPhysics | None = None,
+    racket: RacketPath | None = None,
+    substeps: int = 2,
+    max_extra_time: float = 3.0,
+) -> BallFlight:
     """Integrate the ball from its launch state through bounces and racket impacts.
 
     Free flight obeys p̈ = g − k‖ṗ‖ṗ (explicit midpoint rule, ``dt / substeps`` per step).
@@ -436,8 +450,12 @@ class _BallIntegrator:
         # own travel in the step) of the nearest racket sample: blade and ball radii, the
         # racket's travel over a sample period, and 2 cm to spare.
         if racket is not None:
-            self._reach = (physics.racket_radius + physics.radius + 0.02
-                           + racket.max_speed * (racket.times[1] - racket.times[0]))
+            self._reach = (
+                physics.racket_radius
+                + physics.radius
+                + 0.02
+                + racket.max_speed * (racket.times[1] - racket.times[0])
+            )
 
     def step(self, p, v, t: float, h: float):
         """Advance (p, v) from time t by h, handling every event inside the step."""
@@ -459,7 +477,8 @@ class _BallIntegrator:
                 if tn < te:
                     kind, te = "net", tn
             if self.racket is not None and self.racket.near(
-                    t, p, self._reach + remaining * (abs(v[0]) + abs(v[1]) + abs(v[2]))):
+                t, p, self._reach + remaining * (abs(v[0]) + abs(v[1]) + abs(v[2]))
+            ):
                 tr = self._racket_crossing(p, p1, t, remaining)
                 if tr is not None and tr < te:
                     kind, te = "racket", tr
@@ -496,7 +515,7 @@ class _BallIntegrator:
         ox, oy, oz = (a + frac * (b - a) - c for a, b, c in zip(p0, p1, (cx, cy, cz), strict=True))
         normal_part = nx * ox + ny * oy + nz * oz
         in_plane2 = ox * ox + oy * oy + oz * oz - normal_part * normal_part
-        if in_plane2 > self.physics.racket_radius ** 2:
+        if in_plane2 > self.physics.racket_radius**2:
             return None
         return frac * h
 
@@ -536,8 +555,16 @@ class _BallIntegrator:
 
 
 # ----------------------------------------------------------------------------- the robot
-JOINT_NAMES = ("base_x", "base_y", "shoulder_yaw", "shoulder_pitch", "upper_arm_roll", "elbow",
-               "forearm_roll", "wrist")
+JOINT_NAMES = (
+    "base_x",
+    "base_y",
+    "shoulder_yaw",
+    "shoulder_pitch",
+    "upper_arm_roll",
+    "elbow",
+    "forearm_roll",
+    "wrist",
+)
 """The 8 tracked joints, in the column order of q and of the DMP."""
 PLATFORM_POSITION = np.array([-2.0, 0.5])
 """Where the platform stands at q = 0 (m): 0.63 m behind the robot's end line, 0.5 m to the
@@ -601,32 +628,74 @@ def arm_mjcf(timestep: float = 0.002):
     def joint(body, name, kind, axis):
         body.add("joint", name=name, type=kind, axis=axis, armature=next(arm))
 
-    platform = root.worldbody.add("body", name="platform",
-                                  pos=[PLATFORM_POSITION[0], PLATFORM_POSITION[1], 0.0])
+    platform = root.worldbody.add(
+        "body", name="platform", pos=[PLATFORM_POSITION[0], PLATFORM_POSITION[1], 0.0]
+    )
     joint(platform, "base_x", "slide", [1, 0, 0])
     joint(platform, "base_y", "slide", [0, 1, 0])
-    platform.add("geom", name="column", type="box", size=[0.12, 0.12, 0.5 * SHOULDER_HEIGHT],
-                 pos=[0, 0, 0.5 * SHOULDER_HEIGHT], mass=m_base, rgba=[0.4, 0.4, 0.45, 1])
+    platform.add(
+        "geom",
+        name="column",
+        type="box",
+        size=[0.12, 0.12, 0.5 * SHOULDER_HEIGHT],
+        pos=[0, 0, 0.5 * SHOULDER_HEIGHT],
+        mass=m_base,
+        rgba=[0.4, 0.4, 0.45, 1],
+    )
     shoulder = platform.add("body", name="upper_arm", pos=[0, 0, SHOULDER_HEIGHT])
     joint(shoulder, "shoulder_yaw", "hinge", [0, 0, 1])
     joint(shoulder, "shoulder_pitch", "hinge", [0, 1, 0])
-    shoulder.add("geom", name="shoulder", type="sphere", size=[0.06], mass=m_shoulder,
-                 rgba=[0.2, 0.3, 0.6, 1])
-    shoulder.add("geom", name="upper_arm", type="capsule", fromto=[0, 0, 0, l1, 0, 0],
-                 size=[0.035], mass=m_upper, rgba=[0.2, 0.3, 0.6, 1])
+    shoulder.add(
+        "geom",
+        name="shoulder",
+        type="sphere",
+        size=[0.06],
+        mass=m_shoulder,
+        rgba=[0.2, 0.3, 0.6, 1],
+    )
+    shoulder.add(
+        "geom",
+        name="upper_arm",
+        type="capsule",
+        fromto=[0, 0, 0, l1, 0, 0],
+        size=[0.035],
+        mass=m_upper,
+        rgba=[0.2, 0.3, 0.6, 1],
+    )
     forearm = shoulder.add("body", name="forearm", pos=[l1, 0, 0])
     joint(forearm, "upper_arm_roll", "hinge", [1, 0, 0])
     joint(forearm, "elbow", "hinge", [0, 1, 0])
-    forearm.add("geom", name="forearm", type="capsule", fromto=[0, 0, 0, l2, 0, 0],
-                size=[0.03], mass=m_fore, rgba=[0.2, 0.3, 0.6, 1])
+    forearm.add(
+        "geom",
+        name="forearm",
+        type="capsule",
+        fromto=[0, 0, 0, l2, 0, 0],
+        size=[0.03],
+        mass=m_fore,
+        rgba=[0.2, 0.3, 0.6, 1],
+    )
     hand = forearm.add("body", name="hand", pos=[l2, 0, 0])
     joint(hand, "forearm_roll", "hinge", [1, 0, 0])
     joint(hand, "wrist", "hinge", [0, 0, 1])
     handle = l3 - 0.08
-    hand.add("geom", name="handle", type="capsule", fromto=[0, 0, 0, handle, 0, 0],
-             size=[0.015], mass=0.3 * m_hand, rgba=[0.6, 0.4, 0.2, 1])
-    hand.add("geom", name="blade", type="cylinder", fromto=[l3, -0.005, 0, l3, 0.005, 0],
-             size=[0.08], mass=0.7 * m_hand, rgba=[0.8, 0.1, 0.1, 1])
+    hand.add(
+        "geom",
+        name="handle",
+        type="capsule",
+        fromto=[0, 0, 0, handle, 0, 0],
+        size=[0.015],
+        mass=0.3 * m_hand,
+        rgba=[0.6, 0.4, 0.2, 1],
+    )
+    hand.add(
+        "geom",
+        name="blade",
+        type="cylinder",
+        fromto=[l3, -0.005, 0, l3, 0.005, 0],
+        size=[0.08],
+        mass=0.7 * m_hand,
+        rgba=[0.8, 0.1, 0.1, 1],
+    )
     hand.add("site", name=RACKET_SITE, pos=[l3, 0, 0], size=[0.01])
     return root
 
@@ -661,8 +730,9 @@ def nominal_context() -> np.ndarray:
     return np.concatenate([0.5 * (VELOCITY_LOW + VELOCITY_HIGH), 0.5 * (RETURN_LOW + RETURN_HIGH)])
 
 
-def design_stroke(context=None, hit_time: float = HIT_TIME,
-                  flight_time: float = RETURN_FLIGHT_TIME) -> dict:
+def design_stroke(
+    context=None, hit_time: float = HIT_TIME, flight_time: float = RETURN_FLIGHT_TIME
+) -> dict:
     """The racket state that returns the ball of ``context`` to its target, and joints for it.
 
     1. Fly the incoming ball (no racket) to ``hit_time``: position p_h, velocity v_in.
@@ -708,8 +778,13 @@ def design_stroke(context=None, hit_time: float = HIT_TIME,
         return [ev.position[0] - b[0], ev.position[1] - b[1], ev.time - flight_time]
 
     # drag-free guess with 10% more horizontal speed for the drag
-    guess = np.array([1.1 * (b[0] - p_h[0]) / flight_time, 1.1 * (b[1] - p_h[1]) / flight_time,
-                      (TABLE_HEIGHT + 0.02 - p_h[2]) / flight_time + 0.5 * 9.81 * flight_time])
+    guess = np.array(
+        [
+            1.1 * (b[0] - p_h[0]) / flight_time,
+            1.1 * (b[1] - p_h[1]) / flight_time,
+            (TABLE_HEIGHT + 0.02 - p_h[2]) / flight_time + 0.5 * 9.81 * flight_time,
+        ]
+    )
     v_out, _, ok, msg = fsolve(miss, guess, full_output=True)
     if ok != 1:
         raise RuntimeError(f"design_stroke: no return velocity found ({msg})")
@@ -737,21 +812,36 @@ def design_stroke(context=None, hit_time: float = HIT_TIME,
     a = np.vstack([100 * jacp, 3 * jacr, np.diag(cost)])
     y = np.concatenate([100 * v_racket, np.zeros(11)])
     qd = np.linalg.lstsq(a, y, rcond=None)[0]
-    return {"q": q, "qd": qd, "position": p_h, "normal": n, "racket_velocity": v_racket,
-            "ball_velocity_in": v_in, "ball_velocity_out": v_out}
+    return {
+        "q": q,
+        "qd": qd,
+        "position": p_h,
+        "normal": n,
+        "racket_velocity": v_racket,
+        "ball_velocity_in": v_in,
+        "ball_velocity_out": v_out,
+    }
 
 
 def _quintic(q0, qd0, q1, qd1, duration: float, t: np.ndarray):
     """Quintic from (q0, q̇0, 0) to (q1, q̇1, 0) over ``duration``; (q, q̇, q̈) at t, (len(t), n)."""
     T = duration
-    m = np.array([[1, 0, 0, 0, 0, 0], [0, 1, 0, 0, 0, 0], [0, 0, 2, 0, 0, 0],
-                  [1, T, T**2, T**3, T**4, T**5], [0, 1, 2 * T, 3 * T**2, 4 * T**3, 5 * T**4],
-                  [0, 0, 2, 6 * T, 12 * T**2, 20 * T**3]], dtype=float)
+    m = np.array(
+        [
+            [1, 0, 0, 0, 0, 0],
+            [0, 1, 0, 0, 0, 0],
+            [0, 0, 2, 0, 0, 0],
+            [1, T, T**2, T**3, T**4, T**5],
+            [0, 1, 2 * T, 3 * T**2, 4 * T**3, 5 * T**4],
+            [0, 0, 2, 6 * T, 12 * T**2, 20 * T**3],
+        ],
+        dtype=float,
+    )
     zero = np.zeros_like(q0)
     coef = np.linalg.solve(m, np.stack([q0, qd0, zero, q1, qd1, zero]))  # (6, n)
     powers = np.arange(6)
     tt = t[:, None]
-    pos = tt ** powers
+    pos = tt**powers
     vel = powers * tt ** np.maximum(powers - 1, 0)
     acc = powers * (powers - 1) * tt ** np.maximum(powers - 2, 0)
     return pos @ coef, vel @ coef, acc @ coef
@@ -790,7 +880,7 @@ def forehand_demonstration(dt: float = 0.002) -> dict[str, np.ndarray]:
 def write_demonstration(path: str | Path = DEMO_PATH) -> Path:
     """Regenerate the shipped demonstration file::
 
-        python -c "from skillkit.tasks.table_tennis import write_demonstration as w; w()"
+    python -c "from skillkit.tasks.table_tennis import write_demonstration as w; w()"
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -858,10 +948,16 @@ class TableTennis(Task):
     bounds the flight) and the racket within ~4 m of the ball, so R > −2."""
     trajectory_depends_on_context = True
 
-    def __init__(self, reward_weights: tuple[float, float] = (0.1, 0.1), duration: float = 1.2,
-                 control_dt: float = 0.004, physics_dt: float = 0.002,
-                 ball: BallPhysics | None = None, demonstration: dict | None = None,
-                 name: str = "table-tennis"):
+    def __init__(
+        self,
+        reward_weights: tuple[float, float] = (0.1, 0.1),
+        duration: float = 1.2,
+        control_dt: float = 0.004,
+        physics_dt: float = 0.002,
+        ball: BallPhysics | None = None,
+        demonstration: dict | None = None,
+        name: str = "table-tennis",
+    ):
         import mujoco
 
         from skillkit.policies.dmp import DMP, DMPParameters
@@ -879,7 +975,8 @@ class TableTennis(Task):
         self.name = name
         demo = load_demonstration() if demonstration is None else demonstration
         self.dmp = DMP(len(JOINT_NAMES), n_basis=10, alpha_z=4.0, dt=self.control_dt).fit(
-            demo["times"], demo["q"], demo["qd"], demo["qdd"])
+            demo["times"], demo["q"], demo["qd"], demo["qdd"]
+        )
         self.parameters = DMPParameters(self.dmp, learn=("goal", "goal_velocity", "tau"))
         self.q0 = np.asarray(demo["q"][0], dtype=np.float64).copy()
         self.times = self.control_dt * np.arange(int(round(self.duration / self.control_dt)) + 1)
@@ -900,8 +997,11 @@ class TableTennis(Task):
         of the demonstration's end, τ = 1) with the exploration σ of :data:`INITIAL_STD`."""
         from skillkit.policies.gaussian import LinearGaussianPolicy
 
-        return LinearGaussianPolicy(mean=self.parameters.to_vector(), cov=np.diag(INITIAL_STD**2),
-                                    context_dim=self.context_dim)
+        return LinearGaussianPolicy(
+            mean=self.parameters.to_vector(),
+            cov=np.diag(INITIAL_STD**2),
+            context_dim=self.context_dim,
+        )
 
     # ------------------------------------------------------------------ simulation
     def _simulate(self, omega: np.ndarray, context: np.ndarray, rng: np.random.Generator):
@@ -925,13 +1025,28 @@ class TableTennis(Task):
 
         mujoco.mj_resetData(model, data)
         data.qpos[:] = self.q0
-        out = track_reference(model, data, q_ref, qd_ref, self.control_dt, KP, KD,
-                              torque_limit=TORQUE_LIMIT, on_step=record)
+        out = track_reference(
+            model,
+            data,
+            q_ref,
+            qd_ref,
+            self.control_dt,
+            KP,
+            KD,
+            torque_limit=TORQUE_LIMIT,
+            on_step=record,
+        )
         if not (np.all(np.isfinite(center)) and np.all(np.isfinite(normal))):
             raise SimulationFailure("non-finite racket pose")
         racket = RacketPath(self.times, center, normal, velocity, spin)
-        flight = simulate_ball(SERVE_POSITION, context[:3], self.duration, dt=self.control_dt,
-                               physics=self.ball, racket=racket)
+        flight = simulate_ball(
+            SERVE_POSITION,
+            context[:3],
+            self.duration,
+            dt=self.control_dt,
+            physics=self.ball,
+            racket=racket,
+        )
         end = flight.terminal
         if end is None:
             raise SimulationFailure("the ball did not come down within the simulated time")
@@ -956,9 +1071,12 @@ class TableTennis(Task):
             "n_saturated": int(out["n_saturated"]),
         }
         return Trajectory(
-            times=self.times.copy(), states=np.hstack([out["q"], out["qd"]]), controls=out["u"],
+            times=self.times.copy(),
+            states=np.hstack([out["q"], out["qd"]]),
+            controls=out["u"],
             signals={"ball": flight.positions, "racket": center, "racket_normal": normal},
-            info=info)
+            info=info,
+        )
 
     def _reward(self, trajectory: Trajectory, context: np.ndarray) -> float:
         """R = −c₁ min_t ‖τ_b − τ_r‖ − c₂ ‖b − p‖ (Eq. C.1); the minimum is over the incoming

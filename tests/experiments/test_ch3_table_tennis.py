@@ -82,18 +82,30 @@ def _trial(final_rewards, outcomes, curve, errors):
 
 
 def test_summary_arithmetic_on_hand_made_trials():
-    good = _trial([-0.01, -0.015, -0.012, -0.013], ["returned"] * 4, [-0.2, -0.05, -0.01],
-                  [0.05, 0.1, 0.08, 0.12])
-    netty = _trial([-0.03, -0.04, -0.012, -0.3], ["net", "net", "returned", "missed"],
-                   [-0.2, -0.1, -0.03], [0.3, 0.4, 0.1, 2.9])
+    good = _trial(
+        [-0.01, -0.015, -0.012, -0.013],
+        ["returned"] * 4,
+        [-0.2, -0.05, -0.01],
+        [0.05, 0.1, 0.08, 0.12],
+    )
+    netty = _trial(
+        [-0.03, -0.04, -0.012, -0.3],
+        ["net", "net", "returned", "missed"],
+        [-0.2, -0.1, -0.03],
+        [0.3, 0.4, 0.1, 2.9],
+    )
     _, summary = summarize({}, [good, netty])
     assert summary["final_reward_per_trial"] == pytest.approx([-0.0125, -0.0955])
     assert summary["fraction_runs_above_-0.02"] == 0.5
     assert summary["net_fraction_per_trial"] == [0.0, 0.5]
     assert summary["net_fraction_mean"] == 0.25
     assert summary["fraction_runs_with_net_failures_above_10pct"] == 0.5
-    assert summary["outcome_fractions_mean"] == {"returned": 0.625, "net": 0.25, "out": 0.0,
-                                                 "missed": 0.125}
+    assert summary["outcome_fractions_mean"] == {
+        "returned": 0.625,
+        "net": 0.25,
+        "out": 0.0,
+        "missed": 0.125,
+    }
     # returns only: errors 0.05, 0.1, 0.08, 0.12 and 0.1 -> median 0.1
     assert summary["median_landing_error_of_returns_m"] == pytest.approx(0.1)
     # mean curve: -0.2, -0.075, -0.02 -> never strictly above -0.02

@@ -54,8 +54,9 @@ def test_drag_free_flight_is_the_closed_form_parabola():
     end = flight.terminal
     assert end.kind == "plane" and len(flight.events) == 1  # off the table: terminal at once
     assert end.time == pytest.approx(t_land, abs=1e-12)
-    np.testing.assert_allclose(end.position, p0 + v0 * t_land + [0, 0, -0.5 * G * t_land**2],
-                               atol=1e-10)
+    np.testing.assert_allclose(
+        end.position, p0 + v0 * t_land + [0, 0, -0.5 * G * t_land**2], atol=1e-10
+    )
 
 
 def test_drag_matches_an_accurate_ode_solution_and_falls_short():
@@ -68,8 +69,15 @@ def test_drag_matches_an_accurate_ode_solution_and_falls_short():
         v = y[3:]
         return np.concatenate([v, -physics.drag * np.linalg.norm(v) * v - [0, 0, G]])
 
-    ref = solve_ivp(rhs, (0, 0.8), np.concatenate([p0, v0]), t_eval=flight.times,
-                    rtol=1e-12, atol=1e-12, method="DOP853")
+    ref = solve_ivp(
+        rhs,
+        (0, 0.8),
+        np.concatenate([p0, v0]),
+        t_eval=flight.times,
+        rtol=1e-12,
+        atol=1e-12,
+        method="DOP853",
+    )
     alive = flight.times < flight.terminal.time
     assert alive.sum() > 50
     np.testing.assert_allclose(flight.positions[alive], ref.y[:3, alive].T, atol=2e-5)
@@ -82,8 +90,7 @@ def test_drag_matches_an_accurate_ode_solution_and_falls_short():
 def test_table_bounce_reverses_vz_with_the_restitution():
     h, e = 0.3, 0.9
     physics = BallPhysics(drag=0.0, table_restitution=e)
-    flight = simulate_ball([-0.5, 0.2, PLANE + h], [0.4, 0.0, 0.0], 1.0, dt=0.005,
-                           physics=physics)
+    flight = simulate_ball([-0.5, 0.2, PLANE + h], [0.4, 0.0, 0.0], 1.0, dt=0.005, physics=physics)
     bounce, land = flight.events
     assert bounce.kind == "table" and land.kind == "plane"  # second touch ends the rally
     assert bounce.time == pytest.approx(np.sqrt(2 * h / G), abs=1e-12)
@@ -118,8 +125,9 @@ def test_net_stops_a_low_ball_and_lets_a_high_one_pass():
     assert [e.kind for e in low.events] == ["net"]
     assert low.terminal.time == pytest.approx(0.25, abs=1e-9)
     np.testing.assert_allclose(low.terminal.position, [0.0, 0.3, TABLE_HEIGHT + 0.1], atol=1e-9)
-    high = simulate_ball([-1.0, 0.3, TABLE_HEIGHT + NET_HEIGHT + 0.03], [4.0, 0.0, 0.0], 0.5,
-                         physics=straight)
+    high = simulate_ball(
+        [-1.0, 0.3, TABLE_HEIGHT + NET_HEIGHT + 0.03], [4.0, 0.0, 0.0], 0.5, physics=straight
+    )
     assert high.events == []
 
 
@@ -132,8 +140,9 @@ def test_racket_at_rest_returns_the_ball_by_the_impact_law(tilt):
     center = np.array([-1.5, 0.0, 1.3])
     racket = RacketPath.at_rest(center, n, 1.0)
     v0 = np.array([-4.0, 0.0, 0.0])
-    flight = simulate_ball(center + [0.4, 0.0, 0.0], v0, 0.5, dt=0.002, physics=physics,
-                           racket=racket)
+    flight = simulate_ball(
+        center + [0.4, 0.0, 0.0], v0, 0.5, dt=0.002, physics=physics, racket=racket
+    )
     hit = flight.first("racket")
     assert hit is not None
     # hand computation: the ball falls freely until contact, then v' = v − (1 + e)(v·n) n
@@ -153,10 +162,12 @@ def test_moving_racket_adds_its_normal_velocity():
     times = np.linspace(0.0, 0.5, 126)
     center = np.column_stack([-1.5 + u * times, np.zeros_like(times), np.full_like(times, 1.2)])
     n = np.tile([1.0, 0.0, 0.0], (times.size, 1))
-    racket = RacketPath(times, center, n, np.tile([u, 0.0, 0.0], (times.size, 1)),
-                        np.zeros((times.size, 3)))
-    flight = simulate_ball([-0.5, 0.03, 1.2], [-3.0, 0.0, 0.0], 0.5, dt=0.004, physics=physics,
-                           racket=racket)
+    racket = RacketPath(
+        times, center, n, np.tile([u, 0.0, 0.0], (times.size, 1)), np.zeros((times.size, 3))
+    )
+    flight = simulate_ball(
+        [-0.5, 0.03, 1.2], [-3.0, 0.0, 0.0], 0.5, dt=0.004, physics=physics, racket=racket
+    )
     hit = flight.first("racket")
     # relative normal speed −3 − 1.5 = −4.5 reflects to +3.6, plus the racket's 1.5
     assert hit.velocity_after[0] == pytest.approx(u + e_r * (3.0 + u), abs=1e-6)
@@ -167,8 +178,13 @@ def test_moving_racket_adds_its_normal_velocity():
 
 def test_ball_passing_beside_the_blade_is_not_hit():
     racket = RacketPath.at_rest([-1.5, 0.0, 1.3], [1, 0, 0], 1.0)
-    flight = simulate_ball([-0.9, 0.15, 1.3], [-4.0, 0.0, 0.0], 0.5,
-                           physics=BallPhysics(drag=0.0, gravity=1e-9), racket=racket)
+    flight = simulate_ball(
+        [-0.9, 0.15, 1.3],
+        [-4.0, 0.0, 0.0],
+        0.5,
+        physics=BallPhysics(drag=0.0, gravity=1e-9),
+        racket=racket,
+    )
     assert flight.first("racket") is None  # 15 cm off-centre > 8 cm blade radius
 
 
@@ -205,9 +221,13 @@ def test_reward_is_the_hand_computed_eq_c1(task):
     times = np.array([0.0, 0.1, 0.2, 0.3])
     ball = np.array([[2.0, 0.0, 1.0], [1.0, 0.0, 1.0], [0.0, 0.0, 1.0], [-1.0, 0.0, 1.0]])
     racket = np.array([[0.5, 0.3, 1.0], [0.5, 0.3, 1.0], [0.5, 0.3, 1.0], [0.5, 0.3, 1.0]])
-    traj = Trajectory(times, np.zeros((4, 16)), np.zeros((4, 8)),
-                      signals={"ball": ball, "racket": racket},
-                      info={"incoming_end": 0.25, "landing_point": [0.7, -0.1]})
+    traj = Trajectory(
+        times,
+        np.zeros((4, 16)),
+        np.zeros((4, 8)),
+        signals={"ball": ball, "racket": racket},
+        info={"incoming_end": 0.25, "landing_point": [0.7, -0.1]},
+    )
     s = np.array([-5.4, 0.0, 2.25, 0.5, 0.2])
     # the ball passes the racket at 0.3 m between the 2nd and 3rd samples (x = 0.5)
     expected = -0.1 * 0.3 - 0.1 * np.hypot(0.5 - 0.7, 0.2 + 0.1)

@@ -61,7 +61,8 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
             **overrides,
         )
         summary = json.loads((folder / "result.json").read_text())["summary"]
-        print(f"wrote {folder}/result.json, figure.html, figure.png")
+        figures = "figure.png" if args.no_html else "figure.html, figure.png"
+        print(f"wrote {folder}/result.json, {figures}, trials.npz")
         print(json.dumps(summary, indent=1))
     return 0
 

@@ -135,8 +135,12 @@ def _execute_trial(
     ckpt_path: str | None,
     ident: dict | None,
     show_progress: bool,
-) -> dict:
-    """Run (or resume) one trial; checkpoint its result. Module-level so workers can pickle it."""
+) -> tuple[dict, float | None]:
+    """Run (or resume) one trial; checkpoint its result. Module-level so workers can pickle it.
+
+    Returns the trial's result and the seconds spent on it in this call (None if it was
+    loaded, complete, from its checkpoint).
+    """
     exp = get(exp_id)
     states = None
     if ckpt_path is not None:
@@ -144,8 +148,9 @@ def _execute_trial(
         if found is not None:
             kind, payload = found
             if kind == "result":
-                return payload
+                return payload, None
             states = payload
+    t0 = time.perf_counter()
     bar = tqdm(desc=f"{exp_id} trial {index + 1}", leave=False) if show_progress else _NullBar()
     try:
         ctx = TrialContext(bar, None if ckpt_path is None else Path(ckpt_path), ident, states)
@@ -154,7 +159,7 @@ def _execute_trial(
         bar.close()
     if ckpt_path is not None:
         checkpoint.save(ckpt_path, ident, result, kind="result")
-    return result
+    return result, time.perf_counter() - t0
 
 
 def _start_ray(ray, kwargs: dict, attempts: int = 3) -> None:
@@ -175,9 +180,10 @@ def _start_ray(ray, kwargs: dict, attempts: int = 3) -> None:
             )
 
 
-def _run_pending(exp_id, settings, jobs, executor, workers, address, progress) -> dict[int, dict]:
-    """Run jobs = [(index, seed_seq, ckpt_path, ident)] with the chosen executor."""
-    results: dict[int, dict] = {}
+def _run_pending(exp_id, settings, jobs, executor, workers, address, progress) -> dict[int, tuple]:
+    """Run jobs = [(index, seed_seq, ckpt_path, ident)] with the chosen executor; returns
+    {index: (result, seconds or None)} as :func:`_execute_trial`."""
+    results: dict[int, tuple] = {}
     if not jobs:
         return results
     if executor == "local":
@@ -288,8 +294,10 @@ def run_trials(
             path = str(Path(checkpoint_dir) / f"trial_{i:03d}.ckpt")
             jobs.append((i, child, path, checkpoint.identity(exp.id, settings, i, int(seed), code)))
     t0 = time.perf_counter()
+    load_before = _load_average()
     done = _run_pending(exp.id, settings, jobs, executor, workers, address, progress)
-    results = [done[i] for i in range(n_trials)]
+    results = [done[i][0] for i in range(n_trials)]
+    trial_times = [done[i][1] for i in range(n_trials)]
     series, summary = exp.summarize(settings, results)
     return {
         "id": exp.id,
@@ -300,17 +308,32 @@ def run_trials(
         "seed": int(seed),
         "trials": n_trials,
         "executor": executor,
+        "workers": 1 if executor == "local" else workers or os.cpu_count(),
         "versions": versions(),
         "machine": {
             "platform": platform.platform(),
             "processor": platform.machine(),
             "cpus": os.cpu_count(),
+            "load_average_before": load_before,
+            "load_average_after": _load_average(),
         },
         "wall_time_s": time.perf_counter() - t0,
+        # seconds each trial took in this call; None: loaded complete from its checkpoint
+        # (a trial resumed mid-way counts only the part run in this call)
+        "trial_time_s": trial_times,
+        "resumed_trials": sum(t is None for t in trial_times),
         "series": [to_jsonable(s.to_dict()) for s in series],
         "summary": to_jsonable(summary),
         "_trials": results,
     }
+
+
+def _load_average() -> list[float] | None:
+    """1-, 5- and 15-minute load averages (None where the platform has none)."""
+    try:
+        return [round(x, 2) for x in os.getloadavg()]
+    except (AttributeError, OSError):
+        return None
 
 
 def run_folder(exp_id: str, scale: str, seed: int, out: str | Path) -> Path:

@@ -72,27 +72,23 @@ def compare(
     Returns
     -------
     rows : list of (key, value_a, value_b)
-        The flattened ``summary`` entries (plus settings and wall time) of both runs.
+        The flattened ``summary`` entries of both runs, plus their settings, trial count,
+        executor, workers, resumed trials and wall time.
     result : dict
         A result-like dict whose series overlay both runs' curves (names suffixed `` [A]``
         and `` [B]``), ready for :func:`skillkit.viz.plots.write_figures`.
     """
     a, b = load_run(path_a), load_run(path_b)
-    fa = _flatten(
-        {
-            "summary": a.get("summary", {}),
-            "settings": a.get("settings", {}),
-            "wall_time_s": a.get("wall_time_s"),
-            "trials": a.get("trials"),
-        }
-    )
-    fb = _flatten(
-        {
-            "summary": b.get("summary", {}),
-            "settings": b.get("settings", {}),
-            "wall_time_s": b.get("wall_time_s"),
-            "trials": b.get("trials"),
-        }
+    run_keys = ("trials", "executor", "workers", "resumed_trials", "wall_time_s")
+    fa, fb = (
+        _flatten(
+            {
+                "summary": r.get("summary", {}),
+                "settings": r.get("settings", {}),
+                **{k: r.get(k) for k in run_keys},
+            }
+        )
+        for r in (a, b)
     )
     rows = [(k, fa.get(k), fb.get(k)) for k in sorted(set(fa) | set(fb))]
     series = []

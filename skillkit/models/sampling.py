@@ -150,7 +150,7 @@ def sample_trajectories(
         raise ValueError(f"n_trajectories: expected a positive integer, got {n_trajectories!r}")
     T, L = int(horizon), int(n_trajectories)
     x0 = (
-        torch.as_tensor(x0, dtype=dtype, device=device)
+        torch.tensor(np.asarray(x0), dtype=dtype, device=device)  # a copy: x0 may be read-only
         if not isinstance(x0, torch.Tensor)
         else x0.to(device, dtype)
     )

@@ -150,12 +150,17 @@ def test_interrupted_run_resumes_to_identical_numbers(toy, tmp_path):
 
 
 def test_finished_trials_are_not_rerun_and_fresh_starts_over(toy, tmp_path, monkeypatch):
-    reproduce("toy1.1", seed=1, out=tmp_path, progress=False)
+    first = reproduce("toy1.1", seed=1, out=tmp_path, progress=False)
+    meta = json.loads((first / "result.json").read_text())
+    assert meta["resumed_trials"] == 0 and meta["workers"] == 1
+    assert len(meta["trial_time_s"]) == 3 and all(t > 0 for t in meta["trial_time_s"])
     calls = []
     original = toy.run_trial
     monkeypatch.setattr(toy, "run_trial", lambda *a: calls.append(1) or original(*a))
-    reproduce("toy1.1", seed=1, out=tmp_path, progress=False)
+    again = reproduce("toy1.1", seed=1, out=tmp_path, progress=False)
     assert calls == []
+    meta = json.loads((again / "result.json").read_text())
+    assert meta["resumed_trials"] == 3 and meta["trial_time_s"] == [None] * 3
     reproduce("toy1.1", seed=1, out=tmp_path, progress=False, fresh=True)
     assert len(calls) == 3
 

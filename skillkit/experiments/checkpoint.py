@@ -17,7 +17,7 @@ import os
 import pickle
 import struct
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 MAGIC = b"SKILLKIT-CKPT-1\n"
 
@@ -48,7 +48,9 @@ def identity(exp_id: str, settings: dict, trial: int, seed: int, code: str) -> d
     }
 
 
-def save(path: str | Path, ident: dict, payload: Any, kind: str) -> None:
+def save(
+    path: str | Path, ident: dict, payload: Any, kind: str, seconds: float | None = None
+) -> None:
     """Write ``payload`` atomically with a header binding it to ``ident``.
 
     Parameters
@@ -60,12 +62,20 @@ def save(path: str | Path, ident: dict, payload: Any, kind: str) -> None:
     payload : any picklable object
         The state (``kind="state"``: mid-trial state; ``kind="result"``: the finished trial).
     kind : {"state", "result"}
+    seconds : float, optional
+        Compute time spent on the trial so far (summed over resumed runs), kept in the header.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     body = pickle.dumps(payload, protocol=pickle.HIGHEST_PROTOCOL)
     header = json.dumps(
-        {**ident, "kind": kind, "sha256": hashlib.sha256(body).hexdigest(), "size": len(body)},
+        {
+            **ident,
+            "kind": kind,
+            "sha256": hashlib.sha256(body).hexdigest(),
+            "size": len(body),
+            "seconds": seconds,
+        },
         sort_keys=True,
     ).encode()
     tmp = path.with_name(path.name + f".tmp{os.getpid()}")
@@ -76,12 +86,21 @@ def save(path: str | Path, ident: dict, payload: Any, kind: str) -> None:
     os.replace(tmp, path)
 
 
-def load(path: str | Path, ident: dict) -> tuple[str, Any] | None:
+class Loaded(NamedTuple):
+    """A checkpoint read by :func:`load`."""
+
+    kind: str
+    payload: Any
+    seconds: float | None  # compute time so far; None in checkpoints written without it
+
+
+def load(path: str | Path, ident: dict) -> Loaded | None:
     """Load a checkpoint written by :func:`save`; ``None`` if there is none.
 
     Returns
     -------
-    (kind, payload)
+    Loaded
+        ``(kind, payload, seconds)``.
 
     Raises
     ------
@@ -112,4 +131,4 @@ def load(path: str | Path, ident: dict) -> tuple[str, Any] | None:
                 f"{path}: checkpoint belongs to another run "
                 f"({key}: {header.get(key)!r} != {value!r}); use --fresh to start over"
             )
-    return header["kind"], pickle.loads(body)
+    return Loaded(header["kind"], pickle.loads(body), header.get("seconds"))

@@ -81,12 +81,24 @@ class TrialContext:
     """
 
     def __init__(
-        self, bar, path: Path | None = None, ident: dict | None = None, states: dict | None = None
+        self,
+        bar,
+        path: Path | None = None,
+        ident: dict | None = None,
+        states: dict | None = None,
+        seconds: float = 0.0,
     ):
         self.bar = bar
         self.path = path
         self.ident = ident
         self._states: dict = dict(states or {})  # key -> (payload, rng_state)
+        self._seconds_before = float(seconds)  # compute time of earlier, interrupted runs
+        self._started = time.perf_counter()
+
+    @property
+    def seconds(self) -> float:
+        """Compute time spent on this trial: earlier runs up to their last save, plus this one."""
+        return self._seconds_before + time.perf_counter() - self._started
 
     def reset(self, total: int | None = None) -> None:
         self.bar.reset(total=total)
@@ -102,7 +114,7 @@ class TrialContext:
         atomically, together with the other keys' latest states."""
         self._states[key] = (state, rng.bit_generator.state)
         if self.path is not None:
-            checkpoint.save(self.path, self.ident, self._states, kind="state")
+            checkpoint.save(self.path, self.ident, self._states, kind="state", seconds=self.seconds)
 
     def resume(self, key: str, rng: np.random.Generator):
         """The state last saved under ``key`` (restoring ``rng`` to where it was then), or None."""
@@ -135,31 +147,33 @@ def _execute_trial(
     ckpt_path: str | None,
     ident: dict | None,
     show_progress: bool,
-) -> tuple[dict, float | None]:
+) -> tuple[dict, dict]:
     """Run (or resume) one trial; checkpoint its result. Module-level so workers can pickle it.
 
-    Returns the trial's result and the seconds spent on it in this call (None if it was
-    loaded, complete, from its checkpoint).
+    Returns the trial's result and whether and how it ran: ``{"seconds": compute time summed
+    over all runs of this trial (None if a checkpoint predates the record), "resumed": True if
+    it continued from a checkpoint}``.
     """
     exp = get(exp_id)
-    states = None
+    states, seconds = None, 0.0
     if ckpt_path is not None:
         found = checkpoint.load(ckpt_path, ident)
         if found is not None:
-            kind, payload = found
-            if kind == "result":
-                return payload, None
-            states = payload
-    t0 = time.perf_counter()
+            if found.kind == "result":
+                return found.payload, {"seconds": found.seconds, "resumed": True}
+            states, seconds = found.payload, found.seconds or 0.0
     bar = tqdm(desc=f"{exp_id} trial {index + 1}", leave=False) if show_progress else _NullBar()
     try:
-        ctx = TrialContext(bar, None if ckpt_path is None else Path(ckpt_path), ident, states)
+        ctx = TrialContext(
+            bar, None if ckpt_path is None else Path(ckpt_path), ident, states, seconds
+        )
         result = exp.run_trial(settings, np.random.default_rng(seed_seq), ctx)
     finally:
         bar.close()
+    seconds = ctx.seconds
     if ckpt_path is not None:
-        checkpoint.save(ckpt_path, ident, result, kind="result")
-    return result, time.perf_counter() - t0
+        checkpoint.save(ckpt_path, ident, result, kind="result", seconds=seconds)
+    return result, {"seconds": seconds, "resumed": states is not None}
 
 
 def _start_ray(ray, kwargs: dict, attempts: int = 3) -> None:
@@ -182,7 +196,7 @@ def _start_ray(ray, kwargs: dict, attempts: int = 3) -> None:
 
 def _run_pending(exp_id, settings, jobs, executor, workers, address, progress) -> dict[int, tuple]:
     """Run jobs = [(index, seed_seq, ckpt_path, ident)] with the chosen executor; returns
-    {index: (result, seconds or None)} as :func:`_execute_trial`."""
+    {index: (result, timing)} as :func:`_execute_trial`."""
     results: dict[int, tuple] = {}
     if not jobs:
         return results
@@ -297,7 +311,7 @@ def run_trials(
     load_before = _load_average()
     done = _run_pending(exp.id, settings, jobs, executor, workers, address, progress)
     results = [done[i][0] for i in range(n_trials)]
-    trial_times = [done[i][1] for i in range(n_trials)]
+    timing = [done[i][1] for i in range(n_trials)]
     series, summary = exp.summarize(settings, results)
     return {
         "id": exp.id,
@@ -318,10 +332,10 @@ def run_trials(
             "load_average_after": _load_average(),
         },
         "wall_time_s": time.perf_counter() - t0,
-        # seconds each trial took in this call; None: loaded complete from its checkpoint
-        # (a trial resumed mid-way counts only the part run in this call)
-        "trial_time_s": trial_times,
-        "resumed_trials": sum(t is None for t in trial_times),
+        # compute time of each trial, summed over interrupted and resumed runs (None: its
+        # checkpoint predates this record); trials that continued from a checkpoint
+        "trial_time_s": [t["seconds"] for t in timing],
+        "resumed_trials": sum(t["resumed"] for t in timing),
         "series": [to_jsonable(s.to_dict()) for s in series],
         "summary": to_jsonable(summary),
         "_trials": results,

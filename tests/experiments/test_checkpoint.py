@@ -17,11 +17,17 @@ def test_round_trip(tmp_path):
     payload = {"policy": np.arange(5.0), "curve": [1.0, 2.0]}
     path = tmp_path / "t.ckpt"
     checkpoint.save(path, _ident(), payload, kind="state")
-    kind, back = checkpoint.load(path, _ident())
-    assert kind == "state"
+    kind, back, seconds = checkpoint.load(path, _ident())
+    assert kind == "state" and seconds is None
     np.testing.assert_array_equal(back["policy"], payload["policy"])
     assert back["curve"] == payload["curve"]
     assert list(tmp_path.iterdir()) == [path]  # no temporary files left behind
+
+
+def test_compute_time_is_kept_in_the_header(tmp_path):
+    path = tmp_path / "t.ckpt"
+    checkpoint.save(path, _ident(), {"a": 1}, kind="result", seconds=12.5)
+    assert checkpoint.load(path, _ident()).seconds == 12.5
 
 
 def test_missing_file_is_none(tmp_path):

@@ -147,6 +147,8 @@ def test_interrupted_run_resumes_to_identical_numbers(toy, tmp_path):
     a = json.loads((clean / "result.json").read_text())
     b = json.loads((resumed / "result.json").read_text())
     assert a["series"] == b["series"] and a["summary"] == b["summary"]
+    assert a["resumed_trials"] == 0 and b["resumed_trials"] == 1  # trial 0 continued
+    assert all(t > 0 for t in b["trial_time_s"])
 
 
 def test_finished_trials_are_not_rerun_and_fresh_starts_over(toy, tmp_path, monkeypatch):
@@ -159,8 +161,9 @@ def test_finished_trials_are_not_rerun_and_fresh_starts_over(toy, tmp_path, monk
     monkeypatch.setattr(toy, "run_trial", lambda *a: calls.append(1) or original(*a))
     again = reproduce("toy1.1", seed=1, out=tmp_path, progress=False)
     assert calls == []
+    times = meta["trial_time_s"]
     meta = json.loads((again / "result.json").read_text())
-    assert meta["resumed_trials"] == 3 and meta["trial_time_s"] == [None] * 3
+    assert meta["resumed_trials"] == 3 and meta["trial_time_s"] == times  # kept in checkpoints
     reproduce("toy1.1", seed=1, out=tmp_path, progress=False, fresh=True)
     assert len(calls) == 3
 

@@ -194,6 +194,22 @@ def _start_ray(ray, kwargs: dict, attempts: int = 3) -> None:
             )
 
 
+def _exit_with_parent(parent: int, interval: float = 1.0) -> None:
+    """Process-pool initializer: end this worker when the process that started it is gone.
+
+    Without it, killing ``skillkit reproduce`` (SIGTERM, ``kill -9``) leaves its workers
+    computing trials nobody collects. Their checkpoints are kept: a rerun resumes.
+    """
+    import threading
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(interval)
+        os._exit(1)
+
+    threading.Thread(target=watch, daemon=True, name="exit-with-parent").start()
+
+
 def _run_pending(exp_id, settings, jobs, executor, workers, address, progress) -> dict[int, tuple]:
     """Run jobs = [(index, seed_seq, ckpt_path, ident)] with the chosen executor; returns
     {index: (result, timing)} as :func:`_execute_trial`."""
@@ -208,7 +224,12 @@ def _run_pending(exp_id, settings, jobs, executor, workers, address, progress) -
     try:
         if executor == "process":
             n = workers or os.cpu_count() or 1
-            with ProcessPoolExecutor(max_workers=n, mp_context=get_context("spawn")) as pool:
+            with ProcessPoolExecutor(
+                max_workers=n,
+                mp_context=get_context("spawn"),
+                initializer=_exit_with_parent,
+                initargs=(os.getpid(),),
+            ) as pool:
                 futures = {
                     pool.submit(_execute_trial, exp_id, settings, seq, i, path, ident, False): i
                     for i, seq, path, ident in jobs

@@ -243,3 +243,57 @@ def test_kill_9_mid_run_then_resume_gives_identical_numbers(tmp_path):
     b = json.loads((tmp_path / "killed" / "sanity3-quick-s9" / "result.json").read_text())
     assert a["series"] == b["series"]
     assert a["summary"] == b["summary"]
+
+
+def _children(pid: int) -> set[int]:
+    """PIDs whose parent is ``pid`` (Linux /proc)."""
+    from pathlib import Path
+
+    out = set()
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            out.add(int(stat.parent.name))
+    return out
+
+
+@pytest.mark.skipif(not __import__("os").path.exists("/proc/self/stat"), reason="reads /proc")
+def test_killing_a_process_pool_run_leaves_no_workers_computing(tmp_path):
+    """``kill -9`` of ``reproduce --executor process``: its workers end too (and the rerun
+    would resume from their checkpoints)."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    cmd = [sys.executable, "-m", "skillkit.cli", "reproduce", "sanity3", "--trials", "2"]
+    cmd += ["--seed", "9", "--quiet", "--executor", "process", "--workers", "2"]
+    cmd += ["--set", "n_updates=5000", "--out", str(tmp_path)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    trials = tmp_path / "sanity3-quick-s9" / "trials"
+    deadline = time.monotonic() + 300
+    while len(list(trials.glob("trial_*.ckpt"))) < 2 and time.monotonic() < deadline:
+        assert proc.poll() is None, "the run ended before both workers checkpointed"
+        time.sleep(0.1)
+    workers = _children(proc.pid)
+    assert len(workers) >= 2  # two workers (and multiprocessing's resource tracker)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+
+    def running(pid: int) -> bool:  # exists and is not a zombie waiting to be reaped
+        try:
+            return open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()[0] != "Z"
+        except OSError:
+            return False
+
+    deadline = time.monotonic() + 30
+    while any(map(running, workers)) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    alive = [w for w in workers if running(w)]
+    for w in alive:  # do not leave them running if the check fails
+        os.kill(w, signal.SIGKILL)
+    assert not alive, f"workers {alive} outlived the killed run"

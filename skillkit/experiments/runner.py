@@ -334,6 +334,12 @@ def run_trials(
     results = [done[i][0] for i in range(n_trials)]
     timing = [done[i][1] for i in range(n_trials)]
     series, summary = exp.summarize(settings, results)
+    if executor == "local":
+        used = 1
+    elif executor == "ray" and address:
+        used = None  # an existing cluster's own CPUs
+    else:
+        used = workers or os.cpu_count()
     return {
         "id": exp.id,
         "title": exp.title,
@@ -343,7 +349,7 @@ def run_trials(
         "seed": int(seed),
         "trials": n_trials,
         "executor": executor,
-        "workers": 1 if executor == "local" else workers or os.cpu_count(),
+        "workers": used,
         "versions": versions(),
         "machine": {
             "platform": platform.platform(),

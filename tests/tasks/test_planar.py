@@ -270,7 +270,8 @@ def test_demonstration_file_is_regenerated_exactly():
     with np.load(DEMONSTRATION_FILE) as shipped:
         assert set(shipped.files) == set(fresh)
         for key, value in fresh.items():
-            np.testing.assert_array_equal(shipped[key], value)
+            # closed-form profiles: equal up to the CPU's last-bit rounding (5.8e-15 measured)
+            np.testing.assert_allclose(shipped[key], value, rtol=1e-12, atol=1e-13)
 
 
 def test_noisy_throwing_is_seeded():

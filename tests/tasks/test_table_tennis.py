@@ -204,7 +204,9 @@ def test_demonstration_file_is_the_deterministic_design():
     shipped = load_demonstration(DEMO_PATH)
     fresh = forehand_demonstration()
     for key in ("times", "q", "qd", "qdd"):
-        np.testing.assert_allclose(shipped[key], fresh[key], rtol=1e-7, atol=1e-8)
+        # design_stroke's iterative solve converges to ~1e-7 and its last digits depend on the
+        # CPU's floating-point kernels (measured: 6.7e-8 absolute on another x86-64 machine).
+        np.testing.assert_allclose(shipped[key], fresh[key], rtol=1e-6, atol=1e-6)
 
 
 def test_initial_policy_mean_returns_the_nominal_ball(task):

@@ -1,0 +1,211 @@
+"""A finished experiment run as an object: what :func:`~skillkit.experiments.runner.reproduce`
+returns and what :func:`load_run` reads back from a run folder or from ``data/results``.
+
+A :class:`Run` holds the contents of ``result.json`` (settings, series, summary with the thesis's
+claim and our verdict) and the folder it lives in. It draws its figure (:meth:`Run.figure` for
+plotly, :meth:`Run.png` for the stored PNG) and shows itself in Jupyter as a short card —
+title, verdict, headline numbers — through ``_repr_markdown_``. It is also path-like
+(``os.fspath(run)``, ``run / "result.json"``), so code that treated ``reproduce``'s return value
+as the run folder keeps working.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+__all__ = ["Run", "load_run", "results_root", "stored_run"]
+
+#: Summary keys shown in the card and the repr besides the verdict.
+_VERDICT_KEYS = ("claim", "holds", "statement")
+
+
+@dataclass(frozen=True)
+class Run:
+    """One finished run of an experiment.
+
+    Attributes
+    ----------
+    path : Path
+        The run folder (``result.json``, ``figure.png``, optionally ``figure.html`` and
+        ``trials.npz``).
+    result : dict
+        The parsed ``result.json``.
+    """
+
+    path: Path
+    result: dict = field(repr=False)
+
+    # ---------------------------------------------------------------- contents
+    @property
+    def id(self) -> str:
+        """Experiment id, e.g. ``"fig3.3"``."""
+        return str(self.result.get("id", ""))
+
+    @property
+    def title(self) -> str:
+        return str(self.result.get("title", ""))
+
+    @property
+    def scale(self) -> str:
+        return str(self.result.get("scale", ""))
+
+    @property
+    def settings(self) -> dict:
+        """The settings the run used, as stored (a JSON dict)."""
+        return dict(self.result.get("settings", {}))
+
+    @property
+    def series(self) -> list[dict]:
+        """The plotted series (dicts of :class:`~skillkit.experiments.registry.Series`)."""
+        return list(self.result.get("series", []))
+
+    @property
+    def summary(self) -> dict:
+        """Headline numbers with ``claim``, ``holds`` and ``statement``."""
+        return dict(self.result.get("summary", {}))
+
+    @property
+    def holds(self) -> bool | None:
+        """Whether the thesis's claim holds here (None: no claim, or no verdict recorded)."""
+        return self.summary.get("holds")
+
+    @property
+    def verdict(self) -> str:
+        """One line: holds / does not hold / no claim, and the statement with our numbers."""
+        s = self.summary
+        word = {True: "holds", False: "does not hold", None: "no verdict"}.get(
+            s.get("holds"), "no verdict"
+        )
+        statement = s.get("statement", "")
+        return f"{word}: {statement}" if statement else word
+
+    def headline(self, n: int = 8) -> dict[str, Any]:
+        """Up to ``n`` scalar summary entries besides the verdict (numbers, short strings)."""
+        out: dict[str, Any] = {}
+        for key, value in self.summary.items():
+            if key in _VERDICT_KEYS or key == "setup":
+                continue
+            if isinstance(value, (int, float, bool)) or (
+                isinstance(value, str) and len(value) <= 60
+            ):
+                out[key] = value
+            if len(out) == n:
+                break
+        return out
+
+    # ---------------------------------------------------------------- figures
+    def figure(self):
+        """The plotly figure of the run (claim and verdict in its subtitle)."""
+        from skillkit.viz.plots import plotly_figure
+
+        return plotly_figure(self.result)
+
+    def matplotlib_figure(self):
+        """The same figure drawn with matplotlib (a ``Figure``; no pyplot state is touched)."""
+        from skillkit.viz.plots import matplotlib_figure
+
+        return matplotlib_figure(self.result)
+
+    def png(self):
+        """The stored ``figure.png`` as an ``IPython.display.Image`` (displays in Jupyter).
+
+        Raises ``FileNotFoundError`` naming the path if the run folder has no PNG.
+        """
+        path = self.path / "figure.png"
+        if not path.exists():
+            raise FileNotFoundError(f"png: no figure.png in run folder {self.path}")
+        from IPython.display import Image
+
+        return Image(filename=str(path))
+
+    # ---------------------------------------------------------------- display
+    def _repr_markdown_(self) -> str:
+        lines = [
+            f"**{self.id} — {self.title}** ({self.scale} scale, {self.result.get('trials')} "
+            f"trial(s), seed {self.result.get('seed')})",
+            "",
+        ]
+        claim = self.summary.get("claim")
+        if claim:
+            lines += [f"*Thesis:* {claim}", ""]
+        lines += [f"*Here:* {self.verdict}", ""]
+        head = self.headline()
+        if head:
+            lines += ["| summary | value |", "|---|---|"]
+            lines += [f"| `{k}` | {_fmt(v)} |" for k, v in head.items()]
+            lines.append("")
+        lines.append(f"`{self.path}`")
+        return "\n".join(lines)
+
+    def __repr__(self) -> str:
+        return f"Run({self.id!r}, scale={self.scale!r}, {self.verdict[:120]!r}, path='{self.path}')"
+
+    # ---------------------------------------------------------------- path-like
+    def __fspath__(self) -> str:
+        return os.fspath(self.path)
+
+    def __truediv__(self, other) -> Path:
+        return self.path / other
+
+
+def _fmt(value) -> str:
+    if isinstance(value, float):
+        return f"{value:.4g}"
+    return str(value)
+
+
+def load_run(path: str | os.PathLike) -> Run:
+    """Read a run folder (or its ``result.json``) written by ``reproduce``.
+
+    Raises
+    ------
+    FileNotFoundError
+        If there is no ``result.json`` at ``path``.
+    ValueError
+        If ``result.json`` is not valid JSON.
+    """
+    p = Path(path)
+    folder = p.parent if p.name == "result.json" else p
+    file = folder / "result.json"
+    if not file.exists():
+        raise FileNotFoundError(f"path: no result.json in {folder}")
+    try:
+        result = json.loads(file.read_text())
+    except ValueError as exc:
+        raise ValueError(f"path: {file} is not valid JSON ({exc})") from None
+    return Run(folder, result)
+
+
+def results_root() -> Path:
+    """The repository's ``data/results`` folder (paper-scale results), or the folder named by
+    the environment variable ``SKILLKIT_RESULTS``.
+
+    Raises ``FileNotFoundError`` when neither exists (e.g. an installed wheel without the
+    repository's data folder).
+    """
+    env = os.environ.get("SKILLKIT_RESULTS")
+    candidates = [Path(env)] if env else []
+    candidates.append(Path(__file__).resolve().parents[2] / "data" / "results")
+    for c in candidates:
+        if c.is_dir():
+            return c
+    raise FileNotFoundError(
+        "results: no data/results folder found (looked in "
+        + ", ".join(str(c) for c in candidates)
+        + "); set SKILLKIT_RESULTS to a folder of stored runs"
+    )
+
+
+def stored_run(exp_id: str, scale: str = "paper", seed: int = 0) -> Run:
+    """The stored paper-scale run of ``exp_id`` from :func:`results_root`.
+
+    Raises ``FileNotFoundError`` naming the id if it has no stored run.
+    """
+    folder = results_root() / f"{exp_id}-{scale}-s{seed}"
+    if not (folder / "result.json").exists():
+        raise FileNotFoundError(f"exp_id: no stored {scale}-scale run of {exp_id!r} in {folder}")
+    return load_run(folder)

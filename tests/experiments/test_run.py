@@ -1,0 +1,78 @@
+"""The Run object: reading run folders, its verdict line, its Jupyter card, path-likeness."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import pytest
+
+from skillkit.experiments.registry import ids
+from skillkit.experiments.run import Run, load_run, results_root, stored_run
+
+
+def _write(folder, **summary):
+    folder.mkdir(parents=True, exist_ok=True)
+    result = {
+        "id": "figX",
+        "title": "A title",
+        "scale": "smoke",
+        "seed": 3,
+        "trials": 2,
+        "settings": {"n": 1},
+        "series": [{"name": "a", "x": [0, 1], "y": [1.0, 2.0]}],
+        "summary": summary,
+    }
+    (folder / "result.json").write_text(json.dumps(result))
+    return result
+
+
+def test_load_run_reads_result_and_is_path_like(tmp_path):
+    result = _write(
+        tmp_path / "r", claim="c", holds=False, statement="ours is 2.5, thesis 1", x=2.5
+    )
+    run = load_run(tmp_path / "r")
+    assert run.result == result and load_run(tmp_path / "r" / "result.json").result == result
+    assert (
+        os.fspath(run) == str(tmp_path / "r")
+        and run / "result.json" == tmp_path / "r" / "result.json"
+    )
+    assert run.id == "figX" and run.settings == {"n": 1} and run.holds is False
+    assert run.verdict == "does not hold: ours is 2.5, thesis 1"
+    assert run.headline() == {"x": 2.5}
+
+
+def test_card_and_repr_show_title_claim_verdict_and_numbers(tmp_path):
+    _write(
+        tmp_path / "r", claim="REPS reaches 5 cm", holds=True, statement="4.1 cm here", err=0.041
+    )
+    run = load_run(tmp_path / "r")
+    card = run._repr_markdown_()
+    for text in ("figX", "A title", "REPS reaches 5 cm", "holds: 4.1 cm here", "`err`", "0.041"):
+        assert text in card
+    assert len(repr(run)) < 300 and "holds" in repr(run)
+
+
+def test_old_summaries_without_a_verdict(tmp_path):
+    _write(tmp_path / "r", rmse=0.1)
+    run = load_run(tmp_path / "r")
+    assert run.holds is None and run.verdict == "no verdict"
+
+
+def test_missing_or_broken_folders_are_reported(tmp_path):
+    with pytest.raises(FileNotFoundError, match="path: no result.json"):
+        load_run(tmp_path)
+    (tmp_path / "result.json").write_text("{not json")
+    with pytest.raises(ValueError, match="not valid JSON"):
+        load_run(tmp_path)
+    with pytest.raises(FileNotFoundError, match="png: no figure.png"):
+        Run(tmp_path, {}).png()
+    with pytest.raises(FileNotFoundError, match="exp_id: no stored"):
+        stored_run("nope")
+
+
+def test_every_experiment_has_a_stored_paper_run():
+    root = results_root()
+    for exp_id in ids():
+        run = stored_run(exp_id)
+        assert run.id == exp_id and run.scale == "paper" and run.path.parent == root

@@ -29,13 +29,13 @@ prediction layers by :mod:`skillkit.viz.predictions`; each module documents its 
 
 from __future__ import annotations
 
-import contextlib
 import errno
 import socket
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TypeVar
 
 import numpy as np
 
@@ -69,6 +69,7 @@ PREDICTION_COLORS = [(220, 40, 160), (150, 70, 220), (20, 170, 170), (230, 160, 
 """Colours given to prediction layers in turn when none is specified."""
 MAX_GHOST_UPDATES = 12
 """At most this many earlier updates get ghost trails in learning playback."""
+_Result = TypeVar("_Result")
 
 
 class PortInUseError(OSError):
@@ -129,14 +130,31 @@ class PredictionLayer:
 
 
 # ============================================================================ the viewer
-@contextlib.contextmanager
-def _rich_silenced() -> Iterator[None]:
-    """Drop what ``rich`` prints in this thread meanwhile (viser prints through rich's global
-    console, whose capture buffer is per thread: other threads print as usual)."""
+def _call_silenced(fn: Callable[[], _Result]) -> _Result:
+    """``fn()`` run in a helper thread whose ``rich`` output is dropped, its result returned
+    (its exception raised).
+
+    viser prints through rich's global console, whose capture buffer is per thread: the helper
+    thread opens a capture and never closes it, so nothing is printed, not even the empty
+    output that closing a capture displays in Jupyter; other threads print as usual.
+    """
     import rich
 
-    with rich.get_console().capture():
-        yield
+    outcome: dict = {}
+
+    def run() -> None:
+        rich.get_console().begin_capture()  # dropped with the thread
+        try:
+            outcome["value"] = fn()
+        except BaseException as exc:  # re-raised in the calling thread
+            outcome["error"] = exc
+
+    thread = threading.Thread(target=run, name="skillkit-quiet-call", daemon=True)
+    thread.start()
+    thread.join()
+    if "error" in outcome:
+        raise outcome["error"]
+    return outcome["value"]
 
 
 def _silence_server_thread(server) -> None:
@@ -145,7 +163,7 @@ def _silence_server_thread(server) -> None:
 
     viser (up to 1.1 at least) prints its start-up banner and "Server stopped" whatever its
     ``verbose`` says (that switches only the per-connection messages), so the viewer silences
-    them in the threads that print them: the constructing thread (:func:`_rich_silenced`) and
+    them in the threads that print them: the constructing thread (:func:`_call_silenced`) and
     the server's own thread (a capture opened there, never closed; the thread ends on stop).
     """
     import rich
@@ -181,10 +199,13 @@ def start_server(
     """
     import viser
 
-    with contextlib.nullcontext() if verbose else _rich_silenced():
-        server = viser.ViserServer(host=host, port=port, verbose=verbose, label=label)
-    if not verbose:
-        _silence_server_thread(server)
+    def make():
+        return viser.ViserServer(host=host, port=port, verbose=verbose, label=label)
+
+    if verbose:
+        return make()
+    server = _call_silenced(make)
+    _silence_server_thread(server)
     return server
 
 

@@ -23,7 +23,7 @@ from skillkit.tasks import Task, make
 from skillkit.trajectory import Trajectory
 from skillkit.viz import cli_view
 from skillkit.viz.history import load_policy_history, save_policy_history
-from skillkit.viz.viewer import PortInUseError, Viewer, start_server
+from skillkit.viz.viewer import PortInUseError, Viewer, _call_silenced, start_server
 
 
 def free_port() -> int:
@@ -88,6 +88,17 @@ def test_viser_is_quiet_unless_verbose(pendulum, capfd):
     server.stop()
     out, err = capfd.readouterr()
     assert "viser" not in out + err and "Server stopped" not in out + err
+    import rich
+
+    def shout():
+        rich.print("[bold]loud[/bold]")
+        return 7
+
+    assert _call_silenced(shout) == 7
+    with pytest.raises(ZeroDivisionError):
+        _call_silenced(lambda: 1 / 0)
+    out, err = capfd.readouterr()
+    assert "loud" not in out + err
     with Viewer(pendulum, port=0, verbose=True) as v:
         url = f"http://127.0.0.1:{v.port}"
     out, _ = capfd.readouterr()

@@ -1,10 +1,10 @@
 """Screenshots of every task's viewer scene for the documentation: ``docs/scene_<task>.png``.
 
 Starts a :class:`skillkit.viz.viewer.Viewer` per task (one task per task class, e.g. ``hockey``
-but not its ``hockey-real`` variant), opens it in Debian's headless Chromium
-(:class:`skillkit.viz.viewer.HeadlessBrowser`), waits until the scene has rendered and saves
-small palette PNGs of the 3-D canvas (and of the whole page, GUI included, for one task). Run
-from the repository root::
+but not its ``hockey-real`` variant), opens it in Debian's headless Chromium (the browser tests'
+``HeadlessBrowser``, ``tests/viz/headless_browser.py``), waits until the scene has rendered and
+saves small palette PNGs of the 3-D canvas (and of the whole page, GUI included, for one task).
+Run from the repository root::
 
     python docs/make_screenshots.py                 # all tasks
     python docs/make_screenshots.py hockey --out /tmp
@@ -20,6 +20,18 @@ import sys
 from pathlib import Path
 
 import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def headless_browser():
+    """The ``HeadlessBrowser`` class of the browser tests (``tests/viz/headless_browser.py``)."""
+    folder = str(ROOT / "tests" / "viz")
+    if folder not in sys.path:
+        sys.path.insert(0, folder)
+    from headless_browser import HeadlessBrowser
+
+    return HeadlessBrowser
 
 
 def default_tasks() -> list[str]:
@@ -52,7 +64,9 @@ def render(
     from PIL import Image
 
     from skillkit.tasks import make
-    from skillkit.viz.viewer import HeadlessBrowser, Viewer
+    from skillkit.viz.viewer import Viewer
+
+    HeadlessBrowser = headless_browser()
 
     task = make(name)
     context = task.sample_context(np.random.default_rng(seed)) if task.context_dim else None
@@ -82,9 +96,7 @@ def render(
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("tasks", nargs="*", help="task names (default: one per task class)")
-    parser.add_argument(
-        "--out", default=str(Path(__file__).resolve().parent), help="output folder (default: docs/)"
-    )
+    parser.add_argument("--out", default=str(ROOT / "docs"), help="output folder (default: docs/)")
     parser.add_argument(
         "--gui",
         default="hockey",

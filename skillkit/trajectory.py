@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
+from skillkit._repr import number
+
 
 @dataclass
 class Trajectory:
@@ -54,6 +56,21 @@ class Trajectory:
             if arr.ndim != 2 or arr.shape[0] != n:
                 raise ValueError(f"{name}: expected shape ({n}, ?), got {arr.shape}")
         self.signals = {k: np.asarray(v, dtype=np.float64) for k, v in self.signals.items()}
+
+    def __repr__(self) -> str:
+        t = self.times
+        span = f"{number(t[0])}…{number(t[-1])} s" if t.size else "empty"
+        signals = ", ".join(f"{k} {v.shape}" for k, v in self.signals.items())
+        text = (
+            f"Trajectory(n_steps={self.n_steps}, t={span}, state_dim={self.states.shape[1]}, "
+            f"control_dim={self.controls.shape[1]}, signals=[{signals}]"
+        )
+        if len(text) > 200:  # many signals: their names only
+            text = text[: text.index("signals=")] + f"signals={sorted(self.signals)}"
+        if self.failed:
+            message = self.message if len(self.message) <= 60 else self.message[:59] + "…"
+            return f"{text}, failed=True: {message!r})"
+        return f"{text}, failed=False)"
 
     @property
     def n_steps(self) -> int:

@@ -33,6 +33,7 @@ import gpytorch
 import numpy as np
 import torch
 
+from skillkit._repr import number, span
 from skillkit._validation import check_array, check_positive
 from skillkit.models.kernels import Linear, SquaredExponential, gram
 
@@ -222,6 +223,16 @@ class ConditionalEmbedding:
         self.gram = gram(kernel, z)
         self._z = torch.from_numpy(z)
         self._chol = regularized_cholesky(torch.from_numpy(self.gram), self.lam)
+
+    def __repr__(self) -> str:
+        kern = type(self.kernel).__name__
+        ls = getattr(self.kernel, "lengthscale", None)
+        if ls is not None:
+            kern += f"(lengthscale={span(ls)})"
+        return (
+            f"ConditionalEmbedding(N={self.n}, input_dim={self.input_dim}, "
+            f"target_dim={self.target_dim}, lam={number(self.lam)}, kernel={kern})"
+        )
 
     # ------------------------------------------------------------------ sizes
     @property

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from skillkit._repr import span
 from skillkit._validation import check_array
 from skillkit.models.embedding import ConditionalEmbedding, conditional_weights, rollout_weights
 
@@ -57,6 +58,14 @@ class TrajectoryEmbedding:
     initial: np.ndarray
     betas: np.ndarray
     rewards: np.ndarray | None = None
+
+    def __repr__(self) -> str:
+        T1, N, B = self.betas.shape
+        reward = "None" if self.rewards is None else span(self.rewards.sum(axis=0))
+        return (
+            f"TrajectoryEmbedding(B={B}, T={T1 + 1}, N={N}, state_dim={self.initial.shape[-1]}, "
+            f"total_reward={reward})"
+        )
 
     @property
     def n_steps(self) -> int:

@@ -34,6 +34,7 @@ import numpy as np
 import torch
 from scipy.optimize import minimize
 
+from skillkit._repr import number, vector
 from skillkit._validation import as_generator, check_array, check_positive
 from skillkit.models.embedding import conditional_weights, regularized_cholesky, rollout_weights
 from skillkit.models.kernels import gram, se_kernel
@@ -297,6 +298,9 @@ class CrossValidatedLoss:
     dim: int
     n_val: int = 1
 
+    def __repr__(self) -> str:
+        return f"CrossValidatedLoss(folds={len(self.folds)}, dim={self.dim}, n_val={self.n_val})"
+
     def value_and_grad(self, theta) -> tuple[float, np.ndarray]:
         """Mean validation error per term and its gradient w.r.t. θ (one backward per fold)."""
         th = check_array(theta, "theta", shape=(self.dim + 1,))
@@ -478,6 +482,14 @@ class FitResult:
     success: bool
     message: str
     at_bound: list[str] = field(default_factory=list)
+
+    def __repr__(self) -> str:
+        bound = f", at_bound={self.at_bound}" if self.at_bound else ""
+        return (
+            f"FitResult(lengthscale={vector(self.lengthscale)}, lam={number(self.lam)}, "
+            f"loss={number(self.loss, '.4g')} (initial {number(self.initial_loss, '.4g')}), "
+            f"n_evaluations={self.n_evaluations}, success={self.success}{bound})"
+        )
 
 
 def fit_hyperparameters(

@@ -70,6 +70,7 @@ import torch
 from gpytorch.constraints import GreaterThan
 from linear_operator.utils.errors import NanError, NotPSDError
 
+from skillkit._repr import number, span
 from skillkit._validation import as_generator, check_array, check_positive
 from skillkit.models.kernels import (
     SquaredExponential,
@@ -245,6 +246,14 @@ class GPPredictor:
             torch.cat(
                 [self.var_factor.transpose(-1, -2), self.beta[..., None]], dim=-1
             ).contiguous(),
+        )
+
+    def __repr__(self) -> str:
+        E, M, d = self.support.shape
+        return (
+            f"GPPredictor(outputs={E}, support={M}, inputs={d}, "
+            f"lengthscale={span(self.lengthscale)}, outputscale={span(self.outputscale)}, "
+            f"noise={span(self.noise)} (standardised), {self.dtype}, {self.device})"
         )
 
     @property
@@ -513,6 +522,28 @@ class _GPRegression:
         self.standardize = bool(standardize)
         self.predictor: GPPredictor | None = None
         self.diagnostics: dict = {}
+
+    def _size_repr(self) -> str:
+        """Data size for :meth:`__repr__` (the sparse GPs add M)."""
+        return f"N={self.X.shape[0]}"
+
+    def __repr__(self) -> str:
+        name = type(self).__name__
+        if self.predictor is None:
+            return (
+                f"{name}(unfitted, n_steps={self.n_steps}, optimizer={self.optimizer!r}, "
+                f"additive_noise={number(self.additive_noise)})"
+            )
+        pred, h = self.predictor, self.hyperparameters
+        lml = self.diagnostics.get("log_marginal_likelihood")
+        text = (
+            f"{name}({self._size_repr()}, inputs={pred.input_dim}, outputs={pred.output_dim}, "
+            f"lengthscale={span(h['lengthscale'])}, signal_var={span(h['outputscale'])}, "
+            f"noise_var={span(h['noise'])}"
+        )
+        if lml is not None:
+            text += f", log_ml={number(np.sum(lml), '.5g')}"
+        return text + ")"
 
     # -- fitting
     def fit(self, X, Y, rng=None) -> _GPRegression:
@@ -866,6 +897,14 @@ class ForwardModel:
         self.state_dim = 0
         self.control_dim = 0
         self._predictor: GPPredictor | None = None
+
+    def __repr__(self) -> str:
+        sizes = (
+            f"state_dim={self.state_dim}, control_dim={self.control_dim}"
+            if self._predictor is not None
+            else "unfitted"
+        )
+        return f"ForwardModel(target={self.target!r}, {sizes}, gp={self.gp!r})"
 
     @property
     def delta(self) -> bool:

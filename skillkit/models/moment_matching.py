@@ -45,6 +45,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from skillkit._repr import span, vector
 from skillkit._validation import check_array
 from skillkit.models.gp import DTYPE, VARIANCE_TOL, ForwardModel, GPNumericalWarning, GPPredictor
 
@@ -66,6 +67,13 @@ class GaussianPrediction:
     mean: torch.Tensor
     cov: torch.Tensor
     input_output_cov: torch.Tensor
+
+    def __repr__(self) -> str:
+        std = torch.diagonal(self.cov).clamp_min(0.0).sqrt()
+        return (
+            f"GaussianPrediction(outputs={self.mean.shape[0]}, inputs="
+            f"{self.input_output_cov.shape[0]}, mean={vector(self.mean)}, std={span(std)})"
+        )
 
 
 def _check_gaussian(mean, cov, dim: int, name: str = "mean") -> tuple[torch.Tensor, torch.Tensor]:

@@ -41,6 +41,7 @@ from typing import Protocol
 import numpy as np
 import torch
 
+from skillkit._repr import number, span
 from skillkit._validation import as_generator, check_positive
 from skillkit.models.gp import DTYPE, VARIANCE_TOL, GPNumericalWarning
 
@@ -85,6 +86,15 @@ class SampledTrajectories:
     n_saturated: int
     n_variance_clamped: int
     worst_variance: float
+
+    def __repr__(self) -> str:
+        B, L, T1, n_x = self.states.shape
+        return (
+            f"SampledTrajectories(B={B}, L={L}, T={T1 - 1}, state_dim={n_x}, "
+            f"control_dim={self.controls.shape[-1]}, states={span(self.states)}, "
+            f"n_saturated={self.n_saturated}, n_variance_clamped={self.n_variance_clamped}, "
+            f"worst_variance={number(self.worst_variance)})"
+        )
 
     def numpy(self) -> tuple[np.ndarray, np.ndarray]:
         """States and controls as numpy arrays."""

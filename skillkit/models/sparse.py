@@ -112,6 +112,9 @@ class _SparseGP(_GPRegression):
         self.optimize_inducing = bool(optimize_inducing)
         self.jitter = check_positive(jitter, "jitter")
 
+    def _size_repr(self) -> str:
+        return f"N={self.X.shape[0]}, M={self.predictor.n_support}"
+
     def _build(self, rng: np.random.Generator) -> None:
         E, N = self.Y.shape
         X = self.X.numpy()

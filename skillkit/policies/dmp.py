@@ -46,6 +46,7 @@ from collections.abc import Sequence
 import numpy as np
 from scipy.signal import lfilter
 
+from skillkit._repr import number, span, vector
 from skillkit._validation import check_array, check_positive
 
 __all__ = ["DMP", "DMPParameters"]
@@ -158,6 +159,15 @@ class DMP:
         self.goal: np.ndarray | None = None
         self.goal_velocity = np.zeros(self.n_joints)
         self.tau = 1.0
+
+    def __repr__(self) -> str:
+        goal = "None" if self.goal is None else vector(self.goal)
+        return (
+            f"DMP(n_joints={self.n_joints}, n_basis={self.n_basis}, "
+            f"duration={number(self.duration)} s, tau={number(self.tau)}, goal={goal}, "
+            f"weights={span(self.weights)}, alpha_x={number(self.alpha_x)}, "
+            f"beta_x={number(self.beta_x)}, alpha_z={number(self.alpha_z)})"
+        )
 
     # ------------------------------------------------------------------ basis
     @property
@@ -522,6 +532,13 @@ class DMPParameters:
             start += sizes[p]
         self.dim = start
         self.names = [n for p in self.learn for n in labels[p]]
+
+    def __repr__(self) -> str:
+        d = self.dmp
+        return (
+            f"DMPParameters(dim={self.dim}, learn={self.learn}, n_joints={d.n_joints}, "
+            f"n_basis={d.n_basis}, omega={vector(self.to_vector())})"
+        )
 
     def to_vector(self, dmp: DMP | None = None) -> np.ndarray:
         """ω of ``dmp`` (default: the template), shape (dim,)."""

@@ -17,6 +17,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy import linalg
 
+from skillkit._repr import number, span, vector
 from skillkit._validation import as_generator, check_array, check_positive
 from skillkit.policies.features import (
     FeatureName,
@@ -471,10 +472,21 @@ class LinearGaussianPolicy:
     def _new(self, mean: np.ndarray, cov: np.ndarray, gain: np.ndarray) -> LinearGaussianPolicy:
         return LinearGaussianPolicy(mean, cov, gain, self._context_dim, self._features)
 
+    def _summary(self) -> str:
+        """mean a, standard deviations √diag Σ, condition number of Σ (and max |A_ij|)."""
+        ev = np.linalg.eigvalsh(self._cov)
+        text = (
+            f"mean={vector(self._mean)}, std={span(np.sqrt(np.diag(self._cov)))}, "
+            f"cond(cov)={number(ev[-1] / ev[0])}"
+        )
+        if self._gain.size:
+            text += f", max|gain|={number(np.abs(self._gain).max())}"
+        return text
+
     def __repr__(self) -> str:
         return (
             f"{type(self).__name__}(dim={self.dim}, context_dim={self.context_dim}, "
-            f"features={self.features!r})"
+            f"features={self.features!r}, {self._summary()})"
         )
 
 
@@ -497,3 +509,6 @@ class GaussianPolicy(LinearGaussianPolicy):
 
     def _new(self, mean: np.ndarray, cov: np.ndarray, gain: np.ndarray) -> GaussianPolicy:
         return GaussianPolicy(mean, cov)
+
+    def __repr__(self) -> str:
+        return f"GaussianPolicy(dim={self.dim}, {self._summary()})"

@@ -26,7 +26,7 @@ def add_view_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument(
         "--policy",
         metavar="FILE",
-        help="policy history .npz (skillkit.viz.viewer.save_policy_history) or a "
+        help="policy history .npz (skillkit.viz.history.save_policy_history) or a "
         "`skillkit reproduce` run folder; enables learning playback",
     )
     p.add_argument("--trial", type=int, default=0, help="trial of a run folder (default 0)")
@@ -40,7 +40,7 @@ def add_view_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument(
         "--predictions",
         metavar="FILE",
-        help="prediction layers .npz (skillkit.viz.viewer.save_predictions) to overlay",
+        help="prediction layers .npz (skillkit.viz.predictions.save_predictions) to overlay",
     )
     p.add_argument("--port", type=int, default=DEFAULT_PORT, help=f"port (default {DEFAULT_PORT})")
     p.add_argument(
@@ -54,6 +54,11 @@ def add_view_parser(subparsers) -> argparse.ArgumentParser:
         action="store_true",
         help="light without the HDRI environment map: much faster in browsers without a GPU",
     )
+    p.add_argument(
+        "--verbose",
+        action="store_true",
+        help="let viser print its banner and a line per browser connection",
+    )
     p.set_defaults(func=run_view)
     return p
 
@@ -61,7 +66,8 @@ def add_view_parser(subparsers) -> argparse.ArgumentParser:
 def build_viewer(args: argparse.Namespace):
     """The :class:`~skillkit.viz.viewer.Viewer` the arguments describe (not started)."""
     from skillkit.tasks import make
-    from skillkit.viz.viewer import Viewer, load_policy_history
+    from skillkit.viz.history import load_policy_history
+    from skillkit.viz.viewer import Viewer
 
     task = make(args.task)
     history = None if args.policy is None else load_policy_history(args.policy, args.trial)
@@ -73,12 +79,14 @@ def build_viewer(args: argparse.Namespace):
         port=args.port,
         seed=args.seed,
         environment=not args.no_envmap,
+        verbose=args.verbose,
     )
 
 
 def run_view(args: argparse.Namespace) -> int:
     """Start the viewer and serve until Ctrl-C; bad input → one-line message, exit code 2."""
-    from skillkit.viz.viewer import PortInUseError, load_predictions
+    from skillkit.viz.predictions import load_predictions
+    from skillkit.viz.viewer import PortInUseError
 
     try:
         viewer = build_viewer(args)

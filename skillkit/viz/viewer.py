@@ -10,57 +10,32 @@
 * **predicted vs real** layers (:meth:`Viewer.add_prediction_layer`): any model's sampled
   trajectories (L, T, n) drawn translucent in their own colour with their mean, each layer
   switchable by a checkbox — GP sampling and embedding pre-images plug in the same way;
-* **learning playback**: step through the policies of a saved run (:class:`PolicyHistory`)
+* **learning playback**: step through the policies of a saved run
+  (:class:`~skillkit.viz.history.PolicyHistory`)
   and watch the rollout change, optionally with the trails of earlier updates.
 
 The server binds to 127.0.0.1 unless told otherwise. A port already in use raises
 :class:`PortInUseError` naming the port (viser itself would silently move to the next free
 port); :meth:`Viewer.stop` closes the server and frees the port.
 
+Quiet by default: viser's start-up banner and "Server stopped" message stay out of notebook
+cells and test output unless ``verbose=True`` (see :class:`Viewer`).
+
 Files
 -----
-**Policy history** (``.npz``, written by :func:`save_policy_history`; one policy is a history
-of length 1). Keys, K the number of updates and d = dim ω:
-
-==========================  ===============  ==========================================
-``format``                  str              ``"skillkit-policy-history-v1"``
-``policy_mean``             (K+1, d)         offsets a of π(ω|s) = N(a + A φ(s), Σ)
-``policy_cov``              (K+1, d, d)      covariances Σ
-``policy_gain``             (K+1, d, F)      gains A (F context features)
-``policy_context_dim``      int              context dimension
-``policy_features``         str              ``"linear"`` or ``"quadratic"``
-``task``                    str              task name ("" if unknown)
-``rollouts``                (K+1,), optional rollouts used before each policy
-``mean_reward``             (K+1,), optional reward of each policy's mean
-==========================  ===============  ==========================================
-
-A **run folder** written by ``skillkit reproduce`` holds the same ``policy_*`` arrays (and
-optionally ``rollouts``/``mean_reward``) per trial in ``trials.npz`` as
-``trial<i>__policy_mean`` …, when the experiment's ``run_trial`` returned
-:meth:`PolicyRecorder.arrays` in its result.
-
-**Prediction layers** (``.npz``, :func:`save_predictions`): for each layer ``<name>`` an array
-``<name>`` of shape (L, T, n) and optionally ``<name>__color`` (3,) RGB 0–255,
-``<name>__opacity`` (), ``<name>__times`` (T,) and ``<name>__space`` (``"state"`` or
-``"points"``).
+Policy histories (learning playback) are read and written by :mod:`skillkit.viz.history`,
+prediction layers by :mod:`skillkit.viz.predictions`; each module documents its format.
 """
 
 from __future__ import annotations
 
-import base64
 import errno
-import json
-import shutil
 import socket
-import subprocess
-import tempfile
 import threading
 import time
-import urllib.request
-import zipfile
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 
@@ -68,6 +43,7 @@ from skillkit._validation import as_generator, check_array
 from skillkit.policies.gaussian import LinearGaussianPolicy
 from skillkit.trajectory import Trajectory
 from skillkit.viz import DEFAULT_HOST, DEFAULT_PORT
+from skillkit.viz.history import PolicyHistory
 from skillkit.viz.scenes import (
     COLORS,
     TaskScene,
@@ -83,24 +59,17 @@ from skillkit.viz.scenes import (
 __all__ = [
     "DEFAULT_HOST",
     "DEFAULT_PORT",
-    "HISTORY_FORMAT",
-    "HeadlessBrowser",
-    "PolicyHistory",
-    "PolicyRecorder",
     "PortInUseError",
     "PredictionLayer",
     "Viewer",
-    "load_policy_history",
-    "load_predictions",
-    "save_policy_history",
-    "save_predictions",
+    "start_server",
 ]
 
-HISTORY_FORMAT = "skillkit-policy-history-v1"
 PREDICTION_COLORS = [(220, 40, 160), (150, 70, 220), (20, 170, 170), (230, 160, 0)]
 """Colours given to prediction layers in turn when none is specified."""
 MAX_GHOST_UPDATES = 12
 """At most this many earlier updates get ghost trails in learning playback."""
+_Result = TypeVar("_Result")
 
 
 class PortInUseError(OSError):
@@ -119,249 +88,7 @@ class PortInUseError(OSError):
         self.errno, self.host, self.port = errno.EADDRINUSE, host, port
 
 
-# ============================================================================ policy histories
-@dataclass(frozen=True)
-class PolicyHistory:
-    """The upper-level policies of a learning run, one per update (k = 0 … K).
-
-    Attributes
-    ----------
-    policies : tuple of LinearGaussianPolicy
-        π_0 (initial) … π_K.
-    rollouts : ndarray, shape (K+1,), optional
-        Rollouts used before each policy.
-    mean_reward : ndarray, shape (K+1,), optional
-        Reward of each policy's mean, as the learning loop evaluated it.
-    task : str
-        Name of the task it was learned on ("" if unknown).
-    """
-
-    policies: tuple
-    rollouts: np.ndarray | None = None
-    mean_reward: np.ndarray | None = None
-    task: str = ""
-
-    def __post_init__(self) -> None:
-        if not self.policies:
-            raise ValueError("policies: expected at least one policy")
-        for i, p in enumerate(self.policies):
-            if not isinstance(p, LinearGaussianPolicy):
-                raise ValueError(
-                    f"policies: entry {i} is a {type(p).__name__}, not a LinearGaussianPolicy"
-                )
-        first = self.policies[0]
-        if any((p.dim, p.context_dim) != (first.dim, first.context_dim) for p in self.policies):
-            raise ValueError("policies: expected the same dim and context_dim for every update")
-        n = len(self.policies)
-        for name in ("rollouts", "mean_reward"):
-            value = getattr(self, name)
-            if value is not None:
-                object.__setattr__(self, name, check_array(value, name, shape=(n,), finite=False))
-
-    def __len__(self) -> int:
-        return len(self.policies)
-
-    def __getitem__(self, k: int) -> LinearGaussianPolicy:
-        return self.policies[k]
-
-
-def _policy_arrays(policies: Sequence[LinearGaussianPolicy]) -> dict[str, np.ndarray]:
-    from skillkit.search.loop import policy_history_arrays
-
-    return policy_history_arrays(PolicyHistory(tuple(policies)).policies)
-
-
-class PolicyRecorder:
-    """Records the policy after every update of a learning run.
-
-    Pass it as ``callback`` to :func:`skillkit.search.loop.learn` (it is called with
-    ``(k, algorithm)`` for k = 0 … K) and save with :meth:`save`, or return :meth:`arrays`
-    from an experiment's ``run_trial`` so ``skillkit reproduce`` stores them in
-    ``trials.npz``.
-    """
-
-    def __init__(self) -> None:
-        self.policies: list[LinearGaussianPolicy] = []
-
-    def __call__(self, k: int, algorithm) -> None:
-        if k != len(self.policies):
-            raise ValueError(f"k: expected update {len(self.policies)}, got {k}")
-        self.policies.append(algorithm.policy)
-
-    def arrays(self) -> dict[str, np.ndarray]:
-        """The ``policy_*`` arrays of the file format (see the module docstring)."""
-        return _policy_arrays(self.policies)
-
-    def save(self, path, *, result: Mapping | None = None, task: str = "") -> Path:
-        """Write the history; ``result`` (the dict ``learn`` returns) adds rollouts and rewards."""
-        result = result or {}
-        return save_policy_history(
-            path,
-            self.policies,
-            rollouts=result.get("rollouts"),
-            mean_reward=result.get("mean_reward"),
-            task=task,
-        )
-
-
-def save_policy_history(
-    path,
-    policies: Sequence[LinearGaussianPolicy],
-    *,
-    rollouts=None,
-    mean_reward=None,
-    task: str = "",
-) -> Path:
-    """Write policies π_0 … π_K to a policy-history ``.npz`` (format in the module docstring).
-
-    Parameters
-    ----------
-    path : str or Path
-        Output file (``.npz`` is appended if missing).
-    policies : sequence of LinearGaussianPolicy
-        One per update, same dimensions.
-    rollouts, mean_reward : array_like, shape (K+1,), optional
-    task : str
-        Task name.
-    """
-    history = PolicyHistory(tuple(policies), rollouts, mean_reward, str(task))
-    arrays = _policy_arrays(history.policies)
-    arrays.update(format=np.asarray(HISTORY_FORMAT), task=np.asarray(history.task))
-    if history.rollouts is not None:
-        arrays["rollouts"] = history.rollouts
-    if history.mean_reward is not None:
-        arrays["mean_reward"] = history.mean_reward
-    path = Path(path)
-    if path.suffix != ".npz":
-        path = path.with_name(path.name + ".npz")
-    np.savez_compressed(path, **arrays)
-    return path
-
-
-def _history_from(arrays: Mapping[str, np.ndarray], prefix: str, source: str) -> PolicyHistory:
-    def get(key: str, required: bool = True):
-        full = prefix + key
-        if full not in arrays:
-            if required:
-                raise ValueError(
-                    f"policy: {source} has no {full!r} array (not a skillkit policy "
-                    "history; see skillkit.viz.viewer)"
-                )
-            return None
-        return np.asarray(arrays[full])
-
-    mean, cov, gain = get("policy_mean"), get("policy_cov"), get("policy_gain")
-    context_dim, features = get("policy_context_dim"), get("policy_features")
-    if (
-        mean.ndim != 2
-        or cov.ndim != 3
-        or gain.ndim != 3
-        or not (mean.shape[0] == cov.shape[0] == gain.shape[0])
-    ):
-        raise ValueError(
-            f"policy: {source} has inconsistent shapes policy_mean {mean.shape}, "
-            f"policy_cov {cov.shape}, policy_gain {gain.shape}"
-        )
-    try:
-        policies = tuple(
-            LinearGaussianPolicy(m, c, g, context_dim=int(context_dim), features=str(features))
-            for m, c, g in zip(mean, cov, gain, strict=True)
-        )
-    except (ValueError, TypeError) as exc:
-        raise ValueError(f"policy: {source} holds an invalid policy ({exc})") from None
-    extra = {}
-    for key in ("rollouts", "mean_reward"):
-        value = get(key, required=False)
-        if value is not None and value.shape == (len(policies),):
-            extra[key] = value.astype(np.float64)
-    task = get("task", required=False)
-    return PolicyHistory(policies, task="" if task is None else str(task), **extra)
-
-
-def load_policy_history(path, trial: int = 0) -> PolicyHistory:
-    """Read a policy history: a ``.npz`` file or a ``skillkit reproduce`` run folder.
-
-    Parameters
-    ----------
-    path : str or Path
-        A file written by :func:`save_policy_history`, or a run folder whose ``trials.npz``
-        holds ``trial<i>__policy_*`` arrays.
-    trial : int
-        Which trial of a run folder.
-
-    Raises
-    ------
-    ValueError
-        Missing, unreadable or malformed file (argument ``policy``), or no such trial.
-    """
-    path = Path(path)
-    if path.is_dir():
-        file, prefix = path / "trials.npz", f"trial{int(trial)}__"
-    else:
-        file, prefix = path, ""
-    if not file.exists():
-        raise ValueError(f"policy: no such file {file}")
-    try:
-        with np.load(file, allow_pickle=False) as data:
-            arrays = {k: data[k] for k in data.files}
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
-        raise ValueError(f"policy: {file} is not a readable .npz file ({exc})") from None
-    if prefix and not any(k.startswith(prefix) for k in arrays):
-        n = len({k.split("__")[0] for k in arrays if k.startswith("trial")})
-        raise ValueError(f"trial: {file} has no trial {trial} (it has {n} trials)")
-    fmt = arrays.get("format")
-    if not prefix and fmt is not None and str(fmt) != HISTORY_FORMAT:
-        raise ValueError(f"policy: {file} has format {str(fmt)!r}, expected {HISTORY_FORMAT!r}")
-    return _history_from(arrays, prefix, str(file))
-
-
 # ============================================================================ prediction layers
-def save_predictions(
-    path,
-    layers: Mapping[str, np.ndarray],
-    *,
-    colors: Mapping | None = None,
-    opacities: Mapping | None = None,
-    times: Mapping | None = None,
-    space: str = "state",
-) -> Path:
-    """Write prediction layers ``{name: (L, T, n)}`` for ``skillkit view --predictions``."""
-    arrays = {}
-    for name, value in layers.items():
-        if "__" in name or not name:
-            raise ValueError(f"layers: layer names must be non-empty without '__', got {name!r}")
-        arrays[name] = check_array(value, f"layers[{name!r}]", ndim=3)
-        arrays[f"{name}__space"] = np.asarray(space)
-        for key, table in (("color", colors), ("opacity", opacities), ("times", times)):
-            if table and name in table:
-                arrays[f"{name}__{key}"] = np.asarray(table[name], dtype=np.float64)
-    path = Path(path)
-    np.savez_compressed(path, **arrays)
-    return path if path.suffix == ".npz" else path.with_name(path.name + ".npz")
-
-
-def load_predictions(path) -> list[dict]:
-    """Read a prediction-layer file: keyword dicts for :meth:`Viewer.add_prediction_layer`."""
-    path = Path(path)
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            arrays = {k: data[k] for k in data.files}
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
-        raise ValueError(f"predictions: {path} is not a readable .npz file ({exc})") from None
-    layers = []
-    for name in sorted(k for k in arrays if "__" not in k):
-        spec = {"name": name, "trajectories": arrays[name]}
-        for key in ("color", "opacity", "times"):
-            if f"{name}__{key}" in arrays:
-                spec[key] = arrays[f"{name}__{key}"]
-        if f"{name}__space" in arrays:
-            spec["space"] = str(arrays[f"{name}__space"])
-        layers.append(spec)
-    if not layers:
-        raise ValueError(f"predictions: {path} holds no layers")
-    return layers
-
-
 @dataclass
 class PredictionLayer:
     """One model's predicted trajectories in the scene.
@@ -403,6 +130,85 @@ class PredictionLayer:
 
 
 # ============================================================================ the viewer
+def _call_silenced(fn: Callable[[], _Result]) -> _Result:
+    """``fn()`` run in a helper thread whose ``rich`` output is dropped, its result returned
+    (its exception raised).
+
+    viser prints through rich's global console, whose capture buffer is per thread: the helper
+    thread opens a capture and never closes it, so nothing is printed, not even the empty
+    output that closing a capture displays in Jupyter; other threads print as usual.
+    """
+    import rich
+
+    outcome: dict = {}
+
+    def run() -> None:
+        rich.get_console().begin_capture()  # dropped with the thread
+        try:
+            outcome["value"] = fn()
+        except BaseException as exc:  # re-raised in the calling thread
+            outcome["error"] = exc
+
+    thread = threading.Thread(target=run, name="skillkit-quiet-call", daemon=True)
+    thread.start()
+    thread.join()
+    if "error" in outcome:
+        raise outcome["error"]
+    return outcome["value"]
+
+
+def _silence_server_thread(server) -> None:
+    """Drop what ``rich`` prints from now on in ``server``'s event-loop thread (viser's
+    "Server stopped" on :meth:`~viser.ViserServer.stop`), leaving other threads alone.
+
+    viser (up to 1.1 at least) prints its start-up banner and "Server stopped" whatever its
+    ``verbose`` says (that switches only the per-connection messages), so the viewer silences
+    them in the threads that print them: the constructing thread (:func:`_call_silenced`) and
+    the server's own thread (a capture opened there, never closed; the thread ends on stop).
+    """
+    import rich
+
+    try:
+        server.get_event_loop().call_soon_threadsafe(rich.get_console().begin_capture)
+    except RuntimeError:  # the loop is already closed: nothing more will print there
+        pass
+
+
+def start_server(
+    host: str = DEFAULT_HOST, port: int = 0, *, label: str | None = None, verbose: bool = False
+):
+    """Start a viser server, quiet unless ``verbose``: what :class:`Viewer` serves from, and a
+    server for building scenes by hand (:func:`skillkit.viz.scenes.task_scene`) in a notebook.
+
+    Parameters
+    ----------
+    host : str
+        Interface to bind (127.0.0.1: this machine only).
+    port : int
+        TCP port (0: any free port). viser moves on to the next free port if it is taken;
+        :meth:`Viewer.start` refuses that instead.
+    label : str, optional
+        Title of the GUI panel.
+    verbose : bool
+        Let viser print its banner, "Server stopped" and a line per browser connection.
+
+    Returns
+    -------
+    viser.ViserServer
+        Running; stop it with ``server.stop()``.
+    """
+    import viser
+
+    def make():
+        return viser.ViserServer(host=host, port=port, verbose=verbose, label=label)
+
+    if verbose:
+        return make()
+    server = _call_silenced(make)
+    _silence_server_thread(server)
+    return server
+
+
 def _check_port(host: str, port: int) -> None:
     """Raise :class:`PortInUseError` if ``host:port`` cannot be bound because it is taken."""
     try:
@@ -443,6 +249,10 @@ class Viewer:
     environment : bool
         Light the scene with viser's HDRI environment map (default). False uses a hemisphere
         light instead, which renders far faster in browsers without a GPU (software WebGL).
+    verbose : bool
+        Let viser print its start-up banner, "Server stopped" and a line per browser
+        connection (default False: nothing lands in notebook cells or test output; the URL
+        is :attr:`url`).
 
     Examples
     --------
@@ -462,6 +272,7 @@ class Viewer:
         port: int = DEFAULT_PORT,
         seed: int = 0,
         environment: bool = True,
+        verbose: bool = False,
     ) -> None:
         from skillkit.tasks import Task, make
 
@@ -494,7 +305,7 @@ class Viewer:
         if not isinstance(host, str) or not host:
             raise ValueError(f"host: expected a host name or address, got {host!r}")
         self.host, self._requested_port, self.seed = host, int(port), int(seed)
-        self.environment = bool(environment)
+        self.environment, self.verbose = bool(environment), bool(verbose)
         self._omega_rng = as_generator(self.seed)
         self.server = None
         self.scene: TaskScene | None = None
@@ -545,17 +356,15 @@ class Viewer:
         PortInUseError
             The port is taken (the message names it).
         """
-        import viser
-
         if self.server is not None:
             raise ValueError("viewer: already started")
         if self._requested_port:
             _check_port(self.host, self._requested_port)
-        server = viser.ViserServer(
-            host=self.host,
-            port=self._requested_port,
-            verbose=False,
+        server = start_server(
+            self.host,
+            self._requested_port,
             label=f"skillkit · {self.task.name}",
+            verbose=self.verbose,
         )
         if self._requested_port and server.get_port() != self._requested_port:
             bound = server.get_port()
@@ -987,198 +796,3 @@ class Viewer:
             if layer.checkbox is not None:
                 layer.checkbox.remove()
             self._refresh_tree()
-
-
-# ============================================================================ headless browser
-class HeadlessBrowser:
-    """Headless Chromium driven over the DevTools protocol (for screenshots and browser tests).
-
-    Starts ``chromium --headless`` with a fresh profile and a DevTools port chosen by the OS,
-    then talks to the page over its websocket (the ``websockets`` package viser depends on).
-
-    Parameters
-    ----------
-    size : tuple of int
-        Viewport (width, height) in CSS pixels.
-    executable : str, optional
-        Chromium binary (default: ``chromium`` on the PATH, else ``/usr/bin/chromium``).
-    timeout : float
-        Seconds to wait for Chromium to start.
-    """
-
-    FLAGS = (
-        "--headless",
-        "--no-sandbox",
-        "--disable-gpu",
-        "--disable-quic",
-        "--no-first-run",
-        "--disable-background-networking",
-        "--disable-component-update",
-        "--disable-sync",
-        "--hide-scrollbars",
-        "--mute-audio",
-    )
-
-    def __init__(
-        self,
-        size: tuple[int, int] = (1024, 700),
-        executable: str | None = None,
-        timeout: float = 30.0,
-    ) -> None:
-        exe = executable or shutil.which("chromium") or "/usr/bin/chromium"
-        if not Path(exe).exists() and shutil.which(exe) is None:
-            raise ValueError(f"executable: no Chromium at {exe!r} (apt-get install chromium)")
-        width, height = (int(v) for v in size)
-        self.size = (width, height)
-        self._profile = tempfile.mkdtemp(prefix="skillkit-chromium-")
-        self._proc = subprocess.Popen(
-            [
-                exe,
-                *self.FLAGS,
-                f"--user-data-dir={self._profile}",
-                f"--window-size={width},{height}",
-                "--remote-debugging-port=0",
-                "about:blank",
-            ],
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-        )
-        self._ws = None
-        self._id = 0
-        try:
-            port_file = Path(self._profile) / "DevToolsActivePort"
-            deadline = time.monotonic() + timeout
-            while not (port_file.exists() and port_file.read_text().strip()):
-                if self._proc.poll() is not None or time.monotonic() > deadline:
-                    raise RuntimeError(f"chromium did not start (exit code {self._proc.poll()})")
-                time.sleep(0.05)
-            devtools_port = int(port_file.read_text().split()[0])
-            with urllib.request.urlopen(
-                f"http://127.0.0.1:{devtools_port}/json", timeout=timeout
-            ) as r:
-                pages = [t for t in json.load(r) if t.get("type") == "page"]
-            from websockets.sync.client import connect
-
-            self._ws = connect(
-                pages[0]["webSocketDebuggerUrl"], max_size=2**28, open_timeout=timeout
-            )
-            self.call(
-                "Emulation.setDeviceMetricsOverride",
-                width=width,
-                height=height,
-                deviceScaleFactor=1,
-                mobile=False,
-            )
-        except BaseException:
-            self.close()
-            raise
-
-    def call(self, method: str, timeout: float = 60.0, **params) -> dict:
-        """Send one DevTools command and return its ``result``."""
-        self._id += 1
-        self._ws.send(json.dumps({"id": self._id, "method": method, "params": params}))
-        deadline = time.monotonic() + timeout
-        while True:
-            message = json.loads(self._ws.recv(timeout=max(deadline - time.monotonic(), 0.01)))
-            if message.get("id") == self._id:
-                if "error" in message:
-                    raise RuntimeError(f"{method}: {message['error']}")
-                return message.get("result", {})
-
-    def open(self, url: str) -> None:
-        """Navigate to ``url``."""
-        self.call("Page.navigate", url=url)
-
-    def text(self) -> str:
-        """The page's whole text content (hidden elements included)."""
-        result = self.call(
-            "Runtime.evaluate", expression="document.body ? document.body.textContent : ''"
-        )
-        return str(result.get("result", {}).get("value", ""))
-
-    def hide(self, selector: str) -> int:
-        """Hide the elements matching CSS ``selector`` (e.g. notifications); return how many."""
-        script = (
-            f"(() => {{ const found = document.querySelectorAll({json.dumps(selector)}); "
-            "found.forEach(e => e.style.setProperty('display', 'none', 'important')); "
-            "return found.length; })()"
-        )
-        result = self.call("Runtime.evaluate", expression=script)
-        return int(result.get("result", {}).get("value", 0))
-
-    def wait_for_text(self, needles: Sequence[str], timeout: float = 60.0) -> str:
-        """Poll the page until its text contains every needle; return the text."""
-        deadline = time.monotonic() + timeout
-        while True:
-            text = self.text()
-            missing = [n for n in needles if n not in text]
-            if not missing:
-                return text
-            if time.monotonic() > deadline:
-                raise TimeoutError(f"page text still lacks {missing} after {timeout:g} s")
-            time.sleep(0.25)
-
-    def screenshot(self, timeout: float = 300.0) -> np.ndarray:
-        """The viewport as an RGB array of shape (height, width, 3), uint8."""
-        from io import BytesIO
-
-        from PIL import Image
-
-        result = self.call("Page.captureScreenshot", timeout=timeout, format="png")
-        data = base64.b64decode(result["data"])
-        return np.asarray(Image.open(BytesIO(data)).convert("RGB"))
-
-    def wait_frames(self, n: int = 3, timeout: float = 120.0) -> None:
-        """Wait until the page has rendered ``n`` more animation frames."""
-        script = (
-            f"new Promise(done => {{ let k = {int(n)}; const f = () => "
-            "(--k > 0 ? requestAnimationFrame(f) : done(true)); requestAnimationFrame(f); })"
-        )
-        self.call("Runtime.evaluate", timeout=timeout, expression=script, awaitPromise=True)
-
-    def settled_screenshot(
-        self, timeout: float = 120.0, tolerance: float = 0.05, frames: int = 3
-    ) -> np.ndarray:
-        """A screenshot once the page has stopped changing.
-
-        Takes screenshots ``frames`` rendered animation frames apart (so a renderer that is
-        still busy loading is not mistaken for a settled one) until two consecutive
-        comparisons differ by less than ``tolerance`` grey levels on average.
-        """
-        deadline = time.monotonic() + timeout
-        self.wait_frames(frames, timeout)
-        previous, stable = self.screenshot(timeout), 0
-        while stable < 2:
-            if time.monotonic() > deadline:
-                raise TimeoutError(f"the page kept changing for {timeout:g} s")
-            self.wait_frames(frames, timeout)
-            time.sleep(0.2)
-            image = self.screenshot(timeout)
-            stable = (
-                stable + 1 if np.mean(np.abs(image.astype(float) - previous)) < tolerance else 0
-            )
-            previous = image
-        return previous
-
-    def close(self) -> None:
-        """Quit Chromium and delete its profile."""
-        if self._ws is not None:
-            try:
-                self._ws.close()
-            except Exception:  # already gone
-                pass
-            self._ws = None
-        if self._proc.poll() is None:
-            self._proc.terminate()
-            try:
-                self._proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                self._proc.kill()
-                self._proc.wait()
-        shutil.rmtree(self._profile, ignore_errors=True)
-
-    def __enter__(self) -> HeadlessBrowser:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()

@@ -83,7 +83,7 @@ def test_summary_has_the_promised_keys(tiny_runs):
 
 def test_saved_run_has_the_policy_history_the_viewer_plays_back(tmp_path):
     from skillkit.experiments.runner import reproduce
-    from skillkit.viz.viewer import load_policy_history
+    from skillkit.viz.history import load_policy_history
 
     folder = reproduce("fig3.3", trials=1, seed=5, out=tmp_path, progress=False, html=False, **TINY)
     history = load_policy_history(folder, trial=0)

@@ -9,8 +9,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from headless_browser import HeadlessBrowser  # tests/viz/headless_browser.py
 
-from skillkit.viz.viewer import HeadlessBrowser, Viewer
+from skillkit.viz.viewer import Viewer
 
 CHROMIUM = Path("/usr/bin/chromium")
 

@@ -8,7 +8,6 @@ import warnings
 import mujoco
 import numpy as np
 import pytest
-import viser
 
 from skillkit.policies.gaussian import LinearGaussianPolicy
 from skillkit.tasks import Task, make, names
@@ -23,11 +22,12 @@ from skillkit.viz.scenes import (
     task_scene,
     tube_mesh,
 )
+from skillkit.viz.viewer import start_server
 
 
 @pytest.fixture(scope="module")
 def server():
-    srv = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    srv = start_server(port=0)
     yield srv
     srv.stop()
 

@@ -22,17 +22,8 @@ from skillkit.policies.gaussian import LinearGaussianPolicy
 from skillkit.tasks import Task, make
 from skillkit.trajectory import Trajectory
 from skillkit.viz import cli_view
-from skillkit.viz.viewer import (
-    HISTORY_FORMAT,
-    PolicyHistory,
-    PolicyRecorder,
-    PortInUseError,
-    Viewer,
-    load_policy_history,
-    load_predictions,
-    save_policy_history,
-    save_predictions,
-)
+from skillkit.viz.history import load_policy_history, save_policy_history
+from skillkit.viz.viewer import PortInUseError, Viewer, _call_silenced, start_server
 
 
 def free_port() -> int:
@@ -86,6 +77,32 @@ def test_start_serves_on_localhost_and_stop_frees_the_port(pendulum):
         assert again.port == port
     finally:
         again.stop()
+
+
+def test_viser_is_quiet_unless_verbose(pendulum, capfd):
+    """viser prints its banner and "Server stopped" whatever its own ``verbose`` says; the
+    viewer keeps both out of the output (notebook cells, tests) unless asked."""
+    with Viewer(pendulum, port=0):
+        pass
+    server = start_server(port=0)
+    server.stop()
+    out, err = capfd.readouterr()
+    assert "viser" not in out + err and "Server stopped" not in out + err
+    import rich
+
+    def shout():
+        rich.print("[bold]loud[/bold]")
+        return 7
+
+    assert _call_silenced(shout) == 7
+    with pytest.raises(ZeroDivisionError):
+        _call_silenced(lambda: 1 / 0)
+    out, err = capfd.readouterr()
+    assert "loud" not in out + err
+    with Viewer(pendulum, port=0, verbose=True) as v:
+        url = f"http://127.0.0.1:{v.port}"
+    out, _ = capfd.readouterr()
+    assert url in out and "Server stopped" in out
 
 
 def test_port_in_use_is_reported_with_the_port(pendulum):
@@ -271,86 +288,26 @@ def test_prediction_layer_bad_input(viewer, args, match):
         viewer.add_prediction_layer("gp", np.zeros((2, 5, 2)), space="joint")
 
 
-def test_prediction_file_round_trip(tmp_path):
-    x = np.random.default_rng(0).random((3, 6, 2))
-    path = save_predictions(
-        tmp_path / "pred", {"gp": x}, colors={"gp": (1, 2, 3)}, opacities={"gp": 0.2}
-    )
-    (spec,) = load_predictions(path)
-    assert spec["name"] == "gp" and spec["space"] == "state"
-    np.testing.assert_array_equal(spec["trajectories"], x)
-    np.testing.assert_array_equal(spec["color"], [1, 2, 3])
-    (tmp_path / "bad.npz").write_bytes(b"not a zip")
-    with pytest.raises(ValueError, match="predictions"):
-        load_predictions(tmp_path / "bad.npz")
-
-
 # ----------------------------------------------------------------------------- learning playback
-class ShiftingSearch:
-    """A stand-in policy search: every update moves the mean by a fixed step."""
-
-    def __init__(self, policy: LinearGaussianPolicy, step) -> None:
-        self.policy, self.step = policy, np.asarray(step, float)
-
-    def update(self, contexts, omegas, rewards):
-        p = self.policy
-        self.policy = LinearGaussianPolicy(p.mean + self.step, p.cov, p.gain, p.context_dim)
-        return {}
-
-
-def drive(recorder, algo, n_updates: int, rollouts: int) -> dict:
-    """Call the recorder as ``skillkit.search.loop.learn`` does: k = 0, then after each update."""
-    recorder(0, algo)
-    for k in range(1, n_updates + 1):
-        algo.update(None, None, None)
-        recorder(k, algo)
-    return {
-        "rollouts": rollouts * np.arange(n_updates + 1),
-        "mean_reward": -np.arange(n_updates + 1, 0, -1.0),
-    }
+STEP = np.array([0.5, 0.1])
 
 
 @pytest.fixture(scope="module")
 def history_file(tmp_path_factory, pendulum):
-    recorder = PolicyRecorder()
-    result = drive(recorder, ShiftingSearch(pendulum.initial_policy(), [0.5, 0.1]), 3, 2)
-    path = recorder.save(
-        tmp_path_factory.mktemp("hist") / "history", result=result, task="pendulum"
+    """A policy history of 3 updates, each moving the mean by STEP, 2 rollouts per update."""
+    p0 = pendulum.initial_policy()
+    policies = [
+        LinearGaussianPolicy(p0.mean + k * STEP, p0.cov, p0.gain, p0.context_dim) for k in range(4)
+    ]
+    path = tmp_path_factory.mktemp("hist") / "history.npz"
+    rollouts, mean_reward = [0, 2, 4, 6], [-4.0, -3.0, -2.0, -1.0]
+    return save_policy_history(
+        path, policies, rollouts=rollouts, mean_reward=mean_reward, task="pendulum"
     )
-    return path, recorder, result
-
-
-@pytest.mark.slow  # importing skillkit.search pulls in torch and gpytorch
-def test_recorder_as_the_learning_loop_callback(pendulum, tmp_path):
-    from skillkit.search.loop import learn
-
-    recorder = PolicyRecorder()
-    algo = ShiftingSearch(pendulum.initial_policy(), [0.5, 0.1])
-    result = learn(pendulum, algo, n_updates=3, rollouts_per_update=2, rng=0, callback=recorder)
-    history = load_policy_history(recorder.save(tmp_path / "history", result=result))
-    assert len(history) == 4 and history[3].mean == pytest.approx([-1.5, -0.7])
-    np.testing.assert_array_equal(history.mean_reward, result["mean_reward"])
-
-
-def test_policy_history_round_trip(history_file):
-    path, recorder, result = history_file
-    with pytest.raises(ValueError, match="expected update 4"):
-        recorder(7, None)
-    assert path.suffix == ".npz"
-    history = load_policy_history(path)
-    assert len(history) == 4 and history.task == "pendulum"
-    for k, p in enumerate(history.policies):
-        np.testing.assert_array_equal(p.mean, recorder.policies[k].mean)
-        np.testing.assert_array_equal(p.cov, recorder.policies[k].cov)
-        np.testing.assert_allclose(p.mean, [-3.0, -1.0] + k * np.array([0.5, 0.1]))
-    np.testing.assert_array_equal(history.rollouts, [0, 2, 4, 6])
-    np.testing.assert_array_equal(history.mean_reward, result["mean_reward"])
-    with np.load(path) as data:
-        assert str(data["format"]) == HISTORY_FORMAT
 
 
 def test_learning_playback_steps_through_updates(history_file, pendulum):
-    history = load_policy_history(history_file[0])
+    history = load_policy_history(history_file)
     with Viewer(pendulum, context=[1.0, 0.0], history=history, port=0, seed=5) as v:
         assert v.update_index == 3 and v.policy is history[3]
         v.gui["update"].value = 1  # the slider, as if moved in the browser
@@ -368,46 +325,12 @@ def test_learning_playback_steps_through_updates(history_file, pendulum):
             v.set_update(4)
 
 
-def test_history_from_a_reproduce_run_folder(tmp_path, history_file):
-    _, recorder, result = history_file
-    folder = tmp_path / "fig-quick-s0"
-    folder.mkdir()
-    arrays = {f"trial1__{k}": v for k, v in recorder.arrays().items()}
-    arrays["trial1__mean_reward"] = result["mean_reward"]
-    np.savez_compressed(folder / "trials.npz", trial0__other=np.zeros(3), **arrays)
-    history = load_policy_history(folder, trial=1)
-    assert len(history) == 4 and history.task == ""
-    np.testing.assert_array_equal(history.mean_reward, result["mean_reward"])
-    with pytest.raises(ValueError, match="policy_mean"):
-        load_policy_history(folder, trial=0)
-    with pytest.raises(ValueError, match="trial: .* no trial 7"):
-        load_policy_history(folder, trial=7)
-
-
-def test_malformed_policy_files(tmp_path, pendulum):
-    (tmp_path / "junk.npz").write_bytes(b"\x00junk")
-    with pytest.raises(ValueError, match="policy: .* not a readable"):
-        load_policy_history(tmp_path / "junk.npz")
-    with pytest.raises(ValueError, match="policy: no such file"):
-        load_policy_history(tmp_path / "missing.npz")
-    np.savez(tmp_path / "partial.npz", policy_mean=np.zeros((1, 2)))
-    with pytest.raises(ValueError, match="policy_cov"):
-        load_policy_history(tmp_path / "partial.npz")
-    np.savez(
-        tmp_path / "notpd.npz",
-        policy_mean=np.zeros((1, 2)),
-        policy_cov=-np.eye(2)[None],
-        policy_gain=np.zeros((1, 2, 2)),
-        policy_context_dim=2,
-        policy_features="linear",
-    )
-    with pytest.raises(ValueError, match="invalid policy"):
-        load_policy_history(tmp_path / "notpd.npz")
+def test_a_history_of_another_task_is_refused(tmp_path, pendulum):
     other = save_policy_history(tmp_path / "other", [pendulum.initial_policy()], task="hockey")
     with pytest.raises(ValueError, match="recorded on task 'hockey'"):
         Viewer(pendulum, history=load_policy_history(other))
-    with pytest.raises(ValueError, match="policies"):
-        PolicyHistory(())
+    with pytest.raises(ValueError, match="history: expected a PolicyHistory"):
+        Viewer(pendulum, history=[pendulum.initial_policy()])
 
 
 # ----------------------------------------------------------------------------- skillkit view
@@ -456,7 +379,7 @@ def test_cli_serves_until_interrupted_and_frees_the_port(tmp_path, history_file)
             "0.5",
             "-1",
             "--policy",
-            str(history_file[0]),
+            str(history_file),
         ],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
@@ -465,15 +388,17 @@ def test_cli_serves_until_interrupted_and_frees_the_port(tmp_path, history_file)
     )
     try:
         deadline = time.monotonic() + 120
-        line = ""
-        while "serving" not in line:
-            line = proc.stdout.readline()
-            assert line or proc.poll() is None, proc.stderr.read()
+        lines = [""]
+        while "serving" not in lines[-1]:
+            lines.append(proc.stdout.readline())
+            assert lines[-1] or proc.poll() is None, proc.stderr.read()
             assert time.monotonic() < deadline
-        assert f"http://127.0.0.1:{port}/" in line
+        assert f"http://127.0.0.1:{port}/" in lines[-1]
         assert http_status(f"http://127.0.0.1:{port}/") == 200
         proc.send_signal(signal.SIGINT)
         assert proc.wait(timeout=60) == 0
+        output = "".join(lines) + proc.stdout.read() + proc.stderr.read()
+        assert "viser" not in output, output  # no banner, no "Server stopped" (no --verbose)
     finally:
         if proc.poll() is None:
             proc.kill()

@@ -1,0 +1,296 @@
+"""Policy histories: the upper-level policies of a learning run, for the viewer's playback.
+
+:class:`PolicyHistory` holds π_0 (initial) … π_K (after the K-th update) of a run;
+:class:`PolicyRecorder` collects them as the ``callback`` of
+:func:`skillkit.search.loop.learn`; :func:`save_policy_history` and
+:func:`load_policy_history` write and read the file format below, which
+``skillkit view TASK --policy FILE`` plays back (:class:`skillkit.viz.viewer.Viewer`).
+
+File format
+-----------
+A NumPy ``.npz`` archive (``np.savez_compressed``; read with ``allow_pickle=False``, so every
+entry is a plain array). One policy is a history of length 1. K is the number of updates,
+d = dim ω, F the number of context features (F = context_dim for ``"linear"`` features,
+see :mod:`skillkit.policies.features`). Each policy is π_k(ω|s) = N(a_k + A_k φ(s), Σ_k)
+(Eq. 3.13):
+
+==========================  ==============  =======  ==========================================
+key                         shape           dtype    meaning
+==========================  ==============  =======  ==========================================
+``format``                  ()              str      ``"skillkit-policy-history-v1"``
+``policy_mean``             (K+1, d)        float64  offsets a_k
+``policy_cov``              (K+1, d, d)     float64  covariances Σ_k (symmetric positive definite)
+``policy_gain``             (K+1, d, F)     float64  gains A_k
+``policy_context_dim``      ()              int      context dimension
+``policy_features``         ()              str      ``"linear"`` or ``"quadratic"``
+``task``                    ()              str      task name ("" if unknown)
+``rollouts``                (K+1,)          float64  optional: rollouts used before each policy
+``mean_reward``             (K+1,)          float64  optional: reward of each policy's mean
+==========================  ==============  =======  ==========================================
+
+**Versioning.** ``format`` names the version. A reader accepts a file without ``format`` (the
+``policy_*`` arrays alone) and refuses any other version with a message naming both. A change
+that an older reader would misread gets a new version string; new optional keys do not.
+
+**Run folders.** ``skillkit reproduce`` stores the same ``policy_*`` arrays (and optionally
+``rollouts``/``mean_reward``) per trial in the run folder's ``trials.npz``, prefixed
+``trial<i>__`` (``trial0__policy_mean`` …), when the experiment's ``run_trial`` returned
+:meth:`PolicyRecorder.arrays` (or :func:`skillkit.search.loop.policy_history_arrays`) in its
+result; :func:`load_policy_history` reads a trial of such a folder directly.
+"""
+
+from __future__ import annotations
+
+import zipfile
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from skillkit._validation import check_array
+from skillkit.policies.gaussian import LinearGaussianPolicy
+
+__all__ = [
+    "HISTORY_FORMAT",
+    "PolicyHistory",
+    "PolicyRecorder",
+    "load_policy_history",
+    "save_policy_history",
+]
+
+HISTORY_FORMAT = "skillkit-policy-history-v1"
+"""The ``format`` entry of a policy-history file (see the module docstring)."""
+
+
+@dataclass(frozen=True)
+class PolicyHistory:
+    """The upper-level policies of a learning run, one per update (k = 0 … K).
+
+    Attributes
+    ----------
+    policies : tuple of LinearGaussianPolicy
+        π_0 (initial) … π_K, all with the same ``dim`` and ``context_dim``.
+    rollouts : ndarray, shape (K+1,), optional
+        Rollouts used before each policy.
+    mean_reward : ndarray, shape (K+1,), optional
+        Reward of each policy's mean, as the learning loop evaluated it.
+    task : str
+        Name of the task it was learned on ("" if unknown).
+
+    Raises
+    ------
+    ValueError
+        No policies, a policy that is not a :class:`LinearGaussianPolicy`, mismatched
+        dimensions, or ``rollouts``/``mean_reward`` of the wrong shape.
+    """
+
+    policies: tuple
+    rollouts: np.ndarray | None = None
+    mean_reward: np.ndarray | None = None
+    task: str = ""
+
+    def __post_init__(self) -> None:
+        if not self.policies:
+            raise ValueError("policies: expected at least one policy")
+        for i, p in enumerate(self.policies):
+            if not isinstance(p, LinearGaussianPolicy):
+                raise ValueError(
+                    f"policies: entry {i} is a {type(p).__name__}, not a LinearGaussianPolicy"
+                )
+        first = self.policies[0]
+        if any((p.dim, p.context_dim) != (first.dim, first.context_dim) for p in self.policies):
+            raise ValueError("policies: expected the same dim and context_dim for every update")
+        n = len(self.policies)
+        for name in ("rollouts", "mean_reward"):
+            value = getattr(self, name)
+            if value is not None:
+                object.__setattr__(self, name, check_array(value, name, shape=(n,), finite=False))
+
+    def __len__(self) -> int:
+        return len(self.policies)
+
+    def __getitem__(self, k: int) -> LinearGaussianPolicy:
+        return self.policies[k]
+
+    def __repr__(self) -> str:
+        first = self.policies[0]
+        parts = [f"K={len(self) - 1}", f"dim={first.dim}", f"context_dim={first.context_dim}"]
+        if self.task:
+            parts.append(f"task={self.task!r}")
+        if self.rollouts is not None:
+            parts.append(f"rollouts={self.rollouts[0]:g}…{self.rollouts[-1]:g}")
+        if self.mean_reward is not None:
+            parts.append(f"mean_reward={self.mean_reward[0]:.4g}…{self.mean_reward[-1]:.4g}")
+        return f"PolicyHistory({', '.join(parts)})"
+
+
+def _policy_arrays(policies: Sequence[LinearGaussianPolicy]) -> dict[str, np.ndarray]:
+    """The ``policy_*`` arrays of the file format, after validating ``policies``."""
+    from skillkit.search.loop import policy_history_arrays
+
+    return policy_history_arrays(PolicyHistory(tuple(policies)).policies)
+
+
+class PolicyRecorder:
+    """Records the policy after every update of a learning run.
+
+    Pass it as ``callback`` to :func:`skillkit.search.loop.learn` (it is called with
+    ``(k, algorithm)`` for k = 0 … K) and save with :meth:`save`, or return :meth:`arrays`
+    from an experiment's ``run_trial`` so ``skillkit reproduce`` stores them in
+    ``trials.npz``.
+
+    Attributes
+    ----------
+    policies : list of LinearGaussianPolicy
+        ``algorithm.policy`` at each call, in order.
+    """
+
+    def __init__(self) -> None:
+        self.policies: list[LinearGaussianPolicy] = []
+
+    def __call__(self, k: int, algorithm) -> None:
+        if k != len(self.policies):
+            raise ValueError(f"k: expected update {len(self.policies)}, got {k}")
+        self.policies.append(algorithm.policy)
+
+    def __repr__(self) -> str:
+        return f"PolicyRecorder({len(self.policies)} policies)"
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The ``policy_*`` arrays of the file format (see the module docstring)."""
+        return _policy_arrays(self.policies)
+
+    def save(self, path, *, result: Mapping | None = None, task: str = "") -> Path:
+        """Write the history; ``result`` (the dict ``learn`` returns) adds rollouts and rewards."""
+        result = result or {}
+        return save_policy_history(
+            path,
+            self.policies,
+            rollouts=result.get("rollouts"),
+            mean_reward=result.get("mean_reward"),
+            task=task,
+        )
+
+
+def save_policy_history(
+    path,
+    policies: Sequence[LinearGaussianPolicy],
+    *,
+    rollouts=None,
+    mean_reward=None,
+    task: str = "",
+) -> Path:
+    """Write policies π_0 … π_K to a policy-history ``.npz`` (format in the module docstring).
+
+    Parameters
+    ----------
+    path : str or Path
+        Output file (``.npz`` is appended if missing).
+    policies : sequence of LinearGaussianPolicy
+        One per update, same dimensions.
+    rollouts, mean_reward : array_like, shape (K+1,), optional
+    task : str
+        Task name.
+
+    Returns
+    -------
+    Path
+        The file written.
+    """
+    history = PolicyHistory(tuple(policies), rollouts, mean_reward, str(task))
+    arrays = _policy_arrays(history.policies)
+    arrays.update(format=np.asarray(HISTORY_FORMAT), task=np.asarray(history.task))
+    if history.rollouts is not None:
+        arrays["rollouts"] = history.rollouts
+    if history.mean_reward is not None:
+        arrays["mean_reward"] = history.mean_reward
+    path = Path(path)
+    if path.suffix != ".npz":
+        path = path.with_name(path.name + ".npz")
+    np.savez_compressed(path, **arrays)
+    return path
+
+
+def _history_from(arrays: Mapping[str, np.ndarray], prefix: str, source: str) -> PolicyHistory:
+    """The history held by ``arrays`` under key ``prefix`` (``""`` or ``"trial<i>__"``)."""
+
+    def get(key: str, required: bool = True):
+        full = prefix + key
+        if full not in arrays:
+            if required:
+                raise ValueError(
+                    f"policy: {source} has no {full!r} array (not a skillkit policy "
+                    "history; see skillkit.viz.history)"
+                )
+            return None
+        return np.asarray(arrays[full])
+
+    mean, cov, gain = get("policy_mean"), get("policy_cov"), get("policy_gain")
+    context_dim, features = get("policy_context_dim"), get("policy_features")
+    if (
+        mean.ndim != 2
+        or cov.ndim != 3
+        or gain.ndim != 3
+        or not (mean.shape[0] == cov.shape[0] == gain.shape[0])
+    ):
+        raise ValueError(
+            f"policy: {source} has inconsistent shapes policy_mean {mean.shape}, "
+            f"policy_cov {cov.shape}, policy_gain {gain.shape}"
+        )
+    try:
+        policies = tuple(
+            LinearGaussianPolicy(m, c, g, context_dim=int(context_dim), features=str(features))
+            for m, c, g in zip(mean, cov, gain, strict=True)
+        )
+    except (ValueError, TypeError) as exc:
+        raise ValueError(f"policy: {source} holds an invalid policy ({exc})") from None
+    extra = {}
+    for key in ("rollouts", "mean_reward"):
+        value = get(key, required=False)
+        if value is not None and value.shape == (len(policies),):
+            extra[key] = value.astype(np.float64)
+    task = get("task", required=False)
+    return PolicyHistory(policies, task="" if task is None else str(task), **extra)
+
+
+def load_policy_history(path, trial: int = 0) -> PolicyHistory:
+    """Read a policy history: a ``.npz`` file or a ``skillkit reproduce`` run folder.
+
+    Parameters
+    ----------
+    path : str or Path
+        A file written by :func:`save_policy_history`, or a run folder whose ``trials.npz``
+        holds ``trial<i>__policy_*`` arrays.
+    trial : int
+        Which trial of a run folder.
+
+    Returns
+    -------
+    PolicyHistory
+
+    Raises
+    ------
+    ValueError
+        Missing, unreadable or malformed file (argument ``policy``), another format version,
+        or no such trial.
+    """
+    path = Path(path)
+    if path.is_dir():
+        file, prefix = path / "trials.npz", f"trial{int(trial)}__"
+    else:
+        file, prefix = path, ""
+    if not file.exists():
+        raise ValueError(f"policy: no such file {file}")
+    try:
+        with np.load(file, allow_pickle=False) as data:
+            arrays = {k: data[k] for k in data.files}
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+        raise ValueError(f"policy: {file} is not a readable .npz file ({exc})") from None
+    if prefix and not any(k.startswith(prefix) for k in arrays):
+        n = len({k.split("__")[0] for k in arrays if k.startswith("trial")})
+        raise ValueError(f"trial: {file} has no trial {trial} (it has {n} trials)")
+    fmt = arrays.get("format")
+    if not prefix and fmt is not None and str(fmt) != HISTORY_FORMAT:
+        raise ValueError(f"policy: {file} has format {str(fmt)!r}, expected {HISTORY_FORMAT!r}")
+    return _history_from(arrays, prefix, str(file))

@@ -1,0 +1,136 @@
+"""Prediction-layer files: models' predicted trajectories for ``skillkit view --predictions``.
+
+:func:`save_predictions` writes, and :func:`load_predictions` reads, the trajectories a model
+predicted (e.g. L sampled trajectories from :mod:`skillkit.models.sampling`, or embedding
+pre-images) so that :meth:`skillkit.viz.viewer.Viewer.add_prediction_layer` can overlay them on
+the simulated rollout, one switchable layer per model.
+
+File format
+-----------
+A NumPy ``.npz`` archive (``np.savez_compressed``; read with ``allow_pickle=False``). For each
+layer ``<name>`` (non-empty, without ``"__"``; L trajectories of T steps, n numbers a step):
+
+======================  =========  =======  ==================================================
+key                     shape      dtype    meaning
+======================  =========  =======  ==================================================
+``<name>``              (L, T, n)  float64  the predicted trajectories (time-major per sample)
+``<name>__space``       ()         str      ``"state"`` (n = the task's state dimension, drawn
+                                            at the scene's point of a state) or ``"points"``
+                                            (n = 3, world-frame points)
+``<name>__color``       (3,)       float64  optional: RGB, 0–255
+``<name>__opacity``     ()         float64  optional: opacity of the samples, in (0, 1]
+``<name>__times``       (T,)       float64  optional: time stamps [s], non-decreasing
+``__format__``          ()         str      ``"skillkit-predictions-v1"``
+======================  =========  =======  ==================================================
+
+**Versioning.** ``__format__`` names the version (its ``"__"`` keeps it from being read as a
+layer). A reader accepts a file without it (files written before it was added are v1) and
+refuses any other version with a message naming both. A change that an older reader would
+misread gets a new version string; new optional per-layer keys do not.
+"""
+
+from __future__ import annotations
+
+import zipfile
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+
+from skillkit._validation import check_array
+
+__all__ = ["PREDICTIONS_FORMAT", "load_predictions", "save_predictions"]
+
+PREDICTIONS_FORMAT = "skillkit-predictions-v1"
+"""The ``__format__`` entry of a prediction-layer file (see the module docstring)."""
+_FORMAT_KEY = "__format__"
+
+
+def save_predictions(
+    path,
+    layers: Mapping[str, np.ndarray],
+    *,
+    colors: Mapping | None = None,
+    opacities: Mapping | None = None,
+    times: Mapping | None = None,
+    space: str = "state",
+) -> Path:
+    """Write prediction layers ``{name: (L, T, n)}`` for ``skillkit view --predictions``.
+
+    Parameters
+    ----------
+    path : str or Path
+        Output file (``.npz`` is appended if missing).
+    layers : mapping of str to array_like, shape (L, T, n)
+        Predicted trajectories per layer name (non-empty, without ``"__"``).
+    colors, opacities, times : mapping of str to array_like, optional
+        Per-layer RGB (3,) in 0–255, opacity in (0, 1] and time stamps (T,); layers not named
+        get the viewer's defaults.
+    space : {"state", "points"}
+        What the last axis of every layer holds (see the module docstring).
+
+    Returns
+    -------
+    Path
+        The file written.
+    """
+    if space not in ("state", "points"):
+        raise ValueError(f"space: expected 'state' or 'points', got {space!r}")
+    arrays = {_FORMAT_KEY: np.asarray(PREDICTIONS_FORMAT)}
+    for name, value in layers.items():
+        if not isinstance(name, str) or "__" in name or not name:
+            raise ValueError(f"layers: layer names must be non-empty without '__', got {name!r}")
+        arrays[name] = check_array(value, f"layers[{name!r}]", ndim=3)
+        arrays[f"{name}__space"] = np.asarray(space)
+        for key, table in (("color", colors), ("opacity", opacities), ("times", times)):
+            if table and name in table:
+                arrays[f"{name}__{key}"] = np.asarray(table[name], dtype=np.float64)
+    path = Path(path)
+    np.savez_compressed(path, **arrays)
+    return path if path.suffix == ".npz" else path.with_name(path.name + ".npz")
+
+
+def load_predictions(path) -> list[dict]:
+    """Read a prediction-layer file.
+
+    Parameters
+    ----------
+    path : str or Path
+        A file written by :func:`save_predictions`.
+
+    Returns
+    -------
+    list of dict
+        One keyword dict per layer, sorted by name, for
+        :meth:`skillkit.viz.viewer.Viewer.add_prediction_layer`: ``name``, ``trajectories``
+        and those of ``color``, ``opacity``, ``times``, ``space`` the file holds. Shapes are
+        checked when the layer is added.
+
+    Raises
+    ------
+    ValueError
+        Unreadable file, another format version, or no layers (argument ``predictions``).
+    """
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            arrays = {k: data[k] for k in data.files}
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+        raise ValueError(f"predictions: {path} is not a readable .npz file ({exc})") from None
+    fmt = arrays.get(_FORMAT_KEY)
+    if fmt is not None and str(fmt) != PREDICTIONS_FORMAT:
+        raise ValueError(
+            f"predictions: {path} has format {str(fmt)!r}, expected {PREDICTIONS_FORMAT!r}"
+        )
+    layers = []
+    for name in sorted(k for k in arrays if "__" not in k):
+        spec = {"name": name, "trajectories": arrays[name]}
+        for key in ("color", "opacity", "times"):
+            if f"{name}__{key}" in arrays:
+                spec[key] = arrays[f"{name}__{key}"]
+        if f"{name}__space" in arrays:
+            spec["space"] = str(arrays[f"{name}__space"])
+        layers.append(spec)
+    if not layers:
+        raise ValueError(f"predictions: {path} holds no layers")
+    return layers

@@ -18,6 +18,7 @@ import skillkit
 ROOT = Path(skillkit.__file__).parent
 LAYERS = {
     "_validation": 0,
+    "_repr": 0,
     "trajectory": 0,
     "trial": 0,
     "policies": 1,

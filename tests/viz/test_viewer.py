@@ -292,7 +292,7 @@ class ShiftingSearch:
     def __init__(self, policy: LinearGaussianPolicy, step) -> None:
         self.policy, self.step = policy, np.asarray(step, float)
 
-    def update(self, contexts, omegas, rewards):
+    def update(self, batch):
         p = self.policy
         self.policy = LinearGaussianPolicy(p.mean + self.step, p.cov, p.gain, p.context_dim)
         return {}
@@ -302,7 +302,7 @@ def drive(recorder, algo, n_updates: int, rollouts: int) -> dict:
     """Call the recorder as ``skillkit.search.loop.learn`` does: k = 0, then after each update."""
     recorder(0, algo)
     for k in range(1, n_updates + 1):
-        algo.update(None, None, None)
+        algo.update(None)
         recorder(k, algo)
     return {
         "rollouts": rollouts * np.arange(n_updates + 1),

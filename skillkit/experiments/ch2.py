@@ -13,6 +13,7 @@ from numpy.polynomial import Polynomial
 from skillkit._validation import check_positive
 from skillkit.experiments.registry import Experiment, Series, register
 from skillkit.policies.dmp import DMP
+from skillkit.trial import TrialContext
 
 __all__ = ["reach_demonstration"]
 
@@ -78,7 +79,7 @@ _SETTINGS = {
 }
 
 
-def _run_trial(settings: dict, rng: np.random.Generator, progress) -> dict:
+def _run_trial(settings: dict, rng: np.random.Generator, progress: TrialContext) -> dict:
     """Fit the DMP to the demonstration and roll out with and without its forcing term.
 
     The experiment is deterministic: ``rng`` is not used.

@@ -20,6 +20,7 @@ import torch
 from skillkit.experiments.registry import Experiment, Series, register
 from skillkit.models.gp import ExactGP, GPNumericalWarning, robust_cholesky
 from skillkit.models.moment_matching import linearize, moment_match
+from skillkit.trial import TrialContext
 
 __all__ = ["fig2_7_function", "fig2_12_function", "successor_density"]
 
@@ -47,7 +48,7 @@ _SETTINGS_2_12 = {
 }
 
 
-def _run_2_12(settings: dict, rng: np.random.Generator, progress) -> dict:
+def _run_2_12(settings: dict, rng: np.random.Generator, progress: TrialContext) -> dict:
     lo, hi = settings["x_range"]
     grid = np.linspace(lo, hi, settings["n_grid"])
     test = rng.uniform(lo, hi, settings["n_test"])
@@ -214,7 +215,7 @@ def _kl_to_gaussian(p: np.ndarray, y: np.ndarray, mean: float, var: float) -> fl
     return float(np.trapezoid(integrand, y))
 
 
-def _run_2_7(settings: dict, rng: np.random.Generator, progress) -> dict:
+def _run_2_7(settings: dict, rng: np.random.Generator, progress: TrialContext) -> dict:
     progress.reset(total=3)
     lo, hi = settings["train_range"]
     X = rng.uniform(lo, hi, settings["n_train"])

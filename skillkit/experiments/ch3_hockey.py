@@ -48,6 +48,7 @@ from skillkit._validation import check_array
 from skillkit.experiments.registry import Experiment, Series, mean_band, register
 from skillkit.models.kernels import Linear
 from skillkit.tasks import make
+from skillkit.trial import TrialContext
 
 __all__ = ["NormalisedLinear", "heldout_scores", "make_algorithm"]
 
@@ -187,24 +188,11 @@ def heldout_scores(task, policy, contexts, rng=None) -> dict[str, float]:
     }
 
 
-class _SharedBar:
-    """Forwards ``update`` to the trial's bar but ignores ``reset`` (one bar, two runs)."""
-
-    def __init__(self, bar):
-        self.bar = bar
-
-    def reset(self, total=None):
-        pass
-
-    def update(self, n: int = 1):
-        self.bar.update(n)
-
-
-def _run_trial(settings: dict, rng: np.random.Generator, progress) -> dict:
+def _run_trial(settings: dict, rng: np.random.Generator, progress: TrialContext) -> dict:
     """Both algorithms, same task, same evaluation and held-out contexts.
 
-    Each ``learn`` call checkpoints after every update when ``progress`` can (the runner's
-    trial context), so an interrupted paper-scale trial resumes with the same numbers.
+    Each ``learn`` call checkpoints after every update through the trial context, so an
+    interrupted paper-scale trial resumes with the same numbers.
     """
     from skillkit.search.loop import learn
 
@@ -230,10 +218,9 @@ def _run_trial(settings: dict, rng: np.random.Generator, progress) -> dict:
             K,
             N,
             alg_rng,
-            progress=_SharedBar(progress),
+            trial=progress,
             eval_contexts=eval_contexts,
             callback=record,
-            checkpoint=progress if hasattr(progress, "save") else None,
             checkpoint_key=name,
         )
         out[f"{name}_rollouts"] = res["rollouts"]

@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from skillkit.experiments.registry import Experiment, Series, mean_band, register
+from skillkit.trial import TrialContext
 
 THESIS_GOOD_REWARD = -0.02
 """Sec. 3.4.3: above −0.02 the ball lands within 20–30 cm of the target."""
@@ -58,7 +59,7 @@ Choices the thesis leaves open for this task, and why:
 """
 
 
-def run_trial(settings: dict, rng: np.random.Generator, progress) -> dict:
+def run_trial(settings: dict, rng: np.random.Generator, progress: TrialContext) -> dict:
     """One contextual-REPS learning run on the table-tennis task, then a final evaluation.
 
     Returns
@@ -82,13 +83,14 @@ def run_trial(settings: dict, rng: np.random.Generator, progress) -> dict:
         cov_shrinkage=settings["cov_shrinkage"],
     )
     eval_contexts = task.sample_context(rng, n=settings["n_eval_contexts"])
+    progress.reset(total=settings["n_updates"])
     curves = learn(
         task,
         algorithm,
         settings["n_updates"],
         settings["rollouts_per_update"],
         rng,
-        progress=progress,
+        trial=progress,
         eval_contexts=eval_contexts,
     )
     contexts = task.sample_context(rng, n=settings["n_final_contexts"])

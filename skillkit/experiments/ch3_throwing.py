@@ -29,6 +29,7 @@ from skillkit.policies.gaussian import LinearGaussianPolicy
 from skillkit.search import ContextualREPS, learn
 from skillkit.search.loop import policy_history_arrays
 from skillkit.tasks import make
+from skillkit.trial import TrialContext
 
 __all__ = ["run_trial", "summarize", "target_grid"]
 
@@ -80,7 +81,7 @@ def _final_errors(task, policy, targets: np.ndarray) -> tuple[np.ndarray, np.nda
     return np.array(dist), np.array(penalty)
 
 
-def run_trial(settings: dict, rng: np.random.Generator, progress) -> dict:
+def run_trial(settings: dict, rng: np.random.Generator, progress: TrialContext) -> dict:
     """One trial: REPS and REPS + extra context from the same initial policy and targets.
 
     Returns
@@ -96,6 +97,7 @@ def run_trial(settings: dict, rng: np.random.Generator, progress) -> dict:
     targets = target_grid(settings)
     out: dict = {"targets": targets}
     seeds = rng.spawn(2)
+    progress.reset(total=2 * settings["n_updates"])
     for key, extra, child in zip(
         ("reps", "extra"), (0, settings["extra_contexts"]), seeds, strict=True
     ):
@@ -118,10 +120,9 @@ def run_trial(settings: dict, rng: np.random.Generator, progress) -> dict:
             settings["n_updates"],
             settings["rollouts_per_update"],
             child,
-            progress=progress,
+            trial=progress,
             extra_contexts=extra,
             eval_contexts=eval_contexts,
-            checkpoint=progress if hasattr(progress, "save") else None,
             checkpoint_key=key,
         )
         dist, pen = _final_errors(task, curves["policy"], targets)

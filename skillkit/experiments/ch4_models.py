@@ -47,6 +47,7 @@ from skillkit.tasks import make
 from skillkit.tasks.planar import Balancing, balancing_transitions
 from skillkit.tasks.planar_model import UPRIGHT
 from skillkit.trajectory import Trajectory
+from skillkit.trial import TrialContext
 
 __all__ = [
     "X_UP",
@@ -216,7 +217,7 @@ def _train_balancing_model(
     return task, model, data
 
 
-def _run_4_3(settings: dict, rng: np.random.Generator, progress) -> dict:
+def _run_4_3(settings: dict, rng: np.random.Generator, progress: TrialContext) -> dict:
     sizes = list(settings["sample_sizes"])
     if min(sizes) < 10:
         raise ValueError(
@@ -430,7 +431,7 @@ def _timed(fn) -> float:
     return time.perf_counter() - t0
 
 
-def _run_4_4(settings: dict, rng: np.random.Generator, progress) -> dict:
+def _run_4_4(settings: dict, rng: np.random.Generator, progress: TrialContext) -> dict:
     progress.reset(total=2)
     task, model, data = _train_balancing_model(settings, rng)
     progress.update()
@@ -620,7 +621,7 @@ def _evaluate_4_5(cfg: dict, settings: dict, root: int) -> dict:
     return out
 
 
-def _run_4_5(settings: dict, rng: np.random.Generator, progress) -> dict:
+def _run_4_5(settings: dict, rng: np.random.Generator, progress: TrialContext) -> dict:
     root = int(rng.integers(2**31))
     configs = []
     for key, _ in _PANELS_4_5:

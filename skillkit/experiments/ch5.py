@@ -62,6 +62,7 @@ from skillkit.models.sampling import sample_trajectories
 from skillkit.tasks import make
 from skillkit.tasks.pendulum import THESIS_GAINS, feedback_torque, pendulum_dynamics
 from skillkit.tasks.planar import UPRIGHT
+from skillkit.trial import TrialContext
 
 __all__ = ["balancing_reward", "random_lqr_gains"]
 
@@ -159,7 +160,9 @@ _PENDULUM = {
 }
 
 
-def _pendulum_trial(settings: dict, rng: np.random.Generator, progress, multi_step: bool) -> dict:
+def _pendulum_trial(
+    settings: dict, rng: np.random.Generator, progress: TrialContext, multi_step: bool
+) -> dict:
     task = make("pendulum", horizon=settings["horizon"], control_noise=settings["control_noise"])
     n_traj, horizon = int(settings["n_trajectories"]), int(settings["horizon"])
     progress.reset(total=5)
@@ -622,7 +625,7 @@ def _task(settings: dict, noise: float):
     )
 
 
-def _fig56_trial(settings: dict, rng: np.random.Generator, progress) -> dict:
+def _fig56_trial(settings: dict, rng: np.random.Generator, progress: TrialContext) -> dict:
     counts = list(settings["n_trajectories"])
     progress.reset(total=1 + 3 * len(counts))
     task = _task(settings, settings["torque_noise"])
@@ -662,7 +665,7 @@ def _fig56_trial(settings: dict, rng: np.random.Generator, progress) -> dict:
     }
 
 
-def _fig57_trial(settings: dict, rng: np.random.Generator, progress) -> dict:
+def _fig57_trial(settings: dict, rng: np.random.Generator, progress: TrialContext) -> dict:
     levels = list(settings["torque_noise"])
     progress.reset(total=4 * len(levels))
     # Resumable after every noise level.

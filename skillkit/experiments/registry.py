@@ -4,7 +4,8 @@ An :class:`Experiment` is data plus two functions, so the runner (and later exec
 run trials anywhere:
 
 * ``run_trial(settings, rng, progress) -> dict`` runs one independent trial and returns
-  JSON-able numbers and numpy arrays (curves, errors, ...).
+  JSON-able numbers and numpy arrays (curves, errors, ...); ``progress`` is the trial's
+  :class:`~skillkit.trial.TrialContext` (progress bar and mid-trial checkpoints).
 * ``summarize(settings, trials) -> (series, summary)`` turns the list of trial results into
   the plotted :class:`Series` and a ``summary`` dict of headline numbers (with the thesis's
   claims and whether they hold here).
@@ -83,7 +84,8 @@ class Experiment:
         ``{"quick": {...}, "paper": {...}}``: JSON-able settings per scale.
     run_trial : callable
         ``run_trial(settings, rng, progress) -> dict`` (one independent trial; ``progress``
-        is a tqdm bar to ``reset(total=...)`` and ``update()``).
+        is a :class:`~skillkit.trial.TrialContext`: ``reset(total=...)``, ``update()``, and
+        ``save``/``resume`` for mid-trial checkpoints).
     summarize : callable
         ``summarize(settings, trials) -> (list[Series], dict)``.
     trials : dict

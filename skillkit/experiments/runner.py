@@ -4,7 +4,7 @@ resume them, and write ``result.json``, ``figure.html``, ``figure.png`` and ``tr
 Trial ``i`` of a run with root seed ``seed`` always uses the ``i``-th child of
 ``SeedSequence(seed)``, so the numbers do not depend on the executor, on how many trials run
 at once, or on interruptions: every finished trial, and every state an experiment saves
-mid-trial through :meth:`TrialContext.save`, is checkpointed atomically under
+mid-trial through :meth:`~skillkit.trial.TrialContext.save`, is checkpointed atomically under
 ``<out>/<id>-<scale>-s<seed>/trials/``, and rerunning the same command resumes from there.
 """
 
@@ -25,6 +25,7 @@ from tqdm.auto import tqdm
 
 from skillkit.experiments import checkpoint
 from skillkit.experiments.registry import get
+from skillkit.trial import TrialContext, Writer
 
 EXECUTORS = ("local", "process", "ray")
 
@@ -69,74 +70,14 @@ def to_jsonable(obj):
     return obj
 
 
-class TrialContext:
-    """What ``run_trial(settings, rng, progress)`` receives as ``progress``: a progress bar
-    (``reset(total=)``, ``update(n)``, ``set_postfix(...)``) that can also checkpoint.
+def _state_writer(path: str, ident: dict | None) -> Writer:
+    """A :class:`~skillkit.trial.TrialContext` writer that checkpoints mid-trial states to
+    ``path`` atomically (:func:`skillkit.experiments.checkpoint.save`, ``kind="state"``)."""
 
-    An experiment (or :func:`skillkit.search.loop.learn`, given ``checkpoint=progress``) that
-    wants to survive interruption mid-trial calls :meth:`resume` with a key when it starts
-    (restoring the generator's state and returning the state last saved under that key, or
-    None) and :meth:`save` with the same key after every policy update. Several keys (one per
-    algorithm learning in the trial) share the trial's checkpoint file.
-    """
+    def write(snapshots, seconds: float) -> None:
+        checkpoint.save(path, ident, dict(snapshots), kind="state", seconds=seconds)
 
-    def __init__(
-        self,
-        bar,
-        path: Path | None = None,
-        ident: dict | None = None,
-        states: dict | None = None,
-        seconds: float = 0.0,
-    ):
-        self.bar = bar
-        self.path = path
-        self.ident = ident
-        self._states: dict = dict(states or {})  # key -> (payload, rng_state)
-        self._seconds_before = float(seconds)  # compute time of earlier, interrupted runs
-        self._started = time.perf_counter()
-
-    @property
-    def seconds(self) -> float:
-        """Compute time spent on this trial: earlier runs up to their last save, plus this one."""
-        return self._seconds_before + time.perf_counter() - self._started
-
-    def reset(self, total: int | None = None) -> None:
-        self.bar.reset(total=total)
-
-    def update(self, n: int = 1) -> None:
-        self.bar.update(n)
-
-    def set_postfix(self, *args, **kwargs) -> None:
-        self.bar.set_postfix(*args, **kwargs)
-
-    def save(self, key: str, state, rng: np.random.Generator) -> None:
-        """Checkpoint ``state`` (any picklable object) and the generator's state under ``key``,
-        atomically, together with the other keys' latest states."""
-        self._states[key] = (state, rng.bit_generator.state)
-        if self.path is not None:
-            checkpoint.save(self.path, self.ident, self._states, kind="state", seconds=self.seconds)
-
-    def resume(self, key: str, rng: np.random.Generator):
-        """The state last saved under ``key`` (restoring ``rng`` to where it was then), or None."""
-        if key not in self._states:
-            return None
-        payload, rng_state = self._states[key]
-        rng.bit_generator.state = rng_state
-        return payload
-
-
-class _NullBar:
-    def reset(self, total=None):
-        pass
-
-    def update(self, n=1):
-        pass
-
-    def set_postfix(self, *args, **kwargs):
-        pass
-
-    def close(self):
-        pass
+    return write
 
 
 def _execute_trial(
@@ -162,14 +103,17 @@ def _execute_trial(
             if found.kind == "result":
                 return found.payload, {"seconds": found.seconds, "resumed": True}
             states, seconds = found.payload, found.seconds or 0.0
-    bar = tqdm(desc=f"{exp_id} trial {index + 1}", leave=False) if show_progress else _NullBar()
+    writer = None if ckpt_path is None else _state_writer(ckpt_path, ident)
     try:
-        ctx = TrialContext(
-            bar, None if ckpt_path is None else Path(ckpt_path), ident, states, seconds
-        )
+        ctx = TrialContext(states=states, writer=writer, seconds=seconds)
+    except ValueError as exc:  # mid-trial states in an older format
+        raise checkpoint.CheckpointError(f"{ckpt_path}: {exc}; use --fresh to start over") from None
+    if show_progress:
+        ctx.bar = tqdm(desc=f"{exp_id} trial {index + 1}", leave=False)
+    try:
         result = exp.run_trial(settings, np.random.default_rng(seed_seq), ctx)
     finally:
-        bar.close()
+        ctx.bar.close()
     seconds = ctx.seconds
     if ckpt_path is not None:
         checkpoint.save(ckpt_path, ident, result, kind="result", seconds=seconds)

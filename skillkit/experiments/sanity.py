@@ -32,6 +32,7 @@ from skillkit.search.reps import ContextualREPS
 from skillkit.search.rwr import RWR
 from skillkit.tasks.base import Task
 from skillkit.trajectory import Trajectory
+from skillkit.trial import TrialContext
 
 #: The optimal offset a*, gain A* and the reward metric W of the problem.
 A_STAR_OFFSET = np.array([1.0, -0.5, 0.3])
@@ -121,13 +122,14 @@ def make_algorithm(name: str, task: LinearOptimumTask, settings: dict):
     raise ValueError(f"name: expected one of {ALGORITHMS}, got {name!r}")
 
 
-def run_trial(settings: dict, rng: np.random.Generator, progress) -> dict:
+def run_trial(settings: dict, rng: np.random.Generator, progress: TrialContext) -> dict:
     """One trial: every algorithm learns from its own child stream of ``rng``."""
     task = LinearOptimumTask(settings["noise_std"], settings["init_std"])
     grid = context_grid()
     optimum = task.optimal_coefficients
     out: dict = {}
     streams = rng.spawn(len(ALGORITHMS))
+    progress.reset(total=len(ALGORITHMS) * settings["n_updates"])
     for name, stream in zip(ALGORITHMS, streams, strict=True):
         alg = make_algorithm(name, task, settings)
         res = learn(
@@ -136,10 +138,9 @@ def run_trial(settings: dict, rng: np.random.Generator, progress) -> dict:
             settings["n_updates"],
             settings["rollouts_per_update"],
             stream,
-            progress=progress,
+            trial=progress,
             eval_contexts=grid,
             callback=lambda k, a: parameter_error(a.policy, optimum, grid),
-            checkpoint=progress if hasattr(progress, "save") else None,
             checkpoint_key=name,
         )
         errors_arr = np.array(res["callback"])

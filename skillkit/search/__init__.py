@@ -1,12 +1,15 @@
 """Policy search: REPS (episode-based and contextual), CrKR, RWR and the model-free learning loop.
 
 Every algorithm holds a current ``policy`` (with ``sample(contexts, rng)`` and
-``mean_of(contexts)``) and an ``update(contexts, omegas, rewards)`` returning diagnostics, so
-:func:`skillkit.search.loop.learn` runs any of them.
+``mean_of(contexts)``) and an ``update(batch)`` taking one :class:`Batch` and returning
+diagnostics, so :func:`skillkit.search.loop.learn` runs any of them. The loop is built from
+:func:`collect` (one batch of rollouts), :class:`Evaluator` (the policy mean on fixed contexts)
+and :class:`LoopState` (what it has done; what it checkpoints).
 """
 
+from skillkit.search.base import Batch
 from skillkit.search.crkr import CrKR, CrKRDiagnostics, CrKRPolicy
-from skillkit.search.loop import learn
+from skillkit.search.loop import Evaluator, LoopState, collect, learn
 from skillkit.search.reps import (
     ContextualREPS,
     REPSDiagnostics,
@@ -18,6 +21,9 @@ from skillkit.search.rwr import RWR, RWRDiagnostics, rwr_beta, rwr_weighting, rw
 
 __all__ = [
     "RWR",
+    "Batch",
+    "Evaluator",
+    "LoopState",
     "ContextualREPS",
     "CrKR",
     "CrKRDiagnostics",
@@ -25,6 +31,7 @@ __all__ = [
     "REPSDiagnostics",
     "REPSWeights",
     "RWRDiagnostics",
+    "collect",
     "learn",
     "reps_dual",
     "reps_weights",

@@ -1,6 +1,10 @@
-r"""What contextual REPS and RWR share: sample reuse and the weighted maximum-likelihood step.
+r"""What the search algorithms share: the batch, sample reuse and the weighted ML step.
 
-Both algorithms run the same loop (Table 3.1): validate a batch of (s_i, ω_i, R_i), keep the
+Every algorithm's ``update`` takes one :class:`Batch` of samples (s_i, ω_i, R_i, and the
+trajectories τ_i they came from), validated once when it is built. Model-free algorithms use
+the (s, ω, R) arrays; a model-based one (GPREPS) also learns from the trajectories.
+
+Contextual REPS and RWR run the same loop (Table 3.1): take a batch of (s_i, ω_i, R_i), keep the
 last L batches (:class:`SampleBuffer`), weight the kept samples, and refit the linear-Gaussian
 policy by weighted maximum likelihood (Eqs. 3.11–3.13,
 :meth:`~skillkit.policies.gaussian.LinearGaussianPolicy.fit_with_info`). They differ only in
@@ -12,7 +16,8 @@ w_i ∝ exp(β R_i) (Eq. 2.18). :class:`WeightedMLSearch` runs the loop; a subcl
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
 
 import numpy as np
@@ -20,6 +25,7 @@ from numpy.typing import ArrayLike
 
 from skillkit._validation import check_array
 from skillkit.policies.gaussian import LinearGaussianPolicy
+from skillkit.trajectory import Trajectory
 
 
 # --------------------------------------------------------------------------- samples
@@ -53,6 +59,102 @@ def check_batch(
     return s, w, r
 
 
+@dataclass(frozen=True, repr=False)
+class Batch:
+    """One batch of samples for ``algorithm.update(batch)``, validated once when built.
+
+    Row i is one sample: the context s_i, the parameters ω_i ~ π(ω|s_i), the reward
+    R(τ_i, s_i) and (optionally) the trajectory τ_i it was scored on. With extra contexts
+    (Sec. 3.4, :func:`skillkit.search.loop.collect`) a trajectory appears in several rows,
+    each re-scored in another context.
+
+    Parameters
+    ----------
+    contexts : array_like, shape (N, context_dim), or None
+        Contexts s_i; ``None`` for a context-free task (stored as shape (N, 0)).
+    omegas : array_like, shape (N, d)
+        Parameters ω_i (N ≥ 1).
+    rewards : array_like, shape (N,)
+        Finite rewards R_i.
+    trajectories : sequence of Trajectory, optional
+        τ_i, one per row (model-based algorithms learn from them; model-free ones ignore them).
+
+    Raises
+    ------
+    ValueError
+        Naming ``contexts``, ``omegas``, ``rewards`` or ``trajectories`` when a shape disagrees
+        or a value is not finite.
+    """
+
+    contexts: np.ndarray
+    omegas: np.ndarray
+    rewards: np.ndarray
+    trajectories: Sequence[Trajectory] | None = None
+
+    def __post_init__(self):
+        w = check_array(self.omegas, "omegas", ndim=2)
+        c = None if self.contexts is None else check_array(self.contexts, "contexts", ndim=2)
+        s, w, r = check_batch(c, w, self.rewards, w.shape[1], 0 if c is None else c.shape[1])
+        object.__setattr__(self, "contexts", s)
+        object.__setattr__(self, "omegas", w)
+        object.__setattr__(self, "rewards", r)
+        if self.trajectories is not None:
+            trajs = tuple(self.trajectories)
+            if len(trajs) != r.shape[0] or not all(isinstance(t, Trajectory) for t in trajs):
+                raise ValueError(
+                    f"trajectories: expected {r.shape[0]} Trajectory objects (one per row), "
+                    f"got {len(trajs)} items"
+                )
+            object.__setattr__(self, "trajectories", trajs)
+
+    def __len__(self) -> int:
+        return int(self.rewards.shape[0])
+
+    @property
+    def dim(self) -> int:
+        """Dimension d of ω."""
+        return int(self.omegas.shape[1])
+
+    @property
+    def context_dim(self) -> int:
+        """Dimension of the context s (0 for a context-free task)."""
+        return int(self.contexts.shape[1])
+
+    def check_dims(self, dim: int, context_dim: int) -> Batch:
+        """This batch, after checking it fits a policy with ``dim`` and ``context_dim``.
+
+        Raises
+        ------
+        ValueError
+            Naming ``omegas`` or ``contexts`` when a dimension differs.
+        """
+        if self.dim != dim:
+            raise ValueError(f"omegas: expected shape (N, {dim}), got {self.omegas.shape}")
+        if self.context_dim != context_dim:
+            raise ValueError(
+                f"contexts: expected shape (N, {context_dim}), got {self.contexts.shape}"
+                + (" (a contextual policy needs contexts)" if self.context_dim == 0 else "")
+            )
+        return self
+
+    def __repr__(self) -> str:
+        r = self.rewards
+        n_traj = "none" if self.trajectories is None else str(len(self.trajectories))
+        return (
+            f"Batch(N={len(self)}, dim={self.dim}, context_dim={self.context_dim}, "
+            f"reward mean {r.mean():.4g} in [{r.min():.4g}, {r.max():.4g}], "
+            f"trajectories: {n_traj})"
+        )
+
+
+def as_batch(batch: Batch, dim: int, context_dim: int) -> Batch:
+    """``batch`` after checking it is a :class:`Batch` for ``dim`` and ``context_dim``
+    (what every ``update`` starts with)."""
+    if not isinstance(batch, Batch):
+        raise ValueError(f"batch: expected a skillkit.search.Batch, got {type(batch).__name__}")
+    return batch.check_dims(dim, context_dim)
+
+
 class SampleBuffer:
     """The last ``n_batches`` batches of (context, ω, reward) samples (data reuse, Table 3.1).
 
@@ -82,6 +184,15 @@ class SampleBuffer:
 
     def __len__(self) -> int:
         return sum(b[2].shape[0] for b in self._batches)
+
+    @property
+    def max_batches(self) -> int | None:
+        """L, the number of batches kept (``None``: all)."""
+        return self._batches.maxlen
+
+    def __repr__(self) -> str:
+        keep = "all" if self.max_batches is None else f"last {self.max_batches}"
+        return f"SampleBuffer({keep} batches; {len(self._batches)} kept, {len(self)} samples)"
 
 
 # --------------------------------------------------------------------------- algorithm
@@ -130,6 +241,7 @@ class WeightedMLSearch(Generic[D]):
         }
         self._policy = policy
         self._buffer = SampleBuffer(n_reuse_batches)
+        self.n_updates = 0
 
     @property
     def policy(self) -> LinearGaussianPolicy:
@@ -140,17 +252,14 @@ class WeightedMLSearch(Generic[D]):
         """Weights (summing to one) of the kept samples, and the diagnostics fields they add."""
         raise NotImplementedError
 
-    def update(self, contexts: ArrayLike | None, omegas: ArrayLike, rewards: ArrayLike) -> D:
+    def update(self, batch: Batch) -> D:
         """Add a batch, weight the last L batches (:meth:`_weigh`) and refit the policy.
 
         Parameters
         ----------
-        contexts : array_like, shape (N, context_dim)
-            Contexts s_i (``None`` for a context-free policy).
-        omegas : array_like, shape (N, d)
-            Parameters ω_i ~ π(ω|s_i).
-        rewards : array_like, shape (N,)
-            Rewards R(τ_i, s_i); must be finite.
+        batch : Batch
+            Contexts s_i (N, context_dim), parameters ω_i ~ π(ω|s_i) (N, d) and rewards
+            R(τ_i, s_i) (N,); the trajectories, if any, are not used.
 
         Returns
         -------
@@ -158,17 +267,32 @@ class WeightedMLSearch(Generic[D]):
         :class:`~skillkit.search.rwr.RWRDiagnostics`).
         """
         pol = self._policy
-        s, w, r = check_batch(contexts, omegas, rewards, pol.dim, pol.context_dim)
-        self._buffer.add(s, w, r)
+        batch = as_batch(batch, pol.dim, pol.context_dim)
+        self._buffer.add(batch.contexts, batch.omegas, batch.rewards)
         s_all, w_all, r_all = self._buffer.arrays()
         weights, weighting = self._weigh(s_all, r_all)
         new, info = pol.fit_with_info(s_all, w_all, weights, **self._fit_kwargs)
         policy_kl = new.kl(pol, s_all)
         self._policy = new
+        self.n_updates += 1
         return self._diagnostics(
             n_samples=int(r_all.shape[0]),
             policy_kl=policy_kl,
-            mean_reward=float(r.mean()),
+            mean_reward=float(batch.rewards.mean()),
             fit=info,
             **weighting,
+        )
+
+    def _settings_repr(self) -> str:
+        """The subclass's own settings, for :meth:`__repr__` (e.g. ``"epsilon=0.5"``)."""
+        return ""
+
+    def __repr__(self) -> str:
+        pol, own = self._policy, self._settings_repr()
+        reuse = self._buffer.max_batches
+        return (
+            f"{type(self).__name__}({own + ', ' if own else ''}"
+            f"dim={pol.dim}, context_dim={pol.context_dim}, "
+            f"reuse={'all' if reuse is None else reuse} batches, "
+            f"{self.n_updates} updates, {len(self._buffer)} samples kept)"
         )

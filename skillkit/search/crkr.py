@@ -35,7 +35,7 @@ from scipy import linalg
 
 from skillkit._validation import as_generator, check_array, check_positive
 from skillkit.policies.gaussian import RNG, LinearGaussianPolicy
-from skillkit.search.base import SampleBuffer, check_batch
+from skillkit.search.base import Batch, SampleBuffer, as_batch, check_batch
 from skillkit.search.rwr import rwr_weighting
 
 
@@ -182,6 +182,12 @@ class CrKRDiagnostics:
     ess: float
     mean_reward: float
 
+    def __repr__(self) -> str:
+        return (
+            f"CrKRDiagnostics(n_samples={self.n_samples}, beta={self.beta:.4g}, "
+            f"kl={self.kl:.4g}, ess={self.ess:.4g}, mean_reward={self.mean_reward:.4g})"
+        )
+
 
 class CrKR:
     """Cost-regularized Kernel Regression (Eqs. 2.19–2.20) as a policy-search algorithm.
@@ -220,28 +226,41 @@ class CrKR:
         self._prior = prior
         self._policy: LinearGaussianPolicy | CrKRPolicy = prior
         self._buffer = SampleBuffer(n_reuse_batches)
+        self.n_updates = 0
 
     @property
     def policy(self) -> LinearGaussianPolicy | CrKRPolicy:
         """The current policy (the prior before the first update)."""
         return self._policy
 
-    def update(self, contexts: ArrayLike, omegas: ArrayLike, rewards: ArrayLike) -> CrKRDiagnostics:
-        """Add a batch and rebuild the kernel policy on the kept samples.
+    def update(self, batch: Batch) -> CrKRDiagnostics:
+        """Add a batch and rebuild the kernel policy (2.19–2.20) on the kept samples.
 
         Parameters
         ----------
-        contexts : array_like, shape (N, context_dim)
-        omegas : array_like, shape (N, d)
-        rewards : array_like, shape (N,)
-            Must be finite.
+        batch : Batch
+            Contexts (N, context_dim), parameters (N, d) and finite rewards (N,); the
+            trajectories, if any, are not used.
         """
         prior = self._prior
-        s, w, r = check_batch(contexts, omegas, rewards, prior.dim, prior.context_dim)
-        self._buffer.add(s, w, r)
+        batch = as_batch(batch, prior.dim, prior.context_dim)
+        self._buffer.add(batch.contexts, batch.omegas, batch.rewards)
         s_all, w_all, r_all = self._buffer.arrays()
         p, weighting = rwr_weighting(r_all, self.beta_scale)
         self._policy = CrKRPolicy(
             prior, self.kernel, s_all, w_all, p, self.lam, self.variance_scale
         )
-        return CrKRDiagnostics(n_samples=int(r_all.size), mean_reward=float(r.mean()), **weighting)
+        self.n_updates += 1
+        return CrKRDiagnostics(
+            n_samples=int(r_all.size), mean_reward=float(batch.rewards.mean()), **weighting
+        )
+
+    def __repr__(self) -> str:
+        reuse = self._buffer.max_batches
+        return (
+            f"CrKR(lam={self.lam:.4g}, beta_scale={self.beta_scale:.4g}, "
+            f"kernel={type(self.kernel).__name__}, dim={self._prior.dim}, "
+            f"context_dim={self._prior.context_dim}, "
+            f"reuse={'all' if reuse is None else reuse} batches, "
+            f"{self.n_updates} updates, {len(self._buffer)} samples kept)"
+        )

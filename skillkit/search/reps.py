@@ -132,6 +132,8 @@ class DualSolution:
         The optimiser converged and the constraints hold (KL within 1e-3 ε of ε when active).
     message : str
         Optimiser message.
+    epsilon : float
+        The KL bound ε the weights were solved for.
     """
 
     eta: float
@@ -144,15 +146,27 @@ class DualSolution:
     kl_bound_active: bool
     success: bool
     message: str
+    epsilon: float
+
+    def _summary(self) -> str:
+        """η, achieved KL against ε, ESS and convergence, without the arrays."""
+        bound = "" if self.kl_bound_active else ", bound inactive"
+        return (
+            f"eta={self.eta:.4g}, kl={self.kl:.4g} (epsilon={self.epsilon:.4g}{bound}), "
+            f"ess={self.ess:.4g}, success={self.success}"
+        )
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self._summary()})"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, repr=False)
 class REPSWeights(DualSolution):
     """Solution of the REPS dual on a set of samples.
 
     Attributes
     ----------
-    eta, gamma, baseline, dual, kl, ess, feature_error, kl_bound_active, success, message
+    eta, gamma, baseline, dual, kl, ess, feature_error, kl_bound_active, success, message, epsilon
         See :class:`DualSolution`.
     weights : ndarray, shape (N,)
         p_i of Eq. (3.10), summing to one.
@@ -162,6 +176,9 @@ class REPSWeights(DualSolution):
 
     weights: np.ndarray
     n_iterations: int
+
+    def __repr__(self) -> str:
+        return f"REPSWeights(N={self.weights.shape[0]}, {self._summary()})"
 
 
 def reps_weights(
@@ -195,7 +212,8 @@ def reps_weights(
         return REPSWeights(
             weights=np.full(n, 1.0 / n), eta=np.inf, gamma=np.zeros(n_feat), baseline=np.zeros(n),
             dual=r_max, kl=0.0, ess=float(n), feature_error=0.0, kl_bound_active=False,
-            success=True, message="all rewards are equal: uniform weights", n_iterations=0,
+            success=True, message="all rewards are equal: uniform weights", epsilon=eps,
+            n_iterations=0,
         )  # fmt: skip
 
     # Normalise: unit-spread rewards with maximum 0; centred, whitened features.
@@ -249,6 +267,7 @@ def reps_weights(
         kl_bound_active=not at_lower,
         success=bool(kl_ok and features_ok),
         message=str(res.message),
+        epsilon=eps,
         n_iterations=int(res.nit),
     )
 
@@ -275,13 +294,13 @@ def _check_samples(rewards, features) -> tuple[np.ndarray, np.ndarray]:
 
 
 # --------------------------------------------------------------------------- algorithm
-@dataclass(frozen=True)
+@dataclass(frozen=True, repr=False)
 class REPSDiagnostics(DualSolution):
     """What one :meth:`ContextualREPS.update` did.
 
     Attributes
     ----------
-    eta, gamma, baseline, dual, kl, ess, feature_error, kl_bound_active, success, message
+    eta, gamma, baseline, dual, kl, ess, feature_error, kl_bound_active, success, message, epsilon
         From :class:`REPSWeights` (``baseline`` is V(s_i) at the samples used).
     n_samples : int
         Samples used (the last L batches).
@@ -297,6 +316,12 @@ class REPSDiagnostics(DualSolution):
     policy_kl: float
     mean_reward: float
     fit: FitInfo
+
+    def __repr__(self) -> str:
+        return (
+            f"REPSDiagnostics(n_samples={self.n_samples}, {self._summary()}, "
+            f"policy_kl={self.policy_kl:.4g}, mean_reward={self.mean_reward:.4g})"
+        )
 
 
 class ContextualREPS(WeightedMLSearch[REPSDiagnostics]):
@@ -341,6 +366,9 @@ class ContextualREPS(WeightedMLSearch[REPSDiagnostics]):
         self.baseline_features = check_feature_name(baseline_features, "baseline_features")
 
     _diagnostics = REPSDiagnostics
+
+    def _settings_repr(self) -> str:
+        return f"epsilon={self.epsilon:.4g}, baseline_features={self.baseline_features!r}"
 
     def _weigh(self, contexts: np.ndarray, rewards: np.ndarray) -> tuple[np.ndarray, Fields]:
         """Weights (3.10) from the dual (3.9) with baseline features φ(s) of the contexts."""

@@ -115,6 +115,13 @@ class RWRDiagnostics:
     mean_reward: float
     fit: FitInfo
 
+    def __repr__(self) -> str:
+        return (
+            f"RWRDiagnostics(n_samples={self.n_samples}, beta={self.beta:.4g}, "
+            f"kl={self.kl:.4g}, ess={self.ess:.4g}, policy_kl={self.policy_kl:.4g}, "
+            f"mean_reward={self.mean_reward:.4g})"
+        )
+
 
 class RWR(WeightedMLSearch[RWRDiagnostics]):
     """Contextual Reward-Weighted Regression (Eq. 2.18) on a linear-Gaussian policy.
@@ -150,6 +157,9 @@ class RWR(WeightedMLSearch[RWRDiagnostics]):
         self.beta_scale = check_positive(beta_scale, "beta_scale")
 
     _diagnostics = RWRDiagnostics
+
+    def _settings_repr(self) -> str:
+        return f"beta_scale={self.beta_scale:.4g}"
 
     def _weigh(self, contexts: np.ndarray, rewards: np.ndarray) -> tuple[np.ndarray, Fields]:
         """Weights exp(βR) (Eq. 2.18) of the kept samples."""

@@ -8,6 +8,7 @@ import pytest
 
 from skillkit.experiments import get
 from skillkit.experiments.ch3_table_tennis import OUTCOMES, run_trial, summarize
+from skillkit.trial import NullBar, TrialContext
 
 TINY = {
     "epsilon": 0.6,
@@ -22,7 +23,7 @@ TINY = {
 }
 
 
-class _Bar:
+class _Bar(NullBar):
     def __init__(self):
         self.total, self.n = None, 0
 
@@ -36,7 +37,7 @@ class _Bar:
 @pytest.fixture(scope="module")
 def tiny_runs():
     bars = [_Bar(), _Bar()]
-    runs = [run_trial(dict(TINY), np.random.default_rng(7), bar) for bar in bars]
+    runs = [run_trial(dict(TINY), np.random.default_rng(7), TrialContext(bar)) for bar in bars]
     return runs, bars
 
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from skillkit.experiments import ch5, get
-from skillkit.experiments.runner import TrialContext, _NullBar
+from skillkit.trial import TrialContext
 
 _BALANCING = {
     **ch5._BALANCING_COMMON,
@@ -43,21 +43,40 @@ TINY = {
         horizon=5,
         n_predicted=3,
     ),
+    # the model-free experiments checkpoint through skillkit.search.loop.learn (one key per run)
+    "sanity3": dict(n_updates=3),
+    "fig3.3": dict(
+        n_updates=2,
+        rollouts_per_update=4,
+        n_reuse_batches=2,
+        extra_contexts=2,
+        n_eval_contexts=1,
+        grid_x=[6.0, 14.0],
+        grid_y=[2.0],
+    ),
+    "fig3.7": dict(
+        rollouts_per_update=12,
+        n_reuse_batches=2,
+        min_effective_samples=3.0,
+        n_updates=2,
+        n_eval_contexts=2,
+        n_final_contexts=3,
+    ),
     "fig5.6": {**_BALANCING, "torque_noise": 4.0, "n_trajectories": [2, 3]},
     "fig5.7": {**_BALANCING, "torque_noise": [1.0, 4.0]},
 }
 
 
 class _Recorder(TrialContext):
-    """An in-memory trial context that keeps a deep copy of every saved state."""
+    """An in-memory trial context that keeps every key's snapshots after every save."""
 
     def __init__(self, states=None):
-        super().__init__(_NullBar(), states=states)
-        self.snapshots: list[dict] = []
+        super().__init__(states=states)
+        self.history: list[dict] = []
 
     def save(self, key, state, rng):
         super().save(key, state, rng)
-        self.snapshots.append(copy.deepcopy(self._states))
+        self.history.append(copy.deepcopy(self.snapshots))
 
 
 def _run(exp_id: str, ctx: TrialContext) -> dict:
@@ -89,8 +108,8 @@ def _assert_same(a, b, where="result"):
 def test_resuming_from_every_saved_state_gives_the_uninterrupted_result(exp_id):
     full = _Recorder()
     reference = _run(exp_id, full)
-    assert len(full.snapshots) >= 2, "the trial must checkpoint more than once"
+    assert len(full.history) >= 2, "the trial must checkpoint more than once"
     # the first snapshot (setup done) and one from the middle of the work
-    for k in sorted({0, len(full.snapshots) // 2}):
-        resumed = _run(exp_id, _Recorder(states=copy.deepcopy(full.snapshots[k])))
+    for k in sorted({0, len(full.history) // 2}):
+        resumed = _run(exp_id, _Recorder(states=copy.deepcopy(full.history[k])))
         _assert_same(reference, resumed, f"{exp_id} resumed from save {k + 1}")

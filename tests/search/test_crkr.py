@@ -5,6 +5,7 @@ import pytest
 
 from skillkit.models.kernels import Linear, SquaredExponential, gram
 from skillkit.policies.gaussian import LinearGaussianPolicy
+from skillkit.search.base import Batch
 from skillkit.search.crkr import CrKR, CrKRPolicy
 from skillkit.search.rwr import rwr_beta, rwr_weights
 
@@ -94,7 +95,7 @@ def test_algorithm_update_sampling_and_determinism():
             s = rng.uniform(-1, 1, size=(15, 2))
             w = crkr.policy.sample(s, rng)
             r = -np.sum((w - 1.0) ** 2, axis=1)
-            diags.append(crkr.update(s, w, r))
+            diags.append(crkr.update(Batch(s, w, r)))
         return crkr, diags, r
 
     crkr, diags, r = run(0)
@@ -133,11 +134,11 @@ def test_bad_input_names_the_argument():
         CrKR("prior", k)
     crkr = CrKR(prior, k)
     with pytest.raises(ValueError, match="rewards"):
-        crkr.update(np.zeros((3, 2)), np.zeros((3, 2)), [0.0, np.inf, 1.0])
+        crkr.update(Batch(np.zeros((3, 2)), np.zeros((3, 2)), [0.0, np.inf, 1.0]))
     with pytest.raises(ValueError, match="contexts"):
-        crkr.update(np.zeros((3, 1)), np.zeros((3, 2)), np.zeros(3))
+        crkr.update(Batch(np.zeros((3, 1)), np.zeros((3, 2)), np.zeros(3)))
     with pytest.raises(ValueError, match="omegas"):
-        crkr.update(np.zeros((3, 2)), np.zeros((3, 4)), np.zeros(3))
+        crkr.update(Batch(np.zeros((3, 2)), np.zeros((3, 4)), np.zeros(3)))
     with pytest.raises(ValueError, match="weights"):
         CrKRPolicy(prior, k, np.zeros((3, 2)), np.zeros((3, 2)), [1.0, -1.0, 1.0], 1.0)
     with pytest.raises(ValueError, match="variance_scale"):

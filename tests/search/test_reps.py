@@ -7,6 +7,7 @@ from scipy import optimize
 
 from skillkit.policies.features import context_features
 from skillkit.policies.gaussian import GaussianPolicy, LinearGaussianPolicy
+from skillkit.search.base import Batch
 from skillkit.search.reps import ETA_BOUNDS, ContextualREPS, reps_dual, reps_weights
 
 
@@ -142,7 +143,7 @@ def test_episode_based_reps_solves_a_quadratic_bowl():
     reps = ContextualREPS(GaussianPolicy(np.zeros(2), np.eye(2)), epsilon=0.5, n_reuse_batches=2)
     for _ in range(40):
         w = reps.policy.sample(np.zeros((30, 0)), rng)
-        diag = reps.update(None, w, -np.sum((w - target) ** 2, axis=1))
+        diag = reps.update(Batch(None, w, -np.sum((w - target) ** 2, axis=1)))
         assert diag.success and diag.kl == pytest.approx(0.5, rel=1e-3)
         assert diag.baseline.shape == (diag.n_samples,) and np.all(diag.baseline == 0)
     assert isinstance(reps.policy, GaussianPolicy)
@@ -158,7 +159,7 @@ def test_contextual_update_uses_reuse_buffer_and_reports_diagnostics():
         s = rng.uniform(-1, 1, size=(20 + k, 2))
         w = reps.policy.sample(s, rng)
         r = -np.sum((w - s) ** 2, axis=1)
-        d = reps.update(s, w, r)
+        d = reps.update(Batch(s, w, r))
         sizes.append(d.n_samples)
         assert d.kl <= 0.8 * (1 + 1e-3) and d.ess > 1 and d.policy_kl > 0
         assert d.mean_reward == pytest.approx(r.mean())
@@ -175,7 +176,7 @@ def test_weights_match_features_used_for_baseline():
     s = rng.uniform(-1, 1, size=(50, 1))
     w = pol.sample(s, rng)
     r = -((w - 2 * s) ** 2).ravel()
-    d = reps.update(s, w, r)
+    d = reps.update(Batch(s, w, r))
     ref = reps_weights(r, s, 0.5)
     assert d.eta == pytest.approx(ref.eta) and d.dual == pytest.approx(ref.dual)
 
@@ -198,15 +199,15 @@ def test_bad_input_names_the_argument():
         rr = r.copy()
         rr[3] = bad
         with pytest.raises(ValueError, match="rewards"):
-            reps.update(s, w, rr)
+            reps.update(Batch(s, w, rr))
     with pytest.raises(ValueError, match="rewards"):
-        reps.update(s, w, np.zeros(9))
+        reps.update(Batch(s, w, np.zeros(9)))
     with pytest.raises(ValueError, match="contexts"):
-        reps.update(np.zeros((10, 2)), w, r)
+        reps.update(Batch(np.zeros((10, 2)), w, r))
     with pytest.raises(ValueError, match="contexts"):
-        reps.update(None, w, r)
+        reps.update(Batch(None, w, r))
     with pytest.raises(ValueError, match="omegas"):
-        reps.update(s, np.zeros((10, 3)), r)
+        reps.update(Batch(s, np.zeros((10, 3)), r))
     with pytest.raises(ValueError, match="epsilon"):
         reps_weights(r, None, 0.0)
     with pytest.raises(ValueError, match="rewards"):

@@ -5,6 +5,7 @@ import pytest
 
 from skillkit.policies.features import context_features
 from skillkit.policies.gaussian import LinearGaussianPolicy
+from skillkit.search.base import Batch
 from skillkit.search.rwr import RWR, rwr_beta, rwr_weights
 
 
@@ -37,7 +38,7 @@ def test_update_is_weighted_regression_of_eq_2_18():
     s = rng.uniform(-1, 1, size=(40, 2))
     w = pol.sample(s, rng)
     r = -np.sum((w - s) ** 2, axis=1)
-    d = rwr.update(s, w, r)
+    d = rwr.update(Batch(s, w, r))
     beta = 1.5 / r.std()
     p = np.exp(beta * (r - r.max()))
     Phi = np.column_stack([np.ones(40), context_features(s, "quadratic")])
@@ -60,7 +61,7 @@ def test_improves_on_a_contextual_bowl_and_is_deterministic():
         for _ in range(30):
             s = rng.uniform(-1, 1, size=(25, 1))
             w = rwr.policy.sample(s, rng)
-            rwr.update(s, w, -((w - (1 + 2 * s)) ** 2).ravel())
+            rwr.update(Batch(s, w, -((w - (1 + 2 * s)) ** 2).ravel()))
         return rwr.policy.coefficients
 
     c = run(0)
@@ -78,8 +79,8 @@ def test_bad_input_names_the_argument():
         rwr_weights([1.0, 2.0], -1.0)
     rwr = RWR(pol)
     with pytest.raises(ValueError, match="rewards"):
-        rwr.update(np.zeros((5, 1)), np.zeros((5, 2)), [0, 1, np.nan, 2, 3])
+        rwr.update(Batch(np.zeros((5, 1)), np.zeros((5, 2)), [0, 1, np.nan, 2, 3]))
     with pytest.raises(ValueError, match="contexts"):
-        rwr.update(np.zeros((5, 2)), np.zeros((5, 2)), np.zeros(5))
+        rwr.update(Batch(np.zeros((5, 2)), np.zeros((5, 2)), np.zeros(5)))
     with pytest.raises(ValueError, match="omegas"):
-        rwr.update(np.zeros((5, 1)), np.zeros((5, 1)), np.zeros(5))
+        rwr.update(Batch(np.zeros((5, 1)), np.zeros((5, 1)), np.zeros(5)))

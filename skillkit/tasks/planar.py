@@ -5,7 +5,7 @@ hip–shoulder hinges, base fixed to the ground, every joint torque-actuated) is
 model of :mod:`skillkit.tasks.planar_model`; see there for the joint conventions
 (``q = [0, 0, 0, π]`` is upright with the arm pointing up). Both tasks step the compiled
 ``mujoco.MjModel``/``MjData`` directly with ``mujoco.mj_step`` (1 ms physics step) through
-:func:`skillkit.policies.controllers.run_feedback`, with torques held constant over each
+:func:`skillkit.tasks.controllers.run_feedback`, with torques held constant over each
 control period (zero-order hold).
 
 * :class:`Throwing` (registered ``throwing``, and ``throwing-noisy`` with release noise): a
@@ -26,10 +26,10 @@ import numpy as np
 import scipy.linalg
 
 from skillkit._validation import check_array, check_positive
-from skillkit.policies.controllers import control_substeps, run_feedback, track_reference
 from skillkit.policies.dmp import DMP, DMPParameters
 from skillkit.policies.gaussian import GaussianPolicy, LinearGaussianPolicy
 from skillkit.tasks.base import SimulationFailure, Task
+from skillkit.tasks.controllers import control_substeps, run_feedback, track_reference
 from skillkit.tasks.planar_model import (
     LINK_LENGTHS,
     TIMESTEP,
@@ -306,7 +306,7 @@ class Throwing(Task):
     posture :data:`THROW_START` at rest and its goal is fixed to upright ``[0, 0, 0, π]``
     with zero final velocity (τ = 1, nominal duration 1 s). The DMP reference is tracked
     for ``horizon`` seconds (1.25 s) at ``control_dt`` (100 Hz default) by the PD tracker
-    of :func:`~skillkit.policies.controllers.track_reference` in its inertia-weighted form,
+    of :func:`~skillkit.tasks.controllers.track_reference` in its inertia-weighted form,
     u = M(q)(q̈_ref + kp e + kd ė) + c(q, q̇), with MuJoCo's bias force c (gravity and
     Coriolis) as compensation and the DMP's acceleration fed forward; kp = 900 s⁻²,
     kd = 60 s⁻¹ (every joint-space mode at 30 rad/s, critically damped). A plain diagonal

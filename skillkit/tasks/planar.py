@@ -28,6 +28,7 @@ import scipy.linalg
 from skillkit._validation import check_array, check_positive
 from skillkit.policies.dmp import DMP, DMPParameters
 from skillkit.policies.gaussian import GaussianPolicy, LinearGaussianPolicy
+from skillkit.tasks._trajectories import quintic
 from skillkit.tasks.base import SimulationFailure, Task
 from skillkit.tasks.controllers import control_substeps, run_feedback, track_reference
 from skillkit.tasks.planar_model import (
@@ -227,16 +228,6 @@ def _check_divergence(qd: np.ndarray, limit: float, control_dt: float) -> None:
         )
 
 
-def _minimum_jerk(t: np.ndarray, t0: float, t1: float) -> tuple[np.ndarray, ...]:
-    """Minimum-jerk 0→1 transition on [t0, t1]: s, ṡ, s̈ at times t (constant outside)."""
-    T = t1 - t0
-    u = np.clip((t - t0) / T, 0.0, 1.0)
-    s = 10 * u**3 - 15 * u**4 + 6 * u**5
-    sd = (30 * u**2 - 60 * u**3 + 30 * u**4) / T
-    sdd = (60 * u - 180 * u**2 + 120 * u**3) / T**2
-    return s, sd, sdd
-
-
 def _bump(t: np.ndarray, t0: float, t1: float) -> tuple[np.ndarray, ...]:
     """Smooth 0→1→0 bump sin²(π u) on [t0, t1], u = (t − t0)/(t1 − t0), with derivatives."""
     T = t1 - t0
@@ -276,7 +267,7 @@ def throwing_demonstration(dt: float = 1e-3, duration: float = 1.0) -> dict[str,
     for j, amp in enumerate((0.15, -0.4, 0.3)):
         s, sd, sdd = _bump(t, 0.0, 0.8)
         q[:, j], qd[:, j], qdd[:, j] = amp * s, amp * sd, amp * sdd
-    s, sd, sdd = _minimum_jerk(t, 0.1, 0.9)
+    s, sd, sdd = quintic(t - 0.1, 0.9 - 0.1, clip=True)  # minimum jerk on [0.1, 0.9]
     q[:, 3], qd[:, 3], qdd[:, 3] = np.pi * s, np.pi * sd, np.pi * sdd
     return {"times": t, "q": q, "qd": qd, "qdd": qdd, "release_time": np.array(DEMO_RELEASE_TIME)}
 

@@ -41,6 +41,8 @@ from __future__ import annotations
 import numpy as np
 from dm_control import mjcf
 
+from skillkit.tasks._mjcf import mjcf_root
+
 LINK_NAMES = ("shin", "thigh", "torso", "arm")
 JOINT_NAMES = ("ankle", "knee", "hip", "shoulder")
 LINK_MASSES = np.array([17.5, 17.5, 26.5, 8.5])
@@ -64,14 +66,7 @@ def build_planar_robot(timestep: float = TIMESTEP) -> mjcf.RootElement:
     dm_control.mjcf.RootElement
         The model; compile with ``mjcf.Physics.from_mjcf_model``.
     """
-    root = mjcf.RootElement(model="planar_4link")
-    root.option.timestep = timestep
-    root.option.gravity = [0.0, 0.0, -9.81]
-    root.option.integrator = "Euler"
-    root.compiler.angle = "radian"
-    root.default.geom.contype = 0
-    root.default.geom.conaffinity = 0
-    root.default.geom.rgba = [0.55, 0.6, 0.7, 1.0]
+    root = mjcf_root("planar_4link", timestep, geom_rgba=[0.55, 0.6, 0.7, 1.0])
     root.worldbody.add("light", pos=[0, -6, 4], dir=[0, 1, -0.5])
     root.worldbody.add(
         "geom",

@@ -8,7 +8,8 @@ import mujoco
 import numpy as np
 from dm_control import mjcf
 
-from skillkit._validation import check_array, check_positive
+from skillkit._validation import check_array
+from skillkit.tasks._mjcf import mjcf_root
 
 # ----------------------------------------------------------------------------- arm constants
 N_JOINTS = 7
@@ -59,15 +60,7 @@ def build_arm_mjcf(timestep: float = TIMESTEP) -> mjcf.RootElement:
         ``flange`` and ``blade``. Compile with ``mujoco.MjModel.from_xml_string(
         root.to_xml_string())`` (or use :func:`arm_model`).
     """
-    timestep = check_positive(timestep, "timestep")
-    root = mjcf.RootElement(model="lwr_hockey")
-    root.option.timestep = timestep
-    root.option.gravity = [0.0, 0.0, -9.81]
-    root.option.integrator = "Euler"
-    root.compiler.angle = "radian"
-    root.default.geom.contype = 0
-    root.default.geom.conaffinity = 0
-    root.default.geom.rgba = [1.0, 0.55, 0.1, 1.0]
+    root = mjcf_root("lwr_hockey", timestep, geom_rgba=[1.0, 0.55, 0.1, 1.0])
     root.worldbody.add("light", pos=[0, 0, 3], dir=[0, 0, -1])
     root.worldbody.add(
         "geom",

@@ -9,6 +9,7 @@ import mujoco
 import numpy as np
 
 from skillkit._validation import check_positive
+from skillkit.tasks._trajectories import quintic
 from skillkit.tasks.hockey.arm import BLADE_HALF, N_JOINTS, TIMESTEP, arm_model
 from skillkit.tasks.hockey.table import CONTROL_PUCK_START, TARGET_CENTRE
 
@@ -68,21 +69,6 @@ def _ik_blade(
     return q
 
 
-def _quintic(duration: float, end_rate: float, t: np.ndarray) -> tuple[np.ndarray, ...]:
-    """s(t) on [0, T] with s, ṡ, s̈ = 0, 0, 0 at 0 and 1, end_rate, 0 at T (and derivatives)."""
-    T = duration
-    # s = c3 u³ + c4 u⁴ + c5 u⁵, u = t/T; conditions at u = 1: s = 1, s' = k, s'' = 0.
-    k = end_rate * T
-    c = np.linalg.solve(
-        np.array([[1.0, 1.0, 1.0], [3.0, 4.0, 5.0], [6.0, 12.0, 20.0]]), np.array([1.0, k, 0.0])
-    )
-    u = t / T
-    s = c[0] * u**3 + c[1] * u**4 + c[2] * u**5
-    sd = (3 * c[0] * u**2 + 4 * c[1] * u**3 + 5 * c[2] * u**4) / T
-    sdd = (6 * c[0] * u + 12 * c[1] * u**2 + 20 * c[2] * u**3) / T**2
-    return s, sd, sdd
-
-
 def make_demonstration(dt: float = TIMESTEP) -> dict[str, np.ndarray]:
     """The demonstrated hitting stroke (deterministic; the shipped file is its output).
 
@@ -118,7 +104,7 @@ def make_demonstration(dt: float = TIMESTEP) -> dict[str, np.ndarray]:
     start = end - DEMO_BACKSWING * normal
     n = int(round(DEMO_DURATION / dt))
     times = dt * np.arange(n + 1)
-    s, _, _ = _quintic(DEMO_DURATION, DEMO_HIT_SPEED / DEMO_BACKSWING, times)
+    s, _, _ = quintic(times, DEMO_DURATION, end_velocity=DEMO_HIT_SPEED / DEMO_BACKSWING)
     blade = start + s[:, None] * (end - start)
     q = np.empty((n + 1, N_JOINTS))
     guess = DEMO_POSTURE.copy()

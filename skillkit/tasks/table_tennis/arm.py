@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
-import warnings
 from functools import lru_cache
 
 import numpy as np
+
+from skillkit.tasks._mjcf import mjcf_root
 
 JOINT_NAMES = (
     "base_x",
@@ -65,16 +66,9 @@ def arm_mjcf(timestep: float = 0.002):
     -------
     dm_control.mjcf.RootElement
     """
-    with warnings.catch_warnings():  # dm_control probes for a display on import
-        warnings.simplefilter("ignore")
-        from dm_control import mjcf
-
     l1, l2, l3 = LINK_LENGTHS
     m_base, m_shoulder, m_upper, m_fore, m_hand = LINK_MASSES
-    root = mjcf.RootElement(model="table_tennis_arm")
-    root.compiler.angle = "radian"
-    root.option.timestep = float(timestep)
-    root.option.flag.contact = "disable"
+    root = mjcf_root("table_tennis_arm", float(timestep), contacts=False)
     arm = iter(ARMATURE)
 
     def joint(body, name, kind, axis):

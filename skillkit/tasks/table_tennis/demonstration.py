@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from skillkit._validation import check_array, check_positive
+from skillkit.tasks._trajectories import quintic
 from skillkit.tasks.table_tennis.arm import RACKET_SITE, arm_model, racket_pose
 from skillkit.tasks.table_tennis.ball import (
     RETURN_HIGH,
@@ -128,30 +129,6 @@ def design_stroke(
     }
 
 
-def _quintic(q0, qd0, q1, qd1, duration: float, t: np.ndarray):
-    """Quintic from (q0, q̇0, 0) to (q1, q̇1, 0) over ``duration``; (q, q̇, q̈) at t, (len(t), n)."""
-    T = duration
-    m = np.array(
-        [
-            [1, 0, 0, 0, 0, 0],
-            [0, 1, 0, 0, 0, 0],
-            [0, 0, 2, 0, 0, 0],
-            [1, T, T**2, T**3, T**4, T**5],
-            [0, 1, 2 * T, 3 * T**2, 4 * T**3, 5 * T**4],
-            [0, 0, 2, 6 * T, 12 * T**2, 20 * T**3],
-        ],
-        dtype=float,
-    )
-    zero = np.zeros_like(q0)
-    coef = np.linalg.solve(m, np.stack([q0, qd0, zero, q1, qd1, zero]))  # (6, n)
-    powers = np.arange(6)
-    tt = t[:, None]
-    pos = tt**powers
-    vel = powers * tt ** np.maximum(powers - 1, 0)
-    acc = powers * (powers - 1) * tt ** np.maximum(powers - 2, 0)
-    return pos @ coef, vel @ coef, acc @ coef
-
-
 def forehand_demonstration(dt: float = 0.002) -> dict[str, np.ndarray]:
     """The forehand stroke the DMP imitates (our stand-in for the thesis's kinesthetic
     teach-in), deterministic.
@@ -176,8 +153,8 @@ def forehand_demonstration(dt: float = 0.002) -> dict[str, np.ndarray]:
     times = dt * np.arange(n + 1)
     first = times < t_back
     zero = np.zeros(8)
-    a = _quintic(q_ready, zero, q_back, zero, t_back, times[first])
-    b = _quintic(q_back, zero, q_h, qd_h, swing, times[~first] - t_back)
+    a = quintic(times[first], t_back, q_ready, q_back, zero, zero)
+    b = quintic(times[~first] - t_back, swing, q_back, q_h, zero, qd_h)
     q, qd, qdd = (np.concatenate([x, y]) for x, y in zip(a, b, strict=True))
     return {"times": times, "q": q, "qd": qd, "qdd": qdd}
 

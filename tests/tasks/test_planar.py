@@ -12,9 +12,9 @@ import mujoco
 import numpy as np
 import pytest
 
-from skillkit.tasks.controllers import pd_torque, run_feedback, track_reference
 from skillkit.tasks import make
 from skillkit.tasks.base import SimulationFailure
+from skillkit.tasks.controllers import pd_torque, run_feedback, track_reference
 from skillkit.tasks.planar import (
     DEMONSTRATION_FILE,
     Balancing,

@@ -132,6 +132,7 @@ from skillkit.tasks.hockey.reward import (
     Observation,
     butterworth_smooth,
     hockey_reward,
+    hockey_reward_batch,
 )
 from skillkit.tasks.hockey.table import (
     CONTROL_PUCK_START,
@@ -186,6 +187,7 @@ __all__ = [
     "hockey",
     "hockey_real",
     "hockey_reward",
+    "hockey_reward_batch",
     "JOINT_AXES",
     "JOINT_LIMITS",
     "KD",

@@ -57,13 +57,35 @@ def hockey_reward(control_puck, target_puck, context) -> float:
     s = check_array(context, "context", shape=(3,))
     if x.shape[0] == 0 or y.shape[0] == 0:
         raise ValueError("control_puck, target_puck: expected at least one sample")
-    miss = float(np.min(np.linalg.norm(x - s[:2], axis=1)))
-    displacement = float(np.linalg.norm(y[-1] - y[0]))
-    return -miss - abs(displacement - float(s[2]))
+    return float(hockey_reward_batch(x[None], y[None], s[None])[0])
+
+
+def hockey_reward_batch(control_puck, target_puck, contexts) -> np.ndarray:
+    """:func:`hockey_reward` for a batch of (simulated or predicted) puck trajectories.
+
+    Parameters
+    ----------
+    control_puck : array_like, shape (B, T, 2)
+    target_puck : array_like, shape (B, T', 2)
+    contexts : array_like, shape (B, 3)
+
+    Returns
+    -------
+    ndarray, shape (B,)
+        −min_t ‖x_t − b‖ − |‖y_T' − y_1‖ − d*| per trajectory.
+    """
+    x = check_array(control_puck, "control_puck", shape=(None, None, 2))
+    y = check_array(target_puck, "target_puck", shape=(x.shape[0], None, 2))
+    s = check_array(contexts, "contexts", shape=(x.shape[0], 3))
+    if x.shape[1] == 0 or y.shape[1] == 0:
+        raise ValueError("control_puck, target_puck: expected at least one sample")
+    miss = np.min(np.linalg.norm(x - s[:, None, :2], axis=-1), axis=1)
+    displacement = np.array([np.linalg.norm(d) for d in y[:, -1] - y[:, 0]])
+    return -miss - np.abs(displacement - s[:, 2])
 
 
 def butterworth_smooth(
-    values, rate: float, cutoff: float = BUTTER_CUTOFF, order: int = BUTTER_ORDER
+    values, rate: float, cutoff: float = BUTTER_CUTOFF, order: int = BUTTER_ORDER, axis: int = 0
 ) -> np.ndarray:
     """Zero-phase Butterworth low-pass filtering of a sampled signal (``scipy.signal.filtfilt``).
 
@@ -77,12 +99,14 @@ def butterworth_smooth(
         Cut-off frequency, Hz, below the Nyquist frequency rate / 2.
     order : int
         Filter order (the forward–backward pass doubles the effective order).
+    axis : int
+        The time axis (1 for batch-first arrays (B, T, ...)).
 
     Returns
     -------
     ndarray, shape (T, ...)
     """
-    x = check_array(values, "values", ndim=(1, 2))
+    x = check_array(values, "values", ndim=(1, 2, 3))
     rate = check_positive(rate, "rate")
     cutoff = check_positive(cutoff, "cutoff")
     if cutoff >= rate / 2:
@@ -94,6 +118,6 @@ def butterworth_smooth(
         raise ValueError(f"order: expected an integer >= 1, got {order!r}")
     b, a = signal.butter(int(order), cutoff, btype="low", fs=rate)
     padlen = 3 * max(len(a), len(b))
-    if x.shape[0] <= padlen:
-        raise ValueError(f"values: filtfilt needs more than {padlen} samples, got {x.shape[0]}")
-    return signal.filtfilt(b, a, x, axis=0, padtype="odd", padlen=padlen)
+    if x.shape[axis] <= padlen:
+        raise ValueError(f"values: filtfilt needs more than {padlen} samples, got {x.shape[axis]}")
+    return signal.filtfilt(b, a, x, axis=axis, padtype="odd", padlen=padlen)

@@ -10,7 +10,7 @@ import numpy as np
 
 from skillkit._validation import check_array
 from skillkit.policies.dmp import DMP, DMPParameters
-from skillkit.tasks.base import SimulationFailure, Task
+from skillkit.tasks.base import ModelSignals, SimulationFailure, Task, check_count
 from skillkit.tasks.controllers import track_reference
 from skillkit.tasks.hockey.arm import (
     KD,
@@ -22,7 +22,7 @@ from skillkit.tasks.hockey.arm import (
     blade_pose,
 )
 from skillkit.tasks.hockey.demonstration import load_demonstration
-from skillkit.tasks.hockey.reward import Observation, butterworth_smooth, hockey_reward
+from skillkit.tasks.hockey.reward import Observation, butterworth_smooth, hockey_reward_batch
 from skillkit.tasks.hockey.table import CONTROL_PUCK_START, PuckTable, TablePhysics
 from skillkit.tasks.registry import register
 from skillkit.trajectory import Trajectory
@@ -305,19 +305,65 @@ class Hockey(Task):
             out[key] = clean + obs.noise * rng.standard_normal(clean.shape)
         return out
 
-    def _reward(self, trajectory: Trajectory, context: np.ndarray) -> float:
+    # ------------------------------------------------------------------ reward
+    def reward_signals(self, trajectory: Trajectory) -> dict[str, np.ndarray]:
+        """The puck trajectories the reward reads: ``control_puck``, ``target_puck`` (T_p, 2),
+        or in the real-robot setting the observed ``control_puck_observed``,
+        ``target_puck_observed`` (T_o, 2)."""
         sig = trajectory.signals
+        keys = self._reward_keys()
+        if any(k not in sig for k in keys):
+            raise ValueError(f"trajectory: the {self.name} reward needs the signals {keys}")
+        return {k: sig[k] for k in keys}
+
+    def _reward_keys(self) -> tuple[str, str]:
         if self.observation is None:
-            return hockey_reward(sig["control_puck"], sig["target_puck"], context)
-        if "control_puck_observed" not in sig:
-            raise ValueError("trajectory: the real-robot reward needs the observed puck signals")
+            return ("control_puck", "target_puck")
+        return ("control_puck_observed", "target_puck_observed")
+
+    def reward_batch(self, states, controls, signals, contexts) -> np.ndarray:
+        """R = −min_t ‖x_t − b‖ − |d_T − d*| (:func:`hockey_reward_batch`), shape (B,).
+
+        Reads only the puck trajectories in ``signals`` (batch first, equal lengths within a
+        batch), so predicted puck trajectories of the thesis's event models score the same
+        way; ``states`` and ``controls`` are unused. In the real-robot setting the observed
+        pucks are Butterworth-smoothed along time first. numpy only.
+        """
+        x, y = (np.asarray(signals[k], dtype=np.float64) for k in self._reward_keys())
         obs = self.observation
-        smooth = functools.partial(
-            butterworth_smooth, rate=obs.rate, cutoff=obs.cutoff, order=obs.order
+        if obs is not None:
+            smooth = functools.partial(
+                butterworth_smooth, rate=obs.rate, cutoff=obs.cutoff, order=obs.order, axis=1
+            )
+            x, y = smooth(x), smooth(y)
+        return hockey_reward_batch(x, y, contexts)
+
+    # ------------------------------------------------------------------ model-based search
+    supports_model_rollout = False
+    no_model_rollout_reason = (
+        "hockey is modelled by decomposed GP models of discrete puck events (Sec. 4.3.3: "
+        "the puck state past the racket from ω, free sliding, puck contact), not by a step "
+        "model of the arm under its tracking controller"
+    )
+
+    def model_signals(self) -> ModelSignals:
+        """The modelled state is the pucks' (x, y) positions; no control input (ω enters the
+        event models directly); the reward reads the puck trajectories."""
+        return ModelSignals(
+            state=("control_puck_x", "control_puck_y", "target_puck_x", "target_puck_y"),
+            control=(),
+            signals=self._reward_keys(),
         )
-        return hockey_reward(
-            smooth(sig["control_puck_observed"]), smooth(sig["target_puck_observed"]), context
-        )
+
+    def initial_states(self, context, n: int, rng=None) -> np.ndarray:
+        """The pucks at rest where the episode starts: [x_control, b] for every draw, shape
+        (n, 4) (``rng`` is unused: the start is deterministic)."""
+        s = self.check_context(context)
+        return np.tile(np.concatenate([CONTROL_PUCK_START, s[:2]]), (check_count(n), 1))
+
+    def scene_model(self) -> mujoco.MjModel:
+        """The arm's compiled MuJoCo model (the pucks and table are drawn by the viewer)."""
+        return self.model
 
 
 @register("hockey", "contextual")

@@ -813,8 +813,7 @@ class MujocoTaskScene(TaskScene):
         model = task_model(task)
         if model is None:
             raise ValueError(
-                f"task: {type(task).__name__} exposes no MuJoCo model "
-                "(needs scene_model(), model or robot.model)"
+                f"task: {type(task).__name__} exposes no MuJoCo model (needs Task.scene_model())"
             )
         self.robot = add_mujoco_model(
             scene, model, "/arm", world_paths=self.world_paths, skip_geoms=self.skip_geoms

@@ -24,18 +24,14 @@ import warnings
 import numpy as np
 import torch
 
-from skillkit.experiments.ch5 import (
-    _X_UP,
-    balancing_reward,
-    embedding_expected_rewards,
-    random_lqr_gains,
-)
+from skillkit.experiments.ch5 import embedding_expected_rewards
 from skillkit.models.embedding import ConditionalEmbedding
 from skillkit.models.embedding_training import transitions
 from skillkit.models.gp import ExactGP, ForwardModel
 from skillkit.models.kernels import SquaredExponential
 from skillkit.models.sampling import sample_trajectories
 from skillkit.tasks import make
+from skillkit.tasks.balancing import X_UP, feedback_policy, random_lqr_gains
 
 
 def main() -> None:
@@ -49,7 +45,7 @@ def main() -> None:
     args = ap.parse_args()
     rng = np.random.default_rng(args.seed)
     task = make("balancing-noisy")
-    reward = balancing_reward(task)
+    reward = task.immediate_reward
 
     gains = random_lqr_gains(task, args.trajectories, 1.0, 1e-3, rng)
     with warnings.catch_warnings():
@@ -66,7 +62,7 @@ def main() -> None:
     gp = ForwardModel(ExactGP(n_steps=30)).fit(z[:, :8], z[:, 8:], xn, rng=rng)
 
     test = random_lqr_gains(task, args.queries, 1.0, 1e-3, rng)
-    x0 = _X_UP + 0.3 * rng.standard_normal((args.samples, 8))
+    x0 = X_UP + 0.3 * rng.standard_normal((args.samples, 8))
     horizon = states.shape[1] - 1
     n = len(z)
     print(
@@ -78,18 +74,17 @@ def main() -> None:
     r_emb = embedding_expected_rewards(emb, x0, test, horizon, reward)
     t_emb = time.perf_counter() - t0
 
-    g_t, up = torch.from_numpy(test), torch.from_numpy(_X_UP)
     t0 = time.perf_counter()
     sampled = sample_trajectories(
         gp,
         np.broadcast_to(x0, (args.queries,) + x0.shape),
-        lambda t, x, pair: torch.einsum("nij,nj->ni", g_t[pair], x - up),
+        feedback_policy(torch.from_numpy(test)),
         horizon,
         args.samples,
         rng,
     )
     xs = sampled.states.numpy()
-    r_gp = reward(xs, np.einsum("bij,bmtj->bmti", test, xs - _X_UP))[:, :, 1:].sum(-1).mean(1)
+    r_gp = reward(xs, np.einsum("bij,bmtj->bmti", test, xs - X_UP))[:, :, 1:].sum(-1).mean(1)
     t_gp = time.perf_counter() - t0
 
     print(f"embedding prediction:   {t_emb:8.2f} s  ({args.queries} expected rewards)")

@@ -31,13 +31,9 @@ import time
 import numpy as np
 import torch
 
-from skillkit.experiments.ch4_models import (
-    X_UP,
-    _train_balancing_model,
-    stable_gains,
-    time_predictions,
-)
+from skillkit.experiments.ch4_models import _train_balancing_model, time_predictions
 from skillkit.models.sampling import sampler_flops_per_step
+from skillkit.tasks.balancing import X_UP, stable_gains
 
 
 def matmul_peak(threads: int, n: int = 2048, repeats: int = 3) -> float:

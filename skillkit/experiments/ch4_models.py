@@ -1,6 +1,6 @@
 """Chapter 4 model experiments on the planar 4-link robot (Secs 4.2.2–4.2.3, Figs 4.3–4.5).
 
-All three use the ``balancing`` task (:class:`skillkit.tasks.planar.Balancing`): the robot
+All three use the ``balancing`` task (:class:`skillkit.tasks.balancing.Balancing`): the robot
 under the linear feedback u_t = G x̃_t around upright, x̃ = x − x_up. Written as
 u_t = K x_t + k with K = G and k = −G x_up this is the linear tracking controller of
 Sec. 4.2.2 (tracking the upright reference), so moment matching applies exactly.
@@ -27,8 +27,8 @@ noise is part of the stochastic dynamics the GP has to capture.
   the upright position" (``initial_std`` 0.1 rad, rad/s).
 
 All three draw the controllers ω from the task's initial policy but keep only those that
-balance robustly (:func:`stable_gains`: the linearised closed loop has spectral radius
-≤ 0.98; about a quarter of the raw samples are unstable).
+balance robustly (:func:`~skillkit.tasks.balancing.stable_gains`: the linearised closed loop
+has spectral radius ≤ 0.98; about a quarter of the raw samples are unstable).
 """
 
 from __future__ import annotations
@@ -44,109 +44,17 @@ from skillkit.models.moment_matching import gaussian_kl, propagate
 from skillkit.models.sampling import sample_trajectories
 from skillkit.models.sparse import FITC
 from skillkit.tasks import make
-from skillkit.tasks.planar import Balancing, balancing_transitions
-from skillkit.tasks.planar_model import UPRIGHT
-from skillkit.trajectory import Trajectory
+from skillkit.tasks.balancing import (
+    X_UP,
+    Balancing,
+    collect_balancing,
+    feedback_policy,
+    sampled_rewards,
+    stable_gains,
+)
 from skillkit.trial import TrialContext
 
-__all__ = [
-    "X_UP",
-    "collect_balancing",
-    "feedback_policy",
-    "gaussian_fit",
-    "stable_gains",
-    "time_predictions",
-]
-
-X_UP = np.concatenate([UPRIGHT, np.zeros(4)])
-"""The upright state x_up = [q_up, 0] (8,)."""
-
-
-# ---------------------------------------------------------------------------- shared pieces
-def stable_gains(
-    task: Balancing, n: int, rng: np.random.Generator, max_spectral_radius: float = 0.98
-) -> np.ndarray:
-    """``n`` samples ω ~ π(ω) (the task's initial policy) whose feedback balances robustly.
-
-    ω is kept if the closed loop of the task's linearisation at upright (Δt = control period)
-    is stable with margin: ρ(A_c + B_c G) ≤ ``max_spectral_radius``, G = ω as (4, 8). About
-    a quarter of the initial policy's samples have ρ > 1 (they topple slowly); Sec. 4.2.3 uses
-    a controller that "robustly balances" the robot.
-
-    Returns
-    -------
-    ndarray, shape (n, 32)
-    """
-    A, B = task.linearization()
-    policy = task.initial_policy()
-    out: list[np.ndarray] = []
-    tried = 0
-    while len(out) < n:
-        batch = policy.sample(np.zeros((max(n, 16), 0)), rng=rng)
-        for w in batch:
-            tried += 1
-            if (
-                len(out) < n
-                and np.abs(np.linalg.eigvals(A + B @ w.reshape(4, 8))).max() <= max_spectral_radius
-            ):
-                out.append(w)
-        if tried > 100 * n:
-            raise RuntimeError(
-                f"stable_gains: only {len(out)} of {tried} samples have spectral radius "
-                f"<= {max_spectral_radius}"
-            )
-    return np.array(out)
-
-
-def collect_balancing(
-    task: Balancing,
-    n_trajectories: int,
-    rng: np.random.Generator,
-    max_spectral_radius: float = 0.98,
-) -> dict:
-    """Roll out ``n_trajectories`` robustly balancing ω (:func:`stable_gains`) from random x_0.
-
-    Failed rollouts (the robot fell or diverged) are replaced by new ones and counted.
-
-    Returns
-    -------
-    dict
-        ``omegas`` (n, 32), ``trajectories`` (list), ``x``, ``u``, ``x_next`` (n·T, ·) the
-        stacked transitions, ``n_failed``.
-    """
-    omegas, trajs, n_failed = [], [], 0
-    candidates = list(stable_gains(task, n_trajectories, rng, max_spectral_radius))
-    while len(trajs) < n_trajectories:
-        if not candidates:
-            candidates = list(stable_gains(task, 1, rng, max_spectral_radius))
-        omega = candidates.pop(0)
-        traj = task.rollout(omega, rng=rng)
-        if traj.failed:
-            n_failed += 1
-            if n_failed > 10 * n_trajectories:
-                raise RuntimeError(f"collect_balancing: {n_failed} of the rollouts failed")
-            continue
-        omegas.append(omega)
-        trajs.append(traj)
-    parts = [balancing_transitions(t) for t in trajs]
-    return {
-        "omegas": np.array(omegas),
-        "trajectories": trajs,
-        "x": np.vstack([p[0] for p in parts]),
-        "u": np.vstack([p[1] for p in parts]),
-        "x_next": np.vstack([p[2] for p in parts]),
-        "n_failed": n_failed,
-    }
-
-
-def feedback_policy(gains: torch.Tensor):
-    """The sampler policy u = G_b (x − x_up) for pair b, gains of shape (B, 4, 8)."""
-    x_up = torch.as_tensor(X_UP, dtype=gains.dtype, device=gains.device)
-
-    def policy(t: int, x: torch.Tensor, pair: torch.Tensor) -> torch.Tensor:
-        return torch.einsum("nij,nj->ni", gains[pair], x - x_up)
-
-    return policy
+__all__ = ["gaussian_fit", "time_predictions"]
 
 
 def gaussian_fit(samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -550,19 +458,6 @@ _PANELS_4_5 = (
 )
 
 
-def _balancing_rewards(task: Balancing, states: np.ndarray, G: np.ndarray) -> np.ndarray:
-    """Rewards of sampled trajectories: states (B, L, T+1, 8), gains (B, 4, 8) → (B, L)."""
-    B, L, T1, _ = states.shape
-    times = np.arange(T1) * task.control_dt
-    controls = np.einsum("bij,bltj->blti", G, states - X_UP)
-    return np.array(
-        [
-            [task.reward(Trajectory(times, states[b, l], controls[b, l])) for l in range(L)]
-            for b in range(B)
-        ]
-    )
-
-
 def _seed(root: int, *keys) -> np.random.Generator:
     return np.random.default_rng(
         np.random.SeedSequence([root, *[int(round(k * 1000)) for k in keys]])
@@ -607,7 +502,7 @@ def _evaluate_4_5(cfg: dict, settings: dict, root: int) -> dict:
             settings["n_predicted"],
             _seed(root, 4, *cfg.values()),
         )
-        predicted = _balancing_rewards(task, res.states.numpy(), G).mean(1)
+        predicted = sampled_rewards(task, res.states.numpy(), G).mean(1)
         d = model.gp.diagnostics
         out[kind] = {
             "squared_error": float(np.mean((predicted - real) ** 2)),

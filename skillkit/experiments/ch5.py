@@ -60,11 +60,11 @@ from skillkit.models.gp import ExactGP, ForwardModel
 from skillkit.models.kernels import Linear, SquaredExponential
 from skillkit.models.sampling import sample_trajectories
 from skillkit.tasks import make
+from skillkit.tasks.balancing import X_UP, feedback_policy, random_lqr_gains
 from skillkit.tasks.pendulum import THESIS_GAINS, feedback_torque, pendulum_dynamics
-from skillkit.tasks.planar import UPRIGHT
 from skillkit.trial import TrialContext
 
-__all__ = ["balancing_reward", "random_lqr_gains"]
+__all__ = ["embedding_expected_rewards"]
 
 
 def _initial_lengthscales(x: np.ndarray) -> np.ndarray:
@@ -101,7 +101,7 @@ def embedding_expected_rewards(
         g = gains[lo : lo + chunk]
 
         def policy(s, t, g=g):
-            return np.einsum("bij,bkj->bki", g, np.broadcast_to(s - _X_UP, (len(g),) + s.shape[1:]))
+            return np.einsum("bij,bkj->bki", g, np.broadcast_to(s - X_UP, (len(g),) + s.shape[1:]))
 
         traj = predict(
             model,
@@ -359,53 +359,6 @@ for _id, _key, _label, _multi, _what in (
 
 
 # =========================================================================== balancing
-_X_UP = np.concatenate([UPRIGHT, np.zeros(4)])
-
-
-def balancing_reward(task):
-    """The task's immediate reward r(x, u) = −(x̃ᵀQx̃ + r_u uᵀu), vectorised.
-
-    Parameters
-    ----------
-    task : Balancing
-        Supplies Q (``state_weights``) and r_u (``control_weight``).
-
-    Returns
-    -------
-    callable
-        ``reward(states (..., 8), controls (..., 4)) -> (...)``; summed over rows 1..T of a
-        trajectory it equals ``task.reward``.
-    """
-    q_w, r_u = task.state_weights, task.control_weight
-
-    def reward(states, controls):
-        d = np.asarray(states) - _X_UP
-        return -(
-            np.einsum("...i,ij,...j->...", d, q_w, d) + r_u * (np.asarray(controls) ** 2).sum(-1)
-        )
-
-    return reward
-
-
-def random_lqr_gains(task, n: int, spread: float, control_weight: float, rng) -> np.ndarray:
-    """Stabilising controllers: LQR gains for randomly scaled cost weights.
-
-    Q = diag(q_task ⊙ exp(s ξ)), R = r₀ exp(s ξ') I with ξ ~ N(0, I), ξ' ~ N(0, 1).
-
-    Returns
-    -------
-    ndarray, shape (n, 4, 8)
-        Gains G with u = G x̃.
-    """
-    q0 = np.diag(task.state_weights)
-    out = np.empty((int(n), 4, 8))
-    for i in range(int(n)):
-        q = q0 * np.exp(spread * rng.standard_normal(8))
-        r = control_weight * np.exp(spread * rng.standard_normal())
-        out[i] = task.lqr_gain(state_weights=np.diag(q), control_weight=r)
-    return out
-
-
 def _working_rollouts(task, n: int, per_gain: int, settings: dict, rng) -> tuple:
     """Draw controllers until ``n`` of them give ``per_gain`` non-failed rollouts each."""
     gains, trajs, rejected = [], [], 0
@@ -440,7 +393,7 @@ def _balancing_case(
     progress,
 ) -> dict:
     """Train the three predictors on ``n_traj`` observed trajectories and score them."""
-    reward = balancing_reward(task)
+    reward = task.immediate_reward
     gains, trajs, rejected = _working_rollouts(task, n_traj, 1, settings, rng)
     states = np.stack([tr[0].states for tr in trajs])  # (M, T+1, 8)
     controls = np.stack([tr[0].controls for tr in trajs])  # (M, T+1, 4)
@@ -451,7 +404,7 @@ def _balancing_case(
     horizon = states.shape[1] - 1
 
     def train_policy(s, t):
-        return np.einsum("mij,bkj->mki", gains, s - _X_UP)
+        return np.einsum("mij,bkj->mki", gains, s - X_UP)
 
     k = min(int(settings["cv_folds"]), n_traj)
     folds_traj = kfold_splits(n_traj, k, rng)
@@ -495,18 +448,13 @@ def _balancing_case(
     progress.update()
 
     gp = ForwardModel(ExactGP(n_steps=settings["gp_steps"])).fit(z[:, :8], u, xn, rng=rng)
-    g_t = torch.from_numpy(test_gains)
-    up = torch.from_numpy(_X_UP)
-
-    def gp_policy(t, x, pair):
-        return torch.einsum("nij,nj->ni", g_t[pair], x - up)
-
+    gp_policy = feedback_policy(torch.from_numpy(test_gains))
     t0 = time.perf_counter()
     sampled = sample_trajectories(
         gp, np.broadcast_to(x0, (n_test,) + x0.shape), gp_policy, horizon, n_samples, rng
     )
     xs = sampled.states.numpy()  # (B, M, T+1, 8)
-    us = np.einsum("bij,bmtj->bmti", test_gains, xs - _X_UP)  # commanded torques
+    us = np.einsum("bij,bmtj->bmti", test_gains, xs - X_UP)  # commanded torques
     gp_pred = reward(xs, us)[:, :, 1:].sum(axis=-1).mean(axis=1)
     out["time_gp"] = time.perf_counter() - t0
     finite = np.isfinite(gp_pred)
@@ -551,7 +499,7 @@ def _balancing_truth(task, settings: dict, rng, gains=None) -> tuple:
 
 def _initial_samples(settings: dict, rng) -> np.ndarray:
     """L samples of the initial state distribution N([q_up, 0], σ² I) shared by all methods."""
-    return _X_UP + settings["initial_std"] * rng.standard_normal(
+    return X_UP + settings["initial_std"] * rng.standard_normal(
         (int(settings["initial_samples"]), 8)
     )
 

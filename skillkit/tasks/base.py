@@ -7,12 +7,22 @@ parameters ω, a sensible initial upper-level policy, how to run one episode
 Rewards are pure functions of the trajectory and the context, so a trajectory can be
 re-scored in other contexts (the *extra context* trick of Sec. 3.4) whenever the trajectory
 does not depend on the context (``trajectory_depends_on_context`` is False).
+
+For model-based search (Ch. 4–5) a task also states what a forward model learns
+(:meth:`Task.model_signals`, :meth:`Task.transitions`), where model rollouts start
+(:meth:`Task.initial_states`), the very lower-level policy the simulator runs as a batched
+torch callable for :func:`~skillkit.models.sampling.sample_trajectories`
+(:meth:`Task.controller`), and the batched reward on (predicted) trajectories
+(:meth:`Task.reward_batch`), which is the single definition :meth:`Task.reward` goes through.
+A task that cannot support a part says so: :attr:`Task.supports_model_rollout` is False and
+the method raises ``NotImplementedError`` with the reason.
 """
 
 from __future__ import annotations
 
 import warnings
 from abc import ABC, abstractmethod
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -24,10 +34,77 @@ class SimulationFailure(RuntimeError):
     """Raised inside a simulator when the physics produced non-finite or unstable values."""
 
 
+def check_count(n, name: str = "n") -> int:
+    """A positive integer count (not a bool), or a ValueError naming ``name``."""
+    if isinstance(n, bool) or not np.isscalar(n) or int(n) != n or n < 1:
+        raise ValueError(f"{name}: expected a positive integer, got {n!r}")
+    return int(n)
+
+
+def state_transitions(
+    trajectory: Trajectory, state_dim: int, control_dim: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(x_t, u_t, x_{t+1}) of a trajectory: states[:−1], controls[:−1], states[1:].
+
+    Raises a ValueError for a failed trajectory or states/controls not of shapes
+    (T, state_dim) and (T, control_dim).
+    """
+    if trajectory.failed:
+        raise ValueError(
+            f"trajectory: a failed trajectory has no transitions ({trajectory.message})"
+        )
+    states = check_array(trajectory.states, "trajectory.states", shape=(None, state_dim))
+    controls = check_array(
+        trajectory.controls, "trajectory.controls", shape=(states.shape[0], control_dim)
+    )
+    return states[:-1], controls[:-1], states[1:]
+
+
+@dataclass(frozen=True)
+class ModelSignals:
+    """What a forward model of a task learns (names, in array-column order).
+
+    Attributes
+    ----------
+    state : tuple of str
+        Names of the model state x (the columns of :meth:`Task.transitions`'s X and of
+        :meth:`Task.initial_states`).
+    control : tuple of str
+        Names of the control u (the columns of U; empty when the model has no control input).
+    signals : tuple of str
+        Named trajectory signals :meth:`Task.reward_batch` reads besides states and controls.
+    """
+
+    state: tuple[str, ...]
+    control: tuple[str, ...] = ()
+    signals: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        for name in ("state", "control", "signals"):
+            value = getattr(self, name)
+            if not isinstance(value, tuple) or not all(isinstance(v, str) for v in value):
+                raise ValueError(f"{name}: expected a tuple of str, got {value!r}")
+            if len(set(value)) != len(value):
+                raise ValueError(f"{name}: names must be unique, got {value!r}")
+        if not self.state:
+            raise ValueError("state: expected at least one state name")
+
+    @property
+    def state_dim(self) -> int:
+        """Dimension of x."""
+        return len(self.state)
+
+    @property
+    def control_dim(self) -> int:
+        """Dimension of u."""
+        return len(self.control)
+
+
 class Task(ABC):
     """Base class of every task.
 
-    Subclasses set the class attributes and implement :meth:`_simulate` and :meth:`_reward`.
+    Subclasses set the class attributes and implement :meth:`_simulate` and
+    :meth:`reward_batch` (with :meth:`reward_signals`), or override :meth:`_reward`.
 
     Attributes
     ----------
@@ -46,6 +123,11 @@ class Task(ABC):
     trajectory_depends_on_context : bool
         Whether the rollout itself depends on s (False for throwing: the target only enters
         the reward; True for hockey: the target puck is part of the scene).
+    supports_model_rollout : bool
+        Whether :meth:`transitions` and :meth:`controller` exist, i.e. a step-based forward
+        model of the simulated state can be learned and rolled out under the task's own
+        lower-level policy. False for tasks modelled by decomposed event models (hockey,
+        table tennis); :attr:`no_model_rollout_reason` then says why.
     """
 
     name: str = "task"
@@ -56,6 +138,8 @@ class Task(ABC):
     context_names: tuple[str, ...] = ()
     worst_reward: float = -1e6
     trajectory_depends_on_context: bool = True
+    supports_model_rollout: bool = False
+    no_model_rollout_reason: str = "this task defines no step-based forward model"
 
     # ----------------------------------------------------------------- contexts
     def sample_context(self, rng=None, n: int | None = None) -> np.ndarray:
@@ -171,16 +255,133 @@ class Task(ABC):
         traj = self.rollout(omega, context, rng)
         return self.reward(traj, context), traj
 
+    # ----------------------------------------------------------------- model-based search
+    def model_signals(self) -> ModelSignals:
+        """The signals a forward model of this task learns (:class:`ModelSignals`)."""
+        raise NotImplementedError(f"{self.name}: the task does not name its model signals")
+
+    def transitions(self, trajectory: Trajectory) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The model training data of one trajectory: (x_t, u_t, x_{t+1}) at the control rate.
+
+        The default takes the simulator's own states and controls,
+        X = states[:−1], U = controls[:−1], X' = states[1:].
+
+        Parameters
+        ----------
+        trajectory : Trajectory
+            A non-failed trajectory of this task.
+
+        Returns
+        -------
+        X : ndarray, shape (T−1, state_dim)
+        U : ndarray, shape (T−1, control_dim)
+        X_next : ndarray, shape (T−1, state_dim)
+
+        Raises
+        ------
+        NotImplementedError
+            If the task does not support step-based models (:attr:`supports_model_rollout`).
+        ValueError
+            For a failed trajectory or one of the wrong shape.
+        """
+        self._require_model_rollout("transitions")
+        sig = self.model_signals()
+        return state_transitions(trajectory, sig.state_dim, sig.control_dim)
+
+    def initial_states(self, context, n: int, rng=None) -> np.ndarray:
+        """``n`` draws of the start state x_0 ~ p(x_0; s) of model rollouts (Eq. 4.3).
+
+        Parameters
+        ----------
+        context : array_like, shape (context_dim,) or None
+        n : int
+            Number of draws, ≥ 1.
+        rng : Generator, int or None
+            Randomness (unused by tasks with a deterministic start).
+
+        Returns
+        -------
+        ndarray, shape (n, state_dim)
+        """
+        raise NotImplementedError(f"{self.name}: the task defines no start distribution")
+
+    def controller(self, omegas, contexts=None, device=None, dtype=None):
+        """The lower-level policy of B (ω, s) pairs as one batched torch callable.
+
+        Exactly the controller the simulator runs, evaluated on (predicted) states, in the
+        form :func:`~skillkit.models.sampling.sample_trajectories` takes:
+        ``policy(t, x, pair) -> u`` with ``t`` the control step (int), ``x`` Tensor
+        (n, state_dim), ``pair`` LongTensor (n,) in [0, B), ``u`` Tensor (n, control_dim)
+        on the device and dtype of the policy.
+
+        Parameters
+        ----------
+        omegas : array_like, shape (B, parameter_dim)
+        contexts : array_like, shape (B, context_dim), optional
+        device : str or torch.device, optional
+            Where the policy's tensors live (default: the CPU).
+        dtype : torch.dtype, optional
+            Default ``torch.float64``.
+
+        Raises
+        ------
+        NotImplementedError
+            If the task does not support step-based models (:attr:`supports_model_rollout`).
+        """
+        self._require_model_rollout("controller")
+        raise NotImplementedError(f"{self.name}: controller is not implemented")
+
+    def reward_batch(self, states, controls, signals, contexts) -> np.ndarray:
+        """Rewards R(τ_b, s_b) of a batch of (simulated or predicted) trajectories.
+
+        The one definition of the task's reward: :meth:`reward` calls it on a batch of one.
+
+        Parameters
+        ----------
+        states : array_like or Tensor, shape (B, T, state_dim)
+        controls : array_like or Tensor, shape (B, T, control_dim)
+        signals : dict of str to array_like, each (B, ...)
+            The named signals of :meth:`reward_signals` (batch first).
+        contexts : array_like, shape (B, context_dim)
+
+        Returns
+        -------
+        ndarray or Tensor, shape (B,)
+        """
+        raise NotImplementedError(f"{self.name}: reward_batch is not implemented")
+
+    def reward_signals(self, trajectory: Trajectory) -> dict[str, np.ndarray]:
+        """The named signals :meth:`reward_batch` reads from one trajectory (unbatched).
+
+        Default: none.
+        """
+        return {}
+
+    def scene_model(self):
+        """What the viewer draws: the task's compiled ``mujoco.MjModel``, or None when the
+        task has no MuJoCo model (the viewer then draws a dedicated scene)."""
+        return None
+
+    def _require_model_rollout(self, what: str) -> None:
+        if not self.supports_model_rollout:
+            raise NotImplementedError(
+                f"{self.name}: {what} is not available: {self.no_model_rollout_reason}"
+            )
+
+    def _reward(self, trajectory: Trajectory, context: np.ndarray) -> float:
+        """R(τ, s) through :meth:`reward_batch` on a batch of one."""
+        signals = {k: np.asarray(v)[None] for k, v in self.reward_signals(trajectory).items()}
+        r = self.reward_batch(
+            trajectory.states[None], trajectory.controls[None], signals, context[None]
+        )
+        return float(r[0])
+
     # ----------------------------------------------------------------- subclass hooks
     @abstractmethod
     def _simulate(
         self, omega: np.ndarray, context: np.ndarray, rng: np.random.Generator
     ) -> Trajectory:
         """Simulate one episode (inputs already validated)."""
-
-    @abstractmethod
-    def _reward(self, trajectory: Trajectory, context: np.ndarray) -> float:
-        """Score a (non-failed) trajectory in a (validated) context."""
 
     @abstractmethod
     def initial_policy(self):

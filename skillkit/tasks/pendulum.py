@@ -19,7 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from skillkit.tasks.base import Task
+from skillkit._validation import check_array
+from skillkit.tasks.base import ModelSignals, Task, check_count
 from skillkit.tasks.registry import register
 from skillkit.trajectory import Trajectory
 
@@ -136,9 +137,43 @@ class Pendulum(Task):
             info={"gains": omega.tolist()},
         )
 
-    def _reward(self, trajectory: Trajectory, context: np.ndarray) -> float:
-        x = trajectory.states[1:]
-        return -float(np.sum(x[:, 0] ** 2 + 0.1 * x[:, 1] ** 2))
+    # ------------------------------------------------------------------ model-based search
+    supports_model_rollout = True
+
+    def model_signals(self) -> ModelSignals:
+        """x = [α, α̇], u = the applied torque; no other signal."""
+        return ModelSignals(state=("alpha", "alpha_dot"), control=("torque",))
+
+    def initial_states(self, context, n: int, rng=None) -> np.ndarray:
+        """The context is the start state: ``n`` copies of s (``rng`` is unused)."""
+        s = self.check_context(context)
+        return np.tile(s, (check_count(n), 1))
+
+    def controller(self, omegas, contexts=None, device=None, dtype=None):
+        """u = clip(K_bᵀ x, −3, 3) for pair b, K_b = ω_b (the commanded torque).
+
+        The simulator adds N(0, σ_u²) torque noise before the limit; for model rollouts that
+        noise belongs to the stochastic dynamics the model learns (the recorded controls of
+        a noise-free pendulum are exactly this policy's output).
+        """
+        import torch
+
+        gains = torch.as_tensor(
+            check_array(omegas, "omegas", shape=(None, 2)),
+            dtype=torch.float64 if dtype is None else dtype,
+            device=device,
+        )
+
+        def policy(t: int, x, pair):
+            u = (x * gains[pair]).sum(-1, keepdim=True)
+            return u.clamp(-TORQUE_LIMIT, TORQUE_LIMIT)
+
+        return policy
+
+    def reward_batch(self, states, controls, signals, contexts):
+        """R = −Σ_{t≥1} (α_t² + 0.1 α̇_t²) per trajectory; numpy or torch, shape (B,)."""
+        x = states[:, 1:]
+        return -(x[..., 0] ** 2 + 0.1 * x[..., 1] ** 2).sum(1)
 
     def initial_policy(self):
         """π(ω|s) = N(K_thesis, diag(0.5², 0.25²)), independent of the context."""

@@ -5,15 +5,17 @@ hip–shoulder hinges, base fixed to the ground, every joint torque-actuated) is
 model of :mod:`skillkit.tasks.planar_model`; see there for the joint conventions
 (``q = [0, 0, 0, π]`` is upright with the arm pointing up). Both tasks step the compiled
 ``mujoco.MjModel``/``MjData`` directly with ``mujoco.mj_step`` (1 ms physics step) through
-:func:`skillkit.policies.controllers.run_feedback`, with torques held constant over each
+:func:`skillkit.tasks.controllers.run_feedback`, with torques held constant over each
 control period (zero-order hold).
 
 * :class:`Throwing` (registered ``throwing``, and ``throwing-noisy`` with release noise): a
   DMP reference tracked by an inertia-weighted PD controller with gravity compensation; the
   ball leaves the hand at the release time t_r and flies to the ground. Context s = [x, y],
   the target.
-* :class:`Balancing` (registered ``balancing`` and ``balancing-noisy``): a linear state
-  feedback u = G x̃ around upright from a random initial state. Context-free.
+* :class:`~skillkit.tasks.balancing.Balancing` (registered ``balancing`` and
+  ``balancing-noisy``, in :mod:`skillkit.tasks.balancing`): a linear state feedback u = G x̃
+  around upright from a random initial state. Context-free. (``Balancing`` and
+  ``balancing_transitions`` are still importable from here.)
 """
 
 from __future__ import annotations
@@ -23,30 +25,31 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
-import scipy.linalg
 
 from skillkit._validation import check_array, check_positive
-from skillkit.policies.controllers import control_substeps, run_feedback, track_reference
 from skillkit.policies.dmp import DMP, DMPParameters
-from skillkit.policies.gaussian import GaussianPolicy, LinearGaussianPolicy
-from skillkit.tasks.base import SimulationFailure, Task
+from skillkit.policies.gaussian import LinearGaussianPolicy
+from skillkit.tasks._trajectories import quintic
+from skillkit.tasks.base import ModelSignals, SimulationFailure, Task, check_count
+from skillkit.tasks.controllers import control_substeps, track_reference
 from skillkit.tasks.planar_model import (
+    JOINT_NAMES,
     LINK_LENGTHS,
     TIMESTEP,
     UPRIGHT,
     compile_planar_robot,
+    rigid_body_terms,
 )
 from skillkit.tasks.registry import register
 from skillkit.trajectory import Trajectory
 
 __all__ = [
-    "Balancing",
     "Throwing",
-    "balancing_transitions",
     "ballistic_flight",
     "hand_kinematics",
     "joint_limit_penalty",
     "path_distance",
+    "path_distances",
     "throwing_demonstration",
     "write_throwing_demonstration",
 ]
@@ -183,17 +186,35 @@ def path_distance(path, point) -> float:
     """
     path = check_array(path, "path", shape=(None, 2))
     point = check_array(point, "point", shape=(2,))
-    if path.shape[0] == 0:
+    return float(path_distances(path[None], point[None])[0])
+
+
+def path_distances(paths, points) -> np.ndarray:
+    """:func:`path_distance` for a batch of equally long paths.
+
+    Parameters
+    ----------
+    paths : array_like, shape (B, N, 2)
+    points : array_like, shape (B, 2)
+
+    Returns
+    -------
+    ndarray, shape (B,)
+    """
+    paths = check_array(paths, "paths", shape=(None, None, 2))
+    points = check_array(points, "points", shape=(paths.shape[0], 2))
+    if paths.shape[1] == 0:
         raise ValueError("path: expected at least one point")
-    if path.shape[0] == 1:
-        return float(np.linalg.norm(path[0] - point))
-    a, ab = path[:-1], np.diff(path, axis=0)
-    len2 = np.einsum("ij,ij->i", ab, ab)
-    proj = np.einsum("ij,ij->i", point - a, ab)
+    if paths.shape[1] == 1:
+        return np.array([np.linalg.norm(p[0] - s) for p, s in zip(paths, points, strict=True)])
+    point = points[:, None, :]
+    a, ab = paths[:, :-1], np.diff(paths, axis=1)
+    len2 = np.einsum("bij,bij->bi", ab, ab)
+    proj = np.einsum("bij,bij->bi", point - a, ab)
     frac = np.divide(proj, len2, out=np.zeros_like(proj), where=len2 > 0)
     frac = np.clip(frac, 0.0, 1.0)  # the closest point lies on the segment
-    closest = a + frac[:, None] * ab
-    return float(np.min(np.linalg.norm(closest - point, axis=1)))
+    closest = a + frac[..., None] * ab
+    return np.min(np.linalg.norm(closest - point, axis=-1), axis=1)
 
 
 def joint_limit_penalty(states) -> np.ndarray:
@@ -211,10 +232,14 @@ def joint_limit_penalty(states) -> np.ndarray:
     -------
     ndarray, shape (T,)
     """
-    x = check_array(states, "states", shape=(None, 8))
+    return _joint_limit_penalty(check_array(states, "states", shape=(None, 8)))
+
+
+def _joint_limit_penalty(x: np.ndarray) -> np.ndarray:
+    """f_c of :func:`joint_limit_penalty` for states of shape (..., 8), unvalidated."""
     low = np.where(x <= X_LOWER, X_LOWER - x, 0.0)
     high = np.where(x >= X_UPPER, X_UPPER - x, 0.0)
-    return (low**2).sum(axis=1) + (high**2).sum(axis=1)
+    return (low**2).sum(axis=-1) + (high**2).sum(axis=-1)
 
 
 def _check_divergence(qd: np.ndarray, limit: float, control_dt: float) -> None:
@@ -225,16 +250,6 @@ def _check_divergence(qd: np.ndarray, limit: float, control_dt: float) -> None:
         raise SimulationFailure(
             f"diverged: a joint speed exceeds {limit:g} rad/s at t = {t * control_dt:.3f} s"
         )
-
-
-def _minimum_jerk(t: np.ndarray, t0: float, t1: float) -> tuple[np.ndarray, ...]:
-    """Minimum-jerk 0→1 transition on [t0, t1]: s, ṡ, s̈ at times t (constant outside)."""
-    T = t1 - t0
-    u = np.clip((t - t0) / T, 0.0, 1.0)
-    s = 10 * u**3 - 15 * u**4 + 6 * u**5
-    sd = (30 * u**2 - 60 * u**3 + 30 * u**4) / T
-    sdd = (60 * u - 180 * u**2 + 120 * u**3) / T**2
-    return s, sd, sdd
 
 
 def _bump(t: np.ndarray, t0: float, t1: float) -> tuple[np.ndarray, ...]:
@@ -276,7 +291,7 @@ def throwing_demonstration(dt: float = 1e-3, duration: float = 1.0) -> dict[str,
     for j, amp in enumerate((0.15, -0.4, 0.3)):
         s, sd, sdd = _bump(t, 0.0, 0.8)
         q[:, j], qd[:, j], qdd[:, j] = amp * s, amp * sd, amp * sdd
-    s, sd, sdd = _minimum_jerk(t, 0.1, 0.9)
+    s, sd, sdd = quintic(t - 0.1, 0.9 - 0.1, clip=True)  # minimum jerk on [0.1, 0.9]
     q[:, 3], qd[:, 3], qdd[:, 3] = np.pi * s, np.pi * sd, np.pi * sdd
     return {"times": t, "q": q, "qd": qd, "qdd": qdd, "release_time": np.array(DEMO_RELEASE_TIME)}
 
@@ -306,7 +321,7 @@ class Throwing(Task):
     posture :data:`THROW_START` at rest and its goal is fixed to upright ``[0, 0, 0, π]``
     with zero final velocity (τ = 1, nominal duration 1 s). The DMP reference is tracked
     for ``horizon`` seconds (1.25 s) at ``control_dt`` (100 Hz default) by the PD tracker
-    of :func:`~skillkit.policies.controllers.track_reference` in its inertia-weighted form,
+    of :func:`~skillkit.tasks.controllers.track_reference` in its inertia-weighted form,
     u = M(q)(q̈_ref + kp e + kd ė) + c(q, q̇), with MuJoCo's bias force c (gravity and
     Coriolis) as compensation and the DMP's acceleration fed forward; kp = 900 s⁻²,
     kd = 60 s⁻¹ (every joint-space mode at 30 rad/s, critically damped). A plain diagonal
@@ -503,19 +518,94 @@ class Throwing(Task):
             ``energy`` Σ_t u_tᵀu_t.
         """
         s = self.check_context(context)
+        terms = self.reward_terms_batch(
+            trajectory.states[None],
+            trajectory.controls[None],
+            trajectory.signals["ball"][None],
+            s[None],
+        )
+        return {k: float(v[0]) for k, v in terms.items()}
+
+    @staticmethod
+    def reward_terms_batch(states, controls, ball, contexts) -> dict[str, np.ndarray]:
+        """:meth:`reward_terms` for a batch: states (B, T, 8), controls (B, T, 4), ball paths
+        (B, N, 2) and targets (B, 2); each term of shape (B,)."""
+        states = check_array(states, "states", shape=(None, None, 8))
+        controls = check_array(controls, "controls", shape=(states.shape[0], None, 4))
         return {
-            "distance": path_distance(trajectory.signals["ball"], s),
-            "joint_penalty": float(joint_limit_penalty(trajectory.states).sum()),
-            "energy": float(np.sum(trajectory.controls**2)),
+            "distance": path_distances(ball, contexts),
+            "joint_penalty": _joint_limit_penalty(states).sum(axis=1),
+            "energy": (controls**2).sum(axis=(1, 2)),
         }
 
-    def _reward(self, trajectory: Trajectory, context: np.ndarray) -> float:
-        terms = self.reward_terms(trajectory, context)
+    def reward_batch(self, states, controls, signals, contexts) -> np.ndarray:
+        """R = −c1 min_t ‖b_t − s‖ − c2 Σ_t f_c(x_t) − c3 Σ_t u_tᵀu_t (Appendix C.1), shape (B,).
+
+        ``signals["ball"]`` (B, N, 2) holds the ball paths (held part and flight; paths of
+        one batch have equal length, e.g. predicted ones); numpy only.
+        """
+        terms = self.reward_terms_batch(states, controls, signals["ball"], contexts)
         return -(
             self.c1 * terms["distance"]
             + self.c2 * terms["joint_penalty"]
             + self.c3 * terms["energy"]
         )
+
+    def reward_signals(self, trajectory: Trajectory) -> dict[str, np.ndarray]:
+        """The ball path, ``{"ball": (N, 2)}``."""
+        return {"ball": trajectory.signals["ball"]}
+
+    # ------------------------------------------------------------------ model-based search
+    supports_model_rollout = True
+
+    def model_signals(self) -> ModelSignals:
+        """x = [q, q̇] (8), u = the applied joint torques (4); the reward also reads the ball
+        path, which follows from the hand state at the release time (:func:`ballistic_flight`)."""
+        return ModelSignals(
+            state=tuple(JOINT_NAMES) + tuple(f"{j}_velocity" for j in JOINT_NAMES),
+            control=tuple(f"{j}_torque" for j in JOINT_NAMES),
+            signals=("ball",),
+        )
+
+    def initial_states(self, context, n: int, rng=None) -> np.ndarray:
+        """Every throw starts at rest in :data:`THROW_START`: ``n`` copies of [q_0, 0]
+        (shape (n, 8); ``rng`` is unused)."""
+        self.check_context(context)
+        return np.tile(np.concatenate([THROW_START, np.zeros(4)]), (check_count(n), 1))
+
+    def controller(self, omegas, contexts=None, device=None, dtype=None):
+        """The inertia-weighted PD tracker of the DMP reference, on predicted states.
+
+        u = M(q)(q̈_ref,t + kp (q_ref,t − q) + kd (q̇_ref,t − q̇)) + c(q, q̇) with the DMP
+        reference of ω_b (:meth:`reference`) at control step t, M and c the robot's
+        inertia and bias force in closed form
+        (:func:`~skillkit.tasks.planar_model.rigid_body_terms`, MuJoCo's to ~1e-12).
+        ``t`` must be below the number of control steps.
+        """
+        import torch
+
+        omegas = check_array(omegas, "omegas", shape=(None, self.parameter_dim))
+        dtype = torch.float64 if dtype is None else dtype
+        refs = [self.reference(w) for w in omegas]
+        q_ref, qd_ref, qdd_ref = (
+            torch.as_tensor(np.stack([r[i] for r in refs]), dtype=dtype, device=device)
+            for i in range(3)
+        )
+        kp = torch.as_tensor(self.kp, dtype=dtype, device=device)
+        kd = torch.as_tensor(self.kd, dtype=dtype, device=device)
+
+        def policy(t: int, x, pair):
+            q, qd = x[:, :4], x[:, 4:]
+            acc = kp * (q_ref[pair, t] - q) + kd * (qd_ref[pair, t] - qd)
+            acc = acc + qdd_ref[pair, t]
+            m, c = rigid_body_terms(q, qd, self.robot.gravity)
+            return (m @ acc[:, :, None])[:, :, 0] + c
+
+        return policy
+
+    def scene_model(self) -> mujoco.MjModel:
+        """The planar robot's compiled MuJoCo model."""
+        return self.robot.model
 
     # ------------------------------------------------------------------ policy
     @cached_property
@@ -563,264 +653,10 @@ def throwing_noisy(**kwargs) -> Throwing:
     return Throwing(**kwargs)
 
 
-# =========================================================================== balancing
-class Balancing(Task):
-    """Balancing the planar 4-link robot around upright (Sec. 4.3.1; Sec. 5.4 settings).
+def __getattr__(name: str):
+    """``Balancing`` and ``balancing_transitions`` moved to :mod:`skillkit.tasks.balancing`."""
+    if name in ("Balancing", "balancing_transitions", "balancing", "balancing_noisy"):
+        from skillkit.tasks import balancing
 
-    **Lower-level policy** (32 parameters): the linear feedback u_t = G x̃_t with
-    x̃_t = [q_t − q_up, q̇_t] the deviation from upright q_up = [0, 0, 0, π] and the gain
-    matrix G (4 × 8) = ω reshaped **row-major** (``G[i, j] = ω[8 i + j]``: row i gives the
-    torque of joint i). No gravity compensation: gravity exerts no torque at upright.
-    Optional Gaussian torque noise (``torque_noise_std``, N m) is added to the applied
-    torque, making the dynamics stochastic (Sec. 5.4 uses 4).
-
-    **Episode.** The initial state is Gaussian around upright, q_0 ~ N(q_up, σ² I),
-    q̇_0 ~ N(0, σ² I) with σ = ``initial_std`` (0.3 as in Sec. 5.4). Torques are computed
-    at ``control_dt`` (20 Hz default) and held over the period (1 ms physics steps) for
-    ``n_steps`` = T control steps (40, so 2 s).
-
-    **Reward**
-
-        R(τ) = −Σ_{t=1}^{T} (x̃_tᵀ Q x̃_t + r_u u_tᵀ u_t),
-
-    with Q = ``state_weights`` (default I₈, the −Σ (x_t − x_r)ᵀ(x_t − x_r) of Sec. 4.2) and
-    r_u = ``control_weight`` (default 0). Sec. 5.4's immediate reward
-    −10 q̃ᵀq̃ − 0.1 q̇ᵀq̇ − 10⁻⁵ uᵀu is the ``balancing-noisy`` variant (Q = diag(10 I₄,
-    0.1 I₄), r_u = 1e-5, torque noise 4). u_t is the commanded torque G x̃_t; u_T is the
-    command at the final state (computed, not applied).
-
-    **Failures.** A run with a joint angle more than ``max_angle`` (20 rad) from upright or a
-    speed above ``max_joint_speed`` (100 rad/s) is stopped as diverged
-    (:class:`SimulationFailure`), so every working rollout has a bounded reward and
-    :attr:`worst_reward` (−1e7) lies below it in practice.
-
-    Trajectory: ``times`` (T+1,), ``states`` (T+1, 8) = [q, q̇] at the control steps,
-    ``controls`` (T+1, 4) commanded torques; signal ``torque_noise`` (T, 4). Use
-    :func:`balancing_transitions` for the (x_t, u_t, x_{t+1}) transitions.
-
-    Parameters
-    ----------
-    initial_std : float
-        σ of the initial state distribution (rad, rad/s).
-    torque_noise_std : float
-        Standard deviation of the additive torque noise (N m), 0 for deterministic dynamics.
-    n_steps : int
-        Horizon T in control steps.
-    control_dt : float
-        Control period (s), a multiple of the 1 ms physics step.
-    state_weights : array_like, shape (8, 8) or (8,), optional
-        Q (a vector is its diagonal); default identity.
-    control_weight : float
-        r_u ≥ 0.
-    max_angle, max_joint_speed : float
-        Divergence thresholds.
-    """
-
-    name = "balancing"
-    context_dim = 0
-    parameter_dim = 32
-    trajectory_depends_on_context = False
-    worst_reward = -1e7
-
-    def __init__(
-        self,
-        initial_std: float = 0.3,
-        torque_noise_std: float = 0.0,
-        n_steps: int = 40,
-        control_dt: float = 0.05,
-        state_weights=None,
-        control_weight: float = 0.0,
-        max_angle: float = 20.0,
-        max_joint_speed: float = 100.0,
-    ) -> None:
-        self.robot = _PlanarRobot(TIMESTEP)
-        self.initial_std = check_positive(initial_std, "initial_std", allow_zero=True)
-        self.torque_noise_std = check_positive(
-            torque_noise_std, "torque_noise_std", allow_zero=True
-        )
-        if isinstance(n_steps, bool) or int(n_steps) != n_steps or n_steps < 1:
-            raise ValueError(f"n_steps: expected a positive integer, got {n_steps!r}")
-        self.n_steps = int(n_steps)
-        self.control_dt = check_positive(control_dt, "control_dt")
-        control_substeps(self.robot.model, self.control_dt)
-        if state_weights is None:
-            q_w = np.eye(8)
-        else:
-            q_w = check_array(state_weights, "state_weights", ndim=(1, 2))
-            q_w = np.diag(q_w) if q_w.ndim == 1 else q_w
-            if q_w.shape != (8, 8):
-                raise ValueError(f"state_weights: expected shape (8,) or (8, 8), got {q_w.shape}")
-            if np.max(np.abs(q_w - q_w.T)) > 1e-12 * max(1.0, np.max(np.abs(q_w))):
-                raise ValueError("state_weights: expected a symmetric matrix")
-            if np.min(np.linalg.eigvalsh(q_w)) < 0:
-                raise ValueError("state_weights: expected a positive semi-definite matrix")
-        self.state_weights = q_w
-        self.control_weight = check_positive(control_weight, "control_weight", allow_zero=True)
-        self.max_angle = check_positive(max_angle, "max_angle")
-        self.max_joint_speed = check_positive(max_joint_speed, "max_joint_speed")
-
-    # ------------------------------------------------------------------ episodes
-    @staticmethod
-    def gain_matrix(omega) -> np.ndarray:
-        """G (4, 8) from ω (32,), row-major."""
-        return check_array(omega, "omega", shape=(32,)).reshape(4, 8)
-
-    def _simulate(
-        self, omega: np.ndarray, context: np.ndarray, rng: np.random.Generator
-    ) -> Trajectory:
-        G = self.gain_matrix(omega)
-        q0 = UPRIGHT + self.initial_std * rng.standard_normal(4)
-        qd0 = self.initial_std * rng.standard_normal(4)
-        noise = self.torque_noise_std * rng.standard_normal((self.n_steps, 4))
-        commanded = np.empty((self.n_steps + 1, 4))
-
-        def feedback(t: int, q: np.ndarray, qd: np.ndarray, data: mujoco.MjData) -> np.ndarray:
-            commanded[t] = G @ np.concatenate([q - UPRIGHT, qd])
-            return commanded[t] + noise[t]
-
-        robot = self.robot
-        robot.reset(q0, qd0)
-        out = run_feedback(robot.model, robot.data, feedback, self.n_steps, self.control_dt)
-        q = np.vstack([out["q"], robot.data.qpos])
-        qd = np.vstack([out["qd"], robot.data.qvel])
-        self._check_divergence(q, qd)
-        commanded[-1] = G @ np.concatenate([q[-1] - UPRIGHT, qd[-1]])
-        times = np.arange(self.n_steps + 1) * self.control_dt
-        return Trajectory(
-            times,
-            np.hstack([q, qd]),
-            commanded,
-            signals={"torque_noise": noise},
-            info={"initial_state": np.concatenate([q0, qd0]).tolist()},
-        )
-
-    def _check_divergence(self, q: np.ndarray, qd: np.ndarray) -> None:
-        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd))):
-            raise SimulationFailure("non-finite final state")
-        _check_divergence(qd, self.max_joint_speed, self.control_dt)
-        far = np.abs(q - UPRIGHT).max(axis=1) > self.max_angle
-        if far.any():
-            t = int(np.argmax(far))
-            raise SimulationFailure(
-                f"diverged: a joint is more than {self.max_angle:g} rad from "
-                f"upright at t = {t * self.control_dt:.3f} s"
-            )
-
-    # ------------------------------------------------------------------ reward
-    def _reward(self, trajectory: Trajectory, context: np.ndarray) -> float:
-        x = trajectory.states[1:] - np.concatenate([UPRIGHT, np.zeros(4)])
-        u = trajectory.controls[1:]
-        cost = np.einsum("ti,ij,tj->", x, self.state_weights, x)
-        return -float(cost + self.control_weight * np.sum(u**2))
-
-    # ------------------------------------------------------------------ policy
-    def linearization(self) -> tuple[np.ndarray, np.ndarray]:
-        """Discrete-time linearisation at upright for one control period.
-
-        ``mujoco.mjd_transitionFD`` (centred differences) gives x⁺ = A x + B u for one physics
-        step at (q_up, 0, u = 0); holding u for the k = control_dt / timestep steps of a
-        control period gives A_c = A^k and B_c = Σ_{i<k} A^i B.
-
-        Returns
-        -------
-        A_c : ndarray, shape (8, 8)
-        B_c : ndarray, shape (8, 4)
-        """
-        model, data = self.robot.model, self.robot.data
-        self.robot.reset(UPRIGHT, np.zeros(4))
-        data.ctrl[:] = 0.0
-        a = np.zeros((8, 8))
-        b = np.zeros((8, 4))
-        mujoco.mjd_transitionFD(model, data, 1e-6, True, a, b, None, None)
-        a_c, b_c = np.eye(8), np.zeros((8, 4))
-        for _ in range(control_substeps(model, self.control_dt)):
-            a_c, b_c = a @ a_c, a @ b_c + b
-        return a_c, b_c
-
-    def lqr_gain(self, state_weights=None, control_weight: float = 1e-4) -> np.ndarray:
-        """Discrete LQR gain G = −K at upright (u = G x̃), from :meth:`linearization`.
-
-        K = (R + B_cᵀ P B_c)⁻¹ B_cᵀ P A_c with P the solution of the discrete algebraic Riccati
-        equation for cost Σ x̃ᵀ Q x̃ + uᵀ R u, R = ``control_weight`` · I₄.
-
-        Parameters
-        ----------
-        state_weights : array_like, shape (8, 8), optional
-            Q (default: the task's reward weights).
-        control_weight : float
-            R / I (> 0).
-
-        Returns
-        -------
-        ndarray, shape (4, 8)
-        """
-        q_w = (
-            self.state_weights
-            if state_weights is None
-            else check_array(state_weights, "state_weights", shape=(8, 8))
-        )
-        r_w = check_positive(control_weight, "control_weight") * np.eye(4)
-        a_c, b_c = self.linearization()
-        p = scipy.linalg.solve_discrete_are(a_c, b_c, q_w, r_w)
-        k = np.linalg.solve(r_w + b_c.T @ p @ b_c, b_c.T @ p @ a_c)
-        return -k
-
-    exploration_std_fraction = 0.01
-
-    def initial_policy(self) -> GaussianPolicy:
-        """N(ω | vec(G_lqr), Σ_0): a stabilising gain with cautious exploration.
-
-        The mean is the LQR gain of :meth:`lqr_gain` (Q = the task's state weights,
-        R = 1e-4 I), flattened row-major. Σ_0 is diagonal with standard deviations
-        :attr:`exploration_std_fraction` (1%) of |G_lqr| entry-wise. The closed loop at 20 Hz
-        is sensitive to independent perturbations of the 32 gains: with 10% relative
-        exploration about half of the sampled controllers let the robot fall or diverge,
-        with 1% none did in our checks.
-        """
-        g = self.lqr_gain().ravel()
-        std = self.exploration_std_fraction * np.abs(g)
-        return GaussianPolicy(g, np.diag(std**2))
-
-
-def balancing_transitions(trajectory: Trajectory) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The (x_t, u_t, x_{t+1}) transitions of a balancing trajectory at the control rate.
-
-    The training data of GP forward models and conditional embeddings (Chs. 4–5).
-
-    Parameters
-    ----------
-    trajectory : Trajectory
-        A (non-failed) :class:`Balancing` trajectory with T + 1 states.
-
-    Returns
-    -------
-    x : ndarray, shape (T, 8)
-        States [q, q̇] at t = 0..T−1.
-    u : ndarray, shape (T, 4)
-        Commanded torques (the torque noise is part of the stochastic dynamics).
-    x_next : ndarray, shape (T, 8)
-        Successor states at t = 1..T.
-    """
-    if trajectory.failed:
-        raise ValueError(
-            f"trajectory: a failed trajectory has no transitions ({trajectory.message})"
-        )
-    states = check_array(trajectory.states, "trajectory.states", shape=(None, 8))
-    controls = check_array(trajectory.controls, "trajectory.controls", shape=(states.shape[0], 4))
-    return states[:-1], controls[:-1], states[1:]
-
-
-@register("balancing", "planar", "context-free")
-def balancing(**kwargs) -> Balancing:
-    """Balancing (Sec. 4.3.1): deterministic, initial std 0.3, Q = I, 40 steps at 20 Hz."""
-    return Balancing(**kwargs)
-
-
-@register("balancing-noisy", "planar", "context-free")
-def balancing_noisy(**kwargs) -> Balancing:
-    """Balancing with Sec. 5.4's settings: torque noise std 4 N m, T = 40, and reward
-    −10 q̃ᵀq̃ − 0.1 q̇ᵀq̇ − 1e-5 uᵀu."""
-    kwargs.setdefault("torque_noise_std", 4.0)
-    kwargs.setdefault("state_weights", np.concatenate([np.full(4, 10.0), np.full(4, 0.1)]))
-    kwargs.setdefault("control_weight", 1e-5)
-    return Balancing(**kwargs)
+        return getattr(balancing, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -41,6 +41,8 @@ from __future__ import annotations
 import numpy as np
 from dm_control import mjcf
 
+from skillkit.tasks._mjcf import mjcf_root
+
 LINK_NAMES = ("shin", "thigh", "torso", "arm")
 JOINT_NAMES = ("ankle", "knee", "hip", "shoulder")
 LINK_MASSES = np.array([17.5, 17.5, 26.5, 8.5])
@@ -64,14 +66,7 @@ def build_planar_robot(timestep: float = TIMESTEP) -> mjcf.RootElement:
     dm_control.mjcf.RootElement
         The model; compile with ``mjcf.Physics.from_mjcf_model``.
     """
-    root = mjcf.RootElement(model="planar_4link")
-    root.option.timestep = timestep
-    root.option.gravity = [0.0, 0.0, -9.81]
-    root.option.integrator = "Euler"
-    root.compiler.angle = "radian"
-    root.default.geom.contype = 0
-    root.default.geom.conaffinity = 0
-    root.default.geom.rgba = [0.55, 0.6, 0.7, 1.0]
+    root = mjcf_root("planar_4link", timestep, geom_rgba=[0.55, 0.6, 0.7, 1.0])
     root.worldbody.add("light", pos=[0, -6, 4], dir=[0, 1, -0.5])
     root.worldbody.add(
         "geom",
@@ -119,3 +114,51 @@ def compile_planar_robot(timestep: float = TIMESTEP) -> mjcf.Physics:
     with ``mujoco.mj_step`` in inner loops.
     """
     return mjcf.Physics.from_mjcf_model(build_planar_robot(timestep))
+
+
+def _chain_constants() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """H (4, 4), b (4,) and the rod inertias I (4,) of :func:`rigid_body_terms`."""
+    a = np.zeros((4, 4))  # a[k, j]: lever of absolute angle θ_j in the centre of mass of link k
+    for k in range(4):
+        a[k, :k] = LINK_LENGTHS[:k]
+        a[k, k] = (-1.0 if LINK_NAMES[k] == "arm" else 1.0) * LINK_LENGTHS[k] / 2
+    h = a.T @ np.diag(LINK_MASSES) @ a
+    return h, a.T @ LINK_MASSES, LINK_MASSES * LINK_LENGTHS**2 / 12.0
+
+
+def rigid_body_terms(q, qd, gravity: float = 9.81):
+    """Joint-space inertia M(q) and bias force c(q, q̇) of the robot, in closed form (torch).
+
+    The equations of motion M(q) q̈ + c(q, q̇) = u of :func:`build_planar_robot` (MuJoCo's
+    ``qM`` and ``qfrc_bias``). With absolute link angles θ = L q (L lower triangular ones)
+    the centre of mass of link k is p_k = Σ_j a_kj (sin θ_j, cos θ_j) (in the x–z plane), so
+    the kinetic energy is ½ θ̇ᵀ (H ⊙ cos(θ_i − θ_j) + diag I) θ̇ with H = Aᵀ diag(m) A, and
+    the potential g Σ_j b_j cos θ_j with b = Aᵀ m. Lagrange's equations in θ give
+    M_θ = H ⊙ cos(θ_i − θ_j) + diag I and h_θ,i = Σ_j H_ij sin(θ_i − θ_j) θ̇_j² − g b_i sin θ_i;
+    in joint coordinates M = Lᵀ M_θ L and c = Lᵀ h_θ.
+
+    Parameters
+    ----------
+    q, qd : Tensor, shape (..., 4)
+        Joint angles and velocities.
+    gravity : float
+        g (m/s²).
+
+    Returns
+    -------
+    M : Tensor, shape (..., 4, 4)
+    c : Tensor, shape (..., 4)
+    """
+    import torch
+
+    h_np, b_np, i_np = _chain_constants()
+    kw = {"dtype": q.dtype, "device": q.device}
+    h, b = torch.as_tensor(h_np, **kw), torch.as_tensor(b_np, **kw)
+    lower = torch.tril(torch.ones(4, 4, **kw))
+    theta, theta_d = q @ lower.T, qd @ lower.T
+    diff = theta[..., :, None] - theta[..., None, :]
+    m_theta = h * torch.cos(diff) + torch.diag(torch.as_tensor(i_np, **kw))
+    h_theta = (h * torch.sin(diff) * theta_d[..., None, :] ** 2).sum(-1) - gravity * b * torch.sin(
+        theta
+    )
+    return lower.T @ m_theta @ lower, h_theta @ lower

@@ -657,20 +657,10 @@ def add_mujoco_model(
 
 
 def task_model(task) -> mujoco.MjModel | None:
-    """The compiled MuJoCo model a task simulates, or None.
-
-    Looked up, in order, as ``task.scene_model()``, ``task.model`` and ``task.robot.model``.
-    """
+    """The compiled MuJoCo model a task simulates (``task.scene_model()``), or None."""
     getter = getattr(task, "scene_model", None)
-    if callable(getter):
-        return getter()
-    for candidate in (
-        getattr(task, "model", None),
-        getattr(getattr(task, "robot", None), "model", None),
-    ):
-        if isinstance(candidate, mujoco.MjModel):
-            return candidate
-    return None
+    model = getter() if callable(getter) else None
+    return model if isinstance(model, mujoco.MjModel) else None
 
 
 # ============================================================================ task scenes
@@ -823,8 +813,7 @@ class MujocoTaskScene(TaskScene):
         model = task_model(task)
         if model is None:
             raise ValueError(
-                f"task: {type(task).__name__} exposes no MuJoCo model "
-                "(needs scene_model(), model or robot.model)"
+                f"task: {type(task).__name__} exposes no MuJoCo model (needs Task.scene_model())"
             )
         self.robot = add_mujoco_model(
             scene, model, "/arm", world_paths=self.world_paths, skip_geoms=self.skip_geoms

@@ -6,14 +6,8 @@ import numpy as np
 import pytest
 import torch
 
-from skillkit.experiments.ch4_models import (
-    _balancing_rewards,
-    collect_balancing,
-    feedback_policy,
-    gaussian_fit,
-)
+from skillkit.experiments.ch4_models import gaussian_fit
 from skillkit.experiments.runner import run_trials
-from skillkit.tasks import make
 
 TINY_4_3 = dict(
     n_data=120,
@@ -39,31 +33,6 @@ TINY_4_5 = dict(
 @pytest.fixture(scope="module")
 def fig43():
     return run_trials("fig4.3", "quick", seed=0, progress=False, **TINY_4_3)
-
-
-def test_collect_balancing_transitions_are_consecutive():
-    task = make("balancing", n_steps=5, torque_noise_std=0.5)
-    data = collect_balancing(task, 3, np.random.default_rng(0))
-    assert (
-        data["x"].shape == (15, 8)
-        and data["u"].shape == (15, 4)
-        and data["omegas"].shape == (3, 32)
-    )
-    np.testing.assert_array_equal(data["x"][1:5], data["x_next"][:4])
-    np.testing.assert_allclose(data["u"][:5], data["trajectories"][0].controls[:5])
-
-
-def test_reward_of_states_equals_task_reward_and_policy_is_the_feedback():
-    task = make("balancing", n_steps=5, torque_noise_std=0.0)
-    data = collect_balancing(task, 2, np.random.default_rng(1))
-    G = data["omegas"].reshape(-1, 4, 8)
-    states = np.stack([t.states for t in data["trajectories"]])[:, None]  # (B, 1, T+1, 8)
-    got = _balancing_rewards(task, states, G)[:, 0]
-    np.testing.assert_allclose(got, [task.reward(t) for t in data["trajectories"]], rtol=1e-12)
-    pol = feedback_policy(torch.as_tensor(G))
-    x = torch.as_tensor(states[:, 0, 0])
-    u = pol(0, x, torch.arange(2)).numpy()
-    np.testing.assert_allclose(u, data["u"][[0, 5]], rtol=1e-10, atol=1e-10)
 
 
 def test_gaussian_fit_is_unbiased_moments():

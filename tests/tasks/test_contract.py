@@ -8,12 +8,15 @@ from __future__ import annotations
 
 import warnings
 
+import mujoco
 import numpy as np
 import pytest
+import torch
 
-from skillkit.tasks import Task, make, names
+from skillkit.tasks import ModelSignals, Task, make, names, tags
 from skillkit.tasks.base import SimulationFailure
 from skillkit.trajectory import Trajectory
+from skillkit.viz.scenes import task_model
 
 TASKS = names()
 
@@ -168,3 +171,152 @@ def test_trajectory_save_load_roundtrip(task, tmp_path):
     np.testing.assert_array_equal(back.times, traj.times)
     assert back.signals.keys() == traj.signals.keys()
     assert task.reward(back, s) == task.reward(traj, s)
+
+
+# ------------------------------------------------------------------ model-based search protocol
+def _noise_free(name: str) -> Task:
+    """The task with its control noise off: the pendulum records the applied (noisy) torque,
+    every other task the commanded one."""
+    return make(name, control_noise=0.0) if "pendulum" in tags(name) else make(name)
+
+
+def _rollouts(task: Task, n: int = 3) -> tuple[np.ndarray, np.ndarray, list[Trajectory]]:
+    contexts = task.sample_context(np.random.default_rng(21), n=n)
+    omegas = np.stack([_omega(task, s, seed=30 + i) for i, s in enumerate(contexts)])
+    trajs = [
+        task.rollout(w, s, rng=40 + i)
+        for i, (w, s) in enumerate(zip(omegas, contexts, strict=True))
+    ]
+    assert not any(t.failed for t in trajs)
+    return omegas, contexts, trajs
+
+
+def test_model_signals_name_the_model_state(task):
+    sig = task.model_signals()
+    assert isinstance(sig, ModelSignals)
+    assert sig.state_dim >= 1 and sig.state_dim == len(sig.state)
+    x0 = task.initial_states(task.sample_context(5), 4, rng=0)
+    assert x0.shape == (4, sig.state_dim) and x0.dtype == np.float64
+    assert np.all(np.isfinite(x0))
+
+
+def test_initial_states_seeded_and_validated(task):
+    s = task.sample_context(6)
+    np.testing.assert_array_equal(task.initial_states(s, 3, rng=1), task.initial_states(s, 3, 1))
+    for bad in (0, -2, 1.5, True):
+        with pytest.raises(ValueError, match="n"):
+            task.initial_states(s, bad, rng=0)
+    if task.context_dim:
+        with pytest.raises(ValueError, match="context"):
+            task.initial_states(np.full(task.context_dim, 1e6), 2, rng=0)
+
+
+def test_initial_states_are_the_simulators_start(task):
+    """A deterministic start equals the simulator's first state; a random one (balancing) has
+    the simulator's distribution: N(x_up, σ² I), checked by its moments."""
+    if not task.supports_model_rollout:
+        pytest.skip("no step-based model state")
+    _, contexts, trajs = _rollouts(task, 2)
+    a = task.initial_states(contexts[0], 2000, rng=0)
+    if np.all(a == a[0]):
+        for s, t in zip(contexts, trajs, strict=True):
+            np.testing.assert_array_equal(task.initial_states(s, 1, rng=3)[0], t.states[0])
+    else:
+        short = make(task.name, n_steps=1)  # random starts: balancing; one step suffices
+        omega = short.initial_policy().mean_of(np.zeros(0))
+        starts = np.stack([short.rollout(omega, None, rng=i).states[0] for i in range(400)])
+        np.testing.assert_allclose(a.mean(0), starts.mean(0), atol=0.1)
+        np.testing.assert_allclose(a.std(0), starts.std(0), rtol=0.2)
+
+
+def test_transitions_are_consecutive_or_unsupported(task):
+    s = task.sample_context(7)
+    traj = task.rollout(_omega(task, s), s, rng=2)
+    if not task.supports_model_rollout:
+        assert task.no_model_rollout_reason
+        with pytest.raises(NotImplementedError, match="not available"):
+            task.transitions(traj)
+        with pytest.raises(NotImplementedError, match="not available"):
+            task.controller(_omega(task, s)[None], s[None])
+        return
+    sig = task.model_signals()
+    x, u, x_next = task.transitions(traj)
+    T = traj.n_steps
+    assert x.shape == (T - 1, sig.state_dim) and x_next.shape == x.shape
+    assert u.shape == (T - 1, sig.control_dim)
+    np.testing.assert_array_equal(x[1:], x_next[:-1])
+    np.testing.assert_array_equal(u, traj.controls[:-1])
+    failed = Trajectory(np.zeros(1), np.zeros((1, 1)), np.zeros((1, 1)), failed=True, message="x")
+    with pytest.raises(ValueError, match="failed"):
+        task.transitions(failed)
+
+
+@pytest.mark.parametrize("name", [n for n in TASKS if make(n).supports_model_rollout])
+def test_controller_reproduces_the_simulators_controls(name):
+    """The batched torch controller on the simulator's own states gives its controls."""
+    task = _noise_free(name)
+    omegas, contexts, trajs = _rollouts(task, 2)
+    policy = task.controller(omegas, contexts)
+    states = np.stack([t.states for t in trajs])
+    controls = np.stack([t.controls for t in trajs])
+    pair = torch.arange(2)
+    got = np.stack(
+        [
+            policy(t, torch.as_tensor(states[:, t]), pair).numpy()
+            for t in range(states.shape[1] - 1)
+        ],
+        axis=1,
+    )
+    scale = max(1.0, np.abs(controls).max())
+    np.testing.assert_allclose(got, controls[:, :-1], rtol=0, atol=1e-9 * scale)
+    # dtype and pair indexing follow the sampler's contract
+    p32 = task.controller(omegas, contexts, dtype=torch.float32)
+    u = p32(0, torch.as_tensor(states[[1, 0, 1], 0], dtype=torch.float32), torch.tensor([1, 0, 1]))
+    assert u.dtype == torch.float32 and u.shape == (3, task.model_signals().control_dim)
+    np.testing.assert_allclose(u.numpy(), controls[[1, 0, 1], 0], rtol=1e-4, atol=1e-4 * scale)
+
+
+def test_reward_batch_is_the_reward(task):
+    """One definition: the batch of every trajectory (stacked where lengths agree) scores
+    exactly what :meth:`Task.reward` does, in the rollout's and in other contexts."""
+    _, contexts, trajs = _rollouts(task, 3)
+    other = task.sample_context(np.random.default_rng(8), n=3)
+    for ss in (contexts, other):
+        expected = np.array([task.reward(t, s) for t, s in zip(trajs, ss, strict=True)])
+        inputs = [(t.states, t.controls, task.reward_signals(t)) for t in trajs]
+        same = all(
+            a[0].shape == inputs[0][0].shape
+            and all(np.shape(a[2][k]) == np.shape(inputs[0][2][k]) for k in a[2])
+            for a in inputs
+        )
+        groups = [list(range(3))] if same else [[i] for i in range(3)]
+        for g in groups:
+            got = task.reward_batch(
+                np.stack([inputs[i][0] for i in g]),
+                np.stack([inputs[i][1] for i in g]),
+                {k: np.stack([inputs[i][2][k] for i in g]) for k in inputs[0][2]},
+                ss[g],
+            )
+            assert np.shape(got) == (len(g),)
+            np.testing.assert_allclose(got, expected[g], rtol=1e-12, atol=0)
+
+
+def test_reward_batch_takes_torch_where_models_predict_states(task):
+    if not task.supports_model_rollout or task.name.startswith("throwing"):
+        pytest.skip("numpy-only reward (event signals)")
+    _, contexts, trajs = _rollouts(task, 2)
+    states = np.stack([t.states for t in trajs])
+    controls = np.stack([t.controls for t in trajs])
+    r_np = task.reward_batch(states, controls, {}, contexts)
+    r_t = task.reward_batch(torch.as_tensor(states), torch.as_tensor(controls), {}, contexts)
+    assert isinstance(r_t, torch.Tensor) and r_t.shape == (2,)
+    np.testing.assert_allclose(r_t.numpy(), r_np, rtol=1e-12)
+
+
+def test_scene_model(task):
+    model = task.scene_model()
+    if "pendulum" in tags(task.name):
+        assert model is None  # drawn by the viewer's dedicated pendulum scene
+    else:
+        assert isinstance(model, mujoco.MjModel)
+        assert task_model(task) is model

@@ -1,5 +1,5 @@
 """Physics and task-specific checks of the planar 4-link robot (Appendix C.1): the MuJoCo
-model, the trackers of :mod:`skillkit.policies.controllers`, throwing and balancing.
+model, the trackers of :mod:`skillkit.tasks.controllers`, throwing and balancing.
 
 The generic Task contract (shapes, seeds, re-scoring, failures) lives in test_contract.py.
 """
@@ -12,9 +12,9 @@ import mujoco
 import numpy as np
 import pytest
 
-from skillkit.policies.controllers import pd_torque, run_feedback, track_reference
 from skillkit.tasks import make
 from skillkit.tasks.base import SimulationFailure
+from skillkit.tasks.controllers import pd_torque, run_feedback, track_reference
 from skillkit.tasks.planar import (
     DEMONSTRATION_FILE,
     Balancing,

@@ -297,6 +297,9 @@ class ToyTask(Task):
     def __init__(self, model):
         self.model = model
 
+    def scene_model(self):
+        return self.model
+
     def _simulate(self, omega, context, rng):
         times = np.linspace(0.0, 1.0, 11)
         q = np.column_stack([times, -times, omega[0] * times])

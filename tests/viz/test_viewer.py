@@ -171,6 +171,9 @@ class BlowUp(Task):
         "</body></worldbody></mujoco>"
     )
 
+    def scene_model(self):
+        return self.model
+
     def _simulate(self, omega, context, rng):
         times = np.linspace(0.0, 1.0, 5)
         q = omega[0] * times if omega[0] <= 1 else np.full(5, np.nan)

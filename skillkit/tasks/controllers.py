@@ -25,6 +25,7 @@ import mujoco
 import numpy as np
 
 from skillkit._validation import check_array, check_positive
+from skillkit.tasks.base import SimulationFailure
 
 __all__ = ["control_substeps", "joint_addresses", "pd_torque", "run_feedback", "track_reference"]
 
@@ -200,9 +201,6 @@ def run_feedback(
     # MuJoCo checks qpos/qvel/qacc every step and, on NaN/inf or huge values, warns and resets
     # the state; so one check of its warning counters (and of our outputs) after the loop
     # catches every blow-up without a per-step cost.
-    # Imported here: skillkit.tasks imports this module (a top-level import would be circular).
-    from skillkit.tasks.base import SimulationFailure
-
     if _instability_count(data) != warn0:
         raise SimulationFailure(
             "MuJoCo flagged an unstable simulation (non-finite or huge "

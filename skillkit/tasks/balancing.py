@@ -1,0 +1,519 @@
+"""Balancing the planar 4-link robot (Sec. 4.3.1, Sec. 5.4) and its model-learning helpers.
+
+:class:`Balancing` (registered ``balancing`` and ``balancing-noisy``) runs the linear state
+feedback u = G (x − x_up) around upright on the robot of :mod:`skillkit.tasks.planar_model`.
+The helpers here are the domain code of the model experiments of Chs. 4–5: the upright
+state :data:`X_UP`, robustly balancing gains drawn from the initial policy
+(:func:`stable_gains`) or from randomised LQR designs (:func:`random_lqr_gains`), data
+collection (:func:`collect_balancing`) and the batched torch feedback policy for the
+trajectory sampler (:func:`feedback_policy`).
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import scipy.linalg
+
+from skillkit._validation import as_generator, check_array, check_positive
+from skillkit.policies.gaussian import GaussianPolicy
+from skillkit.tasks.base import (
+    ModelSignals,
+    SimulationFailure,
+    Task,
+    check_count,
+    state_transitions,
+)
+from skillkit.tasks.controllers import control_substeps, run_feedback
+from skillkit.tasks.planar import _check_divergence, _PlanarRobot
+from skillkit.tasks.planar_model import JOINT_NAMES, TIMESTEP, UPRIGHT
+from skillkit.tasks.registry import register
+from skillkit.trajectory import Trajectory
+
+__all__ = [
+    "X_UP",
+    "Balancing",
+    "balancing_transitions",
+    "collect_balancing",
+    "feedback_policy",
+    "random_lqr_gains",
+    "sampled_rewards",
+    "stable_gains",
+]
+
+X_UP = np.concatenate([UPRIGHT, np.zeros(4)])
+"""The upright state x_up = [q_up, 0] (8,)."""
+
+
+def _is_tensor(x) -> bool:
+    return type(x).__module__.startswith("torch")
+
+
+class Balancing(Task):
+    """Balancing the planar 4-link robot around upright (Sec. 4.3.1; Sec. 5.4 settings).
+
+    **Lower-level policy** (32 parameters): the linear feedback u_t = G x̃_t with
+    x̃_t = [q_t − q_up, q̇_t] the deviation from upright q_up = [0, 0, 0, π] and the gain
+    matrix G (4 × 8) = ω reshaped **row-major** (``G[i, j] = ω[8 i + j]``: row i gives the
+    torque of joint i). No gravity compensation: gravity exerts no torque at upright.
+    Optional Gaussian torque noise (``torque_noise_std``, N m) is added to the applied
+    torque, making the dynamics stochastic (Sec. 5.4 uses 4).
+
+    **Episode.** The initial state is Gaussian around upright, q_0 ~ N(q_up, σ² I),
+    q̇_0 ~ N(0, σ² I) with σ = ``initial_std`` (0.3 as in Sec. 5.4). Torques are computed
+    at ``control_dt`` (20 Hz default) and held over the period (1 ms physics steps) for
+    ``n_steps`` = T control steps (40, so 2 s).
+
+    **Reward**
+
+        R(τ) = −Σ_{t=1}^{T} (x̃_tᵀ Q x̃_t + r_u u_tᵀ u_t),
+
+    with Q = ``state_weights`` (default I₈, the −Σ (x_t − x_r)ᵀ(x_t − x_r) of Sec. 4.2) and
+    r_u = ``control_weight`` (default 0). Sec. 5.4's immediate reward
+    −10 q̃ᵀq̃ − 0.1 q̇ᵀq̇ − 10⁻⁵ uᵀu is the ``balancing-noisy`` variant (Q = diag(10 I₄,
+    0.1 I₄), r_u = 1e-5, torque noise 4). u_t is the commanded torque G x̃_t; u_T is the
+    command at the final state (computed, not applied).
+
+    **Failures.** A run with a joint angle more than ``max_angle`` (20 rad) from upright or a
+    speed above ``max_joint_speed`` (100 rad/s) is stopped as diverged
+    (:class:`SimulationFailure`), so every working rollout has a bounded reward and
+    :attr:`worst_reward` (−1e7) lies below it in practice.
+
+    Trajectory: ``times`` (T+1,), ``states`` (T+1, 8) = [q, q̇] at the control steps,
+    ``controls`` (T+1, 4) commanded torques; signal ``torque_noise`` (T, 4). Use
+    :func:`balancing_transitions` for the (x_t, u_t, x_{t+1}) transitions.
+
+    Parameters
+    ----------
+    initial_std : float
+        σ of the initial state distribution (rad, rad/s).
+    torque_noise_std : float
+        Standard deviation of the additive torque noise (N m), 0 for deterministic dynamics.
+    n_steps : int
+        Horizon T in control steps.
+    control_dt : float
+        Control period (s), a multiple of the 1 ms physics step.
+    state_weights : array_like, shape (8, 8) or (8,), optional
+        Q (a vector is its diagonal); default identity.
+    control_weight : float
+        r_u ≥ 0.
+    max_angle, max_joint_speed : float
+        Divergence thresholds.
+    """
+
+    name = "balancing"
+    context_dim = 0
+    parameter_dim = 32
+    trajectory_depends_on_context = False
+    worst_reward = -1e7
+
+    def __init__(
+        self,
+        initial_std: float = 0.3,
+        torque_noise_std: float = 0.0,
+        n_steps: int = 40,
+        control_dt: float = 0.05,
+        state_weights=None,
+        control_weight: float = 0.0,
+        max_angle: float = 20.0,
+        max_joint_speed: float = 100.0,
+    ) -> None:
+        self.robot = _PlanarRobot(TIMESTEP)
+        self.initial_std = check_positive(initial_std, "initial_std", allow_zero=True)
+        self.torque_noise_std = check_positive(
+            torque_noise_std, "torque_noise_std", allow_zero=True
+        )
+        if isinstance(n_steps, bool) or int(n_steps) != n_steps or n_steps < 1:
+            raise ValueError(f"n_steps: expected a positive integer, got {n_steps!r}")
+        self.n_steps = int(n_steps)
+        self.control_dt = check_positive(control_dt, "control_dt")
+        control_substeps(self.robot.model, self.control_dt)
+        if state_weights is None:
+            q_w = np.eye(8)
+        else:
+            q_w = check_array(state_weights, "state_weights", ndim=(1, 2))
+            q_w = np.diag(q_w) if q_w.ndim == 1 else q_w
+            if q_w.shape != (8, 8):
+                raise ValueError(f"state_weights: expected shape (8,) or (8, 8), got {q_w.shape}")
+            if np.max(np.abs(q_w - q_w.T)) > 1e-12 * max(1.0, np.max(np.abs(q_w))):
+                raise ValueError("state_weights: expected a symmetric matrix")
+            if np.min(np.linalg.eigvalsh(q_w)) < 0:
+                raise ValueError("state_weights: expected a positive semi-definite matrix")
+        self.state_weights = q_w
+        self.control_weight = check_positive(control_weight, "control_weight", allow_zero=True)
+        self.max_angle = check_positive(max_angle, "max_angle")
+        self.max_joint_speed = check_positive(max_joint_speed, "max_joint_speed")
+
+    # ------------------------------------------------------------------ episodes
+    @staticmethod
+    def gain_matrix(omega) -> np.ndarray:
+        """G (4, 8) from ω (32,), row-major."""
+        return check_array(omega, "omega", shape=(32,)).reshape(4, 8)
+
+    def _simulate(
+        self, omega: np.ndarray, context: np.ndarray, rng: np.random.Generator
+    ) -> Trajectory:
+        G = self.gain_matrix(omega)
+        q0 = UPRIGHT + self.initial_std * rng.standard_normal(4)
+        qd0 = self.initial_std * rng.standard_normal(4)
+        noise = self.torque_noise_std * rng.standard_normal((self.n_steps, 4))
+        commanded = np.empty((self.n_steps + 1, 4))
+
+        def feedback(t: int, q: np.ndarray, qd: np.ndarray, data: mujoco.MjData) -> np.ndarray:
+            commanded[t] = G @ np.concatenate([q - UPRIGHT, qd])
+            return commanded[t] + noise[t]
+
+        robot = self.robot
+        robot.reset(q0, qd0)
+        out = run_feedback(robot.model, robot.data, feedback, self.n_steps, self.control_dt)
+        q = np.vstack([out["q"], robot.data.qpos])
+        qd = np.vstack([out["qd"], robot.data.qvel])
+        self._check_divergence(q, qd)
+        commanded[-1] = G @ np.concatenate([q[-1] - UPRIGHT, qd[-1]])
+        times = np.arange(self.n_steps + 1) * self.control_dt
+        return Trajectory(
+            times,
+            np.hstack([q, qd]),
+            commanded,
+            signals={"torque_noise": noise},
+            info={"initial_state": np.concatenate([q0, qd0]).tolist()},
+        )
+
+    def _check_divergence(self, q: np.ndarray, qd: np.ndarray) -> None:
+        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd))):
+            raise SimulationFailure("non-finite final state")
+        _check_divergence(qd, self.max_joint_speed, self.control_dt)
+        far = np.abs(q - UPRIGHT).max(axis=1) > self.max_angle
+        if far.any():
+            t = int(np.argmax(far))
+            raise SimulationFailure(
+                f"diverged: a joint is more than {self.max_angle:g} rad from "
+                f"upright at t = {t * self.control_dt:.3f} s"
+            )
+
+    # ------------------------------------------------------------------ reward
+    def reward_batch(self, states, controls, signals=None, contexts=None):
+        """R(τ) = −Σ_{t=1}^{T} (x̃_tᵀ Q x̃_t + r_u u_tᵀ u_t) per trajectory (Sec. 4.2).
+
+        Parameters
+        ----------
+        states : ndarray or Tensor, shape (B, T+1, 8)
+        controls : ndarray or Tensor, shape (B, T+1, 4)
+            Commanded torques u_t = G x̃_t (row 0 is not scored).
+        signals, contexts
+            Unused (the task is context-free).
+
+        Returns
+        -------
+        ndarray or Tensor, shape (B,)
+        """
+        if _is_tensor(states):
+            import torch
+
+            up = torch.as_tensor(X_UP, dtype=states.dtype, device=states.device)
+            q_w = torch.as_tensor(self.state_weights, dtype=states.dtype, device=states.device)
+            x, u = states[:, 1:] - up, controls[:, 1:]
+            cost = torch.einsum("bti,ij,btj->b", x, q_w, x)
+            return -(cost + self.control_weight * (u**2).sum(dim=(1, 2)))
+        x = np.asarray(states)[:, 1:] - X_UP
+        u = np.asarray(controls)[:, 1:]
+        cost = np.einsum("bti,ij,btj->b", x, self.state_weights, x)
+        return -(cost + self.control_weight * (u**2).sum(axis=(1, 2)))
+
+    def immediate_reward(self, states, controls):
+        """The immediate reward r(x, u) = −(x̃ᵀ Q x̃ + r_u uᵀu), vectorised over leading axes.
+
+        Summed over rows 1..T of a trajectory it is :meth:`reward_batch` (up to rounding:
+        the trajectory reward sums in one product). Chapter 5's embeddings predict its
+        expectation per step (a linear reward kernel, Eq. 5.17).
+
+        Parameters
+        ----------
+        states : array_like, shape (..., 8)
+        controls : array_like, shape (..., 4)
+
+        Returns
+        -------
+        ndarray, shape (...)
+        """
+        d = np.asarray(states) - X_UP
+        return -(
+            np.einsum("...i,ij,...j->...", d, self.state_weights, d)
+            + self.control_weight * (np.asarray(controls) ** 2).sum(-1)
+        )
+
+    # ------------------------------------------------------------------ model-based search
+    supports_model_rollout = True
+
+    def model_signals(self) -> ModelSignals:
+        """x = [q, q̇] (8), u = the commanded joint torques (4); no other signal."""
+        return ModelSignals(
+            state=tuple(JOINT_NAMES) + tuple(f"{j}_velocity" for j in JOINT_NAMES),
+            control=tuple(f"{j}_torque" for j in JOINT_NAMES),
+        )
+
+    def initial_states(self, context=None, n: int = 1, rng=None) -> np.ndarray:
+        """x_0 = x_up + σ ξ, ξ ~ N(0, I₈): the simulator's start distribution, shape (n, 8)."""
+        self.check_context(context)
+        return X_UP + self.initial_std * as_generator(rng).standard_normal((check_count(n), 8))
+
+    def controller(self, omegas, contexts=None, device=None, dtype=None):
+        """u = G_b (x − x_up) for pair b, G_b = ω_b as (4, 8) row-major.
+
+        The same law as :func:`feedback_policy` (which it returns).
+        """
+        import torch
+
+        omegas = check_array(omegas, "omegas", shape=(None, 32))
+        gains = torch.as_tensor(
+            omegas.reshape(-1, 4, 8),
+            dtype=torch.float64 if dtype is None else dtype,
+            device=device,
+        )
+        return feedback_policy(gains)
+
+    def scene_model(self) -> mujoco.MjModel:
+        """The planar robot's compiled MuJoCo model."""
+        return self.robot.model
+
+    # ------------------------------------------------------------------ policy
+    def linearization(self) -> tuple[np.ndarray, np.ndarray]:
+        """Discrete-time linearisation at upright for one control period.
+
+        ``mujoco.mjd_transitionFD`` (centred differences) gives x⁺ = A x + B u for one physics
+        step at (q_up, 0, u = 0); holding u for the k = control_dt / timestep steps of a
+        control period gives A_c = A^k and B_c = Σ_{i<k} A^i B.
+
+        Returns
+        -------
+        A_c : ndarray, shape (8, 8)
+        B_c : ndarray, shape (8, 4)
+        """
+        model, data = self.robot.model, self.robot.data
+        self.robot.reset(UPRIGHT, np.zeros(4))
+        data.ctrl[:] = 0.0
+        a = np.zeros((8, 8))
+        b = np.zeros((8, 4))
+        mujoco.mjd_transitionFD(model, data, 1e-6, True, a, b, None, None)
+        a_c, b_c = np.eye(8), np.zeros((8, 4))
+        for _ in range(control_substeps(model, self.control_dt)):
+            a_c, b_c = a @ a_c, a @ b_c + b
+        return a_c, b_c
+
+    def lqr_gain(self, state_weights=None, control_weight: float = 1e-4) -> np.ndarray:
+        """Discrete LQR gain G = −K at upright (u = G x̃), from :meth:`linearization`.
+
+        K = (R + B_cᵀ P B_c)⁻¹ B_cᵀ P A_c with P the solution of the discrete algebraic Riccati
+        equation for cost Σ x̃ᵀ Q x̃ + uᵀ R u, R = ``control_weight`` · I₄.
+
+        Parameters
+        ----------
+        state_weights : array_like, shape (8, 8), optional
+            Q (default: the task's reward weights).
+        control_weight : float
+            R / I (> 0).
+
+        Returns
+        -------
+        ndarray, shape (4, 8)
+        """
+        q_w = (
+            self.state_weights
+            if state_weights is None
+            else check_array(state_weights, "state_weights", shape=(8, 8))
+        )
+        r_w = check_positive(control_weight, "control_weight") * np.eye(4)
+        a_c, b_c = self.linearization()
+        p = scipy.linalg.solve_discrete_are(a_c, b_c, q_w, r_w)
+        k = np.linalg.solve(r_w + b_c.T @ p @ b_c, b_c.T @ p @ a_c)
+        return -k
+
+    exploration_std_fraction = 0.01
+
+    def initial_policy(self) -> GaussianPolicy:
+        """N(ω | vec(G_lqr), Σ_0): a stabilising gain with cautious exploration.
+
+        The mean is the LQR gain of :meth:`lqr_gain` (Q = the task's state weights,
+        R = 1e-4 I), flattened row-major. Σ_0 is diagonal with standard deviations
+        :attr:`exploration_std_fraction` (1%) of |G_lqr| entry-wise. The closed loop at 20 Hz
+        is sensitive to independent perturbations of the 32 gains: with 10% relative
+        exploration about half of the sampled controllers let the robot fall or diverge,
+        with 1% none did in our checks.
+        """
+        g = self.lqr_gain().ravel()
+        std = self.exploration_std_fraction * np.abs(g)
+        return GaussianPolicy(g, np.diag(std**2))
+
+
+def balancing_transitions(trajectory: Trajectory) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The (x_t, u_t, x_{t+1}) transitions of a balancing trajectory at the control rate.
+
+    The same as :meth:`Balancing.transitions` (the training data of GP forward models and
+    conditional embeddings, Chs. 4–5), for callers without a task instance.
+
+    Parameters
+    ----------
+    trajectory : Trajectory
+        A (non-failed) :class:`Balancing` trajectory with T + 1 states.
+
+    Returns
+    -------
+    x : ndarray, shape (T, 8)
+    u : ndarray, shape (T, 4)
+        Commanded torques (the torque noise is part of the stochastic dynamics).
+    x_next : ndarray, shape (T, 8)
+    """
+    return state_transitions(trajectory, 8, 4)
+
+
+def feedback_policy(gains):
+    """The sampler policy u = G_b (x − x_up) for pair b, gains a Tensor of shape (B, 4, 8).
+
+    Returns ``policy(t, x, pair) -> u`` for :func:`~skillkit.models.sampling.sample_trajectories`,
+    on the device and dtype of ``gains``.
+    """
+    import torch
+
+    x_up = torch.as_tensor(X_UP, dtype=gains.dtype, device=gains.device)
+
+    def policy(t: int, x, pair):
+        return torch.einsum("nij,nj->ni", gains[pair], x - x_up)
+
+    return policy
+
+
+def sampled_rewards(task: Balancing, states, gains) -> np.ndarray:
+    """Rewards of sampled (predicted) state trajectories under the feedback u = G_b x̃.
+
+    Parameters
+    ----------
+    task : Balancing
+    states : ndarray, shape (B, L, T+1, 8)
+        L sampled trajectories for each of B controllers.
+    gains : ndarray, shape (B, 4, 8)
+
+    Returns
+    -------
+    ndarray, shape (B, L)
+        :meth:`Balancing.reward_batch` of each trajectory with the commanded torques
+        recomputed from the states; non-finite rewards (diverged samples) are
+        :attr:`Balancing.worst_reward`, as :meth:`Task.reward` scores them.
+    """
+    B, L, T1, _ = states.shape
+    controls = np.einsum("bij,bltj->blti", gains, states - X_UP)
+    r = task.reward_batch(states.reshape(B * L, T1, 8), controls.reshape(B * L, T1, 4))
+    return np.where(np.isfinite(r), r, task.worst_reward).reshape(B, L)
+
+
+def stable_gains(
+    task: Balancing, n: int, rng: np.random.Generator, max_spectral_radius: float = 0.98
+) -> np.ndarray:
+    """``n`` samples ω ~ π(ω) (the task's initial policy) whose feedback balances robustly.
+
+    ω is kept if the closed loop of the task's linearisation at upright (Δt = control period)
+    is stable with margin: ρ(A_c + B_c G) ≤ ``max_spectral_radius``, G = ω as (4, 8). About
+    a quarter of the initial policy's samples have ρ > 1 (they topple slowly); Sec. 4.2.3 uses
+    a controller that "robustly balances" the robot.
+
+    Returns
+    -------
+    ndarray, shape (n, 32)
+    """
+    A, B = task.linearization()
+    policy = task.initial_policy()
+    out: list[np.ndarray] = []
+    tried = 0
+    while len(out) < n:
+        batch = policy.sample(np.zeros((max(n, 16), 0)), rng=rng)
+        for w in batch:
+            tried += 1
+            if (
+                len(out) < n
+                and np.abs(np.linalg.eigvals(A + B @ w.reshape(4, 8))).max() <= max_spectral_radius
+            ):
+                out.append(w)
+        if tried > 100 * n:
+            raise RuntimeError(
+                f"stable_gains: only {len(out)} of {tried} samples have spectral radius "
+                f"<= {max_spectral_radius}"
+            )
+    return np.array(out)
+
+
+def collect_balancing(
+    task: Balancing,
+    n_trajectories: int,
+    rng: np.random.Generator,
+    max_spectral_radius: float = 0.98,
+) -> dict:
+    """Roll out ``n_trajectories`` robustly balancing ω (:func:`stable_gains`) from random x_0.
+
+    Failed rollouts (the robot fell or diverged) are replaced by new ones and counted.
+
+    Returns
+    -------
+    dict
+        ``omegas`` (n, 32), ``trajectories`` (list), ``x``, ``u``, ``x_next`` (n·T, ·) the
+        stacked transitions, ``n_failed``.
+    """
+    omegas, trajs, n_failed = [], [], 0
+    candidates = list(stable_gains(task, n_trajectories, rng, max_spectral_radius))
+    while len(trajs) < n_trajectories:
+        if not candidates:
+            candidates = list(stable_gains(task, 1, rng, max_spectral_radius))
+        omega = candidates.pop(0)
+        traj = task.rollout(omega, rng=rng)
+        if traj.failed:
+            n_failed += 1
+            if n_failed > 10 * n_trajectories:
+                raise RuntimeError(f"collect_balancing: {n_failed} of the rollouts failed")
+            continue
+        omegas.append(omega)
+        trajs.append(traj)
+    parts = [task.transitions(t) for t in trajs]
+    return {
+        "omegas": np.array(omegas),
+        "trajectories": trajs,
+        "x": np.vstack([p[0] for p in parts]),
+        "u": np.vstack([p[1] for p in parts]),
+        "x_next": np.vstack([p[2] for p in parts]),
+        "n_failed": n_failed,
+    }
+
+
+def random_lqr_gains(
+    task: Balancing, n: int, spread: float, control_weight: float, rng
+) -> np.ndarray:
+    """Stabilising controllers: LQR gains for randomly scaled cost weights.
+
+    Q = diag(q_task ⊙ exp(s ξ)), R = r₀ exp(s ξ') I with ξ ~ N(0, I), ξ' ~ N(0, 1), s =
+    ``spread`` and r₀ = ``control_weight``; each gain is :meth:`Balancing.lqr_gain`.
+
+    Returns
+    -------
+    ndarray, shape (n, 4, 8)
+        Gains G with u = G x̃.
+    """
+    q0 = np.diag(task.state_weights)
+    out = np.empty((int(n), 4, 8))
+    for i in range(int(n)):
+        q = q0 * np.exp(spread * rng.standard_normal(8))
+        r = control_weight * np.exp(spread * rng.standard_normal())
+        out[i] = task.lqr_gain(state_weights=np.diag(q), control_weight=r)
+    return out
+
+
+@register("balancing", "planar", "context-free")
+def balancing(**kwargs) -> Balancing:
+    """Balancing (Sec. 4.3.1): deterministic, initial std 0.3, Q = I, 40 steps at 20 Hz."""
+    return Balancing(**kwargs)
+
+
+@register("balancing-noisy", "planar", "context-free")
+def balancing_noisy(**kwargs) -> Balancing:
+    """Balancing with Sec. 5.4's settings: torque noise std 4 N m, T = 40, and reward
+    −10 q̃ᵀq̃ − 0.1 q̇ᵀq̇ − 1e-5 uᵀu."""
+    kwargs.setdefault("torque_noise_std", 4.0)
+    kwargs.setdefault("state_weights", np.concatenate([np.full(4, 10.0), np.full(4, 0.1)]))
+    kwargs.setdefault("control_weight", 1e-5)
+    return Balancing(**kwargs)

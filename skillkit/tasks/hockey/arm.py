@@ -1,0 +1,202 @@
+"""The KUKA-LWR-like 7-DoF arm with its hockey racket (MuJoCo model and numpy kinematics)."""
+
+from __future__ import annotations
+
+import functools
+
+import mujoco
+import numpy as np
+from dm_control import mjcf
+
+from skillkit._validation import check_array
+from skillkit.tasks._mjcf import mjcf_root
+
+# ----------------------------------------------------------------------------- arm constants
+N_JOINTS = 7
+JOINT_AXES = ((0, 0, 1), (0, 1, 0), (0, 0, 1), (0, 1, 0), (0, 0, 1), (0, 1, 0), (0, 0, 1))
+LINK_OFFSETS = (0.1575, 0.1530, 0.2000, 0.2000, 0.2000, 0.1900, 0.0000)
+"""Position of joint i+1 along the z axis of link i (link 0 = base), m; joint 2 is at
+0.3105 m, the elbow 0.4 m and the wrist 0.79 m further up at q = 0 (LWR-4 d1, d3, d5)."""
+FLANGE_OFFSET = 0.078
+"""Flange distance from the wrist along the last link's z axis (LWR-4 d7), m."""
+LINK_MASSES = (2.7, 2.7, 2.7, 2.7, 1.7, 1.6, 0.3)
+"""Link masses, kg (approximate LWR-4 values)."""
+ARMATURE = (0.4, 0.4, 0.2, 0.2, 0.1, 0.1, 0.05)
+"""Reflected motor inertia per joint, kg m² (our estimate for harmonic-drive joints)."""
+JOINT_LIMITS = np.deg2rad([170.0, 120.0, 170.0, 120.0, 170.0, 120.0, 170.0])
+"""Symmetric joint ranges ±limit, rad (LWR-4)."""
+TORQUE_LIMITS = np.array([176.0, 176.0, 100.0, 100.0, 100.0, 38.0, 38.0])
+"""Actuator torque limits, N m (LWR-4)."""
+KP = np.array([2500.0, 2500.0, 1200.0, 1200.0, 400.0, 400.0, 150.0])
+"""PD stiffness per joint, N m / rad."""
+KD = np.array([90.0, 90.0, 45.0, 45.0, 14.0, 14.0, 5.0])
+"""PD damping per joint, N m s / rad (about critical for the armature plus link inertia)."""
+SHAFT_LENGTH, SHAFT_MASS, SHAFT_RADIUS = 0.45, 0.25, 0.012
+BLADE_HALF = (0.10, 0.008, 0.04)
+"""Blade half sizes along the flange's x (long side), y (face normal) and z axes, m."""
+BLADE_MASS = 0.15
+BLADE_OFFSET = FLANGE_OFFSET + SHAFT_LENGTH + BLADE_HALF[2]
+"""Blade centre distance from the wrist along the last link's z axis, m."""
+TIMESTEP = 0.002
+"""MuJoCo time step, s."""
+CONTROL_DT = 0.004
+"""Control period of the PD tracker (250 Hz) and time step of the puck table, s."""
+
+
+# ============================================================================= the arm
+def build_arm_mjcf(timestep: float = TIMESTEP) -> mjcf.RootElement:
+    """MJCF model of the KUKA-LWR-like 7-DoF arm with its hockey racket.
+
+    Parameters
+    ----------
+    timestep : float
+        Physics time step, s.
+
+    Returns
+    -------
+    dm_control.mjcf.RootElement
+        Bodies ``link1`` … ``link7`` with hinge joints ``j1`` … ``j7`` (axes
+        :data:`JOINT_AXES`, ranges :data:`JOINT_LIMITS`, armature :data:`ARMATURE`), sites
+        ``flange`` and ``blade``. Compile with ``mujoco.MjModel.from_xml_string(
+        root.to_xml_string())`` (or use :func:`arm_model`).
+    """
+    root = mjcf_root("lwr_hockey", timestep, geom_rgba=[1.0, 0.55, 0.1, 1.0])
+    root.worldbody.add("light", pos=[0, 0, 3], dir=[0, 0, -1])
+    root.worldbody.add(
+        "geom",
+        name="table",
+        type="plane",
+        size=[3, 2, 0.1],
+        pos=[1.2, 0.3, 0],
+        rgba=[0.9, 0.9, 0.88, 1],
+    )
+    root.worldbody.add(
+        "geom",
+        name="base",
+        type="cylinder",
+        size=[0.08, LINK_OFFSETS[0] / 2],
+        pos=[0, 0, LINK_OFFSETS[0] / 2],
+        mass=5.0,
+        rgba=[0.3, 0.3, 0.3, 1],
+    )
+    parent = root.worldbody
+    for i in range(N_JOINTS):
+        body = parent.add("body", name=f"link{i + 1}", pos=[0, 0, LINK_OFFSETS[i]])
+        body.add(
+            "joint",
+            name=f"j{i + 1}",
+            type="hinge",
+            axis=list(JOINT_AXES[i]),
+            range=[-JOINT_LIMITS[i], JOINT_LIMITS[i]],
+            limited=True,
+            armature=ARMATURE[i],
+        )
+        length = LINK_OFFSETS[i + 1] if i + 1 < N_JOINTS else FLANGE_OFFSET
+        body.add(
+            "geom",
+            name=f"link{i + 1}_geom",
+            type="capsule",
+            size=[0.06 - 0.004 * i],
+            fromto=[0, 0, 0, 0, 0, max(length, 0.04)],
+            mass=LINK_MASSES[i],
+        )
+        parent = body
+    parent.add("site", name="flange", pos=[0, 0, FLANGE_OFFSET], size=[0.01])
+    parent.add(
+        "geom",
+        name="shaft",
+        type="capsule",
+        size=[SHAFT_RADIUS],
+        mass=SHAFT_MASS,
+        fromto=[0, 0, FLANGE_OFFSET, 0, 0, FLANGE_OFFSET + SHAFT_LENGTH],
+        rgba=[0.2, 0.2, 0.2, 1],
+    )
+    parent.add(
+        "geom",
+        name="blade",
+        type="box",
+        size=list(BLADE_HALF),
+        mass=BLADE_MASS,
+        pos=[0, 0, BLADE_OFFSET],
+        rgba=[0.1, 0.1, 0.1, 1],
+    )
+    parent.add("site", name="blade", pos=[0, 0, BLADE_OFFSET], size=[0.01])
+    return root
+
+
+@functools.lru_cache(maxsize=4)
+def _compiled_arm_xml(timestep: float) -> str:
+    return build_arm_mjcf(timestep).to_xml_string()
+
+
+def arm_model(timestep: float = TIMESTEP) -> mujoco.MjModel:
+    """The compiled arm model (:func:`build_arm_mjcf`), a fresh ``MjModel``."""
+    return mujoco.MjModel.from_xml_string(_compiled_arm_xml(float(timestep)))
+
+
+def _axis_rotation(axis: tuple[int, int, int], angle: np.ndarray) -> np.ndarray:
+    """Rotation matrices about a coordinate axis, shape (..., 3, 3)."""
+    c, s = np.cos(angle), np.sin(angle)
+    one, zero = np.ones_like(angle), np.zeros_like(angle)
+    if axis == (0, 0, 1):
+        rows = [[c, -s, zero], [s, c, zero], [zero, zero, one]]
+    elif axis == (0, 1, 0):
+        rows = [[c, zero, s], [zero, one, zero], [-s, zero, c]]
+    else:
+        raise ValueError(f"axis: expected the y or z axis, got {axis}")
+    return np.moveaxis(np.array(rows), (0, 1), (-2, -1))
+
+
+def arm_forward_kinematics(q) -> tuple[np.ndarray, np.ndarray]:
+    """Pose of the blade centre for joint angles ``q`` (an independent numpy chain).
+
+    The chain is p = Σ_i R_0 … R_{i−1} [0, 0, l_i] + R_0 … R_6 [0, 0, BLADE_OFFSET] with
+    R_i the rotation of joint i+1 about its axis and l_i = :data:`LINK_OFFSETS`.
+
+    Parameters
+    ----------
+    q : array_like, shape (..., 7)
+        Joint angles, rad.
+
+    Returns
+    -------
+    position : ndarray, shape (..., 3)
+        Blade centre in the world (table) frame, m.
+    rotation : ndarray, shape (..., 3, 3)
+        Blade frame: columns are its long side, face normal and shaft direction.
+    """
+    q = check_array(q, "q", ndim=(1, 2))
+    if q.shape[-1] != N_JOINTS:
+        raise ValueError(f"q: expected shape (..., {N_JOINTS}), got {q.shape}")
+    rot = np.broadcast_to(np.eye(3), q.shape[:-1] + (3, 3)).copy()
+    pos = np.zeros(q.shape[:-1] + (3,))
+    for i in range(N_JOINTS):
+        pos = pos + rot[..., :, 2] * LINK_OFFSETS[i]
+        rot = rot @ _axis_rotation(JOINT_AXES[i], q[..., i])
+    pos = pos + rot[..., :, 2] * BLADE_OFFSET
+    return pos, rot
+
+
+def blade_pose(position, rotation) -> np.ndarray:
+    """Blade [x, y, z, yaw] and its lowest/highest corner heights from 3-D poses.
+
+    Parameters
+    ----------
+    position : array_like, shape (..., 3)
+        Blade centre.
+    rotation : array_like, shape (..., 3, 3)
+        Blade frame (columns: long side, face normal, shaft).
+
+    Returns
+    -------
+    ndarray, shape (..., 6)
+        [x, y, z, yaw, z_low, z_high]; yaw is the heading of the long side on the table.
+    """
+    position = np.asarray(position, dtype=np.float64)
+    rotation = np.asarray(rotation, dtype=np.float64)
+    reach = np.abs(rotation[..., 2, :]) @ np.asarray(BLADE_HALF)
+    yaw = np.arctan2(rotation[..., 1, 0], rotation[..., 0, 0])
+    z = position[..., 2]
+    return np.concatenate(
+        [position, yaw[..., None], (z - reach)[..., None], (z + reach)[..., None]], axis=-1
+    )

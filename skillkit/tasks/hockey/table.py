@@ -1,0 +1,265 @@
+"""The puck table: pucks sliding with Coulomb friction and colliding in pymunk (Appendix C.2)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pymunk
+
+from skillkit._validation import check_array, check_positive
+from skillkit.tasks.hockey.arm import BLADE_HALF, CONTROL_DT
+
+CONTROL_PUCK_START = np.array([0.45, -0.30])
+"""Initial position of the control puck on the table, m."""
+TARGET_CENTRE = np.array([2.0, 0.75])
+"""Centre of the simulated target region; the demonstration shoots towards it."""
+
+
+# ============================================================================= the pucks
+@dataclass(frozen=True)
+class TablePhysics:
+    """Physical constants of the puck table (pymunk).
+
+    Attributes
+    ----------
+    puck_radius, puck_mass, puck_height : float
+        Puck geometry (m) and mass (kg), ice-hockey-puck-like.
+    friction : float
+        Coulomb sliding-friction coefficient μ between puck and table; deceleration μ g.
+    restitution_pucks : float
+        Coefficient of restitution of puck–puck collisions.
+    restitution_racket, friction_racket : float
+        Restitution and Coulomb friction of racket–puck contacts.
+    gravity : float
+        g, m/s², for the friction deceleration.
+    dt : float
+        Time step, s; the arm's PD control period too (the racket pose is read once per
+        step), so a whole multiple of the MuJoCo time step :data:`TIMESTEP`.
+    free_dt : float
+        Time step once the racket is lifted and only the pucks move, s. Pymunk integrates
+        semi-implicitly, so a puck launched at v₀ slides v₀²/(2 μ g) + O(v₀ Δt / 2) (4 mm
+        at 1 m/s and 8 ms).
+    """
+
+    puck_radius: float = 0.04
+    puck_mass: float = 0.17
+    puck_height: float = 0.025
+    friction: float = 0.05
+    restitution_pucks: float = 0.9
+    restitution_racket: float = 0.6
+    friction_racket: float = 0.2
+    gravity: float = 9.81
+    dt: float = CONTROL_DT
+    free_dt: float = 2 * CONTROL_DT
+
+    def __post_init__(self) -> None:
+        for name in ("puck_radius", "puck_mass", "puck_height", "gravity", "dt", "free_dt"):
+            check_positive(getattr(self, name), name)
+        for name in ("friction", "friction_racket"):
+            check_positive(getattr(self, name), name, allow_zero=True)
+        for name in ("restitution_pucks", "restitution_racket"):
+            e = getattr(self, name)
+            if not 0.0 <= e <= 1.0:
+                raise ValueError(
+                    f"{name}: expected a coefficient of restitution in [0, 1], got {e}"
+                )
+
+    @property
+    def deceleration(self) -> float:
+        """Sliding deceleration μ g, m/s²."""
+        return self.friction * self.gravity
+
+    def stopping_distance(self, speed: float) -> float:
+        """Distance v²/(2 μ g) a puck sliding at ``speed`` travels before it stops (μ > 0)."""
+        if self.friction <= 0:
+            raise ValueError("friction: a frictionless puck never stops")
+        return float(speed) ** 2 / (2.0 * self.deceleration)
+
+
+def coulomb_friction(velocity, deceleration: float, dt: float) -> np.ndarray:
+    """One step of Coulomb sliding friction: reduce the speed by ``deceleration · dt``.
+
+    v ← v · max(0, 1 − a Δt / ‖v‖): the puck decelerates at a = μ g against its motion and
+    stops exactly (instead of reversing) when the speed falls below a Δt.
+
+    Parameters
+    ----------
+    velocity : array_like, shape (2,)
+        Puck velocity, m/s.
+    deceleration : float
+        a = μ g ≥ 0, m/s².
+    dt : float
+        Time step, s.
+
+    Returns
+    -------
+    ndarray, shape (2,)
+    """
+    v = np.asarray(velocity, dtype=np.float64)
+    speed = math.hypot(v[0], v[1])
+    if speed <= deceleration * dt:
+        return np.zeros(2)
+    return v * (1.0 - deceleration * dt / speed)
+
+
+_PUCK, _RACKET = 1, 2
+
+
+class PuckTable:
+    """The pymunk table: a control puck, a target puck and an optional kinematic racket blade.
+
+    Parameters
+    ----------
+    control_start, target_start : array_like, shape (2,)
+        Initial puck positions, m.
+    physics : TablePhysics
+        Constants.
+    racket : bool
+        Add the kinematic blade (a box of :data:`BLADE_HALF` footprint), initially out of
+        play (not colliding) until :meth:`move_racket` puts it down.
+
+    Attributes
+    ----------
+    hit_time : float or None
+        Time of the first puck–puck contact.
+    racket_touched : bool
+        Whether the racket touched a puck.
+    time : float
+        Simulated time, s.
+    """
+
+    def __init__(
+        self,
+        control_start,
+        target_start,
+        physics: TablePhysics = TablePhysics(),
+        racket: bool = True,
+    ) -> None:
+        self.physics = physics
+        space = pymunk.Space()
+        space.gravity = (0.0, 0.0)
+        space.damping = 1.0
+        space.iterations = 20
+        space.collision_slop = 1e-4  # pymunk's default (0.1) assumes pixels, not metres
+        self.space = space
+        self.time = 0.0
+        self.hit_time: float | None = None
+        self.racket_touched = False
+        self.control = self._add_puck(check_array(control_start, "control_start", shape=(2,)))
+        self.target = self._add_puck(check_array(target_start, "target_start", shape=(2,)))
+        space.on_collision(
+            _PUCK,
+            _PUCK,
+            begin=self._on_puck_contact,
+            pre_solve=self._set_contact(physics.restitution_pucks, 0.0),
+        )
+        space.on_collision(
+            _RACKET,
+            _PUCK,
+            begin=self._on_racket_contact,
+            pre_solve=self._set_contact(physics.restitution_racket, physics.friction_racket),
+        )
+        self.racket = None
+        if racket:
+            body = pymunk.Body(body_type=pymunk.Body.KINEMATIC)
+            body.position = (-10.0, -10.0)
+            shape = pymunk.Poly.create_box(body, (2 * BLADE_HALF[0], 2 * BLADE_HALF[1]))
+            shape.collision_type = _RACKET
+            shape.filter = pymunk.ShapeFilter(categories=0, mask=0)
+            space.add(body, shape)
+            self.racket = body
+            self._racket_shape = shape
+            self._racket_active = False
+
+    def _add_puck(self, position: np.ndarray) -> pymunk.Body:
+        p = self.physics
+        body = pymunk.Body(p.puck_mass, pymunk.moment_for_circle(p.puck_mass, 0, p.puck_radius))
+        body.position = (float(position[0]), float(position[1]))
+        decel = p.deceleration
+
+        def friction(body, gravity, damping, dt):  # coulomb_friction, inlined for speed
+            vx, vy = body.velocity
+            if vx == 0.0 and vy == 0.0:
+                return
+            speed = math.hypot(vx, vy)
+            scale = 0.0 if speed <= decel * dt else 1.0 - decel * dt / speed
+            body.velocity = (vx * scale, vy * scale)
+
+        body.velocity_func = friction
+        shape = pymunk.Circle(body, p.puck_radius)
+        shape.collision_type = _PUCK
+        self.space.add(body, shape)
+        return body
+
+    @staticmethod
+    def _set_contact(restitution: float, friction: float):
+        def pre_solve(arbiter, space, data):
+            arbiter.restitution = restitution
+            arbiter.friction = friction
+
+        return pre_solve
+
+    def _on_puck_contact(self, arbiter, space, data) -> None:
+        if self.hit_time is None:
+            self.hit_time = self.time
+
+    def _on_racket_contact(self, arbiter, space, data) -> None:
+        self.racket_touched = True
+
+    def move_racket(self, pose, next_pose, active: bool) -> None:
+        """Place the blade at ``pose`` and give it the velocity that reaches ``next_pose`` in dt.
+
+        Parameters
+        ----------
+        pose, next_pose : array_like, shape (3,)
+            Blade [x, y, yaw] now and one step later.
+        active : bool
+            Whether the blade is down on the table (collides with the pucks).
+        """
+        if self.racket is None:
+            raise ValueError("racket: this table was built without a racket")
+        dt = self.physics.dt
+        self.racket.position = (float(pose[0]), float(pose[1]))
+        self.racket.angle = float(pose[2])
+        self.racket.velocity = ((next_pose[0] - pose[0]) / dt, (next_pose[1] - pose[1]) / dt)
+        dyaw = math.remainder(float(next_pose[2]) - float(pose[2]), 2 * math.pi)
+        self.racket.angular_velocity = dyaw / dt
+        if active != self._racket_active:
+            self._racket_active = active
+            self._racket_shape.filter = (
+                pymunk.ShapeFilter() if active else pymunk.ShapeFilter(categories=0, mask=0)
+            )
+
+    def lift_racket(self) -> None:
+        """Take the blade out of play for good."""
+        if self.racket is not None:
+            self.racket.velocity = (0.0, 0.0)
+            self.racket.angular_velocity = 0.0
+            if self._racket_active:
+                self._racket_active = False
+                self._racket_shape.filter = pymunk.ShapeFilter(categories=0, mask=0)
+
+    def step(self, dt: float | None = None) -> None:
+        """Advance the table by ``dt`` (default ``physics.dt``)."""
+        dt = self.physics.dt if dt is None else dt
+        self.space.step(dt)
+        self.time += dt
+
+    @property
+    def positions(self) -> np.ndarray:
+        """Control and target puck positions, shape (2, 2)."""
+        c, t = self.control.position, self.target.position
+        return np.array([[c.x, c.y], [t.x, t.y]])
+
+    @property
+    def velocities(self) -> np.ndarray:
+        """Control and target puck velocities, shape (2, 2)."""
+        c, t = self.control.velocity, self.target.velocity
+        return np.array([[c.x, c.y], [t.x, t.y]])
+
+    @property
+    def at_rest(self) -> bool:
+        """Both pucks stopped."""
+        return all(b.velocity.x == 0.0 and b.velocity.y == 0.0 for b in (self.control, self.target))

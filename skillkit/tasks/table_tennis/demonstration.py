@@ -1,0 +1,176 @@
+"""The forehand stroke the table-tennis DMP imitates (design and shipped file)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from skillkit._validation import check_array, check_positive
+from skillkit.tasks._trajectories import quintic
+from skillkit.tasks.table_tennis.arm import RACKET_SITE, arm_model, racket_pose
+from skillkit.tasks.table_tennis.ball import (
+    RETURN_HIGH,
+    RETURN_LOW,
+    SERVE_POSITION,
+    TABLE_HEIGHT,
+    VELOCITY_HIGH,
+    VELOCITY_LOW,
+    BallPhysics,
+    simulate_ball,
+)
+
+# ----------------------------------------------------------------------------- demonstration
+DEMO_PATH = Path(__file__).resolve().parents[2] / "data" / "demonstrations" / "table_tennis.npz"
+"""The shipped forehand demonstration (package data); :func:`write_demonstration` rebuilds it."""
+HIT_TIME = 0.72
+"""Time (s) at which the demonstrated stroke meets the ball of the nominal context."""
+RETURN_FLIGHT_TIME = 0.55
+"""Flight time (s) of the demonstrated return from racket to table."""
+PREFERRED_POSTURE = np.array([0.0, 0.0, -0.6, 0.3, 0.0, -1.0, 0.0, 0.0])
+"""A relaxed forehand posture the stroke design is pulled towards (regularises the IK)."""
+
+
+def nominal_context() -> np.ndarray:
+    """Centre of the context range, s₀ = [v₀, b₀], shape (5,)."""
+    return np.concatenate([0.5 * (VELOCITY_LOW + VELOCITY_HIGH), 0.5 * (RETURN_LOW + RETURN_HIGH)])
+
+
+def design_stroke(
+    context=None, hit_time: float = HIT_TIME, flight_time: float = RETURN_FLIGHT_TIME
+) -> dict:
+    """The racket state that returns the ball of ``context`` to its target, and joints for it.
+
+    1. Fly the incoming ball (no racket) to ``hit_time``: position p_h, velocity v_in.
+    2. Solve (by Newton on :func:`simulate_ball`) for the outgoing velocity v_out that lands
+       on b after ``flight_time``.
+    3. For a frictionless impact v_out − v_in ∥ n, so the blade normal is
+       n = (v_out − v_in)/‖·‖ and the racket's normal speed follows from the impact law:
+       v_r·n = v_in·n + (v_out − v_in)·n / (1 + e_r); the racket velocity is taken along n.
+    4. Inverse kinematics (least squares, pulled to :data:`PREFERRED_POSTURE`) for the blade
+       centre at p_h with normal n; joint velocities q̇ from the site Jacobian, trading the
+       racket's linear velocity (weight 100), its angular velocity (weight 3) and joint
+       speeds (platform axes 200× costlier than the arm joints).
+
+    Parameters
+    ----------
+    context : array_like, shape (5,), optional
+        Default :func:`nominal_context`.
+    hit_time, flight_time : float
+        Contact time after launch and the return's flight time (s).
+
+    Returns
+    -------
+    dict
+        ``q`` (8,), ``qd`` (8,), ``position`` (3,), ``normal`` (3,), ``racket_velocity`` (3,),
+        ``ball_velocity_in`` (3,), ``ball_velocity_out`` (3,).
+    """
+    import mujoco
+    from scipy.optimize import fsolve, least_squares
+
+    s = nominal_context() if context is None else check_array(context, "context", shape=(5,))
+    hit_time = check_positive(hit_time, "hit_time")
+    flight_time = check_positive(flight_time, "flight_time")
+    dt = 0.002
+    incoming = simulate_ball(SERVE_POSITION, s[:3], hit_time, dt=dt)
+    p_h, v_in = incoming.positions[-1], incoming.velocities[-1]
+    b = s[3:5]
+
+    def miss(v_out):
+        events = simulate_ball(p_h, v_out, 2.0, dt=dt).events
+        if not events:  # an absurd trial velocity that never comes down: far off
+            return [1e3, 1e3, 1e3]
+        ev = events[0]
+        return [ev.position[0] - b[0], ev.position[1] - b[1], ev.time - flight_time]
+
+    # drag-free guess with 10% more horizontal speed for the drag
+    guess = np.array(
+        [
+            1.1 * (b[0] - p_h[0]) / flight_time,
+            1.1 * (b[1] - p_h[1]) / flight_time,
+            (TABLE_HEIGHT + 0.02 - p_h[2]) / flight_time + 0.5 * 9.81 * flight_time,
+        ]
+    )
+    v_out, _, ok, msg = fsolve(miss, guess, full_output=True)
+    if ok != 1:
+        raise RuntimeError(f"design_stroke: no return velocity found ({msg})")
+    e_r = BallPhysics().racket_restitution
+    n = (v_out - v_in) / np.linalg.norm(v_out - v_in)
+    v_racket = (v_in @ n + (v_out - v_in) @ n / (1.0 + e_r)) * n
+
+    model = arm_model()
+    data = mujoco.MjData(model)
+    sid = model.site(RACKET_SITE).id
+    w_reg = np.array([3.0, 3.0, 0.1, 0.1, 0.1, 0.1, 0.1, 0.1])
+
+    def residual(q):
+        data.qpos[:] = q
+        mujoco.mj_kinematics(model, data)
+        c, normal = racket_pose(model, data)
+        return np.concatenate([100 * (c - p_h), 30 * (normal - n), w_reg * (q - PREFERRED_POSTURE)])
+
+    q = least_squares(residual, PREFERRED_POSTURE, xtol=1e-12, ftol=1e-12).x
+    data.qpos[:] = q
+    mujoco.mj_forward(model, data)
+    jacp, jacr = np.zeros((3, 8)), np.zeros((3, 8))
+    mujoco.mj_jacSite(model, data, jacp, jacr, sid)
+    cost = np.sqrt(np.array([200.0, 200.0, 1, 1, 1, 1, 1, 1]))
+    a = np.vstack([100 * jacp, 3 * jacr, np.diag(cost)])
+    y = np.concatenate([100 * v_racket, np.zeros(11)])
+    qd = np.linalg.lstsq(a, y, rcond=None)[0]
+    return {
+        "q": q,
+        "qd": qd,
+        "position": p_h,
+        "normal": n,
+        "racket_velocity": v_racket,
+        "ball_velocity_in": v_in,
+        "ball_velocity_out": v_out,
+    }
+
+
+def forehand_demonstration(dt: float = 0.002) -> dict[str, np.ndarray]:
+    """The forehand stroke the DMP imitates (our stand-in for the thesis's kinesthetic
+    teach-in), deterministic.
+
+    From :func:`design_stroke` at the nominal context (hit pose q_h, joint velocity q̇_h at
+    t_h = :data:`HIT_TIME`): the arm starts at rest in a ready pose q_r = q_h − 0.2 D q̇_h,
+    draws back to q_b = q_h − 0.6 D q̇_h (at rest, t = 0.35 s) and swings forward to
+    (q_h, q̇_h) at t_h, each segment a quintic with zero end accelerations (D = t_h − 0.35 s).
+
+    Returns
+    -------
+    dict
+        ``times`` (N,), ``q``, ``qd``, ``qdd`` (N, 8).
+    """
+    dt = check_positive(dt, "dt")
+    stroke = design_stroke()
+    q_h, qd_h = stroke["q"], stroke["qd"]
+    t_back = 0.35
+    swing = HIT_TIME - t_back
+    q_ready, q_back = q_h - 0.2 * swing * qd_h, q_h - 0.6 * swing * qd_h
+    n = int(round(HIT_TIME / dt))
+    times = dt * np.arange(n + 1)
+    first = times < t_back
+    zero = np.zeros(8)
+    a = quintic(times[first], t_back, q_ready, q_back, zero, zero)
+    b = quintic(times[~first] - t_back, swing, q_back, q_h, zero, qd_h)
+    q, qd, qdd = (np.concatenate([x, y]) for x, y in zip(a, b, strict=True))
+    return {"times": times, "q": q, "qd": qd, "qdd": qdd}
+
+
+def write_demonstration(path: str | Path = DEMO_PATH) -> Path:
+    """Regenerate the shipped demonstration file::
+
+    python -c "from skillkit.tasks.table_tennis import write_demonstration as w; w()"
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(path, **forehand_demonstration())
+    return path
+
+
+def load_demonstration(path: str | Path = DEMO_PATH) -> dict[str, np.ndarray]:
+    """Read a demonstration written by :func:`write_demonstration`."""
+    with np.load(Path(path), allow_pickle=False) as f:
+        return {k: f[k] for k in ("times", "q", "qd", "qdd")}

@@ -1,0 +1,299 @@
+"""The table-tennis task (Sec. 3.4.3, Appendix C.3): DMP stroke, arm, ball, reward."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from skillkit._validation import check_array, check_positive
+from skillkit.policies.dmp import DMP, DMPParameters
+from skillkit.policies.gaussian import LinearGaussianPolicy
+from skillkit.tasks.base import ModelSignals, SimulationFailure, Task, check_count
+from skillkit.tasks.controllers import track_reference
+from skillkit.tasks.registry import register
+from skillkit.tasks.table_tennis.arm import (
+    INITIAL_STD,
+    JOINT_NAMES,
+    KD,
+    KP,
+    RACKET_SITE,
+    TORQUE_LIMIT,
+    arm_model,
+)
+from skillkit.tasks.table_tennis.ball import (
+    RETURN_HIGH,
+    RETURN_LOW,
+    SERVE_POSITION,
+    VELOCITY_HIGH,
+    VELOCITY_LOW,
+    BallPhysics,
+    RacketPath,
+    on_table,
+    simulate_ball,
+)
+from skillkit.tasks.table_tennis.demonstration import load_demonstration
+from skillkit.trajectory import Trajectory
+
+
+# ----------------------------------------------------------------------------- the task
+class TableTennis(Task):
+    """Return an incoming ball to a target on the opponent's side (Sec. 3.4.3, App. C.3).
+
+    Lower-level policy: a DMP per joint (10 basis functions, shape weights fitted to the
+    shipped forehand demonstration and fixed) of which ω = [g (8), ġ (8), τ] — final
+    positions, final velocities and time scaling, 17 parameters — is learned
+    (:class:`skillkit.policies.dmp.DMPParameters`). The reference is tracked by PD control
+    with bias compensation at ``control_dt``; the episode lasts ``duration`` seconds from
+    the ball's launch, and the ball is then followed (racket gone) until it lands.
+
+    The context s = [v_x, v_y, v_z, b_x, b_y] is uniform on the box of
+    :data:`VELOCITY_LOW`/:data:`VELOCITY_HIGH` × :data:`RETURN_LOW`/:data:`RETURN_HIGH`.
+    The simulation is deterministic (C.3 neglects spin and measurement noise): ``rng`` is
+    accepted and unused.
+
+    Parameters
+    ----------
+    reward_weights : tuple of float
+        (c₁, c₂) of Eq. C.1, in 1/m; the thesis uses c₁ = c₂ for model-free search.
+    duration : float
+        Episode length (s) of the robot simulation and of the recorded signals.
+    control_dt : float
+        Control period (s); also the sampling of the recorded signals.
+    physics_dt : float
+        MuJoCo time step (s); ``control_dt`` must be a multiple of it.
+    ball : BallPhysics, optional
+        Ball constants.
+    demonstration : dict, optional
+        ``times``, ``q``, ``qd``, ``qdd`` to imitate (default: the shipped file).
+    name : str
+        Registry name.
+
+    Trajectory contents
+    -------------------
+    ``states`` (T, 16) = [q, q̇]; ``controls`` (T, 8) joint torques/forces;
+    ``signals["ball"]`` (T, 3) ball centre, ``signals["racket"]`` (T, 3) blade centre,
+    ``signals["racket_normal"]`` (T, 3); ``info``: ``hit`` (bool), ``net`` (bool: the
+    returned ball ended in the net), ``landing_point`` p (2,), ``outcome``
+    (returned/net/out/missed), ``hit_time`` (s or None), ``incoming_end`` (s: the end of the
+    incoming ball, the first racket contact or else the landing), ``landing_time`` (s),
+    ``n_saturated`` (saturated torque entries).
+    """
+
+    context_dim = 5
+    parameter_dim = 17
+    context_names = ("v_x", "v_y", "v_z", "b_x", "b_y")
+    context_low = np.concatenate([VELOCITY_LOW, RETURN_LOW])
+    context_high = np.concatenate([VELOCITY_HIGH, RETURN_HIGH])
+    worst_reward = -5.0
+    """Below any working rollout: the landing point is within ~15 m of the target (drag
+    bounds the flight) and the racket within ~4 m of the ball, so R > −2."""
+    trajectory_depends_on_context = True
+
+    def __init__(
+        self,
+        reward_weights: tuple[float, float] = (0.1, 0.1),
+        duration: float = 1.2,
+        control_dt: float = 0.004,
+        physics_dt: float = 0.002,
+        ball: BallPhysics | None = None,
+        demonstration: dict | None = None,
+        name: str = "table-tennis",
+    ):
+
+        c = check_array(reward_weights, "reward_weights", shape=(2,))
+        if np.any(c < 0):
+            raise ValueError(f"reward_weights: expected non-negative (c1, c2), got {c.tolist()}")
+        self.reward_weights = (float(c[0]), float(c[1]))
+        self.duration = check_positive(duration, "duration")
+        self.control_dt = check_positive(control_dt, "control_dt")
+        self.physics_dt = check_positive(physics_dt, "physics_dt")
+        self.ball = BallPhysics() if ball is None else ball
+        if not isinstance(self.ball, BallPhysics):
+            raise ValueError(f"ball: expected a BallPhysics, got {type(ball).__name__}")
+        self.name = name
+        demo = load_demonstration() if demonstration is None else demonstration
+        self.dmp = DMP(len(JOINT_NAMES), n_basis=10, alpha_z=4.0, dt=self.control_dt).fit(
+            demo["times"], demo["q"], demo["qd"], demo["qdd"]
+        )
+        self.parameters = DMPParameters(self.dmp, learn=("goal", "goal_velocity", "tau"))
+        self.q0 = np.asarray(demo["q"][0], dtype=np.float64).copy()
+        self.times = self.control_dt * np.arange(int(round(self.duration / self.control_dt)) + 1)
+        self.model = arm_model(self.physics_dt)
+        self.data = mujoco.MjData(self.model)
+        self._site = self.model.site(RACKET_SITE).id
+
+    # ------------------------------------------------------------------ parameters
+    def check_omega(self, omega, name: str = "omega") -> np.ndarray:
+        """Shape (17,), finite, and a positive time scaling τ = ω[16]."""
+        omega = super().check_omega(omega, name)
+        if omega[-1] <= 0:
+            raise ValueError(f"{name}: its tau entry (index 16) must be > 0, got {omega[-1]:g}")
+        return omega
+
+    def initial_policy(self):
+        """π(ω|s) = N(ω_demo, diag(σ²)) with zero context gain: the demonstrated stroke (g and ġ
+        of the demonstration's end, τ = 1) with the exploration σ of :data:`INITIAL_STD`."""
+
+        return LinearGaussianPolicy(
+            mean=self.parameters.to_vector(),
+            cov=np.diag(INITIAL_STD**2),
+            context_dim=self.context_dim,
+        )
+
+    # ------------------------------------------------------------------ simulation
+    def _simulate(self, omega: np.ndarray, context: np.ndarray, rng: np.random.Generator):
+
+        dmp = self.parameters.from_vector(omega)
+        q_ref, qd_ref, _ = dmp.rollout(self.times, self.q0)
+        model, data, sid = self.model, self.data, self._site
+        T = self.times.shape[0]
+        center, normal = np.empty((T, 3)), np.empty((T, 3))
+        velocity, spin = np.empty((T, 3)), np.empty((T, 3))
+        buf = np.empty(6)
+
+        def record(k: int, d) -> None:
+            center[k] = d.site_xpos[sid]
+            normal[k] = d.site_xmat[sid, 1::3]
+            mujoco.mj_objectVelocity(model, d, mujoco.mjtObj.mjOBJ_SITE, sid, buf, 0)
+            spin[k], velocity[k] = buf[:3], buf[3:]
+
+        mujoco.mj_resetData(model, data)
+        data.qpos[:] = self.q0
+        out = track_reference(
+            model,
+            data,
+            q_ref,
+            qd_ref,
+            self.control_dt,
+            KP,
+            KD,
+            torque_limit=TORQUE_LIMIT,
+            on_step=record,
+        )
+        if not (np.all(np.isfinite(center)) and np.all(np.isfinite(normal))):
+            raise SimulationFailure("non-finite racket pose")
+        racket = RacketPath(self.times, center, normal, velocity, spin)
+        flight = simulate_ball(
+            SERVE_POSITION,
+            context[:3],
+            self.duration,
+            dt=self.control_dt,
+            physics=self.ball,
+            racket=racket,
+        )
+        end = flight.terminal
+        if end is None:
+            raise SimulationFailure("the ball did not come down within the simulated time")
+        hit = flight.first("racket")
+        p = end.position[:2]
+        if hit is None:
+            outcome = "missed"
+        elif end.kind == "net":
+            outcome = "net"
+        elif p[0] > 0 and on_table(p[0], p[1]):
+            outcome = "returned"
+        else:
+            outcome = "out"
+        info = {
+            "hit": hit is not None,
+            "net": hit is not None and end.kind == "net",
+            "landing_point": p.tolist(),
+            "outcome": outcome,
+            "hit_time": None if hit is None else float(hit.time),
+            "incoming_end": float(end.time if hit is None else hit.time),
+            "landing_time": float(end.time),
+            "n_saturated": int(out["n_saturated"]),
+        }
+        return Trajectory(
+            times=self.times.copy(),
+            states=np.hstack([out["q"], out["qd"]]),
+            controls=out["u"],
+            signals={"ball": flight.positions, "racket": center, "racket_normal": normal},
+            info=info,
+        )
+
+    # ------------------------------------------------------------------ reward
+    def reward_signals(self, trajectory: Trajectory) -> dict[str, np.ndarray]:
+        """``ball``, ``racket`` (T, 3), the ``landing_point`` p (2,) and ``incoming_steps``:
+        the samples of the incoming ball — those up to ``info["incoming_end"]`` and the first
+        one after it, so the segment across a racket contact counts."""
+        t = trajectory.times
+        keep = min(
+            int(np.searchsorted(t, trajectory.info["incoming_end"], side="right")) + 1, t.shape[0]
+        )
+        return {
+            "ball": trajectory.signals["ball"],
+            "racket": trajectory.signals["racket"],
+            "landing_point": np.asarray(trajectory.info["landing_point"], dtype=np.float64),
+            "incoming_steps": np.asarray(float(keep)),
+        }
+
+    def reward_batch(self, states, controls, signals, contexts) -> np.ndarray:
+        """R = −c₁ min_t ‖τ_b − τ_r‖ − c₂ ‖b − p‖ (Eq. C.1) per trajectory, shape (B,).
+
+        The minimum runs over the first ``incoming_steps`` samples of ball − racket, between
+        samples along straight segments (:func:`min_segment_distance`). Reads only
+        ``signals`` (``ball``, ``racket`` (B, T, 3), ``landing_point`` (B, 2),
+        ``incoming_steps`` (B,)), so predicted ball and racket trajectories and landing
+        points of the thesis's event models score the same way. numpy only.
+        """
+        c1, c2 = self.reward_weights
+        ball = np.asarray(signals["ball"], dtype=np.float64)
+        racket = np.asarray(signals["racket"], dtype=np.float64)
+        steps = np.asarray(signals["incoming_steps"]).astype(int)
+        p = np.asarray(signals["landing_point"], dtype=np.float64)
+        b = np.asarray(contexts, dtype=np.float64)[:, 3:5]
+        return np.array(
+            [
+                -c1 * min_segment_distance(ball[i, : steps[i]] - racket[i, : steps[i]])
+                - c2 * float(np.linalg.norm(b[i] - p[i]))
+                for i in range(ball.shape[0])
+            ]
+        )
+
+    # ------------------------------------------------------------------ model-based search
+    supports_model_rollout = False
+    no_model_rollout_reason = (
+        "table tennis is modelled by decomposed GP models of ball events (Sec. 4.3.4: the "
+        "ball state where it meets the racket, the return after the hit), not by a step "
+        "model of the arm under its tracking controller"
+    )
+
+    def model_signals(self) -> ModelSignals:
+        """The modelled state is the ball's position and velocity; no control input (ω enters
+        the event models directly); the reward reads ball, racket, landing point and the
+        length of the incoming ball."""
+        return ModelSignals(
+            state=("ball_x", "ball_y", "ball_z", "ball_vx", "ball_vy", "ball_vz"),
+            control=(),
+            signals=("ball", "racket", "landing_point", "incoming_steps"),
+        )
+
+    def initial_states(self, context, n: int, rng=None) -> np.ndarray:
+        """The served ball: [:data:`SERVE_POSITION`, v] with v = s[:3] for every draw, shape
+        (n, 6) (``rng`` is unused: the serve is deterministic, C.3 neglects noise)."""
+        s = self.check_context(context)
+        return np.tile(np.concatenate([SERVE_POSITION, s[:3]]), (check_count(n), 1))
+
+    def scene_model(self):
+        """The arm's compiled MuJoCo model (table, net and ball are drawn by the viewer)."""
+        return self.model
+
+
+def min_segment_distance(relative) -> float:
+    """Smallest ‖d‖ along the polyline through the rows of ``relative`` (shape (n, 3)):
+    each segment d(u) = d_k + u (d_{k+1} − d_k), u ∈ [0, 1], is minimised in closed form."""
+    d = check_array(relative, "relative", ndim=2)
+    if d.shape[0] == 1:
+        return float(np.linalg.norm(d[0]))
+    a, delta = d[:-1], np.diff(d, axis=0)
+    dd = np.einsum("ij,ij->i", delta, delta)
+    u = np.where(dd > 0, -np.einsum("ij,ij->i", a, delta) / np.where(dd > 0, dd, 1.0), 0.0)
+    closest = a + np.clip(u, 0.0, 1.0)[:, None] * delta
+    return float(np.sqrt(np.einsum("ij,ij->i", closest, closest).min()))
+
+
+@register("table-tennis", "contextual")
+def table_tennis(**kwargs) -> TableTennis:
+    """Sec. 3.4.3 / App. C.3 setting: contextual REPS's table tennis with c₁ = c₂ = 0.1."""
+    return TableTennis(**kwargs)

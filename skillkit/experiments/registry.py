@@ -41,6 +41,9 @@ class Series:
         How to draw it.
     lower, upper : list of float, optional
         A band around ``y`` (e.g. mean ± std or a 95% interval).
+    band : str, optional
+        What the band is, in words (e.g. ``"mean ± std over 20 trials"``, ``"95% interval of
+        the mean"``); figures show it in the legend. None: the band is drawn unlabelled.
     z : list of list of float, optional
         Heatmap values, shape (len(y), len(x)).
     xlabel, ylabel : str
@@ -58,6 +61,7 @@ class Series:
     kind: str = "line"
     lower: list | None = None
     upper: list | None = None
+    band: str | None = None
     z: list | None = None
     xlabel: str = ""
     ylabel: str = ""

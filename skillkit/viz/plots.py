@@ -1,16 +1,284 @@
-"""Turn an experiment result (its ``series``) into a plotly HTML figure and a PNG.
+"""Figures of experiment results, learning curves and GP fits (plotly and matplotlib).
 
-The HTML embeds plotly.js so it opens offline. The PNG is drawn with matplotlib from the
-same series (no browser needed), so both files always show the same numbers.
+An experiment result (the dict :func:`skillkit.experiments.runner.run_trials` returns and
+``result.json`` holds) is drawn from its ``series`` (dicts of
+:class:`~skillkit.experiments.registry.Series` fields), one subplot per panel:
+
+* :func:`plotly_figure` gives an interactive plotly figure (``figure.html``);
+* :func:`matplotlib_figure` gives the same figure as a :class:`matplotlib.figure.Figure`
+  (``figure.png``), drawn without pyplot: no backend is selected and no pyplot state is
+  touched, so it displays in Jupyter when returned and later ``plt.show()`` calls still work;
+* :func:`write_figures` writes both files.
+
+Every figure says what it shows: the thesis's claim and our verdict in a subtitle (from the
+summary's ``claim``, ``holds`` and ``statement``), what each band is (``Series.band``) in the
+legend, and an axis range that stays readable when a few values run away (they are marked at
+the edge of the axis and counted in a note, see :func:`robust_range`).
+
+:func:`plot_learning` draws what :func:`skillkit.search.loop.learn` returns, one run or several
+(mean ± std over runs), and :func:`plot_gp_fit` a 1-D GP regression (mean, 95% band, data).
 """
 
 from __future__ import annotations
 
 import math
 import textwrap
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
 
 _COLORS = ["#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#17becf"]
+_BAND_SWATCH = "#9e9e9e"
+_BACKENDS = ("plotly", "matplotlib")
+
+#: A log-y panel whose values span more decades than this gets a robust axis range.
+MAX_DECADES = 10.0
+#: The robust range keeps at least this many decades above the median (and below it).
+HEADROOM_DECADES = 6.0
+#: Values within this many decades of a kept value are kept too (a curve is not clipped).
+GAP_DECADES = 2.0
+#: A linear panel whose span exceeds this many times its spread (IQR) gets a robust range.
+LINEAR_SPAN_OVER_SPREAD = 1000.0
+#: Linear analogues of HEADROOM_DECADES and GAP_DECADES, in units of the spread.
+LINEAR_HEADROOM, LINEAR_GAP = 20.0, 5.0
+#: Never clip more than this fraction of a panel's values on one side: they are the data.
+MAX_CLIPPED_FRACTION = 0.25
+
+_POINT_KINDS = ("line", "markers", "lines+markers")
+
+
+# ----------------------------------------------------------------------------- verdict
+@dataclass(frozen=True)
+class Verdict:
+    """What an experiment checks and how it came out.
+
+    Attributes
+    ----------
+    claim : str
+        The thesis's claim in words ("" when none is recorded).
+    holds : bool or None
+        True / False; None when the claim is not decided here (or no verdict is recorded).
+    statement : str
+        One sentence with our numbers ("" when none is recorded).
+    recorded : bool
+        False for results whose summary records no verdict at all (older result files).
+    """
+
+    claim: str
+    holds: bool | None
+    statement: str
+    recorded: bool
+
+    @property
+    def word(self) -> str:
+        """ "holds", "does not hold", "undecided" or "no verdict recorded"."""
+        if not self.recorded:
+            return "no verdict recorded"
+        return {True: "holds", False: "does not hold", None: "undecided"}[self.holds]
+
+
+def verdict(result: Mapping) -> Verdict | None:
+    """The claim and verdict of an experiment result, or None for results that are not
+    experiment results (no ``summary`` and no ``claim``, e.g. a learning curve).
+
+    Reads ``summary["claim"]``, ``summary["holds"]`` and ``summary["statement"]``; older
+    summaries are read as well as they allow: the claim from ``result["claim"]``, the verdict
+    from ``summary["claim_holds"]`` or a dict of per-part verdicts in ``summary["holds"]``
+    (holds when all parts hold, does not hold when one fails).
+    """
+    if not isinstance(result, Mapping):
+        raise ValueError(f"result: expected a dict, got {type(result).__name__}")
+    summary = result.get("summary")
+    summary = summary if isinstance(summary, Mapping) else {}
+    if not summary and not result.get("claim"):
+        return None
+    claim = summary.get("claim") or result.get("claim") or ""
+    claim = claim if isinstance(claim, str) else ""
+    statement = summary.get("statement") if isinstance(summary.get("statement"), str) else ""
+    holds: Any = summary.get("holds", summary.get("claim_holds", ...))
+    if isinstance(holds, Mapping):
+        parts = [v for v in holds.values() if isinstance(v, bool) or v is None]
+        if parts and all(v is True for v in parts):
+            holds = True
+        elif any(v is False for v in parts):
+            holds = False
+        else:
+            holds = None
+    recorded = holds is None or isinstance(holds, (bool, np.bool_))
+    return Verdict(
+        claim=claim.strip(),
+        holds=bool(holds) if recorded and holds is not None else None,
+        statement=statement.strip(),
+        recorded=recorded,
+    )
+
+
+def subtitle(result: Mapping, width: int | None = None) -> str:
+    """The subtitle of an experiment figure: the thesis's claim and our verdict.
+
+    ``"Thesis: <claim>"`` and ``"Here: <holds | does not hold | undecided | no verdict
+    recorded> — <statement>"`` on two paragraphs, each wrapped to ``width`` characters
+    (no wrapping for None). "" for results without a claim or summary (:func:`verdict`).
+    """
+    v = verdict(result)
+    if v is None:
+        return ""
+    here = f"Here: {v.word}" + (f" — {v.statement}" if v.statement else "")
+    paragraphs = [f"Thesis: {v.claim or '(no claim recorded)'}", here]
+    if width is None:
+        return "\n".join(paragraphs)
+    return "\n".join(textwrap.fill(p, width=max(int(width), 20)) for p in paragraphs)
+
+
+def _title(result: Mapping) -> str:
+    head = ": ".join(str(result[k]) for k in ("id", "title") if result.get(k))
+    scale = result.get("scale")
+    return f"{head} ({scale})" if scale else head
+
+
+class NotebookFigure(Figure):
+    """A :class:`matplotlib.figure.Figure` on an Agg canvas that shows itself in Jupyter.
+
+    Jupyter displays a bare ``Figure`` only once pyplot has set up the inline backend; this
+    one renders its own PNG (``_repr_png_``) so a cell returning it always shows the figure,
+    with pyplot imported or not. It is not registered with pyplot: ``plt.show()`` and
+    ``plt.gcf()`` never see it.
+    """
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        FigureCanvasAgg(self)
+
+    def _repr_png_(self) -> bytes:
+        import io
+
+        buf = io.BytesIO()
+        self.savefig(buf, format="png", dpi=90)
+        return buf.getvalue()
+
+
+# ------------------------------------------------------------------------- axis ranges
+@dataclass(frozen=True)
+class AxisRange:
+    """A readable range of one panel's y axis.
+
+    Attributes
+    ----------
+    lo, hi : float
+        The smallest and largest value shown to scale (data units).
+    axis : tuple of float
+        The axis limits in data units (``lo`` and ``hi`` with a margin).
+    log : bool
+        Whether the axis is logarithmic.
+    """
+
+    lo: float
+    hi: float
+    axis: tuple[float, float]
+    log: bool
+
+    def clipped(self, y) -> tuple[np.ndarray, np.ndarray]:
+        """Boolean masks (above, below) of the values of ``y`` outside the axis limits."""
+        y = np.asarray(y, dtype=float)
+        with np.errstate(invalid="ignore"):
+            ok = np.isfinite(y) & ((y > 0) if self.log else True)
+            return ok & (y > self.axis[1]), ok & (y < self.axis[0])
+
+
+def robust_range(values, log: bool) -> AxisRange | None:
+    """A readable y range for values that a few runaway points would otherwise stretch.
+
+    Returns None when all values can be shown to scale: a log axis spanning at most
+    :data:`MAX_DECADES` decades, or a linear one spanning at most
+    :data:`LINEAR_SPAN_OVER_SPREAD` times its spread s = max(IQR, 10⁻³·|quartiles|).
+    Otherwise, in t = log₁₀ y (log) or t = y (linear), with median m and quartiles q₁, q₃:
+    the values in [min(m − H, q₁ − G), max(m + H, q₃ + G)] are kept, then every value within
+    G of a kept one (so a continuous curve is never cut), where H, G are
+    :data:`HEADROOM_DECADES`, :data:`GAP_DECADES` (log) or :data:`LINEAR_HEADROOM`·s,
+    :data:`LINEAR_GAP`·s (linear). A side that would lose more than
+    :data:`MAX_CLIPPED_FRACTION` of the values is not clipped.
+
+    Parameters
+    ----------
+    values : array_like
+        The panel's plotted values (non-finite ones, and non-positive ones on a log axis,
+        are ignored).
+    log : bool
+        Logarithmic axis.
+    """
+    t = np.asarray(values, dtype=float).ravel()
+    t = t[np.isfinite(t)]
+    if log:
+        t = np.log10(t[t > 0])
+    t = np.sort(t)
+    if t.size < 4:
+        return None
+    span = t[-1] - t[0]
+    q1, m, q3 = np.percentile(t, [25, 50, 75])
+    if log:
+        if span <= MAX_DECADES:
+            return None
+        head, gap = HEADROOM_DECADES, GAP_DECADES
+    else:
+        spread = max(q3 - q1, 1e-3 * max(abs(q1), abs(q3)))
+        if spread == 0:
+            spread = 1e-9 * span
+        if span <= LINEAR_SPAN_OVER_SPREAD * spread:
+            return None
+        head, gap = LINEAR_HEADROOM * spread, LINEAR_GAP * spread
+    hi = _extend(t, max(m + head, q3 + gap), gap)
+    lo = -_extend(-t[::-1], -min(m - head, q1 - gap), gap)
+    limit = MAX_CLIPPED_FRACTION * t.size
+    if np.sum(t > hi) > limit:
+        hi = t[-1]
+    if np.sum(t < lo) > limit:
+        lo = t[0]
+    if hi == t[-1] and lo == t[0]:
+        return None
+    pad = 0.06 * (hi - lo) if hi > lo else (0.5 if log else max(abs(hi) * 0.1, 1.0))
+    axis = (lo - pad, hi + pad)
+    if log:
+        return AxisRange(10.0**lo, 10.0**hi, (10.0 ** axis[0], 10.0 ** axis[1]), True)
+    return AxisRange(float(lo), float(hi), (float(axis[0]), float(axis[1])), False)
+
+
+def _extend(t: np.ndarray, start: float, gap: float) -> float:
+    """Largest value of sorted ``t`` reached from ``start`` in steps of at most ``gap``."""
+    kept = t[t <= start]
+    top = kept[-1] if kept.size else start
+    for v in t[t > start]:
+        if v - top > gap:
+            break
+        top = v
+    return float(top)
+
+
+def _fmt(v: float) -> str:
+    s = f"{v:.2g}"
+    if "e" in s:
+        mant, exp = s.split("e")
+        s = f"{mant}e{int(exp)}"
+    return s
+
+
+@dataclass
+class _Panel:
+    """What a panel draws beyond its series: the robust range and its notes."""
+
+    name: str
+    index: int
+    xlabel: str
+    ylabel: str
+    log_y: bool
+    range: AxisRange | None
+    note: str
+    bands: list[str]
+    floor: float  # where a log panel's non-positive band bounds are drawn
 
 
 def _panels(series: list[dict]) -> list[str]:
@@ -21,23 +289,134 @@ def _panels(series: list[dict]) -> list[str]:
     return seen
 
 
+def _layout(series: list[dict]) -> list[_Panel]:
+    """Per panel: labels, the robust range, the note on clipped values, the band texts."""
+    out = []
+    for i, name in enumerate(_panels(series)):
+        members = [s for s in series if s.get("panel", "") == name]
+        log_y = any(s.get("log_y") for s in members)
+        points = [s for s in members if s.get("kind", "line") in _POINT_KINDS]
+        values = np.concatenate([np.asarray(s["y"], dtype=float).ravel() for s in points] or [[]])
+        rng = robust_range(values, log_y)
+        note = ""
+        if rng is not None:
+            above = [rng.clipped(s["y"])[0] for s in points]
+            below = [rng.clipped(s["y"])[1] for s in points]
+            n_above, n_below = sum(int(a.sum()) for a in above), sum(int(b.sum()) for b in below)
+            parts = []
+            if n_above:
+                top = max(
+                    float(np.max(np.asarray(s["y"], float)[a]))
+                    for s, a in zip(points, above, strict=True)
+                    if a.any()
+                )
+                parts.append(
+                    f"{n_above} value{'s' if n_above > 1 else ''} above {_fmt(rng.axis[1])} "
+                    f"(max {_fmt(top)}) ▲ at the top edge"
+                )
+            if n_below:
+                low = min(
+                    float(np.min(np.asarray(s["y"], float)[b]))
+                    for s, b in zip(points, below, strict=True)
+                    if b.any()
+                )
+                parts.append(
+                    f"{n_below} value{'s' if n_below > 1 else ''} below {_fmt(rng.axis[0])} "
+                    f"(min {_fmt(low)}) ▼ at the bottom edge"
+                )
+            note = "; ".join(parts)
+        floor = 1.0
+        if log_y:
+            every = np.concatenate(
+                [values]
+                + [
+                    np.asarray(s[k], dtype=float).ravel()
+                    for s in points
+                    if _has_band(s)
+                    for k in ("lower", "upper")
+                ]
+            )
+            every = every[np.isfinite(every) & (every > 0)]
+            floor = rng.axis[0] if rng is not None else (float(every.min()) if every.size else 1.0)
+        bands = []
+        for s in members:
+            if _has_band(s) and s.get("band") and s["band"] not in bands:
+                bands.append(s["band"])
+        out.append(
+            _Panel(
+                name=name,
+                index=i,
+                xlabel=next((s["xlabel"] for s in members if s.get("xlabel")), ""),
+                ylabel=next((s["ylabel"] for s in members if s.get("ylabel")), ""),
+                log_y=log_y,
+                range=rng,
+                note=note,
+                bands=bands,
+                floor=floor,
+            )
+        )
+    return out
+
+
+def _has_band(s: Mapping) -> bool:
+    return (
+        s.get("kind", "line") in _POINT_KINDS
+        and s.get("lower") is not None
+        and s.get("upper") is not None
+    )
+
+
+def _band_arrays(s: Mapping, panel: _Panel) -> tuple[np.ndarray, np.ndarray]:
+    """Lower and upper band; on a log axis, non-positive lower bounds go to the panel's
+    smallest positive value (the axis bottom when the range is clipped)."""
+    lower = np.asarray(s["lower"], dtype=float)
+    upper = np.asarray(s["upper"], dtype=float)
+    if panel.log_y:
+        lower = np.where(np.isfinite(lower) & (lower > 0), lower, panel.floor)
+    return lower, upper
+
+
+def _band_label(s: Mapping, panel: _Panel) -> str | None:
+    """Legend text of a series' band: None when unlabelled or when the panel's bands all
+    say the same (then one grey swatch explains them)."""
+    if not s.get("band") or len(panel.bands) == 1:
+        return None
+    return f"{s['name']}: shaded {s['band']}"
+
+
+def _grid(n: int) -> tuple[int, int]:
+    ncols = min(n, 2)
+    return math.ceil(n / ncols), ncols
+
+
+# ------------------------------------------------------------------------------ plotly
 def plotly_figure(result: dict):
-    """A plotly figure with one subplot per panel of ``result["series"]``."""
+    """A plotly figure with one subplot per panel of ``result["series"]``.
+
+    Title: ``"<id>: <title> (<scale>)"``; subtitle: claim and verdict (:func:`subtitle`).
+    Bands are labelled in the legend from ``Series.band``; panels with runaway values get a
+    robust axis range (:func:`robust_range`), the clipped values drawn as triangles at the
+    edge (hover shows their values) and counted in a note.
+
+    Returns
+    -------
+    plotly.graph_objects.Figure
+    """
     import plotly.graph_objects as go
     from plotly.subplots import make_subplots
 
-    series = result["series"]
-    panels = _panels(series)
-    ncols = min(len(panels), 2)
-    nrows = math.ceil(len(panels) / ncols)
-    fig = make_subplots(rows=nrows, cols=ncols, subplot_titles=panels)
+    series = _check_result(result)
+    panels = _layout(series)
+    nrows, ncols = _grid(len(panels))
+    width, height = 560 * ncols + 200, 380 * nrows  # + room for the legend
+    fig = make_subplots(rows=nrows, cols=ncols, subplot_titles=[p.name for p in panels])
     colors: dict[str, str] = {}
+    shown: set[str] = set()
     for s in series:
-        idx = panels.index(s.get("panel", ""))
-        row, col = idx // ncols + 1, idx % ncols + 1
-        color = colors.setdefault(s["name"], _COLORS[len(colors) % len(_COLORS)])
+        panel = panels[[p.name for p in panels].index(s.get("panel", ""))]
+        row, col = panel.index // ncols + 1, panel.index % ncols + 1
+        color = colors.setdefault(s.get("_group", s["name"]), _COLORS[len(colors) % len(_COLORS)])
         kind = s.get("kind", "line")
-        show = sum(1 for t in fig.data if t.name == s["name"]) == 0
         if kind == "heatmap":
             fig.add_trace(
                 go.Heatmap(
@@ -48,80 +427,194 @@ def plotly_figure(result: dict):
                     colorscale="Viridis",
                     zmin=s.get("zmin"),
                     zmax=s.get("zmax"),
-                    showscale=idx == 0,
+                    showscale=panel.index == 0,
                 ),
                 row=row,
                 col=col,
             )
-        elif kind == "bar":
+            continue
+        if kind == "bar":
             fig.add_trace(
-                go.Bar(x=s["x"], y=s["y"], name=s["name"], marker_color=color, showlegend=show),
+                go.Bar(
+                    x=s["x"],
+                    y=s["y"],
+                    name=s["name"],
+                    marker_color=color,
+                    showlegend=s["name"] not in shown,
+                ),
                 row=row,
                 col=col,
             )
-        else:
-            if s.get("lower") is not None and s.get("upper") is not None:
+            shown.add(s["name"])
+            continue
+        if _has_band(s):
+            lower, upper = _band_arrays(s, panel)
+            label = _band_label(s, panel)
+            fig.add_trace(
+                go.Scatter(
+                    x=list(s["x"]) + list(s["x"])[::-1],
+                    y=upper.tolist() + lower[::-1].tolist(),
+                    fill="toself",
+                    line={"width": 0},
+                    fillcolor=color,
+                    opacity=0.2,
+                    hoverinfo="skip",
+                    showlegend=label is not None and label not in shown,
+                    name=label or f"{s['name']} (band)",
+                ),
+                row=row,
+                col=col,
+            )
+            if label:
+                shown.add(label)
+        mode = {"line": "lines", "markers": "markers"}.get(kind, kind)
+        fig.add_trace(
+            go.Scatter(
+                x=s["x"],
+                y=s["y"],
+                mode=mode,
+                name=s["name"],
+                line={"color": color},
+                marker={"color": color},
+                showlegend=s["name"] not in shown,
+            ),
+            row=row,
+            col=col,
+        )
+        shown.add(s["name"])
+        if panel.range is not None:
+            for mask, edge, symbol in zip(
+                panel.range.clipped(s["y"]),
+                panel.range.axis[::-1],
+                ("triangle-up", "triangle-down"),
+                strict=True,
+            ):
+                if mask.any():
+                    ys = np.asarray(s["y"], dtype=float)[mask]
+                    fig.add_trace(
+                        go.Scatter(
+                            x=np.asarray(s["x"])[mask].tolist(),
+                            y=[edge] * int(mask.sum()),
+                            mode="markers",
+                            marker={"color": color, "symbol": symbol, "size": 10},
+                            name=f"{s['name']} (off scale)",
+                            hovertext=[f"{s['name']}: {_fmt(v)} (off scale)" for v in ys],
+                            hoverinfo="text",
+                            cliponaxis=False,
+                            showlegend=False,
+                        ),
+                        row=row,
+                        col=col,
+                    )
+    for panel in panels:
+        row, col = panel.index // ncols + 1, panel.index % ncols + 1
+        fig.update_xaxes(
+            title_text=panel.xlabel,
+            type="log"
+            if any(s.get("log_x") for s in series if s.get("panel", "") == panel.name)
+            else None,
+            row=row,
+            col=col,
+        )
+        yrange = None
+        if panel.range is not None:
+            a, b = panel.range.axis
+            yrange = [math.log10(a), math.log10(b)] if panel.log_y else [a, b]
+        fig.update_yaxes(
+            title_text=panel.ylabel,
+            type="log" if panel.log_y else None,
+            range=yrange,
+            row=row,
+            col=col,
+        )
+        if panel.note:
+            fig.add_annotation(
+                text=panel.note,
+                xref="x domain",
+                yref="y domain",
+                x=0.01,
+                y=0.99,
+                xanchor="left",
+                yanchor="top",
+                showarrow=False,
+                font={"size": 10},
+                bgcolor="rgba(255,255,255,0.8)",
+                row=row,
+                col=col,
+            )
+        if len(panel.bands) == 1:
+            label = f"shaded: {panel.bands[0]}"
+            if label not in shown:
+                shown.add(label)
                 fig.add_trace(
                     go.Scatter(
-                        x=list(s["x"]) + list(s["x"])[::-1],
-                        y=list(s["upper"]) + list(s["lower"])[::-1],
-                        fill="toself",
-                        line={"width": 0},
-                        fillcolor=color,
-                        opacity=0.2,
-                        hoverinfo="skip",
-                        showlegend=False,
-                        name=s["name"],
+                        x=[None],
+                        y=[None],
+                        mode="markers",
+                        marker={"symbol": "square", "size": 12, "color": _BAND_SWATCH},
+                        opacity=0.4,
+                        name=label,
                     ),
                     row=row,
                     col=col,
                 )
-            mode = {"line": "lines", "markers": "markers"}.get(kind, kind)
-            fig.add_trace(
-                go.Scatter(
-                    x=s["x"],
-                    y=s["y"],
-                    mode=mode,
-                    name=s["name"],
-                    line={"color": color},
-                    marker={"color": color},
-                    showlegend=show,
-                ),
-                row=row,
-                col=col,
-            )
-        fig.update_xaxes(
-            title_text=s.get("xlabel", ""), type="log" if s.get("log_x") else None, row=row, col=col
-        )
-        fig.update_yaxes(
-            title_text=s.get("ylabel", ""), type="log" if s.get("log_y") else None, row=row, col=col
-        )
+    sub = subtitle(result, width=int(width / 6.8))
+    sub_lines = sub.splitlines() if sub else []
+    # the title stays left of the mode bar (top right, ~280 px)
+    head_lines = textwrap.wrap(_title(result), width=int((width - 280) / 8)) or [""]
+    text = "<br>".join(head_lines)
+    if sub_lines:
+        text += "<br><span style='font-size:12px'>" + "<br>".join(sub_lines) + "</span>"
+    top = 40 + 20 * len(head_lines) + 17 * len(sub_lines)
     fig.update_layout(
-        title=f"{result['id']}: {result['title']} ({result.get('scale', '')})",
-        height=380 * nrows,
-        width=560 * ncols,
+        title={
+            "text": text,
+            "x": 0.01,
+            "xanchor": "left",
+            "y": 1 - 12 / (height + top),
+            "yanchor": "top",
+            "font": {"size": 15},
+        },
+        margin={"t": top + 30},
+        height=height + top,
+        width=width,
         template="plotly_white",
     )
     return fig
 
 
+# -------------------------------------------------------------------------- matplotlib
 def matplotlib_figure(result: dict):
-    """The same figure drawn with matplotlib (used for the PNG)."""
-    import matplotlib
+    """The same figure as :func:`plotly_figure`, drawn with matplotlib (used for the PNG).
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    The figure is a :class:`NotebookFigure` (a :class:`matplotlib.figure.Figure` on an Agg
+    canvas; no pyplot, no backend change): a notebook displays it when a cell returns it,
+    ``fig.savefig`` writes it, and pyplot's state and backend stay as they were.
 
-    series = result["series"]
-    panels = _panels(series)
-    ncols = min(len(panels), 2)
-    nrows = math.ceil(len(panels) / ncols)
-    fig, axes = plt.subplots(nrows, ncols, figsize=(5.6 * ncols, 3.8 * nrows), squeeze=False)
+    Returns
+    -------
+    NotebookFigure
+    """
+    from matplotlib.patches import Patch
+
+    series = _check_result(result)
+    panels = _layout(series)
+    nrows, ncols = _grid(len(panels))
+    fig_w = 5.6 * ncols
+    sub_fs = 8.5
+    chars = int(fig_w * 72 / (0.6 * sub_fs))
+    sub = subtitle(result, width=chars)
+    head = textwrap.fill(_title(result), width=chars)
+    n_lines = len(head.splitlines()) + (len(sub.splitlines()) if sub else 0)
+    fig = NotebookFigure(
+        figsize=(fig_w, 3.8 * nrows + 0.15 + n_lines * sub_fs * 1.3 / 72), layout="constrained"
+    )
+    axes = fig.subplots(nrows, ncols, squeeze=False)
     colors: dict[str, str] = {}
     for s in series:
-        idx = panels.index(s.get("panel", ""))
-        ax = axes[idx // ncols][idx % ncols]
-        color = colors.setdefault(s["name"], _COLORS[len(colors) % len(_COLORS)])
+        panel = panels[[p.name for p in panels].index(s.get("panel", ""))]
+        ax = axes[panel.index // ncols][panel.index % ncols]
+        color = colors.setdefault(s.get("_group", s["name"]), _COLORS[len(colors) % len(_COLORS)])
         kind = s.get("kind", "line")
         if kind == "heatmap":
             mesh = ax.pcolormesh(
@@ -137,42 +630,326 @@ def matplotlib_figure(result: dict):
         elif kind == "bar":
             ax.bar([str(v) for v in s["x"]], s["y"], color=color, label=s["name"])
         else:
-            if s.get("lower") is not None and s.get("upper") is not None:
-                ax.fill_between(s["x"], s["lower"], s["upper"], color=color, alpha=0.2, linewidth=0)
+            if _has_band(s):
+                lower, upper = _band_arrays(s, panel)
+                ax.fill_between(
+                    s["x"],
+                    lower,
+                    upper,
+                    color=color,
+                    alpha=0.2,
+                    linewidth=0,
+                    label=_band_label(s, panel) or "_nolegend_",
+                )
             style = {"line": "-", "markers": "o", "lines+markers": "-o"}.get(kind, "-")
             ax.plot(s["x"], s["y"], style, color=color, label=s["name"], markersize=3)
-        ax.set_title(s.get("panel", ""), fontsize=10)
-        ax.set_xlabel(s.get("xlabel", ""))
-        ax.set_ylabel(s.get("ylabel", ""))
+            if panel.range is not None:
+                for mask, edge, marker in zip(
+                    panel.range.clipped(s["y"]), panel.range.axis[::-1], ("^", "v"), strict=True
+                ):
+                    if mask.any():
+                        ax.plot(
+                            np.asarray(s["x"])[mask],
+                            [edge] * int(mask.sum()),
+                            marker,
+                            color=color,
+                            markersize=6,
+                            clip_on=False,
+                            label="_nolegend_",
+                        )
         if s.get("log_x"):
             ax.set_xscale("log")
-        if s.get("log_y"):
+    for panel in panels:
+        ax = axes[panel.index // ncols][panel.index % ncols]
+        ax.set_title(panel.name, fontsize=10)
+        ax.set_xlabel(panel.xlabel)
+        ax.set_ylabel(panel.ylabel)
+        if panel.log_y:
             ax.set_yscale("log")
-    for row in axes:
-        for ax in row:
-            handles, labels = ax.get_legend_handles_labels()
-            if handles:
-                ax.legend(fontsize=8)
+        if panel.range is not None:
+            ax.set_ylim(*panel.range.axis)
+        if panel.note:
+            ax.text(
+                0.01,
+                0.99,
+                textwrap.fill(panel.note, width=70),
+                transform=ax.transAxes,
+                ha="left",
+                va="top",
+                fontsize=7,
+                bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none", "pad": 1.5},
+            )
+        handles, labels = ax.get_legend_handles_labels()
+        if len(panel.bands) == 1:
+            handles.append(Patch(color=_BAND_SWATCH, alpha=0.4, linewidth=0))
+            labels.append(f"shaded: {panel.bands[0]}")
+        if handles:
+            ax.legend(handles, labels, fontsize=7)
     for k in range(len(panels), nrows * ncols):
         axes[k // ncols][k % ncols].axis("off")
-    title = f"{result['id']}: {result['title']} ({result.get('scale', '')})"
-    fig.suptitle(textwrap.fill(title, width=int(95 * ncols / 2) + 10), fontsize=10)
-    fig.tight_layout()
+    fig.suptitle(
+        head + (f"\n{sub}" if sub else ""),
+        x=0.01,
+        ha="left",
+        fontsize=sub_fs if sub else 10,
+        multialignment="left",
+    )
     return fig
 
 
 def write_figures(result: dict, folder: str | Path, html: bool = True) -> tuple[Path | None, Path]:
     """Write ``figure.html`` (plotly, self-contained; skipped with ``html=False``) and
-    ``figure.png`` (matplotlib) into ``folder``."""
-    import matplotlib.pyplot as plt
+    ``figure.png`` (matplotlib, Agg canvas) into ``folder``.
 
+    Returns
+    -------
+    (html_path or None, png_path)
+    """
     folder = Path(folder)
     html_path = None
     if html:
         html_path = folder / "figure.html"
         plotly_figure(result).write_html(html_path, include_plotlyjs=True)
     png = folder / "figure.png"
-    fig = matplotlib_figure(result)
-    fig.savefig(png, dpi=90)
-    plt.close(fig)
+    matplotlib_figure(result).savefig(png, dpi=90)  # an Agg canvas (NotebookFigure)
     return html_path, png
+
+
+def _check_result(result) -> list[dict]:
+    if not isinstance(result, Mapping):
+        raise ValueError(f"result: expected a result dict, got {type(result).__name__}")
+    series = result.get("series")
+    if not isinstance(series, Sequence) or isinstance(series, str) or not series:
+        raise ValueError("result: expected a non-empty 'series' list of Series dicts")
+    # Besides Series fields, a series dict may carry "_group": series of one group share a
+    # colour (default: series of one name do).
+    out = []
+    for i, s in enumerate(series):
+        s = s.to_dict() if hasattr(s, "to_dict") else s
+        if not isinstance(s, Mapping) or not {"name", "x", "y"} <= set(s):
+            raise ValueError(f"result: series[{i}] lacks 'name', 'x' or 'y'")
+        out.append(dict(s))
+    return out
+
+
+def _draw(result: dict, backend: str):
+    if backend == "plotly":
+        return plotly_figure(result)
+    if backend == "matplotlib":
+        return matplotlib_figure(result)
+    raise ValueError(f"backend: expected one of {_BACKENDS}, got {backend!r}")
+
+
+# ------------------------------------------------------------------------ learning curves
+_LEARN_KEYS = ("rollouts", "mean_reward", "explore_rollouts", "explore_reward")
+
+
+def plot_learning(
+    runs,
+    *,
+    label: str = "policy mean",
+    backend: str = "plotly",
+    explore: bool = True,
+    title: str = "learning curve",
+    ylabel: str = "reward",
+):
+    """Learning curves of :func:`skillkit.search.loop.learn` results, without building dicts.
+
+    Parameters
+    ----------
+    runs : dict, sequence of dicts, or mapping of str to either
+        One ``learn`` result; several runs of the same setting (drawn as their mean with a
+        mean ± std band over runs; all runs must share the rollout grid); or a mapping
+        ``{label: result or runs}`` to compare settings in one figure.
+    label : str
+        Legend name when ``runs`` is not a mapping.
+    backend : {"plotly", "matplotlib"}
+        Which figure object to return.
+    explore : bool
+        Also draw the average reward of the exploratory rollouts of each batch
+        (``explore_reward`` at ``explore_rollouts``), as markers.
+    title, ylabel : str
+        Figure title and y-axis label.
+
+    Returns
+    -------
+    plotly.graph_objects.Figure or NotebookFigure
+        One panel: reward of the policy mean (evaluated on the evaluation contexts) against
+        the number of rollouts so far.
+    """
+    from skillkit.experiments.registry import Series, mean_band
+
+    if backend not in _BACKENDS:
+        raise ValueError(f"backend: expected one of {_BACKENDS}, got {backend!r}")
+    if isinstance(runs, Mapping) and "rollouts" not in runs:
+        if not runs:
+            raise ValueError("runs: empty mapping")
+        groups = {str(k): v for k, v in runs.items()}
+    else:
+        groups = {label: runs}
+    series, groups_of = [], []
+    for name, group in groups.items():
+        group_runs = [group] if isinstance(group, Mapping) else group
+        if not isinstance(group_runs, Sequence) or isinstance(group_runs, str) or not group_runs:
+            raise ValueError(
+                f"runs: expected a learn() result dict or a non-empty list of them for "
+                f"{name!r}, got {type(group).__name__}"
+            )
+        curves = [_check_learn(r, f"runs[{name!r}]") for r in group_runs]
+        x, ex = curves[0]["rollouts"], curves[0]["explore_rollouts"]
+        for c in curves[1:]:
+            if not (np.array_equal(c["rollouts"], x) and np.array_equal(c["explore_rollouts"], ex)):
+                raise ValueError(
+                    f"runs: the runs of {name!r} have different rollout grids; "
+                    "pass runs of the same setting (or a mapping of separate labels)"
+                )
+        n = len(curves)
+        common = {"panel": "", "xlabel": "rollouts", "ylabel": ylabel}
+        groups_of.append(name)
+        if n == 1:
+            series.append(Series(name, x.tolist(), curves[0]["mean_reward"].tolist(), **common))
+        else:
+            m, lo, hi = mean_band(np.stack([c["mean_reward"] for c in curves]))
+            series.append(
+                Series(
+                    f"{name} (mean of {n} runs)",
+                    x.tolist(),
+                    m,
+                    lower=lo,
+                    upper=hi,
+                    band=f"mean ± std over {n} runs",
+                    **common,
+                )
+            )
+        if explore and ex.size:
+            groups_of.append(name)
+            ey = np.mean(np.stack([c["explore_reward"] for c in curves]), axis=0)
+            series.append(
+                Series(
+                    f"{name}: exploration batches" + (" (mean over runs)" if n > 1 else ""),
+                    ex.tolist(),
+                    ey.tolist(),
+                    kind="markers",
+                    **common,
+                )
+            )
+    # a run's exploration markers take the colour of its curve
+    dicts = [{**s.to_dict(), "_group": g} for s, g in zip(series, groups_of, strict=True)]
+    return _draw({"title": title, "series": dicts}, backend)
+
+
+def _check_learn(r, name: str) -> dict[str, np.ndarray]:
+    if not isinstance(r, Mapping):
+        raise ValueError(f"{name}: expected a learn() result dict, got {type(r).__name__}")
+    missing = [k for k in _LEARN_KEYS if k not in r]
+    if missing:
+        raise ValueError(f"{name}: not a learn() result, missing keys {missing}")
+    out = {k: np.asarray(r[k], dtype=float).ravel() for k in _LEARN_KEYS}
+    for a, b in (("rollouts", "mean_reward"), ("explore_rollouts", "explore_reward")):
+        if out[a].shape != out[b].shape:
+            raise ValueError(
+                f"{name}: {a} and {b} differ in length ({out[a].size} vs {out[b].size})"
+            )
+    if out["rollouts"].size == 0:
+        raise ValueError(f"{name}: empty learning curve")
+    return out
+
+
+# ----------------------------------------------------------------------------- GP fits
+def plot_gp_fit(
+    model,
+    x_train,
+    y_train,
+    x_test,
+    *,
+    backend: str = "plotly",
+    include_noise: bool = True,
+    f_true=None,
+    label: str = "GP",
+    title: str = "GP regression",
+    xlabel: str = "x",
+    ylabel: str = "y",
+):
+    """A fitted 1-D GP regression: predictive mean, 95% band and the training data.
+
+    Parameters
+    ----------
+    model : fitted GP regression
+        Anything with ``predict(X, include_noise) -> (mean, var)`` as
+        :meth:`skillkit.models.gp.ExactGP.predict` (Eqs 2.26–2.27), fitted on 1-D inputs and
+        one output.
+    x_train : array_like, shape (N,) or (N, 1)
+    y_train : array_like, shape (N,)
+        The data the model was fitted on (drawn as points).
+    x_test : array_like, shape (n,) or (n, 1)
+        Where to draw mean and band (sorted for drawing), n ≥ 2.
+    backend : {"plotly", "matplotlib"}
+    include_noise : bool
+        Band of y = f(x) + ε (True, default) or of the latent f (False).
+    f_true : callable, optional
+        The true function, drawn at ``x_test`` for comparison.
+    label, title, xlabel, ylabel : str
+        Legend name of the mean, figure title, axis labels (give units).
+
+    Returns
+    -------
+    plotly.graph_objects.Figure or NotebookFigure
+        Traces: the mean with its band (mean ± 1.96 σ), the data points, and ``f_true``.
+    """
+    from skillkit._validation import check_array
+    from skillkit.experiments.registry import Series
+
+    if backend not in _BACKENDS:
+        raise ValueError(f"backend: expected one of {_BACKENDS}, got {backend!r}")
+    if not callable(getattr(model, "predict", None)):
+        raise ValueError(
+            "model: expected a fitted GP with predict(X, include_noise), "
+            f"got {type(model).__name__}"
+        )
+    xtr = _column(check_array(x_train, "x_train", ndim=(1, 2)), "x_train")
+    ytr = check_array(y_train, "y_train", ndim=(1, 2))
+    if ytr.ndim == 2 and ytr.shape[1] != 1:
+        raise ValueError(f"y_train: expected one output, got shape {ytr.shape}")
+    ytr = ytr.ravel()
+    if ytr.size != xtr.size:
+        raise ValueError(f"y_train: expected {xtr.size} values (one per x_train), got {ytr.size}")
+    xte = np.sort(_column(check_array(x_test, "x_test", ndim=(1, 2)), "x_test"))
+    if xte.size < 2:
+        raise ValueError(f"x_test: expected at least 2 points, got {xte.size}")
+    mean, var = model.predict(xte[:, None], include_noise=include_noise)
+    mean, var = np.asarray(mean, dtype=float), np.asarray(var, dtype=float)
+    if mean.ndim == 2 and mean.shape[1] == 1:
+        mean, var = mean[:, 0], var[:, 0]
+    if mean.shape != xte.shape:
+        raise ValueError(
+            f"model: expected one output (predictions of shape ({xte.size},)), got {mean.shape}"
+        )
+    half = 1.96 * np.sqrt(np.maximum(var, 0.0))
+    common = {"panel": "", "xlabel": xlabel, "ylabel": ylabel}
+    series = [
+        Series(
+            f"{label} mean",
+            xte.tolist(),
+            mean.tolist(),
+            lower=(mean - half).tolist(),
+            upper=(mean + half).tolist(),
+            band=f"95% band of {'y' if include_noise else 'f'} (mean ± 1.96 σ)",
+            **common,
+        ),
+        Series("data", xtr.tolist(), ytr.tolist(), kind="markers", **common),
+    ]
+    if f_true is not None:
+        series.append(
+            Series("true function", xte.tolist(), np.asarray(f_true(xte), float).tolist(), **common)
+        )
+    return _draw({"title": title, "series": [s.to_dict() for s in series]}, backend)
+
+
+def _column(x: np.ndarray, name: str) -> np.ndarray:
+    if x.ndim == 2:
+        if x.shape[1] != 1:
+            raise ValueError(f"{name}: expected 1-D inputs, shape (n,) or (n, 1), got {x.shape}")
+        x = x[:, 0]
+    if x.size == 0:
+        raise ValueError(f"{name}: empty")
+    return x

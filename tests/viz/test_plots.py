@@ -1,0 +1,449 @@
+"""Figures of results: no global matplotlib state, claim and verdict on the figure, band labels,
+readable ranges when values run away, and the learning-curve and GP-fit helpers."""
+
+import os
+import re
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import plotly.graph_objects as go
+import pytest
+from matplotlib.figure import Figure
+
+from skillkit.experiments.registry import Series
+from skillkit.viz.plots import (
+    MAX_DECADES,
+    matplotlib_figure,
+    plot_gp_fit,
+    plot_learning,
+    plotly_figure,
+    robust_range,
+    subtitle,
+    verdict,
+    write_figures,
+)
+
+ROOT = Path(__file__).resolve().parents[2]
+CLAIM = "REPS learns within 5000 rollouts"
+STATEMENT = "REPS reached -57 after 5000 rollouts (thesis: > -100)."
+
+
+def _result(series=None, summary=None, **extra) -> dict:
+    series = series or [Series("a", [0, 1, 2], [1.0, 2.0, 3.0], panel="p").to_dict()]
+    out = {"id": "figX", "title": "a test", "scale": "quick", "series": series, **extra}
+    if summary is not None:
+        out["summary"] = summary
+    return out
+
+
+def _plotly_title(fig) -> str:
+    return fig.layout.title.text.replace("<br>", " ")
+
+
+def _mpl_title(fig) -> str:
+    return " ".join(fig.get_suptitle().split())
+
+
+def _flat(text: str) -> str:
+    return " ".join(text.split())
+
+
+def _legend_texts(fig: Figure) -> list[str]:
+    return [t.get_text() for ax in fig.axes if ax.get_legend() for t in ax.get_legend().get_texts()]
+
+
+# ------------------------------------------------------------------------ global state
+def test_library_never_changes_the_matplotlib_backend(tmp_path):
+    """Drawing, writing figures and a whole reproduce() keep the user's backend (a notebook's
+    inline backend) and never import pyplot."""
+    script = textwrap.dedent(
+        f"""
+        import sys
+        import matplotlib
+        matplotlib.use("svg")
+        import skillkit
+        from skillkit.experiments.registry import Series
+        from skillkit.experiments.runner import reproduce
+        from skillkit.viz.plots import matplotlib_figure, write_figures
+
+        result = {{"id": "x", "title": "t", "series": [Series("a", [0, 1], [1, 2]).to_dict()]}}
+        matplotlib_figure(result)
+        write_figures(result, {str(tmp_path)!r}, html=False)
+        folder = reproduce("fig2.10", scale="quick", seed=0, out={str(tmp_path)!r},
+                           progress=False, html=False)
+        assert (folder / "figure.png").read_bytes()[:4] == b"\\x89PNG"
+        print(matplotlib.get_backend(), matplotlib.rcParams["backend"],
+              "matplotlib.pyplot" in sys.modules)
+        """
+    )
+    env = {k: v for k, v in os.environ.items() if k != "MPLBACKEND"}
+    env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
+    out = subprocess.run(
+        [sys.executable, "-c", script], cwd=ROOT, env=env, capture_output=True, text=True
+    )
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["svg", "svg", "False"]
+
+
+def test_write_figures_writes_png_and_html(tmp_path):
+    html, png = write_figures(_result(summary={"claim": CLAIM, "holds": True}), tmp_path)
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert html is not None and CLAIM in html.read_text()
+    html, png = write_figures(_result(), tmp_path, html=False)
+    assert html is None and png.exists()
+
+
+def test_matplotlib_figure_shows_itself_in_notebooks_without_pyplot():
+    import matplotlib.pyplot as plt
+
+    before = plt.get_fignums()
+    fig = matplotlib_figure(_result())
+    assert isinstance(fig, Figure) and plt.get_fignums() == before  # not a pyplot figure
+    assert fig._repr_png_()[:8] == b"\x89PNG\r\n\x1a\n"  # what Jupyter displays
+    assert isinstance(plotly_figure(_result()), go.Figure)
+
+
+# --------------------------------------------------------------------- claim and verdict
+@pytest.mark.parametrize(
+    "holds, word", [(True, "Here: holds"), (False, "Here: does not hold"), (None, "undecided")]
+)
+def test_claim_and_verdict_are_in_both_titles(holds, word):
+    r = _result(summary={"claim": CLAIM, "holds": holds, "statement": STATEMENT})
+    for title in (_plotly_title(plotly_figure(r)), _mpl_title(matplotlib_figure(r))):
+        flat = _flat(title)
+        assert "figX: a test (quick)" in flat
+        assert f"Thesis: {CLAIM}" in flat
+        assert word in flat and STATEMENT in flat
+        if holds is True:
+            assert "does not hold" not in flat
+
+
+def test_old_summaries_fall_back_gracefully():
+    # the claim on the result, the verdict in claim_holds
+    v = verdict(_result(summary={"claim_holds": False, "x": 1}, claim=CLAIM))
+    assert (v.claim, v.holds, v.word, v.statement) == (CLAIM, False, "does not hold", "")
+    # per-part verdicts: all hold -> holds; one fails -> does not hold
+    assert verdict(_result(summary={"holds": {"a": True, "b": True}})).holds is True
+    assert verdict(_result(summary={"holds": {"a": True, "b": False}})).holds is False
+    # no verdict at all
+    r = _result(summary={"final": 3.0}, claim=CLAIM)
+    assert verdict(r).word == "no verdict recorded"
+    assert "Here: no verdict recorded" in _flat(_mpl_title(matplotlib_figure(r)))
+    assert "Thesis: (no claim recorded)" in subtitle(_result(summary={"holds": True}))
+
+
+def test_results_without_a_claim_get_no_subtitle():
+    r = _result()  # e.g. a learning curve or a comparison of two runs
+    assert verdict(r) is None and subtitle(r) == ""
+    assert "Thesis" not in _plotly_title(plotly_figure(r))
+    assert "Thesis" not in matplotlib_figure(r).get_suptitle()
+
+
+def test_subtitle_is_wrapped_to_the_width():
+    r = _result(summary={"claim": "word " * 80, "holds": False, "statement": "number " * 50})
+    lines = subtitle(r, width=60).splitlines()
+    assert len(lines) > 5 and max(len(line) for line in lines) <= 60
+    # a 760 px wide plotly title holds ~110 characters of 12 px text per line
+    text = re.sub("<[^>]*>", "\n", plotly_figure(r).layout.title.text)
+    sub_lines = [line for line in text.splitlines()[1:] if line]
+    assert len(sub_lines) > 3 and max(len(line) for line in sub_lines) <= 130
+
+
+# ------------------------------------------------------------------------------ bands
+def _banded(band_a, band_b=None):
+    x = [0.0, 1.0, 2.0]
+    return _result(
+        [
+            Series("a", x, [1, 2, 3], panel="p", lower=[0, 1, 2], upper=[2, 3, 4], band=band_a),
+            Series("b", x, [3, 2, 1], panel="p", lower=[2, 1, 0], upper=[4, 3, 2], band=band_b),
+        ]
+    )
+
+
+def test_one_band_description_gets_one_legend_entry():
+    r = _banded("mean ± std over 20 trials", "mean ± std over 20 trials")
+    names = [t.name for t in plotly_figure(r).data if t.showlegend is not False]
+    assert names.count("shaded: mean ± std over 20 trials") == 1
+    assert _legend_texts(matplotlib_figure(r)).count("shaded: mean ± std over 20 trials") == 1
+
+
+def test_different_band_descriptions_are_named_per_series():
+    r = _banded("mean ± std over 20 trials", "95% interval of the mean")
+    expected = {"a: shaded mean ± std over 20 trials", "b: shaded 95% interval of the mean"}
+    legend = {t.name for t in plotly_figure(r).data if t.showlegend is not False}
+    assert expected <= legend
+    assert expected <= set(_legend_texts(matplotlib_figure(r)))
+
+
+def test_an_undescribed_band_is_drawn_but_not_explained():
+    r = _banded(None)
+    fig = plotly_figure(r)
+    assert any(t.fill == "toself" for t in fig.data)
+    assert not any("shaded" in (t.name or "") and t.showlegend is not False for t in fig.data)
+    assert not any("shaded" in t for t in _legend_texts(matplotlib_figure(r)))
+
+
+def test_band_is_a_series_field_dropped_when_absent():
+    assert Series("a", [0], [1], lower=[0], upper=[2], band="95% interval").to_dict()["band"] == (
+        "95% interval"
+    )
+    assert "band" not in Series("a", [0], [1]).to_dict()
+
+
+# ------------------------------------------------------------------------------ ranges
+def _runaway(log=True):
+    """Like fig5.6: errors of 1e2..1e12, three runaway values up to 1e40, and a floor."""
+    x = [2, 5, 10, 15, 20]
+    common = {"panel": "error", "log_y": log, "ylabel": "e_r", "kind": "lines+markers"}
+    return _result(
+        [
+            Series("gp", x, [1e12, 4e9, 2e11, 5e11, 1e12], **common),
+            Series("step", x, [1e4, 3e40, 2e33, 2e6, 9e19], **common),
+            Series("traj", x, [1e9, 6e8, 1.8e4, 1.8e4, 1.8e4], **common),
+            Series("floor", x, [180.0] * 5, **{**common, "kind": "line"}),
+        ],
+        summary={"claim": CLAIM, "holds": False},
+    )
+
+
+def test_runaway_log_values_get_a_bounded_axis_and_a_note():
+    r = _runaway()
+    fig = plotly_figure(r)
+    lo, hi = fig.layout.yaxis.range  # log10 units
+    assert 12 < hi < 13.5 and 1 < lo < 2.3  # keeps 1.8e2 .. 1e12, not 1e40
+    notes = [a.text for a in fig.layout.annotations if "above" in a.text]
+    assert len(notes) == 1 and "3 values above" in notes[0] and "max 3e40" in notes[0]
+    edge = [t for t in fig.data if "(off scale)" in (t.name or "")]
+    assert sorted(x for t in edge for x in t.x) == [5, 10, 20]
+    assert all(y == pytest.approx(10**hi) for t in edge for y in t.y)
+
+    mfig = matplotlib_figure(r)
+    ax = mfig.axes[0]
+    bottom, top = ax.get_ylim()
+    assert top == pytest.approx(10**hi) and top < 1e14 and bottom > 10
+    assert any("3 values above" in t.get_text() for t in ax.texts)
+
+
+def test_runaway_linear_values_are_clipped_below():
+    y = np.linspace(-2.0, -0.1, 50)
+    y[[10, 30]] = -1e12  # two diverged simulations
+    r = _result([Series("reward", list(range(50)), y.tolist(), panel="p")])
+    rng = robust_range(y, log=False)
+    assert rng is not None and rng.lo == pytest.approx(-2.0) and rng.hi == pytest.approx(-0.1)
+    assert rng.clipped(y)[1].sum() == 2 and rng.clipped(y)[0].sum() == 0
+    a, b = plotly_figure(r).layout.yaxis.range
+    assert -3 < a < -2 and -0.1 < b < 0.1
+    assert any("2 values below" in t.get_text() for t in matplotlib_figure(r).axes[0].texts)
+
+
+@pytest.mark.parametrize(
+    "values, log",
+    [
+        (np.logspace(0, -15, 100), True),  # a converging curve: many decades, no outlier
+        (10 ** np.array([1.3, 2.6, 2.5, 2.9, 4.1, 3.8, 5.9, 7.9, 2.8, 10.3]), True),  # fig4.5
+        (10 ** np.r_[np.zeros(6), np.full(6, 20.0)], True),  # half the values: the data
+        (np.r_[np.linspace(-0.2, -0.01, 30), np.full(70, -0.0086)], False),  # fig3.7-like
+        (np.array([1.0, 1.0, 1.0, 0.9, 1.0]), False),
+    ],
+)
+def test_ordinary_spreads_are_not_clipped(values, log):
+    assert robust_range(values, log) is None
+
+
+def test_a_forty_decade_spread_is_bounded():
+    values = np.r_[np.logspace(1, 4, 30), [1e40, 1e35]]
+    rng = robust_range(values, log=True)
+    assert rng is not None and rng.hi == pytest.approx(1e4)
+    assert np.log10(rng.axis[1] / rng.axis[0]) < MAX_DECADES
+    assert rng.clipped(values)[0].sum() == 2
+
+
+def test_axis_labels_come_from_the_series():
+    r = _result([Series("a", [0, 1], [1, 2], xlabel="time [s]", ylabel="torque [N m]")])
+    assert plotly_figure(r).layout.xaxis.title.text == "time [s]"
+    ax = matplotlib_figure(r).axes[0]
+    assert (ax.get_xlabel(), ax.get_ylabel()) == ("time [s]", "torque [N m]")
+
+
+@pytest.mark.parametrize(
+    "result, match",
+    [([], "result"), ({"series": []}, "series"), ({"series": [{"name": "a"}]}, "series\\[0\\]")],
+)
+def test_bad_results_raise(result, match):
+    with pytest.raises(ValueError, match=match):
+        plotly_figure(result)
+    with pytest.raises(ValueError, match=match):
+        matplotlib_figure(result)
+
+
+# ---------------------------------------------------------------------- learning curves
+def _learn_like(offset=0.0, n=4, per=5):
+    return {
+        "rollouts": per * np.arange(n + 1),
+        "mean_reward": -10.0 / (1 + np.arange(n + 1)) + offset,
+        "explore_rollouts": per * np.arange(1, n + 1),
+        "explore_reward": -12.0 / (1 + np.arange(n)) + offset,
+        "policy": object(),
+    }
+
+
+def test_plot_learning_draws_a_real_learn_result():
+    from skillkit.policies.gaussian import GaussianPolicy
+    from skillkit.search.loop import learn
+    from skillkit.search.reps import ContextualREPS
+    from skillkit.tasks.base import Task
+    from skillkit.trajectory import Trajectory
+
+    class Bowl(Task):
+        name = "bowl"
+        parameter_dim = 2
+
+        def _simulate(self, omega, context, rng):
+            return Trajectory(np.zeros(1), omega[None, :], np.zeros((1, 0)))
+
+        def _reward(self, trajectory, context):
+            return float(-np.sum((trajectory.states[0] - 1.0) ** 2))
+
+        def initial_policy(self):
+            return GaussianPolicy(np.zeros(2), np.eye(2))
+
+    task = Bowl()
+    res = learn(task, ContextualREPS(task.initial_policy(), 1.0), 3, 20, 0)
+    fig = plot_learning(res, label="REPS")
+    line = next(t for t in fig.data if t.name == "REPS")
+    np.testing.assert_array_equal(line.x, [0, 20, 40, 60])
+    np.testing.assert_allclose(line.y, res["mean_reward"])
+    dots = next(t for t in fig.data if t.name == "REPS: exploration batches")
+    assert dots.mode == "markers"
+    np.testing.assert_allclose(dots.y, res["explore_reward"])
+
+
+def test_plot_learning_over_runs_draws_mean_and_band():
+    runs = [_learn_like(o) for o in (-1.0, 0.0, 1.0)]
+    fig = plot_learning(runs, label="REPS")
+    mean = next(t for t in fig.data if t.name == "REPS (mean of 3 runs)")
+    np.testing.assert_allclose(mean.y, runs[1]["mean_reward"])
+    band = next(t for t in fig.data if t.fill == "toself")
+    np.testing.assert_allclose(np.max(band.y) - np.max(mean.y), 1.0)  # std of (-1, 0, 1)
+    assert any(t.name == "shaded: mean ± std over 3 runs" for t in fig.data)
+    mfig = plot_learning(runs, backend="matplotlib", explore=False)
+    assert isinstance(mfig, Figure)
+    assert "shaded: mean ± std over 3 runs" in _legend_texts(mfig)
+    assert not any("exploration" in t for t in _legend_texts(mfig))
+
+
+def test_plot_learning_compares_labelled_settings():
+    fig = plot_learning({"REPS": _learn_like(), "RWR": [_learn_like(), _learn_like(1.0)]})
+    names = {t.name for t in fig.data}
+    assert {"REPS", "RWR (mean of 2 runs)", "REPS: exploration batches"} <= names
+    color = {t.name: t.marker.color for t in fig.data}
+    assert color["REPS"] == color["REPS: exploration batches"] != color["RWR (mean of 2 runs)"]
+
+
+@pytest.mark.parametrize(
+    "runs, kwargs, match",
+    [
+        ({"rollouts": [0, 1]}, {}, "missing keys"),
+        ({**_learn_like(), "mean_reward": [1.0]}, {}, "differ in length"),
+        ([_learn_like(per=5), _learn_like(per=10)], {}, "rollout grids"),
+        ([], {}, "runs"),
+        ({}, {}, "empty"),
+        (_learn_like(), {"backend": "bokeh"}, "backend"),
+        ([3], {}, "learn\\(\\) result"),
+    ],
+)
+def test_plot_learning_rejects_bad_input(runs, kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        plot_learning(runs, **kwargs)
+
+
+# ----------------------------------------------------------------------------- GP fits
+@pytest.fixture(scope="module")
+def gp_data():
+    from skillkit.models.gp import ExactGP
+
+    rng = np.random.default_rng(0)
+    x = np.sort(rng.uniform(-3, 3, 12))
+    y = np.sin(x) + 0.1 * rng.standard_normal(12)
+    return ExactGP(additive_noise=0.0, n_steps=30).fit(x[:, None], y, rng=0), x, y
+
+
+def test_plot_gp_fit_draws_mean_band_and_data(gp_data):
+    gp, x, y = gp_data
+    x_test = np.linspace(3, -3, 50)  # unsorted on purpose
+    fig = plot_gp_fit(gp, x, y, x_test, label="SE GP", f_true=np.sin)
+    mean = next(t for t in fig.data if t.name == "SE GP mean")
+    m, var = gp.predict(np.sort(x_test)[:, None])
+    np.testing.assert_allclose(mean.x, np.sort(x_test))
+    np.testing.assert_allclose(mean.y, m)
+    band = next(t for t in fig.data if t.fill == "toself")
+    np.testing.assert_allclose(band.y[:50], m + 1.96 * np.sqrt(var))
+    data = next(t for t in fig.data if t.name == "data")
+    assert data.mode == "markers"
+    np.testing.assert_allclose(data.y, y)
+    assert any(t.name == "shaded: 95% band of y (mean ± 1.96 σ)" for t in fig.data)
+    assert any(t.name == "true function" for t in fig.data)
+    mfig = plot_gp_fit(gp, x[:, None], y, x_test, backend="matplotlib", include_noise=False)
+    assert "shaded: 95% band of f (mean ± 1.96 σ)" in _legend_texts(mfig)
+
+
+@pytest.mark.parametrize(
+    "args, kwargs, match",
+    [
+        (("x2", "y", "xt"), {}, "x_train"),
+        (("x", "y3", "xt"), {}, "y_train"),
+        (("x", "y", "x2"), {}, "x_test"),
+        (("x", "y", "one"), {}, "x_test"),
+        (("x", "y", "xt"), {"backend": "svg"}, "backend"),
+    ],
+)
+def test_plot_gp_fit_rejects_bad_input(gp_data, args, kwargs, match):
+    gp, x, y = gp_data
+    values = {
+        "x": x,
+        "y": y,
+        "xt": np.linspace(-3, 3, 5),
+        "x2": np.zeros((12, 2)),
+        "y3": y[:3],
+        "one": [0.0],
+    }
+    with pytest.raises(ValueError, match=match):
+        plot_gp_fit(gp, *(values[a] for a in args), **kwargs)
+
+
+def test_plot_gp_fit_needs_a_fitted_model(gp_data):
+    from skillkit.models.gp import ExactGP
+
+    _, x, y = gp_data
+    with pytest.raises(ValueError, match="model"):
+        plot_gp_fit(object(), x, y, x)
+    with pytest.raises(RuntimeError, match="fit"):
+        plot_gp_fit(ExactGP(), x, y, x)
+
+
+# ---------------------------------------------------------------------------- packaging
+def test_notebook_widgets_are_a_dev_dependency():
+    """tqdm.auto draws its bars as widgets in notebooks only with ipywidgets installed."""
+    tomllib = pytest.importorskip("tomllib")
+    dev = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["optional-dependencies"]
+    assert any(r.startswith("ipywidgets") for r in dev["dev"])
+    assert "- ipywidgets" in (ROOT / "environment.yml").read_text()
+
+
+def test_log_bands_below_zero_are_drawn_to_the_panel_bottom():
+    """A mean ± std band whose lower bound is ≤ 0 cannot be drawn on a log axis: it reaches
+    down to the panel's smallest positive value instead of vanishing (plotly drops it)."""
+    x = [1.0, 2.0, 3.0]
+    r = _result(
+        [
+            Series(
+                "a", x, [10.0, 100, 1e3], lower=[-5.0, 50, 500], upper=[25, 150, 1.5e3], log_y=True
+            ),
+            Series("b", x, [2.0, 3.0, 4.0], log_y=True),
+        ]
+    )
+    band = next(t for t in plotly_figure(r).data if t.fill == "toself")
+    assert min(band.y) == 2.0 and all(v > 0 for v in band.y)

@@ -31,6 +31,7 @@ import time
 import numpy as np
 import torch
 
+from skillkit.experiments import get
 from skillkit.experiments.ch4_models import _train_balancing_model, time_predictions
 from skillkit.models.sampling import sampler_flops_per_step
 from skillkit.tasks.balancing import X_UP, stable_gains
@@ -74,14 +75,15 @@ def main() -> None:
         f"machine: {platform.platform()}, {platform.processor() or platform.machine()}, "
         f"torch {torch.__version__}, {torch.get_num_threads()} threads available"
     )
-    settings = {
-        "horizon": args.horizon,
-        "torque_noise_std": 0.5,
-        "n_data": args.n_data,
-        "n_pseudo": args.n_pseudo,
-        "n_opt_steps": 10,
-        "additive_noise": 1.0,
-    }
+    settings = get("fig4.4").settings_for(
+        "quick",
+        horizon=args.horizon,
+        torque_noise_std=0.5,
+        n_data=args.n_data,
+        n_pseudo=args.n_pseudo,
+        n_opt_steps=10,
+        additive_noise=1.0,
+    )
     t0 = time.perf_counter()
     task, model, data = _train_balancing_model(settings, rng)
     pred = model.predictor

@@ -1,4 +1,4 @@
-"""Command line: ``skillkit list | reproduce | runs | compare | view | demo``."""
+"""Command line: ``skillkit list | settings | reproduce | runs | compare | view | demo``."""
 
 from __future__ import annotations
 
@@ -22,7 +22,11 @@ def _cmd_list(args: argparse.Namespace) -> int:
 
 
 def _overrides(pairs: list[str]) -> dict:
-    """``KEY=VALUE`` strings to settings overrides (VALUE parsed as JSON, else kept as text)."""
+    """``KEY=VALUE`` strings to settings overrides (VALUE parsed as JSON, else kept as text).
+
+    Names and types are checked by the experiment's settings class
+    (:meth:`~skillkit.experiments.registry.Experiment.settings_for`), not here.
+    """
     out = {}
     for pair in pairs:
         key, sep, value = pair.partition("=")
@@ -40,11 +44,12 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     from skillkit.experiments.runner import reproduce
 
     exp_ids = ids() if args.ids == ["all"] else args.ids
-    for exp_id in exp_ids:
-        get(exp_id)  # fail on an unknown id before running anything
     overrides = _overrides(args.set)
     if overrides and len(exp_ids) > 1:
         raise ValueError("--set: overrides apply to one experiment at a time")
+    for exp_id in exp_ids:
+        # fail on an unknown id, setting name or type before running anything
+        get(exp_id).settings_for(args.scale, **overrides)
     for exp_id in exp_ids:
         folder = reproduce(
             exp_id,
@@ -64,6 +69,22 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
         figures = "figure.png" if args.no_html else "figure.html, figure.png"
         print(f"wrote {folder}/result.json, {figures}, trials.npz")
         print(json.dumps(summary, indent=1))
+    return 0
+
+
+def _cmd_settings(args: argparse.Namespace) -> int:
+    from skillkit.experiments.registry import SCALES, get
+    from skillkit.experiments.runner import to_jsonable
+    from skillkit.experiments.settings import describe
+
+    exp = get(args.id)
+    values = {scale: to_jsonable(exp.settings[scale].to_dict()) for scale in SCALES}
+    print(f"{exp.id}: {exp.title}")
+    print(f"settings class {exp.settings_class.__name__}; trials per scale: {exp.trials}")
+    for name, kind, doc in describe(exp.settings_class):
+        print(f"\n  {name} ({kind})\n      {doc}")
+        for scale in SCALES:
+            print(f"      {scale:<6} {json.dumps(values[scale][name])}")
     return 0
 
 
@@ -123,11 +144,17 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from skillkit.experiments.registry import SCALES
+
     parser = argparse.ArgumentParser(prog="skillkit", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("list", help="list experiment ids and tasks")
     p.set_defaults(func=_cmd_list)
+
+    p = sub.add_parser("settings", help="an experiment's settings: meaning, type, values")
+    p.add_argument("id", metavar="ID", help="experiment id, e.g. fig3.3")
+    p.set_defaults(func=_cmd_settings)
 
     p = sub.add_parser("reproduce", help="reproduce a thesis figure or table")
     p.add_argument(
@@ -136,7 +163,12 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="ID",
         help="experiment id(s), e.g. fig2.10 (see `skillkit list`), or `all`",
     )
-    p.add_argument("--scale", choices=("quick", "paper"), default="quick")
+    p.add_argument(
+        "--scale",
+        choices=SCALES,
+        default="quick",
+        help="smoke (seconds), quick (minutes, faithful) or paper (the thesis setting)",
+    )
     p.add_argument(
         "--trials", type=int, default=None, help="independent trials (default: per experiment)"
     )
@@ -162,7 +194,9 @@ def build_parser() -> argparse.ArgumentParser:
         action="append",
         default=[],
         metavar="KEY=VALUE",
-        help="override one setting of the scale (repeatable), e.g. --set n_updates=50",
+        help="override one setting of the scale (repeatable; VALUE is JSON), e.g. --set "
+        "n_updates=50; names and types are checked first, and the run gets its own folder "
+        "<id>-<scale>-s<seed>-<hash> (see `skillkit settings ID`)",
     )
     p.set_defaults(func=_cmd_reproduce)
 

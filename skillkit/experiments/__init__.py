@@ -1,6 +1,15 @@
 """Thesis experiments: one module per chapter, each registering its figure/table ids."""
 
-from skillkit.experiments.registry import Experiment, Series, get, ids, register
+from skillkit.experiments.registry import (
+    SCALES,
+    Experiment,
+    Series,
+    Verdict,
+    get,
+    ids,
+    register,
+)
+from skillkit.experiments.settings import Settings, setting
 
 # Chapter modules register their experiments on import (one line per module).
 from skillkit.experiments import ch2  # noqa: E402,F401  isort: skip
@@ -12,4 +21,14 @@ from skillkit.experiments import ch2_gp  # noqa: E402,F401  isort: skip
 from skillkit.experiments import ch4_models  # noqa: E402,F401  isort: skip
 from skillkit.experiments import ch5  # noqa: E402,F401  isort: skip
 
-__all__ = ["Experiment", "Series", "get", "ids", "register"]
+__all__ = [
+    "SCALES",
+    "Experiment",
+    "Series",
+    "Settings",
+    "Verdict",
+    "get",
+    "ids",
+    "register",
+    "setting",
+]

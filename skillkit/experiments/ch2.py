@@ -7,15 +7,18 @@ least squares (Eq. 2.23).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from numpy.polynomial import Polynomial
 
 from skillkit._validation import check_positive
-from skillkit.experiments.registry import Experiment, Series, register
+from skillkit.experiments.registry import Experiment, Series, Verdict, register, with_verdict
+from skillkit.experiments.settings import Settings, setting
 from skillkit.policies.dmp import DMP
 from skillkit.trial import TrialContext
 
-__all__ = ["reach_demonstration"]
+__all__ = ["DMPImitationSettings", "reach_demonstration", "verdict"]
 
 
 def reach_demonstration(
@@ -66,48 +69,67 @@ def reach_demonstration(
     return times, q[:, None], qd[:, None], qdd[:, None]
 
 
-_SETTINGS = {
-    "duration": 1.0,  # demonstration length (s)
-    "dt": 1e-3,  # demonstration sampling and DMP integration step (s)
-    "q_start": 0.0,  # rad
-    "q_goal": 1.0,  # rad
-    "overshoot": 0.25,  # bump amplitude (rad)
-    "n_basis": 10,  # Fig. 2.10(b): 10 basis functions
-    "alpha_x": 25.0,
-    "beta_x": 6.25,
-    "alpha_z": 3.0,
-}
+CLAIM = (
+    "A DMP with 10 basis functions fitted by least squares (Eq. 2.23) reproduces the "
+    "demonstration (RMSE < 1% of its range) and ends at the goal g; without the forcing "
+    "term the DMP still reaches g but with a different shape (Figs. 2.9–2.11)."
+)
 
 
-def _run_trial(settings: dict, rng: np.random.Generator, progress: TrialContext) -> dict:
+@dataclass(frozen=True)
+class DMPImitationSettings(Settings):
+    """Settings of ``fig2.10`` (Sec. 2.3, Figs 2.9–2.11); the same at every scale."""
+
+    duration: float = setting(1.0, "Length of the demonstration (s); Fig. 2.9 stand-in.")
+    dt: float = setting(
+        1e-3, "Sampling step of the demonstration and integration step of the DMP (s)."
+    )
+    q_start: float = setting(0.0, "Start angle of the demonstration (rad).")
+    q_goal: float = setting(1.0, "Goal angle g of the demonstration and the DMP (rad).")
+    overshoot: float = setting(
+        0.25, "Amplitude of the bump added to the minimum-jerk reach (rad): what f must learn."
+    )
+    n_basis: int = setting(
+        10, "Basis functions of the forcing term f(z; v) (Eq. 2.21; Fig. 2.10b uses 10)."
+    )
+    alpha_x: float = setting(25.0, "Spring gain α_x of the DMP (Eq. 2.21).")
+    beta_x: float = setting(
+        6.25, "Damper gain β_x of the DMP (Eq. 2.21; α_x / 4 is critically damped)."
+    )
+    alpha_z: float = setting(3.0, "Decay rate α_z of the phase z (Eq. 2.22).")
+
+
+QUICK = DMPImitationSettings()
+SCALES = {"smoke": QUICK, "quick": QUICK, "paper": QUICK}
+
+
+def _run_trial(
+    settings: DMPImitationSettings, rng: np.random.Generator, trial: TrialContext
+) -> dict:
     """Fit the DMP to the demonstration and roll out with and without its forcing term.
 
     The experiment is deterministic: ``rng`` is not used.
     """
-    progress.reset(total=3)
+    trial.reset(total=3)
     times, q, qd, qdd = reach_demonstration(
-        settings["duration"],
-        settings["dt"],
-        settings["q_start"],
-        settings["q_goal"],
-        settings["overshoot"],
+        settings.duration, settings.dt, settings.q_start, settings.q_goal, settings.overshoot
     )
-    progress.update()
+    trial.update()
     dmp = DMP(
         1,
-        n_basis=settings["n_basis"],
-        alpha_x=settings["alpha_x"],
-        beta_x=settings["beta_x"],
-        alpha_z=settings["alpha_z"],
-        dt=settings["dt"],
+        n_basis=settings.n_basis,
+        alpha_x=settings.alpha_x,
+        beta_x=settings.beta_x,
+        alpha_z=settings.alpha_z,
+        dt=settings.dt,
     ).fit(times, q, qd, qdd)
-    progress.update()
+    trial.update()
     free = dmp.rollout(times, q[0], qd[0], weights=np.zeros_like(dmp.weights))
     fitted = dmp.rollout(times, q[0], qd[0])
     # Eq. 2.23's regression target Y and the fitted forcing term f(z_t; v), both at tau = 1.
     a, b = dmp.alpha_x, dmp.beta_x
     target = qdd[:, 0] - a * (b * (dmp.goal[0] - q[:, 0]) - qd[:, 0])
-    progress.update()
+    trial.update()
     return {
         "times": times,
         "demo_q": q[:, 0],
@@ -132,13 +154,13 @@ def _rmse_fraction(y, ref) -> float:
     return float(np.sqrt(np.mean((y - ref) ** 2)) / np.ptp(ref))
 
 
-def _summarize(settings: dict, trials: list[dict]) -> tuple[list[Series], dict]:
+def _summarize(settings: DMPImitationSettings, trials: list[dict]) -> tuple[list[Series], dict]:
     tr = trials[0]  # the experiment is deterministic: every trial is identical
     t = np.asarray(tr["times"]).tolist()
     names = {
         "demo": "demonstration (Fig. 2.9)",
         "free": "DMP, v = 0 (Fig. 2.10a)",
-        "dmp": f"DMP, {settings['n_basis']} basis functions (Figs. 2.10b, 2.11)",
+        "dmp": f"DMP, {settings.n_basis} basis functions (Figs. 2.10b, 2.11)",
     }
     panels = [
         ("q", "position q [rad]"),
@@ -180,7 +202,7 @@ def _summarize(settings: dict, trials: list[dict]) -> tuple[list[Series], dict]:
     end_error = abs(float(tr["dmp_q"][-1]) - tr["goal"])
     rmse = _rmse_fraction(tr["dmp_q"], demo_q)
     summary = {
-        "n_basis": settings["n_basis"],
+        "n_basis": settings.n_basis,
         "demo_range_rad": q_range,
         "rmse_q_fraction_of_range": rmse,
         "rmse_qd_fraction_of_range": _rmse_fraction(tr["dmp_qd"], tr["demo_qd"]),
@@ -188,23 +210,36 @@ def _summarize(settings: dict, trials: list[dict]) -> tuple[list[Series], dict]:
         "rmse_q_fraction_without_forcing": _rmse_fraction(tr["free_q"], demo_q),
         "end_error_to_goal_rad": end_error,
         "end_error_without_forcing_rad": abs(float(tr["free_q"][-1]) - tr["goal"]),
-        "claim_holds": bool(rmse < 0.01 and end_error < 0.01 * q_range),
     }
-    return series, summary
+    return series, with_verdict(summary, verdict(settings, summary))
+
+
+def verdict(settings: DMPImitationSettings, summary: dict) -> Verdict:
+    """Holds if the fitted DMP's RMSE is below 1% of the demonstration's range and it ends
+    within 1% of that range from the goal."""
+    rmse, end = summary["rmse_q_fraction_of_range"], summary["end_error_to_goal_rad"]
+    q_range = summary["demo_range_rad"]
+    return Verdict(
+        CLAIM,
+        bool(rmse < 0.01 and end < 0.01 * q_range),
+        f"With {summary['n_basis']} basis functions the DMP's position RMSE is "
+        f"{100 * rmse:.3g}% of the demonstration's range (thesis: an accurate fit, here "
+        f"< 1%) and it ends {end:.2g} rad from g; without the forcing term the RMSE is "
+        f"{100 * summary['rmse_q_fraction_without_forcing']:.3g}% and the end error "
+        f"{summary['end_error_without_forcing_rad']:.2g} rad.",
+    )
 
 
 register(
     Experiment(
         id="fig2.10",
         title="DMP with and without forcing term imitating a 1-DoF demonstration",
-        settings={"quick": dict(_SETTINGS), "paper": dict(_SETTINGS)},
+        settings_class=DMPImitationSettings,
+        settings=SCALES,
         run_trial=_run_trial,
         summarize=_summarize,
-        trials={"quick": 1, "paper": 1},
-        claim=(
-            "A DMP with 10 basis functions fitted by least squares (Eq. 2.23) reproduces the "
-            "demonstration (RMSE < 1% of its range) and ends at the goal g; without the forcing "
-            "term the DMP still reaches g but with a different shape (Figs. 2.9–2.11)."
-        ),
+        verdict=verdict,
+        trials={"smoke": 1, "quick": 1, "paper": 1},
+        claim=CLAIM,
     )
 )

@@ -16,8 +16,8 @@ One trial runs both algorithms from the same initial policy (the task's imitatio
   once per trial: the policy mean's average reward, hit rate (the pucks touched) and
   displacement error |d_T − d*| (over all held-out contexts, and over the hits only).
 
-Settings (commented in ``_SETTINGS``)
------------------------------------------------
+Settings (documented in :class:`HockeySettings`)
+------------------------------------------------
 The thesis does not give the batch size or data reuse for hockey. We reuse 200 samples as
 in its throwing protocol (Sec. 3.4.1) but draw 50 rollouts per update (L = 4 batches): with
 ε = 0.5 the REPS weights of a first batch of 25 have an effective sample size of ~12, too few
@@ -40,43 +40,79 @@ were chosen from {0.1, 0.2, 0.5, 2} × {1, 2, 5} on quick-scale runs (0.2 and 2 
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass, replace
+from typing import Literal
 
 import numpy as np
 import torch
 
 from skillkit._validation import check_array
-from skillkit.experiments.registry import Experiment, Series, mean_band, register
+from skillkit.experiments.registry import (
+    Experiment,
+    Series,
+    Verdict,
+    fmt,
+    mean_band,
+    register,
+    with_verdict,
+)
+from skillkit.experiments.settings import Settings, setting
 from skillkit.models.kernels import Linear
 from skillkit.tasks import make
 from skillkit.trial import TrialContext
 
-__all__ = ["NormalisedLinear", "heldout_scores", "make_algorithm"]
+__all__ = ["HockeySettings", "NormalisedLinear", "heldout_scores", "make_algorithm", "verdict"]
 
-_COMMON = {
-    "task": "hockey",  # registered task name (hockey-real works too)
-    "epsilon": 0.5,  # REPS KL bound ε (Sec. 3.4.2)
-    "crkr_lam": 0.2,  # CrKR λ (Eqs. 2.19-2.20): regulariser and exploration floor
-    "crkr_beta_scale": 2.0,  # CrKR weights exp(β (R − max R)), β = beta_scale / std(R)
-}
-_SETTINGS = {
-    "quick": dict(
-        _COMMON,
-        n_updates=16,  # policy updates per algorithm
-        rollouts_per_update=50,  # N rollouts per update
-        n_reuse_batches=4,  # L: the update uses the last L batches (REPS and CrKR)
-        n_eval_contexts=6,  # contexts of the per-update learning curve
-        n_heldout=30,  # held-out contexts for hit rate and displacement error
-        heldout_every=8,  # held-out evaluation every this many updates (and at the end)
+CLAIM = (
+    "Contextual REPS learns hockey shots that hit the target puck in 95% of the contexts "
+    "with a displacement error below 20 cm; CrKR (linear kernel) hits less often with "
+    "larger displacement errors (Sec. 3.4.2, Fig. 3.5)."
+)
+
+
+@dataclass(frozen=True)
+class HockeySettings(Settings):
+    """Settings of ``fig3.5`` (robot hockey, Sec. 3.4.2, App. C.2); see the module docstring."""
+
+    task: Literal["hockey", "hockey-real"] = setting(
+        "hockey", "Registered task: the simulated setting of C.2 or its real-robot variant."
+    )
+    epsilon: float = setting(0.5, "KL bound ε of contextual REPS (Eq. 3.4, Sec. 3.4.2).")
+    crkr_lam: float = setting(0.2, "CrKR's λ (Eqs 2.19–2.20): regulariser and exploration floor.")
+    crkr_beta_scale: float = setting(
+        2.0, "CrKR's sample weights exp(β (R − max R)) with β = crkr_beta_scale / std(R)."
+    )
+    n_updates: int = setting(16, "Policy updates per algorithm (Table 3.1 loop).")
+    rollouts_per_update: int = setting(
+        50, "Rollouts N between updates (the thesis gives none for hockey; see above)."
+    )
+    n_reuse_batches: int = setting(
+        4, "Batches L each update reuses (REPS and CrKR): the last L × N = 200 rollouts."
+    )
+    n_eval_contexts: int = setting(
+        6, "Fixed contexts of the per-update learning curve (reward of the policy mean)."
+    )
+    n_heldout: int = setting(
+        30, "Held-out contexts of the hit rate and the displacement error |d_T − d*| (m)."
+    )
+    heldout_every: int = setting(
+        8, "Held-out evaluation every this many updates (and after the last one)."
+    )
+
+
+QUICK = HockeySettings()
+SCALES = {
+    "smoke": replace(
+        QUICK,
+        n_updates=1,
+        rollouts_per_update=25,
+        n_eval_contexts=2,
+        n_heldout=3,
+        heldout_every=1,
+        epsilon=0.2,  # a gentle bound keeps the effective sample size of 25 samples above 16
     ),
-    "paper": dict(
-        _COMMON,
-        n_updates=200,
-        rollouts_per_update=50,
-        n_reuse_batches=4,
-        n_eval_contexts=10,
-        n_heldout=100,
-        heldout_every=40,
-    ),
+    "quick": QUICK,
+    "paper": replace(QUICK, n_updates=200, n_eval_contexts=10, n_heldout=100, heldout_every=40),
 }
 ALGORITHMS = ("reps", "crkr")
 LABELS = {"reps": "contextual REPS (ε = 0.5)", "crkr": "CrKR (linear kernel)"}
@@ -109,14 +145,14 @@ class NormalisedLinear(Linear):
         return super().forward(z1, z2, diag=diag, **params)
 
 
-def make_algorithm(name: str, task, settings: dict):
+def make_algorithm(name: str, task, settings: HockeySettings):
     """The search algorithm ``name`` ∈ {"reps", "crkr"} for ``task``, from its initial policy.
 
     Parameters
     ----------
     name : {"reps", "crkr"}
     task : skillkit.tasks.hockey.Hockey
-    settings : dict
+    settings : HockeySettings
         ``epsilon``, ``n_reuse_batches``, ``crkr_lam``, ``crkr_beta_scale``.
     """
     from skillkit.models.kernels import gram
@@ -125,21 +161,21 @@ def make_algorithm(name: str, task, settings: dict):
     prior = task.initial_policy()
     if name == "reps":
         return ContextualREPS(
-            prior, epsilon=settings["epsilon"], n_reuse_batches=settings["n_reuse_batches"]
+            prior, epsilon=settings.epsilon, n_reuse_batches=settings.n_reuse_batches
         )
     if name == "crkr":
         low, high = np.asarray(task.context_low), np.asarray(task.context_high)
         centre, half = 0.5 * (low + high), 0.5 * (high - low)
         kernel = NormalisedLinear(centre, np.where(half > 0, half, 1.0), bias=1.0)
         k_cc = float(gram(kernel, centre[None, :])[0, 0])
-        lam = settings["crkr_lam"]
+        lam = settings.crkr_lam
         scale = np.diag(prior.cov) / (k_cc + lam)
         return CrKR(
             prior,
             kernel,
             lam=lam,
-            beta_scale=settings["crkr_beta_scale"],
-            n_reuse_batches=settings["n_reuse_batches"],
+            beta_scale=settings.crkr_beta_scale,
+            n_reuse_batches=settings.n_reuse_batches,
             variance_scale=scale,
         )
     raise ValueError(f"name: expected one of {ALGORITHMS}, got {name!r}")
@@ -188,7 +224,7 @@ def heldout_scores(task, policy, contexts, rng=None) -> dict[str, float]:
     }
 
 
-def _run_trial(settings: dict, rng: np.random.Generator, progress: TrialContext) -> dict:
+def _run_trial(settings: HockeySettings, rng: np.random.Generator, trial: TrialContext) -> dict:
     """Both algorithms, same task, same evaluation and held-out contexts.
 
     Each ``learn`` call checkpoints after every update through the trial context, so an
@@ -196,13 +232,13 @@ def _run_trial(settings: dict, rng: np.random.Generator, progress: TrialContext)
     """
     from skillkit.search.loop import learn
 
-    task = make(settings["task"])
-    K, N = int(settings["n_updates"]), int(settings["rollouts_per_update"])
-    every = int(settings["heldout_every"])
-    heldout = task.sample_context(rng, n=int(settings["n_heldout"]))
-    eval_contexts = task.sample_context(rng, n=int(settings["n_eval_contexts"]))
+    task = make(settings.task)
+    K, N = settings.n_updates, settings.rollouts_per_update
+    every = settings.heldout_every
+    heldout = task.sample_context(rng, n=settings.n_heldout)
+    eval_contexts = task.sample_context(rng, n=settings.n_eval_contexts)
     heldout_seed = int(rng.integers(2**63))
-    progress.reset(total=len(ALGORITHMS) * K)
+    trial.reset(total=len(ALGORITHMS) * K)
 
     def record(k: int, alg) -> dict | None:
         if k % every == 0 or k == K:
@@ -218,7 +254,7 @@ def _run_trial(settings: dict, rng: np.random.Generator, progress: TrialContext)
             K,
             N,
             alg_rng,
-            trial=progress,
+            trial=trial,
             eval_contexts=eval_contexts,
             callback=record,
             checkpoint_key=name,
@@ -252,11 +288,11 @@ def _nan_stats(values: np.ndarray) -> tuple[float, float]:
     return (float(ok.mean()), float(ok.std())) if ok.size else (float("nan"), float("nan"))
 
 
-def _summarize(settings: dict, trials: list[dict]) -> tuple[list[Series], dict]:
+def _summarize(settings: HockeySettings, trials: list[dict]) -> tuple[list[Series], dict]:
     series: list[Series] = []
     summary: dict = {
         "n_trials": len(trials),
-        "rollouts_per_algorithm": settings["n_updates"] * settings["rollouts_per_update"],
+        "rollouts_per_algorithm": settings.n_updates * settings.rollouts_per_update,
     }
     panels = [
         ("mean_reward", "rollouts", "reward of the policy mean", "average reward"),
@@ -319,21 +355,40 @@ def _summarize(settings: dict, trials: list[dict]) -> tuple[list[Series], dict]:
         "crkr_larger_displacement_error": crkr["final_heldout_displacement_error"]
         > reps["final_heldout_displacement_error"],
     }
-    return series, summary
+    return series, with_verdict(summary, verdict(settings, summary))
+
+
+def verdict(settings: HockeySettings, summary: dict) -> Verdict:
+    """Holds if every check in ``summary["checks"]`` passes: REPS learns, hits ≥ 95% of the
+    held-out contexts with a mean displacement error < 20 cm, and CrKR ends with a lower
+    reward, a lower hit rate and a larger displacement error."""
+    reps, crkr = summary["reps"], summary["crkr"]
+
+    def pct(v):  # a fraction as a percentage, or metres as centimetres
+        return fmt(None if v is None else 100 * v, ".1f")
+
+    return Verdict(
+        CLAIM,
+        bool(all(summary["checks"].values())),
+        f"After {summary['rollouts_per_algorithm']} rollouts ({summary['n_trials']} trials) "
+        f"REPS hits {pct(reps['final_heldout_hit_rate'])}% of the held-out contexts with a "
+        f"displacement error of {pct(reps['final_heldout_displacement_error'])} cm (thesis: "
+        f"95%, < 20 cm); CrKR hits {pct(crkr['final_heldout_hit_rate'])}% with "
+        f"{pct(crkr['final_heldout_displacement_error'])} cm (thesis: fewer hits, larger "
+        "errors).",
+    )
 
 
 register(
     Experiment(
         id="fig3.5",
         title="Robot hockey: contextual REPS (ε = 0.5) vs CrKR with a linear kernel",
-        settings=_SETTINGS,
+        settings_class=HockeySettings,
+        settings=SCALES,
         run_trial=_run_trial,
         summarize=_summarize,
-        trials={"quick": 1, "paper": 3},
-        claim=(
-            "Contextual REPS learns hockey shots that hit the target puck in 95% of the contexts "
-            "with a displacement error below 20 cm; CrKR (linear kernel) hits less often with "
-            "larger displacement errors (Sec. 3.4.2, Fig. 3.5)."
-        ),
+        verdict=verdict,
+        trials={"smoke": 1, "quick": 1, "paper": 3},
+        claim=CLAIM,
     )
 )

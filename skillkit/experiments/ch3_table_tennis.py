@@ -5,7 +5,7 @@ Contextual REPS (ε = 0.6, Table 3.1) with a linear-Gaussian upper-level policy
 (:mod:`skillkit.tasks.table_tennis`) from the context s = [v_x, v_y, v_z, b_x, b_y], starting
 from the demonstrated forehand with zero context gain. Each update draws 50 contexts and
 rollouts and reuses the last 200 rollouts, as in the thesis's robot experiments (see
-:data:`SETTINGS` for the batch size). The learning curve is the reward of the policy
+:class:`TableTennisSettings` for the batch size). The learning curve is the reward of the policy
 *mean* on fixed evaluation contexts (:func:`skillkit.search.loop.learn`).
 
 After learning, the final policy mean is played on fresh contexts and each shot is
@@ -15,9 +15,21 @@ policy that puts the ball into the net, reward in [−0.05, −0.02] — visible
 
 from __future__ import annotations
 
+from dataclasses import dataclass, replace
+
 import numpy as np
 
-from skillkit.experiments.registry import Experiment, Series, mean_band, register
+from skillkit.experiments.registry import (
+    Experiment,
+    Series,
+    Verdict,
+    fmt,
+    mean_band,
+    register,
+    with_verdict,
+)
+from skillkit.experiments.settings import Settings, setting
+from skillkit.policies.features import FeatureName
 from skillkit.trial import TrialContext
 
 THESIS_GOOD_REWARD = -0.02
@@ -28,38 +40,76 @@ THESIS_ROLLOUTS = 4000
 """Sec. 3.4.3: good policies after ~4000 rollouts."""
 OUTCOMES = ("returned", "net", "out", "missed")
 
-_COMMON = {
-    "epsilon": 0.6,
-    "rollouts_per_update": 50,
-    "n_reuse_batches": 4,
-    "baseline_features": "linear",
-    "min_effective_samples": 10.0,
-    "cov_shrinkage": 0.2,
+CLAIM = (
+    "Contextual REPS learns to return the ball to within 20–30 cm of the target "
+    "(reward > −0.02) after ~4000 rollouts in most runs; some runs converge to a "
+    "sub-optimal policy hitting the net (reward in [−0.05, −0.02])."
+)
+
+
+@dataclass(frozen=True)
+class TableTennisSettings(Settings):
+    """Settings of ``fig3.7`` (table tennis, Sec. 3.4.3).
+
+    ``n_updates`` × ``rollouts_per_update`` exploratory rollouts per trial (paper: 6000, past
+    the thesis's ~4000; quick: 1000); each update reuses the last 200 rollouts as in Sec. 3.4.
+
+    Choices the thesis leaves open for this task, and why:
+
+    * 50 rollouts per update (the thesis gives 25 for throwing, nothing for table tennis).
+      With 25, the first update fits a 17×17 Σ and a 17×5 gain from a Kish ESS of ≈ 10
+      (ε = 0.6): the policy jumps by 6–8 nats of KL and in our runs 1 of 4 quick trials never
+      learned and 2 of 3 paper trials stalled at −0.04…−0.05; with 50 all runs learned
+      (≈ −0.01).
+    * A linear baseline V(s) = γᵀs: the quadratic one (20 features) is fitted from as few
+      samples in the first updates and did slightly worse.
+    * ``min_effective_samples`` and ``cov_shrinkage`` regularise the weighted ML fit
+      (:meth:`~skillkit.policies.gaussian.LinearGaussianPolicy.fit_with_info`): Σ is shrunk
+      20% towards the previous one, and a fit needs an ESS of at least 10.
+    """
+
+    epsilon: float = setting(0.6, "KL bound ε of contextual REPS (Eq. 3.4, Sec. 3.4.3).")
+    rollouts_per_update: int = setting(
+        50, "Rollouts N between updates (the thesis gives none for table tennis; see above)."
+    )
+    n_reuse_batches: int = setting(
+        4, "Batches L each update reuses: the last L × N = 200 rollouts (Sec. 3.4)."
+    )
+    baseline_features: FeatureName = setting(
+        "linear", "Context features of the REPS value-function baseline V(s) (Eq. 3.8)."
+    )
+    min_effective_samples: float = setting(
+        10.0, "Weighted ML fit (Eqs 3.11–3.13): the least effective sample size it accepts."
+    )
+    cov_shrinkage: float = setting(
+        0.2, "Weight of the previous Σ in the new one (Σ shrunk 20% towards it)."
+    )
+    n_updates: int = setting(20, "Policy updates (Table 3.1 loop).")
+    n_eval_contexts: int = setting(
+        8, "Fixed contexts of the learning curve (reward of the policy mean; not counted)."
+    )
+    n_final_contexts: int = setting(
+        40, "Fresh contexts on which the final policy mean's shots are classified."
+    )
+
+
+QUICK = TableTennisSettings()
+SCALES = {
+    "smoke": replace(
+        QUICK,
+        rollouts_per_update=12,
+        n_reuse_batches=2,
+        min_effective_samples=3.0,
+        n_updates=2,
+        n_eval_contexts=2,
+        n_final_contexts=3,
+    ),
+    "quick": QUICK,
+    "paper": replace(QUICK, n_updates=120, n_eval_contexts=12, n_final_contexts=200),
 }
-SETTINGS = {
-    "quick": {**_COMMON, "n_updates": 20, "n_eval_contexts": 8, "n_final_contexts": 40},
-    "paper": {**_COMMON, "n_updates": 120, "n_eval_contexts": 12, "n_final_contexts": 200},
-}
-"""``n_updates`` × ``rollouts_per_update`` exploratory rollouts per trial (paper: 6000, past
-the thesis's ~4000; quick: 1000); each update reuses the last 200 rollouts as in Sec. 3.4.
-``n_eval_contexts``: contexts of the learning curve (their rollouts are not counted);
-``n_final_contexts``: fresh contexts on which the final policy mean is classified.
-
-Choices the thesis leaves open for this task, and why:
-
-* 50 rollouts per update (the thesis gives 25 for throwing, nothing for table tennis). With
-  25, the first update fits a 17×17 Σ and a 17×5 gain from a Kish ESS of ≈ 10 (ε = 0.6):
-  the policy jumps by 6–8 nats of KL and in our runs 1 of 4 quick trials never learned
-  and 2 of 3 paper trials stalled at −0.04…−0.05; with 50 all runs learned (≈ −0.01).
-* A linear baseline V(s) = γᵀs: the quadratic one (20 features) is fitted from as few
-  samples in the first updates and did slightly worse.
-* ``min_effective_samples`` and ``cov_shrinkage`` regularise the weighted ML fit
-  (:meth:`~skillkit.policies.gaussian.LinearGaussianPolicy.fit_with_info`): Σ is shrunk 20%
-  towards the previous one, and a fit needs an ESS of at least 10.
-"""
 
 
-def run_trial(settings: dict, rng: np.random.Generator, progress: TrialContext) -> dict:
+def run_trial(settings: TableTennisSettings, rng: np.random.Generator, trial: TrialContext) -> dict:
     """One contextual-REPS learning run on the table-tennis task, then a final evaluation.
 
     Returns
@@ -76,24 +126,24 @@ def run_trial(settings: dict, rng: np.random.Generator, progress: TrialContext) 
     task = make("table-tennis")
     algorithm = ContextualREPS(
         task.initial_policy(),
-        settings["epsilon"],
-        n_reuse_batches=settings["n_reuse_batches"],
-        baseline_features=settings["baseline_features"],
-        min_effective_samples=settings["min_effective_samples"],
-        cov_shrinkage=settings["cov_shrinkage"],
+        settings.epsilon,
+        n_reuse_batches=settings.n_reuse_batches,
+        baseline_features=settings.baseline_features,
+        min_effective_samples=settings.min_effective_samples,
+        cov_shrinkage=settings.cov_shrinkage,
     )
-    eval_contexts = task.sample_context(rng, n=settings["n_eval_contexts"])
-    progress.reset(total=settings["n_updates"])
+    eval_contexts = task.sample_context(rng, n=settings.n_eval_contexts)
+    trial.reset(total=settings.n_updates)
     curves = learn(
         task,
         algorithm,
-        settings["n_updates"],
-        settings["rollouts_per_update"],
+        settings.n_updates,
+        settings.rollouts_per_update,
         rng,
-        trial=progress,
+        trial=trial,
         eval_contexts=eval_contexts,
     )
-    contexts = task.sample_context(rng, n=settings["n_final_contexts"])
+    contexts = task.sample_context(rng, n=settings.n_final_contexts)
     omegas = np.atleast_2d(curves["policy"].mean_of(contexts))
     rewards, outcomes, errors = [], [], []
     for omega, s in zip(omegas, contexts, strict=True):
@@ -113,7 +163,7 @@ def run_trial(settings: dict, rng: np.random.Generator, progress: TrialContext) 
     }
 
 
-def summarize(settings: dict, trials: list[dict]) -> tuple[list[Series], dict]:
+def summarize(settings: TableTennisSettings, trials: list[dict]) -> tuple[list[Series], dict]:
     """Learning curve (mean ± std over trials, and each trial), the final policies' outcome
     fractions, and the headline numbers next to the thesis's claims."""
     x = np.asarray(trials[0]["rollouts"], dtype=float).tolist()
@@ -192,15 +242,32 @@ def summarize(settings: dict, trials: list[dict]) -> tuple[list[Series], dict]:
         "total_rollouts_per_trial": float(x[-1]),
         "failed_rollouts": int(sum(t["n_failed"] for t in trials)),
         "thesis": {
-            "claim": "reward > −0.02 (within 20–30 cm) after ~4000 rollouts in most runs; "
-            "some runs converge to hitting the net (reward in [−0.05, −0.02])",
             "good_reward": THESIS_GOOD_REWARD,
             "net_band": list(THESIS_NET_BAND),
             "rollouts": THESIS_ROLLOUTS,
         },
         "learned": bool(final.mean() > curves[:, 0].mean() + 0.05),
     }
-    return series, summary
+    return series, with_verdict(summary, verdict(settings, summary))
+
+
+def verdict(settings: TableTennisSettings, summary: dict) -> Verdict:
+    """Holds if most runs (more than half) end with a final policy whose shots average a
+    reward above −0.02. The thesis's failure mode (runs converging to the net) is reported
+    in the statement, not required: not meeting a failure is no failure of the method."""
+    n = len(summary["final_reward_per_trial"])
+    good = round(summary["fraction_runs_above_-0.02"] * n)
+    netty = round(summary["fraction_runs_with_net_failures_above_10pct"] * n)
+    return Verdict(
+        CLAIM,
+        bool(summary["fraction_runs_above_-0.02"] > 0.5),
+        f"{good}/{n} runs end above −0.02 after {fmt(summary['total_rollouts_per_trial'], '.0f')} "
+        f"rollouts (final reward {fmt(summary['final_reward_mean'])}; the mean curve passes "
+        f"−0.02 after {fmt(summary['rollouts_to_mean_curve_above_-0.02'], '.0f')} rollouts) "
+        f"(thesis: most runs, after ~{THESIS_ROLLOUTS}); "
+        f"{fmt(100 * summary['net_fraction_mean'], '.1f')}% of the final shots hit the net and "
+        f"{netty}/{n} runs put more than 10% there (thesis: some runs converge to the net).",
+    )
 
 
 def _pooled(trials: list[dict], key: str, outcome: str) -> np.ndarray:
@@ -215,14 +282,12 @@ register(
     Experiment(
         id="fig3.7",
         title="Table tennis: contextual REPS (ε = 0.6) learning returns to a target",
-        settings=SETTINGS,
+        settings_class=TableTennisSettings,
+        settings=SCALES,
         run_trial=run_trial,
         summarize=summarize,
-        trials={"quick": 1, "paper": 3},
-        claim=(
-            "Contextual REPS learns to return the ball to within 20–30 cm of the target "
-            "(reward > −0.02) after ~4000 rollouts in most runs; some runs converge to a "
-            "sub-optimal policy hitting the net (reward in [−0.05, −0.02])."
-        ),
+        verdict=verdict,
+        trials={"smoke": 1, "quick": 1, "paper": 3},
+        claim=CLAIM,
     )
 )

@@ -22,46 +22,103 @@ in the summary).
 
 from __future__ import annotations
 
+from dataclasses import dataclass, replace
+
 import numpy as np
 
-from skillkit.experiments.registry import Experiment, Series, mean_band, register
+from skillkit.experiments.registry import (
+    Experiment,
+    Series,
+    Verdict,
+    fmt,
+    mean_band,
+    register,
+    with_verdict,
+)
+from skillkit.experiments.settings import Settings, setting
+from skillkit.policies.features import FeatureName
 from skillkit.policies.gaussian import LinearGaussianPolicy
 from skillkit.search import ContextualREPS, learn
 from skillkit.search.loop import policy_history_arrays
 from skillkit.tasks import make
 from skillkit.trial import TrialContext
 
-__all__ = ["run_trial", "summarize", "target_grid"]
+__all__ = ["ThrowingSettings", "run_trial", "summarize", "target_grid", "verdict"]
 
 METHODS = ("REPS", "REPS + extra context")
 FAR_X = 13.0
 """Targets with x ≥ FAR_X (m) count as far (Sec. 3.4.1)."""
 
-_COMMON = {
-    "epsilon": 0.6,  # KL bound ε (Sec. 3.4.1)
-    "rollouts_per_update": 25,  # rollouts between updates
-    "n_reuse_batches": 8,  # reuse the last 8 × 25 = 200 rollouts
-    "extra_contexts": 20,  # extra contexts per trajectory for the extra-context variant
-    "baseline_features": "quadratic",  # V(s) features of contextual REPS
-    "policy_features": "linear",  # context features of π(ω|s) = N(a + A φ(s), Σ)
-    # Weighted ML fit (Eqs. 3.11-3.13) with fewer effective samples than 42 (= d + 1, early
-    # updates see only 25 rollouts): no direction of Σ may shrink by more than `cov_floor` per
-    # update, and Σ is shrunk towards the previous Σ by `cov_shrinkage`.
-    "min_effective_samples": 2.0,
-    "cov_floor": 0.1,
-    "cov_shrinkage": 0.0,
-    "grid_x": [5.0, 6.0, 7.0, 8.0, 9.0, 10.0, 11.0, 12.0, 13.0, 14.0, 15.0],  # final-error grid (m)
-    "grid_y": [1.0, 2.0, 3.0],
-}
-SETTINGS = {
-    "quick": {**_COMMON, "n_updates": 40, "n_eval_contexts": 8},
-    "paper": {**_COMMON, "n_updates": 200, "n_eval_contexts": 20},
+CLAIM = (
+    "Contextual REPS (25 rollouts per update, the last 200 reused, ε = 0.6) learns to throw at "
+    "targets x ∈ [5, 15] m within ~5000 rollouts in most trials, and always with extra "
+    "contexts, which improve it; the final error stays below 0.1 m for near targets and up to "
+    "0.5 m for x ≥ 13 m (Sec. 3.4.1, Fig. 3.3)."
+)
+THESIS = {"near_max_error_m": 0.1, "far_max_error_m": 0.5, "rollouts_to_converge": 5000}
+"""Sec. 3.4.1: the final error bounds (near and far targets) and the rollouts to converge."""
+
+
+@dataclass(frozen=True)
+class ThrowingSettings(Settings):
+    """Settings of ``fig3.3`` (ball throwing with the planar 4-link robot, Sec. 3.4.1)."""
+
+    n_updates: int = setting(
+        40, "Policy updates per method (Table 3.1); rollouts = n_updates × rollouts_per_update."
+    )
+    n_eval_contexts: int = setting(
+        8, "Fixed targets of the learning curve (reward of the policy mean; not counted)."
+    )
+    epsilon: float = setting(0.6, "KL bound ε of contextual REPS (Eq. 3.4, Sec. 3.4.1).")
+    rollouts_per_update: int = setting(25, "Rollouts N between updates (Sec. 3.4.1).")
+    n_reuse_batches: int = setting(
+        8, "Batches L each update reuses: the last L × N = 200 rollouts (Sec. 3.4.1)."
+    )
+    extra_contexts: int = setting(
+        20, "Extra contexts each trajectory is re-scored in, extra-context variant (Sec. 3.4.1)."
+    )
+    baseline_features: FeatureName = setting(
+        "quadratic", "Context features of the REPS value-function baseline V(s) (Eq. 3.8)."
+    )
+    policy_features: FeatureName = setting(
+        "linear", "Context features φ(s) of the policy π(ω|s) = N(a + A φ(s), Σ) (Eq. 3.10)."
+    )
+    min_effective_samples: float = setting(
+        2.0, "Weighted ML fit (Eqs 3.11–3.13): the least effective sample size it accepts."
+    )
+    cov_floor: float = setting(
+        0.1, "No direction of Σ shrinks below this fraction of its previous variance per update."
+    )
+    cov_shrinkage: float = setting(0.0, "Weight of the previous Σ in the new one (0: none).")
+    grid_x: tuple[float, ...] = setting(
+        (5.0, 6.0, 7.0, 8.0, 9.0, 10.0, 11.0, 12.0, 13.0, 14.0, 15.0),
+        "Target x coordinates (m) of the final-error grid; x ≥ 13 m count as far.",
+    )
+    grid_y: tuple[float, ...] = setting(
+        (1.0, 2.0, 3.0), "Target y coordinates (m) of the final-error grid."
+    )
+
+
+QUICK = ThrowingSettings()
+SCALES = {
+    "smoke": replace(
+        QUICK,
+        n_updates=2,
+        rollouts_per_update=4,
+        n_reuse_batches=2,
+        extra_contexts=2,
+        n_eval_contexts=1,
+        grid_x=(6.0, 14.0),
+        grid_y=(2.0,),
+    ),
+    "quick": QUICK,
+    "paper": replace(QUICK, n_updates=200, n_eval_contexts=20),
 }
 
 
-def target_grid(settings: dict) -> np.ndarray:
+def target_grid(settings: ThrowingSettings) -> np.ndarray:
     """Targets (n, 2) on which the final policies' ball-to-target distance is measured."""
-    gx, gy = np.meshgrid(settings["grid_x"], settings["grid_y"], indexing="ij")
+    gx, gy = np.meshgrid(settings.grid_x, settings.grid_y, indexing="ij")
     return np.column_stack([gx.ravel(), gy.ravel()])
 
 
@@ -81,7 +138,7 @@ def _final_errors(task, policy, targets: np.ndarray) -> tuple[np.ndarray, np.nda
     return np.array(dist), np.array(penalty)
 
 
-def run_trial(settings: dict, rng: np.random.Generator, progress: TrialContext) -> dict:
+def run_trial(settings: ThrowingSettings, rng: np.random.Generator, trial: TrialContext) -> dict:
     """One trial: REPS and REPS + extra context from the same initial policy and targets.
 
     Returns
@@ -93,34 +150,34 @@ def run_trial(settings: dict, rng: np.random.Generator, progress: TrialContext) 
         :func:`target_grid`; ``targets`` (n_targets, 2).
     """
     task = make("throwing")
-    eval_contexts = task.sample_context(rng, n=settings["n_eval_contexts"])
+    eval_contexts = task.sample_context(rng, n=settings.n_eval_contexts)
     targets = target_grid(settings)
     out: dict = {"targets": targets}
     seeds = rng.spawn(2)
-    progress.reset(total=2 * settings["n_updates"])
+    trial.reset(total=2 * settings.n_updates)
     for key, extra, child in zip(
-        ("reps", "extra"), (0, settings["extra_contexts"]), seeds, strict=True
+        ("reps", "extra"), (0, settings.extra_contexts), seeds, strict=True
     ):
         init = task.initial_policy()
         init = LinearGaussianPolicy(
-            init.mean, init.cov, context_dim=task.context_dim, features=settings["policy_features"]
+            init.mean, init.cov, context_dim=task.context_dim, features=settings.policy_features
         )
         algo = ContextualREPS(
             init,
-            settings["epsilon"],
-            n_reuse_batches=settings["n_reuse_batches"],
-            baseline_features=settings["baseline_features"],
-            cov_floor=settings["cov_floor"],
-            cov_shrinkage=settings["cov_shrinkage"],
-            min_effective_samples=settings["min_effective_samples"],
+            settings.epsilon,
+            n_reuse_batches=settings.n_reuse_batches,
+            baseline_features=settings.baseline_features,
+            cov_floor=settings.cov_floor,
+            cov_shrinkage=settings.cov_shrinkage,
+            min_effective_samples=settings.min_effective_samples,
         )
         curves = learn(
             task,
             algo,
-            settings["n_updates"],
-            settings["rollouts_per_update"],
+            settings.n_updates,
+            settings.rollouts_per_update,
             child,
-            trial=progress,
+            trial=trial,
             extra_contexts=extra,
             eval_contexts=eval_contexts,
             checkpoint_key=key,
@@ -138,7 +195,7 @@ def run_trial(settings: dict, rng: np.random.Generator, progress: TrialContext) 
     return out
 
 
-def summarize(settings: dict, trials: list[dict]) -> tuple[list[Series], dict]:
+def summarize(settings: ThrowingSettings, trials: list[dict]) -> tuple[list[Series], dict]:
     """Learning curves (mean ± std over trials), final distances, and the headline numbers."""
     x = np.asarray(trials[0]["rollouts"], dtype=float).tolist()
     targets = np.asarray(trials[0]["targets"], dtype=float)
@@ -162,11 +219,11 @@ def summarize(settings: dict, trials: list[dict]) -> tuple[list[Series], dict]:
         )
         dist = np.array([t[f"{key}_distance"] for t in trials], dtype=float)  # (trials, targets)
         pen = np.array([t[f"{key}_penalty"] for t in trials], dtype=float)
-        per_x = [float(np.nanmean(dist[:, targets[:, 0] == gx])) for gx in settings["grid_x"]]
+        per_x = [float(np.nanmean(dist[:, targets[:, 0] == gx])) for gx in settings.grid_x]
         series.append(
             Series(
                 label,
-                list(settings["grid_x"]),
+                list(settings.grid_x),
                 per_x,
                 panel="final ball-to-target distance",
                 kind="lines+markers",
@@ -189,38 +246,57 @@ def summarize(settings: dict, trials: list[dict]) -> tuple[list[Series], dict]:
             "failed_rollouts_during_learning": int(sum(np.sum(t[f"{key}_failed"]) for t in trials)),
             "conditioned_updates": int(sum(t[f"{key}_conditioned"] for t in trials)),
         }
-    summary["thesis"] = {
-        "claim": "REPS converges to a good solution after ~5000 rollouts in most trials; with "
-        "extra context always. Final error < 0.1 m for near targets, up to 0.5 m for x >= 13 m.",
-        "near_max_error_m": 0.1,
-        "far_max_error_m": 0.5,
-        "rollouts_to_converge": 5000,
-    }
+    summary["thesis"] = dict(THESIS)
     summary["learned"] = {
         key: bool(summary[key]["final_reward_mean"] > summary[key]["initial_reward"])
         for key in ("reps", "extra")
     }
-    summary["holds"] = {
+    summary["holds_per_method"] = {
         key: bool(
-            summary[key]["near_distance_max_m"] <= 0.1 and summary[key]["far_distance_max_m"] <= 0.5
+            summary[key]["near_distance_max_m"] <= THESIS["near_max_error_m"]
+            and summary[key]["far_distance_max_m"] <= THESIS["far_max_error_m"]
         )
         for key in ("reps", "extra")
     }
     summary["extra_context_better"] = bool(
         summary["extra"]["final_reward_mean"] >= summary["reps"]["final_reward_mean"]
     )
-    return series, summary
+    return series, with_verdict(summary, verdict(settings, summary))
+
+
+def verdict(settings: ThrowingSettings, summary: dict) -> Verdict:
+    """Holds if, with extra contexts, every trial's final policy meets both error bounds (the
+    thesis: extra context always converges) and extra contexts end with at least plain REPS's
+    reward. Plain REPS's bounds ("most trials") are in ``holds_per_method``."""
+    reps, extra = summary["reps"], summary["extra"]
+    ok = summary["holds_per_method"]
+    near, far = summary["thesis"]["near_max_error_m"], summary["thesis"]["far_max_error_m"]
+    return Verdict(
+        CLAIM,
+        bool(ok["extra"] and summary["extra_context_better"]),
+        f"After {summary['rollouts']} rollouts ({summary['n_trials']} trials) the largest "
+        f"(mean) final errors are {fmt(reps['near_distance_max_m'], '.2f')} "
+        f"({fmt(reps['near_distance_mean_m'], '.2f')}) m near / "
+        f"{fmt(reps['far_distance_max_m'], '.2f')} ({fmt(reps['far_distance_mean_m'], '.2f')}) "
+        f"m far for REPS and {fmt(extra['near_distance_max_m'], '.2f')} "
+        f"({fmt(extra['near_distance_mean_m'], '.2f')}) / "
+        f"{fmt(extra['far_distance_max_m'], '.2f')} ({fmt(extra['far_distance_mean_m'], '.2f')}) "
+        f"m with extra context (thesis: < {near:g} / ≤ {far:g} m), and the final reward is "
+        f"{fmt(reps['final_reward_mean'])} vs {fmt(extra['final_reward_mean'])} with extra "
+        "context.",
+    )
 
 
 register(
     Experiment(
         id="fig3.3",
         title="Ball throwing: contextual REPS vs REPS + extra context (planar 4-link robot)",
-        settings=SETTINGS,
+        settings_class=ThrowingSettings,
+        settings=SCALES,
         run_trial=run_trial,
         summarize=summarize,
-        trials={"quick": 2, "paper": 20},
-        claim="Contextual REPS learns to throw at targets x in [5, 15] m within ~5000 rollouts "
-        "(25 per update, reuse 200, eps = 0.6); extra contexts make it converge reliably.",
+        verdict=verdict,
+        trials={"smoke": 2, "quick": 2, "paper": 20},
+        claim=CLAIM,
     )
 )

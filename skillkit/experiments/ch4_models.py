@@ -34,11 +34,13 @@ has spectral radius ≤ 0.98; about a quarter of the raw samples are unstable).
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
 
-from skillkit.experiments.registry import Experiment, Series, register
+from skillkit.experiments.registry import Experiment, Series, Verdict, fmt, register, with_verdict
+from skillkit.experiments.settings import Settings, setting
 from skillkit.models.gp import ExactGP, ForwardModel
 from skillkit.models.moment_matching import gaussian_kl, propagate
 from skillkit.models.sampling import sample_trajectories
@@ -67,15 +69,15 @@ def gaussian_fit(samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _model(
     kind: str,
     n_data: int,
-    settings: dict,
+    settings: SamplingAccuracySettings | ComputeTimeSettings | RewardErrorSettings,
     *,
     n_inducing: int | None = None,
     additive_noise: float | None = None,
     n_steps: int | None = None,
 ) -> ForwardModel:
     kw = dict(
-        additive_noise=settings["additive_noise"] if additive_noise is None else additive_noise,
-        n_steps=settings["n_opt_steps"] if n_steps is None else n_steps,
+        additive_noise=settings.additive_noise if additive_noise is None else additive_noise,
+        n_steps=settings.n_opt_steps if n_steps is None else n_steps,
     )
     gp = (
         ExactGP(**kw)
@@ -86,60 +88,96 @@ def _model(
 
 
 # ---------------------------------------------------------------------------- fig4.3
-_SETTINGS_4_3 = {
-    "quick": {
-        "n_data": 600,
-        "n_pseudo": 100,
-        "horizon": 30,
-        "n_start": 20,
-        "n_ground_truth": 300,
-        "sample_sizes": [10, 20, 50, 100],
-        "torque_noise_std": 0.5,
-        "initial_std_range": [0.01, 0.1],
-        "n_opt_steps": 50,
-        "additive_noise": 1.0,
-    },
-    "paper": {
-        "n_data": 1500,
-        "n_pseudo": 300,
-        "horizon": 100,
-        "n_start": 100,
-        "n_ground_truth": 1000,
-        "sample_sizes": [10, 15, 20, 30, 50, 75, 100, 200],
-        "torque_noise_std": 0.5,
-        "initial_std_range": [0.01, 0.1],
-        "n_opt_steps": 150,
-        "additive_noise": 1.0,
-    },
+CLAIM_4_3 = (
+    "About 20 sampled trajectories match the accuracy of moment matching in 75% of the "
+    "start states and about 50 in 95% (Fig. 4.3)."
+)
+THESIS_4_3 = {"samples_to_match_mm_75pct": 20, "samples_to_match_mm_95pct": 50}
+
+
+@dataclass(frozen=True)
+class SamplingAccuracySettings(Settings):
+    """Settings of ``fig4.3`` (Sec. 4.2.2, Fig. 4.3; the balancing robot of Sec. 4.3.1)."""
+
+    n_data: int = setting(
+        600, "Training transitions of the FITC model (thesis: 1500), whole trajectories."
+    )
+    n_pseudo: int = setting(100, "Pseudo-inputs M of the FITC model (thesis: 300).")
+    horizon: int = setting(
+        30, "Steps T of the training trajectories and of the predictions (20 Hz; thesis: 100)."
+    )
+    n_start: int = setting(
+        20, "Start distributions N(m_0, σ_0² I), each with one controller (thesis: 100)."
+    )
+    n_ground_truth: int = setting(
+        300, "Sampled trajectories whose Gaussian fit is the ground truth p(x_t) per start."
+    )
+    sample_sizes: tuple[int, ...] = setting(
+        (10, 20, 50, 100), "Numbers of sampled trajectories compared with moment matching (≥ 10)."
+    )
+    torque_noise_std: float = setting(0.5, "Std of the torque noise of the robot (N m).")
+    initial_std_range: tuple[float, float] = setting(
+        (0.01, 0.1), "Interval of σ_0 (rad, rad/s), drawn log-uniformly per start."
+    )
+    n_opt_steps: int = setting(50, "Hyper-parameter optimisation steps of the model.")
+    additive_noise: float = setting(
+        1.0, "Additive-noise factor α of the model: σ_add = α 10⁻² std(y) (Sec. 4.2.3)."
+    )
+
+
+QUICK_4_3 = SamplingAccuracySettings()
+SCALES_4_3 = {
+    "smoke": replace(
+        QUICK_4_3,
+        n_data=120,
+        n_pseudo=20,
+        horizon=6,
+        n_start=3,
+        n_ground_truth=150,
+        sample_sizes=(10, 40),
+        n_opt_steps=5,
+    ),
+    "quick": QUICK_4_3,
+    "paper": replace(
+        QUICK_4_3,
+        n_data=1500,
+        n_pseudo=300,
+        horizon=100,
+        n_start=100,
+        n_ground_truth=1000,
+        sample_sizes=(10, 15, 20, 30, 50, 75, 100, 200),
+        n_opt_steps=150,
+    ),
 }
 
 
 def _train_balancing_model(
-    settings: dict, rng: np.random.Generator
+    settings: SamplingAccuracySettings | ComputeTimeSettings, rng: np.random.Generator
 ) -> tuple[Balancing, ForwardModel, dict]:
-    T = settings["horizon"]
-    task = make("balancing", n_steps=T, torque_noise_std=settings["torque_noise_std"])
-    data = collect_balancing(task, max(1, int(np.ceil(settings["n_data"] / T))), rng)
-    model = _model("sparse", len(data["x"]), settings, n_inducing=settings["n_pseudo"])
+    T = settings.horizon
+    task = make("balancing", n_steps=T, torque_noise_std=settings.torque_noise_std)
+    data = collect_balancing(task, max(1, int(np.ceil(settings.n_data / T))), rng)
+    model = _model("sparse", len(data["x"]), settings, n_inducing=settings.n_pseudo)
     model.fit(data["x"], data["u"], data["x_next"], rng=rng)
     return task, model, data
 
 
-def _run_4_3(settings: dict, rng: np.random.Generator, progress: TrialContext) -> dict:
-    sizes = list(settings["sample_sizes"])
+def _run_4_3(
+    settings: SamplingAccuracySettings, rng: np.random.Generator, trial: TrialContext
+) -> dict:
+    sizes = list(settings.sample_sizes)
     if min(sizes) < 10:
         raise ValueError(
             f"sample_sizes: a Gaussian fit in 8-D needs at least 10 samples, got {min(sizes)}"
         )
-    B, T, n_gt = settings["n_start"], settings["horizon"], settings["n_ground_truth"]
+    B, T, n_gt = settings.n_start, settings.horizon, settings.n_ground_truth
     L = n_gt + sum(sizes)
-    progress.reset(total=1 + B)
+    trial.reset(total=1 + B)
     # Resumable after every start state: the trained model, the start states and the KLs so far.
-    ckpt = progress if hasattr(progress, "save") else None
-    st = ckpt.resume("fig4.3", rng) if ckpt else None
+    st = trial.resume("fig4.3", rng)
     if st is None:
         task, model, data = _train_balancing_model(settings, rng)
-        lo, hi = np.log(settings["initial_std_range"])
+        lo, hi = np.log(settings.initial_std_range)
         st = {
             "model": model,
             "m0": X_UP + task.initial_std * rng.standard_normal((B, 8)),
@@ -152,9 +190,8 @@ def _run_4_3(settings: dict, rng: np.random.Generator, progress: TrialContext) -
             "n_data": len(data["x"]),
             "n_failed_rollouts": data["n_failed"],
         }
-        if ckpt:
-            ckpt.save("fig4.3", st, rng)
-    progress.update(1 + st["done"])
+        trial.save("fig4.3", st, rng)
+    trial.update(1 + st["done"])
     model, m0, sigma0, G = st["model"], st["m0"], st["sigma0"], st["G"]
     for b in range(st["done"], B):
         # L trajectories from N(m0_b, σ0_b² I): the first n_gt are the ground truth, the rest
@@ -174,9 +211,8 @@ def _run_4_3(settings: dict, rng: np.random.Generator, progress: TrialContext) -
             offset += n
         st["n_variance_clamped"] += res.n_variance_clamped
         st["done"] = b + 1
-        if ckpt:
-            ckpt.save("fig4.3", st, rng)
-        progress.update()
+        trial.save("fig4.3", st, rng)
+        trial.update()
     out = {k: st[k] for k in ("kl_mm", "kl_samples", "sigma0", "n_data", "n_failed_rollouts")}
     out["n_variance_clamped"] = st["n_variance_clamped"]
     out["model_jitter"] = model.gp.diagnostics["jitter"]
@@ -188,8 +224,10 @@ def _first_reaching(sizes, values, level=100.0):
     return hit[0] if hit else None
 
 
-def _summarize_4_3(settings: dict, trials: list[dict]) -> tuple[list[Series], dict]:
-    sizes = list(settings["sample_sizes"])
+def _summarize_4_3(
+    settings: SamplingAccuracySettings, trials: list[dict]
+) -> tuple[list[Series], dict]:
+    sizes = list(settings.sample_sizes)
     scores = np.concatenate(
         [100.0 * t["kl_samples"].sum(-1) / t["kl_mm"].sum(-1)[:, None] for t in trials]
     )
@@ -219,56 +257,99 @@ def _summarize_4_3(settings: dict, trials: list[dict]) -> tuple[list[Series], di
         },
         "samples_to_match_mm_75pct": n75,
         "samples_to_match_mm_95pct": n95,
-        "thesis": {"samples_to_match_mm_75pct": 20, "samples_to_match_mm_95pct": 50},
+        "thesis": dict(THESIS_4_3),
         "mean_kl_per_step_mm": float(np.mean([t["kl_mm"].mean() for t in trials])),
         "n_start_states": int(scores.shape[0]),
         "n_variance_clamped": int(sum(t["n_variance_clamped"] for t in trials)),
         "claim_tolerance": "within a factor 2 of the thesis's sample counts",
-        "claim_holds": bool(n75 is not None and n95 is not None and n75 <= 40 and n95 <= 100),
     }
-    return series, summary
+    return series, with_verdict(summary, verdict_4_3(settings, summary))
+
+
+def verdict_4_3(settings: SamplingAccuracySettings, summary: dict) -> Verdict:
+    """Holds within a factor 2 of the thesis's counts: at most 40 samples match moment
+    matching in 75% of the start states and at most 100 in 95%."""
+    n75, n95 = summary["samples_to_match_mm_75pct"], summary["samples_to_match_mm_95pct"]
+    largest = str(max(settings.sample_sizes))
+    median = summary["percentiles"]["50"].get(largest)
+
+    def count(n):
+        return str(n) if n is not None else f"more than {largest}"
+
+    return Verdict(
+        CLAIM_4_3,
+        bool(n75 is not None and n95 is not None and n75 <= 40 and n95 <= 100),
+        f"Sampling matches moment matching's accuracy in 75% / 95% of the "
+        f"{summary['n_start_states']} start states with {count(n75)} / {count(n95)} "
+        f"trajectories (thesis: ~20 / ~50, accepted within a factor 2); with {largest} the "
+        f"median normalised KL is {fmt(median)} (moment matching = 100).",
+    )
 
 
 register(
     Experiment(
         id="fig4.3",
         title="Sampling accuracy vs number of sampled trajectories (moment matching = 100)",
-        settings=_SETTINGS_4_3,
+        settings_class=SamplingAccuracySettings,
+        settings=SCALES_4_3,
         run_trial=_run_4_3,
         summarize=_summarize_4_3,
-        trials={"quick": 1, "paper": 1},
-        claim=(
-            "About 20 sampled trajectories match the accuracy of moment matching in 75% of the "
-            "start states and about 50 in 95% (Fig. 4.3)."
-        ),
+        verdict=verdict_4_3,
+        trials={"smoke": 1, "quick": 1, "paper": 1},
+        claim=CLAIM_4_3,
     )
 )
 
 
 # ---------------------------------------------------------------------------- fig4.4
-_SETTINGS_4_4 = {
-    "quick": {
-        "n_data": 600,
-        "n_pseudo": 100,
-        "horizon": 30,
-        "n_trajectories": [10, 100, 1000, 3000],
-        "threads": [1, 2],
-        "repeats": 3,
-        "torque_noise_std": 0.5,
-        "n_opt_steps": 30,
-        "additive_noise": 1.0,
-    },
-    "paper": {
-        "n_data": 1500,
-        "n_pseudo": 300,
-        "horizon": 100,
-        "n_trajectories": [10, 100, 1000, 3000, 10000],
-        "threads": [1, 2],
-        "repeats": 3,
-        "torque_noise_std": 0.5,
-        "n_opt_steps": 150,
-        "additive_noise": 1.0,
-    },
+CLAIM_4_4 = (
+    "Sampling produces about 1000 trajectories in the computation time of one "
+    "moment-matching prediction on a single CPU core (Fig. 4.4)."
+)
+
+
+@dataclass(frozen=True)
+class ComputeTimeSettings(Settings):
+    """Settings of ``fig4.4`` (Sec. 4.2.2, Fig. 4.4): timings, so numbers vary between runs."""
+
+    n_data: int = setting(600, "Training transitions of the FITC model (thesis: 1500).")
+    n_pseudo: int = setting(100, "Pseudo-inputs M of the FITC model (thesis: 300).")
+    horizon: int = setting(30, "Steps T of every prediction (20 Hz; thesis: 100).")
+    n_trajectories: tuple[int, ...] = setting(
+        (10, 100, 1000, 3000), "Numbers N of sampled trajectories timed, increasing."
+    )
+    threads: tuple[int, ...] = setting(
+        (1, 2), "Torch thread counts timed (the claim is about one core)."
+    )
+    repeats: int = setting(3, "Timings repeated (minimum kept; one run above N = 1000).")
+    torque_noise_std: float = setting(0.5, "Std of the torque noise of the robot (N m).")
+    n_opt_steps: int = setting(30, "Hyper-parameter optimisation steps of the model.")
+    additive_noise: float = setting(
+        1.0, "Additive-noise factor α of the model: σ_add = α 10⁻² std(y) (Sec. 4.2.3)."
+    )
+
+
+QUICK_4_4 = ComputeTimeSettings()
+SCALES_4_4 = {
+    "smoke": replace(
+        QUICK_4_4,
+        n_data=100,
+        n_pseudo=20,
+        horizon=5,
+        n_trajectories=(10, 100),
+        threads=(1,),
+        repeats=1,
+        n_opt_steps=5,
+    ),
+    "quick": QUICK_4_4,
+    "paper": replace(
+        QUICK_4_4,
+        n_data=1500,
+        n_pseudo=300,
+        horizon=100,
+        n_trajectories=(10, 100, 1000, 3000, 10000),
+        n_opt_steps=150,
+    ),
 }
 
 
@@ -339,10 +420,10 @@ def _timed(fn) -> float:
     return time.perf_counter() - t0
 
 
-def _run_4_4(settings: dict, rng: np.random.Generator, progress: TrialContext) -> dict:
-    progress.reset(total=2)
+def _run_4_4(settings: ComputeTimeSettings, rng: np.random.Generator, trial: TrialContext) -> dict:
+    trial.reset(total=2)
     task, model, data = _train_balancing_model(settings, rng)
-    progress.update()
+    trial.update()
     m0 = X_UP + task.initial_std * rng.standard_normal(8)
     G = stable_gains(task, 1, rng)[0].reshape(4, 8)
     out = time_predictions(
@@ -350,18 +431,18 @@ def _run_4_4(settings: dict, rng: np.random.Generator, progress: TrialContext) -
         m0,
         0.05**2 * np.eye(8),
         G,
-        settings["horizon"],
-        settings["n_trajectories"],
-        settings["threads"],
-        settings["repeats"],
+        settings.horizon,
+        list(settings.n_trajectories),
+        list(settings.threads),
+        settings.repeats,
         rng,
     )
-    progress.update()
+    trial.update()
     return {**out, "n_data": len(data["x"]), "n_pseudo": model.predictor.n_support}
 
 
-def _summarize_4_4(settings: dict, trials: list[dict]) -> tuple[list[Series], dict]:
-    ns = settings["n_trajectories"]
+def _summarize_4_4(settings: ComputeTimeSettings, trials: list[dict]) -> tuple[list[Series], dict]:
+    ns = list(settings.n_trajectories)
     kw = dict(
         panel="compute time of one long-term prediction",
         xlabel="number of sampled trajectories",
@@ -371,7 +452,7 @@ def _summarize_4_4(settings: dict, trials: list[dict]) -> tuple[list[Series], di
     )
     series = []
     summary: dict = {"mm_time_s": {}, "sampling_time_s": {}, "trajectories_in_mm_time": {}}
-    for th in map(str, settings["threads"]):
+    for th in map(str, settings.threads):
         st = np.median([t["sampling_time"][th] for t in trials], axis=0)
         mm = float(np.median([t["mm_time"][th] for t in trials]))
         series.append(
@@ -388,67 +469,126 @@ def _summarize_4_4(settings: dict, trials: list[dict]) -> tuple[list[Series], di
             "model": {
                 "n_data": trials[0]["n_data"],
                 "n_pseudo_inputs": trials[0]["n_pseudo"],
-                "horizon": settings["horizon"],
+                "horizon": settings.horizon,
                 "state_dim": 8,
                 "control_dim": 4,
             },
             "thesis": "about 1000 trajectories in the time of one moment-matching prediction "
             "on one CPU core",
             "goal": "at least 10,000 trajectories on these 2 cores",
-            "claim_holds": bool(summary["trajectories_in_mm_time"].get("1", 0.0) >= 1000),
         }
     )
-    return series, summary
+    return series, with_verdict(summary, verdict_4_4(settings, summary))
+
+
+def verdict_4_4(settings: ComputeTimeSettings, summary: dict) -> Verdict:
+    """Holds if, on one thread, at least 1000 trajectories (at the largest N timed) take no
+    longer than one moment-matching prediction; False if one thread was not timed."""
+    per = summary["trajectories_in_mm_time"]
+    one = per.get("1")
+    others = "; ".join(
+        f"{fmt(v, '.0f')} on {th} threads" for th, v in per.items() if th != "1" and v
+    )
+    return Verdict(
+        CLAIM_4_4,
+        bool((one or 0.0) >= 1000),
+        f"In the time of one moment-matching prediction over {summary['model']['horizon']} "
+        f"steps sampling produces {fmt(one, '.0f')} trajectories on one thread"
+        + (f" ({others})" if others else "")
+        + " (thesis: about 1000 on one core).",
+    )
 
 
 register(
     Experiment(
         id="fig4.4",
         title="Compute time: moment matching vs sampling",
-        settings=_SETTINGS_4_4,
+        settings_class=ComputeTimeSettings,
+        settings=SCALES_4_4,
         run_trial=_run_4_4,
         summarize=_summarize_4_4,
-        trials={"quick": 1, "paper": 1},
-        claim=(
-            "Sampling produces about 1000 trajectories in the computation time of one "
-            "moment-matching prediction on a single CPU core (Fig. 4.4)."
-        ),
+        verdict=verdict_4_4,
+        trials={"smoke": 1, "quick": 1, "paper": 1},
+        claim=CLAIM_4_4,
     )
 )
 
 
 # ---------------------------------------------------------------------------- fig4.5
-_DEFAULTS_4_5 = {"additive_noise": 1.0, "n_opt_steps": 150, "torque_noise_std": 0.5, "n_train": 50}
-_SETTINGS_4_5 = {
-    "quick": {
-        "defaults": {
-            "additive_noise": 1.0,
-            "n_opt_steps": 50,
-            "torque_noise_std": 0.5,
-            "n_train": 15,
-        },
-        "additive_noise_values": [0.1, 1.0, 10.0],
-        "n_opt_steps_values": [10, 50],
-        "torque_noise_std_values": [0.5, 2.0],
-        "n_train_values": [5, 15],
-        "n_pairs": 15,
-        "initial_std": 0.1,
-        "horizon": 20,
-        "n_predicted": 10,
-        "pseudo_fraction": 0.25,
-    },
-    "paper": {
-        "defaults": dict(_DEFAULTS_4_5),
-        "additive_noise_values": [0.1, 0.3, 1.0, 3.0, 10.0, 30.0],
-        "n_opt_steps_values": [10, 25, 50, 100, 150, 250],
-        "torque_noise_std_values": [0.0, 0.25, 0.5, 1.0, 2.0],
-        "n_train_values": [10, 20, 50, 100],
-        "n_pairs": 50,
-        "initial_std": 0.1,
-        "horizon": 20,
-        "n_predicted": 20,
-        "pseudo_fraction": 0.25,
-    },
+CLAIM_4_5 = (
+    "The standard GP predicts rewards at least as accurately as FITC with M = N/4 (which "
+    "tends to overfit), and more training trajectories reduce the error (Fig. 4.5)."
+)
+
+
+@dataclass(frozen=True)
+class TrainingSetting(Settings):
+    """One training setting of ``fig4.5``: the default every panel varies one field of.
+
+    The field order is part of the experiment's seeds (``_seed(root, 3, *cfg.values())``).
+    """
+
+    additive_noise: float = setting(
+        1.0, "Additive-noise factor α: σ_add = α 10⁻² std(y) (Sec. 4.2.3)."
+    )
+    n_opt_steps: int = setting(50, "Hyper-parameter optimisation steps (thesis: 150).")
+    torque_noise_std: float = setting(0.5, "Std of the torque noise of the robot (N m).")
+    n_train: int = setting(15, "Training trajectories (T steps each; thesis: 50).")
+
+
+@dataclass(frozen=True)
+class RewardErrorSettings(Settings):
+    """Settings of ``fig4.5`` (Sec. 4.2.3, Fig. 4.5): one panel per ``*_values`` field."""
+
+    defaults: TrainingSetting = setting(
+        TrainingSetting(),
+        "The default training setting; ``--set`` takes a mapping of some of its fields.",
+    )
+    additive_noise_values: tuple[float, ...] = setting(
+        (0.1, 1.0, 10.0), "Additive-noise factors α of the first panel."
+    )
+    n_opt_steps_values: tuple[int, ...] = setting(
+        (10, 50), "Optimisation step counts of the second panel."
+    )
+    torque_noise_std_values: tuple[float, ...] = setting(
+        (0.5, 2.0), "Torque-noise stds (N m) of the third panel."
+    )
+    n_train_values: tuple[int, ...] = setting(
+        (5, 15), "Training-trajectory counts of the fourth panel."
+    )
+    n_pairs: int = setting(15, "Test pairs (ω, x_0) whose rewards are predicted (thesis: 50).")
+    initial_std: float = setting(
+        0.1, "Std of the initial state around upright (rad, rad/s; Sec. 4.2.3)."
+    )
+    horizon: int = setting(20, "Steps T of training and test trajectories (thesis: 20).")
+    n_predicted: int = setting(10, "Trajectories sampled from a model per test pair (thesis: 20).")
+    pseudo_fraction: float = setting(0.25, "Pseudo-inputs of FITC as a fraction of N (M = N/4).")
+
+
+QUICK_4_5 = RewardErrorSettings()
+SCALES_4_5 = {
+    "smoke": replace(
+        QUICK_4_5,
+        defaults=TrainingSetting(1.0, 5, 0.5, 2),
+        additive_noise_values=(1.0, 10.0),
+        n_opt_steps_values=(5,),
+        torque_noise_std_values=(0.5,),
+        n_train_values=(2,),
+        n_pairs=3,
+        horizon=5,
+        n_predicted=3,
+    ),
+    "quick": QUICK_4_5,
+    "paper": replace(
+        QUICK_4_5,
+        defaults=TrainingSetting(1.0, 150, 0.5, 50),
+        additive_noise_values=(0.1, 0.3, 1.0, 3.0, 10.0, 30.0),
+        n_opt_steps_values=(10, 25, 50, 100, 150, 250),
+        torque_noise_std_values=(0.0, 0.25, 0.5, 1.0, 2.0),
+        n_train_values=(10, 20, 50, 100),
+        n_pairs=50,
+        n_predicted=20,
+    ),
 }
 _PANELS_4_5 = (
     ("additive_noise", "additive noise factor alpha"),
@@ -464,19 +604,19 @@ def _seed(root: int, *keys) -> np.random.Generator:
     )
 
 
-def _evaluate_4_5(cfg: dict, settings: dict, root: int) -> dict:
+def _evaluate_4_5(cfg: dict, settings: RewardErrorSettings, root: int) -> dict:
     """Train both models for one training setting and measure their reward-prediction errors."""
-    T = settings["horizon"]
+    T = settings.horizon
     task = make(
         "balancing",
         n_steps=T,
         torque_noise_std=cfg["torque_noise_std"],
-        initial_std=settings["initial_std"],
+        initial_std=settings.initial_std,
     )
     train = collect_balancing(
         task, cfg["n_train"], _seed(root, 1, cfg["torque_noise_std"], cfg["n_train"])
     )
-    test = collect_balancing(task, settings["n_pairs"], _seed(root, 2, cfg["torque_noise_std"]))
+    test = collect_balancing(task, settings.n_pairs, _seed(root, 2, cfg["torque_noise_std"]))
     G = test["omegas"].reshape(-1, 4, 8)
     x0 = np.array([t.states[0] for t in test["trajectories"]])
     real = np.array([task.reward(t) for t in test["trajectories"]])
@@ -489,7 +629,7 @@ def _evaluate_4_5(cfg: dict, settings: dict, root: int) -> dict:
             settings,
             additive_noise=cfg["additive_noise"],
             n_steps=cfg["n_opt_steps"],
-            n_inducing=max(1, int(settings["pseudo_fraction"] * N)),
+            n_inducing=max(1, int(settings.pseudo_fraction * N)),
         )
         t0 = time.perf_counter()
         model.fit(train["x"], train["u"], train["x_next"], rng=_seed(root, 3, *cfg.values()))
@@ -499,7 +639,7 @@ def _evaluate_4_5(cfg: dict, settings: dict, root: int) -> dict:
             x0,
             feedback_policy(torch.as_tensor(G)),
             T,
-            settings["n_predicted"],
+            settings.n_predicted,
             _seed(root, 4, *cfg.values()),
         )
         predicted = sampled_rewards(task, res.states.numpy(), G).mean(1)
@@ -516,36 +656,36 @@ def _evaluate_4_5(cfg: dict, settings: dict, root: int) -> dict:
     return out
 
 
-def _run_4_5(settings: dict, rng: np.random.Generator, progress: TrialContext) -> dict:
+def _run_4_5(settings: RewardErrorSettings, rng: np.random.Generator, trial: TrialContext) -> dict:
     root = int(rng.integers(2**31))
+    defaults = settings.defaults.to_dict()
     configs = []
     for key, _ in _PANELS_4_5:
-        for v in settings[f"{key}_values"]:
-            cfg = dict(settings["defaults"], **{key: v})
+        for v in getattr(settings, f"{key}_values"):
+            cfg = dict(defaults, **{key: v})
             if cfg not in configs:
                 configs.append(cfg)
-    progress.reset(total=len(configs))
-    ckpt = progress if hasattr(progress, "save") else None  # resumable after every setting
-    results = list((ckpt.resume("fig4.5", rng) if ckpt else None) or [])
-    progress.update(len(results))
+    trial.reset(total=len(configs))
+    results = list(trial.resume("fig4.5", rng) or [])
+    trial.update(len(results))
     for cfg in configs[len(results) :]:
         results.append({"config": cfg, **_evaluate_4_5(cfg, settings, root)})
-        if ckpt:
-            ckpt.save("fig4.5", list(results), rng)
-        progress.update()
+        trial.save("fig4.5", list(results), rng)
+        trial.update()
     return {"results": results}
 
 
-def _summarize_4_5(settings: dict, trials: list[dict]) -> tuple[list[Series], dict]:
+def _summarize_4_5(settings: RewardErrorSettings, trials: list[dict]) -> tuple[list[Series], dict]:
     series: list[Series] = []
     summary: dict = {"panels": {}}
+    defaults = settings.defaults.to_dict()
     for key, label in _PANELS_4_5:
-        values = settings[f"{key}_values"]
+        values = list(getattr(settings, f"{key}_values"))
         panel = {}
         for kind, name in (("standard", "standard GP"), ("sparse", "sparse GP (FITC, M = N/4)")):
             errs = []
             for v in values:
-                cfg = dict(settings["defaults"], **{key: v})
+                cfg = dict(defaults, **{key: v})
                 errs.append(
                     float(
                         np.mean(
@@ -575,13 +715,12 @@ def _summarize_4_5(settings: dict, trials: list[dict]) -> tuple[list[Series], di
             )
             panel[kind] = dict(zip(map(str, values), errs, strict=True))
         summary["panels"][key] = panel
-    default = [r for t in trials for r in t["results"] if r["config"] == settings["defaults"]]
+    default = [r for t in trials for r in t["results"] if r["config"] == defaults]
     std_err = float(np.mean([r["standard"]["squared_error"] for r in default]))
     sp_err = float(np.mean([r["sparse"]["squared_error"] for r in default]))
-    n_tr = summary["panels"]["n_train"]["standard"]
     summary.update(
         {
-            "default_setting": settings["defaults"],
+            "default_setting": defaults,
             "default_squared_error": {"standard": std_err, "sparse": sp_err},
             "mean_real_reward": float(np.mean([r["real_reward_mean"] for r in default])),
             "train_time_s_default": {
@@ -600,28 +739,41 @@ def _summarize_4_5(settings: dict, trials: list[dict]) -> tuple[list[Series], di
                 }
                 for k in ("standard", "sparse")
             },
-            "claim_holds": bool(
-                std_err <= sp_err
-                and n_tr[str(max(settings["n_train_values"]))]
-                < n_tr[str(min(settings["n_train_values"]))]
-            ),
         }
     )
-    return series, summary
+    return series, with_verdict(summary, verdict_4_5(settings, summary))
+
+
+def verdict_4_5(settings: RewardErrorSettings, summary: dict) -> Verdict:
+    """Holds if, at the default setting, the standard GP's reward error is at most FITC's,
+    and the standard GP's error with the most training trajectories is below that with the
+    fewest."""
+    d = summary["default_squared_error"]
+    n_tr = summary["panels"]["n_train"]["standard"]
+    lo, hi = str(min(settings.n_train_values)), str(max(settings.n_train_values))
+    more_data_helps = n_tr[hi] is not None and n_tr[lo] is not None and n_tr[hi] < n_tr[lo]
+    std_better = d["standard"] is not None and d["sparse"] is not None
+    std_better = std_better and d["standard"] <= d["sparse"]
+    return Verdict(
+        CLAIM_4_5,
+        bool(std_better and more_data_helps),
+        f"At the default setting the mean squared reward error is {fmt(d['standard'])} for "
+        f"the standard GP and {fmt(d['sparse'])} for FITC (thesis: standard ≤ FITC); with "
+        f"{hi} instead of {lo} training trajectories the standard GP's error is "
+        f"{fmt(n_tr[hi])} instead of {fmt(n_tr[lo])} (thesis: more data, smaller error).",
+    )
 
 
 register(
     Experiment(
         id="fig4.5",
         title="Standard vs sparse (FITC) GP reward-prediction error",
-        settings=_SETTINGS_4_5,
+        settings_class=RewardErrorSettings,
+        settings=SCALES_4_5,
         run_trial=_run_4_5,
         summarize=_summarize_4_5,
-        trials={"quick": 1, "paper": 1},
-        claim=(
-            "The standard GP predicts rewards at least as accurately as FITC with M = N/4 (which "
-            "tends to "
-            "overfit), and more training trajectories reduce the error (Fig. 4.5)."
-        ),
+        verdict=verdict_4_5,
+        trials={"smoke": 1, "quick": 1, "paper": 1},
+        claim=CLAIM_4_5,
     )
 )

@@ -40,12 +40,23 @@ from __future__ import annotations
 
 import time
 import warnings
+from dataclasses import dataclass, replace
+from typing import Literal
 
 import numpy as np
 import torch
 
 import skillkit.tasks.planar  # noqa: F401  (registers the balancing tasks)
-from skillkit.experiments.registry import Experiment, Series, mean_band, register
+from skillkit.experiments.registry import (
+    Experiment,
+    Series,
+    Verdict,
+    fmt,
+    mean_band,
+    register,
+    with_verdict,
+)
+from skillkit.experiments.settings import Settings, setting
 from skillkit.models.embedding import ConditionalEmbedding
 from skillkit.models.embedding_prediction import predict
 from skillkit.models.embedding_training import (
@@ -126,69 +137,95 @@ def _target_kernel(kind: str, targets: np.ndarray):
     raise ValueError(f"target_kernel: expected 'se' or 'linear', got {kind!r}")
 
 
-_PENDULUM = {
-    "quick": {
-        "n_trajectories": 15,  # observed trajectories (thesis: 15)
-        "horizon": 20,  # steps per trajectory and predicted horizon (thesis: 20)
-        "control_noise": 0.05,  # σ_u of u ~ N(Kᵀx, σ_u²) (thesis: 0.05)
-        "grid": 17,  # query grid points per axis over the context range
-        "truth_samples": 200,  # Monte Carlo samples of the true successor per query
-        "truth_rollouts": 50,  # Monte Carlo rollouts of the true 20-step trajectory per query
-        "gp_samples": 30,  # trajectories sampled from the GP per query
-        "cv_folds": 10,  # cross-validation folds over trajectories (thesis: 10)
-        "max_iter": 50,  # L-BFGS-B iterations of the embedding hyper-parameters
-        "lam0": 1e-3,  # initial regulariser λ
-        "gp_steps": 150,  # marginal-likelihood optimisation steps of the GP
-        "gp_target": "delta",  # GP learns Δx ("delta") or x' ("next")
-        "target_kernel": "se",  # Eq. 5.16 target features: SE (std length-scales) or "linear"
-    },
-    "paper": {
-        "n_trajectories": 15,
-        "horizon": 20,
-        "control_noise": 0.05,
-        "grid": 41,
-        "truth_samples": 1000,
-        "truth_rollouts": 200,
-        "gp_samples": 100,
-        "cv_folds": 10,
-        "max_iter": 100,
-        "lam0": 1e-3,
-        "gp_steps": 150,
-        "gp_target": "delta",
-        "target_kernel": "se",
-    },
+@dataclass(frozen=True)
+class PendulumSettings(Settings):
+    """Settings of ``fig5.3``, ``fig5.4`` and ``fig5.5`` (pendulum, Sec. 5.4)."""
+
+    n_trajectories: int = setting(15, "Observed trajectories (thesis: 15).")
+    horizon: int = setting(
+        20, "Steps per observed trajectory and of the predicted trajectory (thesis: 20)."
+    )
+    control_noise: float = setting(
+        0.05, "Std σ_u of the controls u ~ N(Kᵀx, σ_u²) (N m; thesis: 0.05)."
+    )
+    grid: int = setting(17, "Query grid points per axis over the context range.")
+    truth_samples: int = setting(
+        200, "Monte Carlo samples of the true successor state per query (single step)."
+    )
+    truth_rollouts: int = setting(
+        50, "Monte Carlo rollouts of the true 20-step trajectory per query (fig5.5)."
+    )
+    gp_samples: int = setting(30, "Trajectories sampled from the GP per query (fig5.5).")
+    cv_folds: int = setting(
+        10, "Cross-validation folds over trajectories of Eq. 5.16 (thesis: 10)."
+    )
+    max_iter: int = setting(50, "L-BFGS-B iterations of the embedding's hyper-parameters.")
+    lam0: float = setting(1e-3, "Initial regulariser λ of the embedding (Eq. 5.3).")
+    gp_steps: int = setting(150, "Marginal-likelihood optimisation steps of the GP (Eq. 2.28).")
+    gp_target: Literal["delta", "next"] = setting(
+        "delta",
+        "What the GP learns: Δx (delta, the GP module's default) or x' (next, zero prior mean).",
+    )
+    target_kernel: Literal["se", "linear"] = setting(
+        "se", "Target features of Eq. 5.16: SE with std length-scales, or linear."
+    )
+
+
+QUICK_PENDULUM = PendulumSettings()
+SCALES_PENDULUM = {
+    "smoke": replace(
+        QUICK_PENDULUM,
+        n_trajectories=3,
+        horizon=4,
+        grid=4,
+        truth_samples=20,
+        truth_rollouts=5,
+        gp_samples=4,
+        cv_folds=3,
+        max_iter=3,
+        gp_steps=3,
+    ),
+    "quick": QUICK_PENDULUM,
+    "paper": replace(
+        QUICK_PENDULUM,
+        grid=41,
+        truth_samples=1000,
+        truth_rollouts=200,
+        gp_samples=100,
+        max_iter=100,
+    ),
 }
 
 
 def _pendulum_trial(
-    settings: dict, rng: np.random.Generator, progress: TrialContext, multi_step: bool
+    settings: PendulumSettings, rng: np.random.Generator, trial: TrialContext, multi_step: bool
 ) -> dict:
-    task = make("pendulum", horizon=settings["horizon"], control_noise=settings["control_noise"])
-    n_traj, horizon = int(settings["n_trajectories"]), int(settings["horizon"])
-    progress.reset(total=5)
+    task = make("pendulum", horizon=settings.horizon, control_noise=settings.control_noise)
+    n_traj, horizon = settings.n_trajectories, settings.horizon
+    trial.reset(total=5)
     # Observed data: 15 trajectories from random initial states with the thesis controller.
     contexts = task.sample_context(rng, n_traj)
     states = np.stack([task.rollout(THESIS_GAINS, s, rng).states for s in contexts])
     x, xn, groups = transitions(states)
-    progress.update()
+    trial.update()
 
     # Embedding: Eq. 5.16 with 10-fold cross-validation over trajectories.
-    folds = kfold_splits(len(x), min(int(settings["cv_folds"]), n_traj), rng, groups=groups)
-    target_kernel = _target_kernel(settings["target_kernel"], xn)
+    folds = kfold_splits(len(x), min(settings.cv_folds, n_traj), rng, groups=groups)
+    target_kernel = _target_kernel(settings.target_kernel, xn)
     loss = state_embedding_loss(x, xn, folds, target_kernel)
     fit = fit_hyperparameters(
-        loss, _initial_lengthscales(x), settings["lam0"], max_iter=settings["max_iter"]
+        loss, _initial_lengthscales(x), settings.lam0, max_iter=settings.max_iter
     )
     emb = ConditionalEmbedding(x, xn, SquaredExponential(2, lengthscale=fit.lengthscale), fit.lam)
-    progress.update()
+    trial.update()
 
     # GP forward model on the same transitions (fixed policy: no control input).
     no_u = np.zeros((len(x), 0))
-    gp = ForwardModel(ExactGP(n_steps=settings["gp_steps"]), target=settings["gp_target"])
+    gp = ForwardModel(ExactGP(n_steps=settings.gp_steps), target=settings.gp_target)
     gp.fit(x, no_u, xn, rng=rng)
-    progress.update()
+    trial.update()
 
-    n = int(settings["grid"])
+    n = settings.grid
     a_axis = np.linspace(task.context_low[0], task.context_high[0], n)
     ad_axis = np.linspace(task.context_low[1], task.context_high[1], n)
     query = np.stack(np.meshgrid(a_axis, ad_axis), axis=-1).reshape(-1, 2)  # row i: ad_axis[i // n]
@@ -206,7 +243,7 @@ def _pendulum_trial(
     }
 
     if not multi_step:
-        xq = np.broadcast_to(query, (int(settings["truth_samples"]),) + query.shape)
+        xq = np.broadcast_to(query, (settings.truth_samples,) + query.shape)
         noise = sigma * rng.standard_normal(xq.shape[:-1])
         truth = pendulum_dynamics(xq, feedback_torque(xq, gains, noise), dt).mean(axis=0)
         t0 = time.perf_counter()
@@ -216,16 +253,16 @@ def _pendulum_trial(
         t0 = time.perf_counter()
         gp_mean = gp.predict(query, np.zeros((len(query), 0)))[0]
         out["time_gp"] = time.perf_counter() - t0
-        progress.update()
+        trial.update()
         for name, pred in (("emb", lin), ("emb_preimage", pre), ("gp", gp_mean)):
             err = (pred - truth) ** 2
             out[f"{name}_e_alpha"] = err[:, 0].reshape(n, n)
             out[f"{name}_e_alpha_dot"] = err[:, 1].reshape(n, n)
-        progress.update()
+        trial.update()
         return out
 
     # 20-step prediction. Ground truth: Monte Carlo rollouts through the true dynamics.
-    r = int(settings["truth_rollouts"])
+    r = settings.truth_rollouts
     xs = np.broadcast_to(query, (r,) + query.shape).copy()
     truth = [query]
     for _ in range(horizon):
@@ -234,7 +271,7 @@ def _pendulum_trial(
         )
         truth.append(xs.mean(axis=0))
     truth = np.stack(truth)  # (T+1, G, 2)
-    progress.update()
+    trial.update()
     t0 = time.perf_counter()
     traj = predict(emb, query, horizon + 1)
     pre, lin = traj.preimages(emb), traj.means(emb)
@@ -245,25 +282,45 @@ def _pendulum_trial(
         query,
         lambda t, xt, p: xt.new_zeros((xt.shape[0], 0)),
         horizon,
-        int(settings["gp_samples"]),
+        settings.gp_samples,
         rng,
     )
     gp_mean = sampled.states.mean(dim=1).numpy().transpose(1, 0, 2)  # (T+1, G, 2)
     out["time_gp"] = time.perf_counter() - t0
     for name, pred in (("emb", lin), ("emb_preimage", pre), ("gp", gp_mean)):
         out[f"{name}_e_traj"] = ((pred[1:] - truth[1:]) ** 2).sum(axis=(0, 2)).reshape(n, n)
-    progress.update()
+    trial.update()
     return out
 
 
 _PENDULUM_CLAIM = (
-    "kernel embeddings predict more accurately than GP models and generalise better "
-    "in less explored parts of the state space (both panels on one colour scale)"
+    "Kernel embeddings predict the pendulum more accurately than GP models and generalise "
+    "better in less explored parts of the state space (Sec. 5.4, Figs 5.3–5.5)."
 )
 
 
+def _pendulum_verdict(label: str):
+    def verdict(settings: PendulumSettings, summary: dict) -> Verdict:
+        """Holds if the embedding's mean error over the grid is below the GP's and the
+        embedding is better on more than half of the grid."""
+        emb, gp = summary["mean_error_embedding"], summary["mean_error_gp"]
+        better = summary["fraction_of_grid_where_embedding_better"]
+        ratio = gp / emb if emb and gp is not None else None
+        return Verdict(
+            _PENDULUM_CLAIM,
+            bool(emb is not None and gp is not None and emb < gp and better > 0.5),
+            f"Mean {label} over the grid: embedding {fmt(emb)} vs GP {fmt(gp)} (GP / "
+            f"embedding {fmt(ratio)}); the embedding is better on {100 * better:.0f}% of the "
+            "grid (thesis: embeddings more accurate, above all away from the data).",
+        )
+
+    return verdict
+
+
 def _pendulum_summary(key: str, label: str):
-    def summarize(settings: dict, trials: list[dict]) -> tuple[list[Series], dict]:
+    verdict = _pendulum_verdict(label)
+
+    def summarize(settings: PendulumSettings, trials: list[dict]) -> tuple[list[Series], dict]:
         maps = {
             m: np.mean([t[f"{m}_{key}"] for t in trials], axis=0)
             for m in ("emb", "emb_preimage", "gp")
@@ -307,7 +364,6 @@ def _pendulum_summary(key: str, label: str):
         mean_emb, mean_gp = float(np.mean(maps["emb"])), float(np.mean(maps["gp"]))
         better = float(np.mean(maps["emb"] < maps["gp"]))
         summary = {
-            "claim": _PENDULUM_CLAIM,
             "error": label,
             "mean_error_embedding": mean_emb,
             "mean_error_gp": mean_gp,
@@ -326,14 +382,8 @@ def _pendulum_summary(key: str, label: str):
                 "embedding": [t["time_embedding"] for t in trials],
                 "gp": [t["time_gp"] for t in trials],
             },
-            "claim_holds": bool(mean_emb < mean_gp and better > 0.5),
-            "verdict": (
-                f"mean {label}: embedding {mean_emb:.3g} vs GP {mean_gp:.3g} "
-                f"(ratio {mean_gp / mean_emb:.3g}); embedding better on {100 * better:.0f}% "
-                "of the grid"
-            ),
         }
-        return series, summary
+        return series, with_verdict(summary, verdict(settings, summary))
 
     return summarize
 
@@ -347,19 +397,19 @@ for _id, _key, _label, _multi, _what in (
         Experiment(
             id=_id,
             title=f"Pendulum: {_what}, kernel embedding vs GP",
-            settings=_PENDULUM,
-            run_trial=(lambda m: lambda s, rng, progress: _pendulum_trial(s, rng, progress, m))(
-                _multi
-            ),
+            settings_class=PendulumSettings,
+            settings=SCALES_PENDULUM,
+            run_trial=(lambda m: lambda s, rng, trial: _pendulum_trial(s, rng, trial, m))(_multi),
             summarize=_pendulum_summary(_key, _label),
-            trials={"quick": 1, "paper": 5},
+            verdict=_pendulum_verdict(_label),
+            trials={"smoke": 1, "quick": 1, "paper": 5},
             claim=_PENDULUM_CLAIM,
         )
     )
 
 
 # =========================================================================== balancing
-def _working_rollouts(task, n: int, per_gain: int, settings: dict, rng) -> tuple:
+def _working_rollouts(task, n: int, per_gain: int, settings: BalancingSettings, rng) -> tuple:
     """Draw controllers until ``n`` of them give ``per_gain`` non-failed rollouts each."""
     gains, trajs, rejected = [], [], 0
     while len(gains) < n:
@@ -368,9 +418,7 @@ def _working_rollouts(task, n: int, per_gain: int, settings: dict, rng) -> tuple
                 f"balancing: {rejected} controllers rejected (diverging rollouts) while "
                 f"collecting {n}; the controller distribution is not stabilising"
             )
-        g = random_lqr_gains(task, 1, settings["gain_spread"], settings["lqr_control_weight"], rng)[
-            0
-        ]
+        g = random_lqr_gains(task, 1, settings.gain_spread, settings.lqr_control_weight, rng)[0]
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)  # failures are counted instead
             runs = [task.rollout(g.ravel(), None, rng) for _ in range(per_gain)]
@@ -388,9 +436,9 @@ def _balancing_case(
     test_gains: np.ndarray,
     truth: np.ndarray,
     x0: np.ndarray,
-    settings: dict,
+    settings: BalancingSettings,
     rng,
-    progress,
+    trial,
 ) -> dict:
     """Train the three predictors on ``n_traj`` observed trajectories and score them."""
     reward = task.immediate_reward
@@ -406,7 +454,7 @@ def _balancing_case(
     def train_policy(s, t):
         return np.einsum("mij,bkj->mki", gains, s - X_UP)
 
-    k = min(int(settings["cv_folds"]), n_traj)
+    k = min(settings.cv_folds, n_traj)
     folds_traj = kfold_splits(n_traj, k, rng)
     folds_step = [
         (np.flatnonzero(np.isin(groups, tr)), np.flatnonzero(np.isin(groups, va)))
@@ -417,17 +465,17 @@ def _balancing_case(
         "step": fit_hyperparameters(
             step_reward_loss(z, r_next, folds_step),
             ls0,
-            settings["lam0"],
-            max_iter=settings["max_iter"],
+            settings.lam0,
+            max_iter=settings.max_iter,
         ),
         "trajectory": fit_hyperparameters(
             trajectory_reward_loss(states, controls, rewards, train_policy, reward, folds_traj),
             ls0,
-            settings["lam0"],
-            max_iter=settings["max_iter"],
+            settings.lam0,
+            max_iter=settings.max_iter,
         ),
     }
-    progress.update()
+    trial.update()
 
     out = {"rejected_controllers": rejected, "n_transitions": len(z)}
     n_test, n_samples = len(test_gains), x0.shape[0]
@@ -445,9 +493,9 @@ def _balancing_case(
         out[f"cv_loss_{name}"] = fit.loss
         out[f"fit_success_{name}"] = fit.success
         out[f"fit_at_bound_{name}"] = fit.at_bound
-    progress.update()
+    trial.update()
 
-    gp = ForwardModel(ExactGP(n_steps=settings["gp_steps"])).fit(z[:, :8], u, xn, rng=rng)
+    gp = ForwardModel(ExactGP(n_steps=settings.gp_steps)).fit(z[:, :8], u, xn, rng=rng)
     gp_policy = feedback_policy(torch.from_numpy(test_gains))
     t0 = time.perf_counter()
     sampled = sample_trajectories(
@@ -462,11 +510,11 @@ def _balancing_case(
     sq = (gp_pred[finite] - truth[finite]) ** 2
     out["e_r_gp"] = float(np.mean(sq)) if finite.any() else np.nan
     out["median_sq_err_gp"] = float(np.median(sq)) if finite.any() else np.nan
-    progress.update()
+    trial.update()
     return out
 
 
-def _balancing_truth(task, settings: dict, rng, gains=None) -> tuple:
+def _balancing_truth(task, settings: BalancingSettings, rng, gains=None) -> tuple:
     """Test controllers and their expected rewards from real rollouts.
 
     Returns ``(gains (n, 4, 8), mean reward (n,), Monte Carlo variance of the mean (n,),
@@ -474,7 +522,7 @@ def _balancing_truth(task, settings: dict, rng, gains=None) -> tuple:
     ``truth_rollouts`` working rollouts; given ``gains`` are kept and failed rollouts (if any)
     are left out of their mean and counted.
     """
-    n_test, n_roll = int(settings["test_pairs"]), int(settings["truth_rollouts"])
+    n_test, n_roll = settings.test_pairs, settings.truth_rollouts
     if gains is None:
         gains, trajs, rejected = _working_rollouts(task, n_test, n_roll, settings, rng)
     else:
@@ -497,64 +545,87 @@ def _balancing_truth(task, settings: dict, rng, gains=None) -> tuple:
     )
 
 
-def _initial_samples(settings: dict, rng) -> np.ndarray:
+def _initial_samples(settings: BalancingSettings, rng) -> np.ndarray:
     """L samples of the initial state distribution N([q_up, 0], σ² I) shared by all methods."""
-    return X_UP + settings["initial_std"] * rng.standard_normal(
-        (int(settings["initial_samples"]), 8)
+    return X_UP + settings.initial_std * rng.standard_normal((settings.initial_samples, 8))
+
+
+@dataclass(frozen=True)
+class BalancingSettings(Settings):
+    """Settings shared by ``fig5.6`` and ``fig5.7`` (balancing the 4-link robot, Sec. 5.4)."""
+
+    horizon: int = setting(40, "Steps T of every trajectory (thesis: 40).")
+    initial_std: float = setting(
+        0.3, "Std of the initial state around upright (rad, rad/s; thesis: 0.3)."
+    )
+    gp_samples: int = setting(
+        100, "Trajectories M sampled from the GP per test controller (thesis: 100)."
+    )
+    initial_samples: int = setting(
+        100, "Samples L of the initial distribution shared by all methods (Eq. 5.6; = M)."
+    )
+    cv_folds: int = setting(
+        10, "Cross-validation folds over trajectories (thesis: 10; fewer if fewer trajectories)."
+    )
+    lam0: float = setting(1e-3, "Initial regulariser λ of the embeddings (Eq. 5.3).")
+    gain_spread: float = setting(
+        1.0, "Spread s of the random LQR cost weights Q = diag(q ⊙ e^{ξ}), ξ ~ N(0, s²)."
+    )
+    lqr_control_weight: float = setting(1e-3, "Control cost r₀ of the random LQR gains.")
+    test_pairs: int = setting(40, "Test controllers whose expected reward is predicted.")
+    truth_rollouts: int = setting(
+        30, "Real rollouts per test controller for its expected reward (the ground truth)."
+    )
+    max_iter: int = setting(40, "L-BFGS-B iterations of the embeddings' hyper-parameters.")
+    gp_steps: int = setting(100, "Marginal-likelihood optimisation steps of the GP (Eq. 2.28).")
+
+
+@dataclass(frozen=True)
+class RewardVsDataSettings(BalancingSettings):
+    """Settings of ``fig5.6``: the error against the number of observed trajectories."""
+
+    torque_noise: float = setting(4.0, "Std of the torque noise (N m; thesis: 4).")
+    n_trajectories: tuple[int, ...] = setting(
+        (3, 8), "Numbers of observed trajectories the models learn from (x axis)."
     )
 
 
-_BALANCING_COMMON = {
-    "horizon": 40,  # T (thesis: 40)
-    "initial_std": 0.3,  # initial state std (thesis: 0.3)
-    "gp_samples": 100,  # M sampled trajectories per test pair (thesis: 100)
-    "initial_samples": 100,  # L samples of the initial distribution (= gp_samples)
-    "cv_folds": 10,  # folds over trajectories (thesis: 10; fewer if fewer trajectories)
-    "lam0": 1e-3,  # initial λ
-    "gain_spread": 1.0,  # s of the random LQR cost weights
-    "lqr_control_weight": 1e-3,  # r₀
-}
+@dataclass(frozen=True)
+class RewardVsNoiseSettings(BalancingSettings):
+    """Settings of ``fig5.7``: the error against the torque noise."""
 
-_FIG56 = {
-    "quick": {
-        **_BALANCING_COMMON,
-        "torque_noise": 4.0,
-        "n_trajectories": [3, 8],
-        "test_pairs": 40,
-        "truth_rollouts": 30,
-        "max_iter": 40,
-        "gp_steps": 100,
-    },
-    "paper": {
-        **_BALANCING_COMMON,
-        "torque_noise": 4.0,
-        "n_trajectories": [2, 5, 10, 15, 20],
-        "test_pairs": 200,
-        "truth_rollouts": 100,
-        "max_iter": 100,
-        "gp_steps": 150,
-    },
-}
+    torque_noise: tuple[float, ...] = setting(
+        (1.0, 4.0, 8.0), "Stds of the torque noise (N m; x axis)."
+    )
+    n_trajectories: int = setting(5, "Observed trajectories the models learn from.")
 
-_FIG57 = {
-    "quick": {
-        **_BALANCING_COMMON,
-        "torque_noise": [1.0, 4.0, 8.0],
-        "n_trajectories": 5,
-        "test_pairs": 40,
-        "truth_rollouts": 30,
-        "max_iter": 40,
-        "gp_steps": 100,
-    },
-    "paper": {
-        **_BALANCING_COMMON,
-        "torque_noise": [0.5, 1.0, 2.0, 4.0, 6.0, 8.0],
-        "n_trajectories": 10,
-        "test_pairs": 200,
-        "truth_rollouts": 100,
-        "max_iter": 100,
-        "gp_steps": 150,
-    },
+
+_BALANCING_PAPER = dict(test_pairs=200, truth_rollouts=100, max_iter=100, gp_steps=150)
+_BALANCING_SMOKE = dict(
+    horizon=5,
+    gp_samples=4,
+    initial_samples=4,
+    test_pairs=3,
+    truth_rollouts=3,
+    max_iter=2,
+    gp_steps=2,
+)
+QUICK_5_6 = RewardVsDataSettings()
+SCALES_5_6 = {
+    "smoke": replace(QUICK_5_6, **_BALANCING_SMOKE, n_trajectories=(2, 3)),
+    "quick": QUICK_5_6,
+    "paper": replace(QUICK_5_6, **_BALANCING_PAPER, n_trajectories=(2, 5, 10, 15, 20)),
+}
+QUICK_5_7 = RewardVsNoiseSettings()
+SCALES_5_7 = {
+    "smoke": replace(QUICK_5_7, **_BALANCING_SMOKE, n_trajectories=2, torque_noise=(1.0, 4.0)),
+    "quick": QUICK_5_7,
+    "paper": replace(
+        QUICK_5_7,
+        **_BALANCING_PAPER,
+        n_trajectories=10,
+        torque_noise=(0.5, 1.0, 2.0, 4.0, 6.0, 8.0),
+    ),
 }
 
 _METHODS = (
@@ -564,22 +635,23 @@ _METHODS = (
 )
 
 
-def _task(settings: dict, noise: float):
+def _task(settings: BalancingSettings, noise: float):
     return make(
         "balancing-noisy",
         torque_noise_std=float(noise),
-        initial_std=settings["initial_std"],
-        n_steps=int(settings["horizon"]),
+        initial_std=settings.initial_std,
+        n_steps=settings.horizon,
     )
 
 
-def _fig56_trial(settings: dict, rng: np.random.Generator, progress: TrialContext) -> dict:
-    counts = list(settings["n_trajectories"])
-    progress.reset(total=1 + 3 * len(counts))
-    task = _task(settings, settings["torque_noise"])
+def _fig56_trial(
+    settings: RewardVsDataSettings, rng: np.random.Generator, trial: TrialContext
+) -> dict:
+    counts = list(settings.n_trajectories)
+    trial.reset(total=1 + 3 * len(counts))
+    task = _task(settings, settings.torque_noise)
     # Resumable after the ground truth and after every case.
-    ckpt = progress if hasattr(progress, "save") else None
-    st = ckpt.resume("fig5.6", rng) if ckpt else None
+    st = trial.resume("fig5.6", rng)
     if st is None:
         gains, truth, truth_var, rejected, failed = _balancing_truth(task, settings, rng)
         st = {
@@ -591,17 +663,13 @@ def _fig56_trial(settings: dict, rng: np.random.Generator, progress: TrialContex
             "x0": _initial_samples(settings, rng),
             "cases": [],
         }
-        if ckpt:
-            ckpt.save("fig5.6", st, rng)
-    progress.update(1 + 3 * len(st["cases"]))
+        trial.save("fig5.6", st, rng)
+    trial.update(1 + 3 * len(st["cases"]))
     for m in counts[len(st["cases"]) :]:
         st["cases"].append(
-            _balancing_case(
-                task, int(m), st["gains"], st["truth"], st["x0"], settings, rng, progress
-            )
+            _balancing_case(task, int(m), st["gains"], st["truth"], st["x0"], settings, rng, trial)
         )
-        if ckpt:
-            ckpt.save("fig5.6", st, rng)
+        trial.save("fig5.6", st, rng)
     return {
         "x": counts,
         "cases": st["cases"],
@@ -613,16 +681,17 @@ def _fig56_trial(settings: dict, rng: np.random.Generator, progress: TrialContex
     }
 
 
-def _fig57_trial(settings: dict, rng: np.random.Generator, progress: TrialContext) -> dict:
-    levels = list(settings["torque_noise"])
-    progress.reset(total=4 * len(levels))
+def _fig57_trial(
+    settings: RewardVsNoiseSettings, rng: np.random.Generator, trial: TrialContext
+) -> dict:
+    levels = list(settings.torque_noise)
+    trial.reset(total=4 * len(levels))
     # Resumable after every noise level.
-    ckpt = progress if hasattr(progress, "save") else None
-    st = ckpt.resume("fig5.7", rng) if ckpt else None
+    st = trial.resume("fig5.7", rng)
     if st is None:
         st = {"x0": _initial_samples(settings, rng), "gains": None, "cases": [], "floors": []}
         st.update({"rejected": 0, "failed": 0, "stats": []})
-    progress.update(4 * len(st["cases"]))
+    trial.update(4 * len(st["cases"]))
     for noise in levels[len(st["cases"]) :]:
         task = _task(settings, noise)
         st["gains"], truth, truth_var, rej, fail = _balancing_truth(
@@ -632,21 +701,20 @@ def _fig57_trial(settings: dict, rng: np.random.Generator, progress: TrialContex
         st["failed"] += fail
         st["floors"].append(float(np.mean(truth_var)))
         st["stats"].append((float(np.mean(truth)), float(np.std(truth))))
-        progress.update()
+        trial.update()
         st["cases"].append(
             _balancing_case(
                 task,
-                int(settings["n_trajectories"]),
+                settings.n_trajectories,
                 st["gains"],
                 truth,
                 st["x0"],
                 settings,
                 rng,
-                progress,
+                trial,
             )
         )
-        if ckpt:
-            ckpt.save("fig5.7", st, rng)
+        trial.save("fig5.7", st, rng)
     return {
         "x": levels,
         "cases": st["cases"],
@@ -658,8 +726,39 @@ def _fig57_trial(settings: dict, rng: np.random.Generator, progress: TrialContex
     }
 
 
+def _reward_verdict(xlabel: str, fig: str):
+    def verdict(settings: BalancingSettings, summary: dict) -> Verdict:
+        """Holds if both embeddings are below GP sampling and the trajectory-based one below
+        the step-based one at every x (fig5.7: and the embeddings' error varies less across
+        the noise levels than the GP's)."""
+        holds = (
+            summary["claim_embedding_below_gp_holds"]
+            and summary["claim_trajectory_below_step_holds"]
+        )
+        if fig == "fig5.7":
+            holds = holds and summary["claim_embedding_flat_across_noise_holds"]
+        e = summary["mean_e_r"]
+        per_x = "; ".join(
+            f"{xi}: GP {fmt(e['gp'][i])}, step {fmt(e['step'][i])}, "
+            f"trajectory {fmt(e['trajectory'][i])}"
+            for i, xi in enumerate(summary["x"])
+        )
+        text = f"Mean e_r by {xlabel} — {per_x}"
+        if fig == "fig5.7":
+            spread = summary["max_over_min_e_r_across_noise"]
+            text += (
+                f"; max/min across the noise levels: GP {fmt(spread['gp'])}, step "
+                f"{fmt(spread['step'])}, trajectory {fmt(spread['trajectory'])}"
+            )
+        return Verdict(CLAIMS[fig], bool(holds), text + f" (thesis: {THESIS_5[fig]}).")
+
+    return verdict
+
+
 def _reward_summary(xlabel: str, fig: str):
-    def summarize(settings: dict, trials: list[dict]) -> tuple[list[Series], dict]:
+    verdict = _reward_verdict(xlabel, fig)
+
+    def summarize(settings: BalancingSettings, trials: list[dict]) -> tuple[list[Series], dict]:
         x = list(trials[0]["x"])
         err = {
             m: np.array([[c[f"e_r_{m}"] for c in t["cases"]] for t in trials]) for m, _ in _METHODS
@@ -669,7 +768,7 @@ def _reward_summary(xlabel: str, fig: str):
             y, lo, hi = mean_band(err[m])
             series.append(
                 Series(
-                    name=label.format(**settings),
+                    name=label.format(gp_samples=settings.gp_samples),
                     x=x,
                     y=y,
                     lower=lo,
@@ -701,7 +800,6 @@ def _reward_summary(xlabel: str, fig: str):
         ]
         traj_below_step = [bool(mean["trajectory"][i] < mean["step"][i]) for i in range(len(x))]
         summary = {
-            "claim": CLAIMS[fig],
             "x": x,
             "mean_e_r": {m: mean[m].tolist() for m, _ in _METHODS},
             "median_squared_error": {
@@ -746,40 +844,39 @@ def _reward_summary(xlabel: str, fig: str):
             summary["claim_embedding_flat_across_noise_holds"] = bool(
                 max(spread["step"], spread["trajectory"]) < spread["gp"]
             )
-        summary["claim_holds"] = bool(
-            summary["claim_embedding_below_gp_holds"]
-            and summary["claim_trajectory_below_step_holds"]
-        )
-        summary["verdict"] = "; ".join(
-            f"{xlabel}={xi}: GP {mean['gp'][i]:.3g}, step {mean['step'][i]:.3g}, "
-            f"trajectory {mean['trajectory'][i]:.3g}"
-            for i, xi in enumerate(x)
-        )
-        return series, summary
+        return series, with_verdict(summary, verdict(settings, summary))
 
     return summarize
 
 
 CLAIMS = {
     "fig5.6": (
-        "embeddings predict the expected trajectory reward with about an order of magnitude lower "
-        "error than GP sampling (M = 100), also with few observed trajectories, and the "
-        "trajectory-based training (5.23) beats the step-based one (5.17)"
+        "Embeddings predict the expected trajectory reward with about an order of magnitude "
+        "lower error than GP sampling (M = 100), also with few observed trajectories, and the "
+        "trajectory-based training (5.23) beats the step-based one (5.17) (Sec. 5.4, Fig. 5.6)."
     ),
     "fig5.7": (
-        "with growing torque noise the GP's reward prediction error grows while the embeddings' "
-        "barely changes; embeddings stay below the GP and trajectory-based below step-based"
+        "With growing torque noise the GP's reward prediction error grows while the "
+        "embeddings' barely changes; embeddings stay below the GP and trajectory-based below "
+        "step-based (Sec. 5.4, Fig. 5.7)."
     ),
+}
+THESIS_5 = {
+    "fig5.6": "embeddings about 10× below GP sampling, trajectory-based below step-based",
+    "fig5.7": "embeddings below the GP and flat across the noise, trajectory-based below "
+    "step-based",
 }
 
 register(
     Experiment(
         id="fig5.6",
         title="Balancing: expected-reward error vs observed trajectories, embedding vs GP",
-        settings=_FIG56,
+        settings_class=RewardVsDataSettings,
+        settings=SCALES_5_6,
         run_trial=_fig56_trial,
         summarize=_reward_summary("observed trajectories", "fig5.6"),
-        trials={"quick": 1, "paper": 5},
+        verdict=_reward_verdict("observed trajectories", "fig5.6"),
+        trials={"smoke": 1, "quick": 1, "paper": 5},
         claim=CLAIMS["fig5.6"],
     )
 )
@@ -788,10 +885,12 @@ register(
     Experiment(
         id="fig5.7",
         title="Balancing: expected-reward error vs torque noise, embedding vs GP",
-        settings=_FIG57,
+        settings_class=RewardVsNoiseSettings,
+        settings=SCALES_5_7,
         run_trial=_fig57_trial,
         summarize=_reward_summary("torque noise std (N m)", "fig5.7"),
-        trials={"quick": 1, "paper": 5},
+        verdict=_reward_verdict("torque noise std (N m)", "fig5.7"),
+        trials={"smoke": 1, "quick": 1, "paper": 5},
         claim=CLAIMS["fig5.7"],
     )
 )

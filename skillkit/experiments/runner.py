@@ -5,11 +5,13 @@ Trial ``i`` of a run with root seed ``seed`` always uses the ``i``-th child of
 ``SeedSequence(seed)``, so the numbers do not depend on the executor, on how many trials run
 at once, or on interruptions: every finished trial, and every state an experiment saves
 mid-trial through :meth:`~skillkit.trial.TrialContext.save`, is checkpointed atomically under
-``<out>/<id>-<scale>-s<seed>/trials/``, and rerunning the same command resumes from there.
+``<run folder>/trials/`` (:func:`run_folder`), and rerunning the same command resumes from
+there.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import platform
@@ -25,6 +27,7 @@ from tqdm.auto import tqdm
 
 from skillkit.experiments import checkpoint
 from skillkit.experiments.registry import get
+from skillkit.experiments.settings import Settings
 from skillkit.trial import TrialContext, Writer
 
 EXECUTORS = ("local", "process", "ray")
@@ -82,7 +85,7 @@ def _state_writer(path: str, ident: dict | None) -> Writer:
 
 def _execute_trial(
     exp_id: str,
-    settings: dict,
+    settings: Settings,
     seed_seq: np.random.SeedSequence,
     index: int,
     ckpt_path: str | None,
@@ -232,7 +235,7 @@ def run_trials(
     ----------
     exp_id : str
         Experiment id (``skillkit list`` shows them).
-    scale : {"quick", "paper"}
+    scale : {"smoke", "quick", "paper"}
         Settings scale.
     trials : int, optional
         Number of independent trials (default: the experiment's default for the scale).
@@ -250,7 +253,8 @@ def run_trials(
     checkpoint_dir : path, optional
         Where trial checkpoints live; existing ones are resumed from (after validation).
     **overrides
-        Replace individual settings.
+        Replace individual settings: names and types are checked before any work starts
+        (:meth:`~skillkit.experiments.registry.Experiment.settings_for`).
     """
     exp = get(exp_id)
     settings = exp.settings_for(scale, **overrides)
@@ -271,7 +275,8 @@ def run_trials(
             jobs.append((i, child, None, None))
         else:
             path = str(Path(checkpoint_dir) / f"trial_{i:03d}.ckpt")
-            jobs.append((i, child, path, checkpoint.identity(exp.id, settings, i, int(seed), code)))
+            ident = checkpoint.identity(exp.id, settings.to_dict(), i, int(seed), code)
+            jobs.append((i, child, path, ident))
     t0 = time.perf_counter()
     load_before = _load_average()
     done = _run_pending(exp.id, settings, jobs, executor, workers, address, progress)
@@ -289,7 +294,8 @@ def run_trials(
         "title": exp.title,
         "claim": exp.claim,
         "scale": scale,
-        "settings": to_jsonable(settings),
+        "settings": to_jsonable(settings.to_dict()),
+        "overrides": to_jsonable(exp.overrides(scale, settings)),
         "seed": int(seed),
         "trials": n_trials,
         "executor": executor,
@@ -321,9 +327,31 @@ def _load_average() -> list[float] | None:
         return None
 
 
-def run_folder(exp_id: str, scale: str, seed: int, out: str | Path) -> Path:
-    """The folder a run writes to: ``<out>/<id>-<scale>-s<seed>``."""
-    return Path(out) / f"{exp_id}-{scale}-s{seed}"
+def run_folder(
+    exp_id: str, scale: str, seed: int, out: str | Path, overrides: dict | None = None
+) -> Path:
+    """The folder a run writes to.
+
+    ``<out>/<id>-<scale>-s<seed>`` for the scale's own settings, and
+    ``<out>/<id>-<scale>-s<seed>-<hash>`` for a run whose settings differ from the scale's:
+    ``<hash>`` is the first 8 hex digits of the SHA-256 of the differing fields and their
+    values (JSON, sorted keys), so a run with overrides never writes into a standard run's
+    folder and the same overrides always find their own folder (and checkpoints) again.
+    Overrides equal to the scale's values change nothing, so they give the standard folder.
+
+    Raises
+    ------
+    ValueError
+        An unknown experiment or scale, or an override of an unknown name or a wrong type.
+    """
+    exp = get(exp_id)
+    settings = exp.settings_for(scale, **(overrides or {}))
+    changed = exp.overrides(scale, settings)
+    name = f"{exp.id}-{scale}-s{seed}"
+    if changed:
+        text = json.dumps(to_jsonable(changed), sort_keys=True)
+        name += "-" + hashlib.sha256(text.encode()).hexdigest()[:8]
+    return Path(out) / name
 
 
 def reproduce(
@@ -344,13 +372,14 @@ def reproduce(
     """Run an experiment, resuming from its checkpoints, and write its results.
 
     Writes ``result.json``, ``figure.html``, ``figure.png`` and ``trials.npz`` into
-    :func:`run_folder` and returns that folder. ``fresh=True`` deletes earlier checkpoints
-    of this run first; ``html=False`` skips the (4–5 MB, self-contained) HTML figure. Other
-    arguments as in :func:`run_trials`.
+    :func:`run_folder` (its own folder for a run with ``overrides``) and returns that folder.
+    ``fresh=True`` deletes earlier checkpoints of this run first; ``html=False`` skips the
+    (4–5 MB, self-contained) HTML figure. Other arguments as in :func:`run_trials`; the
+    overrides are checked before anything runs or is deleted.
     """
     from skillkit.viz.plots import write_figures
 
-    folder = run_folder(exp_id, scale, seed, out)
+    folder = run_folder(exp_id, scale, seed, out, overrides)
     ckpt_dir = folder / "trials"
     if fresh and ckpt_dir.exists():
         shutil.rmtree(ckpt_dir)

@@ -21,9 +21,19 @@ linear-Gaussian policies of REPS and RWR; a linear summary of CrKR's kernel mean
 
 from __future__ import annotations
 
+from dataclasses import dataclass, replace
+
 import numpy as np
 
-from skillkit.experiments.registry import Experiment, Series, mean_band, register
+from skillkit.experiments.registry import (
+    Experiment,
+    Series,
+    Verdict,
+    mean_band,
+    register,
+    with_verdict,
+)
+from skillkit.experiments.settings import Settings, setting
 from skillkit.models.kernels import Linear
 from skillkit.policies.gaussian import LinearGaussianPolicy
 from skillkit.search.crkr import CrKR
@@ -102,49 +112,88 @@ def parameter_error(policy, optimum: np.ndarray, grid: np.ndarray) -> float:
     return float(np.linalg.norm(coef - optimum))
 
 
-def make_algorithm(name: str, task: LinearOptimumTask, settings: dict):
+CLAIM = (
+    "Contextual REPS (ε = 0.5, 25 rollouts per update, last 200 reused) reaches the optimal "
+    "linear policy (parameter error < 1e-2) in every trial; RWR and CrKR are measured."
+)
+
+
+@dataclass(frozen=True)
+class SanitySettings(Settings):
+    """Settings of ``sanity3`` (the learning loop of Table 3.1 on :class:`LinearOptimumTask`)."""
+
+    n_updates: int = setting(120, "Policy updates per algorithm (Table 3.1 loop).")
+    rollouts_per_update: int = setting(
+        25, "Rollouts N between updates (Sec. 3.4.1's throwing setting)."
+    )
+    n_reuse_batches: int = setting(
+        8, "Batches L each update reuses: the last L × N = 200 rollouts (Sec. 3.4.1)."
+    )
+    epsilon: float = setting(0.5, "KL bound ε of contextual REPS (Eq. 3.4).")
+    beta_scale: float = setting(
+        1.0, "RWR's and CrKR's β = beta_scale / std(R) (Eq. 2.18; KL ≈ 0.5 from uniform)."
+    )
+    crkr_lam: float = setting(0.01, "CrKR's regulariser λ (Eqs. 2.19–2.20).")
+    kernel_variance: float = setting(0.25, "Variance σ² of CrKR's linear kernel σ² sᵀs' + c.")
+    kernel_bias: float = setting(0.25, "Bias c of CrKR's linear kernel σ² sᵀs' + c.")
+    noise_std: float = setting(0.0, "Std σ_ν of the additive reward noise (reward units).")
+    init_std: float = setting(0.5, "Std of the initial policy N(0, init_std² I) (zero gain).")
+    threshold: float = setting(
+        1e-2, "Parameter error ‖[a, A] − [a*, A*]‖_F counted as reaching the optimum."
+    )
+
+
+QUICK = SanitySettings()
+SCALES = {
+    "smoke": replace(QUICK, n_updates=3),
+    "quick": QUICK,
+    "paper": replace(QUICK, n_updates=200),
+}
+
+
+def make_algorithm(name: str, task: LinearOptimumTask, settings: SanitySettings):
     """Build REPS, RWR or CrKR from the experiment settings."""
     init = task.initial_policy()
-    reuse = settings["n_reuse_batches"]
+    reuse = settings.n_reuse_batches
     if name == "REPS":
-        return ContextualREPS(init, settings["epsilon"], reuse)
+        return ContextualREPS(init, settings.epsilon, reuse)
     if name == "RWR":
-        return RWR(init, settings["beta_scale"], reuse)
+        return RWR(init, settings.beta_scale, reuse)
     if name == "CrKR":
-        kernel = Linear(variance=settings["kernel_variance"], bias=settings["kernel_bias"])
+        kernel = Linear(variance=settings.kernel_variance, bias=settings.kernel_bias)
         return CrKR(
             init,
             kernel,
-            lam=settings["crkr_lam"],
-            beta_scale=settings["beta_scale"],
+            lam=settings.crkr_lam,
+            beta_scale=settings.beta_scale,
             n_reuse_batches=reuse,
         )
     raise ValueError(f"name: expected one of {ALGORITHMS}, got {name!r}")
 
 
-def run_trial(settings: dict, rng: np.random.Generator, progress: TrialContext) -> dict:
+def run_trial(settings: SanitySettings, rng: np.random.Generator, trial: TrialContext) -> dict:
     """One trial: every algorithm learns from its own child stream of ``rng``."""
-    task = LinearOptimumTask(settings["noise_std"], settings["init_std"])
+    task = LinearOptimumTask(settings.noise_std, settings.init_std)
     grid = context_grid()
     optimum = task.optimal_coefficients
     out: dict = {}
     streams = rng.spawn(len(ALGORITHMS))
-    progress.reset(total=len(ALGORITHMS) * settings["n_updates"])
+    trial.reset(total=len(ALGORITHMS) * settings.n_updates)
     for name, stream in zip(ALGORITHMS, streams, strict=True):
         alg = make_algorithm(name, task, settings)
         res = learn(
             task,
             alg,
-            settings["n_updates"],
-            settings["rollouts_per_update"],
+            settings.n_updates,
+            settings.rollouts_per_update,
             stream,
-            trial=progress,
+            trial=trial,
             eval_contexts=grid,
             callback=lambda k, a: parameter_error(a.policy, optimum, grid),
             checkpoint_key=name,
         )
         errors_arr = np.array(res["callback"])
-        below = np.flatnonzero(errors_arr < settings["threshold"])
+        below = np.flatnonzero(errors_arr < settings.threshold)
         out[f"{name}_rollouts"] = res["rollouts"]
         out[f"{name}_error"] = errors_arr
         out[f"{name}_mean_reward"] = res["mean_reward"]
@@ -159,9 +208,9 @@ def _log_band(curves: np.ndarray) -> tuple[list, list, list]:
     return [10**v for v in m], [10**v for v in lo], [10**v for v in hi]
 
 
-def summarize(settings: dict, trials: list[dict]) -> tuple[list[Series], dict]:
+def summarize(settings: SanitySettings, trials: list[dict]) -> tuple[list[Series], dict]:
     series: list[Series] = []
-    summary: dict = {"threshold": settings["threshold"], "trials": len(trials)}
+    summary: dict = {"threshold": settings.threshold, "trials": len(trials)}
     for name in ALGORITHMS:
         x = np.asarray(trials[0][f"{name}_rollouts"]).tolist()
         err = np.array([t[f"{name}_error"] for t in trials])
@@ -206,40 +255,34 @@ def summarize(settings: dict, trials: list[dict]) -> tuple[list[Series], dict]:
                 np.median([t[f"{name}_mean_reward"][-1] for t in trials])
             ),
         }
-    reps = summary["REPS"]
-    summary["claim_holds"] = reps["trials_reaching_threshold"] == len(trials)
-    summary["statement"] = (
-        f"REPS reached parameter error < {settings['threshold']:g} in "
-        f"{reps['trials_reaching_threshold']}/{len(trials)} trials, "
+    return series, with_verdict(summary, verdict(settings, summary))
+
+
+def verdict(settings: SanitySettings, summary: dict) -> Verdict:
+    """Holds if contextual REPS reached the threshold in every trial."""
+    reps, n = summary["REPS"], summary["trials"]
+    return Verdict(
+        CLAIM,
+        bool(reps["trials_reaching_threshold"] == n),
+        f"REPS reached parameter error < {summary['threshold']:g} in "
+        f"{reps['trials_reaching_threshold']}/{n} trials (claim: {n}/{n}), "
         f"after at most {reps['rollouts_to_threshold_max']} rollouts "
         f"(median {reps['rollouts_to_threshold_median']}); final errors (median): "
-        + ", ".join(f"{n} {summary[n]['final_error_median']:.2e}" for n in ALGORITHMS)
+        + ", ".join(f"{a} {summary[a]['final_error_median']:.2e}" for a in ALGORITHMS)
+        + ".",
     )
-    return series, summary
 
-
-_COMMON = {
-    "rollouts_per_update": 25,
-    "n_reuse_batches": 8,
-    "epsilon": 0.5,
-    "beta_scale": 1.0,
-    "crkr_lam": 0.01,
-    "kernel_variance": 0.25,
-    "kernel_bias": 0.25,
-    "noise_std": 0.0,
-    "init_std": 0.5,
-    "threshold": 1e-2,
-}
 
 register(
     Experiment(
         id="sanity3",
         title="Contextual policy search with a known optimal linear policy: REPS vs RWR vs CrKR",
-        settings={"quick": {**_COMMON, "n_updates": 120}, "paper": {**_COMMON, "n_updates": 200}},
+        settings_class=SanitySettings,
+        settings=SCALES,
         run_trial=run_trial,
         summarize=summarize,
-        trials={"quick": 3, "paper": 10},
-        claim="Contextual REPS (ε = 0.5, 25 rollouts per update, last 200 reused) reaches the "
-        "optimal linear policy (parameter error < 1e-2) in every trial; RWR and CrKR are measured.",
+        verdict=verdict,
+        trials={"smoke": 2, "quick": 3, "paper": 10},
+        claim=CLAIM,
     )
 )

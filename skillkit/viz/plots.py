@@ -777,7 +777,7 @@ def plot_learning(
         One panel: reward of the policy mean (evaluated on the evaluation contexts) against
         the number of rollouts so far.
     """
-    from skillkit.experiments.registry import Series, mean_band
+    from skillkit.viz.series import Series, mean_band
 
     if backend not in _BACKENDS:
         raise ValueError(f"backend: expected one of {_BACKENDS}, got {backend!r}")
@@ -897,7 +897,7 @@ def plot_gp_fit(
         Traces: the mean with its band (mean ± 1.96 σ), the data points, and ``f_true``.
     """
     from skillkit._validation import check_array
-    from skillkit.experiments.registry import Series
+    from skillkit.viz.series import Series
 
     if backend not in _BACKENDS:
         raise ValueError(f"backend: expected one of {_BACKENDS}, got {backend!r}")

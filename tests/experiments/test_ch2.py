@@ -1,12 +1,10 @@
 """Tests of the chapter-2 experiment fig2.10 (Figs. 2.9–2.11)."""
 
-import json
-
 import numpy as np
 import pytest
 
 from skillkit.experiments.ch2 import reach_demonstration
-from skillkit.experiments.runner import reproduce, run_trials
+from skillkit.experiments.runner import run_trials
 
 
 @pytest.fixture(scope="module")
@@ -19,7 +17,7 @@ def test_fitted_dmp_reproduces_the_demonstration(result):
     assert s["n_basis"] == 10
     assert s["rmse_q_fraction_of_range"] < 0.01
     assert s["end_error_to_goal_rad"] < 0.01 * s["demo_range_rad"]
-    assert s["claim_holds"] is True
+    assert s["holds"] is True
     # Fig. 2.10(a): without the forcing term the DMP reaches g but misses the shape
     assert s["rmse_q_fraction_without_forcing"] > 0.1
     assert s["end_error_without_forcing_rad"] < 1e-3
@@ -42,23 +40,9 @@ def test_series_cover_figures_2_9_to_2_11(result):
     np.testing.assert_allclose(demo["x"], times)
 
 
-def test_same_seed_gives_identical_series(result):
-    again = run_trials("fig2.10", scale="quick", seed=3, progress=False)
-    assert again["series"] == result["series"]
-    assert again["summary"] == result["summary"]
-
-
 def test_fewer_basis_functions_fit_worse(result):
     coarse = run_trials("fig2.10", scale="quick", seed=0, progress=False, n_basis=3)["summary"]
     assert coarse["rmse_q_fraction_of_range"] > 5 * result["summary"]["rmse_q_fraction_of_range"]
-
-
-@pytest.mark.slow  # plotly + matplotlib figure writing: ~10 s on a loaded machine
-def test_reproduce_writes_the_summary(tmp_path, result):
-    folder = reproduce("fig2.10", scale="paper", seed=3, out=tmp_path, progress=False)
-    written = json.loads((folder / "result.json").read_text())
-    assert written["summary"] == pytest.approx(result["summary"])
-    assert (folder / "figure.html").exists() and (folder / "figure.png").exists()
 
 
 def test_demonstration_is_smooth_with_exact_derivatives():

@@ -17,13 +17,13 @@ def fig212():
 
 @pytest.fixture(scope="module")
 def fig27():
-    return run_trials("fig2.7", "quick", seed=2, progress=False, n_monte_carlo=100_000, n_steps=40)
+    return run_trials("fig2.7", "smoke", seed=2, progress=False)  # 100,000 samples, 40 steps
 
 
 def test_fig2_12_variance_shrinks_and_samples_converge(fig212):
     s = fig212["summary"]
     per = s["per_n_points"]
-    assert s["claim_holds"] is True
+    assert s["holds"] is True
     assert per["1"]["mean_std"] > per["4"]["mean_std"] > per["25"]["mean_std"]
     assert per["25"]["rmse"] < 0.5 * per["1"]["rmse"]
     assert per["25"]["coverage95"] > 0.9
@@ -44,14 +44,9 @@ def test_fig2_12_one_point_posterior_closed_form(fig212):
     np.testing.assert_allclose(np.array(band["upper"]) - band["y"], half, rtol=1e-9)
 
 
-def test_fig2_12_same_seed_same_numbers(fig212):
-    again = run_trials("fig2.12", "quick", seed=1, progress=False)
-    assert again["series"] == fig212["series"] and again["summary"] == fig212["summary"]
-
-
 def test_fig2_7_moment_matching_exact_and_better_than_linearisation(fig27):
     s = fig27["summary"]
-    assert s["claim_holds"] is True
+    assert s["holds"] is True
     assert s["density_mass"] == pytest.approx(1.0, abs=1e-6)
     assert s["mm_mean_error"] < 1e-5 and s["mm_var_rel_error"] < 1e-4
     assert s["kl_mm"] < s["kl_lin"]

@@ -11,28 +11,20 @@ from skillkit.experiments.runner import run_trials
 from skillkit.models.kernels import gram
 from skillkit.tasks import make
 
-TINY = dict(
-    n_updates=1,
-    rollouts_per_update=25,
-    n_eval_contexts=2,
-    n_heldout=3,
-    heldout_every=1,
-    epsilon=0.2,  # a gentle bound keeps the effective sample size of 25 samples above 16
-)
-
 
 @pytest.fixture(scope="module")
 def tiny_runs():
-    return [run_trials("fig3.5", "quick", trials=1, seed=3, progress=False, **TINY) for _ in (0, 1)]
+    """Two smoke-scale runs (one update of 25 rollouts, ε = 0.2, 3 held-out contexts)."""
+    return [run_trials("fig3.5", "smoke", seed=3, progress=False) for _ in (0, 1)]
 
 
 def test_registered_with_thesis_settings():
     exp = get("fig3.5")
     for scale in ("quick", "paper"):
         s = exp.settings_for(scale)
-        assert s["epsilon"] == 0.5 and s["task"] == "hockey"
+        assert s.epsilon == 0.5 and s.task == "hockey"
     paper = exp.settings_for("paper")
-    assert paper["n_updates"] * paper["rollouts_per_update"] >= 8000  # thesis: up to ~8000
+    assert paper.n_updates * paper.rollouts_per_update >= 8000  # thesis: up to ~8000
     assert exp.trials["paper"] >= 3
 
 
@@ -98,7 +90,8 @@ def test_summary_checks_against_thesis_claims():
     assert summary["reps"]["final_heldout_hit_rate_std"] == pytest.approx(0.02)
     assert summary["crkr"]["failed_rollouts"] == 2
     assert summary["reps"]["heldout_blade_lowest_m"] == -0.002
-    assert all(summary["checks"].values())
+    assert all(summary["checks"].values()) and summary["holds"] is True
+    assert "hits 98.0%" in summary["statement"] and "16.0 cm" in summary["statement"]
     band = next(s for s in series if s.name == ch.LABELS["reps"] and "hit rate" in s.panel)
     np.testing.assert_allclose(band.y, [0.3, 0.98])
     bad = [_fake_trial((-0.5, 0.9, 0.25), (-0.4, 0.95, 0.2))]
@@ -110,6 +103,7 @@ def test_summary_checks_against_thesis_claims():
     assert not checks["crkr_lower_reward"]
     assert not checks["crkr_lower_hit_rate"]
     assert not checks["crkr_larger_displacement_error"]
+    assert summary["holds"] is False
     tie = [_fake_trial((-0.2, 1.0, 0.05), (-0.3, 1.0, 0.2))]  # paper scale: both always hit
     checks = ch._summarize(settings, tie)[1]["checks"]
     assert checks["crkr_lower_reward"] and checks["crkr_larger_displacement_error"]

@@ -7,20 +7,10 @@ import numpy as np
 import pytest
 
 from skillkit.experiments import get
-from skillkit.experiments.ch3_table_tennis import OUTCOMES, run_trial, summarize
+from skillkit.experiments.ch3_table_tennis import OUTCOMES, SCALES, run_trial, summarize
 from skillkit.trial import NullBar, TrialContext
 
-TINY = {
-    "epsilon": 0.6,
-    "rollouts_per_update": 12,
-    "n_reuse_batches": 2,
-    "baseline_features": "linear",
-    "min_effective_samples": 3.0,
-    "cov_shrinkage": 0.2,
-    "n_updates": 2,
-    "n_eval_contexts": 2,
-    "n_final_contexts": 3,
-}
+TINY = SCALES["smoke"]  # 2 updates of 12 rollouts, 3 final contexts
 
 
 class _Bar(NullBar):
@@ -37,7 +27,7 @@ class _Bar(NullBar):
 @pytest.fixture(scope="module")
 def tiny_runs():
     bars = [_Bar(), _Bar()]
-    runs = [run_trial(dict(TINY), np.random.default_rng(7), TrialContext(bar)) for bar in bars]
+    runs = [run_trial(TINY, np.random.default_rng(7), TrialContext(bar)) for bar in bars]
     return runs, bars
 
 
@@ -45,16 +35,16 @@ def test_registered_with_thesis_settings():
     exp = get("fig3.7")
     for scale in ("quick", "paper"):
         s = exp.settings_for(scale)
-        assert s["epsilon"] == 0.6
-        assert s["rollouts_per_update"] * s["n_reuse_batches"] == 200  # reuse the last 200
+        assert s.epsilon == 0.6
+        assert s.rollouts_per_update * s.n_reuse_batches == 200  # reuse the last 200
     paper = exp.settings_for("paper")
-    assert paper["n_updates"] * paper["rollouts_per_update"] >= 4000  # thesis: ~4000 rollouts
+    assert paper.n_updates * paper.rollouts_per_update >= 4000  # thesis: ~4000 rollouts
     assert exp.trials["paper"] >= 3
 
 
 def test_tiny_run_is_deterministic_and_well_formed(tiny_runs):
     (a, b), bars = tiny_runs
-    assert bars[0].total == TINY["n_updates"] and bars[0].n == TINY["n_updates"]
+    assert bars[0].total == TINY.n_updates and bars[0].n == TINY.n_updates
     np.testing.assert_array_equal(a["mean_reward"], b["mean_reward"])
     np.testing.assert_array_equal(a["final_rewards"], b["final_rewards"])
     assert a["final_outcomes"] == b["final_outcomes"]
@@ -95,7 +85,7 @@ def test_summary_arithmetic_on_hand_made_trials():
         [-0.2, -0.1, -0.03],
         [0.3, 0.4, 0.1, 2.9],
     )
-    _, summary = summarize({}, [good, netty])
+    _, summary = summarize(SCALES["quick"], [good, netty])
     assert summary["final_reward_per_trial"] == pytest.approx([-0.0125, -0.0955])
     assert summary["fraction_runs_above_-0.02"] == 0.5
     assert summary["net_fraction_per_trial"] == [0.0, 0.5]
@@ -114,3 +104,7 @@ def test_summary_arithmetic_on_hand_made_trials():
     assert summary["initial_reward"] == pytest.approx(-0.2)
     assert summary["net_shot_reward_mean"] == pytest.approx(-0.035)
     assert summary["net_shot_reward_range"] == pytest.approx([-0.04, -0.03])
+    # 1 of 2 runs above −0.02 is not "most runs"; 2 of 2 is
+    assert summary["holds"] is False and summary["statement"].startswith("1/2 runs")
+    _, summary = summarize(SCALES["quick"], [good, good])
+    assert summary["holds"] is True and "0/2 runs put more than 10%" in summary["statement"]

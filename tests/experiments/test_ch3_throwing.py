@@ -2,57 +2,45 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from skillkit.experiments import get
-from skillkit.experiments.ch3_throwing import target_grid
+from skillkit.experiments.ch3_throwing import target_grid, verdict
 from skillkit.experiments.runner import run_trials
-
-TINY = {
-    "n_updates": 2,
-    "rollouts_per_update": 4,
-    "n_reuse_batches": 2,
-    "extra_contexts": 2,
-    "n_eval_contexts": 1,
-    "grid_x": [6.0, 14.0],
-    "grid_y": [2.0],
-}
 
 
 @pytest.fixture(scope="module")
-def tiny_runs():
-    first = run_trials("fig3.3", "quick", trials=2, seed=5, progress=False, **TINY)
-    again = run_trials("fig3.3", "quick", trials=2, seed=5, progress=False, **TINY)
-    other = run_trials("fig3.3", "quick", trials=1, seed=6, progress=False, **TINY)
-    return first, again, other
+def first():
+    """Two smoke-scale trials (2 updates of 4 rollouts, targets [6, 2] and [14, 2] m)."""
+    return run_trials("fig3.3", "smoke", seed=5, progress=False)
 
 
 def test_registered_with_the_thesis_settings():
     exp = get("fig3.3")
     for scale in ("quick", "paper"):
         s = exp.settings[scale]
-        assert s["epsilon"] == 0.6 and s["rollouts_per_update"] == 25
-        assert s["rollouts_per_update"] * s["n_reuse_batches"] == 200
-    assert exp.settings["paper"]["n_updates"] * 25 >= 5000
+        assert s.epsilon == 0.6 and s.rollouts_per_update == 25
+        assert s.rollouts_per_update * s.n_reuse_batches == 200
+    assert exp.settings["paper"].n_updates * 25 >= 5000
     assert exp.trials["paper"] == 20
-    np.testing.assert_array_equal(target_grid({"grid_x": [5, 6], "grid_y": [1]}), [[5, 1], [6, 1]])
+    grid = replace(exp.settings["quick"], grid_x=(5, 6), grid_y=(1,))
+    np.testing.assert_array_equal(target_grid(grid), [[5, 1], [6, 1]])
 
 
-def test_same_seed_same_numbers(tiny_runs):
-    first, again, other = tiny_runs
-    assert first["summary"] == again["summary"]
-    for a, b in zip(first["_trials"], again["_trials"], strict=True):
-        for key in a:
-            np.testing.assert_array_equal(a[key], b[key])
-    assert (
-        other["summary"]["reps"]["final_reward_mean"]
-        != first["summary"]["reps"]["final_reward_mean"]
-    )
+def test_verdict_needs_extra_context_within_the_bounds_and_better(first):
+    summary = first["summary"]
+    settings = get("fig3.3").settings["smoke"]
+    good = {**summary, "holds_per_method": {"reps": False, "extra": True}}
+    assert verdict(settings, {**good, "extra_context_better": True}).holds is True
+    assert verdict(settings, {**good, "extra_context_better": False}).holds is False
+    bad = {**good, "holds_per_method": {"reps": True, "extra": False}}
+    assert verdict(settings, {**bad, "extra_context_better": True}).holds is False
 
 
-def test_summary_has_the_promised_keys(tiny_runs):
-    first, _, _ = tiny_runs
+def test_summary_has_the_promised_keys(first):
     summary = first["summary"]
     for key in ("reps", "extra"):
         part = summary[key]
@@ -72,7 +60,12 @@ def test_summary_has_the_promised_keys(tiny_runs):
         assert len(part["final_reward_per_trial"]) == 2
         assert part["near_distance_max_m"] >= part["near_distance_mean_m"] > 0
     assert summary["thesis"]["near_max_error_m"] == 0.1
-    assert set(summary["learned"]) == set(summary["holds"]) == {"reps", "extra"}
+    assert set(summary["learned"]) == set(summary["holds_per_method"]) == {"reps", "extra"}
+    assert summary["thesis"] == {
+        "near_max_error_m": 0.1,
+        "far_max_error_m": 0.5,
+        "rollouts_to_converge": 5000,
+    }
     trial = first["_trials"][0]
     assert trial["rollouts"].tolist() == [0, 4, 8]
     assert trial["reps_mean_reward"].shape == trial["extra_mean_reward"].shape == (3,)
@@ -85,9 +78,11 @@ def test_saved_run_has_the_policy_history_the_viewer_plays_back(tmp_path):
     from skillkit.experiments.runner import reproduce
     from skillkit.viz.history import load_policy_history
 
-    folder = reproduce("fig3.3", trials=1, seed=5, out=tmp_path, progress=False, html=False, **TINY)
+    folder = reproduce(
+        "fig3.3", "smoke", trials=1, seed=5, out=tmp_path, progress=False, html=False
+    )
     history = load_policy_history(folder, trial=0)
-    assert len(history.policies) == TINY["n_updates"] + 1
+    assert len(history.policies) == get("fig3.3").settings["smoke"].n_updates + 1
     assert history.policies[0].dim == 41 and history.policies[0].context_dim == 2
     # The first entry is the initial policy, the others differ from it (REPS updated them).
     assert not np.allclose(history.policies[-1].mean, history.policies[0].mean)

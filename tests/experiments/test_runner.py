@@ -3,14 +3,16 @@
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pytest
 
 from skillkit.cli import main
 from skillkit.experiments import registry
-from skillkit.experiments.registry import Experiment, Series, mean_band
-from skillkit.experiments.runner import reproduce, run_trials
+from skillkit.experiments.registry import Experiment, Series, Verdict, mean_band, with_verdict
+from skillkit.experiments.runner import reproduce, run_folder, run_trials
+from skillkit.experiments.settings import Settings, setting
 
 CRASH = {"at": None}
 
@@ -19,11 +21,16 @@ class Crash(Exception):
     pass
 
 
+@dataclass(frozen=True)
+class WalkSettings(Settings):
+    n: int = setting(5, "Steps of the random walk.")
+
+
 def _trial(settings, rng, progress):
     """A random walk that checkpoints after every step (like a policy update)."""
-    progress.reset(total=settings["n"])
+    progress.reset(total=settings.n)
     state = progress.resume("walk", rng) or {"k": 0, "steps": []}
-    for k in range(state["k"], settings["n"]):
+    for k in range(state["k"], settings.n):
         state["steps"].append(float(rng.normal()))
         state["k"] = k + 1
         progress.save("walk", state, rng)
@@ -38,21 +45,27 @@ def _trial(settings, rng, progress):
 def _summarize(settings, trials):
     curves = np.array([t["walk"] for t in trials])
     m, lo, hi = mean_band(curves)
-    series = [
-        Series("walk", list(range(settings["n"])), m, lower=lo, upper=hi, panel="a", xlabel="t")
-    ]
-    return series, {"mean_last": float(np.mean([t["last"] for t in trials]))}
+    series = [Series("walk", list(range(settings.n)), m, lower=lo, upper=hi, panel="a", xlabel="t")]
+    summary = {"mean_last": float(np.mean([t["last"] for t in trials]))}
+    return series, with_verdict(summary, _verdict(settings, summary))
+
+
+def _verdict(settings, summary):
+    return Verdict("walks wander", None, f"mean last position {summary['mean_last']:.3g}")
 
 
 @pytest.fixture
 def toy(monkeypatch):
+    quick = WalkSettings()
     exp = Experiment(
         "toy1.1",
         "random walk",
-        {"quick": {"n": 5}, "paper": {"n": 50}},
+        WalkSettings,
+        {"smoke": replace(quick, n=2), "quick": quick, "paper": replace(quick, n=50)},
         _trial,
         _summarize,
-        trials={"quick": 3, "paper": 2},
+        _verdict,
+        trials={"smoke": 1, "quick": 3, "paper": 2},
         claim="walks wander",
     )
     registry._load_all()
@@ -98,9 +111,13 @@ def test_reproduce_writes_result_figures_and_arrays(toy, tmp_path):
 
 
 def test_overrides_and_bad_arguments(toy):
-    assert run_trials("toy1.1", n=2, progress=False)["settings"] == {"n": 2}
-    with pytest.raises(ValueError, match="nope"):
+    result = run_trials("toy1.1", n=2, progress=False)
+    assert result["settings"] == {"n": 2} and result["overrides"] == {"n": 2}
+    assert run_trials("toy1.1", "smoke", progress=False)["overrides"] == {}
+    with pytest.raises(ValueError, match="nope: not a setting of WalkSettings .*settings: n"):
         run_trials("toy1.1", nope=1, progress=False)
+    with pytest.raises(ValueError, match="n: expected int, got 2.0"):
+        run_trials("toy1.1", n=2.0, progress=False)
     with pytest.raises(ValueError, match="scale"):
         run_trials("toy1.1", scale="huge", progress=False)
     with pytest.raises(ValueError, match="trials"):
@@ -109,6 +126,40 @@ def test_overrides_and_bad_arguments(toy):
         run_trials("toy1.1", seed=-1, progress=False)
     with pytest.raises(ValueError, match="unknown experiment"):
         run_trials("fig99.9", progress=False)
+
+
+def test_runs_with_overrides_get_their_own_folder(toy, tmp_path):
+    standard = run_folder("toy1.1", "quick", 1, tmp_path)
+    assert standard == tmp_path / "toy1.1-quick-s1"
+    assert run_folder("toy1.1", "quick", 1, tmp_path, {"n": 5}) == standard  # the quick value
+    other = run_folder("toy1.1", "quick", 1, tmp_path, {"n": 7})
+    assert other.name.startswith("toy1.1-quick-s1-") and len(other.name) == len(standard.name) + 9
+    assert run_folder("toy1.1", "quick", 1, tmp_path, {"n": 7}) == other  # stable
+    assert run_folder("toy1.1", "quick", 1, tmp_path, {"n": 8}) != other
+    folder = reproduce("toy1.1", seed=1, out=tmp_path, progress=False, html=False, n=7)
+    assert folder == other and not standard.exists()
+    assert json.loads((folder / "result.json").read_text())["overrides"] == {"n": 7}
+    with pytest.raises(ValueError, match="n: expected int"):
+        reproduce("toy1.1", seed=1, out=tmp_path, progress=False, fresh=True, n="7")
+    assert (folder / "trials").exists()  # a refused override deletes nothing
+
+
+def test_registration_needs_every_scale_and_a_claim(toy):
+    with pytest.raises(ValueError, match="smoke"):
+        registry.register(replace(toy, id="toy1.2", settings={"quick": toy.settings["quick"]}))
+    with pytest.raises(ValueError, match="claim"):
+        registry.register(replace(toy, id="toy1.3", claim=""))
+    with pytest.raises(ValueError, match="settings_class"):
+        registry.register(replace(toy, id="toy1.4", settings_class=dict))
+
+
+def test_verdict_checks_its_fields():
+    assert Verdict("c", np.bool_(True), "1 of 1").holds is True
+    for bad in (dict(claim=""), dict(holds=1), dict(holds="yes"), dict(statement=" ")):
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            Verdict(**{"claim": "c", "holds": None, "statement": "s", **bad})
+    summary = with_verdict({"x": 1, "holds": "old"}, Verdict("c", False, "s"))
+    assert list(summary) == ["claim", "holds", "statement", "x"] and summary["holds"] is False
 
 
 def test_duplicate_registration_is_refused(toy):
@@ -135,6 +186,16 @@ def test_cli_list_reproduce_and_errors(toy, tmp_path, capsys):
     assert json.loads((tmp_path / "toy1.1-quick-s2" / "result.json").read_text())["seed"] == 2
     assert main(["reproduce", "nope", "--out", str(tmp_path), "--quiet"]) == 2
     assert "unknown experiment" in capsys.readouterr().err
+    for bad, message in (("n=2.5", "n: expected int"), ("m=2", "m: not a setting")):
+        args = ["reproduce", "toy1.1", "--out", str(tmp_path / "bad"), "--set", bad]
+        assert main(args + ["--quiet"]) == 2
+        assert message in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists()
+    assert main(["reproduce", "toy1.1", "--scale", "smoke", "--out", str(tmp_path), "--quiet"]) == 0
+    assert (tmp_path / "toy1.1-smoke-s0" / "result.json").exists()
+    assert main(["settings", "toy1.1"]) == 0
+    out = capsys.readouterr().out
+    assert "Steps of the random walk." in out and "paper  50" in out
 
 
 def test_interrupted_run_resumes_to_identical_numbers(toy, tmp_path):
@@ -224,7 +285,8 @@ def test_kill_9_mid_run_then_resume_gives_identical_numbers(tmp_path):
     ]
     assert main(args + ["--out", str(tmp_path / "clean")]) == 0
     cmd = [sys.executable, "-m", "skillkit.cli"] + args + ["--out", str(tmp_path / "killed")]
-    ckpt = tmp_path / "killed" / "sanity3-quick-s9" / "trials" / "trial_000.ckpt"
+    killed = run_folder("sanity3", "quick", 9, tmp_path / "killed", {"n_updates": 30})
+    ckpt = killed / "trials" / "trial_000.ckpt"
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.monotonic() + 300
     while not ckpt.exists() and proc.poll() is None and time.monotonic() < deadline:
@@ -239,8 +301,9 @@ def test_kill_9_mid_run_then_resume_gives_identical_numbers(tmp_path):
     raw = ckpt.read_bytes()
     assert raw.startswith(ck.MAGIC)
     assert main(args + ["--out", str(tmp_path / "killed")]) == 0
-    a = json.loads((tmp_path / "clean" / "sanity3-quick-s9" / "result.json").read_text())
-    b = json.loads((tmp_path / "killed" / "sanity3-quick-s9" / "result.json").read_text())
+    clean = run_folder("sanity3", "quick", 9, tmp_path / "clean", {"n_updates": 30})
+    a = json.loads((clean / "result.json").read_text())
+    b = json.loads((killed / "result.json").read_text())
     assert a["series"] == b["series"]
     assert a["summary"] == b["summary"]
 
@@ -274,7 +337,7 @@ def test_killing_a_process_pool_run_leaves_no_workers_computing(tmp_path):
     cmd += ["--seed", "9", "--quiet", "--executor", "process", "--workers", "2"]
     cmd += ["--set", "n_updates=5000", "--out", str(tmp_path)]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    trials = tmp_path / "sanity3-quick-s9" / "trials"
+    trials = run_folder("sanity3", "quick", 9, tmp_path, {"n_updates": 5000}) / "trials"
     deadline = time.monotonic() + 300
     while len(list(trials.glob("trial_*.ckpt"))) < 2 and time.monotonic() < deadline:
         assert proc.poll() is None, "the run ended before both workers checkpointed"

@@ -59,12 +59,12 @@ def test_contextual_reps_reaches_the_optimal_policy():
     task = LinearOptimumTask()
     grid = context_grid()
     errors = []
-    n_updates = REPS_ROLLOUT_BUDGET // settings["rollouts_per_update"]
+    n_updates = REPS_ROLLOUT_BUDGET // settings.rollouts_per_update
     res = learn(
         task,
         make_algorithm("REPS", task, settings),
         n_updates,
-        settings["rollouts_per_update"],
+        settings.rollouts_per_update,
         np.random.default_rng(0),
         eval_contexts=grid,
         callback=lambda k, a: errors.append(
@@ -79,19 +79,15 @@ def test_contextual_reps_reaches_the_optimal_policy():
     assert all(d.success for d in res["diagnostics"])
 
 
-def test_same_seed_same_series_and_summary():
-    a = run_trials("sanity3", "quick", trials=2, seed=5, progress=False, n_updates=3)
-    b = run_trials("sanity3", "quick", trials=2, seed=5, progress=False, n_updates=3)
-    c = run_trials("sanity3", "quick", trials=2, seed=6, progress=False, n_updates=3)
-    assert a["series"] == b["series"] and a["summary"] == b["summary"]
-    assert a["series"] != c["series"]
+def test_smoke_series_and_summary():
+    a = run_trials("sanity3", "smoke", seed=5, progress=False)  # 2 trials, 3 updates
     names = {s["name"] for s in a["series"]}
     assert names == {"REPS", "RWR", "CrKR"}
     for s in a["series"]:
         assert len(s["x"]) == 4 and s["x"][0] == 0 and s["x"][-1] == 75
         assert all(lo <= y <= hi for lo, y, hi in zip(s["lower"], s["y"], s["upper"], strict=True))
     summary = a["summary"]
-    assert summary["claim_holds"] is False  # 75 rollouts are not enough
+    assert summary["holds"] is False  # 75 rollouts are not enough
     assert summary["REPS"]["trials_reaching_threshold"] == 0
     assert "REPS reached parameter error < 0.01 in 0/2 trials" in summary["statement"]
 
@@ -100,5 +96,5 @@ def test_same_seed_same_series_and_summary():
 def test_quick_scale_claim_holds():
     result = run_trials("sanity3", "quick", seed=0, progress=False)
     reps = result["summary"]["REPS"]
-    assert result["summary"]["claim_holds"]
+    assert result["summary"]["holds"] is True
     assert reps["rollouts_to_threshold_max"] <= REPS_ROLLOUT_BUDGET

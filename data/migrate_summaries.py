@@ -1,0 +1,168 @@
+"""Bring stored ``result.json`` summaries to the verdict schema (issue #11): ``claim``,
+``holds``, ``statement`` first in every ``summary``, computed by the experiment's own
+``verdict(settings, summary)`` from the stored numbers (nothing is rerun).
+
+Usage::
+
+    python data/migrate_summaries.py [ROOT ...]     # default: data/results; rewrites in place
+    python data/migrate_summaries.py --check [ROOT]  # exit 1 if a file is not migrated
+
+What changes in each ``summary`` (see data/README.md):
+
+* added: ``claim`` (str), ``holds`` (true / false / null), ``statement`` (str), first;
+* removed after the new keys carry their information: ``claim_holds`` (now ``holds``), the
+  ``verdict`` string of fig5.3–fig5.7 and ``thesis.claim`` of fig3.3 / fig3.7 (now
+  ``statement`` and ``claim``); sanity3's and fig5.x's ``statement`` / ``claim`` are rewritten;
+* renamed: fig3.3's per-method dict ``holds`` → ``holds_per_method``.
+
+Every other key and number is kept: the script checks that each numeric leaf of the old
+summary is unchanged in the new one and refuses to write otherwise. The top level gains
+``overrides`` (the settings that differ from the scale's, ``{}`` for a standard run), as new
+runs record it. Running it twice changes nothing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from skillkit.experiments.registry import get, with_verdict
+from skillkit.experiments.runner import to_jsonable
+from skillkit.experiments.settings import apply_overrides
+
+#: Keys whose information the verdict now carries (removed), and renamed keys, per id.
+DROPPED = ("claim_holds",)
+DROPPED_STRINGS = ("verdict",)  # fig5.x: the old one-line numbers, now in ``statement``
+RENAMED = {"fig3.3": {"holds": "holds_per_method"}}
+THESIS_CLAIM = ("fig3.3", "fig3.7")  # ``thesis.claim`` moved to the top-level ``claim``
+
+
+def migrate_summary(exp_id: str, settings: dict, summary: dict) -> tuple[dict, dict]:
+    """The summary in the verdict schema, and a report of what changed.
+
+    Parameters
+    ----------
+    exp_id : str
+        Registered experiment id.
+    settings : dict
+        The run's stored settings (``result["settings"]``).
+    summary : dict
+        The stored summary (old or already migrated).
+
+    Returns
+    -------
+    summary : dict
+        ``claim``, ``holds``, ``statement`` first, then the other keys.
+    report : dict
+        ``renamed``, ``removed`` (key lists) and ``old_claim_holds`` / ``holds``.
+    """
+    exp = get(exp_id)
+    typed = apply_overrides(exp.settings["quick"], settings)
+    new = dict(summary)
+    report: dict = {"renamed": [], "removed": [], "old_claim_holds": None}
+    for old, name in RENAMED.get(exp_id, {}).items():
+        if isinstance(new.get(old), dict):
+            new[name] = new.pop(old)
+            report["renamed"].append(f"{old} -> {name}")
+    for key in DROPPED:
+        if key in new:
+            report["old_claim_holds"] = new.pop(key)
+            report["removed"].append(key)
+    for key in DROPPED_STRINGS:
+        if isinstance(new.get(key), str):
+            new.pop(key)
+            report["removed"].append(key)
+    if exp_id in THESIS_CLAIM and isinstance(new.get("thesis"), dict):
+        if "claim" in new["thesis"]:
+            new["thesis"] = {k: v for k, v in new["thesis"].items() if k != "claim"}
+            report["removed"].append("thesis.claim")
+    verdict = exp.verdict(typed, new)
+    report["holds"] = verdict.holds
+    return to_jsonable(with_verdict(new, verdict)), report
+
+
+def _numbers(d, prefix=""):
+    """Numeric leaves of a nested summary: {path: value}."""
+    out = {}
+    if isinstance(d, dict):
+        for k, v in d.items():
+            out.update(_numbers(v, f"{prefix}.{k}"))
+    elif isinstance(d, list):
+        for i, v in enumerate(d):
+            out.update(_numbers(v, f"{prefix}[{i}]"))
+    elif isinstance(d, (int, float)) or d is None:
+        out[prefix] = d
+    return out
+
+
+def _check_numbers_kept(exp_id: str, old: dict, new: dict) -> None:
+    """Every numeric (and boolean) leaf of ``old`` is in ``new`` unchanged, at its renamed
+    path; only ``claim_holds`` and a recomputed ``holds`` may differ."""
+    renames = RENAMED.get(exp_id, {})
+    kept = _numbers(new)
+    for path, value in _numbers(old).items():
+        top = path[1:].split(".")[0].split("[")[0]
+        if top in renames and isinstance(old[top], dict):
+            path = "." + renames[top] + path[1 + len(top) :]
+        elif top in DROPPED or top == "holds":
+            continue
+        if path not in kept or kept[path] != value:
+            raise RuntimeError(f"{exp_id}: {path} changed ({value!r} -> {kept.get(path)!r})")
+
+
+def migrate_file(path: Path, write: bool = True) -> tuple[bool, dict]:
+    """Migrate one ``result.json``; returns (whether it changed, report)."""
+    text = path.read_text()
+    result = json.loads(text)
+    exp = get(result["id"])
+    summary, report = migrate_summary(exp.id, result["settings"], result["summary"])
+    _check_numbers_kept(exp.id, result["summary"], summary)
+    typed = apply_overrides(exp.settings["quick"], result["settings"])
+    migrated = dict(result)
+    migrated["summary"] = summary
+    if "overrides" not in migrated:
+        keys = list(migrated)
+        at = keys.index("settings") + 1 if "settings" in keys else len(keys)
+        changed = to_jsonable(exp.overrides(result["scale"], typed))
+        migrated = dict(
+            [(k, migrated[k]) for k in keys[:at]]
+            + [("overrides", changed)]
+            + [(k, migrated[k]) for k in keys[at:]]
+        )
+    out = json.dumps(migrated, indent=1)
+    changed = out != text
+    if changed and write:
+        tmp = path.with_name(path.name + ".tmp")
+        tmp.write_text(out)
+        tmp.replace(path)
+    return changed, report
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("roots", nargs="*", default=["data/results"])
+    parser.add_argument("--check", action="store_true", help="only report; exit 1 if stale")
+    args = parser.parse_args(argv)
+    stale = 0
+    for root in args.roots:
+        for path in sorted(Path(root).rglob("result.json")):
+            changed, rep = migrate_file(path, write=not args.check)
+            stale += changed
+            flips = (
+                ""
+                if rep["old_claim_holds"] is None or rep["old_claim_holds"] == rep["holds"]
+                else f"  (claim_holds was {rep['old_claim_holds']})"
+            )
+            print(
+                f"{path.parent.name:<24} {'changed' if changed else 'up to date':<10} "
+                f"holds={rep['holds']}{flips}"
+                + (f"  renamed {rep['renamed']}" if rep["renamed"] else "")
+                + (f"  removed {rep['removed']}" if rep["removed"] else "")
+            )
+    return 1 if args.check and stale else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

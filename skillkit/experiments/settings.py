@@ -1,0 +1,227 @@
+"""Typed experiment settings: frozen dataclasses whose fields are documented and checked.
+
+Every experiment declares its settings as a frozen dataclass deriving from :class:`Settings`.
+Each field is declared with :func:`setting`, which records its default (the ``quick`` value)
+and a description (meaning, unit, thesis section) in the field's metadata, so the registry,
+the CLI (``skillkit settings ID``) and the contract tests can list them. The three scales of
+an experiment are instances of that class::
+
+    @dataclass(frozen=True)
+    class ThrowingSettings(Settings):
+        n_updates: int = setting(40, "policy updates per method (Table 3.1)")
+        epsilon: float = setting(0.6, "KL bound ε of REPS (Eq. 3.4, Sec. 3.4.1)")
+
+    QUICK = ThrowingSettings()
+    PAPER = dataclasses.replace(QUICK, n_updates=200)
+    SMOKE = dataclasses.replace(QUICK, n_updates=2)
+
+Constructing an instance (directly or with :func:`dataclasses.replace`) checks every value
+against the field's annotation and normalises it: lists become tuples (so instances are
+hashable and immutable), an ``int`` given for a ``float`` field becomes a ``float``, and a
+mapping given for a nested settings field updates that field's instance. Anything else — a
+string for an int, a float for an int, a bool for a number, a list with an element of the
+wrong type, a value outside a ``Literal`` — raises :class:`ValueError` naming the field and
+the expected type. :func:`apply_overrides` adds the check of the names.
+
+``dataclasses.asdict(settings)`` (:meth:`Settings.to_dict`) is what ``result.json`` stores
+and what checkpoint identities hash (tuples are written as JSON lists).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import types
+import typing
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any, Literal, Union
+
+import numpy as np
+
+__all__ = ["Settings", "apply_overrides", "describe", "setting", "type_name"]
+
+_DOC = "doc"
+
+
+def setting(default: Any, doc: str) -> Any:
+    """A settings field with its default and its description (meaning, unit, thesis section).
+
+    Parameters
+    ----------
+    default : any
+        The default value (by convention the ``quick`` scale's). Lists are given as tuples;
+        a nested :class:`Settings` default is an instance (frozen, so sharing it is safe).
+    doc : str
+        What the field means, its unit and the thesis section or equation it comes from.
+    """
+    if not isinstance(doc, str) or not doc.strip():
+        raise ValueError("doc: every settings field needs a description")
+    return field(default=default, metadata={_DOC: doc.strip()})
+
+
+def type_name(tp: Any) -> str:
+    """A readable name of a field type, as error messages and ``skillkit settings`` show it."""
+    origin, args = typing.get_origin(tp), typing.get_args(tp)
+    if origin is Literal:
+        return "one of " + ", ".join(repr(a) for a in args)
+    if origin is tuple:
+        if len(args) == 2 and args[1] is Ellipsis:
+            return f"list of {type_name(args[0])}"
+        return "list [" + ", ".join(type_name(a) for a in args) + "]"
+    if origin in (Union, types.UnionType):
+        return " or ".join(type_name(a) for a in args)
+    if tp is type(None):
+        return "null"
+    if isinstance(tp, type) and issubclass(tp, Settings):
+        return f"{tp.__name__} (a mapping of its fields)"
+    return getattr(tp, "__name__", str(tp))
+
+
+class _Mismatch(Exception):
+    """A value does not fit a type (internal; turned into a ValueError naming the field)."""
+
+
+def _coerce(value: Any, tp: Any, current: Any = None) -> Any:
+    """``value`` checked against ``tp`` and normalised (see the module docstring)."""
+    origin, args = typing.get_origin(tp), typing.get_args(tp)
+    if tp is Any:
+        return value
+    if tp is type(None):
+        if value is None:
+            return None
+        raise _Mismatch
+    if origin is Literal:
+        for a in args:
+            if type(value) is type(a) and value == a:
+                return value
+        raise _Mismatch
+    if origin in (Union, types.UnionType):
+        for a in args:
+            try:
+                return _coerce(value, a, current)
+            except (_Mismatch, ValueError):
+                continue
+        raise _Mismatch
+    if origin is tuple:
+        if isinstance(value, np.ndarray):
+            value = value.tolist()
+        if not isinstance(value, (list, tuple)):
+            raise _Mismatch
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(_coerce(v, args[0]) for v in value)
+        if len(value) != len(args):
+            raise _Mismatch
+        return tuple(_coerce(v, a) for v, a in zip(value, args, strict=True))
+    if tp is bool:
+        if isinstance(value, (bool, np.bool_)):
+            return bool(value)
+        raise _Mismatch
+    if tp is int:
+        if isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_)):
+            return int(value)
+        raise _Mismatch
+    if tp is float:
+        if isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(
+            value, (bool, np.bool_)
+        ):
+            return float(value)
+        raise _Mismatch
+    if tp is str:
+        if isinstance(value, str):
+            return value
+        raise _Mismatch
+    if isinstance(tp, type) and issubclass(tp, Settings):
+        if isinstance(value, tp):
+            return value
+        if isinstance(value, Mapping):
+            base = current if isinstance(current, tp) else tp()
+            return apply_overrides(base, dict(value))
+        raise _Mismatch
+    raise TypeError(f"settings: unsupported field type {tp!r}")
+
+
+@dataclass(frozen=True)
+class Settings:
+    """Base class of the experiments' settings (frozen dataclasses, see the module docstring).
+
+    Subclasses declare every field with :func:`setting`. Instances are immutable and
+    validated on construction; derive variants with :func:`dataclasses.replace` (validated
+    too) or, checking the names first, :func:`apply_overrides`.
+    """
+
+    def __post_init__(self) -> None:
+        hints = typing.get_type_hints(type(self))
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            try:
+                norm = _coerce(value, hints[f.name])
+            except _Mismatch:
+                raise ValueError(
+                    f"{f.name}: expected {type_name(hints[f.name])}, got {value!r} "
+                    f"({type(value).__name__}) in {type(self).__name__}"
+                ) from None
+            if norm is not value:
+                object.__setattr__(self, f.name, norm)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The settings as a plain dict (``dataclasses.asdict``; sequences stay tuples)."""
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def field_docs(cls) -> dict[str, str]:
+        """Field name → description, in declaration order."""
+        return {f.name: f.metadata.get(_DOC, "") for f in dataclasses.fields(cls)}
+
+
+def apply_overrides(settings: Settings, overrides: Mapping[str, Any]) -> Settings:
+    """``settings`` with some fields replaced, names and types checked.
+
+    Parameters
+    ----------
+    settings : Settings
+        The instance to start from (a scale of an experiment).
+    overrides : mapping
+        Field name → new value. A nested settings field also takes a mapping of some of its
+        own fields (the others keep their values).
+
+    Returns
+    -------
+    Settings
+        A new instance of the same class.
+
+    Raises
+    ------
+    ValueError
+        An unknown name (the message lists the valid ones) or a value of the wrong type (the
+        message names the field and the expected type).
+    """
+    if not isinstance(settings, Settings):
+        raise ValueError(f"settings: expected a Settings instance, got {type(settings).__name__}")
+    names = [f.name for f in dataclasses.fields(settings)]
+    unknown = sorted(set(overrides) - set(names))
+    if unknown:
+        raise ValueError(
+            f"{', '.join(unknown)}: not a setting of {type(settings).__name__} "
+            f"(settings: {', '.join(names)})"
+        )
+    hints = typing.get_type_hints(type(settings))
+    values = {}
+    for name, value in overrides.items():
+        try:
+            values[name] = _coerce(value, hints[name], getattr(settings, name))
+        except _Mismatch:
+            raise ValueError(
+                f"{name}: expected {type_name(hints[name])}, got {value!r} ({type(value).__name__})"
+            ) from None
+        except ValueError as exc:  # a field of a nested settings mapping
+            raise ValueError(f"{name}.{exc}") from None
+    return dataclasses.replace(settings, **values)
+
+
+def describe(cls: type[Settings]) -> list[tuple[str, str, str]]:
+    """``(name, type, description)`` of every field of a settings class, in order."""
+    hints = typing.get_type_hints(cls)
+    return [
+        (f.name, type_name(hints[f.name]), f.metadata.get(_DOC, ""))
+        for f in dataclasses.fields(cls)
+    ]

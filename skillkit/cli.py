@@ -51,7 +51,7 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
         # fail on an unknown id, setting name or type before running anything
         get(exp_id).settings_for(args.scale, **overrides)
     for exp_id in exp_ids:
-        folder = reproduce(
+        run = reproduce(
             exp_id,
             scale=args.scale,
             trials=args.trials,
@@ -65,10 +65,9 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
             html=not args.no_html,
             **overrides,
         )
-        summary = json.loads((folder / "result.json").read_text())["summary"]
         figures = "figure.png" if args.no_html else "figure.html, figure.png"
-        print(f"wrote {folder}/result.json, {figures}, trials.npz")
-        print(json.dumps(summary, indent=1))
+        print(f"wrote {run.path}/result.json, {figures}, trials.npz")
+        print(json.dumps(run.summary, indent=1))
     return 0
 
 
@@ -134,12 +133,12 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     from skillkit.experiments.runner import reproduce
 
     for exp_id in ("fig2.10", "sanity3"):
-        folder = reproduce(
+        run = reproduce(
             exp_id, scale="quick", seed=args.seed, out=args.out, progress=not args.quiet
         )
-        summary = json.loads((folder / "result.json").read_text())["summary"]
-        print(f"{exp_id}: wrote {folder}")
-        print(json.dumps(summary, indent=1))
+        print(f"{exp_id}: wrote {run.path}")
+        print(f"  {run.verdict}")
+        print(json.dumps(run.summary, indent=1))
     return 0
 
 

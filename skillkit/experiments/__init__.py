@@ -9,6 +9,8 @@ from skillkit.experiments.registry import (
     ids,
     register,
 )
+from skillkit.experiments.run import Run, load_run, stored_run
+from skillkit.experiments.runner import reproduce, run_trials
 from skillkit.experiments.settings import Settings, setting
 
 # Chapter modules register their experiments on import (one line per module).
@@ -24,11 +26,16 @@ from skillkit.experiments import ch5  # noqa: E402,F401  isort: skip
 __all__ = [
     "SCALES",
     "Experiment",
+    "Run",
     "Series",
     "Settings",
     "Verdict",
     "get",
     "ids",
+    "load_run",
     "register",
+    "reproduce",
+    "run_trials",
     "setting",
+    "stored_run",
 ]

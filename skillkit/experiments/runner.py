@@ -27,6 +27,7 @@ from tqdm.auto import tqdm
 
 from skillkit.experiments import checkpoint
 from skillkit.experiments.registry import get
+from skillkit.experiments.run import Run, load_run
 from skillkit.experiments.settings import Settings
 from skillkit.trial import TrialContext, Writer
 
@@ -368,11 +369,14 @@ def reproduce(
     fresh: bool = False,
     html: bool = True,
     **overrides,
-) -> Path:
+) -> Run:
     """Run an experiment, resuming from its checkpoints, and write its results.
 
     Writes ``result.json``, ``figure.html``, ``figure.png`` and ``trials.npz`` into
-    :func:`run_folder` (its own folder for a run with ``overrides``) and returns that folder.
+    :func:`run_folder` (its own folder for a run with ``overrides``) and returns the finished
+    :class:`~skillkit.experiments.run.Run`: its settings, series and summary (claim, verdict,
+    headline numbers), ``.figure()`` and ``.png()``; in Jupyter it shows itself as a card. It is
+    path-like (``run.path`` is the folder; ``os.fspath(run)`` and ``run / "result.json"`` work).
     ``fresh=True`` deletes earlier checkpoints of this run first; ``html=False`` skips the
     (4–5 MB, self-contained) HTML figure. Other arguments as in :func:`run_trials`; the
     overrides are checked before anything runs or is deleted.
@@ -410,4 +414,4 @@ def reproduce(
     tmp.write_text(json.dumps(result, indent=1))
     tmp.replace(folder / "result.json")
     write_figures(result, folder, html=html)
-    return folder
+    return load_run(folder)

@@ -76,3 +76,13 @@ def test_every_experiment_has_a_stored_paper_run():
     for exp_id in ids():
         run = stored_run(exp_id)
         assert run.id == exp_id and run.scale == "paper" and run.path.parent == root
+
+
+def test_reproduce_returns_the_run_it_wrote(tmp_path):
+    from skillkit.experiments import reproduce
+
+    run = reproduce("fig2.10", scale="smoke", out=tmp_path, progress=False, html=False)
+    assert isinstance(run, Run) and run.path == tmp_path / "fig2.10-smoke-s0"
+    assert run.result == load_run(run.path).result and run.holds is True
+    assert run.summary["claim"] in run._repr_markdown_()
+    assert len(run.figure().data) == len(run.series)

@@ -137,7 +137,7 @@ def test_runs_with_overrides_get_their_own_folder(toy, tmp_path):
     assert run_folder("toy1.1", "quick", 1, tmp_path, {"n": 7}) == other  # stable
     assert run_folder("toy1.1", "quick", 1, tmp_path, {"n": 8}) != other
     folder = reproduce("toy1.1", seed=1, out=tmp_path, progress=False, html=False, n=7)
-    assert folder == other and not standard.exists()
+    assert folder.path == other and not standard.exists()
     assert json.loads((folder / "result.json").read_text())["overrides"] == {"n": 7}
     with pytest.raises(ValueError, match="n: expected int"):
         reproduce("toy1.1", seed=1, out=tmp_path, progress=False, fresh=True, n="7")

@@ -953,3 +953,115 @@ def _column(x: np.ndarray, name: str) -> np.ndarray:
     if x.size == 0:
         raise ValueError(f"{name}: empty")
     return x
+
+
+# ------------------------------------------------------------------------ named curves
+def line_figure(
+    curves: Mapping,
+    *,
+    title: str = "",
+    xlabel: str = "",
+    ylabel: str = "",
+    log_y: bool = False,
+    backend: str = "plotly",
+):
+    """One panel of named curves, without building series by hand.
+
+    Parameters
+    ----------
+    curves : mapping of str to (x, y)
+        Legend label → a pair of 1-D arrays of equal length.
+    title, xlabel, ylabel : str
+    log_y : bool
+        Logarithmic y axis.
+    backend : {"plotly", "matplotlib"}
+
+    Returns
+    -------
+    plotly.graph_objects.Figure or NotebookFigure
+    """
+    from skillkit._validation import check_array
+    from skillkit.viz.series import Series
+
+    if not isinstance(curves, Mapping) or not curves:
+        raise ValueError("curves: expected a non-empty mapping of label to (x, y)")
+    series = []
+    for label, pair in curves.items():
+        if not (isinstance(pair, (tuple, list)) and len(pair) == 2):
+            raise ValueError(f"curves[{label!r}]: expected a pair (x, y)")
+        x = check_array(pair[0], f"curves[{label!r}] x", ndim=1)
+        y = check_array(pair[1], f"curves[{label!r}] y", shape=x.shape)
+        series.append(
+            Series(str(label), x.tolist(), y.tolist(), xlabel=xlabel, ylabel=ylabel, log_y=log_y)
+        )
+    return _draw({"title": title, "series": [s.to_dict() for s in series]}, backend)
+
+
+def prediction_figure(
+    predicted,
+    real,
+    dim: int = 0,
+    *,
+    label: str = "",
+    dt: float | None = None,
+    backend: str = "plotly",
+):
+    """Model-predicted against real trajectories of one state dimension, a panel per pair.
+
+    Parameters
+    ----------
+    predicted : ModelRollouts or array_like, shape (B, L, T + 1, n_x)
+        L predicted trajectories of each of B (ω, s) pairs
+        (:func:`skillkit.search.model_rollouts.predict_trajectories`).
+    real : sequence of Trajectory or array_like, shape (B, T_real, n_x)
+        The simulator's trajectories of the same pairs.
+    dim : int
+        State dimension to draw.
+    label : str
+        The y-axis label (e.g. ``"joint 1 angle [rad]"``).
+    dt : float, optional
+        Time step; the x axis is the step index when omitted.
+    backend : {"plotly", "matplotlib"}
+
+    Returns
+    -------
+    plotly.graph_objects.Figure or NotebookFigure
+        Per pair: the predicted mean with a 5th–95th percentile band over the L samples, and
+        the real trajectory.
+    """
+    from skillkit.viz.series import Series
+
+    states = np.asarray(getattr(predicted, "states", predicted), dtype=float)
+    if states.ndim != 4:
+        raise ValueError(f"predicted: expected shape (B, L, T + 1, n_x), got {states.shape}")
+    B, L, T1, n_x = states.shape
+    reals = [np.asarray(getattr(r, "states", r), dtype=float) for r in real]
+    if len(reals) != B:
+        raise ValueError(
+            f"real: expected {B} trajectories (one per predicted pair), got {len(reals)}"
+        )
+    if isinstance(dim, bool) or not isinstance(dim, (int, np.integer)) or not 0 <= dim < n_x:
+        raise ValueError(f"dim: expected an integer in [0, {n_x}), got {dim!r}")
+    step = 1.0 if dt is None else float(dt)
+    xlabel = "step" if dt is None else "t [s]"
+    series = []
+    for b in range(B):
+        x = (step * np.arange(T1)).tolist()
+        y = states[b, :, :, dim]
+        lo, hi = np.percentile(y, [5, 95], axis=0)
+        common = {"panel": f"pair {b + 1}", "xlabel": xlabel, "ylabel": label}
+        series.append(
+            Series(
+                "predicted mean",
+                x,
+                y.mean(axis=0).tolist(),
+                lower=lo.tolist(),
+                upper=hi.tolist(),
+                band=f"5th–95th percentile of {L} predicted trajectories",
+                **common,
+            )
+        )
+        r = reals[b]
+        n = min(len(r), T1)
+        series.append(Series("real", x[:n], r[:n, dim].tolist(), **common))
+    return _draw({"title": "predicted vs real", "series": [s.to_dict() for s in series]}, backend)

@@ -447,3 +447,32 @@ def test_log_bands_below_zero_are_drawn_to_the_panel_bottom():
     )
     band = next(t for t in plotly_figure(r).data if t.fill == "toself")
     assert min(band.y) == 2.0 and all(v > 0 for v in band.y)
+
+
+def test_line_figure_draws_named_curves_and_rejects_bad_pairs():
+    from skillkit.viz.plots import line_figure
+
+    fig = line_figure({"a": ([0, 1, 2], [1.0, 2.0, 3.0]), "b": ([0, 1], [0.0, 1.0])}, ylabel="y")
+    assert [t.name for t in fig.data] == ["a", "b"] and list(fig.data[0].y) == [1.0, 2.0, 3.0]
+    with pytest.raises(ValueError, match="curves"):
+        line_figure({})
+    with pytest.raises(ValueError, match=r"curves\['a'\] y"):
+        line_figure({"a": ([0, 1, 2], [1.0, 2.0])})
+
+
+def test_prediction_figure_band_is_the_sample_percentiles():
+    from skillkit.viz.plots import prediction_figure
+
+    rng = np.random.default_rng(0)
+    predicted = rng.standard_normal((2, 50, 6, 3))
+    real = [rng.standard_normal((6, 3)) for _ in range(2)]
+    fig = prediction_figure(predicted, real, dim=1, label="q")
+    means = [t for t in fig.data if t.name == "predicted mean"]
+    assert len(means) == 2
+    np.testing.assert_allclose(means[1].y, predicted[1, :, :, 1].mean(0))
+    reals = [t for t in fig.data if t.name == "real"]
+    np.testing.assert_allclose(reals[0].y, real[0][:, 1])
+    with pytest.raises(ValueError, match="real"):
+        prediction_figure(predicted, real[:1])
+    with pytest.raises(ValueError, match="dim"):
+        prediction_figure(predicted, real, dim=3)

@@ -1,0 +1,192 @@
+r"""Predicted rollouts of a task under a learned forward model: the *Predict Rewards* step of
+GPREPS (Table 4.1, Eqs. 4.1–4.3).
+
+For B (ω, s) pairs and L trajectories each, the start states come from the task's
+:meth:`~skillkit.tasks.base.Task.initial_states` (p(x₀; s), Eq. 4.3), the controls from the
+task's own batched :meth:`~skillkit.tasks.base.Task.controller` (the lower-level policy the
+simulator runs), the next states from :func:`~skillkit.models.sampling.sample_trajectories`,
+and the rewards from :meth:`~skillkit.tasks.base.Task.reward_batch`, the same definition that
+scores simulated trajectories. The expected reward of each pair is the average
+
+.. math:: \mathcal{R}_{s\omega} = \frac{1}{L} \sum_{l=1}^{L} R(\tau^{[l]}, s). \qquad (4.1)
+
+Only tasks whose reward is a function of the modelled states and controls are supported here
+(``supports_model_rollout``); tasks modelled by decomposed event models (hockey, table tennis,
+the ball of the throwing task) need those models to produce their reward signals.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from skillkit._validation import as_generator, check_array
+from skillkit.models.sampling import SampledTrajectories, StepModel, sample_trajectories
+from skillkit.tasks.base import Task
+
+__all__ = ["ModelRollouts", "predict_trajectories"]
+
+
+@dataclass(frozen=True)
+class ModelRollouts:
+    """L predicted trajectories for each of B (ω, s) pairs, scored by the task's reward.
+
+    Attributes
+    ----------
+    states : ndarray, shape (B, L, T + 1, n_x)
+        x₀ … x_T.
+    controls : ndarray, shape (B, L, T + 1, n_u)
+        u₀ … u_T: the controller's output at every predicted state (u_T at the last state, so
+        the arrays have the simulator's layout and :meth:`Task.reward_batch` scores them as it
+        scores a simulated trajectory).
+    rewards : ndarray, shape (B, L)
+        R(τ^{[l]}, s_b).
+    contexts : ndarray, shape (B, context_dim)
+    sampled : SampledTrajectories
+        The sampler's output (saturation and variance-clamping counts).
+    """
+
+    states: np.ndarray
+    controls: np.ndarray
+    rewards: np.ndarray
+    contexts: np.ndarray
+    sampled: SampledTrajectories
+
+    @property
+    def expected_rewards(self) -> np.ndarray:
+        """R̂_b = mean over the L trajectories of pair b (Eq. 4.1), shape (B,)."""
+        return self.rewards.mean(axis=1)
+
+    def __repr__(self) -> str:
+        B, L, T1, n_x = self.states.shape
+        r = self.expected_rewards
+        return (
+            f"ModelRollouts(pairs={B}, trajectories={L}, horizon={T1 - 1}, state_dim={n_x}, "
+            f"expected_reward={r.min():.4g}…{r.max():.4g}, "
+            f"saturated={self.sampled.n_saturated})"
+        )
+
+
+def predict_trajectories(
+    task: Task,
+    model: StepModel,
+    omegas,
+    contexts=None,
+    *,
+    horizon: int,
+    n_samples: int = 1,
+    rng=None,
+    x0=None,
+    control_limit=None,
+    device=None,
+    dtype: torch.dtype = torch.float64,
+) -> ModelRollouts:
+    """Sample L model trajectories for each (ω, s) pair and score them with the task's reward.
+
+    Parameters
+    ----------
+    task : Task
+        A task with ``supports_model_rollout`` (its controller and reward run on model states).
+    model : StepModel
+        A fitted forward model, e.g. :class:`~skillkit.models.gp.ForwardModel`, of the task's
+        ``model_signals()`` state and controls.
+    omegas : array_like, shape (B, parameter_dim)
+    contexts : array_like, shape (B, context_dim), optional
+        Omit for context-free tasks.
+    horizon : int
+        T, the number of predicted transitions (≥ 1).
+    n_samples : int
+        L, trajectories per pair (≥ 1).
+    rng : Generator, int or None
+        Randomness of the start states and the model noise.
+    x0 : array_like, shape (B, n_x) or (B, L, n_x), optional
+        Start states (default: L draws of ``task.initial_states(s_b, L, rng)`` per pair).
+    control_limit : float or array_like, optional
+        Passed to :func:`~skillkit.models.sampling.sample_trajectories`.
+    device, dtype
+        Where and in which precision to sample.
+
+    Returns
+    -------
+    ModelRollouts
+    """
+    if not isinstance(task, Task):
+        raise ValueError(f"task: expected a Task, got {type(task).__name__}")
+    if not task.supports_model_rollout:
+        raise NotImplementedError(
+            f"task: {task.name!r} has no step-based model rollouts: {task.no_model_rollout_reason}"
+        )
+    if task.model_signals().signals:
+        raise NotImplementedError(
+            f"task: {task.name!r}'s reward reads the signals {task.model_signals().signals}, "
+            "which a state forward model does not predict; use the task's decomposed models"
+        )
+    w = check_array(omegas, "omegas", ndim=2)
+    if w.shape[1] != task.parameter_dim:
+        raise ValueError(f"omegas: expected shape (B, {task.parameter_dim}), got {w.shape}")
+    B = w.shape[0]
+    if contexts is None:
+        if task.context_dim:
+            raise ValueError(f"contexts: task {task.name!r} needs contexts of shape ({B}, ...)")
+        s = np.zeros((B, 0))
+    else:
+        s = check_array(contexts, "contexts", shape=(B, task.context_dim))
+    if isinstance(horizon, bool) or not isinstance(horizon, (int, np.integer)) or horizon < 1:
+        raise ValueError(f"horizon: expected an integer ≥ 1, got {horizon!r}")
+    if isinstance(n_samples, bool) or not isinstance(n_samples, (int, np.integer)) or n_samples < 1:
+        raise ValueError(f"n_samples: expected an integer ≥ 1, got {n_samples!r}")
+    rng = as_generator(rng)
+    n_x = task.model_signals().state_dim
+    if x0 is None:
+        start = np.stack([task.initial_states(s_b, int(n_samples), rng) for s_b in s])
+    else:
+        start = np.asarray(x0, dtype=np.float64)
+        if start.shape not in ((B, n_x), (B, int(n_samples), n_x)):
+            raise ValueError(
+                f"x0: expected shape ({B}, {n_x}) or ({B}, {n_samples}, {n_x}), got {start.shape}"
+            )
+    policy = task.controller(w, s if task.context_dim else None, device=device, dtype=dtype)
+    sampled = sample_trajectories(
+        model,
+        start,
+        policy,
+        int(horizon),
+        int(n_samples),
+        rng,
+        control_limit=control_limit,
+        device=device,
+        dtype=dtype,
+    )
+    L = int(n_samples)
+    x_last = sampled.states[:, :, -1].reshape(B * L, n_x)
+    pair = torch.arange(B, device=x_last.device).repeat_interleave(L)
+    u_last = policy(int(horizon), x_last, pair).reshape(B, L, 1, -1)
+    if control_limit is not None:
+        limit = torch.as_tensor(control_limit, dtype=u_last.dtype, device=u_last.device)
+        u_last = torch.clamp(u_last, -limit, limit)
+    states = sampled.states.detach().cpu().numpy().astype(np.float64)
+    controls = torch.cat([sampled.controls, u_last], dim=2).detach().cpu().numpy()
+    controls = controls.astype(np.float64)
+    flat_s = np.repeat(s, L, axis=0)
+    rewards = np.asarray(
+        task.reward_batch(
+            states.reshape(B * L, horizon + 1, n_x),
+            controls.reshape(B * L, horizon + 1, -1),
+            {},
+            flat_s,
+        ),
+        dtype=np.float64,
+    ).reshape(B, L)
+    bad = ~np.isfinite(rewards)
+    if bad.any():
+        warnings.warn(
+            f"predict_trajectories: {int(bad.sum())} of {bad.size} predicted trajectories have a "
+            f"non-finite reward (the model diverged); set to {task.worst_reward:g}",
+            RuntimeWarning,
+            stacklevel=2,
+        )
+        rewards = np.where(bad, task.worst_reward, rewards)
+    return ModelRollouts(states, controls, rewards, s, sampled)

@@ -1,0 +1,57 @@
+"""The chapter notebooks as files: stored without outputs, one scale knob, every figure shown.
+
+(nbmake executes them as part of ``python -m pytest``; see pyproject.toml and conftest.py.)
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import pytest
+
+from skillkit.experiments import ids
+
+NOTEBOOKS = Path(__file__).resolve().parents[1] / "notebooks"
+CHAPTERS = ("ch2_preliminaries", "ch3_contextual_reps", "ch4_gpreps", "ch5_kernel_embeddings")
+
+
+def _load(name: str) -> dict:
+    return json.loads((NOTEBOOKS / f"{name}.ipynb").read_text())
+
+
+def _code(nb: dict) -> list[str]:
+    return ["".join(c["source"]) for c in nb["cells"] if c["cell_type"] == "code"]
+
+
+@pytest.mark.parametrize("path", sorted(NOTEBOOKS.glob("*.ipynb")), ids=lambda p: p.name)
+def test_stored_without_outputs_and_scaled_by_one_variable(path):
+    nb = json.loads(path.read_text())
+    for cell in nb["cells"]:
+        if cell["cell_type"] == "code":
+            assert cell["outputs"] == [] and cell["execution_count"] is None, path.name
+    code = "\n".join(_code(nb))
+    assert 'os.environ.get("SKILLKIT_SCALE", "quick")' in code
+    assert "matplotlib.use" not in code and "def " not in code and "class " not in code
+
+
+def test_every_chapter_exists_and_every_experiment_is_shown_stored_and_live():
+    shown_stored, shown_live = set(), set()
+    for name in CHAPTERS:
+        code = "\n".join(_code(_load(name)))
+        shown_stored |= set(re.findall(r'stored_run\("([^"]+)"\)', code))
+        shown_live |= set(re.findall(r'reproduce\("([^"]+)", scale=SCALE', code))
+    assert set(ids()) - {"sanity3"} <= shown_stored & shown_live
+
+
+def test_chapters_state_their_equations():
+    for name, eqs in {
+        "ch2_preliminaries": ("(2.21", "(2.23)", "(2.26, 2.27)"),
+        "ch3_contextual_reps": ("(3.7)", "(3.9)"),
+        "ch4_gpreps": ("(4.1)", "(4.3)"),
+        "ch5_kernel_embeddings": ("(5.7, 5.8)",),
+    }.items():
+        text = "\n".join("".join(c["source"]) for c in _load(name)["cells"])
+        for eq in eqs:
+            assert eq in text, (name, eq)

@@ -69,6 +69,10 @@ def reach_demonstration(
     return times, q[:, None], qd[:, None], qdd[:, None]
 
 
+FORCING_LABEL = "f [rad/s²]"
+"""Y label of the forcing-term panel: f enters q̈ = τ² α_x(…) + τ² f with a unitless τ, so it
+is an acceleration (rad/s²), like the fit target Y of Eq. 2.23."""
+
 CLAIM = (
     "A DMP with 10 basis functions fitted by least squares (Eq. 2.23) reproduces the "
     "demonstration (RMSE < 1% of its range) and ends at the goal g; without the forcing "
@@ -186,7 +190,7 @@ def _summarize(settings: DMPImitationSettings, trials: list[dict]) -> tuple[list
             y=np.asarray(tr["forcing_target"]).tolist(),
             panel="forcing term f(z)",
             xlabel="time [s]",
-            ylabel="f",
+            ylabel=FORCING_LABEL,
         ),
         Series(
             name="fitted f(z; v)",
@@ -194,7 +198,7 @@ def _summarize(settings: DMPImitationSettings, trials: list[dict]) -> tuple[list
             y=np.asarray(tr["forcing_fit"]).tolist(),
             panel="forcing term f(z)",
             xlabel="time [s]",
-            ylabel="f",
+            ylabel=FORCING_LABEL,
         ),
     ]
     demo_q = np.asarray(tr["demo_q"])

@@ -24,6 +24,11 @@ from skillkit.models.gp import ExactGP, GPNumericalWarning, robust_cholesky
 from skillkit.models.moment_matching import linearize, moment_match
 from skillkit.trial import TrialContext
 
+GP_BAND = "95% interval of y: GP mean ± 1.96 σ (noise included)"
+"""``Series.band`` of the GP fits of ``fig2.12`` and ``fig2.7``: the predictive mean ± 1.96
+predictive standard deviations of a noisy observation y (Eqs. 2.26–2.27 plus σ_n², from
+:meth:`~skillkit.models.gp.ExactGP.predict`), of one fitted GP (no trials involved)."""
+
 __all__ = [
     "DeterministicPredictionSettings",
     "GPRegressionSettings",
@@ -141,6 +146,7 @@ def _summarize_2_12(
                 r["mean"].tolist(),
                 lower=(r["mean"] - 1.96 * r["std"]).tolist(),
                 upper=(r["mean"] + 1.96 * r["std"]).tolist(),
+                band=GP_BAND,
                 **kw,
             )
         )
@@ -363,6 +369,7 @@ def _summarize_2_7(
             r["gp_mean"].tolist(),
             lower=(r["gp_mean"] - 1.96 * r["gp_std"]).tolist(),
             upper=(r["gp_mean"] + 1.96 * r["gp_std"]).tolist(),
+            band=GP_BAND,
             **model,
         ),
         Series(

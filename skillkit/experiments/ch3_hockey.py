@@ -52,7 +52,6 @@ from skillkit.experiments.registry import (
     Series,
     Verdict,
     fmt,
-    mean_band,
     register,
     with_verdict,
 )
@@ -60,6 +59,7 @@ from skillkit.experiments.settings import Settings, setting
 from skillkit.models.kernels import Linear
 from skillkit.tasks import make
 from skillkit.trial import TrialContext
+from skillkit.viz.series import trial_band
 
 __all__ = ["HockeySettings", "NormalisedLinear", "heldout_scores", "make_algorithm", "verdict"]
 
@@ -306,14 +306,13 @@ def _summarize(settings: HockeySettings, trials: list[dict]) -> tuple[list[Serie
     ]
     for name in ALGORITHMS:
         for key, xkey, panel, ylabel in panels:
-            y, lo, hi = mean_band(_stack(trials, f"{name}_{key}"))
+            y, band = trial_band(_stack(trials, f"{name}_{key}"))
             series.append(
                 Series(
                     name=LABELS[name],
                     x=np.asarray(trials[0][f"{name}_{xkey}"]).tolist(),
                     y=y,
-                    lower=lo,
-                    upper=hi,
+                    **band,
                     panel=panel,
                     xlabel="rollouts",
                     ylabel=ylabel,

@@ -24,13 +24,13 @@ from skillkit.experiments.registry import (
     Series,
     Verdict,
     fmt,
-    mean_band,
     register,
     with_verdict,
 )
 from skillkit.experiments.settings import Settings, setting
 from skillkit.policies.features import FeatureName
 from skillkit.trial import TrialContext
+from skillkit.viz.series import trial_band
 
 THESIS_GOOD_REWARD = -0.02
 """Sec. 3.4.3: above −0.02 the ball lands within 20–30 cm of the target."""
@@ -168,7 +168,7 @@ def summarize(settings: TableTennisSettings, trials: list[dict]) -> tuple[list[S
     fractions, and the headline numbers next to the thesis's claims."""
     x = np.asarray(trials[0]["rollouts"], dtype=float).tolist()
     curves = np.array([t["mean_reward"] for t in trials], dtype=float)
-    m, lo, hi = mean_band(curves)
+    m, band = trial_band(curves)
     panel, ylabel = "learning curve", "reward of the policy mean"
     series = [
         Series(
@@ -177,8 +177,7 @@ def summarize(settings: TableTennisSettings, trials: list[dict]) -> tuple[list[S
             m,
             panel,
             "line",
-            lo,
-            hi,
+            **band,
             xlabel="rollouts",
             ylabel=ylabel,
         )

@@ -31,7 +31,6 @@ from skillkit.experiments.registry import (
     Series,
     Verdict,
     fmt,
-    mean_band,
     register,
     with_verdict,
 )
@@ -42,6 +41,7 @@ from skillkit.search import ContextualREPS, learn
 from skillkit.search.loop import policy_history_arrays
 from skillkit.tasks import make
 from skillkit.trial import TrialContext
+from skillkit.viz.series import trial_band
 
 __all__ = ["ThrowingSettings", "run_trial", "summarize", "target_grid", "verdict"]
 
@@ -204,15 +204,14 @@ def summarize(settings: ThrowingSettings, trials: list[dict]) -> tuple[list[Seri
     summary: dict = {"n_trials": len(trials), "rollouts": int(x[-1])}
     for key, label in zip(("reps", "extra"), METHODS, strict=True):
         curves = np.array([t[f"{key}_mean_reward"] for t in trials], dtype=float)
-        m, lo, hi = mean_band(curves)
+        m, band = trial_band(curves)
         series.append(
             Series(
                 label,
                 x,
                 m,
                 panel="learning curves",
-                lower=lo,
-                upper=hi,
+                **band,
                 xlabel="rollouts",
                 ylabel="average reward of the policy mean",
             )

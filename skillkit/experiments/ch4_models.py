@@ -590,6 +590,10 @@ SCALES_4_5 = {
         n_predicted=20,
     ),
 }
+REWARD_ERROR_LABEL = "mean squared reward error [reward²]"
+"""Y label of ``fig4.5``: (predicted − real trajectory reward)², averaged over the test pairs
+(the balancing reward −(x̃ᵀQx̃ + r_u uᵀu) is unitless)."""
+
 _PANELS_4_5 = (
     ("additive_noise", "additive noise factor alpha"),
     ("n_opt_steps", "optimisation steps"),
@@ -708,7 +712,7 @@ def _summarize_4_5(settings: RewardErrorSettings, trials: list[dict]) -> tuple[l
                     panel=label,
                     kind="lines+markers",
                     xlabel=label,
-                    ylabel="mean squared reward error",
+                    ylabel=REWARD_ERROR_LABEL,
                     log_x=key == "additive_noise",
                     log_y=True,
                 )

@@ -52,7 +52,6 @@ from skillkit.experiments.registry import (
     Series,
     Verdict,
     fmt,
-    mean_band,
     register,
     with_verdict,
 )
@@ -74,6 +73,7 @@ from skillkit.tasks import make
 from skillkit.tasks.balancing import X_UP, feedback_policy, random_lqr_gains
 from skillkit.tasks.pendulum import THESIS_GAINS, feedback_torque, pendulum_dynamics
 from skillkit.trial import TrialContext
+from skillkit.viz.series import trial_band
 
 __all__ = ["embedding_expected_rewards"]
 
@@ -317,7 +317,9 @@ def _pendulum_verdict(label: str):
     return verdict
 
 
-def _pendulum_summary(key: str, label: str):
+def _pendulum_summary(key: str, label: str, unit: str):
+    """``summarize`` of a pendulum error map: ``label`` names the error (also in the summary),
+    ``unit`` its unit (in the panel titles)."""
     verdict = _pendulum_verdict(label)
 
     def summarize(settings: PendulumSettings, trials: list[dict]) -> tuple[list[Series], dict]:
@@ -331,7 +333,7 @@ def _pendulum_summary(key: str, label: str):
         t0 = trials[0]
         series: list[Series] = []
         for m, title in (("emb", "(a) kernel embedding"), ("gp", "(b) GP regression")):
-            panel = f"{title}: log10 {label}"
+            panel = f"{title}: log10 {label} ({label} in {unit})"
             series.append(
                 Series(
                     name=f"log10 {label}, {title[4:]}",
@@ -388,11 +390,22 @@ def _pendulum_summary(key: str, label: str):
     return summarize
 
 
-for _id, _key, _label, _multi, _what in (
-    ("fig5.3", "e_alpha", "e_α", False, "single-step prediction error of α"),
-    ("fig5.4", "e_alpha_dot", "e_α̇", False, "single-step prediction error of α̇"),
-    ("fig5.5", "e_traj", "Σ_t e_x_t", True, "20-step trajectory prediction error"),
-):
+PENDULUM_ERRORS = (
+    ("fig5.3", "e_alpha", "e_α", "rad²", False, "single-step prediction error of α"),
+    ("fig5.4", "e_alpha_dot", "e_α̇", "(rad/s)²", False, "single-step prediction error of α̇"),
+    (
+        "fig5.5",
+        "e_traj",
+        "Σ_t e_x_t",
+        "rad² + (rad/s)²",
+        True,
+        "20-step trajectory prediction error",
+    ),
+)
+"""Per pendulum id: error key, its symbol, its unit (squared errors of α in rad and α̇ in rad/s;
+fig5.5 sums both over the steps), multi-step, what it is."""
+
+for _id, _key, _label, _unit, _multi, _what in PENDULUM_ERRORS:
     register(
         Experiment(
             id=_id,
@@ -400,7 +413,7 @@ for _id, _key, _label, _multi, _what in (
             settings_class=PendulumSettings,
             settings=SCALES_PENDULUM,
             run_trial=(lambda m: lambda s, rng, trial: _pendulum_trial(s, rng, trial, m))(_multi),
-            summarize=_pendulum_summary(_key, _label),
+            summarize=_pendulum_summary(_key, _label, _unit),
             verdict=_pendulum_verdict(_label),
             trials={"smoke": 1, "quick": 1, "paper": 5},
             claim=_PENDULUM_CLAIM,
@@ -628,6 +641,11 @@ SCALES_5_7 = {
     ),
 }
 
+E_R_LABEL = "e_r = mean (R̂ − R)² [reward²]"
+"""Y label of ``fig5.6`` / ``fig5.7``: the squared error of the predicted expected trajectory
+reward R̂_i, averaged over the test controllers (the balancing reward −(x̃ᵀQx̃ + r_u uᵀu) is
+unitless, so e_r is in reward²)."""
+
 _METHODS = (
     ("gp", "GP sampling (M={gp_samples})"),
     ("step", "embedding, step-based (5.17)"),
@@ -765,18 +783,17 @@ def _reward_summary(xlabel: str, fig: str):
         }
         series = []
         for m, label in _METHODS:
-            y, lo, hi = mean_band(err[m])
+            y, band = trial_band(err[m])
             series.append(
                 Series(
                     name=label.format(gp_samples=settings.gp_samples),
                     x=x,
                     y=y,
-                    lower=lo,
-                    upper=hi,
+                    **band,
                     panel="reward prediction error",
                     kind="lines+markers",
                     xlabel=xlabel,
-                    ylabel="e_r",
+                    ylabel=E_R_LABEL,
                     log_y=True,
                 )
             )
@@ -789,7 +806,7 @@ def _reward_summary(xlabel: str, fig: str):
                 panel="reward prediction error",
                 kind="line",
                 xlabel=xlabel,
-                ylabel="e_r",
+                ylabel=E_R_LABEL,
                 log_y=True,
             )
         )

@@ -29,7 +29,6 @@ from skillkit.experiments.registry import (
     Experiment,
     Series,
     Verdict,
-    mean_band,
     register,
     with_verdict,
 )
@@ -43,6 +42,7 @@ from skillkit.search.rwr import RWR
 from skillkit.tasks.base import Task
 from skillkit.trajectory import Trajectory
 from skillkit.trial import TrialContext
+from skillkit.viz.series import trial_band
 
 #: The optimal offset a*, gain A* and the reward metric W of the problem.
 A_STAR_OFFSET = np.array([1.0, -0.5, 0.3])
@@ -202,41 +202,33 @@ def run_trial(settings: SanitySettings, rng: np.random.Generator, trial: TrialCo
     return out
 
 
-def _log_band(curves: np.ndarray) -> tuple[list, list, list]:
-    """Geometric mean and ×/÷ one geometric standard deviation over trials (for log axes)."""
-    m, lo, hi = mean_band(np.log10(curves))
-    return [10**v for v in m], [10**v for v in lo], [10**v for v in hi]
-
-
 def summarize(settings: SanitySettings, trials: list[dict]) -> tuple[list[Series], dict]:
     series: list[Series] = []
     summary: dict = {"threshold": settings.threshold, "trials": len(trials)}
     for name in ALGORITHMS:
         x = np.asarray(trials[0][f"{name}_rollouts"]).tolist()
         err = np.array([t[f"{name}_error"] for t in trials])
-        y, lo, hi = _log_band(err)
+        y, band = trial_band(err, kind="gstd")
         series.append(
             Series(
                 name,
                 x,
                 y,
                 panel="parameter error of the policy mean",
-                lower=lo,
-                upper=hi,
+                **band,
                 xlabel="rollouts",
                 ylabel="‖[a, A] − [a*, A*]‖_F",
                 log_y=True,
             )
         )
-        y, lo, hi = mean_band(np.array([t[f"{name}_mean_reward"] for t in trials]))
+        y, band = trial_band(np.array([t[f"{name}_mean_reward"] for t in trials]))
         series.append(
             Series(
                 name,
                 x,
                 y,
                 panel="reward of the policy mean",
-                lower=lo,
-                upper=hi,
+                **band,
                 xlabel="rollouts",
                 ylabel="average reward on 25 grid contexts",
             )

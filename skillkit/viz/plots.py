@@ -35,6 +35,7 @@ from matplotlib.figure import Figure
 _COLORS = ["#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#17becf"]
 _BAND_SWATCH = "#9e9e9e"
 _BACKENDS = ("plotly", "matplotlib")
+_LEGEND_INSIDE_MAX = 6  # legend entries drawn inside a matplotlib panel; more go below it
 
 #: A log-y panel whose values span more decades than this gets a robust axis range.
 MAX_DECADES = 10.0
@@ -600,7 +601,7 @@ def matplotlib_figure(result: dict):
     series = _check_result(result)
     panels = _layout(series)
     nrows, ncols = _grid(len(panels))
-    fig_w = 5.6 * ncols
+    fig_w = max(5.6 * ncols, 8.0)  # one panel: wide enough that the verdict wraps to few lines
     sub_fs = 8.5
     chars = int(fig_w * 72 / (0.6 * sub_fs))
     sub = subtitle(result, width=chars)
@@ -683,7 +684,17 @@ def matplotlib_figure(result: dict):
         if len(panel.bands) == 1:
             handles.append(Patch(color=_BAND_SWATCH, alpha=0.4, linewidth=0))
             labels.append(f"shaded: {panel.bands[0]}")
-        if handles:
+        if len(handles) > _LEGEND_INSIDE_MAX:  # a long legend would hide the data: below the axes
+            ax.legend(
+                handles,
+                labels,
+                fontsize=7,
+                loc="upper center",
+                bbox_to_anchor=(0.5, -0.16),
+                ncol=2,
+                frameon=False,
+            )
+        elif handles:
             ax.legend(handles, labels, fontsize=7)
     for k in range(len(panels), nrows * ncols):
         axes[k // ncols][k % ncols].axis("off")

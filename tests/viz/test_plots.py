@@ -14,11 +14,10 @@ import pytest
 from matplotlib.figure import Figure
 
 from skillkit.experiments.registry import Series
+from skillkit.viz.figures import plot_gp_fit, plot_learning
 from skillkit.viz.plots import (
     MAX_DECADES,
     matplotlib_figure,
-    plot_gp_fit,
-    plot_learning,
     plotly_figure,
     robust_range,
     subtitle,
@@ -450,7 +449,7 @@ def test_log_bands_below_zero_are_drawn_to_the_panel_bottom():
 
 
 def test_line_figure_draws_named_curves_and_rejects_bad_pairs():
-    from skillkit.viz.plots import line_figure
+    from skillkit.viz.figures import line_figure
 
     fig = line_figure({"a": ([0, 1, 2], [1.0, 2.0, 3.0]), "b": ([0, 1], [0.0, 1.0])}, ylabel="y")
     assert [t.name for t in fig.data] == ["a", "b"] and list(fig.data[0].y) == [1.0, 2.0, 3.0]
@@ -461,7 +460,7 @@ def test_line_figure_draws_named_curves_and_rejects_bad_pairs():
 
 
 def test_prediction_figure_band_is_the_sample_percentiles():
-    from skillkit.viz.plots import prediction_figure
+    from skillkit.viz.figures import prediction_figure
 
     rng = np.random.default_rng(0)
     predicted = rng.standard_normal((2, 50, 6, 3))

@@ -1,0 +1,345 @@
+"""Figures from live objects, without building series by hand: a learning run
+(:func:`plot_learning`), a 1-D GP fit (:func:`plot_gp_fit`), named curves
+(:func:`line_figure`) and model-predicted against real trajectories (:func:`prediction_figure`).
+
+Each builds :class:`~skillkit.viz.series.Series` and draws them with the same code as the
+experiment figures (:mod:`skillkit.viz.plots`), returning a plotly ``Figure`` or a
+:class:`~skillkit.viz.plots.NotebookFigure` (``backend="matplotlib"``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+from skillkit.viz.plots import _BACKENDS, _draw
+
+__all__ = ["line_figure", "plot_gp_fit", "plot_learning", "prediction_figure"]
+
+
+# ------------------------------------------------------------------------ learning curves
+_LEARN_KEYS = ("rollouts", "mean_reward", "explore_rollouts", "explore_reward")
+
+
+def plot_learning(
+    runs,
+    *,
+    label: str = "policy mean",
+    backend: str = "plotly",
+    explore: bool = True,
+    title: str = "learning curve",
+    ylabel: str = "reward",
+):
+    """Learning curves of :func:`skillkit.search.loop.learn` results, without building dicts.
+
+    Parameters
+    ----------
+    runs : dict, sequence of dicts, or mapping of str to either
+        One ``learn`` result; several runs of the same setting (drawn as their mean with a
+        mean ± std band over runs; all runs must share the rollout grid); or a mapping
+        ``{label: result or runs}`` to compare settings in one figure.
+    label : str
+        Legend name when ``runs`` is not a mapping.
+    backend : {"plotly", "matplotlib"}
+        Which figure object to return.
+    explore : bool
+        Also draw the average reward of the exploratory rollouts of each batch
+        (``explore_reward`` at ``explore_rollouts``), as markers.
+    title, ylabel : str
+        Figure title and y-axis label.
+
+    Returns
+    -------
+    plotly.graph_objects.Figure or NotebookFigure
+        One panel: reward of the policy mean (evaluated on the evaluation contexts) against
+        the number of rollouts so far.
+    """
+    from skillkit.viz.series import Series, mean_band
+
+    if backend not in _BACKENDS:
+        raise ValueError(f"backend: expected one of {_BACKENDS}, got {backend!r}")
+    if isinstance(runs, Mapping) and "rollouts" not in runs:
+        if not runs:
+            raise ValueError("runs: empty mapping")
+        groups = {str(k): v for k, v in runs.items()}
+    else:
+        groups = {label: runs}
+    series, groups_of = [], []
+    for name, group in groups.items():
+        group_runs = [group] if isinstance(group, Mapping) else group
+        if not isinstance(group_runs, Sequence) or isinstance(group_runs, str) or not group_runs:
+            raise ValueError(
+                f"runs: expected a learn() result dict or a non-empty list of them for "
+                f"{name!r}, got {type(group).__name__}"
+            )
+        curves = [_check_learn(r, f"runs[{name!r}]") for r in group_runs]
+        x, ex = curves[0]["rollouts"], curves[0]["explore_rollouts"]
+        for c in curves[1:]:
+            if not (np.array_equal(c["rollouts"], x) and np.array_equal(c["explore_rollouts"], ex)):
+                raise ValueError(
+                    f"runs: the runs of {name!r} have different rollout grids; "
+                    "pass runs of the same setting (or a mapping of separate labels)"
+                )
+        n = len(curves)
+        common = {"panel": "", "xlabel": "rollouts", "ylabel": ylabel}
+        groups_of.append(name)
+        if n == 1:
+            series.append(Series(name, x.tolist(), curves[0]["mean_reward"].tolist(), **common))
+        else:
+            m, lo, hi = mean_band(np.stack([c["mean_reward"] for c in curves]))
+            series.append(
+                Series(
+                    f"{name} (mean of {n} runs)",
+                    x.tolist(),
+                    m,
+                    lower=lo,
+                    upper=hi,
+                    band=f"mean ± std over {n} runs",
+                    **common,
+                )
+            )
+        if explore and ex.size:
+            groups_of.append(name)
+            ey = np.mean(np.stack([c["explore_reward"] for c in curves]), axis=0)
+            series.append(
+                Series(
+                    f"{name}: exploration batches" + (" (mean over runs)" if n > 1 else ""),
+                    ex.tolist(),
+                    ey.tolist(),
+                    kind="markers",
+                    **common,
+                )
+            )
+    # a run's exploration markers take the colour of its curve
+    dicts = [{**s.to_dict(), "_group": g} for s, g in zip(series, groups_of, strict=True)]
+    return _draw({"title": title, "series": dicts}, backend)
+
+
+def _check_learn(r, name: str) -> dict[str, np.ndarray]:
+    if not isinstance(r, Mapping):
+        raise ValueError(f"{name}: expected a learn() result dict, got {type(r).__name__}")
+    missing = [k for k in _LEARN_KEYS if k not in r]
+    if missing:
+        raise ValueError(f"{name}: not a learn() result, missing keys {missing}")
+    out = {k: np.asarray(r[k], dtype=float).ravel() for k in _LEARN_KEYS}
+    for a, b in (("rollouts", "mean_reward"), ("explore_rollouts", "explore_reward")):
+        if out[a].shape != out[b].shape:
+            raise ValueError(
+                f"{name}: {a} and {b} differ in length ({out[a].size} vs {out[b].size})"
+            )
+    if out["rollouts"].size == 0:
+        raise ValueError(f"{name}: empty learning curve")
+    return out
+
+
+# ----------------------------------------------------------------------------- GP fits
+def plot_gp_fit(
+    model,
+    x_train,
+    y_train,
+    x_test,
+    *,
+    backend: str = "plotly",
+    include_noise: bool = True,
+    f_true=None,
+    label: str = "GP",
+    title: str = "GP regression",
+    xlabel: str = "x",
+    ylabel: str = "y",
+):
+    """A fitted 1-D GP regression: predictive mean, 95% band and the training data.
+
+    Parameters
+    ----------
+    model : fitted GP regression
+        Anything with ``predict(X, include_noise) -> (mean, var)`` as
+        :meth:`skillkit.models.gp.ExactGP.predict` (Eqs 2.26–2.27), fitted on 1-D inputs and
+        one output.
+    x_train : array_like, shape (N,) or (N, 1)
+    y_train : array_like, shape (N,)
+        The data the model was fitted on (drawn as points).
+    x_test : array_like, shape (n,) or (n, 1)
+        Where to draw mean and band (sorted for drawing), n ≥ 2.
+    backend : {"plotly", "matplotlib"}
+    include_noise : bool
+        Band of y = f(x) + ε (True, default) or of the latent f (False).
+    f_true : callable, optional
+        The true function, drawn at ``x_test`` for comparison.
+    label, title, xlabel, ylabel : str
+        Legend name of the mean, figure title, axis labels (give units).
+
+    Returns
+    -------
+    plotly.graph_objects.Figure or NotebookFigure
+        Traces: the mean with its band (mean ± 1.96 σ), the data points, and ``f_true``.
+    """
+    from skillkit._validation import check_array
+    from skillkit.viz.series import Series
+
+    if backend not in _BACKENDS:
+        raise ValueError(f"backend: expected one of {_BACKENDS}, got {backend!r}")
+    if not callable(getattr(model, "predict", None)):
+        raise ValueError(
+            "model: expected a fitted GP with predict(X, include_noise), "
+            f"got {type(model).__name__}"
+        )
+    xtr = _column(check_array(x_train, "x_train", ndim=(1, 2)), "x_train")
+    ytr = check_array(y_train, "y_train", ndim=(1, 2))
+    if ytr.ndim == 2 and ytr.shape[1] != 1:
+        raise ValueError(f"y_train: expected one output, got shape {ytr.shape}")
+    ytr = ytr.ravel()
+    if ytr.size != xtr.size:
+        raise ValueError(f"y_train: expected {xtr.size} values (one per x_train), got {ytr.size}")
+    xte = np.sort(_column(check_array(x_test, "x_test", ndim=(1, 2)), "x_test"))
+    if xte.size < 2:
+        raise ValueError(f"x_test: expected at least 2 points, got {xte.size}")
+    mean, var = model.predict(xte[:, None], include_noise=include_noise)
+    mean, var = np.asarray(mean, dtype=float), np.asarray(var, dtype=float)
+    if mean.ndim == 2 and mean.shape[1] == 1:
+        mean, var = mean[:, 0], var[:, 0]
+    if mean.shape != xte.shape:
+        raise ValueError(
+            f"model: expected one output (predictions of shape ({xte.size},)), got {mean.shape}"
+        )
+    half = 1.96 * np.sqrt(np.maximum(var, 0.0))
+    common = {"panel": "", "xlabel": xlabel, "ylabel": ylabel}
+    series = [
+        Series(
+            f"{label} mean",
+            xte.tolist(),
+            mean.tolist(),
+            lower=(mean - half).tolist(),
+            upper=(mean + half).tolist(),
+            band=f"95% band of {'y' if include_noise else 'f'} (mean ± 1.96 σ)",
+            **common,
+        ),
+        Series("data", xtr.tolist(), ytr.tolist(), kind="markers", **common),
+    ]
+    if f_true is not None:
+        series.append(
+            Series("true function", xte.tolist(), np.asarray(f_true(xte), float).tolist(), **common)
+        )
+    return _draw({"title": title, "series": [s.to_dict() for s in series]}, backend)
+
+
+def _column(x: np.ndarray, name: str) -> np.ndarray:
+    if x.ndim == 2:
+        if x.shape[1] != 1:
+            raise ValueError(f"{name}: expected 1-D inputs, shape (n,) or (n, 1), got {x.shape}")
+        x = x[:, 0]
+    if x.size == 0:
+        raise ValueError(f"{name}: empty")
+    return x
+
+
+# ------------------------------------------------------------------------ named curves
+def line_figure(
+    curves: Mapping,
+    *,
+    title: str = "",
+    xlabel: str = "",
+    ylabel: str = "",
+    log_y: bool = False,
+    backend: str = "plotly",
+):
+    """One panel of named curves, without building series by hand.
+
+    Parameters
+    ----------
+    curves : mapping of str to (x, y)
+        Legend label → a pair of 1-D arrays of equal length.
+    title, xlabel, ylabel : str
+    log_y : bool
+        Logarithmic y axis.
+    backend : {"plotly", "matplotlib"}
+
+    Returns
+    -------
+    plotly.graph_objects.Figure or NotebookFigure
+    """
+    from skillkit._validation import check_array
+    from skillkit.viz.series import Series
+
+    if not isinstance(curves, Mapping) or not curves:
+        raise ValueError("curves: expected a non-empty mapping of label to (x, y)")
+    series = []
+    for label, pair in curves.items():
+        if not (isinstance(pair, (tuple, list)) and len(pair) == 2):
+            raise ValueError(f"curves[{label!r}]: expected a pair (x, y)")
+        x = check_array(pair[0], f"curves[{label!r}] x", ndim=1)
+        y = check_array(pair[1], f"curves[{label!r}] y", shape=x.shape)
+        series.append(
+            Series(str(label), x.tolist(), y.tolist(), xlabel=xlabel, ylabel=ylabel, log_y=log_y)
+        )
+    return _draw({"title": title, "series": [s.to_dict() for s in series]}, backend)
+
+
+def prediction_figure(
+    predicted,
+    real,
+    dim: int = 0,
+    *,
+    label: str = "",
+    dt: float | None = None,
+    backend: str = "plotly",
+):
+    """Model-predicted against real trajectories of one state dimension, a panel per pair.
+
+    Parameters
+    ----------
+    predicted : ModelRollouts or array_like, shape (B, L, T + 1, n_x)
+        L predicted trajectories of each of B (ω, s) pairs
+        (:func:`skillkit.search.model_rollouts.predict_trajectories`).
+    real : sequence of Trajectory or array_like, shape (B, T_real, n_x)
+        The simulator's trajectories of the same pairs.
+    dim : int
+        State dimension to draw.
+    label : str
+        The y-axis label (e.g. ``"joint 1 angle [rad]"``).
+    dt : float, optional
+        Time step; the x axis is the step index when omitted.
+    backend : {"plotly", "matplotlib"}
+
+    Returns
+    -------
+    plotly.graph_objects.Figure or NotebookFigure
+        Per pair: the predicted mean with a 5th–95th percentile band over the L samples, and
+        the real trajectory.
+    """
+    from skillkit.viz.series import Series
+
+    states = np.asarray(getattr(predicted, "states", predicted), dtype=float)
+    if states.ndim != 4:
+        raise ValueError(f"predicted: expected shape (B, L, T + 1, n_x), got {states.shape}")
+    B, L, T1, n_x = states.shape
+    reals = [np.asarray(getattr(r, "states", r), dtype=float) for r in real]
+    if len(reals) != B:
+        raise ValueError(
+            f"real: expected {B} trajectories (one per predicted pair), got {len(reals)}"
+        )
+    if isinstance(dim, bool) or not isinstance(dim, (int, np.integer)) or not 0 <= dim < n_x:
+        raise ValueError(f"dim: expected an integer in [0, {n_x}), got {dim!r}")
+    step = 1.0 if dt is None else float(dt)
+    xlabel = "step" if dt is None else "t [s]"
+    series = []
+    for b in range(B):
+        x = (step * np.arange(T1)).tolist()
+        y = states[b, :, :, dim]
+        lo, hi = np.percentile(y, [5, 95], axis=0)
+        common = {"panel": f"pair {b + 1}", "xlabel": xlabel, "ylabel": label}
+        series.append(
+            Series(
+                "predicted mean",
+                x,
+                y.mean(axis=0).tolist(),
+                lower=lo.tolist(),
+                upper=hi.tolist(),
+                band=f"5th–95th percentile of {L} predicted trajectories",
+                **common,
+            )
+        )
+        r = reals[b]
+        n = min(len(r), T1)
+        series.append(Series("real", x[:n], r[:n, dim].tolist(), **common))
+    return _draw({"title": "predicted vs real", "series": [s.to_dict() for s in series]}, backend)

@@ -288,9 +288,10 @@ def prediction_figure(
 
     Parameters
     ----------
-    predicted : ModelRollouts or array_like, shape (B, L, T + 1, n_x)
+    predicted : ModelRollouts or array_like, shape (B, L, T + 1, n_x) or (B, T + 1, n_x)
         L predicted trajectories of each of B (ω, s) pairs
-        (:func:`skillkit.search.model_rollouts.predict_trajectories`).
+        (:func:`skillkit.search.model_rollouts.predict_trajectories`), or one deterministic
+        prediction per pair (e.g. an embedding's mean trajectory), drawn without a band.
     real : sequence of Trajectory or array_like, shape (B, T_real, n_x)
         The simulator's trajectories of the same pairs.
     dim : int
@@ -310,8 +311,12 @@ def prediction_figure(
     from skillkit.viz.series import Series
 
     states = np.asarray(getattr(predicted, "states", predicted), dtype=float)
+    if states.ndim == 3:  # one deterministic prediction per pair (e.g. an embedding's means)
+        states = states[:, None]
     if states.ndim != 4:
-        raise ValueError(f"predicted: expected shape (B, L, T + 1, n_x), got {states.shape}")
+        raise ValueError(
+            f"predicted: expected shape (B, L, T + 1, n_x) or (B, T + 1, n_x), got {states.shape}"
+        )
     B, L, T1, n_x = states.shape
     reals = [np.asarray(getattr(r, "states", r), dtype=float) for r in real]
     if len(reals) != B:
@@ -326,19 +331,16 @@ def prediction_figure(
     for b in range(B):
         x = (step * np.arange(T1)).tolist()
         y = states[b, :, :, dim]
-        lo, hi = np.percentile(y, [5, 95], axis=0)
         common = {"panel": f"pair {b + 1}", "xlabel": xlabel, "ylabel": label}
-        series.append(
-            Series(
-                "predicted mean",
-                x,
-                y.mean(axis=0).tolist(),
-                lower=lo.tolist(),
-                upper=hi.tolist(),
-                band=f"5th–95th percentile of {L} predicted trajectories",
-                **common,
-            )
-        )
+        band = {}
+        if L > 1:
+            lo, hi = np.percentile(y, [5, 95], axis=0)
+            band = {
+                "lower": lo.tolist(),
+                "upper": hi.tolist(),
+                "band": f"5th–95th percentile of {L} predicted trajectories",
+            }
+        series.append(Series("predicted mean", x, y.mean(axis=0).tolist(), **band, **common))
         r = reals[b]
         n = min(len(r), T1)
         series.append(Series("real", x[:n], r[:n, dim].tolist(), **common))

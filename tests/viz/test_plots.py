@@ -475,3 +475,13 @@ def test_prediction_figure_band_is_the_sample_percentiles():
         prediction_figure(predicted, real[:1])
     with pytest.raises(ValueError, match="dim"):
         prediction_figure(predicted, real, dim=3)
+
+
+def test_prediction_figure_takes_one_deterministic_prediction_per_pair():
+    from skillkit.viz.figures import prediction_figure
+
+    predicted = np.arange(2 * 5 * 2, dtype=float).reshape(2, 5, 2)
+    fig = prediction_figure(predicted, [np.zeros((5, 2))] * 2, dim=1)
+    means = [t for t in fig.data if t.name == "predicted mean"]
+    np.testing.assert_array_equal(means[0].y, predicted[0, :, 1])
+    assert not any(t.fill for t in fig.data)  # no band from a single prediction

@@ -381,7 +381,7 @@ def learn(
 
 def policy_history_arrays(policies) -> dict[str, np.ndarray]:
     """The ``policy_*`` arrays of a learning run's policies (linear-Gaussian ones), the format
-    :func:`skillkit.viz.viewer.load_policy_history` reads from a run folder's ``trials.npz``.
+    :func:`skillkit.viz.history.load_policy_history` reads from a run folder's ``trials.npz``.
 
     Parameters
     ----------

@@ -34,6 +34,7 @@ from pathlib import Path
 from skillkit.experiments.ch2 import FORCING_LABEL
 from skillkit.experiments.ch2_gp import GP_BAND
 from skillkit.experiments.ch4_models import REWARD_ERROR_LABEL
+from skillkit.experiments.ch4_stochastic import ERROR_PANEL
 from skillkit.experiments.ch5 import E_R_LABEL, PENDULUM_ERRORS
 from skillkit.viz.series import Series, band_text
 
@@ -48,6 +49,7 @@ TRIAL_BANDS: dict[str, dict[str, str]] = {
         "displacement error |d_T − d*| (held-out)": "std",
     },
     "fig3.7": {"learning curve": "std"},
+    "fig4.8": {ERROR_PANEL: "std"},
     "fig5.6": {"reward prediction error": "std"},
     "fig5.7": {"reward prediction error": "std"},
 }

@@ -1,0 +1,433 @@
+"""Chapter 4, learning with stochastic dynamics (Sec. 4.3.2.2, Fig. 4.8).
+
+``fig4.8`` — one context–parameter pair (s, ω) of the stochastic single-link pendulum
+(:func:`skillkit.tasks.pendulum.pendulum_stochastic`: torque noise σ_u = 1.5, T = 30; the
+context is the start state s = [α₀, α̇₀], ω the feedback gains K of u = Kᵀx) rolled out many
+times on the real (simulated) system. Fig. 4.8 shows the sampled trajectories and the
+distribution of the trajectory reward R(τ, s) = Σ_t r(x_t) with its mean, the expected reward
+R_sω = E[R(τ, s)]. The point of the figure (Sec. 4.3.2.2): under stochastic dynamics the
+reward of one rollout varies widely, so model-free REPS, which sees one rollout per (s, ω),
+scores each pair with a noisy estimate of R_sω and its dual (Eq. 3.9) is biased; GPREPS
+averages L trajectories sampled from a learned forward model (Eq. 4.1).
+
+One trial:
+
+1. ``n_real`` rollouts of the pair on the real system: their rewards give the Monte Carlo
+   expected reward R_MC (with its standard error, the noise floor of every comparison
+   below) and the spread of single-rollout rewards; a few trajectories are kept for the
+   figure.
+2. A GP forward model (:class:`~skillkit.models.gp.ForwardModel` on an
+   :class:`~skillkit.models.gp.ExactGP`, Δx targets) is fitted on the transitions of
+   ``n_train`` real rollouts of *other* pairs near (s, ω): contexts uniform within
+   ``train_context_halfwidth`` of s, gains ω ~ N(K, diag(``train_gain_std``²)) (the task's
+   initial policy around the thesis gains), as GPREPS's model is fitted on the rollouts of
+   its current policy, not on repetitions of the pair it evaluates. The model input is the
+   *commanded* torque u_t = clip(Kᵀx_t, −3, 3), the output of the task's controller that
+   model rollouts run (:meth:`~skillkit.tasks.pendulum.Pendulum.controller`): the torque
+   noise then is part of the stochastic dynamics the GP learns. (The trajectories record
+   the applied, noisy torque; with it as input the transition would be deterministic and
+   the model's rollouts would lose the noise.)
+3. ``n_model`` model trajectories of the pair
+   (:func:`~skillkit.search.model_rollouts.predict_trajectories`): the model's reward
+   distribution and expected reward against R_MC; and, for each L in ``sample_sizes``, the
+   root-mean-square error against R_MC of the average of L model trajectories (Eq. 4.1;
+   non-overlapping blocks of the n_model trajectories) beside that of the average of L real
+   rollouts (L = 1: the single rollout model-free REPS scores a pair with). The real
+   averages are scored against R_MC of the same rollouts, which makes their RMSE slightly
+   optimistic at large L (few blocks); the model's are independent of R_MC.
+
+The verdict's criterion, fixed before the first run: single-rollout std / |R_MC| ≥ 0.1
+(:data:`SPREAD_THRESHOLD`, "considerably large"; the thesis quotes about 10% for its
+stochastic throwing task) and the RMSE of the L_max-trajectory model average at most half
+that of one real rollout (:data:`ERROR_FACTOR`). The noise floor of every comparison with
+R_MC is its standard error, reported beside it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+import torch
+
+from skillkit.experiments.registry import Experiment, Series, Verdict, fmt, register, with_verdict
+from skillkit.experiments.settings import Settings, setting
+from skillkit.models.gp import ExactGP, ForwardModel
+from skillkit.search.model_rollouts import predict_trajectories
+from skillkit.tasks import make
+from skillkit.tasks.pendulum import THESIS_GAINS, Pendulum
+from skillkit.trial import TrialContext
+from skillkit.viz.series import trial_band
+
+__all__ = [
+    "StochasticRewardSettings",
+    "block_rmse",
+    "commanded_transitions",
+    "verdict",
+]
+
+CLAIM = (
+    "Under stochastic dynamics the reward of single rollouts of one context–parameter pair "
+    "varies considerably, so one rollout (what model-free REPS evaluates) is a noisy estimate "
+    "of the expected reward R_sω, while averaging L trajectories sampled from a learned model "
+    "(Eq. 4.1, GPREPS) estimates R_sω (Sec. 4.3.2.2, Fig. 4.8)."
+)
+
+SPREAD_THRESHOLD = 0.1
+"""Smallest single-rollout std / |R_sω| that counts as a "considerably large" spread (the
+thesis's stochastic throwing task has about 10%, Sec. 4.3.2.2)."""
+ERROR_FACTOR = 0.5
+"""The L_max-trajectory model average must have at most this fraction of the single-rollout
+RMSE (at least twice as accurate as the estimate model-free REPS uses)."""
+
+REWARD_LABEL = "trajectory reward R(τ, s) = −Σ_t (α_t² + 0.1 α̇_t²)"
+ERROR_LABEL = "RMSE of the estimate of R_sω"
+HIST_PANEL = "reward distribution"
+REAL = "real rollouts"
+MODEL = "GP model trajectories"
+ERROR_PANEL = "error of the L-trajectory average"
+
+
+@dataclass(frozen=True)
+class StochasticRewardSettings(Settings):
+    """Settings of ``fig4.8`` (Sec. 4.3.2.2, Fig. 4.8; the stochastic pendulum)."""
+
+    context: tuple[float, float] = setting(
+        (float(np.pi / 2), 0.0),
+        "The context s = [α₀, α̇₀] of the evaluated pair (rad, rad/s): the pendulum starts "
+        "horizontal at rest (the thesis does not give its start state).",
+    )
+    gains: tuple[float, float] = setting(
+        tuple(float(g) for g in THESIS_GAINS),
+        "The parameters ω = K of the evaluated pair, u = Kᵀx (thesis gains, Sec. 5.4).",
+    )
+    control_noise: float = setting(
+        1.5, "Std σ_u of the torque noise (N m; the pendulum-stochastic task's value)."
+    )
+    horizon: int = setting(30, "Control steps T of every trajectory (Δt = 0.1 s).")
+    n_real: int = setting(
+        400, "Real rollouts of the pair: the Monte Carlo estimate of R_sω and the histogram."
+    )
+    n_shown: int = setting(20, "Real and model trajectories drawn in the left panels.")
+    n_train: int = setting(
+        20, "Real rollouts of nearby pairs whose transitions train the GP model (T each)."
+    )
+    train_context_halfwidth: tuple[float, float] = setting(
+        (0.5, 1.0),
+        "Half-widths of the uniform context box around s of the training rollouts "
+        "(rad, rad/s; clipped to the task's context range).",
+    )
+    train_gain_std: tuple[float, float] = setting(
+        (0.5, 0.25),
+        "Std of the training gains ω ~ N(K, diag(std²)) (the task's initial policy).",
+    )
+    n_model: int = setting(
+        2000, "Model trajectories of the pair: split into blocks of L for the L-averages."
+    )
+    sample_sizes: tuple[int, ...] = setting(
+        (1, 5, 25, 100), "Numbers L of trajectories averaged (Eq. 4.1), increasing."
+    )
+    n_bins: int = setting(30, "Bins of the reward histograms.")
+    n_opt_steps: int = setting(100, "Hyper-parameter optimisation steps (L-BFGS) of the GP.")
+    additive_noise: float = setting(
+        1.0, "Additive-noise factor α of the GP: σ_add = α 10⁻² std(y) (Sec. 4.2.3)."
+    )
+
+
+QUICK = StochasticRewardSettings()
+SCALES = {
+    "smoke": replace(
+        QUICK,
+        horizon=10,
+        n_real=60,
+        n_shown=5,
+        n_train=4,
+        n_model=100,
+        sample_sizes=(1, 5, 20),
+        n_bins=10,
+        n_opt_steps=5,
+    ),
+    "quick": QUICK,
+    "paper": replace(QUICK, n_real=1000, n_train=30, n_model=5000, n_opt_steps=150),
+}
+
+
+def _check(settings: StochasticRewardSettings) -> None:
+    sizes = settings.sample_sizes
+    if not sizes or min(sizes) < 1 or list(sizes) != sorted(set(sizes)):
+        raise ValueError(f"sample_sizes: expected increasing integers ≥ 1, got {sizes}")
+    if settings.n_model < 2 * max(sizes):
+        raise ValueError(
+            f"n_model: need at least two blocks of the largest L = {max(sizes)}, "
+            f"got {settings.n_model}"
+        )
+    if settings.n_real < 2 * max(sizes):
+        raise ValueError(
+            f"n_real: need at least two blocks of the largest L = {max(sizes)}, "
+            f"got {settings.n_real}"
+        )
+    for name in ("horizon", "n_train", "n_bins", "n_shown"):
+        if getattr(settings, name) < 1:
+            raise ValueError(f"{name}: expected a positive integer, got {getattr(settings, name)}")
+    if not settings.control_noise > 0:
+        raise ValueError(
+            f"control_noise: the experiment needs stochastic dynamics (σ_u > 0), "
+            f"got {settings.control_noise}"
+        )
+    if min(settings.train_context_halfwidth) < 0 or min(settings.train_gain_std) < 0:
+        raise ValueError("train_context_halfwidth, train_gain_std: expected values ≥ 0")
+
+
+def commanded_transitions(
+    task: Pendulum, trajectory, omega: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Transitions (x_t, u_t, x_{t+1}) of a real rollout with u_t the commanded torque.
+
+    ``task.transitions`` gives the applied torque clip(Kᵀx_t + ε_t, −3, 3); with that input
+    the pendulum's transition is deterministic. Model rollouts run the task's controller,
+    whose output is the commanded torque clip(Kᵀx_t, −3, 3), so the model is trained on
+    that: the torque noise ε_t becomes part of the stochastic transition it learns.
+
+    Parameters
+    ----------
+    task : Pendulum
+    trajectory : Trajectory
+        A rollout of ``task`` with gains ``omega``.
+    omega : ndarray, shape (2,)
+        The gains K of the rollout.
+
+    Returns
+    -------
+    X : ndarray, shape (T, 2)
+    U : ndarray, shape (T, 1)
+        Commanded torques.
+    X_next : ndarray, shape (T, 2)
+    """
+    x, _, x_next = task.transitions(trajectory)
+    policy = task.controller(np.asarray(omega, dtype=float)[None])
+    with torch.no_grad():
+        u = policy(0, torch.as_tensor(x), torch.zeros(len(x), dtype=torch.long)).numpy()
+    return x, u, x_next
+
+
+def block_rmse(samples: np.ndarray, L: int, target: float) -> float:
+    """Root-mean-square error of the average of L samples as an estimate of ``target``.
+
+    The samples are split into ⌊n / L⌋ non-overlapping blocks of L (in order); returns
+    sqrt(mean_b (mean(block_b) − target)²).
+
+    Parameters
+    ----------
+    samples : ndarray, shape (n,)
+    L : int
+        Block size, 1 ≤ L ≤ n.
+    target : float
+        The value estimated (here the Monte Carlo expected reward).
+    """
+    samples = np.asarray(samples, dtype=float)
+    if samples.ndim != 1:
+        raise ValueError(f"samples: expected a 1-D array, got shape {samples.shape}")
+    if isinstance(L, bool) or int(L) != L or not 1 <= L <= samples.size:
+        raise ValueError(f"L: expected an integer in [1, {samples.size}], got {L!r}")
+    L = int(L)
+    n_blocks = samples.size // L
+    means = samples[: n_blocks * L].reshape(n_blocks, L).mean(1)
+    return float(np.sqrt(np.mean((means - target) ** 2)))
+
+
+def _run_trial(
+    settings: StochasticRewardSettings, rng: np.random.Generator, trial: TrialContext
+) -> dict:
+    _check(settings)
+    T = settings.horizon
+    task = make("pendulum-stochastic", horizon=T, control_noise=settings.control_noise)
+    s = task.check_context(settings.context, "context")
+    omega = task.check_omega(settings.gains, "gains")
+    trial.reset(total=3)
+    # 1. the real reward distribution of the pair
+    real_rewards = np.empty(settings.n_real)
+    shown = []
+    for i in range(settings.n_real):
+        r, traj = task.evaluate(omega, s, rng)
+        real_rewards[i] = r
+        if i < settings.n_shown:
+            shown.append(traj.states[:, 0])
+    trial.update()
+    # 2. the GP forward model from rollouts of nearby pairs
+    hw = np.asarray(settings.train_context_halfwidth)
+    lo = np.maximum(s - hw, task.context_low)
+    hi = np.minimum(s + hw, task.context_high)
+    X, U, Xn = [], [], []
+    for _ in range(settings.n_train):
+        s_i = lo + (hi - lo) * rng.random(2)
+        w_i = omega + np.asarray(settings.train_gain_std) * rng.standard_normal(2)
+        x, u, xn = commanded_transitions(task, task.rollout(w_i, s_i, rng), w_i)
+        X.append(x), U.append(u), Xn.append(xn)
+    model = ForwardModel(
+        ExactGP(additive_noise=settings.additive_noise, n_steps=settings.n_opt_steps)
+    )
+    model.fit(np.concatenate(X), np.concatenate(U), np.concatenate(Xn), rng=rng)
+    trial.update()
+    # 3. model trajectories of the pair (Eq. 4.1)
+    pred = predict_trajectories(
+        task, model, omega[None], s[None], horizon=T, n_samples=settings.n_model, rng=rng
+    )
+    model_rewards = pred.rewards[0]
+    r_mc = float(real_rewards.mean())
+    trial.update()
+    return {
+        "times": task.dt * np.arange(T + 1),
+        "real_alpha": np.array(shown),
+        "model_alpha": pred.states[0, : settings.n_shown, :, 0],
+        "real_rewards": real_rewards,
+        "model_rewards": model_rewards,
+        "rmse_real": np.array([block_rmse(real_rewards, L, r_mc) for L in settings.sample_sizes]),
+        "rmse_model": np.array([block_rmse(model_rewards, L, r_mc) for L in settings.sample_sizes]),
+        "n_data": int(sum(len(x) for x in X)),
+        "noise_std": (  # the GP's noise std per output Δα, Δα̇, in raw units
+            torch.sqrt(model.predictor.noise) * model.predictor.y_scale
+        ).numpy(),
+        "n_variance_clamped": int(pred.sampled.n_variance_clamped),
+        "n_saturated": int(pred.sampled.n_saturated),
+        "model_jitter": model.gp.diagnostics["jitter"],
+        "model_stopped_early": model.gp.diagnostics["stopped_early"] or "",
+    }
+
+
+def _histogram(values: np.ndarray, edges: np.ndarray) -> list[float]:
+    """Density (per unit reward) of ``values`` on the bins ``edges``; values outside count
+    in the outer bins, so every sample is shown."""
+    counts, _ = np.histogram(np.clip(values, edges[0], edges[-1]), bins=edges)
+    return (counts / (values.size * np.diff(edges))).tolist()
+
+
+def _paths(times: np.ndarray, curves: np.ndarray) -> tuple[list, list]:
+    """Many curves as one series, separated by NaN gaps (one legend entry)."""
+    x, y = [], []
+    for c in curves:
+        x += list(times) + [np.nan]
+        y += list(c) + [np.nan]
+    return x, y
+
+
+def _summarize(settings: StochasticRewardSettings, trials: list[dict]) -> tuple[list[Series], dict]:
+    sizes = list(settings.sample_sizes)
+    real = np.concatenate([np.asarray(t["real_rewards"]) for t in trials])
+    model = np.concatenate([np.asarray(t["model_rewards"]) for t in trials])
+    r_mc = float(real.mean())
+    se = float(real.std(ddof=1) / np.sqrt(real.size))
+    sd = float(real.std(ddof=1))
+    model_means = np.array([np.mean(t["model_rewards"]) for t in trials])
+    times = np.asarray(trials[0]["times"])
+    series = []
+    for key, name, panel in (
+        ("real_alpha", REAL, "real trajectories (same s, ω)"),
+        ("model_alpha", MODEL, "model trajectories (same s, ω)"),
+    ):
+        x, y = _paths(times, np.asarray(trials[0][key]))
+        series.append(Series(name, x, y, panel=panel, xlabel="time [s]", ylabel="angle α [rad]"))
+    both = np.concatenate([real, model])
+    lo_q, hi_q = np.percentile(both, [0.5, 99.5])
+    edges = np.linspace(lo_q, hi_q, settings.n_bins + 1)
+    centres = (0.5 * (edges[1:] + edges[:-1])).tolist()
+    hist = {"real": _histogram(real, edges), "model": _histogram(model, edges)}
+    top = max(max(hist["real"]), max(hist["model"]))
+    panel = f"{HIST_PANEL} ({real.size} real, {model.size} model trajectories)"
+    hkw = dict(panel=panel, xlabel=REWARD_LABEL, ylabel="density [1/reward]")
+    series += [
+        Series(REAL, centres, hist["real"], kind="lines+markers", **hkw),
+        Series(MODEL, centres, hist["model"], kind="lines+markers", **hkw),
+        Series("R_sω, Monte Carlo (real)", [r_mc, r_mc], [0.0, top], **hkw),
+        Series(
+            "R̂_sω, model average (Eq. 4.1)",
+            [float(model.mean())] * 2,
+            [0.0, top],
+            **hkw,
+        ),
+    ]
+    ekw = dict(panel=ERROR_PANEL, xlabel="L (trajectories averaged)", ylabel=ERROR_LABEL)
+    ekw.update(log_x=True, log_y=True)
+    for key, name in (
+        ("rmse_real", "average of L real rollouts (L = 1: model-free REPS)"),
+        ("rmse_model", "average of L GP model trajectories (GPREPS)"),
+    ):
+        m, band = trial_band(np.array([t[key] for t in trials]))
+        series.append(Series(name, sizes, m, kind="lines+markers", **band, **ekw))
+    series.append(Series("noise floor: s.e. of R_MC", sizes, [se] * len(sizes), **ekw))
+    rmse_real = np.mean([t["rmse_real"] for t in trials], axis=0)
+    rmse_model = np.mean([t["rmse_model"] for t in trials], axis=0)
+    summary = {
+        "context": list(settings.context),
+        "gains": list(settings.gains),
+        "expected_reward_mc": r_mc,
+        "expected_reward_mc_se": se,
+        "n_real_rollouts": int(real.size),
+        "single_rollout_std": sd,
+        "single_rollout_std_over_abs_expected": sd / abs(r_mc),
+        "single_rollout_range": [float(real.min()), float(real.max())],
+        "model_expected_reward": float(model_means.mean()),
+        "model_expected_reward_per_trial": model_means.tolist(),
+        "model_expected_reward_error": float(model_means.mean() - r_mc),
+        "model_reward_std": float(model.std(ddof=1)),
+        "n_model_trajectories": int(model.size),
+        "sample_sizes": sizes,
+        "rmse_real_L": dict(zip(map(str, sizes), rmse_real.tolist(), strict=True)),
+        "rmse_model_L": dict(zip(map(str, sizes), rmse_model.tolist(), strict=True)),
+        "noise_floor": "expected_reward_mc_se: the standard error of the Monte Carlo R_sω",
+        "n_model_training_transitions": int(trials[0]["n_data"]),
+        "model_noise_std": np.asarray(trials[0]["noise_std"]).tolist(),
+        "n_variance_clamped": int(sum(t["n_variance_clamped"] for t in trials)),
+        "model_stopped_early": [str(t["model_stopped_early"]) or None for t in trials],
+        "model_jitter": max(float(t["model_jitter"]) for t in trials),
+        "criterion": (
+            f"single-rollout std / |R_sω| ≥ {SPREAD_THRESHOLD} and the RMSE of the "
+            f"L_max-trajectory model average ≤ {ERROR_FACTOR} × the single-rollout RMSE"
+        ),
+    }
+    return series, with_verdict(summary, verdict(settings, summary))
+
+
+def verdict(settings: StochasticRewardSettings, summary: dict) -> Verdict:
+    """Holds if single rollouts spread considerably (std / |R_sω| ≥ 0.1) and the average of
+    L_max model trajectories estimates R_sω with at most half the RMSE of one real rollout."""
+    L = str(max(settings.sample_sizes))
+    spread = summary["single_rollout_std_over_abs_expected"]
+    single = summary["rmse_real_L"]["1"]
+    averaged = summary["rmse_model_L"][L]
+    holds = (
+        spread is not None
+        and single is not None
+        and averaged is not None
+        and spread >= SPREAD_THRESHOLD
+        and averaged <= ERROR_FACTOR * single
+    )
+    return Verdict(
+        CLAIM,
+        bool(holds),
+        f"Over {summary['n_real_rollouts']} real rollouts of one (s, ω) the expected reward is "
+        f"R_sω = {fmt(summary['expected_reward_mc'])} ± {fmt(summary['expected_reward_mc_se'])} "
+        f"(s.e.) and a single rollout's reward has std {fmt(summary['single_rollout_std'])}, "
+        f"{fmt(None if spread is None else 100 * spread)}% of |R_sω| "
+        f"(criterion ≥ {100 * SPREAD_THRESHOLD:g}%; thesis's "
+        f"stochastic throwing: about 10%). The GP model's average over "
+        f"{summary['n_model_trajectories']} trajectories is "
+        f"{fmt(summary['model_expected_reward'])} (error "
+        f"{fmt(summary['model_expected_reward_error'])}); averaging L = {L} model trajectories "
+        f"gives an RMSE of {fmt(averaged)} against {fmt(single)} for one real rollout "
+        f"(criterion ≤ {ERROR_FACTOR:g} ×).",
+    )
+
+
+register(
+    Experiment(
+        id="fig4.8",
+        title="Stochastic pendulum: single-rollout rewards vs the expected reward",
+        settings_class=StochasticRewardSettings,
+        settings=SCALES,
+        run_trial=_run_trial,
+        summarize=_summarize,
+        verdict=verdict,
+        trials={"smoke": 1, "quick": 1, "paper": 1},
+        claim=CLAIM,
+    )
+)

@@ -1,0 +1,133 @@
+"""fig4.8 (Sec. 4.3.2.2): the stochastic pendulum's reward distribution and the L-averages."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import warnings
+
+import numpy as np
+import pytest
+
+from skillkit.experiments.ch4_stochastic import (
+    SCALES,
+    block_rmse,
+    commanded_transitions,
+    verdict,
+)
+from skillkit.experiments.registry import get
+from skillkit.experiments.runner import run_trials, to_jsonable
+from skillkit.tasks import make
+from skillkit.tasks.pendulum import THESIS_GAINS, feedback_torque
+from skillkit.trial import TrialContext
+
+_CACHE: dict = {}
+
+
+def _smoke() -> dict:
+    if "r" not in _CACHE:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            _CACHE["r"] = run_trials("fig4.8", "smoke", seed=0, progress=False)
+    return _CACHE["r"]
+
+
+def test_mc_expected_reward_is_the_mean_of_independently_rescored_rollouts():
+    """R_MC, its standard error and the single-rollout std are the plain statistics of the
+    trial's rewards, and the first reward is that of a fresh simulation with the trial's
+    generator, scored by hand."""
+    r = _smoke()
+    trial, summary = r["_trials"][0], r["summary"]
+    rewards = np.asarray(trial["real_rewards"])
+    assert summary["expected_reward_mc"] == pytest.approx(np.sum(rewards) / rewards.size)
+    sd = np.sqrt(np.sum((rewards - rewards.mean()) ** 2) / (rewards.size - 1))
+    assert summary["single_rollout_std"] == pytest.approx(sd)
+    assert summary["expected_reward_mc_se"] == pytest.approx(sd / np.sqrt(rewards.size))
+    assert summary["single_rollout_std_over_abs_expected"] == pytest.approx(
+        sd / abs(rewards.mean())
+    )
+    # The rewards are the task's reward of real rollouts of the pair: re-simulate the first
+    # one with the trial's generator and score it by hand, −Σ_{t≥1} (α_t² + 0.1 α̇_t²).
+    s = SCALES["smoke"]
+    task = make("pendulum-stochastic", horizon=s.horizon, control_noise=s.control_noise)
+    rng = np.random.default_rng(np.random.SeedSequence(r["seed"]).spawn(1)[0])  # trial 0
+    traj = task.rollout(np.array(s.gains), np.array(s.context), rng)
+    x = traj.states[1:]
+    assert rewards[0] == pytest.approx(-(x[:, 0] ** 2 + 0.1 * x[:, 1] ** 2).sum())
+    assert np.allclose(trial["real_alpha"][0], traj.states[:, 0])
+    # The rewards really vary: the experiment is about a noisy reward.
+    assert np.unique(rewards).size == rewards.size
+
+
+def test_block_rmse_closed_form_and_shrinks_with_L():
+    assert block_rmse(np.array([1.0, 3.0, 5.0, 7.0]), 1, 4.0) == pytest.approx(np.sqrt(5.0))
+    assert block_rmse(np.array([1.0, 3.0, 5.0, 7.0]), 2, 4.0) == pytest.approx(2.0)
+    assert block_rmse(np.array([1.0, 3.0, 5.0, 7.0, 100.0]), 4, 4.0) == 0.0  # remainder unused
+    # i.i.d. noise: the RMSE of the L-average is σ/√L (up to sampling error).
+    x = np.random.default_rng(0).normal(2.0, 3.0, 200_000)
+    for L in (1, 4, 25, 100):
+        assert block_rmse(x, L, 2.0) == pytest.approx(3.0 / np.sqrt(L), rel=0.1)
+
+
+def test_l_average_error_shrinks_with_L():
+    """On average over trials the error of the model's L-average decreases with L, and so
+    does that of the real rollouts' average."""
+    summary = _smoke()["summary"]
+    sizes = [str(L) for L in summary["sample_sizes"]]
+    for key in ("rmse_model_L", "rmse_real_L"):
+        errors = [summary[key][L] for L in sizes]
+        assert errors[-1] < errors[0], (key, errors)
+    # The single real rollout's RMSE is its (population) std: the estimate REPS uses.
+    rewards = np.asarray(_smoke()["_trials"][0]["real_rewards"])
+    assert summary["rmse_real_L"]["1"] == pytest.approx(rewards.std())
+
+
+def test_model_is_trained_on_commanded_torques():
+    """The applied torque carries the noise; the model input is the controller's output."""
+    task = make("pendulum-stochastic", horizon=8)
+    omega = THESIS_GAINS + np.array([0.2, -0.1])
+    traj = task.rollout(omega, np.array([1.0, 0.5]), 3)
+    x, u, x_next = commanded_transitions(task, traj, omega)
+    _, applied, _ = task.transitions(traj)
+    assert np.allclose(u[:, 0], feedback_torque(x, omega))
+    assert not np.allclose(u, applied)
+    assert np.array_equal(x_next, traj.states[1:]) and np.array_equal(x, traj.states[:-1])
+
+
+def test_verdict_follows_the_stated_criterion():
+    settings = SCALES["smoke"]
+    base = json.loads(json.dumps(to_jsonable(_smoke()["summary"])))
+    L = str(max(settings.sample_sizes))
+
+    def judge(spread, single, averaged):
+        s = dict(base, single_rollout_std_over_abs_expected=spread)
+        s["rmse_real_L"] = dict(base["rmse_real_L"], **{"1": single})
+        s["rmse_model_L"] = dict(base["rmse_model_L"], **{L: averaged})
+        return verdict(settings, s).holds
+
+    assert judge(0.2, 1.0, 0.5) is True
+    assert judge(0.2, 1.0, 0.51) is False  # the model average is not twice as accurate
+    assert judge(0.09, 1.0, 0.1) is False  # the spread is not considerable
+    assert judge(None, 1.0, 0.1) is False
+
+
+@pytest.mark.parametrize(
+    "overrides, match",
+    [
+        ({"sample_sizes": (5, 1)}, "sample_sizes: expected increasing"),
+        ({"sample_sizes": (0, 5)}, "sample_sizes: expected increasing"),
+        ({"n_model": 30}, "n_model: need at least two blocks"),
+        ({"n_real": 30}, "n_real: need at least two blocks"),
+        ({"control_noise": 0.0}, "control_noise: the experiment needs stochastic"),
+        ({"train_gain_std": (-0.1, 0.2)}, "train_gain_std: expected values"),
+        ({"context": (5.0, 0.0)}, "context: alpha0=5 is outside"),
+        ({"n_train": 0}, "n_train: expected a positive integer"),
+    ],
+)
+def test_bad_settings_are_rejected(overrides, match):
+    settings = dataclasses.replace(SCALES["smoke"], **overrides)
+    run_trial = get("fig4.8").run_trial
+    with pytest.raises(ValueError, match=match):
+        run_trial(settings, np.random.default_rng(0), TrialContext())
+    with pytest.raises(ValueError, match="sample_sizes: expected list of int"):
+        get("fig4.8").settings_for("smoke", sample_sizes=[1.5])

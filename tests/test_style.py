@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-PATHS = ["skillkit", "tests", "benchmarks", "docs"]
+PATHS = ["skillkit", "tests", "benchmarks", "docs", "notebooks", "data"]
 
 
 @pytest.mark.parametrize("command", [["check"], ["format", "--check"]], ids=["lint", "format"])

@@ -562,7 +562,7 @@ class GPREPS:
 
         t2 = time.perf_counter()
         s_art = self.sample_contexts(st.n_artificial)
-        w_art = np.atleast_2d(pol.sample(s_art if pol.context_dim else None, rng))
+        w_art = pol.sample(s_art, rng)  # s_art is (M, 0) for a context-free policy
         r_art = self.reward_model.expected_rewards(s_art, w_art, st.n_trajectories, rng)
         r_art = check_array(r_art, "reward_model.expected_rewards", shape=(st.n_artificial,))
         t_pred = t_pred0 + time.perf_counter() - t2

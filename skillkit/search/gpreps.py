@@ -93,11 +93,24 @@ class RewardModel(Protocol):
         ...
 
 
-def _warm_start(gp: _GPRegression, hypers: dict[str, np.ndarray] | None) -> None:
-    """Start the next hyper-parameter optimisation of ``gp`` at ``hypers`` (raw units)."""
+#: Warm-started ARD length-scales are capped at this many standard deviations of their input.
+WARM_LENGTHSCALE_CAP = 100.0
+
+
+def _warm_start(
+    gp: _GPRegression, hypers: dict[str, np.ndarray] | None, inputs: np.ndarray
+) -> None:
+    """Start the next hyper-parameter optimisation of ``gp`` at ``hypers`` (raw units).
+
+    A length-scale far beyond its input's spread switches the input off, and the gradient of
+    (2.28) vanishes there, so a warm start would keep it off for good; length-scales are capped
+    at :data:`WARM_LENGTHSCALE_CAP` standard deviations of the current ``inputs`` (N, d).
+    """
     if hypers is None:
         return
-    gp.init_lengthscale = np.asarray(hypers["lengthscale"], dtype=np.float64)
+    sd = inputs.std(axis=0)
+    cap = WARM_LENGTHSCALE_CAP * np.where(sd > 0, sd, 1.0)
+    gp.init_lengthscale = np.minimum(np.asarray(hypers["lengthscale"], dtype=np.float64), cap)
     gp.init_outputscale = np.asarray(hypers["outputscale"], dtype=np.float64)
     gp.init_noise = np.asarray(hypers["noise"], dtype=np.float64)
 
@@ -148,9 +161,10 @@ class DirectRewardModel:
         s = check_array(contexts, "contexts", ndim=2)
         w = check_array(omegas, "omegas", shape=(s.shape[0], None))
         r = check_array(rewards, "rewards", shape=(s.shape[0],))
+        z = np.hstack([s, w])
         if self.warm_start:
-            _warm_start(self.gp, self.hyperparameters)
-        self.gp.fit(np.hstack([s, w]), r, as_generator(rng))
+            _warm_start(self.gp, self.hyperparameters, z)
+        self.gp.fit(z, r, as_generator(rng))
         self.hyperparameters = self.gp.hyperparameters
         self.n_data = int(r.shape[0])
         return _gp_stats(self.gp, r.shape[0])
@@ -245,7 +259,7 @@ class TrajectoryRewardModel:
         model = self.make_model()
         gp = getattr(model, "gp", None)
         if self.warm_start and isinstance(gp, _GPRegression):
-            _warm_start(gp, self.hyperparameters)
+            _warm_start(gp, self.hyperparameters, np.hstack([x, u]))
         model.fit(x, u, xn, rng=as_generator(rng))
         self.model = model
         stats: dict[str, Any] = {"n_data": int(x.shape[0]), "n_trajectories": len(unique)}

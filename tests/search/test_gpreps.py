@@ -29,6 +29,7 @@ from skillkit.search import (
     collect,
     learn,
 )
+from skillkit.search.gpreps import WARM_LENGTHSCALE_CAP
 from skillkit.tasks.balancing import X_UP, Balancing
 from skillkit.trajectory import Trajectory
 from skillkit.trial import TrialContext
@@ -149,6 +150,31 @@ def test_direct_model_is_exact_for_a_quadratic_with_enough_data():
     w = task.initial_policy().sample(s, rng)
     pred, true = model.expected_rewards(s, w, 1, rng), true_expected_reward(s, w)
     assert np.sqrt(np.mean((pred - true) ** 2)) < 0.05 * true.std()
+
+
+def test_refits_warm_start_at_the_last_hyperparameters_with_switched_off_inputs_capped():
+    task = LinearOptimumTask()
+    rng = np.random.default_rng(4)
+    batch = collect(task, task.initial_policy(), 40, rng)
+    model = DirectRewardModel(ExactGP(n_steps=20))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model.fit(batch.contexts, batch.omegas, batch.rewards, None, rng)
+        first = {k: v.copy() for k, v in model.hyperparameters.items()}
+        first["lengthscale"][0, 4] = 1e6  # as if the fit had switched ω₃ off
+        model.hyperparameters = first
+        model.fit(batch.contexts, batch.omegas, batch.rewards, None, rng)
+    z = np.hstack([batch.contexts, batch.omegas])
+    cap = WARM_LENGTHSCALE_CAP * z.std(axis=0)
+    np.testing.assert_array_equal(model.gp.init_lengthscale, np.minimum(first["lengthscale"], cap))
+    assert model.gp.init_lengthscale[0, 4] == cap[4]
+    np.testing.assert_array_equal(model.gp.init_noise, first["noise"])
+    cold = DirectRewardModel(ExactGP(n_steps=20), warm_start=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for _ in "ab":
+            cold.fit(batch.contexts, batch.omegas, batch.rewards, None, rng)
+    assert cold.gp.init_lengthscale is None
 
 
 # --------------------------------------------------------------------------- the dual

@@ -1,0 +1,82 @@
+"""Real rollouts to reach sanity3's parameter-error threshold: contextual REPS vs GPREPS.
+
+The problem is ``sanity3``'s :class:`~skillkit.experiments.sanity.LinearOptimumTask`
+(s ~ U([−1, 1]²), ω ∈ R³, R = −‖ω − a* − A* s‖²_W, noise-free); the error is
+:func:`~skillkit.experiments.sanity.parameter_error` on the 5 × 5 context grid and the
+threshold 0.01 of ``SanitySettings``.
+
+* REPS: exactly sanity3's ``quick`` settings (ε = 0.5, 25 rollouts per update, last 8 batches
+  reused, 120 updates = 3000 rollouts), built by ``sanity.make_algorithm``.
+* GPREPS: ``DirectRewardModel()`` (GP direct, Sec. 4.3.2: ExactGP on [s, ω] → R with the
+  thesis's defaults, additive noise α = 1) and the default ``GPREPSSettings`` (ε = 1, M = 500)
+  with ``context_model="uniform"``; N₀ = 20 initial rollouts, then 5 per update, within a budget
+  of 300 real rollouts (a tenth of REPS's 3000).
+
+Each algorithm learns from ``seed`` (the loop's stream) and GPREPS from ``seed`` too (its own
+artificial-sample stream). Run from the repository root::
+
+    OMP_NUM_THREADS=1 python docs/measure_gpreps_sanity3.py 0 1 2
+
+Prints, per seed and algorithm, the real rollouts at the first evaluation below the threshold
+(``None``: not reached) and the final parameter error.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+import warnings
+
+import numpy as np
+
+from skillkit.experiments.sanity import (
+    QUICK,
+    LinearOptimumTask,
+    context_grid,
+    make_algorithm,
+    parameter_error,
+)
+from skillkit.search import GPREPS, DirectRewardModel, GPREPSSettings, learn
+
+N0, N, BUDGET = 20, 5, 300
+
+
+def run(name: str, seed: int) -> tuple[int | None, float, float]:
+    task = LinearOptimumTask(QUICK.noise_std, QUICK.init_std)
+    grid, optimum = context_grid(), task.optimal_coefficients
+    if name == "REPS":
+        alg = make_algorithm("REPS", task, QUICK)
+        n_updates, n, n0 = QUICK.n_updates, QUICK.rollouts_per_update, None
+    else:
+        settings = GPREPSSettings(context_model="uniform")
+        alg = GPREPS(task.initial_policy(), DirectRewardModel(), settings, rng=seed)
+        n_updates, n, n0 = 1 + (BUDGET - N0) // N, N, N0
+    start = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = learn(
+            task,
+            alg,
+            n_updates,
+            n,
+            seed,
+            progress=False,
+            eval_contexts=grid,
+            initial_rollouts=n0,
+            callback=lambda k, a: parameter_error(a.policy, optimum, grid),
+        )
+    err = np.array(res["callback"])
+    below = np.flatnonzero(err < QUICK.threshold)
+    hit = int(res["rollouts"][below[0]]) if below.size else None
+    return hit, float(err[-1]), time.perf_counter() - start
+
+
+if __name__ == "__main__":
+    for seed in [int(a) for a in sys.argv[1:]] or [0]:
+        for name in ("REPS", "GPREPS"):
+            hit, final, seconds = run(name, seed)
+            print(
+                f"seed {seed} {name:6s}: rollouts to error < {QUICK.threshold:g}: {hit}, "
+                f"final error {final:.4f} ({seconds:.1f} s)",
+                flush=True,
+            )

@@ -197,7 +197,9 @@ class TrajectoryRewardModel:
     make_model : callable, optional
         ``make_model()`` returns an unfitted forward model with ``fit(states, controls,
         next_states, rng=)`` and the :class:`~skillkit.models.sampling.StepModel` interface
-        (default: ``ForwardModel(FITC(n_inducing=100))``, the sparse GP of Sec. 4.2).
+        (default: ``ForwardModel(FITC(n_inducing=100))``, the sparse GP of Sec. 4.2). It is
+        part of the checkpointed state: use a class or a module-level function (or a
+        ``functools.partial`` of one), not a lambda, where checkpoints are taken.
     horizon : int, optional
         T, predicted transitions per trajectory (default: that of the first real trajectory).
     warm_start : bool

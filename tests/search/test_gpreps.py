@@ -4,6 +4,7 @@ the loop's initial rollouts, bad input and reprs."""
 
 from __future__ import annotations
 
+import pickle
 import warnings
 
 import numpy as np
@@ -130,9 +131,13 @@ def test_predicted_expected_reward_matches_monte_carlo_on_an_exact_model_class()
     se = np.hypot(se, pred.std() / np.sqrt(pred.size))
     assert abs(pred.mean() - mc.mean()) < 3.5 * se, (pred.mean(), mc.mean(), se)
     assert abs(diag.artificial_reward_mean - mc.mean()) < 5 * se
-    # The model's prediction of a new real batch is unbiased too (diagnostics after update 2).
-    d2 = alg.update(collect(task, alg.policy, 20, rng))
-    assert d2.prediction_bias is not None and d2.predicted_real_reward is not None
+    # The model's prediction of a new real batch (diagnostics from update 2 on).
+    batch = collect(task, alg.policy, 20, rng)
+    copy = pickle.loads(pickle.dumps(alg))  # the whole state pickles (checkpoints)
+    d2, d2_copy = alg.update(batch), copy.update(batch)
+    assert abs(d2.prediction_bias) < 4 * batch.rewards.std() / np.sqrt(20)
+    assert d2.prediction_bias == d2_copy.prediction_bias
+    np.testing.assert_array_equal(alg.policy.mean, copy.policy.mean)
 
 
 def test_direct_model_is_exact_for_a_quadratic_with_enough_data():

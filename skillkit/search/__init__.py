@@ -1,4 +1,4 @@
-"""Policy search: REPS (episode-based and contextual), CrKR, RWR and the model-free learning loop.
+"""Policy search: REPS (episode-based and contextual), GPREPS, CrKR, RWR and the learning loop.
 
 Every algorithm holds a current ``policy`` (with ``sample(contexts, rng)`` and
 ``mean_of(contexts)``) and an ``update(batch)`` taking one :class:`Batch` and returning
@@ -9,6 +9,15 @@ and :class:`LoopState` (what it has done; what it checkpoints).
 
 from skillkit.search.base import Batch
 from skillkit.search.crkr import CrKR, CrKRDiagnostics, CrKRPolicy
+from skillkit.search.gpreps import (
+    GPREPS,
+    DirectRewardModel,
+    GPREPSDiagnostics,
+    GPREPSSettings,
+    KnownRewardModel,
+    RewardModel,
+    TrajectoryRewardModel,
+)
 from skillkit.search.loop import Evaluator, LoopState, collect, learn
 from skillkit.search.reps import (
     ContextualREPS,
@@ -28,7 +37,14 @@ __all__ = [
     "CrKR",
     "CrKRDiagnostics",
     "CrKRPolicy",
+    "DirectRewardModel",
+    "GPREPS",
+    "GPREPSDiagnostics",
+    "GPREPSSettings",
+    "KnownRewardModel",
     "REPSDiagnostics",
+    "RewardModel",
+    "TrajectoryRewardModel",
     "REPSWeights",
     "RWRDiagnostics",
     "collect",

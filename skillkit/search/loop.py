@@ -209,6 +209,9 @@ class LoopState:
         k + 1 values returned by the callback (``None`` without one).
     policies : list of SearchPolicy
         k + 1 policies (before the first update, after each one).
+    initial_rollouts : int or None
+        Rollouts of the first batch when it differs from the others (``None``: all batches
+        have the same size, e.g. GPREPS's N₀ initial rollouts, Table 4.1).
     """
 
     algorithm: SearchAlgorithm
@@ -221,6 +224,7 @@ class LoopState:
     diagnostics: list[Any] = field(default_factory=list)
     callback: list[Any] = field(default_factory=list)
     policies: list[SearchPolicy] = field(default_factory=list)
+    initial_rollouts: int | None = None
 
     def record_update(
         self, batch: Batch, n_rollouts: int, diagnostics: Any, mean_reward: float, callback: Any
@@ -235,12 +239,22 @@ class LoopState:
         self.callback.append(callback)
         self.policies.append(self.algorithm.policy)
 
+    def rollouts(self, n_rollouts: int) -> np.ndarray:
+        """Rollouts done after 0, 1, …, k updates, shape (k + 1,): N₀ + (j − 1) N after update
+        j ≥ 1 (N₀ = ``initial_rollouts``, default N = ``n_rollouts``)."""
+        counts = n_rollouts * np.arange(self.k + 1)
+        if self.initial_rollouts is not None and self.k:
+            counts[1:] += self.initial_rollouts - n_rollouts
+        return counts
+
     def result(self, n_rollouts: int) -> dict:
-        """The curves as :func:`learn` returns them (``n_rollouts`` rollouts per update)."""
+        """The curves as :func:`learn` returns them (``n_rollouts`` rollouts per update after
+        the first batch of ``initial_rollouts``)."""
+        counts = self.rollouts(n_rollouts)
         return {
-            "rollouts": n_rollouts * np.arange(self.k + 1),
+            "rollouts": counts,
             "mean_reward": np.array(self.mean_reward),
-            "explore_rollouts": n_rollouts * np.arange(1, self.k + 1),
+            "explore_rollouts": counts[1:],
             "explore_reward": np.array(self.explore_reward),
             "n_failed": np.array(self.n_failed, dtype=int),
             "diagnostics": self.diagnostics,
@@ -276,6 +290,7 @@ def learn(
     eval_contexts: ArrayLike | None = None,
     callback: Callback | None = None,
     checkpoint_key: str = "learn",
+    initial_rollouts: int | None = None,
 ) -> dict:
     """Run model-free policy search on a task (Table 3.1).
 
@@ -314,11 +329,14 @@ def learn(
         record through return values, not through side effects, in resumable experiments.
     checkpoint_key : str
         Key of this loop's state in ``trial`` (distinct per ``learn`` call within a trial).
+    initial_rollouts : int, optional
+        N₀ ≥ 1, the rollouts of the first batch (GPREPS starts its model from N₀ rollouts, then
+        collects N per update, Table 4.1); default N, every batch the same size.
 
     Returns
     -------
     dict
-        ``rollouts`` (K + 1,) rollouts so far at each evaluation (0, N, 2N, …);
+        ``rollouts`` (K + 1,) rollouts so far at each evaluation (0, N₀, N₀ + N, …);
         ``mean_reward`` (K + 1,) average reward of the policy mean on ``eval_contexts``;
         ``explore_rollouts`` (K,) and ``explore_reward`` (K,) for the exploratory rollouts;
         ``n_failed`` (K,) failed rollouts per batch; ``diagnostics`` (list of K update
@@ -330,6 +348,7 @@ def learn(
     _check_task_and_algorithm(task, algorithm)
     n_updates = _check_count(n_updates, "n_updates", 1)
     n = _check_count(rollouts_per_update, "rollouts_per_update", 1)
+    n0 = n if initial_rollouts is None else _check_count(initial_rollouts, "initial_rollouts", 1)
     n_extra = _check_extra_contexts(task, extra_contexts)
     if trial is not None and not isinstance(trial, TrialContext):
         raise ValueError(
@@ -342,6 +361,7 @@ def learn(
     state = None if trial is None else trial.resume(checkpoint_key, rng)
     if state is None:
         state = LoopState(algorithm, evaluator.contexts, evaluator.seed)
+        state.initial_rollouts = None if n0 == n else n0
         state.mean_reward.append(evaluator(algorithm.policy))
         state.callback.append(None if callback is None else callback(0, algorithm))
         state.policies.append(algorithm.policy)
@@ -364,11 +384,12 @@ def learn(
     # Learn: collect, update, evaluate, record, checkpoint.
     try:
         for k in range(state.k + 1, n_updates + 1):
-            batch = collect(task, algorithm.policy, n, rng, n_extra)
+            n_k = n0 if k == 1 else n
+            batch = collect(task, algorithm.policy, n_k, rng, n_extra)
             diagnostics = algorithm.update(batch)
             mean_reward = evaluator(algorithm.policy)
             value = None if callback is None else callback(k, algorithm)
-            state.record_update(batch, n, diagnostics, mean_reward, value)
+            state.record_update(batch, n_k, diagnostics, mean_reward, value)
             if trial is not None:
                 trial.save(checkpoint_key, state, rng)
             bar.update(1)

@@ -154,20 +154,21 @@ def main() -> None:
     print(
         f"update: M = {args.artificial} artificial samples x L = {args.trajectories} "
         f"trajectories, horizon T = {horizon}, FITC with {args.inducing} pseudo-inputs, "
-        f"{args.repeats} repeat(s) per thread count (fastest shown)"
+        f"{args.repeats} repeat(s) per thread count, interleaved (fastest total shown)"
     )
     if args.artificial < SMALL_M:
         print(f"  (M < {SMALL_M}: the policy fit's effective-sample-size check is relaxed to 1)")
 
     before = torch.get_num_threads()
-    results: dict[int, dict[str, float]] = {}
+    runs: dict[int, list[dict[str, float]]] = {th: [] for th in args.threads}
     try:
-        for th in args.threads:
-            torch.set_num_threads(th)
-            runs = [one_update(task, batch, args) for _ in range(args.repeats)]
-            results[th] = min(runs, key=lambda r: r["total"])
+        for _ in range(args.repeats):  # interleaved, so load drift hits every thread count
+            for th in runs:
+                torch.set_num_threads(th)
+                runs[th].append(one_update(task, batch, args))
     finally:
         torch.set_num_threads(before)
+    results = {th: min(rs, key=lambda r: r["total"]) for th, rs in runs.items()}
 
     steps = args.artificial * args.trajectories * horizon
     print()
@@ -180,11 +181,17 @@ def main() -> None:
             f"{th:>7}  {r['training']:8.2f}s  {r['prediction']:9.2f}s  {r['policy']:7.3f}s  "
             f"{r['total']:7.2f}s  {steps / r['prediction']:12.3g}  {r['iterations']!s:>8}"
         )
+    if args.repeats > 1:
+        for th, rs in runs.items():
+            print(
+                f"{th} thread(s), totals of all repeats: "
+                + ", ".join(f"{r['total']:.2f}s" for r in rs)
+            )
     if len(results) > 1:
-        ths = list(results)
-        base, other = results[ths[0]], results[ths[-1]]
+        lo, hi = min(results), max(results)
+        base, other = results[lo], results[hi]
         print(
-            f"\nratio {ths[-1]} / {ths[0]} threads (time): "
+            f"\nratio {hi} / {lo} threads (time): "
             + ", ".join(
                 f"{k} {other[k] / base[k]:.2f}"
                 for k in ("training", "prediction", "policy", "total")

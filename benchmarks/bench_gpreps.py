@@ -41,7 +41,20 @@ Usage::
         [--initial-rollouts 20] [--inducing 100] [--threads 1 2] [--device cpu|cuda]
         [--repeats 1]
 
-Measured (see the report that added this script for the numbers; filled in below).
+Measured on a shared 2-CPU x86_64 VM (Linux 6.18, torch 2.13.0+cpu, ``OMP_NUM_THREADS=1``,
+4 other jobs on the machine), load average 2.01 before, 1.63 after, with
+``--repeats 3`` at the defaults (M = 500, L = 25, T = 40, N₀ = 20 → 800 transitions, FITC
+100 pseudo-inputs, 150 GP optimiser iterations)::
+
+    threads   training  prediction    policy     total  traj-steps/s
+          1      7.94s       3.05s    0.002s    10.99s      1.64e+05
+          2      4.74s       1.99s    0.003s     6.73s      2.51e+05
+    totals of all repeats: 1 thread 12.64, 11.13, 10.99 s; 2 threads 7.05, 6.73, 8.24 s
+    ratio 2 / 1 threads (time): training 0.60, prediction 0.65, policy 1.06, total 0.61
+
+A single-repeat run while the load rose to 3.5 gave 108 s of training on 2 threads (10 s on
+1): with both cores busy elsewhere, torch's two threads wait on each other at every one of the
+many small ops of the hyper-parameter optimisation. Use ``--repeats`` ≥ 3 and read the spread.
 """
 
 from __future__ import annotations

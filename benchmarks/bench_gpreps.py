@@ -1,0 +1,217 @@
+"""Benchmark: wall time of ONE GPREPS policy update (Table 4.1) at the thesis's M × L.
+
+Measures :meth:`skillkit.search.gpreps.GPREPS.update` with a
+:class:`~skillkit.search.gpreps.TrajectoryRewardModel` (a FITC sparse-GP forward model,
+``--inducing`` pseudo-inputs, default 100) at M = ``--artificial`` artificial samples (500) ×
+L = ``--trajectories`` predicted trajectories per sample (25), the thesis's setting
+(Sec. 4.3.1), split as GPREPS's own diagnostics split it:
+
+* **training** (``time_training``): refitting the forward model on all real transitions,
+  hyper-parameter optimisation included (step 1 of Table 4.1),
+* **prediction** (``time_prediction``): drawing the M artificial (s, ω) and sampling the
+  M · L model trajectories over the task's horizon (Eq. 4.1, step 2); also reported as the
+  sampler throughput in trajectory-steps per second, M · L · T / time,
+* **policy** (``time_policy``): the REPS dual (3.9) and weighted ML fit (3.11–3.13) on the
+  M artificial samples (step 3),
+
+for each ``--threads`` count (``torch.set_num_threads``, set inside this script only and
+restored afterwards; OpenMP/BLAS threads outside torch follow ``OMP_NUM_THREADS``, so run with
+``OMP_NUM_THREADS=1`` for a clean 1-vs-2 comparison of torch's own threading), and prints the
+2-thread / 1-thread ratios measured in the same run, the torch version and the machine's load
+average before and after (other processes on a shared machine inflate the times).
+
+**Task.** The ``balancing`` task (4-link planar robot, 32 gains, horizon T = the task's 40
+control steps). The thesis's GPREPS timing is for the *throwing* task, whose update needs the
+decomposed throwing models (flight + racket models, Sec. 4.3.1); they do not exist in skillkit
+yet, so throwing is not benchmarked here.
+
+**Real data.** N₀ = ``--initial-rollouts`` (default 20) real rollouts of robustly balancing
+gains drawn from the task's initial policy by :func:`skillkit.tasks.balancing.stable_gains`
+(closed-loop spectral radius ≤ 0.98; rollouts that fall are replaced,
+:func:`~skillkit.tasks.balancing.collect_balancing`), so the model is trained on N₀ · T
+transitions. The update timed is the *first* GPREPS update on that batch (no prediction of an
+earlier model on it); each repeat builds a fresh GPREPS with the same seed, and the table
+reports, per thread count, the repeat with the smallest total (and each part of that repeat).
+Below M = 100 the policy fit's effective-sample-size check (d + 1 = 33) is relaxed to 1 so that
+tiny runs complete; the thesis setting M = 500 uses the library default.
+
+Usage::
+
+    OMP_NUM_THREADS=1 python benchmarks/bench_gpreps.py [--artificial 500] [--trajectories 25]
+        [--initial-rollouts 20] [--inducing 100] [--threads 1 2] [--device cpu|cuda]
+        [--repeats 1]
+
+Measured on a shared 2-CPU x86_64 VM (Linux 6.18, torch 2.13.0+cpu, ``OMP_NUM_THREADS=1``,
+4 other jobs on the machine), load average 2.01 before, 1.63 after, with
+``--repeats 3`` at the defaults (M = 500, L = 25, T = 40, N₀ = 20 → 800 transitions, FITC
+100 pseudo-inputs, 150 GP optimiser iterations)::
+
+    threads   training  prediction    policy     total  traj-steps/s
+          1      7.94s       3.05s    0.002s    10.99s      1.64e+05
+          2      4.74s       1.99s    0.003s     6.73s      2.51e+05
+    totals of all repeats: 1 thread 12.64, 11.13, 10.99 s; 2 threads 7.05, 6.73, 8.24 s
+    ratio 2 / 1 threads (time): training 0.60, prediction 0.65, policy 1.06, total 0.61
+
+A single-repeat run while the load rose to 3.5 gave 108 s of training on 2 threads (10 s on
+1): with both cores busy elsewhere, torch's two threads wait on each other at every one of the
+many small ops of the hyper-parameter optimisation. Use ``--repeats`` ≥ 3 and read the spread.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import time
+
+import numpy as np
+import torch
+
+from skillkit.models.gp import ForwardModel
+from skillkit.models.sparse import FITC
+from skillkit.search.base import Batch
+from skillkit.search.gpreps import GPREPS, GPREPSSettings, TrajectoryRewardModel
+from skillkit.tasks.balancing import Balancing, collect_balancing
+
+#: Below this M the policy fit's effective-sample-size check (default d + 1 = 33) is relaxed to
+#: 1, so that tiny timing runs do not stop there (the floor keeps Σ positive definite).
+SMALL_M = 100
+
+
+class _FITCForwardModel:
+    """``make_model()`` for the reward model: a fresh FITC forward model with M_ind inputs."""
+
+    def __init__(self, n_inducing: int):
+        self.n_inducing = n_inducing
+
+    def __call__(self) -> ForwardModel:
+        return ForwardModel(FITC(n_inducing=self.n_inducing))
+
+
+def real_batch(task: Balancing, n: int, seed: int) -> tuple[Batch, int]:
+    """N₀ real rollouts of robustly balancing gains; returns the batch and failed rollouts."""
+    data = collect_balancing(task, n, np.random.default_rng(seed))
+    trajs = data["trajectories"]
+    rewards = np.array([task.reward(t) for t in trajs])
+    return Batch(None, data["omegas"], rewards, trajs), data["n_failed"]
+
+
+def one_update(task: Balancing, batch: Batch, args: argparse.Namespace) -> dict[str, float]:
+    """Wall times of one GPREPS update from a fresh GPREPS (seeded by ``args.seed``)."""
+    model = TrajectoryRewardModel(
+        task, make_model=_FITCForwardModel(args.inducing), device=args.device
+    )
+    settings = GPREPSSettings(
+        n_artificial=args.artificial,
+        n_trajectories=args.trajectories,
+        min_effective_samples=1.0 if args.artificial < SMALL_M else None,
+    )
+    gpreps = GPREPS(task.initial_policy(), model, settings, rng=args.seed + 1)
+    t0 = time.perf_counter()
+    diag = gpreps.update(batch)
+    total = time.perf_counter() - t0
+    return {
+        "training": diag.time_training,
+        "prediction": diag.time_prediction,
+        "policy": diag.time_policy,
+        "total": total,
+        "eta": diag.reps.eta,
+        "iterations": diag.model_fit.get("iterations"),
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--artificial", type=int, default=500, help="M artificial samples")
+    parser.add_argument("--trajectories", type=int, default=25, help="L trajectories per sample")
+    parser.add_argument("--initial-rollouts", type=int, default=20, help="N0 real rollouts")
+    parser.add_argument("--inducing", type=int, default=100, help="FITC pseudo-inputs M_ind")
+    parser.add_argument("--threads", type=int, nargs="+", default=[1, 2])
+    parser.add_argument("--device", choices=["cpu", "cuda"], default="cpu")
+    parser.add_argument("--repeats", type=int, default=1)
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+    for name in ("artificial", "trajectories", "initial_rollouts", "inducing", "repeats"):
+        if getattr(args, name) < 1:
+            parser.error(f"--{name.replace('_', '-')}: expected a positive integer")
+    if args.artificial < 2:
+        parser.error("--artificial: GPREPS needs M >= 2")
+    if any(t < 1 for t in args.threads):
+        parser.error("--threads: expected positive integers")
+    if args.device == "cuda" and not torch.cuda.is_available():
+        parser.error("--device cuda: torch reports no CUDA device on this machine")
+
+    load_before = os.getloadavg()
+    print(
+        f"machine: {platform.platform()}, {platform.processor() or platform.machine()}, "
+        f"{os.cpu_count()} CPUs, torch {torch.__version__}, "
+        f"OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS', 'unset')}, device {args.device}"
+        + (f" ({torch.cuda.get_device_name()})" if args.device == "cuda" else "")
+    )
+    print("load average before: " + " ".join(f"{x:.2f}" for x in load_before))
+    print(
+        "task: balancing (the thesis's throwing update needs the decomposed throwing models, "
+        "which skillkit does not have yet: not benchmarked)"
+    )
+    task = Balancing()
+    t0 = time.perf_counter()
+    batch, n_failed = real_batch(task, args.initial_rollouts, args.seed)
+    horizon = task.n_steps
+    print(
+        f"real data: N0 = {args.initial_rollouts} rollouts of stable_gains "
+        f"({n_failed} failed and replaced), {args.initial_rollouts * horizon} transitions "
+        f"(collected in {time.perf_counter() - t0:.1f} s)"
+    )
+    print(
+        f"update: M = {args.artificial} artificial samples x L = {args.trajectories} "
+        f"trajectories, horizon T = {horizon}, FITC with {args.inducing} pseudo-inputs, "
+        f"{args.repeats} repeat(s) per thread count, interleaved (fastest total shown)"
+    )
+    if args.artificial < SMALL_M:
+        print(f"  (M < {SMALL_M}: the policy fit's effective-sample-size check is relaxed to 1)")
+
+    before = torch.get_num_threads()
+    runs: dict[int, list[dict[str, float]]] = {th: [] for th in args.threads}
+    try:
+        for _ in range(args.repeats):  # interleaved, so load drift hits every thread count
+            for th in runs:
+                torch.set_num_threads(th)
+                runs[th].append(one_update(task, batch, args))
+    finally:
+        torch.set_num_threads(before)
+    results = {th: min(rs, key=lambda r: r["total"]) for th, rs in runs.items()}
+
+    steps = args.artificial * args.trajectories * horizon
+    print()
+    print(
+        f"{'threads':>7}  {'training':>9}  {'prediction':>10}  {'policy':>8}  {'total':>8}  "
+        f"{'traj-steps/s':>12}  {'GP iters':>8}"
+    )
+    for th, r in results.items():
+        print(
+            f"{th:>7}  {r['training']:8.2f}s  {r['prediction']:9.2f}s  {r['policy']:7.3f}s  "
+            f"{r['total']:7.2f}s  {steps / r['prediction']:12.3g}  {r['iterations']!s:>8}"
+        )
+    if args.repeats > 1:
+        for th, rs in runs.items():
+            print(
+                f"{th} thread(s), totals of all repeats: "
+                + ", ".join(f"{r['total']:.2f}s" for r in rs)
+            )
+    if len(results) > 1:
+        lo, hi = min(results), max(results)
+        base, other = results[lo], results[hi]
+        print(
+            f"\nratio {hi} / {lo} threads (time): "
+            + ", ".join(
+                f"{k} {other[k] / base[k]:.2f}"
+                for k in ("training", "prediction", "policy", "total")
+            )
+        )
+    print("load average after: " + " ".join(f"{x:.2f}" for x in os.getloadavg()))
+
+
+if __name__ == "__main__":
+    main()

@@ -94,6 +94,14 @@ def check_array(
     return arr
 
 
+def check_count(value, name: str = "n", minimum: int = 1) -> int:
+    """An integer count ≥ ``minimum`` (an int or numpy integer, not a bool), or a
+    ``ValueError`` naming ``name``."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
+        raise ValueError(f"{name}: expected an integer ≥ {minimum}, got {value!r}")
+    return int(value)
+
+
 def check_positive(value: float, name: str, *, allow_zero: bool = False) -> float:
     """Validate a positive finite scalar, raising ``ValueError`` that names ``name``."""
     try:

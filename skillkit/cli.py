@@ -228,7 +228,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return args.func(args)
-    except (ValueError, CheckpointError) as exc:
+    except (ValueError, FileNotFoundError, CheckpointError) as exc:
         print(f"skillkit: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -1,6 +1,6 @@
 """The trial context: what one experiment trial reports progress to and checkpoints through.
 
-An experiment's ``run_trial(settings, rng, progress)`` receives a :class:`TrialContext`, and
+An experiment's ``run_trial(settings, rng, trial)`` receives a :class:`TrialContext`, and
 :func:`skillkit.search.loop.learn` takes one as ``trial=``. It is two things in one object:
 
 * a **progress bar**: :meth:`~TrialContext.reset`, :meth:`~TrialContext.update`,

@@ -124,6 +124,14 @@ class SamplingAccuracySettings(Settings):
         1.0, "Additive-noise factor α of the model: σ_add = α 10⁻² std(y) (Sec. 4.2.3)."
     )
 
+    def check(self) -> None:
+        """A Gaussian fit to sampled 8-D states needs at least 10 samples."""
+        if min(self.sample_sizes) < 10:
+            raise ValueError(
+                f"sample_sizes: a Gaussian fit in 8-D needs at least 10 samples, "
+                f"got {min(self.sample_sizes)}"
+            )
+
 
 QUICK_4_3 = SamplingAccuracySettings()
 SCALES_4_3 = {
@@ -166,10 +174,6 @@ def _run_4_3(
     settings: SamplingAccuracySettings, rng: np.random.Generator, trial: TrialContext
 ) -> dict:
     sizes = list(settings.sample_sizes)
-    if min(sizes) < 10:
-        raise ValueError(
-            f"sample_sizes: a Gaussian fit in 8-D needs at least 10 samples, got {min(sizes)}"
-        )
     B, T, n_gt = settings.n_start, settings.horizon, settings.n_ground_truth
     L = n_gt + sum(sizes)
     trial.reset(total=1 + B)

@@ -133,6 +133,32 @@ class StochasticRewardSettings(Settings):
         1.0, "Additive-noise factor α of the GP: σ_add = α 10⁻² std(y) (Sec. 4.2.3)."
     )
 
+    def check(self) -> None:
+        """Sizes that the L-averages need, stochastic dynamics, non-negative spreads."""
+        sizes = self.sample_sizes
+        if not sizes or min(sizes) < 1 or list(sizes) != sorted(set(sizes)):
+            raise ValueError(f"sample_sizes: expected increasing integers ≥ 1, got {sizes}")
+        if self.n_model < 2 * max(sizes):
+            raise ValueError(
+                f"n_model: need at least two blocks of the largest L = {max(sizes)}, "
+                f"got {self.n_model}"
+            )
+        if self.n_real < 2 * max(sizes):
+            raise ValueError(
+                f"n_real: need at least two blocks of the largest L = {max(sizes)}, "
+                f"got {self.n_real}"
+            )
+        for name in ("horizon", "n_train", "n_bins", "n_shown"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name}: expected a positive integer, got {getattr(self, name)}")
+        if not self.control_noise > 0:
+            raise ValueError(
+                f"control_noise: the experiment needs stochastic dynamics (σ_u > 0), "
+                f"got {self.control_noise}"
+            )
+        if min(self.train_context_halfwidth) < 0 or min(self.train_gain_std) < 0:
+            raise ValueError("train_context_halfwidth, train_gain_std: expected values ≥ 0")
+
 
 QUICK = StochasticRewardSettings()
 SCALES = {
@@ -150,32 +176,6 @@ SCALES = {
     "quick": QUICK,
     "paper": replace(QUICK, n_real=1000, n_train=30, n_model=5000, n_opt_steps=150),
 }
-
-
-def _check(settings: StochasticRewardSettings) -> None:
-    sizes = settings.sample_sizes
-    if not sizes or min(sizes) < 1 or list(sizes) != sorted(set(sizes)):
-        raise ValueError(f"sample_sizes: expected increasing integers ≥ 1, got {sizes}")
-    if settings.n_model < 2 * max(sizes):
-        raise ValueError(
-            f"n_model: need at least two blocks of the largest L = {max(sizes)}, "
-            f"got {settings.n_model}"
-        )
-    if settings.n_real < 2 * max(sizes):
-        raise ValueError(
-            f"n_real: need at least two blocks of the largest L = {max(sizes)}, "
-            f"got {settings.n_real}"
-        )
-    for name in ("horizon", "n_train", "n_bins", "n_shown"):
-        if getattr(settings, name) < 1:
-            raise ValueError(f"{name}: expected a positive integer, got {getattr(settings, name)}")
-    if not settings.control_noise > 0:
-        raise ValueError(
-            f"control_noise: the experiment needs stochastic dynamics (σ_u > 0), "
-            f"got {settings.control_noise}"
-        )
-    if min(settings.train_context_halfwidth) < 0 or min(settings.train_gain_std) < 0:
-        raise ValueError("train_context_halfwidth, train_gain_std: expected values ≥ 0")
 
 
 def commanded_transitions(
@@ -238,7 +238,6 @@ def block_rmse(samples: np.ndarray, L: int, target: float) -> float:
 def _run_trial(
     settings: StochasticRewardSettings, rng: np.random.Generator, trial: TrialContext
 ) -> dict:
-    _check(settings)
     T = settings.horizon
     task = make("pendulum-stochastic", horizon=T, control_noise=settings.control_noise)
     s = task.check_context(settings.context, "context")

@@ -17,10 +17,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-__all__ = ["Run", "load_run", "results_root", "stored_run"]
+from skillkit.experiments.registry import VERDICT_KEYS
 
-#: Summary keys shown in the card and the repr besides the verdict.
-_VERDICT_KEYS = ("claim", "holds", "statement")
+__all__ = ["Run", "load_run", "results_root", "stored_run"]
 
 
 @dataclass(frozen=True)
@@ -75,19 +74,20 @@ class Run:
 
     @property
     def verdict(self) -> str:
-        """One line: holds / does not hold / no claim, and the statement with our numbers."""
-        s = self.summary
-        word = {True: "holds", False: "does not hold", None: "no verdict"}.get(
-            s.get("holds"), "no verdict"
-        )
-        statement = s.get("statement", "")
-        return f"{word}: {statement}" if statement else word
+        """One line: holds / does not hold / undecided, and the statement with our numbers
+        (the words of the figure's subtitle, :func:`skillkit.viz.plots.verdict`)."""
+        from skillkit.viz.plots import verdict
+
+        v = verdict(self.result)
+        if v is None:
+            return "no verdict recorded"
+        return f"{v.word}: {v.statement}" if v.statement else v.word
 
     def headline(self, n: int = 8) -> dict[str, Any]:
         """Up to ``n`` scalar summary entries besides the verdict (numbers, short strings)."""
         out: dict[str, Any] = {}
         for key, value in self.summary.items():
-            if key in _VERDICT_KEYS or key == "setup":
+            if key in VERDICT_KEYS or key == "setup":
                 continue
             if isinstance(value, (int, float, bool)) or (
                 isinstance(value, str) and len(value) <= 60

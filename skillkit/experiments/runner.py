@@ -27,7 +27,7 @@ from tqdm.auto import tqdm
 
 from skillkit.experiments import checkpoint
 from skillkit.experiments.registry import get
-from skillkit.experiments.run import Run, load_run
+from skillkit.experiments.run import Run
 from skillkit.experiments.settings import Settings
 from skillkit.trial import TrialContext, Writer
 
@@ -411,7 +411,8 @@ def reproduce(
                 trial_arrays[f"trial{i}__{k}"] = arr
     np.savez_compressed(folder / "trials.npz", **trial_arrays)
     tmp = folder / "result.json.tmp"
-    tmp.write_text(json.dumps(result, indent=1))
+    text = json.dumps(result, indent=1)
+    tmp.write_text(text)
     tmp.replace(folder / "result.json")
     write_figures(result, folder, html=html)
-    return load_run(folder)
+    return Run(folder, json.loads(text))  # exactly what result.json holds, without rereading it

@@ -162,6 +162,13 @@ class Settings:
                 ) from None
             if norm is not value:
                 object.__setattr__(self, f.name, norm)
+        self.check()
+
+    def check(self) -> None:
+        """Checks beyond the field types (ranges, relations between fields), run on every
+        construction, so ``--set``, :func:`apply_overrides` and :func:`dataclasses.replace`
+        reject bad values before any work starts. Subclasses override it and raise
+        ``ValueError`` naming the field."""
 
     def to_dict(self) -> dict[str, Any]:
         """The settings as a plain dict (``dataclasses.asdict``; sequences stay tuples)."""

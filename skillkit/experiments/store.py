@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 
 from skillkit.experiments.registry import Series
+from skillkit.experiments.run import load_run
 
 
 def list_runs(root: str | Path = "runs") -> list[dict]:
@@ -41,18 +42,6 @@ def list_runs(root: str | Path = "runs") -> list[dict]:
     return runs
 
 
-def load_run(path: str | Path) -> dict:
-    """The ``result.json`` of a run folder (or of the file itself)."""
-    path = Path(path)
-    file = path / "result.json" if path.is_dir() else path
-    if not file.exists():
-        raise ValueError(f"run: no result.json at {path}")
-    try:
-        return json.loads(file.read_text())
-    except ValueError as exc:
-        raise ValueError(f"run: {file} is not valid JSON ({exc})") from None
-
-
 def _flatten(d: dict, prefix: str = "") -> dict:
     out = {}
     for k, v in d.items():
@@ -78,7 +67,7 @@ def compare(
         A result-like dict whose series overlay both runs' curves (names suffixed `` [A]``
         and `` [B]``), ready for :func:`skillkit.viz.plots.write_figures`.
     """
-    a, b = load_run(path_a), load_run(path_b)
+    a, b = load_run(path_a).result, load_run(path_b).result
     run_keys = ("trials", "executor", "workers", "resumed_trials", "wall_time_s")
     fa, fb = (
         _flatten(

@@ -47,7 +47,7 @@ import numpy as np
 from scipy.signal import lfilter
 
 from skillkit._repr import number, span, vector
-from skillkit._validation import check_array, check_positive
+from skillkit._validation import check_array, check_count, check_positive
 
 __all__ = ["DMP", "DMPParameters"]
 
@@ -100,12 +100,6 @@ def _discretise(h: float, stiffness: float, damping: float):
     return out
 
 
-def _check_count(value, name: str) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-        raise ValueError(f"{name}: expected an integer >= 1, got {value!r}")
-    return int(value)
-
-
 class DMP:
     """Discrete DMP for ``n_joints`` joints sharing one phase (Eqs. 2.21–2.23).
 
@@ -148,8 +142,8 @@ class DMP:
         dt: float = 1e-3,
         duration: float = 1.0,
     ) -> None:
-        self.n_joints = _check_count(n_joints, "n_joints")
-        self.n_basis = _check_count(n_basis, "n_basis")
+        self.n_joints = check_count(n_joints, "n_joints")
+        self.n_basis = check_count(n_basis, "n_basis")
         self.alpha_x = check_positive(alpha_x, "alpha_x")
         self.beta_x = check_positive(beta_x, "beta_x")
         self.alpha_z = check_positive(alpha_z, "alpha_z")

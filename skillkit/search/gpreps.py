@@ -40,11 +40,11 @@ from typing import Any, Literal, Protocol, runtime_checkable
 import numpy as np
 
 from skillkit._repr import number
-from skillkit._validation import as_generator, check_array, check_positive
+from skillkit._validation import as_generator, check_array, check_count, check_positive
 from skillkit.models.gp import ExactGP, ForwardModel, _GPRegression
 from skillkit.policies.features import FeatureName, check_feature_name
 from skillkit.policies.gaussian import LinearGaussianPolicy
-from skillkit.search.base import Batch, as_batch
+from skillkit.search.base import Batch, SampleBuffer, as_batch
 from skillkit.search.reps import ContextualREPS, REPSDiagnostics
 from skillkit.tasks.base import Task
 from skillkit.trajectory import Trajectory
@@ -225,10 +225,8 @@ class TrajectoryRewardModel:
             )
         if make_model is not None and not callable(make_model):
             raise ValueError(f"make_model: expected a callable, got {type(make_model).__name__}")
-        if horizon is not None and (
-            isinstance(horizon, bool) or not isinstance(horizon, (int, np.integer)) or horizon < 1
-        ):
-            raise ValueError(f"horizon: expected an integer ≥ 1 or None, got {horizon!r}")
+        if horizon is not None:
+            check_count(horizon, "horizon")
         self.task = task
         self.make_model = _default_forward_model if make_model is None else make_model
         self.horizon = None if horizon is None else int(horizon)
@@ -370,10 +368,8 @@ class GPREPSSettings:
 
     def __post_init__(self):
         check_positive(self.epsilon, "epsilon")
-        for name, low in (("n_artificial", 2), ("n_trajectories", 1)):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < low:
-                raise ValueError(f"{name}: expected an integer ≥ {low}, got {v!r}")
+        check_count(self.n_artificial, "n_artificial", 2)
+        check_count(self.n_trajectories, "n_trajectories")
         if self.context_model not in CONTEXT_MODELS:
             raise ValueError(
                 f"context_model: expected one of {CONTEXT_MODELS}, got {self.context_model!r}"
@@ -493,9 +489,7 @@ class GPREPS:
             min_effective_samples=settings.min_effective_samples,
         )
         self._rng = as_generator(rng)
-        self._contexts: list[np.ndarray] = []
-        self._omegas: list[np.ndarray] = []
-        self._rewards: list[np.ndarray] = []
+        self._real = SampleBuffer(None)  # every real batch (GPREPS refits on all data)
         self._trajectories: list[Trajectory] | None = []
         self.n_updates = 0
 
@@ -507,18 +501,14 @@ class GPREPS:
     @property
     def n_real(self) -> int:
         """Real samples collected so far."""
-        return int(sum(r.shape[0] for r in self._rewards))
+        return len(self._real)
 
     def real_data(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """All real samples so far: contexts (N, context_dim), omegas (N, d), rewards (N,)."""
-        if not self._rewards:
+        if not len(self._real):
             pol = self.policy
             return np.zeros((0, pol.context_dim)), np.zeros((0, pol.dim)), np.zeros(0)
-        return (
-            np.concatenate(self._contexts),
-            np.concatenate(self._omegas),
-            np.concatenate(self._rewards),
-        )
+        return self._real.arrays()
 
     def sample_contexts(self, n: int) -> np.ndarray:
         """n contexts from μ̂(s) fitted to the observed contexts, shape (n, context_dim).
@@ -532,7 +522,7 @@ class GPREPS:
         kind = self.settings.context_model
         if kind == "prior":
             return np.asarray(self.task.sample_context(rng, n=n), dtype=np.float64).reshape(n, -1)
-        s = np.concatenate(self._contexts)
+        s = self._real.arrays()[0]
         if kind == "uniform":
             return rng.uniform(s.min(axis=0), s.max(axis=0), size=(n, s.shape[1]))
         mean = s.mean(axis=0)
@@ -560,15 +550,12 @@ class GPREPS:
         t0 = time.perf_counter()
         predicted = None
         if self.n_updates:  # the model's bias on the new, unseen real rollouts
-            pred = self.reward_model.expected_rewards(
+            predicted = self.reward_model.expected_rewards(
                 batch.contexts, batch.omegas, st.n_trajectories, rng
             )
-            predicted = pred
         t_pred0 = time.perf_counter() - t0
 
-        self._contexts.append(batch.contexts)
-        self._omegas.append(batch.omegas)
-        self._rewards.append(batch.rewards)
+        self._real.add(batch.contexts, batch.omegas, batch.rewards)
         if self._trajectories is not None:
             self._trajectories.extend(batch.trajectories)
         s_real, w_real, r_real = self.real_data()

@@ -32,7 +32,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from tqdm.auto import tqdm
 
-from skillkit._validation import as_generator
+from skillkit._validation import as_generator, check_count
 from skillkit.search.base import Batch
 from skillkit.tasks.base import Task
 from skillkit.trial import TrialContext
@@ -97,7 +97,7 @@ def collect(
         re-scorings (rows N + i k … N + (i + 1) k − 1 re-score trajectory i, with ω_i and
         τ_i repeated).
     """
-    n = _check_count(n, "n", 1)
+    n = check_count(n, "n", 1)
     n_extra = _check_extra_contexts(task, extra_contexts)
     rng = as_generator(rng)
     contexts = task.sample_context(rng, n=n)
@@ -346,9 +346,9 @@ def learn(
         learning playback steps through, see :func:`policy_history_arrays`).
     """
     _check_task_and_algorithm(task, algorithm)
-    n_updates = _check_count(n_updates, "n_updates", 1)
-    n = _check_count(rollouts_per_update, "rollouts_per_update", 1)
-    n0 = n if initial_rollouts is None else _check_count(initial_rollouts, "initial_rollouts", 1)
+    n_updates = check_count(n_updates, "n_updates", 1)
+    n = check_count(rollouts_per_update, "rollouts_per_update", 1)
+    n0 = n if initial_rollouts is None else check_count(initial_rollouts, "initial_rollouts", 1)
     n_extra = _check_extra_contexts(task, extra_contexts)
     if trial is not None and not isinstance(trial, TrialContext):
         raise ValueError(
@@ -441,7 +441,7 @@ def _check_task_and_algorithm(task: Task, algorithm: SearchAlgorithm) -> None:
 
 
 def _check_extra_contexts(task: Task, extra_contexts: int) -> int:
-    n_extra = _check_count(extra_contexts, "extra_contexts", 0)
+    n_extra = check_count(extra_contexts, "extra_contexts", 0)
     if n_extra and (task.trajectory_depends_on_context or task.context_dim == 0):
         raise ValueError(
             f"extra_contexts: task {task.name!r} "
@@ -453,9 +453,3 @@ def _check_extra_contexts(task: Task, extra_contexts: int) -> int:
             + "; re-scoring a trajectory in other contexts is not valid (Sec. 3.4)"
         )
     return n_extra
-
-
-def _check_count(value, name: str, minimum: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
-        raise ValueError(f"{name}: expected an integer ≥ {minimum}, got {value!r}")
-    return int(value)

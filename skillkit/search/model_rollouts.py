@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from skillkit._validation import as_generator, check_array
+from skillkit._validation import as_generator, check_array, check_count
 from skillkit.models.sampling import SampledTrajectories, StepModel, sample_trajectories
 from skillkit.tasks.base import Task
 
@@ -134,20 +134,13 @@ def predict_trajectories(
         s = np.zeros((B, 0))
     else:
         s = check_array(contexts, "contexts", shape=(B, task.context_dim))
-    if isinstance(horizon, bool) or not isinstance(horizon, (int, np.integer)) or horizon < 1:
-        raise ValueError(f"horizon: expected an integer ≥ 1, got {horizon!r}")
-    if isinstance(n_samples, bool) or not isinstance(n_samples, (int, np.integer)) or n_samples < 1:
-        raise ValueError(f"n_samples: expected an integer ≥ 1, got {n_samples!r}")
+    horizon, n_samples = check_count(horizon, "horizon"), check_count(n_samples, "n_samples")
     rng = as_generator(rng)
     n_x = task.model_signals().state_dim
     if x0 is None:
         start = np.stack([task.initial_states(s_b, int(n_samples), rng) for s_b in s])
     else:
-        start = np.asarray(x0, dtype=np.float64)
-        if start.shape not in ((B, n_x), (B, int(n_samples), n_x)):
-            raise ValueError(
-                f"x0: expected shape ({B}, {n_x}) or ({B}, {n_samples}, {n_x}), got {start.shape}"
-            )
+        start = x0  # shape and values are checked by sample_trajectories
     policy = task.controller(w, s if task.context_dim else None, device=device, dtype=dtype)
     sampled = sample_trajectories(
         model,
@@ -167,9 +160,8 @@ def predict_trajectories(
     if control_limit is not None:
         limit = torch.as_tensor(control_limit, dtype=u_last.dtype, device=u_last.device)
         u_last = torch.clamp(u_last, -limit, limit)
-    states = sampled.states.detach().cpu().numpy().astype(np.float64)
-    controls = torch.cat([sampled.controls, u_last], dim=2).detach().cpu().numpy()
-    controls = controls.astype(np.float64)
+    states = np.asarray(sampled.states.cpu(), dtype=np.float64)  # no copy for float64 on CPU
+    controls = np.asarray(torch.cat([sampled.controls, u_last], dim=2).cpu(), dtype=np.float64)
     flat_s = np.repeat(s, L, axis=0)
     rewards = np.asarray(
         task.reward_batch(

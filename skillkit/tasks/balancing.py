@@ -123,9 +123,7 @@ class Balancing(Task):
         self.torque_noise_std = check_positive(
             torque_noise_std, "torque_noise_std", allow_zero=True
         )
-        if isinstance(n_steps, bool) or int(n_steps) != n_steps or n_steps < 1:
-            raise ValueError(f"n_steps: expected a positive integer, got {n_steps!r}")
-        self.n_steps = int(n_steps)
+        self.n_steps = check_count(n_steps, "n_steps")
         self.control_dt = check_positive(control_dt, "control_dt")
         control_substeps(self.robot.model, self.control_dt)
         if state_weights is None:

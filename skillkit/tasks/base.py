@@ -26,19 +26,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from skillkit._validation import as_generator, check_array
+from skillkit._validation import as_generator, check_array, check_count  # noqa: F401  (re-exported for the task modules)
 from skillkit.trajectory import Trajectory
 
 
 class SimulationFailure(RuntimeError):
     """Raised inside a simulator when the physics produced non-finite or unstable values."""
-
-
-def check_count(n, name: str = "n") -> int:
-    """A positive integer count (not a bool), or a ValueError naming ``name``."""
-    if isinstance(n, bool) or not np.isscalar(n) or int(n) != n or n < 1:
-        raise ValueError(f"{name}: expected a positive integer, got {n!r}")
-    return int(n)
 
 
 def state_transitions(

@@ -38,10 +38,12 @@ A site ``hand`` marks the tip of the arm (where the ball is held in the throwing
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 from dm_control import mjcf
 
-from skillkit.tasks._mjcf import mjcf_root
+from skillkit.tasks._mjcf import GRAVITY, mjcf_root
 
 LINK_NAMES = ("shin", "thigh", "torso", "arm")
 JOINT_NAMES = ("ankle", "knee", "hip", "shoulder")
@@ -116,17 +118,20 @@ def compile_planar_robot(timestep: float = TIMESTEP) -> mjcf.Physics:
     return mjcf.Physics.from_mjcf_model(build_planar_robot(timestep))
 
 
+@functools.cache  # constants of the robot: computed once, not at every control step
 def _chain_constants() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """H (4, 4), b (4,) and the rod inertias I (4,) of :func:`rigid_body_terms`."""
     a = np.zeros((4, 4))  # a[k, j]: lever of absolute angle θ_j in the centre of mass of link k
     for k in range(4):
         a[k, :k] = LINK_LENGTHS[:k]
         a[k, k] = (-1.0 if LINK_NAMES[k] == "arm" else 1.0) * LINK_LENGTHS[k] / 2
-    h = a.T @ np.diag(LINK_MASSES) @ a
-    return h, a.T @ LINK_MASSES, LINK_MASSES * LINK_LENGTHS**2 / 12.0
+    out = (a.T @ np.diag(LINK_MASSES) @ a, a.T @ LINK_MASSES, LINK_MASSES * LINK_LENGTHS**2 / 12.0)
+    for arr in out:
+        arr.flags.writeable = False  # shared by every call
+    return out
 
 
-def rigid_body_terms(q, qd, gravity: float = 9.81):
+def rigid_body_terms(q, qd, gravity: float = GRAVITY):
     """Joint-space inertia M(q) and bias force c(q, q̇) of the robot, in closed form (torch).
 
     The equations of motion M(q) q̈ + c(q, q̇) = u of :func:`build_planar_robot` (MuJoCo's

@@ -55,7 +55,7 @@ def plot_learning(
         One panel: reward of the policy mean (evaluated on the evaluation contexts) against
         the number of rollouts so far.
     """
-    from skillkit.viz.series import Series, mean_band
+    from skillkit.viz.series import Series, trial_band
 
     if backend not in _BACKENDS:
         raise ValueError(f"backend: expected one of {_BACKENDS}, got {backend!r}")
@@ -84,21 +84,9 @@ def plot_learning(
         n = len(curves)
         common = {"panel": "", "xlabel": "rollouts", "ylabel": ylabel}
         groups_of.append(name)
-        if n == 1:
-            series.append(Series(name, x.tolist(), curves[0]["mean_reward"].tolist(), **common))
-        else:
-            m, lo, hi = mean_band(np.stack([c["mean_reward"] for c in curves]))
-            series.append(
-                Series(
-                    f"{name} (mean of {n} runs)",
-                    x.tolist(),
-                    m,
-                    lower=lo,
-                    upper=hi,
-                    band=f"mean ± std over {n} runs",
-                    **common,
-                )
-            )
+        m, band = trial_band(np.stack([c["mean_reward"] for c in curves]), over="runs")
+        label = name if n == 1 else f"{name} (mean of {n} runs)"
+        series.append(Series(label, x.tolist(), m, **band, **common))
         if explore and ex.size:
             groups_of.append(name)
             ey = np.mean(np.stack([c["explore_reward"] for c in curves]), axis=0)

@@ -41,7 +41,6 @@ result; :func:`load_policy_history` reads a trial of such a folder directly.
 
 from __future__ import annotations
 
-import zipfile
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -50,6 +49,7 @@ import numpy as np
 
 from skillkit._validation import check_array
 from skillkit.policies.gaussian import LinearGaussianPolicy
+from skillkit.viz._npz import read_npz
 
 __all__ = [
     "HISTORY_FORMAT",
@@ -198,8 +198,10 @@ def save_policy_history(
     Path
         The file written.
     """
-    history = PolicyHistory(tuple(policies), rollouts, mean_reward, str(task))
-    arrays = _policy_arrays(history.policies)
+    from skillkit.search.loop import policy_history_arrays
+
+    history = PolicyHistory(tuple(policies), rollouts, mean_reward, str(task))  # validates
+    arrays = policy_history_arrays(history.policies)
     arrays.update(format=np.asarray(HISTORY_FORMAT), task=np.asarray(history.task))
     if history.rollouts is not None:
         arrays["rollouts"] = history.rollouts
@@ -282,11 +284,7 @@ def load_policy_history(path, trial: int = 0) -> PolicyHistory:
         file, prefix = path, ""
     if not file.exists():
         raise ValueError(f"policy: no such file {file}")
-    try:
-        with np.load(file, allow_pickle=False) as data:
-            arrays = {k: data[k] for k in data.files}
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
-        raise ValueError(f"policy: {file} is not a readable .npz file ({exc})") from None
+    arrays = read_npz(file, "policy")
     if prefix and not any(k.startswith(prefix) for k in arrays):
         n = len({k.split("__")[0] for k in arrays if k.startswith("trial")})
         raise ValueError(f"trial: {file} has no trial {trial} (it has {n} trials)")

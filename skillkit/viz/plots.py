@@ -15,8 +15,8 @@ summary's ``claim``, ``holds`` and ``statement``), what each band is (``Series.b
 legend, and an axis range that stays readable when a few values run away (they are marked at
 the edge of the axis and counted in a note, see :func:`robust_range`).
 
-:func:`plot_learning` draws what :func:`skillkit.search.loop.learn` returns, one run or several
-(mean ± std over runs), and :func:`plot_gp_fit` a 1-D GP regression (mean, 95% band, data).
+Figures of live objects (a ``learn()`` result, a GP fit, predicted vs real trajectories) are
+in :mod:`skillkit.viz.figures`; they draw through this module.
 """
 
 from __future__ import annotations

@@ -31,13 +31,13 @@ misread gets a new version string; new optional per-layer keys do not.
 
 from __future__ import annotations
 
-import zipfile
 from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
 
 from skillkit._validation import check_array
+from skillkit.viz._npz import read_npz
 
 __all__ = ["PREDICTIONS_FORMAT", "load_predictions", "save_predictions"]
 
@@ -112,11 +112,7 @@ def load_predictions(path) -> list[dict]:
         Unreadable file, another format version, or no layers (argument ``predictions``).
     """
     path = Path(path)
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            arrays = {k: data[k] for k in data.files}
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
-        raise ValueError(f"predictions: {path} is not a readable .npz file ({exc})") from None
+    arrays = read_npz(path, "predictions")
     fmt = arrays.get(_FORMAT_KEY)
     if fmt is not None and str(fmt) != PREDICTIONS_FORMAT:
         raise ValueError(

@@ -125,9 +125,9 @@ def test_verdict_follows_the_stated_criterion():
     ],
 )
 def test_bad_settings_are_rejected(overrides, match):
-    settings = dataclasses.replace(SCALES["smoke"], **overrides)
     run_trial = get("fig4.8").run_trial
-    with pytest.raises(ValueError, match=match):
+    with pytest.raises(ValueError, match=match):  # at construction, or for the context in the trial
+        settings = dataclasses.replace(SCALES["smoke"], **overrides)
         run_trial(settings, np.random.default_rng(0), TrialContext())
     with pytest.raises(ValueError, match="sample_sizes: expected list of int"):
         get("fig4.8").settings_for("smoke", sample_sizes=[1.5])

@@ -56,7 +56,7 @@ def test_card_and_repr_show_title_claim_verdict_and_numbers(tmp_path):
 def test_old_summaries_without_a_verdict(tmp_path):
     _write(tmp_path / "r", rmse=0.1)
     run = load_run(tmp_path / "r")
-    assert run.holds is None and run.verdict == "no verdict"
+    assert run.holds is None and run.verdict == "no verdict recorded"
 
 
 def test_missing_or_broken_folders_are_reported(tmp_path):

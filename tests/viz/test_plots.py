@@ -290,26 +290,11 @@ def _learn_like(offset=0.0, n=4, per=5):
 
 
 def test_plot_learning_draws_a_real_learn_result():
-    from skillkit.policies.gaussian import GaussianPolicy
+    from skillkit.experiments.sanity import LinearOptimumTask
     from skillkit.search.loop import learn
     from skillkit.search.reps import ContextualREPS
-    from skillkit.tasks.base import Task
-    from skillkit.trajectory import Trajectory
 
-    class Bowl(Task):
-        name = "bowl"
-        parameter_dim = 2
-
-        def _simulate(self, omega, context, rng):
-            return Trajectory(np.zeros(1), omega[None, :], np.zeros((1, 0)))
-
-        def _reward(self, trajectory, context):
-            return float(-np.sum((trajectory.states[0] - 1.0) ** 2))
-
-        def initial_policy(self):
-            return GaussianPolicy(np.zeros(2), np.eye(2))
-
-    task = Bowl()
+    task = LinearOptimumTask()
     res = learn(task, ContextualREPS(task.initial_policy(), 1.0), 3, 20, 0)
     fig = plot_learning(res, label="REPS")
     line = next(t for t in fig.data if t.name == "REPS")

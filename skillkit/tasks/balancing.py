@@ -205,18 +205,17 @@ class Balancing(Task):
         -------
         ndarray or Tensor, shape (B,)
         """
-        if _is_tensor(states):
+        if _is_tensor(states):  # one formula for numpy and torch (einsum and sum agree)
             import torch
 
-            up = torch.as_tensor(X_UP, dtype=states.dtype, device=states.device)
-            q_w = torch.as_tensor(self.state_weights, dtype=states.dtype, device=states.device)
-            x, u = states[:, 1:] - up, controls[:, 1:]
-            cost = torch.einsum("bti,ij,btj->b", x, q_w, x)
-            return -(cost + self.control_weight * (u**2).sum(dim=(1, 2)))
-        x = np.asarray(states)[:, 1:] - X_UP
-        u = np.asarray(controls)[:, 1:]
-        cost = np.einsum("bti,ij,btj->b", x, self.state_weights, x)
-        return -(cost + self.control_weight * (u**2).sum(axis=(1, 2)))
+            xp, kw = torch, {"dtype": states.dtype, "device": states.device}
+            up, q_w = (torch.as_tensor(a, **kw) for a in (X_UP, self.state_weights))
+        else:
+            xp, up, q_w = np, X_UP, self.state_weights
+            states, controls = np.asarray(states), np.asarray(controls)
+        x, u = states[:, 1:] - up, controls[:, 1:]
+        cost = xp.einsum("bti,ij,btj->b", x, q_w, x)
+        return -(cost + self.control_weight * (u**2).sum((1, 2)))
 
     def immediate_reward(self, states, controls):
         """The immediate reward r(x, u) = −(x̃ᵀ Q x̃ + r_u uᵀu), vectorised over leading axes.

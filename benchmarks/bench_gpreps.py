@@ -20,13 +20,18 @@ restored afterwards; OpenMP/BLAS threads outside torch follow ``OMP_NUM_THREADS`
 2-thread / 1-thread ratios measured in the same run, the torch version and the machine's load
 average before and after (other processes on a shared machine inflate the times).
 
-**Task.** The ``balancing`` task (4-link planar robot, 32 gains, horizon T = the task's 40
-control steps). The thesis's GPREPS timing is for the *throwing* task, whose update needs the
-decomposed throwing models (flight + racket models, Sec. 4.3.1); they do not exist in skillkit
-yet, so throwing is not benchmarked here.
+**Task** (``--task``). ``throwing`` (the thesis's timing, Sec. 4.3.2): the decomposed model of
+Fig. 4.2 (:class:`~skillkit.search.throwing_model.ThrowingRewardModel`: FITC robot dynamics with
+``--inducing`` pseudo-inputs (default 50) on at most 1000 transitions, the exact-GP release
+model on 300 hand states, the FITC flight model), trained on N₀ = 10 throws of the imitation
+policy (1240 transitions, so every data cap is already reached and later updates cost the
+same), 125 control steps per throw and 250 flight steps. ``balancing`` (4-link planar robot,
+32 gains, horizon T = 40 control steps) with a
+:class:`~skillkit.search.gpreps.TrajectoryRewardModel` (FITC, default 100 pseudo-inputs).
 
-**Real data.** N₀ = ``--initial-rollouts`` (default 20) real rollouts of robustly balancing
-gains drawn from the task's initial policy by :func:`skillkit.tasks.balancing.stable_gains`
+**Real data (balancing).** N₀ = ``--initial-rollouts`` (default 20) real rollouts of robustly
+balancing gains drawn from the task's initial policy by
+:func:`skillkit.tasks.balancing.stable_gains`
 (closed-loop spectral radius ≤ 0.98; rollouts that fall are replaced,
 :func:`~skillkit.tasks.balancing.collect_balancing`), so the model is trained on N₀ · T
 transitions. The update timed is the *first* GPREPS update on that batch (no prediction of an
@@ -71,6 +76,8 @@ from skillkit.models.gp import ForwardModel
 from skillkit.models.sparse import FITC
 from skillkit.search.base import Batch
 from skillkit.search.gpreps import GPREPS, GPREPSSettings, TrajectoryRewardModel
+from skillkit.search.throwing_model import ThrowingRewardModel
+from skillkit.tasks import make
 from skillkit.tasks.balancing import Balancing, collect_balancing
 
 #: Below this M the policy fit's effective-sample-size check (default d + 1 = 33) is relaxed to
@@ -96,15 +103,35 @@ def real_batch(task: Balancing, n: int, seed: int) -> tuple[Batch, int]:
     return Batch(None, data["omegas"], rewards, trajs), data["n_failed"]
 
 
-def one_update(task: Balancing, batch: Batch, args: argparse.Namespace) -> dict[str, float]:
+def real_throws(task, n: int, seed: int) -> Batch:
+    """N₀ throws of the imitation policy at random targets."""
+    rng = np.random.default_rng(seed)
+    s = task.sample_context(rng, n=n)
+    w = task.initial_policy().sample(s, rng)
+    trajs = [task.rollout(wi, si, rng) for wi, si in zip(w, s, strict=True)]
+    rewards = np.array([task.reward(t, si) for t, si in zip(trajs, s, strict=True)])
+    return Batch(s, w, rewards, trajs)
+
+
+def one_update(task, batch: Batch, args: argparse.Namespace) -> dict[str, float]:
     """Wall times of one GPREPS update from a fresh GPREPS (seeded by ``args.seed``)."""
-    model = TrajectoryRewardModel(
-        task, make_model=_FITCForwardModel(args.inducing), device=args.device
-    )
+    if args.task == "throwing":
+        model = ThrowingRewardModel(
+            task,
+            make_robot_model=_FITCForwardModel(args.inducing),
+            max_robot_points=1000,
+            device=args.device,
+        )
+    else:
+        model = TrajectoryRewardModel(
+            task, make_model=_FITCForwardModel(args.inducing), device=args.device
+        )
     settings = GPREPSSettings(
         n_artificial=args.artificial,
         n_trajectories=args.trajectories,
+        context_model="uniform",
         min_effective_samples=1.0 if args.artificial < SMALL_M else None,
+        cov_floor=0.1 if args.task == "throwing" else 1e-4,
     )
     gpreps = GPREPS(task.initial_policy(), model, settings, rng=args.seed + 1)
     t0 = time.perf_counter()
@@ -116,7 +143,7 @@ def one_update(task: Balancing, batch: Batch, args: argparse.Namespace) -> dict[
         "policy": diag.time_policy,
         "total": total,
         "eta": diag.reps.eta,
-        "iterations": diag.model_fit.get("iterations"),
+        "iterations": diag.model_fit.get("iterations", diag.model_fit.get("robot_iterations")),
     }
 
 
@@ -126,13 +153,23 @@ def main() -> None:
     )
     parser.add_argument("--artificial", type=int, default=500, help="M artificial samples")
     parser.add_argument("--trajectories", type=int, default=25, help="L trajectories per sample")
-    parser.add_argument("--initial-rollouts", type=int, default=20, help="N0 real rollouts")
-    parser.add_argument("--inducing", type=int, default=100, help="FITC pseudo-inputs M_ind")
+    parser.add_argument("--task", choices=["throwing", "balancing"], default="throwing")
+    parser.add_argument(
+        "--initial-rollouts", type=int, default=None, help="N0 real rollouts (10 / 20)"
+    )
+    parser.add_argument(
+        "--inducing", type=int, default=None, help="FITC pseudo-inputs M_ind (50 / 100)"
+    )
     parser.add_argument("--threads", type=int, nargs="+", default=[1, 2])
     parser.add_argument("--device", choices=["cpu", "cuda"], default="cpu")
     parser.add_argument("--repeats", type=int, default=1)
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
+    throwing = args.task == "throwing"
+    if args.initial_rollouts is None:
+        args.initial_rollouts = 10 if throwing else 20
+    if args.inducing is None:
+        args.inducing = 50 if throwing else 100
     for name in ("artificial", "trajectories", "initial_rollouts", "inducing", "repeats"):
         if getattr(args, name) < 1:
             parser.error(f"--{name.replace('_', '-')}: expected a positive integer")
@@ -151,19 +188,25 @@ def main() -> None:
         + (f" ({torch.cuda.get_device_name()})" if args.device == "cuda" else "")
     )
     print("load average before: " + " ".join(f"{x:.2f}" for x in load_before))
-    print(
-        "task: balancing (the thesis's throwing update needs the decomposed throwing models, "
-        "which skillkit does not have yet: not benchmarked)"
-    )
-    task = Balancing()
     t0 = time.perf_counter()
-    batch, n_failed = real_batch(task, args.initial_rollouts, args.seed)
-    horizon = task.n_steps
-    print(
-        f"real data: N0 = {args.initial_rollouts} rollouts of stable_gains "
-        f"({n_failed} failed and replaced), {args.initial_rollouts * horizon} transitions "
-        f"(collected in {time.perf_counter() - t0:.1f} s)"
-    )
+    if throwing:
+        task = make("throwing")
+        batch = real_throws(task, args.initial_rollouts, args.seed)
+        horizon = task.n_steps - 1
+        print(
+            f"task: throwing, real data: N0 = {args.initial_rollouts} throws of the imitation "
+            f"policy, {args.initial_rollouts * horizon} transitions (collected in "
+            f"{time.perf_counter() - t0:.1f} s)"
+        )
+    else:
+        task = Balancing()
+        batch, n_failed = real_batch(task, args.initial_rollouts, args.seed)
+        horizon = task.n_steps
+        print(
+            f"task: balancing, real data: N0 = {args.initial_rollouts} rollouts of stable_gains "
+            f"({n_failed} failed and replaced), {args.initial_rollouts * horizon} transitions "
+            f"(collected in {time.perf_counter() - t0:.1f} s)"
+        )
     print(
         f"update: M = {args.artificial} artificial samples x L = {args.trajectories} "
         f"trajectories, horizon T = {horizon}, FITC with {args.inducing} pseudo-inputs, "

@@ -50,6 +50,9 @@ TRIAL_BANDS: dict[str, dict[str, str]] = {
     },
     "fig3.7": {"learning curve": "std"},
     "fig4.8": {ERROR_PANEL: "std"},
+    "fig4.6": {"learning curves": "std"},
+    "fig4.7": {"learning curves": "std"},
+    "fig4.9": {"learning curves": "std"},
     "fig5.6": {"reward prediction error": "std"},
     "fig5.7": {"reward prediction error": "std"},
 }

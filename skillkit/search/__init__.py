@@ -27,6 +27,7 @@ from skillkit.search.reps import (
     reps_weights,
 )
 from skillkit.search.rwr import RWR, RWRDiagnostics, rwr_beta, rwr_weighting, rwr_weights
+from skillkit.search.throwing_model import ThrowingPrediction, ThrowingRewardModel
 
 __all__ = [
     "RWR",
@@ -44,6 +45,8 @@ __all__ = [
     "KnownRewardModel",
     "REPSDiagnostics",
     "RewardModel",
+    "ThrowingPrediction",
+    "ThrowingRewardModel",
     "TrajectoryRewardModel",
     "REPSWeights",
     "RWRDiagnostics",

@@ -573,14 +573,15 @@ class Throwing(Task):
         self.check_context(context)
         return np.tile(np.concatenate([THROW_START, np.zeros(4)]), (check_count(n), 1))
 
-    def controller(self, omegas, contexts=None, device=None, dtype=None):
-        """The inertia-weighted PD tracker of the DMP reference, on predicted states.
+    def acceleration_controller(self, omegas, contexts=None, device=None, dtype=None):
+        """The tracker's commanded joint acceleration on predicted states (batched torch).
 
-        u = M(q)(q̈_ref,t + kp (q_ref,t − q) + kd (q̇_ref,t − q̇)) + c(q, q̇) with the DMP
-        reference of ω_b (:meth:`reference`) at control step t, M and c the robot's
-        inertia and bias force in closed form
-        (:func:`~skillkit.tasks.planar_model.rigid_body_terms`, MuJoCo's to ~1e-12).
-        ``t`` must be below the number of control steps.
+        a = q̈_ref,t + kp (q_ref,t − q) + kd (q̇_ref,t − q̇) with the DMP reference of ω_b
+        (:meth:`reference`) at control step t: the part of :meth:`controller` before the
+        inverse-dynamics map u = M(q) a + c(q, q̇) (:meth:`torques`). A model of the robot
+        *under* its inverse-dynamics tracker takes a as its control (the decomposed throwing
+        model of Sec. 4.3.2, :mod:`skillkit.search.throwing_model`). Same calling convention
+        as :meth:`controller`: ``policy(t, x, pair) -> a`` (n, 4).
         """
         import torch
 
@@ -597,9 +598,43 @@ class Throwing(Task):
         def policy(t: int, x, pair):
             q, qd = x[:, :4], x[:, 4:]
             acc = kp * (q_ref[pair, t] - q) + kd * (qd_ref[pair, t] - qd)
-            acc = acc + qdd_ref[pair, t]
-            m, c = rigid_body_terms(q, qd, self.robot.gravity)
-            return (m @ acc[:, :, None])[:, :, 0] + c
+            return acc + qdd_ref[pair, t]
+
+        return policy
+
+    def torques(self, states, accelerations):
+        """Inverse dynamics u = M(q) a + c(q, q̇) of the tracker (torch tensors, shape (..., 4)).
+
+        ``states`` (..., 8) = [q, q̇]; M and c in closed form
+        (:func:`~skillkit.tasks.planar_model.rigid_body_terms`, MuJoCo's to ~1e-12).
+        """
+        m, c = rigid_body_terms(states[..., :4], states[..., 4:], self.robot.gravity)
+        return (m @ accelerations[..., None])[..., 0] + c
+
+    def commanded_accelerations(self, states, controls) -> np.ndarray:
+        """The tracker's commanded accelerations a = M(q)⁻¹ (u − c(q, q̇)) of logged torques.
+
+        The inverse of :meth:`torques`; what the controller computed internally, recovered
+        from a trajectory's states (..., 8) and torques (..., 4). Returns (..., 4).
+        """
+        import torch
+
+        x = torch.as_tensor(check_array(states, "states", shape=(None, 8)))
+        u = torch.as_tensor(check_array(controls, "controls", shape=(x.shape[0], 4)))
+        m, c = rigid_body_terms(x[:, :4], x[:, 4:], self.robot.gravity)
+        return torch.linalg.solve(m, u - c).numpy()
+
+    def controller(self, omegas, contexts=None, device=None, dtype=None):
+        """The inertia-weighted PD tracker of the DMP reference, on predicted states.
+
+        u = M(q)(q̈_ref,t + kp (q_ref,t − q) + kd (q̇_ref,t − q̇)) + c(q, q̇): the commanded
+        acceleration of :meth:`acceleration_controller` through :meth:`torques`.
+        ``t`` must be below the number of control steps.
+        """
+        accel = self.acceleration_controller(omegas, contexts, device=device, dtype=dtype)
+
+        def policy(t: int, x, pair):
+            return self.torques(x, accel(t, x, pair))
 
         return policy
 

@@ -158,11 +158,11 @@ def rigid_body_terms(q, qd, gravity: float = GRAVITY):
 
     h_np, b_np, i_np = _chain_constants()
     kw = {"dtype": q.dtype, "device": q.device}
-    h, b = torch.as_tensor(h_np, **kw), torch.as_tensor(b_np, **kw)
+    h, b = torch.tensor(h_np, **kw), torch.tensor(b_np, **kw)  # copies: h_np is read-only
     lower = torch.tril(torch.ones(4, 4, **kw))
     theta, theta_d = q @ lower.T, qd @ lower.T
     diff = theta[..., :, None] - theta[..., None, :]
-    m_theta = h * torch.cos(diff) + torch.diag(torch.as_tensor(i_np, **kw))
+    m_theta = h * torch.cos(diff) + torch.diag(torch.tensor(i_np, **kw))
     h_theta = (h * torch.sin(diff) * theta_d[..., None, :] ** 2).sum(-1) - gravity * b * torch.sin(
         theta
     )

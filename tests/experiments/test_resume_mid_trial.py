@@ -13,7 +13,7 @@ from skillkit.experiments import get
 from skillkit.trial import TrialContext
 
 # run at the smoke scale; the model-free ones checkpoint through skillkit.search.loop.learn
-MID_TRIAL = ("fig4.3", "fig4.5", "fig5.6", "fig5.7", "sanity3", "fig3.3", "fig3.7")
+MID_TRIAL = ("fig4.3", "fig4.5", "fig5.6", "fig5.7", "sanity3", "fig3.3", "fig3.7", "fig4.6")
 
 
 class _Recorder(TrialContext):

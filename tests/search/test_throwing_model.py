@@ -1,0 +1,161 @@
+"""The decomposed throwing model of GPREPS (Sec. 4.3.2, Fig. 4.2) against the simulator."""
+
+from __future__ import annotations
+
+import warnings
+from functools import partial
+
+import numpy as np
+import pytest
+import torch
+
+from skillkit.models.gp import ExactGP, ForwardModel
+from skillkit.models.sparse import FITC
+from skillkit.search.gpreps import GPREPS, GPREPSSettings
+from skillkit.search.throwing_model import ThrowingRewardModel, land
+from skillkit.tasks import make
+from skillkit.tasks.planar import ballistic_flight
+
+
+def _fitc(n_inducing, n_steps):
+    return ForwardModel(FITC(n_inducing=n_inducing, n_steps=n_steps))
+
+
+def _model(task, **kw):
+    kw.setdefault("make_robot_model", partial(_fitc, 40, 150))  # 60 steps: 6 m off
+    kw.setdefault("make_release_model", partial(ExactGP, n_steps=60))
+    kw.setdefault("make_flight_model", partial(_fitc, 30, 60))
+    return ThrowingRewardModel(task, max_robot_points=800, **kw)
+
+
+def _throws(task, n, seed):
+    rng = np.random.default_rng(seed)
+    s = task.sample_context(rng, n=n)
+    w = task.initial_policy().sample(s, rng)
+    trajs = [task.rollout(wi, si, rng) for wi, si in zip(w, s, strict=True)]
+    r = np.array([task.reward(t, si) for t, si in zip(trajs, s, strict=True)])
+    return s, w, r, trajs
+
+
+@pytest.fixture(scope="module")
+def fitted():
+    task = make("throwing")
+    s, w, r, trajs = _throws(task, 18, 0)
+    model = _model(task)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        stats = model.fit(s[:10], w[:10], r[:10], trajs[:10], rng=1)
+    return task, model, stats, (s[10:], w[10:], r[10:], trajs[10:])
+
+
+def test_controller_is_inverse_dynamics_of_the_commanded_acceleration():
+    task = make("throwing")
+    s, w, _, trajs = _throws(task, 2, 3)
+    x = torch.as_tensor(trajs[0].states[:5])
+    pair = torch.zeros(5, dtype=torch.long)
+    acc = task.acceleration_controller(w[:1])(3, x, pair)
+    u = task.controller(w[:1])(3, x, pair)
+    np.testing.assert_allclose(task.torques(x, acc).numpy(), u.numpy(), rtol=1e-12)
+    # the logged torques of a real throw map back to accelerations and forward again
+    a = task.commanded_accelerations(trajs[0].states, trajs[0].controls)
+    back = task.torques(torch.as_tensor(trajs[0].states), torch.as_tensor(a)).numpy()
+    np.testing.assert_allclose(back, trajs[0].controls, rtol=1e-9, atol=1e-8)
+
+
+def test_land_stops_a_sampled_parabola_at_the_closed_form_landing_point():
+    p0, v0, g = np.array([0.5, 2.0]), np.array([6.0, 3.0]), 9.81
+    _, exact = ballistic_flight(p0, v0, g, dt=0.01)
+    t = np.arange(160) * 0.01  # continues 0.3 s below the ground
+    path = p0 + np.outer(t, v0)
+    path[:, 1] -= 0.5 * g * t**2
+    paths, landed = land(path[None])
+    assert landed[0]
+    k = int(np.argmax(path[:, 1] <= 0))
+    np.testing.assert_array_equal(paths[0, :k], path[:k])  # untouched before landing
+    assert np.all(paths[0, k:] == paths[0, k])  # every later sample repeats the landing point
+    assert paths[0, k, 1] == 0.0
+    # the chord between two 10 ms samples crosses y = 0 within g·dt²/8 / |v_y| of the root
+    assert abs(paths[0, k, 0] - exact[-1, 0]) < 1e-3
+    still, landed = land(np.array([[[0.0, 1.0], [0.1, 1.1]]]))
+    assert not landed[0]
+    np.testing.assert_array_equal(still[0], [[0.0, 1.0], [0.1, 1.1]])
+
+
+def test_predicted_rewards_match_the_simulator_on_unseen_throws(fitted):
+    task, model, stats, (s, w, r, trajs) = fitted
+    pred = model.predict(s, w, 4, rng=2)
+    assert pred.states.shape == (8, 4, task.n_steps, 8)
+    assert pred.landed.all()
+    rel = np.abs(pred.expected_rewards - r) / np.abs(r)
+    assert np.median(rel) < 0.03, rel  # measured 0.3–1% with these models
+    landing = np.array([t.info["landing_x"] for t in trajs])
+    assert np.median(np.abs(pred.ball[:, :, -1, 0].mean(1) - landing)) < 0.15
+    assert stats["n_trajectories"] == 10 and stats["n_robot"] == 800
+
+
+def test_same_seed_same_prediction(fitted):
+    _, model, _, (s, w, _, _) = fitted
+    a = model.expected_rewards(s[:3], w[:3], 3, rng=5)
+    b = model.expected_rewards(s[:3], w[:3], 3, rng=5)
+    c = model.expected_rewards(s[:3], w[:3], 3, rng=6)
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(a, c)
+
+
+def test_release_error_learns_the_release_noise():
+    det, noisy = make("throwing"), make("throwing-noisy")
+    stds = []
+    for task in (det, noisy):
+        s, w, r, trajs = _throws(task, 40, 4)
+        model = _model(task)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            model.fit(s, w, r, trajs, rng=0)
+        stds.append(np.sqrt(model.release_var))
+    assert np.all(stds[0] < [0.01, 0.01, 0.05, 0.05]), stds[0]
+    # 40 release events: the std estimate has ~11% relative error
+    np.testing.assert_allclose(stds[1], [0.075, 0.075, 0.3, 0.3], rtol=0.35)
+
+
+def test_models_are_swappable_through_the_factories(fitted):
+    task, _, _, (s, w, r, trajs) = fitted
+    model = _model(task, make_flight_model=partial(ForwardModel, ExactGP(n_steps=20)))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model.fit(s, w, r, trajs, rng=0)
+    assert isinstance(model.flight.gp, ExactGP)
+    assert np.all(np.isfinite(model.expected_rewards(s[:2], w[:2], 2, rng=0)))
+
+
+def test_bad_input_is_refused(fitted):
+    task, model, _, (s, w, r, trajs) = fitted
+    with pytest.raises(ValueError, match="task: expected a Throwing task"):
+        ThrowingRewardModel(make("pendulum"))
+    with pytest.raises(ValueError, match="make_robot_model: expected a callable"):
+        ThrowingRewardModel(task, make_robot_model=3)
+    with pytest.raises(RuntimeError, match="call fit"):
+        _model(task).predict(s, w, 2)
+    with pytest.raises(ValueError, match="omegas"):
+        model.predict(s, w[:, :5], 2)
+    with pytest.raises(ValueError, match="trajectories"):
+        _model(task).fit(s, w, r, None)
+
+
+def test_gpreps_updates_with_the_decomposed_model(fitted):
+    task, _, _, (s, w, r, trajs) = fitted
+    algo = GPREPS(
+        task.initial_policy(),
+        _model(task),
+        GPREPSSettings(n_artificial=30, n_trajectories=2, cov_floor=0.1, min_effective_samples=2),
+        rng=0,
+    )
+    from skillkit.search.base import Batch
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        d1 = algo.update(Batch(s[:6], w[:6], r[:6], trajectories=trajs[:6]))
+        d2 = algo.update(Batch(s[6:], w[6:], r[6:], trajectories=trajs[6:]))
+    assert d1.prediction_bias is None and d2.prediction_bias is not None
+    assert abs(d2.prediction_bias) < 0.05 * abs(d2.real_reward)
+    assert d2.reps.kl <= 1.0 + 1e-6
+    assert d2.model_fit["n_trajectories"] == 8

@@ -87,6 +87,7 @@ __all__ = [
     "GPNumericalWarning",
     "GPPredictor",
     "Moments",
+    "as_device",
     "robust_cholesky",
 ]
 
@@ -102,6 +103,50 @@ class GPNumericalWarning(RuntimeWarning):
 
 class GPNumericalError(RuntimeError):
     """A matrix stayed non-positive-definite even with the largest allowed jitter."""
+
+
+def as_device(device, name: str = "device") -> torch.device:
+    """The torch device for ``device`` (``None``: the CPU), checked before any work is done.
+
+    Everything is computed in float64 (:data:`DTYPE`), so only CPU and CUDA devices qualify.
+
+    Parameters
+    ----------
+    device : str, torch.device or None
+        E.g. ``"cpu"``, ``"cuda"`` (the current CUDA device) or ``"cuda:1"``.
+    name : str
+        Argument name used in error messages.
+
+    Returns
+    -------
+    torch.device
+
+    Raises
+    ------
+    ValueError
+        If ``device`` is not a device, is neither a CPU nor a CUDA device, or names a CUDA
+        device this machine does not have.
+    """
+    if device is None:
+        return torch.device("cpu")
+    try:
+        dev = torch.device(device)
+    except (RuntimeError, TypeError):
+        raise ValueError(
+            f"{name}: expected a device such as 'cpu', 'cuda' or 'cuda:0', got {device!r}"
+        ) from None
+    if dev.type == "cpu":
+        return torch.device("cpu")
+    if dev.type != "cuda":
+        raise ValueError(f"{name}: expected a CPU or CUDA device (float64), got {device!r}")
+    if not torch.cuda.is_available():
+        raise ValueError(f"{name}: {device!r} requested but CUDA is not available")
+    if dev.index is not None and dev.index >= torch.cuda.device_count():
+        raise ValueError(
+            f"{name}: {device!r} requested but only {torch.cuda.device_count()} CUDA "
+            "device(s) are available"
+        )
+    return dev
 
 
 # ---------------------------------------------------------------------------- linear algebra
@@ -490,6 +535,10 @@ class _GPRegression:
     standardisation, training loop, predictor, diagnostics. Subclasses implement
     ``_build``, ``_loss``, ``_parameters`` and ``_make_predictor``."""
 
+    #: Where training happens (set by ``__init__``; this default serves objects pickled in
+    #: checkpoints before the ``device`` argument existed).
+    device = torch.device("cpu")
+
     def __init__(
         self,
         *,
@@ -502,7 +551,9 @@ class _GPRegression:
         optimizer: str = "lbfgs",
         learning_rate: float = 0.05,
         standardize: bool = True,
+        device=None,
     ):
+        self.device = as_device(device)
         self.init_lengthscale = (
             None if lengthscale is None else check_array(lengthscale, "lengthscale", ndim=(0, 1, 2))
         )
@@ -588,8 +639,10 @@ class _GPRegression:
             m, s, const = np.zeros(E), np.ones(E), np.zeros(E, dtype=bool)
         diag["constant_outputs"] = np.flatnonzero(const).tolist()
         self.y_mean, self.y_scale = m, s
-        self.X = torch.as_tensor(X, dtype=DTYPE)
-        self.Y = torch.as_tensor(((Y - m) / s).T.copy(), dtype=DTYPE)  # (E, N), standardised
+        self.X = torch.as_tensor(X, dtype=DTYPE, device=self.device)
+        self.Y = torch.as_tensor(  # (E, N), standardised
+            ((Y - m) / s).T.copy(), dtype=DTYPE, device=self.device
+        )
         self._init = self._initial_hypers(X)
         self._build(rng)
         res = optimize(
@@ -690,7 +743,26 @@ class _GPRegression:
         }
 
     def _standardisation_tensors(self) -> tuple[torch.Tensor, torch.Tensor]:
-        return torch.as_tensor(self.y_mean, dtype=DTYPE), torch.as_tensor(self.y_scale, dtype=DTYPE)
+        return (
+            torch.as_tensor(self.y_mean, dtype=DTYPE, device=self.device),
+            torch.as_tensor(self.y_scale, dtype=DTYPE, device=self.device),
+        )
+
+    def _hyper_modules(self, E: int, d: int) -> tuple[SquaredExponential, gpytorch.Module]:
+        """The SE-ARD kernel and Gaussian likelihood (batch (E,)) at the initial values, on
+        :attr:`device` in float64."""
+
+        def tensor(name: str) -> torch.Tensor:
+            return torch.as_tensor(self._init[name], dtype=DTYPE, device=self.device)
+
+        kernel = SquaredExponential(d, batch_shape=torch.Size([E])).to(self.device)
+        kernel.lengthscale = tensor("lengthscale")[:, None, :]
+        kernel.outputscale = tensor("outputscale")
+        likelihood = gpytorch.likelihoods.GaussianLikelihood(
+            batch_shape=torch.Size([E]), noise_constraint=GreaterThan(self.noise_floor)
+        ).to(self.device, DTYPE)
+        likelihood.noise = tensor("noise")[:, None]
+        return kernel, likelihood
 
 
 # ---------------------------------------------------------------------------- exact GP
@@ -812,6 +884,10 @@ class ExactGP(_GPRegression):
         Adam step size.
     standardize : bool
         Centre and scale targets per output (default True).
+    device : str or torch.device, optional
+        Where the hyper-parameters are optimised and the predictor lives, e.g. ``"cuda"``
+        (default: the CPU); float64 throughout. Randomness is drawn in numpy, so the draws
+        do not depend on the device; results come back as numpy arrays.
 
     Examples
     --------
@@ -822,15 +898,10 @@ class ExactGP(_GPRegression):
     def _build(self, rng: np.random.Generator) -> None:
         E, N = self.Y.shape
         d = self.X.shape[1]
-        init = self._init
-        kernel = SquaredExponential(d, batch_shape=torch.Size([E]))
-        kernel.lengthscale = torch.as_tensor(init["lengthscale"], dtype=DTYPE)[:, None, :]
-        kernel.outputscale = torch.as_tensor(init["outputscale"], dtype=DTYPE)
-        likelihood = gpytorch.likelihoods.GaussianLikelihood(
-            batch_shape=torch.Size([E]), noise_constraint=GreaterThan(self.noise_floor)
-        ).double()
-        likelihood.noise = torch.as_tensor(init["noise"], dtype=DTYPE)[:, None]
-        self.model = _BatchedExactGP(self.X.expand(E, N, d), self.Y, likelihood, kernel).double()
+        kernel, likelihood = self._hyper_modules(E, d)
+        self.model = _BatchedExactGP(self.X.expand(E, N, d), self.Y, likelihood, kernel).to(
+            self.device, DTYPE
+        )
         self.likelihood = likelihood
 
     def _parameters(self) -> list[torch.nn.Parameter]:
@@ -855,7 +926,8 @@ class ExactGP(_GPRegression):
         alpha = torch.cholesky_solve(self.Y.unsqueeze(-1), L).squeeze(-1)
         iK = torch.cholesky_inverse(L)
         iK = 0.5 * (iK + iK.transpose(-1, -2))
-        R = torch.linalg.solve_triangular(L, torch.eye(N, dtype=DTYPE).expand_as(L), upper=False)
+        eye = torch.eye(N, dtype=DTYPE, device=self.device)
+        R = torch.linalg.solve_triangular(L, eye.expand_as(L), upper=False)
         y_mean, y_scale = self._standardisation_tensors()
         self.cholesky = L
         # Eq. (2.28) per output, in raw target units (standardisation is a change of variables).
@@ -866,7 +938,7 @@ class ExactGP(_GPRegression):
             - N * torch.log(y_scale)
         )
         pred = GPPredictor(X, ls, os, noise, alpha, iK, R, y_mean, y_scale)
-        return pred, {"jitter": jitter, "log_marginal_likelihood": lml.numpy()}
+        return pred, {"jitter": jitter, "log_marginal_likelihood": lml.cpu().numpy()}
 
 
 # ---------------------------------------------------------------------------- forward model

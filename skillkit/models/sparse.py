@@ -41,14 +41,12 @@ from __future__ import annotations
 
 import math
 
-import gpytorch
 import numpy as np
 import torch
-from gpytorch.constraints import GreaterThan
 
 from skillkit._validation import check_array, check_positive
 from skillkit.models.gp import DTYPE, GPNumericalError, GPPredictor, _GPRegression, robust_cholesky
-from skillkit.models.kernels import SquaredExponential, se_kernel
+from skillkit.models.kernels import se_kernel
 
 __all__ = ["FITC", "VFE", "kmeans_pp"]
 
@@ -117,7 +115,7 @@ class _SparseGP(_GPRegression):
 
     def _build(self, rng: np.random.Generator) -> None:
         E, N = self.Y.shape
-        X = self.X.numpy()
+        X = self.X.cpu().numpy()
         d = X.shape[1]
         if self.init_inducing is not None:
             Z = self.init_inducing
@@ -134,16 +132,10 @@ class _SparseGP(_GPRegression):
             Z = np.broadcast_to(X[idx], (E, self.n_inducing, d)).copy()
         self.diagnostics_init = {"n_inducing": Z.shape[1]}
         self.inducing = torch.nn.Parameter(
-            torch.as_tensor(Z, dtype=DTYPE), requires_grad=self.optimize_inducing
+            torch.as_tensor(Z, dtype=DTYPE, device=self.device),
+            requires_grad=self.optimize_inducing,
         )
-        kernel = SquaredExponential(d, batch_shape=torch.Size([E]))
-        kernel.lengthscale = torch.as_tensor(self._init["lengthscale"], dtype=DTYPE)[:, None, :]
-        kernel.outputscale = torch.as_tensor(self._init["outputscale"], dtype=DTYPE)
-        likelihood = gpytorch.likelihoods.GaussianLikelihood(
-            batch_shape=torch.Size([E]), noise_constraint=GreaterThan(self.noise_floor)
-        ).double()
-        likelihood.noise = torch.as_tensor(self._init["noise"], dtype=DTYPE)[:, None]
-        self.kernel, self.likelihood = kernel, likelihood
+        self.kernel, self.likelihood = self._hyper_modules(E, d)
 
     def _parameters(self) -> list[torch.nn.Parameter]:
         params = list(self.kernel.parameters()) + list(self.likelihood.parameters())
@@ -163,7 +155,7 @@ class _SparseGP(_GPRegression):
         E, N = self.Y.shape
         Z = self.inducing
         M = Z.shape[1]
-        eye = torch.eye(M, dtype=DTYPE)
+        eye = torch.eye(M, dtype=DTYPE, device=self.device)
         Kmm = se_kernel(Z, Z, ls[:, None, :], os) + (self.jitter * os)[:, None, None] * eye
         Lm = factor(Kmm, "K_mm")
         Kmn = se_kernel(Z, self.X.expand(E, *self.X.shape), ls[:, None, :], os)
@@ -171,7 +163,7 @@ class _SparseGP(_GPRegression):
         gap = (os[:, None] - (V * V).sum(-2)).clamp_min(0.0)  # diag(K_nn - Q_nn)
         if self._method == "fitc":
             lam = gap + noise[:, None]
-            trace = torch.zeros((), dtype=DTYPE)
+            trace = torch.zeros((), dtype=DTYPE, device=self.device)
         else:
             lam = noise[:, None].expand(E, N)
             trace = (gap.sum(-1) / (2.0 * noise)).sum()
@@ -203,7 +195,7 @@ class _SparseGP(_GPRegression):
 
         value, Lm, LA, c = self._terms(factor)
         M = Lm.shape[-1]
-        eye = torch.eye(M, dtype=DTYPE)
+        eye = torch.eye(M, dtype=DTYPE, device=self.device)
         beta = torch.linalg.solve_triangular(
             Lm.transpose(-1, -2),
             torch.linalg.solve_triangular(LA.transpose(-1, -2), c.unsqueeze(-1), upper=True),
@@ -262,7 +254,10 @@ class FITC(_SparseGP):
         Fixed relative jitter on K_mm (default 1e-8).
     **kwargs
         As :class:`~skillkit.models.gp.ExactGP` (initial values, ``noise_floor``,
-        ``additive_noise``, ``n_steps``, ``optimizer``, ``learning_rate``, ``standardize``).
+        ``additive_noise``, ``n_steps``, ``optimizer``, ``learning_rate``, ``standardize``,
+        ``device``: where the hyper-parameters and pseudo-inputs are optimised and the
+        predictor lives; default CPU; float64 throughout). k-means++ seeding runs in numpy
+        on the CPU, so its draws do not depend on the device.
 
     Notes
     -----
@@ -275,6 +270,9 @@ class FITC(_SparseGP):
 
 class VFE(_SparseGP):
     """Titsias's variational sparse GP (collapsed VFE bound), same parameters as :class:`FITC`.
+
+    Among them ``device``: where the hyper-parameters are optimised and the predictor lives;
+    default CPU; float64 throughout.
 
     ``diagnostics["log_marginal_likelihood"]`` holds the bound (≤ the exact log marginal
     likelihood), summed over outputs, in raw target units.

@@ -135,7 +135,8 @@ class DirectRewardModel:
     Parameters
     ----------
     gp : ExactGP, FITC or VFE, optional
-        The unfitted GP regression to use (default ``ExactGP()``, the thesis's settings).
+        The unfitted GP regression to use (default ``ExactGP()``, the thesis's settings). It
+        is trained and queried on its own ``device`` (e.g. ``ExactGP(device="cuda")``).
     warm_start : bool
         Start each refit at the previous hyper-parameters.
     """
@@ -205,7 +206,10 @@ class TrajectoryRewardModel:
     warm_start : bool
         Start each GP refit at the previous hyper-parameters.
     device : str or torch.device, optional
-        Where trajectories are sampled.
+        Where trajectories are sampled. The forward model is trained on its own GP's
+        ``device`` (e.g. a ``make_model`` returning
+        ``ForwardModel(FITC(n_inducing=100, device="cuda"))``); give the same device here so
+        that the predictor is not copied between devices for sampling.
     """
 
     def __init__(

@@ -174,7 +174,10 @@ class ThrowingRewardModel:
     warm_start : bool
         Start each GP's hyper-parameter optimisation at its previous values.
     device : str or torch.device, optional
-        Where trajectories are sampled (float64).
+        Where trajectories are sampled (float64). Each GP is trained on its own ``device``,
+        so a GPU user gives it to the factories as well, e.g.
+        ``make_release_model=partial(FITC, n_inducing=50, device="cuda")`` and robot and
+        flight factories returning ``ForwardModel(FITC(n_inducing=50, device="cuda"))``.
 
     Notes
     -----

@@ -257,3 +257,75 @@ def test_bad_input():
     with pytest.raises(ValueError, match="gp"):
         ForwardModel(object())
     assert math.isfinite(ExactGP(n_steps=0).fit(X, Y).diagnostics["log_marginal_likelihood"].sum())
+
+
+# ---------------------------------------------------------------------------- device
+PREDICTOR_FIELDS = (
+    "support",
+    "lengthscale",
+    "outputscale",
+    "noise",
+    "beta",
+    "iK",
+    "var_factor",
+    "y_mean",
+    "y_scale",
+)
+
+
+def _fit_outputs(gp, X_test):
+    """Everything a fit returns, as numpy arrays: predictor tensors, θ, log ML, predictions."""
+    out = {f: getattr(gp.predictor, f).cpu().numpy() for f in PREDICTOR_FIELDS}
+    out.update({f"h_{k}": v for k, v in gp.hyperparameters.items()})
+    out["lml"] = np.asarray(gp.diagnostics["log_marginal_likelihood"])
+    out["mean"], out["var"] = gp.predict(X_test)
+    return out
+
+
+@pytest.mark.parametrize("device", ["cpu", torch.device("cpu")])
+def test_explicit_cpu_device_is_bit_identical_to_default(device):
+    X, Y = _data(30)
+    default = _fit_outputs(ExactGP(n_steps=20).fit(X, Y, rng=1), X[:7] + 0.1)
+    gp = ExactGP(n_steps=20, device=device)
+    assert gp.device == torch.device("cpu")
+    explicit = _fit_outputs(gp.fit(X, Y, rng=1), X[:7] + 0.1)
+    for key, value in default.items():
+        np.testing.assert_array_equal(explicit[key], value, err_msg=key)
+
+
+def test_training_tensors_live_on_the_device():
+    X, Y = _data(20)
+    gp = ExactGP(n_steps=3, device="cpu").fit(X, Y, rng=0)
+    tensors = [getattr(gp.predictor, f) for f in PREDICTOR_FIELDS]
+    tensors += [gp.X, gp.Y, gp.cholesky, *gp.model.parameters(), *gp.model.buffers()]
+    assert gp.predictor.device == torch.device("cpu")
+    assert all(t.device == gp.device and t.dtype == torch.float64 for t in tensors)
+
+
+@pytest.mark.parametrize("device", ["nonsense", "mps", "meta", 1.5, "cuda:99"])
+def test_bad_device_raises(device):
+    with pytest.raises(ValueError, match="device"):
+        ExactGP(device=device)
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="checks the error without CUDA")
+def test_cuda_device_without_cuda_raises():
+    with pytest.raises(ValueError, match="device: .*CUDA is not available"):
+        ExactGP(device="cuda")
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_cuda_fit_matches_cpu():
+    X, Y = _data(30)
+    outs = {}
+    for device in ("cpu", "cuda"):
+        gp = ExactGP(n_steps=10, device=device).fit(X, Y, rng=1)
+        assert gp.predictor.device.type == device
+        outs[device] = _fit_outputs(gp, X[:7] + 0.1)
+        fm = ForwardModel(ExactGP(n_steps=10, device=device)).fit(X, Y[:, :1], X, rng=2)
+        assert fm.predictor.device.type == device
+        outs[device]["fm_mean"], outs[device]["fm_var"] = fm.predict(X[:5], Y[:5, :1])
+    for key, value in outs["cpu"].items():
+        np.testing.assert_allclose(
+            outs["cuda"][key], value, rtol=1e-8, atol=1e-8 * np.abs(value).max(), err_msg=key
+        )

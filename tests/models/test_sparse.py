@@ -122,3 +122,51 @@ def test_bad_input():
         FITC(jitter=-1.0)
     with pytest.raises(ValueError, match="n"):
         kmeans_pp(X, 0, np.random.default_rng(0))
+
+
+# ---------------------------------------------------------------------------- device
+def _fit_outputs(gp, X_test):
+    """Everything a fit returns, as numpy arrays: predictor tensors, θ, log ML, predictions."""
+    fields = ("support", "lengthscale", "outputscale", "noise", "beta", "iK", "var_factor")
+    out = {f: getattr(gp.predictor, f).cpu().numpy() for f in fields}
+    out.update({f"h_{k}": v for k, v in gp.hyperparameters.items()})
+    out["lml"] = np.asarray(gp.diagnostics["log_marginal_likelihood"])
+    out["mean"], out["var"] = gp.predict(X_test)
+    return out
+
+
+@pytest.mark.parametrize("cls", [FITC, VFE])
+def test_explicit_cpu_device_is_bit_identical_to_default(cls):
+    X, Y = _data(40)
+    default = _fit_outputs(cls(n_inducing=8, n_steps=15).fit(X, Y, rng=3), X[:6] + 0.1)
+    gp = cls(n_inducing=8, n_steps=15, device="cpu").fit(X, Y, rng=3)
+    explicit = _fit_outputs(gp, X[:6] + 0.1)
+    for key, value in default.items():
+        np.testing.assert_array_equal(explicit[key], value, err_msg=key)
+    tensors = [gp.X, gp.Y, gp.inducing, *gp.kernel.parameters(), *gp.likelihood.parameters()]
+    tensors += [gp.predictor.support, gp.predictor.beta, gp.predictor.iK, gp.predictor.y_scale]
+    assert all(t.device == torch.device("cpu") and t.dtype == torch.float64 for t in tensors)
+
+
+@pytest.mark.parametrize("cls", [FITC, VFE])
+def test_bad_device_raises(cls):
+    with pytest.raises(ValueError, match="device"):
+        cls(n_inducing=5, device="nonsense")
+    if not torch.cuda.is_available():
+        with pytest.raises(ValueError, match="device: .*CUDA is not available"):
+            cls(n_inducing=5, device="cuda")
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+@pytest.mark.parametrize("cls", [FITC, VFE])
+def test_cuda_fit_matches_cpu(cls):
+    X, Y = _data(40)
+    outs = {}
+    for device in ("cpu", "cuda"):
+        gp = cls(n_inducing=8, n_steps=10, device=device).fit(X, Y, rng=3)
+        assert gp.predictor.device.type == device and gp.inducing.device.type == device
+        outs[device] = _fit_outputs(gp, X[:6] + 0.1)
+    for key, value in outs["cpu"].items():
+        np.testing.assert_allclose(
+            outs["cuda"][key], value, rtol=1e-8, atol=1e-8 * np.abs(value).max(), err_msg=key
+        )

@@ -42,12 +42,27 @@ tiny runs complete; the thesis setting M = 500 uses the library default.
 
 Usage::
 
-    OMP_NUM_THREADS=1 python benchmarks/bench_gpreps.py [--artificial 500] [--trajectories 25]
-        [--initial-rollouts 20] [--inducing 100] [--threads 1 2] [--device cpu|cuda]
-        [--repeats 1]
+    OMP_NUM_THREADS=1 python benchmarks/bench_gpreps.py [--task throwing|balancing]
+        [--artificial 500] [--trajectories 25] [--initial-rollouts 10|20] [--inducing 50|100]
+        [--threads 1 2] [--device cpu|cuda] [--repeats 1]
 
-Measured on a shared 2-CPU x86_64 VM (Linux 6.18, torch 2.13.0+cpu, ``OMP_NUM_THREADS=1``,
-4 other jobs on the machine), load average 2.01 before, 1.63 after, with
+Throwing, measured on the 2-CPU x86_64 VM (Linux 6.18, torch 2.13.0+cpu, ``OMP_NUM_THREADS=1``,
+nothing else running), load average 0.40 before, 1.18 after,
+``OMP_NUM_THREADS=1 python benchmarks/bench_gpreps.py --task throwing --repeats 2`` (M = 500,
+L = 25, 124 predicted transitions, N₀ = 10 throws, FITC robot GP with 50 pseudo-inputs on 1000
+transitions, 150 optimiser iterations per GP)::
+
+    threads   training  prediction    policy     total  traj-steps/s
+          1      8.57s      15.59s    0.005s    24.16s      9.94e+04
+          2      7.04s       9.31s    0.005s    16.36s      1.67e+05
+    totals of all repeats: 1 thread 24.48, 24.16 s; 2 threads 17.75, 16.36 s
+    ratio 2 / 1 threads (time): training 0.82, prediction 0.60, policy 0.99, total 0.68
+
+The thesis reports up to half an hour per throwing update on a CPU (under a minute on a GPU).
+The prediction includes the 250-step ball flight of all 12,500 throws.
+
+Balancing, measured on a shared 2-CPU x86_64 VM (Linux 6.18, torch 2.13.0+cpu,
+``OMP_NUM_THREADS=1``, 4 other jobs on the machine), load average 2.01 before, 1.63 after, with
 ``--repeats 3`` at the defaults (M = 500, L = 25, T = 40, N₀ = 20 → 800 transitions, FITC
 100 pseudo-inputs, 150 GP optimiser iterations)::
 

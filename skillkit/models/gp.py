@@ -58,6 +58,7 @@ Numerical policy (every safeguard is explicit and reported, never silent):
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import warnings
 from collections.abc import Callable
@@ -327,17 +328,7 @@ class GPPredictor:
         dtype = self.dtype if dtype is None else dtype
         if device == self.device and dtype == self.dtype:
             return self
-        fields = (
-            "support",
-            "lengthscale",
-            "outputscale",
-            "noise",
-            "beta",
-            "iK",
-            "var_factor",
-            "y_mean",
-            "y_scale",
-        )
+        fields = [f.name for f in dataclasses.fields(self) if f.init]
         return GPPredictor(**{f: getattr(self, f).to(device=device, dtype=dtype) for f in fields})
 
     def kernel_vectors(self, x: torch.Tensor) -> torch.Tensor:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import warnings
 
@@ -15,6 +16,7 @@ from skillkit.models.gp import (
     ForwardModel,
     GPNumericalError,
     GPNumericalWarning,
+    GPPredictor,
     neg_log_marginal_likelihood,
     optimize,
     robust_cholesky,
@@ -260,17 +262,7 @@ def test_bad_input():
 
 
 # ---------------------------------------------------------------------------- device
-PREDICTOR_FIELDS = (
-    "support",
-    "lengthscale",
-    "outputscale",
-    "noise",
-    "beta",
-    "iK",
-    "var_factor",
-    "y_mean",
-    "y_scale",
-)
+PREDICTOR_FIELDS = tuple(f.name for f in dataclasses.fields(GPPredictor) if f.init)
 
 
 def _fit_outputs(gp, X_test):

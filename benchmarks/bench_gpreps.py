@@ -158,7 +158,9 @@ def one_update(task, batch: Batch, args: argparse.Namespace) -> dict[str, float]
         "policy": diag.time_policy,
         "total": total,
         "eta": diag.reps.eta,
-        "iterations": diag.model_fit.get("iterations", diag.model_fit.get("robot_iterations")),
+        "iterations": diag.model_fit.get(
+            "iterations", diag.model_fit.get("robot", {}).get("iterations")
+        ),
     }
 
 

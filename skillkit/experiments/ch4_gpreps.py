@@ -127,43 +127,40 @@ class StochasticThrowingSettings(GPREPSThrowingSettings):
     )
 
 
-def _scales(cls, paper_extra: dict, **extra) -> dict:
-    base = cls(**extra)
+SMOKE = {
+    "n_initial": 3,
+    "n_updates": 2,
+    "n_artificial": 20,
+    "n_trajectories": 2,
+    "gp_steps": 10,
+    "robot_inducing": 10,
+    "flight_inducing": 10,
+    "max_robot_points": 200,
+    "reps_updates": 2,
+    "reps_rollouts_per_update": 4,
+    "reps_reuse_batches": 2,
+    "n_eval_contexts": 1,
+    "grid_x": (8.0,),
+    "grid_y": (2.0,),
+}
+"""The smoke scale's changes, shared by the three experiments (seconds per run)."""
+QUICK = {
+    "n_updates": 8,
+    "n_artificial": 200,
+    "n_trajectories": 5,
+    "gp_steps": 60,
+    "reps_updates": 40,
+}
+"""The quick scale's changes, shared by the three experiments (minutes per run)."""
+
+
+def _scales(cls, smoke: dict | None = None, quick: dict | None = None, paper=None) -> dict:
+    """The three scales of a settings class: the shared changes plus the experiment's own."""
+    base = cls()
     return {
-        "smoke": replace(
-            base,
-            n_initial=3,
-            n_updates=2,
-            n_artificial=20,
-            n_trajectories=2,
-            gp_steps=10,
-            robot_inducing=10,
-            flight_inducing=10,
-            max_robot_points=200,
-            reps_updates=2,
-            reps_rollouts_per_update=4,
-            reps_reuse_batches=2,
-            n_eval_contexts=1,
-            grid_x=(8.0,),
-            grid_y=(2.0,),
-            **(
-                {"n_artificial_values": (10, 20)}
-                if cls is SampleSizeSettings
-                else {"n_final_rollouts": 2}
-                if cls is StochasticThrowingSettings
-                else {}
-            ),
-        ),
-        "quick": replace(
-            base,
-            n_updates=8,
-            n_artificial=200,
-            n_trajectories=5,
-            gp_steps=60,
-            reps_updates=40,
-            **({"n_artificial_values": (50, 200)} if cls is SampleSizeSettings else {}),
-        ),
-        "paper": replace(base, n_eval_contexts=20, **paper_extra),
+        "smoke": replace(base, **SMOKE, **(smoke or {})),
+        "quick": replace(base, **QUICK, **(quick or {})),
+        "paper": replace(base, n_eval_contexts=20, **(paper or {})),
     }
 
 
@@ -555,7 +552,7 @@ register(
         id="fig4.6",
         title="Ball throwing: GPREPS (decomposed GP models) vs GP direct vs REPS",
         settings_class=GPREPSThrowingSettings,
-        settings=_scales(GPREPSThrowingSettings, {}),
+        settings=_scales(GPREPSThrowingSettings),
         run_trial=run_trial_46,
         summarize=summarize_46,
         verdict=verdict_46,
@@ -568,7 +565,12 @@ register(
         id="fig4.7",
         title="Ball throwing: GPREPS with 50 to 1000 artificial samples",
         settings_class=SampleSizeSettings,
-        settings=_scales(SampleSizeSettings, {"n_trajectories": 5, "n_updates": 20}),
+        settings=_scales(
+            SampleSizeSettings,
+            smoke={"n_artificial_values": (10, 20)},
+            quick={"n_artificial_values": (50, 200)},
+            paper={"n_trajectories": 5, "n_updates": 20},
+        ),
         run_trial=run_trial_47,
         summarize=summarize_47,
         verdict=verdict_47,
@@ -581,7 +583,9 @@ register(
         id="fig4.9",
         title="Stochastic ball throwing: REPS and GPREPS with and without release noise",
         settings_class=StochasticThrowingSettings,
-        settings=_scales(StochasticThrowingSettings, {"n_updates": 20}),
+        settings=_scales(
+            StochasticThrowingSettings, smoke={"n_final_rollouts": 2}, paper={"n_updates": 20}
+        ),
         run_trial=run_trial_49,
         summarize=summarize_49,
         verdict=verdict_49,

@@ -27,7 +27,7 @@ from skillkit._validation import as_generator, check_array, check_count
 from skillkit.models.sampling import SampledTrajectories, StepModel, sample_trajectories
 from skillkit.tasks.base import Task
 
-__all__ = ["ModelRollouts", "predict_trajectories"]
+__all__ = ["ModelRollouts", "predict_trajectories", "worst_if_nonfinite"]
 
 
 @dataclass(frozen=True)
@@ -172,13 +172,20 @@ def predict_trajectories(
         ),
         dtype=np.float64,
     ).reshape(B, L)
+    rewards = worst_if_nonfinite(rewards, task, "predict_trajectories")
+    return ModelRollouts(states, controls, rewards, s, sampled)
+
+
+def worst_if_nonfinite(rewards: np.ndarray, task: Task, where: str) -> np.ndarray:
+    """Predicted rewards with non-finite entries (a diverged model) set to ``task.worst_reward``,
+    with a ``RuntimeWarning`` that counts them (never silently)."""
     bad = ~np.isfinite(rewards)
     if bad.any():
         warnings.warn(
-            f"predict_trajectories: {int(bad.sum())} of {bad.size} predicted trajectories have a "
+            f"{where}: {int(bad.sum())} of {bad.size} predicted trajectories have a "
             f"non-finite reward (the model diverged); set to {task.worst_reward:g}",
             RuntimeWarning,
-            stacklevel=2,
+            stacklevel=3,
         )
         rewards = np.where(bad, task.worst_reward, rewards)
-    return ModelRollouts(states, controls, rewards, s, sampled)
+    return rewards

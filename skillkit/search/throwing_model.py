@@ -50,6 +50,8 @@ import torch
 from skillkit._validation import as_generator, check_array, check_count, check_positive
 from skillkit.models.gp import ExactGP, ForwardModel, _GPRegression
 from skillkit.models.sampling import sample_trajectories
+from skillkit.search.gpreps import _gp_stats, _warm_start
+from skillkit.search.model_rollouts import worst_if_nonfinite
 from skillkit.tasks.planar import Throwing
 
 __all__ = ["ThrowingPrediction", "ThrowingRewardModel", "land"]
@@ -285,8 +287,6 @@ class ThrowingRewardModel:
 
     # ------------------------------------------------------------------ fit
     def _fit_gp(self, key: str, model, x: np.ndarray, y_or_u, xn=None, rng=None):
-        from skillkit.search.gpreps import _warm_start
-
         gp = getattr(model, "gp", model)
         if self.warm_start and isinstance(gp, _GPRegression):
             inputs = x if xn is None else np.hstack([x, y_or_u])
@@ -306,7 +306,8 @@ class ThrowingRewardModel:
         -------
         dict
             ``n_data`` (robot transitions), ``n_trajectories``, ``n_release``,
-            ``n_flight``, ``release_std`` (4,) and each GP's ``log_ml`` and iterations.
+            ``n_flight``, ``release_std`` (4,) and, per GP model, ``robot``, ``release`` and
+            ``flight``: its ``n_data``, ``log_ml``, ``iterations`` and ``noise_var_max``.
         """
         if trajectories is None:
             raise ValueError("trajectories: the throwing model learns from trajectories")
@@ -316,24 +317,16 @@ class ThrowingRewardModel:
         rng = as_generator(rng)
         x, a, xn = self.robot_data(ok)
         n_robot = x.shape[0]
-        if n_robot > self.max_robot_points:
-            pick = rng.choice(n_robot, self.max_robot_points, replace=False)
-            x, a, xn = x[pick], a[pick], xn[pick]
+        x, a, xn = _subsample(rng, self.max_robot_points, x, a, xn)
         self.robot = self._fit_gp("robot", self.make_robot_model(), x, a, xn, rng)
 
-        hx, hb = self.hand_data(ok)
-        if hx.shape[0] > self.max_release_points:
-            pick = rng.choice(hx.shape[0], self.max_release_points, replace=False)
-            hx, hb = hx[pick], hb[pick]
+        hx, hb = _subsample(rng, self.max_release_points, *self.hand_data(ok))
         self.release = self._fit_gp("release", self.make_release_model(), hx, hb, rng=rng)
         rx, rb = self.release_data(ok)
         mean, _ = self.release.predict(rx)
         self.release_var = np.mean((rb - mean) ** 2, axis=0)
 
-        fx, fxn = self.flight_data(ok)
-        if fx.shape[0] > self.max_flight_points:
-            pick = rng.choice(fx.shape[0], self.max_flight_points, replace=False)
-            fx, fxn = fx[pick], fxn[pick]
+        fx, fxn = _subsample(rng, self.max_flight_points, *self.flight_data(ok))
         self.flight = self._fit_gp(
             "flight", self.make_flight_model(), fx, np.zeros((fx.shape[0], 0)), fxn, rng
         )
@@ -346,15 +339,14 @@ class ThrowingRewardModel:
             "n_flight": int(fx.shape[0]),
             "release_std": np.sqrt(self.release_var).tolist(),
         }
-        for key, model in (
-            ("robot", self.robot),
-            ("release", self.release),
-            ("flight", self.flight),
+        for key, model, n in (
+            ("robot", self.robot, x.shape[0]),
+            ("release", self.release, hx.shape[0]),
+            ("flight", self.flight, fx.shape[0]),
         ):
-            diag = getattr(getattr(model, "gp", model), "diagnostics", {})
-            lml = diag.get("log_marginal_likelihood")
-            stats[f"{key}_log_ml"] = None if lml is None else float(np.sum(lml))
-            stats[f"{key}_iterations"] = diag.get("n_iterations")
+            gp = getattr(model, "gp", model)
+            if isinstance(gp, _GPRegression):
+                stats[key] = _gp_stats(gp, n)
         return stats
 
     # ------------------------------------------------------------------ predict
@@ -413,8 +405,7 @@ class ThrowingRewardModel:
         rewards = task.reward_batch(
             states_np, torques.cpu().numpy(), {"ball": paths}, np.repeat(s, L, axis=0)
         )
-        bad = ~np.isfinite(rewards)
-        rewards = np.where(bad, task.worst_reward, rewards)
+        rewards = worst_if_nonfinite(rewards, task, "ThrowingRewardModel.predict")
         return ThrowingPrediction(
             states_np.reshape(B, L, T, 8),
             torques.cpu().numpy().reshape(B, L, T, 4),
@@ -435,6 +426,15 @@ class ThrowingRewardModel:
             f"release_std={np.round(np.sqrt(self.release_var), 4).tolist()}, "
             f"flight_steps={self.flight_steps})"
         )
+
+
+def _subsample(rng: np.random.Generator, n_max: int, *arrays: np.ndarray) -> tuple:
+    """The same ``n_max`` random rows of each array (all rows, in order, if there are fewer)."""
+    n = arrays[0].shape[0]
+    if n <= n_max:
+        return arrays
+    pick = rng.choice(n, n_max, replace=False)
+    return tuple(a[pick] for a in arrays)
 
 
 def _no_control(t: int, x: torch.Tensor, pair: torch.Tensor) -> torch.Tensor:

@@ -176,7 +176,9 @@ def test_arm_model_constants():
     np.testing.assert_allclose(model.dof_armature, hk.ARMATURE)
     arm_mass = sum(hk.LINK_MASSES) + hk.SHAFT_MASS + hk.BLADE_MASS
     assert model.body_mass[1:].sum() == pytest.approx(arm_mass)
-    assert model.ngeom and np.all(model.geom_contype == 0) and np.all(model.geom_conaffinity == 0)
+    # only the blade and the table collide (see test_blade_rests_on_the_table…)
+    collide = (model.geom_contype != 0) | (model.geom_conaffinity != 0)
+    assert {model.geom(g).name for g in np.flatnonzero(collide)} == {"table", "blade"}
 
 
 def test_blade_pose_heights():
@@ -409,3 +411,37 @@ def test_same_seed_same_rollout_and_failure_free_exploration(task):
             for key in a.signals:
                 np.testing.assert_array_equal(a.signals[key], b.signals[key])
             assert a.info == b.info
+
+
+def test_blade_rests_on_the_table_instead_of_passing_through(task):
+    """The blade–table contact: over exploration samples (half of which aim the blade below the
+    surface, which without the contact went up to 2 cm through it) the lowest blade corner stays
+    within the contact's soft penetration, and a stroke aimed 2 cm into the table is stopped."""
+    rng = np.random.default_rng(0)
+    policy = task.initial_policy()
+    lowest = []
+    for _ in range(30):
+        s = task.context_low + rng.random(3) * (task.context_high - task.context_low)
+        traj = task.rollout(policy.sample(s, rng=rng), s, rng=rng)
+        lowest.append(traj.info["blade_lowest"])
+    assert min(lowest) > -0.002
+    # the table's geom collides with the blade and nothing else
+    model = task.model
+    table = model.geom("table").id
+    blade = model.geom("blade").id
+    others = [g for g in range(model.ngeom) if g not in (table, blade)]
+    assert model.geom_contype[table] & model.geom_conaffinity[blade]
+    for g in others:
+        assert not (model.geom_contype[g] & model.geom_conaffinity[table])
+        assert not (model.geom_contype[table] & model.geom_conaffinity[g])
+    # aim the demonstrated goal posture 2 cm lower: the blade slides on the surface
+    import mujoco
+
+    data = mujoco.MjData(model)
+    data.qpos[:] = task.demo_omega[: hk.N_JOINTS]
+    mujoco.mj_forward(model, data)
+    jac = np.zeros((3, hk.N_JOINTS))
+    mujoco.mj_jacSite(model, data, jac, None, model.site("blade").id)
+    omega = task.demo_omega.copy()
+    omega[: hk.N_JOINTS] -= np.linalg.pinv(jac[2:3]) @ np.array([0.02])
+    assert task.rollout(omega, [2.0, 0.75, 0.5], rng=0).info["blade_lowest"] > -0.002

@@ -10,6 +10,7 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from skillkit.tasks import make, names
+from skillkit.tasks import table_tennis as tt
 from skillkit.tasks.table_tennis import (
     DEMO_PATH,
     LANDING_ZONE,
@@ -301,3 +302,23 @@ def test_bad_ball_inputs_raise():
         BallPhysics(table_restitution=1.5)
     with pytest.raises(ValueError, match="normal"):
         RacketPath.at_rest([0, 0, 1], [0, 0, 0], 1.0)
+
+
+def test_return_zone_is_the_opponents_half_and_near_is_a_variant(task):
+    """C.3: b uniform on the whole opponent's half; ``table-tennis-near`` keeps the narrower zone;
+    a zone off the opponent's half is refused."""
+    np.testing.assert_allclose(task.context_low[3:], [0.0, -tt.TABLE_WIDTH / 2])
+    np.testing.assert_allclose(task.context_high[3:], [tt.TABLE_LENGTH / 2, tt.TABLE_WIDTH / 2])
+    near = make("table-tennis-near")
+    assert near.name == "table-tennis-near"
+    np.testing.assert_allclose(near.context_low[3:], [0.2, -0.4])
+    np.testing.assert_allclose(near.context_high[3:], [0.6, 0.4])
+    np.testing.assert_allclose(near.context_low[:3], task.context_low[:3])
+    samples = task.sample_context(0, n=2000)
+    assert samples[:, 3].max() > 1.3 and samples[:, 4].min() < -0.7 and samples[:, 4].max() > 0.7
+    bad = (([-0.1, 0.0], [0.5, 0.3]), ([0.5, 0.0], [0.2, 0.3]), ([0.2, 0.0], [1.5, 0.3]))
+    for low, high in bad:
+        with pytest.raises(ValueError, match="return_low, return_high"):
+            make("table-tennis", return_low=low, return_high=high)
+    # the demonstration was designed for the near zone's centre, and still is
+    np.testing.assert_allclose(tt.nominal_context()[3:], [0.4, 0.0])

@@ -28,8 +28,11 @@ inertia is modelled as joint armature (:data:`ARMATURE`); joint ranges and torqu
 the LWR-4's (±170°/±120°; [176, 176, 100, 100, 100, 38, 38] N m). A racket (0.45 m shaft,
 0.25 kg, and a 20 cm × 1.6 cm × 8 cm blade, 0.15 kg) is rigidly attached to the flange along
 its z axis; the blade's long side is the flange's x axis and its face normal the flange's y
-axis. The site ``blade`` marks the blade centre. No geom collides in MuJoCo (the arm
-never touches the table in MuJoCo; the pucks live in pymunk).
+axis. The site ``blade`` marks the blade centre. The blade box has real contact with the
+table plane z = 0 in MuJoCo (friction :data:`TABLE_FRICTION` = 0.1, a stiff ``solref``
+:data:`CONTACT_SOLREF`), so a stroke aimed below the surface slides the blade along it
+instead of passing through (without it the blade went 2–6 cm into the table); no other geom
+collides (the pucks live in pymunk).
 
 Lower-level policy: a 7-joint DMP (:mod:`skillkit.policies.dmp`, Eqs. 2.21–2.23 with the
 moving-goal final velocity) whose shape weights are fitted to the shipped demonstration
@@ -76,8 +79,9 @@ controls the torques, 7) during the racket phase. Signals (time-major): ``"racke
 ``"control_puck_observed"``, ``"target_puck_observed"`` (T_o, 2). ``info``: ``hit``
 (the pucks touched), ``displacement`` (true d_T), ``racket_touched``, ``hit_time``,
 ``tau``, ``n_saturated`` (saturated torque entries), ``pucks_at_rest``, ``blade_lowest``
-(lowest blade corner height in the racket phase: negative values mean the blade went through
-the table, which is not modelled in MuJoCo; reported so it can be checked).
+(lowest blade corner height in the racket phase: with the blade–table contact it stays within
+about a millimetre of the surface, the contact's soft penetration; reported so it can be
+checked).
 
 Modules
 -------
@@ -93,6 +97,7 @@ from skillkit.tasks.hockey.arm import (
     BLADE_HALF,
     BLADE_MASS,
     BLADE_OFFSET,
+    CONTACT_SOLREF,
     CONTROL_DT,
     FLANGE_OFFSET,
     JOINT_AXES,
@@ -105,6 +110,7 @@ from skillkit.tasks.hockey.arm import (
     SHAFT_LENGTH,
     SHAFT_MASS,
     SHAFT_RADIUS,
+    TABLE_FRICTION,
     TIMESTEP,
     TORQUE_LIMITS,
     arm_forward_kinematics,
@@ -168,6 +174,7 @@ __all__ = [
     "BUTTER_CUTOFF",
     "BUTTER_ORDER",
     "butterworth_smooth",
+    "CONTACT_SOLREF",
     "CONTEXT_HIGH",
     "CONTEXT_LOW",
     "CONTROL_DT",
@@ -209,6 +216,7 @@ __all__ = [
     "SHAFT_LENGTH",
     "SHAFT_MASS",
     "SHAFT_RADIUS",
+    "TABLE_FRICTION",
     "TablePhysics",
     "TARGET_CENTRE",
     "TAU_RANGE",

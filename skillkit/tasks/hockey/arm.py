@@ -41,6 +41,12 @@ TIMESTEP = 0.002
 """MuJoCo time step, s."""
 CONTROL_DT = 0.004
 """Control period of the PD tracker (250 Hz) and time step of the puck table, s."""
+TABLE_FRICTION = 0.1
+"""Coulomb friction coefficient between the blade and the table surface (our choice: a
+plastic blade on a smooth table; the thesis gives none)."""
+CONTACT_SOLREF = (0.004, 1.0)
+"""MuJoCo ``solref`` (time constant, damping ratio) of the blade–table contact: the stiffest
+the 2 ms step allows (time constant 2 Δt), so the blade sinks at most a few millimetres."""
 
 
 # ============================================================================= the arm
@@ -57,8 +63,10 @@ def build_arm_mjcf(timestep: float = TIMESTEP) -> mjcf.RootElement:
     dm_control.mjcf.RootElement
         Bodies ``link1`` … ``link7`` with hinge joints ``j1`` … ``j7`` (axes
         :data:`JOINT_AXES`, ranges :data:`JOINT_LIMITS`, armature :data:`ARMATURE`), sites
-        ``flange`` and ``blade``. Compile with ``mujoco.MjModel.from_xml_string(
-        root.to_xml_string())`` (or use :func:`arm_model`).
+        ``flange`` and ``blade``. The blade box collides with the table plane (and nothing
+        else collides): friction :data:`TABLE_FRICTION`, ``solref`` :data:`CONTACT_SOLREF`.
+        Compile with ``mujoco.MjModel.from_xml_string(root.to_xml_string())`` (or use
+        :func:`arm_model`).
     """
     root = mjcf_root("lwr_hockey", timestep, geom_rgba=[1.0, 0.55, 0.1, 1.0])
     root.worldbody.add("light", pos=[0, 0, 3], dir=[0, 0, -1])
@@ -69,6 +77,10 @@ def build_arm_mjcf(timestep: float = TIMESTEP) -> mjcf.RootElement:
         size=[3, 2, 0.1],
         pos=[1.2, 0.3, 0],
         rgba=[0.9, 0.9, 0.88, 1],
+        contype=1,
+        conaffinity=0,
+        friction=[TABLE_FRICTION, 0.005, 0.0001],
+        solref=list(CONTACT_SOLREF),
     )
     root.worldbody.add(
         "geom",
@@ -119,6 +131,10 @@ def build_arm_mjcf(timestep: float = TIMESTEP) -> mjcf.RootElement:
         mass=BLADE_MASS,
         pos=[0, 0, BLADE_OFFSET],
         rgba=[0.1, 0.1, 0.1, 1],
+        contype=0,
+        conaffinity=1,
+        friction=[TABLE_FRICTION, 0.005, 0.0001],
+        solref=list(CONTACT_SOLREF),
     )
     parent.add("site", name="blade", pos=[0, 0, BLADE_OFFSET], size=[0.01])
     return root

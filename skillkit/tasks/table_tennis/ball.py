@@ -31,11 +31,17 @@ VELOCITY_HIGH = np.array([-5.0, 0.4, 2.5])
 clear the net and bounce once inside :data:`LANDING_ZONE` (flight ≈ 0.4–0.6 s to the bounce)."""
 LANDING_ZONE = np.array([[-1.25, -0.35], [-0.40, 0.35]])
 """Landing zone on the robot's half, [[x_min, y_min], [x_max, y_max]] (m)."""
-RETURN_LOW = np.array([0.2, -0.4])
-"""Lower corner of the return zone on the opponent's half, [b_x, b_y] (m)."""
-RETURN_HIGH = np.array([0.6, 0.4])
-"""Upper corner of the return zone (m): the front part of the opponent's half, so that a ball
-in the net (p at x = 0) is 0.2–0.6 m short of the target, as the thesis's net band implies."""
+RETURN_LOW = np.array([0.0, -0.5 * TABLE_WIDTH])
+"""Lower corner of the return zone, [b_x, b_y] (m): the whole opponent's half, as C.3 says ("the
+return target position b is also varied uniformly on the opponent's side of the table")."""
+RETURN_HIGH = np.array([0.5 * TABLE_LENGTH, 0.5 * TABLE_WIDTH])
+"""Upper corner of the return zone (m): the opponent's end line and side line."""
+RETURN_NEAR_LOW = np.array([0.2, -0.4])
+"""Lower corner of the narrower *near* return zone of ``table-tennis-near`` (m)."""
+RETURN_NEAR_HIGH = np.array([0.6, 0.4])
+"""Upper corner of the near return zone (m): the front part of the opponent's half, so that a
+ball in the net (p at x = 0) is 0.2–0.6 m short of the target. Our earlier default; easier than
+C.3 (targets within reach of the demonstrated return)."""
 
 
 @dataclass(frozen=True)

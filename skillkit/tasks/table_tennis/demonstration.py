@@ -10,8 +10,8 @@ from skillkit._validation import check_array, check_positive
 from skillkit.tasks._trajectories import quintic
 from skillkit.tasks.table_tennis.arm import RACKET_SITE, arm_model, racket_pose
 from skillkit.tasks.table_tennis.ball import (
-    RETURN_HIGH,
-    RETURN_LOW,
+    RETURN_NEAR_HIGH,
+    RETURN_NEAR_LOW,
     SERVE_POSITION,
     TABLE_HEIGHT,
     VELOCITY_HIGH,
@@ -32,8 +32,11 @@ PREFERRED_POSTURE = np.array([0.0, 0.0, -0.6, 0.3, 0.0, -1.0, 0.0, 0.0])
 
 
 def nominal_context() -> np.ndarray:
-    """Centre of the context range, s₀ = [v₀, b₀], shape (5,)."""
-    return np.concatenate([0.5 * (VELOCITY_LOW + VELOCITY_HIGH), 0.5 * (RETURN_LOW + RETURN_HIGH)])
+    """The demonstration's context s₀ = [v₀, b₀], shape (5,): the centre of the launch-velocity
+    range and of the near return zone (b₀ = [0.4, 0] m, where the stroke was designed)."""
+    return np.concatenate(
+        [0.5 * (VELOCITY_LOW + VELOCITY_HIGH), 0.5 * (RETURN_NEAR_LOW + RETURN_NEAR_HIGH)]
+    )
 
 
 def design_stroke(

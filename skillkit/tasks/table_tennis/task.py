@@ -23,6 +23,8 @@ from skillkit.tasks.table_tennis.arm import (
 from skillkit.tasks.table_tennis.ball import (
     RETURN_HIGH,
     RETURN_LOW,
+    RETURN_NEAR_HIGH,
+    RETURN_NEAR_LOW,
     SERVE_POSITION,
     VELOCITY_HIGH,
     VELOCITY_LOW,
@@ -47,12 +49,17 @@ class TableTennis(Task):
     the ball's launch, and the ball is then followed (racket gone) until it lands.
 
     The context s = [v_x, v_y, v_z, b_x, b_y] is uniform on the box of
-    :data:`VELOCITY_LOW`/:data:`VELOCITY_HIGH` × :data:`RETURN_LOW`/:data:`RETURN_HIGH`.
+    :data:`VELOCITY_LOW`/:data:`VELOCITY_HIGH` × ``return_low``/``return_high`` (default the
+    whole opponent's half, :data:`RETURN_LOW`/:data:`RETURN_HIGH`, as C.3).
     The simulation is deterministic (C.3 neglects spin and measurement noise): ``rng`` is
     accepted and unused.
 
     Parameters
     ----------
+    return_low, return_high : array_like, shape (2,)
+        Corners of the return zone of b = [b_x, b_y] (m), on the opponent's half x ≥ 0
+        (default the whole half; ``table-tennis-near`` uses :data:`RETURN_NEAR_LOW`,
+        :data:`RETURN_NEAR_HIGH`).
     reward_weights : tuple of float
         (c₁, c₂) of Eq. C.1, in 1/m; the thesis uses c₁ = c₂ for model-free search.
     duration : float
@@ -82,8 +89,6 @@ class TableTennis(Task):
     context_dim = 5
     parameter_dim = 17
     context_names = ("v_x", "v_y", "v_z", "b_x", "b_y")
-    context_low = np.concatenate([VELOCITY_LOW, RETURN_LOW])
-    context_high = np.concatenate([VELOCITY_HIGH, RETURN_HIGH])
     worst_reward = -5.0
     """Below any working rollout: the landing point is within ~15 m of the target (drag
     bounds the flight) and the racket within ~4 m of the ball, so R > −2."""
@@ -98,8 +103,19 @@ class TableTennis(Task):
         ball: BallPhysics | None = None,
         demonstration: dict | None = None,
         name: str = "table-tennis",
+        return_low=RETURN_LOW,
+        return_high=RETURN_HIGH,
     ):
 
+        low = check_array(return_low, "return_low", shape=(2,))
+        high = check_array(return_high, "return_high", shape=(2,))
+        if np.any(low > high) or low[0] < 0.0 or not (on_table(*low) and on_table(*high)):
+            raise ValueError(
+                f"return_low, return_high: expected corners low <= high of a zone on the "
+                f"opponent's half of the table, got {low.tolist()} and {high.tolist()}"
+            )
+        self.context_low = np.concatenate([VELOCITY_LOW, low])
+        self.context_high = np.concatenate([VELOCITY_HIGH, high])
         c = check_array(reward_weights, "reward_weights", shape=(2,))
         if np.any(c < 0):
             raise ValueError(f"reward_weights: expected non-negative (c1, c2), got {c.tolist()}")
@@ -295,5 +311,15 @@ def min_segment_distance(relative) -> float:
 
 @register("table-tennis", "contextual")
 def table_tennis(**kwargs) -> TableTennis:
-    """Sec. 3.4.3 / App. C.3 setting: contextual REPS's table tennis with c₁ = c₂ = 0.1."""
+    """Sec. 3.4.3 / App. C.3 setting: targets on the whole opponent's half, c₁ = c₂ = 0.1."""
+    return TableTennis(**kwargs)
+
+
+@register("table-tennis-near", "contextual")
+def table_tennis_near(**kwargs) -> TableTennis:
+    """Easier than C.3: targets only in the near return zone x ∈ [0.2, 0.6], y ∈ [−0.4, 0.4] m
+    (:data:`RETURN_NEAR_LOW`, :data:`RETURN_NEAR_HIGH`), our earlier default."""
+    kwargs.setdefault("return_low", RETURN_NEAR_LOW)
+    kwargs.setdefault("return_high", RETURN_NEAR_HIGH)
+    kwargs.setdefault("name", "table-tennis-near")
     return TableTennis(**kwargs)

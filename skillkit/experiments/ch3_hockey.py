@@ -197,8 +197,8 @@ def heldout_scores(task, policy, contexts, rng=None) -> dict[str, float]:
     dict
         ``reward`` (mean R), ``hit_rate``, ``displacement_error`` (mean |d_T − d*| over all
         contexts; a miss leaves d_T = 0), ``displacement_error_hits`` (over hits; NaN if none),
-        ``blade_lowest`` (lowest blade corner over all rollouts, m: below 0 the blade went
-        through the table, which the arm model does not prevent), ``failed`` (count).
+        ``blade_lowest`` (lowest blade corner over all rollouts, m: the blade–table contact
+        keeps it within about a millimetre of the surface), ``failed`` (count).
     """
     from skillkit._validation import as_generator
 

@@ -173,18 +173,21 @@ def _exact(n_steps: int) -> ExactGP:
     return ExactGP(n_steps=n_steps)
 
 
-def _gpreps(task, st: GPREPSThrowingSettings, model: str, n_artificial: int, n_traj: int, rng):
-    """GPREPS with the decomposed throwing model (``model="decomposed"``) or GP direct."""
+def _throwing_model(task, st: GPREPSThrowingSettings, model: str):
+    """The decomposed throwing model (``model="decomposed"``) or GP direct."""
     if model == "decomposed":
-        reward_model = ThrowingRewardModel(
+        return ThrowingRewardModel(
             task,
             make_robot_model=partial(_fitc, st.robot_inducing, st.robot_steps),
             make_release_model=partial(_exact, st.gp_steps),
             make_flight_model=partial(_fitc, st.flight_inducing, st.gp_steps),
             max_robot_points=st.max_robot_points,
         )
-    else:
-        reward_model = DirectRewardModel(ExactGP(n_steps=st.gp_steps))
+    return DirectRewardModel(ExactGP(n_steps=st.gp_steps))
+
+
+def _gpreps(task, st, reward_model, n_artificial: int, n_traj: int, rng) -> GPREPS:
+    """GPREPS (ε, μ̂, and the fit's regularisation from ``st``) with ``reward_model``."""
     settings = GPREPSSettings(
         epsilon=st.epsilon,
         n_artificial=n_artificial,
@@ -196,10 +199,20 @@ def _gpreps(task, st: GPREPSThrowingSettings, model: str, n_artificial: int, n_t
     return GPREPS(task.initial_policy(), reward_model, settings, rng=rng, task=task)
 
 
-def _run_gpreps(task, st, key, model, n_artificial, n_traj, rng, trial, eval_contexts) -> dict:
-    """One GPREPS run through the loop of Table 4.1; curves and per-update diagnostics."""
+def _run_gpreps(
+    task, st, key, reward_model, n_artificial, n_traj, rng, trial, eval_contexts, callback=None
+) -> dict:
+    """One GPREPS run through the loop of Table 4.1; curves and per-update diagnostics.
+
+    ``reward_model`` is a :class:`~skillkit.search.gpreps.RewardModel` or one of the throwing
+    shorthands ``"decomposed"`` / ``"direct"``; ``callback`` goes to :func:`learn` (its
+    returns are ``f"{key}_callback"``). ``f"{key}_algorithm"`` is the GPREPS object after the
+    last update (callers drop it before returning a trial).
+    """
+    if isinstance(reward_model, str):
+        reward_model = _throwing_model(task, st, reward_model)
     algo_rng, loop_rng = rng.spawn(2)
-    algo = _gpreps(task, st, model, n_artificial, n_traj, algo_rng)
+    algo = _gpreps(task, st, reward_model, n_artificial, n_traj, algo_rng)
     curves = learn(
         task,
         algo,
@@ -210,6 +223,7 @@ def _run_gpreps(task, st, key, model, n_artificial, n_traj, rng, trial, eval_con
         eval_contexts=eval_contexts,
         checkpoint_key=key,
         initial_rollouts=st.n_initial,
+        callback=callback,
     )
     diags = curves["diagnostics"]
     rel = [
@@ -225,6 +239,10 @@ def _run_gpreps(task, st, key, model, n_artificial, n_traj, rng, trial, eval_con
         f"{key}_time_policy": np.array([d.time_policy for d in diags]),
         f"{key}_kl": np.array([d.reps.kl for d in diags]),
         f"{key}_policy": curves["policy"],
+        f"{key}_policies": curves["policies"],
+        f"{key}_diagnostics": diags,
+        f"{key}_callback": curves["callback"],
+        f"{key}_algorithm": algo,
     }
 
 
@@ -262,6 +280,8 @@ def _finish(task, st, out: dict, keys) -> dict:
     for key in keys:
         dist, _ = _final_errors(task, out.pop(f"{key}_policy"), targets)
         out[f"{key}_distance"] = dist
+        for extra in ("policies", "diagnostics", "callback", "algorithm"):
+            out.pop(f"{key}_{extra}", None)
     return out
 
 

@@ -27,6 +27,7 @@ from skillkit.search.reps import (
     reps_weights,
 )
 from skillkit.search.rwr import RWR, RWRDiagnostics, rwr_beta, rwr_weighting, rwr_weights
+from skillkit.search.table_tennis_model import TableTennisPrediction, TableTennisRewardModel
 from skillkit.search.throwing_model import ThrowingPrediction, ThrowingRewardModel
 
 __all__ = [
@@ -45,6 +46,8 @@ __all__ = [
     "KnownRewardModel",
     "REPSDiagnostics",
     "RewardModel",
+    "TableTennisPrediction",
+    "TableTennisRewardModel",
     "ThrowingPrediction",
     "ThrowingRewardModel",
     "TrajectoryRewardModel",

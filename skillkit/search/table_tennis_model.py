@@ -1,0 +1,911 @@
+r"""The decomposed reward model of robot table tennis (Sec. 4.3.4, Fig. 4.13, App. C.3).
+
+GPREPS predicts the reward of a stroke with five learned models chained as in Sec. 4.3.4:
+
+1. **Incoming-ball landing** (a GP): v = s[:3] ↦ the bounce on the robot's half
+   y_b = [p_x, p_y, v⁻ (3), v⁺ (3), t_b] — landing point, the ball's velocity just before
+   and just after the bounce, and the bounce time. Learned from the recorded ball of every
+   rollout: the bounce is located in ``signals["ball"]`` by local quadratic fits on either
+   side of its lowest sample on the table (:func:`find_bounce`).
+2. **Bounce trajectory** (a GP): the landing state x_b = [p_x, p_y, v⁺] ↦ the coefficients
+   c (3 × 3) of the flight after the bounce *relative to the drag-free parabola*,
+
+       p(t_b + τ) = p_b + v⁺ τ + ½ g τ² + Σ_{m=2}^{4} c_m τ^m ,
+
+   so the GP learns only the (smooth, ≲ 20 cm) effect of air drag, and far from its data it
+   falls back to the parabola. A direct map from landing state to the whole path was chosen
+   over a GP forward model iterated every 4 ms (as for the throwing flight) because it does
+   not compound one-step errors over ~100 steps and costs one GP query per sample. The
+   incoming ball before the bounce is the cubic Hermite curve from the serve
+   (:data:`~skillkit.tasks.table_tennis.SERVE_POSITION`, v) to (p_b, v⁻) over [0, t_b]; it
+   never decides the reward (the racket stays behind the landing zone).
+3. **Racket position** and 4. **racket orientation** (time-dependent GPs): each recorded
+   racket trajectory is fitted with a linear model of 40 normalised Gaussian basis
+   functions φ(t) of the execution time per dimension, y(t) ≈ Φ(t) W (:class:`TimeBasis`);
+   a GP maps ω (17) to the weights W. The 40 × 3 (position) or 40 × 4 (quaternion) weights
+   are compressed by PCA (the strokes of one policy span a low-dimensional family; the
+   components keep all but ``pca_tolerance`` of the weights' variance) and one independent
+   GP per principal score is learned — instead of 120 or 160 GPs on strongly correlated
+   outputs. Sampled scores (GP mean + GP std · ξ) give sampled paths Φ(t) W.
+   The racket is a disc, so only its normal n decides a contact; the task records n, and the
+   quaternion is the shortest-arc rotation taking the reference normal
+   :data:`REFERENCE_NORMAL` to n (:func:`normal_to_quaternion`; the rotation about n is
+   irrelevant to the ball). Predicted quaternions are re-normalised.
+5. **Contact**: at the sample of minimal ball–racket distance on the incoming ball, the
+   inputs x = [v_ball − v_racket (3), racket position (3), racket quaternion (4)] of the
+   thesis, extended by default with the ball's position relative to the racket and the
+   distance itself (see ``contact_features``; velocities are backward differences of the
+   paths, the same for real and predicted paths), go to a linear-kernel SVM (scikit-learn,
+   inputs standardised) that classifies hit / miss (labels ``info["hit"]``), and, for a
+   hit, to a GP x ↦ the returned ball's landing point p (2), trained on the hit rollouts.
+
+The reward (Eq. 4.17) follows the schedule of Sec. 4.3.4 (see :class:`TableTennisRewardModel`):
+in the *hitting* stage R = −c₁ min‖τ_b − τ_r‖ − ε c₁ ‖b − p‖ − c₁ P, in the *returning*
+stage the task's own R = −c₁ min‖τ_b − τ_r‖ − c₂ ‖b − p‖ (c₁ = c₂). A predicted miss returns
+no ball; its ‖b − p‖ is the largest possible one, P (:func:`max_target_distance`). The
+minimum distance term is the task's :meth:`~skillkit.tasks.table_tennis.TableTennis.reward_batch`
+on the predicted ball and racket paths.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+
+from skillkit._validation import as_generator, check_array, check_count, check_positive
+from skillkit.models.gp import ExactGP, _GPRegression
+from skillkit.search.gpreps import _gp_stats, _warm_start
+from skillkit.search.model_rollouts import worst_if_nonfinite
+from skillkit.tasks.table_tennis import (
+    SERVE_POSITION,
+    TABLE_HEIGHT,
+    TABLE_LENGTH,
+    TABLE_WIDTH,
+    TableTennis,
+)
+
+__all__ = [
+    "REFERENCE_NORMAL",
+    "TableTennisPrediction",
+    "TableTennisRewardModel",
+    "TimeBasis",
+    "find_bounce",
+    "max_target_distance",
+    "normal_to_quaternion",
+    "quaternion_to_normal",
+]
+
+REFERENCE_NORMAL = np.array([1.0, 0.0, 0.0])
+"""Racket normal of the identity quaternion: facing the opponent (+x). The forehand stroke's
+normals stay in the +x half-space, far from the shortest arc's singularity at −x."""
+
+SCHEDULES = ("auto", "hitting", "returning")
+
+
+# ----------------------------------------------------------------------------- helpers
+class TimeBasis:
+    r"""Normalised Gaussian basis functions of execution time (Sec. 4.3.4).
+
+    φ_i(t) = b_i(t) / Σ_j b_j(t), b_i(t) = exp(−(t − μ_i)² / (2 h²)), with n centres μ_i
+    spread evenly over [0, t_end] and h the spacing of the centres.
+
+    Parameters
+    ----------
+    n_basis : int
+        Number of basis functions per dimension (40 in the thesis).
+    t_end : float
+        End of the execution time (s).
+    ridge : float
+        Ridge λ of the least-squares fit W = (ΦᵀΦ + λI)⁻¹ Φᵀ Y.
+    """
+
+    def __init__(self, n_basis: int = 40, t_end: float = 1.2, ridge: float = 1e-10):
+        self.n_basis = check_count(n_basis, "n_basis", 2)
+        self.t_end = check_positive(t_end, "t_end")
+        self.ridge = check_positive(ridge, "ridge", allow_zero=True)
+        self.centres = np.linspace(0.0, self.t_end, self.n_basis)
+        self.width = self.centres[1] - self.centres[0]
+
+    def __call__(self, times) -> np.ndarray:
+        """Φ(t), shape (T, n_basis); rows sum to one."""
+        t = check_array(times, "times", ndim=1)
+        b = np.exp(-0.5 * ((t[:, None] - self.centres[None, :]) / self.width) ** 2)
+        return b / b.sum(axis=1, keepdims=True)
+
+    def fit(self, times, values) -> np.ndarray:
+        """Least-squares weights W (n_basis, D) of values (T, D) sampled at times (T,)."""
+        phi = self(times)
+        y = check_array(values, "values", shape=(phi.shape[0], None))
+        a = phi.T @ phi + self.ridge * np.eye(self.n_basis)
+        return np.linalg.solve(a, phi.T @ y)
+
+    def __repr__(self) -> str:
+        return f"TimeBasis(n_basis={self.n_basis}, t_end={self.t_end:g}, width={self.width:.4g})"
+
+
+def normal_to_quaternion(normals) -> np.ndarray:
+    r"""Shortest-arc rotation q = [w, x, y, z] taking :data:`REFERENCE_NORMAL` r to n.
+
+    q = normalise([1 + r·n, r × n]); shape (..., 3) → (..., 4), w ≥ 0.
+    """
+    n = np.asarray(normals, dtype=np.float64)
+    n = n / np.linalg.norm(n, axis=-1, keepdims=True)
+    r = np.broadcast_to(REFERENCE_NORMAL, n.shape)
+    q = np.concatenate([1.0 + np.sum(r * n, axis=-1, keepdims=True), np.cross(r, n)], axis=-1)
+    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+
+
+def quaternion_to_normal(quaternions) -> np.ndarray:
+    """The racket normal R(q) r of (possibly unnormalised) quaternions, (..., 4) → (..., 3)."""
+    q = np.asarray(quaternions, dtype=np.float64)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    w, x, y, z = np.moveaxis(q, -1, 0)
+    # first column of the rotation matrix: R e_x
+    return np.stack([1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y)], axis=-1)
+
+
+def max_target_distance(task: TableTennis) -> float:
+    """P = max ‖b − p‖: the largest distance between a target b of the task's return zone
+    (``context_low/high[3:]``) and a landing point p on the table (|x| ≤ L/2, |y| ≤ W/2)
+    — attained at corners, as the distance is convex."""
+    lo, hi = task.context_low[3:5], task.context_high[3:5]
+    targets = np.array([[x, y] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])])
+    hx, hy = 0.5 * TABLE_LENGTH, 0.5 * TABLE_WIDTH
+    table = np.array([[x, y] for x in (-hx, hx) for y in (-hy, hy)])
+    return float(np.max(np.linalg.norm(targets[:, None] - table[None], axis=-1)))
+
+
+def find_bounce(times, ball, plane: float, t_end: float, n_fit: int = 7) -> np.ndarray | None:
+    """The incoming ball's bounce on the robot's half located in its recorded samples.
+
+    The lowest sample above the table (x ∈ [−L/2, 0]) before ``t_end`` is taken as the
+    bounce; quadratics in t are fitted (least squares) to the ``n_fit`` samples before and
+    after its neighbours. The bounce time t_b solves z_pre(t) = ``plane``; p_b = pre-fit
+    (x, y) at t_b, v⁻ and v⁺ the derivatives of the pre- and post-fits at t_b.
+
+    Parameters
+    ----------
+    times : ndarray, shape (T,)
+    ball : ndarray, shape (T, 3)
+    plane : float
+        Height of the ball centre at a bounce (table height + ball radius).
+    t_end : float
+        Only samples before this time are used (the incoming ball's end).
+    n_fit : int
+        Samples per side.
+
+    Returns
+    -------
+    ndarray, shape (9,) or None
+        [p_x, p_y, v⁻ (3), v⁺ (3), t_b]; None when no bounce with enough samples is found.
+    """
+    keep = (times < t_end) & (ball[:, 0] >= -0.5 * TABLE_LENGTH) & (ball[:, 0] <= 0.0)
+    idx = np.flatnonzero(keep)
+    if idx.size == 0:
+        return None
+    j = int(idx[np.argmin(ball[idx, 2])])
+    n_inc = int(np.sum(times < t_end))
+    if j - n_fit - 1 < 0 or j + n_fit + 1 >= n_inc:
+        return None
+    pre = slice(j - n_fit - 1, j - 1)
+    post = slice(j + 2, j + n_fit + 2)
+    c_pre = np.polyfit(times[pre], ball[pre], 2)  # (3, 3): rows t², t, 1
+    c_post = np.polyfit(times[post], ball[post], 2)
+    a, b, c = c_pre[:, 2]
+    roots = np.roots([a, b, c - plane])
+    roots = roots[np.isreal(roots)].real
+    lo, hi = times[j - 1] - 1e-9, times[j + 1] + 1e-9
+    roots = roots[(roots >= lo) & (roots <= hi)]
+    if roots.size == 0:
+        return None
+    tb = float(roots.min())
+
+    def pos(cf):
+        return cf[0] * tb**2 + cf[1] * tb + cf[2]
+
+    def vel(cf):
+        return 2 * cf[0] * tb + cf[1]
+
+    return np.concatenate([pos(c_pre)[:2], vel(c_pre), vel(c_post), [tb]])
+
+
+def _hermite(t, t1, p0, v0, p1, v1):
+    """Cubic Hermite curve on [0, t1]: t (T,), t1 (n,), p/v (n, 3) → (n, T, 3)."""
+    u = np.clip(t[None, :] / t1[:, None], 0.0, 1.0)[..., None]
+    h00, h10 = 2 * u**3 - 3 * u**2 + 1, u**3 - 2 * u**2 + u
+    h01, h11 = -2 * u**3 + 3 * u**2, u**3 - u**2
+    d = t1[:, None, None]
+    return h00 * p0[:, None] + h10 * d * v0[:, None] + h01 * p1[:, None] + h11 * d * v1[:, None]
+
+
+def _backward_velocity(paths: np.ndarray, k: np.ndarray, dt: float) -> np.ndarray:
+    """(p_k − p_{k−1}) / dt of paths (n, T, 3) at indices k (n,) (forward at k = 0)."""
+    k0 = np.maximum(k, 1)
+    rows = np.arange(paths.shape[0])
+    return (paths[rows, k0] - paths[rows, k0 - 1]) / dt
+
+
+# ----------------------------------------------------------------------------- GP on weights
+class _ScoresGP:
+    """A GP from inputs to the PCA scores of many correlated outputs (basis weights)."""
+
+    def __init__(self, gp: _GPRegression, tolerance: float, max_components: int):
+        self.gp, self.tolerance, self.max_components = gp, tolerance, max_components
+
+    def fit(self, x, y, rng, hypers) -> _ScoresGP:
+        self.mean = y.mean(axis=0)
+        u, sv, vt = np.linalg.svd(y - self.mean, full_matrices=False)
+        var = sv**2
+        frac = np.cumsum(var) / max(var.sum(), 1e-300)
+        k = int(np.searchsorted(frac, 1.0 - self.tolerance) + 1)
+        k = max(1, min(k, self.max_components, vt.shape[0]))
+        self.components = vt[:k]  # (k, D)
+        self.explained = float(frac[k - 1])
+        scores = (y - self.mean) @ self.components.T
+        if hypers is not None and isinstance(self.gp, _GPRegression):
+            if np.shape(hypers["lengthscale"])[0] == k:
+                _warm_start(self.gp, hypers, x)
+        self.gp.fit(x, scores, rng)
+        return self
+
+    def sample(self, x, L: int, rng) -> np.ndarray:
+        """Sampled outputs (B, L, D): scores ~ N(GP mean, GP var) independently."""
+        m, v = self.gp.predict(x)
+        m, v = m.reshape(x.shape[0], -1), v.reshape(x.shape[0], -1)
+        z = m[:, None] + np.sqrt(np.maximum(v, 0.0))[:, None] * rng.standard_normal(
+            (x.shape[0], L, m.shape[1])
+        )
+        return self.mean + z @ self.components
+
+    def mean_prediction(self, x) -> np.ndarray:
+        m, _ = self.gp.predict(x)
+        return self.mean + m.reshape(x.shape[0], -1) @ self.components
+
+
+def _gp(n_steps: int = 150) -> ExactGP:
+    return ExactGP(n_steps=n_steps)
+
+
+def _linear_svm():
+    """Standardised inputs → a linear-kernel SVM (scikit-learn ``SVC(kernel="linear")``)."""
+    from sklearn.pipeline import make_pipeline
+    from sklearn.preprocessing import StandardScaler
+    from sklearn.svm import SVC
+
+    return make_pipeline(StandardScaler(), SVC(kernel="linear", C=1.0))
+
+
+class _Constant:
+    """The classifier of a single observed class."""
+
+    def __init__(self, label: bool):
+        self.label = bool(label)
+
+    def predict(self, x):
+        return np.full(np.asarray(x).shape[0], self.label)
+
+    def decision_function(self, x):
+        return np.full(np.asarray(x).shape[0], 1.0 if self.label else -1.0)
+
+
+# ----------------------------------------------------------------------------- prediction
+@dataclass(frozen=True)
+class TableTennisPrediction:
+    """L predicted strokes for each of B (ω, s) pairs.
+
+    Attributes
+    ----------
+    times : ndarray, shape (T,)
+        The task's control times (s).
+    ball : ndarray, shape (B, L, T, 3)
+        Predicted incoming ball (Hermite curve to the bounce, then the bounce model).
+    racket : ndarray, shape (B, L, T, 3)
+        Predicted racket centre Φ(t) W.
+    quaternion : ndarray, shape (B, L, T, 4)
+        Predicted racket orientation (unit quaternions, [w, x, y, z]).
+    bounce : ndarray, shape (B, L, 9)
+        Sampled landing state [p_x, p_y, v⁻, v⁺, t_b] of the incoming ball.
+    closest : ndarray, shape (B, L)
+        min‖τ_b − τ_r‖ on the incoming ball (m).
+    contact : ndarray of bool, shape (B, L)
+        The SVM's hit decision at the closest sample.
+    margin : ndarray, shape (B, L)
+        The SVM's decision value (> 0: hit).
+    landing : ndarray, shape (B, L, 2)
+        Predicted landing point p of the returned ball (NaN for a predicted miss).
+    rewards : ndarray, shape (B, L)
+        Eq. (4.17) with the weights of ``stage``.
+    stage : str
+        "hitting" or "returning".
+    """
+
+    times: np.ndarray
+    ball: np.ndarray
+    racket: np.ndarray
+    quaternion: np.ndarray
+    bounce: np.ndarray
+    closest: np.ndarray
+    contact: np.ndarray
+    margin: np.ndarray
+    landing: np.ndarray
+    rewards: np.ndarray
+    stage: str
+
+    @property
+    def expected_rewards(self) -> np.ndarray:
+        """R̂ = mean of the L rewards of each pair (Eq. 4.1), shape (B,)."""
+        return self.rewards.mean(axis=1)
+
+    @property
+    def contact_probability(self) -> np.ndarray:
+        """Fraction of the L samples predicted to hit, shape (B,)."""
+        return self.contact.mean(axis=1)
+
+    def __repr__(self) -> str:
+        B, L, T, _ = self.ball.shape
+        r = self.expected_rewards
+        return (
+            f"TableTennisPrediction(pairs={B}, trajectories={L}, steps={T}, stage={self.stage!r}, "
+            f"expected_reward={r.min():.4g}…{r.max():.4g}, contacts={int(self.contact.sum())}, "
+            f"closest_median={np.median(self.closest):.3g} m)"
+        )
+
+
+# ----------------------------------------------------------------------------- the model
+class TableTennisRewardModel:
+    r"""Decomposed GPREPS reward model of :class:`~skillkit.tasks.table_tennis.TableTennis`.
+
+    The five models of Sec. 4.3.4 (see the module docstring) and the reward schedule of
+    Eq. (4.17):
+
+    * **hitting**: R = −c₁ min‖τ_b − τ_r‖ − ε c₁ ‖b − p‖ − c₁ P, with c₁ the task's and
+      P = :func:`max_target_distance` (a predicted miss has ‖b − p‖ = P). The penalty c₁ P
+      is the thesis's *constant* term: it does not change REPS's weights (they are
+      shift-invariant), it keeps every hitting-stage reward below the returning-stage
+      rewards of a hit, and ε c₁ ‖b − p‖ leaves the return all but ignored.
+    * **returning**: the task's R = −c₁ min‖τ_b − τ_r‖ − c₂ ‖b − p‖ (c₁ = c₂), p = P-distant
+      for a predicted miss.
+
+    With ``schedule="auto"`` the stage becomes "returning" — for good: the switch is never
+    undone — at the first :meth:`fit` at which the contact model is *good*:
+
+    * at least ``min_hits`` hit rollouts and ``min_hits`` misses among the data
+      (both classes are needed to learn a boundary), and
+    * the SVM's 5-fold stratified cross-validated *balanced* accuracy ≥ ``min_svm_accuracy``
+      (balanced, because early data are mostly misses and "always miss" has a high plain
+      accuracy), and
+    * the landing GP's 5-fold cross-validated RMSE of p ≤ ``max_landing_rmse`` (m).
+
+    Parameters
+    ----------
+    task : TableTennis
+    make_landing_model, make_bounce_model, make_racket_model, make_return_model : callable
+        Return an unfitted GP regression (default ``ExactGP()``): v ↦ bounce (model 1),
+        landing state ↦ drag coefficients (model 2), ω ↦ PCA scores of the basis weights
+        (models 3 and 4, one instance each), contact inputs ↦ p (model 5).
+    make_classifier : callable
+        Returns an unfitted scikit-learn classifier (default: standardisation and
+        ``SVC(kernel="linear")``).
+    schedule : {"auto", "hitting", "returning"}
+        Reward stage; "hitting"/"returning" force it.
+    contact_features : {"extended", "thesis"}
+        Inputs of model 5. "thesis": [v_rel (3), racket position (3), quaternion (4)] as in
+        Sec. 4.3.4. "extended" (default) adds the ball's position relative to the racket (3)
+        and its norm, the minimal distance (1): in this simulation whether the ball meets the
+        disc is decided by where it passes the racket, which the thesis's inputs do not
+        contain — on 400 rollouts of the initial policy (20 % hits) the linear SVM's
+        5-fold balanced accuracy was 0.52–0.57 with the thesis's inputs (it predicts
+        "miss" throughout unless classes are re-weighted) and 0.98–0.99 extended.
+    epsilon : float
+        ε of the hitting stage.
+    min_hits, min_svm_accuracy, max_landing_rmse
+        The "good contact model" criterion of ``schedule="auto"``.
+    n_basis : int
+        Basis functions per racket dimension (40 in the thesis).
+    pca_tolerance : float
+        Fraction of the basis weights' variance the PCA may drop.
+    max_components : int
+        At most this many principal scores (GPs) per racket model.
+    max_points : int
+        Each GP is fitted on at most this many rollouts (random subset).
+    warm_start : bool
+        Start each GP's hyper-parameter optimisation at its previous values.
+    device : str or torch.device, optional
+        Where the sampled paths are assembled (Φ W, ball–racket distances), float64. The GPs
+        train on their own ``device`` (give it to the factories, e.g.
+        ``partial(ExactGP, device="cuda")``).
+
+    Notes
+    -----
+    Factories are part of the checkpointed state: pass module-level functions or classes.
+    """
+
+    def __init__(
+        self,
+        task: TableTennis,
+        make_landing_model: Callable[[], Any] | None = None,
+        make_bounce_model: Callable[[], Any] | None = None,
+        make_racket_model: Callable[[], Any] | None = None,
+        make_return_model: Callable[[], Any] | None = None,
+        make_classifier: Callable[[], Any] | None = None,
+        schedule: str = "auto",
+        contact_features: str = "extended",
+        epsilon: float = 1e-3,
+        min_hits: int = 15,
+        min_svm_accuracy: float = 0.8,
+        max_landing_rmse: float = 0.3,
+        n_basis: int = 40,
+        pca_tolerance: float = 1e-6,
+        max_components: int = 20,
+        max_points: int = 400,
+        warm_start: bool = True,
+        device=None,
+    ):
+        if not isinstance(task, TableTennis):
+            raise ValueError(f"task: expected a TableTennis task, got {type(task).__name__}")
+        for name, f in (
+            ("make_landing_model", make_landing_model),
+            ("make_bounce_model", make_bounce_model),
+            ("make_racket_model", make_racket_model),
+            ("make_return_model", make_return_model),
+            ("make_classifier", make_classifier),
+        ):
+            if f is not None and not callable(f):
+                raise ValueError(f"{name}: expected a callable, got {type(f).__name__}")
+        if schedule not in SCHEDULES:
+            raise ValueError(f"schedule: expected one of {SCHEDULES}, got {schedule!r}")
+        self.task = task
+        self.make_landing_model = make_landing_model or _gp
+        self.make_bounce_model = make_bounce_model or _gp
+        self.make_racket_model = make_racket_model or _gp
+        self.make_return_model = make_return_model or _gp
+        self.make_classifier = make_classifier or _linear_svm
+        self.schedule = schedule
+        if contact_features not in ("extended", "thesis"):
+            raise ValueError(
+                f"contact_features: expected 'extended' or 'thesis', got {contact_features!r}"
+            )
+        self.contact_features = contact_features
+        self.stage = "returning" if schedule == "returning" else "hitting"
+        self.epsilon = check_positive(epsilon, "epsilon", allow_zero=True)
+        self.min_hits = check_count(min_hits, "min_hits", 2)
+        self.min_svm_accuracy = check_positive(min_svm_accuracy, "min_svm_accuracy")
+        self.max_landing_rmse = check_positive(max_landing_rmse, "max_landing_rmse")
+        self.basis = TimeBasis(n_basis, float(task.times[-1]))
+        self.pca_tolerance = check_positive(pca_tolerance, "pca_tolerance", allow_zero=True)
+        self.max_components = check_count(max_components, "max_components")
+        self.max_points = check_count(max_points, "max_points", 2)
+        self.warm_start = bool(warm_start)
+        self.device = device
+        self.penalty = max_target_distance(task)
+        self.plane = TABLE_HEIGHT + task.ball.radius
+        self.landing: Any = None
+        self.bounce: Any = None
+        self.racket_position: _ScoresGP | None = None
+        self.racket_orientation: _ScoresGP | None = None
+        self.classifier: Any = None
+        self.returns: Any = None
+        self._hypers: dict[str, dict | None] = dict.fromkeys(
+            ("landing", "bounce", "position", "orientation", "returns")
+        )
+        self.n_data = 0
+
+    # ------------------------------------------------------------------ data
+    def bounce_data(self, trajectories) -> tuple[np.ndarray, np.ndarray, list[int]]:
+        """Models 1 and 2's targets from the recorded balls (inputs: v = s[:3] and y[:, [0, 1,
+        5, 6, 7]]).
+
+        Returns
+        -------
+        y : ndarray, shape (n, 9)
+            [p_x, p_y, v⁻, v⁺, t_b] (:func:`find_bounce`).
+        c : ndarray, shape (n, 9)
+            Drag coefficients [c_2, c_3, c_4] × (x, y, z) of the flight after the bounce, fitted
+            by least squares to the incoming samples after t_b.
+        used : list of int
+            Indices of the trajectories with a located bounce.
+        """
+        task = self.task
+        t = task.times
+        g = np.array([0.0, 0.0, -task.ball.gravity])
+        ys, cs, used = [], [], []
+        for i, tr in enumerate(trajectories):
+            ball = tr.signals["ball"]
+            t_end = min(tr.info["incoming_end"], tr.info["landing_time"])
+            y = find_bounce(t, ball, self.plane, t_end)
+            if y is None:
+                continue
+            tb, pb = y[8], np.array([y[0], y[1], self.plane])
+            k = (t > tb) & (t < t_end)
+            if k.sum() < 5:
+                continue
+            tau = t[k] - tb
+            resid = ball[k] - pb - np.outer(tau, y[5:8]) - 0.5 * np.outer(tau**2, g)
+            design = np.stack([tau**2, tau**3, tau**4], axis=1)
+            coef, *_ = np.linalg.lstsq(design, resid, rcond=None)
+            ys.append(y)
+            cs.append(coef.ravel())
+            used.append(i)
+        return np.array(ys).reshape(-1, 9), np.array(cs).reshape(-1, 9), used
+
+    def racket_weights(self, trajectories) -> tuple[np.ndarray, np.ndarray]:
+        """40-basis weights of each racket path (N, n·3) and quaternion path (N, n·4)."""
+        phi = self.basis(self.task.times)
+        solve = np.linalg.solve(
+            phi.T @ phi + self.basis.ridge * np.eye(self.basis.n_basis), phi.T
+        )  # (n, T)
+        pos = np.stack([solve @ tr.signals["racket"] for tr in trajectories])
+        quat = np.stack(
+            [solve @ normal_to_quaternion(tr.signals["racket_normal"]) for tr in trajectories]
+        )
+        return pos.reshape(len(trajectories), -1), quat.reshape(len(trajectories), -1)
+
+    def contact_inputs(self, ball, racket, quaternion, steps) -> tuple[np.ndarray, np.ndarray]:
+        """Model 5's inputs at the closest incoming sample.
+
+        Parameters
+        ----------
+        ball, racket : ndarray, shape (n, T, 3)
+        quaternion : ndarray, shape (n, T, 4)
+        steps : ndarray of int, shape (n,)
+            The first ``steps`` samples are the incoming ball.
+
+        Returns
+        -------
+        x : ndarray, shape (n, 14) or (n, 10)
+            [v_ball − v_racket (3), racket position (3), racket quaternion (4), p_ball −
+            p_racket (3), ‖p_ball − p_racket‖ (1)]; the first 10 only with
+            ``contact_inputs="thesis"``.
+        closest : ndarray, shape (n,)
+            The minimal sampled distance (m).
+        """
+        d = np.linalg.norm(ball - racket, axis=-1)
+        T = d.shape[1]
+        d = np.where(np.arange(T)[None, :] < steps[:, None], d, np.inf)
+        k = np.argmin(d, axis=1)
+        rows = np.arange(d.shape[0])
+        dt = self.task.control_dt
+        rel = _backward_velocity(ball, k, dt) - _backward_velocity(racket, k, dt)
+        x = np.hstack(
+            [
+                rel,
+                racket[rows, k],
+                quaternion[rows, k],
+                ball[rows, k] - racket[rows, k],
+                d[rows, k, None],
+            ]
+        )
+        return (x[:, :10] if self.contact_features == "thesis" else x), d[rows, k]
+
+    def _real_contact_data(self, trajectories):
+        t = self.task.times
+        ball = np.stack([tr.signals["ball"] for tr in trajectories])
+        racket = np.stack([tr.signals["racket"] for tr in trajectories])
+        quat = normal_to_quaternion(np.stack([tr.signals["racket_normal"] for tr in trajectories]))
+        # strictly the incoming ball: samples at or before the hit (or the terminal event)
+        steps = np.array(
+            [int(np.searchsorted(t, tr.info["incoming_end"], side="right")) for tr in trajectories]
+        )
+        x, _ = self.contact_inputs(ball, racket, quat, np.maximum(steps, 1))
+        hit = np.array([bool(tr.info["hit"]) for tr in trajectories])
+        p = np.array([tr.info["landing_point"] for tr in trajectories], dtype=np.float64)
+        return x, hit, p
+
+    # ------------------------------------------------------------------ fit
+    def _fit_gp(self, key: str, gp, x, y, rng):
+        if self.warm_start and isinstance(gp, _GPRegression):
+            h = self._hypers[key]
+            if h is not None and np.shape(h["lengthscale"]) == (y.shape[1], x.shape[1]):
+                _warm_start(gp, h, x)
+        gp.fit(x, y, rng)
+        if isinstance(gp, _GPRegression):
+            self._hypers[key] = gp.hyperparameters
+        return gp
+
+    def fit(self, contexts, omegas, rewards, trajectories, rng=None) -> dict[str, Any]:
+        """Refit the five models on every non-failed rollout and update the reward stage.
+
+        Parameters
+        ----------
+        contexts : array_like, shape (N, 5)
+        omegas : array_like, shape (N, 17)
+        rewards : array_like, shape (N,)
+            Unused (the models learn from the trajectories).
+        trajectories : sequence of Trajectory, length N
+        rng : Generator, int or None
+
+        Returns
+        -------
+        dict
+            ``n_data``/``n_trajectories``, ``n_bounces``, ``n_hits``, ``stage``,
+            ``criterion`` (``n_hits``, ``n_misses``, ``svm_cv_balanced_accuracy``,
+            ``svm_cv_accuracy``, ``majority_rate``, ``landing_cv_rmse``, ``good``),
+            ``pca_components`` and per GP (``landing``, ``bounce``, ``racket_position``,
+            ``racket_orientation``, ``returns``) its ``n_data``, ``log_ml``,
+            ``iterations``, ``noise_var_max``; ``fit_seconds``.
+        """
+        t0 = time.perf_counter()
+        task = self.task
+        if trajectories is None:
+            raise ValueError("trajectories: the table-tennis model learns from trajectories")
+        s = check_array(contexts, "contexts", shape=(None, task.context_dim))
+        w = check_array(omegas, "omegas", shape=(s.shape[0], task.parameter_dim))
+        if len(trajectories) != s.shape[0]:
+            raise ValueError(
+                f"trajectories: expected {s.shape[0]} like contexts, got {len(trajectories)}"
+            )
+        keep = [i for i, tr in enumerate(trajectories) if not tr.failed]
+        if len(keep) < 2:
+            raise ValueError("trajectories: fewer than two non-failed rollouts to learn from")
+        rng = as_generator(rng)
+        trajs = [trajectories[i] for i in keep]
+        s, w = s[keep], w[keep]
+        pick = np.sort(rng.permutation(len(trajs))[: self.max_points])
+        trajs, s, w = [trajs[i] for i in pick], s[pick], w[pick]
+        stats: dict[str, Any] = {"n_data": len(trajs), "n_trajectories": len(trajs)}
+
+        # models 1, 2: landing and bounce trajectory
+        yb, cb, used = self.bounce_data(trajs)
+        if len(used) < 2:
+            raise ValueError("trajectories: fewer than two incoming-ball bounces were found")
+        vb = s[used, :3]
+        self.landing = self._fit_gp("landing", self.make_landing_model(), vb, yb, rng)
+        xb = np.hstack([yb[:, :2], yb[:, 5:8]])
+        self.bounce = self._fit_gp("bounce", self.make_bounce_model(), xb, cb, rng)
+        stats["n_bounces"] = len(used)
+
+        # models 3, 4: racket position and orientation
+        wp, wq = self.racket_weights(trajs)
+        self.racket_position = _ScoresGP(
+            self.make_racket_model(), self.pca_tolerance, self.max_components
+        ).fit(w, wp, rng, self._hypers["position"] if self.warm_start else None)
+        self.racket_orientation = _ScoresGP(
+            self.make_racket_model(), self.pca_tolerance, self.max_components
+        ).fit(w, wq, rng, self._hypers["orientation"] if self.warm_start else None)
+        for key, m in (
+            ("position", self.racket_position),
+            ("orientation", self.racket_orientation),
+        ):
+            if isinstance(m.gp, _GPRegression):
+                self._hypers[key] = m.gp.hyperparameters
+        stats["pca_components"] = {
+            "position": int(self.racket_position.components.shape[0]),
+            "orientation": int(self.racket_orientation.components.shape[0]),
+        }
+
+        # model 5: contact classifier and returned landing point
+        x, hit, p = self._real_contact_data(trajs)
+        if hit.all() or not hit.any():
+            self.classifier = _Constant(bool(hit[0]))
+        else:
+            self.classifier = self.make_classifier().fit(x, hit)
+        self.returns = None
+        if hit.sum() >= 2:
+            self.returns = self._fit_gp("returns", self.make_return_model(), x[hit], p[hit], rng)
+        stats["n_hits"] = int(hit.sum())
+        crit = self._criterion(x, hit, p, rng)
+        stats["criterion"] = crit
+        if self.schedule == "auto" and crit["good"]:
+            self.stage = "returning"
+        stats["stage"] = self.stage
+        for key, model in (
+            ("landing", self.landing),
+            ("bounce", self.bounce),
+            ("racket_position", self.racket_position.gp),
+            ("racket_orientation", self.racket_orientation.gp),
+            ("returns", self.returns),
+        ):
+            if isinstance(model, _GPRegression):
+                stats[key] = _gp_stats(model, model.X.shape[0])
+        self.n_data = len(trajs)
+        stats["fit_seconds"] = time.perf_counter() - t0
+        return stats
+
+    def _criterion(self, x, hit, p, rng) -> dict[str, Any]:
+        """The "good contact model" test of ``schedule="auto"`` (see the class docstring)."""
+        n_hit, n_miss = int(hit.sum()), int((~hit).sum())
+        crit: dict[str, Any] = {
+            "n_hits": n_hit,
+            "n_misses": n_miss,
+            "majority_rate": float(max(n_hit, n_miss) / hit.size),
+            "svm_cv_accuracy": None,
+            "svm_cv_balanced_accuracy": None,
+            "landing_cv_rmse": None,
+            "min_hits": self.min_hits,
+            "min_svm_accuracy": self.min_svm_accuracy,
+            "max_landing_rmse": self.max_landing_rmse,
+            "good": False,
+        }
+        if n_hit < self.min_hits or n_miss < self.min_hits:
+            return crit
+        from sklearn.model_selection import StratifiedKFold, cross_val_predict
+
+        folds = StratifiedKFold(5, shuffle=True, random_state=int(rng.integers(2**31)))
+        guess = cross_val_predict(self.make_classifier(), x, hit, cv=folds)
+        acc = float(np.mean(guess == hit))
+        bal = float(0.5 * (np.mean(guess[hit]) + np.mean(~guess[~hit])))
+        crit["svm_cv_accuracy"], crit["svm_cv_balanced_accuracy"] = acc, bal
+        xh, ph = x[hit], p[hit]
+        err = []
+        for train, test in StratifiedKFold(5, shuffle=True, random_state=0).split(
+            xh, np.zeros(len(xh))
+        ):
+            gp = self.make_return_model().fit(xh[train], ph[train], rng)
+            err.append(np.sum((gp.predict(xh[test])[0] - ph[test]) ** 2, axis=1))
+        rmse = float(np.sqrt(np.mean(np.concatenate(err))))
+        crit["landing_cv_rmse"] = rmse
+        crit["good"] = bool(bal >= self.min_svm_accuracy and rmse <= self.max_landing_rmse)
+        return crit
+
+    # ------------------------------------------------------------------ predict
+    def predict(self, contexts, omegas, n_trajectories: int, rng=None) -> TableTennisPrediction:
+        """Sample L strokes for each of B (ω, s) pairs through the five models.
+
+        Parameters
+        ----------
+        contexts : array_like, shape (B, 5)
+        omegas : array_like, shape (B, 17)
+        n_trajectories : int
+            L ≥ 1.
+        rng : Generator, int or None
+
+        Returns
+        -------
+        TableTennisPrediction
+        """
+        if self.landing is None:
+            raise RuntimeError("TableTennisRewardModel: call fit() before predicting")
+        task = self.task
+        w = check_array(omegas, "omegas", shape=(None, task.parameter_dim))
+        s = check_array(contexts, "contexts", shape=(w.shape[0], task.context_dim))
+        L, rng = check_count(n_trajectories, "n_trajectories"), as_generator(rng)
+        B, t = w.shape[0], task.times
+        T, n = t.shape[0], B * L
+        device = torch.device("cpu" if self.device is None else self.device)
+
+        # model 1: the bounce (sampled), model 2: the flight after it
+        yb = _sample_gp(self.landing, s[:, :3], L, rng).reshape(n, 9)
+        tb = np.clip(yb[:, 8], 1e-3, None)
+        pb = np.column_stack([yb[:, :2], np.full(n, self.plane)])
+        coef = _sample_gp(self.bounce, np.hstack([yb[:, :2], yb[:, 5:8]]), 1, rng)
+        coef = coef.reshape(n, 3, 3)
+        tau = np.clip(t[None, :] - tb[:, None], 0.0, None)  # (n, T)
+        g = np.array([0.0, 0.0, -task.ball.gravity])
+        powers = np.stack([tau**2, tau**3, tau**4], axis=-1)  # (n, T, 3)
+        after = (
+            pb[:, None]
+            + tau[..., None] * yb[:, None, 5:8]
+            + 0.5 * tau[..., None] ** 2 * g
+            + np.einsum("ntm,nmd->ntd", powers, coef)
+        )
+        p0 = np.broadcast_to(SERVE_POSITION, (n, 3))
+        v0 = np.repeat(s[:, :3], L, axis=0)
+        before = _hermite(t, tb, p0, v0, pb, yb[:, 2:5])
+        ball = np.where((t[None, :] < tb[:, None])[..., None], before, after)
+        # the incoming ball ends where it falls through the table plane again (behind the robot)
+        below = (t[None, :] > tb[:, None] + 0.05) & (ball[..., 2] < self.plane)
+        steps = np.where(below.any(axis=1), below.argmax(axis=1) + 1, T)
+
+        # models 3, 4: racket position and orientation, Φ(t) W
+        phi = torch.as_tensor(self.basis(t), dtype=torch.float64, device=device)
+        nb = self.basis.n_basis
+
+        def paths(model, dims):
+            wts = torch.as_tensor(model.sample(w, L, rng), dtype=torch.float64, device=device)
+            return (phi @ wts.reshape(n, nb, dims)).cpu().numpy()
+
+        racket = paths(self.racket_position, 3)
+        quat = paths(self.racket_orientation, 4)
+        quat /= np.linalg.norm(quat, axis=-1, keepdims=True)
+
+        # model 5: contact and return
+        x, _ = self.contact_inputs(ball, racket, quat, steps)
+        contact = np.asarray(self.classifier.predict(x), dtype=bool)
+        margin = np.asarray(self.classifier.decision_function(x), dtype=np.float64)
+        landing = np.full((n, 2), np.nan)
+        if self.returns is not None and contact.any():
+            landing[contact] = _sample_gp(self.returns, x[contact], 1, rng).reshape(-1, 2)
+        elif contact.any():
+            contact = np.zeros(n, dtype=bool)  # no return model yet: no predicted return
+
+        rewards, closest = self._rewards(ball, racket, steps, landing, contact, s, L)
+        rewards = worst_if_nonfinite(rewards, task, "TableTennisRewardModel.predict")
+        return TableTennisPrediction(
+            t.copy(),
+            ball.reshape(B, L, T, 3),
+            racket.reshape(B, L, T, 3),
+            quat.reshape(B, L, T, 4),
+            yb.reshape(B, L, 9),
+            closest.reshape(B, L),
+            contact.reshape(B, L),
+            margin.reshape(B, L),
+            landing.reshape(B, L, 2),
+            rewards.reshape(B, L),
+            self.stage,
+        )
+
+    def _rewards(self, ball, racket, steps, landing, contact, s, L):
+        """Eq. (4.17) of the current stage; returns rewards (n,) and min‖τ_b − τ_r‖ (n,)."""
+        task = self.task
+        c1, c2 = task.reward_weights
+        ctx = np.repeat(s, L, axis=0)
+        b = ctx[:, 3:5]
+        # the task's own reward with p = b isolates −c₁ min‖τ_b − τ_r‖
+        signals = {"ball": ball, "racket": racket, "landing_point": b, "incoming_steps": steps}
+        hitting = task.reward_batch(None, None, signals, ctx)
+        closest = -hitting / c1 if c1 > 0 else np.full(ball.shape[0], np.nan)
+        dist = np.where(contact, np.linalg.norm(np.nan_to_num(landing) - b, axis=1), self.penalty)
+        if self.stage == "hitting":
+            return hitting - self.epsilon * c1 * dist - c1 * self.penalty, closest
+        return hitting - c2 * dist, closest
+
+    def expected_rewards(self, contexts, omegas, n_trajectories, rng=None) -> np.ndarray:
+        """R̂_sω: the mean reward of L predicted strokes per pair (Eq. 4.1), shape (B,)."""
+        return self.predict(contexts, omegas, n_trajectories, rng).expected_rewards
+
+    def prediction_layers(self, context, omega, n_samples: int, rng=None) -> dict[str, dict]:
+        """Fig. 4.13's layers of one (s, ω) pair for the browser viewer.
+
+        Parameters
+        ----------
+        context : array_like, shape (5,)
+        omega : array_like, shape (17,)
+        n_samples : int
+            L sampled strokes.
+        rng : Generator, int or None
+
+        Returns
+        -------
+        dict
+            ``{name: {"trajectories": (L', T', 3) world points, "color": (r, g, b),
+            "times": (T',) optional}}``: the incoming ball of models 1–2 (black, (L, T, 3)),
+            the racket centre of models 3–4 (blue, (L, T, 3)), and the returned landing
+            points of model 5 as small red diamonds on the table (one (5, 3) closed marker
+            path per predicted contact, (n_contacts, 5, 3)).
+        """
+        s = self.task.check_context(context)
+        w = self.task.check_omega(omega)
+        pred = self.predict(s[None], w[None], check_count(n_samples, "n_samples"), rng)
+        r = 0.025
+        diamond = np.array([[r, 0, 0], [0, r, 0], [-r, 0, 0], [0, -r, 0], [r, 0, 0]])
+        pts = pred.landing[0][pred.contact[0]]
+        centres = np.column_stack([pts, np.full(len(pts), self.plane)])
+        return {
+            "landing+bounce models: incoming ball": {
+                "trajectories": pred.ball[0],
+                "color": (0, 0, 0),
+                "times": pred.times,
+            },
+            "racket models: racket centre": {
+                "trajectories": pred.racket[0],
+                "color": (0, 0, 255),
+                "times": pred.times,
+            },
+            "contact model: returned landing points": {
+                "trajectories": centres[:, None, :] + diamond[None],
+                "color": (255, 0, 0),
+            },
+        }
+
+    def __repr__(self) -> str:
+        state = "unfitted" if self.landing is None else f"{self.n_data} rollouts"
+        return (
+            f"TableTennisRewardModel(task={self.task.name!r}, {state}, stage={self.stage!r}, "
+            f"schedule={self.schedule!r}, contact_features={self.contact_features!r}, "
+            f"n_basis={self.basis.n_basis}, "
+            f"penalty={self.penalty:.4g} m)"
+        )
+
+
+def _sample_gp(gp, x: np.ndarray, L: int, rng: np.random.Generator) -> np.ndarray:
+    """Samples (B, L, E) of a GP's predictive distribution N(mean, var) at x (B, d)."""
+    m, v = gp.predict(x)
+    m, v = m.reshape(x.shape[0], -1), v.reshape(x.shape[0], -1)
+    return m[:, None] + np.sqrt(np.maximum(v, 0.0))[:, None] * rng.standard_normal(
+        (x.shape[0], L, m.shape[1])
+    )

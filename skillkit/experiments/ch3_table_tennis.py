@@ -120,18 +120,10 @@ def run_trial(settings: TableTennisSettings, rng: np.random.Generator, trial: Tr
         fresh contexts, ``final_landing_error`` (M,) ‖b − p‖; ``n_failed`` (total).
     """
     from skillkit.search.loop import learn
-    from skillkit.search.reps import ContextualREPS
     from skillkit.tasks import make
 
     task = make("table-tennis")
-    algorithm = ContextualREPS(
-        task.initial_policy(),
-        settings.epsilon,
-        n_reuse_batches=settings.n_reuse_batches,
-        baseline_features=settings.baseline_features,
-        min_effective_samples=settings.min_effective_samples,
-        cov_shrinkage=settings.cov_shrinkage,
-    )
+    algorithm = make_reps(task, settings)
     eval_contexts = task.sample_context(rng, n=settings.n_eval_contexts)
     trial.reset(total=settings.n_updates)
     curves = learn(
@@ -144,7 +136,56 @@ def run_trial(settings: TableTennisSettings, rng: np.random.Generator, trial: Tr
         eval_contexts=eval_contexts,
     )
     contexts = task.sample_context(rng, n=settings.n_final_contexts)
-    omegas = np.atleast_2d(curves["policy"].mean_of(contexts))
+    _, shots = shot_scores(task, curves["policy"], contexts, rng)
+    return {
+        "rollouts": curves["rollouts"],
+        "mean_reward": curves["mean_reward"],
+        "explore_reward": curves["explore_reward"],
+        "n_failed": int(np.sum(curves["n_failed"])),
+        "final_rewards": shots["rewards"],
+        "final_outcomes": shots["outcomes"],
+        "final_landing_error": shots["landing_error"],
+    }
+
+
+def make_reps(task, settings: TableTennisSettings):
+    """Contextual REPS from ``task``'s imitation policy with ``settings``' ε, reuse, baseline
+    and fit regularisation (the model-free learner of fig3.7, and fig4.12's baseline)."""
+    from skillkit.search.reps import ContextualREPS
+
+    return ContextualREPS(
+        task.initial_policy(),
+        settings.epsilon,
+        n_reuse_batches=settings.n_reuse_batches,
+        baseline_features=settings.baseline_features,
+        min_effective_samples=settings.min_effective_samples,
+        cov_shrinkage=settings.cov_shrinkage,
+    )
+
+
+def shot_scores(task, policy, contexts, rng=None) -> tuple[dict[str, float], dict]:
+    """Play the policy mean's shot on each context and classify it.
+
+    Parameters
+    ----------
+    task : TableTennis
+    policy : object with ``mean_of(contexts)``
+    contexts : ndarray, shape (n, 5)
+    rng : Generator, int or None
+        Randomness of the rollouts (the simulation is deterministic).
+
+    Returns
+    -------
+    scores : dict
+        ``reward`` (mean R), the fractions ``returned``, ``net``, ``out``, ``missed`` and
+        ``failed`` of the shots, ``landing_error`` (mean ‖b − p‖ over all shots, m).
+    shots : dict
+        Per shot: ``rewards`` (n,), ``outcomes`` (list of str), ``landing_error`` (n,).
+    """
+    from skillkit._validation import as_generator
+
+    rng = as_generator(rng)
+    omegas = np.atleast_2d(policy.mean_of(contexts))
     rewards, outcomes, errors = [], [], []
     for omega, s in zip(omegas, contexts, strict=True):
         r, traj = task.evaluate(omega, s, rng)
@@ -152,15 +193,12 @@ def run_trial(settings: TableTennisSettings, rng: np.random.Generator, trial: Tr
         outcomes.append("failed" if traj.failed else traj.info["outcome"])
         p = traj.info.get("landing_point", [np.nan, np.nan])
         errors.append(float(np.linalg.norm(s[3:5] - np.asarray(p))))
-    return {
-        "rollouts": curves["rollouts"],
-        "mean_reward": curves["mean_reward"],
-        "explore_reward": curves["explore_reward"],
-        "n_failed": int(np.sum(curves["n_failed"])),
-        "final_rewards": np.array(rewards),
-        "final_outcomes": outcomes,
-        "final_landing_error": np.array(errors),
-    }
+    shots = {"rewards": np.array(rewards), "outcomes": outcomes, "landing_error": np.array(errors)}
+    scores = {"reward": float(np.mean(rewards))}
+    for outcome in (*OUTCOMES, "failed"):
+        scores[outcome] = float(np.mean([o == outcome for o in outcomes]))
+    scores["landing_error"] = float(np.nanmean(errors))
+    return scores, shots
 
 
 def summarize(settings: TableTennisSettings, trials: list[dict]) -> tuple[list[Series], dict]:

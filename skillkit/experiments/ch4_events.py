@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import pickle
 from dataclasses import dataclass, replace
+from functools import partial
 
 import numpy as np
 from scipy import stats
@@ -177,7 +178,15 @@ def _hockey_model(task, st: HockeyGPREPSSettings):
 def _table_tennis_model(task, st, schedule: str = "auto"):
     from skillkit.search.table_tennis_model import TableTennisRewardModel
 
-    return TableTennisRewardModel(task, schedule=schedule, gp_steps=st.gp_steps)
+    gp = partial(ExactGP, n_steps=st.gp_steps)
+    return TableTennisRewardModel(
+        task,
+        make_landing_model=gp,
+        make_bounce_model=gp,
+        make_racket_model=gp,
+        make_return_model=gp,
+        schedule=schedule,
+    )
 
 
 def _pickled(obj) -> np.ndarray:
@@ -606,10 +615,10 @@ def run_trial_413(st: ModelAccuracySettings, rng: np.random.Generator, trial: Tr
     model.fit(s_tr, w_tr, r_tr, t_tr, rng)
     trial.update()
     s_te, w_te, t_te = rollouts(st.n_heldout)
-    accuracy = model.accuracy(s_te, w_te, t_te, st.n_samples, rng)
+    errors = model.heldout_errors(s_te, w_te, t_te, st.n_samples, rng)
     trial.update()
     pred = model.predict(s_te[: st.n_shown], w_te[: st.n_shown], st.n_samples, rng)
-    out = {f"accuracy_{k}": np.asarray(v, dtype=float) for k, v in accuracy.items()}
+    out = {f"accuracy_{k}": np.asarray(v, dtype=float) for k, v in errors.items()}
     out["shown_ball_predicted"] = pred.ball
     out["shown_racket_predicted"] = pred.racket
     out["shown_landing_predicted"] = pred.landing

@@ -844,6 +844,74 @@ class TableTennisRewardModel:
             return hitting - self.epsilon * c1 * dist - c1 * self.penalty, closest
         return hitting - c2 * dist, closest
 
+    def heldout_errors(self, contexts, omegas, trajectories, n_samples: int, rng=None) -> dict:
+        """Each model's error on rollouts it was not fitted on (Fig. 4.13's comparison).
+
+        Parameters
+        ----------
+        contexts : array_like, shape (B, 5)
+        omegas : array_like, shape (B, 17)
+        trajectories : sequence of Trajectory, length B
+            The simulator's rollouts of the pairs.
+        n_samples : int
+            L sampled strokes per pair.
+        rng : Generator, int or None
+
+        Returns
+        -------
+        dict
+            * ``bounce_position_error_m``: median ‖p̂_b − p_b‖ of model 1's sampled bounce
+              points against the recorded bounce (:func:`find_bounce`);
+            * ``incoming_path_error_m``: median over pairs of the largest distance between the
+              mean predicted and the recorded incoming ball before the racket (models 1, 2);
+            * ``racket_position_rmse_m``: RMSE of the sampled racket centres (models 3) over
+              the episode;
+            * ``contact_accuracy``, ``contact_majority_rate``: the SVM's hit/miss accuracy
+              on the recorded inputs at the closest approach, and the majority class's rate;
+            * ``contact_accuracy_predicted``: the same decision on the *predicted* paths
+              (all five models chained; the majority vote of the L samples);
+            * ``return_landing_error_m``: median ‖p̂ − p‖ of model 5's landing points from the
+              recorded inputs of the held-out hits (NaN without hits or a return model);
+            * ``n_hits``, ``n_pairs``.
+        """
+        if self.landing is None:
+            raise RuntimeError("TableTennisRewardModel: call fit() before heldout_errors()")
+        trajs = list(trajectories)
+        w = check_array(omegas, "omegas", shape=(len(trajs), self.task.parameter_dim))
+        s = check_array(contexts, "contexts", shape=(w.shape[0], self.task.context_dim))
+        rng = as_generator(rng)
+        pred = self.predict(s, w, n_samples, rng)
+        bounce_err, path_err = [], []
+        t = self.task.times
+        for i, tr in enumerate(trajs):
+            end = min(tr.info["incoming_end"], tr.info["landing_time"])
+            y = find_bounce(t, tr.signals["ball"], self.plane, end)
+            if y is not None:
+                bounce_err += np.linalg.norm(pred.bounce[i, :, :2] - y[:2], axis=1).tolist()
+            k = t < tr.info["incoming_end"]
+            gap = pred.ball[i].mean(axis=0)[k] - tr.signals["ball"][k]
+            path_err.append(float(np.linalg.norm(gap, axis=1).max()) if k.any() else np.nan)
+        real_racket = np.stack([tr.signals["racket"] for tr in trajs])
+        rmse = float(np.sqrt(np.mean(np.sum((pred.racket - real_racket[:, None]) ** 2, -1))))
+        x, hit, p = self._real_contact_data(trajs)
+        decided = np.asarray(self.classifier.predict(x), dtype=bool)
+        predicted_hit = pred.contact.mean(axis=1) > 0.5
+        landing_err = np.nan
+        if self.returns is not None and hit.any():
+            mean, _ = self.returns.predict(x[hit])
+            landing_err = float(np.median(np.linalg.norm(mean - p[hit], axis=1)))
+        return {
+            "bounce_position_error_m": float(np.median(bounce_err)) if bounce_err else np.nan,
+            "incoming_path_error_m": float(np.nanmedian(path_err)),
+            "racket_position_rmse_m": rmse,
+            "contact_accuracy": float(np.mean(decided == hit)),
+            "contact_majority_rate": float(max(hit.mean(), 1.0 - hit.mean())),
+            "contact_accuracy_predicted": float(np.mean(predicted_hit == hit)),
+            "return_landing_error_m": landing_err,
+            "n_hits": int(hit.sum()),
+            "n_pairs": len(trajs),
+        }
+
     def expected_rewards(self, contexts, omegas, n_trajectories, rng=None) -> np.ndarray:
         """R̂_sω: the mean reward of L predicted strokes per pair (Eq. 4.1), shape (B,)."""
         return self.predict(contexts, omegas, n_trajectories, rng).expected_rewards

@@ -106,6 +106,7 @@ def build_viewer(args: argparse.Namespace, history=None):
 
 def run_view(args: argparse.Namespace) -> int:
     """Start the viewer and serve until Ctrl-C; bad input → one-line message, exit code 2."""
+    from skillkit.tasks import make
     from skillkit.viz.model_layers import check_model_task, load_gpreps_run
     from skillkit.viz.predictions import load_predictions
     from skillkit.viz.viewer import PortInUseError
@@ -119,9 +120,8 @@ def run_view(args: argparse.Namespace) -> int:
                     "its policy history)"
                 )
             history, model = load_gpreps_run(args.gpreps, args.trial)
+            check_model_task(model, make(args.task).name)  # before the policy's dimensions
         viewer = build_viewer(args, history)
-        if model is not None:
-            check_model_task(model, viewer.task.name)
         layers = [] if args.predictions is None else load_predictions(args.predictions)
         viewer.start()
     except (ValueError, PortInUseError) as exc:

@@ -857,14 +857,13 @@ class Viewer:
     def legend(self) -> list[tuple[str, tuple]]:
         """What the legend lists: (label, RGB) for the simulator's rollout and each layer.
 
-        The simulator's rollout comes first (its trails' colour, and the ball's where the scene
-        draws a ball trail), then the prediction layers in the order they were added.
+        The simulator's rollout comes first (its trails' colour, and the ball trail's where the
+        rollout has a ``ball`` signal), then the prediction layers in the order they were added.
         """
         entries = [("simulator rollout", COLORS["trail"])]
         traj = self.trajectory
-        if self.scene is not None and traj is not None and not traj.failed:
-            if "ball" in self.scene.trails(traj):
-                entries.append(("simulator rollout: ball", COLORS["ball"]))
+        if traj is not None and not traj.failed and "ball" in traj.signals:
+            entries.append(("simulator rollout: ball", COLORS["ball"]))
         return entries + [(layer.label, layer.color) for layer in self.layers.values()]
 
     def _legend_html(self) -> str:

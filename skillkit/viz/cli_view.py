@@ -2,8 +2,14 @@
 
 Wire it into ``skillkit/cli.py`` with ``add_view_parser(sub)`` after the other sub-commands;
 ``python -m skillkit.viz.cli_view TASK ...`` runs it on its own. Bad input (unknown task,
-malformed policy file, context outside the task's range, port in use) prints one line
-``skillkit view: error: ...`` and exits with code 2.
+malformed policy file, context outside the task's range, port in use, a GPREPS run without a
+reward model or with one of another task) prints one line ``skillkit view: error: ...`` and
+exits with code 2.
+
+``--gpreps RUN_DIR --trial K`` plays back the policy history of trial K of a GPREPS run folder
+and overlays its reward model's predictions (:mod:`skillkit.viz.model_layers`) for the shown
+(s, ω), one switchable layer per learned model, with a colour legend. The model file is a
+pickle: view only runs you trust.
 """
 
 from __future__ import annotations
@@ -29,7 +35,20 @@ def add_view_parser(subparsers) -> argparse.ArgumentParser:
         help="policy history .npz (skillkit.viz.history.save_policy_history) or a "
         "`skillkit reproduce` run folder; enables learning playback",
     )
+    p.add_argument(
+        "--gpreps",
+        metavar="RUN_DIR",
+        help="a GPREPS `skillkit reproduce` run folder: plays back its policy history and "
+        "overlays its reward model's predictions (a pickle: only runs you trust)",
+    )
     p.add_argument("--trial", type=int, default=0, help="trial of a run folder (default 0)")
+    p.add_argument(
+        "--samples",
+        type=int,
+        default=10,
+        metavar="L",
+        help="trajectories each learned model of --gpreps samples (default 10)",
+    )
     p.add_argument(
         "--context",
         type=float,
@@ -63,14 +82,16 @@ def add_view_parser(subparsers) -> argparse.ArgumentParser:
     return p
 
 
-def build_viewer(args: argparse.Namespace):
-    """The :class:`~skillkit.viz.viewer.Viewer` the arguments describe (not started)."""
+def build_viewer(args: argparse.Namespace, history=None):
+    """The :class:`~skillkit.viz.viewer.Viewer` the arguments describe (not started); a
+    ``history`` given replaces the one ``--policy`` names."""
     from skillkit.tasks import make
     from skillkit.viz.history import load_policy_history
     from skillkit.viz.viewer import Viewer
 
     task = make(args.task)
-    history = None if args.policy is None else load_policy_history(args.policy, args.trial)
+    if history is None and args.policy is not None:
+        history = load_policy_history(args.policy, args.trial)
     return Viewer(
         task,
         context=args.context,
@@ -85,11 +106,22 @@ def build_viewer(args: argparse.Namespace):
 
 def run_view(args: argparse.Namespace) -> int:
     """Start the viewer and serve until Ctrl-C; bad input → one-line message, exit code 2."""
+    from skillkit.tasks import make
+    from skillkit.viz.model_layers import check_model_task, load_gpreps_run
     from skillkit.viz.predictions import load_predictions
     from skillkit.viz.viewer import PortInUseError
 
+    model = history = None
     try:
-        viewer = build_viewer(args)
+        if getattr(args, "gpreps", None) is not None:
+            if args.policy is not None:
+                raise ValueError(
+                    "policy: give --policy or --gpreps, not both (a GPREPS run folder holds "
+                    "its policy history)"
+                )
+            history, model = load_gpreps_run(args.gpreps, args.trial)
+            check_model_task(model, make(args.task).name)  # before the policy's dimensions
+        viewer = build_viewer(args, history)
         layers = [] if args.predictions is None else load_predictions(args.predictions)
         viewer.start()
     except (ValueError, PortInUseError) as exc:
@@ -102,6 +134,13 @@ def run_view(args: argparse.Namespace) -> int:
         viewer.stop()
         print(f"skillkit view: error: predictions: {exc}", file=sys.stderr)
         return 2
+    if model is not None:
+        try:
+            viewer.add_model_layers(model, getattr(args, "samples", 10), seed=args.seed)
+        except ValueError as exc:
+            viewer.stop()
+            print(f"skillkit view: error: gpreps: {exc}", file=sys.stderr)
+            return 2
     print(f"skillkit view: serving {viewer.task.name} at {viewer.url} (Ctrl-C to stop)", flush=True)
     viewer.serve_forever()
     return 0

@@ -9,7 +9,11 @@
   so the same (ω, s) always gives the same trajectory;
 * **predicted vs real** layers (:meth:`Viewer.add_prediction_layer`): any model's sampled
   trajectories (L, T, n) drawn translucent in their own colour with their mean, each layer
-  switchable by a checkbox — GP sampling and embedding pre-images plug in the same way;
+  switchable by a checkbox and listed in a colour legend beside the simulator's rollout —
+  GP sampling and embedding pre-images plug in the same way;
+* **reward models** (:meth:`Viewer.add_model_layers`): a GPREPS reward model's layers (one per
+  learned model, :mod:`skillkit.viz.model_layers`) for the shown (s, ω), recomputed whenever
+  the context, the policy update or ω changes;
 * **learning playback**: step through the policies of a saved run
   (:class:`~skillkit.viz.history.PolicyHistory`)
   and watch the rollout change, optionally with the trails of earlier updates.
@@ -30,6 +34,7 @@ prediction layers by :mod:`skillkit.viz.predictions`; each module documents its 
 from __future__ import annotations
 
 import errno
+import html
 import socket
 import threading
 import time
@@ -39,7 +44,7 @@ from typing import TypeVar
 
 import numpy as np
 
-from skillkit._validation import as_generator, check_array
+from skillkit._validation import as_generator, check_array, check_count
 from skillkit.policies.gaussian import LinearGaussianPolicy
 from skillkit.trajectory import Trajectory
 from skillkit.viz import DEFAULT_HOST, DEFAULT_PORT
@@ -97,7 +102,8 @@ class PredictionLayer:
     ----------
     name : str
     points : ndarray, shape (L, T, 3)
-        World-frame paths drawn (the scene's point of each predicted state).
+        World-frame paths drawn (the scene's point of each predicted state); T = 1 for
+        predicted points (e.g. landing points), drawn as dots.
     times : ndarray, shape (T,)
     color : tuple of int
     opacity : float
@@ -105,6 +111,8 @@ class PredictionLayer:
         ``/predictions/<name>/samples`` (translucent tubes), ``…/mean`` (the mean path) and
         ``…/now`` (the L predicted points at the timeline's time).
     checkbox : GuiCheckboxHandle or None
+    label : str
+        What the checkbox and the legend call the layer (default: ``name``).
     """
 
     name: str
@@ -114,6 +122,10 @@ class PredictionLayer:
     opacity: float
     nodes: dict = field(default_factory=dict)
     checkbox: object = None
+    label: str = ""
+
+    def __post_init__(self) -> None:
+        self.label = self.label or self.name
 
     @property
     def visible(self) -> bool:
@@ -314,6 +326,11 @@ class Viewer:
         self.time = 0.0
         self.update_index = len(history) - 1 if history is not None else None
         self.layers: dict[str, PredictionLayer] = {}
+        self.model = None
+        self.model_samples, self.model_seed = 10, 0
+        self.model_layer_names: list[str] = []
+        self._model_key: tuple | None = None
+        self._model_error = ""
         self._trail_nodes: dict = {}
         self._ghost_nodes: dict = {}
         self._lock = threading.RLock()
@@ -472,6 +489,8 @@ class Viewer:
             g["step_updates"].on_click(lambda _: self._toggle_update_stepping())
             g["ghosts"].on_update(lambda _: self._draw_ghosts())
         g["predictions"] = gui.add_folder("Predictions", visible=False)
+        with g["predictions"]:
+            g["legend"] = gui.add_html("")
         with gui.add_folder("Scene tree", expand_by_default=False):
             g["tree"] = gui.add_markdown(self._tree_markdown())
 
@@ -506,6 +525,8 @@ class Viewer:
                 omega = np.atleast_2d(self.policy.mean_of(ctx))[0]
             traj = self.task.rollout(omega, s, np.random.default_rng(self.seed))
             self.omega, self.trajectory = omega, traj
+            if self.model is not None:
+                self._update_model_layers()
             status = "sampled ω" if sample else "mean ω"
             if traj.failed:
                 self.gui["status"].content = f"**rollout failed** ({status}): {traj.message}"
@@ -619,6 +640,7 @@ class Viewer:
                         color = COLORS["ball"] if key == "ball" else COLORS["trail"]
                         handle = add_trail(self.server.scene, f"/trails/{key}", path, color)
                         self._trail_nodes[handle.name] = handle
+            self._refresh_legend()
             self._refresh_tree()
 
     # ----------------------------------------------------------------- learning playback
@@ -689,6 +711,8 @@ class Viewer:
         *,
         times=None,
         space: str = "state",
+        label: str | None = None,
+        visible: bool = True,
     ) -> PredictionLayer:
         """Overlay a model's predicted trajectories on the real rollout.
 
@@ -699,8 +723,9 @@ class Viewer:
             of the same name.
         trajectories : array_like, shape (L, T, n)
             L sampled (or pre-image) trajectories of T steps: states (n = the task's state
-            dimension, drawn at the scene's point of a state, e.g. the end effector) or 3-D
-            points (n = 3 with ``space="points"``).
+            dimension, drawn at the scene's point of a state, e.g. the end effector; T ≥ 2) or
+            3-D points (n = 3 with ``space="points"``; T = 1 gives L predicted points, e.g.
+            landing points, drawn as dots).
         color : RGB, optional
             Layer colour (default: the next of :data:`PREDICTION_COLORS`).
         opacity : float in (0, 1]
@@ -708,23 +733,33 @@ class Viewer:
         times : array_like, shape (T,), optional
             Time stamps (default: the current rollout's first T times).
         space : {"state", "points"}
+        label : str, optional
+            What the checkbox and the legend call the layer (default: ``name``), e.g.
+            ``"sliding model: control puck"``.
+        visible : bool
+            Whether the layer starts shown (its checkbox ticked).
 
         Returns
         -------
         PredictionLayer
             Its nodes are ``/predictions/<name>/samples``, ``…/mean`` and ``…/now``; a checkbox
-            in the "Predictions" folder switches it on and off.
+            in the "Predictions" folder switches it on and off, and the folder's legend lists
+            it with its colour.
         """
         self._require_started()
         if not isinstance(name, str) or not name or _node_name(name) != name:
             raise ValueError(
                 f"name: expected a layer name of letters, digits, '_', '.', '-', got {name!r}"
             )
+        if label is not None and (not isinstance(label, str) or not label.strip()):
+            raise ValueError(f"label: expected a non-empty string, got {label!r}")
         x = check_array(trajectories, "trajectories", ndim=3)
         L, T, n = x.shape
-        if L < 1 or T < 2:
+        min_steps = 1 if space == "points" else 2
+        if L < 1 or T < min_steps:
             raise ValueError(
-                f"trajectories: expected shape (L, T, n) with L >= 1, T >= 2, got {x.shape}"
+                f"trajectories: expected shape (L, T, n) with L >= 1, T >= {min_steps}, "
+                f"got {x.shape}"
             )
         if space == "state":
             if n != self.scene.state_dim:
@@ -760,29 +795,46 @@ class Viewer:
             self.remove_prediction_layer(name)
             base = _check_path(f"/predictions/{name}")
             scene = self.server.scene
-            layer = PredictionLayer(name, points, times, color, opacity)
-            layer.nodes[f"{base}/samples"] = add_trail(
-                scene, f"{base}/samples", points, color, radius=0.004, opacity=opacity
-            )
-            layer.nodes[f"{base}/mean"] = add_trail(
-                scene,
-                f"{base}/mean",
-                points.mean(axis=0),
-                color,
-                radius=0.008,
-                opacity=min(1.0, 2 * opacity),
-            )
+            layer = PredictionLayer(name, points, times, color, opacity, label=label or name)
+            if T >= 2:
+                layer.nodes[f"{base}/samples"] = add_trail(
+                    scene, f"{base}/samples", points, color, radius=0.004, opacity=opacity
+                )
+                layer.nodes[f"{base}/mean"] = add_trail(
+                    scene,
+                    f"{base}/mean",
+                    points.mean(axis=0),
+                    color,
+                    radius=0.008,
+                    opacity=min(1.0, 2 * opacity),
+                )
+            else:  # predicted points: the L dots and their mean
+                layer.nodes[f"{base}/samples"] = scene.add_point_cloud(
+                    f"{base}/samples", points[:, 0], color, point_size=0.02, point_shape="circle"
+                )
+                layer.nodes[f"{base}/mean"] = scene.add_point_cloud(
+                    f"{base}/mean",
+                    points[:, 0].mean(axis=0, keepdims=True),
+                    color,
+                    point_size=0.045,
+                    point_shape="diamond",
+                )
             layer.nodes[f"{base}/now"] = scene.add_point_cloud(
                 f"{base}/now", layer.at(self.time), color, point_size=0.03, point_shape="circle"
             )
+            layer.visible = visible
             folder = self.gui["predictions"]
             folder.visible = True
+            what = "trajectories" if T >= 2 else "points"
             with folder:
                 layer.checkbox = self.server.gui.add_checkbox(
-                    f"{name} (L={L})", True, hint=f"show the {L} trajectories predicted by {name}"
+                    f"{layer.label} (L={L})",
+                    bool(visible),
+                    hint=f"show the {L} {what} predicted by {layer.label}",
                 )
             layer.checkbox.on_update(lambda _: setattr(layer, "visible", layer.checkbox.value))
             self.layers[name] = layer
+            self._refresh_legend()
             self._refresh_tree()
             return layer
 
@@ -795,4 +847,148 @@ class Viewer:
             self._remove(layer.nodes)
             if layer.checkbox is not None:
                 layer.checkbox.remove()
+            if name in self.model_layer_names:
+                self.model_layer_names.remove(name)
+            self.gui["predictions"].visible = bool(self.layers) or self.model is not None
+            self._refresh_legend()
             self._refresh_tree()
+
+    # ----------------------------------------------------------------- legend
+    def legend(self) -> list[tuple[str, tuple]]:
+        """What the legend lists: (label, RGB) for the simulator's rollout and each layer.
+
+        The simulator's rollout comes first (its trails' colour, and the ball trail's where the
+        rollout has a ``ball`` signal), then the prediction layers in the order they were added.
+        """
+        entries = [("simulator rollout", COLORS["trail"])]
+        traj = self.trajectory
+        if traj is not None and not traj.failed and "ball" in traj.signals:
+            entries.append(("simulator rollout: ball", COLORS["ball"]))
+        return entries + [(layer.label, layer.color) for layer in self.layers.values()]
+
+    def _legend_html(self) -> str:
+        rows = [
+            f'<div><span style="color: rgb{tuple(color)}; font-size: 1.2em">&#9632;</span> '
+            f"{html.escape(label)}</div>"
+            for label, color in self.legend()
+        ]
+        head = ""
+        if self.model is not None:
+            head = (
+                f"<div><b>reward model</b> {html.escape(type(self.model).__name__)}: "
+                f"L = {self.model_samples} samples per learned model, for the shown (s, ω)"
+                "</div>"
+            )
+            if self._model_error:
+                head += (
+                    f"<div><b>model prediction failed</b>: {html.escape(self._model_error)}</div>"
+                )
+        return f'<div style="font-size: 0.85em">{head}{"".join(rows)}</div>'
+
+    def _refresh_legend(self) -> None:
+        if "legend" in self.gui:
+            self.gui["legend"].content = self._legend_html()
+
+    # ----------------------------------------------------------------- reward models
+    def add_model_layers(self, model, n_samples: int = 10, seed: int = 0) -> list[PredictionLayer]:
+        """Overlay a GPREPS reward model's predictions for the shown (s, ω), kept up to date.
+
+        Calls ``model.prediction_layers`` (:func:`skillkit.viz.model_layers.model_layers`)
+        for the current context s and the ω of the shown rollout (the policy mean at s, or the
+        sample after "Sample ω"), and adds one prediction layer per learned model, labelled
+        with the model's descriptive layer name and listed in the legend. The layers are
+        recomputed whenever the rollout is re-run for a new (s, ω): a context slider or
+        :meth:`set_context`, a learning-playback update (:meth:`set_update`; the model stays
+        the one given, e.g. the run's last), or a sampled ω. Each computation uses the same
+        seed, so the same (s, ω) always shows the same samples. A layer switched off stays off
+        when recomputed. A second call replaces the first model.
+
+        Parameters
+        ----------
+        model : object
+            Has ``prediction_layers(context, omega, n_samples, rng)``; if it has ``task.name``
+            it must be this viewer's task.
+        n_samples : int
+            L, the trajectories each learned model samples.
+        seed : int
+            Seed of every computation (common random numbers).
+
+        Returns
+        -------
+        list of PredictionLayer
+            The layers, in the model's order (node names ``/predictions/<layer>/…``, the
+            layer names made path components; see :attr:`model_layer_names`).
+
+        Raises
+        ------
+        ValueError
+            The model has no ``prediction_layers``, was fitted on another task, or its
+            answer has the wrong shapes (the message names the layer).
+        """
+        from skillkit.viz.model_layers import _check_has_layers, check_model_task
+
+        self._require_started()
+        _check_has_layers(model)
+        check_model_task(model, self.task.name)
+        n_samples = check_count(n_samples, "n_samples")
+        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
+            raise ValueError(f"seed: expected an integer, got {seed!r}")
+        with self._lock:
+            self.remove_model_layers()
+            self.model, self.model_samples, self.model_seed = model, n_samples, int(seed)
+            try:
+                self._update_model_layers(raise_errors=True)
+            except BaseException:
+                self.remove_model_layers()
+                raise
+            return [self.layers[name] for name in self.model_layer_names]
+
+    def remove_model_layers(self) -> None:
+        """Remove the reward model's layers and stop recomputing them (no-op if none)."""
+        with self._lock:
+            for name in list(self.model_layer_names):
+                self.remove_prediction_layer(name)
+            self.model, self._model_key, self._model_error = None, None, ""
+            self.gui["predictions"].visible = bool(self.layers)
+            self._refresh_legend()
+
+    def _update_model_layers(self, raise_errors: bool = False) -> None:
+        """(Re)compute the model's layers for the shown (s, ω) unless they are up to date.
+
+        Errors raise if ``raise_errors``, else (a GUI callback) they remove the layers and
+        show in the legend.
+        """
+        from skillkit.viz.model_layers import model_layers
+
+        with self._lock:
+            s = self.context if self.task.context_dim else np.zeros(0)
+            key = (s.tobytes(), np.asarray(self.omega).tobytes())
+            if key == self._model_key:
+                return
+            shown = {n: self.layers[n].visible for n in self.model_layer_names}
+            try:
+                specs = model_layers(
+                    self.model,
+                    s,
+                    self.omega,
+                    self.model_samples,
+                    rng=np.random.default_rng(self.model_seed),
+                )
+            except Exception as exc:
+                if raise_errors:
+                    raise
+                for name in list(self.model_layer_names):
+                    self.remove_prediction_layer(name)
+                self._model_key, self._model_error = key, f"{type(exc).__name__}: {exc}"
+                self._refresh_legend()
+                return
+            with self.server.atomic():
+                for name in list(self.model_layer_names):
+                    self.remove_prediction_layer(name)
+                for i, spec in enumerate(specs):
+                    default = PREDICTION_COLORS[i % len(PREDICTION_COLORS)]
+                    spec = {"color": default, **spec, "visible": shown.get(spec["name"], True)}
+                    self.add_prediction_layer(**spec)
+                    self.model_layer_names.append(spec["name"])
+            self._model_key, self._model_error = key, ""
+            self._refresh_legend()

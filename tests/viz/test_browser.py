@@ -1,5 +1,6 @@
 """The viewer in a real browser: Debian's headless Chromium opens the page, the scene arrives,
-the canvas is not blank and the scene tree lists the expected node names."""
+the canvas is not blank and the scene tree lists the expected node names; likewise with a
+GPREPS run's reward-model layers and their legend."""
 
 from __future__ import annotations
 
@@ -10,7 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 from headless_browser import HeadlessBrowser  # tests/viz/headless_browser.py
+from test_model_layers import HOCKEY_LAYERS, FakeHockeyModel, make_gpreps_run  # beside this
 
+from skillkit.viz.model_layers import load_gpreps_run
 from skillkit.viz.viewer import Viewer
 
 CHROMIUM = Path("/usr/bin/chromium")
@@ -76,3 +79,49 @@ def test_hockey_scene_renders_in_headless_chromium(tmp_path):
     drawn = np.any(np.abs(canvas_shown - canvas_hidden) > 8, axis=-1).mean()
     assert drawn > 0.05, f"canvas looks blank: {drawn:.1%} of its pixels show the scene"
     assert canvas_shown.std() > 5.0
+
+
+def test_gpreps_model_layers_render_in_headless_chromium(tmp_path):
+    """A (fake-model) GPREPS run folder, as ``skillkit view hockey --gpreps RUN`` shows it: the
+    run's last policy with the reward model's layers and their legend."""
+    run = make_gpreps_run(tmp_path / "run", FakeHockeyModel(), "hockey")
+    history, model = load_gpreps_run(run, 0)
+    viewer = Viewer(
+        "hockey", context=[2.0, 0.75, 0.5], history=history, port=free_port(), environment=False
+    )
+    with viewer:
+        layers = viewer.add_model_layers(model, n_samples=10)
+        t0, t1 = viewer.scene.time_range(viewer.trajectory)
+        viewer.set_time(t0 + 0.5 * (t1 - t0))
+        model_nodes = [
+            f"/predictions/{name}/{node}"
+            for name in HOCKEY_LAYERS.values()
+            for node in ("samples", "mean", "now")
+        ]
+        for name in [*EXPECTED_NODES, *model_nodes]:
+            assert viewer.server.scene.get_handle_by_name(name) is not None, name
+        with HeadlessBrowser(size=(800, 560), executable=str(CHROMIUM)) as browser:
+            browser.open(viewer.url)
+            needles = [*model_nodes, *HOCKEY_LAYERS, "simulator rollout", "FakeHockeyModel"]
+            browser.wait_for_text(needles, timeout=120)
+            shown = browser.settled_screenshot(timeout=90)
+            for layer in layers:
+                layer.checkbox.value = False  # as if unticked in the browser
+            without = browser.settled_screenshot(timeout=90)
+            viewer.server.scene.set_global_visibility(False)
+            hidden = browser.settled_screenshot(timeout=90)
+    out = Path(os.environ.get("SKILLKIT_BROWSER_ARTIFACTS", tmp_path))
+    out.mkdir(parents=True, exist_ok=True)
+    from PIL import Image
+
+    Image.fromarray(shown).save(out / "browser_hockey_gpreps.png")
+    canvas = {
+        k: v[170:490, :460].astype(float)
+        for k, v in (("shown", shown), ("without", without), ("hidden", hidden))
+    }
+    assert canvas["hidden"].std() < 2.0
+    drawn = np.any(np.abs(canvas["shown"] - canvas["hidden"]) > 8, axis=-1).mean()
+    assert drawn > 0.05, f"canvas looks blank: {drawn:.1%} of its pixels show the scene"
+    # the model's layers themselves are on the canvas: switching them off changes pixels
+    predicted = np.any(np.abs(canvas["shown"] - canvas["without"]) > 8, axis=-1).mean()
+    assert predicted > 0.001, f"the model layers drew {predicted:.2%} of the canvas"

@@ -27,7 +27,6 @@ The setup tables in the summaries say where each run departs from the thesis and
 
 from __future__ import annotations
 
-import pickle
 from dataclasses import dataclass, replace
 from functools import partial
 
@@ -45,13 +44,13 @@ from skillkit.search.gpreps import DirectRewardModel
 from skillkit.search.loop import learn, policy_history_arrays
 from skillkit.tasks import make
 from skillkit.trial import TrialContext
+from skillkit.viz.model_layers import dumps_reward_model
 from skillkit.viz.series import trial_band
 
 __all__ = [
     "HockeyGPREPSSettings",
     "ModelAccuracySettings",
     "TableTennisGPREPSSettings",
-    "reward_model_from_trial",
 ]
 
 THESIS_410 = {"gpreps_rollouts": 120, "gpreps_displacement_error_m": 0.05, "reps_rollouts": 10000}
@@ -76,8 +75,11 @@ CLAIM_413 = (
     "racket path and the returned landing points accurately against the simulator "
     "(Sec. 4.3.4, Fig. 4.13)."
 )
-TRAJECTORY_KEY = "gpreps"
-"""The GPREPS run whose policy history and final reward model a trial stores for the viewer."""
+VIEWER_NOTE = (
+    "Each trial stores GPREPS's policy history and its last reward model (trials.npz, "
+    "``reward_model``): ``skillkit view TASK --gpreps RUN_DIR --trial K`` overlays the models' "
+    "predictions on the simulator's rollouts."
+)
 
 
 # --------------------------------------------------------------------------- settings
@@ -189,31 +191,6 @@ def _table_tennis_model(task, st, schedule: str = "auto"):
     )
 
 
-def _pickled(obj) -> np.ndarray:
-    """``obj`` pickled into a uint8 array (so a trial's ``trials.npz`` can hold it)."""
-    return np.frombuffer(pickle.dumps(obj, protocol=pickle.HIGHEST_PROTOCOL), dtype=np.uint8)
-
-
-def reward_model_from_trial(arrays, key: str = TRAJECTORY_KEY):
-    """The fitted reward model a trial stored (``f"{key}_reward_model"``, pickled bytes).
-
-    Parameters
-    ----------
-    arrays : mapping
-        One trial's arrays (a run's ``trials.npz`` entries without the ``trial<i>__`` prefix).
-    key : str
-        The GPREPS run (default :data:`TRAJECTORY_KEY`).
-
-    Notes
-    -----
-    Unpickling runs code: load only run folders you trust.
-    """
-    name = f"{key}_reward_model"
-    if name not in arrays:
-        raise ValueError(f"arrays: no {name!r} in this trial (not a GPREPS event-model run?)")
-    return pickle.loads(np.asarray(arrays[name], dtype=np.uint8).tobytes())
-
-
 def _gpreps_run(task, st, key, model, rng, trial, eval_contexts, score, keep_model=False):
     """GPREPS with ``model``; held-out ``score(policy)`` every ``heldout_every`` updates."""
     every, K = st.heldout_every, st.n_updates
@@ -233,7 +210,7 @@ def _gpreps_run(task, st, key, model, rng, trial, eval_contexts, score, keep_mod
         out[f"{key}_heldout_{name}"] = np.array([v[name] for _, v in points], dtype=float)
     out[f"{key}_stage"] = np.array([str(d.model_fit.get("stage", "")) for d in diags])
     if keep_model:
-        out[f"{key}_reward_model"] = _pickled(algo.reward_model)
+        out["reward_model"] = np.frombuffer(dumps_reward_model(algo.reward_model), np.uint8)
         out.update(policy_history_arrays(out[f"{key}_policies"]))
     out.pop(f"{key}_policies", None)
     out.pop(f"{key}_policy")
@@ -354,6 +331,7 @@ def summarize_410(st: HockeyGPREPSSettings, trials: list[dict]):
             trials, "reps", "reward", summary["gpreps"]["final_reward"]
         )
     summary["setup"] = HOCKEY_SETUP
+    summary["viewer"] = VIEWER_NOTE
     return series, with_verdict(summary, verdict_410(st, summary))
 
 
@@ -394,7 +372,8 @@ def summarize_411(st: HockeyGPREPSSettings, trials: list[dict]):
     for when in ("initial", "final"):
         v = np.array([t["gpreps_heldout_reward"][0 if when == "initial" else -1] for t in trials])
         g[f"{when}_reward_ci95"] = list(_ci95(v))
-    summary: dict = {"n_trials": len(trials), "gpreps": g, "setup": HOCKEY_SETUP}
+    summary: dict = {"n_trials": len(trials), "gpreps": g, "setup": HOCKEY_SETUP,
+                     "viewer": VIEWER_NOTE}  # fmt: skip
     return series, with_verdict(summary, verdict_411(st, summary))
 
 
@@ -519,6 +498,7 @@ def summarize_412(st: TableTennisGPREPSSettings, trials: list[dict]):
         trials, "reps", "reward", summary["gpreps"]["final_reward"]
     )
     summary["setup"] = TT_SETUP
+    summary["viewer"] = VIEWER_NOTE
     return series, with_verdict(summary, verdict_412(st, summary))
 
 

@@ -38,6 +38,7 @@ change that an older reader would misread gets a new version string; new header 
 
 from __future__ import annotations
 
+import io
 import json
 import pickle
 import re
@@ -52,8 +53,10 @@ from skillkit.viz.scenes import _node_name, _rgb
 __all__ = [
     "REWARD_MODEL_FORMAT",
     "check_model_task",
+    "dumps_reward_model",
     "load_gpreps_run",
     "load_reward_model",
+    "loads_reward_model",
     "model_layers",
     "reward_model_path",
     "save_reward_model",
@@ -125,24 +128,10 @@ def save_reward_model(path, model) -> Path:
         The model has no ``prediction_layers`` method or cannot be pickled (argument
         ``model``).
     """
-    import skillkit
-
-    _check_has_layers(model)
-    try:
-        payload = pickle.dumps(model, protocol=pickle.HIGHEST_PROTOCOL)
-    except (pickle.PicklingError, TypeError, AttributeError) as exc:
-        raise ValueError(f"model: a {type(model).__name__} cannot be pickled ({exc})") from None
-    header = {
-        "class": _class_path(model),
-        "skillkit": skillkit.__version__,
-        "task": _model_task_name(model),
-    }
+    data = dumps_reward_model(model)
     path = Path(path)
     tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as f:
-        f.write(REWARD_MODEL_FORMAT.encode("ascii") + b"\n")
-        f.write(json.dumps(header).encode("utf-8") + b"\n")
-        f.write(payload)
+    tmp.write_bytes(data)
     tmp.replace(path)
     return path
 
@@ -172,31 +161,71 @@ def load_reward_model(path):
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"model: no such file {path}")
-    with open(path, "rb") as f:
-        first = f.readline(_MAX_LINE).rstrip(b"\n")
-        if first != REWARD_MODEL_FORMAT.encode("ascii"):
-            if first.startswith(_MAGIC_PREFIX):
-                found = first.decode("ascii", "replace")
-                raise ValueError(
-                    f"model: {path} has format {found!r}, expected {REWARD_MODEL_FORMAT!r}"
-                )
+    return loads_reward_model(path.read_bytes(), str(path))
+
+
+def dumps_reward_model(model) -> bytes:
+    """The bytes :func:`save_reward_model` writes (header lines and the pickled model).
+
+    A run keeps them in its ``trials.npz`` as a uint8 array ``trial<K>__reward_model``
+    (see :func:`load_gpreps_run`).
+
+    Raises
+    ------
+    ValueError
+        The model has no ``prediction_layers`` method or cannot be pickled (argument
+        ``model``).
+    """
+    import skillkit
+
+    _check_has_layers(model)
+    try:
+        payload = pickle.dumps(model, protocol=pickle.HIGHEST_PROTOCOL)
+    except (pickle.PicklingError, TypeError, AttributeError) as exc:
+        raise ValueError(f"model: a {type(model).__name__} cannot be pickled ({exc})") from None
+    header = {
+        "class": _class_path(model),
+        "skillkit": skillkit.__version__,
+        "task": _model_task_name(model),
+    }
+    return (
+        REWARD_MODEL_FORMAT.encode("ascii")
+        + b"\n"
+        + json.dumps(header).encode("utf-8")
+        + b"\n"
+        + payload
+    )
+
+
+def loads_reward_model(data: bytes, source: str = "the data"):
+    """Read a reward model from the bytes of :func:`dumps_reward_model` (``source`` names them
+    in errors). Same checks and warning as :func:`load_reward_model`."""
+    f = io.BytesIO(bytes(data))
+    path = source
+    first = f.readline(_MAX_LINE).rstrip(b"\n")
+    if first != REWARD_MODEL_FORMAT.encode("ascii"):
+        if first.startswith(_MAGIC_PREFIX):
+            found = first.decode("ascii", "replace")
             raise ValueError(
-                f"model: {path} is not a skillkit reward-model file (it does not start with "
-                f"{REWARD_MODEL_FORMAT!r}; see skillkit.viz.model_layers)"
+                f"model: {path} has format {found!r}, expected {REWARD_MODEL_FORMAT!r}"
             )
-        try:
-            header = json.loads(f.readline(_MAX_LINE).decode("utf-8"))
-            cls = str(header["class"])
-        except (ValueError, UnicodeDecodeError, KeyError, TypeError) as exc:
-            raise ValueError(f"model: {path} has a malformed header ({exc})") from None
-        version = header.get("skillkit", "?")
-        try:
-            model = pickle.load(f)
-        except Exception as exc:  # any failure of the pickled code: report, don't crash
-            raise ValueError(
-                f"model: {path} holds a {cls} (skillkit {version}) that does not load here "
-                f"({type(exc).__name__}: {exc})"
-            ) from None
+        raise ValueError(
+            f"model: {path} is not a skillkit reward-model file (it does not start with "
+            f"{REWARD_MODEL_FORMAT!r}; see skillkit.viz.model_layers)"
+        )
+    try:
+        header = json.loads(f.readline(_MAX_LINE).decode("utf-8"))
+        cls = str(header["class"])
+    except (ValueError, UnicodeDecodeError, KeyError, TypeError) as exc:
+        raise ValueError(f"model: {path} has a malformed header ({exc})") from None
+    version = header.get("skillkit", "?")
+    try:
+        model = pickle.load(f)
+    except Exception as exc:  # any failure of the pickled code: report, don't crash
+        raise ValueError(
+            f"model: {path} holds a {cls} (skillkit {version}) that does not load here "
+            f"({type(exc).__name__}: {exc})"
+        ) from None
     if _class_path(model) != cls:
         raise ValueError(f"model: {path} promises a {cls} but holds a {_class_path(model)}")
     _check_has_layers(model)
@@ -311,8 +340,10 @@ def load_gpreps_run(run_dir, trial: int = 0):
     ----------
     run_dir : str or Path
         A ``skillkit reproduce`` folder of a GPREPS experiment: ``trials.npz`` with the trial's
-        policy history (:func:`skillkit.viz.history.load_policy_history`) and the file at
-        :func:`reward_model_path`.
+        policy history (:func:`skillkit.viz.history.load_policy_history`) and the model, either
+        in the file at :func:`reward_model_path` or as the uint8 array
+        ``trial<K>__reward_model`` in ``trials.npz`` (:func:`dumps_reward_model`; what the
+        experiments ``fig4.10``–``fig4.12`` store).
     trial : int
 
     Returns
@@ -333,10 +364,20 @@ def load_gpreps_run(run_dir, trial: int = 0):
     if not run_dir.is_dir():
         raise ValueError(f"gpreps: no such run folder {run_dir}")
     file = reward_model_path(run_dir, trial)
-    if not file.exists():
-        raise ValueError(
-            f"gpreps: {run_dir} has no reward model of trial {trial} ({file.name}; written "
-            "by skillkit.viz.model_layers.save_reward_model in a GPREPS run)"
-        )
+    if file.exists():
+        model = load_reward_model(file)
+    else:
+        key = f"trial{int(trial)}__reward_model"
+        npz = run_dir / "trials.npz"
+        stored = None
+        if npz.is_file():
+            with np.load(npz, allow_pickle=False) as arrays:
+                stored = arrays[key].tobytes() if key in arrays else None
+        if stored is None:
+            raise ValueError(
+                f"gpreps: {run_dir} has no reward model of trial {trial} (neither {file.name} "
+                f"nor {key} in trials.npz; a GPREPS event-model run stores it)"
+            )
+        model = loads_reward_model(stored, f"{npz}[{key}]")
     history = load_policy_history(run_dir, trial)
-    return history, load_reward_model(file)
+    return history, model

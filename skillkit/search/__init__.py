@@ -18,6 +18,7 @@ from skillkit.search.gpreps import (
     RewardModel,
     TrajectoryRewardModel,
 )
+from skillkit.search.hockey_model import HockeyPrediction, HockeyRewardModel
 from skillkit.search.loop import Evaluator, LoopState, collect, learn
 from skillkit.search.reps import (
     ContextualREPS,
@@ -43,6 +44,8 @@ __all__ = [
     "GPREPS",
     "GPREPSDiagnostics",
     "GPREPSSettings",
+    "HockeyPrediction",
+    "HockeyRewardModel",
     "KnownRewardModel",
     "REPSDiagnostics",
     "RewardModel",

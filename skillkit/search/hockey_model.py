@@ -1,0 +1,835 @@
+r"""The decomposed reward model of the robot hockey task (Sec. 4.3.3, Appendix C.2).
+
+GPREPS predicts the reward of a shot with learned event models chained as in Sec. 4.3.3:
+
+1. **Launch** (a GP from ω alone): the control puck's state b_0 = [p_y, v_x, v_y] and the time
+   t_0 at which it crosses the fixed line x = :data:`X_LAUNCH`, 0.2 m beyond its start (the
+   thesis's line is "at a constant distance of 0.2 m in the x direction from the robot's
+   base"; our control puck starts at x = 0.45 m, so the line is 0.2 m past the start). Past
+   this line the racket never touches the puck again: over 40 rollouts of the initial policy
+   on random contexts the blade footprint (its 20 cm × 1.6 cm box at the recorded pose,
+   whether down or lifted) stays ≥ 8.6 cm from the puck's edge after the crossing (≥ 4.1 cm
+   for a line at 0.55 m, ≥ 6.7 cm at 0.6 m), which ``tests/search/test_hockey_model.py``
+   checks. The curved-racket pushes and multiple hits before the line are not modelled.
+   A shot whose puck never crosses (the racket missed it) is a **no-launch** outcome: a
+   second GP regresses the label +1 (crossed) / −1 (not) on ω, and a predicted shot launches
+   when a draw of its latent value is positive (a GP-regression classifier; it is only built
+   once a no-launch was observed). A puck that is not launched stays at its start, the target
+   stays in place.
+2. **Free sliding** (a GP, iterated): Δb = b_{k+1} − b_k for b = [p, v] every ``slide_dt``,
+   with the velocity v_k alone as the input: the table is uniform, so sliding is translation
+   invariant (prior knowledge, as the thesis's decomposition also assumes). Learned from the
+   pucks' recorded paths away from racket and puck contacts (velocities are central
+   differences of the recorded positions, interpolated onto the ``slide_dt`` grid). A draw
+   whose speed falls below ``stop_speed`` or reverses its direction stops the puck for good.
+3. **Contact detection from the known puck radius r** (:func:`first_contact`): the pucks
+   touch when ‖x_c − x_t‖ ≤ 2r; inside a step the relative position is interpolated linearly
+   and the contact placed at the first root of ‖d_k + f (d_{k+1} − d_k)‖ = 2r, f ∈ [0, 1].
+4. **Contact** (a GP): both pucks' velocities just after the first contact from the control
+   puck's velocity just before it, all in the contact frame (n the unit vector from the
+   control to the target puck's centre, t = n rotated by 90°): [v·n, v·t] →
+   [v_c'·n, v_c'·t, v_t'·n, v_t'·t]. The table's isotropy (rotation invariance) is prior
+   knowledge, like translation invariance; it turns a 4-input map into a 2-input one. Both
+   pucks then slide on with model 2 (a second contact is not modelled: the control puck is
+   slowed by the hit and the target pulls away).
+5. **Reward**: the task's own :meth:`~skillkit.tasks.hockey.Hockey.reward_batch` on the
+   predicted puck paths, and Eq. (4.1) averages the L rewards of each pair.
+
+**Real-robot setting** (``hockey-real``, chosen automatically when ``task.observation`` is
+set): the models learn from the *observed* 30 Hz puck tracks, Butterworth-smoothed as the
+reward smooths them (:func:`~skillkit.tasks.hockey.butterworth_smooth`); the sliding step is
+the observation period. As in Sec. 4.3.3 the contact model is replaced by a GP that predicts
+the target puck's final displacement vector directly, from the incoming control puck's
+position relative to the target and its velocity at the moment the pucks come within
+``real_threshold`` (centre distance); it also predicts the control puck's own remaining
+displacement from there. After that moment the paths are drawn, not simulated: the control
+puck moves on a straight line at its speed to its closest approach (the contact point at 2r if
+the straight line passes within 2r) and then to its predicted end point; the target puck
+leaves b at the contact frame and reaches its predicted end point with a constant-deceleration
+profile. Every predicted path is sampled at the observation rate, padded with rest frames
+(:data:`REST_FRAMES`, more than the smoothing's ``padlen``) so the reward's filtfilt sees
+stopped pucks at the end.
+
+Each GP is built by a factory (``make_launch_model`` …, module-level defaults below), so any
+:mod:`skillkit.models` regression (ExactGP, FITC, VFE) can take its place.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+
+from skillkit._validation import as_generator, check_array, check_count, check_positive
+from skillkit.models.gp import ExactGP, _GPRegression
+from skillkit.search.gpreps import _gp_stats, _warm_start
+from skillkit.search.model_rollouts import worst_if_nonfinite
+from skillkit.search.throwing_model import _subsample
+from skillkit.tasks.hockey import Hockey, butterworth_smooth
+from skillkit.tasks.hockey.table import CONTROL_PUCK_START
+
+__all__ = [
+    "HockeyPrediction",
+    "HockeyRewardModel",
+    "PUCK_Z",
+    "REST_FRAMES",
+    "X_LAUNCH",
+    "first_contact",
+]
+
+X_LAUNCH = float(CONTROL_PUCK_START[0]) + 0.2
+"""The launch line x = 0.65 m (0.2 m past the control puck's start), m."""
+PUCK_Z = 0.0125
+"""Height of a puck's centre above the table (half its 2.5 cm height), m, for drawing."""
+REST_FRAMES = 15
+"""Rest frames appended to predicted real-setting paths (the smoothing's padlen is 9)."""
+
+
+def _launch_model() -> _GPRegression:
+    return ExactGP()
+
+
+def _launch_probability_model() -> _GPRegression:
+    return ExactGP()
+
+
+def _sliding_model() -> _GPRegression:
+    return ExactGP()
+
+
+def _contact_model() -> _GPRegression:
+    return ExactGP()
+
+
+def _displacement_model() -> _GPRegression:
+    return ExactGP()
+
+
+# ============================================================================= geometry
+def _segment_hit(d0: np.ndarray, d1: np.ndarray, distance: float) -> tuple[np.ndarray, np.ndarray]:
+    """First f ∈ [0, 1] with ‖d0 + f (d1 − d0)‖ = distance, per row.
+
+    Parameters
+    ----------
+    d0, d1 : ndarray, shape (..., 2)
+        Relative positions at the segment's ends.
+    distance : float
+
+    Returns
+    -------
+    hit : ndarray of bool, shape (...)
+    f : ndarray, shape (...)
+        0 where d0 is already within ``distance``; undefined (0) where not ``hit``.
+    """
+    e = d1 - d0
+    a = np.sum(e * e, axis=-1)
+    b = np.sum(d0 * e, axis=-1)
+    c = np.sum(d0 * d0, axis=-1) - distance**2
+    disc = b * b - a * c
+    safe_a = np.where(a > 0, a, 1.0)
+    f = (-b - np.sqrt(np.maximum(disc, 0.0))) / safe_a
+    inside = c <= 0
+    hit = inside | ((a > 0) & (disc >= 0) & (f >= 0) & (f <= 1))
+    return hit, np.where(inside, 0.0, np.where(hit, f, 0.0))
+
+
+def first_contact(control, target, radius: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Detect the first contact of two pucks of radius r on sampled paths.
+
+    The pucks touch when their centre distance ‖x_c − x_t‖ ≤ 2r. Between two samples k, k+1
+    the relative position d = x_c − x_t is interpolated linearly, and the contact is the
+    first f ∈ [0, 1] with ‖d_k + f (d_{k+1} − d_k)‖ = 2r. (Across a collision step the chord
+    cuts the corner of the V-shaped relative path, so a contact that bounced back within one
+    sample is still found.)
+
+    Parameters
+    ----------
+    control, target : array_like, shape (B, T, 2) or (T, 2)
+        Puck centres at common sample times.
+    radius : float
+        r, m.
+
+    Returns
+    -------
+    hit : ndarray of bool, shape (B,) (or () for one path)
+    k : ndarray of int, shape (B,)
+        The segment [k, k+1] of the first contact (0 where no hit).
+    f : ndarray, shape (B,)
+        Where in the segment, so the contact is at x_k + f (x_{k+1} − x_k).
+    """
+    c = check_array(control, "control", ndim=(2, 3))
+    t = check_array(target, "target", shape=c.shape)
+    radius = check_positive(radius, "radius")
+    single = c.ndim == 2
+    if single:
+        c, t = c[None], t[None]
+    if c.shape[-1] != 2 or c.shape[1] < 2:
+        raise ValueError(f"control: expected paths of shape (B, T >= 2, 2), got {c.shape}")
+    d = c - t
+    hits, f = _segment_hit(d[:, :-1], d[:, 1:], 2.0 * radius)
+    hit = hits.any(axis=1)
+    k = np.where(hit, hits.argmax(axis=1), 0)
+    frac = np.where(hit, f[np.arange(len(k)), k], 0.0)
+    if single:
+        return hit[0], k[0], frac[0]
+    return hit, k, frac
+
+
+def _crossing(path: np.ndarray, x_line: float) -> tuple[int, float] | None:
+    """First segment (k − 1, k) where path[:, 0] reaches x_line and the fraction in it."""
+    above = path[:, 0] >= x_line
+    if not above.any() or above[0]:
+        return None
+    k = int(above.argmax())
+    x0, x1 = path[k - 1, 0], path[k, 0]
+    return k, float((x_line - x0) / (x1 - x0))
+
+
+def _frame(n: np.ndarray) -> np.ndarray:
+    """Rotation rows [n, t], t = n rotated by +90°, shape (..., 2, 2)."""
+    t = np.stack([-n[..., 1], n[..., 0]], axis=-1)
+    return np.stack([n, t], axis=-2)
+
+
+def _interp(times: np.ndarray, values: np.ndarray, at) -> np.ndarray:
+    """Linear interpolation of (T, 2) values at times ``at`` (scalar or (n,))."""
+    at = np.asarray(at, dtype=np.float64)
+    return np.stack([np.interp(at, times, values[:, i]) for i in range(values.shape[1])], -1)
+
+
+# ============================================================================= prediction
+@dataclass(frozen=True)
+class HockeyPrediction:
+    """L predicted shots for each of B (ω, s) pairs.
+
+    Attributes
+    ----------
+    control, target : ndarray, shape (B, L, K, 2)
+        Predicted puck paths (what the reward reads), padded with the last position. In
+        the simulated setting sample 0 is the start, sample 1 the launch point and then one
+        sample every ``slide_dt`` (the contact point replaces the sample of its step); in
+        the real setting one sample per observation frame from t = 0.
+    launch : ndarray, shape (B, L, 4)
+        [x, y, v_x, v_y] of the control puck at the launch line (the start and zero velocity
+        where the shot is not launched).
+    launched : ndarray of bool, shape (B, L)
+    contact : ndarray of bool, shape (B, L)
+        Whether the pucks touched (real setting: whether they came within the threshold
+        and the straight line of approach passes within 2r).
+    contact_index : ndarray of int, shape (B, L)
+        The path sample of the contact (−1 if none).
+    rewards : ndarray, shape (B, L)
+    """
+
+    control: np.ndarray
+    target: np.ndarray
+    launch: np.ndarray
+    launched: np.ndarray
+    contact: np.ndarray
+    contact_index: np.ndarray
+    rewards: np.ndarray
+
+    @property
+    def expected_rewards(self) -> np.ndarray:
+        """R̂ = mean of the L rewards of each pair (Eq. 4.1), shape (B,)."""
+        return self.rewards.mean(axis=1)
+
+    @property
+    def displacements(self) -> np.ndarray:
+        """Target-puck displacement d_T = ‖y_K − y_0‖ per shot, shape (B, L)."""
+        return np.linalg.norm(self.target[:, :, -1] - self.target[:, :, 0], axis=-1)
+
+    def __repr__(self) -> str:
+        B, L, K, _ = self.control.shape
+        r = self.expected_rewards
+        return (
+            f"HockeyPrediction(pairs={B}, trajectories={L}, samples={K}, "
+            f"expected_reward={r.min():.4g}…{r.max():.4g}, "
+            f"launched={int(self.launched.sum())}/{B * L}, contacts={int(self.contact.sum())})"
+        )
+
+
+class HockeyRewardModel:
+    """Decomposed GPREPS reward model of :class:`~skillkit.tasks.hockey.Hockey` (Sec. 4.3.3).
+
+    Parameters
+    ----------
+    task : Hockey
+    make_launch_model : callable, optional
+        Returns an unfitted GP regression ω (15) → [p_y, v_x, v_y, t_0] at the launch line.
+    make_launch_probability_model : callable, optional
+        Returns an unfitted GP regression ω → ±1 (crossed or not).
+    make_sliding_model : callable, optional
+        Returns an unfitted GP regression v (2) → Δ[p, v] (4) over ``slide_dt``.
+    make_contact_model : callable, optional
+        Returns an unfitted GP regression [v·n, v·t] → post-contact velocities (4), contact
+        frame (simulated setting).
+    make_displacement_model : callable, optional
+        Returns an unfitted GP regression [x_c − b, v_c] (4) → [Δy_target, Δx_control] (4)
+        (real setting).
+    real : bool, optional
+        Learn from the smoothed observed tracks with the displacement model (default: when
+        ``task.observation`` is set).
+    slide_dt : float, optional
+        Step of the sliding model, s (default 0.04; the observation period in the real
+        setting).
+    stop_speed : float
+        A predicted puck slower than this (m/s) has stopped.
+    horizon : float
+        Longest predicted sliding after the launch, s.
+    real_threshold : float
+        Centre distance (m) at which the real setting's displacement model takes over.
+    contact_margin : float, optional
+        Sliding transitions within this time (s) of a puck contact are not learned from
+        (default 0.02 s; 0.25 s in the real setting, where smoothing spreads a contact).
+    max_sliding_points, max_contact_points : int
+        Each GP is fitted on at most this many points, drawn at random.
+    warm_start : bool
+        Start each GP's hyper-parameter optimisation at its previous values.
+    device : str or torch.device, optional
+        Where the fitted GPs' predictors are queried (float64); randomness is drawn in numpy,
+        so results do not depend on it. Training happens on each GP's own ``device`` (give
+        it to the factories as well for a GPU).
+
+    Notes
+    -----
+    Factories are part of the checkpointed state: pass module-level functions or classes.
+    """
+
+    _KEYS = ("launch", "launch_probability", "sliding", "contact", "displacement")
+
+    def __init__(
+        self,
+        task: Hockey,
+        make_launch_model: Callable[[], Any] | None = None,
+        make_launch_probability_model: Callable[[], Any] | None = None,
+        make_sliding_model: Callable[[], Any] | None = None,
+        make_contact_model: Callable[[], Any] | None = None,
+        make_displacement_model: Callable[[], Any] | None = None,
+        real: bool | None = None,
+        slide_dt: float | None = None,
+        stop_speed: float = 0.03,
+        horizon: float = 6.0,
+        real_threshold: float = 0.2,
+        contact_margin: float | None = None,
+        max_sliding_points: int = 400,
+        max_contact_points: int = 300,
+        warm_start: bool = True,
+        device=None,
+    ):
+        if not isinstance(task, Hockey):
+            raise ValueError(f"task: expected a Hockey task, got {type(task).__name__}")
+        factories = {
+            "make_launch_model": (make_launch_model, _launch_model),
+            "make_launch_probability_model": (
+                make_launch_probability_model,
+                _launch_probability_model,
+            ),
+            "make_sliding_model": (make_sliding_model, _sliding_model),
+            "make_contact_model": (make_contact_model, _contact_model),
+            "make_displacement_model": (make_displacement_model, _displacement_model),
+        }
+        for name, (f, default) in factories.items():
+            if f is not None and not callable(f):
+                raise ValueError(f"{name}: expected a callable, got {type(f).__name__}")
+            setattr(self, name, f or default)
+        self.task = task
+        self.real = task.observation is not None if real is None else bool(real)
+        if self.real and task.observation is None:
+            raise ValueError("real: the real setting needs a task with an observation model")
+        obs_dt = None if task.observation is None else 1.0 / task.observation.rate
+        if slide_dt is None:
+            slide_dt = obs_dt if self.real else 0.04
+        self.slide_dt = check_positive(slide_dt, "slide_dt")
+        if self.real and not np.isclose(self.slide_dt, obs_dt):
+            raise ValueError(
+                f"slide_dt: the real setting slides at the observation period {obs_dt:g} s"
+            )
+        self.stop_speed = check_positive(stop_speed, "stop_speed")
+        self.n_slide = int(np.ceil(check_positive(horizon, "horizon") / self.slide_dt))
+        self.radius = task.physics.puck_radius
+        self.real_threshold = check_positive(real_threshold, "real_threshold")
+        if self.real_threshold <= 2 * self.radius:
+            raise ValueError(
+                f"real_threshold: expected more than the contact distance {2 * self.radius:g} m"
+            )
+        if contact_margin is None:
+            contact_margin = 0.25 if self.real else 0.02
+        self.contact_margin = check_positive(contact_margin, "contact_margin", allow_zero=True)
+        self.max_sliding_points = check_count(max_sliding_points, "max_sliding_points", 2)
+        self.max_contact_points = check_count(max_contact_points, "max_contact_points", 2)
+        self.warm_start = bool(warm_start)
+        self.device = device
+        self.models: dict[str, Any] = dict.fromkeys(self._KEYS)
+        self._hypers: dict[str, dict | None] = dict.fromkeys(self._KEYS)
+        self.n_data = 0
+
+    # ------------------------------------------------------------------ data
+    def paths(self, trajectory) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The puck paths a model learns from: times (T,), control and target (T, 2).
+
+        The true recorded paths, or in the real setting the observed 30 Hz tracks smoothed
+        with the reward's Butterworth filter."""
+        sig = trajectory.signals
+        if not self.real:
+            return sig["puck_times"], sig["control_puck"], sig["target_puck"]
+        obs = self.task.observation
+        smooth = [
+            butterworth_smooth(sig[k], obs.rate, obs.cutoff, obs.order)
+            for k in ("control_puck_observed", "target_puck_observed")
+        ]
+        return sig["observation_times"], smooth[0], smooth[1]
+
+    def launch_data(self, trajectories) -> tuple[np.ndarray, np.ndarray]:
+        """Whether each shot crossed :data:`X_LAUNCH` (N,) and, where it did, its
+        [p_y, v_x, v_y, t_0] there (NaN rows elsewhere), shape (N, 4).
+
+        Position and time by linear interpolation between the two samples around the line,
+        velocity by interpolating the central differences (``np.gradient``) of the path."""
+        crossed, states = [], []
+        for t in trajectories:
+            times, c, _ = self.paths(t)
+            cross = _crossing(c, X_LAUNCH)
+            crossed.append(cross is not None)
+            if cross is None:
+                states.append(np.full(4, np.nan))
+                continue
+            k, f = cross
+            v = np.gradient(c, times, axis=0)
+            p = (1 - f) * c[k - 1] + f * c[k]
+            vel = (1 - f) * v[k - 1] + f * v[k]
+            t0 = (1 - f) * times[k - 1] + f * times[k]
+            states.append(np.array([p[1], vel[0], vel[1], t0]))
+        return np.array(crossed), np.array(states)
+
+    def _contact_time(self, times, c, y) -> float | None:
+        """Time of the first contact (simulated) or threshold crossing (real)."""
+        dist = self.real_threshold if self.real else 2 * self.radius
+        hit, f = _segment_hit(c[:-1] - y[:-1], c[1:] - y[1:], dist)
+        if not hit.any():
+            return None
+        k = int(hit.argmax())
+        return float((1 - f[k]) * times[k] + f[k] * times[k + 1])
+
+    def sliding_data(self, trajectories) -> tuple[np.ndarray, np.ndarray]:
+        """Sliding transitions: velocities v_k (N, 2) and Δ[p, v] (N, 4) over ``slide_dt``.
+
+        Both paths are resampled on a ``slide_dt`` grid (control puck from its launch
+        crossing, target puck from its first contact), transitions within
+        ``contact_margin`` of the contact dropped, and only those starting faster than
+        ``stop_speed`` kept (so the stopping transitions are in, the resting pucks out)."""
+        dt, xs, ys = self.slide_dt, [], []
+        for t in trajectories:
+            times, c, y = self.paths(t)
+            cross = _crossing(c, X_LAUNCH)
+            if cross is None:
+                continue
+            k, f = cross
+            t_launch = (1 - f) * times[k - 1] + f * times[k]
+            t_contact = self._contact_time(times, c, y)
+            for path, start in ((c, t_launch), (y, t_contact)):
+                if start is None:
+                    continue
+                grid = np.arange(start, times[-1] - dt + 1e-12, dt)
+                if grid.size < 2:
+                    continue
+                p = _interp(times, path, grid)
+                v = _interp(times, np.gradient(path, times, axis=0), grid)
+                b = np.hstack([p, v])
+                keep = np.linalg.norm(v[:-1], axis=1) > self.stop_speed
+                if t_contact is not None:
+                    g0 = grid[:-1]
+                    keep &= (g0 + dt < t_contact - self.contact_margin) | (
+                        g0 > t_contact + self.contact_margin
+                    )
+                xs.append(v[:-1][keep])
+                ys.append((b[1:] - b[:-1])[keep])
+        if not xs or sum(len(x) for x in xs) < 2:
+            raise ValueError("trajectories: fewer than two sliding transitions to learn from")
+        return np.concatenate(xs), np.concatenate(ys)
+
+    def contact_data(self, trajectories) -> tuple[np.ndarray, np.ndarray]:
+        """Contacts on the recorded paths (:func:`first_contact`) in the contact frame.
+
+        Returns
+        -------
+        x : ndarray, shape (N, 2)
+            [v·n, v·t], v the control puck's velocity ``contact_margin`` before the contact.
+        y : ndarray, shape (N, 4)
+            [v_c'·n, v_c'·t, v_t'·n, v_t'·t] ``contact_margin`` + one sample after it.
+        """
+        xs, ys = [], []
+        for t in trajectories:
+            times, c, y = self.paths(t)
+            hit, k, f = first_contact(c, y, self.radius)
+            if not hit or k + 3 >= len(times):
+                continue
+            tc = (1 - f) * times[k] + f * times[k + 1]
+            pc = (1 - f) * c[k] + f * c[k + 1]
+            n = y[k] - pc
+            n = n / np.linalg.norm(n)
+            R = _frame(n)
+            vc = np.gradient(c, times, axis=0)
+            vy = np.gradient(y, times, axis=0)
+            before = _interp(times, vc, tc - self.contact_margin)
+            after = tc + self.contact_margin + (times[k + 1] - times[k])
+            xs.append(R @ before)
+            ys.append(np.r_[R @ _interp(times, vc, after), R @ _interp(times, vy, after)])
+        return np.array(xs).reshape(-1, 2), np.array(ys).reshape(-1, 4)
+
+    def displacement_data(self, trajectories) -> tuple[np.ndarray, np.ndarray]:
+        """Real setting: [x_c − b, v_c] (N, 4) where the pucks first come within
+        ``real_threshold``, and [y_T − y_0, x_T − x_c] (N, 4), the target's final
+        displacement and the control puck's remaining one."""
+        xs, ys = [], []
+        for t in trajectories:
+            times, c, y = self.paths(t)
+            tc = self._contact_time(times, c, y)
+            if tc is None:
+                continue
+            pc = _interp(times, c, tc)
+            vc = _interp(times, np.gradient(c, times, axis=0), tc)
+            xs.append(np.r_[pc - y[0], vc])
+            ys.append(np.r_[y[-1] - y[0], c[-1] - pc])
+        return np.array(xs).reshape(-1, 4), np.array(ys).reshape(-1, 4)
+
+    # ------------------------------------------------------------------ fit
+    def _fit_gp(self, key: str, x: np.ndarray, y: np.ndarray, rng) -> Any:
+        gp = getattr(self, f"make_{key}_model")()
+        if self.warm_start and isinstance(gp, _GPRegression):
+            _warm_start(gp, self._hypers[key], x)
+        gp.fit(x, y, rng)
+        if isinstance(gp, _GPRegression):
+            self._hypers[key] = gp.hyperparameters
+        if self.device is not None:
+            gp.predictor = gp.predictor.to(torch.device(self.device))
+        return gp
+
+    def fit(self, contexts, omegas, rewards, trajectories, rng=None) -> dict[str, Any]:
+        """Refit the event models on every non-failed real shot.
+
+        Returns
+        -------
+        dict
+            ``n_data`` (sliding transitions), ``n_trajectories``, ``n_launched``,
+            ``n_contacts`` and, per fitted GP (``launch``, ``launch_probability``,
+            ``sliding``, ``contact`` or ``displacement``), its ``n_data``, ``log_ml``,
+            ``iterations`` and ``noise_var_max``.
+        """
+        if trajectories is None:
+            raise ValueError("trajectories: the hockey model learns from trajectories")
+        ok = list({id(t): t for t in trajectories if not t.failed}.values())
+        if not ok:
+            raise ValueError("trajectories: every trajectory failed; nothing to learn from")
+        rng = as_generator(rng)
+        omegas = check_array(omegas, "omegas", shape=(None, self.task.parameter_dim))
+        if omegas.shape[0] != len(trajectories):
+            raise ValueError(
+                f"omegas: expected one row per trajectory ({len(trajectories)}), "
+                f"got {omegas.shape[0]}"
+            )
+        keep = [i for i, t in enumerate(trajectories) if not t.failed]
+        _, first = np.unique([id(trajectories[i]) for i in keep], return_index=True)
+        keep = [keep[i] for i in sorted(first)]
+        w = omegas[keep]
+        crossed, launch = self.launch_data(ok)
+        if crossed.sum() < 2:
+            raise ValueError("trajectories: fewer than two launched shots to learn from")
+        stats: dict[str, Any] = {"n_trajectories": len(ok), "n_launched": int(crossed.sum())}
+        sizes: dict[str, int] = {}
+        self.models = dict.fromkeys(self._KEYS)
+        self.models["launch"] = self._fit_gp("launch", w[crossed], launch[crossed], rng)
+        sizes["launch"] = int(crossed.sum())
+        if not crossed.all():
+            labels = np.where(crossed, 1.0, -1.0)
+            self.models["launch_probability"] = self._fit_gp("launch_probability", w, labels, rng)
+            sizes["launch_probability"] = len(w)
+        x, y = self.sliding_data(ok)
+        self.n_data = int(x.shape[0])
+        x, y = _subsample(rng, self.max_sliding_points, x, y)
+        self.models["sliding"] = self._fit_gp("sliding", x, y, rng)
+        sizes["sliding"] = int(x.shape[0])
+        key = "displacement" if self.real else "contact"
+        cx, cy = (self.displacement_data if self.real else self.contact_data)(ok)
+        stats["n_contacts"] = int(cx.shape[0])
+        if cx.shape[0] >= 2:
+            cx, cy = _subsample(rng, self.max_contact_points, cx, cy)
+            self.models[key] = self._fit_gp(key, cx, cy, rng)
+            sizes[key] = int(cx.shape[0])
+        stats["n_data"] = self.n_data
+        for name, n in sizes.items():
+            gp = self.models[name]
+            if isinstance(gp, _GPRegression):
+                stats[name] = _gp_stats(gp, n)
+        return stats
+
+    # ------------------------------------------------------------------ predict
+    def _draw(self, key: str, x: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """One draw y ~ N(μ(x), σ²(x)) of GP ``key`` (noisy observation), shape (n, E)."""
+        gp = self.models[key]
+        pred = gp.predictor
+        if x.shape[0] == 0:
+            return np.zeros((0, pred.output_dim))
+        with torch.no_grad():
+            m = pred.moments(torch.as_tensor(x, dtype=pred.dtype, device=pred.device))
+        mean, var = m.mean.cpu().numpy(), m.var.cpu().numpy()
+        return mean + np.sqrt(np.maximum(var, 0.0)) * rng.standard_normal(mean.shape)
+
+    def _slide(self, b: np.ndarray, moving: np.ndarray, rng) -> tuple[np.ndarray, np.ndarray]:
+        """One sliding step of the rows ``moving`` of b = [p, v] (n, 4); stops slow pucks."""
+        b = b.copy()
+        rows = np.flatnonzero(moving)
+        new = b[rows] + self._draw("sliding", b[rows, 2:], rng)
+        stop = (np.linalg.norm(new[:, 2:], axis=1) < self.stop_speed) | (
+            np.sum(new[:, 2:] * b[rows, 2:], axis=1) <= 0
+        )
+        new[stop, 2:] = 0.0
+        b[rows] = new
+        moving = moving.copy()
+        moving[rows[stop]] = False
+        return b, moving
+
+    def _launch(self, w: np.ndarray, rng) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Launch states [x, y, v_x, v_y] (n, 4), times t_0 (n,) and launched flags (n,)."""
+        n = w.shape[0]
+        draw = self._draw("launch", w, rng)
+        launched = np.ones(n, dtype=bool)
+        if self.models["launch_probability"] is not None:
+            launched = self._draw("launch_probability", w, rng)[:, 0] > 0
+        state = np.column_stack([np.full(n, X_LAUNCH), draw[:, :3]])
+        start = np.r_[CONTROL_PUCK_START, 0.0, 0.0]
+        state[~launched] = start
+        return state, np.maximum(draw[:, 3], 0.0), launched
+
+    def predict(self, contexts, omegas, n_trajectories: int, rng=None) -> HockeyPrediction:
+        """Sample L shots for each of B (ω, s) pairs through the event models.
+
+        Parameters
+        ----------
+        contexts : array_like, shape (B, 3)
+        omegas : array_like, shape (B, 15)
+        n_trajectories : int
+            L ≥ 1.
+        rng : Generator, int or None
+
+        Returns
+        -------
+        HockeyPrediction
+        """
+        if self.models["launch"] is None:
+            raise RuntimeError("HockeyRewardModel: call fit() before predicting")
+        task = self.task
+        w = check_array(omegas, "omegas", shape=(None, task.parameter_dim))
+        s = check_array(contexts, "contexts", shape=(w.shape[0], task.context_dim))
+        L, rng = check_count(n_trajectories, "n_trajectories"), as_generator(rng)
+        B = w.shape[0]
+        wl, sl = np.repeat(w, L, axis=0), np.repeat(s, L, axis=0)
+        launch, t0, launched = self._launch(wl, rng)
+        if self.real:
+            control, target, contact, index = self._predict_real(launch, t0, launched, sl, rng)
+        else:
+            control, target, contact, index = self._predict_simulated(launch, launched, sl, rng)
+        with np.errstate(all="ignore"):
+            keys = task.model_signals().signals
+            rewards = task.reward_batch(None, None, {keys[0]: control, keys[1]: target}, sl)
+        rewards = worst_if_nonfinite(rewards, task, "HockeyRewardModel.predict")
+        K = control.shape[1]
+        return HockeyPrediction(
+            control.reshape(B, L, K, 2),
+            target.reshape(B, L, K, 2),
+            launch.reshape(B, L, 4),
+            launched.reshape(B, L),
+            contact.reshape(B, L),
+            index.reshape(B, L),
+            rewards.reshape(B, L),
+        )
+
+    def _predict_simulated(self, launch, launched, s, rng):
+        """Slide, detect the first contact by radius, apply the contact model, slide on."""
+        n, r2 = launch.shape[0], 2 * self.radius
+        c = launch.copy()
+        y = np.column_stack([s[:, :2], np.zeros((n, 2))])
+        c_moving, y_moving = launched & (np.linalg.norm(c[:, 2:], axis=1) > 0), np.zeros(n, bool)
+        contact = np.zeros(n, dtype=bool)
+        index = np.full(n, -1)
+        cp = [np.tile(CONTROL_PUCK_START, (n, 1)), c[:, :2].copy()]
+        yp = [y[:, :2].copy(), y[:, :2].copy()]
+        can_contact = self.models["contact"] is not None
+        for _ in range(self.n_slide):
+            if not (c_moving.any() or y_moving.any()):
+                break
+            both = np.vstack([c, y])
+            both, moving = self._slide(both, np.r_[c_moving, y_moving], rng)
+            new_c, y, c_moving2, y_moving = both[:n], both[n:], moving[:n], moving[n:]
+            pending = c_moving & ~contact
+            if can_contact and pending.any():
+                rows = np.flatnonzero(pending)
+                hit, f = _segment_hit(c[rows, :2] - y[rows, :2], new_c[rows, :2] - y[rows, :2], r2)
+                rows, f = rows[hit], f[hit][:, None]
+                if rows.size:
+                    pc = c[rows, :2] + f * (new_c[rows, :2] - c[rows, :2])
+                    v_in = c[rows, 2:] + f * (new_c[rows, 2:] - c[rows, 2:])
+                    nvec = y[rows, :2] - pc
+                    nvec /= np.linalg.norm(nvec, axis=1, keepdims=True)
+                    R = _frame(nvec)
+                    out = self._draw("contact", np.einsum("nij,nj->ni", R, v_in), rng)
+                    RT = np.swapaxes(R, 1, 2)
+                    new_c[rows] = np.column_stack([pc, np.einsum("nij,nj->ni", RT, out[:, :2])])
+                    y[rows, 2:] = np.einsum("nij,nj->ni", RT, out[:, 2:])
+                    y_moving[rows] = np.linalg.norm(y[rows, 2:], axis=1) > self.stop_speed
+                    c_moving2[rows] = np.linalg.norm(new_c[rows, 2:], axis=1) > self.stop_speed
+                    contact[rows] = True
+                    index[rows] = len(cp)
+            c, c_moving = new_c, c_moving2
+            cp.append(c[:, :2].copy())
+            yp.append(y[:, :2].copy())
+        return np.stack(cp, 1), np.stack(yp, 1), contact, index
+
+    def _predict_real(self, launch, t0, launched, s, rng):
+        """Real setting: slide at the frame rate until the pucks come within the threshold,
+        then draw the paths to the displacement model's end points (see the module)."""
+        n, dt, r2 = launch.shape[0], self.slide_dt, 2 * self.radius
+        c = launch.copy()
+        b = s[:, :2]
+        moving = launched & (np.linalg.norm(c[:, 2:], axis=1) > 0)
+        near = np.zeros(n, dtype=bool)
+        at = np.zeros((n, 4))
+        steps = [c[:, :2].copy()]
+        ends = np.full(n, -1)
+        can = self.models["displacement"] is not None
+        for k in range(self.n_slide):
+            if not moving.any():
+                break
+            new, moving2 = self._slide(c, moving, rng)
+            if can:
+                rows = np.flatnonzero(moving & ~near)
+                hit, f = _segment_hit(
+                    c[rows, :2] - b[rows], new[rows, :2] - b[rows], self.real_threshold
+                )
+                rows, f = rows[hit], f[hit][:, None]
+                at[rows] = c[rows] + f * (new[rows] - c[rows])
+                near[rows] = True
+                ends[rows] = k + 1
+                moving2[rows] = False
+                new[rows] = at[rows]
+            c, moving = new, moving2
+            steps.append(c[:, :2].copy())
+        slid = np.stack(steps, 1)  # (n, K, 2), frame 0 = the launch
+        disp = self._draw("displacement", np.column_stack([at[:, :2] - b, at[:, 2:]]), rng)
+        n_pre = np.where(launched, np.round(t0 / dt).astype(int), 0)
+        controls, targets, contact, index = [], [], np.zeros(n, bool), np.full(n, -1)
+        for i in range(n):
+            pre = np.tile(CONTROL_PUCK_START, (n_pre[i], 1))
+            if not near[i]:
+                path = np.vstack([pre, slid[i]])
+                controls.append(path)
+                targets.append(np.tile(b[i], (len(path), 1)))
+                continue
+            p, v = at[i, :2], at[i, 2:]
+            speed = max(np.linalg.norm(v), 1e-6)
+            u = v / speed
+            rel = p - b[i]
+            along = max(-rel @ u, 0.0)
+            perp = np.linalg.norm(rel + along * u)
+            touch = perp < r2 and along > 0
+            if touch:
+                along -= np.sqrt(r2**2 - perp**2)
+            mid = p + max(along, 0.0) * u
+            n1 = max(1, int(np.ceil(along / speed / dt)))
+            leg1 = p + np.outer(np.arange(1, n1 + 1) / n1, mid - p)
+            end_c, end_y = mid + disp[i, 2:] - (mid - p), b[i] + disp[i, :2]
+            d2 = max(np.linalg.norm(end_c - mid), np.linalg.norm(end_y - b[i]))
+            n2 = max(1, int(np.ceil(2 * d2 / speed / dt)))
+            prof = 1 - (1 - np.arange(1, n2 + 1) / n2) ** 2
+            head = np.vstack([pre, slid[i, : ends[i] + 1], leg1])
+            path = np.vstack([head, mid + np.outer(prof, end_c - mid)])
+            tgt = np.vstack([np.tile(b[i], (len(head), 1)), b[i] + np.outer(prof, end_y - b[i])])
+            controls.append(path)
+            targets.append(tgt)
+            contact[i] = touch
+            index[i] = len(head) - 1
+        K = max(len(p) for p in controls) + REST_FRAMES
+        pad = lambda p: np.vstack([p, np.tile(p[-1], (K - len(p), 1))])  # noqa: E731
+        return (
+            np.stack([pad(p) for p in controls]),
+            np.stack([pad(p) for p in targets]),
+            contact,
+            index,
+        )
+
+    def expected_rewards(self, contexts, omegas, n_trajectories, rng=None) -> np.ndarray:
+        """R̂_sω: the mean reward of L predicted shots per pair (Eq. 4.1), shape (B,)."""
+        return self.predict(contexts, omegas, n_trajectories, rng).expected_rewards
+
+    # ------------------------------------------------------------------ viewer
+    def prediction_layers(self, context, omega, n_samples: int, rng=None) -> dict[str, dict]:
+        """Predicted puck paths of one (s, ω) pair, one layer per event model, for a viewer.
+
+        Parameters
+        ----------
+        context : array_like, shape (3,)
+        omega : array_like, shape (15,)
+        n_samples : int
+            L predicted shots.
+        rng : Generator, int or None
+
+        Returns
+        -------
+        dict
+            ``{name: {"trajectories": ndarray (L, T, 3), "color": (r, g, b)}}``, world
+            points at the pucks' centre height :data:`PUCK_Z`: the launch model's state as a
+            0.1 s velocity arrow from the launch point, the control puck sliding up to the
+            contact, and after it the control and the target puck (each row padded with its
+            last point). The names are the legend.
+        """
+        s = check_array(context, "context", shape=(self.task.context_dim,))
+        w = check_array(omega, "omega", shape=(self.task.parameter_dim,))
+        p = self.predict(s[None], w[None], check_count(n_samples, "n_samples"), rng)
+        c, y, idx = p.control[0], p.target[0], p.contact_index[0]
+        K = c.shape[1]
+        first = 0 if self.real else 1
+        before, after_c, after_y = [], [], []
+        for i in range(c.shape[0]):
+            k = idx[i] if idx[i] >= 0 else K - 1
+            before.append(
+                np.vstack([c[i, first : k + 1], np.tile(c[i, k], (first + K - k - 1, 1))])
+            )
+            after_c.append(np.vstack([c[i, k:], np.tile(c[i, -1], (k, 1))]))
+            after_y.append(np.vstack([y[i, k:], np.tile(y[i, -1], (k, 1))]))
+        launch = p.launch[0]
+        arrow = np.stack([launch[:, :2], launch[:, :2] + 0.1 * launch[:, 2:]], axis=1)
+
+        def lift(xy: np.ndarray) -> np.ndarray:
+            return np.concatenate([xy, np.full(xy.shape[:-1] + (1,), PUCK_Z)], axis=-1)
+
+        after = "displacement model" if self.real else "contact model"
+        return {
+            f"launch model: control puck at x={X_LAUNCH:.2f} m": {
+                "trajectories": lift(arrow),
+                "color": (255, 140, 0),
+            },
+            "sliding model: control puck": {
+                "trajectories": lift(np.stack(before)),
+                "color": (30, 120, 255),
+            },
+            f"{after}: control puck after contact": {
+                "trajectories": lift(np.stack(after_c)),
+                "color": (120, 200, 255),
+            },
+            f"{after}: target puck": {
+                "trajectories": lift(np.stack(after_y)),
+                "color": (220, 40, 40),
+            },
+        }
+
+    def __repr__(self) -> str:
+        fitted = [k for k, m in self.models.items() if m is not None]
+        state = f"fitted {fitted}, {self.n_data} sliding transitions" if fitted else "unfitted"
+        setting = "real (observed tracks)" if self.real else "simulated"
+        return (
+            f"HockeyRewardModel(task={self.task.name!r}, {setting}, {state}, "
+            f"slide_dt={self.slide_dt:.4g}, x_launch={X_LAUNCH:g})"
+        )

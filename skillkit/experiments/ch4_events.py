@@ -109,7 +109,9 @@ class HockeyGPREPSSettings(EventGPREPSSettings):
     """Settings of ``fig4.10`` and ``fig4.11`` (hockey; REPS with ``fig3.5``'s settings)."""
 
     task: str = setting("hockey", "Registered task: hockey (fig4.10) or hockey-real (fig4.11).")
-    slide_dt: float = setting(0.05, "Step of the sliding-puck model, s.")
+    slide_dt: float = setting(
+        0.04, "Step of the sliding-puck model, s (hockey-real: the 30 Hz frame period)."
+    )
     reps_updates: int = setting(200, "REPS updates (0: no REPS run).")
     reps_rollouts_per_update: int = setting(50, "REPS rollouts per update (fig3.5).")
     reps_epsilon: float = setting(0.5, "KL bound of REPS (fig3.5).")
@@ -174,7 +176,17 @@ def _scales(cls, smoke: dict, quick: dict, paper: dict | None = None) -> dict:
 def _hockey_model(task, st: HockeyGPREPSSettings):
     from skillkit.search.hockey_model import HockeyRewardModel
 
-    return HockeyRewardModel(task, slide_dt=st.slide_dt, gp_steps=st.gp_steps)
+    gp = partial(ExactGP, n_steps=st.gp_steps)
+    slide_dt = None if task.observation is not None else st.slide_dt  # real: the frame rate
+    return HockeyRewardModel(
+        task,
+        make_launch_model=gp,
+        make_launch_probability_model=gp,
+        make_sliding_model=gp,
+        make_contact_model=gp,
+        make_displacement_model=gp,
+        slide_dt=slide_dt,
+    )
 
 
 def _table_tennis_model(task, st, schedule: str = "auto"):
@@ -692,7 +704,7 @@ register(
         settings_class=HockeyGPREPSSettings,
         settings=_scales(
             HockeyGPREPSSettings,
-            smoke={"reps_updates": 1, "reps_rollouts_per_update": 25, "reps_reuse_batches": 1},
+            smoke={"reps_updates": 1, "reps_rollouts_per_update": 25, "reps_epsilon": 0.2},
             quick={"reps_updates": 20},
         ),
         run_trial=run_trial_hockey,

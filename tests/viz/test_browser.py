@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 from headless_browser import HeadlessBrowser  # tests/viz/headless_browser.py
-from test_model_layers import HOCKEY_LAYERS, FakeHockeyModel, make_gpreps_run  # beside this
 
-from skillkit.viz.model_layers import load_gpreps_run
+from skillkit.experiments import reproduce
+from skillkit.viz.model_layers import load_gpreps_run, model_layers
 from skillkit.viz.viewer import Viewer
 
 CHROMIUM = Path("/usr/bin/chromium")
@@ -82,27 +82,30 @@ def test_hockey_scene_renders_in_headless_chromium(tmp_path):
 
 
 def test_gpreps_model_layers_render_in_headless_chromium(tmp_path):
-    """A (fake-model) GPREPS run folder, as ``skillkit view hockey --gpreps RUN`` shows it: the
-    run's last policy with the reward model's layers and their legend."""
-    run = make_gpreps_run(tmp_path / "run", FakeHockeyModel(), "hockey")
-    history, model = load_gpreps_run(run, 0)
+    """A real GPREPS run folder (fig4.10 at smoke scale: the hockey event models fitted on its
+    shots), as ``skillkit view hockey --gpreps RUN`` shows it: the run's last policy with the
+    reward model's layers and their legend."""
+    run = reproduce("fig4.10", scale="smoke", seed=0, out=tmp_path, html=False, progress=False)
+    history, model = load_gpreps_run(run.path, 0)
+    assert type(model).__name__ == "HockeyRewardModel"
     viewer = Viewer(
         "hockey", context=[2.0, 0.75, 0.5], history=history, port=free_port(), environment=False
     )
     with viewer:
         layers = viewer.add_model_layers(model, n_samples=10)
+        specs = model_layers(model, viewer.context, history.policies[-1].mean_of(viewer.context))
+        names = {spec["label"]: spec["name"] for spec in specs}
+        assert len(names) >= 3
         t0, t1 = viewer.scene.time_range(viewer.trajectory)
         viewer.set_time(t0 + 0.5 * (t1 - t0))
         model_nodes = [
-            f"/predictions/{name}/{node}"
-            for name in HOCKEY_LAYERS.values()
-            for node in ("samples", "mean", "now")
+            f"/predictions/{name}/{node}" for name in names.values() for node in ("samples", "mean")
         ]
         for name in [*EXPECTED_NODES, *model_nodes]:
             assert viewer.server.scene.get_handle_by_name(name) is not None, name
         with HeadlessBrowser(size=(800, 560), executable=str(CHROMIUM)) as browser:
             browser.open(viewer.url)
-            needles = [*model_nodes, *HOCKEY_LAYERS, "simulator rollout", "FakeHockeyModel"]
+            needles = [*model_nodes, *names, "simulator rollout", "HockeyRewardModel"]
             browser.wait_for_text(needles, timeout=120)
             shown = browser.settled_screenshot(timeout=90)
             for layer in layers:

@@ -22,8 +22,10 @@ from skillkit.viz import cli_view
 from skillkit.viz.model_layers import (
     REWARD_MODEL_FORMAT,
     check_model_task,
+    dumps_reward_model,
     load_gpreps_run,
     load_reward_model,
+    loads_reward_model,
     model_layers,
     reward_model_path,
     save_reward_model,
@@ -428,3 +430,22 @@ def test_cli_gpreps_serves_the_runs_policy_and_model_layers(tmp_path, capsys, mo
     for name in HOCKEY_LAYERS.values():
         assert f"/predictions/{name}/mean" in seen["nodes"]
     assert [label for label, _ in seen["legend"]] == ["simulator rollout", *HOCKEY_LAYERS]
+
+
+def test_a_run_can_keep_its_model_in_trials_npz(tmp_path):
+    """The experiments keep the model as bytes in trials.npz (``trial<K>__reward_model``):
+    load_gpreps_run reads it there when the file is absent; corrupt bytes are refused."""
+    folder = make_gpreps_run(tmp_path / "run", FakeHockeyModel(), "hockey", trial=1)
+    reward_model_path(folder, 1).unlink()
+    with pytest.raises(ValueError, match="no reward model of trial 1"):
+        load_gpreps_run(folder, 1)
+    with np.load(folder / "trials.npz") as f:
+        arrays = dict(f)
+    data = dumps_reward_model(FakeHockeyModel())
+    arrays["trial1__reward_model"] = np.frombuffer(data, dtype=np.uint8)
+    np.savez_compressed(folder / "trials.npz", **arrays)
+    history, model = load_gpreps_run(folder, 1)
+    assert type(model) is FakeHockeyModel and len(history.policies) == 3
+    assert type(loads_reward_model(data)) is FakeHockeyModel
+    with pytest.raises(ValueError, match="not a skillkit reward-model file"):
+        loads_reward_model(data[5:], "cut")

@@ -53,6 +53,9 @@ TRIAL_BANDS: dict[str, dict[str, str]] = {
     "fig4.6": {"learning curves": "std"},
     "fig4.7": {"learning curves": "std"},
     "fig4.9": {"learning curves": "std"},
+    "fig4.10": {"learning curves": "std", "held-out displacement error": "std"},
+    "fig4.11": {"learning curve": "ci95", "held-out displacement error": "ci95"},
+    "fig4.12": {"learning curves": "std", "held-out landing error": "std"},
     "fig5.6": {"reward prediction error": "std"},
     "fig5.7": {"reward prediction error": "std"},
 }

@@ -143,7 +143,7 @@ class ModelAccuracySettings(Settings):
     n_rollouts: int = setting(100, "Rollouts of the initial policy the models learn from.")
     n_heldout: int = setting(20, "Held-out rollouts the predictions are compared with.")
     n_samples: int = setting(10, "Sampled trajectories per held-out (s, ω) (Fig. 4.13).")
-    n_shown: int = setting(3, "Held-out rollouts drawn in the figure.")
+    n_shown: int = setting(3, "Held-out rollouts drawn in the figure (hits first).")
     gp_steps: int = setting(100, "L-BFGS iterations of every GP's hyper-parameter fit.")
 
 
@@ -631,15 +631,17 @@ def run_trial_413(st: ModelAccuracySettings, rng: np.random.Generator, trial: Tr
     s_te, w_te, t_te = rollouts(st.n_heldout)
     errors = model.heldout_errors(s_te, w_te, t_te, st.n_samples, rng)
     trial.update()
-    pred = model.predict(s_te[: st.n_shown], w_te[: st.n_shown], st.n_samples, rng)
+    hits = [i for i, t in enumerate(t_te) if t.info["hit"]]
+    shown = (hits + [i for i in range(len(t_te)) if i not in hits])[: st.n_shown]
+    pred = model.predict(s_te[shown], w_te[shown], st.n_samples, rng)
     out = {f"accuracy_{k}": np.asarray(v, dtype=float) for k, v in errors.items()}
     out["shown_ball_predicted"] = pred.ball
     out["shown_racket_predicted"] = pred.racket
     out["shown_landing_predicted"] = pred.landing
-    out["shown_ball_real"] = np.stack([t.signals["ball"] for t in t_te[: st.n_shown]])
-    out["shown_racket_real"] = np.stack([t.signals["racket"] for t in t_te[: st.n_shown]])
+    out["shown_ball_real"] = np.stack([t_te[i].signals["ball"] for i in shown])
+    out["shown_racket_real"] = np.stack([t_te[i].signals["racket"] for i in shown])
     out["shown_landing_real"] = np.array(
-        [t.info["landing_point"] for t in t_te[: st.n_shown]], dtype=float
+        [t_te[i].info["landing_point"] if t_te[i].info["hit"] else [np.nan] * 2 for i in shown]
     )
     return out
 
@@ -670,8 +672,8 @@ def summarize_413(st: ModelAccuracySettings, trials: list[dict]):
     for view, cols, ylabel in (("side view (x–z)", (0, 2), "z (m)"),
                                ("top view (x–y)", (0, 1), "y (m)")):  # fmt: skip
         for name, key, kind in (
-            ("incoming ball, 5 models (black: predicted)", "shown_ball_predicted", "line"),
-            ("racket, models 3–4 (blue: predicted)", "shown_racket_predicted", "line"),
+            ("incoming ball, models 1–2 (10 samples)", "shown_ball_predicted", "line"),
+            ("racket, models 3–4 (10 samples)", "shown_racket_predicted", "line"),
         ):
             pred = np.asarray(t0[key], dtype=float)
             x, y = _nan_joined(pred.reshape(-1, *pred.shape[2:]), cols)
@@ -682,10 +684,10 @@ def summarize_413(st: ModelAccuracySettings, trials: list[dict]):
             series.append(Series(name, x, y, view, "line", xlabel="x (m)", ylabel=ylabel))
     lp = np.asarray(t0["shown_landing_predicted"], dtype=float).reshape(-1, 2)
     lr = np.asarray(t0["shown_landing_real"], dtype=float)
-    series.append(Series("returned landing point, contact model", lp[:, 0].tolist(),
+    series.append(Series("returned landing point, model 5", lp[:, 0].tolist(),
                          lp[:, 1].tolist(), "top view (x–y)", "markers", xlabel="x (m)",
                          ylabel="y (m)"))  # fmt: skip
-    series.append(Series("returned landing point, simulator", lr[:, 0].tolist(),
+    series.append(Series("returned landing point (hits), simulator", lr[:, 0].tolist(),
                          lr[:, 1].tolist(), "top view (x–y)", "markers", xlabel="x (m)",
                          ylabel="y (m)"))  # fmt: skip
     errors = {

@@ -718,7 +718,11 @@ class HockeyRewardModel:
             c, moving = new, moving2
             steps.append(c[:, :2].copy())
         slid = np.stack(steps, 1)  # (n, K, 2), frame 0 = the launch
-        disp = self._draw("displacement", np.column_stack([at[:, :2] - b, at[:, 2:]]), rng)
+        disp = (
+            self._draw("displacement", np.column_stack([at[:, :2] - b, at[:, 2:]]), rng)
+            if can
+            else np.zeros((n, 4))  # no displacement model yet: no row came near (near is False)
+        )
         n_pre = np.where(launched, np.round(t0 / dt).astype(int), 0)
         controls, targets, contact, index = [], [], np.zeros(n, bool), np.full(n, -1)
         for i in range(n):

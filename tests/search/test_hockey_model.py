@@ -228,3 +228,9 @@ def test_real_setting_learns_from_observed_tracks():
     assert np.all(pred.control[:, :, -10:] == pred.control[:, :, -1:])  # stopped pucks
     layers = model.prediction_layers(s[30], w[30], 3, rng=0)
     assert "displacement model: target puck" in layers
+    # before any shot came near the target there is no displacement model: the pucks never
+    # count as near, the target stays put, and the rewards are still finite
+    model.models["displacement"] = None
+    alone = model.predict(s[30:], w[30:], 4, rng=0)
+    assert np.all(np.isfinite(alone.rewards)) and not alone.contact.any()
+    assert np.all(alone.target == alone.target[:, :, :1])

@@ -582,8 +582,11 @@ TT_SETUP = [
         "item": "models",
         "thesis": "five: incoming landing; bounce trajectory; racket position and quaternion "
         "(40 basis functions, GP ω → weights); linear SVM contact + GP landing point",
-        "ours": "the same five (TableTennisRewardModel; scikit-learn's linear SVM)",
-        "why": "as the thesis",
+        "ours": "the same five (TableTennisRewardModel; scikit-learn's linear SVM); the "
+        "contact inputs add the ball's position relative to the racket and the distance at "
+        "the closest approach",
+        "why": "with the thesis's inputs alone the linear SVM's balanced accuracy was 0.50–0.57 "
+        "on 400 rollouts (always 'miss'); with the two additions 0.98–0.99",
     },
     {
         "item": "reward schedule",

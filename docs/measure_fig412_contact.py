@@ -16,8 +16,9 @@ Measured on the paper run of issue #14 (3 trials, all in the "returning" stage):
 * model 5's landing point from the recorded contact inputs: 0.7 / 31 / 22 cm (median), and
   through the whole chain of predicted paths 1.8 / 26 / 23 cm — while the real shots land
   60 / 73 / 99 cm (median) from their targets;
-* but the SVM applied to the *predicted* paths calls 25% / 20% / 50% of the sampled strokes
-  misses (all are hits), each scored with the full penalty ‖b − p‖ = P = 2.29 m; the predicted
+* but the SVM applied to the *predicted* paths calls most of the 10 sampled strokes misses for
+  25% / 20% / 50% of the 40 pairs (all real hits), each miss scored with the full penalty
+  ‖b − p‖ = P = 2.29 m; the predicted
   expected rewards of the 40 final (s, ω) pairs correlate −0.09 / 0.16 / 0.33 with the real
   rewards, so they no longer rank the aiming that the remaining landing error needs.
 """

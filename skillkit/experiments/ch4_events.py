@@ -221,12 +221,7 @@ def _gpreps_run(task, st, key, model, rng, trial, eval_contexts, score, keep_mod
                       eval_contexts, callback=record)  # fmt: skip
     diags = out.pop(f"{key}_diagnostics")
     algo = out.pop(f"{key}_algorithm")
-    points = [(k, v) for k, v in enumerate(out.pop(f"{key}_callback")) if v is not None]
-    out[f"{key}_heldout_rollouts"] = np.array(
-        [0 if k == 0 else st.n_initial + k - 1 for k, _ in points], dtype=float
-    )
-    for name in points[0][1]:
-        out[f"{key}_heldout_{name}"] = np.array([v[name] for _, v in points], dtype=float)
+    out.update(_heldout(key, out.pop(f"{key}_callback"), lambda k: st.n_initial + k - 1))
     out[f"{key}_stage"] = np.array([str(d.model_fit.get("stage", "")) for d in diags])
     if keep_model:
         out["reward_model"] = np.frombuffer(dumps_reward_model(algo.reward_model), np.uint8)
@@ -246,8 +241,20 @@ def _reps_run(task, algorithm, key, n_updates, n_per_update, rng, trial, eval_co
     curves = learn(task, algorithm, n_updates, n_per_update, rng, trial=trial,
                    eval_contexts=eval_contexts, callback=record, checkpoint_key=key)  # fmt: skip
     out = {f"{key}_rollouts": curves["rollouts"], f"{key}_mean_reward": curves["mean_reward"]}
-    points = [(k, v) for k, v in enumerate(curves["callback"]) if v is not None]
-    out[f"{key}_heldout_rollouts"] = np.array([k * n_per_update for k, _ in points], dtype=float)
+    out.update(_heldout(key, curves["callback"], lambda k: k * n_per_update))
+    return out
+
+
+def _heldout(key: str, values: list, rollouts_after) -> dict:
+    """The held-out scores the loop's callback returned (None between evaluations) as arrays
+    ``f"{key}_heldout_<score>"``, with ``f"{key}_heldout_rollouts"`` (real rollouts after update
+    k: ``rollouts_after(k)``, 0 before the first)."""
+    points = [(k, v) for k, v in enumerate(values) if v is not None]
+    out = {
+        f"{key}_heldout_rollouts": np.array(
+            [0 if k == 0 else rollouts_after(k) for k, _ in points], dtype=float
+        )
+    }
     for name in points[0][1]:
         out[f"{key}_heldout_{name}"] = np.array([v[name] for _, v in points], dtype=float)
     return out

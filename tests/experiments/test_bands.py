@@ -75,7 +75,8 @@ def test_every_band_says_what_it_is(exp_id, trials):
         if band.startswith("geometric mean"):
             assert np.allclose(np.log10(y[ok]) * 2, np.log10(lo[ok]) + np.log10(hi[ok]))
         else:
-            assert band.startswith("mean ±") or band == GP_BAND, band
+            symmetric = ("mean ±", "95% interval of the mean")  # std and ci95 bands
+            assert band.startswith(symmetric) or band == GP_BAND, band
             assert np.allclose(y[ok] - lo[ok], hi[ok] - y[ok])
 
 

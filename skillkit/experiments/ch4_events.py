@@ -29,6 +29,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 from functools import partial
+from typing import Literal
 
 import numpy as np
 from scipy import stats
@@ -92,7 +93,9 @@ class EventGPREPSSettings(Settings):
     n_artificial: int = setting(500, "M, artificial (s, ω) pairs per update (Sec. 4.3.2).")
     n_trajectories: int = setting(10, "L, predicted trajectories per artificial pair (Eq. 4.1).")
     epsilon: float = setting(1.0, "KL bound ε of GPREPS (Sec. 4.3.2).")
-    context_model: str = setting("uniform", "μ̂(s): the box of the observed contexts.")
+    context_model: Literal["gaussian", "uniform", "prior"] = setting(
+        "uniform", "μ̂(s): the box of the observed contexts."
+    )
     gp_steps: int = setting(100, "L-BFGS iterations of every GP's hyper-parameter fit.")
     n_eval_contexts: int = setting(10, "Fixed contexts of the learning curve (policy mean).")
     n_heldout: int = setting(50, "Held-out contexts of the shot scores (policy mean).")
@@ -108,7 +111,9 @@ class EventGPREPSSettings(Settings):
 class HockeyGPREPSSettings(EventGPREPSSettings):
     """Settings of ``fig4.10`` and ``fig4.11`` (hockey; REPS with ``fig3.5``'s settings)."""
 
-    task: str = setting("hockey", "Registered task: hockey (fig4.10) or hockey-real (fig4.11).")
+    task: Literal["hockey", "hockey-real"] = setting(
+        "hockey", "Registered task: hockey (fig4.10) or hockey-real (fig4.11)."
+    )
     slide_dt: float = setting(
         0.04, "Step of the sliding-puck model, s (hockey-real: the 30 Hz frame period)."
     )
@@ -128,7 +133,7 @@ class TableTennisGPREPSSettings(EventGPREPSSettings):
     """Settings of ``fig4.12`` (table tennis; REPS with ``fig3.7``'s settings)."""
 
     n_updates: int = setting(130, "GPREPS / GP-direct updates (N₀ + K = 150 rollouts).")
-    schedule: str = setting(
+    schedule: Literal["auto", "hitting", "returning"] = setting(
         "auto",
         "Reward schedule of Eq. 4.17: 'auto' switches c₁ = c₂ once the contact model "
         "is good (see TableTennisRewardModel), or a forced 'hitting' / 'returning'.",

@@ -78,3 +78,14 @@ def test_each_trial_keeps_its_policy_history_and_reward_model(tmp_path, exp_id, 
     summary = run.result["summary"]
     assert {"thesis", "ours", "why"} <= set(summary["setup"][0])
     assert summary["gpreps"]["rollouts"] == st.n_initial + st.n_updates - 1
+
+
+def test_bad_settings_are_refused_before_any_work():
+    from dataclasses import replace
+
+    with pytest.raises(ValueError, match="schedule"):
+        replace(get("fig4.12").settings["paper"], schedule="sometimes")
+    with pytest.raises(ValueError, match="task"):
+        replace(get("fig4.10").settings["paper"], task="hockey-fast")
+    with pytest.raises(ValueError, match="n_initial"):
+        replace(get("fig4.11").settings["paper"], n_initial=1)

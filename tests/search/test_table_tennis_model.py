@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from skillkit.models.gp import ExactGP
-from skillkit.search import TableTennisRewardModel
+from skillkit.search import TableTennisRewardModel, collect
 from skillkit.search.table_tennis_model import (
     TimeBasis,
     find_bounce,
@@ -25,12 +25,8 @@ N_TRAIN, N_TEST = 100, 20
 
 
 def _rollouts(task, n, seed):
-    rng = np.random.default_rng(seed)
-    s = task.sample_context(rng, n=n)
-    w = task.initial_policy().sample(s, rng)
-    trajs = [task.rollout(wi, si, rng) for wi, si in zip(w, s, strict=True)]
-    r = np.array([task.reward(t, si) for t, si in zip(trajs, s, strict=True)])
-    return s, w, r, trajs
+    batch = collect(task, task.initial_policy(), n, np.random.default_rng(seed))
+    return batch.contexts, batch.omegas, batch.rewards, list(batch.trajectories)
 
 
 def _fit(model, data, rng=1):

@@ -8,17 +8,16 @@ skillkit.search: module-level and picklable, their predicted paths move with the
 
 from __future__ import annotations
 
-import argparse
 import json
 import pickle
 
 import numpy as np
 import pytest
+from test_viewer import run_cli  # tests/viz/test_viewer.py, beside this
 
 from skillkit._validation import as_generator
 from skillkit.search.loop import policy_history_arrays
 from skillkit.tasks import make
-from skillkit.viz import cli_view
 from skillkit.viz.model_layers import (
     REWARD_MODEL_FORMAT,
     check_model_task,
@@ -381,14 +380,6 @@ def test_model_layers_follow_learning_playback_on_table_tennis(tmp_path):
 
 
 # ----------------------------------------------------------------------------- skillkit view
-def run_cli(argv, capsys) -> tuple[int, str]:
-    parser = argparse.ArgumentParser(prog="skillkit")
-    cli_view.add_view_parser(parser.add_subparsers(dest="command"))
-    args = parser.parse_args(["view", *argv])
-    code = args.func(args)
-    return code, capsys.readouterr().err
-
-
 def test_cli_gpreps_errors_give_one_line_and_exit_code_2(tmp_path, capsys):
     hockey_run = make_gpreps_run(tmp_path / "hockey", FakeHockeyModel(), "hockey")
     bad_run = make_gpreps_run(

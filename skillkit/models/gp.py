@@ -72,7 +72,7 @@ from gpytorch.constraints import GreaterThan
 from linear_operator.utils.errors import NanError, NotPSDError
 
 from skillkit._repr import number, span
-from skillkit._validation import as_generator, check_array, check_positive
+from skillkit._validation import as_generator, check_array, check_count, check_positive
 from skillkit.models.kernels import (
     SquaredExponential,
     se_kernel,
@@ -721,6 +721,34 @@ class _GPRegression:
         warn_if_clamped(m, type(self).__name__)
         mean, var = m.mean.cpu().numpy(), m.var.cpu().numpy()
         return (mean[:, 0], var[:, 0]) if self._squeeze else (mean, var)
+
+    def sample(self, X, n_samples: int, rng, include_noise: bool = True) -> np.ndarray:
+        """Independent draws from the predictive marginals N(μ(x), σ²(x)) (Eqs 2.26–2.27).
+
+        Each query and output is drawn on its own (no correlation between queries: this is
+        not a function sample, see ``latent_covariance`` for those); what an event model
+        needs to propagate one sampled outcome per trajectory.
+
+        Parameters
+        ----------
+        X : array_like, shape (n, d)
+        n_samples : int
+            L ≥ 1 draws per query.
+        rng : Generator, int or None
+            One ``standard_normal((n, L, E))`` is drawn from it.
+        include_noise : bool
+            Draw y (with σ_ε²) or the latent f.
+
+        Returns
+        -------
+        ndarray, shape (n, L, E) (or (n, L) if fitted on 1-D targets)
+        """
+        mean, var = self.predict(X, include_noise)
+        mean, var = mean.reshape(mean.shape[0], -1), var.reshape(var.shape[0], -1)
+        L = check_count(n_samples, "n_samples")
+        eps = as_generator(rng).standard_normal((mean.shape[0], L, mean.shape[1]))
+        draws = mean[:, None] + np.sqrt(np.maximum(var, 0.0))[:, None] * eps
+        return draws[..., 0] if self._squeeze else draws
 
     @property
     def hyperparameters(self) -> dict[str, np.ndarray]:

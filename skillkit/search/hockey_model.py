@@ -50,7 +50,7 @@ profile. Every predicted path is sampled at the observation rate, padded with re
 (:data:`REST_FRAMES`, more than the smoothing's ``padlen``) so the reward's filtfilt sees
 stopped pucks at the end.
 
-Each GP is built by a factory (``make_launch_model`` …, module-level defaults below), so any
+Each GP is built by a factory (``make_launch_model`` …, default :class:`ExactGP`), so any
 :mod:`skillkit.models` regression (ExactGP, FITC, VFE) can take its place.
 """
 
@@ -86,26 +86,6 @@ PUCK_Z = 0.0125
 """Height of a puck's centre above the table (half its 2.5 cm height), m, for drawing."""
 REST_FRAMES = 15
 """Rest frames appended to predicted real-setting paths (the smoothing's padlen is 9)."""
-
-
-def _launch_model() -> _GPRegression:
-    return ExactGP()
-
-
-def _launch_probability_model() -> _GPRegression:
-    return ExactGP()
-
-
-def _sliding_model() -> _GPRegression:
-    return ExactGP()
-
-
-def _contact_model() -> _GPRegression:
-    return ExactGP()
-
-
-def _displacement_model() -> _GPRegression:
-    return ExactGP()
 
 
 # ============================================================================= geometry
@@ -259,7 +239,9 @@ class HockeyRewardModel:
     ----------
     task : Hockey
     make_launch_model : callable, optional
-        Returns an unfitted GP regression ω (15) → [p_y, v_x, v_y, t_0] at the launch line.
+        Each factory returns an unfitted :mod:`skillkit.models` GP regression (ExactGP, FITC,
+        VFE; default ``ExactGP()``). The launch model: ω (15) → [p_y, v_x, v_y, t_0] at the
+        launch line.
     make_launch_probability_model : callable, optional
         Returns an unfitted GP regression ω → ±1 (crossed or not).
     make_sliding_model : callable, optional
@@ -323,19 +305,16 @@ class HockeyRewardModel:
         if not isinstance(task, Hockey):
             raise ValueError(f"task: expected a Hockey task, got {type(task).__name__}")
         factories = {
-            "make_launch_model": (make_launch_model, _launch_model),
-            "make_launch_probability_model": (
-                make_launch_probability_model,
-                _launch_probability_model,
-            ),
-            "make_sliding_model": (make_sliding_model, _sliding_model),
-            "make_contact_model": (make_contact_model, _contact_model),
-            "make_displacement_model": (make_displacement_model, _displacement_model),
+            "make_launch_model": make_launch_model,
+            "make_launch_probability_model": make_launch_probability_model,
+            "make_sliding_model": make_sliding_model,
+            "make_contact_model": make_contact_model,
+            "make_displacement_model": make_displacement_model,
         }
-        for name, (f, default) in factories.items():
+        for name, f in factories.items():
             if f is not None and not callable(f):
                 raise ValueError(f"{name}: expected a callable, got {type(f).__name__}")
-            setattr(self, name, f or default)
+            setattr(self, name, f or ExactGP)
         self.task = task
         self.real = task.observation is not None if real is None else bool(real)
         if self.real and task.observation is None:
@@ -569,14 +548,9 @@ class HockeyRewardModel:
     # ------------------------------------------------------------------ predict
     def _draw(self, key: str, x: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """One draw y ~ N(μ(x), σ²(x)) of GP ``key`` (noisy observation), shape (n, E)."""
-        gp = self.models[key]
-        pred = gp.predictor
         if x.shape[0] == 0:
-            return np.zeros((0, pred.output_dim))
-        with torch.no_grad():
-            m = pred.moments(torch.as_tensor(x, dtype=pred.dtype, device=pred.device))
-        mean, var = m.mean.cpu().numpy(), m.var.cpu().numpy()
-        return mean + np.sqrt(np.maximum(var, 0.0)) * rng.standard_normal(mean.shape)
+            return np.zeros((0, self.models[key].predictor.output_dim))
+        return self.models[key].sample(x, 1, rng).reshape(x.shape[0], -1)
 
     def _slide(self, b: np.ndarray, moving: np.ndarray, rng) -> tuple[np.ndarray, np.ndarray]:
         """One sliding step of the rows ``moving`` of b = [p, v] (n, 4); stops slow pucks."""

@@ -255,11 +255,7 @@ class _ScoresGP:
 
     def sample(self, x, L: int, rng) -> np.ndarray:
         """Sampled outputs (B, L, D): scores ~ N(GP mean, GP var) independently."""
-        m, v = self.gp.predict(x)
-        m, v = m.reshape(x.shape[0], -1), v.reshape(x.shape[0], -1)
-        z = m[:, None] + np.sqrt(np.maximum(v, 0.0))[:, None] * rng.standard_normal(
-            (x.shape[0], L, m.shape[1])
-        )
+        z = self.gp.sample(x, L, rng).reshape(x.shape[0], L, -1)
         return self.mean + z @ self.components
 
     def mean_prediction(self, x) -> np.ndarray:
@@ -971,9 +967,5 @@ class TableTennisRewardModel:
 
 
 def _sample_gp(gp, x: np.ndarray, L: int, rng: np.random.Generator) -> np.ndarray:
-    """Samples (B, L, E) of a GP's predictive distribution N(mean, var) at x (B, d)."""
-    m, v = gp.predict(x)
-    m, v = m.reshape(x.shape[0], -1), v.reshape(x.shape[0], -1)
-    return m[:, None] + np.sqrt(np.maximum(v, 0.0))[:, None] * rng.standard_normal(
-        (x.shape[0], L, m.shape[1])
-    )
+    """Samples (B, L, E) of a GP's predictive distribution at x (B, d), 1-D targets too."""
+    return gp.sample(x, L, rng).reshape(x.shape[0], L, -1)

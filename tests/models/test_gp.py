@@ -321,3 +321,27 @@ def test_cuda_fit_matches_cpu():
         np.testing.assert_allclose(
             outs["cuda"][key], value, rtol=1e-8, atol=1e-8 * np.abs(value).max(), err_msg=key
         )
+
+
+def test_predictive_draws_have_the_predicted_moments():
+    """``sample``: independent draws whose mean and variance are ``predict``'s (Eqs 2.26–2.27),
+    1-D targets give (n, L), same generator state ⇒ same draws, L must be a count."""
+    rng = np.random.default_rng(0)
+    X = rng.uniform(-2, 2, size=(30, 2))
+    Y = np.column_stack([np.sin(X[:, 0]), X[:, 1] ** 2]) + 0.1 * rng.standard_normal((30, 2))
+    gp = ExactGP(n_steps=20).fit(X, Y, rng=0)
+    Xq = rng.uniform(-2, 2, size=(4, 2))
+    mean, var = gp.predict(Xq)
+    draws = gp.sample(Xq, 20000, np.random.default_rng(1))
+    assert draws.shape == (4, 20000, 2)
+    np.testing.assert_allclose(draws.mean(axis=1), mean, atol=5 * np.sqrt(var.max() / 20000))
+    np.testing.assert_allclose(draws.var(axis=1), var, rtol=0.05)
+    np.testing.assert_array_equal(
+        gp.sample(Xq, 3, np.random.default_rng(7)), gp.sample(Xq, 3, np.random.default_rng(7))
+    )
+    one = ExactGP(n_steps=20).fit(X, Y[:, 0], rng=0)
+    assert one.sample(Xq, 5, 0).shape == (4, 5)
+    latent = one.sample(Xq, 20000, 1, include_noise=False).var(axis=1)
+    np.testing.assert_allclose(latent, one.predict(Xq, include_noise=False)[1], rtol=0.05)
+    with pytest.raises(ValueError, match="n_samples"):
+        gp.sample(Xq, 0, 0)

@@ -38,6 +38,17 @@ EXPECTED_NODES = [
 ]
 
 
+def canvas(screenshot: np.ndarray) -> np.ndarray:
+    """The 3-D canvas away from the GUI panel (right), the notification (top left) and the
+    orientation gizmo (bottom left), as floats."""
+    return screenshot[170:490, :460].astype(float)
+
+
+def changed(a: np.ndarray, b: np.ndarray) -> float:
+    """Fraction of canvas pixels that differ by more than 8 in some channel."""
+    return float(np.any(np.abs(a - b) > 8, axis=-1).mean())
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -69,14 +80,11 @@ def test_hockey_scene_renders_in_headless_chromium(tmp_path):
     Image.fromarray(hidden).save(out / "browser_hockey_hidden.png")
 
     assert shown.shape == (560, 800, 3)
-    # The 3-D canvas away from the GUI panel (right), the notification (top left) and the
-    # orientation gizmo (bottom left).
-    canvas_shown = shown[170:490, :460].astype(float)
-    canvas_hidden = hidden[170:490, :460].astype(float)
+    canvas_shown, canvas_hidden = canvas(shown), canvas(hidden)
     # With every scene node hidden the canvas is blank (one background colour) ...
     assert canvas_hidden.std() < 2.0, f"hidden scene not blank: std {canvas_hidden.std():.2f}"
     # ... and with the scene shown it is not: a good part of it was drawn by our nodes.
-    drawn = np.any(np.abs(canvas_shown - canvas_hidden) > 8, axis=-1).mean()
+    drawn = changed(canvas_shown, canvas_hidden)
     assert drawn > 0.05, f"canvas looks blank: {drawn:.1%} of its pixels show the scene"
     assert canvas_shown.std() > 5.0
 
@@ -118,13 +126,10 @@ def test_gpreps_model_layers_render_in_headless_chromium(tmp_path):
     from PIL import Image
 
     Image.fromarray(shown).save(out / "browser_hockey_gpreps.png")
-    canvas = {
-        k: v[170:490, :460].astype(float)
-        for k, v in (("shown", shown), ("without", without), ("hidden", hidden))
-    }
-    assert canvas["hidden"].std() < 2.0
-    drawn = np.any(np.abs(canvas["shown"] - canvas["hidden"]) > 8, axis=-1).mean()
+    shown, without, hidden = canvas(shown), canvas(without), canvas(hidden)
+    assert hidden.std() < 2.0
+    drawn = changed(shown, hidden)
     assert drawn > 0.05, f"canvas looks blank: {drawn:.1%} of its pixels show the scene"
     # the model's layers themselves are on the canvas: switching them off changes pixels
-    predicted = np.any(np.abs(canvas["shown"] - canvas["without"]) > 8, axis=-1).mean()
+    predicted = changed(shown, without)
     assert predicted > 0.001, f"the model layers drew {predicted:.2%} of the canvas"

@@ -37,7 +37,7 @@ from scipy import stats
 from skillkit.experiments.ch3_hockey import HockeySettings, heldout_scores
 from skillkit.experiments.ch3_hockey import make_algorithm as hockey_algorithm
 from skillkit.experiments.ch3_table_tennis import TableTennisSettings, make_reps, shot_scores
-from skillkit.experiments.ch4_gpreps import _run_gpreps
+from skillkit.experiments.ch4_gpreps import _run_gpreps, gpreps_stats, rollouts_to_reach
 from skillkit.experiments.registry import Experiment, Series, Verdict, fmt, register, with_verdict
 from skillkit.experiments.settings import Settings, setting
 from skillkit.models.gp import ExactGP
@@ -316,28 +316,13 @@ def _final_stats(trials, key, names) -> dict:
 
 
 def _gpreps_stats(trials, key) -> dict:
-    rel = np.concatenate([t[f"{key}_relative_error"][1:] for t in trials])
-    out = {
-        "prediction_relative_error_median": float(np.nanmedian(rel)) if rel.size else None,
-        "time_per_update_s": {
-            part: float(np.mean(np.concatenate([t[f"{key}_time_{part}"] for t in trials])))
-            for part in ("training", "prediction", "policy")
-        },
-        "max_kl": float(max(np.max(t[f"{key}_kl"]) for t in trials)),
-    }
+    out = gpreps_stats(trials, key)
     stages = [list(t[f"{key}_stage"]) for t in trials]
     if any(s and s[-1] for s in stages):
         out["switched_to_returning_at_update"] = [
             (s.index("returning") + 1) if "returning" in s else None for s in stages
         ]
     return out
-
-
-def _rollouts_to_reach(trials, key, name, level, higher_is_better=True) -> float | None:
-    x = np.asarray(trials[0][f"{key}_heldout_rollouts"], dtype=float)
-    m = np.nanmean([t[f"{key}_heldout_{name}"] for t in trials], axis=0)
-    hit = np.flatnonzero(m >= level if higher_is_better else m <= level)
-    return float(x[hit[0]]) if hit.size else None
 
 
 HOCKEY_SCORES = ("reward", "hit_rate", "displacement_error")
@@ -358,8 +343,8 @@ def summarize_410(st: HockeyGPREPSSettings, trials: list[dict]):
         summary[key] = _final_stats(trials, key, HOCKEY_SCORES)
     summary["gpreps"].update(_gpreps_stats(trials, "gpreps"))
     if st.reps_updates:
-        summary["reps_rollouts_to_gpreps_final_reward"] = _rollouts_to_reach(
-            trials, "reps", "reward", summary["gpreps"]["final_reward"]
+        summary["reps_rollouts_to_gpreps_final_reward"] = rollouts_to_reach(
+            trials, "reps", summary["gpreps"]["final_reward"], "heldout_reward", "heldout_rollouts"
         )
     summary["setup"] = _hockey_setup(st)
     summary["viewer"] = VIEWER_NOTE
@@ -540,8 +525,8 @@ def summarize_412(st: TableTennisGPREPSSettings, trials: list[dict]):
         summary[key] = _final_stats(trials, key, TT_SCORES)
     for key in ("gpreps", "direct"):
         summary[key].update(_gpreps_stats(trials, key))
-    summary["reps_rollouts_to_gpreps_final_reward"] = _rollouts_to_reach(
-        trials, "reps", "reward", summary["gpreps"]["final_reward"]
+    summary["reps_rollouts_to_gpreps_final_reward"] = rollouts_to_reach(
+        trials, "reps", summary["gpreps"]["final_reward"], "heldout_reward", "heldout_rollouts"
     )
     summary["setup"] = TT_SETUP
     summary["viewer"] = VIEWER_NOTE

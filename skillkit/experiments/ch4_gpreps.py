@@ -320,30 +320,35 @@ def _method_summary(trials, key) -> dict:
         "final_distance_max_m": float(np.nanmax(dist)) if np.isfinite(dist).any() else None,
     }
     if f"{key}_relative_error" in trials[0]:
-        rel = np.concatenate([t[f"{key}_relative_error"][1:] for t in trials])
-        times = {
-            part: float(np.mean(np.concatenate([t[f"{key}_time_{part}"] for t in trials])))
-            for part in ("training", "prediction", "policy")
-        }
-        out.update(
-            {
-                "prediction_relative_error_median": float(np.nanmedian(rel)) if rel.size else None,
-                "prediction_relative_error_below_10pct": (
-                    float(np.nanmean(rel < 0.1)) if rel.size else None
-                ),
-                "time_per_update_s": times,
-                "max_kl": float(max(np.max(t[f"{key}_kl"]) for t in trials)),
-            }
-        )
+        out.update(gpreps_stats(trials, key))
     return out
 
 
-def _reps_rollouts_to_reach(trials, key, level: float) -> float | None:
-    """Rollouts after which REPS's mean curve (over trials) first reaches ``level``."""
-    x = np.asarray(trials[0][f"{key}_rollouts"], dtype=float)
-    m = np.mean([t[f"{key}_mean_reward"] for t in trials], axis=0)
+def gpreps_stats(trials, key) -> dict:
+    """What a GPREPS run's trials say about its model and cost: the model's relative error
+    on the next real rollout (median, and the fraction below 10%), the mean seconds per
+    update in training, prediction and the policy update, and the largest KL."""
+    rel = np.concatenate([t[f"{key}_relative_error"][1:] for t in trials])
+    return {
+        "prediction_relative_error_median": float(np.nanmedian(rel)) if rel.size else None,
+        "prediction_relative_error_below_10pct": float(np.nanmean(rel < 0.1)) if rel.size else None,
+        "time_per_update_s": {
+            part: float(np.mean(np.concatenate([t[f"{key}_time_{part}"] for t in trials])))
+            for part in ("training", "prediction", "policy")
+        },
+        "max_kl": float(max(np.max(t[f"{key}_kl"]) for t in trials)),
+    }
+
+
+def rollouts_to_reach(
+    trials, key, level: float, curve: str = "mean_reward", x: str = "rollouts"
+) -> float | None:
+    """Rollouts after which run ``key``'s curve ``f"{key}_{curve}"`` (mean over trials, NaN
+    ignored) first reaches ``level``, read off ``f"{key}_{x}"``; None if it never does."""
+    at = np.asarray(trials[0][f"{key}_{x}"], dtype=float)
+    m = np.nanmean([t[f"{key}_{curve}"] for t in trials], axis=0)
     hit = np.flatnonzero(m >= level)
-    return float(x[hit[0]]) if hit.size else None
+    return float(at[hit[0]]) if hit.size else None
 
 
 # --------------------------------------------------------------------------- fig4.6
@@ -368,7 +373,7 @@ def summarize_46(st: GPREPSThrowingSettings, trials: list[dict]):
     summary: dict = {"n_trials": len(trials), "thesis": dict(THESIS_46)}
     for key in keys:
         summary[key] = _method_summary(trials, key)
-    summary["reps_rollouts_to_gpreps_final"] = _reps_rollouts_to_reach(
+    summary["reps_rollouts_to_gpreps_final"] = rollouts_to_reach(
         trials, "reps", summary["gpreps"]["final_reward_mean"]
     )
     summary["setup"] = SETUP_TABLE

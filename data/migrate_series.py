@@ -56,6 +56,7 @@ TRIAL_BANDS: dict[str, dict[str, str]] = {
     "fig4.10": {"learning curves": "std", "held-out displacement error": "std"},
     "fig4.11": {"learning curve": "ci95", "held-out displacement error": "ci95"},
     "fig4.12": {"learning curves": "std", "held-out landing error": "std"},
+    "tab4.2": {"cost of the current controller": "gstd"},
     "fig5.6": {"reward prediction error": "std"},
     "fig5.7": {"reward prediction error": "std"},
 }

@@ -26,9 +26,10 @@ noise is part of the stochastic dynamics the GP has to capture.
   same ω (the balancing reward −Σ_t x̃_tᵀ x̃_t of Sec. 4.2.3). Initial states are "around
   the upright position" (``initial_std`` 0.1 rad, rad/s).
 
-All three draw the controllers ω from the task's initial policy but keep only those that
-balance robustly (:func:`~skillkit.tasks.balancing.stable_gains`: the linearised closed loop
-has spectral radius ≤ 0.98; about a quarter of the raw samples are unstable).
+All three draw the controllers ω from N(vec G_lqr, (1% |G_lqr|)²) (:data:`DATA_EXPLORATION`, the
+task's initial policy until issue #15 narrowed its exploration to 0.2%) but keep only those
+that balance robustly (:func:`~skillkit.tasks.balancing.stable_gains`: the linearised closed
+loop has spectral radius ≤ 0.98; about a quarter of the raw samples are unstable).
 """
 
 from __future__ import annotations
@@ -57,6 +58,15 @@ from skillkit.tasks.balancing import (
 from skillkit.trial import TrialContext
 
 __all__ = ["gaussian_fit", "time_predictions"]
+
+DATA_EXPLORATION = 0.01
+"""Exploration of the data controllers: σ = 1% of |G_lqr| (R = 1e-4) entry-wise, kept from
+before issue #15 so that the stored results stay valid; issue #16 replaces these controllers
+with the thesis's PD controllers."""
+
+
+def _data_policy(task: Balancing):
+    return task.lqr_policy(exploration_std_fraction=DATA_EXPLORATION)
 
 
 def gaussian_fit(samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -164,7 +174,9 @@ def _train_balancing_model(
 ) -> tuple[Balancing, ForwardModel, dict]:
     T = settings.horizon
     task = make("balancing", n_steps=T, torque_noise_std=settings.torque_noise_std)
-    data = collect_balancing(task, max(1, int(np.ceil(settings.n_data / T))), rng)
+    data = collect_balancing(
+        task, max(1, int(np.ceil(settings.n_data / T))), rng, policy=_data_policy(task)
+    )
     model = _model("sparse", len(data["x"]), settings, n_inducing=settings.n_pseudo)
     model.fit(data["x"], data["u"], data["x_next"], rng=rng)
     return task, model, data
@@ -186,7 +198,7 @@ def _run_4_3(
             "model": model,
             "m0": X_UP + task.initial_std * rng.standard_normal((B, 8)),
             "sigma0": np.exp(rng.uniform(lo, hi, B)),
-            "G": stable_gains(task, B, rng).reshape(B, 4, 8),
+            "G": stable_gains(task, B, rng, policy=_data_policy(task)).reshape(B, 4, 8),
             "kl_mm": np.full((B, T), np.nan),
             "kl_samples": np.full((B, len(sizes), T), np.nan),
             "done": 0,
@@ -429,7 +441,7 @@ def _run_4_4(settings: ComputeTimeSettings, rng: np.random.Generator, trial: Tri
     task, model, data = _train_balancing_model(settings, rng)
     trial.update()
     m0 = X_UP + task.initial_std * rng.standard_normal(8)
-    G = stable_gains(task, 1, rng)[0].reshape(4, 8)
+    G = stable_gains(task, 1, rng, policy=_data_policy(task))[0].reshape(4, 8)
     out = time_predictions(
         model,
         m0,
@@ -621,10 +633,16 @@ def _evaluate_4_5(cfg: dict, settings: RewardErrorSettings, root: int) -> dict:
         torque_noise_std=cfg["torque_noise_std"],
         initial_std=settings.initial_std,
     )
+    policy = _data_policy(task)
     train = collect_balancing(
-        task, cfg["n_train"], _seed(root, 1, cfg["torque_noise_std"], cfg["n_train"])
+        task,
+        cfg["n_train"],
+        _seed(root, 1, cfg["torque_noise_std"], cfg["n_train"]),
+        policy=policy,
     )
-    test = collect_balancing(task, settings.n_pairs, _seed(root, 2, cfg["torque_noise_std"]))
+    test = collect_balancing(
+        task, settings.n_pairs, _seed(root, 2, cfg["torque_noise_std"]), policy=policy
+    )
     G = test["omegas"].reshape(-1, 4, 8)
     x0 = np.array([t.states[0] for t in test["trajectories"]])
     real = np.array([task.reward(t) for t in test["trajectories"]])

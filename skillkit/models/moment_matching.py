@@ -49,7 +49,7 @@ from skillkit._repr import span, vector
 from skillkit._validation import check_array
 from skillkit.models.gp import DTYPE, VARIANCE_TOL, ForwardModel, GPNumericalWarning, GPPredictor
 
-__all__ = ["GaussianPrediction", "linearize", "moment_match", "propagate"]
+__all__ = ["GaussianPrediction", "linearize", "moment_match", "propagate", "with_linear_mean"]
 
 
 @dataclass
@@ -124,8 +124,25 @@ def moment_match(
         In raw target units.
     """
     pred = predictor.to("cpu", DTYPE)
+    m, S = _check_gaussian(mean, cov, pred.support.shape[-1])
+    return _moment_match(pred, m, S, include_noise)
+
+
+def _moment_match(
+    pred: GPPredictor,
+    m: torch.Tensor,
+    S: torch.Tensor,
+    include_noise: bool = True,
+    strict: bool = False,
+) -> GaussianPrediction:
+    """:func:`moment_match` without input checks, differentiable in ``m`` and ``S`` (torch
+    autograd): the step PILCO's policy gradient differentiates through. ``pred`` is a CPU
+    float64 predictor, ``m`` (D,), ``S`` (D, D) symmetric.
+
+    ``strict``: an expected latent variance negative beyond round-off (float64 cancellation
+    for input covariances far larger than the length-scales) makes the whole prediction NaN
+    instead of being clamped and reported, so an optimiser can never profit from it."""
     E, M, D = pred.support.shape
-    m, S = _check_gaussian(mean, cov, D)
     iL = 1.0 / pred.lengthscale  # (E, D)
     sf2 = pred.outputscale
     eye = torch.eye(D, dtype=DTYPE)
@@ -170,7 +187,11 @@ def moment_match(
         second[a, a:] = vals
         second[a:, a] = vals
         latent_var[a] = sf2[a] - (pred.iK[a] * Q[0]).sum()
-    _report_clamp(latent_var / sf2, "moment_match")
+    if strict and float((latent_var / sf2).detach().min()) < -VARIANCE_TOL:
+        nan = torch.full((), float("nan"), dtype=DTYPE)
+        mu, second, latent_var = mu + nan, second + nan, latent_var + nan
+    else:
+        _report_clamp(latent_var / sf2, "moment_match")
     V = second - mu[:, None] * mu[None, :]
     V = V + torch.diag(latent_var.clamp_min(0.0) + (pred.noise if include_noise else 0.0))
     V = 0.5 * (V + V.T)
@@ -200,7 +221,7 @@ def linearize(predictor: GPPredictor, mean, cov, include_noise: bool = True) -> 
 
 
 def _report_clamp(rel: torch.Tensor, where: str) -> None:
-    worst = float(rel.min())
+    worst = float(rel.detach().min())
     if worst < -VARIANCE_TOL:
         warnings.warn(
             f"{where}: an expected latent variance was negative ({worst:.2e} x sigma_f^2, beyond "
@@ -264,7 +285,7 @@ def propagate(
             A = torch.cat([eye, K[t]], dim=0)  # z = A x + [0; k_t]
             mz = A @ m + torch.cat([torch.zeros(n_x, dtype=DTYPE), k[t]])
             Sz = A @ S @ A.T
-            g = step(predictor, mz, 0.5 * (Sz + Sz.T))
+            g = with_linear_mean(model, step(predictor, mz, 0.5 * (Sz + Sz.T)), mz, Sz)
             if model.delta:
                 cx = g.input_output_cov[:n_x]  # cov(x_t, Δ)
                 m = m + g.mean
@@ -274,6 +295,24 @@ def propagate(
             S = 0.5 * (S + S.T)
             means[t + 1], covs[t + 1] = m, S
     return means, covs
+
+
+def with_linear_mean(
+    model: ForwardModel, g: GaussianPrediction, mean: torch.Tensor, cov: torch.Tensor
+) -> GaussianPrediction:
+    """The prediction of a ``mean="linear"`` forward model's target y = Wᵀ z + b + f(z) from
+    that of its GP f at z ~ N(m, S) (``g``, moment matching or linearisation); exact:
+
+    E[y] = Wᵀ m + b + E[f], cov(y) = Wᵀ S W + cov(f) + Wᵀ C + Cᵀ W, cov(z, y) = S W + C,
+    with C = cov(z, f). A zero-mean model's ``g`` is returned as it is.
+    """
+    if model.linear_weights is None:
+        return g
+    w = model.linear_weights.to("cpu", DTYPE)
+    W = w[:-1]
+    c = g.input_output_cov
+    cov_y = W.T @ cov @ W + g.cov + W.T @ c + c.T @ W
+    return GaussianPrediction(mean @ W + w[-1] + g.mean, 0.5 * (cov_y + cov_y.T), cov @ W + c)
 
 
 def _per_step(value, name: str, shape: tuple[int, ...], T: int) -> torch.Tensor:

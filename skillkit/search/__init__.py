@@ -1,4 +1,4 @@
-"""Policy search: REPS (episode-based and contextual), GPREPS, CrKR, RWR and the learning loop.
+"""Policy search: REPS (episode-based, contextual), GPREPS, PILCO, CrKR, RWR and the learning loop.
 
 Every algorithm holds a current ``policy`` (with ``sample(contexts, rng)`` and
 ``mean_of(contexts)``) and an ``update(batch)`` taking one :class:`Batch` and returning
@@ -20,6 +20,7 @@ from skillkit.search.gpreps import (
 )
 from skillkit.search.hockey_model import HockeyPrediction, HockeyRewardModel
 from skillkit.search.loop import Evaluator, LoopState, collect, learn
+from skillkit.search.pilco import PILCO, PILCODiagnostics, PILCOSettings
 from skillkit.search.reps import (
     ContextualREPS,
     REPSDiagnostics,
@@ -47,6 +48,9 @@ __all__ = [
     "HockeyPrediction",
     "HockeyRewardModel",
     "KnownRewardModel",
+    "PILCO",
+    "PILCODiagnostics",
+    "PILCOSettings",
     "REPSDiagnostics",
     "RewardModel",
     "TableTennisPrediction",

@@ -205,6 +205,9 @@ class TrajectoryRewardModel:
         T, predicted transitions per trajectory (default: that of the first real trajectory).
     warm_start : bool
         Start each GP refit at the previous hyper-parameters.
+    prior_trajectories : sequence of Trajectory, optional
+        Real experience collected before the search (e.g. the random-policy rollouts that
+        start the models of Sec. 4.3.1); every fit learns their transitions too.
     device : str or torch.device, optional
         Where trajectories are sampled. The forward model is trained on its own GP's
         ``device`` (e.g. a ``make_model`` returning
@@ -219,6 +222,7 @@ class TrajectoryRewardModel:
         horizon: int | None = None,
         warm_start: bool = True,
         device=None,
+        prior_trajectories: Sequence[Trajectory] = (),
     ):
         if not isinstance(task, Task):
             raise ValueError(f"task: expected a Task, got {type(task).__name__}")
@@ -236,12 +240,16 @@ class TrajectoryRewardModel:
         self.horizon = None if horizon is None else int(horizon)
         self.warm_start = bool(warm_start)
         self.device = device
+        self.prior_trajectories = list(prior_trajectories)
+        if not all(isinstance(t, Trajectory) for t in self.prior_trajectories):
+            raise ValueError("prior_trajectories: expected a sequence of Trajectory objects")
         self.model: Any = None
         self.hyperparameters: dict[str, np.ndarray] | None = None
         self.n_data = 0
 
     def fit(self, contexts, omegas, rewards, trajectories, rng=None) -> dict[str, Any]:
-        """Fit a fresh forward model on the transitions of the non-failed ``trajectories``.
+        """Fit a fresh forward model on the transitions of the non-failed ``trajectories``
+        and of the ``prior_trajectories``.
 
         Returns
         -------
@@ -251,7 +259,7 @@ class TrajectoryRewardModel:
         """
         if trajectories is None:
             raise ValueError("trajectories: a TrajectoryRewardModel learns from trajectories")
-        ok = [t for t in trajectories if not t.failed]
+        ok = [t for t in [*self.prior_trajectories, *trajectories] if not t.failed]
         if not ok:
             raise ValueError("trajectories: every trajectory failed; nothing to learn from")
         if self.horizon is None:

@@ -140,10 +140,15 @@ class Evaluator:
 
     @classmethod
     def draw(
-        cls, task: Task, rng: np.random.Generator, contexts: ArrayLike | None = None
+        cls,
+        task: Task,
+        rng: np.random.Generator,
+        contexts: ArrayLike | None = None,
+        seed: int | None = None,
     ) -> Evaluator:
         """An evaluator on ``contexts`` (default: :data:`N_EVAL_CONTEXTS` contexts drawn from
-        ``rng``), with its seed drawn from ``rng`` after them.
+        ``rng``), with its seed drawn from ``rng`` after them; a given ``seed`` replaces the
+        drawn one (the draw still happens, so ``rng``'s later stream is the same).
 
         Raises
         ------
@@ -160,7 +165,10 @@ class Evaluator:
                     f"got {eval_s.shape}"
                 )
             eval_s = np.stack([task.check_context(s, "eval_contexts") for s in eval_s])
-        return cls(task, eval_s, int(rng.integers(2**63)))
+        drawn = int(rng.integers(2**63))
+        if seed is not None and (not isinstance(seed, (int, np.integer)) or seed < 0):
+            raise ValueError(f"eval_seed: expected a non-negative integer, got {seed!r}")
+        return cls(task, eval_s, drawn if seed is None else int(seed))
 
     def __call__(self, policy: SearchPolicy) -> float:
         """Mean of R(τ, s) over the contexts s for ω = the policy mean at s."""
@@ -291,6 +299,7 @@ def learn(
     callback: Callback | None = None,
     checkpoint_key: str = "learn",
     initial_rollouts: int | None = None,
+    eval_seed: int | None = None,
 ) -> dict:
     """Run model-free policy search on a task (Table 3.1).
 
@@ -332,6 +341,10 @@ def learn(
     initial_rollouts : int, optional
         N₀ ≥ 1, the rollouts of the first batch (GPREPS starts its model from N₀ rollouts, then
         collects N per update, Table 4.1); default N, every batch the same size.
+    eval_seed : int, optional
+        Seed of the :class:`Evaluator`'s stream (default: drawn from ``rng``). Give several
+        runs the same seed (and contexts) to evaluate them on the same noise, e.g. the same
+        start states of a context-free task.
 
     Returns
     -------
@@ -357,7 +370,7 @@ def learn(
     rng = as_generator(rng)
 
     # Set up: the evaluator's draws come first on every run, resumed or not.
-    evaluator = Evaluator.draw(task, rng, eval_contexts)
+    evaluator = Evaluator.draw(task, rng, eval_contexts, eval_seed)
     state = None if trial is None else trial.resume(checkpoint_key, rng)
     if state is None:
         state = LoopState(algorithm, evaluator.contexts, evaluator.seed)

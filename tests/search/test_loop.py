@@ -59,6 +59,15 @@ class Bowl(Task):
         return GaussianPolicy(np.zeros(2), np.eye(2))
 
 
+class NoisyBowl(Bowl):
+    """Bowl with a noisy outcome: the trajectory is ω plus noise from the rollout's stream."""
+
+    name = "noisy-bowl"
+
+    def _simulate(self, omega, context, rng):
+        return Trajectory(np.zeros(1), (omega + rng.standard_normal(2))[None, :], np.zeros((1, 0)))
+
+
 class Recorder:
     """A fake algorithm: fixed policy, records what update receives."""
 
@@ -223,6 +232,27 @@ def test_evaluator_uses_common_random_numbers():
     assert ev(pol) == pytest.approx(expected)
     with pytest.raises(ValueError, match="eval_contexts"):
         Evaluator.draw(task, rng, np.zeros((0, 2)))
+    # A given seed replaces the drawn one, and the stream advances as without it.
+    a, b = np.random.default_rng(5), np.random.default_rng(5)
+    fixed = Evaluator.draw(task, a, seed=123)
+    drawn = Evaluator.draw(task, b)
+    assert fixed.seed == 123 and drawn.seed != 123
+    np.testing.assert_array_equal(fixed.contexts, drawn.contexts)
+    assert a.integers(2**63) == b.integers(2**63)
+    with pytest.raises(ValueError, match="eval_seed"):
+        Evaluator.draw(task, rng, seed=-1)
+
+
+def test_runs_with_one_eval_seed_are_evaluated_on_the_same_noise():
+    """Two context-free runs with different learning streams and one ``eval_seed`` score the
+    same initial policy identically; without it, they draw different evaluation noise."""
+    task = NoisyBowl()
+    same = [learn(task, _reps(task), 1, 20, s, progress=False, eval_contexts=np.zeros((4, 0)),
+                  eval_seed=7)["mean_reward"][0] for s in (1, 2)]  # fmt: skip
+    assert same[0] == same[1]
+    own = [learn(task, _reps(task), 1, 20, s, progress=False,
+                 eval_contexts=np.zeros((4, 0)))["mean_reward"][0] for s in (1, 2)]  # fmt: skip
+    assert own[0] != own[1]
 
 
 def _reps(task):

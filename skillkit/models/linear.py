@@ -1,0 +1,123 @@
+"""A linear-Gaussian forward model: x_{t+1} = A x_t + B u_t + c + w, w ~ N(0, Σ_w).
+
+The parametric counterpart of :class:`~skillkit.models.gp.ForwardModel` (the LWBR side of
+Sec. 4.2's comparison, without the locality): least squares on [x, u, 1] and the residual
+covariance. It serves the samplers of GPREPS (:meth:`LinearGaussianModel.next_state_moments`)
+and PILCO, for which the propagation of a Gaussian state under a linear controller is exact
+(:meth:`LinearGaussianModel.moment_step`). Table 4.2's experiment uses it to separate what the
+search methods do from what the GP models predict.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from skillkit._validation import check_array
+from skillkit.models.gp import DTYPE, Moments
+
+__all__ = ["LinearGaussianModel"]
+
+
+class LinearGaussianModel:
+    """x' = A x + B u + c + w, fitted by least squares; w ~ N(0, Σ_w) from the residuals.
+
+    ``target="delta"`` regresses x' − x (then A here is I + the fitted matrix), ``"next"``
+    regresses x'; the fitted dynamics are the same up to rounding.
+
+    Parameters
+    ----------
+    target : {"delta", "next"}
+    ridge : float
+        Ridge λ ≥ 0 on the coefficients of [x, u] (not the offset), relative to the mean
+        squared input.
+    """
+
+    def __init__(self, target: str = "delta", ridge: float = 1e-9):
+        if target not in ("delta", "next"):
+            raise ValueError(f"target: expected 'delta' or 'next', got {target!r}")
+        if not np.isfinite(ridge) or ridge < 0:
+            raise ValueError(f"ridge: expected a finite number >= 0, got {ridge!r}")
+        self.target = target
+        self.ridge = float(ridge)
+        self.dtype = DTYPE
+        self.state_dim = 0
+        self.control_dim = 0
+        self.A: np.ndarray | None = None
+        self.B: np.ndarray | None = None
+        self.c: np.ndarray | None = None
+        self.noise_cov: np.ndarray | None = None
+
+    def fit(self, states, controls, next_states, rng=None) -> LinearGaussianModel:
+        """Least squares on transitions (x_t, u_t) → x_{t+1}; ``rng`` is unused.
+
+        Parameters
+        ----------
+        states : array_like, shape (N, n_x)
+        controls : array_like, shape (N, n_u)
+        next_states : array_like, shape (N, n_x)
+        """
+        x = check_array(states, "states", ndim=2)
+        u = check_array(controls, "controls", shape=(x.shape[0], None))
+        xn = check_array(next_states, "next_states", shape=x.shape)
+        n_x, n_u = x.shape[1], u.shape[1]
+        if x.shape[0] < n_x + n_u + 1:
+            raise ValueError(
+                f"states: expected at least {n_x + n_u + 1} transitions for {n_x + n_u + 1} "
+                f"coefficients per output, got {x.shape[0]}"
+            )
+        z1 = np.hstack([x, u, np.ones((x.shape[0], 1))])
+        y = xn - x if self.target == "delta" else xn
+        reg = self.ridge * np.mean(z1[:, :-1] ** 2) * np.diag([1.0] * (n_x + n_u) + [0.0])
+        w = np.linalg.solve(z1.T @ z1 + reg, z1.T @ y)  # (D + 1, n_x)
+        res = y - z1 @ w
+        self.state_dim, self.control_dim = n_x, n_u
+        self.A = w[:n_x].T + (np.eye(n_x) if self.target == "delta" else 0.0)
+        self.B = w[n_x : n_x + n_u].T
+        self.c = w[-1]
+        self.noise_cov = res.T @ res / max(x.shape[0] - n_x - n_u - 1, 1)
+        return self
+
+    def _check_fitted(self) -> None:
+        if self.A is None:
+            raise RuntimeError("LinearGaussianModel: call fit() first")
+
+    def to(self, device=None, dtype: torch.dtype | None = None) -> LinearGaussianModel:
+        """Itself, with predictions in ``dtype`` (the arrays are converted per call)."""
+        self.dtype = DTYPE if dtype is None else dtype
+        return self
+
+    def next_state_moments(self, x: torch.Tensor, u: torch.Tensor) -> Moments:
+        """Per-dimension Gaussian p(x_{t+1} | x_t, u_t): mean A x + B u + c, variance
+        diag Σ_w (the sampler draws independent dimensions, as it does for GP models).
+
+        Parameters
+        ----------
+        x : Tensor, shape (n, n_x)
+        u : Tensor, shape (n, n_u)
+        """
+        self._check_fitted()
+        kw = {"dtype": x.dtype, "device": x.device}
+        A, B, c = (torch.as_tensor(a, **kw) for a in (self.A, self.B, self.c))
+        mean = x @ A.T + u @ B.T + c
+        var = torch.as_tensor(np.diag(self.noise_cov).copy(), **kw).expand_as(mean)
+        return Moments(
+            mean, var, torch.zeros((), dtype=torch.int64, device=x.device), torch.zeros((), **kw)
+        )
+
+    def moment_step(self, mean_z: torch.Tensor, cov_z: torch.Tensor):
+        """Exact p(x') for z = [x, u] ~ N(m, S): ([A B] m + c, [A B] S [A B]ᵀ + Σ_w)."""
+        self._check_fitted()
+        F = torch.as_tensor(np.hstack([self.A, self.B]), dtype=DTYPE)
+        c = torch.as_tensor(self.c, dtype=DTYPE)
+        return F @ mean_z + c, F @ cov_z @ F.T + torch.as_tensor(self.noise_cov, dtype=DTYPE)
+
+    def __repr__(self) -> str:
+        if self.A is None:
+            return f"LinearGaussianModel(target={self.target!r}, unfitted)"
+        rho = float(np.abs(np.linalg.eigvals(self.A)).max())
+        return (
+            f"LinearGaussianModel(state_dim={self.state_dim}, control_dim={self.control_dim}, "
+            f"spectral radius of A {rho:.3g}, noise std max "
+            f"{float(np.sqrt(np.diag(self.noise_cov).max())):.3g})"
+        )

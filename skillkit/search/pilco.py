@@ -1,0 +1,562 @@
+r"""PILCO (Deisenroth & Rasmussen 2011), the model-based baseline of Table 4.2 (Sec. 4.3.1).
+
+PILCO learns one deterministic lower-level controller, here the linear PD feedback of the
+balancing task u = G (x − x_up) (ω = vec G, row-major, 4 × 8), by gradient ascent on the
+return its GP forward model predicts. Each :meth:`PILCO.update` runs, top to bottom:
+
+1. **Learn the model.** A sparse GP (FITC, Sec. 4.2) of the dynamics, by default of
+   Δx = x_{t+1} − x_t (PILCO's target), fitted on every real transition so far
+   (:class:`~skillkit.search.gpreps.TrajectoryRewardModel`'s fit, so GPREPS and PILCO learn
+   their models the same way).
+2. **Predict.** p(x_0) = N(m_0, S_0) (the task's start distribution) is propagated over the
+   horizon by exact moment matching (Sec. 2.1.2, :func:`~skillkit.models.moment_matching.
+   moment_match`): because the controller is linear, z_t = [x_t; u_t] is Gaussian with
+   mean [m_t; G d_t] and covariance [[S_t, S_t Gᵀ], [G S_t, G S_t Gᵀ]], d_t = m_t − x_up.
+3. **Expected return** in closed form from the moments (:func:`expected_return`):
+
+   .. math:: J(G) = -\sum_{t=1}^{T} \mathbb{E}\big[\tilde x_t^\top Q \tilde x_t
+             + r_u u_t^\top u_t\big]
+             = -\sum_{t=1}^{T} \mathrm{tr}(Q S_t) + d_t^\top Q d_t
+             + r_u\big(\mathrm{tr}(G S_t G^\top) + \lVert G d_t\rVert^2\big),
+
+   the expectation of the task's reward R(τ) (:meth:`~skillkit.tasks.balancing.Balancing.
+   reward_batch`) under the predicted marginals.
+4. **Optimise.** ∂J/∂G through the whole propagation by torch autograd (float64), L-BFGS-B
+   (scipy) from the current gain; only completed L-BFGS iterates are accepted.
+5. **Apply.** The next real rollout uses the new G (the learning loop does it).
+
+The first real rollouts come from ``initial_policy``, a Gaussian over gains (the "random
+policy" of Sec. 4.3.1's 6 s of initial experience); from the first update on the policy is
+the deterministic G (:class:`DeterministicPolicy`), and its starting point is that Gaussian's
+mean.
+
+**Torque limits.** The balancing robot's actuators are unlimited (the MuJoCo model sets no
+``ctrlrange``), so the controller is not squashed. PILCO's sine squashing of the controller
+(which keeps z Gaussian-propagable) is not implemented; on a task with torque limits this PILCO
+would optimise an unsquashed controller the simulator then clips.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import scipy.optimize
+import torch
+
+from skillkit._repr import number
+from skillkit._validation import as_generator, check_array, check_count, check_positive
+from skillkit.models.gp import DTYPE, ForwardModel
+from skillkit.models.moment_matching import _moment_match, with_linear_mean
+from skillkit.policies.gaussian import GaussianPolicy
+from skillkit.search.base import Batch, as_batch
+from skillkit.search.gpreps import TrajectoryRewardModel
+
+__all__ = [
+    "DeterministicPolicy",
+    "PILCO",
+    "PILCODiagnostics",
+    "PILCOSettings",
+    "expected_return",
+    "gp_moment_step",
+    "linear_gaussian_step",
+    "model_moment_step",
+    "optimize_gain",
+]
+
+#: ``step(mean_z (D,), cov_z (D, D)) -> (mean_x' (n,), cov_x' (n, n))``: one transition of a
+#: Gaussian state–control distribution, differentiable (torch float64).
+MomentStep = Callable[[torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor]]
+
+
+def _sym(S: torch.Tensor) -> torch.Tensor:
+    return 0.5 * (S + S.T)
+
+
+# --------------------------------------------------------------------------- dynamics steps
+def model_moment_step(model) -> MomentStep:
+    """The Gaussian transition of a fitted forward model: moment matching for a GP
+    :class:`~skillkit.models.gp.ForwardModel` (:func:`gp_moment_step`), the exact step of a
+    :class:`~skillkit.models.linear.LinearGaussianModel`."""
+    from skillkit.models.linear import LinearGaussianModel
+
+    if isinstance(model, LinearGaussianModel):
+        model._check_fitted()
+        return model.moment_step
+    return gp_moment_step(model)
+
+
+def gp_moment_step(model: ForwardModel) -> MomentStep:
+    """The moment-matching transition of a fitted GP forward model (Sec. 2.1.2).
+
+    With the Δx model x' = x + Δ: mean m_x + E[Δ], covariance S_x + cov(Δ) + C + Cᵀ with
+    C = cov(x, Δ) the state rows of the input–output covariance; with the x' model the
+    prediction itself. A ``mean="linear"`` model's linear part is added exactly
+    (:func:`~skillkit.models.moment_matching.with_linear_mean`). A step whose expected latent
+    variance is negative beyond round-off (cancellation at huge state covariances) returns
+    NaN, which :func:`optimize_gain` treats as a failed evaluation.
+
+    Parameters
+    ----------
+    model : ForwardModel
+        Fitted, SE kernel (exact or sparse GP).
+
+    Returns
+    -------
+    MomentStep
+    """
+    if not isinstance(model, ForwardModel):
+        raise ValueError(f"model: expected a fitted ForwardModel, got {type(model).__name__}")
+    pred = model.predictor.to("cpu", DTYPE)
+    n_x, delta = model.state_dim, model.delta
+
+    def step(mean_z: torch.Tensor, cov_z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        g = _moment_match(pred, mean_z, cov_z, strict=True)
+        g = with_linear_mean(model, g, mean_z, cov_z)
+        if not delta:
+            return g.mean, g.cov
+        c = g.input_output_cov[:n_x]
+        return mean_z[:n_x] + g.mean, cov_z[:n_x, :n_x] + g.cov + c + c.T
+
+    return step
+
+
+def linear_gaussian_step(A, B, noise_cov) -> MomentStep:
+    """The exact transition of x' = A x + B u + w, w ~ N(0, Σ_w): moment matching is exact.
+
+    Parameters
+    ----------
+    A : array_like, shape (n, n)
+    B : array_like, shape (n, m)
+    noise_cov : array_like, shape (n, n)
+        Σ_w, symmetric positive semi-definite.
+
+    Returns
+    -------
+    MomentStep
+        mean [A B] m_z, covariance [A B] S_z [A B]ᵀ + Σ_w.
+    """
+    a = check_array(A, "A", ndim=2)
+    if a.shape[0] != a.shape[1]:
+        raise ValueError(f"A: expected a square matrix, got shape {a.shape}")
+    b = check_array(B, "B", shape=(a.shape[0], None))
+    w = check_array(noise_cov, "noise_cov", shape=a.shape)
+    if np.abs(w - w.T).max() > 1e-12 * (1.0 + np.abs(w).max()):
+        raise ValueError("noise_cov: expected a symmetric matrix")
+    if np.linalg.eigvalsh(w).min() < -1e-12 * (1.0 + np.abs(w).max()):
+        raise ValueError("noise_cov: expected a positive semi-definite matrix")
+    F = torch.as_tensor(np.hstack([a, b]), dtype=DTYPE)
+    W = torch.as_tensor(w, dtype=DTYPE)
+
+    def step(mean_z: torch.Tensor, cov_z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        return F @ mean_z, F @ cov_z @ F.T + W
+
+    return step
+
+
+# --------------------------------------------------------------------------- the objective
+def expected_return(
+    step: MomentStep,
+    gain: torch.Tensor,
+    mean0,
+    cov0,
+    horizon: int,
+    target,
+    state_weights,
+    control_weight: float = 0.0,
+    score_initial: bool = False,
+) -> torch.Tensor:
+    r"""PILCO's expected return of the feedback u = G (x − x_target), differentiable in G.
+
+    Propagates p(x_0) = N(m_0, S_0) through ``step`` with z_t = [x_t; G d_t] Gaussian
+    (d_t = x_t − x_target) and sums the closed-form expected stage rewards
+
+    .. math:: -\mathbb{E}[\tilde x^\top Q \tilde x + r_u u^\top u]
+              = -\big(\mathrm{tr}(Q S) + d^\top Q d + r_u(\mathrm{tr}(G S G^\top)
+              + \lVert G d\rVert^2)\big)
+
+    over t = 1..T (the task's R(τ), Sec. 4.3.1), plus t = 0 when ``score_initial`` (the LQR
+    convention Σ_{t≥0}).
+
+    Parameters
+    ----------
+    step : MomentStep
+        :func:`gp_moment_step` or :func:`linear_gaussian_step`.
+    gain : Tensor, shape (m, n)
+        G, float64 (with ``requires_grad`` for the policy gradient).
+    mean0 : array_like, shape (n,)
+    cov0 : array_like, shape (n, n)
+    horizon : int
+        T ≥ 1.
+    target : array_like, shape (n,)
+        x_target (x_up for balancing).
+    state_weights : array_like, shape (n, n)
+        Q.
+    control_weight : float
+        r_u ≥ 0.
+    score_initial : bool
+        Include the t = 0 stage.
+
+    Returns
+    -------
+    Tensor, shape ()
+        J(G) (a reward: higher is better).
+    """
+    T = check_count(horizon, "horizon", 1)
+    if not isinstance(gain, torch.Tensor) or gain.ndim != 2:
+        raise ValueError("gain: expected a 2-D torch Tensor G of shape (m, n)")
+    n = gain.shape[1]
+    m = torch.as_tensor(check_array(mean0, "mean0", shape=(n,)), dtype=DTYPE)
+    S = torch.as_tensor(check_array(cov0, "cov0", shape=(n, n)), dtype=DTYPE)
+    x_t = torch.as_tensor(check_array(target, "target", shape=(n,)), dtype=DTYPE)
+    Q = torch.as_tensor(check_array(state_weights, "state_weights", shape=(n, n)), dtype=DTYPE)
+    r_u = check_positive(control_weight, "control_weight", allow_zero=True)
+    G = gain.to(DTYPE)
+
+    def stage(m: torch.Tensor, S: torch.Tensor) -> torch.Tensor:
+        d = m - x_t
+        cost = (Q * S).sum() + d @ Q @ d
+        if r_u:
+            Gd = G @ d
+            cost = cost + r_u * ((G @ S * G).sum() + Gd @ Gd)
+        return cost
+
+    total = stage(m, S) if score_initial else torch.zeros((), dtype=DTYPE)
+    for _ in range(T):
+        SG = S @ G.T
+        mean_z = torch.cat([m, G @ (m - x_t)])
+        cov_z = torch.cat([torch.cat([S, SG], 1), torch.cat([SG.T, G @ SG], 1)], 0)
+        m, S = step(mean_z, _sym(cov_z))
+        S = _sym(S)
+        total = total + stage(m, S)
+        if not bool(torch.isfinite(total)):  # a failed step: later ones cannot be computed
+            return -total
+    return -total
+
+
+def optimize_gain(
+    objective: Callable[[torch.Tensor], torch.Tensor],
+    gain0,
+    max_iterations: int = 100,
+    tolerance: float = 1e-9,
+) -> tuple[np.ndarray, dict[str, Any]]:
+    """Maximise ``objective(G)`` with L-BFGS-B from G₀, gradients by torch autograd.
+
+    Only completed iterates are kept: the result is the best objective value among G₀ and the
+    iterates L-BFGS-B accepted (a line-search trial point is never returned). A non-finite
+    objective (a diverging prediction) or one whose evaluation fails in a Cholesky
+    factorisation is reported to L-BFGS-B as a very large cost with zero gradient, so the line
+    search backs off.
+
+    Parameters
+    ----------
+    objective : callable
+        ``objective(G: Tensor (m, n), float64, requires_grad) -> Tensor ()``.
+    gain0 : array_like, shape (m, n)
+    max_iterations : int
+        L-BFGS-B iterations.
+    tolerance : float
+        Relative change of the objective at which L-BFGS-B stops (``ftol``).
+
+    Returns
+    -------
+    gain : ndarray, shape (m, n)
+    info : dict
+        ``value0``, ``value`` (objective at G₀ and at the result), ``n_iterations``,
+        ``n_evaluations``, ``message``.
+    """
+    g0 = check_array(gain0, "gain0", ndim=2)
+    max_iterations = check_count(max_iterations, "max_iterations", 1)
+    check_positive(tolerance, "tolerance")
+    shape = g0.shape
+    n_eval = 0
+    values: dict[bytes, float] = {}
+
+    def fun(flat: np.ndarray) -> tuple[float, np.ndarray]:
+        nonlocal n_eval
+        n_eval += 1
+        G = torch.tensor(flat.reshape(shape), dtype=DTYPE, requires_grad=True)
+        try:
+            value = objective(G)
+        except torch.linalg.LinAlgError:  # a covariance that lost definiteness: no prediction
+            value = torch.full((), float("nan"), dtype=DTYPE)
+        if not torch.isfinite(value):
+            values[flat.tobytes()] = -np.inf
+            return 1e300, np.zeros_like(flat)
+        (grad,) = torch.autograd.grad(value, G)
+        values[flat.tobytes()] = float(value.detach())
+        return -values[flat.tobytes()], -grad.numpy().ravel()
+
+    iterates: list[np.ndarray] = []
+    res = scipy.optimize.minimize(
+        fun,
+        g0.ravel(),
+        jac=True,
+        method="L-BFGS-B",
+        callback=lambda xk: iterates.append(np.array(xk)),
+        options={"maxiter": max_iterations, "ftol": tolerance, "gtol": 0.0},
+    )
+    value0 = values[g0.ravel().tobytes()]
+    best, best_value = g0.ravel(), value0
+    for x in iterates:
+        v = values.get(x.tobytes())
+        if v is not None and v > best_value:
+            best, best_value = x, v
+    return best.reshape(shape), {
+        "value0": value0,
+        "value": best_value,
+        "n_iterations": len(iterates),
+        "n_evaluations": n_eval,
+        "message": str(res.message),
+    }
+
+
+# --------------------------------------------------------------------------- the algorithm
+class DeterministicPolicy:
+    """A context-free point-mass "policy" ω = μ: what PILCO learns (no exploration).
+
+    Parameters
+    ----------
+    mean : array_like, shape (d,)
+    """
+
+    context_dim = 0
+
+    def __init__(self, mean):
+        self.mean = check_array(mean, "mean", ndim=1)
+        self.dim = int(self.mean.shape[0])
+
+    def sample(self, contexts=None, rng=None) -> np.ndarray:
+        """μ for each context: shape (n, d) for contexts (n, 0), (d,) for ``None``."""
+        if contexts is None:
+            return self.mean.copy()
+        contexts = np.asarray(contexts)
+        if contexts.ndim == 1:
+            return self.mean.copy()
+        if contexts.ndim != 2 or contexts.shape[1] != 0:
+            raise ValueError(f"contexts: expected shape (n, 0), got {contexts.shape}")
+        return np.tile(self.mean, (contexts.shape[0], 1))
+
+    def mean_of(self, contexts=None) -> np.ndarray:
+        """μ, as :meth:`sample`."""
+        return self.sample(contexts)
+
+    def __repr__(self) -> str:
+        return f"DeterministicPolicy(dim={self.dim})"
+
+
+@dataclass(frozen=True)
+class PILCOSettings:
+    """Settings of :class:`PILCO`.
+
+    Attributes
+    ----------
+    policy_iterations : int
+        L-BFGS-B iterations of each policy optimisation (PILCO's default budget is ~150
+        line searches per update).
+    tolerance : float
+        L-BFGS-B's relative ``ftol``.
+    horizon : int or None
+        T of the predicted return (default: the task's ``n_steps``).
+    """
+
+    policy_iterations: int = 100
+    tolerance: float = 1e-9
+    horizon: int | None = None
+
+    def __post_init__(self):
+        check_count(self.policy_iterations, "policy_iterations", 1)
+        check_positive(self.tolerance, "tolerance")
+        if self.horizon is not None:
+            check_count(self.horizon, "horizon", 1)
+
+
+@dataclass(frozen=True, repr=False)
+class PILCODiagnostics:
+    """What one :meth:`PILCO.update` did.
+
+    Attributes
+    ----------
+    n_data : int
+        Real transitions the model was fitted on.
+    model_fit : dict
+        The forward model's fit statistics (``log_ml``, ``iterations``, ...).
+    predicted_real_reward : float or None
+        The previous model's expected return of the gain that was just rolled out (``None``
+        at the first update).
+    real_reward : float
+        Mean real reward of the new batch.
+    return_before, return_after : float
+        The new model's expected return J of the gain before and after the optimisation.
+    n_iterations, n_evaluations : int
+        L-BFGS-B iterations and objective evaluations.
+    message : str
+        L-BFGS-B's stopping message.
+    time_training, time_policy : float
+        Seconds in model learning and in policy optimisation.
+    """
+
+    n_data: int
+    model_fit: dict
+    predicted_real_reward: float | None
+    real_reward: float
+    return_before: float
+    return_after: float
+    n_iterations: int
+    n_evaluations: int
+    message: str
+    time_training: float
+    time_policy: float
+
+    def __repr__(self) -> str:
+        return (
+            f"PILCODiagnostics(n_data={self.n_data}, J {number(self.return_before)} -> "
+            f"{number(self.return_after)} in {self.n_iterations} iterations, "
+            f"real reward {number(self.real_reward)})"
+        )
+
+
+class PILCO:
+    """PILCO for the balancing task: a linear feedback gain optimised through moment matching.
+
+    A search algorithm in the sense of :func:`~skillkit.search.loop.learn`: ``policy`` (what
+    the next rollouts use) and ``update(batch)`` (the five steps of the module docstring).
+
+    Parameters
+    ----------
+    task : Balancing
+        Context-free, with the linear feedback u = G (x − x_up), the start distribution
+        N(x_up, σ² I) (σ = ``task.initial_std``) and the quadratic reward (Q, r_u).
+    initial_policy : GaussianPolicy
+        The random policy of the first rollouts (over the 32 gains); its mean is the
+        optimisation's starting gain.
+    make_model : callable, optional
+        Returns an unfitted forward model (default ``ForwardModel(FITC(n_inducing=100))``,
+        Δx targets; a :class:`~skillkit.models.linear.LinearGaussianModel` is propagated
+        exactly); see :class:`~skillkit.search.gpreps.TrajectoryRewardModel`.
+    settings : PILCOSettings, optional
+    rng : Generator, int or None
+        The models' fitting randomness (k-means++ seeding of pseudo-inputs).
+    prior_trajectories : sequence of Trajectory, optional
+        Real experience collected before learning (the random-policy rollouts of Sec. 4.3.1),
+        learned by every model fit.
+    """
+
+    def __init__(
+        self,
+        task,
+        initial_policy: GaussianPolicy,
+        make_model: Callable[[], Any] | None = None,
+        settings: PILCOSettings | None = None,
+        rng=None,
+        prior_trajectories=(),
+    ):
+        from skillkit.tasks.balancing import X_UP, Balancing
+
+        if not isinstance(task, Balancing):
+            raise ValueError(
+                f"task: expected a Balancing task (linear feedback, quadratic reward), "
+                f"got {type(task).__name__}"
+            )
+        if not isinstance(initial_policy, GaussianPolicy) or initial_policy.dim != 32:
+            raise ValueError("initial_policy: expected a GaussianPolicy over the 32 gains")
+        self.settings = PILCOSettings() if settings is None else settings
+        if not isinstance(self.settings, PILCOSettings):
+            raise ValueError(
+                f"settings: expected PILCOSettings, got {type(self.settings).__name__}"
+            )
+        self.task = task
+        self.model = TrajectoryRewardModel(
+            task, make_model=make_model, prior_trajectories=prior_trajectories
+        )
+        self.horizon = self.settings.horizon or task.n_steps
+        self.mean0 = X_UP.copy()
+        self.cov0 = task.initial_std**2 * np.eye(8)
+        self._random_policy: GaussianPolicy | None = initial_policy
+        self.gain = initial_policy.mean.reshape(4, 8).copy()
+        self.trajectories: list = []
+        self.rng = as_generator(rng)
+
+    @property
+    def policy(self):
+        """The random initial policy until the first update, then the learned gain."""
+        if self._random_policy is not None:
+            return self._random_policy
+        return DeterministicPolicy(self.gain.ravel())
+
+    def expected_return(self, gain) -> float:
+        """J(G) (:func:`expected_return`) under the current model, for G of shape (4, 8)."""
+        if self.model.model is None:
+            raise RuntimeError("PILCO: call update() before predicting")
+        G = torch.as_tensor(check_array(gain, "gain", shape=(4, 8)), dtype=DTYPE)
+        with torch.no_grad():
+            return float(self._objective(model_moment_step(self.model.model))(G))
+
+    def _objective(self, step: MomentStep) -> Callable[[torch.Tensor], torch.Tensor]:
+        from skillkit.tasks.balancing import X_UP
+
+        task = self.task
+
+        def objective(G: torch.Tensor) -> torch.Tensor:
+            return expected_return(
+                step, G, self.mean0, self.cov0, self.horizon, X_UP,
+                task.state_weights, task.control_weight,
+            )  # fmt: skip
+
+        return objective
+
+    def update(self, batch: Batch) -> PILCODiagnostics:
+        """Learn the model on all real data, then optimise the gain on it.
+
+        Parameters
+        ----------
+        batch : Batch
+            New real rollouts (empty contexts, gains, rewards, trajectories).
+        """
+        batch = as_batch(batch, 32, 0)
+        if batch.trajectories is None:
+            raise ValueError("batch: PILCO learns from trajectories; the batch has none")
+        predicted = None
+        if self.model.model is not None and self._random_policy is None:
+            predicted = self.expected_return(self.gain)
+        self.trajectories.extend(batch.trajectories)
+
+        # 1. Learn the model.
+        t0 = time.perf_counter()
+        n = len(self.trajectories)
+        fit = self.model.fit(
+            np.zeros((n, 0)), np.zeros((n, 32)), np.zeros(n), self.trajectories, self.rng
+        )
+        t1 = time.perf_counter()
+
+        # 2.–4. Predict, score and optimise the gain through the whole propagation.
+        objective = self._objective(model_moment_step(self.model.model))
+        gain, info = optimize_gain(
+            objective, self.gain, self.settings.policy_iterations, self.settings.tolerance
+        )
+        t2 = time.perf_counter()
+        self.gain = gain
+        self._random_policy = None
+        return PILCODiagnostics(
+            n_data=int(fit["n_data"]),
+            model_fit=fit,
+            predicted_real_reward=predicted,
+            real_reward=float(np.mean(batch.rewards)),
+            return_before=info["value0"],
+            return_after=info["value"],
+            n_iterations=info["n_iterations"],
+            n_evaluations=info["n_evaluations"],
+            message=info["message"],
+            time_training=t1 - t0,
+            time_policy=t2 - t1,
+        )
+
+    def __repr__(self) -> str:
+        state = "random initial policy" if self._random_policy is not None else "learned gain"
+        return (
+            f"PILCO(task={self.task.name!r}, horizon={self.horizon}, "
+            f"{len(self.trajectories)} rollouts, {state})"
+        )

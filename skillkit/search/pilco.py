@@ -355,8 +355,8 @@ class PILCOSettings:
     Attributes
     ----------
     policy_iterations : int
-        L-BFGS-B iterations of each policy optimisation (PILCO's default budget is ~150
-        line searches per update).
+        L-BFGS-B iterations of each policy optimisation (tab4.2 uses 50; each iteration costs
+        one or more propagations over the horizon and their gradients).
     tolerance : float
         L-BFGS-B's relative ``ftol``.
     horizon : int or None

@@ -25,10 +25,13 @@ return its GP forward model predicts. Each :meth:`PILCO.update` runs, top to bot
    (scipy) from the current gain; only completed L-BFGS iterates are accepted.
 5. **Apply.** The next real rollout uses the new G (the learning loop does it).
 
-The first real rollouts come from ``initial_policy``, a Gaussian over gains (the "random
-policy" of Sec. 4.3.1's 6 s of initial experience); from the first update on the policy is
-the deterministic G (:class:`DeterministicPolicy`), and its starting point is that Gaussian's
-mean.
+Real experience collected before learning (Sec. 4.3.1's 6 s of a random policy; tab4.2 uses
+rollouts with torque excitation) is given as ``prior_trajectories`` and learned by every fit.
+The first batch of the learning loop comes from ``initial_policy``, a Gaussian over gains; from
+the first update on the policy is the deterministic G (:class:`DeterministicPolicy`), whose
+starting point is that Gaussian's mean. A
+:class:`~skillkit.models.linear.LinearGaussianModel` can replace the GP; its Gaussian step is
+exact (:func:`model_moment_step`).
 
 **Torque limits.** The balancing robot's actuators are unlimited (the MuJoCo model sets no
 ``ctrlrange``), so the controller is not squashed. PILCO's sine squashing of the controller

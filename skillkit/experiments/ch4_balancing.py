@@ -237,12 +237,12 @@ def experience_to_reach(experience, rewards, limit: float) -> float | None:
         The evaluated reward at each.
     limit : float
     """
-    experience, rewards = np.asarray(experience, float), np.asarray(rewards, float)
-    hit = np.flatnonzero(rewards >= limit)
-    return float(experience[hit[0]]) if hit.size else None
+    i = _first_index(rewards, limit)
+    return None if i is None else float(np.asarray(experience, float)[i])
 
 
 def _first_index(rewards, limit) -> int | None:
+    """Index of the first evaluation at or above ``limit``; None if there is none."""
     hit = np.flatnonzero(np.asarray(rewards, float) >= limit)
     return int(hit[0]) if hit.size else None
 

@@ -4,8 +4,9 @@ The parametric counterpart of :class:`~skillkit.models.gp.ForwardModel` (the LWB
 Sec. 4.2's comparison, without the locality): least squares on [x, u, 1] and the residual
 covariance. It serves the samplers of GPREPS (:meth:`LinearGaussianModel.next_state_moments`)
 and PILCO, for which the propagation of a Gaussian state under a linear controller is exact
-(:meth:`LinearGaussianModel.moment_step`). Table 4.2's experiment uses it to separate what the
-search methods do from what the GP models predict.
+(:func:`skillkit.search.pilco.model_moment_step` gives it as
+:func:`~skillkit.search.pilco.linear_gaussian_step` of A, B, Σ_w and c). Table 4.2's
+experiment uses it to separate what the search methods do from what the GP models predict.
 """
 
 from __future__ import annotations
@@ -104,13 +105,6 @@ class LinearGaussianModel:
         return Moments(
             mean, var, torch.zeros((), dtype=torch.int64, device=x.device), torch.zeros((), **kw)
         )
-
-    def moment_step(self, mean_z: torch.Tensor, cov_z: torch.Tensor):
-        """Exact p(x') for z = [x, u] ~ N(m, S): ([A B] m + c, [A B] S [A B]ᵀ + Σ_w)."""
-        self._check_fitted()
-        F = torch.as_tensor(np.hstack([self.A, self.B]), dtype=DTYPE)
-        c = torch.as_tensor(self.c, dtype=DTYPE)
-        return F @ mean_z + c, F @ cov_z @ F.T + torch.as_tensor(self.noise_cov, dtype=DTYPE)
 
     def __repr__(self) -> str:
         if self.A is None:

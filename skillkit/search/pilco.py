@@ -88,7 +88,7 @@ def model_moment_step(model) -> MomentStep:
 
     if isinstance(model, LinearGaussianModel):
         model._check_fitted()
-        return model.moment_step
+        return linear_gaussian_step(model.A, model.B, model.noise_cov, model.c)
     return gp_moment_step(model)
 
 
@@ -127,8 +127,8 @@ def gp_moment_step(model: ForwardModel) -> MomentStep:
     return step
 
 
-def linear_gaussian_step(A, B, noise_cov) -> MomentStep:
-    """The exact transition of x' = A x + B u + w, w ~ N(0, Σ_w): moment matching is exact.
+def linear_gaussian_step(A, B, noise_cov, offset=None) -> MomentStep:
+    """The exact transition of x' = A x + B u + c + w, w ~ N(0, Σ_w): moment matching is exact.
 
     Parameters
     ----------
@@ -136,11 +136,13 @@ def linear_gaussian_step(A, B, noise_cov) -> MomentStep:
     B : array_like, shape (n, m)
     noise_cov : array_like, shape (n, n)
         Σ_w, symmetric positive semi-definite.
+    offset : array_like, shape (n,), optional
+        c (default 0).
 
     Returns
     -------
     MomentStep
-        mean [A B] m_z, covariance [A B] S_z [A B]ᵀ + Σ_w.
+        mean [A B] m_z + c, covariance [A B] S_z [A B]ᵀ + Σ_w.
     """
     a = check_array(A, "A", ndim=2)
     if a.shape[0] != a.shape[1]:
@@ -153,9 +155,15 @@ def linear_gaussian_step(A, B, noise_cov) -> MomentStep:
         raise ValueError("noise_cov: expected a positive semi-definite matrix")
     F = torch.as_tensor(np.hstack([a, b]), dtype=DTYPE)
     W = torch.as_tensor(w, dtype=DTYPE)
+    c = (
+        None
+        if offset is None
+        else torch.as_tensor(check_array(offset, "offset", shape=(a.shape[0],)), dtype=DTYPE)
+    )
 
     def step(mean_z: torch.Tensor, cov_z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        return F @ mean_z, F @ cov_z @ F.T + W
+        mean = F @ mean_z
+        return (mean if c is None else mean + c), F @ cov_z @ F.T + W
 
     return step
 

@@ -11,6 +11,7 @@ from skillkit.models.gp import ExactGP, ForwardModel
 from skillkit.models.linear import LinearGaussianModel
 from skillkit.models.moment_matching import moment_match, propagate, with_linear_mean
 from skillkit.models.sparse import FITC
+from skillkit.search.pilco import model_moment_step
 
 
 def _linear_data(n=200, noise=0.0, seed=0):
@@ -41,7 +42,7 @@ def test_linear_gaussian_step_matches_monte_carlo():
     m = LinearGaussianModel().fit(x, u, xn)
     mz = torch.tensor([0.3, -0.2, 0.5], dtype=torch.float64)
     L = torch.tensor([[0.3, 0, 0], [0.1, 0.2, 0], [0.05, -0.1, 0.4]], dtype=torch.float64)
-    mean, cov = m.moment_step(mz, L @ L.T)
+    mean, cov = model_moment_step(m)(mz, L @ L.T)
     rng = np.random.default_rng(2)
     z = mz.numpy() + rng.standard_normal((200_000, 3)) @ L.numpy().T
     w = rng.multivariate_normal(np.zeros(2), m.noise_cov, size=200_000)

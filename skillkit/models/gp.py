@@ -404,6 +404,10 @@ class _Diverged(Exception):
     pass
 
 
+TOLERANCE_CHANGE = 1e-12
+"""L-BFGS stops when the objective changes by less than this in one iteration."""
+
+
 def optimize(
     parameters: list[torch.nn.Parameter],
     loss_fn: Callable[[], torch.Tensor],
@@ -411,7 +415,17 @@ def optimize(
     method: str = "lbfgs",
     learning_rate: float = 0.05,
 ) -> dict:
-    """Minimise ``loss_fn`` over ``parameters``, keeping the best finite value seen.
+    """Minimise ``loss_fn`` over ``parameters``; the result is always a completed iterate.
+
+    L-BFGS (strong-Wolfe line search) runs one iteration per ``torch.optim.LBFGS.step`` call,
+    so the parameters between calls are the iterates the line search *accepted*. If an
+    evaluation fails (a non-finite objective or gradient, or a failed Cholesky
+    factorisation) the last accepted iterate is restored. A line-search trial point is never
+    returned, even when its objective was lower: the line search rejected it (issue #16
+    found a rejected, degenerate point σ_f² → 0, ℓ → 0 restored this way). Evaluations at an
+    accepted point are not repeated (they are cached), so the iterates, evaluation budget
+    and result are those of a single ``step`` call with ``max_iter = n_steps``. Adam keeps
+    the best of its iterates (every Adam step is accepted).
 
     Parameters
     ----------
@@ -420,8 +434,8 @@ def optimize(
     loss_fn : callable
         Returns the scalar objective (e.g. the negative log marginal likelihood per datum).
     n_steps : int
-        L-BFGS iterations (each may evaluate ``loss_fn`` a few times in the strong-Wolfe
-        line search) or Adam steps. 0 leaves the parameters unchanged.
+        L-BFGS iterations (at most ``1.25 n_steps + 5`` objective evaluations in all) or Adam
+        steps. 0 leaves the parameters unchanged.
     method : {"lbfgs", "adam"}
     learning_rate : float
         Adam step size (L-BFGS uses unit steps with a line search).
@@ -429,13 +443,17 @@ def optimize(
     Returns
     -------
     dict
-        ``trace`` (objective per evaluation), ``n_evaluations``, ``n_iterations``,
-        ``best`` (the final, best objective) and ``stopped_early`` (reason or None).
+        ``trace`` (objective per evaluation, trial points included), ``n_evaluations``,
+        ``n_iterations`` (accepted iterates), ``best`` (the objective of the returned
+        parameters) and ``stopped_early`` (reason or None).
     """
     _check_method(method)
     trace: list[float] = []
-    best = {"value": math.inf, "state": None}
     stopped = None
+    cache: dict[bytes, tuple[float, list[torch.Tensor | None]]] = {}
+
+    def key() -> bytes:
+        return b"".join(p.detach().cpu().numpy().tobytes() for p in parameters)
 
     def evaluate() -> torch.Tensor:
         try:
@@ -446,62 +464,90 @@ def optimize(
         if not math.isfinite(value):
             raise _Diverged(f"non-finite objective {value}")
         trace.append(value)
-        if value < best["value"]:
-            best["value"] = value
-            best["state"] = [p.detach().clone() for p in parameters]
         return loss
 
+    def snapshot() -> list[torch.Tensor]:
+        return [p.detach().clone() for p in parameters]
+
+    def restore(state: list[torch.Tensor]) -> None:
+        with torch.no_grad():
+            for p, v in zip(parameters, state, strict=True):
+                p.copy_(v)
+
+    best_state, best_value = snapshot(), math.nan
     n_iter = 0
     if n_steps > 0:
         try:
             if method == "lbfgs":
+                max_eval = int(n_steps * 1.25) + 5
                 opt = torch.optim.LBFGS(
                     parameters,
                     lr=1.0,
-                    max_iter=n_steps,
-                    max_eval=int(n_steps * 1.25) + 5,
+                    max_iter=1,
+                    max_eval=max_eval,
                     tolerance_grad=1e-9,
-                    tolerance_change=1e-12,
+                    tolerance_change=TOLERANCE_CHANGE,
                     history_size=50,
                     line_search_fn="strong_wolfe",
                 )
 
                 def closure():
+                    k = key()
+                    if k in cache:  # an accepted point: its value and gradient are known
+                        value, grads = cache[k]
+                        for p, g in zip(parameters, grads, strict=True):
+                            p.grad = None if g is None else g.clone()
+                        return torch.tensor(value, dtype=DTYPE)
                     opt.zero_grad()
                     loss = evaluate()
                     loss.backward()
                     for p in parameters:
                         if p.grad is not None and not torch.isfinite(p.grad).all():
                             raise _Diverged("non-finite gradient")
+                    cache[k] = (
+                        float(loss.detach()),
+                        [None if p.grad is None else p.grad.clone() for p in parameters],
+                    )
                     return loss
 
-                opt.step(closure)
-                n_iter = int(opt.state[parameters[0]].get("n_iter", 0))
+                k_prev = key()
+                while n_iter < n_steps and len(trace) < max_eval:
+                    opt.step(closure)  # one iteration: the parameters end on an accepted point
+                    k = key()
+                    value0, value = cache[k_prev][0], cache[k][0]
+                    best_state, best_value = snapshot(), value
+                    if k == k_prev:  # no step (gradient or directional derivative ~ 0)
+                        break
+                    n_iter += 1
+                    # torch's lack-of-progress tests (a max_iter=1 call returns before them)
+                    if abs(value - value0) < TOLERANCE_CHANGE:
+                        break
+                    cache = {k: cache[k]}
+                    k_prev = k
             else:
                 opt = torch.optim.Adam(parameters, lr=learning_rate)
+                best_value = math.inf
                 for _ in range(n_steps):
                     opt.zero_grad()
                     loss = evaluate()
+                    if trace[-1] < best_value:
+                        best_state, best_value = snapshot(), trace[-1]
                     loss.backward()
                     opt.step()
                     n_iter += 1
         except _Diverged as exc:
             stopped = str(exc)
-    if best["state"] is not None:
-        with torch.no_grad():
-            for p, v in zip(parameters, best["state"], strict=True):
-                p.copy_(v)
-    elif n_steps == 0 or stopped is not None:
+    restore(best_state)
+    if not math.isfinite(best_value):
         with torch.no_grad():
             try:
-                value = float(loss_fn().detach())
+                best_value = float(loss_fn().detach())
             except (GPNumericalError, NotPSDError, NanError):
-                value = math.nan
-        best["value"] = value
+                best_value = math.nan
     if stopped is not None:
         warnings.warn(
-            f"hyper-parameter optimisation stopped early ({stopped}); restored the best "
-            f"parameters seen (objective {best['value']:.6g})",
+            f"hyper-parameter optimisation stopped early ({stopped}); restored the last "
+            f"completed iterate (objective {best_value:.6g})",
             GPNumericalWarning,
             stacklevel=3,
         )
@@ -509,7 +555,7 @@ def optimize(
         "trace": trace,
         "n_evaluations": len(trace),
         "n_iterations": n_iter,
-        "best": best["value"],
+        "best": best_value,
         "stopped_early": stopped,
     }
 

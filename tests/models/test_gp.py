@@ -203,6 +203,45 @@ def test_optimizer_stops_on_failure_and_restores_best():
     assert float((p.detach() - 1.0) ** 2) == pytest.approx(res["best"])
 
 
+def test_lbfgs_never_returns_a_rejected_line_search_point():
+    """Issue #16: f(p) = −p + 0.8 p⁴ from p = 0. L-BFGS's first trial p = 1 has f = −0.2 < f(0)
+    (Armijo holds) but f'(1) = 2.2 breaks the strong-Wolfe curvature condition, so the line
+    search rejects it and evaluates again; that evaluation fails. The last completed iterate is
+    p = 0: restoring the best value *seen* (the rejected p = 1) was the bug."""
+    p = torch.nn.Parameter(torch.tensor([0.0], dtype=torch.float64))
+    calls = {"n": 0}
+
+    def loss():
+        calls["n"] += 1
+        if calls["n"] == 3:
+            return p.sum() * float("nan")
+        return -p.sum() + 0.8 * p.pow(4).sum()
+
+    with pytest.warns(GPNumericalWarning, match="stopped early"):
+        res = optimize([p], loss, 20)
+    assert res["trace"][:2] == [0.0, pytest.approx(-0.2)]  # the rejected trial was evaluated
+    assert float(p.detach()) == 0.0
+    assert res["best"] == 0.0
+    assert res["n_iterations"] == 0
+
+
+def test_lbfgs_ends_on_a_completed_iterate_with_its_value():
+    """Without failures the result is L-BFGS's last accepted iterate: its objective is the
+    reported ``best``, no larger than the start, and the minimiser of a convex quadratic."""
+    A = torch.tensor([[3.0, 1.0], [1.0, 2.0]], dtype=torch.float64)
+    b = torch.tensor([1.0, -1.0], dtype=torch.float64)
+    p = torch.nn.Parameter(torch.tensor([2.0, 2.0], dtype=torch.float64))
+
+    def loss():
+        return 0.5 * p @ A @ p - b @ p
+
+    res = optimize([p], loss, 50)
+    torch.testing.assert_close(p.detach(), torch.linalg.solve(A, b))
+    assert res["best"] == pytest.approx(float(loss().detach()), abs=1e-15)
+    assert res["best"] <= res["trace"][0]
+    assert 1 <= res["n_iterations"] <= 50 and res["stopped_early"] is None
+
+
 @pytest.mark.filterwarnings("ignore:noise variance:skillkit.models.gp.GPNumericalWarning")
 def test_forward_model_delta_and_next_targets():
     rng = np.random.default_rng(9)

@@ -262,8 +262,9 @@ def _run_trial(
         w_i = omega + np.asarray(settings.train_gain_std) * rng.standard_normal(2)
         x, u, xn = commanded_transitions(task, task.rollout(w_i, s_i, rng), w_i)
         X.append(x), U.append(u), Xn.append(xn)
-    model = ForwardModel(
-        ExactGP(additive_noise=settings.additive_noise, n_steps=settings.n_opt_steps)
+    model = ForwardModel(  # Δx, as in the stored paper results (default x′ since issue #16)
+        ExactGP(additive_noise=settings.additive_noise, n_steps=settings.n_opt_steps),
+        target="delta",
     )
     model.fit(np.concatenate(X), np.concatenate(U), np.concatenate(Xn), rng=rng)
     trial.update()

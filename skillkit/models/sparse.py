@@ -137,6 +137,13 @@ class _SparseGP(_GPRegression):
         )
         self.kernel, self.likelihood = self._hyper_modules(E, d)
 
+    def _hypers(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        return (
+            self.kernel.lengthscale[:, 0, :],
+            self.kernel.outputscale,
+            self.likelihood.noise[:, 0],
+        )
+
     def _parameters(self) -> list[torch.nn.Parameter]:
         params = list(self.kernel.parameters()) + list(self.likelihood.parameters())
         return params + ([self.inducing] if self.optimize_inducing else [])
@@ -255,7 +262,7 @@ class FITC(_SparseGP):
     **kwargs
         As :class:`~skillkit.models.gp.ExactGP` (initial values, ``noise_floor``,
         ``additive_noise``, ``n_steps``, ``optimizer``, ``learning_rate``, ``standardize``,
-        ``device``: where the hyper-parameters and pseudo-inputs are optimised and the
+        ``curb``, ``device``: where the hyper-parameters and pseudo-inputs are optimised and the
         predictor lives; default CPU; float64 throughout). k-means++ seeding runs in numpy
         on the CPU, so its draws do not depend on the device.
 

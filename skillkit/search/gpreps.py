@@ -198,7 +198,8 @@ class TrajectoryRewardModel:
     make_model : callable, optional
         ``make_model()`` returns an unfitted forward model with ``fit(states, controls,
         next_states, rng=)`` and the :class:`~skillkit.models.sampling.StepModel` interface
-        (default: ``ForwardModel(FITC(n_inducing=100))``, the sparse GP of Sec. 4.2). It is
+        (default: ``ForwardModel(FITC(n_inducing=100, curb=HyperCurb()))``: x′ targets, the
+        sparse GP of Sec. 4.2 with PILCO's hyper-parameter curb). It is
         part of the checkpointed state: use a class or a module-level function (or a
         ``functools.partial`` of one), not a lambda, where checkpoints are taken.
     horizon : int, optional
@@ -307,9 +308,10 @@ class TrajectoryRewardModel:
 
 
 def _default_forward_model() -> ForwardModel:
+    from skillkit.models.gp import HyperCurb
     from skillkit.models.sparse import FITC
 
-    return ForwardModel(FITC(n_inducing=100))
+    return ForwardModel(FITC(n_inducing=100, curb=HyperCurb()))
 
 
 class KnownRewardModel:

@@ -445,9 +445,10 @@ class PILCO:
         The random policy of the first rollouts (over the 32 gains); its mean is the
         optimisation's starting gain.
     make_model : callable, optional
-        Returns an unfitted forward model (default ``ForwardModel(FITC(n_inducing=100))``,
-        Δx targets; a :class:`~skillkit.models.linear.LinearGaussianModel` is propagated
-        exactly); see :class:`~skillkit.search.gpreps.TrajectoryRewardModel`.
+        Returns an unfitted forward model (default
+        ``ForwardModel(FITC(n_inducing=100, curb=HyperCurb()))``, x′ targets; a
+        :class:`~skillkit.models.linear.LinearGaussianModel` is propagated exactly); see
+        :class:`~skillkit.search.gpreps.TrajectoryRewardModel`.
     settings : PILCOSettings, optional
     rng : Generator, int or None
         The models' fitting randomness (k-means++ seeding of pseudo-inputs).

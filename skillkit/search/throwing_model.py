@@ -60,7 +60,7 @@ __all__ = ["ThrowingPrediction", "ThrowingRewardModel", "land"]
 def _robot_model() -> ForwardModel:
     from skillkit.models.sparse import FITC
 
-    return ForwardModel(FITC(n_inducing=50))
+    return ForwardModel(FITC(n_inducing=50), target="delta")  # as its stored results
 
 
 def _release_model() -> _GPRegression:
@@ -70,7 +70,7 @@ def _release_model() -> _GPRegression:
 def _flight_model() -> ForwardModel:
     from skillkit.models.sparse import FITC
 
-    return ForwardModel(FITC(n_inducing=50))
+    return ForwardModel(FITC(n_inducing=50), target="delta")  # as its stored results
 
 
 def land(paths: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -155,12 +155,12 @@ class ThrowingRewardModel:
     task : Throwing
     make_robot_model : callable, optional
         Returns an unfitted forward model of x = [q, q̇] with control a (default
-        ``ForwardModel(FITC(n_inducing=50))``).
+        ``ForwardModel(FITC(n_inducing=50), target="delta")``).
     make_release_model : callable, optional
         Returns an unfitted GP regression x → [p, v] (default ``ExactGP()``).
     make_flight_model : callable, optional
         Returns an unfitted forward model of the ball state [p, v] with no control (default
-        ``ForwardModel(FITC(n_inducing=50))``).
+        ``ForwardModel(FITC(n_inducing=50), target="delta")``).
     max_robot_points : int
         The robot GP is fitted on at most this many transitions, drawn at random from all
         throws so far (FITC's cost is linear in them; the throws of one policy repeat one
@@ -179,7 +179,8 @@ class ThrowingRewardModel:
         Where trajectories are sampled (float64). Each GP is trained on its own ``device``,
         so a GPU user gives it to the factories as well, e.g.
         ``make_release_model=partial(FITC, n_inducing=50, device="cuda")`` and robot and
-        flight factories returning ``ForwardModel(FITC(n_inducing=50, device="cuda"))``.
+        flight factories returning
+        ``ForwardModel(FITC(n_inducing=50, device="cuda"), target="delta")``.
 
     Notes
     -----

@@ -17,10 +17,12 @@ from skillkit.models.gp import (
     GPNumericalError,
     GPNumericalWarning,
     GPPredictor,
+    HyperCurb,
     neg_log_marginal_likelihood,
     optimize,
     robust_cholesky,
 )
+from skillkit.models.sparse import FITC
 
 
 def _data(n=40, seed=0, noise=0.1):
@@ -240,6 +242,46 @@ def test_lbfgs_ends_on_a_completed_iterate_with_its_value():
     assert res["best"] == pytest.approx(float(loss().detach()), abs=1e-15)
     assert res["best"] <= res["trace"][0]
     assert 1 <= res["n_iterations"] <= 50 and res["stopped_early"] is None
+
+
+def test_hyper_curb_penalty_closed_form_and_gradient():
+    curb = HyperCurb(lengthscale_ratio=100.0, snr=500.0, power=30)
+    ls = torch.tensor([[100.0, 0.5]], dtype=torch.float64)  # first at the limit 100·std
+    os = torch.tensor([4.0], dtype=torch.float64)
+    nz = torch.tensor([4.0 / 500.0**2], dtype=torch.float64)  # σ_f/σ_ε = 500: at the limit
+    std = torch.tensor([1.0, 0.5], dtype=torch.float64)
+    # (log 100 / log 100)^30 + (0)^30 + (log 500 / log 500)^30 = 2
+    assert float(curb.penalty(ls, os, nz, std)) == pytest.approx(2.0, rel=1e-12)
+    inside = curb.penalty(ls / 10, os, nz * 500, std)  # w/std = 10, 0.1, SNR √500: √ limits
+    assert float(inside) == pytest.approx(3 * 0.5**30, rel=1e-9)
+    log_args = [  # in log space, where the optimiser works; beyond and within the limits
+        torch.log(torch.tensor(v, dtype=torch.float64)).requires_grad_()
+        for v in ([[300.0, 0.05]], [2.0], [2e-6])
+    ]
+    assert torch.autograd.gradcheck(
+        lambda a, b, c: curb.penalty(a.exp(), b.exp(), c.exp(), std), log_args
+    )
+    for bad in (dict(lengthscale_ratio=1.0), dict(snr=0.5), dict(power=3), dict(power=0)):
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            HyperCurb(**bad)
+    with pytest.raises(ValueError, match="curb: expected a HyperCurb"):
+        ExactGP(curb=100.0)
+
+
+@pytest.mark.filterwarnings("ignore:noise variance:skillkit.models.gp.GPNumericalWarning")
+@pytest.mark.parametrize("make", [ExactGP, lambda **kw: FITC(n_inducing=20, **kw)])
+def test_hyper_curb_stops_the_linear_limit(make):
+    """Nearly noise-free linear data: maximum likelihood takes the SE kernel toward its linear
+    limit (length-scales far beyond the inputs' spread, σ_f/σ_ε in the thousands); the curb
+    keeps both near its limits (100 std(x), 500), and the diagnostics report them."""
+    rng = np.random.default_rng(0)
+    X = rng.uniform(-1, 1, size=(200, 3))
+    Y = X @ np.array([1.0, -2.0, 0.5]) + 1e-3 * rng.standard_normal(200)
+    free = make(n_steps=100).fit(X, Y, rng=0).diagnostics
+    held = make(n_steps=100, curb=HyperCurb()).fit(X, Y, rng=0).diagnostics
+    assert free["curb_penalty"] is None and free["max_signal_to_noise"] > 5000
+    assert held["max_lengthscale_ratio"] < 100 * 1.2 and held["max_signal_to_noise"] < 500 * 1.2
+    assert 0 < held["curb_penalty"] < 10
 
 
 @pytest.mark.filterwarnings("ignore:noise variance:skillkit.models.gp.GPNumericalWarning")

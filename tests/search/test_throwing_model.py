@@ -18,7 +18,7 @@ from skillkit.tasks.planar import ballistic_flight
 
 
 def _fitc(n_inducing, n_steps):
-    return ForwardModel(FITC(n_inducing=n_inducing, n_steps=n_steps))
+    return ForwardModel(FITC(n_inducing=n_inducing, n_steps=n_steps), target="delta")
 
 
 def _model(task, **kw):

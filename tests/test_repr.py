@@ -104,7 +104,7 @@ def test_forward_model_sampling_and_moment_matching(data):
 
     X, Y = data
     model = ForwardModel(ExactGP(n_steps=5))
-    check(model, "ForwardModel(target='delta', unfitted, gp=ExactGP(unfitted")
+    check(model, "ForwardModel(target='next', unfitted, gp=ExactGP(unfitted")
     x, u = X[:, :1], X[:, 1:]
     model.fit(x, u, x + 0.1 * Y[:, :1], rng=0)
     check(model, "state_dim=1, control_dim=1", "gp=ExactGP(N=40, inputs=2, outputs=1")

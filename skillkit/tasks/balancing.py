@@ -161,8 +161,14 @@ class Balancing(Task):
         self, omega: np.ndarray, context: np.ndarray, rng: np.random.Generator
     ) -> Trajectory:
         G = self.gain_matrix(omega)
-        q0 = UPRIGHT + self.initial_std * rng.standard_normal(4)
-        qd0 = self.initial_std * rng.standard_normal(4)
+        start, reference, feedforward = getattr(self, "_episode", None) or (None, None, None)
+        if start is None:
+            q0 = UPRIGHT + self.initial_std * rng.standard_normal(4)
+            qd0 = self.initial_std * rng.standard_normal(4)
+        else:
+            q0, qd0 = start[:4].copy(), start[4:].copy()
+        ref = np.broadcast_to(X_UP, (self.n_steps + 1, 8)) if reference is None else reference
+        ff = np.zeros((self.n_steps + 1, 4)) if feedforward is None else feedforward
         noise = self.torque_noise_std * rng.standard_normal((self.n_steps, 4))
         excitation = np.zeros((self.n_steps, 4))
         if self.excitation_std:  # drawn only when used: feedback-only runs keep their streams
@@ -170,7 +176,7 @@ class Balancing(Task):
         commanded = np.empty((self.n_steps + 1, 4))
 
         def feedback(t: int, q: np.ndarray, qd: np.ndarray, data: mujoco.MjData) -> np.ndarray:
-            commanded[t] = G @ np.concatenate([q - UPRIGHT, qd]) + excitation[t]
+            commanded[t] = G @ (np.concatenate([q, qd]) - ref[t]) + ff[t] + excitation[t]
             return commanded[t] + noise[t]
 
         robot = self.robot
@@ -179,7 +185,7 @@ class Balancing(Task):
         q = np.vstack([out["q"], robot.data.qpos])
         qd = np.vstack([out["qd"], robot.data.qvel])
         self._check_divergence(q, qd)
-        commanded[-1] = G @ np.concatenate([q[-1] - UPRIGHT, qd[-1]])
+        commanded[-1] = G @ (np.concatenate([q[-1], qd[-1]]) - ref[-1]) + ff[-1]
         times = np.arange(self.n_steps + 1) * self.control_dt
         return Trajectory(
             times,
@@ -188,6 +194,44 @@ class Balancing(Task):
             signals={"torque_noise": noise, "excitation": excitation},
             info={"initial_state": np.concatenate([q0, qd0]).tolist()},
         )
+
+    def rollout_from(
+        self, omega, initial_state, rng=None, *, reference=None, feedforward=None
+    ) -> Trajectory:
+        """One episode from a given x_0, optionally tracking a reference (Sec. 4.2.2).
+
+        The controller is u_t = G (x_t − r_t) + u_ff,t + ξ_t: with the default reference
+        r_t = x_up and u_ff = 0 it is :meth:`rollout`'s feedback; with a time-varying r_t it
+        is the linear trajectory-tracking PD controller of Sec. 4.2.2 (linear in x_t, so
+        moment matching applies with the per-step offset u_ff,t − G r_t). Failures are
+        reported as in :meth:`~skillkit.tasks.base.Task.rollout`.
+
+        Parameters
+        ----------
+        omega : array_like, shape (32,)
+            G row-major.
+        initial_state : array_like, shape (8,)
+            x_0 = [q_0, q̇_0].
+        rng : Generator, int or None
+            The torque noise and excitation.
+        reference : array_like, shape (T+1, 8), optional
+            r_t (default x_up at every step).
+        feedforward : array_like, shape (T+1, 4), optional
+            u_ff,t (default 0).
+
+        Returns
+        -------
+        Trajectory
+        """
+        T1 = self.n_steps + 1
+        x0 = check_array(initial_state, "initial_state", shape=(8,))
+        ref = None if reference is None else check_array(reference, "reference", shape=(T1, 8))
+        ff = None if feedforward is None else check_array(feedforward, "feedforward", shape=(T1, 4))
+        self._episode = (x0, ref, ff)
+        try:
+            return self.rollout(omega, rng=rng)
+        finally:
+            self._episode = None
 
     def _check_divergence(self, q: np.ndarray, qd: np.ndarray) -> None:
         if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd))):
@@ -540,11 +584,25 @@ def collect_balancing(
     rng: np.random.Generator,
     max_spectral_radius: float = 0.98,
     policy: GaussianPolicy | None = None,
+    gain=None,
 ) -> dict:
     """Roll out ``n_trajectories`` robustly balancing ω (:func:`stable_gains` of ``policy``,
-    default the task's initial policy) from random x_0.
+    default the task's initial policy) from random x_0; or one fixed controller ``gain``.
 
     Failed rollouts (the robot fell or diverged) are replaced by new ones and counted.
+
+    Parameters
+    ----------
+    task : Balancing
+    n_trajectories : int
+    rng : Generator
+    max_spectral_radius : float
+        See :func:`stable_gains` (not used with ``gain``).
+    policy : GaussianPolicy, optional
+        π(ω) the controllers are drawn from (not with ``gain``).
+    gain : array_like, shape (4, 8) or (32,), optional
+        One controller G for every rollout (e.g. :meth:`Balancing.pd_gain`): only x_0 and
+        the torque noise vary.
 
     Returns
     -------
@@ -553,9 +611,19 @@ def collect_balancing(
         stacked transitions, ``n_failed``.
     """
     omegas, trajs, n_failed = [], [], 0
-    candidates = list(stable_gains(task, n_trajectories, rng, max_spectral_radius, policy))
+    if gain is not None:
+        if policy is not None:
+            raise ValueError("gain: give either a fixed gain or a policy, not both")
+        fixed = check_array(gain, "gain", ndim=(1, 2)).reshape(-1)
+        if fixed.size != 32:
+            raise ValueError(f"gain: expected shape (4, 8) or (32,), got {np.shape(gain)}")
+        candidates = []
+    else:
+        candidates = list(stable_gains(task, n_trajectories, rng, max_spectral_radius, policy))
     while len(trajs) < n_trajectories:
-        if not candidates:
+        if gain is not None:
+            candidates = [fixed]
+        elif not candidates:
             candidates = list(stable_gains(task, 1, rng, max_spectral_radius, policy))
         omega = candidates.pop(0)
         traj = task.rollout(omega, rng=rng)

@@ -100,3 +100,15 @@ def test_fig4_5_panels_share_the_default_setting():
         )
     assert len(r["_trials"][0]["results"]) == 3  # default, alpha = 10, two training trajectories
     assert s["mean_real_reward"] < 0
+    # the floors: Var(R | x0) from repeated real rollouts, and the constant predictor
+    assert 0 < d["noise_floor"] and 0 < d["constant_predictor"]
+    for panel in s["panels"].values():
+        assert {"noise_floor", "constant_predictor"} <= set(panel)
+    # only the optimisation-steps panel is also trained without the curb
+    assert "standard_uncurbed" in s["panels"]["n_opt_steps"]
+    assert "standard_uncurbed" not in s["panels"]["additive_noise"]
+    hyp = s["hyperparameters_by_steps"]
+    assert hyp["standard"]["5"]["max_signal_to_noise"] > 0
+    assert {row["item"] for row in s["setup"]} >= {"controller", "model target"}
+    results = r["_trials"][0]["results"]
+    assert sum("sparse_uncurbed" in x for x in results) == 1  # the default setting only

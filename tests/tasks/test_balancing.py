@@ -155,3 +155,39 @@ def test_pd_gain_balances_from_the_thesis_start_states():
         assert not any(t.failed for t in trajs)
         q = np.array([t.states[20:, :4] - UPRIGHT for t in trajs])
         assert np.sqrt((q**2).mean()) < s0
+
+
+def test_collect_balancing_with_a_fixed_gain():
+    task = make("balancing", n_steps=6, torque_noise_std=0.5, initial_std=0.1)
+    G = task.pd_gain()
+    data = collect_balancing(task, 3, np.random.default_rng(0), gain=G)
+    assert np.array_equal(data["omegas"], np.tile(G.ravel(), (3, 1)))
+    # the commanded torque is G x̃ at every recorded step
+    np.testing.assert_allclose(data["u"], (data["x"] - X_UP) @ G.T, rtol=1e-12, atol=1e-9)
+    with pytest.raises(ValueError, match="gain: expected shape"):
+        collect_balancing(task, 1, np.random.default_rng(0), gain=np.zeros(31))
+    with pytest.raises(ValueError, match="not both"):
+        collect_balancing(task, 1, np.random.default_rng(0), gain=G, policy=task.lqr_policy())
+
+
+def test_rollout_from_starts_at_x0_and_tracks_the_reference_law():
+    task = make("balancing", n_steps=8, torque_noise_std=0.0)
+    G = task.pd_gain().ravel()
+    x0 = X_UP + 0.05 * np.arange(8) / 8
+    a, b = task.rollout_from(G, x0, rng=0), task.rollout_from(G, x0, rng=1)
+    np.testing.assert_array_equal(a.states[0], x0)
+    np.testing.assert_array_equal(a.states, b.states)  # no noise: x_0 fixes the episode
+    # the default reference is the upright feedback of rollout()
+    np.testing.assert_allclose(a.controls, (a.states - X_UP) @ task.gain_matrix(G).T)
+    T1 = task.n_steps + 1
+    ref = X_UP + 0.1 * np.sin(np.linspace(0, 3, T1))[:, None]
+    ff = np.full((T1, 4), 2.0)
+    c = task.rollout_from(G, x0, rng=0, reference=ref, feedforward=ff)
+    np.testing.assert_allclose(c.controls, (c.states - ref) @ task.gain_matrix(G).T + ff)
+    assert not np.allclose(c.states, a.states)
+    with pytest.raises(ValueError, match="reference"):
+        task.rollout_from(G, x0, reference=ref[:-1])
+    with pytest.raises(ValueError, match="initial_state"):
+        task.rollout_from(G, x0[:4])
+    # rollout() afterwards draws its own x_0 again
+    assert not np.array_equal(task.rollout(G, rng=0).states[0], x0)

@@ -233,6 +233,47 @@ class Balancing(Task):
         finally:
             self._episode = None
 
+    def swing_reference(
+        self, amplitudes, period: float = 4.0, phases=(0.0, 0.5, 1.0, 1.5)
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """A large-amplitude swinging reference around upright and its inverse dynamics.
+
+        q_r(t) = q_up + a ⊙ sin(2π t / P + φ) over the task's T control steps, with q̇_r, q̈_r
+        its derivatives, and the feed-forward torque u_ff(t) = M(q_r) q̈_r + c(q_r, q̇_r) + g(q_r)
+        (``mujoco.mj_inverse``): with :meth:`rollout_from` this is the linear
+        trajectory-tracking PD controller of Sec. 4.2.2, u = G (x − r_t) + u_ff,t.
+
+        Parameters
+        ----------
+        amplitudes : array_like, shape (4,) or ()
+            a (rad) per joint.
+        period : float
+            P (s).
+        phases : array_like, shape (4,)
+            φ (rad) per joint.
+
+        Returns
+        -------
+        reference : ndarray, shape (T+1, 8)
+            r_t = [q_r, q̇_r] at the control steps.
+        feedforward : ndarray, shape (T+1, 4)
+        """
+        a = np.broadcast_to(check_array(amplitudes, "amplitudes", ndim=(0, 1)), (4,))
+        phi = check_array(phases, "phases", shape=(4,))
+        w = 2.0 * np.pi / check_positive(period, "period")
+        t = np.arange(self.n_steps + 1)[:, None] * self.control_dt
+        q = UPRIGHT + a * np.sin(w * t + phi)
+        qd = a * w * np.cos(w * t + phi)
+        qdd = -a * w**2 * np.sin(w * t + phi)
+        model, data = self.robot.model, self.robot.data
+        ff = np.empty((len(t), 4))
+        for i in range(len(t)):
+            self.robot.reset(q[i], qd[i])
+            data.qacc[:] = qdd[i]
+            mujoco.mj_inverse(model, data)
+            ff[i] = data.qfrc_inverse
+        return np.hstack([q, qd]), ff
+
     def _check_divergence(self, q: np.ndarray, qd: np.ndarray) -> None:
         if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd))):
             raise SimulationFailure("non-finite final state")
@@ -490,18 +531,34 @@ def balancing_transitions(trajectory: Trajectory) -> tuple[np.ndarray, np.ndarra
     return state_transitions(trajectory, 8, 4)
 
 
-def feedback_policy(gains):
-    """The sampler policy u = G_b (x − x_up) for pair b, gains a Tensor of shape (B, 4, 8).
+def feedback_policy(gains, reference=None, feedforward=None):
+    """The sampler policy u = G_b (x − r_t) + u_ff,t for pair b (default r_t = x_up, u_ff = 0).
 
-    Returns ``policy(t, x, pair) -> u`` for :func:`~skillkit.models.sampling.sample_trajectories`,
-    on the device and dtype of ``gains``.
+    Parameters
+    ----------
+    gains : Tensor, shape (B, 4, 8)
+    reference : array_like, shape (T+1, 8), optional
+        r_t, e.g. from :meth:`Balancing.swing_reference`.
+    feedforward : array_like, shape (T+1, 4), optional
+
+    Returns
+    -------
+    callable
+        ``policy(t, x, pair) -> u`` for
+        :func:`~skillkit.models.sampling.sample_trajectories`, on the device and dtype of
+        ``gains``.
     """
     import torch
 
-    x_up = torch.as_tensor(X_UP, dtype=gains.dtype, device=gains.device)
+    def tensor(value):
+        return torch.as_tensor(value, dtype=gains.dtype, device=gains.device)
+
+    ref = tensor(X_UP)[None] if reference is None else tensor(reference)
+    ff = None if feedforward is None else tensor(feedforward)
 
     def policy(t: int, x, pair):
-        return torch.einsum("nij,nj->ni", gains[pair], x - x_up)
+        u = torch.einsum("nij,nj->ni", gains[pair], x - ref[0 if reference is None else t])
+        return u if ff is None else u + ff[t]
 
     return policy
 

@@ -112,3 +112,39 @@ def test_fig4_5_panels_share_the_default_setting():
     assert {row["item"] for row in s["setup"]} >= {"controller", "model target"}
     results = r["_trials"][0]["results"]
     assert sum("sparse_uncurbed" in x for x in results) == 1  # the default setting only
+
+
+def test_fig4_3_tracking_controller_is_the_same_law_for_sampling_and_moment_matching():
+    """The sampler's policy u = G (x − r_t) + u_ff,t and moment matching's linear controller
+    u = G x + (u_ff,t − G r_t) agree: one step from N(m₀, S₀) moment matching's mean is exact
+    for an SE GP, so 20,000 sampled successors match it within Monte Carlo error."""
+    from skillkit.experiments.ch4_models import _tracking_data
+    from skillkit.models.gp import ForwardModel, HyperCurb
+    from skillkit.models.moment_matching import propagate
+    from skillkit.models.sampling import sample_trajectories
+    from skillkit.models.sparse import FITC
+    from skillkit.tasks import make
+    from skillkit.tasks.balancing import feedback_policy
+
+    task = make("balancing", n_steps=8, torque_noise_std=0.5, initial_std=0.05)
+    G = task.pd_gain()
+    ref, ff = task.swing_reference(0.6)
+    rng = np.random.default_rng(0)
+    data = _tracking_data(task, G, ref, ff, 10, rng)
+    model = ForwardModel(FITC(n_inducing=30, n_steps=10, curb=HyperCurb()))
+    model.fit(data["x"], data["u"], data["x_next"], rng=0)
+    t, S0 = 3, 0.02**2 * np.eye(8)
+    m0 = ref[t] + 0.01
+    offsets = ff[t:] - ref[t:] @ G.T
+    means, covs = propagate(model, m0, S0, 1, G, offsets[:1])
+    # the sampler's step t: shift the reference so that its step 0 is step t
+    policy = feedback_policy(torch.as_tensor(G[None]), reference=ref[t:], feedforward=ff[t:])
+    n = 20000
+    x0 = m0 + rng.standard_normal((1, n, 8)) @ np.linalg.cholesky(S0).T
+    res = sample_trajectories(model, x0, policy, 1, n, rng)
+    x1 = res.states[0, :, 1].numpy()
+    se = x1.std(0) / np.sqrt(n)
+    assert np.all(np.abs(x1.mean(0) - means[1].numpy()) < 5 * se)
+    C, C_mm = np.cov(x1.T), covs[1].numpy()  # also exact for one step
+    se_cov = np.sqrt(np.outer(np.diag(C), np.diag(C)) * 2 / n)  # ≥ the entries' MC error
+    assert np.all(np.abs(C - C_mm) < 5 * se_cov)

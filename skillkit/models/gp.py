@@ -406,7 +406,7 @@ def warn_if_clamped(m: Moments, where: str) -> None:
 # ---------------------------------------------------------------------------- hyper-parameter curb
 @dataclass(frozen=True)
 class HyperCurb:
-    """A soft box on the SE hyper-parameters: PILCO's penalty (``hypCurb.m``, Deisenroth 2010).
+    """A soft box on the SE hyper-parameters: the PILCO toolbox's penalty (``hypCurb.m``).
 
     Added to the negative log marginal likelihood (2.28) of each output a:
 
@@ -423,7 +423,8 @@ class HyperCurb:
     subspace, and maximum likelihood then drives the SE kernel to its linear limit (w → ∞,
     σ_f² → ∞, σ_f²/var(y) in the hundreds on balancing data, issue #16): the latent variance
     off the data explodes and sampled predictions diverge. The thesis does not say how it
-    trained; PILCO's defaults (r_w = 100, r_s = 500, p = 30) are used here.
+    trained; the PILCO toolbox's defaults (Rasmussen & McHutchon: r_w = 100, r_s = 500,
+    p = 30, added to the summed negative log marginal likelihood) are used here.
 
     Parameters
     ----------

@@ -8,7 +8,14 @@ from scipy import optimize
 from skillkit.policies.features import context_features
 from skillkit.policies.gaussian import GaussianPolicy, LinearGaussianPolicy
 from skillkit.search.base import Batch
-from skillkit.search.reps import ETA_BOUNDS, ContextualREPS, reps_dual, reps_weights
+from skillkit.search.reps import (
+    ETA_BOUNDS,
+    ETA_UNATTAINABLE,
+    KL_TOLERANCE,
+    ContextualREPS,
+    reps_dual,
+    reps_weights,
+)
 
 
 def solve_primal(rewards, features, epsilon):
@@ -129,6 +136,38 @@ def test_epsilon_beyond_log_n_is_reported():
     assert sol.kl <= np.log(5) + 1e-12
     assert sol.eta == pytest.approx(ETA_BOUNDS[0] * np.std(rewards))
     assert sol.weights[-1] == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize("seed", range(30))
+def test_bound_flag_follows_the_achieved_kl(seed):
+    # ε up to 5 nats on 10–40 samples with baseline features: often more than constraint (3.5)
+    # lets the weights reach, and then η stops just above its lower bound (issue #17, 4b).
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(10, 41))
+    s = rng.uniform(-1, 1, size=(n, 2))
+    phi = context_features(s, ["linear", "quadratic"][seed % 2])
+    rewards = -np.sum((s - 0.3) ** 2, axis=1) + rng.normal(size=n)
+    eps = float(rng.uniform(1.0, 5.0))
+    sol = reps_weights(rewards, phi, eps)
+    assert sol.kl_bound_active == (sol.kl >= (1 - KL_TOLERANCE) * eps)
+    assert sol.kl <= eps * (1 + KL_TOLERANCE)
+    if sol.success and not sol.kl_bound_active:
+        assert sol.eta / np.std(rewards) <= ETA_UNATTAINABLE
+
+
+def test_unattainable_epsilon_with_features_is_reported_inactive():
+    # Problem 10 of a 1,000-problem scan (80 samples, linear features, ε = 4.79): η stops at
+    # 1.5e-8 (normalised), just above its lower bound, with KL 3.34; it used to be flagged
+    # active (issue #17, 4b).
+    rng = np.random.default_rng(10)
+    n = int(rng.integers(10, 101))
+    s = rng.uniform(-1, 1, size=(n, 2))
+    rewards = -np.sum((s - 0.3) ** 2, axis=1) + rng.normal(size=n)
+    eps = float(rng.uniform(0.1, 5.0))
+    sol = reps_weights(rewards, s, eps)
+    assert (n, round(eps, 2)) == (80, 4.79)
+    assert sol.kl < 0.8 * eps and sol.eta / np.std(rewards) > ETA_BOUNDS[0]
+    assert not sol.kl_bound_active
 
 
 def test_equal_rewards_give_uniform_weights():

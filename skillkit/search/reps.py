@@ -55,17 +55,33 @@ ETA_UNATTAINABLE = 1e-5
 
 
 # --------------------------------------------------------------------------- the dual
-def _dual(params: np.ndarray, rewards: np.ndarray, features: np.ndarray, epsilon: float):
-    """Unchecked core of :func:`reps_dual`; also returns the weights p (softmax)."""
+def _dual(
+    params: np.ndarray,
+    rewards: np.ndarray,
+    features: np.ndarray,
+    epsilon: float,
+    log_base: np.ndarray | None = None,
+):
+    """Unchecked core of :func:`reps_dual`; also returns the weights p (softmax).
+
+    ``log_base`` is log q_i of normalised base weights (``None``: uniform q_i = 1/N, computed
+    without the logarithms so today's numbers are unchanged to the last bit).
+    """
     eta, gamma = params[0], params[1:]
     adv = rewards - features @ gamma
     a = adv / eta
+    if log_base is not None:
+        a = a + log_base
     m = a.max()
     z = np.exp(a - m)
     total = z.sum()
     p = z / total
-    log_mean_z = m + np.log(total) - np.log(rewards.shape[0])
-    phihat = features.mean(axis=0)
+    if log_base is None:
+        log_mean_z = m + np.log(total) - np.log(rewards.shape[0])
+        phihat = features.mean(axis=0)
+    else:
+        log_mean_z = m + np.log(total)
+        phihat = np.exp(log_base) @ features
     value = eta * log_mean_z + eta * epsilon + gamma @ phihat
     grad = np.empty_like(params)
     grad[0] = epsilon + log_mean_z - (p @ adv) / eta  # (A.11)
@@ -74,7 +90,11 @@ def _dual(params: np.ndarray, rewards: np.ndarray, features: np.ndarray, epsilon
 
 
 def reps_dual(
-    params: ArrayLike, rewards: ArrayLike, features: ArrayLike, epsilon: float
+    params: ArrayLike,
+    rewards: ArrayLike,
+    features: ArrayLike,
+    epsilon: float,
+    base_weights: ArrayLike | None = None,
 ) -> tuple[float, np.ndarray]:
     r"""Sample-based REPS dual (Eq. 3.9 / A.10) and its gradient (A.11, A.12).
 
@@ -83,6 +103,12 @@ def reps_dual(
             \exp\Big(\frac{R_i - \gamma^\top\phi(s_i)}{\eta}\Big)\Big)
             + \eta\epsilon + \gamma^\top\hat\phi,
         \qquad \hat\phi = \frac1N \sum_i \phi(s_i)
+
+    With base weights q (normalised to sum to one) the samples stand for the weighted
+    empirical distribution Σ q_i δ_i instead of the uniform one (e.g. importance weights of
+    samples not drawn from μ(s)π(ω|s), :func:`~skillkit.search.base.extra_context_importance`):
+    1/N becomes q_i inside the logarithm and φ̂ = Σ q_i φ(s_i); the KL of Eq. (3.4) is then
+    KL(p ‖ q). q uniform gives Eq. (3.9).
 
     Parameters
     ----------
@@ -94,20 +120,23 @@ def reps_dual(
         Baseline features φ(s_i) (F = 0 for episode-based REPS).
     epsilon : float
         KL bound ε > 0.
+    base_weights : array_like, shape (N,), optional
+        Non-negative base weights q_i with a positive sum (normalised here); ``None``: uniform.
 
     Returns
     -------
     value : float
         g(η, γ).
     grad : ndarray, shape (1 + F,)
-        [∂g/∂η (A.11), ∂g/∂γ (A.12)]. Note ∂g/∂η = ε − KL(p ‖ uniform) with the weights p of
-        Eq. (3.10).
+        [∂g/∂η (A.11), ∂g/∂γ (A.12)]. Note ∂g/∂η = ε − KL(p ‖ q) with the weights
+        p_i ∝ q_i exp((R_i − γᵀφ(s_i))/η) of Eq. (3.10).
     """
     r, phi = _check_samples(rewards, features)
     x = check_array(params, "params", shape=(1 + phi.shape[1],))
     if not x[0] > 0:
         raise ValueError(f"params: η = params[0] must be > 0, got {x[0]!r}")
-    value, grad, _ = _dual(x, r, phi, check_positive(epsilon, "epsilon"))
+    log_q = _log_base(base_weights, r.shape[0])
+    value, grad, _ = _dual(x, r, phi, check_positive(epsilon, "epsilon"), log_q)
     return float(value), grad
 
 
@@ -193,7 +222,10 @@ class REPSWeights(DualSolution):
 
 
 def reps_weights(
-    rewards: ArrayLike, features: ArrayLike | None = None, epsilon: float = 1.0
+    rewards: ArrayLike,
+    features: ArrayLike | None = None,
+    epsilon: float = 1.0,
+    base_weights: ArrayLike | None = None,
 ) -> REPSWeights:
     r"""Solve the REPS dual (3.9) and return the sample weights (3.10) with diagnostics.
 
@@ -209,6 +241,11 @@ def reps_weights(
         Baseline features φ(s_i); ``None`` or F = 0 gives episode-based REPS (Eq. 2.15).
     epsilon : float
         KL bound ε > 0 (Eq. 3.4).
+    base_weights : array_like, shape (N,), optional
+        Base weights q_i ≥ 0 (positive sum, normalised here): the samples stand for Σ q_i δ_i,
+        the weights are p_i ∝ q_i exp((R_i − V(s_i))/η), the bound is KL(p ‖ q) ≤ ε and the
+        feature constraint Σ p_i φ_i = Σ q_i φ_i (see :func:`reps_dual`). ``None``: uniform,
+        Eq. (3.9) exactly.
 
     Returns
     -------
@@ -217,13 +254,17 @@ def reps_weights(
     eps = check_positive(epsilon, "epsilon")
     r, phi = _check_samples(rewards, features)
     n, n_feat = phi.shape
-    phihat = phi.mean(axis=0)
+    log_q = _log_base(base_weights, n)
+    q = None if log_q is None else np.exp(log_q)
+    phihat = phi.mean(axis=0) if q is None else q @ phi
     r_max, r_scale = float(r.max()), float(r.std())
     if not r_scale > 0:
         return REPSWeights(
-            weights=np.full(n, 1.0 / n), eta=np.inf, gamma=np.zeros(n_feat), baseline=np.zeros(n),
-            dual=r_max, kl=0.0, ess=float(n), feature_error=0.0, kl_bound_active=False,
-            success=True, message="all rewards are equal: uniform weights", epsilon=eps,
+            weights=np.full(n, 1.0 / n) if q is None else q, eta=np.inf, gamma=np.zeros(n_feat),
+            baseline=np.zeros(n),
+            dual=r_max, kl=0.0, ess=float(n) if q is None else effective_sample_size(q),
+            feature_error=0.0, kl_bound_active=False,
+            success=True, message="all rewards are equal: the base weights", epsilon=eps,
             n_iterations=0,
         )  # fmt: skip
 
@@ -231,7 +272,8 @@ def reps_weights(
     r_n = (r - r_max) / r_scale
     centred = phi - phihat
     if n_feat:
-        _, sv, vt = np.linalg.svd(centred / np.sqrt(n), full_matrices=False)
+        root = centred / np.sqrt(n) if q is None else centred * np.sqrt(q)[:, None]
+        _, sv, vt = np.linalg.svd(root, full_matrices=False)
         keep = sv > 1e-10 * sv.max() if sv.size and sv.max() > 0 else np.zeros(sv.shape, bool)
         transform = vt[keep].T / sv[keep]  # (F, k): ψ = (φ − φ̂) T has identity covariance
     else:
@@ -240,7 +282,7 @@ def reps_weights(
 
     def objective(y):
         x = np.concatenate([[np.exp(y[0])], y[1:]])
-        value, grad, _ = _dual(x, r_n, psi, eps)
+        value, grad, _ = _dual(x, r_n, psi, eps, log_q)
         grad[0] *= x[0]  # chain rule for log η
         return value, grad
 
@@ -256,11 +298,11 @@ def reps_weights(
     )
     eta_n = float(np.exp(res.x[0]))
     theta = res.x[1:]
-    value_n, _, p = _dual(np.concatenate([[eta_n], theta]), r_n, psi, eps)
+    value_n, _, p = _dual(np.concatenate([[eta_n], theta]), r_n, psi, eps, log_q)
 
     eta = eta_n * r_scale
     gamma = r_scale * (transform @ theta)
-    kl = kl_from_uniform(p)
+    kl = kl_from_uniform(p) if q is None else kl_divergence(p, q)
     feature_error = float(np.max(np.abs(p @ phi - phihat))) if n_feat else 0.0
     # The bound is active when the achieved KL meets it, whatever η did (4b of issue #17: with
     # features, an unattainable ε leaves η just above its lower bound with KL well below ε).
@@ -291,6 +333,25 @@ def kl_from_uniform(weights: np.ndarray) -> float:
     p = np.asarray(weights, dtype=np.float64)
     q = p[p > 0]
     return float(np.sum(q * np.log(p.size * q)))
+
+
+def kl_divergence(weights: np.ndarray, base: np.ndarray) -> float:
+    """KL(p ‖ q) = Σ p_i log(p_i / q_i) of normalised weights p and q, shape (N,) (0 log 0 = 0;
+    p must vanish where q does)."""
+    p, q = np.asarray(weights, dtype=np.float64), np.asarray(base, dtype=np.float64)
+    pos = p > 0
+    return float(np.sum(p[pos] * np.log(p[pos] / q[pos])))
+
+
+def _log_base(base_weights: ArrayLike | None, n: int) -> np.ndarray | None:
+    """log q of validated base weights, normalised to sum to one (``None`` stays ``None``)."""
+    if base_weights is None:
+        return None
+    q = check_array(base_weights, "base_weights", shape=(n,))
+    if np.any(q < 0) or not q.sum() > 0:
+        raise ValueError("base_weights: expected non-negative weights with a positive sum")
+    with np.errstate(divide="ignore"):
+        return np.log(q) - np.log(q.sum())
 
 
 def _check_samples(rewards, features) -> tuple[np.ndarray, np.ndarray]:

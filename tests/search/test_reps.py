@@ -170,6 +170,54 @@ def test_unattainable_epsilon_with_features_is_reported_inactive():
     assert not sol.kl_bound_active
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_base_weights_equal_replicated_samples(seed):
+    # Integer base weights c_i are the same as sample i repeated c_i times (an independent
+    # computation through the uniform dual): weights add up over the copies, and η, γ, the
+    # dual value and the achieved KL(p ‖ q) agree.
+    rewards, phi, eps = random_problem(seed)
+    counts = np.random.default_rng(seed).integers(1, 4, size=rewards.shape[0])
+    sol = reps_weights(rewards, phi, eps, base_weights=counts)
+    rep = reps_weights(np.repeat(rewards, counts), np.repeat(phi, counts, axis=0), eps)
+    merged = np.add.reduceat(rep.weights, np.concatenate([[0], np.cumsum(counts)[:-1]]))
+    np.testing.assert_allclose(sol.weights, merged, atol=1e-7)
+    assert sol.eta == pytest.approx(rep.eta, rel=1e-5)
+    assert sol.dual == pytest.approx(rep.dual, rel=1e-7)
+    assert sol.kl == pytest.approx(rep.kl, rel=1e-6) and sol.kl == pytest.approx(eps, rel=1e-3)
+    q = counts / counts.sum()
+    assert sol.weights.sum() == pytest.approx(1.0)
+    np.testing.assert_allclose(sol.weights @ phi, q @ phi, atol=1e-8)
+    assert sol.kl == pytest.approx(np.sum(sol.weights * np.log(sol.weights / q)), rel=1e-12)
+
+
+def test_base_weighted_dual_gradient_matches_finite_differences():
+    rewards, phi, eps = random_problem(5)
+    rng = np.random.default_rng(7)
+    q = rng.uniform(0.1, 2.0, size=rewards.shape[0])
+    x = np.concatenate([[0.8], rng.normal(size=phi.shape[1])])
+    value, grad = reps_dual(x, rewards, phi, eps, base_weights=q)
+    fd = np.array(
+        [
+            (
+                reps_dual(x + 1e-6 * e, rewards, phi, eps, q)[0]
+                - reps_dual(x - 1e-6 * e, rewards, phi, eps, q)[0]
+            )
+            / 2e-6
+            for e in np.eye(x.size)
+        ]
+    )
+    np.testing.assert_allclose(grad, fd, rtol=1e-6, atol=1e-8)
+    qn = q / q.sum()
+    a = (rewards - phi @ x[1:]) / x[0]
+    direct = x[0] * np.log(qn @ np.exp(a)) + x[0] * eps + x[1:] @ (qn @ phi)
+    assert value == pytest.approx(direct, rel=1e-12)
+    # uniform base weights are Eq. (3.9)
+    plain = reps_dual(x, rewards, phi, eps)
+    uniform = reps_dual(x, rewards, phi, eps, np.full(rewards.shape[0], 3.0))
+    assert uniform[0] == pytest.approx(plain[0], rel=1e-12)
+    np.testing.assert_allclose(uniform[1], plain[1], rtol=1e-10, atol=1e-12)
+
+
 def test_equal_rewards_give_uniform_weights():
     sol = reps_weights(np.full(7, -3.0), np.random.default_rng(0).normal(size=(7, 2)), 0.5)
     np.testing.assert_allclose(sol.weights, np.full(7, 1 / 7))
@@ -257,3 +305,6 @@ def test_bad_input_names_the_argument():
         reps_dual([0.0, 1.0], np.zeros(3), np.zeros((3, 1)), 1.0)
     with pytest.raises(ValueError, match="params"):
         reps_dual([1.0], np.zeros(3), np.zeros((3, 1)), 1.0)
+    for bad in ([1.0, -1.0, 1.0], [0.0, 0.0, 0.0], [1.0, np.nan, 1.0], [1.0, 1.0]):
+        with pytest.raises(ValueError, match="base_weights"):
+            reps_weights([0.0, 1.0, 2.0], None, 1.0, base_weights=bad)

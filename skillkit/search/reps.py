@@ -32,6 +32,7 @@ Numerics of :func:`reps_weights`
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
+from typing import Literal, get_args
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -39,8 +40,14 @@ from scipy import optimize
 
 from skillkit._validation import check_array, check_positive
 from skillkit.policies.features import FeatureName, check_feature_name, context_features
-from skillkit.policies.gaussian import FitInfo, LinearGaussianPolicy, effective_sample_size
-from skillkit.search.base import Fields, WeightedMLSearch
+from skillkit.policies.gaussian import (
+    FitInfo,
+    LinearGaussianPolicy,
+    TrustRegionStep,
+    effective_sample_size,
+    trust_region_step,
+)
+from skillkit.search.base import Batch, Fields, WeightedMLSearch, extra_context_importance
 from skillkit.search.base import SampleBuffer as SampleBuffer  # re-exported (and old pickles)
 from skillkit.search.base import check_batch as check_batch  # re-exported
 
@@ -380,23 +387,40 @@ class REPSDiagnostics(DualSolution):
     n_samples : int
         Samples used (the last L batches).
     policy_kl : float
-        KL(π_new ‖ π_old) averaged over the contexts used.
+        KL(π_new ‖ π_old) averaged over the contexts used, after the M-step (every update).
     mean_reward : float
         Mean reward of the newest batch.
     fit : FitInfo
         What the weighted maximum-likelihood fit did (effective samples, floor hits).
+    m_step : TrustRegionStep or None
+        With ``m_step="trust_region"``: the fit's own KL and entropy loss and what the
+        entropy and KL bounds did to it (:func:`~skillkit.policies.gaussian.trust_region_step`);
+        ``None`` with ``m_step="weighted_ml"`` (then ``policy_kl`` is the fit's KL).
     """
 
     n_samples: int
     policy_kl: float
     mean_reward: float
     fit: FitInfo
+    m_step: TrustRegionStep | None = None
 
     def __repr__(self) -> str:
+        ml = "" if self.m_step is None else f", ml_kl={self.m_step.ml_kl:.4g}"
         return (
             f"REPSDiagnostics(n_samples={self.n_samples}, {self._summary()}, "
-            f"policy_kl={self.policy_kl:.4g}, mean_reward={self.mean_reward:.4g})"
+            f"policy_kl={self.policy_kl:.4g}{ml}, mean_reward={self.mean_reward:.4g})"
         )
+
+
+ExtraContextWeighting = Literal["naive", "importance", "dual_only"]
+MStep = Literal["weighted_ml", "trust_region"]
+
+#: How REPS uses re-scored extra-context rows (Sec. 3.4) by default. ``"naive"`` is today's
+#: behaviour, with which every stored result was made; ``"importance"`` is the fix of issue #17.
+DEFAULT_EXTRA_CONTEXT_WEIGHTING: ExtraContextWeighting = "naive"
+#: REPS's M-step by default. ``"weighted_ml"`` (Eqs. 3.11–3.13 alone) is today's behaviour,
+#: with which every stored result was made; ``"trust_region"`` is the fix of issue #17.
+DEFAULT_M_STEP: MStep = "weighted_ml"
 
 
 class ContextualREPS(WeightedMLSearch[REPSDiagnostics]):
@@ -421,6 +445,26 @@ class ContextualREPS(WeightedMLSearch[REPSDiagnostics]):
         quadratic in s.
     ridge, cov_shrinkage, cov_floor, min_effective_samples
         Regularisation of the weighted ML fit (:class:`~skillkit.search.base.WeightedMLSearch`).
+    extra_context_weighting : {"naive", "importance", "dual_only"}
+        How rows that re-score a rollout in an extra context (``Batch.n_rollouts`` < N, Sec. 3.4)
+        are used. ``"naive"``: as if drawn from μ(s)π(ω|s), which biases the gain A towards
+        zero (in 20 of 21 rows ω does not depend on s). ``"importance"``: every row of a batch
+        carries the importance weight of
+        :func:`~skillkit.search.base.extra_context_importance` under the policy that drew it
+        (the current policy when the batch arrives, as in Table 3.1); the weights are the base
+        distribution q of the dual (:func:`reps_weights`), so p_i ∝ q_i exp((R_i − V(s_i))/η)
+        and the fit sees the extra rows weighted accordingly. ``"dual_only"``: the dual uses
+        every row as ``"naive"`` does, the fit only the rollouts (their weights renormalised).
+        Default :data:`DEFAULT_EXTRA_CONTEXT_WEIGHTING`. Batches without extra rows are
+        unaffected.
+    m_step : {"weighted_ml", "trust_region"}
+        ``"weighted_ml"``: the policy is the weighted ML fit (3.11–3.13), whose KL from the
+        old policy can be twice ε. ``"trust_region"``: the fit is passed through
+        :func:`~skillkit.policies.gaussian.trust_region_step` (entropy loss ≤ β, then
+        KL(π_new ‖ π_old) ≤ ε). Default :data:`DEFAULT_M_STEP`.
+    entropy_loss_bound : float, optional
+        β > 0 of ``m_step="trust_region"`` in nats per update (default ε: the entropy may fall
+        by at most the KL budget per update).
     """
 
     def __init__(
@@ -433,20 +477,69 @@ class ContextualREPS(WeightedMLSearch[REPSDiagnostics]):
         cov_shrinkage: float = 0.0,
         cov_floor: float = 1e-4,
         min_effective_samples: float | None = None,
+        *,
+        extra_context_weighting: ExtraContextWeighting = DEFAULT_EXTRA_CONTEXT_WEIGHTING,
+        m_step: MStep = DEFAULT_M_STEP,
+        entropy_loss_bound: float | None = None,
     ):
         super().__init__(
             policy, n_reuse_batches, ridge, cov_shrinkage, cov_floor, min_effective_samples
         )
         self.epsilon = check_positive(epsilon, "epsilon")
         self.baseline_features = check_feature_name(baseline_features, "baseline_features")
+        self.extra_context_weighting = _check_choice(
+            extra_context_weighting, "extra_context_weighting", get_args(ExtraContextWeighting)
+        )
+        self.m_step = _check_choice(m_step, "m_step", get_args(MStep))
+        self.entropy_loss_bound = (
+            self.epsilon
+            if entropy_loss_bound is None
+            else check_positive(entropy_loss_bound, "entropy_loss_bound")
+        )
 
     _diagnostics = REPSDiagnostics
 
     def _settings_repr(self) -> str:
-        return f"epsilon={self.epsilon:.4g}, baseline_features={self.baseline_features!r}"
+        text = f"epsilon={self.epsilon:.4g}, baseline_features={self.baseline_features!r}"
+        if self.extra_context_weighting != "naive":
+            text += f", extra_context_weighting={self.extra_context_weighting!r}"
+        if self.m_step != "weighted_ml":
+            text += f", m_step={self.m_step!r}, entropy_loss_bound={self.entropy_loss_bound:.4g}"
+        return text
+
+    def _importance(self, batch: Batch) -> np.ndarray | None:
+        """Importance weights of a batch with extra-context rows (``"importance"`` only)."""
+        if self.extra_context_weighting != "importance" or batch.n_rollouts == len(batch):
+            return None
+        return extra_context_importance(
+            self._policy, batch.contexts, batch.omegas, batch.n_rollouts
+        )
 
     def _weigh(self, contexts: np.ndarray, rewards: np.ndarray) -> tuple[np.ndarray, Fields]:
-        """Weights (3.10) from the dual (3.9) with baseline features φ(s) of the contexts."""
+        """Weights (3.10) from the dual (3.9) with baseline features φ(s) of the contexts, on
+        the kept rows' importance weights (``"importance"``), or zero on extra-context rows
+        after the dual (``"dual_only"``)."""
         phi = context_features(contexts, self.baseline_features) if contexts.shape[1] else None
-        sol = reps_weights(rewards, phi, self.epsilon)
-        return sol.weights, {f.name: getattr(sol, f.name) for f in fields(DualSolution)}
+        sol = reps_weights(rewards, phi, self.epsilon, self._buffer.importance())
+        weights = sol.weights
+        if self.extra_context_weighting == "dual_only":
+            rollout = self._buffer.rollout_mask()
+            if not rollout.all():
+                weights = np.where(rollout, weights, 0.0)
+                weights = weights / weights.sum()
+        return weights, {f.name: getattr(sol, f.name) for f in fields(DualSolution)}
+
+    def _m_step(
+        self, old: LinearGaussianPolicy, fitted: LinearGaussianPolicy, contexts: np.ndarray
+    ) -> tuple[LinearGaussianPolicy, Fields]:
+        """The weighted ML fit, or its trust-region correction (``m_step="trust_region"``)."""
+        if self.m_step == "weighted_ml":
+            return fitted, {}
+        new, step = trust_region_step(old, fitted, contexts, self.epsilon, self.entropy_loss_bound)
+        return new, {"m_step": step}
+
+
+def _check_choice(value: str, name: str, choices: tuple[str, ...]) -> str:
+    if value not in choices:
+        raise ValueError(f"{name}: expected one of {', '.join(map(repr, choices))}, got {value!r}")
+    return value

@@ -10,7 +10,10 @@ policy by weighted maximum likelihood (Eqs. 3.11–3.13,
 :meth:`~skillkit.policies.gaussian.LinearGaussianPolicy.fit_with_info`). They differ only in
 the weights: REPS solves its dual for p_i ∝ exp((R_i − V(s_i))/η) (Eq. 3.10), RWR takes
 w_i ∝ exp(β R_i) (Eq. 2.18). :class:`WeightedMLSearch` runs the loop; a subclass supplies
-:meth:`~WeightedMLSearch._weigh` and its diagnostics dataclass.
+:meth:`~WeightedMLSearch._weigh` and its diagnostics dataclass, and may override two hooks
+(REPS does, issue #17): :meth:`~WeightedMLSearch._importance` (importance weights of a new
+batch's rows, e.g. :func:`extra_context_importance` for re-scored extra-context rows) and
+:meth:`~WeightedMLSearch._m_step` (what becomes of the weighted ML fit).
 """
 
 from __future__ import annotations
@@ -366,6 +369,11 @@ class WeightedMLSearch(Generic[D]):
 
     def update(self, batch: Batch) -> D:
         """Add a batch, weight the last L batches (:meth:`_weigh`) and refit the policy.
+
+        In order: the batch's importance weights under the current policy
+        (:meth:`_importance`) are kept with it in the buffer; the kept rows are weighted
+        (:meth:`_weigh`); the policy is refitted by weighted ML (Eqs. 3.11–3.13) and passed
+        through :meth:`_m_step`; KL(π_new ‖ π_old) is averaged over the kept contexts.
 
         Parameters
         ----------

@@ -516,6 +516,10 @@ class ContextualREPS(WeightedMLSearch[REPSDiagnostics]):
         )
 
     _diagnostics = REPSDiagnostics
+    # What an instance pickled before issue #17 (which has none of these attributes) ran.
+    extra_context_weighting: ExtraContextWeighting = "naive"
+    m_step: MStep = "weighted_ml"
+    entropy_loss_bound: float | None = None
 
     def _settings_repr(self) -> str:
         text = f"epsilon={self.epsilon:.4g}, baseline_features={self.baseline_features!r}"

@@ -133,6 +133,21 @@ def test_buffer_marks_rollouts_across_batches_and_reads_old_batches():
     assert buf.arrays()[0].shape == (5, 1)
 
 
+def test_reps_pickled_before_the_options_runs_as_before():
+    task = Target()
+    batch = collect(task, task.initial_policy(), 10, 4, extra_contexts=3)
+    new = ContextualREPS(task.initial_policy(), 0.5)
+    old = ContextualREPS(task.initial_policy(), 0.5)
+    for name in ("extra_context_weighting", "m_step", "entropy_loss_bound"):
+        del vars(old)[name]  # an instance unpickled from before issue #17
+    old._buffer._batches.append((batch.contexts[:10], batch.omegas[:10], batch.rewards[:10]))
+    new._buffer.add(batch.contexts[:10], batch.omegas[:10], batch.rewards[:10])
+    old.update(batch)
+    new.update(batch)
+    np.testing.assert_array_equal(old.policy.gain, new.policy.gain)
+    np.testing.assert_array_equal(old.policy.cov, new.policy.cov)
+
+
 def test_bad_input_names_the_argument():
     pol = Target().initial_policy()
     with pytest.raises(ValueError, match="extra_context_weighting"):

@@ -195,8 +195,9 @@ def extra_context_importance(
         w(s, \omega) = \frac{\pi(\omega|s)}{f\,\pi(\omega|s) + (1 - f)\,\hat m(\omega)},
         \qquad \hat m(\omega) = \frac1N \sum_{j=1}^N \pi(\omega|s_j),
 
-    with m estimated by the mixture of π(ω|s_j) over the batch's own contexts. E[w | s] = 1,
-    and w ≤ 1/f = 1 + k.
+    with m estimated by the mixture of π(ω|s_j) over the batch's own contexts. With the exact
+    m, E[w | s] = 1 under q; always 0 < w ≤ 1/f = 1 + k. Cost: M N log-densities (M = N (1 + k)
+    rows), held in one (M N, d) array.
 
     Parameters
     ----------

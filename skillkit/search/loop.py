@@ -6,7 +6,9 @@ The loop is built from three named pieces, and :func:`learn` runs them top to bo
   R(τ_i, s_i): one :class:`~skillkit.search.base.Batch` for ``algorithm.update(batch)``. With
   ``extra_contexts=k`` each trajectory is also re-scored in k freshly drawn contexts through the
   task's reward (the *extra context* variant of Sec. 3.4), which is only valid when the
-  trajectory does not depend on the context.
+  trajectory does not depend on the context. The batch marks its first N rows as the
+  rollouts (``Batch.n_rollouts``); in the re-scored rows ω does not depend on s, which
+  :class:`~skillkit.search.reps.ContextualREPS` corrects with ``extra_context_weighting``.
 * :class:`Evaluator` — the average reward of the policy *mean* on fixed contexts.
 * :class:`LoopState` — what the loop has done so far (curves, diagnostics, policies, callback
   values, the algorithm); the state a :class:`~skillkit.trial.TrialContext` checkpoints after
@@ -95,7 +97,9 @@ def collect(
     Batch
         N (1 + k) rows: first the N rollouts in their own contexts, then each trajectory's k
         re-scorings (rows N + i k … N + (i + 1) k − 1 re-score trajectory i, with ω_i and
-        τ_i repeated).
+        τ_i repeated); ``n_rollouts`` = N. The re-scored pairs (s′, ω_i) are not draws of
+        μ(s)π(ω|s): how an algorithm uses them is its choice, e.g. ContextualREPS's
+        ``extra_context_weighting`` (:func:`~skillkit.search.base.extra_context_importance`).
     """
     n = check_count(n, "n", 1)
     n_extra = _check_extra_contexts(task, extra_contexts)
@@ -113,7 +117,7 @@ def collect(
         omegas = np.concatenate([omegas, np.repeat(omegas, n_extra, axis=0)])
         rewards = np.concatenate([rewards, extra_r.reshape(-1)])
         trajs = trajs + [t for t in trajs for _ in range(n_extra)]
-    return Batch(contexts, omegas, rewards, trajs)
+    return Batch(contexts, omegas, rewards, trajs, n_rollouts=n)
 
 
 # --------------------------------------------------------------------------- evaluation

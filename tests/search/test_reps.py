@@ -8,7 +8,14 @@ from scipy import optimize
 from skillkit.policies.features import context_features
 from skillkit.policies.gaussian import GaussianPolicy, LinearGaussianPolicy
 from skillkit.search.base import Batch
-from skillkit.search.reps import ETA_BOUNDS, ContextualREPS, reps_dual, reps_weights
+from skillkit.search.reps import (
+    ETA_BOUNDS,
+    ETA_UNATTAINABLE,
+    KL_TOLERANCE,
+    ContextualREPS,
+    reps_dual,
+    reps_weights,
+)
 
 
 def solve_primal(rewards, features, epsilon):
@@ -131,6 +138,86 @@ def test_epsilon_beyond_log_n_is_reported():
     assert sol.weights[-1] == pytest.approx(1.0)
 
 
+@pytest.mark.parametrize("seed", range(30))
+def test_bound_flag_follows_the_achieved_kl(seed):
+    # ε up to 5 nats on 10–40 samples with baseline features: often more than constraint (3.5)
+    # lets the weights reach, and then η stops just above its lower bound (issue #17, 4b).
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(10, 41))
+    s = rng.uniform(-1, 1, size=(n, 2))
+    phi = context_features(s, ["linear", "quadratic"][seed % 2])
+    rewards = -np.sum((s - 0.3) ** 2, axis=1) + rng.normal(size=n)
+    eps = float(rng.uniform(1.0, 5.0))
+    sol = reps_weights(rewards, phi, eps)
+    assert sol.kl_bound_active == (sol.kl >= (1 - KL_TOLERANCE) * eps)
+    assert sol.kl <= eps * (1 + KL_TOLERANCE)
+    if sol.success and not sol.kl_bound_active:
+        assert sol.eta / np.std(rewards) <= ETA_UNATTAINABLE
+
+
+def test_unattainable_epsilon_with_features_is_reported_inactive():
+    # Problem 10 of a 1,000-problem scan (80 samples, linear features, ε = 4.79): η stops at
+    # 1.5e-8 (normalised), just above its lower bound, with KL 3.34; it used to be flagged
+    # active (issue #17, 4b).
+    rng = np.random.default_rng(10)
+    n = int(rng.integers(10, 101))
+    s = rng.uniform(-1, 1, size=(n, 2))
+    rewards = -np.sum((s - 0.3) ** 2, axis=1) + rng.normal(size=n)
+    eps = float(rng.uniform(0.1, 5.0))
+    sol = reps_weights(rewards, s, eps)
+    assert (n, round(eps, 2)) == (80, 4.79)
+    assert sol.kl < 0.8 * eps and sol.eta / np.std(rewards) > ETA_BOUNDS[0]
+    assert not sol.kl_bound_active
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_base_weights_equal_replicated_samples(seed):
+    # Integer base weights c_i are the same as sample i repeated c_i times (an independent
+    # computation through the uniform dual): weights add up over the copies, and η, γ, the
+    # dual value and the achieved KL(p ‖ q) agree.
+    rewards, phi, eps = random_problem(seed)
+    counts = np.random.default_rng(seed).integers(1, 4, size=rewards.shape[0])
+    sol = reps_weights(rewards, phi, eps, base_weights=counts)
+    rep = reps_weights(np.repeat(rewards, counts), np.repeat(phi, counts, axis=0), eps)
+    merged = np.add.reduceat(rep.weights, np.concatenate([[0], np.cumsum(counts)[:-1]]))
+    np.testing.assert_allclose(sol.weights, merged, atol=1e-7)
+    assert sol.eta == pytest.approx(rep.eta, rel=1e-5)
+    assert sol.dual == pytest.approx(rep.dual, rel=1e-7)
+    assert sol.kl == pytest.approx(rep.kl, rel=1e-6) and sol.kl == pytest.approx(eps, rel=1e-3)
+    q = counts / counts.sum()
+    assert sol.weights.sum() == pytest.approx(1.0)
+    np.testing.assert_allclose(sol.weights @ phi, q @ phi, atol=1e-8)
+    assert sol.kl == pytest.approx(np.sum(sol.weights * np.log(sol.weights / q)), rel=1e-12)
+
+
+def test_base_weighted_dual_gradient_matches_finite_differences():
+    rewards, phi, eps = random_problem(5)
+    rng = np.random.default_rng(7)
+    q = rng.uniform(0.1, 2.0, size=rewards.shape[0])
+    x = np.concatenate([[0.8], rng.normal(size=phi.shape[1])])
+    value, grad = reps_dual(x, rewards, phi, eps, base_weights=q)
+    fd = np.array(
+        [
+            (
+                reps_dual(x + 1e-6 * e, rewards, phi, eps, q)[0]
+                - reps_dual(x - 1e-6 * e, rewards, phi, eps, q)[0]
+            )
+            / 2e-6
+            for e in np.eye(x.size)
+        ]
+    )
+    np.testing.assert_allclose(grad, fd, rtol=1e-6, atol=1e-8)
+    qn = q / q.sum()
+    a = (rewards - phi @ x[1:]) / x[0]
+    direct = x[0] * np.log(qn @ np.exp(a)) + x[0] * eps + x[1:] @ (qn @ phi)
+    assert value == pytest.approx(direct, rel=1e-12)
+    # uniform base weights are Eq. (3.9)
+    plain = reps_dual(x, rewards, phi, eps)
+    uniform = reps_dual(x, rewards, phi, eps, np.full(rewards.shape[0], 3.0))
+    assert uniform[0] == pytest.approx(plain[0], rel=1e-12)
+    np.testing.assert_allclose(uniform[1], plain[1], rtol=1e-10, atol=1e-12)
+
+
 def test_equal_rewards_give_uniform_weights():
     sol = reps_weights(np.full(7, -3.0), np.random.default_rng(0).normal(size=(7, 2)), 0.5)
     np.testing.assert_allclose(sol.weights, np.full(7, 1 / 7))
@@ -218,3 +305,6 @@ def test_bad_input_names_the_argument():
         reps_dual([0.0, 1.0], np.zeros(3), np.zeros((3, 1)), 1.0)
     with pytest.raises(ValueError, match="params"):
         reps_dual([1.0], np.zeros(3), np.zeros((3, 1)), 1.0)
+    for bad in ([1.0, -1.0, 1.0], [0.0, 0.0, 0.0], [1.0, np.nan, 1.0], [1.0, 1.0]):
+        with pytest.raises(ValueError, match="base_weights"):
+            reps_weights([0.0, 1.0, 2.0], None, 1.0, base_weights=bad)

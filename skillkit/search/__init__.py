@@ -7,7 +7,7 @@ diagnostics, so :func:`skillkit.search.loop.learn` runs any of them. The loop is
 and :class:`LoopState` (what it has done; what it checkpoints).
 """
 
-from skillkit.search.base import Batch
+from skillkit.search.base import Batch, extra_context_importance
 from skillkit.search.crkr import CrKR, CrKRDiagnostics, CrKRPolicy
 from skillkit.search.gpreps import (
     GPREPS,
@@ -58,6 +58,7 @@ __all__ = [
     "ThrowingPrediction",
     "ThrowingRewardModel",
     "TrajectoryRewardModel",
+    "extra_context_importance",
     "REPSWeights",
     "RWRDiagnostics",
     "collect",

@@ -150,6 +150,7 @@ def test_one_step_trajectory_error_equals_step_error():
         bases,
         torch.from_numpy(np.broadcast_to(r, (4, 15)).copy()),
         torch.from_numpy(r1),
+        project_initial=False,  # Eq. 5.23 as printed: β₁ = (G + λI)⁻¹ g(z₀), one step = 5.19
     )
     step = step_reward_error(
         theta,

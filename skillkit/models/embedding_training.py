@@ -525,6 +525,7 @@ def fit_hyperparameters(
     lengthscale_factor: float = 100.0,
     lam_bounds: tuple[float, float] = (1e-6, 1.0),
     max_iter: int = 100,
+    lengthscale_reference=None,
 ) -> FitResult:
     """Minimise a cross-validated embedding error over log length-scales (and log λ).
 
@@ -543,11 +544,15 @@ def fit_hyperparameters(
     learn_lam : bool
         Optimise λ as well.
     lengthscale_factor : float
-        Length-scales are searched in [w0 / factor, w0 · factor].
+        Length-scales are searched in [w_ref / factor, w_ref · factor].
     lam_bounds : (float, float)
         Search interval of λ.
     max_iter : int
         L-BFGS-B iterations.
+    lengthscale_reference : float or array_like, shape (d,), optional
+        w_ref of the search box (default: the initial ``lengthscale``), so a fit started
+        elsewhere (e.g. at another fit's optimum) searches the same box; the initial values
+        are clipped into it.
 
     Returns
     -------
@@ -562,7 +567,15 @@ def fit_hyperparameters(
     if not lo_l <= lam <= hi_l:
         raise ValueError(f"lam: expected a value inside lam_bounds {lam_bounds}, got {lam}")
     f = check_positive(lengthscale_factor, "lengthscale_factor")
-    bounds = [(np.log(w / f), np.log(w * f)) for w in w0]
+    ref = w0
+    if lengthscale_reference is not None:
+        ref = np.broadcast_to(
+            check_array(lengthscale_reference, "lengthscale_reference", ndim=(0, 1)), (d,)
+        ).copy()
+        if np.any(ref <= 0):
+            raise ValueError(f"lengthscale_reference: expected positive values, got {ref}")
+        w0 = np.clip(w0, ref / f, ref * f)
+    bounds = [(np.log(w / f), np.log(w * f)) for w in ref]
     theta0 = np.append(np.log(w0), np.log(lam))
 
     if learn_lam:

@@ -339,12 +339,13 @@ def _pendulum_summary(key: str, label: str, unit: str):
             m: np.mean([t[f"{m}_{key}"] for t in trials], axis=0)
             for m in ("emb", "emb_preimage", "gp", "const", "floor")
         }
-        with np.errstate(divide="ignore"):  # a zero error (e.g. a saturated control) is blank
-            logs = {m: np.where(v > 0, np.log10(v), np.nan) for m, v in maps.items()}
-        # One colour range for the predictors (a)–(c); the floor (d) has its own.
-        finite = np.concatenate([logs[m][np.isfinite(logs[m])] for m in ("emb", "gp", "const")])
+        # Exact zeros (e.g. the floor where the control saturates) are drawn at 10⁻³⁰, below
+        # the colour ranges, which come from the positive values: (a)–(c) share one, (d) its own.
+        logs = {m: np.log10(np.maximum(v, 1e-30)) for m, v in maps.items()}
+        pos = {m: logs[m][maps[m] > 0] for m in maps}
+        finite = np.concatenate([pos[m] for m in ("emb", "gp", "const")])
         zmin, zmax = float(finite.min()), float(finite.max())
-        fl = logs["floor"][np.isfinite(logs["floor"])]
+        fl = pos["floor"] if pos["floor"].size else np.array([-30.0])
         t0 = trials[0]
         obs = np.asarray(t0["observed_states"])
         xs = np.concatenate([np.append(tr[:, 0], np.nan) for tr in obs])

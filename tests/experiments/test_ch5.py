@@ -38,6 +38,9 @@ def test_registered_with_thesis_settings_at_paper_scale():
     assert 4.0 in get("fig5.7").settings["paper"].torque_noise
     for exp_id in ("fig5.3", "fig5.6"):
         assert get(exp_id).settings["paper"].gp_target == "next"
+    # λ ≥ 1e-3 wherever β is propagated over many steps; free (≥ 1e-6) for single steps.
+    lam_min = {i: get(i).settings["paper"].lam_min for i in ("fig5.3", "fig5.5", "fig5.6")}
+    assert lam_min == {"fig5.3": 1e-6, "fig5.5": 1e-3, "fig5.6": 1e-3}
 
 
 def test_rollouts_from_a_start_state_are_the_tasks_episode():

@@ -334,8 +334,8 @@ def _near_data(t0: dict, n: int) -> np.ndarray:
 _PENDULUM_PANELS = (
     ("emb", "(a) kernel embedding"),
     ("gp", "(b) GP regression"),
-    ("const", "(c) constant predictor (mean observed)"),
-    ("floor", "(d) noise floor (MC variance of the truth)"),
+    ("const", "(c) constant predictor"),
+    ("floor", "(d) noise floor"),
 )
 
 

@@ -13,9 +13,9 @@ shape ``(N,)`` for one embedding and ``(N, B)`` for a batch of ``B`` embeddings.
 The module has two layers:
 
 * pure torch functions (:func:`regularized_cholesky`, :func:`conditional_weights`,
-  :func:`rollout_weights`) that hold the linear algebra once; the prediction code and the
-  differentiable training objectives of :mod:`skillkit.models.embedding_training` both use
-  them;
+  :func:`initial_weights`, :func:`rollout_weights`) that hold the linear algebra once; the
+  prediction code and the differentiable training objectives of
+  :mod:`skillkit.models.embedding_training` both use them;
 * :class:`ConditionalEmbedding`, a fitted operator with a numpy interface: weights for
   deterministic queries (Eq. 2.39) and for sample-represented distributions (Eqs. 5.6–5.7),
   composition with another operator (Eq. 2.42), expected function values (Eq. 2.43) and
@@ -40,6 +40,7 @@ from skillkit.models.kernels import Linear, SquaredExponential, gram
 __all__ = [
     "ConditionalEmbedding",
     "conditional_weights",
+    "initial_weights",
     "regularized_cholesky",
     "rkhs_expectation",
     "rollout_weights",
@@ -97,6 +98,43 @@ def conditional_weights(chol: torch.Tensor, cross: torch.Tensor) -> torch.Tensor
     Tensor, shape (..., N, B)
     """
     return torch.cholesky_solve(cross, chol)
+
+
+def initial_weights(
+    chol: torch.Tensor, gram_matrix: torch.Tensor, mean_cross: torch.Tensor, project: bool = True
+) -> torch.Tensor:
+    """Weights of the first predicted state embedding, Eqs. (5.6) and (5.9).
+
+    The initial distribution, given by samples z_l, is embedded over the observed inputs,
+    :math:`\\mu_{z_1} = \\Phi_z \\alpha` with :math:`\\alpha = (G + \\lambda I)^{-1}
+    \\langle g(z_l) \\rangle_l` (Eq. 5.6); the dynamics operator maps it to the embedding of
+    the successor over the observed successors (Eq. 5.9),
+
+    .. math:: \\mu_{x_2} = \\Phi_{x'} (G + \\lambda I)^{-1} G \\alpha = \\Phi_{x'} \\beta.
+
+    With ``project=False`` the operator is applied to the query features themselves,
+    :math:`\\beta = (G + \\lambda I)^{-1} \\langle g(z_l) \\rangle_l` (Eq. 5.7, the
+    regression read-out); the two agree as λ → 0 ("β₂ = β₁ for sufficiently small λ").
+
+    Parameters
+    ----------
+    chol : Tensor, shape (N, N)
+        :func:`regularized_cholesky` of G.
+    gram_matrix : Tensor, shape (N, N)
+        G over the observed inputs (used only with ``project``).
+    mean_cross : Tensor, shape (N, B)
+        :math:`\\langle g(z_i, z_l) \\rangle_l` per initial distribution (column).
+    project : bool
+        Apply Eq. (5.9)'s :math:`(G + \\lambda I)^{-1} G` to the Eq. (5.6) weights.
+
+    Returns
+    -------
+    Tensor, shape (N, B)
+    """
+    alpha = conditional_weights(chol, mean_cross)
+    if not project:
+        return alpha
+    return conditional_weights(chol, gram_matrix @ alpha)
 
 
 def rollout_weights(

@@ -31,7 +31,7 @@ import torch
 
 from skillkit._repr import span
 from skillkit._validation import check_array
-from skillkit.models.embedding import ConditionalEmbedding, conditional_weights, rollout_weights
+from skillkit.models.embedding import ConditionalEmbedding, initial_weights, rollout_weights
 
 __all__ = ["TrajectoryEmbedding", "predict"]
 
@@ -103,6 +103,7 @@ def predict(
     policy: Policy | None = None,
     reward: Reward | None = None,
     time_invariant: bool = False,
+    project_initial: bool = True,
 ) -> TrajectoryEmbedding:
     """Kernel trajectory prediction, Table 5.1 (fixed policy) and Table 5.2 (any policy).
 
@@ -127,6 +128,12 @@ def predict(
         (controls have n_u = 0 without a policy). Gives :attr:`TrajectoryEmbedding.rewards`.
     time_invariant : bool
         The policy ignores ``t``: :math:`\\tilde G^\\pi` is computed once instead of per step.
+    project_initial : bool
+        First step as Eq. (5.9) (default): the initial samples are embedded over the observed
+        inputs (Eq. 5.6, α) and mapped by :math:`(G + \\lambda I)^{-1} G`, so
+        :math:`\\beta_1 = (G + \\lambda I)^{-1} G \\alpha`; ``False`` uses
+        :math:`\\beta_1 = \\alpha` (Eq. 5.7's one-step read-out, equal as λ → 0). See
+        :func:`~skillkit.models.embedding.initial_weights`.
 
     Returns
     -------
@@ -217,7 +224,9 @@ def predict(
     with torch.no_grad():
         z1, c1 = inputs_at(samples, 0)  # (B, L, d_z)
         cross = model.cross_kernel(torch.from_numpy(np.ascontiguousarray(z1)))  # (B, N, L)
-        beta1 = conditional_weights(model.chol, cross.mean(-1).T.contiguous())  # (N, B)
+        beta1 = initial_weights(
+            model.chol, torch.from_numpy(model.gram), cross.mean(-1).T.contiguous(), project_initial
+        )  # (N, B), Eqs. 5.6 and 5.9
         betas = rollout_weights(model.chol, beta1, transition, n_rows - 1).numpy()
 
     rewards = None

@@ -36,7 +36,12 @@ from scipy.optimize import minimize
 
 from skillkit._repr import number, vector
 from skillkit._validation import as_generator, check_array, check_positive
-from skillkit.models.embedding import conditional_weights, regularized_cholesky, rollout_weights
+from skillkit.models.embedding import (
+    conditional_weights,
+    initial_weights,
+    regularized_cholesky,
+    rollout_weights,
+)
 from skillkit.models.kernels import gram, se_kernel
 
 __all__ = [
@@ -230,15 +235,19 @@ def trajectory_reward_error(
     bases: torch.Tensor,
     basis_rewards: torch.Tensor,
     rewards: torch.Tensor,
+    project_initial: bool = True,
 ) -> torch.Tensor:
     """Long-term reward prediction error of whole trajectories, Eqs. (5.22)–(5.23).
 
     .. math:: J(\\theta) = \\sum_i \\sum_{t \\ge 1} (r^i_t - r'^{\\pi_i \\top}_t \\beta^i_t)^2,
-              \\quad \\beta^i_1 = (G + \\lambda I)^{-1} g(z^i_0),
+              \\quad \\beta^i_1 = (G + \\lambda I)^{-1} G (G + \\lambda I)^{-1} g(z^i_0),
               \\quad \\beta^i_{t+1} = (G + \\lambda I)^{-1} \\tilde G^{\\pi_i}_t \\beta^i_t
 
     (0-based rows: row 0 is the observed initial state-action, whose reward is known
-    exactly and so does not enter J).
+    exactly and so does not enter J). β₁ is the first step of Eq. (5.9), as
+    :func:`~skillkit.models.embedding_prediction.predict` computes it, so the
+    hyper-parameters are trained for the predictor that uses them; ``project_initial=False``
+    gives β₁ = (G + λI)⁻¹ g(z⁰) (Eq. 5.23 as printed).
 
     Parameters
     ----------
@@ -255,13 +264,20 @@ def trajectory_reward_error(
         :math:`r(z^{\\pi_i}_{j,t})`, shared by all rows or one per row t = 1, …, T−1.
     rewards : Tensor, shape (M, T)
         Observed immediate rewards of the validation trajectories.
+    project_initial : bool
+        Eq. (5.9)'s first step (:func:`~skillkit.models.embedding.initial_weights`).
 
     Returns
     -------
     Tensor, scalar
     """
     n_rows = rewards.shape[1]
-    chol, ls, beta1 = _weights(theta, inputs, initial_inputs)  # (N, M)
+    ls, lam = _unpack(theta, inputs.shape[-1])
+    g_train = se_kernel(inputs, inputs, ls, 1.0)
+    chol = regularized_cholesky(g_train, lam)
+    beta1 = initial_weights(
+        chol, g_train, se_kernel(inputs, initial_inputs, ls, 1.0), project_initial
+    )  # (N, M)
     if bases.ndim == 3:
         g = se_kernel(inputs, bases, ls, 1.0)  # (M, N, N)
 
@@ -397,7 +413,14 @@ def step_reward_loss(inputs, rewards, folds: Folds) -> CrossValidatedLoss:
 
 
 def trajectory_reward_loss(
-    states, controls, rewards, policy, reward, folds: Folds, chunk: int = 8
+    states,
+    controls,
+    rewards,
+    policy,
+    reward,
+    folds: Folds,
+    chunk: int = 8,
+    project_initial: bool = True,
 ) -> CrossValidatedLoss:
     """Cross-validated trajectory reward error, Eq. (5.23), folds over whole trajectories.
 
@@ -422,6 +445,8 @@ def trajectory_reward_loss(
     chunk : int
         Validation trajectories per backward pass (bounds the memory of the (chunk, N, N)
         transition matrices).
+    project_initial : bool
+        Eq. (5.9)'s first step, as in :func:`trajectory_reward_error`.
     """
     x = check_array(states, "states", ndim=3)
     m, t_len, _ = x.shape
@@ -446,7 +471,7 @@ def trajectory_reward_loss(
         for lo in range(0, len(va), int(chunk)):
             sl = slice(lo, lo + int(chunk))
             args = (_t(z_tr), _t(z_all[va][sl, 0]), _t(bases[sl]), _t(basis_r[sl]), _t(r[va][sl]))
-            fns.append(lambda th, a=args: trajectory_reward_error(th, *a))
+            fns.append(lambda th, a=args: trajectory_reward_error(th, *a, project_initial))
         n_val += len(va) * (t_len - 1)
     return CrossValidatedLoss(fns, z_all.shape[-1], n_val)
 
@@ -500,6 +525,7 @@ def fit_hyperparameters(
     lengthscale_factor: float = 100.0,
     lam_bounds: tuple[float, float] = (1e-6, 1.0),
     max_iter: int = 100,
+    lengthscale_reference=None,
 ) -> FitResult:
     """Minimise a cross-validated embedding error over log length-scales (and log λ).
 
@@ -518,11 +544,15 @@ def fit_hyperparameters(
     learn_lam : bool
         Optimise λ as well.
     lengthscale_factor : float
-        Length-scales are searched in [w0 / factor, w0 · factor].
+        Length-scales are searched in [w_ref / factor, w_ref · factor].
     lam_bounds : (float, float)
         Search interval of λ.
     max_iter : int
         L-BFGS-B iterations.
+    lengthscale_reference : float or array_like, shape (d,), optional
+        w_ref of the search box (default: the initial ``lengthscale``), so a fit started
+        elsewhere (e.g. at another fit's optimum) searches the same box; the initial values
+        are clipped into it.
 
     Returns
     -------
@@ -537,7 +567,15 @@ def fit_hyperparameters(
     if not lo_l <= lam <= hi_l:
         raise ValueError(f"lam: expected a value inside lam_bounds {lam_bounds}, got {lam}")
     f = check_positive(lengthscale_factor, "lengthscale_factor")
-    bounds = [(np.log(w / f), np.log(w * f)) for w in w0]
+    ref = w0
+    if lengthscale_reference is not None:
+        ref = np.broadcast_to(
+            check_array(lengthscale_reference, "lengthscale_reference", ndim=(0, 1)), (d,)
+        ).copy()
+        if np.any(ref <= 0):
+            raise ValueError(f"lengthscale_reference: expected positive values, got {ref}")
+        w0 = np.clip(w0, ref / f, ref * f)
+    bounds = [(np.log(w / f), np.log(w * f)) for w in ref]
     theta0 = np.append(np.log(w0), np.log(lam))
 
     if learn_lam:

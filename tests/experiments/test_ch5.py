@@ -29,9 +29,35 @@ def test_registered_with_thesis_settings_at_paper_scale():
     for exp_id in ("fig5.6", "fig5.7"):
         paper = get(exp_id).settings["paper"]
         assert (paper.horizon, paper.initial_std, paper.gp_samples) == (40, 0.3, 100)
-        assert (paper.test_pairs, paper.truth_rollouts, paper.cv_folds) == (200, 100, 10)
+        assert paper.cv_folds == 10 and (paper.gp_target, paper.gp_curb) == ("next", True)
+    assert (
+        get("fig5.6").settings["paper"].test_pairs,
+        get("fig5.6").settings["paper"].truth_rollouts,
+    ) == (200, 100)
     assert get("fig5.6").settings["paper"].torque_noise == 4.0
     assert 4.0 in get("fig5.7").settings["paper"].torque_noise
+    for exp_id in ("fig5.3", "fig5.6"):
+        assert get(exp_id).settings["paper"].gp_target == "next"
+    # λ ≥ 1e-3 wherever β is propagated over many steps; free (≥ 1e-6) for single steps.
+    lam_min = {i: get(i).settings["paper"].lam_min for i in ("fig5.3", "fig5.5", "fig5.6")}
+    assert lam_min == {"fig5.3": 1e-6, "fig5.5": 1e-3, "fig5.6": 1e-3}
+
+
+def test_rollouts_from_a_start_state_are_the_tasks_episode():
+    """Without torque noise the helper's rollout from x₀ is the task's own episode from x₀."""
+    task = ch5._task(ch5.SCALES_5_6["smoke"], 0.0)
+    gain = task.pd_gain()
+    episode = task.rollout(gain.ravel(), None, np.random.default_rng(5))
+    x0 = np.asarray(episode.info["initial_state"])
+    xs, us, failed = ch5._rollouts_from(task, gain, x0, 2, np.random.default_rng(0))
+    assert not failed.any()
+    np.testing.assert_allclose(xs[0], episode.states, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(us[1], episode.controls, rtol=1e-12, atol=1e-12)
+    # Ground truth of a deterministic start: its reward, with zero Monte Carlo variance.
+    settings = ch5.SCALES_5_6["smoke"]
+    truth = ch5._balancing_truth(task, gain, x0[None], settings, np.random.default_rng(1))
+    np.testing.assert_allclose(truth["truth"], [task.reward(episode)], rtol=1e-10)
+    np.testing.assert_allclose(truth["truth_mc_var"], [0.0], atol=1e-20)
 
 
 _TINY_PENDULUM = ch5.SCALES_PENDULUM["smoke"]  # 3 trajectories of 4 steps, a 4 × 4 grid
@@ -52,10 +78,18 @@ def test_tiny_pendulum_run_is_reproducible_and_summarised(exp_id, key):
         np.testing.assert_array_equal(err, runs[1][f"{m}_{key}"])  # same seed, same numbers
     series, summary = exp.summarize(_TINY_PENDULUM, runs[:1])
     maps = [s for s in series if s.kind == "heatmap"]
-    assert len(maps) == 2 and maps[0].zmin == maps[1].zmin and maps[0].zmax == maps[1].zmax
+    # (a) embedding, (b) GP, (c) constant predictor share one colour range; (d) the noise floor.
+    assert len(maps) == 4 and all(
+        m.zmin == maps[0].zmin and m.zmax == maps[0].zmax for m in maps[:3]
+    )
     assert np.shape(maps[0].z) == (4, 4)
     lo, hi = summary["shared_colour_range_log10"]
     assert lo <= np.min(maps[1].z) and np.max(maps[0].z) <= hi
+    const = np.mean(runs[0][f"const_{key}"])
+    assert summary["mean_error_constant"] == pytest.approx(const)
+    # The Monte Carlo floor is far below every predictor's error (a variance / the sample count).
+    assert 0 <= summary["mean_noise_floor"] < min(summary["mean_error_embedding"], const)
+    assert [row["item"] for row in summary["setup"]][0] == "GP target"
     assert summary["holds"] == (
         summary["mean_error_embedding"] < summary["mean_error_gp"]
         and summary["fraction_of_grid_where_embedding_better"] > 0.5
@@ -74,6 +108,15 @@ def test_tiny_balancing_run_reports_the_claims():
     for m in ("gp", "step", "trajectory"):
         assert len(summary["mean_e_r"][m]) == 2 and np.all(np.isfinite(summary["mean_e_r"][m]))
     assert summary["holds"] == (
-        summary["claim_embedding_below_gp_holds"] and summary["claim_trajectory_below_step_holds"]
+        summary["claim_embedding_below_gp_holds"]
+        and summary["claim_trajectory_below_step_holds"]
+        and summary["trajectory_based_below_constant_holds"]
     )
-    assert {s.name for s in series} >= {"GP sampling (M=4)", "embedding, step-based (5.17)"}
+    names = {s.name for s in series}
+    assert names >= {"GP sampling (M=4)", "embedding, step-based (5.17)"}
+    assert names >= {label for _, label in ch5._FLOORS}
+    # The constant predictor: the mean observed reward against the same ground truth.
+    for case, e in zip(trial["cases"], summary["mean_e_r"]["constant"], strict=True):
+        assert case["e_r_constant"] == pytest.approx(e)
+    assert summary["mean_e_r"]["noise"][0] == pytest.approx(trial["truth_mc_floor"][0])
+    assert {"item", "thesis", "ours", "why"} <= set(summary["setup"][0])

@@ -6,6 +6,7 @@ import torch
 
 from skillkit.models.embedding import (
     ConditionalEmbedding,
+    initial_weights,
     regularized_cholesky,
     rkhs_expectation,
     rollout_weights,
@@ -31,6 +32,15 @@ def _ridge(inputs, targets, lam):
     """Independent ridge estimate W with targets ≈ W inputs (linear-kernel embedding's map)."""
     z = inputs
     return targets.T @ z @ np.linalg.inv(z.T @ z + lam * np.eye(z.shape[1]))
+
+
+def _shrink(inputs, lam):
+    """Eq. 5.9's first step for a linear kernel, in input space: P = S (S + λI)⁻¹, S = ZᵀZ.
+
+    (G + λI)⁻¹ G (G + λI)⁻¹ Z z₀ = Z (S + λI)⁻¹ S (S + λI)⁻¹ z₀ (push-through identity), so
+    the first predicted mean is Ŵ P z₀ and every later one applies Ŵ alone."""
+    s = inputs.T @ inputs
+    return s @ np.linalg.inv(s + lam * np.eye(s.shape[0]))
 
 
 # --------------------------------------------------------------------------- weights
@@ -154,8 +164,8 @@ def test_linear_kernel_fixed_policy_mean_equals_closed_form():
     x0 = np.array([[1.0, -0.5], [0.2, 0.8]])
     pred = predict(m, x0, n_steps=12)
     a_hat = _ridge(x, xn, lam)
-    ref = [x0]
-    for _ in range(11):
+    ref = [x0, x0 @ (a_hat @ _shrink(x, lam)).T]
+    for _ in range(10):
         ref.append(ref[-1] @ a_hat.T)
     np.testing.assert_allclose(pred.means(m), np.array(ref), rtol=1e-8, atol=1e-10)
     np.testing.assert_allclose(pred.preimages(m), np.array(ref), rtol=1e-8, atol=1e-10)
@@ -199,10 +209,11 @@ def test_linear_kernel_with_policy_equals_closed_form_per_query():
     x0 = np.array([[1.0, 0.0], [0.5, -0.5], [-1.0, 1.0]])
     pred = predict(m, x0, n_steps=8, policy=policy, reward=reward, time_invariant=True)
     w = _ridge(np.hstack([x, u]), xn, lam)
+    z_shrink = _shrink(np.hstack([x, u]), lam)
     for b in range(3):
         closed = w[:, :2] + w[:, 2:] @ gains[b]
-        ref = [x0[b]]
-        for _ in range(7):
+        ref = [x0[b], w @ z_shrink @ np.r_[x0[b], gains[b] @ x0[b]]]
+        for _ in range(6):
             ref.append(closed @ ref[-1])
         np.testing.assert_allclose(pred.means(m)[:, b], np.array(ref), rtol=1e-8, atol=1e-10)
     # Rewards: row 0 exact, rows t >= 1 equal r'^T beta_t with r' evaluated under the policy.
@@ -227,13 +238,52 @@ def test_time_dependent_policy_matches_manual_recursion():
     x0 = rng.normal(size=(2, 2))
     pred = predict(m, x0, n_steps=5, policy=policy)
     z0 = np.hstack([x0, policy(x0[None], 0)[0]])
-    beta = np.linalg.solve(gram(k, m.inputs) + 1e-3 * np.eye(60), gram(k, m.inputs, z0))
+    g = gram(k, m.inputs)
+    alpha = np.linalg.solve(g + 1e-3 * np.eye(60), gram(k, m.inputs, z0))  # Eq. 5.6
+    beta = np.linalg.solve(g + 1e-3 * np.eye(60), g @ alpha)  # Eq. 5.9
     for t in range(1, 5):
         np.testing.assert_allclose(pred.betas[t - 1], beta, rtol=1e-8, atol=1e-10)
         basis = np.hstack([xn, policy(xn[None], t)[0]])
         beta = np.linalg.solve(
             gram(k, m.inputs) + 1e-3 * np.eye(60), gram(k, m.inputs, basis) @ beta
         )
+
+
+def test_initial_weights_are_eq_5_9_by_explicit_inverses():
+    """β₁ = (G + λI)⁻¹ G (G + λI)⁻¹ ḡ with ḡ the kernel vector averaged over the samples."""
+    rng = np.random.default_rng(15)
+    z, samples = rng.normal(size=(25, 3)), rng.normal(size=(2, 7, 3))
+    k, lam = _se(3, [0.8, 1.3, 1.1]), 5e-2
+    g = gram(k, z)
+    inv = np.linalg.inv(g + lam * np.eye(25))
+    mean_k = np.stack([gram(k, z, s).mean(axis=1) for s in samples], axis=1)  # (N, B)
+    chol = regularized_cholesky(torch.from_numpy(g), lam)
+    got = initial_weights(chol, torch.from_numpy(g), torch.from_numpy(mean_k)).numpy()
+    np.testing.assert_allclose(got, inv @ g @ inv @ mean_k, rtol=1e-9, atol=1e-12)
+    direct = initial_weights(chol, torch.from_numpy(g), torch.from_numpy(mean_k), project=False)
+    np.testing.assert_allclose(direct.numpy(), inv @ mean_k, rtol=1e-9, atol=1e-12)
+    # predict's first row is this β₁; with project_initial=False it is Eq. 5.7's weights.
+    m = ConditionalEmbedding(z, np.tanh(z), k, lam=lam)
+    np.testing.assert_allclose(predict(m, samples, 3).betas[0], got, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(
+        predict(m, samples, 3, project_initial=False).betas[0],
+        m.weights_from_samples(samples),
+        rtol=1e-9,
+        atol=1e-12,
+    )
+
+
+def test_initial_projection_differs_from_eq_5_7_by_lam_times_a_solve():
+    """(G + λI)⁻¹ G α = α − λ (G + λI)⁻¹ α exactly: "β₂ = β₁ for sufficiently small λ"."""
+    rng = np.random.default_rng(16)
+    z = rng.normal(size=(20, 2))
+    g = torch.from_numpy(gram(_se(2, 2.0), z))
+    cross = torch.from_numpy(gram(_se(2, 2.0), z, rng.normal(size=(3, 2))))
+    for lam in (1e-1, 1e-3):
+        chol = regularized_cholesky(g, lam)
+        a = initial_weights(chol, g, cross, project=False)
+        b = initial_weights(chol, g, cross)
+        torch.testing.assert_close(b, a - lam * torch.cholesky_solve(a, chol))
 
 
 def test_rollout_weights_per_query_transitions_match_columnwise():

@@ -150,6 +150,7 @@ def test_one_step_trajectory_error_equals_step_error():
         bases,
         torch.from_numpy(np.broadcast_to(r, (4, 15)).copy()),
         torch.from_numpy(r1),
+        project_initial=False,  # Eq. 5.23 as printed: β₁ = (G + λI)⁻¹ g(z₀), one step = 5.19
     )
     step = step_reward_error(
         theta,
@@ -226,6 +227,21 @@ def test_fit_reduces_the_loss_and_finds_the_irrelevant_input():
     ]
     assert fixed[0].lam == 1e-2
     np.testing.assert_array_equal(fixed[0].lengthscale, fixed[1].lengthscale)  # deterministic
+
+
+def test_fit_started_elsewhere_searches_the_reference_box():
+    """A warm start keeps the search box of the reference length-scales: [w_ref/f, w_ref·f]."""
+    rng = np.random.default_rng(7)
+    z = rng.uniform(-2, 2, size=(40, 2))
+    loss = step_reward_loss(z, np.sin(2.0 * z[:, 0]), kfold_splits(40, 3, rng=0))
+    ref = np.array([1.0, 1.0])
+    fit = fit_hyperparameters(
+        loss, [500.0, 0.3], lam=1e-2, lengthscale_factor=10.0, max_iter=5, lengthscale_reference=ref
+    )
+    assert np.all(fit.lengthscale <= 10.0 * (1 + 1e-9)) and np.all(fit.lengthscale >= 0.1)
+    assert fit.initial_loss == pytest.approx(loss(np.log([10.0, 0.3, 1e-2])))  # clipped start
+    with pytest.raises(ValueError, match="lengthscale_reference"):
+        fit_hyperparameters(loss, ref, lengthscale_reference=[1.0, -1.0])
 
 
 def test_bad_input_raises_naming_the_argument():

@@ -83,8 +83,6 @@ from skillkit.models.kernels import Linear, SquaredExponential
 from skillkit.models.sampling import sample_trajectories
 from skillkit.tasks import make
 from skillkit.tasks.balancing import X_UP, feedback_policy
-from skillkit.tasks.base import SimulationFailure
-from skillkit.tasks.controllers import run_feedback
 from skillkit.tasks.pendulum import THESIS_GAINS, feedback_torque, pendulum_dynamics
 from skillkit.trial import TrialContext
 from skillkit.viz.series import trial_band
@@ -558,38 +556,23 @@ for _id, _key, _label, _unit, _multi, _what in PENDULUM_ERRORS:
 # =========================================================================== balancing
 def _rollouts_from(task, gain: np.ndarray, x0: np.ndarray, n: int, rng) -> tuple:
     """``n`` real rollouts of the feedback law u = G x̃ plus the task's torque noise, all from
-    the start state ``x0`` (the task's own episode, Balancing._simulate, with x₀ given).
+    the start state ``x0`` (:meth:`~skillkit.tasks.balancing.Balancing.rollout_from`).
 
     Returns ``(states (n, T+1, 8), controls (n, T+1, 4), failed (n,) bool)``; a diverged
     rollout (the task's divergence check) is flagged and its arrays are NaN.
     """
-    robot, n_steps, dt = task.robot, task.n_steps, task.control_dt
-    states = np.full((n, n_steps + 1, 8), np.nan)
-    controls = np.full((n, n_steps + 1, 4), np.nan)
+    T1 = task.n_steps + 1
+    states = np.full((n, T1, 8), np.nan)
+    controls = np.full((n, T1, 4), np.nan)
     failed = np.zeros(n, dtype=bool)
-    q0, qd0 = x0[:4], x0[4:]
     for k in range(n):
-        noise = task.torque_noise_std * rng.standard_normal((n_steps, 4))
-        commanded = np.empty((n_steps + 1, 4))
-
-        def feedback(t, q, qd, data, commanded=commanded, noise=noise):
-            commanded[t] = gain @ np.concatenate([q - X_UP[:4], qd])
-            return commanded[t] + noise[t]
-
-        robot.reset(q0, qd0)
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", RuntimeWarning)
-                out = run_feedback(robot.model, robot.data, feedback, n_steps, dt)
-                q = np.vstack([out["q"], robot.data.qpos])
-                qd = np.vstack([out["qd"], robot.data.qvel])
-                task._check_divergence(q, qd)
-        except (SimulationFailure, FloatingPointError, OverflowError):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # a failed rollout warns
+            traj = task.rollout_from(np.asarray(gain).ravel(), x0, rng=rng)
+        if traj.failed:
             failed[k] = True
             continue
-        commanded[-1] = gain @ np.concatenate([q[-1] - X_UP[:4], qd[-1]])
-        states[k] = np.hstack([q, qd])
-        controls[k] = commanded
+        states[k], controls[k] = traj.states, traj.controls
     return states, controls, failed
 
 

@@ -24,31 +24,13 @@ import numpy as np
 from skillkit.policies.gaussian import LinearGaussianPolicy
 from skillkit.search.loop import collect, learn
 from skillkit.search.reps import ContextualREPS
-from skillkit.tasks.base import Task
-from skillkit.trajectory import Trajectory
+from skillkit.tasks.toy import LinearTarget
 
 GAIN, EPSILON, N_EXTRA, SEEDS = 2.0, 0.5, 20, range(5)
 MODES = ("naive", "importance", "dual_only")
 
 
-class Target(Task):
-    """R(s, ω) = −‖ω − 2s‖², s ~ U[−1, 1]²; the trajectory is ω."""
-
-    name = "bench-target"
-    context_dim = 2
-    parameter_dim = 2
-    context_low = np.array([-1.0, -1.0])
-    context_high = np.array([1.0, 1.0])
-    trajectory_depends_on_context = False
-
-    def _simulate(self, omega, context, rng):
-        return Trajectory(np.zeros(1), omega[None, :], np.zeros((1, 0)))
-
-    def _reward(self, trajectory, context):
-        return float(-np.sum((trajectory.states[0] - GAIN * context) ** 2))
-
-    def initial_policy(self):
-        return LinearGaussianPolicy(np.zeros(2), np.eye(2), context_dim=2)
+Target = LinearTarget  # R(s, ω) = −‖ω − 2s‖², s ~ U[−1, 1]²
 
 
 def relative_gain(policy: LinearGaussianPolicy) -> float:

@@ -9,31 +9,12 @@ from skillkit.policies.gaussian import LinearGaussianPolicy
 from skillkit.search.base import Batch, SampleBuffer, extra_context_importance
 from skillkit.search.loop import collect
 from skillkit.search.reps import ContextualREPS
-from skillkit.tasks.base import Task
-from skillkit.trajectory import Trajectory
+from skillkit.tasks.toy import LinearTarget
 
 GAIN = 2.0  # the optimal policy mean is ω = GAIN · s
 
 
-class Target(Task):
-    """R(s, ω) = −‖ω − 2s‖², s ~ U[−1, 1]²; the trajectory is ω (it does not depend on s), so
-    the optimal linear-Gaussian policy has gain A = 2 I and offset 0."""
-
-    name = "extra-context-target"
-    context_dim = 2
-    parameter_dim = 2
-    context_low = np.array([-1.0, -1.0])
-    context_high = np.array([1.0, 1.0])
-    trajectory_depends_on_context = False
-
-    def _simulate(self, omega, context, rng):
-        return Trajectory(np.zeros(1), omega[None, :], np.zeros((1, 0)))
-
-    def _reward(self, trajectory, context):
-        return float(-np.sum((trajectory.states[0] - GAIN * context) ** 2))
-
-    def initial_policy(self):
-        return LinearGaussianPolicy(np.zeros(2), np.eye(2), context_dim=2)
+Target = LinearTarget  # the optimal linear-Gaussian policy has gain A = GAIN I, offset 0
 
 
 def optimal_policy(std=0.5):

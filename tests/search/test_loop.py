@@ -7,35 +7,18 @@ import numpy as np
 import pytest
 
 from skillkit.models.kernels import Linear
-from skillkit.policies.gaussian import GaussianPolicy, LinearGaussianPolicy
+from skillkit.policies.gaussian import GaussianPolicy
 from skillkit.search.base import Batch
 from skillkit.search.crkr import CrKR
 from skillkit.search.loop import N_EVAL_CONTEXTS, Evaluator, LoopState, collect, learn
 from skillkit.search.reps import ContextualREPS
 from skillkit.search.rwr import RWR
 from skillkit.tasks.base import Task
+from skillkit.tasks.toy import LinearTarget
 from skillkit.trajectory import Trajectory
 from skillkit.trial import NullBar, TrialContext
 
-
-class Target(Task):
-    """R(s, ω) = −‖ω − 2s‖²; the trajectory is ω itself (it does not depend on s)."""
-
-    name = "target"
-    context_dim = 2
-    parameter_dim = 2
-    context_low = np.array([-1.0, -1.0])
-    context_high = np.array([1.0, 1.0])
-    trajectory_depends_on_context = False
-
-    def _simulate(self, omega, context, rng):
-        return Trajectory(np.zeros(1), omega[None, :], np.zeros((1, 0)))
-
-    def _reward(self, trajectory, context):
-        return float(-np.sum((trajectory.states[0] - 2 * context) ** 2))
-
-    def initial_policy(self):
-        return LinearGaussianPolicy(np.zeros(2), np.eye(2), context_dim=2)
+Target = LinearTarget  # R(s, ω) = −‖ω − 2s‖²; the trajectory is ω itself
 
 
 class TargetInScene(Target):

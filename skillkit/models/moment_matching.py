@@ -24,8 +24,11 @@ Gaussian; these functions return Gaussian approximations of it (Figs 2.6–2.7):
 
   ``beta`` and ``iK`` are the predictor's fields, so the same code serves exact GPs
   (iK = (K + σ_ε²I)⁻¹) and FITC/VFE (iK = K_mm⁻¹ − Σ). Every Q^{ab} is formed in the log
-  domain from one (M × d)(d × M) product; its entries never exceed σ_{f,a}² σ_{f,b}², so
-  nothing overflows.
+  domain from one (M × (d + 2))((d + 2) × M) product that carries the support set's quadratic
+  forms; its entries never exceed σ_{f,a}² σ_{f,b}², so nothing overflows. The pairs a ≤ b
+  are batched and processed in cache-sized blocks (product, ``exp`` in place, contraction with
+  β_b and iK_a), with no Python loop over dimensions (:func:`_second_moments`, issue #18: at
+  M = 300 and 700, 8 outputs and 12 inputs, see ``benchmarks/bench_moment_matching.py``).
 * :func:`linearize` — the first-order alternative of Fig. 2.6: the predictive mean μ(m),
   its Jacobian J at m (analytic), cov(y) ≈ J S Jᵀ + diag σ²(m), cov(z, y) ≈ S Jᵀ.
 * :func:`propagate` — long-term prediction p(x_0) → p(x_1) → … → p(x_T) (Eq. 4.4) through a
@@ -50,6 +53,16 @@ from skillkit._validation import check_array
 from skillkit.models.gp import DTYPE, VARIANCE_TOL, ForwardModel, GPNumericalWarning, GPPredictor
 
 __all__ = ["GaussianPrediction", "linearize", "moment_match", "propagate", "with_linear_mean"]
+
+#: Log-domain exponents below this are raised to it before ``exp``: e^-600 ≈ 3e-261 instead of
+#: an underflowing or denormal result (``exp`` is ~40× slower on underflowing and ~200× slower on
+#: denormal-producing float64 arguments here, and products with denormals are slow too). The
+#: change of any moment is below M² max|β|² e^-600, far below float64 round-off.
+LOG_FLOOR = -600.0
+
+#: Entries (float64) of one block of Q matrices in :func:`_second_moments`: 2^17 = 1 MiB, so a
+#: block stays in the L2 cache between its product, its ``exp`` and its contractions.
+BLOCK_ENTRIES = 1 << 17
 
 
 @dataclass
@@ -155,38 +168,11 @@ def _moment_match(
     sol = torch.cholesky_solve(nut.transpose(-1, -2), Lsa)  # (E, D, M)
     quad = (nut * sol.transpose(-1, -2)).sum(-1)
     logdet_sa = 2.0 * torch.log(Lsa.diagonal(dim1=-2, dim2=-1)).sum(-1)
-    q = sf2[:, None] * torch.exp(-0.5 * quad - 0.5 * logdet_sa[:, None])
+    q = sf2[:, None] * torch.exp(torch.clamp_min(-0.5 * quad - 0.5 * logdet_sa[:, None], LOG_FLOOR))
     bq = pred.beta * q
     mu = bq.sum(-1)  # (E,)
     io = S @ (iL * (sol @ bq[..., None]).squeeze(-1)).T  # (D, E)
-    # Second moments.
-    logk = torch.log(sf2)[:, None] - 0.5 * (nut * nut).sum(-1)  # (E, M)
-    zeta = nut * iL[:, None, :]  # Λ^{-1} ν, (E, M, D)
-    second = torch.empty((E, E), dtype=DTYPE)
-    latent_var = torch.empty(E, dtype=DTYPE)
-    for a in range(E):
-        b = torch.arange(a, E)
-        dab = iL[a] ** 2 + iL[b] ** 2  # (nb, D): Λ_a^{-1} + Λ_b^{-1}
-        sd = dab.sqrt()
-        P = sd[:, :, None] * S * sd[:, None, :]
-        LR = torch.linalg.cholesky(P + eye)  # R is similar to P + I
-        T = torch.cholesky_solve(P, LR) / (sd[:, :, None] * sd[:, None, :])  # R^{-1} S
-        T = 0.5 * (T + T.transpose(-1, -2))
-        logdet_r = 2.0 * torch.log(LR.diagonal(dim1=-2, dim2=-1)).sum(-1)
-        za = zeta[a].expand(len(b), M, D)
-        Ta = za @ T  # (nb, M, D)
-        qa = 0.5 * (Ta * za).sum(-1)
-        qb = 0.5 * ((zeta[b] @ T) * zeta[b]).sum(-1)
-        logQ = torch.baddbmm(
-            (logk[a] + qa)[:, :, None] + (logk[b] + qb)[:, None, :] - 0.5 * logdet_r[:, None, None],
-            Ta,
-            zeta[b].transpose(-1, -2),
-        )
-        Q = torch.exp(logQ)  # (nb, M, M)
-        vals = ((Q @ pred.beta[b].unsqueeze(-1)).squeeze(-1) * pred.beta[a]).sum(-1)
-        second[a, a:] = vals
-        second[a:, a] = vals
-        latent_var[a] = sf2[a] - (pred.iK[a] * Q[0]).sum()
+    second, latent_var = _second_moments(pred, S, nut, iL)
     if strict and float((latent_var / sf2).detach().min()) < -VARIANCE_TOL:
         nan = torch.full((), float("nan"), dtype=DTYPE)
         mu, second, latent_var = mu + nan, second + nan, latent_var + nan
@@ -197,6 +183,119 @@ def _moment_match(
     V = 0.5 * (V + V.T)
     s = pred.y_scale
     return GaussianPrediction(pred.y_mean + s * mu, s[:, None] * V * s[None, :], io * s[None, :])
+
+
+def _pair_indices(E: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Output pairs (a, b) with a ≤ b: the E diagonal pairs first, then the rest row by row."""
+    ia, ib = torch.triu_indices(E, E, offset=1)
+    diag = torch.arange(E)
+    return torch.cat([diag, ia]), torch.cat([diag, ib])
+
+
+def _second_moments(
+    pred: GPPredictor,
+    S: torch.Tensor,
+    nut: torch.Tensor,
+    iL: torch.Tensor,
+    block: int = BLOCK_ENTRIES,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """E[f_a f_b] = β_aᵀ Q^{ab} β_b for all output pairs and the expected latent variances
+    σ_{f,a}² − tr(iK_a Q^{aa}), batched over pairs and support points.
+
+    For each of the P = E(E + 1)/2 pairs a ≤ b, with T = R⁻¹S (symmetric), ζ_a = Λ_a⁻¹ν and
+    log k_a = log σ_{f,a}² − ½‖Λ_a^{-1/2}ν‖²,
+
+    .. math:: \\log Q^{ab}_{ij} = \\underbrace{\\log k_{ai} + \\tfrac12 \\zeta_{ai}^\\top T
+              \\zeta_{ai} - \\tfrac12\\log|R|}_{c_{ai}} + \\underbrace{\\log k_{bj} +
+              \\tfrac12 \\zeta_{bj}^\\top T \\zeta_{bj}}_{c_{bj}} + (T\\zeta_{ai})^\\top\\zeta_{bj},
+
+    i.e. one product of the (M × (d + 2)) operand [Tζ_a, c_a, 1] with the ((d + 2) × M)
+    operand [ζ_b, 1, c_b]ᵀ: the support set's quadratic forms ride along in the product. The
+    P × M × M matrices are never held at once: blocks of whole pairs (small M) or of row
+    ranges of one pair (large M), ``block`` entries each, are formed by one batched product,
+    exponentiated in place and contracted with β_b (and, for a = b, with iK_a) while in cache.
+    Exponents are floored at :data:`LOG_FLOOR`. Differentiable (torch autograd) when a
+    gradient is being recorded (then nothing is done in place).
+
+    Parameters
+    ----------
+    pred : GPPredictor
+        CPU float64, E outputs, M support points, d inputs.
+    S : Tensor, shape (d, d)
+        Input covariance, symmetric.
+    nut : Tensor, shape (E, M, d)
+        Λ_a^{-1/2}(z_i − m).
+    iL : Tensor, shape (E, d)
+        Inverse length-scales.
+
+    Returns
+    -------
+    second : Tensor, shape (E, E)
+        β_aᵀ Q^{ab} β_b, symmetric.
+    latent_var : Tensor, shape (E,)
+        σ_{f,a}² − tr(iK_a Q^{aa}), not clamped.
+    """
+    E, M, D = nut.shape
+    ia, ib = _pair_indices(E)
+    P = len(ia)
+    eye = torch.eye(D, dtype=DTYPE)
+    logk = torch.log(pred.outputscale)[:, None] - 0.5 * (nut * nut).sum(-1)  # (E, M)
+    zeta = nut * iL[:, None, :]  # Λ^{-1} ν, (E, M, D)
+    # R = S(Λ_a⁻¹ + Λ_b⁻¹) + I is similar to P + I with P = Δ^{1/2} S Δ^{1/2}, Δ = Λ_a⁻¹ + Λ_b⁻¹.
+    sd = (iL[ia] ** 2 + iL[ib] ** 2).sqrt()  # (P, D)
+    Pm = sd[:, :, None] * S * sd[:, None, :]
+    LR = torch.linalg.cholesky(Pm + eye)
+    T = torch.cholesky_solve(Pm, LR) / (sd[:, :, None] * sd[:, None, :])  # R⁻¹ S
+    T = 0.5 * (T + T.transpose(-1, -2))
+    logdet_r = 2.0 * torch.log(LR.diagonal(dim1=-2, dim2=-1)).sum(-1)  # (P,)
+    za, zb = zeta[ia], zeta[ib]  # (P, M, D)
+    Ta = za @ T
+    ca = logk[ia] + 0.5 * torch.einsum("pmd,pmd->pm", Ta, za) - 0.5 * logdet_r[:, None]
+    cb = logk[ib] + 0.5 * torch.einsum("pmd,pmd->pm", zb @ T, zb)
+    ones = torch.ones((P, M, 1), dtype=DTYPE)
+    left = torch.cat([Ta, ca[..., None], ones], dim=-1)  # (P, M, D + 2)
+    right = torch.cat([zb, ones, cb[..., None]], dim=-1).transpose(-1, -2)  # (P, D + 2, M)
+    # Pairs whose exponents might fall below the floor are clamped, the others skip that pass:
+    # log Q ≥ min c_a + min c_b − ‖T‖₂ max‖ζ_a‖ max‖ζ_b‖ (Cauchy–Schwarz).
+    with torch.no_grad():
+        znorm = torch.linalg.vector_norm(zeta, dim=-1).amax(-1)  # (E,)
+        tnorm = torch.linalg.matrix_norm(T, ord=2)  # (P,)
+        lower = ca.amin(-1) + cb.amin(-1) - tnorm * znorm[ia] * znorm[ib]
+    clamp = (lower < LOG_FLOOR).tolist()
+    iK = pred.iK.reshape(E, 1, M * M)
+    in_place = not (torch.is_grad_enabled() and (left.requires_grad or right.requires_grad))
+    rows = max(1, min(M, block // M))
+    group = max(1, block // (M * M)) if rows == M else 1
+    buffer = torch.empty(group * rows * M, dtype=DTYPE) if in_place else None
+    beta_b = pred.beta[ib][..., None]  # (P, M, 1)
+    q_beta, traces = [], []  # Q^{ab} β_b by blocks; tr(iK_a Q^{aa}) by blocks
+    for p0 in range(0, P, group):
+        p1 = min(P, p0 + group)
+        n_diag = max(0, min(p1, E) - p0)  # pairs p < E are (p, p)
+        floor = any(clamp[p0:p1])
+        for r0 in range(0, M, rows):
+            r1 = min(M, r0 + rows)
+            if buffer is not None:
+                out = buffer[: (p1 - p0) * (r1 - r0) * M].view(p1 - p0, r1 - r0, M)
+                Q = torch.bmm(left[p0:p1, r0:r1], right[p0:p1], out=out)
+                Q = (Q.clamp_min_(LOG_FLOOR) if floor else Q).exp_()
+            else:
+                Q = torch.bmm(left[p0:p1, r0:r1], right[p0:p1])
+                Q = torch.exp(torch.clamp_min(Q, LOG_FLOOR) if floor else Q)
+            q_beta.append(torch.bmm(Q, beta_b[p0:p1]))  # (g, r, 1)
+            if n_diag:
+                flat = Q[:n_diag].reshape(n_diag, -1, 1)
+                traces.append(torch.bmm(iK[p0 : p0 + n_diag, :, r0 * M : r1 * M], flat))
+    if rows == M:
+        qb = torch.cat(q_beta, dim=0)[..., 0]  # (P, M)
+        trace = torch.cat(traces, dim=0)[:, 0, 0]
+    else:
+        n_blocks = len(q_beta) // P
+        qb = torch.cat(q_beta, dim=1).reshape(P, M)
+        trace = torch.cat(traces, dim=1).reshape(E, n_blocks).sum(-1)
+    s = (pred.beta[ia] * qb).sum(-1)
+    second = torch.zeros((E, E), dtype=DTYPE).index_put((ia, ib), s).index_put((ib, ia), s)
+    return second, pred.outputscale - trace
 
 
 def linearize(predictor: GPPredictor, mean, cov, include_noise: bool = True) -> GaussianPrediction:

@@ -256,10 +256,10 @@ def _second_moments(
     left = torch.cat([Ta, ca[..., None], ones], dim=-1)  # (P, M, D + 2)
     right = torch.cat([zb, ones, cb[..., None]], dim=-1).transpose(-1, -2)  # (P, D + 2, M)
     # Pairs whose exponents might fall below the floor are clamped, the others skip that pass:
-    # log Q ≥ min c_a + min c_b − ‖T‖₂ max‖ζ_a‖ max‖ζ_b‖ (Cauchy–Schwarz).
+    # log Q ≥ min c_a + min c_b − ‖T‖_F max‖ζ_a‖ max‖ζ_b‖ (Cauchy–Schwarz, ‖T‖₂ ≤ ‖T‖_F).
     with torch.no_grad():
         znorm = torch.linalg.vector_norm(zeta, dim=-1).amax(-1)  # (E,)
-        tnorm = torch.linalg.matrix_norm(T, ord=2)  # (P,)
+        tnorm = torch.linalg.matrix_norm(T)  # (P,)
         lower = ca.amin(-1) + cb.amin(-1) - tnorm * znorm[ia] * znorm[ib]
     clamp = (lower < LOG_FLOOR).tolist()
     iK = pred.iK.reshape(E, 1, M * M)
@@ -273,19 +273,20 @@ def _second_moments(
         p1 = min(P, p0 + group)
         n_diag = max(0, min(p1, E) - p0)  # pairs p < E are (p, p)
         floor = any(clamp[p0:p1])
+        lhs, rhs, vec, iK_g = left[p0:p1], right[p0:p1], beta_b[p0:p1], iK[p0 : p0 + n_diag]
         for r0 in range(0, M, rows):
             r1 = min(M, r0 + rows)
             if buffer is not None:
                 out = buffer[: (p1 - p0) * (r1 - r0) * M].view(p1 - p0, r1 - r0, M)
-                Q = torch.bmm(left[p0:p1, r0:r1], right[p0:p1], out=out)
+                Q = torch.bmm(lhs[:, r0:r1], rhs, out=out)
                 Q = (Q.clamp_min_(LOG_FLOOR) if floor else Q).exp_()
             else:
-                Q = torch.bmm(left[p0:p1, r0:r1], right[p0:p1])
+                Q = torch.bmm(lhs[:, r0:r1], rhs)
                 Q = torch.exp(torch.clamp_min(Q, LOG_FLOOR) if floor else Q)
-            q_beta.append(torch.bmm(Q, beta_b[p0:p1]))  # (g, r, 1)
+            q_beta.append(torch.bmm(Q, vec))  # (g, r, 1)
             if n_diag:
                 flat = Q[:n_diag].reshape(n_diag, -1, 1)
-                traces.append(torch.bmm(iK[p0 : p0 + n_diag, :, r0 * M : r1 * M], flat))
+                traces.append(torch.bmm(iK_g[..., r0 * M : r1 * M], flat))
     if rows == M:
         qb = torch.cat(q_beta, dim=0)[..., 0]  # (P, M)
         trace = torch.cat(traces, dim=0)[:, 0, 0]

@@ -4,8 +4,11 @@ The maths is in two functions, in the style of bolero's C-REPS:
 
 * :func:`reps_dual` — the sample-based dual g(η, γ; D) of Eq. (3.9)/(A.10) and its analytic
   gradient (A.11, A.12), a pure function of its arguments;
-* :func:`reps_weights` — minimises the dual with scipy's L-BFGS-B and returns the sample
-  weights p_i ∝ exp((R_i − V(s_i))/η) of Eq. (3.10) with diagnostics.
+* :func:`reps_dual_hessian` — its analytic Hessian, (1/η) times the p-weighted covariance of
+  [(R_i − γᵀφ_i)/η, φ_i] (positive semi-definite: the dual is convex);
+* :func:`reps_weights` — minimises the dual (scipy's L-BFGS-B, or Newton's method with the
+  analytic Hessian: ``solver="newton"``) and returns the sample weights
+  p_i ∝ exp((R_i − V(s_i))/η) of Eq. (3.10) with diagnostics.
 
 :class:`ContextualREPS` only holds state (the policy and the last L batches of samples) and
 runs Table 3.1: weights from the dual, then the weighted maximum-likelihood policy
@@ -38,6 +41,15 @@ Numerics of :func:`reps_weights`
   sees rewards of unit spread, whatever their magnitude (1e-6 … 1e6).
 * η > 0 is enforced by optimising over log η (bounded to [1e-8, 1e8] in normalised units);
   the log-sum-exp is evaluated with a max shift, so no exponential overflows.
+* Solvers (``solver`` of :func:`reps_weights`, default :data:`DEFAULT_DUAL_SOLVER`):
+  ``"lbfgsb"`` is scipy's L-BFGS-B on (log η, γ), with which every stored result was made;
+  ``"newton"`` (issue #18) takes damped Newton steps in (log η, γ) with the analytic Hessian
+  (so η stays positive), from the η where the KL bound holds for γ = 0, with an Armijo
+  backtracking line search, and stops on the same projected-gradient tolerance. It needs a
+  handful of iterations where L-BFGS-B needs tens (``benchmarks/bench_reps.py``); both reach
+  the same minimiser (``tests/search/test_reps_newton.py``). Where ε is unattainable under
+  the feature constraint (η → 0, the dual's curvature vanishes) Newton does not converge and
+  L-BFGS-B runs from the start instead (said in ``message``).
 * At the optimum ∂g/∂η = ε − KL(p ‖ uniform) (KL(p ‖ q) with base weights q), so the KL
   bound (3.4) is met with equality.
   If ε exceeds the largest KL the samples allow (ε ≥ log N for distinct rewards, less when the
@@ -76,6 +88,13 @@ KL_TOLERANCE = 1e-3
 #: η (normalised units) below which a KL short of ε means that ε is unattainable: the weights
 #: are then, to within exp(−1/η) of the smallest reward gap, the η → 0 limit of Eq. (3.10).
 ETA_UNATTAINABLE = 1e-5
+#: Projected-gradient tolerance in (log η, γ), normalised units, of both solvers.
+DUAL_GTOL = 1e-11
+
+DualSolver = Literal["lbfgsb", "newton"]
+#: The dual's solver by default. ``"lbfgsb"`` is today's, with which every stored result was
+#: made; ``"newton"`` is issue #18's (same minimiser, far fewer iterations).
+DEFAULT_DUAL_SOLVER: DualSolver = "lbfgsb"
 
 
 # --------------------------------------------------------------------------- the dual
@@ -85,11 +104,13 @@ def _dual(
     features: np.ndarray,
     epsilon: float,
     log_base: np.ndarray | None = None,
+    phihat: np.ndarray | None = None,
 ):
     """Unchecked core of :func:`reps_dual`; also returns the weights p (softmax).
 
     ``log_base`` is log q_i of normalised base weights (``None``: uniform q_i = 1/N, computed
-    without the logarithms so today's numbers are unchanged to the last bit).
+    without the logarithms so today's numbers are unchanged to the last bit). ``phihat``:
+    φ̂ computed once by the caller exactly as here (a solver's loop), or ``None``.
     """
     eta, gamma = params[0], params[1:]
     adv = rewards - features @ gamma
@@ -100,12 +121,12 @@ def _dual(
     z = np.exp(a - m)
     total = z.sum()
     p = z / total
+    if phihat is None:
+        phihat = _phihat(features, log_base)
     if log_base is None:
         log_mean_z = m + np.log(total) - np.log(rewards.shape[0])
-        phihat = features.mean(axis=0)
     else:
         log_mean_z = m + np.log(total)
-        phihat = np.exp(log_base) @ features
     value = eta * log_mean_z + eta * epsilon + gamma @ phihat
     grad = np.empty_like(params)
     grad[0] = epsilon + log_mean_z - (p @ adv) / eta  # (A.11)
@@ -162,6 +183,88 @@ def reps_dual(
     log_q = _log_base(base_weights, r.shape[0])
     value, grad, _ = _dual(x, r, phi, check_positive(epsilon, "epsilon"), log_q)
     return float(value), grad
+
+
+def _phihat(features: np.ndarray, log_base: np.ndarray | None) -> np.ndarray:
+    """φ̂ = Σ q_i φ(s_i) (the plain mean for uniform q)."""
+    return features.mean(axis=0) if log_base is None else np.exp(log_base) @ features
+
+
+def _hessian_workspace(features: np.ndarray) -> np.ndarray:
+    """(F + 2, N) array [·, φ, 1]ᵀ whose first row :func:`_dual_hessian` fills (rows of
+    samples are contiguous: the products below run at memory speed)."""
+    n, n_feat = features.shape
+    work = np.empty((n_feat + 2, n))
+    work[1:-1] = features.T
+    work[-1] = 1.0
+    return work
+
+
+def _dual_hessian(
+    params: np.ndarray,
+    rewards: np.ndarray,
+    features: np.ndarray,
+    epsilon: float,
+    log_base: np.ndarray | None = None,
+    phihat: np.ndarray | None = None,
+    work: np.ndarray | None = None,
+):
+    """:func:`_dual` and the Hessian: value, grad, hess (1 + F, 1 + F), p.
+
+    With w_i = [A_i/η, φ_i] the Hessian is Cov_p(w)/η. One product Wᵀ(p ∘ W) of
+    W = [A/η − c, φ, 1] gives E_p[wwᵀ] and E_p[w] (the column of ones); c = A_j/η at the
+    heaviest sample keeps E_p[A/η − c] of the order of its spread, so the covariance
+    E_p[wwᵀ] − E_p[w]E_p[w]ᵀ loses little to cancellation. ``work``
+    (:func:`_hessian_workspace`) is W's reusable storage (a solver's loop)."""
+    value, grad, p = _dual(params, rewards, features, epsilon, log_base, phihat)
+    eta = params[0]
+    Wt = _hessian_workspace(features) if work is None else work  # Wᵀ
+    a = (rewards - features @ params[1:]) / eta
+    Wt[0] = a - a[np.argmax(p)]
+    moments = (Wt * p) @ Wt.T  # E_p[W_k W_l]
+    mean = moments[:-1, -1]
+    hess = (moments[:-1, :-1] - np.outer(mean, mean)) / eta
+    return value, grad, 0.5 * (hess + hess.T), p
+
+
+def reps_dual_hessian(
+    params: ArrayLike,
+    rewards: ArrayLike,
+    features: ArrayLike,
+    epsilon: float,
+    base_weights: ArrayLike | None = None,
+) -> np.ndarray:
+    r"""Hessian of the REPS dual g(η, γ) of :func:`reps_dual` (Eq. 3.9 / A.10).
+
+    With A_i = R_i − γᵀφ(s_i), the weights p_i ∝ q_i exp(A_i/η) of Eq. (3.10) and
+    w_i = [A_i/η, φ(s_i)] (the derivative of the exponent A_i/η is −w_i/η),
+
+    .. math::
+        \nabla^2 g = \frac1\eta \mathrm{Cov}_p(w)
+        = \frac1\eta \begin{pmatrix} \mathrm{Var}_p(A)/\eta^2 & \mathrm{Cov}_p(A, \phi)^\top/\eta
+          \\ \mathrm{Cov}_p(\phi, A)/\eta & \mathrm{Cov}_p(\phi) \end{pmatrix},
+
+    the derivative of the gradient (A.11, A.12): ∂²g/∂η² = Var_p(A)/η³, ∂²g/∂η∂γ =
+    Cov_p(φ, A)/η², ∂²g/∂γ² = Cov_p(φ)/η. It is positive semi-definite (g is convex). The
+    covariance is computed around the weighted mean from the max-shifted weights, so no
+    exponential overflows.
+
+    Parameters
+    ----------
+    params, rewards, features, epsilon, base_weights
+        As :func:`reps_dual`.
+
+    Returns
+    -------
+    ndarray, shape (1 + F, 1 + F)
+        Symmetric, in the order [η, γ_1, …, γ_F].
+    """
+    r, phi = _check_samples(rewards, features)
+    x = check_array(params, "params", shape=(1 + phi.shape[1],))
+    if not x[0] > 0:
+        raise ValueError(f"params: η = params[0] must be > 0, got {x[0]!r}")
+    log_q = _log_base(base_weights, r.shape[0])
+    return _dual_hessian(x, r, phi, check_positive(epsilon, "epsilon"), log_q)[2]
 
 
 # --------------------------------------------------------------------------- weights
@@ -236,7 +339,7 @@ class REPSWeights(DualSolution):
     weights : ndarray, shape (N,)
         p_i of Eq. (3.10), summing to one.
     n_iterations : int
-        L-BFGS-B iterations.
+        Iterations of the dual's solver (L-BFGS-B or Newton).
     """
 
     weights: np.ndarray
@@ -251,12 +354,12 @@ def reps_weights(
     features: ArrayLike | None = None,
     epsilon: float = 1.0,
     base_weights: ArrayLike | None = None,
+    solver: DualSolver = DEFAULT_DUAL_SOLVER,
 ) -> REPSWeights:
     r"""Solve the REPS dual (3.9) and return the sample weights (3.10) with diagnostics.
 
-    Minimises g(η, γ) of :func:`reps_dual` with scipy's L-BFGS-B over (log η, γ) after
-    normalising rewards and whitening features (see the module notes), then maps η, γ back to
-    the original units.
+    Minimises g(η, γ) of :func:`reps_dual` over (log η, γ) after normalising rewards and
+    whitening features (see the module notes), then maps η, γ back to the original units.
 
     Parameters
     ----------
@@ -271,12 +374,18 @@ def reps_weights(
         the weights are p_i ∝ q_i exp((R_i − V(s_i))/η), the bound is KL(p ‖ q) ≤ ε and the
         feature constraint Σ p_i φ_i = Σ q_i φ_i (see :func:`reps_dual`). ``None``: uniform,
         Eq. (3.9) exactly.
+    solver : {"lbfgsb", "newton"}
+        ``"lbfgsb"``: scipy's L-BFGS-B (every stored result); ``"newton"``: damped Newton steps
+        with the analytic Hessian (:func:`reps_dual_hessian`), the same minimiser in a handful
+        of iterations (module notes). Default :data:`DEFAULT_DUAL_SOLVER`.
 
     Returns
     -------
     REPSWeights
+        ``n_iterations`` and ``message`` are the solver's.
     """
     eps = check_positive(epsilon, "epsilon")
+    _check_choice(solver, "solver", get_args(DualSolver))
     r, phi = _check_samples(rewards, features)
     n, n_feat = phi.shape
     log_q = _log_base(base_weights, n)
@@ -305,24 +414,16 @@ def reps_weights(
         transform = np.zeros((0, 0))
     psi = centred @ transform
 
-    def objective(y):
-        x = np.concatenate([[np.exp(y[0])], y[1:]])
-        value, grad, _ = _dual(x, r_n, psi, eps, log_q)
-        grad[0] *= x[0]  # chain rule for log η
-        return value, grad
-
-    lo, hi = np.log(ETA_BOUNDS[0]), np.log(ETA_BOUNDS[1])
-    y0 = np.zeros(1 + psi.shape[1])
-    res = optimize.minimize(
-        objective,
-        y0,
-        jac=True,
-        method="L-BFGS-B",
-        bounds=[(lo, hi)] + [(None, None)] * psi.shape[1],
-        options={"maxiter": 2000, "maxcor": 30, "ftol": 1e-15, "gtol": 1e-11},
-    )
-    eta_n = float(np.exp(res.x[0]))
-    theta = res.x[1:]
+    if solver == "newton":
+        y, n_iterations, message, converged = _minimise_newton(r_n, psi, eps, log_q)
+        if not converged:  # degenerate duals (ε unattainable under (3.5)): today's solver
+            y, n_lbfgsb, message_lbfgsb = _minimise_lbfgsb(r_n, psi, eps, log_q)
+            n_iterations += n_lbfgsb
+            message = f"{message}; L-BFGS-B from the start: {message_lbfgsb}"
+    else:
+        y, n_iterations, message = _minimise_lbfgsb(r_n, psi, eps, log_q)
+    eta_n = float(np.exp(y[0]))
+    theta = y[1:]
     value_n, _, p = _dual(np.concatenate([[eta_n], theta]), r_n, psi, eps, log_q)
 
     eta = eta_n * r_scale
@@ -347,10 +448,155 @@ def reps_weights(
         feature_error=feature_error,
         kl_bound_active=bool(active),
         success=bool(kl_ok and features_ok),
-        message=str(res.message),
+        message=message,
         epsilon=eps,
-        n_iterations=int(res.nit),
+        n_iterations=n_iterations,
     )
+
+
+def _minimise_lbfgsb(
+    r_n: np.ndarray, psi: np.ndarray, eps: float, log_q: np.ndarray | None
+) -> tuple[np.ndarray, int, str]:
+    """Minimise the normalised dual over y = (log η, θ) with scipy's L-BFGS-B from (0, 0):
+    the minimiser, iterations, message."""
+
+    phihat = _phihat(psi, log_q)  # the same numbers as _dual's own, computed once
+
+    def objective(y):
+        x = np.concatenate([[np.exp(y[0])], y[1:]])
+        value, grad, _ = _dual(x, r_n, psi, eps, log_q, phihat)
+        grad[0] *= x[0]  # chain rule for log η
+        return value, grad
+
+    lo, hi = np.log(ETA_BOUNDS[0]), np.log(ETA_BOUNDS[1])
+    y0 = np.zeros(1 + psi.shape[1])
+    res = optimize.minimize(
+        objective,
+        y0,
+        jac=True,
+        method="L-BFGS-B",
+        bounds=[(lo, hi)] + [(None, None)] * psi.shape[1],
+        options={"maxiter": 2000, "maxcor": 30, "ftol": 1e-15, "gtol": DUAL_GTOL},
+    )
+    return res.x, int(res.nit), str(res.message)
+
+
+#: Newton's method: the largest change of log η in one step, and the iteration limit.
+_MAX_LOG_ETA_STEP, _NEWTON_MAX_ITER = 2.0, 50
+
+
+def _minimise_newton(
+    r_n: np.ndarray, psi: np.ndarray, eps: float, log_q: np.ndarray | None
+) -> tuple[np.ndarray, int, str, bool]:
+    """Minimise the normalised dual over y = (log η, θ) by damped Newton steps from (0, 0):
+    the minimiser, iterations, message and whether the gradient tolerance was met.
+
+    It starts at θ = 0 and the log η where the KL bound holds for θ = 0
+    (:func:`_warm_start_log_eta`). The direction solves H_y Δy = −∇_y g with the Hessian in y,
+    H_y = J H J + diag(max(η ∂g/∂η, 0), 0), J = diag(η, 1), H of :func:`reps_dual_hessian`
+    (positive semi-definite; the exact Hessian in y wherever ∂g/∂η ≥ 0, in particular at the
+    minimiser, so convergence is quadratic), eigenvalues floored at 1e-12 of the largest; the
+    step is scaled to change log η by at most 2. Armijo backtracking (c = 1e-4, halving) on
+    g(y + t Δy), log η projected on its bounds; at a bound whose gradient points outwards, η
+    is held and θ alone takes the Newton step. Stops when the projected gradient in y is at
+    most :data:`DUAL_GTOL` (as L-BFGS-B), or unconverged after 50 iterations or when no step
+    decreases g any more.
+
+    Unconverged runs happen where ε exceeds what the feature constraint (3.5) allows: the
+    minimiser is then at η → 0, where the dual tends to the piecewise-linear
+    max_i(R_i − θᵀψ_i) + θᵀψ̂ and its Hessian (∝ 1/η) carries no useful curvature;
+    :func:`reps_weights` then runs L-BFGS-B from the start (today's answer)."""
+    lo, hi = np.log(ETA_BOUNDS[0]), np.log(ETA_BOUNDS[1])
+
+    phihat, work = _phihat(psi, log_q), _hessian_workspace(psi)
+
+    def evaluate(y: np.ndarray):
+        x = np.concatenate([[np.exp(y[0])], y[1:]])
+        value, grad, hess, _ = _dual_hessian(x, r_n, psi, eps, log_q, phihat, work)
+        return x, value, grad, hess
+
+    # Start where the KL bound holds with θ = 0 (a 1-D root of ∂g/∂η = ε − KL, increasing in
+    # log η), so that the weights are neither uniform nor on a few samples: from (0, 0) the
+    # first Newton steps extrapolate a far-off quadratic model.
+    y = np.zeros(1 + psi.shape[1])
+    n_iterations, (x, value, grad, hess) = _warm_start_log_eta(evaluate, y, lo, hi, eps)
+    while True:
+        grad_y = np.concatenate([[x[0] * grad[0]], grad[1:]])
+        held = (y[0] <= lo and grad_y[0] > 0) or (y[0] >= hi and grad_y[0] < 0)
+        projected = np.concatenate([[0.0 if held else grad_y[0]], grad_y[1:]])
+        if np.max(np.abs(projected)) <= DUAL_GTOL:
+            return y, n_iterations, "Newton: projected gradient below tolerance", True
+        if n_iterations == _NEWTON_MAX_ITER:
+            return y, n_iterations, "Newton: iteration limit reached", False
+        # Hessian in y: J H J + diag(η ∂g/∂η, 0), J = diag(η, 1); the second term only where
+        # it is non-negative (then it stays positive semi-definite; at the minimiser ∂g/∂η = 0).
+        hess_y = hess * np.concatenate([[x[0]], np.ones(y.shape[0] - 1)])
+        hess_y[0] *= x[0]
+        hess_y[0, 0] += max(grad_y[0], 0.0)
+        free = np.ones(y.shape[0], bool)
+        free[0] = not held
+        step = np.zeros_like(y)
+        step[free] = _newton_direction(hess_y[np.ix_(free, free)], grad_y[free])
+        step *= min(1.0, _MAX_LOG_ETA_STEP / max(abs(step[0]), 1e-300))
+        slope = grad_y @ step
+        if not slope < 0:  # round-off in a near-singular Hessian: steepest descent
+            step, slope = -projected, -(projected @ projected)
+        t = 1.0
+        while True:
+            trial = y + t * step
+            trial[0] = min(max(trial[0], lo), hi)
+            x_t, value_t, grad_t, hess_t = evaluate(trial)
+            if value_t <= value + 1e-4 * t * slope:
+                break
+            # At round-off level g no longer decreases: accept a step that keeps g within
+            # round-off and reduces the gradient.
+            grad_t_y = np.concatenate([[x_t[0] * grad_t[0]], grad_t[1:]])
+            flat = value_t <= value + 4e-16 * max(1.0, abs(value))
+            if flat and np.max(np.abs(grad_t_y)) < np.max(np.abs(grad_y)):
+                break
+            t *= 0.5
+            if t < 1e-12:
+                break
+        if t < 1e-12:
+            return y, n_iterations, "Newton: no decrease along the Newton direction", False
+        y, x, value, grad, hess = trial, x_t, value_t, grad_t, hess_t
+        n_iterations += 1
+
+
+def _warm_start_log_eta(evaluate, y: np.ndarray, lo: float, hi: float, eps: float):
+    """Set y[0] to a log η in [lo, hi] where ∂g/∂η(η, θ = 0) = ε − KL vanishes to 1e-2 ε
+    (safeguarded Newton on log η with bisection; near ``lo`` where the KL never reaches ε).
+    Returns the number of evaluations and the last one, at y."""
+    a, b, n = lo, hi, 0
+    while True:
+        n += 1
+        evaluation = evaluate(y)
+        x, _, grad, hess = evaluation
+        h = grad[0]  # ε − KL, increasing in log η
+        if h > 0:
+            b = y[0]
+        else:
+            a = y[0]
+        if abs(h) <= 1e-2 * eps or b - a < 1e-3 or n == 60:
+            break
+        slope = x[0] * hess[0, 0]  # dh/d log η = η ∂²g/∂η²
+        u = y[0] - h / slope if slope > 0 and np.isfinite(slope) else np.nan
+        y[0] = u if a < u < b else 0.5 * (a + b)
+    return n, evaluation
+
+
+def _newton_direction(hess: np.ndarray, grad: np.ndarray) -> np.ndarray:
+    """−H⁻¹g for a symmetric positive semi-definite H, eigenvalues floored at 1e-12 of the
+    largest (a singular direction, e.g. all weight on one sample, gets a bounded step)."""
+    if grad.size == 0:
+        return grad
+    if not (np.isfinite(hess).all() and np.isfinite(grad).all()):
+        return -grad
+    lam, vec = np.linalg.eigh(hess)
+    floor = 1e-12 * max(float(lam.max()), np.finfo(float).tiny)
+    with np.errstate(over="ignore", invalid="ignore"):
+        step = -(vec @ ((vec.T @ grad) / np.maximum(lam, floor)))
+    return step if np.isfinite(step).all() else -grad
 
 
 def kl_from_uniform(weights: np.ndarray) -> float:
@@ -483,6 +729,9 @@ class ContextualREPS(WeightedMLSearch[REPSDiagnostics]):
     entropy_loss_bound : float, optional
         β > 0 of ``m_step="trust_region"`` in nats per update (default ε: the entropy may fall
         by at most the KL budget per update).
+    dual_solver : {"lbfgsb", "newton"}
+        Solver of the dual (``solver`` of :func:`reps_weights`); default
+        :data:`DEFAULT_DUAL_SOLVER` (L-BFGS-B, with which every stored result was made).
     """
 
     def __init__(
@@ -499,6 +748,7 @@ class ContextualREPS(WeightedMLSearch[REPSDiagnostics]):
         extra_context_weighting: ExtraContextWeighting = DEFAULT_EXTRA_CONTEXT_WEIGHTING,
         m_step: MStep = DEFAULT_M_STEP,
         entropy_loss_bound: float | None = None,
+        dual_solver: DualSolver = DEFAULT_DUAL_SOLVER,
     ):
         super().__init__(
             policy, n_reuse_batches, ridge, cov_shrinkage, cov_floor, min_effective_samples
@@ -509,6 +759,7 @@ class ContextualREPS(WeightedMLSearch[REPSDiagnostics]):
             extra_context_weighting, "extra_context_weighting", get_args(ExtraContextWeighting)
         )
         self.m_step = _check_choice(m_step, "m_step", get_args(MStep))
+        self.dual_solver = _check_choice(dual_solver, "dual_solver", get_args(DualSolver))
         self.entropy_loss_bound = (
             self.epsilon
             if entropy_loss_bound is None
@@ -520,6 +771,7 @@ class ContextualREPS(WeightedMLSearch[REPSDiagnostics]):
     extra_context_weighting: ExtraContextWeighting = "naive"
     m_step: MStep = "weighted_ml"
     entropy_loss_bound: float | None = None
+    dual_solver: DualSolver = "lbfgsb"  # and before issue #18
 
     def _settings_repr(self) -> str:
         text = f"epsilon={self.epsilon:.4g}, baseline_features={self.baseline_features!r}"
@@ -527,6 +779,8 @@ class ContextualREPS(WeightedMLSearch[REPSDiagnostics]):
             text += f", extra_context_weighting={self.extra_context_weighting!r}"
         if self.m_step != "weighted_ml":
             text += f", m_step={self.m_step!r}, entropy_loss_bound={self.entropy_loss_bound:.4g}"
+        if self.dual_solver != "lbfgsb":
+            text += f", dual_solver={self.dual_solver!r}"
         return text
 
     def _importance(self, batch: Batch) -> np.ndarray | None:
@@ -542,7 +796,9 @@ class ContextualREPS(WeightedMLSearch[REPSDiagnostics]):
         the kept rows' importance weights (``"importance"``), or zero on extra-context rows
         after the dual (``"dual_only"``)."""
         phi = context_features(contexts, self.baseline_features) if contexts.shape[1] else None
-        sol = reps_weights(rewards, phi, self.epsilon, self._buffer.importance())
+        sol = reps_weights(
+            rewards, phi, self.epsilon, self._buffer.importance(), solver=self.dual_solver
+        )
         weights = sol.weights
         if self.extra_context_weighting == "dual_only":
             rollout = self._buffer.rollout_mask()

@@ -379,8 +379,19 @@ def verdict(settings: TableTennisSettings, summary: dict) -> Verdict:
         f"−0.02 after {fmt(summary['rollouts_to_mean_curve_above_-0.02'], '.0f')} rollouts) "
         f"(thesis: most runs, after ~{THESIS_ROLLOUTS}); "
         f"{fmt(100 * summary['net_fraction_mean'], '.1f')}% of the final shots hit the net and "
-        f"{netty}/{n} runs put more than 10% there (thesis: some runs converge to the net).",
+        f"{netty}/{n} runs put more than 10% there (thesis: some runs converge to the net)"
+        + _skipped_clause(summary)
+        + ".",
     )
+
+
+def _skipped_clause(summary: dict) -> str:
+    """The statement's note on updates that kept the policy (none: no note; summaries stored
+    before issue #17 have no count)."""
+    k = summary.get("skipped_updates", 0)
+    if not k:
+        return ""
+    return f"; {k} updates kept the policy (REPS weights below the fit's effective sample size)"
 
 
 def _pooled(trials: list[dict], key: str, outcome: str) -> np.ndarray:

@@ -195,3 +195,14 @@ def test_keep_policy_reps_raises_other_errors():
     with pytest.raises(ValueError, match="omegas"):
         keep.update(bad)
     assert keep.n_skipped == 0
+
+
+def test_statement_reports_updates_that_kept_the_policy():
+    trial = _trial([-0.01] * 4, ["returned"] * 4, [-0.2, -0.05, -0.01], [0.1] * 4)
+    _, quiet = summarize(TINY, [trial, trial])
+    assert quiet["skipped_updates"] == 0 and "kept the policy" not in quiet["statement"]
+    _, noted = summarize(
+        TINY, [{**trial, "n_skipped_updates": 2}, {**trial, "n_skipped_updates": 1}]
+    )
+    assert noted["skipped_updates"] == 3
+    assert "3 updates kept the policy" in noted["statement"]

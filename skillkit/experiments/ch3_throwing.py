@@ -2,10 +2,14 @@
 
 Both variants run the model-free loop of Table 3.1 (:func:`skillkit.search.loop.learn`) with
 :class:`~skillkit.search.reps.ContextualREPS` on the ``throwing`` task, starting from the
-task's imitation policy: 25 rollouts per update, the dual and the weighted ML fit reuse the
+task's imitation policy with an exploration wide enough that its throws reach the farthest
+targets (``initial_std_fraction``, :meth:`~skillkit.tasks.planar.Throwing.initial_policy`):
+25 rollouts per update, the dual and the weighted ML fit reuse the
 last 200 rollouts (L = 8 batches), ε = 0.6. The *extra context* variant re-scores every
 trajectory in ``extra_contexts`` = 20 freshly drawn contexts through the known reward model
-(valid because the throw does not depend on the target).
+(valid because the throw does not depend on the target); the re-scored rows enter REPS with
+importance weights (``extra_context_weighting="importance"``, the library default since
+issue #17: the naive use biases the context gain towards zero).
 
 Per trial the result holds both learning curves (average reward of the policy mean on fixed
 evaluation targets) and the final policies' ball-to-target distances on a grid of targets,
@@ -23,6 +27,7 @@ in the summary).
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import Literal
 
 import numpy as np
 
@@ -90,6 +95,16 @@ class ThrowingSettings(Settings):
         0.1, "No direction of Σ shrinks below this fraction of its previous variance per update."
     )
     cov_shrinkage: float = setting(0.0, "Weight of the previous Σ in the new one (0: none).")
+    initial_std_fraction: float = setting(
+        0.9,
+        "Initial exploration: shape-weight std relative to each joint's largest demonstrated "
+        "weight (Throwing.covering_std_fraction: sampled throws reach x = 15 m; Sec. 3.5).",
+    )
+    m_step: Literal["weighted_ml", "trust_region"] = setting(
+        "weighted_ml",
+        "M-step of both arms: the thesis's weighted ML fit (Eqs 3.11–3.13) or "
+        "its trust-region correction (issue #17).",
+    )
     grid_x: tuple[float, ...] = setting(
         (5.0, 6.0, 7.0, 8.0, 9.0, 10.0, 11.0, 12.0, 13.0, 14.0, 15.0),
         "Target x coordinates (m) of the final-error grid; x ≥ 13 m count as far.",
@@ -158,7 +173,7 @@ def run_trial(settings: ThrowingSettings, rng: np.random.Generator, trial: Trial
     for key, extra, child in zip(
         ("reps", "extra"), (0, settings.extra_contexts), seeds, strict=True
     ):
-        init = task.initial_policy()
+        init = task.initial_policy(settings.initial_std_fraction)
         init = LinearGaussianPolicy(
             init.mean, init.cov, context_dim=task.context_dim, features=settings.policy_features
         )
@@ -170,6 +185,7 @@ def run_trial(settings: ThrowingSettings, rng: np.random.Generator, trial: Trial
             cov_floor=settings.cov_floor,
             cov_shrinkage=settings.cov_shrinkage,
             min_effective_samples=settings.min_effective_samples,
+            m_step=settings.m_step,
         )
         curves = learn(
             task,

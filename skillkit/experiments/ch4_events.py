@@ -18,7 +18,8 @@ error for table tennis).
   confidence band.
 * ``fig4.12`` — table tennis: GPREPS with the five models of 4.3.4
   (:class:`~skillkit.search.table_tennis_model.TableTennisRewardModel`, with the reward schedule
-  of Eq. 4.17), GP direct, and contextual REPS with ``fig3.7``'s settings.
+  of Eq. 4.17), GP direct, and contextual REPS with ``fig3.7``'s settings (and the fit
+  regularisation of the stored run, ``ch3_table_tennis.REGULARISED``).
 * ``fig4.13`` — table tennis: the five models, learned from 100 rollouts, against the
   simulator on held-out rollouts (10 sampled trajectories each).
 
@@ -36,7 +37,12 @@ from scipy import stats
 
 from skillkit.experiments.ch3_hockey import HockeySettings, heldout_scores
 from skillkit.experiments.ch3_hockey import make_algorithm as hockey_algorithm
-from skillkit.experiments.ch3_table_tennis import TableTennisSettings, make_reps, shot_scores
+from skillkit.experiments.ch3_table_tennis import (
+    REGULARISED,
+    TableTennisSettings,
+    make_reps,
+    shot_scores,
+)
 from skillkit.experiments.ch4_gpreps import _run_gpreps, gpreps_stats, rollouts_to_reach
 from skillkit.experiments.registry import Experiment, Series, Verdict, fmt, register, with_verdict
 from skillkit.experiments.settings import Settings, setting
@@ -130,7 +136,9 @@ class HockeyGPREPSSettings(EventGPREPSSettings):
 
 @dataclass(frozen=True)
 class TableTennisGPREPSSettings(EventGPREPSSettings):
-    """Settings of ``fig4.12`` (table tennis; REPS with ``fig3.7``'s settings)."""
+    """Settings of ``fig4.12`` (table tennis; REPS with ``fig3.7``'s settings and the fit
+    regularisation it was stored with,
+    :data:`~skillkit.experiments.ch3_table_tennis.REGULARISED`)."""
 
     n_updates: int = setting(130, "GPREPS / GP-direct updates (N₀ + K = 150 rollouts).")
     schedule: Literal["auto", "hitting", "returning"] = setting(
@@ -500,7 +508,8 @@ def run_trial_412(st: TableTennisGPREPSSettings, rng: np.random.Generator, trial
                            seeds[0], trial, eval_contexts, score, keep_model=True))  # fmt: skip
     direct = DirectRewardModel(ExactGP(n_steps=st.gp_steps))
     out.update(_gpreps_run(task, st, "direct", direct, seeds[1], trial, eval_contexts, score))
-    tt = TableTennisSettings()
+    # fig3.7's REPS with the fit regularisation the stored fig4.12 result was made with
+    tt = replace(TableTennisSettings(), **REGULARISED)
     reps = make_reps(task, tt)
     every = max(1, st.reps_updates // 5)
     out.update(_reps_run(task, reps, "reps", st.reps_updates, tt.rollouts_per_update, seeds[2],

@@ -679,9 +679,9 @@ class REPSDiagnostics(DualSolution):
 ExtraContextWeighting = Literal["naive", "importance", "dual_only"]
 MStep = Literal["weighted_ml", "trust_region"]
 
-#: How REPS uses re-scored extra-context rows (Sec. 3.4) by default. ``"naive"`` is today's
-#: behaviour, with which every stored result was made; ``"importance"`` is the fix of issue #17.
-DEFAULT_EXTRA_CONTEXT_WEIGHTING: ExtraContextWeighting = "naive"
+#: How REPS uses re-scored extra-context rows (Sec. 3.4) by default: ``"importance"``, the
+#: unbiased fix of issue #17; ``"naive"`` (the behaviour before it) is kept as a named option.
+DEFAULT_EXTRA_CONTEXT_WEIGHTING: ExtraContextWeighting = "importance"
 #: REPS's M-step by default. ``"weighted_ml"`` (Eqs. 3.11–3.13 alone) is today's behaviour,
 #: with which every stored result was made; ``"trust_region"`` is the fix of issue #17.
 DEFAULT_M_STEP: MStep = "weighted_ml"

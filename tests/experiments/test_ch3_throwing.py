@@ -10,6 +10,7 @@ import pytest
 from skillkit.experiments import get
 from skillkit.experiments.ch3_throwing import target_grid, verdict
 from skillkit.experiments.runner import run_trials
+from skillkit.tasks.planar import Throwing
 
 
 @pytest.fixture(scope="module")
@@ -24,6 +25,9 @@ def test_registered_with_the_thesis_settings():
         s = exp.settings[scale]
         assert s.epsilon == 0.6 and s.rollouts_per_update == 25
         assert s.rollouts_per_update * s.n_reuse_batches == 200
+        # issue #17: exploration whose throws reach the farthest targets; Table 3.1's M-step
+        assert s.initial_std_fraction == Throwing.covering_std_fraction
+        assert s.m_step == "weighted_ml"
     assert exp.settings["paper"].n_updates * 25 >= 5000
     assert exp.trials["paper"] == 20
     grid = replace(exp.settings["quick"], grid_x=(5, 6), grid_y=(1,))
@@ -86,3 +90,11 @@ def test_saved_run_has_the_policy_history_the_viewer_plays_back(tmp_path):
     assert history.policies[0].dim == 41 and history.policies[0].context_dim == 2
     # The first entry is the initial policy, the others differ from it (REPS updated them).
     assert not np.allclose(history.policies[-1].mean, history.policies[0].mean)
+
+
+def test_both_arms_start_from_the_covering_exploration(first):
+    task = Throwing()
+    start = task.initial_policy(Throwing.covering_std_fraction)
+    for trial in first["_trials"]:
+        np.testing.assert_array_equal(trial["policy_cov"][0], start.cov)  # the REPS arm
+        np.testing.assert_array_equal(trial["policy_mean"][0], start.mean)

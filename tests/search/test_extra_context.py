@@ -117,7 +117,7 @@ def test_buffer_marks_rollouts_across_batches_and_reads_old_batches():
 def test_reps_pickled_before_the_options_runs_as_before():
     task = Target()
     batch = collect(task, task.initial_policy(), 10, 4, extra_contexts=3)
-    new = ContextualREPS(task.initial_policy(), 0.5)
+    new = ContextualREPS(task.initial_policy(), 0.5, extra_context_weighting="naive")
     old = ContextualREPS(task.initial_policy(), 0.5)
     for name in ("extra_context_weighting", "m_step", "entropy_loss_bound"):
         del vars(old)[name]  # an instance unpickled from before issue #17

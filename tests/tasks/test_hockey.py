@@ -445,3 +445,19 @@ def test_blade_rests_on_the_table_instead_of_passing_through(task):
     omega = task.demo_omega.copy()
     omega[: hk.N_JOINTS] -= np.linalg.pinv(jac[2:3]) @ np.array([0.02])
     assert task.rollout(omega, [2.0, 0.75, 0.5], rng=0).info["blade_lowest"] > -0.002
+
+
+def test_initial_policy_hits_span_the_required_displacements(task):
+    """Coverage of the initial exploration (issue #17): of 100 sampled shots some hit the
+    target puck, and their displacements span the context's d* ∈ [0, 1] m."""
+    policy, rng = task.initial_policy(), np.random.default_rng(0)
+    moved = []
+    for _ in range(100):
+        s = task.sample_context(rng)
+        traj = task.rollout(policy.sample(s, rng), s, rng)
+        assert not traj.failed
+        if traj.info["hit"]:
+            moved.append(np.linalg.norm(traj.info["displacement"]))
+    assert 5 <= len(moved) <= 30
+    lo, hi = np.percentile(moved, [5, 95])
+    assert lo <= task.context_low[2] + 0.2 and hi >= task.context_high[2]

@@ -379,3 +379,41 @@ def test_balancing_bad_input(balancing):
         failed = balancing._failed(np.zeros(32), np.zeros(0), "broken")
     with pytest.raises(ValueError, match="trajectory"):
         balancing_transitions(failed)
+
+
+# ------------------------------------------------- initial exploration (issue #17, item 2)
+def _landing_band(task: Throwing, fraction: float | None, n: int = 100) -> tuple[float, float]:
+    """5th and 95th percentile of the landing x of n throws sampled from the initial policy
+    on random targets (seed 0); no rollout may fail."""
+    policy = task.initial_policy(fraction)
+    rng = np.random.default_rng(0)
+    xs = []
+    for _ in range(n):
+        s = task.sample_context(rng)
+        traj = task.rollout(policy.sample(s, rng), s, rng)
+        assert not traj.failed
+        xs.append(traj.info["landing_x"])
+    lo, hi = np.percentile(xs, [5, 95])
+    return float(lo), float(hi)
+
+
+def test_covering_initial_policy_reaches_the_targets(throwing):
+    lo, hi = _landing_band(throwing, throwing.covering_std_fraction)
+    covered = min(hi, 15.0) - max(lo, 5.0)
+    assert hi >= 14.0 and lo <= 5.0  # the farthest targets are inside the exploration band
+    assert covered >= 0.85 * 10.0
+    # the default (0.1, the setting of the stored ch4 runs) never reaches x = 10 m
+    lo0, hi0 = _landing_band(throwing, None)
+    assert hi0 < 10.0 and min(hi0, 15.0) - max(lo0, 5.0) < 0.2 * 10.0
+
+
+def test_initial_policy_exploration_fraction_scales_the_weight_std(throwing):
+    base = throwing.initial_policy()
+    wide = throwing.initial_policy(0.9)
+    np.testing.assert_array_equal(wide.mean, base.mean)
+    np.testing.assert_array_equal(wide.gain, 0.0)
+    ratio = np.sqrt(np.diag(wide.cov) / np.diag(base.cov))
+    np.testing.assert_allclose(ratio[:-1], 9.0, rtol=1e-12)  # 0.9 / 0.1 on the DMP weights
+    assert ratio[-1] == pytest.approx(1.0)  # the release time keeps its 20 ms
+    with pytest.raises(ValueError, match="exploration_std_fraction"):
+        throwing.initial_policy(0.0)

@@ -322,3 +322,23 @@ def test_return_zone_is_the_opponents_half_and_near_is_a_variant(task):
             make("table-tennis", return_low=low, return_high=high)
     # the demonstration was designed for the near zone's centre, and still is
     np.testing.assert_allclose(tt.nominal_context()[3:], [0.4, 0.0])
+
+
+def test_initial_policy_samples_hit_return_and_net_balls(task):
+    """Coverage of the initial exploration (issue #17): 100 strokes on random contexts reach
+    every outcome, and the returned balls land on the opponent's half near its targets."""
+    policy, rng = task.initial_policy(), np.random.default_rng(0)
+    outcomes, landing = [], []
+    for _ in range(100):
+        s = task.sample_context(rng)
+        traj = task.rollout(policy.sample(s, rng), s, rng)
+        assert not traj.failed
+        outcomes.append(traj.info["outcome"])
+        if traj.info["outcome"] == "returned":
+            landing.append(traj.info["landing_point"])
+    counts = {o: outcomes.count(o) for o in ("returned", "net", "out", "missed")}
+    assert counts["returned"] >= 5 and counts["net"] >= 1 and counts["out"] >= 1
+    assert 10 <= 100 - counts["missed"] <= 50  # hits are a minority, but not rare
+    landing = np.array(landing)
+    assert np.all(landing[:, 0] >= 0.0)  # returned: on the opponent's half
+    assert np.ptp(landing[:, 1]) > 0.5  # spread across the table's width (1.525 m)

@@ -262,57 +262,38 @@ def _second_moments(
         tnorm = torch.linalg.matrix_norm(T)  # (P,)
         lower = ca.amin(-1) + cb.amin(-1) - tnorm * znorm[ia] * znorm[ib]
     clamp = (lower < LOG_FLOOR).tolist()
+    iK = pred.iK.reshape(E, 1, M * M)
     in_place = not (torch.is_grad_enabled() and (left.requires_grad or right.requires_grad))
     rows = max(1, min(M, block // M))
     group = max(1, block // (M * M)) if rows == M else 1
     buffer = torch.empty(group * rows * M, dtype=DTYPE) if in_place else None
-
-    def exp_block(p0: int, p1: int, r0: int, r1: int, c1: int) -> torch.Tensor:
-        """Q for pairs [p0, p1), rows [r0, r1), columns [0, c1): (p1 − p0, r1 − r0, c1)."""
-        lhs, rhs, floor = left[p0:p1, r0:r1], right[p0:p1, :, :c1], any(clamp[p0:p1])
-        if buffer is None:
-            Q = torch.bmm(lhs, rhs)
-            return torch.exp(torch.clamp_min(Q, LOG_FLOOR) if floor else Q)
-        out = buffer[: (p1 - p0) * (r1 - r0) * c1].view(p1 - p0, r1 - r0, c1)
-        Q = torch.bmm(lhs, rhs, out=out)
-        return (Q.clamp_min_(LOG_FLOOR) if floor else Q).exp_()
-
     beta_b = pred.beta[ib][..., None]  # (P, M, 1)
-    parts, traces = [], []  # Σ_j w_ij Q^{ab}_ij β_bj by pairs; tr(iK_a Q^{aa}) by blocks
-    # Diagonal pairs of a large M: Q^{aa} is symmetric, so row block [r0, r1) needs columns
-    # [0, r1) only, those left of the block counted twice (iK_a is symmetric too).
-    symmetric = 4 * M * M > block
-    if symmetric:
-        rows_diag = min(rows, -(-M // 2))
-        for p in range(E):
-            row_sums = []
-            for r0 in range(0, M, rows_diag):
-                r1 = min(M, r0 + rows_diag)
-                Q = exp_block(p, p + 1, r0, r1, r1)
-                if r0 and buffer is not None:
-                    Q[..., :r0].mul_(2.0)
-                elif r0:
-                    Q = torch.cat([2.0 * Q[..., :r0], Q[..., r0:]], dim=-1)
-                row_sums.append(torch.bmm(Q, beta_b[p : p + 1, :r1])[0, :, 0])
-                traces.append((pred.iK[p, r0:r1, :r1] * Q[0]).sum().reshape(1))
-            parts.append(torch.cat(row_sums)[None])
-    iK = pred.iK.reshape(E, 1, M * M)
-    first = E if symmetric else 0
-    for p0 in range(first, P, group):
+    q_beta, traces = [], []  # Q^{ab} β_b by blocks; tr(iK_a Q^{aa}) by blocks
+    for p0 in range(0, P, group):
         p1 = min(P, p0 + group)
         n_diag = max(0, min(p1, E) - p0)  # pairs p < E are (p, p)
-        row_sums = []
+        floor = any(clamp[p0:p1])
+        lhs, rhs, vec, iK_g = left[p0:p1], right[p0:p1], beta_b[p0:p1], iK[p0 : p0 + n_diag]
         for r0 in range(0, M, rows):
             r1 = min(M, r0 + rows)
-            Q = exp_block(p0, p1, r0, r1, M)
-            row_sums.append(torch.bmm(Q, beta_b[p0:p1])[..., 0])  # (g, r)
+            if buffer is not None:
+                out = buffer[: (p1 - p0) * (r1 - r0) * M].view(p1 - p0, r1 - r0, M)
+                Q = torch.bmm(lhs[:, r0:r1], rhs, out=out)
+                Q = (Q.clamp_min_(LOG_FLOOR) if floor else Q).exp_()
+            else:
+                Q = torch.bmm(lhs[:, r0:r1], rhs)
+                Q = torch.exp(torch.clamp_min(Q, LOG_FLOOR) if floor else Q)
+            q_beta.append(torch.bmm(Q, vec))  # (g, r, 1)
             if n_diag:
                 flat = Q[:n_diag].reshape(n_diag, -1, 1)
-                traces.append(torch.bmm(iK[p0 : p0 + n_diag, :, r0 * M : r1 * M], flat)[:, 0, 0])
-        parts.append(torch.cat(row_sums, dim=1))
-    qb = torch.cat(parts)  # (P, M)
-    traces = torch.cat(traces)  # by diagonal pair, then by row block
-    trace = traces.reshape(E, len(traces) // E).sum(-1)
+                traces.append(torch.bmm(iK_g[..., r0 * M : r1 * M], flat))
+    if rows == M:
+        qb = torch.cat(q_beta, dim=0)[..., 0]  # (P, M)
+        trace = torch.cat(traces, dim=0)[:, 0, 0]
+    else:
+        n_blocks = len(q_beta) // P
+        qb = torch.cat(q_beta, dim=1).reshape(P, M)
+        trace = torch.cat(traces, dim=1).reshape(E, n_blocks).sum(-1)
     s = (pred.beta[ia] * qb).sum(-1)
     second = torch.zeros((E, E), dtype=DTYPE).index_put((ia, ib), s).index_put((ib, ia), s)
     return second, pred.outputscale - trace

@@ -44,7 +44,8 @@ Numerics of :func:`reps_weights`
 * Solvers (``solver`` of :func:`reps_weights`, default :data:`DEFAULT_DUAL_SOLVER`):
   ``"lbfgsb"`` is scipy's L-BFGS-B on (log η, γ), with which every stored result was made;
   ``"newton"`` (issue #18) takes damped Newton steps in (log η, γ) with the analytic Hessian
-  (so η stays positive), from the η where the KL bound holds for γ = 0, with an Armijo
+  (so η stays positive), from the least-squares baseline and the η where the KL bound holds
+  for it, with an Armijo
   backtracking line search, and stops on the same projected-gradient tolerance. It needs a
   handful of iterations where L-BFGS-B needs tens (``benchmarks/bench_reps.py``); both reach
   the same minimiser (``tests/search/test_reps_newton.py``). Where ε is unattainable under
@@ -491,7 +492,7 @@ def _minimise_newton(
     """Minimise the normalised dual over y = (log η, θ) by damped Newton steps from (0, 0):
     the minimiser, iterations, message and whether the gradient tolerance was met.
 
-    It starts at θ = 0 and the log η where the KL bound holds for θ = 0
+    It starts at the least-squares baseline θ₀ and the log η where the KL bound holds for it
     (:func:`_warm_start_log_eta`). The direction solves H_y Δy = −∇_y g with the Hessian in y,
     H_y = J H J + diag(max(η ∂g/∂η, 0), 0), J = diag(η, 1), H of :func:`reps_dual_hessian`
     (positive semi-definite; the exact Hessian in y wherever ∂g/∂η ≥ 0, in particular at the
@@ -515,10 +516,12 @@ def _minimise_newton(
         value, grad, hess, _ = _dual_hessian(x, r_n, psi, eps, log_q, phihat, work)
         return x, value, grad, hess
 
-    # Start where the KL bound holds with θ = 0 (a 1-D root of ∂g/∂η = ε − KL, increasing in
-    # log η), so that the weights are neither uniform nor on a few samples: from (0, 0) the
-    # first Newton steps extrapolate a far-off quadratic model.
+    # Start at the least-squares baseline θ₀ = Σ q_i ψ_i R_i (ψ is whitened under q) and the
+    # η where the KL bound holds for it (a 1-D root of ∂g/∂η = ε − KL, increasing in log η),
+    # so that the weights are neither uniform nor on a few samples: from (0, 0) the first
+    # Newton steps extrapolate a far-off quadratic model.
     y = np.zeros(1 + psi.shape[1])
+    y[1:] = (r_n / r_n.shape[0] if log_q is None else np.exp(log_q) * r_n) @ psi
     n_iterations, (x, value, grad, hess) = _warm_start_log_eta(evaluate, y, lo, hi, eps)
     while True:
         grad_y = np.concatenate([[x[0] * grad[0]], grad[1:]])
@@ -564,8 +567,9 @@ def _minimise_newton(
 
 
 def _warm_start_log_eta(evaluate, y: np.ndarray, lo: float, hi: float, eps: float):
-    """Set y[0] to a log η in [lo, hi] where ∂g/∂η(η, θ = 0) = ε − KL vanishes to 1e-2 ε
-    (safeguarded Newton on log η with bisection; near ``lo`` where the KL never reaches ε).
+    """Set y[0] to a log η in [lo, hi] where ∂g/∂η(η, θ = y[1:]) = ε − KL vanishes to 5e-2 ε
+    (Newton on log η, steps of at most 2, bisection when a step leaves the bracket; near
+    ``lo`` where the KL never reaches ε).
     Returns the number of evaluations and the last one, at y."""
     a, b, n = lo, hi, 0
     while True:
@@ -577,10 +581,12 @@ def _warm_start_log_eta(evaluate, y: np.ndarray, lo: float, hi: float, eps: floa
             b = y[0]
         else:
             a = y[0]
-        if abs(h) <= 1e-2 * eps or b - a < 1e-3 or n == 60:
+        if abs(h) <= 0.05 * eps or b - a < 1e-3 or n == 60:
             break
         slope = x[0] * hess[0, 0]  # dh/d log η = η ∂²g/∂η²
-        u = y[0] - h / slope if slope > 0 and np.isfinite(slope) else np.nan
+        with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
+            u = y[0] - h / slope if slope > 0 and np.isfinite(slope) else np.nan
+        u = min(max(u, y[0] - _MAX_LOG_ETA_STEP), y[0] + _MAX_LOG_ETA_STEP)
         y[0] = u if a < u < b else 0.5 * (a + b)
     return n, evaluation
 

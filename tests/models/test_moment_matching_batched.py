@@ -311,3 +311,20 @@ def test_a_negative_latent_variance_is_reported_clamped_or_nan_as_before():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         _assert_same_prediction(moment_match(pred, m, S), _reference_moment_match(pred, m, S))
+
+
+def test_gradients_of_every_block_shape_agree():
+    """The recorded (differentiable) path with row ranges of one pair (small ``block``) has
+    the gradient of whole-pair blocks."""
+    pred = _random_model("fitc", 15, 3, 3, M=30).predictor
+    m0, S0 = _random_gaussian(15, 3, 0.4)
+    grads = []
+    for block in (7 * 30, 100 * 30 * 30):
+        m, S = m0.clone().requires_grad_(True), S0.clone().requires_grad_(True)
+        iL = 1.0 / pred.lengthscale
+        nut = (pred.support - m) * iL[:, None, :]
+        second, latent = _second_moments(pred, S, nut, iL, block=block)
+        w = torch.arange(1.0, 10.0, dtype=DTYPE).reshape(3, 3)
+        grads.append(torch.autograd.grad((w * second).sum() + latent.sum(), (m, S)))
+    for new, old in zip(grads[0], grads[1], strict=True):
+        _assert_same(new, old, rtol=1e-10, what="gradient")

@@ -1272,6 +1272,17 @@ class ForwardModel:
             out.linear_weights = self.linear_weights.to(out._predictor.device, out._predictor.dtype)
         return out
 
+    def with_predictor(self, predictor) -> ForwardModel:
+        """A shallow copy that predicts with ``predictor`` (same targets, mean and sizes).
+
+        ``predictor`` is a :class:`GPPredictor` or anything with its ``moments(z)``, e.g. the
+        pathwise function draws of :mod:`skillkit.models.pathwise`.
+        """
+        out = ForwardModel.__new__(ForwardModel)
+        out.__dict__.update(self.__dict__)
+        out._predictor = predictor
+        return out
+
     def next_state_moments(self, x: torch.Tensor, u: torch.Tensor) -> Moments:
         """Per-dimension Gaussian p(x_{t+1} | x_t, u_t) for a batch (tensors, hot path).
 

@@ -43,9 +43,20 @@ import torch
 
 from skillkit._repr import number, span
 from skillkit._validation import as_generator, check_positive
-from skillkit.models.gp import DTYPE, VARIANCE_TOL, GPNumericalWarning
+from skillkit.models.gp import DTYPE, VARIANCE_TOL, GPNumericalWarning, GPPredictor
+from skillkit.models.pathwise import PathwiseBasis
 
-__all__ = ["SampledTrajectories", "StepModel", "sample_trajectories", "sampler_flops_per_step"]
+__all__ = [
+    "PRECISION_TOL",
+    "SampledTrajectories",
+    "StepModel",
+    "sample_trajectories",
+    "sampler_flops_per_step",
+]
+
+#: float32 sampling warns when its one-step moments differ from float64's by more than this
+#: (mean error in predictive standard deviations, or relative variance error).
+PRECISION_TOL = 1e-2
 
 
 class StepModel(Protocol):
@@ -79,6 +90,11 @@ class SampledTrajectories:
         (see :mod:`skillkit.models.gp`).
     worst_variance : float
         The most negative latent variance relative to σ_f² (0 if none).
+    precision_error : float
+        float32 sampling only (0.0 in float64): the largest difference between the float32
+        and float64 one-step predictive moments on visited states (first 256 trajectories at
+        t = 0, T/2, T − 1): mean error in predictive standard deviations or relative variance
+        error. Above ``PRECISION_TOL`` (1e-2) a :class:`GPNumericalWarning` is issued.
     """
 
     states: torch.Tensor
@@ -86,6 +102,7 @@ class SampledTrajectories:
     n_saturated: int
     n_variance_clamped: int
     worst_variance: float
+    precision_error: float = 0.0
 
     def __repr__(self) -> str:
         B, L, T1, n_x = self.states.shape
@@ -113,6 +130,8 @@ def sample_trajectories(
     device=None,
     dtype: torch.dtype = DTYPE,
     max_chunk_bytes: int = 2**25,
+    method: str = "per-step",
+    n_features: int = 256,
 ) -> SampledTrajectories:
     """Sample L trajectories for each of B start conditions / policies in one vectorised call.
 
@@ -136,11 +155,20 @@ def sample_trajectories(
         Saturate ``|u| ≤ control_limit`` (counted in ``n_saturated``).
     device : str or torch.device, optional
         Where to compute (default: the CPU).
-    dtype : torch.dtype
-        Floating point type (float64 by default).
+    dtype : torch.float64 or torch.float32
+        Floating point type: float64 (default; the thesis's and every stored result's) or the
+        opt-in float32 path (see the module notes: faster, accurate for well-conditioned models;
+        its accuracy on the visited states is measured and reported as ``precision_error``).
     max_chunk_bytes : int
         Bound on the kernel work arrays per chunk of trajectories (default 32 MiB: small
         arrays are recycled by the allocator and stay in cache; see the benchmark).
+    method : {"per-step", "pathwise"}
+        "per-step" (default, the thesis's Sec. 4.2.1): every transition is an independent
+        draw from the one-step predictive distribution. "pathwise": every trajectory draws one
+        function from the GP posterior and follows it, with i.i.d. observation noise
+        (:mod:`skillkit.models.pathwise`; GP forward models only).
+    n_features : int
+        Random Fourier features per function and output for ``method="pathwise"``.
 
     Returns
     -------
@@ -150,9 +178,24 @@ def sample_trajectories(
     ------
     ValueError
         On bad shapes, non-finite start states, a policy returning the wrong shape or
-        non-finite controls.
+        non-finite controls, an unsupported dtype or method, or pathwise sampling of a model
+        that is not a GP forward model.
     """
     device = torch.device("cpu" if device is None else device)
+    if dtype not in (torch.float64, torch.float32):
+        raise ValueError(f"dtype: expected torch.float64 or torch.float32, got {dtype!r}")
+    if method not in ("per-step", "pathwise"):
+        raise ValueError(f"method: expected 'per-step' or 'pathwise', got {method!r}")
+    basis = None
+    if method == "pathwise":
+        if not isinstance(getattr(model, "_predictor", None), GPPredictor) or not hasattr(
+            model, "with_predictor"
+        ):
+            raise ValueError(
+                "model: pathwise sampling needs a fitted GP forward model (ForwardModel), got "
+                f"{type(model).__name__}"
+            )
+        basis = PathwiseBasis(model.predictor.to(device), n_features, dtype)
     n_x, n_u = int(model.state_dim), int(model.control_dim)
     if int(horizon) != horizon or horizon < 1:
         raise ValueError(f"horizon: expected a positive integer, got {horizon!r}")
@@ -180,16 +223,19 @@ def sample_trajectories(
             check_positive(v, "control_limit")
         limit = torch.as_tensor(lim.copy(), dtype=dtype, device=device)
 
+    source = model
     model = model.to(device, dtype)
     gen = torch.Generator(device=device)
-    gen.manual_seed(int(as_generator(rng).integers(2**63 - 1)))
+    np_gen = as_generator(rng)
+    gen.manual_seed(int(np_gen.integers(2**63 - 1)))
     n = B * L
     eps = torch.randn((n, T, n_x), generator=gen, dtype=dtype, device=device)
+    seeds = np_gen.integers(2**63 - 1, size=n) if basis is not None else None
     pair = torch.arange(B, device=device).repeat_interleave(L)
     states = torch.empty((n, T + 1, n_x), dtype=dtype, device=device)
     controls = torch.empty((n, T, n_u), dtype=dtype, device=device)
     states[:, 0] = x0.reshape(n, n_x)
-    chunk = _chunk_rows(model, max_chunk_bytes, n)
+    chunk = _chunk_rows(model, max_chunk_bytes, n, 0 if basis is None else basis.n_features)
     n_sat = torch.zeros((), dtype=torch.long, device=device)
     n_clamp = torch.zeros((), dtype=torch.long, device=device)
     worst = torch.zeros((), dtype=dtype, device=device)
@@ -198,6 +244,7 @@ def sample_trajectories(
             hi = min(lo + chunk, n)
             x = states[lo:hi, 0]
             p = pair[lo:hi]
+            step = model if basis is None else model.with_predictor(basis.draw(seeds[lo:hi]))
             for t in range(T):
                 u = policy(t, x, p)
                 if t == 0 and lo == 0:
@@ -205,7 +252,7 @@ def sample_trajectories(
                 if limit is not None:
                     n_sat += (u.abs() > limit).sum()
                     u = torch.maximum(torch.minimum(u, limit), -limit)
-                m = model.next_state_moments(x, u)
+                m = step.next_state_moments(x, u)
                 x = m[0] + m[1].sqrt() * eps[lo:hi, t]
                 states[lo:hi, t + 1] = x
                 controls[lo:hi, t] = u
@@ -214,6 +261,17 @@ def sample_trajectories(
                     worst = torch.minimum(worst, m[3])
     if not torch.isfinite(controls).all():
         raise ValueError("policy: returned non-finite controls")
+    precision = 0.0
+    if dtype != DTYPE:
+        precision = _precision_error(source, model, states, controls, device)
+        if precision > PRECISION_TOL:
+            warnings.warn(
+                f"sample_trajectories: {dtype} predictions differ from float64 by up to "
+                f"{precision:.2e} (predictive std for means, relative for variances) on the "
+                "visited states; the model is too ill-conditioned for float32, use float64",
+                GPNumericalWarning,
+                stacklevel=2,
+            )
     worst_f = float(worst)
     if worst_f < -VARIANCE_TOL:
         warnings.warn(
@@ -228,7 +286,29 @@ def sample_trajectories(
         int(n_sat),
         int(n_clamp),
         worst_f,
+        precision,
     )
+
+
+def _precision_error(source, model, states, controls, device, rows: int = 256) -> float:
+    """Max float32-vs-float64 error of the one-step predictive moments on visited states.
+
+    Evaluated on the first ``rows`` trajectories at t = 0, T/2 and T − 1: the mean error in
+    float64 predictive standard deviations and the relative variance error, whichever is
+    larger. (For pathwise sampling this checks the predictor the functions are drawn from.)
+    """
+    hi = source.to(device, DTYPE)
+    T = controls.shape[1]
+    worst = 0.0
+    for t in sorted({0, T // 2, T - 1}):
+        x, u = states[:rows, t], controls[:rows, t]
+        a = hi.next_state_moments(x.to(DTYPE), u.to(DTYPE))
+        b = model.next_state_moments(x, u)
+        var = a.var.clamp_min(torch.finfo(DTYPE).tiny)
+        err_mean = ((b.mean.to(DTYPE) - a.mean).abs() / var.sqrt()).max()
+        err_var = ((b.var.to(DTYPE) - a.var).abs() / var).max()
+        worst = max(worst, float(err_mean), float(err_var))
+    return worst
 
 
 def _check_control(u, n: int, n_u: int, dtype, device) -> None:
@@ -244,12 +324,19 @@ def _check_control(u, n: int, n_u: int, dtype, device) -> None:
         )
 
 
-def _chunk_rows(model, max_bytes: int, n: int) -> int:
-    """Rows per chunk so that ~3 (E, rows, M) work arrays fit in ``max_bytes``."""
+def _chunk_rows(model, max_bytes: int, n: int, n_features: int = 0) -> int:
+    """Rows per chunk so that ~3 (E, rows, M) work arrays fit in ``max_bytes``.
+
+    With ``n_features`` (pathwise sampling) each row also holds its function's features
+    (E · F · (d + 2) numbers, drawn in float64) and update vector (E · M).
+    """
     pred = getattr(model, "predictor", None)
     if pred is None:
         return n
-    per_row = 3 * pred.output_dim * pred.n_support * pred.support.element_size()
+    E, M, d = pred.output_dim, pred.n_support, pred.input_dim
+    per_row = 3 * E * M * pred.support.element_size()
+    if n_features:
+        per_row += 8 * E * (n_features * (d + 2) + M)
     return int(max(1, min(n, max_bytes // max(per_row, 1))))
 
 

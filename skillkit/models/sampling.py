@@ -162,13 +162,15 @@ def sample_trajectories(
     max_chunk_bytes : int
         Bound on the kernel work arrays per chunk of trajectories (default 32 MiB: small
         arrays are recycled by the allocator and stay in cache; see the benchmark).
-    method : {"per-step", "pathwise"}
+    method : {"per-step", "pathwise", "pathwise-shared"}
         "per-step" (default, the thesis's Sec. 4.2.1): every transition is an independent
         draw from the one-step predictive distribution. "pathwise": every trajectory draws one
         function from the GP posterior and follows it, with i.i.d. observation noise
-        (:mod:`skillkit.models.pathwise`; GP forward models only).
+        (:mod:`skillkit.models.pathwise`; GP forward models only), each with its own random
+        features; "pathwise-shared": the same with one feature basis for all trajectories
+        (cheaper; covariances off by O(1/√F), see :class:`~skillkit.models.pathwise.PathwiseBasis`).
     n_features : int
-        Random Fourier features per function and output for ``method="pathwise"``.
+        F, random Fourier features per function and output (pathwise methods).
 
     Returns
     -------
@@ -184,10 +186,12 @@ def sample_trajectories(
     device = torch.device("cpu" if device is None else device)
     if dtype not in (torch.float64, torch.float32):
         raise ValueError(f"dtype: expected torch.float64 or torch.float32, got {dtype!r}")
-    if method not in ("per-step", "pathwise"):
-        raise ValueError(f"method: expected 'per-step' or 'pathwise', got {method!r}")
-    basis = None
-    if method == "pathwise":
+    if method not in ("per-step", "pathwise", "pathwise-shared"):
+        raise ValueError(
+            f"method: expected 'per-step', 'pathwise' or 'pathwise-shared', got {method!r}"
+        )
+    pathwise = method != "per-step"
+    if pathwise:
         if not isinstance(getattr(model, "_predictor", None), GPPredictor) or not hasattr(
             model, "with_predictor"
         ):
@@ -195,7 +199,8 @@ def sample_trajectories(
                 "model: pathwise sampling needs a fitted GP forward model (ForwardModel), got "
                 f"{type(model).__name__}"
             )
-        basis = PathwiseBasis(model.predictor.to(device), n_features, dtype)
+        if isinstance(n_features, bool) or int(n_features) != n_features or n_features < 1:
+            raise ValueError(f"n_features: expected a positive integer, got {n_features!r}")
     n_x, n_u = int(model.state_dim), int(model.control_dim)
     if int(horizon) != horizon or horizon < 1:
         raise ValueError(f"horizon: expected a positive integer, got {horizon!r}")
@@ -229,13 +234,18 @@ def sample_trajectories(
     np_gen = as_generator(rng)
     gen.manual_seed(int(np_gen.integers(2**63 - 1)))
     n = B * L
-    eps = torch.randn((n, T, n_x), generator=gen, dtype=dtype, device=device)
-    seeds = np_gen.integers(2**63 - 1, size=n) if basis is not None else None
+    # Drawn in float64 whatever the dtype: float32 paths follow the float64 paths of a seed.
+    eps = torch.randn((n, T, n_x), generator=gen, dtype=DTYPE, device=device).to(dtype)
+    basis = seeds = None
+    if pathwise:
+        seeds = np_gen.integers(2**63 - 1, size=n)
+        shared = int(np_gen.integers(2**63 - 1)) if method == "pathwise-shared" else None
+        basis = PathwiseBasis(source.predictor.to(device), n_features, dtype, shared_seed=shared)
     pair = torch.arange(B, device=device).repeat_interleave(L)
     states = torch.empty((n, T + 1, n_x), dtype=dtype, device=device)
     controls = torch.empty((n, T, n_u), dtype=dtype, device=device)
     states[:, 0] = x0.reshape(n, n_x)
-    chunk = _chunk_rows(model, max_chunk_bytes, n, 0 if basis is None else basis.n_features)
+    chunk = _chunk_rows(model, max_chunk_bytes, n, n_features if method == "pathwise" else 0)
     n_sat = torch.zeros((), dtype=torch.long, device=device)
     n_clamp = torch.zeros((), dtype=torch.long, device=device)
     worst = torch.zeros((), dtype=dtype, device=device)

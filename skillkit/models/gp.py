@@ -85,6 +85,7 @@ from skillkit.models.kernels import (
 
 __all__ = [
     "DTYPE",
+    "FLUSH_EXPONENT",
     "ExactGP",
     "ForwardModel",
     "GPNumericalError",
@@ -99,6 +100,9 @@ __all__ = [
 DTYPE = torch.float64
 #: Latent variances below −VARIANCE_TOL·σ_f² are reported as beyond round-off.
 VARIANCE_TOL = 1e-6
+#: Reduced precision (float32) only: kernel entries below exp(−FLUSH_EXPONENT)·σ_f² are raised
+#: to that value (see :meth:`GPPredictor.kernel_vectors`).
+FLUSH_EXPONENT = 40.0
 _JITTER_LEVELS = (1e-12, 1e-10, 1e-8, 1e-6, 1e-4)
 
 
@@ -318,9 +322,11 @@ class GPPredictor:
         object.__setattr__(
             self,
             "_weights",
-            torch.cat([setup("var_factor").transpose(-1, -2), setup("beta")[..., None]], dim=-1)
-            .contiguous()
-            .to(self.dtype),
+            _flush_tiny(
+                torch.cat([setup("var_factor").transpose(-1, -2), setup("beta")[..., None]], -1)
+                .contiguous()
+                .to(self.dtype)
+            ),
         )
 
     def __repr__(self) -> str:
@@ -373,27 +379,34 @@ class GPPredictor:
 
         In a float32 predictor the exponent ``log k = −½‖(x − z)/w‖² + log σ_f²`` is one
         float64 product of the augmented operands (:func:`~skillkit.models.kernels.se_operands`;
-        (d + 2) columns, ~5 % of a sampling step's work), clamped to
-        [log(tiny) + 7, log σ_f²] (about [−80.3, log σ_f²] in float32) and exponentiated in
-        float32. Both matter, measured on the balancing FITC model (N = 1500, M = 300; see
+        (d + 2) columns, ~5 % of a sampling step's work), clamped from below at
+        log σ_f² − 40 (but at least log(tiny) + 7 ≈ −80) and exponentiated in float32: entries
+        below exp(−40)·σ_f² = 4e-18 σ_f² become 4e-18 σ_f², so ``exp`` never underflows, and
+        with the weights below 1e-15 of their largest set to 0 (once, when the float32
+        predictor is made) no product k · weight is denormal. Why, measured on the balancing
+        FITC model (N = 1500, M = 300, see
         :mod:`skillkit.models.sampling`): the augmented product has round-off
         ε (‖x/w‖² + ‖z/w‖²) in the exponent, and in float32 that made predictive means wrong
-        by up to 0.095 predictive standard deviations near the data (3.6e-4 with the float64
-        exponent); and without the lower clamp ~8 % of the float32 kernel entries are denormal
-        or zero, which made the step 2.6x slower than float64 (``exp`` and the products
-        slow down on denormals). The clamp changes k only where it is below 1e-35 σ_f².
-        A float64 predictor computes exactly what it always did (no clamp from below).
+        by up to 0.095 predictive standard deviations near the data (3.5e-4 with the float64
+        exponent); ``exp`` of arguments whose result underflows is 10–100x slower than of
+        normal ones; and a kernel entry just above float32's underflow threshold times a small
+        weight is a denormal number, on which the (E, n, M) × (E, M, M + 1) product runs ~200x
+        slower. Raising entries below 4e-18 σ_f² changes kᵀβ and ‖Rk‖² by less than
+        float32's resolution unless ‖β‖ or ‖R‖² exceed ~1e10 / σ_f², a model far too
+        ill-conditioned for float32 anyway (``sample_trajectories`` measures and reports the
+        float32 error on visited states). A float64 predictor computes exactly what it always
+        did (no floor, no flushing).
         """
         if self._support_operand.dtype == self.dtype:
             query = se_operands(x.unsqueeze(0), self._query_scale)
             return se_kernel_from_operands(query, self._support_operand, self._log_outputscale)
         query = se_operands(x.unsqueeze(0).to(self._support_operand.dtype), self._query_scale)
         e = query @ self._support_operand.transpose(-1, -2)
-        floor = math.log(torch.finfo(self.dtype).tiny) + 7.0
         lim = self._log_outputscale[:, None, None]
+        floor = (lim - FLUSH_EXPONENT).clamp_min(math.log(torch.finfo(self.dtype).tiny) + 7.0)
         if torch.is_grad_enabled() and e.requires_grad:
-            return torch.minimum(e.clamp(min=floor), lim).to(self.dtype).exp()
-        torch.minimum(e.clamp_(min=floor), lim, out=e)
+            return torch.minimum(torch.maximum(e, floor), lim).to(self.dtype).exp()
+        torch.minimum(torch.maximum(e, floor, out=e), lim, out=e)
         return e.to(self.dtype).exp_()
 
     def moments(self, x: torch.Tensor, include_noise: bool = True) -> Moments:
@@ -444,6 +457,18 @@ class GPPredictor:
         cov = kxx - v @ v.transpose(-1, -2)
         cov = 0.5 * (cov + cov.transpose(-1, -2))
         return self.y_scale[:, None, None] ** 2 * cov
+
+
+def _flush_tiny(weights: torch.Tensor) -> torch.Tensor:
+    """Reduced precision: weights below 1e-15 of their output's largest set to 0 (float64: as is).
+
+    Their contribution is below float32's resolution, and a product of a small kernel entry
+    with such a weight would be a denormal number, on which matrix products run ~200x slower.
+    """
+    if weights.dtype == torch.float64:
+        return weights
+    top = weights.abs().amax((-2, -1), keepdim=True)
+    return weights.masked_fill(weights.abs() < 1e-15 * top, 0.0)
 
 
 def warn_if_clamped(m: Moments, where: str) -> None:

@@ -92,7 +92,7 @@ class SampledTrajectories:
         The most negative latent variance relative to σ_f² (0 if none).
     precision_error : float
         float32 sampling only (0.0 in float64): the largest difference between the float32
-        and float64 one-step predictive moments on visited states (first 256 trajectories at
+        and float64 one-step predictive moments on visited states (first 64 trajectories at
         t = 0, T/2, T − 1): mean error in predictive standard deviations or relative variance
         error. Above ``PRECISION_TOL`` (1e-2) a :class:`GPNumericalWarning` is issued.
     """
@@ -300,7 +300,7 @@ def sample_trajectories(
     )
 
 
-def _precision_error(source, model, states, controls, device, rows: int = 256) -> float:
+def _precision_error(source, model, states, controls, device, rows: int = 64) -> float:
     """Max float32-vs-float64 error of the one-step predictive moments on visited states.
 
     Evaluated on the first ``rows`` trajectories at t = 0, T/2 and T − 1: the mean error in

@@ -8,13 +8,14 @@ standard deviations in the mean; with the exponent in float64 the errors are 2.7
 
 from __future__ import annotations
 
+import math
 import warnings
 
 import numpy as np
 import pytest
 import torch
 
-from skillkit.models.gp import ExactGP, ForwardModel, GPNumericalWarning
+from skillkit.models.gp import FLUSH_EXPONENT, ExactGP, ForwardModel, GPNumericalWarning
 from skillkit.models.kernels import se_kernel_from_operands, se_operands
 from skillkit.models.sampling import PRECISION_TOL, sample_trajectories
 from skillkit.models.sparse import FITC
@@ -125,10 +126,14 @@ def test_float32_kernel_has_no_denormals_and_keeps_its_accuracy(model):
     k32 = p.to(dtype=torch.float32).kernel_vectors(z)
     assert (k64 < torch.finfo(torch.float32).tiny).float().mean() > 0.2
     assert bool((k32 >= torch.finfo(torch.float32).tiny).all())  # clamped: never denormal
-    # Where k ≥ 1e-30 σ_f² (|log k| ≤ 69): float32 rounding of the exponent, ≤ 69 · 6e-8.
-    big = k64 > 1e-30 * p.outputscale[:, None, None]
+    # Where k ≥ e^-40 σ_f²: float32 rounding of the exponent (≤ 45 · 6e-8) and of exp.
+    floor = math.exp(-FLUSH_EXPONENT) * p.outputscale[:, None, None]
+    big = k64 > floor
     rel = ((k32.double() - k64).abs() / k64)[big]
     assert rel.max() < 1e-5
+    # Below: raised to the floor, e^-40 σ_f² (never denormal, never 0)
+    low = (k32.double() / floor)[~big]
+    assert low.numel() > 0 and ((low - 1).abs() < 1e-5).all()
 
 
 def _z_scores(a: torch.Tensor, b: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

@@ -174,7 +174,7 @@ def main() -> None:
     parser.add_argument("--n-pseudo", type=int, default=300)
     parser.add_argument("--trajectories", type=int, default=300)
     parser.add_argument("--horizon", type=int, default=30)
-    parser.add_argument("--spread-trajectories", type=int, default=500)
+    parser.add_argument("--spread-trajectories", type=int, default=400)
     parser.add_argument("--spread-horizon", type=int, default=100)
     parser.add_argument("--gpytorch-steps", type=int, default=5)
     parser.add_argument("--features", type=int, default=256)
@@ -251,13 +251,13 @@ def main() -> None:
     # ---------------------------------------------------------------- float32 accuracy
     Ls, Ts = args.spread_trajectories, args.spread_horizon
     xs = X_UP + task.initial_std * rng.standard_normal((1, Ls, 8))
-    with threads(max(args.threads)):
+    with threads(1):
         a = run(F64, Ls, Ts, xs, seed=1)
         b = run(F32, Ls, Ts, xs, seed=1)
         c = run(F64, Ls, Ts, xs, seed=2)
     fa, fb, fc = (r.states[0, :, -1].double().numpy() for r in (a, b, c))
     spread = fa.std(0)
-    print(f"\nfloat32 accuracy ({Ls} trajectories x {Ts} steps, same seed as float64)")
+    print(f"\nfloat32 accuracy ({Ls} trajectories x {Ts} steps, same seed as float64, 1 thread)")
     print(
         f"  precision_error (one-step moments vs float64, visited states): {b.precision_error:.2e}"
     )
@@ -289,33 +289,36 @@ def main() -> None:
     pw_flops = pathwise_flops_per_step(E, M, D, F)
     print(
         f"\npathwise sampler: F = {F} features, {L} trajectories x {T} steps "
-        f"({pw_flops / 1e6:.3f} MFLOP per trajectory step), 1 thread"
+        f"({pw_flops / 1e6:.3f} MFLOP per trajectory step), 1 thread; a step is one\n"
+        f"  next_state_moments call on {L} states (set-up: drawing {L} functions)"
     )
     print(
         f"  {'features':>9} {'dtype':>8} {'set-up [ms/fn]':>14} {'step [s]':>9} "
-        f"{'GFLOP/s':>8} {'vs per-step':>11}"
+        f"{'GFLOP/s':>8} {'per-step time / pathwise':>24}"
     )
     seeds = range(L)
+    xq = torch.as_tensor(x0[0])
+    uq = (xq - torch.as_tensor(X_UP)) @ torch.as_tensor(G).T
     with threads(1):
-        for method, shared in (("pathwise", None), ("pathwise-shared", 0)):
+        for label, shared in (("fresh", None), ("shared", 0)):
             for dt in (F64, F32):
                 basis = PathwiseBasis(p, F, dt, shared_seed=shared)
                 t_draw = best_time(lambda b=basis: b.draw(seeds), 1)
-                t_all = best_time(
-                    lambda dt=dt, m=method: run(dt, method=m, n_features=F), args.repeats - 1
-                )
-                step = max(t_all - t_draw, 1e-9) / T
-                rate = pw_flops * L / step / 1e9
+                functions = model.with_predictor(basis.draw(seeds))
+                per_step = model.to(dtype=dt)
+                x, u = xq.to(dt), uq.to(dt)
+                t_pw = best_time(lambda f=functions, x=x, u=u: f.next_state_moments(x, u), 5)
+                t_ps = best_time(lambda m=per_step, x=x, u=u: m.next_state_moments(x, u), 5)
                 name = str(dt).replace("torch.", "")
-                label = "shared" if shared is not None else "fresh"
                 print(
-                    f"  {label:>9} {name:>8} {1e3 * t_draw / L:14.2f} {step:9.4f} {rate:8.1f} "
-                    f"{times[1, dt] / T / step:10.1f}x"
+                    f"  {label:>9} {name:>8} {1e3 * t_draw / L:14.2f} {t_pw:9.4f} "
+                    f"{pw_flops * L / t_pw / 1e9:8.1f} {t_ps / t_pw:10.1f}x"
                 )
-    with threads(max(args.threads)):
+    with threads(1):
         pw = run(F64, Ls, Ts, xs, seed=1, method="pathwise", n_features=F)
     fp = pw.states[0, :, -1].numpy()
-    print(f"  spread at t = {Ts} ({Ls} trajectories, float64, fresh features):")
+    print(f"  spread at t = {Ts} ({Ls} trajectories, float64, fresh features, 1 thread):")
+    print(f"    per-step std per state: {np.round(spread, 3)}")
     print(f"    std ratio pathwise / per-step per state: {np.round(fp.std(0) / spread, 2)}")
     print(
         f"    KL(pathwise fit || per-step fit) {gaussian_kl(fp, fa):.3f}; Monte Carlo floor "

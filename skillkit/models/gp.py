@@ -290,6 +290,9 @@ class GPPredictor:
                 )
         self._set_caches(self)
 
+    def __getstate__(self) -> dict:
+        return {k: v for k, v in self.__dict__.items() if k != "_reduced"}
+
     def __setstate__(self, state: dict) -> None:
         self.__dict__.update(state)
         if "_query_scale" not in state:  # pickled before the float32 path: rebuild the caches
@@ -362,16 +365,22 @@ class GPPredictor:
 
         Converting to a lower precision (float32) casts every field, but the step-invariant
         caches are computed from this predictor's values in float64 and cast once (see
-        :meth:`kernel_vectors`), so no set-up quantity goes through float32 twice.
+        :meth:`kernel_vectors`), so no set-up quantity goes through float32 twice. Such a
+        conversion is kept (not pickled), so repeated float32 sampling sets up once.
         """
         device = self.device if device is None else torch.device(device)
         dtype = self.dtype if dtype is None else dtype
         if device == self.device and dtype == self.dtype:
             return self
+        reduced = torch.finfo(dtype).bits < torch.finfo(self.dtype).bits
+        converted = self.__dict__.setdefault("_reduced", {})
+        if reduced and (device, dtype) in converted:
+            return converted[device, dtype]
         fields = [f.name for f in dataclasses.fields(self) if f.init]
         out = GPPredictor(**{f: getattr(self, f).to(device=device, dtype=dtype) for f in fields})
-        if torch.finfo(dtype).bits < torch.finfo(self.dtype).bits:
+        if reduced:
             out._set_caches(self)
+            converted[device, dtype] = out
         return out
 
     def kernel_vectors(self, x: torch.Tensor) -> torch.Tensor:

@@ -28,7 +28,36 @@ Design:
   (B·L, T, n_x)), so results do not depend on the chunk size (up to round-off: the BLAS
   blocking of a product depends on its size).
 * **Randomness.** ``rng`` (numpy Generator, int, SeedSequence or None) seeds a torch
-  generator on the device: the same seed gives the same samples.
+  generator on the device: the same seed gives the same samples. The noise is drawn in
+  float64 whatever ``dtype``, so float32 paths follow the float64 paths of the same seed.
+* **Precision: float64 by default, float32 opt-in** (``dtype=torch.float32``, issue #18).
+  The float32 path keeps the set-up in float64 (support operands, β, the variance factor R,
+  cast once), computes the kernel exponent in float64 (a (d + 2)-column product, ~5 % of the
+  work), clamps it from below at log σ_f² − 40 and runs ``exp`` and the (E, n, M) × (E, M,
+  M + 1) product — 75–80 % of a step — in float32, with no denormal numbers anywhere
+  (:meth:`~skillkit.models.gp.GPPredictor.kernel_vectors` says why each step matters).
+  Measured on the balancing FITC model of ``benchmarks/bench_sampler.py`` (N = 1500,
+  M = 300, 12 inputs, 8 outputs): one-step means within 3.5e-4 predictive standard
+  deviations of float64's and variances within 8.7e-5 (relative) near the data, 1e-6 far from
+  it (the float32 path before issue #18: 0.095 and 0.022, from round-off in a float32
+  exponent); 400 trajectories × 100 steps with the same seed: KL between Gaussian fits of the
+  final states 2e-8 against a Monte Carlo floor of 0.1 (float64 with another seed). Speed:
+  1.3–1.7x float64's on one thread of this (shared, loaded) machine. The accuracy depends on
+  the model's conditioning, not on where the states are: with ‖β‖ or ‖R‖ large against σ_ε
+  (x′ targets near the GP's linear limit, σ_f²/σ_ε² ~ 1e4) float32 means were off by 0.06–0.17
+  predictive standard deviations in our tests, from rounding k and β to float32 (computing
+  ‖Rk‖² or the whole product in float64 from float32 k does not help; measured). So every
+  float32 run compares its one-step moments with float64's on visited states
+  (``precision_error``, ``GPNumericalWarning`` above :data:`PRECISION_TOL`). The default stays
+  float64: the thesis experiments' stored results (and runs in flight) were sampled in
+  float64, and float64 results are bit-identical to those before the float32 path existed
+  (tested); switching would change every sampled number.
+* **Pathwise alternative** (``method="pathwise"``, :mod:`skillkit.models.pathwise`): every
+  trajectory follows one function drawn from the GP posterior instead of independent
+  per-step draws. Same one-step marginals (tested), different multi-step statistics: on the
+  balancing FITC model the final-state spread at t = 100 was 1.1–1.9x the per-step sampler's
+  per dimension (KL of Gaussian fits 2.3 against a floor of 0.1). The per-step sampler is
+  the thesis's (Sec. 4.2.1) and stays the default.
 """
 
 from __future__ import annotations

@@ -401,7 +401,7 @@ class GPPredictor:
         normal ones; and a kernel entry just above float32's underflow threshold times a small
         weight is a denormal number, on which the (E, n, M) × (E, M, M + 1) product runs ~200x
         slower. Raising entries below 4e-18 σ_f² changes kᵀβ and ‖Rk‖² by less than
-        float32's resolution unless ‖β‖ or ‖R‖² exceed ~1e10 / σ_f², a model far too
+        float32's resolution unless M·max|β| or M·max|R|² exceed ~1e10 / σ_f², a model far too
         ill-conditioned for float32 anyway (``sample_trajectories`` measures and reports the
         float32 error on visited states). A float64 predictor computes exactly what it always
         did (no floor, no flushing).

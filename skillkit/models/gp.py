@@ -85,6 +85,7 @@ from skillkit.models.kernels import (
 
 __all__ = [
     "DTYPE",
+    "FLUSH_EXPONENT",
     "ExactGP",
     "ForwardModel",
     "GPNumericalError",
@@ -99,6 +100,9 @@ __all__ = [
 DTYPE = torch.float64
 #: Latent variances below −VARIANCE_TOL·σ_f² are reported as beyond round-off.
 VARIANCE_TOL = 1e-6
+#: Reduced precision (float32) only: kernel entries below exp(−FLUSH_EXPONENT)·σ_f² are raised
+#: to that value (see :meth:`GPPredictor.kernel_vectors`).
+FLUSH_EXPONENT = 40.0
 _JITTER_LEVELS = (1e-12, 1e-10, 1e-8, 1e-6, 1e-4)
 
 
@@ -265,6 +269,7 @@ class GPPredictor:
     _support_operand: torch.Tensor = field(init=False, repr=False)
     _log_outputscale: torch.Tensor = field(init=False, repr=False)
     _weights: torch.Tensor = field(init=False, repr=False)
+    _query_scale: torch.Tensor = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         E, M, d = self.support.shape
@@ -283,19 +288,48 @@ class GPPredictor:
                 raise ValueError(
                     f"{name}: expected shape {shape}, got {tuple(getattr(self, name).shape)}"
                 )
-        # Step-invariant caches: the SE support operand and [Rᵀ | β] (one product gives v and μ).
+        self._set_caches(self)
+
+    def __getstate__(self) -> dict:
+        return {k: v for k, v in self.__dict__.items() if k != "_reduced"}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        if "_query_scale" not in state:  # pickled before the float32 path: rebuild the caches
+            self._set_caches(self)
+
+    def _set_caches(self, source: GPPredictor) -> None:
+        """Step-invariant caches: the SE support operand and [Rᵀ | β] (one product gives v and μ).
+
+        Computed from ``source``'s fields in float64 (``source`` is ``self``, or the
+        higher-precision predictor that :meth:`to` converted from); only ``_weights`` is cast,
+        once, to this predictor's dtype. In a reduced-precision predictor the support operand,
+        the log signal variances and the length-scales stay in float64: the kernel exponent is
+        computed from them (see :meth:`kernel_vectors`). For a float64 predictor these are the
+        same operations on the same values as always (results bit-identical).
+        """
+        hi = torch.float64
+
+        def setup(name: str) -> torch.Tensor:
+            return getattr(source, name).to(device=self.device, dtype=hi)
+
+        lengthscale = setup("lengthscale")[:, None, :]
+        outputscale = setup("outputscale")
         object.__setattr__(
             self,
             "_support_operand",
-            se_operands(self.support, self.lengthscale[:, None, :], self.outputscale).contiguous(),
+            se_operands(setup("support"), lengthscale, outputscale).contiguous(),
         )
-        object.__setattr__(self, "_log_outputscale", torch.log(self.outputscale))
+        object.__setattr__(self, "_log_outputscale", torch.log(outputscale))
+        object.__setattr__(self, "_query_scale", lengthscale)
         object.__setattr__(
             self,
             "_weights",
-            torch.cat(
-                [self.var_factor.transpose(-1, -2), self.beta[..., None]], dim=-1
-            ).contiguous(),
+            _flush_tiny(
+                torch.cat([setup("var_factor").transpose(-1, -2), setup("beta")[..., None]], -1)
+                .contiguous()
+                .to(self.dtype)
+            ),
         )
 
     def __repr__(self) -> str:
@@ -327,18 +361,62 @@ class GPPredictor:
         return self.support.dtype
 
     def to(self, device=None, dtype: torch.dtype | None = None) -> GPPredictor:
-        """A copy on ``device`` / in ``dtype`` (self if nothing changes)."""
+        """A copy on ``device`` / in ``dtype`` (self if nothing changes).
+
+        Converting to a lower precision (float32) casts every field, but the step-invariant
+        caches are computed from this predictor's values in float64 and cast once (see
+        :meth:`kernel_vectors`), so no set-up quantity goes through float32 twice. Such a
+        conversion is kept (not pickled), so repeated float32 sampling sets up once.
+        """
         device = self.device if device is None else torch.device(device)
         dtype = self.dtype if dtype is None else dtype
         if device == self.device and dtype == self.dtype:
             return self
+        reduced = torch.finfo(dtype).bits < torch.finfo(self.dtype).bits
+        converted = self.__dict__.setdefault("_reduced", {})
+        if reduced and (device, dtype) in converted:
+            return converted[device, dtype]
         fields = [f.name for f in dataclasses.fields(self) if f.init]
-        return GPPredictor(**{f: getattr(self, f).to(device=device, dtype=dtype) for f in fields})
+        out = GPPredictor(**{f: getattr(self, f).to(device=device, dtype=dtype) for f in fields})
+        if reduced:
+            out._set_caches(self)
+            converted[device, dtype] = out
+        return out
 
     def kernel_vectors(self, x: torch.Tensor) -> torch.Tensor:
-        """k_a(x, support_a) for every output: Tensor (E, n, M), for queries x of shape (n, d)."""
-        query = se_operands(x.unsqueeze(0), self.lengthscale[:, None, :])
-        return se_kernel_from_operands(query, self._support_operand, self._log_outputscale)
+        """k_a(x, support_a) for every output: Tensor (E, n, M), for queries x of shape (n, d).
+
+        In a float32 predictor the exponent ``log k = −½‖(x − z)/w‖² + log σ_f²`` is one
+        float64 product of the augmented operands (:func:`~skillkit.models.kernels.se_operands`;
+        (d + 2) columns, ~5 % of a sampling step's work), clamped from below at
+        log σ_f² − 40 (but at least log(tiny) + 7 ≈ −80) and exponentiated in float32: entries
+        below exp(−40)·σ_f² = 4e-18 σ_f² become 4e-18 σ_f², so ``exp`` never underflows, and
+        with the weights below 1e-15 of their largest set to 0 (once, when the float32
+        predictor is made) no product k · weight is denormal. Why, measured on the balancing
+        FITC model (N = 1500, M = 300, see
+        :mod:`skillkit.models.sampling`): the augmented product has round-off
+        ε (‖x/w‖² + ‖z/w‖²) in the exponent, and in float32 that made predictive means wrong
+        by up to 0.095 predictive standard deviations near the data (3.5e-4 with the float64
+        exponent); ``exp`` of arguments whose result underflows is 10–100x slower than of
+        normal ones; and a kernel entry just above float32's underflow threshold times a small
+        weight is a denormal number, on which the (E, n, M) × (E, M, M + 1) product runs ~200x
+        slower. Raising entries below 4e-18 σ_f² changes kᵀβ and ‖Rk‖² by less than
+        float32's resolution unless M·max|β| or M·max|R|² exceed ~1e10 / σ_f², a model far too
+        ill-conditioned for float32 anyway (``sample_trajectories`` measures and reports the
+        float32 error on visited states). A float64 predictor computes exactly what it always
+        did (no floor, no flushing).
+        """
+        if self._support_operand.dtype == self.dtype:
+            query = se_operands(x.unsqueeze(0), self._query_scale)
+            return se_kernel_from_operands(query, self._support_operand, self._log_outputscale)
+        query = se_operands(x.unsqueeze(0).to(self._support_operand.dtype), self._query_scale)
+        e = query @ self._support_operand.transpose(-1, -2)
+        lim = self._log_outputscale[:, None, None]
+        floor = (lim - FLUSH_EXPONENT).clamp_min(math.log(torch.finfo(self.dtype).tiny) + 7.0)
+        if torch.is_grad_enabled() and e.requires_grad:
+            return torch.minimum(torch.maximum(e, floor), lim).to(self.dtype).exp()
+        torch.minimum(torch.maximum(e, floor, out=e), lim, out=e)
+        return e.to(self.dtype).exp_()
 
     def moments(self, x: torch.Tensor, include_noise: bool = True) -> Moments:
         """Predictive mean and variance (Eqs 2.26–2.27) at queries ``x``.
@@ -388,6 +466,18 @@ class GPPredictor:
         cov = kxx - v @ v.transpose(-1, -2)
         cov = 0.5 * (cov + cov.transpose(-1, -2))
         return self.y_scale[:, None, None] ** 2 * cov
+
+
+def _flush_tiny(weights: torch.Tensor) -> torch.Tensor:
+    """Reduced precision: weights below 1e-15 of their output's largest set to 0 (float64: as is).
+
+    Their contribution is below float32's resolution, and a product of a small kernel entry
+    with such a weight would be a denormal number, on which matrix products run ~200x slower.
+    """
+    if weights.dtype == torch.float64:
+        return weights
+    top = weights.abs().amax((-2, -1), keepdim=True)
+    return weights.masked_fill(weights.abs() < 1e-15 * top, 0.0)
 
 
 def warn_if_clamped(m: Moments, where: str) -> None:
@@ -1214,6 +1304,17 @@ class ForwardModel:
         out._predictor = self.predictor.to(device, dtype)
         if self.linear_weights is not None:
             out.linear_weights = self.linear_weights.to(out._predictor.device, out._predictor.dtype)
+        return out
+
+    def with_predictor(self, predictor) -> ForwardModel:
+        """A shallow copy that predicts with ``predictor`` (same targets, mean and sizes).
+
+        ``predictor`` is a :class:`GPPredictor` or anything with its ``moments(z)``, e.g. the
+        pathwise function draws of :mod:`skillkit.models.pathwise`.
+        """
+        out = ForwardModel.__new__(ForwardModel)
+        out.__dict__.update(self.__dict__)
+        out._predictor = predictor
         return out
 
     def next_state_moments(self, x: torch.Tensor, u: torch.Tensor) -> Moments:

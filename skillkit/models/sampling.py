@@ -28,7 +28,36 @@ Design:
   (B·L, T, n_x)), so results do not depend on the chunk size (up to round-off: the BLAS
   blocking of a product depends on its size).
 * **Randomness.** ``rng`` (numpy Generator, int, SeedSequence or None) seeds a torch
-  generator on the device: the same seed gives the same samples.
+  generator on the device: the same seed gives the same samples. The noise is drawn in
+  float64 whatever ``dtype``, so float32 paths follow the float64 paths of the same seed.
+* **Precision: float64 by default, float32 opt-in** (``dtype=torch.float32``, issue #18).
+  The float32 path keeps the set-up in float64 (support operands, β, the variance factor R,
+  cast once), computes the kernel exponent in float64 (a (d + 2)-column product, ~5 % of the
+  work), clamps it from below at log σ_f² − 40 and runs ``exp`` and the (E, n, M) × (E, M,
+  M + 1) product — 75–80 % of a step — in float32, with no denormal numbers anywhere
+  (:meth:`~skillkit.models.gp.GPPredictor.kernel_vectors` says why each step matters).
+  Measured on the balancing FITC model of ``benchmarks/bench_sampler.py`` (N = 1500,
+  M = 300, 12 inputs, 8 outputs): one-step means within 3.5e-4 predictive standard
+  deviations of float64's and variances within 8.7e-5 (relative) near the data, 1e-6 far from
+  it (the float32 path before issue #18: 0.095 and 0.022, from round-off in a float32
+  exponent); 400 trajectories × 100 steps with the same seed: KL between Gaussian fits of the
+  final states 2e-8 against a Monte Carlo floor of 0.1 (float64 with another seed). Speed:
+  1.3–1.7x float64's on one thread of this (shared, loaded) machine. The accuracy depends on
+  the model's conditioning, not on where the states are: with ‖β‖ or ‖R‖ large against σ_ε
+  (x′ targets near the GP's linear limit, σ_f²/σ_ε² ~ 1e4) float32 means were off by 0.06–0.17
+  predictive standard deviations in our tests, from rounding k and β to float32 (computing
+  ‖Rk‖² or the whole product in float64 from float32 k does not help; measured). So every
+  float32 run compares its one-step moments with float64's on visited states
+  (``precision_error``, ``GPNumericalWarning`` above :data:`PRECISION_TOL`). The default stays
+  float64: the thesis experiments' stored results (and runs in flight) were sampled in
+  float64, and float64 results are bit-identical to those before the float32 path existed
+  (tested); switching would change every sampled number.
+* **Pathwise alternative** (``method="pathwise"``, :mod:`skillkit.models.pathwise`): every
+  trajectory follows one function drawn from the GP posterior instead of independent
+  per-step draws. Same one-step marginals (tested), different multi-step statistics: on the
+  balancing FITC model the final-state spread at t = 100 was 1.1–1.9x the per-step sampler's
+  per dimension (KL of Gaussian fits 2.3 against a floor of 0.1). The per-step sampler is
+  the thesis's (Sec. 4.2.1) and stays the default.
 """
 
 from __future__ import annotations
@@ -43,9 +72,20 @@ import torch
 
 from skillkit._repr import number, span
 from skillkit._validation import as_generator, check_positive
-from skillkit.models.gp import DTYPE, VARIANCE_TOL, GPNumericalWarning
+from skillkit.models.gp import DTYPE, VARIANCE_TOL, GPNumericalWarning, GPPredictor
+from skillkit.models.pathwise import PathwiseBasis
 
-__all__ = ["SampledTrajectories", "StepModel", "sample_trajectories", "sampler_flops_per_step"]
+__all__ = [
+    "PRECISION_TOL",
+    "SampledTrajectories",
+    "StepModel",
+    "sample_trajectories",
+    "sampler_flops_per_step",
+]
+
+#: float32 sampling warns when its one-step moments differ from float64's by more than this
+#: (mean error in predictive standard deviations, or relative variance error).
+PRECISION_TOL = 1e-2
 
 
 class StepModel(Protocol):
@@ -79,6 +119,11 @@ class SampledTrajectories:
         (see :mod:`skillkit.models.gp`).
     worst_variance : float
         The most negative latent variance relative to σ_f² (0 if none).
+    precision_error : float
+        float32 sampling only (0.0 in float64): the largest difference between the float32
+        and float64 one-step predictive moments on visited states (first 64 trajectories at
+        t = 0, T/2, T − 1): mean error in predictive standard deviations or relative variance
+        error. Above ``PRECISION_TOL`` (1e-2) a :class:`GPNumericalWarning` is issued.
     """
 
     states: torch.Tensor
@@ -86,6 +131,7 @@ class SampledTrajectories:
     n_saturated: int
     n_variance_clamped: int
     worst_variance: float
+    precision_error: float = 0.0
 
     def __repr__(self) -> str:
         B, L, T1, n_x = self.states.shape
@@ -113,6 +159,8 @@ def sample_trajectories(
     device=None,
     dtype: torch.dtype = DTYPE,
     max_chunk_bytes: int = 2**25,
+    method: str = "per-step",
+    n_features: int = 256,
 ) -> SampledTrajectories:
     """Sample L trajectories for each of B start conditions / policies in one vectorised call.
 
@@ -136,11 +184,22 @@ def sample_trajectories(
         Saturate ``|u| ≤ control_limit`` (counted in ``n_saturated``).
     device : str or torch.device, optional
         Where to compute (default: the CPU).
-    dtype : torch.dtype
-        Floating point type (float64 by default).
+    dtype : torch.float64 or torch.float32
+        Floating point type: float64 (default; the thesis's and every stored result's) or the
+        opt-in float32 path (see the module notes: faster, accurate for well-conditioned models;
+        its accuracy on the visited states is measured and reported as ``precision_error``).
     max_chunk_bytes : int
         Bound on the kernel work arrays per chunk of trajectories (default 32 MiB: small
         arrays are recycled by the allocator and stay in cache; see the benchmark).
+    method : {"per-step", "pathwise", "pathwise-shared"}
+        "per-step" (default, the thesis's Sec. 4.2.1): every transition is an independent
+        draw from the one-step predictive distribution. "pathwise": every trajectory draws one
+        function from the GP posterior and follows it, with i.i.d. observation noise
+        (:mod:`skillkit.models.pathwise`; GP forward models only), each with its own random
+        features; "pathwise-shared": the same with one feature basis for all trajectories
+        (cheaper; covariances off by O(1/√F), see :class:`~skillkit.models.pathwise.PathwiseBasis`).
+    n_features : int
+        F, random Fourier features per function and output (pathwise methods).
 
     Returns
     -------
@@ -150,9 +209,27 @@ def sample_trajectories(
     ------
     ValueError
         On bad shapes, non-finite start states, a policy returning the wrong shape or
-        non-finite controls.
+        non-finite controls, an unsupported dtype or method, or pathwise sampling of a model
+        that is not a GP forward model.
     """
     device = torch.device("cpu" if device is None else device)
+    if dtype not in (torch.float64, torch.float32):
+        raise ValueError(f"dtype: expected torch.float64 or torch.float32, got {dtype!r}")
+    if method not in ("per-step", "pathwise", "pathwise-shared"):
+        raise ValueError(
+            f"method: expected 'per-step', 'pathwise' or 'pathwise-shared', got {method!r}"
+        )
+    pathwise = method != "per-step"
+    if pathwise:
+        if not isinstance(getattr(model, "_predictor", None), GPPredictor) or not hasattr(
+            model, "with_predictor"
+        ):
+            raise ValueError(
+                "model: pathwise sampling needs a fitted GP forward model (ForwardModel), got "
+                f"{type(model).__name__}"
+            )
+        if isinstance(n_features, bool) or int(n_features) != n_features or n_features < 1:
+            raise ValueError(f"n_features: expected a positive integer, got {n_features!r}")
     n_x, n_u = int(model.state_dim), int(model.control_dim)
     if int(horizon) != horizon or horizon < 1:
         raise ValueError(f"horizon: expected a positive integer, got {horizon!r}")
@@ -180,16 +257,24 @@ def sample_trajectories(
             check_positive(v, "control_limit")
         limit = torch.as_tensor(lim.copy(), dtype=dtype, device=device)
 
+    source = model
     model = model.to(device, dtype)
     gen = torch.Generator(device=device)
-    gen.manual_seed(int(as_generator(rng).integers(2**63 - 1)))
+    np_gen = as_generator(rng)
+    gen.manual_seed(int(np_gen.integers(2**63 - 1)))
     n = B * L
-    eps = torch.randn((n, T, n_x), generator=gen, dtype=dtype, device=device)
+    # Drawn in float64 whatever the dtype: float32 paths follow the float64 paths of a seed.
+    eps = torch.randn((n, T, n_x), generator=gen, dtype=DTYPE, device=device).to(dtype)
+    basis = seeds = None
+    if pathwise:
+        seeds = np_gen.integers(2**63 - 1, size=n)
+        shared = int(np_gen.integers(2**63 - 1)) if method == "pathwise-shared" else None
+        basis = PathwiseBasis(source.predictor.to(device), n_features, dtype, shared_seed=shared)
     pair = torch.arange(B, device=device).repeat_interleave(L)
     states = torch.empty((n, T + 1, n_x), dtype=dtype, device=device)
     controls = torch.empty((n, T, n_u), dtype=dtype, device=device)
     states[:, 0] = x0.reshape(n, n_x)
-    chunk = _chunk_rows(model, max_chunk_bytes, n)
+    chunk = _chunk_rows(model, max_chunk_bytes, n, n_features if method == "pathwise" else 0)
     n_sat = torch.zeros((), dtype=torch.long, device=device)
     n_clamp = torch.zeros((), dtype=torch.long, device=device)
     worst = torch.zeros((), dtype=dtype, device=device)
@@ -198,6 +283,7 @@ def sample_trajectories(
             hi = min(lo + chunk, n)
             x = states[lo:hi, 0]
             p = pair[lo:hi]
+            step = model if basis is None else model.with_predictor(basis.draw(seeds[lo:hi]))
             for t in range(T):
                 u = policy(t, x, p)
                 if t == 0 and lo == 0:
@@ -205,7 +291,7 @@ def sample_trajectories(
                 if limit is not None:
                     n_sat += (u.abs() > limit).sum()
                     u = torch.maximum(torch.minimum(u, limit), -limit)
-                m = model.next_state_moments(x, u)
+                m = step.next_state_moments(x, u)
                 x = m[0] + m[1].sqrt() * eps[lo:hi, t]
                 states[lo:hi, t + 1] = x
                 controls[lo:hi, t] = u
@@ -214,6 +300,17 @@ def sample_trajectories(
                     worst = torch.minimum(worst, m[3])
     if not torch.isfinite(controls).all():
         raise ValueError("policy: returned non-finite controls")
+    precision = 0.0
+    if dtype != DTYPE:
+        precision = _precision_error(source, model, states, controls, device)
+        if precision > PRECISION_TOL:
+            warnings.warn(
+                f"sample_trajectories: {dtype} predictions differ from float64 by up to "
+                f"{precision:.2e} (predictive std for means, relative for variances) on the "
+                "visited states; the model is too ill-conditioned for float32, use float64",
+                GPNumericalWarning,
+                stacklevel=2,
+            )
     worst_f = float(worst)
     if worst_f < -VARIANCE_TOL:
         warnings.warn(
@@ -228,7 +325,29 @@ def sample_trajectories(
         int(n_sat),
         int(n_clamp),
         worst_f,
+        precision,
     )
+
+
+def _precision_error(source, model, states, controls, device, rows: int = 64) -> float:
+    """Max float32-vs-float64 error of the one-step predictive moments on visited states.
+
+    Evaluated on the first ``rows`` trajectories at t = 0, T/2 and T − 1: the mean error in
+    float64 predictive standard deviations and the relative variance error, whichever is
+    larger. (For pathwise sampling this checks the predictor the functions are drawn from.)
+    """
+    hi = source.to(device, DTYPE)
+    T = controls.shape[1]
+    worst = 0.0
+    for t in sorted({0, T // 2, T - 1}):
+        x, u = states[:rows, t], controls[:rows, t]
+        a = hi.next_state_moments(x.to(DTYPE), u.to(DTYPE))
+        b = model.next_state_moments(x, u)
+        var = a.var.clamp_min(torch.finfo(DTYPE).tiny)
+        err_mean = ((b.mean.to(DTYPE) - a.mean).abs() / var.sqrt()).max()
+        err_var = ((b.var.to(DTYPE) - a.var).abs() / var).max()
+        worst = max(worst, float(err_mean), float(err_var))
+    return worst
 
 
 def _check_control(u, n: int, n_u: int, dtype, device) -> None:
@@ -244,12 +363,19 @@ def _check_control(u, n: int, n_u: int, dtype, device) -> None:
         )
 
 
-def _chunk_rows(model, max_bytes: int, n: int) -> int:
-    """Rows per chunk so that ~3 (E, rows, M) work arrays fit in ``max_bytes``."""
+def _chunk_rows(model, max_bytes: int, n: int, n_features: int = 0) -> int:
+    """Rows per chunk so that ~3 (E, rows, M) work arrays fit in ``max_bytes``.
+
+    With ``n_features`` (pathwise sampling) each row also holds its function's features
+    (E · F · (d + 2) numbers, drawn in float64) and update vector (E · M).
+    """
     pred = getattr(model, "predictor", None)
     if pred is None:
         return n
-    per_row = 3 * pred.output_dim * pred.n_support * pred.support.element_size()
+    E, M, d = pred.output_dim, pred.n_support, pred.input_dim
+    per_row = 3 * E * M * pred.support.element_size()
+    if n_features:
+        per_row += 8 * E * (n_features * (d + 2) + M)
     return int(max(1, min(n, max_bytes // max(per_row, 1))))
 
 

@@ -1,0 +1,193 @@
+"""float32 sampling: the float64 path is unchanged; float32 matches it within Monte Carlo error.
+
+The fixtures sit at an offset of 20 from the origin with length-scales of order 1: there the
+augmented-operand kernel exponent −½‖a‖² + a·b − ½‖b‖² cancels badly, and the float32 path
+before issue #18 (exponent in float32) was off by 0.35 (exact GP) and 0.10 (FITC) predictive
+standard deviations in the mean; with the exponent in float64 the errors are 2.7e-3 and 6.7e-5.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+import pytest
+import torch
+
+from skillkit.models.gp import FLUSH_EXPONENT, ExactGP, ForwardModel, GPNumericalWarning
+from skillkit.models.kernels import se_kernel_from_operands, se_operands
+from skillkit.models.sampling import PRECISION_TOL, sample_trajectories
+from skillkit.models.sparse import FITC
+
+OFFSET = 20.0
+
+
+def _data(n: int, seed: int, noise: float, offset: float = OFFSET):
+    rng = np.random.default_rng(seed)
+    c = rng.uniform(-1, 1, size=(n, 2))
+    u = rng.uniform(-1, 1, size=(n, 1))
+    step = 0.3 * np.stack([np.sin(3 * c[:, 1]), -np.sin(3 * c[:, 0]) + u[:, 0]], axis=1)
+    x = offset + c
+    return x, u, x + step + noise * rng.standard_normal((n, 2))
+
+
+@pytest.fixture(scope="module", params=["exact", "fitc"])
+def model(request):
+    if request.param == "exact":
+        gp, data = ExactGP(n_steps=25), _data(100, 0, 0.05)
+    else:
+        gp, data = FITC(40, n_steps=25), _data(400, 1, 0.05)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", GPNumericalWarning)
+        return ForwardModel(gp, target="delta").fit(*data, rng=0)
+
+
+def _policy(t, x, pair):
+    return -0.5 * (x[:, :1] - OFFSET) + 0.1 * x[:, 1:]
+
+
+def _queries(n: int, spread: float, seed: int) -> torch.Tensor:
+    rng = np.random.default_rng(seed)
+    z = np.hstack([OFFSET + rng.uniform(-1, 1, (n, 2)), rng.uniform(-1, 1, (n, 1))])
+    return torch.as_tensor(z + spread * rng.standard_normal((n, 3)))
+
+
+def _reference_rollout(model, x0, T: int, L: int, seed: int) -> torch.Tensor:
+    """The float64 sampler as it was before issue #18, written out operation by operation."""
+    p = model.predictor
+    support = se_operands(p.support, p.lengthscale[:, None, :], p.outputscale).contiguous()
+    weights = torch.cat([p.var_factor.transpose(-1, -2), p.beta[..., None]], dim=-1).contiguous()
+    gen = torch.Generator()
+    gen.manual_seed(int(np.random.default_rng(seed).integers(2**63 - 1)))
+    B, n_x = x0.shape
+    eps = torch.randn((B * L, T, n_x), generator=gen, dtype=torch.float64)
+    x = torch.as_tensor(x0).repeat_interleave(L, dim=0)
+    pair = torch.arange(B).repeat_interleave(L)
+    out = [x]
+    for t in range(T):
+        z = torch.cat([x, _policy(t, x, pair)], dim=-1)
+        query = se_operands(z.unsqueeze(0), p.lengthscale[:, None, :])
+        k = se_kernel_from_operands(query, support, torch.log(p.outputscale))
+        prod = torch.bmm(k, weights)
+        quad = torch.linalg.vector_norm(prod[..., :-1], dim=-1).square()
+        var = (p.outputscale[:, None] - quad).clamp_min(0.0) + p.noise[:, None]
+        mean = p.y_mean[:, None] + p.y_scale[:, None] * prod[..., -1]
+        var = p.y_scale[:, None] ** 2 * var
+        x = (x + mean.T) + var.T.sqrt() * eps[:, t]
+        out.append(x)
+    return torch.stack(out, dim=1).reshape(B, L, T + 1, n_x)
+
+
+def test_float64_path_is_bit_identical_to_the_pre_issue_18_sampler(model):
+    x0 = np.array([[OFFSET + 0.2, OFFSET - 0.3], [OFFSET + 2.5, OFFSET + 1.0]])
+    res = sample_trajectories(model, x0, _policy, 6, 50, rng=7)
+    ref = _reference_rollout(model, x0, 6, 50, 7)
+    assert torch.equal(res.states, ref)
+    assert res.precision_error == 0.0 and res.states.dtype == torch.float64
+
+
+def test_float64_moments_equal_a_direct_implementation(model):
+    """μ = kᵀβ, σ² = σ_f² − kᵀ iK k + σ_ε² with k from explicit differences.
+
+    Agreement to 1e-9 predictive standard deviations (means) and 1e-10 σ_f² (variances: the
+    size of the terms that cancel in σ_f² − kᵀ iK k): round-off of the two formulas, amplified
+    by the cancellation in kᵀβ (‖β‖ ≫ |μ|) and by cond(K) in the kᵀ iK k form.
+    """
+    p = model.predictor
+    z = _queries(200, 1.0, 3)
+    diff = (z[None, :, None, :] - p.support[:, None, :, :]) / p.lengthscale[:, None, None, :]
+    k = p.outputscale[:, None, None] * torch.exp(-0.5 * diff.square().sum(-1))  # (E, n, M)
+    mean = p.y_mean[:, None] + p.y_scale[:, None] * (k @ p.beta[..., None])[..., 0]
+    quad = torch.einsum("enm,emk,enk->en", k, p.iK, k)
+    var = p.y_scale[:, None] ** 2 * (p.outputscale[:, None] - quad + p.noise[:, None])
+    m = p.moments(z)
+    assert ((m.mean - mean.T).abs() / var.T.sqrt()).max() < 1e-9
+    assert ((m.var - var.T).abs() / (p.y_scale**2 * p.outputscale)).max() < 1e-10
+
+
+@pytest.mark.parametrize("spread", [0.01, 3.0], ids=["near", "far"])
+def test_float32_one_step_moments_match_float64(model, spread):
+    p = model.predictor
+    z = _queries(500, spread, 4)
+    a = p.moments(z)
+    b = p.to(dtype=torch.float32).moments(z.float())
+    assert b.mean.dtype == torch.float32
+    err_mean = ((b.mean.double() - a.mean).abs() / a.var.sqrt()).max()
+    err_var = ((b.var.double() - a.var).abs() / a.var).max()
+    bound = 1e-2 if model.gp.__class__ is ExactGP else 1e-3  # measured 2.7e-3 and 6.7e-5
+    assert err_mean < bound and err_var < bound
+
+
+def test_float32_kernel_has_no_denormals_and_keeps_its_accuracy(model):
+    p = model.predictor
+    z = _queries(300, 10.0, 5).float()  # far: many kernel entries are below float32's range
+    k64 = p.kernel_vectors(z.double())
+    k32 = p.to(dtype=torch.float32).kernel_vectors(z)
+    assert (k64 < torch.finfo(torch.float32).tiny).float().mean() > 0.2
+    assert bool((k32 >= torch.finfo(torch.float32).tiny).all())  # clamped: never denormal
+    # Where k ≥ e^-40 σ_f²: float32 rounding of the exponent (≤ 45 · 6e-8) and of exp.
+    floor = math.exp(-FLUSH_EXPONENT) * p.outputscale[:, None, None]
+    big = k64 > floor
+    rel = ((k32.double() - k64).abs() / k64)[big]
+    assert rel.max() < 1e-5
+    # Below: raised to the floor, e^-40 σ_f² (never denormal, never 0)
+    low = (k32.double() / floor)[~big]
+    assert low.numel() > 0 and ((low - 1).abs() < 1e-5).all()
+
+
+def _z_scores(a: torch.Tensor, b: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """z of the mean and variance differences of two independent samples (L, n_x)."""
+    L = a.shape[0]
+    ma, mb, va, vb = a.mean(0), b.mean(0), a.var(0), b.var(0)
+    z_mean = (ma - mb) / torch.sqrt((va + vb) / L)
+    # var of a sample variance ≈ (m4 − s⁴)/L (fourth central moment; no Gaussian assumption)
+    se_a = (((a - ma) ** 4).mean(0) - va**2) / L
+    se_b = (((b - mb) ** 4).mean(0) - vb**2) / L
+    return z_mean, (va - vb) / torch.sqrt(se_a + se_b)
+
+
+def test_float32_sampled_moments_match_float64_within_monte_carlo_error(model):
+    """Independent seeds; 2 starts x 3 times x 2 dims x 2 statistics = 24 z-scores per model.
+
+    |z| < 4.5 for all: a false alarm has probability about 24 · 6.8e-6 ≈ 2e-4.
+    """
+    x0 = np.array([[OFFSET + 0.2, OFFSET - 0.3], [OFFSET + 3.0, OFFSET - 2.5]])  # near, far
+    T, L = 10, 4000
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", GPNumericalWarning)
+        a = sample_trajectories(model, x0, _policy, T, L, rng=1)
+        b = sample_trajectories(model, x0, _policy, T, L, rng=2, dtype=torch.float32)
+    assert b.states.dtype == torch.float32 and b.controls.dtype == torch.float32
+    assert 0 < b.precision_error < PRECISION_TOL
+    zs = []
+    for i in range(2):
+        for t in (1, T // 2, T):
+            zm, zv = _z_scores(a.states[i, :, t], b.states[i, :, t].double())
+            zs += [zm, zv]
+    z = torch.cat(zs).abs()
+    assert z.max() < 4.5, z
+    # The same random numbers: float32 follows float64 path by path (short horizon).
+    c = sample_trajectories(model, x0, _policy, T, L, rng=1, dtype=torch.float32)
+    spread = a.states[:, :, T].std(1).min()
+    assert (c.states[:, :, T].double() - a.states[:, :, T]).abs().max() < 1e-2 * spread
+
+
+def test_float32_warns_on_an_ill_conditioned_model():
+    """x′ targets, 200 points, little noise: σ_f²/σ_ε² ~ 1e4 and ‖β‖ large; float32 is off."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", GPNumericalWarning)
+        model = ForwardModel(ExactGP(n_steps=25)).fit(*_data(200, 0, 0.02, offset=0.0), rng=0)
+    x0 = np.array([[0.2, -0.3]])
+    with pytest.warns(GPNumericalWarning, match="float64"):
+        res = sample_trajectories(
+            model, x0, lambda t, x, p: -0.5 * x[:, :1], 5, 300, rng=0, dtype=torch.float32
+        )
+    assert res.precision_error > PRECISION_TOL
+
+
+def test_bad_dtype(model):
+    x0 = np.array([[OFFSET, OFFSET]])
+    for dt in (torch.float16, torch.bfloat16, torch.int64):
+        with pytest.raises(ValueError, match="dtype"):
+            sample_trajectories(model, x0, _policy, 2, 2, dtype=dt)

@@ -1,6 +1,8 @@
 """REPS: dual and gradients (3.9, A.10–A.12), weights vs the primal (3.3–3.6), stability,
 episode-based and contextual updates, data reuse, bad input."""
 
+import warnings
+
 import numpy as np
 import pytest
 from scipy import optimize
@@ -308,3 +310,17 @@ def test_bad_input_names_the_argument():
     for bad in ([1.0, -1.0, 1.0], [0.0, 0.0, 0.0], [1.0, np.nan, 1.0], [1.0, 1.0]):
         with pytest.raises(ValueError, match="base_weights"):
             reps_weights([0.0, 1.0, 2.0], None, 1.0, base_weights=bad)
+
+
+def test_kl_against_a_base_weight_that_underflows_stays_finite():
+    """q_3 = 1e-330 / Σq underflows to 0 in exp(log q), yet p_3 > 0: the KL is formed in log
+    space, so it equals ε (the bound is active) instead of inf with a divide warning."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        w = reps_weights(
+            np.array([0.0, 0.0, 1000.0]), None, epsilon=1.0, base_weights=[1e300, 1e300, 1e-30]
+        )
+    assert w.weights[2] > 0
+    assert w.kl == pytest.approx(1.0, rel=1e-6)
+    p, log_q = w.weights, np.log([0.5, 0.5]).tolist() + [np.log(1e-30) - np.log(2e300)]
+    assert w.kl == pytest.approx(float(np.sum(p * (np.log(p) - log_q))), rel=1e-12)

@@ -38,6 +38,7 @@ from dataclasses import dataclass, field
 from typing import Any, Literal, Protocol, runtime_checkable
 
 import numpy as np
+import torch
 
 from skillkit._repr import number
 from skillkit._validation import as_generator, check_array, check_count, check_positive
@@ -214,7 +215,14 @@ class TrajectoryRewardModel:
         ``device`` (e.g. a ``make_model`` returning
         ``ForwardModel(FITC(n_inducing=100, device="cuda"))``); give the same device here so
         that the predictor is not copied between devices for sampling.
+    dtype : torch.dtype
+        Precision of the sampled trajectories: ``torch.float64`` (default, every stored
+        result) or ``torch.float32``, the faster path of
+        :func:`~skillkit.models.sampling.sample_trajectories` (its notes give the measured
+        accuracy; rewards are computed in float64 either way).
     """
+
+    dtype: torch.dtype = torch.float64  # class default: instances pickled before it resume
 
     def __init__(
         self,
@@ -224,6 +232,7 @@ class TrajectoryRewardModel:
         warm_start: bool = True,
         device=None,
         prior_trajectories: Sequence[Trajectory] = (),
+        dtype: torch.dtype = torch.float64,
     ):
         if not isinstance(task, Task):
             raise ValueError(f"task: expected a Task, got {type(task).__name__}")
@@ -241,6 +250,7 @@ class TrajectoryRewardModel:
         self.horizon = None if horizon is None else int(horizon)
         self.warm_start = bool(warm_start)
         self.device = device
+        self.dtype = _check_dtype(dtype)
         self.prior_trajectories = list(prior_trajectories)
         if not all(isinstance(t, Trajectory) for t in self.prior_trajectories):
             raise ValueError("prior_trajectories: expected a sequence of Trajectory objects")
@@ -297,6 +307,7 @@ class TrajectoryRewardModel:
             n_samples=n_trajectories,
             rng=as_generator(rng),
             device=self.device,
+            dtype=self.dtype,
         )
         return out.expected_rewards
 
@@ -305,6 +316,13 @@ class TrajectoryRewardModel:
             f"TrajectoryRewardModel(task={self.task.name!r}, horizon={self.horizon}, "
             f"n_data={self.n_data}, model={'unfitted' if self.model is None else self.model!r})"
         )
+
+
+def _check_dtype(dtype) -> torch.dtype:
+    """``dtype`` of a reward model's sampled trajectories: float64 or float32."""
+    if dtype not in (torch.float64, torch.float32):
+        raise ValueError(f"dtype: expected torch.float64 or torch.float32, got {dtype!r}")
+    return dtype
 
 
 def _default_forward_model() -> ForwardModel:

@@ -50,7 +50,7 @@ import torch
 from skillkit._validation import as_generator, check_array, check_count, check_positive
 from skillkit.models.gp import ExactGP, ForwardModel, _GPRegression
 from skillkit.models.sampling import sample_trajectories
-from skillkit.search.gpreps import _gp_stats, _warm_start
+from skillkit.search.gpreps import _check_dtype, _gp_stats, _warm_start
 from skillkit.search.model_rollouts import worst_if_nonfinite
 from skillkit.tasks.planar import Throwing
 
@@ -181,11 +181,18 @@ class ThrowingRewardModel:
         ``make_release_model=partial(FITC, n_inducing=50, device="cuda")`` and robot and
         flight factories returning
         ``ForwardModel(FITC(n_inducing=50, device="cuda"), target="delta")``.
+    dtype : torch.dtype
+        Precision of the sampled arm and ball trajectories: ``torch.float64`` (default, every
+        stored result) or ``torch.float32`` (the faster path of
+        :func:`~skillkit.models.sampling.sample_trajectories`); torques, release and rewards
+        are computed in float64 either way.
 
     Notes
     -----
     Factories are part of the checkpointed state: pass module-level functions or classes.
     """
+
+    dtype: torch.dtype = torch.float64  # class default: instances pickled before it resume
 
     def __init__(
         self,
@@ -199,6 +206,7 @@ class ThrowingRewardModel:
         flight_time: float = 2.5,
         warm_start: bool = True,
         device=None,
+        dtype: torch.dtype = torch.float64,
     ):
         if not isinstance(task, Throwing):
             raise ValueError(f"task: expected a Throwing task, got {type(task).__name__}")
@@ -219,6 +227,7 @@ class ThrowingRewardModel:
         self.flight_steps = int(np.ceil(check_positive(flight_time, "flight_time") / task.ball_dt))
         self.warm_start = bool(warm_start)
         self.device = device
+        self.dtype = _check_dtype(dtype)
         self.robot: Any = None
         self.release: Any = None
         self.flight: Any = None
@@ -377,13 +386,16 @@ class ThrowingRewardModel:
         # Every throw starts at rest in the same posture, whatever the target (and a target
         # drawn from a Gaussian μ̂(s) may lie outside the task's range).
         x0 = np.broadcast_to(task.initial_states(task.context_low, 1), (B, L, 8))
+        dtype = self.dtype
+        accel = task.acceleration_controller(w, device=device, dtype=dtype)
+        arm = sample_trajectories(self.robot, x0, accel, T - 1, L, rng, device=device, dtype=dtype)
+        states = arm.states.reshape(B * L, T, 8).to(torch.float64)
         accel = task.acceleration_controller(w, device=device)
-        arm = sample_trajectories(self.robot, x0, accel, T - 1, L, rng, device=device)
-        states = arm.states.reshape(B * L, T, 8)
         pair = torch.arange(B, device=device).repeat_interleave(L)
         with torch.no_grad():
             a_last = accel(T - 1, states[:, -1], pair)[:, None]
-            acc = torch.cat([arm.controls.reshape(B * L, T - 1, 4), a_last], dim=1)
+            controls = arm.controls.reshape(B * L, T - 1, 4).to(torch.float64)
+            acc = torch.cat([controls, a_last], dim=1)
             torques = torch.stack([task.torques(states[:, t], acc[:, t]) for t in range(T)], 1)
         states_np = states.cpu().numpy()
 
@@ -401,8 +413,9 @@ class ThrowingRewardModel:
             1,
             rng,
             device=device,
+            dtype=dtype,
         )
-        paths, landed = land(flight.states[:, 0, :, :2].cpu().numpy())
+        paths, landed = land(flight.states[:, 0, :, :2].to(torch.float64).cpu().numpy())
         rewards = task.reward_batch(
             states_np, torques.cpu().numpy(), {"ball": paths}, np.repeat(s, L, axis=0)
         )

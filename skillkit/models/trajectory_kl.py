@@ -66,6 +66,7 @@ from skillkit.models.kernels import se_kernel
 from skillkit.models.sparse import kmeans_pp
 
 __all__ = [
+    "DualValue",
     "LinearGaussianTKL",
     "PseudoDataGP",
     "TKLFit",
@@ -76,6 +77,7 @@ __all__ = [
     "one_step_log_likelihood",
     "state_features",
     "trajectory_kl_dual",
+    "trajectory_kl_objective",
 ]
 
 #: A model's vector–Jacobian product: (∂L/∂mean (N, n), ∂L/∂var (N, n)) → ∂L/∂θ (P,).

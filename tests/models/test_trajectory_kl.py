@@ -222,7 +222,8 @@ def test_linear_model_moments_are_the_closed_form():
     mean, var, _ = model.moments(theta, x, u)
     assert np.allclose(mean, x @ LIN_A.T + u @ LIN_B.T + LIN_C)
     assert np.allclose(var, LIN_VAR)
-    assert np.allclose(np.concatenate(model.unpack(theta)[:3], axis=None)[-2:], LIN_C)
+    for part, truth in zip(model.unpack(theta), (LIN_A, LIN_B, LIN_C, LIN_VAR), strict=True):
+        assert np.allclose(part, truth)  # pack and unpack are inverse
 
 
 def _models(x, u, y):

@@ -1,0 +1,700 @@
+"""Sec. 4.2.4: trajectory-KL model learning (Eqs 4.5–4.16, Appendix B) against one-step ML.
+
+``sec4.2.4`` trains two forward-model classes of :mod:`skillkit.models.trajectory_kl` — a
+linear-Gaussian model x′ ~ N(Ax + Bu + c, diag σ²) and a FITC GP whose pseudo-inputs and
+pseudo-targets are parameters (:class:`~skillkit.models.trajectory_kl.PseudoDataGP`) — by
+one-step maximum likelihood and by the trajectory-KL dual (started from the ML fit), on three
+data sets, and scores them on held-out trajectories:
+
+* **linear** — a linear-Gaussian system with known truth (n = 2, m = 1) under feedback
+  u = K x + a_i s_t + ξ_t (s_t a fixed multi-sine, a_i ~ N(1, 0.5²) per trajectory,
+  ξ_t ~ N(0, 0.5²)): the data come from the linear model class, so the feature constraints can
+  hold and the parameter error against the truth is measured;
+* **pendulum** — the pendulum of Sec. 5.4 (T = 20, Δt = 0.1 s, u = clip(Kᵀx + N(0, σ_u²), ±3),
+  K = [−3, −1], start states uniform on [−π, π] × [−4, 4]), as in ``fig5.3``–``fig5.5``;
+* **balancing** — the planar 4-link robot under the PD controller of
+  :meth:`~skillkit.tasks.balancing.Balancing.pd_gain` with white torque excitation (the
+  data of Table 4.2's models), start states N(x_up, σ² I).
+
+Scores on held-out trajectories (same distribution, fresh draws):
+
+* **multi-step error** — the model's mean prediction from the observed x₁ in closed loop:
+  x̂_{t+1} = μ(x̂_t, û_t) with û_t = κ(x̂_t) + (u_t − κ(x_t)) (κ the trajectory's feedback,
+  clipped for the pendulum, so the recorded excitation is replayed and û_t = u_t on the true
+  states); the squared error per state dimension in units of the training states' standard
+  deviation, averaged over t = 2 … T and trajectories (and at t = T);
+* **trajectory log-likelihood** — Σ_{t≥2} log N(x_t; m_t, diag s_t²) per trajectory, (m_t, s_t²)
+  the moments of ``n_samples`` trajectories sampled from the model in the same closed loop;
+* **one-step log-likelihood** — what ML maximises, per held-out transition.
+
+Floors: the true model's scores (linear system) and the time-indexed mean of the training
+trajectories as a trivial predictor.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from skillkit.experiments.registry import Experiment, Series, Verdict, fmt, register, with_verdict
+from skillkit.experiments.settings import Settings, setting
+from skillkit.models.trajectory_kl import (
+    LinearGaussianTKL,
+    PseudoDataGP,
+    fit_one_step,
+    fit_trajectory_kl,
+    one_step_log_likelihood,
+    trajectory_kl_objective,
+)
+from skillkit.tasks import make
+from skillkit.tasks.balancing import X_UP
+from skillkit.tasks.pendulum import THESIS_GAINS, TORQUE_LIMIT
+from skillkit.trial import TrialContext
+
+__all__ = ["TrajectoryKLSettings", "closed_loop_predictions", "linear_system"]
+
+SYSTEMS = ("linear", "pendulum", "balancing")
+CLASSES = ("linear", "fitc")
+CLASS_LABELS = {"linear": "linear-Gaussian", "fitc": "FITC pseudo-data GP"}
+CLAIM = (
+    "Training a probabilistic forward model by minimising the KL between observed and predicted "
+    "trajectory marginals under feature-matching constraints (Eqs 4.10–4.16) maximises the "
+    "likelihood of observed trajectories rather than of single transitions and so reduces "
+    "long-term prediction error (Sec. 4.2.4; the thesis failed to make it work for GP models "
+    "and names GPs whose training data are parameters as the way forward)."
+)
+
+DIVERGED = 100.0
+"""A held-out prediction whose mean squared error (training-std units) exceeds this counts as
+diverged (the trivial predictor scores about 1)."""
+
+# The linear system with known truth (data come from the model class).
+LIN_A = np.array([[0.95, 0.10], [-0.10, 0.90]])
+LIN_B = np.array([[0.05], [0.20]])
+LIN_C = np.array([0.05, -0.02])
+LIN_VAR = np.array([0.01, 0.02])
+LIN_K = np.array([[-0.5, -0.3]])
+
+
+@dataclass(frozen=True)
+class TrajectoryKLSettings(Settings):
+    """Settings of ``sec4.2.4`` (trajectory-KL model learning, Sec. 4.2.4, App. B)."""
+
+    systems: tuple[str, ...] = setting(
+        SYSTEMS, "Data sets: 'linear' (known truth), 'pendulum' (Sec. 5.4), 'balancing'."
+    )
+    n_train: int = setting(40, "Observed training trajectories M per data set (Eq. 4.16's M).")
+    n_test: int = setting(40, "Held-out trajectories per data set.")
+    horizon: int = setting(20, "Time steps T per trajectory (states x_1 … x_T).")
+    linear_excitation: float = setting(
+        0.5, "σ of the white control excitation ξ_t of the linear system (and of a_i)."
+    )
+    pendulum_control_noise: float = setting(0.05, "σ_u of the pendulum's torque noise (Sec. 5.4).")
+    balancing_initial_std: float = setting(
+        0.1, "σ of the balancing start states N(x_up, σ² I) (rad, rad/s), as tab4.2."
+    )
+    balancing_excitation: float = setting(
+        30.0, "σ_ξ (N m) of the white torque excitation of the balancing data, as tab4.2."
+    )
+    n_inducing: int = setting(20, "Pseudo-inputs M per output of the FITC pseudo-data GP.")
+    cross: bool = setting(
+        False,
+        "Quadratic features with the products x_i x_j (else the squares x_i² only, as B.7 "
+        "writes them; with products F = 44 on balancing and the hard constraints were "
+        "infeasible at the ML fit with 40 and 100 trajectories).",
+    )
+    ridges: tuple[float, ...] = setting(
+        (0.0, 0.1),
+        "λ of the dual: 0 is the thesis's hard feature constraints (the verdict's); λ > 0 the "
+        "soft-constraint variants (penalty ‖residual‖²/2λ in standardised feature units).",
+    )
+    ml_iterations: int = setting(300, "L-BFGS iterations of one-step ML (FITC class).")
+    tkl_iterations: int = setting(100, "Outer L-BFGS iterations of trajectory-KL training.")
+    inner_iterations: int = setting(100, "Newton iterations of each inner max over γ.")
+    n_samples: int = setting(50, "Sampled trajectories per held-out start (trajectory LL).")
+
+    def check(self) -> None:
+        """Known systems, ridges ≥ 0 with 0 first (the verdict uses λ = 0), horizon ≥ 3."""
+        bad = sorted(set(self.systems) - set(SYSTEMS))
+        if bad or not self.systems:
+            raise ValueError(f"systems: expected a subset of {SYSTEMS}, got {self.systems}")
+        if not self.ridges or self.ridges[0] != 0.0 or any(r < 0 for r in self.ridges):
+            raise ValueError(f"ridges: expected 0 first, then values ≥ 0, got {self.ridges}")
+        if self.horizon < 3:
+            raise ValueError(f"horizon: expected at least 3 steps, got {self.horizon}")
+        if self.n_train < 2 or self.n_test < 1:
+            raise ValueError("n_train: expected ≥ 2 training and ≥ 1 test trajectories")
+        if self.n_samples < 2:
+            raise ValueError(f"n_samples: expected at least 2, got {self.n_samples}")
+
+
+# --------------------------------------------------------------------------- data
+@dataclass(frozen=True)
+class TrajectoryData:
+    """Observed trajectories and the feedback that produced them.
+
+    Attributes
+    ----------
+    states : ndarray, shape (M, T, n)
+    controls : ndarray, shape (M, T − 1, m)
+    gains : ndarray, shape (M, m, n)
+        κ_i(x) = clip(K_i (x − x_ref) + offset, ±u_limit) per trajectory.
+    x_ref : ndarray, shape (n,)
+    u_limit : float
+        Control limit (inf: none).
+    n_failed : int
+        Rollouts that failed (fell) and were replaced while collecting.
+    """
+
+    states: np.ndarray
+    controls: np.ndarray
+    gains: np.ndarray
+    x_ref: np.ndarray
+    u_limit: float
+    n_failed: int = 0
+
+    @property
+    def offsets(self) -> np.ndarray:
+        """ξ_{i,t} = u_{i,t} − K_i (x_{i,t} − x_ref), shape (M, T − 1, m): the recorded
+        excitation the closed-loop replay adds."""
+        dx = self.states[:, :-1] - self.x_ref
+        return self.controls - np.einsum("imn,itn->itm", self.gains, dx)
+
+    def transitions(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(x, u, x′) stacked, shapes (M(T−1), n), (M(T−1), m), (M(T−1), n)."""
+        n, m = self.states.shape[-1], self.controls.shape[-1]
+        return (
+            self.states[:, :-1].reshape(-1, n),
+            self.controls.reshape(-1, m),
+            self.states[:, 1:].reshape(-1, n),
+        )
+
+
+def linear_system(n: int, horizon: int, excitation: float, rng: np.random.Generator):
+    """``n`` trajectories of the linear-Gaussian system with known truth (LIN_*).
+
+    u_t = K x_t + a_i s_t + ξ_t with s_t = sin(2πt/7) + cos(2πt/11.3), a_i ~ N(1, σ²),
+    ξ_t ~ N(0, σ²) (σ = ``excitation``); x_1 ~ N(0, I). The common multi-sine makes the
+    feature averages vary with t, so A, B and c are identifiable from them (feature-matching
+    constraints see only averages over trajectories).
+
+    Returns
+    -------
+    TrajectoryData
+    """
+    T = horizon
+    s = np.sin(2 * np.pi * np.arange(T) / 7) + np.cos(2 * np.pi * np.arange(T) / 11.3)
+    X = np.zeros((n, T, 2))
+    U = np.zeros((n, T - 1, 1))
+    X[:, 0] = rng.standard_normal((n, 2))
+    a = 1.0 + excitation * rng.standard_normal(n)
+    for t in range(T - 1):
+        U[:, t] = X[:, t] @ LIN_K.T + (a * s[t])[:, None] + excitation * rng.standard_normal((n, 1))
+        w = np.sqrt(LIN_VAR) * rng.standard_normal((n, 2))
+        X[:, t + 1] = X[:, t] @ LIN_A.T + U[:, t] @ LIN_B.T + LIN_C + w
+    return TrajectoryData(X, U, np.broadcast_to(LIN_K, (n, 1, 2)).copy(), np.zeros(2), np.inf)
+
+
+def _pendulum(n: int, st: TrajectoryKLSettings, rng) -> TrajectoryData:
+    task = make("pendulum", horizon=st.horizon - 1, control_noise=st.pendulum_control_noise)
+    X, U = [], []
+    for _ in range(n):
+        traj = task.rollout(THESIS_GAINS, task.sample_context(rng), rng)
+        X.append(traj.states)
+        U.append(traj.controls[:-1])
+    gains = np.broadcast_to(THESIS_GAINS, (n, 1, 2)).copy()
+    return TrajectoryData(np.array(X), np.array(U), gains, np.zeros(2), TORQUE_LIMIT)
+
+
+def _balancing(n: int, st: TrajectoryKLSettings, rng) -> TrajectoryData:
+    task = make(
+        "balancing",
+        initial_std=st.balancing_initial_std,
+        excitation_std=st.balancing_excitation,
+        n_steps=st.horizon - 1,
+    )
+    G = task.pd_gain()
+    X, U, failed = [], [], 0
+    while len(X) < n:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            traj = task.rollout(G.ravel(), rng=rng)
+        if traj.failed:  # the excitation toppled the robot: replaced and counted, as
+            failed += 1  # collect_balancing does (about 1 in 300 rollouts here)
+            if failed > n:
+                raise RuntimeError(f"balancing: {failed} rollouts failed for {len(X)} kept")
+            continue
+        X.append(traj.states)
+        U.append(traj.controls[:-1])
+    return TrajectoryData(np.array(X), np.array(U), np.broadcast_to(G, (n, 4, 8)).copy(),
+                          X_UP.copy(), np.inf, failed)  # fmt: skip
+
+
+def _data(system: str, n: int, st: TrajectoryKLSettings, rng) -> TrajectoryData:
+    if system == "linear":
+        return linear_system(n, st.horizon, st.linear_excitation, rng)
+    if system == "pendulum":
+        return _pendulum(n, st, rng)
+    return _balancing(n, st, rng)
+
+
+# --------------------------------------------------------------------------- evaluation
+def closed_loop_predictions(model, theta, data: TrajectoryData, n_samples: int, rng):
+    """Mean prediction and sampled trajectories of ``model`` from each observed x₁.
+
+    The feedback of each trajectory acts on the predicted state and the recorded excitation
+    is replayed: û_t = clip(K_i(x̂_t − x_ref) + ξ_{i,t}, ±u_limit).
+
+    Parameters
+    ----------
+    model : LinearGaussianTKL or PseudoDataGP
+    theta : ndarray, shape (P,)
+    data : TrajectoryData
+    n_samples : int
+        L sampled trajectories per start.
+    rng : Generator
+
+    Returns
+    -------
+    mean : ndarray, shape (M, T, n)
+        x̂_t (mean propagated through the mean).
+    samples : ndarray, shape (L, M, T, n)
+    """
+    X, xi = data.states, data.offsets
+    M, T, n = X.shape
+
+    def control(x, t, rows):
+        u = np.einsum("imn,in->im", data.gains[rows], x - data.x_ref) + xi[rows, t]
+        return np.clip(u, -data.u_limit, data.u_limit)
+
+    rows = np.arange(M)
+    mean = np.empty_like(X)
+    mean[:, 0] = X[:, 0]
+    samples = np.empty((n_samples, M, T, n))
+    samples[:, :, 0] = X[None, :, 0]
+    rows_s = np.tile(rows, n_samples)
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        for t in range(T - 1):
+            xm = np.nan_to_num(mean[:, t], nan=1e6, posinf=1e6, neginf=-1e6).clip(-1e6, 1e6)
+            mu, _, _ = model.moments(theta, xm, control(xm, t, rows))
+            mean[:, t + 1] = mu
+            xs = samples[:, :, t].reshape(-1, n)
+            xs = np.nan_to_num(xs, nan=1e6, posinf=1e6, neginf=-1e6).clip(-1e6, 1e6)
+            mu, var, _ = model.moments(theta, xs, control(xs, t, rows_s))
+            draw = mu + np.sqrt(var) * rng.standard_normal(mu.shape)
+            samples[:, :, t + 1] = draw.reshape(n_samples, M, n)
+    return mean, samples
+
+
+def _scores(model, theta, data: TrajectoryData, scale: np.ndarray, n_samples: int, rng) -> dict:
+    """Multi-step error per step, trajectory and one-step log-likelihoods of one θ."""
+    mean, samples = closed_loop_predictions(model, theta, data, n_samples, rng)
+    return _score_predictions(mean, samples, data, scale) | {
+        "one_step_ll": one_step_log_likelihood(model, theta, *data.transitions())
+    }
+
+
+def _score_predictions(mean, samples, data: TrajectoryData, scale) -> dict:
+    X = data.states
+    with np.errstate(all="ignore"):
+        err = np.mean(((mean - X) / scale) ** 2, axis=-1)  # (M, T)
+        per_step = np.mean(err, axis=0)[1:]
+        err_value = float(np.mean(err[:, 1:]))
+        per_traj = np.nan_to_num(np.mean(err[:, 1:], axis=1), nan=np.inf)
+        out = {
+            "multistep_error": err_value if np.isfinite(err_value) else float("inf"),
+            "multistep_error_median": float(np.median(per_traj)),
+            "diverged": int(np.sum(per_traj > DIVERGED)),
+            "final_error": float(per_step[-1]) if np.isfinite(per_step[-1]) else float("inf"),
+            "error_per_step": np.where(np.isfinite(per_step), per_step, np.inf),
+        }
+        if samples is None:
+            return out
+        m = samples.mean(0)
+        v = samples.var(0, ddof=1) + 1e-12 * scale**2
+        ll = -0.5 * (np.log(2 * np.pi * v) + (X - m) ** 2 / v)  # (M, T, n)
+        ll = float(np.mean(ll[:, 1:].sum(axis=(1, 2))))
+    out["trajectory_ll"] = ll if np.isfinite(ll) else float("-inf")
+    return out
+
+
+def _model(cls: str, data: TrajectoryData, st: TrajectoryKLSettings):
+    n, m = data.states.shape[-1], data.controls.shape[-1]
+    if cls == "linear":
+        return LinearGaussianTKL(n, m)
+    # Prior mean: the least-squares linear fit (fixed, shared by ML and TKL); the GP models
+    # the residual (tab4.2's finding: a zero mean predicts the balancing closed loop badly).
+    x, u, y = data.transitions()
+    z1 = np.hstack([x, u, np.ones((x.shape[0], 1))])
+    W, *_ = np.linalg.lstsq(z1, y, rcond=None)
+    return PseudoDataGP(n, m, min(st.n_inducing, x.shape[0]), mean_weights=W)
+
+
+def _fit_and_score(system, cls, train, test, scale, st, rng, trial) -> dict:
+    model = _model(cls, train, st)
+    x, u, y = train.transitions()
+    t0 = time.perf_counter()
+    theta0 = model.init_theta(x, u, y, rng)
+    if cls == "linear":  # closed form: least squares and residual variances are the MLE
+        theta_ml, ml_iters = theta0, 0
+    else:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            fit = fit_one_step(model, theta0, x, u, y, maxiter=st.ml_iterations)
+        theta_ml, ml_iters = fit.theta, fit.n_iterations
+    out: dict = {"ml": {"time_s": time.perf_counter() - t0, "iterations": ml_iters}}
+    out["ml"].update(_scores(model, theta_ml, test, scale, st.n_samples, rng))
+    d_ml = _objective(model, theta_ml, train, st, 0.0)
+    out["ml"]["dual_objective"] = d_ml
+    out["ml"]["theta"] = theta_ml
+    trial.update()
+    for ridge in st.ridges:
+        key = _tkl_key(ridge)
+        t0 = time.perf_counter()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            fit = fit_trajectory_kl(
+                model, theta_ml, train.states, train.controls, cross=st.cross, ridge=ridge,
+                maxiter=st.tkl_iterations, inner_maxiter=st.inner_iterations,
+            )  # fmt: skip
+        out[key] = {
+            "time_s": time.perf_counter() - t0,
+            "iterations": fit.n_iterations,
+            "objective": fit.objective,
+            "objective_at_ml": _objective(model, theta_ml, train, st, ridge),
+            "dual_objective": _objective(model, fit.theta, train, st, 0.0),
+            "kl_total": float(np.sum(fit.kl)),
+            "feature_residual": fit.feature_residual,
+            "moved": float(np.max(np.abs(fit.theta - theta_ml))),
+            "theta": fit.theta,
+            "message": fit.message,
+        }
+        out[key].update(_scores(model, fit.theta, test, scale, st.n_samples, rng))
+        trial.update()
+    if system == "linear" and cls == "linear":
+        truth = model.pack(LIN_A, LIN_B, LIN_C, LIN_VAR)
+        out["truth"] = _scores(model, truth, test, scale, st.n_samples, rng)
+        out["truth"]["dual_objective"] = _objective(model, truth, train, st, 0.0)
+        for key in ["ml"] + [_tkl_key(r) for r in st.ridges]:
+            out[key].update(_parameter_error(model, out[key]["theta"]))
+    for key in out:
+        out[key].pop("theta", None)
+    return out
+
+
+def _objective(model, theta, data: TrajectoryData, st: TrajectoryKLSettings, ridge) -> float:
+    """D(θ) = max_γ g on the training trajectories (inf when the inner maximum diverges)."""
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        value = trajectory_kl_objective(
+            model, theta, data.states, data.controls, cross=st.cross, ridge=ridge,
+            inner_maxiter=st.inner_iterations,
+        )[0]  # fmt: skip
+    return float(value) if np.isfinite(value) and value < 1e6 else float("inf")
+
+
+def _parameter_error(model: LinearGaussianTKL, theta) -> dict:
+    A, B, c, v = model.unpack(theta)
+    dyn = np.concatenate([(A - LIN_A).ravel(), (B - LIN_B).ravel(), c - LIN_C])
+    return {
+        "dynamics_error_max": float(np.max(np.abs(dyn))),
+        "noise_log_var_error_max": float(np.max(np.abs(np.log(v / LIN_VAR)))),
+    }
+
+
+def run_trial(st: TrajectoryKLSettings, rng: np.random.Generator, trial: TrialContext) -> dict:
+    """Every data set (one checkpoint each): data, the trivial predictor, and per model class
+    one-step ML and trajectory-KL training for every λ, scored on held-out trajectories."""
+    per_system = len(CLASSES) * (1 + len(st.ridges))
+    trial.reset(total=len(st.systems) * per_system)
+    done = dict(trial.resume("sec4.2.4", rng) or {})
+    trial.update(len(done) * per_system)
+    for system in st.systems:
+        if system in done:
+            continue
+        train = _data(system, st.n_train, st, rng)
+        test = _data(system, st.n_test, st, rng)
+        scale = train.states.reshape(-1, train.states.shape[-1]).std(0)
+        scale = np.where(scale > 0, scale, 1.0)
+        mean_traj = np.broadcast_to(train.states.mean(0), test.states.shape)
+        res: dict = {
+            "trivial": _score_predictions(mean_traj, None, test, scale),
+            "n_failed_rollouts": train.n_failed + test.n_failed,
+        }
+        for cls in CLASSES:
+            trial.set_postfix(system=system, model=cls)
+            res[cls] = _fit_and_score(system, cls, train, test, scale, st, rng, trial)
+        done[system] = res
+        trial.save("sec4.2.4", done, rng)
+    return _flatten(done)
+
+
+def _flatten(tree: dict, prefix: str = "") -> dict:
+    """``{"a": {"b": x}}`` → ``{"a.b": x}`` (flat per-trial numbers and arrays, which the
+    runner stores in ``trials.npz``)."""
+    out: dict = {}
+    for key, value in tree.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict):
+            out.update(_flatten(value, name + "."))
+        else:
+            out[name] = value
+    return out
+
+
+def _unflatten(flat: dict) -> dict:
+    """The inverse of :func:`_flatten`."""
+    tree: dict = {}
+    for name, value in flat.items():
+        *path, leaf = name.split(".")
+        node = tree
+        for part in path:
+            node = node.setdefault(part, {})
+        node[leaf] = value
+    return tree
+
+
+# --------------------------------------------------------------------------- summary
+METRICS = (
+    "multistep_error", "multistep_error_median", "diverged", "final_error", "trajectory_ll",
+    "one_step_ll", "dual_objective",
+    "time_s", "iterations", "dynamics_error_max", "noise_log_var_error_max", "kl_total",
+    "feature_residual", "moved", "objective", "objective_at_ml",
+)  # fmt: skip
+
+
+def _methods(st: TrajectoryKLSettings) -> list[str]:
+    return ["ml"] + [_tkl_key(r) for r in st.ridges]
+
+
+def _tkl_key(ridge: float) -> str:
+    """``tkl_0``, ``tkl_0p1``, … (no dots: the per-trial numbers are flattened on dots)."""
+    return f"tkl_{ridge:g}".replace(".", "p")
+
+
+def _method_label(key: str) -> str:
+    if key == "ml":
+        return "one-step ML"
+    lam = key.removeprefix("tkl_").replace("p", ".")
+    return "trajectory-KL (λ = 0, thesis)" if lam == "0" else f"trajectory-KL (λ = {lam})"
+
+
+def _mean(values) -> float | None:
+    arr = np.asarray([np.nan if v is None else v for v in values], dtype=float)
+    if arr.size == 0 or np.all(np.isnan(arr)):
+        return None
+    value = float(np.nanmean(arr))
+    return value if np.isfinite(value) else None
+
+
+def summarize(st: TrajectoryKLSettings, trials: list[dict]):
+    series: list[Series] = []
+    summary: dict = {"n_trials": len(trials), "cells": {}}
+    T = st.horizon
+    for system in st.systems:
+        runs = [_unflatten(t)[system] for t in trials]
+        cell_sys: dict = {
+            "trivial_multistep_error": _mean([r["trivial"]["multistep_error"] for r in runs])
+        }
+        panel = f"{system}: multi-step error on held-out trajectories"
+        for cls in CLASSES:
+            cell: dict = {}
+            for key in _methods(st) + (["truth"] if "truth" in runs[0][cls] else []):
+                cell[key] = {
+                    m: _mean([r[cls][key].get(m) for r in runs])
+                    for m in METRICS
+                    if m in runs[0][cls][key]
+                }
+                curve = np.mean([r[cls][key]["error_per_step"] for r in runs], axis=0)
+                label = "true model" if key == "truth" else _method_label(key)
+                series.append(Series(
+                    f"{CLASS_LABELS[cls]}, {label}", list(range(2, T + 1)),
+                    [float(v) if np.isfinite(v) else None for v in curve], panel=panel,
+                    xlabel="time step t", ylabel="squared error (training std² units)",
+                    log_y=True,
+                ))  # fmt: skip
+            ml, tkl = cell["ml"]["multistep_error"], cell["tkl_0"]["multistep_error"]
+            cell["tkl_over_ml"] = None if ml is None or tkl is None or ml == 0 else tkl / ml
+            cell["tkl_lower_trials"] = int(sum(
+                r[cls]["tkl_0"]["multistep_error"] < r[cls]["ml"]["multistep_error"] for r in runs
+            ))  # fmt: skip
+            cell_sys[cls] = cell
+        cell_sys["failed_rollouts_replaced"] = int(sum(r["n_failed_rollouts"] for r in runs))
+        trivial = cell_sys["trivial_multistep_error"]
+        series.append(Series("trivial: training mean trajectory", [2, T],
+                             [trivial, trivial], panel=panel))  # fmt: skip
+        summary["cells"][system] = cell_sys
+    summary["setup"] = SETUP
+    summary["variants"] = VARIANTS
+    return series, with_verdict(summary, verdict(st, summary))
+
+
+def verdict(st: TrajectoryKLSettings, summary: dict) -> Verdict:
+    """Fixed before the paper run: holds if, with the thesis's hard constraints (λ = 0),
+    trajectory-KL training has a lower mean held-out multi-step error than one-step ML in
+    every cell of real (non-linear) data — pendulum and balancing, both model classes — among
+    the systems run; the linear system with known truth is the sanity check (reported: the
+    ratio and the recovered parameters), not part of the verdict unless it is the only one.
+    The statement adds the same count by the median over held-out trajectories and, per cell,
+    the trials in which TKL is lower (added after the paper runs, in one trial of which the
+    ML predictions on balancing diverged; not the criterion)."""
+    cells, parts = summary["cells"], []
+    real = [s for s in st.systems if s != "linear"] or list(st.systems)
+    wins = []
+    for system in st.systems:
+        for cls in CLASSES:
+            c = cells[system][cls]
+            ml, tkl = c["ml"]["multistep_error"], c["tkl_0"]["multistep_error"]
+            win = ml is not None and tkl is not None and tkl < ml
+            if system in real:
+                wins.append(win)
+            parts.append(
+                f"{system}/{cls}: ML {fmt(ml)}, TKL {fmt(tkl)} ({'lower' if win else 'not lower'}"
+                f"; lower in {c['tkl_lower_trials']} of {summary['n_trials']} trials)"
+            )
+    medians = []
+    for system in real:
+        for cls in CLASSES:
+            c = cells[system][cls]
+            ml, tkl = (c[k]["multistep_error_median"] for k in ("ml", "tkl_0"))
+            medians.append(ml is not None and tkl is not None and tkl < ml)
+    lin = cells.get("linear", {}).get("linear")
+    recovery = ""
+    if lin is not None:
+        recovery = (
+            f"; linear truth: max |Δ(A,B,c)| ML {fmt(lin['ml'].get('dynamics_error_max'))}, "
+            f"TKL {fmt(lin['tkl_0'].get('dynamics_error_max'))}, true-model error "
+            f"{fmt(lin['truth']['multistep_error'])}"
+        )
+    holds = bool(wins) and all(wins)
+    return Verdict(
+        CLAIM,
+        holds,
+        f"Mean held-out multi-step error (squared, per dim, in training std units), one-step "
+        f"ML vs trajectory-KL with the thesis's hard constraints: {'; '.join(parts)}; TKL lower "
+        f"in {sum(wins)} of {len(wins)} cells of {', '.join(real)} data (by the per-trial median "
+        f"over held-out trajectories, averaged over trials, not the criterion: {sum(medians)} "
+        f"of {len(medians)})"
+        f"{recovery} ({summary['n_trials']} trial(s)).",
+    )
+
+
+SETUP = [
+    {
+        "item": "model classes",
+        "thesis": "GP forward models (failed); suggests sparse GPs whose training data are "
+        "parameters",
+        "ours": "linear-Gaussian x′ ~ N(Ax+Bu+c, diag σ²) and a FITC pseudo-data GP "
+        "(pseudo-inputs Z and pseudo-targets U in θ, SE-ARD hypers, fixed least-squares "
+        "linear prior mean)",
+        "why": "the issue's two classes: one where the constraints can hold, and the thesis's "
+        "proposed GP route",
+    },
+    {
+        "item": "features",
+        "thesis": "linear and quadratic state features (B.7)",
+        "ours": "φ(x) = [x, x_i²] (``cross`` adds x_i x_j, i < j), standardised; E[φ(x′)] in "
+        "closed form",
+        "why": "B.7 differentiates 'the i-th quadratic term' E[x′_i²]; with the products "
+        "(F = 44 on balancing) the hard constraints were infeasible at the ML fit",
+    },
+    {
+        "item": "dual direction",
+        "thesis": "'minimise the dual' over γ and θ",
+        "ours": "max over γ (g is concave in γ), min over θ of D(θ) = max_γ g (Danskin)",
+        "why": "(4.16) as written is unbounded below in γ; B.4–B.6 fix the sign of g",
+    },
+    {
+        "item": "∫π(u|x)",
+        "thesis": "integral over the control policy",
+        "ours": "the recorded control of each sample",
+        "why": "the sample-based dual (4.16) replaces integrals by samples",
+    },
+    {
+        "item": "one-step ML",
+        "thesis": "maximise the likelihood of transitions (Eq. 2.28 for GPs)",
+        "ours": "the same parametric model's transition likelihood (closed form for the "
+        "linear class; L-BFGS over all θ for the pseudo-data GP); trajectory-KL starts there",
+        "why": "the comparison isolates the training objective",
+    },
+    {
+        "item": "data and scores",
+        "thesis": "no experiment given",
+        "ours": "linear system with known truth, Sec. 5.4 pendulum, PD-balancing with "
+        "excitation; closed-loop replay of the recorded excitation from x₁ on held-out "
+        "trajectories",
+        "why": "the issue's three data sets; closed loop keeps the unstable robot predictable",
+    },
+]
+
+VARIANTS = [
+    {
+        "variant": "soft feature constraints λ > 0 (the settings' ridges after 0)",
+        "measured": "in every result, as 'tkl_<λ>' beside the thesis's λ = 0",
+    },
+    {
+        "variant": "features with the products x_i x_j (cross = True), quick scale (40 "
+        "trajectories, T = 20, seed 0)",
+        "measured": "multi-step error ML → TKL(λ = 0): linear system 0.134 → 0.142 (true model "
+        "0.128; dynamics error 0.014 → 0.018, noise log-variance error 0.03 → 0.32); pendulum "
+        "linear 0.459 → 0.400, pendulum FITC 0.132 → 0.353; balancing: the hard constraints "
+        "infeasible at both ML fits (D = +∞) with 40 and with 100 trajectories (F = 44 features "
+        "per step), so λ = 0 cannot move; superseded by squares only",
+    },
+    {
+        "variant": "first paper run: 3 trials, the same code before failed balancing rollouts "
+        "were counted and before the median was reported",
+        "measured": "holds false, TKL lower in 1 of 4 cells; mean multi-step error ML → TKL "
+        "(λ = 0): linear system 0.137 → 0.144 (true model 0.136), linear/FITC 0.147 → 0.184, "
+        "pendulum linear 0.489 → 0.371, pendulum FITC 0.078 → 0.200, balancing linear 0.356 → "
+        "1.25, balancing FITC 0.511 → 0.622",
+    },
+    {
+        "variant": "second paper run: 5 trials, means only",
+        "measured": "holds false, TKL lower in 2 of 4 cells by the mean, but the balancing "
+        "'win' (linear ML 9.8e3 vs TKL 1.77) came from ML's closed-loop predictions diverging "
+        "in one trial (FITC ML 1.4e4, TKL 3.6e4 likewise); superseded by this run, which adds "
+        "the median over held-out trajectories and the count of diverged predictions",
+    },
+    {
+        "variant": "inner maximisation by L-BFGS (2000 iterations) instead of Newton",
+        "measured": "the same optimum on the linear system (θ equal to 1e-7) but 33× slower "
+        "(14.8 s vs 0.45 s); on balancing FITC 288 s per fit, and near the feasibility "
+        "boundary the inexact inner values stalled the outer line search",
+    },
+    {
+        "variant": "outer L-BFGS started with a unit step in θ",
+        "measured": "the first trial step left the feasible region (D = +∞) and the line "
+        "search ended at θ₀ after one iteration; now the first step is at most 1e-3 and "
+        "shrunk until D decreases",
+    },
+]
+
+
+# --------------------------------------------------------------------------- registration
+QUICK = TrajectoryKLSettings()
+SMOKE = replace(
+    QUICK, n_train=6, n_test=4, horizon=6, n_inducing=5, ml_iterations=20, tkl_iterations=5,
+    inner_iterations=50, n_samples=5, ridges=(0.0, 0.1),
+)  # fmt: skip
+PAPER = replace(QUICK, n_train=100, n_test=100)
+"""The thesis reports no experiment for Sec. 4.2.4: paper is our largest setting (100 training
+and 100 held-out trajectories per data set, 3 trials)."""
+
+register(
+    Experiment(
+        id="sec4.2.4",
+        title="Trajectory-KL model learning (4.10–4.16, App. B) vs one-step ML",
+        settings_class=TrajectoryKLSettings,
+        settings={"smoke": SMOKE, "quick": QUICK, "paper": PAPER},
+        run_trial=run_trial,
+        summarize=summarize,
+        verdict=verdict,
+        trials={"smoke": 1, "quick": 1, "paper": 5},
+        claim=CLAIM,
+    )
+)

@@ -1,0 +1,856 @@
+r"""Trajectory-KL model learning (Sec. 4.2.4, Eqs 4.5–4.16, Appendix B).
+
+The thesis fits a probabilistic forward model p(x′ | x, u; θ) by minimising the KL between
+the marginals p_t(x) of predicted trajectories and the observed marginals q_t(x), subject to
+feature-matching constraints that link the time steps (4.10–4.13). With M observed
+trajectories the marginals are reweightings of the samples x_{i,t}, and the dual is (4.16)
+
+.. math::
+    g(\gamma_{1:T}, \theta) = -\sum_{t=1}^T \log \frac1M \sum_{i=1}^M
+        \exp\big(\gamma_t^\top \phi(x_{i,t}) - \gamma_{t+1}^\top \psi_{i,t}(\theta)\big)
+        + \gamma_1^\top \hat\phi, \qquad \gamma_{T+1} \equiv 0,
+
+with ψ_{i,t}(θ) = E[φ(x′) | x_{i,t}, u_{i,t}; θ] the model's expected next-state feature
+(the integral over π(u|x) is the recorded control of the sample, as the sum over samples is
+the integral over q_t). The pieces, in the order they run:
+
+* :func:`state_features` — φ(x) = [x, x_i x_j (i ≤ j)] (linear and quadratic features;
+  ``cross=False`` keeps only the squares x_i²);
+* :func:`gaussian_expected_features` / :func:`gaussian_expected_features_vjp` — ψ = E[φ(x′)]
+  of a Gaussian prediction N(μ, diag v) and its gradient in closed form (B.7:
+  E[x_i x_j] = μ_i μ_j + δ_ij v_i, so ∂E[x_i²] = 2 μ_i ∂μ_i + ∂v_i);
+* :func:`trajectory_kl_dual` — g, its gradients B.4, B.5 in γ and ∂g/∂ψ (whose contraction
+  with ∂ψ/∂θ is B.6), and the marginals (4.14) as weights p_{t,i}; every sum over samples is
+  one shifted exponential (log-sum-exp), as in :func:`~skillkit.search.reps.reps_dual`;
+* two model classes with a flat parameter vector θ, each giving the predictive moments and
+  their vector–Jacobian product: :class:`LinearGaussianTKL` (x′ ~ N(Ax + Bu + c, diag σ²),
+  closed form) and :class:`PseudoDataGP` (the FITC conditional p(x′ | x, u, Z, U) whose
+  pseudo-inputs Z and pseudo-targets U are parameters, with the kernel hyper-parameters —
+  the route Sec. 4.2.4 names for GPs; its Jacobian product comes from torch autograd);
+* :func:`fit_one_step` (one-step maximum likelihood, the usual training) and
+  :func:`fit_trajectory_kl` (the dual), both L-BFGS over θ with analytic gradients.
+
+Direction of the optimisation
+-----------------------------
+g is concave in γ (minus a log-sum-exp of functions linear in γ): it is the Lagrange dual of
+the *minimisation* (4.10), so it is maximised over the multipliers, D(θ) = max_γ g(γ, θ) =
+min_p Σ_t KL(p_t ‖ q_t) (strong duality: the primal is convex in p). The thesis says
+"minimise the dual"; literally minimising (4.16) over γ is unbounded below. B.4–B.6 are the
+gradients of this g, so its sign is fixed; the model is trained by min_θ D(θ), with
+∇D(θ) = ∂g/∂θ at γ*(θ) (Danskin's theorem, B.6). :func:`fit_trajectory_kl` solves the inner
+maximisation by Newton's method (the Hessian in γ is block-tridiagonal in time) to a Newton
+decrement of 1e-12 for every θ the outer L-BFGS evaluates (warm-started).
+
+Feasibility. The sample-based constraints can be infeasible: the predicted feature average
+must lie in the convex hull of the observed features at the next step. Then D(θ) = +∞ and γ
+diverges. ``ridge`` λ > 0 subtracts (λ/2) Σ_t ‖γ_t‖² from g, which is the dual of the primal
+with the equality constraints replaced by the penalty (1/2λ) ‖residual‖² (soft feature
+matching); λ = 0 is the thesis's hard constraint. Features are standardised by the observed
+features' mean and standard deviation before the dual sees them (an invertible affine map:
+the hard constraint set is unchanged, λ acts in standard units).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from numpy.typing import ArrayLike
+from scipy import optimize
+
+from skillkit._validation import as_generator, check_array, check_count, check_positive
+from skillkit.models.kernels import se_kernel
+from skillkit.models.sparse import kmeans_pp
+
+__all__ = [
+    "DualValue",
+    "LinearGaussianTKL",
+    "PseudoDataGP",
+    "TKLFit",
+    "fit_one_step",
+    "fit_trajectory_kl",
+    "gaussian_expected_features",
+    "gaussian_expected_features_vjp",
+    "one_step_log_likelihood",
+    "state_features",
+    "trajectory_kl_dual",
+    "trajectory_kl_objective",
+]
+
+#: A model's vector–Jacobian product: (∂L/∂mean (N, n), ∂L/∂var (N, n)) → ∂L/∂θ (P,).
+VJP = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+
+# --------------------------------------------------------------------------- features
+def _pairs(n: int, cross: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Index pairs (i, j) of the quadratic features: i ≤ j with ``cross``, else i = j."""
+    if cross:
+        i, j = np.triu_indices(n)
+        return i, j
+    return np.arange(n), np.arange(n)
+
+
+def state_features(x: ArrayLike, cross: bool = True) -> np.ndarray:
+    """Linear and quadratic state features φ(x) = [x, (x_i x_j)_{i ≤ j}] (Sec. 4.2.4, B.7).
+
+    Parameters
+    ----------
+    x : array_like, shape (..., n)
+        States.
+    cross : bool
+        Include the products x_i x_j, i < j (F = n + n(n+1)/2); otherwise only the squares
+        (F = 2n).
+
+    Returns
+    -------
+    ndarray, shape (..., F)
+    """
+    x = check_array(x, "x", ndim=(1, 2, 3))
+    i, j = _pairs(x.shape[-1], cross)
+    return np.concatenate([x, x[..., i] * x[..., j]], axis=-1)
+
+
+def gaussian_expected_features(mean: ArrayLike, var: ArrayLike, cross: bool = True) -> np.ndarray:
+    r"""ψ = E[φ(x′)] for x′ ~ N(μ, diag v), the features of :func:`state_features` (B.7).
+
+    .. math:: E[x'_i] = \mu_i, \qquad E[x'_i x'_j] = \mu_i \mu_j + \delta_{ij} v_i
+
+    Parameters
+    ----------
+    mean, var : array_like, shape (..., n)
+        Predictive mean μ and variances v ≥ 0 (independent output dimensions).
+    cross : bool
+        As :func:`state_features`.
+
+    Returns
+    -------
+    ndarray, shape (..., F)
+    """
+    mu = check_array(mean, "mean", ndim=(1, 2, 3))
+    v = check_array(var, "var", shape=mu.shape)
+    i, j = _pairs(mu.shape[-1], cross)
+    quad = mu[..., i] * mu[..., j] + np.where(i == j, v[..., i], 0.0)
+    return np.concatenate([mu, quad], axis=-1)
+
+
+def gaussian_expected_features_vjp(
+    mean: ArrayLike, grad_features: ArrayLike, cross: bool = True
+) -> tuple[np.ndarray, np.ndarray]:
+    r"""Gradient of L(ψ(μ, v)) in μ and v given ∂L/∂ψ, in closed form (B.7).
+
+    .. math:: \frac{\partial L}{\partial \mu_k} = g^{lin}_k + \sum_{(i,j)} g_{ij}
+              (\delta_{ik}\mu_j + \delta_{jk}\mu_i), \qquad
+              \frac{\partial L}{\partial v_k} = g_{kk}
+
+    (for a square, 2 μ_k g_kk: the thesis's ∂E[x_i²]/∂θ = 2 μ_i ∂μ_i/∂θ + ∂Σ_ii/∂θ).
+
+    Parameters
+    ----------
+    mean : array_like, shape (..., n)
+    grad_features : array_like, shape (..., F)
+        ∂L/∂ψ with F as in :func:`state_features`.
+    cross : bool
+
+    Returns
+    -------
+    grad_mean, grad_var : ndarray, shape (..., n)
+    """
+    mu = check_array(mean, "mean", ndim=(1, 2, 3))
+    n = mu.shape[-1]
+    i, j = _pairs(n, cross)
+    g = check_array(grad_features, "grad_features", shape=(*mu.shape[:-1], n + len(i)))
+    g_lin, g_quad = g[..., :n], g[..., n:]
+    sym = np.zeros((*mu.shape[:-1], n, n))
+    sym[..., i, j] += g_quad
+    sym[..., j, i] += g_quad  # the diagonal gets 2 g_kk
+    grad_mean = g_lin + np.einsum("...kj,...j->...k", sym, mu)
+    diag = i == j
+    grad_var = np.zeros_like(mu)
+    grad_var[..., i[diag]] = g_quad[..., diag]
+    return grad_mean, grad_var
+
+
+# --------------------------------------------------------------------------- the dual
+@dataclass(frozen=True)
+class DualValue:
+    """:func:`trajectory_kl_dual`'s result.
+
+    Attributes
+    ----------
+    value : float
+        g(γ, θ) of (4.16) (minus (λ/2) Σ ‖γ_t‖² with a ridge λ).
+    grad_gamma : ndarray, shape (T, F)
+        ∂g/∂γ_t: B.4 (t = 1) and B.5 (t > 1).
+    grad_predicted : ndarray, shape (T − 1, M, F)
+        ∂g/∂ψ_{i,t} = p_{t,i} γ_{t+1}; contracted with ∂ψ/∂θ it is B.6.
+    weights : ndarray, shape (T, M)
+        The marginals p_t(x_{i,t}) of (4.14) on the samples (each row sums to one).
+    """
+
+    value: float
+    grad_gamma: np.ndarray
+    grad_predicted: np.ndarray
+    weights: np.ndarray
+
+
+def _dual(gammas, features, predicted, phi_hat, ridge) -> DualValue:
+    """Unchecked core of :func:`trajectory_kl_dual`."""
+    T, M, _ = features.shape
+    a = np.einsum("tf,tmf->tm", gammas, features)
+    a[:-1] -= np.einsum("tf,tmf->tm", gammas[1:], predicted)
+    m = a.max(axis=1, keepdims=True)
+    z = np.exp(a - m)
+    total = z.sum(axis=1, keepdims=True)
+    p = z / total
+    log_mean = m[:, 0] + np.log(total[:, 0]) - math.log(M)
+    value = -log_mean.sum() + gammas[0] @ phi_hat - 0.5 * ridge * np.sum(gammas * gammas)
+    e_phi = np.einsum("tm,tmf->tf", p, features)
+    grad = -e_phi - ridge * gammas
+    grad[0] += phi_hat  # (B.4)
+    grad[1:] += np.einsum("tm,tmf->tf", p[:-1], predicted)  # (B.5)
+    grad_pred = p[:-1, :, None] * gammas[1:, None, :]  # (B.6) before ∂ψ/∂θ
+    return DualValue(float(value), grad, grad_pred, p)
+
+
+def trajectory_kl_dual(
+    gammas: ArrayLike,
+    features: ArrayLike,
+    predicted: ArrayLike,
+    phi_hat: ArrayLike | None = None,
+    ridge: float = 0.0,
+) -> DualValue:
+    r"""The sample-based dual (4.16), its gradients (B.4–B.6) and the marginals (4.14).
+
+    .. math::
+        g = -\sum_{t=1}^T \log \frac1M \sum_i \exp(a_{t,i}) + \gamma_1^\top\hat\phi
+            - \frac\lambda2 \sum_t \|\gamma_t\|^2, \quad
+        a_{t,i} = \gamma_t^\top\phi(x_{i,t}) - \gamma_{t+1}^\top \psi_{i,t}, \quad
+        a_{T,i} = \gamma_T^\top\phi(x_{i,T})
+
+    Parameters
+    ----------
+    gammas : array_like, shape (T, F)
+        Lagrange multipliers γ_1 … γ_T.
+    features : array_like, shape (T, M, F)
+        φ(x_{i,t}) of the observed states, time-major.
+    predicted : array_like, shape (T − 1, M, F)
+        ψ_{i,t} = E[φ(x′) | x_{i,t}, u_{i,t}; θ], t = 1 … T − 1.
+    phi_hat : array_like, shape (F,), optional
+        The observed initial feature average φ̂ of (4.9) (default: the mean of features[0]).
+    ridge : float
+        λ ≥ 0 (soft feature matching, see the module notes); 0 is (4.16) exactly.
+
+    Returns
+    -------
+    DualValue
+    """
+    phi = check_array(features, "features", ndim=3)
+    T, M, F = phi.shape
+    if T < 2:
+        raise ValueError(f"features: expected at least 2 time steps, got {T}")
+    g = check_array(gammas, "gammas", shape=(T, F))
+    psi = check_array(predicted, "predicted", shape=(T - 1, M, F))
+    ph = phi[0].mean(axis=0) if phi_hat is None else check_array(phi_hat, "phi_hat", shape=(F,))
+    lam = check_positive(ridge, "ridge", allow_zero=True)
+    return _dual(g, phi, psi, ph, lam)
+
+
+# --------------------------------------------------------------------------- model classes
+def _check_inputs(model, x, u) -> tuple[np.ndarray, np.ndarray]:
+    x = check_array(x, "x", shape=(None, model.state_dim))
+    u = check_array(u, "u", shape=(x.shape[0], model.control_dim))
+    return x, u
+
+
+class LinearGaussianTKL:
+    """x′ ~ N(A x + B u + c, diag σ²): θ = [vec A, vec B, c, log σ²] (row-major).
+
+    The model class where the feature constraints can hold exactly (Sec. 4.2.4): the
+    propagated mean and second moments of a linear-Gaussian system are again those of the
+    data-generating system when θ is the truth.
+
+    Parameters
+    ----------
+    state_dim, control_dim : int
+        n and m.
+    """
+
+    def __init__(self, state_dim: int, control_dim: int):
+        self.state_dim = check_count(state_dim, "state_dim")
+        self.control_dim = check_count(control_dim, "control_dim", minimum=0)
+        n, m = self.state_dim, self.control_dim
+        self.n_params = n * n + n * m + 2 * n
+
+    def pack(self, A: ArrayLike, B: ArrayLike, c: ArrayLike, var: ArrayLike) -> np.ndarray:
+        """θ from A (n, n), B (n, m), c (n,) and the noise variances σ² (n,) > 0."""
+        n, m = self.state_dim, self.control_dim
+        A = check_array(A, "A", shape=(n, n))
+        B = check_array(B, "B", shape=(n, m))
+        c = check_array(c, "c", shape=(n,))
+        v = check_array(var, "var", shape=(n,))
+        if np.any(v <= 0):
+            raise ValueError("var: expected positive noise variances")
+        return np.concatenate([A.ravel(), B.ravel(), c, np.log(v)])
+
+    def unpack(self, theta: ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(A, B, c, σ²) from θ."""
+        n, m = self.state_dim, self.control_dim
+        th = check_array(theta, "theta", shape=(self.n_params,))
+        A = th[: n * n].reshape(n, n)
+        B = th[n * n : n * n + n * m].reshape(n, m)
+        c = th[n * n + n * m : n * n + n * m + n]
+        return A, B, c, np.exp(th[-n:])
+
+    def moments(self, theta: ArrayLike, x: ArrayLike, u: ArrayLike):
+        """Predictive mean and variance, and their vector–Jacobian product in closed form.
+
+        Parameters
+        ----------
+        theta : array_like, shape (P,)
+        x : array_like, shape (N, n)
+        u : array_like, shape (N, m)
+
+        Returns
+        -------
+        mean, var : ndarray, shape (N, n)
+        vjp : callable
+            (∂L/∂mean, ∂L/∂var) → ∂L/∂θ: [Gᵀx, Gᵀu, Σ G, Σ_N H ⊙ σ²] with G = ∂L/∂mean,
+            H = ∂L/∂var.
+        """
+        A, B, c, v = self.unpack(theta)
+        x, u = _check_inputs(self, x, u)
+        mean = x @ A.T + u @ B.T + c
+        var = np.broadcast_to(v, mean.shape).copy()
+
+        def vjp(g_mean: np.ndarray, g_var: np.ndarray) -> np.ndarray:
+            return np.concatenate(
+                [(g_mean.T @ x).ravel(), (g_mean.T @ u).ravel(), g_mean.sum(0),
+                 g_var.sum(0) * v]
+            )  # fmt: skip
+
+        return mean, var, vjp
+
+    def init_theta(self, x, u, x_next, rng=None) -> np.ndarray:
+        """Least squares on [x, u, 1] and the residual variances (the one-step ML fit)."""
+        x, u = _check_inputs(self, x, u)
+        y = check_array(x_next, "x_next", shape=x.shape)
+        z1 = np.hstack([x, u, np.ones((x.shape[0], 1))])
+        w, *_ = np.linalg.lstsq(z1, y, rcond=None)
+        res = y - z1 @ w
+        n, m = self.state_dim, self.control_dim
+        var = np.maximum(np.mean(res**2, axis=0), 1e-12)
+        return self.pack(w[:n].T, w[n : n + m].T, w[-1], var)
+
+    def __repr__(self) -> str:
+        return f"LinearGaussianTKL(state_dim={self.state_dim}, control_dim={self.control_dim})"
+
+
+class PseudoDataGP:
+    r"""A FITC GP whose pseudo-inputs Z and pseudo-targets U are parameters (Sec. 4.2.4).
+
+    Per output e, with z = [x, u] and the squared-exponential kernel k_e (Eq. 2.25,
+    :func:`~skillkit.models.kernels.se_kernel`), the prediction is the FITC conditional
+    p(y | z, U) (Snelson & Ghahramani's likelihood of a target given the pseudo-targets):
+
+    .. math::
+        \mu_e(z) = m_e(z) + k_e(z, Z_e) K_e^{-1} U_e, \qquad
+        v_e(z) = \sigma_{f,e}^2 - k_e(z, Z_e) K_e^{-1} k_e(Z_e, z) + \sigma_{\varepsilon,e}^2,
+
+    K_e = k_e(Z_e, Z_e) + jitter·σ_f² I. In standard FITC the pseudo-targets are integrated
+    out; here they are parameters, so the training data themselves are θ — the model class
+    the thesis proposes for trajectory-KL training of GPs. θ = [Z (E·M·d), U (E·M),
+    log w (E·d), log σ_f² (E), log σ_ε² (E)] (log parameters, App. B.1). The prior mean
+    m(z) = [z, 1] W is fixed (not trained): ``mean_weights`` W, default x (Δx targets, the
+    state persists), or e.g. a least-squares linear fit of the data.
+
+    The moments' vector–Jacobian product comes from torch autograd (B.8/B.9's terms for this
+    parametrisation); the dual's part (B.4–B.7) is closed form.
+
+    Parameters
+    ----------
+    state_dim, control_dim : int
+        n (= E, the outputs) and m.
+    n_inducing : int
+        M pseudo-inputs per output.
+    mean_weights : array_like, shape (n + m + 1, n), optional
+        W of the prior mean.
+    jitter : float
+        Relative jitter on K (default 1e-6).
+    """
+
+    def __init__(
+        self,
+        state_dim: int,
+        control_dim: int,
+        n_inducing: int,
+        mean_weights: ArrayLike | None = None,
+        jitter: float = 1e-6,
+    ):
+        self.state_dim = check_count(state_dim, "state_dim")
+        self.control_dim = check_count(control_dim, "control_dim", minimum=0)
+        self.n_inducing = check_count(n_inducing, "n_inducing")
+        n, d = self.state_dim, self.state_dim + self.control_dim
+        if mean_weights is None:
+            W = np.zeros((d + 1, n))
+            W[:n] = np.eye(n)
+        else:
+            W = check_array(mean_weights, "mean_weights", shape=(d + 1, n))
+        self.mean_weights = W
+        self.jitter = check_positive(jitter, "jitter")
+        E, M = n, self.n_inducing
+        self._sizes = (E * M * d, E * M, E * d, E, E)
+        self.n_params = int(sum(self._sizes))
+
+    def split(self, theta: ArrayLike) -> dict[str, np.ndarray]:
+        """θ's parts: ``Z`` (E, M, d), ``U`` (E, M), ``log_w`` (E, d), ``log_sf2``,
+        ``log_sn2`` (E,)."""
+        th = check_array(theta, "theta", shape=(self.n_params,))
+        E, M, d = self.state_dim, self.n_inducing, self.state_dim + self.control_dim
+        parts = np.split(th, np.cumsum(self._sizes)[:-1])
+        shapes = ((E, M, d), (E, M), (E, d), (E,), (E,))
+        names = ("Z", "U", "log_w", "log_sf2", "log_sn2")
+        return {k: p.reshape(s) for k, p, s in zip(names, parts, shapes, strict=True)}
+
+    def _torch_moments(self, th: torch.Tensor, z: torch.Tensor):
+        E, M, d = self.state_dim, self.n_inducing, self.state_dim + self.control_dim
+        Z, U, log_w, log_sf2, log_sn2 = torch.split(th, self._sizes)
+        Z, U, w = Z.reshape(E, M, d), U.reshape(E, M), torch.exp(log_w).reshape(E, 1, d)
+        sf2, sn2 = torch.exp(log_sf2), torch.exp(log_sn2)
+        eye = torch.eye(M, dtype=th.dtype)
+        K = se_kernel(Z, Z, w, sf2) + (self.jitter * sf2)[:, None, None] * eye
+        L = torch.linalg.cholesky(K)
+        Kzm = se_kernel(z.expand(E, *z.shape), Z, w, sf2)  # (E, N, M)
+        V = torch.linalg.solve_triangular(L, Kzm.transpose(1, 2), upper=False)  # (E, M, N)
+        alpha = torch.cholesky_solve(U[..., None], L)  # (E, M, 1)
+        W = torch.as_tensor(self.mean_weights, dtype=th.dtype)
+        prior = torch.cat([z, torch.ones_like(z[:, :1])], 1) @ W  # (N, E)
+        mean = prior + (Kzm @ alpha)[..., 0].T
+        var = (sf2[:, None] - (V * V).sum(1)).clamp_min(0.0).T + sn2
+        return mean, var
+
+    def moments(self, theta: ArrayLike, x: ArrayLike, u: ArrayLike):
+        """Predictive mean and variance (N, n) and their vector–Jacobian product.
+
+        Parameters
+        ----------
+        theta : array_like, shape (P,)
+        x : array_like, shape (N, n)
+        u : array_like, shape (N, m)
+
+        Returns
+        -------
+        mean, var : ndarray, shape (N, n)
+        vjp : callable
+            (∂L/∂mean, ∂L/∂var) → ∂L/∂θ (torch autograd through the formulas above).
+        """
+        th = torch.tensor(check_array(theta, "theta", shape=(self.n_params,)), requires_grad=True)
+        x, u = _check_inputs(self, x, u)
+        z = torch.as_tensor(np.hstack([x, u]))
+        mean, var = self._torch_moments(th, z)
+
+        def vjp(g_mean: np.ndarray, g_var: np.ndarray) -> np.ndarray:
+            (g,) = torch.autograd.grad(
+                (mean, var), th, (torch.as_tensor(g_mean), torch.as_tensor(g_var)),
+                retain_graph=True,
+            )  # fmt: skip
+            return g.numpy().copy()
+
+        return mean.detach().numpy(), var.detach().numpy(), vjp
+
+    def init_theta(self, x, u, x_next, rng=None) -> np.ndarray:
+        """A starting θ: Z by k-means++ on the standardised inputs (shared by the outputs),
+        w = the inputs' standard deviations, σ_f² = the residual variance of the prior mean,
+        σ_ε² = σ_f²/10, and U by least squares of the residuals given those (U enters the mean
+        linearly)."""
+        x, u = _check_inputs(self, x, u)
+        y = check_array(x_next, "x_next", shape=x.shape)
+        z = np.hstack([x, u])
+        N, d = z.shape
+        E, M = self.state_dim, self.n_inducing
+        if M > N:
+            raise ValueError(f"n_inducing: expected at most {N} (the transitions), got {M}")
+        sd = np.where(z.std(0) > 0, z.std(0), 1.0)
+        idx = kmeans_pp(z / sd, M, as_generator(rng))
+        res = y - np.hstack([z, np.ones((N, 1))]) @ self.mean_weights
+        sf2 = np.maximum(res.var(0), 1e-10)
+        th = np.concatenate(
+            [np.broadcast_to(z[idx], (E, M, d)).ravel(), np.zeros(E * M),
+             np.broadcast_to(np.log(sd), (E, d)).ravel(), np.log(sf2), np.log(sf2 / 10)]
+        )  # fmt: skip
+        # U by least squares: μ − m = Kzm K⁻¹ U is linear in U (K⁻¹U = α).
+        p = self.split(th)
+        w, lsf = np.exp(p["log_w"]), p["log_sf2"]
+        for e in range(E):
+            k = np.exp(lsf[e] - 0.5 * (((z[:, None, :] - p["Z"][e][None]) / w[e]) ** 2).sum(-1))
+            Km = np.exp(lsf[e] - 0.5 * (((p["Z"][e][:, None] - p["Z"][e][None]) / w[e]) ** 2)
+                        .sum(-1)) + self.jitter * np.exp(lsf[e]) * np.eye(M)  # fmt: skip
+            reg = 1e-6 * np.trace(k.T @ k) / M * np.eye(M)
+            alpha = np.linalg.solve(k.T @ k + reg, k.T @ res[:, e])
+            p["U"][e] = Km @ alpha
+        return np.concatenate([p[k].ravel() for k in ("Z", "U", "log_w", "log_sf2", "log_sn2")])
+
+    def __repr__(self) -> str:
+        return (
+            f"PseudoDataGP(state_dim={self.state_dim}, control_dim={self.control_dim}, "
+            f"n_inducing={self.n_inducing})"
+        )
+
+
+Model = LinearGaussianTKL | PseudoDataGP
+
+
+# --------------------------------------------------------------------------- training
+@dataclass(frozen=True)
+class TKLFit:
+    """A trained θ and what the optimisation says.
+
+    Attributes
+    ----------
+    theta : ndarray, shape (P,)
+    objective : float
+        The final objective: the negative mean one-step log-likelihood per transition
+        (:func:`fit_one_step`) or D(θ) = max_γ g (:func:`fit_trajectory_kl`, nats summed over
+        time steps).
+    n_iterations : int
+        Outer L-BFGS iterations.
+    message : str
+        The optimiser's message.
+    gammas : ndarray, shape (T, F) or (0, 0)
+        γ*(θ) (trajectory-KL only).
+    weights : ndarray, shape (T, M) or (0, 0)
+        The marginals (4.14) at the solution (trajectory-KL only).
+    kl : ndarray, shape (T,) or (0,)
+        KL(p_t ‖ q_t) = Σ_i p_{t,i} log(M p_{t,i}) per step (trajectory-KL only).
+    feature_residual : float
+        max_t ‖E_{p_t} φ − E_{p_{t−1}} ψ‖_∞ in standardised feature units (the constraint
+        4.12 residual; λ γ_t with a ridge λ; trajectory-KL only, else NaN).
+    """
+
+    theta: np.ndarray
+    objective: float
+    n_iterations: int
+    message: str
+    gammas: np.ndarray
+    weights: np.ndarray
+    kl: np.ndarray
+    feature_residual: float
+
+
+def one_step_log_likelihood(model: Model, theta, x, u, x_next) -> float:
+    """Mean log N(x′ | μ(x, u), diag v(x, u)) per transition (nats; summed over dimensions;
+    −inf when a predicted variance underflows to 0).
+
+    Parameters
+    ----------
+    model : LinearGaussianTKL or PseudoDataGP
+    theta : array_like, shape (P,)
+    x, u, x_next : array_like, shapes (N, n), (N, m), (N, n)
+    """
+    mean, var, _ = model.moments(theta, x, u)
+    y = check_array(x_next, "x_next", shape=mean.shape)
+    with np.errstate(divide="ignore", invalid="ignore"):  # a variance of 0 gives −inf
+        ll = -0.5 * np.mean(np.sum(np.log(2 * np.pi * var) + (y - mean) ** 2 / var, 1))
+    return float(ll) if np.isfinite(ll) else -math.inf
+
+
+def _lbfgs(fun, theta0, maxiter):
+    return optimize.minimize(
+        fun, theta0, jac=True, method="L-BFGS-B",
+        options={"maxiter": int(maxiter), "maxcor": 30, "ftol": 1e-12, "gtol": 1e-8},
+    )  # fmt: skip
+
+
+def fit_one_step(model: Model, theta0, x, u, x_next, maxiter: int = 200) -> TKLFit:
+    """One-step maximum likelihood: maximise Σ_n log N(x′_n | μ(z_n), diag v(z_n)) over θ.
+
+    The usual training of a forward model (the likelihood of the transitions, Sec. 4.2.4's
+    starting point). L-BFGS with the gradient ∂/∂μ = (μ − x′)/v, ∂/∂v = (1/v − (x′−μ)²/v²)/2
+    through the model's vector–Jacobian product.
+
+    Parameters
+    ----------
+    model : LinearGaussianTKL or PseudoDataGP
+    theta0 : array_like, shape (P,)
+    x, u, x_next : array_like, shapes (N, n), (N, m), (N, n)
+    maxiter : int
+
+    Returns
+    -------
+    TKLFit
+    """
+    th0 = check_array(theta0, "theta0", shape=(model.n_params,))
+    x, u = _check_inputs(model, x, u)
+    y = check_array(x_next, "x_next", shape=x.shape)
+    N = x.shape[0]
+
+    def fun(th):
+        try:
+            mean, var, vjp = model.moments(th, x, u)
+        except (torch.linalg.LinAlgError, ValueError, RuntimeError):
+            return np.inf, np.zeros_like(th)
+        r = y - mean
+        value = 0.5 * np.sum(np.log(2 * np.pi * var) + r * r / var) / N
+        g_mean = -r / var / N
+        g_var = 0.5 * (1.0 / var - r * r / var**2) / N
+        return value, vjp(g_mean, g_var)
+
+    res = _lbfgs(fun, th0, maxiter)
+    empty = np.zeros((0, 0))
+    return TKLFit(res.x, float(res.fun), int(res.nit), str(res.message), empty, empty,
+                  np.zeros(0), float("nan"))  # fmt: skip
+
+
+def _check_trajectories(model, states, controls):
+    X = check_array(states, "states", ndim=3)
+    M, T, n = X.shape
+    if n != model.state_dim:
+        raise ValueError(f"states: expected {model.state_dim} state dimensions, got {n}")
+    if T < 2:
+        raise ValueError(f"states: expected at least 2 time steps, got {T}")
+    U = check_array(controls, "controls", shape=(M, T - 1, model.control_dim))
+    return X, U
+
+
+def trajectory_kl_objective(
+    model: Model,
+    theta: ArrayLike,
+    states: ArrayLike,
+    controls: ArrayLike,
+    gammas0: ArrayLike | None = None,
+    cross: bool = True,
+    ridge: float = 0.0,
+    inner_maxiter: int = 100,
+) -> tuple[float, np.ndarray, DualValue, np.ndarray]:
+    """D(θ) = max_γ g(γ, θ) and ∇D(θ) (B.6 at γ*, Danskin), for one θ.
+
+    Parameters
+    ----------
+    model : LinearGaussianTKL or PseudoDataGP
+    theta : array_like, shape (P,)
+    states : array_like, shape (M, T, n)
+        Observed trajectories x_{i,1..T} (trajectory-major).
+    controls : array_like, shape (M, T − 1, m)
+        The controls u_{i,t} applied between them.
+    gammas0 : array_like, shape (T, F), optional
+        Starting multipliers (default 0).
+    cross, ridge : as :func:`state_features`, :func:`trajectory_kl_dual`.
+    inner_maxiter : int
+        Newton iterations of the inner maximisation.
+
+    Returns
+    -------
+    value : float
+    grad : ndarray, shape (P,)
+    dual : DualValue or None
+        At γ*(θ); None when the hard constraints are infeasible (value = +inf, grad = 0).
+    gammas : ndarray, shape (T, F)
+    """
+    X, U = _check_trajectories(model, states, controls)
+    th = check_array(theta, "theta", shape=(model.n_params,))
+    prob = _Problem(model, X, U, cross, check_positive(ridge, "ridge", allow_zero=True))
+    g0 = None if gammas0 is None else check_array(gammas0, "gammas0", shape=prob.gamma_shape)
+    return prob.evaluate(th, g0, check_count(inner_maxiter, "inner_maxiter"))
+
+
+class _Infeasible(Exception):
+    """The inner maximum exceeds T log M: the hard constraints cannot hold (D(θ) = +∞)."""
+
+
+def _newton_max(features, predicted, phi_hat, ridge, gammas0, maxiter, tol=1e-12):
+    """max_γ g(γ) by damped Newton steps with a backtracking line search.
+
+    The Hessian of g is block-tridiagonal in time: term t of (4.16) is a log-sum-exp of
+    a_{t,i} = [γ_t; γ_{t+1}]ᵀ [φ_{t,i}; −ψ_{t,i}], whose Hessian is minus the p_t-weighted
+    covariance of [φ_{t,i}; −ψ_{t,i}]. It is assembled densely (T F × T F) and solved by
+    Cholesky with a small relative damping. Stops when the Newton decrement ∇gᵀΔ falls below
+    ``tol`` (nats). Raises :class:`_Infeasible` when g exceeds T log M (λ = 0).
+    """
+    T, M, F = features.shape
+    bound = T * math.log(M)
+    gam = gammas0.copy()
+    d = _dual(gam, features, predicted, phi_hat, ridge)
+    for _ in range(maxiter):
+        if ridge == 0.0 and d.value > bound:
+            raise _Infeasible
+        H = np.zeros((T * F, T * F))
+        for t in range(T):
+            v = features[t] if t == T - 1 else np.hstack([features[t], -predicted[t]])
+            p = d.weights[t]
+            mean = p @ v
+            cov = (v * p[:, None]).T @ v - np.outer(mean, mean)
+            k = v.shape[1]
+            H[t * F : t * F + k, t * F : t * F + k] += cov
+        H[np.diag_indices_from(H)] += ridge
+        grad = d.grad_gamma.ravel()
+        scale = max(float(np.mean(np.diag(H))), 1e-300)
+        damping = 1e-12 * scale
+        while True:
+            L, ok = _cholesky(H, damping)
+            if ok:
+                break
+            damping *= 100.0
+            if damping > scale:
+                raise _Infeasible
+        step = _cho_solve(L, grad)
+        decrement = float(grad @ step)
+        if decrement < tol:
+            break
+        alpha = 1.0
+        while alpha > 1e-10:
+            trial = gam + alpha * step.reshape(T, F)
+            new = _dual(trial, features, predicted, phi_hat, ridge)
+            if new.value >= d.value + 1e-4 * alpha * decrement:
+                break
+            alpha *= 0.5
+        else:
+            break  # no ascent along the Newton direction: round-off level
+        gam, d = trial, new
+    if ridge == 0.0 and d.value > bound:
+        raise _Infeasible
+    return gam
+
+
+def _cholesky(H: np.ndarray, damping: float):
+    """(L, ok) of H + damping I (ok False when not positive definite)."""
+    try:
+        return np.linalg.cholesky(H + damping * np.eye(H.shape[0])), True
+    except np.linalg.LinAlgError:
+        return None, False
+
+
+def _cho_solve(L: np.ndarray, b: np.ndarray) -> np.ndarray:
+    from scipy.linalg import cho_solve
+
+    return cho_solve((L, True), b)
+
+
+class _Problem:
+    """The standardised features of a data set and the nested evaluation of D(θ).
+
+    Infeasibility is detected exactly: with λ = 0 and feasible constraints, max_γ g = min_p
+    Σ_t KL(p_t ‖ q_t) ≤ T log M (a reweighting of M samples is at most log M from uniform),
+    so any γ with g(γ) > T log M proves D(θ) = +∞ (weak duality) and stops the inner solve.
+    """
+
+    def __init__(self, model, X, U, cross, ridge):
+        self.model, self.cross, self.ridge = model, cross, ridge
+        M, T, n = X.shape
+        self.M, self.T = M, T
+        phi = state_features(X, cross)  # (M, T, F)
+        self.loc = phi.reshape(-1, phi.shape[-1]).mean(0)
+        sd = phi.reshape(-1, phi.shape[-1]).std(0)
+        self.scale = np.where(sd > 0, sd, 1.0)
+        self.features = ((phi - self.loc) / self.scale).transpose(1, 0, 2)  # (T, M, F)
+        self.x = X[:, :-1].transpose(1, 0, 2).reshape(-1, n)  # (T−1)·M rows, time-major
+        self.u = U.transpose(1, 0, 2).reshape(-1, U.shape[-1])
+        self.gamma_shape = (T, phi.shape[-1])
+
+    def evaluate(self, theta, gammas0, inner_maxiter):
+        T, M = self.T, self.M
+        mean, var, vjp = self.model.moments(theta, self.x, self.u)
+        psi = gaussian_expected_features(mean, var, self.cross)
+        psi = ((psi - self.loc) / self.scale).reshape(T - 1, M, -1)
+        phi_hat = self.features[0].mean(0)
+
+        zero = np.zeros(self.gamma_shape)
+        try:
+            gammas = _newton_max(self.features, psi, phi_hat, self.ridge,
+                                 zero if gammas0 is None else gammas0, inner_maxiter)  # fmt: skip
+            if gammas0 is not None and not _dual(gammas, self.features, psi, phi_hat,
+                                                 self.ridge).value >= 0.0:  # fmt: skip
+                gammas = _newton_max(self.features, psi, phi_hat, self.ridge, zero, inner_maxiter)
+        except _Infeasible:
+            return math.inf, np.zeros(self.model.n_params), None, zero
+        d = _dual(gammas, self.features, psi, phi_hat, self.ridge)
+        g_psi = (d.grad_predicted / self.scale).reshape(-1, psi.shape[-1])
+        g_mean, g_var = gaussian_expected_features_vjp(mean, g_psi, self.cross)
+        return d.value, vjp(g_mean, g_var), d, gammas
+
+
+def fit_trajectory_kl(
+    model: Model,
+    theta0: ArrayLike,
+    states: ArrayLike,
+    controls: ArrayLike,
+    cross: bool = True,
+    ridge: float = 0.0,
+    maxiter: int = 100,
+    inner_maxiter: int = 100,
+    first_step: float = 1e-3,
+) -> TKLFit:
+    """Trajectory-KL training: min_θ max_γ g(γ, θ) of (4.16) (see the module notes).
+
+    The outer L-BFGS over θ evaluates D(θ) by the inner Newton maximisation over γ
+    (warm-started from the previous evaluation's γ*) and its gradient by B.6 with B.7's
+    closed form and the model's vector–Jacobian product.
+
+    Parameters
+    ----------
+    model : LinearGaussianTKL or PseudoDataGP
+    theta0 : array_like, shape (P,)
+        Start (e.g. the one-step ML fit).
+    states : array_like, shape (M, T, n)
+        Observed trajectories.
+    controls : array_like, shape (M, T − 1, m)
+        Their controls.
+    cross : bool
+        Quadratic features with products (see :func:`state_features`).
+    ridge : float
+        λ ≥ 0 of :func:`trajectory_kl_dual`.
+    maxiter, inner_maxiter : int
+        L-BFGS iterations of the outer problem, Newton iterations of the inner one.
+    first_step : float
+        Largest length s of the outer optimiser's first trial step in θ (θ = θ₀ + s y,
+        L-BFGS on y); s is divided by 4 (up to 20 times) until the steepest-descent step of
+        length s lowers D. A unit first step typically leaves the feasible region, where
+        D = +∞ and the line search would stall at θ₀.
+
+    Returns
+    -------
+    TKLFit
+    """
+    X, U = _check_trajectories(model, states, controls)
+    th0 = check_array(theta0, "theta0", shape=(model.n_params,))
+    prob = _Problem(model, X, U, cross, check_positive(ridge, "ridge", allow_zero=True))
+    inner = check_count(inner_maxiter, "inner_maxiter")
+    warm = {"gammas": None}
+
+    def fun(y):
+        th = th0 + step * y
+        try:
+            value, grad, _, gammas = prob.evaluate(th, warm["gammas"], inner)
+        except (torch.linalg.LinAlgError, ValueError):
+            return np.inf, np.zeros_like(th)
+        if not (np.isfinite(value) and np.all(np.isfinite(grad))):
+            return np.inf, np.zeros_like(th)
+        warm["gammas"] = gammas
+        return value, step * grad
+
+    # θ = θ₀ + s y: L-BFGS's first trial step has unit length in y, i.e. length s in θ, so
+    # it stays in the region where the constraints are feasible (D(θ) < ∞) near θ₀.
+    step = check_positive(first_step, "first_step")
+    start = prob.evaluate(th0, None, inner)
+    if not np.isfinite(start[0]):
+        T, M = prob.T, prob.M
+        return TKLFit(th0, math.inf, 0, "infeasible at theta0: the feature constraints (4.12) "
+                      "cannot hold on these samples (D = +inf); theta0 returned",
+                      start[3], np.full((T, M), 1.0 / M), np.full(T, np.nan), math.inf)  # fmt: skip
+    warm["gammas"] = start[3]
+    # Shrink s until the steepest-descent step of length s lowers D (stays feasible).
+    direction = -start[1] / max(float(np.linalg.norm(start[1])), 1e-300)
+    for _ in range(20):
+        if prob.evaluate(th0 + step * direction, start[3], inner)[0] < start[0]:
+            break
+        step *= 0.25
+    res = _lbfgs(fun, np.zeros_like(th0), check_count(maxiter, "maxiter"))
+    theta = th0 + step * res.x
+    value, _, d, gammas = prob.evaluate(theta, warm["gammas"], inner)
+    if d is None:  # the optimiser ended on an infeasible point: keep θ₀ (feasible)
+        theta, (value, _, d, gammas) = th0, start
+    p = d.weights
+    kl = np.sum(np.where(p > 0, p * np.log(np.maximum(p * prob.M, 1e-300)), 0.0), axis=1)
+    resid = float(np.max(np.abs(d.grad_gamma + prob.ridge * gammas)))
+    return TKLFit(theta, float(value), int(res.nit), str(res.message), gammas, p, kl, resid)

@@ -44,7 +44,7 @@ Usage::
 
     OMP_NUM_THREADS=1 python benchmarks/bench_gpreps.py [--task throwing|balancing]
         [--artificial 500] [--trajectories 25] [--initial-rollouts 10|20] [--inducing 50|100]
-        [--threads 1 2] [--device cpu|cuda] [--repeats 1]
+        [--threads 1 2] [--dtype float64 float32] [--device cpu|cuda] [--repeats 1]
 
 Throwing, measured on the 2-CPU x86_64 VM (Linux 6.18, torch 2.13.0+cpu, ``OMP_NUM_THREADS=1``,
 nothing else running), load average 0.40 before, 1.18 after,
@@ -128,18 +128,20 @@ def real_throws(task, n: int, seed: int) -> Batch:
     return Batch(s, w, rewards, trajs)
 
 
-def one_update(task, batch: Batch, args: argparse.Namespace) -> dict[str, float]:
-    """Wall times of one GPREPS update from a fresh GPREPS (seeded by ``args.seed``)."""
+def one_update(task, batch: Batch, args: argparse.Namespace, dtype: torch.dtype) -> dict:
+    """Wall times of one GPREPS update from a fresh GPREPS (seeded by ``args.seed``), its
+    trajectories sampled in ``dtype``."""
     if args.task == "throwing":
         model = ThrowingRewardModel(
             task,
             make_robot_model=_FITCForwardModel(args.inducing),
             max_robot_points=1000,
             device=args.device,
+            dtype=dtype,
         )
     else:
         model = TrajectoryRewardModel(
-            task, make_model=_FITCForwardModel(args.inducing), device=args.device
+            task, make_model=_FITCForwardModel(args.inducing), device=args.device, dtype=dtype
         )
     settings = GPREPSSettings(
         n_artificial=args.artificial,
@@ -178,6 +180,13 @@ def main() -> None:
         "--inducing", type=int, default=None, help="FITC pseudo-inputs M_ind (50 / 100)"
     )
     parser.add_argument("--threads", type=int, nargs="+", default=[1, 2])
+    parser.add_argument(
+        "--dtype",
+        choices=["float64", "float32"],
+        nargs="+",
+        default=["float64", "float32"],
+        help="precision of the sampled trajectories (float32: the sampler's faster path)",
+    )
     parser.add_argument("--device", choices=["cpu", "cuda"], default="cpu")
     parser.add_argument("--repeats", type=int, default=1)
     parser.add_argument("--seed", type=int, default=0)
@@ -233,43 +242,53 @@ def main() -> None:
         print(f"  (M < {SMALL_M}: the policy fit's effective-sample-size check is relaxed to 1)")
 
     before = torch.get_num_threads()
-    runs: dict[int, list[dict[str, float]]] = {th: [] for th in args.threads}
+    keys = [(th, dt) for th in args.threads for dt in args.dtype]
+    runs: dict[tuple[int, str], list[dict[str, float]]] = {k: [] for k in keys}
     try:
-        for _ in range(args.repeats):  # interleaved, so load drift hits every thread count
-            for th in runs:
+        for _ in range(args.repeats):  # interleaved, so load drift hits every variant
+            for th, dt in keys:
                 torch.set_num_threads(th)
-                runs[th].append(one_update(task, batch, args))
+                runs[th, dt].append(one_update(task, batch, args, getattr(torch, dt)))
     finally:
         torch.set_num_threads(before)
-    results = {th: min(rs, key=lambda r: r["total"]) for th, rs in runs.items()}
+    results = {k: min(rs, key=lambda r: r["total"]) for k, rs in runs.items()}
 
     steps = args.artificial * args.trajectories * horizon
     print()
     print(
-        f"{'threads':>7}  {'training':>9}  {'prediction':>10}  {'policy':>8}  {'total':>8}  "
-        f"{'traj-steps/s':>12}  {'GP iters':>8}"
+        f"{'threads':>7}  {'dtype':>7}  {'training':>9}  {'prediction':>10}  {'policy':>8}  "
+        f"{'total':>8}  {'traj-steps/s':>12}  {'GP iters':>8}"
     )
-    for th, r in results.items():
+    for (th, dt), r in results.items():
         print(
-            f"{th:>7}  {r['training']:8.2f}s  {r['prediction']:9.2f}s  {r['policy']:7.3f}s  "
-            f"{r['total']:7.2f}s  {steps / r['prediction']:12.3g}  {r['iterations']!s:>8}"
+            f"{th:>7}  {dt:>7}  {r['training']:8.2f}s  {r['prediction']:9.2f}s  "
+            f"{r['policy']:7.3f}s  {r['total']:7.2f}s  {steps / r['prediction']:12.3g}  "
+            f"{r['iterations']!s:>8}"
         )
     if args.repeats > 1:
-        for th, rs in runs.items():
+        for (th, dt), rs in runs.items():
             print(
-                f"{th} thread(s), totals of all repeats: "
+                f"{th} thread(s), {dt}, totals of all repeats: "
                 + ", ".join(f"{r['total']:.2f}s" for r in rs)
             )
-    if len(results) > 1:
-        lo, hi = min(results), max(results)
-        base, other = results[lo], results[hi]
-        print(
-            f"\nratio {hi} / {lo} threads (time): "
-            + ", ".join(
-                f"{k} {other[k] / base[k]:.2f}"
-                for k in ("training", "prediction", "policy", "total")
+    for dt in args.dtype:
+        if len(args.threads) > 1:
+            lo, hi = min(args.threads), max(args.threads)
+            base, other = results[lo, dt], results[hi, dt]
+            print(
+                f"\n{dt}: ratio {hi} / {lo} threads (time): "
+                + ", ".join(
+                    f"{k} {other[k] / base[k]:.2f}"
+                    for k in ("training", "prediction", "policy", "total")
+                )
             )
-        )
+    if len(args.dtype) > 1:
+        for th in args.threads:
+            a, b = results[th, "float64"], results[th, "float32"]
+            print(
+                f"{th} thread(s): float32 / float64 (time): prediction "
+                f"{b['prediction'] / a['prediction']:.2f}, total {b['total'] / a['total']:.2f}"
+            )
     print("load average after: " + " ".join(f"{x:.2f}" for x in os.getloadavg()))
 
 

@@ -41,6 +41,7 @@ import numpy as np
 
 from skillkit.experiments.registry import Experiment, Series, Verdict, fmt, register, with_verdict
 from skillkit.experiments.settings import Settings, setting
+from skillkit.experiments.store import _flatten
 from skillkit.models.trajectory_kl import (
     LinearGaussianTKL,
     PseudoDataGP,
@@ -433,21 +434,8 @@ def run_trial(st: TrajectoryKLSettings, rng: np.random.Generator, trial: TrialCo
     return _flatten(done)
 
 
-def _flatten(tree: dict, prefix: str = "") -> dict:
-    """``{"a": {"b": x}}`` → ``{"a.b": x}`` (flat per-trial numbers and arrays, which the
-    runner stores in ``trials.npz``)."""
-    out: dict = {}
-    for key, value in tree.items():
-        name = f"{prefix}{key}"
-        if isinstance(value, dict):
-            out.update(_flatten(value, name + "."))
-        else:
-            out[name] = value
-    return out
-
-
 def _unflatten(flat: dict) -> dict:
-    """The inverse of :func:`_flatten`."""
+    """The inverse of :func:`skillkit.experiments.store._flatten`."""
     tree: dict = {}
     for name, value in flat.items():
         *path, leaf = name.split(".")

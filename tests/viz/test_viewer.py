@@ -399,8 +399,10 @@ def test_cli_serves_until_interrupted_and_frees_the_port(tmp_path, history_file)
         assert f"http://127.0.0.1:{port}/" in lines[-1]
         assert http_status(f"http://127.0.0.1:{port}/") == 200
         proc.send_signal(signal.SIGINT)
-        assert proc.wait(timeout=60) == 0
-        output = "".join(lines) + proc.stdout.read() + proc.stderr.read()
+        # communicate drains both pipes while waiting: a full stderr pipe cannot block the exit
+        out, err = proc.communicate(timeout=60)
+        assert proc.returncode == 0, err
+        output = "".join(lines) + out + err
         assert "viser" not in output, output  # no banner, no "Server stopped" (no --verbose)
     finally:
         if proc.poll() is None:

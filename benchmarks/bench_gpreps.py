@@ -58,6 +58,18 @@ transitions, 150 optimiser iterations per GP)::
     totals of all repeats: 1 thread 24.48, 24.16 s; 2 threads 17.75, 16.36 s
     ratio 2 / 1 threads (time): training 0.82, prediction 0.60, policy 0.99, total 0.68
 
+After issues #16 and #18 (x′ robot model, ``--dtype``), run by ``bench_prediction.py`` while
+another job held one of the two cores (load 2.9 before, 2.8 after; 2-thread rows inflated)::
+
+    threads    dtype   training  prediction    policy     total  traj-steps/s  GP iters
+          1  float64     12.53s      25.54s    0.007s    38.08s      6.07e+04       150
+          1  float32     12.30s      17.02s    0.006s    29.33s      9.11e+04       150
+          2  float64     30.33s      36.83s    0.004s    67.16s      4.21e+04       150
+          2  float32     27.17s      27.55s    0.004s    54.73s      5.63e+04       150
+
+float32 is not usable on these models: the sampler's precision check warns (robot 3–5% of a
+predictive std, flight 19–26%, and ~3.8e5 negative flight variances clamped).
+
 The thesis reports up to half an hour per throwing update on a CPU (under a minute on a GPU).
 The prediction includes the 250-step ball flight of all 12,500 throws.
 

@@ -367,6 +367,10 @@ def test_cli_bad_input_gives_one_line_and_exit_code_2(tmp_path, capsys):
         assert code == 2 and f"port {port}" in err and "in use" in err
 
 
+def _default_sigint() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def test_cli_serves_until_interrupted_and_frees_the_port(tmp_path, history_file):
     port = free_port()
     env = dict(os.environ, PYTHONUNBUFFERED="1")
@@ -388,6 +392,9 @@ def test_cli_serves_until_interrupted_and_frees_the_port(tmp_path, history_file)
         stderr=subprocess.PIPE,
         text=True,
         env=env,
+        # the default SIGINT action in the child, whatever the test process inherited or set
+        # (an ignored SIGINT is inherited across exec, and Python then installs no handler)
+        preexec_fn=_default_sigint,
     )
     try:
         deadline = time.monotonic() + 120

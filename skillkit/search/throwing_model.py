@@ -387,10 +387,13 @@ class ThrowingRewardModel:
         # drawn from a Gaussian μ̂(s) may lie outside the task's range).
         x0 = np.broadcast_to(task.initial_states(task.context_low, 1), (B, L, 8))
         dtype = self.dtype
-        accel = task.acceleration_controller(w, device=device, dtype=dtype)
-        arm = sample_trajectories(self.robot, x0, accel, T - 1, L, rng, device=device, dtype=dtype)
+        accel = task.acceleration_controller(w, device=device)  # float64: a_T and the torques
+        if dtype != torch.float64:  # the sampler's controller in its own precision
+            step = task.acceleration_controller(w, device=device, dtype=dtype)
+        else:
+            step = accel
+        arm = sample_trajectories(self.robot, x0, step, T - 1, L, rng, device=device, dtype=dtype)
         states = arm.states.reshape(B * L, T, 8).to(torch.float64)
-        accel = task.acceleration_controller(w, device=device)
         pair = torch.arange(B, device=device).repeat_interleave(L)
         with torch.no_grad():
             a_last = accel(T - 1, states[:, -1], pair)[:, None]

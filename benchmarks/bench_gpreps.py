@@ -140,9 +140,12 @@ def real_throws(task, n: int, seed: int) -> Batch:
     return Batch(s, w, rewards, trajs)
 
 
-def one_update(task, batch: Batch, args: argparse.Namespace, dtype: torch.dtype) -> dict:
+def one_update(
+    task, batch: Batch, args: argparse.Namespace, dtype: torch.dtype, flight: str = "full"
+) -> dict:
     """Wall times of one GPREPS update from a fresh GPREPS (seeded by ``args.seed``), its
-    trajectories sampled in ``dtype``."""
+    trajectories sampled in ``dtype``; throwing: ``flight`` "stop" stops each predicted ball
+    at the ground (``stop_flight_at_ground``), "full" flies every ball for 2.5 s."""
     if args.task == "throwing":
         model = ThrowingRewardModel(
             task,
@@ -150,6 +153,7 @@ def one_update(task, batch: Batch, args: argparse.Namespace, dtype: torch.dtype)
             max_robot_points=1000,
             device=args.device,
             dtype=dtype,
+            stop_flight_at_ground=flight == "stop",
         )
     else:
         model = TrajectoryRewardModel(
@@ -198,6 +202,14 @@ def main() -> None:
         nargs="+",
         default=["float64", "float32"],
         help="precision of the sampled trajectories (float32: the sampler's faster path)",
+    )
+    parser.add_argument(
+        "--flight",
+        choices=["full", "stop"],
+        nargs="+",
+        default=["full", "stop"],
+        help="throwing: predict every ball's whole 2.5 s flight (full, the stored results' "
+        "setting) or stop each at the ground (stop; the same predictions, less work)",
     )
     parser.add_argument("--device", choices=["cpu", "cuda"], default="cpu")
     parser.add_argument("--repeats", type=int, default=1)
@@ -254,13 +266,14 @@ def main() -> None:
         print(f"  (M < {SMALL_M}: the policy fit's effective-sample-size check is relaxed to 1)")
 
     before = torch.get_num_threads()
-    keys = [(th, dt) for th in args.threads for dt in args.dtype]
-    runs: dict[tuple[int, str], list[dict[str, float]]] = {k: [] for k in keys}
+    flights = args.flight if throwing else ["full"]
+    keys = [(th, dt, fl) for th in args.threads for dt in args.dtype for fl in flights]
+    runs: dict[tuple[int, str, str], list[dict[str, float]]] = {k: [] for k in keys}
     try:
         for _ in range(args.repeats):  # interleaved, so load drift hits every variant
-            for th, dt in keys:
+            for th, dt, fl in keys:
                 torch.set_num_threads(th)
-                runs[th, dt].append(one_update(task, batch, args, getattr(torch, dt)))
+                runs[th, dt, fl].append(one_update(task, batch, args, getattr(torch, dt), fl))
     finally:
         torch.set_num_threads(before)
     results = {k: min(rs, key=lambda r: r["total"]) for k, rs in runs.items()}
@@ -268,35 +281,44 @@ def main() -> None:
     steps = args.artificial * args.trajectories * horizon
     print()
     print(
-        f"{'threads':>7}  {'dtype':>7}  {'training':>9}  {'prediction':>10}  {'policy':>8}  "
-        f"{'total':>8}  {'traj-steps/s':>12}  {'GP iters':>8}"
+        f"{'threads':>7}  {'dtype':>7}  {'flight':>6}  {'training':>9}  {'prediction':>10}  "
+        f"{'policy':>8}  {'total':>8}  {'traj-steps/s':>12}  {'GP iters':>8}"
     )
-    for (th, dt), r in results.items():
+    for (th, dt, fl), r in results.items():
         print(
-            f"{th:>7}  {dt:>7}  {r['training']:8.2f}s  {r['prediction']:9.2f}s  "
+            f"{th:>7}  {dt:>7}  {fl:>6}  {r['training']:8.2f}s  {r['prediction']:9.2f}s  "
             f"{r['policy']:7.3f}s  {r['total']:7.2f}s  {steps / r['prediction']:12.3g}  "
             f"{r['iterations']!s:>8}"
         )
     if args.repeats > 1:
-        for (th, dt), rs in runs.items():
+        for (th, dt, fl), rs in runs.items():
             print(
-                f"{th} thread(s), {dt}, totals of all repeats: "
+                f"{th} thread(s), {dt}, flight {fl}, totals of all repeats: "
                 + ", ".join(f"{r['total']:.2f}s" for r in rs)
             )
     for dt in args.dtype:
-        if len(args.threads) > 1:
-            lo, hi = min(args.threads), max(args.threads)
-            base, other = results[lo, dt], results[hi, dt]
-            print(
-                f"\n{dt}: ratio {hi} / {lo} threads (time): "
-                + ", ".join(
-                    f"{k} {other[k] / base[k]:.2f}"
-                    for k in ("training", "prediction", "policy", "total")
+        for fl in flights:
+            if len(args.threads) > 1:
+                lo, hi = min(args.threads), max(args.threads)
+                base, other = results[lo, dt, fl], results[hi, dt, fl]
+                print(
+                    f"\n{dt}, flight {fl}: ratio {hi} / {lo} threads (time): "
+                    + ", ".join(
+                        f"{k} {other[k] / base[k]:.2f}"
+                        for k in ("training", "prediction", "policy", "total")
+                    )
                 )
-            )
+    if len(flights) > 1:
+        for th in args.threads:
+            for dt in args.dtype:
+                a, b = results[th, dt, "full"], results[th, dt, "stop"]
+                print(
+                    f"{th} thread(s), {dt}: flight stop / full (time): prediction "
+                    f"{b['prediction'] / a['prediction']:.2f}, total {b['total'] / a['total']:.2f}"
+                )
     if len(args.dtype) > 1:
         for th in args.threads:
-            a, b = results[th, "float64"], results[th, "float32"]
+            a, b = results[th, "float64", flights[0]], results[th, "float32", flights[0]]
             print(
                 f"{th} thread(s): float32 / float64 (time): prediction "
                 f"{b['prediction'] / a['prediction']:.2f}, total {b['total'] / a['total']:.2f}"

@@ -18,13 +18,15 @@ Printed, on one thread (``torch.set_num_threads(1)``), with ``uptime``'s load be
   time and wall time), and the largest difference between the two (relative to the largest
   entry).
 
-Flops are counted per step as the arithmetic the formulas need, with ``exp`` counted as one
-flop (it costs about as much as the 28-flop product per entry here, so this under-counts the
-work): per pair a ≤ b (P = E(E + 1)/2 of them) and entry (i, j) of Q^{ab}: 2D for the cross
-term (Tζ_ai)ᵀζ_bj, 2 for adding the quadratic-form offsets, 1 for exp, 2 for the contraction
-with β_b, and 2 more on the E diagonal pairs for tr(iK_a Q^{aa}); plus the O(P M D²) operand
-set-up (two (M × D)(D × D) products and two quadratic forms per pair) and the mean and
-input–output covariance (a (D × D) solve for M right-hand sides and two reductions per output).
+Flops are counted per step by
+:func:`~skillkit.models.moment_matching.moment_matching_flops_per_step`: the arithmetic the
+formulas need, with ``exp`` counted as one flop (it costs about as much as the 28-flop product
+per entry here, so this under-counts the work): per pair a ≤ b (P = E(E + 1)/2 of them) and
+entry (i, j) of Q^{ab}: 2D for the cross term (Tζ_ai)ᵀζ_bj, 2 for adding the quadratic-form
+offsets, 1 for exp, 2 for the contraction with β_b, and 2 more on the E diagonal pairs for
+tr(iK_a Q^{aa}); plus the O(P M D²) operand set-up (two (M × D)(D × D) products and two
+quadratic forms per pair) and the mean and input–output covariance (a (D × D) solve for M
+right-hand sides and two reductions per output).
 The exponent floor's clamp pass, index copies and concatenations are not counted. Run::
 
     OMP_NUM_THREADS=1 python benchmarks/bench_moment_matching.py
@@ -44,19 +46,11 @@ import torch
 
 from skillkit.models.gp import DTYPE, ForwardModel
 from skillkit.models.moment_matching import _moment_match, propagate
+from skillkit.models.moment_matching import moment_matching_flops_per_step as flops_per_step
 from skillkit.models.sparse import FITC
 
 N_X, N_U, N_DATA = 8, 4, 1500
 REFERENCE = Path(__file__).resolve().parents[1] / "tests/models/test_moment_matching_batched.py"
-
-
-def flops_per_step(E: int, M: int, D: int) -> int:
-    """Counted flops of one moment-matching step (see the module docstring)."""
-    P = E * (E + 1) // 2
-    q_blocks = P * M * M * (2 * D + 5) + E * M * M * 2
-    operands = P * (2 * 2 * M * D * D + 2 * 2 * M * D)
-    mean_io = E * (2 * M * D * D + 2 * M * D + 2 * M * D)
-    return q_blocks + operands + mean_io
 
 
 def _best(f, repeats: int) -> float:

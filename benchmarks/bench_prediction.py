@@ -14,7 +14,7 @@ part (other processes on a shared machine inflate every time):
    moment-matching time, sampling time per N and trajectories per moment-matching prediction,
    each with its GFLOP/s from the counted flops
    (:func:`~skillkit.models.sampling.sampler_flops_per_step` and
-   ``bench_moment_matching.flops_per_step``);
+   :func:`~skillkit.models.moment_matching.moment_matching_flops_per_step`);
 4. ``bench_gpreps.py --task throwing``: one GPREPS throwing update at M = 500 × L = 25, split
    into training / prediction / policy, float64 and float32, 1 and 2 threads;
 5. ``bench_reps.py``: one contextual REPS update at N = 10,000 (both dual solvers).
@@ -92,6 +92,7 @@ def main() -> None:
     )
 
     from skillkit.experiments import reproduce
+    from skillkit.models.moment_matching import moment_matching_flops_per_step
     from skillkit.models.sampling import sampler_flops_per_step
 
     scale = "smoke" if q else args.fig44_scale
@@ -100,8 +101,8 @@ def main() -> None:
     print(f"fig4.4 result: {run.path}")
     summary = run.summary
     M = summary["model"]["n_pseudo_inputs"]
-    mm_flops = runpy.run_path(str(HERE / "bench_moment_matching.py"))["flops_per_step"]
-    for line in fig44_gflops(summary, mm_flops(8, M, 12), sampler_flops_per_step(8, M, 12)):
+    mm_flops = moment_matching_flops_per_step(8, M, 12)
+    for line in fig44_gflops(summary, mm_flops, sampler_flops_per_step(8, M, 12)):
         print(line)
     print(f"===== fig4.4 (load after: {_load()})", flush=True)
 

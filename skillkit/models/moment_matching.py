@@ -49,10 +49,17 @@ import numpy as np
 import torch
 
 from skillkit._repr import span, vector
-from skillkit._validation import check_array
+from skillkit._validation import check_array, check_count
 from skillkit.models.gp import DTYPE, VARIANCE_TOL, ForwardModel, GPNumericalWarning, GPPredictor
 
-__all__ = ["GaussianPrediction", "linearize", "moment_match", "propagate", "with_linear_mean"]
+__all__ = [
+    "GaussianPrediction",
+    "linearize",
+    "moment_match",
+    "moment_matching_flops_per_step",
+    "propagate",
+    "with_linear_mean",
+]
 
 #: Log-domain exponents below this are raised to it before ``exp``: e^-600 ≈ 3e-261 instead of
 #: an underflowing or denormal result (``exp`` is ~40× slower on underflowing and ~200× slower on
@@ -423,6 +430,49 @@ def _per_step(value, name: str, shape: tuple[int, ...], T: int) -> torch.Tensor:
     elif arr.shape != (T, *shape):
         raise ValueError(f"{name}: expected shape {shape} or {(T, *shape)}, got {arr.shape}")
     return torch.as_tensor(np.array(arr, dtype=np.float64), dtype=DTYPE)
+
+
+def moment_matching_flops_per_step(output_dim: int, n_support: int, input_dim: int) -> int:
+    """Floating-point operations of one moment-matching step (:func:`moment_match`).
+
+    Counted as the arithmetic the formulas need, with ``exp`` as one flop (as in
+    :func:`~skillkit.models.sampling.sampler_flops_per_step`, so the two compare like for
+    like; a vectorised ``exp`` costs about as much as the ~2D + 5 flops per entry around it,
+    so the count under-states the work). With E outputs, M support points, D inputs and
+    P = E(E + 1)/2 pairs a ≤ b:
+
+    * per pair and entry (i, j) of Q^{ab}: 2D for the cross term (Tζ_ai)ᵀζ_bj, 2 for adding
+      the quadratic-form offsets, 1 for ``exp``, 2 for the contraction with β_b; 2 more per
+      entry on the E diagonal pairs for tr(iK_a Q^{aa});
+    * per pair, the operand set-up: two (M × D)(D × D) products and two quadratic forms;
+    * per output, the mean and input–output covariance: a (D × D) solve for M right-hand sides
+      and two reductions.
+
+    The exponent floor's clamp, index copies and concatenations are not counted. Used with
+    measured times to report GFLOP/s (fig4.4, ``benchmarks/bench_moment_matching.py``).
+
+    Parameters
+    ----------
+    output_dim, n_support, input_dim : int
+        E, M, D (positive).
+
+    Returns
+    -------
+    int
+    """
+    E, M, D = (
+        check_count(v, name)
+        for v, name in (
+            (output_dim, "output_dim"),
+            (n_support, "n_support"),
+            (input_dim, "input_dim"),
+        )
+    )
+    P = E * (E + 1) // 2
+    q_blocks = P * M * M * (2 * D + 5) + E * M * M * 2
+    operands = P * (2 * 2 * M * D * D + 2 * 2 * M * D)
+    mean_io = E * (2 * M * D * D + 2 * M * D + 2 * M * D)
+    return q_blocks + operands + mean_io
 
 
 def gaussian_kl(mean_p, cov_p, mean_q, cov_q) -> np.ndarray:

@@ -124,6 +124,9 @@ class SampledTrajectories:
         and float64 one-step predictive moments on visited states (first 64 trajectories at
         t = 0, T/2, T − 1): mean error in predictive standard deviations or relative variance
         error. Above ``PRECISION_TOL`` (1e-2) a :class:`GPNumericalWarning` is issued.
+    stopped_at : Tensor of int64, shape (B, L), or None
+        Only with a ``stop`` rule: the step k at which each trajectory was stopped (T if it
+        never was); its states after x_k repeat x_k and its controls from u_k on are 0.
     """
 
     states: torch.Tensor
@@ -132,6 +135,7 @@ class SampledTrajectories:
     n_variance_clamped: int
     worst_variance: float
     precision_error: float = 0.0
+    stopped_at: torch.Tensor | None = None
 
     def __repr__(self) -> str:
         B, L, T1, n_x = self.states.shape
@@ -161,6 +165,7 @@ def sample_trajectories(
     max_chunk_bytes: int = 2**25,
     method: str = "per-step",
     n_features: int = 256,
+    stop: Callable[[int, torch.Tensor], torch.Tensor] | None = None,
 ) -> SampledTrajectories:
     """Sample L trajectories for each of B start conditions / policies in one vectorised call.
 
@@ -200,6 +205,14 @@ def sample_trajectories(
         (cheaper; covariances off by O(1/√F), see :class:`~skillkit.models.pathwise.PathwiseBasis`).
     n_features : int
         F, random Fourier features per function and output (pathwise methods).
+    stop : callable, optional
+        ``stop(k, x) -> done``: ``x`` Tensor (n, n_x) the states x_k of the trajectories
+        still running (k = 1 … T − 1), ``done`` a bool Tensor (n,). A trajectory that is done
+        is no longer propagated: x_{k+1} … x_T repeat x_k and u_k … u_{T−1} are 0 (recorded in
+        ``stopped_at``). For rollouts whose later states are not needed (a ball that has
+        landed): the states up to x_k are the ones the full rollout draws (the same noise
+        ε_{t} per trajectory and step; per-step method only), and the cost falls with the
+        number of trajectories still running.
 
     Returns
     -------
@@ -209,8 +222,9 @@ def sample_trajectories(
     ------
     ValueError
         On bad shapes, non-finite start states, a policy returning the wrong shape or
-        non-finite controls, an unsupported dtype or method, or pathwise sampling of a model
-        that is not a GP forward model.
+        non-finite controls, an unsupported dtype or method, pathwise sampling of a model
+        that is not a GP forward model, a ``stop`` that is not callable or is combined with a
+        pathwise method, or a ``stop`` returning anything but a bool Tensor of shape (n,).
     """
     device = torch.device("cpu" if device is None else device)
     if dtype not in (torch.float64, torch.float32):
@@ -220,6 +234,10 @@ def sample_trajectories(
             f"method: expected 'per-step', 'pathwise' or 'pathwise-shared', got {method!r}"
         )
     pathwise = method != "per-step"
+    if stop is not None and not callable(stop):
+        raise ValueError(f"stop: expected a callable or None, got {type(stop).__name__}")
+    if stop is not None and pathwise:
+        raise ValueError(f"stop: supported with method='per-step' only, got method={method!r}")
     if pathwise:
         if not isinstance(getattr(model, "_predictor", None), GPPredictor) or not hasattr(
             model, "with_predictor"
@@ -278,12 +296,14 @@ def sample_trajectories(
     n_sat = torch.zeros((), dtype=torch.long, device=device)
     n_clamp = torch.zeros((), dtype=torch.long, device=device)
     worst = torch.zeros((), dtype=dtype, device=device)
+    stopped_at = None if stop is None else torch.full((n,), T, dtype=torch.long, device=device)
     with torch.no_grad():
         for lo in range(0, n, chunk):
             hi = min(lo + chunk, n)
             x = states[lo:hi, 0]
             p = pair[lo:hi]
             step = model if basis is None else model.with_predictor(basis.draw(seeds[lo:hi]))
+            rows = None  # with a stop rule: the chunk's rows still running (None: all)
             for t in range(T):
                 u = policy(t, x, p)
                 if t == 0 and lo == 0:
@@ -292,12 +312,30 @@ def sample_trajectories(
                     n_sat += (u.abs() > limit).sum()
                     u = torch.maximum(torch.minimum(u, limit), -limit)
                 m = step.next_state_moments(x, u)
-                x = m[0] + m[1].sqrt() * eps[lo:hi, t]
-                states[lo:hi, t + 1] = x
-                controls[lo:hi, t] = u
+                if rows is None:
+                    x = m[0] + m[1].sqrt() * eps[lo:hi, t]
+                    states[lo:hi, t + 1] = x
+                    controls[lo:hi, t] = u
+                else:
+                    x = m[0] + m[1].sqrt() * eps[lo + rows, t]
+                    states[lo + rows, t + 1] = x
+                    controls[lo + rows, t] = u
                 if len(m) > 2:
                     n_clamp += m[2]
                     worst = torch.minimum(worst, m[3])
+                if stop is not None and t + 1 < T:
+                    done = _check_stop(stop(t + 1, x), x.shape[0], device)
+                    if bool(done.any()):
+                        if rows is None:
+                            rows = torch.arange(hi - lo, device=device)
+                        gone = lo + rows[done]
+                        states[gone, t + 2 :] = x[done][:, None]
+                        controls[gone, t + 1 :] = 0.0
+                        stopped_at[gone] = t + 1
+                        keep = ~done
+                        rows, x, p = rows[keep], x[keep], p[keep]
+                        if rows.numel() == 0:
+                            break
     if not torch.isfinite(controls).all():
         raise ValueError("policy: returned non-finite controls")
     precision = 0.0
@@ -326,6 +364,7 @@ def sample_trajectories(
         int(n_clamp),
         worst_f,
         precision,
+        None if stopped_at is None else stopped_at.reshape(B, L),
     )
 
 
@@ -348,6 +387,17 @@ def _precision_error(source, model, states, controls, device, rows: int = 64) ->
         err_var = ((b.var.to(DTYPE) - a.var).abs() / var).max()
         worst = max(worst, float(err_mean), float(err_var))
     return worst
+
+
+def _check_stop(done, n: int, device) -> torch.Tensor:
+    if not isinstance(done, torch.Tensor) or done.dtype != torch.bool or tuple(done.shape) != (n,):
+        got = (
+            f"{done.dtype} of shape {tuple(done.shape)}"
+            if isinstance(done, torch.Tensor)
+            else type(done).__name__
+        )
+        raise ValueError(f"stop: expected a bool Tensor of shape ({n},), got {got}")
+    return done.to(device)
 
 
 def _check_control(u, n: int, n_u: int, dtype, device) -> None:

@@ -328,3 +328,17 @@ def test_gradients_of_every_block_shape_agree():
         grads.append(torch.autograd.grad((w * second).sum() + latent.sum(), (m, S)))
     for new, old in zip(grads[0], grads[1], strict=True):
         _assert_same(new, old, rtol=1e-10, what="gradient")
+
+
+def test_flop_count():
+    """The counted flops of one step: the closed form at E = 1, M = 2, D = 1 (Q block 36,
+    operands 16, mean and input–output covariance 12) and the P = E(E + 1)/2 pair scaling."""
+    from skillkit.models.moment_matching import moment_matching_flops_per_step as flops
+
+    assert flops(1, 2, 1) == 64
+    E, M, D = 8, 300, 12
+    P = E * (E + 1) // 2
+    q = P * M * M * (2 * D + 5) + E * M * M * 2
+    assert flops(E, M, D) - q == P * (4 * M * D * D + 4 * M * D) + E * (2 * M * D * D + 4 * M * D)
+    with pytest.raises(ValueError, match="n_support: expected an integer"):
+        flops(8, 0, 12)

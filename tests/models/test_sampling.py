@@ -153,3 +153,54 @@ def test_flop_count():
     # E = 1, M = 2, d = 1: 2·2·1 + 3·2 + 2 + 2·2 + 2·4 + 2·2 = 28
     assert sampler_flops_per_step(1, 2, 1) == 28
     assert sampler_flops_per_step(8, 300, 12) == 8 * sampler_flops_per_step(1, 300, 12)
+
+
+def _crossed(k, x):
+    return x[:, 0] < 0.1
+
+
+def test_stop_rule_holds_stopped_trajectories_and_keeps_the_rest(gp_model):
+    """With a stop rule every trajectory is the full rollout up to its first step k ≥ 1 where
+    the rule holds, then stays at x_k with zero controls; ``stopped_at`` records k (T if
+    never); a rule that never holds changes nothing."""
+    x0 = np.array([[0.5, 0.0], [-0.5, 0.3]])
+    T, L = 12, 50
+    full = sample_trajectories(gp_model, x0, _feedback, T, L, rng=7)
+    cut = sample_trajectories(gp_model, x0, _feedback, T, L, rng=7, stop=_crossed)
+    hit = full.states[..., 1:, 0] < 0.1  # (B, L, T): rule at x_1 … x_T
+    hit[..., -1] = False  # x_T is the last state: nothing to stop after it
+    k = torch.where(hit.any(-1), hit.to(torch.int8).argmax(-1) + 1, T)
+    assert torch.equal(cut.stopped_at, k)
+    # pair 1 starts below the threshold (stops at k = 1); pair 0 crosses it late or never
+    assert torch.all(k[1] == 1) and 1 < int(k[0].min()) and int(k[0].max()) == T
+    t = torch.arange(T + 1)
+    held = t > k[..., None]  # (B, L, T + 1): after x_k
+    last = torch.gather(full.states, 2, k[..., None, None].expand(2, L, 1, 2))
+    expected = torch.where(held[..., None], last, full.states)
+    torch.testing.assert_close(cut.states, expected, rtol=0, atol=1e-12)
+    u_kept = (t[:-1] < k[..., None])[..., None]
+    torch.testing.assert_close(
+        cut.controls, torch.where(u_kept, full.controls, 0.0), rtol=0, atol=1e-12
+    )
+    never = sample_trajectories(
+        gp_model, x0, _feedback, T, L, rng=7, stop=lambda k, x: torch.zeros(len(x), dtype=bool)
+    )
+    assert torch.equal(never.states, full.states) and torch.equal(never.controls, full.controls)
+    assert torch.equal(never.stopped_at, torch.full((2, L), T)) and full.stopped_at is None
+    chunked = sample_trajectories(
+        gp_model, x0, _feedback, T, L, rng=7, stop=_crossed, max_chunk_bytes=3000
+    )
+    torch.testing.assert_close(chunked.states, cut.states, rtol=0, atol=1e-9)
+    assert torch.equal(chunked.stopped_at, cut.stopped_at)
+
+
+def test_stop_rule_bad_input(gp_model):
+    x0 = np.zeros((1, 2))
+    with pytest.raises(ValueError, match="stop: expected a callable"):
+        sample_trajectories(gp_model, x0, _feedback, 3, 4, stop=3)
+    with pytest.raises(ValueError, match="stop: supported with method='per-step' only"):
+        sample_trajectories(gp_model, x0, _feedback, 3, 4, stop=_crossed, method="pathwise")
+    with pytest.raises(ValueError, match=r"stop: expected a bool Tensor of shape \(4,\)"):
+        sample_trajectories(gp_model, x0, _feedback, 3, 4, stop=lambda k, x: x[:, :1] > 0)
+    with pytest.raises(ValueError, match=r"stop: expected a bool Tensor of shape \(4,\)"):
+        sample_trajectories(gp_model, x0, _feedback, 3, 4, stop=lambda k, x: x[:, 0])

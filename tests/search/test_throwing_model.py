@@ -178,3 +178,20 @@ def test_float32_sampling_pairs_with_float64(fitted):
     assert np.median(np.abs(land_a - land_b)) < 0.05 * land_a.std()
     with pytest.raises(ValueError, match="dtype: expected torch.float64 or torch.float32"):
         _model(task, dtype=torch.float16)
+
+
+def test_stopping_the_flight_at_the_ground_changes_no_prediction(fitted):
+    """The flight stopped at the first sample on or below the ground gives the same landed
+    paths, release states and rewards as the full flight (land() never reads further)."""
+    import copy
+
+    task, model, _, (s, w, _, _) = fitted
+    stopping = copy.copy(model)
+    stopping.stop_flight_at_ground = True
+    a, b = model.predict(s, w, 6, rng=8), stopping.predict(s, w, 6, rng=8)
+    assert not model.stop_flight_at_ground and a.landed.mean() > 0.9
+    for name in ("states", "torques", "release", "ball", "landed"):
+        np.testing.assert_allclose(getattr(b, name), getattr(a, name), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(b.rewards, a.rewards, rtol=1e-12, atol=0)
+    with pytest.raises(ValueError, match="stop_flight_at_ground: expected a bool"):
+        ThrowingRewardModel(task, stop_flight_at_ground="yes")

@@ -12,7 +12,7 @@ part (other processes on a shared machine inflate every time):
 3. fig4.4's own measurement, run fresh into ``--out`` (``--fig44-scale``, default ``paper``:
    FITC with 1500 points and 300 pseudo-inputs, 100 steps, trained on balancing data):
    moment-matching time, sampling time per N and trajectories per moment-matching prediction,
-   each with its GFLOP/s from the counted flops
+   each with its GFLOP/s from the counted flops, as fig4.4's summary reports them
    (:func:`~skillkit.models.sampling.sampler_flops_per_step` and
    :func:`~skillkit.models.moment_matching.moment_matching_flops_per_step`);
 4. ``bench_gpreps.py --task throwing``: one GPREPS throwing update at M = 500 × L = 25, split
@@ -54,18 +54,18 @@ def _script(name: str, argv: list[str]) -> None:
     print(f"===== {name}: {time.perf_counter() - t0:.0f} s (load after: {_load()})", flush=True)
 
 
-def fig44_gflops(summary: dict, flops_mm_step: int, flops_sample_step: int) -> list[str]:
-    """Lines with fig4.4's times and each implementation's GFLOP/s (counted flops / time)."""
+def fig44_lines(summary: dict) -> list[str]:
+    """Lines with fig4.4's times and each implementation's GFLOP/s (from its summary)."""
     T = summary["model"]["horizon"]
     lines = []
     for th, mm in summary["mm_time_s"].items():
         lines.append(
             f"{th} thread(s): moment matching {mm:.3f} s per {T}-step prediction = "
-            f"{flops_mm_step * T / mm / 1e9:.2f} GFLOP/s; "
+            f"{summary['mm_gflops'][th]:.2f} GFLOP/s; "
             f"trajectories in that time {summary['trajectories_in_mm_time'][th]:.0f}"
         )
         for n, t in summary["sampling_time_s"][th].items():
-            rate = flops_sample_step * T * int(n) / t / 1e9
+            rate = summary["sampling_gflops"][th][n]
             lines.append(f"    sampling N = {n:>6}: {t:8.3f} s = {rate:6.2f} GFLOP/s")
     return lines
 
@@ -92,17 +92,13 @@ def main() -> None:
     )
 
     from skillkit.experiments import reproduce
-    from skillkit.models.moment_matching import moment_matching_flops_per_step
-    from skillkit.models.sampling import sampler_flops_per_step
 
     scale = "smoke" if q else args.fig44_scale
     print(f"\n===== fig4.4 at scale {scale}   (load before: {_load()})", flush=True)
     run = reproduce("fig4.4", scale=scale, seed=0, out=args.out, fresh=True, html=False)
     print(f"fig4.4 result: {run.path}")
     summary = run.summary
-    M = summary["model"]["n_pseudo_inputs"]
-    mm_flops = moment_matching_flops_per_step(8, M, 12)
-    for line in fig44_gflops(summary, mm_flops, sampler_flops_per_step(8, M, 12)):
+    for line in fig44_lines(summary):
         print(line)
     print(f"===== fig4.4 (load after: {_load()})", flush=True)
 

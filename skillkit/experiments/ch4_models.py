@@ -44,8 +44,12 @@ import torch
 from skillkit.experiments.registry import Experiment, Series, Verdict, fmt, register, with_verdict
 from skillkit.experiments.settings import Settings, setting
 from skillkit.models.gp import ExactGP, ForwardModel, HyperCurb
-from skillkit.models.moment_matching import gaussian_kl, propagate
-from skillkit.models.sampling import sample_trajectories
+from skillkit.models.moment_matching import (
+    gaussian_kl,
+    moment_matching_flops_per_step,
+    propagate,
+)
+from skillkit.models.sampling import sample_trajectories, sampler_flops_per_step
 from skillkit.models.sparse import FITC
 from skillkit.tasks import make
 from skillkit.tasks.balancing import (
@@ -587,7 +591,17 @@ def _summarize_4_4(settings: ComputeTimeSettings, trials: list[dict]) -> tuple[l
         log_y=True,
     )
     series = []
-    summary: dict = {"mm_time_s": {}, "sampling_time_s": {}, "trajectories_in_mm_time": {}}
+    summary: dict = {
+        "mm_time_s": {},
+        "sampling_time_s": {},
+        "trajectories_in_mm_time": {},
+        "mm_gflops": {},
+        "sampling_gflops": {},
+    }
+    # Counted flops (exp as one flop in both) of one step: E = 8 outputs, D = 8 + 4 inputs.
+    T, M = settings.horizon, trials[0]["n_pseudo"]
+    mm_flops = moment_matching_flops_per_step(8, M, 12) * T
+    sample_flops = sampler_flops_per_step(8, M, 12) * T
     for th in map(str, settings.threads):
         st = np.median([t["sampling_time"][th] for t in trials], axis=0)
         mm = float(np.median([t["mm_time"][th] for t in trials]))
@@ -600,6 +614,10 @@ def _summarize_4_4(settings: ComputeTimeSettings, trials: list[dict]) -> tuple[l
         summary["trajectories_in_mm_time"][th] = float(
             np.median([t["trajectories_in_mm_time"][th] for t in trials])
         )
+        summary["mm_gflops"][th] = mm_flops / mm / 1e9
+        summary["sampling_gflops"][th] = {
+            str(n): sample_flops * n / t / 1e9 for n, t in zip(ns, st.tolist(), strict=True)
+        }
     summary.update(
         {
             "model": {
@@ -608,6 +626,12 @@ def _summarize_4_4(settings: ComputeTimeSettings, trials: list[dict]) -> tuple[l
                 "horizon": settings.horizon,
                 "state_dim": 8,
                 "control_dim": 4,
+            },
+            "flops_per_prediction": {
+                "moment_matching": mm_flops,
+                "sampling_per_trajectory": sample_flops,
+                "counted": "moment_matching_flops_per_step and sampler_flops_per_step "
+                "(exp counted as one flop in both)",
             },
             "thesis": "about 1000 trajectories in the time of one moment-matching prediction "
             "on one CPU core",
@@ -625,12 +649,21 @@ def verdict_4_4(settings: ComputeTimeSettings, summary: dict) -> Verdict:
     others = "; ".join(
         f"{fmt(v, '.0f')} on {th} threads" for th, v in per.items() if th != "1" and v
     )
+    rates = ""
+    if "1" in summary.get("mm_gflops", {}):
+        n_max = str(settings.n_trajectories[-1])
+        rates = (
+            f"; on one thread moment matching ran at {fmt(summary['mm_gflops']['1'], '.1f')} "
+            f"GFLOP/s and sampling {n_max} trajectories at "
+            f"{fmt(summary['sampling_gflops']['1'][n_max], '.1f')} GFLOP/s"
+        )
     return Verdict(
         CLAIM_4_4,
         bool((one or 0.0) >= 1000),
         f"In the time of one moment-matching prediction over {summary['model']['horizon']} "
         f"steps sampling produces {fmt(one, '.0f')} trajectories on one thread"
         + (f" ({others})" if others else "")
+        + rates
         + " (thesis: about 1000 on one core).",
     )
 

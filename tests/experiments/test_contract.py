@@ -45,9 +45,9 @@ def _run(exp_id: str, seed: int = 0) -> dict:
 
 
 def _numbers(result: dict, exp_id: str):
-    """Series and summary as JSON, without wall-clock measurements (keys with "time"; all
-    numbers of a TIMED experiment, and the verdict drawn from them; the verdict of a
-    TIMED_VERDICT experiment)."""
+    """Series and summary as JSON, without wall-clock measurements (keys with "time" or
+    "gflops"; all numbers of a TIMED experiment, and the verdict drawn from them; the verdict
+    of a TIMED_VERDICT experiment)."""
     timed = exp_id in TIMED
     verdict_timed = timed or exp_id in TIMED_VERDICT
 
@@ -57,6 +57,7 @@ def _numbers(result: dict, exp_id: str):
                 k: strip(v)
                 for k, v in obj.items()
                 if "time" not in k
+                and "gflops" not in k
                 and not (timed and k in ("y", "lower", "upper"))
                 and not (verdict_timed and k in ("holds", "statement"))
             }

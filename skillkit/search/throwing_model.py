@@ -193,7 +193,8 @@ class ThrowingRewardModel:
         rewards, are the ones the full 250-step flight gives (the same noise per ball and
         step; equal to round-off, 1e-14 relative, because the kernel products run on fewer
         rows); only the cost changes, in proportion to the balls still in the air (median
-        landing at step ~105 of 250 for the imitation policy; prediction 0.5× the time).
+        landing at step ~105 of 250 for the imitation policy; 0.8× the prediction time of a
+        GPREPS update in ``benchmarks/bench_gpreps.py``).
         Default ``False``, every ball for the whole flight time: the stored fig4.6, fig4.7 and
         fig4.9 results were made so, and round-off differences would change their digits.
 

@@ -9,31 +9,27 @@ from the repository root::
 
     OMP_NUM_THREADS=1 python docs/measure_mm_exp_ceiling.py
 
-Measured on the 2-CPU VM (torch 2.13.0+cpu, AVX-512; the only other job paused)::
+Measured on the 2-CPU VM (torch 2.13.0+cpu, AVX-512; nothing else running, load average 0.33)::
 
-    exp 0.55 ns/entry (in place after copy 0.46), copy 0.39; peak 69.2 GFLOP/s
-    D=12: 28 flops per entry besides exp take 0.40 ns at peak; with exp (1 counted flop) the
-    ceiling is 30.4 GFLOP/s = 44% of peak
+    exp 0.55 ns/entry (in place after copy 0.40), copy 0.45; peak 66.6 GFLOP/s
+    D=12: 28 flops per entry besides exp take 0.42 ns at peak; with exp (1 counted flop) the
+    ceiling is 29.9 GFLOP/s = 45% of peak
 
-(the last line recomputed from the first: the run printed 45% from 29 + 1 flops, one too many).
+(an earlier run, with another job paused: exp 0.55 ns, peak 69.2, ceiling 44%).
 
 The batched moment matching runs at 21–23% of peak (``benchmarks/bench_moment_matching.py``),
 its bare product + exp + contraction at ~33%: the product is a K = D + 2 = 14 GEMM, far from
 peak, and ``exp`` is a separate pass over each block.
 """
 
-import time
+import timeit
 
 import torch
 
 
 def _best(f, repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        f()
-        times.append(time.perf_counter() - t0)
-    return min(times)
+    """Least wall time of ``repeats`` single calls."""
+    return min(timeit.repeat(f, number=1, repeat=repeats))
 
 
 def main() -> None:

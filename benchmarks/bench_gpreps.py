@@ -92,8 +92,11 @@ The same, all variants, in the one-run benchmark ``bench_prediction.py`` on a qu
           2  float32    full      7.76s      10.59s    0.005s    18.35s      1.46e+05       150
           2  float32    stop      7.11s       8.05s    0.004s    15.17s      1.92e+05       150
 
-So the float64 update on two threads takes 19–20.3 s with the flight stopped (two runs) and
-21.7–22.5 s without: at issue #18's 20 s, not reliably under it.
+Two threads, float64, quiet machine (load average 0.40 before, 1.59 after),
+``--dtype float64 --threads 2 --flight full stop --repeats 3``, totals of the three repeats:
+flight stopped 18.01, 19.46, 19.70 s (best: training 7.41, prediction 10.60); full flight 22.37,
+20.17, 19.74 s. So the float64 update on two threads takes 18.0–20.3 s with the flight stopped
+(5 updates in three runs, 4 under 20 s) and 19.7–22.5 s without: at issue #18's 20 s.
 Stopping the flight saves 0.80 (2 threads) / 0.91 (1 thread) of the prediction time; the
 training times of the 1-thread rows differ by 2 s although they do the same work (one repeat:
 timing noise of this VM). Not done: stopping the arm's rollout at the release (the reward's

@@ -183,6 +183,9 @@ def _throwing_model(task, st: GPREPSThrowingSettings, model: str):
             make_release_model=partial(_exact, st.gp_steps),
             make_flight_model=partial(_fitc, st.flight_inducing, st.gp_steps),
             max_robot_points=st.max_robot_points,
+            # The full 2.5 s flight of every ball, as the stored results were made (stopping
+            # at the ground gives the same predictions to round-off, not to the last digit).
+            stop_flight_at_ground=False,
         )
     return DirectRewardModel(ExactGP(n_steps=st.gp_steps))
 

@@ -195,8 +195,9 @@ class ThrowingRewardModel:
         rows); only the cost changes, in proportion to the balls still in the air (median
         landing at step ~105 of 250 for the imitation policy; 0.8× the prediction time of a
         GPREPS update in ``benchmarks/bench_gpreps.py``).
-        Default ``False``, every ball for the whole flight time: the stored fig4.6, fig4.7 and
-        fig4.9 results were made so, and round-off differences would change their digits.
+        ``False`` propagates every ball for the whole flight time, as the stored fig4.6,
+        fig4.7 and fig4.9 results were made (their experiments pin it, since round-off
+        differences would change their digits).
 
     Notes
     -----
@@ -204,7 +205,7 @@ class ThrowingRewardModel:
     """
 
     dtype: torch.dtype = torch.float64  # class default: instances pickled before it resume
-    stop_flight_at_ground: bool = False  # likewise
+    stop_flight_at_ground: bool = False  # likewise: instances pickled before it fly in full
 
     def __init__(
         self,
@@ -219,7 +220,7 @@ class ThrowingRewardModel:
         warm_start: bool = True,
         device=None,
         dtype: torch.dtype = torch.float64,
-        stop_flight_at_ground: bool = False,
+        stop_flight_at_ground: bool = True,
     ):
         if not isinstance(task, Throwing):
             raise ValueError(f"task: expected a Throwing task, got {type(task).__name__}")

@@ -186,10 +186,10 @@ def test_stopping_the_flight_at_the_ground_changes_no_prediction(fitted):
     import copy
 
     task, model, _, (s, w, _, _) = fitted
-    stopping = copy.copy(model)
-    stopping.stop_flight_at_ground = True
-    a, b = model.predict(s, w, 6, rng=8), stopping.predict(s, w, 6, rng=8)
-    assert not model.stop_flight_at_ground and a.landed.mean() > 0.9
+    full = copy.copy(model)
+    full.stop_flight_at_ground = False
+    a, b = full.predict(s, w, 6, rng=8), model.predict(s, w, 6, rng=8)
+    assert model.stop_flight_at_ground and a.landed.mean() > 0.9  # the default stops
     for name in ("states", "torques", "release", "ball", "landed"):
         np.testing.assert_allclose(getattr(b, name), getattr(a, name), rtol=0, atol=1e-12)
     np.testing.assert_allclose(b.rewards, a.rewards, rtol=1e-12, atol=0)

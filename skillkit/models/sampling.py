@@ -303,7 +303,7 @@ def sample_trajectories(
             x = states[lo:hi, 0]
             p = pair[lo:hi]
             step = model if basis is None else model.with_predictor(basis.draw(seeds[lo:hi]))
-            rows = None  # with a stop rule: the chunk's rows still running (None: all)
+            rows: slice | torch.Tensor = slice(lo, hi)  # the rows still running
             for t in range(T):
                 u = policy(t, x, p)
                 if t == 0 and lo == 0:
@@ -312,23 +312,18 @@ def sample_trajectories(
                     n_sat += (u.abs() > limit).sum()
                     u = torch.maximum(torch.minimum(u, limit), -limit)
                 m = step.next_state_moments(x, u)
-                if rows is None:
-                    x = m[0] + m[1].sqrt() * eps[lo:hi, t]
-                    states[lo:hi, t + 1] = x
-                    controls[lo:hi, t] = u
-                else:
-                    x = m[0] + m[1].sqrt() * eps[lo + rows, t]
-                    states[lo + rows, t + 1] = x
-                    controls[lo + rows, t] = u
+                x = m[0] + m[1].sqrt() * eps[rows, t]
+                states[rows, t + 1] = x
+                controls[rows, t] = u
                 if len(m) > 2:
                     n_clamp += m[2]
                     worst = torch.minimum(worst, m[3])
                 if stop is not None and t + 1 < T:
                     done = _check_stop(stop(t + 1, x), x.shape[0], device)
                     if bool(done.any()):
-                        if rows is None:
-                            rows = torch.arange(hi - lo, device=device)
-                        gone = lo + rows[done]
+                        if isinstance(rows, slice):
+                            rows = torch.arange(lo, hi, device=device)
+                        gone = rows[done]
                         states[gone, t + 2 :] = x[done][:, None]
                         controls[gone, t + 1 :] = 0.0
                         stopped_at[gone] = t + 1

@@ -59,14 +59,8 @@ transitions, 150 optimiser iterations per GP)::
     totals of all repeats: 1 thread 24.48, 24.16 s; 2 threads 17.75, 16.36 s
     ratio 2 / 1 threads (time): training 0.82, prediction 0.60, policy 0.99, total 0.68
 
-After issues #16 and #18 (x′ robot model, ``--dtype``), run by ``bench_prediction.py`` while
-another job held one of the two cores (load 2.9 before, 2.8 after; 2-thread rows inflated)::
-
-    threads    dtype   training  prediction    policy     total  traj-steps/s  GP iters
-          1  float64     12.53s      25.54s    0.007s    38.08s      6.07e+04       150
-          1  float32     12.30s      17.02s    0.006s    29.33s      9.11e+04       150
-          2  float64     30.33s      36.83s    0.004s    67.16s      4.21e+04       150
-          2  float32     27.17s      27.55s    0.004s    54.73s      5.63e+04       150
+After issues #16 and #18 (x′ robot model, ``--dtype``) a run beside another job (load 2.9) took
+38.1 s (float64) / 29.3 s (float32) on one thread; the quiet-machine runs below supersede it.
 
 With the flight stopped at the ground (``--flight stop``, ``stop_flight_at_ground=True``; the
 same predictions to round-off) and the torques of all steps computed in one call, float64,
@@ -332,10 +326,10 @@ def main() -> None:
                 f"{th} thread(s), {dt}, flight {fl}, totals of all repeats: "
                 + ", ".join(f"{r['total']:.2f}s" for r in rs)
             )
-    for dt in args.dtype:
-        for fl in flights:
-            if len(args.threads) > 1:
-                lo, hi = min(args.threads), max(args.threads)
+    if len(args.threads) > 1:
+        lo, hi = min(args.threads), max(args.threads)
+        for dt in args.dtype:
+            for fl in flights:
                 base, other = results[lo, dt, fl], results[hi, dt, fl]
                 print(
                     f"\n{dt}, flight {fl}: ratio {hi} / {lo} threads (time): "

@@ -19,14 +19,9 @@ Printed, on one thread (``torch.set_num_threads(1)``), with ``uptime``'s load be
   entry).
 
 Flops are counted per step by
-:func:`~skillkit.models.moment_matching.moment_matching_flops_per_step`: the arithmetic the
-formulas need, with ``exp`` counted as one flop (it costs about as much as the 28-flop product
-per entry here, so this under-counts the work): per pair a ≤ b (P = E(E + 1)/2 of them) and
-entry (i, j) of Q^{ab}: 2D for the cross term (Tζ_ai)ᵀζ_bj, 2 for adding the quadratic-form
-offsets, 1 for exp, 2 for the contraction with β_b, and 2 more on the E diagonal pairs for
-tr(iK_a Q^{aa}); plus the O(P M D²) operand set-up (two (M × D)(D × D) products and two
-quadratic forms per pair) and the mean and input–output covariance (a (D × D) solve for M
-right-hand sides and two reductions per output).
+:func:`~skillkit.models.moment_matching.moment_matching_flops_per_step` (its docstring lists
+what is counted), with ``exp`` as one flop; ``exp`` costs about as much as the 28-flop product
+per entry here, so this under-counts the work (``docs/measure_mm_exp_ceiling.py``).
 The exponent floor's clamp pass, index copies and concatenations are not counted. Run::
 
     OMP_NUM_THREADS=1 python benchmarks/bench_moment_matching.py

@@ -1,4 +1,5 @@
-"""float32 sampling: the float64 path is unchanged; float32 matches it within Monte Carlo error.
+"""float32 sampling: the float64 path is unchanged (above its kernel floor); float32 matches it
+within Monte Carlo error.
 
 The fixtures sit at an offset of 20 from the origin with length-scales of order 1: there the
 augmented-operand kernel exponent −½‖a‖² + a·b − ½‖b‖² cancels badly, and the float32 path
@@ -15,7 +16,13 @@ import numpy as np
 import pytest
 import torch
 
-from skillkit.models.gp import FLUSH_EXPONENT, ExactGP, ForwardModel, GPNumericalWarning
+from skillkit.models.gp import (
+    FLOOR_EXPONENT_FLOAT64,
+    FLUSH_EXPONENT,
+    ExactGP,
+    ForwardModel,
+    GPNumericalWarning,
+)
 from skillkit.models.kernels import se_kernel_from_operands, se_operands
 from skillkit.models.sampling import PRECISION_TOL, sample_trajectories
 from skillkit.models.sparse import FITC
@@ -134,6 +141,38 @@ def test_float32_kernel_has_no_denormals_and_keeps_its_accuracy(model):
     # Below: raised to the floor, e^-40 σ_f² (never denormal, never 0)
     low = (k32.double() / floor)[~big]
     assert low.numel() > 0 and ((low - 1).abs() < 1e-5).all()
+
+
+def test_float64_kernel_floor_changes_nothing_above_it_and_keeps_products_normal(model):
+    """Float64 entries below e^-600 σ_f² (and e^-600) are raised to it (no 0, no denormal);
+    those above are bit-identical to the unfloored kernel, and the moments equal the unfloored
+    kernel's bit for bit, near the data and ~300 length-scales from it (the prior there)."""
+    p = model.predictor
+    support = se_operands(p.support, p.lengthscale[:, None, :], p.outputscale).contiguous()
+    weights = torch.cat([p.var_factor.transpose(-1, -2), p.beta[..., None]], dim=-1).contiguous()
+    log_floor = (torch.log(p.outputscale) - FLOOR_EXPONENT_FLOAT64).clamp_min(
+        -FLOOR_EXPONENT_FLOAT64
+    )
+    floor = torch.exp(log_floor)[:, None, None]  # e^-600 σ_f², at least e^-600
+    for spread in (1.0, 400.0):
+        z = _queries(300, spread, 6)
+        raw = se_kernel_from_operands(
+            se_operands(z.unsqueeze(0), p.lengthscale[:, None, :]),
+            support,
+            torch.log(p.outputscale),
+        )
+        k = p.kernel_vectors(z)
+        above = raw > floor
+        assert torch.equal(k[above], raw[above])
+        assert torch.allclose(k[~above], floor.expand_as(k)[~above], rtol=1e-12, atol=0.0)
+        assert bool((k >= torch.finfo(torch.float64).tiny).all())
+        prod = torch.bmm(raw, weights)  # the moments of the unfloored kernel, as moments() does
+        quad = torch.linalg.vector_norm(prod[..., :-1], dim=-1).square()
+        var = (p.outputscale[:, None] - quad).clamp_min(0.0) + p.noise[:, None]
+        m = p.moments(z)
+        assert torch.equal(m.mean, (p.y_mean[:, None] + p.y_scale[:, None] * prod[..., -1]).T)
+        assert torch.equal(m.var, (p.y_scale[:, None] ** 2 * var).T)
+    assert (raw == 0).float().mean() > 0.5  # far: without the floor most entries underflow
 
 
 def _z_scores(a: torch.Tensor, b: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

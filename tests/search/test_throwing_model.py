@@ -14,7 +14,14 @@ from skillkit.models.sparse import FITC
 from skillkit.search.gpreps import GPREPS, GPREPSSettings
 from skillkit.search.throwing_model import ThrowingRewardModel, land
 from skillkit.tasks import make
-from skillkit.tasks.planar import ballistic_flight
+from skillkit.tasks.planar import (
+    BLOCK_ENTRIES,
+    ballistic_flight,
+    joint_limit_penalty,
+    path_distance,
+    path_distances,
+)
+from skillkit.tasks.planar_model import rigid_body_terms
 
 
 def _fitc(n_inducing, n_steps):
@@ -60,6 +67,38 @@ def test_controller_is_inverse_dynamics_of_the_commanded_acceleration():
     a = task.commanded_accelerations(trajs[0].states, trajs[0].controls)
     back = task.torques(torch.as_tensor(trajs[0].states), torch.as_tensor(a)).numpy()
     np.testing.assert_allclose(back, trajs[0].controls, rtol=1e-9, atol=1e-8)
+
+
+@pytest.mark.parametrize("shape", [(700, 125), (90_000,)], ids=["rows-x-steps", "flat"])
+def test_torques_in_blocks_equal_one_call_bit_for_bit(shape):
+    """Large batches are done in blocks of rows: the same numbers as one call of the closed
+    form (several blocks at these sizes)."""
+    task = make("throwing")
+    gen = torch.Generator().manual_seed(0)
+    x = torch.randn(*shape, 8, dtype=torch.float64, generator=gen)
+    a = torch.randn(*shape, 4, dtype=torch.float64, generator=gen)
+    m, c = rigid_body_terms(x[..., :4], x[..., 4:], task.robot.gravity)
+    assert x.numel() > 2 * BLOCK_ENTRIES
+    assert torch.equal(task.torques(x, a), (m @ a[..., None])[..., 0] + c)
+
+
+def test_batch_reward_terms_in_blocks_equal_one_row_at_a_time_bit_for_bit():
+    """Path distances and joint-limit penalties of a batch larger than a block (so computed in
+    blocks of rows) equal those of each row alone."""
+    task = make("throwing")
+    rng = np.random.default_rng(0)
+    B, N, T = 1200, 251, 125
+    paths = np.cumsum(rng.normal(size=(B, N, 2)), axis=1)
+    points = rng.uniform(-5, 5, size=(B, 2))
+    states = rng.normal(scale=2.0, size=(B, T, 8))
+    assert paths.size > 2 * BLOCK_ENTRIES and states.size > 2 * BLOCK_ENTRIES
+    batch = task.reward_terms_batch(states, np.zeros((B, T, 4)), paths, points)
+    d = path_distances(paths, points)
+    assert np.array_equal(batch["distance"], d)
+    assert np.array_equal(d, [path_distance(p, s) for p, s in zip(paths, points, strict=True)])
+    alone = [joint_limit_penalty(x).sum() for x in states]
+    assert np.array_equal(batch["joint_penalty"], alone)
+    assert (batch["joint_penalty"] > 0).mean() > 0.5  # the limits are exercised
 
 
 def test_land_stops_a_sampled_parabola_at_the_closed_form_landing_point():

@@ -91,19 +91,19 @@ def land(paths: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     landed : ndarray of bool, shape (B,)
         Whether the ball reached the ground within the K samples.
     """
-    paths = check_array(paths, "paths", shape=(None, None, 2)).copy()
+    paths = check_array(paths, "paths", shape=(None, None, 2))
     below = paths[:, :, 1] <= 0.0
     below[:, 0] = False  # the release point itself never counts as the landing
     landed = below.any(axis=1)
-    k = np.where(landed, below.argmax(axis=1), paths.shape[1] - 1)
+    k = np.where(landed, below.argmax(axis=1), paths.shape[1])  # K: nothing replaced
     rows = np.flatnonzero(landed)
     a, b = paths[rows, k[rows] - 1], paths[rows, k[rows]]
     frac = a[:, 1] / np.where(a[:, 1] - b[:, 1] > 0, a[:, 1] - b[:, 1], 1.0)
-    point = a + np.clip(frac, 0.0, 1.0)[:, None] * (b - a)
+    point = np.zeros((paths.shape[0], 2))
+    point[rows] = a + np.clip(frac, 0.0, 1.0)[:, None] * (b - a)
     point[:, 1] = 0.0
-    after = np.arange(paths.shape[1])[None, :] >= k[rows, None]
-    paths[rows] = np.where(after[..., None], point[:, None, :], paths[rows])
-    return paths, landed
+    after = np.arange(paths.shape[1])[None, :] >= k[:, None]
+    return np.where(after[..., None], point[:, None, :], paths), landed
 
 
 @dataclass(frozen=True)

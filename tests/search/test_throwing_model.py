@@ -107,8 +107,9 @@ def test_land_stops_a_sampled_parabola_at_the_closed_form_landing_point():
     t = np.arange(160) * 0.01  # continues 0.3 s below the ground
     path = p0 + np.outer(t, v0)
     path[:, 1] -= 0.5 * g * t**2
+    original = path.copy()
     paths, landed = land(path[None])
-    assert landed[0]
+    assert landed[0] and np.array_equal(path, original)  # the input is not modified
     k = int(np.argmax(path[:, 1] <= 0))
     np.testing.assert_array_equal(paths[0, :k], path[:k])  # untouched before landing
     assert np.all(paths[0, k:] == paths[0, k])  # every later sample repeats the landing point

@@ -98,23 +98,24 @@ torque and joint-limit terms run to the end of the movement, so they would need 
 their own).
 
 After the float64 kernel floor (``gp.FLOOR_EXPONENT_FLOAT64``: kernel entries below
-e^−600 σ_f² raised to it; the same predictions bit for bit, measured on 500 × 25 throws), in
-the one-run benchmark ``bench_prediction.py`` (nothing else running, load average 1.55 before
-and after; this VM's 1-thread float64 peak was 62–68 GFLOP/s in that run against 71–75 in the
-runs above)::
+e^−600 σ_f² raised to it) and the throwing reward's batch parts in cache-sized blocks of rows
+(torques, path distances, joint-limit penalties: ``planar._by_rows``; ``land`` without
+fancy-indexed copies), all with the same predictions bit for bit (measured on 500 × 25
+throws), nothing else running: ``--dtype float64 --threads 2 --flight stop full --repeats 5``
+(load average 1.96 after)::
 
     threads    dtype  flight   training  prediction    policy     total  traj-steps/s  GP iters
-          1  float64    full     10.73s      18.34s    0.005s    29.07s      8.45e+04       150
-          1  float64    stop      9.38s      18.28s    0.006s    27.67s      8.48e+04       150
-          2  float64    full      8.11s      13.85s    0.004s    21.96s      1.12e+05       150
-          2  float64    stop      7.60s      10.90s    0.004s    18.50s      1.42e+05       150
+          2  float64    stop      8.04s       8.73s    0.007s    16.78s      1.78e+05       150
+          2  float64    full      6.36s       9.46s    0.004s    15.82s      1.64e+05       150
+    2 thread(s), float64, flight stop, totals of all repeats: 18.42s, 16.78s, 17.24s, 17.51s, 17.60s
+    2 thread(s), float64, flight full, totals of all repeats: 17.16s, 19.56s, 15.82s, 16.63s, 18.17s
 
-and right after it ``--dtype float64 --threads 2 --flight stop --repeats 5`` (load average 0.71
-before, 1.65 after): totals 20.77, 21.39, 23.59, 22.21, 16.95 s (best: training 6.80,
-prediction 10.14). Interleaved 1-thread predictions of the same 500 × 25 throws with and
-without the floor (two runs each, alternating): 22.2–24.2 and 18.6–22.4 s without, 16.0–16.1
-and 18.0–18.8 s with. The update's time on this VM varies by ±15% between runs minutes apart,
-so the 20 s of issue #18 is met in some runs and missed in others.
+and just before it ``--threads 1 2 --flight stop --repeats 3``: 2 threads 18.02, 15.47, 19.20 s;
+1 thread 27.10, 21.48, 24.67 s. So every one of 13 float64 updates on two threads took under
+issue #18's 20 s (15.5–19.6 s), against 17.0–23.6 s after the floor alone and 18.0–22.5 s
+before either. One-thread predictions of the same 500 × 25 throws: 18.6–24.2 s before, 16.0–18.8
+with the floor, 10.7–13.2 with the blocks too. This VM's speed varies by ±15% between runs
+minutes apart (its 1-thread float64 matmul peak: 57–75 GFLOP/s this week).
 
 float32 is not usable on these models: the sampler's precision check warns (robot 3–5% of a
 predictive std, flight 19–26%, and ~3.8e5 negative flight variances clamped).

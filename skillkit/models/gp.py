@@ -416,7 +416,7 @@ class GPPredictor:
         floor (1000 trajectories × 100 steps, one thread; bit-identical trajectories). The
         raised entries change kᵀβ by at most M·max|β|·e^{−600}σ_f² and ‖Rk‖² by less, ~250
         orders of magnitude below float64's resolution of any mean or variance that is not
-        itself below 1e-240; a floor at e^{−700} was measured 2.6x *slower* than none, since
+        itself below 1e-240; a floor at e^{−700} was measured 2.1x *slower* than none, since
         its products with small weights are denormal. (Before issue #18's follow-up the
         float64 path had no floor; results are bit-identical on every stored experiment's
         smoke run, see ``data/README.md``.)

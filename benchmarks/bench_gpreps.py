@@ -110,7 +110,10 @@ throws), nothing else running: ``--dtype float64 --threads 2 --flight stop full 
     2 thread(s), float64, flight stop, totals of all repeats: 18.42s, 16.78s, 17.24s, 17.51s, 17.60s
     2 thread(s), float64, flight full, totals of all repeats: 17.16s, 19.56s, 15.82s, 16.63s, 18.17s
 
-and just before it ``--threads 1 2 --flight stop --repeats 3``: 2 threads 18.02, 15.47, 19.20 s;
+(in the one-run benchmark ``bench_prediction.py`` after these changes, one repeat each: 2 threads
+float64 16.12 s stopped, 21.14 s full, whose training alone took 9.58 s against 7.96 s in the
+stopped row: the same work, this VM's noise), and just before it
+``--threads 1 2 --flight stop --repeats 3``: 2 threads 18.02, 15.47, 19.20 s;
 1 thread 27.10, 21.48, 24.67 s. So every one of 13 float64 updates on two threads took under
 issue #18's 20 s (15.5–19.6 s), against 17.0–23.6 s after the floor alone and 18.0–22.5 s
 before either. One-thread predictions of the same 500 × 25 throws: 18.6–24.2 s before, 16.0–18.8

@@ -110,15 +110,16 @@ throws), nothing else running: ``--dtype float64 --threads 2 --flight stop full 
     2 thread(s), float64, flight stop, totals of all repeats: 18.42s, 16.78s, 17.24s, 17.51s, 17.60s
     2 thread(s), float64, flight full, totals of all repeats: 17.16s, 19.56s, 15.82s, 16.63s, 18.17s
 
-(in the one-run benchmark ``bench_prediction.py`` after these changes, one repeat each: 2 threads
-float64 16.12 s stopped, 21.14 s full, whose training alone took 9.58 s against 7.96 s in the
-stopped row: the same work, this VM's noise), and just before it
-``--threads 1 2 --flight stop --repeats 3``: 2 threads 18.02, 15.47, 19.20 s;
-1 thread 27.10, 21.48, 24.67 s. So every one of 13 float64 updates on two threads took under
-issue #18's 20 s (15.5–19.6 s), against 17.0–23.6 s after the floor alone and 18.0–22.5 s
-before either. One-thread predictions of the same 500 × 25 throws: 18.6–24.2 s before, 16.0–18.8
-with the floor, 10.7–13.2 with the blocks too. This VM's speed varies by ±15% between runs
-minutes apart (its 1-thread float64 matmul peak: 57–75 GFLOP/s this week).
+Just before it, ``--threads 1 2 --flight stop --repeats 3``: 2 threads 18.02, 15.47, 19.20 s;
+1 thread 27.10, 21.48, 24.67 s; and after it the one-run benchmark ``bench_prediction.py`` (one
+repeat each): 2 threads 16.12 s stopped, 21.14 s full (whose training alone took 9.58 s against
+7.96 s in the stopped row: the same work, this VM's noise). So on two threads in float64, with
+the flight stopped at the ground (the default) all 9 updates took 15.5–19.2 s, under issue
+#18's 20 s; with the full flight 5 of 6 did (15.8–21.1 s); before these changes 18.0–20.3 s
+(stopped) and 19.7–22.5 s (full), after the floor alone 17.0–23.6 s (stopped). One-thread
+predictions of the same 500 × 25 throws: 18.6–24.2 s before, 16.0–18.8 with the floor,
+10.7–13.2 with the blocks too. This VM's speed varies by ±15% between runs minutes apart (its
+1-thread float64 matmul peak: 57–76 GFLOP/s this week).
 
 float32 is not usable on these models: the sampler's precision check warns (robot 3–5% of a
 predictive std, flight 19–26%, and ~3.8e5 negative flight variances clamped).

@@ -42,7 +42,8 @@ Design:
   it (the float32 path before issue #18: 0.095 and 0.022, from round-off in a float32
   exponent); 400 trajectories × 100 steps with the same seed: KL between Gaussian fits of the
   final states 2e-8 against a Monte Carlo floor of 0.1 (float64 with another seed). Speed:
-  1.3–1.7x float64's on one thread of this (shared, loaded) machine. The accuracy depends on
+  0.9–1.7x float64's on one thread and 1.3–1.5x on two across the runs of
+  ``benchmarks/bench_prediction.py`` (this VM's timings vary by ±15%). The accuracy depends on
   the model's conditioning, not on where the states are: with ‖β‖ or ‖R‖ large against σ_ε
   (x′ targets near the GP's linear limit, σ_f²/σ_ε² ~ 1e4) float32 means were off by 0.06–0.17
   predictive standard deviations in our tests, from rounding k and β to float32 (computing

@@ -598,10 +598,13 @@ def _summarize_4_4(settings: ComputeTimeSettings, trials: list[dict]) -> tuple[l
         "mm_gflops": {},
         "sampling_gflops": {},
     }
-    # Counted flops (exp as one flop in both) of one step: E = 8 outputs, D = 8 + 4 inputs.
+    # Counted flops (exp as one flop in both) of one step of the balancing model: E = n_x
+    # outputs, D = n_x + n_u inputs, x = [q, q̇] of the robot's joints and one torque per joint.
     T, M = settings.horizon, trials[0]["n_pseudo"]
-    mm_flops = moment_matching_flops_per_step(8, M, 12) * T
-    sample_flops = sampler_flops_per_step(8, M, 12) * T
+    n_x = X_UP.size
+    n_u = n_x // 2
+    mm_flops = moment_matching_flops_per_step(n_x, M, n_x + n_u) * T
+    sample_flops = sampler_flops_per_step(n_x, M, n_x + n_u) * T
     for th in map(str, settings.threads):
         st = np.median([t["sampling_time"][th] for t in trials], axis=0)
         mm = float(np.median([t["mm_time"][th] for t in trials]))
@@ -624,8 +627,8 @@ def _summarize_4_4(settings: ComputeTimeSettings, trials: list[dict]) -> tuple[l
                 "n_data": trials[0]["n_data"],
                 "n_pseudo_inputs": trials[0]["n_pseudo"],
                 "horizon": settings.horizon,
-                "state_dim": 8,
-                "control_dim": 4,
+                "state_dim": n_x,
+                "control_dim": n_u,
             },
             "flops_per_prediction": {
                 "moment_matching": mm_flops,

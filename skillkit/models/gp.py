@@ -107,6 +107,12 @@ FLUSH_EXPONENT = 40.0
 #: exp(−FLOOR_EXPONENT_FLOAT64), are raised to that value, so that ``exp`` never underflows and
 #: no product with a weight above ~1e-47 is denormal (see :meth:`GPPredictor.kernel_vectors`).
 FLOOR_EXPONENT_FLOAT64 = 600.0
+#: Per predictor dtype: (e, b) with the kernel exponent log k raised to at least
+#: max(log σ_f² − e, b) (never above log σ_f²) in :meth:`GPPredictor.kernel_vectors`.
+_KERNEL_FLOOR = {
+    torch.float32: (FLUSH_EXPONENT, math.log(torch.finfo(torch.float32).tiny) + 7.0),
+    torch.float64: (FLOOR_EXPONENT_FLOAT64, -FLOOR_EXPONENT_FLOAT64),
+}
 _JITTER_LEVELS = (1e-12, 1e-10, 1e-8, 1e-6, 1e-4)
 
 
@@ -424,12 +430,8 @@ class GPPredictor:
         query = se_operands(x.unsqueeze(0).to(self._support_operand.dtype), self._query_scale)
         e = query @ self._support_operand.transpose(-1, -2)
         lim = self._log_outputscale[:, None, None]
-        if self.dtype == torch.float64:
-            floor = torch.minimum(
-                (lim - FLOOR_EXPONENT_FLOAT64).clamp_min(-FLOOR_EXPONENT_FLOAT64), lim
-            )
-        else:
-            floor = (lim - FLUSH_EXPONENT).clamp_min(math.log(torch.finfo(self.dtype).tiny) + 7.0)
+        below, bound = _KERNEL_FLOOR[self.dtype]
+        floor = torch.minimum((lim - below).clamp_min(bound), lim)
         if torch.is_grad_enabled() and e.requires_grad:
             return torch.clamp(e, floor, lim).to(self.dtype).exp()
         return torch.clamp(e, floor, lim, out=e).to(self.dtype).exp_()

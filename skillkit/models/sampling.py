@@ -53,7 +53,7 @@ Design:
   float64: the thesis experiments' stored results (and runs in flight) were sampled in
   float64, and float64 results are bit-identical to those before the float32 path existed
   (tested); switching would change every sampled number.
-* **Underflow in float64.** Far from the data most kernel entries underflow: on the trained
+* **Underflow in float64.** Far from the data kernel entries underflow: on the trained
   fig4.4 balancing model (M = 300) 23 % of them were 0 and 0.6 % denormal along sampled
   trajectories, and ``exp`` of such arguments and products with denormal numbers are many
   times slower. The float64 predictor raises entries below e^{−600} σ_f² (and e^{−600}) to

@@ -643,8 +643,6 @@ class Throwing(Task):
             m, c = rigid_body_terms(x[..., :4], x[..., 4:], self.robot.gravity)
             return (m @ a[..., None])[..., 0] + c
 
-        if states.ndim < 2:
-            return inverse_dynamics(states, accelerations)
         return _by_rows(inverse_dynamics, states, accelerations)
 
     def commanded_accelerations(self, states, controls) -> np.ndarray:

@@ -34,7 +34,7 @@ import numpy as np
 import torch
 
 from skillkit._repr import number, span
-from skillkit._validation import check_array, check_positive
+from skillkit._validation import check_array, check_count, check_positive
 from skillkit.models.kernels import Linear, SquaredExponential, gram
 
 __all__ = [
@@ -161,12 +161,13 @@ def rollout_weights(
         step; or a callable ``t -> tensor`` (t = 1, …, n_steps − 1) for time-dependent
         policies, returning the matrix that maps β_t to β_{t+1}.
     n_steps : int
-        Number of weight vectors to return (β_1, …, β_{n_steps}).
+        Number of weight vectors to return (β_1, …, β_{n_steps}), ≥ 1.
 
     Returns
     -------
     Tensor, shape (n_steps, N, B)
     """
+    n_steps = check_count(n_steps, "n_steps")
     betas = [beta1]
     beta = beta1
     for t in range(1, n_steps):

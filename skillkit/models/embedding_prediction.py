@@ -30,7 +30,7 @@ import numpy as np
 import torch
 
 from skillkit._repr import span
-from skillkit._validation import check_array
+from skillkit._validation import check_array, check_count
 from skillkit.models.embedding import ConditionalEmbedding, initial_weights, rollout_weights
 
 __all__ = ["TrajectoryEmbedding", "predict"]
@@ -147,11 +147,7 @@ def predict(
             f"got shape {x0.shape}"
         )
     samples = x0 if x0.ndim == 3 else x0[:, None, :]  # (B, L, n_x)
-    n_rows = int(n_steps)
-    if n_rows < 2:
-        raise ValueError(
-            f"n_steps: expected at least 2 rows (initial state + one prediction), got {n_steps}"
-        )
+    n_rows = check_count(n_steps, "n_steps", minimum=2)  # initial state + one prediction
     if policy is None and model.input_dim != n_x:
         raise ValueError(
             f"policy: the model's inputs have {model.input_dim} columns but its "

@@ -35,7 +35,7 @@ import torch
 from scipy.optimize import minimize
 
 from skillkit._repr import number, vector
-from skillkit._validation import as_generator, check_array, check_positive
+from skillkit._validation import as_generator, check_array, check_count, check_positive
 from skillkit.models.embedding import (
     conditional_weights,
     initial_weights,
@@ -380,7 +380,8 @@ def state_embedding_loss(
         raise ValueError(f"targets: expected {z.shape[0]} rows like inputs, got shape {y.shape}")
     g_y = gram(target_kernel, y)
     fns = []
-    for tr, va in _check_folds(folds, z.shape[0]):
+    folds = _check_folds(folds, z.shape[0])
+    for tr, va in folds:
         args = (
             _t(z[tr]),
             _t(z[va]),
@@ -406,7 +407,8 @@ def step_reward_loss(inputs, rewards, folds: Folds) -> CrossValidatedLoss:
     z = check_array(inputs, "inputs", ndim=2)
     r = check_array(rewards, "rewards", shape=(z.shape[0],))
     fns = []
-    for tr, va in _check_folds(folds, z.shape[0]):
+    folds = _check_folds(folds, z.shape[0])
+    for tr, va in folds:
         args = (_t(z[tr]), _t(r[tr]), _t(z[va]), _t(r[va]))
         fns.append(lambda th, a=args: step_reward_error(th, *a))
     return CrossValidatedLoss(fns, z.shape[1], sum(len(va) for _, va in folds))
@@ -443,8 +445,8 @@ def trajectory_reward_loss(
     folds : sequence of (train_idx, val_idx)
         Splits of the M trajectories (e.g. ``kfold_splits(M, 10, rng)``).
     chunk : int
-        Validation trajectories per backward pass (bounds the memory of the (chunk, N, N)
-        transition matrices).
+        Validation trajectories (≥ 1) per backward pass (bounds the memory of the
+        (chunk, N, N) transition matrices).
     project_initial : bool
         Eq. (5.9)'s first step, as in :func:`trajectory_reward_error`.
     """
@@ -454,6 +456,7 @@ def trajectory_reward_loss(
     if u.shape[:2] != (m, t_len):
         raise ValueError(f"controls: expected shape ({m}, {t_len}, n_u) like states, got {u.shape}")
     r = check_array(rewards, "rewards", shape=(m, t_len))
+    chunk = check_count(chunk, "chunk")
     z_all = np.concatenate([x, u], axis=-1)
     fns, n_val = [], 0
     for tr, va in _check_folds(folds, m):
@@ -468,8 +471,8 @@ def trajectory_reward_loss(
         s = np.broadcast_to(xp_tr[None], (len(va),) + xp_tr.shape)
         bases = np.concatenate([s, c], axis=-1)  # (V, N, d)
         basis_r = check_array(reward(s, c), "reward(states, controls)", shape=(len(va), len(s[0])))
-        for lo in range(0, len(va), int(chunk)):
-            sl = slice(lo, lo + int(chunk))
+        for lo in range(0, len(va), chunk):
+            sl = slice(lo, lo + chunk)
             args = (_t(z_tr), _t(z_all[va][sl, 0]), _t(bases[sl]), _t(basis_r[sl]), _t(r[va][sl]))
             fns.append(lambda th, a=args: trajectory_reward_error(th, *a, project_initial))
         n_val += len(va) * (t_len - 1)

@@ -377,9 +377,17 @@ class GPPredictor:
         caches are computed from this predictor's values in float64 and cast once (see
         :meth:`kernel_vectors`), so no set-up quantity goes through float32 twice. Such a
         conversion is kept (not pickled), so repeated float32 sampling sets up once.
+
+        Raises
+        ------
+        ValueError
+            If ``dtype`` is neither ``torch.float64`` nor ``torch.float32`` (the dtypes whose
+            kernel floor :meth:`kernel_vectors` defines).
         """
         device = self.device if device is None else torch.device(device)
         dtype = self.dtype if dtype is None else dtype
+        if dtype not in _KERNEL_FLOOR:
+            raise ValueError(f"dtype: expected torch.float64 or torch.float32, got {dtype!r}")
         if device == self.device and dtype == self.dtype:
             return self
         reduced = torch.finfo(dtype).bits < torch.finfo(self.dtype).bits
@@ -903,7 +911,8 @@ class _GPRegression:
         if at_floor:
             warnings.warn(
                 f"noise variance of output(s) {at_floor} is at the floor noise_floor="
-                f"{self.noise_floor:g} (x std(y)^2): the data look noise-free to the model",
+                f"{self.noise_floor:g} (x std(y)^2 when standardised): the data look noise-free to "
+                "the model",
                 GPNumericalWarning,
                 stacklevel=2,
             )
@@ -1132,9 +1141,13 @@ class ExactGP(_GPRegression):
     lengthscale : float or array_like, shape (d,) or (E, d), optional
         Initial ARD length-scales (default: per-input standard deviation).
     outputscale, noise : float, optional
-        Initial σ_f² and σ_ε² in raw target units (default: var(y) and var(y)/100).
+        Initial σ_f² and σ_ε² in raw target units (default: 1 and 1/100 in standardised
+        units, i.e. var(y) and var(y)/100, or 1 and 1/100 with ``standardize=False``). An
+        initial σ_ε² below 1.5 × the noise floor is raised to that value (the optimiser
+        starts inside the constraint).
     noise_floor : float
-        Lower bound of σ_ε² relative to var(y) (default 1e-6).
+        Lower bound of σ_ε² relative to var(y) (default 1e-6); with ``standardize=False``
+        targets are not scaled and the bound is absolute (σ_ε² ≥ noise_floor).
     additive_noise : float
         α of Sec. 4.2.3: targets get N(0, (α·10⁻²·std(y))²) noise before training (default 1;
         0 disables).

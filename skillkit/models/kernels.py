@@ -13,7 +13,7 @@ import numpy as np
 import torch
 from gpytorch.constraints import Positive
 
-from skillkit._validation import check_array
+from skillkit._validation import check_array, check_positive
 
 
 def se_kernel(
@@ -185,13 +185,17 @@ class SquaredExponential(gpytorch.kernels.Kernel):
         self.register_constraint("raw_outputscale", Positive())
         # float64 by default (DESIGN.md); before the values are set, so they are exact
         self.double()
-        ls = torch.as_tensor(
-            np.broadcast_to(np.asarray(lengthscale, dtype=float), (int(input_dim),)).copy()
-        )
+        try:
+            ls = torch.as_tensor(
+                np.broadcast_to(np.asarray(lengthscale, dtype=float), (int(input_dim),)).copy()
+            )
+        except (TypeError, ValueError):
+            raise ValueError(
+                f"lengthscale: expected a scalar or shape ({int(input_dim)},), got {lengthscale!r}"
+            ) from None
         if torch.any(ls <= 0) or not torch.all(torch.isfinite(ls)):
             raise ValueError(f"lengthscale: expected positive finite values, got {lengthscale}")
-        if not (np.isfinite(outputscale) and outputscale > 0):
-            raise ValueError(f"outputscale: expected a positive finite value, got {outputscale}")
+        check_positive(outputscale, "outputscale")
         self.lengthscale = ls.expand(*self.batch_shape, 1, int(input_dim)).clone()
         self.outputscale = torch.full(self.batch_shape, float(outputscale), dtype=torch.float64)
 
@@ -229,10 +233,8 @@ class Linear(gpytorch.kernels.Kernel):
         **kwargs,
     ):
         super().__init__(batch_shape=batch_shape or torch.Size([]), **kwargs)
-        if not (np.isfinite(variance) and variance > 0):
-            raise ValueError(f"variance: expected a positive finite value, got {variance}")
-        if not (np.isfinite(bias) and bias >= 0):
-            raise ValueError(f"bias: expected a finite value >= 0, got {bias}")
+        check_positive(variance, "variance")
+        check_positive(bias, "bias", allow_zero=True)
         self.register_parameter("raw_variance", torch.nn.Parameter(torch.zeros(self.batch_shape)))
         self.register_constraint("raw_variance", Positive())
         self.double()
@@ -262,6 +264,7 @@ def gram(kernel: gpytorch.kernels.Kernel, X, Z=None) -> np.ndarray:
     kernel : gpytorch Kernel
         E.g. :class:`SquaredExponential` or :class:`Linear` (not modified).
     X : array_like, shape (n, d)
+        d must be the kernel's input dimension (``ard_num_dims``) if it has one.
     Z : array_like, shape (m, d), optional
         Defaults to ``X``.
 
@@ -270,6 +273,11 @@ def gram(kernel: gpytorch.kernels.Kernel, X, Z=None) -> np.ndarray:
     ndarray, shape (n, m)
     """
     x = check_array(X, "X", ndim=2)
+    d = getattr(kernel, "ard_num_dims", None)
+    if d is not None and x.shape[1] != d:
+        raise ValueError(
+            f"X: expected {d} columns (the kernel's input dimension), got shape {x.shape}"
+        )
     z = x if Z is None else check_array(Z, "Z", ndim=2)
     if z.shape[1] != x.shape[1]:
         raise ValueError(f"Z: expected {x.shape[1]} columns like X, got shape {z.shape}")

@@ -80,8 +80,8 @@ import numpy as np
 import torch
 
 from skillkit._repr import number, span
-from skillkit._validation import as_generator, check_positive
-from skillkit.models.gp import DTYPE, VARIANCE_TOL, GPNumericalWarning, GPPredictor
+from skillkit._validation import as_generator, check_count, check_positive
+from skillkit.models.gp import DTYPE, VARIANCE_TOL, GPNumericalWarning, GPPredictor, as_device
 from skillkit.models.pathwise import PathwiseBasis
 
 __all__ = [
@@ -197,14 +197,15 @@ def sample_trajectories(
     control_limit : float or array_like, shape (n_u,), optional
         Saturate ``|u| ≤ control_limit`` (counted in ``n_saturated``).
     device : str or torch.device, optional
-        Where to compute (default: the CPU).
+        Where to compute: a CPU or CUDA device (default: the CPU).
     dtype : torch.float64 or torch.float32
         Floating point type: float64 (default; the thesis's and every stored result's) or the
         opt-in float32 path (see the module notes: faster, accurate for well-conditioned models;
         its accuracy on the visited states is measured and reported as ``precision_error``).
     max_chunk_bytes : int
-        Bound on the kernel work arrays per chunk of trajectories (default 32 MiB: small
-        arrays are recycled by the allocator and stay in cache; see the benchmark).
+        Bound (≥ 1) on the kernel work arrays per chunk of trajectories (default 32 MiB:
+        small arrays are recycled by the allocator and stay in cache; see the benchmark); a
+        chunk holds at least one trajectory whatever the bound.
     method : {"per-step", "pathwise", "pathwise-shared"}
         "per-step" (default, the thesis's Sec. 4.2.1): every transition is an independent
         draw from the one-step predictive distribution. "pathwise": every trajectory draws one
@@ -230,12 +231,18 @@ def sample_trajectories(
     Raises
     ------
     ValueError
-        On bad shapes, non-finite start states, a policy returning the wrong shape or
-        non-finite controls, an unsupported dtype or method, pathwise sampling of a model
+        On bad shapes, a device that is not a CPU or an available CUDA device, non-finite
+        start states, a ``control_limit`` that is not positive or of the wrong length, a
+        ``max_chunk_bytes`` that is not a positive integer, a policy returning the wrong shape
+        or non-finite controls, an unsupported dtype or method, pathwise sampling of a model
         that is not a GP forward model, a ``stop`` that is not callable or is combined with a
         pathwise method, or a ``stop`` returning anything but a bool Tensor of shape (n,).
     """
-    device = torch.device("cpu" if device is None else device)
+    # The device tensors made there report ("cuda" -> "cuda:<current>", "cpu:0" -> "cpu"), so
+    # that the policy's controls can be checked against it.
+    device = as_device(device)
+    if device.type == "cuda" and device.index is None:
+        device = torch.device("cuda", torch.cuda.current_device())
     if dtype not in (torch.float64, torch.float32):
         raise ValueError(f"dtype: expected torch.float64 or torch.float32, got {dtype!r}")
     if method not in ("per-step", "pathwise", "pathwise-shared"):
@@ -263,6 +270,7 @@ def sample_trajectories(
     if int(n_trajectories) != n_trajectories or n_trajectories < 1:
         raise ValueError(f"n_trajectories: expected a positive integer, got {n_trajectories!r}")
     T, L = int(horizon), int(n_trajectories)
+    max_chunk_bytes = check_count(max_chunk_bytes, "max_chunk_bytes")
     x0 = (
         torch.tensor(np.asarray(x0), dtype=dtype, device=device)  # a copy: x0 may be read-only
         if not isinstance(x0, torch.Tensor)
@@ -279,7 +287,12 @@ def sample_trajectories(
         raise ValueError("x0: expected at least one start state (B >= 1)")
     limit = None
     if control_limit is not None:
-        lim = np.broadcast_to(np.asarray(control_limit, dtype=float), (n_u,))
+        try:
+            lim = np.broadcast_to(np.asarray(control_limit, dtype=float), (n_u,))
+        except (TypeError, ValueError):
+            raise ValueError(
+                f"control_limit: expected a scalar or shape ({n_u},), got {control_limit!r}"
+            ) from None
         for v in lim:
             check_positive(v, "control_limit")
         limit = torch.as_tensor(lim.copy(), dtype=dtype, device=device)

@@ -252,7 +252,8 @@ class FITC(_SparseGP):
     Parameters
     ----------
     n_inducing : int
-        M, the number of pseudo-inputs (M = N/4 in Fig. 4.5; all N inputs if M ≥ N).
+        M, the number of pseudo-inputs (M = N/4 in Fig. 4.5; all N inputs if M ≥ N); not
+        used when ``inducing`` is given (its M is).
     inducing : array_like, shape (M, d) or (E, M, d), optional
         Initial pseudo-inputs (default: k-means++ seeding on the training inputs).
     optimize_inducing : bool

@@ -348,3 +348,24 @@ def test_bad_input_raises_naming_the_argument():
         sa.preimage(np.ones(10))
     with pytest.raises(np.linalg.LinAlgError, match="lam"):
         regularized_cholesky(-torch.eye(3, dtype=torch.float64), 1e-3)
+
+
+@pytest.mark.parametrize("n_steps", [2.7, "5", None])
+def test_n_steps_must_be_an_integer(n_steps):
+    """2.7 rows used to become 2 silently (int()); a string or None failed outside the check."""
+    rng = np.random.default_rng(16)
+    x = rng.normal(size=(10, 2))
+    m = ConditionalEmbedding(x, np.tanh(x), _se(2), lam=1e-3)
+    with pytest.raises(ValueError, match="n_steps: expected an integer"):
+        predict(m, x[:2], n_steps)
+    assert predict(m, x[:2], np.int64(3)).n_steps == 3
+
+
+@pytest.mark.parametrize("n_steps", [0, -2, 1.5])
+def test_rollout_weights_n_steps_must_be_a_positive_integer(n_steps):
+    """n_steps = 0 used to return one weight vector (shape (1, N, B), not (0, N, B))."""
+    chol = torch.eye(3, dtype=torch.float64)
+    beta = torch.ones((3, 2), dtype=torch.float64)
+    with pytest.raises(ValueError, match="n_steps: expected an integer"):
+        rollout_weights(chol, beta, torch.eye(3, dtype=torch.float64), n_steps)
+    assert rollout_weights(chol, beta, torch.eye(3, dtype=torch.float64), 1).shape == (1, 3, 2)

@@ -265,3 +265,29 @@ def test_bad_input_raises_naming_the_argument():
         fit_hyperparameters(loss, lengthscale=1.0, lam=0.0)
     with pytest.raises(ValueError, match="lam"):
         fit_hyperparameters(loss, lengthscale=1.0, lam=10.0, lam_bounds=(1e-6, 1.0))
+
+
+def test_folds_given_once_as_an_iterator_give_the_same_loss():
+    """The folds are a sequence read once: an iterator (e.g. a generator over splits) gives the
+    loss a list gives, not a loss divided by zero validation terms."""
+    rng = np.random.default_rng(8)
+    x, u, r, policy, reward, _ = _rollouts(rng)
+    z, xn, groups = transitions(x, u)
+    folds = kfold_splits(z.shape[0], 3, rng=1, groups=groups)
+    theta = np.array([0.1, -0.2, 0.3, np.log(1e-2)])
+    kern = SquaredExponential(2, lengthscale=xn.std(0))
+    for make in (
+        lambda f: state_embedding_loss(z, xn, f, kern),
+        lambda f: step_reward_loss(z, r[:, 1:].ravel(), f),
+    ):
+        listed, once = make(folds), make(iter(folds))
+        assert once.n_val == listed.n_val == z.shape[0]
+        assert once(theta) == listed(theta) and np.isfinite(listed(theta))
+
+
+@pytest.mark.parametrize("chunk", [0, -1, 2.5])
+def test_trajectory_loss_chunk_must_be_a_positive_integer(chunk):
+    """chunk = -1 used to drop every fold (a loss identically 0), 0 failed inside range()."""
+    x, u, r, policy, reward, _ = _rollouts(np.random.default_rng(9))
+    with pytest.raises(ValueError, match="chunk: expected an integer"):
+        trajectory_reward_loss(x, u, r, policy, reward, kfold_splits(x.shape[0], 3, rng=2), chunk)

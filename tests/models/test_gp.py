@@ -426,3 +426,14 @@ def test_predictive_draws_have_the_predicted_moments():
     np.testing.assert_allclose(latent, one.predict(Xq, include_noise=False)[1], rtol=0.05)
     with pytest.raises(ValueError, match="n_samples"):
         gp.sample(Xq, 0, 0)
+
+
+@pytest.mark.parametrize("dtype", [torch.float16, torch.bfloat16, torch.int64])
+def test_predictor_to_an_unsupported_dtype_names_it(dtype):
+    """float64 and float32 only (the kernel floor is defined for those); before, float16 failed
+    later with a KeyError inside ``kernel_vectors`` and int64 with a torch.finfo TypeError."""
+    X, Y = _data(15)
+    pred = ExactGP(n_steps=0).fit(X, Y, rng=0).predictor
+    with pytest.raises(ValueError, match="dtype: expected torch.float64 or torch.float32"):
+        pred.to(dtype=dtype)
+    assert pred.to(dtype=torch.float64) is pred

@@ -175,3 +175,23 @@ def test_bad_input():
         Linear(variance=-1.0)
     with pytest.raises(ValueError, match="bias"):
         Linear(bias=-0.5)
+
+
+@pytest.mark.parametrize("input_dim", [1, 2, 4])
+def test_gram_rejects_inputs_whose_width_is_not_the_kernels(input_dim):
+    """An ARD kernel of d inputs on data with 3 columns: a ValueError naming X, not one
+    length-scale silently broadcast over every column (d = 1) or a torch size error."""
+    with pytest.raises(ValueError, match=rf"X: expected {input_dim} columns"):
+        gram(SquaredExponential(input_dim), _x(4))
+    assert gram(Linear(), _x(4)).shape == (4, 4)  # no input dimension: any width
+
+
+def test_kernel_parameters_name_the_argument():
+    with pytest.raises(ValueError, match=r"lengthscale: expected a scalar or shape \(3,\)"):
+        SquaredExponential(3, lengthscale=[1.0, 2.0])
+    with pytest.raises(ValueError, match="outputscale"):
+        SquaredExponential(2, outputscale="large")
+    with pytest.raises(ValueError, match="variance"):
+        Linear(variance=None)
+    with pytest.raises(ValueError, match="bias"):
+        Linear(bias=float("nan"))

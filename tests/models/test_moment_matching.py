@@ -170,7 +170,17 @@ def test_gaussian_kl_closed_form():
         np.ones((3, 2)),
         2 * np.eye(2)[None].repeat(3, 0),
     )
-    assert batch.shape == (3,) and np.allclose(batch, batch[0])
+    # KL(N(0, I) || N(1, 2I)) in 2-D: ½(tr(I/2) + 1ᵀ(I/2)1 − 2 + log 4) = log 2 per batch entry.
+    assert batch.shape == (3,)
+    np.testing.assert_allclose(batch, np.log(2.0), rtol=1e-14)
+    # A full (correlated) pair against the closed form written with explicit inverses.
+    Sp, Sq = np.array([[1.0, 0.3], [0.3, 0.5]]), np.array([[2.0, -0.4], [-0.4, 1.0]])
+    mp, mq = np.array([0.1, -0.2]), np.array([0.5, 0.4])
+    iq, diff = np.linalg.inv(Sq), mq - mp
+    ref = 0.5 * (
+        np.trace(iq @ Sp) + diff @ iq @ diff - 2 + np.log(np.linalg.det(Sq) / np.linalg.det(Sp))
+    )
+    assert gaussian_kl(mp, Sp, mq, Sq) == pytest.approx(ref, rel=1e-12)
 
 
 def test_bad_input():

@@ -173,7 +173,7 @@ def test_bad_input(model):
         PathwiseBasis(model.predictor, 2.5)
     with pytest.raises(ValueError, match="predictor"):
         PathwiseBasis(model, 8)
-    with pytest.raises(ValueError, match="n"):
+    with pytest.raises(ValueError, match="n: expected an integer"):
         draw_functions(model.predictor, 0)
 
     class NotAGP:

@@ -204,3 +204,27 @@ def test_stop_rule_bad_input(gp_model):
         sample_trajectories(gp_model, x0, _feedback, 3, 4, stop=lambda k, x: x[:, :1] > 0)
     with pytest.raises(ValueError, match=r"stop: expected a bool Tensor of shape \(4,\)"):
         sample_trajectories(gp_model, x0, _feedback, 3, 4, stop=lambda k, x: x[:, 0])
+
+
+def test_control_limit_shape_and_chunk_budget_are_checked(gp_model):
+    """A limit of the wrong length names ``control_limit`` (not a numpy broadcast error); a
+    chunk budget that is not a positive integer is refused, not run one row at a time."""
+    ok = np.zeros((2, 2))
+    with pytest.raises(ValueError, match=r"control_limit: expected a scalar or shape \(1,\)"):
+        sample_trajectories(gp_model, ok, _feedback, 3, 2, control_limit=[1.0, 2.0])
+    for bad in (0, -5, 2.5):
+        with pytest.raises(ValueError, match="max_chunk_bytes: expected an integer"):
+            sample_trajectories(gp_model, ok, _feedback, 3, 2, max_chunk_bytes=bad)
+
+
+@pytest.mark.parametrize("device", ["cpu:0", torch.device("cpu", 0)])
+def test_an_indexed_device_samples_like_the_default(gp_model, device):
+    """``device="cpu:0"`` used to reject every policy ("expected controls ... on cpu:0, got ...
+    on cpu": tensors report the device without its index), as ``"cuda"`` would against
+    controls on ``cuda:0``; the device is now the one tensors made there report."""
+    x0 = np.array([[0.5, 0.0], [0.0, 0.5]])
+    ref = sample_trajectories(gp_model, x0, _feedback, 4, 8, rng=3)
+    res = sample_trajectories(gp_model, x0, _feedback, 4, 8, rng=3, device=device)
+    assert torch.equal(res.states, ref.states) and torch.equal(res.controls, ref.controls)
+    with pytest.raises(ValueError, match="device"):
+        sample_trajectories(gp_model, x0, _feedback, 4, 8, device="nonsense")

@@ -240,7 +240,11 @@ class SampleBuffer:
 
     def __init__(self, n_batches: int | None):
         if n_batches is not None and (
-            isinstance(n_batches, bool) or int(n_batches) != n_batches or n_batches < 1
+            isinstance(n_batches, bool)
+            or not isinstance(n_batches, (int, np.integer, float, np.floating))
+            or not np.isfinite(n_batches)
+            or int(n_batches) != n_batches
+            or n_batches < 1
         ):
             raise ValueError(
                 f"n_reuse_batches: expected a positive integer or None, got {n_batches!r}"

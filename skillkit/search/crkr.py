@@ -40,8 +40,9 @@ from skillkit.search.rwr import rwr_weighting
 
 
 def gram(kernel, X, Z=None) -> np.ndarray:
-    """:func:`skillkit.models.kernels.gram`, imported on first use so that importing
-    :mod:`skillkit.search` (REPS, RWR) does not load torch/gpytorch."""
+    """:func:`skillkit.models.kernels.gram`, imported on first use (this module does not
+    load torch/gpytorch when imported; :mod:`skillkit.search` as a whole does, through
+    GPREPS and PILCO)."""
     from skillkit.models.kernels import gram as kernel_gram
 
     return kernel_gram(kernel, X, Z)
@@ -69,7 +70,8 @@ class CrKRPolicy:
     omegas : array_like, shape (N, d)
         Sample parameters Ω.
     weights : array_like, shape (N,)
-        Non-negative weights w (any scale; C = W⁻¹).
+        Non-negative weights w with a positive sum, any scale: they are divided by their
+        maximum, so C = (W / max w)⁻¹ (the weights exp(β (R − max R)) of the module notes).
     lam : float
         λ > 0.
     variance_scale : array_like, shape (d,), optional

@@ -585,6 +585,14 @@ class GPREPS:
             predicted = self.reward_model.expected_rewards(
                 batch.contexts, batch.omegas, st.n_trajectories, rng
             )
+            # Shape only (dtype kept): a non-finite prediction is reported in the diagnostics.
+            predicted = check_array(
+                predicted,
+                "reward_model.expected_rewards",
+                shape=(len(batch),),
+                finite=False,
+                dtype=None,
+            )
         t_pred0 = time.perf_counter() - t0
 
         self._real.add(batch.contexts, batch.omegas, batch.rewards)

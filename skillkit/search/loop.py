@@ -146,7 +146,7 @@ class Evaluator:
     def draw(
         cls,
         task: Task,
-        rng: np.random.Generator,
+        rng: np.random.Generator | int | None,
         contexts: ArrayLike | None = None,
         seed: int | None = None,
     ) -> Evaluator:
@@ -157,8 +157,10 @@ class Evaluator:
         Raises
         ------
         ValueError
-            Naming ``eval_contexts`` when a context has the wrong shape or lies outside μ(s).
+            Naming ``eval_contexts`` when a context has the wrong shape or lies outside μ(s),
+            ``eval_seed`` when ``seed`` is not a non-negative integer, or ``rng``.
         """
+        rng = as_generator(rng)
         if contexts is None:
             eval_s = task.sample_context(rng, n=N_EVAL_CONTEXTS)
         else:
@@ -170,7 +172,9 @@ class Evaluator:
                 )
             eval_s = np.stack([task.check_context(s, "eval_contexts") for s in eval_s])
         drawn = int(rng.integers(2**63))
-        if seed is not None and (not isinstance(seed, (int, np.integer)) or seed < 0):
+        if seed is not None and (
+            isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0
+        ):
             raise ValueError(f"eval_seed: expected a non-negative integer, got {seed!r}")
         return cls(task, eval_s, drawn if seed is None else int(seed))
 
@@ -224,6 +228,9 @@ class LoopState:
     initial_rollouts : int or None
         Rollouts of the first batch when it differs from the others (``None``: all batches
         have the same size, e.g. GPREPS's N₀ initial rollouts, Table 4.1).
+    rollouts_per_update : int or None
+        N, the rollouts of every later batch (``None`` in states saved before it was
+        recorded); a resumed :func:`learn` must use the same N and N₀.
     """
 
     algorithm: SearchAlgorithm
@@ -237,6 +244,7 @@ class LoopState:
     callback: list[Any] = field(default_factory=list)
     policies: list[SearchPolicy] = field(default_factory=list)
     initial_rollouts: int | None = None
+    rollouts_per_update: int | None = None
 
     def record_update(
         self, batch: Batch, n_rollouts: int, diagnostics: Any, mean_reward: float, callback: Any
@@ -326,7 +334,8 @@ def learn(
         advances its progress bar by one per update (the trial's owner sets the total with
         ``trial.reset``) and checkpoints the :class:`LoopState` and the generator under
         ``checkpoint_key`` after every update; a call with the same key resumes where the last
-        one stopped, giving the same numbers as an uninterrupted run. Without a trial the
+        one stopped, giving the same numbers as an uninterrupted run (it must use the same
+        ``rollouts_per_update`` and ``initial_rollouts``, else ``ValueError``). Without a trial the
         loop shows its own progress bar and keeps no checkpoints.
     progress : bool
         Show that progress bar (only used without ``trial``).
@@ -379,6 +388,7 @@ def learn(
     if state is None:
         state = LoopState(algorithm, evaluator.contexts, evaluator.seed)
         state.initial_rollouts = None if n0 == n else n0
+        state.rollouts_per_update = n
         state.mean_reward.append(evaluator(algorithm.policy))
         state.callback.append(None if callback is None else callback(0, algorithm))
         state.policies.append(algorithm.policy)
@@ -388,6 +398,7 @@ def learn(
                 f"n_updates: the state saved under checkpoint_key={checkpoint_key!r} has "
                 f"{state.k} updates, more than n_updates={n_updates}"
             )
+        _check_resumed_rollouts(state, n, n0, checkpoint_key)
         vars(algorithm).update(vars(state.algorithm))
         state.algorithm = algorithm
         evaluator = Evaluator(task, state.eval_contexts, state.eval_seed)
@@ -454,6 +465,23 @@ def _check_task_and_algorithm(task: Task, algorithm: SearchAlgorithm) -> None:
             f"algorithm: policy has dim={pol.dim}, context_dim={pol.context_dim}; "
             f"task {task.name!r} "
             f"needs dim={task.parameter_dim}, context_dim={task.context_dim}"
+        )
+
+
+def _check_resumed_rollouts(state: LoopState, n: int, n0: int, key: str) -> None:
+    """A resumed state must have been collected with the same N and N₀: its rollout counts
+    (:meth:`LoopState.rollouts`) are computed from them."""
+    saved_n = state.rollouts_per_update
+    if saved_n is not None and saved_n != n:
+        raise ValueError(
+            f"rollouts_per_update: the state saved under checkpoint_key={key!r} was collected "
+            f"with {saved_n} rollouts per update, got {n}"
+        )
+    saved_n0 = state.initial_rollouts if state.initial_rollouts is not None else saved_n
+    if saved_n0 is not None and saved_n0 != n0:
+        raise ValueError(
+            f"initial_rollouts: the state saved under checkpoint_key={key!r} has a first "
+            f"batch of {saved_n0} rollouts, got {n0}"
         )
 
 

@@ -810,7 +810,14 @@ class ContextualREPS(WeightedMLSearch[REPSDiagnostics]):
             rollout = self._buffer.rollout_mask()
             if not rollout.all():
                 weights = np.where(rollout, weights, 0.0)
-                weights = weights / weights.sum()
+                total = weights.sum()
+                if not total > 0:
+                    raise ValueError(
+                        "extra_context_weighting: with 'dual_only' the dual's weights (3.10) "
+                        "of every rollout row underflow to zero (all weight is on extra-context "
+                        f"rows; eta={sol.eta:.3g}); use 'importance' or a smaller epsilon"
+                    )
+                weights = weights / total
         return weights, {f.name: getattr(sol, f.name) for f in fields(DualSolution)}
 
     def _m_step(

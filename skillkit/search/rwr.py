@@ -32,12 +32,15 @@ def rwr_beta(rewards: ArrayLike, beta_scale: float = 1.0) -> float:
     Parameters
     ----------
     rewards : array_like, shape (N,)
+        Finite rewards, N ≥ 1.
     beta_scale : float
         Dimensionless scale > 0.
     """
     r = check_array(rewards, "rewards", ndim=1)
+    if r.size == 0:
+        raise ValueError("rewards: expected at least one sample, got shape (0,)")
     kappa = check_positive(beta_scale, "beta_scale")
-    sd = float(r.std()) if r.size else 0.0
+    sd = float(r.std())
     return kappa / sd if sd > 0 else 0.0
 
 

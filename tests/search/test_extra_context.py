@@ -1,6 +1,8 @@
 """Extra contexts (Sec. 3.4) without bias: the importance weights of re-scored rows, their use
 in REPS ("naive" / "importance" / "dual_only"), the sample buffer's bookkeeping (issue #17)."""
 
+import warnings
+
 import numpy as np
 import pytest
 from scipy import stats
@@ -142,3 +144,25 @@ def test_bad_input_names_the_argument():
     with pytest.raises(ValueError, match="omegas"):
         extra_context_importance(pol, s, np.zeros((4, 3)), 2)
     assert Batch(s, w, r).n_rollouts == 4 and Batch(s, w, r, n_rollouts=2).n_rollouts == 2
+
+
+def test_dual_only_with_no_weight_left_on_the_rollouts_is_a_clear_error():
+    # All of the dual's weight on extra-context rows: the rollout rows' weights underflow to
+    # zero and used to be renormalised 0/0 into NaN (a RuntimeWarning, then an error about
+    # non-finite "weights" from the fit).
+    rng = np.random.default_rng(0)
+    pol = LinearGaussianPolicy(np.zeros(1), np.eye(1), context_dim=1)
+    reps = ContextualREPS(
+        pol, epsilon=5.0, extra_context_weighting="dual_only", baseline_features="linear"
+    )
+    n, k = 5, 3
+    s = rng.uniform(-1, 1, (n, 1))
+    w = pol.sample(s, rng)
+    rewards = np.r_[np.full(n, -1000.0), rng.normal(size=n * k)]
+    batch = Batch(
+        np.r_[s, rng.uniform(-1, 1, (n * k, 1))], np.r_[w, np.repeat(w, k, 0)], rewards, None, n
+    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        with pytest.raises(ValueError, match="extra_context_weighting: with 'dual_only'"):
+            reps.update(batch)

@@ -222,6 +222,11 @@ def test_context_models():
             np.testing.assert_allclose(np.cov(s.T), np.cov(batch.contexts.T), atol=0.02)
         elif kind == "uniform":
             assert np.all(s >= batch.contexts.min(0)) and np.all(s <= batch.contexts.max(0))
+            # and it fills the box: 20000 uniform draws come within 1e-3 of each face
+            span = batch.contexts.max(0) - batch.contexts.min(0)
+            np.testing.assert_allclose(s.min(0), batch.contexts.min(0), atol=1e-3 * span.max())
+            np.testing.assert_allclose(s.max(0), batch.contexts.max(0), atol=1e-3 * span.max())
+            np.testing.assert_allclose(s.std(0), span / np.sqrt(12), rtol=0.02)
         else:
             assert np.all(np.abs(s) <= 1) and s.min() < -0.99 and s.max() > 0.99
 
@@ -330,6 +335,32 @@ def test_bad_input_names_the_argument():
         KnownRewardModel(3.0)
     with pytest.raises(ValueError, match="initial_rollouts"):
         learn(task, alg, 1, 5, 0, progress=False, initial_rollouts=0)
+
+
+class _ColumnPredictions:
+    """An oracle whose predictions of the real batch come back as a column (N, 1)."""
+
+    def fit(self, contexts, omegas, rewards, trajectories, rng):
+        return {"n_data": len(rewards)}
+
+    def expected_rewards(self, contexts, omegas, n_trajectories, rng):
+        r = true_expected_reward(contexts, omegas)
+        return r if len(r) == 50 else r[:, None]
+
+
+def test_predictions_of_the_real_batch_must_have_one_value_per_row():
+    # A (N, 1) prediction used to broadcast against the (N,) rewards: prediction_rmse came
+    # out of an N × N difference (0.06 where every prediction is exact) instead of an error.
+    task = LinearOptimumTask()
+    alg = GPREPS(
+        task.initial_policy(),
+        _ColumnPredictions(),
+        GPREPSSettings(n_artificial=50, n_trajectories=1),
+        rng=0,
+    )
+    alg.update(collect(task, alg.policy, 5, 0))
+    with pytest.raises(ValueError, match=r"reward_model.expected_rewards: expected shape \(5,\)"):
+        alg.update(collect(task, alg.policy, 5, 1))
 
 
 def test_reprs_are_short_and_informative():

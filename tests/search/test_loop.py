@@ -308,6 +308,42 @@ def test_interrupted_learning_resumes_in_memory():
     _assert_same_run(reference, learn(task, alg, 5, 10, 8, trial=trial))
 
 
+def test_resuming_with_other_batch_sizes_is_refused():
+    # The saved state's rollout counts are N₀ + (k − 1) N: resuming with another N used to
+    # relabel the finished updates (rollouts 0, 20, 40, 60, 80 after three batches of 10).
+    task = Target()
+    trial = TrialContext()
+    learn(task, _reps(task), 3, 10, 0, trial=trial)
+    with pytest.raises(ValueError, match="rollouts_per_update: .* 10 rollouts per update, got 20"):
+        learn(task, _reps(task), 4, 20, 0, trial=trial)
+    with pytest.raises(ValueError, match="initial_rollouts: .* 10 rollouts, got 15"):
+        learn(task, _reps(task), 4, 10, 0, trial=trial, initial_rollouts=15)
+    first = TrialContext()
+    learn(task, _reps(task), 2, 10, 0, trial=first, initial_rollouts=15)
+    with pytest.raises(ValueError, match="initial_rollouts: .* 15 rollouts, got 10"):
+        learn(task, _reps(task), 3, 10, 0, trial=first)
+    resumed = learn(task, _reps(task), 3, 10, 0, trial=first, initial_rollouts=15)
+    np.testing.assert_array_equal(resumed["rollouts"], [0, 15, 25, 35])
+    # a state saved before N was recorded (no attribute) resumes as before
+    state = first.resume("learn", np.random.default_rng())
+    del state.__dict__["rollouts_per_update"]
+    first.save("learn", state, np.random.default_rng(0))
+    old = learn(task, _reps(task), 4, 10, 0, trial=first, initial_rollouts=15)
+    np.testing.assert_array_equal(old["rollouts"], [0, 15, 25, 35, 45])
+
+
+def test_evaluator_draw_normalises_rng_and_refuses_a_bool_seed():
+    task = Target()
+    by_int = Evaluator.draw(task, 3)
+    by_gen = Evaluator.draw(task, np.random.default_rng(3))
+    np.testing.assert_array_equal(by_int.contexts, by_gen.contexts)
+    assert by_int.seed == by_gen.seed
+    with pytest.raises(ValueError, match="eval_seed"):
+        Evaluator.draw(task, 0, seed=True)
+    with pytest.raises(ValueError, match="rng"):
+        Evaluator.draw(task, "seed")
+
+
 def test_default_progress_bar_shows_and_warns_nothing(capsys):
     task = Target()
     with warnings.catch_warnings():

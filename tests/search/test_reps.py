@@ -324,3 +324,11 @@ def test_kl_against_a_base_weight_that_underflows_stays_finite():
     assert w.kl == pytest.approx(1.0, rel=1e-6)
     p, log_q = w.weights, np.log([0.5, 0.5]).tolist() + [np.log(1e-30) - np.log(2e300)]
     assert w.kl == pytest.approx(float(np.sum(p * (np.log(p) - log_q))), rel=1e-12)
+
+
+@pytest.mark.parametrize("bad", [np.inf, np.nan, -np.inf, "3", 2.5, 0, True])
+def test_reuse_batches_must_be_a_positive_integer(bad):
+    # inf and NaN used to escape as OverflowError / a ValueError from int() naming nothing
+    pol = GaussianPolicy(np.zeros(2), np.eye(2))
+    with pytest.raises(ValueError, match="n_reuse_batches: expected a positive integer or None"):
+        ContextualREPS(pol, epsilon=1.0, n_reuse_batches=bad)

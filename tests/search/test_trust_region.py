@@ -124,7 +124,7 @@ def test_bad_input_names_the_argument():
         with pytest.raises(ValueError, match="entropy_loss_bound"):
             ContextualREPS(pol, 1.0, m_step="trust_region", entropy_loss_bound=bad)
     assert ContextualREPS(pol, 0.7, m_step="trust_region").entropy_loss_bound == 0.7
-    with pytest.raises(ValueError, match="t"):
+    with pytest.raises(ValueError, match=r"^t: expected a value in \[0, 1\], got 1.5"):
         pol.interpolate(pol, 1.5)
     with pytest.raises(ValueError, match="other"):
         pol.interpolate(GaussianPolicy(np.zeros(3), np.eye(3)), 0.5)

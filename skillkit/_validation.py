@@ -66,8 +66,18 @@ def check_array(
     finite : bool
         Reject NaN and infinity.
     dtype : numpy dtype
-        Target dtype (float64 by default).
+        Target dtype (float64 by default). A complex numpy array is refused for a real
+        target (rather than losing its imaginary part).
     """
+    if (
+        isinstance(value, (np.ndarray, np.generic))
+        and np.iscomplexobj(value)
+        and dtype is not None
+        and not np.issubdtype(np.dtype(dtype), np.complexfloating)
+    ):  # numpy would only warn and drop the imaginary part
+        raise ValueError(
+            f"{name}: expected real numbers, got a complex array (dtype {value.dtype})"
+        )
     try:
         arr = np.asarray(value, dtype=dtype)
     except (TypeError, ValueError) as exc:

@@ -55,6 +55,12 @@ class Trajectory:
             arr = getattr(self, name)
             if arr.ndim != 2 or arr.shape[0] != n:
                 raise ValueError(f"{name}: expected shape ({n}, ?), got {arr.shape}")
+        if not isinstance(self.signals, dict) or not all(isinstance(k, str) for k in self.signals):
+            raise ValueError(
+                f"signals: expected a dict of str to arrays, got {type(self.signals).__name__}"
+            )
+        if not isinstance(self.info, dict):
+            raise ValueError(f"info: expected a dict, got {type(self.info).__name__}")
         self.signals = {k: np.asarray(v, dtype=np.float64) for k, v in self.signals.items()}
 
     def __repr__(self) -> str:
@@ -89,12 +95,22 @@ class Trajectory:
         return self.states[:-1], self.controls[:-1], self.states[1:]
 
     def save(self, path: str | Path) -> Path:
-        """Write the trajectory to a compressed ``.npz`` file and return its path."""
+        """Write the trajectory to a compressed ``.npz`` file and return its path.
+
+        ``.npz`` is appended to a path without it (as :func:`numpy.savez_compressed` does).
+        The arrays keep their float64 values exactly; ``info`` goes through JSON, so tuples
+        come back as lists. Raises ``ValueError`` (argument ``info``) if ``info`` is not
+        JSON-serialisable (e.g. holds numpy integers).
+        """
         path = Path(path)
         arrays = {"times": self.times, "states": self.states, "controls": self.controls}
         arrays.update({f"signal__{k}": v for k, v in self.signals.items()})
         meta = {"info": self.info, "failed": self.failed, "message": self.message}
-        np.savez_compressed(path, __meta__=np.array(json.dumps(meta)), **arrays)
+        try:
+            text = json.dumps(meta)
+        except TypeError as exc:
+            raise ValueError(f"info: expected JSON-serialisable values ({exc})") from None
+        np.savez_compressed(path, __meta__=np.array(text), **arrays)
         return path if path.suffix == ".npz" else path.with_suffix(path.suffix + ".npz")
 
     @classmethod

@@ -24,6 +24,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from skillkit._validation import check_positive
+
 #: A saved state: the pickled payload and the generator's ``bit_generator.state`` at the save.
 Snapshot = tuple[bytes, dict]
 
@@ -82,7 +84,8 @@ class TrialContext:
         ``writer(snapshots, seconds)``, called after every :meth:`save` (e.g. to write a
         checkpoint file). Without one, snapshots live in memory only.
     seconds : float
-        Compute time of earlier, interrupted runs of this trial (added to :attr:`seconds`).
+        Compute time of earlier, interrupted runs of this trial (added to :attr:`seconds`;
+        finite, ≥ 0).
 
     Examples
     --------
@@ -112,7 +115,7 @@ class TrialContext:
                     f"got {type(snap).__name__}"
                 )
             self._snapshots[str(key)] = snap
-        self._seconds_before = float(seconds)
+        self._seconds_before = check_positive(seconds, "seconds", allow_zero=True)
         self._started = time.perf_counter()
 
     # ------------------------------------------------------------------ progress

@@ -63,3 +63,6 @@ def test_bad_input_names_the_argument():
         TrialContext(states={"learn": ({"k": 1}, {})})  # an unpickled payload (old format)
     with pytest.raises(ValueError, match="rng"):
         TrialContext().save("k", 1, 0)
+    for bad in (np.nan, -1.0, "ten"):  # NaN used to make every later time NaN
+        with pytest.raises(ValueError, match="seconds"):
+            TrialContext(seconds=bad)

@@ -492,8 +492,9 @@ class DMPParameters:
 
     Examples
     --------
-    Table tennis (Sec. 3.5.3): fixed weights, learned g, gd and tau for 7 joints gives
-    ``DMPParameters(dmp, learn=("goal", "goal_velocity", "tau")).dim == 15``.
+    Hockey (Sec. 3.4.2): fixed weights, learned g, gd and tau for 7 joints gives
+    ``DMPParameters(dmp, learn=("goal", "goal_velocity", "tau")).dim == 15`` (table tennis,
+    Sec. 3.4.3, learns the same for 8 joints: 17).
     """
 
     def __init__(self, dmp: DMP, learn: Sequence[str] = _LEARNABLE) -> None:

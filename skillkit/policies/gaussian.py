@@ -367,8 +367,8 @@ class LinearGaussianPolicy:
         cov_floor : float
             Relative eigenvalue floor in (0, 1].
         min_effective_samples : float, optional
-            Smallest acceptable Kish effective sample size (default d + 1: fewer cannot
-            determine a d×d covariance).
+            Smallest acceptable Kish effective sample size, finite and ≥ 0 (default d + 1:
+            fewer cannot determine a d×d covariance).
 
         Returns
         -------
@@ -406,7 +406,11 @@ class LinearGaussianPolicy:
             raise ValueError("weights: expected non-negative weights with a positive sum")
         p = w / w.sum()
         ess = effective_sample_size(p)
-        need = d + 1.0 if min_effective_samples is None else float(min_effective_samples)
+        need = (
+            d + 1.0
+            if min_effective_samples is None
+            else check_positive(min_effective_samples, "min_effective_samples", allow_zero=True)
+        )
         if ess < need:
             raise ValueError(
                 f"weights: effective sample size {ess:.3g} (of {n} samples) is below the "

@@ -604,7 +604,8 @@ def stable_gains(
     ----------
     task : Balancing
     n : int
-    rng : Generator
+    rng : Generator, int or None
+        Randomness; one stream for every draw (same seed ⇒ same gains).
     max_spectral_radius : float
     policy : GaussianPolicy, optional
         π(ω) (default: the task's :meth:`~Balancing.initial_policy`). With 1% exploration
@@ -615,6 +616,7 @@ def stable_gains(
     -------
     ndarray, shape (n, 32)
     """
+    rng = as_generator(rng)
     A, B = task.linearization()
     policy = task.initial_policy() if policy is None else policy
     out: list[np.ndarray] = []
@@ -653,7 +655,9 @@ def collect_balancing(
     ----------
     task : Balancing
     n_trajectories : int
-    rng : Generator
+    rng : Generator, int or None
+        Randomness of the gains, start states and noise: one stream for every rollout
+        (same seed ⇒ same data).
     max_spectral_radius : float
         See :func:`stable_gains` (not used with ``gain``).
     policy : GaussianPolicy, optional
@@ -668,6 +672,7 @@ def collect_balancing(
         ``omegas`` (n, 32), ``trajectories`` (list), ``x``, ``u``, ``x_next`` (n·T, ·) the
         stacked transitions, ``n_failed``.
     """
+    rng = as_generator(rng)
     omegas, trajs, n_failed = [], [], 0
     if gain is not None:
         if policy is not None:
@@ -711,14 +716,29 @@ def random_lqr_gains(
     Q = diag(q_task ⊙ exp(s ξ)), R = r₀ exp(s ξ') I with ξ ~ N(0, I), ξ' ~ N(0, 1), s =
     ``spread`` and r₀ = ``control_weight``; each gain is :meth:`Balancing.lqr_gain`.
 
+    Parameters
+    ----------
+    task : Balancing
+    n : int
+        Number of gains, ≥ 1.
+    spread : float
+        s ≥ 0, the log-scale spread of the cost weights.
+    control_weight : float
+        r₀ > 0.
+    rng : Generator, int or None
+        Randomness (same seed ⇒ same gains).
+
     Returns
     -------
     ndarray, shape (n, 4, 8)
         Gains G with u = G x̃.
     """
+    n = check_count(n, "n")
+    spread = check_positive(spread, "spread", allow_zero=True)
+    rng = as_generator(rng)
     q0 = np.diag(task.state_weights)
-    out = np.empty((int(n), 4, 8))
-    for i in range(int(n)):
+    out = np.empty((n, 4, 8))
+    for i in range(n):
         q = q0 * np.exp(spread * rng.standard_normal(8))
         r = control_weight * np.exp(spread * rng.standard_normal())
         out[i] = task.lqr_gain(state_weights=np.diag(q), control_weight=r)

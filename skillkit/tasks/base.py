@@ -143,11 +143,11 @@ class Task(ABC):
         rng : Generator, int or None
             Randomness.
         n : int, optional
-            Number of contexts. ``None`` returns one context of shape (context_dim,),
-            otherwise shape (n, context_dim).
+            Number of contexts (an integer ≥ 0). ``None`` returns one context of shape
+            (context_dim,), otherwise shape (n, context_dim).
         """
         rng = as_generator(rng)
-        size = (self.context_dim,) if n is None else (int(n), self.context_dim)
+        size = (self.context_dim,) if n is None else (check_count(n, "n", 0), self.context_dim)
         low, high = np.asarray(self.context_low), np.asarray(self.context_high)
         return low + (high - low) * rng.random(size)
 

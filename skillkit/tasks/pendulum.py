@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from skillkit._validation import check_array
+from skillkit._validation import check_array, check_positive
 from skillkit.tasks.base import ModelSignals, Task, check_count
 from skillkit.tasks.registry import register
 from skillkit.trajectory import Trajectory
@@ -78,14 +78,14 @@ class Pendulum(Task):
     Parameters
     ----------
     horizon : int
-        Number of control steps T (20 in Sec. 5.4).
+        Number of control steps T ≥ 1 (20 in Sec. 5.4).
     control_noise : float
         Standard deviation σ_u of the Gaussian torque noise (0.05 in Sec. 5.4).
     dt : float
         Control period Δt in seconds (0.1).
     alpha_range, velocity_range : float
         The context (initial state) is uniform on [−alpha_range, alpha_range] ×
-        [−velocity_range, velocity_range].
+        [−velocity_range, velocity_range] (both > 0).
     """
 
     context_names = ("alpha0", "alpha_dot0")
@@ -103,18 +103,12 @@ class Pendulum(Task):
         velocity_range: float = 4.0,
         name: str = "pendulum",
     ):
-        if int(horizon) < 1:
-            raise ValueError(f"horizon: expected a positive number of steps, got {horizon}")
-        if not control_noise >= 0:
-            raise ValueError(
-                f"control_noise: expected a standard deviation >= 0, got {control_noise}"
-            )
-        if not dt > 0:
-            raise ValueError(f"dt: expected a positive control period, got {dt}")
+        self.horizon = check_count(horizon, "horizon")
+        self.control_noise = check_positive(control_noise, "control_noise", allow_zero=True)
+        self.dt = check_positive(dt, "dt")
+        alpha_range = check_positive(alpha_range, "alpha_range")
+        velocity_range = check_positive(velocity_range, "velocity_range")
         self.name = name
-        self.horizon = int(horizon)
-        self.control_noise = float(control_noise)
-        self.dt = float(dt)
         self.context_low = np.array([-alpha_range, -velocity_range], dtype=float)
         self.context_high = -self.context_low
 

@@ -376,7 +376,8 @@ class Throwing(Task):
         R(τ, s) = −c1 min_t ‖b_t − s‖ − c2 Σ_t f_c(x_t) − c3 Σ_t u_tᵀ u_t,
 
     c1 = 1e2, c2 = 1e3, c3 = 1e-8, with the ball path b (held part and flight) measured to
-    its segments (:func:`path_distance`), the joint-limit penalty f_c of
+    its segments (:func:`path_distance`; the distance of C.1's formula, not the "minimum
+    squared distance" of Sec. 3.4.1's prose), the joint-limit penalty f_c of
     :func:`joint_limit_penalty` and the applied torques u, both summed over the control
     steps. The trajectory does not depend on s, so it can be re-scored in other contexts.
 

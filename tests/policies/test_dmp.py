@@ -270,7 +270,8 @@ def test_parameter_vector_round_trip():
     assert dmp.weights[0, 0] != 123.0  # copies do not share arrays
 
 
-def test_table_tennis_view_keeps_weights_fixed():
+def test_hockey_view_keeps_weights_fixed():
+    """Sec. 3.4.2: 7 joints, learned g, ġ and τ: 15 parameters (table tennis: 8 joints, 17)."""
     t, q, qd, qdd = demo(n_joints=7)
     dmp = DMP(7).fit(t, q, qd, qdd)
     view = DMPParameters(dmp, learn=("goal", "goal_velocity", "tau"))

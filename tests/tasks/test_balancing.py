@@ -214,3 +214,21 @@ def test_swing_reference_feedforward_is_the_inverse_dynamics_and_tracks():
     np.testing.assert_allclose(policy(5, x, torch.tensor([0])).numpy()[0], tracked.controls[5])
     with pytest.raises(ValueError, match="period"):
         task.swing_reference(0.5, period=0.0)
+
+
+def test_data_helpers_thread_an_integer_seed_through_every_draw():
+    """An int seed is one stream: every rollout gets its own start state and noise, and the
+    same seed gives the same data (it used to restart the stream for every rollout)."""
+    task = make("balancing", n_steps=3, torque_noise_std=0.5)
+    data = collect_balancing(task, 3, 0)
+    starts = {tuple(t.info["initial_state"]) for t in data["trajectories"]}
+    assert len(starts) == 3
+    again = collect_balancing(task, 3, 0)
+    np.testing.assert_array_equal(again["x"], data["x"])
+    gains = random_lqr_gains(task, 2, 1.0, 1e-3, 5)
+    np.testing.assert_array_equal(gains, random_lqr_gains(task, 2, 1.0, 1e-3, 5))
+    assert not np.array_equal(gains[0], gains[1])
+    with pytest.raises(ValueError, match="n"):
+        random_lqr_gains(task, 1.5, 1.0, 1e-3, 0)
+    with pytest.raises(ValueError, match="spread"):
+        random_lqr_gains(task, 1, np.nan, 1e-3, 0)

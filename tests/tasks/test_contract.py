@@ -6,6 +6,7 @@ registering it.
 
 from __future__ import annotations
 
+import json
 import warnings
 
 import mujoco
@@ -46,6 +47,10 @@ def test_dimensions_and_context_distribution(task):
     one = task.sample_context(3)
     assert one.shape == (task.context_dim,)
     np.testing.assert_array_equal(one, task.sample_context(3))
+    assert task.sample_context(3, n=0).shape == (0, task.context_dim)
+    for bad in (-1, 2.5, True):  # a fractional count used to be truncated silently
+        with pytest.raises(ValueError, match="n: expected an integer"):
+            task.sample_context(3, n=bad)
 
 
 def test_initial_policy_matches_task(task):
@@ -110,6 +115,8 @@ def test_bad_omega_and_context_raise(task):
         task.rollout(omega[:-1], s)
     with pytest.raises(ValueError, match="omega"):
         task.rollout(np.full(task.parameter_dim, np.nan), s)
+    with pytest.raises(ValueError, match="omega: expected real"):  # not cast with a warning
+        task.rollout(omega + 1j, s)
     if task.context_dim:
         with pytest.raises(ValueError, match="context"):
             task.rollout(omega, s[:-1])
@@ -170,7 +177,32 @@ def test_trajectory_save_load_roundtrip(task, tmp_path):
     np.testing.assert_array_equal(back.controls, traj.controls)
     np.testing.assert_array_equal(back.times, traj.times)
     assert back.signals.keys() == traj.signals.keys()
+    for key, value in traj.signals.items():  # every named signal, bit for bit
+        assert back.signals[key].dtype == np.float64, key
+        np.testing.assert_array_equal(back.signals[key], value)
+    assert back.info == json.loads(json.dumps(traj.info))  # JSON: tuples come back as lists
+    assert (back.failed, back.message) == (traj.failed, traj.message)
     assert task.reward(back, s) == task.reward(traj, s)
+
+
+def test_trajectory_save_load_keeps_a_failure_and_refuses_bad_records(tmp_path):
+    failed = Trajectory(
+        np.zeros(1), np.zeros((1, 1)), np.zeros((1, 1)), info={"k": [1.5]}, failed=True,
+        message="diverged",
+    )  # fmt: skip
+    path = failed.save(tmp_path / "failed")  # ".npz" is appended, as numpy does
+    assert path == tmp_path / "failed.npz" and path.exists()
+    back = Trajectory.load(path)
+    assert back.failed and back.message == "diverged" and back.info == {"k": [1.5]}
+    with pytest.raises(ValueError, match="info: expected JSON"):
+        Trajectory(np.zeros(1), np.zeros((1, 1)), np.zeros((1, 1)), info={"n": np.int64(3)}).save(
+            tmp_path / "bad.npz"
+        )
+    assert not (tmp_path / "bad.npz").exists()
+    with pytest.raises(ValueError, match="signals"):
+        Trajectory(np.zeros(1), np.zeros((1, 1)), np.zeros((1, 1)), signals=[np.zeros(1)])
+    with pytest.raises(ValueError, match="info"):
+        Trajectory(np.zeros(1), np.zeros((1, 1)), np.zeros((1, 1)), info=None)
 
 
 # ------------------------------------------------------------------ model-based search protocol

@@ -246,6 +246,12 @@ def test_butterworth_bad_input():
         hk.butterworth_smooth(x, rate=30.0, order=0)
     with pytest.raises(ValueError, match="values"):
         hk.butterworth_smooth(np.full(50, np.nan), rate=30.0)
+    # an Observation that cannot be smoothed is refused when it is made, not at reward time
+    with pytest.raises(ValueError, match="cutoff"):
+        hk.Observation(rate=30.0, cutoff=15.0)
+    for order in (0, 2.5, True):
+        with pytest.raises(ValueError, match="order"):
+            hk.Observation(order=order)
 
 
 # ----------------------------------------------------------------------------- the task
@@ -264,6 +270,10 @@ def test_context_ranges_and_validation(task, real):
         task.rollout(task.demo_omega, [2.0, 0.75, 1.2])
     with pytest.raises(ValueError, match="context_high"):
         hk.Hockey(context_low=[2, 1, 1], context_high=[1, 1, 1])
+    # the table step is the arm's control period: refused when the task is made (it used to
+    # be accepted and to fail at the first rollout)
+    with pytest.raises(ValueError, match="physics: dt"):
+        hk.Hockey(physics=hk.TablePhysics(dt=0.003))
     with pytest.raises(ValueError, match="exploration_std"):
         hk.Hockey(exploration_std=np.ones(14))
 

@@ -73,7 +73,15 @@ def test_stochastic_variant_has_wide_reward_distribution():
 
 @pytest.mark.parametrize(
     "kwargs, arg",
-    [({"horizon": 0}, "horizon"), ({"control_noise": -1}, "control_noise"), ({"dt": 0}, "dt")],
+    [
+        ({"horizon": 0}, "horizon"),
+        ({"horizon": 2.5}, "horizon"),  # used to be truncated to 2 steps
+        ({"control_noise": -1}, "control_noise"),
+        ({"control_noise": np.inf}, "control_noise"),
+        ({"dt": 0}, "dt"),
+        ({"alpha_range": -1.0}, "alpha_range"),  # used to give an empty context box
+        ({"velocity_range": np.nan}, "velocity_range"),  # used to give NaN contexts
+    ],
 )
 def test_bad_settings_raise(kwargs, arg):
     with pytest.raises(ValueError, match=arg):

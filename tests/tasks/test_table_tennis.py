@@ -242,6 +242,31 @@ def test_reward_is_the_hand_computed_eq_c1(task):
     assert task.reward(traj, s) == pytest.approx(expected, abs=1e-14)
 
 
+def test_reward_batch_rejects_mismatched_signals_and_contexts(task):
+    """Shapes are checked, not broadcast: extra context rows used to be ignored silently."""
+    ball = np.zeros((2, 4, 3))
+    good = {
+        "ball": ball,
+        "racket": ball + [0.0, 0.3, 0.0],
+        "landing_point": np.zeros((2, 2)),
+        "incoming_steps": np.array([4, 2]),
+    }
+    s = np.tile(nominal_context(), (2, 1))
+    expected = -0.1 * 0.3 - 0.1 * np.linalg.norm(s[0, 3:])  # racket 0.3 m beside the ball
+    np.testing.assert_allclose(task.reward_batch(None, None, good, s), expected, rtol=1e-12)
+    with pytest.raises(ValueError, match="contexts: expected shape"):
+        task.reward_batch(None, None, good, np.tile(nominal_context(), (3, 1)))
+    for key, value, message in [
+        ("racket", np.zeros((2, 3, 3)), "racket"),
+        ("landing_point", np.zeros((1, 2)), "landing_point"),
+        ("incoming_steps", np.array([4, 0]), "incoming_steps"),
+        ("incoming_steps", np.array([4, 5]), "incoming_steps"),
+        ("incoming_steps", np.array([4, 1.5]), "incoming_steps"),
+    ]:
+        with pytest.raises(ValueError, match=message):
+            task.reward_batch(None, None, {**good, key: value}, s)
+
+
 def test_reward_of_a_rollout_matches_a_dense_recomputation(task):
     s = task.sample_context(3)
     omega = task.initial_policy().sample(s, np.random.default_rng(3))
@@ -291,6 +316,14 @@ def test_bad_omega_and_context_raise(task):
     too_fast[0] = VELOCITY_LOW[0] - 1.0
     with pytest.raises(ValueError, match="v_x"):
         task.rollout(omega, too_fast)
+
+
+def test_bad_timing_is_refused_when_the_task_is_made():
+    """Both used to be accepted and to fail (with other argument names) at the first rollout."""
+    with pytest.raises(ValueError, match="control_dt: expected a whole multiple"):
+        TableTennis(control_dt=0.003, physics_dt=0.002)
+    with pytest.raises(ValueError, match="duration: expected at least one control period"):
+        TableTennis(duration=0.001)
 
 
 def test_bad_ball_inputs_raise():

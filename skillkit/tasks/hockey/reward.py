@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import signal
 
-from skillkit._validation import check_array, check_positive
+from skillkit._validation import check_array, check_count, check_positive
 
 OBSERVATION_RATE = 30.0
 """Puck tracking rate of the real-robot setting (Kinect), Hz."""
@@ -28,9 +28,14 @@ class Observation:
     order: int = BUTTER_ORDER
 
     def __post_init__(self) -> None:
-        check_positive(self.rate, "rate")
+        rate = check_positive(self.rate, "rate")
         check_positive(self.noise, "noise", allow_zero=True)
-        check_positive(self.cutoff, "cutoff")
+        if check_positive(self.cutoff, "cutoff") >= rate / 2:
+            raise ValueError(
+                f"cutoff: expected a frequency below the Nyquist frequency {rate / 2:g} Hz, "
+                f"got {self.cutoff!r}"
+            )
+        check_count(self.order, "order")
 
 
 # ============================================================================= reward, smoothing

@@ -11,7 +11,7 @@ import numpy as np
 from skillkit._validation import check_array
 from skillkit.policies.dmp import DMP, DMPParameters
 from skillkit.tasks.base import ModelSignals, SimulationFailure, Task, check_count
-from skillkit.tasks.controllers import track_reference
+from skillkit.tasks.controllers import control_substeps, track_reference
 from skillkit.tasks.hockey.arm import (
     KD,
     KP,
@@ -94,6 +94,10 @@ class Hockey(Task):
         self.physics = physics
         self.observation = observation
         self.model = arm_model(TIMESTEP)
+        try:
+            control_substeps(self.model, physics.dt)
+        except ValueError as exc:  # the arm's control period is the table's time step
+            raise ValueError(f"physics: dt is the arm's control period; {exc}") from None
         self.data = mujoco.MjData(self.model)
         self._site = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_SITE, "blade")
         demo = load_demonstration()

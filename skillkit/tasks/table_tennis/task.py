@@ -9,7 +9,7 @@ from skillkit._validation import check_array, check_positive
 from skillkit.policies.dmp import DMP, DMPParameters
 from skillkit.policies.gaussian import LinearGaussianPolicy
 from skillkit.tasks.base import ModelSignals, SimulationFailure, Task, check_count
-from skillkit.tasks.controllers import track_reference
+from skillkit.tasks.controllers import control_substeps, track_reference
 from skillkit.tasks.registry import register
 from skillkit.tasks.table_tennis.arm import (
     INITIAL_STD,
@@ -134,7 +134,13 @@ class TableTennis(Task):
         self.parameters = DMPParameters(self.dmp, learn=("goal", "goal_velocity", "tau"))
         self.q0 = np.asarray(demo["q"][0], dtype=np.float64).copy()
         self.times = self.control_dt * np.arange(int(round(self.duration / self.control_dt)) + 1)
+        if self.times.shape[0] < 2:
+            raise ValueError(
+                f"duration: expected at least one control period ({self.control_dt:g} s), "
+                f"got {self.duration:g} s"
+            )
         self.model = arm_model(self.physics_dt)
+        control_substeps(self.model, self.control_dt)  # a whole multiple of physics_dt
         self.data = mujoco.MjData(self.model)
         self._site = self.model.site(RACKET_SITE).id
 
@@ -266,11 +272,22 @@ class TableTennis(Task):
         points of the thesis's event models score the same way. numpy only.
         """
         c1, c2 = self.reward_weights
-        ball = np.asarray(signals["ball"], dtype=np.float64)
-        racket = np.asarray(signals["racket"], dtype=np.float64)
-        steps = np.asarray(signals["incoming_steps"]).astype(int)
-        p = np.asarray(signals["landing_point"], dtype=np.float64)
-        b = np.asarray(contexts, dtype=np.float64)[:, 3:5]
+        # Shapes only for the signals: predicted ones may hold non-finite samples, which
+        # score non-finite and are handled by the caller (Task.reward, the event models).
+        ball = check_array(signals["ball"], "signals['ball']", shape=(None, None, 3), finite=False)
+        n, T = ball.shape[:2]
+        racket = check_array(signals["racket"], "signals['racket']", shape=(n, T, 3), finite=False)
+        p = check_array(
+            signals["landing_point"], "signals['landing_point']", shape=(n, 2), finite=False
+        )
+        steps = check_array(signals["incoming_steps"], "signals['incoming_steps']", shape=(n,))
+        if np.any(steps != np.round(steps)) or np.any(steps < 1) or np.any(steps > T):
+            raise ValueError(
+                f"signals['incoming_steps']: expected whole numbers of samples in [1, {T}], "
+                f"got {steps.tolist()}"
+            )
+        steps = steps.astype(int)
+        b = check_array(contexts, "contexts", shape=(n, self.context_dim))[:, 3:5]
         return np.array(
             [
                 -c1 * min_segment_distance(ball[i, : steps[i]] - racket[i, : steps[i]])

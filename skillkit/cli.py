@@ -96,9 +96,11 @@ def _cmd_runs(args: argparse.Namespace) -> int:
     for r in runs:
         wall = r["wall_time_s"]
         wall_s = f"{wall:9.1f}s" if isinstance(wall, (int, float)) else "         ?"
+        # a result.json without some key (None) shows "?" there
+        v = {k: "?" if r[k] is None else str(r[k]) for k in ("id", "scale", "seed", "trials")}
         print(
-            f"{r['path']:<50} {r['id']:<10} {r['scale']:<6} seed={r['seed']:<4} "
-            f"trials={r['trials']:<3} {r['executor']:<8}{wall_s}"
+            f"{r['path']:<50} {v['id']:<10} {v['scale']:<6} seed={v['seed']:<4} "
+            f"trials={v['trials']:<3} {r['executor']!s:<8}{wall_s}"
         )
     return 0
 

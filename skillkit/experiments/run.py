@@ -166,7 +166,7 @@ def load_run(path: str | os.PathLike) -> Run:
     FileNotFoundError
         If there is no ``result.json`` at ``path``.
     ValueError
-        If ``result.json`` is not valid JSON.
+        If ``result.json`` is not valid JSON or not a JSON object.
     """
     p = Path(path)
     folder = p.parent if p.name == "result.json" else p
@@ -177,6 +177,10 @@ def load_run(path: str | os.PathLike) -> Run:
         result = json.loads(file.read_text())
     except ValueError as exc:
         raise ValueError(f"path: {file} is not valid JSON ({exc})") from None
+    if not isinstance(result, dict):
+        raise ValueError(
+            f"path: {file} holds no run (expected a JSON object, got {type(result).__name__})"
+        )
     return Run(folder, result)
 
 

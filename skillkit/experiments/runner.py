@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 from tqdm.auto import tqdm
 
+from skillkit._validation import check_count
 from skillkit.experiments import checkpoint
 from skillkit.experiments.registry import get
 from skillkit.experiments.run import Run
@@ -158,6 +159,22 @@ def _exit_with_parent(parent: int, interval: float = 1.0) -> None:
     threading.Thread(target=watch, daemon=True, name="exit-with-parent").start()
 
 
+def _stop_pool(pool: ProcessPoolExecutor) -> None:
+    """Cancel a process pool's queued trials and end its running workers at once.
+
+    ``ProcessPoolExecutor.__exit__`` would wait for every submitted trial, so Ctrl-C or a
+    failed trial would return only after all the others had finished. What the stopped
+    trials saved (finished results, mid-trial states) stays in their checkpoints: a rerun
+    resumes from there, as after ``kill -9``.
+    """
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for proc in processes:
+        proc.terminate()
+    for proc in processes:
+        proc.join(timeout=10)
+
+
 def _run_pending(exp_id, settings, jobs, executor, workers, address, progress) -> dict[int, tuple]:
     """Run jobs = [(index, seed_seq, ckpt_path, ident)] with the chosen executor; returns
     {index: (result, timing)} as :func:`_execute_trial`."""
@@ -172,12 +189,13 @@ def _run_pending(exp_id, settings, jobs, executor, workers, address, progress) -
     try:
         if executor == "process":
             n = workers or os.cpu_count() or 1
-            with ProcessPoolExecutor(
+            pool = ProcessPoolExecutor(
                 max_workers=n,
                 mp_context=get_context("spawn"),
                 initializer=_exit_with_parent,
                 initargs=(os.getpid(),),
-            ) as pool:
+            )
+            try:
                 futures = {
                     pool.submit(_execute_trial, exp_id, settings, seq, i, path, ident, False): i
                     for i, seq, path, ident in jobs
@@ -185,6 +203,10 @@ def _run_pending(exp_id, settings, jobs, executor, workers, address, progress) -
                 for fut in as_completed(futures):
                     results[futures[fut]] = fut.result()
                     outer.update()
+            except BaseException:  # Ctrl-C or a failed trial: stop now, not after every trial
+                _stop_pool(pool)
+                raise
+            pool.shutdown()
         else:
             try:
                 import ray
@@ -215,6 +237,26 @@ def _run_pending(exp_id, settings, jobs, executor, workers, address, progress) -
     finally:
         outer.close()
     return results
+
+
+def _check_run_arguments(trials, seed, executor, workers, address) -> None:
+    """Raise ``ValueError`` naming the argument for a bad trial count, seed, executor or
+    worker count, or for workers / an address the executor would ignore (checked before any
+    trial runs or any checkpoint is deleted)."""
+    if trials is not None:
+        check_count(trials, "trials")
+    check_count(seed, "seed", minimum=0)
+    if executor not in EXECUTORS:
+        raise ValueError(f"executor: expected one of {EXECUTORS}, got {executor!r}")
+    if workers is not None:
+        check_count(workers, "workers")
+        if executor == "local":
+            raise ValueError(
+                "workers: the 'local' executor runs trials one after another; use executor "
+                "'process' or 'ray' for workers"
+            )
+    if address is not None and executor != "ray":
+        raise ValueError(f"address: only the 'ray' executor uses it, not {executor!r}")
 
 
 def run_trials(
@@ -248,9 +290,9 @@ def run_trials(
         Run trials one after another, in a pool of processes (all cores by default) or as Ray
         tasks (a local Ray instance, or the cluster at ``address``).
     workers : int, optional
-        Number of processes / Ray CPUs (default: all cores).
+        Number of processes / Ray CPUs (default: all cores); not with ``executor="local"``.
     address : str, optional
-        Address of an existing Ray cluster.
+        Address of an existing Ray cluster (``executor="ray"`` only).
     checkpoint_dir : path, optional
         Where trial checkpoints live; existing ones are resumed from (after validation).
     **overrides
@@ -259,15 +301,8 @@ def run_trials(
     """
     exp = get(exp_id)
     settings = exp.settings_for(scale, **overrides)
+    _check_run_arguments(trials, seed, executor, workers, address)
     n_trials = exp.trials[scale] if trials is None else int(trials)
-    if n_trials < 1:
-        raise ValueError(f"trials: expected a positive number of trials, got {trials}")
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ValueError(f"seed: expected a non-negative integer, got {seed!r}")
-    if executor not in EXECUTORS:
-        raise ValueError(f"executor: expected one of {EXECUTORS}, got {executor!r}")
-    if workers is not None and int(workers) < 1:
-        raise ValueError(f"workers: expected a positive number of workers, got {workers}")
     children = np.random.SeedSequence(int(seed)).spawn(n_trials)
     code = checkpoint.code_fingerprint(exp.run_trial)
     jobs = []
@@ -378,11 +413,12 @@ def reproduce(
     headline numbers), ``.figure()`` and ``.png()``; in Jupyter it shows itself as a card. It is
     path-like (``run.path`` is the folder; ``os.fspath(run)`` and ``run / "result.json"`` work).
     ``fresh=True`` deletes earlier checkpoints of this run first; ``html=False`` skips the
-    (4–5 MB, self-contained) HTML figure. Other arguments as in :func:`run_trials`; the
-    overrides are checked before anything runs or is deleted.
+    (4–5 MB, self-contained) HTML figure. Other arguments as in :func:`run_trials`; they
+    and the overrides are checked before anything runs or is deleted.
     """
     from skillkit.viz.plots import write_figures
 
+    _check_run_arguments(trials, seed, executor, workers, address)
     folder = run_folder(exp_id, scale, seed, out, overrides)
     ckpt_dir = folder / "trials"
     if fresh and ckpt_dir.exists():

@@ -19,9 +19,9 @@ Constructing an instance (directly or with :func:`dataclasses.replace`) checks e
 against the field's annotation and normalises it: lists become tuples (so instances are
 hashable and immutable), an ``int`` given for a ``float`` field becomes a ``float``, and a
 mapping given for a nested settings field updates that field's instance. Anything else — a
-string for an int, a float for an int, a bool for a number, a list with an element of the
-wrong type, a value outside a ``Literal`` — raises :class:`ValueError` naming the field and
-the expected type. :func:`apply_overrides` adds the check of the names.
+string for an int, a float for an int, a bool for a number, NaN or ±inf for a float, a list
+with an element of the wrong type, a value outside a ``Literal`` — raises :class:`ValueError`
+naming the field and the expected type. :func:`apply_overrides` adds the check of the names.
 
 ``dataclasses.asdict(settings)`` (:meth:`Settings.to_dict`) is what ``result.json`` stores
 and what checkpoint identities hash (tuples are written as JSON lists).
@@ -72,6 +72,8 @@ def type_name(tp: Any) -> str:
         return " or ".join(type_name(a) for a in args)
     if tp is type(None):
         return "null"
+    if tp is float:
+        return "finite float"
     if isinstance(tp, type) and issubclass(tp, Settings):
         return f"{tp.__name__} (a mapping of its fields)"
     return getattr(tp, "__name__", str(tp))
@@ -124,6 +126,8 @@ def _coerce(value: Any, tp: Any, current: Any = None) -> Any:
         if isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(
             value, (bool, np.bool_)
         ):
+            if not np.isfinite(value):  # NaN or ±inf (``--set x=NaN`` parses as JSON)
+                raise _Mismatch
             return float(value)
         raise _Mismatch
     if tp is str:

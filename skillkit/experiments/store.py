@@ -12,6 +12,9 @@ from skillkit.experiments.run import load_run
 def list_runs(root: str | Path = "runs") -> list[dict]:
     """Every finished run below ``root`` (a folder holding ``result.json``), newest first.
 
+    Files that are not valid JSON or hold no JSON object are skipped; a missing key reads as
+    None.
+
     Returns
     -------
     list of dict
@@ -26,6 +29,8 @@ def list_runs(root: str | Path = "runs") -> list[dict]:
         try:
             r = json.loads(path.read_text())
         except (OSError, ValueError):
+            continue
+        if not isinstance(r, dict):  # some other tool's result.json: not a run
             continue
         runs.append(
             {

@@ -127,22 +127,30 @@ def run_view(args: argparse.Namespace) -> int:
     except (ValueError, PortInUseError) as exc:
         print(f"skillkit view: error: {exc}", file=sys.stderr)
         return 2
+    # From here on the server runs: every way out stops it and frees the port, also a Ctrl-C
+    # that lands before serve_forever (while layers are added or the line below is printed).
     try:
-        for spec in layers:
-            viewer.add_prediction_layer(**spec)
-    except ValueError as exc:
-        viewer.stop()
-        print(f"skillkit view: error: predictions: {exc}", file=sys.stderr)
-        return 2
-    if model is not None:
         try:
-            viewer.add_model_layers(model, getattr(args, "samples", 10), seed=args.seed)
+            for spec in layers:
+                viewer.add_prediction_layer(**spec)
         except ValueError as exc:
-            viewer.stop()
-            print(f"skillkit view: error: gpreps: {exc}", file=sys.stderr)
+            print(f"skillkit view: error: predictions: {exc}", file=sys.stderr)
             return 2
-    print(f"skillkit view: serving {viewer.task.name} at {viewer.url} (Ctrl-C to stop)", flush=True)
-    viewer.serve_forever()
+        if model is not None:
+            try:
+                viewer.add_model_layers(model, getattr(args, "samples", 10), seed=args.seed)
+            except ValueError as exc:
+                print(f"skillkit view: error: gpreps: {exc}", file=sys.stderr)
+                return 2
+        print(
+            f"skillkit view: serving {viewer.task.name} at {viewer.url} (Ctrl-C to stop)",
+            flush=True,
+        )
+        viewer.serve_forever()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        viewer.stop()
     return 0
 
 

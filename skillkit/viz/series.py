@@ -69,9 +69,21 @@ def mean_band(curves: np.ndarray, kind: str = "std") -> tuple[list, list, list]:
     """Mean and a band over trials for curves of shape (n_trials, n_points).
 
     ``kind="std"`` gives mean ± one standard deviation; ``kind="ci95"`` the 95% interval of
-    the mean (normal approximation).
+    the mean (normal approximation). A single curve gets a zero-width band.
+
+    Raises
+    ------
+    ValueError
+        ``curves`` not of shape (n ≥ 1, n_points), or ``kind`` not ``"std"`` or ``"ci95"``
+        (``"gstd"``: :func:`trial_band`).
     """
     curves = np.asarray(curves, dtype=float)
+    if curves.ndim != 2 or curves.shape[0] < 1:
+        raise ValueError(f"curves: expected shape (n >= 1, n_points), got {curves.shape}")
+    if kind not in ("std", "ci95"):
+        raise ValueError(
+            f"kind: expected 'std' or 'ci95' (for 'gstd' see trial_band), got {kind!r}"
+        )
     m = curves.mean(axis=0)
     sd = curves.std(axis=0, ddof=1) if curves.shape[0] > 1 else np.zeros_like(m)
     half = sd if kind == "std" else 1.96 * sd / np.sqrt(max(curves.shape[0], 1))

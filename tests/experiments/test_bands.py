@@ -173,6 +173,12 @@ def test_trial_band_closed_form_and_text():
         (lambda: band_text(3, kind="iqr"), "kind: expected one of"),
         (lambda: trial_band([1.0, 2.0]), "curves: expected shape"),
         (lambda: trial_band([[1.0]], kind="max"), "kind: expected one of"),
+        # mean_band used to fall back to the 95% interval for any kind but "std" ...
+        (lambda: mean_band([[1.0], [2.0]], kind="gstd"), "kind: expected 'std' or 'ci95'"),
+        (lambda: mean_band([[1.0], [2.0]], kind="sd"), "kind: expected 'std' or 'ci95'"),
+        # ... and to collapse a single 1-D curve to scalars, or average no curves to NaN
+        (lambda: mean_band([1.0, 2.0, 3.0]), "curves: expected shape"),
+        (lambda: mean_band(np.zeros((0, 3))), "curves: expected shape"),
     ],
 )
 def test_band_helpers_reject_bad_input(call, match):

@@ -12,7 +12,7 @@ from skillkit.cli import main
 from skillkit.experiments import registry
 from skillkit.experiments.registry import Experiment, Series, Verdict, mean_band, with_verdict
 from skillkit.experiments.runner import reproduce, run_folder, run_trials
-from skillkit.experiments.settings import Settings, setting
+from skillkit.experiments.settings import Settings, apply_overrides, setting
 
 CRASH = {"at": None}
 
@@ -360,3 +360,118 @@ def test_killing_a_process_pool_run_leaves_no_workers_computing(tmp_path):
     for w in alive:  # do not leave them running if the check fails
         os.kill(w, signal.SIGKILL)
     assert not alive, f"workers {alive} outlived the killed run"
+
+
+def test_bad_run_arguments_delete_no_checkpoints_and_are_not_truncated(toy, tmp_path):
+    """``fresh=True`` with a bad trial count, seed or worker count refuses before deleting
+    anything; a fractional trial or worker count is refused, not truncated; workers or an
+    address the executor would ignore are refused."""
+    folder = reproduce("toy1.1", seed=1, out=tmp_path, progress=False, html=False)
+    before = sorted(p.name for p in (folder / "trials").iterdir())
+    assert len(before) == 3
+    bad = (
+        ({"trials": 0}, "trials"),
+        ({"trials": 2.5}, "trials"),
+        ({"trials": "2"}, "trials"),
+        ({"workers": 0, "executor": "process"}, "workers"),
+        ({"workers": 1.5, "executor": "process"}, "workers"),
+        ({"executor": "cluster"}, "executor"),
+        ({"workers": 2}, "workers"),  # the local executor would ignore it
+        ({"address": "auto", "executor": "process"}, "address"),
+    )
+    for kwargs, name in bad:
+        with pytest.raises(ValueError, match=f"^{name}: (expected|the 'local'|only the 'ray')"):
+            reproduce("toy1.1", seed=1, out=tmp_path, progress=False, fresh=True, **kwargs)
+        assert sorted(p.name for p in (folder / "trials").iterdir()) == before, kwargs
+    with pytest.raises(ValueError, match="^seed: expected"):
+        run_trials("toy1.1", seed=1.0, progress=False)
+    with pytest.raises(ValueError, match="^workers: the 'local' executor"):
+        run_trials("toy1.1", workers=4, progress=False)
+    with pytest.raises(ValueError, match="^trials: expected"):
+        run_trials("toy1.1", trials=True, progress=False)
+
+
+@dataclass(frozen=True)
+class _RealSettings(Settings):
+    x: float = setting(1.0, "A real number.")
+    xs: tuple[float, ...] = setting((1.0, 2.0), "Real numbers.")
+    maybe: float | None = setting(None, "A real number or null.")
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("inf"), -float("inf"), np.float64("nan")])
+def test_non_finite_settings_are_refused(bad):
+    for name, value in (("x", bad), ("xs", (1.0, bad)), ("maybe", bad)):
+        with pytest.raises(ValueError, match=f"^{name}: expected .*finite float"):
+            apply_overrides(_RealSettings(), {name: value})
+        with pytest.raises(ValueError, match=f"^{name}: expected .*finite float"):
+            _RealSettings(**{name: value})
+    assert apply_overrides(_RealSettings(), {"x": 2, "maybe": -3.5}).maybe == -3.5
+
+
+def test_cli_refuses_nan_and_infinity_settings(tmp_path, capsys):
+    """``--set`` parses VALUE as JSON, which accepts NaN and Infinity: refused up front."""
+    for pair in ("threshold=NaN", "epsilon=Infinity", "epsilon=-Infinity"):
+        args = ["reproduce", "sanity3", "--scale", "smoke", "--out", str(tmp_path), "--quiet"]
+        assert main(args + ["--set", pair]) == 2
+        assert "expected finite float" in capsys.readouterr().err
+    assert not any(tmp_path.iterdir())
+
+
+@pytest.mark.skipif(not __import__("os").path.exists("/proc/self/stat"), reason="reads /proc")
+def test_ctrl_c_stops_a_process_pool_run_at_once(tmp_path):
+    """Ctrl-C (SIGINT to the whole process group) of ``reproduce --executor process`` ends the
+    run within seconds with exit code 130 and keeps the checkpoints, instead of waiting for
+    every queued trial (``ProcessPoolExecutor.__exit__`` waits for all of them)."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    cmd = [sys.executable, "-m", "skillkit.cli", "reproduce", "sanity3", "--scale", "smoke"]
+    cmd += ["--trials", "3", "--seed", "9", "--quiet", "--executor", "process", "--workers", "1"]
+    cmd += ["--no-html", "--set", "n_updates=20000", "--out", str(tmp_path)]
+    trials = run_folder("sanity3", "smoke", 9, tmp_path, {"n_updates": 20000}) / "trials"
+    proc = subprocess.Popen(  # SIGINT's default action in the child: a test run may ignore it
+        cmd,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        start_new_session=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
+    try:
+        deadline = time.monotonic() + 300
+        while not (trials / "trial_000.ckpt").exists() and time.monotonic() < deadline:
+            assert proc.poll() is None, "the run ended before its first checkpoint"
+            time.sleep(0.1)
+        os.killpg(proc.pid, signal.SIGINT)
+        try:
+            _, err = proc.communicate(timeout=60)
+        except subprocess.TimeoutExpired:
+            pytest.fail("reproduce --executor process kept running 60 s after Ctrl-C")
+        assert proc.returncode == 130, err
+        assert "interrupted" in err.decode()
+        assert (trials / "trial_000.ckpt").exists()
+        assert not (trials.parent / "result.json").exists()
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+
+
+def test_runs_and_compare_survive_foreign_result_files(toy, tmp_path, capsys):
+    """``skillkit runs`` lists a result.json lacking keys with "?" and skips one that is not a
+    JSON object; ``compare`` refuses the latter with a one-line error (no traceback)."""
+    reproduce("toy1.1", seed=1, out=tmp_path, progress=False, html=False)
+    (tmp_path / "bare").mkdir()
+    (tmp_path / "bare" / "result.json").write_text("{}")
+    (tmp_path / "list").mkdir()
+    (tmp_path / "list" / "result.json").write_text("[1, 2]")
+    assert main(["runs", "--root", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "toy1.1-quick-s1" in out and "bare" in out and "list" not in out
+    bare = next(line for line in out.splitlines() if "bare" in line)
+    assert "seed=?" in bare and "trials=?" in bare
+    assert main(["compare", str(tmp_path / "list"), str(tmp_path / "bare")]) == 2
+    err = capsys.readouterr().err
+    assert "holds no run (expected a JSON object, got list)" in err and "Traceback" not in err

@@ -371,6 +371,41 @@ def _default_sigint() -> None:
     signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
+class _FakeViewer:
+    """Stands in for a started Viewer; Ctrl-C lands while the "serving" line is formatted."""
+
+    url = "http://127.0.0.1:1/"
+
+    def __init__(self) -> None:
+        self.stopped = 0
+
+    @property
+    def task(self):
+        raise KeyboardInterrupt  # as a SIGINT arriving just before serve_forever
+
+    def start(self):
+        return self
+
+    def stop(self) -> None:
+        self.stopped += 1
+
+    def serve_forever(self) -> None:  # pragma: no cover - never reached here
+        raise AssertionError("serve_forever reached")
+
+
+def test_cli_ctrl_c_before_serving_stops_the_server(monkeypatch, capsys):
+    """A Ctrl-C after the server started but before ``serve_forever`` (here: while the
+    "serving" line is printed) stops the server and exits 0, without a traceback."""
+    fake = _FakeViewer()
+    monkeypatch.setattr(cli_view, "build_viewer", lambda args, history=None: fake)
+    try:
+        code, err = run_cli(["pendulum"], capsys)
+    except KeyboardInterrupt:  # not re-raised: it would end the whole test session
+        pytest.fail(f"Ctrl-C escaped run_view (viewer stopped {fake.stopped} times)")
+    assert code == 0 and err == ""
+    assert fake.stopped >= 1
+
+
 def test_cli_serves_until_interrupted_and_frees_the_port(tmp_path, history_file):
     port = free_port()
     env = dict(os.environ, PYTHONUNBUFFERED="1")

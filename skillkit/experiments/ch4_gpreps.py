@@ -385,8 +385,9 @@ def summarize_46(st: GPREPSThrowingSettings, trials: list[dict]):
 
 
 def verdict_46(st: GPREPSThrowingSettings, summary: dict) -> Verdict:
-    """Holds if GPREPS's final mean reward (after N₀ + K ≤ 40 throws) is at least REPS's after
-    all its rollouts, and above GP direct's."""
+    """Holds if GPREPS's final mean reward (after the settings' N₀ + K real throws, 10 + 30 at
+    paper scale) is at least REPS's after all its rollouts, and above GP direct's. The
+    claim's "negligible variance over trials" is reported (``final_reward_std``), not judged."""
     g, d, r = summary["gpreps"], summary["direct"], summary["reps"]
     holds = g["final_reward_mean"] >= r["final_reward_mean"] and (
         g["final_reward_mean"] > d["final_reward_mean"]

@@ -569,7 +569,8 @@ class GPREPS:
         ----------
         batch : Batch
             Real samples (s_i, ω_i, R_i) and, for a :class:`TrajectoryRewardModel`, their
-            trajectories τ_i.
+            trajectories τ_i. After one batch without trajectories none are kept any more
+            (also not from later batches): the model sees every trajectory or none.
 
         Returns
         -------

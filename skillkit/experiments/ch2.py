@@ -84,9 +84,9 @@ CLAIM = (
 class DMPImitationSettings(Settings):
     """Settings of ``fig2.10`` (Sec. 2.3, Figs 2.9–2.11); the same at every scale."""
 
-    duration: float = setting(1.0, "Length of the demonstration (s); Fig. 2.9 stand-in.")
+    duration: float = setting(1.0, "Length of the demonstration (s); Fig. 2.9 stand-in.", above=0)
     dt: float = setting(
-        1e-3, "Sampling step of the demonstration and integration step of the DMP (s)."
+        1e-3, "Sampling step of the demonstration and integration step of the DMP (s).", above=0
     )
     q_start: float = setting(0.0, "Start angle of the demonstration (rad).")
     q_goal: float = setting(1.0, "Goal angle g of the demonstration and the DMP (rad).")
@@ -94,13 +94,13 @@ class DMPImitationSettings(Settings):
         0.25, "Amplitude of the bump added to the minimum-jerk reach (rad): what f must learn."
     )
     n_basis: int = setting(
-        10, "Basis functions of the forcing term f(z; v) (Eq. 2.21; Fig. 2.10b uses 10)."
+        10, "Basis functions of the forcing term f(z; v) (Eq. 2.21; Fig. 2.10b uses 10).", minimum=1
     )
-    alpha_x: float = setting(25.0, "Spring gain α_x of the DMP (Eq. 2.21).")
+    alpha_x: float = setting(25.0, "Spring gain α_x of the DMP (Eq. 2.21).", above=0)
     beta_x: float = setting(
-        6.25, "Damper gain β_x of the DMP (Eq. 2.21; α_x / 4 is critically damped)."
+        6.25, "Damper gain β_x of the DMP (Eq. 2.21; α_x / 4 is critically damped).", above=0
     )
-    alpha_z: float = setting(3.0, "Decay rate α_z of the phase z (Eq. 2.22).")
+    alpha_z: float = setting(3.0, "Decay rate α_z of the phase z (Eq. 2.22).", above=0)
 
 
 QUICK = DMPImitationSettings()

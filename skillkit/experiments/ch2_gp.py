@@ -62,19 +62,29 @@ class GPRegressionSettings(Settings):
     """Settings of ``fig2.12`` (Sec. 2.4, Eqs 2.26–2.27); the same at every scale."""
 
     n_points: tuple[int, ...] = setting(
-        (1, 4, 25), "Observations of each panel, increasing (Fig. 2.12: one, a few, many)."
+        (1, 4, 25),
+        "Observations of each panel, increasing (Fig. 2.12: one, a few, many).",
+        minimum=1,
     )
     noise_std: float = setting(
-        0.1, "Std σ_n of the observation noise, also the GP's noise (Eq. 2.26)."
+        0.1, "Std σ_n of the observation noise, also the GP's noise (Eq. 2.26).", above=0
     )
-    lengthscale: float = setting(0.8, "Fixed SE length-scale of the GP (Eq. 2.24).")
-    outputscale: float = setting(1.0, "Fixed SE signal variance σ_f² of the GP (Eq. 2.24).")
+    lengthscale: float = setting(0.8, "Fixed SE length-scale of the GP (Eq. 2.24).", above=0)
+    outputscale: float = setting(
+        1.0, "Fixed SE signal variance σ_f² of the GP (Eq. 2.24).", above=0
+    )
     x_range: tuple[float, float] = setting(
         (-4.0, 4.0), "Interval of the inputs: observations, plot grid and test points."
     )
-    n_grid: int = setting(161, "Plot grid points of the mean, band and posterior samples.")
-    n_function_samples: int = setting(5, "Functions drawn from p(f_* | x_*, D) per panel.")
-    n_test: int = setting(2000, "Noisy test points that measure the 95% band's coverage.")
+    n_grid: int = setting(
+        161, "Plot grid points of the mean, band and posterior samples.", minimum=1
+    )
+    n_function_samples: int = setting(
+        5, "Functions drawn from p(f_* | x_*, D) per panel.", minimum=1
+    )
+    n_test: int = setting(
+        2000, "Noisy test points that measure the 95% band's coverage.", minimum=1
+    )
 
 
 QUICK_2_12 = GPRegressionSettings()
@@ -231,22 +241,26 @@ CLAIM_2_7 = (
 class DeterministicPredictionSettings(Settings):
     """Settings of ``fig2.7`` (Sec. 2.4.1, Figs 2.6–2.7)."""
 
-    n_train: int = setting(40, "Noisy observations of f(x) = sin(2x) that train the GP.")
+    n_train: int = setting(40, "Noisy observations of f(x) = sin(2x) that train the GP.", minimum=1)
     train_range: tuple[float, float] = setting(
         (-2.5, 2.5), "Interval of the training inputs (and of the plotted model)."
     )
-    train_noise_std: float = setting(0.05, "Std of the training observations' noise.")
+    train_noise_std: float = setting(0.05, "Std of the training observations' noise.", minimum=0)
     n_steps: int = setting(
-        100, "Optimisation steps of the GP's hyper-parameters (marginal likelihood, Eq. 2.28)."
+        100,
+        "Optimisation steps of the GP's hyper-parameters (marginal likelihood, Eq. 2.28).",
+        minimum=0,
     )
     input_mean: float = setting(0.4, "Mean μ_x of the Gaussian input N(μ_x, σ_x²) (Fig. 2.6).")
-    input_std: float = setting(0.5, "Std σ_x of the Gaussian input (Fig. 2.6).")
+    input_std: float = setting(0.5, "Std σ_x of the Gaussian input (Fig. 2.6).", above=0)
     n_monte_carlo: int = setting(
-        200_000, "Monte Carlo samples of the successor distribution (the histogram)."
+        200_000, "Monte Carlo samples of the successor distribution (the histogram).", minimum=1
     )
-    n_bins: int = setting(80, "Bins of the Monte Carlo histogram.")
+    n_bins: int = setting(80, "Bins of the Monte Carlo histogram.", minimum=1)
     n_quadrature: int = setting(
-        2001, "Trapezoid nodes of the true successor density p(y) (Eq. 4.4) and its moments."
+        2001,
+        "Trapezoid nodes of the true successor density p(y) (Eq. 4.4) and its moments.",
+        minimum=2,
     )
 
 

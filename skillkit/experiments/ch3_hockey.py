@@ -77,26 +77,30 @@ class HockeySettings(Settings):
     task: Literal["hockey", "hockey-real"] = setting(
         "hockey", "Registered task: the simulated setting of C.2 or its real-robot variant."
     )
-    epsilon: float = setting(0.5, "KL bound ε of contextual REPS (Eq. 3.4, Sec. 3.4.2).")
-    crkr_lam: float = setting(0.2, "CrKR's λ (Eqs 2.19–2.20): regulariser and exploration floor.")
-    crkr_beta_scale: float = setting(
-        2.0, "CrKR's sample weights exp(β (R − max R)) with β = crkr_beta_scale / std(R)."
+    epsilon: float = setting(0.5, "KL bound ε of contextual REPS (Eq. 3.4, Sec. 3.4.2).", above=0)
+    crkr_lam: float = setting(
+        0.2, "CrKR's λ (Eqs 2.19–2.20): regulariser and exploration floor.", above=0
     )
-    n_updates: int = setting(16, "Policy updates per algorithm (Table 3.1 loop).")
+    crkr_beta_scale: float = setting(
+        2.0, "CrKR's sample weights exp(β (R − max R)) with β = crkr_beta_scale / std(R).", above=0
+    )
+    n_updates: int = setting(16, "Policy updates per algorithm (Table 3.1 loop).", minimum=1)
     rollouts_per_update: int = setting(
-        50, "Rollouts N between updates (the thesis gives none for hockey; see above)."
+        50, "Rollouts N between updates (the thesis gives none for hockey; see above).", minimum=1
     )
     n_reuse_batches: int = setting(
-        4, "Batches L each update reuses (REPS and CrKR): the last L × N = 200 rollouts."
+        4, "Batches L each update reuses (REPS and CrKR): the last L × N = 200 rollouts.", minimum=1
     )
     n_eval_contexts: int = setting(
-        6, "Fixed contexts of the per-update learning curve (reward of the policy mean)."
+        6, "Fixed contexts of the per-update learning curve (reward of the policy mean).", minimum=1
     )
     n_heldout: int = setting(
-        30, "Held-out contexts of the hit rate and the displacement error |d_T − d*| (m)."
+        30,
+        "Held-out contexts of the hit rate and the displacement error |d_T − d*| (m).",
+        minimum=1,
     )
     heldout_every: int = setting(
-        8, "Held-out evaluation every this many updates (and after the last one)."
+        8, "Held-out evaluation every this many updates (and after the last one).", minimum=1
     )
 
 

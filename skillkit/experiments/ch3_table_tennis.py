@@ -80,12 +80,14 @@ class TableTennisSettings(Settings):
       thesis's "some runs get stuck hitting the net" behaviour.
     """
 
-    epsilon: float = setting(0.6, "KL bound ε of contextual REPS (Eq. 3.4, Sec. 3.4.3).")
+    epsilon: float = setting(0.6, "KL bound ε of contextual REPS (Eq. 3.4, Sec. 3.4.3).", above=0)
     rollouts_per_update: int = setting(
-        50, "Rollouts N between updates (the thesis gives none for table tennis; see above)."
+        50,
+        "Rollouts N between updates (the thesis gives none for table tennis; see above).",
+        minimum=1,
     )
     n_reuse_batches: int = setting(
-        4, "Batches L each update reuses: the last L × N = 200 rollouts (Sec. 3.4)."
+        4, "Batches L each update reuses: the last L × N = 200 rollouts (Sec. 3.4).", minimum=1
     )
     baseline_features: FeatureName = setting(
         "linear", "Context features of the REPS value-function baseline V(s) (Eq. 3.8)."
@@ -94,16 +96,21 @@ class TableTennisSettings(Settings):
         None,
         "Weighted ML fit (Eqs 3.11–3.13): the least effective sample size it accepts "
         "(None: the library's d + 1; below it the update keeps the policy and is counted).",
+        minimum=0,
     )
     cov_shrinkage: float = setting(
-        0.0, "Weight of the previous Σ in the new one (0: the thesis's fit, no shrinkage)."
+        0.0,
+        "Weight of the previous Σ in the new one (0: the thesis's fit, no shrinkage).",
+        minimum=0,
     )
-    n_updates: int = setting(20, "Policy updates (Table 3.1 loop).")
+    n_updates: int = setting(20, "Policy updates (Table 3.1 loop).", minimum=1)
     n_eval_contexts: int = setting(
-        8, "Fixed contexts of the learning curve (reward of the policy mean; not counted)."
+        8,
+        "Fixed contexts of the learning curve (reward of the policy mean; not counted).",
+        minimum=1,
     )
     n_final_contexts: int = setting(
-        40, "Fresh contexts on which the final policy mean's shots are classified."
+        40, "Fresh contexts on which the final policy mean's shots are classified.", minimum=1
     )
 
 

@@ -69,18 +69,24 @@ class ThrowingSettings(Settings):
     """Settings of ``fig3.3`` (ball throwing with the planar 4-link robot, Sec. 3.4.1)."""
 
     n_updates: int = setting(
-        40, "Policy updates per method (Table 3.1); rollouts = n_updates × rollouts_per_update."
+        40,
+        "Policy updates per method (Table 3.1); rollouts = n_updates × rollouts_per_update.",
+        minimum=1,
     )
     n_eval_contexts: int = setting(
-        8, "Fixed targets of the learning curve (reward of the policy mean; not counted)."
+        8,
+        "Fixed targets of the learning curve (reward of the policy mean; not counted).",
+        minimum=1,
     )
-    epsilon: float = setting(0.6, "KL bound ε of contextual REPS (Eq. 3.4, Sec. 3.4.1).")
-    rollouts_per_update: int = setting(25, "Rollouts N between updates (Sec. 3.4.1).")
+    epsilon: float = setting(0.6, "KL bound ε of contextual REPS (Eq. 3.4, Sec. 3.4.1).", above=0)
+    rollouts_per_update: int = setting(25, "Rollouts N between updates (Sec. 3.4.1).", minimum=1)
     n_reuse_batches: int = setting(
-        8, "Batches L each update reuses: the last L × N = 200 rollouts (Sec. 3.4.1)."
+        8, "Batches L each update reuses: the last L × N = 200 rollouts (Sec. 3.4.1).", minimum=1
     )
     extra_contexts: int = setting(
-        20, "Extra contexts each trajectory is re-scored in, extra-context variant (Sec. 3.4.1)."
+        20,
+        "Extra contexts each trajectory is re-scored in, extra-context variant (Sec. 3.4.1).",
+        minimum=0,
     )
     baseline_features: FeatureName = setting(
         "quadratic", "Context features of the REPS value-function baseline V(s) (Eq. 3.8)."
@@ -89,16 +95,24 @@ class ThrowingSettings(Settings):
         "linear", "Context features φ(s) of the policy π(ω|s) = N(a + A φ(s), Σ) (Eq. 3.10)."
     )
     min_effective_samples: float = setting(
-        2.0, "Weighted ML fit (Eqs 3.11–3.13): the least effective sample size it accepts."
+        2.0,
+        "Weighted ML fit (Eqs 3.11–3.13): the least effective sample size it accepts.",
+        minimum=0,
     )
     cov_floor: float = setting(
-        0.1, "No direction of Σ shrinks below this fraction of its previous variance per update."
+        0.1,
+        "No direction of Σ shrinks below this fraction of its previous variance per update.",
+        above=0,
+        maximum=1,
     )
-    cov_shrinkage: float = setting(0.0, "Weight of the previous Σ in the new one (0: none).")
+    cov_shrinkage: float = setting(
+        0.0, "Weight of the previous Σ in the new one (0: none).", minimum=0
+    )
     initial_std_fraction: float = setting(
         0.9,
         "Initial exploration: shape-weight std relative to each joint's largest demonstrated "
         "weight (Throwing.covering_std_fraction: sampled throws reach x = 15 m; Sec. 3.5).",
+        above=0,
     )
     m_step: Literal["weighted_ml", "trust_region"] = setting(
         "weighted_ml",

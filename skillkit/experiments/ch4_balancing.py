@@ -77,26 +77,37 @@ class BalancingComparisonSettings(Settings):
         0.1,
         "σ of the start distribution x₀ ~ N(x_up, σ² I) (rad, rad/s). The thesis says only "
         "'Gaussian'; at 0.1 the tight LQR gain scores −1.24, just above the smallest limit −1.5.",
+        minimum=0,
     )
     limits: tuple[float, ...] = setting((-100.0, -10.0, -1.5), "Reward limits of Table 4.2.")
     start_control_weight: float = setting(
         1.0,
         "R of the LQR design of π₀'s mean: the sluggish minimum-effort controller (reward about "
         "−116); the LQR gain with R = 1e-4 scores −1.24.",
+        above=0,
     )
     exploration: float = setting(
-        0.005, "π₀'s standard deviation as a fraction of |G₀| entry-wise (99.9% of samples stable)."
+        0.005,
+        "π₀'s standard deviation as a fraction of |G₀| entry-wise (99.9% of samples stable).",
+        above=0,
     )
     excitation_std: float = setting(
         30.0,
         "σ_ξ (N m) of the white torque excitation of the random policy's initial rollouts "
         "(0: π₀'s feedback alone).",
+        minimum=0,
     )
-    n_random: int = setting(3, "Random-policy rollouts of 2 s before learning (6 s, Sec. 4.3.1).")
+    n_random: int = setting(
+        3, "Random-policy rollouts of 2 s before learning (6 s, Sec. 4.3.1).", minimum=1
+    )
     n_eval: int = setting(
-        50, "Start states of the evaluation, the same for every method of a trial (fixed seed)."
+        50,
+        "Start states of the evaluation, the same for every method of a trial (fixed seed).",
+        minimum=1,
     )
-    n_inducing: int = setting(100, "Pseudo-inputs of the FITC dynamics model (PILCO, GPREPS).")
+    n_inducing: int = setting(
+        100, "Pseudo-inputs of the FITC dynamics model (PILCO, GPREPS).", minimum=1
+    )
     model_mean: str = setting(
         "linear",
         "Prior mean of the FITC model: 'linear' (least squares, the GP models the residual) "
@@ -105,25 +116,31 @@ class BalancingComparisonSettings(Settings):
     linear_variant: bool = setting(
         True, "Also run PILCO and GPREPS with a linear-Gaussian model (a diagnostic variant)."
     )
-    gp_steps: int = setting(100, "L-BFGS iterations of each FITC hyper-parameter fit.")
-    pilco_updates: int = setting(10, "PILCO updates (one real rollout each).")
-    policy_iterations: int = setting(50, "L-BFGS iterations of each PILCO policy optimisation.")
-    gpreps_updates: int = setting(20, "GPREPS updates (one real rollout each).")
-    n_artificial: int = setting(500, "M, GPREPS's artificial gains per update (Sec. 4.3.2).")
-    n_trajectories: int = setting(10, "L, trajectories predicted per artificial gain (Eq. 4.1).")
-    epsilon: float = setting(1.0, "KL bound ε of GPREPS.")
-    reps_updates: int = setting(100, "REPS updates.")
-    reps_rollouts_per_update: int = setting(25, "REPS rollouts per update (fig3.3).")
-    reps_epsilon: float = setting(0.5, "KL bound of REPS.")
-    reps_reuse_batches: int = setting(8, "Batches REPS reuses (the last 200 rollouts, fig3.3).")
+    gp_steps: int = setting(100, "L-BFGS iterations of each FITC hyper-parameter fit.", minimum=0)
+    pilco_updates: int = setting(10, "PILCO updates (one real rollout each).", minimum=1)
+    policy_iterations: int = setting(
+        50, "L-BFGS iterations of each PILCO policy optimisation.", minimum=1
+    )
+    gpreps_updates: int = setting(20, "GPREPS updates (one real rollout each).", minimum=1)
+    n_artificial: int = setting(
+        500, "M, GPREPS's artificial gains per update (Sec. 4.3.2).", minimum=2
+    )
+    n_trajectories: int = setting(
+        10, "L, trajectories predicted per artificial gain (Eq. 4.1).", minimum=1
+    )
+    epsilon: float = setting(1.0, "KL bound ε of GPREPS.", above=0)
+    reps_updates: int = setting(100, "REPS updates.", minimum=1)
+    reps_rollouts_per_update: int = setting(25, "REPS rollouts per update (fig3.3).", minimum=1)
+    reps_epsilon: float = setting(0.5, "KL bound of REPS.", above=0)
+    reps_reuse_batches: int = setting(
+        8, "Batches REPS reuses (the last 200 rollouts, fig3.3).", minimum=1
+    )
 
     def check(self) -> None:
-        """Limits negative and rising (harder ones later), n_random ≥ 1."""
+        """Limits negative and rising (harder ones later)."""
         lim = np.asarray(self.limits, dtype=float)
         if lim.size == 0 or np.any(np.diff(lim) <= 0) or np.any(lim >= 0):
             raise ValueError(f"limits: expected rising negative rewards, got {self.limits}")
-        if self.n_random < 1:
-            raise ValueError(f"n_random: expected at least 1 rollout, got {self.n_random}")
 
 
 # --------------------------------------------------------------------------- one trial

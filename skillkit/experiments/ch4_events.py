@@ -94,23 +94,30 @@ VIEWER_NOTE = (
 class EventGPREPSSettings(Settings):
     """GPREPS settings shared by the hockey and table-tennis experiments (Table 4.1)."""
 
-    n_initial: int = setting(20, "N₀, real rollouts before the first update (Sec. 4.1: N = 20).")
-    n_updates: int = setting(100, "GPREPS updates, one real rollout each (N₀ + K in all).")
-    n_artificial: int = setting(500, "M, artificial (s, ω) pairs per update (Sec. 4.3.2).")
-    n_trajectories: int = setting(10, "L, predicted trajectories per artificial pair (Eq. 4.1).")
-    epsilon: float = setting(1.0, "KL bound ε of GPREPS (Sec. 4.3.2).")
+    n_initial: int = setting(
+        20, "N₀, real rollouts before the first update (Sec. 4.1: N = 20).", minimum=2
+    )
+    n_updates: int = setting(
+        100, "GPREPS updates, one real rollout each (N₀ + K in all).", minimum=1
+    )
+    n_artificial: int = setting(
+        500, "M, artificial (s, ω) pairs per update (Sec. 4.3.2).", minimum=2
+    )
+    n_trajectories: int = setting(
+        10, "L, predicted trajectories per artificial pair (Eq. 4.1).", minimum=1
+    )
+    epsilon: float = setting(1.0, "KL bound ε of GPREPS (Sec. 4.3.2).", above=0)
     context_model: Literal["gaussian", "uniform", "prior"] = setting(
         "uniform", "μ̂(s): the box of the observed contexts."
     )
-    gp_steps: int = setting(100, "L-BFGS iterations of every GP's hyper-parameter fit.")
-    n_eval_contexts: int = setting(10, "Fixed contexts of the learning curve (policy mean).")
-    n_heldout: int = setting(50, "Held-out contexts of the shot scores (policy mean).")
-    heldout_every: int = setting(20, "Held-out scores every this many updates (and the last).")
-
-    def check(self) -> None:
-        """N₀ ≥ 2 (the models need data)."""
-        if self.n_initial < 2:
-            raise ValueError(f"n_initial: expected at least 2 rollouts, got {self.n_initial}")
+    gp_steps: int = setting(100, "L-BFGS iterations of every GP's hyper-parameter fit.", minimum=0)
+    n_eval_contexts: int = setting(
+        10, "Fixed contexts of the learning curve (policy mean).", minimum=1
+    )
+    n_heldout: int = setting(50, "Held-out contexts of the shot scores (policy mean).", minimum=1)
+    heldout_every: int = setting(
+        20, "Held-out scores every this many updates (and the last).", minimum=1
+    )
 
 
 @dataclass(frozen=True)
@@ -121,17 +128,20 @@ class HockeyGPREPSSettings(EventGPREPSSettings):
         "hockey", "Registered task: hockey (fig4.10) or hockey-real (fig4.11)."
     )
     slide_dt: float = setting(
-        0.04, "Step of the sliding-puck model, s (hockey-real: the 30 Hz frame period)."
+        0.04, "Step of the sliding-puck model, s (hockey-real: the 30 Hz frame period).", above=0
     )
     max_sliding_points: int = setting(
         150,
         "Transitions the sliding GP is fitted on (its prediction cost grows with their "
         "square; see the setup table).",
+        minimum=2,
     )
-    reps_updates: int = setting(200, "REPS updates (0: no REPS run).")
-    reps_rollouts_per_update: int = setting(50, "REPS rollouts per update (fig3.5).")
-    reps_epsilon: float = setting(0.5, "KL bound of REPS (fig3.5).")
-    reps_reuse_batches: int = setting(4, "Batches REPS reuses (fig3.5: the last 200 rollouts).")
+    reps_updates: int = setting(200, "REPS updates (0: no REPS run).", minimum=0)
+    reps_rollouts_per_update: int = setting(50, "REPS rollouts per update (fig3.5).", minimum=1)
+    reps_epsilon: float = setting(0.5, "KL bound of REPS (fig3.5).", above=0)
+    reps_reuse_batches: int = setting(
+        4, "Batches REPS reuses (fig3.5: the last 200 rollouts).", minimum=1
+    )
 
 
 @dataclass(frozen=True)
@@ -140,24 +150,28 @@ class TableTennisGPREPSSettings(EventGPREPSSettings):
     regularisation it was stored with,
     :data:`~skillkit.experiments.ch3_table_tennis.REGULARISED`)."""
 
-    n_updates: int = setting(130, "GPREPS / GP-direct updates (N₀ + K = 150 rollouts).")
+    n_updates: int = setting(130, "GPREPS / GP-direct updates (N₀ + K = 150 rollouts).", minimum=1)
     schedule: Literal["auto", "hitting", "returning"] = setting(
         "auto",
         "Reward schedule of Eq. 4.17: 'auto' switches c₁ = c₂ once the contact model "
         "is good (see TableTennisRewardModel), or a forced 'hitting' / 'returning'.",
     )
-    reps_updates: int = setting(80, "REPS updates (× 50 rollouts = 4000, the thesis's count).")
+    reps_updates: int = setting(
+        80, "REPS updates (× 50 rollouts = 4000, the thesis's count).", minimum=1
+    )
 
 
 @dataclass(frozen=True)
 class ModelAccuracySettings(Settings):
     """Settings of ``fig4.13`` (the five table-tennis models against the simulator)."""
 
-    n_rollouts: int = setting(100, "Rollouts of the initial policy the models learn from.")
-    n_heldout: int = setting(20, "Held-out rollouts the predictions are compared with.")
-    n_samples: int = setting(10, "Sampled trajectories per held-out (s, ω) (Fig. 4.13).")
-    n_shown: int = setting(3, "Held-out rollouts drawn in the figure (hits first).")
-    gp_steps: int = setting(100, "L-BFGS iterations of every GP's hyper-parameter fit.")
+    n_rollouts: int = setting(
+        100, "Rollouts of the initial policy the models learn from.", minimum=1
+    )
+    n_heldout: int = setting(20, "Held-out rollouts the predictions are compared with.", minimum=1)
+    n_samples: int = setting(10, "Sampled trajectories per held-out (s, ω) (Fig. 4.13).", minimum=1)
+    n_shown: int = setting(3, "Held-out rollouts drawn in the figure (hits first).", minimum=1)
+    gp_steps: int = setting(100, "L-BFGS iterations of every GP's hyper-parameter fit.", minimum=0)
 
 
 GPREPS_SMOKE = {

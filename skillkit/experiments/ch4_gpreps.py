@@ -69,41 +69,56 @@ CLAIM_49 = (
 class GPREPSThrowingSettings(Settings):
     """Settings of ``fig4.6`` (GPREPS, GP direct and REPS on throwing, Sec. 4.3.2)."""
 
-    n_initial: int = setting(10, "N₀, real throws before the first GPREPS update (Sec. 4.3.2).")
-    n_updates: int = setting(
-        30, "GPREPS / GP-direct updates, one real throw each (real throws = N₀ + n_updates)."
+    n_initial: int = setting(
+        10, "N₀, real throws before the first GPREPS update (Sec. 4.3.2).", minimum=2
     )
-    n_artificial: int = setting(500, "M, artificial (s, ω) pairs per update (Sec. 4.3.2).")
-    n_trajectories: int = setting(25, "L, predicted throws per artificial pair (Eq. 4.1).")
-    epsilon: float = setting(1.0, "KL bound ε of GPREPS and GP direct (Sec. 4.3.2).")
+    n_updates: int = setting(
+        30,
+        "GPREPS / GP-direct updates, one real throw each (real throws = N₀ + n_updates).",
+        minimum=1,
+    )
+    n_artificial: int = setting(
+        500, "M, artificial (s, ω) pairs per update (Sec. 4.3.2).", minimum=2
+    )
+    n_trajectories: int = setting(
+        25, "L, predicted throws per artificial pair (Eq. 4.1).", minimum=1
+    )
+    epsilon: float = setting(1.0, "KL bound ε of GPREPS and GP direct (Sec. 4.3.2).", above=0)
     context_model: str = setting(
         "uniform", "μ̂(s): the box of the observed targets (C.1's μ(s) is uniform)."
     )
     gp_steps: int = setting(
-        150, "L-BFGS iterations of the release, flight and GP-direct hyper-parameter fits."
+        150,
+        "L-BFGS iterations of the release, flight and GP-direct hyper-parameter fits.",
+        minimum=0,
     )
     robot_steps: int = setting(
-        150, "L-BFGS iterations of the robot GP's fit (60 left it 6 m off on the landing point)."
+        150,
+        "L-BFGS iterations of the robot GP's fit (60 left it 6 m off on the landing point).",
+        minimum=0,
     )
-    robot_inducing: int = setting(50, "Pseudo-inputs of the FITC robot-dynamics GP.")
-    flight_inducing: int = setting(50, "Pseudo-inputs of the FITC ball-flight GP.")
+    robot_inducing: int = setting(50, "Pseudo-inputs of the FITC robot-dynamics GP.", minimum=1)
+    flight_inducing: int = setting(50, "Pseudo-inputs of the FITC ball-flight GP.", minimum=1)
     max_robot_points: int = setting(
-        1000, "Robot transitions the FITC GP is fitted on, drawn from all throws (cost bound)."
+        1000,
+        "Robot transitions the FITC GP is fitted on, drawn from all throws (cost bound).",
+        minimum=2,
     )
-    reps_updates: int = setting(200, "REPS updates (× rollouts per update = 5000 rollouts).")
-    reps_rollouts_per_update: int = setting(25, "REPS rollouts per update (fig3.3).")
-    reps_epsilon: float = setting(0.6, "KL bound of REPS (fig3.3).")
-    reps_reuse_batches: int = setting(8, "Batches REPS reuses (the last 200 rollouts, fig3.3).")
-    n_eval_contexts: int = setting(8, "Fixed targets of the learning curves (policy mean).")
+    reps_updates: int = setting(
+        200, "REPS updates (× rollouts per update = 5000 rollouts).", minimum=1
+    )
+    reps_rollouts_per_update: int = setting(25, "REPS rollouts per update (fig3.3).", minimum=1)
+    reps_epsilon: float = setting(0.6, "KL bound of REPS (fig3.3).", above=0)
+    reps_reuse_batches: int = setting(
+        8, "Batches REPS reuses (the last 200 rollouts, fig3.3).", minimum=1
+    )
+    n_eval_contexts: int = setting(
+        8, "Fixed targets of the learning curves (policy mean).", minimum=1
+    )
     grid_x: tuple[float, ...] = setting(
         (5.0, 7.5, 10.0, 12.5, 15.0), "Target x (m) of the final ball-to-target distances."
     )
     grid_y: tuple[float, ...] = setting((1.0, 3.0), "Target y (m) of the final distances.")
-
-    def check(self) -> None:
-        """N₀ ≥ 2 throws (the models need data), M ≥ 2."""
-        if self.n_initial < 2:
-            raise ValueError(f"n_initial: expected at least 2 throws, got {self.n_initial}")
 
 
 @dataclass(frozen=True)
@@ -111,7 +126,7 @@ class SampleSizeSettings(GPREPSThrowingSettings):
     """Settings of ``fig4.7`` (GPREPS with different numbers of artificial samples)."""
 
     n_artificial_values: tuple[int, ...] = setting(
-        (50, 100, 200, 500, 1000), "The M compared (Sec. 4.3.2.1, Fig. 4.7)."
+        (50, 100, 200, 500, 1000), "The M compared (Sec. 4.3.2.1, Fig. 4.7).", minimum=2
     )
 
 
@@ -120,10 +135,14 @@ class StochasticThrowingSettings(GPREPSThrowingSettings):
     """Settings of ``fig4.9`` (REPS and GPREPS on deterministic and noisy throwing)."""
 
     release_noise: tuple[float, float] = setting(
-        (0.075, 0.3), "Std of the release position (m) and velocity (m/s) (Sec. 4.3.2.2)."
+        (0.075, 0.3),
+        "Std of the release position (m) and velocity (m/s) (Sec. 4.3.2.2).",
+        minimum=0,
     )
     n_final_rollouts: int = setting(
-        10, "Noisy rollouts per target that estimate each final policy's expected reward."
+        10,
+        "Noisy rollouts per target that estimate each final policy's expected reward.",
+        minimum=1,
     )
 
 

@@ -118,35 +118,47 @@ class SamplingAccuracySettings(Settings):
     """Settings of ``fig4.3`` (Sec. 4.2.2, Fig. 4.3; the planar 4-link robot of Fig. 3.1)."""
 
     n_data: int = setting(
-        1800, "Training transitions of the FITC model (thesis: 12000), whole trajectories."
+        1800,
+        "Training transitions of the FITC model (thesis: 12000), whole trajectories.",
+        minimum=1,
     )
-    n_pseudo: int = setting(150, "Pseudo-inputs M of the FITC model (thesis: 700).")
+    n_pseudo: int = setting(150, "Pseudo-inputs M of the FITC model (thesis: 700).", minimum=1)
     horizon: int = setting(
-        60, "Steps T of the training trajectories and of the predictions (20 Hz; thesis: 300)."
+        60,
+        "Steps T of the training trajectories and of the predictions (20 Hz; thesis: 300).",
+        minimum=1,
     )
     n_start: int = setting(
-        20, "Start distributions N(m_0, σ_0² I) (thesis: 100 'with varying initial variance')."
+        20,
+        "Start distributions N(m_0, σ_0² I) (thesis: 100 'with varying initial variance').",
+        minimum=1,
     )
     n_ground_truth: int = setting(
-        300, "Sampled trajectories whose Gaussian fit is the ground truth p(x_t) (thesis: 1000)."
+        300,
+        "Sampled trajectories whose Gaussian fit is the ground truth p(x_t) (thesis: 1000).",
+        minimum=10,
     )
     sample_sizes: tuple[int, ...] = setting(
-        (10, 20, 50, 100), "Numbers of sampled trajectories compared with moment matching (≥ 10)."
+        (10, 20, 50, 100),
+        "Numbers of sampled trajectories compared with moment matching (≥ 10).",
+        minimum=10,
     )
     amplitude: float = setting(
         0.6, "Amplitude (rad) of the swinging reference on every joint (Balancing.swing_reference)."
     )
-    period: float = setting(4.0, "Period (s) of the swinging reference.")
+    period: float = setting(4.0, "Period (s) of the swinging reference.", above=0)
     initial_std: float = setting(
-        0.05, "Std (rad, rad/s) of the training starts and of the test means m_0 around r_0."
+        0.05,
+        "Std (rad, rad/s) of the training starts and of the test means m_0 around r_0.",
+        minimum=0,
     )
-    torque_noise_std: float = setting(0.5, "Std of the torque noise of the robot (N m).")
+    torque_noise_std: float = setting(0.5, "Std of the torque noise of the robot (N m).", minimum=0)
     initial_std_range: tuple[float, float] = setting(
-        (0.01, 0.1), "Interval of σ_0 (rad, rad/s), drawn log-uniformly per start."
+        (0.01, 0.1), "Interval of σ_0 (rad, rad/s), drawn log-uniformly per start.", above=0
     )
-    n_opt_steps: int = setting(50, "Hyper-parameter optimisation steps of the model.")
+    n_opt_steps: int = setting(50, "Hyper-parameter optimisation steps of the model.", minimum=0)
     additive_noise: float = setting(
-        1.0, "Additive-noise factor α of the model: σ_add = α 10⁻² std(y) (Sec. 4.2.3)."
+        1.0, "Additive-noise factor α of the model: σ_add = α 10⁻² std(y) (Sec. 4.2.3).", minimum=0
     )
     curb: bool = setting(True, "Train with PILCO's hyper-parameter curb (HyperCurb).")
     gp_target: str = setting("next", "What the GP learns: 'next' (x′, the thesis) or 'delta'.")
@@ -452,20 +464,20 @@ CLAIM_4_4 = (
 class ComputeTimeSettings(Settings):
     """Settings of ``fig4.4`` (Sec. 4.2.2, Fig. 4.4): timings, so numbers vary between runs."""
 
-    n_data: int = setting(600, "Training transitions of the FITC model (thesis: 1500).")
-    n_pseudo: int = setting(100, "Pseudo-inputs M of the FITC model (thesis: 300).")
-    horizon: int = setting(30, "Steps T of every prediction (20 Hz; thesis: 100).")
+    n_data: int = setting(600, "Training transitions of the FITC model (thesis: 1500).", minimum=1)
+    n_pseudo: int = setting(100, "Pseudo-inputs M of the FITC model (thesis: 300).", minimum=1)
+    horizon: int = setting(30, "Steps T of every prediction (20 Hz; thesis: 100).", minimum=1)
     n_trajectories: tuple[int, ...] = setting(
-        (10, 100, 1000, 3000), "Numbers N of sampled trajectories timed, increasing."
+        (10, 100, 1000, 3000), "Numbers N of sampled trajectories timed, increasing.", minimum=1
     )
     threads: tuple[int, ...] = setting(
-        (1, 2), "Torch thread counts timed (the claim is about one core)."
+        (1, 2), "Torch thread counts timed (the claim is about one core).", minimum=1
     )
-    repeats: int = setting(3, "Timings repeated (minimum kept; one run above N = 1000).")
-    torque_noise_std: float = setting(0.5, "Std of the torque noise of the robot (N m).")
-    n_opt_steps: int = setting(30, "Hyper-parameter optimisation steps of the model.")
+    repeats: int = setting(3, "Timings repeated (minimum kept; one run above N = 1000).", minimum=1)
+    torque_noise_std: float = setting(0.5, "Std of the torque noise of the robot (N m).", minimum=0)
+    n_opt_steps: int = setting(30, "Hyper-parameter optimisation steps of the model.", minimum=0)
     additive_noise: float = setting(
-        1.0, "Additive-noise factor α of the model: σ_add = α 10⁻² std(y) (Sec. 4.2.3)."
+        1.0, "Additive-noise factor α of the model: σ_add = α 10⁻² std(y) (Sec. 4.2.3).", minimum=0
     )
 
 
@@ -709,11 +721,11 @@ class TrainingSetting(Settings):
     """
 
     additive_noise: float = setting(
-        1.0, "Additive-noise factor α: σ_add = α 10⁻² std(y) (Sec. 4.2.3)."
+        1.0, "Additive-noise factor α: σ_add = α 10⁻² std(y) (Sec. 4.2.3).", minimum=0
     )
-    n_opt_steps: int = setting(50, "Hyper-parameter optimisation steps (thesis: 150).")
-    torque_noise_std: float = setting(0.5, "Std of the torque noise of the robot (N m).")
-    n_train: int = setting(15, "Training trajectories (T steps each; thesis: 50).")
+    n_opt_steps: int = setting(50, "Hyper-parameter optimisation steps (thesis: 150).", minimum=0)
+    torque_noise_std: float = setting(0.5, "Std of the torque noise of the robot (N m).", minimum=0)
+    n_train: int = setting(15, "Training trajectories (T steps each; thesis: 50).", minimum=1)
 
 
 @dataclass(frozen=True)
@@ -725,45 +737,51 @@ class RewardErrorSettings(Settings):
         "The default training setting; ``--set`` takes a mapping of some of its fields.",
     )
     additive_noise_values: tuple[float, ...] = setting(
-        (0.1, 1.0, 10.0), "Additive-noise factors α of the first panel."
+        (0.1, 1.0, 10.0), "Additive-noise factors α of the first panel.", minimum=0
     )
     n_opt_steps_values: tuple[int, ...] = setting(
-        (10, 50), "Optimisation step counts of the second panel."
+        (10, 50), "Optimisation step counts of the second panel.", minimum=0
     )
     torque_noise_std_values: tuple[float, ...] = setting(
-        (0.5, 2.0), "Torque-noise stds (N m) of the third panel."
+        (0.5, 2.0), "Torque-noise stds (N m) of the third panel.", minimum=0
     )
     n_train_values: tuple[int, ...] = setting(
-        (5, 15), "Training-trajectory counts of the fourth panel."
+        (5, 15), "Training-trajectory counts of the fourth panel.", minimum=1
     )
-    n_pairs: int = setting(15, "Test start states x_0 whose rewards are predicted (thesis: 50).")
+    n_pairs: int = setting(
+        15, "Test start states x_0 whose rewards are predicted (thesis: 50).", minimum=1
+    )
     initial_std: float = setting(
-        0.1, "Std of the initial state around upright (rad, rad/s; Sec. 4.2.3)."
+        0.1, "Std of the initial state around upright (rad, rad/s; Sec. 4.2.3).", minimum=0
     )
-    horizon: int = setting(20, "Steps T of training and test trajectories (thesis: 20).")
-    n_predicted: int = setting(10, "Trajectories sampled from a model per test pair (thesis: 20).")
-    pseudo_fraction: float = setting(0.25, "Pseudo-inputs of FITC as a fraction of N (M = N/4).")
+    horizon: int = setting(20, "Steps T of training and test trajectories (thesis: 20).", minimum=1)
+    n_predicted: int = setting(
+        10, "Trajectories sampled from a model per test pair (thesis: 20).", minimum=1
+    )
+    pseudo_fraction: float = setting(
+        0.25, "Pseudo-inputs of FITC as a fraction of N (M = N/4).", above=0, maximum=1
+    )
     natural_frequency: float = setting(
-        3.0, "ω (rad/s) of the PD controller (:meth:`Balancing.pd_gain`) used throughout."
+        3.0, "ω (rad/s) of the PD controller (:meth:`Balancing.pd_gain`) used throughout.", above=0
     )
-    damping: float = setting(1.5, "ζ of the PD controller.")
+    damping: float = setting(1.5, "ζ of the PD controller.", above=0)
     gp_target: str = setting("next", "What the GPs learn: 'next' (x′, the thesis) or 'delta'.")
     uncurbed_panels: tuple[str, ...] = setting(
         ("n_opt_steps",),
         "Panels whose settings are also trained without the hyper-parameter curb (its effect).",
     )
     n_truth: int = setting(
-        5, "Real rollouts per test start state; their variance gives the noise floor (≥ 2)."
+        5,
+        "Real rollouts per test start state; their variance gives the noise floor (≥ 2).",
+        minimum=2,
     )
 
     def check(self) -> None:
-        """Panels named in ``uncurbed_panels`` exist; the noise floor needs two rollouts."""
+        """Panels named in ``uncurbed_panels`` exist; ``gp_target`` is known."""
         names = [k for k, _ in _PANELS_4_5]
         bad = [p for p in self.uncurbed_panels if p not in names]
         if bad:
             raise ValueError(f"uncurbed_panels: expected names from {names}, got {bad}")
-        if self.n_truth < 2:
-            raise ValueError(f"n_truth: expected at least 2 rollouts, got {self.n_truth}")
         if self.gp_target not in ("next", "delta"):
             raise ValueError(f"gp_target: expected 'next' or 'delta', got {self.gp_target!r}")
 

@@ -104,11 +104,13 @@ class StochasticRewardSettings(Settings):
     control_noise: float = setting(
         1.5, "Std σ_u of the torque noise (N m; the pendulum-stochastic task's value)."
     )
-    horizon: int = setting(30, "Control steps T of every trajectory (Δt = 0.1 s).")
+    horizon: int = setting(30, "Control steps T of every trajectory (Δt = 0.1 s).", minimum=1)
     n_real: int = setting(
-        400, "Real rollouts of the pair: the Monte Carlo estimate of R_sω and the histogram."
+        400,
+        "Real rollouts of the pair: the Monte Carlo estimate of R_sω and the histogram.",
+        minimum=1,
     )
-    n_shown: int = setting(20, "Real and model trajectories drawn in the left panels.")
+    n_shown: int = setting(20, "Real and model trajectories drawn in the left panels.", minimum=1)
     n_train: int = setting(
         20, "Real rollouts of nearby pairs whose transitions train the GP model (T each)."
     )
@@ -122,15 +124,19 @@ class StochasticRewardSettings(Settings):
         "Std of the training gains ω ~ N(K, diag(std²)) (the task's initial policy).",
     )
     n_model: int = setting(
-        2000, "Model trajectories of the pair: split into blocks of L for the L-averages."
+        2000,
+        "Model trajectories of the pair: split into blocks of L for the L-averages.",
+        minimum=1,
     )
     sample_sizes: tuple[int, ...] = setting(
         (1, 5, 25, 100), "Numbers L of trajectories averaged (Eq. 4.1), increasing."
     )
-    n_bins: int = setting(30, "Bins of the reward histograms.")
-    n_opt_steps: int = setting(100, "Hyper-parameter optimisation steps (L-BFGS) of the GP.")
+    n_bins: int = setting(30, "Bins of the reward histograms.", minimum=1)
+    n_opt_steps: int = setting(
+        100, "Hyper-parameter optimisation steps (L-BFGS) of the GP.", minimum=0
+    )
     additive_noise: float = setting(
-        1.0, "Additive-noise factor α of the GP: σ_add = α 10⁻² std(y) (Sec. 4.2.3)."
+        1.0, "Additive-noise factor α of the GP: σ_add = α 10⁻² std(y) (Sec. 4.2.3).", minimum=0
     )
 
     def check(self) -> None:
@@ -148,9 +154,8 @@ class StochasticRewardSettings(Settings):
                 f"n_real: need at least two blocks of the largest L = {max(sizes)}, "
                 f"got {self.n_real}"
             )
-        for name in ("horizon", "n_train", "n_bins", "n_shown"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name}: expected a positive integer, got {getattr(self, name)}")
+        if self.n_train < 1:
+            raise ValueError(f"n_train: expected a positive integer, got {self.n_train}")
         if not self.control_noise > 0:
             raise ValueError(
                 f"control_noise: the experiment needs stochastic dynamics (σ_u > 0), "

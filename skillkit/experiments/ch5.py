@@ -110,33 +110,38 @@ def _target_kernel(kind: str, targets: np.ndarray):
 class PendulumSettings(Settings):
     """Settings of ``fig5.3``, ``fig5.4`` and ``fig5.5`` (pendulum, Sec. 5.4)."""
 
-    n_trajectories: int = setting(15, "Observed trajectories (thesis: 15).")
+    n_trajectories: int = setting(15, "Observed trajectories (thesis: 15).", minimum=2)
     horizon: int = setting(
-        20, "Steps per observed trajectory and of the predicted trajectory (thesis: 20)."
+        20, "Steps per observed trajectory and of the predicted trajectory (thesis: 20).", minimum=1
     )
     control_noise: float = setting(
-        0.05, "Std σ_u of the controls u ~ N(Kᵀx, σ_u²) (N m; thesis: 0.05)."
+        0.05, "Std σ_u of the controls u ~ N(Kᵀx, σ_u²) (N m; thesis: 0.05).", minimum=0
     )
-    grid: int = setting(17, "Query grid points per axis over the context range.")
+    grid: int = setting(17, "Query grid points per axis over the context range.", minimum=1)
     truth_samples: int = setting(
-        200, "Monte Carlo samples of the true successor state per query (single step)."
+        200, "Monte Carlo samples of the true successor state per query (single step).", minimum=2
     )
     truth_rollouts: int = setting(
-        50, "Monte Carlo rollouts of the true 20-step trajectory per query (fig5.5)."
+        50, "Monte Carlo rollouts of the true 20-step trajectory per query (fig5.5).", minimum=2
     )
-    gp_samples: int = setting(30, "Trajectories sampled from the GP per query (fig5.5).")
+    gp_samples: int = setting(30, "Trajectories sampled from the GP per query (fig5.5).", minimum=1)
     cv_folds: int = setting(
-        10, "Cross-validation folds over trajectories of Eq. 5.16 (thesis: 10)."
+        10, "Cross-validation folds over trajectories of Eq. 5.16 (thesis: 10).", minimum=2
     )
-    max_iter: int = setting(50, "L-BFGS-B iterations of the embedding's hyper-parameters.")
-    lam0: float = setting(1e-3, "Initial regulariser λ of the embedding (Eq. 5.3).")
+    max_iter: int = setting(
+        50, "L-BFGS-B iterations of the embedding's hyper-parameters.", minimum=1
+    )
+    lam0: float = setting(1e-3, "Initial regulariser λ of the embedding (Eq. 5.3).", above=0)
     lam_min: float = setting(
         1e-6,
         "Lower bound of the learned λ: 1e-6 for the single-step maps (fig5.3, fig5.4), 1e-3 "
         "for the 20-step prediction (fig5.5), where the one-step objective's λ ~ 1e-5 lets the "
         "propagation amplify β (issue #16).",
+        above=0,
     )
-    gp_steps: int = setting(150, "Marginal-likelihood optimisation steps of the GP (Eq. 2.28).")
+    gp_steps: int = setting(
+        150, "Marginal-likelihood optimisation steps of the GP (Eq. 2.28).", minimum=0
+    )
     gp_target: Literal["delta", "next"] = setting(
         "next", "What the GP learns: x' (next, the thesis's, zero prior mean) or Δx (delta)."
     )
@@ -638,32 +643,43 @@ def embedding_expected_rewards(
 class BalancingSettings(Settings):
     """Settings shared by ``fig5.6`` and ``fig5.7`` (balancing the 4-link robot, Sec. 5.4)."""
 
-    horizon: int = setting(40, "Steps T of every trajectory (thesis: 40).")
+    horizon: int = setting(40, "Steps T of every trajectory (thesis: 40).", minimum=1)
     initial_std: float = setting(
-        0.3, "Std of the initial state around upright (rad, rad/s; thesis: 0.3)."
+        0.3, "Std of the initial state around upright (rad, rad/s; thesis: 0.3).", minimum=0
     )
     pd_frequency: float = setting(
-        3.0, "Natural frequency ω of the PD controller (Balancing.pd_gain; rad/s)."
+        3.0, "Natural frequency ω of the PD controller (Balancing.pd_gain; rad/s).", above=0
     )
-    pd_damping: float = setting(1.5, "Damping ratio ζ of the PD controller (Balancing.pd_gain).")
+    pd_damping: float = setting(
+        1.5, "Damping ratio ζ of the PD controller (Balancing.pd_gain).", above=0
+    )
     gp_samples: int = setting(
-        100, "Trajectories M sampled from the GP per test start state (thesis: 100)."
+        100, "Trajectories M sampled from the GP per test start state (thesis: 100).", minimum=1
     )
     cv_folds: int = setting(
-        10, "Cross-validation folds over trajectories (thesis: 10; fewer if fewer trajectories)."
+        10,
+        "Cross-validation folds over trajectories (thesis: 10; fewer if fewer trajectories).",
+        minimum=2,
     )
-    lam0: float = setting(1e-3, "Initial regulariser λ of the embeddings (Eq. 5.3).")
+    lam0: float = setting(1e-3, "Initial regulariser λ of the embeddings (Eq. 5.3).", above=0)
     lam_min: float = setting(
         1e-3,
         "Lower bound of λ in both embedding fits: smaller λ lets the 40-step propagation "
         "β_{t+1} = (G + λI)⁻¹G̃β_t amplify (‖β‖₁ ≫ 1, issue #16).",
+        above=0,
     )
-    test_pairs: int = setting(40, "Test start states x₀ᵢ whose expected reward is predicted.")
+    test_pairs: int = setting(
+        40, "Test start states x₀ᵢ whose expected reward is predicted.", minimum=1
+    )
     truth_rollouts: int = setting(
-        30, "Real rollouts per test start state for its expected reward (thesis: 100)."
+        30, "Real rollouts per test start state for its expected reward (thesis: 100).", minimum=2
     )
-    max_iter: int = setting(40, "L-BFGS-B iterations of the embeddings' hyper-parameters.")
-    gp_steps: int = setting(100, "Marginal-likelihood optimisation steps of the GP (Eq. 2.28).")
+    max_iter: int = setting(
+        40, "L-BFGS-B iterations of the embeddings' hyper-parameters.", minimum=1
+    )
+    gp_steps: int = setting(
+        100, "Marginal-likelihood optimisation steps of the GP (Eq. 2.28).", minimum=0
+    )
     trajectory_start: Literal["both", "step", "default"] = setting(
         "both",
         "Start(s) of the trajectory-based fit (Eq. 5.23): the step-based fit's initial values "
@@ -682,9 +698,9 @@ class BalancingSettings(Settings):
 class RewardVsDataSettings(BalancingSettings):
     """Settings of ``fig5.6``: the error against the number of observed trajectories."""
 
-    torque_noise: float = setting(4.0, "Std of the torque noise (N m; thesis: 4).")
+    torque_noise: float = setting(4.0, "Std of the torque noise (N m; thesis: 4).", minimum=0)
     n_trajectories: tuple[int, ...] = setting(
-        (3, 8), "Numbers of observed trajectories the models learn from (x axis)."
+        (3, 8), "Numbers of observed trajectories the models learn from (x axis).", minimum=2
     )
 
 
@@ -693,9 +709,9 @@ class RewardVsNoiseSettings(BalancingSettings):
     """Settings of ``fig5.7``: the error against the torque noise."""
 
     torque_noise: tuple[float, ...] = setting(
-        (1.0, 4.0, 8.0), "Stds of the torque noise (N m; x axis)."
+        (1.0, 4.0, 8.0), "Stds of the torque noise (N m; x axis).", minimum=0
     )
-    n_trajectories: int = setting(5, "Observed trajectories the models learn from.")
+    n_trajectories: int = setting(5, "Observed trajectories the models learn from.", minimum=2)
 
 
 _BALANCING_PAPER = dict(test_pairs=200, truth_rollouts=100, max_iter=30, gp_steps=150)

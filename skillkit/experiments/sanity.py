@@ -122,24 +122,30 @@ CLAIM = (
 class SanitySettings(Settings):
     """Settings of ``sanity3`` (the learning loop of Table 3.1 on :class:`LinearOptimumTask`)."""
 
-    n_updates: int = setting(120, "Policy updates per algorithm (Table 3.1 loop).")
+    n_updates: int = setting(120, "Policy updates per algorithm (Table 3.1 loop).", minimum=1)
     rollouts_per_update: int = setting(
-        25, "Rollouts N between updates (Sec. 3.4.1's throwing setting)."
+        25, "Rollouts N between updates (Sec. 3.4.1's throwing setting).", minimum=1
     )
     n_reuse_batches: int = setting(
-        8, "Batches L each update reuses: the last L × N = 200 rollouts (Sec. 3.4.1)."
+        8, "Batches L each update reuses: the last L × N = 200 rollouts (Sec. 3.4.1).", minimum=1
     )
-    epsilon: float = setting(0.5, "KL bound ε of contextual REPS (Eq. 3.4).")
+    epsilon: float = setting(0.5, "KL bound ε of contextual REPS (Eq. 3.4).", above=0)
     beta_scale: float = setting(
-        1.0, "RWR's and CrKR's β = beta_scale / std(R) (Eq. 2.18; KL ≈ 0.5 from uniform)."
+        1.0, "RWR's and CrKR's β = beta_scale / std(R) (Eq. 2.18; KL ≈ 0.5 from uniform).", above=0
     )
-    crkr_lam: float = setting(0.01, "CrKR's regulariser λ (Eqs. 2.19–2.20).")
-    kernel_variance: float = setting(0.25, "Variance σ² of CrKR's linear kernel σ² sᵀs' + c.")
-    kernel_bias: float = setting(0.25, "Bias c of CrKR's linear kernel σ² sᵀs' + c.")
-    noise_std: float = setting(0.0, "Std σ_ν of the additive reward noise (reward units).")
-    init_std: float = setting(0.5, "Std of the initial policy N(0, init_std² I) (zero gain).")
+    crkr_lam: float = setting(0.01, "CrKR's regulariser λ (Eqs. 2.19–2.20).", above=0)
+    kernel_variance: float = setting(
+        0.25, "Variance σ² of CrKR's linear kernel σ² sᵀs' + c.", above=0
+    )
+    kernel_bias: float = setting(0.25, "Bias c of CrKR's linear kernel σ² sᵀs' + c.", minimum=0)
+    noise_std: float = setting(
+        0.0, "Std σ_ν of the additive reward noise (reward units).", minimum=0
+    )
+    init_std: float = setting(
+        0.5, "Std of the initial policy N(0, init_std² I) (zero gain).", above=0
+    )
     threshold: float = setting(
-        1e-2, "Parameter error ‖[a, A] − [a*, A*]‖_F counted as reaching the optimum."
+        1e-2, "Parameter error ‖[a, A] − [a*, A*]‖_F counted as reaching the optimum.", above=0
     )
 
 

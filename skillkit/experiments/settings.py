@@ -8,8 +8,8 @@ an experiment are instances of that class::
 
     @dataclass(frozen=True)
     class ThrowingSettings(Settings):
-        n_updates: int = setting(40, "policy updates per method (Table 3.1)")
-        epsilon: float = setting(0.6, "KL bound ε of REPS (Eq. 3.4, Sec. 3.4.1)")
+        n_updates: int = setting(40, "policy updates per method (Table 3.1)", minimum=1)
+        epsilon: float = setting(0.6, "KL bound ε of REPS (Eq. 3.4, Sec. 3.4.1)", above=0)
 
     QUICK = ThrowingSettings()
     PAPER = dataclasses.replace(QUICK, n_updates=200)
@@ -43,7 +43,14 @@ __all__ = ["Settings", "apply_overrides", "describe", "setting", "type_name"]
 _DOC = "doc"
 
 
-def setting(default: Any, doc: str) -> Any:
+def setting(
+    default: Any,
+    doc: str,
+    *,
+    minimum: float | None = None,
+    above: float | None = None,
+    maximum: float | None = None,
+) -> Any:
     """A settings field with its default and its description (meaning, unit, thesis section).
 
     Parameters
@@ -53,10 +60,51 @@ def setting(default: Any, doc: str) -> Any:
         a nested :class:`Settings` default is an instance (frozen, so sharing it is safe).
     doc : str
         What the field means, its unit and the thesis section or equation it comes from.
+    minimum, above, maximum : float, optional
+        The field's range: value ≥ ``minimum``, value > ``above``, value ≤ ``maximum``. For a
+        list field every number in it is checked; ``None`` entries (where the type allows
+        them) are not. Checked on every construction, shown by ``skillkit settings ID``.
     """
     if not isinstance(doc, str) or not doc.strip():
         raise ValueError("doc: every settings field needs a description")
-    return field(default=default, metadata={_DOC: doc.strip()})
+    bounds = {"minimum": minimum, "above": above, "maximum": maximum}
+    for name, b in bounds.items():
+        if b is not None and (isinstance(b, bool) or not np.isfinite(b)):
+            raise ValueError(f"{name}: expected a finite number or None, got {b!r}")
+    meta: dict[str, Any] = {_DOC: doc.strip()}
+    meta.update({k: v for k, v in bounds.items() if v is not None})
+    return field(default=default, metadata=meta)
+
+
+def _range_text(metadata: Mapping[str, Any]) -> str:
+    """The field's range as ``skillkit settings`` and errors show it ("" without one)."""
+    parts = []
+    if "minimum" in metadata:
+        parts.append(f"≥ {metadata['minimum']:g}")
+    if "above" in metadata:
+        parts.append(f"> {metadata['above']:g}")
+    if "maximum" in metadata:
+        parts.append(f"≤ {metadata['maximum']:g}")
+    return " and ".join(parts)
+
+
+def _numbers(value: Any) -> list[float]:
+    """The numbers in a field's value (itself, or the entries of a list, nested)."""
+    if isinstance(value, (bool, np.bool_)) or value is None or isinstance(value, str):
+        return []
+    if isinstance(value, (int, float, np.integer, np.floating)):
+        return [value]
+    if isinstance(value, (tuple, list)):
+        return [x for v in value for x in _numbers(v)]
+    return []
+
+
+def _in_range(value: Any, metadata: Mapping[str, Any]) -> bool:
+    lo, above, hi = metadata.get("minimum"), metadata.get("above"), metadata.get("maximum")
+    return all(
+        (lo is None or x >= lo) and (above is None or x > above) and (hi is None or x <= hi)
+        for x in _numbers(value)
+    )
 
 
 def type_name(tp: Any) -> str:
@@ -164,6 +212,12 @@ class Settings:
                     f"{f.name}: expected {type_name(hints[f.name])}, got {value!r} "
                     f"({type(value).__name__}) in {type(self).__name__}"
                 ) from None
+            if not _in_range(norm, f.metadata):
+                raise ValueError(
+                    f"{f.name}: expected {_range_text(f.metadata)}"
+                    f"{' (every entry)' if isinstance(norm, tuple) else ''}, got {value!r} in "
+                    f"{type(self).__name__}"
+                )
             if norm is not value:
                 object.__setattr__(self, f.name, norm)
         self.check()
@@ -233,6 +287,10 @@ def describe(cls: type[Settings]) -> list[tuple[str, str, str]]:
     """``(name, type, description)`` of every field of a settings class, in order."""
     hints = typing.get_type_hints(cls)
     return [
-        (f.name, type_name(hints[f.name]), f.metadata.get(_DOC, ""))
+        (
+            f.name,
+            " ".join(filter(None, (type_name(hints[f.name]), _range_text(f.metadata)))),
+            f.metadata.get(_DOC, ""),
+        )
         for f in dataclasses.fields(cls)
     ]

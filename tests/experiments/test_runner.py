@@ -408,6 +408,51 @@ def test_non_finite_settings_are_refused(bad):
     assert apply_overrides(_RealSettings(), {"x": 2, "maybe": -3.5}).maybe == -3.5
 
 
+@dataclass(frozen=True)
+class _BoundedSettings(Settings):
+    n: int = setting(3, "A count.", minimum=1)
+    eps: float = setting(0.5, "A KL bound.", above=0.0)
+    p: float = setting(0.5, "A probability.", minimum=0.0, maximum=1.0)
+    ns: tuple[int | None, ...] = setting((1, None, 4), "Counts or null.", minimum=1)
+    free: float = setting(-2.0, "Unbounded.")
+
+
+@pytest.mark.parametrize(
+    ("name", "value", "expected"),
+    [
+        ("n", 0, "≥ 1"),
+        ("n", -1, "≥ 1"),
+        ("eps", 0.0, "> 0"),
+        ("eps", -1e-9, "> 0"),
+        ("p", 1.5, "≥ 0 and ≤ 1"),
+        ("p", -0.1, "≥ 0 and ≤ 1"),
+        ("ns", (1, None, 0), r"≥ 1 \(every entry\)"),
+    ],
+)
+def test_settings_out_of_their_declared_range_are_refused(name, value, expected):
+    with pytest.raises(ValueError, match=f"^{name}: expected {expected}, got"):
+        _BoundedSettings(**{name: value})
+    with pytest.raises(ValueError, match=f"^{name}: expected {expected}, got"):
+        apply_overrides(_BoundedSettings(), {name: value})
+
+
+def test_settings_ranges_admit_their_bounds_and_are_described():
+    from skillkit.experiments.settings import describe
+
+    edge = _BoundedSettings(n=1, eps=1e-300, p=1.0, ns=(None, 1), free=-1e300)
+    assert (edge.n, edge.p, edge.ns) == (1, 1.0, (None, 1))
+    kinds = {name: kind for name, kind, _ in describe(_BoundedSettings)}
+    assert kinds == {
+        "n": "int ≥ 1",
+        "eps": "finite float > 0",
+        "p": "finite float ≥ 0 and ≤ 1",
+        "ns": "list of int or null ≥ 1",
+        "free": "finite float",
+    }
+    with pytest.raises(ValueError, match="minimum: expected a finite number"):
+        setting(1, "A count.", minimum=float("nan"))
+
+
 def test_cli_refuses_nan_and_infinity_settings(tmp_path, capsys):
     """``--set`` parses VALUE as JSON, which accepts NaN and Infinity: refused up front."""
     for pair in ("threshold=NaN", "epsilon=Infinity", "epsilon=-Infinity"):
@@ -415,6 +460,19 @@ def test_cli_refuses_nan_and_infinity_settings(tmp_path, capsys):
         assert main(args + ["--set", pair]) == 2
         assert "expected finite float" in capsys.readouterr().err
     assert not any(tmp_path.iterdir())
+
+
+def test_cli_refuses_settings_outside_their_range_and_lists_the_ranges(tmp_path, capsys):
+    """``sanity3 --set threshold=-1`` used to run and report "error < -1" in 0 trials."""
+    for pair, expected in (("threshold=-1", "threshold: expected > 0, got -1"),
+                           ("n_updates=0", "n_updates: expected ≥ 1, got 0")):  # fmt: skip
+        args = ["reproduce", "sanity3", "--scale", "smoke", "--out", str(tmp_path), "--quiet"]
+        assert main(args + ["--set", pair]) == 2
+        assert expected in capsys.readouterr().err
+    assert not any(tmp_path.iterdir())
+    assert main(["settings", "sanity3"]) == 0
+    out = capsys.readouterr().out
+    assert "threshold (finite float > 0)" in out and "n_updates (int ≥ 1)" in out
 
 
 @pytest.mark.skipif(not __import__("os").path.exists("/proc/self/stat"), reason="reads /proc")

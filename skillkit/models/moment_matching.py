@@ -485,15 +485,38 @@ def gaussian_kl(mean_p, cov_p, mean_q, cov_q) -> np.ndarray:
     ----------
     mean_p, mean_q : array_like, shape (..., d)
     cov_p, cov_q : array_like, shape (..., d, d)
-        Positive definite.
+        Positive definite. The batch shapes broadcast. Non-finite entries are not refused:
+        they give a non-finite KL for that batch entry (fig4.3 stores those as they are).
 
     Returns
     -------
     ndarray, shape (...)
+
+    Raises
+    ------
+    ValueError
+        If a mean is not at least 1-D, a covariance is not (..., d, d) with the means' d, or
+        the batch shapes do not broadcast (the argument is named).
+    numpy.linalg.LinAlgError
+        If a finite covariance is not positive definite.
     """
     mp, mq = np.asarray(mean_p, float), np.asarray(mean_q, float)
     Sp, Sq = np.asarray(cov_p, float), np.asarray(cov_q, float)
+    if mp.ndim < 1:
+        raise ValueError(f"mean_p: expected shape (..., d), got {mp.shape}")
     d = mp.shape[-1]
+    if mq.ndim < 1 or mq.shape[-1] != d:
+        raise ValueError(f"mean_q: expected shape (..., {d}) like mean_p, got {mq.shape}")
+    for name, S in (("cov_p", Sp), ("cov_q", Sq)):
+        if S.ndim < 2 or S.shape[-2:] != (d, d):
+            raise ValueError(f"{name}: expected shape (..., {d}, {d}), got {S.shape}")
+    try:
+        np.broadcast_shapes(mp.shape[:-1], mq.shape[:-1], Sp.shape[:-2], Sq.shape[:-2])
+    except ValueError:
+        raise ValueError(
+            f"mean_p, cov_p, mean_q, cov_q: batch shapes {mp.shape[:-1]}, {Sp.shape[:-2]}, "
+            f"{mq.shape[:-1]}, {Sq.shape[:-2]} do not broadcast"
+        ) from None
     Lq = np.linalg.cholesky(Sq)
     Lp = np.linalg.cholesky(Sp)
     A = np.linalg.solve(Lq, Lp)

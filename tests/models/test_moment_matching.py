@@ -207,3 +207,19 @@ def test_bad_input():
         propagate(fm, [0.0, 0.0], np.eye(2), 0, np.zeros((1, 2)))
     with pytest.raises(ValueError, match="mean0"):
         propagate(fm, [0.0], np.eye(2), 2, np.zeros((1, 2)))
+
+
+def test_gaussian_kl_names_a_bad_shape_and_passes_non_finite_entries_through():
+    I2 = np.eye(2)
+    with pytest.raises(ValueError, match=r"mean_q: expected shape \(\.\.\., 2\)"):
+        gaussian_kl(np.zeros(2), I2, np.zeros(3), np.eye(3))
+    with pytest.raises(ValueError, match=r"cov_p: expected shape \(\.\.\., 2, 2\)"):
+        gaussian_kl(np.zeros(2), np.eye(3), np.zeros(2), I2)
+    with pytest.raises(ValueError, match="mean_p: expected shape"):
+        gaussian_kl(0.0, I2, np.zeros(2), I2)
+    with pytest.raises(ValueError, match="do not broadcast"):
+        gaussian_kl(np.zeros((3, 2)), I2, np.zeros((4, 2)), I2)
+    # one batch entry with a NaN mean: that entry is NaN, the others are exact (fig4.3 stores it)
+    mq = np.array([[1.0, 1.0], [np.nan, 0.0], [0.0, 0.0]])
+    out = gaussian_kl(np.zeros(2), I2, mq, I2)
+    assert out[0] == pytest.approx(1.0, rel=1e-14) and np.isnan(out[1]) and out[2] == 0.0

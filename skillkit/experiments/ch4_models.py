@@ -164,12 +164,9 @@ class SamplingAccuracySettings(Settings):
     gp_target: str = setting("next", "What the GP learns: 'next' (x′, the thesis) or 'delta'.")
 
     def check(self) -> None:
-        """A Gaussian fit to sampled 8-D states needs at least 10 samples."""
-        if min(self.sample_sizes) < 10:
-            raise ValueError(
-                f"sample_sizes: a Gaussian fit in 8-D needs at least 10 samples, "
-                f"got {min(self.sample_sizes)}"
-            )
+        """At least one sample size (each ≥ 10 by its bound: a Gaussian fit in 8-D)."""
+        if not self.sample_sizes:
+            raise ValueError("sample_sizes: expected at least one number of trajectories")
         if self.gp_target not in ("next", "delta"):
             raise ValueError(f"gp_target: expected 'next' or 'delta', got {self.gp_target!r}")
 

@@ -112,16 +112,20 @@ class StochasticRewardSettings(Settings):
     )
     n_shown: int = setting(20, "Real and model trajectories drawn in the left panels.", minimum=1)
     n_train: int = setting(
-        20, "Real rollouts of nearby pairs whose transitions train the GP model (T each)."
+        20,
+        "Real rollouts of nearby pairs whose transitions train the GP model (T each).",
+        minimum=1,
     )
     train_context_halfwidth: tuple[float, float] = setting(
         (0.5, 1.0),
         "Half-widths of the uniform context box around s of the training rollouts "
         "(rad, rad/s; clipped to the task's context range).",
+        minimum=0,
     )
     train_gain_std: tuple[float, float] = setting(
         (0.5, 0.25),
         "Std of the training gains ω ~ N(K, diag(std²)) (the task's initial policy).",
+        minimum=0,
     )
     n_model: int = setting(
         2000,
@@ -140,7 +144,7 @@ class StochasticRewardSettings(Settings):
     )
 
     def check(self) -> None:
-        """Sizes that the L-averages need, stochastic dynamics, non-negative spreads."""
+        """Sizes the L-averages need and stochastic dynamics (ranges: the fields' bounds)."""
         sizes = self.sample_sizes
         if not sizes or min(sizes) < 1 or list(sizes) != sorted(set(sizes)):
             raise ValueError(f"sample_sizes: expected increasing integers ≥ 1, got {sizes}")
@@ -154,15 +158,11 @@ class StochasticRewardSettings(Settings):
                 f"n_real: need at least two blocks of the largest L = {max(sizes)}, "
                 f"got {self.n_real}"
             )
-        if self.n_train < 1:
-            raise ValueError(f"n_train: expected a positive integer, got {self.n_train}")
         if not self.control_noise > 0:
             raise ValueError(
                 f"control_noise: the experiment needs stochastic dynamics (σ_u > 0), "
                 f"got {self.control_noise}"
             )
-        if min(self.train_context_halfwidth) < 0 or min(self.train_gain_std) < 0:
-            raise ValueError("train_context_halfwidth, train_gain_std: expected values ≥ 0")
 
 
 QUICK = StochasticRewardSettings()

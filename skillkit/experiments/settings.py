@@ -20,8 +20,9 @@ against the field's annotation and normalises it: lists become tuples (so instan
 hashable and immutable), an ``int`` given for a ``float`` field becomes a ``float``, and a
 mapping given for a nested settings field updates that field's instance. Anything else — a
 string for an int, a float for an int, a bool for a number, NaN or ±inf for a float, a list
-with an element of the wrong type, a value outside a ``Literal`` — raises :class:`ValueError`
-naming the field and the expected type. :func:`apply_overrides` adds the check of the names.
+with an element of the wrong type, a value outside a ``Literal``, a number outside the range
+the field declares (``setting(..., minimum=1)``) — raises :class:`ValueError` naming the field
+and what was expected. :func:`apply_overrides` adds the check of the names.
 
 ``dataclasses.asdict(settings)`` (:meth:`Settings.to_dict`) is what ``result.json`` stores
 and what checkpoint identities hash (tuples are written as JSON lists).

@@ -139,6 +139,8 @@ def as_device(device, name: str = "device") -> torch.device:
     Returns
     -------
     torch.device
+        As tensors made there report it: ``"cpu:0"`` → ``cpu``, ``"cuda"`` → ``cuda:<current
+        device>``, so it compares equal to ``tensor.device``.
 
     Raises
     ------
@@ -160,7 +162,9 @@ def as_device(device, name: str = "device") -> torch.device:
         raise ValueError(f"{name}: expected a CPU or CUDA device (float64), got {device!r}")
     if not torch.cuda.is_available():
         raise ValueError(f"{name}: {device!r} requested but CUDA is not available")
-    if dev.index is not None and dev.index >= torch.cuda.device_count():
+    if dev.index is None:
+        return torch.device("cuda", torch.cuda.current_device())
+    if dev.index >= torch.cuda.device_count():
         raise ValueError(
             f"{name}: {device!r} requested but only {torch.cuda.device_count()} CUDA "
             "device(s) are available"
@@ -384,7 +388,7 @@ class GPPredictor:
             If ``dtype`` is neither ``torch.float64`` nor ``torch.float32`` (the dtypes whose
             kernel floor :meth:`kernel_vectors` defines).
         """
-        device = self.device if device is None else torch.device(device)
+        device = self.device if device is None else as_device(device)
         dtype = self.dtype if dtype is None else dtype
         if dtype not in _KERNEL_FLOOR:
             raise ValueError(f"dtype: expected torch.float64 or torch.float32, got {dtype!r}")

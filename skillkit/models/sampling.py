@@ -238,11 +238,7 @@ def sample_trajectories(
         that is not a GP forward model, a ``stop`` that is not callable or is combined with a
         pathwise method, or a ``stop`` returning anything but a bool Tensor of shape (n,).
     """
-    # The device tensors made there report ("cuda" -> "cuda:<current>", "cpu:0" -> "cpu"), so
-    # that the policy's controls can be checked against it.
-    device = as_device(device)
-    if device.type == "cuda" and device.index is None:
-        device = torch.device("cuda", torch.cuda.current_device())
+    device = as_device(device)  # as tensors report it, so the policy's controls can be checked
     if dtype not in (torch.float64, torch.float32):
         raise ValueError(f"dtype: expected torch.float64 or torch.float32, got {dtype!r}")
     if method not in ("per-step", "pathwise", "pathwise-shared"):

@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy import special
 
-from skillkit._validation import check_array
+from skillkit._validation import check_array, check_count
 from skillkit.policies.gaussian import LinearGaussianPolicy
 from skillkit.trajectory import Trajectory
 
@@ -239,17 +239,9 @@ class SampleBuffer:
     """
 
     def __init__(self, n_batches: int | None):
-        if n_batches is not None and (
-            isinstance(n_batches, bool)
-            or not isinstance(n_batches, (int, np.integer, float, np.floating))
-            or not np.isfinite(n_batches)
-            or int(n_batches) != n_batches
-            or n_batches < 1
-        ):
-            raise ValueError(
-                f"n_reuse_batches: expected a positive integer or None, got {n_batches!r}"
-            )
-        self._batches: deque = deque(maxlen=None if n_batches is None else int(n_batches))
+        if n_batches is not None:
+            n_batches = check_count(n_batches, "n_reuse_batches")
+        self._batches: deque = deque(maxlen=n_batches)
 
     def add(
         self,

@@ -172,11 +172,7 @@ class Evaluator:
                 )
             eval_s = np.stack([task.check_context(s, "eval_contexts") for s in eval_s])
         drawn = int(rng.integers(2**63))
-        if seed is not None and (
-            isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0
-        ):
-            raise ValueError(f"eval_seed: expected a non-negative integer, got {seed!r}")
-        return cls(task, eval_s, drawn if seed is None else int(seed))
+        return cls(task, eval_s, drawn if seed is None else check_count(seed, "eval_seed", 0))
 
     def __call__(self, policy: SearchPolicy) -> float:
         """Mean of R(τ, s) over the contexts s for ω = the policy mean at s."""

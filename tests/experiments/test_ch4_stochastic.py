@@ -119,9 +119,9 @@ def test_verdict_follows_the_stated_criterion():
         ({"n_model": 30}, "n_model: need at least two blocks"),
         ({"n_real": 30}, "n_real: need at least two blocks"),
         ({"control_noise": 0.0}, "control_noise: the experiment needs stochastic"),
-        ({"train_gain_std": (-0.1, 0.2)}, "train_gain_std: expected values"),
+        ({"train_gain_std": (-0.1, 0.2)}, "train_gain_std: expected ≥ 0"),
         ({"context": (5.0, 0.0)}, "context: alpha0=5 is outside"),
-        ({"n_train": 0}, "n_train: expected a positive integer"),
+        ({"n_train": 0}, "n_train: expected ≥ 1"),
     ],
 )
 def test_bad_settings_are_rejected(overrides, match):

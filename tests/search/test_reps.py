@@ -330,5 +330,5 @@ def test_kl_against_a_base_weight_that_underflows_stays_finite():
 def test_reuse_batches_must_be_a_positive_integer(bad):
     # inf and NaN used to escape as OverflowError / a ValueError from int() naming nothing
     pol = GaussianPolicy(np.zeros(2), np.eye(2))
-    with pytest.raises(ValueError, match="n_reuse_batches: expected a positive integer or None"):
+    with pytest.raises(ValueError, match="n_reuse_batches: expected an integer ≥ 1"):
         ContextualREPS(pol, epsilon=1.0, n_reuse_batches=bad)

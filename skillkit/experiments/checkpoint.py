@@ -2,7 +2,8 @@
 
 A checkpoint file is ``MAGIC + header length + JSON header + pickled payload``. The header
 records what the payload belongs to — experiment id, settings, trial seed, skillkit version
-and a hash of the experiment module's source — and the SHA-256 of the payload. Loading checks
+and a fingerprint of the code that can change the trial's numbers
+(:mod:`skillkit.experiments.provenance`) — and the SHA-256 of the payload. Loading checks
 all of it: a truncated or corrupted file, or one written for other settings, another trial
 or other code, raises :class:`CheckpointError` (never silently resumed from). Writes go to a
 temporary file that is renamed into place, so a crash mid-write leaves the old checkpoint.
@@ -11,7 +12,6 @@ temporary file that is renamed into place, so a crash mid-write leaves the old c
 from __future__ import annotations
 
 import hashlib
-import inspect
 import json
 import os
 import pickle
@@ -27,14 +27,16 @@ class CheckpointError(RuntimeError):
 
 
 def code_fingerprint(func) -> str:
-    """skillkit version plus a hash of the source file defining ``func`` (its experiment module)."""
+    """skillkit version plus :func:`skillkit.experiments.provenance.code_fingerprint` of the
+    module defining ``func`` (its experiment module and the skillkit code it imports)."""
     import skillkit
+    from skillkit.experiments.provenance import code_fingerprint as fingerprint
 
     try:
-        source = Path(inspect.getsourcefile(func)).read_bytes()
-    except (TypeError, OSError):
-        source = getattr(func, "__qualname__", repr(func)).encode()
-    return f"{skillkit.__version__}:{hashlib.sha256(source).hexdigest()[:16]}"
+        code = fingerprint(func)
+    except (ValueError, OSError, SyntaxError):
+        code = hashlib.sha256(getattr(func, "__qualname__", repr(func)).encode()).hexdigest()[:16]
+    return f"{skillkit.__version__}:{code}"
 
 
 def identity(exp_id: str, settings: dict, trial: int, seed: int, code: str) -> dict:

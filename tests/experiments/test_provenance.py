@@ -1,0 +1,88 @@
+"""Provenance: the code fingerprint follows code, not documentation; stale results are found."""
+
+import json
+
+import pytest
+
+from skillkit.experiments import provenance
+from skillkit.experiments.registry import get, ids
+
+MODULE = '''"""Module doc."""
+from skillkit.search import ContextualREPS
+
+
+def f(x):
+    """Function doc."""
+    # a comment
+    return x + 1
+'''
+
+
+def _fingerprint(tmp_path, text):
+    path = tmp_path / "m.py"
+    path.write_text(text)
+    return provenance.code_fingerprint(path)
+
+
+def test_fingerprint_ignores_comments_docstrings_and_blank_lines_but_not_code(tmp_path):
+    before = _fingerprint(tmp_path, MODULE)
+    docs = MODULE.replace("Function doc.", "Other words.").replace("a comment", "more\n\n")
+    assert _fingerprint(tmp_path, docs) == before
+    assert _fingerprint(tmp_path, MODULE.replace("x + 1", "x + 2")) != before
+    # a string that is not a docstring is code
+    assert _fingerprint(tmp_path, MODULE + 'NAME = "a"\n') != _fingerprint(
+        tmp_path, MODULE + 'NAME = "b"\n'
+    )
+
+
+def test_closure_follows_a_reexported_name_to_its_module_only(tmp_path):
+    path = tmp_path / "m.py"
+    path.write_text(MODULE)
+    closure = provenance.source_closure(path)
+    assert path.resolve() in closure
+    root = provenance.PACKAGE_ROOT
+    names = {str(f.relative_to(root)) for f in closure if f.is_relative_to(root)}
+    assert "search/reps.py" in names  # ContextualREPS is defined there
+    assert "search/__init__.py" in names  # runs on import: hashed
+    assert "search/pilco.py" not in names  # re-exported by search/__init__, not used
+    assert not any(n.startswith("viz/") for n in names)
+
+
+def test_every_registered_experiment_has_a_fingerprint_and_its_module_in_the_closure():
+    for exp_id in ids():
+        fp = provenance.code_fingerprint(exp_id)
+        assert len(fp) == 16 and int(fp, 16) >= 0
+        module = get(exp_id).run_trial.__module__.rsplit(".", 1)[-1] + ".py"
+        source = provenance._source_file(get(exp_id).run_trial)
+        assert any(f.name == module for f in provenance.source_closure(source))
+
+
+def test_check_results_marks_changed_missing_and_unknown_provenance(tmp_path):
+    exp_id = "fig2.10"
+    current = provenance.code_fingerprint(exp_id)
+    cases = {
+        "current": {"id": exp_id, "code_fingerprint": current, "git": {"commit": "abc"}},
+        "changed": {"id": exp_id, "code_fingerprint": "0" * 16, "git": {"commit": "abc1234"}},
+        "missing": {"id": exp_id},
+        "unknown": {"id": "fig9.9", "code_fingerprint": current},
+    }
+    for name, result in cases.items():
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "result.json").write_text(json.dumps(result))
+    (tmp_path / "foreign").mkdir()
+    (tmp_path / "foreign" / "result.json").write_text("[1, 2]")  # not a run: skipped
+    rows = {r["path"].rsplit("/", 1)[-1]: r for r in provenance.check_results(tmp_path)}
+    assert set(rows) == set(cases)
+    assert not rows["current"]["stale"] and rows["current"]["reason"] == "current"
+    assert rows["changed"]["stale"] and "abc1234" in rows["changed"]["reason"]
+    assert rows["missing"]["stale"] and "no code fingerprint" in rows["missing"]["reason"]
+    assert rows["unknown"]["stale"] and "not registered" in rows["unknown"]["reason"]
+
+
+def test_git_state_outside_a_checkout_is_unknown(tmp_path):
+    assert provenance.git_state(tmp_path) == {"commit": None, "dirty": None}
+
+
+def test_a_function_without_source_is_refused_by_name():
+    with pytest.raises(ValueError, match="obj"):
+        provenance.code_fingerprint(len)

@@ -8,8 +8,23 @@ import os
 # OpenGL backend, tell dm_control not to probe for one (avoids GLFW errors on headless hosts).
 os.environ.setdefault("MUJOCO_GL", "disable")
 
-from skillkit._validation import as_generator
-from skillkit.trajectory import Trajectory
-
 __version__ = "0.1.0"
 __all__ = ["Trajectory", "as_generator", "__version__"]
+
+# The top-level names are imported on first use (PEP 562), so that ``import skillkit`` (and with
+# it ``skillkit --help``) does not import numpy.
+_LAZY = {"Trajectory": "skillkit.trajectory", "as_generator": "skillkit._validation"}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        import importlib
+
+        value = getattr(importlib.import_module(_LAZY[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'skillkit' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))

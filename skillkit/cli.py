@@ -1,10 +1,47 @@
-"""Command line: ``skillkit list | settings | reproduce | runs | compare | view | demo``."""
+"""Command line: skillkit list | settings | reproduce | runs | compare | view | demo.
+
+Building the parser imports nothing heavy (no torch, no numpy, not the experiment registry),
+so ``skillkit --help`` and ``skillkit SUB --help`` answer at once; each sub-command imports
+what it needs when it runs.
+"""
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
+import textwrap
+from pathlib import Path
+
+from skillkit import __version__
+
+SCALES = ("smoke", "quick", "paper")
+"""The scales of every experiment (``skillkit.experiments.registry.SCALES``, which a test keeps
+equal), repeated here so that building the parser does not import the registry."""
+
+DEMO_IDS = ("fig2.10", "sanity3")
+"""What ``skillkit demo`` runs, at quick scale."""
+
+DESCRIPTION = """\
+Reproduce the figures and tables of Kupcsik's thesis on contextual policy search
+(REPS, GPREPS, Gaussian-process forward models, kernel embeddings, DMPs), list and
+compare finished runs, and look at the simulated tasks in the browser."""
+
+EPILOG = """\
+first steps:
+  skillkit demo                two quick experiments and their verdicts (under a minute)
+  skillkit list                every experiment id and task
+  skillkit settings fig3.3     an experiment's settings and measured run times
+  skillkit reproduce fig3.3    run one (--scale smoke, quick or paper)
+  skillkit view pendulum       a task's rollouts in the browser
+  skillkit SUB --help          the options of a sub-command"""
+
+FILES = ("result.json", "figure.html", "figure.png", "trials.npz")
+"""What a run folder holds, in the order the reports list them."""
+
+WIDTH = 100
+"""Line width of the verdict reports."""
 
 
 def _cmd_list(args: argparse.Namespace) -> int:
@@ -39,7 +76,60 @@ def _overrides(pairs: list[str]) -> dict:
     return out
 
 
+def _wrap(label: str, text: str, max_lines: int = 4) -> list[str]:
+    """``text`` after a label, wrapped to :data:`WIDTH` and indented under the label."""
+    first = f"  {label:<8}"
+    return textwrap.wrap(
+        " ".join(text.split()) or "-",
+        WIDTH,
+        initial_indent=first,
+        subsequent_indent=" " * len(first),
+        max_lines=max_lines,
+        placeholder=" …",
+    )
+
+
+def _report(run) -> list[str]:
+    """A finished run in at most 12 lines: what ran, the thesis's claim, our verdict and
+    statement, the files written and which one to open."""
+    from skillkit.viz.plots import verdict
+
+    r = run.result
+    n, wall = r.get("trials"), r.get("wall_time_s")
+    facts = [f"{run.scale} scale", f"{n} trial{'' if n == 1 else 's'}", f"seed {r.get('seed')}"]
+    if isinstance(wall, (int, float)):
+        facts.append(f"{wall:.1f} s" if wall < 10 else f"{wall:.0f} s")
+    lines = textwrap.wrap(
+        f"{run.id} ({', '.join(facts)}): {run.title}",
+        WIDTH,
+        subsequent_indent="  ",
+        max_lines=2,
+        placeholder=" …",
+    )
+    v = verdict(r)
+    if v is None:
+        lines.append("  here:   no verdict recorded")
+    else:
+        lines += _wrap("thesis:", v.claim)
+        lines += _wrap("here:", f"{v.word} — {v.statement}" if v.statement else v.word)
+    written = [name for name in FILES if (run.path / name).exists()]
+    lines.append(f"  files:  {run.path}/ ({', '.join(written)})")
+    figure = "figure.html" if "figure.html" in written else "figure.png"
+    lines.append(f"  open:   {run.path / figure} in a browser")
+    return lines
+
+
+def _print_runs(runs, as_json: bool) -> None:
+    """Each run's report, or with ``as_json`` one JSON line ``{id, path, summary}`` per run."""
+    for run in runs:
+        if as_json:
+            print(json.dumps({"id": run.id, "path": str(run.path), "summary": run.summary}))
+        else:
+            print("\n".join(_report(run)), flush=True)
+
+
 def _cmd_reproduce(args: argparse.Namespace) -> int:
+    from skillkit.experiments import timings
     from skillkit.experiments.registry import get, ids
     from skillkit.experiments.runner import reproduce
 
@@ -51,6 +141,10 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
         # fail on an unknown id, setting name or type before running anything
         get(exp_id).settings_for(args.scale, **overrides)
     for exp_id in exp_ids:
+        estimate = timings.estimate(exp_id, args.scale, args.trials, get(exp_id).trials[args.scale])
+        if estimate is not None:
+            note = " (for the scale's own settings; --set changes it)" if overrides else ""
+            print(f"skillkit: {exp_id} at {args.scale} scale: {estimate}{note}", file=sys.stderr)
         run = reproduce(
             exp_id,
             scale=args.scale,
@@ -65,13 +159,12 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
             html=not args.no_html,
             **overrides,
         )
-        figures = "figure.png" if args.no_html else "figure.html, figure.png"
-        print(f"wrote {run.path}/result.json, {figures}, trials.npz")
-        print(json.dumps(run.summary, indent=1))
+        _print_runs([run], args.json)
     return 0
 
 
 def _cmd_settings(args: argparse.Namespace) -> int:
+    from skillkit.experiments import timings
     from skillkit.experiments.registry import SCALES, get
     from skillkit.experiments.runner import to_jsonable
     from skillkit.experiments.settings import describe
@@ -79,6 +172,10 @@ def _cmd_settings(args: argparse.Namespace) -> int:
     exp = get(args.id)
     values = {scale: to_jsonable(exp.settings[scale].to_dict()) for scale in SCALES}
     print(f"{exp.id}: {exp.title}")
+    measured = {scale: timings.measured_seconds(exp.id, scale) for scale in ("smoke", "quick")}
+    times = ", ".join(f"{s} {timings.format_seconds(t)}" for s, t in measured.items())
+    where = f" ({timings.machine_note()})" if any(t is not None for t in measured.values()) else ""
+    print(f"measured wall time (default trials, local executor): {times}{where}")
     print(f"settings class {exp.settings_class.__name__}; trials per scale: {exp.trials}")
     for name, kind, doc in describe(exp.settings_class):
         print(f"\n  {name} ({kind})\n      {doc}")
@@ -88,11 +185,14 @@ def _cmd_settings(args: argparse.Namespace) -> int:
 
 
 def _cmd_runs(args: argparse.Namespace) -> int:
-    from skillkit.experiments.store import list_runs
+    from skillkit.experiments.store import find_root, list_runs
 
-    runs = list_runs(args.root)
+    root = find_root() if args.root is None else Path(args.root)
+    if args.check:
+        return _check_runs(root)
+    runs = list_runs(root)
     if not runs:
-        print(f"no runs under {args.root}")
+        print(f"no runs (no result.json) under {root.resolve()}")
     for r in runs:
         wall = r["wall_time_s"]
         wall_s = f"{wall:9.1f}s" if isinstance(wall, (int, float)) else "         ?"
@@ -105,6 +205,20 @@ def _cmd_runs(args: argparse.Namespace) -> int:
     return 0
 
 
+def _check_runs(root: Path) -> int:
+    """``runs --check``: list every result whose code changed since it was made; 1 if any."""
+    from skillkit.experiments.provenance import check_results
+
+    if not root.exists():
+        raise ValueError(f"--root: no results folder at {root}")
+    rows = check_results(root)
+    stale = [r for r in rows if r["stale"]]
+    for r in stale:
+        print(f"stale  {r['path']:<45} {r['id']:<10} {r['reason']}")
+    print(f"{len(stale)} of {len(rows)} results under {root} are stale")
+    return 1 if stale else 0
+
+
 def _cell(v) -> str:
     """A right-aligned table cell: numbers with 6 significant digits, anything else as text."""
     if isinstance(v, (int, float)) and not isinstance(v, bool):
@@ -113,10 +227,7 @@ def _cell(v) -> str:
 
 
 def _cmd_compare(args: argparse.Namespace) -> int:
-    from pathlib import Path
-
     from skillkit.experiments.store import compare
-    from skillkit.viz.plots import write_figures
 
     rows, merged = compare(args.run_a, args.run_b)
     width = max([len(k) for k, _, _ in rows] + [10])
@@ -124,6 +235,8 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     for key, va, vb in rows:
         print(f"{key:<{width}}  {_cell(va)}  {_cell(vb)}")
     if args.out:
+        from skillkit.viz.plots import write_figures
+
         out = Path(args.out)
         out.mkdir(parents=True, exist_ok=True)
         write_figures(merged, out)
@@ -132,32 +245,79 @@ def _cmd_compare(args: argparse.Namespace) -> int:
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
+    # Small problems, where a second BLAS / OpenMP thread only adds overhead (and spins on a busy
+    # machine: 158 s of CPU instead of 35 s for this demo on a loaded 2-core host): one thread,
+    # unless the caller chose. It takes effect because nothing has imported numpy or torch yet.
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, "1")
+    from skillkit.experiments import timings
     from skillkit.experiments.runner import reproduce
 
-    for exp_id in ("fig2.10", "sanity3"):
+    seconds = [timings.measured_seconds(exp_id, "quick") for exp_id in DEMO_IDS]
+    if all(s is not None for s in seconds):
+        took = f"about {timings.format_seconds(sum(seconds))} ({timings.machine_note()})"
+    else:
+        took = "under a minute on 2 cores"
+    print(f"skillkit demo: {' and '.join(DEMO_IDS)} at quick scale, {took}", file=sys.stderr)
+    for exp_id in DEMO_IDS:
         run = reproduce(
             exp_id, scale="quick", seed=args.seed, out=args.out, progress=not args.quiet
         )
-        print(f"{exp_id}: wrote {run.path}")
-        print(f"  {run.verdict}")
-        print(json.dumps(run.summary, indent=1))
+        _print_runs([run], args.json)
+        if not args.json:
+            print()
+    if not args.json:
+        following = (
+            "next: `skillkit list` (every experiment), `skillkit reproduce ID`, "
+            f"`skillkit runs --root {args.out}`, `skillkit view pendulum` (a task in the "
+            "browser); in Python, skillkit.experiments.load_run(FOLDER) shows a run."
+        )
+        print("\n".join(textwrap.wrap(following, WIDTH, subsequent_indent="      ")))
     return 0
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from skillkit.experiments.registry import SCALES
+    """The ``skillkit`` argument parser (cheap: imports no experiment, torch or numpy)."""
+    parser = argparse.ArgumentParser(
+        prog="skillkit",
+        description=DESCRIPTION,
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument(
+        "-V",
+        "--version",
+        action="version",
+        version=f"skillkit {__version__}",
+        help="show the version",
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    parser = argparse.ArgumentParser(prog="skillkit", description=__doc__)
-    sub = parser.add_subparsers(dest="command", required=True)
+    def add(name: str, line: str, description: str | None = None) -> argparse.ArgumentParser:
+        """A sub-command with its one-line help (also its description, unless given)."""
+        return sub.add_parser(
+            name, help=line, description=description or f"{line[:1].upper()}{line[1:]}."
+        )
 
-    p = sub.add_parser("list", help="list experiment ids and tasks")
+    p = add("list", "list experiment ids and tasks")
     p.set_defaults(func=_cmd_list)
 
-    p = sub.add_parser("settings", help="an experiment's settings: meaning, type, values")
-    p.add_argument("id", metavar="ID", help="experiment id, e.g. fig3.3")
+    p = add(
+        "settings",
+        "an experiment's settings: meaning, type, values",
+        "An experiment's settings at each scale (meaning, unit, type, range, values) and its "
+        "measured wall time at smoke and quick scale.",
+    )
+    p.add_argument("id", metavar="ID", help="experiment id, e.g. fig3.3 (see `skillkit list`)")
     p.set_defaults(func=_cmd_settings)
 
-    p = sub.add_parser("reproduce", help="reproduce a thesis figure or table")
+    p = add(
+        "reproduce",
+        "reproduce a thesis figure or table",
+        "Run an experiment and write result.json, figure.html, figure.png and trials.npz into "
+        "its run folder; print the thesis's claim, our verdict and where the files are. A rerun "
+        "of the same command resumes from the run's checkpoints.",
+    )
     p.add_argument(
         "ids",
         nargs="+",
@@ -168,12 +328,18 @@ def build_parser() -> argparse.ArgumentParser:
         "--scale",
         choices=SCALES,
         default="quick",
-        help="smoke (seconds), quick (minutes, faithful) or paper (the thesis setting)",
+        help="smoke (seconds, a check of the code path), quick (minutes, faithful) or paper (the "
+        "thesis setting); default quick",
     )
     p.add_argument(
         "--trials", type=int, default=None, help="independent trials (default: per experiment)"
     )
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--seed",
+        type=int,
+        default=0,
+        help="root seed; trial i uses its i-th child stream (default 0)",
+    )
     p.add_argument("--out", default="runs", help="output folder (default: runs/)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.add_argument(
@@ -199,22 +365,58 @@ def build_parser() -> argparse.ArgumentParser:
         "n_updates=50; names and types are checked first, and the run gets its own folder "
         "<id>-<scale>-s<seed>-<hash> (see `skillkit settings ID`)",
     )
+    p.add_argument(
+        "--json",
+        action="store_true",
+        help="print one JSON line {id, path, summary} per run instead of the verdict",
+    )
     p.set_defaults(func=_cmd_reproduce)
 
-    p = sub.add_parser("runs", help="list finished runs in the results store")
-    p.add_argument("--root", default="runs", help="results folder (default: runs/)")
+    p = add(
+        "runs",
+        "list finished runs in the results store",
+        "List finished runs (folders holding result.json), newest first.",
+    )
+    p.add_argument(
+        "--root",
+        default=None,
+        help="results folder (default: runs/ if it exists here, else this folder when it "
+        "holds any result.json, e.g. when run inside a runs folder)",
+    )
+    p.add_argument(
+        "--check",
+        action="store_true",
+        help="list the results whose code has changed since they were made (their experiment's "
+        "code fingerprint differs from today's, or they have none); exit 1 if there is one",
+    )
     p.set_defaults(func=_cmd_runs)
 
-    p = sub.add_parser("compare", help="two runs' summaries and curves side by side")
+    p = add(
+        "compare",
+        "two runs' summaries and curves side by side",
+        "Two runs' summaries, settings and run times side by side; with --out also an overlay "
+        "of their curves.",
+    )
     p.add_argument("run_a", help="run folder (or its result.json)")
     p.add_argument("run_b", help="run folder (or its result.json)")
     p.add_argument("--out", default=None, help="also write an overlay figure into this folder")
     p.set_defaults(func=_cmd_compare)
 
-    p = sub.add_parser("demo", help="run the quick fig2.10 and sanity3 experiments")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--out", default="runs")
-    p.add_argument("--quiet", action="store_true")
+    p = add(
+        "demo",
+        "run the quick fig2.10 and sanity3 experiments",
+        "Run two experiments at quick scale (under a minute on 2 cores): the DMP imitation "
+        "figure (fig2.10) and contextual REPS, RWR and CrKR on a problem with a known optimal "
+        "policy (sanity3). Prints each one's claim, verdict and files.",
+    )
+    p.add_argument("--seed", type=int, default=0, help="root seed of both runs (default 0)")
+    p.add_argument("--out", default="runs", help="output folder (default: runs/)")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.add_argument(
+        "--json",
+        action="store_true",
+        help="print one JSON line {id, path, summary} per run instead of the verdicts",
+    )
     p.set_defaults(func=_cmd_demo)
 
     from skillkit.viz.cli_view import add_view_parser
@@ -224,18 +426,29 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from skillkit.experiments.checkpoint import CheckpointError
-
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
         return args.func(args)
-    except (ValueError, FileNotFoundError, CheckpointError) as exc:
+    except (ValueError, FileNotFoundError) as exc:
         print(f"skillkit: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("skillkit: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:
+        # the output went into a pipe that closed early (`skillkit settings ID | head`): stop
+        # quietly, and keep Python from complaining again when it flushes stdout at exit
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
+    except RuntimeError as exc:
+        # A CheckpointError can only come from the checkpoint module, once it is imported
+        # (importing it up front would load every experiment before --help).
+        checkpoint = sys.modules.get("skillkit.experiments.checkpoint")
+        if checkpoint is None or not isinstance(exc, checkpoint.CheckpointError):
+            raise
+        print(f"skillkit: error: {exc}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

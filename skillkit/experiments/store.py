@@ -6,7 +6,32 @@ import json
 from pathlib import Path
 
 from skillkit.experiments.registry import Series
-from skillkit.experiments.run import load_run
+
+EXPECTED = "expected a run folder or its result.json, as written by `skillkit reproduce`"
+"""What ``compare`` accepts, in the words of its error messages."""
+
+
+def find_root(cwd: str | Path | None = None) -> Path:
+    """The results folder ``skillkit runs`` lists when given none.
+
+    ``runs/`` in ``cwd`` (default: the current folder) if it exists; else ``cwd`` itself if any
+    ``result.json`` lies below it (the command was started inside a runs folder, or inside one
+    run's folder). Paths are relative when ``cwd`` is None.
+
+    Raises
+    ------
+    ValueError
+        Naming both places looked at, when neither holds runs.
+    """
+    base = Path(".") if cwd is None else Path(cwd)
+    if (base / "runs").is_dir():
+        return base / "runs"
+    if next(base.rglob("result.json"), None) is not None:
+        return base
+    raise ValueError(
+        f"no runs found: there is no runs/ folder in {base.resolve()} and no result.json below "
+        "it; give --root FOLDER, or write a run first (`skillkit reproduce ID`, `skillkit demo`)"
+    )
 
 
 def list_runs(root: str | Path = "runs") -> list[dict]:
@@ -47,6 +72,75 @@ def list_runs(root: str | Path = "runs") -> list[dict]:
     return runs
 
 
+def _kind(value) -> str:
+    """The JSON name of a parsed value's type, for error messages."""
+    names = {dict: "an object", list: "a list", str: "a string", bool: "a boolean"}
+    if value is None:
+        return "null"
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return "a number"
+    return names.get(type(value), type(value).__name__)
+
+
+def read_result(path: str | Path) -> dict:
+    """The ``result.json`` of a run folder (or the file itself), checked for what
+    :func:`compare` reads.
+
+    Raises
+    ------
+    FileNotFoundError
+        If ``path`` does not exist, or is a folder without ``result.json``.
+    ValueError
+        One line naming the file and the field: ``path`` is another file, the file is not valid
+        JSON or not a JSON object, it has neither ``summary`` nor ``series``, ``summary`` or
+        ``settings`` is not an object, or ``series`` is missing or malformed (not a list, an
+        entry not an object, an entry without a string ``name``, ``x`` or ``y`` not lists).
+    """
+    p = Path(path)
+    if not p.exists():
+        raise FileNotFoundError(f"{p}: no such file or folder ({EXPECTED})")
+    if p.is_dir():
+        file = p / "result.json"
+        if not file.is_file():
+            raise FileNotFoundError(f"{p}: no result.json in this folder ({EXPECTED})")
+    elif p.name != "result.json":
+        raise ValueError(f"{p}: not a result.json ({EXPECTED})")
+    else:
+        file = p
+    try:
+        result = json.loads(file.read_text())
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{file}: cannot be read ({exc})") from None
+    except ValueError as exc:
+        raise ValueError(f"{file}: not valid JSON ({exc}); {EXPECTED}") from None
+    if not isinstance(result, dict):
+        raise ValueError(
+            f"{file}: holds no run (expected a JSON object, got {type(result).__name__})"
+        )
+    if "summary" not in result and "series" not in result:
+        raise ValueError(f"{file}: holds no run (no summary and no series)")
+    for key in ("summary", "settings"):
+        if key in result and not isinstance(result[key], dict):
+            raise ValueError(f"{file}: {key}: expected an object, got {_kind(result[key])}")
+    if "series" not in result:
+        raise ValueError(f"{file}: series: missing (expected a list of curves)")
+    series = result["series"]
+    if not isinstance(series, list):
+        raise ValueError(f"{file}: series: expected a list, got {_kind(series)}")
+    for i, s in enumerate(series):
+        where = f"{file}: series[{i}]"
+        if not isinstance(s, dict):
+            raise ValueError(f"{where}: expected an object, got {_kind(s)}")
+        if not isinstance(s.get("name"), str):
+            got = "missing" if "name" not in s else f"got {_kind(s['name'])}"
+            raise ValueError(f"{where}.name: expected a string, {got}")
+        for axis in ("x", "y"):
+            if not isinstance(s.get(axis), list):
+                got = "missing" if axis not in s else f"got {_kind(s[axis])}"
+                raise ValueError(f"{where}.{axis}: expected a list, {got}")
+    return result
+
+
 def _flatten(d: dict, prefix: str = "") -> dict:
     out = {}
     for k, v in d.items():
@@ -63,6 +157,9 @@ def compare(
 ) -> tuple[list[tuple[str, object, object]], dict]:
     """Two runs side by side.
 
+    Both are read with :func:`read_result`, so a file that is not a run's ``result.json`` is
+    refused with one line naming the file and the field, before anything is printed.
+
     Returns
     -------
     rows : list of (key, value_a, value_b)
@@ -72,7 +169,7 @@ def compare(
         A result-like dict whose series overlay both runs' curves (names suffixed `` [A]``
         and `` [B]``), ready for :func:`skillkit.viz.plots.write_figures`.
     """
-    a, b = load_run(path_a).result, load_run(path_b).result
+    a, b = read_result(path_a), read_result(path_b)
     run_keys = ("trials", "executor", "workers", "resumed_trials", "wall_time_s")
     fa, fb = (
         _flatten(
@@ -87,7 +184,7 @@ def compare(
     rows = [(k, fa.get(k), fb.get(k)) for k in sorted(set(fa) | set(fb))]
     series = []
     for tag, r in (("A", a), ("B", b)):
-        for s in r.get("series", []):
+        for s in r["series"]:
             fields = {k: v for k, v in s.items() if k in Series.__dataclass_fields__}
             fields["name"] = f"{s['name']} [{tag}]"
             series.append(fields)

@@ -14,8 +14,13 @@ Prints, in one run, with the machine's load (``uptime``) before and after:
 * the peer baseline: the same rollout written the way a GPyTorch user would write it (a
   batched ``gpytorch`` SGPR model with the same kernel hyper-parameters and inducing points,
   ``likelihood(model(z))`` in eval mode under ``fast_pred_var`` at every step), its time per
-  step and our speed ratio. Its predictions are VFE/DTC's, not FITC's (GPyTorch has no FITC
-  predictive): same kernel, same sizes, different mean weights;
+  step over ``--gpytorch-steps`` steps and our speed ratio, at ``--trajectories``. In eval
+  mode GPyTorch's ``InducingPointKernel`` adds diag(K_nn − Q_nn) to the training covariance
+  (``sgpr_diagonal_correction``, on by default), so this SGPR predicts with FITC's posterior;
+  it factorises K_mm without FITC's jitter, so its predictions differ from ours at the 1e-4
+  level. This is the slowest GPyTorch form: ``benchmarks/bench_gpytorch_sampling.py`` checks
+  equivalence and times the faster ones (an ``ApproximateGP`` whose q(u) is FITC's posterior)
+  at a small and a large batch — the ratios the README quotes;
 * the pathwise sampler (:mod:`skillkit.models.pathwise`): set-up per function, time per step
   and GFLOP/s (:func:`~skillkit.models.pathwise.pathwise_flops_per_step`), fresh features per
   function and one shared basis; and its final-state spread against the per-step sampler's

@@ -15,6 +15,18 @@ What changes in each ``summary`` (see data/README.md):
   ``statement`` and ``claim``); sanity3's and fig5.x's ``statement`` / ``claim`` are rewritten;
 * renamed: fig3.3's per-method dict ``holds`` → ``holds_per_method``.
 
+Issue #32 (verdicts that judge the thesis's own sentences):
+
+* ``thesis``, where it held the thesis's numbers (a dict), is renamed ``thesis_numbers``;
+  ``thesis`` is now the quoted sentence(s) the verdict judges, with their location
+  (``skillkit.experiments.claims``), right after ``statement``;
+* ``holds`` is recomputed by today's verdict function; for an id whose thesis reports no
+  result (``claims.NO_RESULT``) it is null, with ``not_judged`` saying so and the verdict's
+  own criterion kept as ``own_checks["own_criterion"]``;
+* the top level gains ``summary_migrated`` (``{"issue": 32, "git": ...}``): the numbers were
+  made by an earlier commit's code (the result has no ``code_fingerprint``, so ``skillkit
+  runs --check`` lists it as stale), only the verdict is today's.
+
 Every other key and number is kept: the script checks that each numeric leaf of the old
 summary is unchanged in the new one and refuses to write otherwise. The top level gains
 ``overrides`` (the settings that differ from the scale's, ``{}`` for a standard run), as new
@@ -28,6 +40,8 @@ import json
 import sys
 from pathlib import Path
 
+from skillkit.experiments.claims import judged
+from skillkit.experiments.provenance import git_state
 from skillkit.experiments.registry import get, with_verdict
 from skillkit.experiments.runner import to_jsonable
 from skillkit.experiments.settings import apply_overrides
@@ -39,7 +53,18 @@ RENAMED = {"fig3.3": {"holds": "holds_per_method"}}
 THESIS_CLAIM = ("fig3.3", "fig3.7")  # ``thesis.claim`` moved to the top-level ``claim``
 
 
-def migrate_summary(exp_id: str, settings: dict, summary: dict) -> tuple[dict, dict]:
+def _renames(exp_id: str, summary: dict) -> dict[str, str]:
+    """Top-level keys renamed for ``exp_id``: :data:`RENAMED` and, where ``thesis`` holds the
+    thesis's numbers (a dict, before issue #32), ``thesis`` → ``thesis_numbers``."""
+    out = dict(RENAMED.get(exp_id, {}))
+    if isinstance(summary.get("thesis"), dict):
+        out["thesis"] = "thesis_numbers"
+    return out
+
+
+def migrate_summary(
+    exp_id: str, settings: dict, summary: dict, scale: str = "paper"
+) -> tuple[dict, dict]:
     """The summary in the verdict schema, and a report of what changed.
 
     Parameters
@@ -50,6 +75,8 @@ def migrate_summary(exp_id: str, settings: dict, summary: dict) -> tuple[dict, d
         The run's stored settings (``result["settings"]``).
     summary : dict
         The stored summary (old or already migrated).
+    scale : str
+        The run's scale (a smoke run is not judged).
 
     Returns
     -------
@@ -62,7 +89,11 @@ def migrate_summary(exp_id: str, settings: dict, summary: dict) -> tuple[dict, d
     typed = apply_overrides(exp.settings["quick"], settings)
     new = dict(summary)
     report: dict = {"renamed": [], "removed": [], "old_claim_holds": None}
-    for old, name in RENAMED.get(exp_id, {}).items():
+    if exp_id in THESIS_CLAIM and isinstance(new.get("thesis"), dict):
+        if "claim" in new["thesis"]:
+            new["thesis"] = {k: v for k, v in new["thesis"].items() if k != "claim"}
+            report["removed"].append("thesis.claim")
+    for old, name in _renames(exp_id, new).items():
         if isinstance(new.get(old), dict):
             new[name] = new.pop(old)
             report["renamed"].append(f"{old} -> {name}")
@@ -74,13 +105,10 @@ def migrate_summary(exp_id: str, settings: dict, summary: dict) -> tuple[dict, d
         if isinstance(new.get(key), str):
             new.pop(key)
             report["removed"].append(key)
-    if exp_id in THESIS_CLAIM and isinstance(new.get("thesis"), dict):
-        if "claim" in new["thesis"]:
-            new["thesis"] = {k: v for k, v in new["thesis"].items() if k != "claim"}
-            report["removed"].append("thesis.claim")
     verdict = exp.verdict(typed, new)
-    report["holds"] = verdict.holds
-    return to_jsonable(with_verdict(new, verdict)), report
+    out = judged(with_verdict(new, verdict), exp_id, scale)
+    report["holds"] = out["holds"]
+    return to_jsonable(out), report
 
 
 def _numbers(d, prefix=""):
@@ -100,13 +128,13 @@ def _numbers(d, prefix=""):
 def _check_numbers_kept(exp_id: str, old: dict, new: dict) -> None:
     """Every numeric (and boolean) leaf of ``old`` is in ``new`` unchanged, at its renamed
     path; only ``claim_holds`` and a recomputed ``holds`` may differ."""
-    renames = RENAMED.get(exp_id, {})
+    renames = _renames(exp_id, old)
     kept = _numbers(new)
     for path, value in _numbers(old).items():
         top = path[1:].split(".")[0].split("[")[0]
         if top in renames and isinstance(old[top], dict):
             path = "." + renames[top] + path[1 + len(top) :]
-        elif top in DROPPED or top == "holds":
+        elif top in DROPPED or top in ("holds", "own_checks"):
             continue
         if path not in kept or kept[path] != value:
             raise RuntimeError(f"{exp_id}: {path} changed ({value!r} -> {kept.get(path)!r})")
@@ -117,7 +145,9 @@ def migrate_file(path: Path, write: bool = True) -> tuple[bool, dict]:
     text = path.read_text()
     result = json.loads(text)
     exp = get(result["id"])
-    summary, report = migrate_summary(exp.id, result["settings"], result["summary"])
+    summary, report = migrate_summary(
+        exp.id, result["settings"], result["summary"], result.get("scale", "paper")
+    )
     _check_numbers_kept(exp.id, result["summary"], summary)
     typed = apply_overrides(exp.settings["quick"], result["settings"])
     migrated = dict(result)
@@ -131,6 +161,9 @@ def migrate_file(path: Path, write: bool = True) -> tuple[bool, dict]:
             + [("overrides", changed)]
             + [(k, migrated[k]) for k in keys[at:]]
         )
+    if migrated["summary"] != result["summary"] and "code_fingerprint" not in migrated:
+        # numbers of an earlier commit's code, verdict of today's (issue #32)
+        migrated["summary_migrated"] = {"issue": 32, "git": git_state()}
     out = json.dumps(migrated, indent=1)
     changed = out != text
     if changed and write:

@@ -13,6 +13,15 @@ An experiment's ``run_trial(settings, rng, trial)`` receives a :class:`TrialCont
 The context keeps its snapshots in memory; a ``writer`` persists them (the experiment runner
 writes them atomically to the trial's checkpoint file, :mod:`skillkit.experiments.runner`).
 ``TrialContext()`` — no bar, no writer — is the null context for library use and tests.
+
+Given the trial's record of numerical events (``events``, a
+:class:`~skillkit.models.gp.NumericalEvents` that a
+:func:`~skillkit.models.gp.record_numerical_events` block fills), the context also keeps, per
+key, the events of the work saved under it (:attr:`~TrialContext.saved_events`): those counted
+between the key's :meth:`~TrialContext.resume` (or the previous save) and each save. A run
+that resumes the key adds them back to its record, so a resumed trial counts what a trial run
+without interruption counts: work restored from a snapshot is counted once (from the saved
+counts), work done again (set-up before a resume, work after the last save) once (live).
 """
 
 from __future__ import annotations
@@ -44,6 +53,23 @@ class ProgressBar(Protocol):
     def set_postfix(self, *args: Any, **kwargs: Any) -> Any: ...
 
     def close(self) -> Any: ...
+
+
+class NumericalEvents(Protocol):
+    """The event record a :class:`TrialContext` keeps per key (the interface of
+    :class:`skillkit.models.gp.NumericalEvents`; declared here so this foundation layer does
+    not import the models)."""
+
+    @classmethod
+    def from_dict(cls, counts: Mapping) -> NumericalEvents: ...
+
+    def copy(self) -> NumericalEvents: ...
+
+    def since(self, mark: NumericalEvents) -> NumericalEvents: ...
+
+    def update(self, other: NumericalEvents) -> NumericalEvents: ...
+
+    def to_dict(self) -> dict: ...
 
 
 class NullBar:
@@ -86,6 +112,13 @@ class TrialContext:
     seconds : float
         Compute time of earlier, interrupted runs of this trial (added to :attr:`seconds`;
         finite, ≥ 0).
+    events : NumericalEvents, optional
+        The record the trial's numerical events are counted in (the runner's
+        :func:`~skillkit.models.gp.record_numerical_events`); with it the context keeps
+        :attr:`saved_events`. Without it (default), no events are kept.
+    saved_events : mapping of str to dict, optional
+        Per key, the events of the work saved under it in earlier runs (:attr:`saved_events`
+        as the writer's caller received it); added to ``events`` when the key is resumed.
 
     Examples
     --------
@@ -104,6 +137,8 @@ class TrialContext:
         states: Mapping[str, Snapshot] | None = None,
         writer: Writer | None = None,
         seconds: float = 0.0,
+        events: NumericalEvents | None = None,
+        saved_events: Mapping[str, Mapping] | None = None,
     ):
         self.bar: ProgressBar = NullBar() if bar is None else bar
         self._writer = writer
@@ -117,6 +152,14 @@ class TrialContext:
             self._snapshots[str(key)] = snap
         self._seconds_before = check_positive(seconds, "seconds", allow_zero=True)
         self._started = time.perf_counter()
+        self._events = events
+        self._key_events: dict[str, NumericalEvents] = {}
+        self._carried: set[str] = set()  # keys whose saved events are not in ``events`` yet
+        if events is not None:
+            for key, counts in (saved_events or {}).items():
+                self._key_events[str(key)] = type(events).from_dict(counts)
+                self._carried.add(str(key))
+            self._mark = events.copy()
 
     # ------------------------------------------------------------------ progress
     def reset(self, total: int | None = None) -> None:
@@ -139,16 +182,29 @@ class TrialContext:
             raise ValueError(f"rng: expected a numpy Generator, got {type(rng).__name__}")
         body = pickle.dumps(state, protocol=pickle.HIGHEST_PROTOCOL)
         self._snapshots[str(key)] = (body, rng.bit_generator.state)
+        if self._events is not None:  # the events since the last resume or save belong to key
+            key = str(key)
+            new = self._events.since(self._mark)
+            old = None if key in self._carried else self._key_events.get(key)
+            self._carried.discard(key)
+            self._key_events[key] = new if old is None else old.update(new)
+            self._mark = self._events.copy()
         if self._writer is not None:
             self._writer(dict(self._snapshots), self.seconds)
 
     def resume(self, key: str, rng: np.random.Generator) -> Any | None:
         """The state last saved under ``key`` (restoring ``rng`` to where it was then), or
         ``None`` (``rng`` untouched) when nothing was saved under it."""
-        if key not in self._snapshots:
-            return None
-        if not isinstance(rng, np.random.Generator):
+        found = key in self._snapshots
+        if found and not isinstance(rng, np.random.Generator):
             raise ValueError(f"rng: expected a numpy Generator, got {type(rng).__name__}")
+        if self._events is not None:  # the work of key starts (or continues) here
+            if found and str(key) in self._carried:
+                self._events.update(self._key_events[str(key)])  # counted by earlier runs
+            self._carried.discard(str(key))
+            self._mark = self._events.copy()
+        if not found:
+            return None
         body, rng_state = self._snapshots[key]
         rng.bit_generator.state = rng_state
         return pickle.loads(body)
@@ -157,6 +213,12 @@ class TrialContext:
     def snapshots(self) -> dict[str, Snapshot]:
         """Every key's latest snapshot (a copy; pass it as ``states`` to resume elsewhere)."""
         return dict(self._snapshots)
+
+    @property
+    def saved_events(self) -> dict[str, dict]:
+        """Per key, the numerical events of the work saved under it (summed over runs), as
+        :meth:`~skillkit.models.gp.NumericalEvents.to_dict`; empty without ``events``."""
+        return {key: ev.to_dict() for key, ev in self._key_events.items()}
 
     @property
     def seconds(self) -> float:

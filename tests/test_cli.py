@@ -240,7 +240,8 @@ def test_reproduce_prints_the_estimate_and_the_verdict_not_json(times_file, tmp_
     out = captured.out.splitlines()
     assert out[0].startswith("fig2.10 (smoke scale, 2 trials, seed 0, ")
     assert any(line.startswith("  thesis: A DMP with 10 basis functions") for line in out)
-    assert any(line.startswith("  here:   ") and " — With 10 basis" in line for line in out)
+    here = [line for line in out if line.startswith("  here:   ")]
+    assert here and here[0].startswith("  here:   not judged (smoke scale) — With 10 basis")
     folder = tmp_path / "fig2.10-smoke-s0"
     assert f"  files:  {folder}/ (result.json, figure.png, trials.npz)" in out
     assert f"{folder / 'figure.png'}" in out[-1] and len(out) <= 12

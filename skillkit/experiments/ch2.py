@@ -104,6 +104,8 @@ class DMPImitationSettings(Settings):
 
 
 QUICK = DMPImitationSettings()
+# Every scale is the thesis setting (10 basis functions, one demonstration): it takes seconds,
+# so quick scales nothing down.
 SCALES = {"smoke": QUICK, "quick": QUICK, "paper": QUICK}
 
 

@@ -128,6 +128,8 @@ SCALES = {
         n_eval_contexts=2,
         n_final_contexts=3,
     ),
+    # quick scales down: updates 120→20 (1000 of 6000 rollouts; same ε = 0.6, 50 per update),
+    # learning-curve contexts 12→8, final contexts 200→40, trials 10→1
     "quick": QUICK,
     "paper": replace(QUICK, n_updates=120, n_eval_contexts=12, n_final_contexts=200),
 }
@@ -361,7 +363,7 @@ def summarize(settings: TableTennisSettings, trials: list[dict]) -> tuple[list[S
         "failed_rollouts": int(sum(t["n_failed"] for t in trials)),
         # trials stored before issue #17 have no count (their fit crashed rather than skip)
         "skipped_updates": int(sum(t.get("n_skipped_updates", 0) for t in trials)),
-        "thesis": {
+        "thesis_numbers": {
             "good_reward": THESIS_GOOD_REWARD,
             "net_band": list(THESIS_NET_BAND),
             "rollouts": THESIS_ROLLOUTS,

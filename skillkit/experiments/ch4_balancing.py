@@ -339,7 +339,7 @@ def summarize_42(st: BalancingComparisonSettings, trials: list[dict]):
     for limit in st.limits:
         series.append(Series(f"limit {limit:g}", [lo, hi], [-limit, -limit],
                              panel="cost of the current controller", kind="line"))  # fmt: skip
-    summary: dict = {"n_trials": len(trials), "thesis": dict(THESIS_42)}
+    summary: dict = {"n_trials": len(trials), "thesis_numbers": dict(THESIS_42)}
     for key in methods(st):
         summary[key] = _method_table(st, trials, key)
     summary["table"] = _table_text(st, summary)
@@ -490,6 +490,16 @@ _SMOKE = dict(
     n_artificial=20, n_trajectories=2, reps_updates=2, reps_rollouts_per_update=6, n_eval=5,
 )  # fmt: skip
 _PAPER = dict(pilco_updates=12, gpreps_updates=30, reps_updates=400)
+_QUICK = dict(
+    pilco_updates=6, policy_iterations=30, gp_steps=50, gpreps_updates=10, n_artificial=200,
+    n_trajectories=5, reps_updates=50,
+)  # fmt: skip
+"""The quick scale scales down the paper setting (same methods, models, ε, reward, limits):
+PILCO updates 12→6 (L-BFGS policy iterations 50→30), GPREPS updates 30→10 with M 500→200 and
+L 10→5, REPS updates 400→50, hyper-parameter L-BFGS iterations 100→50, trials 3→1; the FITC
+model keeps its 100 pseudo-inputs. ≈ 3.5 min of CPU time (``benchmarks/bench_scales.py``);
+the earlier quick (10 / 20 / 100 updates at M = 500, L = 10) needed ≈ 15 min, scaled from
+the stored paper run's trial times."""
 
 register(
     Experiment(
@@ -498,7 +508,7 @@ register(
         settings_class=BalancingComparisonSettings,
         settings={
             "smoke": replace(BalancingComparisonSettings(), **_SMOKE),
-            "quick": BalancingComparisonSettings(),
+            "quick": replace(BalancingComparisonSettings(), **_QUICK),
             "paper": replace(BalancingComparisonSettings(), **_PAPER),
         },
         run_trial=run_trial_42,

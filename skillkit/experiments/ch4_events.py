@@ -193,7 +193,12 @@ GPREPS_QUICK = {
     "n_heldout": 20,
     "heldout_every": 5,
 }
-"""The quick scale's changes (minutes per run)."""
+"""The quick scale's changes (minutes per run): the thesis's GPREPS (the same decomposed
+models, ε = 1, N₀ = 20, one real rollout per update) scaled down to updates 100→15 (fig4.11
+61→15, table tennis 130→15), M 500→200, L 10→5 (fig4.11 keeps its 5), hyper-parameter
+L-BFGS iterations 100→60, held-out contexts 50→20 (scored every 5 updates instead of 20);
+REPS updates 200→20 (fig4.10) and 80→10 (fig4.12); trials fig4.10 2→1, fig4.11 5→3,
+fig4.12 3→1."""
 
 
 def _scales(cls, smoke: dict, quick: dict, paper: dict | None = None) -> dict:
@@ -360,7 +365,7 @@ def summarize_410(st: HockeyGPREPSSettings, trials: list[dict]):
         series.append(_curves(trials, key, "heldout_rollouts", "heldout_displacement_error",
                               labels[key], "held-out displacement error",
                               "|d_T − d*| (m)"))  # fmt: skip
-    summary: dict = {"n_trials": len(trials), "thesis": dict(THESIS_410)}
+    summary: dict = {"n_trials": len(trials), "thesis_numbers": dict(THESIS_410)}
     for key in keys:
         summary[key] = _final_stats(trials, key, HOCKEY_SCORES)
     summary["gpreps"].update(_gpreps_stats(trials, "gpreps"))
@@ -543,7 +548,7 @@ def summarize_412(st: TableTennisGPREPSSettings, trials: list[dict]):
                               "learning curves", "reward of the policy mean"))  # fmt: skip
         series.append(_curves(trials, key, "heldout_rollouts", "heldout_landing_error",
                               labels[key], "held-out landing error", "‖b − p‖ (m)"))  # fmt: skip
-    summary: dict = {"n_trials": len(trials), "thesis": dict(THESIS_412)}
+    summary: dict = {"n_trials": len(trials), "thesis_numbers": dict(THESIS_412)}
     for key in keys:
         summary[key] = _final_stats(trials, key, TT_SCORES)
     for key in ("gpreps", "direct"):
@@ -810,6 +815,7 @@ register(
             "smoke": ModelAccuracySettings(
                 n_rollouts=20, n_heldout=3, n_samples=2, n_shown=1, gp_steps=10
             ),
+            # quick scales down: held-out rollouts 20→10, L-BFGS iterations 100→60
             "quick": ModelAccuracySettings(n_heldout=10, gp_steps=60),
             "paper": ModelAccuracySettings(),
         },

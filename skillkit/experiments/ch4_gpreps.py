@@ -170,7 +170,13 @@ QUICK = {
     "gp_steps": 60,
     "reps_updates": 40,
 }
-"""The quick scale's changes, shared by the three experiments (minutes per run)."""
+"""The quick scale's changes, shared by the three experiments (minutes per run): the thesis's
+GPREPS (decomposed models, ε = 1, N₀ = 10) scaled down to GPREPS / GP-direct updates 30→8
+(fig4.7 and fig4.9: 20→8; 18 real throws), M 500→200, L 25→5 (fig4.7's paper L is 5),
+release / flight L-BFGS iterations 150→60 (the robot GP keeps its 150), REPS updates 200→40
+(1000 rollouts), learning-curve targets 20→8; fig4.6 trials 3→2, fig4.7 M ∈ {50, 200} of
+{50, …, 1000} and trials 2→1, fig4.9 trials 2→1. One GPREPS update costs ≈ 10 s of CPU
+time here (``benchmarks/bench_scales.py`` measures every id)."""
 
 
 def _scales(cls, smoke: dict | None = None, quick: dict | None = None, paper=None) -> dict:
@@ -393,7 +399,7 @@ def run_trial_46(st: GPREPSThrowingSettings, rng: np.random.Generator, trial: Tr
 def summarize_46(st: GPREPSThrowingSettings, trials: list[dict]):
     keys, labels = ("gpreps", "direct", "reps"), ("GPREPS", "GP direct", "REPS")
     series = _learning_series(trials, keys, labels)
-    summary: dict = {"n_trials": len(trials), "thesis": dict(THESIS_46)}
+    summary: dict = {"n_trials": len(trials), "thesis_numbers": dict(THESIS_46)}
     for key in keys:
         summary[key] = _method_summary(trials, key)
     summary["reps_rollouts_to_gpreps_final"] = rollouts_to_reach(
@@ -517,7 +523,7 @@ def summarize_49(st: StochasticThrowingSettings, trials: list[dict]):
     keys = ("reps", "reps_noisy", "gpreps", "gpreps_noisy")
     labels = ("REPS", "REPS, noisy", "GPREPS", "GPREPS, noisy")
     series = _learning_series(trials, keys, labels)
-    summary: dict = {"n_trials": len(trials), "thesis": dict(THESIS_49)}
+    summary: dict = {"n_trials": len(trials), "thesis_numbers": dict(THESIS_49)}
     for key in keys:
         summary[key] = _method_summary(trials, key)
         summary[key]["noisy_expected_reward"] = float(

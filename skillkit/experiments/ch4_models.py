@@ -183,6 +183,9 @@ SCALES_4_3 = {
         sample_sizes=(10, 40),
         n_opt_steps=5,
     ),
+    # quick scales down: training transitions 12000→1800, pseudo-inputs 700→150, horizon
+    # 300→60, start distributions 100→20, ground-truth samples 1000→300, sample sizes 8→4
+    # (10…100), hyper-parameter steps 150→50
     "quick": QUICK_4_3,
     "paper": replace(
         QUICK_4_3,
@@ -352,7 +355,7 @@ def _summarize_4_3(
         },
         "samples_to_match_mm_75pct": n75,
         "samples_to_match_mm_95pct": n95,
-        "thesis": dict(THESIS_4_3),
+        "thesis_numbers": dict(THESIS_4_3),
         "mean_kl_per_step_mm": float(np.mean([t["kl_mm"].mean() for t in trials])),
         "n_start_states": int(scores.shape[0]),
         "n_variance_clamped": int(sum(t["n_variance_clamped"] for t in trials)),
@@ -490,6 +493,8 @@ SCALES_4_4 = {
         repeats=1,
         n_opt_steps=5,
     ),
+    # quick scales down: training transitions 1500→600, pseudo-inputs 300→100, horizon
+    # 100→30, trajectory counts up to 3000 (not 10000), hyper-parameter steps 150→30
     "quick": QUICK_4_4,
     "paper": replace(
         QUICK_4_4,
@@ -797,6 +802,9 @@ SCALES_4_5 = {
         n_predicted=3,
         n_truth=2,
     ),
+    # quick scales down: default training trajectories 50→15 and steps 150→50, panel values
+    # 6→3 noise factors, 6→2 step counts, 5→2 control noises, 4→2 data sizes, test pairs
+    # 50→15, sampled trajectories 20→10, real rollouts per pair 10→5
     "quick": QUICK_4_5,
     "paper": replace(
         QUICK_4_5,

@@ -178,6 +178,8 @@ SCALES = {
         n_bins=10,
         n_opt_steps=5,
     ),
+    # quick scales down: real rollouts 1000→400, GP training rollouts 30→20, model samples
+    # 5000→2000, hyper-parameter steps 150→100
     "quick": QUICK,
     "paper": replace(QUICK, n_real=1000, n_train=30, n_model=5000, n_opt_steps=150),
 }

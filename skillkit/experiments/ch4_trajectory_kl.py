@@ -677,6 +677,7 @@ SMOKE = replace(
     inner_iterations=50, n_samples=5, ridges=(0.0, 0.1),
 )  # fmt: skip
 PAPER = replace(QUICK, n_train=100, n_test=100)
+# quick scales the paper setting down: training and test trajectories 100→40 each, trials 5→1
 """The thesis reports no experiment for Sec. 4.2.4: paper is our largest setting (100 training
 and 100 held-out trajectories per data set, 3 trials)."""
 

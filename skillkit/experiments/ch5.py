@@ -167,6 +167,8 @@ SCALES_PENDULUM = {
         max_iter=3,
         gp_steps=3,
     ),
+    # quick scales down: error-map grid 41²→17², ground-truth samples 1000→200 and rollouts
+    # 200→50, GP samples 100→30, embedding iterations 100→50, trials 5→1
     "quick": QUICK_PENDULUM,
     "paper": replace(
         QUICK_PENDULUM,
@@ -726,6 +728,8 @@ _BALANCING_SMOKE = dict(
 QUICK_5_6 = RewardVsDataSettings()
 SCALES_5_6 = {
     "smoke": replace(QUICK_5_6, **_BALANCING_SMOKE, n_trajectories=(2, 3)),
+    # quick scales down: test pairs 200→40, ground-truth rollouts 100→30, GP steps 150→100,
+    # trajectory counts (2, 4, 6, 10)→(3, 8)
     "quick": QUICK_5_6,
     # Sized for ~15 min on one core: the trajectory-based fit costs ~10 s per loss evaluation
     # at 20 trajectories (N = 800), so the x axis stops at 10.
@@ -734,6 +738,8 @@ SCALES_5_6 = {
 QUICK_5_7 = RewardVsNoiseSettings()
 SCALES_5_7 = {
     "smoke": replace(QUICK_5_7, **_BALANCING_SMOKE, n_trajectories=2, torque_noise=(1.0, 4.0)),
+    # quick scales down: test pairs 100→40, ground-truth rollouts 50→30, GP steps 150→100,
+    # noise levels (1, 2, 4, 8)→(1, 4, 8) N m, trajectories 6→5
     "quick": QUICK_5_7,
     # Sized for ~15 min on one core: one ground truth per noise level.
     "paper": replace(

@@ -311,8 +311,15 @@ def git_state(path: str | Path | None = None) -> dict[str, Any]:
 
 
 def provenance(exp_id: str) -> dict[str, Any]:
-    """What ``result.json`` records about the code that made a run of ``exp_id``."""
-    return {"git": git_state(), "code_fingerprint": code_fingerprint(exp_id)}
+    """What ``result.json`` records about the code that made a run of ``exp_id``:
+    ``{"git": git_state(), "code_fingerprint": str or None}`` (None when the experiment's
+    trial function has no source file, e.g. one built in an interactive session: such a run
+    is listed as stale by :func:`check_results`)."""
+    try:
+        fingerprint = code_fingerprint(exp_id)
+    except ValueError:
+        fingerprint = None
+    return {"git": git_state(), "code_fingerprint": fingerprint}
 
 
 def check_results(root: str | Path) -> list[dict[str, Any]]:

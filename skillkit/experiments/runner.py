@@ -7,6 +7,15 @@ at once, or on interruptions: every finished trial, and every state an experimen
 mid-trial through :meth:`~skillkit.trial.TrialContext.save`, is checkpointed atomically under
 ``<run folder>/trials/`` (:func:`run_folder`), and rerunning the same command resumes from
 there.
+
+Every trial runs inside :func:`~skillkit.models.gp.record_numerical_events`: the numerical
+events the models handle themselves (a restored iterate, a jitter increase, a noise variance at
+its floor, clipped negative variances) are counted, not printed in every fit, and reported per
+trial and in total in ``result.json`` (``numerical_events``) and in the summary
+(``summary["handled_numerical_events"]``, after the verdict). Warnings that remain (what a
+user must act on) are written above the progress bars, not through them; those of trials run
+in other processes come back with their results and are issued by the process that started
+them.
 """
 
 from __future__ import annotations
@@ -16,20 +25,27 @@ import json
 import os
 import platform
 import shutil
+import sys
 import time
 import warnings
+from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from contextlib import contextmanager
 from multiprocessing import get_context
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 from tqdm.auto import tqdm
 
 from skillkit._validation import check_count
 from skillkit.experiments import checkpoint
+from skillkit.experiments.claims import judged
+from skillkit.experiments.provenance import provenance
 from skillkit.experiments.registry import get
 from skillkit.experiments.run import Run
 from skillkit.experiments.settings import Settings
+from skillkit.models.gp import NumericalEvents, record_numerical_events
 from skillkit.trial import TrialContext, Writer
 
 EXECUTORS = ("local", "process", "ray")
@@ -75,14 +91,73 @@ def to_jsonable(obj):
     return obj
 
 
-def _state_writer(path: str, ident: dict | None) -> Writer:
+class _Finished(NamedTuple):
+    """The payload of a finished trial's checkpoint (``kind="result"``).
+
+    Checkpoints written before the numerical-event record hold the bare result dict.
+    """
+
+    result: dict
+    numerical_events: dict | None  # NumericalEvents.to_dict() of the whole trial; None: unknown
+
+
+class _Partial(NamedTuple):
+    """The payload of a mid-trial checkpoint (``kind="state"``).
+
+    Checkpoints written before the numerical-event record hold the bare snapshots.
+    """
+
+    states: dict
+    saved_events: dict | None  # TrialContext.saved_events at the save; None: unknown
+
+
+def _state_writer(path: str, ident: dict | None, saved_events: Callable[[], dict | None]) -> Writer:
     """A :class:`~skillkit.trial.TrialContext` writer that checkpoints mid-trial states to
-    ``path`` atomically (:func:`skillkit.experiments.checkpoint.save`, ``kind="state"``)."""
+    ``path`` atomically (:func:`skillkit.experiments.checkpoint.save`, ``kind="state"``),
+    with the numerical events of the saved work (``saved_events()``; ``None``: not known)."""
 
     def write(snapshots, seconds: float) -> None:
-        checkpoint.save(path, ident, dict(snapshots), kind="state", seconds=seconds)
+        payload = _Partial(dict(snapshots), saved_events())
+        checkpoint.save(path, ident, payload, kind="state", seconds=seconds)
 
     return write
+
+
+def _show_above_bars(message, category, filename, lineno, file=None, line=None) -> None:
+    """``warnings.showwarning`` that prints with ``tqdm.write``: above the progress bars,
+    which are cleared and redrawn, instead of through them."""
+    text = warnings.formatwarning(message, category, filename, lineno, line)
+    tqdm.write(text.rstrip("\n"), file=file or sys.stderr)
+
+
+@contextmanager
+def _trial_warnings(how: str) -> Iterator[list[tuple]]:
+    """Where the warnings issued inside go: ``"pass"`` as usual (nothing changed), ``"bars"``
+    above the progress bars (:func:`_show_above_bars`), ``"collect"`` into the yielded list as
+    ``(message, category, filename, lineno)`` for the process that started a worker to issue
+    them again (:func:`_replay_warnings`). Filters are never changed, and whatever is
+    changed is restored on leaving (``warnings.catch_warnings``)."""
+    if how == "pass":
+        yield []
+        return
+    with warnings.catch_warnings(record=how == "collect") as caught:
+        if how == "bars":
+            warnings.showwarning = _show_above_bars
+        out: list[tuple] = []
+        try:
+            yield out
+        finally:
+            out += [(str(w.message), w.category, w.filename, w.lineno) for w in caught or ()]
+
+
+def _replay_warnings(records: list[tuple], progress: bool) -> None:
+    """Issue the warnings a worker collected (:func:`_trial_warnings`) in this process, under
+    its filters; above the progress bars when they are shown."""
+    if not records:
+        return
+    with _trial_warnings("bars" if progress else "pass"):
+        for message, category, filename, lineno in records:
+            warnings.warn_explicit(message, category, filename, lineno)
 
 
 def _execute_trial(
@@ -93,36 +168,71 @@ def _execute_trial(
     ckpt_path: str | None,
     ident: dict | None,
     show_progress: bool,
+    in_worker: bool = False,
 ) -> tuple[dict, dict]:
     """Run (or resume) one trial; checkpoint its result. Module-level so workers can pickle it.
 
+    The trial runs inside :func:`~skillkit.models.gp.record_numerical_events`: the numerical
+    events the models handle (restored iterates, jitter, …) are counted, not warned about.
+    The remaining warnings are shown above the trial's progress bar (``show_progress``), or,
+    ``in_worker``, collected and returned for the starting process to issue
+    (:func:`_replay_warnings`).
+
     Returns the trial's result and whether and how it ran: ``{"seconds": compute time summed
     over all runs of this trial (None if a checkpoint predates the record), "resumed": True if
-    it continued from a checkpoint}``.
+    it continued from a checkpoint, "numerical_events": the counts
+    (:meth:`~skillkit.models.gp.NumericalEvents.to_dict`) of the trial's work, each piece
+    counted once over interrupted and resumed runs (see
+    :attr:`~skillkit.trial.TrialContext.saved_events`; None if a checkpoint predates the
+    record), "warnings": the collected warnings}``.
     """
     exp = get(exp_id)
-    states, seconds = None, 0.0
+    states, seconds, saved = None, 0.0, {}
     if ckpt_path is not None:
         found = checkpoint.load(ckpt_path, ident)
         if found is not None:
             if found.kind == "result":
-                return found.payload, {"seconds": found.seconds, "resumed": True}
-            states, seconds = found.payload, found.seconds or 0.0
-    writer = None if ckpt_path is None else _state_writer(ckpt_path, ident)
-    try:
-        ctx = TrialContext(states=states, writer=writer, seconds=seconds)
-    except ValueError as exc:  # mid-trial states in an older format
-        raise checkpoint.CheckpointError(f"{ckpt_path}: {exc}; use --fresh to start over") from None
-    if show_progress:
-        ctx.bar = tqdm(desc=f"{exp_id} trial {index + 1}", leave=False)
-    try:
-        result = exp.run_trial(settings, np.random.default_rng(seed_seq), ctx)
-    finally:
-        ctx.bar.close()
+                done = found.payload
+                if not isinstance(done, _Finished):  # written before the event record
+                    done = _Finished(done, None)
+                info = {"seconds": found.seconds, "resumed": True, "warnings": []}
+                return done.result, {**info, "numerical_events": done.numerical_events}
+            part = found.payload
+            if not isinstance(part, _Partial):  # written before the event record
+                part = _Partial(part, None)
+            states, seconds, saved = part.states, found.seconds or 0.0, part.saved_events
+    how = "collect" if in_worker else "bars" if show_progress else "pass"
+    with _trial_warnings(how) as caught, record_numerical_events() as events:
+        known = saved is not None  # else: earlier runs' events are unknown
+        writer = (
+            None
+            if ckpt_path is None
+            else _state_writer(ckpt_path, ident, lambda: ctx.saved_events if known else None)
+        )
+        try:
+            ctx = TrialContext(
+                states=states,
+                writer=writer,
+                seconds=seconds,
+                events=events if known else None,
+                saved_events=saved,
+            )
+        except ValueError as exc:  # mid-trial states in an older format
+            raise checkpoint.CheckpointError(
+                f"{ckpt_path}: {exc}; use --fresh to start over"
+            ) from None
+        if show_progress:
+            ctx.bar = tqdm(desc=f"{exp_id} trial {index + 1}", leave=False)
+        try:
+            result = exp.run_trial(settings, np.random.default_rng(seed_seq), ctx)
+        finally:
+            ctx.bar.close()
     seconds = ctx.seconds
+    counts = events.to_dict() if known else None
     if ckpt_path is not None:
-        checkpoint.save(ckpt_path, ident, result, kind="result", seconds=seconds)
-    return result, {"seconds": seconds, "resumed": states is not None}
+        checkpoint.save(ckpt_path, ident, _Finished(result, counts), kind="result", seconds=seconds)
+    info = {"seconds": seconds, "resumed": states is not None, "numerical_events": counts}
+    return result, {**info, "warnings": caught}
 
 
 def _start_ray(ray, kwargs: dict, attempts: int = 3) -> None:
@@ -177,7 +287,8 @@ def _stop_pool(pool: ProcessPoolExecutor) -> None:
 
 def _run_pending(exp_id, settings, jobs, executor, workers, address, progress) -> dict[int, tuple]:
     """Run jobs = [(index, seed_seq, ckpt_path, ident)] with the chosen executor; returns
-    {index: (result, timing)} as :func:`_execute_trial`."""
+    {index: (result, info)} as :func:`_execute_trial`; the warnings of trials run in other
+    processes are issued here as they finish (above the progress bar)."""
     results: dict[int, tuple] = {}
     if not jobs:
         return results
@@ -197,11 +308,14 @@ def _run_pending(exp_id, settings, jobs, executor, workers, address, progress) -
             )
             try:
                 futures = {
-                    pool.submit(_execute_trial, exp_id, settings, seq, i, path, ident, False): i
+                    pool.submit(
+                        _execute_trial, exp_id, settings, seq, i, path, ident, False, True
+                    ): i
                     for i, seq, path, ident in jobs
                 }
                 for fut in as_completed(futures):
                     results[futures[fut]] = fut.result()
+                    _replay_warnings(results[futures[fut]][1]["warnings"], progress)
                     outer.update()
             except BaseException:  # Ctrl-C or a failed trial: stop now, not after every trial
                 _stop_pool(pool)
@@ -223,13 +337,14 @@ def _run_pending(exp_id, settings, jobs, executor, workers, address, progress) -
             try:
                 remote = ray.remote(_execute_trial)
                 refs = {
-                    remote.remote(exp_id, settings, seq, i, path, ident, False): i
+                    remote.remote(exp_id, settings, seq, i, path, ident, False, True): i
                     for i, seq, path, ident in jobs
                 }
                 pending = list(refs)
                 while pending:
                     done, pending = ray.wait(pending, num_returns=1)
                     results[refs[done[0]]] = ray.get(done[0])
+                    _replay_warnings(results[refs[done[0]]][1]["warnings"], progress)
                     outer.update()
             finally:
                 if started:
@@ -313,12 +428,19 @@ def run_trials(
             path = str(Path(checkpoint_dir) / f"trial_{i:03d}.ckpt")
             ident = checkpoint.identity(exp.id, settings.to_dict(), i, int(seed), code)
             jobs.append((i, child, path, ident))
+    # Read before the trials run: the code that was imported is the code on disk now.
+    made_by = provenance(exp.id)
     t0 = time.perf_counter()
     load_before = _load_average()
     done = _run_pending(exp.id, settings, jobs, executor, workers, address, progress)
     results = [done[i][0] for i in range(n_trials)]
     timing = [done[i][1] for i in range(n_trials)]
     series, summary = exp.summarize(settings, results)
+    summary = judged(summary, exp.id, scale)  # + the thesis's sentences; smoke is not judged
+    events = _event_totals([t["numerical_events"] for t in timing])
+    # After the verdict keys: the counts over the trials that have a record. Not named
+    # "numerical_events": fig4.5's summary has its own, per model, under that name.
+    summary = {**summary, "handled_numerical_events": _summary_events(events)}
     if executor == "local":
         used = 1
     elif executor == "ray" and address:
@@ -336,6 +458,10 @@ def run_trials(
         "trials": n_trials,
         "executor": executor,
         "workers": used,
+        # the git commit (and whether the checkout had uncommitted changes) and the
+        # fingerprint of the code the experiment runs (skillkit.experiments.provenance)
+        "git": made_by["git"],
+        "code_fingerprint": made_by["code_fingerprint"],
         "versions": versions(),
         "machine": {
             "platform": platform.platform(),
@@ -349,10 +475,34 @@ def run_trials(
         # checkpoint predates this record); trials that continued from a checkpoint
         "trial_time_s": [t["seconds"] for t in timing],
         "resumed_trials": sum(t["resumed"] for t in timing),
+        # numerical events the models handled (counted instead of warned about), per trial
+        # (None: its checkpoint predates this record) and over the trials that have a record
+        "numerical_events": events,
         "series": [to_jsonable(s.to_dict()) for s in series],
         "summary": to_jsonable(summary),
         "_trials": results,
     }
+
+
+def _event_totals(per_trial: list[dict | None]) -> dict:
+    """``{"per_trial": [...], "total": {kind: count, ..., "max_jitter": j}}`` (plus
+    ``"trials_without_record"`` when some trials' checkpoints predate the record)."""
+    total = NumericalEvents()
+    for counts in per_trial:
+        if counts is not None:
+            total.update(counts)
+    out = {"per_trial": per_trial, "total": total.to_dict()}
+    missing = sum(counts is None for counts in per_trial)
+    if missing:
+        out["trials_without_record"] = missing
+    return out
+
+
+def _summary_events(events: dict) -> dict:
+    """The summary's ``handled_numerical_events``: the totals, and how many trials have no
+    record."""
+    missing = events.get("trials_without_record")
+    return {**events["total"], **({"trials_without_record": missing} if missing else {})}
 
 
 def _load_average() -> list[float] | None:

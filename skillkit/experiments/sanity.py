@@ -152,6 +152,7 @@ class SanitySettings(Settings):
 QUICK = SanitySettings()
 SCALES = {
     "smoke": replace(QUICK, n_updates=3),
+    # quick scales down: updates 200→120 per algorithm, trials 10→3
     "quick": QUICK,
     "paper": replace(QUICK, n_updates=200),
 }

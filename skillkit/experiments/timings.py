@@ -62,6 +62,8 @@ def machine_note() -> str:
     if not table:
         return "not measured"
     parts = []
+    if table.get("time_kind") == "cpu":
+        parts.append("CPU time of a shared machine")
     if table.get("cores"):
         parts.append(f"{table['cores']} cores")
     if isinstance(table.get("load_before"), (int, float)):

@@ -31,7 +31,11 @@ Pieces, in the order they are used:
   ``target="delta"`` it learns the difference Δx = x_{t+1} − x_t as PILCO does (the prior
   then means "the state stays" rather than "the state goes to the training mean").
 
-Numerical policy (every safeguard is explicit and reported, never silent):
+Numerical policy (every safeguard is explicit and reported, never silent). A safeguard that
+handles an event itself reports it once through :func:`report_event`: inside
+:func:`record_numerical_events` (the experiment runner wraps every trial in one) it is counted
+by kind, otherwise it is a :class:`GPNumericalWarning`; each fit also lists its own events in
+``diagnostics["numerical_events"]``. Problems a user must act on stay warnings.
 
 * **Target standardisation.** Targets are centred and scaled per output, ``(y − m)/s``
   (``standardize=True``); the prior mean is then the training mean m. A constant output
@@ -41,22 +45,23 @@ Numerical policy (every safeguard is explicit and reported, never silent):
   output column, drawn from ``rng``; ``α = 0`` turns it off.
 * **Noise floor.** σ_ε² ≥ ``noise_floor``·s² (a GPyTorch ``GreaterThan`` constraint, so the
   optimiser can never cross it). If the trained noise ends within 1 % of the floor, the
-  outputs are listed in ``diagnostics["noise_at_floor"]`` and a :class:`GPNumericalWarning`
-  is issued.
+  outputs are listed in ``diagnostics["noise_at_floor"]`` and a ``"noise_at_floor"`` event
+  is reported.
 * **Jitter.** :func:`robust_cholesky` adds diagonal jitter only if a factorisation fails,
   growing from 10⁻¹² to 10⁻⁴ × mean(diag) by factors of 100; the jitter used is recorded in
-  ``diagnostics["jitter"]`` and warned about. During training no jitter is added: an
-  objective evaluation whose matrix cannot be factorised counts as a failed step (below).
+  ``diagnostics["jitter"]`` and reported (``"jitter_increased"``). During training no jitter
+  is added: an objective evaluation whose matrix cannot be factorised counts as a failed step
+  (below).
 * **Optimisation safety.** L-BFGS's result is its last accepted iterate (never a point its
   line search rejected); if an evaluation fails (non-positive-definite matrix, non-finite
   value) the optimiser stops, the last accepted iterate is restored and
-  ``diagnostics["stopped_early"]`` says why (:func:`optimize`).
+  ``diagnostics["stopped_early"]`` says why (:func:`optimize`; a ``"restored_iterate"`` event).
 * **Hyper-parameter curb (optional).** :class:`HyperCurb` penalises length-scales beyond
   100× the inputs' spread and σ_f/σ_ε beyond 500 (PILCO's trainer); off by default.
 * **Variance clamping.** The latent variance σ_f² − ‖Rk‖² is non-negative in exact
   arithmetic; round-off can make it slightly negative near training inputs. Such values are
-  set to 0, counted (``Moments.n_clamped``), and a warning is issued when one is below
-  −10⁻⁶ σ_f² (beyond round-off).
+  set to 0, counted (``Moments.n_clamped``), and a ``"negative_variance_clipped"`` event is
+  reported when one is below −10⁻⁶ σ_f² (beyond round-off).
 """
 
 from __future__ import annotations
@@ -64,7 +69,9 @@ from __future__ import annotations
 import dataclasses
 import math
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from contextvars import ContextVar
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -84,6 +91,7 @@ from skillkit.models.kernels import (
 
 __all__ = [
     "DTYPE",
+    "EVENT_KINDS",
     "FLOOR_EXPONENT_FLOAT64",
     "FLUSH_EXPONENT",
     "ExactGP",
@@ -93,7 +101,10 @@ __all__ = [
     "GPPredictor",
     "HyperCurb",
     "Moments",
+    "NumericalEvents",
     "as_device",
+    "record_numerical_events",
+    "report_event",
     "robust_cholesky",
 ]
 
@@ -117,11 +128,169 @@ _JITTER_LEVELS = (1e-12, 1e-10, 1e-8, 1e-6, 1e-4)
 
 
 class GPNumericalWarning(RuntimeWarning):
-    """A numerical safeguard (jitter, noise floor, variance clamp, early stop) kicked in."""
+    """A numerical safeguard (jitter, noise floor, variance clamp, early stop) kicked in.
+
+    Handled events are issued through :func:`report_event`: inside
+    :func:`record_numerical_events` they are counted instead.
+    """
 
 
 class GPNumericalError(RuntimeError):
     """A matrix stayed non-positive-definite even with the largest allowed jitter."""
+
+
+# ---------------------------------------------------------------------------- numerical events
+#: The numerical events the models handle themselves, and what each means. They are counted
+#: (:func:`record_numerical_events`), or warned about where nothing counts them
+#: (:func:`report_event`).
+EVENT_KINDS = {
+    "restored_iterate": "an objective evaluation failed; the optimiser kept its last completed "
+    "iterate (optimize)",
+    "jitter_increased": "a matrix was factorised only with diagonal jitter (robust_cholesky)",
+    "noise_at_floor": "a fit ended with a noise variance at its floor: the data look noise-free "
+    "to the model",
+    "negative_variance_clipped": "predictive variances below -1e-6 sigma_f^2 (beyond round-off) "
+    "were set to 0",
+}
+
+
+@dataclass
+class NumericalEvents:
+    """Handled numerical events counted by kind (:data:`EVENT_KINDS`), and the largest jitter.
+
+    What :func:`record_numerical_events` yields, what a fit stores in
+    ``diagnostics["numerical_events"]`` (as :meth:`to_dict`) and what the experiment runner
+    reports per trial and in a run's summary.
+
+    Attributes
+    ----------
+    counts : dict of str to int
+        Events of each kind of :data:`EVENT_KINDS` (every kind present, 0 if none).
+    max_jitter : float
+        The largest relative jitter :func:`robust_cholesky` needed (0.0 if none).
+    """
+
+    counts: dict[str, int] = field(default_factory=lambda: dict.fromkeys(EVENT_KINDS, 0))
+    max_jitter: float = 0.0
+
+    @property
+    def total(self) -> int:
+        """Events of all kinds."""
+        return sum(self.counts.values())
+
+    def add(self, kind: str, jitter: float = 0.0) -> None:
+        """Count one event of ``kind`` (that needed relative ``jitter``, if any)."""
+        if kind not in EVENT_KINDS:
+            raise ValueError(f"kind: expected one of {tuple(EVENT_KINDS)}, got {kind!r}")
+        self.counts[kind] = self.counts.get(kind, 0) + 1
+        self.max_jitter = max(self.max_jitter, float(jitter))
+
+    def update(self, other: NumericalEvents | dict) -> NumericalEvents:
+        """Add the counts of ``other`` (a record or its :meth:`to_dict`) to these; returns self."""
+        other = other if isinstance(other, NumericalEvents) else NumericalEvents.from_dict(other)
+        for kind, n in other.counts.items():
+            self.counts[kind] = self.counts.get(kind, 0) + int(n)
+        self.max_jitter = max(self.max_jitter, other.max_jitter)
+        return self
+
+    def copy(self) -> NumericalEvents:
+        """An independent copy."""
+        return NumericalEvents(dict(self.counts), self.max_jitter)
+
+    def since(self, mark: NumericalEvents) -> NumericalEvents:
+        """The events counted after ``mark`` (an earlier :meth:`copy` of this record).
+
+        ``max_jitter`` is this record's if it grew since ``mark``, else 0.0 (the jitter of the
+        events in between did not exceed an earlier one).
+        """
+        counts = {k: n - mark.counts.get(k, 0) for k, n in self.counts.items()}
+        jitter = self.max_jitter if self.max_jitter > mark.max_jitter else 0.0
+        return NumericalEvents(counts, jitter)
+
+    def to_dict(self) -> dict:
+        """``{kind: count, ..., "max_jitter": j}`` (plain JSON types)."""
+        return {**{k: int(n) for k, n in self.counts.items()}, "max_jitter": float(self.max_jitter)}
+
+    @classmethod
+    def from_dict(cls, data: dict) -> NumericalEvents:
+        """The record :meth:`to_dict` wrote."""
+        data = dict(data)
+        jitter = float(data.pop("max_jitter", 0.0) or 0.0)
+        for kind in data:
+            if kind not in EVENT_KINDS:
+                raise ValueError(f"kind: expected one of {tuple(EVENT_KINDS)}, got {kind!r}")
+        counts = dict.fromkeys(EVENT_KINDS, 0)
+        counts.update({k: int(n) for k, n in data.items()})
+        return cls(counts, jitter)
+
+    def __repr__(self) -> str:
+        seen = ", ".join(f"{k}={n}" for k, n in self.counts.items() if n) or "none"
+        jitter = f", max_jitter={self.max_jitter:.0e}" if self.max_jitter else ""
+        return f"NumericalEvents({seen}{jitter})"
+
+
+#: The active recorders of this context, innermost last: (record, quiet) pairs.
+_RECORDERS: ContextVar[tuple[tuple[NumericalEvents, bool], ...]] = ContextVar(
+    "skillkit_numerical_events", default=()
+)
+
+
+@contextmanager
+def record_numerical_events(quiet: bool = True) -> Iterator[NumericalEvents]:
+    """Count the handled numerical events reported inside the block instead of warning.
+
+    Every event a model handles itself (:data:`EVENT_KINDS`: a restored iterate, a jitter
+    increase, a noise variance at its floor, clipped negative variances) goes through
+    :func:`report_event`: each active recorder counts it, and a :class:`GPNumericalWarning` is
+    issued only when none of them is ``quiet``. So a library user who calls ``fit`` directly
+    sees each event once as a warning, while the experiment runner wraps every trial in a
+    recorder and reports the counts in ``result.json`` and the run's summary. Problems a user
+    must act on stay warnings (e.g. float32 sampling too imprecise) and are never counted.
+
+    Recorders nest: an event counts in the innermost and in every enclosing one. They are
+    local to the current thread (and ``contextvars`` context); no global state is changed.
+
+    Parameters
+    ----------
+    quiet : bool
+        True (default): events inside are counted, not warned about. False: counted, and
+        still warned about unless an enclosing recorder is quiet (how a fit collects its own
+        ``diagnostics["numerical_events"]``).
+
+    Yields
+    ------
+    NumericalEvents
+        The counts of this block, updated as events happen.
+
+    Examples
+    --------
+    >>> with record_numerical_events() as events:               # doctest: +SKIP
+    ...     gp = ExactGP().fit(X, Y, rng=0)
+    >>> events.to_dict()["jitter_increased"]                    # doctest: +SKIP
+    """
+    events = NumericalEvents()
+    token = _RECORDERS.set((*_RECORDERS.get(), (events, bool(quiet))))
+    try:
+        yield events
+    finally:
+        _RECORDERS.reset(token)
+
+
+def report_event(kind: str, message: str, *, jitter: float = 0.0, stacklevel: int = 1) -> None:
+    """Report a handled numerical event of ``kind`` (:data:`EVENT_KINDS`).
+
+    Counted by every active :func:`record_numerical_events` block; warned about as a
+    :class:`GPNumericalWarning` with ``message`` when none of them is quiet (in particular
+    when there is none). ``stacklevel`` is that of ``warnings.warn`` called where
+    ``report_event`` is; ``jitter`` the relative jitter a factorisation needed.
+    """
+    if kind not in EVENT_KINDS:
+        raise ValueError(f"kind: expected one of {tuple(EVENT_KINDS)}, got {kind!r}")
+    active = _RECORDERS.get()
+    for events, _ in active:
+        events.add(kind, jitter)
+    if not any(quiet for _, quiet in active):
+        warnings.warn(message, GPNumericalWarning, stacklevel=stacklevel + 1)
 
 
 def as_device(device, name: str = "device") -> torch.device:
@@ -178,7 +347,7 @@ def robust_cholesky(A: torch.Tensor, what: str = "matrix") -> tuple[torch.Tensor
 
     Policy: factorise ``A``; if that fails for any batch entry, add ``j · mean(diag A) · I``
     to the failing entries with ``j`` = 1e-12, 1e-10, 1e-8, 1e-6, 1e-4 in turn (a
-    :class:`GPNumericalWarning` reports the level that worked).
+    ``"jitter_increased"`` event, :func:`report_event`, gives the level that worked).
 
     Parameters
     ----------
@@ -210,10 +379,11 @@ def robust_cholesky(A: torch.Tensor, what: str = "matrix") -> tuple[torch.Tensor
         shift = torch.where(failed, j * scale, torch.zeros_like(scale))
         L2, info2 = torch.linalg.cholesky_ex(A + shift[..., None, None] * eye)
         if not torch.any(info2):
-            warnings.warn(
+            report_event(
+                "jitter_increased",
                 f"{what}: not numerically positive definite; added jitter {j:.0e} x mean(diag) "
                 f"to {int(failed.sum())} of {failed.numel()} matrices",
-                GPNumericalWarning,
+                jitter=j,
                 stacklevel=2,
             )
             return torch.where(failed[..., None, None], L2, L), j
@@ -511,14 +681,14 @@ def _flush_tiny(weights: torch.Tensor) -> torch.Tensor:
 
 
 def warn_if_clamped(m: Moments, where: str) -> None:
-    """Issue a :class:`GPNumericalWarning` if a latent variance was negative beyond round-off."""
+    """Report (:func:`report_event`) a latent variance that was negative beyond round-off."""
     worst = float(m.worst)
     if worst < -VARIANCE_TOL:
-        warnings.warn(
+        report_event(
+            "negative_variance_clipped",
             f"{where}: {int(m.n_clamped)} predictive variance(s) were negative (worst "
             f"{worst:.2e} x sigma_f^2, beyond round-off) and were set to 0; the model is "
             "ill-conditioned (raise noise_floor or additive_noise)",
-            GPNumericalWarning,
             stacklevel=3,
         )
 
@@ -615,7 +785,8 @@ def optimize(
     L-BFGS (strong-Wolfe line search) runs one iteration per ``torch.optim.LBFGS.step`` call,
     so the parameters between calls are the iterates the line search *accepted*. If an
     evaluation fails (a non-finite objective or gradient, or a failed Cholesky
-    factorisation) the last accepted iterate is restored. A line-search trial point is never
+    factorisation) the last accepted iterate is restored (a ``"restored_iterate"`` event,
+    :func:`report_event`). A line-search trial point is never
     returned, even when its objective was lower: the line search rejected it (issue #16
     found a rejected, degenerate point σ_f² → 0, ℓ → 0 restored this way). Evaluations at an
     accepted point are not repeated (they are cached), so the iterates, evaluation budget
@@ -740,10 +911,10 @@ def optimize(
             except (GPNumericalError, NotPSDError, NanError):
                 best_value = math.nan
     if stopped is not None:
-        warnings.warn(
+        report_event(
+            "restored_iterate",
             f"hyper-parameter optimisation stopped early ({stopped}); restored the last "
             f"completed iterate (objective {best_value:.6g})",
-            GPNumericalWarning,
             stacklevel=3,
         )
     return {
@@ -891,9 +1062,24 @@ class _GPRegression:
                 loss = loss + curb.penalty(*self._hypers(), input_std)
             return loss / N
 
-        res = optimize(
-            self._parameters(), objective, self.n_steps, self.optimizer, self.learning_rate
-        )
+        # Events handled on the way (restored iterate, jitter, noise floor) are counted in
+        # diagnostics["numerical_events"], and warned about unless a quiet recorder is active.
+        with record_numerical_events(quiet=False) as events:
+            res = optimize(
+                self._parameters(), objective, self.n_steps, self.optimizer, self.learning_rate
+            )
+            with torch.no_grad():
+                self.predictor, extra = self._make_predictor()
+            noise = self.predictor.noise.cpu().numpy()
+            at_floor = np.flatnonzero(noise < 1.01 * self.noise_floor).tolist()
+            if at_floor:
+                report_event(
+                    "noise_at_floor",
+                    f"noise variance of output(s) {at_floor} is at the floor noise_floor="
+                    f"{self.noise_floor:g} (x std(y)^2 when standardised): the data look "
+                    "noise-free to the model",
+                    stacklevel=2,
+                )
         diag.update(
             {
                 "objective_trace": res["trace"],
@@ -902,24 +1088,13 @@ class _GPRegression:
                 "stopped_early": res["stopped_early"],
             }
         )
-        with torch.no_grad():
-            self.predictor, extra = self._make_predictor()
         diag.update(extra)
         ls, os_, nz = (t.detach() for t in self._hypers())
         diag["max_lengthscale_ratio"] = float((ls / input_std).max())
         diag["max_signal_to_noise"] = float((os_ / nz).sqrt().max())
         diag["curb_penalty"] = None if curb is None else float(curb.penalty(ls, os_, nz, input_std))
-        noise = self.predictor.noise.cpu().numpy()
-        at_floor = np.flatnonzero(noise < 1.01 * self.noise_floor).tolist()
         diag["noise_at_floor"] = at_floor
-        if at_floor:
-            warnings.warn(
-                f"noise variance of output(s) {at_floor} is at the floor noise_floor="
-                f"{self.noise_floor:g} (x std(y)^2 when standardised): the data look noise-free to "
-                "the model",
-                GPNumericalWarning,
-                stacklevel=2,
-            )
+        diag["numerical_events"] = events.to_dict()
         self.diagnostics = diag
         return self
 

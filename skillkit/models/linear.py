@@ -2,11 +2,23 @@
 
 The parametric counterpart of :class:`~skillkit.models.gp.ForwardModel` (the LWBR side of
 Sec. 4.2's comparison, without the locality): least squares on [x, u, 1] and the residual
-covariance. It serves the samplers of GPREPS (:meth:`LinearGaussianModel.next_state_moments`)
-and PILCO, for which the propagation of a Gaussian state under a linear controller is exact
-(:func:`skillkit.search.pilco.model_moment_step` gives it as
-:func:`~skillkit.search.pilco.linear_gaussian_step` of A, B, Σ_w and c). Table 4.2's
-experiment uses it to separate what the search methods do from what the GP models predict.
+covariance. It serves the samplers of GPREPS (:meth:`LinearGaussianModel.next_state_moments`
+and :attr:`LinearGaussianModel.noise_factor`) and PILCO, for which the propagation of a
+Gaussian state under a linear controller is exact (:func:`skillkit.search.pilco.
+model_moment_step` gives it as :func:`~skillkit.search.pilco.linear_gaussian_step` of A, B,
+Σ_w and c). Table 4.2's experiment uses it to separate what the search methods do from what
+the GP models predict.
+
+**One noise convention: the full residual covariance Σ_w** (issue #30), in PILCO's exact
+step and in sampled trajectories (x' = A x + B u + c + F ε, F Fᵀ = Σ_w, ε ~ N(0, I)). The
+alternative, independent noise per state dimension (diag Σ_w, as the GP forward models have),
+was the sampler's until #30 and is the wrong model of the data this model is fitted to: on
+the balancing robot the residuals of positions and velocities are correlated at 0.99 (one
+unmodelled torque moves both), and independent position and velocity noise is amplified by
+the high-gain feedback. Measured (``docs/measure_tab42_models.py``'s setting, seed 0, π₀'s
+gain, 40 steps; the simulator's mean reward is −113.2): the exact expected return with full Σ_w
+is −79, −109, −334 for torque excitation 0, 10, 30 N m, with diag Σ_w −101, −2491, −31640
+(what GPREPS sampled). So GPREPS and PILCO now predict from the same model, the better one.
 """
 
 from __future__ import annotations
@@ -24,7 +36,9 @@ class LinearGaussianModel:
     """x' = A x + B u + c + w, fitted by least squares; w ~ N(0, Σ_w) from the residuals.
 
     ``target="delta"`` regresses x' − x (then A here is I + the fitted matrix), ``"next"``
-    regresses x'; the fitted dynamics are the same up to rounding.
+    regresses x'; the fitted dynamics are the same up to rounding. Σ_w is the full residual
+    covariance (``noise_cov``), the noise of both PILCO's exact step and the sampler, which
+    draws it through ``noise_factor`` (module notes).
 
     Parameters
     ----------
@@ -48,6 +62,7 @@ class LinearGaussianModel:
         self.B: np.ndarray | None = None
         self.c: np.ndarray | None = None
         self.noise_cov: np.ndarray | None = None
+        self.noise_factor: np.ndarray | None = None
 
     def fit(self, states, controls, next_states, rng=None) -> LinearGaussianModel:
         """Least squares on transitions (x_t, u_t) → x_{t+1}; ``rng`` is unused.
@@ -77,6 +92,7 @@ class LinearGaussianModel:
         self.B = w[n_x : n_x + n_u].T
         self.c = w[-1]
         self.noise_cov = res.T @ res / max(x.shape[0] - n_x - n_u - 1, 1)
+        self.noise_factor = _psd_sqrt(self.noise_cov)
         return self
 
     def _check_fitted(self) -> None:
@@ -89,8 +105,10 @@ class LinearGaussianModel:
         return self
 
     def next_state_moments(self, x: torch.Tensor, u: torch.Tensor) -> Moments:
-        """Per-dimension Gaussian p(x_{t+1} | x_t, u_t): mean A x + B u + c, variance
-        diag Σ_w (the sampler draws independent dimensions, as it does for GP models).
+        """The marginals of p(x_{t+1} | x_t, u_t): mean A x + B u + c, variance diag Σ_w.
+
+        The noise of the dimensions is correlated (Σ_w); a sampler draws it as F ε with
+        F = :attr:`noise_factor` (the per-dimension variances here are its marginals).
 
         Parameters
         ----------
@@ -106,6 +124,20 @@ class LinearGaussianModel:
             mean, var, torch.zeros((), dtype=torch.int64, device=x.device), torch.zeros((), **kw)
         )
 
+    def noise_factor_tensor(self, device=None, dtype: torch.dtype | None = None) -> torch.Tensor:
+        """F with F Fᵀ = Σ_w (``noise_factor``) as a tensor: a sampler's correlated noise F ε.
+
+        Parameters
+        ----------
+        device : str or torch.device, optional
+        dtype : torch.dtype, optional
+            Default: the model's (``to``).
+        """
+        self._check_fitted()
+        return torch.as_tensor(
+            self.noise_factor.copy(), dtype=self.dtype if dtype is None else dtype, device=device
+        )
+
     def __repr__(self) -> str:
         if self.A is None:
             return f"LinearGaussianModel(target={self.target!r}, unfitted)"
@@ -115,3 +147,10 @@ class LinearGaussianModel:
             f"spectral radius of A {rho:.3g}, noise std max "
             f"{float(np.sqrt(np.diag(self.noise_cov).max())):.3g})"
         )
+
+
+def _psd_sqrt(cov: np.ndarray) -> np.ndarray:
+    """The symmetric square root F = V diag(√λ) Vᵀ of a symmetric PSD matrix (F F = cov);
+    eigenvalues below 0 from rounding (rank-deficient residuals) are taken as 0."""
+    lam, V = np.linalg.eigh(cov)
+    return (V * np.sqrt(np.clip(lam, 0.0, None))) @ V.T

@@ -14,7 +14,10 @@ Design:
 * **Model protocol.** Any object with ``state_dim``, ``control_dim``,
   ``to(device, dtype)`` and ``next_state_moments(x, u) -> (mean, var, ...)`` (per-dimension
   Gaussian, tensors of shape (n, n_x)) can be sampled; :class:`~skillkit.models.gp.ForwardModel`
-  (exact, FITC or VFE GP) is the one in this package.
+  (exact, FITC or VFE GP) is the one in this package. A model whose noise is correlated across
+  dimensions also has ``noise_factor_tensor(device, dtype) -> F`` (n_x, n_x), F Fᵀ its noise
+  covariance (the same for every state): then x' = mean + F ε, and ``var`` gives the
+  marginals, diag F Fᵀ (:class:`~skillkit.models.linear.LinearGaussianModel`, issue #30).
 * **Policy.** ``policy(t, x, pair) -> u`` with ``x`` of shape (n, n_x), ``pair`` the index
   (n,) of each row's (context, ω) pair (so a policy gathers its per-pair parameters, e.g.
   PD gains or a reference trajectory), returning (n, n_u). Anything goes (nonlinear
@@ -81,7 +84,14 @@ import torch
 
 from skillkit._repr import number, span
 from skillkit._validation import as_generator, check_count, check_positive
-from skillkit.models.gp import DTYPE, VARIANCE_TOL, GPNumericalWarning, GPPredictor, as_device
+from skillkit.models.gp import (
+    DTYPE,
+    VARIANCE_TOL,
+    GPNumericalWarning,
+    GPPredictor,
+    as_device,
+    report_event,
+)
 from skillkit.models.pathwise import PathwiseBasis
 
 __all__ = [
@@ -295,6 +305,9 @@ def sample_trajectories(
 
     source = model
     model = model.to(device, dtype)
+    # Correlated noise x' = mean + F ε (a linear-Gaussian model's full Σ_w), else mean + √var ε.
+    factor = getattr(model, "noise_factor_tensor", None)
+    factor_t = None if factor is None else factor(device, dtype).T
     gen = torch.Generator(device=device)
     np_gen = as_generator(rng)
     gen.manual_seed(int(np_gen.integers(2**63 - 1)))
@@ -330,7 +343,10 @@ def sample_trajectories(
                     n_sat += (u.abs() > limit).sum()
                     u = torch.maximum(torch.minimum(u, limit), -limit)
                 m = step.next_state_moments(x, u)
-                x = m[0] + m[1].sqrt() * eps[rows, t]
+                if factor_t is None:
+                    x = m[0] + m[1].sqrt() * eps[rows, t]
+                else:
+                    x = m[0] + eps[rows, t] @ factor_t
                 states[rows, t + 1] = x
                 controls[rows, t] = u
                 if len(m) > 2:
@@ -363,11 +379,11 @@ def sample_trajectories(
                 stacklevel=2,
             )
     worst_f = float(worst)
-    if worst_f < -VARIANCE_TOL:
-        warnings.warn(
+    if worst_f < -VARIANCE_TOL:  # handled (set to 0): counted by a recorder, else a warning
+        report_event(
+            "negative_variance_clipped",
             f"sample_trajectories: {int(n_clamp)} predictive variances were negative (worst "
             f"{worst_f:.2e} x sigma_f^2, beyond round-off) and set to 0",
-            GPNumericalWarning,
             stacklevel=2,
         )
     return SampledTrajectories(

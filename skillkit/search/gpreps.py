@@ -117,12 +117,15 @@ def _warm_start(
 
 
 def _gp_stats(gp: _GPRegression, n_data: int) -> dict[str, Any]:
+    """What one fit of ``gp`` reports: data size, log ML, iterations, largest noise variance
+    and the numerical events the fit handled (:class:`~skillkit.models.gp.NumericalEvents`)."""
     lml = gp.diagnostics.get("log_marginal_likelihood")
     return {
         "n_data": int(n_data),
         "log_ml": None if lml is None else float(np.sum(lml)),
         "iterations": gp.diagnostics.get("n_iterations"),
         "noise_var_max": float(np.max(gp.hyperparameters["noise"])),
+        "numerical_events": gp.diagnostics.get("numerical_events"),
     }
 
 
@@ -158,7 +161,7 @@ class DirectRewardModel:
         -------
         dict
             ``n_data``, ``log_ml`` (log marginal likelihood 2.28), ``iterations``,
-            ``noise_var_max``.
+            ``noise_var_max``, ``numerical_events`` (what the fit handled, by kind).
         """
         s = check_array(contexts, "contexts", ndim=2)
         w = check_array(omegas, "omegas", shape=(s.shape[0], None))
@@ -266,7 +269,7 @@ class TrajectoryRewardModel:
         -------
         dict
             ``n_data`` (transitions), ``n_trajectories``, and for a GP ``log_ml``,
-            ``iterations``, ``noise_var_max``.
+            ``iterations``, ``noise_var_max``, ``numerical_events``.
         """
         if trajectories is None:
             raise ValueError("trajectories: a TrajectoryRewardModel learns from trajectories")

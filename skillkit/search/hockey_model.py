@@ -496,7 +496,8 @@ class HockeyRewardModel:
             ``n_data`` (sliding transitions), ``n_trajectories``, ``n_launched``,
             ``n_contacts`` and, per fitted GP (``launch``, ``launch_probability``,
             ``sliding``, ``contact`` or ``displacement``), its ``n_data``, ``log_ml``,
-            ``iterations`` and ``noise_var_max``.
+            ``iterations``, ``noise_var_max`` and ``numerical_events`` (what the fit
+            handled, by kind).
         """
         if trajectories is None:
             raise ValueError("trajectories: the hockey model learns from trajectories")

@@ -23,6 +23,11 @@ return its GP forward model predicts. Each :meth:`PILCO.update` runs, top to bot
    reward_batch`) under the predicted marginals.
 4. **Optimise.** ∂J/∂G through the whole propagation by torch autograd (float64), L-BFGS-B
    (scipy) from the current gain; only completed L-BFGS iterates are accepted.
+   The optimised gain's prediction is checked for round-off: moment matching bounds its own
+   (:class:`~skillkit.models.moment_matching.RoundoffEstimate`; an exact GP near its linear
+   limit can lose every digit of the second moments), and a bound above
+   :data:`~skillkit.models.moment_matching.ROUNDOFF_TOL` is warned about once per update
+   (``PILCOSettings.strict``: raised), and reported in the diagnostics.
 5. **Apply.** The next real rollout uses the new G (the learning loop does it).
 
 Real experience collected before learning (Sec. 4.3.1's 6 s of a random policy; tab4.2 uses
@@ -53,13 +58,19 @@ import torch
 from skillkit._repr import number
 from skillkit._validation import as_generator, check_array, check_count, check_positive
 from skillkit.models.gp import DTYPE, ForwardModel
-from skillkit.models.moment_matching import _moment_match, with_linear_mean
+from skillkit.models.moment_matching import (
+    RoundoffEstimate,
+    _moment_match,
+    check_roundoff,
+    with_linear_mean,
+)
 from skillkit.policies.gaussian import GaussianPolicy
 from skillkit.search.base import Batch, as_batch
 from skillkit.search.gpreps import TrajectoryRewardModel
 
 __all__ = [
     "DeterministicPolicy",
+    "GPMomentStep",
     "PILCO",
     "PILCODiagnostics",
     "PILCOSettings",
@@ -80,19 +91,20 @@ def _sym(S: torch.Tensor) -> torch.Tensor:
 
 
 # --------------------------------------------------------------------------- dynamics steps
-def model_moment_step(model) -> MomentStep:
+def model_moment_step(model, roundoff: bool = True) -> MomentStep:
     """The Gaussian transition of a fitted forward model: moment matching for a GP
-    :class:`~skillkit.models.gp.ForwardModel` (:func:`gp_moment_step`), the exact step of a
-    :class:`~skillkit.models.linear.LinearGaussianModel`."""
+    :class:`~skillkit.models.gp.ForwardModel` (:func:`gp_moment_step`, ``roundoff`` passed
+    on), the exact step of a :class:`~skillkit.models.linear.LinearGaussianModel` (its full
+    noise covariance Σ_w, the sampler's too: :mod:`skillkit.models.linear`)."""
     from skillkit.models.linear import LinearGaussianModel
 
     if isinstance(model, LinearGaussianModel):
         model._check_fitted()
         return linear_gaussian_step(model.A, model.B, model.noise_cov, model.c)
-    return gp_moment_step(model)
+    return gp_moment_step(model, roundoff)
 
 
-def gp_moment_step(model: ForwardModel) -> MomentStep:
+def gp_moment_step(model: ForwardModel, roundoff: bool = True) -> GPMomentStep:
     """The moment-matching transition of a fitted GP forward model (Sec. 2.1.2).
 
     With the Δx model x' = x + Δ: mean m_x + E[Δ], covariance S_x + cov(Δ) + C + Cᵀ with
@@ -106,25 +118,62 @@ def gp_moment_step(model: ForwardModel) -> MomentStep:
     ----------
     model : ForwardModel
         Fitted, SE kernel (exact or sparse GP).
+    roundoff : bool
+        Bound each step's round-off (3–10 % of a step's time; :class:`GPMomentStep`).
 
     Returns
     -------
-    MomentStep
+    GPMomentStep
+        A :data:`MomentStep` that also keeps the largest round-off bound of its steps.
     """
-    if not isinstance(model, ForwardModel):
-        raise ValueError(f"model: expected a fitted ForwardModel, got {type(model).__name__}")
-    pred = model.predictor.to("cpu", DTYPE)
-    n_x, delta = model.state_dim, model.delta
+    return GPMomentStep(model, roundoff)
 
-    def step(mean_z: torch.Tensor, cov_z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        g = _moment_match(pred, mean_z, cov_z, strict=True)
-        g = with_linear_mean(model, g, mean_z, cov_z)
-        if not delta:
+
+class GPMomentStep:
+    """The :data:`MomentStep` of :func:`gp_moment_step`, with the round-off of its steps.
+
+    Each call is one moment-matching step; ``roundoff`` keeps the largest bound on their
+    float64 round-off (:class:`~skillkit.models.moment_matching.RoundoffEstimate`) since
+    construction or :meth:`reset`, for the caller to check
+    (:func:`~skillkit.models.moment_matching.check_roundoff`) once per prediction.
+
+    Parameters
+    ----------
+    model : ForwardModel
+        Fitted, SE kernel (exact or sparse GP).
+    roundoff : bool
+        Bound the round-off at all (off: ``roundoff`` stays None; PILCO's optimisation runs
+        without it and checks the optimised gain's prediction once).
+    """
+
+    def __init__(self, model: ForwardModel, roundoff: bool = True):
+        if not isinstance(model, ForwardModel):
+            raise ValueError(f"model: expected a fitted ForwardModel, got {type(model).__name__}")
+        self.model = model
+        self.predictor = model.predictor.to("cpu", DTYPE)
+        self.track = bool(roundoff)
+        self.roundoff: RoundoffEstimate | None = None
+
+    def reset(self) -> None:
+        """Forget the steps taken so far (``roundoff`` back to None)."""
+        self.roundoff = None
+
+    def __call__(
+        self, mean_z: torch.Tensor, cov_z: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        g = _moment_match(self.predictor, mean_z, cov_z, strict=True, roundoff=self.track)
+        if self.track:
+            self.roundoff = RoundoffEstimate.worst([self.roundoff, g.roundoff])
+        g = with_linear_mean(self.model, g, mean_z, cov_z)
+        if not self.model.delta:
             return g.mean, g.cov
-        c = g.input_output_cov[:n_x]
+        n_x = self.model.state_dim
+        c = g.input_output_cov[:n_x]  # cov(x, Δ)
         return mean_z[:n_x] + g.mean, cov_z[:n_x, :n_x] + g.cov + c + c.T
 
-    return step
+    def __repr__(self) -> str:
+        worst = "none" if self.roundoff is None else f"{self.roundoff.relative_error:.1e}"
+        return f"GPMomentStep(model={type(self.model.gp).__name__}, worst round-off {worst})"
 
 
 def linear_gaussian_step(A, B, noise_cov, offset=None) -> MomentStep:
@@ -372,11 +421,16 @@ class PILCOSettings:
         L-BFGS-B's relative ``ftol``.
     horizon : int or None
         T of the predicted return (default: the task's ``n_steps``).
+    strict : bool
+        Moment matching's round-off bound for the optimised gain's prediction above
+        :data:`~skillkit.models.moment_matching.ROUNDOFF_TOL` raises
+        :class:`~skillkit.models.moment_matching.MomentPrecisionError` instead of warning.
     """
 
     policy_iterations: int = 100
     tolerance: float = 1e-9
     horizon: int | None = None
+    strict: bool = False
 
     def __post_init__(self):
         check_count(self.policy_iterations, "policy_iterations", 1)
@@ -408,6 +462,11 @@ class PILCODiagnostics:
         L-BFGS-B's stopping message.
     time_training, time_policy : float
         Seconds in model learning and in policy optimisation.
+    roundoff : float or None
+        Moment matching's bound on the relative round-off of the predicted moments for the
+        optimised gain (the largest over the horizon; a warning above
+        :data:`~skillkit.models.moment_matching.ROUNDOFF_TOL`); None for a linear-Gaussian
+        model (exact step).
     """
 
     n_data: int
@@ -421,6 +480,7 @@ class PILCODiagnostics:
     message: str
     time_training: float
     time_policy: float
+    roundoff: float | None = None
 
     def __repr__(self) -> str:
         return (
@@ -500,12 +560,23 @@ class PILCO:
         return DeterministicPolicy(self.gain.ravel())
 
     def expected_return(self, gain) -> float:
-        """J(G) (:func:`expected_return`) under the current model, for G of shape (4, 8)."""
+        """J(G) (:func:`expected_return`) under the current model, for G of shape (4, 8).
+
+        Its moment-matching round-off is checked (a warning, or with ``settings.strict`` an
+        error, above :data:`~skillkit.models.moment_matching.ROUNDOFF_TOL`)."""
+        value, roundoff = self._predict(gain)
+        check_roundoff(roundoff, "PILCO.expected_return", self.settings.strict)
+        return value
+
+    def _predict(self, gain, roundoff: bool = True) -> tuple[float, RoundoffEstimate | None]:
+        """J(G) and (``roundoff``) the largest round-off bound of its moment-matching steps."""
         if self.model.model is None:
             raise RuntimeError("PILCO: call update() before predicting")
         G = torch.as_tensor(check_array(gain, "gain", shape=(4, 8)), dtype=DTYPE)
+        step = model_moment_step(self.model.model, roundoff)
         with torch.no_grad():
-            return float(self._objective(model_moment_step(self.model.model))(G))
+            value = float(self._objective(step)(G))
+        return value, getattr(step, "roundoff", None)
 
     def _objective(self, step: MomentStep) -> Callable[[torch.Tensor], torch.Tensor]:
         from skillkit.tasks.balancing import X_UP
@@ -533,7 +604,7 @@ class PILCO:
             raise ValueError("batch: PILCO learns from trajectories; the batch has none")
         predicted = None
         if self.model.model is not None and self._random_policy is None:
-            predicted = self.expected_return(self.gain)
+            predicted = self._predict(self.gain, roundoff=False)[0]  # checked when optimised
         self.trajectories.extend(batch.trajectories)
 
         # 1. Learn the model.
@@ -545,11 +616,14 @@ class PILCO:
         t1 = time.perf_counter()
 
         # 2.–4. Predict, score and optimise the gain through the whole propagation.
-        objective = self._objective(model_moment_step(self.model.model))
+        objective = self._objective(model_moment_step(self.model.model, roundoff=False))
         gain, info = optimize_gain(
             objective, self.gain, self.settings.policy_iterations, self.settings.tolerance
         )
         t2 = time.perf_counter()
+        # The optimised gain's prediction: is it free of round-off (issue #30)?
+        roundoff = self._predict(gain)[1]
+        check_roundoff(roundoff, "PILCO.update", self.settings.strict)
         self.gain = gain
         self._random_policy = None
         return PILCODiagnostics(
@@ -564,6 +638,7 @@ class PILCO:
             message=info["message"],
             time_training=t1 - t0,
             time_policy=t2 - t1,
+            roundoff=None if roundoff is None else roundoff.relative_error,
         )
 
     def __repr__(self) -> str:

@@ -623,7 +623,7 @@ class TableTennisRewardModel:
             ``svm_cv_accuracy``, ``majority_rate``, ``landing_cv_rmse``, ``good``),
             ``pca_components`` and per GP (``landing``, ``bounce``, ``racket_position``,
             ``racket_orientation``, ``returns``) its ``n_data``, ``log_ml``,
-            ``iterations``, ``noise_var_max``; ``fit_seconds``.
+            ``iterations``, ``noise_var_max``, ``numerical_events``; ``fit_seconds``.
         """
         t0 = time.perf_counter()
         task = self.task

@@ -337,7 +337,8 @@ class ThrowingRewardModel:
         dict
             ``n_data`` (robot transitions), ``n_trajectories``, ``n_release``,
             ``n_flight``, ``release_std`` (4,) and, per GP model, ``robot``, ``release`` and
-            ``flight``: its ``n_data``, ``log_ml``, ``iterations`` and ``noise_var_max``.
+            ``flight``: its ``n_data``, ``log_ml``, ``iterations``, ``noise_var_max`` and
+            ``numerical_events`` (what the fit handled, by kind).
         """
         if trajectories is None:
             raise ValueError("trajectories: the throwing model learns from trajectories")

@@ -68,18 +68,25 @@ class Verdict:
         One sentence with our numbers ("" when none is recorded).
     recorded : bool
         False for results whose summary records no verdict at all (older result files).
+    not_judged : str
+        Why the verdict was withheld (``summary["not_judged"]``: a smoke run, or nothing in
+        the thesis to compare with); "" when the run was judged.
     """
 
     claim: str
     holds: bool | None
     statement: str
     recorded: bool
+    not_judged: str = ""
 
     @property
     def word(self) -> str:
-        """ "holds", "does not hold", "undecided" or "no verdict recorded"."""
+        """ "holds", "does not hold", "undecided", "not judged (<short reason>)" (the part of
+        ``not_judged`` before its colon) or "no verdict recorded"."""
         if not self.recorded:
             return "no verdict recorded"
+        if self.holds is None and self.not_judged:
+            return f"not judged ({self.not_judged.split(':')[0]})"
         return {True: "holds", False: "does not hold", None: "undecided"}[self.holds]
 
 
@@ -116,6 +123,7 @@ def verdict(result: Mapping) -> Verdict | None:
         holds=bool(holds) if recorded and holds is not None else None,
         statement=statement.strip(),
         recorded=recorded,
+        not_judged=reason.strip() if isinstance(reason := summary.get("not_judged"), str) else "",
     )
 
 

@@ -63,9 +63,9 @@ def test_summary_has_the_promised_keys(first):
             assert np.isfinite(part[name]), name
         assert len(part["final_reward_per_trial"]) == 2
         assert part["near_distance_max_m"] >= part["near_distance_mean_m"] > 0
-    assert summary["thesis"]["near_max_error_m"] == 0.1
+    assert summary["thesis_numbers"]["near_max_error_m"] == 0.1
     assert set(summary["learned"]) == set(summary["holds_per_method"]) == {"reps", "extra"}
-    assert summary["thesis"] == {
+    assert summary["thesis_numbers"] == {
         "near_max_error_m": 0.1,
         "far_max_error_m": 0.5,
         "rollouts_to_converge": 5000,

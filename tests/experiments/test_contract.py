@@ -19,6 +19,7 @@ from pathlib import Path
 import pytest
 
 from skillkit.cli import main
+from skillkit.experiments.claims import SMOKE_NOTE, judged, thesis_quotes
 from skillkit.experiments.registry import SCALES, VERDICT_KEYS, get, ids
 from skillkit.experiments.runner import run_trials, to_jsonable
 from skillkit.experiments.settings import Settings, apply_overrides, describe
@@ -83,16 +84,20 @@ def test_result_is_strict_json(exp_id):
 def test_summary_follows_the_verdict_schema(exp_id):
     exp = get(exp_id)
     summary = _run(exp_id)["summary"]
-    assert list(summary)[:3] == list(VERDICT_KEYS)
+    assert list(summary)[:4] == [*VERDICT_KEYS, "thesis"]
     assert isinstance(summary["claim"], str) and summary["claim"].strip()
     assert summary["claim"] == exp.claim
-    assert summary["holds"] in (True, False, None) and type(summary["holds"]) in (bool, type(None))
+    assert summary["thesis"] == thesis_quotes(exp_id)  # the sentences the verdict judges
+    # Smoke runs are not judged: holds is withheld and not_judged says why.
+    assert summary["holds"] is None and summary["not_judged"] == SMOKE_NOTE
     assert isinstance(summary["statement"], str) and re.search(r"\d", summary["statement"])
     assert "claim_holds" not in summary  # the old form is gone
     # A function of the stored numbers: the same verdict from the JSON summary alone.
     stored = json.loads(json.dumps(to_jsonable(summary)))
-    again = exp.verdict(exp.settings["smoke"], stored)
-    assert again.as_dict() == {k: summary[k] for k in VERDICT_KEYS}
+    own = exp.verdict(exp.settings["smoke"], stored)
+    assert own.holds in (True, False, None) and own.statement == summary["statement"]
+    again = judged({**stored, **own.as_dict()}, exp_id, "smoke")
+    assert again == stored
 
 
 @pytest.mark.parametrize("exp_id", IDS)
@@ -196,4 +201,5 @@ def test_stored_results_carry_the_current_verdict(path):
         json.dumps(to_jsonable(exp.overrides(result["scale"], settings)))
     )
     verdict = exp.verdict(settings, summary)
-    assert verdict.as_dict() == {k: summary[k] for k in VERDICT_KEYS}
+    again = judged({**summary, **verdict.as_dict()}, result["id"], result["scale"])
+    assert again == summary

@@ -86,3 +86,18 @@ def test_git_state_outside_a_checkout_is_unknown(tmp_path):
 def test_a_function_without_source_is_refused_by_name():
     with pytest.raises(ValueError, match="obj"):
         provenance.code_fingerprint(len)
+
+
+def test_a_reproduced_run_records_its_provenance_and_is_current(tmp_path):
+    """result.json names the commit and the code fingerprint; check_results then calls it
+    current, and a stored result is stale once its fingerprint differs from today's."""
+    from skillkit.experiments import reproduce
+
+    run = reproduce("fig2.10", "smoke", trials=1, out=tmp_path, progress=False, html=False)
+    result = json.loads((run.path / "result.json").read_text())
+    assert result["code_fingerprint"] == provenance.code_fingerprint("fig2.10")
+    assert set(result["git"]) == {"commit", "dirty"}
+    assert [r["stale"] for r in provenance.check_results(tmp_path)] == [False]
+    result["code_fingerprint"] = "0" * 16
+    (run.path / "result.json").write_text(json.dumps(result))
+    assert [r["stale"] for r in provenance.check_results(tmp_path)] == [True]

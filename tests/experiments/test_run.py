@@ -7,7 +7,7 @@ import os
 
 import pytest
 
-from skillkit.experiments.registry import ids
+from skillkit.experiments.registry import get, ids
 from skillkit.experiments.run import Run, load_run, results_root, stored_run
 
 
@@ -83,6 +83,8 @@ def test_reproduce_returns_the_run_it_wrote(tmp_path):
 
     run = reproduce("fig2.10", scale="smoke", out=tmp_path, progress=False, html=False)
     assert isinstance(run, Run) and run.path == tmp_path / "fig2.10-smoke-s0"
-    assert run.result == load_run(run.path).result and run.holds is True
+    assert run.result == load_run(run.path).result and run.holds is None  # smoke: not judged
+    exp = get("fig2.10")  # its own verdict on the smoke numbers
+    assert exp.verdict(exp.settings["smoke"], run.summary).holds is True
     assert run.summary["claim"] in run._repr_markdown_()
     assert len(run.figure().data) == len(run.series)

@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 import torch
+from _tolerances import fp_tol
 
 from skillkit.models.embedding import (
     ConditionalEmbedding,
@@ -100,8 +101,12 @@ def test_expected_value_with_linear_reward_kernel():
     rng = np.random.default_rng(4)
     m = ConditionalEmbedding(rng.normal(size=(10, 2)), rng.normal(size=(10, 2)), _se(2), lam=1e-3)
     r, beta = rng.normal(size=10), rng.normal(size=(10, 4))
-    np.testing.assert_allclose(m.expected(r, beta), r @ beta, rtol=1e-14)
-    np.testing.assert_allclose(m.mean(beta), beta.T @ m.targets, rtol=1e-14)
+    # The same 10-term sums computed another way: ≤ 10 ε Σ|terms| apart (a relative
+    # tolerance alone would fail on a sum near 0 by cancellation).
+    tol = fp_tol(10, float((np.abs(r) @ np.abs(beta)).max()))
+    np.testing.assert_allclose(m.expected(r, beta), r @ beta, rtol=0, atol=tol)
+    tol = fp_tol(10, float((np.abs(beta).T @ np.abs(m.targets)).max()))
+    np.testing.assert_allclose(m.mean(beta), beta.T @ m.targets, rtol=0, atol=tol)
 
 
 # --------------------------------------------------------------------------- pre-images
@@ -140,7 +145,8 @@ def test_preimage_linear_kernel_is_closed_form():
     y = rng.normal(size=(9, 2))
     m = ConditionalEmbedding(rng.normal(size=(9, 2)), y, Linear(variance=2.0, bias=0.5), lam=1e-3)
     beta = rng.normal(size=(9, 3))
-    np.testing.assert_allclose(m.preimage(beta), beta.T @ y, rtol=1e-14)
+    tol = fp_tol(9, float((np.abs(beta).T @ np.abs(y)).max()))  # 9-term sums, see above
+    np.testing.assert_allclose(m.preimage(beta), beta.T @ y, rtol=0, atol=tol)
 
 
 def test_preimage_reports_negative_weight_mass():

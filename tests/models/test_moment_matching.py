@@ -2,12 +2,22 @@
 
 from __future__ import annotations
 
+import re
+import warnings
+
 import numpy as np
 import pytest
 import torch
 
-from skillkit.models.gp import ExactGP, ForwardModel
-from skillkit.models.moment_matching import gaussian_kl, linearize, moment_match, propagate
+from skillkit.models.gp import ExactGP, ForwardModel, GPNumericalWarning
+from skillkit.models.moment_matching import (
+    MomentPrecisionError,
+    _moment_match,
+    gaussian_kl,
+    linearize,
+    moment_match,
+    propagate,
+)
 from skillkit.models.sampling import sample_trajectories
 from skillkit.models.sparse import FITC
 
@@ -223,3 +233,179 @@ def test_gaussian_kl_names_a_bad_shape_and_passes_non_finite_entries_through():
     mq = np.array([[1.0, 1.0], [np.nan, 0.0], [0.0, 0.0]])
     out = gaussian_kl(np.zeros(2), I2, mq, I2)
     assert out[0] == pytest.approx(1.0, rel=1e-14) and np.isnan(out[1]) and out[2] == 0.0
+
+
+# --------------------------------------------------------------------------- round-off (#30)
+def _reference_moments(pred, m, S, digits: int = 40):
+    """The moments from the predictor's fields (taken as exact) in ``digits``-digit arithmetic
+    (mpmath), straight from the formulas of the module docstring: mean, cov, cov(z, y)."""
+    mp = pytest.importorskip("mpmath")
+    ctx = mp.mp.clone()
+    ctx.dps = digits
+    f = ctx.mpf
+    sup, ell, sf2 = pred.support.numpy(), pred.lengthscale.numpy(), pred.outputscale.numpy()
+    beta, iK, noise = pred.beta.numpy(), pred.iK.numpy(), pred.noise.numpy()
+    E, M, D = sup.shape
+    Sm = ctx.matrix([[f(float(v)) for v in row] for row in np.asarray(S)])
+    nu = [
+        [ctx.matrix([f(float(sup[a, i, d])) - f(float(m[d])) for d in range(D)]) for i in range(M)]
+        for a in range(E)
+    ]
+    inv_lam = [ctx.diag([1 / f(float(ell[a, d])) ** 2 for d in range(D)]) for a in range(E)]
+    mu, io = [], []
+    for a in range(E):
+        A = ctx.inverse(Sm + ctx.inverse(inv_lam[a]))
+        c = f(float(sf2[a])) / ctx.sqrt(ctx.det(Sm * inv_lam[a] + ctx.eye(D)))
+        q = [c * ctx.exp(-(nu[a][i].T * A * nu[a][i])[0] / 2) for i in range(M)]
+        mu.append(ctx.fsum(f(float(beta[a, i])) * q[i] for i in range(M)))
+        v = ctx.matrix(D, 1)
+        for i in range(M):
+            v += f(float(beta[a, i])) * q[i] * (A * nu[a][i])
+        io.append(Sm * v)
+    V = ctx.matrix(E, E)
+    for a in range(E):
+        for b in range(a, E):
+            R = Sm * (inv_lam[a] + inv_lam[b]) + ctx.eye(D)
+            T, root_det = ctx.inverse(R) * Sm, ctx.sqrt(ctx.det(R))
+            ka = [f(float(sf2[a])) * ctx.exp(-(n.T * inv_lam[a] * n)[0] / 2) for n in nu[a]]
+            kb = [f(float(sf2[b])) * ctx.exp(-(n.T * inv_lam[b] * n)[0] / 2) for n in nu[b]]
+            za, zb = [inv_lam[a] * n for n in nu[a]], [inv_lam[b] * n for n in nu[b]]
+            zeta = [[za[i] + zb[j] for j in range(M)] for i in range(M)]
+            Q = [
+                [ka[i] * kb[j] / root_det * ctx.exp((zeta[i][j].T * T * zeta[i][j])[0] / 2)
+                 for j in range(M)]
+                for i in range(M)
+            ]  # fmt: skip
+            val = (
+                ctx.fsum(
+                    f(float(beta[a, i])) * Q[i][j] * f(float(beta[b, j]))
+                    for i in range(M)
+                    for j in range(M)
+                )
+                - mu[a] * mu[b]
+            )
+            if a == b:
+                trace = ctx.fsum(
+                    f(float(iK[a, i, j])) * Q[j][i] for i in range(M) for j in range(M)
+                )
+                val += f(float(sf2[a])) - trace + f(float(noise[a]))
+            V[a, b] = V[b, a] = val
+    ym, ys = pred.y_mean.numpy(), pred.y_scale.numpy()
+    mean = np.array([float(f(float(ym[a])) + f(float(ys[a])) * mu[a]) for a in range(E)])
+    cov = np.array([[float(f(float(ys[a])) * V[a, b] * f(float(ys[b]))) for b in range(E)]
+                    for a in range(E)])  # fmt: skip
+    iom = np.array([[float(io[a][d] * f(float(ys[a]))) for a in range(E)] for d in range(D)])
+    return mean, cov, iom
+
+
+def _relative_errors(g, reference, S) -> float:
+    """The errors of a prediction in the units of :class:`RoundoffEstimate`: cov relative to
+    √(V_aa V_bb), mean in predictive standard deviations, cov(z, y) relative to √(S_dd V_aa),
+    with V the computed covariance (what the estimate scales by)."""
+    mean, cov, io = reference
+    sd = np.sqrt(np.diag(g.cov.numpy()))
+    sd_in = np.sqrt(np.diag(np.asarray(S)))[:, None] * sd[None, :]
+    return max(
+        float(np.max(np.abs(g.cov.numpy() - cov) / np.outer(sd, sd))),
+        float(np.max(np.abs(g.mean.numpy() - mean) / sd)),
+        float(np.max(np.abs(g.input_output_cov.numpy() - io)[sd_in > 0] / sd_in[sd_in > 0])),
+    )
+
+
+def _limit_gp(kind: str, lengthscale: float, signal_to_noise: float, seed: int = 0):
+    """Linear data y = Wx + b + 0.01 ε (N = 20, 2 inputs, 2 outputs), σ_ε² = 1e-4 var(y),
+    σ_f = ``signal_to_noise`` σ_ε, fixed hyper-parameters: with length-scales and σ_f/σ_ε of
+    ~1.5e3 the GP is at its linear limit (|β| huge)."""
+    rng = np.random.default_rng(seed)
+    X = rng.normal(size=(20, 2))
+    Y = X @ rng.normal(size=(2, 2)) + 3.0 + 0.01 * rng.normal(size=(20, 2))
+    v = float(Y.var(0).mean())
+    kw = dict(
+        lengthscale=lengthscale,
+        outputscale=signal_to_noise**2 * 1e-4 * v,
+        noise=1e-4 * v,
+        n_steps=0,
+        additive_noise=0.0,
+    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # noise at its floor, jitter
+        if kind == "exact":
+            return ExactGP(**kw).fit(X, Y)
+        return FITC(inducing=rng.normal(size=(8, 2)), optimize_inducing=False, **kw).fit(X, Y)
+
+
+M_IN = np.array([0.3, -0.2])
+S_IN = np.array([[2.0, 0.5], [0.5, 1.0]])
+
+
+@pytest.mark.parametrize("kind", ["exact", "fitc"])
+def test_roundoff_bound_on_a_well_conditioned_model(kind):
+    """Length-scale 1, σ_f/σ_ε = 10: no warning, the bound is tiny, and the moments agree with
+    a 40-digit computation to within it (the tolerance is the bound: u × magnitudes ×
+    conditions). Computing the bound does not change a number."""
+    pred = _limit_gp(kind, 1.0, 10.0).predictor
+    S = 0.01 * S_IN
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        g = moment_match(pred, M_IN, S)
+    assert g.roundoff.relative_error < 1e-8
+    actual = _relative_errors(g, _reference_moments(pred, M_IN, S), S)
+    assert actual <= g.roundoff.relative_error
+    plain = _moment_match(pred.to("cpu", torch.float64), torch.as_tensor(M_IN),
+                          torch.as_tensor(S), roundoff=False)  # fmt: skip
+    assert plain.roundoff is None
+    for a, b in zip((g.mean, g.cov, g.input_output_cov),
+                    (plain.mean, plain.cov, plain.input_output_cov), strict=True):  # fmt: skip
+        assert torch.equal(a, b)
+
+
+@pytest.mark.parametrize("kind", ["exact", "fitc"])
+def test_roundoff_at_the_linear_limit_is_warned_about_and_bounded(kind):
+    """Length-scales and σ_f/σ_ε of 1.5e3 (the GP's linear limit): the second moments lose
+    digits (measured against 40 digits), the warning fires once, names the cause, and the
+    bound it states is at least the actual error."""
+    pred = _limit_gp(kind, 1.5e3, 1.5e3).predictor
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        g = moment_match(pred, M_IN, S_IN)
+    assert len(caught) == 1 and issubclass(caught[0].category, GPNumericalWarning)
+    text = str(caught[0].message)
+    assert "cancellation" in text and "linear limit" in text
+    stated = float(re.search(r"lost up to ([0-9.e+-]+) relative", text).group(1))
+    actual = _relative_errors(g, _reference_moments(pred, M_IN, S_IN), S_IN)
+    assert 1e-6 < actual <= stated  # a real loss (float64 would give ~1e-15), within the bound
+    assert stated == pytest.approx(g.roundoff.relative_error, rel=0.06)  # printed to 2 digits
+    assert g.roundoff.where == "covariance" and g.roundoff.cancellation > 1e10
+
+
+def test_strict_moment_matching_raises_on_lost_precision():
+    pred = _limit_gp("exact", 1.5e3, 1.5e3).predictor
+    with pytest.raises(MomentPrecisionError, match="round-off"):
+        moment_match(pred, M_IN, S_IN, strict=True)
+    assert issubclass(MomentPrecisionError, RuntimeError)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        moment_match(_limit_gp("exact", 1.0, 10.0).predictor, M_IN, S_IN, strict=True)
+
+
+def test_propagate_checks_roundoff_once_per_call():
+    """A 3-step propagation through a linear-limit forward model: one warning for the call
+    (the worst step), an error with ``strict``; none through a well-conditioned one."""
+    rng = np.random.default_rng(9)
+    x, u = rng.normal(size=(30, 2)), rng.normal(size=(30, 1))
+    xn = x @ np.array([[0.9, 0.1], [-0.1, 0.8]]).T + 0.3 * u + 0.01 * rng.normal(size=(30, 2))
+    K = np.array([[-0.2, -0.1]])
+    for ell, snr, n_warnings in ((1.5e3, 1.5e3, 1), (1.0, 10.0, 0)):
+        gp = ExactGP(lengthscale=ell, outputscale=snr**2 * 1e-4, noise=1e-4, n_steps=0,
+                     additive_noise=0.0, standardize=False)  # fmt: skip
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            fm = ForwardModel(gp, target="next").fit(x, u, xn, rng=0)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            propagate(fm, [0.2, 0.1], 0.05 * np.eye(2), 3, K)
+        assert len(caught) == n_warnings
+        if n_warnings:
+            assert "propagate" in str(caught[0].message)
+            with pytest.raises(MomentPrecisionError, match="propagate"):
+                propagate(fm, [0.2, 0.1], 0.05 * np.eye(2), 3, K, strict=True)

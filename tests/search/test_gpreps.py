@@ -17,7 +17,7 @@ from skillkit.experiments.sanity import (
     REWARD_METRIC,
     LinearOptimumTask,
 )
-from skillkit.models.gp import ExactGP
+from skillkit.models.gp import ExactGP, record_numerical_events
 from skillkit.policies.gaussian import GaussianPolicy
 from skillkit.search import (
     GPREPS,
@@ -147,10 +147,11 @@ def test_direct_model_is_exact_for_a_quadratic_with_enough_data():
     rng = np.random.default_rng(3)
     batch = collect(task, task.initial_policy(), 150, rng)
     model = DirectRewardModel()
-    with warnings.catch_warnings():
+    with warnings.catch_warnings(), record_numerical_events() as events:
         warnings.simplefilter("ignore")
         stats = model.fit(batch.contexts, batch.omegas, batch.rewards, None, rng)
     assert stats["n_data"] == 150 and np.isfinite(stats["log_ml"])
+    assert stats["numerical_events"] == events.to_dict()  # what the fit handled, by kind
     s = task.sample_context(rng, n=100)
     w = task.initial_policy().sample(s, rng)
     pred, true = model.expected_rewards(s, w, 1, rng), true_expected_reward(s, w)

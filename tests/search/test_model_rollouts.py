@@ -47,6 +47,9 @@ def test_noise_free_prediction_is_the_closed_loop_and_its_reward(setup):
     for b, w in enumerate(omegas):  # independent recursion and reward formula
         G = w.reshape(4, 8)
         x, cost = x0[b] - X_UP, 0.0
+        # Round-off: states carry x_up (|x| ≤ π) through 12 closed-loop steps (‖A + BG‖ ≤ 3.1):
+        # ≲ 13 · 3.1 · 8 eps π ≈ 2e-13 ≪ 1e-10; controls u = G x multiply that by ‖G‖ √8 ≈ 4e3
+        # (|G| ≤ 1.5e3): ≈ 1e-9 ≤ 1e-8; the cost is a sum of 12 positive terms (relative).
         for t in range(13):
             u = G @ x
             np.testing.assert_allclose(out.states[b, 0, t], x + X_UP, rtol=0, atol=1e-10)

@@ -10,8 +10,8 @@ import pytest
 import scipy.linalg
 import torch
 
-from skillkit.models.gp import ForwardModel
-from skillkit.models.moment_matching import propagate
+from skillkit.models.gp import ExactGP, ForwardModel, GPNumericalWarning
+from skillkit.models.moment_matching import ROUNDOFF_TOL, MomentPrecisionError, propagate
 from skillkit.models.sparse import FITC
 from skillkit.search import collect, learn
 from skillkit.search.pilco import (
@@ -70,6 +70,8 @@ def test_expected_return_of_a_linear_system_equals_the_lyapunov_recursion():
     for _ in range(25):
         m, S = Phi @ m, Phi @ S @ Phi.T + W
         ref -= np.trace(C @ S) + m @ C @ m
+    # 25 steps of 3×3 products with ‖Φ‖ = 1.2, ρ(Φ) = 0.89 (errors do not grow), a sum of
+    # positive terms: relative round-off ≈ 25 · 2 · 3 eps ≈ 3e-14 (measured 3e-16)
     assert float(value) == pytest.approx(ref, rel=1e-12)
 
 
@@ -300,3 +302,46 @@ def test_expected_return_stops_at_a_failed_step_and_the_optimizer_survives_linal
 
     G, info = optimize_gain(J2, np.zeros((1, 2)), max_iterations=50)
     np.testing.assert_allclose(G, 0.5, atol=1e-6)
+
+
+# --------------------------------------------------------------------------- round-off (#30)
+def _linear_limit_model():
+    """An exact GP driven to its linear limit: length-scales 1.5e3 (the balancing data spread
+    0.1–30), σ_f/σ_ε = 1.5e3, fixed."""
+    gp = ExactGP(lengthscale=1.5e3, outputscale=2.25, noise=1e-6, n_steps=0, additive_noise=0.0)
+    return ForwardModel(gp)
+
+
+def _pilco_roundoff_run(make_model, strict=False, n_updates=1):
+    task = make("balancing", initial_std=0.1, n_steps=8)
+    excited = make("balancing", initial_std=0.1, n_steps=8, excitation_std=30.0)
+    pi0 = task.lqr_policy(control_weight=1.0, exploration_std_fraction=0.005)
+    prior = collect(excited, pi0, 2, np.random.default_rng(0)).trajectories
+    settings = PILCOSettings(policy_iterations=1, strict=strict)
+    alg = PILCO(task, pi0, make_model, settings, rng=0, prior_trajectories=prior)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        out = learn(task, alg, n_updates, 1, 0, progress=False)
+    return out, [w for w in caught if "round-off" in str(w.message)]
+
+
+def test_pilco_checks_the_roundoff_of_its_optimised_gain_once_per_update():
+    """A well-conditioned FITC model: the bound is reported and small, no warning. The
+    linear-limit exact GP: one warning per update naming PILCO, the bound in the
+    diagnostics; ``strict`` raises instead. The gain step records the worst of its steps."""
+    out, caught = _pilco_roundoff_run(_small_model, n_updates=2)
+    assert not caught
+    assert all(0.0 < d.roundoff < ROUNDOFF_TOL for d in out["diagnostics"])
+    out, caught = _pilco_roundoff_run(_linear_limit_model, n_updates=2)
+    assert len(caught) == 2 and all("PILCO.update" in str(w.message) for w in caught)
+    assert all(d.roundoff > ROUNDOFF_TOL for d in out["diagnostics"])
+    assert issubclass(caught[0].category, GPNumericalWarning)
+    with pytest.raises(MomentPrecisionError, match="PILCO.update.*round-off"):
+        _pilco_roundoff_run(_linear_limit_model, strict=True)
+    step = gp_moment_step(_random_fitc(5))
+    assert step.roundoff is None and "none" in repr(step)
+    J = expected_return(step, torch.zeros(2, 3, dtype=torch.float64), np.zeros(3),
+                        0.05 * np.eye(3), 4, np.zeros(3), np.eye(3))  # fmt: skip
+    assert torch.isfinite(J) and 0.0 < step.roundoff.relative_error < ROUNDOFF_TOL
+    step.reset()
+    assert step.roundoff is None

@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from _tolerances import fp_tol
 
 from skillkit.policies.features import context_features
 from skillkit.policies.gaussian import LinearGaussianPolicy
@@ -12,8 +13,13 @@ from skillkit.search.rwr import RWR, rwr_beta, rwr_weights
 def test_weights_are_normalised_exponentials():
     r = np.array([-3.0, -1.0, 0.5, 2.0])
     w = rwr_weights(r, 0.7)
-    np.testing.assert_allclose(w, np.exp(0.7 * r) / np.exp(0.7 * r).sum(), rtol=1e-14)
-    np.testing.assert_allclose(rwr_weights(r + 1e8, 0.7), w, rtol=1e-12)  # shift invariant
+    # exp(x) carries a relative error of eps·|x| from the rounding of its argument: |0.7 r| ≤ 2.1
+    # here, |0.7 (r − max r)| ≤ 3.5 in the library's shifted form, then a sum of 4 terms.
+    tol = fp_tol(4, cond=1 + 2.1 + 3.5)
+    np.testing.assert_allclose(w, np.exp(0.7 * r) / np.exp(0.7 * r).sum(), rtol=tol)
+    # shift invariant: r + 1e8 is exact (ulp(1e8) = 1.5e-8 divides the half-integers), so the
+    # shifted arguments r − max r are the same numbers (a shift that rounds would cost 0.7 ulp)
+    np.testing.assert_allclose(rwr_weights(r + 1e8, 0.7), w, rtol=1e-12)
     np.testing.assert_allclose(rwr_weights(r, 0.0), np.full(4, 0.25))
     huge = rwr_weights(np.array([0.0, -1e6, -2e6]), 1.0)  # exp(-1e6) underflows to 0 cleanly
     np.testing.assert_array_equal(huge, [1.0, 0.0, 0.0])
@@ -44,6 +50,8 @@ def test_update_is_weighted_regression_of_eq_2_18():
     Phi = np.column_stack([np.ones(40), context_features(s, "quadratic")])
     W = np.diag(p)
     A = np.linalg.solve(Phi.T @ W @ Phi, Phi.T @ W @ w)  # Eq. 2.18 with a bias feature
+    # normal equations vs the library's solve: cond(ΦᵀWΦ) ≈ 45, 40 rows, |A| ≤ 0.7:
+    # fp_tol(40, 0.7, 45) ≈ 3e-12
     np.testing.assert_allclose(rwr.policy.coefficients, A.T, atol=1e-10)
     assert d.beta == pytest.approx(beta)
     q = p / p.sum()

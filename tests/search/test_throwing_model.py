@@ -8,6 +8,7 @@ from functools import partial
 import numpy as np
 import pytest
 import torch
+from _tolerances import fp_tol
 
 from skillkit.models.gp import ExactGP, ForwardModel
 from skillkit.models.sparse import FITC
@@ -153,8 +154,9 @@ def test_release_error_learns_the_release_noise():
             model.fit(s, w, r, trajs, rng=0)
         stds.append(np.sqrt(model.release_var))
     assert np.all(stds[0] < [0.01, 0.01, 0.05, 0.05]), stds[0]
-    # 40 release events: the std estimate has ~11% relative error
-    np.testing.assert_allclose(stds[1], [0.075, 0.075, 0.3, 0.3], rtol=0.35)
+    # 40 release events: the std estimate has a relative standard error of 1/√(2·40) ≈ 11%;
+    # five of them (measured: 26% off on one entry), still far above the deterministic < 0.01
+    np.testing.assert_allclose(stds[1], [0.075, 0.075, 0.3, 0.3], rtol=5 / np.sqrt(2 * 40))
 
 
 def test_models_are_swappable_through_the_factories(fitted):
@@ -230,8 +232,13 @@ def test_stopping_the_flight_at_the_ground_changes_no_prediction(fitted):
     full.stop_flight_at_ground = False
     a, b = full.predict(s, w, 6, rng=8), model.predict(s, w, 6, rng=8)
     assert model.stop_flight_at_ground and a.landed.mean() > 0.9  # the default stops
+    # The robot phase is the same computation (equal); the flight is the same recursion on
+    # tensors of other lengths, whose kernels may round differently (1.6e-13 with
+    # ATEN_CPU_CAPABILITY=default): T steps on positions ≤ 6 m, fp_tol(T, 6) ≈ 3e-12; the
+    # rewards, smooth in the landing point, to fp_tol(T) ≈ 6e-13 relative (≤ 1e-12).
+    tol = fp_tol(a.ball.shape[-2], 6.0)
     for name in ("states", "torques", "release", "ball", "landed"):
-        np.testing.assert_allclose(getattr(b, name), getattr(a, name), rtol=0, atol=1e-12)
+        np.testing.assert_allclose(getattr(b, name), getattr(a, name), rtol=0, atol=tol)
     np.testing.assert_allclose(b.rewards, a.rewards, rtol=1e-12, atol=0)
     with pytest.raises(ValueError, match="stop_flight_at_ground: expected a bool"):
         ThrowingRewardModel(task, stop_flight_at_ground="yes")

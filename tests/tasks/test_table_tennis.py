@@ -81,7 +81,12 @@ def test_drag_matches_an_accurate_ode_solution_and_falls_short():
     )
     alive = flight.times < flight.terminal.time
     assert alive.sum() > 50
-    np.testing.assert_allclose(flight.positions[alive], ref.y[:3, alive].T, atol=2e-5)
+    # The integrator is second order: the step-halving (Richardson) estimate of its error is
+    # 4/3 |x_h − x_{h/2}| (same output times, twice the substeps); allow twice that (the DOP853
+    # reference is good to ~1e-12). It was atol=2e-5 against an error of 1.3e-5.
+    fine = simulate_ball(p0, v0, 0.8, dt=0.01, physics=physics, substeps=4)
+    estimate = 4 / 3 * np.abs(flight.positions[alive] - fine.positions[alive]).max()
+    np.testing.assert_allclose(flight.positions[alive], ref.y[:3, alive].T, atol=2 * estimate)
     free = simulate_ball(p0, v0, 0.8, dt=0.01, physics=BallPhysics(drag=0.0))
     x_drag, x_free = flight.terminal.position[0], free.terminal.position[0]
     assert x_drag < x_free - 0.2  # several metres of flight lose > 20 cm to drag

@@ -23,9 +23,19 @@ Issue #32 (verdicts that judge the thesis's own sentences):
 * ``holds`` is recomputed by today's verdict function; for an id whose thesis reports no
   result (``claims.NO_RESULT``) it is null, with ``not_judged`` saying so and the verdict's
   own criterion kept as ``own_checks["own_criterion"]``;
-* the top level gains ``summary_migrated`` (``{"issue": 32, "git": ...}``): the numbers were
-  made by an earlier commit's code (the result has no ``code_fingerprint``, so ``skillkit
-  runs --check`` lists it as stale), only the verdict is today's.
+* ``own_checks`` (our conditions beyond the thesis) are recomputed by the experiment's
+  ``own_checks(settings, summary)`` from the stored numbers;
+* the verdict keys of the old criteria, now own checks or parts of the verdict, are removed:
+  fig3.3's ``holds_per_method``, fig3.5's ``checks``, fig5.6's / fig5.7's ``claim_*_holds``
+  and ``trajectory_based_below_constant_holds``;
+* :data:`RESUMMARIZE` ids need numbers their stored summary lacks (per-trial or placed-puck
+  errors, errors near / far from the data): their summary is recomputed by the experiment's
+  own ``summarize`` from the stored per-trial arrays (``trials.npz``), and every number of the
+  stored summary must come back unchanged (the script refuses otherwise); nothing is rerun;
+* the top level gains ``summary_migrated`` (``{"issue": 32, "git": ..., "resummarized":
+  bool}``): the numbers were made by an earlier commit's code (the result has no
+  ``code_fingerprint``, so ``skillkit runs --check`` lists it as stale), only the verdict,
+  and for :data:`RESUMMARIZE` ids the summary's arithmetic, are today's.
 
 Every other key and number is kept: the script checks that each numeric leaf of the old
 summary is unchanged in the new one and refuses to write otherwise. The top level gains
@@ -51,6 +61,41 @@ DROPPED = ("claim_holds",)
 DROPPED_STRINGS = ("verdict",)  # fig5.x: the old one-line numbers, now in ``statement``
 RENAMED = {"fig3.3": {"holds": "holds_per_method"}}
 THESIS_CLAIM = ("fig3.3", "fig3.7")  # ``thesis.claim`` moved to the top-level ``claim``
+#: Issue #32: verdict keys of the old criteria (now own checks or parts of the verdict).
+DROPPED_32 = {
+    "fig3.3": ("holds_per_method",),
+    "fig3.5": ("checks",),
+    **{
+        i: (
+            "claim_embedding_below_gp_holds",
+            "claim_trajectory_below_step_holds",
+            "trajectory_based_below_constant_holds",
+            "claim_embedding_flat_across_noise_holds",
+        )
+        for i in ("fig5.6", "fig5.7")
+    },
+}
+#: Issue #32: ids whose verdict needs numbers only ``summarize`` on the stored trials gives.
+RESUMMARIZE = ("fig3.3", "fig3.5", "fig4.10", "fig4.11", "fig5.3", "fig5.4", "fig5.5")
+
+
+def stored_trials(folder: Path) -> list[dict]:
+    """The per-trial dicts of a run folder, rebuilt from ``trials.npz`` (keys
+    ``trial{i}__{key}``; 0-d arrays as scalars). Entries the runner could not store as arrays
+    (ragged, objects) are absent."""
+    import re
+
+    import numpy as np
+
+    trials: dict[int, dict] = {}
+    with np.load(folder / "trials.npz", allow_pickle=False) as z:
+        for key in z.files:
+            m = re.fullmatch(r"trial(\d+)__(.+)", key)
+            if m is None:
+                raise ValueError(f"trials.npz: unexpected key {key!r} in {folder}")
+            v = z[key]
+            trials.setdefault(int(m[1]), {})[m[2]] = v[()] if v.ndim == 0 else v
+    return [trials[i] for i in sorted(trials)]
 
 
 def _renames(exp_id: str, summary: dict) -> dict[str, str]:
@@ -63,7 +108,11 @@ def _renames(exp_id: str, summary: dict) -> dict[str, str]:
 
 
 def migrate_summary(
-    exp_id: str, settings: dict, summary: dict, scale: str = "paper"
+    exp_id: str,
+    settings: dict,
+    summary: dict,
+    scale: str = "paper",
+    folder: Path | None = None,
 ) -> tuple[dict, dict]:
     """The summary in the verdict schema, and a report of what changed.
 
@@ -77,6 +126,9 @@ def migrate_summary(
         The stored summary (old or already migrated).
     scale : str
         The run's scale (a smoke run is not judged).
+    folder : Path, optional
+        The run folder; for :data:`RESUMMARIZE` ids the summary is recomputed from its
+        ``trials.npz`` (required for them).
 
     Returns
     -------
@@ -105,10 +157,47 @@ def migrate_summary(
         if isinstance(new.get(key), str):
             new.pop(key)
             report["removed"].append(key)
+    for key in DROPPED_32.get(exp_id, ()):
+        if key in new:
+            new.pop(key)
+            report["removed"].append(key)
+    report["resummarized"] = False
+    if exp_id in RESUMMARIZE and folder is not None:
+        _, fresh = exp.summarize(typed, stored_trials(folder))
+        fresh = json.loads(json.dumps(to_jsonable(fresh)))
+        fresh = {k: v for k, v in fresh.items() if k not in ("claim", "holds", "statement")}
+        new = _merge_new_numbers(exp_id, new, fresh)
+        report["resummarized"] = True
+    if exp.own_checks is not None:
+        new["own_checks"] = exp.own_checks(typed, new)
     verdict = exp.verdict(typed, new)
     out = judged(with_verdict(new, verdict), exp_id, scale)
     report["holds"] = out["holds"]
     return to_jsonable(out), report
+
+
+def _merge_new_numbers(exp_id: str, stored, fresh, path: str = ""):
+    """``stored`` with what only ``fresh`` has added (keys at any depth). A number both hold
+    must agree; where ``fresh`` lacks it (None: its input was not in ``trials.npz``) the stored
+    value stays. Verdict keys and own checks are recomputed afterwards."""
+    if isinstance(stored, dict) and isinstance(fresh, dict):
+        out = {k: _merge_new_numbers(exp_id, v, fresh.get(k), f"{path}.{k}")
+               for k, v in stored.items()}  # fmt: skip
+        out.update({k: v for k, v in fresh.items() if k not in stored})
+        return out
+    if isinstance(stored, list) and isinstance(fresh, list) and len(stored) == len(fresh):
+        return [_merge_new_numbers(exp_id, a, b, f"{path}[{i}]")
+                for i, (a, b) in enumerate(zip(stored, fresh, strict=True))]  # fmt: skip
+    top = path[1:].split(".")[0].split("[")[0]
+    if (
+        isinstance(stored, (int, float))
+        and isinstance(fresh, (int, float))
+        and not isinstance(stored, bool)
+        and stored != fresh
+        and top not in ("own_checks", "thesis", "not_judged")
+    ):
+        raise RuntimeError(f"{exp_id}: {path} is {stored!r} stored, {fresh!r} re-summarized")
+    return stored
 
 
 def _numbers(d, prefix=""):
@@ -130,11 +219,12 @@ def _check_numbers_kept(exp_id: str, old: dict, new: dict) -> None:
     path; only ``claim_holds`` and a recomputed ``holds`` may differ."""
     renames = _renames(exp_id, old)
     kept = _numbers(new)
+    dropped = DROPPED_32.get(exp_id, ())
     for path, value in _numbers(old).items():
         top = path[1:].split(".")[0].split("[")[0]
         if top in renames and isinstance(old[top], dict):
             path = "." + renames[top] + path[1 + len(top) :]
-        elif top in DROPPED or top in ("holds", "own_checks"):
+        elif top in DROPPED or top in dropped or top in ("holds", "own_checks"):
             continue
         if path not in kept or kept[path] != value:
             raise RuntimeError(f"{exp_id}: {path} changed ({value!r} -> {kept.get(path)!r})")
@@ -146,7 +236,7 @@ def migrate_file(path: Path, write: bool = True) -> tuple[bool, dict]:
     result = json.loads(text)
     exp = get(result["id"])
     summary, report = migrate_summary(
-        exp.id, result["settings"], result["summary"], result.get("scale", "paper")
+        exp.id, result["settings"], result["summary"], result.get("scale", "paper"), path.parent
     )
     _check_numbers_kept(exp.id, result["summary"], summary)
     typed = apply_overrides(exp.settings["quick"], result["settings"])
@@ -163,7 +253,12 @@ def migrate_file(path: Path, write: bool = True) -> tuple[bool, dict]:
         )
     if migrated["summary"] != result["summary"] and "code_fingerprint" not in migrated:
         # numbers of an earlier commit's code, verdict of today's (issue #32)
-        migrated["summary_migrated"] = {"issue": 32, "git": git_state()}
+        done = (result.get("summary_migrated") or {}).get("resummarized", False)
+        migrated["summary_migrated"] = {
+            "issue": 32,
+            "git": git_state(),
+            "resummarized": bool(done or report["resummarized"]),
+        }
     out = json.dumps(migrated, indent=1)
     changed = out != text
     if changed and write:

@@ -112,6 +112,8 @@ def _report(run) -> list[str]:
     else:
         lines += _wrap("thesis:", v.claim)
         lines += _wrap("here:", f"{v.word} — {v.statement}" if v.statement else v.word)
+        if v.own_checks:  # conditions of ours beyond the thesis, beside the verdict
+            lines += _wrap("ours:", v.own_words, max_lines=2)
     written = [name for name in FILES if (run.path / name).exists()]
     lines.append(f"  files:  {run.path}/ ({', '.join(written)})")
     figure = "figure.html" if "figure.html" in written else "figure.png"

@@ -407,18 +407,38 @@ def setup(st: TableTennisSettings) -> list[dict]:
 
 def verdict(settings: TableTennisSettings, summary: dict) -> Verdict:
     """Holds if most runs (more than half) end with a final policy whose shots average a
-    reward above −0.02. The thesis's failure mode (runs converging to the net) is reported
-    in the statement, not required: not meeting a failure is no failure of the method."""
+    reward above −0.02 (unchanged by issue #32: it is the thesis's sentence).
+
+    The thesis: "for most of the evaluations high quality policies were found after observing
+    4000 rollouts, which landed the ball in 20 – 30cm radius of the target location with a
+    reward above -0.02". "Evaluations" are read as runs, "most" as more than half; a run's
+    reward is that of its final policy mean on ``n_final_contexts`` fresh contexts (fixed
+    before the paper run), at the end of learning (paper: 6000 rollouts, past the thesis's
+    ~4000). The 20–30 cm radius is what the thesis says a reward above −0.02 means (c₂ = 0.1:
+    a return 0.2 m off costs 0.02 on its own); the statement gives the median landing error
+    of the returned shots beside it. "It sometimes learns a sub-optimal policy that hits the
+    ball in the net" is reported, not required: "sometimes" sets no rate, so runs without a
+    net policy do not contradict it. The learning curve's last point (the policy mean on the
+    ``n_eval_contexts`` fixed contexts, a smaller sample of the same reward) is in the
+    statement too.
+    """
     n = len(summary["final_reward_per_trial"])
     good = round(summary["fraction_runs_above_-0.02"] * n)
     netty = round(summary["fraction_runs_with_net_failures_above_10pct"] * n)
+    curve = [r for r in summary["final_curve_reward_per_trial"] if r is not None]
+    on_curve = sum(r > THESIS_GOOD_REWARD for r in curve)
+    landing = summary["median_landing_error_of_returns_m"]
+    landing_cm = None if landing is None else 100 * landing
     return Verdict(
         CLAIM,
         bool(summary["fraction_runs_above_-0.02"] > 0.5),
         f"{good}/{n} runs end above −0.02 after {fmt(summary['total_rollouts_per_trial'], '.0f')} "
         f"rollouts (final reward {fmt(summary['final_reward_mean'])}; the mean curve passes "
         f"−0.02 after {fmt(summary['rollouts_to_mean_curve_above_-0.02'], '.0f')} rollouts) "
-        f"(thesis: most runs, after ~{THESIS_ROLLOUTS}); "
+        f"(thesis: most runs, after ~{THESIS_ROLLOUTS}); on the learning curve's "
+        f"{settings.n_eval_contexts} fixed contexts {on_curve}/{len(curve)} runs end above "
+        f"−0.02; the returned shots land a median {fmt(landing_cm, '.0f')} cm from the target "
+        "(thesis: 20–30 cm); "
         f"{fmt(100 * summary['net_fraction_mean'], '.1f')}% of the final shots hit the net and "
         f"{netty}/{n} runs put more than 10% there (thesis: some runs converge to the net)"
         + _skipped_clause(summary)

@@ -15,7 +15,11 @@ Per trial the result holds both learning curves (average reward of the policy me
 evaluation targets) and the final policies' ball-to-target distances on a grid of targets,
 which the summary splits into near (x < 13 m) and far (x ≥ 13 m) targets, the split of the
 thesis's claim "the error for targets further away (s ≥ [13, 3] m) could raise up to 0.5 m,
-otherwise the maximal error was smaller than 10 cm".
+otherwise the maximal error was smaller than 10 cm" (the thesis prints "s ≤ [13, 3]", which
+contradicts "further away"). The verdict reads that sentence as it stands: the largest error
+over the near (far) targets of the learnt contextual-REPS policy, in a typical trial (the
+median over trials); every trial within the bounds, and the same for the extra-context arm,
+are our own checks (``own_checks``), see :func:`verdict`.
 
 Numerics: with fewer effective samples than parameters in early updates the ML covariance is
 rank deficient, so the fit floors every direction at ``cov_floor`` times its previous
@@ -31,6 +35,7 @@ from typing import Literal
 
 import numpy as np
 
+from skillkit.experiments.claims import own_check
 from skillkit.experiments.registry import (
     Experiment,
     Series,
@@ -48,7 +53,7 @@ from skillkit.tasks import make
 from skillkit.trial import TrialContext
 from skillkit.viz.series import trial_band
 
-__all__ = ["ThrowingSettings", "run_trial", "summarize", "target_grid", "verdict"]
+__all__ = ["ThrowingSettings", "own_checks", "run_trial", "summarize", "target_grid", "verdict"]
 
 METHODS = ("REPS", "REPS + extra context")
 FAR_X = 13.0
@@ -264,6 +269,12 @@ def summarize(settings: ThrowingSettings, trials: list[dict]) -> tuple[list[Seri
             )
         )
         final = curves[:, -1]
+        near_max, far_max = _trial_max(dist[:, ~far]), _trial_max(dist[:, far])
+        within = (
+            ~np.isnan(dist).any(axis=1)
+            & (near_max < THESIS["near_max_error_m"])
+            & (far_max <= THESIS["far_max_error_m"])
+        )
         summary[key] = {
             "initial_reward": float(curves[:, 0].mean()),
             "final_reward_mean": float(final.mean()),
@@ -273,6 +284,11 @@ def summarize(settings: ThrowingSettings, trials: list[dict]) -> tuple[list[Seri
             "near_distance_max_m": float(np.nanmax(dist[:, ~far])),
             "far_distance_mean_m": float(np.nanmean(dist[:, far])),
             "far_distance_max_m": float(np.nanmax(dist[:, far])),
+            "near_distance_max_per_trial_m": near_max.tolist(),
+            "far_distance_max_per_trial_m": far_max.tolist(),
+            "near_distance_trial_max_median_m": _median(near_max),
+            "far_distance_trial_max_median_m": _median(far_max),
+            "trials_within_bounds": int(within.sum()),
             "final_joint_penalty_mean": float(np.nanmean(pen)),
             "failed_final_rollouts": int(np.isnan(dist).sum()),
             "failed_rollouts_during_learning": int(sum(np.sum(t[f"{key}_failed"]) for t in trials)),
@@ -283,18 +299,99 @@ def summarize(settings: ThrowingSettings, trials: list[dict]) -> tuple[list[Seri
         key: bool(summary[key]["final_reward_mean"] > summary[key]["initial_reward"])
         for key in ("reps", "extra")
     }
-    summary["holds_per_method"] = {
-        key: bool(
-            summary[key]["near_distance_max_m"] <= THESIS["near_max_error_m"]
-            and summary[key]["far_distance_max_m"] <= THESIS["far_max_error_m"]
-        )
-        for key in ("reps", "extra")
-    }
     summary["extra_context_better"] = bool(
         summary["extra"]["final_reward_mean"] >= summary["reps"]["final_reward_mean"]
     )
+    summary["own_checks"] = own_checks(summary)
     summary["setup"] = setup(settings)
     return series, with_verdict(summary, verdict(settings, summary))
+
+
+def _trial_max(dist: np.ndarray) -> np.ndarray:
+    """Largest distance per trial (row) of ``dist`` (trials, targets), failed throws (NaN)
+    left out as in the pooled numbers; NaN for a trial whose throws all failed."""
+    top = np.where(np.isnan(dist), -np.inf, dist).max(axis=1)
+    return np.where(np.isfinite(top), top, np.nan)
+
+
+def _median(values: np.ndarray) -> float | None:
+    """Median of the finite ``values`` (None if there is none)."""
+    finite = values[np.isfinite(values)]
+    return float(np.median(finite)) if finite.size else None
+
+
+def _conjunction(parts: list[bool | None]) -> bool | None:
+    """Kleene's AND: False if any part is False, else None if any is undecided, else True."""
+    if any(p is False for p in parts):
+        return False
+    return None if any(p is None for p in parts) else True
+
+
+def _typical_within(part: dict, near: float, far: float) -> bool | None:
+    """Whether the median trial's largest error is < ``near`` over the near targets and
+    ≤ ``far`` over the far ones (None: not recorded, as in runs before issue #32)."""
+    n, f = part.get("near_distance_trial_max_median_m"), part.get("far_distance_trial_max_median_m")
+    if n is None or f is None:
+        return None
+    return bool(n < near and f <= far)
+
+
+def own_checks(summary: dict) -> dict:
+    """Our conditions beyond the thesis's sentences (``summary["own_checks"]``; they never
+    change ``holds``).
+
+    * ``extra_every_trial_within_bounds``: with extra context, every trial's final policy is
+      within both bounds at every grid target, no final throw failed: our reading of "In this
+      case, REPS always converged to good solutions", with "good" taken as the error
+      sentence's bounds (the thesis does not define "good"). This was the verdict before
+      issue #32.
+    * ``reps_most_trials_within_bounds``: more than half of the plain-REPS trials within both
+      bounds at every target: our reading of "converged to a good solution ... in most cases".
+    * ``extra_typical_trial_within_bounds``: the error sentence applied to the extra-context
+      arm's median trial (the sentence is about contextual REPS as introduced before the
+      extra-context variant).
+
+    Parameters
+    ----------
+    summary : dict
+        The run's summary (or a stored one: numbers it does not record give None).
+
+    Returns
+    -------
+    dict
+        Name → :func:`~skillkit.experiments.claims.own_check` entry, as above.
+    """
+    near = summary["thesis_numbers"]["near_max_error_m"]
+    far = summary["thesis_numbers"]["far_max_error_m"]
+    reps, extra = summary["reps"], summary["extra"]
+    n_within = reps.get("trials_within_bounds")
+    return {
+        "extra_every_trial_within_bounds": own_check(
+            bool(
+                extra["near_distance_max_m"] is not None
+                and extra["far_distance_max_m"] is not None
+                and extra["near_distance_max_m"] < near
+                and extra["far_distance_max_m"] <= far
+                and extra["failed_final_rollouts"] == 0
+            ),
+            f"with extra context every trial's final policy is within < {near:g} m at every "
+            f"near target and ≤ {far:g} m at every far one (ours: the thesis's 'always "
+            "converged to good solutions' with 'good' read as these bounds; the verdict "
+            "before issue #32)",
+        ),
+        "reps_most_trials_within_bounds": own_check(
+            None if n_within is None else bool(n_within > summary["n_trials"] / 2),
+            "more than half of the plain-REPS trials within both bounds at every target "
+            "(ours: the thesis's 'converged to a good solution ... in most cases' with 'good' "
+            "read as the bounds)",
+        ),
+        "extra_typical_trial_within_bounds": own_check(
+            _typical_within(extra, near, far),
+            "the extra-context arm's median trial: largest error < "
+            f"{near:g} m over the near targets and ≤ {far:g} m over the far ones (ours: the "
+            "thesis's error sentence is about contextual REPS without extra context)",
+        ),
+    }
 
 
 def setup(st: ThrowingSettings) -> list[dict]:
@@ -344,26 +441,59 @@ def setup(st: ThrowingSettings) -> list[dict]:
 
 
 def verdict(settings: ThrowingSettings, summary: dict) -> Verdict:
-    """Holds if, with extra contexts, every trial's final policy meets both error bounds (the
-    thesis: extra context always converges) and extra contexts end with at least plain REPS's
-    reward. Plain REPS's bounds ("most trials") are in ``holds_per_method``."""
+    """Judges the thesis's sentences on Sec. 3.4.1 (criterion changed after the stored paper
+    run, issue #32). Holds if
+
+    1. "The absolute displacement error for targets further away from the robot's base ...
+       could raise up to 0.5 m, otherwise the maximal error was smaller than 10 cm", said of
+       the policy contextual REPS has learnt (the paragraph precedes the extra-context
+       variant, and the thesis reports premature convergence "in a few instances", so the
+       sentence describes a typical trial, not every one): in the median plain-REPS trial the
+       largest final error over the near targets (x < 13 m) is < 0.1 m and over the far
+       ones ≤ 0.5 m;
+    2. "The performance of REPS could be improved by using extra samples": the extra-context
+       arm's final reward (mean over trials) is at least plain REPS's.
+
+    "Converged to a good solution ... in most cases" and "always converged to good
+    solutions" give no measure of "good"; read as the error bounds they are own checks
+    (:func:`own_checks`), as is the error sentence on the extra-context arm. Before issue #32
+    ``holds`` required every extra-context trial within both bounds at every target (now
+    ``own_checks["extra_every_trial_within_bounds"]``). A summary that does not record the
+    median trial's largest errors (runs before issue #32) leaves 1. undecided: ``holds`` is
+    None unless 2. fails.
+    """
     reps, extra = summary["reps"], summary["extra"]
-    ok = summary["holds_per_method"]
     near = summary["thesis_numbers"]["near_max_error_m"]
     far = summary["thesis_numbers"]["far_max_error_m"]
+    typical = _typical_within(reps, near, far)
+    better = bool(summary["extra_context_better"])
+    if typical is None:
+        learnt = (
+            "the median trial's largest final errors are not recorded in this run (thesis, "
+            f"on contextual REPS's learnt policy: < {near:g} m near, up to {far:g} m far)"
+        )
+    else:
+        learnt = (
+            "in the median trial the largest final error is "
+            f"{fmt(reps['near_distance_trial_max_median_m'], '.2f')} m over the near targets "
+            f"and {fmt(reps['far_distance_trial_max_median_m'], '.2f')} m over the far ones for "
+            f"REPS (thesis, on contextual REPS's learnt policy: < {near:g} m near, up to "
+            f"{far:g} m far), {fmt(extra.get('near_distance_trial_max_median_m'), '.2f')} / "
+            f"{fmt(extra.get('far_distance_trial_max_median_m'), '.2f')} m with extra context"
+        )
     return Verdict(
         CLAIM,
-        bool(ok["extra"] and summary["extra_context_better"]),
-        f"After {summary['rollouts']} rollouts ({summary['n_trials']} trials) the largest "
-        f"(mean) final errors are {fmt(reps['near_distance_max_m'], '.2f')} "
-        f"({fmt(reps['near_distance_mean_m'], '.2f')}) m near / "
-        f"{fmt(reps['far_distance_max_m'], '.2f')} ({fmt(reps['far_distance_mean_m'], '.2f')}) "
-        f"m far for REPS and {fmt(extra['near_distance_max_m'], '.2f')} "
-        f"({fmt(extra['near_distance_mean_m'], '.2f')}) / "
-        f"{fmt(extra['far_distance_max_m'], '.2f')} ({fmt(extra['far_distance_mean_m'], '.2f')}) "
-        f"m with extra context (thesis: < {near:g} / ≤ {far:g} m), and the final reward is "
-        f"{fmt(reps['final_reward_mean'])} vs {fmt(extra['final_reward_mean'])} with extra "
-        "context.",
+        _conjunction([typical, better]),
+        f"After {summary['rollouts']} rollouts ({summary['n_trials']} trials) {learnt}; over "
+        "all trials and targets the largest (mean) final errors are "
+        f"{fmt(reps['near_distance_max_m'], '.2f')} ({fmt(reps['near_distance_mean_m'], '.2f')}) "
+        f"m near / {fmt(reps['far_distance_max_m'], '.2f')} "
+        f"({fmt(reps['far_distance_mean_m'], '.2f')}) m far for REPS and "
+        f"{fmt(extra['near_distance_max_m'], '.2f')} ({fmt(extra['near_distance_mean_m'], '.2f')})"
+        f" / {fmt(extra['far_distance_max_m'], '.2f')} "
+        f"({fmt(extra['far_distance_mean_m'], '.2f')}) m with extra context; the final reward is "
+        f"{fmt(reps['final_reward_mean'])} for REPS and {fmt(extra['final_reward_mean'])} with "
+        "extra context (thesis: extra context improves REPS).",
     )
 
 
@@ -376,6 +506,7 @@ register(
         run_trial=run_trial,
         summarize=summarize,
         verdict=verdict,
+        own_checks=lambda _settings, summary: own_checks(summary),
         trials={"smoke": 2, "quick": 2, "paper": 20},
         claim=CLAIM,
     )

@@ -578,6 +578,7 @@ def judged(summary: Mapping[str, Any], exp_id: str, scale: str) -> dict[str, Any
     head["thesis"] = thesis_quotes(exp_id) if exp_id in THESIS else []
     if exp_id in NO_RESULT:
         criterion = "the experiment's own criterion, in the statement"
+        own.pop("own_criterion", None)  # today's verdict decides it, not a stored value
         own = {"own_criterion": own_check(summary.get("holds"), criterion), **own}
         head["holds"], head["not_judged"] = None, NO_RESULT_NOTE
     if scale == "smoke":

@@ -112,6 +112,12 @@ class Experiment:
         Default number of trials per scale.
     claim : str
         The thesis's claim the experiment checks (the verdict's ``claim``).
+    own_checks : callable, optional
+        ``own_checks(settings, summary) -> dict``: our conditions beyond the thesis's
+        sentences (name → :func:`~skillkit.experiments.claims.own_check`), from the summary's
+        numbers alone, as ``summarize`` stores them in ``summary["own_checks"]``; shown beside
+        the verdict, never deciding it. Kept here so a stored summary can be checked again
+        (``data/migrate_summaries.py``). None: the experiment has none.
     """
 
     id: str
@@ -123,6 +129,7 @@ class Experiment:
     verdict: Callable[[Settings, dict], Verdict]
     trials: dict[str, int] = field(default_factory=lambda: dict.fromkeys(SCALES, 1))
     claim: str = ""
+    own_checks: Callable[[Settings, dict], dict] | None = None
 
     def settings_for(self, scale: str, **overrides) -> Settings:
         """The settings of ``scale`` with ``overrides`` applied, names and types checked.

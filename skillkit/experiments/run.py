@@ -83,11 +83,20 @@ class Run:
             return "no verdict recorded"
         return f"{v.word}: {v.statement}" if v.statement else v.word
 
+    @property
+    def own_checks(self) -> str:
+        """Our own conditions beyond the thesis and how they came out, one line ("" when the
+        summary has none; :attr:`skillkit.viz.plots.Verdict.own_words`)."""
+        from skillkit.viz.plots import verdict
+
+        v = verdict(self.result)
+        return "" if v is None else v.own_words
+
     def headline(self, n: int = 8) -> dict[str, Any]:
         """Up to ``n`` scalar summary entries besides the verdict (numbers, short strings)."""
         out: dict[str, Any] = {}
         for key, value in self.summary.items():
-            if key in VERDICT_KEYS or key == "setup":
+            if key in VERDICT_KEYS or key in ("setup", "not_judged"):
                 continue
             if isinstance(value, (int, float, bool)) or (
                 isinstance(value, str) and len(value) <= 60
@@ -133,6 +142,9 @@ class Run:
         if claim:
             lines += [f"*Thesis:* {claim}", ""]
         lines += [f"*Here:* {self.verdict}", ""]
+        own = self.own_checks
+        if own:
+            lines += [f"*Our own checks, beyond the thesis:* {own}", ""]
         head = self.headline()
         if head:
             lines += ["| summary | value |", "|---|---|"]

@@ -29,6 +29,7 @@ from skillkit.experiments.registry import (
     Experiment,
     Series,
     Verdict,
+    fmt,
     register,
     with_verdict,
 )
@@ -258,15 +259,19 @@ def summarize(settings: SanitySettings, trials: list[dict]) -> tuple[list[Series
 
 
 def verdict(settings: SanitySettings, summary: dict) -> Verdict:
-    """Holds if contextual REPS reached the threshold in every trial."""
+    """Our own criterion, not a thesis result: contextual REPS reached the threshold in every
+    trial. The thesis reports no result on this problem (it is ours), so the runner sets
+    ``holds`` to None and keeps this decision as ``own_checks["own_criterion"]``
+    (:data:`~skillkit.experiments.claims.NO_RESULT`)."""
     reps, n = summary["REPS"], summary["trials"]
     return Verdict(
         CLAIM,
         bool(reps["trials_reaching_threshold"] == n),
         f"REPS reached parameter error < {summary['threshold']:g} in "
-        f"{reps['trials_reaching_threshold']}/{n} trials (claim: {n}/{n}), "
-        f"after at most {reps['rollouts_to_threshold_max']} rollouts "
-        f"(median {reps['rollouts_to_threshold_median']}); final errors (median): "
+        f"{reps['trials_reaching_threshold']}/{n} trials (our criterion: {n}/{n}; the thesis "
+        f"reports no result on this problem), after at most "
+        f"{fmt(reps['rollouts_to_threshold_max'], 'g')} rollouts "
+        f"(median {fmt(reps['rollouts_to_threshold_median'], 'g')}); final errors (median): "
         + ", ".join(f"{a} {summary[a]['final_error_median']:.2e}" for a in ALGORITHMS)
         + ".",
     )

@@ -71,6 +71,9 @@ class Verdict:
     not_judged : str
         Why the verdict was withheld (``summary["not_judged"]``: a smoke run, or nothing in
         the thesis to compare with); "" when the run was judged.
+    own_checks : tuple of (str, bool or None, str)
+        Conditions of ours beyond the thesis's sentence (``summary["own_checks"]``): name,
+        whether it holds, the criterion in words. Shown beside the verdict, never part of it.
     """
 
     claim: str
@@ -78,6 +81,13 @@ class Verdict:
     statement: str
     recorded: bool
     not_judged: str = ""
+    own_checks: tuple[tuple[str, bool | None, str], ...] = ()
+
+    @property
+    def own_words(self) -> str:
+        """``"name (criterion): holds; …"`` for the own checks ("" when there are none)."""
+        words = {True: "holds", False: "does not hold", None: "undecided"}
+        return "; ".join(f"{n} ({c}): {words[h]}" for n, h, c in self.own_checks)
 
     @property
     def word(self) -> str:
@@ -124,21 +134,40 @@ def verdict(result: Mapping) -> Verdict | None:
         statement=statement.strip(),
         recorded=recorded,
         not_judged=reason.strip() if isinstance(reason := summary.get("not_judged"), str) else "",
+        own_checks=_own_checks(summary.get("own_checks")),
     )
+
+
+def _own_checks(own: Any) -> tuple[tuple[str, bool | None, str], ...]:
+    """``summary["own_checks"]`` as (name, holds, criterion) triples; malformed entries are
+    skipped (older or hand-written results)."""
+    if not isinstance(own, Mapping):
+        return ()
+    out = []
+    for name, entry in own.items():
+        if not isinstance(entry, Mapping):
+            continue
+        holds, criterion = entry.get("holds"), entry.get("criterion")
+        if (holds is None or isinstance(holds, (bool, np.bool_))) and isinstance(criterion, str):
+            out.append((str(name), None if holds is None else bool(holds), criterion.strip()))
+    return tuple(out)
 
 
 def subtitle(result: Mapping, width: int | None = None) -> str:
     """The subtitle of an experiment figure: the thesis's claim and our verdict.
 
     ``"Thesis: <claim>"`` and ``"Here: <holds | does not hold | undecided | no verdict
-    recorded> — <statement>"`` on two paragraphs, each wrapped to ``width`` characters
-    (no wrapping for None). "" for results without a claim or summary (:func:`verdict`).
+    recorded> — <statement>"`` on two paragraphs, and ``"Our own checks: …"`` as a third
+    where the summary has any, each wrapped to ``width`` characters (no wrapping for None).
+    "" for results without a claim or summary (:func:`verdict`).
     """
     v = verdict(result)
     if v is None:
         return ""
     here = f"Here: {v.word}" + (f" — {v.statement}" if v.statement else "")
     paragraphs = [f"Thesis: {v.claim or '(no claim recorded)'}", here]
+    if v.own_checks:
+        paragraphs.append(f"Our own checks, beyond the thesis: {v.own_words}")
     if width is None:
         return "\n".join(paragraphs)
     return "\n".join(textwrap.fill(p, width=max(int(width), 20)) for p in paragraphs)

@@ -5,7 +5,7 @@ import pytest
 from _tolerances import fp_tol
 from numpy.polynomial import Polynomial
 
-from skillkit.experiments.ch2 import reach_demonstration
+from skillkit.experiments.ch2 import DMPImitationSettings, reach_demonstration, verdict
 from skillkit.experiments.runner import run_trials
 
 
@@ -23,6 +23,30 @@ def test_fitted_dmp_reproduces_the_demonstration(result):
     # Fig. 2.10(a): without the forcing term the DMP reaches g but misses the shape
     assert s["rmse_q_fraction_without_forcing"] > 0.1
     assert s["end_error_without_forcing_rad"] < 1e-3
+
+
+_GOOD = {
+    "n_basis": 10,
+    "demo_range_rad": 1.0,
+    "rmse_q_fraction_of_range": 0.002,
+    "end_error_to_goal_rad": 0.001,
+    "rmse_q_fraction_without_forcing": 0.3,
+    "end_error_without_forcing_rad": 0.001,
+}
+
+
+@pytest.mark.parametrize(
+    "change, holds",
+    [
+        ({}, True),
+        ({"rmse_q_fraction_of_range": 0.03}, False),  # not an accurate fit
+        ({"end_error_to_goal_rad": 0.05}, False),  # the forcing term moved the end point
+        ({"end_error_without_forcing_rad": 0.05}, False),  # without it g is not reached
+        ({"rmse_q_fraction_without_forcing": 0.004}, False),  # the shape did not change
+    ],
+)
+def test_verdict_decides_the_three_sentences(change, holds):
+    assert verdict(DMPImitationSettings(), {**_GOOD, **change}).holds is holds
 
 
 def test_series_cover_figures_2_9_to_2_11(result):

@@ -7,6 +7,7 @@ from skillkit.experiments.ch4_balancing import (
     THESIS_42,
     BalancingComparisonSettings,
     experience_to_reach,
+    own_checks_42,
     verdict_42,
 )
 
@@ -37,10 +38,10 @@ def _summary(exp, compute, n=3, reps_budget=20000.0):
 
 def test_the_thesis_numbers_satisfy_the_verdict_and_each_criterion_can_fail():
     thesis = THESIS_42["experience_s"]
-    compute = {"pilco": [20.0, 40.0, 60.0], "gpreps": [10.0, 15.0, 25.0]}
+    compute = {"pilco": [25.0, 40.0, 60.0], "gpreps": [10.0, 15.0, 25.0]}  # 2.4–2.7×
     st, s = _summary(thesis, compute)
     assert verdict_42(st, s).holds is True
-    # REPS only 10× slower: not two orders of magnitude.
+    # REPS only 10× slower than GPREPS: not two orders of magnitude.
     st, s = _summary({**thesis, "reps": [100.0, 200.0, 385.0]}, compute)
     assert verdict_42(st, s).holds is False
     # REPS never reaching −1.5 within a large budget still counts as slower.
@@ -61,6 +62,27 @@ def test_the_thesis_numbers_satisfy_the_verdict_and_each_criterion_can_fail():
     assert "not reached in every trial: GPREPS -1.5" in v.statement
     st, s = _summary({**thesis, "pilco": [10.18, 11.46, None]}, compute)
     assert "PILCO the most data-efficient: False" in verdict_42(st, s).statement
+
+
+def test_pilco_needs_at_least_twice_gpreps_computation_time():
+    """ "at least twice as much computation time": 1.5× fails (it held before issue #32),
+    2.5× holds."""
+    thesis = THESIS_42["experience_s"]
+    gpreps = [10.0, 15.0, 25.0]
+    for factor, holds in ((1.5, False), (2.5, True)):
+        st, s = _summary(thesis, {"pilco": [factor * c for c in gpreps], "gpreps": gpreps})
+        assert verdict_42(st, s).holds is holds
+
+
+def test_pilco_against_reps_is_an_own_check():
+    """The two orders of magnitude are the thesis's for GPREPS; PILCO's are our own check."""
+    thesis = THESIS_42["experience_s"]
+    compute = {"pilco": [25.0, 40.0, 60.0], "gpreps": [10.0, 15.0, 25.0]}
+    st, s = _summary(thesis, compute)
+    assert own_checks_42(st, s)["pilco_two_orders_below_reps"]["holds"] is True
+    st, s = _summary({**thesis, "pilco": [10.18, 11.46, None], "gpreps": [10.68, 20.52, None]},
+                     compute)  # fmt: skip
+    assert own_checks_42(st, s)["pilco_two_orders_below_reps"]["holds"] is False
 
 
 def test_settings_check():

@@ -1,5 +1,6 @@
-"""Chapter 4, GPREPS with discrete-event models (fig4.10–4.13): verdicts on fixed criteria,
-confidence intervals, the viewer's model stored in each trial, and the setup tables."""
+"""Chapter 4, GPREPS with discrete-event models (fig4.10–4.13): verdicts that judge the
+thesis's sentences (own checks beside them), confidence intervals, the viewer's model stored
+in each trial, and the setup tables."""
 
 from __future__ import annotations
 
@@ -12,30 +13,74 @@ from skillkit.experiments import get, reproduce
 from skillkit.viz.model_layers import load_gpreps_run, model_layers
 
 
-def _hockey_summary(rollouts=120, error=0.049, reward=-0.2, reps_reward=-0.25):
-    g = {"rollouts": rollouts, "final_hit_rate": 1.0, "final_displacement_error": error,
-         "final_reward": reward}  # fmt: skip
+def _hockey_summary(rollouts=119, placed=0.03, miss=0.2, reward=-0.2, reps_reward=-0.25,
+                    hit=0.7):  # fmt: skip
+    """A fig4.10 summary meeting the thesis's sentences: ``placed`` is the placed puck's error
+    (hits only), ``miss`` the error counting a miss as d* (our own check)."""
+    g = {"rollouts": rollouts, "final_hit_rate": hit, "final_displacement_error": miss,
+         "final_displacement_error_hits": placed, "final_reward": reward}  # fmt: skip
     r = {"rollouts": 10000, "final_hit_rate": 0.99, "final_displacement_error": 0.07,
-         "final_reward": reps_reward}  # fmt: skip
+         "final_displacement_error_hits": 0.06, "final_reward": reps_reward}  # fmt: skip
     return {"n_trials": 3, "gpreps": g, "reps": r}
 
 
-def test_fig410_verdict_is_the_fixed_criterion():
+def test_fig410_verdict_judges_the_placed_puck():
     st = get("fig4.10").settings["paper"]
     assert ev.verdict_410(st, _hockey_summary()).holds is True
-    assert ev.verdict_410(st, _hockey_summary(error=0.051)).holds is False
-    assert ev.verdict_410(st, _hockey_summary(rollouts=121)).holds is False
+    assert ev.verdict_410(st, _hockey_summary(placed=0.07)).holds is False
+    assert ev.verdict_410(st, _hockey_summary(rollouts=130)).holds is False
     assert ev.verdict_410(st, _hockey_summary(reps_reward=-0.1)).holds is False
+    no_reps = _hockey_summary()
+    del no_reps["reps"]
+    assert set(ev.claim_parts_410(no_reps)) == {
+        "gpreps_within_120_shots",
+        "gpreps_placed_puck_below_5cm",
+    }
+    assert ev.verdict_410(st, no_reps).holds is True
+
+
+def test_fig410_error_counting_misses_is_an_own_check():
+    """A 20 cm error counting a miss as d* and a 70% hit rate fail nothing the thesis says."""
+    st = get("fig4.10").settings["paper"]
+    for miss in (0.02, 0.2):
+        own = ev.own_checks_410(_hockey_summary(miss=miss))
+        assert own["gpreps_error_counting_misses_below_5cm"]["holds"] is (miss < 0.05)
+        assert ev.verdict_410(st, _hockey_summary(miss=miss)).holds is True
+
+
+def test_fig410_a_stored_summary_without_the_placed_puck_error():
+    """Runs before issue #32 did not record the placed puck's error: undecided, unless
+    another part fails."""
+    st = get("fig4.10").settings["paper"]
+    s = _hockey_summary()
+    del s["gpreps"]["final_displacement_error_hits"], s["reps"]["final_displacement_error_hits"]
+    v = ev.verdict_410(st, s)
+    assert v.holds is None and "not recorded in this run" in v.statement
+    s["reps"]["final_reward"] = -0.1
+    assert ev.verdict_410(st, s).holds is False
+
+
+def _summary_411(hit=0.95, final_ci=(-0.3, -0.1), rollouts=80) -> dict:
+    g = {"rollouts": rollouts, "initial_reward": -0.6, "final_reward": -0.2,
+         "final_hit_rate": hit, "final_displacement_error": 0.05,
+         "final_displacement_error_hits": 0.04, "initial_reward_ci95": [-0.7, -0.5],
+         "final_reward_ci95": list(final_ci)}  # fmt: skip
+    return {"n_trials": 5, "gpreps": g}
 
 
 def test_fig411_verdict_needs_separated_confidence_intervals():
     st = get("fig4.11").settings["paper"]
-    g = {"rollouts": 120, "initial_reward": -0.6, "final_reward": -0.2, "final_hit_rate": 0.95,
-         "final_displacement_error": 0.05, "initial_reward_ci95": [-0.7, -0.5],
-         "final_reward_ci95": [-0.3, -0.1]}  # fmt: skip
-    assert ev.verdict_411(st, {"n_trials": 5, "gpreps": g}).holds is True
-    g["final_reward_ci95"] = [-0.55, -0.1]
-    assert ev.verdict_411(st, {"n_trials": 5, "gpreps": g}).holds is False
+    assert ev.verdict_411(st, _summary_411()).holds is True
+    assert ev.verdict_411(st, _summary_411(final_ci=(-0.55, -0.1))).holds is False
+    assert ev.verdict_411(st, _summary_411(rollouts=130)).holds is False
+
+
+def test_fig411_hit_rate_is_an_own_check():
+    st = get("fig4.11").settings["paper"]
+    for hit in (0.5, 0.95):
+        own = ev.own_checks_411(_summary_411(hit=hit))["gpreps_hit_rate_at_least_90pct"]
+        assert own["holds"] is (hit >= 0.9)
+        assert ev.verdict_411(st, _summary_411(hit=hit)).holds is True
 
 
 def test_ci95_is_students_t_interval():
@@ -45,15 +90,49 @@ def test_ci95_is_students_t_interval():
     np.testing.assert_allclose([lo, hi], ref, rtol=1e-12)
 
 
-def test_fig412_and_fig413_verdicts():
+def _summary_412(**kw) -> dict:
+    """A fig4.12 summary meeting every part of the thesis's sentences; ``kw`` changes one."""
+    v = {"rollouts": 149, "landing": [0.20, 0.25], "net": [0.0, 0.02], "direct_reward": -0.1,
+         "direct_net": 0.1, "direct_missed": 0.2, "reached": 800.0, **kw}  # fmt: skip
+
+    def shots(reward, net, missed, landing, rollouts):
+        return {"rollouts": rollouts, "final_returned": 1 - net - missed, "final_net": net,
+                "final_missed": missed, "final_landing_error": landing,
+                "final_reward": reward}  # fmt: skip
+
+    g = shots(-0.03, float(np.mean(v["net"])), 0.0, float(np.mean(v["landing"])), v["rollouts"])
+    g["final_landing_error_per_trial"] = v["landing"]
+    g["final_net_per_trial"] = v["net"]
+    d = shots(v["direct_reward"], v["direct_net"], v["direct_missed"], 1.0, v["rollouts"])
+    r = shots(-0.02, 0.05, 0.04, 0.25, 4000)
+    return {"n_trials": 2, "gpreps": g, "direct": d, "reps": r,
+            "reps_rollouts_to_gpreps_final_reward": v["reached"]}  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("change", "part"),
+    [
+        ({"rollouts": 160}, "gpreps_within_150"),
+        ({"landing": [0.20, 0.35]}, "gpreps_always_within_30cm"),  # mean 27.5 cm
+        ({"net": [0.0, 0.08]}, "gpreps_always_avoids_net"),  # mean 4%
+        ({"direct_reward": -0.01}, "gpreps_outperforms_gp_direct"),
+        ({"reached": 100.0}, "gpreps_outperforms_reps"),
+        ({"direct_net": 0.0, "direct_missed": 0.0}, "gp_direct_stuck_net_or_miss"),
+    ],
+)
+def test_fig412_verdict_decides_each_part_of_the_sentences(change, part):
     st = get("fig4.12").settings["paper"]
-    base = {"rollouts": 150, "final_returned": 0.9, "final_net": 0.05, "final_missed": 0.0,
-            "final_landing_error": 0.29, "final_reward": -0.03}  # fmt: skip
-    direct = dict(base, final_reward=-0.1)
-    summary = {"n_trials": 3, "gpreps": base, "direct": direct, "reps": dict(base, rollouts=4000)}
-    assert ev.verdict_412(st, summary).holds is True
-    summary["gpreps"] = dict(base, final_net=0.06)
-    assert ev.verdict_412(st, summary).holds is False
+    assert ev.verdict_412(st, _summary_412()).holds is True
+    assert ev.verdict_412(st, _summary_412(reached=None)).holds is True  # REPS never reaches
+    assert ev.claim_parts_412(_summary_412(**change))[part] is False
+    v = ev.verdict_412(st, _summary_412(**change))
+    assert v.holds is False and part in v.statement
+    summary = _summary_412()
+    del summary["gpreps"]["final_net_per_trial"]
+    assert ev.verdict_412(st, summary).holds is None
+
+
+def test_fig413_verdict():
     st13 = get("fig4.13").settings["paper"]
     errors = {"bounce_position_error_m": 0.01, "racket_position_rmse_m": 0.02,
               "contact_accuracy": 0.95, "contact_majority_rate": 0.8,

@@ -158,3 +158,115 @@ def test_fig4_3_tracking_controller_is_the_same_law_for_sampling_and_moment_matc
     C, C_mm = np.cov(x1.T), covs[1].numpy()  # also exact for one step
     se_cov = np.sqrt(np.outer(np.diag(C), np.diag(C)) * 2 / n)  # ≥ the entries' MC error
     assert np.all(np.abs(C - C_mm) < 5 * se_cov)
+
+
+# ------------------------------------------------------------------ verdicts on synthetic summaries
+def _verdict(exp_id: str, summary: dict):
+    from skillkit.experiments.ch4_models import OWN_CHECKS
+    from skillkit.experiments.registry import get
+
+    exp = get(exp_id)
+    st = exp.settings["paper"]
+    own = OWN_CHECKS[exp_id](st, summary) if exp_id in OWN_CHECKS else {}
+    return exp.verdict(st, summary), {k: v["holds"] for k, v in own.items()}
+
+
+def _fig4_3(n75, n95) -> dict:
+    return {
+        "samples_to_match_mm_75pct": n75,
+        "samples_to_match_mm_95pct": n95,
+        "percentiles": {"50": {"200": 50.0}},
+        "n_start_states": 100,
+    }
+
+
+@pytest.mark.parametrize(
+    "n75,n95,holds",
+    [
+        (15, 50, True),
+        (15, 75, True),  # "approximately 50": within a factor 2
+        (30, 50, False),  # "not more than 20" (the factor-2 criterion before issue #32: true)
+        (15, 150, False),
+        (None, 50, False),
+    ],
+)
+def test_fig4_3_verdict_judges_the_sentence(n75, n95, holds):
+    verdict, own = _verdict("fig4.3", _fig4_3(n75, n95))
+    assert verdict.holds is holds and own == {}
+
+
+@pytest.mark.parametrize(
+    "n,holds,full",
+    [(300.0, False, False), (700.0, True, False), (1500.0, True, True)],
+)
+def test_fig4_4_verdict_reads_approximately_1000_and_own_check_does_not_change_it(n, holds, full):
+    summary = {"trajectories_in_mm_time": {"1": n}, "model": {"horizon": 100}}
+    verdict, own = _verdict("fig4.4", summary)
+    assert verdict.holds is holds
+    assert own == {"at_least_1000_on_one_thread": full}
+
+
+def _fig4_5(changes: dict | None = None) -> dict:
+    """A fig4.5 summary on the paper scale's panel values where every judged part holds;
+    ``changes`` maps (panel, kind, value) to another error."""
+    panels = {
+        "additive_noise": {
+            "standard": {
+                "0.1": 0.6,
+                "0.3": 0.55,
+                "1.0": 0.55,
+                "3.0": 0.56,
+                "10.0": 0.6,
+                "30.0": 0.9,
+            },
+            "sparse": {"0.1": 2.0, "0.3": 1.9, "1.0": 1.8, "3.0": 1.8, "10.0": 1.9, "30.0": 2.1},
+        },
+        "n_opt_steps": {
+            "standard": {"10": 1.8, "25": 1.7, "50": 1.0, "100": 0.8, "150": 0.55, "250": 0.6},
+            "sparse": {"10": 2.2, "25": 2.1, "50": 1.8, "100": 1.7, "150": 1.8, "250": 1.9},
+        },
+        "torque_noise_std": {
+            "standard": {"0.0": 0.01, "0.25": 0.5, "0.5": 0.55, "1.0": 5.9, "2.0": 34.0},
+            "sparse": {"0.0": 0.2, "0.25": 3.5, "0.5": 1.8, "1.0": 7.3, "2.0": 51.0},
+            "noise_floor": {"0.0": 0.0, "0.25": 0.1, "0.5": 0.66, "1.0": 4.1, "2.0": 36.0},
+        },
+        "n_train": {
+            "standard": {"10": 1.3, "20": 1.1, "50": 0.55, "100": 0.6},
+            "sparse": {"10": 1.5, "20": 1.9, "50": 1.8, "100": 1.2},
+        },
+    }
+    for (panel, kind, value), error in (changes or {}).items():
+        panels[panel][kind][value] = error
+    default = {"standard": 0.55, "sparse": 1.8, "noise_floor": 0.66, "constant_predictor": 1.6}
+    return {"panels": panels, "default_squared_error": default}
+
+
+def test_fig4_5_verdict_judges_each_sentence_part():
+    verdict, own = _verdict("fig4.5", _fig4_5())
+    assert verdict.holds is True and own == {"criterion_before_issue_32": True}
+    assert "(1), (2), (3), (4), (5) hold" in verdict.statement
+    fails = {
+        # (1) the standard GP's error not higher at the largest α than at the smallest
+        ("additive_noise", "standard", "30.0"): 0.5,
+        # (2) FITC below the standard GP at an α above the default (the stored run's α = 30)
+        ("additive_noise", "sparse", "30.0"): 0.8,
+        # (3) FITC's error at the most steps below its lowest from 50 steps on
+        ("n_opt_steps", "sparse", "250"): 1.6,
+        # (4) FITC below the standard GP at a control-noise level above 0
+        ("torque_noise_std", "sparse", "1.0"): 5.0,
+        # (5) FITC's error not lower with the most training trajectories
+        ("n_train", "sparse", "100"): 1.6,
+    }
+    for where, error in fails.items():
+        verdict, own = _verdict("fig4.5", _fig4_5({where: error}))
+        assert verdict.holds is False, where
+        assert own == {"criterion_before_issue_32": True}  # our old criterion still holds
+
+
+def test_fig4_5_own_check_does_not_change_holds():
+    """The criterion before issue #32 (standard below FITC at the default, the standard GP
+    better with more data) fails while every thesis part holds: the verdict is unchanged."""
+    summary = _fig4_5()
+    summary["default_squared_error"]["standard"] = 2.0  # above FITC's 1.8 at the default
+    verdict, own = _verdict("fig4.5", summary)
+    assert verdict.holds is True and own == {"criterion_before_issue_32": False}

@@ -98,6 +98,11 @@ def test_summary_follows_the_verdict_schema(exp_id):
     assert own.holds in (True, False, None) and own.statement == summary["statement"]
     again = judged({**stored, **own.as_dict()}, exp_id, "smoke")
     assert again == stored
+    # Our own checks: recomputable from the numbers, each a verdict of its own.
+    checks = {k: v for k, v in stored.get("own_checks", {}).items() if k != "own_criterion"}
+    if exp.own_checks is not None:
+        assert checks == exp.own_checks(exp.settings["smoke"], stored)
+    assert all(set(v) == {"holds", "criterion"} for v in stored.get("own_checks", {}).values())
 
 
 @pytest.mark.parametrize("exp_id", IDS)
@@ -203,3 +208,6 @@ def test_stored_results_carry_the_current_verdict(path):
     verdict = exp.verdict(settings, summary)
     again = judged({**summary, **verdict.as_dict()}, result["id"], result["scale"])
     assert again == summary
+    if exp.own_checks is not None:
+        checks = {k: v for k, v in summary["own_checks"].items() if k != "own_criterion"}
+        assert checks == json.loads(json.dumps(to_jsonable(exp.own_checks(settings, summary))))

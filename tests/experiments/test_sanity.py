@@ -93,9 +93,27 @@ def test_smoke_series_and_summary():
     assert "REPS reached parameter error < 0.01 in 0/2 trials" in summary["statement"]
 
 
+def test_own_criterion_is_stated_as_ours_and_never_holds():
+    """sanity3 is our problem: the statement names the criterion as ours, and whatever it
+    decides stays an own check while holds is None at every scale."""
+    from skillkit.experiments.claims import judged
+    from skillkit.experiments.sanity import verdict
+
+    a = run_trials("sanity3", "smoke", seed=5, progress=False)["summary"]
+    a = {k: v for k, v in a.items() if k != "own_checks"}  # as summarize returns it
+    for reached in (0, 2):
+        summary = {**a, "REPS": {**a["REPS"], "trials_reaching_threshold": reached}}
+        v = verdict(get("sanity3").settings["smoke"], summary)
+        assert v.holds is (reached == 2)
+        assert "(our criterion: 2/2; the thesis reports no result on this problem)" in v.statement
+        out = judged({**summary, **v.as_dict()}, "sanity3", "paper")
+        assert out["holds"] is None and out["own_checks"]["own_criterion"]["holds"] is v.holds
+
+
 @pytest.mark.slow
-def test_quick_scale_claim_holds():
+def test_quick_scale_own_criterion_holds():
     result = run_trials("sanity3", "quick", seed=0, progress=False)
     reps = result["summary"]["REPS"]
-    assert result["summary"]["holds"] is True
+    assert result["summary"]["holds"] is None  # no thesis result to judge
+    assert result["summary"]["own_checks"]["own_criterion"]["holds"] is True
     assert reps["rollouts_to_threshold_max"] <= REPS_ROLLOUT_BUDGET

@@ -470,3 +470,24 @@ def test_prediction_figure_takes_one_deterministic_prediction_per_pair():
     means = [t for t in fig.data if t.name == "predicted mean"]
     np.testing.assert_array_equal(means[0].y, predicted[0, :, 1])
     assert not any(t.fill for t in fig.data)  # no band from a single prediction
+
+
+def test_own_checks_are_shown_beside_the_verdict_not_in_it():
+    from skillkit.viz.plots import subtitle, verdict
+
+    result = {
+        "summary": {
+            "claim": "c",
+            "holds": True,
+            "statement": "s 1",
+            "own_checks": {
+                "every_trial": {"holds": False, "criterion": "every trial < 5 cm"},
+                "bad": {"holds": "yes", "criterion": "skipped"},
+            },
+        }
+    }
+    v = verdict(result)
+    assert v.holds is True and v.own_checks == (("every_trial", False, "every trial < 5 cm"),)
+    text = subtitle(result)
+    assert text.splitlines()[1] == "Here: holds — s 1"
+    assert text.splitlines()[2].endswith("every_trial (every trial < 5 cm): does not hold")

@@ -19,7 +19,7 @@ from typing import Any
 
 from skillkit.experiments.registry import VERDICT_KEYS
 
-__all__ = ["Run", "load_run", "results_root", "stored_run"]
+__all__ = ["Run", "load_run", "results_root", "scoreboard", "stored_run"]
 
 
 @dataclass(frozen=True)
@@ -225,3 +225,46 @@ def stored_run(exp_id: str, scale: str = "paper", seed: int = 0) -> Run:
     if not (folder / "result.json").exists():
         raise FileNotFoundError(f"exp_id: no stored {scale}-scale run of {exp_id!r} in {folder}")
     return load_run(folder)
+
+
+def scoreboard(root: str | os.PathLike | None = None) -> str:
+    """The README's table "What reproduces so far", made from the stored results.
+
+    One row per ``result.json`` under ``root`` (default :func:`results_root`), in thesis order:
+    the id, where the thesis says it (the locations of ``summary["thesis"]``), our verdict
+    (:attr:`skillkit.viz.plots.Verdict.word`) with its statement, and our own checks beside it.
+    A result made before provenance was recorded (or whose code changed since) is marked
+    "stale" with the commit that made or re-judged it, so the table cannot claim more than the
+    stored files do.
+
+    Returns
+    -------
+    str
+        A Markdown table (header and one line per result), ending in a newline.
+    """
+    from skillkit.experiments.provenance import check_results
+    from skillkit.experiments.registry import ids
+    from skillkit.viz.plots import verdict
+
+    root = Path(root) if root is not None else results_root()
+    order = {exp_id: i for i, exp_id in enumerate(ids())}
+    rows = sorted(check_results(root), key=lambda r: (order.get(r["id"], len(order)), r["path"]))
+    lines = [
+        "| id | thesis (where) | here | our own checks | made by |",
+        "|---|---|---|---|---|",
+    ]
+    for row in rows:
+        run = load_run(row["path"])
+        v = verdict(run.result)
+        where = "; ".join(dict.fromkeys(q["location"] for q in run.summary.get("thesis") or []))
+        here = "no verdict recorded" if v is None else f"**{v.word}** — {v.statement}"
+        own = "" if v is None else v.own_words
+        git = run.result.get("git") or (run.result.get("summary_migrated") or {}).get("git") or {}
+        commit = (git.get("commit") or "?")[:7]
+        made = f"{commit}, current" if not row["stale"] else f"{commit}, stale: {row['reason']}"
+        if run.result.get("summary_migrated") and "code_fingerprint" not in run.result:
+            made = f"numbers before provenance; verdict re-judged at {commit}"
+        cells = [run.id, where, here, own, made]
+        cells = [c.replace("|", "\\|").replace("\n", " ") for c in cells]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"

@@ -47,7 +47,14 @@ import numpy as np
 import torch
 
 from skillkit._validation import check_array
-from skillkit.experiments.claims import own_check
+from skillkit.experiments.claims import (
+    NOT_RECORDED,
+    conjunction,
+    finite_or_none,
+    is_less,
+    own_check,
+    parts_note,
+)
 from skillkit.experiments.registry import (
     Experiment,
     Series,
@@ -63,17 +70,12 @@ from skillkit.trial import TrialContext
 from skillkit.viz.series import trial_band
 
 __all__ = [
-    "NOT_RECORDED",
     "HockeySettings",
     "NormalisedLinear",
     "claim_parts",
-    "conjunction",
-    "finite_or_none",
     "heldout_scores",
-    "is_less",
     "make_algorithm",
     "own_checks",
-    "parts_note",
     "verdict",
 ]
 
@@ -369,86 +371,6 @@ def _summarize(settings: HockeySettings, trials: list[dict]) -> tuple[list[Serie
     summary["claim_parts"] = claim_parts(summary)
     summary["own_checks"] = own_checks(summary)
     return series, with_verdict(summary, verdict(settings, summary))
-
-
-NOT_RECORDED = "not recorded in this run"
-"""What a verdict's statement says of a number its criterion needs that a stored summary (made
-before the criterion was) lacks."""
-
-
-def conjunction(parts) -> bool | None:
-    """Kleene's AND of a claim's parts: False if any part is False, else None if any part is
-    undecided (a number not recorded in the run), else True.
-
-    Parameters
-    ----------
-    parts : iterable of bool or None
-
-    Returns
-    -------
-    bool or None
-    """
-    parts = list(parts)
-    if any(p is False for p in parts):
-        return False
-    return None if any(p is None for p in parts) else True
-
-
-def parts_note(parts: dict[str, bool | None]) -> str:
-    """The end of a verdict's statement: which of the claim's parts failed and which could not
-    be decided (``""`` when every part holds).
-
-    Parameters
-    ----------
-    parts : dict
-        Part name → True, False or None (as :func:`conjunction` reads them).
-
-    Returns
-    -------
-    str
-        E.g. ``" Not met: gp_direct_learns. Not decided (not recorded in this run):
-        reps_always_95pct_below_20cm."``
-    """
-    failed = [k for k, v in parts.items() if v is False]
-    undecided = [k for k, v in parts.items() if v is None]
-    note = f" Not met: {', '.join(failed)}." if failed else ""
-    if undecided:
-        note += f" Not decided ({NOT_RECORDED} or not measurable): {', '.join(undecided)}."
-    return note
-
-
-def finite_or_none(value) -> float | None:
-    """``value`` as a float, or None for a missing or non-finite number (NaN is stored as
-    None in ``result.json``).
-
-    Parameters
-    ----------
-    value : float, None or a number-like
-
-    Returns
-    -------
-    float or None
-    """
-    if value is None:
-        return None
-    value = float(value)
-    return value if np.isfinite(value) else None
-
-
-def is_less(a, b) -> bool | None:
-    """``a < b``; None where either is missing (None or NaN: not recorded in the run, or a
-    mean over no values).
-
-    Parameters
-    ----------
-    a, b : float or None
-
-    Returns
-    -------
-    bool or None
-    """
-    a, b = finite_or_none(a), finite_or_none(b)
-    return None if a is None or b is None else bool(a < b)
 
 
 def claim_parts(summary: dict) -> dict[str, bool | None]:

@@ -35,7 +35,7 @@ from typing import Literal
 
 import numpy as np
 
-from skillkit.experiments.claims import own_check
+from skillkit.experiments.claims import conjunction, own_check
 from skillkit.experiments.registry import (
     Experiment,
     Series,
@@ -320,13 +320,6 @@ def _median(values: np.ndarray) -> float | None:
     return float(np.median(finite)) if finite.size else None
 
 
-def _conjunction(parts: list[bool | None]) -> bool | None:
-    """Kleene's AND: False if any part is False, else None if any is undecided, else True."""
-    if any(p is False for p in parts):
-        return False
-    return None if any(p is None for p in parts) else True
-
-
 def _typical_within(part: dict, near: float, far: float) -> bool | None:
     """Whether the median trial's largest error is < ``near`` over the near targets and
     ≤ ``far`` over the far ones (None: not recorded, as in runs before issue #32)."""
@@ -483,7 +476,7 @@ def verdict(settings: ThrowingSettings, summary: dict) -> Verdict:
         )
     return Verdict(
         CLAIM,
-        _conjunction([typical, better]),
+        conjunction([typical, better]),
         f"After {summary['rollouts']} rollouts ({summary['n_trials']} trials) {learnt}; over "
         "all trials and targets the largest (mean) final errors are "
         f"{fmt(reps['near_distance_max_m'], '.2f')} ({fmt(reps['near_distance_mean_m'], '.2f')}) "

@@ -36,13 +36,8 @@ import numpy as np
 from scipy import stats
 
 from skillkit.experiments.ch3_hockey import (
-    NOT_RECORDED,
     HockeySettings,
-    conjunction,
-    finite_or_none,
     heldout_scores,
-    is_less,
-    parts_note,
 )
 from skillkit.experiments.ch3_hockey import make_algorithm as hockey_algorithm
 from skillkit.experiments.ch3_table_tennis import (
@@ -52,7 +47,14 @@ from skillkit.experiments.ch3_table_tennis import (
     shot_scores,
 )
 from skillkit.experiments.ch4_gpreps import _run_gpreps, gpreps_stats, rollouts_to_reach
-from skillkit.experiments.claims import own_check
+from skillkit.experiments.claims import (
+    NOT_RECORDED,
+    conjunction,
+    finite_or_none,
+    is_less,
+    own_check,
+    parts_note,
+)
 from skillkit.experiments.registry import Experiment, Series, Verdict, fmt, register, with_verdict
 from skillkit.experiments.settings import Settings, setting
 from skillkit.models.gp import ExactGP

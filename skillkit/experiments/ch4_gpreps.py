@@ -25,15 +25,15 @@ from functools import partial
 
 import numpy as np
 
-from skillkit.experiments.ch3_hockey import (
+from skillkit.experiments.ch3_throwing import _final_errors, target_grid
+from skillkit.experiments.claims import (
     NOT_RECORDED,
     conjunction,
     finite_or_none,
     is_less,
+    own_check,
     parts_note,
 )
-from skillkit.experiments.ch3_throwing import _final_errors, target_grid
-from skillkit.experiments.claims import own_check
 from skillkit.experiments.registry import Experiment, Series, Verdict, fmt, register, with_verdict
 from skillkit.experiments.settings import Settings, setting
 from skillkit.models.gp import ExactGP, ForwardModel

@@ -41,7 +41,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import torch
 
-from skillkit.experiments.claims import own_check
+from skillkit.experiments.claims import conjunction, is_less, own_check
 from skillkit.experiments.registry import Experiment, Series, Verdict, fmt, register, with_verdict
 from skillkit.experiments.settings import Settings, setting
 from skillkit.models.gp import ExactGP, ForwardModel, HyperCurb
@@ -1114,20 +1114,6 @@ SETUP_4_5 = [
 ]
 
 
-def _conjunction(parts: list[bool | None]) -> bool | None:
-    """Kleene's AND: False if any part is False, else None if any is undecided, else True."""
-    if any(p is False for p in parts):
-        return False
-    return None if any(p is None for p in parts) else True
-
-
-def _less(a: float | None, b: float | None) -> bool | None:
-    """``a < b``; None if either is missing or not finite."""
-    if a is None or b is None or not (np.isfinite(a) and np.isfinite(b)):
-        return None
-    return bool(a < b)
-
-
 def _parts_4_5(settings: RewardErrorSettings, summary: dict) -> dict[str, dict]:
     """The five parts of ``fig4.5``'s verdict, one per judged sentence of the thesis, each
     ``{"holds": bool | None, "text": str}`` (our numbers and the reading)."""
@@ -1142,7 +1128,7 @@ def _parts_4_5(settings: RewardErrorSettings, summary: dict) -> dict[str, dict]:
     alphas = sorted(settings.additive_noise_values)
     std_a = curve("additive_noise", "standard", alphas)
     out["additive_noise_lowers_accuracy"] = {
-        "holds": _less(std_a[0], std_a[-1]) if len(alphas) > 1 else None,
+        "holds": is_less(std_a[0], std_a[-1]) if len(alphas) > 1 else None,
         "text": f"(1) the standard GP's error {fmt(std_a[0])} at α = {alphas[0]:g}, "
         f"{fmt(std_a[-1])} at α = {alphas[-1]:g} (thesis: accuracy 'decreases slightly' with "
         "α, read as: a higher error at the largest α; 'slightly' is not judged)",
@@ -1154,10 +1140,10 @@ def _parts_4_5(settings: RewardErrorSettings, summary: dict) -> dict[str, dict]:
         curve("additive_noise", "standard", high),
         curve("additive_noise", "sparse", high),
     )
-    worse = [_less(a, b) for a, b in zip(std_h, fitc_h, strict=True)]
+    worse = [is_less(a, b) for a, b in zip(std_h, fitc_h, strict=True)]
     fitc_0, fitc_top = curve("additive_noise", "sparse", [alpha0, alphas[-1]])
     out["fitc_worse_at_higher_additive_noise"] = {
-        "holds": _conjunction(worse) if high else None,
+        "holds": conjunction(worse) if high else None,
         "text": f"(2) FITC's error above the standard GP's at {sum(w is True for w in worse)} "
         f"of the {len(high)} α above the default {alpha0:g} ("
         + ", ".join(
@@ -1196,9 +1182,9 @@ def _parts_4_5(settings: RewardErrorSettings, summary: dict) -> dict[str, dict]:
     std_n = curve("torque_noise_std", "standard", noisy)
     fitc_n = curve("torque_noise_std", "sparse", noisy)
     floor_n = curve("torque_noise_std", "noise_floor", noisy)
-    worse_n = [_less(a, b) for a, b in zip(std_n, fitc_n, strict=True)]
+    worse_n = [is_less(a, b) for a, b in zip(std_n, fitc_n, strict=True)]
     out["fitc_worse_with_control_noise"] = {
-        "holds": _conjunction(worse_n) if noisy else None,
+        "holds": conjunction(worse_n) if noisy else None,
         "text": f"(4) FITC's error above the standard GP's at {sum(w is True for w in worse_n)} "
         f"of the {len(noisy)} control-noise levels above 0 (thesis: FITC 'produces inaccurate "
         "predictions' with control noise, read as: above the standard GP at every level); the "
@@ -1215,7 +1201,7 @@ def _parts_4_5(settings: RewardErrorSettings, summary: dict) -> dict[str, dict]:
     ends = {k: curve("n_train", k, [counts[0], counts[-1]]) for k in ("standard", "sparse")}
     out["more_trajectories_improve_accuracy"] = {
         "holds": (
-            _conjunction([_less(v[1], v[0]) for v in ends.values()]) if len(counts) > 1 else None
+            conjunction([is_less(v[1], v[0]) for v in ends.values()]) if len(counts) > 1 else None
         ),
         "text": f"(5) with {counts[-1]} instead of {counts[0]} training trajectories the "
         f"standard GP's error is {fmt(ends['standard'][1])} instead of "
@@ -1247,7 +1233,7 @@ def verdict_4_5(settings: RewardErrorSettings, summary: dict) -> Verdict:
     lead = "; ".join(f"{v} {k}" for k, v in by.items() if v)
     return Verdict(
         CLAIM_4_5,
-        _conjunction([p["holds"] for p in parts.values()]),
+        conjunction([p["holds"] for p in parts.values()]),
         f"Of the five parts judged, {lead}: "
         + "; ".join(p["text"] for p in parts.values())
         + f". At the default setting the mean squared reward error is {fmt(d['standard'])} for "
@@ -1263,7 +1249,7 @@ def own_checks_4_5(settings: RewardErrorSettings, summary: dict) -> dict:
     lo, hi = str(min(settings.n_train_values)), str(max(settings.n_train_values))
     return {
         "criterion_before_issue_32": own_check(
-            _conjunction([_less(n_tr.get(hi), n_tr.get(lo)), _less(d["standard"], d["sparse"])]),
+            conjunction([is_less(n_tr.get(hi), n_tr.get(lo)), is_less(d["standard"], d["sparse"])]),
             "the standard GP's error below FITC's at the default setting and lower with the "
             "most training trajectories than with the fewest (the criterion fixed before the "
             "paper run; the thesis's sentences are judged part by part in the verdict)",

@@ -59,7 +59,7 @@ import numpy as np
 import torch
 
 import skillkit.tasks.planar  # noqa: F401  (registers the balancing tasks)
-from skillkit.experiments.claims import own_check
+from skillkit.experiments.claims import NOT_RECORDED, conjunction, own_check
 from skillkit.experiments.registry import (
     Experiment,
     Series,
@@ -311,16 +311,6 @@ HALF_DECADE = 10**0.5
 reading of the thesis's "an order of magnitude" (fig5.6) and the bound of "barely any
 difference" (fig5.7: the largest e_r less than √10 × the smallest)."""
 
-_NOT_RECORDED = "not recorded in this run"
-
-
-def _conjunction(parts: list[bool | None]) -> bool | None:
-    """Kleene's AND of the claim's parts: False if any part is False, else None if any part
-    is undecided (a number not recorded in the run), else True."""
-    if any(p is False for p in parts):
-        return False
-    return None if any(p is None for p in parts) else True
-
 
 def _pct(value: float | None) -> str:
     return "n/a" if value is None else f"{100 * value:.0f}%"
@@ -375,11 +365,11 @@ def _pendulum_verdict(label: str, multi_step: bool):
         far = summary.get("fraction_embedding_better_far_from_data")
         near = summary.get("fraction_embedding_better_near_data")
         typically = _typically_better_near_data(summary)
-        holds = _conjunction(
+        holds = conjunction(
             [bool(better > 0.5), None if far is None else bool(far > 0.5), typically]
         )
         if typically is None:
-            medians = f"median {label} near / away from the data: {_NOT_RECORDED}"
+            medians = f"median {label} near / away from the data: {NOT_RECORDED}"
         else:
             mn, mf = summary["median_error_near_data"], summary["median_error_far_from_data"]
             medians = (

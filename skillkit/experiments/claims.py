@@ -42,7 +42,12 @@ __all__ = [
     "SMOKE_NOTE",
     "THESIS",
     "ThesisClaim",
+    "NOT_RECORDED",
+    "conjunction",
+    "finite_or_none",
+    "is_less",
     "judged",
+    "parts_note",
     "own_check",
     "normalise_text",
     "thesis_quotes",
@@ -584,3 +589,84 @@ def judged(summary: Mapping[str, Any], exp_id: str, scale: str) -> dict[str, Any
     if scale == "smoke":
         head["holds"], head["not_judged"] = None, SMOKE_NOTE
     return {**head, **({"own_checks": own} if own else {}), **rest}
+
+
+# ----------------------------------------------------------------- verdicts of many parts
+NOT_RECORDED = "not recorded in this run"
+"""What a verdict's statement says of a number its criterion needs that a stored summary (made
+before the criterion was) lacks."""
+
+
+def conjunction(parts) -> bool | None:
+    """Kleene's AND of a claim's parts: False if any part is False, else None if any part is
+    undecided (a number not recorded in the run), else True.
+
+    Parameters
+    ----------
+    parts : iterable of bool or None
+
+    Returns
+    -------
+    bool or None
+    """
+    parts = list(parts)
+    if any(p is False for p in parts):
+        return False
+    return None if any(p is None for p in parts) else True
+
+
+def parts_note(parts: dict[str, bool | None]) -> str:
+    """The end of a verdict's statement: which of the claim's parts failed and which could not
+    be decided (``""`` when every part holds).
+
+    Parameters
+    ----------
+    parts : dict
+        Part name → True, False or None (as :func:`conjunction` reads them).
+
+    Returns
+    -------
+    str
+        E.g. ``" Not met: gp_direct_learns. Not decided (not recorded in this run):
+        reps_always_95pct_below_20cm."``
+    """
+    failed = [k for k, v in parts.items() if v is False]
+    undecided = [k for k, v in parts.items() if v is None]
+    note = f" Not met: {', '.join(failed)}." if failed else ""
+    if undecided:
+        note += f" Not decided ({NOT_RECORDED} or not measurable): {', '.join(undecided)}."
+    return note
+
+
+def finite_or_none(value) -> float | None:
+    """``value`` as a float, or None for a missing or non-finite number (NaN is stored as
+    None in ``result.json``).
+
+    Parameters
+    ----------
+    value : float, None or a number-like
+
+    Returns
+    -------
+    float or None
+    """
+    if value is None:
+        return None
+    value = float(value)
+    return value if np.isfinite(value) else None
+
+
+def is_less(a, b) -> bool | None:
+    """``a < b``; None where either is missing (None or NaN: not recorded in the run, or a
+    mean over no values).
+
+    Parameters
+    ----------
+    a, b : float or None
+
+    Returns
+    -------
+    bool or None
+    """
+    a, b = finite_or_none(a), finite_or_none(b)
+    return None if a is None or b is None else bool(a < b)

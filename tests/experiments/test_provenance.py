@@ -101,3 +101,14 @@ def test_a_reproduced_run_records_its_provenance_and_is_current(tmp_path):
     result["code_fingerprint"] = "0" * 16
     (run.path / "result.json").write_text(json.dumps(result))
     assert [r["stale"] for r in provenance.check_results(tmp_path)] == [True]
+
+
+def test_readme_scoreboard_is_made_from_the_stored_results():
+    """README.md's "What reproduces so far" table is exactly scoreboard() of data/results."""
+    from pathlib import Path
+
+    from skillkit.experiments.run import scoreboard
+
+    readme = (Path(__file__).parents[2] / "README.md").read_text()
+    table = readme.split("<!-- scoreboard:start -->\n")[1].split("<!-- scoreboard:end -->")[0]
+    assert table == scoreboard(), "regenerate the README table with scoreboard()"

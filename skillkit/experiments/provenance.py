@@ -322,6 +322,41 @@ def provenance(exp_id: str) -> dict[str, Any]:
     return {"git": git_state(), "code_fingerprint": fingerprint}
 
 
+def staleness(result: dict[str, Any], known: set[str] | None = None) -> tuple[bool, str]:
+    """Whether today's code would still make ``result`` (a ``result.json`` as a dict).
+
+    Parameters
+    ----------
+    result : dict
+        The run's record (``id``, and ``code_fingerprint`` / ``git`` when it has provenance).
+    known : set of str, optional
+        The registered ids (looked up when not given).
+
+    Returns
+    -------
+    stale : bool
+        True when the result has no fingerprint (made before provenance was recorded), its id
+        is not registered, or the fingerprint of its experiment's code has changed.
+    reason : str
+        Why it is stale, or ``"current"``.
+    """
+    if known is None:
+        from skillkit.experiments.registry import ids
+
+        known = set(ids())
+    exp_id = result.get("id")
+    stored = result.get("code_fingerprint")
+    if exp_id not in known:
+        return True, f"experiment {exp_id!r} is not registered"
+    if not stored:
+        return True, "no code fingerprint (made before provenance was recorded)"
+    now = code_fingerprint(exp_id)
+    if now == stored:
+        return False, "current"
+    commit = (result.get("git") or {}).get("commit") or "?"
+    return True, f"code changed since commit {commit[:7]} (fingerprint {stored} -> {now})"
+
+
 def check_results(root: str | Path) -> list[dict[str, Any]]:
     """Every ``result.json`` under ``root`` with whether today's code would still make it.
 
@@ -343,20 +378,7 @@ def check_results(root: str | Path) -> list[dict[str, Any]]:
             continue
         if not isinstance(result, dict) or "id" not in result:
             continue
+        stale, reason = staleness(result, known)
         exp_id = result["id"]
-        stored = result.get("code_fingerprint")
-        if exp_id not in known:
-            stale, reason = True, f"experiment {exp_id!r} is not registered"
-        elif not stored:
-            stale, reason = True, "no code fingerprint (made before provenance was recorded)"
-        else:
-            now = code_fingerprint(exp_id)
-            stale = now != stored
-            commit = (result.get("git") or {}).get("commit") or "?"
-            reason = (
-                f"code changed since commit {commit[:7]} (fingerprint {stored} -> {now})"
-                if stale
-                else "current"
-            )
         rows.append({"path": str(path.parent), "id": exp_id, "stale": stale, "reason": reason})
     return rows

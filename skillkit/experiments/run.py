@@ -84,6 +84,16 @@ class Run:
         return f"{v.word}: {v.statement}" if v.statement else v.word
 
     @property
+    def stale(self) -> str | None:
+        """Why today's code would not make this run any more (no code fingerprint recorded,
+        or the experiment's code changed since; :func:`~skillkit.experiments.provenance.
+        staleness`), or None when it is current."""
+        from skillkit.experiments.provenance import staleness
+
+        stale, reason = staleness(self.result)
+        return reason if stale else None
+
+    @property
     def own_checks(self) -> str:
         """Our own conditions beyond the thesis and how they came out, one line ("" when the
         summary has none; :attr:`skillkit.viz.plots.Verdict.own_words`)."""
@@ -142,6 +152,9 @@ class Run:
         if claim:
             lines += [f"*Thesis:* {claim}", ""]
         lines += [f"*Here:* {self.verdict}", ""]
+        stale = self.stale
+        if stale:
+            lines += [f"*Stale:* {stale}; today's code may give other numbers.", ""]
         own = self.own_checks
         if own:
             lines += [f"*Our own checks, beyond the thesis:* {own}", ""]

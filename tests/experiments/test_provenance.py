@@ -112,3 +112,12 @@ def test_readme_scoreboard_is_made_from_the_stored_results():
     readme = (Path(__file__).parents[2] / "README.md").read_text()
     table = readme.split("<!-- scoreboard:start -->\n")[1].split("<!-- scoreboard:end -->")[0]
     assert table == scoreboard(), "regenerate the README table with scoreboard()"
+
+
+def test_a_stored_run_says_when_it_is_stale(tmp_path):
+    from skillkit.experiments import reproduce, stored_run
+
+    old = stored_run("fig2.10")  # made before provenance was recorded
+    assert "no code fingerprint" in old.stale and "*Stale:*" in old._repr_markdown_()
+    run = reproduce("fig2.10", "smoke", trials=1, out=tmp_path, progress=False, html=False)
+    assert run.stale is None and "*Stale:*" not in run._repr_markdown_()

@@ -189,7 +189,12 @@ def _cmd_settings(args: argparse.Namespace) -> int:
 def _cmd_runs(args: argparse.Namespace) -> int:
     from skillkit.experiments.store import find_root, list_runs
 
-    root = find_root() if args.root is None else Path(args.root)
+    if args.folder is not None and args.root is not None and args.folder != args.root:
+        raise SystemExit(
+            f"runs: give the folder once, not {args.folder!r} and --root {args.root!r}"
+        )
+    given = args.folder if args.folder is not None else args.root
+    root = find_root() if given is None else Path(given)
     if args.check:
         return _check_runs(root)
     runs = list_runs(root)
@@ -378,6 +383,12 @@ def build_parser() -> argparse.ArgumentParser:
         "runs",
         "list finished runs in the results store",
         "List finished runs (folders holding result.json), newest first.",
+    )
+    p.add_argument(
+        "folder",
+        nargs="?",
+        default=None,
+        help="results folder, e.g. data/results (the same as --root)",
     )
     p.add_argument(
         "--root",

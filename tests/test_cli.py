@@ -284,6 +284,8 @@ def test_runs_check_lists_stale_results_and_exits_non_zero(tmp_path, capsys):
     assert "0 of 1 results" in capsys.readouterr().out
     (tmp_path / "b").mkdir()
     (tmp_path / "b" / "result.json").write_text(json.dumps({"id": "fig2.10"}))
-    assert main(["runs", "--check", "--root", str(tmp_path)]) == 1
+    assert main(["runs", "--check", str(tmp_path)]) == 1  # the folder as a positional
     out = capsys.readouterr().out
     assert "stale" in out and "no code fingerprint" in out and "1 of 2 results" in out
+    with pytest.raises(SystemExit, match="give the folder once"):
+        main(["runs", str(tmp_path), "--root", str(tmp_path / "a")])

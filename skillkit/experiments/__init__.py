@@ -24,6 +24,7 @@ from skillkit.experiments import ch4_models  # noqa: E402,F401  isort: skip
 from skillkit.experiments import ch4_stochastic  # noqa: E402,F401  isort: skip
 from skillkit.experiments import ch4_gpreps  # noqa: E402,F401  isort: skip
 from skillkit.experiments import ch4_events  # noqa: E402,F401  isort: skip
+from skillkit.experiments import ch4_table_tennis  # noqa: E402,F401  isort: skip
 from skillkit.experiments import ch4_balancing  # noqa: E402,F401  isort: skip
 from skillkit.experiments import ch4_trajectory_kl  # noqa: E402,F401  isort: skip
 from skillkit.experiments import ch5  # noqa: E402,F401  isort: skip

@@ -1,4 +1,5 @@
-"""Chapter 4, GPREPS with discrete-event models: hockey and table tennis (Secs 4.3.3, 4.3.4).
+"""Chapter 4, GPREPS with discrete-event models: hockey (Sec. 4.3.3) and the plumbing shared
+with table tennis (Sec. 4.3.4, :mod:`skillkit.experiments.ch4_table_tennis`).
 
 Every GPREPS run follows Table 4.1 with the data schedule its text describes: N₀ = 20 real
 rollouts before the first update ("we usually choose a higher N in the first iteration, e.g.
@@ -16,12 +17,9 @@ error for table tennis).
   puck tracking, Butterworth smoothing); the contact model is replaced by a GP from the
   incoming puck's relative state to the target puck's displacement. GPREPS only, 5 runs, a 95%
   confidence band.
-* ``fig4.12`` — table tennis: GPREPS with the five models of 4.3.4
-  (:class:`~skillkit.search.table_tennis_model.TableTennisRewardModel`, with the reward schedule
-  of Eq. 4.17), GP direct, and contextual REPS with ``fig3.7``'s settings (and the fit
-  regularisation of the stored run, ``ch3_table_tennis.REGULARISED``).
-* ``fig4.13`` — table tennis: the five models, learned from 100 rollouts, against the
-  simulator on held-out rollouts (10 sampled trajectories each).
+
+Table tennis (``fig4.12``, ``fig4.13``) is :mod:`skillkit.experiments.ch4_table_tennis`, which
+shares this module's GPREPS plumbing.
 
 The setup tables in the summaries say where each run departs from the thesis and why.
 """
@@ -40,12 +38,6 @@ from skillkit.experiments.ch3_hockey import (
     heldout_scores,
 )
 from skillkit.experiments.ch3_hockey import make_algorithm as hockey_algorithm
-from skillkit.experiments.ch3_table_tennis import (
-    REGULARISED,
-    TableTennisSettings,
-    make_reps,
-    shot_scores,
-)
 from skillkit.experiments.ch4_gpreps import _run_gpreps, gpreps_stats, rollouts_to_reach
 from skillkit.experiments.claims import (
     NOT_RECORDED,
@@ -58,7 +50,6 @@ from skillkit.experiments.claims import (
 from skillkit.experiments.registry import Experiment, Series, Verdict, fmt, register, with_verdict
 from skillkit.experiments.settings import Settings, setting
 from skillkit.models.gp import ExactGP
-from skillkit.search.gpreps import DirectRewardModel
 from skillkit.search.loop import learn, policy_history_arrays
 from skillkit.tasks import make
 from skillkit.trial import TrialContext
@@ -67,12 +58,9 @@ from skillkit.viz.series import trial_band
 
 __all__ = [
     "HockeyGPREPSSettings",
-    "ModelAccuracySettings",
-    "TableTennisGPREPSSettings",
 ]
 
 THESIS_410 = {"gpreps_rollouts": 120, "gpreps_displacement_error_m": 0.05, "reps_rollouts": 10000}
-THESIS_412 = {"gpreps_rollouts": 150, "gpreps_landing_error_m": 0.30, "reps_rollouts": 4000}
 CLAIM_410 = (
     "GPREPS with the decomposed hockey model learns within ~120 real shots, placing the target "
     "puck with a displacement error below 5 cm after 100; model-free REPS needs ~10,000 shots "
@@ -82,16 +70,6 @@ CLAIM_411 = (
     "In the real-robot setting (C.2's ranges, 30 Hz Kinect tracking, Butterworth smoothing, the "
     "contact model replaced by a displacement model) GPREPS adapts the policy towards the "
     "optimum within a low number of shots; 5 runs, 95% confidence band (Sec. 4.3.3, Fig. 4.11)."
-)
-CLAIM_412 = (
-    "On table tennis GPREPS with the five models consistently learns within 150 rollouts to "
-    "return the ball within 30 cm of the target while avoiding the net; GP direct gets stuck "
-    "(net, misses); REPS needs at least 4000 rollouts (Sec. 4.3.4, Fig. 4.12)."
-)
-CLAIM_413 = (
-    "Learned from 100 rollouts, the five table-tennis models predict the incoming ball, the "
-    "racket path and the returned landing points accurately against the simulator "
-    "(Sec. 4.3.4, Fig. 4.13)."
 )
 VIEWER_NOTE = (
     "Each trial stores GPREPS's policy history and its last reward model (trials.npz, "
@@ -155,36 +133,6 @@ class HockeyGPREPSSettings(EventGPREPSSettings):
     )
 
 
-@dataclass(frozen=True)
-class TableTennisGPREPSSettings(EventGPREPSSettings):
-    """Settings of ``fig4.12`` (table tennis; REPS with ``fig3.7``'s settings and the fit
-    regularisation it was stored with,
-    :data:`~skillkit.experiments.ch3_table_tennis.REGULARISED`)."""
-
-    n_updates: int = setting(130, "GPREPS / GP-direct updates (N₀ + K = 150 rollouts).", minimum=1)
-    schedule: Literal["auto", "hitting", "returning"] = setting(
-        "auto",
-        "Reward schedule of Eq. 4.17: 'auto' switches c₁ = c₂ once the contact model "
-        "is good (see TableTennisRewardModel), or a forced 'hitting' / 'returning'.",
-    )
-    reps_updates: int = setting(
-        80, "REPS updates (× 50 rollouts = 4000, the thesis's count).", minimum=1
-    )
-
-
-@dataclass(frozen=True)
-class ModelAccuracySettings(Settings):
-    """Settings of ``fig4.13`` (the five table-tennis models against the simulator)."""
-
-    n_rollouts: int = setting(
-        100, "Rollouts of the initial policy the models learn from.", minimum=1
-    )
-    n_heldout: int = setting(20, "Held-out rollouts the predictions are compared with.", minimum=1)
-    n_samples: int = setting(10, "Sampled trajectories per held-out (s, ω) (Fig. 4.13).", minimum=1)
-    n_shown: int = setting(3, "Held-out rollouts drawn in the figure (hits first).", minimum=1)
-    gp_steps: int = setting(100, "L-BFGS iterations of every GP's hyper-parameter fit.", minimum=0)
-
-
 GPREPS_SMOKE = {
     "n_initial": 4,
     "n_updates": 2,
@@ -236,20 +184,6 @@ def _hockey_model(task, st: HockeyGPREPSSettings):
         make_displacement_model=gp,
         slide_dt=slide_dt,
         max_sliding_points=st.max_sliding_points,
-    )
-
-
-def _table_tennis_model(task, st, schedule: str = "auto"):
-    from skillkit.search.table_tennis_model import TableTennisRewardModel
-
-    gp = partial(ExactGP, n_steps=st.gp_steps)
-    return TableTennisRewardModel(
-        task,
-        make_landing_model=gp,
-        make_bounce_model=gp,
-        make_racket_model=gp,
-        make_return_model=gp,
-        schedule=schedule,
     )
 
 
@@ -612,320 +546,6 @@ def _hockey_setup(st: HockeyGPREPSSettings) -> list[dict]:
     return [*HOCKEY_SETUP, row]
 
 
-# --------------------------------------------------------------------------- table tennis
-def run_trial_412(st: TableTennisGPREPSSettings, rng: np.random.Generator, trial: TrialContext):
-    """GPREPS (five models), GP direct and REPS on ``table-tennis`` from the imitation policy."""
-    task = make("table-tennis")
-    heldout = task.sample_context(rng, n=st.n_heldout)
-    eval_contexts = task.sample_context(rng, n=st.n_eval_contexts)
-    heldout_seed = int(rng.integers(2**63))
-    seeds = rng.spawn(3)
-    trial.reset(total=2 * st.n_updates + st.reps_updates)
-
-    def score(policy) -> dict:
-        return shot_scores(task, policy, heldout, heldout_seed)[0]
-
-    out: dict = {}
-    out.update(_gpreps_run(task, st, "gpreps", _table_tennis_model(task, st, st.schedule),
-                           seeds[0], trial, eval_contexts, score, keep_model=True))  # fmt: skip
-    direct = DirectRewardModel(ExactGP(n_steps=st.gp_steps))
-    out.update(_gpreps_run(task, st, "direct", direct, seeds[1], trial, eval_contexts, score))
-    # fig3.7's REPS with the fit regularisation the stored fig4.12 result was made with
-    tt = replace(TableTennisSettings(), **REGULARISED)
-    reps = make_reps(task, tt)
-    every = max(1, st.reps_updates // 5)
-    out.update(_reps_run(task, reps, "reps", st.reps_updates, tt.rollouts_per_update, seeds[2],
-                         trial, eval_contexts, score, every))  # fmt: skip
-    return out
-
-
-TT_SCORES = ("reward", "returned", "net", "missed", "landing_error")
-
-
-def summarize_412(st: TableTennisGPREPSSettings, trials: list[dict]):
-    keys = ("gpreps", "direct", "reps")
-    labels = {"gpreps": "GPREPS", "direct": "GP direct", "reps": "REPS (ε = 0.6)"}
-    series = []
-    for key in keys:
-        series.append(_curves(trials, key, "rollouts", "mean_reward", labels[key],
-                              "learning curves", "reward of the policy mean"))  # fmt: skip
-        series.append(_curves(trials, key, "heldout_rollouts", "heldout_landing_error",
-                              labels[key], "held-out landing error", "‖b − p‖ (m)"))  # fmt: skip
-    summary: dict = {"n_trials": len(trials), "thesis_numbers": dict(THESIS_412)}
-    for key in keys:
-        summary[key] = _final_stats(trials, key, TT_SCORES)
-    for key in ("gpreps", "direct"):
-        summary[key].update(_gpreps_stats(trials, key))
-    summary["reps_rollouts_to_gpreps_final_reward"] = rollouts_to_reach(
-        trials, "reps", summary["gpreps"]["final_reward"], "heldout_reward", "heldout_rollouts"
-    )
-    summary["setup"] = TT_SETUP
-    summary["viewer"] = VIEWER_NOTE
-    summary["claim_parts"] = claim_parts_412(summary)
-    return series, with_verdict(summary, verdict_412(st, summary))
-
-
-NET_412 = 0.05
-"""The largest share of held-out shots into the net that counts as "avoiding hitting the ball
-into the net" (fixed before the stored run)."""
-
-
-def claim_parts_412(summary: dict) -> dict[str, bool | None]:
-    """The thesis's sentences on Fig. 4.12 (Sec. 4.3.4), part by part, from ``summary``.
-
-    * ``gpreps_within_150`` — "This behavior could be learned within 150 evaluations": GPREPS
-      ends after N₀ + K ≤ 150 real rollouts;
-    * ``gpreps_always_within_30cm`` — "GPREPS *always* provided a consistent performance, and
-      the final policy was able to return the ball within 30cm of the target position" /
-      "*consistently* provides high quality policies": in every trial the final policy mean's
-      held-out landing error is below 30 cm;
-    * ``gpreps_always_avoids_net`` — "while avoiding hitting the ball into the net": in every
-      trial at most 5% of its held-out shots go into the net (:data:`NET_412`);
-    * ``gpreps_outperforms_gp_direct`` — "GPREPS outperforms the other two algorithms": its
-      final held-out reward is above GP direct's after as many rollouts;
-    * ``gpreps_outperforms_reps`` — the same against REPS, on the figure's axis of
-      evaluations: REPS needs more rollouts than GPREPS to reach GPREPS's final held-out
-      reward (or never does);
-    * ``gp_direct_stuck_net_or_miss`` — GP direct's policies "often get stuck in a local
-      optima. Typically we observe policies that hit the ball to the net, or even miss the
-      ball": GP direct's final share of shots into the net or missed is above GPREPS's.
-
-    "Model-free REPS requires at least 4000 evaluations on average to learn a policy that
-    consistently returns the ball" is reported (REPS's outcome after its rollouts), not judged:
-    the thesis does not say what "consistently returns" is. A part is None where the summary
-    lacks its numbers.
-    """
-    g, d = summary["gpreps"], summary["direct"]
-
-    def every_trial(key: str, bound: float, strict: bool) -> bool | None:
-        values = g.get(f"final_{key}_per_trial")
-        if values is None:
-            return None
-        ok = [finite_or_none(v) for v in values]
-        return bool(all(v is not None and (v < bound if strict else v <= bound) for v in ok))
-
-    if "reps_rollouts_to_gpreps_final_reward" in summary:
-        reached = summary["reps_rollouts_to_gpreps_final_reward"]
-        beats_reps = reached is None or bool(reached > g["rollouts"])
-    else:
-        beats_reps = None
-    return {
-        "gpreps_within_150": bool(g["rollouts"] <= THESIS_412["gpreps_rollouts"]),
-        "gpreps_always_within_30cm": every_trial(
-            "landing_error", THESIS_412["gpreps_landing_error_m"], strict=True
-        ),
-        "gpreps_always_avoids_net": every_trial("net", NET_412, strict=False),
-        "gpreps_outperforms_gp_direct": is_less(d["final_reward"], g["final_reward"]),
-        "gpreps_outperforms_reps": beats_reps,
-        "gp_direct_stuck_net_or_miss": is_less(
-            g["final_net"] + g["final_missed"], d["final_net"] + d["final_missed"]
-        ),
-    }
-
-
-def verdict_412(st: TableTennisGPREPSSettings, summary: dict) -> Verdict:
-    """Judges the thesis's sentences on Fig. 4.12 (criterion changed after the stored paper
-    run, issue #32; before, the landing error and the net share were means over trials, and
-    REPS and GP direct's net or miss were not judged): holds if every part of
-    :func:`claim_parts_412` holds — within 150 rollouts GPREPS's final policy, in every
-    trial, lands the held-out balls within 30 cm of their targets on average and puts at most
-    5% into the net; it scores a higher held-out reward than GP direct, is reached by REPS only
-    after more rollouts, and GP direct ends with more shots into the net or missed than
-    GPREPS. Reads ``summary`` only."""
-    g, d, r = summary["gpreps"], summary["direct"], summary["reps"]
-
-    def shots(s: dict) -> str:
-        return (
-            f"{fmt(100 * s['final_returned'], '.0f')}% returned, "
-            f"{fmt(100 * s['final_net'], '.0f')}% net, {fmt(100 * s['final_missed'], '.0f')}% "
-            f"missed, landing error {fmt(100 * s['final_landing_error'], '.0f')} cm, reward "
-            f"{fmt(s['final_reward'])}"
-        )
-
-    def per_trial(key: str, unit: str) -> str:
-        values = g.get(f"final_{key}_per_trial")
-        if values is None:
-            return NOT_RECORDED
-        return ", ".join(fmt(None if v is None else 100 * v, ".0f") for v in values) + unit
-
-    reached = summary.get("reps_rollouts_to_gpreps_final_reward", NOT_RECORDED)
-    if reached is None:
-        reached = "never reaching GPREPS's final reward"
-    elif reached == NOT_RECORDED:
-        reached = f"when it reaches GPREPS's final reward {NOT_RECORDED}"
-    else:
-        reached = f"reaching GPREPS's final reward after {fmt(reached, '.0f')} rollouts"
-    parts = claim_parts_412(summary)
-    return Verdict(
-        CLAIM_412,
-        conjunction(parts.values()),
-        f"Held-out shots ({summary['n_trials']} trials): GPREPS after {g['rollouts']} "
-        f"rollouts {shots(g)} (per trial: landing error {per_trial('landing_error', ' cm')}, "
-        f"net {per_trial('net', '%')}); GP direct after {d['rollouts']} {shots(d)}; REPS after "
-        f"{r['rollouts']} {shots(r)}, {reached} "
-        "(thesis: GPREPS always within 30 cm and out of the net after 150, outperforming GP "
-        "direct, which hits the net or misses, and REPS, which needs ≥ 4000)." + parts_note(parts),
-    )
-
-
-TT_SETUP = [
-    {
-        "item": "controller",
-        "thesis": "DMP + tracking controller of the 8-DoF BioRob (SL)",
-        "ours": "DMP + PD with bias compensation (MuJoCo), the task of fig3.7",
-        "why": "the task of fig3.7",
-    },
-    {
-        "item": "return zone",
-        "thesis": "uniform on the opponent's side (C.3)",
-        "ours": "the whole opponent's half (table-tennis)",
-        "why": "as the thesis",
-    },
-    {
-        "item": "models",
-        "thesis": "five: incoming landing; bounce trajectory; racket position and quaternion "
-        "(40 basis functions, GP ω → weights); linear SVM contact + GP landing point",
-        "ours": "the same five (TableTennisRewardModel; scikit-learn's linear SVM); the "
-        "contact inputs add the ball's position relative to the racket and the distance at "
-        "the closest approach",
-        "why": "with the thesis's inputs alone the linear SVM's balanced accuracy was 0.50–0.57 "
-        "on 400 rollouts (always 'miss'); with the two additions 0.98–0.99",
-    },
-    {
-        "item": "reward schedule",
-        "thesis": "c₂ negligible plus a constant max‖b − p‖ penalty until the contact model is "
-        "good, then c₁ = c₂; model-free always c₁ = c₂",
-        "ours": "the same, 'good' decided by the contact model's cross-validated accuracy "
-        "(TableTennisRewardModel)",
-        "why": "the thesis does not say how 'good' is decided",
-    },
-    {
-        "item": "M, L, ε, data",
-        "thesis": "M = 500, L = 25 (throwing), ε = 1; N = 20 then 1",
-        "ours": "M = 500, L = 10, ε = 1; N₀ = 20 then 1",
-        "why": "L = 10 keeps an update affordable on 2 cores",
-    },
-    {
-        "item": "REPS",
-        "thesis": "≥ 4000 rollouts",
-        "ours": "fig3.7's REPS (ε = 0.6, 50 per update, the last 200 reused), 4000 rollouts",
-        "why": "the same model-free baseline as fig3.7",
-    },
-]
-
-
-# --------------------------------------------------------------------------- fig4.13
-def run_trial_413(st: ModelAccuracySettings, rng: np.random.Generator, trial: TrialContext):
-    """Fit the five models on ``n_rollouts`` rollouts of the initial policy; compare their
-    samples with the simulator on ``n_heldout`` fresh (s, ω) pairs."""
-    task = make("table-tennis")
-    policy = task.initial_policy()
-    trial.reset(total=3)
-
-    def rollouts(n: int):
-        s = task.sample_context(rng, n=n)
-        w = policy.sample(s, rng)
-        trajs = [task.rollout(wi, si, rng=rng) for wi, si in zip(w, s, strict=True)]
-        return s, w, trajs
-
-    s_tr, w_tr, t_tr = rollouts(st.n_rollouts)
-    trial.update()
-    model = _table_tennis_model(task, st, "returning")
-    r_tr = np.array([task.reward(t, s) for t, s in zip(t_tr, s_tr, strict=True)])
-    model.fit(s_tr, w_tr, r_tr, t_tr, rng)
-    trial.update()
-    s_te, w_te, t_te = rollouts(st.n_heldout)
-    errors = model.heldout_errors(s_te, w_te, t_te, st.n_samples, rng)
-    trial.update()
-    hits = [i for i, t in enumerate(t_te) if t.info["hit"]]
-    shown = (hits + [i for i in range(len(t_te)) if i not in hits])[: st.n_shown]
-    pred = model.predict(s_te[shown], w_te[shown], st.n_samples, rng)
-    out = {f"accuracy_{k}": np.asarray(v, dtype=float) for k, v in errors.items()}
-    out["shown_ball_predicted"] = pred.ball
-    out["shown_racket_predicted"] = pred.racket
-    out["shown_landing_predicted"] = pred.landing
-    out["shown_ball_real"] = np.stack([t_te[i].signals["ball"] for i in shown])
-    out["shown_racket_real"] = np.stack([t_te[i].signals["racket"] for i in shown])
-    out["shown_landing_real"] = np.array(
-        [t_te[i].info["landing_point"] if t_te[i].info["hit"] else [np.nan] * 2 for i in shown]
-    )
-    return out
-
-
-MODEL_ERRORS = {
-    "bounce_position_error_m": 0.05,
-    "racket_position_rmse_m": 0.03,
-    "contact_accuracy": 0.9,
-    "return_landing_error_m": 0.30,
-}
-"""fig4.13's thresholds, fixed before any run: median bounce-point error, racket-position RMSE
-(over the stroke), held-out hit/miss accuracy of the contact SVM, median error of the returned
-landing point (the thesis's 30 cm)."""
-
-
-def _nan_joined(paths: np.ndarray, cols) -> tuple[list, list]:
-    """Paths (n, T, 3) as one polyline with NaN breaks, on the columns ``cols``."""
-    xs, ys = [], []
-    for p in paths:
-        xs += p[:, cols[0]].tolist() + [float("nan")]
-        ys += p[:, cols[1]].tolist() + [float("nan")]
-    return xs, ys
-
-
-def summarize_413(st: ModelAccuracySettings, trials: list[dict]):
-    t0 = trials[0]
-    series = []
-    for view, cols, ylabel in (("side view (x–z)", (0, 2), "z (m)"),
-                               ("top view (x–y)", (0, 1), "y (m)")):  # fmt: skip
-        for name, key, kind in (
-            ("incoming ball, models 1–2 (10 samples)", "shown_ball_predicted", "line"),
-            ("racket, models 3–4 (10 samples)", "shown_racket_predicted", "line"),
-        ):
-            pred = np.asarray(t0[key], dtype=float)
-            x, y = _nan_joined(pred.reshape(-1, *pred.shape[2:]), cols)
-            series.append(Series(name, x, y, view, kind, xlabel="x (m)", ylabel=ylabel))
-        for name, key in (("ball, simulator", "shown_ball_real"),
-                          ("racket, simulator", "shown_racket_real")):  # fmt: skip
-            x, y = _nan_joined(np.asarray(t0[key], dtype=float), cols)
-            series.append(Series(name, x, y, view, "line", xlabel="x (m)", ylabel=ylabel))
-    lp = np.asarray(t0["shown_landing_predicted"], dtype=float).reshape(-1, 2)
-    lr = np.asarray(t0["shown_landing_real"], dtype=float)
-    series.append(Series("returned landing point, model 5", lp[:, 0].tolist(),
-                         lp[:, 1].tolist(), "top view (x–y)", "markers", xlabel="x (m)",
-                         ylabel="y (m)"))  # fmt: skip
-    series.append(Series("returned landing point (hits), simulator", lr[:, 0].tolist(),
-                         lr[:, 1].tolist(), "top view (x–y)", "markers", xlabel="x (m)",
-                         ylabel="y (m)"))  # fmt: skip
-    errors = {
-        k[len("accuracy_") :]: float(np.mean([t[k] for t in trials]))
-        for k in t0
-        if k.startswith("accuracy_")
-    }
-    summary: dict = {"n_trials": len(trials), "errors": errors,
-                     "thresholds": dict(MODEL_ERRORS)}  # fmt: skip
-    return series, with_verdict(summary, verdict_413(st, summary))
-
-
-def verdict_413(st: ModelAccuracySettings, summary: dict) -> Verdict:
-    """Holds if every error in :data:`MODEL_ERRORS` is within its threshold (accuracy above)."""
-    e = summary["errors"]
-    ok = []
-    for name, limit in MODEL_ERRORS.items():
-        value = e.get(name, float("nan"))
-        ok.append(value >= limit if name == "contact_accuracy" else value <= limit)
-    return Verdict(
-        CLAIM_413,
-        bool(all(ok)),
-        f"From {st.n_rollouts} rollouts, on {st.n_heldout} held-out rollouts × {st.n_samples} "
-        f"samples: bounce point {fmt(100 * e.get('bounce_position_error_m', np.nan), '.1f')} cm "
-        f"(median), racket position {fmt(100 * e.get('racket_position_rmse_m', np.nan), '.1f')} "
-        f"cm (RMSE), contact accuracy {fmt(100 * e.get('contact_accuracy', np.nan), '.0f')}% "
-        f"(majority class {fmt(100 * e.get('contact_majority_rate', np.nan), '.0f')}%), "
-        f"returned landing point {fmt(100 * e.get('return_landing_error_m', np.nan), '.0f')} cm "
-        f"(median).",
-    )
-
-
 # --------------------------------------------------------------------------- registry
 register(
     Experiment(
@@ -967,42 +587,5 @@ register(
         own_checks=lambda _settings, summary: own_checks_411(summary),
         trials={"smoke": 2, "quick": 3, "paper": 5},
         claim=CLAIM_411,
-    )
-)
-register(
-    Experiment(
-        id="fig4.12",
-        title="Robot table tennis: GPREPS (five models) vs GP direct vs REPS",
-        settings_class=TableTennisGPREPSSettings,
-        settings=_scales(
-            TableTennisGPREPSSettings,
-            smoke={"reps_updates": 1},
-            quick={"reps_updates": 10},
-        ),
-        run_trial=run_trial_412,
-        summarize=summarize_412,
-        verdict=verdict_412,
-        trials={"smoke": 1, "quick": 1, "paper": 3},
-        claim=CLAIM_412,
-    )
-)
-register(
-    Experiment(
-        id="fig4.13",
-        title="Robot table tennis: the five models' predictions against the simulator",
-        settings_class=ModelAccuracySettings,
-        settings={
-            "smoke": ModelAccuracySettings(
-                n_rollouts=20, n_heldout=3, n_samples=2, n_shown=1, gp_steps=10
-            ),
-            # quick scales down: held-out rollouts 20→10, L-BFGS iterations 100→60
-            "quick": ModelAccuracySettings(n_heldout=10, gp_steps=60),
-            "paper": ModelAccuracySettings(),
-        },
-        run_trial=run_trial_413,
-        summarize=summarize_413,
-        verdict=verdict_413,
-        trials={"smoke": 1, "quick": 1, "paper": 1},
-        claim=CLAIM_413,
     )
 )

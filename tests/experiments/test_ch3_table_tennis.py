@@ -164,7 +164,7 @@ def test_thesis_fit_is_the_default_and_the_regularised_one_is_named():
 
 
 def test_fig412_reps_keeps_the_settings_of_its_stored_result(monkeypatch):
-    from skillkit.experiments import ch4_events
+    from skillkit.experiments import ch4_table_tennis as ch4_events
 
     seen = []
 

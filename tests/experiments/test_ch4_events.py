@@ -9,6 +9,7 @@ import pytest
 from scipy import stats
 
 from skillkit.experiments import ch4_events as ev
+from skillkit.experiments import ch4_table_tennis as tt
 from skillkit.experiments import get, reproduce
 from skillkit.viz.model_layers import load_gpreps_run, model_layers
 
@@ -122,14 +123,14 @@ def _summary_412(**kw) -> dict:
 )
 def test_fig412_verdict_decides_each_part_of_the_sentences(change, part):
     st = get("fig4.12").settings["paper"]
-    assert ev.verdict_412(st, _summary_412()).holds is True
-    assert ev.verdict_412(st, _summary_412(reached=None)).holds is True  # REPS never reaches
-    assert ev.claim_parts_412(_summary_412(**change))[part] is False
-    v = ev.verdict_412(st, _summary_412(**change))
+    assert tt.verdict_412(st, _summary_412()).holds is True
+    assert tt.verdict_412(st, _summary_412(reached=None)).holds is True  # REPS never reaches
+    assert tt.claim_parts_412(_summary_412(**change))[part] is False
+    v = tt.verdict_412(st, _summary_412(**change))
     assert v.holds is False and part in v.statement
     summary = _summary_412()
     del summary["gpreps"]["final_net_per_trial"]
-    assert ev.verdict_412(st, summary).holds is None
+    assert tt.verdict_412(st, summary).holds is None
 
 
 def test_fig413_verdict():
@@ -137,8 +138,8 @@ def test_fig413_verdict():
     errors = {"bounce_position_error_m": 0.01, "racket_position_rmse_m": 0.02,
               "contact_accuracy": 0.95, "contact_majority_rate": 0.8,
               "return_landing_error_m": 0.2}  # fmt: skip
-    assert ev.verdict_413(st13, {"errors": errors}).holds is True
-    assert ev.verdict_413(st13, {"errors": dict(errors, contact_accuracy=0.85)}).holds is False
+    assert tt.verdict_413(st13, {"errors": errors}).holds is True
+    assert tt.verdict_413(st13, {"errors": dict(errors, contact_accuracy=0.85)}).holds is False
 
 
 @pytest.mark.parametrize(("exp_id", "model"), [("fig4.10", "HockeyRewardModel"),

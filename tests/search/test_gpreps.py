@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import pickle
 import warnings
+from functools import partial
 
 import numpy as np
 import pytest
@@ -423,3 +424,40 @@ def test_gpreps_reaches_sanity3_threshold_with_a_tenth_of_reps_rollouts():
     n_updates = 10 * n_gpreps // QUICK.rollouts_per_update
     err_reps, _ = errors(reps, n_updates, QUICK.rollouts_per_update, None)
     assert np.all(err_reps > QUICK.threshold), (n_gpreps, err_reps.min())
+
+
+# --------------------------------------------------------------------------- refit_gp
+def _refit_data():
+    rng = np.random.default_rng(3)
+    x = rng.uniform(-2, 2, size=(40, 2))
+    y = np.sin(3 * x[:, 0]) + 0.05 * rng.standard_normal(40)
+    return x, y
+
+
+def test_refit_best_keeps_the_larger_marginal_likelihood_of_both_starts():
+    from skillkit.search.gpreps import refit_gp
+
+    x, y = _refit_data()
+    make = partial(ExactGP, n_steps=60)
+    # a poor previous optimum: input 0 switched off, all variance called noise
+    previous = {"lengthscale": np.array([50.0, 50.0]), "outputscale": np.array(0.01),
+                "noise": np.array(0.5)}  # fmt: skip
+    gp, rec = refit_gp(make, x, y, np.random.default_rng(0), previous, "best")
+    assert rec["log_ml_cold"] is not None and rec["log_ml_warm"] is not None
+    kept = rec[f"log_ml_{rec['start']}"]
+    assert kept == max(rec["log_ml_cold"], rec["log_ml_warm"])
+    assert float(np.sum(gp.diagnostics["log_marginal_likelihood"])) == kept
+    # each start alone reproduces its own value (same seed, same additive noise)
+    for start in ("cold", "warm"):
+        _, alone = refit_gp(make, x, y, np.random.default_rng(0), previous, start)
+        assert alone["start"] == start and alone[f"log_ml_{start}"] == rec[f"log_ml_{start}"]
+
+
+def test_refit_without_previous_fits_cold_and_names_bad_modes():
+    from skillkit.search.gpreps import refit_gp
+
+    x, y = _refit_data()
+    gp, rec = refit_gp(partial(ExactGP, n_steps=20), x, y, np.random.default_rng(0), None, "warm")
+    assert rec["start"] == "cold" and rec["log_ml_warm"] is None
+    with pytest.raises(ValueError, match="refit"):
+        refit_gp(ExactGP, x, y, np.random.default_rng(0), None, "sometimes")

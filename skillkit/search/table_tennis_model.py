@@ -31,20 +31,32 @@ GPREPS predicts the reward of a stroke with five learned models chained as in Se
    quaternion is the shortest-arc rotation taking the reference normal
    :data:`REFERENCE_NORMAL` to n (:func:`normal_to_quaternion`; the rotation about n is
    irrelevant to the ball). Predicted quaternions are re-normalised.
-5. **Contact**: at the sample of minimal ball–racket distance on the incoming ball, the
-   inputs x = [v_ball − v_racket (3), racket position (3), racket quaternion (4)] of the
-   thesis, extended by default with the ball's position relative to the racket and the
-   distance itself (see ``contact_features``; velocities are backward differences of the
-   paths, the same for real and predicted paths), go to a linear-kernel SVM (scikit-learn,
-   inputs standardised) that classifies hit / miss (labels ``info["hit"]``), and, for a
-   hit, to a GP x ↦ the returned ball's landing point p (2), trained on the hit rollouts.
+5. **Contact** (:class:`ContactModel`): the classifier's inputs are read at one event, by one
+   function (:func:`contact_event`) for real and predicted paths alike: the incoming ball
+   ends where it first reaches the racket face (its centre one ball radius from the face
+   plane, as the simulator detects an impact) or, without that, where it ends; the inputs
+   are read at the sample of minimal ball–racket distance before that (the thesis: "at the
+   time when the absolute distance between the racket and the ball is minimal"). A real hit
+   ends the recorded incoming ball at the impact and a predicted ball, which has no contact
+   physics, would fly through the racket: stopping it at the face makes the two paths end at
+   the same sample (issue #31: read at the closest approach of the flown-through path, the
+   ball's offset along x was +0.11 cm predicted against +2.84 cm real). The inputs are
+   x = [v_ball − v_racket (3), racket position (3), racket quaternion (4)] of the thesis
+   (``contact_features="thesis"``, default) or these and the ball's position relative to the
+   racket and its norm (``"extended"``); velocities are backward differences of the paths.
+   They go to a linear-kernel SVM (scikit-learn, inputs standardised) that classifies hit /
+   miss (labels ``info["hit"]``), and, for a hit, to a GP x ↦ the returned ball's landing
+   point p (2), trained on the hit rollouts. How a sampled path's contact enters the reward
+   is ``contact_score`` (:data:`CONTACT_SCORES`).
 
 The reward (Eq. 4.17) follows the schedule of Sec. 4.3.4 (see :class:`TableTennisRewardModel`):
 in the *hitting* stage R = −c₁ min‖τ_b − τ_r‖ − ε c₁ ‖b − p‖ − c₁ P, in the *returning*
 stage the task's own R = −c₁ min‖τ_b − τ_r‖ − c₂ ‖b − p‖ (c₁ = c₂). A predicted miss returns
-no ball; its ‖b − p‖ is the largest possible one, P (:func:`max_target_distance`). The
-minimum distance term is the task's :meth:`~skillkit.tasks.table_tennis.TableTennis.reward_batch`
-on the predicted ball and racket paths.
+no ball; its ‖b − p‖ is the largest possible one, P (:func:`max_target_distance`); with a
+contact score w ∈ [0, 1] a sampled path's ‖b − p‖ is w ‖b − p̂‖ + (1 − w) P. The minimum
+distance term is the task's :meth:`~skillkit.tasks.table_tennis.TableTennis.reward_batch`
+on the predicted ball (up to the first sample at the racket face, as the task counts the
+real ball up to the first sample after a hit) and racket paths.
 """
 
 from __future__ import annotations
@@ -59,7 +71,7 @@ import torch
 
 from skillkit._validation import as_generator, check_array, check_count, check_positive
 from skillkit.models.gp import ExactGP, _GPRegression
-from skillkit.search.gpreps import _gp_stats, _warm_start
+from skillkit.search.gpreps import _gp_stats, check_refit, refit_gp
 from skillkit.search.model_rollouts import worst_if_nonfinite
 from skillkit.tasks.table_tennis import (
     SERVE_POSITION,
@@ -70,10 +82,14 @@ from skillkit.tasks.table_tennis import (
 )
 
 __all__ = [
+    "CONTACT_FEATURES",
+    "CONTACT_SCORES",
     "REFERENCE_NORMAL",
+    "ContactModel",
     "TableTennisPrediction",
     "TableTennisRewardModel",
     "TimeBasis",
+    "contact_event",
     "find_bounce",
     "max_target_distance",
     "normal_to_quaternion",
@@ -85,6 +101,10 @@ REFERENCE_NORMAL = np.array([1.0, 0.0, 0.0])
 normals stay in the +x half-space, far from the shortest arc's singularity at −x."""
 
 SCHEDULES = ("auto", "hitting", "returning")
+CONTACT_FEATURES = ("thesis", "extended")
+"""Inputs of the contact model (:class:`ContactModel`): the thesis's ten, or ours (fourteen)."""
+CONTACT_SCORES = ("probability", "decision", "margin")
+"""How a sampled path's contact enters its reward (:meth:`ContactModel.weights`)."""
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -234,10 +254,14 @@ def _backward_velocity(paths: np.ndarray, k: np.ndarray, dt: float) -> np.ndarra
 class _ScoresGP:
     """A GP from inputs to the PCA scores of many correlated outputs (basis weights)."""
 
-    def __init__(self, gp: _GPRegression, tolerance: float, max_components: int):
-        self.gp, self.tolerance, self.max_components = gp, tolerance, max_components
+    def __init__(self, make_gp: Callable[[], Any], tolerance: float, max_components: int):
+        self.make_gp, self.tolerance, self.max_components = make_gp, tolerance, max_components
+        self.gp: Any = None
 
-    def fit(self, x, y, rng, hypers) -> _ScoresGP:
+    def fit(self, x, y, rng, previous=None, refit: str = "best") -> dict[str, Any]:
+        """PCA of y (N, D), then a GP x (N, d) ↦ the k kept scores, refitted by
+        :func:`~skillkit.search.gpreps.refit_gp` from ``previous`` hyper-parameters (used only
+        when they have the same k). Returns refit_gp's record."""
         self.mean = y.mean(axis=0)
         u, sv, vt = np.linalg.svd(y - self.mean, full_matrices=False)
         var = sv**2
@@ -247,11 +271,10 @@ class _ScoresGP:
         self.components = vt[:k]  # (k, D)
         self.explained = float(frac[k - 1])
         scores = (y - self.mean) @ self.components.T
-        if hypers is not None and isinstance(self.gp, _GPRegression):
-            if np.shape(hypers["lengthscale"])[0] == k:
-                _warm_start(self.gp, hypers, x)
-        self.gp.fit(x, scores, rng)
-        return self
+        if previous is not None and np.shape(previous["lengthscale"])[0] != k:
+            previous = None
+        self.gp, record = refit_gp(self.make_gp, x, scores, rng, previous, refit)
+        return record
 
     def sample(self, x, L: int, rng) -> np.ndarray:
         """Sampled outputs (B, L, D): scores ~ N(GP mean, GP var) independently."""
@@ -289,6 +312,236 @@ class _Constant:
         return np.full(np.asarray(x).shape[0], 1.0 if self.label else -1.0)
 
 
+# ----------------------------------------------------------------------------- contact
+def contact_event(ball, racket, quaternion, steps, ball_radius: float):
+    r"""Where model 5 reads its inputs: one rule for real and predicted paths.
+
+    The incoming ball *reaches the racket face* between samples k − 1 and k when the signed
+    distance of its centre to the face plane, g_k = (p_b − p_r)·n_k minus the ball radius
+    (taken on the side the ball was at k − 1), changes from > 0 to ≤ 0 — the simulator's
+    impact test (:mod:`skillkit.tasks.table_tennis.ball`) on the recorded samples, without its
+    disc test, so a ball passing beside the disc reaches the plane too. The incoming ball is
+    cut there: ``cut`` is the first sample at or behind the face (``steps`` if it never gets
+    there). The event is the sample of minimal ball–racket distance before ``cut`` (Sec.
+    4.3.4: "at the time when the absolute distance between the racket and the ball is
+    minimal").
+
+    A recorded hit ends at the impact (``steps`` from ``info["incoming_end"]``), before the
+    ball's centre reaches the face; a predicted ball, without contact physics, crosses the
+    face at the next sample; both give the same samples, so a predicted path that reproduces
+    a recorded one gives the same event (tested).
+
+    Parameters
+    ----------
+    ball, racket : ndarray, shape (n, T, 3)
+        Ball and racket-centre positions at the control times.
+    quaternion : ndarray, shape (n, T, 4)
+        Racket orientation [w, x, y, z] (the face normal is :func:`quaternion_to_normal`).
+    steps : array_like of int, shape (n,)
+        The first ``steps`` samples (≥ 1) are the incoming ball.
+    ball_radius : float
+        m.
+
+    Returns
+    -------
+    event : ndarray of int, shape (n,)
+        The event sample.
+    cut : ndarray of int, shape (n,)
+        Samples of the incoming ball before the face (1 ≤ cut ≤ steps).
+    distance : ndarray, shape (n,)
+        ‖p_b − p_r‖ at the event (m).
+    """
+    ball = np.asarray(ball, dtype=np.float64)
+    racket = np.asarray(racket, dtype=np.float64)
+    if ball.ndim != 3 or ball.shape[2] != 3 or racket.shape != ball.shape:
+        raise ValueError(
+            f"ball, racket: expected equal shapes (n, T, 3), got {ball.shape} and {racket.shape}"
+        )
+    n, T, _ = ball.shape
+    quaternion = np.asarray(quaternion, dtype=np.float64)
+    if quaternion.shape != (n, T, 4):
+        raise ValueError(f"quaternion: expected shape {(n, T, 4)}, got {quaternion.shape}")
+    steps = np.asarray(steps)
+    if steps.shape != (n,) or np.any(steps < 1) or np.any(steps > T):
+        raise ValueError(f"steps: expected {n} whole numbers in [1, {T}], got {steps!r:.80}")
+    steps = steps.astype(np.int64)
+    normal = quaternion_to_normal(quaternion)
+    g = np.sum((ball - racket) * normal, axis=-1)  # (n, T) centre to face plane
+    side = np.where(g[:, :-1] >= 0.0, 1.0, -1.0)
+    reach = (side * g[:, :-1] - ball_radius > 0.0) & (side * g[:, 1:] - ball_radius <= 0.0)
+    reach &= np.arange(1, T)[None, :] < steps[:, None]  # sample k is still incoming
+    cut = np.where(reach.any(axis=1), reach.argmax(axis=1) + 1, steps)
+    d = np.linalg.norm(ball - racket, axis=-1)
+    d = np.where(np.arange(T)[None, :] < cut[:, None], d, np.inf)
+    event = np.argmin(d, axis=1)
+    return event, cut, d[np.arange(n), event]
+
+
+class ContactModel:
+    r"""Model 5 of Sec. 4.3.4: the contact classifier and the returned ball's landing point.
+
+    "The fifth model predicts the landing position of the returned ball in case of a
+    contact, which is detected by a Support Vector Machine (SVM) classifier with a linear
+    kernel" — inputs from :meth:`inputs` (:func:`contact_event`), a linear SVM for hit /
+    miss, and a GP inputs ↦ landing point p (2,) on the hits.
+
+    Parameters
+    ----------
+    dt : float
+        Control period (s) of the backward-difference velocities.
+    ball_radius : float
+        m (:func:`contact_event`).
+    features : {"thesis", "extended"}
+        "thesis" (10): [v_ball − v_racket (3), racket position (3), racket quaternion (4)],
+        the thesis's "relative velocity of the ball and the racket, the position and
+        orientation of the racket". "extended" (14) adds the ball's position relative to the
+        racket (3) and its norm (1) (ours).
+    score : {"probability", "decision", "margin"}
+        The weight w ∈ [0, 1] a sampled path's contact gets in the reward (:meth:`weights`):
+        "probability": the SVM's probability of a hit calibrated by Platt scaling
+        (scikit-learn's ``CalibratedClassifierCV(method="sigmoid")``, cross-validated);
+        "decision": 1 where the SVM decides "hit", else 0 (the hard decision on each sampled
+        path); "margin": the decision softened inside the SVM's margin, clip((1 + f) / 2, 0,
+        1) of its decision value f.
+    make_classifier : callable
+        Returns an unfitted scikit-learn classifier with ``decision_function``.
+    make_return_model : callable
+        Returns an unfitted GP regression (inputs ↦ p).
+    refit : {"cold", "warm", "best"}
+        How the landing GP's hyper-parameters are refitted
+        (:func:`~skillkit.search.gpreps.refit_gp`).
+    """
+
+    def __init__(
+        self,
+        dt: float,
+        ball_radius: float,
+        features: str = "thesis",
+        score: str = "probability",
+        make_classifier: Callable[[], Any] | None = None,
+        make_return_model: Callable[[], Any] | None = None,
+        refit: str = "best",
+    ):
+        if features not in CONTACT_FEATURES:
+            raise ValueError(
+                f"contact_features: expected one of {CONTACT_FEATURES}, got {features!r}"
+            )
+        if score not in CONTACT_SCORES:
+            raise ValueError(f"contact_score: expected one of {CONTACT_SCORES}, got {score!r}")
+        self.dt = check_positive(dt, "dt")
+        self.ball_radius = check_positive(ball_radius, "ball_radius")
+        self.features, self.score = features, score
+        self.make_classifier = make_classifier or _linear_svm
+        self.make_return_model = make_return_model or _gp
+        self.refit = check_refit(refit)
+        self.classifier: Any = None
+        self.calibrated: Any = None
+        self.returns: Any = None
+        self._hypers: dict[str, np.ndarray] | None = None
+
+    @property
+    def n_features(self) -> int:
+        """10 ("thesis") or 14 ("extended")."""
+        return 10 if self.features == "thesis" else 14
+
+    def inputs(self, ball, racket, quaternion, steps) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The classifier's inputs at :func:`contact_event`'s event.
+
+        Parameters
+        ----------
+        ball, racket : ndarray, shape (n, T, 3)
+        quaternion : ndarray, shape (n, T, 4)
+        steps : array_like of int, shape (n,)
+            The first ``steps`` samples are the incoming ball.
+
+        Returns
+        -------
+        x : ndarray, shape (n, 10) or (n, 14)
+            [v_ball − v_racket (3), racket position (3), racket quaternion (4)] and, with
+            ``features="extended"``, [p_ball − p_racket (3), ‖p_ball − p_racket‖ (1)].
+        event : ndarray of int, shape (n,)
+        cut : ndarray of int, shape (n,)
+            See :func:`contact_event`.
+        """
+        event, cut, dist = contact_event(ball, racket, quaternion, steps, self.ball_radius)
+        rows = np.arange(event.shape[0])
+        rel = _backward_velocity(ball, event, self.dt) - _backward_velocity(racket, event, self.dt)
+        parts = [rel, racket[rows, event], np.asarray(quaternion)[rows, event]]
+        if self.features == "extended":
+            parts += [ball[rows, event] - racket[rows, event], dist[:, None]]
+        return np.hstack(parts), event, cut
+
+    def fit(self, x, hit, p, rng) -> dict[str, Any]:
+        """Fit the classifier on all inputs x (N, d) with labels hit (N,) and the landing GP
+        on the hits' p (N, 2). Returns ``{"n_hits", "calibration_folds", "returns_refit"}``."""
+        x = check_array(x, "x", shape=(None, self.n_features))
+        hit = np.asarray(hit, dtype=bool)
+        p = check_array(p, "p", shape=(x.shape[0], 2))
+        if hit.shape != (x.shape[0],):
+            raise ValueError(f"hit: expected shape {(x.shape[0],)}, got {hit.shape}")
+        n_hit, n_miss = int(hit.sum()), int((~hit).sum())
+        folds = min(5, n_hit, n_miss)
+        self.calibrated = None
+        if n_hit == 0 or n_miss == 0:
+            self.classifier = _Constant(bool(hit[0]))
+        else:
+            self.classifier = self.make_classifier().fit(x, hit)
+            if self.score == "probability" and folds >= 2:
+                from sklearn.calibration import CalibratedClassifierCV
+
+                self.calibrated = CalibratedClassifierCV(
+                    self.make_classifier(), method="sigmoid", cv=folds
+                ).fit(x, hit)
+        stats: dict[str, Any] = {"n_hits": n_hit, "calibration_folds": folds}
+        self.returns = None
+        if n_hit >= 2:
+            prev = self._hypers
+            if prev is not None and np.shape(prev["lengthscale"]) != (2, x.shape[1]):
+                prev = None
+            self.returns, stats["returns_refit"] = refit_gp(
+                self.make_return_model, x[hit], p[hit], rng, prev, self.refit
+            )
+            if isinstance(self.returns, _GPRegression):
+                self._hypers = self.returns.hyperparameters
+        return stats
+
+    def weights(self, x) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Contact weights of inputs x (n, d).
+
+        Returns
+        -------
+        weight : ndarray, shape (n,)
+            w ∈ [0, 1] of ``score`` (0 everywhere while there is no landing model: no
+            predicted return).
+        decision : ndarray of bool, shape (n,)
+            The SVM's hit decision.
+        margin : ndarray, shape (n,)
+            The SVM's decision value f (> 0: hit).
+        """
+        if self.classifier is None:
+            raise RuntimeError("ContactModel: call fit() before weights()")
+        decision = np.asarray(self.classifier.predict(x), dtype=bool)
+        margin = np.asarray(self.classifier.decision_function(x), dtype=np.float64)
+        if self.score == "probability" and self.calibrated is not None:
+            weight = self.calibrated.predict_proba(x)[:, list(self.calibrated.classes_).index(True)]
+        elif self.score == "margin":
+            weight = np.clip(0.5 * (1.0 + margin), 0.0, 1.0)
+        else:
+            weight = decision.astype(np.float64)
+        if self.returns is None:
+            return np.zeros(len(decision)), np.zeros(len(decision), dtype=bool), margin
+        return np.asarray(weight, dtype=np.float64), decision, margin
+
+    def sample_landing(self, x, rng) -> np.ndarray:
+        """One sampled landing point per input row, (n, 2) (NaN without a landing model)."""
+        if self.returns is None or len(x) == 0:
+            return np.full((len(x), 2), np.nan)
+        return _sample_gp(self.returns, x, 1, rng).reshape(-1, 2)
+
+    def __repr__(self) -> str:
+        return f"ContactModel(features={self.features!r}, score={self.score!r})"
+
+
 # ----------------------------------------------------------------------------- prediction
 @dataclass(frozen=True)
 class TableTennisPrediction:
@@ -309,15 +562,20 @@ class TableTennisPrediction:
     closest : ndarray, shape (B, L)
         min‖τ_b − τ_r‖ on the incoming ball (m).
     contact : ndarray of bool, shape (B, L)
-        The SVM's hit decision at the closest sample.
+        The SVM's hit decision at the contact event (:func:`contact_event`).
     margin : ndarray, shape (B, L)
         The SVM's decision value (> 0: hit).
     landing : ndarray, shape (B, L, 2)
-        Predicted landing point p of the returned ball (NaN for a predicted miss).
+        Sampled landing point p of the returned ball (NaN where the contact weight is 0).
     rewards : ndarray, shape (B, L)
         Eq. (4.17) with the weights of ``stage``.
     stage : str
         "hitting" or "returning".
+    contact_score : ndarray, shape (B, L)
+        The contact weight w ∈ [0, 1] in the reward (:meth:`ContactModel.weights`).
+    face : ndarray of int, shape (B, L)
+        Samples of the incoming ball before it reaches the racket face (``cut`` of
+        :func:`contact_event`).
     """
 
     times: np.ndarray
@@ -331,6 +589,8 @@ class TableTennisPrediction:
     landing: np.ndarray
     rewards: np.ndarray
     stage: str
+    contact_score: np.ndarray | None = None
+    face: np.ndarray | None = None
 
     @property
     def expected_rewards(self) -> np.ndarray:
@@ -339,7 +599,7 @@ class TableTennisPrediction:
 
     @property
     def contact_probability(self) -> np.ndarray:
-        """Fraction of the L samples predicted to hit, shape (B,)."""
+        """Fraction of the L samples the SVM calls hits, shape (B,)."""
         return self.contact.mean(axis=1)
 
     def __repr__(self) -> str:
@@ -389,14 +649,12 @@ class TableTennisRewardModel:
         ``SVC(kernel="linear")``).
     schedule : {"auto", "hitting", "returning"}
         Reward stage; "hitting"/"returning" force it.
-    contact_features : {"extended", "thesis"}
-        Inputs of model 5. "thesis": [v_rel (3), racket position (3), quaternion (4)] as in
-        Sec. 4.3.4. "extended" (default) adds the ball's position relative to the racket (3)
-        and its norm, the minimal distance (1): in this simulation whether the ball meets the
-        disc is decided by where it passes the racket, which the thesis's inputs do not
-        contain — on 400 rollouts of the initial policy (20 % hits) the linear SVM's
-        5-fold balanced accuracy was 0.52–0.57 with the thesis's inputs (it predicts
-        "miss" throughout unless classes are re-weighted) and 0.98–0.99 extended.
+    contact_features : {"thesis", "extended"}
+        Inputs of model 5 (:class:`ContactModel`): "thesis" (default), [v_rel (3), racket
+        position (3), quaternion (4)] as in Sec. 4.3.4; "extended" adds the ball's position
+        relative to the racket (3) and its norm (1).
+    contact_score : {"probability", "decision", "margin"}
+        How a sampled path's contact enters its reward (:class:`ContactModel`).
     epsilon : float
         ε of the hitting stage.
     min_hits, min_svm_accuracy, max_landing_rmse
@@ -409,8 +667,10 @@ class TableTennisRewardModel:
         At most this many principal scores (GPs) per racket model.
     max_points : int
         Each GP is fitted on at most this many rollouts (random subset).
-    warm_start : bool
-        Start each GP's hyper-parameter optimisation at its previous values.
+    refit : {"cold", "warm", "best"}
+        Where each GP's hyper-parameter optimisation starts after new data
+        (:func:`~skillkit.search.gpreps.refit_gp`; "best": from the default initialisation and
+        from the previous values, keeping the larger marginal likelihood).
     device : str or torch.device, optional
         Where the sampled paths are assembled (Φ W, ball–racket distances), float64. The GPs
         train on their own ``device`` (give it to the factories, e.g.
@@ -430,7 +690,8 @@ class TableTennisRewardModel:
         make_return_model: Callable[[], Any] | None = None,
         make_classifier: Callable[[], Any] | None = None,
         schedule: str = "auto",
-        contact_features: str = "extended",
+        contact_features: str = "thesis",
+        contact_score: str = "probability",
         epsilon: float = 1e-3,
         min_hits: int = 15,
         min_svm_accuracy: float = 0.8,
@@ -439,7 +700,7 @@ class TableTennisRewardModel:
         pca_tolerance: float = 1e-6,
         max_components: int = 20,
         max_points: int = 400,
-        warm_start: bool = True,
+        refit: str = "best",
         device=None,
     ):
         if not isinstance(task, TableTennis):
@@ -462,11 +723,17 @@ class TableTennisRewardModel:
         self.make_return_model = make_return_model or _gp
         self.make_classifier = make_classifier or _linear_svm
         self.schedule = schedule
-        if contact_features not in ("extended", "thesis"):
-            raise ValueError(
-                f"contact_features: expected 'extended' or 'thesis', got {contact_features!r}"
-            )
-        self.contact_features = contact_features
+        self.refit = check_refit(refit)
+        self.contact = ContactModel(
+            task.control_dt,
+            task.ball.radius,
+            contact_features,
+            contact_score,
+            self.make_classifier,
+            self.make_return_model,
+            self.refit,
+        )
+        self.contact_features, self.contact_score = contact_features, contact_score
         self.stage = "returning" if schedule == "returning" else "hitting"
         self.epsilon = check_positive(epsilon, "epsilon", allow_zero=True)
         self.min_hits = check_count(min_hits, "min_hits", 2)
@@ -476,7 +743,6 @@ class TableTennisRewardModel:
         self.pca_tolerance = check_positive(pca_tolerance, "pca_tolerance", allow_zero=True)
         self.max_components = check_count(max_components, "max_components")
         self.max_points = check_count(max_points, "max_points", 2)
-        self.warm_start = bool(warm_start)
         self.device = device
         self.penalty = max_target_distance(task)
         self.plane = TABLE_HEIGHT + task.ball.radius
@@ -484,10 +750,8 @@ class TableTennisRewardModel:
         self.bounce: Any = None
         self.racket_position: _ScoresGP | None = None
         self.racket_orientation: _ScoresGP | None = None
-        self.classifier: Any = None
-        self.returns: Any = None
         self._hypers: dict[str, dict | None] = dict.fromkeys(
-            ("landing", "bounce", "position", "orientation", "returns")
+            ("landing", "bounce", "position", "orientation")
         )
         self.n_data = 0
 
@@ -541,44 +805,42 @@ class TableTennisRewardModel:
         )
         return pos.reshape(len(trajectories), -1), quat.reshape(len(trajectories), -1)
 
-    def contact_inputs(self, ball, racket, quaternion, steps) -> tuple[np.ndarray, np.ndarray]:
-        """Model 5's inputs at the closest incoming sample.
+    # ------------------------------------------------------------------ contact
+    @property
+    def classifier(self):
+        """The contact SVM (model 5)."""
+        return self._contact_model().classifier
 
-        Parameters
-        ----------
-        ball, racket : ndarray, shape (n, T, 3)
-        quaternion : ndarray, shape (n, T, 4)
-        steps : ndarray of int, shape (n,)
-            The first ``steps`` samples are the incoming ball.
+    @property
+    def returns(self):
+        """The returned ball's landing GP (model 5; None before two hits)."""
+        return self._contact_model().returns
 
-        Returns
-        -------
-        x : ndarray, shape (n, 14) or (n, 10)
-            [v_ball − v_racket (3), racket position (3), racket quaternion (4), p_ball −
-            p_racket (3), ‖p_ball − p_racket‖ (1)]; the first 10 only with
-            ``contact_inputs="thesis"``.
-        closest : ndarray, shape (n,)
-            The minimal sampled distance (m).
-        """
-        d = np.linalg.norm(ball - racket, axis=-1)
-        T = d.shape[1]
-        d = np.where(np.arange(T)[None, :] < steps[:, None], d, np.inf)
-        k = np.argmin(d, axis=1)
-        rows = np.arange(d.shape[0])
-        dt = self.task.control_dt
-        rel = _backward_velocity(ball, k, dt) - _backward_velocity(racket, k, dt)
-        x = np.hstack(
-            [
-                rel,
-                racket[rows, k],
-                quaternion[rows, k],
-                ball[rows, k] - racket[rows, k],
-                d[rows, k, None],
-            ]
-        )
-        return (x[:, :10] if self.contact_features == "thesis" else x), d[rows, k]
+    def _contact_model(self) -> ContactModel:
+        """Model 5; a model pickled before :class:`ContactModel` existed (a stored run's
+        ``reward_model``) gets one built from its classifier and landing GP, with the event
+        and the score it was fitted with ("decision")."""
+        contact = self.__dict__.get("contact")
+        if contact is None:
+            contact = ContactModel(
+                self.task.control_dt,
+                self.task.ball.radius,
+                self.__dict__.get("contact_features", "extended"),
+                "decision",
+            )
+            contact.classifier = self.__dict__.get("classifier")
+            contact.returns = self.__dict__.get("returns")
+            self.__dict__["contact"] = contact
+        return contact
+
+    def contact_inputs(self, ball, racket, quaternion, steps):
+        """Model 5's inputs (:meth:`ContactModel.inputs`): x (n, 10 or 14), the event sample
+        (n,) and the samples before the racket face (n,)."""
+        return self._contact_model().inputs(ball, racket, quaternion, steps)
 
     def _real_contact_data(self, trajectories):
+        """Model 5's inputs x, labels hit (N,) and landing points p (N, 2) of recorded
+        rollouts, by the same :meth:`ContactModel.inputs` as predicted paths."""
         t = self.task.times
         ball = np.stack([tr.signals["ball"] for tr in trajectories])
         racket = np.stack([tr.signals["racket"] for tr in trajectories])
@@ -587,18 +849,19 @@ class TableTennisRewardModel:
         steps = np.array(
             [int(np.searchsorted(t, tr.info["incoming_end"], side="right")) for tr in trajectories]
         )
-        x, _ = self.contact_inputs(ball, racket, quat, np.maximum(steps, 1))
+        x, _, _ = self.contact_inputs(ball, racket, quat, np.maximum(steps, 1))
         hit = np.array([bool(tr.info["hit"]) for tr in trajectories])
         p = np.array([tr.info["landing_point"] for tr in trajectories], dtype=np.float64)
         return x, hit, p
 
     # ------------------------------------------------------------------ fit
-    def _fit_gp(self, key: str, gp, x, y, rng):
-        if self.warm_start and isinstance(gp, _GPRegression):
-            h = self._hypers[key]
-            if h is not None and np.shape(h["lengthscale"]) == (y.shape[1], x.shape[1]):
-                _warm_start(gp, h, x)
-        gp.fit(x, y, rng)
+    def _fit_gp(self, key: str, make_gp, x, y, rng, records: dict):
+        """Refit one GP with :func:`~skillkit.search.gpreps.refit_gp` from its previous
+        hyper-parameters (when their shape still fits)."""
+        h = self._hypers[key]
+        if h is not None and np.shape(h["lengthscale"]) != (y.shape[1], x.shape[1]):
+            h = None
+        gp, records[key] = refit_gp(make_gp, x, y, rng, h, getattr(self, "refit", "best"))
         if isinstance(gp, _GPRegression):
             self._hypers[key] = gp.hyperparameters
         return gp
@@ -623,7 +886,11 @@ class TableTennisRewardModel:
             ``svm_cv_accuracy``, ``majority_rate``, ``landing_cv_rmse``, ``good``),
             ``pca_components`` and per GP (``landing``, ``bounce``, ``racket_position``,
             ``racket_orientation``, ``returns``) its ``n_data``, ``log_ml``,
-            ``iterations``, ``noise_var_max``, ``numerical_events``; ``fit_seconds``.
+            ``iterations``, ``noise_var_max``, ``numerical_events``; ``refit``: per GP
+            (``landing``, ``bounce``, ``position``, ``orientation``, ``returns``) the
+            start kept and the log marginal likelihoods of the starts tried
+            (:func:`~skillkit.search.gpreps.refit_gp`); ``calibration_folds`` (the contact
+            probability's cross-validation folds); ``fit_seconds``.
         """
         t0 = time.perf_counter()
         task = self.task
@@ -646,29 +913,25 @@ class TableTennisRewardModel:
         stats: dict[str, Any] = {"n_data": len(trajs), "n_trajectories": len(trajs)}
 
         # models 1, 2: landing and bounce trajectory
+        refits: dict[str, Any] = {}
+        refit = getattr(self, "refit", "best")  # a model pickled before refit existed
         yb, cb, used = self.bounce_data(trajs)
         if len(used) < 2:
             raise ValueError("trajectories: fewer than two incoming-ball bounces were found")
         vb = s[used, :3]
-        self.landing = self._fit_gp("landing", self.make_landing_model(), vb, yb, rng)
+        self.landing = self._fit_gp("landing", self.make_landing_model, vb, yb, rng, refits)
         xb = np.hstack([yb[:, :2], yb[:, 5:8]])
-        self.bounce = self._fit_gp("bounce", self.make_bounce_model(), xb, cb, rng)
+        self.bounce = self._fit_gp("bounce", self.make_bounce_model, xb, cb, rng, refits)
         stats["n_bounces"] = len(used)
 
         # models 3, 4: racket position and orientation
         wp, wq = self.racket_weights(trajs)
-        self.racket_position = _ScoresGP(
-            self.make_racket_model(), self.pca_tolerance, self.max_components
-        ).fit(w, wp, rng, self._hypers["position"] if self.warm_start else None)
-        self.racket_orientation = _ScoresGP(
-            self.make_racket_model(), self.pca_tolerance, self.max_components
-        ).fit(w, wq, rng, self._hypers["orientation"] if self.warm_start else None)
-        for key, m in (
-            ("position", self.racket_position),
-            ("orientation", self.racket_orientation),
-        ):
-            if isinstance(m.gp, _GPRegression):
-                self._hypers[key] = m.gp.hyperparameters
+        for key, target in (("position", wp), ("orientation", wq)):
+            model = _ScoresGP(self.make_racket_model, self.pca_tolerance, self.max_components)
+            refits[key] = model.fit(w, target, rng, self._hypers[key], refit)
+            if isinstance(model.gp, _GPRegression):
+                self._hypers[key] = model.gp.hyperparameters
+            setattr(self, f"racket_{key}", model)
         stats["pca_components"] = {
             "position": int(self.racket_position.components.shape[0]),
             "orientation": int(self.racket_orientation.components.shape[0]),
@@ -676,19 +939,17 @@ class TableTennisRewardModel:
 
         # model 5: contact classifier and returned landing point
         x, hit, p = self._real_contact_data(trajs)
-        if hit.all() or not hit.any():
-            self.classifier = _Constant(bool(hit[0]))
-        else:
-            self.classifier = self.make_classifier().fit(x, hit)
-        self.returns = None
-        if hit.sum() >= 2:
-            self.returns = self._fit_gp("returns", self.make_return_model(), x[hit], p[hit], rng)
+        contact_stats = self.contact.fit(x, hit, p, rng)
+        if "returns_refit" in contact_stats:
+            refits["returns"] = contact_stats["returns_refit"]
+        stats["calibration_folds"] = contact_stats["calibration_folds"]
         stats["n_hits"] = int(hit.sum())
         crit = self._criterion(x, hit, p, rng)
         stats["criterion"] = crit
         if self.schedule == "auto" and crit["good"]:
             self.stage = "returning"
         stats["stage"] = self.stage
+        stats["refit"] = refits
         for key, model in (
             ("landing", self.landing),
             ("bounce", self.bounce),
@@ -799,17 +1060,17 @@ class TableTennisRewardModel:
         quat = paths(self.racket_orientation, 4)
         quat /= np.linalg.norm(quat, axis=-1, keepdims=True)
 
-        # model 5: contact and return
-        x, _ = self.contact_inputs(ball, racket, quat, steps)
-        contact = np.asarray(self.classifier.predict(x), dtype=bool)
-        margin = np.asarray(self.classifier.decision_function(x), dtype=np.float64)
+        # model 5: contact and return, read where the ball reaches the racket face
+        cm = self._contact_model()
+        x, _, face = cm.inputs(ball, racket, quat, steps)
+        weight, contact, margin = cm.weights(x)
         landing = np.full((n, 2), np.nan)
-        if self.returns is not None and contact.any():
-            landing[contact] = _sample_gp(self.returns, x[contact], 1, rng).reshape(-1, 2)
-        elif contact.any():
-            contact = np.zeros(n, dtype=bool)  # no return model yet: no predicted return
-
-        rewards, closest = self._rewards(ball, racket, steps, landing, contact, s, L)
+        some = weight > 0
+        landing[some] = cm.sample_landing(x[some], rng)
+        # the incoming ball counts up to its first sample at the face (the task: up to the
+        # first sample after a hit)
+        incoming = np.minimum(steps, face + 1)
+        rewards, closest = self._rewards(ball, racket, incoming, landing, weight, s, L)
         rewards = worst_if_nonfinite(rewards, task, "TableTennisRewardModel.predict")
         return TableTennisPrediction(
             t.copy(),
@@ -823,10 +1084,13 @@ class TableTennisRewardModel:
             landing.reshape(B, L, 2),
             rewards.reshape(B, L),
             self.stage,
+            weight.reshape(B, L),
+            face.reshape(B, L),
         )
 
-    def _rewards(self, ball, racket, steps, landing, contact, s, L):
-        """Eq. (4.17) of the current stage; returns rewards (n,) and min‖τ_b − τ_r‖ (n,)."""
+    def _rewards(self, ball, racket, steps, landing, weight, s, L):
+        """Eq. (4.17) of the current stage with ‖b − p‖ = w ‖b − p̂‖ + (1 − w) P for contact
+        weights w (n,); returns rewards (n,) and min‖τ_b − τ_r‖ (n,)."""
         task = self.task
         c1, c2 = task.reward_weights
         ctx = np.repeat(s, L, axis=0)
@@ -835,7 +1099,8 @@ class TableTennisRewardModel:
         signals = {"ball": ball, "racket": racket, "landing_point": b, "incoming_steps": steps}
         hitting = task.reward_batch(None, None, signals, ctx)
         closest = -hitting / c1 if c1 > 0 else np.full(ball.shape[0], np.nan)
-        dist = np.where(contact, np.linalg.norm(np.nan_to_num(landing) - b, axis=1), self.penalty)
+        returned = np.linalg.norm(np.nan_to_num(landing) - b, axis=1)
+        dist = np.where(weight > 0, weight * returned + (1.0 - weight) * self.penalty, self.penalty)
         if self.stage == "hitting":
             return hitting - self.epsilon * c1 * dist - c1 * self.penalty, closest
         return hitting - c2 * dist, closest
@@ -863,7 +1128,8 @@ class TableTennisRewardModel:
             * ``racket_position_rmse_m``: RMSE of the sampled racket centres (models 3) over
               the episode;
             * ``contact_accuracy``, ``contact_majority_rate``: the SVM's hit/miss accuracy
-              on the recorded inputs at the closest approach, and the majority class's rate;
+              on the recorded inputs at the contact event (:func:`contact_event`), and the
+              majority class's rate;
             * ``contact_accuracy_predicted``: the same decision on the *predicted* paths
               (all five models chained; the majority vote of the L samples);
             * ``return_landing_error_m``: median ‖p̂ − p‖ of model 5's landing points from the
@@ -928,20 +1194,27 @@ class TableTennisRewardModel:
         dict
             ``{name: {"trajectories": (L', T', 3) world points, "color": (r, g, b),
             "times": (T',) optional}}``: the incoming ball of models 1–2 (black, (L, T, 3)),
-            the racket centre of models 3–4 (blue, (L, T, 3)), and the returned landing
-            points of model 5 as small red diamonds on the table (one (5, 3) closed marker
-            path per predicted contact, (n_contacts, 5, 3)).
+            stopped at its last sample before the racket face where the SVM predicts a
+            contact (where model 5 reads its inputs, :func:`contact_event`), the racket
+            centre of models 3–4 (blue, (L, T, 3)), and the returned landing points of model
+            5 as small red diamonds on the table (one (5, 3) closed marker path per predicted
+            contact, (n_contacts, 5, 3)).
         """
         s = self.task.check_context(context)
         w = self.task.check_omega(omega)
         pred = self.predict(s[None], w[None], check_count(n_samples, "n_samples"), rng)
+        ball = pred.ball[0].copy()
+        if pred.face is not None:
+            for i in np.flatnonzero(pred.contact[0]):
+                last = max(int(pred.face[0, i]) - 1, 0)
+                ball[i, last + 1 :] = ball[i, last]
         r = 0.025
         diamond = np.array([[r, 0, 0], [0, r, 0], [-r, 0, 0], [0, -r, 0], [r, 0, 0]])
         pts = pred.landing[0][pred.contact[0]]
         centres = np.column_stack([pts, np.full(len(pts), self.plane)])
         return {
             "landing+bounce models: incoming ball": {
-                "trajectories": pred.ball[0],
+                "trajectories": ball,
                 "color": (0, 0, 0),
                 "times": pred.times,
             },
@@ -960,7 +1233,7 @@ class TableTennisRewardModel:
         state = "unfitted" if self.landing is None else f"{self.n_data} rollouts"
         return (
             f"TableTennisRewardModel(task={self.task.name!r}, {state}, stage={self.stage!r}, "
-            f"schedule={self.schedule!r}, contact_features={self.contact_features!r}, "
+            f"schedule={self.schedule!r}, contact={self._contact_model()!r}, "
             f"n_basis={self.basis.n_basis}, "
             f"penalty={self.penalty:.4g} m)"
         )

@@ -1,6 +1,7 @@
 """Figures from live objects, without building series by hand: a learning run
 (:func:`plot_learning`), a 1-D GP fit (:func:`plot_gp_fit`), named curves
-(:func:`line_figure`) and model-predicted against real trajectories (:func:`prediction_figure`).
+(:func:`line_figure`), model-predicted against real trajectories (:func:`prediction_figure`)
+and a reward model's sampled paths over the real ones (:func:`model_paths_figure`).
 
 Each builds :class:`~skillkit.viz.series.Series` and draws them with the same code as the
 experiment figures (:mod:`skillkit.viz.plots`), returning a plotly ``Figure`` or a
@@ -15,7 +16,13 @@ import numpy as np
 
 from skillkit.viz.plots import _BACKENDS, _draw
 
-__all__ = ["line_figure", "plot_gp_fit", "plot_learning", "prediction_figure"]
+__all__ = [
+    "line_figure",
+    "model_paths_figure",
+    "plot_gp_fit",
+    "plot_learning",
+    "prediction_figure",
+]
 
 
 # ------------------------------------------------------------------------ learning curves
@@ -333,3 +340,102 @@ def prediction_figure(
         n = min(len(r), T1)
         series.append(Series("real", x[:n], r[:n, dim].tolist(), **common))
     return _draw({"title": "predicted vs real", "series": [s.to_dict() for s in series]}, backend)
+
+
+# ------------------------------------------------------------------------ model paths
+#: Trajectory signals drawn as the real paths of :func:`model_paths_figure` (world x, y[, z]).
+REAL_PATH_SIGNALS: tuple[str, ...] = ("control_puck", "target_puck", "ball")
+
+
+def model_paths_figure(
+    model,
+    context,
+    omega,
+    real=None,
+    *,
+    n_samples: int = 10,
+    rng=None,
+    axes: tuple[int, int] = (0, 1),
+    title: str = "",
+    backend: str = "plotly",
+):
+    """A reward model's sampled paths for one (s, ω) over the simulator's, seen from above.
+
+    What ``skillkit view TASK --gpreps RUN`` overlays in 3-D, as a static figure: one legend
+    entry per model layer (e.g. the launch, sliding and contact models of hockey, the five
+    table-tennis models), each with its L sampled paths, and the real paths in black.
+
+    Parameters
+    ----------
+    model : object
+        A reward model with ``prediction_layers`` (see :mod:`skillkit.viz.model_layers`).
+    context : array_like, shape (context_dim,)
+    omega : array_like, shape (dim,)
+    real : Trajectory or mapping of str to ndarray, optional
+        The simulator's rollout of the same pair: its signals in :data:`REAL_PATH_SIGNALS`
+        that are present are drawn, or named world paths of shape (T, 2) or (T, 3).
+    n_samples : int
+        L, the paths each layer samples.
+    rng : Generator, int or None
+        Passed on to the model.
+    axes : pair of int
+        The world axes drawn, (0, 1) for the top view x–y, (0, 2) for the side view x–z.
+    title : str
+    backend : {"plotly", "matplotlib"}
+
+    Returns
+    -------
+    plotly.graph_objects.Figure or NotebookFigure
+    """
+    from skillkit.viz.model_layers import model_layers
+    from skillkit.viz.series import Series
+
+    if (
+        not isinstance(axes, (tuple, list))
+        or len(axes) != 2
+        or any(isinstance(a, bool) or a not in (0, 1, 2) for a in axes)
+        or axes[0] == axes[1]
+    ):
+        raise ValueError(f"axes: expected two different world axes out of 0, 1, 2, got {axes!r}")
+    names = "xyz"
+    panel = {"xlabel": f"{names[axes[0]]} [m]", "ylabel": f"{names[axes[1]]} [m]"}
+    series = []
+    for layer in model_layers(model, context, omega, n_samples=n_samples, rng=rng):
+        paths = layer["trajectories"][..., list(axes)]  # (L, T, 2)
+        gaps = np.full((paths.shape[0], 1, 2), np.nan)
+        joined = np.concatenate([paths, gaps], axis=1).reshape(-1, 2)
+        series.append(
+            Series(
+                f"{layer['label']} ({paths.shape[0]} sampled)",
+                joined[:, 0].tolist(),
+                joined[:, 1].tolist(),
+                **panel,
+            )  # fmt: skip
+        )
+    if real is not None:
+        signals = getattr(real, "signals", None)
+        if signals is not None:
+            real = {k: signals[k] for k in REAL_PATH_SIGNALS if k in signals}
+        if not isinstance(real, Mapping):
+            raise ValueError(
+                f"real: expected a Trajectory or a mapping of name to (T, 2|3) paths, "
+                f"got {type(real).__name__}"
+            )
+        for key, path in real.items():
+            p = np.asarray(path, dtype=float)
+            if p.ndim != 2 or p.shape[1] not in (2, 3) or max(axes) >= p.shape[1]:
+                raise ValueError(
+                    f"real[{key!r}]: expected a path of shape (T, 2) or (T, 3) holding axes "
+                    f"{tuple(axes)}, got shape {p.shape}"
+                )
+            series.append(
+                Series(
+                    f"real: {key.replace('_', ' ')}",
+                    p[:, axes[0]].tolist(),
+                    p[:, axes[1]].tolist(),
+                    **panel,
+                )  # fmt: skip
+            )
+    result = {"title": title or "predicted paths over the real ones", "series": []}
+    result["series"] = [s.to_dict() for s in series]
+    return _draw(result, backend)

@@ -54,6 +54,7 @@ __all__ = [
     "REWARD_MODEL_FORMAT",
     "check_model_task",
     "dumps_reward_model",
+    "gpreps_run_paths_figure",
     "load_gpreps_run",
     "load_reward_model",
     "loads_reward_model",
@@ -381,3 +382,68 @@ def load_gpreps_run(run_dir, trial: int = 0):
         model = loads_reward_model(stored, f"{npz}[{key}]")
     history = load_policy_history(run_dir, trial)
     return history, model
+
+
+def gpreps_run_paths_figure(
+    run_dir,
+    trial: int = 0,
+    *,
+    update: int = -1,
+    context=None,
+    n_samples: int = 10,
+    seed: int = 0,
+    axes: tuple[int, int] = (0, 1),
+    backend: str = "plotly",
+):
+    """The stored GPREPS run's last reward model against the simulator, as a static figure.
+
+    The policy mean of update ``update`` at ``context`` is rolled out in the model's task and
+    drawn with the model's sampled paths over it
+    (:func:`skillkit.viz.figures.model_paths_figure`): the picture
+    ``skillkit view TASK --gpreps RUN_DIR --trial K`` shows in 3-D.
+
+    .. warning::
+       This unpickles the reward model (:func:`load_gpreps_run`): load only runs you trust.
+
+    Parameters
+    ----------
+    run_dir : str or Path
+        A GPREPS run folder (:func:`load_gpreps_run`).
+    trial : int
+        Which trial.
+    update : int
+        Which policy of the history (Python indexing; -1 the final one).
+    context : array_like, shape (context_dim,), optional
+        The context; one sampled from the task with ``seed`` when omitted.
+    n_samples : int
+        L, the paths each model layer samples.
+    seed : int
+        Seeds the context, the real rollout and the model's samples.
+    axes : pair of int
+        World axes drawn ((0, 1): top view).
+    backend : {"plotly", "matplotlib"}
+
+    Returns
+    -------
+    plotly.graph_objects.Figure or NotebookFigure
+    """
+    from skillkit.viz.figures import model_paths_figure
+
+    history, model = load_gpreps_run(run_dir, trial)
+    policies = history.policies
+    if isinstance(update, bool) or not isinstance(update, (int, np.integer)):
+        raise ValueError(f"update: expected an integer index into the history, got {update!r}")
+    if not -len(policies) <= update < len(policies):
+        raise ValueError(
+            f"update: expected an index in [{-len(policies)}, {len(policies)}) (the run has "
+            f"{len(policies)} policies), got {update}"
+        )
+    task = model.task
+    rng = np.random.default_rng(seed)
+    s = task.sample_context(rng) if context is None else task.check_context(context)
+    omega = policies[update].mean_of(s)
+    real = task.rollout(omega, s, rng)
+    k = update % len(policies)
+    title = f"{Path(run_dir).name}, trial {trial}, update {k}: predicted vs real paths"
+    return model_paths_figure(model, s, omega, real, n_samples=n_samples, rng=rng, axes=axes,
+                              title=title, backend=backend)  # fmt: skip

@@ -169,3 +169,31 @@ def test_bad_settings_are_refused_before_any_work():
         replace(get("fig4.10").settings["paper"], task="hockey-fast")
     with pytest.raises(ValueError, match="n_initial"):
         replace(get("fig4.11").settings["paper"], n_initial=1)
+
+
+def test_hockey_setup_names_the_refit_launch_targets_and_displacement_model():
+    """Issue #31: each model choice in the setup table with the thesis sentence it follows,
+    every variant tried reported with its numbers, ≥ 5 paper runs of fig4.10 and fig4.11."""
+    rows = {row["item"]: row for row in ev._hockey_setup(get("fig4.10").settings["paper"])}
+    for item in ("hyper-parameter refit", "launch targets", "displacement model (hockey-real)"):
+        assert {"thesis", "ours", "why"} <= set(rows[item]) and "'" in rows[item]["thesis"]
+    assert "After each data collection step" in rows["hyper-parameter refit"]["thesis"]
+    figures = {v["figure"] for v in ev.HOCKEY_VARIANTS}
+    assert figures == {"fig4.10", "fig4.11"}
+    for v in ev.HOCKEY_VARIANTS:
+        assert {"variant", "settings", "measured", "kept"} <= set(v) and v["measured"]
+    assert any(not v["kept"] for v in ev.HOCKEY_VARIANTS)  # the ones that did worse too
+    for exp_id in ("fig4.10", "fig4.11"):
+        assert get(exp_id).trials["paper"] >= 5
+        st = get(exp_id).settings["paper"]
+        assert (st.refit, st.launch_targets, st.displacement) == ("best", "heading", "hit_gp")
+
+
+def test_bad_hockey_model_settings_name_the_setting():
+    from dataclasses import replace
+
+    st = get("fig4.10").settings["paper"]
+    for name, bad in (("refit", "sometimes"), ("launch_targets", "polar"),
+                      ("displacement", "svm")):  # fmt: skip
+        with pytest.raises(ValueError, match=name):
+            replace(st, **{name: bad})

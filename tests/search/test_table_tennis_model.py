@@ -12,7 +12,10 @@ import pytest
 from skillkit.models.gp import ExactGP
 from skillkit.search import TableTennisRewardModel, collect
 from skillkit.search.table_tennis_model import (
+    CONTACT_SCORES,
+    ContactModel,
     TimeBasis,
+    contact_event,
     find_bounce,
     max_target_distance,
     normal_to_quaternion,
@@ -20,6 +23,7 @@ from skillkit.search.table_tennis_model import (
 )
 from skillkit.tasks import make
 from skillkit.tasks.table_tennis import SERVE_POSITION, TABLE_LENGTH, TABLE_WIDTH, simulate_ball
+from tests._tolerances import fp_tol
 
 N_TRAIN, N_TEST = 100, 20
 
@@ -45,7 +49,7 @@ def data():
 @pytest.fixture(scope="module")
 def fitted(data):
     task, (s, w, r, trajs) = data
-    model = TableTennisRewardModel(task)
+    model = TableTennisRewardModel(task, contact_features="extended")
     train = (s[:N_TRAIN], w[:N_TRAIN], r[:N_TRAIN], trajs[:N_TRAIN])
     stats = _fit(model, train)
     test = (s[N_TRAIN:], w[N_TRAIN:], r[N_TRAIN:], trajs[N_TRAIN:])
@@ -133,15 +137,17 @@ def test_contact_svm_beats_the_majority_class_on_held_out_rollouts(fitted):
     assert acc > majority, (acc, majority)
     crit = stats["criterion"]
     assert crit["svm_cv_balanced_accuracy"] > 0.85  # measured 0.96 (180 rollouts)
-    # the thesis's ten inputs alone do not separate hits from misses in this simulation
+    # the thesis's ten inputs alone do not pass the switching test (0.8) in this simulation
     thesis = TableTennisRewardModel(task, contact_features="thesis")
     xt, ht, _ = thesis._real_contact_data(train[3])
     assert xt.shape[1] == 10 and x.shape[1] == 14
+    np.testing.assert_array_equal(xt, x_train := model._real_contact_data(train[3])[0][:, :10])
+    assert x_train.shape == xt.shape
     from sklearn.model_selection import StratifiedKFold, cross_val_predict
 
     cv = StratifiedKFold(5, shuffle=True, random_state=0)
     guess = cross_val_predict(model.make_classifier(), xt, ht, cv=cv)
-    assert 0.5 * (guess[ht].mean() + (~guess[~ht]).mean()) < 0.7  # measured 0.50
+    assert 0.5 * (guess[ht].mean() + (~guess[~ht]).mean()) < model.min_svm_accuracy
 
 
 def test_schedule_switches_only_when_the_contact_model_is_good(data):
@@ -179,14 +185,17 @@ def test_rewards_follow_eq_4_17_in_each_stage(fitted):
     b = returning.predict(s, w, 6, rng=3)
     assert a.stage == "hitting" and b.stage == "returning"
     np.testing.assert_array_equal(a.contact, b.contact)  # same draws, different weights
+    np.testing.assert_array_equal(a.contact_score, b.contact_score)
     target = s[:, None, 3:5]
-    dist = np.where(a.contact, np.linalg.norm(np.nan_to_num(a.landing) - target, axis=-1), P)
+    wt = a.contact_score
+    returned = np.linalg.norm(np.nan_to_num(a.landing) - target, axis=-1)
+    dist = np.where(wt > 0, wt * returned + (1 - wt) * P, P)
     np.testing.assert_allclose(
         a.rewards, -c1 * a.closest - hitting.epsilon * c1 * dist - c1 * P, atol=1e-12
     )
     np.testing.assert_allclose(b.rewards, -c1 * b.closest - c2 * dist, atol=1e-12)
     assert np.all(a.rewards <= -c1 * P)  # the hitting stage carries the constant penalty
-    assert np.isnan(a.landing[~a.contact]).all() and np.isfinite(a.landing[a.contact]).all()
+    assert np.isnan(a.landing[wt == 0]).all() and np.isfinite(a.landing[wt > 0]).all()
 
 
 def test_max_target_distance_is_the_largest_target_to_table_distance():
@@ -244,6 +253,10 @@ def test_bad_input_is_refused(fitted, data):
         TableTennisRewardModel(task, make_classifier=3)
     with pytest.raises(ValueError, match="contact_features"):
         TableTennisRewardModel(task, contact_features="all")
+    with pytest.raises(ValueError, match="contact_score: expected one of"):
+        TableTennisRewardModel(task, contact_score="vote")
+    with pytest.raises(ValueError, match="refit: expected one of"):
+        TableTennisRewardModel(task, refit="sometimes")
     with pytest.raises(RuntimeError, match="call fit"):
         TableTennisRewardModel(task).predict(s, w, 2)
     with pytest.raises(ValueError, match="omegas"):
@@ -266,3 +279,144 @@ def test_non_finite_predictions_get_the_worst_reward(fitted):
     with pytest.warns(RuntimeWarning, match="non-finite"):
         r = broken.expected_rewards(s[:2], w[:2], 2, rng=0)
     np.testing.assert_array_equal(r, task.worst_reward)
+
+
+# ----------------------------------------------------------------------------- contact event
+def _hit_and_miss(data):
+    task, (_, _, _, trajs) = data
+    hit = next(t for t in trajs if t.info["hit"])
+    miss = next(t for t in trajs if not t.info["hit"])
+    return task, hit, miss
+
+
+def _flown_through(task, tr):
+    """A predicted path that reproduces the recorded ball up to the hit and then, without
+    contact physics, flies on through the racket with its last velocity; (T, 3)."""
+    t = task.times
+    ball = tr.signals["ball"].copy()
+    k = int(np.searchsorted(t, tr.info["incoming_end"], side="right"))  # first after the hit
+    v = (ball[k - 1] - ball[k - 2]) / task.control_dt
+    ball[k:] = ball[k - 1] + (t[k:, None] - t[k - 1]) * v
+    return ball
+
+
+@pytest.mark.parametrize("features", ["thesis", "extended"])
+def test_contact_features_are_equal_on_a_real_path_and_its_predicted_reproduction(data, features):
+    """One function reads model 5's inputs on recorded and predicted paths at the same event:
+    a predicted ball that reproduces a recorded hit and flies through the racket after it (no
+    contact physics) gives the recorded hit's inputs; a reproduced miss gives the miss's."""
+    task, hit, miss = _hit_and_miss(data)
+    model = TableTennisRewardModel(task, contact_features=features)
+    t = task.times
+    for tr, ball in ((hit, _flown_through(task, hit)), (miss, miss.signals["ball"])):
+        x_real, _, _ = model._real_contact_data([tr])
+        quat = normal_to_quaternion(tr.signals["racket_normal"])[None]
+        # the predicted path's incoming ball runs to the end of the episode
+        x_pred, event, cut = model.contact_inputs(
+            ball[None], tr.signals["racket"][None], quat, np.array([t.size])
+        )
+        scale = max(np.abs(x_real).max(), 1.0 / task.control_dt)
+        np.testing.assert_allclose(x_pred, x_real, rtol=0, atol=fp_tol(8, scale))
+        assert event[0] < cut[0] <= np.searchsorted(t, tr.info["incoming_end"], side="right")
+    # the flown-through ball does reach the face: that is where the predicted path is cut
+    _, cut, _ = contact_event(
+        _flown_through(task, hit)[None],
+        hit.signals["racket"][None],
+        normal_to_quaternion(hit.signals["racket_normal"])[None],
+        np.array([t.size]),
+        task.ball.radius,
+    )
+    assert cut[0] == np.searchsorted(t, hit.info["incoming_end"], side="right")
+
+
+def test_contact_event_without_a_face_crossing_is_the_closest_approach():
+    """A ball that never reaches the face plane: the event is the minimal distance over the
+    incoming samples, and ``cut`` is ``steps``."""
+    T = 12
+    racket = np.zeros((1, T, 3))
+    ball = np.zeros((1, T, 3))
+    ball[0, :, 0] = 1.0  # 1 m in front of the face (normal +x) throughout
+    ball[0, :, 1] = np.abs(np.arange(T) - 7.0)  # sideways, closest at sample 7
+    quat = np.tile([1.0, 0.0, 0.0, 0.0], (1, T, 1))
+    event, cut, dist = contact_event(ball, racket, quat, np.array([T]), 0.02)
+    assert event[0] == 7 and cut[0] == T and dist[0] == pytest.approx(1.0)
+    event, cut, _ = contact_event(ball, racket, quat, np.array([5]), 0.02)
+    assert event[0] == 4 and cut[0] == 5  # only the incoming samples count
+    with pytest.raises(ValueError, match="steps"):
+        contact_event(ball, racket, quat, np.array([0]), 0.02)
+    with pytest.raises(ValueError, match="quaternion"):
+        contact_event(ball, racket, quat[..., :3], np.array([T]), 0.02)
+
+
+def test_contact_feature_options_have_their_shapes(data):
+    task, (_, _, _, trajs) = data
+    n = 6
+    for features, d in (("thesis", 10), ("extended", 14)):
+        model = TableTennisRewardModel(task, contact_features=features)
+        x, hit, p = model._real_contact_data(trajs[:n])
+        assert x.shape == (n, d) and hit.shape == (n,) and p.shape == (n, 2)
+        assert model.contact.n_features == d
+    ext = TableTennisRewardModel(task, contact_features="extended")
+    x, _, _ = ext._real_contact_data(trajs[:n])
+    # the distance is the norm of the relative position
+    np.testing.assert_allclose(x[:, 13], np.linalg.norm(x[:, 10:13], axis=1), rtol=fp_tol(4))
+    with pytest.raises(ValueError, match="contact_features: expected one of"):
+        ContactModel(task.control_dt, task.ball.radius, features="all")
+    with pytest.raises(ValueError, match="contact_score: expected one of"):
+        ContactModel(task.control_dt, task.ball.radius, score="vote")
+
+
+@pytest.mark.parametrize("score", CONTACT_SCORES)
+def test_contact_scores_are_weights_that_order_like_the_svm(data, score):
+    """Every score is a weight in [0, 1]; "decision" is the SVM's decision, "margin" the
+    decision value mapped monotonically, "probability" a calibrated probability that rises
+    with the decision value (Platt scaling is a monotone sigmoid per fold)."""
+    task, (s, w, r, trajs) = data
+    cm = ContactModel(task.control_dt, task.ball.radius, "extended", score)
+    model = TableTennisRewardModel(task, contact_features="extended")
+    x, hit, p = model._real_contact_data(trajs)
+    cm.fit(x, hit, p, np.random.default_rng(0))
+    weight, decision, margin = cm.weights(x)
+    assert weight.shape == decision.shape == margin.shape == (len(trajs),)
+    assert np.all((weight >= 0) & (weight <= 1))
+    np.testing.assert_array_equal(decision, margin > 0)
+    if score == "decision":
+        np.testing.assert_array_equal(weight, decision.astype(float))
+    elif score == "margin":
+        np.testing.assert_array_equal(weight, np.clip(0.5 * (1 + margin), 0, 1))
+    else:
+        assert cm.calibrated is not None
+        order = np.argsort(margin)
+        assert np.corrcoef(margin[order], weight[order])[0, 1] > 0
+        # averaged over the inputs the calibrated probability is near the hit rate
+        assert abs(weight.mean() - hit.mean()) < 0.15
+    with pytest.raises(RuntimeError, match="call fit"):
+        ContactModel(task.control_dt, task.ball.radius).weights(x)
+
+
+def test_refit_records_the_start_kept_for_every_gp(data):
+    task, (s, w, r, trajs) = data
+    model = _cheap(task, refit="best", make_landing_model=partial(ExactGP, n_steps=5),
+                   make_bounce_model=partial(ExactGP, n_steps=5),
+                   make_return_model=partial(ExactGP, n_steps=5))  # fmt: skip
+    first = _fit(model, (s[:40], w[:40], r[:40], trajs[:40]))
+    assert set(first["refit"]) == {"landing", "bounce", "position", "orientation", "returns"}
+    assert all(v["start"] == "cold" and v["log_ml_warm"] is None for v in first["refit"].values())
+    second = _fit(model, (s[:60], w[:60], r[:60], trajs[:60]))
+    for key, v in second["refit"].items():
+        assert v["log_ml_cold"] is not None and v["log_ml_warm"] is not None, key
+        kept = v[f"log_ml_{v['start']}"]
+        assert kept == max(v["log_ml_cold"], v["log_ml_warm"]), key
+
+
+def test_a_model_pickled_before_the_contact_model_still_predicts(fitted):
+    """A stored run's reward model (trials.npz) may predate ContactModel and refit: it gets a
+    ContactModel from its own classifier and landing GP."""
+    _, model, _, _, (s, w, _, _) = fitted
+    old = copy.copy(model)
+    contact = old.__dict__.pop("contact")
+    del old.__dict__["refit"]
+    old.__dict__.update(classifier=contact.classifier, returns=contact.returns)
+    pred = old.predict(s[:2], w[:2], 3, rng=0)
+    assert pred.rewards.shape == (2, 3)
+    assert old.contact.score == "decision" and old.classifier is contact.classifier

@@ -440,3 +440,58 @@ def test_a_run_can_keep_its_model_in_trials_npz(tmp_path):
     assert type(loads_reward_model(data)) is FakeHockeyModel
     with pytest.raises(ValueError, match="not a skillkit reward-model file"):
         loads_reward_model(data[5:], "cut")
+
+
+# ----------------------------------------------------------------------------- static figure
+def test_run_paths_figure_draws_each_layer_and_the_real_paths(tmp_path):
+    """The static picture of ``skillkit view --gpreps``: one series per model layer holding
+    its L paths (NaN-separated) on the chosen world axes, then the rollout's real paths."""
+    from skillkit.viz.figures import model_paths_figure
+    from skillkit.viz.model_layers import gpreps_run_paths_figure
+
+    run = make_gpreps_run(tmp_path / "run", FakeTableTennisModel(), "table-tennis", updates=2)
+    fig = gpreps_run_paths_figure(run, 0, update=1, n_samples=4, seed=3, axes=(0, 2))
+    names = [trace.name for trace in fig.data]
+    assert names[:3] == [f"{label} (4 sampled)" for label in TABLE_TENNIS_LAYERS]
+    assert names[3:] == ["real: ball"]
+    # ball flight: 4 paths of 30 points, each followed by a NaN gap, drawn as x–z
+    model = FakeTableTennisModel()
+    s = model.task.sample_context(0)
+    layers = model.prediction_layers(s, np.zeros(3), 4, rng=7)
+    fig = model_paths_figure(model, s, np.zeros(3), n_samples=4, rng=7, axes=(0, 2))
+    x = np.asarray(fig.data[1].x, dtype=float).reshape(4, 31)
+    z = np.asarray(fig.data[1].y, dtype=float).reshape(4, 31)
+    assert np.isnan(x[:, -1]).all() and np.isnan(z[:, -1]).all()
+    np.testing.assert_array_equal(
+        x[:, :-1], layers["ball model: ball flight"]["trajectories"][..., 0]
+    )
+    np.testing.assert_array_equal(
+        z[:, :-1], layers["ball model: ball flight"]["trajectories"][..., 2]
+    )
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"axes": (0, 0)}, "axes"),
+        ({"axes": (0, 3)}, "axes"),
+        ({"real": [1, 2]}, "real"),
+        ({"real": {"puck": np.zeros((5, 4))}}, r"real\['puck'\]"),
+        ({"real": {"puck": np.zeros((5, 2))}, "axes": (0, 2)}, r"real\['puck'\]"),
+    ],
+)
+def test_model_paths_figure_names_bad_arguments(kwargs, match):
+    from skillkit.viz.figures import model_paths_figure
+
+    model = FakeHockeyModel()
+    s = model.task.sample_context(0)
+    with pytest.raises(ValueError, match=match):
+        model_paths_figure(model, s, np.zeros(4), n_samples=2, rng=0, **kwargs)
+
+
+def test_run_paths_figure_names_a_bad_update(tmp_path):
+    from skillkit.viz.model_layers import gpreps_run_paths_figure
+
+    run = make_gpreps_run(tmp_path / "run", FakeHockeyModel(), "hockey", updates=2)
+    with pytest.raises(ValueError, match="update"):
+        gpreps_run_paths_figure(run, 0, update=3)

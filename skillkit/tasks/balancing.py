@@ -35,6 +35,7 @@ __all__ = [
     "Balancing",
     "balancing_transitions",
     "collect_balancing",
+    "design_policy",
     "feedback_policy",
     "random_lqr_gains",
     "sampled_rewards",
@@ -743,6 +744,62 @@ def random_lqr_gains(
         r = control_weight * np.exp(spread * rng.standard_normal())
         out[i] = task.lqr_gain(state_weights=np.diag(q), control_weight=r)
     return out
+
+
+def design_policy(
+    task: Balancing,
+    mean,
+    exploration: float = 0.7,
+    n_designs: int = 300,
+    spread: float = 2.0,
+    control_weight: float = 1e-2,
+    scale_std: float = 0.15,
+    rng=0,
+) -> GaussianPolicy:
+    """A Gaussian π(ω) = N(ω | mean, c² Σ_d) whose exploration follows balancing controllers.
+
+    Σ_d is the sample covariance of n designs ω_i = κ_i vec G_i: G_i the
+    :func:`random_lqr_gains` for randomly scaled cost weights (log-scale ``spread``, base R
+    ``control_weight``) and κ_i = exp(β ξ_i), ξ_i ~ N(0, 1), β = ``scale_std``, a random
+    overall gain level. Its directions are those in which balancing gains differ (isotropic
+    exploration of the 32 gains leaves the stable set: with 3% of |G| entry-wise every
+    sample of 50 diverged), so a broad π(ω) still has balancing samples. Σ_d has rank below
+    32; 10⁻⁶ of its mean variance is added to every direction.
+
+    Parameters
+    ----------
+    task : Balancing
+    mean : array_like, shape (32,) or (4, 8)
+        The policy mean (G row-major).
+    exploration : float
+        c > 0, the scale of the exploration (standard deviations relative to the designs').
+    n_designs : int
+        n ≥ 2.
+    spread, control_weight : float
+        See :func:`random_lqr_gains`.
+    scale_std : float
+        β ≥ 0.
+    rng : Generator, int or None
+        Randomness of the designs (a fixed seed gives the same π(ω) every time).
+
+    Returns
+    -------
+    GaussianPolicy
+    """
+    mu = check_array(mean, "mean", ndim=(1, 2)).reshape(-1)
+    if mu.size != 32:
+        raise ValueError(f"mean: expected shape (32,) or (4, 8), got {np.shape(mean)}")
+    c = check_positive(exploration, "exploration")
+    n = check_count(n_designs, "n_designs")
+    if n < 2:
+        raise ValueError(f"n_designs: expected at least 2 designs, got {n}")
+    beta = check_positive(scale_std, "scale_std", allow_zero=True)
+    rng = as_generator(rng)
+    gains = random_lqr_gains(task, n, spread, control_weight, rng).reshape(n, 32)
+    designs = np.exp(beta * rng.standard_normal(n))[:, None] * gains
+    cov = np.cov(designs, rowvar=False)
+    cov = c**2 * (cov + 1e-6 * np.trace(cov) / 32 * np.eye(32))
+    return GaussianPolicy(mu, 0.5 * (cov + cov.T))
 
 
 @register("balancing", "planar", "context-free")

@@ -12,6 +12,7 @@ from skillkit.tasks import make
 from skillkit.tasks.balancing import (
     X_UP,
     collect_balancing,
+    design_policy,
     feedback_policy,
     random_lqr_gains,
     sampled_rewards,
@@ -232,3 +233,41 @@ def test_data_helpers_thread_an_integer_seed_through_every_draw():
         random_lqr_gains(task, 1.5, 1.0, 1e-3, 0)
     with pytest.raises(ValueError, match="spread"):
         random_lqr_gains(task, 1, np.nan, 1e-3, 0)
+
+
+def test_design_policy_explores_along_balancing_gains():
+    """π(ω) from LQR designs: the same seed gives the same policy; its covariance is
+    symmetric positive definite and scales with c²; most samples balance at upright although
+    the exploration reaches the tight LQR gain (isotropic 3% exploration does not balance)."""
+    task = make("balancing")
+    mean = 0.8 * task.lqr_gain(control_weight=1.0)
+    a = design_policy(task, mean, exploration=0.7, n_designs=100, rng=3)
+    b = design_policy(task, mean.ravel(), exploration=0.7, n_designs=100, rng=3)
+    np.testing.assert_array_equal(a.cov, b.cov)
+    np.testing.assert_array_equal(a.mean, mean.ravel())
+    np.testing.assert_allclose(a.cov, a.cov.T, rtol=0, atol=0)
+    assert np.linalg.eigvalsh(a.cov).min() > 0
+    c = design_policy(task, mean, exploration=1.4, n_designs=100, rng=3)
+    np.testing.assert_allclose(c.cov, 4.0 * a.cov, rtol=1e-12)
+    A, B = task.linearization()
+    w = a.sample(np.zeros((200, 0)), rng=np.random.default_rng(0))
+    stable = np.mean([np.abs(np.linalg.eigvals(A + B @ x.reshape(4, 8))).max() < 1 for x in w])
+    assert stable > 0.3  # measured 0.5 (isotropic 3% of |G|: 0 of 50)
+    d = task.lqr_gain(control_weight=1e-4).ravel() - a.mean
+    iso = task.lqr_policy(1.0, 0.005)  # the π₀ before issue #31: 0.5% of |G| entry-wise
+    far = np.sqrt(d @ np.linalg.solve(iso.cov, d))
+    near = np.sqrt(d @ np.linalg.solve(a.cov, d))
+    assert near < 0.05 * far  # measured 35 against ≈ 2000 standard deviations
+
+
+def test_design_policy_names_bad_arguments():
+    task = make("balancing")
+    g = task.lqr_gain(control_weight=1.0)
+    with pytest.raises(ValueError, match="mean"):
+        design_policy(task, np.zeros(31))
+    with pytest.raises(ValueError, match="exploration"):
+        design_policy(task, g, exploration=0.0)
+    with pytest.raises(ValueError, match="n_designs"):
+        design_policy(task, g, n_designs=1)
+    with pytest.raises(ValueError, match="scale_std"):
+        design_policy(task, g, scale_std=-1.0)

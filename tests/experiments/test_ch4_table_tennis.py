@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+import numpy as np
 import pytest
 
 from skillkit.experiments import ch4_table_tennis as tt
@@ -11,7 +12,8 @@ from skillkit.experiments.registry import get
 
 
 def _gpreps(switched, returned) -> dict:
-    return {"gpreps": {"switch_update_per_trial": switched, "final_returned_per_trial": returned}}
+    g = {"switched_to_returning_at_update": switched, "final_returned_per_trial": returned}
+    return {"gpreps": g}
 
 
 def test_fig412_has_at_least_five_paper_trials_and_own_checks():
@@ -29,8 +31,17 @@ def test_fig412_has_at_least_five_paper_trials_and_own_checks():
 
 
 def test_switch_update_is_the_first_returning_stage():
-    assert tt._switch_update({"gpreps_stage": ["hitting", "hitting", "returning"]}) == 3
-    assert tt._switch_update({"gpreps_stage": ["hitting"]}) is None
+    from skillkit.experiments.ch4_events import _gpreps_stats
+
+    def trial(stages):
+        one = np.ones(len(stages))
+        arrays = {f"gpreps_time_{p}": one for p in ("training", "prediction", "policy")}
+        return {**arrays, "gpreps_relative_error": one, "gpreps_kl": one,
+                "gpreps_stage": np.array(stages)}  # fmt: skip
+
+    trials = [trial(["hitting", "hitting", "returning"]), trial(["hitting", "hitting"])]
+    stats = _gpreps_stats(trials, "gpreps")
+    assert stats["switched_to_returning_at_update"] == [3, None]
 
 
 def test_setup_table_names_every_choice_with_the_thesis_sentence():

@@ -181,6 +181,7 @@ def _summarize(settings: DMPImitationSettings, trials: list[dict]) -> tuple[list
             panel=label,
             xlabel="time [s]",
             ylabel=label,
+            dash="dash" if src == "demo" else None,  # the thesis draws the demonstration dashed
         )
         for key, label in panels
         for src in ("demo", "free", "dmp")
@@ -193,6 +194,7 @@ def _summarize(settings: DMPImitationSettings, trials: list[dict]) -> tuple[list
             panel="forcing term f(z)",
             xlabel="time [s]",
             ylabel=FORCING_LABEL,
+            dash="dash",
         ),
         Series(
             name="fitted f(z; v)",

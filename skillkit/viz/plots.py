@@ -22,6 +22,7 @@ in :mod:`skillkit.viz.figures`; they draw through this module.
 from __future__ import annotations
 
 import math
+import re
 import textwrap
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -31,6 +32,8 @@ from typing import Any
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+
+from skillkit.viz.series import DASHES
 
 _COLORS = ["#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#17becf"]
 _BAND_SWATCH = "#9e9e9e"
@@ -51,6 +54,14 @@ LINEAR_HEADROOM, LINEAR_GAP = 20.0, 5.0
 MAX_CLIPPED_FRACTION = 0.25
 
 _POINT_KINDS = ("line", "markers", "lines+markers")
+_KIND_ALIASES = {"lines": "line", "marker": "markers", "line+markers": "lines+markers"}
+_MPL_DASH = {"solid": "-", "dash": "--", "dot": ":", "dashdot": "-."}
+
+#: Width (px) the plotly figures' text is wrapped for: a notebook cell. The figures themselves
+#: are responsive (no fixed width): they fill the cell they are drawn in.
+REFERENCE_WIDTH = 820
+#: Height (px) of one row of plotly panels (the plot area, without titles and tick labels).
+PANEL_HEIGHT = 300
 
 
 # ----------------------------------------------------------------------------- verdict
@@ -317,6 +328,11 @@ class _Panel:
     note: str
     bands: list[str]
     floor: float  # where a log panel's non-positive band bounds are drawn
+    log_x: bool = False  # drawn log x axis (a log_x panel spanning < 1 decade is drawn linear)
+    xaxis: tuple[float, float] | None = None  # x limits containing the data (None: automatic)
+    yaxis: tuple[float, float] | None = None  # y limits containing the data (None: automatic)
+    kinds: tuple[str, ...] = ()  # the kinds of its series
+    n_named: int = 0  # distinct series names (a panel with >= 2 needs a legend)
 
 
 def _panels(series: list[dict]) -> list[str]:
@@ -380,20 +396,91 @@ def _layout(series: list[dict]) -> list[_Panel]:
         for s in members:
             if _has_band(s) and s.get("band") and s["band"] not in bands:
                 bands.append(s["band"])
+        kinds = tuple(dict.fromkeys(s.get("kind", "line") for s in members))
+        log_x = _draw_log_x(members)
+        xaxis = yaxis = None
+        if points and set(kinds) <= set(_POINT_KINDS):
+            xs = np.concatenate([_floats(s["x"]) for s in points])
+            xaxis = _limits(xs, log_x, pad=0.03)
+            if rng is None:
+                ys = [values] + [
+                    a for s in points if _has_band(s) for a in _band_arrays_raw(s, log_y, floor)
+                ]
+                yaxis = _limits(np.concatenate(ys), log_y, pad=0.06)
+        label_x = next((s["xlabel"] for s in members if s.get("xlabel")), "")
+        label_y = next((s["ylabel"] for s in members if s.get("ylabel")), "")
         out.append(
             _Panel(
                 name=name,
                 index=i,
-                xlabel=next((s["xlabel"] for s in members if s.get("xlabel")), ""),
-                ylabel=next((s["ylabel"] for s in members if s.get("ylabel")), ""),
+                xlabel=_axis_label(label_x, log_x),
+                ylabel=_axis_label(label_y, log_y),
                 log_y=log_y,
                 range=rng,
                 note=note,
                 bands=bands,
                 floor=floor,
+                log_x=log_x,
+                xaxis=xaxis,
+                yaxis=yaxis,
+                kinds=kinds,
+                n_named=len({s["name"] for s in members}),
             )
         )
     return out
+
+
+def _floats(v) -> np.ndarray:
+    """``v`` as a flat float array; entries that are not numbers (None, text) become NaN."""
+    try:
+        return np.asarray(v, dtype=float).ravel()
+    except (TypeError, ValueError):
+        return np.array([_to_float(e) for e in np.asarray(v, dtype=object).ravel()])
+
+
+def _to_float(e) -> float:
+    try:
+        return float(e)
+    except (TypeError, ValueError):
+        return math.nan
+
+
+def _draw_log_x(members: list[dict]) -> bool:
+    """Whether a panel's x axis is drawn logarithmic: some series asks for it (``log_x``) and
+    its positive x values span at least one decade. Over less than a decade a log axis reads
+    as a linear one (its ticks are evenly spaced numbers), so it is drawn linear."""
+    if not any(s.get("log_x") for s in members):
+        return False
+    xs = np.concatenate([_floats(s["x"]) for s in members] or [[]])
+    xs = xs[np.isfinite(xs) & (xs > 0)]
+    return bool(xs.size) and float(xs.max()) >= 10.0 * float(xs.min())
+
+
+_LOG_WORDS = re.compile(r"\s*\(\s*log(?:arithmic)? scale\s*\)|log(?:arithmic)? scale\s*[;,]\s*|"
+                        r"\s*[;,]\s*log(?:arithmic)? scale", re.IGNORECASE)  # fmt: skip
+
+
+def _axis_label(label: str, log: bool) -> str:
+    """An axis label that agrees with the axis drawn: a linear axis never says "log scale"
+    ("rollouts (log scale; after the first batch)" becomes "rollouts (after the first
+    batch)"); a log axis keeps its label."""
+    return label if log or not label else _LOG_WORDS.sub("", label).strip()
+
+
+def _limits(v: np.ndarray, log: bool, pad: float) -> tuple[float, float] | None:
+    """Axis limits (data units) containing the finite values of ``v`` (positive ones on a log
+    axis) with a margin of ``pad`` times their span (in decades on a log axis); None when
+    there are none."""
+    v = np.asarray(v, dtype=float).ravel()
+    v = v[np.isfinite(v) & ((v > 0) if log else True)]
+    if not v.size:
+        return None
+    if log:
+        v = np.log10(v)
+    lo, hi = float(v.min()), float(v.max())
+    margin = pad * (hi - lo) if hi > lo else (0.5 if log else max(abs(hi) * 0.1, 1.0))
+    lo, hi = lo - margin, hi + margin
+    return (10.0**lo, 10.0**hi) if log else (lo, hi)
 
 
 def _has_band(s: Mapping) -> bool:
@@ -407,10 +494,14 @@ def _has_band(s: Mapping) -> bool:
 def _band_arrays(s: Mapping, panel: _Panel) -> tuple[np.ndarray, np.ndarray]:
     """Lower and upper band; on a log axis, non-positive lower bounds go to the panel's
     smallest positive value (the axis bottom when the range is clipped)."""
+    return _band_arrays_raw(s, panel.log_y, panel.floor)
+
+
+def _band_arrays_raw(s: Mapping, log_y: bool, floor: float) -> tuple[np.ndarray, np.ndarray]:
     lower = np.asarray(s["lower"], dtype=float)
     upper = np.asarray(s["upper"], dtype=float)
-    if panel.log_y:
-        lower = np.where(np.isfinite(lower) & (lower > 0), lower, panel.floor)
+    if log_y:
+        lower = np.where(np.isfinite(lower) & (lower > 0), lower, floor)
     return lower, upper
 
 
@@ -434,7 +525,13 @@ def plotly_figure(result: dict):
     Title: ``"<id>: <title> (<scale>)"``; subtitle: claim and verdict (:func:`subtitle`).
     Bands are labelled in the legend from ``Series.band``; panels with runaway values get a
     robust axis range (:func:`robust_range`), the clipped values drawn as triangles at the
-    edge (hover shows their values) and counted in a note.
+    edge (hover shows their values) and counted in a note; every other panel gets axis ranges
+    that contain all its data.
+
+    The figure is responsive (``autosize``, no fixed width): it fills the notebook cell or page
+    it is drawn in. Its text is wrapped for :data:`REFERENCE_WIDTH` pixels; the legend is a
+    horizontal one below the panels, each heatmap has its own colour bar (with its name and
+    values) beside its panel, and log axes label their ticks as powers of ten.
 
     Returns
     -------
@@ -446,16 +543,34 @@ def plotly_figure(result: dict):
     series = _check_result(result)
     panels = _layout(series)
     nrows, ncols = _grid(len(panels))
-    width, height = 560 * ncols + 200, 380 * nrows  # + room for the legend
-    fig = make_subplots(rows=nrows, cols=ncols, subplot_titles=[p.name for p in panels])
-    colors: dict[str, str] = {}
+    heat = any("heatmap" in p.kinds for p in panels)
+    h_space = 0.2 if heat else 0.14
+    col_px = REFERENCE_WIDTH * (1 - h_space * (ncols - 1)) / ncols - 60
+    names = [_wrap_html(p.name, int(col_px / 7.2)) for p in panels]
+    name_lines = max(n.count("<br>") + 1 for n in names)
+    row_gap = 75 + 18 * name_lines  # tick labels and x title, then the next row's panel titles
+    plot_h = nrows * PANEL_HEIGHT + (nrows - 1) * row_gap
+    fig = make_subplots(
+        rows=nrows,
+        cols=ncols,
+        subplot_titles=names,
+        horizontal_spacing=h_space if ncols > 1 else 0.02,
+        vertical_spacing=row_gap / plot_h if nrows > 1 else 0.3,
+    )
+    colors = _colors(series)
     shown: set[str] = set()
-    for s in series:
+    # dashed series (references such as a demonstration) are drawn over the others, which
+    # would hide them; the legend keeps the series' order (legendrank)
+    order = sorted(range(len(series)), key=lambda i: _dashed(series[i]))
+    for rank in order:
+        s = series[rank]
         panel = panels[[p.name for p in panels].index(s.get("panel", ""))]
         row, col = panel.index // ncols + 1, panel.index % ncols + 1
-        color = colors.setdefault(s.get("_group", s["name"]), _COLORS[len(colors) % len(_COLORS)])
+        color = colors[s.get("_group", s["name"])]
         kind = s.get("kind", "line")
         if kind == "heatmap":
+            sub = fig.get_subplot(row, col)
+            x1, (y0, y1) = sub.xaxis.domain[1], sub.yaxis.domain
             fig.add_trace(
                 go.Heatmap(
                     x=s["x"],
@@ -465,7 +580,20 @@ def plotly_figure(result: dict):
                     colorscale="Viridis",
                     zmin=s.get("zmin"),
                     zmax=s.get("zmax"),
-                    showscale=panel.index == 0,
+                    showscale=True,
+                    colorbar={
+                        "title": {"text": _colorbar_title(s["name"]), "side": "right"},
+                        "x": x1 + 0.01,
+                        "xanchor": "left",
+                        "y": (y0 + y1) / 2,
+                        "yanchor": "middle",
+                        "len": y1 - y0,
+                        "lenmode": "fraction",
+                        "thickness": 12,
+                        "ticks": "outside",
+                        "showticklabels": True,
+                        "exponentformat": "power",
+                    },
                 ),
                 row=row,
                 col=col,
@@ -479,6 +607,7 @@ def plotly_figure(result: dict):
                     name=s["name"],
                     marker_color=color,
                     showlegend=s["name"] not in shown,
+                    legendrank=1000 + rank,
                 ),
                 row=row,
                 col=col,
@@ -499,6 +628,7 @@ def plotly_figure(result: dict):
                     hoverinfo="skip",
                     showlegend=label is not None and label not in shown,
                     name=label or f"{s['name']} (band)",
+                    legendrank=1000 + rank,
                 ),
                 row=row,
                 col=col,
@@ -506,15 +636,18 @@ def plotly_figure(result: dict):
             if label:
                 shown.add(label)
         mode = {"line": "lines", "markers": "markers"}.get(kind, kind)
+        if _single_point(s):
+            mode = "lines+markers"
         fig.add_trace(
             go.Scatter(
                 x=s["x"],
                 y=s["y"],
                 mode=mode,
                 name=s["name"],
-                line={"color": color},
+                line={"color": color, "dash": s.get("dash") or "solid"},
                 marker={"color": color},
                 showlegend=s["name"] not in shown,
+                legendrank=1000 + rank,
             ),
             row=row,
             col=col,
@@ -546,34 +679,43 @@ def plotly_figure(result: dict):
                     )
     for panel in panels:
         row, col = panel.index // ncols + 1, panel.index % ncols + 1
+        xrange = None
+        if panel.xaxis is not None:
+            a, b = panel.xaxis
+            xrange = [math.log10(a), math.log10(b)] if panel.log_x else [a, b]
         fig.update_xaxes(
             title_text=panel.xlabel,
-            type="log"
-            if any(s.get("log_x") for s in series if s.get("panel", "") == panel.name)
-            else None,
+            type="log" if panel.log_x else None,
+            range=xrange,
+            exponentformat="power" if panel.log_x else None,  # 10⁻⁶, not SI's "1µ"
+            automargin=True,
             row=row,
             col=col,
         )
         yrange = None
-        if panel.range is not None:
-            a, b = panel.range.axis
+        limits = panel.range.axis if panel.range is not None else panel.yaxis
+        if limits is not None:
+            a, b = limits
             yrange = [math.log10(a), math.log10(b)] if panel.log_y else [a, b]
         fig.update_yaxes(
             title_text=panel.ylabel,
             type="log" if panel.log_y else None,
             range=yrange,
+            exponentformat="power" if panel.log_y else None,
+            automargin=True,
             row=row,
             col=col,
         )
         if panel.note:
             fig.add_annotation(
-                text=panel.note,
+                text=_wrap_html(panel.note, int(col_px / 5.5)),
                 xref="x domain",
                 yref="y domain",
                 x=0.01,
                 y=0.99,
                 xanchor="left",
                 yanchor="top",
+                align="left",
                 showarrow=False,
                 font={"size": 10},
                 bgcolor="rgba(255,255,255,0.8)",
@@ -592,33 +734,96 @@ def plotly_figure(result: dict):
                         marker={"symbol": "square", "size": 12, "color": _BAND_SWATCH},
                         opacity=0.4,
                         name=label,
+                        legendrank=2000 + len(series),
                     ),
                     row=row,
                     col=col,
                 )
-    sub = subtitle(result, width=int(width / 6.8))
+    fig.update_xaxes(automargin=True)
+    fig.update_yaxes(automargin=True)
+    for k in range(len(panels), nrows * ncols):  # an empty grid cell shows no axes
+        fig.update_xaxes(visible=False, row=k // ncols + 1, col=k % ncols + 1)
+        fig.update_yaxes(visible=False, row=k // ncols + 1, col=k % ncols + 1)
+    for annotation in fig.layout.annotations[: len(panels)]:  # the panel titles
+        annotation.font = {"size": 13}
+    entries = [t.name for t in fig.data if t.showlegend is not False and t.name]
+    show_legend = len(entries) >= 2 or any(p.n_named >= 2 for p in panels)
+    legend_h = _legend_height(entries) if show_legend else 0
+    sub = subtitle(result, width=int(REFERENCE_WIDTH / 6.4))
     sub_lines = sub.splitlines() if sub else []
     # the title stays left of the mode bar (top right, ~280 px)
-    head_lines = textwrap.wrap(_title(result), width=int((width - 280) / 8)) or [""]
+    head_lines = textwrap.wrap(_title(result), width=int((REFERENCE_WIDTH - 280) / 8.5)) or [""]
     text = "<br>".join(head_lines)
     if sub_lines:
         text += "<br><span style='font-size:12px'>" + "<br>".join(sub_lines) + "</span>"
-    top = 40 + 20 * len(head_lines) + 17 * len(sub_lines)
+    # plotly spaces every line of the title by 1.3 × its font size (15 px), smaller spans too
+    title_h = 24 + 19.5 * (len(head_lines) + len(sub_lines))
+    top = int(title_h + 18 * name_lines + 16)
+    bottom = 70 + legend_h
     fig.update_layout(
         title={
             "text": text,
             "x": 0.01,
             "xanchor": "left",
-            "y": 1 - 12 / (height + top),
+            "xref": "container",
+            "y": 1 - 14 / (top + plot_h + bottom),
             "yanchor": "top",
+            "yref": "container",
             "font": {"size": 15},
         },
-        margin={"t": top + 30},
-        height=height + top,
-        width=width,
+        margin={"t": top, "b": bottom, "l": 70, "r": 80 if heat else 20, "autoexpand": True},
+        height=top + plot_h + bottom,
+        autosize=True,
+        showlegend=show_legend,
+        legend={
+            "orientation": "h",
+            "x": 0,
+            "xanchor": "left",
+            "y": -70 / plot_h,
+            "yanchor": "top",
+            "font": {"size": 11},
+        },
         template="plotly_white",
     )
     return fig
+
+
+def _colors(series: list[dict]) -> dict[str, str]:
+    """The colour of each series group (``_group``, default its name), in order of first
+    appearance."""
+    colors: dict[str, str] = {}
+    for s in series:
+        colors.setdefault(s.get("_group", s["name"]), _COLORS[len(colors) % len(_COLORS)])
+    return colors
+
+
+def _dashed(s: Mapping) -> bool:
+    return s.get("dash") not in (None, "solid")
+
+
+def _wrap_html(text: str, width: int) -> str:
+    """``text`` wrapped to ``width`` characters with ``<br>`` (plotly's line break)."""
+    lines = textwrap.wrap(text, width=max(int(width), 12)) or [""]
+    return "<br>".join(lines)
+
+
+def _colorbar_title(name: str) -> str:
+    """A heatmap's colour-bar title: its series name up to the first comma (the quantity,
+    e.g. "log10 e_α" of "log10 e_α, GP regression"), wrapped short."""
+    return _wrap_html(name.split(",")[0].strip() or name, 16)
+
+
+def _legend_height(entries: list[str]) -> int:
+    """Pixels a horizontal legend of these entries needs at :data:`REFERENCE_WIDTH`: its
+    entries packed into rows, each entry its text (~6.2 px a character) and 45 px of
+    symbol and gap."""
+    rows, used, avail = 1, 0.0, REFERENCE_WIDTH - 90
+    for name in entries:
+        w = 45 + 6.2 * len(name)
+        if used and used + w > avail:
+            rows, used = rows + 1, 0.0
+        used += w
+    return 8 + 20 * rows
 
 
 # -------------------------------------------------------------------------- matplotlib
@@ -648,11 +853,11 @@ def matplotlib_figure(result: dict):
         figsize=(fig_w, 3.8 * nrows + 0.15 + n_lines * sub_fs * 1.3 / 72), layout="constrained"
     )
     axes = fig.subplots(nrows, ncols, squeeze=False)
-    colors: dict[str, str] = {}
+    colors = _colors(series)
     for s in series:
         panel = panels[[p.name for p in panels].index(s.get("panel", ""))]
         ax = axes[panel.index // ncols][panel.index % ncols]
-        color = colors.setdefault(s.get("_group", s["name"]), _COLORS[len(colors) % len(_COLORS)])
+        color = colors[s.get("_group", s["name"])]
         kind = s.get("kind", "line")
         if kind == "heatmap":
             mesh = ax.pcolormesh(
@@ -664,7 +869,8 @@ def matplotlib_figure(result: dict):
                 vmin=s.get("zmin"),
                 vmax=s.get("zmax"),
             )
-            fig.colorbar(mesh, ax=ax)
+            bar = fig.colorbar(mesh, ax=ax)
+            bar.set_label(s["name"].split(",")[0].strip() or s["name"], fontsize=8)
         elif kind == "bar":
             ax.bar([str(v) for v in s["x"]], s["y"], color=color, label=s["name"])
         else:
@@ -679,8 +885,17 @@ def matplotlib_figure(result: dict):
                     linewidth=0,
                     label=_band_label(s, panel) or "_nolegend_",
                 )
-            style = {"line": "-", "markers": "o", "lines+markers": "-o"}.get(kind, "-")
-            ax.plot(s["x"], s["y"], style, color=color, label=s["name"], markersize=3)
+            marker = "o" if kind in ("markers", "lines+markers") or _single_point(s) else None
+            ax.plot(
+                s["x"],
+                s["y"],
+                marker=marker,
+                linestyle="none" if kind == "markers" else _MPL_DASH[s.get("dash") or "solid"],
+                color=color,
+                label=s["name"],
+                markersize=3,
+                zorder=2.5 if _dashed(s) else 2,  # a dashed reference is drawn over the fit
+            )
             if panel.range is not None:
                 for mask, edge, marker in zip(
                     panel.range.clipped(s["y"]), panel.range.axis[::-1], ("^", "v"), strict=True
@@ -695,13 +910,13 @@ def matplotlib_figure(result: dict):
                             clip_on=False,
                             label="_nolegend_",
                         )
-        if s.get("log_x"):
-            ax.set_xscale("log")
     for panel in panels:
         ax = axes[panel.index // ncols][panel.index % ncols]
         ax.set_title(panel.name, fontsize=10)
         ax.set_xlabel(panel.xlabel)
         ax.set_ylabel(panel.ylabel)
+        if panel.log_x:
+            ax.set_xscale("log")
         if panel.log_y:
             ax.set_yscale("log")
         if panel.range is not None:
@@ -771,13 +986,28 @@ def _check_result(result) -> list[dict]:
         raise ValueError("result: expected a non-empty 'series' list of Series dicts")
     # Besides Series fields, a series dict may carry "_group": series of one group share a
     # colour (default: series of one name do).
+    # "lines" (plotly's word) is read as "line".
     out = []
     for i, s in enumerate(series):
         s = s.to_dict() if hasattr(s, "to_dict") else s
         if not isinstance(s, Mapping) or not {"name", "x", "y"} <= set(s):
             raise ValueError(f"result: series[{i}] lacks 'name', 'x' or 'y'")
-        out.append(dict(s))
+        s = dict(s)
+        if s.get("kind") in _KIND_ALIASES:
+            s["kind"] = _KIND_ALIASES[s["kind"]]
+        if s.get("dash") is not None and s["dash"] not in DASHES:
+            raise ValueError(f"result: series[{i}] dash {s['dash']!r} is not one of {DASHES}")
+        out.append(s)
     return out
+
+
+def _single_point(s: Mapping) -> bool:
+    """A line series with one finite point: drawn as a marker (a line of one point is
+    invisible)."""
+    if s.get("kind", "line") != "line":
+        return False
+    y = _floats(s["y"])
+    return int(np.isfinite(y).sum()) == 1
 
 
 def _draw(result: dict, backend: str):

@@ -13,7 +13,10 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["BAND_KINDS", "Series", "band_text", "mean_band", "trial_band"]
+__all__ = ["BAND_KINDS", "DASHES", "Series", "band_text", "mean_band", "trial_band"]
+
+DASHES = ("solid", "dash", "dot", "dashdot")
+"""Line styles of :attr:`Series.dash` (None is ``"solid"``)."""
 
 
 @dataclass
@@ -43,6 +46,10 @@ class Series:
         Logarithmic axes.
     zmin, zmax : float, optional
         Colour range of a heatmap (give panels compared by eye the same range).
+    dash : {"dash", "dot", "dashdot"}, optional
+        Line style of a line series; None (the default) draws it solid. Mark a reference
+        the other curves are compared with (a demonstration, a target) as ``"dash"`` so a
+        close fit drawn over it does not hide it.
     """
 
     name: str
@@ -60,6 +67,7 @@ class Series:
     log_y: bool = False
     zmin: float | None = None
     zmax: float | None = None
+    dash: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {k: v for k, v in asdict(self).items() if v is not None}

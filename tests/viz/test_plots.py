@@ -491,3 +491,139 @@ def test_own_checks_are_shown_beside_the_verdict_not_in_it():
     text = subtitle(result)
     assert text.splitlines()[1] == "Here: holds — s 1"
     assert text.splitlines()[2].endswith("every_trial (every trial < 5 cm): does not hold")
+
+
+# ------------------------------------------------------------------ notebook rendering
+def _axes_of(fig, prefix):
+    return [fig.layout[k] for k in fig.layout if k.startswith(prefix) and fig.layout[k].domain]
+
+
+def test_plotly_figures_fit_the_notebook_width_with_the_legend_below():
+    """No fixed width (it would cut legends and colour bars in a notebook cell): the figure
+    is responsive, its legend horizontal below the panels, axis labels given room."""
+    series = [Series(f"curve {i}", [1, 2, 3], [i, i + 1, i + 2], panel=f"p{i % 3}").to_dict()
+              for i in range(6)]  # fmt: skip
+    fig = plotly_figure(_result(series))
+    assert fig.layout.width is None and fig.layout.autosize is True
+    assert fig.layout.showlegend is True
+    assert fig.layout.legend.orientation == "h" and fig.layout.legend.y < 0
+    assert all(ax.automargin for ax in _axes_of(fig, "xaxis") + _axes_of(fig, "yaxis"))
+
+
+def test_a_panel_with_several_series_shows_a_legend_a_single_curve_none():
+    two = [Series(n, [1, 10, 100], [1, 2, 3], panel="p", log_x=True).to_dict() for n in "ab"]
+    assert plotly_figure(_result(two)).layout.showlegend is True
+    assert len(_legend_texts(matplotlib_figure(_result(two)))) == 2
+    assert plotly_figure(_result()).layout.showlegend is False
+
+
+def test_log_axes_label_ticks_as_powers_of_ten_not_si_prefixes():
+    """fig4.5 showed "1µ", "1p" ticks: log axes use exponent notation."""
+    s = Series("a", [1, 10, 100], [1e-30, 1e-3, 1.0], panel="p", log_x=True, log_y=True)
+    fig = plotly_figure(_result([s.to_dict()]))
+    assert fig.layout.xaxis.type == "log" and fig.layout.xaxis.exponentformat == "power"
+    assert fig.layout.yaxis.type == "log" and fig.layout.yaxis.exponentformat == "power"
+
+
+def test_a_log_x_panel_under_one_decade_is_linear_and_its_label_says_so():
+    """fig4.7: rollouts 10..28 on a log axis read as a linear axis labelled "log scale"."""
+    label = "real rollouts (log scale; after the first batch)"
+    s = Series("a", [10, 20, 28], [1, 2, 3], panel="p", xlabel=label, log_x=True)
+    fig = plotly_figure(_result([s.to_dict()]))
+    assert fig.layout.xaxis.type != "log"
+    assert fig.layout.xaxis.title.text == "real rollouts (after the first batch)"
+    ax = matplotlib_figure(_result([s.to_dict()])).axes[0]
+    assert ax.get_xscale() == "linear" and "log" not in ax.get_xlabel()
+    wide = Series("a", [1, 10, 100], [1, 2, 3], panel="p", xlabel="M (log scale)", log_x=True)
+    fig = plotly_figure(_result([wide.to_dict()]))
+    assert fig.layout.xaxis.type == "log" and fig.layout.xaxis.title.text == "M (log scale)"
+
+
+def test_axis_ranges_contain_every_point_and_band():
+    """fig4.10 / fig4.12 smoke: lines drawn outside the panel. Every point and band lies
+    inside the explicit axis ranges; a one-point line is drawn as a marker."""
+    series = [
+        Series("a", [4, 5], [0.685, 0.685], panel="p", lower=[0.6, 0.6], upper=[0.7, 0.71]),
+        Series("b", [25], [0.502], panel="p"),
+    ]
+    fig = plotly_figure(_result([s.to_dict() for s in series]))
+    (x0, x1), (y0, y1) = fig.layout.xaxis.range, fig.layout.yaxis.range
+    assert x0 < 4 and x1 > 25 and y0 < 0.502 and y1 > 0.71
+    single = next(t for t in fig.data if t.name == "b")
+    assert "markers" in single.mode
+    line = [ln for ln in matplotlib_figure(_result([s.to_dict() for s in series])).axes[0].lines
+            if ln.get_label() == "b"][0]  # fmt: skip
+    assert line.get_marker() == "o"
+
+
+def test_lines_kind_counts_in_the_robust_range():
+    """ "lines" (plotly's word) is read as "line": a runaway value in it gets the robust
+    range and its note (fig4.5's noise floor at 1e-32 stretched the axis to 1e-30)."""
+    series = [
+        Series("a", list(range(20)), list(np.linspace(1, 30, 20)), panel="p", log_y=True),
+        Series("floor", [0, 1], [1.6e-32, 1.0], panel="p", kind="lines", log_y=True),
+    ]
+    fig = plotly_figure(_result([s.to_dict() for s in series]))
+    assert fig.layout.yaxis.range[0] > -10
+    assert any("below" in (a.text or "") for a in fig.layout.annotations)
+
+
+def test_every_heatmap_has_a_titled_colour_bar_with_values():
+    """ch5's heatmaps: each panel's colour bar shows tick labels and what it measures (a
+    panel with another colour range, fig5.3's noise floor, gets its own)."""
+    z = [[0.0, 1.0], [2.0, 3.0]]
+    series = [
+        Series("log10 e, embedding", [0, 1], [0, 1], panel="a", kind="heatmap", z=z, zmax=3),
+        Series("log10 e, noise floor", [0, 1], [0, 1], panel="b", kind="heatmap", z=z, zmin=-30),
+    ]
+    fig = plotly_figure(_result([s.to_dict() for s in series]))
+    heatmaps = [t for t in fig.data if t.type == "heatmap"]
+    assert all(t.showscale and t.colorbar.showticklabels for t in heatmaps)
+    assert [t.colorbar.title.text for t in heatmaps] == ["log10 e", "log10 e"]
+    assert heatmaps[0].colorbar.x != heatmaps[1].colorbar.x  # beside its own panel
+    labels = [
+        ax.get_ylabel() for ax in matplotlib_figure(_result([s.to_dict() for s in series])).axes
+    ]
+    assert labels.count("log10 e") == 2
+
+
+def test_a_dashed_series_is_drawn_dashed_and_on_top():
+    """The DMP figure's demonstration (Series.dash) is dashed and drawn over the fit."""
+    series = [
+        Series("demonstration", [0, 1, 2], [0, 1, 1], panel="q", dash="dash"),
+        Series("DMP fit", [0, 1, 2], [0, 1, 1], panel="q"),
+    ]
+    fig = plotly_figure(_result([s.to_dict() for s in series]))
+    lines = [t for t in fig.data if t.type == "scatter"]
+    assert lines[-1].name == "demonstration" and lines[-1].line.dash == "dash"
+    assert lines[0].line.dash == "solid"
+    assert lines[-1].legendrank < lines[0].legendrank  # the legend keeps the series order
+    ax = matplotlib_figure(_result([s.to_dict() for s in series])).axes[0]
+    demo = next(ln for ln in ax.lines if ln.get_label() == "demonstration")
+    fit = next(ln for ln in ax.lines if ln.get_label() == "DMP fit")
+    assert demo.get_linestyle() == "--" and fit.get_linestyle() == "-"
+    assert demo.get_zorder() > fit.get_zorder()
+    assert "dash" not in Series("a", [0], [0]).to_dict()  # old result.json files load as before
+    with pytest.raises(ValueError, match="dash"):
+        plotly_figure(_result([{**series[0].to_dict(), "dash": "wavy"}]))
+
+
+def test_long_panel_titles_wrap_and_the_title_block_clears_them():
+    """fig5.5's panel titles ran into each other and fig5.7's subtitle into the panel
+    title: panel titles are wrapped to the column and the top margin holds every title
+    line (plotly spaces each at 1.3 × 15 px)."""
+    name = "(a) kernel embedding: log10 Σ_t e_x_t (Σ_t e_x_t in rad² + (rad/s)²) " * 2
+    series = [Series("a", [0, 1], [0, 1], panel=f"{name}{i}").to_dict() for i in range(4)]
+    summary = {"claim": "a long claim " * 60, "holds": True, "statement": "numbers " * 80}
+    fig = plotly_figure(_result(series, summary=summary))
+    titles = [a for a in fig.layout.annotations if a.text.startswith("(a)")]
+    assert len(titles) == 4
+    assert all(max(len(x) for x in t.text.split("<br>")) <= 60 for t in titles)
+    n_title_lines = fig.layout.title.text.count("<br>") + 1
+    n_panel_lines = titles[0].text.count("<br>") + 1
+    assert fig.layout.margin.t >= 19.5 * n_title_lines + 18 * n_panel_lines
+    # rows are spaced for the wrapped titles of the next row
+    top_row = fig.layout.yaxis.domain[0]
+    next_row = fig.layout.yaxis3.domain[1]
+    plot_h = fig.layout.height - fig.layout.margin.t - fig.layout.margin.b
+    assert (top_row - next_row) * plot_h >= 18 * n_panel_lines + 60

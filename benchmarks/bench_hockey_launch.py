@@ -1,9 +1,8 @@
 """Hockey GPREPS model choices (issue #31) measured on the stored paper runs' own shots.
 
-Run ``OMP_NUM_THREADS=1 python benchmarks/bench_hockey_launch.py``. It reads the reward model
-the stored ``fig4.10`` and ``fig4.11`` paper runs keep for trial 0 (``trials.npz``), takes
-each GP's training set from it (inputs as stored; targets de-standardised, so they carry the
-fit's small additive noise, α·1% of their spread), and reports:
+Run ``OMP_NUM_THREADS=1 python benchmarks/bench_hockey_launch.py``. It reads the training sets
+of trial 0's GPs of the ``fig4.10`` and ``fig4.11`` paper runs made before issue #31
+(``benchmarks/data/hockey_training_sets.npz``, see :data:`DATA`) and reports:
 
 1. **launch targets**: 5-fold cross-validated error of the launch GP's predictive mean on the
    shots (the thesis's ~120-shot budget) for the targets [p_y, v_x, v_y, t_0] ("velocity"),
@@ -29,24 +28,19 @@ import numpy as np
 from skillkit.models.gp import ExactGP
 from skillkit.search.gpreps import refit_gp
 from skillkit.search.hockey_model import DisplacementModel, LaunchTargets, approach_frame
-from skillkit.viz.model_layers import loads_reward_model
 
-ROOT = Path(__file__).resolve().parents[1] / "data" / "results"
+DATA = Path(__file__).resolve().parent / "data" / "hockey_training_sets.npz"
+"""Trial 0's training sets of the fig4.10 and fig4.11 paper runs made before issue #31
+(the results stored in data/results up to commit 8fccd66; fig4.11 replaced since), from their
+reward models: ``<run>__<gp>__X`` and ``__Y`` (targets de-standardised, so they carry the
+fit's small additive noise, α·1% of their spread). Launch targets are [p_y, v_x, v_y, t_0]."""
 
 
 def stored_training_sets(run: str) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """{GP name: (X, Y)} of trial 0's stored reward model in ``data/results/<run>``."""
-    z = np.load(ROOT / run / "trials.npz", allow_pickle=False)
-    model = loads_reward_model(z["trial0__reward_model"].tobytes(), run)
-    out = {}
-    for name, gp in model.models.items():
-        gp = getattr(gp, "gp", gp)
-        if gp is None:
-            continue
-        X = gp.X.cpu().numpy()
-        Y = gp.Y.cpu().numpy().T * gp.y_scale + gp.y_mean
-        out[name] = (X, Y)
-    return out
+    """{GP name: (X, Y)} of ``run`` ("fig4.10" or "fig4.11") from :data:`DATA`."""
+    with np.load(DATA) as z:
+        names = {k.split("__")[1] for k in z.files if k.startswith(f"{run}__")}
+        return {n: (z[f"{run}__{n}__X"], z[f"{run}__{n}__Y"]) for n in sorted(names)}
 
 
 def _folds(n: int, k: int = 5, seed: int = 0) -> list[np.ndarray]:
@@ -140,7 +134,7 @@ def refit_cost(X: np.ndarray, targets: np.ndarray, repeats: int = 3) -> dict[str
 
 def main() -> None:
     warnings.simplefilter("ignore")
-    for run in ("fig4.10-paper-s0", "fig4.11-paper-s0"):
+    for run in ("fig4.10", "fig4.11"):
         data = stored_training_sets(run)
         X, state = data["launch"]
         print(f"{run}: launch GP, {len(X)} shots, 5-fold CV (RMS)")

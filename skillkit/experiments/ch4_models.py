@@ -1005,7 +1005,7 @@ def _summarize_4_5(settings: RewardErrorSettings, trials: list[dict]) -> tuple[l
                     values,
                     errs,
                     panel=label,
-                    kind="lines" if floor else "lines+markers",
+                    kind="line" if floor else "lines+markers",
                     xlabel=label,
                     ylabel=REWARD_ERROR_LABEL,
                     log_x=key == "additive_noise",

@@ -54,7 +54,9 @@ LINEAR_HEADROOM, LINEAR_GAP = 20.0, 5.0
 MAX_CLIPPED_FRACTION = 0.25
 
 _POINT_KINDS = ("line", "markers", "lines+markers")
-_KIND_ALIASES = {"lines": "line", "marker": "markers", "line+markers": "lines+markers"}
+#: Kinds read as another: fig4.5's stored result has "lines" series (ch4_models wrote that
+#: kind until issue #33's review).
+_KIND_ALIASES = {"lines": "line"}
 _MPL_DASH = {"solid": "-", "dash": "--", "dot": ":", "dashdot": "-."}
 
 #: Width (px) the plotly figures' text is wrapped for: a notebook cell. The figures themselves
@@ -404,7 +406,7 @@ def _layout(series: list[dict]) -> list[_Panel]:
             xaxis = _limits(xs, log_x, pad=0.03)
             if rng is None:
                 ys = [values] + [
-                    a for s in points if _has_band(s) for a in _band_arrays_raw(s, log_y, floor)
+                    a for s in points if _has_band(s) for a in _band_arrays(s, log_y, floor)
                 ]
                 yaxis = _limits(np.concatenate(ys), log_y, pad=0.06)
         label_x = next((s["xlabel"] for s in members if s.get("xlabel")), "")
@@ -491,13 +493,9 @@ def _has_band(s: Mapping) -> bool:
     )
 
 
-def _band_arrays(s: Mapping, panel: _Panel) -> tuple[np.ndarray, np.ndarray]:
-    """Lower and upper band; on a log axis, non-positive lower bounds go to the panel's
-    smallest positive value (the axis bottom when the range is clipped)."""
-    return _band_arrays_raw(s, panel.log_y, panel.floor)
-
-
-def _band_arrays_raw(s: Mapping, log_y: bool, floor: float) -> tuple[np.ndarray, np.ndarray]:
+def _band_arrays(s: Mapping, log_y: bool, floor: float) -> tuple[np.ndarray, np.ndarray]:
+    """Lower and upper band; on a log axis, non-positive lower bounds go to ``floor``, the
+    panel's smallest positive value (the axis bottom when the range is clipped)."""
     lower = np.asarray(s["lower"], dtype=float)
     upper = np.asarray(s["upper"], dtype=float)
     if log_y:
@@ -615,7 +613,7 @@ def plotly_figure(result: dict):
             shown.add(s["name"])
             continue
         if _has_band(s):
-            lower, upper = _band_arrays(s, panel)
+            lower, upper = _band_arrays(s, panel.log_y, panel.floor)
             label = _band_label(s, panel)
             fig.add_trace(
                 go.Scatter(
@@ -875,7 +873,7 @@ def matplotlib_figure(result: dict):
             ax.bar([str(v) for v in s["x"]], s["y"], color=color, label=s["name"])
         else:
             if _has_band(s):
-                lower, upper = _band_arrays(s, panel)
+                lower, upper = _band_arrays(s, panel.log_y, panel.floor)
                 ax.fill_between(
                     s["x"],
                     lower,
@@ -986,7 +984,7 @@ def _check_result(result) -> list[dict]:
         raise ValueError("result: expected a non-empty 'series' list of Series dicts")
     # Besides Series fields, a series dict may carry "_group": series of one group share a
     # colour (default: series of one name do).
-    # "lines" (plotly's word) is read as "line".
+    # Kinds in _KIND_ALIASES are read as the kind they name.
     out = []
     for i, s in enumerate(series):
         s = s.to_dict() if hasattr(s, "to_dict") else s

@@ -212,7 +212,12 @@ class CommonStartRewardModel(TrajectoryRewardModel):
     gains. Single rollouts of balancing differ more between start states (median −50, best
     −1.2 for one gain at σ = 0.1) than between gains, so with independent start states
     the weights rank start states; with common ones (common random numbers) the start
-    state's effect cancels from the comparison, and each estimate stays unbiased."""
+    state's effect cancels from the comparison, and each estimate stays unbiased.
+
+    Its :meth:`expected_rewards` repeats the parent's with ``x0`` added; it belongs in
+    :class:`~skillkit.search.gpreps.TrajectoryRewardModel` as an option, left here so that
+    the results whose code includes search/gpreps.py (fig4.10–fig4.13) stay current until
+    that file next changes."""
 
     def start_states(self, n_pairs: int, n_trajectories: int, rng) -> np.ndarray:
         """x₀ (n_pairs, L, n_x): L draws of the task's start distribution, repeated per pair."""

@@ -1,0 +1,211 @@
+"""Things to change and watch in a notebook: sliders that redraw a figure made by library calls.
+
+:func:`explore` shows the figure for the default values as an ordinary output (so an exported
+HTML page or a notebook opened without a kernel still shows it), then the controls; moving a
+control redraws that same output in place (``display(..., display_id=True)``). Without
+ipywidgets, or when ``controls=False``, only the static figure is shown.
+
+>>> from skillkit.viz.explore import Slider, explore
+>>> def draw(epsilon):                     # any function returning a figure
+...     ...
+>>> shown = explore(draw, epsilon=Slider(0.05, 2.0, 0.5))   # doctest: +SKIP
+>>> shown.set(epsilon=1.0)                 # what a slider does, callable from code
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+__all__ = ["Choice", "Exploration", "Slider", "explore"]
+
+
+@dataclass(frozen=True)
+class Slider:
+    """A numeric control.
+
+    Attributes
+    ----------
+    low, high : float
+        Range, ``low < high`` (both > 0 when ``log``).
+    default : float
+        Initial value, within the range.
+    step : float or None
+        Step of a linear slider (default: 1/100 of the range; an int slider when ``low``,
+        ``high``, ``default`` and ``step`` are all ints).
+    log : bool
+        A logarithmic slider (ipywidgets ``FloatLogSlider``).
+    """
+
+    low: float
+    high: float
+    default: float
+    step: float | None = None
+    log: bool = False
+
+    def __post_init__(self) -> None:
+        for name in ("low", "high", "default"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise ValueError(f"{name}: expected a finite number, got {v!r}")
+        if not self.low < self.high:
+            raise ValueError(f"low, high: expected low < high, got {self.low}, {self.high}")
+        if not self.low <= self.default <= self.high:
+            raise ValueError(
+                f"default: expected a value in [{self.low}, {self.high}], got {self.default}"
+            )
+        if self.log and self.low <= 0:
+            raise ValueError(f"low: a log slider needs low > 0, got {self.low}")
+        if self.step is not None and not self.step > 0:
+            raise ValueError(f"step: expected a positive number, got {self.step!r}")
+
+    @property
+    def integer(self) -> bool:
+        """True when every number given is an int (an ``IntSlider``)."""
+        nums = (self.low, self.high, self.default, self.step if self.step is not None else 1)
+        return not self.log and all(isinstance(v, int) for v in nums)
+
+    def widget(self, description: str):
+        """The ipywidgets slider."""
+        import ipywidgets as w
+
+        style = {"description_width": "initial"}
+        if self.log:
+            return w.FloatLogSlider(
+                value=self.default,
+                base=10,
+                min=math.log10(self.low),
+                max=math.log10(self.high),
+                step=(math.log10(self.high) - math.log10(self.low)) / 100,
+                description=description,
+                continuous_update=False,
+                style=style,
+            )
+        if self.integer:
+            return w.IntSlider(
+                value=self.default, min=self.low, max=self.high, step=self.step or 1,
+                description=description, continuous_update=False, style=style,
+            )  # fmt: skip
+        return w.FloatSlider(
+            value=self.default, min=self.low, max=self.high,
+            step=self.step or (self.high - self.low) / 100,
+            description=description, continuous_update=False, style=style,
+        )  # fmt: skip
+
+
+@dataclass(frozen=True)
+class Choice:
+    """A control choosing one of ``options`` (a dropdown); ``default`` is the first."""
+
+    options: Sequence[Any]
+    default: Any = None
+
+    def __post_init__(self) -> None:
+        if len(self.options) == 0:
+            raise ValueError("options: expected at least one option")
+        if self.default is None:
+            object.__setattr__(self, "default", self.options[0])
+        elif self.default not in self.options:
+            raise ValueError(f"default: expected one of {list(self.options)}, got {self.default!r}")
+
+    def widget(self, description: str):
+        """The ipywidgets dropdown."""
+        import ipywidgets as w
+
+        return w.Dropdown(
+            options=list(self.options), value=self.default, description=description,
+            style={"description_width": "initial"},
+        )  # fmt: skip
+
+
+@dataclass
+class Exploration:
+    """What :func:`explore` returns: the current values, the last figure, and :meth:`set`.
+
+    Attributes
+    ----------
+    draw : callable
+        ``draw(**values) -> figure``.
+    values : dict
+        The current value of each control.
+    figure : object
+        The last figure drawn.
+    controls : object or None
+        The ipywidgets box of controls (None without ipywidgets).
+    """
+
+    draw: Callable[..., Any]
+    values: dict[str, Any]
+    figure: Any = None
+    controls: Any = None
+    _handle: Any = field(default=None, repr=False)
+
+    def set(self, **values) -> Any:
+        """Redraw with some values changed (what moving a control does); returns the figure."""
+        unknown = set(values) - set(self.values)
+        if unknown:
+            raise ValueError(
+                f"values: unknown control(s) {sorted(unknown)}; known {sorted(self.values)}"
+            )
+        self.values.update(values)
+        self.figure = self.draw(**self.values)
+        if self._handle is not None:
+            self._handle.update(self.figure)
+        return self.figure
+
+
+def explore(draw: Callable[..., Any], /, *, controls: bool = True, **specs) -> Exploration:
+    """Show ``draw(**defaults)`` and controls that redraw it.
+
+    Parameters
+    ----------
+    draw : callable
+        ``draw(**values)`` returning something Jupyter displays (a plotly figure, a
+        :class:`~skillkit.viz.plots.NotebookFigure`, a pandas table). It should call the
+        library; the notebook holds no logic.
+    controls : bool
+        Show the ipywidgets controls (default). False: the static figure only.
+    **specs : Slider or Choice
+        One control per keyword argument of ``draw``.
+
+    Returns
+    -------
+    Exploration
+
+    Raises
+    ------
+    ValueError
+        When a spec is not a :class:`Slider` or :class:`Choice`, or none is given.
+    """
+    if not callable(draw):
+        raise ValueError(f"draw: expected a callable, got {type(draw).__name__}")
+    if not specs:
+        raise ValueError("specs: expected at least one control (name=Slider(...) or Choice(...))")
+    for name, spec in specs.items():
+        if not isinstance(spec, (Slider, Choice)):
+            raise ValueError(f"{name}: expected a Slider or a Choice, got {type(spec).__name__}")
+    shown = Exploration(draw, {k: s.default for k, s in specs.items()})
+    shown.figure = draw(**shown.values)
+    try:
+        from IPython import get_ipython
+        from IPython.display import display
+    except ImportError:  # no IPython: nothing to display, the figure is returned
+        return shown
+    if get_ipython() is None:
+        return shown
+    shown._handle = display(shown.figure, display_id=True)
+    if not controls:
+        return shown
+    try:
+        import ipywidgets as w
+    except ImportError:
+        display("(install ipywidgets to move the controls; the figure shows the defaults)")
+        return shown
+    sliders = {k: s.widget(k) for k, s in specs.items()}
+    for k, slider in sliders.items():
+        slider.observe(lambda change, k=k: shown.set(**{k: change["new"]}), names="value")
+    shown.controls = w.VBox(list(sliders.values()))
+    display(shown.controls)
+    return shown

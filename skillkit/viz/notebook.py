@@ -12,10 +12,11 @@ from __future__ import annotations
 
 import base64
 import html
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
-__all__ = ["NotebookViewer", "scene_screenshot", "show_viewer"]
+__all__ = ["NotebookViewer", "export_html", "scene_screenshot", "show_viewer"]
 
 #: Where the documentation keeps one screenshot per task (``docs/scene_<task>.png``).
 SCREENSHOT_DIR = Path(__file__).resolve().parents[2] / "docs"
@@ -138,3 +139,65 @@ def show_viewer(
         viewer.stop()
         return NotebookViewer(None, screenshot, f"the server could not start ({exc})", height)
     return NotebookViewer(viewer, screenshot, "", height)
+
+
+#: MathJax 2.7 as a local copy (the ``jupyter_server_mathjax`` package): the configuration an
+#: exported page loads from the folder ``mathjax/`` beside it.
+MATHJAX_CONFIG = "TeX-AMS-MML_HTMLorMML-full,Safe"
+
+
+def export_html(notebook, out_dir=None, *, execute: bool = False, timeout: int = 600):
+    """Export a notebook to HTML whose equations render offline.
+
+    ``jupyter nbconvert --to html`` makes pages that load MathJax from a CDN, so without a
+    network their equations stay raw ``$$``. This writes ``<out_dir>/<name>.html`` loading
+    MathJax from ``<out_dir>/mathjax/`` (copied once from the installed
+    ``jupyter_server_mathjax`` package, ≈ 10 MB): the page and that folder work offline and
+    can be moved together.
+
+    Parameters
+    ----------
+    notebook : str or Path
+        An ``.ipynb`` file.
+    out_dir : str or Path, optional
+        Output folder (default: the notebook's folder); created if missing.
+    execute : bool
+        Execute the notebook first (in its own folder, with nbclient), as
+        ``nbconvert --execute`` would.
+    timeout : int
+        Seconds per cell when executing.
+
+    Returns
+    -------
+    Path
+        The HTML file.
+    """
+    from pathlib import Path as _Path
+
+    import jupyter_server_mathjax
+    import nbformat
+    from nbconvert import HTMLExporter
+
+    source = _Path(notebook)
+    if source.suffix != ".ipynb" or not source.is_file():
+        raise ValueError(f"notebook: expected an existing .ipynb file, got {str(notebook)!r}")
+    if isinstance(timeout, bool) or not isinstance(timeout, int) or timeout <= 0:
+        raise ValueError(f"timeout: expected a positive number of seconds, got {timeout!r}")
+    out = _Path(out_dir) if out_dir is not None else source.parent
+    out.mkdir(parents=True, exist_ok=True)
+    local = out / "mathjax"
+    if not (local / "MathJax.js").is_file():
+        static = _Path(jupyter_server_mathjax.__file__).parent / "static"
+        shutil.copytree(static, local, dirs_exist_ok=True)
+    nb = nbformat.read(source, as_version=4)
+    if execute:
+        from nbclient import NotebookClient
+
+        NotebookClient(
+            nb, timeout=timeout, resources={"metadata": {"path": str(source.parent)}}
+        ).execute()
+    exporter = HTMLExporter(mathjax_url=f"mathjax/MathJax.js?config={MATHJAX_CONFIG}")
+    body, _ = exporter.from_notebook_node(nb)
+    target = out / f"{source.stem}.html"
+    target.write_text(body, encoding="utf-8")
+    return target

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import os
 import socket
+import time
 from pathlib import Path
 
 import numpy as np
@@ -133,3 +134,38 @@ def test_gpreps_model_layers_render_in_headless_chromium(tmp_path):
     # the model's layers themselves are on the canvas: switching them off changes pixels
     predicted = changed(shown, without)
     assert predicted > 0.001, f"the model layers drew {predicted:.2%} of the canvas"
+
+
+def test_exported_notebook_renders_its_equations_offline(tmp_path):
+    """export_html loads MathJax from a local copy: the equation is typeset, no CDN needed."""
+    import nbformat
+
+    from skillkit.viz.notebook import export_html
+
+    nb = nbformat.v4.new_notebook()
+    nb.cells = [nbformat.v4.new_markdown_cell(r"Eq. (3.9): $$g(\eta) = \eta\epsilon + \alpha^2$$")]
+    source = tmp_path / "eq.ipynb"
+    nbformat.write(nb, source)
+    page = export_html(source, tmp_path / "html")
+    text = page.read_text()
+    assert "libs/mathjax" not in text and 'src="mathjax/MathJax.js?config=' in text
+    with HeadlessBrowser(size=(800, 400), executable=str(CHROMIUM)) as browser:
+        browser.open(page.as_uri())
+        deadline = time.monotonic() + 60
+        count = 0
+        while time.monotonic() < deadline and count == 0:
+            reply = browser.call(
+                "Runtime.evaluate",
+                expression="document.querySelectorAll('.MathJax, .MathJax_CHTML, "
+                ".MathJax_SVG, mjx-container').length",
+            )
+            count = int(reply["result"].get("value", 0))
+            time.sleep(0.2)
+    assert count >= 1, "MathJax did not typeset the equation"
+
+
+def test_export_html_names_bad_input(tmp_path):
+    from skillkit.viz.notebook import export_html
+
+    with pytest.raises(ValueError, match="notebook: expected an existing .ipynb"):
+        export_html(tmp_path / "missing.ipynb")

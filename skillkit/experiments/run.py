@@ -19,7 +19,7 @@ from typing import Any
 
 from skillkit.experiments.registry import VERDICT_KEYS
 
-__all__ = ["Run", "load_run", "results_root", "scoreboard", "stored_run"]
+__all__ = ["Run", "claim_rows", "load_run", "results_root", "scoreboard", "stored_run"]
 
 
 @dataclass(frozen=True)
@@ -240,11 +240,66 @@ def stored_run(exp_id: str, scale: str = "paper", seed: int = 0) -> Run:
     return load_run(folder)
 
 
+def claim_rows(root: str | os.PathLike | None = None, ids: Any = None) -> list[dict[str, Any]]:
+    """The stored results' claims and verdicts, one dict per ``result.json``, in thesis order.
+
+    Parameters
+    ----------
+    root : path, optional
+        Folder searched for ``result.json`` files (default :func:`results_root`).
+    ids : iterable of str, optional
+        Only these experiment ids (default: all).
+
+    Returns
+    -------
+    list of dict
+        ``id``; ``thesis`` (the thesis's sentences, each followed by its location in
+        parentheses); ``where`` (the locations); ``verdict`` (:attr:`Verdict.word`);
+        ``statement`` (our numbers against the thesis's); ``own`` (our own checks, beside the
+        verdict); ``made`` (the commit that made it and whether today's code would make it:
+        a stale result says why); ``stale`` (bool); ``path``.
+    """
+    from skillkit.experiments.provenance import check_results
+    from skillkit.experiments.registry import ids as registered
+    from skillkit.viz.plots import verdict
+
+    root = Path(root) if root is not None else results_root()
+    wanted = None if ids is None else {str(i) for i in ids}
+    order = {exp_id: i for i, exp_id in enumerate(registered())}
+    found = [r for r in check_results(root) if wanted is None or r["id"] in wanted]
+    rows = []
+    for row in sorted(found, key=lambda r: (order.get(r["id"], len(order)), r["path"])):
+        run = load_run(row["path"])
+        v = verdict(run.result)
+        quotes = [q for q in run.summary.get("thesis") or [] if isinstance(q, dict)]
+        git = run.result.get("git") or (run.result.get("summary_migrated") or {}).get("git") or {}
+        commit = (git.get("commit") or "?")[:7]
+        made = f"{commit}, current" if not row["stale"] else f"{commit}, stale: {row['reason']}"
+        if run.result.get("summary_migrated") and "code_fingerprint" not in run.result:
+            made = f"numbers before provenance; verdict re-judged at {commit}"
+        rows.append(
+            {
+                "id": run.id,
+                "thesis": " ".join(
+                    f"“{q.get('quote', '')}” ({q.get('location', '')})" for q in quotes
+                ),
+                "where": "; ".join(dict.fromkeys(q.get("location", "") for q in quotes)),
+                "verdict": "no verdict recorded" if v is None else v.word,
+                "statement": "" if v is None else v.statement,
+                "own": "" if v is None else v.own_words,
+                "made": made,
+                "stale": bool(row["stale"]),
+                "path": row["path"],
+            }
+        )
+    return rows
+
+
 def scoreboard(root: str | os.PathLike | None = None) -> str:
     """The README's table "What reproduces so far", made from the stored results.
 
-    One row per ``result.json`` under ``root`` (default :func:`results_root`), in thesis order:
-    the id, where the thesis says it (the locations of ``summary["thesis"]``), our verdict
+    One row per ``result.json`` under ``root`` (default :func:`results_root`), in thesis order
+    (:func:`claim_rows`): the id, the thesis's sentences with their locations, our verdict
     (:attr:`skillkit.viz.plots.Verdict.word`) with its statement, and our own checks beside it.
     A result made before provenance was recorded (or whose code changed since) is marked
     "stale" with the commit that made or re-judged it, so the table cannot claim more than the
@@ -255,29 +310,13 @@ def scoreboard(root: str | os.PathLike | None = None) -> str:
     str
         A Markdown table (header and one line per result), ending in a newline.
     """
-    from skillkit.experiments.provenance import check_results
-    from skillkit.experiments.registry import ids
-    from skillkit.viz.plots import verdict
-
-    root = Path(root) if root is not None else results_root()
-    order = {exp_id: i for i, exp_id in enumerate(ids())}
-    rows = sorted(check_results(root), key=lambda r: (order.get(r["id"], len(order)), r["path"]))
     lines = [
-        "| id | thesis (where) | here | our own checks | made by |",
+        "| id | the thesis says (where) | here | our own checks | made by |",
         "|---|---|---|---|---|",
     ]
-    for row in rows:
-        run = load_run(row["path"])
-        v = verdict(run.result)
-        where = "; ".join(dict.fromkeys(q["location"] for q in run.summary.get("thesis") or []))
-        here = "no verdict recorded" if v is None else f"**{v.word}** — {v.statement}"
-        own = "" if v is None else v.own_words
-        git = run.result.get("git") or (run.result.get("summary_migrated") or {}).get("git") or {}
-        commit = (git.get("commit") or "?")[:7]
-        made = f"{commit}, current" if not row["stale"] else f"{commit}, stale: {row['reason']}"
-        if run.result.get("summary_migrated") and "code_fingerprint" not in run.result:
-            made = f"numbers before provenance; verdict re-judged at {commit}"
-        cells = [run.id, where, here, own, made]
+    for row in claim_rows(root):
+        here = f"**{row['verdict']}** — {row['statement']}" if row["statement"] else row["verdict"]
+        cells = [row["id"], row["thesis"] or row["where"], here, row["own"], row["made"]]
         cells = [c.replace("|", "\\|").replace("\n", " ") for c in cells]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"

@@ -1,0 +1,948 @@
+"""Robots moving: task rollouts as plotly animations (Figs 3.2 and 3.8) that play without a kernel.
+
+A figure here is a plotly ``Figure`` with ``frames``, a play/pause button and a time slider, so it
+plays in a notebook and in the notebook's exported HTML alike (no viser server, no Python
+behind it). The geometry comes from the task itself: the robot's links from its joint states
+through the task's own MuJoCo model (:func:`skillkit.viz.scenes.task_model`, the model the
+viser viewer draws), the ball, racket and targets from the trajectory's signals and the
+context; between samples the state and the signals are interpolated linearly
+(:func:`skillkit.viz.scenes.interpolate`, on the signal's own clock
+:func:`skillkit.viz.scenes.signal_times`), as in the viewer.
+
+* :func:`throwing_animation` — the planar 4-link robot (Sec. 3.4.1, Appendix C.1) throwing
+  for one target per panel (Fig. 3.2: s₁ = [6, 1] m, s₂ = [12, 1] m, :data:`THROWING_TARGETS`).
+* :func:`table_tennis_animation` — the 8-DoF arm returning balls (Sec. 3.4.3, Appendix C.3),
+  the shots overlaid in one 3-D scene with the table and net (Fig. 3.8).
+* :func:`thesis_animation` — one call for a notebook: rolls out the policy mean of the
+  stored paper run's final policy (:func:`stored_final_policy`) at two contexts, or the
+  task's initial policy when the stored run keeps no policy (fig3.7 keeps none), and says
+  which in the title.
+
+Frames are few (default 40) and only the moving traces are repeated per frame, so the HTML of
+a figure stays small: at 40 frames ``fig.to_html(include_plotlyjs=False)`` is about 56 kB for
+Fig. 3.2 and 140 kB for Fig. 3.8 (plotly.js itself is embedded once per notebook).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from skillkit._validation import check_array, check_positive
+from skillkit.policies.gaussian import LinearGaussianPolicy
+from skillkit.trajectory import Trajectory
+from skillkit.viz.plots import REFERENCE_WIDTH
+from skillkit.viz.scenes import COLORS, interpolate, signal_times, task_model
+
+__all__ = [
+    "MAX_FRAMES",
+    "TABLE_TENNIS_CONTEXTS",
+    "THROWING_TARGETS",
+    "arm_link_points",
+    "frame_times",
+    "planar_link_points",
+    "racket_rim",
+    "stored_final_policy",
+    "table_tennis_animation",
+    "thesis_animation",
+    "throwing_animation",
+]
+
+MAX_FRAMES = 200
+"""Most frames an animation may have (the HTML grows with each)."""
+THROWING_TARGETS = np.array([[6.0, 1.0], [12.0, 1.0]])
+"""The two targets of Fig. 3.2 (Sec. 3.4.1: s₁ = [6, 1] m, s₂ = [12, 1] m)."""
+TABLE_TENNIS_CONTEXTS = np.array([[-5.8, 0.0, 2.5, 0.6, -0.3], [-5.0, 0.0, 2.25, 0.9, 0.3]])
+"""Two contexts s = [v_x, v_y, v_z, b_x, b_y] for Fig. 3.8: a fast flat serve returned to the
+right, a slower one returned far to the left. The serves have v_y = 0 because the initial
+stroke (no context gain) hits only balls that come straight down the table (at v_y = ±0.2 m/s
+it misses); the targets are not chosen where that stroke lands."""
+
+_PLANAR_BODIES = ("shin", "thigh", "torso", "arm")  # origins: ankle, knee, hip, shoulder
+_ARM_BODIES = ("platform", "upper_arm", "forearm", "hand")  # floor, shoulder, elbow, wrist
+_SHOT_COLORS = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd")
+
+
+def _rgb(name: str) -> str:
+    r, g, b = COLORS[name]
+    return f"rgb({r},{g},{b})"
+
+
+# ============================================================================ kinematics
+def _points(model: mujoco.MjModel, qpos: np.ndarray, bodies: Sequence[str], site: str):
+    """World positions (N, len(bodies) + 1, 3) of the body origins and the site per row of qpos."""
+    data = mujoco.MjData(model)
+    ids = [model.body(b).id for b in bodies]
+    sid = model.site(site).id
+    out = np.empty((qpos.shape[0], len(ids) + 1, 3))
+    for i, row in enumerate(qpos):
+        data.qpos[:] = row
+        mujoco.mj_kinematics(model, data)
+        out[i, :-1] = data.xpos[ids]
+        out[i, -1] = data.site_xpos[sid]
+    return out
+
+
+def _require_task(task, cls) -> mujoco.MjModel:
+    """The MuJoCo model of ``task``, which must be a ``cls``."""
+    if not isinstance(task, cls):
+        raise ValueError(f"task: expected a {cls.__name__} task, got {type(task).__name__}")
+    model = task_model(task)
+    if model is None:  # pragma: no cover - both tasks expose their model
+        raise ValueError(f"task: {type(task).__name__} exposes no MuJoCo model")
+    return model
+
+
+def _throwing_model(task) -> mujoco.MjModel:
+    from skillkit.tasks.planar import Throwing
+
+    return _require_task(task, Throwing)
+
+
+def _table_tennis_model(task) -> mujoco.MjModel:
+    from skillkit.tasks.table_tennis import TableTennis
+
+    return _require_task(task, TableTennis)
+
+
+def planar_link_points(task, q) -> np.ndarray:
+    """Joint and hand positions of the planar 4-link robot (Appendix C.1) in its plane.
+
+    The robot's own MuJoCo model (``task.scene_model()``) posed with ``mujoco.mj_kinematics``:
+    the origins of the shin, thigh, torso and arm bodies (ankle, knee, hip and shoulder
+    hinges) and the ``hand`` site, in the thesis's [x, y] (MuJoCo's [x, z], y up). With
+    absolute angles θ_k = q_1 + … + q_k, joint k + 1 sits at Σ_{j≤k} l_j (sin θ_j, cos θ_j)
+    and the hand l_4 (−sin θ_4, −cos θ_4) beyond the shoulder
+    (:func:`skillkit.tasks.planar.hand_kinematics`).
+
+    Parameters
+    ----------
+    task : Throwing
+        Supplies the model.
+    q : array_like, shape (N, 4)
+        Joint angles (rad).
+
+    Returns
+    -------
+    ndarray, shape (N, 5, 2)
+        Ankle, knee, hip, shoulder, hand per row (m).
+    """
+    model = _throwing_model(task)
+    q = check_array(q, "q", shape=(None, 4))
+    return _points(model, q, _PLANAR_BODIES, "hand")[..., [0, 2]]
+
+
+def arm_link_points(task, q) -> np.ndarray:
+    """Skeleton of the table-tennis arm (Appendix C.3) in world coordinates.
+
+    The arm's MuJoCo model (``task.scene_model()``) posed with ``mujoco.mj_kinematics``: the
+    platform's origin on the floor, the shoulder (top of the 1.2 m column), elbow and wrist
+    (origins of the ``upper_arm``, ``forearm`` and ``hand`` bodies) and the blade centre (site
+    ``racket``).
+
+    Parameters
+    ----------
+    task : TableTennis
+        Supplies the model.
+    q : array_like, shape (N, 8)
+        Joint positions [base_x, base_y, shoulder yaw, shoulder pitch, upper-arm roll, elbow,
+        forearm roll, wrist] (m, rad).
+
+    Returns
+    -------
+    ndarray, shape (N, 5, 3)
+        Platform, shoulder, elbow, wrist, blade centre per row (m).
+    """
+    model = _table_tennis_model(task)
+    q = check_array(q, "q", shape=(None, model.nq))
+    return _points(model, q, _ARM_BODIES, "racket")
+
+
+def racket_rim(center, normal, radius: float, n: int = 16) -> np.ndarray:
+    """Closed rim of a disc blade: c + r (cos φ u + sin φ v), φ = 0 … 2π, u ⟂ v ⟂ n.
+
+    Parameters
+    ----------
+    center, normal : array_like, shape (3,)
+        Blade centre and normal (any length > 0; normalised here).
+    radius : float
+        Blade radius r (m).
+    n : int
+        Points on the rim before closing it (≥ 3).
+
+    Returns
+    -------
+    ndarray, shape (n + 1, 3)
+        The first point repeated at the end.
+    """
+    c = check_array(center, "center", shape=(3,))
+    nv = check_array(normal, "normal", shape=(3,))
+    length = float(np.linalg.norm(nv))
+    if length == 0.0:
+        raise ValueError("normal: expected a non-zero vector")
+    nv = nv / length
+    if int(n) < 3:
+        raise ValueError(f"n: expected at least 3 rim points, got {n}")
+    axis = np.eye(3)[int(np.argmin(np.abs(nv)))]  # the axis least aligned with n
+    u = np.cross(nv, axis)
+    u /= np.linalg.norm(u)
+    v = np.cross(nv, u)
+    phi = np.linspace(0.0, 2.0 * np.pi, int(n) + 1)
+    phi[-1] = 0.0  # closed exactly
+    return c + float(radius) * (np.cos(phi)[:, None] * u + np.sin(phi)[:, None] * v)
+
+
+# ============================================================================ time and input
+def _check_trajectories(trajectories) -> list[Trajectory]:
+    if isinstance(trajectories, Trajectory):
+        trajectories = [trajectories]
+    if not isinstance(trajectories, Sequence) or not trajectories:
+        raise ValueError("trajectories: expected a non-empty sequence of Trajectory")
+    if len(trajectories) > len(_SHOT_COLORS):
+        raise ValueError(
+            f"trajectories: expected at most {len(_SHOT_COLORS)} rollouts, got {len(trajectories)}"
+        )
+    for i, tr in enumerate(trajectories):
+        if not isinstance(tr, Trajectory):
+            raise ValueError(f"trajectories[{i}]: expected a Trajectory, got {type(tr).__name__}")
+        if tr.failed:
+            raise ValueError(
+                f"trajectories[{i}]: a failed rollout has nothing to show ({tr.message})"
+            )
+    return list(trajectories)
+
+
+def _check_signal(tr: Trajectory, i: int, key: str, shape: tuple) -> np.ndarray:
+    if key not in tr.signals:
+        raise ValueError(
+            f"trajectories[{i}]: has no signal {key!r} (signals: {sorted(tr.signals)})"
+        )
+    return check_array(tr.signals[key], f"trajectories[{i}].signals[{key!r}]", shape=shape)
+
+
+def _check_frames(n_frames) -> int:
+    if isinstance(n_frames, bool) or not isinstance(n_frames, (int, np.integer)):
+        raise ValueError(f"n_frames: expected an integer, got {n_frames!r}")
+    if not 2 <= int(n_frames) <= MAX_FRAMES:
+        raise ValueError(f"n_frames: expected 2 … {MAX_FRAMES} frames, got {n_frames}")
+    return int(n_frames)
+
+
+def frame_times(start: float, end: float, n_frames: int) -> np.ndarray:
+    """The animation's clock: ``n_frames`` equally spaced times from ``start`` to ``end`` (s)."""
+    n = _check_frames(n_frames)
+    if not np.isfinite(start) or not np.isfinite(end) or end <= start:
+        raise ValueError(f"end: expected a finite end after start = {start:g}, got {end:g}")
+    return np.linspace(float(start), float(end), n)
+
+
+def _at(times: np.ndarray, values: np.ndarray, grid: np.ndarray) -> np.ndarray:
+    """Linear interpolation of ``values`` (T, ...) at each grid time (the viewer's rule)."""
+    return np.stack([interpolate(times, values, t) for t in grid])
+
+
+# ============================================================================ plotly pieces
+def _controls(fig, grid: np.ndarray, frame_ms: float, redraw: bool, y: float) -> None:
+    """Play/pause buttons and a time slider below the plot, one step per frame."""
+    play = {
+        "frame": {"duration": frame_ms, "redraw": redraw},
+        "fromcurrent": False,  # from the start: a finished auto-play can be replayed
+        "transition": {"duration": 0},
+        "mode": "immediate",
+    }
+    still = {
+        "frame": {"duration": 0, "redraw": redraw},
+        "mode": "immediate",
+        "transition": {"duration": 0},
+    }
+    fig.update_layout(
+        updatemenus=[
+            {
+                "type": "buttons",
+                "direction": "left",
+                "showactive": False,
+                "x": 0.0,
+                "xanchor": "left",
+                "y": y,
+                "yanchor": "top",
+                "pad": {"t": 0, "r": 10},
+                "buttons": [
+                    {"label": "▶", "method": "animate", "args": [None, play]},
+                    {"label": "❚❚", "method": "animate", "args": [[None], still]},
+                ],
+            }
+        ],
+        sliders=[
+            {
+                "active": 0,
+                "x": 0.2,
+                "len": 0.8,
+                "xanchor": "left",
+                "y": y + 0.02,
+                "yanchor": "top",
+                "pad": {"t": 0, "b": 0},
+                "currentvalue": {
+                    "prefix": "t = ",
+                    "suffix": " s",
+                    "xanchor": "right",
+                    "font": {"size": 12},
+                },
+                "steps": [
+                    {"label": f"{t:.2f}", "method": "animate", "args": [[str(k)], still]}
+                    for k, t in enumerate(grid)
+                ],
+            }
+        ],
+    )
+
+
+def _title(title: str, lines: Sequence[str]) -> str:
+    sub = "<br>".join(lines)
+    return f"{title}<br><span style='font-size:12px'>{sub}</span>" if sub else title
+
+
+# ============================================================================ throwing
+def throwing_animation(
+    task,
+    trajectories,
+    contexts,
+    *,
+    n_frames: int = 40,
+    frame_ms: float = 100.0,
+    title: str = "Throwing for two targets (Fig. 3.2)",
+    subtitle: str = "",
+):
+    """The planar 4-link robot throwing, one panel per target (Fig. 3.2), as a plotly animation.
+
+    Each panel shows the robot's links (ankle → knee → hip → shoulder → hand,
+    :func:`planar_link_points` of the interpolated joint angles), the ball (signal ``ball`` on
+    ``ball_times``: in the hand until the release time t_r, then in ballistic flight until it
+    lands, Appendix C.1), the ball's whole path (dotted) and the target s. The panel title
+    gives s, t_r and the reward's distance term min_t ‖b_t − s‖ (``task.reward_terms``).
+    All panels share one clock from 0 to the last landing; a robot whose movement has ended
+    holds its last posture and a landed ball stays on the ground.
+
+    Parameters
+    ----------
+    task : Throwing
+        The task the rollouts come from (its model and reward terms are used).
+    trajectories : sequence of Trajectory
+        1–4 non-failed rollouts of ``task`` (states (T, 8) = [q, q̇], signals ``ball`` (N, 2)
+        and ``ball_times`` (N,)).
+    contexts : array_like, shape (len(trajectories), 2)
+        The target [x, y] of each rollout (m).
+    n_frames : int
+        Frames of the animation (2 … :data:`MAX_FRAMES`; a few dozen keep the HTML small).
+    frame_ms : float
+        Milliseconds per frame when playing (100 ms plays a 2.6 s throw in 4 s).
+    title, subtitle : str
+        Figure title and an optional smaller line under it.
+
+    Returns
+    -------
+    plotly.graph_objects.Figure
+        Responsive (autosize, no fixed width), equal scales on x and y, legend inside the top
+        panel; ``frames`` named "0" … "n_frames − 1".
+
+    Raises
+    ------
+    ValueError
+        Wrong task, a failed or malformed trajectory, contexts of the wrong shape or outside
+        the task's range, or a bad ``n_frames`` (each naming the argument).
+    """
+    import plotly.graph_objects as go
+    from plotly.subplots import make_subplots
+
+    model = _throwing_model(task)
+    trajs = _check_trajectories(trajectories)
+    n = len(trajs)
+    s = check_array(contexts, "contexts", shape=(n, 2))
+    s = np.stack([task.check_context(row, "contexts") for row in s])
+    n_frames = _check_frames(n_frames)
+    frame_ms = check_positive(frame_ms, "frame_ms")
+    balls, ball_t = [], []
+    for i, tr in enumerate(trajs):
+        check_array(tr.states, f"trajectories[{i}].states", shape=(None, 8))
+        ball = _check_signal(tr, i, "ball", (None, 2))
+        _check_signal(tr, i, "ball_times", (ball.shape[0],))
+        balls.append(ball)
+        ball_t.append(signal_times(tr, "ball"))
+    start = min(float(tr.times[0]) for tr in trajs)
+    end = max(max(float(tr.times[-1]), float(bt[-1])) for tr, bt in zip(trajs, ball_t, strict=True))
+    grid = frame_times(start, end, n_frames)
+    links = [
+        _points(model, _at(tr.times, tr.states[:, :4], grid), _PLANAR_BODIES, "hand")[..., [0, 2]]
+        for tr in trajs
+    ]
+    ball_at = [_at(bt, b, grid) for bt, b in zip(ball_t, balls, strict=True)]
+
+    # extent: everything drawn, with a margin; equal scales in x and y
+    every = np.vstack([*(lk.reshape(-1, 2) for lk in links), *balls, s])
+    x0, x1 = float(every[:, 0].min()) - 0.6, float(every[:, 0].max()) + 0.6
+    y0, y1 = min(-0.3, float(every[:, 1].min()) - 0.2), float(every[:, 1].max()) + 0.4
+    plot_w = REFERENCE_WIDTH - 60 - 20
+    panel_h = int(np.ceil((y1 - y0) * plot_w / (x1 - x0)))
+    gap, top, bottom = 42, 92 if subtitle else 72, 120
+    plot_h = n * panel_h + (n - 1) * gap
+    names = []
+    for tr, si in zip(trajs, s, strict=True):
+        terms = task.reward_terms(tr, si)
+        t_r = tr.info.get("release_time")
+        release = f", release t_r = {t_r:.3f} s" if t_r is not None else ""
+        names.append(
+            f"target s = [{si[0]:g}, {si[1]:g}] m{release}, "
+            f"closest ball–target {100 * terms['distance']:.0f} cm"
+        )
+    fig = make_subplots(
+        rows=n, cols=1, subplot_titles=names, vertical_spacing=gap / plot_h if n > 1 else 0
+    )
+
+    animated = []
+    for i in range(n):
+        row = i + 1
+        first = i == 0
+        fig.add_trace(
+            go.Scatter(
+                x=[x0, x1],
+                y=[0, 0],
+                mode="lines",
+                line={"color": "rgb(150,140,120)", "width": 2},
+                name="ground",
+                showlegend=False,
+                hoverinfo="skip",
+            ),
+            row=row,
+            col=1,
+        )
+        fig.add_trace(
+            go.Scatter(
+                x=balls[i][:, 0],
+                y=balls[i][:, 1],
+                mode="lines",
+                line={"color": _rgb("ball"), "width": 1.5, "dash": "dot"},
+                name="ball path",
+                legendgroup="path",
+                showlegend=first,
+                hoverinfo="skip",
+            ),
+            row=row,
+            col=1,
+        )
+        fig.add_trace(
+            go.Scatter(
+                x=[s[i, 0]],
+                y=[s[i, 1]],
+                mode="markers",
+                marker={"symbol": "x", "size": 13, "color": _rgb("target")},
+                name="target s",
+                legendgroup="target",
+                showlegend=first,
+            ),
+            row=row,
+            col=1,
+        )
+        animated.append(len(fig.data))
+        fig.add_trace(
+            go.Scatter(
+                x=links[i][0, :, 0],
+                y=links[i][0, :, 1],
+                mode="lines+markers",
+                line={"color": "rgb(90,100,125)", "width": 6},
+                marker={"size": 7, "color": "rgb(60,65,80)"},
+                name="robot",
+                legendgroup="robot",
+                showlegend=first,
+                hoverinfo="skip",
+            ),
+            row=row,
+            col=1,
+        )
+        animated.append(len(fig.data))
+        fig.add_trace(
+            go.Scatter(
+                x=ball_at[i][:1, 0],
+                y=ball_at[i][:1, 1],
+                mode="markers",
+                marker={"size": 10, "color": _rgb("ball"), "line": {"width": 1, "color": "black"}},
+                name="ball",
+                legendgroup="ball",
+                showlegend=first,
+                hoverinfo="skip",
+            ),
+            row=row,
+            col=1,
+        )
+        suffix = "" if row == 1 else str(row)
+        fig.update_xaxes(
+            range=[x0, x1],
+            constrain="domain",
+            row=row,
+            col=1,
+            title_text="x (m)" if row == n else None,
+            zeroline=False,
+        )
+        fig.update_yaxes(
+            range=[y0, y1],
+            scaleanchor=f"x{suffix}",
+            scaleratio=1,
+            constrain="domain",
+            title_text="y (m)",
+            row=row,
+            col=1,
+            zeroline=False,
+        )
+
+    frames = []
+    for k in range(n_frames):
+        data = []
+        for i in range(n):
+            data.append(go.Scatter(x=links[i][k, :, 0], y=links[i][k, :, 1]))
+            data.append(go.Scatter(x=ball_at[i][k : k + 1, 0], y=ball_at[i][k : k + 1, 1]))
+        frames.append(go.Frame(name=str(k), data=data, traces=animated))
+    fig.frames = frames
+    height = top + plot_h + bottom
+    fig.update_layout(
+        title={
+            "text": _title(title, [subtitle] if subtitle else []),
+            "x": 0.01,
+            "xanchor": "left",
+            "font": {"size": 15},
+        },
+        height=height,
+        autosize=True,
+        margin={"t": top, "b": bottom, "l": 60, "r": 20, "autoexpand": True},
+        legend={
+            "x": 0.99,
+            "xanchor": "right",
+            "y": 1.0,
+            "yanchor": "top",
+            "bgcolor": "rgba(255,255,255,0.7)",
+            "font": {"size": 11},
+        },
+        template="plotly_white",
+    )
+    for annotation in fig.layout.annotations:
+        annotation.font = {"size": 12}
+    _controls(fig, grid, frame_ms, redraw=False, y=-(bottom - 55) / plot_h)
+    return fig
+
+
+# ============================================================================ table tennis
+def _table_traces(go, tt) -> list:
+    """Table top, its lines and the net (Appendix C.3's regulation table, +z up)."""
+    hx, hy, z = tt.TABLE_LENGTH / 2, tt.TABLE_WIDTH / 2, tt.TABLE_HEIGHT
+    top = go.Mesh3d(
+        x=[-hx, hx, hx, -hx],
+        y=[-hy, -hy, hy, hy],
+        z=[z] * 4,
+        i=[0, 0],
+        j=[1, 2],
+        k=[2, 3],
+        color=_rgb("table"),
+        opacity=0.85,
+        name="table",
+        showlegend=False,
+        hoverinfo="skip",
+        flatshading=True,
+    )
+    # the edge, then (after a break) the centre line; z a hair above the top
+    xs = [-hx, hx, hx, -hx, -hx, None, -hx, hx]
+    ys = [-hy, -hy, hy, hy, -hy, None, 0.0, 0.0]
+    lines = go.Scatter3d(
+        x=xs,
+        y=ys,
+        z=[None if v is None else z + 0.002 for v in xs],
+        mode="lines",
+        line={"color": "white", "width": 3},
+        showlegend=False,
+        hoverinfo="skip",
+    )
+    ny, nz = hy + tt.NET_OVERHANG, z + tt.NET_HEIGHT
+    net = go.Mesh3d(
+        x=[0.0] * 4,
+        y=[-ny, ny, ny, -ny],
+        z=[z, z, nz, nz],
+        i=[0, 0],
+        j=[1, 2],
+        k=[2, 3],
+        color="rgb(235,235,235)",
+        opacity=0.6,
+        name="net",
+        showlegend=False,
+        hoverinfo="skip",
+    )
+    return [top, lines, net]
+
+
+def table_tennis_animation(
+    task,
+    trajectories,
+    contexts,
+    *,
+    n_frames: int = 40,
+    frame_ms: float = 100.0,
+    title: str = "Two table-tennis shots (Fig. 3.8)",
+    subtitle: str = "",
+):
+    """Table-tennis shots overlaid in one 3-D scene (Fig. 3.8), as a plotly animation.
+
+    Drawn: the table and the net; per shot, in its own colour, the arm's skeleton (platform,
+    shoulder, elbow, wrist, blade centre: :func:`arm_link_points` of the interpolated joint
+    positions), the racket blade (:func:`racket_rim` of the signals ``racket`` and
+    ``racket_normal``), the ball (signal ``ball``) and its whole path (dotted), the return
+    target b = s[3:5] (diamond) and the landing point p (open circle,
+    ``info["landing_point"]``); the arms of the second and later shots are dashed, so arms
+    that move alike stay visible.
+    When the ball lands after the recorded episode (a return flies ~1.3 s, the episode lasts
+    ``task.duration``), the ball path is continued by a straight segment to the landing point
+    (p, z = table height + ball radius) at ``info["landing_time"]``: the parabola it stands
+    for sags at most g Δt²/8 below it (2.4 cm for Δt = 0.14 s). The title lines give each
+    shot's context, outcome and landing error ‖b − p‖.
+
+    Parameters
+    ----------
+    task : TableTennis
+        The task the rollouts come from.
+    trajectories : sequence of Trajectory
+        1–4 non-failed rollouts (states (T, 16) = [q, q̇]; signals ``ball``, ``racket``,
+        ``racket_normal`` (T, 3)).
+    contexts : array_like, shape (len(trajectories), 5)
+        s = [v_x, v_y, v_z, b_x, b_y] of each rollout.
+    n_frames : int
+        Frames of the animation (2 … :data:`MAX_FRAMES`).
+    frame_ms : float
+        Milliseconds per frame when playing (100 ms: about 3.5× slow motion at 40 frames).
+    title, subtitle : str
+        Figure title and an optional line under it.
+
+    Returns
+    -------
+    plotly.graph_objects.Figure
+        One responsive 3-D scene (axes fixed, equal scales), legend inside; ``frames``
+        named "0" … "n_frames − 1".
+
+    Raises
+    ------
+    ValueError
+        Wrong task, a failed or malformed trajectory, contexts of the wrong shape or outside
+        the task's range, or a bad ``n_frames`` (each naming the argument).
+    """
+    import plotly.graph_objects as go
+
+    from skillkit.tasks import table_tennis as tt
+
+    model = _table_tennis_model(task)
+    trajs = _check_trajectories(trajectories)
+    n = len(trajs)
+    s = check_array(contexts, "contexts", shape=(n, task.context_dim))
+    s = np.stack([task.check_context(row, "contexts") for row in s])
+    n_frames = _check_frames(n_frames)
+    frame_ms = check_positive(frame_ms, "frame_ms")
+    z_land = tt.TABLE_HEIGHT + task.ball.radius
+    shots = []
+    for i, tr in enumerate(trajs):
+        T = tr.times.shape[0]
+        check_array(tr.states, f"trajectories[{i}].states", shape=(None, 2 * model.nq))
+        ball = _check_signal(tr, i, "ball", (T, 3))
+        racket = _check_signal(tr, i, "racket", (T, 3))
+        normal = _check_signal(tr, i, "racket_normal", (T, 3))
+        bt = signal_times(tr, "ball")
+        p = np.asarray(tr.info.get("landing_point", ball[-1, :2]), dtype=np.float64)
+        t_land = tr.info.get("landing_time")
+        if t_land is not None and t_land > bt[-1] and tr.info.get("outcome") != "net":
+            bt, ball = np.append(bt, t_land), np.vstack([ball, [p[0], p[1], z_land]])
+        shots.append({"tr": tr, "ball": ball, "bt": bt, "racket": racket, "normal": normal, "p": p})
+    start = min(float(tr.times[0]) for tr in trajs)
+    end = max(max(float(sh["tr"].times[-1]), float(sh["bt"][-1])) for sh in shots)
+    grid = frame_times(start, end, n_frames)
+    radius = task.ball.racket_radius
+    for sh in shots:
+        tr = sh["tr"]
+        sh["arm"] = _points(
+            model, _at(tr.times, tr.states[:, : model.nq], grid), _ARM_BODIES, "racket"
+        )
+        sh["ball_at"] = _at(sh["bt"], sh["ball"], grid)
+        c, nv = _at(tr.times, sh["racket"], grid), _at(tr.times, sh["normal"], grid)
+        sh["rim"] = np.stack([racket_rim(ck, nk, radius) for ck, nk in zip(c, nv, strict=True)])
+
+    fig = go.Figure(data=_table_traces(go, tt))
+    animated, lines = [], []
+    for i, (sh, si) in enumerate(zip(shots, s, strict=True)):
+        color, group = _SHOT_COLORS[i], f"shot{i + 1}"
+        info = sh["tr"].info
+        err = float(np.linalg.norm(si[3:5] - sh["p"]))
+        hit = info.get("hit_time")
+        lines.append(
+            f"shot {i + 1}: v = [{si[0]:g}, {si[1]:g}, {si[2]:g}] m/s, b = [{si[3]:g}, {si[4]:g}] m"
+            f" → {info.get('outcome', '?')}"
+            + (f" (hit at {hit:.2f} s)" if hit is not None else "")
+            + f", lands {100 * err:.0f} cm from b"
+        )
+        common = {"legendgroup": group, "showlegend": False, "hoverinfo": "skip"}
+        fig.add_trace(
+            go.Scatter3d(
+                x=sh["ball"][:, 0],
+                y=sh["ball"][:, 1],
+                z=sh["ball"][:, 2],
+                mode="lines",
+                line={"color": color, "width": 2, "dash": "dot"},
+                name=f"shot {i + 1} ball path",
+                **common,
+            )
+        )
+        fig.add_trace(
+            go.Scatter3d(
+                x=[si[3], sh["p"][0]],
+                y=[si[4], sh["p"][1]],
+                z=[tt.TABLE_HEIGHT + 0.005] * 2,
+                mode="markers",
+                marker={"symbol": ["diamond", "circle-open"], "size": [7, 8], "color": color},
+                name=f"shot {i + 1} target b, landing p",
+                legendgroup=group,
+                showlegend=False,
+            )
+        )
+        animated.append(len(fig.data))
+        fig.add_trace(
+            go.Scatter3d(
+                x=sh["arm"][0, :, 0],
+                y=sh["arm"][0, :, 1],
+                z=sh["arm"][0, :, 2],
+                mode="lines+markers",
+                line={"color": color, "width": 7, "dash": "solid" if i == 0 else "dash"},
+                marker={"size": 3, "color": color},
+                name=f"shot {i + 1}",
+                legendgroup=group,
+                showlegend=True,
+                hoverinfo="skip",
+            )
+        )
+        animated.append(len(fig.data))
+        fig.add_trace(
+            go.Scatter3d(
+                x=sh["rim"][0, :, 0],
+                y=sh["rim"][0, :, 1],
+                z=sh["rim"][0, :, 2],
+                mode="lines",
+                line={"color": color, "width": 6},
+                name=f"shot {i + 1} racket",
+                **common,
+            )
+        )
+        animated.append(len(fig.data))
+        fig.add_trace(
+            go.Scatter3d(
+                x=sh["ball_at"][:1, 0],
+                y=sh["ball_at"][:1, 1],
+                z=sh["ball_at"][:1, 2],
+                mode="markers",
+                marker={"size": 5, "color": _rgb("ball"), "line": {"width": 2, "color": color}},
+                name=f"shot {i + 1} ball",
+                **common,
+            )
+        )
+
+    frames = []
+    for k in range(n_frames):
+        data = []
+        for sh in shots:
+            arm, rim, ball = sh["arm"][k], sh["rim"][k], sh["ball_at"][k]
+            data.append(go.Scatter3d(x=arm[:, 0], y=arm[:, 1], z=arm[:, 2]))
+            data.append(go.Scatter3d(x=rim[:, 0], y=rim[:, 1], z=rim[:, 2]))
+            data.append(go.Scatter3d(x=[ball[0]], y=[ball[1]], z=[ball[2]]))
+        frames.append(go.Frame(name=str(k), data=data, traces=animated))
+    fig.frames = frames
+
+    every = np.vstack(
+        [
+            *(sh["arm"].reshape(-1, 3) for sh in shots),
+            *(sh["ball"] for sh in shots),
+            [
+                [-tt.TABLE_LENGTH / 2, -tt.TABLE_WIDTH / 2 - tt.NET_OVERHANG, 0.0],
+                [tt.TABLE_LENGTH / 2, tt.TABLE_WIDTH / 2 + tt.NET_OVERHANG, 0.0],
+            ],
+        ]
+    )
+    lo, hi = every.min(axis=0) - 0.15, every.max(axis=0) + 0.15
+    lo[2] = 0.0
+    span = hi - lo
+    ratio = span / span.max() * 1.6
+    if n > 1 and all(np.array_equal(sh["tr"].states, shots[0]["tr"].states) for sh in shots):
+        lines.append(
+            "the arms move alike (one stroke for all contexts: no context gain); later ones dashed"
+        )
+    head = 60 + 17 * (len(lines) + bool(subtitle))
+    scene_h, bottom = 520, 90
+    fig.update_layout(
+        title={
+            "text": _title(title, ([subtitle] if subtitle else []) + lines),
+            "x": 0.01,
+            "xanchor": "left",
+            "font": {"size": 15},
+        },
+        height=head + scene_h + bottom,
+        autosize=True,
+        margin={"t": head, "b": bottom, "l": 10, "r": 10, "autoexpand": True},
+        legend={
+            "x": 0.01,
+            "xanchor": "left",
+            "y": 0.98,
+            "yanchor": "top",
+            "bgcolor": "rgba(255,255,255,0.7)",
+            "font": {"size": 11},
+        },
+        scene={
+            "xaxis": {"range": [lo[0], hi[0]], "title": {"text": "x (m)"}, "autorange": False},
+            "yaxis": {"range": [lo[1], hi[1]], "title": {"text": "y (m)"}, "autorange": False},
+            "zaxis": {"range": [lo[2], hi[2]], "title": {"text": "z (m)"}, "autorange": False},
+            "aspectmode": "manual",
+            "aspectratio": {"x": ratio[0], "y": ratio[1], "z": ratio[2]},
+            "camera": {
+                "eye": {"x": -1.0, "y": -1.1, "z": 0.55},
+                "center": {"x": -0.2, "y": 0.05, "z": -0.15},
+            },
+        },
+        uirevision="table-tennis",
+        template="plotly_white",
+    )
+    _controls(fig, grid, frame_ms, redraw=True, y=-(bottom - 50) / scene_h)
+    return fig
+
+
+# ============================================================================ stored runs
+_THESIS = {
+    "fig3.2": {
+        "exp_id": "fig3.3",
+        "task": "throwing",
+        "contexts": THROWING_TARGETS,
+        "animate": throwing_animation,
+        "title": "Throwing for two targets (Fig. 3.2)",
+    },
+    "fig3.8": {
+        "exp_id": "fig3.7",
+        "task": "table-tennis",
+        "contexts": TABLE_TENNIS_CONTEXTS,
+        "animate": table_tennis_animation,
+        "title": "Two table-tennis shots (Fig. 3.8)",
+    },
+}
+
+
+def stored_final_policy(exp_id: str, trial: int = 0) -> LinearGaussianPolicy | None:
+    """The last policy π_K of one trial of a stored paper-scale run, or None if it keeps none.
+
+    Reads only the final row of ``trial<i>__policy_mean``, ``policy_cov`` and
+    ``policy_gain`` (the arrays of :mod:`skillkit.viz.history`) from the run's ``trials.npz``
+    (:func:`skillkit.experiments.stored_run`), so it takes milliseconds where loading the
+    whole history takes seconds. fig3.3 keeps the plain contextual REPS policies
+    (π(ω|s) = N(a + A φ(s), Σ), Eq. 3.13); fig3.7 keeps none.
+
+    Parameters
+    ----------
+    exp_id : str
+        Experiment id, e.g. ``"fig3.3"``.
+    trial : int
+        Which trial of the run.
+
+    Returns
+    -------
+    LinearGaussianPolicy or None
+        None when there is no stored run of ``exp_id``, no ``trials.npz``, or no policy in it.
+
+    Raises
+    ------
+    ValueError
+        A negative ``trial``, or a run that has policies but not for ``trial``.
+    """
+    from skillkit.experiments import stored_run
+
+    if isinstance(trial, bool) or not isinstance(trial, (int, np.integer)) or trial < 0:
+        raise ValueError(f"trial: expected a trial number >= 0, got {trial!r}")
+    try:
+        folder = Path(stored_run(str(exp_id)).path)
+    except FileNotFoundError:
+        return None
+    file = folder / "trials.npz"
+    if not file.exists():
+        return None
+    with np.load(file, allow_pickle=False) as data:
+        keys = set(data.files)
+        if not any(k.endswith("__policy_mean") for k in keys):
+            return None
+        prefix = f"trial{int(trial)}__"
+        if prefix + "policy_mean" not in keys:
+            raise ValueError(f"trial: the stored {exp_id} run has no policy for trial {trial}")
+        return LinearGaussianPolicy(
+            data[prefix + "policy_mean"][-1],
+            data[prefix + "policy_cov"][-1],
+            data[prefix + "policy_gain"][-1],
+            context_dim=int(data[prefix + "policy_context_dim"]),
+            features=str(data[prefix + "policy_features"]),
+        )
+
+
+def thesis_animation(figure: str, contexts=None, *, trial: int = 0, n_frames: int = 40, **kwargs):
+    """Fig. 3.2 or Fig. 3.8 in one call: the policy mean's rollouts at two contexts, animated.
+
+    The policy is the final policy of the stored paper run behind the figure
+    (:func:`stored_final_policy`: ``fig3.3`` for Fig. 3.2, ``fig3.7`` for Fig. 3.8); when that
+    run keeps no policy, the task's initial policy. The subtitle says which. Each rollout uses
+    ω = μ(s), the policy mean at the context (no exploration noise), with ``rng=0``.
+
+    Parameters
+    ----------
+    figure : {"fig3.2", "fig3.8"}
+        Which thesis figure.
+    contexts : array_like, shape (k, context_dim), optional
+        Default :data:`THROWING_TARGETS` (the thesis's two targets) or
+        :data:`TABLE_TENNIS_CONTEXTS`.
+    trial : int
+        Trial of the stored run whose final policy is used.
+    n_frames : int
+        Frames of the animation.
+    **kwargs
+        Passed on to :func:`throwing_animation` / :func:`table_tennis_animation`
+        (``frame_ms``, ``title``).
+
+    Returns
+    -------
+    plotly.graph_objects.Figure
+
+    Raises
+    ------
+    ValueError
+        An unknown ``figure``; a stored policy whose dimensions do not fit the task; a
+        rollout that failed (argument ``trajectories``); bad contexts or ``n_frames``.
+    """
+    from skillkit.tasks import make
+
+    if figure not in _THESIS:
+        raise ValueError(f"figure: expected one of {sorted(_THESIS)}, got {figure!r}")
+    spec = _THESIS[figure]
+    task = make(spec["task"])
+    s = spec["contexts"] if contexts is None else contexts
+    s = check_array(s, "contexts", shape=(None, task.context_dim))
+    policy = stored_final_policy(spec["exp_id"], trial)
+    if policy is None:
+        policy = task.initial_policy()
+        source = (
+            f"policy: the task's initial policy (the stored {spec['exp_id']} run keeps no "
+            "policy), its mean at each context"
+        )
+    else:
+        if (policy.dim, policy.context_dim) != (task.parameter_dim, task.context_dim):
+            raise ValueError(
+                f"figure: the stored {spec['exp_id']} policy has dim {policy.dim}, context_dim "
+                f"{policy.context_dim}; task {spec['task']!r} needs {task.parameter_dim}, "
+                f"{task.context_dim}"
+            )
+        source = (
+            f"policy: final contextual REPS policy of the stored {spec['exp_id']} run "
+            f"(trial {trial}), its mean at each context"
+        )
+    trajs = [task.rollout(policy.mean_of(row), row, rng=0) for row in s]
+    kwargs.setdefault("title", spec["title"])
+    return spec["animate"](task, trajs, s, n_frames=n_frames, subtitle=source, **kwargs)

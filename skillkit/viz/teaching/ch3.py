@@ -1,0 +1,733 @@
+r"""Chapter 3 step by step: one contextual REPS update (Sec. 3.3, Table 3.1) taken apart.
+
+Every number here comes from the library's own REPS pieces
+(:func:`~skillkit.search.reps.reps_dual`, :func:`~skillkit.search.reps.reps_weights`,
+:meth:`~skillkit.policies.gaussian.LinearGaussianPolicy.fit`,
+:class:`~skillkit.search.reps.ContextualREPS`); this module only evaluates them on a grid and
+draws or tabulates the result:
+
+* :func:`dual_slice`, :func:`dual_figure` — (a) the sample-based dual g(η, γ) of Eq. (3.9)
+  along η with the baseline parameters γ held at their optimum γ*, its minimiser η*, and the
+  KL of the weights along the same slice (∂g/∂η = ε − KL, A.11: the minimum sits where the KL
+  reaches ε);
+* :func:`kl_sweep`, :func:`weights_and_kl_figure` — (b) the weights (3.10) against the rewards
+  and the advantages, (c) the achieved KL and the effective sample size against the bound ε
+  (what a slider over ε redraws);
+* :func:`policy_moments`, :func:`ellipse_points`, :func:`heaviest_samples`,
+  :func:`ellipse_figure` — (d) the new policy's 1-σ ellipse (Eqs. 3.11–3.13) over the
+  re-weighted samples, the old one beside it;
+* :func:`update_table`, :func:`diagnostics_table` — one update, or the updates of Table 3.1,
+  as a pandas table.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+from numpy.typing import ArrayLike
+
+from skillkit._validation import check_array, check_count, check_positive
+from skillkit.policies.gaussian import LinearGaussianPolicy
+from skillkit.search.reps import (
+    DualSolution,
+    REPSDiagnostics,
+    REPSWeights,
+    reps_dual,
+    reps_weights,
+)
+from skillkit.viz.plots import PANEL_HEIGHT, _draw
+from skillkit.viz.series import Series
+
+__all__ = [
+    "COLUMNS",
+    "DEFAULT_EPSILONS",
+    "DualSlice",
+    "KLSweep",
+    "diagnostics_table",
+    "dual_figure",
+    "dual_slice",
+    "ellipse_figure",
+    "ellipse_points",
+    "heaviest_samples",
+    "kl_sweep",
+    "policy_moments",
+    "update_table",
+    "weights_and_kl_figure",
+]
+
+#: Pixels :func:`ellipse_figure`'s panel gets beyond a standard one (equal axis scales need
+#: the height).
+ELLIPSE_EXTRA_HEIGHT = 160
+#: The ε grid of :func:`weights_and_kl_figure` when none is given (log-spaced, 0.01 … 10).
+DEFAULT_EPSILONS = np.geomspace(0.01, 10.0, 19)
+
+
+def _samples(rewards: ArrayLike, features: ArrayLike | None) -> tuple[np.ndarray, np.ndarray]:
+    """Rewards (N,) and baseline features (N, F) (F = 0 for ``None``), validated."""
+    r = check_array(rewards, "rewards", ndim=1)
+    if r.shape[0] < 2:
+        raise ValueError(f"rewards: expected at least 2 samples, got shape {r.shape}")
+    if features is None:
+        return r, np.zeros((r.shape[0], 0))
+    phi = check_array(features, "features", ndim=2)
+    if phi.shape[0] != r.shape[0]:
+        raise ValueError(
+            f"features: expected {r.shape[0]} rows (one per reward), got shape {phi.shape}"
+        )
+    return r, phi
+
+
+def _solve(rewards: np.ndarray, phi: np.ndarray, epsilon: float) -> REPSWeights:
+    """:func:`reps_weights` on validated samples; all-equal rewards have no finite η."""
+    solution = reps_weights(rewards, phi if phi.shape[1] else None, epsilon)
+    if not np.isfinite(solution.eta):
+        raise ValueError(
+            "rewards: all rewards are equal, so the weights are uniform and the dual (3.9) has "
+            "no minimiser in η (η → ∞)"
+        )
+    return solution
+
+
+def _sig(value: float, digits: int = 4) -> float:
+    """``value`` rounded to ``digits`` significant digits (for tables)."""
+    return float(f"{value:.{digits}g}")
+
+
+# ------------------------------------------------------------------------------ (a) the dual
+@dataclass(frozen=True)
+class DualSlice:
+    """The REPS dual (3.9) along η with γ held at its optimum (what :func:`dual_slice` returns).
+
+    Attributes
+    ----------
+    eta : ndarray, shape (n,)
+        The η grid (reward units), log-spaced around η* and containing it.
+    value : ndarray, shape (n,)
+        g(η, γ*) at the grid (reward units).
+    kl : ndarray, shape (n,)
+        KL(p_η ‖ uniform) of the weights p_η,i ∝ exp((R_i − γ*ᵀφ(s_i))/η) at the grid,
+        = ε − ∂g/∂η (A.11).
+    solution : REPSWeights
+        The joint minimiser (η*, γ*) of the dual (:func:`~skillkit.search.reps.reps_weights`).
+    """
+
+    eta: np.ndarray
+    value: np.ndarray
+    kl: np.ndarray
+    solution: REPSWeights
+
+    @property
+    def value_at_minimum(self) -> float:
+        """g(η*, γ*), the dual at its minimiser (a grid point)."""
+        return float(self.value[int(np.argmin(np.abs(self.eta - self.solution.eta)))])
+
+
+def dual_slice(
+    rewards: ArrayLike,
+    features: ArrayLike | None,
+    epsilon: float,
+    *,
+    span: float = 10.0,
+    n_points: int = 81,
+) -> DualSlice:
+    r"""The sample-based dual g(η, γ) of Eq. (3.9) along η, with γ fixed at its optimum γ*.
+
+    .. math::
+        g(\eta, \gamma^*) = \eta \log\Big(\frac1N \sum_i
+        \exp\Big(\frac{R_i - \gamma^{*T}\phi(s_i)}{\eta}\Big)\Big) + \eta\epsilon
+        + \gamma^{*T}\hat\phi
+
+    The joint minimiser (η*, γ*) comes from :func:`~skillkit.search.reps.reps_weights`; each
+    point of the slice is :func:`~skillkit.search.reps.reps_dual` at (η, γ*), and the KL of
+    its weights is ε − ∂g/∂η (A.11). The dual is convex and ∂g/∂η = 0 at (η*, γ*) (when the
+    bound is active), so along the slice the minimum is at η*, where KL = ε. With no features
+    (episode-based REPS, Eq. 2.15) the slice is the whole dual.
+
+    Parameters
+    ----------
+    rewards : array_like, shape (N,)
+        Rewards R_i, N ≥ 2, not all equal.
+    features : array_like, shape (N, F), or None
+        Baseline features φ(s_i) (``None``: none, episode-based REPS).
+    epsilon : float
+        KL bound ε > 0 (Eq. 3.4).
+    span : float
+        The grid runs from η*/span to η*·span (span > 1).
+    n_points : int
+        Log-spaced grid points, at least 3; η* is added to them (replacing a point within
+        1e-9 of it, e.g. the middle one of an odd count).
+
+    Returns
+    -------
+    DualSlice
+
+    Raises
+    ------
+    ValueError
+        Naming ``rewards``, ``features``, ``epsilon``, ``span`` or ``n_points``.
+    """
+    r, phi = _samples(rewards, features)
+    eps = check_positive(epsilon, "epsilon")
+    span = check_positive(span, "span")
+    if not span > 1.0:
+        raise ValueError(f"span: expected a value > 1, got {span!r}")
+    n_points = check_count(n_points, "n_points", 3)
+    sol = _solve(r, phi, eps)
+    grid = np.geomspace(sol.eta / span, sol.eta * span, n_points)
+    eta = np.sort(np.append(grid[np.abs(grid / sol.eta - 1.0) > 1e-9], sol.eta))
+    value, kl = np.empty_like(eta), np.empty_like(eta)
+    for k, e in enumerate(eta):
+        g, grad = reps_dual(np.concatenate([[e], sol.gamma]), r, phi, eps)
+        value[k], kl[k] = g, eps - grad[0]
+    return DualSlice(eta, value, kl, sol)
+
+
+def dual_figure(
+    rewards: ArrayLike,
+    features: ArrayLike | None,
+    epsilon: float,
+    *,
+    span: float = 10.0,
+    backend: str = "plotly",
+):
+    """(a) The REPS dual (3.9) along η with γ at its optimum, and the KL along the same slice.
+
+    Two panels over a log η axis (:func:`dual_slice`): g(η, γ*) with its minimiser η*
+    marked, and KL(p_η ‖ uniform) = ε − ∂g/∂η (A.11) with the bound ε, reached at η*.
+
+    Parameters
+    ----------
+    rewards, features, epsilon, span
+        As :func:`dual_slice`.
+    backend : {"plotly", "matplotlib"}
+
+    Returns
+    -------
+    plotly.graph_objects.Figure or NotebookFigure
+    """
+    s = dual_slice(rewards, features, epsilon, span=span)
+    sol = s.solution
+    n_feat = sol.gamma.shape[0]
+    held = f"the {n_feat} baseline parameters γ held at their optimum γ*" if n_feat else "no γ"
+    left = {"panel": f"dual g(η, γ*), {held}", "xlabel": "η (reward units)", "ylabel": "g(η, γ*)"}
+    right = {
+        "panel": "KL of the weights along the same slice",
+        "xlabel": "η (reward units)",
+        "ylabel": "KL(p ‖ q)",
+    }
+    star = f"minimiser η* = {sol.eta:.3g}"
+    ends = [float(s.eta[0]), float(s.eta[-1])]
+    series = [
+        Series("g(η, γ*) (Eq. 3.9)", s.eta.tolist(), s.value.tolist(), log_x=True, **left),
+        Series(star, [sol.eta], [s.value_at_minimum], kind="markers", log_x=True, **left),
+        Series(
+            "KL(p_η ‖ q) = ε − ∂g/∂η (A.11)", s.eta.tolist(), s.kl.tolist(), log_x=True, **right
+        ),
+        Series(
+            f"bound ε = {sol.epsilon:.3g} (Eq. 3.4)",
+            ends,
+            [sol.epsilon, sol.epsilon],
+            dash="dash",
+            log_x=True,
+            **right,
+        ),
+        Series(star, [sol.eta], [sol.kl], kind="markers", log_x=True, **right),
+    ]
+    title = f"(a) the REPS dual along η, N = {s.solution.weights.shape[0]} samples"
+    if not sol.kl_bound_active:
+        title += ": ε is above the largest KL these samples allow, η* sits at its lower bound"
+    return _draw({"title": title, "series": [x.to_dict() for x in series]}, backend)
+
+
+# ------------------------------------------------------------------- (b, c) weights and KL
+@dataclass(frozen=True)
+class KLSweep:
+    """The REPS weights' diagnostics over a grid of bounds ε (what :func:`kl_sweep` returns).
+
+    Attributes
+    ----------
+    epsilon : ndarray, shape (m,)
+        The bounds ε.
+    kl : ndarray, shape (m,)
+        Achieved KL(p ‖ uniform) for each ε (= ε while the bound is active).
+    ess : ndarray, shape (m,)
+        Effective sample size 1/Σ p_i² for each ε.
+    eta : ndarray, shape (m,)
+        The minimiser η* for each ε (reward units).
+    active : ndarray of bool, shape (m,)
+        Whether the bound is met with equality (``kl_bound_active``).
+    """
+
+    epsilon: np.ndarray
+    kl: np.ndarray
+    ess: np.ndarray
+    eta: np.ndarray
+    active: np.ndarray
+
+
+def kl_sweep(rewards: ArrayLike, features: ArrayLike | None, epsilons: ArrayLike) -> KLSweep:
+    """Solve the REPS dual (3.9) for each bound ε on one batch (Eqs. 3.4, 3.10).
+
+    Parameters
+    ----------
+    rewards : array_like, shape (N,)
+        Rewards R_i, N ≥ 2, not all equal.
+    features : array_like, shape (N, F), or None
+        Baseline features φ(s_i).
+    epsilons : array_like, shape (m,)
+        Bounds ε > 0, m ≥ 1.
+
+    Returns
+    -------
+    KLSweep
+        One :func:`~skillkit.search.reps.reps_weights` solution per ε, summarised.
+    """
+    r, phi = _samples(rewards, features)
+    eps = check_array(epsilons, "epsilons", ndim=1)
+    if eps.size == 0 or np.any(eps <= 0):
+        raise ValueError(f"epsilons: expected at least one bound, all > 0, got {eps!r}")
+    sols = [_solve(r, phi, float(e)) for e in eps]
+    return KLSweep(
+        epsilon=eps,
+        kl=np.array([s.kl for s in sols]),
+        ess=np.array([s.ess for s in sols]),
+        eta=np.array([s.eta for s in sols]),
+        active=np.array([s.kl_bound_active for s in sols]),
+    )
+
+
+def weights_and_kl_figure(
+    rewards: ArrayLike,
+    features: ArrayLike | None,
+    epsilon: float,
+    *,
+    epsilons: ArrayLike | None = None,
+    backend: str = "plotly",
+):
+    r"""(b) The weights (3.10) against the rewards and advantages; (c) the KL and ESS against ε.
+
+    Four panels, from :func:`~skillkit.search.reps.reps_weights` at ``epsilon`` and at every
+    bound of ``epsilons`` (:func:`kl_sweep`):
+
+    * N p_i against the reward R_i (1 = the uniform weight 1/N of the old samples): with a
+      context-dependent baseline V(s) = γᵀφ(s) a high reward in an easy context can weigh less
+      than a lower one in a hard context;
+    * N p_i against the advantage R_i − V(s_i), where Eq. (3.10) is one curve,
+      N p = N exp(A/η) / Σ_j exp(A_j/η) (a straight line of slope 1/(η ln 10) on the log axis);
+    * the achieved KL(p ‖ q) against ε: on the line KL = ε while the bound (3.4) is active, and
+      at most log N (all weight on one sample), less under the feature constraint (3.5);
+    * the effective sample size 1/Σ p_i² against ε.
+
+    The weights are drawn on a log axis; weights that underflow to 0 (tiny η) are not drawn
+    (the title counts them).
+
+    Parameters
+    ----------
+    rewards : array_like, shape (N,)
+        Rewards R_i, N ≥ 2, not all equal.
+    features : array_like, shape (N, F), or None
+        Baseline features φ(s_i).
+    epsilon : float
+        The bound ε > 0 whose weights are drawn (marked in the lower panels).
+    epsilons : array_like, shape (m,), optional
+        The bounds of the lower panels (default :data:`DEFAULT_EPSILONS`).
+    backend : {"plotly", "matplotlib"}
+
+    Returns
+    -------
+    plotly.graph_objects.Figure or NotebookFigure
+    """
+    r, phi = _samples(rewards, features)
+    eps = check_positive(epsilon, "epsilon")
+    sol = _solve(r, phi, eps)
+    sweep = kl_sweep(r, phi, DEFAULT_EPSILONS if epsilons is None else epsilons)
+    n = r.shape[0]
+    scaled = n * sol.weights
+    adv = r - sol.baseline
+    grid = np.linspace(adv.min(), adv.max(), 200)
+    z = np.exp((adv - adv.max()) / sol.eta).sum()
+    curve = n * np.exp((grid - adv.max()) / sol.eta) / z
+    wr = {"panel": "(b) weights against the reward", "xlabel": "reward R_i"}
+    wa = {"panel": "(b) weights against the advantage", "xlabel": "advantage R_i − V(s_i)"}
+    for p in (wr, wa):
+        p.update(ylabel="N p_i (1 = uniform)", log_y=True)
+    kp = {"panel": "(c) achieved KL against the bound ε", "xlabel": "ε", "ylabel": "KL(p ‖ q)"}
+    ep = {"panel": "(c) effective sample size against ε", "xlabel": "ε", "ylabel": "1 / Σ p_i²"}
+    for p in (kp, ep):
+        p.update(log_x=True)
+    e_ends = [float(sweep.epsilon.min()), float(sweep.epsilon.max())]
+    uniform = "uniform weights 1/N (the old samples)"
+    here = f"this ε = {eps:.3g}"
+    series = [
+        Series("samples", r.tolist(), scaled.tolist(), kind="markers", **wr),
+        Series(uniform, [float(r.min()), float(r.max())], [1.0, 1.0], dash="dash", **wr),
+        Series("samples", adv.tolist(), scaled.tolist(), kind="markers", **wa),
+        Series(uniform, [float(adv.min()), float(adv.max())], [1.0, 1.0], dash="dash", **wa),
+        Series("N exp(A/η) / Σ exp(A_j/η) (Eq. 3.10)", grid.tolist(), curve.tolist(), **wa),
+        Series("achieved KL", sweep.epsilon.tolist(), sweep.kl.tolist(), **kp),
+        Series("KL = ε (the bound, Eq. 3.4)", e_ends, e_ends, dash="dash", **kp),
+        Series("log N (all weight on one sample)", e_ends, [np.log(n)] * 2, dash="dot", **kp),
+        Series(here, [eps], [sol.kl], kind="markers", **kp),
+        Series("effective sample size", sweep.epsilon.tolist(), sweep.ess.tolist(), **ep),
+        Series(here, [eps], [sol.ess], kind="markers", **ep),
+    ]
+    title = (
+        f"(b, c) REPS weights at ε = {eps:.3g}: η = {sol.eta:.3g}, KL = {sol.kl:.3g}, "
+        f"ESS = {sol.ess:.3g} of N = {n}"
+    )
+    if not sol.kl_bound_active:
+        title += " (bound inactive: ε is above the largest KL these samples allow)"
+    n_zero = int(np.sum(sol.weights == 0))
+    if n_zero:
+        title += f"; {n_zero} weights underflow to 0 (not drawn)"
+    return _draw({"title": title, "series": [x.to_dict() for x in series]}, backend)
+
+
+# ------------------------------------------------------------------------ (d) the ellipse
+def _contexts(policy: LinearGaussianPolicy, contexts: ArrayLike | None, n: int | None = None):
+    """Contexts (n, context_dim) for ``policy`` (``None`` allowed for a context-free one)."""
+    if contexts is None:
+        if policy.context_dim:
+            raise ValueError("contexts: a contextual policy needs contexts, got None")
+        return np.zeros((1 if n is None else n, 0))
+    s = check_array(contexts, "contexts", ndim=2)
+    if s.shape[1] != policy.context_dim or s.shape[0] == 0 or (n is not None and s.shape[0] != n):
+        rows = "n" if n is None else str(n)
+        raise ValueError(
+            f"contexts: expected shape ({rows}, {policy.context_dim}), got shape {s.shape}"
+        )
+    return s
+
+
+def _weights(weights: ArrayLike, n: int) -> np.ndarray:
+    """Non-negative weights (n,) with a positive sum, normalised to sum to one."""
+    w = check_array(weights, "weights", shape=(n,))
+    if np.any(w < 0) or not w.sum() > 0:
+        raise ValueError("weights: expected non-negative weights with a positive sum")
+    return w / w.sum()
+
+
+def policy_moments(
+    policy: LinearGaussianPolicy, contexts: ArrayLike | None, weights: ArrayLike | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    r"""Mean and covariance of ω under the policy over a set of contexts.
+
+    The distribution of ω when s is drawn from the contexts with probabilities q_i (uniform by
+    default) and ω ~ π(ω|s) = N(a + Aφ(s), Σ) (Eq. 3.13):
+
+    .. math::
+        m = \sum_i q_i \mu(s_i), \qquad
+        C = \Sigma + \sum_i q_i (\mu(s_i) - m)(\mu(s_i) - m)^T.
+
+    For the weighted ML fit (3.11, 3.12) on REPS weights p this is the p-weighted mean and
+    covariance of the samples ω_i: the regression splits the weighted covariance of ω into
+    the explained part A Cov_p(φ) Aᵀ and the residual Σ, and the feature constraint (3.5)
+    keeps the weighted context moments equal to the uniform ones.
+
+    Parameters
+    ----------
+    policy : LinearGaussianPolicy
+    contexts : array_like, shape (n, context_dim), or None
+        ``None`` for a context-free policy.
+    weights : array_like, shape (n,), optional
+        q_i ≥ 0 with a positive sum (normalised here); ``None``: uniform.
+
+    Returns
+    -------
+    mean : ndarray, shape (d,)
+    cov : ndarray, shape (d, d)
+    """
+    if not isinstance(policy, LinearGaussianPolicy):
+        raise ValueError(f"policy: expected a LinearGaussianPolicy, got {type(policy).__name__}")
+    s = _contexts(policy, contexts)
+    mu = np.atleast_2d(policy.mean_of(s))
+    q = np.full(mu.shape[0], 1.0 / mu.shape[0]) if weights is None else _weights(weights, len(mu))
+    mean = q @ mu
+    centred = mu - mean
+    cov = policy.cov + (centred * q[:, None]).T @ centred
+    return mean, 0.5 * (cov + cov.T)
+
+
+def _dims(dims, d: int) -> tuple[int, int]:
+    ok = (
+        isinstance(dims, (tuple, list))
+        and len(dims) == 2
+        and all(isinstance(i, (int, np.integer)) and not isinstance(i, bool) for i in dims)
+        and all(0 <= i < d for i in dims)
+        and dims[0] != dims[1]
+    )
+    if not ok:
+        raise ValueError(
+            f"dims: expected two different parameter indices in [0, {d}), got {dims!r}"
+        )
+    return int(dims[0]), int(dims[1])
+
+
+def ellipse_points(
+    mean: ArrayLike, cov: ArrayLike, dims: tuple[int, int] = (0, 1), n_points: int = 101
+) -> np.ndarray:
+    r"""The 1-σ ellipse of a Gaussian's two-dimensional marginal, as a closed curve.
+
+    With C the 2 × 2 block of ``cov`` at ``dims`` and C = V Λ Vᵀ, the points
+    m + V Λ^{1/2} [cos t, sin t]ᵀ, t ∈ [0, 2π], satisfy (x − m)ᵀ C⁻¹ (x − m) = 1.
+
+    Parameters
+    ----------
+    mean : array_like, shape (d,)
+    cov : array_like, shape (d, d)
+        Symmetric positive semi-definite.
+    dims : (int, int)
+        Two different parameter indices.
+    n_points : int
+        Points on the curve, at least 3 (the first is repeated as the last).
+
+    Returns
+    -------
+    ndarray, shape (n_points, 2)
+    """
+    m = check_array(mean, "mean", ndim=1)
+    c = check_array(cov, "cov", shape=(m.shape[0], m.shape[0]))
+    i, j = _dims(dims, m.shape[0])
+    n_points = check_count(n_points, "n_points", 3)
+    block = c[np.ix_([i, j], [i, j])]
+    if abs(block[0, 1] - block[1, 0]) > 1e-10 * max(np.abs(block).max(), 1e-300):
+        raise ValueError("cov: expected a symmetric matrix")
+    lam, vec = np.linalg.eigh(0.5 * (block + block.T))
+    if lam.min() < -1e-12 * max(lam.max(), 0.0):
+        raise ValueError("cov: expected a positive semi-definite matrix")
+    t = np.linspace(0.0, 2.0 * np.pi, n_points)
+    circle = np.stack([np.cos(t), np.sin(t)])
+    return m[[i, j]] + ((vec * np.sqrt(np.maximum(lam, 0.0))) @ circle).T
+
+
+def heaviest_samples(weights: ArrayLike, mass: float = 0.5) -> np.ndarray:
+    """Indices of the fewest samples whose weights hold at least ``mass`` of the total.
+
+    Parameters
+    ----------
+    weights : array_like, shape (N,)
+        Non-negative weights with a positive sum.
+    mass : float
+        Fraction of the total weight, in (0, 1].
+
+    Returns
+    -------
+    ndarray of int, shape (k,)
+        Sorted indices; the k heaviest samples (ties broken by index), k the smallest count
+        whose weights sum to ≥ ``mass`` · Σ w (up to round-off, 1e-12 of the total).
+    """
+    w = check_array(weights, "weights", ndim=1)
+    p = _weights(w, w.shape[0])
+    mass = check_positive(mass, "mass")
+    if mass > 1.0:
+        raise ValueError(f"mass: expected a fraction in (0, 1], got {mass!r}")
+    order = np.argsort(-p, kind="stable")
+    k = int(np.searchsorted(np.cumsum(p[order]), mass - 1e-12)) + 1
+    return np.sort(order[: min(k, p.shape[0])])
+
+
+def ellipse_figure(
+    old: LinearGaussianPolicy,
+    new: LinearGaussianPolicy,
+    contexts: ArrayLike | None,
+    omegas: ArrayLike,
+    weights: ArrayLike,
+    *,
+    dims: tuple[int, int] = (0, 1),
+    mass: float = 0.5,
+    backend: str = "plotly",
+):
+    """(d) The new policy's 1-σ ellipse over the re-weighted samples, the old one beside it.
+
+    π(ω|s) depends on the context, so each policy is drawn by the mean and covariance of ω
+    over the batch's contexts (:func:`policy_moments`, uniform over the contexts): for the old
+    policy the distribution the samples were drawn from; for the new one (the weighted ML fit,
+    Eqs. 3.11–3.12) the mean and covariance of the re-weighted samples. The new policy at the
+    mean context (its Σ alone) shows how much of that spread the gain A explains. The samples
+    are drawn in two groups: the fewest that hold ``mass`` of the weight, and the others.
+
+    Parameters
+    ----------
+    old, new : LinearGaussianPolicy
+        The policy that drew the samples and the fitted one (same dimensions).
+    contexts : array_like, shape (N, context_dim), or None
+        The samples' contexts (``None`` for context-free policies).
+    omegas : array_like, shape (N, d)
+        The samples' parameters ω_i.
+    weights : array_like, shape (N,)
+        Their REPS weights p_i (Eq. 3.10).
+    dims : (int, int)
+        The two parameter dimensions drawn.
+    mass : float
+        Fraction of the weight whose heaviest samples are highlighted, in (0, 1].
+    backend : {"plotly", "matplotlib"}
+
+    Returns
+    -------
+    plotly.graph_objects.Figure or NotebookFigure
+    """
+    for name, pol in (("old", old), ("new", new)):
+        if not isinstance(pol, LinearGaussianPolicy):
+            raise ValueError(f"{name}: expected a LinearGaussianPolicy, got {type(pol).__name__}")
+    if (new.dim, new.context_dim) != (old.dim, old.context_dim):
+        raise ValueError(
+            f"new: expected dim={old.dim}, context_dim={old.context_dim} (as old), "
+            f"got dim={new.dim}, context_dim={new.context_dim}"
+        )
+    w = check_array(omegas, "omegas", ndim=2)
+    if w.shape[1] != old.dim:
+        raise ValueError(f"omegas: expected shape (N, {old.dim}), got {w.shape}")
+    s = _contexts(old, contexts, w.shape[0])
+    p = _weights(weights, w.shape[0])
+    i, j = _dims(dims, old.dim)
+    heavy = np.zeros(w.shape[0], bool)
+    heavy[heaviest_samples(p, mass)] = True
+    labels = {"xlabel": f"ω_{i + 1}", "ylabel": f"ω_{j + 1}"}
+    old_curve = ellipse_points(*policy_moments(old, s), (i, j))
+    new_curve = ellipse_points(*policy_moments(new, s), (i, j))
+    centre = np.atleast_1d(new.mean_of(s.mean(axis=0)))
+    at_mean = ellipse_points(centre, new.cov, (i, j))
+    curves = {
+        "old policy, 1σ over the batch's contexts": (old_curve, "dash"),
+        "new policy, 1σ over the batch's contexts": (new_curve, None),
+        "new policy at the mean context (Σ alone), 1σ": (at_mean, "dot"),
+    }
+    series = [
+        Series(
+            f"samples holding {mass:.0%} of the weight ({heavy.sum()} of {w.shape[0]})",
+            w[heavy, i].tolist(),
+            w[heavy, j].tolist(),
+            kind="markers",
+            **labels,
+        ),
+        Series(
+            "the other samples",
+            w[~heavy, i].tolist(),
+            w[~heavy, j].tolist(),
+            kind="markers",
+            **labels,
+        ),
+    ] + [
+        Series(name, xy[:, 0].tolist(), xy[:, 1].tolist(), dash=dash, **labels)
+        for name, (xy, dash) in curves.items()
+    ]
+    title = f"(d) the new policy over the re-weighted samples, parameters ω_{i + 1} and ω_{j + 1}"
+    fig = _draw({"title": title, "series": [x.to_dict() for x in series]}, backend)
+    # one unit of ω_i as long as one of ω_j (a circle stays a circle), in a taller panel
+    if backend == "plotly":
+        fig.update_xaxes(constrain="domain")
+        fig.update_yaxes(scaleanchor="x", scaleratio=1, constrain="domain")
+        height = fig.layout.height + ELLIPSE_EXTRA_HEIGHT
+        fig.update_layout(
+            height=height,
+            title_y=1 - 14 / height,  # 14 px from the top, as plots.plotly_figure places it
+            legend_y=-70 / (PANEL_HEIGHT + ELLIPSE_EXTRA_HEIGHT),  # 70 px below the panel
+        )
+    else:
+        fig.axes[0].set_aspect("equal", adjustable="datalim")
+    return fig
+
+
+# ------------------------------------------------------------------------------ tables
+#: Columns of :func:`update_table` and :func:`diagnostics_table`.
+COLUMNS = (
+    "N (samples used)",
+    "ε",
+    "η",
+    "KL(p ‖ q)",
+    "bound active",
+    "ESS",
+    "mean reward (batch)",
+    "KL(π_new ‖ π_old)",
+)
+
+
+def _row(sol: DualSolution, n: int, mean_reward: float, policy_kl: float) -> dict:
+    """A table row: the dual's diagnostics, the batch's mean reward and the policy's KL."""
+    values = (sol.epsilon, sol.eta, sol.kl)
+    row = {"N (samples used)": n}
+    row.update({c: _sig(v) for c, v in zip(COLUMNS[1:4], values, strict=True)})
+    row["bound active"] = bool(sol.kl_bound_active)
+    row["ESS"] = _sig(sol.ess)
+    row["mean reward (batch)"] = _sig(mean_reward)
+    row["KL(π_new ‖ π_old)"] = _sig(policy_kl)
+    return row
+
+
+def update_table(
+    solution: REPSWeights,
+    rewards: ArrayLike,
+    old: LinearGaussianPolicy,
+    new: LinearGaussianPolicy,
+    contexts: ArrayLike | None,
+    optimum: ArrayLike | None = None,
+) -> pd.DataFrame:
+    """One REPS update (weights 3.10, weighted ML fit 3.11–3.12) as a one-row table.
+
+    Parameters
+    ----------
+    solution : REPSWeights
+        The dual's solution on the batch (:func:`~skillkit.search.reps.reps_weights`).
+    rewards : array_like, shape (N,)
+        The batch's rewards (their mean is reported).
+    old, new : LinearGaussianPolicy
+        The policy before the update and the fitted one.
+    contexts : array_like, shape (N, context_dim), or None
+        The batch's contexts: KL(π_new ‖ π_old) is averaged over them (as
+        :class:`~skillkit.search.reps.ContextualREPS` reports it).
+    optimum : array_like, shape (d, 1 + F), optional
+        Known optimal coefficients θ* = [a*, A*]; adds the largest coefficient error
+        max |θ − θ*| of the old and the new policy (θ = ``policy.coefficients``).
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row (index ``update`` = "by hand"); columns :data:`COLUMNS` (values to 4
+        significant digits), then ``max|θ − θ*| before`` and ``after`` with ``optimum``.
+    """
+    if not isinstance(solution, REPSWeights):
+        raise ValueError(f"solution: expected REPSWeights, got {type(solution).__name__}")
+    n = solution.weights.shape[0]
+    r = check_array(rewards, "rewards", shape=(n,))
+    for name, pol in (("old", old), ("new", new)):
+        if not isinstance(pol, LinearGaussianPolicy):
+            raise ValueError(f"{name}: expected a LinearGaussianPolicy, got {type(pol).__name__}")
+    s = _contexts(old, contexts, n)
+    row = _row(solution, n, float(r.mean()), new.kl(old, s))
+    if optimum is not None:
+        theta = check_array(optimum, "optimum", shape=old.coefficients.shape)
+        row["max|θ − θ*| before"] = _sig(np.abs(old.coefficients - theta).max())
+        row["max|θ − θ*| after"] = _sig(np.abs(new.coefficients - theta).max())
+    return pd.DataFrame([row], index=pd.Index(["by hand"], name="update"))
+
+
+def diagnostics_table(updates: Sequence) -> pd.DataFrame:
+    """The updates of Table 3.1 as a table, one row per :meth:`ContextualREPS.update`.
+
+    Parameters
+    ----------
+    updates : sequence of REPSDiagnostics
+        What :meth:`~skillkit.search.reps.ContextualREPS.update` returned, in order.
+
+    Returns
+    -------
+    pandas.DataFrame
+        Index ``update`` = 1 … k; columns :data:`COLUMNS` (values to 4 significant
+        digits): the samples the dual used (the last L batches), ε, η, the achieved KL, whether
+        the bound is active, the effective sample size, the newest batch's mean reward and
+        KL(π_new ‖ π_old) averaged over the samples' contexts.
+    """
+    if isinstance(updates, (str, bytes)) or not isinstance(updates, Sequence) or not updates:
+        raise ValueError("updates: expected a non-empty list of ContextualREPS.update results")
+    rows = []
+    for k, d in enumerate(updates):
+        if not isinstance(d, REPSDiagnostics):
+            raise ValueError(
+                f"updates[{k}]: expected REPSDiagnostics (ContextualREPS.update), "
+                f"got {type(d).__name__}"
+            )
+        rows.append(_row(d, int(d.n_samples), float(d.mean_reward), float(d.policy_kl)))
+    return pd.DataFrame(rows, index=pd.RangeIndex(1, len(rows) + 1, name="update"))

@@ -27,6 +27,7 @@ LAYERS = {
     "search": 3,
     "viz": 4,
     "experiments": 5,
+    "teaching": 6,  # what the notebooks call: above the experiments, imported by nothing
     "cli": 6,
     "__init__": 0,  # the package root holds only the foundations and __version__
     "__main__": 6,

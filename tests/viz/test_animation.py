@@ -8,7 +8,6 @@ import dataclasses
 import numpy as np
 import pytest
 
-from skillkit.experiments import stored_run
 from skillkit.tasks import make
 from skillkit.tasks.planar import hand_kinematics
 from skillkit.tasks.planar_model import LINK_LENGTHS
@@ -19,9 +18,7 @@ from skillkit.viz.animation import (
     arm_link_points,
     planar_link_points,
     racket_rim,
-    stored_final_policy,
     table_tennis_animation,
-    thesis_animation,
     throwing_animation,
 )
 from tests._tolerances import fp_tol
@@ -231,30 +228,10 @@ def test_bad_input_is_rejected_naming_the_argument(throwing, table_tennis):
         ),
         (lambda: planar_link_points(task, np.zeros((3, 5))), "q"),
         (lambda: racket_rim([0, 0, 0], [0, 0, 0], 0.08), "normal"),
-        (lambda: thesis_animation("fig9.9"), "figure"),
-        (lambda: stored_final_policy("fig3.3", trial=-1), "trial"),
     ]
     for call, match in cases:
         with pytest.raises(ValueError, match=match):
             call()
-
-
-# ----------------------------------------------------------------------------- stored runs
-def test_stored_final_policy_is_the_last_row_of_the_stored_history():
-    policy = stored_final_policy("fig3.3", trial=1)
-    assert policy is not None and (policy.dim, policy.context_dim) == (41, 2)
-    with np.load(stored_run("fig3.3") / "trials.npz") as data:
-        assert np.array_equal(policy.mean, data["trial1__policy_mean"][-1])
-        assert np.array_equal(policy.gain, data["trial1__policy_gain"][-1])
-    assert stored_final_policy("fig3.7") is None  # the table-tennis run keeps no policy
-    assert stored_final_policy("no-such-figure") is None
-
-
-def test_thesis_animation_says_which_policy_it_plays():
-    fig = thesis_animation("fig3.2", n_frames=5)
-    assert "stored fig3.3 run" in fig.layout.title.text and len(fig.frames) == 5
-    fig = thesis_animation("fig3.8", n_frames=5)
-    assert "initial policy" in fig.layout.title.text and len(fig.frames) == 5
 
 
 def test_same_input_gives_the_same_figure(throwing):

@@ -1,4 +1,4 @@
-"""skillkit.viz.teaching.ch3: one contextual REPS update taken apart (Sec. 3.3, Table 3.1).
+"""skillkit.teaching.ch3: one contextual REPS update taken apart (Sec. 3.3, Table 3.1).
 
 Reference values are independent computations (the dual (3.9) and the weights (3.10) written
 out with scipy's logsumexp, Monte Carlo moments, closed forms of the 1-σ ellipse), with
@@ -19,7 +19,7 @@ from skillkit.policies.gaussian import LinearGaussianPolicy
 from skillkit.search import ContextualREPS, collect, reps_weights
 from skillkit.search.reps import KL_TOLERANCE
 from skillkit.viz.plots import NotebookFigure
-from skillkit.viz.teaching import ch3
+from skillkit.teaching import ch3
 
 EPS64 = np.finfo(float).eps
 

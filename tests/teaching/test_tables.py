@@ -1,11 +1,11 @@
-"""skillkit.viz.tables.claims_table: the README's rows as a pandas table."""
+"""skillkit.teaching.tables.claims_table: the README's rows as a pandas table."""
 
 from __future__ import annotations
 
 import pytest
 
 from skillkit.experiments.run import claim_rows
-from skillkit.viz.tables import claims_table
+from skillkit.teaching.tables import claims_table
 
 
 def test_claims_table_has_one_row_per_stored_result_with_its_thesis_sentence():

@@ -1,0 +1,157 @@
+"""The thesis's Figs 3.2 and 3.8 in one call each: the final policy of a stored paper run,
+rolled out at two contexts and animated with :mod:`skillkit.viz.animation`.
+
+(In :mod:`skillkit.teaching` because it reads stored results, a layer above the figures.)
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from skillkit._validation import check_array
+from skillkit.policies.gaussian import LinearGaussianPolicy
+from skillkit.viz.animation import (
+    TABLE_TENNIS_CONTEXTS,
+    THROWING_TARGETS,
+    table_tennis_animation,
+    throwing_animation,
+)
+
+__all__ = ["stored_final_policy", "thesis_animation"]
+
+
+_THESIS = {
+    "fig3.2": {
+        "exp_id": "fig3.3",
+        "task": "throwing",
+        "contexts": THROWING_TARGETS,
+        "animate": throwing_animation,
+        "title": "Throwing for two targets (Fig. 3.2)",
+    },
+    "fig3.8": {
+        "exp_id": "fig3.7",
+        "task": "table-tennis",
+        "contexts": TABLE_TENNIS_CONTEXTS,
+        "animate": table_tennis_animation,
+        "title": "Two table-tennis shots (Fig. 3.8)",
+    },
+}
+
+
+def stored_final_policy(exp_id: str, trial: int = 0) -> LinearGaussianPolicy | None:
+    """The last policy π_K of one trial of a stored paper-scale run, or None if it keeps none.
+
+    Reads only the final row of ``trial<i>__policy_mean``, ``policy_cov`` and
+    ``policy_gain`` (the arrays of :mod:`skillkit.viz.history`) from the run's ``trials.npz``
+    (:func:`skillkit.experiments.stored_run`), so it takes milliseconds where loading the
+    whole history takes seconds. fig3.3 keeps the plain contextual REPS policies
+    (π(ω|s) = N(a + A φ(s), Σ), Eq. 3.13); fig3.7 keeps none.
+
+    Parameters
+    ----------
+    exp_id : str
+        Experiment id, e.g. ``"fig3.3"``.
+    trial : int
+        Which trial of the run.
+
+    Returns
+    -------
+    LinearGaussianPolicy or None
+        None when there is no stored run of ``exp_id``, no ``trials.npz``, or no policy in it.
+
+    Raises
+    ------
+    ValueError
+        A negative ``trial``, or a run that has policies but not for ``trial``.
+    """
+    from skillkit.experiments import stored_run
+
+    if isinstance(trial, bool) or not isinstance(trial, (int, np.integer)) or trial < 0:
+        raise ValueError(f"trial: expected a trial number >= 0, got {trial!r}")
+    try:
+        folder = Path(stored_run(str(exp_id)).path)
+    except FileNotFoundError:
+        return None
+    file = folder / "trials.npz"
+    if not file.exists():
+        return None
+    with np.load(file, allow_pickle=False) as data:
+        keys = set(data.files)
+        if not any(k.endswith("__policy_mean") for k in keys):
+            return None
+        prefix = f"trial{int(trial)}__"
+        if prefix + "policy_mean" not in keys:
+            raise ValueError(f"trial: the stored {exp_id} run has no policy for trial {trial}")
+        return LinearGaussianPolicy(
+            data[prefix + "policy_mean"][-1],
+            data[prefix + "policy_cov"][-1],
+            data[prefix + "policy_gain"][-1],
+            context_dim=int(data[prefix + "policy_context_dim"]),
+            features=str(data[prefix + "policy_features"]),
+        )
+
+
+def thesis_animation(figure: str, contexts=None, *, trial: int = 0, n_frames: int = 40, **kwargs):
+    """Fig. 3.2 or Fig. 3.8 in one call: the policy mean's rollouts at two contexts, animated.
+
+    The policy is the final policy of the stored paper run behind the figure
+    (:func:`stored_final_policy`: ``fig3.3`` for Fig. 3.2, ``fig3.7`` for Fig. 3.8); when that
+    run keeps no policy, the task's initial policy. The subtitle says which. Each rollout uses
+    ω = μ(s), the policy mean at the context (no exploration noise), with ``rng=0``.
+
+    Parameters
+    ----------
+    figure : {"fig3.2", "fig3.8"}
+        Which thesis figure.
+    contexts : array_like, shape (k, context_dim), optional
+        Default :data:`THROWING_TARGETS` (the thesis's two targets) or
+        :data:`TABLE_TENNIS_CONTEXTS`.
+    trial : int
+        Trial of the stored run whose final policy is used.
+    n_frames : int
+        Frames of the animation.
+    **kwargs
+        Passed on to :func:`throwing_animation` / :func:`table_tennis_animation`
+        (``frame_ms``, ``title``).
+
+    Returns
+    -------
+    plotly.graph_objects.Figure
+
+    Raises
+    ------
+    ValueError
+        An unknown ``figure``; a stored policy whose dimensions do not fit the task; a
+        rollout that failed (argument ``trajectories``); bad contexts or ``n_frames``.
+    """
+    from skillkit.tasks import make
+
+    if figure not in _THESIS:
+        raise ValueError(f"figure: expected one of {sorted(_THESIS)}, got {figure!r}")
+    spec = _THESIS[figure]
+    task = make(spec["task"])
+    s = spec["contexts"] if contexts is None else contexts
+    s = check_array(s, "contexts", shape=(None, task.context_dim))
+    policy = stored_final_policy(spec["exp_id"], trial)
+    if policy is None:
+        policy = task.initial_policy()
+        source = (
+            f"policy: the task's initial policy (the stored {spec['exp_id']} run keeps no "
+            "policy), its mean at each context"
+        )
+    else:
+        if (policy.dim, policy.context_dim) != (task.parameter_dim, task.context_dim):
+            raise ValueError(
+                f"figure: the stored {spec['exp_id']} policy has dim {policy.dim}, context_dim "
+                f"{policy.context_dim}; task {spec['task']!r} needs {task.parameter_dim}, "
+                f"{task.context_dim}"
+            )
+        source = (
+            f"policy: final contextual REPS policy of the stored {spec['exp_id']} run "
+            f"(trial {trial}), its mean at each context"
+        )
+    trajs = [task.rollout(policy.mean_of(row), row, rng=0) for row in s]
+    kwargs.setdefault("title", spec["title"])
+    return spec["animate"](task, trajs, s, n_frames=n_frames, subtitle=source, **kwargs)

@@ -18,8 +18,8 @@ from skillkit.policies.features import context_features
 from skillkit.policies.gaussian import LinearGaussianPolicy
 from skillkit.search import ContextualREPS, collect, reps_weights
 from skillkit.search.reps import KL_TOLERANCE
-from skillkit.viz.plots import NotebookFigure
 from skillkit.teaching import ch3
+from skillkit.viz.plots import NotebookFigure
 
 EPS64 = np.finfo(float).eps
 

@@ -1,0 +1,1030 @@
+r"""Chapter 2 step by step: a DMP's phase, basis and forcing term; a GP's noise and
+hyper-parameters; one moment-matching step against Monte Carlo samples.
+
+Every number comes from the library's own pieces (:class:`~skillkit.policies.dmp.DMP`,
+:class:`~skillkit.models.gp.ExactGP` and :func:`~skillkit.models.gp.neg_log_marginal_likelihood`,
+:func:`~skillkit.models.moment_matching.moment_match` and
+:func:`~skillkit.models.moment_matching.linearize`); this module evaluates them and draws or
+tabulates the result:
+
+* DMPs (Sec. 2.2.1, Eqs. 2.21–2.23): :func:`phase_figure` (z_t of Eq. 2.22 and where the basis
+  centres sit in time), :func:`basis_figure` (the normalised Gaussians times z, over the phase
+  and over time), :func:`forcing_target` and :func:`forcing_figure` (the least-squares target Y
+  of Eq. 2.23, the fitted f(z_t; v) and each basis function's share φ_i(z_t) v_i),
+  :func:`demonstration_figure` (curves over a dashed demonstration, as Fig. 2.11 draws it) and
+  :func:`dmp_fit_figure` (what a slider over the number of basis functions redraws).
+* GPs (Sec. 2.3, Eqs. 2.25–2.28): :func:`noisy_samples` (the data of the examples),
+  :func:`gp_with` (a GP at given hyper-parameters, no training), :func:`noise_profile` and
+  :func:`noise_profile_figure` (the log marginal likelihood (2.28) as a function of the noise
+  variance, maximised over the other hyper-parameters: why 8 points put the noise at its
+  floor), :func:`noise_by_size_table` (the learned noise variance over repeated noise draws
+  against the number of points), :func:`hyperparameter_table`, :func:`hyperparameter_figure`
+  (each hyper-parameter scaled down and up, side by side) and :func:`gp_posterior_figure`
+  (what sliders over length-scale, noise and number of points redraw).
+* Moment matching (Sec. 2.1.2, Fig. 2.7): :func:`moment_matching_check` — one step
+  p(x) = N(m, s²) → p(y) by exact moment matching and by linearisation, against Monte Carlo
+  samples of the same input pushed through the same GP (table with standard errors, histogram).
+
+Handled numerical events of the GP (a noise variance at its floor, jitter; see
+:func:`~skillkit.models.gp.record_numerical_events`) are counted here and shown in the tables
+and figure titles instead of being issued as warnings: this module's fits are made to look at
+them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+import torch
+from numpy.typing import ArrayLike
+from scipy.optimize import minimize
+
+from skillkit._validation import as_generator, check_array, check_count, check_positive
+from skillkit.experiments.ch2 import FORCING_LABEL, reach_demonstration
+from skillkit.experiments.ch2_gp import fig2_12_function, successor_density
+from skillkit.models.gp import (
+    DTYPE,
+    ExactGP,
+    NumericalEvents,
+    neg_log_marginal_likelihood,
+    record_numerical_events,
+)
+from skillkit.models.moment_matching import GaussianPrediction, linearize, moment_match
+from skillkit.policies.dmp import DMP
+from skillkit.viz.figures import plot_gp_fit
+from skillkit.viz.plots import _draw
+from skillkit.viz.series import Series
+
+__all__ = [
+    "POOL",
+    "MomentMatchingCheck",
+    "NoiseProfile",
+    "basis_figure",
+    "demonstration_figure",
+    "dmp_fit_figure",
+    "forcing_figure",
+    "forcing_target",
+    "gp_posterior_figure",
+    "gp_with",
+    "hyperparameter_figure",
+    "hyperparameter_table",
+    "moment_matching_check",
+    "noise_by_size_table",
+    "noise_profile",
+    "noise_profile_figure",
+    "noisy_samples",
+    "phase_figure",
+]
+
+#: Points drawn by :func:`noisy_samples` before the first ``n_points`` are kept, so the data
+#: sets of one seed are nested: 8 points are the first 8 of the 40.
+POOL = 200
+
+
+def _sig(value: float, digits: int = 4) -> float:
+    """``value`` rounded to ``digits`` significant digits (for tables)."""
+    value = float(value)
+    if value == 0 or not np.isfinite(value):
+        return value
+    return float(f"{value:.{digits - 1}e}")
+
+
+def _result(title: str, series: list[Series]) -> dict:
+    return {"title": title, "series": [s.to_dict() for s in series]}
+
+
+def _times(times: ArrayLike) -> np.ndarray:
+    t = check_array(times, "times", ndim=1)
+    if t.shape[0] < 2 or np.any(np.diff(t) <= 0):
+        raise ValueError("times: expected at least 2 strictly increasing time stamps")
+    return t
+
+
+def _events_text(events: NumericalEvents) -> str:
+    """ "" or ", handled: noise at its floor ×1, …" for a figure title."""
+    words = {
+        "noise_at_floor": "noise at its floor",
+        "jitter_increased": "jitter added",
+        "restored_iterate": "optimiser restored an iterate",
+        "negative_variance_clipped": "negative variances clipped",
+    }
+    seen = [f"{words.get(k, k)} ×{n}" for k, n in events.counts.items() if n]
+    return f" (handled: {', '.join(seen)})" if seen else ""
+
+
+# ------------------------------------------------------------------------------- DMPs
+def phase_figure(dmp: DMP, times: ArrayLike, *, backend: str = "plotly"):
+    """The phase z_t = exp(−τ α_z t) of Eq. (2.22) over time, with the basis centres.
+
+    Parameters
+    ----------
+    dmp : DMP
+        Its ``tau``, ``alpha_z`` and basis centres c_i are drawn.
+    times : array_like, shape (T,)
+        Strictly increasing times since the start of the movement (s).
+    backend : {"plotly", "matplotlib"}
+
+    Returns
+    -------
+    plotly.graph_objects.Figure or NotebookFigure
+        One panel: z(t) (:meth:`DMP.phase`) and, as markers, the centres c_i at the times
+        t_i = −ln(c_i) / (τ α_z) where the phase passes them (evenly spaced over the nominal
+        duration: the basis functions are spread evenly in time, not in z).
+    """
+    if not isinstance(dmp, DMP):
+        raise ValueError(f"dmp: expected a DMP, got {type(dmp).__name__}")
+    t = _times(times)
+    centres = dmp.centers
+    t_c = -np.log(centres) / (dmp.tau * dmp.alpha_z)
+    kw = {"xlabel": "t [s]", "ylabel": "phase z"}
+    series = [
+        Series(
+            f"z(t) = exp(−τ α_z t), α_z = {dmp.alpha_z:g}", t.tolist(), dmp.phase(t).tolist(), **kw
+        ),
+        Series(
+            f"basis centres c_i ({dmp.n_basis})",
+            t_c.tolist(),
+            centres.tolist(),
+            kind="markers",
+            **kw,
+        ),
+    ]
+    return _draw(_result("The phase z(t) (Eq. 2.22) runs from 1 towards 0", series), backend)
+
+
+def basis_figure(dmp: DMP, times: ArrayLike, *, backend: str = "plotly"):
+    """The basis functions φ_i of the forcing term f(z) = φ(z)ᵀv, over the phase and over time.
+
+    φ_i(z) = z ψ_i(z) / Σ_j ψ_j(z) with Gaussians ψ_i(z) = exp(−(z − c_i)² / (2σ_i²))
+    (:meth:`DMP.basis`): normalised Gaussians multiplied by z, so Σ_i φ_i(z) = z and the
+    forcing term fades out with the phase (Sec. 2.2.1).
+
+    Parameters
+    ----------
+    dmp : DMP
+    times : array_like, shape (T,)
+        Times (s) of the right panel; the left one spans the phase values z(times).
+    backend : {"plotly", "matplotlib"}
+
+    Returns
+    -------
+    plotly.graph_objects.Figure or NotebookFigure
+        Two panels, φ_1 … φ_K and their sum (dashed) against z and against t.
+    """
+    if not isinstance(dmp, DMP):
+        raise ValueError(f"dmp: expected a DMP, got {type(dmp).__name__}")
+    t = _times(times)
+    z_t = dmp.phase(t)
+    z = np.linspace(float(z_t.min()), 1.0, t.shape[0])
+    series = []
+    for label, x, zz in (("over the phase z", z, z), ("over time t", t, z_t)):
+        phi = dmp.basis(zz)
+        kw = {
+            "panel": label,
+            "xlabel": "phase z" if x is z else "t [s]",
+            "ylabel": "φ_i",
+        }
+        series += [
+            Series(f"φ_{i + 1}", x.tolist(), phi[:, i].tolist(), **kw) for i in range(dmp.n_basis)
+        ]
+        series.append(
+            Series("Σ_i φ_i = z", x.tolist(), phi.sum(axis=1).tolist(), dash="dash", **kw)
+        )
+    title = f"{dmp.n_basis} basis functions: normalised Gaussians times z (Sec. 2.2.1)"
+    return _draw(_result(title, series), backend)
+
+
+def forcing_target(
+    dmp: DMP, times: ArrayLike, q: ArrayLike, qd: ArrayLike, qdd: ArrayLike
+) -> np.ndarray:
+    """The regression target Y of Eq. (2.23) that :meth:`DMP.fit` fits φ(z_t)ᵀv to.
+
+    Y = q̈ / τ² − α_x (β_x (g_t − q) + (ġ − q̇) / τ), with g and ġ the last demonstrated
+    position and velocity and the moving goal g_t = g + ġ (t − T) of the DMP module; with
+    τ = 1 and ġ = 0 this is Eq. (2.23) as printed. The DMP's ``goal``, ``goal_velocity`` and
+    ``tau`` are used, so pass a DMP fitted on this demonstration.
+
+    Parameters
+    ----------
+    dmp : DMP
+        Fitted (it has a goal).
+    times : array_like, shape (N,)
+    q, qd, qdd : array_like, shape (N, n_joints)
+
+    Returns
+    -------
+    ndarray, shape (N, n_joints)
+    """
+    if not isinstance(dmp, DMP):
+        raise ValueError(f"dmp: expected a DMP, got {type(dmp).__name__}")
+    if dmp.goal is None:
+        raise ValueError("dmp: has no goal; fit() it on the demonstration first")
+    t = _times(times)
+    shape = (t.shape[0], dmp.n_joints)
+    q = check_array(q, "q", shape=shape)
+    qd = check_array(qd, "qd", shape=shape)
+    qdd = check_array(qdd, "qdd", shape=shape)
+    tau, g, gd = dmp.tau, dmp.goal, dmp.goal_velocity
+    s = t - t[0]
+    g_t = g + gd * (s[:, None] - dmp.duration / tau)
+    return qdd / tau**2 - dmp.alpha_x * (dmp.beta_x * (g_t - q) + (gd - qd) / tau)
+
+
+def forcing_figure(
+    dmp: DMP,
+    times: ArrayLike,
+    q: ArrayLike,
+    qd: ArrayLike,
+    qdd: ArrayLike,
+    *,
+    joint: int = 0,
+    backend: str = "plotly",
+):
+    """The fitted forcing term against its target, and each basis function's share.
+
+    Parameters
+    ----------
+    dmp : DMP
+        Fitted on the demonstration (``times``, ``q``, ``qd``, ``qdd``).
+    times : array_like, shape (N,)
+    q, qd, qdd : array_like, shape (N, n_joints)
+    joint : int
+        The joint drawn.
+    backend : {"plotly", "matplotlib"}
+
+    Returns
+    -------
+    plotly.graph_objects.Figure or NotebookFigure
+        Left: the target Y of Eq. (2.23) (:func:`forcing_target`, dashed) and the fitted
+        f(z_t; v) = φ(z_t)ᵀv (:meth:`DMP.forcing`). Right: the terms φ_i(z_t) v_i, whose sum
+        is f: a weight v_i scales one bump of the forcing term, active while the phase passes
+        its centre.
+    """
+    if not isinstance(dmp, DMP):
+        raise ValueError(f"dmp: expected a DMP, got {type(dmp).__name__}")
+    if (
+        isinstance(joint, bool)
+        or not isinstance(joint, (int, np.integer))
+        or not 0 <= joint < dmp.n_joints
+    ):
+        raise ValueError(f"joint: expected an integer in [0, {dmp.n_joints}), got {joint!r}")
+    t = _times(times)
+    target = forcing_target(dmp, t, q, qd, qdd)[:, joint]
+    f = dmp.forcing(t - t[0])[:, joint]
+    phi = dmp.basis(dmp.phase(t - t[0]))
+    # each term where its basis function is active (above 1% of its peak), so the panel's
+    # scale is set by the bumps, not by the long stretches where a term is ~0
+    parts = np.where(phi >= 0.01 * phi.max(axis=0), phi * dmp.weights[joint], np.nan)
+    left = {"panel": "forcing term f(z_t; v)", "xlabel": "t [s]", "ylabel": FORCING_LABEL}
+    right = {"panel": "its terms φ_i(z_t) v_i", "xlabel": "t [s]", "ylabel": FORCING_LABEL}
+    series = [
+        Series("target Y (Eq. 2.23)", t.tolist(), target.tolist(), dash="dash", **left),
+        Series(f"fitted f = φᵀv, {dmp.n_basis} weights", t.tolist(), f.tolist(), **left),
+    ]
+    series += [
+        Series(f"φ_{i + 1} v_{i + 1}", t.tolist(), parts[:, i].tolist(), **right)
+        for i in range(dmp.n_basis)
+    ]
+    rmse = float(np.sqrt(np.mean((f - target) ** 2)))
+    title = f"The forcing term fitted by least squares (Eq. 2.23): RMSE {rmse:.3g} rad/s²"
+    return _draw(_result(title, series), backend)
+
+
+def demonstration_figure(
+    times: ArrayLike,
+    demonstration: ArrayLike,
+    curves: Mapping[str, ArrayLike],
+    *,
+    title: str = "",
+    ylabel: str = "q [rad]",
+    backend: str = "plotly",
+):
+    """Curves over a demonstration drawn dashed on top, as the thesis draws Fig. 2.11.
+
+    Parameters
+    ----------
+    times : array_like, shape (T,)
+    demonstration : array_like, shape (T,)
+    curves : mapping of str to array_like, shape (T,)
+        Legend label → values at ``times`` (solid).
+    title, ylabel : str
+    backend : {"plotly", "matplotlib"}
+
+    Returns
+    -------
+    plotly.graph_objects.Figure or NotebookFigure
+    """
+    t = _times(times)
+    demo = check_array(demonstration, "demonstration", shape=t.shape)
+    if not isinstance(curves, Mapping):
+        raise ValueError(
+            f"curves: expected a mapping of label to values, got {type(curves).__name__}"
+        )
+    kw = {"xlabel": "t [s]", "ylabel": ylabel}
+    series = [Series("demonstration", t.tolist(), demo.tolist(), dash="dash", **kw)]
+    for label, y in curves.items():
+        y = check_array(y, f"curves[{label!r}]", shape=t.shape)
+        series.append(Series(str(label), t.tolist(), y.tolist(), **kw))
+    return _draw(_result(title, series), backend)
+
+
+def dmp_fit_figure(n_basis: int, *, backend: str = "plotly", **dmp_options):
+    """A DMP with ``n_basis`` weights fitted to the reach of Fig. 2.9, over the demonstration.
+
+    What the notebook's slider over the number of basis functions redraws: the demonstration
+    (:func:`~skillkit.experiments.ch2.reach_demonstration`, dashed), the fitted DMP's rollout
+    (Eqs. 2.21–2.23) and its RMSE in the title.
+
+    Parameters
+    ----------
+    n_basis : int
+        Number K of basis functions, ≥ 1.
+    backend : {"plotly", "matplotlib"}
+    **dmp_options
+        Further :class:`DMP` arguments (``alpha_x``, ``beta_x``, ``alpha_z``).
+
+    Returns
+    -------
+    plotly.graph_objects.Figure or NotebookFigure
+    """
+    n_basis = check_count(n_basis, "n_basis")
+    times, q, qd, qdd = reach_demonstration()
+    dmp = DMP(n_joints=1, n_basis=n_basis, **dmp_options).fit(times, q, qd, qdd)
+    q_dmp = dmp.rollout(times, q0=q[0])[0][:, 0]
+    rmse = float(np.sqrt(np.mean((q_dmp - q[:, 0]) ** 2)))
+    title = f"DMP with {n_basis} basis function{'s' if n_basis > 1 else ''}: RMSE {rmse:.2g} rad"
+    return demonstration_figure(
+        times, q[:, 0], {f"DMP, {n_basis} weights": q_dmp}, title=title, backend=backend
+    )
+
+
+# -------------------------------------------------------------------------------- GPs
+def noisy_samples(
+    n_points: int,
+    *,
+    noise_std: float = 0.1,
+    seed: int = 0,
+    low: float = -4.0,
+    high: float = 4.0,
+    function: Callable[[np.ndarray], np.ndarray] = fig2_12_function,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Noisy observations y = f(x) + ε, ε ~ N(0, noise_std²), of the Fig. 2.12 function.
+
+    :data:`POOL` inputs x ~ U(low, high) and as many standard normal draws are taken from
+    ``default_rng(seed)`` and the first ``n_points`` kept, so for one seed the data sets are
+    nested (more points add to the fewer ones).
+
+    Parameters
+    ----------
+    n_points : int
+        1 ≤ n_points ≤ :data:`POOL`.
+    noise_std : float
+        Standard deviation of ε (≥ 0; variance noise_std²).
+    seed : int
+    low, high : float
+        Input interval, low < high.
+    function : callable
+        f, vectorised over an (n,) array (default ``fig2_12_function``: sin(1.5x) + 0.2x).
+
+    Returns
+    -------
+    x : ndarray, shape (n_points, 1)
+    y : ndarray, shape (n_points,)
+    """
+    n = check_count(n_points, "n_points")
+    if n > POOL:
+        raise ValueError(f"n_points: expected at most {POOL}, got {n}")
+    noise_std = check_positive(noise_std, "noise_std", allow_zero=True)
+    if not (np.isfinite(low) and np.isfinite(high) and low < high):
+        raise ValueError(f"low, high: expected finite low < high, got {low!r}, {high!r}")
+    rng = np.random.default_rng(seed)
+    x = rng.uniform(low, high, POOL)[:n]
+    eps = rng.standard_normal(POOL)[:n]
+    return x[:, None], np.asarray(function(x), dtype=float) + noise_std * eps
+
+
+def gp_with(
+    x: ArrayLike, y: ArrayLike, *, lengthscale: float, signal_var: float, noise_var: float
+) -> ExactGP:
+    """An :class:`ExactGP` conditioned on (x, y) at given hyper-parameters, not trained.
+
+    ``ExactGP(lengthscale=ℓ, outputscale=σ_f², noise=σ_ε², n_steps=0, additive_noise=0)``:
+    with zero optimisation steps the GP keeps its initial values, so the posterior
+    (Eqs. 2.26–2.27) is that of the kernel (2.25) with exactly these values (the library raises
+    a noise variance below 1.5 × its floor, 1e-6 var(y), to that value). Handled numerical
+    events (jitter) are counted, not warned about: see ``gp.diagnostics["numerical_events"]``.
+
+    Parameters
+    ----------
+    x : array_like, shape (N, 1)
+    y : array_like, shape (N,)
+    lengthscale, signal_var, noise_var : float
+        ℓ, σ_f² and σ_ε² (> 0), in the units of x and y.
+
+    Returns
+    -------
+    ExactGP
+    """
+    for name, v in (
+        ("lengthscale", lengthscale),
+        ("signal_var", signal_var),
+        ("noise_var", noise_var),
+    ):
+        check_positive(v, name)
+    with record_numerical_events():
+        return ExactGP(
+            lengthscale=lengthscale,
+            outputscale=signal_var,
+            noise=noise_var,
+            n_steps=0,
+            additive_noise=0.0,
+        ).fit(x, y, rng=0)
+
+
+def _data(x: ArrayLike, y: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+    x = check_array(x, "x", ndim=2)
+    y = check_array(y, "y", ndim=1)
+    if x.shape[1] != 1:
+        raise ValueError(f"x: expected one input column, shape (N, 1), got {x.shape}")
+    if y.shape[0] != x.shape[0]:
+        raise ValueError(f"y: expected {x.shape[0]} values (one per row of x), got {y.shape[0]}")
+    if x.shape[0] < 2:
+        raise ValueError(f"x: expected at least 2 points, got {x.shape[0]}")
+    return x, y
+
+
+@dataclass(frozen=True)
+class NoiseProfile:
+    """The log marginal likelihood (2.28) along the noise variance (:func:`noise_profile`).
+
+    Attributes
+    ----------
+    noise_vars : ndarray, shape (G,)
+        The fixed noise variances σ_ε².
+    log_ml : ndarray, shape (G,)
+        max over ℓ, σ_f² of log p(y | X, θ) at each σ_ε² (raw units).
+    lengthscale, signal_var : ndarray, shape (G,)
+        The maximising ℓ and σ_f² (raw units).
+    """
+
+    noise_vars: np.ndarray
+    log_ml: np.ndarray
+    lengthscale: np.ndarray
+    signal_var: np.ndarray
+
+    @property
+    def best(self) -> float:
+        """The σ_ε² of the grid with the largest log marginal likelihood."""
+        return float(self.noise_vars[int(np.argmax(self.log_ml))])
+
+
+def noise_profile(x: ArrayLike, y: ArrayLike, noise_vars: ArrayLike) -> NoiseProfile:
+    """The profile log marginal likelihood of the noise variance (Eq. 2.28).
+
+    For each σ_ε² in ``noise_vars``, log p(y | X, θ) maximised over the length-scale ℓ and the
+    signal variance σ_f² (:func:`~skillkit.models.gp.neg_log_marginal_likelihood`, the
+    objective :class:`ExactGP` minimises, with its analytic gradient; L-BFGS-B over log ℓ and
+    log σ_f² within 1e-3 … 1e3 × std(x) and 1e-4 … 1e4 × var(y), from three starting
+    length-scales, std(x) × {0.3, 1, 3}, the best kept). Targets are standardised as
+    :class:`ExactGP` does, and the value is returned in raw units (−N log std(y) added), so it
+    is comparable with ``gp.diagnostics["log_marginal_likelihood"]``. Maximum likelihood picks
+    the σ_ε² where this curve peaks.
+
+    Parameters
+    ----------
+    x : array_like, shape (N, 1)
+    y : array_like, shape (N,)
+    noise_vars : array_like, shape (G,)
+        Noise variances σ_ε² (> 0) in the units of y².
+
+    Returns
+    -------
+    NoiseProfile
+    """
+    x, y = _data(x, y)
+    nv = check_array(noise_vars, "noise_vars", ndim=1)
+    if nv.size == 0 or np.any(nv <= 0):
+        raise ValueError("noise_vars: expected a non-empty array of positive variances")
+    m, s = float(y.mean()), float(y.std())
+    if s <= 0:
+        raise ValueError("y: constant targets have no noise to estimate")
+    N, G = x.shape[0], nv.shape[0]
+    X = torch.as_tensor(x, dtype=DTYPE)
+    Y = torch.as_tensor((y - m) / s, dtype=DTYPE).expand(G, N)
+    noise = torch.as_tensor(nv / s**2, dtype=DTYPE)
+    sd = float(x.std()) or 1.0
+
+    def objective(theta: np.ndarray) -> tuple[float, np.ndarray]:
+        t = torch.tensor(theta, dtype=DTYPE, requires_grad=True)
+        value = neg_log_marginal_likelihood(X, Y, t[:G].exp()[:, None], t[G:].exp(), noise)
+        value.backward()
+        return float(value.detach()), t.grad.numpy().copy()
+
+    def each(ls: np.ndarray, os_: np.ndarray) -> np.ndarray:
+        """Every output's own term (the sum's terms are independent)."""
+        with torch.no_grad():
+            return np.array(
+                [
+                    float(
+                        neg_log_marginal_likelihood(
+                            X,
+                            Y[g : g + 1],
+                            torch.tensor([[ls[g]]], dtype=DTYPE),
+                            torch.tensor([os_[g]], dtype=DTYPE),
+                            noise[g : g + 1],
+                        )
+                    )
+                    for g in range(G)
+                ]
+            )
+
+    bounds = [(np.log(1e-3 * sd), np.log(1e3 * sd))] * G + [(np.log(1e-4), np.log(1e4))] * G
+    best = np.full(G, np.inf)
+    ls_best, os_best = np.zeros(G), np.zeros(G)
+    for start in (0.3, 1.0, 3.0):
+        theta0 = np.concatenate([np.full(G, np.log(start * sd)), np.zeros(G)])
+        res = minimize(objective, theta0, jac=True, method="L-BFGS-B", bounds=bounds)
+        ls, os_ = np.exp(res.x[:G]), np.exp(res.x[G:])
+        value = each(ls, os_)
+        better = value < best
+        best = np.where(better, value, best)
+        ls_best, os_best = np.where(better, ls, ls_best), np.where(better, os_, os_best)
+    return NoiseProfile(nv.copy(), -best - N * np.log(s), ls_best, os_best * s**2)
+
+
+def noise_profile_figure(
+    datasets: Mapping[str, tuple[ArrayLike, ArrayLike]],
+    *,
+    true_noise_var: float | None = None,
+    noise_vars: ArrayLike | None = None,
+    backend: str = "plotly",
+):
+    """:func:`noise_profile` of several data sets, a panel each, relative to its maximum.
+
+    Parameters
+    ----------
+    datasets : mapping of str to (x, y)
+        Panel title → data, x of shape (N, 1), y of shape (N,).
+    true_noise_var : float, optional
+        The variance of the noise that was added, drawn as a dashed vertical line.
+    noise_vars : array_like, optional
+        The σ_ε² grid (default: 25 values log-spaced over 1e-6 … 1).
+    backend : {"plotly", "matplotlib"}
+
+    Returns
+    -------
+    plotly.graph_objects.Figure or NotebookFigure
+        Per data set: log marginal likelihood minus its maximum over the grid, against σ_ε²
+        (log axis), the maximum marked.
+    """
+    if not isinstance(datasets, Mapping) or not datasets:
+        raise ValueError("datasets: expected a non-empty mapping of label to (x, y)")
+    grid = (
+        np.geomspace(1e-6, 1.0, 25)
+        if noise_vars is None
+        else check_array(noise_vars, "noise_vars", ndim=1)
+    )
+    v = None if true_noise_var is None else check_positive(true_noise_var, "true_noise_var")
+    series = []
+    for label, pair in datasets.items():
+        if not (isinstance(pair, (tuple, list)) and len(pair) == 2):
+            raise ValueError(f"datasets[{label!r}]: expected a pair (x, y)")
+        prof = noise_profile(pair[0], pair[1], grid)
+        rel = prof.log_ml - prof.log_ml.max()
+        kw = {
+            "panel": f"{label}: maximum at σ_ε² = {prof.best:.2g}"
+            + (" (the grid's lowest value)" if prof.best == grid.min() else ""),
+            "xlabel": "noise variance σ_ε²",
+            "ylabel": "log p(y | X, θ) − its maximum",
+            "log_x": True,
+        }
+        series += [
+            Series("log p(y | X, θ), maximised over ℓ and σ_f²", grid.tolist(), rel.tolist(), **kw),
+            Series("its maximum", [prof.best], [0.0], kind="markers", **kw),
+        ]
+        if v is not None:
+            series.append(
+                Series(f"true σ_ε² = {v:g}", [v, v], [float(rel.min()), 0.0], dash="dash", **kw)
+            )
+    title = "Profile likelihood of the noise variance (Eq. 2.28)"
+    return _draw(_result(title, series), backend)
+
+
+def noise_by_size_table(
+    sizes=(8, 20, 40),
+    *,
+    n_draws: int = 20,
+    noise_std: float = 0.1,
+    seed: int = 0,
+) -> pd.DataFrame:
+    """The noise variance maximum likelihood learns, over repeated noise draws, by data size.
+
+    For each N, the inputs of :func:`noisy_samples` (``seed``) and ``n_draws`` independent noise
+    vectors give ``n_draws`` data sets with the same inputs; one :class:`ExactGP` fits them all
+    (one independent GP per output column, ``additive_noise=0``, default training). Noise
+    variances at the floor are counted, not warned about.
+
+    Parameters
+    ----------
+    sizes : sequence of int
+        Numbers of points N (each 2 … :data:`POOL`).
+    n_draws : int
+        Noise draws per size, ≥ 2.
+    noise_std : float
+        Standard deviation of the noise (> 0); its variance is what a good fit learns.
+    seed : int
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per N: the true σ_ε², the median and 10th / 90th percentiles of the learned
+        σ_ε², the median ratio learned / true, and how many fits ended at the noise floor.
+    """
+    n_draws = check_count(n_draws, "n_draws", minimum=2)
+    noise_std = check_positive(noise_std, "noise_std")
+    sizes = [check_count(n, "sizes", minimum=2) for n in sizes]
+    if not sizes:
+        raise ValueError("sizes: expected at least one size")
+    rows = []
+    for n in sizes:
+        x, f = noisy_samples(n, noise_std=0.0, seed=seed)
+        eps = np.random.default_rng([seed, n]).standard_normal((n, n_draws))
+        with record_numerical_events():
+            gp = ExactGP(additive_noise=0.0).fit(x, f[:, None] + noise_std * eps, rng=0)
+        learned = gp.hyperparameters["noise"]
+        lo, med, hi = np.percentile(learned, [10, 50, 90])
+        rows.append(
+            {
+                "points N": n,
+                "true σ_ε²": _sig(noise_std**2),
+                "learned σ_ε², median": _sig(med),
+                "10th percentile": _sig(lo),
+                "90th percentile": _sig(hi),
+                "median / true": _sig(med / noise_std**2, 3),
+                f"at the floor (of {n_draws})": len(gp.diagnostics["noise_at_floor"]),
+            }
+        )
+    return pd.DataFrame(rows).set_index("points N")
+
+
+def hyperparameter_table(
+    gps: Mapping[str, ExactGP], *, true_noise_var: float | None = None
+) -> pd.DataFrame:
+    """The learned hyper-parameters of fitted 1-D GPs, one row each.
+
+    Parameters
+    ----------
+    gps : mapping of str to ExactGP
+        Fitted, one input and one output.
+    true_noise_var : float, optional
+        Adds a column with the noise variance that was added to the data.
+
+    Returns
+    -------
+    pandas.DataFrame
+        Points N, length-scale ℓ, signal variance σ_f², noise variance σ_ε² (raw units,
+        ``gp.hyperparameters``), the log marginal likelihood (2.28) and whether the noise
+        ended at its floor (``diagnostics["noise_at_floor"]``); values rounded to 4
+        significant digits (the likelihood to 5).
+    """
+    if not isinstance(gps, Mapping) or not gps:
+        raise ValueError("gps: expected a non-empty mapping of label to fitted ExactGP")
+    rows = {}
+    for label, gp in gps.items():
+        if not isinstance(gp, ExactGP) or gp.predictor is None:
+            raise ValueError(f"gps[{label!r}]: expected a fitted ExactGP")
+        h = gp.hyperparameters
+        row = {
+            "points N": int(gp.diagnostics["n_data"]),
+            "length-scale ℓ": _sig(h["lengthscale"][0, 0]),
+            "signal variance σ_f²": _sig(h["outputscale"][0]),
+            "noise variance σ_ε²": _sig(h["noise"][0]),
+        }
+        if true_noise_var is not None:
+            row["true σ_ε²"] = check_positive(true_noise_var, "true_noise_var")
+        row["log marginal likelihood"] = _sig(np.sum(gp.diagnostics["log_marginal_likelihood"]), 5)
+        row["noise at its floor"] = "yes" if gp.diagnostics["noise_at_floor"] else "no"
+        rows[str(label)] = row
+    return pd.DataFrame.from_dict(rows, orient="index")
+
+
+def _band_series(gp: ExactGP, xs: np.ndarray, name: str, panel: str) -> Series:
+    mean, var = gp.predict(xs[:, None])
+    mean, half = np.ravel(mean), 1.96 * np.sqrt(np.maximum(np.ravel(var), 0.0))
+    return Series(
+        name,
+        xs.tolist(),
+        mean.tolist(),
+        lower=(mean - half).tolist(),
+        upper=(mean + half).tolist(),
+        band="95% band of y (mean ± 1.96 σ)",
+        panel=panel,
+        xlabel="x",
+        ylabel="y",
+    )
+
+
+def hyperparameter_figure(
+    x: ArrayLike,
+    y: ArrayLike,
+    gp: ExactGP,
+    *,
+    factor: float = 4.0,
+    x_test: ArrayLike | None = None,
+    backend: str = "plotly",
+):
+    """Each hyper-parameter of a fitted GP divided and multiplied by ``factor``, side by side.
+
+    Three panels (length-scale ℓ, signal variance σ_f², noise variance σ_ε²); in each, the
+    posterior (Eqs. 2.26–2.27, 95% band of y) at the learned θ and with that one
+    hyper-parameter ÷ ``factor`` and × ``factor`` (:func:`gp_with`), the others kept, over the
+    data.
+
+    Parameters
+    ----------
+    x : array_like, shape (N, 1)
+    y : array_like, shape (N,)
+        The data ``gp`` was fitted on.
+    gp : ExactGP
+        Fitted (one input, one output).
+    factor : float
+        > 1.
+    x_test : array_like, shape (n,), optional
+        Where to draw (default: the data's range widened by a quarter on each side, 161 points, so
+        the prior's return far from the data shows).
+    backend : {"plotly", "matplotlib"}
+
+    Returns
+    -------
+    plotly.graph_objects.Figure or NotebookFigure
+    """
+    x, y = _data(x, y)
+    if not isinstance(gp, ExactGP) or gp.predictor is None:
+        raise ValueError("gp: expected a fitted ExactGP")
+    factor = check_positive(factor, "factor")
+    if factor <= 1:
+        raise ValueError(f"factor: expected a number > 1, got {factor!r}")
+    if x_test is None:
+        lo, hi = float(x.min()), float(x.max())
+        xs = np.linspace(lo - 0.25 * (hi - lo), hi + 0.25 * (hi - lo), 161)
+    else:
+        xs = np.sort(check_array(x_test, "x_test", ndim=1))
+    h = gp.hyperparameters
+    theta = {
+        "lengthscale": float(h["lengthscale"][0, 0]),
+        "signal_var": float(h["outputscale"][0]),
+        "noise_var": float(h["noise"][0]),
+    }
+    names = {
+        "lengthscale": "length-scale ℓ",
+        "signal_var": "signal variance σ_f²",
+        "noise_var": "noise variance σ_ε²",
+    }
+    series = []
+    for key, label in names.items():
+        v = theta[key]
+        panel = f"{label}: {v / factor:.2g} / {v:.2g} / {v * factor:.2g}"
+        for name, scale in (
+            (f"÷ {factor:g}", 1 / factor),
+            ("learned θ", 1.0),
+            (f"× {factor:g}", factor),
+        ):
+            model = gp if scale == 1.0 else gp_with(x, y, **{**theta, key: v * scale})
+            series.append(_band_series(model, xs, name, panel))
+        series.append(
+            Series(
+                "data",
+                x[:, 0].tolist(),
+                y.tolist(),
+                kind="markers",
+                panel=panel,
+                xlabel="x",
+                ylabel="y",
+            )
+        )
+    title = f"One hyper-parameter at a time ÷ {factor:g} and × {factor:g}, the others as learned"
+    return _draw(_result(title, series), backend)
+
+
+def gp_posterior_figure(
+    lengthscale: float,
+    noise_var: float,
+    n_points: int,
+    *,
+    signal_var: float = 1.0,
+    noise_std: float = 0.1,
+    seed: int = 0,
+    backend: str = "plotly",
+):
+    """A GP posterior at chosen hyper-parameters on the first ``n_points`` noisy samples.
+
+    What the notebook's sliders redraw: :func:`noisy_samples` (``seed``, noise ``noise_std``),
+    :func:`gp_with` at (ℓ, σ_f², σ_ε²) and :func:`~skillkit.viz.figures.plot_gp_fit` with the
+    true function, over x ∈ [−6, 6] (the data lie in [−4, 4]).
+
+    Parameters
+    ----------
+    lengthscale, noise_var : float
+        ℓ and σ_ε² (> 0).
+    n_points : int
+        1 … :data:`POOL`.
+    signal_var : float
+        σ_f² (> 0; default 1, near what the 40-point example learns).
+    noise_std : float
+        Standard deviation of the noise in the data.
+    seed : int
+    backend : {"plotly", "matplotlib"}
+
+    Returns
+    -------
+    plotly.graph_objects.Figure or NotebookFigure
+    """
+    x, y = noisy_samples(n_points, noise_std=noise_std, seed=seed)
+    xs = np.linspace(-6.0, 6.0, 241)
+    with record_numerical_events() as events:
+        gp = gp_with(x, y, lengthscale=lengthscale, signal_var=signal_var, noise_var=noise_var)
+        gp.predict(xs[:, None])  # counts what plot_gp_fit's prediction will meet
+    title = (
+        f"GP posterior, {n_points} point{'s' if n_points > 1 else ''}: ℓ = {lengthscale:.3g}, "
+        f"σ_ε² = {noise_var:.3g}, σ_f² = {signal_var:.3g}" + _events_text(events)
+    )
+    with record_numerical_events():
+        return plot_gp_fit(gp, x, y, xs, f_true=fig2_12_function, backend=backend, title=title)
+
+
+# --------------------------------------------------------------------- moment matching
+@dataclass(frozen=True)
+class MomentMatchingCheck:
+    """One step p(x) = N(m, s²) → p(y) through a 1-D GP, three ways (Sec. 2.1.2, Fig. 2.7).
+
+    Attributes
+    ----------
+    input_mean, input_var : float
+        m and s².
+    moment_matched : GaussianPrediction
+        Exact mean and variance of p(y) (:func:`~skillkit.models.moment_matching.moment_match`).
+    linearised : GaussianPrediction
+        The Gaussian of linearisation at m (:func:`~skillkit.models.moment_matching.linearize`).
+    samples : ndarray, shape (n,)
+        y_j = μ(x_j) + σ(x_j) ε_j with x_j ~ N(m, s²) (:meth:`ExactGP.sample`): exact draws from
+        p(y), the truth both Gaussians approximate.
+    density_grid, density : ndarray, shape (G,)
+        p(y) by quadrature (:func:`~skillkit.experiments.ch2_gp.successor_density`).
+    """
+
+    input_mean: float
+    input_var: float
+    moment_matched: GaussianPrediction
+    linearised: GaussianPrediction
+    samples: np.ndarray
+    density_grid: np.ndarray
+    density: np.ndarray
+
+    def standard_errors(self) -> tuple[float, float]:
+        """Standard errors of the sample mean and the sample variance.
+
+        s.e.(mean) = √(v / n); s.e.(variance) = √((μ₄ − v²) / n), the large-n standard error of
+        the sample variance (μ₄ the fourth central sample moment, v the sample variance).
+        """
+        y = self.samples
+        n = y.shape[0]
+        c = y - y.mean()
+        v = float(np.mean(c**2))
+        m4 = float(np.mean(c**4))
+        return float(np.sqrt(v / n)), float(np.sqrt(max(m4 - v * v, 0.0) / n))
+
+    def table(self) -> pd.DataFrame:
+        """Mean and variance of each, and the Gaussians' distance from the samples in s.e.
+
+        Returns
+        -------
+        pandas.DataFrame
+            Rows: Monte Carlo, moment matching, linearisation. Columns: mean, variance, their
+            standard errors (0 for the closed forms, computed without sampling) and
+            (value − sample value) / s.e. for mean and variance (|·| ≲ 2 is agreement within
+            the samples' own error). Means and variances rounded to 5 significant digits,
+            standard errors to 2, distances to 0.1 s.e.
+        """
+        se_m, se_v = self.standard_errors()
+        mc_m, mc_v = float(self.samples.mean()), float(self.samples.var())
+        rows = {f"Monte Carlo ({self.samples.shape[0]:,} samples)": (mc_m, mc_v, se_m, se_v)}
+        for label, g in (
+            ("moment matching (exact moments)", self.moment_matched),
+            ("linearisation at the input mean", self.linearised),
+        ):
+            rows[label] = (float(g.mean[0]), float(g.cov[0, 0]), 0.0, 0.0)
+        out = {
+            label: {
+                "mean": _sig(m, 5),
+                "variance": _sig(v, 5),
+                "s.e. of mean": _sig(sm, 2),
+                "s.e. of variance": _sig(sv, 2),
+                "mean − MC [s.e.]": round((m - mc_m) / se_m, 1),
+                "variance − MC [s.e.]": round((v - mc_v) / se_v, 1),
+            }
+            for label, (m, v, sm, sv) in rows.items()
+        }
+        return pd.DataFrame.from_dict(out, orient="index")
+
+    def summary(self) -> str:
+        """One sentence: how far each Gaussian's mean and variance lie from the samples'."""
+        t = self.table()
+        words = []
+        for label in t.index[1:]:
+            dm, dv = t.loc[label, "mean − MC [s.e.]"], t.loc[label, "variance − MC [s.e.]"]
+            name = label.split(" (")[0].split(" at ")[0]
+            words.append(f"{name}: mean {dm:+.1f} s.e., variance {dv:+.1f} s.e.")
+        return (
+            f"Input N({self.input_mean:g}, {self.input_var:g}); distance from the Monte Carlo "
+            f"moments in standard errors — " + "; ".join(words)
+        )
+
+    def figure(self, *, bins: int = 80, backend: str = "plotly"):
+        """Histogram of the samples with p(y) and both Gaussians.
+
+        Parameters
+        ----------
+        bins : int
+            Histogram bins (density-normalised).
+        backend : {"plotly", "matplotlib"}
+
+        Returns
+        -------
+        plotly.graph_objects.Figure or NotebookFigure
+        """
+        bins = check_count(bins, "bins", minimum=2)
+        hist, edges = np.histogram(self.samples, bins=bins, density=True)
+        centres = 0.5 * (edges[1:] + edges[:-1])
+        g = self.density_grid
+        kw = {"xlabel": "y", "ylabel": "density p(y)"}
+        series = [
+            Series(
+                f"Monte Carlo histogram ({self.samples.shape[0]:,} samples)",
+                centres.tolist(),
+                hist.tolist(),
+                kind="bar",
+                **kw,
+            ),
+            Series("p(y) by quadrature", g.tolist(), self.density.tolist(), dash="dash", **kw),
+        ]
+        for label, pred in (
+            ("moment matching", self.moment_matched),
+            ("linearisation", self.linearised),
+        ):
+            m, v = float(pred.mean[0]), float(pred.cov[0, 0])
+            dens = np.exp(-0.5 * (g - m) ** 2 / v) / np.sqrt(2 * np.pi * v)
+            series.append(Series(f"{label}: N({m:.3f}, {v:.3f})", g.tolist(), dens.tolist(), **kw))
+        title = (
+            f"One step of x ~ N({self.input_mean:g}, {self.input_var:g}) through the GP "
+            "(Sec. 2.1.2, Fig. 2.7)"
+        )
+        return _draw(_result(title, series), backend)
+
+
+def moment_matching_check(
+    gp: ExactGP,
+    mean: float,
+    var: float,
+    *,
+    n_samples: int = 100_000,
+    rng=0,
+    n_grid: int = 401,
+) -> MomentMatchingCheck:
+    """Moment matching and linearisation of one step, and Monte Carlo samples of the same step.
+
+    Parameters
+    ----------
+    gp : ExactGP
+        Fitted, one input and one output.
+    mean, var : float
+        The Gaussian input N(m, s²) (var > 0).
+    n_samples : int
+        Monte Carlo draws, ≥ 2.
+    rng : Generator, int or None
+        The draws' randomness (same seed ⇒ same samples).
+    n_grid : int
+        Points of the quadrature density's grid.
+
+    Returns
+    -------
+    MomentMatchingCheck
+    """
+    if not isinstance(gp, ExactGP) or gp.predictor is None:
+        raise ValueError("gp: expected a fitted ExactGP")
+    if gp.predictor.input_dim != 1 or gp.predictor.output_dim != 1:
+        raise ValueError("gp: expected one input and one output")
+    m = float(check_array(mean, "mean", ndim=0))
+    v = check_positive(var, "var")
+    n = check_count(n_samples, "n_samples", minimum=2)
+    n_grid = check_count(n_grid, "n_grid", minimum=2)
+    rng = as_generator(rng)
+    mm = moment_match(gp.predictor, [m], [[v]])
+    lin = linearize(gp.predictor, [m], [[v]])
+    x = rng.normal(m, np.sqrt(v), size=(n, 1))
+    y = np.asarray(gp.sample(x, 1, rng), dtype=float).reshape(n)
+    grid = np.linspace(float(y.min()), float(y.max()), n_grid)
+    dens = successor_density(gp.predictor, m, float(np.sqrt(v)), grid)
+    return MomentMatchingCheck(m, v, mm, lin, y, grid, dens)

@@ -22,3 +22,49 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 def pytest_unconfigure(config):
     shutil.rmtree(_RUNS, ignore_errors=True)
+
+
+# --------------------------------------------------------------------------- notebooks
+# Every notebook nbmake executes must write nothing to stderr (a warning is either fixed at its
+# cause or explained and captured on purpose): a stderr output fails the notebook's test like
+# an error would. The execution time of each notebook is printed at the end of the run.
+_NOTEBOOK_SECONDS: dict[str, float] = {}
+
+
+def _checked(execute):
+    def run(self):
+        from nbmake.nb_result import NotebookError
+
+        from skillkit.viz.nbcheck import execution_seconds, stderr_outputs
+
+        result = execute(self)
+        _NOTEBOOK_SECONDS[self.filename.name] = sum(execution_seconds(result.nb).values())
+        found = stderr_outputs(result.nb)
+        if result.error is None and found:
+            lines = [f"cell {i}: {text}" for i, text in found]
+            result.error = NotebookError(
+                summary=f"{len(found)} stderr output(s); first in cell {found[0][0]}",
+                trace="stderr outputs (fix the cause, or capture it on purpose):\n"
+                + "\n".join(lines),
+                failing_cell_index=found[0][0],
+            )
+        return result
+
+    run.skillkit_checked = True
+    return run
+
+
+def pytest_configure(config):
+    try:
+        from nbmake.nb_run import NotebookRun
+    except ImportError:  # nbmake not installed: no notebooks run
+        return
+    if not getattr(NotebookRun.execute, "skillkit_checked", False):
+        NotebookRun.execute = _checked(NotebookRun.execute)
+
+
+def pytest_terminal_summary(terminalreporter):
+    if _NOTEBOOK_SECONDS:
+        terminalreporter.write_sep("-", "notebook execution (s, sum of cell times)")
+        for name, seconds in sorted(_NOTEBOOK_SECONDS.items()):
+            terminalreporter.write_line(f"{name:40s} {seconds:7.1f}")

@@ -1,53 +1,86 @@
-"""Screenshot of a chapter notebook exported to HTML, as a reader sees it (docs/*.png).
+"""Screenshot of one section of a chapter notebook exported to HTML, as a reader sees it.
 
-Executes the notebook at ``SKILLKIT_SCALE=smoke`` with nbconvert, exports it to HTML (the
-notebooks set plotly's renderer to ``plotly_mimetype+notebook``, so plotly.js is embedded and
-the figures draw offline), opens the page in Debian's headless Chromium and keeps the part
-with the first figures. Run from the repository root::
+Executes the notebook at ``SKILLKIT_SCALE=smoke``, exports it with
+:func:`skillkit.viz.notebook.export_html` (MathJax from a local copy, so the equations are
+typeset offline; plotly.js embedded, so the figures draw offline), opens the page in Debian's
+headless Chromium, scrolls to the heading that starts with ``--section`` and keeps one
+viewport from there. Run from the repository root::
 
-    python docs/make_notebook_screenshot.py [ch4_gpreps] [--out docs/notebook_ch4_html.png]
+    python docs/make_notebook_screenshot.py ch3_contextual_reps \\
+        --section "(a) The dual" --out docs/notebook_ch3_dual.png
 
-Needs ``/usr/bin/chromium``. LaTeX stays unrendered in the screenshot: the exported page loads
-MathJax from a CDN, which this machine cannot reach (JupyterLab renders it).
+Several sections of one notebook: repeat ``--section`` and ``--out`` in pairs (one execution).
+Needs ``/usr/bin/chromium`` and the ``websockets`` package (a viser dependency).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
-import subprocess
+import sys
 import tempfile
+import time
 from pathlib import Path
 
 from PIL import Image
 
+from skillkit.viz.notebook import export_html
+
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests" / "viz"))
+from headless_browser import HeadlessBrowser  # noqa: E402  (tests/viz/headless_browser.py)
+
+WIDTH = 1100
+
+
+def _evaluate(browser, expression: str):
+    return browser.call("Runtime.evaluate", expression=expression)["result"].get("value")
+
+
+def _wait_for_mathjax(browser, timeout: float = 90.0) -> None:
+    """Until MathJax has typeset the page (its queue is idle after the first pass)."""
+    script = (
+        "(window.MathJax && MathJax.Hub && MathJax.Hub.queue && "
+        "MathJax.Hub.queue.pending === 0 && MathJax.Hub.queue.running === 0 && "
+        "document.querySelectorAll('.MathJax, .MathJax_CHTML, .MathJax_SVG').length > 0)"
+    )
+    deadline = time.monotonic() + timeout
+    while not _evaluate(browser, script):
+        if time.monotonic() > deadline:
+            raise TimeoutError("MathJax did not finish typesetting")
+        time.sleep(0.5)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("notebook", nargs="?", default="ch4_gpreps")
-    parser.add_argument("--out", default=str(ROOT / "docs" / "notebook_ch4_html.png"))
-    parser.add_argument("--crop", type=int, nargs=2, default=(700, 3300), help="rows to keep")
+    parser.add_argument("notebook", help="name under notebooks/, without .ipynb")
+    parser.add_argument("--section", action="append", required=True, help="heading prefix")
+    parser.add_argument("--out", action="append", required=True, help="PNG per section")
+    parser.add_argument("--height", type=int, default=1500, help="viewport height (px)")
     args = parser.parse_args()
+    if len(args.section) != len(args.out):
+        parser.error("give one --out per --section")
+    os.environ["SKILLKIT_SCALE"] = "smoke"
     with tempfile.TemporaryDirectory() as tmp:
-        env = dict(os.environ, SKILLKIT_SCALE="smoke")
-        subprocess.run(
-            ["jupyter", "nbconvert", "--to", "html", "--execute", f"{args.notebook}.ipynb",
-             "--output-dir", tmp],
-            cwd=ROOT / "notebooks", env=env, check=True, capture_output=True,
-        )  # fmt: skip
-        page, shot = Path(tmp) / f"{args.notebook}.html", Path(tmp) / "page.png"
-        subprocess.run(
-            ["chromium", "--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars",
-             "--window-size=1200,7000", "--virtual-time-budget=15000",
-             f"--screenshot={shot}", page.as_uri()],
-            check=True, capture_output=True, timeout=300,
-        )  # fmt: skip
-        image = Image.open(shot).crop((0, args.crop[0], 1200, args.crop[1]))
-        image = image.resize((900, round(900 * image.height / image.width)), Image.LANCZOS)
-        image.convert("P", palette=Image.ADAPTIVE, colors=128).save(args.out, optimize=True)
-    print(f"wrote {args.out}")
+        page = export_html(ROOT / "notebooks" / f"{args.notebook}.ipynb", tmp, execute=True)
+        with HeadlessBrowser(size=(WIDTH, args.height), executable="/usr/bin/chromium") as b:
+            b.open(page.as_uri())
+            b.wait_for_text(["Exercises"])
+            _wait_for_mathjax(b)
+            for section, out in zip(args.section, args.out, strict=True):
+                find = (
+                    "(() => { const h = [...document.querySelectorAll('h1,h2,h3,h4')]"
+                    f".find(e => e.textContent.trim().startsWith({json.dumps(section)}));"
+                    " if (!h) return -1; h.scrollIntoView(); return window.scrollY; })()"
+                )
+                if _evaluate(b, find) == -1:
+                    raise SystemExit(f"--section {section!r}: no heading starts with it")
+                b.wait_frames(5)
+                image = Image.fromarray(b.screenshot())
+                image = image.resize((900, round(900 * image.height / image.width)), Image.LANCZOS)
+                image.convert("P", palette=Image.ADAPTIVE, colors=128).save(out, optimize=True)
+                print(f"wrote {out}")
 
 
 if __name__ == "__main__":

@@ -207,5 +207,10 @@ def explore(draw: Callable[..., Any], /, *, controls: bool = True, **specs) -> E
     for k, slider in sliders.items():
         slider.observe(lambda change, k=k: shown.set(**{k: change["new"]}), names="value")
     shown.controls = w.VBox(list(sliders.values()))
-    display(shown.controls)
+    # A page exported without widget state shows the text/plain part: say what the controls
+    # are instead of ipywidgets' repr.
+    bundle = dict(shown.controls._repr_mimebundle_() or {})
+    names = ", ".join(specs)
+    bundle["text/plain"] = f"(controls for {names}: run the notebook in Jupyter to move them)"
+    display(bundle, raw=True)
     return shown

@@ -1,0 +1,928 @@
+r"""Chapter 4 step by step: one GPREPS iteration (Sec. 4.1, Table 4.1) taken apart.
+
+The notebook runs Table 4.1 with the library's own pieces, in the order
+:meth:`GPREPS.update <skillkit.search.gpreps.GPREPS.update>` calls them: the reward model's
+``fit`` on the real rollouts, :meth:`~skillkit.search.gpreps.GPREPS.sample_contexts` (μ̂(s)),
+the policy's ``sample`` (ω ~ π(ω|s)), the model's ``predict`` (L trajectories per pair,
+Eq. 4.1), :func:`~skillkit.search.reps.reps_weights` on the artificial samples (dual 3.9,
+weights 3.10) and the weighted ML fit
+(:meth:`~skillkit.policies.gaussian.LinearGaussianPolicy.fit_with_info`, Eqs. 3.11–3.13).
+Drawn from one generator in that order, they give the numbers of ``GPREPS.update`` itself
+(``tests/viz/test_teaching_ch4.py`` checks it). This module only sizes, tabulates and draws:
+
+* :class:`IterationSizes`, :func:`iteration_sizes`, :func:`throwing_model`,
+  :func:`step_settings` — the tiny sizes of the step-through per ``SKILLKIT_SCALE``;
+* :func:`batch_table`, :func:`fit_table`, :func:`contexts_figure`,
+  :func:`predicted_throws_figure`, :func:`weights_figure`, :func:`policy_change_table` —
+  one cell of Table 4.1 each;
+* :func:`update_comparison` — the cells' numbers beside ``GPREPS.update``'s on the same data;
+* :func:`diagnostics_table` — per-update diagnostics of a GPREPS run
+  (:class:`~skillkit.search.gpreps.GPREPSDiagnostics`) as a pandas table;
+* :class:`RewardPool`, :func:`reward_pool`, :func:`reward_estimates`,
+  :func:`reward_estimate_figure` — how M and L set
+  the spread of GPREPS's reward estimates (what the notebook's sliders redraw);
+* :func:`table_4_2` — Table 4.2 from a stored ``tab4.2`` run beside the thesis's numbers;
+  :func:`gflops_table` — Fig. 4.4's speed numbers;
+* :func:`handled_events` — the handled numerical events and failed rollouts of a block,
+  counted and shown as a table instead of warnings;
+* :func:`gpreps_model_view` — a stored GPREPS run's model layers, in the viewer or as a
+  static figure.
+"""
+
+from __future__ import annotations
+
+import re
+import warnings
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from numpy.typing import ArrayLike
+
+from skillkit._validation import as_generator, check_array, check_count
+from skillkit.experiments.ch4_gpreps import COV_FLOOR, MIN_EFFECTIVE_SAMPLES
+from skillkit.models.gp import EVENT_KINDS, ExactGP, ForwardModel, record_numerical_events
+from skillkit.models.sparse import FITC
+from skillkit.policies.gaussian import LinearGaussianPolicy
+from skillkit.search.base import Batch
+from skillkit.search.gpreps import GPREPSDiagnostics, GPREPSSettings
+from skillkit.search.reps import REPSWeights
+from skillkit.search.throwing_model import ThrowingPrediction, ThrowingRewardModel
+from skillkit.tasks.base import Task
+from skillkit.tasks.planar import Throwing
+from skillkit.viz.plots import _draw
+from skillkit.viz.series import Series
+
+__all__ = [
+    "EXPECTED_WARNINGS",
+    "HandledEvents",
+    "IterationSizes",
+    "ModelView",
+    "RewardPool",
+    "SCALES",
+    "THESIS_TABLE_4_2",
+    "batch_table",
+    "contexts_figure",
+    "diagnostics_table",
+    "fit_table",
+    "gflops_table",
+    "gpreps_model_view",
+    "handled_events",
+    "iteration_sizes",
+    "policy_change_table",
+    "predicted_throws_figure",
+    "reward_estimate_figure",
+    "reward_estimates",
+    "reward_pool",
+    "step_settings",
+    "table_4_2",
+    "throwing_model",
+    "update_comparison",
+    "weights_figure",
+]
+
+
+# --------------------------------------------------------------------------- sizes
+@dataclass(frozen=True)
+class IterationSizes:
+    """How big the notebook's GPREPS step-through is at one scale.
+
+    Attributes
+    ----------
+    n_initial : int
+        N₀, real throws before the first update (Table 4.1: "a higher N in the first
+        iteration").
+    n_artificial : int
+        M, artificial (s, ω) pairs per update.
+    n_trajectories : int
+        L, predicted throws per pair (Eq. 4.1).
+    n_updates : int
+        Updates of the short loop after the first one (the step-through's), one real throw
+        each.
+    n_inducing : int
+        Pseudo-inputs of the FITC flight model.
+    gp_steps : int
+        L-BFGS iterations of the release and flight GPs' hyper-parameter fits (2.28).
+    robot_inducing : int
+        Pseudo-inputs of the FITC robot-dynamics model.
+    robot_steps : int
+        L-BFGS iterations of the robot model's fit: 150 at every scale, as fig4.6 (with 20 to
+        60 the predicted arm lags the real one and the ball lands metres short).
+    max_points : int
+        Transitions each FITC model is fitted on at most.
+    pool_pairs, pool_repeats, max_trajectories : int
+        The reward pool of the M, L widget (:func:`reward_pool`).
+    """
+
+    n_initial: int
+    n_artificial: int
+    n_trajectories: int
+    n_updates: int
+    n_inducing: int
+    gp_steps: int
+    robot_inducing: int
+    robot_steps: int
+    max_points: int
+    pool_pairs: int
+    pool_repeats: int
+    max_trajectories: int
+
+
+#: The step-through's sizes per ``SKILLKIT_SCALE``. "paper" has the thesis's N₀ = 10, M = 500,
+#: L = 25 and fig4.6's model sizes; "smoke" runs in seconds (what CI executes).
+SCALES: dict[str, IterationSizes] = {
+    "smoke": IterationSizes(
+        n_initial=8, n_artificial=30, n_trajectories=3, n_updates=1, n_inducing=15,
+        gp_steps=20, robot_inducing=20, robot_steps=150, max_points=300, pool_pairs=30,
+        pool_repeats=6, max_trajectories=10,
+    ),
+    "quick": IterationSizes(
+        n_initial=10, n_artificial=200, n_trajectories=5, n_updates=5, n_inducing=50,
+        gp_steps=60, robot_inducing=50, robot_steps=150, max_points=1000, pool_pairs=100,
+        pool_repeats=10, max_trajectories=20,
+    ),
+    "paper": IterationSizes(
+        n_initial=10, n_artificial=500, n_trajectories=25, n_updates=10, n_inducing=50,
+        gp_steps=150, robot_inducing=50, robot_steps=150, max_points=1000, pool_pairs=200,
+        pool_repeats=20, max_trajectories=25,
+    ),
+}  # fmt: skip
+
+
+def iteration_sizes(scale: str) -> IterationSizes:
+    """The step-through's sizes at ``scale`` (a key of :data:`SCALES`)."""
+    if scale not in SCALES:
+        raise ValueError(f"scale: expected one of {tuple(SCALES)}, got {scale!r}")
+    return SCALES[scale]
+
+
+def _fitc_model(n_inducing: int, n_steps: int) -> ForwardModel:
+    """A FITC forward model of Δx (the target fig4.6's stored results were made with)."""
+    return ForwardModel(FITC(n_inducing=n_inducing, n_steps=n_steps), target="delta")
+
+
+def throwing_model(task: Throwing, sizes: IterationSizes) -> ThrowingRewardModel:
+    """The decomposed throwing model of Fig. 4.2 at the step-through's sizes.
+
+    A FITC robot model with ``sizes.robot_inducing`` pseudo-inputs fitted with
+    ``sizes.robot_steps`` L-BFGS iterations, an exact release GP and a FITC flight model with
+    ``sizes.n_inducing`` pseudo-inputs, both fitted with ``sizes.gp_steps``, each on at most
+    ``sizes.max_points`` points; the library defaults otherwise (balls stop at the ground).
+    """
+    if not isinstance(sizes, IterationSizes):
+        raise ValueError(f"sizes: expected IterationSizes, got {type(sizes).__name__}")
+    return ThrowingRewardModel(
+        task,
+        make_robot_model=partial(_fitc_model, sizes.robot_inducing, sizes.robot_steps),
+        make_release_model=partial(ExactGP, n_steps=sizes.gp_steps),
+        make_flight_model=partial(_fitc_model, sizes.n_inducing, sizes.gp_steps),
+        max_robot_points=sizes.max_points,
+        max_release_points=min(sizes.max_points, 300),
+        max_flight_points=sizes.max_points,
+    )
+
+
+def step_settings(sizes: IterationSizes, epsilon: float = 1.0) -> GPREPSSettings:
+    """GPREPS's settings of the step-through: M, L of ``sizes``, ε, μ̂(s) = the task's μ(s).
+
+    ``context_model="prior"`` because :meth:`~skillkit.search.gpreps.GPREPS.sample_contexts`
+    can then be called before any update (fig4.6 uses ``"uniform"``, the box of the observed
+    targets, which the object knows only after :meth:`~skillkit.search.gpreps.GPREPS.update`
+    has stored real samples). The weighted ML fit is regularised as in fig4.6 (a covariance
+    floor of 0.1 per update and at least 2 effective samples).
+    """
+    if not isinstance(sizes, IterationSizes):
+        raise ValueError(f"sizes: expected IterationSizes, got {type(sizes).__name__}")
+    return GPREPSSettings(
+        epsilon=epsilon,
+        n_artificial=sizes.n_artificial,
+        n_trajectories=sizes.n_trajectories,
+        context_model="prior",
+        cov_floor=COV_FLOOR,
+        min_effective_samples=MIN_EFFECTIVE_SAMPLES,
+    )
+
+
+# --------------------------------------------------------------------------- tables
+def batch_table(batch: Batch) -> pd.DataFrame:
+    """The real throws of a batch, one row per rollout: target s = [x, y], the release time
+    t_r and landing point x the simulator reports (NaN for a failed rollout), and the reward
+    R(τ, s)."""
+    if not isinstance(batch, Batch):
+        raise ValueError(f"batch: expected a Batch, got {type(batch).__name__}")
+    n = batch.n_rollouts
+    trajs = list(batch.trajectories or [])[:n]
+    info = [(t.info or {}) if t is not None and not t.failed else {} for t in trajs]
+    info += [{}] * (n - len(info))
+    return pd.DataFrame(
+        {
+            "target x [m]": batch.contexts[:n, 0],
+            "target y [m]": batch.contexts[:n, 1],
+            "release time [s]": [i.get("release_time", np.nan) for i in info],
+            "landing x [m]": [i.get("landing_x", np.nan) for i in info],
+            "reward": batch.rewards[:n],
+        },
+        index=pd.RangeIndex(1, n + 1, name="throw"),
+    )
+
+
+def fit_table(stats: Mapping) -> pd.DataFrame:
+    """A reward model's fit statistics (``RewardModel.fit``), one row per learned GP.
+
+    Columns: training points, L-BFGS iterations, log marginal likelihood (2.28), the largest
+    noise variance, and the handled numerical events of the fit
+    (:data:`~skillkit.models.gp.EVENT_KINDS`) that occurred.
+    """
+    if not isinstance(stats, Mapping):
+        raise ValueError(f"stats: expected the dict a reward model's fit returns, got {stats!r}")
+    rows = {}
+    for key, value in stats.items():
+        if isinstance(value, Mapping) and "n_data" in value:
+            events = value.get("numerical_events") or {}
+            seen = [f"{k} ×{n}" for k, n in events.items() if k in EVENT_KINDS and n]
+            rows[key] = {
+                "points": value["n_data"],
+                "iterations": value.get("iterations"),
+                "log ML": value.get("log_ml"),
+                "largest noise variance": value.get("noise_var_max"),
+                "handled events": ", ".join(seen) or "none",
+            }
+    if not rows:
+        raise ValueError("stats: no per-model statistics (entries with 'n_data') found")
+    return pd.DataFrame.from_dict(rows, orient="index").rename_axis("model")
+
+
+def policy_change_table(
+    old: LinearGaussianPolicy,
+    new: LinearGaussianPolicy,
+    contexts: ArrayLike,
+    weights: REPSWeights,
+    rewards: ArrayLike,
+) -> pd.DataFrame:
+    """What the weighted ML fit (3.11–3.13) did to the policy, in one row.
+
+    Parameters
+    ----------
+    old, new : LinearGaussianPolicy
+        π before and after the update.
+    contexts : array_like, shape (M, context_dim)
+        The artificial contexts the update used.
+    weights : REPSWeights
+        The dual's solution on the M samples.
+    rewards : array_like, shape (M,)
+        Their predicted rewards R̂ (Eq. 4.1).
+
+    Returns
+    -------
+    DataFrame
+        KL(π_new ‖ π_old) averaged over the contexts (the weighted ML fit can exceed ε), ε,
+        the dual's KL(p ‖ uniform), the effective sample size 1/Σp² of M, the entropies of
+        both policies, the mean predicted reward Σ R̂/M and its p-weighted mean Σ p R̂ (what
+        the model expects of the new policy, to first order).
+    """
+    if not isinstance(old, LinearGaussianPolicy) or not isinstance(new, LinearGaussianPolicy):
+        raise ValueError("old, new: expected LinearGaussianPolicy objects")
+    if not isinstance(weights, REPSWeights):
+        raise ValueError(f"weights: expected REPSWeights, got {type(weights).__name__}")
+    p = weights.weights
+    s = check_array(contexts, "contexts", shape=(p.shape[0], old.context_dim))
+    r = check_array(rewards, "rewards", shape=p.shape)
+    return pd.DataFrame(
+        {
+            "KL(π_new ‖ π_old)": [new.kl(old, s)],
+            "ε": [weights.epsilon],
+            "KL(p ‖ uniform)": [weights.kl],
+            "ESS": [weights.ess],
+            "M": [p.shape[0]],
+            "entropy old": [old.entropy()],
+            "entropy new": [new.entropy()],
+            "mean R̂": [float(r.mean())],
+            "Σ p R̂": [float(p @ r)],
+        },
+        index=pd.Index(["update"]),
+    )
+
+
+def diagnostics_table(
+    diagnostics: Sequence, policy_rewards: ArrayLike | None = None
+) -> pd.DataFrame:
+    """Per-update diagnostics of GPREPS (:class:`~skillkit.search.gpreps.GPREPSDiagnostics`).
+
+    Parameters
+    ----------
+    diagnostics : sequence of GPREPSDiagnostics
+        What each :meth:`GPREPS.update <skillkit.search.gpreps.GPREPS.update>` returned.
+    policy_rewards : array_like, shape (n_updates,), optional
+        The policy mean's evaluated reward after each update (e.g. ``learn``'s
+        ``mean_reward``, aligned by the caller).
+
+    Returns
+    -------
+    DataFrame
+        One row per update: real samples the model saw, η, the dual's KL and ε, the ESS of
+        the M artificial samples, the model's prediction of the new real batch (made before
+        refitting; NaN at the first update, when there is no model yet) against its real
+        reward, the mean predicted reward of the artificial samples, the policy mean's
+        reward (if given), and the seconds spent training, predicting and updating the policy.
+    """
+    diags = list(diagnostics) if isinstance(diagnostics, Sequence) else []
+    if not diags or not all(hasattr(d, "reps") and hasattr(d, "n_real") for d in diags):
+        raise ValueError("diagnostics: expected a non-empty sequence of GPREPSDiagnostics")
+    evaluated = (
+        np.full(len(diags), np.nan)
+        if policy_rewards is None
+        else check_array(policy_rewards, "policy_rewards", shape=(len(diags),))
+    )
+    rows = []
+    for d, policy_reward in zip(diags, evaluated, strict=True):
+        predicted = d.predicted_real_reward
+        rows.append(
+            {
+                "real samples": d.n_real,
+                "η": d.reps.eta,
+                "KL": d.reps.kl,
+                "ε": d.reps.epsilon,
+                "ESS": d.reps.ess,
+                "M": d.reps.n_samples,
+                "predicted R (new batch)": np.nan if predicted is None else predicted,
+                "real R (new batch)": d.real_reward,
+                "mean R̂ (artificial)": d.artificial_reward_mean,
+                "policy mean's R": policy_reward,
+                "train [s]": d.time_training,
+                "predict [s]": d.time_prediction,
+                "policy [s]": d.time_policy,
+            }
+        )
+    return pd.DataFrame(rows, index=pd.RangeIndex(1, len(rows) + 1, name="update"))
+
+
+def update_comparison(
+    weights: REPSWeights,
+    policy: LinearGaussianPolicy,
+    diagnostics: GPREPSDiagnostics,
+    update_policy: LinearGaussianPolicy,
+) -> pd.DataFrame:
+    """The step-through's numbers beside those of one ``GPREPS.update`` on the same data.
+
+    Parameters
+    ----------
+    weights : REPSWeights
+        The step-through's dual solution.
+    policy : LinearGaussianPolicy
+        The step-through's new policy.
+    diagnostics : GPREPSDiagnostics
+        What ``GPREPS.update`` returned.
+    update_policy : LinearGaussianPolicy
+        The policy after that update.
+
+    Returns
+    -------
+    DataFrame
+        Rows η, KL, ESS, the largest |a| entry of the policy mean and log det Σ; columns
+        "cells above", "GPREPS.update" and "equal" (exact equality: the same draws from one
+        generator in the same order give the same floating-point numbers).
+    """
+    if not isinstance(weights, REPSWeights):
+        raise ValueError(f"weights: expected REPSWeights, got {type(weights).__name__}")
+    if not hasattr(diagnostics, "reps"):
+        raise ValueError("diagnostics: expected GPREPSDiagnostics")
+    for name, pol in (("policy", policy), ("update_policy", update_policy)):
+        if not isinstance(pol, LinearGaussianPolicy):
+            raise ValueError(f"{name}: expected a LinearGaussianPolicy")
+    ours = [weights.eta, weights.kl, weights.ess, np.abs(policy.mean).max(),
+            policy.log_det_cov()]  # fmt: skip
+    theirs = [diagnostics.reps.eta, diagnostics.reps.kl, diagnostics.reps.ess,
+              np.abs(update_policy.mean).max(), update_policy.log_det_cov()]  # fmt: skip
+    equal = [a == b for a, b in zip(ours, theirs, strict=True)]
+    equal[3] = bool(np.array_equal(policy.mean, update_policy.mean))
+    equal[4] = bool(np.array_equal(policy.cov, update_policy.cov))
+    return pd.DataFrame(
+        {"cells above": ours, "GPREPS.update": theirs, "equal": equal},
+        index=["η", "KL(p ‖ uniform)", "ESS", "max |a| (policy mean)", "log det Σ"],
+    )
+
+
+def gflops_table(run: Any) -> pd.DataFrame:
+    """Fig. 4.4's speed numbers as a table, one row per thread count.
+
+    Parameters
+    ----------
+    run : Run or mapping
+        A ``fig4.4`` run or its summary, with ``trajectories_in_mm_time``, ``mm_gflops``
+        and ``sampling_gflops`` (per thread count; sampling per number of trajectories N).
+
+    Returns
+    -------
+    DataFrame
+        Columns: sampled trajectories that take one moment-matching prediction's time, the
+        counted GFLOP/s of moment matching, and of sampling for each N.
+    """
+    summary = getattr(run, "summary", run)
+    keys = ("trajectories_in_mm_time", "mm_gflops", "sampling_gflops")
+    if not isinstance(summary, Mapping) or any(k not in summary for k in keys):
+        raise ValueError(f"run: expected a fig4.4 run or its summary (with {keys})")
+    rows = {}
+    for threads, n in summary["trajectories_in_mm_time"].items():
+        row = {"trajectories in one MM time": n, "MM GFLOP/s": summary["mm_gflops"][threads]}
+        for n_traj, value in summary["sampling_gflops"].get(threads, {}).items():
+            row[f"sampling GFLOP/s, N = {n_traj}"] = value
+        rows[threads] = row
+    return pd.DataFrame.from_dict(rows, orient="index").rename_axis("threads")
+
+
+#: Table 4.2 of the thesis: seconds of real experience to reach each reward limit.
+THESIS_TABLE_4_2: dict[str, tuple[float, float, float]] = {
+    "PILCO": (10.18, 11.46, 12.18),
+    "GPREPS": (10.68, 20.52, 38.50),
+    "REPS": (1425.0, 2300.0, 4075.0),
+}
+_TAB42_METHODS = {
+    "pilco": ("PILCO", "PILCO"),
+    "gpreps": ("GPREPS", "GPREPS"),
+    "reps": ("REPS", "REPS"),
+    "pilco_linear": ("PILCO (linear model)", "PILCO"),
+    "gpreps_linear": ("GPREPS (linear model)", "GPREPS"),
+}
+
+
+def table_4_2(run: Any) -> pd.DataFrame:
+    """Table 4.2 (required experience to reach each reward limit) beside the thesis's numbers.
+
+    Parameters
+    ----------
+    run : Run or mapping
+        A ``tab4.2`` run (``stored_run("tab4.2")`` or ``reproduce("tab4.2", ...)``) or its
+        ``summary``: per method (``pilco``, ``gpreps``, ``reps`` and the linear-model
+        variants) ``limits[limit]["experience_s_mean"]`` (mean over the trials that reached
+        the limit, ``None`` if none did) and ``n_reached``.
+
+    Returns
+    -------
+    DataFrame
+        Rows: the methods; columns: per reward limit −100, −10, −1.5, our mean experience in
+        seconds to 0.01 s (NaN: no trial reached it), how many trials reached it, and the thesis's
+        seconds (:data:`THESIS_TABLE_4_2`; a linear-model variant is set beside its method's).
+    """
+    summary = getattr(run, "summary", run)
+    if not isinstance(summary, Mapping) or "pilco" not in summary:
+        raise ValueError("run: expected a tab4.2 run or its summary (with a 'pilco' entry)")
+    n_trials = summary.get("n_trials")
+    limits = ("-100", "-10", "-1.5")
+    columns = pd.MultiIndex.from_product(
+        [[f"R ≥ {lim.replace('-', '−')}" for lim in limits], ["ours [s]", "reached", "thesis [s]"]],
+        names=["reward limit", ""],
+    )
+    rows, index = [], []
+    for key, (label, thesis_key) in _TAB42_METHODS.items():
+        entry = summary.get(key)
+        if not isinstance(entry, Mapping) or "limits" not in entry:
+            continue
+        row = []
+        for i, lim in enumerate(limits):
+            cell = entry["limits"].get(lim, {})
+            mean = cell.get("experience_s_mean")
+            reached = cell.get("n_reached")
+            row += [
+                np.nan if mean is None else round(float(mean), 2),
+                f"{reached}/{n_trials}" if reached is not None else "",
+                THESIS_TABLE_4_2[thesis_key][i],
+            ]
+        rows.append(row)
+        index.append(label)
+    return pd.DataFrame(rows, index=pd.Index(index, name="method"), columns=columns)
+
+
+# --------------------------------------------------------------------------- figures
+def contexts_figure(real: ArrayLike, artificial: ArrayLike, backend: str = "plotly"):
+    """The targets of the real throws and the M artificial ones drawn from μ̂(s).
+
+    Parameters
+    ----------
+    real : array_like, shape (N, 2)
+        Observed contexts s_i.
+    artificial : array_like, shape (M, 2)
+        s^[j] ~ μ̂(s).
+    backend : {"plotly", "matplotlib"}
+    """
+    s_real = check_array(real, "real", shape=(None, 2))
+    s_art = check_array(artificial, "artificial", shape=(None, 2))
+    common = {"kind": "markers", "xlabel": "target x [m]", "ylabel": "target y [m]"}
+    series = [
+        Series(f"artificial s ~ μ̂(s) (M = {len(s_art)})", *_xy(s_art), **common),
+        Series(f"real throws (N = {len(s_real)})", *_xy(s_real), **common),
+    ]
+    return _draw(_result("contexts of the real and the artificial samples", series), backend)
+
+
+def predicted_throws_figure(
+    prediction: ThrowingPrediction,
+    real: Batch,
+    n_pairs: int = 3,
+    backend: str = "plotly",
+):
+    """Predicted ball flights of the first artificial pairs over the real throws' flights.
+
+    Parameters
+    ----------
+    prediction : ThrowingPrediction
+        L predicted throws of each of the M pairs (``ThrowingRewardModel.predict``).
+    real : Batch
+        The real throws the models learnt from (their ``ball`` signals are drawn).
+    n_pairs : int
+        How many artificial pairs to draw (each with its L flights and its target).
+    backend : {"plotly", "matplotlib"}
+    """
+    if not isinstance(prediction, ThrowingPrediction):
+        raise ValueError(f"prediction: expected a ThrowingPrediction, got {prediction!r:.60}")
+    if not isinstance(real, Batch) or real.trajectories is None:
+        raise ValueError("real: expected a Batch with trajectories")
+    n_pairs = check_count(n_pairs, "n_pairs")
+    common = {"xlabel": "x [m]", "ylabel": "height y [m]"}
+    balls = [t.signals["ball"] for t in real.trajectories[: real.n_rollouts] if not t.failed]
+    series = [Series(f"real flights ({len(balls)})", *_joined(balls), dash="dash", **common)]
+    B, L = prediction.rewards.shape
+    for j in range(min(n_pairs, B)):
+        series.append(
+            Series(f"pair {j + 1}: {L} predicted flights", *_joined(prediction.ball[j]), **common)
+        )
+    return _draw(_result("predicted ball flights over the real ones", series), backend)
+
+
+def weights_figure(
+    weights: REPSWeights, rewards: ArrayLike, features: ArrayLike, backend: str = "plotly"
+):
+    """The REPS weights of the M artificial samples against their advantage.
+
+    p_j ∝ exp((R̂_j − γᵀφ(s_j))/η) (Eq. 3.10): on a log axis the samples lie on one straight
+    line of slope 1/η (drawn as the closed form), and the uniform weight 1/M is marked.
+
+    Parameters
+    ----------
+    weights : REPSWeights
+        :func:`~skillkit.search.reps.reps_weights` on the artificial samples.
+    rewards : array_like, shape (M,)
+        Their predicted rewards R̂ (Eq. 4.1).
+    features : array_like, shape (M, F)
+        The baseline features φ(s_j) the dual used.
+    backend : {"plotly", "matplotlib"}
+    """
+    if not isinstance(weights, REPSWeights):
+        raise ValueError(f"weights: expected REPSWeights, got {type(weights).__name__}")
+    p = weights.weights
+    r = check_array(rewards, "rewards", shape=p.shape)
+    phi = check_array(features, "features", shape=(p.shape[0], weights.gamma.shape[0]))
+    adv = r - phi @ weights.gamma
+    grid = np.linspace(adv.min(), adv.max(), 50)
+    # log p_j = A_j/η − log Σ_i exp(A_i/η): the closed form through all samples
+    shift = adv.max() / weights.eta
+    log_z = shift + np.log(np.sum(np.exp(adv / weights.eta - shift)))
+    common = {"xlabel": "advantage R̂ − V(s) (Eq. 3.10)", "ylabel": "weight p", "log_y": True}
+    series = [
+        Series(f"artificial samples (M = {p.size})", adv.tolist(), p.tolist(), kind="markers",
+               **common),
+        Series(f"exp(A/η)/Z, η = {weights.eta:.3g}", grid.tolist(),
+               np.exp(grid / weights.eta - log_z).tolist(), **common),
+        Series("uniform 1/M", [grid[0], grid[-1]], [1.0 / p.size] * 2, dash="dash", **common),
+    ]  # fmt: skip
+    title = (
+        f"REPS weights: KL = {weights.kl:.3g} (ε = {weights.epsilon:.3g}), "
+        f"ESS = {weights.ess:.3g} of {p.size}"
+    )
+    return _draw(_result(title, series), backend)
+
+
+def _xy(points: np.ndarray) -> tuple[list, list]:
+    return points[:, 0].tolist(), points[:, 1].tolist()
+
+
+def _joined(paths) -> tuple[list, list]:
+    """Paths (each (K, 2)) as one polyline broken by NaN gaps."""
+    pieces = []
+    for p in paths:
+        p = np.asarray(p, dtype=float)
+        pieces += [p, np.full((1, 2), np.nan)]
+    joined = np.concatenate(pieces)
+    return joined[:, 0].tolist(), joined[:, 1].tolist()
+
+
+def _result(title: str, series: Sequence[Series]) -> dict:
+    return {"title": title, "series": [s.to_dict() for s in series]}
+
+
+# --------------------------------------------------------------------------- M, L widget
+@dataclass(frozen=True)
+class RewardPool:
+    """Predicted rewards to resample GPREPS's reward estimates from (the M, L widget).
+
+    Attributes
+    ----------
+    contexts : ndarray, shape (K, context_dim)
+        The fixed contexts s_k.
+    omegas : ndarray, shape (K, d)
+        The fixed parameter vectors ω_k (the policy mean at s_k).
+    fixed : ndarray, shape (K, P)
+        P predicted rewards R(τ, s_k) of each fixed pair.
+    pairs : ndarray, shape (Q, L_max)
+        L_max predicted rewards of each of Q pairs s ~ μ(s), ω ~ π(ω|s).
+    """
+
+    contexts: np.ndarray
+    omegas: np.ndarray
+    fixed: np.ndarray
+    pairs: np.ndarray
+
+
+def reward_pool(
+    model: Any,
+    policy: LinearGaussianPolicy,
+    task: Task,
+    sizes: IterationSizes,
+    contexts: ArrayLike,
+    rng: np.random.Generator | int | None = None,
+) -> RewardPool:
+    """Predict the rewards :func:`reward_estimate_figure` resamples, once.
+
+    Parameters
+    ----------
+    model : RewardModel
+        A fitted model with ``predict(contexts, omegas, L, rng)`` returning ``rewards`` (B, L)
+        (e.g. :class:`~skillkit.search.throwing_model.ThrowingRewardModel`).
+    policy : LinearGaussianPolicy
+        π(ω|s): the fixed ω_k are its means at ``contexts``, the pool pairs its samples.
+    task : Task
+        μ(s) of the pool pairs (``task.sample_context``).
+    sizes : IterationSizes
+        ``pool_repeats × max_trajectories`` rewards per fixed pair, ``pool_pairs`` pool pairs
+        with ``max_trajectories`` rewards each.
+    contexts : array_like, shape (K, context_dim)
+        The fixed contexts.
+    rng : Generator, int or None
+    """
+    if not isinstance(sizes, IterationSizes):
+        raise ValueError(f"sizes: expected IterationSizes, got {type(sizes).__name__}")
+    rng = as_generator(rng)
+    s = check_array(contexts, "contexts", shape=(None, policy.context_dim))
+    w = np.atleast_2d(policy.mean_of(s))
+    n_fixed = sizes.pool_repeats * sizes.max_trajectories
+    fixed = model.predict(s, w, n_fixed, rng).rewards
+    s_pool = np.asarray(task.sample_context(rng, n=sizes.pool_pairs), dtype=float)
+    w_pool = np.atleast_2d(policy.sample(s_pool, rng))
+    pairs = model.predict(s_pool, w_pool, sizes.max_trajectories, rng).rewards
+    return RewardPool(s, w, np.asarray(fixed, dtype=float), np.asarray(pairs, dtype=float))
+
+
+def reward_estimates(
+    pool: RewardPool, n_artificial: int, n_trajectories: int, n_repeats: int, seed: int = 0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Repeated reward estimates of GPREPS for M and L, resampled from a :class:`RewardPool`.
+
+    Parameters
+    ----------
+    pool : RewardPool
+    n_artificial : int
+        M ≥ 1, pairs averaged in the policy's estimate.
+    n_trajectories : int
+        L, 1 ≤ L ≤ min(P, L_max), predicted rewards averaged per pair (Eq. 4.1).
+    n_repeats : int
+        R ≥ 2 estimates of each kind.
+    seed : int
+        Seed of the resampling.
+
+    Returns
+    -------
+    fixed : ndarray, shape (K, R)
+        R̂ of each fixed pair: the mean of L of its P pooled rewards, drawn without
+        replacement (standard deviation ≈ σ_k/√L for P ≫ L).
+    policy : ndarray, shape (R,)
+        (1/M) Σ_j R̂_j: M pool pairs drawn with replacement, each R̂_j the mean of L of its
+        L_max pooled rewards (without replacement).
+    """
+    if not isinstance(pool, RewardPool):
+        raise ValueError(f"pool: expected a RewardPool, got {type(pool).__name__}")
+    n_artificial = check_count(n_artificial, "n_artificial")
+    n_trajectories = check_count(n_trajectories, "n_trajectories")
+    if n_trajectories > min(pool.pairs.shape[1], pool.fixed.shape[1]):
+        raise ValueError(
+            f"n_trajectories: the pool holds at most "
+            f"{min(pool.pairs.shape[1], pool.fixed.shape[1])} trajectories per pair, "
+            f"got {n_trajectories}"
+        )
+    n_repeats = check_count(n_repeats, "n_repeats", 2)
+    rng = np.random.default_rng(seed)
+    K, P = pool.fixed.shape
+    Q, L_max = pool.pairs.shape
+    L = n_trajectories
+    fixed = np.array(
+        [[pool.fixed[k, rng.choice(P, L, replace=False)].mean() for _ in range(n_repeats)]
+         for k in range(K)]
+    )  # fmt: skip
+    policy = np.empty(n_repeats)
+    for r in range(n_repeats):
+        rows = rng.choice(Q, n_artificial, replace=True)
+        cols = np.argsort(rng.random((n_artificial, L_max)), axis=1)[:, :L]
+        policy[r] = pool.pairs[rows[:, None], cols].mean()
+    return fixed, policy
+
+
+def reward_estimate_figure(
+    pool: RewardPool,
+    n_artificial: int = 30,
+    n_trajectories: int = 3,
+    n_repeats: int = 20,
+    seed: int = 0,
+    backend: str = "plotly",
+):
+    r"""GPREPS's reward estimates for given M and L, repeated: their mean and spread.
+
+    Left: R̂_sω = (1/L) Σ_l R(τ^[l], s) (Eq. 4.1) of each fixed pair (s_k, ω_k), repeated with
+    L of the pool's predicted throws each time; its spread shrinks like σ_k/√L. Right: the
+    policy's expected reward as GPREPS's M artificial samples estimate it, (1/M) Σ_j R̂_j,
+    whose spread falls with M (the pairs differ) and with L (each R̂_j is noisy). The
+    estimates are resampled from :func:`reward_pool`, so moving a slider costs no model
+    prediction.
+
+    Parameters
+    ----------
+    pool : RewardPool
+    n_artificial : int
+        M ≥ 1.
+    n_trajectories : int
+        L, 1 ≤ L ≤ the pool's L_max (and ≤ its P).
+    n_repeats : int
+        How many estimates of each kind are drawn (≥ 2).
+    seed : int
+        Seed of the resampling (the same seed gives the same figure).
+    backend : {"plotly", "matplotlib"}
+    """
+    fixed, policy = reward_estimates(pool, n_artificial, n_trajectories, n_repeats, seed)
+    L = n_trajectories
+    left = f"R̂ of {fixed.shape[0]} fixed pairs (L = {L}), {n_repeats} estimates each"
+    right = f"policy's mean R̂ from M = {n_artificial} pairs × L = {L}"
+    xs = pool.contexts[:, 0]
+    repeats = np.arange(1, n_repeats + 1, dtype=float)
+    mean_fixed, sd_fixed = fixed.mean(axis=1), fixed.std(axis=1, ddof=1)
+    ref = pool.pairs.mean()
+    series = [
+        Series("estimates", np.repeat(xs, n_repeats).tolist(), fixed.reshape(-1).tolist(),
+               panel=left, kind="markers", xlabel="target x of the pair [m]",
+               ylabel="R̂ (Eq. 4.1)"),
+        Series("mean ± std of the estimates", xs.tolist(), mean_fixed.tolist(), panel=left,
+               kind="lines+markers", lower=(mean_fixed - sd_fixed).tolist(),
+               upper=(mean_fixed + sd_fixed).tolist(), band=f"± std over {n_repeats}",
+               xlabel="target x of the pair [m]", ylabel="R̂ (Eq. 4.1)"),
+        Series("policy estimates", repeats.tolist(), policy.tolist(), panel=right,
+               kind="markers", xlabel="estimate", ylabel="mean R̂ of M pairs"),
+        Series(f"pool mean ({pool.pairs.size} predicted throws)", [1.0, float(n_repeats)],
+               [ref, ref], panel=right, dash="dash", xlabel="estimate",
+               ylabel="mean R̂ of M pairs"),
+    ]  # fmt: skip
+    title = (
+        f"std of R̂ per pair {', '.join(f'{v:.3g}' for v in sd_fixed)}; "
+        f"std of the policy's estimate {policy.std(ddof=1):.3g}"
+    )
+    fig = _draw(_result(title, series), backend)
+    if backend == "plotly":
+        _fix_ranges(fig, pool)
+    return fig
+
+
+def _fix_ranges(fig, pool: RewardPool) -> None:
+    """Hold each panel's y range at the pool's full range, so moving M or L changes the
+    spread drawn, not the axis."""
+    lo_f, hi_f = float(pool.fixed.min()), float(pool.fixed.max())
+    lo_p, hi_p = float(pool.pairs.mean(axis=1).min()), float(pool.pairs.mean(axis=1).max())
+    for axis, (lo, hi) in (("yaxis", (lo_f, hi_f)), ("yaxis2", (lo_p, hi_p))):
+        pad = 0.05 * (hi - lo) if hi > lo else 1.0
+        if axis in fig.layout:
+            fig.layout[axis].range = (lo - pad, hi + pad)
+            fig.layout[axis].autorange = False
+
+
+# --------------------------------------------------------------------------- warnings
+#: Warnings the chapter's cells cause by design, with the reason each is expected.
+EXPECTED_WARNINGS: dict[str, str] = {
+    r"rollout failed": "an exploring policy drove the simulated robot unstable; the rollout "
+    "is reported as failed and scored with the task's worst reward (Task.rollout), as the "
+    "method being reproduced would have to cope with",
+}
+
+
+@dataclass
+class HandledEvents:
+    """What :func:`handled_events` caught: numerical events by kind and expected warnings.
+
+    Attributes
+    ----------
+    numerical : NumericalEvents
+        Handled GP events (:data:`~skillkit.models.gp.EVENT_KINDS`), counted.
+    warnings : list of str
+        The messages of expected warnings (:data:`EXPECTED_WARNINGS`).
+    """
+
+    numerical: Any
+    warnings: list[str] = field(default_factory=list)
+
+    def table(self) -> pd.DataFrame:
+        """One row per kind that occurred: count, what it means, an example message."""
+        rows = []
+        for kind, n in self.numerical.counts.items():
+            if n:
+                rows.append({"event": kind, "count": n, "meaning": EVENT_KINDS[kind]})
+        for pattern, reason in EXPECTED_WARNINGS.items():
+            hits = [m for m in self.warnings if re.search(pattern, m)]
+            if hits:
+                rows.append({"event": pattern, "count": len(hits), "meaning": reason,
+                             "example": hits[0]})  # fmt: skip
+        columns = ["event", "count", "meaning", "example"]
+        return pd.DataFrame(rows, columns=columns).fillna("")
+
+    def _repr_html_(self) -> str:
+        table = self.table()
+        if table.empty:
+            return "<small>no numerical events, no failed rollouts</small>"
+        return table.to_html(index=False)
+
+    def __repr__(self) -> str:
+        return f"HandledEvents({self.numerical!r}, {len(self.warnings)} expected warnings)"
+
+
+@contextmanager
+def handled_events() -> Iterator[HandledEvents]:
+    """Count a block's handled events and expected warnings instead of printing them.
+
+    Inside, the models' handled numerical events (a noise variance at its floor on the
+    noise-free data of a simulator, jitter, …) are counted by
+    :func:`~skillkit.models.gp.record_numerical_events`, the library's own mechanism (the
+    experiment runner counts them the same way), and warnings matching
+    :data:`EXPECTED_WARNINGS` (a failed rollout) are recorded. Any other warning is issued
+    again on leaving, so an unexpected problem still shows. Display the yielded object (or
+    its :meth:`~HandledEvents.table`) to see what happened.
+    """
+    with record_numerical_events() as events, warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        shown = HandledEvents(events)
+        try:
+            yield shown
+        finally:
+            others = []
+            for w in caught:
+                message = str(w.message)
+                if any(re.search(p, message) for p in EXPECTED_WARNINGS):
+                    shown.warnings.append(message)
+                else:
+                    others.append(w)
+    for w in others:
+        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+
+
+# --------------------------------------------------------------------------- viewer
+@dataclass
+class ModelView:
+    """What :func:`gpreps_model_view` returns: the viewer with the model layers, or the
+    static top view of the same layers with the viewer's screenshot reason."""
+
+    shown: Any
+    figure: Any = None
+
+    def _ipython_display_(self) -> None:
+        from IPython.display import HTML, display
+
+        if self.figure is None:
+            display(self.shown)
+            return
+        display(self.figure)
+        display(HTML(f"<small>no live viewer ({self.shown.reason}): the model layers drawn "
+                     "from above instead</small>"))  # fmt: skip
+
+    def stop(self) -> None:
+        """Stop the viewer's server (idempotent)."""
+        self.shown.stop()
+
+
+def gpreps_model_view(
+    run_dir: str | Path, *, live: bool, trial: int = 0, n_samples: int = 5
+) -> ModelView:
+    """A stored GPREPS run's last reward model over its final policy, with model layers.
+
+    With ``live`` and a server that starts: :func:`~skillkit.viz.notebook.show_viewer` with
+    the run's policy history and :meth:`~skillkit.viz.viewer.Viewer.add_model_layers` (one
+    switchable layer per learned model). Otherwise the same layers drawn from above by
+    :func:`~skillkit.viz.model_layers.gpreps_run_paths_figure`.
+
+    .. warning:: This unpickles the run's reward model: load only runs you trust.
+    """
+    from skillkit.viz.model_layers import gpreps_run_paths_figure, load_gpreps_run
+    from skillkit.viz.notebook import show_viewer
+
+    n_samples = check_count(n_samples, "n_samples")
+    history, model = load_gpreps_run(run_dir, trial)
+    shown = show_viewer(model.task.name, live=bool(live), history=history)
+    if shown.live:
+        shown.viewer.add_model_layers(model, n_samples=n_samples)
+        return ModelView(shown)
+    return ModelView(shown, gpreps_run_paths_figure(run_dir, trial, n_samples=n_samples))

@@ -63,6 +63,7 @@ def main() -> None:
         parser.error("give one --out per --section")
     os.environ["SKILLKIT_SCALE"] = "smoke"
     with tempfile.TemporaryDirectory() as tmp:
+        os.environ["SKILLKIT_RUNS"] = str(Path(tmp) / "runs")  # no old checkpoints resumed
         page = export_html(ROOT / "notebooks" / f"{args.notebook}.ipynb", tmp, execute=True)
         with HeadlessBrowser(size=(WIDTH, args.height), executable="/usr/bin/chromium") as b:
             b.open(page.as_uri())

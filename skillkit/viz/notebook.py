@@ -145,6 +145,15 @@ def show_viewer(
 #: exported page loads from the folder ``mathjax/`` beside it.
 MATHJAX_CONFIG = "TeX-AMS-MML_HTMLorMML-full,Safe"
 
+#: MathJax 2.7's HTML-CSS output fails on a prime after a bold symbol (``\mathbf{x}'_i``:
+#: "Math Processing Error", fontInherit of undefined) in Chromium; the browser's own MathML
+#: (MathJax's NativeMML output, in the same configuration) typesets it, at the price of bold
+#: symbols shown upright. Registered before nbconvert's own MathJax configuration.
+_MATHML_RENDERER = (
+    '<script type="text/x-mathjax-config">MathJax.Hub.Register.StartupHook("End Jax", '
+    'function () { return MathJax.Hub.setRenderer("NativeMML"); });</script>'
+)
+
 
 def export_html(notebook, out_dir=None, *, execute: bool = False, timeout: int = 600):
     """Export a notebook to HTML whose equations render offline.
@@ -198,6 +207,10 @@ def export_html(notebook, out_dir=None, *, execute: bool = False, timeout: int =
         ).execute()
     exporter = HTMLExporter(mathjax_url=f"mathjax/MathJax.js?config={MATHJAX_CONFIG}")
     body, _ = exporter.from_notebook_node(nb)
+    marker = '<script type="text/x-mathjax-config">'
+    if marker not in body:
+        raise RuntimeError("export_html: nbconvert's template no longer configures MathJax")
+    body = body.replace(marker, _MATHML_RENDERER + marker, 1)
     target = out / f"{source.stem}.html"
     target.write_text(body, encoding="utf-8")
     return target

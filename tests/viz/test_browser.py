@@ -143,7 +143,11 @@ def test_exported_notebook_renders_its_equations_offline(tmp_path):
     from skillkit.viz.notebook import export_html
 
     nb = nbformat.v4.new_notebook()
-    nb.cells = [nbformat.v4.new_markdown_cell(r"Eq. (3.9): $$g(\eta) = \eta\epsilon + \alpha^2$$")]
+    nb.cells = [
+        nbformat.v4.new_markdown_cell(
+            r"Eq. (3.9): $$g(\eta) = \eta\epsilon$$ and $\{\mathbf{x}_i, \mathbf{x}'_i\}$"
+        )
+    ]
     source = tmp_path / "eq.ipynb"
     nbformat.write(nb, source)
     page = export_html(source, tmp_path / "html")
@@ -156,12 +160,19 @@ def test_exported_notebook_renders_its_equations_offline(tmp_path):
         while time.monotonic() < deadline and count == 0:
             reply = browser.call(
                 "Runtime.evaluate",
-                expression="document.querySelectorAll('.MathJax, .MathJax_CHTML, "
-                ".MathJax_SVG, mjx-container').length",
+                expression="document.querySelectorAll('.MathJax_MathML math').length",
             )
             count = int(reply["result"].get("value", 0))
             time.sleep(0.2)
-    assert count >= 1, "MathJax did not typeset the equation"
+        time.sleep(1.0)  # the rest of the page typeset
+        reply = browser.call(
+            "Runtime.evaluate",
+            expression="document.querySelectorAll('.MathJax_MathML math').length",
+        )
+        count = int(reply["result"].get("value", 0))
+        text = browser.text()
+    assert count == 2, f"MathJax typeset {count} of the 2 equations"
+    assert "Math Processing Error" not in text
 
 
 def test_export_html_names_bad_input(tmp_path):

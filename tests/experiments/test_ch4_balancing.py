@@ -14,6 +14,7 @@ from skillkit.experiments.ch4_balancing import (
     experience_to_reach,
     initial_policy_42,
     own_checks_42,
+    random_experience,
     verdict_42,
 )
 from skillkit.models.linear import LinearGaussianModel
@@ -179,3 +180,71 @@ def test_settings_check():
         BalancingComparisonSettings(limits=(-10.0, 1.0))
     with pytest.raises(ValueError, match="n_random"):
         BalancingComparisonSettings(n_random=0)
+
+
+def test_random_experience_counts_control_steps_of_any_length():
+    """12 rollouts of 10 steps at 50 ms are 6 s, as 3 of 40 (Sec. 4.3.1's 6 s); a
+    trajectory without a control step is named."""
+    task = make("balancing", initial_std=0.07)
+    gain = task.lqr_gain(control_weight=1.0).ravel()
+    short = make("balancing", initial_std=0.07, n_steps=10)
+    trajs = [short.rollout(gain, rng=i) for i in range(12)]
+    assert random_experience(task, trajs) == pytest.approx(6.0)
+    assert random_experience(task, [task.rollout(gain, rng=0)] * 3) == pytest.approx(6.0)
+
+    class Empty:
+        controls = np.zeros((1, 4))
+
+    with pytest.raises(ValueError, match="trajectories"):
+        random_experience(task, [Empty()])
+
+
+def test_short_random_rollouts_keep_the_learning_horizon(monkeypatch):
+    """With random-policy rollouts shorter than the learning rollouts, GPREPS still predicts
+    over the task's 40 steps (the reward model took its horizon from the first trajectory
+    it learned, a 10-step prior one) and the curves start after the 6 s of random data."""
+    from skillkit.experiments import ch4_balancing as mod
+    from skillkit.trial import TrialContext
+
+    st = replace(
+        BalancingComparisonSettings(),
+        **mod._SMOKE,
+        linear_variant=False,
+        random_steps=10,
+        n_random=12,
+        excitation_std=3.0,
+    )
+    horizons = []
+    real = mod.GPREPS.update
+
+    def spy(self, batch):
+        out = real(self, batch)
+        horizons.append(self.reward_model.horizon)
+        return out
+
+    monkeypatch.setattr(mod.GPREPS, "update", spy)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        out = mod.run_trial_42(st, np.random.default_rng(0), TrialContext())
+    assert horizons and set(horizons) == {40}
+    for key in ("pilco", "gpreps"):
+        assert out[f"{key}_experience"][0] == pytest.approx(6.0)
+        np.testing.assert_allclose(np.diff(out[f"{key}_experience"]), 2.0)
+
+
+def test_the_random_policy_gives_six_seconds_near_upright():
+    """The default random policy (12 × 0.5 s of π₀'s gains with 3 N m excitation) gives the
+    thesis's 6 s, with the links near upright where the learned controllers act (measured rms
+    q̃ 0.18–0.30 rad on data seeds 0–2; the old 3 × 2 s at 30 N m: 0.82 rad on seed 0)."""
+    from skillkit.tasks.balancing import X_UP, collect_balancing
+
+    st = BalancingComparisonSettings()
+    task = make("balancing", initial_std=st.initial_std)
+    excited = make("balancing", initial_std=st.initial_std, excitation_std=st.excitation_std,
+                   n_steps=st.random_steps)  # fmt: skip
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        data = collect_balancing(excited, st.n_random, 0, 1.0, policy=initial_policy_42(st, task))
+    assert random_experience(task, data["trajectories"]) == pytest.approx(6.0)
+    q = data["x"][:, :4] - X_UP[:4]
+    assert np.sqrt((q**2).mean()) < 0.4

@@ -35,6 +35,7 @@ from skillkit.search.reps import (
     DualSolution,
     REPSDiagnostics,
     REPSWeights,
+    _check_samples,
     reps_dual,
     reps_weights,
 )
@@ -66,17 +67,11 @@ DEFAULT_EPSILONS = np.geomspace(0.01, 10.0, 19)
 
 
 def _samples(rewards: ArrayLike, features: ArrayLike | None) -> tuple[np.ndarray, np.ndarray]:
-    """Rewards (N,) and baseline features (N, F) (F = 0 for ``None``), validated."""
-    r = check_array(rewards, "rewards", ndim=1)
+    """Rewards (N,) and baseline features (N, F) (F = 0 for ``None``), validated as the REPS
+    dual validates them; the figures here need at least two samples."""
+    r, phi = _check_samples(rewards, features)
     if r.shape[0] < 2:
         raise ValueError(f"rewards: expected at least 2 samples, got shape {r.shape}")
-    if features is None:
-        return r, np.zeros((r.shape[0], 0))
-    phi = check_array(features, "features", ndim=2)
-    if phi.shape[0] != r.shape[0]:
-        raise ValueError(
-            f"features: expected {r.shape[0]} rows (one per reward), got shape {phi.shape}"
-        )
     return r, phi
 
 

@@ -43,7 +43,7 @@ def _wait_for_mathjax(browser, timeout: float = 90.0) -> None:
     script = (
         "(window.MathJax && MathJax.Hub && MathJax.Hub.queue && "
         "MathJax.Hub.queue.pending === 0 && MathJax.Hub.queue.running === 0 && "
-        "document.querySelectorAll('.MathJax, .MathJax_CHTML, .MathJax_SVG').length > 0)"
+        "document.querySelectorAll('.MathJax, .MathJax_MathML, .MathJax_SVG').length > 0)"
     )
     deadline = time.monotonic() + timeout
     while not _evaluate(browser, script):

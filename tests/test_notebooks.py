@@ -32,7 +32,7 @@ def test_stored_without_outputs_and_scaled_by_one_variable(path):
         if cell["cell_type"] == "code":
             assert cell["outputs"] == [] and cell["execution_count"] is None, path.name
     code = "\n".join(_code(nb))
-    assert 'os.environ.get("SKILLKIT_SCALE", "quick")' in code
+    assert 'os.environ.get("SKILLKIT_SCALE", "smoke")' in code
     assert "matplotlib.use" not in code and "def " not in code and "class " not in code
 
 

@@ -55,3 +55,57 @@ def claims_table(ids: Iterable[str] | None = None, root=None):
         }
     )
     return table.set_index("id")
+
+
+def live_run_times(ids: Iterable[str], scale: str):
+    """How long the live re-runs of a notebook take at ``scale``, before they start.
+
+    Smoke and quick times are the measured table of :mod:`skillkit.experiments.timings`
+    (``skillkit settings --times``); paper times are the stored paper result's own compute
+    (the sum of its trials' times, ``data/results/<id>-paper-s0/result.json``).
+
+    Parameters
+    ----------
+    ids : iterable of str
+        The experiment ids the notebook re-runs.
+    scale : {"smoke", "quick", "paper"}
+
+    Returns
+    -------
+    pandas.DataFrame
+        Index ``id`` plus a last row ``all``; columns ``seconds`` (NaN where not measured)
+        and ``expected`` (in words).
+    """
+    import json
+
+    import numpy as np
+    import pandas as pd
+
+    from skillkit.experiments import timings
+    from skillkit.experiments.registry import SCALES
+    from skillkit.experiments.registry import ids as registered
+    from skillkit.experiments.run import stored_run
+
+    if scale not in SCALES:
+        raise ValueError(f"scale: expected one of {list(SCALES)}, got {scale!r}")
+    ids = [ids] if isinstance(ids, str) else list(ids)
+    unknown = sorted(set(ids) - set(registered()))
+    if unknown:
+        raise ValueError(f"ids: unknown experiment id(s) {unknown}")
+    seconds = []
+    for exp_id in ids:
+        value = timings.measured_seconds(exp_id, scale) if scale != "paper" else None
+        if scale == "paper":
+            try:
+                result = json.loads((stored_run(exp_id).path / "result.json").read_text())
+                value = float(np.sum(result.get("trial_time_s") or np.nan))
+            except (FileNotFoundError, ValueError, TypeError):
+                value = None
+        seconds.append(np.nan if value is None or not np.isfinite(value) else value)
+    total = float(np.nansum(seconds)) if not np.all(np.isnan(seconds)) else np.nan
+    words = [timings.format_seconds(None if np.isnan(s) else s) for s in [*seconds, total]]
+    table = pd.DataFrame(
+        {"id": [*ids, "all"], "seconds": [*seconds, total], "expected": words}
+    ).set_index("id")
+    table.attrs["machine"] = timings.machine_note()
+    return table

@@ -24,3 +24,30 @@ def test_claims_table_has_one_row_per_stored_result_with_its_thesis_sentence():
 def test_unknown_id_is_named():
     with pytest.raises(ValueError, match=r"ids: unknown experiment id\(s\) \['fig9.9'\]"):
         claims_table(["fig3.3", "fig9.9"])
+
+
+def test_live_run_times_sum_the_measured_table_and_the_stored_paper_compute():
+    import json
+
+    import numpy as np
+
+    from skillkit.experiments import stored_run, timings
+    from skillkit.teaching.tables import live_run_times
+
+    quick = live_run_times(["fig4.3", "fig4.6"], "quick")
+    expected = [timings.measured_seconds(i, "quick") for i in ("fig4.3", "fig4.6")]
+    assert np.allclose(quick["seconds"].iloc[:2], expected)
+    assert quick.loc["all", "seconds"] == pytest.approx(sum(expected), rel=4 * np.finfo(float).eps)
+    paper = live_run_times(["fig3.7"], "paper")
+    stored = json.loads((stored_run("fig3.7").path / "result.json").read_text())
+    assert paper.loc["fig3.7", "seconds"] == pytest.approx(sum(stored["trial_time_s"]))
+    assert list(paper.index) == ["fig3.7", "all"]
+
+
+def test_live_run_times_name_bad_input():
+    from skillkit.teaching.tables import live_run_times
+
+    with pytest.raises(ValueError, match="scale: expected one of"):
+        live_run_times(["fig3.3"], "huge")
+    with pytest.raises(ValueError, match="ids: unknown"):
+        live_run_times(["fig9.9"], "smoke")

@@ -253,7 +253,8 @@ def claim_rows(root: str | os.PathLike | None = None, ids: Any = None) -> list[d
     Returns
     -------
     list of dict
-        ``id``; ``thesis`` (the thesis's sentences, each followed by its location in
+        ``id``; ``variant`` (the settings it overrides, "" for the registered paper
+        settings); ``thesis`` (the thesis's sentences, each followed by its location in
         parentheses); ``where`` (the locations); ``verdict`` (:attr:`Verdict.word`);
         ``statement`` (our numbers against the thesis's); ``own`` (our own checks, beside the
         verdict); ``made`` (the commit that made it and whether today's code would make it:
@@ -277,9 +278,11 @@ def claim_rows(root: str | os.PathLike | None = None, ids: Any = None) -> list[d
         made = f"{commit}, current" if not row["stale"] else f"{commit}, stale: {row['reason']}"
         if run.result.get("summary_migrated") and "code_fingerprint" not in run.result:
             made = f"numbers before provenance; verdict re-judged at {commit}"
+        overrides = run.result.get("overrides") or {}
         rows.append(
             {
                 "id": run.id,
+                "variant": ", ".join(f"{k} = {v}" for k, v in overrides.items()),
                 "thesis": " ".join(
                     f"“{q.get('quote', '')}” ({q.get('location', '')})" for q in quotes
                 ),
@@ -316,7 +319,8 @@ def scoreboard(root: str | os.PathLike | None = None) -> str:
     ]
     for row in claim_rows(root):
         here = f"**{row['verdict']}** — {row['statement']}" if row["statement"] else row["verdict"]
-        cells = [row["id"], row["thesis"] or row["where"], here, row["own"], row["made"]]
+        name = f"{row['id']} ({row['variant']})" if row["variant"] else row["id"]
+        cells = [name, row["thesis"] or row["where"], here, row["own"], row["made"]]
         cells = [c.replace("|", "\\|").replace("\n", " ") for c in cells]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"

@@ -47,7 +47,7 @@ def claims_table(ids: Iterable[str] | None = None, root=None):
     rows = claim_rows(root, ids)
     table = pd.DataFrame(
         {
-            "id": [r["id"] for r in rows],
+            "id": [f"{r['id']} ({r['variant']})" if r["variant"] else r["id"] for r in rows],
             "the thesis says": [r["thesis"] or r["where"] for r in rows],
             "verdict": [r["verdict"] for r in rows],
             "our numbers": [r["statement"] for r in rows],

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 
-__all__ = ["claims_table"]
+__all__ = ["claims_table", "experiments_table", "live_run_times"]
 
 
 def claims_table(ids: Iterable[str] | None = None, root=None):
@@ -27,7 +27,9 @@ def claims_table(ids: Iterable[str] | None = None, root=None):
     Returns
     -------
     pandas.DataFrame
-        Index ``id``; columns ``the thesis says``, ``verdict``, ``our numbers``, ``made by``.
+        Index ``id`` (with a stored variant's overrides); columns ``the thesis says``,
+        ``verdict``, ``our numbers``, ``our own checks`` (conditions of ours beyond the thesis's
+        sentences, each with its own verdict, never part of ``verdict``), ``made by``.
 
     Raises
     ------
@@ -51,6 +53,7 @@ def claims_table(ids: Iterable[str] | None = None, root=None):
             "the thesis says": [r["thesis"] or r["where"] for r in rows],
             "verdict": [r["verdict"] for r in rows],
             "our numbers": [r["statement"] for r in rows],
+            "our own checks": [r["own"] for r in rows],
             "made by": [r["made"] for r in rows],
         }
     )
@@ -109,3 +112,35 @@ def live_run_times(ids: Iterable[str], scale: str):
     ).set_index("id")
     table.attrs["machine"] = timings.machine_note()
     return table
+
+
+def experiments_table():
+    """Every registered experiment: its title, its trials per scale and the measured wall time
+    of its smoke and quick runs (:mod:`skillkit.experiments.timings`).
+
+    Returns
+    -------
+    pandas.DataFrame
+        Index ``id`` in thesis order; columns ``title``, ``trials (smoke / quick / paper)``,
+        ``smoke``, ``quick``.
+    """
+    import pandas as pd
+
+    from skillkit.experiments import timings
+    from skillkit.experiments.registry import get, ids
+
+    rows = []
+    for exp_id in ids():
+        exp = get(exp_id)
+        rows.append(
+            {
+                "id": exp_id,
+                "title": exp.title,
+                "trials (smoke / quick / paper)": " / ".join(
+                    str(exp.trials[s]) for s in ("smoke", "quick", "paper")
+                ),
+                "smoke": timings.format_seconds(timings.measured_seconds(exp_id, "smoke")),
+                "quick": timings.format_seconds(timings.measured_seconds(exp_id, "quick")),
+            }
+        )
+    return pd.DataFrame(rows).set_index("id")

@@ -12,9 +12,16 @@ def test_claims_table_has_one_row_per_stored_result_with_its_thesis_sentence():
     rows = claim_rows(ids=["fig3.3", "fig4.10"])
     table = claims_table(["fig3.3", "fig4.10"])
     assert list(table.index) == [r["id"] for r in rows] == ["fig3.3", "fig4.10"]
-    assert list(table.columns) == ["the thesis says", "verdict", "our numbers", "made by"]
+    assert list(table.columns) == [
+        "the thesis says",
+        "verdict",
+        "our numbers",
+        "our own checks",
+        "made by",
+    ]
     for r in rows:
         assert table.loc[r["id"], "verdict"] == r["verdict"]
+        assert table.loc[r["id"], "our own checks"] == r["own"]
         assert (
             "(Sec. " in table.loc[r["id"], "the thesis says"]
             or "caption" in table.loc[r["id"], "the thesis says"]
@@ -51,3 +58,17 @@ def test_live_run_times_name_bad_input():
         live_run_times(["fig3.3"], "huge")
     with pytest.raises(ValueError, match="ids: unknown"):
         live_run_times(["fig9.9"], "smoke")
+
+
+def test_experiments_table_lists_every_registered_id_with_its_trials():
+    from skillkit.experiments.registry import get, ids
+    from skillkit.teaching.tables import experiments_table
+
+    table = experiments_table()
+    assert list(table.index) == list(ids())
+    for exp_id in ids():
+        t = get(exp_id).trials
+        assert table.loc[exp_id, "trials (smoke / quick / paper)"] == (
+            f"{t['smoke']} / {t['quick']} / {t['paper']}"
+        )
+        assert table.loc[exp_id, "title"] == get(exp_id).title

@@ -130,33 +130,18 @@ def _show_above_bars(message, category, filename, lineno, file=None, line=None) 
     tqdm.write(text.rstrip("\n"), file=file or sys.stderr)
 
 
-def _caller_handles_warnings() -> bool:
-    """True when the code around the run records or redirects warnings itself
-    (``warnings.catch_warnings(record=True)``, a replaced ``warnings.showwarning``): its choice
-    is kept, so a notebook can capture a run's warnings with the progress bars on."""
-    default_impl = getattr(warnings, "_showwarnmsg_impl", None)
-    recording = default_impl is not None and getattr(default_impl, "__name__", "") != (
-        "_showwarnmsg_impl"
-    )
-    return recording or warnings.showwarning is not getattr(
-        warnings, "_showwarning_orig", warnings.showwarning
-    )
-
-
 @contextmanager
 def _trial_warnings(how: str) -> Iterator[list[tuple]]:
     """Where the warnings issued inside go: ``"pass"`` as usual (nothing changed), ``"bars"``
     above the progress bars (:func:`_show_above_bars`), ``"collect"`` into the yielded list as
     ``(message, category, filename, lineno)`` for the process that started a worker to issue
     them again (:func:`_replay_warnings`). Filters are never changed, and whatever is
-    changed is restored on leaving (``warnings.catch_warnings``); a caller that records or
-    redirects warnings itself keeps them (:func:`_caller_handles_warnings`)."""
+    changed is restored on leaving (``warnings.catch_warnings``)."""
     if how == "pass":
         yield []
         return
-    redirect = how == "bars" and not _caller_handles_warnings()
     with warnings.catch_warnings(record=how == "collect") as caught:
-        if redirect:
+        if how == "bars":
             warnings.showwarning = _show_above_bars
         out: list[tuple] = []
         try:

@@ -533,35 +533,3 @@ def test_runs_and_compare_survive_foreign_result_files(toy, tmp_path, capsys):
     assert main(["compare", str(tmp_path / "list"), str(tmp_path / "bare")]) == 2
     err = capsys.readouterr().err
     assert "holds no run (expected a JSON object, got list)" in err and "Traceback" not in err
-
-
-def test_a_caller_recording_warnings_keeps_a_runs_warnings_with_bars_on():
-    """With progress bars a run prints its warnings above them, unless the code around it
-    records them (warnings.catch_warnings(record=True)): then they land in its log."""
-    import warnings
-
-    from skillkit.experiments.runner import _show_above_bars, _trial_warnings
-
-    with warnings.catch_warnings(record=True) as log:
-        warnings.simplefilter("always")
-        with _trial_warnings("bars"):
-            assert warnings.showwarning is not _show_above_bars
-            warnings.warn("a failed rollout", RuntimeWarning, stacklevel=1)
-    assert [str(w.message) for w in log] == ["a failed rollout"]
-
-
-def test_without_a_recording_caller_warnings_go_above_the_bars():
-    """(In a fresh interpreter: pytest itself records every test's warnings.)"""
-    import subprocess
-    import sys
-
-    script = (
-        "import warnings\n"
-        "from skillkit.experiments.runner import _show_above_bars, _trial_warnings\n"
-        "with _trial_warnings('bars'):\n"
-        "    assert warnings.showwarning is _show_above_bars\n"
-        "assert warnings.showwarning is not _show_above_bars\n"
-        "print('ok')\n"
-    )
-    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
-    assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr

@@ -21,6 +21,7 @@ from skillkit.models.kernels import SquaredExponential, gram
 from skillkit.tasks import make
 from skillkit.tasks.pendulum import THESIS_GAINS
 from skillkit.teaching import ch5
+from tests._tolerances import fp_tol
 
 EPS = np.finfo(float).eps
 
@@ -136,7 +137,7 @@ def test_pendulum_policy_is_the_clipped_feedback_torque():
     states = np.array([[[0.1, 0.2], [2.0, 0.0], [-2.0, 0.0]]])  # (1, 3, 2)
     u = policy(states, 5)
     assert u.shape == (1, 3, 1)
-    assert u[0, :, 0].tolist() == pytest.approx([-0.5, -3.0, 3.0], abs=1e-15)
+    assert u[0, :, 0].tolist() == pytest.approx([-0.5, -3.0, 3.0], abs=fp_tol(4, scale=3.0))
     with pytest.raises(ValueError, match="gains"):
         ch5.pendulum_policy([1.0, 2.0, 3.0])
 
@@ -144,10 +145,12 @@ def test_pendulum_policy_is_the_clipped_feedback_torque():
 def test_marginal_embedding_of_one_point_is_its_kernel():
     grid = np.linspace(-2, 3, 11)
     out = ch5.marginal_embedding([0.5], [1.0], grid, 0.7)
-    assert out == pytest.approx(np.exp(-0.5 * (grid - 0.5) ** 2 / 0.7**2), abs=1e-15)
+    assert out == pytest.approx(np.exp(-0.5 * (grid - 0.5) ** 2 / 0.7**2), abs=fp_tol(8))
     two = ch5.marginal_embedding([0.5, -1.0], np.array([[1.0, 0.0], [0.0, 2.0]]), grid, 0.7)
     assert two.shape == (11, 2)
-    assert two[:, 1] == pytest.approx(2 * np.exp(-0.5 * (grid + 1) ** 2 / 0.7**2), abs=1e-15)
+    assert two[:, 1] == pytest.approx(
+        2 * np.exp(-0.5 * (grid + 1) ** 2 / 0.7**2), abs=fp_tol(8, scale=2.0)
+    )
     with pytest.raises(ValueError, match="weights"):
         ch5.marginal_embedding([0.5, 1.0], [1.0], grid, 0.7)
     with pytest.raises(ValueError, match="lengthscale"):
@@ -183,8 +186,8 @@ def test_empirical_embedding_matches_the_closed_form_within_its_standard_error()
     small = np.array([0.0, 1.0])
     m2, se2 = ch5.empirical_embedding(small, grid, h)
     k = np.exp(-0.5 * (grid[:, None] - small) ** 2 / h**2)
-    assert m2 == pytest.approx(k.mean(1), abs=1e-15)
-    assert se2 == pytest.approx(k.std(1, ddof=1) / np.sqrt(2), abs=1e-15)
+    assert m2 == pytest.approx(k.mean(1), abs=fp_tol(8 + len(small)))
+    assert se2 == pytest.approx(k.std(1, ddof=1) / np.sqrt(2), abs=fp_tol(8 + 4 * len(small)))
     with pytest.raises(ValueError, match="samples"):
         ch5.empirical_embedding([1.0], grid, h)
 
@@ -227,10 +230,10 @@ def test_embedding_figure_draws_the_read_out_and_the_curves(pendulum):
     assert list(pred[0].y) == pytest.approx((betas @ model.targets)[:, 1], rel=1e-12)
     grid = np.asarray(pred[2].x)
     expected = ch5.marginal_embedding(model.targets[:, 1], betas[7], grid, 0.3)
-    assert list(pred[2].y) == pytest.approx(expected, rel=1e-12, abs=1e-15)
+    assert list(pred[2].y) == pytest.approx(expected, rel=1e-12, abs=fp_tol(8 * len(model.targets)))
     real_curve = [t for t in fig.data if t.name == "real samples"][2]
     assert list(real_curve.y) == pytest.approx(
-        ch5.empirical_embedding(real[:, 8, 1], grid, 0.3)[0], abs=1e-15
+        ch5.empirical_embedding(real[:, 8, 1], grid, 0.3)[0], abs=fp_tol(8 * len(real))
     )
     assert not any(str(t.name).endswith("(off scale)") for t in fig.data)
     with pytest.raises(ValueError, match="steps"):

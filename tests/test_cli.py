@@ -7,6 +7,7 @@ import argparse
 import json
 import subprocess
 import sys
+import warnings
 
 import pytest
 
@@ -260,6 +261,7 @@ def test_demo_prints_a_short_report_per_experiment(tmp_path, monkeypatch, capsys
 
     assert set(cli.DEMO_IDS) <= set(ids())
     monkeypatch.setattr(cli, "DEMO_IDS", ("fig2.10",))  # the real demo takes a minute
+    monkeypatch.setattr(cli, "DEMO_COMPARISON", None)  # tested on its own below
     assert main(["demo", "--out", str(tmp_path), "--quiet"]) == 0
     captured = capsys.readouterr()
     assert "skillkit demo: fig2.10 at quick scale" in captured.err
@@ -289,3 +291,24 @@ def test_runs_check_lists_stale_results_and_exits_non_zero(tmp_path, capsys):
     assert "stale" in out and "no code fingerprint" in out and "1 of 2 results" in out
     with pytest.raises(SystemExit, match="give the folder once"):
         main(["runs", str(tmp_path), "--root", str(tmp_path / "a")])
+
+
+def test_demo_comparison_reports_gpreps_against_reps_and_opens_in_the_viewer(tmp_path):
+    from skillkit.experiments import get, reproduce
+    from skillkit.viz.model_layers import load_gpreps_run
+
+    demo = dict(cli.DEMO_COMPARISON)
+    get("cmp.methods").settings_for("quick", **demo)  # the demo's settings are valid
+    assert demo["methods"] == ("gpreps", "reps") and demo["tasks"] == ("throwing",)
+    demo["tasks"] = ("hockey",)  # the same report from a run of seconds
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        run = reproduce("cmp.methods", scale="smoke", out=tmp_path, progress=False, html=False,
+                        **demo)  # fmt: skip
+    lines = cli._comparison_lines(run)
+    rows = run.summary["tasks"]["hockey"]["methods"]
+    assert [line.split(":")[0].strip() for line in lines[1:3]] == ["gpreps", "reps"]
+    assert f"{rows['gpreps']['real_rollouts']:5.0f} real throws" in lines[1]
+    assert lines[-1] == f"  watch GPREPS learn: skillkit view hockey --gpreps {run.path}"
+    history, model = load_gpreps_run(run.path, 0)  # what that command loads
+    assert len(history.policies) == demo["gpreps_updates"] + 1 and model.task.name == "hockey"

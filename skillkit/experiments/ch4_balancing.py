@@ -56,8 +56,12 @@ __all__ = [
     "BalancingComparisonSettings",
     "CommonStartRewardModel",
     "experience_to_reach",
+    "fitc_model",
+    "gpreps_algorithm",
     "initial_policy_42",
     "random_experience",
+    "random_prior",
+    "reps_algorithm",
 ]
 
 METHODS = ("pilco", "gpreps", "reps")
@@ -308,8 +312,19 @@ def _run_pilco(task, st, pi0, prior, key, make_model, rng, trial, evals, eval_se
     return _curves(key, c, random_experience(task, prior), rollout_s, ("training", "policy"))
 
 
-def _run_gpreps(task, st, pi0, prior, key, make_model, rng, trial, evals, eval_seed) -> dict:
-    alg_rng, loop_rng = rng.spawn(2)
+def random_prior(st: BalancingComparisonSettings, pi0: GaussianPolicy, rng) -> dict:
+    """The random policy's real experience that the model-based methods start from: ``n_random``
+    rollouts of ``random_steps`` steps with gains drawn from π₀ and white torque excitation of
+    ``excitation_std`` (:func:`~skillkit.tasks.balancing.collect_balancing`'s dict:
+    ``trajectories``, ``n_failed``, ...)."""
+    excited = make("balancing", initial_std=st.initial_std, excitation_std=st.excitation_std,
+                   n_steps=st.random_steps)  # fmt: skip
+    return collect_balancing(excited, st.n_random, rng, 1.0, policy=pi0)
+
+
+def gpreps_algorithm(task, st: BalancingComparisonSettings, pi0, prior, make_model, rng) -> GPREPS:
+    """Table 4.2's GPREPS: ε, M, L of ``st``, the FITC (or ``make_model``) dynamics model
+    started from the ``prior`` trajectories, common start states if ``st`` says so."""
     settings = GPREPSSettings(
         epsilon=st.epsilon,
         n_artificial=st.n_artificial,
@@ -320,7 +335,30 @@ def _run_gpreps(task, st, pi0, prior, key, make_model, rng, trial, evals, eval_s
     kind = CommonStartRewardModel if st.common_start_states else TrajectoryRewardModel
     # The horizon is the learning rollouts' (the random-policy ones may be shorter).
     model = kind(task, make_model, horizon=task.n_steps, prior_trajectories=prior)
-    algo = GPREPS(pi0, model, settings, rng=alg_rng, task=task)
+    return GPREPS(pi0, model, settings, rng=rng, task=task)
+
+
+def reps_algorithm(st: BalancingComparisonSettings, pi0) -> ContextualREPS:
+    """Table 4.2's model-free REPS (no initial data)."""
+    return ContextualREPS(
+        pi0,
+        st.reps_epsilon,
+        n_reuse_batches=st.reps_reuse_batches,
+        baseline_features="linear",
+        cov_floor=COV_FLOOR,
+        min_effective_samples=MIN_EFFECTIVE_SAMPLES,
+    )
+
+
+def fitc_model(st: BalancingComparisonSettings):
+    """``make_model`` of Table 4.2's FITC dynamics model (pseudo-inputs, fit iterations and
+    prior mean of ``st``; Δx targets)."""
+    return partial(_fitc, st.n_inducing, st.gp_steps, st.model_mean)
+
+
+def _run_gpreps(task, st, pi0, prior, key, make_model, rng, trial, evals, eval_seed) -> dict:
+    alg_rng, loop_rng = rng.spawn(2)
+    algo = gpreps_algorithm(task, st, pi0, prior, make_model, alg_rng)
     c = learn(task, algo, st.gpreps_updates, 1, loop_rng, trial=trial, checkpoint_key=key,
               eval_contexts=evals, eval_seed=eval_seed)  # fmt: skip
     rollout_s = task.n_steps * task.control_dt
@@ -336,16 +374,14 @@ def methods(st: BalancingComparisonSettings) -> tuple[str, ...]:
 def run_trial_42(st: BalancingComparisonSettings, rng: np.random.Generator, trial: TrialContext):
     """PILCO, GPREPS and REPS from the same π₀; the model-based ones from the same 6 s."""
     task = make("balancing", initial_std=st.initial_std)
-    excited = make("balancing", initial_std=st.initial_std, excitation_std=st.excitation_std,
-                   n_steps=st.random_steps)  # fmt: skip
     pi0 = initial_policy_42(st, task)
     random_rng, pilco_rng, gpreps_rng, reps_rng, lin_p_rng, lin_g_rng = rng.spawn(6)
     eval_seed = int(rng.integers(2**63))  # every method is evaluated on the same start states
     evals = np.zeros((st.n_eval, 0))
     # The random policy: gains drawn from π₀ that balance at upright, with torque excitation.
-    random = collect_balancing(excited, st.n_random, random_rng, 1.0, policy=pi0)
+    random = random_prior(st, pi0, random_rng)
     prior = random["trajectories"]
-    gp = partial(_fitc, st.n_inducing, st.gp_steps, st.model_mean)
+    gp = fitc_model(st)
     n_model_runs = 2 if st.linear_variant else 1
     trial.reset(total=n_model_runs * (st.pilco_updates + st.gpreps_updates) + st.reps_updates)
     out: dict = {
@@ -356,14 +392,7 @@ def run_trial_42(st: BalancingComparisonSettings, rng: np.random.Generator, tria
     out.update(_run_gpreps(task, st, pi0, prior, "gpreps", gp, gpreps_rng, trial, evals, eval_seed))
 
     # REPS (model-free: no initial data).
-    reps = ContextualREPS(
-        pi0,
-        st.reps_epsilon,
-        n_reuse_batches=st.reps_reuse_batches,
-        baseline_features="linear",
-        cov_floor=COV_FLOOR,
-        min_effective_samples=MIN_EFFECTIVE_SAMPLES,
-    )
+    reps = reps_algorithm(st, pi0)
     t0 = time.perf_counter()
     c = learn(task, reps, st.reps_updates, st.reps_rollouts_per_update, reps_rng, trial=trial,
               checkpoint_key="reps", eval_contexts=evals, eval_seed=eval_seed)  # fmt: skip

@@ -28,9 +28,26 @@ def thesis_text() -> str:
     return normalise_text(THESIS_TEXT.read_text(encoding="utf-8"))
 
 
+COMPARISON_PREFIX = "cmp."
+"""Ids of comparisons of ours (not figures of the thesis): no thesis sentence to quote."""
+
+
 def test_every_registered_id_has_quotes():
-    missing = [i for i in ids() if not THESIS.get(i)]
+    missing = [i for i in ids() if not THESIS.get(i) and not i.startswith(COMPARISON_PREFIX)]
     assert not missing, f"no thesis quotes for {missing}"
+    assert not [i for i in THESIS if i.startswith(COMPARISON_PREFIX)]
+
+
+def test_a_comparison_of_ours_is_never_judged_as_a_thesis_claim():
+    from skillkit.experiments.claims import judged
+    from skillkit.experiments.registry import get
+
+    comparisons = [i for i in ids() if i.startswith(COMPARISON_PREFIX)]
+    assert comparisons  # cmp.methods (issue #34)
+    for exp_id in comparisons:
+        summary = {"claim": get(exp_id).claim, "holds": None, "statement": "numbers"}
+        assert judged(summary, exp_id, "paper")["thesis"] == []
+        assert get(exp_id).claim.startswith("Not a thesis claim")
 
 
 def test_no_quotes_for_unknown_ids():

@@ -44,6 +44,36 @@ def _shrink(inputs, lam):
     return s @ np.linalg.inv(s + lam * np.eye(s.shape[0]))
 
 
+def _col_norm(x):
+    """Largest column 2-norm of x (N,) or (..., N, B): bounds every entry's error when the
+    normwise error of that column is bounded."""
+    x = np.asarray(x)
+    return float(np.linalg.norm(x, axis=-2).max()) if x.ndim > 1 else float(np.linalg.norm(x))
+
+
+def _solve_tol(a, x, n_ops=None):
+    """Two backward-stable solves of ``a x = b`` (Cholesky vs LU) differ by up to the forward
+    error c n ε κ(a) ‖x‖ each (n = ``a``'s order unless ``n_ops`` says otherwise)."""
+    return fp_tol(n_ops or a.shape[0], scale=_col_norm(x), cond=np.linalg.cond(a))
+
+
+def _readout_tol(a, y, betas, n_solves):
+    """Round-off of the read-out Yᵀβ where β went through ``n_solves`` backward-stable solves
+    with a = G + λI: each has backward error n ε ‖a‖, which reaches Yᵀβ through Yᵀa⁻¹, so
+    ‖δ(Yᵀβ)‖ ≲ n ε ‖Yᵀa⁻¹‖ ‖a‖ ‖β‖ per solve (the rollout map (G + λI)⁻¹G is a contraction,
+    so errors of earlier steps are not amplified). ‖Yᵀa⁻¹‖ ‖a‖ ≤ κ(a) ‖Y‖ is the read-out's
+    condition number; it is far below κ(a) when Y is nearly in the range of G."""
+    cond = np.linalg.norm(np.linalg.solve(a, y), 2) * np.linalg.norm(a, 2)
+    return fp_tol(n_solves * a.shape[0], scale=_col_norm(betas), cond=cond)
+
+
+def _step_tol(tol, gain, beta, kappa, n_ops):
+    """Round-off of a recursion β_{t+1} = a⁻¹ G̃_t β_t evaluated two ways, after one more
+    step: the earlier error ``tol`` amplified by at most ``gain`` = ‖a⁻¹G̃_t‖₂, plus the new
+    solve's forward error c n ε κ(a) ‖β_{t+1}‖ (``beta`` = β_{t+1})."""
+    return gain * tol + fp_tol(n_ops, scale=_col_norm(beta), cond=kappa)
+
+
 # --------------------------------------------------------------------------- weights
 def test_weights_match_direct_solve():
     rng = np.random.default_rng(0)
@@ -52,7 +82,8 @@ def test_weights_match_direct_solve():
     m = ConditionalEmbedding(z, y, k, lam=1e-2)
     q = rng.normal(size=(5, 3))
     ref = np.linalg.solve(gram(k, z) + 1e-2 * np.eye(30), gram(k, z, q))  # Eq. 2.39
-    np.testing.assert_allclose(m.weights(q), ref, rtol=1e-10, atol=1e-12)
+    a = gram(k, z) + 1e-2 * np.eye(30)  # the cross kernels are the same forward() calls
+    np.testing.assert_allclose(m.weights(q), ref, rtol=0, atol=_solve_tol(a, ref))
 
 
 def test_weights_from_samples_average_the_kernel_vectors():
@@ -62,10 +93,12 @@ def test_weights_from_samples_average_the_kernel_vectors():
     samples = rng.normal(size=(3, 7, 2))
     beta = m.weights_from_samples(samples)  # Eq. 5.6
     ref = np.stack([m.weights(s).mean(axis=1) for s in samples], axis=1)  # linearity
-    np.testing.assert_allclose(beta, ref, rtol=1e-10, atol=1e-13)
-    np.testing.assert_allclose(
-        m.weights_from_samples(samples[0]), ref[:, 0], rtol=1e-10, atol=1e-13
-    )
+    # Mean of L = 7 kernel vectors then one solve, vs a solve per sample then the mean: the
+    # solves' forward errors (‖x‖ the largest single-sample weights) and the L-term means.
+    single = np.concatenate([m.weights(s) for s in samples], axis=1)
+    tol = _solve_tol(m.gram + 1e-3 * np.eye(25), single, n_ops=25 + 7)
+    np.testing.assert_allclose(beta, ref, rtol=0, atol=tol)
+    np.testing.assert_allclose(m.weights_from_samples(samples[0]), ref[:, 0], rtol=0, atol=tol)
 
 
 def test_apply_is_the_operator_times_alpha_and_composes():
@@ -73,11 +106,17 @@ def test_apply_is_the_operator_times_alpha_and_composes():
     x, xn = rng.normal(size=(20, 2)), rng.normal(size=(20, 2))
     m = ConditionalEmbedding(x, xn, _se(2), lam=1e-2)
     alpha = rng.normal(size=(20, 3))
-    np.testing.assert_allclose(m.apply(alpha, xn), m.operator(xn) @ alpha, rtol=1e-12)
-    # Two steps of Table 5.1 are the product of the operator with itself.
+    # solve(a, G̃ α) vs solve(a, G̃) α: the solves' forward errors, c n ε κ(a) ‖C‖ ‖α‖
+    # (C = a⁻¹G̃, n = 20), plus the 20-term products; twice that through two steps, the first
+    # step's error amplified by ‖C‖.
     c = m.operator(xn)
+    kappa, c_norm = np.linalg.cond(m.gram + 1e-2 * np.eye(20)), np.linalg.norm(c, 2)
+    tol = fp_tol(2 * 20, scale=c_norm * _col_norm(alpha), cond=kappa)
+    np.testing.assert_allclose(m.apply(alpha, xn), c @ alpha, rtol=0, atol=tol)
+    # Two steps of Table 5.1 are the product of the operator with itself.
+    tol2 = (1 + c_norm) * fp_tol(2 * 20, scale=c_norm**2 * _col_norm(alpha), cond=kappa)
     np.testing.assert_allclose(
-        m.apply(m.apply(alpha[:, 0], xn), xn), c @ c @ alpha[:, 0], rtol=1e-10
+        m.apply(m.apply(alpha[:, 0], xn), xn), c @ c @ alpha[:, 0], rtol=0, atol=tol2
     )
 
 
@@ -92,9 +131,13 @@ def test_rkhs_expectation_against_explicit_sums():
             for b in range(2)
         ]
     )
-    np.testing.assert_allclose(rkhs_expectation(beta, alpha, k), ref, rtol=1e-12)
+    # 144-term sums in two orders: ≤ 144 ε Σ|terms| apart.
+    tol = fp_tol(12 * 12, scale=float((np.abs(beta).T @ np.abs(k) @ np.abs(alpha)).max()))
+    np.testing.assert_allclose(rkhs_expectation(beta, alpha, k), ref, rtol=0, atol=tol)
     # A point mass at x_j evaluates the function there: <f, phi(x_j)> = f(x_j) (Eq. 2.29).
-    np.testing.assert_allclose(rkhs_expectation(np.eye(12)[4], alpha, k), k[4] @ alpha, rtol=1e-12)
+    tol = fp_tol(12 * 12, scale=float(np.abs(k[4]) @ np.abs(alpha)))  # zeros add nothing
+    got = rkhs_expectation(np.eye(12)[4], alpha, k)
+    np.testing.assert_allclose(got, k[4] @ alpha, rtol=0, atol=tol)
 
 
 def test_expected_value_with_linear_reward_kernel():
@@ -173,8 +216,11 @@ def test_linear_kernel_fixed_policy_mean_equals_closed_form():
     ref = [x0, x0 @ (a_hat @ _shrink(x, lam)).T]
     for _ in range(10):
         ref.append(ref[-1] @ a_hat.T)
-    np.testing.assert_allclose(pred.means(m), np.array(ref), rtol=1e-8, atol=1e-10)
-    np.testing.assert_allclose(pred.preimages(m), np.array(ref), rtol=1e-8, atol=1e-10)
+    # 11 solves with G + λI (κ ≈ 4e5: rank-2 linear Gram, λ = 1e-3) read out through Yᵀ;
+    # the ridge reference (2×2 inverses) is exact by comparison.
+    tol = _readout_tol(m.gram + lam * np.eye(400), xn, pred.betas, n_solves=11)  # ~1e-7
+    np.testing.assert_allclose(pred.means(m), np.array(ref), rtol=0, atol=tol)
+    np.testing.assert_allclose(pred.preimages(m), np.array(ref), rtol=0, atol=tol)
     # The closed-form mean of the true linear-Gaussian system, within the estimation error.
     true = [x0]
     for _ in range(11):
@@ -221,13 +267,17 @@ def test_linear_kernel_with_policy_equals_closed_form_per_query():
         ref = [x0[b], w @ z_shrink @ np.r_[x0[b], gains[b] @ x0[b]]]
         for _ in range(6):
             ref.append(closed @ ref[-1])
-        np.testing.assert_allclose(pred.means(m)[:, b], np.array(ref), rtol=1e-8, atol=1e-10)
+        a = m.gram + lam * np.eye(400)  # κ ≈ 4e5 as above; 7 solves
+        tol = _readout_tol(a, xn, pred.betas[:, :, b], n_solves=7)
+        np.testing.assert_allclose(pred.means(m)[:, b], np.array(ref), rtol=0, atol=tol)
     # Rewards: row 0 exact, rows t >= 1 equal r'^T beta_t with r' evaluated under the policy.
     np.testing.assert_allclose(pred.rewards[0], reward(x0[:, None], policy(x0[:, None], 0))[:, 0])
     r_basis = reward(np.broadcast_to(xn, (3,) + xn.shape), policy(xn[None], 1))  # (B, N)
     for t in range(1, 8):
+        beta_t = pred.betas[t - 1]  # N = 400-term sums: ≤ 400 ε Σ|terms|
+        tol = fp_tol(400, scale=float(np.einsum("bn,nb->b", np.abs(r_basis), np.abs(beta_t)).max()))
         np.testing.assert_allclose(
-            pred.rewards[t], np.einsum("bn,nb->b", r_basis, pred.betas[t - 1]), rtol=1e-12
+            pred.rewards[t], np.einsum("bn,nb->b", r_basis, beta_t), rtol=0, atol=tol
         )
     np.testing.assert_allclose(pred.total_reward(), pred.rewards.sum(0))
 
@@ -245,14 +295,20 @@ def test_time_dependent_policy_matches_manual_recursion():
     pred = predict(m, x0, n_steps=5, policy=policy)
     z0 = np.hstack([x0, policy(x0[None], 0)[0]])
     g = gram(k, m.inputs)
-    alpha = np.linalg.solve(g + 1e-3 * np.eye(60), gram(k, m.inputs, z0))  # Eq. 5.6
-    beta = np.linalg.solve(g + 1e-3 * np.eye(60), g @ alpha)  # Eq. 5.9
+    a = g + 1e-3 * np.eye(60)
+    alpha = np.linalg.solve(a, gram(k, m.inputs, z0))  # Eq. 5.6
+    beta = np.linalg.solve(a, g @ alpha)  # Eq. 5.9
+    # Cholesky (predict) vs LU (here) solves, κ(a) ≈ 3e4, each step's error amplified by
+    # ‖a⁻¹G̃_t‖ in the next; β₁ from two solves, the first through a⁻¹G (‖·‖ ≤ 1).
+    kappa, gain = np.linalg.cond(a), 1.0
+    tol = fp_tol(60, scale=_col_norm(alpha), cond=kappa)
     for t in range(1, 5):
-        np.testing.assert_allclose(pred.betas[t - 1], beta, rtol=1e-8, atol=1e-10)
+        tol = _step_tol(tol, gain, beta, kappa, 60)
+        np.testing.assert_allclose(pred.betas[t - 1], beta, rtol=0, atol=tol)
         basis = np.hstack([xn, policy(xn[None], t)[0]])
-        beta = np.linalg.solve(
-            gram(k, m.inputs) + 1e-3 * np.eye(60), gram(k, m.inputs, basis) @ beta
-        )
+        op = np.linalg.solve(a, gram(k, m.inputs, basis))
+        gain = np.linalg.norm(op, 2)
+        beta = np.linalg.solve(a, gram(k, m.inputs, basis) @ beta)
 
 
 def test_initial_weights_are_eq_5_9_by_explicit_inverses():
@@ -265,17 +321,26 @@ def test_initial_weights_are_eq_5_9_by_explicit_inverses():
     mean_k = np.stack([gram(k, z, s).mean(axis=1) for s in samples], axis=1)  # (N, B)
     chol = regularized_cholesky(torch.from_numpy(g), lam)
     got = initial_weights(chol, torch.from_numpy(g), torch.from_numpy(mean_k)).numpy()
-    np.testing.assert_allclose(got, inv @ g @ inv @ mean_k, rtol=1e-9, atol=1e-12)
+    # Explicit inverses (forward error c n ε κ ‖a⁻¹‖ each) vs Cholesky solves, κ(a) ≈ 94:
+    # scales ‖a⁻¹‖ ‖ḡ‖ (one inverse) and ‖a⁻¹‖² ‖G‖ ‖ḡ‖ (two, with the product by G).
+    kappa, inv_norm = np.linalg.cond(g + lam * np.eye(25)), np.linalg.norm(inv, 2)
+    scale1 = inv_norm * _col_norm(mean_k)
+    scale2 = inv_norm * np.linalg.norm(g, 2) * scale1
+    tol1, tol2 = fp_tol(25, scale1, kappa), fp_tol(3 * 25, scale2, kappa)
+    np.testing.assert_allclose(got, inv @ g @ inv @ mean_k, rtol=0, atol=tol2)
     direct = initial_weights(chol, torch.from_numpy(g), torch.from_numpy(mean_k), project=False)
-    np.testing.assert_allclose(direct.numpy(), inv @ mean_k, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(direct.numpy(), inv @ mean_k, rtol=0, atol=tol1)
     # predict's first row is this β₁; with project_initial=False it is Eq. 5.7's weights.
+    # Same factor and solves; the kernel vectors' L = 7-term means (torch vs numpy) may be
+    # summed in another order: 7 ε ‖ḡ‖ through the same maps.
     m = ConditionalEmbedding(z, np.tanh(z), k, lam=lam)
-    np.testing.assert_allclose(predict(m, samples, 3).betas[0], got, rtol=1e-9, atol=1e-12)
+    tol1, tol2 = fp_tol(7 + 25, scale1, kappa), fp_tol(7 + 2 * 25, scale2, kappa)
+    np.testing.assert_allclose(predict(m, samples, 3).betas[0], got, rtol=0, atol=tol2)
     np.testing.assert_allclose(
         predict(m, samples, 3, project_initial=False).betas[0],
         m.weights_from_samples(samples),
-        rtol=1e-9,
-        atol=1e-12,
+        rtol=0,
+        atol=tol1,
     )
 
 
@@ -299,9 +364,22 @@ def test_rollout_weights_per_query_transitions_match_columnwise():
     trans = torch.from_numpy(rng.uniform(size=(3, 8, 8)))
     beta1 = torch.from_numpy(rng.normal(size=(8, 3)))
     both = rollout_weights(chol, beta1, trans, 4)
+    a = g.numpy() + 1e-2 * np.eye(8)
+    kappa = np.linalg.cond(a)
     for b in range(3):
         single = rollout_weights(chol, beta1[:, b : b + 1], trans[b], 4)
-        torch.testing.assert_close(both[:, :, b : b + 1], single, rtol=1e-12, atol=1e-14)
+        # Batched einsum vs matrix product, and solves on a block vs one column, per step: an
+        # 8-term product, 8 ε ‖a⁻¹‖ ‖G̃‖ ‖β_t‖ after the solve, and the solve's forward error
+        # 8 ε κ ‖β_{t+1}‖; both ≤ 8 ε κ ‖a⁻¹G̃‖ ‖β_t‖ (‖G̃‖ ≤ ‖a‖ ‖a⁻¹G̃‖). Earlier errors
+        # are amplified by ‖a⁻¹G̃‖ each step.
+        gain = np.linalg.norm(np.linalg.solve(a, trans[b].numpy()), 2)
+        tol = np.zeros(4)
+        for t in range(1, 4):
+            prev = single[t - 1].numpy()
+            step = fp_tol(2 * 8, scale=gain * _col_norm(prev), cond=kappa)
+            tol[t] = gain * tol[t - 1] + step
+        err = (both[:, :, b] - single[:, :, 0]).abs().amax(dim=1).numpy()
+        assert np.all(err <= tol), (err, tol)
 
 
 def test_prediction_is_deterministic():

@@ -61,12 +61,37 @@ def _x(n=7, seed=0):
     return np.random.default_rng(seed).normal(size=(n, 3))
 
 
+def _a2(k, x):
+    """max ‖x / w‖² over the rows of ``x`` and the SE kernel ``k``'s batch entries (w its
+    length-scales)."""
+    return float(((torch.as_tensor(x) / k.lengthscale.detach()) ** 2).sum(-1).max())
+
+
+def _gram_tol(k, x, z):
+    """Absolute round-off of one Gram entry, two evaluation paths compared.
+
+    SE: the exponent −½‖a − b‖² + log σ_f² (a = x/w) comes out of one (D + 2)-term product
+    ``[a, −½‖a‖², 1]·[b, 1, −½‖b‖² + log σ_f²]``, off by ε (D + 2)(1 + ‖a‖² + ‖b‖²); k ≤ σ_f²
+    times that. Linear: σ² x·z + c (D products, the scaling, the bias), off by
+    ε (D + 2)(σ² ‖x‖ ‖z‖ + c).
+    """
+    d = x.shape[-1]
+    if isinstance(k, SquaredExponential):
+        os = float(k.outputscale.detach().max())
+        return fp_tol(d + 2, scale=os * (1 + _a2(k, x) + _a2(k, z)))
+    var, c = float(k.variance.detach().max()), float(torch.as_tensor(k.bias).max())
+    nx = float(torch.as_tensor(x).norm(dim=-1).max())
+    nz = float(torch.as_tensor(z).norm(dim=-1).max())
+    return fp_tol(d + 2, scale=var * nx * nz + c)
+
+
 @pytest.mark.parametrize("name", ["se", "linear"])
 def test_gram_symmetric_psd(name):
     k = FACTORIES[name]()
     G = gram(k, _x(12))
     assert G.shape == (12, 12)
-    np.testing.assert_allclose(G, G.T, atol=1e-12)
+    # G_ij and G_ji come from different operand products (SE) or summation orders (linear).
+    np.testing.assert_allclose(G, G.T, rtol=0, atol=_gram_tol(k, _x(12), _x(12)))
     assert np.linalg.eigvalsh(G).min() > -1e-10 * np.abs(G).max()
 
 
@@ -76,7 +101,9 @@ def test_diag_matches_full(name):
     x = torch.as_tensor(_x(6))
     full = k.forward(x, x)
     diag = k.forward(x, x, diag=True)
-    torch.testing.assert_close(diag, full.diagonal(dim1=-2, dim2=-1), rtol=1e-12, atol=1e-12)
+    # diag: SE gives σ_f² exp(0) exactly, linear a D-term sum; full: the operand product.
+    tol = _gram_tol(k, x, x)
+    torch.testing.assert_close(diag, full.diagonal(dim1=-2, dim2=-1), rtol=0, atol=tol)
 
 
 @pytest.mark.parametrize("name", ["se", "linear"])
@@ -86,8 +113,9 @@ def test_gram_equals_forward_and_gpytorch_call(name):
     G = gram(k, X, Z)
     fwd = k.forward(torch.as_tensor(X), torch.as_tensor(Z)).detach().numpy()
     called = k(torch.as_tensor(X), torch.as_tensor(Z)).to_dense().detach().numpy()
-    np.testing.assert_allclose(G, fwd, rtol=1e-14)
-    np.testing.assert_allclose(G, called, rtol=1e-12)
+    np.testing.assert_array_equal(G, fwd)  # gram() calls forward() on the same float64 inputs
+    # gpytorch's lazy tensor evaluates the same forward(): equal up to an ulp at most.
+    np.testing.assert_allclose(G, called, rtol=fp_tol(1))
 
 
 @pytest.mark.parametrize("batch,single", [("se_batch", "se"), ("linear_batch", "linear")])
@@ -108,7 +136,10 @@ def test_batch_shapes_and_entries(batch, single):
             )
         else:
             ki = Linear(variance=float(kb.variance[i].detach()), bias=kb.bias)
-        torch.testing.assert_close(out[i], ki.forward(x1[i], x2[i]), rtol=1e-12, atol=1e-14)
+        # Batched vs unbatched products (different BLAS paths), and the parameters' round
+        # trip through the positivity constraint (a few ulps, inside the safety factor).
+        tol = _gram_tol(kb, x1[i], x2[i])
+        torch.testing.assert_close(out[i], ki.forward(x1[i], x2[i]), rtol=fp_tol(4), atol=tol)
 
 
 def test_se_closed_form_eq_2_25():
@@ -126,7 +157,8 @@ def test_se_closed_form_eq_2_25():
 
 def test_linear_closed_form():
     X, Z = _x(4, 5), _x(3, 6)
-    np.testing.assert_allclose(gram(_linear(), X, Z), 0.8 * X @ Z.T + 0.3, rtol=1e-13)
+    tol = _gram_tol(_linear(), X, Z)  # torch vs numpy 3-term products
+    np.testing.assert_allclose(gram(_linear(), X, Z), 0.8 * X @ Z.T + 0.3, rtol=0, atol=tol)
     x = torch.as_tensor(X)
     torch.testing.assert_close(linear_kernel(x, x, 2.0, diag=True), 2.0 * (x * x).sum(-1))
 
@@ -143,17 +175,24 @@ def test_cached_operands_equal_closed_form_with_and_without_grad():
     support = se_operands(t["x2"], t["ls"], t["os"])
     with torch.no_grad():  # in-place path
         k = se_kernel_from_operands(se_operands(t["x1"], t["ls"]), support, torch.log(t["os"]))
-    np.testing.assert_allclose(k.numpy(), ref, rtol=1e-12)
+    # Exponent off by ε (D + 2)(1 + ‖a‖² + ‖b‖²) (a = x/w), k relatively by that.
+    a2 = lambda v: float(((v / ls) ** 2).sum(-1).max())  # noqa: E731
+    rel = fp_tol(ls.shape[-1] + 2, scale=1 + a2(x1) + a2(x2))  # ~2e-13
+    np.testing.assert_allclose(k.numpy(), ref, rtol=rel)
     q = se_operands(t["x1"].requires_grad_(), t["ls"])  # autograd path
     k = se_kernel_from_operands(q, support, torch.log(t["os"]))
-    np.testing.assert_allclose(k.detach().numpy(), ref, rtol=1e-12)
+    np.testing.assert_allclose(k.detach().numpy(), ref, rtol=rel)
     # k(x, x) = σ_f² (the round-off guard clamps the exponent at log σ_f², never above), up
-    # to exp(log σ_f²)'s round trip: ≤ (|log σ_f²| + 2) ε relative, ≤ 4.5 ε here.
+    # to the exponent's round-off below the clamp, ε (D + 2)(1 + 2‖a‖²) as above, and
+    # exp(log σ_f²)'s round trip (an ulp or two, inside the safety factor).
     with torch.no_grad():
         kxx = se_kernel(t["x1"], t["x1"], t["ls"], t["os"])
     assert torch.all(kxx <= t["os"][:, None, None])
     torch.testing.assert_close(
-        kxx.diagonal(dim1=-2, dim2=-1), t["os"][:, None].expand(2, 5), rtol=1e-15, atol=0
+        kxx.diagonal(dim1=-2, dim2=-1),
+        t["os"][:, None].expand(2, 5),
+        rtol=fp_tol(ls.shape[-1] + 2, scale=1 + 2 * a2(x1)),
+        atol=0,
     )
 
 

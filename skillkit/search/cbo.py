@@ -1,0 +1,635 @@
+r"""Contextual Bayesian optimisation behind the search interface: BoTorch's own GP, acquisition
+and optimiser, and only the glue.
+
+:class:`ContextualBO` keeps every real sample (s_i, ω_i, R_i), fits a BoTorch
+:class:`~botorch.models.SingleTaskGP` to R over z = [s, ω], and exposes it as
+:func:`~skillkit.search.loop.learn` expects: a ``policy`` with ``sample(contexts, rng)`` and
+``mean_of(contexts)``, and ``update(batch)`` returning :class:`CBODiagnostics`.
+
+What it models and how it proposes
+----------------------------------
+* **The GP** is BoTorch's ``SingleTaskGP`` with its defaults (an ARD RBF kernel with the
+  dimension-scaled priors of Hvarfner et al. 2024, a learnt homoscedastic noise, a
+  ``Standardize`` outcome transform) and a ``Normalize`` input transform to the search box,
+  because "the model works best when covariates are normalized to the unit cube and outcomes
+  are standardized" (``SingleTaskGP``'s docstring). Its hyper-parameters are fitted afresh
+  (from BoTorch's initial values, not warm-started) on all samples after every update by
+  ``fit_gpytorch_mll`` (type-II maximum likelihood with BoTorch's retry policy).
+* **A proposal** for a context s is ω = argmax_ω UCB([s, ω]) with s held fixed
+  (``optimize_acqf(..., fixed_features=...)``: its raw-sample initialisation and multi-start
+  L-BFGS-B over the ω box), where UCB(z) = μ(z) + √β σ(z) is BoTorch's analytic
+  ``UpperConfidenceBound``. With the context fixed this is the contextual GP-UCB rule of
+  Krause & Ong, "Contextual Gaussian Process Bandit Optimization", NIPS 2011: one GP over
+  (context, action), the action chosen by the UCB at the observed context. β defaults to 0.2,
+  the default of BoTorch's input constructor for ``UpperConfidenceBound``
+  (``botorch.acquisition.input_constructors.construct_inputs_ucb``). Why UCB rather than
+  (Log)EI: EI needs an incumbent *at the given context*, and the best observed reward is an
+  incumbent over all contexts; where the attainable reward depends on s (a far throwing
+  target scores lower than a near one at its best), that incumbent is out of reach and EI
+  degenerates into variance seeking. UCB needs no incumbent.
+* **The policy mean** (what the loop evaluates as "the current policy") at s is
+  argmax_ω μ([s, ω]), BoTorch's ``PosteriorMean`` optimised the same way; before the GP has
+  data it is the initial policy's mean (clipped to the box).
+* **The box** the search runs in: per dimension j, [min_s m_j(s) − k σ_j, max_s m_j(s) + k σ_j]
+  with m(s) the initial policy's mean (``task.initial_policy()``; linear in s, so its extremes
+  over the context range are at the corners), σ_j its standard deviation and k =
+  :attr:`CBOSettings.box_std` (default 2: the box holds 95 % of each marginal of π₀ at every
+  context). ``omega_low`` / ``omega_high`` set it directly instead.
+* **The first batches** (:attr:`CBOSettings.initial_batches`, default 1) are a scrambled Sobol
+  design over the box (BoTorch's ``draw_sobol_samples``), whatever the contexts: a GP needs
+  data before its acquisition means anything.
+
+Each row of a batch is proposed on its own (q = 1, no pending points), so rows with nearly
+the same context get nearly the same ω; the loop's independent contexts are what spreads a
+batch. Rows re-scored in extra contexts (Sec. 3.4, ``learn(..., extra_contexts=k)``) are exact
+observations of R at (s′, ω) and enter the GP like any other row. A failed rollout (its
+trajectory's ``failed`` flag; its reward is the task's ``worst_reward``, far below the rest)
+enters the GP with the lowest reward of the working rollouts instead, so that one failure
+does not dominate the outcome standardisation; the best reward reported ignores failures.
+
+Cost
+----
+An exact GP: every marginal-likelihood evaluation of the fit costs O(N³) time and O(N²)
+memory in the number N of samples, every acquisition evaluation O(N²) once the posterior
+cache exists, and every proposal runs ``num_restarts`` L-BFGS-B searches in d dimensions.
+N grows by the batch size every update; past :data:`LARGE_N` samples the update warns once
+(``RuntimeWarning``). :attr:`CBOSettings.max_observations` caps N by fitting the GP on the
+most recent samples only. Measured on the throwing task (d = 41, two contexts, one CPU core
+shared with other jobs, 10 rollouts per update): a GP fit on 10–40 samples took 0.3–1.2 s,
+one UCB proposal 7–9 s (so a batch of 10 took 67–92 s) and the policy mean on 8 evaluation
+contexts 50–90 s; the acquisition searches, not the GP, dominate at this size. Every policy
+in ``learn``'s history holds its GP and its training data, so a checkpoint grows with the
+square of the number of updates.
+
+Randomness and devices
+----------------------
+No global seed is set. ``policy.sample`` draws one seed per row from the loop's ``rng``
+(the Sobol design and each proposal's raw samples and restarts); ``mean_of`` uses one seed
+drawn at the update from the algorithm's own ``rng`` (so the policy mean is a function of the
+policy), as does the GP fit (BoTorch's retries draw initial values from the priors). BoTorch
+passes a seed to its Sobol draws, but picks the restarts among the raw samples by Boltzmann
+sampling on torch's global generator (``initialize_q_batch``), so every BoTorch call runs inside
+``torch.random.fork_rng`` with the generator seeded from our seed: the global state is
+restored afterwards, and same seeds ⇒ same proposals. Tensors live on ``device`` in ``dtype``
+(float64 by default; BoTorch recommends double precision for GPs); the object pickles, so a
+:class:`~skillkit.trial.TrialContext` checkpoints and resumes it like any other algorithm.
+
+Import from this module (``from skillkit.search.cbo import ContextualBO``).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import itertools
+import time
+import warnings
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from botorch.acquisition import PosteriorMean, UpperConfidenceBound
+from botorch.acquisition.acquisition import AcquisitionFunction
+from botorch.fit import fit_gpytorch_mll
+from botorch.models import SingleTaskGP
+from botorch.models.transforms.input import Normalize
+from botorch.optim import optimize_acqf
+from botorch.utils.sampling import draw_sobol_samples
+from gpytorch.mlls import ExactMarginalLogLikelihood
+from numpy.typing import ArrayLike
+
+from skillkit._validation import as_generator, check_array, check_count, check_positive
+from skillkit.policies.gaussian import LinearGaussianPolicy
+from skillkit.search.base import Batch, as_batch
+
+__all__ = ["LARGE_N", "CBODiagnostics", "CBOPolicy", "CBOSettings", "ContextualBO"]
+
+#: Samples beyond which an update warns that the exact GP's O(N³) fit dominates (once per run).
+LARGE_N = 2000
+
+_SEED_BOUND = 2**31  # seeds for torch and BoTorch's Sobol engine: non-negative int32
+
+
+@dataclass(frozen=True)
+class CBOSettings:
+    """Settings of :class:`ContextualBO` (module notes); the defaults are BoTorch's where it
+    has one.
+
+    Attributes
+    ----------
+    beta : float
+        β ≥ 0 of UCB(z) = μ(z) + √β σ(z), on the standardised reward (default 0.2, BoTorch's
+        ``construct_inputs_ucb`` default).
+    box_std : float
+        k > 0: the ω box is the initial policy's mean range ± k standard deviations.
+    initial_batches : int
+        Batches (updates) proposed by a Sobol design before the acquisition takes over (≥ 1).
+    num_restarts : int
+        L-BFGS-B starts per proposal (``optimize_acqf``'s ``num_restarts``, which has no
+        default; 10 as in BoTorch's tutorials, e.g. the closed-loop and TuRBO ones).
+    raw_samples : int
+        Sobol points the starts are chosen from (``raw_samples``; 512 as in the same
+        tutorials); ≥ ``num_restarts``.
+    rollouts_per_update : int
+        The batch size this algorithm suggests for :func:`learn` (any works: every row gets its
+        own proposal); a setting of this glue, not of BoTorch.
+    max_observations : int or None
+        Fit the GP on at most this many samples, the most recent (``None``: all; ≥ 2).
+    """
+
+    beta: float = 0.2
+    box_std: float = 2.0
+    initial_batches: int = 1
+    num_restarts: int = 10
+    raw_samples: int = 512
+    rollouts_per_update: int = 10
+    max_observations: int | None = None
+
+    def __post_init__(self):
+        check_positive(self.beta, "beta", allow_zero=True)
+        check_positive(self.box_std, "box_std")
+        check_count(self.initial_batches, "initial_batches")
+        check_count(self.num_restarts, "num_restarts")
+        if check_count(self.raw_samples, "raw_samples") < self.num_restarts:
+            raise ValueError(
+                f"raw_samples: expected ≥ num_restarts={self.num_restarts}, got {self.raw_samples}"
+            )
+        check_count(self.rollouts_per_update, "rollouts_per_update")
+        if self.max_observations is not None:
+            check_count(self.max_observations, "max_observations", 2)
+
+
+@contextlib.contextmanager
+def _seeded(seed: int, device: torch.device) -> Iterator[None]:
+    """Torch's global generator (and ``device``'s, on a GPU) seeded with ``seed`` inside, and
+    restored on exit: what makes BoTorch's draws reproducible without touching global state."""
+    cuda = []
+    if device.type == "cuda":
+        cuda = [torch.cuda.current_device() if device.index is None else device.index]
+    with torch.random.fork_rng(devices=cuda):
+        torch.random.default_generator.manual_seed(seed)
+        for index in cuda:
+            with torch.cuda.device(index):
+                torch.cuda.manual_seed(seed)
+        yield
+
+
+class CBOPolicy:
+    """One fitted GP (or none yet) as a policy: UCB proposals and the posterior-mean argmax.
+
+    Immutable apart from its timing counters; :class:`ContextualBO` makes a new one after every
+    update.
+
+    Parameters
+    ----------
+    model : SingleTaskGP or None
+        The GP over z = [s, ω] (``None`` before it has data: ``mean_of`` is π₀'s mean).
+    initial : LinearGaussianPolicy
+        π₀, whose (clipped) mean is the policy mean without a GP.
+    omega_bounds : ndarray, shape (2, d)
+        The search box (lower row, upper row).
+    explore_randomly : bool
+        Propose a Sobol design in the box instead of maximising UCB.
+    settings : CBOSettings
+    mean_seed : int
+        Seed of every ``mean_of`` search (so the mean is a function of the policy).
+    n_updates : int
+        Updates done when this policy was made.
+    device, dtype
+        Where and in what precision BoTorch computes.
+    """
+
+    def __init__(
+        self,
+        model: SingleTaskGP | None,
+        initial: LinearGaussianPolicy,
+        omega_bounds: np.ndarray,
+        explore_randomly: bool,
+        settings: CBOSettings,
+        mean_seed: int,
+        n_updates: int,
+        device: torch.device,
+        dtype: torch.dtype,
+    ):
+        self.model = model
+        self.initial = initial
+        self.omega_bounds = np.array(omega_bounds, dtype=np.float64)
+        self.omega_bounds.setflags(write=False)
+        self.explore_randomly = bool(explore_randomly)
+        self.settings = settings
+        self.mean_seed = int(mean_seed)
+        self.n_updates = int(n_updates)
+        self.device, self.dtype = device, dtype
+        #: Seconds spent in ``sample`` and in ``mean_of`` (timing only; no effect on results).
+        self.sample_seconds = 0.0
+        self.mean_seconds = 0.0
+
+    @property
+    def dim(self) -> int:
+        """Dimension d of ω."""
+        return self.initial.dim
+
+    @property
+    def context_dim(self) -> int:
+        """Dimension of the context s."""
+        return self.initial.context_dim
+
+    def _contexts(self, contexts) -> tuple[np.ndarray, bool]:
+        n_s = self.context_dim
+        if contexts is None:
+            if n_s:
+                raise ValueError(f"contexts: this policy needs contexts of shape (n, {n_s})")
+            return np.zeros((1, 0)), True
+        s = check_array(contexts, "contexts", ndim=(1, 2))
+        if s.shape[-1] != n_s:
+            raise ValueError(f"contexts: expected shape (n, {n_s}) or ({n_s},), got {s.shape}")
+        return (s[None, :], True) if s.ndim == 1 else (s, False)
+
+    def _tensor(self, x) -> torch.Tensor:
+        return torch.tensor(np.asarray(x), dtype=self.dtype, device=self.device)
+
+    def _argmax(self, acqf: AcquisitionFunction, context: np.ndarray, seed: int) -> np.ndarray:
+        """argmax_ω acqf([s, ω]) over the box with s fixed: BoTorch's ``optimize_acqf``."""
+        n_s = self.context_dim
+        bounds = np.hstack([np.vstack([context, context]), self.omega_bounds])
+        with _seeded(seed, self.device):
+            z, _ = optimize_acqf(
+                acqf,
+                bounds=self._tensor(bounds),
+                q=1,
+                num_restarts=self.settings.num_restarts,
+                raw_samples=self.settings.raw_samples,
+                fixed_features={i: float(context[i]) for i in range(n_s)},
+                options={"seed": seed},
+            )
+        omega = z.detach().cpu().numpy().astype(np.float64).reshape(-1)[n_s:]
+        return np.clip(omega, *self.omega_bounds)  # no-op in float64; float32 may round out
+
+    def sample(self, contexts: ArrayLike | None = None, rng=None) -> np.ndarray:
+        """One proposal ω per context, shape (n, d) (or (d,) for one context or None).
+
+        A Sobol design in the box while the policy explores randomly, else argmax_ω UCB([s, ω])
+        for each row's s (module notes). One seed per row (or one for the design) is drawn
+        from ``rng``; same ``rng`` state ⇒ same proposals.
+
+        Raises
+        ------
+        ValueError
+            Naming ``contexts`` when their shape does not fit, or ``rng``.
+        """
+        s, single = self._contexts(contexts)
+        rng = as_generator(rng)
+        start = time.perf_counter()
+        if self.explore_randomly or self.model is None:
+            seed = int(rng.integers(_SEED_BOUND))
+            design = draw_sobol_samples(
+                self._tensor(self.omega_bounds), n=s.shape[0], q=1, seed=seed
+            )
+            omega = design.reshape(s.shape[0], self.dim).cpu().numpy().astype(np.float64)
+            omega = np.clip(omega, *self.omega_bounds)
+        else:
+            seeds = rng.integers(_SEED_BOUND, size=s.shape[0])
+            acqf = UpperConfidenceBound(self.model, beta=self.settings.beta)
+            omega = np.stack(
+                [self._argmax(acqf, si, int(seed)) for si, seed in zip(s, seeds, strict=True)]
+            )
+        self.sample_seconds += time.perf_counter() - start
+        return omega[0] if single else omega
+
+    def mean_of(self, contexts: ArrayLike | None = None) -> np.ndarray:
+        """argmax_ω μ([s, ω]) per context (π₀'s mean clipped to the box before the GP has
+        data), shape (n, d) or (d,). Deterministic: each context is searched with the same
+        seed, so a context's mean does not depend on the others asked with it."""
+        s, single = self._contexts(contexts)
+        start = time.perf_counter()
+        if self.model is None:
+            low, high = self.omega_bounds
+            omega = np.clip(
+                np.atleast_2d(self.initial.mean_of(s if self.context_dim else None)), low, high
+            )
+            omega = np.broadcast_to(omega, (s.shape[0], self.dim)).copy()
+        else:
+            acqf = PosteriorMean(self.model)
+            omega = np.stack([self._argmax(acqf, si, self.mean_seed) for si in s])
+        self.mean_seconds += time.perf_counter() - start
+        return omega[0] if single else omega
+
+    def __repr__(self) -> str:
+        n = 0 if self.model is None else int(self.model.train_targets.shape[-1])
+        mode = "Sobol design" if self.explore_randomly or self.model is None else "UCB"
+        return (
+            f"CBOPolicy(dim={self.dim}, context_dim={self.context_dim}, updates={self.n_updates}, "
+            f"GP on {n} samples, proposals: {mode}, beta={self.settings.beta:.4g})"
+        )
+
+
+@dataclass(frozen=True)
+class CBODiagnostics:
+    """What one :meth:`ContextualBO.update` did.
+
+    Attributes
+    ----------
+    n_updates : int
+        Updates done, this one included.
+    n_observations : int
+        Samples kept so far; the GP is fitted on ``n_fitted`` of them.
+    n_fitted : int
+        Samples the GP was fitted on (0: no GP yet, fewer than two samples).
+    mean_reward : float
+        Mean reward of the batch's rollouts (re-scored rows excluded).
+    best_reward : float
+        Best reward of any working rollout so far (NaN while there is none).
+    n_failed : int
+        Failed rows of this batch (entered the GP at the lowest working reward).
+    random_batch : bool
+        Whether this batch was a Sobol design (not UCB proposals).
+    fit_seconds : float
+        Time of building and fitting the GP.
+    acquisition_seconds : float
+        Time the policy that proposed this batch spent in ``sample`` (its acquisition searches).
+    lengthscales : tuple of float
+        The kernel's ARD lengthscales, [s, ω] order, in units of the normalised box (context
+        range and ω box mapped to [0, 1]).
+    noise_std : float
+        The learnt noise standard deviation, in reward units.
+    signal_std : float
+        The kernel's standard deviation, in reward units.
+    """
+
+    n_updates: int
+    n_observations: int
+    n_fitted: int
+    mean_reward: float
+    best_reward: float
+    n_failed: int
+    random_batch: bool
+    fit_seconds: float
+    acquisition_seconds: float
+    lengthscales: tuple[float, ...] = ()
+    noise_std: float = float("nan")
+    signal_std: float = float("nan")
+
+    def __repr__(self) -> str:
+        ell = np.asarray(self.lengthscales)
+        ls = f"{ell.min():.3g}…{ell.max():.3g}" if ell.size else "-"
+        return (
+            f"CBODiagnostics(updates={self.n_updates}, fitted {self.n_fitted}/"
+            f"{self.n_observations}, mean_reward={self.mean_reward:.4g}, "
+            f"best_reward={self.best_reward:.4g}, failed={self.n_failed}, "
+            f"{'Sobol' if self.random_batch else 'UCB'} batch, fit {self.fit_seconds:.3g} s, "
+            f"acquisition {self.acquisition_seconds:.3g} s, lengthscales {ls}, "
+            f"noise_std={self.noise_std:.3g}, signal_std={self.signal_std:.3g})"
+        )
+
+
+class ContextualBO:
+    """Contextual Bayesian optimisation (BoTorch) as a policy-search algorithm for :func:`learn`.
+
+    Parameters
+    ----------
+    policy : LinearGaussianPolicy
+        Initial policy π₀ (e.g. ``task.initial_policy()``): its mean is the policy mean before
+        any data, and with its standard deviations it sets the ω box (module notes). Its mean
+        must be linear in s (``features="linear"``) unless the box is given.
+    context_low, context_high : array_like, shape (context_dim,)
+        The context range (the GP's input normalisation; required for a contextual policy,
+        :meth:`for_task` takes the task's). A dimension of zero width is mapped with width 1.
+    omega_low, omega_high : array_like, shape (d,), optional
+        The ω box, low < high (default: from ``policy`` and ``settings.box_std``).
+    settings : CBOSettings, optional
+        Default ``CBOSettings()``.
+    rng : Generator, int or None
+        The algorithm's own stream: the seeds of the GP fits and of ``mean_of``.
+    device : str or torch.device, optional
+        Where BoTorch computes (default CPU).
+    dtype : torch.dtype
+        torch.float64 (default) or torch.float32.
+
+    Raises
+    ------
+    ValueError
+        Naming the argument that does not fit.
+    """
+
+    def __init__(
+        self,
+        policy: LinearGaussianPolicy,
+        *,
+        context_low: ArrayLike | None = None,
+        context_high: ArrayLike | None = None,
+        omega_low: ArrayLike | None = None,
+        omega_high: ArrayLike | None = None,
+        settings: CBOSettings | None = None,
+        rng: np.random.Generator | int | None = None,
+        device: str | torch.device | None = None,
+        dtype: torch.dtype = torch.float64,
+    ):
+        if not isinstance(policy, LinearGaussianPolicy):
+            raise ValueError(
+                f"policy: expected a LinearGaussianPolicy, got {type(policy).__name__}"
+            )
+        settings = CBOSettings() if settings is None else settings
+        if not isinstance(settings, CBOSettings):
+            raise ValueError(f"settings: expected a CBOSettings, got {type(settings).__name__}")
+        if dtype not in (torch.float64, torch.float32):
+            raise ValueError(f"dtype: expected torch.float64 or torch.float32, got {dtype!r}")
+        try:
+            self.device = torch.device("cpu" if device is None else device)
+        except (RuntimeError, TypeError) as exc:
+            raise ValueError(f"device: not a torch device ({exc})") from None
+        self.dtype = dtype
+        self.settings = settings
+        self._rng = as_generator(rng)
+        self._initial = policy
+        self._context_bounds = self._check_context_bounds(policy, context_low, context_high)
+        self._omega_bounds = self._check_omega_bounds(policy, omega_low, omega_high)
+        d, n_s = policy.dim, policy.context_dim
+        self._contexts = np.zeros((0, n_s))
+        self._omegas = np.zeros((0, d))
+        self._rewards = np.zeros(0)
+        self._failed = np.zeros(0, dtype=bool)
+        self.n_updates = 0
+        self._warned_large = False
+        self._policy = self._make_policy(None)
+
+    def _check_context_bounds(self, policy, low, high) -> np.ndarray:
+        n_s = policy.context_dim
+        if n_s == 0:
+            return np.zeros((2, 0))
+        if low is None or high is None:
+            raise ValueError(
+                "context_low, context_high: a contextual policy needs the context range "
+                "(ContextualBO.for_task takes the task's)"
+            )
+        lo = check_array(low, "context_low", shape=(n_s,))
+        hi = check_array(high, "context_high", shape=(n_s,))
+        if np.any(hi < lo):
+            raise ValueError(f"context_high: expected ≥ context_low, got {hi} < {lo}")
+        return np.vstack([lo, np.where(hi > lo, hi, lo + 1.0)])
+
+    def _check_omega_bounds(self, policy, low, high) -> np.ndarray:
+        d = policy.dim
+        if (low is None) != (high is None):
+            raise ValueError("omega_low, omega_high: give both bounds, or neither")
+        if low is not None:
+            lo = check_array(low, "omega_low", shape=(d,))
+            hi = check_array(high, "omega_high", shape=(d,))
+            if np.any(hi <= lo):
+                raise ValueError(f"omega_high: expected > omega_low, got {hi} ≤ {lo}")
+            return np.vstack([lo, hi])
+        if policy.context_dim and policy.features != "linear":
+            raise ValueError(
+                f"policy: the ω box is derived from a mean linear in s; got "
+                f"features={policy.features!r} (give omega_low and omega_high)"
+            )
+        if policy.context_dim:
+            corners = np.array(list(itertools.product(*self._context_bounds.T)))
+            means = policy.mean_of(corners)
+        else:
+            means = policy.mean[None, :]
+        k_std = self.settings.box_std * np.sqrt(np.diag(policy.cov))
+        return np.vstack([means.min(axis=0) - k_std, means.max(axis=0) + k_std])
+
+    @classmethod
+    def for_task(cls, task, policy: LinearGaussianPolicy | None = None, **kwargs) -> ContextualBO:
+        """Contextual BO on a task: ``policy`` (default ``task.initial_policy()``) and the
+        task's context range. Other keyword arguments go to :class:`ContextualBO`."""
+        if task.context_dim:
+            kwargs.setdefault("context_low", task.context_low)
+            kwargs.setdefault("context_high", task.context_high)
+        return cls(task.initial_policy() if policy is None else policy, **kwargs)
+
+    # ----------------------------------------------------------------- state
+    @property
+    def policy(self) -> CBOPolicy:
+        """The current GP's policy (:class:`CBOPolicy`)."""
+        return self._policy
+
+    @property
+    def rollouts_per_update(self) -> int:
+        """The suggested N for :func:`learn` (``settings.rollouts_per_update``)."""
+        return self.settings.rollouts_per_update
+
+    @property
+    def omega_bounds(self) -> np.ndarray:
+        """The ω box, shape (2, d): lower and upper row."""
+        return self._omega_bounds.copy()
+
+    @property
+    def n_observations(self) -> int:
+        """Samples kept so far."""
+        return int(self._rewards.shape[0])
+
+    def _make_policy(self, model: SingleTaskGP | None) -> CBOPolicy:
+        return CBOPolicy(
+            model=model,
+            initial=self._initial,
+            omega_bounds=self._omega_bounds,
+            explore_randomly=self.n_updates < self.settings.initial_batches,
+            settings=self.settings,
+            mean_seed=int(self._rng.integers(_SEED_BOUND)),
+            n_updates=self.n_updates,
+            device=self.device,
+            dtype=self.dtype,
+        )
+
+    # ----------------------------------------------------------------- update
+    def update(self, batch: Batch) -> CBODiagnostics:
+        """Add a batch to the samples, refit the GP on them, and make the next policy.
+
+        Parameters
+        ----------
+        batch : Batch
+            Contexts (N, context_dim), parameters (N, d) and rewards (N,), e.g. from
+            ``learn``; the trajectories, if any, only say which rollouts failed.
+
+        Raises
+        ------
+        ValueError
+            Naming ``batch`` when it is not a :class:`Batch` of this policy's dimensions.
+        """
+        pol = self._policy
+        batch = as_batch(batch, pol.dim, pol.context_dim)
+        trajs = batch.trajectories
+        failed = np.array([t.failed for t in trajs]) if trajs else np.zeros(len(batch), bool)
+        self._contexts = np.vstack([self._contexts, batch.contexts])
+        self._omegas = np.vstack([self._omegas, batch.omegas])
+        self._rewards = np.concatenate([self._rewards, batch.rewards])
+        self._failed = np.concatenate([self._failed, failed])
+        self.n_updates += 1
+
+        start = time.perf_counter()
+        model = self._fit()
+        fit_seconds = time.perf_counter() - start
+        self._policy = self._make_policy(model)
+        working = self._rewards[~self._failed]
+        return CBODiagnostics(
+            n_updates=self.n_updates,
+            n_observations=self.n_observations,
+            n_fitted=0 if model is None else int(model.train_targets.shape[-1]),
+            mean_reward=float(batch.rewards[: batch.n_rollouts].mean()),
+            best_reward=float(working.max()) if working.size else float("nan"),
+            n_failed=int(failed.sum()),
+            random_batch=pol.explore_randomly or pol.model is None,
+            fit_seconds=fit_seconds,
+            acquisition_seconds=pol.sample_seconds,
+            **_hyperparameters(model),
+        )
+
+    def _fit(self) -> SingleTaskGP | None:
+        """BoTorch's SingleTaskGP on the (most recent ``max_observations``) samples, fitted by
+        ``fit_gpytorch_mll`` under a seed from the algorithm's stream; ``None`` below two."""
+        seed = int(self._rng.integers(_SEED_BOUND))
+        cap = self.settings.max_observations
+        keep = slice(None) if cap is None else slice(-cap, None)
+        s, w = self._contexts[keep], self._omegas[keep]
+        r, failed = self._rewards[keep], self._failed[keep]
+        if r.shape[0] < 2:
+            return None
+        if cap is None and r.shape[0] > LARGE_N and not self._warned_large:
+            self._warned_large = True
+            warnings.warn(
+                f"ContextualBO: the GP has {r.shape[0]} samples (> {LARGE_N}); its fit costs "
+                "O(N³) per likelihood evaluation (set CBOSettings.max_observations to cap N)",
+                RuntimeWarning,
+                stacklevel=3,
+            )
+        if failed.any() and not failed.all():
+            r = np.where(failed, r[~failed].min(), r)
+        z_bounds = np.hstack([self._context_bounds, self._omega_bounds])
+        model = SingleTaskGP(
+            self._tensor(np.hstack([s, w])),
+            self._tensor(r[:, None]),
+            input_transform=Normalize(d=z_bounds.shape[1], bounds=self._tensor(z_bounds)),
+        )
+        with _seeded(seed, self.device):
+            fit_gpytorch_mll(ExactMarginalLogLikelihood(model.likelihood, model))
+        return model.eval()
+
+    def _tensor(self, x) -> torch.Tensor:
+        return torch.tensor(np.asarray(x), dtype=self.dtype, device=self.device)
+
+    def __repr__(self) -> str:
+        d, n_s = self._initial.dim, self._initial.context_dim
+        return (
+            f"ContextualBO(dim={d}, context_dim={n_s}, beta={self.settings.beta:.4g}, "
+            f"box_std={self.settings.box_std:.4g}, {self.n_updates} updates, "
+            f"{self.n_observations} samples, device={self.device})"
+        )
+
+
+def _hyperparameters(model: SingleTaskGP | None) -> dict:
+    """The GP's lengthscales (normalised units), noise and signal std (reward units)."""
+    if model is None:
+        return {}
+    with torch.no_grad():
+        kernel = model.covar_module
+        outputscale = getattr(kernel, "outputscale", None)
+        base = getattr(kernel, "base_kernel", kernel)
+        y_std = model.outcome_transform.stdvs.reshape(-1)[0]
+        scale = 1.0 if outputscale is None else outputscale.reshape(-1)[0].sqrt()
+        return {
+            "lengthscales": tuple(float(v) for v in base.lengthscale.reshape(-1).cpu()),
+            "noise_std": float(model.likelihood.noise.reshape(-1)[0].sqrt() * y_std),
+            "signal_std": float(scale * y_std),
+        }

@@ -1,0 +1,106 @@
+"""``cmp.methods`` (issue #34): REPS, GPREPS, CMA-ES and contextual BO on the thesis's tasks."""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+import pytest
+
+from skillkit.experiments import cmp_methods
+from skillkit.experiments.registry import get
+from skillkit.experiments.runner import run_trials
+from skillkit.tasks import make
+from tests._tolerances import fp_tol
+
+TASKS = ("hockey", "balancing")  # the cheapest two at smoke scale (seconds)
+
+
+@pytest.fixture(scope="module")
+def result():
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # diverging balancing gains
+        return run_trials("cmp.methods", "smoke", trials=1, progress=False, tasks=TASKS)
+
+
+def test_every_method_starts_from_the_same_policy_evaluated_the_same_way(result):
+    (trial,) = result["_trials"]
+    for task in TASKS:
+        first = [trial[f"{task}/{m}_mean_reward"][0] for m in cmp_methods.METHODS]
+        assert len(set(first)) == 1, (task, first)  # same π₀, contexts and evaluation seed
+
+
+def test_budgets_follow_the_thesis_methods(result):
+    (trial,) = result["_trials"]
+    st = get("cmp.methods").settings["smoke"]
+    for task in TASKS:
+        thesis = cmp_methods.thesis_settings(task, st)
+        rollouts = {m: trial[f"{task}/{m}_rollouts"] for m in cmp_methods.METHODS}
+        assert rollouts["reps"][-1] == thesis.reps_updates * thesis.reps_rollouts_per_update
+        if task == "balancing":  # Table 4.2's random-policy experience, counted as rollouts
+            prior = thesis.n_random * thesis.random_steps / make("balancing").n_steps
+            assert rollouts["gpreps"][0] == pytest.approx(prior, rel=fp_tol(4))
+            assert rollouts["gpreps"][-1] == pytest.approx(prior + thesis.gpreps_updates)
+        else:  # N₀, then one per update after the first batch (the thesis experiments' loop)
+            assert rollouts["gpreps"][-1] == thesis.n_initial + thesis.n_updates - 1
+        # CMA-ES: whole generations of λ m rollouts, the fewest that cover its budget
+        per = np.diff(rollouts["cmaes"])[0]
+        assert rollouts["cmaes"][-1] == per * math.ceil(st.cmaes_budget / per)
+        assert rollouts["cbo"][-1] >= st.cbo_budget and np.all(np.diff(rollouts["cbo"]) > 0)
+        # compute time is recorded per update and never decreases
+        for m in cmp_methods.METHODS:
+            t = trial[f"{task}/{m}_time_s"]
+            assert t[0] == 0.0 and np.all(np.diff(t) >= 0)
+
+
+def test_summary_names_winners_and_is_not_a_thesis_verdict(result):
+    s = result["summary"]
+    assert s["holds"] is None and s["thesis"] == []
+    for task in TASKS:
+        row = s["tasks"][task]
+        assert row["thresholds"] == list(cmp_methods.THRESHOLDS[task][0])
+        best = row["winners"]["best_final_reward"]
+        finals = {m: v["final_reward_mean"] for m, v in row["methods"].items()}
+        assert finals[best] == max(finals.values())
+
+
+def test_winners_on_ties_at_pi0_and_when_no_method_reaches():
+    def row(**at):
+        return {
+            m: {"final_reward_mean": -float(i), "thresholds": {"-1": {"rollouts_mean_curve": r}}}
+            for i, (m, r) in enumerate(at.items())
+        }
+
+    assert cmp_methods._winners(row(a=10.0, b=10.0, c=30.0), [-1.0])["fewest_rollouts"] == {
+        "-1": ["a", "b"]
+    }
+    assert cmp_methods._winners(row(a=0.0, b=5.0), [-1.0])["fewest_rollouts"] == {"-1": ["π₀"]}
+    assert cmp_methods._winners(row(a=None, b=None), [-1.0])["fewest_rollouts"] == {"-1": None}
+    assert cmp_methods._winners(row(a=None, b=3.0), [-1.0])["best_final_reward"] == "a"
+
+
+def test_settings_overrides_reach_the_thesis_experiments_settings():
+    st = get("cmp.methods").settings_for("smoke", gpreps_updates=7, n_artificial=33,
+                                         reps_updates=3)  # fmt: skip
+    throwing = cmp_methods.thesis_settings("throwing", st)
+    assert (throwing.n_updates, throwing.n_artificial, throwing.reps_updates) == (7, 33, 3)
+    balancing = cmp_methods.thesis_settings("balancing", st)
+    assert (balancing.gpreps_updates, balancing.n_artificial) == (7, 33)
+    unchanged = cmp_methods.thesis_settings("hockey", get("cmp.methods").settings["smoke"])
+    assert unchanged == get("fig4.10").settings["smoke"]
+
+
+@pytest.mark.parametrize(
+    ("name", "value", "match"),
+    [
+        ("tasks", ("throwing", "juggling"), "tasks: expected distinct values"),
+        ("tasks", ("throwing", "throwing"), "tasks: expected distinct values"),
+        ("methods", ("reps", "ppo"), "methods: expected distinct values"),
+        ("thesis_scale", "huge", "thesis_scale: expected one of"),
+    ],
+)
+def test_bad_settings_are_named(name, value, match):
+    st = get("cmp.methods").settings_for("smoke", **{name: value})
+    with pytest.raises(ValueError, match=match):
+        cmp_methods.run_trial(st, np.random.default_rng(0), None)  # checked before any work

@@ -93,12 +93,13 @@ THRESHOLDS: dict[str, tuple[tuple[float, ...], str]] = {
     ),
     "hockey": (
         (-0.2, -0.05),
-        "Sec. 3.4.3 (REPS places the puck within 20 cm) and Sec. 4.3.3 (GPREPS within 5 cm); "
-        "R = −miss distance − |d − d*|",
+        "Sec. 3.4.2: REPS's displacement error “remained below 20cm”; Sec. 4.3.3: GPREPS's "
+        "“less than 5 cm” (a hit placing the puck d off its target scores R = −d)",
     ),
     "table-tennis": (
         (-0.05, -0.02),
-        "Sec. 3.4.4 / Fig. 3.7: returns near the target have R > −0.02, the net band −0.05…−0.02",
+        "Sec. 3.4.3: high-quality policies have “a reward above -0.02”; balls in the net score "
+        "“in interval [−0.05, −0.02]”",
     ),
     "balancing": ((-100.0, -10.0, -1.5), "Table 4.2's reward limits"),
 }

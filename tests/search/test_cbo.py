@@ -13,7 +13,7 @@ from skillkit.search.base import Batch
 from skillkit.search.cbo import CBODiagnostics, CBOSettings, ContextualBO
 from skillkit.search.loop import collect, learn
 from skillkit.tasks.functional import FunctionTask
-from skillkit.trial import TrialContext
+from tests._snapshots import Snapshots
 
 #: Few evaluation contexts: every one costs a posterior-mean search per update.
 EVAL = np.array([[-0.8, 0.6], [0.0, 0.0], [0.7, -0.9], [0.9, 0.9]])
@@ -103,28 +103,14 @@ def test_same_seed_same_proposals_and_global_torch_state_untouched():
     np.testing.assert_array_equal(alg.policy.mean_of(s[2]), mean_a[2])
 
 
-class _Snapshots(TrialContext):
-    """Keeps every key's snapshots after every save."""
-
-    def __init__(self, states=None):
-        super().__init__(states=states)
-        self.history = []
-
-    def save(self, key, state, rng):
-        super().save(key, state, rng)
-        self.history.append(self.snapshots)
-
-
 def test_checkpointed_run_resumes_to_identical_numbers_and_pickles():
     task = _contextual()
-    full = _Snapshots()
+    full = Snapshots()
     reference = learn(
         task, ContextualBO.for_task(task, rng=3), 3, 6, 4, trial=full, eval_contexts=EVAL
     )
     alg = ContextualBO.for_task(task, rng=3)
-    resumed = learn(
-        task, alg, 3, 6, 4, trial=_Snapshots(states=full.history[0]), eval_contexts=EVAL
-    )
+    resumed = learn(task, alg, 3, 6, 4, trial=Snapshots(states=full.history[0]), eval_contexts=EVAL)
     for key in ("mean_reward", "explore_reward", "n_failed"):
         np.testing.assert_array_equal(reference[key], resumed[key], err_msg=key)
     assert alg.n_updates == 3 and alg.n_observations == 18

@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from _tolerances import fp_tol
 
 from skillkit.models.kernels import Linear, SquaredExponential, gram
 from skillkit.policies.gaussian import LinearGaussianPolicy
@@ -24,6 +25,17 @@ def data(seed, n=30, d=3):
     return s, w, rng.uniform(0.05, 1.0, size=n)
 
 
+def _solve_tols(A, kq, rhs, kss):
+    """Round-off of the mean kᵀA⁻¹y (Eq. 2.19) and the variance k** + λ − kᵀA⁻¹k (Eq. 2.20),
+    one evaluation: a factorisation or inverse of the N×N matrix A (forward error N ε κ(A)) and
+    N-term sums, relative to the sums' absolute terms |k|ᵀ|A⁻¹y| and k** + λ + |k|ᵀ|A⁻¹||k|
+    (``kss`` includes λ); absolute."""
+    iA, n, kappa = np.linalg.inv(A), len(A), np.linalg.cond(A)
+    mean_scale = (np.abs(kq).T @ np.abs(iA @ rhs)).max()
+    var_scale = (kss + np.einsum("ij,ik,kj->j", np.abs(kq), np.abs(iA), np.abs(kq))).max()
+    return fp_tol(n, scale=mean_scale, cond=kappa), fp_tol(n, scale=var_scale, cond=kappa)
+
+
 @pytest.mark.parametrize("kernel", kernels(), ids=["se", "linear"])
 def test_predictions_equal_eqs_2_19_and_2_20(kernel):
     s, w, weights = data(0)
@@ -34,9 +46,13 @@ def test_predictions_equal_eqs_2_19_and_2_20(kernel):
     K, k = gram(kernel, s), gram(kernel, s, q)
     C = np.diag(1.0 / (weights / weights.max()))  # C = W^-1 (any common scale of w is absorbed)
     inv = np.linalg.inv(K + lam * C)
-    np.testing.assert_allclose(pol.mean_of(q), k.T @ inv @ w, atol=1e-10)  # Eq. 2.19
+    # Cholesky of W^½ K W^½ + λI vs the explicit inverse of K + λC (the worse conditioned of
+    # the two): each within the bound.
+    kss = np.diag(gram(kernel, q)) + lam
+    mean_tol, var_tol = (2 * t for t in _solve_tols(K + lam * C, k, w, kss))
+    np.testing.assert_allclose(pol.mean_of(q), k.T @ inv @ w, rtol=0, atol=mean_tol)  # Eq. 2.19
     var = np.diag(gram(kernel, q)) + lam - np.einsum("ij,ik,kj->j", k, inv, k)  # Eq. 2.20
-    np.testing.assert_allclose(pol.variance_of(q), var, atol=1e-10)
+    np.testing.assert_allclose(pol.variance_of(q), var, rtol=0, atol=var_tol)
     assert pol.mean_of(q[0]).shape == (3,) and isinstance(pol.variance_of(q[0]), float)
 
 
@@ -50,7 +66,9 @@ def test_prior_mean_is_added_to_the_residual_regression():
     q = np.array([[0.2, -0.4], [5.0, 5.0]])
     shifted = CrKRPolicy(prior, kernel, s, w, weights, 0.1)
     plain = CrKRPolicy(zero, kernel, s, w - prior.mean_of(s), weights, 0.1)
-    np.testing.assert_allclose(shifted.mean_of(q), plain.mean_of(q) + prior.mean_of(q), atol=1e-12)
+    # Same residuals w − μ_prior(s) (a zero prior's mean is exactly 0), so the same α and
+    # W^½ k: μ_prior(q) + kᵀα on both sides, equal by construction.
+    np.testing.assert_array_equal(shifted.mean_of(q), plain.mean_of(q) + prior.mean_of(q))
     # far from the data (SE kernel): back to the prior mean, variance k(s,s) + λ
     np.testing.assert_allclose(shifted.mean_of(q[1]), prior.mean_of(q[1]), atol=1e-8)
     assert shifted.variance_of(q[1]) == pytest.approx(0.8 + 0.1, rel=1e-8)
@@ -67,8 +85,15 @@ def test_zero_weight_samples_drop_out_and_variance_is_at_least_lambda():
     full = CrKRPolicy(prior, kernel, s, w, p, 0.2)
     kept = CrKRPolicy(prior, kernel, s[5:], w[5:], p[5:], 0.2)
     q = np.random.default_rng(4).uniform(-1, 1, size=(5, 2))
-    np.testing.assert_allclose(full.mean_of(q), kept.mean_of(q), atol=1e-12)
-    np.testing.assert_allclose(full.variance_of(q), kept.variance_of(q), atol=1e-12)
+    # The zero-weight rows of W^½ K W^½ + λI are λ on the diagonal and exactly 0 elsewhere,
+    # but a 30×30 and a 25×25 Cholesky split their blocks differently: each within the bound.
+    u = np.sqrt(p[5:] / p.max())
+    A = u[:, None] * gram(kernel, s[5:]) * u + 0.2 * np.eye(25)
+    kss = np.diag(gram(kernel, q)) + 0.2
+    kq = u[:, None] * gram(kernel, s[5:], q)
+    mean_tol, var_tol = (2 * t for t in _solve_tols(A, kq, u[:, None] * w[5:], kss))
+    np.testing.assert_allclose(full.mean_of(q), kept.mean_of(q), rtol=0, atol=mean_tol)
+    np.testing.assert_allclose(full.variance_of(q), kept.variance_of(q), rtol=0, atol=var_tol)
     assert np.all(full.variance_of(q) >= 0.2 - 1e-12)
 
 

@@ -17,6 +17,7 @@ from skillkit.tasks.base import Task
 from skillkit.tasks.toy import LinearTarget
 from skillkit.trajectory import Trajectory
 from skillkit.trial import NullBar, TrialContext
+from tests._snapshots import Snapshots
 
 Target = LinearTarget  # R(s, ω) = −‖ω − 2s‖²; the trajectory is ω itself
 
@@ -252,18 +253,6 @@ def _assert_same_run(a, b):
         np.testing.assert_array_equal(p.cov, q.cov)
 
 
-class _Snapshots(TrialContext):
-    """Keeps every key's snapshots after every save."""
-
-    def __init__(self, states=None):
-        super().__init__(states=states)
-        self.history = []
-
-    def save(self, key, state, rng):
-        super().save(key, state, rng)
-        self.history.append(self.snapshots)
-
-
 def test_checkpointed_learning_resumes_to_identical_numbers():
     task = Target()
 
@@ -271,7 +260,7 @@ def test_checkpointed_learning_resumes_to_identical_numbers():
         return float(a.policy.mean[0])
 
     plain = learn(task, _reps(task), 6, 10, 4, progress=False, callback=record)
-    full = _Snapshots()
+    full = Snapshots()
     reference = learn(task, _reps(task), 6, 10, 4, trial=full, callback=record)
     _assert_same_run(plain, reference)  # checkpointing does not change the numbers
     assert len(full.history) == 6
@@ -280,12 +269,12 @@ def test_checkpointed_learning_resumes_to_identical_numbers():
     for k in (0, 2, 5):  # resume after update k + 1, with a fresh algorithm object
         alg = _reps(task)
         resumed = learn(
-            task, alg, 6, 10, 4, trial=_Snapshots(states=full.history[k]), callback=record
+            task, alg, 6, 10, 4, trial=Snapshots(states=full.history[k]), callback=record
         )
         _assert_same_run(reference, resumed)
         assert resumed["policy"] is alg.policy and alg.n_updates == 6
     with pytest.raises(ValueError, match="n_updates"):  # a longer run's state does not fit
-        learn(task, _reps(task), 5, 10, 4, trial=_Snapshots(states=full.snapshots))
+        learn(task, _reps(task), 5, 10, 4, trial=Snapshots(states=full.snapshots))
 
 
 def test_interrupted_learning_resumes_in_memory():

@@ -17,6 +17,7 @@ from skillkit.experiments.ch2_gp import (
 )
 from skillkit.experiments.runner import run_trials
 from skillkit.models.gp import ExactGP
+from tests._tolerances import fp_tol
 
 
 @pytest.fixture(scope="module")
@@ -49,7 +50,14 @@ def test_fig2_12_one_point_posterior_closed_form(fig212):
     grid = np.array(band["x"])
     # With one point the posterior mean is k(x, x1) / (σ_f² + σ_n²) · y1 (zero prior mean).
     k = np.exp(-0.5 * ((grid - x1) / 0.8) ** 2)
-    np.testing.assert_allclose(band["y"], k / (1.0 + 0.01) * y1, rtol=1e-10, atol=1e-12)
+    # The library's exponent −½‖a − b‖² (a = x/ℓ) comes from a (D + 2)-term product of
+    # operands of size 1 + ‖a‖² + ‖b‖² (see tests/models/test_kernels.py): k·y1/1.01 is off by
+    # ≲ 3 ε |y1| (1 + a² + b²) absolutely; the 1 × 1 solve and the hyper-parameters' round
+    # trip through gpytorch's softplus constraints (condition 1 + |log σ_n²|) relatively.
+    a2 = np.max((grid / 0.8) ** 2) + (x1 / 0.8) ** 2
+    atol = fp_tol(3, scale=abs(y1) * (1 + a2))
+    rtol = fp_tol(10, cond=1 + abs(np.log(0.01)))
+    np.testing.assert_allclose(band["y"], k / (1.0 + 0.01) * y1, rtol=rtol, atol=atol)
     half = 1.96 * np.sqrt(1.0 + 0.01 - k**2 / 1.01)
     np.testing.assert_allclose(np.array(band["upper"]) - band["y"], half, rtol=1e-9)
 

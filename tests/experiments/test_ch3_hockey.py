@@ -10,6 +10,7 @@ from skillkit.experiments.registry import get
 from skillkit.experiments.runner import run_trials
 from skillkit.models.kernels import gram
 from skillkit.tasks import make
+from tests._tolerances import fp_tol
 
 
 @pytest.fixture(scope="module")
@@ -257,7 +258,11 @@ def test_normalised_linear_kernel_closed_form():
     rng = np.random.default_rng(0)
     a, b = rng.uniform(1.5, 2.5, (4, 3)), rng.uniform(1.5, 2.5, (3, 3))
     za, zb = (a - centre) / scale, (b - centre) / scale
-    np.testing.assert_allclose(gram(kernel, a, b), 2.0 * za @ zb.T + 0.5, rtol=1e-12)
+    # z = (x − c) / s is off by ~2 ε |x| / s (x − c cancels), and σ² z·z' + c by (D + 2) ε
+    # times the terms' size σ² ‖x_a / s‖ ‖x_b / s‖ + c (the entries can cancel): absolute
+    na, nb = (np.linalg.norm(np.abs(x) / scale, axis=1).max() for x in (a, b))
+    tol = fp_tol(3 + 2, scale=2.0 * na * nb + 0.5)
+    np.testing.assert_allclose(gram(kernel, a, b), 2.0 * za @ zb.T + 0.5, rtol=0, atol=tol)
     with pytest.raises(ValueError, match="scale"):
         ch.NormalisedLinear(centre, np.array([0.5, 0.0, 1.0]))
     with pytest.raises(ValueError, match="centre"):

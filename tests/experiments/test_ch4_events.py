@@ -12,6 +12,7 @@ from skillkit.experiments import ch4_events as ev
 from skillkit.experiments import ch4_table_tennis as tt
 from skillkit.experiments import get, reproduce
 from skillkit.viz.model_layers import load_gpreps_run, model_layers
+from tests._tolerances import fp_tol
 
 
 def _hockey_summary(rollouts=119, placed=0.03, miss=0.2, reward=-0.2, reps_reward=-0.25,
@@ -88,7 +89,11 @@ def test_ci95_is_students_t_interval():
     v = np.array([-0.3, -0.2, -0.25, -0.1, -0.22])
     lo, hi = ev._ci95(v)
     ref = stats.t.interval(0.95, v.size - 1, loc=v.mean(), scale=stats.sem(v))
-    np.testing.assert_allclose([lo, hi], ref, rtol=1e-12)
+    # mean (n flops), standard deviation (2n + 3), the t quantile at 0.975 vs at
+    # (1 − 0.95) / 2 (a few ulp each, and p off by an ulp: condition p / (q f(q)) < 1), the
+    # product and the sum: ~3n + 16 flops on the mean's and the half-width's size
+    scale = np.abs(ref).max() + abs(ref[1] - ref[0])
+    np.testing.assert_allclose([lo, hi], ref, rtol=0, atol=fp_tol(3 * v.size + 16, scale=scale))
 
 
 def _summary_412(**kw) -> dict:

@@ -13,6 +13,7 @@ import mujoco
 import numpy as np
 import pytest
 import torch
+from _tolerances import fp_tol
 
 from skillkit.tasks import ModelSignals, Task, make, names, tags
 from skillkit.tasks.base import SimulationFailure
@@ -30,6 +31,14 @@ def task(request) -> Task:
 def _omega(task: Task, context: np.ndarray, seed: int = 0) -> np.ndarray:
     policy = task.initial_policy()
     return policy.sample(context, np.random.default_rng(seed))
+
+
+def _reward_rtol(states, controls, signals=None):
+    """Relative round-off of one trajectory's reward evaluated in two summation orders (batched
+    or not, numpy or torch): every reward here is a sum of same-sign costs of the trajectory's
+    values (no cancellation), so ≲ n ε with n the number of values entering it."""
+    n = np.size(states) + np.size(controls) + sum(np.size(v) for v in (signals or {}).values())
+    return fp_tol(n)
 
 
 def test_registry_is_not_empty():
@@ -104,8 +113,10 @@ def test_rescoring_in_other_contexts(task):
     rescored = task.reward(traj, s2)
     assert np.isfinite(rescored)
     if not task.trajectory_depends_on_context:
+        # the rollout does not read the context: same ω and seed give the same floats, and the
+        # reward is a pure function of (τ, s), so the two are equal exactly
         direct = task.reward(task.rollout(omega, s2, rng=3), s2)
-        assert rescored == pytest.approx(direct, rel=1e-12, abs=1e-12)
+        assert rescored == direct
 
 
 def test_bad_omega_and_context_raise(task):
@@ -330,7 +341,8 @@ def test_reward_batch_is_the_reward(task):
                 ss[g],
             )
             assert np.shape(got) == (len(g),)
-            np.testing.assert_allclose(got, expected[g], rtol=1e-12, atol=0)
+            rtol = max(_reward_rtol(*inputs[i]) for i in g)  # batch of len(g) vs batch of 1
+            np.testing.assert_allclose(got, expected[g], rtol=rtol, atol=0)
 
 
 def test_reward_batch_takes_torch_where_models_predict_states(task):
@@ -342,7 +354,7 @@ def test_reward_batch_takes_torch_where_models_predict_states(task):
     r_np = task.reward_batch(states, controls, {}, contexts)
     r_t = task.reward_batch(torch.as_tensor(states), torch.as_tensor(controls), {}, contexts)
     assert isinstance(r_t, torch.Tensor) and r_t.shape == (2,)
-    np.testing.assert_allclose(r_t.numpy(), r_np, rtol=1e-12)
+    np.testing.assert_allclose(r_t.numpy(), r_np, rtol=_reward_rtol(states[0], controls[0]))
 
 
 def test_scene_model(task):

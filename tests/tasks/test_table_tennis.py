@@ -7,6 +7,7 @@ import itertools
 
 import numpy as np
 import pytest
+from _tolerances import fp_tol
 from scipy.integrate import solve_ivp
 
 from skillkit.tasks import make, names
@@ -43,20 +44,41 @@ def task() -> TableTennis:
 
 
 # ----------------------------------------------------------------------------- ball flight
+def _flight_tols(p0, v0, t_end, h, vz_end):
+    """Absolute round-off of a drag-free flight of N = t_end / h midpoint steps (a constant
+    acceleration makes each step exact but for rounding): (position, velocity, event time).
+
+    Each step rounds the velocity by ~2 ε v (v ≤ ‖v₀‖ + g t_end) and the position by ~4 ε of
+    its size; the velocity errors k·2ε v integrate to N ε v t_end, so the position is off by
+    ≲ 6 N ε (|p|, v t_end). An event time is the accumulated t (N additions) plus the
+    crossing of a plane from a height off by the position's error at speed |v_z|.
+    """
+    n = int(np.ceil(t_end / h))
+    speed = np.linalg.norm(v0) + G * t_end
+    tol_v = fp_tol(2 * n, scale=speed)
+    tol_p = fp_tol(6 * n, scale=np.abs(p0).max() + speed * t_end)
+    tol_t = fp_tol(n, scale=t_end) + tol_p / abs(vz_end)
+    return tol_p, tol_v, tol_t
+
+
 def test_drag_free_flight_is_the_closed_form_parabola():
     p0, v0 = np.array([3.0, 0.5, 2.0]), np.array([1.5, -0.3, 2.0])  # off the table: no bounce
     flight = simulate_ball(p0, v0, 1.0, dt=0.01, physics=BallPhysics(drag=0.0))
     t_land = (v0[2] + np.sqrt(v0[2] ** 2 + 2 * G * (p0[2] - PLANE))) / G
     before = flight.times < t_land
     t = flight.times[before, None]
+    vz_land = v0[2] - G * t_land
+    tol_p, tol_v, tol_t = _flight_tols(p0, v0, t_land, 0.01 / 2, vz_land)  # 2 substeps
     expected = p0 + v0 * t + 0.5 * np.array([0.0, 0.0, -G]) * t**2
-    np.testing.assert_allclose(flight.positions[before], expected, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(flight.velocities[before], v0 + np.array([0, 0, -G]) * t, atol=1e-12)
+    np.testing.assert_allclose(flight.positions[before], expected, rtol=0, atol=tol_p)
+    np.testing.assert_allclose(flight.velocities[before], v0 + np.array([0, 0, -G]) * t, atol=tol_v)
     end = flight.terminal
     assert end.kind == "plane" and len(flight.events) == 1  # off the table: terminal at once
-    assert end.time == pytest.approx(t_land, abs=1e-12)
+    assert end.time == pytest.approx(t_land, abs=tol_t)
+    # the position at the event: its own error and the time's, at the landing speed
+    tol_end = tol_p + np.linalg.norm(v0 + [0, 0, -G * t_land]) * tol_t
     np.testing.assert_allclose(
-        end.position, p0 + v0 * t_land + [0, 0, -0.5 * G * t_land**2], atol=1e-10
+        end.position, p0 + v0 * t_land + [0, 0, -0.5 * G * t_land**2], atol=tol_end
     )
 
 
@@ -99,12 +121,17 @@ def test_table_bounce_reverses_vz_with_the_restitution():
     flight = simulate_ball([-0.5, 0.2, PLANE + h], [0.4, 0.0, 0.0], 1.0, dt=0.005, physics=physics)
     bounce, land = flight.events
     assert bounce.kind == "table" and land.kind == "plane"  # second touch ends the rally
-    assert bounce.time == pytest.approx(np.sqrt(2 * h / G), abs=1e-12)
     vz = np.sqrt(2 * G * h)
-    np.testing.assert_allclose(bounce.velocity_before, [0.4, 0.0, -vz], atol=1e-12)
-    np.testing.assert_allclose(bounce.velocity_after, [0.4, 0.0, e * vz], atol=1e-12)
+    p0, v0, t_end = np.array([-0.5, 0.2, PLANE + h]), np.array([0.4, 0.0, 0.0]), land.time
+    # bounds over the whole flight (5 ms, 2 substeps); the landing is slower than the bounce
+    tol_p, tol_v, tol_t = _flight_tols(p0, v0, t_end, 0.005 / 2, e * vz)
+    assert bounce.time == pytest.approx(np.sqrt(2 * h / G), abs=tol_t)
+    # the velocity at the touch: its own error and g times the touch time's
+    tol_bounce = tol_v + G * tol_t
+    np.testing.assert_allclose(bounce.velocity_before, [0.4, 0.0, -vz], atol=tol_bounce)
+    np.testing.assert_allclose(bounce.velocity_after, [0.4, 0.0, e * vz], atol=tol_bounce)
     assert bounce.position[2] == pytest.approx(PLANE)
-    assert land.time - bounce.time == pytest.approx(2 * e * vz / G, abs=1e-12)
+    assert land.time - bounce.time == pytest.approx(2 * e * vz / G, abs=2 * tol_t)
     apex = flight.positions[(flight.times > bounce.time) & (flight.times < land.time), 2].max()
     assert apex == pytest.approx(PLANE + e**2 * h, abs=1e-4)
 
@@ -154,8 +181,14 @@ def test_racket_at_rest_returns_the_ball_by_the_impact_law(tilt):
     # hand computation: the ball falls freely until contact, then v' = v − (1 + e)(v·n) n
     t = hit.time
     v_in = v0 + [0.0, 0.0, -G * t]
-    np.testing.assert_allclose(hit.velocity_before, v_in, atol=1e-12)
-    np.testing.assert_allclose(hit.velocity_after, v_in - (1 + e_r) * (v_in @ n) * n, atol=1e-12)
+    # N = t / h steps (1 ms): the velocity and the accumulated time each ~N ε off; the impact
+    # law (the racket at rest: v_point = 0 exactly) adds ~8 flops on (2 + e) |v|
+    n_steps = int(np.ceil(t / 0.001))
+    tol = fp_tol(2 * n_steps, scale=np.linalg.norm(v_in)) + G * fp_tol(n_steps, scale=t)
+    np.testing.assert_allclose(hit.velocity_before, v_in, atol=tol)
+    tol_after = (2 + e_r) * tol + fp_tol(8, scale=(2 + e_r) * np.linalg.norm(v_in))
+    v_out = v_in - (1 + e_r) * (v_in @ n) * n
+    np.testing.assert_allclose(hit.velocity_after, v_out, atol=tol_after)
     # touching the face (the gap is interpolated linearly over a 1 ms step: error ≤ g h²/8)
     assert (hit.position - center) @ n == pytest.approx(R_BALL, abs=2e-6)
     assert hit.velocity_after[0] > 0  # returned towards the opponent
@@ -177,7 +210,8 @@ def test_moving_racket_adds_its_normal_velocity():
     hit = flight.first("racket")
     # relative normal speed −3 − 1.5 = −4.5 reflects to +3.6, plus the racket's 1.5
     assert hit.velocity_after[0] == pytest.approx(u + e_r * (3.0 + u), abs=1e-6)
-    assert hit.velocity_after[1] == pytest.approx(0.0, abs=1e-12)
+    # exactly: no y velocity, no drag, and the normal (1, 0, 0) has an exact zero y component
+    assert hit.velocity_after[1] == 0.0
     # contact when the gap closes: 1.0 m − r at a closing speed of 4.5 m/s
     assert hit.time == pytest.approx((1.0 - R_BALL) / 4.5, abs=1e-9)
 
@@ -239,12 +273,16 @@ def test_reward_is_the_hand_computed_eq_c1(task):
     s = np.array([-5.4, 0.0, 2.25, 0.5, 0.2])
     # the ball passes the racket at 0.3 m between the 2nd and 3rd samples (x = 0.5)
     expected = -0.1 * 0.3 - 0.1 * np.hypot(0.5 - 0.7, 0.2 + 0.1)
-    assert task.reward(traj, s) == pytest.approx(expected, abs=1e-14)
+    # the closest approach (differences, 3-term dots, a ratio, a + u δ, a norm: ~15 flops on
+    # ball − racket of size ≤ 1.6) and the landing distance (~4 flops on ≤ 0.7), each × 0.1
+    rel_max = np.abs(ball - racket).max()
+    tol = 0.1 * (fp_tol(15, scale=rel_max) + fp_tol(4, scale=0.7))
+    assert task.reward(traj, s) == pytest.approx(expected, abs=tol)
     # only the incoming ball counts (samples up to the end and one after): ending at 0.05 s
     # keeps the first segment only, whose closest point is its end
     traj.info["incoming_end"] = 0.05
     expected = -0.1 * np.hypot(0.5, 0.3) - 0.1 * np.hypot(0.5 - 0.7, 0.2 + 0.1)
-    assert task.reward(traj, s) == pytest.approx(expected, abs=1e-14)
+    assert task.reward(traj, s) == pytest.approx(expected, abs=tol)
 
 
 def test_reward_batch_rejects_mismatched_signals_and_contexts(task):
@@ -258,7 +296,8 @@ def test_reward_batch_rejects_mismatched_signals_and_contexts(task):
     }
     s = np.tile(nominal_context(), (2, 1))
     expected = -0.1 * 0.3 - 0.1 * np.linalg.norm(s[0, 3:])  # racket 0.3 m beside the ball
-    np.testing.assert_allclose(task.reward_batch(None, None, good, s), expected, rtol=1e-12)
+    # the same floats but ‖(0, −0.3, 0)‖ = √(0.3²), 0.3 up to an ulp; same-sign terms
+    np.testing.assert_allclose(task.reward_batch(None, None, good, s), expected, rtol=fp_tol(4))
     with pytest.raises(ValueError, match="contexts: expected shape"):
         task.reward_batch(None, None, good, np.tile(nominal_context(), (3, 1)))
     for key, value, message in [

@@ -306,7 +306,10 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 def _comparison_lines(run) -> list[str]:
     """What the demo's GPREPS-against-REPS run shows: real throws and final reward per method,
-    and how to watch the GPREPS run in the viewer."""
+    and how to watch the GPREPS run in the viewer (its policy history; with ``--gpreps`` also
+    its reward model's predictions, where the run stored the model)."""
+    import numpy as np
+
     lines = [
         f"{run.id}: GPREPS against REPS on throwing ({run.scale} scale, seed {run.result['seed']})"
     ]
@@ -321,7 +324,9 @@ def _comparison_lines(run) -> list[str]:
             "  (reward ≈ −100 × the ball's distance to the target in m; the thesis: GPREPS needs "
             "two orders of magnitude fewer throws than REPS, Sec. 4.3.2)"
         )
-        lines.append(f"  watch GPREPS learn: skillkit view {name} --gpreps {run.path}")
+        stored = np.load(run.path / "trials.npz").files
+        option = "--gpreps" if "trial0__reward_model" in stored else "--policy"
+        lines.append(f"  watch GPREPS learn: skillkit view {name} {option} {run.path}")
     return lines
 
 

@@ -295,6 +295,7 @@ def test_runs_check_lists_stale_results_and_exits_non_zero(tmp_path, capsys):
 
 def test_demo_comparison_reports_gpreps_against_reps_and_opens_in_the_viewer(tmp_path):
     from skillkit.experiments import get, reproduce
+    from skillkit.viz.history import load_policy_history
     from skillkit.viz.model_layers import load_gpreps_run
 
     demo = dict(cli.DEMO_COMPARISON)
@@ -312,3 +313,13 @@ def test_demo_comparison_reports_gpreps_against_reps_and_opens_in_the_viewer(tmp
     assert lines[-1] == f"  watch GPREPS learn: skillkit view hockey --gpreps {run.path}"
     history, model = load_gpreps_run(run.path, 0)  # what that command loads
     assert len(history.policies) == demo["gpreps_updates"] + 1 and model.task.name == "hockey"
+    # throwing's reward model draws no prediction layers: the viewer plays the policy back
+    demo["tasks"] = ("throwing",)
+    demo.update(n_artificial=4, n_trajectories=1, gpreps_updates=1, reps_updates=1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        run = reproduce("cmp.methods", scale="smoke", out=tmp_path, progress=False, html=False,
+                        **demo)  # fmt: skip
+    line = cli._comparison_lines(run)[-1]
+    assert line == f"  watch GPREPS learn: skillkit view throwing --policy {run.path}"
+    assert len(load_policy_history(run.path, 0).policies) == 2

@@ -135,8 +135,9 @@ class MethodComparisonSettings(Settings):
     reps_updates: int = setting(0, "REPS updates (0: the thesis experiment's).", minimum=0)
     keep_gpreps_model: bool = setting(
         False,
-        "Store GPREPS's policy history and final reward model on the first task (what "
-        "`skillkit view TASK --gpreps RUN_DIR` plays back).",
+        "Store GPREPS's policy history on the first task (`skillkit view TASK --policy RUN_DIR` "
+        "plays it back) and, where the reward model draws prediction layers (hockey, table "
+        "tennis), the model (`--gpreps RUN_DIR` overlays its predictions).",
     )
     cmaes_budget: int = setting(
         0, "Real rollouts of CMA-ES (0: REPS's budget on the task).", minimum=0
@@ -298,8 +299,10 @@ def _run_method(method: str, s: _Setup, st, rng, trial: TrialContext) -> dict:
         f"{key}_n_failed": int(np.sum(c["n_failed"])),
     }
     if method == "gpreps" and st.keep_gpreps_model and s.name == st.tasks[0]:
-        out["reward_model"] = np.frombuffer(dumps_reward_model(algo.reward_model), np.uint8)
-        out.update(policy_history_arrays(c["policies"]))
+        out.update(policy_history_arrays(c["policies"]))  # `skillkit view TASK --policy RUN`
+        if callable(getattr(algo.reward_model, "prediction_layers", None)):  # hockey, tt
+            model = dumps_reward_model(algo.reward_model)  # `skillkit view TASK --gpreps RUN`
+            out["reward_model"] = np.frombuffer(model, np.uint8)
     return out
 
 

@@ -19,7 +19,16 @@ from typing import Any
 
 from skillkit.experiments.registry import VERDICT_KEYS
 
-__all__ = ["Run", "claim_rows", "load_run", "results_root", "scoreboard", "stored_run"]
+__all__ = [
+    "Run",
+    "claim_rows",
+    "comparison_markdown",
+    "comparison_rows",
+    "load_run",
+    "results_root",
+    "scoreboard",
+    "stored_run",
+]
 
 
 @dataclass(frozen=True)
@@ -298,6 +307,62 @@ def claim_rows(root: str | os.PathLike | None = None, ids: Any = None) -> list[d
     return rows
 
 
+COMPARISON_PREFIX = "cmp."
+"""Ids of comparisons of ours (``cmp.methods``): no thesis claim, so not in :func:`scoreboard`;
+:func:`comparison_markdown` shows them."""
+
+
+def comparison_rows(summary: dict) -> list[dict[str, Any]]:
+    """One row per task and method of a ``cmp.methods`` summary.
+
+    Returns
+    -------
+    list of dict
+        ``task``, ``method``, ``real rollouts`` (of the whole run), ``reward π₀``, ``final
+        reward`` (mean ± std over trials), one ``to R ≥ level`` per threshold (real rollouts
+        after which the mean learning curve first reaches it, and in how many trials the
+        curve did; "—" when the mean curve never did), ``compute s`` (mean wall-clock seconds
+        of a run, rollouts included) and ``failed`` (failed rollouts, all trials).
+    """
+    from skillkit.experiments.cmp_methods import LABELS
+
+    n = summary["n_trials"]
+    rows = []
+    for task, t in summary["tasks"].items():
+        for method, m in t["methods"].items():
+            row = {
+                "task": task,
+                "method": LABELS.get(method, method),
+                "real rollouts": f"{m['real_rollouts']:.4g}",
+                "reward π₀": f"{m['initial_reward']:.3g}",
+                "final reward": f"{m['final_reward_mean']:.3g} ± {m['final_reward_std']:.2g}",
+            }
+            for level, r in m["thresholds"].items():
+                at = r["rollouts_mean_curve"]
+                row[f"to R ≥ {level}"] = (
+                    "—" if at is None else f"{at:.4g}"
+                ) + f" ({r['n_reached']}/{n})"
+            row["compute s"] = f"{m['time_s_mean']:.0f}"
+            row["failed"] = str(m["failed_rollouts"])
+            rows.append(row)
+    return rows
+
+
+def comparison_markdown(summary: dict) -> str:
+    """:func:`comparison_rows` as one Markdown table per task (their thresholds differ), each
+    with the threshold's source below it."""
+    out = []
+    for task, t in summary["tasks"].items():
+        rows = [r for r in comparison_rows(summary) if r["task"] == task]
+        cols = [c for c in rows[0] if c != "task"]
+        out.append(f"**{task}** (REPS and GPREPS as in {t['thesis_settings']})\n")
+        out.append("| " + " | ".join(cols) + " |")
+        out.append("|" + "---|" * len(cols))
+        out.extend("| " + " | ".join(r[c] for c in cols) + " |" for r in rows)
+        out.append(f"\nThresholds: {t['thresholds_source']}.\n")
+    return "\n".join(out)
+
+
 def scoreboard(root: str | os.PathLike | None = None) -> str:
     """The README's table "What reproduces so far", made from the stored results.
 
@@ -318,6 +383,8 @@ def scoreboard(root: str | os.PathLike | None = None) -> str:
         "|---|---|---|---|---|",
     ]
     for row in claim_rows(root):
+        if row["id"].startswith(COMPARISON_PREFIX):  # not a thesis claim: its own table
+            continue
         here = f"**{row['verdict']}** — {row['statement']}" if row["statement"] else row["verdict"]
         name = f"{row['id']} ({row['variant']})" if row["variant"] else row["id"]
         cells = [name, row["thesis"] or row["where"], here, row["own"], row["made"]]

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 
-__all__ = ["claims_table", "experiments_table", "live_run_times"]
+__all__ = ["claims_table", "experiments_table", "live_run_times", "method_comparison_table"]
 
 
 def claims_table(ids: Iterable[str] | None = None, root=None):
@@ -144,3 +144,30 @@ def experiments_table():
             }
         )
     return pd.DataFrame(rows).set_index("id")
+
+
+def method_comparison_table(run):
+    """A ``cmp.methods`` run's comparison: one row per task and method.
+
+    Made by :func:`skillkit.experiments.run.comparison_rows` (the README's comparison tables
+    are the same rows).
+
+    Parameters
+    ----------
+    run : Run
+        A ``cmp.methods`` run (``reproduce`` or ``stored_run``).
+
+    Returns
+    -------
+    pandas.DataFrame
+        Index (task, method); columns real rollouts, reward of π₀, final reward, real rollouts
+        to each of the task's thresholds (with the trials that reached it), compute seconds,
+        failed rollouts. Thresholds differ between tasks: a task's other cells are empty.
+    """
+    import pandas as pd
+
+    from skillkit.experiments.run import comparison_rows
+
+    if run.id != "cmp.methods":
+        raise ValueError(f"run: expected a cmp.methods run, got {run.id!r}")
+    return pd.DataFrame(comparison_rows(run.summary)).set_index(["task", "method"]).fillna("")

@@ -104,3 +104,45 @@ def test_bad_settings_are_named(name, value, match):
     st = get("cmp.methods").settings_for("smoke", **{name: value})
     with pytest.raises(ValueError, match=match):
         cmp_methods.run_trial(st, np.random.default_rng(0), None)  # checked before any work
+
+
+def test_comparison_rows_and_tables_show_the_summary(result):
+    from types import SimpleNamespace
+
+    from skillkit.experiments.run import comparison_markdown, comparison_rows
+    from skillkit.teaching.tables import method_comparison_table
+
+    s = result["summary"]
+    rows = comparison_rows(s)
+    assert [(r["task"], r["method"]) for r in rows] == [
+        (t, cmp_methods.LABELS[m]) for t in TASKS for m in cmp_methods.METHODS
+    ]
+    for r in rows:
+        m = next(k for k, v in cmp_methods.LABELS.items() if v == r["method"])
+        row = s["tasks"][r["task"]]["methods"][m]
+        assert float(r["real rollouts"]) == pytest.approx(row["real_rollouts"], rel=1e-3)
+        for level in s["tasks"][r["task"]]["thresholds"]:
+            n = row["thresholds"][f"{level:g}"]["n_reached"]
+            assert r[f"to R ≥ {level:g}"].endswith(f"({n}/1)")
+    text = comparison_markdown(s)
+    assert text.count("| method |") == len(TASKS) and text.count("Thresholds: ") == len(TASKS)
+    table = method_comparison_table(SimpleNamespace(id="cmp.methods", summary=s))
+    assert table.shape[0] == len(rows) and table.index.names == ["task", "method"]
+    with pytest.raises(ValueError, match="run: expected a cmp.methods run"):
+        method_comparison_table(SimpleNamespace(id="fig3.3", summary=s))
+
+
+def test_the_thesis_scoreboard_leaves_comparisons_out(tmp_path):
+    import json
+    import shutil
+
+    from skillkit.experiments.run import results_root, scoreboard
+
+    shutil.copytree(results_root() / "fig2.10-paper-s0", tmp_path / "fig2.10-paper-s0")
+    (tmp_path / "cmp.methods-quick-s0").mkdir()
+    stored = json.loads((tmp_path / "fig2.10-paper-s0" / "result.json").read_text())
+    (tmp_path / "cmp.methods-quick-s0" / "result.json").write_text(
+        json.dumps({**stored, "id": "cmp.methods"})
+    )
+    board = scoreboard(tmp_path)
+    assert "| fig2.10 |" in board and "cmp.methods" not in board

@@ -26,15 +26,16 @@ DEMO_IDS = ("fig2.10", "sanity3")
 DEMO_COMPARISON = {
     "tasks": ("throwing",),
     "methods": ("gpreps", "reps"),
-    "gpreps_updates": 5,
+    "gpreps_updates": 4,
     "n_artificial": 100,
     "n_trajectories": 3,
-    "reps_updates": 20,
+    "reps_updates": 16,
     "keep_gpreps_model": True,
 }
-"""The thesis's point in a minute, which ``skillkit demo`` runs last: GPREPS against REPS on
-throwing (``cmp.methods`` at quick scale with these settings: GPREPS 10 + 5 real throws with M
-= 100, L = 3; REPS 20 updates of 25 throws); None skips it."""
+"""The thesis's point in about a minute, which ``skillkit demo`` runs last: GPREPS against REPS
+on throwing (``cmp.methods`` at quick scale with these settings: GPREPS 10 + 3 real throws, 4
+updates with M = 100, L = 3; REPS 16 updates of 25 throws). 72 s of CPU in one process, GPREPS
+55 s of it (its FITC robot-model fits), measured at load 3–4 on 2 cores; None skips it."""
 
 DESCRIPTION = """\
 Reproduce the figures and tables of Kupcsik's thesis on contextual policy search

@@ -80,7 +80,14 @@ def test_first_contact_closed_form():
         assert bool(hit) is touches
         if touches:
             xc = control[k, 0] + f * (control[k + 1, 0] - control[k, 0])
-            assert xc == pytest.approx(0.55 - np.sqrt(4 * r * r - h * h), abs=1e-12)
+            # The root of ‖d0 + f e‖² = 4r² (e = (Δ, 0), Δ = 0.1; d0 = (p, −h), |p| ≤ Δ + ℓ)
+            # has disc = Δ² ℓ², ℓ = √(4r² − h²) the half chord: the terms' absolute rounding
+            # ε Δ² (3p² + 2h² + 8r²) through √disc / Δ² moves x by ε (3p² + 2h² + 8r²) / 2ℓ,
+            # on top of ε per m of the ≈ 10 steps on coordinates ≤ 1 m; two evaluations.
+            chord = np.sqrt(4 * r * r - h * h)
+            amp = (3 * (0.1 + chord) ** 2 + 2 * h * h + 8 * r * r) / (2 * chord)
+            tol = 2 * fp_tol(10, scale=1.0 + amp)
+            assert xc == pytest.approx(0.55 - np.sqrt(4 * r * r - h * h), rel=0, abs=tol)
     with pytest.raises(ValueError, match="radius"):
         first_contact(control, target, -1.0)
     with pytest.raises(ValueError, match="target"):

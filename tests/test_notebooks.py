@@ -15,14 +15,27 @@ from skillkit.experiments import ids
 
 NOTEBOOKS = Path(__file__).resolve().parents[1] / "notebooks"
 CHAPTERS = ("ch2_preliminaries", "ch3_contextual_reps", "ch4_gpreps", "ch5_kernel_embeddings")
+#: Notebooks hold no logic of their own, except the reader's own skill in the tutorial that
+#: writes one from scratch: its functions live in cells tagged OWN_CODE_TAG, and only there.
+OWN_CODE_TAG = "your-skill"
+OWN_CODE_NOTEBOOKS = ("06_your_own_skill",)
 
 
 def _load(name: str) -> dict:
     return json.loads((NOTEBOOKS / f"{name}.ipynb").read_text())
 
 
-def _code(nb: dict) -> list[str]:
-    return ["".join(c["source"]) for c in nb["cells"] if c["cell_type"] == "code"]
+def _own(cell: dict) -> bool:
+    return OWN_CODE_TAG in cell.get("metadata", {}).get("tags", [])
+
+
+def _code(nb: dict, own: bool = True) -> list[str]:
+    """The code cells' sources (without the cells of the reader's own code unless ``own``)."""
+    return [
+        "".join(c["source"])
+        for c in nb["cells"]
+        if c["cell_type"] == "code" and (own or not _own(c))
+    ]
 
 
 @pytest.mark.parametrize("path", sorted(NOTEBOOKS.glob("*.ipynb")), ids=lambda p: p.name)
@@ -33,14 +46,17 @@ def test_stored_without_outputs_and_scaled_by_one_variable(path):
             assert cell["outputs"] == [] and cell["execution_count"] is None, path.name
     code = "\n".join(_code(nb))
     assert 'os.environ.get("SKILLKIT_SCALE", "smoke")' in code
-    assert "matplotlib.use" not in code and "def " not in code and "class " not in code
+    assert "matplotlib.use" not in code and "class " not in code
+    assert "def " not in "\n".join(_code(nb, own=False)), path.name
+    if path.stem not in OWN_CODE_NOTEBOOKS:
+        assert not any(_own(c) for c in nb["cells"]), path.name
 
 
 def test_every_chapter_exists_and_every_experiment_is_shown_stored_and_live():
     shown_stored, shown_live = set(), set()
-    for name in CHAPTERS:
+    for name in (*CHAPTERS, *OWN_CODE_NOTEBOOKS):  # the tutorial shows cmp.methods
         code = "\n".join(_code(_load(name)))
-        shown_stored |= set(re.findall(r'stored_run\("([^"]+)"\)', code))
+        shown_stored |= set(re.findall(r'stored_run\("([^"]+)"[,)]', code))
         shown_live |= set(re.findall(r'reproduce\("([^"]+)", scale=SCALE', code))
     assert set(ids()) - {"sanity3"} <= shown_stored & shown_live
 
@@ -51,6 +67,7 @@ def test_chapters_state_their_equations():
         "ch3_contextual_reps": ("(3.7)", "(3.9)"),
         "ch4_gpreps": ("(4.1)", "(4.3)"),
         "ch5_kernel_embeddings": ("(5.7, 5.8)",),
+        "06_your_own_skill": ("(3.9)", "(3.10)", "(4.1)", "(4.3)"),
     }.items():
         text = "\n".join("".join(c["source"]) for c in _load(name)["cells"])
         for eq in eqs:

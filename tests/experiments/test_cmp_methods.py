@@ -146,3 +146,20 @@ def test_the_thesis_scoreboard_leaves_comparisons_out(tmp_path):
     )
     board = scoreboard(tmp_path)
     assert "| fig2.10 |" in board and "cmp.methods" not in board
+
+
+def test_readme_comparison_is_made_from_the_stored_result():
+    """README.md's comparison tables are exactly comparison_markdown() of the stored run."""
+    from pathlib import Path
+
+    from skillkit.experiments.run import comparison_markdown, stored_run
+
+    run = stored_run("cmp.methods", scale="quick")
+    readme = (Path(__file__).parents[2] / "README.md").read_text()
+    table = readme.split("<!-- comparison:start -->\n")[1].split("<!-- comparison:end -->")[0]
+    header = (
+        f"Stored: `{run.path.name}` ({run.result['trials']} trials at {run.scale} scale, "
+        f"commit {run.result['git']['commit'][:7]}).\n\n"
+    )
+    assert table == header + comparison_markdown(run.summary) + "\n"
+    assert run.stale is None  # made by today's code

@@ -66,7 +66,6 @@ from skillkit.experiments.registry import (
     with_verdict,
 )
 from skillkit.experiments.settings import Settings, setting
-from skillkit.search.cmaes import CMAES
 from skillkit.search.loop import learn, policy_history_arrays
 from skillkit.search.reps import ContextualREPS
 from skillkit.tasks import make
@@ -265,6 +264,8 @@ def _algorithm(method: str, s: _Setup, st: MethodComparisonSettings, rng):
         return _gpreps_run(s, rng)
     reps_budget, gpreps_budget = _budgets(s)
     if method == "cmaes":
+        from skillkit.search.cmaes import CMAES  # here: the cma package imports pyplot
+
         algo = CMAES.for_task(s.task, policy=s.policy, rng=rng)
         n = algo.rollouts_per_update
         budget = st.cmaes_budget or reps_budget

@@ -325,8 +325,8 @@ def _comparison_lines(run) -> list[str]:
             "  (reward ≈ −100 × the ball's distance to the target in m; the thesis: GPREPS needs "
             "two orders of magnitude fewer throws than REPS, Sec. 4.3.2)"
         )
-        stored = np.load(run.path / "trials.npz").files
-        option = "--gpreps" if "trial0__reward_model" in stored else "--policy"
+        with np.load(run.path / "trials.npz") as stored:
+            option = "--gpreps" if "trial0__reward_model" in stored.files else "--policy"
         lines.append(f"  watch GPREPS learn: skillkit view {name} {option} {run.path}")
     return lines
 

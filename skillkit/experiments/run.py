@@ -351,9 +351,9 @@ def comparison_rows(summary: dict) -> list[dict[str, Any]]:
 def comparison_markdown(summary: dict) -> str:
     """:func:`comparison_rows` as one Markdown table per task (their thresholds differ), each
     with the threshold's source below it."""
-    out = []
+    out, every = [], comparison_rows(summary)
     for task, t in summary["tasks"].items():
-        rows = [r for r in comparison_rows(summary) if r["task"] == task]
+        rows = [r for r in every if r["task"] == task]
         cols = [c for c in rows[0] if c != "task"]
         out.append(f"**{task}** (REPS and GPREPS as in {t['thesis_settings']})\n")
         out.append("| " + " | ".join(cols) + " |")

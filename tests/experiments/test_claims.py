@@ -14,6 +14,7 @@ from skillkit.experiments.claims import (
     thesis_quotes,
 )
 from skillkit.experiments.registry import ids
+from skillkit.experiments.run import COMPARISON_PREFIX  # comparisons of ours: nothing to quote
 
 THESIS_TEXT = Path(__file__).resolve().parents[2] / ".." / "shared" / "thesis.txt"
 
@@ -26,10 +27,6 @@ def thesis_text() -> str:
             "sit beside ../shared/thesis.txt)"
         )
     return normalise_text(THESIS_TEXT.read_text(encoding="utf-8"))
-
-
-COMPARISON_PREFIX = "cmp."
-"""Ids of comparisons of ours (not figures of the thesis): no thesis sentence to quote."""
 
 
 def test_every_registered_id_has_quotes():

@@ -22,6 +22,7 @@ from skillkit.cli import main
 from skillkit.experiments.claims import SMOKE_NOTE, judged, thesis_quotes
 from skillkit.experiments.provenance import staleness
 from skillkit.experiments.registry import SCALES, VERDICT_KEYS, get, ids
+from skillkit.experiments.run import COMPARISON_PREFIX
 from skillkit.experiments.runner import run_trials, to_jsonable
 from skillkit.experiments.settings import Settings, apply_overrides, describe
 
@@ -89,7 +90,8 @@ def test_summary_follows_the_verdict_schema(exp_id):
     assert isinstance(summary["claim"], str) and summary["claim"].strip()
     assert summary["claim"] == exp.claim
     # the sentences the verdict judges; a comparison of ours (cmp.*) quotes none
-    assert summary["thesis"] == ([] if exp_id.startswith("cmp.") else thesis_quotes(exp_id))
+    ours = exp_id.startswith(COMPARISON_PREFIX)
+    assert summary["thesis"] == ([] if ours else thesis_quotes(exp_id))
     # Smoke runs are not judged: holds is withheld and not_judged says why.
     assert summary["holds"] is None and summary["not_judged"] == SMOKE_NOTE
     assert isinstance(summary["statement"], str) and re.search(r"\d", summary["statement"])

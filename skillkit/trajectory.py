@@ -31,7 +31,9 @@ class Trajectory:
         Scalars describing the episode (release time, hit flag, ...). JSON-serialisable.
     failed : bool
         True when the simulation broke down (NaN, instability); ``message`` says why. The
-        task's reward for a failed trajectory is its worst-case reward.
+        task's reward for a failed trajectory is its worst-case reward. A failed trajectory
+        holds the states simulated before the failure where its task records them, else a
+        one-row placeholder (:attr:`has_transitions`).
     message : str
         Why the rollout failed, empty otherwise.
     """
@@ -82,6 +84,13 @@ class Trajectory:
     def n_steps(self) -> int:
         """Number of time stamps T."""
         return int(self.times.shape[0])
+
+    @property
+    def has_transitions(self) -> bool:
+        """Whether the trajectory holds at least one transition: a working rollout, or a
+        failed one that kept the states before its failure (a failed rollout that kept none
+        holds a one-row placeholder)."""
+        return self.n_steps >= 2
 
     def transitions(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """One-step transitions (x_t, u_t, x_{t+1}) for model learning.

@@ -28,6 +28,7 @@ from skillkit.experiments import ch4_table_tennis  # noqa: E402,F401  isort: ski
 from skillkit.experiments import ch4_balancing  # noqa: E402,F401  isort: skip
 from skillkit.experiments import ch4_trajectory_kl  # noqa: E402,F401  isort: skip
 from skillkit.experiments import ch5  # noqa: E402,F401  isort: skip
+from skillkit.experiments import cmp_methods  # noqa: E402,F401  isort: skip
 
 __all__ = [
     "SCALES",

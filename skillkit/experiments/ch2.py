@@ -133,8 +133,7 @@ def _run_trial(
     free = dmp.rollout(times, q[0], qd[0], weights=np.zeros_like(dmp.weights))
     fitted = dmp.rollout(times, q[0], qd[0])
     # Eq. 2.23's regression target Y and the fitted forcing term f(z_t; v), both at tau = 1.
-    a, b = dmp.alpha_x, dmp.beta_x
-    target = qdd[:, 0] - a * (b * (dmp.goal[0] - q[:, 0]) - qd[:, 0])
+    target = dmp.forcing_target(times, q, qd, qdd)[:, 0]
     trial.update()
     return {
         "times": times,

@@ -429,12 +429,17 @@ def verdict(settings: TableTennisSettings, summary: dict) -> Verdict:
     on_curve = sum(r > THESIS_GOOD_REWARD for r in curve)
     landing = summary["median_landing_error_of_returns_m"]
     landing_cm = None if landing is None else 100 * landing
+    passes = summary["rollouts_to_mean_curve_above_-0.02"]
+    passes = (
+        "never passes −0.02"
+        if passes is None
+        else f"passes −0.02 after {fmt(passes, '.0f')} rollouts"
+    )
     return Verdict(
         CLAIM,
         bool(summary["fraction_runs_above_-0.02"] > 0.5),
         f"{good}/{n} runs end above −0.02 after {fmt(summary['total_rollouts_per_trial'], '.0f')} "
-        f"rollouts (final reward {fmt(summary['final_reward_mean'])}; the mean curve passes "
-        f"−0.02 after {fmt(summary['rollouts_to_mean_curve_above_-0.02'], '.0f')} rollouts) "
+        f"rollouts (final reward {fmt(summary['final_reward_mean'])}; the mean curve {passes}) "
         f"(thesis: most runs, after ~{THESIS_ROLLOUTS}); on the learning curve's "
         f"{settings.n_eval_contexts} fixed contexts {on_curve}/{len(curve)} runs end above "
         f"−0.02; the returned shots land a median {fmt(landing_cm, '.0f')} cm from the target "

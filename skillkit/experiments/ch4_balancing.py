@@ -682,6 +682,14 @@ SETUP_TABLE = [
         "(docs/measure_tab42_models.py)",
     },
     {
+        "item": "diverged rollouts",
+        "thesis": "not stated (on a robot, what happens before a fall is observed)",
+        "ours": "a rollout is stopped when a joint passes 100 rad/s or 20 rad (reward −1e7); "
+        "its states before that step are kept and learned by PILCO's and GPREPS's models",
+        "why": "without them a diverged gain added no data, so PILCO's next optimisation "
+        "started from that gain on the same model and diverged again (variants)",
+    },
+    {
         "item": "torque limits",
         "thesis": "not stated",
         "ours": "none (the robot's actuators are unlimited); PILCO's squashing not needed",
@@ -715,6 +723,17 @@ SETUP_TABLE = [
 ]
 
 VARIANTS = [
+    {
+        "variant": "issue #31: a diverged rollout keeps no states (before the change that keeps "
+        "them), quick, trial seeds 0 / 1 / 2 (3 runs of 1 trial) against the kept states, "
+        "quick, seed 0, trials 0 / 1 (one 2-trial run)",
+        "measured": "PILCO without the states: final −13.4 / −84.5 / −1e7, diverging after "
+        "updates 2, 1, 3, 5 and 2–6 and never recovering where it stayed diverged; with them: "
+        "PILCO final −161 / −0.73 (trial 0 diverged at 10 s, −2e6, and came back to −46 and "
+        "−41 at 14 and 16 s), reaching −100 after 11 s (2/2), −10 and −1.5 in trial 1 only "
+        "(8 s and 14 s); GPREPS final −1.93 / −6.12 after 26 s (10 updates), reaching −100 "
+        "and −10 in both trials; REPS −100 after 75 s",
+    },
     {
         "variant": "issue #31 model diagnosis: the fit (data seeds 0, 1, 2; the quick FITC: 100 "
         "pseudo-inputs, 50 L-BFGS steps, Δx, linear mean; velocity outputs; 10 start states "

@@ -56,9 +56,7 @@ from skillkit.trial import TrialContext
 from skillkit.viz.model_layers import dumps_reward_model
 from skillkit.viz.series import trial_band
 
-__all__ = [
-    "HockeyGPREPSSettings",
-]
+__all__ = ["HockeyGPREPSSettings", "hockey_reward_model"]
 
 THESIS_410 = {"gpreps_rollouts": 120, "gpreps_displacement_error_m": 0.05, "reps_rollouts": 10000}
 CLAIM_410 = (
@@ -185,7 +183,11 @@ def _scales(cls, smoke: dict, quick: dict, paper: dict | None = None) -> dict:
 
 
 # --------------------------------------------------------------------------- models
-def _hockey_model(task, st: HockeyGPREPSSettings):
+def hockey_reward_model(task, st: HockeyGPREPSSettings):
+    """The decomposed hockey reward model of GPREPS (Sec. 4.3.3) with ``st``'s GP fits: the
+    launch, hit-probability, sliding, contact and displacement GPs of
+    :class:`~skillkit.search.hockey_model.HockeyRewardModel` (the real-robot task: sliding
+    at its observation frame rate)."""
     from skillkit.search.hockey_model import HockeyRewardModel
 
     gp = partial(ExactGP, n_steps=st.gp_steps)
@@ -274,7 +276,7 @@ def run_trial_hockey(st: HockeyGPREPSSettings, rng: np.random.Generator, trial: 
         return heldout_scores(task, policy, heldout, heldout_seed)
 
     out: dict = {"heldout_contexts": heldout}
-    out.update(_gpreps_run(task, st, "gpreps", _hockey_model(task, st), seeds[0], trial,
+    out.update(_gpreps_run(task, st, "gpreps", hockey_reward_model(task, st), seeds[0], trial,
                            eval_contexts, score, keep_model=True))  # fmt: skip
     if st.reps_updates:
         reps = hockey_algorithm(

@@ -45,7 +45,14 @@ from skillkit.tasks import make
 from skillkit.trial import TrialContext
 from skillkit.viz.series import trial_band
 
-__all__ = ["GPREPSThrowingSettings", "SampleSizeSettings", "StochasticThrowingSettings"]
+__all__ = [
+    "GPREPSThrowingSettings",
+    "SampleSizeSettings",
+    "StochasticThrowingSettings",
+    "gpreps_algorithm",
+    "reps_algorithm",
+    "throwing_reward_model",
+]
 
 COV_FLOOR = 0.1
 """The weighted ML fit of every method keeps each direction of Σ above this fraction of its
@@ -95,7 +102,8 @@ class GPREPSThrowingSettings(Settings):
     )
     n_updates: int = setting(
         30,
-        "GPREPS / GP-direct updates, one real throw each (real throws = N₀ + n_updates).",
+        "GPREPS / GP-direct updates; the first learns from the N₀ initial throws, each later "
+        "one from one new throw (real throws = N₀ + n_updates − 1).",
         minimum=1,
     )
     n_artificial: int = setting(
@@ -220,8 +228,22 @@ def _exact(n_steps: int) -> ExactGP:
     return ExactGP(n_steps=n_steps)
 
 
-def _throwing_model(task, st: GPREPSThrowingSettings, model: str):
-    """The decomposed throwing model (``model="decomposed"``) or GP direct."""
+def throwing_reward_model(task, st: GPREPSThrowingSettings, model: str = "decomposed"):
+    """The reward model of GPREPS on throwing (Sec. 4.3.2) with ``st``'s GP sizes.
+
+    Parameters
+    ----------
+    task : Throwing
+    st : GPREPSThrowingSettings
+    model : {"decomposed", "direct"}
+        The decomposed model (robot, release and flight GPs:
+        :class:`~skillkit.search.throwing_model.ThrowingRewardModel`) or GP direct (one GP
+        from (s, ω) to the reward).
+
+    Returns
+    -------
+    RewardModel
+    """
     if model == "decomposed":
         return ThrowingRewardModel(
             task,
@@ -236,8 +258,11 @@ def _throwing_model(task, st: GPREPSThrowingSettings, model: str):
     return DirectRewardModel(ExactGP(n_steps=st.gp_steps))
 
 
-def _gpreps(task, st, reward_model, n_artificial: int, n_traj: int, rng) -> GPREPS:
-    """GPREPS (ε, μ̂, and the fit's regularisation from ``st``) with ``reward_model``."""
+def gpreps_algorithm(task, st, reward_model, n_artificial: int, n_traj: int, rng) -> GPREPS:
+    """GPREPS (Table 4.1) from the task's π₀: ε and μ̂ from ``st``, the policy fit's
+    regularisation (:data:`COV_FLOOR`, :data:`MIN_EFFECTIVE_SAMPLES`), M = ``n_artificial``
+    artificial samples with L = ``n_traj`` predicted trajectories each, and
+    ``reward_model``."""
     settings = GPREPSSettings(
         epsilon=st.epsilon,
         n_artificial=n_artificial,
@@ -260,9 +285,9 @@ def _run_gpreps(
     last update (callers drop it before returning a trial).
     """
     if isinstance(reward_model, str):
-        reward_model = _throwing_model(task, st, reward_model)
+        reward_model = throwing_reward_model(task, st, reward_model)
     algo_rng, loop_rng = rng.spawn(2)
-    algo = _gpreps(task, st, reward_model, n_artificial, n_traj, algo_rng)
+    algo = gpreps_algorithm(task, st, reward_model, n_artificial, n_traj, algo_rng)
     curves = learn(
         task,
         algo,
@@ -296,9 +321,10 @@ def _run_gpreps(
     }
 
 
-def _run_reps(task, st, key, rng, trial, eval_contexts) -> dict:
-    """Model-free contextual REPS with fig3.3's settings."""
-    algo = ContextualREPS(
+def reps_algorithm(task, st) -> ContextualREPS:
+    """Model-free contextual REPS on throwing with fig3.3's settings (ε, reused batches and
+    the quadratic baseline from ``st``), from the task's π₀."""
+    return ContextualREPS(
         task.initial_policy(),
         st.reps_epsilon,
         n_reuse_batches=st.reps_reuse_batches,
@@ -306,6 +332,11 @@ def _run_reps(task, st, key, rng, trial, eval_contexts) -> dict:
         cov_floor=COV_FLOOR,
         min_effective_samples=MIN_EFFECTIVE_SAMPLES,
     )
+
+
+def _run_reps(task, st, key, rng, trial, eval_contexts) -> dict:
+    """Model-free contextual REPS with fig3.3's settings (:func:`reps_algorithm`)."""
+    algo = reps_algorithm(task, st)
     curves = learn(
         task,
         algo,
@@ -449,7 +480,7 @@ def claim_parts_46(summary: dict) -> dict[str, bool | None]:
     * ``gp_direct_higher_variance`` — "... and has higher variance compared to REPS and
       GPREPS": its final-reward std over trials is above both;
     * ``gpreps_within_40`` — "GPREPS required only 30 – 40 evaluations to converge": its run
-      ends after N₀ + K ≤ 40 real throws;
+      ends after N₀ + K − 1 ≤ 40 real throws;
     * ``gpreps_highest_quality`` — "... to the highest quality solution" / "GPREPS ... provides
       higher quality solutions compared to model-free REPS": its final reward is above REPS's
       (after all of REPS's rollouts) and GP direct's;
@@ -831,7 +862,7 @@ SETUP_TABLE = [
     {
         "item": "learning length",
         "thesis": "curves to ~100 (GPREPS) and 5000 (REPS) rollouts, trials not stated",
-        "ours": "N₀ + n_updates real throws; REPS 200 × 25; trial counts per scale",
+        "ours": "N₀ + n_updates − 1 real throws; REPS 200 × 25; trial counts per scale",
         "why": "one GPREPS update at M = 500, L = 25 takes ~25 s here (benchmarks/bench_gpreps.py)",
     },
 ]

@@ -51,7 +51,12 @@ from skillkit.search.gpreps import DirectRewardModel
 from skillkit.tasks import make
 from skillkit.trial import TrialContext
 
-__all__ = ["ModelAccuracySettings", "TableTennisGPREPSSettings", "TableTennisModelSettings"]
+__all__ = [
+    "ModelAccuracySettings",
+    "TableTennisGPREPSSettings",
+    "TableTennisModelSettings",
+    "table_tennis_reward_model",
+]
 
 THESIS_412 = {"gpreps_rollouts": 150, "gpreps_landing_error_m": 0.30, "reps_rollouts": 4000}
 CLAIM_412 = (
@@ -121,7 +126,10 @@ class ModelAccuracySettings(TableTennisModelSettings):
 
 
 # --------------------------------------------------------------------------- models
-def _table_tennis_model(task, st, schedule: str = "auto"):
+def table_tennis_reward_model(task, st, schedule: str = "auto"):
+    """The table-tennis reward model of GPREPS (Sec. 4.3.4) with ``st``'s GP fits and contact
+    features, and the c₁ / c₂ ``schedule``
+    (:class:`~skillkit.search.table_tennis_model.TableTennisRewardModel`)."""
     from skillkit.search.table_tennis_model import TableTennisRewardModel
 
     gp = partial(ExactGP, n_steps=st.gp_steps)
@@ -152,7 +160,7 @@ def run_trial_412(st: TableTennisGPREPSSettings, rng: np.random.Generator, trial
         return shot_scores(task, policy, heldout, heldout_seed)[0]
 
     out: dict = {}
-    out.update(_gpreps_run(task, st, "gpreps", _table_tennis_model(task, st, st.schedule),
+    out.update(_gpreps_run(task, st, "gpreps", table_tennis_reward_model(task, st, st.schedule),
                            seeds[0], trial, eval_contexts, score, keep_model=True))  # fmt: skip
     direct = DirectRewardModel(ExactGP(n_steps=st.gp_steps))
     out.update(_gpreps_run(task, st, "direct", direct, seeds[1], trial, eval_contexts, score))
@@ -1048,7 +1056,7 @@ def run_trial_413(st: ModelAccuracySettings, rng: np.random.Generator, trial: Tr
 
     s_tr, w_tr, t_tr = rollouts(st.n_rollouts)
     trial.update()
-    model = _table_tennis_model(task, st, "returning")
+    model = table_tennis_reward_model(task, st, "returning")
     r_tr = np.array([task.reward(t, s) for t, s in zip(t_tr, s_tr, strict=True)])
     model.fit(s_tr, w_tr, r_tr, t_tr, rng)
     trial.update()

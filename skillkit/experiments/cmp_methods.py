@@ -46,15 +46,14 @@ from skillkit.experiments import ch4_balancing as balancing42
 from skillkit.experiments.ch3_hockey import HockeySettings
 from skillkit.experiments.ch3_hockey import make_algorithm as hockey_algorithm
 from skillkit.experiments.ch3_table_tennis import REGULARISED, TableTennisSettings, make_reps
-from skillkit.experiments.ch4_events import _hockey_model
+from skillkit.experiments.ch4_events import hockey_reward_model
 from skillkit.experiments.ch4_gpreps import (
-    COV_FLOOR,
-    MIN_EFFECTIVE_SAMPLES,
-    _throwing_model,
+    gpreps_algorithm,
+    reps_algorithm,
     rollouts_to_reach,
+    throwing_reward_model,
 )
-from skillkit.experiments.ch4_gpreps import _gpreps as thesis_gpreps
-from skillkit.experiments.ch4_table_tennis import _table_tennis_model
+from skillkit.experiments.ch4_table_tennis import table_tennis_reward_model
 from skillkit.experiments.registry import (
     SCALES,
     Experiment,
@@ -67,7 +66,6 @@ from skillkit.experiments.registry import (
 )
 from skillkit.experiments.settings import Settings, setting
 from skillkit.search.loop import learn, policy_history_arrays
-from skillkit.search.reps import ContextualREPS
 from skillkit.tasks import make
 from skillkit.trial import TrialContext
 from skillkit.viz.model_layers import dumps_reward_model
@@ -205,42 +203,18 @@ def _setup(name: str, st: MethodComparisonSettings, rng: np.random.Generator) ->
                   prior_rollouts)  # fmt: skip
 
 
-def _reps(s: _Setup) -> tuple[object, int, int]:
-    """The thesis experiment's REPS baseline: (algorithm, updates, rollouts per update)."""
+def _schedule(method: str, s: _Setup) -> tuple[int, int, int]:
+    """(updates K, rollouts per update N, initial rollouts N₀) of the thesis experiment's
+    REPS or GPREPS on ``s``, read from its settings."""
     th = s.thesis
-    if s.name == "throwing":  # fig4.6's REPS (fig3.3's settings), as ch4_gpreps runs it
-        algo = ContextualREPS(s.policy, th.reps_epsilon, n_reuse_batches=th.reps_reuse_batches,
-                              baseline_features="quadratic", cov_floor=COV_FLOOR,
-                              min_effective_samples=MIN_EFFECTIVE_SAMPLES)  # fmt: skip
-        return algo, th.reps_updates, th.reps_rollouts_per_update
-    if s.name == "hockey":  # fig4.10's REPS (fig3.5's settings)
-        hs = HockeySettings(epsilon=th.reps_epsilon, n_reuse_batches=th.reps_reuse_batches)
-        return hockey_algorithm("reps", s.task, hs), th.reps_updates, th.reps_rollouts_per_update
-    if s.name == "table-tennis":  # fig4.12's REPS (fig3.7's, with the stored regularisation)
-        tt = replace(TableTennisSettings(), **REGULARISED)
-        return make_reps(s.task, tt), th.reps_updates, tt.rollouts_per_update
-    return balancing42.reps_algorithm(th, s.policy), th.reps_updates, th.reps_rollouts_per_update
-
-
-def _gpreps_model(s: _Setup):
-    th = s.thesis
-    if s.name == "throwing":
-        return _throwing_model(s.task, th, "decomposed")
-    if s.name == "hockey":
-        return _hockey_model(s.task, th)
-    return _table_tennis_model(s.task, th, th.schedule)
-
-
-def _gpreps_run(s: _Setup, rng) -> tuple[object, int, int, int]:
-    """The thesis experiment's GPREPS: (algorithm, updates, 1 rollout per update, N₀)."""
-    th = s.thesis
-    if s.name == "balancing":
-        algo = balancing42.gpreps_algorithm(s.task, th, s.policy, s.prior,
-                                            balancing42.fitc_model(th), rng)  # fmt: skip
-        return algo, th.gpreps_updates, 1, 1
-    model = _gpreps_model(s)
-    algo = thesis_gpreps(s.task, th, model, th.n_artificial, th.n_trajectories, rng)
-    return algo, th.n_updates, 1, th.n_initial
+    if method == "gpreps":
+        if s.name == "balancing":  # tab4.2: one rollout per update after the random prior
+            return th.gpreps_updates, 1, 1
+        return th.n_updates, 1, th.n_initial
+    if s.name == "table-tennis":  # fig3.7's batch size
+        n = replace(TableTennisSettings(), **REGULARISED).rollouts_per_update
+        return th.reps_updates, n, n
+    return th.reps_updates, th.reps_rollouts_per_update, th.reps_rollouts_per_update
 
 
 def _real_rollouts(k: int, n: int, n0: int) -> int:
@@ -248,31 +222,56 @@ def _real_rollouts(k: int, n: int, n0: int) -> int:
     return n0 + (k - 1) * n
 
 
-def _budgets(s: _Setup) -> tuple[int, int]:
-    """Real rollouts of (REPS, GPREPS) on this task: the peers' default budgets."""
-    _, k, n = _reps(s)
-    _, k_g, n_g, n0_g = _gpreps_run(s, np.random.default_rng(0))
-    return _real_rollouts(k, n, n), _real_rollouts(k_g, n_g, n0_g)
+def _reps(s: _Setup):
+    """The thesis experiment's REPS baseline on ``s``."""
+    th = s.thesis
+    if s.name == "throwing":  # fig4.6's REPS (fig3.3's settings)
+        return reps_algorithm(s.task, th)
+    if s.name == "hockey":  # fig4.10's REPS (fig3.5's settings)
+        hs = HockeySettings(epsilon=th.reps_epsilon, n_reuse_batches=th.reps_reuse_batches)
+        return hockey_algorithm("reps", s.task, hs)
+    if s.name == "table-tennis":  # fig4.12's REPS (fig3.7's, with the stored regularisation)
+        return make_reps(s.task, replace(TableTennisSettings(), **REGULARISED))
+    return balancing42.reps_algorithm(th, s.policy)
+
+
+def _gpreps(s: _Setup, rng):
+    """The thesis experiment's GPREPS on ``s``."""
+    th = s.thesis
+    if s.name == "balancing":
+        return balancing42.gpreps_algorithm(s.task, th, s.policy, s.prior,
+                                            balancing42.fitc_model(th), rng)  # fmt: skip
+    if s.name == "throwing":
+        model = throwing_reward_model(s.task, th, "decomposed")
+    elif s.name == "hockey":
+        model = hockey_reward_model(s.task, th)
+    else:
+        model = table_tennis_reward_model(s.task, th, th.schedule)
+    return gpreps_algorithm(s.task, th, model, th.n_artificial, th.n_trajectories, rng)
+
+
+def _peer_budget(method: str, s: _Setup, st: MethodComparisonSettings) -> int:
+    """Real rollouts of CMA-ES (default: REPS's on the task) or BO (default: GPREPS's)."""
+    if method == "cmaes":
+        return st.cmaes_budget or _real_rollouts(*_schedule("reps", s))
+    return st.cbo_budget or _real_rollouts(*_schedule("gpreps", s))
 
 
 def _algorithm(method: str, s: _Setup, st: MethodComparisonSettings, rng):
     """(algorithm, updates, rollouts per update, initial rollouts) of ``method`` on ``s``."""
     if method == "reps":
-        algo, k, n = _reps(s)
-        return algo, k, n, n
+        return (_reps(s), *_schedule("reps", s))
     if method == "gpreps":
-        return _gpreps_run(s, rng)
-    reps_budget, gpreps_budget = _budgets(s)
+        return (_gpreps(s, rng), *_schedule("gpreps", s))
+    budget = _peer_budget(method, s, st)
     if method == "cmaes":
         from skillkit.search.cmaes import CMAES  # here: the cma package imports pyplot
 
         algo = CMAES.for_task(s.task, policy=s.policy, rng=rng)
         n = algo.rollouts_per_update
-        budget = st.cmaes_budget or reps_budget
         return algo, max(1, math.ceil(budget / n)), n, n
     from skillkit.search.cbo import CBOSettings, ContextualBO
 
-    budget = st.cbo_budget or gpreps_budget
     n = min(CBOSettings().rollouts_per_update, budget)  # its default batch, within the budget
     algo = ContextualBO.for_task(s.task, policy=s.policy, settings=CBOSettings(
         rollouts_per_update=n), rng=rng)  # fmt: skip
@@ -308,6 +307,10 @@ def _run_method(method: str, s: _Setup, st, rng, trial: TrialContext) -> dict:
 
 
 def _updates(method: str, s: _Setup, st) -> int:
+    """The number of updates ``method`` runs on ``s`` (the progress bar's share): REPS's and
+    GPREPS's from their settings; a peer's from its population, so it is built (no fit)."""
+    if method in ("reps", "gpreps"):
+        return _schedule(method, s)[0]
     return _algorithm(method, s, st, np.random.default_rng(0))[1]
 
 

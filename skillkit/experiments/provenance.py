@@ -42,7 +42,10 @@ viewer, the command line and the measured-time table."""
 
 NOT_FOLLOWED = ("skillkit.experiments",)
 """Packages whose ``__init__`` is hashed but not followed: ``skillkit.experiments`` imports
-every experiment module to register it, which is not code one experiment runs."""
+every experiment module to register it, which is not code one experiment runs. Their
+top-level imports of their own submodules (``from skillkit.experiments import ch2``) are left
+out of the hash too (:func:`_registration_lines`): registering another experiment changes no
+number of this one, and a submodule this experiment does use enters as its own file."""
 
 _SKIPPED_TOKENS = {tokenize.COMMENT, tokenize.NL, tokenize.ENCODING, tokenize.ENDMARKER}
 
@@ -125,12 +128,22 @@ def _imports_cached(path: Path, own_name: str | None, mtime_ns: int, size: int) 
 @lru_cache(maxsize=256)
 def _reexports(package: str) -> dict[str, str]:
     """``{name: module}`` for the names a skillkit package's ``__init__`` imports from its
-    own modules (``from skillkit.search.reps import ContextualREPS``)."""
+    own modules (``from skillkit.search.reps import ContextualREPS``) or exports lazily
+    through a module-level ``_LAZY = {"name": "module", ...}`` dict read by its
+    ``__getattr__`` (PEP 562)."""
     file = _module_file(package)
     if file is None or file.name != "__init__.py":
         return {}
     out = {}
     for node in ast.parse(file.read_text(encoding="utf-8")).body:
+        if (
+            isinstance(node, ast.Assign)
+            and [getattr(t, "id", None) for t in node.targets] == ["_LAZY"]
+            and isinstance(node.value, ast.Dict)
+        ):
+            for key, value in zip(node.value.keys, node.value.values, strict=True):
+                if isinstance(key, ast.Constant) and isinstance(value, ast.Constant):
+                    out[str(key.value)] = str(value.value)
         if isinstance(node, ast.ImportFrom):
             if node.level:
                 base = ".".join([package] + ([node.module] if node.module else []))
@@ -199,14 +212,35 @@ def _docstring_lines(tree: ast.AST) -> set[int]:
     return lines
 
 
+def _registration_lines(tree: ast.Module, package: str) -> set[int]:
+    """Lines of a package ``__init__``'s top-level statements that only import its own
+    submodules (``from package import submodule``, each name a module file)."""
+    lines: set[int] = set()
+    for node in tree.body:
+        if (
+            isinstance(node, ast.ImportFrom)
+            and not node.level
+            and node.module == package
+            and all(_module_file(f"{package}.{a.name}") is not None for a in node.names)
+        ):
+            lines.update(range(node.lineno, (node.end_lineno or node.lineno) + 1))
+    return lines
+
+
 @lru_cache(maxsize=512)
 def _normalised(path: Path, mtime_ns: int, size: int) -> bytes:
-    """The file's code as a token stream without comments, docstrings and blank lines."""
+    """The file's code as a token stream without comments, docstrings and blank lines (and,
+    for a :data:`NOT_FOLLOWED` package's ``__init__``, without its submodule imports)."""
     text = path.read_text(encoding="utf-8")
-    skip = _docstring_lines(ast.parse(text, filename=str(path)))
+    tree = ast.parse(text, filename=str(path))
+    skip = _docstring_lines(tree)
+    name = _module_name(path)
+    dropped = set()
+    if path.name == "__init__.py" and name in NOT_FOLLOWED:
+        dropped = _registration_lines(tree, name)
     out = []
     for tok in tokenize.generate_tokens(io.StringIO(text).readline):
-        if tok.type in _SKIPPED_TOKENS:
+        if tok.type in _SKIPPED_TOKENS or tok.start[0] in dropped:
             continue
         if tok.type == tokenize.STRING and tok.start[0] in skip:
             continue

@@ -189,7 +189,8 @@ def get(exp_id: str) -> Experiment:
 
 
 def ids() -> list[str]:
-    """All registered experiment ids, in thesis order."""
+    """All registered experiment ids, in thesis order; ids without a number (experiments
+    beyond the thesis, such as ``cmp.methods``) last."""
     _load_all()
 
     def key(i: str):
@@ -198,7 +199,7 @@ def ids() -> list[str]:
             int(p) if p.isdigit() else 0
             for p in "".join(c if c.isdigit() else " " for c in i).split()
         ]
-        return (nums, head)
+        return (not nums, nums, head)
 
     return sorted(_EXPERIMENTS, key=key)
 

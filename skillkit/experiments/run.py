@@ -23,6 +23,7 @@ __all__ = [
     "Run",
     "claim_rows",
     "comparison_markdown",
+    "comparison_section",
     "comparison_rows",
     "load_run",
     "results_root",
@@ -346,6 +347,20 @@ def comparison_rows(summary: dict) -> list[dict[str, Any]]:
             row["failed"] = str(m["failed_rollouts"])
             rows.append(row)
     return rows
+
+
+def comparison_section(run: Run) -> str:
+    """README's comparison section for a stored ``cmp.methods`` run: which run, how many
+    trials at which scale, the commit that made it, **stale** with the reason when today's
+    code would not make it any more, then :func:`comparison_markdown` of its summary."""
+    stale = run.stale
+    status = f"; **stale**: {stale}" if stale else ""
+    return (
+        f"Stored: `{run.path.name}` ({run.result['trials']} trials at {run.scale} scale, "
+        f"commit {run.result['git']['commit'][:7]}{status}).\n\n"
+        + comparison_markdown(run.summary)
+        + "\n"
+    )
 
 
 def comparison_markdown(summary: dict) -> str:

@@ -602,11 +602,3 @@ def reproduce(
     tmp.replace(folder / "result.json")
     write_figures(result, folder, html=html)
     return Run(folder, json.loads(text))  # exactly what result.json holds, without rereading it
-
-
-# Experiments beyond the thesis's figures register on this import rather than in the package
-# ``__init__``: that file's text is part of every stored result's code fingerprint
-# (:func:`~skillkit.experiments.provenance.source_closure`), so a registration line there would
-# mark every stored thesis result stale without a changed number. They move to ``__init__``
-# when the stored results are next regenerated together.
-from skillkit.experiments import cmp_methods  # noqa: E402,F401  isort: skip

@@ -285,11 +285,9 @@ class DMP:
         ridge = check_positive(ridge, "ridge", allow_zero=True)
 
         t = times - times[0]
-        goal, goal_velocity = q[-1].copy(), qd[-1].copy()
         self.tau, self.duration = tau, tau * t[-1]
-        g_t = self._moving_goal(t, goal, goal_velocity, tau)
-        a, b = self.alpha_x, self.beta_x
-        target = qdd / tau**2 - a * (b * (g_t - q) + (goal_velocity - qd) / tau)
+        self.goal, self.goal_velocity = q[-1].copy(), qd[-1].copy()
+        target = self._forcing_target(t, q, qd, qdd)
         phi = self.basis(self.phase(t, tau))
         if ridge > 0:
             phi = np.vstack([phi, np.sqrt(ridge) * np.eye(self.n_basis)])
@@ -302,8 +300,43 @@ class DMP:
                 RuntimeWarning,
                 stacklevel=2,
             )
-        self.weights, self.goal, self.goal_velocity = v.T.copy(), goal, goal_velocity
+        self.weights = v.T.copy()
         return self
+
+    def forcing_target(self, times, q, qd, qdd) -> np.ndarray:
+        """The regression target Y of Eq. (2.23) that :meth:`fit` fits φ(z_t)ᵀv to.
+
+        Y = q̈ / τ² − α_x (β_x (g_t − q) + (ġ − q̇) / τ), with this DMP's ``goal`` g,
+        ``goal_velocity`` ġ and ``tau`` τ, and the moving goal g_t = g + ġ (t − duration / τ);
+        with τ = 1 and ġ = 0 it is Eq. (2.23) as printed. On the demonstration the DMP was
+        fitted to, φ(z_t)ᵀv is its least-squares fit.
+
+        Parameters
+        ----------
+        times : array_like, shape (N,)
+            Strictly increasing time stamps (s); the movement starts at ``times[0]``.
+        q, qd, qdd : array_like, shape (N, n_joints)
+            Positions, velocities and accelerations.
+
+        Returns
+        -------
+        ndarray, shape (N, n_joints)
+        """
+        if self.goal is None:
+            raise ValueError("DMP.forcing_target: the DMP has no goal; fit() it first")
+        t = check_array(times, "times", ndim=1)
+        if t.shape[0] == 0 or np.any(np.diff(t) <= 0):
+            raise ValueError("times: expected strictly increasing time stamps")
+        shape = (t.shape[0], self.n_joints)
+        q = check_array(q, "q", shape=shape)
+        qd = check_array(qd, "qd", shape=shape)
+        qdd = check_array(qdd, "qdd", shape=shape)
+        return self._forcing_target(t - t[0], q, qd, qdd)
+
+    def _forcing_target(self, t, q, qd, qdd) -> np.ndarray:
+        tau, g, gd = self.tau, self.goal, self.goal_velocity
+        g_t = self._moving_goal(t, g, gd, tau)
+        return qdd / tau**2 - self.alpha_x * (self.beta_x * (g_t - q) + (gd - qd) / tau)
 
     # ----------------------------------------------------------------- rollout
     def grid(self, duration: float) -> np.ndarray:

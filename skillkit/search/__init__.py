@@ -1,4 +1,7 @@
-"""Policy search: REPS (episode-based, contextual), GPREPS, PILCO, CrKR, RWR and the learning loop.
+"""Policy search: REPS, GPREPS, PILCO, CrKR, RWR, their peers CMA-ES and BO, and the loop.
+
+The peers of the method comparison are :class:`CMAES` (the ``cma`` package) and
+:class:`ContextualBO` (BoTorch), exported lazily.
 
 Every algorithm holds a current ``policy`` (with ``sample(contexts, rng)`` and
 ``mean_of(contexts)``) and an ``update(batch)`` taking one :class:`Batch` and returning
@@ -32,7 +35,35 @@ from skillkit.search.rwr import RWR, RWRDiagnostics, rwr_beta, rwr_weighting, rw
 from skillkit.search.table_tennis_model import TableTennisPrediction, TableTennisRewardModel
 from skillkit.search.throwing_model import ThrowingPrediction, ThrowingRewardModel
 
+#: The peers of the method comparison, imported on first use (PEP 562): BoTorch is slow to
+#: import and the ``cma`` package imports pyplot, which importing skillkit must not.
+_LAZY = {
+    "CMAES": "skillkit.search.cmaes",
+    "CMAESDiagnostics": "skillkit.search.cmaes",
+    "CMAESPolicy": "skillkit.search.cmaes",
+    "CBODiagnostics": "skillkit.search.cbo",
+    "CBOPolicy": "skillkit.search.cbo",
+    "CBOSettings": "skillkit.search.cbo",
+    "ContextualBO": "skillkit.search.cbo",
+}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'skillkit.search' has no attribute {name!r}")
+
+
 __all__ = [
+    "CMAES",
+    "CBODiagnostics",
+    "CBOPolicy",
+    "CBOSettings",
+    "CMAESDiagnostics",
+    "CMAESPolicy",
+    "ContextualBO",
     "RWR",
     "Batch",
     "Evaluator",

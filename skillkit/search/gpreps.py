@@ -346,8 +346,11 @@ class TrajectoryRewardModel:
         self.n_data = 0
 
     def fit(self, contexts, omegas, rewards, trajectories, rng=None) -> dict[str, Any]:
-        """Fit a fresh forward model on the transitions of the non-failed ``trajectories``
-        and of the ``prior_trajectories``.
+        """Fit a fresh forward model on the transitions of ``trajectories`` and of the
+        ``prior_trajectories``: every working rollout's, and a failed rollout's up to its
+        failure where it kept them (:attr:`~skillkit.trajectory.Trajectory.has_transitions`;
+        a balancing robot that falls shows the model where a bad gain leads, as PILCO's
+        rollouts do).
 
         Returns
         -------
@@ -357,11 +360,17 @@ class TrajectoryRewardModel:
         """
         if trajectories is None:
             raise ValueError("trajectories: a TrajectoryRewardModel learns from trajectories")
-        ok = [t for t in [*self.prior_trajectories, *trajectories] if not t.failed]
+        ok = [t for t in [*self.prior_trajectories, *trajectories] if t.has_transitions]
         if not ok:
             raise ValueError("trajectories: every trajectory failed; nothing to learn from")
         if self.horizon is None:
-            self.horizon = int(ok[0].states.shape[0] - 1)
+            whole = [t for t in ok if not t.failed]
+            if not whole:
+                raise ValueError(
+                    "trajectories: every trajectory failed; the horizon of model rollouts "
+                    "is unknown (pass horizon=)"
+                )
+            self.horizon = int(whole[0].states.shape[0] - 1)
         # A trajectory re-scored in extra contexts appears in several rows: learn it once.
         unique = list({id(t): t for t in ok}.values())
         parts = [self.task.transitions(t) for t in unique]

@@ -25,7 +25,7 @@ from skillkit.tasks.base import (
     state_transitions,
 )
 from skillkit.tasks.controllers import control_substeps, run_feedback
-from skillkit.tasks.planar import _check_divergence, _PlanarRobot
+from skillkit.tasks.planar import _PlanarRobot
 from skillkit.tasks.planar_model import JOINT_NAMES, TIMESTEP, UPRIGHT
 from skillkit.tasks.registry import register
 from skillkit.trajectory import Trajectory
@@ -80,9 +80,11 @@ class Balancing(Task):
     command at the final state (computed, not applied).
 
     **Failures.** A run with a joint angle more than ``max_angle`` (20 rad) from upright or a
-    speed above ``max_joint_speed`` (100 rad/s) is stopped as diverged
+    speed above ``max_joint_speed`` (100 rad/s) is stopped as diverged at that control step
     (:class:`SimulationFailure`), so every working rollout has a bounded reward and
-    :attr:`worst_reward` (−1e7) lies below it in practice.
+    :attr:`worst_reward` (−1e7) lies below it in practice. The failed trajectory keeps the
+    states before the divergence (all within the limits): they are real experience of
+    where a bad gain leads, which PILCO and GPREPS learn (:meth:`transitions`).
 
     Trajectory: ``times`` (T+1,), ``states`` (T+1, 8) = [q, q̇] at the control steps,
     ``controls`` (T+1, 4) commanded torques (with the excitation); signals ``torque_noise``
@@ -175,22 +177,24 @@ class Balancing(Task):
         if self.excitation_std:  # drawn only when used: feedback-only runs keep their streams
             excitation = self.excitation_std * rng.standard_normal((self.n_steps, 4))
         commanded = np.empty((self.n_steps + 1, 4))
+        states = np.empty((self.n_steps + 1, 8))
 
         def feedback(t: int, q: np.ndarray, qd: np.ndarray, data: mujoco.MjData) -> np.ndarray:
-            commanded[t] = G @ (np.concatenate([q, qd]) - ref[t]) + ff[t] + excitation[t]
+            states[t, :4], states[t, 4:] = q, qd
+            self._check_state(t, states, commanded, noise, excitation)
+            commanded[t] = G @ (states[t] - ref[t]) + ff[t] + excitation[t]
             return commanded[t] + noise[t]
 
         robot = self.robot
         robot.reset(q0, qd0)
-        out = run_feedback(robot.model, robot.data, feedback, self.n_steps, self.control_dt)
-        q = np.vstack([out["q"], robot.data.qpos])
-        qd = np.vstack([out["qd"], robot.data.qvel])
-        self._check_divergence(q, qd)
-        commanded[-1] = G @ (np.concatenate([q[-1], qd[-1]]) - ref[-1]) + ff[-1]
+        run_feedback(robot.model, robot.data, feedback, self.n_steps, self.control_dt)
+        states[-1, :4], states[-1, 4:] = robot.data.qpos, robot.data.qvel
+        self._check_state(self.n_steps, states, commanded, noise, excitation)
+        commanded[-1] = G @ (states[-1] - ref[-1]) + ff[-1]
         times = np.arange(self.n_steps + 1) * self.control_dt
         return Trajectory(
             times,
-            np.hstack([q, qd]),
+            states,
             commanded,
             signals={"torque_noise": noise, "excitation": excitation},
             info={"initial_state": np.concatenate([q0, qd0]).tolist()},
@@ -275,17 +279,31 @@ class Balancing(Task):
             ff[i] = data.qfrc_inverse
         return np.hstack([q, qd]), ff
 
-    def _check_divergence(self, q: np.ndarray, qd: np.ndarray) -> None:
-        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd))):
-            raise SimulationFailure("non-finite final state")
-        _check_divergence(qd, self.max_joint_speed, self.control_dt)
-        far = np.abs(q - UPRIGHT).max(axis=1) > self.max_angle
-        if far.any():
-            t = int(np.argmax(far))
-            raise SimulationFailure(
-                f"diverged: a joint is more than {self.max_angle:g} rad from "
-                f"upright at t = {t * self.control_dt:.3f} s"
+    def _check_state(self, t, states, commanded, noise, excitation) -> None:
+        """Stop the episode as diverged when x_t (``states[t]``) is non-finite or beyond the
+        limits, keeping x_0 … x_{t−1} (all within them) as the failure's partial trajectory."""
+        x = states[t]
+        if np.all(np.isfinite(x)):
+            speed, angle = np.abs(x[4:]).max(), np.abs(x[:4] - UPRIGHT).max()
+            if speed <= self.max_joint_speed and angle <= self.max_angle:
+                return
+            what = (
+                f"a joint speed exceeds {self.max_joint_speed:g} rad/s"
+                if speed > self.max_joint_speed
+                else f"a joint is more than {self.max_angle:g} rad from upright"
             )
+        else:
+            what = "non-finite state"
+        partial = None
+        if t >= 2:
+            partial = Trajectory(
+                np.arange(t) * self.control_dt,
+                states[:t].copy(),
+                commanded[:t].copy(),
+                signals={"torque_noise": noise[: t - 1], "excitation": excitation[: t - 1]},
+                info={"initial_state": states[0].tolist(), "steps_before_failure": t - 1},
+            )
+        raise SimulationFailure(f"diverged: {what} at t = {t * self.control_dt:.3f} s", partial)
 
     # ------------------------------------------------------------------ reward
     def reward_batch(self, states, controls, signals=None, contexts=None):

@@ -31,7 +31,27 @@ from skillkit.trajectory import Trajectory
 
 
 class SimulationFailure(RuntimeError):
-    """Raised inside a simulator when the physics produced non-finite or unstable values."""
+    """Raised inside a simulator when the physics produced non-finite or unstable values.
+
+    Parameters
+    ----------
+    message : str
+        What failed, and when.
+    partial : Trajectory, optional
+        The episode up to the last state before the failure (at least two time stamps, so at
+        least one transition). :meth:`Task.rollout` keeps it in the failed trajectory: the
+        transitions before a robot falls are real experience, which model learners such as
+        PILCO and GPREPS learn (Sec. 4.3.1), while the rollout's reward stays the task's
+        worst.
+    """
+
+    def __init__(self, message: str, partial: Trajectory | None = None):
+        super().__init__(message)
+        if partial is not None and (not isinstance(partial, Trajectory) or partial.n_steps < 2):
+            raise ValueError(
+                f"partial: expected a Trajectory with at least two time stamps, got {partial!r}"
+            )
+        self.partial = partial
 
 
 def state_transitions(
@@ -39,12 +59,15 @@ def state_transitions(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(x_t, u_t, x_{t+1}) of a trajectory: states[:−1], controls[:−1], states[1:].
 
-    Raises a ValueError for a failed trajectory or states/controls not of shapes
-    (T, state_dim) and (T, control_dim).
+    A failed trajectory gives the transitions simulated before its failure when it kept them
+    (:attr:`~skillkit.trajectory.Trajectory.has_transitions`). Raises a ValueError for a
+    failed trajectory that kept none or states/controls not of shapes (T, state_dim) and
+    (T, control_dim).
     """
-    if trajectory.failed:
+    if not trajectory.has_transitions:
         raise ValueError(
-            f"trajectory: a failed trajectory has no transitions ({trajectory.message})"
+            "trajectory: a failed trajectory that kept no states has no transitions "
+            f"({trajectory.message})"
         )
     states = check_array(trajectory.states, "trajectory.states", shape=(None, state_dim))
     controls = check_array(
@@ -194,7 +217,9 @@ class Task(ABC):
         -------
         Trajectory
             With ``failed=True`` and a message if the physics produced non-finite values;
-            the failure is reported through a ``RuntimeWarning``, never raised.
+            the failure is reported through a ``RuntimeWarning``, never raised. A failed
+            trajectory keeps the states simulated before the failure where the task records
+            them (:class:`SimulationFailure`'s ``partial``), else one placeholder row.
         """
         omega = self.check_omega(omega)
         s = self.check_context(context)
@@ -203,24 +228,42 @@ class Task(ABC):
             try:
                 traj = self._simulate(omega, s, rng)
             except (SimulationFailure, FloatingPointError, OverflowError) as exc:
-                return self._failed(omega, s, f"{type(exc).__name__}: {exc}")
+                partial = getattr(exc, "partial", None)
+                return self._failed(omega, s, f"{type(exc).__name__}: {exc}", partial)
         if not (np.all(np.isfinite(traj.states)) and np.all(np.isfinite(traj.controls))) or not all(
             np.all(np.isfinite(v)) for v in traj.signals.values()
         ):
             return self._failed(omega, s, "non-finite values in the simulated trajectory")
         return traj
 
-    def _failed(self, omega: np.ndarray, context: np.ndarray, message: str) -> Trajectory:
+    def _failed(
+        self,
+        omega: np.ndarray,
+        context: np.ndarray,
+        message: str,
+        partial: Trajectory | None = None,
+    ) -> Trajectory:
         warnings.warn(
             f"{self.name}: rollout failed ({message}); reward set to {self.worst_reward:g}",
             RuntimeWarning,
             stacklevel=3,
         )
+        info = {"omega": omega.tolist(), "context": context.tolist()}
+        if partial is not None:
+            return Trajectory(
+                partial.times,
+                partial.states,
+                partial.controls,
+                signals=partial.signals,
+                info={**partial.info, **info},
+                failed=True,
+                message=message,
+            )
         return Trajectory(
             np.zeros(1),
             np.zeros((1, 1)),
             np.zeros((1, 1)),
-            info={"omega": omega.tolist(), "context": context.tolist()},
+            info=info,
             failed=True,
             message=message,
         )
@@ -262,7 +305,8 @@ class Task(ABC):
         Parameters
         ----------
         trajectory : Trajectory
-            A non-failed trajectory of this task.
+            A trajectory of this task: a working one, or a failed one that kept the states
+            before its failure (:attr:`~skillkit.trajectory.Trajectory.has_transitions`).
 
         Returns
         -------
@@ -275,7 +319,7 @@ class Task(ABC):
         NotImplementedError
             If the task does not support step-based models (:attr:`supports_model_rollout`).
         ValueError
-            For a failed trajectory or one of the wrong shape.
+            For a failed trajectory without states or one of the wrong shape.
         """
         self._require_model_rollout("transitions")
         sig = self.model_signals()

@@ -41,8 +41,7 @@ algorithm holds the task: use module-level functions (or ``functools.partial`` o
 lambdas, where a run is checkpointed.
 
 These classes are not in the task registry (they are yours, not the thesis's); they are
-imported from this module and join :mod:`skillkit.tasks`'s top-level exports when that file
-next changes.
+exported by :mod:`skillkit.tasks`.
 
 Example (model-free)::
 

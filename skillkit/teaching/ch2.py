@@ -9,8 +9,9 @@ tabulates the result:
 
 * DMPs (Sec. 2.2.1, Eqs. 2.21–2.23): :func:`phase_figure` (z_t of Eq. 2.22 and where the basis
   centres sit in time), :func:`basis_figure` (the normalised Gaussians times z, over the phase
-  and over time), :func:`forcing_target` and :func:`forcing_figure` (the least-squares target Y
-  of Eq. 2.23, the fitted f(z_t; v) and each basis function's share φ_i(z_t) v_i),
+  and over time), :func:`forcing_figure` (the least-squares target Y of Eq. 2.23,
+  :meth:`~skillkit.policies.dmp.DMP.forcing_target`, the fitted f(z_t; v) and each basis
+  function's share φ_i(z_t) v_i),
   :func:`demonstration_figure` (curves over a dashed demonstration, as Fig. 2.11 draws it) and
   :func:`dmp_fit_figure` (what a slider over the number of basis functions redraws).
 * GPs (Sec. 2.3, Eqs. 2.25–2.28): :func:`noisy_samples` (the data of the examples),
@@ -66,7 +67,6 @@ __all__ = [
     "demonstration_figure",
     "dmp_fit_figure",
     "forcing_figure",
-    "forcing_target",
     "gp_posterior_figure",
     "gp_with",
     "hyperparameter_figure",
@@ -197,42 +197,6 @@ def basis_figure(dmp: DMP, times: ArrayLike, *, backend: str = "plotly"):
     return _draw(_result(title, series), backend)
 
 
-def forcing_target(
-    dmp: DMP, times: ArrayLike, q: ArrayLike, qd: ArrayLike, qdd: ArrayLike
-) -> np.ndarray:
-    """The regression target Y of Eq. (2.23) that :meth:`DMP.fit` fits φ(z_t)ᵀv to.
-
-    Y = q̈ / τ² − α_x (β_x (g_t − q) + (ġ − q̇) / τ), with g and ġ the last demonstrated
-    position and velocity and the moving goal g_t = g + ġ (t − T) of the DMP module; with
-    τ = 1 and ġ = 0 this is Eq. (2.23) as printed. The DMP's ``goal``, ``goal_velocity`` and
-    ``tau`` are used, so pass a DMP fitted on this demonstration.
-
-    Parameters
-    ----------
-    dmp : DMP
-        Fitted (it has a goal).
-    times : array_like, shape (N,)
-    q, qd, qdd : array_like, shape (N, n_joints)
-
-    Returns
-    -------
-    ndarray, shape (N, n_joints)
-    """
-    if not isinstance(dmp, DMP):
-        raise ValueError(f"dmp: expected a DMP, got {type(dmp).__name__}")
-    if dmp.goal is None:
-        raise ValueError("dmp: has no goal; fit() it on the demonstration first")
-    t = _times(times)
-    shape = (t.shape[0], dmp.n_joints)
-    q = check_array(q, "q", shape=shape)
-    qd = check_array(qd, "qd", shape=shape)
-    qdd = check_array(qdd, "qdd", shape=shape)
-    tau, g, gd = dmp.tau, dmp.goal, dmp.goal_velocity
-    s = t - t[0]
-    g_t = g + gd * (s[:, None] - dmp.duration / tau)
-    return qdd / tau**2 - dmp.alpha_x * (dmp.beta_x * (g_t - q) + (gd - qd) / tau)
-
-
 def forcing_figure(
     dmp: DMP,
     times: ArrayLike,
@@ -258,7 +222,7 @@ def forcing_figure(
     Returns
     -------
     plotly.graph_objects.Figure or NotebookFigure
-        Left: the target Y of Eq. (2.23) (:func:`forcing_target`, dashed) and the fitted
+        Left: the target Y of Eq. (2.23) (:meth:`DMP.forcing_target`, dashed) and the fitted
         f(z_t; v) = φ(z_t)ᵀv (:meth:`DMP.forcing`). Right: the terms φ_i(z_t) v_i, whose sum
         is f: a weight v_i scales one bump of the forcing term, active while the phase passes
         its centre.
@@ -272,7 +236,7 @@ def forcing_figure(
     ):
         raise ValueError(f"joint: expected an integer in [0, {dmp.n_joints}), got {joint!r}")
     t = _times(times)
-    target = forcing_target(dmp, t, q, qd, qdd)[:, joint]
+    target = dmp.forcing_target(t, q, qd, qdd)[:, joint]
     f = dmp.forcing(t - t[0])[:, joint]
     phi = dmp.basis(dmp.phase(t - t[0]))
     # each term where its basis function is active (above 1% of its peak), so the panel's

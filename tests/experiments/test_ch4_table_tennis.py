@@ -66,7 +66,7 @@ def test_models_of_both_figures_use_the_settings_options():
     task = make("table-tennis")
     for exp_id in ("fig4.12", "fig4.13"):
         st = replace(get(exp_id).settings["smoke"], contact_features="thesis", refit="cold")
-        model = tt._table_tennis_model(task, st)
+        model = tt.table_tennis_reward_model(task, st)
         assert model.contact.features == "thesis" and model.refit == "cold"
         assert model.contact.score == st.contact_score
 

@@ -149,17 +149,14 @@ def test_the_thesis_scoreboard_leaves_comparisons_out(tmp_path):
 
 
 def test_readme_comparison_is_made_from_the_stored_result():
-    """README.md's comparison tables are exactly comparison_markdown() of the stored run."""
+    """README.md's comparison tables are exactly comparison_section() of the stored run, which
+    says whether today's code would still make it."""
     from pathlib import Path
 
-    from skillkit.experiments.run import comparison_markdown, stored_run
+    from skillkit.experiments.run import comparison_section, stored_run
 
     run = stored_run("cmp.methods", scale="quick")
     readme = (Path(__file__).parents[2] / "README.md").read_text()
     table = readme.split("<!-- comparison:start -->\n")[1].split("<!-- comparison:end -->")[0]
-    header = (
-        f"Stored: `{run.path.name}` ({run.result['trials']} trials at {run.scale} scale, "
-        f"commit {run.result['git']['commit'][:7]}).\n\n"
-    )
-    assert table == header + comparison_markdown(run.summary) + "\n"
-    assert run.stale is None  # made by today's code
+    assert table == comparison_section(run)
+    assert ("**stale**" in table) == (run.stale is not None)

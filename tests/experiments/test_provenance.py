@@ -1,5 +1,6 @@
 """Provenance: the code fingerprint follows code, not documentation; stale results are found."""
 
+import ast
 import json
 
 import pytest
@@ -124,3 +125,41 @@ def test_a_stored_run_says_when_it_is_stale(tmp_path):
     (run.path / "result.json").write_text(json.dumps(result))
     old = load_run(run.path)
     assert "no code fingerprint" in old.stale and "*Stale:*" in old._repr_markdown_()
+
+
+def test_registering_an_experiment_changes_no_other_experiments_fingerprint():
+    """``skillkit.experiments``' ``__init__`` imports every experiment module to register it;
+    those lines are left out of its hash, its other code is not."""
+    package = "skillkit.experiments"
+    text = (
+        "from skillkit.experiments.registry import get\n"
+        "from skillkit.experiments import ch2  # registers\n"
+        "from skillkit.experiments import (\n    ch5,\n)\n"
+        "from skillkit.experiments import registry, not_a_module\n"
+    )
+    assert provenance._registration_lines(ast.parse(text), package) == {2, 3, 4, 5}
+    init = provenance.PACKAGE_ROOT / "experiments" / "__init__.py"
+    stat = init.stat()
+    tokens = provenance._normalised(init, stat.st_mtime_ns, stat.st_size).decode().split("\n")
+    assert "1:registry" in tokens and "1:reproduce" in tokens  # code that stays hashed
+    registered = {get(i).run_trial.__module__.rsplit(".", 1)[-1] for i in ids()}
+    assert "cmp_methods" in registered and "ch2" in registered
+    assert not registered & {t.partition(":")[2] for t in tokens}
+
+
+def test_closure_follows_a_lazily_exported_name_to_its_module(tmp_path):
+    """``skillkit.search`` exports CMA-ES and BO through ``__getattr__``; a module importing
+    them from the package has their defining modules in its closure."""
+    path = tmp_path / "m.py"
+    path.write_text("from skillkit.search import CMAES, ContextualBO\n")
+    root = provenance.PACKAGE_ROOT
+    names = {
+        str(f.relative_to(root)) for f in provenance.source_closure(path) if f.is_relative_to(root)
+    }
+    assert {"search/cmaes.py", "search/cbo.py", "search/__init__.py"} <= names
+    import skillkit.search
+
+    assert all(
+        getattr(skillkit.search, name).__module__ == module
+        for name, module in skillkit.search._LAZY.items()
+    )

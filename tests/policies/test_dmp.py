@@ -420,3 +420,16 @@ def test_small_matrix_exponential_matches_scipy(scale):
     n_ops, cond = 4 * (s + 13), max(1.0, expm_cond(m))
     tol = 2 * fp_tol(n_ops, scale=np.linalg.norm(want), cond=cond)
     np.testing.assert_allclose(_expm_small(m), want, rtol=0, atol=tol)
+
+
+def test_forcing_target_needs_a_fitted_dmp_and_increasing_times():
+    dmp = DMP(n_joints=1, n_basis=5)
+    t = np.linspace(0.0, 1.0, 11)
+    q = np.zeros((11, 1))
+    with pytest.raises(ValueError, match="no goal"):
+        dmp.forcing_target(t, q, q, q)
+    dmp.fit(t, np.sin(t)[:, None], np.cos(t)[:, None], -np.sin(t)[:, None], ridge=1e-6)
+    with pytest.raises(ValueError, match="times"):
+        dmp.forcing_target(t[::-1], q, q, q)
+    with pytest.raises(ValueError, match="qd"):
+        dmp.forcing_target(t, q, np.zeros((11, 2)), q)

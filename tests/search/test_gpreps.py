@@ -107,6 +107,28 @@ def _same_policies(a, b):
 
 
 # --------------------------------------------------------------------------- the model
+def test_the_model_learns_a_failed_rollouts_transitions_before_its_failure():
+    """A balancing robot that falls keeps x_0 … x_{t−1}; the forward model is fitted on
+    those transitions beside the working rollouts' (and the horizon comes from a working
+    one), while a failed rollout without states adds nothing."""
+    from skillkit.tasks import make
+
+    task = make("balancing", n_steps=20)
+    good = task.rollout(task.lqr_gain().ravel(), rng=0)
+    with pytest.warns(RuntimeWarning, match="diverged"):
+        fell = task.rollout(-task.lqr_gain().ravel(), rng=1)
+    placeholder = Trajectory(np.zeros(1), np.zeros((1, 1)), np.zeros((1, 1)), failed=True)
+    assert fell.failed and 2 <= fell.n_steps < good.n_steps
+    assert not placeholder.has_transitions
+    model = TrajectoryRewardModel(task, make_model=LinearGaussianModel)
+    trajs = [fell, good, placeholder]
+    fit = model.fit(np.zeros((3, 0)), np.zeros((3, 32)), np.zeros(3), trajs)
+    assert fit["n_data"] == (fell.n_steps - 1) + 20 and fit["n_trajectories"] == 2
+    assert model.horizon == 20
+    with pytest.raises(ValueError, match="horizon"):
+        TrajectoryRewardModel(task).fit(np.zeros((1, 0)), np.zeros((1, 32)), np.zeros(1), [fell])
+
+
 def test_predicted_expected_reward_matches_monte_carlo_on_an_exact_model_class():
     """Eq. 4.1 with a linear-Gaussian forward model of a linear-Gaussian system: the mean
     predicted reward of GPREPS's M artificial samples is the true expected reward of the

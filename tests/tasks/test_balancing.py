@@ -3,6 +3,8 @@ helpers, data collection, the sampler's feedback policy and the rewards of sampl
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 import scipy.linalg
@@ -18,7 +20,9 @@ from skillkit.tasks.balancing import (
     random_lqr_gains,
     sampled_rewards,
 )
+from skillkit.tasks.base import SimulationFailure
 from skillkit.tasks.planar_model import UPRIGHT
+from skillkit.trajectory import Trajectory
 
 
 def _feedback_tol(x, gains):
@@ -289,3 +293,40 @@ def test_design_policy_names_bad_arguments():
         design_policy(task, g, n_designs=1)
     with pytest.raises(ValueError, match="scale_std"):
         design_policy(task, g, scale_std=-1.0)
+
+
+def test_a_diverged_rollout_keeps_its_states_before_the_divergence():
+    """The failed trajectory holds x_0 … x_{t−1}, all within the limits, and they are the
+    same states (bit for bit: the same computation and random stream) as a run that ends at
+    step t with limits it does not reach."""
+    task = make("balancing")
+    gain = -task.lqr_gain().ravel()  # the LQR gain with the wrong sign: it topples the robot
+    with pytest.warns(RuntimeWarning, match="diverged: a joint speed exceeds 100 rad/s"):
+        failed = task.rollout(gain, rng=0)
+    assert failed.failed and failed.has_transitions
+    assert task.reward(failed) == task.worst_reward
+    k = failed.n_steps
+    assert failed.info["steps_before_failure"] == k - 1
+    assert np.abs(failed.states[:, 4:]).max() <= task.max_joint_speed
+    assert np.abs(failed.states[:, :4] - UPRIGHT).max() <= task.max_angle
+    wide = make("balancing", n_steps=k, max_joint_speed=1e6, max_angle=1e6)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the wide limits are not reached by step k
+        whole = wide.rollout(gain, rng=0)
+    assert np.abs(whole.states[k, 4:]).max() > task.max_joint_speed  # x_k is where it stopped
+    np.testing.assert_array_equal(failed.states, whole.states[:k])
+    np.testing.assert_array_equal(failed.controls, whole.controls[:k])
+    np.testing.assert_array_equal(
+        failed.signals["torque_noise"], whole.signals["torque_noise"][: k - 1]
+    )
+    x, u, xn = task.transitions(failed)
+    np.testing.assert_array_equal(xn, whole.states[1:k])
+    assert x.shape == (k - 1, 8) and u.shape == (k - 1, 4)
+
+
+def test_a_failure_checks_its_partial_trajectory():
+    one_row = Trajectory(np.zeros(1), np.zeros((1, 8)), np.zeros((1, 4)))
+    with pytest.raises(ValueError, match="partial: expected a Trajectory with at least two"):
+        SimulationFailure("diverged", partial=one_row)
+    with pytest.raises(ValueError, match="partial"):
+        SimulationFailure("diverged", partial=np.zeros((3, 8)))

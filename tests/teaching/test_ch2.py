@@ -66,7 +66,7 @@ def test_basis_functions_sum_to_the_phase(reach):
 
 def test_forcing_target_is_eq_2_23_and_what_fit_solves(reach):
     times, q, qd, qdd, dmp = reach
-    target = ch2.forcing_target(dmp, times, q, qd, qdd)
+    target = dmp.forcing_target(times, q, qd, qdd)
     # tau = 1 and a demonstration ending at rest: Eq. (2.23) as printed
     g = q[-1, 0]
     printed = qdd[:, 0] - dmp.alpha_x * (dmp.beta_x * (g - q[:, 0]) - qd[:, 0])
@@ -88,7 +88,7 @@ def test_forcing_target_with_moving_goal_and_time_scaling():
     t, q, qd, qdd = times[cut], q[cut], qd[cut], qdd[cut]
     dmp = DMP(n_joints=1, n_basis=8).fit(t, q, qd, qdd, tau=1.5)
     assert abs(dmp.goal_velocity[0]) > 0.1
-    target = ch2.forcing_target(dmp, t, q, qd, qdd)
+    target = dmp.forcing_target(t, q, qd, qdd)
     phi = dmp.basis(dmp.phase(t))
     v = np.linalg.lstsq(phi, target, rcond=None)[0]
     tol = 1e3 * EPS * np.linalg.cond(phi) * np.abs(dmp.weights).max()
@@ -100,7 +100,7 @@ def test_forcing_figure_draws_the_fit_the_target_and_each_term(reach):
     fig = ch2.forcing_figure(dmp, times, q, qd, qdd)
     target = _trace(fig, "target Y (Eq. 2.23)")
     assert target.line.dash == "dash"
-    np.testing.assert_allclose(target.y, ch2.forcing_target(dmp, times, q, qd, qdd)[:, 0])
+    np.testing.assert_allclose(target.y, dmp.forcing_target(times, q, qd, qdd)[:, 0])
     fit = _trace(fig, "fitted f = φᵀv, 10 weights")
     np.testing.assert_allclose(fit.y, dmp.forcing(times)[:, 0], rtol=fp_tol(4 * dmp.n_basis))
     phi = dmp.basis(dmp.phase(times))
@@ -299,7 +299,7 @@ def test_same_seed_same_samples_and_a_density(check):
         (lambda d: ch2.phase_figure("dmp", [0.0, 1.0]), "dmp"),
         (lambda d: ch2.phase_figure(d, [1.0, 0.0]), "times"),
         (lambda d: ch2.forcing_figure(d, *reach_demonstration(), joint=1), "joint"),
-        (lambda d: ch2.forcing_target(DMP(1), *reach_demonstration()), "dmp"),
+        (lambda d: DMP(1).forcing_target(*reach_demonstration()[:4]), "no goal"),
         (lambda d: ch2.demonstration_figure([0.0, 1.0], [0.0], {}), "demonstration"),
         (lambda d: ch2.demonstration_figure([0.0, 1.0], [0.0, 1.0], {"a": [1.0]}), "curves"),
         (lambda d: ch2.dmp_fit_figure(0), "n_basis"),

@@ -487,7 +487,7 @@ register(
         summarize=_summarize,
         verdict=verdict,
         own_checks=lambda _settings, summary: own_checks(summary),
-        trials={"smoke": 1, "quick": 1, "paper": 3},
+        trials={"smoke": 1, "quick": 1, "paper": 5},
         claim=CLAIM,
     )
 )

@@ -877,7 +877,7 @@ register(
         run_trial=run_trial_46,
         summarize=summarize_46,
         verdict=verdict_46,
-        trials={"smoke": 1, "quick": 2, "paper": 3},
+        trials={"smoke": 1, "quick": 2, "paper": 5},
         claim=CLAIM_46,
     )
 )
@@ -895,7 +895,7 @@ register(
         run_trial=run_trial_47,
         summarize=summarize_47,
         verdict=verdict_47,
-        trials={"smoke": 1, "quick": 1, "paper": 2},
+        trials={"smoke": 1, "quick": 1, "paper": 5},
         claim=CLAIM_47,
     )
 )
@@ -911,7 +911,7 @@ register(
         summarize=summarize_49,
         verdict=verdict_49,
         own_checks=lambda _settings, summary: own_checks_49(summary),
-        trials={"smoke": 1, "quick": 1, "paper": 2},
+        trials={"smoke": 1, "quick": 1, "paper": 5},
         claim=CLAIM_49,
     )
 )

@@ -466,6 +466,10 @@ def run_trials(
         "machine": {
             "platform": platform.platform(),
             "processor": platform.machine(),
+            # round-off, and so the last digits of iterated fits, depend on the CPU and on
+            # the SIMD kernels torch dispatches to
+            "cpu_model": _cpu_model(),
+            "torch_cpu_capability": _torch_cpu_capability(),
             "cpus": os.cpu_count(),
             "load_average_before": load_before,
             "load_average_after": _load_average(),
@@ -503,6 +507,29 @@ def _summary_events(events: dict) -> dict:
     record."""
     missing = events.get("trials_without_record")
     return {**events["total"], **({"trials_without_record": missing} if missing else {})}
+
+
+def _cpu_model() -> str | None:
+    """The CPU's model name (``/proc/cpuinfo`` on Linux, else :func:`platform.processor`), or
+    None when neither says."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or None
+
+
+def _torch_cpu_capability() -> str | None:
+    """The SIMD level torch's CPU kernels use (``torch.backends.cpu.get_cpu_capability``)."""
+    import torch
+
+    try:
+        return str(torch.backends.cpu.get_cpu_capability())
+    except (AttributeError, RuntimeError):
+        return None
 
 
 def _load_average() -> list[float] | None:

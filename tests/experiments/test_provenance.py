@@ -98,6 +98,11 @@ def test_a_reproduced_run_records_its_provenance_and_is_current(tmp_path):
     result = json.loads((run.path / "result.json").read_text())
     assert result["code_fingerprint"] == provenance.code_fingerprint("fig2.10")
     assert set(result["git"]) == {"commit", "dirty"}
+    # the CPU and torch's SIMD level (what round-off depends on), as torch reports it
+    import torch
+
+    assert result["machine"]["torch_cpu_capability"] == torch.backends.cpu.get_cpu_capability()
+    assert {"cpu_model", "platform", "cpus"} <= set(result["machine"])
     assert [r["stale"] for r in provenance.check_results(tmp_path)] == [False]
     result["code_fingerprint"] = "0" * 16
     (run.path / "result.json").write_text(json.dumps(result))

@@ -18,10 +18,11 @@ R = −Σ_t x̃_tᵀ x̃_t of the current controller (the policy mean; PILCO's d
 1425 s to reach −100): its mean is a detuned minimum-effort gain, its covariance follows a
 family of LQR designs, so that its exploration reaches good gains while half its samples
 balance (:func:`initial_policy_42`). GPREPS predicts all artificial gains of one update from
-common start states (:class:`CommonStartRewardModel`). The model-based methods start their
-models from 6 s of real experience of a random policy, as the thesis: twelve 0.5-s rollouts
-of gains drawn from π₀ with white torque excitation of 3 N m (the excitation is part of the
-recorded control, so the model can tell the effect of u from that of x); short, gently
+common start states (``TrajectoryRewardModel(common_start_states=True)``). The model-based
+methods start their models from 6 s of real experience of a random policy, as the thesis:
+twelve 0.5-s rollouts of gains drawn from π₀ with white torque excitation of 3 N m (the
+excitation is part of the recorded control, so the model can tell the effect of u from that
+of x); short, gently
 excited rollouts keep the data near upright, where the learned controllers act (with three
 2-s rollouts at 30 N m every model we fitted mispredicted upright, see ``VARIANTS``). Those
 6 s count as experience. The setup table in the summary says where we depart and why.
@@ -35,7 +36,6 @@ from functools import partial
 
 import numpy as np
 
-from skillkit._validation import as_generator
 from skillkit.experiments.ch4_gpreps import COV_FLOOR, MIN_EFFECTIVE_SAMPLES
 from skillkit.experiments.claims import own_check
 from skillkit.experiments.registry import Experiment, Series, Verdict, fmt, register, with_verdict
@@ -54,7 +54,6 @@ from skillkit.viz.series import trial_band
 
 __all__ = [
     "BalancingComparisonSettings",
-    "CommonStartRewardModel",
     "experience_to_reach",
     "fitc_model",
     "gpreps_algorithm",
@@ -222,50 +221,6 @@ def initial_policy_42(st: BalancingComparisonSettings, task: Balancing) -> Gauss
                          st.design_control_weight, st.gain_scale_std, st.design_seed)  # fmt: skip
 
 
-class CommonStartRewardModel(TrajectoryRewardModel):
-    """:class:`~skillkit.search.gpreps.TrajectoryRewardModel` whose L predicted trajectories
-    start, for every pair of one call, from the same L start states x₀ ~ p(x₀).
-
-    Eq. 4.1 averages L trajectories to estimate each artificial sample's *expected* reward
-    E_{x₀}[R | ω]; the weights of the REPS update compare these estimates across the M
-    gains. Single rollouts of balancing differ more between start states (median −50, best
-    −1.2 for one gain at σ = 0.1) than between gains, so with independent start states
-    the weights rank start states; with common ones (common random numbers) the start
-    state's effect cancels from the comparison, and each estimate stays unbiased.
-
-    Its :meth:`expected_rewards` repeats the parent's with ``x0`` added; it belongs in
-    :class:`~skillkit.search.gpreps.TrajectoryRewardModel` as an option, left here so that
-    the results whose code includes search/gpreps.py (fig4.10–fig4.13) stay current until
-    that file next changes."""
-
-    def start_states(self, n_pairs: int, n_trajectories: int, rng) -> np.ndarray:
-        """x₀ (n_pairs, L, n_x): L draws of the task's start distribution, repeated per pair."""
-        x0 = self.task.initial_states(None, n_trajectories, as_generator(rng))
-        return np.repeat(x0[None], n_pairs, axis=0)
-
-    def expected_rewards(self, contexts, omegas, n_trajectories, rng=None) -> np.ndarray:
-        """Mean reward of L predicted trajectories per pair from common start states, (M,)."""
-        from skillkit.search import model_rollouts
-
-        if self.model is None:
-            raise RuntimeError("CommonStartRewardModel: call fit() before predicting")
-        rng = as_generator(rng)
-        w = np.atleast_2d(np.asarray(omegas, dtype=float))
-        out = model_rollouts.predict_trajectories(
-            self.task,
-            self.model,
-            w,
-            None,
-            horizon=self.horizon,
-            n_samples=n_trajectories,
-            rng=rng,
-            x0=self.start_states(w.shape[0], n_trajectories, rng),
-            device=self.device,
-            dtype=self.dtype,
-        )
-        return out.expected_rewards
-
-
 # --------------------------------------------------------------------------- one trial
 def _fitc(n_inducing: int, n_steps: int, mean: str) -> ForwardModel:
     # Δx targets, as in the stored paper result (the default became x′ with issue #16).
@@ -332,9 +287,9 @@ def gpreps_algorithm(task, st: BalancingComparisonSettings, pi0, prior, make_mod
         cov_floor=COV_FLOOR,
         min_effective_samples=MIN_EFFECTIVE_SAMPLES,
     )
-    kind = CommonStartRewardModel if st.common_start_states else TrajectoryRewardModel
     # The horizon is the learning rollouts' (the random-policy ones may be shorter).
-    model = kind(task, make_model, horizon=task.n_steps, prior_trajectories=prior)
+    model = TrajectoryRewardModel(task, make_model, horizon=task.n_steps, prior_trajectories=prior,
+                                  common_start_states=st.common_start_states)  # fmt: skip
     return GPREPS(pi0, model, settings, rng=rng, task=task)
 
 

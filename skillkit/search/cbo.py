@@ -80,7 +80,7 @@ restored afterwards, and same seeds ⇒ same proposals. Tensors live on ``device
 (float64 by default; BoTorch recommends double precision for GPs); the object pickles, so a
 :class:`~skillkit.trial.TrialContext` checkpoints and resumes it like any other algorithm.
 
-Import from this module (``from skillkit.search.cbo import ContextualBO``).
+``from skillkit.search import ContextualBO`` imports it (lazily: BoTorch is slow to import).
 """
 
 from __future__ import annotations

@@ -46,8 +46,8 @@ Randomness: CMA-ES draws its normal deviates from ``rng`` through cma's ``randn`
 ``rng`` (the candidates are fixed when they are asked). The object pickles, so a
 :class:`~skillkit.trial.TrialContext` checkpoints and resumes it like any other algorithm.
 
-Import from this module (``from skillkit.search.cmaes import CMAES``); it joins
-:mod:`skillkit.search`'s top-level exports when that file next changes.
+``from skillkit.search import CMAES`` imports it (lazily: the ``cma`` package imports pyplot,
+so importing :mod:`skillkit.search` does not import it).
 """
 
 from __future__ import annotations

@@ -307,9 +307,19 @@ class TrajectoryRewardModel:
         result) or ``torch.float32``, the faster path of
         :func:`~skillkit.models.sampling.sample_trajectories` (its notes give the measured
         accuracy; rewards are computed in float64 either way).
+    common_start_states : bool
+        Start the L predicted trajectories of every pair of one :meth:`expected_rewards` call
+        from the same L start states x₀ ~ p(x₀) (common random numbers; context-free tasks
+        only). Eq. 4.1 averages L trajectories to estimate each artificial sample's expected
+        reward E_{x₀}[R | ω], and the REPS weights compare these estimates across the M
+        samples: where single rollouts differ more between start states than between nearby
+        parameters (balancing: median −50, best −1.2 for one gain at σ = 0.1), independent
+        start states make the weights rank start states; common ones cancel the start
+        state's effect from the comparison, and each estimate stays unbiased.
     """
 
     dtype: torch.dtype = torch.float64  # class default: instances pickled before it resume
+    common_start_states: bool = False  # likewise
 
     def __init__(
         self,
@@ -320,6 +330,7 @@ class TrajectoryRewardModel:
         device=None,
         prior_trajectories: Sequence[Trajectory] = (),
         dtype: torch.dtype = torch.float64,
+        common_start_states: bool = False,
     ):
         if not isinstance(task, Task):
             raise ValueError(f"task: expected a Task, got {type(task).__name__}")
@@ -332,6 +343,12 @@ class TrajectoryRewardModel:
             raise ValueError(f"make_model: expected a callable, got {type(make_model).__name__}")
         if horizon is not None:
             check_count(horizon, "horizon")
+        if common_start_states and task.context_dim:
+            raise ValueError(
+                "common_start_states: needs a context-free task (start states depend on the "
+                f"context), got {task.name!r} with context_dim={task.context_dim}"
+            )
+        self.common_start_states = bool(common_start_states)
         self.task = task
         self.make_model = _default_forward_model if make_model is None else make_model
         self.horizon = None if horizon is None else int(horizon)
@@ -388,20 +405,33 @@ class TrajectoryRewardModel:
         self.n_data = int(x.shape[0])
         return stats
 
+    def start_states(self, n_pairs: int, n_trajectories: int, rng) -> np.ndarray:
+        """Common start states x₀ (n_pairs, L, n_x): L draws of the task's start distribution,
+        the same for every pair (``common_start_states``)."""
+        x0 = self.task.initial_states(None, n_trajectories, as_generator(rng))
+        return np.repeat(x0[None], n_pairs, axis=0)
+
     def expected_rewards(self, contexts, omegas, n_trajectories, rng=None) -> np.ndarray:
-        """Mean reward of L predicted trajectories per pair (Eq. 4.1), shape (M,)."""
-        from skillkit.search.model_rollouts import predict_trajectories
+        """Mean reward of L predicted trajectories per pair (Eq. 4.1), shape (M,); from common
+        start states when ``common_start_states`` (drawn from ``rng`` first)."""
+        from skillkit.search import model_rollouts
 
         if self.model is None:
             raise RuntimeError("TrajectoryRewardModel: call fit() before predicting")
-        out = predict_trajectories(
+        rng = as_generator(rng)
+        x0 = None
+        if self.common_start_states:
+            n_pairs = np.atleast_2d(np.asarray(omegas, dtype=float)).shape[0]
+            x0 = self.start_states(n_pairs, n_trajectories, rng)
+        out = model_rollouts.predict_trajectories(
             self.task,
             self.model,
             omegas,
             contexts if self.task.context_dim else None,
             horizon=self.horizon,
             n_samples=n_trajectories,
-            rng=as_generator(rng),
+            rng=rng,
+            x0=x0,
             device=self.device,
             dtype=self.dtype,
         )

@@ -10,7 +10,6 @@ import pytest
 from skillkit.experiments.ch4_balancing import (
     THESIS_42,
     BalancingComparisonSettings,
-    CommonStartRewardModel,
     experience_to_reach,
     initial_policy_42,
     own_checks_42,
@@ -19,6 +18,7 @@ from skillkit.experiments.ch4_balancing import (
 )
 from skillkit.models.linear import LinearGaussianModel
 from skillkit.search import model_rollouts
+from skillkit.search.gpreps import TrajectoryRewardModel
 from skillkit.tasks import make
 from tests._tolerances import mc_tol
 
@@ -143,7 +143,9 @@ def test_artificial_samples_of_one_update_share_their_start_states(monkeypatch):
     gain = task.lqr_gain(control_weight=1.0).ravel()
     rng = np.random.default_rng(0)
     trajs = [task.rollout(gain, rng=rng) for _ in range(2)]
-    model = CommonStartRewardModel(make("balancing", initial_std=0.07), LinearGaussianModel)
+    model = TrajectoryRewardModel(
+        make("balancing", initial_std=0.07), LinearGaussianModel, common_start_states=True
+    )
     model.fit(None, None, None, trajs, rng=0)
     seen = []
     real = model_rollouts.predict_trajectories

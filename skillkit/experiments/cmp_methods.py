@@ -28,10 +28,8 @@ run — rollouts, updates and evaluations — on the machine of the run). The th
 about CMA-ES or Bayesian optimisation, so the verdict's ``holds`` is None; the statement says
 where each method wins.
 
-``import skillkit.experiments`` registers this experiment (through :mod:`skillkit.experiments.
-runner`, not the package ``__init__``, whose text is part of every stored result's code
-fingerprint: listing it there would mark all 25 thesis results stale without a changed number;
-it moves there when the results are next regenerated together).
+``import skillkit.experiments`` registers this experiment, as every other (the package
+``__init__``'s registration imports are not part of any experiment's code fingerprint).
 """
 
 from __future__ import annotations

@@ -32,6 +32,10 @@ Issue #32 (verdicts that judge the thesis's own sentences):
   errors, errors near / far from the data): their summary is recomputed by the experiment's
   own ``summarize`` from the stored per-trial arrays (``trials.npz``), and every number of the
   stored summary must come back unchanged (the script refuses otherwise); nothing is rerun;
+* tab4.2 (2026-12-03): its verdict's criterion changed after the paper run at 65bc574
+  (medians over trials, (1) judged at the highest limit; ``ch4_balancing.verdict_42``); the
+  stored run is re-summarized and re-judged, and records ``summary_migrated`` although it has
+  a code fingerprint (stale by it until the regeneration);
 * the top level gains ``summary_migrated`` (``{"issue": 32, "git": ..., "resummarized":
   bool}``): the numbers were made by an earlier commit's code (the result has no
   ``code_fingerprint``, so ``skillkit runs --check`` lists it as stale), only the verdict,
@@ -76,7 +80,7 @@ DROPPED_32 = {
     },
 }
 #: Issue #32: ids whose verdict needs numbers only ``summarize`` on the stored trials gives.
-RESUMMARIZE = ("fig3.3", "fig3.5", "fig4.10", "fig4.11", "fig5.3", "fig5.4", "fig5.5")
+RESUMMARIZE = ("fig3.3", "fig3.5", "fig4.10", "fig4.11", "fig5.3", "fig5.4", "fig5.5", "tab4.2")
 
 
 def stored_trials(folder: Path) -> list[dict]:
@@ -251,8 +255,9 @@ def migrate_file(path: Path, write: bool = True) -> tuple[bool, dict]:
             + [("overrides", changed)]
             + [(k, migrated[k]) for k in keys[at:]]
         )
-    if migrated["summary"] != result["summary"] and "code_fingerprint" not in migrated:
-        # numbers of an earlier commit's code, verdict of today's (issue #32)
+    if migrated["summary"] != result["summary"]:
+        # numbers of an earlier commit's code, verdict of today's (issue #32; tab4.2's
+        # criterion change of 2026-12-03 on a run that has a code fingerprint)
         done = (result.get("summary_migrated") or {}).get("resummarized", False)
         migrated["summary_migrated"] = {
             "issue": 32,

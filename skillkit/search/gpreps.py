@@ -276,8 +276,9 @@ class TrajectoryRewardModel:
     hyper-parameters when it is a :class:`~skillkit.models.gp.ForwardModel`) on
     ``task.transitions`` of every non-failed real trajectory; :meth:`expected_rewards` samples
     L trajectories per pair with :func:`~skillkit.search.model_rollouts.predict_trajectories`
-    (start states p(x₀; s) Eq. 4.3, the task's controller and ``reward_batch``) and averages
-    their rewards (Eq. 4.1).
+    (start states p(x₀; s) Eq. 4.3, the task's controller and ``reward_batch``; a path the
+    task's simulator would stop as failed scores ``task.worst_reward``, as a real rollout does)
+    and averages their rewards (Eq. 4.1).
 
     Parameters
     ----------
@@ -320,6 +321,9 @@ class TrajectoryRewardModel:
 
     dtype: torch.dtype = torch.float64  # class default: instances pickled before it resume
     common_start_states: bool = False  # likewise
+    #: Fraction of the last :meth:`expected_rewards` call's predicted trajectories that the
+    #: task's divergence rule stopped (scored ``task.worst_reward``); None before one.
+    last_failed_fraction: float | None = None
 
     def __init__(
         self,
@@ -435,6 +439,7 @@ class TrajectoryRewardModel:
             device=self.device,
             dtype=self.dtype,
         )
+        self.last_failed_fraction = float(out.failed.mean())
         return out.expected_rewards
 
     def __repr__(self) -> str:

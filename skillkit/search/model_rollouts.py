@@ -27,7 +27,7 @@ from skillkit._validation import as_generator, check_array, check_count
 from skillkit.models.sampling import SampledTrajectories, StepModel, sample_trajectories
 from skillkit.tasks.base import Task
 
-__all__ = ["ModelRollouts", "predict_trajectories", "worst_if_nonfinite"]
+__all__ = ["ModelRollouts", "predict_trajectories", "worst_if_failed", "worst_if_nonfinite"]
 
 
 @dataclass(frozen=True)
@@ -43,10 +43,13 @@ class ModelRollouts:
         the arrays have the simulator's layout and :meth:`Task.reward_batch` scores them as it
         scores a simulated trajectory).
     rewards : ndarray, shape (B, L)
-        R(τ^{[l]}, s_b).
+        R(τ^{[l]}, s_b); ``task.worst_reward`` where ``failed``.
     contexts : ndarray, shape (B, context_dim)
     sampled : SampledTrajectories
         The sampler's output (saturation and variance-clamping counts).
+    failed : ndarray of bool, shape (B, L)
+        Predicted paths the task's simulator would stop as failed
+        (:meth:`~skillkit.tasks.base.Task.failed_batch`), scored as such.
     """
 
     states: np.ndarray
@@ -54,6 +57,7 @@ class ModelRollouts:
     rewards: np.ndarray
     contexts: np.ndarray
     sampled: SampledTrajectories
+    failed: np.ndarray
 
     @property
     def expected_rewards(self) -> np.ndarray:
@@ -66,7 +70,7 @@ class ModelRollouts:
         return (
             f"ModelRollouts(pairs={B}, trajectories={L}, horizon={T1 - 1}, state_dim={n_x}, "
             f"expected_reward={r.min():.4g}…{r.max():.4g}, "
-            f"saturated={self.sampled.n_saturated})"
+            f"failed={int(self.failed.sum())}, saturated={self.sampled.n_saturated})"
         )
 
 
@@ -163,17 +167,43 @@ def predict_trajectories(
     states = np.asarray(sampled.states.cpu(), dtype=np.float64)  # no copy for float64 on CPU
     controls = np.asarray(torch.cat([sampled.controls, u_last], dim=2).cpu(), dtype=np.float64)
     flat_s = np.repeat(s, L, axis=0)
+    flat_x = states.reshape(B * L, horizon + 1, n_x)
     rewards = np.asarray(
-        task.reward_batch(
-            states.reshape(B * L, horizon + 1, n_x),
-            controls.reshape(B * L, horizon + 1, -1),
-            {},
-            flat_s,
-        ),
+        task.reward_batch(flat_x, controls.reshape(B * L, horizon + 1, -1), {}, flat_s),
         dtype=np.float64,
-    ).reshape(B, L)
-    rewards = worst_if_nonfinite(rewards, task, "predict_trajectories")
-    return ModelRollouts(states, controls, rewards, s, sampled)
+    )
+    rewards, failed = worst_if_failed(rewards, flat_x, task)
+    rewards = worst_if_nonfinite(rewards.reshape(B, L), task, "predict_trajectories")
+    return ModelRollouts(states, controls, rewards, s, sampled, failed.reshape(B, L))
+
+
+def worst_if_failed(
+    rewards: np.ndarray, states: np.ndarray, task: Task
+) -> tuple[np.ndarray, np.ndarray]:
+    """Score predicted trajectories as the task scores its rollouts: those the simulator would
+    stop as failed (:meth:`~skillkit.tasks.base.Task.failed_batch`) get ``task.worst_reward``.
+
+    A real rollout that leaves the task's limits is stopped and scored ``worst_reward``; a
+    predicted path through the same states must score the same, or the REPS weights compare
+    real-world failures by the model's own numbers (a balancing model whose paths blow up
+    would score −1e9 … −1e37 where every real fall scores −1e7, and the weights would rank
+    parameters by how fast the model diverges).
+
+    Parameters
+    ----------
+    rewards : ndarray, shape (B,)
+        The task's :meth:`~skillkit.tasks.base.Task.reward_batch` of the paths.
+    states : ndarray, shape (B, T + 1, n_x)
+        The predicted states.
+    task : Task
+
+    Returns
+    -------
+    rewards : ndarray, shape (B,)
+    failed : ndarray of bool, shape (B,)
+    """
+    failed = np.asarray(task.failed_batch(states), dtype=bool)
+    return np.where(failed, task.worst_reward, rewards), failed
 
 
 def worst_if_nonfinite(rewards: np.ndarray, task: Task, where: str) -> np.ndarray:

@@ -51,7 +51,7 @@ from skillkit._validation import as_generator, check_array, check_count, check_p
 from skillkit.models.gp import ExactGP, ForwardModel, _GPRegression
 from skillkit.models.sampling import sample_trajectories
 from skillkit.search.gpreps import _check_dtype, _gp_stats, _warm_start
-from skillkit.search.model_rollouts import worst_if_nonfinite
+from skillkit.search.model_rollouts import worst_if_failed, worst_if_nonfinite
 from skillkit.tasks.planar import Throwing
 
 __all__ = ["ThrowingPrediction", "ThrowingRewardModel", "land"]
@@ -123,6 +123,10 @@ class ThrowingPrediction:
     rewards : ndarray, shape (B, L)
     landed : ndarray of bool, shape (B, L)
         Whether the predicted ball reached the ground within the flight horizon.
+    failed : ndarray of bool, shape (B, L)
+        Predicted arm paths the simulator would stop as diverged
+        (:meth:`~skillkit.tasks.planar.Throwing.failed_batch`); their reward is the task's
+        ``worst_reward`` (:func:`~skillkit.search.model_rollouts.worst_if_failed`).
     """
 
     states: np.ndarray
@@ -131,6 +135,7 @@ class ThrowingPrediction:
     ball: np.ndarray
     rewards: np.ndarray
     landed: np.ndarray
+    failed: np.ndarray
 
     @property
     def expected_rewards(self) -> np.ndarray:
@@ -444,6 +449,7 @@ class ThrowingRewardModel:
         rewards = task.reward_batch(
             states_np, torques.cpu().numpy(), {"ball": paths}, np.repeat(s, L, axis=0)
         )
+        rewards, failed = worst_if_failed(rewards, states_np, task)
         rewards = worst_if_nonfinite(rewards, task, "ThrowingRewardModel.predict")
         return ThrowingPrediction(
             states_np.reshape(B, L, T, 8),
@@ -452,6 +458,7 @@ class ThrowingRewardModel:
             paths.reshape(B, L, -1, 2),
             rewards.reshape(B, L),
             landed.reshape(B, L),
+            failed.reshape(B, L),
         )
 
     def expected_rewards(self, contexts, omegas, n_trajectories, rng=None) -> np.ndarray:

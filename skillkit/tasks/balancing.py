@@ -279,21 +279,37 @@ class Balancing(Task):
             ff[i] = data.qfrc_inverse
         return np.hstack([q, qd]), ff
 
+    def _beyond_limits(self, x: np.ndarray) -> np.ndarray:
+        """Whether states x (..., 8) are non-finite, faster than ``max_joint_speed`` or more
+        than ``max_angle`` from upright: the divergence rule, shape (...)."""
+        with np.errstate(invalid="ignore"):
+            speed = np.abs(x[..., 4:]).max(axis=-1)
+            angle = np.abs(x[..., :4] - UPRIGHT).max(axis=-1)
+            within = (speed <= self.max_joint_speed) & (angle <= self.max_angle)
+        return ~(np.isfinite(x).all(axis=-1) & within)
+
+    def failed_batch(self, states) -> np.ndarray:
+        """Trajectories (B, T + 1, 8) with a state beyond the divergence limits (non-finite,
+        a joint faster than ``max_joint_speed`` or more than ``max_angle`` from upright),
+        shape (B,): the rule a rollout is stopped by (:meth:`_check_state`), so a predicted
+        path through such a state scores :attr:`worst_reward` as the real rollout would."""
+        states = check_array(states, "states", ndim=3, finite=False)
+        if states.shape[2] != 8:
+            raise ValueError(f"states: expected shape (B, T + 1, 8), got {states.shape}")
+        return self._beyond_limits(states).any(axis=1)
+
     def _check_state(self, t, states, commanded, noise, excitation) -> None:
         """Stop the episode as diverged when x_t (``states[t]``) is non-finite or beyond the
         limits, keeping x_0 … x_{t−1} (all within them) as the failure's partial trajectory."""
         x = states[t]
-        if np.all(np.isfinite(x)):
-            speed, angle = np.abs(x[4:]).max(), np.abs(x[:4] - UPRIGHT).max()
-            if speed <= self.max_joint_speed and angle <= self.max_angle:
-                return
-            what = (
-                f"a joint speed exceeds {self.max_joint_speed:g} rad/s"
-                if speed > self.max_joint_speed
-                else f"a joint is more than {self.max_angle:g} rad from upright"
-            )
-        else:
+        if not self._beyond_limits(x):
+            return
+        if not np.all(np.isfinite(x)):
             what = "non-finite state"
+        elif np.abs(x[4:]).max() > self.max_joint_speed:
+            what = f"a joint speed exceeds {self.max_joint_speed:g} rad/s"
+        else:
+            what = f"a joint is more than {self.max_angle:g} rad from upright"
         partial = None
         if t >= 2:
             partial = Trajectory(

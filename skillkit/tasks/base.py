@@ -387,6 +387,26 @@ class Task(ABC):
         """
         raise NotImplementedError(f"{self.name}: reward_batch is not implemented")
 
+    def failed_batch(self, states) -> np.ndarray:
+        """Which trajectories of a batch the task's simulator would stop as failed.
+
+        The task's divergence rule (the one its rollouts raise :class:`SimulationFailure`
+        by) applied to whole state paths, so that a predicted path is scored as a real rollout
+        through the same states is: with :attr:`worst_reward`
+        (:func:`~skillkit.search.model_rollouts.worst_if_failed`). Default: the task stops no
+        run for its states (all False).
+
+        Parameters
+        ----------
+        states : array_like, shape (B, T + 1, state_dim)
+
+        Returns
+        -------
+        ndarray of bool, shape (B,)
+        """
+        states = check_array(states, "states", ndim=3, finite=False)
+        return np.zeros(states.shape[0], dtype=bool)
+
     def reward_signals(self, trajectory: Trajectory) -> dict[str, np.ndarray]:
         """The named signals :meth:`reward_batch` reads from one trajectory (unbatched).
 

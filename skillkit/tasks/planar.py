@@ -271,9 +271,15 @@ def _joint_limit_penalty(x: np.ndarray) -> np.ndarray:
     return (low**2).sum(axis=-1) + (high**2).sum(axis=-1)
 
 
+def _too_fast(qd: np.ndarray, limit: float) -> np.ndarray:
+    """Whether a joint speed exceeds ``limit`` (rad/s) at each step of ``qd`` (..., 4)."""
+    with np.errstate(invalid="ignore"):
+        return np.abs(qd).max(axis=-1) > limit
+
+
 def _check_divergence(qd: np.ndarray, limit: float, control_dt: float) -> None:
     """Raise :class:`SimulationFailure` if a joint speed exceeds ``limit`` (rad/s)."""
-    fast = np.abs(qd).max(axis=1) > limit
+    fast = _too_fast(qd, limit)
     if fast.any():
         t = int(np.argmax(fast))
         raise SimulationFailure(
@@ -586,6 +592,16 @@ class Throwing(Task):
         return {"ball": trajectory.signals["ball"]}
 
     # ------------------------------------------------------------------ model-based search
+    def failed_batch(self, states) -> np.ndarray:
+        """Trajectories (B, T + 1, 8) = [q, q̇] with a non-finite state or a joint faster than
+        ``max_joint_speed``, shape (B,): the rule a rollout is stopped by, so a predicted
+        path through such a state scores :attr:`worst_reward` as the real rollout would."""
+        states = check_array(states, "states", ndim=3, finite=False)
+        if states.shape[2] != 8:
+            raise ValueError(f"states: expected shape (B, T + 1, 8), got {states.shape}")
+        fast = _too_fast(states[..., 4:], self.max_joint_speed).any(axis=1)
+        return fast | ~np.isfinite(states).all(axis=(1, 2))
+
     supports_model_rollout = True
 
     def model_signals(self) -> ModelSignals:

@@ -7,7 +7,7 @@ import pytest
 import torch
 from _tolerances import fp_tol
 
-from skillkit.search.model_rollouts import predict_trajectories
+from skillkit.search.model_rollouts import predict_trajectories, worst_if_failed
 from skillkit.tasks import make
 from skillkit.tasks.balancing import X_UP, stable_gains
 
@@ -113,3 +113,23 @@ def test_bad_input_and_unsupported_tasks(setup):
         predict_trajectories(make("hockey"), model, np.zeros((1, 1)), horizon=2)
     with pytest.raises(NotImplementedError, match="signals"):
         predict_trajectories(make("throwing"), model, np.zeros((1, 1)), horizon=2)
+
+
+def test_a_predicted_path_beyond_the_limits_scores_as_a_real_fall(setup):
+    """A model whose paths blow up: the paths the task's divergence rule stops score
+    ``worst_reward`` (a real fall's reward), the others keep ``reward_batch``'s value."""
+    task, A, B, omegas = setup
+    unstable = LinearModel(1.2 * A, B)  # open loop scaled up: most of the gains lose the robot
+    out = predict_trajectories(task, unstable, omegas, horizon=30, n_samples=2, rng=0)
+    flat = out.states.reshape(-1, 31, 8)
+    raw = task.reward_batch(flat, out.controls.reshape(-1, 31, 4))
+    failed = task.failed_batch(flat).reshape(out.failed.shape)
+    np.testing.assert_array_equal(out.failed, failed)
+    assert out.failed.any() and not out.failed.all()
+    # the model's own cost of a fall is no fixed number (here −8e4 … −6e6; −1e20 at 1.6 A)
+    assert np.all(raw.reshape(failed.shape)[failed] != task.worst_reward)
+    np.testing.assert_array_equal(out.rewards[failed], task.worst_reward)
+    np.testing.assert_array_equal(out.rewards[~failed], raw.reshape(failed.shape)[~failed])
+    r, f = worst_if_failed(raw, flat, task)
+    np.testing.assert_array_equal(r, out.rewards.ravel())
+    np.testing.assert_array_equal(f, failed.ravel())

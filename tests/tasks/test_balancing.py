@@ -330,3 +330,28 @@ def test_a_failure_checks_its_partial_trajectory():
         SimulationFailure("diverged", partial=one_row)
     with pytest.raises(ValueError, match="partial"):
         SimulationFailure("diverged", partial=np.zeros((3, 8)))
+
+
+def test_the_divergence_rule_on_paths_is_the_rule_a_rollout_is_stopped_by():
+    """``failed_batch`` flags exactly the paths a rollout would have been stopped on: the
+    whole run (with limits it never reaches) of a gain that topples the robot, not its states
+    before the stop, not a balancing run; non-finite states count as diverged."""
+    task = make("balancing")
+    gain = -task.lqr_gain().ravel()
+    with pytest.warns(RuntimeWarning, match="diverged"):
+        failed = task.rollout(gain, rng=0)
+    k = failed.n_steps
+    wide = make("balancing", n_steps=k, max_joint_speed=1e6, max_angle=1e6)
+    whole = wide.rollout(gain, rng=0)
+    good = task.rollout(task.lqr_gain().ravel(), rng=0)
+    assert not good.failed
+    nan = good.states.copy()
+    nan[3, 5] = np.nan
+    paths = np.stack([whole.states, np.vstack([failed.states, failed.states[-1:]]),
+                      good.states[: k + 1], nan[: k + 1]])  # fmt: skip
+    np.testing.assert_array_equal(task.failed_batch(paths), [True, False, False, True])
+    far = good.states[None, : k + 1].copy()
+    far[0, 2, 1] = UPRIGHT[1] + 1.01 * task.max_angle  # beyond the angle limit only
+    assert task.failed_batch(far)[0] and not wide.failed_batch(far)[0]
+    with pytest.raises(ValueError, match="states: expected shape"):
+        task.failed_batch(np.zeros((2, 5, 6)))

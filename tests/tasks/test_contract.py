@@ -179,6 +179,20 @@ def test_extreme_parameters_do_not_crash(task):
         assert r == task.worst_reward
 
 
+def test_failed_batch_passes_working_rollouts_and_flags_non_finite_paths(task):
+    """The divergence rule on paths (scores predicted paths as a real failure): a working
+    rollout's states pass it; where the task has a rule, a non-finite state fails it."""
+    s = task.sample_context(2)
+    traj = task.rollout(_omega(task, s), s, rng=5)
+    paths = np.stack([traj.states, traj.states])
+    paths[1, 1, 0] = np.nan
+    flags = task.failed_batch(paths)
+    assert flags.shape == (2,) and flags.dtype == bool and not flags[0]
+    assert flags[1] == (type(task).failed_batch is not Task.failed_batch)
+    with pytest.raises(ValueError, match="states"):
+        task.failed_batch(traj.states)  # one path without the batch axis
+
+
 def test_trajectory_save_load_roundtrip(task, tmp_path):
     s = task.sample_context(0)
     traj = task.rollout(_omega(task, s), s, rng=0)

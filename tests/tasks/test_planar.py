@@ -456,3 +456,18 @@ def test_initial_policy_exploration_fraction_scales_the_weight_std(throwing):
     assert ratio[-1] == pytest.approx(1.0)  # the release time keeps its 20 ms
     with pytest.raises(ValueError, match="exploration_std_fraction"):
         throwing.initial_policy(0.0)
+
+
+def test_throwing_divergence_rule_on_paths():
+    """``failed_batch`` flags a path whose joint speed passes ``max_joint_speed`` (the rule a
+    throw is stopped by) or that holds a non-finite state, and passes a working throw."""
+    task = make("throwing")
+    s = task.sample_context(0)
+    traj = task.rollout(task.initial_policy().mean_of(s), s, rng=0)
+    assert not traj.failed
+    fast, nan = traj.states.copy(), traj.states.copy()
+    fast[5, 6] = 1.001 * task.max_joint_speed
+    nan[2, 0] = np.inf
+    np.testing.assert_array_equal(
+        task.failed_batch(np.stack([traj.states, fast, nan])), [False, True, True]
+    )

@@ -607,7 +607,7 @@ def verdict_42(st: BalancingComparisonSettings, summary: dict) -> Verdict:
     ok_compute &= bool(compared)
     holds = ok_orders and ok_pilco and ok_compute
     n = summary["n_trials"]
-    ratio_text = "n/a (GPREPS's median does not reach it)" if ratio is None else (
+    ratio_text = "undefined: GPREPS's median does not reach it" if ratio is None else (
         f"{'≥ ' if r_top is None else ''}{ratio:.3g}"
     )  # fmt: skip
     return Verdict(

@@ -108,7 +108,8 @@ def test_the_verdict_judges_medians_with_a_trial_that_never_reaches_counted_as_s
     st, s = _summary({**thesis, "gpreps": [*gpreps[:2], three_miss]}, compute, n=5)
     v = verdict_42(st, s)
     assert v.holds is False and "GPREPS 28, REPS 4075" not in v.statement
-    assert "(ratio n/a (GPREPS's median does not reach it))" in v.statement
+    assert "(ratio undefined: GPREPS's median does not reach it)" in v.statement
+    assert "n/a" not in v.statement and "None" not in v.statement
     # An even number of trials: the median of two middle values, +∞ if one of them misses.
     assert median_reached([1.0, 3.0]) == 2.0 and median_reached([1.0, None]) is None
     assert median_reached([None, 2.0, 4.0]) == 4.0

@@ -212,6 +212,12 @@ def test_table_4_2_beside_the_thesis_and_the_stored_summary():
             mean = run.summary[key]["limits"][lim]["experience_s_mean"]
             value = ours.loc[label, col]
             assert np.isnan(value) if mean is None else value == round(mean, 2)
+    medians = table.xs("median [s]", axis=1, level=1)
+    for col, lim in zip(medians.columns, ("-100", "-10", "-1.5"), strict=True):
+        per_trial = run.summary["gpreps"]["limits"][lim]["experience_s_per_trial"]
+        expected = np.median([np.inf if x is None else x for x in per_trial])  # unreached: +∞
+        value = medians.loc["GPREPS", col]
+        assert np.isnan(value) if np.isinf(expected) else value == round(expected, 2)
     with pytest.raises(ValueError, match="run"):
         ch4.table_4_2({"gpreps": {}})
 

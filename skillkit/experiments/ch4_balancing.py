@@ -553,8 +553,8 @@ def own_checks_42(st: BalancingComparisonSettings, summary: dict) -> dict[str, d
 
 
 def _median(summary: dict, key: str, limit: float, what: str = "experience_s") -> float | None:
-    """The median of ``what`` to reach ``limit`` (:func:`median_reached`), from the per-trial
-    values (a summary made before the medians were stored has them)."""
+    """The median of ``what`` (``"experience_s"`` or ``"compute_time_s"``) to reach
+    ``limit`` (:func:`median_reached`), computed from the summary's per-trial values."""
     return median_reached(summary[key]["limits"][f"{limit:g}"][f"{what}_per_trial"])
 
 

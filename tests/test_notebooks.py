@@ -41,6 +41,9 @@ def _code(nb: dict, own: bool = True) -> list[str]:
 @pytest.mark.parametrize("path", sorted(NOTEBOOKS.glob("*.ipynb")), ids=lambda p: p.name)
 def test_stored_without_outputs_and_scaled_by_one_variable(path):
     nb = json.loads(path.read_text())
+    ids = [cell.get("id") for cell in nb["cells"]]  # nbformat ≥ 4.5: every cell has a unique id
+    assert (nb["nbformat"], nb["nbformat_minor"]) >= (4, 5) and None not in ids, path.name
+    assert len(set(ids)) == len(ids), path.name
     for cell in nb["cells"]:
         if cell["cell_type"] == "code":
             assert cell["outputs"] == [] and cell["execution_count"] is None, path.name

@@ -454,23 +454,29 @@ def verdict(settings: HockeySettings, summary: dict) -> Verdict:
     def pct(v):  # a fraction as a percentage, or metres as centimetres
         return fmt(None if v is None else 100 * v, ".1f")
 
+    def no_hit(v) -> bool:  # the placed puck's error of no hit: None, or NaN in a fresh run
+        return v is None or not np.isfinite(v)
+
+    def places(v, what: str) -> str:
+        return f"places no {what} (no hit)" if no_hit(v) else f"places {what} {pct(v)} cm from d*"
+
     def per_trial(key: str, unit: str) -> str:
         values = reps.get(f"final_heldout_{key}_per_trial")
         if values is None:
             return NOT_RECORDED
-        return ", ".join(pct(v) for v in values) + unit
+        return ", ".join("no hit" if no_hit(v) else pct(v) for v in values) + unit
 
     return Verdict(
         CLAIM,
         conjunction(parts.values()),
         f"After {summary['rollouts_per_algorithm']} rollouts ({summary['n_trials']} trials) "
         f"REPS hits {pct(reps['final_heldout_hit_rate'])}% of the held-out contexts (per trial: "
-        f"{per_trial('hit_rate', '%')}) and places the target puck "
-        f"{pct(reps['final_heldout_displacement_error_hits'])} cm from d* (hits only; per "
-        f"trial: {per_trial('displacement_error_hits', ' cm')}; "
+        f"{per_trial('hit_rate', '%')}) and "
+        f"{places(reps['final_heldout_displacement_error_hits'], 'the target puck')} (hits "
+        f"only; per trial: {per_trial('displacement_error_hits', ' cm')}; "
         f"{pct(reps['final_heldout_displacement_error'])} cm counting a miss as d*) (thesis: "
-        f"always 95%, < 20 cm); CrKR hits {pct(crkr['final_heldout_hit_rate'])}% and places it "
-        f"{pct(crkr['final_heldout_displacement_error_hits'])} cm from d* "
+        f"always 95%, < 20 cm); CrKR hits {pct(crkr['final_heldout_hit_rate'])}% and "
+        f"{places(crkr['final_heldout_displacement_error_hits'], 'it')} "
         f"({pct(crkr['final_heldout_displacement_error'])} cm counting misses), held-out reward "
         f"{fmt(crkr['final_heldout_reward'])} against REPS's {fmt(reps['final_heldout_reward'])} "
         "(thesis: fewer hits, considerably larger errors, could not compete)." + parts_note(parts),

@@ -442,9 +442,13 @@ def verdict(settings: TableTennisSettings, summary: dict) -> Verdict:
         f"rollouts (final reward {fmt(summary['final_reward_mean'])}; the mean curve {passes}) "
         f"(thesis: most runs, after ~{THESIS_ROLLOUTS}); on the learning curve's "
         f"{settings.n_eval_contexts} fixed contexts {on_curve}/{len(curve)} runs end above "
-        f"−0.02; the returned shots land a median {fmt(landing_cm, '.0f')} cm from the target "
-        "(thesis: 20–30 cm); "
-        f"{fmt(100 * summary['net_fraction_mean'], '.1f')}% of the final shots hit the net and "
+        + (
+            "−0.02; no final shot is returned (thesis: 20–30 cm from the target); "
+            if landing_cm is None
+            else f"−0.02; the returned shots land a median {fmt(landing_cm, '.0f')} cm from "
+            "the target (thesis: 20–30 cm); "
+        )
+        + f"{fmt(100 * summary['net_fraction_mean'], '.1f')}% of the final shots hit the net and "
         f"{netty}/{n} runs put more than 10% there (thesis: some runs converge to the net)"
         + _skipped_clause(summary)
         + ".",

@@ -323,6 +323,15 @@ def _cm(value) -> str:
     return fmt(None if value is None else 100 * value, ".1f")
 
 
+def _placed(value) -> str:
+    """The placed target puck's error for a statement: centimetres, ``"no hit"`` where no
+    shot hit (None), or the not-recorded text of an older summary."""
+    if value == NOT_RECORDED:
+        return value
+    no_hit = value is None or not np.isfinite(value)  # NaN in a fresh run, None once stored
+    return "undefined (no hit)" if no_hit else f"{_cm(value)} cm"
+
+
 def _gpreps_stats(trials, key) -> dict:
     out = gpreps_stats(trials, key)
     if all(f"{key}_refit_gps" in t for t in trials):
@@ -426,8 +435,7 @@ def verdict_410(st: HockeyGPREPSSettings, summary: dict) -> Verdict:
     ``summary`` only."""
     g = summary["gpreps"]
     r = summary.get("reps")
-    placed = g.get("final_displacement_error_hits", NOT_RECORDED)
-    placed = placed if placed == NOT_RECORDED else f"{_cm(placed)} cm"
+    placed = _placed(g.get("final_displacement_error_hits", NOT_RECORDED))
     text = (
         f"After {g['rollouts']} real shots GPREPS's policy mean hits "
         f"{fmt(100 * g['final_hit_rate'], '.0f')}% of the held-out contexts; the placed target "
@@ -436,8 +444,7 @@ def verdict_410(st: HockeyGPREPSSettings, summary: dict) -> Verdict:
         f"{fmt(g['final_reward'])} (thesis: learned within 120 shots, < 5 cm after 100)"
     )
     if r is not None:
-        r_placed = r.get("final_displacement_error_hits", NOT_RECORDED)
-        r_placed = r_placed if r_placed == NOT_RECORDED else f"{_cm(r_placed)} cm"
+        r_placed = _placed(r.get("final_displacement_error_hits", NOT_RECORDED))
         text += (
             f"; REPS after {r['rollouts']} shots: {fmt(100 * r['final_hit_rate'], '.0f')}% hit, "
             f"placed-puck error {r_placed} ({_cm(r['final_displacement_error'])} cm counting "
@@ -513,8 +520,7 @@ def verdict_411(st: HockeyGPREPSSettings, summary: dict) -> Verdict:
     lo_final, _ = g["final_reward_ci95"]
     _, hi_initial = g["initial_reward_ci95"]
     holds = g["rollouts"] <= THESIS_410["gpreps_rollouts"] and lo_final > hi_initial
-    placed = g.get("final_displacement_error_hits", NOT_RECORDED)
-    placed = placed if placed == NOT_RECORDED else f"{_cm(placed)} cm"
+    placed = _placed(g.get("final_displacement_error_hits", NOT_RECORDED))
     return Verdict(
         CLAIM_411,
         bool(holds),

@@ -318,19 +318,23 @@ def verdict_412(st: TableTennisGPREPSSettings, summary: dict) -> Verdict:
     :func:`own_checks_412`. Reads ``summary`` only."""
     g, d, r = summary["gpreps"], summary["direct"], summary["reps"]
 
+    def missing(v) -> bool:  # a landing error of no returned shot
+        return v is None or not np.isfinite(v)
+
     def shots(s: dict) -> str:
+        err = s["final_landing_error"]
+        landing = "no shot returned" if missing(err) else f"landing error {100 * err:.0f} cm"
         return (
             f"{fmt(100 * s['final_returned'], '.0f')}% returned, "
             f"{fmt(100 * s['final_net'], '.0f')}% net, {fmt(100 * s['final_missed'], '.0f')}% "
-            f"missed, landing error {fmt(100 * s['final_landing_error'], '.0f')} cm, reward "
-            f"{fmt(s['final_reward'])}"
+            f"missed, {landing}, reward {fmt(s['final_reward'])}"
         )
 
     def per_trial(key: str, unit: str) -> str:
         values = g.get(f"final_{key}_per_trial")
         if values is None:
             return NOT_RECORDED
-        return ", ".join(fmt(None if v is None else 100 * v, ".0f") for v in values) + unit
+        return ", ".join("none" if missing(v) else f"{100 * v:.0f}" for v in values) + unit
 
     reached = summary.get("reps_rollouts_to_gpreps_final_reward", NOT_RECORDED)
     if reached is None:
@@ -1148,9 +1152,16 @@ def verdict_413(st: ModelAccuracySettings, summary: dict) -> Verdict:
         f"(median), racket position {fmt(100 * e.get('racket_position_rmse_m', np.nan), '.1f')} "
         f"cm (RMSE), contact accuracy {fmt(100 * e.get('contact_accuracy', np.nan), '.0f')}% "
         f"(majority class {fmt(100 * e.get('contact_majority_rate', np.nan), '.0f')}%), "
-        f"returned landing point {fmt(100 * e.get('return_landing_error_m', np.nan), '.0f')} cm "
-        f"(median).",
+        + _returned_landing(e.get("return_landing_error_m", np.nan)),
     )
+
+
+def _returned_landing(error_m) -> str:
+    """fig4.13's last clause: the median returned landing error, or that no held-out shot was
+    returned (the error is undefined, NaN)."""
+    if error_m is None or not np.isfinite(error_m):
+        return "no held-out shot returned, so no returned landing point to compare."
+    return f"returned landing point {100 * error_m:.0f} cm (median)."
 
 
 # --------------------------------------------------------------------------- registry

@@ -269,9 +269,14 @@ def verdict(settings: SanitySettings, summary: dict) -> Verdict:
         bool(reps["trials_reaching_threshold"] == n),
         f"REPS reached parameter error < {summary['threshold']:g} in "
         f"{reps['trials_reaching_threshold']}/{n} trials (our criterion: {n}/{n}; the thesis "
-        f"reports no result on this problem), after at most "
-        f"{fmt(reps['rollouts_to_threshold_max'], 'g')} rollouts "
-        f"(median {fmt(reps['rollouts_to_threshold_median'], 'g')}); final errors (median): "
+        f"reports no result on this problem)"
+        + (
+            ", in none of them"
+            if reps["rollouts_to_threshold_max"] is None
+            else f", after at most {fmt(reps['rollouts_to_threshold_max'], 'g')} rollouts "
+            f"(median {fmt(reps['rollouts_to_threshold_median'], 'g')})"
+        )
+        + "; final errors (median): "
         + ", ".join(f"{a} {summary[a]['final_error_median']:.2e}" for a in ALGORITHMS)
         + ".",
     )

@@ -95,6 +95,8 @@ def test_summary_follows_the_verdict_schema(exp_id):
     # Smoke runs are not judged: holds is withheld and not_judged says why.
     assert summary["holds"] is None and summary["not_judged"] == SMOKE_NOTE
     assert isinstance(summary["statement"], str) and re.search(r"\d", summary["statement"])
+    # a missing number is said in words (issue #33): smoke runs miss many (no hit, no return)
+    assert not re.search(r"\bn/a\b|\bNone\b|\bnan\b", summary["statement"]), summary["statement"]
     assert "claim_holds" not in summary  # the old form is gone
     # A function of the stored numbers: the same verdict from the JSON summary alone.
     stored = json.loads(json.dumps(to_jsonable(summary)))

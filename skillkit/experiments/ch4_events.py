@@ -324,8 +324,9 @@ def _cm(value) -> str:
 
 
 def _placed(value) -> str:
-    """The placed target puck's error for a statement: centimetres, ``"no hit"`` where no
-    shot hit (None), or the not-recorded text of an older summary."""
+    """The placed target puck's error for a statement: centimetres, ``"undefined (no hit)"``
+    where no shot hit (None once stored, NaN in a fresh run), or the not-recorded text of an
+    older summary."""
     if value == NOT_RECORDED:
         return value
     no_hit = value is None or not np.isfinite(value)  # NaN in a fresh run, None once stored

@@ -213,6 +213,9 @@ def _cmd_runs(args: argparse.Namespace) -> int:
     root = find_root() if given is None else Path(given)
     if args.check:
         return _check_runs(root)
+    if args.markdown:
+        print(results_table(root), end="")
+        return 0
     runs = list_runs(root)
     if not runs:
         print(f"no runs (no result.json) under {root.resolve()}")
@@ -226,6 +229,51 @@ def _cmd_runs(args: argparse.Namespace) -> int:
             f"trials={v['trials']:<3} {r['executor']!s:<8}{wall_s}"
         )
     return 0
+
+
+def results_table(root) -> str:
+    """What is stored under ``root``, one Markdown row per ``result.json`` in path order: the
+    folder, the commit that made it (with "dirty" for an uncommitted tree), trials, executor
+    and workers, wall time in minutes, the verdict ``holds`` and whether today's code would
+    still make it (:func:`skillkit.experiments.provenance.check_results`). ``skillkit runs
+    --markdown``; data/README.md's table "What is here" is this output.
+
+    Parameters
+    ----------
+    root : str or Path
+        A results folder, e.g. ``data/results``.
+
+    Returns
+    -------
+    str
+        The table, header included, ending in a newline.
+    """
+    import json
+
+    from skillkit.experiments.provenance import check_results
+
+    lines = [
+        "| folder | commit | trials | executor | wall time (min) | `holds` | code since |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for row in check_results(root):
+        result = json.loads((Path(row["path"]) / "result.json").read_text())
+        git = result.get("git") or {}
+        commit = str(git["commit"])[:7] if git.get("commit") else "not recorded"
+        if git.get("dirty"):
+            commit += " (dirty)"
+        executor = str(result.get("executor", "local"))
+        if result.get("workers"):
+            executor += f" ×{result['workers']}"
+        wall = result.get("wall_time_s")
+        wall_min = f"{wall / 60:.1f}" if isinstance(wall, (int, float)) else "not recorded"
+        holds = (result.get("summary") or {}).get("holds")
+        verdict = {True: "true", False: "false", None: "null"}.get(holds, str(holds))
+        since = f"stale: {row['reason'].split(' (')[0]}" if row["stale"] else "unchanged"
+        cells = [Path(row["path"]).name, commit, str(result.get("trials", "?")), executor,
+                 wall_min, verdict, since]  # fmt: skip
+        lines.append("| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |")
+    return "\n".join(lines) + "\n"
 
 
 def _check_runs(root: Path) -> int:
@@ -469,6 +517,12 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="list the results whose code has changed since they were made (their experiment's "
         "code fingerprint differs from today's, or they have none); exit 1 if there is one",
+    )
+    p.add_argument(
+        "--markdown",
+        action="store_true",
+        help="print a Markdown table of the results (folder, commit, trials, executor, wall "
+        "time, verdict, whether the code changed since): data/README.md's 'What is here'",
     )
     p.set_defaults(func=_cmd_runs)
 

@@ -120,6 +120,47 @@ def test_readme_scoreboard_is_made_from_the_stored_results():
     assert table == scoreboard(), "regenerate the README table with scoreboard()"
 
 
+def test_data_readme_results_table_is_made_from_the_stored_results():
+    """data/README.md's "What is here" table is exactly `skillkit runs data/results
+    --markdown`."""
+    from pathlib import Path
+
+    from skillkit.cli import results_table
+
+    root = Path(__file__).parents[2]
+    text = (root / "data" / "README.md").read_text()
+    table = text.split("<!-- results:start -->\n")[1].split("<!-- results:end -->")[0]
+    assert table == results_table(root / "data" / "results"), (
+        "regenerate data/README.md's table with `skillkit runs data/results --markdown`"
+    )
+
+
+def test_results_table_names_commit_verdict_and_staleness(tmp_path):
+    exp_id = "fig2.10"
+    current = provenance.code_fingerprint(exp_id)
+    cases = {
+        "a-current": {"id": exp_id, "code_fingerprint": current, "trials": 3, "wall_time_s": 90,
+                      "git": {"commit": "abcdef123", "dirty": True}, "executor": "process",
+                      "workers": 2, "summary": {"holds": True}},
+        "b-changed": {"id": exp_id, "code_fingerprint": "0" * 16, "trials": 1,
+                      "git": {"commit": "1234567", "dirty": False}, "summary": {"holds": None}},
+        "c-missing": {"id": exp_id, "summary": {"holds": False}},
+    }  # fmt: skip
+    for name, result in cases.items():
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "result.json").write_text(json.dumps(result))
+    from skillkit.cli import results_table
+
+    rows = results_table(tmp_path).splitlines()[2:]
+    assert rows == [
+        "| a-current | abcdef1 (dirty) | 3 | process ×2 | 1.5 | true | unchanged |",
+        "| b-changed | 1234567 | 1 | local | not recorded | null | stale: code changed since "
+        "commit 1234567 |",
+        "| c-missing | not recorded | ? | local | not recorded | false | stale: no code "
+        "fingerprint |",
+    ]
+
+
 def test_a_stored_run_says_when_it_is_stale(tmp_path):
     from skillkit.experiments import load_run, reproduce
 

@@ -1,0 +1,250 @@
+"""Why GPREPS's final policies stop short of the thesis's bounds (issue #31), on the stored runs.
+
+Run ``OMP_NUM_THREADS=1 python benchmarks/bench_gpreps_limits.py PART`` with PART one of
+
+``errors``
+    fig4.10: each trial's final policy mean on its 50 held-out contexts — the placed puck's
+    error per context (mean, median, share below 5 cm) and by the desired distance d*.
+``models``
+    fig4.10 and fig4.12: the stored final reward model of each trial against the simulator on
+    the final policy's shots — the error the model predicts against the real one, and the
+    model's displacement / landing point against the real one (20 predicted paths per shot);
+    fig4.11: the model's hit probability on shots that really hit and on those that miss, and
+    the correlation of predicted and real rewards.
+``exploration``
+    fig4.10 and fig4.12: √tr Σ of the search distribution after each quarter of the run,
+    relative to the start, and the KL of the last updates.
+``bound TASK TRIAL EVALS``
+    How good a policy the simulator and the thesis's policy class allow, from the final policy
+    of trial TRIAL of fig4.10 (``hockey``) or fig4.12 (``table-tennis``): (a) CMA-ES on ω for
+    each of 10 held-out contexts (800 / 600 rollouts each); (b) CMA-ES on the linear upper-level
+    mean a + A s over 30 training contexts (EVALS evaluations of 30 rollouts each), scored on
+    50 held-out contexts. Model-free, on the simulator: a bound on what the policy class can
+    reach, not a learning method (tens of thousands of rollouts).
+
+Every part reads ``data/results`` and rolls out the simulator; nothing is written. CMA-ES is
+the ``cma`` package's (seeded). Timings and the numbers of one run are in data/README.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+
+from skillkit.tasks import make
+from skillkit.viz.history import load_policy_history
+from skillkit.viz.model_layers import load_gpreps_run
+
+RESULTS = Path(__file__).resolve().parents[1] / "data" / "results"
+RUNS = {"hockey": "fig4.10", "hockey-real": "fig4.11", "table-tennis": "fig4.12"}
+
+
+def _run(exp_id: str) -> Path:
+    return RESULTS / f"{exp_id}-paper-s0"
+
+
+def _hockey_shot(task, omega, context) -> tuple[float, bool, float]:
+    """Reward, hit, |d_T − d*| of one shot (a miss leaves d_T = 0)."""
+    reward, traj = task.evaluate(omega, context, 0)
+    hit = bool(traj.info.get("hit", False))
+    return reward, hit, abs(float(traj.info.get("displacement", 0.0)) - float(context[2]))
+
+
+def _tt_shot(task, omega, context) -> tuple[float, str, float]:
+    """Reward, outcome, ‖b − p‖ of one return (NaN without a landing point)."""
+    reward, traj = task.evaluate(omega, context, 0)
+    outcome = "failed" if traj.failed else traj.info["outcome"]
+    p = np.asarray(traj.info.get("landing_point", [np.nan, np.nan]), dtype=float)
+    return reward, outcome, float(np.linalg.norm(context[3:5] - p))
+
+
+def _mean_of(values: np.ndarray, mask: np.ndarray, spec: str) -> str:
+    return format(values[mask].mean(), spec) if mask.any() else "none"
+
+
+def errors() -> None:
+    task = make("hockey")
+    run = _run("fig4.10")
+    with np.load(run / "trials.npz") as z:
+        held = {t: z[f"trial{t}__heldout_contexts"] for t in range(5)}
+    all_d, all_e = [], []
+    for t, contexts in held.items():
+        policy = load_policy_history(run, trial=t).policies[-1]
+        shots = [
+            _hockey_shot(task, w, s)
+            for w, s in zip(policy.mean_of(contexts), contexts, strict=True)
+        ]
+        hit = np.array([h for _, h, _ in shots])
+        err = np.array([e for _, _, e in shots])[hit]
+        all_d.append(contexts[hit, 2])
+        all_e.append(err)
+        print(
+            f"fig4.10 trial {t}: placed-puck error (hits, {hit.sum()}/50) mean "
+            f"{100 * err.mean():.1f} cm, median {100 * np.median(err):.1f} cm, "
+            f"{np.mean(err < 0.05):.0%} below 5 cm, largest {100 * err.max():.0f} cm"
+        )
+    d, e = np.concatenate(all_d), np.concatenate(all_e)
+    for lo, hi in ((0, 0.25), (0.25, 0.5), (0.5, 0.75), (0.75, 1.0)):
+        m = (d >= lo) & (d < hi)
+        print(f"  d* in [{lo}, {hi}) m ({m.sum()} shots): mean {100 * e[m].mean():.1f} cm, "
+              f"median {100 * np.median(e[m]):.1f} cm")  # fmt: skip
+
+
+def models() -> None:
+    rng = np.random.default_rng(0)
+    # fig4.10: predicted against real displacement of the final policy's hits
+    task, run = make("hockey"), _run("fig4.10")
+    rows = []
+    with np.load(run / "trials.npz") as z:
+        held = {t: z[f"trial{t}__heldout_contexts"] for t in range(5)}
+    for t, contexts in held.items():
+        history, model = load_gpreps_run(run, trial=t)
+        omegas = history.policies[-1].mean_of(contexts)
+        predicted = model.predict(contexts, omegas, 20, rng=rng).displacements.mean(axis=1)
+        for w, s, d_hat in zip(omegas, contexts, predicted, strict=True):
+            _, traj = task.evaluate(w, s, 0)
+            if traj.info.get("hit", False):
+                rows.append((s[2], float(traj.info["displacement"]), d_hat))
+    d_star, d_real, d_pred = np.array(rows).T
+    for lo, hi in ((0, 0.5), (0.5, 0.75), (0.75, 1.0), (0, 1.0)):
+        m = (d_star >= lo) & (d_star < hi + 1e-12 * (hi == 1.0))
+        real, pred = np.abs(d_real - d_star)[m], np.abs(d_pred - d_star)[m]
+        gap = np.abs(d_pred - d_real)[m]
+        print(
+            f"fig4.10 d* in [{lo}, {hi}]: real error {100 * real.mean():.1f} cm, "
+            f"model-predicted {100 * pred.mean():.1f} cm, |predicted − real displacement| "
+            f"mean {100 * gap.mean():.1f} cm, median {100 * np.median(gap):.1f} cm"
+        )
+    # fig4.12: predicted against real landing points of the final policy's returns
+    task, run = make("table-tennis"), _run("fig4.12")
+    contexts = task.sample_context(np.random.default_rng(7), n=50)
+    for t in range(5):
+        history, model = load_gpreps_run(run, trial=t)
+        omegas = history.policies[-1].mean_of(contexts)
+        landing = np.nanmean(model.predict(contexts, omegas, 20, rng=rng).landing, axis=1)
+        real, pred, gap = [], [], []
+        for w, s, p_hat in zip(omegas, contexts, landing, strict=True):
+            _, traj = task.evaluate(w, s, 0)
+            if traj.info["outcome"] != "returned":
+                continue
+            p = np.asarray(traj.info["landing_point"])
+            real.append(np.linalg.norm(p - s[3:5]))
+            pred.append(np.linalg.norm(p_hat - s[3:5]))
+            gap.append(np.linalg.norm(p_hat - p))
+        print(
+            f"fig4.12 trial {t}: {len(real)}/50 returned; landing error real "
+            f"{100 * np.mean(real):.1f} cm, model-predicted {100 * np.nanmean(pred):.1f} cm; "
+            f"|predicted − real landing point| median {100 * np.nanmedian(gap):.1f} cm"
+        )
+    # fig4.11: the real setting's contact prediction
+    task, run = make("hockey-real"), _run("fig4.11")
+    with np.load(run / "trials.npz") as z:
+        held = {t: z[f"trial{t}__heldout_contexts"] for t in range(5)}
+    for t, contexts in held.items():
+        history, model = load_gpreps_run(run, trial=t)
+        omegas = history.policies[-1].mean_of(contexts)
+        pred = model.predict(contexts, omegas, 20, rng=rng)
+        p_hit = pred.contact.mean(axis=1)
+        shots = [_hockey_shot(task, w, s) for w, s in zip(omegas, contexts, strict=True)]
+        reward = np.array([r for r, _, _ in shots])
+        hit = np.array([h for _, h, _ in shots])
+        p_hits, p_misses = (_mean_of(p_hit, m, ".2f") for m in (hit, ~hit))
+        r_hits, r_misses = (_mean_of(reward, m, ".3f") for m in (hit, ~hit))
+        print(f"fig4.11 trial {t}: hit {hit.mean():.0%}; model P(hit) on hits {p_hits}, on "
+              f"misses {p_misses}; real reward of hits {r_hits}, of misses {r_misses}; "
+              f"predicted {pred.expected_rewards.mean():.3f} vs real {reward.mean():.3f}, "
+              f"correlation {np.corrcoef(pred.expected_rewards, reward)[0, 1]:.2f}")  # fmt: skip
+
+
+def exploration() -> None:
+    for exp_id, key in (("fig4.10", "gpreps"), ("fig4.12", "gpreps")):
+        with np.load(_run(exp_id) / "trials.npz") as z:
+            for t in range(5):
+                scale = np.sqrt(np.trace(z[f"trial{t}__policy_cov"], axis1=1, axis2=2))
+                at = np.linspace(0, len(scale) - 1, 5).round().astype(int)
+                kl = z[f"trial{t}__{key}_kl"][-3:]
+                print(f"{exp_id} trial {t}: √tr Σ / start after updates {at.tolist()}: "
+                      f"{np.round(scale[at] / scale[0], 3).tolist()}; KL of the last three "
+                      f"updates {np.round(kl, 3).tolist()}")  # fmt: skip
+
+
+def bound(task_name: str, trial: int, evals: int) -> None:
+    import cma
+
+    task = make(task_name)
+    run = _run(RUNS[task_name])
+    history = load_policy_history(run, trial=trial)
+    policy = history.policies[-1]
+    std0 = np.sqrt(np.diag(history.policies[0].cov))
+    rng = np.random.default_rng(123)
+    held = task.sample_context(rng, n=50)
+    train = task.sample_context(rng, n=30)
+    hockey = task_name == "hockey"
+    shot = _hockey_shot if hockey else _tt_shot
+    unit = "placed-puck error (hits)" if hockey else "landing error (all shots)"
+
+    def error(omegas, contexts) -> str:
+        shots = [shot(task, w, s) for w, s in zip(omegas, contexts, strict=True)]
+        err = np.array([e for _, _, e in shots])
+        if hockey:
+            err = err[np.array([h for _, h, _ in shots])]
+        return f"mean {100 * np.nanmean(err):.1f} cm, median {100 * np.nanmedian(err):.1f} cm"
+
+    print(f"{RUNS[task_name]} trial {trial}, final policy, {unit} on 50 held-out contexts: "
+          f"{error(policy.mean_of(held), held)}")  # fmt: skip
+    start = time.perf_counter()
+    per_context = 800 if hockey else 600
+    for s in held[:10]:
+        w0 = policy.mean_of(s[None])[0]
+        options = {"maxfevals": per_context, "verbose": -9, "seed": 1}
+        es = cma.CMAEvolutionStrategy(np.zeros(w0.size), 0.1, options)
+        es.optimize(lambda u, s=s, w0=w0: -shot(task, w0 + u * std0, s)[0])
+        before = shot(task, w0, s)[2]
+        after = shot(task, w0 + es.result.xbest * std0, s)[2]
+        print(f"  context {np.round(s, 2).tolist()}: {100 * before:.1f} -> {100 * after:.2f} cm")
+    took = time.perf_counter() - start
+    print(f"  (per-context CMA-ES, {per_context} rollouts each: {took:.0f} s)")
+    d, k = policy.mean.size, policy.gain.shape[1]
+
+    def means(x, contexts):
+        da, da_gain = x[:d] * std0, x[d:].reshape(d, k) * std0[:, None]
+        return policy.mean_of(contexts) + da[None] + contexts @ da_gain.T
+
+    def cost(x) -> float:
+        return -float(
+            np.mean([shot(task, w, s)[0] for w, s in zip(means(x, train), train, strict=True)])
+        )
+
+    start = time.perf_counter()
+    options = {"maxfevals": evals, "verbose": -9, "seed": 2}
+    es = cma.CMAEvolutionStrategy(np.zeros(d + d * k), 0.05, options)
+    while not es.stop():
+        xs = es.ask()
+        es.tell(xs, [cost(x) for x in xs])
+    best = es.result.xbest
+    took = time.perf_counter() - start
+    print(
+        f"  linear mean a + A s by CMA-ES ({es.result.evaluations} evaluations × 30 rollouts, "
+        f"{took:.0f} s): training contexts {error(means(best, train), train)} (from "
+        f"{error(means(0 * best, train), train)}); held-out {error(means(best, held), held)}"
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("part", choices=("errors", "models", "exploration", "bound"))
+    parser.add_argument("task", nargs="?", default="hockey", choices=("hockey", "table-tennis"))
+    parser.add_argument("trial", nargs="?", type=int, default=2)
+    parser.add_argument("evals", nargs="?", type=int, default=3000)
+    args = parser.parse_args()
+    if args.part == "bound":
+        bound(args.task, args.trial, args.evals)
+    else:
+        {"errors": errors, "models": models, "exploration": exploration}[args.part]()
+
+
+if __name__ == "__main__":
+    main()

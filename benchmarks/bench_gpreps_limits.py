@@ -19,8 +19,9 @@ Run ``OMP_NUM_THREADS=1 python benchmarks/bench_gpreps_limits.py PART`` with PAR
     of trial TRIAL of fig4.10 (``hockey``) or fig4.12 (``table-tennis``): (a) CMA-ES on ω for
     each of 10 held-out contexts (800 / 600 rollouts each); (b) CMA-ES on the linear upper-level
     mean a + A s over 30 training contexts (EVALS evaluations of 30 rollouts each), scored on
-    50 held-out contexts. Model-free, on the simulator: a bound on what the policy class can
-    reach, not a learning method (tens of thousands of rollouts).
+    50 held-out contexts (hockey: the trial's stored ones; table tennis: 50 fresh ones).
+    Model-free, on the simulator: a bound on what the policy class can reach, not a learning
+    method (tens of thousands of rollouts).
 
 Every part reads ``data/results`` and rolls out the simulator; nothing is written. CMA-ES is
 the ``cma`` package's (seeded). Timings and the numbers of one run are in data/README.md.
@@ -180,9 +181,13 @@ def bound(task_name: str, trial: int, evals: int) -> None:
     policy = history.policies[-1]
     std0 = np.sqrt(np.diag(history.policies[0].cov))
     rng = np.random.default_rng(123)
-    held = task.sample_context(rng, n=50)
-    train = task.sample_context(rng, n=30)
     hockey = task_name == "hockey"
+    if hockey:  # the trial's own held-out contexts, as the stored summary's
+        with np.load(run / "trials.npz") as z:
+            held = z[f"trial{trial}__heldout_contexts"]
+    else:
+        held = task.sample_context(rng, n=50)
+    train = task.sample_context(rng, n=30)
     shot = _hockey_shot if hockey else _tt_shot
     unit = "placed-puck error (hits)" if hockey else "landing error (all shots)"
 

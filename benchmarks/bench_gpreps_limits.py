@@ -55,11 +55,16 @@ def _hockey_shot(task, omega, context) -> tuple[float, bool, float]:
 
 
 def _tt_shot(task, omega, context) -> tuple[float, str, float]:
-    """Reward, outcome, ‖b − p‖ of one return (NaN without a landing point)."""
-    reward, traj = task.evaluate(omega, context, 0)
-    outcome = "failed" if traj.failed else traj.info["outcome"]
-    p = np.asarray(traj.info.get("landing_point", [np.nan, np.nan]), dtype=float)
-    return reward, outcome, float(np.linalg.norm(context[3:5] - p))
+    """Reward, outcome, ‖b − p‖ of one return: fig3.7's ``shot_scores`` on a single shot."""
+    from skillkit.experiments.ch3_table_tennis import shot_scores
+
+    class _Fixed:  # shot_scores plays a policy's mean; this one's mean is omega
+        @staticmethod
+        def mean_of(contexts):
+            return np.atleast_2d(omega)
+
+    _, shots = shot_scores(task, _Fixed, context[None], 0)
+    return float(shots["rewards"][0]), shots["outcomes"][0], float(shots["landing_error"][0])
 
 
 def _mean_of(values: np.ndarray, mask: np.ndarray, spec: str) -> str:

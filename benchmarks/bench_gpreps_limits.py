@@ -12,8 +12,9 @@ Run ``OMP_NUM_THREADS=1 python benchmarks/bench_gpreps_limits.py PART`` with PAR
     fig4.11: the model's hit probability on shots that really hit and on those that miss, and
     the correlation of predicted and real rewards.
 ``exploration``
-    fig4.10 and fig4.12: √tr Σ of the search distribution after each quarter of the run,
-    relative to the start, and the KL of the last updates.
+    fig4.10, fig4.11 and fig4.12: √tr Σ of the search distribution after each quarter of the
+    run, relative to the start, and the KL the updates spent
+    (:func:`skillkit.teaching.ch4.exploration_table`).
 ``bound TASK TRIAL EVALS``
     How good a policy the simulator and the thesis's policy class allow, from the final policy
     of trial TRIAL of fig4.10 (``hockey``) or fig4.12 (``table-tennis``): (a) CMA-ES on ω for
@@ -166,15 +167,11 @@ def models() -> None:
 
 
 def exploration() -> None:
-    for exp_id, key in (("fig4.10", "gpreps"), ("fig4.12", "gpreps")):
-        with np.load(_run(exp_id) / "trials.npz") as z:
-            for t in range(5):
-                scale = np.sqrt(np.trace(z[f"trial{t}__policy_cov"], axis1=1, axis2=2))
-                at = np.linspace(0, len(scale) - 1, 5).round().astype(int)
-                kl = z[f"trial{t}__{key}_kl"][-3:]
-                print(f"{exp_id} trial {t}: √tr Σ / start after updates {at.tolist()}: "
-                      f"{np.round(scale[at] / scale[0], 3).tolist()}; KL of the last three "
-                      f"updates {np.round(kl, 3).tolist()}")  # fmt: skip
+    from skillkit.experiments import load_run
+    from skillkit.teaching.ch4 import exploration_table
+
+    for exp_id in ("fig4.10", "fig4.11", "fig4.12"):
+        print(f"{exp_id}:\n{exploration_table(load_run(_run(exp_id))).to_string()}")
 
 
 def bound(task_name: str, trial: int, evals: int) -> None:

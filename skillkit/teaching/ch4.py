@@ -23,6 +23,9 @@ Drawn from one generator in that order, they give the numbers of ``GPREPS.update
   the spread of GPREPS's reward estimates (what the notebook's sliders redraw);
 * :func:`table_4_2` — Table 4.2 from a stored ``tab4.2`` run beside the thesis's numbers;
   :func:`gflops_table` — Fig. 4.4's speed numbers;
+* :func:`exploration_table`, :func:`exploration_figure` — how much a stored GPREPS run still
+  explores after each part of its updates (√tr Σ against its start) and how much of its KL
+  bound ε each update spends: why fig4.10 and fig4.12 stopped short at ε = 1 (issue #31);
 * :func:`handled_events` — the handled numerical events and failed rollouts of a block,
   counted and shown as a table instead of warnings;
 * :func:`gpreps_model_view` — a stored GPREPS run's model layers, in the viewer or as a
@@ -70,6 +73,8 @@ __all__ = [
     "batch_table",
     "contexts_figure",
     "diagnostics_table",
+    "exploration_figure",
+    "exploration_table",
     "fit_table",
     "gflops_table",
     "gpreps_model_view",
@@ -505,6 +510,104 @@ def table_4_2(run: Any) -> pd.DataFrame:
         rows.append(row)
         index.append(label)
     return pd.DataFrame(rows, index=pd.Index(index, name="method"), columns=columns)
+
+
+def _exploration(run: Any, method: str) -> tuple[list[np.ndarray], list[np.ndarray], float]:
+    """Per trial √tr Σ_k / √tr Σ_0 (k = 0 … K) and the KL of each update, and the run's ε."""
+    path = getattr(run, "path", None)
+    settings = getattr(run, "settings", None)
+    if path is None or not isinstance(settings, Mapping):
+        raise ValueError(f"run: expected a Run (stored_run or reproduce), got {type(run).__name__}")
+    file = Path(path) / "trials.npz"
+    if not file.exists():
+        raise ValueError(f"run: {path} has no trials.npz (its policy history is not stored)")
+    if "epsilon" not in settings:
+        raise ValueError(f"run: {run.id} has no KL bound 'epsilon' in its settings")
+    scales, kls = [], []
+    with np.load(file, allow_pickle=False) as arrays:
+        t = 0
+        while f"trial{t}__policy_cov" in arrays.files:
+            if f"trial{t}__{method}_kl" not in arrays.files:
+                raise ValueError(f"method: {run.id} stores no KL per update for {method!r}")
+            cov = arrays[f"trial{t}__policy_cov"]
+            scale = np.sqrt(np.trace(cov, axis1=1, axis2=2))
+            scales.append(scale / scale[0])
+            kls.append(np.asarray(arrays[f"trial{t}__{method}_kl"], dtype=float))
+            t += 1
+    if not scales:
+        raise ValueError(f"run: {file} holds no policy history (trial<i>__policy_cov)")
+    return scales, kls, float(settings["epsilon"])
+
+
+def exploration_table(run: Any, method: str = "gpreps") -> pd.DataFrame:
+    r"""How much a GPREPS run still explores, and how much of its KL bound each update spends.
+
+    The search distribution π(ω|s) = N(a + As, Σ) explores with Σ; REPS's weights (3.10) bound
+    KL(p ‖ q) ≤ ε per update (3.5), and the weighted ML fit (3.11–3.13) shrinks Σ towards the
+    weighted samples. When every update spends its whole bound, Σ shrinks at a rate set by ε
+    and not by what the model still has to learn — at ε = 1 on hockey and table tennis the
+    search stopped exploring before the hard contexts were learned (data/README.md, issue #31).
+
+    Parameters
+    ----------
+    run : Run
+        A stored or fresh GPREPS run whose ``trials.npz`` holds each trial's policy history
+        (``trial<i>__policy_cov``, shape (K + 1, D, D)) and the KL of each update
+        (``trial<i>__<method>_kl``, shape (K,)): fig4.10, fig4.11, fig4.12.
+    method : str
+        The search whose KL is read (``"gpreps"``).
+
+    Returns
+    -------
+    DataFrame
+        One row per trial: √tr Σ_k / √tr Σ_0 after a quarter, half, three quarters and all
+        of the K updates, the KL of the last update and the share of updates whose KL is
+        within 1% of ε; the last row is the median over trials. Columns say ε.
+
+    Raises
+    ------
+    ValueError
+        ``run`` is not a run, has no ``trials.npz``, no ``epsilon`` setting or no policy
+        history; ``method`` has no stored KL.
+    """
+    scales, kls, epsilon = _exploration(run, method)
+    rows = []
+    for scale, kl in zip(scales, kls, strict=True):
+        k = len(scale) - 1
+        at = np.linspace(0, k, 5).round().astype(int)[1:]
+        rows.append([*scale[at].tolist(), float(kl[-1]), float(np.mean(kl >= 0.99 * epsilon))])
+    quarters = ["¼", "½", "¾", "all"]
+    columns = [f"√tr Σ / start after {q} of the updates" for q in quarters]
+    columns += [f"KL of the last update (ε = {epsilon:g})", "updates at KL ≥ 0.99 ε"]
+    table = pd.DataFrame(rows, columns=columns, index=pd.Index(range(len(rows)), name="trial"))
+    table.loc["median"] = table.median()
+    return table.round(3)
+
+
+def exploration_figure(run: Any, method: str = "gpreps", backend: str = "plotly"):
+    """√tr Σ_k / √tr Σ_0 after each update k (log axis), one line per trial; the title says ε
+    and how many updates spent all of it (the numbers of :func:`exploration_table`).
+
+    Parameters
+    ----------
+    run : Run
+        As for :func:`exploration_table`.
+    method : str
+        The search whose KL is read.
+    backend : {"plotly", "matplotlib"}
+    """
+    scales, kls, epsilon = _exploration(run, method)
+    series = [
+        Series(f"trial {t}", list(range(len(scale))), scale.tolist(), xlabel="update k",
+               ylabel="√tr Σ_k / √tr Σ_0 (search width against the start)", log_y=True)
+        for t, scale in enumerate(scales)
+    ]  # fmt: skip
+    at_bound = np.mean(np.concatenate([kl >= 0.99 * epsilon for kl in kls]))
+    title = (
+        f"{run.id}: the search distribution's width; ε = {epsilon:g}, "
+        f"{100 * at_bound:.0f}% of the updates at KL ≥ 0.99 ε"
+    )
+    return _draw(_result(title, series), backend)
 
 
 # --------------------------------------------------------------------------- figures

@@ -231,6 +231,63 @@ def test_gflops_table_one_row_per_thread_count():
         ch4.gflops_table({})
 
 
+def _exploration_run(tmp_path, widths, kls, epsilon=0.5, method="gpreps"):
+    """A run folder whose trial t has Σ_k = widths[t][k]² I₃ and the given KLs per update."""
+    from skillkit.experiments.run import Run
+
+    arrays = {}
+    for t, (w, kl) in enumerate(zip(widths, kls, strict=True)):
+        w = np.asarray(w, dtype=float)
+        arrays[f"trial{t}__policy_cov"] = w[:, None, None] ** 2 * np.eye(3)
+        arrays[f"trial{t}__{method}_kl"] = np.asarray(kl, dtype=float)
+    np.savez(tmp_path / "trials.npz", **arrays)
+    return Run(tmp_path, {"id": "figX", "settings": {"epsilon": epsilon}})
+
+
+def test_exploration_table_is_the_width_ratio_and_the_share_at_the_bound(tmp_path):
+    # Σ_k = c_k² I: √tr Σ_k / √tr Σ_0 = c_k / c_0 exactly; K = 4 updates, so the quarters
+    # are updates 1, 2, 3, 4
+    widths = [[2.0, 1.0, 0.5, 0.25, 0.2], [1.0, 0.9, 0.8, 0.7, 0.6]]
+    kls = [[0.5, 0.5, 0.5, 0.5], [0.5, 0.3, 0.5, 0.2]]
+    table = ch4.exploration_table(_exploration_run(tmp_path, widths, kls))
+    ratios = table.iloc[:2, :4].to_numpy()
+    expected = [[0.5, 0.25, 0.125, 0.1], [0.9, 0.8, 0.7, 0.6]]
+    np.testing.assert_allclose(ratios, expected, rtol=0, atol=5e-4)  # cells: 3 decimals
+    assert table.iloc[:2, 4].tolist() == [0.5, 0.2]
+    assert table.iloc[:2, 5].tolist() == [1.0, 0.5]
+    assert "ε = 0.5" in table.columns[4]
+    # the median of the unrounded values, rounded to 3 decimals like every cell
+    median = [0.7, 0.525, 0.4125, 0.35, 0.35, 0.75]
+    np.testing.assert_allclose(table.loc["median"], median, rtol=0, atol=5e-4 + 1e-12)
+    figure = ch4.exploration_figure(_exploration_run(tmp_path, widths, kls), backend="matplotlib")
+    assert "75% of the updates" in figure.axes[0].get_title() + figure.texts[0].get_text()
+
+
+def test_exploration_table_names_bad_input(tmp_path):
+    with pytest.raises(ValueError, match="run"):
+        ch4.exploration_table({"settings": {"epsilon": 1.0}})
+    with pytest.raises(ValueError, match="run: .* no trials.npz"):
+        from skillkit.experiments.run import Run
+
+        ch4.exploration_table(Run(tmp_path, {"id": "figX", "settings": {"epsilon": 1.0}}))
+    run = _exploration_run(tmp_path, [[1.0, 0.5]], [[0.5]])
+    with pytest.raises(ValueError, match="method: .* 'reps'"):
+        ch4.exploration_table(run, method="reps")
+    with pytest.raises(ValueError, match="epsilon"):
+        from skillkit.experiments.run import Run
+
+        ch4.exploration_table(Run(tmp_path, {"id": "figX", "settings": {}}))
+
+
+def test_exploration_table_of_the_stored_hockey_run():
+    run = stored_run("fig4.10")
+    table = ch4.exploration_table(run)
+    assert len(table) == run.summary["n_trials"] + 1
+    # the ratios fall over the run (the weighted ML fit shrinks Σ) and start below 1
+    ratios = table.iloc[:-1, :4].to_numpy()
+    assert np.all(np.diff(ratios, axis=1) < 0) and np.all(ratios < 1)
+
+
 # ------------------------------------------------------------------ figures
 def test_weights_figure_points_lie_on_the_closed_form():
     rng = np.random.default_rng(0)

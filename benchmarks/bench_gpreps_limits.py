@@ -15,6 +15,12 @@ Run ``OMP_NUM_THREADS=1 python benchmarks/bench_gpreps_limits.py PART`` with PAR
     fig4.10, fig4.11 and fig4.12: √tr Σ of the search distribution after each quarter of the
     run, relative to the start, and the KL the updates spent
     (:func:`skillkit.teaching.ch4.exploration_table`).
+``noise --sigma-cm S --trials T --out DIR``
+    fig4.11 at paper scale (seed 0, its first T trials, into DIR) with the pucks tracked at
+    σ = S cm instead of our 1 cm, everything else as stored, so trial t differs from the
+    stored trial t by the tracking noise only; then the final policies' rewards and hit rates
+    beside the stored ones and the final models' P(hit) on hits and misses (as ``models``).
+    Whether our noise or the 80 shots limit the model's contact prediction.
 ``bound TASK TRIAL EVALS``
     How good a policy the simulator and the thesis's policy class allow, from the final policy
     of trial TRIAL of fig4.10 (``hockey``) or fig4.12 (``table-tennis``): (a) CMA-ES on ω for
@@ -24,13 +30,15 @@ Run ``OMP_NUM_THREADS=1 python benchmarks/bench_gpreps_limits.py PART`` with PAR
     Model-free, on the simulator: a bound on what the policy class can reach, not a learning
     method (tens of thousands of rollouts).
 
-Every part reads ``data/results`` and rolls out the simulator; nothing is written. CMA-ES is
+Every part reads ``data/results`` and rolls out the simulator; only ``noise`` writes (its
+run folder, resumable). CMA-ES is
 the ``cma`` package's (seeded). Timings and the numbers of one run are in data/README.md.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import time
 from pathlib import Path
 
@@ -147,9 +155,13 @@ def models() -> None:
             f"|predicted − real landing point| median {100 * np.nanmedian(gap):.1f} cm"
         )
     # fig4.11: the real setting's contact prediction
-    task, run = make("hockey-real"), _run("fig4.11")
+    _contact_prediction(make("hockey-real"), _run("fig4.11"), range(5), rng)
+
+
+def _contact_prediction(task, run: Path, trials, rng) -> None:
+    """fig4.11: the final model's P(hit) on the final policy's shots that hit and miss."""
     with np.load(run / "trials.npz") as z:
-        held = {t: z[f"trial{t}__heldout_contexts"] for t in range(5)}
+        held = {t: z[f"trial{t}__heldout_contexts"] for t in trials}
     for t, contexts in held.items():
         history, model = load_gpreps_run(run, trial=t)
         omegas = history.policies[-1].mean_of(contexts)
@@ -164,6 +176,32 @@ def models() -> None:
               f"misses {p_misses}; real reward of hits {r_hits}, of misses {r_misses}; "
               f"predicted {pred.expected_rewards.mean():.3f} vs real {reward.mean():.3f}, "
               f"correlation {np.corrcoef(pred.expected_rewards, reward)[0, 1]:.2f}")  # fmt: skip
+
+
+def noise(sigma_cm: float, trials: int, out: Path) -> None:
+    """fig4.11 at paper scale (seed 0, its first ``trials`` trials) with the pucks tracked at
+    σ = ``sigma_cm`` instead of 1 cm, everything else as stored: the same trials' seeds, so
+    trial t differs from the stored trial t by the tracking noise only."""
+    import skillkit.experiments.ch4_events as events
+    from skillkit.experiments import reproduce
+    from skillkit.tasks.hockey import Observation
+
+    task = make("hockey-real", observation=Observation(noise=sigma_cm / 100))
+
+    def make_task(name, **kwargs):  # fig4.11's trials build their task by name
+        if name != "hockey-real" or kwargs:
+            raise ValueError(f"noise: expected fig4.11's make('hockey-real'), got {name!r}")
+        return task
+
+    events.make = make_task
+    run = reproduce("fig4.11", scale="paper", seed=0, trials=trials, out=out, html=False)
+    stored = json.loads((_run("fig4.11") / "result.json").read_text())["summary"]["gpreps"]
+    g = run.summary["gpreps"]
+    print(f"fig4.11 with σ = {sigma_cm:g} cm ({trials} trials, {run.path}):")
+    for key in ("final_reward_per_trial", "final_hit_rate_per_trial"):
+        print(f"  {key}: {np.round(g[key], 3).tolist()}  (stored, σ = 1 cm: "
+              f"{np.round(stored[key][:trials], 3).tolist()})")  # fmt: skip
+    _contact_prediction(task, run.path, range(trials), np.random.default_rng(0))
 
 
 def exploration() -> None:
@@ -242,13 +280,20 @@ def bound(task_name: str, trial: int, evals: int) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("part", choices=("errors", "models", "exploration", "bound"))
+    parser.add_argument("part", choices=("errors", "models", "exploration", "bound", "noise"))
     parser.add_argument("task", nargs="?", default="hockey", choices=("hockey", "table-tennis"))
     parser.add_argument("trial", nargs="?", type=int, default=2)
     parser.add_argument("evals", nargs="?", type=int, default=3000)
+    parser.add_argument("--sigma-cm", type=float, default=0.0, help="noise: tracking σ (cm)")
+    parser.add_argument("--trials", type=int, default=2, help="noise: trials of fig4.11")
+    parser.add_argument(
+        "--out", type=Path, default=Path("runs/bench_noise"), help="noise: run folder"
+    )
     args = parser.parse_args()
     if args.part == "bound":
         bound(args.task, args.trial, args.evals)
+    elif args.part == "noise":
+        noise(args.sigma_cm, args.trials, args.out)
     else:
         {"errors": errors, "models": models, "exploration": exploration}[args.part]()
 

@@ -139,10 +139,12 @@ def models() -> None:
     for t in range(5):
         history, model = load_gpreps_run(run, trial=t)
         omegas = history.policies[-1].mean_of(contexts)
-        landing = np.nanmean(model.predict(contexts, omegas, 20, rng=rng).landing, axis=1)
-        real, pred, gap = [], [], []
+        prediction = model.predict(contexts, omegas, 20, rng=rng)
+        landing = np.nanmean(prediction.landing, axis=1)
+        real, pred, gap, outcomes = [], [], [], []
         for w, s, p_hat in zip(omegas, contexts, landing, strict=True):
             _, traj = task.evaluate(w, s, 0)
+            outcomes.append(traj.info["outcome"])
             if traj.info["outcome"] != "returned":
                 continue
             p = np.asarray(traj.info["landing_point"])
@@ -154,6 +156,17 @@ def models() -> None:
             f"{100 * np.mean(real):.1f} cm, model-predicted {100 * np.nanmean(pred):.1f} cm; "
             f"|predicted − real landing point| median {100 * np.nanmedian(gap):.1f} cm"
         )
+        # the shots that really went into the net: what the model expected of them
+        net = np.array(outcomes) == "net"
+        if net.any():
+            r_hat = prediction.expected_rewards
+            error_hat = np.linalg.norm(landing - contexts[:, 3:5], axis=1)
+            print(
+                f"  net {net.sum()}/50: model-predicted reward {r_hat[net].mean():.4f} "
+                f"(returns {r_hat[~net].mean():.4f}), predicted landing error "
+                f"{100 * np.nanmean(error_hat[net]):.1f} cm, predicted P(contact) "
+                f"{prediction.contact_score[net].mean():.2f}"
+            )
     # fig4.11: the real setting's contact prediction
     _contact_prediction(make("hockey-real"), _run("fig4.11"), range(5), rng)
 

@@ -141,6 +141,39 @@ Balancing, measured on a shared 2-CPU x86_64 VM (Linux 6.18, torch 2.13.0+cpu,
 A single-repeat run while the load rose to 3.5 gave 108 s of training on 2 threads (10 s on
 1): with both cores busy elsewhere, torch's two threads wait on each other at every one of the
 many small ops of the hyper-parameter optimisation. Use ``--repeats`` ≥ 3 and read the spread.
+
+**On a GPU** (``--device cuda``; one lease of an NVIDIA H200 on a 16-core host, torch
+2.11.0+cu130, Python 3.12, 2026-12-04; ``OMP_NUM_THREADS=1`` and ``--threads 1``, so the
+``cpu`` rows are one core of the same host, measured in the same command; load average < 1).
+Balancing at Table 4.2's setting, ``--task balancing --artificial 500 --trajectories 10
+--dtype float64`` (N₀ = 20 → 800 transitions, FITC 100 pseudo-inputs), two commands (the
+second with two repeats: the faster shown, both totals in brackets)::
+
+    command  device   training  prediction    policy     total  traj-steps/s
+      1 (×1)    cpu     10.55s       1.05s    0.003s    11.60s       1.9e+05
+      1 (×1)   cuda     10.28s       0.52s    0.003s    10.80s      3.86e+05
+      2 (×2)    cpu     12.09s       1.82s    0.004s    13.92s       1.1e+05  (18.12, 13.92)
+      2 (×2)   cuda     10.79s       0.16s    0.003s    10.95s      1.27e+06  (15.78, 10.95)
+
+Throwing at Table 4.1's setting, ``--task throwing --flight stop`` (M = 500, L = 25)::
+
+     device    dtype   training  prediction    policy     total  traj-steps/s
+        cpu  float64     12.56s       8.14s    0.005s    20.71s       1.9e+05
+       cuda  float64     11.59s       3.57s    0.005s    15.17s      4.34e+05
+       cuda  float32      9.84s       2.86s    0.004s    12.70s      5.41e+05
+
+The GPU samples the trajectories 2.3–11× faster (more with a warm device: the second command's
+0.16 s), but the forward model's training — 150 optimiser iterations of a FITC GP with 50–100
+pseudo-inputs on 800–1240 transitions, each iteration a chain of small kernels (not profiled;
+launch latency is the likely bound) — takes as long as on one CPU core, and it is most of the
+update: the whole update is only 1.07–1.37× faster
+(balancing 10.8–11.0 s against 11.6–13.9 s, throwing 15.2 s against 20.7 s). The thesis's
+"up to half an hour" per throwing update on a CPU and "under a minute" on a GPU are both far
+above ours. In the same lease ``tests/models/test_gp.py`` and ``tests/models/test_sparse.py``
+ran their CUDA tests (fit on ``cuda`` equals fit on ``cpu``): the sparse ones failed first,
+on the row signs of ``var_factor`` (an eigendecomposition's eigenvectors: LAPACK and cuSOLVER
+choose different signs), and pass since the test compares RᵀR = iK, the invariant the
+predictions use.
 """
 
 from __future__ import annotations

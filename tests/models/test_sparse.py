@@ -166,7 +166,13 @@ def test_cuda_fit_matches_cpu(cls):
         gp = cls(n_inducing=8, n_steps=10, device=device).fit(X, Y, rng=3)
         assert gp.predictor.device.type == device and gp.inducing.device.type == device
         outs[device] = _fit_outputs(gp, X[:6] + 0.1)
+        # R = diag(√(1 − 1/a)) Uᵀ Lm⁻¹ is unique only up to the sign of each row (eigh's
+        # eigenvectors: LAPACK and cuSOLVER choose differently): compare the invariant RᵀR = iK.
+        r = outs[device].pop("var_factor")
+        outs[device]["RtR"] = np.swapaxes(r, -1, -2) @ r
     for key, value in outs["cpu"].items():
         np.testing.assert_allclose(
             outs["cuda"][key], value, rtol=1e-8, atol=1e-8 * np.abs(value).max(), err_msg=key
         )
+    np.testing.assert_allclose(outs["cuda"]["RtR"], outs["cuda"]["iK"], rtol=1e-8,
+                               atol=1e-8 * np.abs(outs["cuda"]["iK"]).max())  # fmt: skip

@@ -334,19 +334,25 @@ def comparison_rows(summary: dict) -> list[dict[str, Any]]:
             row = {
                 "task": task,
                 "method": LABELS.get(method, method),
-                "real rollouts": f"{m['real_rollouts']:.4g}",
+                "real rollouts": _count(m["real_rollouts"]),
                 "reward π₀": f"{m['initial_reward']:.3g}",
                 "final reward": f"{m['final_reward_mean']:.3g} ± {m['final_reward_std']:.2g}",
             }
             for level, r in m["thresholds"].items():
                 at = r["rollouts_mean_curve"]
                 row[f"to R ≥ {level}"] = (
-                    "—" if at is None else f"{at:.4g}"
+                    "—" if at is None else _count(at)
                 ) + f" ({r['n_reached']}/{n})"
             row["compute s"] = f"{m['time_s_mean']:.0f}"
             row["failed"] = str(m["failed_rollouts"])
             rows.append(row)
     return rows
+
+
+def _count(x: float) -> str:
+    """A count of rollouts as it reads best: whole numbers in full (10050, not 1.005e+04), a
+    mean over trials that is not whole with one decimal."""
+    return f"{round(x):d}" if float(x).is_integer() else f"{x:.1f}"
 
 
 def comparison_section(run: Run) -> str:

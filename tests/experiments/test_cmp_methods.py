@@ -155,7 +155,7 @@ def test_readme_comparison_is_made_from_the_stored_result():
 
     from skillkit.experiments.run import comparison_section, stored_run
 
-    run = stored_run("cmp.methods", scale="quick")
+    run = stored_run("cmp.methods")  # the paper-scale run
     readme = (Path(__file__).parents[2] / "README.md").read_text()
     table = readme.split("<!-- comparison:start -->\n")[1].split("<!-- comparison:end -->")[0]
     assert table == comparison_section(run)

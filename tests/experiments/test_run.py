@@ -71,18 +71,9 @@ def test_missing_or_broken_folders_are_reported(tmp_path):
         stored_run("nope")
 
 
-AWAITING_PAPER_RUN = {"cmp.methods"}
-"""Ids whose paper-scale run is not stored yet (data/README.md says why and what is stored
-instead); an id leaves the set when its result lands."""
-
-
 def test_every_experiment_has_a_stored_paper_run():
     root = results_root()
     for exp_id in ids():
-        if exp_id in AWAITING_PAPER_RUN:
-            with pytest.raises(FileNotFoundError):
-                stored_run(exp_id)
-            continue
         run = stored_run(exp_id)
         assert run.id == exp_id and run.scale == "paper" and run.path.parent == root
 

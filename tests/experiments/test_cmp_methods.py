@@ -120,7 +120,7 @@ def test_comparison_rows_and_tables_show_the_summary(result):
     for r in rows:
         m = next(k for k, v in cmp_methods.LABELS.items() if v == r["method"])
         row = s["tasks"][r["task"]]["methods"][m]
-        assert float(r["real rollouts"]) == pytest.approx(row["real_rollouts"], rel=1e-3)
+        assert float(r["real rollouts"]) == row["real_rollouts"]  # printed in full, not .4g
         for level in s["tasks"][r["task"]]["thresholds"]:
             n = row["thresholds"][f"{level:g}"]["n_reached"]
             assert r[f"to R ≥ {level:g}"].endswith(f"({n}/1)")
@@ -130,6 +130,12 @@ def test_comparison_rows_and_tables_show_the_summary(result):
     assert table.shape[0] == len(rows) and table.index.names == ["task", "method"]
     with pytest.raises(ValueError, match="run: expected a cmp.methods run"):
         method_comparison_table(SimpleNamespace(id="fig3.3", summary=s))
+
+
+def test_rollout_counts_are_printed_in_full():
+    from skillkit.experiments.run import _count
+
+    assert _count(10048.0) == "10048" and _count(10_000) == "10000" and _count(27.5) == "27.5"
 
 
 def test_the_thesis_scoreboard_leaves_comparisons_out(tmp_path):

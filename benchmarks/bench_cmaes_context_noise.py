@@ -1,9 +1,10 @@
-"""Why CMA-ES ends below π₀ on hockey in ``cmp.methods`` (issue #34), measured.
+"""Why CMA-ES ends below π₀ on hockey and table tennis in ``cmp.methods`` (issue #34), measured.
 
-Run ``OMP_NUM_THREADS=1 python benchmarks/bench_cmaes_hockey.py [SEED]`` (≈ 2.5 min on one
-core). Two parts, both with exactly ``cmp.methods``'s paper setup for CMA-ES on hockey
-(its task, π₀, cma's defaults with the glue's m = 4 contexts per candidate, REPS's budget of
-10 048 rollouts, its 50 evaluation contexts):
+Run ``OMP_NUM_THREADS=1 python benchmarks/bench_cmaes_context_noise.py TASK [SEED]`` with TASK
+``hockey``, ``table-tennis`` or ``throwing`` (where CMA-ES does learn: the control; 1–2 min
+each on one core). Two parts, both with exactly ``cmp.methods``'s paper setup for CMA-ES on
+the task (its task, π₀, cma's defaults with the glue's m = 4 contexts per candidate, REPS's
+real-rollout budget, its evaluation contexts):
 
 1. *How noisy a candidate's fitness is.* The first generation's λ candidates, each rolled out
    on the same 64 contexts: the spread of their expected rewards J(θ_k) across candidates,
@@ -27,13 +28,13 @@ from skillkit.experiments.cmp_methods import PAPER, _algorithm, _setup
 from skillkit.search.loop import learn
 
 
-def main(seed: int = 0, n_contexts: int = 64) -> None:
+def main(name: str, seed: int = 0, n_contexts: int = 64) -> None:
     rng = np.random.default_rng(seed)
-    setup = _setup("hockey", PAPER, rng)
+    setup = _setup(name, PAPER, rng)
     algo, n_updates, n, n0 = _algorithm("cmaes", setup, PAPER, rng.spawn(1)[0])
     task, policy = setup.task, algo.policy
     print(
-        f"hockey, CMA-ES: {n_updates} generations of λ = {algo.popsize} × "
+        f"{name}, CMA-ES: {n_updates} generations of λ = {algo.popsize} × "
         f"m = {algo.contexts_per_candidate} rollouts, worst reward {task.worst_reward:g}"
     )
 
@@ -89,4 +90,6 @@ def main(seed: int = 0, n_contexts: int = 64) -> None:
 if __name__ == "__main__":
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # failed rollouts are counted above
-        main(int(sys.argv[1]) if len(sys.argv) > 1 else 0)
+        if len(sys.argv) < 2 or sys.argv[1] not in ("hockey", "table-tennis", "throwing"):
+            sys.exit("usage: bench_cmaes_context_noise.py {hockey,table-tennis,throwing} [SEED]")
+        main(sys.argv[1], int(sys.argv[2]) if len(sys.argv) > 2 else 0)

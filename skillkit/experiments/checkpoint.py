@@ -21,6 +21,9 @@ from typing import Any, NamedTuple
 
 MAGIC = b"SKILLKIT-CKPT-1\n"
 
+START_OVER = "start over with `skillkit reproduce ... --fresh` or `reproduce(..., fresh=True)`"
+"""What a refused checkpoint's message tells the user to do (from the shell or from Python)."""
+
 
 class CheckpointError(RuntimeError):
     """A checkpoint exists but cannot be trusted (corrupt, truncated or foreign)."""
@@ -131,6 +134,6 @@ def load(path: str | Path, ident: dict) -> Loaded | None:
         if header.get(key) != value:
             raise CheckpointError(
                 f"{path}: checkpoint belongs to another run "
-                f"({key}: {header.get(key)!r} != {value!r}); use --fresh to start over"
+                f"({key}: {header.get(key)!r} != {value!r}); {START_OVER}"
             )
     return Loaded(header["kind"], pickle.loads(body), header.get("seconds"))

@@ -219,7 +219,7 @@ def _execute_trial(
             )
         except ValueError as exc:  # mid-trial states in an older format
             raise checkpoint.CheckpointError(
-                f"{ckpt_path}: {exc}; use --fresh to start over"
+                f"{ckpt_path}: {exc}; {checkpoint.START_OVER}"
             ) from None
         if show_progress:
             ctx.bar = tqdm(desc=f"{exp_id} trial {index + 1}", leave=False)

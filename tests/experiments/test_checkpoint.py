@@ -72,8 +72,9 @@ def test_corrupted_payload_and_foreign_file_are_refused(tmp_path):
 def test_other_settings_trial_or_code_are_refused(tmp_path, field, value):
     path = tmp_path / "t.ckpt"
     checkpoint.save(path, _ident(), {"a": 1}, kind="state")
-    with pytest.raises(CheckpointError, match=field):
+    with pytest.raises(CheckpointError, match=field) as refused:
         checkpoint.load(path, _ident(**{field: value}))
+    assert "--fresh" in str(refused.value) and "fresh=True" in str(refused.value)
 
 
 def test_code_fingerprint_changes_with_the_source(tmp_path, monkeypatch):

@@ -1,4 +1,4 @@
-"""Why CMA-ES ends below π₀ on hockey and table tennis in ``cmp.methods`` (issue #34), measured.
+"""Why CMA-ES ends below π₀ on hockey and table tennis in ``cmp.methods``, measured.
 
 Run ``OMP_NUM_THREADS=1 python benchmarks/bench_cmaes_context_noise.py TASK [SEED]`` with TASK
 ``hockey``, ``table-tennis`` or ``throwing`` (where CMA-ES does learn: the control; 1–2 min

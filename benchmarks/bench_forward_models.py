@@ -1,4 +1,4 @@
-"""Benchmark: forward models for GPREPS on balancing and pendulum data (issue #34, item 2).
+"""Benchmark: forward models for GPREPS on balancing and pendulum data.
 
 The probabilistic neural-network ensemble (:class:`~skillkit.models.ensemble.
 ProbabilisticEnsemble`) against the FITC GP forward models the library's experiments use,
@@ -12,8 +12,8 @@ trajectories of other (s, ω) pairs):
   pseudo-inputs, Δx targets, a linear prior mean, 100 L-BFGS steps;
 * ``ensemble dx`` / ``ensemble x'``: the ensemble with its default settings (5 members of
   64-64 SiLU units, 100 epochs), Δx (its default) or x′ targets;
-* ``ensemble dx 3x64/300``: a variant added after the first run, in which the default
-  ensemble underfitted the pendulum once its data held spinning trajectories (|α| up to 8 rad,
+* ``ensemble dx 3x64/300``: a larger variant, since the default ensemble underfits the
+  pendulum once its data hold spinning trajectories (|α| up to 8 rad,
   so sin α over several periods): three hidden layers of 64 units, 300 epochs;
 * ``linear-Gaussian``: :class:`~skillkit.models.linear.LinearGaussianModel`, the floor any
   nonlinear model should beat.

@@ -59,7 +59,7 @@ transitions, 150 optimiser iterations per GP)::
     totals of all repeats: 1 thread 24.48, 24.16 s; 2 threads 17.75, 16.36 s
     ratio 2 / 1 threads (time): training 0.82, prediction 0.60, policy 0.99, total 0.68
 
-After issues #16 and #18 (x′ robot model, ``--dtype``) a run beside another job (load 2.9) took
+With the x′ robot model, a run beside another job (load 2.9) took
 38.1 s (float64) / 29.3 s (float32) on one thread; the quiet-machine runs below supersede it.
 
 With the flight stopped at the ground (``--flight stop``, ``stop_flight_at_ground=True``; the
@@ -90,7 +90,7 @@ Two threads, float64, quiet machine (load average 0.40 before, 1.59 after),
 ``--dtype float64 --threads 2 --flight full stop --repeats 3``, totals of the three repeats:
 flight stopped 18.01, 19.46, 19.70 s (best: training 7.41, prediction 10.60); full flight 22.37,
 20.17, 19.74 s. So the float64 update on two threads takes 18.0–20.3 s with the flight stopped
-(5 updates in three runs, 4 under 20 s) and 19.7–22.5 s without: at issue #18's 20 s.
+(5 updates in three runs, 4 under 20 s) and 19.7–22.5 s without: at the 20 s target.
 Stopping the flight saves 0.80 (2 threads) / 0.91 (1 thread) of the prediction time; the
 training times of the 1-thread rows differ by 2 s although they do the same work (one repeat:
 timing noise of this VM). Not done: stopping the arm's rollout at the release (the reward's
@@ -114,12 +114,12 @@ Just before it, ``--threads 1 2 --flight stop --repeats 3``: 2 threads 18.02, 15
 1 thread 27.10, 21.48, 24.67 s; and after it the one-run benchmark ``bench_prediction.py`` (one
 repeat each): 2 threads 16.12 s stopped, 21.14 s full (whose training alone took 9.58 s against
 7.96 s in the stopped row: the same work, this VM's noise). So on two threads in float64, with
-the flight stopped at the ground (the default) all 9 updates took 15.5–19.2 s, under issue
-#18's 20 s; with the full flight 5 of 6 did (15.8–21.1 s); before these changes 18.0–20.3 s
-(stopped) and 19.7–22.5 s (full), after the floor alone 17.0–23.6 s (stopped). One-thread
-predictions of the same 500 × 25 throws: 18.6–24.2 s before, 16.0–18.8 with the floor,
-10.7–13.2 with the blocks too. This VM's speed varies by ±15% between runs minutes apart (its
-1-thread float64 matmul peak: 57–76 GFLOP/s this week).
+the flight stopped at the ground (the default) all 9 updates took 15.5–19.2 s, under the
+20 s target; with the full flight 5 of 6 did (15.8–21.1 s); without the floor and the blocks
+18.0–20.3 s (stopped) and 19.7–22.5 s (full), with the floor alone 17.0–23.6 s (stopped).
+One-thread predictions of the same 500 × 25 throws: 18.6–24.2 s without either, 16.0–18.8 with
+the floor, 10.7–13.2 with the blocks too. This VM's speed varies by ±15% between runs minutes
+apart (its 1-thread float64 matmul peak: 57–76 GFLOP/s this week).
 
 float32 is not usable on these models: the sampler's precision check warns (robot 3–5% of a
 predictive std, flight 19–26%, and ~3.8e5 negative flight variances clamped).

@@ -1,4 +1,4 @@
-"""Why GPREPS's final policies stop short of the thesis's bounds (issue #31), on the stored runs.
+"""Why GPREPS's final policies stop short of the thesis's bounds, on the stored runs.
 
 Run ``OMP_NUM_THREADS=1 python benchmarks/bench_gpreps_limits.py PART`` with PART one of
 

@@ -1,4 +1,4 @@
-"""Benchmark: skillkit's trajectory sampler against the same FITC rollout through GPyTorch (#30).
+"""Benchmark: skillkit's trajectory sampler against the same FITC rollout through GPyTorch.
 
 One FITC forward model, rolled out with per-step sampling (x_{t+1} ~ p(x_{t+1} | x_t, u_t),
 the feedback policy u_t = G (x_t − x_up)), through

@@ -1,7 +1,7 @@
-"""Hockey GPREPS model choices (issue #31) measured on the stored paper runs' own shots.
+"""Hockey GPREPS model choices measured on the stored paper runs' own shots.
 
 Run ``OMP_NUM_THREADS=1 python benchmarks/bench_hockey_launch.py``. It reads the training sets
-of trial 0's GPs of the ``fig4.10`` and ``fig4.11`` paper runs made before issue #31
+of trial 0's GPs of the ``fig4.10`` and ``fig4.11`` paper runs stored at commit 8fccd66
 (``benchmarks/data/hockey_training_sets.npz``, see :data:`DATA`) and reports:
 
 1. **launch targets**: 5-fold cross-validated error of the launch GP's predictive mean on the
@@ -30,10 +30,10 @@ from skillkit.search.gpreps import refit_gp
 from skillkit.search.hockey_model import DisplacementModel, LaunchTargets, approach_frame
 
 DATA = Path(__file__).resolve().parent / "data" / "hockey_training_sets.npz"
-"""Trial 0's training sets of the fig4.10 and fig4.11 paper runs made before issue #31
-(the results stored in data/results up to commit 8fccd66; fig4.11 replaced since), from their
-reward models: ``<run>__<gp>__X`` and ``__Y`` (targets de-standardised, so they carry the
-fit's small additive noise, α·1% of their spread). Launch targets are [p_y, v_x, v_y, t_0]."""
+"""Trial 0's training sets of the fig4.10 and fig4.11 paper runs stored at commit 8fccd66 (with
+velocity launch targets and the world-frame displacement GP), from their reward models:
+``<run>__<gp>__X`` and ``__Y`` (targets de-standardised, so they carry the fit's small additive
+noise, α·1% of their spread). Launch targets are [p_y, v_x, v_y, t_0]."""
 
 
 def stored_training_sets(run: str) -> dict[str, tuple[np.ndarray, np.ndarray]]:

@@ -1,5 +1,5 @@
 """Benchmark: moment matching (PILCO-style exact moments at a Gaussian input) against the
-machine's float64 matmul peak, and 100-step predictions before / after issue #18.
+machine's float64 matmul peak, and 100-step predictions, batched and unbatched.
 
 Models: FITC forward models with an 8-D state and a 4-D control (D = 12 GP inputs, E = 8
 outputs), M = 300 (the fig4.4 size) and M = 700 (the fig4.3 size) pseudo-inputs, fitted to
@@ -14,7 +14,7 @@ Printed, on one thread (``torch.set_num_threads(1)``), with ``uptime``'s load be
 * the bare per-entry work alone (product, exp, vector product per pair on random operands,
   no set-up), the floor any implementation of these formulas in this form meets;
 * one 100-step :func:`~skillkit.models.moment_matching.propagate` with the batched code and with
-  the pre-#18 implementation kept in ``tests/models/test_moment_matching_batched.py`` (CPU
+  the unbatched reference implementation in ``tests/models/test_moment_matching_batched.py`` (CPU
   time and wall time), and the largest difference between the two (relative to the largest
   entry).
 
@@ -150,7 +150,7 @@ def main() -> None:
             diff = float((covs - ref_covs).abs().max() / ref_covs.abs().max())
             diff_m = float((means - ref_means).abs().max() / ref_means.abs().max())
             line += (
-                f", pre-#18 {t_old:.2f} s CPU ({w_old:.2f} s wall), {t_old / t_new:.1f}x; "
+                f", unbatched {t_old:.2f} s CPU ({w_old:.2f} s wall), {t_old / t_new:.1f}x; "
                 "largest difference "
                 f"{diff_m:.1e} (means), {diff:.1e} (covariances), relative"
             )

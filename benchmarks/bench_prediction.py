@@ -1,4 +1,4 @@
-"""Benchmark: issue #18's figures in one run (prediction speed of the GP models).
+"""Benchmark: the prediction speed of the GP models, every figure in one run.
 
 Runs, in one process and in this order, with the machine's load printed before and after each
 part (other processes on a shared machine inflate every time):
@@ -8,7 +8,7 @@ part (other processes on a shared machine inflate every time):
    (its predictive distribution called every step) as the peer baseline with the speed ratio,
    and the pathwise sampler's step time;
 2. ``bench_moment_matching.py``: moment matching's GFLOP/s and fraction of peak, and a 100-step
-   prediction before / after issue #18;
+   prediction, batched and unbatched;
 3. fig4.4's own measurement, run fresh into ``--out`` (``--fig44-scale``, default ``paper``:
    FITC with 1500 points and 300 pseudo-inputs, 100 steps, trained on balancing data):
    moment-matching time, sampling time per N and trajectories per moment-matching prediction,

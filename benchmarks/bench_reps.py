@@ -4,7 +4,7 @@ N = 10,000 samples.
 
 Dimensions are the thesis's throwing task: ω ∈ R^41, context s ∈ R^2, linear policy features
 and quadratic baseline features (5). For each solver of :func:`~skillkit.search.reps.reps_weights`
-(``"lbfgsb"``, today's default, and ``"newton"``, issue #18) it prints the median over
+(``"lbfgsb"``, the default, and ``"newton"``) it prints the median over
 ``REPEATS`` of: the whole update; ``reps_weights`` (normalisation, dual solve, weights and
 diagnostics); the dual solve alone (the solver on the normalised problem, set up here as
 ``reps_weights`` does); the fit; the solver's iterations; and the largest weight difference
@@ -22,8 +22,7 @@ Measured on the 2-CPU x86_64 VM (numpy 2 with OpenBLAS 0.3.31), the only other j
     N= 10000 newton: update   13.29 ms = reps_weights   4.82 (dual 3.07, 8 it.) + fit 7.92
     largest weight difference newton - lbfgsb: 2.2e-08 (N = 200), 7.1e-10 (N = 10,000)
 
-The 30 ms of issue #18 and the 20.7 / 22.0 ms measured in the previous session were taken
-while other jobs shared the two cores.
+With other jobs sharing the two cores the same update measured 20–30 ms.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Extra contexts (Sec. 3.4) with and without bias, issue #17 item 1.
+"""Extra contexts (Sec. 3.4) with and without bias.
 
 Problem: a linear-Gaussian contextual task with a known optimal gain: s ~ U[−1, 1]²,
 ω ∈ R², R(s, ω) = −‖ω − 2s‖², the trajectory is ω itself (it does not depend on s, so it

@@ -1,4 +1,4 @@
-"""Episodic REPS's M-step on the 10-D quadratic of issue #17 (item 3): which M-step keeps the
+"""Episodic REPS's M-step on an ill-conditioned 10-D quadratic: which M-step keeps the
 KL bound and still converges.
 
 Problem: R(ω) = −(ω − ω*)ᵀ H (ω − ω*), H = diag(100^(i/9)), i = 0..9 (condition number 100),
@@ -7,7 +7,7 @@ seeds 0–4 (``np.random.default_rng(seed)``), no sample reuse.
 
 Variants (``ContextualREPS(m_step=...)`` unless marked):
 
-* ``weighted_ml`` — Eqs. 3.11–3.13 alone (today's default);
+* ``weighted_ml`` — Eqs. 3.11–3.13 alone (the default);
 * ``trust_region`` β = ε/2, ε, 2ε — entropy loss ≤ β, then KL(π_new ‖ π_old) ≤ ε
   (:func:`skillkit.policies.gaussian.trust_region_step`; β = ε is the library default);
 * ``kl_only`` — the KL projection alone (β = 1e6, never active);

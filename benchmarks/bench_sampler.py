@@ -1,4 +1,4 @@
-"""Benchmark: the trajectory sampler's speed and accuracy, float64 / float32 / pathwise (issue #18).
+"""Benchmark: the trajectory sampler's speed and accuracy, float64 / float32 / pathwise.
 
 Prints, in one run, with the machine's load (``uptime``) before and after:
 
@@ -26,7 +26,7 @@ Prints, in one run, with the machine's load (``uptime``) before and after:
   function and one shared basis; and its final-state spread against the per-step sampler's
   (KL of Gaussian fits and per-dimension std ratios, against the Monte Carlo floor).
 
-The model is the issue's reference size: a FITC forward model (Δx targets) of the planar
+The model is the reference size: a FITC forward model (Δx targets) of the planar
 4-link robot under the balancing feedback (8 states, 4 controls: 12 GP inputs, 8 outputs),
 N = 1500 transitions, M = 300 pseudo-inputs, 10 optimisation steps (timings do not depend on
 the hyper-parameters' values), trained with skillkit's own data collection (the fig4.4

@@ -1,4 +1,4 @@
-"""Time every experiment id at the ``smoke`` and ``quick`` scales (issue #30).
+"""Time every experiment id at the ``smoke`` and ``quick`` scales.
 
 Each (id, scale) runs ``reproduce(id, scale=..., out=tmpdir, progress=False, html=False,
 fresh=True)`` in a fresh Python subprocess (so imports and caches do not leak from one id to

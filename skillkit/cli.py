@@ -106,10 +106,8 @@ def _wrap(label: str, text: str, max_lines: int = 4) -> list[str]:
 
 
 def _report(run) -> list[str]:
-    """A finished run in at most 12 lines: what ran, the thesis's claim, our verdict and
-    statement, the files written and which one to open."""
-    from skillkit.viz.plots import verdict
-
+    """A finished run in at most 8 lines: what ran, its card (the claim, the verdict with its
+    key number and interval, where the details are), the files written and which to open."""
     r = run.result
     n, wall = r.get("trials"), r.get("wall_time_s")
     facts = [f"{run.scale} scale", f"{n} trial{'' if n == 1 else 's'}", f"seed {r.get('seed')}"]
@@ -122,14 +120,7 @@ def _report(run) -> list[str]:
         max_lines=2,
         placeholder=" …",
     )
-    v = verdict(r)
-    if v is None:
-        lines.append("  here:   no verdict recorded")
-    else:
-        lines += _wrap("thesis:", v.claim)
-        lines += _wrap("here:", f"{v.word} — {v.statement}" if v.statement else v.word)
-        if v.own_checks:  # conditions of ours beyond the thesis, beside the verdict
-            lines += _wrap("ours:", v.own_words, max_lines=2)
+    lines += ["  " + line for line in run.card.split("\n")]
     written = [name for name in FILES if (run.path / name).exists()]
     lines.append(f"  files:  {run.path}/ ({', '.join(written)})")
     figure = "figure.html" if "figure.html" in written else "figure.png"
@@ -202,6 +193,27 @@ def _cmd_settings(args: argparse.Namespace) -> int:
     return 0
 
 
+def _remeasure_runs(root: Path) -> int:
+    """``runs --remeasure``: add today's measurements to every stored result under ``root``
+    and judge it again (:func:`skillkit.experiments.runner.remeasure`); 1 if one disagrees."""
+    from skillkit.experiments.run import rejudged
+    from skillkit.experiments.runner import remeasure, write_result
+
+    failed = 0
+    for path in sorted(root.rglob("result.json")):
+        folder = path.parent
+        try:
+            added = remeasure(folder, write=True) if (folder / "trials.npz").exists() else []
+            note = f"{len(added)} measurements added" if added else "nothing to add"
+        except ValueError as exc:
+            failed += "differs" in str(exc)
+            note = str(exc).split(": ", 1)[1]
+        result = json.loads(path.read_text())
+        write_result(folder, rejudged(result))
+        print(f"{folder.name}: {note}; judged again")
+    return int(failed > 0)
+
+
 def _cmd_runs(args: argparse.Namespace) -> int:
     from skillkit.experiments.store import find_root, list_runs
 
@@ -211,8 +223,12 @@ def _cmd_runs(args: argparse.Namespace) -> int:
         )
     given = args.folder if args.folder is not None else args.root
     root = find_root() if given is None else Path(given)
+    if args.record and not args.check:
+        raise SystemExit("runs: --record goes with --check")
     if args.check:
-        return _check_runs(root)
+        return _check_runs(root, record=args.record, progress=not args.quiet)
+    if args.remeasure:
+        return _remeasure_runs(root)
     if args.markdown:
         print(results_table(root), end="")
         return 0
@@ -269,25 +285,39 @@ def results_table(root) -> str:
         wall_min = f"{wall / 60:.1f}" if isinstance(wall, (int, float)) else "not recorded"
         holds = (result.get("summary") or {}).get("holds")
         verdict = {True: "true", False: "false", None: "null"}.get(holds, str(holds))
-        since = f"stale: {row['reason'].split(' (')[0]}" if row["stale"] else "unchanged"
+        since = {"current": "unchanged", "carried": "carried (witness equal)"}.get(
+            row["status"], f"stale: {row['reason'].split(' (')[0]}"
+        )
         cells = [Path(row["path"]).name, commit, str(result.get("trials", "?")), executor,
                  wall_min, verdict, since]  # fmt: skip
         lines.append("| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |")
     return "\n".join(lines) + "\n"
 
 
-def _check_runs(root: Path) -> int:
-    """``runs --check``: list every result whose code changed since it was made; 1 if any."""
+def _check_runs(root: Path, record: bool = False, progress: bool = True) -> int:
+    """``runs --check``: whether today's code would still make each result under ``root``.
+
+    A result is current (its code fingerprint is today's), carried (the code changed, and
+    the smoke witness of today's code equals the stored one: recorded earlier, or run now)
+    or stale (:func:`skillkit.experiments.provenance.check_results` with ``witness=True``).
+    With ``record``, carry records are written for the results found carried now. Prints
+    the carried and stale results, then the counts; returns 1 if any is stale, else 0.
+    """
     from skillkit.experiments.provenance import check_results
 
     if not root.exists():
         raise ValueError(f"--root: no results folder at {root}")
-    rows = check_results(root)
-    stale = [r for r in rows if r["stale"]]
-    for r in stale:
-        print(f"stale  {r['path']:<45} {r['id']:<10} {r['reason']}")
-    print(f"{len(stale)} of {len(rows)} results under {root} are stale")
-    return 1 if stale else 0
+    rows = check_results(root, witness=True, record=record, progress=progress)
+    for status in ("carried", "stale"):
+        for r in rows:
+            if r["status"] == status:
+                print(f"{status:<8} {r['path']:<45} {r['id']:<10} {r['reason']}")
+    counts = {s: sum(r["status"] == s for r in rows) for s in ("current", "carried", "stale")}
+    print(
+        f"{len(rows)} results under {root}: {counts['current']} current, "
+        f"{counts['carried']} carried, {counts['stale']} stale"
+    )
+    return 1 if counts["stale"] else 0
 
 
 def _cell(v) -> str:
@@ -515,8 +545,25 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--check",
         action="store_true",
-        help="list the results whose code has changed since they were made (their experiment's "
-        "code fingerprint differs from today's, or they have none); exit 1 if there is one",
+        help="check that today's code would still make each result: current (same code "
+        "fingerprint), carried (the code changed but a smoke run of it reproduces the stored "
+        "witness: recorded, or run now) or stale; print the counts, exit 1 if any is stale",
+    )
+    p.add_argument(
+        "--record",
+        action="store_true",
+        help="with --check: write a carry record into result.json of each result whose "
+        "witness is equal, so later checks are instant",
+    )
+    p.add_argument(
+        "--quiet", action="store_true", help="with --check: no progress bar over witness runs"
+    )
+    p.add_argument(
+        "--remeasure",
+        action="store_true",
+        help="summarise each stored result's trials.npz again with today's code, add the "
+        "measurements its summary lacks (every measurement both have must agree), and write "
+        "the judgement of today's claims spec into it; nothing is re-run",
     )
     p.add_argument(
         "--markdown",

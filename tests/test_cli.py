@@ -233,6 +233,8 @@ def test_settings_shows_measured_times_or_not_measured(times_file, capsys):
 
 
 def test_reproduce_prints_the_estimate_and_the_verdict_not_json(times_file, tmp_path, capsys):
+    from skillkit.experiments.run import load_run as get_run
+
     times_file(TABLE)
     args = ["reproduce", "fig2.10", "--scale", "smoke", "--out", str(tmp_path), "--quiet"]
     assert main([*args, "--no-html", "--trials", "2"]) == 0
@@ -240,9 +242,9 @@ def test_reproduce_prints_the_estimate_and_the_verdict_not_json(times_file, tmp_
     assert "fig2.10 at smoke scale: expected wall time about 4 s" in captured.err  # 2 × 2 s
     out = captured.out.splitlines()
     assert out[0].startswith("fig2.10 (smoke scale, 2 trials, seed 0, ")
-    assert any(line.startswith("  thesis: A DMP with 10 basis functions") for line in out)
-    here = [line for line in out if line.startswith("  here:   ")]
-    assert here and here[0].startswith("  here:   not judged (smoke scale) — With 10 basis")
+    card = get_run(tmp_path / "fig2.10-smoke-s0").card.split("\n")
+    assert out[1:4] == ["  " + line for line in card]  # the run's card, as in a notebook
+    assert card[0].startswith("fig2.10: ") and card[1].startswith("smoke scale: not judged")
     folder = tmp_path / "fig2.10-smoke-s0"
     assert f"  files:  {folder}/ (result.json, figure.png, trials.npz)" in out
     assert f"{folder / 'figure.png'}" in out[-1] and len(out) <= 12
@@ -268,7 +270,7 @@ def test_demo_prints_a_short_report_per_experiment(tmp_path, monkeypatch, capsys
     report, _, rest = captured.out.partition("\n\n")
     lines = report.splitlines()
     assert len(lines) <= 12 and lines[0].startswith("fig2.10 (quick scale, 1 trial, seed 0, ")
-    assert any(line.startswith("  here:   holds — ") for line in lines)
+    assert any(line.startswith("  ") and line.endswith(": holds") for line in lines)
     assert f"{tmp_path / 'fig2.10-quick-s0' / 'figure.html'} in a browser" in report
     assert rest.startswith("next: ")
     assert main(["demo", "--out", str(tmp_path), "--quiet", "--json"]) == 0
@@ -283,14 +285,49 @@ def test_runs_check_lists_stale_results_and_exits_non_zero(tmp_path, capsys):
     (tmp_path / "a").mkdir()
     (tmp_path / "a" / "result.json").write_text(json.dumps(current))
     assert main(["runs", "--check", "--root", str(tmp_path)]) == 0
-    assert "0 of 1 results" in capsys.readouterr().out
+    assert "1 results under" in capsys.readouterr().out
     (tmp_path / "b").mkdir()
     (tmp_path / "b" / "result.json").write_text(json.dumps({"id": "fig2.10"}))
-    assert main(["runs", "--check", str(tmp_path)]) == 1  # the folder as a positional
+    assert main(["runs", "--check", str(tmp_path), "--quiet"]) == 1  # the folder as a positional
     out = capsys.readouterr().out
-    assert "stale" in out and "no code fingerprint" in out and "1 of 2 results" in out
+    assert "stale" in out and "no code fingerprint" in out
+    assert out.splitlines()[-1].endswith(": 1 current, 0 carried, 1 stale")
     with pytest.raises(SystemExit, match="give the folder once"):
         main(["runs", str(tmp_path), "--root", str(tmp_path / "a")])
+    with pytest.raises(SystemExit, match="--record goes with --check"):
+        main(["runs", str(tmp_path), "--record"])
+
+
+def test_runs_check_record_carries_a_result_whose_witness_is_equal(tmp_path, monkeypatch, capsys):
+    """The code changed (another fingerprint) but the smoke witness of today's code equals the
+    stored one: carried; ``--record`` writes the carry record, and the next check runs
+    nothing."""
+    from skillkit.experiments import runner
+    from skillkit.experiments.provenance import code_fingerprint
+
+    old, now = "0" * 16, code_fingerprint("fig2.10")
+    witness = {"seed": 0, "trials": 1, "code_fingerprint": old, "summary": {"e": 1.0},
+               "series": [{"y": [1.0, 2.0]}], "unstable": []}  # fmt: skip
+    result = {"id": "fig2.10", "seed": 0, "code_fingerprint": old, "witness": witness}
+    _write_run(tmp_path / "fig2.10-paper-s0", **result)
+    calls = []
+
+    def fake(exp_id, seed=0, **kwargs):
+        calls.append(exp_id)
+        return {**witness, "code_fingerprint": now, "commit": "feedbee"}
+
+    monkeypatch.setattr(runner, "smoke_witness", fake)
+    assert main(["runs", "--check", "--record", str(tmp_path), "--quiet"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[0].startswith("carried ") and "code changed at feedbee, witness equal" in out[0]
+    assert out[-1].endswith(": 0 current, 1 carried, 0 stale") and calls == ["fig2.10"]
+    stored = json.loads((tmp_path / "fig2.10-paper-s0" / "result.json").read_text())
+    assert stored["carried"][0]["code_fingerprint"] == now
+    assert main(["runs", "--check", str(tmp_path), "--quiet"]) == 0
+    assert calls == ["fig2.10"]  # recorded: nothing ran
+    capsys.readouterr()
+    assert main(["runs", str(tmp_path), "--markdown"]) == 0
+    assert "| carried (witness equal) |" in capsys.readouterr().out
 
 
 def test_demo_comparison_reports_gpreps_against_reps_and_opens_in_the_viewer(tmp_path):

@@ -21,6 +21,7 @@ LAYERS = {
     "_repr": 0,
     "trajectory": 0,
     "trial": 0,
+    "series": 0,  # what an experiment plots and the bands it computes: plain data
     "policies": 1,
     "models": 1,
     "tasks": 2,

@@ -60,9 +60,9 @@ def test_writer_receives_every_key_after_every_save():
 
 def test_bad_input_names_the_argument():
     with pytest.raises(ValueError, match="states"):
-        TrialContext(states={"learn": ({"k": 1}, {})})  # an unpickled payload (old format)
+        TrialContext(states={"learn": ({"k": 1}, {})})  # not (bytes, generator state)
     with pytest.raises(ValueError, match="rng"):
         TrialContext().save("k", 1, 0)
-    for bad in (np.nan, -1.0, "ten"):  # NaN used to make every later time NaN
+    for bad in (np.nan, -1.0, "ten"):  # NaN would make every later time NaN
         with pytest.raises(ValueError, match="seconds"):
             TrialContext(seconds=bad)

@@ -2,7 +2,9 @@
 
 ``fig2.10`` (thesis Figs. 2.9–2.11): a 1-DoF demonstration (q, q̇, q̈), the DMP without its
 forcing term (v = 0) and the DMP whose 10 shape weights are fitted to the demonstration by
-least squares (Eq. 2.23).
+least squares (Eq. 2.23). The summary holds the measurements (RMSEs as fractions of the
+demonstration's range, end errors to g); the claim and how it is judged are in
+``skillkit/data/claims/ch2.toml``.
 """
 
 from __future__ import annotations
@@ -13,12 +15,12 @@ import numpy as np
 from numpy.polynomial import Polynomial
 
 from skillkit._validation import check_positive
-from skillkit.experiments.registry import Experiment, Series, Verdict, register, with_verdict
+from skillkit.experiments.registry import Experiment, Series, register
 from skillkit.experiments.settings import Settings, setting
 from skillkit.policies.dmp import DMP
 from skillkit.trial import TrialContext
 
-__all__ = ["DMPImitationSettings", "reach_demonstration", "verdict"]
+__all__ = ["DMPImitationSettings", "reach_demonstration"]
 
 
 def reach_demonstration(
@@ -72,12 +74,6 @@ def reach_demonstration(
 FORCING_LABEL = "f [rad/s²]"
 """Y label of the forcing-term panel: f enters q̈ = τ² α_x(…) + τ² f with a unitless τ, so it
 is an acceleration (rad/s²), like the fit target Y of Eq. 2.23."""
-
-CLAIM = (
-    "A DMP with 10 basis functions fitted by least squares (Eq. 2.23) reproduces the "
-    "demonstration (RMSE < 1% of its range) and ends at the goal g; without the forcing "
-    "term the DMP still reaches g but with a different shape (Figs. 2.9–2.11)."
-)
 
 
 @dataclass(frozen=True)
@@ -218,46 +214,7 @@ def _summarize(settings: DMPImitationSettings, trials: list[dict]) -> tuple[list
         "end_error_to_goal_rad": end_error,
         "end_error_without_forcing_rad": abs(float(tr["free_q"][-1]) - tr["goal"]),
     }
-    return series, with_verdict(summary, verdict(settings, summary))
-
-
-ACCURATE = 0.01
-"""Fraction of the demonstration's range read as "accurately" (RMSE) and as "the same g"
-(end error): the thesis gives no number for either."""
-
-
-def verdict(settings: DMPImitationSettings, summary: dict) -> Verdict:
-    """Judges the thesis's three sentences on Figs. 2.10–2.11 (criterion widened after the
-    stored paper run, issue #32: parts 3 and 4 were reported, not judged). Holds if
-
-    1. "The DMP accurately captured the demonstration": the fitted DMP's position RMSE is
-       below 1% of the demonstration's range;
-    2. "the final angular position g remains unaltered": the fitted DMP ends within 1% of
-       that range from g;
-    3. "The robot arm reaches the same angular position g": so does the DMP without the
-       forcing term;
-    4. "the forcing function changes the shape of the trajectory": without it the DMP's RMSE
-       to the demonstration is at least 1% of the range (it does not match it).
-    """
-    rmse, end = summary["rmse_q_fraction_of_range"], summary["end_error_to_goal_rad"]
-    free_rmse = summary["rmse_q_fraction_without_forcing"]
-    free_end = summary["end_error_without_forcing_rad"]
-    q_range = summary["demo_range_rad"]
-    holds = (
-        rmse < ACCURATE
-        and end < ACCURATE * q_range
-        and free_end < ACCURATE * q_range
-        and free_rmse >= ACCURATE
-    )
-    return Verdict(
-        CLAIM,
-        bool(holds),
-        f"With {summary['n_basis']} basis functions the DMP's position RMSE is "
-        f"{100 * rmse:.3g}% of the demonstration's range (thesis: an accurate fit, here "
-        f"< 1%) and it ends {end:.2g} rad from g; without the forcing term the RMSE is "
-        f"{100 * free_rmse:.3g}% and the end error {free_end:.2g} rad (thesis: the same g, a "
-        "different shape; here an end error < 1% of the range and an RMSE ≥ 1%).",
-    )
+    return series, summary
 
 
 register(
@@ -268,8 +225,6 @@ register(
         settings=SCALES,
         run_trial=_run_trial,
         summarize=_summarize,
-        verdict=verdict,
         trials={"smoke": 1, "quick": 1, "paper": 1},
-        claim=CLAIM,
     )
 )

@@ -8,6 +8,8 @@
   Carlo histogram and its density by quadrature), the Gaussian of exact moment matching
   (Fig. 2.7) and the Gaussian of linearisation at μ_x (Fig. 2.6). The summary gives the
   moment errors and KL(p || Gaussian) of both approximations.
+
+The claims and how they are judged are in ``skillkit/data/claims/ch2.toml``.
 """
 
 from __future__ import annotations
@@ -17,8 +19,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import torch
 
-from skillkit.experiments.claims import own_check
-from skillkit.experiments.registry import Experiment, Series, Verdict, register, with_verdict
+from skillkit.experiments.registry import Experiment, Series, register
 from skillkit.experiments.settings import Settings, setting
 from skillkit.models.gp import ExactGP, record_numerical_events, robust_cholesky
 from skillkit.models.moment_matching import linearize, moment_match
@@ -34,11 +35,7 @@ __all__ = [
     "GPRegressionSettings",
     "fig2_7_function",
     "fig2_12_function",
-    "own_checks_2_7",
-    "own_checks_2_12",
     "successor_density",
-    "verdict_2_7",
-    "verdict_2_12",
 ]
 
 
@@ -53,15 +50,6 @@ def fig2_7_function(x: np.ndarray) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------- fig2.12
-CLAIM_2_12 = (
-    "Without observations the prediction variance is high; with more samples it shrinks "
-    "rapidly and the sampled functions converge to the underlying function (Fig. 2.12)."
-)
-COVERAGE_FLOOR = 0.9
-"""``own_checks["band_coverage"]`` of ``fig2.12``: the least share of noisy test points the
-last panel's 95% band must cover."""
-
-
 @dataclass(frozen=True)
 class GPRegressionSettings(Settings):
     """Settings of ``fig2.12`` (Sec. 2.4, Eqs 2.26–2.27); the same at every scale."""
@@ -191,67 +179,7 @@ def _summarize_2_12(
         },
         "max_sample_jitter": max(t[f"n{n}"]["sample_jitter"] for t in trials for n in ns),
     }
-    summary["own_checks"] = own_checks_2_12(settings, summary)
-    return series, with_verdict(summary, verdict_2_12(settings, summary))
-
-
-def own_checks_2_12(settings: GPRegressionSettings, summary: dict) -> dict:
-    """``fig2.12``'s conditions of ours beyond the thesis's sentence (never part of
-    ``holds``), from the summary's numbers alone.
-
-    Parameters
-    ----------
-    settings : GPRegressionSettings
-        The run's settings (``n_points`` names the panels).
-    summary : dict
-        The run's summary (``per_n_points``).
-
-    Returns
-    -------
-    dict
-        ``{"band_coverage": own_check(...)}``: the last panel's 95% band of y covers more
-        than :data:`COVERAGE_FLOOR` of the noisy test points.
-    """
-    last = summary["per_n_points"][str(settings.n_points[-1])]["coverage95"]
-    return {
-        "band_coverage": own_check(
-            None if last is None else bool(last > COVERAGE_FLOOR),
-            f"the last panel's 95% band of y covers more than {COVERAGE_FLOOR:.0%} of the "
-            "noisy test points (ours: the thesis shows the band, it reports no coverage; part "
-            "of the verdict before issue #32)",
-        )
-    }
-
-
-def verdict_2_12(settings: GPRegressionSettings, summary: dict) -> Verdict:
-    """Judges "after observing an increasing amount of samples, the variance rapidly reduces
-    and the sample functions converge to the real underlying function" (Sec. 2.3, Fig. 2.12;
-    criterion narrowed after the stored paper run, issue #32). Holds if, panel after panel,
-    the mean predictive std and the spread of the posterior samples shrink and the RMSE of
-    the mean to the function falls. "Rapidly" is not quantified by the thesis (the statement
-    gives the numbers); "without observing any samples ... the prediction variance is high"
-    is the GP prior's σ_f², not measured (the first panel has one observation). The last
-    panel's band coverage, part of ``holds`` before issue #32, is an own check
-    (``own_checks["band_coverage"]``)."""
-    per = [summary["per_n_points"][str(n)] for n in settings.n_points]
-    pairs = list(zip(per, per[1:], strict=False))
-    shrinks = all(
-        a["mean_std"] > b["mean_std"] and a["sample_spread"] > b["sample_spread"] for a, b in pairs
-    )
-    improves = all(a["rmse"] > b["rmse"] for a, b in pairs)
-    first, last = per[0], per[-1]
-    n0, n1 = settings.n_points[0], settings.n_points[-1]
-    return Verdict(
-        CLAIM_2_12,
-        bool(shrinks and improves),
-        f"From {n0} to {n1} observations the mean predictive std falls from "
-        f"{first['mean_std']:.3g} to {last['mean_std']:.3g}, the posterior samples' spread "
-        f"from {first['sample_spread']:.3g} to {last['sample_spread']:.3g} and the mean's RMSE "
-        f"from {first['rmse']:.3g} to {last['rmse']:.3g}"
-        f"{'' if shrinks and improves else ' (not at every step)'}, with "
-        f"{100 * last['coverage95']:.1f}% of test points in the 95% band (thesis: the variance "
-        "shrinks rapidly and the samples converge to the function).",
-    )
+    return series, summary
 
 
 register(
@@ -262,25 +190,12 @@ register(
         settings=SCALES_2_12,
         run_trial=_run_2_12,
         summarize=_summarize_2_12,
-        verdict=verdict_2_12,
-        own_checks=own_checks_2_12,
         trials={"smoke": 1, "quick": 1, "paper": 1},
-        claim=CLAIM_2_12,
     )
 )
 
 
 # ---------------------------------------------------------------------------- fig2.7
-CLAIM_2_7 = (
-    "Moment matching gives a more accurate Gaussian prediction of the successor distribution "
-    "(lower KL to it) than linearisation at the input mean, which approximates the model well "
-    "only in a narrow region and the successor distribution poorly (Figs 2.6-2.7)."
-)
-EXACT = 1e-3
-"""``own_checks["moment_matching_exact"]`` of ``fig2.7``: the largest moment-matching mean
-error plus relative variance error counted as exact."""
-
-
 @dataclass(frozen=True)
 class DeterministicPredictionSettings(Settings):
     """Settings of ``fig2.7`` (Sec. 2.4.1, Figs 2.6–2.7)."""
@@ -478,55 +393,7 @@ def _summarize_2_7(
             np.mean([abs(t["lin_var"] / t["true_var"] - 1) for t in trials])
         ),
     }
-    summary["own_checks"] = own_checks_2_7(summary)
-    return series, with_verdict(summary, verdict_2_7(settings, summary))
-
-
-def own_checks_2_7(summary: dict) -> dict:
-    """``fig2.7``'s conditions of ours beyond the thesis's sentences (never part of
-    ``holds``), from the summary's numbers alone.
-
-    Parameters
-    ----------
-    summary : dict
-        The run's summary (``mm_mean_error``, ``mm_var_rel_error``).
-
-    Returns
-    -------
-    dict
-        ``{"moment_matching_exact": own_check(...)}``: moment matching's mean error plus
-        relative variance error below :data:`EXACT`.
-    """
-    mean_err, var_err = summary["mm_mean_error"], summary["mm_var_rel_error"]
-    exact = None if mean_err is None or var_err is None else bool(mean_err + var_err < EXACT)
-    return {
-        "moment_matching_exact": own_check(
-            exact,
-            f"moment matching's mean error plus relative variance error below {EXACT:g} "
-            "(ours: exact moments are how the method is built, not a result the thesis "
-            "reports; part of the verdict before issue #32)",
-        )
-    }
-
-
-def verdict_2_7(settings: DeterministicPredictionSettings, summary: dict) -> Verdict:
-    """Judges "the moment matching approach gives a more accurate prediction compared to
-    linearization" (Sec. 2.1.2, Fig. 2.7; criterion narrowed after the stored paper run,
-    issue #32). Holds if moment matching's Gaussian is closer to the true successor density
-    than linearisation's: KL(p ‖ N_mm) < KL(p ‖ N_lin) (means over trials). That the
-    linearisation is a "poor approximation" describes the thesis's chosen example and is not
-    quantified (the statement gives its moment errors). Exact moments, part of ``holds``
-    before issue #32, are an own check (``own_checks["moment_matching_exact"]``)."""
-    return Verdict(
-        CLAIM_2_7,
-        bool(summary["kl_mm"] < summary["kl_lin"]),
-        f"Moment matching misses the true mean by {summary['mm_mean_error']:.2g} and the "
-        f"variance by {100 * summary['mm_var_rel_error']:.2g}% (KL {summary['kl_mm']:.3g}); "
-        f"linearisation by {summary['lin_mean_error']:.2g} and "
-        f"{100 * summary['lin_var_rel_error']:.2g}% (KL {summary['kl_lin']:.3g}) "
-        "(thesis: moment matching gives a more accurate prediction than linearisation, whose "
-        "approximation of the successor distribution is poor).",
-    )
+    return series, summary
 
 
 register(
@@ -537,9 +404,6 @@ register(
         settings=SCALES_2_7,
         run_trial=_run_2_7,
         summarize=_summarize_2_7,
-        verdict=verdict_2_7,
-        own_checks=lambda _settings, summary: own_checks_2_7(summary),
         trials={"smoke": 1, "quick": 1, "paper": 1},
-        claim=CLAIM_2_7,
     )
 )

@@ -16,6 +16,9 @@ One trial runs both algorithms from the same initial policy (the task's imitatio
   once per trial: the policy mean's average reward, hit rate (the pucks touched) and
   displacement error |d_T − d*| (over all held-out contexts, and over the hits only).
 
+The summary keeps the final values per trial (the claim compares the two algorithms trial by
+trial); the claim and how it is judged are in ``skillkit/data/claims/ch3.toml``.
+
 Settings (documented in :class:`HockeySettings`)
 ------------------------------------------------
 The thesis does not give the batch size or data reuse for hockey. We reuse 200 samples as
@@ -47,22 +50,7 @@ import numpy as np
 import torch
 
 from skillkit._validation import check_array
-from skillkit.experiments.claims import (
-    NOT_RECORDED,
-    conjunction,
-    finite_or_none,
-    is_less,
-    own_check,
-    parts_note,
-)
-from skillkit.experiments.registry import (
-    Experiment,
-    Series,
-    Verdict,
-    fmt,
-    register,
-    with_verdict,
-)
+from skillkit.experiments.registry import Experiment, Series, register
 from skillkit.experiments.settings import Settings, setting
 from skillkit.models.kernels import Linear
 from skillkit.tasks import make
@@ -72,18 +60,9 @@ from skillkit.viz.series import trial_band
 __all__ = [
     "HockeySettings",
     "NormalisedLinear",
-    "claim_parts",
     "heldout_scores",
     "make_algorithm",
-    "own_checks",
-    "verdict",
 ]
-
-CLAIM = (
-    "Contextual REPS learns hockey shots that hit the target puck in 95% of the contexts "
-    "with a displacement error below 20 cm; CrKR (linear kernel) hits less often with "
-    "larger displacement errors (Sec. 3.4.2, Fig. 3.5)."
-)
 
 
 @dataclass(frozen=True)
@@ -352,8 +331,16 @@ def _summarize(settings: HockeySettings, trials: list[dict]) -> tuple[list[Serie
             vals = _stack(trials, f"{name}_{key}")
             stats[f"initial_{key}"] = _nan_stats(vals[:, 0])[0]
             stats[f"final_{key}"], stats[f"final_{key}_std"] = _nan_stats(vals[:, -1])
-        for key in ("heldout_hit_rate", "heldout_displacement_error_hits"):
+        for key in (
+            "heldout_hit_rate",
+            "heldout_displacement_error_hits",
+            "heldout_reward",
+            "heldout_displacement_error",
+            "mean_reward",
+        ):
             stats[f"final_{key}_per_trial"] = _stack(trials, f"{name}_{key}")[:, -1].tolist()
+        curve = _stack(trials, f"{name}_mean_reward")
+        stats["initial_mean_reward_per_trial"] = curve[:, 0].tolist()
         lowest = [
             np.min(t[f"{name}_heldout_blade_lowest"])
             for t in trials
@@ -368,119 +355,7 @@ def _summarize(settings: HockeySettings, trials: list[dict]) -> tuple[list[Serie
         "reps_displacement_error_m": f"< {THESIS['reps_displacement_error_m']}",
         "crkr": "lower hit rate and larger displacement error than REPS",
     }
-    summary["claim_parts"] = claim_parts(summary)
-    summary["own_checks"] = own_checks(summary)
-    return series, with_verdict(summary, verdict(settings, summary))
-
-
-def claim_parts(summary: dict) -> dict[str, bool | None]:
-    """The thesis's sentences on Fig. 3.5 (Sec. 3.4.2), part by part, from ``summary``.
-
-    * ``reps_always_95pct_below_20cm`` — "contextual REPS *always* provided policies, which
-      were able to hit the target puck for 95% of the experiments and the displacement error
-      remained below 20cm": in every trial the final policy mean hits ≥ 95% of the held-out
-      contexts and the placed target puck (hits only) lands < 20 cm from d*;
-    * ``crkr_lower_hit_rate`` — CrKR hits "only with a lower probability" (mean over trials);
-    * ``crkr_larger_displacement_error`` — CrKR's "displacement errors are considerably
-      higher" (the placed puck's, mean over trials; "considerably" is not quantified);
-    * ``crkr_could_not_compete`` — "CrKR could not compete with model-free contextual REPS"
-      (said of the learning curves): CrKR's final held-out reward is below REPS's.
-
-    A part is None where the summary lacks its numbers (runs made before issue #32 did not
-    record the per-trial values).
-    """
-    reps, crkr = summary["reps"], summary["crkr"]
-    hits = reps.get("final_heldout_hit_rate_per_trial")
-    placed = reps.get("final_heldout_displacement_error_hits_per_trial")
-    always = None
-    if hits is not None and placed is not None:
-        always = bool(
-            all(finite_or_none(h) is not None and h >= THESIS["reps_hit_rate"] for h in hits)
-            and all(is_less(e, THESIS["reps_displacement_error_m"]) is True for e in placed)
-        )
-    return {
-        "reps_always_95pct_below_20cm": always,
-        "crkr_lower_hit_rate": is_less(
-            crkr["final_heldout_hit_rate"], reps["final_heldout_hit_rate"]
-        ),
-        "crkr_larger_displacement_error": is_less(
-            reps["final_heldout_displacement_error_hits"],
-            crkr["final_heldout_displacement_error_hits"],
-        ),
-        "crkr_could_not_compete": is_less(
-            crkr["final_heldout_reward"], reps["final_heldout_reward"]
-        ),
-    }
-
-
-def own_checks(summary: dict) -> dict[str, dict]:
-    """Our conditions beyond the thesis's sentences on Fig. 3.5 (``summary["own_checks"]``):
-    they are shown beside the verdict and never decide it."""
-    reps, crkr = summary["reps"], summary["crkr"]
-    bound = THESIS["reps_displacement_error_m"]
-    return {
-        "reps_learns": own_check(
-            is_less(reps["initial_mean_reward"], reps["final_mean_reward"]),
-            "REPS's final learning-curve reward is above its initial one (ours; part of the "
-            "verdict before issue #32)",
-        ),
-        "reps_error_counting_misses_below_20cm": own_check(
-            is_less(reps["final_heldout_displacement_error"], bound),
-            "REPS's displacement error with a miss counted as an error of d* (the puck stays), "
-            "mean over trials, below 20 cm (ours; the verdict's error before issue #32, which "
-            "reads the thesis's error as that of the placed puck)",
-        ),
-        "crkr_larger_error_counting_misses": own_check(
-            is_less(
-                reps["final_heldout_displacement_error"], crkr["final_heldout_displacement_error"]
-            ),
-            "CrKR's displacement error with a miss counted as d* is above REPS's (ours; the "
-            "verdict's error before issue #32)",
-        ),
-    }
-
-
-def verdict(settings: HockeySettings, summary: dict) -> Verdict:
-    """Judges the thesis's sentences on Fig. 3.5 (criterion changed after the stored paper run,
-    issue #32): holds if every part of :func:`claim_parts` holds — in every trial REPS's final
-    policy hits ≥ 95% of the held-out contexts with a placed-puck displacement error < 20 cm,
-    and CrKR ends with a lower hit rate, a larger placed-puck error and a lower held-out
-    reward than REPS. None if a part's numbers are not recorded and no part fails. Our own
-    conditions (:func:`own_checks`: REPS learns; the error counting a miss as d*) do not
-    decide it. Reads ``summary`` only."""
-    reps, crkr = summary["reps"], summary["crkr"]
-    parts = claim_parts(summary)
-
-    def pct(v):  # a fraction as a percentage, or metres as centimetres
-        return fmt(None if v is None else 100 * v, ".1f")
-
-    def no_hit(v) -> bool:  # the placed puck's error of no hit: None, or NaN in a fresh run
-        return v is None or not np.isfinite(v)
-
-    def places(v, what: str) -> str:
-        return f"places no {what} (no hit)" if no_hit(v) else f"places {what} {pct(v)} cm from d*"
-
-    def per_trial(key: str, unit: str) -> str:
-        values = reps.get(f"final_heldout_{key}_per_trial")
-        if values is None:
-            return NOT_RECORDED
-        return ", ".join("no hit" if no_hit(v) else pct(v) for v in values) + unit
-
-    return Verdict(
-        CLAIM,
-        conjunction(parts.values()),
-        f"After {summary['rollouts_per_algorithm']} rollouts ({summary['n_trials']} trials) "
-        f"REPS hits {pct(reps['final_heldout_hit_rate'])}% of the held-out contexts (per trial: "
-        f"{per_trial('hit_rate', '%')}) and "
-        f"{places(reps['final_heldout_displacement_error_hits'], 'the target puck')} (hits "
-        f"only; per trial: {per_trial('displacement_error_hits', ' cm')}; "
-        f"{pct(reps['final_heldout_displacement_error'])} cm counting a miss as d*) (thesis: "
-        f"always 95%, < 20 cm); CrKR hits {pct(crkr['final_heldout_hit_rate'])}% and "
-        f"{places(crkr['final_heldout_displacement_error_hits'], 'it')} "
-        f"({pct(crkr['final_heldout_displacement_error'])} cm counting misses), held-out reward "
-        f"{fmt(crkr['final_heldout_reward'])} against REPS's {fmt(reps['final_heldout_reward'])} "
-        "(thesis: fewer hits, considerably larger errors, could not compete)." + parts_note(parts),
-    )
+    return series, summary
 
 
 register(
@@ -491,9 +366,6 @@ register(
         settings=SCALES,
         run_trial=_run_trial,
         summarize=_summarize,
-        verdict=verdict,
-        own_checks=lambda _settings, summary: own_checks(summary),
         trials={"smoke": 1, "quick": 1, "paper": 5},
-        claim=CLAIM,
     )
 )

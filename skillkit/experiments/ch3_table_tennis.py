@@ -11,6 +11,8 @@ rollouts and reuses the last 200 rollouts, as in the thesis's robot experiments 
 After learning, the final policy mean is played on fresh contexts and each shot is
 classified (returned / net / out / missed), which makes the thesis's failure mode — a
 policy that puts the ball into the net, reward in [−0.05, −0.02] — visible in the summary.
+The claim and how it is judged are in ``skillkit/data/claims/ch3.toml``; the variants tried
+are in ``data/notes/fig3.7.md``.
 """
 
 from __future__ import annotations
@@ -19,14 +21,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from skillkit.experiments.registry import (
-    Experiment,
-    Series,
-    Verdict,
-    fmt,
-    register,
-    with_verdict,
-)
+from skillkit.experiments.registry import Experiment, Series, register
 from skillkit.experiments.settings import Settings, setting
 from skillkit.policies.features import FeatureName
 from skillkit.policies.gaussian import effective_sample_size
@@ -42,12 +37,6 @@ THESIS_ROLLOUTS = 4000
 """Sec. 3.4.3: good policies after ~4000 rollouts."""
 OUTCOMES = ("returned", "net", "out", "missed")
 
-CLAIM = (
-    "Contextual REPS learns to return the ball to within 20–30 cm of the target "
-    "(reward > −0.02) after ~4000 rollouts in most runs; some runs converge to a "
-    "sub-optimal policy hitting the net (reward in [−0.05, −0.02])."
-)
-
 
 @dataclass(frozen=True)
 class TableTennisSettings(Settings):
@@ -55,8 +44,8 @@ class TableTennisSettings(Settings):
 
     ``n_updates`` × ``rollouts_per_update`` exploratory rollouts per trial (paper: 6000, past
     the thesis's ~4000; quick: 1000); each update reuses the last 200 rollouts as in Sec. 3.4.
-    The paper scale runs 10 trials (3 before issue #17), so that the share of runs stuck at the
-    net can be set beside the thesis's "some runs".
+    The paper scale runs 10 trials, so that the share of runs stuck at the net can be set
+    beside the thesis's "some runs".
 
     Choices the thesis leaves open for this task, and why:
 
@@ -74,7 +63,7 @@ class TableTennisSettings(Settings):
       the current policy (:class:`KeepPolicyREPS`), and the count of such updates is in the
       result (``n_skipped_updates``); the thesis says nothing about this case.
     * :data:`REGULARISED` (``cov_shrinkage`` = 0.2, ``min_effective_samples`` = 10) is the
-      setting the stored results before issue #17 were made with, kept as a named option
+      setting of the stored variant run ``fig3.7-paper-s0-f82e2c5b``, kept as a named option
       (``--set cov_shrinkage=0.2 --set min_effective_samples=10``); fig4.12's REPS baseline
       pins it so its stored result stays valid. It is not in the thesis, and it removes the
       thesis's "some runs get stuck hitting the net" behaviour.
@@ -116,7 +105,7 @@ class TableTennisSettings(Settings):
 
 QUICK = TableTennisSettings()
 REGULARISED = {"cov_shrinkage": 0.2, "min_effective_samples": 10.0}
-"""The fit regularisation of the results stored before issue #17 (not in the thesis):
+"""A regularised weighted ML fit (not in the thesis), a named variant:
 ``dataclasses.replace(settings, **REGULARISED)``."""
 SCALES = {
     "smoke": replace(
@@ -340,6 +329,7 @@ def summarize(settings: TableTennisSettings, trials: list[dict]) -> tuple[list[S
     returned_errors = _pooled(trials, "final_landing_error", "returned")
     net_rewards = _pooled(trials, "final_rewards", "net")
     summary = {
+        "n_trials": len(trials),
         "initial_reward": float(curves[:, 0].mean()),
         "final_reward_per_trial": final.tolist(),
         "final_reward_mean": float(final.mean()),
@@ -361,7 +351,7 @@ def summarize(settings: TableTennisSettings, trials: list[dict]) -> tuple[list[S
         "rollouts_to_mean_curve_above_-0.02": float(x[reached[0]]) if reached.size else None,
         "total_rollouts_per_trial": float(x[-1]),
         "failed_rollouts": int(sum(t["n_failed"] for t in trials)),
-        # trials stored before issue #17 have no count (their fit crashed rather than skip)
+        # trials of runs made with a fit that could not skip an update have no count
         "skipped_updates": int(sum(t.get("n_skipped_updates", 0) for t in trials)),
         "thesis_numbers": {
             "good_reward": THESIS_GOOD_REWARD,
@@ -369,99 +359,8 @@ def summarize(settings: TableTennisSettings, trials: list[dict]) -> tuple[list[S
             "rollouts": THESIS_ROLLOUTS,
         },
         "learned": bool(final.mean() > curves[:, 0].mean() + 0.05),
-        "setup": setup(settings),
     }
-    return series, with_verdict(summary, verdict(settings, summary))
-
-
-def setup(st: TableTennisSettings) -> list[dict]:
-    """The setup table of the summary: the thesis's setting, ours, and why they differ."""
-    regularised = st.cov_shrinkage > 0 or st.min_effective_samples is not None
-    return [
-        {
-            "item": "rollouts",
-            "thesis": "good policies after ~4000 rollouts, the last 200 reused, ε = 0.6",
-            "ours": f"{st.n_updates} updates × {st.rollouts_per_update} rollouts, the last "
-            f"{st.rollouts_per_update * st.n_reuse_batches} reused, ε = {st.epsilon:g}",
-            "why": "rollouts per update not given; with 25 the first fit of a 17×17 Σ rests "
-            "on a Kish ESS of ≈ 10 (see TableTennisSettings)",
-        },
-        {
-            "item": "baseline V(s)",
-            "thesis": "not given",
-            "ours": st.baseline_features,
-            "why": "the quadratic one (20 features) did slightly worse from few samples",
-        },
-        {
-            "item": "weighted ML fit",
-            "thesis": "Eqs. 3.11–3.13, no regularisation",
-            "ours": f"shrinkage {st.cov_shrinkage:g}, ESS floor "
-            f"{'d + 1 = 18' if st.min_effective_samples is None else st.min_effective_samples}; "
-            "an update below the floor keeps the policy and is counted (skipped_updates)",
-            "why": "the named REGULARISED option (not in the thesis)"
-            if regularised
-            else "as the thesis; a fit from fewer effective samples than d + 1 is undetermined",
-        },
-    ]
-
-
-def verdict(settings: TableTennisSettings, summary: dict) -> Verdict:
-    """Holds if most runs (more than half) end with a final policy whose shots average a
-    reward above −0.02 (unchanged by issue #32: it is the thesis's sentence).
-
-    The thesis: "for most of the evaluations high quality policies were found after observing
-    4000 rollouts, which landed the ball in 20 – 30cm radius of the target location with a
-    reward above -0.02". "Evaluations" are read as runs, "most" as more than half; a run's
-    reward is that of its final policy mean on ``n_final_contexts`` fresh contexts (fixed
-    before the paper run), at the end of learning (paper: 6000 rollouts, past the thesis's
-    ~4000). The 20–30 cm radius is what the thesis says a reward above −0.02 means (c₂ = 0.1:
-    a return 0.2 m off costs 0.02 on its own); the statement gives the median landing error
-    of the returned shots beside it. "It sometimes learns a sub-optimal policy that hits the
-    ball in the net" is reported, not required: "sometimes" sets no rate, so runs without a
-    net policy do not contradict it. The learning curve's last point (the policy mean on the
-    ``n_eval_contexts`` fixed contexts, a smaller sample of the same reward) is in the
-    statement too.
-    """
-    n = len(summary["final_reward_per_trial"])
-    good = round(summary["fraction_runs_above_-0.02"] * n)
-    netty = round(summary["fraction_runs_with_net_failures_above_10pct"] * n)
-    curve = [r for r in summary["final_curve_reward_per_trial"] if r is not None]
-    on_curve = sum(r > THESIS_GOOD_REWARD for r in curve)
-    landing = summary["median_landing_error_of_returns_m"]
-    landing_cm = None if landing is None else 100 * landing
-    passes = summary["rollouts_to_mean_curve_above_-0.02"]
-    passes = (
-        "never passes −0.02"
-        if passes is None
-        else f"passes −0.02 after {fmt(passes, '.0f')} rollouts"
-    )
-    return Verdict(
-        CLAIM,
-        bool(summary["fraction_runs_above_-0.02"] > 0.5),
-        f"{good}/{n} runs end above −0.02 after {fmt(summary['total_rollouts_per_trial'], '.0f')} "
-        f"rollouts (final reward {fmt(summary['final_reward_mean'])}; the mean curve {passes}) "
-        f"(thesis: most runs, after ~{THESIS_ROLLOUTS}); on the learning curve's "
-        f"{settings.n_eval_contexts} fixed contexts {on_curve}/{len(curve)} runs end above "
-        + (
-            "−0.02; no final shot is returned (thesis: 20–30 cm from the target); "
-            if landing_cm is None
-            else f"−0.02; the returned shots land a median {fmt(landing_cm, '.0f')} cm from "
-            "the target (thesis: 20–30 cm); "
-        )
-        + f"{fmt(100 * summary['net_fraction_mean'], '.1f')}% of the final shots hit the net and "
-        f"{netty}/{n} runs put more than 10% there (thesis: some runs converge to the net)"
-        + _skipped_clause(summary)
-        + ".",
-    )
-
-
-def _skipped_clause(summary: dict) -> str:
-    """The statement's note on updates that kept the policy (none: no note; summaries stored
-    before issue #17 have no count)."""
-    k = summary.get("skipped_updates", 0)
-    if not k:
-        return ""
-    return f"; {k} updates kept the policy (REPS weights below the fit's effective sample size)"
+    return series, summary
 
 
 def _pooled(trials: list[dict], key: str, outcome: str) -> np.ndarray:
@@ -480,8 +379,6 @@ register(
         settings=SCALES,
         run_trial=run_trial,
         summarize=summarize,
-        verdict=verdict,
         trials={"smoke": 1, "quick": 1, "paper": 10},
-        claim=CLAIM,
     )
 )

@@ -8,18 +8,18 @@ targets (``initial_std_fraction``, :meth:`~skillkit.tasks.planar.Throwing.initia
 last 200 rollouts (L = 8 batches), ε = 0.6. The *extra context* variant re-scores every
 trajectory in ``extra_contexts`` = 20 freshly drawn contexts through the known reward model
 (valid because the throw does not depend on the target); the re-scored rows enter REPS with
-importance weights (``extra_context_weighting="importance"``, the library default since
-issue #17: the naive use biases the context gain towards zero).
+importance weights (``extra_context_weighting="importance"``, the library default: the naive
+use biases the context gain towards zero).
 
 Per trial the result holds both learning curves (average reward of the policy mean on fixed
 evaluation targets) and the final policies' ball-to-target distances on a grid of targets,
 which the summary splits into near (x < 13 m) and far (x ≥ 13 m) targets, the split of the
 thesis's claim "the error for targets further away (s ≥ [13, 3] m) could raise up to 0.5 m,
 otherwise the maximal error was smaller than 10 cm" (the thesis prints "s ≤ [13, 3]", which
-contradicts "further away"). The verdict reads that sentence as it stands: the largest error
-over the near (far) targets of the learnt contextual-REPS policy, in a typical trial (the
-median over trials); every trial within the bounds, and the same for the extra-context arm,
-are our own checks (``own_checks``), see :func:`verdict`.
+contradicts "further away"). Per arm and trial the summary records the largest near and far
+error and whether the final policy is within both bounds at every target
+(``within_bounds_per_trial``); the claim and how it is judged are in
+``skillkit/data/claims/ch3.toml``.
 
 Numerics: with fewer effective samples than parameters in early updates the ML covariance is
 rank deficient, so the fit floors every direction at ``cov_floor`` times its previous
@@ -35,15 +35,7 @@ from typing import Literal
 
 import numpy as np
 
-from skillkit.experiments.claims import conjunction, own_check
-from skillkit.experiments.registry import (
-    Experiment,
-    Series,
-    Verdict,
-    fmt,
-    register,
-    with_verdict,
-)
+from skillkit.experiments.registry import Experiment, Series, register
 from skillkit.experiments.settings import Settings, setting
 from skillkit.policies.features import FeatureName
 from skillkit.policies.gaussian import LinearGaussianPolicy
@@ -53,18 +45,12 @@ from skillkit.tasks import make
 from skillkit.trial import TrialContext
 from skillkit.viz.series import trial_band
 
-__all__ = ["ThrowingSettings", "own_checks", "run_trial", "summarize", "target_grid", "verdict"]
+__all__ = ["ThrowingSettings", "run_trial", "summarize", "target_grid"]
 
 METHODS = ("REPS", "REPS + extra context")
 FAR_X = 13.0
 """Targets with x ≥ FAR_X (m) count as far (Sec. 3.4.1)."""
 
-CLAIM = (
-    "Contextual REPS (25 rollouts per update, the last 200 reused, ε = 0.6) learns to throw at "
-    "targets x ∈ [5, 15] m within ~5000 rollouts in most trials, and always with extra "
-    "contexts, which improve it; the final error stays below 0.1 m for near targets and up to "
-    "0.5 m for x ≥ 13 m (Sec. 3.4.1, Fig. 3.3)."
-)
 THESIS = {"near_max_error_m": 0.1, "far_max_error_m": 0.5, "rollouts_to_converge": 5000}
 """Sec. 3.4.1: the final error bounds (near and far targets) and the rollouts to converge."""
 
@@ -122,7 +108,7 @@ class ThrowingSettings(Settings):
     m_step: Literal["weighted_ml", "trust_region"] = setting(
         "weighted_ml",
         "M-step of both arms: the thesis's weighted ML fit (Eqs 3.11–3.13) or "
-        "its trust-region correction (issue #17).",
+        "its trust-region correction.",
     )
     grid_x: tuple[float, ...] = setting(
         (5.0, 6.0, 7.0, 8.0, 9.0, 10.0, 11.0, 12.0, 13.0, 14.0, 15.0),
@@ -289,6 +275,7 @@ def summarize(settings: ThrowingSettings, trials: list[dict]) -> tuple[list[Seri
             "near_distance_trial_max_median_m": _median(near_max),
             "far_distance_trial_max_median_m": _median(far_max),
             "trials_within_bounds": int(within.sum()),
+            "within_bounds_per_trial": within.tolist(),
             "final_joint_penalty_mean": float(np.nanmean(pen)),
             "failed_final_rollouts": int(np.isnan(dist).sum()),
             "failed_rollouts_during_learning": int(sum(np.sum(t[f"{key}_failed"]) for t in trials)),
@@ -302,9 +289,7 @@ def summarize(settings: ThrowingSettings, trials: list[dict]) -> tuple[list[Seri
     summary["extra_context_better"] = bool(
         summary["extra"]["final_reward_mean"] >= summary["reps"]["final_reward_mean"]
     )
-    summary["own_checks"] = own_checks(summary)
-    summary["setup"] = setup(settings)
-    return series, with_verdict(summary, verdict(settings, summary))
+    return series, summary
 
 
 def _trial_max(dist: np.ndarray) -> np.ndarray:
@@ -320,176 +305,6 @@ def _median(values: np.ndarray) -> float | None:
     return float(np.median(finite)) if finite.size else None
 
 
-def _typical_within(part: dict, near: float, far: float) -> bool | None:
-    """Whether the median trial's largest error is < ``near`` over the near targets and
-    ≤ ``far`` over the far ones (None: not recorded, as in runs before issue #32)."""
-    n, f = part.get("near_distance_trial_max_median_m"), part.get("far_distance_trial_max_median_m")
-    if n is None or f is None:
-        return None
-    return bool(n < near and f <= far)
-
-
-def own_checks(summary: dict) -> dict:
-    """Our conditions beyond the thesis's sentences (``summary["own_checks"]``; they never
-    change ``holds``).
-
-    * ``extra_every_trial_within_bounds``: with extra context, every trial's final policy is
-      within both bounds at every grid target, no final throw failed: our reading of "In this
-      case, REPS always converged to good solutions", with "good" taken as the error
-      sentence's bounds (the thesis does not define "good"). This was the verdict before
-      issue #32.
-    * ``reps_most_trials_within_bounds``: more than half of the plain-REPS trials within both
-      bounds at every target: our reading of "converged to a good solution ... in most cases".
-    * ``extra_typical_trial_within_bounds``: the error sentence applied to the extra-context
-      arm's median trial (the sentence is about contextual REPS as introduced before the
-      extra-context variant).
-
-    Parameters
-    ----------
-    summary : dict
-        The run's summary (or a stored one: numbers it does not record give None).
-
-    Returns
-    -------
-    dict
-        Name → :func:`~skillkit.experiments.claims.own_check` entry, as above.
-    """
-    near = summary["thesis_numbers"]["near_max_error_m"]
-    far = summary["thesis_numbers"]["far_max_error_m"]
-    reps, extra = summary["reps"], summary["extra"]
-    n_within = reps.get("trials_within_bounds")
-    return {
-        "extra_every_trial_within_bounds": own_check(
-            bool(
-                extra["near_distance_max_m"] is not None
-                and extra["far_distance_max_m"] is not None
-                and extra["near_distance_max_m"] < near
-                and extra["far_distance_max_m"] <= far
-                and extra["failed_final_rollouts"] == 0
-            ),
-            f"with extra context every trial's final policy is within < {near:g} m at every "
-            f"near target and ≤ {far:g} m at every far one (ours: the thesis's 'always "
-            "converged to good solutions' with 'good' read as these bounds; the verdict "
-            "before issue #32)",
-        ),
-        "reps_most_trials_within_bounds": own_check(
-            None if n_within is None else bool(n_within > summary["n_trials"] / 2),
-            "more than half of the plain-REPS trials within both bounds at every target "
-            "(ours: the thesis's 'converged to a good solution ... in most cases' with 'good' "
-            "read as the bounds)",
-        ),
-        "extra_typical_trial_within_bounds": own_check(
-            _typical_within(extra, near, far),
-            "the extra-context arm's median trial: largest error < "
-            f"{near:g} m over the near targets and ≤ {far:g} m over the far ones (ours: the "
-            "thesis's error sentence is about contextual REPS without extra context)",
-        ),
-    }
-
-
-def setup(st: ThrowingSettings) -> list[dict]:
-    """The setup table of the summary: the thesis's setting, ours, and why they differ."""
-    return [
-        {
-            "item": "rollouts",
-            "thesis": "25 per update, the last 200 reused, ε = 0.6, ~5000 in all",
-            "ours": f"{st.rollouts_per_update} per update, the last "
-            f"{st.rollouts_per_update * st.n_reuse_batches} reused, ε = {st.epsilon:g}, "
-            f"{st.n_updates * st.rollouts_per_update} in all",
-            "why": "as the thesis" if st.n_updates * st.rollouts_per_update >= 5000 else "smaller",
-        },
-        {
-            "item": "initial policy",
-            "thesis": "the imitation DMP (mean throw ≈ 5 m, found by a few context-free REPS "
-            "updates); Sec. 3.5: the optimum must lie within the initial exploration",
-            "ours": f"the imitation DMP, shape-weight std {st.initial_std_fraction:g} × each "
-            "joint's largest weight (Throwing.initial_policy)",
-            "why": "the thesis gives no Σ₀; with 0.1 the throws land at 3.7–5.8 m (5–95%) for "
-            "targets at 5–15 m and half the trials froze (issue #17); 0.9 is the smallest "
-            "fraction on a 0.05 grid whose 95th percentile reaches 15 m, fixed before learning",
-        },
-        {
-            "item": "extra contexts",
-            "thesis": f"each trajectory re-scored in {st.extra_contexts} more contexts",
-            "ours": f"{st.extra_contexts}, entering REPS with importance weights "
-            "π(ω|s′) / mixture (extra_context_weighting='importance')",
-            "why": "used as if drawn from μ(s)π(ω|s) the re-scored pairs bias the context gain "
-            "towards zero (issue #17; tests/search/test_extra_context.py)",
-        },
-        {
-            "item": "M-step",
-            "thesis": "weighted maximum likelihood (Eqs. 3.11–3.13)",
-            "ours": st.m_step,
-            "why": "as the thesis" if st.m_step == "weighted_ml" else "a named variant",
-        },
-        {
-            "item": "fit safeguards",
-            "thesis": "none stated",
-            "ours": f"Σ shrinks at most to {st.cov_floor:g} of its variance per update, "
-            f"ESS ≥ {st.min_effective_samples:g}, shrinkage {st.cov_shrinkage:g}",
-            "why": "a 41-D Σ from ~200 weighted samples; the guard's firing is counted "
-            "(conditioned_updates)",
-        },
-    ]
-
-
-def verdict(settings: ThrowingSettings, summary: dict) -> Verdict:
-    """Judges the thesis's sentences on Sec. 3.4.1 (criterion changed after the stored paper
-    run, issue #32). Holds if
-
-    1. "The absolute displacement error for targets further away from the robot's base ...
-       could raise up to 0.5 m, otherwise the maximal error was smaller than 10 cm", said of
-       the policy contextual REPS has learnt (the paragraph precedes the extra-context
-       variant, and the thesis reports premature convergence "in a few instances", so the
-       sentence describes a typical trial, not every one): in the median plain-REPS trial the
-       largest final error over the near targets (x < 13 m) is < 0.1 m and over the far
-       ones ≤ 0.5 m;
-    2. "The performance of REPS could be improved by using extra samples": the extra-context
-       arm's final reward (mean over trials) is at least plain REPS's.
-
-    "Converged to a good solution ... in most cases" and "always converged to good
-    solutions" give no measure of "good"; read as the error bounds they are own checks
-    (:func:`own_checks`), as is the error sentence on the extra-context arm. Before issue #32
-    ``holds`` required every extra-context trial within both bounds at every target (now
-    ``own_checks["extra_every_trial_within_bounds"]``). A summary that does not record the
-    median trial's largest errors (runs before issue #32) leaves 1. undecided: ``holds`` is
-    None unless 2. fails.
-    """
-    reps, extra = summary["reps"], summary["extra"]
-    near = summary["thesis_numbers"]["near_max_error_m"]
-    far = summary["thesis_numbers"]["far_max_error_m"]
-    typical = _typical_within(reps, near, far)
-    better = bool(summary["extra_context_better"])
-    if typical is None:
-        learnt = (
-            "the median trial's largest final errors are not recorded in this run (thesis, "
-            f"on contextual REPS's learnt policy: < {near:g} m near, up to {far:g} m far)"
-        )
-    else:
-        learnt = (
-            "in the median trial the largest final error is "
-            f"{fmt(reps['near_distance_trial_max_median_m'], '.2f')} m over the near targets "
-            f"and {fmt(reps['far_distance_trial_max_median_m'], '.2f')} m over the far ones for "
-            f"REPS (thesis, on contextual REPS's learnt policy: < {near:g} m near, up to "
-            f"{far:g} m far), {fmt(extra.get('near_distance_trial_max_median_m'), '.2f')} / "
-            f"{fmt(extra.get('far_distance_trial_max_median_m'), '.2f')} m with extra context"
-        )
-    return Verdict(
-        CLAIM,
-        conjunction([typical, better]),
-        f"After {summary['rollouts']} rollouts ({summary['n_trials']} trials) {learnt}; over "
-        "all trials and targets the largest (mean) final errors are "
-        f"{fmt(reps['near_distance_max_m'], '.2f')} ({fmt(reps['near_distance_mean_m'], '.2f')}) "
-        f"m near / {fmt(reps['far_distance_max_m'], '.2f')} "
-        f"({fmt(reps['far_distance_mean_m'], '.2f')}) m far for REPS and "
-        f"{fmt(extra['near_distance_max_m'], '.2f')} ({fmt(extra['near_distance_mean_m'], '.2f')})"
-        f" / {fmt(extra['far_distance_max_m'], '.2f')} "
-        f"({fmt(extra['far_distance_mean_m'], '.2f')}) m with extra context; the final reward is "
-        f"{fmt(reps['final_reward_mean'])} for REPS and {fmt(extra['final_reward_mean'])} with "
-        "extra context (thesis: extra context improves REPS).",
-    )
-
-
 register(
     Experiment(
         id="fig3.3",
@@ -498,9 +313,6 @@ register(
         settings=SCALES,
         run_trial=run_trial,
         summarize=summarize,
-        verdict=verdict,
-        own_checks=lambda _settings, summary: own_checks(summary),
         trials={"smoke": 2, "quick": 2, "paper": 20},
-        claim=CLAIM,
     )
 )

@@ -26,15 +26,7 @@ from functools import partial
 import numpy as np
 
 from skillkit.experiments.ch3_throwing import _final_errors, target_grid
-from skillkit.experiments.claims import (
-    NOT_RECORDED,
-    conjunction,
-    finite_or_none,
-    is_less,
-    own_check,
-    parts_note,
-)
-from skillkit.experiments.registry import Experiment, Series, Verdict, fmt, register, with_verdict
+from skillkit.experiments.registry import Experiment, Series, register
 from skillkit.experiments.settings import Settings, setting
 from skillkit.models.gp import ExactGP, ForwardModel
 from skillkit.models.sparse import FITC
@@ -61,36 +53,18 @@ effective sample size is below the 42 a full 41 × 41 covariance needs."""
 MIN_EFFECTIVE_SAMPLES = 2.0
 """The least effective sample size the regularised fit accepts (as fig3.3)."""
 THESIS_46 = {"gpreps_rollouts_to_converge": (30, 40), "reps_rollouts_to_converge": 5000}
+"""fig4.6: the thesis's numbers (Sec. 4.3.2), stored beside ours in the summary."""
 THESIS_49 = {"reps_noisy": -1086.0, "reps": -715.0, "gpreps_noisy": -68.0, "gpreps": -64.0}
-NEGLIGIBLE_46 = 0.05
-"""fig4.6: GPREPS's final-reward std over trials counts as "negligible" below this fraction of
-its learning gain (final − initial reward of the policy mean): a band that thin is barely
-visible on the learning curve (our reading; the thesis gives no number)."""
-ORDERS_46 = 100.0
-"""fig4.6: "two orders of magnitude less interactions": REPS does not reach GPREPS's final
-reward within this many times GPREPS's real throws."""
-LITTLE_GAIN_47 = 0.25
-"""fig4.7: "we do not see much difference above using 500 samples": the change from M = 500 to
-1000 is below this fraction of the gain from M = 50 to 500 (fixed before the stored run)."""
-SIMILAR_49 = 1.2
-"""fig4.9: a noisy-trained policy is "of similar quality" when its |expected reward| is at
-most this many times the deterministic-trained one's (fixed before the stored run)."""
+"""fig4.9: the final rewards of the Fig. 4.9 captions, stored beside ours in the summary."""
 
-CLAIM_46 = (
-    "GPREPS with the decomposed models (500 artificial samples × 25 trajectories, ε = 1) "
-    "converges within 30–40 real throws to a better policy than model-free REPS reaches after "
-    "~5000, with negligible variance over trials; GP direct learns but ends worse than "
-    "GPREPS (Sec. 4.3.2, Fig. 4.6)."
-)
-CLAIM_47 = (
-    "More artificial samples give GPREPS better final policies, with little gain above 500 "
-    "(M = 50, 100, 200, 500, 1000; Sec. 4.3.2.1, Fig. 4.7)."
-)
-CLAIM_49 = (
-    "With release noise (7.5 cm, 0.3 m/s) REPS ends clearly worse than on the deterministic "
-    "task (thesis −1086 vs −715) while GPREPS, which averages L predicted throws per sample, "
-    "ends about as well (−68 vs −64) (Sec. 4.3.2.2, Fig. 4.9)."
-)
+
+def finite_or_none(value) -> float | None:
+    """``value`` as a float, or None for a missing or non-finite number (as ``result.json``
+    stores NaN)."""
+    if value is None:
+        return None
+    value = float(value)
+    return value if np.isfinite(value) else None
 
 
 @dataclass(frozen=True)
@@ -220,7 +194,7 @@ def _scales(cls, smoke: dict | None = None, quick: dict | None = None, paper=Non
 
 # --------------------------------------------------------------------------- one run
 def _fitc(n_inducing: int, n_steps: int) -> ForwardModel:
-    # Δx targets, as in the stored paper results (the default became x′ with issue #16).
+    # Δx targets, as in the stored paper results (ForwardModel's default target is x′).
     return ForwardModel(FITC(n_inducing=n_inducing, n_steps=n_steps), target="delta")
 
 
@@ -449,6 +423,11 @@ def run_trial_46(st: GPREPSThrowingSettings, rng: np.random.Generator, trial: Tr
 
 
 def summarize_46(st: GPREPSThrowingSettings, trials: list[dict]):
+    """The learning curves of GPREPS, GP direct and REPS, and what the claims spec reads of
+    them: per method the final and start rewards per trial and each trial's absolute deviation
+    from the mean final reward; for GPREPS its gain over the run and after 30 real throws,
+    and the median relative error of its reward predictions per trial; REPS's rollouts to
+    reach each trial's GPREPS final reward over GPREPS's throws."""
     keys, labels = ("gpreps", "direct", "reps"), ("GPREPS", "GP direct", "REPS")
     series = _learning_series(trials, keys, labels)
     summary: dict = {"n_trials": len(trials), "thesis_numbers": dict(THESIS_46)}
@@ -457,106 +436,53 @@ def summarize_46(st: GPREPSThrowingSettings, trials: list[dict]):
     summary["reps_rollouts_to_gpreps_final"] = rollouts_to_reach(
         trials, "reps", summary["gpreps"]["final_reward_mean"]
     )
-    summary["setup"] = SETUP_TABLE
-    summary["claim_parts"] = claim_parts_46(summary)
-    return series, with_verdict(summary, verdict_46(st, summary))
+    for key in keys:
+        summary[key].update(_per_trial(trials, key))
+    g = summary["gpreps"]
+    g["gain_per_trial"] = _difference(g["final_reward_per_trial"], g["initial_reward_per_trial"])
+    converge = min(THESIS_46["gpreps_rollouts_to_converge"])
+    at = np.flatnonzero(np.asarray(trials[0]["gpreps_rollouts"]) == converge)
+    if at.size:
+        g[f"gain_after_{converge}_per_trial"] = [
+            float(t["gpreps_mean_reward"][-1] - t["gpreps_mean_reward"][at[0]]) for t in trials
+        ]
+    g["prediction_relative_error_median_per_trial"] = [
+        finite_or_none(np.nanmedian(t["gpreps_relative_error"][1:]))
+        if np.isfinite(t["gpreps_relative_error"][1:]).any()
+        else None
+        for t in trials
+    ]
+    summary["reps_over_gpreps_rollouts_per_trial"] = _reps_over_gpreps(trials)
+    return series, summary
 
 
-def _spread(m: dict) -> float | None:
-    """A method's final-reward std over trials; None for a single trial (not measurable)."""
-    per_trial = m.get("final_reward_per_trial")
-    if per_trial is not None and len(per_trial) < 2:
-        return None
-    return finite_or_none(m["final_reward_std"])
-
-
-def claim_parts_46(summary: dict) -> dict[str, bool | None]:
-    """The thesis's sentences on Fig. 4.6 (Sec. 4.3.2), part by part, from ``summary``.
-
-    * ``gp_direct_learns`` — GP direct: "we observed relatively good learning performance":
-      its final learning-curve reward is above its initial one;
-    * ``gp_direct_below_reps_and_gpreps`` — "the final result is of lower quality ...
-      compared to REPS and GPREPS";
-    * ``gp_direct_higher_variance`` — "... and has higher variance compared to REPS and
-      GPREPS": its final-reward std over trials is above both;
-    * ``gpreps_within_40`` — "GPREPS required only 30 – 40 evaluations to converge": its run
-      ends after N₀ + K − 1 ≤ 40 real throws;
-    * ``gpreps_highest_quality`` — "... to the highest quality solution" / "GPREPS ... provides
-      higher quality solutions compared to model-free REPS": its final reward is above REPS's
-      (after all of REPS's rollouts) and GP direct's;
-    * ``gpreps_negligible_variance`` — "the variance of the final policy is negligible": its
-      final-reward std over trials is below :data:`NEGLIGIBLE_46` of its learning gain;
-    * ``two_orders_fewer_than_reps`` — "requires two orders of magnitude less interactions":
-      REPS's learning curve (mean over trials) does not reach GPREPS's final reward within
-      :data:`ORDERS_46` × GPREPS's throws (None if REPS's run is shorter and never reaches it).
-
-    The variance parts need two trials or more (None otherwise).
-    """
-    g, d, r = summary["gpreps"], summary["direct"], summary["reps"]
-    sg, sd, sr = _spread(g), _spread(d), _spread(r)
-    gain = finite_or_none(g["final_reward_mean"] - g["initial_reward"])
-    negligible = None
-    if sg is not None and gain is not None:
-        negligible = bool(gain > 0 and sg <= NEGLIGIBLE_46 * gain)
-    horizon = ORDERS_46 * g["rollouts"]
-    if "reps_rollouts_to_gpreps_final" not in summary:
-        orders = None
-    elif summary["reps_rollouts_to_gpreps_final"] is None:
-        orders = True if r["rollouts"] >= horizon else None
-    else:
-        orders = bool(summary["reps_rollouts_to_gpreps_final"] > horizon)
+def _per_trial(trials, key) -> dict:
+    """A method's start reward per trial (its curve's first point) and each trial's absolute
+    deviation from the mean final reward over trials (a spread that can be compared between
+    methods with an interval)."""
+    curves = np.array([t[f"{key}_mean_reward"] for t in trials], dtype=float)
+    final = curves[:, -1]
     return {
-        "gp_direct_learns": is_less(d["initial_reward"], d["final_reward_mean"]),
-        "gp_direct_below_reps_and_gpreps": conjunction(
-            [
-                is_less(d["final_reward_mean"], r["final_reward_mean"]),
-                is_less(d["final_reward_mean"], g["final_reward_mean"]),
-            ]
-        ),
-        "gp_direct_higher_variance": conjunction([is_less(sr, sd), is_less(sg, sd)]),
-        "gpreps_within_40": bool(g["rollouts"] <= max(THESIS_46["gpreps_rollouts_to_converge"])),
-        "gpreps_highest_quality": conjunction(
-            [
-                is_less(r["final_reward_mean"], g["final_reward_mean"]),
-                is_less(d["final_reward_mean"], g["final_reward_mean"]),
-            ]
-        ),
-        "gpreps_negligible_variance": negligible,
-        "two_orders_fewer_than_reps": orders,
+        "initial_reward_per_trial": curves[:, 0].tolist(),
+        "final_reward_abs_deviation_per_trial": np.abs(final - final.mean()).tolist(),
     }
 
 
-def verdict_46(st: GPREPSThrowingSettings, summary: dict) -> Verdict:
-    """Judges the thesis's sentences on Fig. 4.6 (criterion changed after the stored paper
-    run, issue #32; before, it required only GPREPS's final reward ≥ REPS's and > GP
-    direct's): holds if every part of :func:`claim_parts_46` holds — GP direct learns but
-    ends below REPS and GPREPS with a larger spread over trials; GPREPS ends within 40 real
-    throws above both, with a spread below 5% of its learning gain, and REPS does not reach
-    its final reward within 100× its throws. None if a part cannot be decided (one trial;
-    REPS's run too short) and no part fails. Reads ``summary`` only."""
-    g, d, r = summary["gpreps"], summary["direct"], summary["reps"]
-    reached = summary.get("reps_rollouts_to_gpreps_final", NOT_RECORDED)
-    if reached is None:
-        reached = f"never within its {r['rollouts']}"
-    elif reached != NOT_RECORDED:
-        reached = f"after {fmt(reached, '.0f')}"
-    parts = claim_parts_46(summary)
-    return Verdict(
-        CLAIM_46,
-        conjunction(parts.values()),
-        f"After {g['rollouts']} real throws GPREPS goes from {fmt(g['initial_reward'])} to "
-        f"{fmt(g['final_reward_mean'])} ± {fmt(g['final_reward_std'])} (final distance "
-        f"{fmt(g['final_distance_mean_m'], '.2f')} m), GP direct from "
-        f"{fmt(d['initial_reward'])} to {fmt(d['final_reward_mean'])} ± "
-        f"{fmt(d['final_reward_std'])}, and REPS to {fmt(r['final_reward_mean'])} ± "
-        f"{fmt(r['final_reward_std'])} after {r['rollouts']} rollouts, reaching GPREPS's final "
-        f"reward {reached} rollouts ({summary['n_trials']} trials; ± the std over trials); the "
-        f"model's reward prediction error on the next real throw has median "
-        f"{fmt(g['prediction_relative_error_median'], '.1%')} (thesis: GP direct learns "
-        "relatively well but ends worse and more varied than REPS and GPREPS; GPREPS converges "
-        "in 30–40 throws to the best solution with negligible variance, two orders of "
-        "magnitude fewer than REPS's ~5000)." + parts_note(parts),
-    )
+def _difference(a, b) -> list[float]:
+    return (np.asarray(a, dtype=float) - np.asarray(b, dtype=float)).tolist()
+
+
+def _reps_over_gpreps(trials) -> list[float]:
+    """Per trial: REPS's rollouts until its curve first reaches that trial's GPREPS final
+    reward, over GPREPS's real throws; a trial where REPS never reaches it counts REPS's whole
+    run (a lower bound)."""
+    out = []
+    for t in trials:
+        g_throws = float(t["gpreps_rollouts"][-1])
+        hit = np.flatnonzero(np.asarray(t["reps_mean_reward"]) >= t["gpreps_mean_reward"][-1])
+        reps = float(t["reps_rollouts"][hit[0] if hit.size else -1])
+        out.append(reps / g_throws)
+    return out
 
 
 # --------------------------------------------------------------------------- fig4.7
@@ -577,6 +503,10 @@ def run_trial_47(st: SampleSizeSettings, rng: np.random.Generator, trial: TrialC
 
 
 def summarize_47(st: SampleSizeSettings, trials: list[dict]):
+    """The learning curves for each M, the final reward against M, and what the claims spec
+    reads of them: the change of the final reward between every two M per trial (the arms of
+    a trial share π₀ and the evaluation targets) and each trial's absolute deviation from the
+    mean final reward of its M."""
     keys = [f"m{m}" for m in st.n_artificial_values]
     series = _learning_series(trials, keys, [f"M = {m}" for m in st.n_artificial_values])
     summary: dict = {"n_trials": len(trials), "n_artificial_values": list(st.n_artificial_values)}
@@ -595,77 +525,17 @@ def summarize_47(st: SampleSizeSettings, trials: list[dict]):
             log_x=True,
         )
     )
-    summary["setup"] = SETUP_TABLE
-    summary["claim_parts"] = claim_parts_47(st, summary)
-    return series, with_verdict(summary, verdict_47(st, summary))
-
-
-def claim_parts_47(st: SampleSizeSettings, summary: dict) -> dict[str, bool | None]:
-    """The thesis's sentences on Fig. 4.7 (Sec. 4.3.2.1), part by part, from ``summary``.
-
-    * ``more_samples_always_better`` — "increasing the amount of artificial samples always
-      has a positive influence on the learning performance": the final reward rises with
-      every step of M in the sweep;
-    * ``little_gain_above_500`` — "we do not see much difference above using 500 samples":
-      the change from M = 500 to 1000 is below :data:`LITTLE_GAIN_47` of the gain from M = 50
-      to 500;
-    * ``fewer_samples_vary_more`` — "Using a lower number of artificial samples resulted in
-      lower quality final policies with highly varying performance": every M below 500 has a
-      larger final-reward std over trials than every M of 500 and above (None with one trial;
-      "lower quality" is the first part).
-
-    Each part is None if the sweep lacks M = 50, 500 or 1000.
-    """
-    vals = sorted(st.n_artificial_values)
-    if not {50, 500, 1000} <= set(vals):
-        return dict.fromkeys(
-            ("more_samples_always_better", "little_gain_above_500", "fewer_samples_vary_more")
+    for key in keys:
+        summary[key].update(_per_trial(trials, key))
+    values = sorted(st.n_artificial_values)
+    summary["final_reward_change_per_trial"] = {
+        f"m{a}_to_m{b}": _difference(
+            summary[f"m{b}"]["final_reward_per_trial"], summary[f"m{a}"]["final_reward_per_trial"]
         )
-    f = {m: summary[f"m{m}"]["final_reward_mean"] for m in vals}
-    gain_low, gain_high = f[500] - f[50], f[1000] - f[500]
-    spreads = {m: _spread(summary[f"m{m}"]) for m in vals}
-    if summary["n_trials"] < 2 or any(v is None for v in spreads.values()):
-        vary = None
-    else:
-        vary = bool(
-            min(spreads[m] for m in vals if m < 500) > max(spreads[m] for m in vals if m >= 500)
-        )
-    rising = all(f[a] < f[b] for a, b in zip(vals[:-1], vals[1:], strict=True))
-    return {
-        "more_samples_always_better": bool(rising),
-        "little_gain_above_500": bool(gain_low > 0 and abs(gain_high) < LITTLE_GAIN_47 * gain_low),
-        "fewer_samples_vary_more": vary,
+        for i, a in enumerate(values)
+        for b in values[i + 1 :]
     }
-
-
-def verdict_47(st: SampleSizeSettings, summary: dict) -> Verdict:
-    """Judges the thesis's sentences on Fig. 4.7 (criterion changed after the stored paper
-    run, issue #32; before, it required only M = 500 above M = 50 and the step 500 → 1000
-    below a quarter of the step 50 → 500): holds if every part of :func:`claim_parts_47`
-    holds — the final reward rises at every step of M, changes from 500 to 1000 by less
-    than a quarter of the gain from 50 to 500, and every M below 500 varies more over trials
-    than every M from 500 up. None where the sweep lacks M = 50, 500 or 1000, or a part needs
-    two trials and the run has one, and no part fails. Reads ``summary`` only."""
-    vals = list(st.n_artificial_values)
-    f = {m: summary[f"m{m}"]["final_reward_mean"] for m in vals}
-    text = ", ".join(
-        f"M = {m}: {fmt(f[m])} ± {fmt(summary[f'm{m}']['final_reward_std'])}" for m in vals
-    )
-    if not {50, 500, 1000} <= set(vals):
-        return Verdict(
-            CLAIM_47,
-            None,
-            f"Final rewards {text}; the sweep lacks M = 50/500/1000, so the claim is not decided.",
-        )
-    parts = claim_parts_47(st, summary)
-    return Verdict(
-        CLAIM_47,
-        conjunction(parts.values()),
-        f"Final rewards after {summary[f'm{vals[0]}']['rollouts']} real throws "
-        f"({summary['n_trials']} trials; ± the std over trials): {text} (thesis: more samples "
-        "always better, little difference above 500, fewer samples lower and highly varying)."
-        + parts_note(parts),
-    )
+    return series, summary
 
 
 # --------------------------------------------------------------------------- fig4.9
@@ -700,6 +570,8 @@ def run_trial_49(st: StochasticThrowingSettings, rng: np.random.Generator, trial
 
 
 def summarize_49(st: StochasticThrowingSettings, trials: list[dict]):
+    """The learning curves of REPS and GPREPS with and without release noise, and each final
+    policy mean's expected reward under the noise (per trial and mean over trials)."""
     keys = ("reps", "reps_noisy", "gpreps", "gpreps_noisy")
     labels = ("REPS", "REPS, noisy", "GPREPS", "GPREPS, noisy")
     series = _learning_series(trials, keys, labels)
@@ -709,11 +581,12 @@ def summarize_49(st: StochasticThrowingSettings, trials: list[dict]):
         summary[key]["noisy_expected_reward"] = float(
             np.mean([t[f"{key}_noisy_expected_reward"] for t in trials])
         )
-    summary["setup"] = SETUP_TABLE
     summary["noise_ratio"] = {**_noise_ratios(summary), **_same_noise_ratios(summary)}
-    summary["claim_parts"] = claim_parts_49(summary)
-    summary["own_checks"] = own_checks_49(summary)
-    return series, with_verdict(summary, verdict_49(st, summary))
+    for key in keys:
+        summary[key]["noisy_expected_reward_per_trial"] = [
+            float(t[f"{key}_noisy_expected_reward"]) for t in trials
+        ]
+    return series, summary
 
 
 def _noise_ratios(summary: dict) -> dict[str, float]:
@@ -745,129 +618,6 @@ def _same_noise_ratios(summary: dict) -> dict[str, float | None]:
     return {"reps_same_noise": ratio("reps"), "gpreps_same_noise": ratio("gpreps")}
 
 
-def claim_parts_49(summary: dict) -> dict[str, bool | None]:
-    """The thesis's sentences on Fig. 4.9 (Sec. 4.3.2.2), part by part, from ``summary``; the
-    policies are compared as the sentences compare them, under the same (noisy) dynamics:
-    each final policy mean's expected reward under the release noise
-    (:func:`_same_noise_ratios`).
-
-    * ``gpreps_similar_quality`` — "GPREPS is able to learn a policy of similar quality with
-      stochastic dynamics as with deterministic": ratio ≤ :data:`SIMILAR_49`;
-    * ``reps_not_similar_quality`` — "the bias in model-free REPS prevents the algorithm from
-      finding the final policy of similar quality": ratio > :data:`SIMILAR_49`.
-    """
-    ratios = _same_noise_ratios(summary)
-    rr, rg = ratios["reps_same_noise"], ratios["gpreps_same_noise"]
-    return {
-        "gpreps_similar_quality": None if rg is None else bool(rg <= SIMILAR_49),
-        "reps_not_similar_quality": None if rr is None else bool(rr > SIMILAR_49),
-    }
-
-
-def own_checks_49(summary: dict) -> dict[str, dict]:
-    """Our conditions beyond the thesis's sentences on Fig. 4.9 (shown beside the verdict,
-    never deciding it)."""
-    ratios = _noise_ratios(summary)
-    rr, rg = ratios["reps"], ratios["gpreps"]
-    return {
-        "learning_curve_ratios": own_check(
-            bool(rg <= SIMILAR_49 and rr > rg),
-            "on the final learning-curve rewards, each run scored in its own environment (the "
-            "noisy runs on noisy rollouts, which carry a noise cost no policy removes): "
-            "GPREPS's |noisy| / |deterministic| ≤ 1.2 and REPS's above GPREPS's (ours; the "
-            "verdict's criterion before issue #32)",
-        )
-    }
-
-
-def verdict_49(st: StochasticThrowingSettings, summary: dict) -> Verdict:
-    """Judges the thesis's sentences on Fig. 4.9 (criterion changed after the stored paper
-    run, issue #32; before, it compared the learning curves' final rewards, each run scored
-    in its own environment, and required REPS's ratio above GPREPS's): holds if every part
-    of :func:`claim_parts_49` holds — evaluated under the same release noise, GPREPS trained
-    with noise is within 20% of GPREPS trained without (|noisy| / |deterministic| ≤ 1.2) and
-    REPS trained with noise is not (> 1.2). None if the expected rewards under noise are not
-    recorded. The learning-curve comparison is our own check (:func:`own_checks_49`). Reads
-    ``summary`` only."""
-    ratios = _noise_ratios(summary)
-    same = _same_noise_ratios(summary)
-    s = summary
-
-    def under_noise(key: str) -> str:
-        return fmt(finite_or_none(s[key].get("noisy_expected_reward")))
-
-    def ratio(value: float | None) -> str:
-        return NOT_RECORDED if value is None else f"ratio {value:.2f}"
-
-    recorded = same["reps_same_noise"] is not None or same["gpreps_same_noise"] is not None
-    noisy_text = (
-        f"REPS {under_noise('reps_noisy')} trained with noise vs {under_noise('reps')} without "
-        f"({ratio(same['reps_same_noise'])}), GPREPS {under_noise('gpreps_noisy')} vs "
-        f"{under_noise('gpreps')} ({ratio(same['gpreps_same_noise'])})"
-        if recorded
-        else NOT_RECORDED
-    )
-    parts = claim_parts_49(summary)
-    return Verdict(
-        CLAIM_49,
-        conjunction(parts.values()),
-        f"Expected reward of the final policy means under the release noise "
-        f"({s['n_trials']} trials): {noisy_text} (thesis: REPS −1086 vs −715, ratio 1.52; "
-        f"GPREPS −68 vs −64, ratio 1.06; 'similar quality' read as ratio ≤ 1.2). Final "
-        f"learning-curve rewards, each run in its own environment: REPS "
-        f"{fmt(s['reps_noisy']['final_reward_mean'])} noisy vs "
-        f"{fmt(s['reps']['final_reward_mean'])} deterministic (ratio {ratios['reps']:.2f}) "
-        f"after {s['reps']['rollouts']} rollouts; GPREPS "
-        f"{fmt(s['gpreps_noisy']['final_reward_mean'])} vs "
-        f"{fmt(s['gpreps']['final_reward_mean'])} (ratio {ratios['gpreps']:.2f}) after "
-        f"{s['gpreps']['rollouts']} throws." + parts_note(parts),
-    )
-
-
-SETUP_TABLE = [
-    {
-        "item": "controller",
-        "thesis": "DMP (10 basis functions per joint) + PD trajectory tracker",
-        "ours": "DMP + inertia-weighted PD with gravity compensation (the task of fig3.3)",
-        "why": "a diagonal PD cannot track the reference on this robot (see Throwing's doc)",
-    },
-    {
-        "item": "robot model",
-        "thesis": "sparse GP (pseudo-inputs) on observed transitions",
-        "ours": "FITC, 50 pseudo-inputs, [x, a] → Δx, a the tracker's commanded acceleration; "
-        "≤ max_robot_points transitions drawn from all throws",
-        "why": "on [x, u] (torques) 10 throws gave velocity R² 0.83 and 4 m/s release errors; "
-        "on [x, a] 1 cm / 3–8 cm/s; the cap keeps each refit ~10 s",
-    },
-    {
-        "item": "release model",
-        "thesis": "standard GP, robot state → ball position and velocity at t_r",
-        "ours": "exact GP on ≤ 300 hand states of all control steps, queried at x(t_r); plus a "
-        "Gaussian release error fitted to the observed releases",
-        "why": "10 release events gave a release-velocity RMSE of 0.47 m/s, 10 throws' hand "
-        "states 0.025 m/s; the error term carries the release noise of fig4.9",
-    },
-    {
-        "item": "flight model",
-        "thesis": "sparse GP of the ball's free flight",
-        "ours": "FITC, 50 pseudo-inputs, [p, v] → Δ[p, v] every 10 ms, ≤ 1000 transitions",
-        "why": "as the thesis",
-    },
-    {
-        "item": "μ̂(s)",
-        "thesis": "Gaussian or uniform fit to the observed contexts",
-        "ours": "uniform: the box of the observed targets",
-        "why": "C.1's target distribution is uniform",
-    },
-    {
-        "item": "learning length",
-        "thesis": "curves to ~100 (GPREPS) and 5000 (REPS) rollouts, trials not stated",
-        "ours": "N₀ + n_updates − 1 real throws; REPS 200 × 25; trial counts per scale",
-        "why": "one GPREPS update at M = 500, L = 25 takes ~25 s here (benchmarks/bench_gpreps.py)",
-    },
-]
-
-
 register(
     Experiment(
         id="fig4.6",
@@ -876,9 +626,7 @@ register(
         settings=_scales(GPREPSThrowingSettings),
         run_trial=run_trial_46,
         summarize=summarize_46,
-        verdict=verdict_46,
         trials={"smoke": 1, "quick": 2, "paper": 5},
-        claim=CLAIM_46,
     )
 )
 register(
@@ -894,9 +642,7 @@ register(
         ),
         run_trial=run_trial_47,
         summarize=summarize_47,
-        verdict=verdict_47,
         trials={"smoke": 1, "quick": 1, "paper": 5},
-        claim=CLAIM_47,
     )
 )
 register(
@@ -909,9 +655,6 @@ register(
         ),
         run_trial=run_trial_49,
         summarize=summarize_49,
-        verdict=verdict_49,
-        own_checks=lambda _settings, summary: own_checks_49(summary),
         trials={"smoke": 1, "quick": 1, "paper": 5},
-        claim=CLAIM_49,
     )
 )

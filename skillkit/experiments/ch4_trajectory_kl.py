@@ -39,7 +39,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from skillkit.experiments.registry import Experiment, Series, Verdict, fmt, register, with_verdict
+from skillkit.experiments.registry import Experiment, Series, register
 from skillkit.experiments.settings import Settings, setting
 from skillkit.experiments.store import _flatten
 from skillkit.models.trajectory_kl import (
@@ -60,14 +60,6 @@ __all__ = ["TrajectoryKLSettings", "closed_loop_predictions", "linear_system"]
 SYSTEMS = ("linear", "pendulum", "balancing")
 CLASSES = ("linear", "fitc")
 CLASS_LABELS = {"linear": "linear-Gaussian", "fitc": "FITC pseudo-data GP"}
-CLAIM = (
-    "Training a probabilistic forward model by minimising the KL between observed and predicted "
-    "trajectory marginals under feature-matching constraints (Eqs 4.10–4.16) maximises the "
-    "likelihood of observed trajectories rather than of single transitions and so reduces "
-    "long-term prediction error (Sec. 4.2.4; the thesis failed to make it work for GP models "
-    "and names GPs whose training data are parameters as the way forward)."
-)
-
 DIVERGED = 100.0
 """A held-out prediction whose mean squared error (training-std units) exceeds this counts as
 diverged (the trivial predictor scores about 1)."""
@@ -117,8 +109,9 @@ class TrajectoryKLSettings(Settings):
     )
     ridges: tuple[float, ...] = setting(
         (0.0, 0.1),
-        "λ of the dual: 0 is the thesis's hard feature constraints (the verdict's); λ > 0 the "
-        "soft-constraint variants (penalty ‖residual‖²/2λ in standardised feature units).",
+        "λ of the dual: 0 is the thesis's hard feature constraints (read by the claims spec); "
+        "λ > 0 the soft-constraint variants (penalty ‖residual‖²/2λ in standardised feature "
+        "units).",
         minimum=0,
     )
     ml_iterations: int = setting(300, "L-BFGS iterations of one-step ML (FITC class).", minimum=1)
@@ -131,7 +124,7 @@ class TrajectoryKLSettings(Settings):
     )
 
     def check(self) -> None:
-        """Known systems, ridges with 0 first (the verdict uses λ = 0); ranges are bounds."""
+        """Known systems, ridges with 0 first (the claims spec reads λ = 0); ranges are bounds."""
         bad = sorted(set(self.systems) - set(SYSTEMS))
         if bad or not self.systems:
             raise ValueError(f"systems: expected a subset of {SYSTEMS}, got {self.systems}")
@@ -504,6 +497,10 @@ def summarize(st: TrajectoryKLSettings, trials: list[dict]):
                     for m in METRICS
                     if m in runs[0][cls][key]
                 }
+                cell[key]["multistep_error_per_trial"] = [
+                    None if v is None or not np.isfinite(v) else float(v)
+                    for v in (r[cls][key].get("multistep_error") for r in runs)
+                ]
                 curve = np.mean([r[cls][key]["error_per_step"] for r in runs], axis=0)
                 label = "true model" if key == "truth" else _method_label(key)
                 series.append(Series(
@@ -523,167 +520,7 @@ def summarize(st: TrajectoryKLSettings, trials: list[dict]):
         series.append(Series("trivial: training mean trajectory", [2, T],
                              [trivial, trivial], panel=panel))  # fmt: skip
         summary["cells"][system] = cell_sys
-    summary["setup"] = SETUP
-    summary["variants"] = VARIANTS
-    return series, with_verdict(summary, verdict(st, summary))
-
-
-def verdict(st: TrajectoryKLSettings, summary: dict) -> Verdict:
-    """Fixed before the paper run: holds if, with the thesis's hard constraints (λ = 0),
-    trajectory-KL training has a lower mean held-out multi-step error than one-step ML in
-    every cell of real (non-linear) data — pendulum and balancing, both model classes — among
-    the systems run; the linear system with known truth is the sanity check (reported: the
-    ratio and the recovered parameters), not part of the verdict unless it is the only one.
-    The statement adds the same count by the median over held-out trajectories and, per cell,
-    the trials in which TKL is lower (added after the paper runs, in one trial of which the
-    ML predictions on balancing diverged; not the criterion), the diverged held-out predictions
-    where there are any, and the cells where TKL is lower in most trials (issue #32: the thesis
-    reports no result here, so ``holds`` is withheld and this criterion is our own check)."""
-    cells, parts = summary["cells"], []
-    real = [s for s in st.systems if s != "linear"] or list(st.systems)
-    wins = []
-    for system in st.systems:
-        for cls in CLASSES:
-            c = cells[system][cls]
-            ml, tkl = c["ml"]["multistep_error"], c["tkl_0"]["multistep_error"]
-            win = ml is not None and tkl is not None and tkl < ml
-            if system in real:
-                wins.append(win)
-            div = [c[k].get("diverged") or 0.0 for k in ("ml", "tkl_0")]
-            diverged = (
-                f"; diverged predictions, mean per trial of {st.n_test}: ML {fmt(div[0])}, "
-                f"TKL {fmt(div[1])}"
-                if any(div)
-                else ""
-            )
-            parts.append(
-                f"{system}/{cls}: ML {fmt(ml)}, TKL {fmt(tkl)} ({'lower' if win else 'not lower'}"
-                f"; lower in {c['tkl_lower_trials']} of {summary['n_trials']} trials{diverged})"
-            )
-    medians = []
-    for system in real:
-        for cls in CLASSES:
-            c = cells[system][cls]
-            ml, tkl = (c[k]["multistep_error_median"] for k in ("ml", "tkl_0"))
-            medians.append(ml is not None and tkl is not None and tkl < ml)
-    lin = cells.get("linear", {}).get("linear")
-    recovery = ""
-    if lin is not None:
-        recovery = (
-            f"; linear truth: max |Δ(A,B,c)| ML {fmt(lin['ml'].get('dynamics_error_max'))}, "
-            f"TKL {fmt(lin['tkl_0'].get('dynamics_error_max'))}, true-model error "
-            f"{fmt(lin['truth']['multistep_error'])}"
-        )
-    most = [
-        2 * cells[system][cls]["tkl_lower_trials"] > summary["n_trials"]
-        for system in real
-        for cls in CLASSES
-    ]
-    holds = bool(wins) and all(wins)
-    return Verdict(
-        CLAIM,
-        holds,
-        "The thesis reports no result for this method (it failed to make it work for GP "
-        "models); ours, mean held-out multi-step error (squared, per dim, in training std "
-        "units), one-step ML vs trajectory-KL with the thesis's hard constraints: "
-        f"{'; '.join(parts)}; TKL lower in {sum(wins)} of {len(wins)} cells of "
-        f"{', '.join(real)} data by the mean (our criterion: in every cell), in {sum(most)} of "
-        f"{len(most)} in most trials, and by the per-trial median over held-out trajectories, "
-        f"averaged over trials, in {sum(medians)} of {len(medians)}"
-        f"{recovery} ({summary['n_trials']} trial(s)).",
-    )
-
-
-SETUP = [
-    {
-        "item": "model classes",
-        "thesis": "GP forward models (failed); suggests sparse GPs whose training data are "
-        "parameters",
-        "ours": "linear-Gaussian x′ ~ N(Ax+Bu+c, diag σ²) and a FITC pseudo-data GP "
-        "(pseudo-inputs Z and pseudo-targets U in θ, SE-ARD hypers, fixed least-squares "
-        "linear prior mean)",
-        "why": "the issue's two classes: one where the constraints can hold, and the thesis's "
-        "proposed GP route",
-    },
-    {
-        "item": "features",
-        "thesis": "linear and quadratic state features (B.7)",
-        "ours": "φ(x) = [x, x_i²] (``cross`` adds x_i x_j, i < j), standardised; E[φ(x′)] in "
-        "closed form",
-        "why": "B.7 differentiates 'the i-th quadratic term' E[x′_i²]; with the products "
-        "(F = 44 on balancing) the hard constraints were infeasible at the ML fit",
-    },
-    {
-        "item": "dual direction",
-        "thesis": "'minimise the dual' over γ and θ",
-        "ours": "max over γ (g is concave in γ), min over θ of D(θ) = max_γ g (Danskin)",
-        "why": "(4.16) as written is unbounded below in γ; B.4–B.6 fix the sign of g",
-    },
-    {
-        "item": "∫π(u|x)",
-        "thesis": "integral over the control policy",
-        "ours": "the recorded control of each sample",
-        "why": "the sample-based dual (4.16) replaces integrals by samples",
-    },
-    {
-        "item": "one-step ML",
-        "thesis": "maximise the likelihood of transitions (Eq. 2.28 for GPs)",
-        "ours": "the same parametric model's transition likelihood (closed form for the "
-        "linear class; L-BFGS over all θ for the pseudo-data GP); trajectory-KL starts there",
-        "why": "the comparison isolates the training objective",
-    },
-    {
-        "item": "data and scores",
-        "thesis": "no experiment given",
-        "ours": "linear system with known truth, Sec. 5.4 pendulum, PD-balancing with "
-        "excitation; closed-loop replay of the recorded excitation from x₁ on held-out "
-        "trajectories",
-        "why": "the issue's three data sets; closed loop keeps the unstable robot predictable",
-    },
-]
-
-VARIANTS = [
-    {
-        "variant": "soft feature constraints λ > 0 (the settings' ridges after 0)",
-        "measured": "in every result, as 'tkl_<λ>' beside the thesis's λ = 0",
-    },
-    {
-        "variant": "features with the products x_i x_j (cross = True), quick scale (40 "
-        "trajectories, T = 20, seed 0)",
-        "measured": "multi-step error ML → TKL(λ = 0): linear system 0.134 → 0.142 (true model "
-        "0.128; dynamics error 0.014 → 0.018, noise log-variance error 0.03 → 0.32); pendulum "
-        "linear 0.459 → 0.400, pendulum FITC 0.132 → 0.353; balancing: the hard constraints "
-        "infeasible at both ML fits (D = +∞) with 40 and with 100 trajectories (F = 44 features "
-        "per step), so λ = 0 cannot move; superseded by squares only",
-    },
-    {
-        "variant": "first paper run: 3 trials, the same code before failed balancing rollouts "
-        "were counted and before the median was reported",
-        "measured": "holds false, TKL lower in 1 of 4 cells; mean multi-step error ML → TKL "
-        "(λ = 0): linear system 0.137 → 0.144 (true model 0.136), linear/FITC 0.147 → 0.184, "
-        "pendulum linear 0.489 → 0.371, pendulum FITC 0.078 → 0.200, balancing linear 0.356 → "
-        "1.25, balancing FITC 0.511 → 0.622",
-    },
-    {
-        "variant": "second paper run: 5 trials, means only",
-        "measured": "holds false, TKL lower in 2 of 4 cells by the mean, but the balancing "
-        "'win' (linear ML 9.8e3 vs TKL 1.77) came from ML's closed-loop predictions diverging "
-        "in one trial (FITC ML 1.4e4, TKL 3.6e4 likewise); superseded by this run, which adds "
-        "the median over held-out trajectories and the count of diverged predictions",
-    },
-    {
-        "variant": "inner maximisation by L-BFGS (2000 iterations) instead of Newton",
-        "measured": "the same optimum on the linear system (θ equal to 1e-7) but 33× slower "
-        "(14.8 s vs 0.45 s); on balancing FITC 288 s per fit, and near the feasibility "
-        "boundary the inexact inner values stalled the outer line search",
-    },
-    {
-        "variant": "outer L-BFGS started with a unit step in θ",
-        "measured": "the first trial step left the feasible region (D = +∞) and the line "
-        "search ended at θ₀ after one iteration; now the first step is at most 1e-3 and "
-        "shrunk until D decreases",
-    },
-]
+    return series, summary
 
 
 # --------------------------------------------------------------------------- registration
@@ -695,7 +532,7 @@ SMOKE = replace(
 PAPER = replace(QUICK, n_train=100, n_test=100)
 # quick scales the paper setting down: training and test trajectories 100→40 each, trials 5→1
 """The thesis reports no experiment for Sec. 4.2.4: paper is our largest setting (100 training
-and 100 held-out trajectories per data set, 3 trials)."""
+and 100 held-out trajectories per data set, 5 trials)."""
 
 register(
     Experiment(
@@ -705,8 +542,6 @@ register(
         settings={"smoke": SMOKE, "quick": QUICK, "paper": PAPER},
         run_trial=run_trial,
         summarize=summarize,
-        verdict=verdict,
         trials={"smoke": 1, "quick": 1, "paper": 5},
-        claim=CLAIM,
     )
 )

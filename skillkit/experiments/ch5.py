@@ -36,16 +36,19 @@ mean_i Var(R | x₀ᵢ) / ``truth_rollouts`` (the Monte Carlo variance of the gr
 summary also gives mean_i Var(R | x₀ᵢ) (one rollout's spread) and Var_i(R_i) (the error of
 the oracle constant).
 
-Choices the thesis leaves open (ours, stated here and in each result's ``setup``): the PD
-gains; λ of both embedding fits is learned within [``lam_min``, 1] (a smaller λ lets the
-40-step propagation amplify ‖β‖₁, issue #16); the trajectory-based fit is started both at
-the step-based fit's initial values and at its optimum and keeps the lower cross-validated
-loss (Eq. 5.23 has a plateau where every β ≈ 0 and the prediction is 0: tiny length-scales or
-λ → 1 make a held-out start orthogonal to the data, with loss Σ r_t²; a single start can end
-there); the target kernel of Eq. 5.16 (pendulum) is fixed (learning it with θ makes the
-error vanish trivially): by default an SE kernel with the successor states' standard
-deviations as length-scales (``target_kernel="se"``), or linear (``"linear"``: Eq. 5.16
-becomes the squared error of the mean read-out).
+Choices the thesis leaves open (ours, stated here and in the setup table of each id's claim,
+``skillkit/data/claims/ch5.toml``): the PD gains; λ of both embedding fits is learned within
+[``lam_min``, 1] (a smaller λ lets the 40-step propagation amplify ‖β‖₁); the trajectory-based
+fit is started both at the step-based fit's initial values and at its optimum and keeps the
+lower cross-validated loss (Eq. 5.23 has a plateau where every β ≈ 0 and the prediction is
+0: tiny length-scales or λ → 1 make a held-out start orthogonal to the data, with loss
+Σ r_t²; a single start can end there); the target kernel of Eq. 5.16 (pendulum) is fixed
+(learning it with θ makes the error vanish trivially): by default an SE kernel with the
+successor states' standard deviations as length-scales (``target_kernel="se"``), or linear
+(``"linear"``: Eq. 5.16 becomes the squared error of the mean read-out).
+
+A summary holds measurements only; the claims these ids judge, their readings and the setup
+tables are in ``skillkit/data/claims/ch5.toml``, the variants tried in ``data/notes/``.
 """
 
 from __future__ import annotations
@@ -59,15 +62,7 @@ import numpy as np
 import torch
 
 import skillkit.tasks.planar  # noqa: F401  (registers the balancing tasks)
-from skillkit.experiments.claims import NOT_RECORDED, conjunction, own_check
-from skillkit.experiments.registry import (
-    Experiment,
-    Series,
-    Verdict,
-    fmt,
-    register,
-    with_verdict,
-)
+from skillkit.experiments.registry import Experiment, Series, register
 from skillkit.experiments.settings import Settings, setting
 from skillkit.models.embedding import ConditionalEmbedding
 from skillkit.models.embedding_prediction import predict
@@ -88,7 +83,7 @@ from skillkit.tasks.pendulum import THESIS_GAINS, feedback_torque, pendulum_dyna
 from skillkit.trial import TrialContext
 from skillkit.viz.series import trial_band
 
-__all__ = ["OWN_CHECKS", "embedding_expected_rewards"]
+__all__ = ["embedding_expected_rewards"]
 
 
 def _initial_lengthscales(x: np.ndarray) -> np.ndarray:
@@ -137,7 +132,7 @@ class PendulumSettings(Settings):
         1e-6,
         "Lower bound of the learned λ: 1e-6 for the single-step maps (fig5.3, fig5.4), 1e-3 "
         "for the 20-step prediction (fig5.5), where the one-step objective's λ ~ 1e-5 lets the "
-        "propagation amplify β (issue #16).",
+        "propagation amplify β.",
         above=0,
     )
     gp_steps: int = setting(
@@ -296,116 +291,6 @@ def _pendulum_trial(
     return out
 
 
-_PENDULUM_CLAIM = (
-    "Kernel embeddings predict the pendulum's next state more accurately than GP models and "
-    "generalise better in less explored parts of the state space; both models predict better "
-    "near the observed trajectories (Sec. 5.4, Figs 5.3 and 5.4)."
-)
-_TRAJECTORY_CLAIM = (
-    "Kernel embeddings predict the pendulum's 20-step trajectory significantly more accurately "
-    "than GP models (Sec. 5.4, Fig. 5.5)."
-)
-
-HALF_DECADE = 10**0.5
-"""√10: a ratio whose nearest order of magnitude is 10 is at least √10 (log10 ≥ 0.5); the
-reading of the thesis's "an order of magnitude" (fig5.6) and the bound of "barely any
-difference" (fig5.7: the largest e_r less than √10 × the smallest)."""
-
-
-def _pct(value: float | None) -> str:
-    return "n/a" if value is None else f"{100 * value:.0f}%"
-
-
-def _typically_better_near_data(summary: dict) -> bool | None:
-    """Both models' median error near the data below their median error away from it (None
-    if the medians are not in the summary: runs before issue #32 did not record them)."""
-    near, far = summary.get("median_error_near_data"), summary.get("median_error_far_from_data")
-    if near is None or far is None:
-        return None
-    pairs = [(near.get(m), far.get(m)) for m in ("embedding", "gp")]
-    if any(a is None or b is None for a, b in pairs):
-        return None
-    return all(a < b for a, b in pairs)
-
-
-def _pendulum_verdict(label: str, multi_step: bool):
-    """The verdict of ``fig5.3`` / ``fig5.4`` (``multi_step`` False) or ``fig5.5`` (True)."""
-
-    def verdict(settings: PendulumSettings, summary: dict) -> Verdict:
-        """Judges the thesis's sentences on the maps (criterion changed after the stored
-        paper runs, issue #32). fig5.3 / fig5.4: holds if (1) "consistently provides more
-        accurate predictions": the embedding's error is below the GP's on more than half of
-        the grid; (2) "generalizes better in less explored parts": the same on more than half
-        of the cells away from the data; (3) "the models typically provide better predictions
-        in the vicinity of the observed trajectories": each model's median error near the data
-        is below its median error away from it (None where not recorded and (1), (2) hold).
-        fig5.5: holds if "significantly outperforms" — the embedding's error is below the GP's
-        on more than half of the grid ("significantly" is not quantified by the thesis). The
-        grid-mean comparison is our own check (``own_checks``), not the thesis's."""
-        emb, gp = summary["mean_error_embedding"], summary["mean_error_gp"]
-        better = summary["fraction_of_grid_where_embedding_better"]
-        ratio = gp / emb if emb and gp is not None else None
-        means = (
-            f"Mean {label} over the grid: embedding {fmt(emb)}, GP {fmt(gp)} (GP / embedding "
-            f"{fmt(ratio)}), constant predictor {fmt(summary.get('mean_error_constant'))}, "
-            f"noise floor {fmt(summary.get('mean_noise_floor'))}."
-        )
-        if multi_step:
-            holds = bool(better > 0.5)
-            return Verdict(
-                _TRAJECTORY_CLAIM,
-                holds,
-                f"The embedding's {label} is below the GP's on {_pct(better)} of the grid "
-                "(thesis: the embedding 'significantly outperforms' GP modeling, read as: "
-                "below the GP on more than half of the grid; the thesis gives no size for "
-                f"'significantly'); median log10 {label}: embedding "
-                f"{fmt(summary.get('median_log10_error_embedding'))}, GP "
-                f"{fmt(summary.get('median_log10_error_gp'))}. " + means,
-            )
-        far = summary.get("fraction_embedding_better_far_from_data")
-        near = summary.get("fraction_embedding_better_near_data")
-        typically = _typically_better_near_data(summary)
-        holds = conjunction(
-            [bool(better > 0.5), None if far is None else bool(far > 0.5), typically]
-        )
-        if typically is None:
-            medians = f"median {label} near / away from the data: {NOT_RECORDED}"
-        else:
-            mn, mf = summary["median_error_near_data"], summary["median_error_far_from_data"]
-            medians = (
-                f"median {label} near / away from the data: embedding {fmt(mn['embedding'])} / "
-                f"{fmt(mf['embedding'])}, GP {fmt(mn['gp'])} / {fmt(mf['gp'])}"
-            )
-        away = summary.get("fraction_of_grid_near_data")
-        return Verdict(
-            _PENDULUM_CLAIM,
-            holds,
-            f"The embedding's {label} is below the GP's on {_pct(better)} of the grid (thesis: "
-            "'consistently provides more accurate predictions', read as: on more than half of "
-            f"the grid), on {_pct(far)} of the cells away from the data "
-            f"({_pct(None if away is None else 1 - away)} of the grid; thesis: 'generalizes "
-            "better in less explored parts', read as: on more than half of them) and on "
-            f"{_pct(near)} of the cells near it; {medians} (thesis: both models 'typically "
-            "provide better predictions in the vicinity of the observed trajectories', read "
-            "as: each model's median error lower near the data). " + means,
-        )
-
-    return verdict
-
-
-def _pendulum_own_checks(settings: PendulumSettings, summary: dict) -> dict:
-    """Conditions of ours beyond the thesis's sentences on ``fig5.3``–``fig5.5``."""
-    emb, gp = summary["mean_error_embedding"], summary["mean_error_gp"]
-    return {
-        "mean_error_below_gp": own_check(
-            None if emb is None or gp is None else bool(emb < gp),
-            "the embedding's error averaged over the grid is below the GP's (ours: the thesis "
-            "compares the two maps, not their means; the mean was part of the verdict before "
-            "issue #32)",
-        )
-    }
-
-
 def _near_data(t0: dict, n: int) -> np.ndarray:
     """Grid cells whose nearest observed state lies within 10% of the grid's span on both
     axes (the "vicinity of the observed trajectories"), shape (n, n) bool."""
@@ -432,10 +317,31 @@ def _median_or_none(values: np.ndarray) -> float | None:
     return float(np.median(values)) if values.size else None
 
 
-def _pendulum_summary(key: str, label: str, unit: str, multi_step: bool):
+def _per_trial_medians(trials: list[dict], key: str) -> dict:
+    """Each trial's median error near and away from its own observed states, per model
+    (:func:`_near_data` of that trial), and the fraction of the grid near them."""
+    near = [_near_data(t, np.shape(t[f"emb_{key}"])[0]) for t in trials]
+    maps = {name: [np.asarray(t[f"{m}_{key}"]) for t in trials] for name, m in _MODELS}
+    return {
+        "per_trial_fraction_of_grid_near_data": [float(np.mean(c)) for c in near],
+        "per_trial_median_error_near_data": {
+            name: [_median_or_none(e[c]) for e, c in zip(maps[name], near, strict=True)]
+            for name in maps
+        },
+        "per_trial_median_error_far_from_data": {
+            name: [_median_or_none(e[~c]) for e, c in zip(maps[name], near, strict=True)]
+            for name in maps
+        },
+    }
+
+
+def _pendulum_summary(key: str, label: str, unit: str):
     """``summarize`` of a pendulum error map: ``label`` names the error (also in the summary),
-    ``unit`` its unit (in the panel titles), ``multi_step`` whether it is ``fig5.5``'s."""
-    verdict = _pendulum_verdict(label, multi_step)
+    ``unit`` its unit (in the panel titles).
+
+    Besides the maps' means over trials, the summary holds what a judgement across trials
+    needs: each trial's grid-mean error per predictor (``per_trial_mean_error``), each trial's
+    median error near and away from its own observed states, and the prediction times."""
 
     def summarize(settings: PendulumSettings, trials: list[dict]) -> tuple[list[Series], dict]:
         maps = {
@@ -487,6 +393,7 @@ def _pendulum_summary(key: str, label: str, unit: str, multi_step: bool):
         better_map = maps["emb"] < maps["gp"]
         near = _near_data(t0, better_map.shape[0])
         summary = {
+            "n_trials": len(trials),
             "error": label,
             "mean_error_embedding": mean_emb,
             "mean_error_gp": mean_gp,
@@ -523,6 +430,7 @@ def _pendulum_summary(key: str, label: str, unit: str, multi_step: bool):
             ),
             "fraction_of_grid_where_gp_beats_constant": float(np.mean(maps["gp"] < maps["const"])),
             "per_trial_mean_error": per_trial,
+            **_per_trial_medians(trials, key),
             "shared_colour_range_log10": [zmin, zmax],
             "embedding_lengthscale": [np.asarray(t["emb_lengthscale"]).tolist() for t in trials],
             "embedding_lam": [t["emb_lam"] for t in trials],
@@ -532,91 +440,10 @@ def _pendulum_summary(key: str, label: str, unit: str, multi_step: bool):
                 "embedding": [t["time_embedding"] for t in trials],
                 "gp": [t["time_gp"] for t in trials],
             },
-            "setup": PENDULUM_SETUP,
-            "variants": PENDULUM_VARIANTS,
         }
-        summary["own_checks"] = _pendulum_own_checks(settings, summary)
-        return series, with_verdict(summary, verdict(settings, summary))
+        return series, summary
 
     return summarize
-
-
-PENDULUM_SETUP = [
-    {
-        "item": "GP target",
-        "thesis": "x′ = f(x) (Secs 4.2.4, 5.1.1: the GP maps the input to the successor)",
-        "ours": "x′ with a zero prior mean (gp_target = 'next'); 'delta' learns Δx",
-        "why": "an earlier version learned Δx, which changes the prior far from the data "
-        "(Δx → 0 means x′ → x there, x′ → 0 for the x′ GP) (issue #16)",
-    },
-    {
-        "item": "GP hyper-parameters",
-        "thesis": "maximum marginal likelihood (2.28)",
-        "ours": "(2.28) plus PILCO's HyperCurb (length-scales ≤ 100× the input spread, "
-        "σ_f/σ_ε ≤ 500); gp_curb = False gives plain (2.28)",
-        "why": "one curb for every GP in skillkit (issue #16); its effect is in the variants",
-    },
-    {
-        "item": "query grid, ground truth",
-        "thesis": "contour maps over (α, α̇), grid not given",
-        "ours": "41 × 41 over the start-state range; truth: 1000 samples (single step), 200 "
-        "rollouts (20 steps) per cell",
-        "why": "",
-    },
-    {
-        "item": "embedding read-out",
-        "thesis": "predictive mean E[x′]",
-        "ours": "linear read-out X′ᵀβ (pre-image, Eq. 2.45, also reported)",
-        "why": "",
-    },
-]
-
-PENDULUM_SETUP.append(
-    {
-        "item": "embedding λ",
-        "thesis": "'a small number', learned with the length-scales by 10-fold CV (Eq. 5.16)",
-        "ours": "learned within [lam_min, 1]: lam_min = 1e-6 for the single-step maps (fig5.3, "
-        "fig5.4), 1e-3 for the 20-step prediction (fig5.5, the rule of fig5.6 / fig5.7)",
-        "why": "with 1e-6 the one-step objective chose λ = 1.8e-6 … 1.2e-4 and in 2 of 5 fig5.5 "
-        "trials the 20-step propagation exploded (mean Σ_t e_x_t 1.7e5, 1.9e5 against "
-        "119–203); with 1e-3 the single-step error doubles (fig5.3 0.0417 → 0.0849); see "
-        "variants",
-    }
-)
-
-PENDULUM_VARIANTS = [
-    {
-        "variant": "before issue #16: Δx GP without curb (the stored paper runs it replaces)",
-        "measured": "an earlier review measured that an x′ GP makes the embedding win near the "
-        "data on 87% of cells (about 4×) while it collapses toward zero far from the data",
-    },
-    {
-        "variant": "fig5.3 paper, x′ GP without curb (gp_curb = False)",
-        "measured": "GP mean e_α 5.8e-5 (with curb 5.55e-5); embedding better on 59% of the "
-        "grid either way (embedding 0.0417)",
-    },
-    {
-        "variant": "fig5.3 paper, Δx GP with curb (gp_target = 'delta')",
-        "measured": "GP mean e_α 3.5e-5; the embedding is better on 40% of the grid (59% "
-        "against the x′ GP); without the curb the same to three digits",
-    },
-    {
-        "variant": "fig5.3 paper, embedding λ ≥ 1e-3 (fig5.5's rule)",
-        "measured": "λ = 1e-3 in every trial; embedding mean e_α 0.0849 (0.0417 with λ free), "
-        "better than the GP on 38% of the grid (59%)",
-    },
-    {
-        "variant": "fig5.5 paper, λ ≥ 1e-6 (the single-step rule; this branch's first run)",
-        "measured": "λ = 1.8e-6 … 1.2e-4; mean Σ_t e_x_t per trial 124, 1.7e5, 1.9e5, 203, 119 "
-        "(GP 14 … 34): the propagation explodes in 2 of 5 trials",
-    },
-    {
-        "variant": "fig5.5 quick (17 × 17 grid, 1 trial): x′ + curb / no curb / Δx / λ ≥ 1e-6",
-        "measured": "embedding 116 (λ = 1e-3) vs GP 19.1 / 17.7 / 30.1; with λ ≥ 1e-6 the "
-        "embedding scores 159 (λ = 3.9e-5); constant predictor 281",
-    },
-]
-"""Variants tried, with their numbers (seed 0)."""
 
 
 SCALES_PENDULUM_MULTI = {k: replace(v, lam_min=1e-3) for k, v in SCALES_PENDULUM.items()}
@@ -645,11 +472,8 @@ for _id, _key, _label, _unit, _multi, _what in PENDULUM_ERRORS:
             settings_class=PendulumSettings,
             settings=SCALES_PENDULUM_MULTI if _multi else SCALES_PENDULUM,
             run_trial=(lambda m: lambda s, rng, trial: _pendulum_trial(s, rng, trial, m))(_multi),
-            summarize=_pendulum_summary(_key, _label, _unit, _multi),
-            verdict=_pendulum_verdict(_label, _multi),
-            own_checks=_pendulum_own_checks,
+            summarize=_pendulum_summary(_key, _label, _unit),
             trials={"smoke": 1, "quick": 1, "paper": 5},
-            claim=_TRAJECTORY_CLAIM if _multi else _PENDULUM_CLAIM,
         )
     )
 
@@ -761,7 +585,7 @@ class BalancingSettings(Settings):
     lam_min: float = setting(
         1e-3,
         "Lower bound of λ in both embedding fits: smaller λ lets the 40-step propagation "
-        "β_{t+1} = (G + λI)⁻¹G̃β_t amplify (‖β‖₁ ≫ 1, issue #16).",
+        "β_{t+1} = (G + λI)⁻¹G̃β_t amplify (‖β‖₁ ≫ 1).",
         above=0,
     )
     test_pairs: int = setting(
@@ -854,6 +678,8 @@ _METHODS = (
     ("step", "embedding, step-based (5.17)"),
     ("trajectory", "embedding, trajectory-based (5.23)"),
 )
+_COMPARED = ("gp", "step", "trajectory", "constant")
+"""The predictors whose e_r the summary keeps per trial."""
 _FLOORS = (
     ("constant", "constant predictor (mean observed reward)"),
     ("noise", "noise floor: mean Var(R | x₀ᵢ) / truth rollouts"),
@@ -1075,25 +901,8 @@ def _fig57_trial(
     }
 
 
-def _ratios(summary: dict) -> dict[str, list[float | None]]:
-    """GP / embedding e_r at every x, for the step- and the trajectory-based embedding."""
-    e = summary["mean_e_r"]
-
-    def ratio(gp: float | None, emb: float | None) -> float | None:
-        return gp / emb if _finite(gp) and _finite(emb) and emb > 0 else None
-
-    return {
-        m: [ratio(g, v) for g, v in zip(e["gp"], e[m], strict=True)] for m in ("step", "trajectory")
-    }
-
-
 def _finite(value: float | None) -> bool:
     return value is not None and bool(np.isfinite(value))
-
-
-def _lt(a: float | None, b: float | None) -> bool:
-    """``a < b``, False where either is missing or not finite (a stored NaN reads as None)."""
-    return _finite(a) and _finite(b) and bool(a < b)
 
 
 def _spread(values: list[float | None]) -> float:
@@ -1104,120 +913,13 @@ def _spread(values: list[float | None]) -> float:
     return float(max(values) / lo) if lo > 0 else float("inf")
 
 
-def _reward_verdict(xlabel: str, fig: str):
-    def verdict(settings: BalancingSettings, summary: dict) -> Verdict:
-        """Judges the thesis's sentences on the figure (criterion changed after the stored
-        paper runs, issue #32; conditions (3) and (4) of the criterion fixed before them —
-        beating the constant predictor, flatter than the GP — are own checks now).
-
-        fig5.6 holds if (1) "an order of magnitude lower reward prediction error compared to
-        the GP approach", "even for a lower amount of observed trajectories": at every x both
-        embeddings' mean e_r is at least √10 below GP sampling's (10× to the nearest order of
-        magnitude); (2) "for a lower amount of observed trajectories, the GP model provides ...
-        larger reward prediction error": the GP's e_r with the fewest trajectories is above
-        that with the most; (3) trajectory-based (5.23) "clearly has a positive effect ...
-        compared to the step-based approach": its e_r is below the step-based one's at every
-        x. fig5.7 holds if (1) "the GP modeling tends to provide higher prediction error" with
-        more torque noise: the GP's e_r at the largest noise is above that at the smallest;
-        (2) with embeddings "we barely see any difference": for both embeddings the largest
-        e_r across the noise levels is less than √10 × the smallest (the same order of
-        magnitude); (3) "better ... prediction results ... compared to GP models": both
-        embeddings below the GP at every noise level."""
-        x, e = summary["x"], summary["mean_e_r"]
-        emb = ("step", "trajectory")
-        n = len(x)
-        lo, hi = int(np.argmin(x)), int(np.argmax(x))
-        per_x = "; ".join(
-            f"{xi}: GP {fmt(e['gp'][i])}, step {fmt(e['step'][i])}, "
-            f"trajectory {fmt(e['trajectory'][i])}, constant {fmt(e['constant'][i])}, "
-            f"noise floor {fmt(e['noise'][i])}"
-            for i, xi in enumerate(x)
-        )
-        numbers = f" Mean e_r by {xlabel}: {per_x}."
-        gp_lo, gp_hi = e["gp"][lo], e["gp"][hi]
-        if fig == "fig5.6":
-            ratio = _ratios(summary)
-            order = all(r is not None and r >= HALF_DECADE for m in emb for r in ratio[m])
-            fewer_worse = _lt(gp_hi, gp_lo)
-            traj_better = all(_lt(e["trajectory"][i], e["step"][i]) for i in range(n))
-            ratios = "; ".join(
-                f"{xi}: step {fmt(ratio['step'][i])}, trajectory {fmt(ratio['trajectory'][i])}"
-                for i, xi in enumerate(x)
-            )
-            text = (
-                f"GP / embedding e_r by {xlabel} — {ratios} (thesis: 'an order of magnitude "
-                "lower', also 'for a lower amount of observed trajectories', read as: at "
-                f"least √10 ≈ 3.2 at every x); the GP's e_r with {x[lo]} vs {x[hi]} trajectories "
-                f"{fmt(gp_lo)} vs {fmt(gp_hi)} (thesis: larger with fewer trajectories); "
-                "trajectory-based below step-based at "
-                f"{sum(_lt(e['trajectory'][i], e['step'][i]) for i in range(n))} of {n} x (thesis: "
-                "'clearly has a positive effect', read as: at every x)."
-            )
-            return Verdict(CLAIMS[fig], bool(order and fewer_worse and traj_better), text + numbers)
-        spread = {m: _spread(e[m]) for m in ("gp", *emb)}
-        grows = _lt(gp_lo, gp_hi)
-        flat = all(_lt(spread[m], HALF_DECADE) for m in emb)
-        below = all(_lt(e[m][i], e["gp"][i]) for m in emb for i in range(n))
-        text = (
-            f"The GP's e_r from {fmt(gp_lo)} at {x[lo]:g} N m to {fmt(gp_hi)} at {x[hi]:g} N m "
-            "(thesis: it "
-            "'tends to provide higher prediction error' with more noise); max / min e_r across "
-            f"the noise levels: step {fmt(spread['step'])}, trajectory "
-            f"{fmt(spread['trajectory'])}, GP {fmt(spread['gp'])} (thesis: with embeddings 'we "
-            "barely see any difference', read as: below √10 ≈ 3.2 for both); both embeddings "
-            f"below the GP at {sum(all(_lt(e[m][i], e['gp'][i]) for m in emb) for i in range(n))} "
-            f"of {n} noise levels (thesis: better prediction than GP models, read as: at every "
-            "level)."
-        )
-        return Verdict(CLAIMS[fig], bool(grows and flat and below), text + numbers)
-
-    return verdict
-
-
-def _reward_own_checks(fig: str):
-    def own_checks(settings: BalancingSettings, summary: dict) -> dict:
-        """Conditions of ours beyond the thesis's sentences on ``fig5.6`` / ``fig5.7``,
-        computed from ``summary["mean_e_r"]``."""
-        e = summary["mean_e_r"]
-        n = len(summary["x"])
-        out = {
-            "trajectory_based_below_constant": own_check(
-                all(_lt(e["trajectory"][i], e["constant"][i]) for i in range(n)),
-                "at every x the trajectory-based embedding's e_r is below the constant "
-                "predictor's (the mean observed reward; a prediction that does not beat it "
-                "shows no skill); ours, condition (3) of the criterion fixed before the paper "
-                "runs, not a thesis claim",
-            )
-        }
-        if fig == "fig5.6":
-            ratio = _ratios(summary)
-            out["embeddings_10x_below_gp"] = own_check(
-                all(r is not None and r >= 10 for m in ratio for r in ratio[m]),
-                "at every x both embeddings' e_r at least 10× below GP sampling's (the strict "
-                "reading of 'an order of magnitude')",
-            )
-        else:
-            spread = {m: _spread(e[m]) for m in ("gp", "step", "trajectory")}
-            out["embeddings_flatter_than_gp"] = own_check(
-                all(_lt(spread[m], spread["gp"]) for m in ("step", "trajectory")),
-                "both embeddings' max / min e_r across the noise levels below the GP's "
-                "(condition (4) of the criterion fixed before the paper runs: flat relative to "
-                "the GP)",
-            )
-            out["trajectory_based_below_step_based"] = own_check(
-                all(_lt(e["trajectory"][i], e["step"][i]) for i in range(n)),
-                "at every noise level the trajectory-based embedding's e_r is below the "
-                "step-based one's (condition (2) of the criterion fixed before the paper runs; "
-                "the thesis states it for Fig. 5.6, not for Fig. 5.7)",
-            )
-        return out
-
-    return own_checks
-
-
 def _reward_summary(xlabel: str, fig: str):
-    verdict = _reward_verdict(xlabel, fig)
-    checks = _reward_own_checks(fig)
+    """``summarize`` of ``fig5.6`` / ``fig5.7``: e_r per predictor against ``xlabel``.
+
+    Besides the means over trials, the summary holds each trial's e_r per predictor at every
+    x (``e_r_per_trial[m][i]``: one value per trial at ``x[i]``), averaged over the x values
+    (``e_r_mean_over_x_per_trial``) and, for ``fig5.7``, each trial's max / min e_r across
+    the noise levels: what a judgement across trials needs."""
 
     def summarize(settings: BalancingSettings, trials: list[dict]) -> tuple[list[Series], dict]:
         x = list(trials[0]["x"])
@@ -1255,6 +957,7 @@ def _reward_summary(xlabel: str, fig: str):
             return [[c[key] for c in t["cases"]] for t in trials]
 
         summary = {
+            "n_trials": len(trials),
             "x": x,
             "mean_e_r": {m: mean[m].tolist() for m in err},
             "floors": {
@@ -1297,144 +1000,18 @@ def _reward_summary(xlabel: str, fig: str):
             "redrawn_observed_trajectories": int(np.sum(per_case("redrawn_observed"))),
             "prediction_time_s": {m: float(np.mean(per_case(f"time_{m}"))) for m, _ in _METHODS},
         }
+        summary["e_r_per_trial"] = {m: err[m].T.tolist() for m in _COMPARED}
+        summary["e_r_mean_over_x_per_trial"] = {m: err[m].mean(axis=1).tolist() for m in _COMPARED}
         if fig == "fig5.7":
             spread = {m: _spread(mean[m].tolist()) for m, _ in _METHODS}
             summary["max_over_min_e_r_across_noise"] = spread
-        summary["setup"] = BALANCING_SETUP
-        summary["variants"] = BALANCING_VARIANTS
-        summary["own_checks"] = checks(settings, summary)
-        return series, with_verdict(summary, verdict(settings, summary))
+            summary["max_over_min_e_r_across_noise_per_trial"] = {
+                m: [_spread(row.tolist()) for row in err[m]] for m, _ in _METHODS
+            }
+        return series, summary
 
     return summarize
 
-
-BALANCING_SETUP = [
-    {
-        "item": "controller",
-        "thesis": "one PD controller balancing from random start states",
-        "ours": "Balancing.pd_gain(ω = 3, ζ = 1.5): u = K_p q̃ + K_d q̇ with gravity-stiffness "
-        "compensation, the same gain for every observed and test trajectory",
-        "why": "the thesis gives no gains; this is the lowest robust stiffness at 20 Hz (an "
-        "earlier version drew random LQR gains per test pair: not the thesis's setup)",
-    },
-    {
-        "item": "test pair ('i-th experiment')",
-        "thesis": "L = 200 experiments, R̂ from 100 real trajectories each",
-        "ours": "a start state x₀ᵢ ~ N(x_up, 0.3² I) (the only thing that varies with one "
-        "controller); R_i = mean of truth_rollouts real rollouts from x₀ᵢ over the torque "
-        "noise; every method predicts from the same x₀ᵢ (GP: M sampled trajectories from "
-        "it; embedding: Eq. 5.6 with L = 1)",
-        "why": "the thesis varies nothing else; its random start states make each experiment's "
-        "expected reward a function of x₀",
-    },
-    {
-        "item": "observed trajectories",
-        "thesis": "PD rollouts from random starts, torque noise 4, T = 40",
-        "ours": "the same (20 Hz control, 50 ms steps, commanded torques as u)",
-        "why": "",
-    },
-    {
-        "item": "GP forward model",
-        "thesis": "x′ = f([x, u]) per output dimension, marginal likelihood (2.28)",
-        "ours": "target x′ (gp_target = 'next'), PILCO's HyperCurb on the likelihood "
-        "(gp_curb); 150 L-BFGS steps",
-        "why": "near upright [x, u] lie close to a linear subspace and plain maximum likelihood "
-        "drives the SE kernel to its linear limit, whose samples diverge (issue #16); "
-        "gp_curb = False turns it off",
-    },
-    {
-        "item": "embedding λ",
-        "thesis": "'a small number', learned by cross-validation",
-        "ours": "learned within [lam_min, 1], lam_min = 1e-3, for both fits",
-        "why": "on the earlier LQR data the one-step objective chose λ = 5e-6, with which the "
-        "40-step propagation amplified ‖β‖₁ to 1.4e7 (issue #16); on the PD data λ ≥ 1e-3 keeps "
-        "‖β_t‖₁ near 20 in most fits but not all (fig5.6, 4 trajectories: 1.6e4); the summary "
-        "reports max ‖β_t‖₁ per fit",
-    },
-    {
-        "item": "first embedding step",
-        "thesis": "Eq. 5.9: β₂ = (K + λI)⁻¹K β₁ with β₁ from Eq. 5.6",
-        "ours": "the same, in prediction and in the trajectory-based loss (Eq. 5.23)",
-        "why": "",
-    },
-]
-
-BALANCING_SETUP.append(
-    {
-        "item": "size of the paper run",
-        "thesis": "L = 200 test experiments × 100 real trajectories; #trajectories and noise "
-        "levels not listed; trials not stated",
-        "ours": "fig5.6: 200 start states × 100 rollouts, 2/4/6/10 observed trajectories; "
-        "fig5.7: 100 × 50, 6 trajectories, noise 1/2/4/8 N m; 1 trial each by default (the "
-        "stored runs: --trials 2), 30 L-BFGS iterations per embedding fit",
-        "why": "the five Ch. 5 paper runs must fit ~50 min on one core; Eq. 5.23's loss costs "
-        "~10 s per evaluation at 20 trajectories (N = 800)",
-    }
-)
-
-BALANCING_VARIANTS = [
-    {
-        "variant": "before issue #16: random LQR gains per test pair, Δx GP without curb, "
-        "λ ≥ 1e-6, no Eq. 5.9 first step (the stored paper run it replaces)",
-        "measured": "fig5.6 paper (5 trials): GP e_r 4e9 … 5e12, step-based up to 3e42 (‖β‖₁ "
-        "to 1.4e7 at λ = 5e-6), trajectory-based 1.77e4 at 10/15/20 trajectories = the error "
-        "of predicting R̂ = 0 (every hyper-parameter at a bound)",
-    },
-    {
-        "variant": "this setup, quick scale (3 and 8 trajectories, 40 start states × 30 "
-        "rollouts, 1 trial, seed 0): the defaults (x′ GP + curb, λ ≥ 1e-3, two starts)",
-        "measured": "e_r GP 7.8e5 / 1.0e6 (mean prediction −1005 / −1129 against a true "
-        "−120), step 1.38e4 / 3.13e3, trajectory 9.67e3 / 2.80e3, constant 8.28e3 / 2.98e3, "
-        "noise floor 110",
-    },
-    {
-        "variant": "quick, gp_curb = False (plain marginal likelihood)",
-        "measured": "GP e_r 1.1e8 / 1.6e8 (mean prediction −1.1e4 / −1.3e4); embeddings "
-        "unchanged: the curb lowers the GP's error ~150×",
-    },
-    {
-        "variant": "quick, gp_target = 'delta' (Δx GP, with curb)",
-        "measured": "GP e_r 4.0e7 / 3.8e7 (mean prediction −6272 / −6131): ~40× worse than x′",
-    },
-    {
-        "variant": "quick, lam_min = 1e-6 (λ as the one-step objective picks it)",
-        "measured": "step-based λ = 2e-5 / 1e-6, max ‖β_t‖₁ 69 / 64, e_r 2.8e4 / 8.2e4 "
-        "(against 1.38e4 / 3.13e3 with λ ≥ 1e-3, ‖β‖₁ 19 / 24); trajectory-based 4.7e4 / 2.9e3",
-    },
-    {
-        "variant": "quick, trajectory_start = 'default' or 'step' (one start, as Eq. 5.23 "
-        "alone would be run)",
-        "measured": "each single start ends once on the β ≈ 0 plateau (prediction 0, e_r "
-        "1.54e4 = mean R², CV loss 48.1 / 40.6 = the zero prediction's): 'default' at 8 "
-        "trajectories, 'step' at 3; the other start reaches CV loss 18.9 / 13.0 (e_r 9.67e3 / "
-        "2.80e3); keeping the lower CV loss of both avoids the plateau in both cases",
-    },
-]
-"""Variants tried, with their numbers (quick scale unless stated; 1 trial, seed 0)."""
-
-
-CLAIMS = {
-    "fig5.6": (
-        "Embeddings predict the expected trajectory reward with an order of magnitude lower "
-        "error than GP sampling (M = 100), also with few observed trajectories, where the GP's "
-        "error is larger, and the trajectory-based training (5.23) beats the step-based one "
-        "(5.17) (Sec. 5.4, Fig. 5.6)."
-    ),
-    "fig5.7": (
-        "With growing torque noise the GP's reward prediction error grows while the "
-        "embeddings' barely changes, and the embeddings predict better than the GP "
-        "(Sec. 5.4, Fig. 5.7)."
-    ),
-}
-
-OWN_CHECKS = {
-    **{i: _pendulum_own_checks for i, *_ in PENDULUM_ERRORS},
-    "fig5.6": _reward_own_checks("fig5.6"),
-    "fig5.7": _reward_own_checks("fig5.7"),
-}
-"""Experiment id → ``own_checks(settings, summary)``: our conditions beyond the thesis's
-sentences (``summary["own_checks"]``, :func:`~skillkit.experiments.claims.own_check`), from
-the summary's numbers alone, so a stored summary can be checked again."""
 
 register(
     Experiment(
@@ -1444,10 +1021,7 @@ register(
         settings=SCALES_5_6,
         run_trial=_fig56_trial,
         summarize=_reward_summary("observed trajectories", "fig5.6"),
-        verdict=_reward_verdict("observed trajectories", "fig5.6"),
-        own_checks=OWN_CHECKS["fig5.6"],
-        trials={"smoke": 1, "quick": 1, "paper": 1},
-        claim=CLAIMS["fig5.6"],
+        trials={"smoke": 1, "quick": 1, "paper": 2},
     )
 )
 
@@ -1459,9 +1033,6 @@ register(
         settings=SCALES_5_7,
         run_trial=_fig57_trial,
         summarize=_reward_summary("torque noise std (N m)", "fig5.7"),
-        verdict=_reward_verdict("torque noise std (N m)", "fig5.7"),
-        own_checks=OWN_CHECKS["fig5.7"],
-        trials={"smoke": 1, "quick": 1, "paper": 1},
-        claim=CLAIMS["fig5.7"],
+        trials={"smoke": 1, "quick": 1, "paper": 2},
     )
 )

@@ -1,4 +1,4 @@
-r"""``cmp.methods``: REPS, GPREPS, CMA-ES and contextual BO on the thesis's tasks (issue #34).
+r"""``cmp.methods``: REPS, GPREPS, CMA-ES and contextual BO on the thesis's tasks.
 
 Not a figure of the thesis: the comparison a researcher would make before choosing a method,
 on the same tasks, from the same initial policy, evaluated the same way. Each method runs
@@ -25,8 +25,9 @@ What is measured per task and method: the real rollouts after which the mean lea
 first reaches each of the task's reward thresholds (:data:`THRESHOLDS`, from the thesis), the
 final reward (mean ± std over trials), and the compute time (wall-clock seconds of the learning
 run — rollouts, updates and evaluations — on the machine of the run). The thesis makes no claim
-about CMA-ES or Bayesian optimisation, so the verdict's ``holds`` is None; the statement says
-where each method wins.
+about CMA-ES or Bayesian optimisation: the claims spec (``skillkit/data/claims/comparisons.toml``)
+says so and holds the setup table. The summary names, per task, the method with the best final
+reward and those that reached each threshold with the fewest real rollouts (``winners``).
 
 ``import skillkit.experiments`` registers this experiment, as every other (the package
 ``__init__``'s registration imports are not part of any experiment's code fingerprint).
@@ -52,16 +53,7 @@ from skillkit.experiments.ch4_gpreps import (
     throwing_reward_model,
 )
 from skillkit.experiments.ch4_table_tennis import table_tennis_reward_model
-from skillkit.experiments.registry import (
-    SCALES,
-    Experiment,
-    Series,
-    Verdict,
-    fmt,
-    get,
-    register,
-    with_verdict,
-)
+from skillkit.experiments.registry import SCALES, Experiment, Series, get, register
 from skillkit.experiments.settings import Settings, setting
 from skillkit.search.loop import learn, policy_history_arrays
 from skillkit.tasks import make
@@ -99,12 +91,6 @@ THRESHOLDS: dict[str, tuple[tuple[float, ...], str]] = {
     "balancing": ((-100.0, -10.0, -1.5), "Table 4.2's reward limits"),
 }
 """Per task: the reward levels whose real-rollout cost is compared, and where they come from."""
-
-CLAIM = (
-    "Not a thesis claim (issue #34): REPS, GPREPS, CMA-ES and contextual Bayesian optimisation "
-    "on throwing, hockey, table tennis and balancing — real rollouts to each task's reward "
-    "thresholds, final reward and compute time, from the same initial policy."
-)
 
 
 @dataclass(frozen=True)
@@ -388,43 +374,7 @@ def summarize(st: MethodComparisonSettings, trials: list[dict]):
             "methods": row,
             "winners": _winners(row, levels),
         }
-    summary = {"n_trials": len(trials), "tasks": table, "setup": setup(st)}
-    return series, with_verdict(summary, verdict(st, summary))
-
-
-def setup(st: MethodComparisonSettings) -> list[dict]:
-    """Setup table: what each method gets, and why."""
-    return [
-        {"item": "REPS, GPREPS", "ours": f"the thesis experiments' settings at {st.thesis_scale} "
-         "scale (fig4.6, fig4.10, fig4.12, tab4.2)", "why": "the thesis's own configurations"},
-        {"item": "CMA-ES", "ours": "cma defaults (λ = 4 + ⌊3 ln n⌋, σ₀ from π₀'s std); linear "
-         "context map, m = 4 contexts per candidate; budget = REPS's", "why": "the documented "
-         "defaults; the same real-rollout budget as the model-free thesis method"},
-        {"item": "contextual BO", "ours": "BoTorch SingleTaskGP over (s, ω), acquisition "
-         "optimised over ω at the given s; budget = GPREPS's", "why": "the library's defaults; "
-         "GP cost grows as N³, so the model-based budget"},
-        {"item": "evaluation", "ours": "policy mean on the thesis experiment's fixed contexts "
-         "(balancing: its 50 start states), one seed for all methods of a trial", "why": "same "
-         "conditions for every method"},
-    ]  # fmt: skip
-
-
-def verdict(st: MethodComparisonSettings, summary: dict) -> Verdict:
-    """No thesis claim to judge (``holds`` None); the statement says who wins where."""
-    parts = []
-    for name, t in summary["tasks"].items():
-        w = t["winners"]
-        fewest = ", ".join(
-            f"{lvl}: {' = '.join(LABELS.get(m, m) for m in ms) if ms else 'none'}"
-            for lvl, ms in w["fewest_rollouts"].items()
-        )
-        best = w["best_final_reward"]
-        parts.append(
-            f"{name}: best final reward {LABELS[best]} "
-            f"({fmt(t['methods'][best]['final_reward_mean'])}); fewest real rollouts to "
-            f"{fewest}"
-        )
-    return Verdict(CLAIM, None, "; ".join(parts) + f" ({summary['n_trials']} trials).")
+    return series, {"n_trials": len(trials), "tasks": table}
 
 
 register(
@@ -435,8 +385,6 @@ register(
         settings=SETTINGS,
         run_trial=run_trial,
         summarize=summarize,
-        verdict=verdict,
         trials={"smoke": 1, "quick": 2, "paper": 5},
-        claim=CLAIM,
     )
 )

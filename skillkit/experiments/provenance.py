@@ -1,23 +1,32 @@
 """Provenance of a result: which code made it, and whether that code has changed since.
 
-Two records go into every ``result.json``:
+Three records go into every ``result.json``:
 
 * ``git``: the commit of the working tree that made the run and whether the tree had
   uncommitted changes to tracked files (None outside a git checkout, e.g. an installed wheel);
 * ``code_fingerprint``: a hash of the code that can change the experiment's numbers — the
   experiment's module and every skillkit module it imports, directly or inside functions,
   transitively (found by reading the sources, not by importing them; a name imported from a
-  package's ``__init__`` is followed to the module that defines it), and the shipped
-  demonstrations those modules name. Not part of it: the plotting and viewer code of
-  :mod:`skillkit.viz`, the command line, and the runner (its trial seeding and executors
-  are held fixed by tests: same seed, same numbers, whichever executor). Each source file
-  enters as its token stream without comments, docstrings or blank lines, so editing
-  documentation or formatting leaves the fingerprint unchanged, while any change to code
-  does change it.
+  package's ``__init__``, or from an excluded module that only re-exports it, is followed to
+  the module that defines it), and the shipped demonstrations those modules name. Not part of
+  it: the plotting and viewer code of :mod:`skillkit.viz` (the series and bands experiments
+  store are computed in :mod:`skillkit.series`, which is part of it), the command line, and
+  the runner (its trial seeding and executors are held fixed by tests: same seed, same
+  numbers, whichever executor). Each source file enters as its token stream without
+  comments, docstrings or blank lines, so editing documentation or formatting leaves the
+  fingerprint unchanged, while any change to code does change it;
+* ``witness`` (quick and paper runs): the measurements (:func:`measurements`) of a smoke run
+  of the same experiment and seed made by the same code
+  (:func:`skillkit.experiments.runner.smoke_witness`).
 
-:func:`check_results` recomputes the fingerprint of each stored result's experiment with the
-code installed now; a result whose fingerprint differs (or that has none) is *stale*: it may
-not be what today's code would produce. ``skillkit runs --check DIR`` prints those.
+A result whose fingerprint equals today's is *current*. When the code changed, a fresh smoke
+witness equal to the stored one (:func:`compare_witness`, within round-off) shows that the
+change (a refactor, a move, a new measurement) reproduces what the result's code measured:
+the result is *carried*, and a carry record in ``result.json`` (``carried``) says so for
+today's fingerprint without running anything again. Otherwise it is *stale*: it may not be
+what today's code would produce. :func:`staleness` reads fingerprints and carry records only;
+:func:`check_results` with ``witness=True`` (``skillkit runs --check DIR``) also runs the
+witnesses.
 """
 
 from __future__ import annotations
@@ -26,6 +35,7 @@ import ast
 import hashlib
 import io
 import json
+import math
 import subprocess
 import tokenize
 from collections.abc import Callable
@@ -33,12 +43,20 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
+from skillkit.experiments.judge import JUDGEMENT_KEYS
+
 PACKAGE_ROOT = Path(__file__).resolve().parent.parent
 """The ``skillkit`` package folder."""
 
-EXCLUDED = ("skillkit.viz", "skillkit.cli", "skillkit.experiments.timings")
+EXCLUDED = (
+    "skillkit.viz",
+    "skillkit.cli",
+    "skillkit.experiments.timings",
+    "skillkit.experiments.judge",
+)
 """Modules (and packages) whose code cannot change an experiment's numbers: figures, the
-viewer, the command line and the measured-time table."""
+viewer, the command line, the measured-time table, and the claims engine (it judges stored
+numbers; changing a reading re-judges every run at its next load, no trial re-runs)."""
 
 NOT_FOLLOWED = ("skillkit.experiments",)
 """Packages whose ``__init__`` is hashed but not followed: ``skillkit.experiments`` imports
@@ -130,10 +148,16 @@ def _reexports(package: str) -> dict[str, str]:
     """``{name: module}`` for the names a skillkit package's ``__init__`` imports from its
     own modules (``from skillkit.search.reps import ContextualREPS``) or exports lazily
     through a module-level ``_LAZY = {"name": "module", ...}`` dict read by its
-    ``__getattr__`` (PEP 562)."""
+    ``__getattr__`` (PEP 562); also for the names an :data:`EXCLUDED` plain module imports
+    (``skillkit.viz.series`` re-exports :mod:`skillkit.series`), so that code an experiment
+    imports through an excluded module is followed to where it is defined."""
     file = _module_file(package)
-    if file is None or file.name != "__init__.py":
+    if file is None:
         return {}
+    if file.name != "__init__.py":
+        if not _is_excluded(package):
+            return {}
+        package = package.rsplit(".", 1)[0]  # relative imports resolve in the parent package
     out = {}
     for node in ast.parse(file.read_text(encoding="utf-8")).body:
         if (
@@ -356,13 +380,233 @@ def provenance(exp_id: str) -> dict[str, Any]:
     return {"git": git_state(), "code_fingerprint": fingerprint}
 
 
+# ---------------------------------------------------------------------------- the witness
+SERIES_MEASURED = ("x", "y", "lower", "upper", "z")
+"""The fields of a stored series (:class:`skillkit.series.Series`) that hold measured
+numbers; the others (name, panel, labels, axis types, colour range, line style) are
+presentation."""
+
+WITNESS_RTOL = 1e-6
+"""Relative part of the round-off tolerance of :func:`compare_witness`:
+|a − b| ≤ WITNESS_RTOL · max(|a|, |b|) + WITNESS_ATOL. The same code with the same seed on
+the same machine gives bit-equal numbers; a refactor that computes the same thing may sum in
+another order or let BLAS pick another kernel, which moves the last digits (~1e-16 relative
+per operation, amplified by iterated fits and long sums to far below 1e-6), while a change of
+a constant or an algorithm moves smoke-scale numbers by orders of magnitude more."""
+
+WITNESS_ATOL = 1e-12
+"""Absolute part of the round-off tolerance (:data:`WITNESS_RTOL`): numbers that should be 0
+and come out as round-off residues of size ~1e-16 compare equal."""
+
+WITNESS_SCALE = "smoke"
+"""The scale a witness runs at: seconds per experiment, the same code path as paper scale."""
+
+_DROPPED = object()
+
+
+def _measured(value: Any) -> Any:
+    """``value`` without judgement keys and text; :data:`_DROPPED` when nothing is left of a
+    non-empty container, or ``value`` is text (or anything else that is not a number)."""
+    if isinstance(value, dict):
+        out = {}
+        for key, item in value.items():
+            if key in JUDGEMENT_KEYS:
+                continue
+            kept = _measured(item)
+            if kept is not _DROPPED:
+                out[str(key)] = kept
+        return out if out or not value else _DROPPED
+    if isinstance(value, (list, tuple)):
+        items = [m for m in (_measured(v) for v in value) if m is not _DROPPED]
+        return items if items or not value else _DROPPED
+    if hasattr(value, "tolist") and not isinstance(value, (str, bytes)):  # numpy
+        return _measured(value.tolist())
+    if value is None or isinstance(value, bool):
+        return value
+    if isinstance(value, (int, float)):
+        return value if math.isfinite(value) else None  # as result.json stores NaN and inf
+    return _DROPPED
+
+
+def measurements(summary: dict[str, Any]) -> dict[str, Any]:
+    """The measured numbers of a run's ``summary``: what a witness compares.
+
+    Parameters
+    ----------
+    summary : dict
+        A ``summary`` as ``result.json`` stores it (nested dicts and lists).
+
+    Returns
+    -------
+    dict
+        The same tree with every key of :data:`JUDGEMENT_KEYS` removed wherever it appears
+        and only numeric leaves kept (int, float, bool, None; a non-finite float becomes
+        None, as in ``result.json``): text is judgement or presentation and may change
+        freely. A dict or list that held only text or judgement is removed with it.
+    """
+    kept = _measured(summary)
+    return kept if isinstance(kept, dict) else {}
+
+
+def series_measurements(series: list) -> list[dict[str, Any]]:
+    """The measured numbers of a run's series: per series (in order), the numeric leaves of
+    its :data:`SERIES_MEASURED` fields (``Series`` objects or their ``to_dict``)."""
+    out = []
+    for s in series:
+        fields = s.to_dict() if hasattr(s, "to_dict") else dict(s)
+        kept = {k: _measured(fields[k]) for k in SERIES_MEASURED if k in fields}
+        out.append({k: v for k, v in kept.items() if v is not _DROPPED})
+    return out
+
+
+def _is_leaf(value: Any) -> bool:
+    return not isinstance(value, (dict, list))
+
+
+def _equal(a: Any, b: Any) -> bool:
+    """Two leaves equal within the round-off tolerance (:data:`WITNESS_RTOL`); None and NaN
+    equal each other; booleans only equal booleans."""
+    a_none = a is None or (isinstance(a, float) and math.isnan(a))
+    b_none = b is None or (isinstance(b, float) and math.isnan(b))
+    if a_none or b_none:
+        return a_none and b_none
+    if isinstance(a, bool) or isinstance(b, bool):
+        return isinstance(a, bool) and isinstance(b, bool) and a == b
+    if not isinstance(a, (int, float)) or not isinstance(b, (int, float)):
+        return a == b
+    if math.isinf(a) or math.isinf(b):
+        return a == b
+    return abs(a - b) <= WITNESS_RTOL * max(abs(a), abs(b)) + WITNESS_ATOL
+
+
+def _short(value: Any) -> str:
+    if isinstance(value, dict):
+        return f"an object of {len(value)} keys"
+    if isinstance(value, list):
+        return f"a list of {len(value)}"
+    return repr(value)
+
+
+def _walk(stored: Any, fresh: Any, path: str, skip: set[str], out: list[tuple[str, str]]):
+    """Append ``(path, text)`` for each difference of ``fresh`` from ``stored`` (text
+    ``"added: ..."`` for a leaf only ``fresh`` has)."""
+    if path in skip:
+        return
+    if isinstance(stored, dict) and isinstance(fresh, dict):
+        for key, value in stored.items():
+            where = f"{path}.{key}"
+            if key not in fresh:
+                if where not in skip:
+                    out.append((where, f"{where}: missing (stored {_short(value)})"))
+                continue
+            _walk(value, fresh[key], where, skip, out)
+        for key in fresh.keys() - stored.keys():
+            where = f"{path}.{key}"
+            out.append((where, f"added: {where} = {_short(fresh[key])}"))
+        return
+    if isinstance(stored, list) and isinstance(fresh, list):
+        if all(_is_leaf(v) for v in stored + fresh):  # an array: one measurement
+            if len(stored) != len(fresh):
+                out.append((path, f"{path}: length {len(stored)} -> {len(fresh)}"))
+                return
+            pairs = enumerate(zip(stored, fresh, strict=True))
+            bad = [i for i, (a, b) in pairs if not _equal(a, b)]
+            if bad:
+                i = bad[0]
+                out.append(
+                    (
+                        path,
+                        f"{path}: {len(bad)} of {len(stored)} values differ, first "
+                        f"[{i}]: {stored[i]!r} -> {fresh[i]!r}",
+                    )
+                )
+            return
+        for i, value in enumerate(stored):  # records: new ones may follow
+            where = f"{path}[{i}]"
+            if i >= len(fresh):
+                out.append((where, f"{where}: missing (stored {_short(value)})"))
+            else:
+                _walk(value, fresh[i], where, skip, out)
+        for i in range(len(stored), len(fresh)):
+            where = f"{path}[{i}]"
+            out.append((where, f"added: {where} = {_short(fresh[i])}"))
+        return
+    if _is_leaf(stored) and _is_leaf(fresh):
+        if not _equal(stored, fresh):
+            out.append((path, f"{path}: {stored!r} -> {fresh!r}"))
+        return
+    out.append((path, f"{path}: {_short(stored)} -> {_short(fresh)}"))
+
+
+def _differences(stored: dict, fresh: dict, skip: set[str] = frozenset()) -> list[tuple[str, str]]:
+    out: list[tuple[str, str]] = []
+    for part in ("summary", "series"):
+        _walk(stored.get(part, {} if part == "summary" else []), fresh.get(part), part, skip, out)
+    return out
+
+
+def unstable_paths(first: dict[str, Any], second: dict[str, Any]) -> list[str]:
+    """Paths of the measurements that differ between two witnesses of the same code and seed
+    (measured times, e.g.): a witness lists them under ``unstable`` and
+    :func:`compare_witness` skips them."""
+    return sorted({path for path, _ in _differences(first, second)})
+
+
+def compare_witness(stored: dict[str, Any], fresh: dict[str, Any]) -> tuple[bool, list[str]]:
+    """Whether a fresh witness reproduces a stored one.
+
+    Every numeric leaf of the stored witness's ``summary`` and ``series`` must be in the fresh
+    one and equal within the round-off tolerance |a − b| ≤ :data:`WITNESS_RTOL` · max(|a|,
+    |b|) + :data:`WITNESS_ATOL` (None and NaN equal each other; a list of numbers is one
+    measurement and must keep its length). Leaves only the fresh witness has are new
+    measurements: allowed, and listed as ``"added: <path> = <value>"``. Paths the stored
+    witness lists under ``unstable`` (they differed between two runs of the same code) are
+    not compared.
+
+    Parameters
+    ----------
+    stored, fresh : dict
+        Witnesses (``result.json``'s ``witness``), at least ``summary`` and ``series``.
+
+    Returns
+    -------
+    equal : bool
+        True when nothing but additions differs.
+    differences : list of str
+        One line per difference naming the path (``summary.a.b``, ``series[2].y``) and both
+        values (stored -> fresh); the ``"added: ..."`` lines last.
+    """
+    skip = set(stored.get("unstable") or ())
+    found = [text for _, text in _differences(stored, fresh, skip)]
+    changed = [t for t in found if not t.startswith("added: ")]
+    return not changed, changed + [t for t in found if t.startswith("added: ")]
+
+
+# ---------------------------------------------------------------------------- staleness
+def _carry(result: dict[str, Any], fingerprint: str) -> dict[str, Any] | None:
+    """The record in ``result["carried"]`` for code of ``fingerprint``, or None."""
+    for record in result.get("carried") or ():
+        if isinstance(record, dict) and record.get("code_fingerprint") == fingerprint:
+            return record
+    return None
+
+
+def _carried_reason(record: dict[str, Any]) -> str:
+    commit = str(record.get("commit") or "?")[:7]
+    return f"carried (code changed at {commit}, witness equal)"
+
+
 def staleness(result: dict[str, Any], known: set[str] | None = None) -> tuple[bool, str]:
     """Whether today's code would still make ``result`` (a ``result.json`` as a dict).
+
+    Cheap: it compares fingerprints and reads the carry records, it runs nothing
+    (:func:`check_results` with ``witness=True`` runs the witnesses).
 
     Parameters
     ----------
     result : dict
-        The run's record (``id``, and ``code_fingerprint`` / ``git`` when it has provenance).
+        The run's record (``id``, and ``code_fingerprint`` / ``git`` when it has provenance,
+        ``carried`` when a witness showed that later code gives the same numbers).
     known : set of str, optional
         The registered ids (looked up when not given).
 
@@ -370,9 +614,11 @@ def staleness(result: dict[str, Any], known: set[str] | None = None) -> tuple[bo
     -------
     stale : bool
         True when the result has no fingerprint (made before provenance was recorded), its id
-        is not registered, or the fingerprint of its experiment's code has changed.
+        is not registered, or the fingerprint of its experiment's code has changed and no
+        carry record names today's fingerprint.
     reason : str
-        Why it is stale, or ``"current"``.
+        Why it is stale, ``"current"``, or ``"carried (code changed at <commit>, witness
+        equal)"``.
     """
     if known is None:
         from skillkit.experiments.registry import ids
@@ -387,24 +633,57 @@ def staleness(result: dict[str, Any], known: set[str] | None = None) -> tuple[bo
     now = code_fingerprint(exp_id)
     if now == stored:
         return False, "current"
+    record = _carry(result, now)
+    if record is not None:
+        return False, _carried_reason(record)
     commit = (result.get("git") or {}).get("commit") or "?"
     return True, f"code changed since commit {commit[:7]} (fingerprint {stored} -> {now})"
 
 
-def check_results(root: str | Path) -> list[dict[str, Any]]:
+def _status(stale: bool, reason: str) -> str:
+    if stale:
+        return "stale"
+    return "current" if reason == "current" else "carried"
+
+
+def check_results(
+    root: str | Path,
+    *,
+    witness: bool = False,
+    record: bool = False,
+    progress: bool = True,
+) -> list[dict[str, Any]]:
     """Every ``result.json`` under ``root`` with whether today's code would still make it.
+
+    Parameters
+    ----------
+    root : path
+        Folder searched for ``result.json`` files.
+    witness : bool
+        Also run the smoke witness (:func:`skillkit.experiments.runner.smoke_witness`, same
+        id and seed) of each result whose code changed and that has no carry record for
+        today's code, and compare it with the stored one (:func:`compare_witness`): equal
+        means the result is carried, different means stale. Without it (the default) nothing
+        runs and such results are stale.
+    record : bool
+        With ``witness``: write a carry record (``{"code_fingerprint": today's, "commit":
+        HEAD, "checked": ISO date}``) into ``result.json`` of each result whose witness is
+        equal, so later checks find it without running anything.
+    progress : bool
+        Show a progress bar over the witness runs.
 
     Returns
     -------
     list of dict
-        ``path``, ``id``, ``stale`` (bool) and ``reason`` (why it is stale, or "current"),
-        in path order. A result without a fingerprint, or of an id no longer registered, is
-        stale.
+        ``path``, ``id``, ``status`` (``"current"``, ``"carried"`` or ``"stale"``),
+        ``stale`` (bool) and ``reason`` (``"current"``, ``"carried (...)"`` or why it is
+        stale), in path order. A result without a fingerprint, or of an id no longer
+        registered, is stale; so is one whose code changed and has no witness.
     """
     from skillkit.experiments.registry import ids
 
     known = set(ids())
-    rows = []
+    rows, todo = [], []
     for path in sorted(Path(root).rglob("result.json")):
         try:
             result = json.loads(path.read_text())
@@ -414,5 +693,65 @@ def check_results(root: str | Path) -> list[dict[str, Any]]:
             continue
         stale, reason = staleness(result, known)
         exp_id = result["id"]
-        rows.append({"path": str(path.parent), "id": exp_id, "stale": stale, "reason": reason})
+        row = {"path": str(path.parent), "id": exp_id, "status": _status(stale, reason)}
+        rows.append({**row, "stale": stale, "reason": reason})
+        changed = stale and exp_id in known and result.get("code_fingerprint")
+        if changed and witness:
+            todo.append((rows[-1], path, result))
+    if todo:
+        _check_witnesses(todo, record, progress)
     return rows
+
+
+def _check_witnesses(todo: list[tuple[dict, Path, dict]], record: bool, progress: bool) -> None:
+    """Run the fresh witnesses of ``todo`` = [(row, result.json path, result)], one per id and
+    seed, and update the rows (and, with ``record``, the files) of those that are equal."""
+    from datetime import date
+
+    from tqdm.auto import tqdm
+
+    from skillkit.experiments import runner
+
+    fresh: dict[tuple[str, int], dict | str] = {}
+    bar = tqdm(total=len(todo), desc="witnesses", disable=not progress)
+    try:
+        for row, path, result in todo:
+            stored = result.get("witness")
+            if not isinstance(stored, dict):
+                row["reason"] += "; no witness to compare"
+                bar.update()
+                continue
+            if stored.get("code_fingerprint") != result["code_fingerprint"]:
+                made, ran = result["code_fingerprint"], stored.get("code_fingerprint")
+                row["reason"] = f"witness made by other code ({ran}) than the result ({made})"
+                bar.update()
+                continue
+            key = (result["id"], int(stored.get("seed", result.get("seed", 0))))
+            if key not in fresh:
+                bar.set_postfix_str(key[0])
+                try:
+                    fresh[key] = runner.smoke_witness(key[0], key[1], trials=stored.get("trials"))
+                except Exception as exc:  # a failing run is a finding, not a crash of the check
+                    fresh[key] = f"the witness run failed ({type(exc).__name__}: {exc})"
+            bar.update()
+            now = fresh[key]
+            if isinstance(now, str):
+                row["reason"] = now
+                continue
+            equal, differences = compare_witness(stored, now)
+            if not equal:
+                shown = "; ".join(differences[:3])
+                more = f" (and {len(differences) - 3} more)" if len(differences) > 3 else ""
+                row["reason"] = f"witness differs: {shown}{more}"
+                continue
+            carry = {
+                "code_fingerprint": now["code_fingerprint"],
+                "commit": now.get("commit"),
+                "checked": date.today().isoformat(),
+            }
+            row.update(stale=False, status="carried", reason=_carried_reason(carry))
+            if record:
+                result["carried"] = [*(result.get("carried") or []), carry]
+                runner.write_result(path.parent, result)
+    finally:
+        bar.close()

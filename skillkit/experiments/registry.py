@@ -7,10 +7,9 @@ run trials anywhere:
   JSON-able numbers and numpy arrays (curves, errors, ...); ``trial`` is the trial's
   :class:`~skillkit.trial.TrialContext` (progress bar and mid-trial checkpoints).
 * ``summarize(settings, trials) -> (series, summary)`` turns the list of trial results into
-  the plotted :class:`Series` and a ``summary`` dict of headline numbers, which always
-  starts with the experiment's :class:`Verdict` (``claim``, ``holds``, ``statement``).
-* ``verdict(settings, summary) -> Verdict`` computes that verdict from the summary's numbers
-  alone, so stored results can be re-judged without recomputing.
+  the plotted :class:`Series` and a ``summary`` dict of what was measured (numbers and
+  per-trial arrays). How those numbers are judged is data: the claims spec read by
+  :mod:`skillkit.experiments.judge`, which puts its verdict in front of the summary.
 
 ``settings`` is an instance of the experiment's frozen settings dataclass
 (:mod:`skillkit.experiments.settings`), one per scale: ``smoke`` (seconds, for tests and
@@ -20,68 +19,15 @@ setting).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-import numpy as np
-
 from skillkit.experiments.settings import Settings, apply_overrides
-from skillkit.viz.series import Series, mean_band  # noqa: F401  (re-exported for experiments)
+from skillkit.series import Series, mean_band  # noqa: F401  (re-exported for experiments)
 
 SCALES = ("smoke", "quick", "paper")
 """Settings scales, smallest first."""
-
-
-@dataclass(frozen=True)
-class Verdict:
-    """Whether the thesis's claim holds in a run: the first three keys of every ``summary``.
-
-    Attributes
-    ----------
-    claim : str
-        The thesis's claim, in words (with its section or figure).
-    holds : bool or None
-        True or False as the run's numbers say; None where the experiment makes no claim
-        that numbers could decide.
-    statement : str
-        One sentence with our numbers beside the thesis's.
-    """
-
-    claim: str
-    holds: bool | None
-    statement: str
-
-    def __post_init__(self) -> None:
-        if not isinstance(self.claim, str) or not self.claim.strip():
-            raise ValueError("claim: expected a non-empty string")
-        if isinstance(self.holds, np.bool_):
-            object.__setattr__(self, "holds", bool(self.holds))
-        if not (self.holds is None or isinstance(self.holds, bool)):
-            raise ValueError(f"holds: expected True, False or None, got {self.holds!r}")
-        if not isinstance(self.statement, str) or not self.statement.strip():
-            raise ValueError("statement: expected a non-empty string")
-
-    def as_dict(self) -> dict[str, Any]:
-        """``{"claim": ..., "holds": ..., "statement": ...}``."""
-        return {"claim": self.claim, "holds": self.holds, "statement": self.statement}
-
-
-VERDICT_KEYS = ("claim", "holds", "statement")
-
-
-def fmt(value: Any, spec: str = ".3g") -> str:
-    """A number for a verdict's statement: ``format(value, spec)``, or ``"n/a"`` for a
-    missing value (None, as NaN is stored in ``result.json``, or NaN itself)."""
-    if value is None or (isinstance(value, (float, np.floating)) and not np.isfinite(value)):
-        return "n/a"
-    return format(value, spec)
-
-
-def with_verdict(summary: Mapping[str, Any], verdict: Verdict) -> dict[str, Any]:
-    """``summary`` with the verdict's keys first (replacing any earlier ones)."""
-    rest = {k: v for k, v in summary.items() if k not in VERDICT_KEYS}
-    return {**verdict.as_dict(), **rest}
 
 
 @dataclass
@@ -104,20 +50,13 @@ class Experiment:
         :class:`~skillkit.trial.TrialContext`: ``reset(total=...)``, ``update()``, and
         ``save``/``resume`` for mid-trial checkpoints).
     summarize : callable
-        ``summarize(settings, trials) -> (list[Series], dict)``; the dict starts with
-        ``verdict(settings, summary)``'s keys.
-    verdict : callable
-        ``verdict(settings, summary) -> Verdict``, a function of the summary's numbers.
+        ``summarize(settings, trials) -> (list[Series], dict)``: the plotted series and the
+        measurements.
     trials : dict
         Default number of trials per scale.
     claim : str
-        The thesis's claim the experiment checks (the verdict's ``claim``).
-    own_checks : callable, optional
-        ``own_checks(settings, summary) -> dict``: our conditions beyond the thesis's
-        sentences (name → :func:`~skillkit.experiments.claims.own_check`), from the summary's
-        numbers alone, as ``summarize`` stores them in ``summary["own_checks"]``; shown beside
-        the verdict, never deciding it. Kept here so a stored summary can be checked again
-        (``data/migrate_summaries.py``). None: the experiment has none.
+        The claim in plain words; filled from the claims spec (``plain``) at registration
+        when empty. An experiment registered outside this package must give it.
     """
 
     id: str
@@ -126,10 +65,8 @@ class Experiment:
     settings: dict[str, Settings]
     run_trial: Callable[..., dict]
     summarize: Callable[..., tuple[list[Series], dict]]
-    verdict: Callable[[Settings, dict], Verdict]
     trials: dict[str, int] = field(default_factory=lambda: dict.fromkeys(SCALES, 1))
     claim: str = ""
-    own_checks: Callable[[Settings, dict], dict] | None = None
 
     def settings_for(self, scale: str, **overrides) -> Settings:
         """The settings of ``scale`` with ``overrides`` applied, names and types checked.
@@ -175,7 +112,12 @@ def register(experiment: Experiment) -> Experiment:
                 f"trials: experiment {experiment.id!r} lacks a trial count for {scale!r}"
             )
     if not experiment.claim:
-        raise ValueError(f"claim: experiment {experiment.id!r} states no claim")
+        from skillkit.experiments.judge import specs
+
+        claim = specs().get(experiment.id)
+        if claim is None:
+            raise ValueError(f"claim: experiment {experiment.id!r} has no claim in the spec")
+        experiment.claim = claim.plain
     _EXPERIMENTS[experiment.id] = experiment
     return experiment
 

@@ -17,8 +17,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from skillkit.experiments.registry import VERDICT_KEYS
-
 __all__ = [
     "Run",
     "claim_rows",
@@ -79,52 +77,64 @@ class Run:
 
     @property
     def holds(self) -> bool | None:
-        """Whether the thesis's claim holds here (None: no claim, or no verdict recorded)."""
+        """True / False when the claim holds / does not hold here; None when undecided or not
+        judged (:attr:`outcome` says which)."""
         return self.summary.get("holds")
 
     @property
-    def verdict(self) -> str:
-        """One line: holds / does not hold / undecided, and the statement with our numbers
-        (the words of the figure's subtitle, :func:`skillkit.viz.plots.verdict`)."""
-        from skillkit.viz.plots import verdict
+    def judgement(self):
+        """The claims engine's verdict on this run
+        (:class:`~skillkit.experiments.judge.Judgement`), or None for an id the spec does not
+        judge."""
+        from skillkit.experiments import judge
 
-        v = verdict(self.result)
-        if v is None:
-            return "no verdict recorded"
-        return f"{v.word}: {v.statement}" if v.statement else v.word
+        if not judge.is_judged(self.id):
+            return None
+        return judge.judge(self.id, self.summary, self.scale, self.settings)
+
+    @property
+    def outcome(self) -> str:
+        """ "holds", "does not hold", "undecided" or "not judged"."""
+        j = self.judgement
+        return "no verdict recorded" if j is None else j.outcome
+
+    @property
+    def verdict(self) -> str:
+        """One line: the key number with its 95% interval beside the thesis's, and the
+        outcome (the card's second line)."""
+        j = self.judgement
+        return "no verdict recorded" if j is None else j.verdict_line()
+
+    @property
+    def card(self) -> str:
+        """At most three lines of at most 100 characters: the claim, the verdict with its key
+        number and interval beside the thesis's, where the details are."""
+        j = self.judgement
+        return f"{self.id}: {self.title}\nno verdict recorded" if j is None else j.card()
+
+    def details(self) -> str:
+        """Markdown: the thesis's sentences, every reading with its interval, reason and when
+        it was fixed, our own checks, the setup table, and which code made the run."""
+        j = self.judgement
+        body = "" if j is None else j.details()
+        git = self.result.get("git") or {}
+        made = f"made by {(git.get('commit') or '?')[:7]}"
+        stale = self.stale
+        made += f"; **stale**: {stale}" if stale else ""
+        return (
+            f"{body}\n\n{self.scale} scale, {self.result.get('trials')} trial(s), seed "
+            f"{self.result.get('seed')}; {made}; `{self.path}`\n"
+        )
 
     @property
     def stale(self) -> str | None:
         """Why today's code would not make this run any more (no code fingerprint recorded,
-        or the experiment's code changed since; :func:`~skillkit.experiments.provenance.
-        staleness`), or None when it is current."""
+        or the experiment's code changed since and no witness carried it;
+        :func:`~skillkit.experiments.provenance.staleness`), or None when it is current."""
         from skillkit.experiments.provenance import staleness
 
         stale, reason = staleness(self.result)
         return reason if stale else None
-
-    @property
-    def own_checks(self) -> str:
-        """Our own conditions beyond the thesis and how they came out, one line ("" when the
-        summary has none; :attr:`skillkit.viz.plots.Verdict.own_words`)."""
-        from skillkit.viz.plots import verdict
-
-        v = verdict(self.result)
-        return "" if v is None else v.own_words
-
-    def headline(self, n: int = 8) -> dict[str, Any]:
-        """Up to ``n`` scalar summary entries besides the verdict (numbers, short strings)."""
-        out: dict[str, Any] = {}
-        for key, value in self.summary.items():
-            if key in VERDICT_KEYS or key in ("setup", "not_judged"):
-                continue
-            if isinstance(value, (int, float, bool)) or (
-                isinstance(value, str) and len(value) <= 60
-            ):
-                out[key] = value
-            if len(out) == n:
-                break
-        return out
 
     # ---------------------------------------------------------------- figures
     def figure(self):
@@ -153,31 +163,11 @@ class Run:
 
     # ---------------------------------------------------------------- display
     def _repr_markdown_(self) -> str:
-        lines = [
-            f"**{self.id} — {self.title}** ({self.scale} scale, {self.result.get('trials')} "
-            f"trial(s), seed {self.result.get('seed')})",
-            "",
-        ]
-        claim = self.summary.get("claim")
-        if claim:
-            lines += [f"*Thesis:* {claim}", ""]
-        lines += [f"*Here:* {self.verdict}", ""]
-        stale = self.stale
-        if stale:
-            lines += [f"*Stale:* {stale}; today's code may give other numbers.", ""]
-        own = self.own_checks
-        if own:
-            lines += [f"*Our own checks, beyond the thesis:* {own}", ""]
-        head = self.headline()
-        if head:
-            lines += ["| summary | value |", "|---|---|"]
-            lines += [f"| `{k}` | {_fmt(v)} |" for k, v in head.items()]
-            lines.append("")
-        lines.append(f"`{self.path}`")
-        return "\n".join(lines)
+        card = "  \n".join(self.card.split("\n"))
+        return f"{card}\n\n<details><summary>details</summary>\n\n{self.details()}\n</details>\n"
 
     def __repr__(self) -> str:
-        return f"Run({self.id!r}, scale={self.scale!r}, {self.verdict[:120]!r}, path='{self.path}')"
+        return f"Run({self.id!r}, scale={self.scale!r}, {self.verdict!r}, path='{self.path}')"
 
     # ---------------------------------------------------------------- path-like
     def __fspath__(self) -> str:
@@ -185,12 +175,6 @@ class Run:
 
     def __truediv__(self, other) -> Path:
         return self.path / other
-
-
-def _fmt(value) -> str:
-    if isinstance(value, float):
-        return f"{value:.4g}"
-    return str(value)
 
 
 def load_run(path: str | os.PathLike) -> Run:
@@ -216,7 +200,22 @@ def load_run(path: str | os.PathLike) -> Run:
         raise ValueError(
             f"path: {file} holds no run (expected a JSON object, got {type(result).__name__})"
         )
-    return Run(folder, result)
+    return Run(folder, rejudged(result))
+
+
+def rejudged(result: dict) -> dict:
+    """``result`` with its summary judged again by today's claims spec (the measurements are
+    kept; no trial is re-run)."""
+    from skillkit.experiments import judge
+
+    summary = result.get("summary")
+    if not isinstance(summary, dict):
+        return result
+    settings = result.get("settings") if isinstance(result.get("settings"), dict) else {}
+    exp_id, scale = str(result.get("id", "")), str(result.get("scale", ""))
+    summary = judge.apply(summary, exp_id, scale, settings)
+    claim = summary.get("claim", result.get("claim"))
+    return {**result, **({"claim": claim} if "claim" in result else {}), "summary": summary}
 
 
 def results_root() -> Path:
@@ -264,43 +263,36 @@ def claim_rows(root: str | os.PathLike | None = None, ids: Any = None) -> list[d
     -------
     list of dict
         ``id``; ``variant`` (the settings it overrides, "" for the registered paper
-        settings); ``thesis`` (the thesis's sentences, each followed by its location in
-        parentheses); ``where`` (the locations); ``verdict`` (:attr:`Verdict.word`);
-        ``statement`` (our numbers against the thesis's); ``own`` (our own checks, beside the
-        verdict); ``made`` (the commit that made it and whether today's code would make it:
-        a stale result says why); ``stale`` (bool); ``path``.
+        settings); ``claim`` (plain words); ``verdict`` (holds / does not hold / undecided /
+        not judged); ``ours`` (the key reading's label, estimate and 95% interval);
+        ``thesis`` (the thesis's number); ``card``; ``made`` (the commit that made it, and
+        whether it is current, carried by its witness or stale); ``stale`` (bool); ``path``.
     """
     from skillkit.experiments.provenance import check_results
     from skillkit.experiments.registry import ids as registered
-    from skillkit.viz.plots import verdict
 
     root = Path(root) if root is not None else results_root()
     wanted = None if ids is None else {str(i) for i in ids}
     order = {exp_id: i for i, exp_id in enumerate(registered())}
-    found = [r for r in check_results(root) if wanted is None or r["id"] in wanted]
+    found = [r for r in check_results(root, progress=False) if wanted is None or r["id"] in wanted]
     rows = []
     for row in sorted(found, key=lambda r: (order.get(r["id"], len(order)), r["path"])):
         run = load_run(row["path"])
-        v = verdict(run.result)
-        quotes = [q for q in run.summary.get("thesis") or [] if isinstance(q, dict)]
-        git = run.result.get("git") or (run.result.get("summary_migrated") or {}).get("git") or {}
-        commit = (git.get("commit") or "?")[:7]
-        made = f"{commit}, current" if not row["stale"] else f"{commit}, stale: {row['reason']}"
-        if run.result.get("summary_migrated") and "code_fingerprint" not in run.result:
-            made = f"numbers before provenance; verdict re-judged at {commit}"
+        j = run.judgement
+        key = None if j is None else j.key()
+        commit = ((run.result.get("git") or {}).get("commit") or "?")[:7]
+        status = row["status"]
         overrides = run.result.get("overrides") or {}
         rows.append(
             {
                 "id": run.id,
                 "variant": ", ".join(f"{k} = {v}" for k, v in overrides.items()),
-                "thesis": " ".join(
-                    f"“{q.get('quote', '')}” ({q.get('location', '')})" for q in quotes
-                ),
-                "where": "; ".join(dict.fromkeys(q.get("location", "") for q in quotes)),
-                "verdict": "no verdict recorded" if v is None else v.word,
-                "statement": "" if v is None else v.statement,
-                "own": "" if v is None else v.own_words,
-                "made": made,
+                "claim": run.summary.get("claim", ""),
+                "verdict": run.outcome,
+                "ours": "" if key is None else f"{key.part.label} {key.number()}",
+                "thesis": "" if key is None else key.part.thesis,
+                "card": run.card,
+                "made": f"{commit}, {status}",
                 "stale": bool(row["stale"]),
                 "path": row["path"],
             }
@@ -385,14 +377,10 @@ def comparison_markdown(summary: dict) -> str:
 
 
 def scoreboard(root: str | os.PathLike | None = None) -> str:
-    """The README's table "What reproduces so far", made from the stored results.
-
-    One row per ``result.json`` under ``root`` (default :func:`results_root`), in thesis order
-    (:func:`claim_rows`): the id, the thesis's sentences with their locations, our verdict
-    (:attr:`skillkit.viz.plots.Verdict.word`) with its statement, and our own checks beside it.
-    A result made before provenance was recorded (or whose code changed since) is marked
-    "stale" with the commit that made or re-judged it, so the table cannot claim more than the
-    stored files do.
+    """The README's scoreboard, made from the stored results: one line per result, in thesis
+    order (:func:`claim_rows`): id, the claim in plain words, the verdict, our key number with
+    its 95% interval across trials, the thesis's number, and the commit that made it (current,
+    carried by its witness, or stale). Comparisons of ours (``cmp.*``) have their own table.
 
     Returns
     -------
@@ -400,15 +388,15 @@ def scoreboard(root: str | os.PathLike | None = None) -> str:
         A Markdown table (header and one line per result), ending in a newline.
     """
     lines = [
-        "| id | the thesis says (where) | here | our own checks | made by |",
-        "|---|---|---|---|---|",
+        "| id | claim | verdict | ours [95% interval] | thesis | made by |",
+        "|---|---|---|---|---|---|",
     ]
     for row in claim_rows(root):
         if row["id"].startswith(COMPARISON_PREFIX):  # not a thesis claim: its own table
             continue
-        here = f"**{row['verdict']}** — {row['statement']}" if row["statement"] else row["verdict"]
         name = f"{row['id']} ({row['variant']})" if row["variant"] else row["id"]
-        cells = [name, row["thesis"] or row["where"], here, row["own"], row["made"]]
+        verdict = f"**{row['verdict']}**" if row["verdict"] != "not judged" else row["verdict"]
+        cells = [name, row["claim"], verdict, row["ours"], row["thesis"], row["made"]]
         cells = [c.replace("|", "\\|").replace("\n", " ") for c in cells]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"

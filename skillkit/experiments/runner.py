@@ -16,6 +16,12 @@ trial and in total in ``result.json`` (``numerical_events``) and in the summary
 user must act on) are written above the progress bars, not through them; those of trials run
 in other processes come back with their results and are issued by the process that started
 them.
+
+A run at ``quick`` or ``paper`` scale also stores its *witness* (:func:`smoke_witness`): the
+measurements of a smoke run of the same experiment and seed, made by the same code. When the
+code changes later, a fresh witness equal to the stored one carries the result forward
+without rerunning it (:func:`skillkit.experiments.provenance.check_results`);
+:func:`add_witness` gives a stored result its witness afterwards.
 """
 
 from __future__ import annotations
@@ -40,8 +46,15 @@ from tqdm.auto import tqdm
 
 from skillkit._validation import check_count
 from skillkit.experiments import checkpoint
-from skillkit.experiments.claims import judged
-from skillkit.experiments.provenance import provenance
+from skillkit.experiments.judge import apply as judged
+from skillkit.experiments.provenance import (
+    WITNESS_SCALE,
+    code_fingerprint,
+    measurements,
+    provenance,
+    series_measurements,
+    unstable_paths,
+)
 from skillkit.experiments.registry import get
 from skillkit.experiments.run import Run
 from skillkit.experiments.settings import Settings
@@ -436,7 +449,8 @@ def run_trials(
     results = [done[i][0] for i in range(n_trials)]
     timing = [done[i][1] for i in range(n_trials)]
     series, summary = exp.summarize(settings, results)
-    summary = judged(summary, exp.id, scale)  # + the thesis's sentences; smoke is not judged
+    # the judgement of the claims spec in front of the measurements; smoke is not judged
+    summary = judged(summary, exp.id, scale, to_jsonable(settings.to_dict()))
     events = _event_totals([t["numerical_events"] for t in timing])
     # After the verdict keys: the counts over the trials that have a record. Not named
     # "numerical_events": fig4.5's summary has its own, per model, under that name.
@@ -580,6 +594,7 @@ def reproduce(
     address: str | None = None,
     fresh: bool = False,
     html: bool = True,
+    witness: bool = True,
     **overrides,
 ) -> Run:
     """Run an experiment, resuming from its checkpoints, and write its results.
@@ -590,7 +605,10 @@ def reproduce(
     headline numbers), ``.figure()`` and ``.png()``; in Jupyter it shows itself as a card. It is
     path-like (``run.path`` is the folder; ``os.fspath(run)`` and ``run / "result.json"`` work).
     ``fresh=True`` deletes earlier checkpoints of this run first; ``html=False`` skips the
-    (4–5 MB, self-contained) HTML figure. Other arguments as in :func:`run_trials`; they
+    (4–5 MB, self-contained) HTML figure. At ``quick`` and ``paper`` scale the result is then
+    given its witness (:func:`smoke_witness`, the smoke scale of the same id and seed, from
+    :data:`WITNESS_REPEATS` runs; kept from the folder's earlier ``result.json`` when the same
+    code made it) unless ``witness=False``. Other arguments as in :func:`run_trials`; they
     and the overrides are checked before anything runs or is deleted.
     """
     from skillkit.viz.plots import write_figures
@@ -623,9 +641,286 @@ def reproduce(
             if arr.dtype != object:
                 trial_arrays[f"trial{i}__{k}"] = arr
     np.savez_compressed(folder / "trials.npz", **trial_arrays)
-    tmp = folder / "result.json.tmp"
+    previous = _stored_witness(folder)
+    text = write_result(folder, result)
+    write_figures(result, folder, html=html)
+    if witness and scale in WITNESSED_SCALES:
+        result = json.loads(text)
+        made = _witness_for(result, previous, progress)
+        if made is not None:
+            result["witness"] = made
+            text = write_result(folder, result)
+    return Run(folder, json.loads(text))  # exactly what result.json holds, without rereading it
+
+
+def write_result(folder: str | Path, result: dict) -> str:
+    """Write ``result`` as ``folder/result.json``, atomically (a temporary file renamed over
+    the old one), in the store's format: ``json.dumps(result, indent=1)``, keys in the dict's
+    order, no trailing newline.
+
+    Returns
+    -------
+    str
+        The text written.
+    """
+    folder = Path(folder)
     text = json.dumps(result, indent=1)
+    tmp = folder / "result.json.tmp"
     tmp.write_text(text)
     tmp.replace(folder / "result.json")
-    write_figures(result, folder, html=html)
-    return Run(folder, json.loads(text))  # exactly what result.json holds, without rereading it
+    return text
+
+
+def _stored_witness(folder: Path) -> dict | None:
+    """The witness in ``folder/result.json`` before it is rewritten, or None."""
+    try:
+        old = json.loads((folder / "result.json").read_text())
+    except (OSError, ValueError):
+        return None
+    made = old.get("witness") if isinstance(old, dict) else None
+    return made if isinstance(made, dict) else None
+
+
+def _witness_for(result: dict, previous: dict | None, progress: bool) -> dict | None:
+    """The witness of a just written ``result``: ``previous`` (the one its folder held) when
+    the same code made it for the same seed, else a new :func:`smoke_witness`. None, with a
+    warning, when the witness run fails or the code on disk changed during the run (then no
+    witness could show what the result's code does)."""
+    fingerprint, seed = result.get("code_fingerprint"), result["seed"]
+    if fingerprint is None:
+        return None
+    if (
+        previous is not None
+        and previous.get("code_fingerprint") == fingerprint
+        and previous.get("seed") == seed
+    ):
+        return previous
+    try:
+        made = smoke_witness(result["id"], seed, repeats=WITNESS_REPEATS, progress=progress)
+    except Exception as exc:  # the result stays valid without a witness
+        warnings.warn(
+            f"{result['id']}: the smoke witness run failed ({type(exc).__name__}: {exc}); the "
+            "result is stored without a witness",
+            RuntimeWarning,
+            stacklevel=3,
+        )
+        return None
+    if made["code_fingerprint"] != fingerprint:
+        warnings.warn(
+            f"{result['id']}: the code changed while the run ran (fingerprint {fingerprint} -> "
+            f"{made['code_fingerprint']}); the result is stored without a witness",
+            RuntimeWarning,
+            stacklevel=3,
+        )
+        return None
+    return made
+
+
+WITNESSED_SCALES = ("quick", "paper")
+"""Scales whose results :func:`reproduce` stores with a smoke witness."""
+
+WITNESS_REPEATS = 2
+"""Smoke runs a stored witness is made from: the measurements that differ between them (a
+measured time, e.g.) are listed as ``unstable`` and never compared."""
+
+
+def smoke_witness(
+    exp_id: str,
+    seed: int = 0,
+    *,
+    trials: int | None = None,
+    repeats: int = 1,
+    progress: bool = False,
+) -> dict:
+    """The measurements of a smoke run of ``exp_id``, made by the code installed now.
+
+    Runs :func:`run_trials` at ``smoke`` scale (the local executor, no checkpoints, no
+    figures) with the warnings of its trials silenced: a witness is a check of the code, its
+    warnings are not the stored run's.
+
+    Parameters
+    ----------
+    exp_id : str
+        Experiment id.
+    seed : int
+        Root seed (the stored result's).
+    trials : int, optional
+        Number of trials (default: the experiment's smoke default).
+    repeats : int
+        Smoke runs to make; with 2 or more, the measurements that differ between them are
+        listed under ``unstable`` (:func:`skillkit.experiments.provenance.unstable_paths`).
+    progress : bool
+        Show the trials' progress bars.
+
+    Returns
+    -------
+    dict
+        ``{"scale": "smoke", "seed", "trials", "commit" (git commit or None),
+        "code_fingerprint", "summary" (:func:`~skillkit.experiments.provenance.measurements`
+        of the summary), "series" (:func:`~skillkit.experiments.provenance.series_measurements`),
+        "unstable" (list of paths)}``.
+    """
+    check_count(repeats, "repeats")
+    made = []
+    for _ in range(repeats):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            result = run_trials(exp_id, WITNESS_SCALE, trials, seed, progress, executor="local")
+        made.append(
+            {
+                "scale": WITNESS_SCALE,
+                "seed": int(seed),
+                "trials": result["trials"],
+                "commit": (result.get("git") or {}).get("commit"),
+                "code_fingerprint": result["code_fingerprint"],
+                "summary": measurements(result["summary"]),
+                "series": series_measurements(result["series"]),
+            }
+        )
+    unstable = sorted({p for other in made[1:] for p in unstable_paths(made[0], other)})
+    return {**made[0], "unstable": unstable}
+
+
+def add_witness(folder: str | Path, *, progress: bool = False) -> dict:
+    """Give a stored result its smoke witness (:func:`smoke_witness`, from
+    :data:`WITNESS_REPEATS` runs), written as ``"witness"`` into its ``result.json``; every
+    other key is kept as it was.
+
+    Parameters
+    ----------
+    folder : path
+        A run folder (or its ``result.json``).
+    progress : bool
+        Show the trials' progress bars.
+
+    Returns
+    -------
+    dict
+        The witness.
+
+    Raises
+    ------
+    ValueError
+        The result has no code fingerprint, or today's code fingerprint of its experiment
+        differs from it (a witness must come from the code that made the result), or the code
+        changed while the witness ran.
+    """
+    folder = Path(folder)
+    if folder.name == "result.json":
+        folder = folder.parent
+    result = json.loads((folder / "result.json").read_text())
+    exp_id, made_by = result.get("id"), result.get("code_fingerprint")
+    now = code_fingerprint(exp_id)
+    if made_by != now:
+        raise ValueError(
+            f"{folder}: the result was made by code of fingerprint {made_by}, today's code of "
+            f"{exp_id} has {now}: a witness must come from the code that made the result "
+            "(check out that code, or reproduce the result again)"
+        )
+    seed = int(result.get("seed", 0))
+    made = smoke_witness(exp_id, seed, repeats=WITNESS_REPEATS, progress=progress)
+    if made["code_fingerprint"] != made_by:
+        raise ValueError(
+            f"{folder}: the code of {exp_id} changed while its witness ran (fingerprint "
+            f"{made_by} -> {made['code_fingerprint']}); no witness written"
+        )
+    result["witness"] = made
+    write_result(folder, result)
+    return made
+
+
+def load_trials(folder: str | Path) -> list[dict[str, np.ndarray]]:
+    """The per-trial arrays of a run folder's ``trials.npz`` (keys ``trial{i}__{name}``), one
+    dict per trial in order (arrays a trial returned that were ragged or not numeric were
+    never stored)."""
+    with np.load(Path(folder) / "trials.npz", allow_pickle=False) as z:
+        trials: dict[int, dict] = {}
+        for key in z.files:
+            head, _, name = key.partition("__")
+            value = z[key]
+            trials.setdefault(int(head.removeprefix("trial")), {})[name] = (
+                value.item() if value.ndim == 0 else value
+            )
+    return [trials[i] for i in sorted(trials)]
+
+
+def _merge_added(stored: dict, fresh: dict) -> list[str]:
+    """Add to ``stored`` (in place) the keys of ``fresh`` it lacks, recursively through dicts;
+    the paths added."""
+    added = []
+    for key, value in fresh.items():
+        if key not in stored:
+            stored[key] = value
+            added.append(key)
+        elif isinstance(stored[key], dict) and isinstance(value, dict):
+            added += [f"{key}.{p}" for p in _merge_added(stored[key], value)]
+    return added
+
+
+def remeasure(folder: str | Path, *, write: bool = False) -> list[str]:
+    """Summarise a stored run's trials (``trials.npz``) again with today's code, and add the
+    measurements its stored summary lacks (a per-trial array a claim's reading needs).
+
+    Today's summary must reproduce every measurement the stored summary and today's both have
+    (within the witness tolerance of :func:`~skillkit.experiments.provenance.compare_witness`):
+    otherwise nothing is written. Measurements today's summary cannot make from the stored
+    arrays (what the runner added, or arrays a trial returned ragged: missing or None today)
+    are kept as stored. The
+    judgement in front of the summary is made again from the claims spec. The run records
+    ``remeasured``: the commit, the date and the paths added.
+
+    Parameters
+    ----------
+    folder : path
+        A stored run folder with ``result.json`` and ``trials.npz``.
+    write : bool
+        Write the new summary into ``result.json`` (False: only report).
+
+    Returns
+    -------
+    list of str
+        The summary paths added.
+
+    Raises
+    ------
+    ValueError
+        Today's summary disagrees with a stored measurement (the message names the paths), or
+        the stored trials cannot be summarised by today's code.
+    """
+    from datetime import date
+
+    from skillkit.experiments.provenance import _walk, git_state, measurements
+    from skillkit.experiments.settings import apply_overrides
+
+    folder = Path(folder)
+    result = json.loads((folder / "result.json").read_text())
+    exp = get(result["id"])
+    settings = apply_overrides(exp.settings[result["scale"]], result["settings"])
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            _, fresh = exp.summarize(settings, load_trials(folder))
+    except (KeyError, IndexError, TypeError, ValueError) as exc:
+        msg = f"{folder}: today's summarize cannot read the stored trials ({exc!r})"
+        raise ValueError(msg) from None
+    fresh = measurements(json.loads(json.dumps(to_jsonable(fresh))))
+    stored = measurements(result["summary"])
+    found: list[tuple[str, str]] = []
+    _walk(stored, fresh, "summary", set(), found)
+    kept = ("added: ", ": missing (stored")  # new; or not made from the stored arrays
+    changed = [t for _, t in found if not t.startswith(kept[0]) and kept[1] not in t]
+    changed = [t for t in changed if not t.endswith("-> None")]
+    if changed:
+        raise ValueError(f"{folder}: today's summary differs from the stored one: {changed[:3]}")
+    summary = {k: v for k, v in result["summary"].items()}
+    added = _merge_added(summary, fresh)
+    if write and added:
+        settings_dict = result["settings"]
+        result["summary"] = judged(summary, exp.id, result["scale"], settings_dict)
+        result["remeasured"] = {
+            "commit": git_state()["commit"],
+            "checked": date.today().isoformat(),
+            "added": [f"summary.{p}" for p in added],
+        }
+        write_result(folder, result)
+    return added

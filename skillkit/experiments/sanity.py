@@ -17,6 +17,9 @@ weights with KL ≈ 0.5 from uniform, like REPS with ε = 0.5).
 The error of a policy is the parameter error ‖[a, A] − [a*, A*]‖_F of the least-squares linear
 fit to its mean function on a 5 × 5 grid of contexts (exactly the parameter error for the
 linear-Gaussian policies of REPS and RWR; a linear summary of CrKR's kernel mean).
+
+The thesis reports no result on this problem: our checks on it (REPS's and RWR's final
+parameter error below ``threshold``) are in ``skillkit/data/claims/ch3.toml``.
 """
 
 from __future__ import annotations
@@ -25,14 +28,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from skillkit.experiments.registry import (
-    Experiment,
-    Series,
-    Verdict,
-    fmt,
-    register,
-    with_verdict,
-)
+from skillkit.experiments.registry import Experiment, Series, register
 from skillkit.experiments.settings import Settings, setting
 from skillkit.models.kernels import Linear
 from skillkit.policies.gaussian import LinearGaussianPolicy
@@ -111,12 +107,6 @@ def parameter_error(policy, optimum: np.ndarray, grid: np.ndarray) -> float:
     design = np.column_stack([np.ones(grid.shape[0]), grid])
     coef = np.linalg.lstsq(design, np.atleast_2d(policy.mean_of(grid)), rcond=None)[0].T
     return float(np.linalg.norm(coef - optimum))
-
-
-CLAIM = (
-    "Contextual REPS (ε = 0.5, 25 rollouts per update, last 200 reused) reaches the optimal "
-    "linear policy (parameter error < 1e-2) in every trial; RWR and CrKR are measured."
-)
 
 
 @dataclass(frozen=True)
@@ -212,7 +202,11 @@ def run_trial(settings: SanitySettings, rng: np.random.Generator, trial: TrialCo
 
 def summarize(settings: SanitySettings, trials: list[dict]) -> tuple[list[Series], dict]:
     series: list[Series] = []
-    summary: dict = {"threshold": settings.threshold, "trials": len(trials)}
+    summary: dict = {
+        "threshold": settings.threshold,
+        "trials": len(trials),
+        "n_trials": len(trials),
+    }
     for name in ALGORITHMS:
         x = np.asarray(trials[0][f"{name}_rollouts"]).tolist()
         err = np.array([t[f"{name}_error"] for t in trials])
@@ -255,31 +249,7 @@ def summarize(settings: SanitySettings, trials: list[dict]) -> tuple[list[Series
                 np.median([t[f"{name}_mean_reward"][-1] for t in trials])
             ),
         }
-    return series, with_verdict(summary, verdict(settings, summary))
-
-
-def verdict(settings: SanitySettings, summary: dict) -> Verdict:
-    """Our own criterion, not a thesis result: contextual REPS reached the threshold in every
-    trial. The thesis reports no result on this problem (it is ours), so the runner sets
-    ``holds`` to None and keeps this decision as ``own_checks["own_criterion"]``
-    (:data:`~skillkit.experiments.claims.NO_RESULT`)."""
-    reps, n = summary["REPS"], summary["trials"]
-    return Verdict(
-        CLAIM,
-        bool(reps["trials_reaching_threshold"] == n),
-        f"REPS reached parameter error < {summary['threshold']:g} in "
-        f"{reps['trials_reaching_threshold']}/{n} trials (our criterion: {n}/{n}; the thesis "
-        f"reports no result on this problem)"
-        + (
-            ", in none of them"
-            if reps["rollouts_to_threshold_max"] is None
-            else f", after at most {fmt(reps['rollouts_to_threshold_max'], 'g')} rollouts "
-            f"(median {fmt(reps['rollouts_to_threshold_median'], 'g')})"
-        )
-        + "; final errors (median): "
-        + ", ".join(f"{a} {summary[a]['final_error_median']:.2e}" for a in ALGORITHMS)
-        + ".",
-    )
+    return series, summary
 
 
 register(
@@ -290,8 +260,6 @@ register(
         settings=SCALES,
         run_trial=run_trial,
         summarize=summarize,
-        verdict=verdict,
         trials={"smoke": 2, "quick": 3, "paper": 10},
-        claim=CLAIM,
     )
 )

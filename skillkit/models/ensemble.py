@@ -1,6 +1,6 @@
 r"""A probabilistic ensemble of neural networks as a forward model (PETS, Chua et al. 2018).
 
-For when GPs get slow or the data grow (issue #34): K small multilayer perceptrons, each
+For when GPs get slow or the data grow: K small multilayer perceptrons, each
 fitted to its own bootstrap resample of the transitions, each predicting a Gaussian
 
 .. math:: p_k(y \mid z) = \mathcal{N}\big(\mu_k(z), \operatorname{diag}\sigma_k^2(z)\big),

@@ -479,7 +479,7 @@ class GPPredictor:
 
     def __setstate__(self, state: dict) -> None:
         self.__dict__.update(state)
-        if "_query_scale" not in state:  # pickled before the float32 path: rebuild the caches
+        if "_query_scale" not in state:  # pickled without the float32 caches: rebuild them
             self._set_caches(self)
 
     def _set_caches(self, source: GPPredictor) -> None:
@@ -605,9 +605,8 @@ class GPPredictor:
         raised entries change kᵀβ by at most M·max|β|·e^{−600}σ_f² and ‖Rk‖² by less, ~250
         orders of magnitude below float64's resolution of any mean or variance that is not
         itself below 1e-240; a floor at e^{−700} was measured 2.1x *slower* than none, since
-        its products with small weights are denormal. (Before issue #18's follow-up the
-        float64 path had no floor; results are bit-identical on every stored experiment's
-        smoke run, see ``data/README.md``.)
+        its products with small weights are denormal. (With the floor and without it, every
+        stored experiment's smoke run is bit-identical, see ``data/README.md``.)
         """
         query = se_operands(x.unsqueeze(0).to(self._support_operand.dtype), self._query_scale)
         e = query @ self._support_operand.transpose(-1, -2)
@@ -711,7 +710,7 @@ class HyperCurb:
 
     Why: near an equilibrium the inputs [x, u] of a forward model lie close to a linear
     subspace, and maximum likelihood then drives the SE kernel to its linear limit (w → ∞,
-    σ_f² → ∞, σ_f²/var(y) in the hundreds on balancing data, issue #16): the latent variance
+    σ_f² → ∞, σ_f²/var(y) in the hundreds on balancing data): the latent variance
     off the data explodes and sampled predictions diverge. The thesis does not say how it
     trained; the PILCO toolbox's defaults (Rasmussen & McHutchon: r_w = 100, r_s = 500,
     p = 30, added to the summed negative log marginal likelihood) are used here.
@@ -787,11 +786,11 @@ def optimize(
     evaluation fails (a non-finite objective or gradient, or a failed Cholesky
     factorisation) the last accepted iterate is restored (a ``"restored_iterate"`` event,
     :func:`report_event`). A line-search trial point is never
-    returned, even when its objective was lower: the line search rejected it (issue #16
-    found a rejected, degenerate point σ_f² → 0, ℓ → 0 restored this way). Evaluations at an
-    accepted point are not repeated (they are cached), so the iterates, evaluation budget
-    and result are those of a single ``step`` call with ``max_iter = n_steps``. Adam keeps
-    the best of its iterates (every Adam step is accepted).
+    returned, even when its objective was lower: the line search rejected it (restoring the
+    best value seen would return rejected, degenerate points such as σ_f² → 0, ℓ → 0).
+    Evaluations at an accepted point are not repeated (they are cached), so the iterates,
+    evaluation budget and result are those of a single ``step`` call with
+    ``max_iter = n_steps``. Adam keeps the best of its iterates (every Adam step is accepted).
 
     Parameters
     ----------
@@ -939,7 +938,7 @@ class _GPRegression:
     ``_build``, ``_loss``, ``_parameters`` and ``_make_predictor``."""
 
     #: Where training happens (set by ``__init__``; this default serves objects pickled in
-    #: checkpoints before the ``device`` argument existed).
+    #: checkpoints without a ``device``).
     device = torch.device("cpu")
 
     def __init__(
@@ -1054,7 +1053,7 @@ class _GPRegression:
         self._build(rng)
         sd = X.std(axis=0)
         input_std = torch.as_tensor(np.where(sd > 0, sd, 1.0), dtype=DTYPE, device=self.device)
-        curb = getattr(self, "curb", None)  # objects pickled before issue #16 have none
+        curb = getattr(self, "curb", None)  # objects pickled without a curb have none
 
         def objective() -> torch.Tensor:
             loss = self._loss()
@@ -1407,9 +1406,9 @@ class ForwardModel:
     ``target="next"`` (default): x_{t+1} = f(x_t, u_t) + ε, the thesis's model (Secs 4.2.4,
     5.1.1; the prior mean is the training mean of x_{t+1}).
     ``target="delta"``: x_{t+1} = x_t + f(x_t, u_t) + ε, the GP learns Δx (PILCO's choice;
-    the prior predicts "no change" far from data). Issue #16 measured the difference on
-    balancing data: with x′ the conditional embedding of Ch. 5 beats the GP near the data as
-    the thesis reports; with Δx it did not. For the thesis's hyper-parameter treatment give
+    the prior predicts "no change" far from data). Measured on balancing data: with x′ the
+    conditional embedding of Ch. 5 beats the GP near the data as the thesis reports; with Δx
+    it does not. For the thesis's hyper-parameter treatment give
     the GP a :class:`HyperCurb` (``FITC(..., curb=HyperCurb())``).
     The GP input is z = [x_t, u_t]; each state dimension has its own GP.
 

@@ -9,16 +9,16 @@ model_moment_step` gives it as :func:`~skillkit.search.pilco.linear_gaussian_ste
 Σ_w and c). Table 4.2's experiment uses it to separate what the search methods do from what
 the GP models predict.
 
-**One noise convention: the full residual covariance Σ_w** (issue #30), in PILCO's exact
+**One noise convention: the full residual covariance Σ_w**, in PILCO's exact
 step and in sampled trajectories (x' = A x + B u + c + F ε, F Fᵀ = Σ_w, ε ~ N(0, I)). The
 alternative, independent noise per state dimension (diag Σ_w, as the GP forward models have),
-was the sampler's until #30 and is the wrong model of the data this model is fitted to: on
+is the wrong model of the data this model is fitted to: on
 the balancing robot the residuals of positions and velocities are correlated at 0.99 (one
 unmodelled torque moves both), and independent position and velocity noise is amplified by
 the high-gain feedback. Measured (``docs/measure_tab42_models.py``'s setting, seed 0, π₀'s
 gain, 40 steps; the simulator's mean reward is −113.2): the exact expected return with full Σ_w
-is −79, −109, −334 for torque excitation 0, 10, 30 N m, with diag Σ_w −101, −2491, −31640
-(what GPREPS sampled). So GPREPS and PILCO now predict from the same model, the better one.
+is −79, −109, −334 for torque excitation 0, 10, 30 N m, with diag Σ_w −101, −2491, −31640.
+So GPREPS and PILCO predict from the same model, the better one.
 """
 
 from __future__ import annotations

@@ -27,7 +27,7 @@ Gaussian; these functions return Gaussian approximations of it (Figs 2.6–2.7):
   domain from one (M × (d + 2))((d + 2) × M) product that carries the support set's quadratic
   forms; its entries never exceed σ_{f,a}² σ_{f,b}², so nothing overflows. The pairs a ≤ b
   are batched and processed in cache-sized blocks (product, ``exp`` in place, contraction with
-  β_b and iK_a), with no Python loop over dimensions (:func:`_second_moments`, issue #18: at
+  β_b and iK_a), with no Python loop over dimensions (:func:`_second_moments`; timed at
   M = 300 and 700, 8 outputs and 12 inputs, see ``benchmarks/bench_moment_matching.py``).
 * :func:`linearize` — the first-order alternative of Fig. 2.6: the predictive mean μ(m),
   its Jacobian J at m (analytic), cov(y) ≈ J S Jᵀ + diag σ²(m), cov(z, y) ≈ S Jᵀ.
@@ -37,7 +37,7 @@ Gaussian; these functions return Gaussian approximations of it (Figs 2.6–2.7):
   Δx model x_{t+1} = x_t + Δ, cov(x_{t+1}) = S + cov(Δ) + cov(x, Δ) + cov(x, Δ)ᵀ.
   Torque limits are not representable (that is the sampling approach's advantage, Sec. 4.2.1).
 
-**Round-off** (issue #30). The second moments are sums β_aᵀQ^{ab}β_b whose terms can be
+**Round-off**. The second moments are sums β_aᵀQ^{ab}β_b whose terms can be
 many orders of magnitude larger than the result: for an exact GP near its linear limit
 (σ_f/σ_ε ≈ 1.5e3, length-scales ≈ 1.5e3 times the data's spread) |β| is huge and the terms
 exceed the predictive covariance by 1e13–1e17, so float64 keeps few or no correct digits
@@ -108,7 +108,7 @@ UNIT_ROUNDOFF = float(torch.finfo(DTYPE).eps) / 2
 #: its own round-off (:class:`RoundoffEstimate`) exceeds this relative error. The bound was
 #: 50–10⁴ times the actual error in our measurements, so this flags steps that may have lost
 #: 7–10 of float64's 16 digits; tab4.2's fitted PILCO models (FITC, zero or linear mean)
-#: stayed at 2e-8 to 3e-5, the exact GP at its linear limit of issue #30 at 2e-1 to 4e3.
+#: stayed at 2e-8 to 3e-5, an exact GP at its linear limit at 2e-1 to 4e3.
 ROUNDOFF_TOL = 1e-4
 
 
@@ -118,7 +118,7 @@ class MomentPrecisionError(RuntimeError):
 
 @dataclass(frozen=True)
 class RoundoffEstimate:
-    """A bound on the float64 round-off of one moment-matching step (issue #30).
+    """A bound on the float64 round-off of one moment-matching step.
 
     Every quantity is a sum or a product whose rounding error is bounded by the unit
     round-off u = 2⁻⁵³ times the magnitudes of its terms (:func:`_roundoff_bound` gives the

@@ -17,7 +17,7 @@ Design:
   (exact, FITC or VFE GP) is the one in this package. A model whose noise is correlated across
   dimensions also has ``noise_factor_tensor(device, dtype) -> F`` (n_x, n_x), F Fᵀ its noise
   covariance (the same for every state): then x' = mean + F ε, and ``var`` gives the
-  marginals, diag F Fᵀ (:class:`~skillkit.models.linear.LinearGaussianModel`, issue #30).
+  marginals, diag F Fᵀ (:class:`~skillkit.models.linear.LinearGaussianModel`).
 * **Policy.** ``policy(t, x, pair) -> u`` with ``x`` of shape (n, n_x), ``pair`` the index
   (n,) of each row's (context, ω) pair (so a policy gathers its per-pair parameters, e.g.
   PD gains or a reference trajectory), returning (n, n_u). Anything goes (nonlinear
@@ -33,7 +33,7 @@ Design:
 * **Randomness.** ``rng`` (numpy Generator, int, SeedSequence or None) seeds a torch
   generator on the device: the same seed gives the same samples. The noise is drawn in
   float64 whatever ``dtype``, so float32 paths follow the float64 paths of the same seed.
-* **Precision: float64 by default, float32 opt-in** (``dtype=torch.float32``, issue #18).
+* **Precision: float64 by default, float32 opt-in** (``dtype=torch.float32``).
   The float32 path keeps the set-up in float64 (support operands, β, the variance factor R,
   cast once), computes the kernel exponent in float64 (a (d + 2)-column product, ~5 % of the
   work), clamps it from below at log σ_f² − 40 and runs ``exp`` and the (E, n, M) × (E, M,
@@ -42,9 +42,9 @@ Design:
   Measured on the balancing FITC model of ``benchmarks/bench_sampler.py`` (N = 1500,
   M = 300, 12 inputs, 8 outputs): one-step means within 3.5e-4 predictive standard
   deviations of float64's and variances within 8.7e-5 (relative) near the data, 1e-6 far from
-  it (the float32 path before issue #18: 0.095 and 0.022, from round-off in a float32
-  exponent); 400 trajectories × 100 steps with the same seed: KL between Gaussian fits of the
-  final states 2e-8 against a Monte Carlo floor of 0.1 (float64 with another seed). Speed:
+  it (with the exponent in float32: 0.095 and 0.022, from its round-off); 400 trajectories ×
+  100 steps with the same seed: KL between Gaussian fits of the final states 2e-8 against a
+  Monte Carlo floor of 0.1 (float64 with another seed). Speed:
   0.9–1.7x float64's on one thread and 1.3–1.5x on two across the runs of
   ``benchmarks/bench_prediction.py`` (this VM's timings vary by ±15%). The accuracy depends on
   the model's conditioning, not on where the states are: with ‖β‖ or ‖R‖ large against σ_ε
@@ -54,7 +54,7 @@ Design:
   float32 run compares its one-step moments with float64's on visited states
   (``precision_error``, ``GPNumericalWarning`` above :data:`PRECISION_TOL`). The default stays
   float64: the thesis experiments' stored results (and runs in flight) were sampled in
-  float64, and float64 results are bit-identical to those before the float32 path existed
+  float64, and float64 results are bit-identical to those of a float64-only sampler
   (tested); switching would change every sampled number.
 * **Underflow in float64.** Far from the data kernel entries underflow: on the trained
   fig4.4 balancing model (M = 300) 23 % of them were 0 and 0.6 % denormal along sampled

@@ -645,8 +645,8 @@ def trust_region_step(
 
     The REPS weights meet KL(p ‖ q) = ε on the samples (Eq. 3.4), but the Gaussian fitted to
     them does not: with tens of effective samples in 10 dimensions the fitted Σ is noisy and
-    too small, KL(π_ML ‖ π_old) is about 2ε, and directions that shrank by chance stay shrunk
-    (issue #17). Two corrections, in this order:
+    too small, KL(π_ML ‖ π_old) is about 2ε, and directions that shrank by chance stay shrunk.
+    Two corrections, in this order:
 
     1. **Entropy bound** (as in MORE, Abdolmaleki et al. 2015, here applied after the fit): if
        H(π_old) − H(π_ML) > β = ``max_entropy_loss``, Σ_ML is scaled by

@@ -11,7 +11,7 @@ policy by weighted maximum likelihood (Eqs. 3.11–3.13,
 the weights: REPS solves its dual for p_i ∝ exp((R_i − V(s_i))/η) (Eq. 3.10), RWR takes
 w_i ∝ exp(β R_i) (Eq. 2.18). :class:`WeightedMLSearch` runs the loop; a subclass supplies
 :meth:`~WeightedMLSearch._weigh` and its diagnostics dataclass, and may override two hooks
-(REPS does, issue #17): :meth:`~WeightedMLSearch._importance` (importance weights of a new
+(REPS does): :meth:`~WeightedMLSearch._importance` (importance weights of a new
 batch's rows, e.g. :func:`extra_context_importance` for re-scored extra-context rows) and
 :meth:`~WeightedMLSearch._m_step` (what becomes of the weighted ML fit).
 """
@@ -299,7 +299,8 @@ def _rows(b: tuple) -> np.ndarray:
 
 
 def _n_rollouts(b: tuple) -> int:
-    """A kept batch's rollouts (batches pickled before issue #17 are 3-tuples: all rollouts)."""
+    """A kept batch's rollouts (a batch stored as a 3-tuple, from a buffer pickled without
+    rollout counts, counts every row as one rollout)."""
     return b[2].shape[0] if len(b) < 4 or b[3] is None else b[3]
 
 

@@ -143,9 +143,9 @@ def refit_gp(
     collection step, we update the GP model hyper-parameters").
 
     The marginal likelihood (2.28) has local optima, and a chain of warm starts can stay in
-    a poor one as data arrive (issue #31: on hockey's launch model a warm chain ended at a
-    negative log marginal likelihood of 2.96 per point where a cold fit on the same 119 shots
-    reached −1.13). ``refit="best"`` therefore optimises from the default initialisation
+    a poor one as data arrive (on hockey's launch model a warm chain ends at a negative log
+    marginal likelihood of 2.96 per point where a cold fit on the same 119 shots reaches
+    −1.13). ``refit="best"`` therefore optimises from the default initialisation
     *and* from ``previous``, and keeps the fit with the larger log marginal likelihood; both
     fits see the same additive target noise (one seed drawn from ``rng``), so the comparison
     is of the optimisation alone.
@@ -319,7 +319,7 @@ class TrajectoryRewardModel:
         state's effect from the comparison, and each estimate stays unbiased.
     """
 
-    dtype: torch.dtype = torch.float64  # class default: instances pickled before it resume
+    dtype: torch.dtype = torch.float64  # class default: instances pickled without it resume
     common_start_states: bool = False  # likewise
     #: Fraction of the last :meth:`expected_rewards` call's predicted trajectories that the
     #: task's divergence rule stopped (scored ``task.worst_reward``); None before one.

@@ -18,7 +18,7 @@ GPREPS predicts the reward of a shot with learned event models chained as in Sec
    stays in place. The GP's outputs (:class:`LaunchTargets`) are by default
    [p_y, heading, speed, t_0] rather than [p_y, v_x, v_y, t_0] (``launch_targets``): the
    reward is decided by the heading, and independent GPs on v_x and v_y put their errors into
-   it (issue #31: 5-fold CV heading error on the stored runs' shots 1.85° against 1.97° from
+   it (5-fold CV heading error on the stored runs' shots 1.85° against 1.97° from
    v_x, v_y on fig4.10's 119, 2.69° against 3.66° on fig4.11's 78;
    ``benchmarks/bench_hockey_launch.py``).
 2. **Free sliding** (a GP, iterated): Δb = b_{k+1} − b_k for b = [p, v] every ``slide_dt``,
@@ -52,7 +52,7 @@ it is a hit/miss classifier (logistic regression on the approach line's offset f
 and the speed) and a GP on the displacements of the hits, in the frame of the approach
 direction (isotropy, as for the contact model); a predicted miss slides on with the sliding
 model and leaves the target in place. ``displacement="gp"`` is one GP on all approaches in
-world coordinates (before issue #31). After a predicted hit the paths are drawn, not
+world coordinates. After a predicted hit the paths are drawn, not
 simulated: the control puck moves on a straight line at its speed to its closest approach
 (the contact point at 2r if the straight line passes within 2r) and then to its predicted
 end point; the target puck leaves b at the contact frame and reaches its predicted end point
@@ -66,7 +66,7 @@ collection every GP's hyper-parameters are refitted on all data (Sec. 4.1: "Afte
 collection step, we update the GP model hyper-parameters") by
 :func:`~skillkit.search.gpreps.refit_gp`: by default from the default initialisation *and*
 from the previous values, keeping the larger marginal likelihood (``refit="best"``; a chain of
-warm starts alone got stuck, issue #31).
+warm starts alone can stay in a poor optimum).
 """
 
 from __future__ import annotations

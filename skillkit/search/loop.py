@@ -225,8 +225,8 @@ class LoopState:
         Rollouts of the first batch when it differs from the others (``None``: all batches
         have the same size, e.g. GPREPS's N₀ initial rollouts, Table 4.1).
     rollouts_per_update : int or None
-        N, the rollouts of every later batch (``None`` in states saved before it was
-        recorded); a resumed :func:`learn` must use the same N and N₀.
+        N, the rollouts of every later batch (``None`` in states saved without
+        it); a resumed :func:`learn` must use the same N and N₀.
     """
 
     algorithm: SearchAlgorithm

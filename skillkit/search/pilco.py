@@ -621,7 +621,7 @@ class PILCO:
             objective, self.gain, self.settings.policy_iterations, self.settings.tolerance
         )
         t2 = time.perf_counter()
-        # The optimised gain's prediction: is it free of round-off (issue #30)?
+        # The optimised gain's prediction: is it free of round-off?
         roundoff = self._predict(gain)[1]
         check_roundoff(roundoff, "PILCO.update", self.settings.strict)
         self.gain = gain

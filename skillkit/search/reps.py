@@ -16,7 +16,7 @@ runs Table 3.1: weights from the dual, then the weighted maximum-likelihood poli
 :class:`~skillkit.search.base.WeightedMLSearch`, shared with RWR. Episode-based REPS is the
 same code path with a context-free policy (no context features, V ≡ 0).
 
-Two choices of :class:`ContextualREPS` go beyond Table 3.1 (issue #17)
+Two choices of :class:`ContextualREPS` go beyond Table 3.1
 (:data:`DEFAULT_EXTRA_CONTEXT_WEIGHTING`, :data:`DEFAULT_M_STEP`): extra contexts are
 importance-weighted by default (fig3.3 is the one experiment that uses them), and the M-step
 defaults to the thesis's weighted ML fit, with which every other stored result was made:
@@ -44,7 +44,7 @@ Numerics of :func:`reps_weights`
   the log-sum-exp is evaluated with a max shift, so no exponential overflows.
 * Solvers (``solver`` of :func:`reps_weights`, default :data:`DEFAULT_DUAL_SOLVER`):
   ``"lbfgsb"`` is scipy's L-BFGS-B on (log η, γ), with which every stored result was made;
-  ``"newton"`` (issue #18) takes damped Newton steps in (log η, γ) with the analytic Hessian
+  ``"newton"`` takes damped Newton steps in (log η, γ) with the analytic Hessian
   (so η stays positive), from the least-squares baseline and the η where the KL bound holds
   for it, with an Armijo
   backtracking line search, and stops on the same projected-gradient tolerance. It needs a
@@ -94,8 +94,8 @@ ETA_UNATTAINABLE = 1e-5
 DUAL_GTOL = 1e-11
 
 DualSolver = Literal["lbfgsb", "newton"]
-#: The dual's solver by default. ``"lbfgsb"`` is today's, with which every stored result was
-#: made; ``"newton"`` is issue #18's (same minimiser, far fewer iterations).
+#: The dual's solver by default: ``"lbfgsb"``, with which every stored result was made;
+#: ``"newton"`` reaches the same minimiser in far fewer iterations.
 DEFAULT_DUAL_SOLVER: DualSolver = "lbfgsb"
 
 
@@ -111,8 +111,8 @@ def _dual(
     """Unchecked core of :func:`reps_dual`; also returns the weights p (softmax).
 
     ``log_base`` is log q_i of normalised base weights (``None``: uniform q_i = 1/N, computed
-    without the logarithms so today's numbers are unchanged to the last bit). ``phihat``:
-    φ̂ computed once by the caller exactly as here (a solver's loop), or ``None``.
+    without the logarithms, so uniform weights give the stored results' numbers to the last
+    bit). ``phihat``: φ̂ computed once by the caller exactly as here (a solver's loop), or ``None``.
     """
     eta, gamma = params[0], params[1:]
     adv = rewards - features @ gamma
@@ -418,7 +418,7 @@ def reps_weights(
 
     if solver == "newton":
         y, n_iterations, message, converged = _minimise_newton(r_n, psi, eps, log_q)
-        if not converged:  # degenerate duals (ε unattainable under (3.5)): today's solver
+        if not converged:  # degenerate duals (ε unattainable under (3.5)): the default solver
             y, n_lbfgsb, message_lbfgsb = _minimise_lbfgsb(r_n, psi, eps, log_q)
             n_iterations += n_lbfgsb
             message = f"{message}; L-BFGS-B from the start: {message_lbfgsb}"
@@ -432,7 +432,7 @@ def reps_weights(
     gamma = r_scale * (transform @ theta)
     kl = kl_from_uniform(p) if q is None else _kl_log_base(p, log_q)
     feature_error = float(np.max(np.abs(p @ phi - phihat))) if n_feat else 0.0
-    # The bound is active when the achieved KL meets it, whatever η did (4b of issue #17: with
+    # The bound is active when the achieved KL meets it, whatever η did (with
     # features, an unattainable ε leaves η just above its lower bound with KL well below ε).
     active = kl >= (1.0 - KL_TOLERANCE) * eps
     near_lower = eta_n <= ETA_UNATTAINABLE
@@ -507,7 +507,7 @@ def _minimise_newton(
     Unconverged runs happen where ε exceeds what the feature constraint (3.5) allows: the
     minimiser is then at η → 0, where the dual tends to the piecewise-linear
     max_i(R_i − θᵀψ_i) + θᵀψ̂ and its Hessian (∝ 1/η) carries no useful curvature;
-    :func:`reps_weights` then runs L-BFGS-B from the start (today's answer)."""
+    :func:`reps_weights` then runs L-BFGS-B from the start (the default solver's answer)."""
     lo, hi = np.log(ETA_BOUNDS[0]), np.log(ETA_BOUNDS[1])
 
     phihat, work = _phihat(psi, log_q), _hessian_workspace(psi)
@@ -685,11 +685,11 @@ class REPSDiagnostics(DualSolution):
 ExtraContextWeighting = Literal["naive", "importance", "dual_only"]
 MStep = Literal["weighted_ml", "trust_region"]
 
-#: How REPS uses re-scored extra-context rows (Sec. 3.4) by default: ``"importance"``, the
-#: unbiased fix of issue #17; ``"naive"`` (the behaviour before it) is kept as a named option.
+#: How REPS uses re-scored extra-context rows (Sec. 3.4) by default: ``"importance"``, which
+#: is unbiased; ``"naive"`` (the rows weighted as if drawn from μ(s)π(ω|s)) is a named option.
 DEFAULT_EXTRA_CONTEXT_WEIGHTING: ExtraContextWeighting = "importance"
-#: REPS's M-step by default. ``"weighted_ml"`` (Eqs. 3.11–3.13 alone) is today's behaviour,
-#: with which every stored result was made; ``"trust_region"`` is the fix of issue #17.
+#: REPS's M-step by default: ``"weighted_ml"`` (Eqs. 3.11–3.13 alone), with which every stored
+#: result was made; ``"trust_region"`` also keeps the KL bound after the fit.
 DEFAULT_M_STEP: MStep = "weighted_ml"
 
 
@@ -773,11 +773,11 @@ class ContextualREPS(WeightedMLSearch[REPSDiagnostics]):
         )
 
     _diagnostics = REPSDiagnostics
-    # What an instance pickled before issue #17 (which has none of these attributes) ran.
+    # Class defaults: an instance pickled without these attributes runs the thesis's REPS.
     extra_context_weighting: ExtraContextWeighting = "naive"
     m_step: MStep = "weighted_ml"
     entropy_loss_bound: float | None = None
-    dual_solver: DualSolver = "lbfgsb"  # and before issue #18
+    dual_solver: DualSolver = "lbfgsb"
 
     def _settings_repr(self) -> str:
         text = f"epsilon={self.epsilon:.4g}, baseline_features={self.baseline_features!r}"

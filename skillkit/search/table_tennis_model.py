@@ -39,8 +39,8 @@ GPREPS predicts the reward of a stroke with five learned models chained as in Se
    time when the absolute distance between the racket and the ball is minimal"). A real hit
    ends the recorded incoming ball at the impact and a predicted ball, which has no contact
    physics, would fly through the racket: stopping it at the face makes the two paths end at
-   the same sample (issue #31: read at the closest approach of the flown-through path, the
-   ball's offset along x was +0.11 cm predicted against +2.84 cm real). The inputs are
+   the same sample (read at the closest approach of the flown-through path instead, the
+   ball's offset along x is +0.11 cm predicted against +2.84 cm real). The inputs are
    x = [v_ball − v_racket (3), racket position (3), racket quaternion (4)] of the thesis
    (``contact_features="thesis"``, default) or these and the ball's position relative to the
    racket and its norm (``"extended"``); velocities are backward differences of the paths.
@@ -817,7 +817,7 @@ class TableTennisRewardModel:
         return self._contact_model().returns
 
     def _contact_model(self) -> ContactModel:
-        """Model 5; a model pickled before :class:`ContactModel` existed (a stored run's
+        """Model 5; a model pickled without a :class:`ContactModel` (a stored run's
         ``reward_model``) gets one built from its classifier and landing GP, with the event
         and the score it was fitted with ("decision")."""
         contact = self.__dict__.get("contact")
@@ -914,7 +914,7 @@ class TableTennisRewardModel:
 
         # models 1, 2: landing and bounce trajectory
         refits: dict[str, Any] = {}
-        refit = getattr(self, "refit", "best")  # a model pickled before refit existed
+        refit = getattr(self, "refit", "best")  # a model pickled without refit
         yb, cb, used = self.bounce_data(trajs)
         if len(used) < 2:
             raise ValueError("trajectories: fewer than two incoming-ball bounces were found")

@@ -209,8 +209,8 @@ class ThrowingRewardModel:
     Factories are part of the checkpointed state: pass module-level functions or classes.
     """
 
-    dtype: torch.dtype = torch.float64  # class default: instances pickled before it resume
-    stop_flight_at_ground: bool = False  # likewise: instances pickled before it fly in full
+    dtype: torch.dtype = torch.float64  # class default: instances pickled without it resume
+    stop_flight_at_ground: bool = False  # likewise: instances pickled without it fly in full
 
     def __init__(
         self,

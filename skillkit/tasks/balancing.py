@@ -472,8 +472,8 @@ class Balancing(Task):
         stiffness on the grid ω ∈ {2.5, 3, 4, …}, ζ ∈ {0.7, 1, 1.5, 2} whose 20 Hz closed loop
         has spectral radius ≤ 0.95 (0.944; ω = 3, ζ = 1 has 1.02: unstable). Its gains reach
         1.9·10³ N m/rad, more than the R = 1e-4 LQR's 1.4·10³: holding each torque for 50 ms
-        on this 70 kg robot leaves no lower-gain PD that balances robustly (issue #16;
-        ``docs/measure_pd_gain.py`` prints the grid).
+        on this 70 kg robot leaves no lower-gain PD that balances robustly
+        (``docs/measure_pd_gain.py`` prints the grid).
 
         Parameters
         ----------

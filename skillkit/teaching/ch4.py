@@ -25,7 +25,7 @@ Drawn from one generator in that order, they give the numbers of ``GPREPS.update
   :func:`gflops_table` — Fig. 4.4's speed numbers;
 * :func:`exploration_table`, :func:`exploration_figure` — how much a stored GPREPS run still
   explores after each part of its updates (√tr Σ against its start) and how much of its KL
-  bound ε each update spends: why fig4.10 and fig4.12 stopped short at ε = 1 (issue #31);
+  bound ε each update spends: why fig4.10 and fig4.12 stop short at ε = 1;
 * :func:`handled_events` — the handled numerical events and failed rollouts of a block,
   counted and shown as a table instead of warnings;
 * :func:`gpreps_model_view` — a stored GPREPS run's model layers, in the viewer or as a
@@ -546,7 +546,7 @@ def exploration_table(run: Any, method: str = "gpreps") -> pd.DataFrame:
     KL(p ‖ q) ≤ ε per update (3.5), and the weighted ML fit (3.11–3.13) shrinks Σ towards the
     weighted samples. When every update spends its whole bound, Σ shrinks at a rate set by ε
     and not by what the model still has to learn — at ε = 1 on hockey and table tennis the
-    search stopped exploring before the hard contexts were learned (data/README.md, issue #31).
+    search stops exploring before the hard contexts are learned (data/README.md).
 
     Parameters
     ----------

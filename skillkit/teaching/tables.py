@@ -11,10 +11,11 @@ __all__ = ["claims_table", "experiments_table", "live_run_times", "method_compar
 
 
 def claims_table(ids: Iterable[str] | None = None, root=None):
-    """One row per stored result: the thesis's sentences (with where they stand), our verdict
-    of exactly those sentences, our numbers, and whether the stored result is current.
+    """One row per stored result: the claim in plain words, the verdict, our key number with
+    its 95% interval across trials, the thesis's number, and which code made it.
 
-    Made by :func:`skillkit.experiments.run.claim_rows`, the same rows as the README's table.
+    Made by :func:`skillkit.experiments.run.claim_rows`, the same rows as the README's
+    scoreboard; ``stored_run(id).details()`` has the quotes, every reading and the setup.
 
     Parameters
     ----------
@@ -27,9 +28,8 @@ def claims_table(ids: Iterable[str] | None = None, root=None):
     Returns
     -------
     pandas.DataFrame
-        Index ``id`` (with a stored variant's overrides); columns ``the thesis says``,
-        ``verdict``, ``our numbers``, ``our own checks`` (conditions of ours beyond the thesis's
-        sentences, each with its own verdict, never part of ``verdict``), ``made by``.
+        Index ``id`` (with a stored variant's overrides); columns ``claim``, ``verdict``,
+        ``ours [95% interval]``, ``thesis``, ``made by``.
 
     Raises
     ------
@@ -50,10 +50,10 @@ def claims_table(ids: Iterable[str] | None = None, root=None):
     table = pd.DataFrame(
         {
             "id": [f"{r['id']} ({r['variant']})" if r["variant"] else r["id"] for r in rows],
-            "the thesis says": [r["thesis"] or r["where"] for r in rows],
+            "claim": [r["claim"] for r in rows],
             "verdict": [r["verdict"] for r in rows],
-            "our numbers": [r["statement"] for r in rows],
-            "our own checks": [r["own"] for r in rows],
+            "ours [95% interval]": [r["ours"] for r in rows],
+            "thesis": [r["thesis"] for r in rows],
             "made by": [r["made"] for r in rows],
         }
     )

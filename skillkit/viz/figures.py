@@ -3,7 +3,7 @@
 (:func:`line_figure`), model-predicted against real trajectories (:func:`prediction_figure`)
 and a reward model's sampled paths over the real ones (:func:`model_paths_figure`).
 
-Each builds :class:`~skillkit.viz.series.Series` and draws them with the same code as the
+Each builds :class:`~skillkit.series.Series` and draws them with the same code as the
 experiment figures (:mod:`skillkit.viz.plots`), returning a plotly ``Figure`` or a
 :class:`~skillkit.viz.plots.NotebookFigure` (``backend="matplotlib"``).
 """
@@ -62,7 +62,7 @@ def plot_learning(
         One panel: reward of the policy mean (evaluated on the evaluation contexts) against
         the number of rollouts so far.
     """
-    from skillkit.viz.series import Series, trial_band
+    from skillkit.series import Series, trial_band
 
     if backend not in _BACKENDS:
         raise ValueError(f"backend: expected one of {_BACKENDS}, got {backend!r}")
@@ -170,7 +170,7 @@ def plot_gp_fit(
         Traces: the mean with its band (mean ± 1.96 σ), the data points, and ``f_true``.
     """
     from skillkit._validation import check_array
-    from skillkit.viz.series import Series
+    from skillkit.series import Series
 
     if backend not in _BACKENDS:
         raise ValueError(f"backend: expected one of {_BACKENDS}, got {backend!r}")
@@ -254,7 +254,7 @@ def line_figure(
     plotly.graph_objects.Figure or NotebookFigure
     """
     from skillkit._validation import check_array
-    from skillkit.viz.series import Series
+    from skillkit.series import Series
 
     if not isinstance(curves, Mapping) or not curves:
         raise ValueError("curves: expected a non-empty mapping of label to (x, y)")
@@ -303,7 +303,7 @@ def prediction_figure(
         Per pair: the predicted mean with a 5th–95th percentile band over the L samples, and
         the real trajectory.
     """
-    from skillkit.viz.series import Series
+    from skillkit.series import Series
 
     states = np.asarray(getattr(predicted, "states", predicted), dtype=float)
     if states.ndim == 3:  # one deterministic prediction per pair (e.g. an embedding's means)
@@ -387,8 +387,8 @@ def model_paths_figure(
     -------
     plotly.graph_objects.Figure or NotebookFigure
     """
+    from skillkit.series import Series
     from skillkit.viz.model_layers import model_layers
-    from skillkit.viz.series import Series
 
     if (
         not isinstance(axes, (tuple, list))

@@ -10,10 +10,10 @@ An experiment result (the dict :func:`skillkit.experiments.runner.run_trials` re
   touched, so it displays in Jupyter when returned and later ``plt.show()`` calls still work;
 * :func:`write_figures` writes both files.
 
-Every figure says what it shows: the thesis's claim and our verdict in a subtitle (from the
-summary's ``claim``, ``holds`` and ``statement``), what each band is (``Series.band``) in the
-legend, and an axis range that stays readable when a few values run away (they are marked at
-the edge of the axis and counted in a note, see :func:`robust_range`).
+Every figure says what it shows: the verdict with its key number in a one-line subtitle (the
+summary's ``statement``; the claim and details stay in the run's card), what each band is
+(``Series.band``) in the legend, and an axis range that stays readable when a few values run
+away (they are marked at the edge of the axis and counted in a note, see :func:`robust_range`).
 
 Figures of live objects (a ``learn()`` result, a GP fit, predicted vs real trajectories) are
 in :mod:`skillkit.viz.figures`; they draw through this module.
@@ -27,13 +27,12 @@ import textwrap
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from skillkit.viz.series import DASHES
+from skillkit.series import DASHES
 
 _COLORS = ["#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#17becf"]
 _BAND_SWATCH = "#9e9e9e"
@@ -69,121 +68,54 @@ PANEL_HEIGHT = 300
 # ----------------------------------------------------------------------------- verdict
 @dataclass(frozen=True)
 class Verdict:
-    """What an experiment checks and how it came out.
+    """How an experiment result came out, as its summary records it.
 
     Attributes
     ----------
     claim : str
-        The thesis's claim in words ("" when none is recorded).
-    holds : bool or None
-        True / False; None when the claim is not decided here (or no verdict is recorded).
+        The claim in plain words ("" when none is recorded).
+    word : str
+        "holds", "does not hold", "undecided", "not judged" or "no verdict recorded".
     statement : str
-        One sentence with our numbers ("" when none is recorded).
-    recorded : bool
-        False for results whose summary records no verdict at all (older result files).
-    not_judged : str
-        Why the verdict was withheld (``summary["not_judged"]``: a smoke run, or nothing in
-        the thesis to compare with); "" when the run was judged.
-    own_checks : tuple of (str, bool or None, str)
-        Conditions of ours beyond the thesis's sentence (``summary["own_checks"]``): name,
-        whether it holds, the criterion in words. Shown beside the verdict, never part of it.
+        The verdict line: the key number with its interval beside the thesis's ("" when none
+        is recorded).
     """
 
     claim: str
-    holds: bool | None
+    word: str
     statement: str
-    recorded: bool
-    not_judged: str = ""
-    own_checks: tuple[tuple[str, bool | None, str], ...] = ()
-
-    @property
-    def own_words(self) -> str:
-        """``"name (criterion): holds; …"`` for the own checks ("" when there are none)."""
-        words = {True: "holds", False: "does not hold", None: "undecided"}
-        return "; ".join(f"{n} ({c}): {words[h]}" for n, h, c in self.own_checks)
-
-    @property
-    def word(self) -> str:
-        """ "holds", "does not hold", "undecided", "not judged (<short reason>)" (the part of
-        ``not_judged`` before its colon) or "no verdict recorded"."""
-        if not self.recorded:
-            return "no verdict recorded"
-        if self.holds is None and self.not_judged:
-            return f"not judged ({self.not_judged.split(':')[0]})"
-        return {True: "holds", False: "does not hold", None: "undecided"}[self.holds]
 
 
 def verdict(result: Mapping) -> Verdict | None:
-    """The claim and verdict of an experiment result, or None for results that are not
-    experiment results (no ``summary`` and no ``claim``, e.g. a learning curve).
-
-    Reads ``summary["claim"]``, ``summary["holds"]`` and ``summary["statement"]``; older
-    summaries are read as well as they allow: the claim from ``result["claim"]``, the verdict
-    from ``summary["claim_holds"]`` or a dict of per-part verdicts in ``summary["holds"]``
-    (holds when all parts hold, does not hold when one fails).
-    """
+    """The claim and verdict of an experiment result (``summary["claim"]``, ``["verdict"]``,
+    ``["statement"]``, as :func:`skillkit.experiments.judge.apply` writes them), or None for
+    results that are not experiment results (no ``summary``, e.g. a learning curve)."""
     if not isinstance(result, Mapping):
         raise ValueError(f"result: expected a dict, got {type(result).__name__}")
     summary = result.get("summary")
-    summary = summary if isinstance(summary, Mapping) else {}
-    if not summary and not result.get("claim"):
+    if not isinstance(summary, Mapping) or not summary:
         return None
-    claim = summary.get("claim") or result.get("claim") or ""
-    claim = claim if isinstance(claim, str) else ""
-    statement = summary.get("statement") if isinstance(summary.get("statement"), str) else ""
-    holds: Any = summary.get("holds", summary.get("claim_holds", ...))
-    if isinstance(holds, Mapping):
-        parts = [v for v in holds.values() if isinstance(v, bool) or v is None]
-        if parts and all(v is True for v in parts):
-            holds = True
-        elif any(v is False for v in parts):
-            holds = False
-        else:
-            holds = None
-    recorded = holds is None or isinstance(holds, (bool, np.bool_))
-    return Verdict(
-        claim=claim.strip(),
-        holds=bool(holds) if recorded and holds is not None else None,
-        statement=statement.strip(),
-        recorded=recorded,
-        not_judged=reason.strip() if isinstance(reason := summary.get("not_judged"), str) else "",
-        own_checks=_own_checks(summary.get("own_checks")),
-    )
 
+    def text(key: str) -> str:
+        value = summary.get(key)
+        return value.strip() if isinstance(value, str) else ""
 
-def _own_checks(own: Any) -> tuple[tuple[str, bool | None, str], ...]:
-    """``summary["own_checks"]`` as (name, holds, criterion) triples; malformed entries are
-    skipped (older or hand-written results)."""
-    if not isinstance(own, Mapping):
-        return ()
-    out = []
-    for name, entry in own.items():
-        if not isinstance(entry, Mapping):
-            continue
-        holds, criterion = entry.get("holds"), entry.get("criterion")
-        if (holds is None or isinstance(holds, (bool, np.bool_))) and isinstance(criterion, str):
-            out.append((str(name), None if holds is None else bool(holds), criterion.strip()))
-    return tuple(out)
+    return Verdict(text("claim"), text("verdict") or "no verdict recorded", text("statement"))
 
 
 def subtitle(result: Mapping, width: int | None = None) -> str:
-    """The subtitle of an experiment figure: the thesis's claim and our verdict.
-
-    ``"Thesis: <claim>"`` and ``"Here: <holds | does not hold | undecided | no verdict
-    recorded> — <statement>"`` on two paragraphs, and ``"Our own checks: …"`` as a third
-    where the summary has any, each wrapped to ``width`` characters (no wrapping for None).
-    "" for results without a claim or summary (:func:`verdict`).
-    """
+    """The subtitle of an experiment figure: one line, the verdict with its key number and
+    interval beside the thesis's (the card's second line, ``summary["statement"]``), or the
+    outcome alone where no statement is recorded; "" for results without a summary. The
+    claim and the details stay out of the figure (``Run.card``, ``Run.details()``).
+    ``width`` wraps the line (None: no wrapping)."""
     v = verdict(result)
     if v is None:
         return ""
-    here = f"Here: {v.word}" + (f" — {v.statement}" if v.statement else "")
-    paragraphs = [f"Thesis: {v.claim or '(no claim recorded)'}", here]
-    if v.own_checks:
-        paragraphs.append(f"Our own checks, beyond the thesis: {v.own_words}")
+    line = v.statement or v.word
     if width is None:
-        return "\n".join(paragraphs)
-    return "\n".join(textwrap.fill(p, width=max(int(width), 20)) for p in paragraphs)
+        return line
+    return textwrap.fill(line, width=max(int(width), 20))
 
 
 def _title(result: Mapping) -> str:

@@ -1,15 +1,13 @@
-"""Every band of every experiment says what it is (issue #12), and says it truly.
+"""Every band of every experiment says what it is, and says it truly.
 
 Over every registered id at the smoke scale, with its default trial count and with two trials
 (so every band over trials is drawn): a series with ``lower`` / ``upper`` has a ``band`` text;
 "over n trials" names the run's trial count; a "mean ± …" band is symmetric about the curve
-and a geometric one symmetric in log; one trial draws no band. ``data/migrate_series.py``
-must give stored results exactly what a fresh run gives.
+and a geometric one symmetric in log; one trial draws no band.
 """
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import re
 import warnings
@@ -21,7 +19,7 @@ import pytest
 from skillkit.experiments.ch2_gp import GP_BAND
 from skillkit.experiments.registry import get, ids
 from skillkit.experiments.runner import run_trials, to_jsonable
-from skillkit.viz.series import Series, band_text, mean_band, trial_band
+from skillkit.viz.series import band_text, mean_band, trial_band
 
 IDS = ids()
 ROOT = Path(__file__).resolve().parents[2]
@@ -39,15 +37,6 @@ def _run(exp_id: str, trials: int | None = None) -> dict:
         r["_trials"] = raw
         _CACHE[exp_id, trials] = r
     return _CACHE[exp_id, trials]
-
-
-def _migration():
-    spec = importlib.util.spec_from_file_location(
-        "migrate_series", ROOT / "data" / "migrate_series.py"
-    )
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def _array(values) -> np.ndarray:
@@ -101,48 +90,6 @@ def test_band_numbers_are_the_trials_statistics():
     s = next(s for s in r["series"] if s["name"] == "REPS" and s["log_y"])
     assert s["band"] == "geometric mean ×/÷ geometric std over 3 trials"
     assert np.allclose(np.log10(s["lower"]), err.mean(0) - err.std(0, ddof=1))
-
-
-@pytest.mark.parametrize("trials", [None, 2], ids=["default-trials", "2-trials"])
-@pytest.mark.parametrize("exp_id", IDS)
-def test_migration_gives_what_a_fresh_run_gives(exp_id, trials):
-    """A fresh result with its band texts removed and its labels as they were before issue
-    #12 migrates to exactly the fresh result."""
-    mig = _migration()
-    result = _run(exp_id, trials)
-    back = {new: old for _, old, new in mig.RELABEL.get(exp_id, [])}
-    old = []
-    for s in result["series"]:
-        s = {k: back.get(v, v) if k in ("panel", "ylabel") else v for k, v in s.items()}
-        s.pop("band", None)
-        old.append(s)
-    new, report = mig.migrate_series(exp_id, result["trials"], old)
-    assert new == result["series"]
-    assert mig.check_series_kept(old, new, report) > 0
-
-
-def test_migration_removes_only_zero_width_one_trial_bands():
-    mig = _migration()
-    s = Series("GP", [1, 2], [0.5, None], "reward prediction error").to_dict()
-    new, report = mig.migrate_series("fig5.7", 1, [{**s, "lower": s["y"], "upper": s["y"]}])
-    assert new == [s] and report["dropped"] == [0]
-    with pytest.raises(ValueError, match="non-zero width"):
-        mig.migrate_series("fig5.7", 1, [{**s, "lower": [0.4, None], "upper": s["y"]}])
-    with pytest.raises(ValueError, match="does not describe"):
-        mig.migrate_series("fig4.3", 2, [{**s, "lower": s["y"], "upper": s["y"]}])
-    new, _ = mig.migrate_series("fig5.7", 4, [{**s, "lower": [0.4, None], "upper": [0.6, None]}])
-    assert new[0]["band"] == "mean ± std over 4 trials"
-    with pytest.raises(RuntimeError, match="changed"):
-        mig.check_series_kept([{**s, "y": [0.5, 1.0]}], [s], {"relabelled": {}, "dropped": []})
-
-
-def test_stored_results_are_migrated():
-    mig = _migration()
-    paths = sorted((ROOT / "data" / "results").glob("*/result.json"))
-    assert paths
-    for path in paths:
-        changed, _ = mig.migrate_file(path, write=False)
-        assert not changed, f"{path.parent.name}: run data/migrate_series.py"
 
 
 # ------------------------------------------------------------------ the band helpers

@@ -5,16 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from skillkit.experiments.ch2_gp import (
-    DeterministicPredictionSettings,
-    GPRegressionSettings,
-    fig2_7_function,
-    own_checks_2_7,
-    own_checks_2_12,
-    successor_density,
-    verdict_2_7,
-    verdict_2_12,
-)
+from skillkit.experiments import judge
+from skillkit.experiments.ch2_gp import fig2_7_function, successor_density
+from skillkit.experiments.run import stored_run
 from skillkit.experiments.runner import run_trials
 from skillkit.models.gp import ExactGP
 from tests._tolerances import fp_tol
@@ -37,7 +30,8 @@ def test_fig2_12_variance_shrinks_and_samples_converge(fig212):
     assert per["1"]["mean_std"] > per["4"]["mean_std"] > per["25"]["mean_std"]
     assert per["25"]["rmse"] < 0.5 * per["1"]["rmse"]
     assert per["25"]["coverage95"] > 0.9
-    assert s["own_checks"]["band_coverage"]["holds"] is True
+    j = judge.judge("fig2.12", s, "quick", fig212["settings"])
+    assert j.outcome == "holds" and j.readings[-1].outcome == "holds"  # our coverage check
     panels = {x["panel"] for x in fig212["series"]}
     assert panels == {"1 sample", "4 samples", "25 samples"}
 
@@ -65,11 +59,12 @@ def test_fig2_12_one_point_posterior_closed_form(fig212):
 def test_fig2_7_moment_matching_exact_and_better_than_linearisation(fig27):
     s = fig27["summary"]
     assert s["holds"] is None  # a smoke run is not judged; its numbers still decide the verdict:
-    assert verdict_2_7(DeterministicPredictionSettings(), s).holds is True
+    assert judge.judge("fig2.7", s, "paper").outcome == "holds"
+    assert judge.card_lines_ok(s["judgement"]["card"])
     assert s["density_mass"] == pytest.approx(1.0, abs=1e-6)
     assert s["mm_mean_error"] < 1e-5 and s["mm_var_rel_error"] < 1e-4
     assert s["kl_mm"] < s["kl_lin"]
-    assert s["own_checks"]["moment_matching_exact"]["holds"] is True
+    assert all(r.outcome == "holds" for r in judge.judge("fig2.7", s, "paper").readings)
     assert s["lin_mean_error"] > 0.05  # the tangent at the input mean misses the skew
     # Monte Carlo agrees with the quadrature truth within its error.
     assert abs(s["mc_mean"] - s["true_mean"]) < 5 * np.sqrt(s["true_var"] / 100_000)
@@ -80,33 +75,49 @@ def _panel(std, spread, rmse, coverage=0.95):
 
 
 @pytest.mark.parametrize(
-    "last, holds",
+    "last, outcome",
     [
-        (_panel(0.2, 0.1, 0.15), True),
-        (_panel(0.2, 0.1, 0.15, coverage=0.5), True),  # our coverage check is not the thesis's
-        (_panel(0.7, 0.1, 0.15), False),  # the variance grows from 4 to 25 points
-        (_panel(0.2, 0.6, 0.15), False),  # the samples spread more
-        (_panel(0.2, 0.1, 0.4), False),  # the mean moves away from the function
+        (_panel(0.2, 0.1, 0.15), "holds"),
+        (_panel(0.2, 0.1, 0.15, coverage=0.5), "holds"),  # our coverage check is not the thesis's
+        (_panel(0.7, 0.1, 0.15), "does not hold"),  # the variance grows from 4 to 25 points
+        (_panel(0.2, 0.1, 0.4), "does not hold"),  # the mean moves away from the function
     ],
 )
-def test_fig2_12_verdict_decides_the_thesis_sentence(last, holds):
+def test_fig2_12_spec_decides_the_thesis_sentence(last, outcome):
     summary = {
         "per_n_points": {"1": _panel(0.9, 0.7, 0.7), "4": _panel(0.6, 0.5, 0.35), "25": last}
     }
-    assert verdict_2_12(GPRegressionSettings(), summary).holds is holds
-    covered = own_checks_2_12(GPRegressionSettings(), summary)["band_coverage"]["holds"]
-    assert covered is (last["coverage95"] > 0.9)
+    j = judge.judge("fig2.12", summary, "paper", {"n_test": 2000})
+    assert j.outcome == outcome
+    coverage = next(r for r in j.readings if r.part.own)
+    assert coverage.outcome == ("holds" if last["coverage95"] > 0.9 else "does not hold")
+
+
+def test_fig2_12_stored_coverage_is_a_wilson_interval():
+    """The own coverage part: the engine's interval on the stored run equals Wilson's formula
+    on coverage95 × n_test hits (float64 round-off of a few operations on numbers ≤ 1)."""
+    run = stored_run("fig2.12")
+    r = next(r for r in run.judgement.readings if r.part.own)
+    n = run.settings["n_test"]
+    p = run.summary["per_n_points"]["25"]["coverage95"]
+    z = 1.959963984540054
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    assert r.n == n
+    assert r.lower == pytest.approx(centre - half, abs=fp_tol(20))
+    assert r.upper == pytest.approx(centre + half, abs=fp_tol(20))
+    assert run.judgement.outcome == "holds"
 
 
 @pytest.mark.parametrize(
-    "kl_lin, mm_error, holds",
+    "kl_lin, mm_error, outcome",
     [
-        (0.45, 1e-8, True),
-        (0.45, 0.05, True),  # inexact moments: our own check fails, holds does not
-        (0.2, 1e-8, False),  # linearisation's Gaussian is the closer one
+        (0.45, 1e-8, "holds"),
+        (0.45, 0.05, "holds"),  # inexact moments: our own check fails, the verdict does not
+        (0.2, 1e-8, "does not hold"),  # linearisation's Gaussian is the closer one
     ],
 )
-def test_fig2_7_verdict_decides_more_accurate_than_linearisation(kl_lin, mm_error, holds):
+def test_fig2_7_spec_decides_more_accurate_than_linearisation(kl_lin, mm_error, outcome):
     summary = {
         "kl_mm": 0.32,
         "kl_lin": kl_lin,
@@ -115,8 +126,17 @@ def test_fig2_7_verdict_decides_more_accurate_than_linearisation(kl_lin, mm_erro
         "lin_mean_error": 0.3,
         "lin_var_rel_error": 0.5,
     }
-    assert verdict_2_7(DeterministicPredictionSettings(), summary).holds is holds
-    assert own_checks_2_7(summary)["moment_matching_exact"]["holds"] is (mm_error < 1e-3)
+    j = judge.judge("fig2.7", summary, "paper")
+    assert j.outcome == outcome
+    exact = [r.outcome for r in j.readings if r.part.own]
+    assert exact == ["holds" if mm_error < 1e-3 else "does not hold"] * 2
+
+
+def test_fig2_7_stored_run_reads_the_quadrature_kl():
+    run = stored_run("fig2.7")
+    r = run.judgement.readings[0]
+    assert r.estimate == r.lower == r.upper == run.summary["kl_mm"] < run.summary["kl_lin"]
+    assert run.judgement.outcome == "holds" and judge.card_lines_ok(run.card)
 
 
 def test_successor_density_of_a_linear_model_is_gaussian():

@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy import stats
 
 from skillkit.experiments import ch3_hockey as ch
+from skillkit.experiments import judge
 from skillkit.experiments.registry import get
+from skillkit.experiments.run import stored_run
 from skillkit.experiments.runner import run_trials
 from skillkit.models.kernels import gram
 from skillkit.tasks import make
@@ -49,16 +52,12 @@ def test_tiny_run_is_deterministic_and_complete(tiny_runs):
         assert a["summary"][name].pop("wall_time_s") > 0
         b["summary"][name].pop("wall_time_s")
     assert a["summary"] == b["summary"]
-    assert set(a["summary"]["claim_parts"]) == {
-        "reps_always_95pct_below_20cm",
-        "crkr_lower_hit_rate",
-        "crkr_larger_displacement_error",
-        "crkr_could_not_compete",
-    }
-    assert set(a["summary"]["own_checks"]) == {
-        "reps_learns",
-        "reps_error_counting_misses_below_20cm",
-        "crkr_larger_error_counting_misses",
+    assert a["summary"]["verdict"] == "not judged"  # smoke scale
+    assert judge.card_lines_ok(a["summary"]["judgement"]["card"])
+    assert {r["label"] for r in a["summary"]["judgement"]["readings"] if r["own"]} == {
+        "REPS error, misses as d*",
+        "CrKR − REPS error, misses as d*",
+        "REPS final minus initial reward",
     }
     panels = {s["panel"] for s in a["series"]}
     assert len(panels) == 3 and len(a["series"]) == 6
@@ -91,125 +90,108 @@ def _fake_trial(
     return trial
 
 
-def test_summary_judges_the_thesis_sentences():
+def test_summary_arithmetic_and_its_judgement():
     settings = get("fig3.5").settings_for("quick")
     good = [
         _fake_trial((-0.2, 0.96, 0.15), (-0.5, 0.5, 0.4)),
         _fake_trial((-0.3, 1.0, 0.17), (-0.6, 0.4, 0.5)),
     ]
     series, summary = ch._summarize(settings, good)
-    assert summary["reps"]["final_heldout_hit_rate"] == pytest.approx(0.98)
-    assert summary["reps"]["final_heldout_displacement_error"] == pytest.approx(0.16)
-    assert summary["reps"]["final_heldout_hit_rate_std"] == pytest.approx(0.02)
-    assert summary["reps"]["final_heldout_hit_rate_per_trial"] == pytest.approx([0.96, 1.0])
-    assert summary["crkr"]["failed_rollouts"] == 2
-    assert summary["reps"]["heldout_blade_lowest_m"] == -0.002
-    assert all(summary["claim_parts"].values()) and summary["holds"] is True
-    assert all(c["holds"] for c in summary["own_checks"].values())
-    assert "hits 98.0%" in summary["statement"] and "16.0 cm" in summary["statement"]
-    assert "per trial: 96.0, 100.0%" in summary["statement"]
+    reps, crkr = summary["reps"], summary["crkr"]
+    assert reps["final_heldout_hit_rate"] == pytest.approx(0.98)
+    assert reps["final_heldout_displacement_error"] == pytest.approx(0.16)
+    assert reps["final_heldout_hit_rate_std"] == pytest.approx(0.02)
+    assert reps["final_heldout_hit_rate_per_trial"] == pytest.approx([0.96, 1.0])
+    assert reps["final_heldout_reward_per_trial"] == pytest.approx([-0.2, -0.3])
+    assert reps["final_heldout_displacement_error_per_trial"] == pytest.approx([0.15, 0.17])
+    assert reps["initial_mean_reward_per_trial"] == pytest.approx([-0.8, -0.8])
+    assert reps["final_mean_reward_per_trial"] == pytest.approx([-0.2, -0.3])
+    assert crkr["final_heldout_hit_rate_per_trial"] == pytest.approx([0.5, 0.4])
+    assert crkr["failed_rollouts"] == 2
+    assert reps["heldout_blade_lowest_m"] == -0.002
     band = next(s for s in series if s.name == ch.LABELS["reps"] and "hit rate" in s.panel)
     np.testing.assert_allclose(band.y, [0.3, 0.98])
-    bad = [_fake_trial((-0.5, 0.9, 0.25), (-0.4, 0.95, 0.2))]
-    _, summary = ch._summarize(settings, bad)
-    assert not any(summary["claim_parts"].values()) and summary["holds"] is False
-    assert summary["own_checks"]["reps_learns"]["holds"] is True
-    tie = [_fake_trial((-0.2, 1.0, 0.05), (-0.3, 1.0, 0.2))]  # paper scale: both always hit
-    parts = ch._summarize(settings, tie)[1]["claim_parts"]
-    assert parts["crkr_could_not_compete"] and parts["crkr_larger_displacement_error"]
-    assert not parts["crkr_lower_hit_rate"]
-
-
-def test_a_trial_below_95pct_fails_the_always_of_the_thesis():
-    """The mean hit rate is above 95%, but one trial's is not: "always" fails."""
-    settings = get("fig3.5").settings_for("quick")
-    trials = [
-        _fake_trial((-0.2, 0.90, 0.15), (-0.5, 0.5, 0.4)),
-        _fake_trial((-0.3, 1.0, 0.17), (-0.6, 0.4, 0.5)),
-        _fake_trial((-0.3, 1.0, 0.17), (-0.6, 0.4, 0.5)),
-    ]
-    summary = ch._summarize(settings, trials)[1]
-    assert summary["reps"]["final_heldout_hit_rate"] > 0.95
-    assert summary["claim_parts"]["reps_always_95pct_below_20cm"] is False
-    assert (
-        summary["holds"] is False
-        and "Not met: reps_always_95pct_below_20cm" in (summary["statement"])
-    )
+    # 98% of 2 × 1000 held-out contexts: the pooled Wilson interval lies above 95%
+    j = judge.judge("fig3.5", summary, "paper", {"n_heldout": 1000})
+    assert j.readings[0].outcome == "holds"
+    assert j.outcome == "undecided"  # two trials cannot decide the paired comparisons
 
 
 def _summary_35(**kw) -> dict:
-    """A fig3.5 summary that meets every part of the thesis's sentences; ``kw`` changes one
-    number (REPS per trial: ``hits``, ``placed``; ``miss_error``; CrKR: ``crkr_hit``,
-    ``crkr_placed``, ``crkr_reward``; REPS's learning curve ``reps_final_curve``)."""
-    v = {"hits": [0.97, 0.99], "placed": [0.08, 0.12], "miss_error": 0.10, "crkr_hit": 0.8,
-         "crkr_placed": 0.30, "crkr_reward": -0.4, "reps_final_curve": -0.2, **kw}  # fmt: skip
+    """A fig3.5 summary of four trials that meets every part of the thesis's sentences;
+    ``kw`` changes one per-trial array (REPS: ``hits``, ``placed``, ``miss_error``,
+    ``curve``; CrKR: ``crkr_hit``, ``crkr_placed``, ``crkr_reward``)."""
+    v = {"hits": [0.99, 1.0, 0.98, 0.99], "placed": [0.08, 0.12, 0.10, 0.09],
+         "miss_error": [0.09, 0.12, 0.11, 0.10], "curve": [-0.2, -0.21, -0.19, -0.2],
+         "crkr_hit": [0.8, 0.7, 0.75, 0.8], "crkr_placed": [0.30, 0.28, 0.33, 0.31],
+         "crkr_reward": [-0.4, -0.45, -0.42, -0.41], **kw}  # fmt: skip
     reps = {
-        "initial_mean_reward": -0.7,
-        "final_mean_reward": v["reps_final_curve"],
-        "final_heldout_reward": -0.2,
-        "final_heldout_hit_rate": float(np.mean(v["hits"])),
+        "initial_mean_reward_per_trial": [-0.7] * 4,
+        "final_mean_reward_per_trial": v["curve"],
+        "final_heldout_reward_per_trial": [-0.2, -0.21, -0.22, -0.2],
         "final_heldout_hit_rate_per_trial": v["hits"],
-        "final_heldout_displacement_error": v["miss_error"],
-        "final_heldout_displacement_error_hits": float(np.mean(v["placed"])),
+        "final_heldout_displacement_error_per_trial": v["miss_error"],
         "final_heldout_displacement_error_hits_per_trial": v["placed"],
     }
     crkr = {
-        "initial_mean_reward": -0.7,
-        "final_mean_reward": -0.4,
-        "final_heldout_reward": v["crkr_reward"],
-        "final_heldout_hit_rate": v["crkr_hit"],
-        "final_heldout_displacement_error": 0.35,
-        "final_heldout_displacement_error_hits": v["crkr_placed"],
+        "final_heldout_reward_per_trial": v["crkr_reward"],
+        "final_heldout_hit_rate_per_trial": v["crkr_hit"],
+        "final_heldout_displacement_error_per_trial": [0.35, 0.36, 0.34, 0.37],
+        "final_heldout_displacement_error_hits_per_trial": v["crkr_placed"],
     }
-    return {"n_trials": 2, "rollouts_per_algorithm": 10000, "reps": reps, "crkr": crkr}
+    return {"n_trials": 4, "rollouts_per_algorithm": 10000, "reps": reps, "crkr": crkr}
 
 
 @pytest.mark.parametrize(
-    ("change", "part"),
+    ("change", "label"),
     [
-        ({"hits": [0.93, 0.99]}, "reps_always_95pct_below_20cm"),
-        ({"placed": [0.08, 0.24]}, "reps_always_95pct_below_20cm"),
-        ({"crkr_hit": 0.99}, "crkr_lower_hit_rate"),
-        ({"crkr_placed": 0.05}, "crkr_larger_displacement_error"),
-        ({"crkr_reward": -0.1}, "crkr_could_not_compete"),
+        ({"hits": [0.85, 0.9, 0.88, 0.86]}, "REPS hit rate"),
+        ({"placed": [0.28, 0.3, 0.26, 0.25]}, "REPS placed-puck error"),
+        ({"hits": [0.96, 0.97, 0.96, 0.97], "crkr_hit": [1.0] * 4}, "CrKR minus REPS hit rate"),
+        ({"crkr_placed": [0.05, 0.06, 0.04, 0.05]}, "CrKR minus REPS puck error"),
+        ({"crkr_reward": [-0.1, -0.12, -0.11, -0.1]}, "CrKR minus REPS held-out reward"),
     ],
 )
-def test_verdict_decides_each_part_of_the_sentence(change, part):
-    settings = get("fig3.5").settings_for("paper")
-    assert ch.verdict(settings, _summary_35()).holds is True
-    assert ch.claim_parts(_summary_35(**change))[part] is False
-    assert ch.verdict(settings, _summary_35(**change)).holds is False
+def test_spec_decides_each_part_of_the_sentence(change, label):
+    settings = {"n_heldout": 100}
+    assert judge.judge("fig3.5", _summary_35(), "paper", settings).outcome == "holds"
+    j = judge.judge("fig3.5", _summary_35(**change), "paper", settings)
+    assert j.outcome == "does not hold"
+    assert [r.part.label for r in j.readings if r.outcome == "does not hold"] == [label]
 
 
-def test_own_checks_do_not_change_holds():
+def test_own_parts_do_not_change_the_verdict():
     """Counting a miss as an error of d* (30 cm) or a REPS curve that ends below its start
-    fails our own checks, not the thesis's sentence."""
-    settings = get("fig3.5").settings_for("paper")
-    for change, name in (
-        ({"miss_error": 0.30}, "reps_error_counting_misses_below_20cm"),
-        ({"miss_error": 0.40}, "crkr_larger_error_counting_misses"),
-        ({"reps_final_curve": -0.8}, "reps_learns"),
-    ):
-        summary = _summary_35(**change)
-        assert ch.own_checks(summary)[name]["holds"] is False
-        assert ch.own_checks(_summary_35())[name]["holds"] is True
-        assert ch.verdict(settings, summary).holds is True
+    fails our own parts, not the thesis's sentence."""
+    for change in ({"miss_error": [0.3, 0.31, 0.32, 0.3]}, {"curve": [-0.8, -0.81, -0.79, -0.8]}):
+        j = judge.judge("fig3.5", _summary_35(**change), "paper", {"n_heldout": 100})
+        assert j.outcome == "holds"
+        assert any(r.part.own and r.outcome == "does not hold" for r in j.readings)
 
 
-def test_a_stored_summary_without_per_trial_values_is_undecided():
-    """Runs before issue #32 recorded no per-trial values: "always" cannot be decided, unless
-    another part fails."""
-    settings = get("fig3.5").settings_for("paper")
-    summary = _summary_35()
-    for key in (
-        "final_heldout_hit_rate_per_trial",
-        "final_heldout_displacement_error_hits_per_trial",
-    ):
-        del summary["reps"][key]
-    v = ch.verdict(settings, summary)
-    assert v.holds is None and "not recorded in this run" in v.statement
-    summary["crkr"]["final_heldout_reward"] = -0.1
-    assert ch.verdict(settings, summary).holds is False
+def test_stored_run_reads_wilson_and_paired_t_intervals():
+    """On the stored paper run the engine's REPS hit rate interval equals Wilson's formula on
+    the pooled hits (5 × 100 held-out contexts), and its CrKR − REPS placed-puck error equals
+    scipy's paired Student-t interval; float64 round-off of a few dozen operations."""
+    run = stored_run("fig3.5")
+    n = run.settings["n_heldout"]
+    rates = np.asarray(run.summary["reps"]["final_heldout_hit_rate_per_trial"])
+    k, total = float(np.sum(rates * n)), n * rates.size
+    p, z = k / total, stats.norm.ppf(0.975)
+    centre = (p + z * z / (2 * total)) / (1 + z * z / total)
+    half = z * np.sqrt(p * (1 - p) / total + z * z / (4 * total**2)) / (1 + z * z / total)
+    hit = run.judgement.readings[0]
+    assert hit.n == total == 500
+    assert hit.lower == pytest.approx(centre - half, abs=fp_tol(30))
+    assert hit.upper == pytest.approx(centre + half, abs=fp_tol(30))
+    assert hit.outcome == "undecided"  # 95.0% [92.7, 96.6]: the thesis's 95% inside
+    key = "final_heldout_displacement_error_hits_per_trial"
+    d = np.asarray(run.summary["crkr"][key]) - np.asarray(run.summary["reps"][key])
+    lo, hi = stats.t.interval(0.95, d.size - 1, loc=d.mean(), scale=stats.sem(d))
+    err = next(r for r in run.judgement.readings if r.part.label == "CrKR minus REPS puck error")
+    assert err.lower == pytest.approx(lo, abs=fp_tol(20, scale=1.0))
+    assert err.upper == pytest.approx(hi, abs=fp_tol(20, scale=1.0))
+    assert err.outcome == "holds" and judge.card_lines_ok(run.card)
 
 
 def test_crkr_starts_with_the_initial_diagonal_exploration():

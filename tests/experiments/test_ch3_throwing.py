@@ -6,11 +6,14 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from scipy import stats
 
-from skillkit.experiments import get
-from skillkit.experiments.ch3_throwing import own_checks, summarize, target_grid, verdict
+from skillkit.experiments import get, judge
+from skillkit.experiments.ch3_throwing import summarize, target_grid
+from skillkit.experiments.run import stored_run
 from skillkit.experiments.runner import run_trials
 from skillkit.tasks.planar import Throwing
+from tests._tolerances import fp_tol
 
 
 @pytest.fixture(scope="module")
@@ -25,7 +28,7 @@ def test_registered_with_the_thesis_settings():
         s = exp.settings[scale]
         assert s.epsilon == 0.6 and s.rollouts_per_update == 25
         assert s.rollouts_per_update * s.n_reuse_batches == 200
-        # issue #17: exploration whose throws reach the farthest targets; Table 3.1's M-step
+        # exploration whose throws reach the farthest targets; Table 3.1's M-step
         assert s.initial_std_fraction == Throwing.covering_std_fraction
         assert s.m_step == "weighted_ml"
     assert exp.settings["paper"].n_updates * 25 >= 5000
@@ -34,62 +37,65 @@ def test_registered_with_the_thesis_settings():
     np.testing.assert_array_equal(target_grid(grid), [[5, 1], [6, 1]])
 
 
-def _judged_summary(first, reps_near, reps_far, better, extra_max=(0.05, 0.3)):
-    """The smoke summary with plain REPS's median-trial largest errors (near, far), the
-    reward comparison, and the extra arm's largest errors over all trials set by hand."""
-    summary = first["summary"]
+def _summary(first, near, far, gain, within=(True, True), extra_within=(True, True)):
+    """The smoke summary with plain REPS's per-trial largest errors (near, far: two trials
+    each), the extra arm's reward gain per trial and the per-trial "within bounds" flags."""
+    s = first["summary"]
     reps = {
-        **summary["reps"],
-        "near_distance_trial_max_median_m": reps_near,
-        "far_distance_trial_max_median_m": reps_far,
+        **s["reps"],
+        "near_distance_max_per_trial_m": list(near),
+        "far_distance_max_per_trial_m": list(far),
+        "final_reward_per_trial": [-10.0, -12.0],
+        "within_bounds_per_trial": list(within),
     }
     extra = {
-        **summary["extra"],
-        "near_distance_max_m": extra_max[0],
-        "far_distance_max_m": extra_max[1],
-        "failed_final_rollouts": 0,
+        **s["extra"],
+        "final_reward_per_trial": [-10.0 + gain[0], -12.0 + gain[1]],
+        "within_bounds_per_trial": list(extra_within),
     }
-    return {**summary, "reps": reps, "extra": extra, "extra_context_better": better}
+    return {**s, "reps": reps, "extra": extra}
 
 
 @pytest.mark.parametrize(
-    "near, far, better, holds",
+    "near, far, gain, within, extra_within, outcome",
     [
-        (0.05, 0.3, True, True),
-        (0.15, 0.3, True, False),  # the median trial misses a near target by more than 10 cm
-        (0.05, 0.7, True, False),  # ... a far one by more than 0.5 m
-        (0.05, 0.3, False, False),  # extra context does not improve REPS
+        ((0.05, 0.06), (0.3, 0.31), (2.0, 2.1), (1, 1), (1, 1), "undecided"),  # "always": 2 of 2
+        ((0.2, 0.21), (0.3, 0.31), (2.0, 2.1), (1, 1), (1, 1), "does not hold"),  # near > 10 cm
+        ((0.05, 0.06), (0.8, 0.81), (2.0, 2.1), (1, 1), (1, 1), "does not hold"),  # far > 0.5 m
+        ((0.05, 0.06), (0.3, 0.31), (-2.0, -2.1), (1, 1), (1, 1), "does not hold"),  # no gain
+        ((0.05, 0.06), (0.3, 0.31), (2.0, 2.1), (1, 1), (1, 0), "does not hold"),  # not always
     ],
 )
-def test_verdict_decides_the_thesis_sentences(first, near, far, better, holds):
-    settings = get("fig3.3").settings["smoke"]
-    assert verdict(settings, _judged_summary(first, near, far, better)).holds is holds
+def test_spec_decides_the_thesis_sentences(first, near, far, gain, within, extra_within, outcome):
+    summary = _summary(first, near, far, gain, within, extra_within)
+    assert judge.judge("fig3.3", summary, "paper").outcome == outcome
 
 
-def test_own_checks_do_not_change_holds(first):
-    settings = get("fig3.3").settings["smoke"]
-    # an extra-context trial 0.6 m off a near target: our every-trial check fails, holds not
-    loose = _judged_summary(first, 0.05, 0.3, True, extra_max=(0.6, 0.3))
-    assert own_checks(loose)["extra_every_trial_within_bounds"]["holds"] is False
-    assert verdict(settings, loose).holds is True
-    # every extra trial within the bounds, but the median REPS trial is not: holds is False
-    tight = _judged_summary(first, 0.15, 0.3, True, extra_max=(0.05, 0.3))
-    assert own_checks(tight)["extra_every_trial_within_bounds"]["holds"] is True
-    assert verdict(settings, tight).holds is False
+def test_own_parts_do_not_change_the_verdict(first):
+    summary = _summary(first, (0.05, 0.06), (0.3, 0.31), (2.0, 2.1), (1, 1), (1, 0))
+    loose = {**summary["extra"], "near_distance_max_per_trial_m": [0.6, 0.61]}
+    for extra in (summary["extra"], loose):
+        j = judge.judge("fig3.3", {**summary, "extra": extra}, "paper")
+        assert j.outcome == "does not hold"  # decided by the extra arm's 1 of 2 trials
 
 
-def test_summary_without_the_median_trial_is_undecided(first):
-    """Summaries stored before issue #32 lack the median trial's errors: holds is None (or
-    False when the reward comparison fails), and the statement says the number is missing."""
-    settings = get("fig3.3").settings["smoke"]
-    summary = _judged_summary(first, 0.05, 0.3, True)
-    for key in ("near_distance_trial_max_median_m", "far_distance_trial_max_median_m"):
-        del summary["reps"][key]
-    old = verdict(settings, summary)
-    assert old.holds is None and "not recorded in this run" in old.statement
-    assert verdict(settings, {**summary, "extra_context_better": False}).holds is False
-    del summary["reps"]["trials_within_bounds"]
-    assert own_checks(summary)["reps_most_trials_within_bounds"]["holds"] is None
+def test_stored_run_reads_the_near_error_as_a_t_interval():
+    """The engine's interval on the stored paper run equals scipy's Student-t interval on the
+    stored per-trial largest near-target errors (20 numbers: ~80 operations of round-off)."""
+    run = stored_run("fig3.3")
+    x = np.asarray(run.summary["reps"]["near_distance_max_per_trial_m"])
+    lo, hi = stats.t.interval(0.95, x.size - 1, loc=x.mean(), scale=stats.sem(x))
+    r = next(r for r in run.judgement.readings if r.part.label == "REPS largest near-target error")
+    tol = fp_tol(4 * x.size, scale=x.max())
+    assert r.lower == pytest.approx(lo, abs=tol) and r.upper == pytest.approx(hi, abs=tol)
+    assert r.outcome == "does not hold" and run.judgement.outcome == "does not hold"
+    assert judge.card_lines_ok(run.card)
+
+
+def test_smoke_run_is_not_judged(first):
+    summary = first["summary"]
+    assert summary["holds"] is None and summary["verdict"] == "not judged"
+    assert judge.card_lines_ok(summary["judgement"]["card"])
 
 
 def test_summary_counts_the_median_trial_and_the_trials_within_bounds(first):
@@ -114,8 +120,7 @@ def test_summary_counts_the_median_trial_and_the_trials_within_bounds(first):
     assert reps["far_distance_trial_max_median_m"] == pytest.approx(0.3)
     # the second trial misses a near target by 0.2 m, the third has a failed throw
     assert reps["trials_within_bounds"] == 1 and reps["failed_final_rollouts"] == 1
-    assert summary["own_checks"]["reps_most_trials_within_bounds"]["holds"] is False
-    assert summary["own_checks"]["extra_every_trial_within_bounds"]["holds"] is False
+    assert reps["within_bounds_per_trial"] == [True, False, False]
 
 
 def test_summary_has_the_promised_keys(first):
@@ -142,11 +147,8 @@ def test_summary_has_the_promised_keys(first):
     for key in ("reps", "extra"):
         assert len(summary[key]["near_distance_max_per_trial_m"]) == 2
         assert 0 <= summary[key]["trials_within_bounds"] <= 2
-    assert set(summary["own_checks"]) == {
-        "extra_every_trial_within_bounds",
-        "reps_most_trials_within_bounds",
-        "extra_typical_trial_within_bounds",
-    }
+    own = {r["label"] for r in summary["judgement"]["readings"] if r["own"]}
+    assert own == {"extra: largest near error", "extra: largest far error"}
     assert summary["thesis_numbers"] == {
         "near_max_error_m": 0.1,
         "far_max_error_m": 0.5,

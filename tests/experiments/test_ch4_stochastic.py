@@ -3,20 +3,21 @@
 from __future__ import annotations
 
 import dataclasses
-import json
 import warnings
 
 import numpy as np
 import pytest
+from _tolerances import fp_tol
 
 from skillkit.experiments.ch4_stochastic import (
     SCALES,
     block_rmse,
     commanded_transitions,
-    verdict,
 )
+from skillkit.experiments.judge import card_lines_ok, judge, read, spec
 from skillkit.experiments.registry import get
-from skillkit.experiments.runner import run_trials, to_jsonable
+from skillkit.experiments.run import stored_run
+from skillkit.experiments.runner import run_trials
 from skillkit.tasks import make
 from skillkit.tasks.pendulum import THESIS_GAINS, feedback_torque
 from skillkit.trial import TrialContext
@@ -94,21 +95,28 @@ def test_model_is_trained_on_commanded_torques():
     assert np.array_equal(x_next, traj.states[1:]) and np.array_equal(x, traj.states[:-1])
 
 
-def test_verdict_follows_the_stated_criterion():
-    settings = SCALES["smoke"]
-    base = json.loads(json.dumps(to_jsonable(_smoke()["summary"])))
-    L = str(max(settings.sample_sizes))
+def test_smoke_run_is_not_judged_and_its_card_is_short():
+    summary = _smoke()["summary"]
+    j = judge("fig4.8", summary, "smoke")
+    assert j.outcome == "not judged" and card_lines_ok(j.card())
+    assert summary["holds"] is None
 
-    def judge(spread, single, averaged):
-        s = dict(base, single_rollout_std_over_abs_expected=spread)
-        s["rmse_real_L"] = dict(base["rmse_real_L"], **{"1": single})
-        s["rmse_model_L"] = dict(base["rmse_model_L"], **{L: averaged})
-        return verdict(settings, s).holds
 
-    assert judge(0.2, 1.0, 0.5) is True
-    assert judge(0.2, 1.0, 0.51) is False  # the model average is not twice as accurate
-    assert judge(0.09, 1.0, 0.1) is False  # the spread is not considerable
-    assert judge(None, 1.0, 0.1) is False
+def test_own_parts_read_the_stored_spread_and_l_average():
+    """The thesis reports no result (not judged); the own parts read the stored numbers: the
+    single-rollout spread recomputed from the stored std and R_MC, and the 100-trajectory model
+    average's RMSE against one real rollout's."""
+    run = stored_run("fig4.8")
+    s = run.summary
+    assert run.outcome == "not judged"
+    spread, average = (p for p in spec("fig4.8").parts if p.own)
+    r = read(spread, s)
+    ratio = s["single_rollout_std"] / abs(s["expected_reward_mc"])
+    assert r.estimate == r.lower == r.upper and abs(r.estimate - ratio) <= fp_tol(2, scale=ratio)
+    assert r.outcome == "does not hold"  # 9.6% against our 10%
+    r = read(average, s)
+    assert r.estimate == s["rmse_model_L"]["100"] < s["rmse_real_L"]["1"]
+    assert r.outcome == "holds"
 
 
 @pytest.mark.parametrize(

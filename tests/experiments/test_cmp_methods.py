@@ -1,4 +1,4 @@
-"""``cmp.methods`` (issue #34): REPS, GPREPS, CMA-ES and contextual BO on the thesis's tasks."""
+"""``cmp.methods``: REPS, GPREPS, CMA-ES and contextual BO on the thesis's tasks."""
 
 from __future__ import annotations
 
@@ -56,7 +56,8 @@ def test_budgets_follow_the_thesis_methods(result):
 
 def test_summary_names_winners_and_is_not_a_thesis_verdict(result):
     s = result["summary"]
-    assert s["holds"] is None and s["thesis"] == []
+    assert s["holds"] is None and s["thesis"] == [] and s["verdict"] == "not judged"
+    assert "setup" not in s  # the setup table is the spec's (comparisons.toml)
     for task in TASKS:
         row = s["tasks"][task]
         assert row["thresholds"] == list(cmp_methods.THRESHOLDS[task][0])
@@ -166,3 +167,20 @@ def test_readme_comparison_is_made_from_the_stored_result():
     table = readme.split("<!-- comparison:start -->\n")[1].split("<!-- comparison:end -->")[0]
     assert table == comparison_section(run)
     assert ("**stale**" in table) == (run.stale is not None)
+
+
+@pytest.mark.parametrize("scale", ["smoke", "paper"])
+def test_the_comparison_is_never_judged_and_its_card_is_short(result, scale):
+    """Smoke runs are not judged, and the stored paper run neither: the thesis makes no such
+    claim (the spec's no_result); the card says what is compared in three short lines."""
+    from skillkit.experiments import judge
+    from skillkit.experiments.run import stored_run
+
+    s = result["summary"] if scale == "smoke" else stored_run("cmp.methods").summary
+    why = "smoke scale" if scale == "smoke" else judge.spec("cmp.methods").no_result
+    assert s["verdict"] == "not judged" and s["holds"] is None and s["not_judged"] == why
+    card = s["judgement"]["card"]
+    assert judge.card_lines_ok(card) and card.split("\n")[0] == (
+        "cmp.methods: " + judge.spec("cmp.methods").plain
+    )
+    assert s["judgement"]["readings"] == []

@@ -1,8 +1,9 @@
 """The experiment contract, over every registered id at the smoke scale (dm_control
 ``suite_test`` style): an experiment gets these checks by registering.
 
-Each id must give a strict-JSON result whose ``summary`` starts with the verdict schema
-(``claim``, ``holds``, ``statement``) recomputable from the summary alone; the same seed must
+Each id must give a strict-JSON result whose ``summary`` starts with the judgement of the
+claims spec (``claim``, ``holds``, ``verdict``, ``statement``, ``thesis``), recomputable from the
+measurements alone, and a card of at most three short lines that reads; the same seed must
 give the same numbers and (where the experiment is random) another seed other numbers; its
 settings must be a frozen dataclass with every field described, checked by name and type
 before anything runs; and its figures must build.
@@ -19,10 +20,10 @@ from pathlib import Path
 import pytest
 
 from skillkit.cli import main
-from skillkit.experiments.claims import SMOKE_NOTE, judged, thesis_quotes
+from skillkit.experiments import judge
 from skillkit.experiments.provenance import staleness
-from skillkit.experiments.registry import SCALES, VERDICT_KEYS, get, ids
-from skillkit.experiments.run import COMPARISON_PREFIX
+from skillkit.experiments.registry import SCALES, get, ids
+from skillkit.experiments.run import load_run
 from skillkit.experiments.runner import run_trials, to_jsonable
 from skillkit.experiments.settings import Settings, apply_overrides, describe
 
@@ -62,7 +63,7 @@ def _numbers(result: dict, exp_id: str):
                 if "time" not in k
                 and "gflops" not in k
                 and not (timed and k in ("y", "lower", "upper"))
-                and not (verdict_timed and k in ("holds", "statement"))
+                and not (verdict_timed and k in judge.JUDGEMENT_KEYS)
             }
         if isinstance(obj, list):
             return [strip(v) for v in obj]
@@ -82,33 +83,35 @@ def test_result_is_strict_json(exp_id):
     assert back["series"], "an experiment plots at least one series"
 
 
+HEAD = ["claim", "holds", "verdict", "statement", "thesis"]
+"""The judgement's keys, first in every summary."""
+
+
+def assert_card_reads(card: str) -> None:
+    """At most three lines of at most 100 characters, every number written out, no doubled
+    negation or a word repeated by a template ("no the target puck (no hit) … no hit cm")."""
+    lines = card.split("\n")
+    assert 2 <= len(lines) <= 3 and all(0 < len(x) <= 100 for x in lines), card
+    assert not re.search(r"\bn/a\b|\bNone\b|\bnan\b|\bTODO\b", card), card
+    assert not re.search(r"\bno\b[^.;:]*\bno\b", card, re.IGNORECASE), card
+    assert not re.search(r"\b(\w+) \1\b", card), card
+
+
 @pytest.mark.parametrize("exp_id", IDS)
-def test_summary_follows_the_verdict_schema(exp_id):
+def test_summary_starts_with_the_judgement_of_the_spec(exp_id):
     exp = get(exp_id)
     summary = _run(exp_id)["summary"]
-    assert list(summary)[:4] == [*VERDICT_KEYS, "thesis"]
-    assert isinstance(summary["claim"], str) and summary["claim"].strip()
-    assert summary["claim"] == exp.claim
-    # the sentences the verdict judges; a comparison of ours (cmp.*) quotes none
-    ours = exp_id.startswith(COMPARISON_PREFIX)
-    assert summary["thesis"] == ([] if ours else thesis_quotes(exp_id))
+    assert list(summary)[:5] == HEAD
+    assert summary["claim"] == exp.claim == judge.spec(exp_id).plain
+    assert summary["thesis"] == judge.quotes_of(exp_id)
     # Smoke runs are not judged: holds is withheld and not_judged says why.
-    assert summary["holds"] is None and summary["not_judged"] == SMOKE_NOTE
-    assert isinstance(summary["statement"], str) and re.search(r"\d", summary["statement"])
-    # a missing number is said in words (issue #33): smoke runs miss many (no hit, no return)
-    assert not re.search(r"\bn/a\b|\bNone\b|\bnan\b", summary["statement"]), summary["statement"]
-    assert "claim_holds" not in summary  # the old form is gone
-    # A function of the stored numbers: the same verdict from the JSON summary alone.
+    assert summary["holds"] is None and summary["verdict"] == "not judged"
+    assert summary["not_judged"] == "smoke scale"
+    assert_card_reads(summary["judgement"]["card"])
+    # A function of the measurements: judging the stored JSON again gives the same summary.
     stored = json.loads(json.dumps(to_jsonable(summary)))
-    own = exp.verdict(exp.settings["smoke"], stored)
-    assert own.holds in (True, False, None) and own.statement == summary["statement"]
-    again = judged({**stored, **own.as_dict()}, exp_id, "smoke")
-    assert again == stored
-    # Our own checks: recomputable from the numbers, each a verdict of its own.
-    checks = {k: v for k, v in stored.get("own_checks", {}).items() if k != "own_criterion"}
-    if exp.own_checks is not None:
-        assert checks == exp.own_checks(exp.settings["smoke"], stored)
-    assert all(set(v) == {"holds", "criterion"} for v in stored.get("own_checks", {}).values())
+    settings = json.loads(json.dumps(to_jsonable(exp.settings["smoke"].to_dict())))
+    assert judge.apply(stored, exp_id, "smoke", settings) == stored
 
 
 @pytest.mark.parametrize("exp_id", IDS)
@@ -200,22 +203,20 @@ def test_figures_build(exp_id, tmp_path):
 
 
 @pytest.mark.parametrize("path", sorted(DATA.glob("*/result.json")), ids=lambda p: p.parent.name)
-def test_stored_results_carry_the_current_verdict(path):
-    """``data/results`` summaries are migrated (data/migrate_summaries.py) and agree with
-    each experiment's verdict function on their own numbers."""
-    result = json.loads(path.read_text())
-    exp = get(result["id"])
-    summary = result["summary"]
-    assert list(summary)[:3] == list(VERDICT_KEYS) and "claim_holds" not in summary
-    settings = apply_overrides(exp.settings[result["scale"]], result["settings"])
-    stale, _ = staleness(result)
+def test_stored_results_are_judged_from_their_measurements(path):
+    """A stored paper result is judged by today's spec when it is loaded: its card reads, its
+    verdict is one of the four outcomes, and every thesis part of the spec has a reading."""
+    run = load_run(path)
+    summary = run.summary
+    assert list(summary)[:5] == HEAD
+    assert summary["verdict"] in ("holds", "does not hold", "undecided", "not judged")
+    assert_card_reads(run.card)
+    claim = judge.spec(run.id)
+    assert len(summary["judgement"]["readings"]) == len(claim.parts)
+    stale, _ = staleness(run.result)
     if not stale:  # a stale run's overrides are relative to the defaults of the code that made it
-        assert result["overrides"] == json.loads(
-            json.dumps(to_jsonable(exp.overrides(result["scale"], settings)))
+        exp = get(run.id)
+        settings = apply_overrides(exp.settings[run.scale], run.settings)
+        assert run.result["overrides"] == json.loads(
+            json.dumps(to_jsonable(exp.overrides(run.scale, settings)))
         )
-    verdict = exp.verdict(settings, summary)
-    again = judged({**summary, **verdict.as_dict()}, result["id"], result["scale"])
-    assert again == summary
-    if exp.own_checks is not None:
-        checks = {k: v for k, v in summary["own_checks"].items() if k != "own_criterion"}
-        assert checks == json.loads(json.dumps(to_jsonable(exp.own_checks(settings, summary))))

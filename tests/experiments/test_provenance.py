@@ -2,6 +2,10 @@
 
 import ast
 import json
+import os
+import shutil
+import subprocess
+import sys
 
 import pytest
 
@@ -209,3 +213,239 @@ def test_closure_follows_a_lazily_exported_name_to_its_module(tmp_path):
         getattr(skillkit.search, name).__module__ == module
         for name, module in skillkit.search._LAZY.items()
     )
+
+
+# ---------------------------------------------------------------------------- the witness
+def _witness(summary, fingerprint="f" * 16, series=(), **extra):
+    return {
+        "scale": "smoke",
+        "seed": 0,
+        "trials": 1,
+        "commit": "abc1234",
+        "code_fingerprint": fingerprint,
+        "summary": provenance.measurements(summary),
+        "series": provenance.series_measurements(list(series)),
+        "unstable": [],
+        **extra,
+    }
+
+
+def test_measurements_keep_numbers_and_drop_judgement_and_text():
+    summary = {
+        "claim": "c",
+        "holds": True,
+        "statement": "ours 1.0",
+        "thesis": [{"quote": "q", "location": "p. 1"}],
+        "own_checks": {"x": {"holds": False, "criterion": "t"}},
+        "err": 0.5,
+        "per_arm": {"reps": {"n": 3, "ok": True, "note": "text", "holds": None, "gap": None}},
+        "curve": [1.0, 2.0],
+        "labels": ["a", "b"],
+        "words": {"only": "text"},
+        "empty": {},
+    }
+    assert provenance.measurements(summary) == {
+        "err": 0.5,
+        "per_arm": {"reps": {"n": 3, "ok": True, "gap": None}},
+        "curve": [1.0, 2.0],
+        "empty": {},
+    }
+    assert {"claim", "holds", "statement", "thesis", "own_checks"} <= provenance.JUDGEMENT_KEYS
+
+
+def test_compare_witness_equal_within_round_off_and_names_a_changed_number():
+    rtol, atol = provenance.WITNESS_RTOL, provenance.WITNESS_ATOL
+    curve = [{"x": [0, 1], "y": [1.0, 3.0]}]
+    stored = _witness({"a": {"b": 2.0}, "z": 0.0, "n": None}, series=curve)
+    near = _witness(
+        {"a": {"b": 2.0 * (1 + 0.5 * rtol)}, "z": 0.5 * atol, "n": float("nan")},
+        series=[{"x": [0, 1], "y": [1.0, 3.0 * (1 - 0.5 * rtol)]}],
+    )
+    assert provenance.compare_witness(stored, near) == (True, [])
+    far = _witness(
+        {"a": {"b": 2.0 * (1 + 2 * rtol)}, "z": 0.0, "n": None},
+        series=[{"x": [0, 1], "y": [1.0, 3.5]}],
+    )
+    equal, differences = provenance.compare_witness(stored, far)
+    assert not equal and len(differences) == 2
+    assert differences[0].startswith("summary.a.b: 2.0 -> 2.000004")
+    assert differences[1] == "series[0].y: 1 of 2 values differ, first [1]: 3.0 -> 3.5"
+    missing = _witness({"a": {}, "z": 0.0, "n": None}, series=[{"x": [0, 1], "y": [1.0]}])
+    equal, differences = provenance.compare_witness(stored, missing)
+    assert not equal and differences == [
+        "summary.a.b: missing (stored 2.0)",
+        "series[0].y: length 2 -> 1",
+    ]
+
+
+def test_compare_witness_allows_added_measurements_and_ignores_text_and_unstable_ones():
+    base = {"claim": "c", "statement": "ours 1", "err": 1.0, "time_s": 3.2}
+    curve = [{"name": "a", "x": [0], "y": [1.0]}]
+    stored = _witness(base, series=curve, unstable=["summary.time_s"])
+    fresh = _witness(
+        {**base, "statement": "other words", "holds": False, "time_s": 9.9, "new": 4},
+        series=[{"name": "renamed", "x": [0], "y": [1.0], "band": "b"}, {"x": [0], "y": [2.0]}],
+    )
+    equal, differences = provenance.compare_witness(stored, fresh)
+    assert equal
+    assert differences == ["added: summary.new = 4", "added: series[1] = an object of 2 keys"]
+
+
+def _result(folder, exp_id, fingerprint, seed, witness=None):
+    folder.mkdir(parents=True)
+    result = {"id": exp_id, "seed": seed, "code_fingerprint": fingerprint,
+              "git": {"commit": "abc1234", "dirty": False}, "summary": {"holds": True}}  # fmt: skip
+    if witness is not None:
+        result["witness"] = witness
+    (folder / "result.json").write_text(json.dumps(result, indent=1))
+    return result
+
+
+def test_check_results_counts_and_a_recorded_carry_needs_no_run(tmp_path, monkeypatch):
+    from skillkit.experiments import runner
+
+    exp_id = "fig2.12"
+    now = provenance.code_fingerprint(exp_id)
+    old = "0" * 16
+    _result(tmp_path / "a-current", exp_id, now, 0, _witness({"e": 1.0}, fingerprint=now))
+    _result(tmp_path / "b-carried", exp_id, old, 1, _witness({"e": 1.0}, old, seed=1))
+    _result(tmp_path / "c-differs", exp_id, old, 2, _witness({"e": 2.0}, old, seed=2))
+    _result(tmp_path / "d-none", exp_id, old, 3)
+    calls = []
+
+    def fake(exp, seed=0, *, trials=None, repeats=1, progress=False):
+        calls.append(seed)
+        return {**_witness({"e": 1.0, "new": 3}, fingerprint=now), "seed": seed}
+
+    monkeypatch.setattr(runner, "smoke_witness", fake)
+    rows = provenance.check_results(tmp_path, witness=True, record=True, progress=False)
+    status = {r["path"].rsplit("/", 1)[-1]: (r["status"], r["reason"]) for r in rows}
+    assert status["a-current"] == ("current", "current")
+    assert status["b-carried"] == ("carried", "carried (code changed at abc1234, witness equal)")
+    assert status["c-differs"][0] == "stale"
+    assert (
+        status["c-differs"][1] == "witness differs: summary.e: 2.0 -> 1.0; added: summary.new = 3"
+    )
+    assert status["d-none"][0] == "stale" and "no witness" in status["d-none"][1]
+    assert sorted(calls) == [1, 2]
+    carried = json.loads((tmp_path / "b-carried" / "result.json").read_text())
+    assert [set(c) for c in carried["carried"]] == [{"code_fingerprint", "commit", "checked"}]
+    assert carried["carried"][0]["code_fingerprint"] == now
+    assert "carried" not in json.loads((tmp_path / "c-differs" / "result.json").read_text())
+    # the record makes the next check of b instant, and staleness() reads it too
+    calls.clear()
+    rows = provenance.check_results(tmp_path, witness=True, progress=False)
+    assert [r["status"] for r in rows] == ["current", "carried", "stale", "stale"]
+    assert calls == [2]
+    assert provenance.staleness(carried) == (False, status["b-carried"][1])
+    assert [r["status"] for r in provenance.check_results(tmp_path)] == [
+        "current", "carried", "stale", "stale"
+    ]  # fmt: skip
+    assert calls == [2]  # without witness=True nothing runs
+
+
+def test_add_witness_refuses_a_result_made_by_other_code(tmp_path):
+    from skillkit.experiments.runner import add_witness
+
+    _result(tmp_path / "r", "fig2.12", "0" * 16, 0)
+    with pytest.raises(ValueError, match="a witness must come from the code that made"):
+        add_witness(tmp_path / "r")
+
+
+def test_stored_numbers_computed_in_series_are_in_the_fingerprint():
+    """Experiments import ``trial_band`` through ``skillkit.viz.series`` and ``Series`` through
+    the registry: both lead to ``skillkit/series.py``, while viz itself stays out."""
+    root = provenance.PACKAGE_ROOT
+    for exp_id in ("fig3.3", "fig2.12"):
+        closure = provenance.source_closure(provenance._source_file(get(exp_id).run_trial))
+        names = {str(f.relative_to(root)) for f in closure}
+        assert "series.py" in names
+        assert not any(n.startswith("viz/") for n in names)
+
+
+_WITNESS_SCRIPT = """
+import json, sys
+from pathlib import Path
+from skillkit.experiments import provenance, runner
+mode, out = sys.argv[1], sys.argv[2]
+if mode == "make":
+    folder = Path(out) / "fig2.12-paper-s0"
+    folder.mkdir(parents=True)
+    made = {"id": "fig2.12", "seed": 0, "code_fingerprint": provenance.code_fingerprint("fig2.12")}
+    runner.write_result(folder, made)
+    print(json.dumps(runner.add_witness(folder)))
+else:
+    rows = provenance.check_results(out, witness=True, record=True, progress=False)
+    print(json.dumps(rows))
+"""
+
+
+def _in_copy(src, *args):
+    env = {**os.environ, "PYTHONPATH": str(src), "OMP_NUM_THREADS": "1"}
+    done = subprocess.run(
+        [sys.executable, "-c", _WITNESS_SCRIPT, *map(str, args)],
+        cwd=src,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def _edit(path, old, new):
+    text = path.read_text()
+    assert old in text, (path, old)
+    path.write_text(text.replace(old, new))
+
+
+def test_a_pure_refactor_carries_a_result_and_a_numeric_change_stales_it(tmp_path):
+    """In a copy of the package: a result of fig2.12 gets its witness; renaming a private
+    helper of models/gp.py changes the fingerprint and the fresh witness equals the stored one
+    (carried, recorded); changing the jitter levels fig2.12 uses changes its numbers (stale:
+    the witness differs)."""
+    src = tmp_path / "src"
+    shutil.copytree(
+        provenance.PACKAGE_ROOT, src / "skillkit", ignore=shutil.ignore_patterns("__pycache__")
+    )
+    out = tmp_path / "runs"
+    witness = _in_copy(src, "make", out)
+    assert witness["scale"] == "smoke" and witness["unstable"] == []
+    made_by = witness["code_fingerprint"]
+
+    models = src / "skillkit" / "models"
+    for name in ("gp.py", "pathwise.py"):
+        _edit(models / name, "_flush_tiny", "_flush_below_resolution")
+    [row] = _in_copy(src, "check", out)
+    assert (row["status"], row["stale"]) == ("carried", False), row["reason"]
+    stored = out / "fig2.12-paper-s0" / "result.json"
+    [record] = json.loads(stored.read_text())["carried"]
+    assert record["code_fingerprint"] != made_by
+
+    _edit(models / "gp.py", "_JITTER_LEVELS = (1e-12,", "_JITTER_LEVELS = (1e-10,")
+    [row] = _in_copy(src, "check", out)
+    assert row["status"] == "stale" and row["reason"].startswith("witness differs: summary."), row
+    assert len(json.loads(stored.read_text())["carried"]) == 1
+
+
+def test_reproduce_stores_the_smoke_witness_of_the_same_code(tmp_path, monkeypatch):
+    """A quick run is stored with its witness; fig2.12 has the same settings at every scale,
+    so the witness measures what the run measured. A rerun that resumes keeps the witness."""
+    import skillkit.viz.plots
+    from skillkit.experiments import runner
+
+    monkeypatch.setattr(skillkit.viz.plots, "write_figures", lambda *a, **k: None)
+    run = runner.reproduce("fig2.12", "quick", out=tmp_path, progress=False, html=False)
+    witness = run.result["witness"]
+    assert witness["code_fingerprint"] == run.result["code_fingerprint"]
+    assert (witness["scale"], witness["seed"], witness["trials"]) == ("smoke", 0, 1)
+    assert witness["summary"] == provenance.measurements(run.summary)
+    assert witness["series"] == provenance.series_measurements(run.result["series"])
+    assert json.loads((run.path / "result.json").read_text())["witness"] == witness
+    calls = []
+    monkeypatch.setattr(runner, "smoke_witness", lambda *a, **k: calls.append(a))
+    again = runner.reproduce("fig2.12", "quick", out=tmp_path, progress=False, html=False)
+    assert again.result["witness"] == witness and calls == []
+    smoke = runner.reproduce("fig2.12", "smoke", out=tmp_path, progress=False, html=False)
+    assert "witness" not in smoke.result

@@ -10,7 +10,7 @@ import pytest
 
 from skillkit.cli import main
 from skillkit.experiments import registry
-from skillkit.experiments.registry import Experiment, Series, Verdict, mean_band, with_verdict
+from skillkit.experiments.registry import Experiment, Series, mean_band
 from skillkit.experiments.runner import reproduce, run_folder, run_trials
 from skillkit.experiments.settings import Settings, apply_overrides, setting
 
@@ -47,11 +47,7 @@ def _summarize(settings, trials):
     m, lo, hi = mean_band(curves)
     series = [Series("walk", list(range(settings.n)), m, lower=lo, upper=hi, panel="a", xlabel="t")]
     summary = {"mean_last": float(np.mean([t["last"] for t in trials]))}
-    return series, with_verdict(summary, _verdict(settings, summary))
-
-
-def _verdict(settings, summary):
-    return Verdict("walks wander", None, f"mean last position {summary['mean_last']:.3g}")
+    return series, summary
 
 
 @pytest.fixture
@@ -64,7 +60,6 @@ def toy(monkeypatch):
         {"smoke": replace(quick, n=2), "quick": quick, "paper": replace(quick, n=50)},
         _trial,
         _summarize,
-        _verdict,
         trials={"smoke": 1, "quick": 3, "paper": 2},
         claim="walks wander",
     )
@@ -151,15 +146,6 @@ def test_registration_needs_every_scale_and_a_claim(toy):
         registry.register(replace(toy, id="toy1.3", claim=""))
     with pytest.raises(ValueError, match="settings_class"):
         registry.register(replace(toy, id="toy1.4", settings_class=dict))
-
-
-def test_verdict_checks_its_fields():
-    assert Verdict("c", np.bool_(True), "1 of 1").holds is True
-    for bad in (dict(claim=""), dict(holds=1), dict(holds="yes"), dict(statement=" ")):
-        with pytest.raises(ValueError, match=next(iter(bad))):
-            Verdict(**{"claim": "c", "holds": None, "statement": "s", **bad})
-    summary = with_verdict({"x": 1, "holds": "old"}, Verdict("c", False, "s"))
-    assert list(summary) == ["claim", "holds", "statement", "x"] and summary["holds"] is False
 
 
 def test_duplicate_registration_is_refused(toy):

@@ -436,7 +436,8 @@ def test_bad_input_raises_naming_the_argument():
 
 @pytest.mark.parametrize("n_steps", [2.7, "5", None])
 def test_n_steps_must_be_an_integer(n_steps):
-    """2.7 rows used to become 2 silently (int()); a string or None failed outside the check."""
+    """Without the check 2.7 rows would become 2 silently (int()) and a string or None would
+    fail elsewhere."""
     rng = np.random.default_rng(16)
     x = rng.normal(size=(10, 2))
     m = ConditionalEmbedding(x, np.tanh(x), _se(2), lam=1e-3)
@@ -447,7 +448,8 @@ def test_n_steps_must_be_an_integer(n_steps):
 
 @pytest.mark.parametrize("n_steps", [0, -2, 1.5])
 def test_rollout_weights_n_steps_must_be_a_positive_integer(n_steps):
-    """n_steps = 0 used to return one weight vector (shape (1, N, B), not (0, N, B))."""
+    """Without the check n_steps = 0 would return one weight vector (shape (1, N, B), not
+    (0, N, B))."""
     chol = torch.eye(3, dtype=torch.float64)
     beta = torch.ones((3, 2), dtype=torch.float64)
     with pytest.raises(ValueError, match="n_steps: expected an integer"):

@@ -367,7 +367,8 @@ def test_folds_given_once_as_an_iterator_give_the_same_loss():
 
 @pytest.mark.parametrize("chunk", [0, -1, 2.5])
 def test_trajectory_loss_chunk_must_be_a_positive_integer(chunk):
-    """chunk = -1 used to drop every fold (a loss identically 0), 0 failed inside range()."""
+    """Without the check chunk = -1 would drop every fold (a loss identically 0) and 0 would
+    fail inside range()."""
     x, u, r, policy, reward, _ = _rollouts(np.random.default_rng(9))
     with pytest.raises(ValueError, match="chunk: expected an integer"):
         trajectory_reward_loss(x, u, r, policy, reward, kfold_splits(x.shape[0], 3, rng=2), chunk)

@@ -275,10 +275,10 @@ def test_optimizer_stops_on_failure_and_restores_best():
 
 
 def test_lbfgs_never_returns_a_rejected_line_search_point():
-    """Issue #16: f(p) = −p + 0.8 p⁴ from p = 0. L-BFGS's first trial p = 1 has f = −0.2 < f(0)
+    """f(p) = −p + 0.8 p⁴ from p = 0. L-BFGS's first trial p = 1 has f = −0.2 < f(0)
     (Armijo holds) but f'(1) = 2.2 breaks the strong-Wolfe curvature condition, so the line
     search rejects it and evaluates again; that evaluation fails. The last completed iterate is
-    p = 0: restoring the best value *seen* (the rejected p = 1) was the bug."""
+    p = 0, not the best value *seen* (the rejected p = 1)."""
     p = torch.nn.Parameter(torch.tensor([0.0], dtype=torch.float64))
     calls = {"n": 0}
 

@@ -122,7 +122,7 @@ def test_bad_input_names_the_argument():
     assert "unfitted" in repr(LinearGaussianModel())
 
 
-# --------------------------------------------------------------------------- noise (#30)
+# ------------------------------------------------------------------------------------ noise
 def _correlated_noise_model(seed=4):
     """A linear-Gaussian model fitted to data whose noise enters through the control channel
     (w = B ξ + a little isotropic noise: residual correlation ~0.99, as on the balancing

@@ -279,7 +279,7 @@ def test_gaussian_kl_names_a_bad_shape_and_passes_non_finite_entries_through():
     assert out[0] == pytest.approx(1.0, rel=0, abs=tol) and np.isnan(out[1]) and out[2] == 0.0
 
 
-# --------------------------------------------------------------------------- round-off (#30)
+# -------------------------------------------------------------------------------- round-off
 def _reference_moments(pred, m, S, digits: int = 40):
     """The moments from the predictor's fields (taken as exact) in ``digits``-digit arithmetic
     (mpmath), straight from the formulas of the module docstring: mean, cov, cov(z, y)."""

@@ -1,6 +1,6 @@
-"""The batched, blocked moment matching (issue #18) equals the implementation it replaced.
+"""The batched, blocked moment matching equals a straightforward reference implementation.
 
-``_reference_moment_match`` below is the pre-#18 ``_moment_match`` kept verbatim (one Python
+``_reference_moment_match`` below is the unbatched ``_moment_match`` (one Python
 loop over outputs a, one (M × M) log-domain product per pair a ≤ b, no exponent floor): an
 independent computation of the same formulas. Means, covariances and input–output covariances
 must agree to 1e-10 relative (‖new − old‖_max ≤ 1e-10 ‖old‖_max for each), for exact and FITC
@@ -40,7 +40,7 @@ RTOL = 1e-10
 def _reference_moment_match(
     pred: GPPredictor, m: torch.Tensor, S: torch.Tensor, include_noise: bool = True
 ) -> GaussianPrediction:
-    """The pre-#18 implementation (its latent-variance clamp without the warning)."""
+    """The unbatched implementation (its latent-variance clamp without the warning)."""
     E, M, D = pred.support.shape
     iL = 1.0 / pred.lengthscale  # (E, D)
     sf2 = pred.outputscale

@@ -1,4 +1,4 @@
-"""Handled numerical events (issue #30 item 3): counted inside a recorder, warned about once
+"""Handled numerical events: counted inside a recorder, warned about once
 outside it, kept per fit, per trial (across interrupted and resumed runs and worker
 processes) and in a run's summary; remaining warnings never go through a progress bar."""
 
@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from skillkit.experiments import registry
-from skillkit.experiments.registry import Experiment, Series, Verdict, with_verdict
+from skillkit.experiments.registry import Experiment, Series
 from skillkit.experiments.runner import (
     _execute_trial,
     _replay_warnings,
@@ -190,11 +190,7 @@ def _summarize(settings, trials):
     xs = [t["x"] for t in trials]
     summary = {"mean_x": float(np.mean(xs))}
     series = [Series("x", list(range(len(xs))), xs, panel="a", xlabel="trial")]
-    return series, with_verdict(summary, _verdict(settings, summary))
-
-
-def _verdict(settings, summary):
-    return Verdict("events are counted", None, f"mean x {summary['mean_x']:.3g}")
+    return series, summary
 
 
 @pytest.fixture
@@ -207,7 +203,6 @@ def events_exp(monkeypatch):
         {"smoke": replace(quick, n=2), "quick": quick, "paper": replace(quick, n=6)},
         _trial,
         _summarize,
-        _verdict,
         trials={"smoke": 1, "quick": 2, "paper": 2},
         claim="events are counted",
     )
@@ -324,8 +319,8 @@ def test_remaining_warnings_are_written_above_the_progress_bar(events_exp, capsy
 
 @pytest.mark.filterwarnings("error::skillkit.models.gp.GPNumericalWarning")
 def test_smoke_reproduce_of_gp_fits_prints_no_numerical_warning(tmp_path):
-    """fig4.6 at smoke scale fits GPs whose noise ends at its floor (it printed a
-    GPNumericalWarning through the progress bar before issue #30): now counted."""
+    """fig4.6 at smoke scale fits GPs whose noise ends at its floor: the events are counted,
+    and no GPNumericalWarning goes through the progress bar."""
     run = reproduce("fig4.6", "smoke", trials=1, out=tmp_path, progress=False, html=False)
     result = json.loads((run.path / "result.json").read_text())
     counts = result["summary"]["handled_numerical_events"]

@@ -294,9 +294,10 @@ def test_control_limit_shape_and_chunk_budget_are_checked(gp_model):
 
 @pytest.mark.parametrize("device", ["cpu:0", torch.device("cpu", 0)])
 def test_an_indexed_device_samples_like_the_default(gp_model, device):
-    """``device="cpu:0"`` used to reject every policy ("expected controls ... on cpu:0, got ...
-    on cpu": tensors report the device without its index), as ``"cuda"`` would against
-    controls on ``cuda:0``; the device is now the one tensors made there report."""
+    """``device="cpu:0"`` samples like ``"cpu"``: tensors report the device without its index, so
+    comparing against the requested name would reject every policy ("expected controls ... on
+    cpu:0, got ... on cpu"), as ``"cuda"`` would against controls on ``cuda:0``; the device
+    used is the one tensors made there report."""
     x0 = np.array([[0.5, 0.0], [0.0, 0.5]])
     ref = sample_trajectories(gp_model, x0, _feedback, 4, 8, rng=3)
     res = sample_trajectories(gp_model, x0, _feedback, 4, 8, rng=3, device=device)

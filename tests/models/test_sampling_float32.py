@@ -1,9 +1,9 @@
-"""float32 sampling: the float64 path is unchanged (above its kernel floor); float32 matches it
-within Monte Carlo error.
+"""float32 sampling: the float64 path equals the plain float64 sampler (above its kernel
+floor); float32 matches it within Monte Carlo error.
 
 The fixtures sit at an offset of 20 from the origin with length-scales of order 1: there the
-augmented-operand kernel exponent −½‖a‖² + a·b − ½‖b‖² cancels badly, and the float32 path
-before issue #18 (exponent in float32) was off by 0.35 (exact GP) and 0.10 (FITC) predictive
+augmented-operand kernel exponent −½‖a‖² + a·b − ½‖b‖² cancels badly: with the exponent in
+float32 the float32 path is off by 0.35 (exact GP) and 0.10 (FITC) predictive
 standard deviations in the mean; with the exponent in float64 the errors are 2.7e-3 and 6.7e-5.
 """
 
@@ -62,7 +62,7 @@ def _queries(n: int, spread: float, seed: int) -> torch.Tensor:
 
 
 def _reference_rollout(model, x0, T: int, L: int, seed: int) -> torch.Tensor:
-    """The float64 sampler as it was before issue #18, written out operation by operation."""
+    """The plain float64 sampler (no kernel floor), written out operation by operation."""
     p = model.predictor
     support = se_operands(p.support, p.lengthscale[:, None, :], p.outputscale).contiguous()
     weights = torch.cat([p.var_factor.transpose(-1, -2), p.beta[..., None]], dim=-1).contiguous()
@@ -152,7 +152,7 @@ def test_float32_one_step_moments_match_float64(model, spread):
     # exponent's share; ‖v‖²
     # gets 2 sqrt(Σ_j (v_j sd(v_j))²). Largest over the queries, in predictive standard
     # deviations (mean) or relative (variance): ~5e-3 (exact) and ~2.5e-4 (FITC); seen
-    # 2.8e-3 and 7.9e-5. Five of them: the float32 exponent before issue #18 was off by
+    # 2.8e-3 and 7.9e-5. Five of them: a float32 exponent is off by
     # 0.35 (exact) and 0.10 (FITC).
     u = 2.0**-24
     k = p.kernel_vectors(z)  # (E, n, M), float64

@@ -278,7 +278,7 @@ def test_bad_input_names_the_argument():
         pol.fit(np.ones((6, 2)), np.random.default_rng(0).normal(size=(6, 2)), np.ones(6))
     with pytest.raises(ValueError, match="cov_shrinkage"):
         pol.fit(np.zeros((6, 2)), np.zeros((6, 2)), np.ones(6), cov_shrinkage=1.0)
-    one_sample = np.eye(6)[0]  # Kish ESS 1: a NaN bound used to switch the check off
+    one_sample = np.eye(6)[0]  # Kish ESS 1: a NaN bound would switch the check off
     for bad in (np.nan, -1.0):
         with pytest.raises(ValueError, match="min_effective_samples"):
             pol.fit(np.zeros((6, 2)), np.zeros((6, 2)), one_sample, min_effective_samples=bad)

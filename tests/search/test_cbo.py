@@ -1,4 +1,4 @@
-"""Contextual BO glue (issue #34): BoTorch's GP and UCB behind the search interface."""
+"""Contextual BO glue: BoTorch's GP and UCB behind the search interface."""
 
 from __future__ import annotations
 

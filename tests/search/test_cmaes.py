@@ -1,4 +1,4 @@
-"""CMA-ES glue (issue #34): the search interface over cma's ask/tell, episodic and contextual."""
+"""CMA-ES glue: the search interface over cma's ask/tell, episodic and contextual."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """Extra contexts (Sec. 3.4) without bias: the importance weights of re-scored rows, their use
-in REPS ("naive" / "importance" / "dual_only"), the sample buffer's bookkeeping (issue #17)."""
+in REPS ("naive" / "importance" / "dual_only"), the sample buffer's bookkeeping."""
 
 import warnings
 
@@ -120,7 +120,7 @@ def test_buffer_marks_rollouts_across_batches_and_reads_old_batches():
     buf.add(s[:3], w[:3], r[:3])
     np.testing.assert_array_equal(buf.rollout_mask(), [1, 1, 0, 0, 0, 0, 1, 1, 1])
     np.testing.assert_allclose(buf.importance(), np.r_[np.arange(1.0, 7.0) / 3.5, np.ones(3)])
-    buf._batches.append((s[:2], w[:2], r[:2]))  # a batch pickled before issue #17
+    buf._batches.append((s[:2], w[:2], r[:2]))  # a batch pickled without rollout counts
     np.testing.assert_array_equal(buf.rollout_mask(), [1, 1, 1, 1, 1])
     assert buf.arrays()[0].shape == (5, 1)
 
@@ -131,7 +131,7 @@ def test_reps_pickled_before_the_options_runs_as_before():
     new = ContextualREPS(task.initial_policy(), 0.5, extra_context_weighting="naive")
     old = ContextualREPS(task.initial_policy(), 0.5)
     for name in ("extra_context_weighting", "m_step", "entropy_loss_bound"):
-        del vars(old)[name]  # an instance unpickled from before issue #17
+        del vars(old)[name]  # an instance pickled without the options
     old._buffer._batches.append((batch.contexts[:10], batch.omegas[:10], batch.rewards[:10]))
     new._buffer.add(batch.contexts[:10], batch.omegas[:10], batch.rewards[:10])
     old.update(batch)
@@ -157,7 +157,7 @@ def test_bad_input_names_the_argument():
 
 def test_dual_only_with_no_weight_left_on_the_rollouts_is_a_clear_error():
     # All of the dual's weight on extra-context rows: the rollout rows' weights underflow to
-    # zero and used to be renormalised 0/0 into NaN (a RuntimeWarning, then an error about
+    # zero; renormalised 0/0 they would be NaN (a RuntimeWarning, then an error about
     # non-finite "weights" from the fit).
     rng = np.random.default_rng(0)
     pol = LinearGaussianPolicy(np.zeros(1), np.eye(1), context_dim=1)

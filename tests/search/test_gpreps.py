@@ -373,7 +373,7 @@ class _ColumnPredictions:
 
 
 def test_predictions_of_the_real_batch_must_have_one_value_per_row():
-    # A (N, 1) prediction used to broadcast against the (N,) rewards: prediction_rmse came
+    # A (N, 1) prediction would broadcast against the (N,) rewards: prediction_rmse would come
     # out of an N × N difference (0.06 where every prediction is exact) instead of an error.
     task = LinearOptimumTask()
     alg = GPREPS(

@@ -346,11 +346,11 @@ def test_displacement_classifier_and_gp_on_hits():
 
 
 LAUNCHES_410 = Path(__file__).resolve().parent / "data" / "hockey_launches_fig410_trial0.npz"
-"""The 119 launches of trial 0 of the fig4.10 paper run made before issue #31 (commit
-1c9393e), as its launch GP held them: the omegas (119, 15), the launch states [p_y, v_x, v_y,
-t_0] (119, 4; its additive target noise included) and the warm-started chain's final
-hyper-parameters, which issue #31 found stuck (log marginal likelihood −2.96 per point
-against +1.13 for a cold fit on the same data)."""
+"""The 119 launches of trial 0 of the fig4.10 paper run of commit 1c9393e, as its launch GP
+held them: the omegas (119, 15), the launch states [p_y, v_x, v_y, t_0] (119, 4; its additive
+target noise included) and the warm-started chain's final hyper-parameters, stuck in a poor
+optimum (log marginal likelihood −2.96 per point against +1.13 for a cold fit on the same
+data)."""
 
 
 def test_refit_reaches_the_cold_fits_marginal_likelihood_on_stored_shots():

@@ -298,7 +298,7 @@ def test_interrupted_learning_resumes_in_memory():
 
 
 def test_resuming_with_other_batch_sizes_is_refused():
-    # The saved state's rollout counts are N₀ + (k − 1) N: resuming with another N used to
+    # The saved state's rollout counts are N₀ + (k − 1) N: resuming with another N would
     # relabel the finished updates (rollouts 0, 20, 40, 60, 80 after three batches of 10).
     task = Target()
     trial = TrialContext()

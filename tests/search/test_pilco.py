@@ -307,7 +307,7 @@ def test_expected_return_stops_at_a_failed_step_and_the_optimizer_survives_linal
     np.testing.assert_allclose(G, 0.5, atol=1e-6)
 
 
-# --------------------------------------------------------------------------- round-off (#30)
+# -------------------------------------------------------------------------------- round-off
 def _linear_limit_model():
     """An exact GP driven to its linear limit: length-scales 1.5e3 (the balancing data spread
     0.1–30), σ_f/σ_ε = 1.5e3, fixed."""

@@ -188,7 +188,7 @@ def test_epsilon_beyond_log_n_is_reported():
 @pytest.mark.parametrize("seed", range(30))
 def test_bound_flag_follows_the_achieved_kl(seed):
     # ε up to 5 nats on 10–40 samples with baseline features: often more than constraint (3.5)
-    # lets the weights reach, and then η stops just above its lower bound (issue #17, 4b).
+    # lets the weights reach, and then η stops just above its lower bound.
     rng = np.random.default_rng(seed)
     n = int(rng.integers(10, 41))
     s = rng.uniform(-1, 1, size=(n, 2))
@@ -204,7 +204,7 @@ def test_bound_flag_follows_the_achieved_kl(seed):
 
 def test_unattainable_epsilon_with_features_is_reported_inactive():
     # Problem 10 of a 1,000-problem scan (80 samples, linear features, ε = 4.79): the KL stops
-    # at 3.34 and η runs down to its lower bound; it used to be flagged active (issue #17, 4b).
+    # at 3.34 and η runs down to its lower bound: the bound is reported inactive.
     # Where L-BFGS-B stops depends on the floating-point path: η (normalised) = 1.35e-8 with
     # OpenBLAS's SkylakeX kernels, exactly the bound exp(log 1e-8) = 1e-8 (1 − 1.8e-15) with
     # its Haswell/Zen kernels. So the test asserts what holds for either: η in the projected
@@ -391,7 +391,7 @@ def test_kl_against_a_base_weight_that_underflows_stays_finite():
 
 @pytest.mark.parametrize("bad", [np.inf, np.nan, -np.inf, "3", 2.5, 0, True])
 def test_reuse_batches_must_be_a_positive_integer(bad):
-    # inf and NaN used to escape as OverflowError / a ValueError from int() naming nothing
+    # unchecked, inf and NaN would escape as OverflowError / a ValueError from int() naming nothing
     pol = GaussianPolicy(np.zeros(2), np.eye(2))
     with pytest.raises(ValueError, match="n_reuse_batches: expected an integer ≥ 1"):
         ContextualREPS(pol, epsilon=1.0, n_reuse_batches=bad)

@@ -1,5 +1,5 @@
-"""REPS dual: the analytic Hessian and the Newton solver (issue #18) against finite differences,
-an independent weighted covariance and today's L-BFGS-B solution."""
+"""REPS dual: the analytic Hessian and the Newton solver against finite differences, an
+independent weighted covariance and the default L-BFGS-B solution."""
 
 import numpy as np
 import pytest

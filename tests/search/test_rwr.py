@@ -98,7 +98,7 @@ def test_bad_input_names_the_argument():
 
 
 def test_beta_of_no_rewards_is_refused():
-    # rwr_beta used to return β = 0 (uniform weights) for an empty reward array
+    # not β = 0 (uniform weights) for an empty reward array
     with pytest.raises(ValueError, match=r"rewards: expected at least one sample"):
         rwr_beta(np.zeros(0))
     assert rwr_beta(np.full(3, 2.0)) == 0.0  # equal rewards: uniform weights, as documented

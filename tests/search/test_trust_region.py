@@ -1,6 +1,6 @@
-"""REPS's M-step that keeps its promise (issue #17, item 3): the closed-form KL of an
-interpolated policy, the trust-region step (entropy bound, then KL bound), and REPS with
-``m_step="trust_region"`` on the 10-D quadratic of the issue."""
+"""REPS's M-step that keeps its promise: the closed-form KL of an interpolated policy, the
+trust-region step (entropy bound, then KL bound), and REPS with ``m_step="trust_region"`` on
+a 10-D quadratic."""
 
 import numpy as np
 import pytest
@@ -15,7 +15,7 @@ from skillkit.policies.gaussian import (
 from skillkit.search.base import Batch
 from skillkit.search.reps import ContextualREPS
 
-# The 10-D quadratic of issue #17: condition number 100, start N(0, I), R(mean) = −89.3 there.
+# The 10-D quadratic: condition number 100, start N(0, I), R(mean) = −89.3 there.
 CURVATURE = 100.0 ** (np.arange(10) / 9)
 OPTIMUM = np.full(10, 0.6)
 
@@ -119,7 +119,7 @@ def run_quadratic(m_step, seed, n_updates=60, **kwargs):
 
 
 def test_weighted_ml_overshoots_the_kl_bound_trust_region_keeps_it():
-    # ε = 1, 100 samples per update: the plain fit's KL is about 2 (issue #17: 2.27).
+    # ε = 1, 100 samples per update: the plain fit's KL is about 2 (measured 2.27).
     _, ml = run_quadratic("weighted_ml", 0, n_updates=10)
     assert np.median([d.policy_kl for d in ml]) > 1.5 and all(d.m_step is None for d in ml)
     _, tr = run_quadratic("trust_region", 0, n_updates=10)
@@ -133,7 +133,7 @@ def test_weighted_ml_overshoots_the_kl_bound_trust_region_keeps_it():
 
 @pytest.mark.parametrize("seed", range(5))
 def test_trust_region_reps_solves_the_10d_quadratic(seed):
-    # Issue #17: R(mean) above −1e-3 within 60 updates on all 5 seeds (ε = 1, 100 samples,
+    # R(mean) above −1e-3 within 60 updates on all 5 seeds (ε = 1, 100 samples,
     # start N(0, I) at R = −89.3). Measured: first above −1e-3 after 40, 45, 41, 42, 40
     # updates; weighted_ml ends at −0.28, −0.63, −0.70, −5e-6, −3e-3.
     reps, _ = run_quadratic("trust_region", seed)

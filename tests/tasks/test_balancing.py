@@ -97,9 +97,9 @@ def test_sampled_rewards_score_diverged_samples_as_worst():
 
 
 def test_initial_policy_samples_all_balance_and_wider_exploration_does_not():
-    """Issue #15: the default exploration (0.2% of |G_lqr|) gives closed loops that are stable
-    at upright for every one of 2000 samples, on both variants; 1% (the old default, still
-    used by the ch4 model experiments' data) leaves a sizeable unstable fraction."""
+    """The default exploration (0.2% of |G_lqr|) gives closed loops that are stable at upright
+    for every one of 2000 samples, on both variants; 1% (what the ch4 model experiments' data
+    use) leaves a sizeable unstable fraction."""
     rng = np.random.default_rng(0)
 
     def unstable(task, policy):
@@ -239,7 +239,7 @@ def test_swing_reference_feedforward_is_the_inverse_dynamics_and_tracks():
 
 def test_data_helpers_thread_an_integer_seed_through_every_draw():
     """An int seed is one stream: every rollout gets its own start state and noise, and the
-    same seed gives the same data (it used to restart the stream for every rollout)."""
+    same seed gives the same data (the stream is not restarted for every rollout)."""
     task = make("balancing", n_steps=3, torque_noise_std=0.5)
     data = collect_balancing(task, 3, 0)
     starts = {tuple(t.info["initial_state"]) for t in data["trajectories"]}
@@ -276,7 +276,7 @@ def test_design_policy_explores_along_balancing_gains():
     stable = np.mean([np.abs(np.linalg.eigvals(A + B @ x.reshape(4, 8))).max() < 1 for x in w])
     assert stable > 0.3  # measured 0.5 (isotropic 3% of |G|: 0 of 50)
     d = task.lqr_gain(control_weight=1e-4).ravel() - a.mean
-    iso = task.lqr_policy(1.0, 0.005)  # the π₀ before issue #31: 0.5% of |G| entry-wise
+    iso = task.lqr_policy(1.0, 0.005)  # an isotropic π₀: 0.5% of |G| entry-wise
     far = np.sqrt(d @ np.linalg.solve(iso.cov, d))
     near = np.sqrt(d @ np.linalg.solve(a.cov, d))
     assert near < 0.05 * far  # measured 35 against ≈ 2000 standard deviations

@@ -57,7 +57,7 @@ def test_dimensions_and_context_distribution(task):
     assert one.shape == (task.context_dim,)
     np.testing.assert_array_equal(one, task.sample_context(3))
     assert task.sample_context(3, n=0).shape == (0, task.context_dim)
-    for bad in (-1, 2.5, True):  # a fractional count used to be truncated silently
+    for bad in (-1, 2.5, True):  # a fractional count is refused, not truncated silently
         with pytest.raises(ValueError, match="n: expected an integer"):
             task.sample_context(3, n=bad)
 

@@ -1,4 +1,4 @@
-"""A task from a few functions (issue #34): FunctionTask (model-free) and TrajectoryTask
+"""A task from a few functions: FunctionTask (model-free) and TrajectoryTask
 (model-based) run through learn() with contextual REPS, CrKR, RWR, GPREPS and CMA-ES; bad
 input is named; a rollout that raises becomes a failed rollout and the run goes on."""
 
@@ -87,7 +87,7 @@ def _model_based(**kwargs) -> TrajectoryTask:
     )
 
 
-# ------------------------------------------------------------------ the issue's "must show"
+# ------------------------------------------------------------ REPS, GPREPS and CMA-ES end to end
 def test_a_task_from_functions_runs_through_reps_gpreps_and_cmaes():
     task = _model_based()
     reps = learn(task, ContextualREPS(task.initial_policy(), 1.0), 4, 15, rng=0, progress=False)

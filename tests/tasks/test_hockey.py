@@ -304,8 +304,8 @@ def test_context_ranges_and_validation(task, real):
         task.rollout(task.demo_omega, [2.0, 0.75, 1.2])
     with pytest.raises(ValueError, match="context_high"):
         hk.Hockey(context_low=[2, 1, 1], context_high=[1, 1, 1])
-    # the table step is the arm's control period: refused when the task is made (it used to
-    # be accepted and to fail at the first rollout)
+    # the table step is the arm's control period: refused when the task is made (not
+    # accepted only to fail at the first rollout)
     with pytest.raises(ValueError, match="physics: dt"):
         hk.Hockey(physics=hk.TablePhysics(dt=0.003))
     with pytest.raises(ValueError, match="exploration_std"):
@@ -493,7 +493,7 @@ def test_blade_rests_on_the_table_instead_of_passing_through(task):
 
 
 def test_initial_policy_hits_span_the_required_displacements(task):
-    """Coverage of the initial exploration (issue #17): of 100 sampled shots some hit the
+    """Coverage of the initial exploration: of 100 sampled shots some hit the
     target puck, and their displacements span the context's d* ∈ [0, 1] m."""
     policy, rng = task.initial_policy(), np.random.default_rng(0)
     moved = []

@@ -82,12 +82,12 @@ def test_stochastic_variant_has_wide_reward_distribution():
     "kwargs, arg",
     [
         ({"horizon": 0}, "horizon"),
-        ({"horizon": 2.5}, "horizon"),  # used to be truncated to 2 steps
+        ({"horizon": 2.5}, "horizon"),  # not truncated to 2 steps
         ({"control_noise": -1}, "control_noise"),
         ({"control_noise": np.inf}, "control_noise"),
         ({"dt": 0}, "dt"),
-        ({"alpha_range": -1.0}, "alpha_range"),  # used to give an empty context box
-        ({"velocity_range": np.nan}, "velocity_range"),  # used to give NaN contexts
+        ({"alpha_range": -1.0}, "alpha_range"),  # would give an empty context box
+        ({"velocity_range": np.nan}, "velocity_range"),  # would give NaN contexts
     ],
 )
 def test_bad_settings_raise(kwargs, arg):

@@ -419,7 +419,7 @@ def test_balancing_bad_input(balancing):
         balancing_transitions(failed)
 
 
-# ------------------------------------------------- initial exploration (issue #17, item 2)
+# ------------------------------------------------------------------- initial exploration
 def _landing_band(task: Throwing, fraction: float | None, n: int = 100) -> tuple[float, float]:
     """5th and 95th percentile of the landing x of n throws sampled from the initial policy
     on random targets (seed 0); no rollout may fail."""

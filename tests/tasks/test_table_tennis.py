@@ -286,7 +286,7 @@ def test_reward_is_the_hand_computed_eq_c1(task):
 
 
 def test_reward_batch_rejects_mismatched_signals_and_contexts(task):
-    """Shapes are checked, not broadcast: extra context rows used to be ignored silently."""
+    """Shapes are checked, not broadcast: extra context rows are not ignored silently."""
     ball = np.zeros((2, 4, 3))
     good = {
         "ball": ball,
@@ -363,7 +363,8 @@ def test_bad_omega_and_context_raise(task):
 
 
 def test_bad_timing_is_refused_when_the_task_is_made():
-    """Both used to be accepted and to fail (with other argument names) at the first rollout."""
+    """Both are refused at once, not accepted only to fail (with other argument names) at the
+    first rollout."""
     with pytest.raises(ValueError, match="control_dt: expected a whole multiple"):
         TableTennis(control_dt=0.003, physics_dt=0.002)
     with pytest.raises(ValueError, match="duration: expected at least one control period"):
@@ -402,7 +403,7 @@ def test_return_zone_is_the_opponents_half_and_near_is_a_variant(task):
 
 
 def test_initial_policy_samples_hit_return_and_net_balls(task):
-    """Coverage of the initial exploration (issue #17): 100 strokes on random contexts reach
+    """Coverage of the initial exploration: 100 strokes on random contexts reach
     every outcome, and the returned balls land on the opponent's half near its targets."""
     policy, rng = task.initial_policy(), np.random.default_rng(0)
     outcomes, landing = [], []

@@ -8,24 +8,16 @@ from skillkit.experiments.run import claim_rows
 from skillkit.teaching.tables import claims_table
 
 
-def test_claims_table_has_one_row_per_stored_result_with_its_thesis_sentence():
+def test_claims_table_has_one_row_per_stored_result_with_its_verdict_and_interval():
     rows = claim_rows(ids=["fig3.3", "fig4.10"])
     table = claims_table(["fig3.3", "fig4.10"])
     assert list(table.index) == [r["id"] for r in rows] == ["fig3.3", "fig4.10"]
-    assert list(table.columns) == [
-        "the thesis says",
-        "verdict",
-        "our numbers",
-        "our own checks",
-        "made by",
-    ]
+    assert list(table.columns) == ["claim", "verdict", "ours [95% interval]", "thesis", "made by"]
     for r in rows:
         assert table.loc[r["id"], "verdict"] == r["verdict"]
-        assert table.loc[r["id"], "our own checks"] == r["own"]
-        assert (
-            "(Sec. " in table.loc[r["id"], "the thesis says"]
-            or "caption" in table.loc[r["id"], "the thesis says"]
-        )
+        assert table.loc[r["id"], "verdict"] in ("holds", "does not hold", "undecided")
+        assert table.loc[r["id"], "ours [95% interval]"] == r["ours"]
+        assert len(table.loc[r["id"], "claim"]) <= 100
 
 
 def test_unknown_id_is_named():

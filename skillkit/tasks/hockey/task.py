@@ -158,8 +158,8 @@ class Hockey(Task):
         """π(ω|s) = N(ω_demo, Σ₀) with zero context gain (imitation, Sec. 3.4.2); Σ₀ from
         :meth:`exploration_covariance`.
 
-        **Coverage of the context range** (100 shots sampled on random contexts, seed 0,
-        issue #17): 10% of the shots hit the target puck, and the displacements of those
+        **Coverage of the context range** (100 shots sampled on random contexts, seed 0):
+        10% of the shots hit the target puck, and the displacements of those
         hits span 0.05 / 1.16 / 1.45 m (5th / 50th / 95th percentile) against the required
         d* ∈ [0, 1] m; no rollout failed. The exploration thus reaches the whole range of d*
         and hits targets across the box, but most shots miss: REPS has few informative

@@ -156,8 +156,8 @@ class TableTennis(Task):
         """π(ω|s) = N(ω_demo, diag(σ²)) with zero context gain: the demonstrated stroke (g and ġ
         of the demonstration's end, τ = 1) with the exploration σ of :data:`INITIAL_STD`.
 
-        **Coverage of the context range** (100 strokes sampled on random contexts, seed 0,
-        issue #17): 18% of the strokes hit the ball (10% returned, 3% net, 5% out) and 82%
+        **Coverage of the context range** (100 strokes sampled on random contexts, seed 0):
+        18% of the strokes hit the ball (10% returned, 3% net, 5% out) and 82%
         miss it; the hit balls land at x ∈ [−0.29, 0.87] m, y ∈ [−0.73, 0.34] m (5th–95th
         percentile) against targets b on the whole opponent's half, x ∈ [0, 1.37] m,
         y ∈ [−0.76, 0.76] m; rewards −0.40 / −0.32 / −0.05 (5th / 50th / 95th percentile).
@@ -347,7 +347,7 @@ def table_tennis(**kwargs) -> TableTennis:
 @register("table-tennis-near", "contextual")
 def table_tennis_near(**kwargs) -> TableTennis:
     """Easier than C.3: targets only in the near return zone x ∈ [0.2, 0.6], y ∈ [−0.4, 0.4] m
-    (:data:`RETURN_NEAR_LOW`, :data:`RETURN_NEAR_HIGH`), our earlier default."""
+    (:data:`RETURN_NEAR_LOW`, :data:`RETURN_NEAR_HIGH`)."""
     kwargs.setdefault("return_low", RETURN_NEAR_LOW)
     kwargs.setdefault("return_high", RETURN_NEAR_HIGH)
     kwargs.setdefault("name", "table-tennis-near")

@@ -47,133 +47,14 @@ Usage::
         [--threads 1 2] [--dtype float64 float32] [--flight full stop] [--device cpu|cuda]
         [--repeats 1]
 
-Throwing, measured on the 2-CPU x86_64 VM (Linux 6.18, torch 2.13.0+cpu, ``OMP_NUM_THREADS=1``,
-nothing else running), load average 0.40 before, 1.18 after,
-``OMP_NUM_THREADS=1 python benchmarks/bench_gpreps.py --task throwing --repeats 2`` (M = 500,
-L = 25, 124 predicted transitions, N₀ = 10 throws, FITC robot GP with 50 pseudo-inputs on 1000
-transitions, 150 optimiser iterations per GP)::
-
-    threads   training  prediction    policy     total  traj-steps/s
-          1      8.57s      15.59s    0.005s    24.16s      9.94e+04
-          2      7.04s       9.31s    0.005s    16.36s      1.67e+05
-    totals of all repeats: 1 thread 24.48, 24.16 s; 2 threads 17.75, 16.36 s
-    ratio 2 / 1 threads (time): training 0.82, prediction 0.60, policy 0.99, total 0.68
-
-With the x′ robot model, a run beside another job (load 2.9) took
-38.1 s (float64) / 29.3 s (float32) on one thread; the quiet-machine runs below supersede it.
-
-With the flight stopped at the ground (``--flight stop``, ``stop_flight_at_ground=True``; the
-same predictions to round-off) and the torques of all steps computed in one call, float64,
-the other job paused (SIGSTOP) so nothing else ran (load average 1.62 before, 1.60 after,
-decaying from the paused job), ``--dtype float64 --threads 1 2 --flight full stop``::
-
-    threads    dtype  flight   training  prediction    policy     total  traj-steps/s  GP iters
-          1  float64    full     11.71s      19.59s    0.005s    31.31s      7.91e+04       150
-          1  float64    stop      9.55s      17.89s    0.006s    27.45s      8.66e+04       150
-          2  float64    full      7.56s      14.16s    0.005s    21.73s      1.09e+05       150
-          2  float64    stop      7.70s      11.27s    0.005s    18.97s      1.38e+05       150
-
-The same, all variants, in the one-run benchmark ``bench_prediction.py`` on a quiet machine
-(load average 1.78 before, 1.57 after; nothing else ran)::
-
-    threads    dtype  flight   training  prediction    policy     total  traj-steps/s  GP iters
-          1  float64    full      9.44s      19.23s    0.006s    28.68s      8.06e+04       150
-          1  float64    stop     11.51s      16.21s    0.006s    27.73s      9.56e+04       150
-          1  float32    full     10.69s      14.98s    0.004s    25.67s      1.03e+05       150
-          1  float32    stop      9.71s      12.24s    0.006s    21.96s      1.27e+05       150
-          2  float64    full      7.37s      15.13s    0.006s    22.51s      1.02e+05       150
-          2  float64    stop      7.69s      12.56s    0.005s    20.26s      1.23e+05       150
-          2  float32    full      7.76s      10.59s    0.005s    18.35s      1.46e+05       150
-          2  float32    stop      7.11s       8.05s    0.004s    15.17s      1.92e+05       150
-
-Two threads, float64, quiet machine (load average 0.40 before, 1.59 after),
-``--dtype float64 --threads 2 --flight full stop --repeats 3``, totals of the three repeats:
-flight stopped 18.01, 19.46, 19.70 s (best: training 7.41, prediction 10.60); full flight 22.37,
-20.17, 19.74 s. So the float64 update on two threads takes 18.0–20.3 s with the flight stopped
-(5 updates in three runs, 4 under 20 s) and 19.7–22.5 s without: at the 20 s target.
-Stopping the flight saves 0.80 (2 threads) / 0.91 (1 thread) of the prediction time; the
-training times of the 1-thread rows differ by 2 s although they do the same work (one repeat:
-timing noise of this VM). Not done: stopping the arm's rollout at the release (the reward's
-torque and joint-limit terms run to the end of the movement, so they would need a model of
-their own).
-
-After the float64 kernel floor (``gp.FLOOR_EXPONENT_FLOAT64``: kernel entries below
-e^−600 σ_f² raised to it) and the throwing reward's batch parts in cache-sized blocks of rows
-(torques, path distances, joint-limit penalties: ``planar._by_rows``; ``land`` without
-fancy-indexed copies), all with the same predictions bit for bit (measured on 500 × 25
-throws), nothing else running: ``--dtype float64 --threads 2 --flight stop full --repeats 5``
-(load average 1.96 after)::
-
-    threads    dtype  flight   training  prediction    policy     total  traj-steps/s  GP iters
-          2  float64    stop      8.04s       8.73s    0.007s    16.78s      1.78e+05       150
-          2  float64    full      6.36s       9.46s    0.004s    15.82s      1.64e+05       150
-    2 thread(s), float64, flight stop, totals of all repeats: 18.42s, 16.78s, 17.24s, 17.51s, 17.60s
-    2 thread(s), float64, flight full, totals of all repeats: 17.16s, 19.56s, 15.82s, 16.63s, 18.17s
-
-Just before it, ``--threads 1 2 --flight stop --repeats 3``: 2 threads 18.02, 15.47, 19.20 s;
-1 thread 27.10, 21.48, 24.67 s; and after it the one-run benchmark ``bench_prediction.py`` (one
-repeat each): 2 threads 16.12 s stopped, 21.14 s full (whose training alone took 9.58 s against
-7.96 s in the stopped row: the same work, this VM's noise). So on two threads in float64, with
-the flight stopped at the ground (the default) all 9 updates took 15.5–19.2 s, under the
-20 s target; with the full flight 5 of 6 did (15.8–21.1 s); without the floor and the blocks
-18.0–20.3 s (stopped) and 19.7–22.5 s (full), with the floor alone 17.0–23.6 s (stopped).
-One-thread predictions of the same 500 × 25 throws: 18.6–24.2 s without either, 16.0–18.8 with
-the floor, 10.7–13.2 with the blocks too. This VM's speed varies by ±15% between runs minutes
-apart (its 1-thread float64 matmul peak: 57–76 GFLOP/s this week).
-
-float32 is not usable on these models: the sampler's precision check warns (robot 3–5% of a
-predictive std, flight 19–26%, and ~3.8e5 negative flight variances clamped).
-
-The thesis reports up to half an hour per throwing update on a CPU (under a minute on a GPU).
-The prediction includes the 250-step ball flight of all 12,500 throws.
-
-Balancing, measured on a shared 2-CPU x86_64 VM (Linux 6.18, torch 2.13.0+cpu,
-``OMP_NUM_THREADS=1``, 4 other jobs on the machine), load average 2.01 before, 1.63 after, with
-``--repeats 3`` at the defaults (M = 500, L = 25, T = 40, N₀ = 20 → 800 transitions, FITC
-100 pseudo-inputs, 150 GP optimiser iterations)::
-
-    threads   training  prediction    policy     total  traj-steps/s
-          1      7.94s       3.05s    0.002s    10.99s      1.64e+05
-          2      4.74s       1.99s    0.003s     6.73s      2.51e+05
-    totals of all repeats: 1 thread 12.64, 11.13, 10.99 s; 2 threads 7.05, 6.73, 8.24 s
-    ratio 2 / 1 threads (time): training 0.60, prediction 0.65, policy 1.06, total 0.61
-
-A single-repeat run while the load rose to 3.5 gave 108 s of training on 2 threads (10 s on
-1): with both cores busy elsewhere, torch's two threads wait on each other at every one of the
-many small ops of the hyper-parameter optimisation. Use ``--repeats`` ≥ 3 and read the spread.
-
-**On a GPU** (``--device cuda``; one lease of an NVIDIA H200 on a 16-core host, torch
-2.11.0+cu130, Python 3.12, 2026-12-04; ``OMP_NUM_THREADS=1`` and ``--threads 1``, so the
-``cpu`` rows are one core of the same host, measured in the same command; load average < 1).
-Balancing at Table 4.2's setting, ``--task balancing --artificial 500 --trajectories 10
---dtype float64`` (N₀ = 20 → 800 transitions, FITC 100 pseudo-inputs), two commands (the
-second with two repeats: the faster shown, both totals in brackets)::
-
-    command  device   training  prediction    policy     total  traj-steps/s
-      1 (×1)    cpu     10.55s       1.05s    0.003s    11.60s       1.9e+05
-      1 (×1)   cuda     10.28s       0.52s    0.003s    10.80s      3.86e+05
-      2 (×2)    cpu     12.09s       1.82s    0.004s    13.92s       1.1e+05  (18.12, 13.92)
-      2 (×2)   cuda     10.79s       0.16s    0.003s    10.95s      1.27e+06  (15.78, 10.95)
-
-Throwing at Table 4.1's setting, ``--task throwing --flight stop`` (M = 500, L = 25)::
-
-     device    dtype   training  prediction    policy     total  traj-steps/s
-        cpu  float64     12.56s       8.14s    0.005s    20.71s       1.9e+05
-       cuda  float64     11.59s       3.57s    0.005s    15.17s      4.34e+05
-       cuda  float32      9.84s       2.86s    0.004s    12.70s      5.41e+05
-
-The GPU samples the trajectories 2.3–11× faster (more with a warm device: the second command's
-0.16 s), but the forward model's training — 150 optimiser iterations of a FITC GP with 50–100
-pseudo-inputs on 800–1240 transitions, each iteration a chain of small kernels (not profiled;
-launch latency is the likely bound) — takes as long as on one CPU core, and it is most of the
-update: the whole update is only 1.07–1.37× faster
-(balancing 10.8–11.0 s against 11.6–13.9 s, throwing 15.2 s against 20.7 s). The thesis's
-"up to half an hour" per throwing update on a CPU and "under a minute" on a GPU are both far
-above ours. In the same lease ``tests/models/test_gp.py`` and ``tests/models/test_sparse.py``
-ran their CUDA tests (fit on ``cuda`` equals fit on ``cpu``): the sparse ones failed first,
-on the row signs of ``var_factor`` (an eigendecomposition's eigenvectors: LAPACK and cuSOLVER
-choose different signs), and pass since the test compares RᵀR = iK, the invariant the
-predictions use.
+Printed: the machine, torch version, device and load average before; then one row per
+(threads, dtype, flight) with the best repeat's wall times of training, prediction and policy,
+their total, the sampler's throughput (traj-steps/s = M · L · T / prediction time) and the GP
+optimiser's iterations; the totals of every repeat (``--repeats`` > 1: a shared machine's
+spread); the ratios measured in the same run (most / fewest threads, flight stopped / full,
+float32 / float64); and the load average after. ``--device cuda`` runs the model and the
+sampling on the GPU (compare with a ``cpu`` run in the same session). The sampler's precision
+check warns when float32 trajectories drift from float64's.
 """
 
 from __future__ import annotations

@@ -1,30 +1,36 @@
-"""Benchmark: moment matching (PILCO-style exact moments at a Gaussian input) against the
-machine's float64 matmul peak, and 100-step predictions, batched and unbatched.
+"""Moment matching's speed (PILCO-style exact moments at a Gaussian input) against the
+machine's float64 matmul peak and the ceiling ``exp`` sets, and 100-step predictions, batched
+and unbatched.
 
 Models: FITC forward models with an 8-D state and a 4-D control (D = 12 GP inputs, E = 8
 outputs), M = 300 (the fig4.4 size) and M = 700 (the fig4.3 size) pseudo-inputs, fitted to
 N = 1500 random smooth transitions without hyper-parameter optimisation (timings depend on the
-sizes only, and on how many pairs need the exponent floor, which is printed).
+sizes only). Run::
 
-Printed, on one thread (``torch.set_num_threads(1)``), with ``uptime``'s load before and after:
+    OMP_NUM_THREADS=1 python benchmarks/bench_moment_matching.py [--inducing 300 700]
+        [--steps 100] [--repeats 5] [--skip-reference]
 
-* the float64 peak: the least CPU time of ``--repeats`` (2000 × 2000)(2000 × 2000) products;
-* one moment-matching step (``_moment_match`` at a Gaussian z = [x, Kx + k]): least CPU time
-  of 3 × ``--repeats``, GFLOP/s and the fraction of the peak;
-* the bare per-entry work alone (product, exp, vector product per pair on random operands,
-  no set-up), the floor any implementation of these formulas in this form meets;
-* one 100-step :func:`~skillkit.models.moment_matching.propagate` with the batched code and with
-  the unbatched reference implementation in ``tests/models/test_moment_matching_batched.py`` (CPU
-  time and wall time), and the largest difference between the two (relative to the largest
-  entry).
+Printed, on one thread, with the load average before and after (all times are this process's
+CPU time, the least of several calls):
 
-Flops are counted per step by
-:func:`~skillkit.models.moment_matching.moment_matching_flops_per_step` (its docstring lists
-what is counted), with ``exp`` as one flop; ``exp`` costs about as much as the 28-flop product
-per entry here, so this under-counts the work (``docs/measure_mm_exp_ceiling.py``).
-The exponent floor's clamp pass, index copies and concatenations are not counted. Run::
+* the float64 peak: GFLOP/s of a (2000 × 2000)(2000 × 2000) product;
+* the ``exp`` ceiling: every entry of every Q^{ab} block needs one ``exp`` and 2D + 4 flops
+  around it; with those flops at the peak and ``exp`` at its measured in-cache cost (ns per
+  entry), the counted rate (2D + 5 flops per entry, ``exp`` as one) cannot exceed
+  (2D + 5) / (t_flops + t_exp): printed in GFLOP/s and as a fraction of the peak;
+* per M, one moment-matching step (``moment_match_step`` at a Gaussian z = [x, Kx + k]): its time,
+  counted MFLOP, GFLOP/s and fraction of the peak (to be read against the ceiling), and the
+  bare per-entry work alone (product, ``exp``, vector product per pair on random operands, no
+  set-up: the floor of any implementation of these formulas in this form) in ms and ns per
+  entry;
+* per M, one ``--steps`` :func:`~skillkit.models.moment_matching.propagate` with the batched
+  code and with the unbatched reference implementation in
+  ``tests/models/test_moment_matching_batched.py`` (CPU and wall time, the speed-up), and the
+  largest difference between the two relative to the largest entry.
 
-    OMP_NUM_THREADS=1 python benchmarks/bench_moment_matching.py
+Flops are counted by :func:`~skillkit.models.moment_matching.moment_matching_flops_per_step`
+(its docstring lists what is counted); the exponent floor's clamp pass, index copies and
+concatenations are not counted.
 """
 
 from __future__ import annotations
@@ -32,15 +38,17 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import os
+import sys
 import time
 from functools import partial
 from pathlib import Path
 
 import numpy as np
 import torch
+from _machine import matmul_peak
 
 from skillkit.models.gp import DTYPE, ForwardModel
-from skillkit.models.moment_matching import _moment_match, propagate
+from skillkit.models.moment_matching import moment_match_step, propagate
 from skillkit.models.moment_matching import moment_matching_flops_per_step as flops_per_step
 from skillkit.models.sparse import FITC
 
@@ -85,9 +93,15 @@ def _kernel_floor(E: int, M: int, D: int, repeats: int) -> float:
 
 
 def _load_reference():
-    spec = importlib.util.spec_from_file_location("mm_reference", REFERENCE)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    """The unbatched reference implementation from the tests (which import their helpers from
+    ``tests/``)."""
+    sys.path.insert(0, str(REFERENCE.parents[1]))
+    try:
+        spec = importlib.util.spec_from_file_location("mm_reference", REFERENCE)
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+    finally:
+        sys.path.remove(str(REFERENCE.parents[1]))
     return module._reference_propagate
 
 
@@ -110,10 +124,19 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(1)
     print(f"load before: {os.getloadavg()}")
-    n = 2000
-    A, B = torch.randn(n, n, dtype=DTYPE), torch.randn(n, n, dtype=DTYPE)
-    peak = 2 * n**3 / _best(lambda: A @ B, args.repeats) / 1e9
+    peak = matmul_peak(1, DTYPE, n=2000, repeats=args.repeats, clock=time.process_time)
     print(f"float64 matmul peak, 1 thread: {peak:.1f} GFLOP/s")
+    x = -30 * torch.rand(1 << 17, dtype=DTYPE)  # one in-cache block of exponents
+    y = torch.empty_like(x)
+    t_exp = _best(lambda: torch.exp(x, out=y), 200) / x.numel()
+    D = N_X + N_U
+    t_flops = (2 * D + 4) / (peak * 1e9)
+    ceiling = (2 * D + 5) / (t_flops + t_exp) / 1e9
+    print(
+        f"exp {1e9 * t_exp:.2f} ns per entry; D={D}: {2 * D + 4} flops per entry besides exp "
+        f"take {1e9 * t_flops:.2f} ns at peak, so the exp ceiling is {ceiling:.1f} GFLOP/s = "
+        f"{ceiling / peak:.0%} of peak"
+    )
     reference_propagate = None if args.skip_reference else _load_reference()
     rng = np.random.default_rng(1)
     K = -0.2 * rng.uniform(0.5, 1.5, size=(N_U, N_X))
@@ -128,7 +151,7 @@ def main() -> None:
         mz = A_z @ torch.as_tensor(m0) + torch.cat([torch.zeros(N_X), torch.as_tensor(k)])
         Sz = A_z @ torch.as_tensor(S0) @ A_z.T
         with torch.no_grad():
-            t_step = _best(partial(_moment_match, pred, mz, Sz), 3 * args.repeats)
+            t_step = _best(partial(moment_match_step, pred, mz, Sz), 3 * args.repeats)
         gflops = flops_per_step(E, M, D) / t_step / 1e9
         floor = _kernel_floor(E, M, D, args.repeats)
         print(

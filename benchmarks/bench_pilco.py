@@ -6,9 +6,10 @@ Measures, for each ``--threads`` count (``torch.set_num_threads``, set here only
   (``--inducing`` pseudo-inputs, default 100, linear prior mean) over the horizon, without and
   with its gradient (:func:`skillkit.search.pilco.expected_return`, torch autograd); also per
   moment-matching step;
-* **update**: one :meth:`skillkit.search.pilco.PILCO.update` on the random-policy data of
-  tab4.2 (3 rollouts with 30 N m torque excitation plus one rollout of π₀), split into model
-  training and policy optimisation (``--iterations`` L-BFGS-B iterations, default 50).
+* **update**: one :meth:`skillkit.search.pilco.PILCO.update` on 6 s of data, as much as
+  tab4.2 starts from (3 rollouts of a sluggish-LQR π₀ with 30 N m torque excitation) plus one
+  rollout of π₀, split into model training and policy optimisation (``--iterations`` L-BFGS-B
+  iterations, default 50).
 
 It prints the gradient / value ratio and the 2-thread / 1-thread ratios measured in the same
 run, with the machine's load average before and after. Run from the repository root::

@@ -12,17 +12,6 @@ between the solvers. CPU time of this process (``time.process_time``) and wall t
 load average before and after. Run::
 
     OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 python benchmarks/bench_reps.py
-
-Measured on the 2-CPU x86_64 VM (numpy 2 with OpenBLAS 0.3.31), the only other job paused
-(SIGSTOP; load average 1.74 before and after, decaying from it), CPU time, median of 15::
-
-    N=   200 lbfgsb: update    2.83 ms = reps_weights   1.69 (dual 1.42, 22 it.) + fit 0.82
-    N=   200 newton: update    1.94 ms = reps_weights   1.01 (dual 0.79, 11 it.) + fit 0.79
-    N= 10000 lbfgsb: update   14.50 ms = reps_weights   6.66 (dual 4.32, 22 it.) + fit 7.84
-    N= 10000 newton: update   13.29 ms = reps_weights   4.82 (dual 3.07, 8 it.) + fit 7.92
-    largest weight difference newton - lbfgsb: 2.2e-08 (N = 200), 7.1e-10 (N = 10,000)
-
-With other jobs sharing the two cores the same update measured 20–30 ms.
 """
 
 from __future__ import annotations

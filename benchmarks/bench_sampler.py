@@ -30,7 +30,7 @@ The model is the reference size: a FITC forward model (Δx targets) of the plana
 4-link robot under the balancing feedback (8 states, 4 controls: 12 GP inputs, 8 outputs),
 N = 1500 transitions, M = 300 pseudo-inputs, 10 optimisation steps (timings do not depend on
 the hyper-parameters' values), trained with skillkit's own data collection (the fig4.4
-set-up, as ``benchmarks/bench_models.py``). Start states are drawn around the upright
+set-up). Start states are drawn around the upright
 position; the controller is a stable feedback gain.
 
 Usage::
@@ -49,6 +49,7 @@ import warnings
 import gpytorch
 import numpy as np
 import torch
+from _machine import best_time, matmul_peak
 
 from skillkit.experiments import get
 from skillkit.experiments.ch4_models import _train_balancing_model
@@ -82,26 +83,6 @@ class threads:
 
     def __exit__(self, *exc):
         torch.set_num_threads(self.before)
-
-
-def best_time(fn, repeats: int) -> float:
-    """Best wall time of ``repeats`` calls (after one warm-up call)."""
-    fn()
-    best = float("inf")
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
-
-
-def matmul_peak(n_threads: int, dtype: torch.dtype, n: int = 1536, repeats: int = 3) -> float:
-    """Best GFLOP/s of an n × n matmul."""
-    a, b = torch.randn(n, n, dtype=dtype), torch.randn(n, n, dtype=dtype)
-    out = torch.empty(n, n, dtype=dtype)
-    with threads(n_threads):
-        t = best_time(lambda: torch.matmul(a, b, out=out), repeats)
-    return 2.0 * n**3 / t / 1e9
 
 
 def gaussian_kl(a: np.ndarray, b: np.ndarray) -> float:

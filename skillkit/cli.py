@@ -299,15 +299,15 @@ def _check_runs(root: Path, record: bool = False, progress: bool = True) -> int:
 
     A result is current (its code fingerprint is today's), carried (the code changed, and
     the smoke witness of today's code equals the stored one: recorded earlier, or run now)
-    or stale (:func:`skillkit.experiments.provenance.check_results` with ``witness=True``).
+    or stale (:func:`skillkit.experiments.runner.check_witnesses`).
     With ``record``, carry records are written for the results found carried now. Prints
     the carried and stale results, then the counts; returns 1 if any is stale, else 0.
     """
-    from skillkit.experiments.provenance import check_results
+    from skillkit.experiments.runner import check_witnesses
 
     if not root.exists():
         raise ValueError(f"--root: no results folder at {root}")
-    rows = check_results(root, witness=True, record=record, progress=progress)
+    rows = check_witnesses(root, record=record, progress=progress)
     for status in ("carried", "stale"):
         for r in rows:
             if r["status"] == status:

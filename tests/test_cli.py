@@ -243,7 +243,8 @@ def test_reproduce_prints_the_estimate_and_the_verdict_not_json(times_file, tmp_
     out = captured.out.splitlines()
     assert out[0].startswith("fig2.10 (smoke scale, 2 trials, seed 0, ")
     card = get_run(tmp_path / "fig2.10-smoke-s0").card.split("\n")
-    assert out[1:4] == ["  " + line for line in card]  # the run's card, as in a notebook
+    start = out.index("  " + card[0])
+    assert out[start : start + 3] == ["  " + line for line in card]  # the card, as in Jupyter
     assert card[0].startswith("fig2.10: ") and card[1].startswith("smoke scale: not judged")
     folder = tmp_path / "fig2.10-smoke-s0"
     assert f"  files:  {folder}/ (result.json, figure.png, trials.npz)" in out

@@ -145,7 +145,7 @@ def target_grid(settings: ThrowingSettings) -> np.ndarray:
     return np.column_stack([gx.ravel(), gy.ravel()])
 
 
-def _final_errors(task, policy, targets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def final_errors(task, policy, targets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Ball-to-target distance (m) and joint-limit penalty of the policy mean per target."""
     means = np.atleast_2d(policy.mean_of(targets))
     dist, penalty = [], []
@@ -206,7 +206,7 @@ def run_trial(settings: ThrowingSettings, rng: np.random.Generator, trial: Trial
             eval_contexts=eval_contexts,
             checkpoint_key=key,
         )
-        dist, pen = _final_errors(task, curves["policy"], targets)
+        dist, pen = final_errors(task, curves["policy"], targets)
         out["rollouts"] = curves["rollouts"]
         out[f"{key}_mean_reward"] = curves["mean_reward"]
         out[f"{key}_explore_reward"] = curves["explore_reward"]

@@ -25,7 +25,7 @@ of the recorded control, so the model can tell the effect of u from that of x); 
 excited rollouts keep the data near upright, where the learned controllers act (with three 2-s
 rollouts at 30 N m every model we fitted mispredicted upright: ``data/notes/tab4.2.md`` lists
 the variants tried). Those 6 s count as experience. The claims spec's setup table
-(``skillkit/data/claims/ch4_gpreps.toml``) says where we depart and why.
+(``skillkit/data/claims/ch4.toml``) says where we depart and why.
 """
 
 from __future__ import annotations
@@ -138,7 +138,7 @@ class BalancingComparisonSettings(Settings):
         "σ_ξ (N m) of the white torque excitation of the random policy's initial rollouts "
         "(0: the sampled gains' feedback alone, which cannot separate u from x). 3 N m keeps "
         "the data near upright; 30 (before) put the links 0.5–1 rad out within 0.25 s "
-        "(docs/measure_tab42_fit.py).",
+        "(benchmarks/bench_tab42_models.py fit).",
         minimum=0,
     )
     n_random: int = setting(

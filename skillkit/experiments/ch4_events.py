@@ -40,7 +40,7 @@ from skillkit.experiments.ch3_hockey import (
     heldout_scores,
 )
 from skillkit.experiments.ch3_hockey import make_algorithm as hockey_algorithm
-from skillkit.experiments.ch4_gpreps import _run_gpreps, gpreps_stats, rollouts_to_reach
+from skillkit.experiments.ch4_gpreps import gpreps_stats, rollouts_to_reach, run_gpreps
 from skillkit.experiments.registry import Experiment, Series, register
 from skillkit.experiments.settings import Settings, setting
 from skillkit.models.gp import ExactGP
@@ -160,7 +160,7 @@ REPS updates 200→20 (fig4.10) and 80→10 (fig4.12); trials fig4.10 2→1, fig
 fig4.12 3→1."""
 
 
-def _scales(cls, smoke: dict, quick: dict, paper: dict | None = None) -> dict:
+def gpreps_scales(cls, smoke: dict, quick: dict, paper: dict | None = None) -> dict:
     base = cls()
     return {
         "smoke": replace(base, **GPREPS_SMOKE, **smoke),
@@ -194,14 +194,14 @@ def hockey_reward_model(task, st: HockeyGPREPSSettings):
     )
 
 
-def _gpreps_run(task, st, key, model, rng, trial, eval_contexts, score, keep_model=False):
+def gpreps_run(task, st, key, model, rng, trial, eval_contexts, score, keep_model=False):
     """GPREPS with ``model``; held-out ``score(policy)`` every ``heldout_every`` updates."""
     every, K = st.heldout_every, st.n_updates
 
     def record(k: int, alg):
         return score(alg.policy) if k % every == 0 or k == K else None
 
-    out = _run_gpreps(task, st, key, model, st.n_artificial, st.n_trajectories, rng, trial,
+    out = run_gpreps(task, st, key, model, st.n_artificial, st.n_trajectories, rng, trial,
                       eval_contexts, callback=record)  # fmt: skip
     diags = out.pop(f"{key}_diagnostics")
     algo = out.pop(f"{key}_algorithm")
@@ -220,7 +220,7 @@ def _gpreps_run(task, st, key, model, rng, trial, eval_contexts, score, keep_mod
     return out
 
 
-def _reps_run(task, algorithm, key, n_updates, n_per_update, rng, trial, eval_contexts, score,
+def reps_run(task, algorithm, key, n_updates, n_per_update, rng, trial, eval_contexts, score,
               every: int) -> dict:  # fmt: skip
     """Model-free REPS; held-out ``score(policy)`` every ``every`` updates."""
 
@@ -263,7 +263,7 @@ def run_trial_hockey(st: HockeyGPREPSSettings, rng: np.random.Generator, trial: 
         return heldout_scores(task, policy, heldout, heldout_seed)
 
     out: dict = {"heldout_contexts": heldout}
-    out.update(_gpreps_run(task, st, "gpreps", hockey_reward_model(task, st), seeds[0], trial,
+    out.update(gpreps_run(task, st, "gpreps", hockey_reward_model(task, st), seeds[0], trial,
                            eval_contexts, score, keep_model=True))  # fmt: skip
     if st.reps_updates:
         reps = hockey_algorithm(
@@ -272,12 +272,12 @@ def run_trial_hockey(st: HockeyGPREPSSettings, rng: np.random.Generator, trial: 
             HockeySettings(epsilon=st.reps_epsilon, n_reuse_batches=st.reps_reuse_batches),
         )
         every = max(1, st.reps_updates // 5)
-        out.update(_reps_run(task, reps, "reps", st.reps_updates, st.reps_rollouts_per_update,
+        out.update(reps_run(task, reps, "reps", st.reps_updates, st.reps_rollouts_per_update,
                              seeds[1], trial, eval_contexts, score, every))  # fmt: skip
     return out
 
 
-def _curves(trials, key, x_key, y_key, label, panel, ylabel, band="std", log_x=True) -> Series:
+def curve_series(trials, key, x_key, y_key, label, panel, ylabel, band="std", log_x=True) -> Series:
     x = np.asarray(trials[0][f"{key}_{x_key}"], dtype=float)
     ys = np.array([t[f"{key}_{y_key}"] for t in trials], dtype=float)
     keep = x > 0 if log_x else np.ones_like(x, dtype=bool)
@@ -287,7 +287,7 @@ def _curves(trials, key, x_key, y_key, label, panel, ylabel, band="std", log_x=T
                   ylabel=ylabel, log_x=log_x)  # fmt: skip
 
 
-def _final_stats(trials, key, names) -> dict:
+def final_stats(trials, key, names) -> dict:
     out: dict = {"rollouts": int(trials[0][f"{key}_rollouts"][-1])}
     for name in names:
         v = np.array([t[f"{key}_heldout_{name}"] for t in trials], dtype=float)
@@ -307,7 +307,7 @@ def _nanmean(values: np.ndarray) -> float:
     return float(ok.mean()) if ok.size else float("nan")
 
 
-def _gpreps_stats(trials, key) -> dict:
+def gpreps_event_stats(trials, key) -> dict:
     out = gpreps_stats(trials, key)
     rel = [np.asarray(t[f"{key}_relative_error"][1:], dtype=float) for t in trials]
     out["prediction_relative_error_median_per_trial"] = [
@@ -336,15 +336,15 @@ def summarize_410(st: HockeyGPREPSSettings, trials: list[dict]):
     labels = {"gpreps": "GPREPS", "reps": "REPS (ε = 0.5)"}
     series = []
     for key in keys:
-        series.append(_curves(trials, key, "rollouts", "mean_reward", labels[key],
+        series.append(curve_series(trials, key, "rollouts", "mean_reward", labels[key],
                               "learning curves", "reward of the policy mean"))  # fmt: skip
-        series.append(_curves(trials, key, "heldout_rollouts", "heldout_displacement_error",
+        series.append(curve_series(trials, key, "heldout_rollouts", "heldout_displacement_error",
                               labels[key], "held-out displacement error",
                               "|d_T − d*| (m)"))  # fmt: skip
     summary: dict = {"n_trials": len(trials), "thesis_numbers": dict(THESIS_410)}
     for key in keys:
-        summary[key] = _final_stats(trials, key, HOCKEY_SCORES)
-    summary["gpreps"].update(_gpreps_stats(trials, "gpreps"))
+        summary[key] = final_stats(trials, key, HOCKEY_SCORES)
+    summary["gpreps"].update(gpreps_event_stats(trials, "gpreps"))
     if st.reps_updates:
         summary["reps_rollouts_to_gpreps_final_reward"] = rollouts_to_reach(
             trials, "reps", summary["gpreps"]["final_reward"], "heldout_reward", "heldout_rollouts"
@@ -354,15 +354,15 @@ def summarize_410(st: HockeyGPREPSSettings, trials: list[dict]):
 
 def summarize_411(st: HockeyGPREPSSettings, trials: list[dict]):
     series = [
-        _curves(trials, "gpreps", "rollouts", "mean_reward", "GPREPS (mean, 95% CI)",
+        curve_series(trials, "gpreps", "rollouts", "mean_reward", "GPREPS (mean, 95% CI)",
                 "learning curve", "reward of the policy mean (smoothed observations)",
                 band="ci95"),
-        _curves(trials, "gpreps", "heldout_rollouts", "heldout_displacement_error",
+        curve_series(trials, "gpreps", "heldout_rollouts", "heldout_displacement_error",
                 "GPREPS (mean, 95% CI)", "held-out displacement error", "|d_T − d*| (m)",
                 band="ci95"),
     ]  # fmt: skip
-    g = _final_stats(trials, "gpreps", HOCKEY_SCORES)
-    g.update(_gpreps_stats(trials, "gpreps"))
+    g = final_stats(trials, "gpreps", HOCKEY_SCORES)
+    g.update(gpreps_event_stats(trials, "gpreps"))
     for when in ("initial", "final"):
         v = np.array([t["gpreps_heldout_reward"][0 if when == "initial" else -1] for t in trials])
         g[f"{when}_reward_ci95"] = list(_ci95(v))
@@ -384,7 +384,7 @@ register(
         id="fig4.10",
         title="Robot hockey: GPREPS (decomposed event models) vs REPS",
         settings_class=HockeyGPREPSSettings,
-        settings=_scales(
+        settings=gpreps_scales(
             HockeyGPREPSSettings,
             smoke={"reps_updates": 1, "reps_rollouts_per_update": 25, "reps_epsilon": 0.2},
             quick={"reps_updates": 20},
@@ -399,7 +399,7 @@ register(
         id="fig4.11",
         title="Robot hockey, real-robot setting: GPREPS with a displacement model",
         settings_class=HockeyGPREPSSettings,
-        settings=_scales(
+        settings=gpreps_scales(
             HockeyGPREPSSettings,
             smoke={"task": "hockey-real", "reps_updates": 0},
             quick={"task": "hockey-real", "reps_updates": 0},

@@ -25,7 +25,7 @@ from functools import partial
 
 import numpy as np
 
-from skillkit.experiments.ch3_throwing import _final_errors, target_grid
+from skillkit.experiments.ch3_throwing import final_errors, target_grid
 from skillkit.experiments.registry import Experiment, Series, register
 from skillkit.experiments.settings import Settings, setting
 from skillkit.models.gp import ExactGP, ForwardModel
@@ -248,7 +248,7 @@ def gpreps_algorithm(task, st, reward_model, n_artificial: int, n_traj: int, rng
     return GPREPS(task.initial_policy(), reward_model, settings, rng=rng, task=task)
 
 
-def _run_gpreps(
+def run_gpreps(
     task, st, key, reward_model, n_artificial, n_traj, rng, trial, eval_contexts, callback=None
 ) -> dict:
     """One GPREPS run through the loop of Table 4.1; curves and per-update diagnostics.
@@ -333,7 +333,7 @@ def _finish(task, st, out: dict, keys) -> dict:
     targets = target_grid(st)
     out["targets"] = targets
     for key in keys:
-        dist, _ = _final_errors(task, out.pop(f"{key}_policy"), targets)
+        dist, _ = final_errors(task, out.pop(f"{key}_policy"), targets)
         out[f"{key}_distance"] = dist
         for extra in ("policies", "diagnostics", "callback", "algorithm"):
             out.pop(f"{key}_{extra}", None)
@@ -414,9 +414,9 @@ def run_trial_46(st: GPREPSThrowingSettings, rng: np.random.Generator, trial: Tr
     seeds = rng.spawn(3)
     trial.reset(total=2 * st.n_updates + st.reps_updates)
     out: dict = {}
-    out.update(_run_gpreps(task, st, "gpreps", "decomposed", st.n_artificial,
+    out.update(run_gpreps(task, st, "gpreps", "decomposed", st.n_artificial,
                            st.n_trajectories, seeds[0], trial, eval_contexts))  # fmt: skip
-    out.update(_run_gpreps(task, st, "direct", "direct", st.n_artificial,
+    out.update(run_gpreps(task, st, "direct", "direct", st.n_artificial,
                            st.n_trajectories, seeds[1], trial, eval_contexts))  # fmt: skip
     out.update(_run_reps(task, st, "reps", seeds[2], trial, eval_contexts))
     return _finish(task, st, out, ("gpreps", "direct", "reps"))
@@ -497,7 +497,7 @@ def run_trial_47(st: SampleSizeSettings, rng: np.random.Generator, trial: TrialC
     for m, seed in zip(st.n_artificial_values, seeds, strict=True):
         key = f"m{m}"
         keys.append(key)
-        out.update(_run_gpreps(task, st, key, "decomposed", m, st.n_trajectories, seed, trial,
+        out.update(run_gpreps(task, st, key, "decomposed", m, st.n_trajectories, seed, trial,
                                eval_contexts))  # fmt: skip
     return _finish(task, st, out, keys)
 
@@ -548,7 +548,7 @@ def run_trial_49(st: StochasticThrowingSettings, rng: np.random.Generator, trial
     out: dict = {}
     policies = {}
     for i, (suffix, task) in enumerate(tasks.items()):
-        g = _run_gpreps(task, st, f"gpreps{suffix}", "decomposed", st.n_artificial,
+        g = run_gpreps(task, st, f"gpreps{suffix}", "decomposed", st.n_artificial,
                         st.n_trajectories, seeds[2 * i], trial, eval_contexts)  # fmt: skip
         r = _run_reps(task, st, f"reps{suffix}", seeds[2 * i + 1], trial, eval_contexts)
         out.update(g)

@@ -6,7 +6,7 @@ stochastic dynamics the GP has to capture. fig4.3 and fig4.5 follow the thesis's
 GP learns x_{t+1} (not Δx), with PILCO's hyper-parameter curb
 (:class:`~skillkit.models.gp.HyperCurb`), and the controllers are PD controllers
 (:meth:`~skillkit.tasks.balancing.Balancing.pd_gain`). Where ours departs from the thesis's
-setup, the claims spec (``skillkit/data/claims/ch4_models.toml``) says so and why.
+setup, the claims spec (``skillkit/data/claims/ch4.toml``) says so and why.
 
 * ``fig4.3`` — sampling accuracy vs number of sampled trajectories. The lower-level policy is
   a linear trajectory-tracking PD controller u = G (x − r_t) + u_ff,t around a reference

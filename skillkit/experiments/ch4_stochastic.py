@@ -38,7 +38,7 @@ One trial:
 
 The thesis reports no result here; our own readings of these numbers (the spread of single
 rollouts against |R_MC|, the model average's RMSE against one real rollout's) are in the
-claims spec (``skillkit/data/claims/ch4_models.toml``). The noise floor of every comparison
+claims spec (``skillkit/data/claims/ch4.toml``). The noise floor of every comparison
 with R_MC is its standard error, reported beside it.
 """
 

@@ -30,12 +30,12 @@ from skillkit.experiments.ch3_table_tennis import (
 )
 from skillkit.experiments.ch4_events import (
     EventGPREPSSettings,
-    _curves,
-    _final_stats,
-    _gpreps_run,
-    _gpreps_stats,
-    _reps_run,
-    _scales,
+    curve_series,
+    final_stats,
+    gpreps_event_stats,
+    gpreps_run,
+    gpreps_scales,
+    reps_run,
 )
 from skillkit.experiments.ch4_gpreps import rollouts_to_reach
 from skillkit.experiments.registry import Experiment, Series, register
@@ -147,15 +147,15 @@ def run_trial_412(st: TableTennisGPREPSSettings, rng: np.random.Generator, trial
         return shot_scores(task, policy, heldout, heldout_seed)[0]
 
     out: dict = {}
-    out.update(_gpreps_run(task, st, "gpreps", table_tennis_reward_model(task, st, st.schedule),
+    out.update(gpreps_run(task, st, "gpreps", table_tennis_reward_model(task, st, st.schedule),
                            seeds[0], trial, eval_contexts, score, keep_model=True))  # fmt: skip
     direct = DirectRewardModel(ExactGP(n_steps=st.gp_steps))
-    out.update(_gpreps_run(task, st, "direct", direct, seeds[1], trial, eval_contexts, score))
+    out.update(gpreps_run(task, st, "direct", direct, seeds[1], trial, eval_contexts, score))
     # fig3.7's REPS with the fit regularisation the stored fig4.12 result was made with
     tt = replace(TableTennisSettings(), **REGULARISED)
     reps = make_reps(task, tt)
     every = max(1, st.reps_updates // 5)
-    out.update(_reps_run(task, reps, "reps", st.reps_updates, tt.rollouts_per_update, seeds[2],
+    out.update(reps_run(task, reps, "reps", st.reps_updates, tt.rollouts_per_update, seeds[2],
                          trial, eval_contexts, score, every))  # fmt: skip
     return out
 
@@ -168,18 +168,18 @@ def summarize_412(st: TableTennisGPREPSSettings, trials: list[dict]):
     labels = {"gpreps": "GPREPS", "direct": "GP direct", "reps": "REPS (ε = 0.6)"}
     series = []
     for key in keys:
-        series.append(_curves(trials, key, "rollouts", "mean_reward", labels[key],
+        series.append(curve_series(trials, key, "rollouts", "mean_reward", labels[key],
                               "learning curves", "reward of the policy mean"))  # fmt: skip
-        series.append(_curves(trials, key, "heldout_rollouts", "heldout_landing_error",
+        series.append(curve_series(trials, key, "heldout_rollouts", "heldout_landing_error",
                               labels[key], "held-out landing error", "‖b − p‖ (m)"))  # fmt: skip
     summary: dict = {"n_trials": len(trials), "thesis_numbers": dict(THESIS_412)}
     for key in keys:
-        summary[key] = _final_stats(trials, key, TT_SCORES)
+        summary[key] = final_stats(trials, key, TT_SCORES)
         summary[key]["final_net_or_missed_per_trial"] = [  # GP direct's "net, or even miss"
             float(t[f"{key}_heldout_net"][-1] + t[f"{key}_heldout_missed"][-1]) for t in trials
         ]
     for key in ("gpreps", "direct"):
-        summary[key].update(_gpreps_stats(trials, key))
+        summary[key].update(gpreps_event_stats(trials, key))
     summary["reps_rollouts_to_gpreps_final_reward"] = rollouts_to_reach(
         trials, "reps", summary["gpreps"]["final_reward"], "heldout_reward", "heldout_rollouts"
     )
@@ -290,7 +290,7 @@ register(
         id="fig4.12",
         title="Robot table tennis: GPREPS (five models) vs GP direct vs REPS",
         settings_class=TableTennisGPREPSSettings,
-        settings=_scales(
+        settings=gpreps_scales(
             TableTennisGPREPSSettings,
             smoke={"reps_updates": 1},
             quick={"reps_updates": 10},

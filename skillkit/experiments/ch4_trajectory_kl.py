@@ -41,7 +41,7 @@ import numpy as np
 
 from skillkit.experiments.registry import Experiment, Series, register
 from skillkit.experiments.settings import Settings, setting
-from skillkit.experiments.store import _flatten
+from skillkit.experiments.store import flatten
 from skillkit.models.trajectory_kl import (
     LinearGaussianTKL,
     PseudoDataGP,
@@ -431,11 +431,11 @@ def run_trial(st: TrajectoryKLSettings, rng: np.random.Generator, trial: TrialCo
             res[cls] = _fit_and_score(system, cls, train, test, scale, st, rng, trial)
         done[system] = res
         trial.save("sec4.2.4", done, rng)
-    return _flatten(done)
+    return flatten(done)
 
 
 def _unflatten(flat: dict) -> dict:
-    """The inverse of :func:`skillkit.experiments.store._flatten`."""
+    """The inverse of :func:`skillkit.experiments.store.flatten`."""
     tree: dict = {}
     for name, value in flat.items():
         *path, leaf = name.split(".")

@@ -344,7 +344,15 @@ def _g(x: float, digits: int) -> tuple[str, str]:
 
 
 def _threshold_text(p: Part) -> str:
-    return _g(p.threshold, 4)[0] if isinstance(p.threshold, float) else ".".join(p.threshold)
+    """The threshold in the part's display unit (``"5 cm"``), or the path it is read from."""
+    if not isinstance(p.threshold, float):
+        return ".".join(p.threshold)
+    return f"{_g(p.threshold * p.factor, 4)[0]} {p.unit}".rstrip()
+
+
+def _cell(text: str) -> str:
+    """Text for a Markdown table cell (a ``|`` would end the cell)."""
+    return text.replace("|", "\\|").replace("\n", " ")
 
 
 def _lookup(tree: Mapping[str, Any], path: tuple[str, ...]) -> Any:
@@ -584,12 +592,17 @@ class Judgement:
                 p = r.part
                 name = f"{p.label} (own)" if p.own else p.label
                 outcome = r.outcome + (f"; {r.needed}" if r.needed else "")
-                reading = f"{p.statistic} over {r.n} {p.op} {_threshold_text(p)}"
-                out.append(f"| {name} | {r.number()} | {p.thesis} | {reading} | {outcome} | "
-                           f"{p.reason} | {p.fixed} the numbers |")  # fmt: skip
+                what = "items" if p.statistic == "rate" else "trials"
+                reading = f"{p.statistic} over {r.n} {what} {p.op} {_threshold_text(p)}"
+                cells = [name, r.number(), p.thesis, reading, outcome, p.reason,
+                         f"{p.fixed} the numbers"]  # fmt: skip
+                out.append("| " + " | ".join(_cell(c) for c in cells) + " |")
         if c.setup:
             out += ["", "| setting | thesis | ours | why |", "|---|---|---|---|"]
-            out += [f"| {s.what} | {s.thesis} | {s.ours} | {s.why} |" for s in c.setup]
+            out += [
+                "| " + " | ".join(_cell(x) for x in (s.what, s.thesis, s.ours, s.why)) + " |"
+                for s in c.setup
+            ]
         if c.notes:
             out += [""] + [f"- {n}" for n in c.notes]
         return "\n".join(out)

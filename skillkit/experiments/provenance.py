@@ -24,9 +24,9 @@ witness equal to the stored one (:func:`compare_witness`, within round-off) show
 change (a refactor, a move, a new measurement) reproduces what the result's code measured:
 the result is *carried*, and a carry record in ``result.json`` (``carried``) says so for
 today's fingerprint without running anything again. Otherwise it is *stale*: it may not be
-what today's code would produce. :func:`staleness` reads fingerprints and carry records only;
-:func:`check_results` with ``witness=True`` (``skillkit runs --check DIR``) also runs the
-witnesses.
+what today's code would produce. :func:`staleness` and :func:`check_results` read
+fingerprints and carry records only; :func:`skillkit.experiments.runner.check_witnesses`
+(``skillkit runs --check DIR``) also runs the witnesses.
 """
 
 from __future__ import annotations
@@ -487,7 +487,9 @@ def _short(value: Any) -> str:
     return repr(value)
 
 
-def _walk(stored: Any, fresh: Any, path: str, skip: set[str], out: list[tuple[str, str]]):
+def walk_differences(
+    stored: Any, fresh: Any, path: str, skip: set[str], out: list[tuple[str, str]]
+):
     """Append ``(path, text)`` for each difference of ``fresh`` from ``stored`` (text
     ``"added: ..."`` for a leaf only ``fresh`` has)."""
     if path in skip:
@@ -499,7 +501,7 @@ def _walk(stored: Any, fresh: Any, path: str, skip: set[str], out: list[tuple[st
                 if where not in skip:
                     out.append((where, f"{where}: missing (stored {_short(value)})"))
                 continue
-            _walk(value, fresh[key], where, skip, out)
+            walk_differences(value, fresh[key], where, skip, out)
         for key in fresh.keys() - stored.keys():
             where = f"{path}.{key}"
             out.append((where, f"added: {where} = {_short(fresh[key])}"))
@@ -526,7 +528,7 @@ def _walk(stored: Any, fresh: Any, path: str, skip: set[str], out: list[tuple[st
             if i >= len(fresh):
                 out.append((where, f"{where}: missing (stored {_short(value)})"))
             else:
-                _walk(value, fresh[i], where, skip, out)
+                walk_differences(value, fresh[i], where, skip, out)
         for i in range(len(stored), len(fresh)):
             where = f"{path}[{i}]"
             out.append((where, f"added: {where} = {_short(fresh[i])}"))
@@ -541,7 +543,9 @@ def _walk(stored: Any, fresh: Any, path: str, skip: set[str], out: list[tuple[st
 def _differences(stored: dict, fresh: dict, skip: set[str] = frozenset()) -> list[tuple[str, str]]:
     out: list[tuple[str, str]] = []
     for part in ("summary", "series"):
-        _walk(stored.get(part, {} if part == "summary" else []), fresh.get(part), part, skip, out)
+        walk_differences(
+            stored.get(part, {} if part == "summary" else []), fresh.get(part), part, skip, out
+        )
     return out
 
 
@@ -591,7 +595,8 @@ def _carry(result: dict[str, Any], fingerprint: str) -> dict[str, Any] | None:
     return None
 
 
-def _carried_reason(record: dict[str, Any]) -> str:
+def carried_reason(record: dict[str, Any]) -> str:
+    """The reason :func:`staleness` gives for a result carried by the carry record ``record``."""
     commit = str(record.get("commit") or "?")[:7]
     return f"carried (code changed at {commit}, witness equal)"
 
@@ -600,7 +605,7 @@ def staleness(result: dict[str, Any], known: set[str] | None = None) -> tuple[bo
     """Whether today's code would still make ``result`` (a ``result.json`` as a dict).
 
     Cheap: it compares fingerprints and reads the carry records, it runs nothing
-    (:func:`check_results` with ``witness=True`` runs the witnesses).
+    (:func:`skillkit.experiments.runner.check_witnesses` runs the witnesses).
 
     Parameters
     ----------
@@ -635,7 +640,7 @@ def staleness(result: dict[str, Any], known: set[str] | None = None) -> tuple[bo
         return False, "current"
     record = _carry(result, now)
     if record is not None:
-        return False, _carried_reason(record)
+        return False, carried_reason(record)
     commit = (result.get("git") or {}).get("commit") or "?"
     return True, f"code changed since commit {commit[:7]} (fingerprint {stored} -> {now})"
 
@@ -646,31 +651,16 @@ def _status(stale: bool, reason: str) -> str:
     return "current" if reason == "current" else "carried"
 
 
-def check_results(
-    root: str | Path,
-    *,
-    witness: bool = False,
-    record: bool = False,
-    progress: bool = True,
-) -> list[dict[str, Any]]:
-    """Every ``result.json`` under ``root`` with whether today's code would still make it.
+def check_results(root: str | Path) -> list[dict[str, Any]]:
+    """Every ``result.json`` under ``root`` with whether today's code would still make it
+    (:func:`staleness`; nothing runs: a result whose code changed and that has no carry
+    record for today's code is stale until its witness runs,
+    :func:`skillkit.experiments.runner.check_witnesses`).
 
     Parameters
     ----------
     root : path
         Folder searched for ``result.json`` files.
-    witness : bool
-        Also run the smoke witness (:func:`skillkit.experiments.runner.smoke_witness`, same
-        id and seed) of each result whose code changed and that has no carry record for
-        today's code, and compare it with the stored one (:func:`compare_witness`): equal
-        means the result is carried, different means stale. Without it (the default) nothing
-        runs and such results are stale.
-    record : bool
-        With ``witness``: write a carry record (``{"code_fingerprint": today's, "commit":
-        HEAD, "checked": ISO date}``) into ``result.json`` of each result whose witness is
-        equal, so later checks find it without running anything.
-    progress : bool
-        Show a progress bar over the witness runs.
 
     Returns
     -------
@@ -678,12 +668,12 @@ def check_results(
         ``path``, ``id``, ``status`` (``"current"``, ``"carried"`` or ``"stale"``),
         ``stale`` (bool) and ``reason`` (``"current"``, ``"carried (...)"`` or why it is
         stale), in path order. A result without a fingerprint, or of an id no longer
-        registered, is stale; so is one whose code changed and has no witness.
+        registered, is stale; so is one whose code changed and has no carry record.
     """
     from skillkit.experiments.registry import ids
 
     known = set(ids())
-    rows, todo = [], []
+    rows = []
     for path in sorted(Path(root).rglob("result.json")):
         try:
             result = json.loads(path.read_text())
@@ -692,66 +682,6 @@ def check_results(
         if not isinstance(result, dict) or "id" not in result:
             continue
         stale, reason = staleness(result, known)
-        exp_id = result["id"]
-        row = {"path": str(path.parent), "id": exp_id, "status": _status(stale, reason)}
+        row = {"path": str(path.parent), "id": result["id"], "status": _status(stale, reason)}
         rows.append({**row, "stale": stale, "reason": reason})
-        changed = stale and exp_id in known and result.get("code_fingerprint")
-        if changed and witness:
-            todo.append((rows[-1], path, result))
-    if todo:
-        _check_witnesses(todo, record, progress)
     return rows
-
-
-def _check_witnesses(todo: list[tuple[dict, Path, dict]], record: bool, progress: bool) -> None:
-    """Run the fresh witnesses of ``todo`` = [(row, result.json path, result)], one per id and
-    seed, and update the rows (and, with ``record``, the files) of those that are equal."""
-    from datetime import date
-
-    from tqdm.auto import tqdm
-
-    from skillkit.experiments import runner
-
-    fresh: dict[tuple[str, int], dict | str] = {}
-    bar = tqdm(total=len(todo), desc="witnesses", disable=not progress)
-    try:
-        for row, path, result in todo:
-            stored = result.get("witness")
-            if not isinstance(stored, dict):
-                row["reason"] += "; no witness to compare"
-                bar.update()
-                continue
-            if stored.get("code_fingerprint") != result["code_fingerprint"]:
-                made, ran = result["code_fingerprint"], stored.get("code_fingerprint")
-                row["reason"] = f"witness made by other code ({ran}) than the result ({made})"
-                bar.update()
-                continue
-            key = (result["id"], int(stored.get("seed", result.get("seed", 0))))
-            if key not in fresh:
-                bar.set_postfix_str(key[0])
-                try:
-                    fresh[key] = runner.smoke_witness(key[0], key[1], trials=stored.get("trials"))
-                except Exception as exc:  # a failing run is a finding, not a crash of the check
-                    fresh[key] = f"the witness run failed ({type(exc).__name__}: {exc})"
-            bar.update()
-            now = fresh[key]
-            if isinstance(now, str):
-                row["reason"] = now
-                continue
-            equal, differences = compare_witness(stored, now)
-            if not equal:
-                shown = "; ".join(differences[:3])
-                more = f" (and {len(differences) - 3} more)" if len(differences) > 3 else ""
-                row["reason"] = f"witness differs: {shown}{more}"
-                continue
-            carry = {
-                "code_fingerprint": now["code_fingerprint"],
-                "commit": now.get("commit"),
-                "checked": date.today().isoformat(),
-            }
-            row.update(stale=False, status="carried", reason=_carried_reason(carry))
-            if record:
-                result["carried"] = [*(result.get("carried") or []), carry]
-                runner.write_result(path.parent, result)
-    finally:
-        bar.close()

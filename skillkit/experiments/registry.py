@@ -15,6 +15,10 @@ run trials anywhere:
 (:mod:`skillkit.experiments.settings`), one per scale: ``smoke`` (seconds, for tests and
 notebook CI), ``quick`` (faithful but small, minutes on 2 cores) and ``paper`` (the thesis
 setting).
+
+The chapter modules register their experiments when they are imported. Importing this module
+imports the package :mod:`skillkit.experiments` first, whose ``__init__`` imports every chapter
+module, so :func:`get` and :func:`ids` always see all of them.
 """
 
 from __future__ import annotations
@@ -124,7 +128,6 @@ def register(experiment: Experiment) -> Experiment:
 
 def get(exp_id: str) -> Experiment:
     """The experiment registered under ``exp_id``."""
-    _load_all()
     if exp_id not in _EXPERIMENTS:
         raise ValueError(f"id: unknown experiment {exp_id!r}; known: {', '.join(ids())}")
     return _EXPERIMENTS[exp_id]
@@ -133,7 +136,6 @@ def get(exp_id: str) -> Experiment:
 def ids() -> list[str]:
     """All registered experiment ids, in thesis order; ids without a number (experiments
     beyond the thesis, such as ``cmp.methods``) last."""
-    _load_all()
 
     def key(i: str):
         head = "".join(c for c in i if c.isalpha())
@@ -144,8 +146,3 @@ def ids() -> list[str]:
         return (not nums, nums, head)
 
     return sorted(_EXPERIMENTS, key=key)
-
-
-def _load_all() -> None:
-    # Importing the chapter modules registers their experiments.
-    import skillkit.experiments  # noqa: F401

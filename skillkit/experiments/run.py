@@ -103,14 +103,20 @@ class Run:
         """One line: the key number with its 95% interval beside the thesis's, and the
         outcome (the card's second line)."""
         j = self.judgement
-        return "no verdict recorded" if j is None else j.verdict_line()
+        if j is not None:
+            return j.verdict_line()
+        statement = self.summary.get("statement")  # an id the claims spec does not judge
+        return statement if isinstance(statement, str) and statement else "no verdict recorded"
 
     @property
     def card(self) -> str:
         """At most three lines of at most 100 characters: the claim, the verdict with its key
         number and interval beside the thesis's, where the details are."""
         j = self.judgement
-        return f"{self.id}: {self.title}\nno verdict recorded" if j is None else j.card()
+        if j is not None:
+            return j.card()
+        claim = self.summary.get("claim")
+        return f"{self.id}: {claim if isinstance(claim, str) else self.title}\n{self.verdict}"
 
     def details(self) -> str:
         """Markdown: the thesis's sentences, every reading with its interval, reason and when
@@ -164,7 +170,10 @@ class Run:
     # ---------------------------------------------------------------- display
     def _repr_markdown_(self) -> str:
         card = "  \n".join(self.card.split("\n"))
-        return f"{card}\n\n<details><summary>details</summary>\n\n{self.details()}\n</details>\n"
+        stale = self.stale
+        warn = f"\n\n*Stale:* {stale}; today's code may give other numbers." if stale else ""
+        details = f"<details><summary>details</summary>\n\n{self.details()}\n</details>"
+        return f"{card}{warn}\n\n{details}\n"
 
     def __repr__(self) -> str:
         return f"Run({self.id!r}, scale={self.scale!r}, {self.verdict!r}, path='{self.path}')"
@@ -274,7 +283,7 @@ def claim_rows(root: str | os.PathLike | None = None, ids: Any = None) -> list[d
     root = Path(root) if root is not None else results_root()
     wanted = None if ids is None else {str(i) for i in ids}
     order = {exp_id: i for i, exp_id in enumerate(registered())}
-    found = [r for r in check_results(root, progress=False) if wanted is None or r["id"] in wanted]
+    found = [r for r in check_results(root) if wanted is None or r["id"] in wanted]
     rows = []
     for row in sorted(found, key=lambda r: (order.get(r["id"], len(order)), r["path"])):
         run = load_run(row["path"])

@@ -20,8 +20,8 @@ them.
 A run at ``quick`` or ``paper`` scale also stores its *witness* (:func:`smoke_witness`): the
 measurements of a smoke run of the same experiment and seed, made by the same code. When the
 code changes later, a fresh witness equal to the stored one carries the result forward
-without rerunning it (:func:`skillkit.experiments.provenance.check_results`);
-:func:`add_witness` gives a stored result its witness afterwards.
+without rerunning it (:func:`check_witnesses`); :func:`add_witness` gives a stored result its
+witness afterwards.
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from contextlib import contextmanager
 from multiprocessing import get_context
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 from tqdm.auto import tqdm
@@ -49,13 +49,16 @@ from skillkit.experiments import checkpoint
 from skillkit.experiments.judge import apply as judged
 from skillkit.experiments.provenance import (
     WITNESS_SCALE,
+    carried_reason,
+    check_results,
     code_fingerprint,
+    compare_witness,
     measurements,
     provenance,
     series_measurements,
     unstable_paths,
 )
-from skillkit.experiments.registry import get
+from skillkit.experiments.registry import get, ids
 from skillkit.experiments.run import Run
 from skillkit.experiments.settings import Settings
 from skillkit.models.gp import NumericalEvents, record_numerical_events
@@ -781,6 +784,92 @@ def smoke_witness(
     return {**made[0], "unstable": unstable}
 
 
+def check_witnesses(
+    root: str | Path, *, record: bool = False, progress: bool = True
+) -> list[dict[str, Any]]:
+    """Every ``result.json`` under ``root`` with whether today's code would still make it,
+    running the witnesses it takes to know.
+
+    Like :func:`~skillkit.experiments.provenance.check_results`, and the smoke witness
+    (:func:`smoke_witness`, same id and seed) of each result whose code changed and that has
+    no carry record for today's code is run and compared with the stored one
+    (:func:`~skillkit.experiments.provenance.compare_witness`): equal means the result is
+    carried, different means stale (``skillkit runs --check DIR``).
+
+    Parameters
+    ----------
+    root : path
+        Folder searched for ``result.json`` files.
+    record : bool
+        Write a carry record (``{"code_fingerprint": today's, "commit": HEAD, "checked": ISO
+        date}``) into ``result.json`` of each result whose witness is equal, so later checks
+        find it without running anything.
+    progress : bool
+        Show a progress bar over the witness runs.
+
+    Returns
+    -------
+    list of dict
+        The rows of :func:`~skillkit.experiments.provenance.check_results`, with ``status``,
+        ``stale`` and ``reason`` updated by the witnesses (a result without a witness stays
+        stale).
+    """
+    from datetime import date
+
+    known = set(ids())
+    rows, todo = check_results(root), []
+    for row in rows:
+        path = Path(row["path"]) / "result.json"
+        if row["stale"] and row["id"] in known:
+            result = json.loads(path.read_text())
+            if result.get("code_fingerprint"):
+                todo.append((row, path, result))
+    fresh: dict[tuple[str, int], dict | str] = {}
+    bar = tqdm(total=len(todo), desc="witnesses", disable=not progress or not todo)
+    try:
+        for row, path, result in todo:
+            stored = result.get("witness")
+            if not isinstance(stored, dict):
+                row["reason"] += "; no witness to compare"
+                bar.update()
+                continue
+            if stored.get("code_fingerprint") != result["code_fingerprint"]:
+                made, ran = result["code_fingerprint"], stored.get("code_fingerprint")
+                row["reason"] = f"witness made by other code ({ran}) than the result ({made})"
+                bar.update()
+                continue
+            key = (result["id"], int(stored.get("seed", result.get("seed", 0))))
+            if key not in fresh:
+                bar.set_postfix_str(key[0])
+                try:
+                    fresh[key] = smoke_witness(key[0], key[1], trials=stored.get("trials"))
+                except Exception as exc:  # a failing run is a finding, not a crash of the check
+                    fresh[key] = f"the witness run failed ({type(exc).__name__}: {exc})"
+            bar.update()
+            now = fresh[key]
+            if isinstance(now, str):
+                row["reason"] = now
+                continue
+            equal, differences = compare_witness(stored, now)
+            if not equal:
+                shown = "; ".join(differences[:3])
+                more = f" (and {len(differences) - 3} more)" if len(differences) > 3 else ""
+                row["reason"] = f"witness differs: {shown}{more}"
+                continue
+            carry = {
+                "code_fingerprint": now["code_fingerprint"],
+                "commit": now.get("commit"),
+                "checked": date.today().isoformat(),
+            }
+            row.update(stale=False, status="carried", reason=carried_reason(carry))
+            if record:
+                result["carried"] = [*(result.get("carried") or []), carry]
+                write_result(path.parent, result)
+    finally:
+        bar.close()
+    return rows
+
+
 def add_witness(folder: str | Path, *, progress: bool = False) -> dict:
     """Give a stored result its smoke witness (:func:`smoke_witness`, from
     :data:`WITNESS_REPEATS` runs), written as ``"witness"`` into its ``result.json``; every
@@ -889,7 +978,7 @@ def remeasure(folder: str | Path, *, write: bool = False) -> list[str]:
     """
     from datetime import date
 
-    from skillkit.experiments.provenance import _walk, git_state, measurements
+    from skillkit.experiments.provenance import git_state, measurements, walk_differences
     from skillkit.experiments.settings import apply_overrides
 
     folder = Path(folder)
@@ -906,7 +995,7 @@ def remeasure(folder: str | Path, *, write: bool = False) -> list[str]:
     fresh = measurements(json.loads(json.dumps(to_jsonable(fresh))))
     stored = measurements(result["summary"])
     found: list[tuple[str, str]] = []
-    _walk(stored, fresh, "summary", set(), found)
+    walk_differences(stored, fresh, "summary", set(), found)
     kept = ("added: ", ": missing (stored")  # new; or not made from the stored arrays
     changed = [t for _, t in found if not t.startswith(kept[0]) and kept[1] not in t]
     changed = [t for t in changed if not t.endswith("-> None")]

@@ -141,12 +141,12 @@ def read_result(path: str | Path) -> dict:
     return result
 
 
-def _flatten(d: dict, prefix: str = "") -> dict:
+def flatten(d: dict, prefix: str = "") -> dict:
     out = {}
     for k, v in d.items():
         key = f"{prefix}{k}"
         if isinstance(v, dict):
-            out.update(_flatten(v, key + "."))
+            out.update(flatten(v, key + "."))
         else:
             out[key] = v
     return out
@@ -172,7 +172,7 @@ def compare(
     a, b = read_result(path_a), read_result(path_b)
     run_keys = ("trials", "executor", "workers", "resumed_trials", "wall_time_s")
     fa, fb = (
-        _flatten(
+        flatten(
             {
                 "summary": r.get("summary", {}),
                 "settings": r.get("settings", {}),

@@ -509,7 +509,7 @@ class GPPredictor:
         object.__setattr__(
             self,
             "_weights",
-            _flush_tiny(
+            flush_tiny(
                 torch.cat([setup("var_factor").transpose(-1, -2), setup("beta")[..., None]], -1)
                 .contiguous()
                 .to(self.dtype)
@@ -667,7 +667,7 @@ class GPPredictor:
         return self.y_scale[:, None, None] ** 2 * cov
 
 
-def _flush_tiny(weights: torch.Tensor) -> torch.Tensor:
+def flush_tiny(weights: torch.Tensor) -> torch.Tensor:
     """Reduced precision: weights below 1e-15 of their output's largest set to 0 (float64: as is).
 
     Their contribution is below float32's resolution, and a product of a small kernel entry
@@ -932,7 +932,7 @@ def _check_method(method: str) -> str:
 
 
 # ---------------------------------------------------------------------------- GP base
-class _GPRegression:
+class GPRegression:
     """Shared plumbing of :class:`ExactGP` and the sparse GPs: validation, additive noise,
     standardisation, training loop, predictor, diagnostics. Subclasses implement
     ``_build``, ``_loss``, ``_parameters`` and ``_make_predictor``."""
@@ -1003,7 +1003,7 @@ class _GPRegression:
         return text + ")"
 
     # -- fitting
-    def fit(self, X, Y, rng=None) -> _GPRegression:
+    def fit(self, X, Y, rng=None) -> GPRegression:
         """Fit hyper-parameters and cache the predictor.
 
         Parameters
@@ -1304,7 +1304,7 @@ class _BatchedExactGP(gpytorch.models.ExactGP):
         return gpytorch.distributions.MultivariateNormal(self.mean_module(x), self.covar_module(x))
 
 
-class ExactGP(_GPRegression):
+class ExactGP(GPRegression):
     """Standard (full) GP regression, one GP per output, batched in one GPyTorch model.
 
     The hyper-parameters live in a GPyTorch ``ExactGP`` (``self.model``, batch shape (E,),
@@ -1429,8 +1429,8 @@ class ForwardModel:
         The GP's prior mean function.
     """
 
-    def __init__(self, gp: _GPRegression, target: str = "next", mean: str = "zero"):
-        if not isinstance(gp, _GPRegression):
+    def __init__(self, gp: GPRegression, target: str = "next", mean: str = "zero"):
+        if not isinstance(gp, GPRegression):
             raise ValueError(
                 f"gp: expected an ExactGP, FITC or VFE instance, got {type(gp).__name__}"
             )

@@ -15,10 +15,10 @@ alternative, independent noise per state dimension (diag Σ_w, as the GP forward
 is the wrong model of the data this model is fitted to: on
 the balancing robot the residuals of positions and velocities are correlated at 0.99 (one
 unmodelled torque moves both), and independent position and velocity noise is amplified by
-the high-gain feedback. Measured (``docs/measure_tab42_models.py``'s setting, seed 0, π₀'s
-gain, 40 steps; the simulator's mean reward is −113.2): the exact expected return with full Σ_w
-is −79, −109, −334 for torque excitation 0, 10, 30 N m, with diag Σ_w −101, −2491, −31640.
-So GPREPS and PILCO predict from the same model, the better one.
+the high-gain feedback. Measured (``benchmarks/bench_tab42_models.py closed-loop``'s setting,
+seed 0, π₀'s gain, 40 steps; the simulator's mean reward is −113.2): the exact expected return
+with full Σ_w is −79, −109, −334 for torque excitation 0, 10, 30 N m, with diag Σ_w −101,
+−2491, −31640. So GPREPS and PILCO predict from the same model, the better one.
 """
 
 from __future__ import annotations

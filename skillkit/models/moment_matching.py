@@ -271,7 +271,7 @@ def moment_match(
     """
     pred = predictor.to("cpu", DTYPE)
     m, S = _check_gaussian(mean, cov, pred.support.shape[-1])
-    g = _moment_match(pred, m, S, include_noise)
+    g = moment_match_step(pred, m, S, include_noise)
     check_roundoff(g.roundoff, "moment_match", strict)
     return g
 
@@ -296,7 +296,7 @@ def check_roundoff(estimate: RoundoffEstimate | None, where: str, strict: bool =
     warnings.warn(text, GPNumericalWarning, stacklevel=3)
 
 
-def _moment_match(
+def moment_match_step(
     pred: GPPredictor,
     m: torch.Tensor,
     S: torch.Tensor,
@@ -390,7 +390,7 @@ def _roundoff_bound(
     V: torch.Tensor,
     include_noise: bool,
 ) -> RoundoffEstimate:
-    r"""A bound on the float64 round-off of one :func:`_moment_match` (all in scaled units),
+    r"""A bound on the float64 round-off of one :func:`moment_match_step` (all in scaled units),
     from its intermediate results (``q`` … ``V``, called without gradient recording).
 
     Exponents are bounded in the worst case: a quantity formed from k terms is off by at most
@@ -723,7 +723,7 @@ def propagate(
             mz = A @ m + torch.cat([torch.zeros(n_x, dtype=DTYPE), k[t]])
             Sz = A @ S @ A.T
             if step is moment_match:  # moment_match, its bound checked once after the loop
-                g = _moment_match(predictor, *_check_gaussian(mz, 0.5 * (Sz + Sz.T), D))
+                g = moment_match_step(predictor, *_check_gaussian(mz, 0.5 * (Sz + Sz.T), D))
                 worst = RoundoffEstimate.worst([worst, g.roundoff])
             else:
                 g = linearize(predictor, mz, 0.5 * (Sz + Sz.T))

@@ -71,7 +71,7 @@ from dataclasses import dataclass
 import torch
 
 from skillkit._validation import as_generator, check_count
-from skillkit.models.gp import GPPredictor, Moments, _flush_tiny
+from skillkit.models.gp import GPPredictor, Moments, flush_tiny
 from skillkit.models.kernels import se_kernel
 
 __all__ = ["PathwiseBasis", "PathwiseFunctions", "draw_functions", "pathwise_flops_per_step"]
@@ -260,7 +260,7 @@ class PathwiseBasis:
             omega.reshape(omega.shape[0], E * F, d).transpose(1, 2).to(dt).contiguous(),
             phase.to(dt).contiguous(),
             amp.to(dt).contiguous(),
-            _flush_tiny(update.to(dt).contiguous()),  # float32: no denormal products k·v
+            flush_tiny(update.to(dt).contiguous()),  # float32: no denormal products k·v
         )
 
     def _features(self, normals: torch.Tensor, uniforms: torch.Tensor):

@@ -45,7 +45,7 @@ import numpy as np
 import torch
 
 from skillkit._validation import check_array, check_positive
-from skillkit.models.gp import DTYPE, GPNumericalError, GPPredictor, _GPRegression, robust_cholesky
+from skillkit.models.gp import DTYPE, GPNumericalError, GPPredictor, GPRegression, robust_cholesky
 from skillkit.models.kernels import se_kernel
 
 __all__ = ["FITC", "VFE", "kmeans_pp"]
@@ -86,7 +86,7 @@ def kmeans_pp(X, n: int, rng: np.random.Generator) -> np.ndarray:
     return np.asarray(idx)
 
 
-class _SparseGP(_GPRegression):
+class _SparseGP(GPRegression):
     """Shared FITC/VFE implementation (``_method`` selects the approximation)."""
 
     _method = "fitc"

@@ -42,7 +42,7 @@ import torch
 
 from skillkit._repr import number
 from skillkit._validation import as_generator, check_array, check_count, check_positive
-from skillkit.models.gp import ExactGP, ForwardModel, _GPRegression
+from skillkit.models.gp import ExactGP, ForwardModel, GPRegression
 from skillkit.policies.features import FeatureName, check_feature_name
 from skillkit.policies.gaussian import LinearGaussianPolicy
 from skillkit.search.base import Batch, SampleBuffer, as_batch
@@ -98,8 +98,8 @@ class RewardModel(Protocol):
 WARM_LENGTHSCALE_CAP = 100.0
 
 
-def _warm_start(
-    gp: _GPRegression, hypers: dict[str, np.ndarray] | None, inputs: np.ndarray
+def warm_start_hypers(
+    gp: GPRegression, hypers: dict[str, np.ndarray] | None, inputs: np.ndarray
 ) -> None:
     """Start the next hyper-parameter optimisation of ``gp`` at ``hypers`` (raw units).
 
@@ -184,11 +184,11 @@ def refit_gp(
     best = None
     for start in starts:
         gp = make_gp()
-        if not isinstance(gp, _GPRegression):
+        if not isinstance(gp, GPRegression):
             gp.fit(x, y, np.random.default_rng(seed))
             return gp, record
         if start == "warm":
-            _warm_start(gp, previous, x)
+            warm_start_hypers(gp, previous, x)
         gp.fit(x, y, np.random.default_rng(seed))
         lml = gp.diagnostics.get("log_marginal_likelihood")
         value = -np.inf if lml is None else float(np.sum(lml))
@@ -200,7 +200,7 @@ def refit_gp(
     return best[1], record
 
 
-def _gp_stats(gp: _GPRegression, n_data: int) -> dict[str, Any]:
+def gp_stats(gp: GPRegression, n_data: int) -> dict[str, Any]:
     """What one fit of ``gp`` reports: data size, log ML, iterations, largest noise variance
     and the numerical events the fit handled (:class:`~skillkit.models.gp.NumericalEvents`)."""
     lml = gp.diagnostics.get("log_marginal_likelihood")
@@ -229,9 +229,9 @@ class DirectRewardModel:
         Start each refit at the previous hyper-parameters.
     """
 
-    def __init__(self, gp: _GPRegression | None = None, warm_start: bool = True):
+    def __init__(self, gp: GPRegression | None = None, warm_start: bool = True):
         gp = ExactGP() if gp is None else gp
-        if not isinstance(gp, _GPRegression):
+        if not isinstance(gp, GPRegression):
             raise ValueError(f"gp: expected an ExactGP, FITC or VFE, got {type(gp).__name__}")
         self.gp = gp
         self.warm_start = bool(warm_start)
@@ -252,11 +252,11 @@ class DirectRewardModel:
         r = check_array(rewards, "rewards", shape=(s.shape[0],))
         z = np.hstack([s, w])
         if self.warm_start:
-            _warm_start(self.gp, self.hyperparameters, z)
+            warm_start_hypers(self.gp, self.hyperparameters, z)
         self.gp.fit(z, r, as_generator(rng))
         self.hyperparameters = self.gp.hyperparameters
         self.n_data = int(r.shape[0])
-        return _gp_stats(self.gp, r.shape[0])
+        return gp_stats(self.gp, r.shape[0])
 
     def expected_rewards(self, contexts, omegas, n_trajectories=1, rng=None) -> np.ndarray:
         """GP mean of R at [s_j, ω_j], shape (M,); ``n_trajectories`` and ``rng`` are unused."""
@@ -358,7 +358,7 @@ class TrajectoryRewardModel:
         self.horizon = None if horizon is None else int(horizon)
         self.warm_start = bool(warm_start)
         self.device = device
-        self.dtype = _check_dtype(dtype)
+        self.dtype = check_sample_dtype(dtype)
         self.prior_trajectories = list(prior_trajectories)
         if not all(isinstance(t, Trajectory) for t in self.prior_trajectories):
             raise ValueError("prior_trajectories: expected a sequence of Trajectory objects")
@@ -398,14 +398,14 @@ class TrajectoryRewardModel:
         x, u, xn = (np.concatenate(p) for p in zip(*parts, strict=True))
         model = self.make_model()
         gp = getattr(model, "gp", None)
-        if self.warm_start and isinstance(gp, _GPRegression):
-            _warm_start(gp, self.hyperparameters, np.hstack([x, u]))
+        if self.warm_start and isinstance(gp, GPRegression):
+            warm_start_hypers(gp, self.hyperparameters, np.hstack([x, u]))
         model.fit(x, u, xn, rng=as_generator(rng))
         self.model = model
         stats: dict[str, Any] = {"n_data": int(x.shape[0]), "n_trajectories": len(unique)}
-        if isinstance(gp, _GPRegression):
+        if isinstance(gp, GPRegression):
             self.hyperparameters = gp.hyperparameters
-            stats.update(_gp_stats(gp, x.shape[0]))
+            stats.update(gp_stats(gp, x.shape[0]))
         self.n_data = int(x.shape[0])
         return stats
 
@@ -449,7 +449,7 @@ class TrajectoryRewardModel:
         )
 
 
-def _check_dtype(dtype) -> torch.dtype:
+def check_sample_dtype(dtype) -> torch.dtype:
     """``dtype`` of a reward model's sampled trajectories: float64 or float32."""
     if dtype not in (torch.float64, torch.float32):
         raise ValueError(f"dtype: expected torch.float64 or torch.float32, got {dtype!r}")

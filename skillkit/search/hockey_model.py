@@ -79,10 +79,10 @@ import numpy as np
 import torch
 
 from skillkit._validation import as_generator, check_array, check_count, check_positive
-from skillkit.models.gp import ExactGP, _GPRegression
-from skillkit.search.gpreps import _gp_stats, check_refit, refit_gp
+from skillkit.models.gp import ExactGP, GPRegression
+from skillkit.search.gpreps import check_refit, gp_stats, refit_gp
 from skillkit.search.model_rollouts import worst_if_nonfinite
-from skillkit.search.throwing_model import _subsample
+from skillkit.search.throwing_model import subsample
 from skillkit.tasks.hockey import Hockey, butterworth_smooth
 from skillkit.tasks.hockey.table import CONTROL_PUCK_START
 
@@ -710,7 +710,7 @@ class HockeyRewardModel:
         gp, record = refit_gp(
             getattr(self, f"make_{key}_model"), x, y, rng, hypers.get(key), self.refit
         )
-        if isinstance(gp, _GPRegression):
+        if isinstance(gp, GPRegression):
             hypers[key] = gp.hyperparameters
             self._hypers = hypers
         if self.device is not None:
@@ -781,7 +781,7 @@ class HockeyRewardModel:
             sizes["launch_probability"] = len(w)
         x, y = self.sliding_data(ok)
         self.n_data = int(x.shape[0])
-        x, y = _subsample(rng, self.max_sliding_points, x, y)
+        x, y = subsample(rng, self.max_sliding_points, x, y)
         gps["sliding"], records["sliding"] = self._fit_gp("sliding", x, y, rng)
         sizes["sliding"] = int(x.shape[0])
         self.models.update(gps)
@@ -791,14 +791,14 @@ class HockeyRewardModel:
             cx, cy = self.contact_data(ok)
             stats["n_contacts"] = int(cx.shape[0])
             if cx.shape[0] >= 2:
-                cx, cy = _subsample(rng, self.max_contact_points, cx, cy)
+                cx, cy = subsample(rng, self.max_contact_points, cx, cy)
                 gps["contact"], records["contact"] = self._fit_gp("contact", cx, cy, rng)
                 self.models["contact"] = gps["contact"]
                 sizes["contact"] = int(cx.shape[0])
         stats["n_data"] = self.n_data
         for name, n in sizes.items():
-            if isinstance(gps[name], _GPRegression):
-                stats[name] = {**_gp_stats(gps[name], n), **records[name]}
+            if isinstance(gps[name], GPRegression):
+                stats[name] = {**gp_stats(gps[name], n), **records[name]}
         return stats
 
     def _fit_displacement(self, ok, rng, gps, records, sizes) -> dict[str, Any]:
@@ -807,7 +807,7 @@ class HockeyRewardModel:
         model = DisplacementModel(getattr(self, "displacement", "gp"))
         cx, cy = self.displacement_data(ok)
         out: dict[str, Any] = {"n_contacts": int(cx.shape[0])}
-        cx, cy = _subsample(rng, self.max_contact_points, cx, cy)
+        cx, cy = subsample(rng, self.max_contact_points, cx, cy)
         model.fit_classifier(cx, cy)
         gx, gy = model.gp_data(cx, cy)
         if gx.shape[0] >= 2:

@@ -60,8 +60,8 @@ from skillkit._validation import as_generator, check_array, check_count, check_p
 from skillkit.models.gp import DTYPE, ForwardModel
 from skillkit.models.moment_matching import (
     RoundoffEstimate,
-    _moment_match,
     check_roundoff,
+    moment_match_step,
     with_linear_mean,
 )
 from skillkit.policies.gaussian import GaussianPolicy
@@ -161,7 +161,7 @@ class GPMomentStep:
     def __call__(
         self, mean_z: torch.Tensor, cov_z: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        g = _moment_match(self.predictor, mean_z, cov_z, strict=True, roundoff=self.track)
+        g = moment_match_step(self.predictor, mean_z, cov_z, strict=True, roundoff=self.track)
         if self.track:
             self.roundoff = RoundoffEstimate.worst([self.roundoff, g.roundoff])
         g = with_linear_mean(self.model, g, mean_z, cov_z)

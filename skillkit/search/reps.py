@@ -178,7 +178,7 @@ def reps_dual(
         [∂g/∂η (A.11), ∂g/∂γ (A.12)]. Note ∂g/∂η = ε − KL(p ‖ q) with the weights
         p_i ∝ q_i exp((R_i − γᵀφ(s_i))/η) of Eq. (3.10).
     """
-    r, phi = _check_samples(rewards, features)
+    r, phi = check_samples(rewards, features)
     x = check_array(params, "params", shape=(1 + phi.shape[1],))
     if not x[0] > 0:
         raise ValueError(f"params: η = params[0] must be > 0, got {x[0]!r}")
@@ -261,7 +261,7 @@ def reps_dual_hessian(
     ndarray, shape (1 + F, 1 + F)
         Symmetric, in the order [η, γ_1, …, γ_F].
     """
-    r, phi = _check_samples(rewards, features)
+    r, phi = check_samples(rewards, features)
     x = check_array(params, "params", shape=(1 + phi.shape[1],))
     if not x[0] > 0:
         raise ValueError(f"params: η = params[0] must be > 0, got {x[0]!r}")
@@ -388,7 +388,7 @@ def reps_weights(
     """
     eps = check_positive(epsilon, "epsilon")
     _check_choice(solver, "solver", get_args(DualSolver))
-    r, phi = _check_samples(rewards, features)
+    r, phi = check_samples(rewards, features)
     n, n_feat = phi.shape
     log_q = _log_base(base_weights, n)
     q = None if log_q is None else np.exp(log_q)
@@ -631,7 +631,7 @@ def _log_base(base_weights: ArrayLike | None, n: int) -> np.ndarray | None:
         return np.log(q) - np.log(q.sum())
 
 
-def _check_samples(rewards, features) -> tuple[np.ndarray, np.ndarray]:
+def check_samples(rewards, features) -> tuple[np.ndarray, np.ndarray]:
     r = check_array(rewards, "rewards", ndim=1)
     if r.shape[0] == 0:
         raise ValueError("rewards: expected at least one sample, got shape (0,)")

@@ -70,8 +70,8 @@ import numpy as np
 import torch
 
 from skillkit._validation import as_generator, check_array, check_count, check_positive
-from skillkit.models.gp import ExactGP, _GPRegression
-from skillkit.search.gpreps import _gp_stats, check_refit, refit_gp
+from skillkit.models.gp import ExactGP, GPRegression
+from skillkit.search.gpreps import check_refit, gp_stats, refit_gp
 from skillkit.search.model_rollouts import worst_if_nonfinite
 from skillkit.tasks.table_tennis import (
     SERVE_POSITION,
@@ -501,7 +501,7 @@ class ContactModel:
             self.returns, stats["returns_refit"] = refit_gp(
                 self.make_return_model, x[hit], p[hit], rng, prev, self.refit
             )
-            if isinstance(self.returns, _GPRegression):
+            if isinstance(self.returns, GPRegression):
                 self._hypers = self.returns.hyperparameters
         return stats
 
@@ -862,7 +862,7 @@ class TableTennisRewardModel:
         if h is not None and np.shape(h["lengthscale"]) != (y.shape[1], x.shape[1]):
             h = None
         gp, records[key] = refit_gp(make_gp, x, y, rng, h, getattr(self, "refit", "best"))
-        if isinstance(gp, _GPRegression):
+        if isinstance(gp, GPRegression):
             self._hypers[key] = gp.hyperparameters
         return gp
 
@@ -929,7 +929,7 @@ class TableTennisRewardModel:
         for key, target in (("position", wp), ("orientation", wq)):
             model = _ScoresGP(self.make_racket_model, self.pca_tolerance, self.max_components)
             refits[key] = model.fit(w, target, rng, self._hypers[key], refit)
-            if isinstance(model.gp, _GPRegression):
+            if isinstance(model.gp, GPRegression):
                 self._hypers[key] = model.gp.hyperparameters
             setattr(self, f"racket_{key}", model)
         stats["pca_components"] = {
@@ -957,8 +957,8 @@ class TableTennisRewardModel:
             ("racket_orientation", self.racket_orientation.gp),
             ("returns", self.returns),
         ):
-            if isinstance(model, _GPRegression):
-                stats[key] = _gp_stats(model, model.X.shape[0])
+            if isinstance(model, GPRegression):
+                stats[key] = gp_stats(model, model.X.shape[0])
         self.n_data = len(trajs)
         stats["fit_seconds"] = time.perf_counter() - t0
         return stats

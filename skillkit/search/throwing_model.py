@@ -48,9 +48,9 @@ import numpy as np
 import torch
 
 from skillkit._validation import as_generator, check_array, check_count, check_positive
-from skillkit.models.gp import ExactGP, ForwardModel, _GPRegression
+from skillkit.models.gp import ExactGP, ForwardModel, GPRegression
 from skillkit.models.sampling import sample_trajectories
-from skillkit.search.gpreps import _check_dtype, _gp_stats, _warm_start
+from skillkit.search.gpreps import check_sample_dtype, gp_stats, warm_start_hypers
 from skillkit.search.model_rollouts import worst_if_failed, worst_if_nonfinite
 from skillkit.tasks.planar import Throwing
 
@@ -63,7 +63,7 @@ def _robot_model() -> ForwardModel:
     return ForwardModel(FITC(n_inducing=50), target="delta")  # as its stored results
 
 
-def _release_model() -> _GPRegression:
+def _release_model() -> GPRegression:
     return ExactGP()
 
 
@@ -246,7 +246,7 @@ class ThrowingRewardModel:
         self.flight_steps = int(np.ceil(check_positive(flight_time, "flight_time") / task.ball_dt))
         self.warm_start = bool(warm_start)
         self.device = device
-        self.dtype = _check_dtype(dtype)
+        self.dtype = check_sample_dtype(dtype)
         if not isinstance(stop_flight_at_ground, bool):
             raise ValueError(
                 "stop_flight_at_ground: expected a bool, got "
@@ -323,14 +323,14 @@ class ThrowingRewardModel:
     # ------------------------------------------------------------------ fit
     def _fit_gp(self, key: str, model, x: np.ndarray, y_or_u, xn=None, rng=None):
         gp = getattr(model, "gp", model)
-        if self.warm_start and isinstance(gp, _GPRegression):
+        if self.warm_start and isinstance(gp, GPRegression):
             inputs = x if xn is None else np.hstack([x, y_or_u])
-            _warm_start(gp, self._hypers[key], inputs)
+            warm_start_hypers(gp, self._hypers[key], inputs)
         if xn is None:
             model.fit(x, y_or_u, rng)
         else:
             model.fit(x, y_or_u, xn, rng=rng)
-        if isinstance(gp, _GPRegression):
+        if isinstance(gp, GPRegression):
             self._hypers[key] = gp.hyperparameters
         return model
 
@@ -353,16 +353,16 @@ class ThrowingRewardModel:
         rng = as_generator(rng)
         x, a, xn = self.robot_data(ok)
         n_robot = x.shape[0]
-        x, a, xn = _subsample(rng, self.max_robot_points, x, a, xn)
+        x, a, xn = subsample(rng, self.max_robot_points, x, a, xn)
         self.robot = self._fit_gp("robot", self.make_robot_model(), x, a, xn, rng)
 
-        hx, hb = _subsample(rng, self.max_release_points, *self.hand_data(ok))
+        hx, hb = subsample(rng, self.max_release_points, *self.hand_data(ok))
         self.release = self._fit_gp("release", self.make_release_model(), hx, hb, rng=rng)
         rx, rb = self.release_data(ok)
         mean, _ = self.release.predict(rx)
         self.release_var = np.mean((rb - mean) ** 2, axis=0)
 
-        fx, fxn = _subsample(rng, self.max_flight_points, *self.flight_data(ok))
+        fx, fxn = subsample(rng, self.max_flight_points, *self.flight_data(ok))
         self.flight = self._fit_gp(
             "flight", self.make_flight_model(), fx, np.zeros((fx.shape[0], 0)), fxn, rng
         )
@@ -381,8 +381,8 @@ class ThrowingRewardModel:
             ("flight", self.flight, fx.shape[0]),
         ):
             gp = getattr(model, "gp", model)
-            if isinstance(gp, _GPRegression):
-                stats[key] = _gp_stats(gp, n)
+            if isinstance(gp, GPRegression):
+                stats[key] = gp_stats(gp, n)
         return stats
 
     # ------------------------------------------------------------------ predict
@@ -474,7 +474,7 @@ class ThrowingRewardModel:
         )
 
 
-def _subsample(rng: np.random.Generator, n_max: int, *arrays: np.ndarray) -> tuple:
+def subsample(rng: np.random.Generator, n_max: int, *arrays: np.ndarray) -> tuple:
     """The same ``n_max`` random rows of each array (all rows, in order, if there are fewer)."""
     n = arrays[0].shape[0]
     if n <= n_max:

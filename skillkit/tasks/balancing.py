@@ -25,8 +25,7 @@ from skillkit.tasks.base import (
     state_transitions,
 )
 from skillkit.tasks.controllers import control_substeps, run_feedback
-from skillkit.tasks.planar import _PlanarRobot
-from skillkit.tasks.planar_model import JOINT_NAMES, TIMESTEP, UPRIGHT
+from skillkit.tasks.planar_model import JOINT_NAMES, TIMESTEP, UPRIGHT, PlanarRobot
 from skillkit.tasks.registry import register
 from skillkit.trajectory import Trajectory
 
@@ -129,7 +128,7 @@ class Balancing(Task):
         max_angle: float = 20.0,
         max_joint_speed: float = 100.0,
     ) -> None:
-        self.robot = _PlanarRobot(TIMESTEP)
+        self.robot = PlanarRobot(TIMESTEP)
         self.initial_std = check_positive(initial_std, "initial_std", allow_zero=True)
         self.torque_noise_std = check_positive(
             torque_noise_std, "torque_noise_std", allow_zero=True
@@ -472,8 +471,7 @@ class Balancing(Task):
         stiffness on the grid ω ∈ {2.5, 3, 4, …}, ζ ∈ {0.7, 1, 1.5, 2} whose 20 Hz closed loop
         has spectral radius ≤ 0.95 (0.944; ω = 3, ζ = 1 has 1.02: unstable). Its gains reach
         1.9·10³ N m/rad, more than the R = 1e-4 LQR's 1.4·10³: holding each torque for 50 ms
-        on this 70 kg robot leaves no lower-gain PD that balances robustly
-        (``docs/measure_pd_gain.py`` prints the grid).
+        on this 70 kg robot leaves no lower-gain PD that balances robustly.
 
         Parameters
         ----------

@@ -14,8 +14,7 @@ control period (zero-order hold).
   the target.
 * :class:`~skillkit.tasks.balancing.Balancing` (registered ``balancing`` and
   ``balancing-noisy``, in :mod:`skillkit.tasks.balancing`): a linear state feedback u = G x̃
-  around upright from a random initial state. Context-free. (``Balancing`` and
-  ``balancing_transitions`` are still importable from here.)
+  around upright from a random initial state. Context-free.
 """
 
 from __future__ import annotations
@@ -38,7 +37,7 @@ from skillkit.tasks.planar_model import (
     LINK_LENGTHS,
     TIMESTEP,
     UPRIGHT,
-    compile_planar_robot,
+    PlanarRobot,
     rigid_body_terms,
 )
 from skillkit.tasks.registry import register
@@ -68,31 +67,6 @@ QD_LIMIT = 50.0
 BLOCK_ENTRIES = 1 << 18
 X_LOWER = np.concatenate([Q_LOWER, np.full(4, -QD_LIMIT)])
 X_UPPER = np.concatenate([Q_UPPER, np.full(4, QD_LIMIT)])
-
-
-class _PlanarRobot:
-    """Compiled planar robot (one per task instance) and its hand site."""
-
-    def __init__(self, timestep: float) -> None:
-        self.physics = compile_planar_robot(timestep)
-        self.model: mujoco.MjModel = self.physics.model.ptr
-        self.data: mujoco.MjData = self.physics.data.ptr
-        self.hand = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_SITE, "hand")
-        self.gravity = float(-self.model.opt.gravity[2])
-        self._vel = np.zeros(6)
-
-    def reset(self, q: np.ndarray, qd: np.ndarray) -> None:
-        mujoco.mj_resetData(self.model, self.data)
-        self.data.qpos[:] = q
-        self.data.qvel[:] = qd
-        mujoco.mj_forward(self.model, self.data)
-
-    def hand_state(self, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
-        """Hand position and velocity in the robot plane, [x, z] each (current kinematics)."""
-        mujoco.mj_objectVelocity(
-            self.model, data, mujoco.mjtObj.mjOBJ_SITE, self.hand, self._vel, 0
-        )
-        return data.site_xpos[self.hand][[0, 2]].copy(), self._vel[[3, 5]].copy()
 
 
 def hand_kinematics(q, qd=None) -> tuple[np.ndarray, np.ndarray | None]:
@@ -436,7 +410,7 @@ class Throwing(Task):
         ball_dt: float = 0.01,
         max_joint_speed: float = 200.0,
     ) -> None:
-        self.robot = _PlanarRobot(TIMESTEP)
+        self.robot = PlanarRobot(TIMESTEP)
         self.control_dt = check_positive(control_dt, "control_dt")
         control_substeps(self.robot.model, self.control_dt)
         self.horizon = check_positive(horizon, "horizon")
@@ -773,12 +747,3 @@ def throwing_noisy(**kwargs) -> Throwing:
     """Stochastic throwing of Sec. 4.3.2.2: release noise 7.5 cm and 30 cm/s (std)."""
     kwargs.setdefault("release_noise", (0.075, 0.3))
     return Throwing(**kwargs)
-
-
-def __getattr__(name: str):
-    """``Balancing`` and ``balancing_transitions`` moved to :mod:`skillkit.tasks.balancing`."""
-    if name in ("Balancing", "balancing_transitions", "balancing", "balancing_noisy"):
-        from skillkit.tasks import balancing
-
-        return getattr(balancing, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -34,12 +34,15 @@ arm          8.5   1.0 m     shoulder, at the top of the torso
 * The default time step is 1 ms with MuJoCo's semi-implicit Euler integrator.
 
 A site ``hand`` marks the tip of the arm (where the ball is held in the throwing task).
+:class:`PlanarRobot` is one compiled robot with its hand site, as the throwing and balancing
+tasks hold it.
 """
 
 from __future__ import annotations
 
 import functools
 
+import mujoco
 import numpy as np
 from dm_control import mjcf
 
@@ -167,3 +170,28 @@ def rigid_body_terms(q, qd, gravity: float = GRAVITY):
         theta
     )
     return lower.T @ m_theta @ lower, h_theta @ lower
+
+
+class PlanarRobot:
+    """Compiled planar robot (one per task instance) and its hand site."""
+
+    def __init__(self, timestep: float) -> None:
+        self.physics = compile_planar_robot(timestep)
+        self.model: mujoco.MjModel = self.physics.model.ptr
+        self.data: mujoco.MjData = self.physics.data.ptr
+        self.hand = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_SITE, "hand")
+        self.gravity = float(-self.model.opt.gravity[2])
+        self._vel = np.zeros(6)
+
+    def reset(self, q: np.ndarray, qd: np.ndarray) -> None:
+        mujoco.mj_resetData(self.model, self.data)
+        self.data.qpos[:] = q
+        self.data.qvel[:] = qd
+        mujoco.mj_forward(self.model, self.data)
+
+    def hand_state(self, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
+        """Hand position and velocity in the robot plane, [x, z] each (current kinematics)."""
+        mujoco.mj_objectVelocity(
+            self.model, data, mujoco.mjtObj.mjOBJ_SITE, self.hand, self._vel, 0
+        )
+        return data.site_xpos[self.hand][[0, 2]].copy(), self._vel[[3, 5]].copy()

@@ -56,7 +56,7 @@ from skillkit.models.gp import (
 from skillkit.models.moment_matching import GaussianPrediction, linearize, moment_match
 from skillkit.policies.dmp import DMP
 from skillkit.viz.figures import plot_gp_fit
-from skillkit.viz.plots import _draw
+from skillkit.viz.plots import draw_figure
 from skillkit.viz.series import Series
 
 __all__ = [
@@ -152,7 +152,7 @@ def phase_figure(dmp: DMP, times: ArrayLike, *, backend: str = "plotly"):
             **kw,
         ),
     ]
-    return _draw(_result("The phase z(t) (Eq. 2.22) runs from 1 towards 0", series), backend)
+    return draw_figure(_result("The phase z(t) (Eq. 2.22) runs from 1 towards 0", series), backend)
 
 
 def basis_figure(dmp: DMP, times: ArrayLike, *, backend: str = "plotly"):
@@ -194,7 +194,7 @@ def basis_figure(dmp: DMP, times: ArrayLike, *, backend: str = "plotly"):
             Series("Σ_i φ_i = z", x.tolist(), phi.sum(axis=1).tolist(), dash="dash", **kw)
         )
     title = f"{dmp.n_basis} basis functions: normalised Gaussians times z (Sec. 2.2.1)"
-    return _draw(_result(title, series), backend)
+    return draw_figure(_result(title, series), backend)
 
 
 def forcing_figure(
@@ -254,7 +254,7 @@ def forcing_figure(
     ]
     rmse = float(np.sqrt(np.mean((f - target) ** 2)))
     title = f"The forcing term fitted by least squares (Eq. 2.23): RMSE {rmse:.3g} rad/s²"
-    return _draw(_result(title, series), backend)
+    return draw_figure(_result(title, series), backend)
 
 
 def demonstration_figure(
@@ -292,7 +292,7 @@ def demonstration_figure(
     for label, y in curves.items():
         y = check_array(y, f"curves[{label!r}]", shape=t.shape)
         series.append(Series(str(label), t.tolist(), y.tolist(), **kw))
-    return _draw(_result(title, series), backend)
+    return draw_figure(_result(title, series), backend)
 
 
 def dmp_fit_figure(n_basis: int, *, backend: str = "plotly", **dmp_options):
@@ -574,7 +574,7 @@ def noise_profile_figure(
                 Series(f"true σ_ε² = {v:g}", [v, v], [float(rel.min()), 0.0], dash="dash", **kw)
             )
     title = "Profile likelihood of the noise variance (Eq. 2.28)"
-    return _draw(_result(title, series), backend)
+    return draw_figure(_result(title, series), backend)
 
 
 def noise_by_size_table(
@@ -770,7 +770,7 @@ def hyperparameter_figure(
             )
         )
     title = f"One hyper-parameter at a time ÷ {factor:g} and × {factor:g}, the others as learned"
-    return _draw(_result(title, series), backend)
+    return draw_figure(_result(title, series), backend)
 
 
 def gp_posterior_figure(
@@ -945,7 +945,7 @@ class MomentMatchingCheck:
             f"One step of x ~ N({self.input_mean:g}, {self.input_var:g}) through the GP "
             "(Sec. 2.1.2, Fig. 2.7)"
         )
-        return _draw(_result(title, series), backend)
+        return draw_figure(_result(title, series), backend)
 
 
 def moment_matching_check(

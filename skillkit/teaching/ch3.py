@@ -35,11 +35,11 @@ from skillkit.search.reps import (
     DualSolution,
     REPSDiagnostics,
     REPSWeights,
-    _check_samples,
+    check_samples,
     reps_dual,
     reps_weights,
 )
-from skillkit.viz.plots import PANEL_HEIGHT, _draw
+from skillkit.viz.plots import PANEL_HEIGHT, draw_figure
 from skillkit.viz.series import Series
 
 __all__ = [
@@ -69,7 +69,7 @@ DEFAULT_EPSILONS = np.geomspace(0.01, 10.0, 19)
 def _samples(rewards: ArrayLike, features: ArrayLike | None) -> tuple[np.ndarray, np.ndarray]:
     """Rewards (N,) and baseline features (N, F) (F = 0 for ``None``), validated as the REPS
     dual validates them; the figures here need at least two samples."""
-    r, phi = _check_samples(rewards, features)
+    r, phi = check_samples(rewards, features)
     if r.shape[0] < 2:
         raise ValueError(f"rewards: expected at least 2 samples, got shape {r.shape}")
     return r, phi
@@ -234,7 +234,7 @@ def dual_figure(
     title = f"(a) the REPS dual along η, N = {s.solution.weights.shape[0]} samples"
     if not sol.kl_bound_active:
         title += ": ε is above the largest KL these samples allow, η* sits at its lower bound"
-    return _draw({"title": title, "series": [x.to_dict() for x in series]}, backend)
+    return draw_figure({"title": title, "series": [x.to_dict() for x in series]}, backend)
 
 
 # ------------------------------------------------------------------- (b, c) weights and KL
@@ -378,7 +378,7 @@ def weights_and_kl_figure(
     n_zero = int(np.sum(sol.weights == 0))
     if n_zero:
         title += f"; {n_zero} weights underflow to 0 (not drawn)"
-    return _draw({"title": title, "series": [x.to_dict() for x in series]}, backend)
+    return draw_figure({"title": title, "series": [x.to_dict() for x in series]}, backend)
 
 
 # ------------------------------------------------------------------------ (d) the ellipse
@@ -610,7 +610,7 @@ def ellipse_figure(
         for name, (xy, dash) in curves.items()
     ]
     title = f"(d) the new policy over the re-weighted samples, parameters ω_{i + 1} and ω_{j + 1}"
-    fig = _draw({"title": title, "series": [x.to_dict() for x in series]}, backend)
+    fig = draw_figure({"title": title, "series": [x.to_dict() for x in series]}, backend)
     # one unit of ω_i as long as one of ω_j (a circle stays a circle), in a taller panel
     if backend == "plotly":
         fig.update_xaxes(constrain="domain")

@@ -59,7 +59,7 @@ from skillkit.search.reps import REPSWeights
 from skillkit.search.throwing_model import ThrowingPrediction, ThrowingRewardModel
 from skillkit.tasks.base import Task
 from skillkit.tasks.planar import Throwing
-from skillkit.viz.plots import _draw
+from skillkit.viz.plots import draw_figure
 from skillkit.viz.series import Series
 
 __all__ = [
@@ -607,7 +607,7 @@ def exploration_figure(run: Any, method: str = "gpreps", backend: str = "plotly"
         f"{run.id}: the search distribution's width; ε = {epsilon:g}, "
         f"{100 * at_bound:.0f}% of the updates at KL ≥ 0.99 ε"
     )
-    return _draw(_result(title, series), backend)
+    return draw_figure(_result(title, series), backend)
 
 
 # --------------------------------------------------------------------------- figures
@@ -629,7 +629,7 @@ def contexts_figure(real: ArrayLike, artificial: ArrayLike, backend: str = "plot
         Series(f"artificial s ~ μ̂(s) (M = {len(s_art)})", *_xy(s_art), **common),
         Series(f"real throws (N = {len(s_real)})", *_xy(s_real), **common),
     ]
-    return _draw(_result("contexts of the real and the artificial samples", series), backend)
+    return draw_figure(_result("contexts of the real and the artificial samples", series), backend)
 
 
 def predicted_throws_figure(
@@ -663,7 +663,7 @@ def predicted_throws_figure(
         series.append(
             Series(f"pair {j + 1}: {L} predicted flights", *_joined(prediction.ball[j]), **common)
         )
-    return _draw(_result("predicted ball flights over the real ones", series), backend)
+    return draw_figure(_result("predicted ball flights over the real ones", series), backend)
 
 
 def weights_figure(
@@ -706,7 +706,7 @@ def weights_figure(
         f"REPS weights: KL = {weights.kl:.3g} (ε = {weights.epsilon:.3g}), "
         f"ESS = {weights.ess:.3g} of {p.size}"
     )
-    return _draw(_result(title, series), backend)
+    return draw_figure(_result(title, series), backend)
 
 
 def _xy(points: np.ndarray) -> tuple[list, list]:
@@ -898,7 +898,7 @@ def reward_estimate_figure(
         f"std of R̂ per pair {', '.join(f'{v:.3g}' for v in sd_fixed)}; "
         f"std of the policy's estimate {policy.std(ddof=1):.3g}"
     )
-    fig = _draw(_result(title, series), backend)
+    fig = draw_figure(_result(title, series), backend)
     if backend == "plotly":
         _fix_ranges(fig, pool)
     return fig
@@ -1025,11 +1025,12 @@ def gpreps_model_view(
     With ``live`` and a server that starts: :func:`~skillkit.viz.notebook.show_viewer` with
     the run's policy history and :meth:`~skillkit.viz.viewer.Viewer.add_model_layers` (one
     switchable layer per learned model). Otherwise the same layers drawn from above by
-    :func:`~skillkit.viz.model_layers.gpreps_run_paths_figure`.
+    :func:`~skillkit.viz.figures.gpreps_run_paths_figure`.
 
     .. warning:: This unpickles the run's reward model: load only runs you trust.
     """
-    from skillkit.viz.model_layers import gpreps_run_paths_figure, load_gpreps_run
+    from skillkit.viz.figures import gpreps_run_paths_figure
+    from skillkit.viz.model_layers import load_gpreps_run
     from skillkit.viz.notebook import show_viewer
 
     n_samples = check_count(n_samples, "n_samples")

@@ -31,7 +31,7 @@ from skillkit._validation import check_array, check_count
 from skillkit.experiments.ch4_balancing import experience_to_reach
 from skillkit.tasks.base import Task
 from skillkit.trajectory import Trajectory
-from skillkit.viz.plots import _draw
+from skillkit.viz.plots import draw_figure
 from skillkit.viz.series import Series
 
 __all__ = [
@@ -262,7 +262,7 @@ def mapping_figure(
     # the contexts last: drawn over the segments that start at them
     targets = Series("contexts s", s[:, 0].tolist(), s[:, 1].tolist(), kind="markers", **right)
     series = [*mapped, *reached_paths, targets]
-    return _draw({"title": title, "series": [x.to_dict() for x in series]}, backend)
+    return draw_figure({"title": title, "series": [x.to_dict() for x in series]}, backend)
 
 
 # --------------------------------------------------------------------------- tables

@@ -1,7 +1,8 @@
 """Figures from live objects, without building series by hand: a learning run
 (:func:`plot_learning`), a 1-D GP fit (:func:`plot_gp_fit`), named curves
-(:func:`line_figure`), model-predicted against real trajectories (:func:`prediction_figure`)
-and a reward model's sampled paths over the real ones (:func:`model_paths_figure`).
+(:func:`line_figure`), model-predicted against real trajectories (:func:`prediction_figure`),
+a reward model's sampled paths over the real ones (:func:`model_paths_figure`), and those of a
+stored GPREPS run's last model (:func:`gpreps_run_paths_figure`).
 
 Each builds :class:`~skillkit.series.Series` and draws them with the same code as the
 experiment figures (:mod:`skillkit.viz.plots`), returning a plotly ``Figure`` or a
@@ -11,12 +12,14 @@ experiment figures (:mod:`skillkit.viz.plots`), returning a plotly ``Figure`` or
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 
 import numpy as np
 
-from skillkit.viz.plots import _BACKENDS, _draw
+from skillkit.viz.plots import BACKENDS, draw_figure
 
 __all__ = [
+    "gpreps_run_paths_figure",
     "line_figure",
     "model_paths_figure",
     "plot_gp_fit",
@@ -64,8 +67,8 @@ def plot_learning(
     """
     from skillkit.series import Series, trial_band
 
-    if backend not in _BACKENDS:
-        raise ValueError(f"backend: expected one of {_BACKENDS}, got {backend!r}")
+    if backend not in BACKENDS:
+        raise ValueError(f"backend: expected one of {BACKENDS}, got {backend!r}")
     if isinstance(runs, Mapping) and "rollouts" not in runs:
         if not runs:
             raise ValueError("runs: empty mapping")
@@ -108,7 +111,7 @@ def plot_learning(
             )
     # a run's exploration markers take the colour of its curve
     dicts = [{**s.to_dict(), "_group": g} for s, g in zip(series, groups_of, strict=True)]
-    return _draw({"title": title, "series": dicts}, backend)
+    return draw_figure({"title": title, "series": dicts}, backend)
 
 
 def _check_learn(r, name: str) -> dict[str, np.ndarray]:
@@ -172,8 +175,8 @@ def plot_gp_fit(
     from skillkit._validation import check_array
     from skillkit.series import Series
 
-    if backend not in _BACKENDS:
-        raise ValueError(f"backend: expected one of {_BACKENDS}, got {backend!r}")
+    if backend not in BACKENDS:
+        raise ValueError(f"backend: expected one of {BACKENDS}, got {backend!r}")
     if not callable(getattr(model, "predict", None)):
         raise ValueError(
             "model: expected a fitted GP with predict(X, include_noise), "
@@ -215,7 +218,7 @@ def plot_gp_fit(
         series.append(
             Series("true function", xte.tolist(), np.asarray(f_true(xte), float).tolist(), **common)
         )
-    return _draw({"title": title, "series": [s.to_dict() for s in series]}, backend)
+    return draw_figure({"title": title, "series": [s.to_dict() for s in series]}, backend)
 
 
 def _column(x: np.ndarray, name: str) -> np.ndarray:
@@ -267,7 +270,7 @@ def line_figure(
         series.append(
             Series(str(label), x.tolist(), y.tolist(), xlabel=xlabel, ylabel=ylabel, log_y=log_y)
         )
-    return _draw({"title": title, "series": [s.to_dict() for s in series]}, backend)
+    return draw_figure({"title": title, "series": [s.to_dict() for s in series]}, backend)
 
 
 def prediction_figure(
@@ -339,7 +342,9 @@ def prediction_figure(
         r = reals[b]
         n = min(len(r), T1)
         series.append(Series("real", x[:n], r[:n, dim].tolist(), **common))
-    return _draw({"title": "predicted vs real", "series": [s.to_dict() for s in series]}, backend)
+    return draw_figure(
+        {"title": "predicted vs real", "series": [s.to_dict() for s in series]}, backend
+    )
 
 
 # ------------------------------------------------------------------------ model paths
@@ -438,4 +443,70 @@ def model_paths_figure(
             )
     result = {"title": title or "predicted paths over the real ones", "series": []}
     result["series"] = [s.to_dict() for s in series]
-    return _draw(result, backend)
+    return draw_figure(result, backend)
+
+
+def gpreps_run_paths_figure(
+    run_dir,
+    trial: int = 0,
+    *,
+    update: int = -1,
+    context=None,
+    n_samples: int = 10,
+    seed: int = 0,
+    axes: tuple[int, int] = (0, 1),
+    backend: str = "plotly",
+):
+    """The stored GPREPS run's last reward model against the simulator, as a static figure.
+
+    The policy mean of update ``update`` at ``context`` is rolled out in the model's task and
+    drawn with the model's sampled paths over it
+    (:func:`model_paths_figure`): the picture
+    ``skillkit view TASK --gpreps RUN_DIR --trial K`` shows in 3-D.
+
+    .. warning::
+       This unpickles the reward model (:func:`~skillkit.viz.model_layers.load_gpreps_run`):
+       load only runs you trust.
+
+    Parameters
+    ----------
+    run_dir : str or Path
+        A GPREPS run folder (:func:`~skillkit.viz.model_layers.load_gpreps_run`).
+    trial : int
+        Which trial.
+    update : int
+        Which policy of the history (Python indexing; -1 the final one).
+    context : array_like, shape (context_dim,), optional
+        The context; one sampled from the task with ``seed`` when omitted.
+    n_samples : int
+        L, the paths each model layer samples.
+    seed : int
+        Seeds the context, the real rollout and the model's samples.
+    axes : pair of int
+        World axes drawn ((0, 1): top view).
+    backend : {"plotly", "matplotlib"}
+
+    Returns
+    -------
+    plotly.graph_objects.Figure or NotebookFigure
+    """
+    from skillkit.viz.model_layers import load_gpreps_run
+
+    history, model = load_gpreps_run(run_dir, trial)
+    policies = history.policies
+    if isinstance(update, bool) or not isinstance(update, (int, np.integer)):
+        raise ValueError(f"update: expected an integer index into the history, got {update!r}")
+    if not -len(policies) <= update < len(policies):
+        raise ValueError(
+            f"update: expected an index in [{-len(policies)}, {len(policies)}) (the run has "
+            f"{len(policies)} policies), got {update}"
+        )
+    task = model.task
+    rng = np.random.default_rng(seed)
+    s = task.sample_context(rng) if context is None else task.check_context(context)
+    omega = policies[update].mean_of(s)
+    real = task.rollout(omega, s, rng)
+    k = update % len(policies)
+    title = f"{Path(run_dir).name}, trial {trial}, update {k}: predicted vs real paths"
+    return model_paths_figure(model, s, omega, real, n_samples=n_samples, rng=rng, axes=axes,
+                              title=title, backend=backend)  # fmt: skip

@@ -48,13 +48,12 @@ from pathlib import Path
 import numpy as np
 
 from skillkit._validation import check_array, check_count
-from skillkit.viz.scenes import _node_name, _rgb
+from skillkit.viz.scenes import check_rgb, node_name
 
 __all__ = [
     "REWARD_MODEL_FORMAT",
     "check_model_task",
     "dumps_reward_model",
-    "gpreps_run_paths_figure",
     "load_gpreps_run",
     "load_reward_model",
     "loads_reward_model",
@@ -80,7 +79,7 @@ def _model_task_name(model) -> str:
     return name if isinstance(name, str) else ""
 
 
-def _check_has_layers(model, argname: str = "model") -> None:
+def check_has_layers(model, argname: str = "model") -> None:
     if not callable(getattr(model, "prediction_layers", None)):
         raise ValueError(
             f"{argname}: a {type(model).__name__} has no prediction_layers(context, omega, "
@@ -166,13 +165,13 @@ def load_reward_model(path):
 
 
 class _CompactPickler(pickle.Pickler):
-    """Pickles a fitted GP (:class:`~skillkit.models.gp._GPRegression`) without its derived
+    """Pickles a fitted GP (:class:`~skillkit.models.gp.GPRegression`) without its derived
     caches ``predictor`` and ``cholesky``; :func:`_rebuilt_gp` remakes them when it loads."""
 
     def reducer_override(self, obj):
-        from skillkit.models.gp import _GPRegression
+        from skillkit.models.gp import GPRegression
 
-        if isinstance(obj, _GPRegression) and getattr(obj, "predictor", None) is not None:
+        if isinstance(obj, GPRegression) and getattr(obj, "predictor", None) is not None:
             state = {k: v for k, v in vars(obj).items() if k not in ("predictor", "cholesky")}
             return _rebuilt_gp, (type(obj), state)
         return NotImplemented
@@ -209,7 +208,7 @@ def dumps_reward_model(model) -> bytes:
     """
     import skillkit
 
-    _check_has_layers(model)
+    check_has_layers(model)
     try:
         buffer = io.BytesIO()
         _CompactPickler(buffer, protocol=pickle.HIGHEST_PROTOCOL).dump(model)
@@ -261,7 +260,7 @@ def loads_reward_model(data: bytes, source: str = "the data"):
         ) from None
     if _class_path(model) != cls:
         raise ValueError(f"model: {path} promises a {cls} but holds a {_class_path(model)}")
-    _check_has_layers(model)
+    check_has_layers(model)
     return model
 
 
@@ -316,7 +315,7 @@ def model_layers(model, context, omega, n_samples: int = 10, rng=None) -> list[d
         ``color`` in 0–255, and non-decreasing ``times`` of shape (T,); each message names
         the layer.
     """
-    _check_has_layers(model)
+    check_has_layers(model)
     n_samples = check_count(n_samples, "n_samples")
     answer = model.prediction_layers(
         np.asarray(context, dtype=np.float64),
@@ -342,14 +341,14 @@ def model_layers(model, context, omega, n_samples: int = 10, rng=None) -> list[d
                 f"{where}: trajectories: expected world points of shape (L, T, 3) with "
                 f"L, T >= 1, got {x.shape}"
             )
-        name = base = re.sub("_+", "_", _node_name(label.strip())).strip("_") or "layer"
+        name = base = re.sub("_+", "_", node_name(label.strip())).strip("_") or "layer"
         k = 2
         while name in used:
             name, k = f"{base}-{k}", k + 1
         used.add(name)
         spec = {"name": name, "label": label, "trajectories": x, "space": "points"}
         if layer.get("color") is not None:
-            spec["color"] = _rgb(layer["color"], f"{where}: color")
+            spec["color"] = check_rgb(layer["color"], f"{where}: color")
         if layer.get("times") is not None:
             times = check_array(layer["times"], f"{where}: times", shape=(x.shape[1],))
             if np.any(np.diff(times) < 0):
@@ -414,68 +413,3 @@ def load_gpreps_run(run_dir, trial: int = 0):
         model = loads_reward_model(stored, f"{npz}[{key}]")
     history = load_policy_history(run_dir, trial)
     return history, model
-
-
-def gpreps_run_paths_figure(
-    run_dir,
-    trial: int = 0,
-    *,
-    update: int = -1,
-    context=None,
-    n_samples: int = 10,
-    seed: int = 0,
-    axes: tuple[int, int] = (0, 1),
-    backend: str = "plotly",
-):
-    """The stored GPREPS run's last reward model against the simulator, as a static figure.
-
-    The policy mean of update ``update`` at ``context`` is rolled out in the model's task and
-    drawn with the model's sampled paths over it
-    (:func:`skillkit.viz.figures.model_paths_figure`): the picture
-    ``skillkit view TASK --gpreps RUN_DIR --trial K`` shows in 3-D.
-
-    .. warning::
-       This unpickles the reward model (:func:`load_gpreps_run`): load only runs you trust.
-
-    Parameters
-    ----------
-    run_dir : str or Path
-        A GPREPS run folder (:func:`load_gpreps_run`).
-    trial : int
-        Which trial.
-    update : int
-        Which policy of the history (Python indexing; -1 the final one).
-    context : array_like, shape (context_dim,), optional
-        The context; one sampled from the task with ``seed`` when omitted.
-    n_samples : int
-        L, the paths each model layer samples.
-    seed : int
-        Seeds the context, the real rollout and the model's samples.
-    axes : pair of int
-        World axes drawn ((0, 1): top view).
-    backend : {"plotly", "matplotlib"}
-
-    Returns
-    -------
-    plotly.graph_objects.Figure or NotebookFigure
-    """
-    from skillkit.viz.figures import model_paths_figure
-
-    history, model = load_gpreps_run(run_dir, trial)
-    policies = history.policies
-    if isinstance(update, bool) or not isinstance(update, (int, np.integer)):
-        raise ValueError(f"update: expected an integer index into the history, got {update!r}")
-    if not -len(policies) <= update < len(policies):
-        raise ValueError(
-            f"update: expected an index in [{-len(policies)}, {len(policies)}) (the run has "
-            f"{len(policies)} policies), got {update}"
-        )
-    task = model.task
-    rng = np.random.default_rng(seed)
-    s = task.sample_context(rng) if context is None else task.check_context(context)
-    omega = policies[update].mean_of(s)
-    real = task.rollout(omega, s, rng)
-    k = update % len(policies)
-    title = f"{Path(run_dir).name}, trial {trial}, update {k}: predicted vs real paths"
-    return model_paths_figure(model, s, omega, real, n_samples=n_samples, rng=rng, axes=axes,
-                              title=title, backend=backend)  # fmt: skip

@@ -36,7 +36,7 @@ from skillkit.series import DASHES
 
 _COLORS = ["#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#17becf"]
 _BAND_SWATCH = "#9e9e9e"
-_BACKENDS = ("plotly", "matplotlib")
+BACKENDS = ("plotly", "matplotlib")
 _LEGEND_INSIDE_MAX = 6  # legend entries drawn inside a matplotlib panel; more go below it
 
 #: A log-y panel whose values span more decades than this gets a robust axis range.
@@ -452,7 +452,7 @@ def _grid(n: int) -> tuple[int, int]:
 def plotly_figure(result: dict):
     """A plotly figure with one subplot per panel of ``result["series"]``.
 
-    Title: ``"<id>: <title> (<scale>)"``; subtitle: claim and verdict (:func:`subtitle`).
+    Title: ``"<id>: <title> (<scale>)"``; subtitle: the verdict line (:func:`subtitle`).
     Bands are labelled in the legend from ``Series.band``; panels with runaway values get a
     robust axis range (:func:`robust_range`), the clipped values drawn as triangles at the
     edge (hover shows their values) and counted in a note; every other panel gets axis ranges
@@ -940,9 +940,9 @@ def _single_point(s: Mapping) -> bool:
     return int(np.isfinite(y).sum()) == 1
 
 
-def _draw(result: dict, backend: str):
+def draw_figure(result: dict, backend: str):
     if backend == "plotly":
         return plotly_figure(result)
     if backend == "matplotlib":
         return matplotlib_figure(result)
-    raise ValueError(f"backend: expected one of {_BACKENDS}, got {backend!r}")
+    raise ValueError(f"backend: expected one of {BACKENDS}, got {backend!r}")

@@ -86,25 +86,25 @@ _NAME_RE = re.compile(r"[^A-Za-z0-9_.\-]")
 
 
 # ============================================================================ geometry helpers
-def _node_name(name: str) -> str:
+def node_name(name: str) -> str:
     """A path component: MuJoCo names with ``/`` or spaces made safe."""
     return _NAME_RE.sub("_", name)
 
 
-def _check_path(name: str, argname: str = "name") -> str:
+def check_path(name: str, argname: str = "name") -> str:
     if not isinstance(name, str) or not name.startswith("/") or name.endswith("/") or "//" in name:
         raise ValueError(f"{argname}: expected a scene path like '/arm/link3', got {name!r}")
     return name
 
 
-def _rgb(color, argname: str = "color") -> RGB:
+def check_rgb(color, argname: str = "color") -> RGB:
     c = check_array(color, argname, shape=(3,))
     if np.any(c < 0) or np.any(c > 255):
         raise ValueError(f"{argname}: expected RGB values in [0, 255], got {c.tolist()}")
     return (int(round(c[0])), int(round(c[1])), int(round(c[2])))
 
 
-def _opacity(opacity, argname: str = "opacity") -> float | None:
+def check_opacity(opacity, argname: str = "opacity") -> float | None:
     if opacity is None:
         return None
     v = float(opacity)
@@ -317,10 +317,10 @@ def add_ball(
 ):
     """A ball (icosphere) of ``radius`` metres at ``position``; returns its handle."""
     return scene.add_icosphere(
-        _check_path(name),
+        check_path(name),
         radius=check_positive(radius, "radius"),
-        color=_rgb(color),
-        opacity=_opacity(opacity),
+        color=check_rgb(color),
+        opacity=check_opacity(opacity),
         subdivisions=2,
         position=tuple(check_array(position, "position", shape=(3,))),
         visible=visible,
@@ -338,10 +338,10 @@ def add_puck(
 ):
     """A puck: a cylinder along z of ``radius`` and ``height``, centred at ``position``."""
     return scene.add_cylinder(
-        _check_path(name),
+        check_path(name),
         radius=check_positive(radius, "radius"),
         height=check_positive(height, "height"),
-        color=_rgb(color),
+        color=check_rgb(color),
         position=tuple(check_array(position, "position", shape=(3,))),
     )
 
@@ -357,7 +357,7 @@ def add_target(
     flat: bool = False,
 ):
     """A target marker: a translucent sphere, or a thin disc on a surface (``flat=True``)."""
-    name, color, opacity = _check_path(name), _rgb(color), _opacity(opacity)
+    name, color, opacity = check_path(name), check_rgb(color), check_opacity(opacity)
     radius = check_positive(radius, "radius")
     position = tuple(check_array(position, "position", shape=(3,)))
     if flat:
@@ -386,8 +386,8 @@ def add_table(
     thickness = check_positive(thickness, "thickness")
     cx, cy = check_array(center, "center", shape=(2,))
     return scene.add_box(
-        _check_path(name),
-        color=_rgb(color),
+        check_path(name),
+        color=check_rgb(color),
         dimensions=(float(size[0]), float(size[1]), thickness),
         position=(cx, cy, float(height) - thickness / 2),
     )
@@ -420,11 +420,11 @@ def add_trail(
     """
     vertices, faces = tube_mesh(paths, radius)
     return scene.add_mesh_simple(
-        _check_path(name),
+        check_path(name),
         vertices,
         faces,
-        color=_rgb(color),
-        opacity=_opacity(opacity),
+        color=check_rgb(color),
+        opacity=check_opacity(opacity),
         side="double",
         cast_shadow=False,
         receive_shadow=False,
@@ -596,10 +596,10 @@ def add_mujoco_model(
     """
     if not isinstance(model, mujoco.MjModel):
         raise ValueError(f"model: expected a mujoco.MjModel, got {type(model).__name__}")
-    root = _check_path(root, "root")
+    root = check_path(root, "root")
     world_paths = dict(world_paths or {})
     for p in world_paths.values():
-        _check_path(p, "world_paths")
+        check_path(p, "world_paths")
     geom_names = {model.geom(g).name for g in range(model.ngeom)}
     unknown = (set(world_paths) | set(skip_geoms)) - geom_names
     if unknown:
@@ -610,7 +610,7 @@ def add_mujoco_model(
     unsupported = []
     for g in range(model.ngeom):
         gname = model.geom(g).name
-        label = _node_name(gname) if gname else f"geom{g}"
+        label = node_name(gname) if gname else f"geom{g}"
         b = int(model.geom_bodyid[g])
         if gname in skip_geoms:
             out.skipped.append(f"{label}: skipped on request")
@@ -634,7 +634,7 @@ def add_mujoco_model(
             out.geoms[world_paths[gname]] = handle
             continue
         bname = model.body(b).name
-        body_path = f"{root}/{_node_name(bname) if bname else f'body{b}'}" if b else f"{root}/world"
+        body_path = f"{root}/{node_name(bname) if bname else f'body{b}'}" if b else f"{root}/world"
         if body_path not in out.bodies:
             out.bodies[body_path] = scene.add_frame(
                 body_path, show_axes=False, position=tuple(data.xpos[b]), wxyz=tuple(data.xquat[b])
@@ -877,7 +877,7 @@ class PlanarScene(MujocoTaskScene):
 
     @classmethod
     def accepts(cls, task) -> bool:
-        from skillkit.tasks.planar import Balancing
+        from skillkit.tasks.balancing import Balancing
 
         return isinstance(task, Balancing)
 

@@ -52,12 +52,12 @@ from skillkit.viz.history import PolicyHistory
 from skillkit.viz.scenes import (
     COLORS,
     TaskScene,
-    _check_path,
-    _node_name,
-    _opacity,
-    _rgb,
     add_trail,
+    check_opacity,
+    check_path,
+    check_rgb,
     interpolate,
+    node_name,
     task_scene,
 )
 
@@ -747,7 +747,7 @@ class Viewer:
             it with its colour.
         """
         self._require_started()
-        if not isinstance(name, str) or not name or _node_name(name) != name:
+        if not isinstance(name, str) or not name or node_name(name) != name:
             raise ValueError(
                 f"name: expected a layer name of letters, digits, '_', '.', '-', got {name!r}"
             )
@@ -787,13 +787,13 @@ class Viewer:
         times = check_array(times, "times", shape=(T,))
         if np.any(np.diff(times) < 0):
             raise ValueError("times: expected non-decreasing time stamps")
-        color = _rgb(
+        color = check_rgb(
             PREDICTION_COLORS[len(self.layers) % len(PREDICTION_COLORS)] if color is None else color
         )
-        opacity = _opacity(opacity) or 1.0
+        opacity = check_opacity(opacity) or 1.0
         with self._lock:
             self.remove_prediction_layer(name)
-            base = _check_path(f"/predictions/{name}")
+            base = check_path(f"/predictions/{name}")
             scene = self.server.scene
             layer = PredictionLayer(name, points, times, color, opacity, label=label or name)
             if T >= 2:
@@ -925,10 +925,10 @@ class Viewer:
             The model has no ``prediction_layers``, was fitted on another task, or its
             answer has the wrong shapes (the message names the layer).
         """
-        from skillkit.viz.model_layers import _check_has_layers, check_model_task
+        from skillkit.viz.model_layers import check_has_layers, check_model_task
 
         self._require_started()
-        _check_has_layers(model)
+        check_has_layers(model)
         check_model_task(model, self.task.name)
         n_samples = check_count(n_samples, "n_samples")
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):

@@ -185,7 +185,7 @@ def test_fig412_reps_keeps_the_settings_of_its_stored_result(monkeypatch):
         raise Stop
 
     monkeypatch.setattr(ch4_events, "make_reps", fake_make_reps)
-    monkeypatch.setattr(ch4_events, "_gpreps_run", lambda *a, **k: {})
+    monkeypatch.setattr(ch4_events, "gpreps_run", lambda *a, **k: {})
     exp = get("fig4.12")
     with pytest.raises(Stop):
         exp.run_trial(exp.settings_for("smoke"), np.random.default_rng(0), TrialContext(_Bar()))

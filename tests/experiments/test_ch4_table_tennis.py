@@ -94,7 +94,7 @@ def test_fig412_has_at_least_five_paper_trials_and_own_checks():
 
 
 def test_switch_update_is_the_first_returning_stage():
-    from skillkit.experiments.ch4_events import _gpreps_stats
+    from skillkit.experiments.ch4_events import gpreps_event_stats
 
     def trial(stages):
         one = np.ones(len(stages))
@@ -103,7 +103,7 @@ def test_switch_update_is_the_first_returning_stage():
                 "gpreps_stage": np.array(stages)}  # fmt: skip
 
     trials = [trial(["hitting", "hitting", "returning"]), trial(["hitting", "hitting"])]
-    stats_ = _gpreps_stats(trials, "gpreps")
+    stats_ = gpreps_event_stats(trials, "gpreps")
     assert stats_["switched_to_returning_at_update"] == [3, None]
     assert stats_["prediction_relative_error_median_per_trial"] == [1.0, 1.0]
 

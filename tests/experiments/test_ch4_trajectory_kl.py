@@ -41,14 +41,14 @@ def test_smoke_summary_keeps_per_trial_errors_and_is_not_judged():
 
 
 def test_own_parts_are_paired_t_intervals_over_the_stored_trials():
-    """The stored run predates the per-trial arrays (its own parts are not measured); with the
-    arrays from trials.npz, as the summary now stores them, each own part is the Student-t
-    interval of the per-trial differences TKL − ML, and every cell is undecided."""
+    """With the per-trial arrays from trials.npz (the stored run was remeasured from them, and
+    this test rebuilds them independently), each own part is the Student-t interval of the
+    per-trial differences TKL − ML, and every cell is undecided."""
     run = stored_run("sec4.2.4")
     s = run.summary
     parts = [p for p in spec("sec4.2.4").parts if p.own]
     assert len(parts) == len(CELLS)
-    assert all(read(p, s).outcome == "not measured" for p in parts)
+    assert all(read(p, s).n == s["n_trials"] for p in parts)  # remeasured: all measured
     assert run.outcome == "not judged"
     cells = {k: dict(v) for k, v in s["cells"].items()}
     for system, cls in CELLS:

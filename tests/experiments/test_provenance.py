@@ -318,7 +318,7 @@ def test_check_results_counts_and_a_recorded_carry_needs_no_run(tmp_path, monkey
         return {**_witness({"e": 1.0, "new": 3}, fingerprint=now), "seed": seed}
 
     monkeypatch.setattr(runner, "smoke_witness", fake)
-    rows = provenance.check_results(tmp_path, witness=True, record=True, progress=False)
+    rows = runner.check_witnesses(tmp_path, record=True, progress=False)
     status = {r["path"].rsplit("/", 1)[-1]: (r["status"], r["reason"]) for r in rows}
     assert status["a-current"] == ("current", "current")
     assert status["b-carried"] == ("carried", "carried (code changed at abc1234, witness equal)")
@@ -334,14 +334,14 @@ def test_check_results_counts_and_a_recorded_carry_needs_no_run(tmp_path, monkey
     assert "carried" not in json.loads((tmp_path / "c-differs" / "result.json").read_text())
     # the record makes the next check of b instant, and staleness() reads it too
     calls.clear()
-    rows = provenance.check_results(tmp_path, witness=True, progress=False)
+    rows = runner.check_witnesses(tmp_path, progress=False)
     assert [r["status"] for r in rows] == ["current", "carried", "stale", "stale"]
     assert calls == [2]
     assert provenance.staleness(carried) == (False, status["b-carried"][1])
     assert [r["status"] for r in provenance.check_results(tmp_path)] == [
         "current", "carried", "stale", "stale"
     ]  # fmt: skip
-    assert calls == [2]  # without witness=True nothing runs
+    assert calls == [2]  # check_results runs nothing
 
 
 def test_add_witness_refuses_a_result_made_by_other_code(tmp_path):
@@ -375,7 +375,7 @@ if mode == "make":
     runner.write_result(folder, made)
     print(json.dumps(runner.add_witness(folder)))
 else:
-    rows = provenance.check_results(out, witness=True, record=True, progress=False)
+    rows = runner.check_witnesses(out, record=True, progress=False)
     print(json.dumps(rows))
 """
 
@@ -416,7 +416,7 @@ def test_a_pure_refactor_carries_a_result_and_a_numeric_change_stales_it(tmp_pat
 
     models = src / "skillkit" / "models"
     for name in ("gp.py", "pathwise.py"):
-        _edit(models / name, "_flush_tiny", "_flush_below_resolution")
+        _edit(models / name, "flush_tiny", "_flush_below_resolution")
     [row] = _in_copy(src, "check", out)
     assert (row["status"], row["stale"]) == ("carried", False), row["reason"]
     stored = out / "fig2.12-paper-s0" / "result.json"

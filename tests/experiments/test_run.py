@@ -7,7 +7,8 @@ import os
 
 import pytest
 
-from skillkit.experiments.registry import get, ids
+from skillkit.experiments.judge import judge
+from skillkit.experiments.registry import ids
 from skillkit.experiments.run import Run, load_run, results_root, stored_run
 
 
@@ -38,19 +39,19 @@ def test_load_run_reads_result_and_is_path_like(tmp_path):
         and run / "result.json" == tmp_path / "r" / "result.json"
     )
     assert run.id == "figX" and run.settings == {"n": 1} and run.holds is False
-    assert run.verdict == "does not hold: ours is 2.5, thesis 1"
-    assert run.headline() == {"x": 2.5}
+    assert run.verdict == "ours is 2.5, thesis 1"  # an id the claims spec does not judge
 
 
-def test_card_and_repr_show_title_claim_verdict_and_numbers(tmp_path):
+def test_card_and_repr_show_claim_verdict_and_details(tmp_path):
     _write(
         tmp_path / "r", claim="REPS reaches 5 cm", holds=True, statement="4.1 cm here", err=0.041
     )
     run = load_run(tmp_path / "r")
     card = run._repr_markdown_()
-    for text in ("figX", "A title", "REPS reaches 5 cm", "holds: 4.1 cm here", "`err`", "0.041"):
+    for text in ("figX", "REPS reaches 5 cm", "4.1 cm here", "<details>"):
         assert text in card
-    assert len(repr(run)) < 300 and "holds" in repr(run)
+    assert run.card == "figX: REPS reaches 5 cm\n4.1 cm here"
+    assert len(repr(run)) < 300 and "4.1 cm here" in repr(run)
 
 
 def test_old_summaries_without_a_verdict(tmp_path):
@@ -84,7 +85,7 @@ def test_reproduce_returns_the_run_it_wrote(tmp_path):
     run = reproduce("fig2.10", scale="smoke", out=tmp_path, progress=False, html=False)
     assert isinstance(run, Run) and run.path == tmp_path / "fig2.10-smoke-s0"
     assert run.result == load_run(run.path).result and run.holds is None  # smoke: not judged
-    exp = get("fig2.10")  # its own verdict on the smoke numbers
-    assert exp.verdict(exp.settings["smoke"], run.summary).holds is True
+    # the claims spec's reading of the same numbers, judged as if at paper scale
+    assert judge("fig2.10", run.summary, "paper", run.settings).outcome == "holds"
     assert run.summary["claim"] in run._repr_markdown_()
     assert len(run.figure().data) == len(run.series)

@@ -63,7 +63,6 @@ def toy(monkeypatch):
         trials={"smoke": 1, "quick": 3, "paper": 2},
         claim="walks wander",
     )
-    registry._load_all()
     monkeypatch.setitem(registry._EXPERIMENTS, exp.id, exp)
     return exp
 

@@ -1,6 +1,6 @@
 """The batched, blocked moment matching equals a straightforward reference implementation.
 
-``_reference_moment_match`` below is the unbatched ``_moment_match`` (one Python
+``_reference_moment_match`` below is the unbatched ``moment_match_step`` (one Python
 loop over outputs a, one (M × M) log-domain product per pair a ≤ b, no exponent floor): an
 independent computation of the same formulas. Means, covariances and input–output covariances
 must agree to 1e-10 relative (‖new − old‖_max ≤ 1e-10 ‖old‖_max for each), for exact and FITC
@@ -22,9 +22,9 @@ from skillkit.models.gp import DTYPE, ExactGP, ForwardModel, GPNumericalWarning,
 from skillkit.models.moment_matching import (
     LOG_FLOOR,
     GaussianPrediction,
-    _moment_match,
     _second_moments,
     moment_match,
+    moment_match_step,
     propagate,
     with_linear_mean,
 )
@@ -285,13 +285,13 @@ def test_exponents_below_the_floor_give_the_same_numbers():
 
 
 def test_gradients_equal_the_reference_gradients():
-    """PILCO differentiates through ``_moment_match`` (strict): the recorded path (no in-place
+    """PILCO differentiates through ``moment_match_step`` (strict): the recorded path (no in-place
     operations) has the reference's gradient with respect to m and S."""
     pred = _random_model("fitc", 13, 4, 3).predictor
     m0, S0 = _random_gaussian(13, 4, 0.4)
     grads = []
     for fn in (
-        lambda m, S: _moment_match(pred, m, S, strict=True),
+        lambda m, S: moment_match_step(pred, m, S, strict=True),
         lambda m, S: _reference_moment_match(pred, m, S),
     ):
         m, S = m0.clone().requires_grad_(True), S0.clone().requires_grad_(True)
@@ -323,7 +323,7 @@ def test_a_negative_latent_variance_is_reported_clamped_or_nan_as_before():
     # output 1 is ~1e3 times smaller than they are (σ_f² − tr(iK Q) cancels), so 1e-10 of
     # max|cov| sat below its round-off (3.7e-11 against 2.1e-11 with ATEN_CPU_CAPABILITY=default).
     _assert_same_prediction(clamped, _reference_moment_match(bad, m, S), bad, m, S)
-    assert torch.isnan(_moment_match(bad, m, S, strict=True).cov).all()
+    assert torch.isnan(moment_match_step(bad, m, S, strict=True).cov).all()
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         _assert_same_prediction(

@@ -350,7 +350,7 @@ def test_trajectory_kl_is_consistent_and_its_gap_to_ml_is_efficiency_not_bias():
     would make it grow ∝ M). Efficiency: at M = 1600 the dynamics error is within 4× ML's
     (measured 2.2×) while the noise variance is several times worse than ML's (measured
     10×): σ² is seen only through E[x′²] − E[μ²], whose sample average fluctuates like
-    2 |μ| σ/√M, not σ²√2/√M (docs/measure_tkl_consistency.py)."""
+    2 |μ| σ/√M, not σ²√2/√M (benchmarks/bench_tkl_consistency.py)."""
     model = LinearGaussianTKL(2, 1)
     truth = model.pack(LIN_A, LIN_B, LIN_C, LIN_VAR)
     rms = {}

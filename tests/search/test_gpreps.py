@@ -409,7 +409,7 @@ def test_gpreps_reaches_sanity3_threshold_with_a_tenth_of_reps_rollouts():
     update) reaches parameter error < 0.01 after n real rollouts; REPS (sanity3's quick
     settings) is still above it after 10 n. The GP has no additive target noise: the reward is
     noise-free, and the thesis's α = 1 (1 % of the reward std) hides the 1e-4 reward differences
-    near the optimum (docs/measure_gpreps_sanity3.py: α = 1 reaches 0.01 in 3 of 10 seeds
+    near the optimum (measured: α = 1 reaches 0.01 in 3 of 10 seeds
     within 300 rollouts, α = 0 in 10 of 10 after 50–120)."""
     from skillkit.experiments.sanity import QUICK, context_grid, make_algorithm, parameter_error
 

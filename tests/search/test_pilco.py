@@ -273,16 +273,16 @@ def test_a_moment_matching_step_that_loses_precision_is_nan_not_clamped():
     import dataclasses
 
     from skillkit.models.gp import GPNumericalWarning
-    from skillkit.models.moment_matching import _moment_match
+    from skillkit.models.moment_matching import moment_match_step
 
     pred = _random_fitc(4).predictor
     bad = dataclasses.replace(pred, iK=pred.iK * 1e3)
     m, S = torch.zeros(5, dtype=torch.float64), 0.01 * torch.eye(5, dtype=torch.float64)
-    assert torch.isfinite(_moment_match(pred, m, S, strict=True).mean).all()
+    assert torch.isfinite(moment_match_step(pred, m, S, strict=True).mean).all()
     with pytest.warns(GPNumericalWarning, match="negative"):
-        clamped = _moment_match(bad, m, S)
+        clamped = moment_match_step(bad, m, S)
     assert torch.isfinite(clamped.cov).all()
-    assert torch.isnan(_moment_match(bad, m, S, strict=True).mean).all()
+    assert torch.isnan(moment_match_step(bad, m, S, strict=True).mean).all()
 
 
 def test_expected_return_stops_at_a_failed_step_and_the_optimizer_survives_linalg_errors():

@@ -14,13 +14,12 @@ import pytest
 from _tolerances import fp_tol
 
 from skillkit.tasks import make
+from skillkit.tasks.balancing import Balancing, balancing_transitions
 from skillkit.tasks.base import SimulationFailure
 from skillkit.tasks.controllers import pd_torque, run_feedback, track_reference
 from skillkit.tasks.planar import (
     DEMONSTRATION_FILE,
-    Balancing,
     Throwing,
-    balancing_transitions,
     ballistic_flight,
     hand_kinematics,
     joint_limit_penalty,

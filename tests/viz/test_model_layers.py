@@ -481,8 +481,7 @@ def test_a_stored_model_keeps_its_gps_without_their_caches():
 def test_run_paths_figure_draws_each_layer_and_the_real_paths(tmp_path):
     """The static picture of ``skillkit view --gpreps``: one series per model layer holding
     its L paths (NaN-separated) on the chosen world axes, then the rollout's real paths."""
-    from skillkit.viz.figures import model_paths_figure
-    from skillkit.viz.model_layers import gpreps_run_paths_figure
+    from skillkit.viz.figures import gpreps_run_paths_figure, model_paths_figure
 
     run = make_gpreps_run(tmp_path / "run", FakeTableTennisModel(), "table-tennis", updates=2)
     fig = gpreps_run_paths_figure(run, 0, update=1, n_samples=4, seed=3, axes=(0, 2))
@@ -525,7 +524,7 @@ def test_model_paths_figure_names_bad_arguments(kwargs, match):
 
 
 def test_run_paths_figure_names_a_bad_update(tmp_path):
-    from skillkit.viz.model_layers import gpreps_run_paths_figure
+    from skillkit.viz.figures import gpreps_run_paths_figure
 
     run = make_gpreps_run(tmp_path / "run", FakeHockeyModel(), "hockey", updates=2)
     with pytest.raises(ValueError, match="update"):

@@ -17,6 +17,7 @@ from skillkit.experiments.registry import Series
 from skillkit.viz.figures import plot_gp_fit, plot_learning
 from skillkit.viz.plots import (
     MAX_DECADES,
+    Verdict,
     matplotlib_figure,
     plotly_figure,
     robust_range,
@@ -27,7 +28,7 @@ from skillkit.viz.plots import (
 
 ROOT = Path(__file__).resolve().parents[2]
 CLAIM = "REPS learns within 5000 rollouts"
-STATEMENT = "REPS reached -57 after 5000 rollouts (thesis: > -100)."
+STATEMENT = "final reward -57 [-80, -34], thesis > -100 after 5000: holds"
 
 
 def _result(series=None, summary=None, **extra) -> dict:
@@ -88,9 +89,10 @@ def test_library_never_changes_the_matplotlib_backend(tmp_path):
 
 
 def test_write_figures_writes_png_and_html(tmp_path):
-    html, png = write_figures(_result(summary={"claim": CLAIM, "holds": True}), tmp_path)
+    summary = {"claim": CLAIM, "verdict": "holds", "statement": STATEMENT}
+    html, png = write_figures(_result(summary=summary), tmp_path)
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    assert html is not None and CLAIM in html.read_text()
+    assert html is not None and "final reward -57 [-80, -34]" in html.read_text()
     html, png = write_figures(_result(), tmp_path, html=False)
     assert html is None and png.exists()
 
@@ -106,49 +108,39 @@ def test_matplotlib_figure_shows_itself_in_notebooks_without_pyplot():
 
 
 # --------------------------------------------------------------------- claim and verdict
-@pytest.mark.parametrize(
-    "holds, word", [(True, "Here: holds"), (False, "Here: does not hold"), (None, "undecided")]
-)
-def test_claim_and_verdict_are_in_both_titles(holds, word):
-    r = _result(summary={"claim": CLAIM, "holds": holds, "statement": STATEMENT})
+@pytest.mark.parametrize("word", ["holds", "does not hold", "undecided", "not judged"])
+def test_the_verdict_line_is_the_subtitle_and_the_claim_stays_out(word):
+    """A figure carries one line of verdict (the card's second line); the claim and the details
+    stay in the run's card, never in a figure title."""
+    r = _result(summary={"claim": CLAIM, "verdict": word, "statement": STATEMENT})
     for title in (_plotly_title(plotly_figure(r)), _mpl_title(matplotlib_figure(r))):
         flat = _flat(title)
-        assert "figX: a test (quick)" in flat
-        assert f"Thesis: {CLAIM}" in flat
-        assert word in flat and STATEMENT in flat
-        if holds is True:
-            assert "does not hold" not in flat
+        assert "figX: a test (quick)" in flat and STATEMENT in flat
+        assert CLAIM not in flat and "Thesis:" not in flat
+    assert verdict(r) == Verdict(CLAIM, word, STATEMENT)
 
 
-def test_old_summaries_fall_back_gracefully():
-    # the claim on the result, the verdict in claim_holds
-    v = verdict(_result(summary={"claim_holds": False, "x": 1}, claim=CLAIM))
-    assert (v.claim, v.holds, v.word, v.statement) == (CLAIM, False, "does not hold", "")
-    # per-part verdicts: all hold -> holds; one fails -> does not hold
-    assert verdict(_result(summary={"holds": {"a": True, "b": True}})).holds is True
-    assert verdict(_result(summary={"holds": {"a": True, "b": False}})).holds is False
-    # no verdict at all
-    r = _result(summary={"final": 3.0}, claim=CLAIM)
-    assert verdict(r).word == "no verdict recorded"
-    assert "Here: no verdict recorded" in _flat(_mpl_title(matplotlib_figure(r)))
-    assert "Thesis: (no claim recorded)" in subtitle(_result(summary={"holds": True}))
+def test_a_summary_without_a_verdict_line_shows_its_outcome_or_says_none_is_recorded():
+    assert subtitle(_result(summary={"claim": CLAIM, "verdict": "undecided"})) == "undecided"
+    r = _result(summary={"final": 3.0})
+    assert verdict(r).word == "no verdict recorded" and subtitle(r) == "no verdict recorded"
+    assert "no verdict recorded" in _flat(_mpl_title(matplotlib_figure(r)))
 
 
 def test_results_without_a_claim_get_no_subtitle():
     r = _result()  # e.g. a learning curve or a comparison of two runs
     assert verdict(r) is None and subtitle(r) == ""
-    assert "Thesis" not in _plotly_title(plotly_figure(r))
-    assert "Thesis" not in matplotlib_figure(r).get_suptitle()
+    assert "<span" not in plotly_figure(r).layout.title.text
 
 
 def test_subtitle_is_wrapped_to_the_width():
-    r = _result(summary={"claim": "word " * 80, "holds": False, "statement": "number " * 50})
+    r = _result(summary={"verdict": "does not hold", "statement": "number " * 30})
     lines = subtitle(r, width=60).splitlines()
-    assert len(lines) > 5 and max(len(line) for line in lines) <= 60
+    assert len(lines) > 2 and max(len(line) for line in lines) <= 60
     # a 760 px wide plotly title holds ~110 characters of 12 px text per line
     text = re.sub("<[^>]*>", "\n", plotly_figure(r).layout.title.text)
     sub_lines = [line for line in text.splitlines()[1:] if line]
-    assert len(sub_lines) > 3 and max(len(line) for line in sub_lines) <= 130
+    assert len(sub_lines) >= 2 and max(len(line) for line in sub_lines) <= 130
 
 
 # ------------------------------------------------------------------------------ bands
@@ -470,27 +462,6 @@ def test_prediction_figure_takes_one_deterministic_prediction_per_pair():
     means = [t for t in fig.data if t.name == "predicted mean"]
     np.testing.assert_array_equal(means[0].y, predicted[0, :, 1])
     assert not any(t.fill for t in fig.data)  # no band from a single prediction
-
-
-def test_own_checks_are_shown_beside_the_verdict_not_in_it():
-    from skillkit.viz.plots import subtitle, verdict
-
-    result = {
-        "summary": {
-            "claim": "c",
-            "holds": True,
-            "statement": "s 1",
-            "own_checks": {
-                "every_trial": {"holds": False, "criterion": "every trial < 5 cm"},
-                "bad": {"holds": "yes", "criterion": "skipped"},
-            },
-        }
-    }
-    v = verdict(result)
-    assert v.holds is True and v.own_checks == (("every_trial", False, "every trial < 5 cm"),)
-    text = subtitle(result)
-    assert text.splitlines()[1] == "Here: holds — s 1"
-    assert text.splitlines()[2].endswith("every_trial (every trial < 5 cm): does not hold")
 
 
 # ------------------------------------------------------------------ notebook rendering

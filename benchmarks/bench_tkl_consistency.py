@@ -1,56 +1,29 @@
-"""Is trajectory-KL training consistent on the linear system with known truth (issue #19)?
+"""Is trajectory-KL training consistent where the truth is known: sec4.2.4's linear system?
 
 Fits ``LinearGaussianTKL`` to M trajectories (T = 20) of ``sec4.2.4``'s linear system (data
 from the model class) by one-step ML (least squares) and by trajectory-KL (λ = 0, the hard
-feature constraints, and the soft λ = 0.1 variant), for M = 50 … 1600 and 5 seeds, with the
-squares-only features (the experiment's default) and with the products (the unit test's).
-Prints per fit the largest absolute errors of A, B, c and log σ², the excess closed-loop
-multi-step error over the true model's on 500 held-out trajectories (%), and the log-log
-slope of the median errors vs M (1/√M is −0.5). Then the sample feature constraints:
-r_t = mean_i φ(x_{i,t+1}) − mean_i ψ_{i,t}(θ) with uniform weights (standardised units, RMS
-over t and features) at the truth, and M·D(θ) at the truth and at the TKL fit. Run from the
-repository root (≈ 2.5 min on one core)::
+feature constraints, and the soft λ = 0.1 variant), for M = 50 … 3200 and 8 seeds, with the
+squares-only features (the experiment's default) and with the products (the unit test's). Run
+from the repository root (≈ 2.5 min on one core)::
 
-    OMP_NUM_THREADS=1 python docs/measure_tkl_consistency.py
+    OMP_NUM_THREADS=1 python benchmarks/bench_tkl_consistency.py
 
-Measured for issue #19 (median over seeds 0–7 of the largest absolute error; excess = the
-closed-loop multi-step MSE over the true model's, in % of it; squares-only features first,
-then with products; ML / TKL λ = 0 / TKL λ = 0.1)::
+Printed per feature set, each cell the median [min–max] over seeds:
 
-    M       |ΔA|                    |Δlog σ²|            excess %
-    50      .0096 .0346 .0328       .041 .463 .526       1.99  6.45  7.89
-    200     .0049 .0094 .0081       .027 .097 .104       0.50  1.36  0.98
-    800     .0018 .0059 .0103       .012 .071 .089       0.10  0.50  0.56
-    3200    .0013 .0025 .0028       .005 .043 .042       0.03  0.06  0.07
-    slope   -0.53 -0.60 -0.54       -.49 -.54 -.53       -1.02 -1.07 -1.05
-    (products)
-    50      .0096 .0168 .0131       .041 .520 .374       1.99  5.87  3.62
-    200     .0049 .0056 .0055       .027 .115 .118       0.50  0.67  0.58
-    800     .0018 .0033 .0027       .012 .088 .104       0.10  0.24  0.19
-    3200    .0013 .0024 .0019       .005 .050 .045       0.03  0.06  0.05
-    slope   -0.53 -0.47 -0.46       -.49 -.51 -.46       -1.02 -1.05 -1.02
-
-(B and c behave like A: slopes −0.46 … −0.71.) Findings:
-
-* TKL is consistent: every error falls like 1/√M (slopes −0.46 … −0.71; the excess multi-step
-  error, quadratic in the parameter error, like 1/M), the median signed Δlog σ² is ≈ 0 at
-  large M (+0.013, range −0.03 … +0.03 at M = 3200), and M·D(θ_true) and M·D(θ_TKL) stay
-  O(1) (≈ 6–14 and 3–7 at every M): a limit θ̄ ≠ θ_true would make M·(D(θ_true) − D(θ_TKL))
-  grow ∝ M. No bug and no bias from the hard constraints were found.
-* The sample feature constraints with uniform weights hold at no θ: their RMS residual
-  (standardised units) is 0.19/√M at the truth and within 8% of that at the ML and TKL
-  fits. The TKL optimum satisfies them exactly (residual ≤ 4e-8) only under
-  the reweighted marginals p_t (4.14); D is the KL price of that reweighting, ∝ 1/M.
-* The gap to ML is a finite-sample efficiency loss, constant in ratio: TKL's dynamics error
-  is 1.2–4× ML's, its noise-variance error ≈ 10× (√M·RMS relative σ² error 1.8–3.4 vs ML's
-  0.20–0.35 at every M). σ² enters only E[x′²] = E[μ²] + σ², whose sample average fluctuates
-  like 2·RMS|μ|·σ/√M per step against ML's σ²√2/√M: the ratio √2·RMS|μ|/σ is 8.4 and 7.8
-  for the two state dimensions here. (The size matches; per data set the TKL error is not
-  just the time-averaged square-feature residual at the truth: correlation −0.04, because
-  A, B, c and the weights move too.) λ = 0.1 behaves like λ = 0.
-* "Never worse than ML in multi-step error" does not hold at any M measured: TKL's excess is
-  1.3–6× ML's (median), both → 0 like 1/M. In this class ML is asymptotically efficient, so
-  no consistent estimator can beat it asymptotically; TKL matches it only in the limit.
+* ``max |ΔA|``, ``|ΔB|``, ``|Δc|``, ``|Δlogσ²|``: the largest absolute parameter error of each
+  fit per M, the TKL λ = 0 / ML ratio of the medians, and the log-log slope of the medians
+  against M (a consistent estimator's errors fall like 1/√M: −0.5);
+* the multi-step excess: the closed-loop multi-step MSE over the true model's on 500 held-out
+  trajectories, in % of it (quadratic in the parameter error: slope −1);
+* the sample feature constraints (λ = 0): the RMS residual of
+  r_t = mean_i φ(x_{i,t+1}) − mean_i ψ_{i,t}(θ) with uniform weights (standardised units) at the
+  truth, the ML fit and the TKL fit, and √M times the truth's; the TKL fit's own (reweighted)
+  residual; M·D(θ) at the truth and at the TKL fit (O(1) for a consistent fit; a limit other
+  than the truth makes it grow ∝ M); the mean signed Δlog σ² of TKL and ML;
+* σ²: √M times the RMS relative error of σ² predicted from the uniform-weight residual of the
+  E[x′²] constraint, TKL's and ML's, and the correlation of the prediction with TKL's error;
+  then RMS |μ| per state dimension and √2·RMS|μ|/σ, the predicted ratio of TKL's σ² error
+  fluctuation (2 |μ| σ/√M) to ML's (σ²√2/√M).
 """
 
 from __future__ import annotations

@@ -250,9 +250,9 @@ def _cmd_runs(args: argparse.Namespace) -> int:
 def results_table(root) -> str:
     """What is stored under ``root``, one Markdown row per ``result.json`` in path order: the
     folder, the commit that made it (with "dirty" for an uncommitted tree), trials, executor
-    and workers, wall time in minutes, the verdict ``holds`` and whether today's code would
-    still make it (:func:`skillkit.experiments.provenance.check_results`). ``skillkit runs
-    --markdown``; data/README.md's table "What is here" is this output.
+    and workers, wall time in minutes, the verdict (``summary["verdict"]``) and whether today's
+    code would still make it (:func:`skillkit.experiments.provenance.check_results`).
+    ``skillkit runs --markdown``; data/README.md's table "What is here" is this output.
 
     Parameters
     ----------
@@ -269,7 +269,7 @@ def results_table(root) -> str:
     from skillkit.experiments.provenance import check_results
 
     lines = [
-        "| folder | commit | trials | executor | wall time (min) | `holds` | code since |",
+        "| folder | commit | trials | executor | wall time (min) | verdict | code since |",
         "|---|---|---|---|---|---|---|",
     ]
     for row in check_results(root):
@@ -283,8 +283,7 @@ def results_table(root) -> str:
             executor += f" ×{result['workers']}"
         wall = result.get("wall_time_s")
         wall_min = f"{wall / 60:.1f}" if isinstance(wall, (int, float)) else "not recorded"
-        holds = (result.get("summary") or {}).get("holds")
-        verdict = {True: "true", False: "false", None: "null"}.get(holds, str(holds))
+        verdict = str((result.get("summary") or {}).get("verdict", "not recorded"))
         since = {"current": "unchanged", "carried": "carried (witness equal)"}.get(
             row["status"], f"stale: {row['reason'].split(' (')[0]}"
         )

@@ -145,10 +145,11 @@ def test_results_table_names_commit_verdict_and_staleness(tmp_path):
     cases = {
         "a-current": {"id": exp_id, "code_fingerprint": current, "trials": 3, "wall_time_s": 90,
                       "git": {"commit": "abcdef123", "dirty": True}, "executor": "process",
-                      "workers": 2, "summary": {"holds": True}},
+                      "workers": 2, "summary": {"verdict": "holds"}},
         "b-changed": {"id": exp_id, "code_fingerprint": "0" * 16, "trials": 1,
-                      "git": {"commit": "1234567", "dirty": False}, "summary": {"holds": None}},
-        "c-missing": {"id": exp_id, "summary": {"holds": False}},
+                      "git": {"commit": "1234567", "dirty": False},
+                      "summary": {"verdict": "undecided"}},
+        "c-missing": {"id": exp_id, "summary": {}},
     }  # fmt: skip
     for name, result in cases.items():
         (tmp_path / name).mkdir()
@@ -157,10 +158,10 @@ def test_results_table_names_commit_verdict_and_staleness(tmp_path):
 
     rows = results_table(tmp_path).splitlines()[2:]
     assert rows == [
-        "| a-current | abcdef1 (dirty) | 3 | process ×2 | 1.5 | true | unchanged |",
-        "| b-changed | 1234567 | 1 | local | not recorded | null | stale: code changed since "
-        "commit 1234567 |",
-        "| c-missing | not recorded | ? | local | not recorded | false | stale: no code "
+        "| a-current | abcdef1 (dirty) | 3 | process ×2 | 1.5 | holds | unchanged |",
+        "| b-changed | 1234567 | 1 | local | not recorded | undecided | stale: code changed "
+        "since commit 1234567 |",
+        "| c-missing | not recorded | ? | local | not recorded | not recorded | stale: no code "
         "fingerprint |",
     ]
 

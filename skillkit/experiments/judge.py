@@ -423,7 +423,7 @@ def _estimate(p: Part, summary: Mapping, settings: Mapping) -> tuple:
     if p.statistic in ("mean", "paired"):
         if p.statistic == "paired":
             y = _array(_lookup(tree, p.minus))
-            if y is None or y.size != x.size:
+            if y is None or y.size != x.size or not np.all(np.isfinite(y)):
                 return None
             x = x - y
         mean, lo, hi, spread = _t_interval(x)
@@ -433,7 +433,7 @@ def _estimate(p: Part, summary: Mapping, settings: Mapping) -> tuple:
         return mean, lo, hi, x.size, needed, thr
     if p.statistic == "ratio":
         y = _array(_lookup(tree, p.over))
-        if y is None or y.size != x.size:
+        if y is None or y.size != x.size or not np.all(np.isfinite(y)):
             return None
         with np.errstate(divide="ignore", invalid="ignore"):
             est = float(np.mean(x) / np.mean(y))

@@ -1,55 +1,40 @@
 r"""A probabilistic ensemble of neural networks as a forward model (PETS, Chua et al. 2018).
 
-For when GPs get slow or the data grow: K small multilayer perceptrons, each
-fitted to its own bootstrap resample of the transitions, each predicting a Gaussian
+K small MLPs, each fitted to its own bootstrap resample of the transitions, each predicting
 
 .. math:: p_k(y \mid z) = \mathcal{N}\big(\mu_k(z), \operatorname{diag}\sigma_k^2(z)\big),
           \qquad z = [x_t, u_t],
 
-with y = x_{t+1} (``target="next"``) or y = x_{t+1} − x_t (``target="delta"``), like
-:class:`~skillkit.models.gp.ForwardModel`. The members' disagreement is the model's
-uncertainty about f (epistemic), each member's σ_k² the noise it sees (aleatoric).
+with y = x_{t+1} (``target="next"``) or x_{t+1} − x_t (``"delta"``), as
+:class:`~skillkit.models.gp.ForwardModel`. Member disagreement is the epistemic uncertainty,
+σ_k² the aleatoric noise.
 
-Pieces, in the order they run:
-
-* **Standardisation.** Inputs z and targets y are centred and scaled per column with the
-  training mean and standard deviation (a constant column keeps scale 1); predictions are
-  mapped back to raw units.
-* **Members.** Each is an MLP with SiLU ("swish") hidden layers and a linear output layer of
-  2E numbers, the mean and a raw log-variance. All K members are stored as stacked tensors
-  (weights (K, d_in, d_out)) and evaluated in one batched product per layer.
-* **Bounded log-variance** (PETS, App. A.1): log σ² = l_max − softplus(l_max − r) followed by
-  l_min + softplus(· − l_min), a smooth clamp of the raw output r to [l_min, l_max]. The
-  bounds are trained too (per member and output, initialised at :data:`LOGVAR_INIT`), with
-  the penalty :data:`LOGVAR_PENALTY` · (Σ l_max − Σ l_min) so they close around the data's
-  noise. Without the clamp a member's variance can collapse to 0 on its data and explode
-  off it. (PETS shares the bounds between members; here each member has its own, so the
-  members are fitted independently, as bootstrap members should be.)
-* **Training.** Each member k minimises the Gaussian negative log-likelihood (PETS's form,
-  in standardised units) on minibatches of its bootstrap resample D_k (N draws with
-  replacement from the N transitions),
+* **Standardisation.** z and y are centred and scaled per column (a constant column keeps
+  scale 1); predictions are in raw units.
+* **Members.** SiLU hidden layers, a linear output of 2E numbers (mean, raw log-variance);
+  all K stacked (weights (K, d_in, d_out)) and evaluated in one batched product per layer.
+* **Bounded log-variance** (PETS, App. A.1): log σ² = l_max − softplus(l_max − r), then
+  l_min + softplus(· − l_min), a smooth clamp of r to [l_min, l_max]. The bounds are trained
+  per member and output (from :data:`LOGVAR_INIT`, penalty :data:`LOGVAR_PENALTY` ·
+  (Σ l_max − Σ l_min)); PETS shares them between members.
+* **Training.** Each member minimises the Gaussian negative log-likelihood (standardised
+  units) on minibatches of its resample D_k (N draws with replacement),
 
   .. math:: \ell_k = \operatorname{mean}_{(z, y) \in \text{batch}, e}
             \Big[\frac{(y_e - \mu_{k,e}(z))^2}{\sigma_{k,e}^2(z)} + \log\sigma_{k,e}^2(z)\Big],
 
-  with Adam and an L2 penalty (``weight_decay``) on the weight matrices, for a fixed number
-  of epochs (no early stopping, no held-out split: every transition is training data).
-* **Randomness.** ``fit(rng=)`` draws the bootstrap resamples from the numpy generator and
-  seeds one CPU :class:`torch.Generator` from it for the initial weights and the minibatch
-  order: the same seed gives the same model (on one device, with the same thread count).
-  No global seed is set or read.
+  with Adam and L2 ``weight_decay`` on the weight matrices for a fixed number of epochs
+  (no early stopping, no held-out split).
+* **Randomness.** ``fit(rng=)`` draws the resamples and seeds one CPU
+  :class:`torch.Generator` for initial weights and minibatch order: same seed, same model
+  (same device and thread count). No global seed is used.
 
-**Sampling: trajectory sampling TS-∞** (PETS, Sec. 4.2). A trajectory keeps one member for
-its whole horizon and draws every next state from that member's Gaussian: its randomness is
-"which f" (the member) plus the noise. :meth:`ProbabilisticEnsemble.next_state_moments`, the
-method :func:`~skillkit.models.sampling.sample_trajectories` calls with the rows of all B·L
-trajectories in a fixed order, returns for row i the moments of member i mod K. The sampler
-keeps the row order from step to step, so trajectory i uses member i mod K throughout; the
-assignment is stratified rather than random (with L a multiple of K every (s, ω) pair gets
-each member L/K times) and needs no randomness of its own. With a ``stop`` rule the
-sampler drops stopped rows, and the rows after them change member: use TS-∞ without one.
-The ensemble's own predictive distribution, the equal-weight mixture of the members, is what
-:meth:`ProbabilisticEnsemble.predict` gives (its mean and variance).
+**Sampling: TS-∞** (PETS, Sec. 4.2). :meth:`ProbabilisticEnsemble.next_state_moments` returns
+for row i the moments of member i mod K; since
+:func:`~skillkit.models.sampling.sample_trajectories` keeps the row order, trajectory i uses
+member i mod K throughout (stratified: with L a multiple of K each pair gets every member L/K
+times). A ``stop`` rule drops rows and so changes members: do not combine it with TS-∞.
+:meth:`ProbabilisticEnsemble.predict` gives the equal-weight mixture's mean and variance.
 """
 
 from __future__ import annotations

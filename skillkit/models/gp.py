@@ -1,67 +1,47 @@
 """Exact GP regression and GP forward models (thesis 2.3, 4.2; Eqs 2.24–2.28).
 
-Pieces, in the order they are used:
-
-* :class:`ExactGP` — one GP per output dimension, all outputs batched in one GPyTorch
-  ``ExactGP`` (batch shape ``(E,)``) with the squared-exponential ARD kernel of Eq. (2.25).
-  Hyper-parameters θ = {w, σ_f, σ_ε} maximise the log marginal likelihood (2.28), summed over
-  outputs, with L-BFGS (strong-Wolfe line search; default) or Adam, on GPyTorch's *raw*
-  parameters (positive quantities are ``softplus(raw)``, so the optimiser is unconstrained
-  like the thesis's log-parameters, App. B.1). The objective is evaluated exactly (Cholesky,
-  at every size; no CG/Lanczos approximations) with its analytic gradient
+* :class:`ExactGP` — one GP per output, batched in one GPyTorch ``ExactGP`` (batch shape
+  ``(E,)``) with the SE-ARD kernel of Eq. (2.25). θ = {w, σ_f, σ_ε} maximises the log marginal
+  likelihood (2.28) summed over outputs, with L-BFGS (default) or Adam on GPyTorch's raw
+  (softplus) parameters, i.e. unconstrained like the thesis's log-parameters (App. B.1). The
+  objective is exact (Cholesky, no CG/Lanczos) with an analytic gradient
   (:func:`neg_log_marginal_likelihood`).
-* :class:`GPPredictor` — the trained model frozen into the few tensors every prediction
-  needs: support inputs, length-scales, σ_f², σ_ε², ``beta`` and ``iK`` (PILCO's names), so
-  that for a query x (per output a)
+* :class:`GPPredictor` — the trained model frozen for prediction (PILCO's ``beta``, ``iK``):
+  for a query x and output a
 
   .. math:: \\mu_a(x) = k_a(x)^\\top \\beta_a, \\qquad
             \\sigma_a^2(x) = \\sigma_{f,a}^2 - k_a(x)^\\top iK_a\\, k_a(x)
                              + \\sigma_{\\varepsilon,a}^2
             = \\sigma_{f,a}^2 - \\|R_a k_a(x)\\|^2 + \\sigma_{\\varepsilon,a}^2
 
-  With ``beta = (K + σ_ε²I)⁻¹y``, ``iK = (K + σ_ε²I)⁻¹`` and ``R = L⁻¹`` (all from one cached
-  Cholesky factor K + σ_ε²I = L Lᵀ) this is Eqs (2.26)–(2.27); the sparse GPs of
-  :mod:`skillkit.models.sparse` fill the same fields with their own ``beta``,
-  ``iK = K_mm⁻¹ − Σ`` and a factor R with RᵀR = iK. Predictions use the factor form: it costs
-  the same one (M × M) product per query as kᵀ iK k but its round-off grows with
-  √cond(K) instead of cond(K). Moment matching uses ``iK``. The trajectory sampler and
-  moment matching consume only this object.
-* :class:`ForwardModel` — a GP fitted on transitions (x_t, u_t) → x_{t+1}. By default the
-  GP learns x_{t+1} itself, as the thesis does (``target="next"``, Secs 4.2.4, 5.1.1); with
-  ``target="delta"`` it learns the difference Δx = x_{t+1} − x_t as PILCO does (the prior
-  then means "the state stays" rather than "the state goes to the training mean").
+  with ``beta = (K + σ_ε²I)⁻¹y``, ``iK = (K + σ_ε²I)⁻¹``, ``R = L⁻¹`` (K + σ_ε²I = L Lᵀ):
+  Eqs (2.26)–(2.27). The sparse GPs of :mod:`skillkit.models.sparse` fill the same fields
+  (``iK = K_mm⁻¹ − Σ``, RᵀR = iK). Predictions use the factor form (round-off grows with
+  √cond(K), not cond(K)); moment matching uses ``iK``.
+* :class:`ForwardModel` — a GP on transitions (x_t, u_t) → x_{t+1}, learning x_{t+1} as the
+  thesis does (``target="next"``, Secs 4.2.4, 5.1.1) or Δx as PILCO does (``"delta"``).
 
-Numerical policy (every safeguard is explicit and reported, never silent). A safeguard that
-handles an event itself reports it once through :func:`report_event`: inside
-:func:`record_numerical_events` (the experiment runner wraps every trial in one) it is counted
-by kind, otherwise it is a :class:`GPNumericalWarning`; each fit also lists its own events in
-``diagnostics["numerical_events"]``. Problems a user must act on stay warnings.
+Numerical safeguards are explicit. A handled event goes through :func:`report_event`: counted
+by kind inside :func:`record_numerical_events`, else a :class:`GPNumericalWarning`; each fit
+lists its own in ``diagnostics["numerical_events"]``.
 
-* **Target standardisation.** Targets are centred and scaled per output, ``(y − m)/s``
-  (``standardize=True``); the prior mean is then the training mean m. A constant output
-  (s = 0) keeps s = 1 and is listed in ``diagnostics["constant_outputs"]``.
-* **Additive target noise (Sec. 4.2.3).** Before training, i.i.d. N(0, σ_add²) noise with
-  σ_add = α·10⁻²·std(y) (``additive_noise=α``, default 1 as in the thesis) is added to each
-  output column, drawn from ``rng``; ``α = 0`` turns it off.
-* **Noise floor.** σ_ε² ≥ ``noise_floor``·s² (a GPyTorch ``GreaterThan`` constraint, so the
-  optimiser can never cross it). If the trained noise ends within 1 % of the floor, the
-  outputs are listed in ``diagnostics["noise_at_floor"]`` and a ``"noise_at_floor"`` event
-  is reported.
-* **Jitter.** :func:`robust_cholesky` adds diagonal jitter only if a factorisation fails,
-  growing from 10⁻¹² to 10⁻⁴ × mean(diag) by factors of 100; the jitter used is recorded in
-  ``diagnostics["jitter"]`` and reported (``"jitter_increased"``). During training no jitter
-  is added: an objective evaluation whose matrix cannot be factorised counts as a failed step
-  (below).
-* **Optimisation safety.** L-BFGS's result is its last accepted iterate (never a point its
-  line search rejected); if an evaluation fails (non-positive-definite matrix, non-finite
-  value) the optimiser stops, the last accepted iterate is restored and
-  ``diagnostics["stopped_early"]`` says why (:func:`optimize`; a ``"restored_iterate"`` event).
-* **Hyper-parameter curb (optional).** :class:`HyperCurb` penalises length-scales beyond
-  100× the inputs' spread and σ_f/σ_ε beyond 500 (PILCO's trainer); off by default.
-* **Variance clamping.** The latent variance σ_f² − ‖Rk‖² is non-negative in exact
-  arithmetic; round-off can make it slightly negative near training inputs. Such values are
-  set to 0, counted (``Moments.n_clamped``), and a ``"negative_variance_clipped"`` event is
-  reported when one is below −10⁻⁶ σ_f² (beyond round-off).
+* **Standardisation.** Targets become ``(y − m)/s`` per output (``standardize=True``), so the
+  prior mean is the training mean; a constant output keeps s = 1
+  (``diagnostics["constant_outputs"]``).
+* **Additive target noise (Sec. 4.2.3).** N(0, (α·10⁻²·std(y))²) per output before training
+  (``additive_noise=α``, default 1; 0 disables), drawn from ``rng``.
+* **Noise floor.** σ_ε² ≥ ``noise_floor``·s² (a ``GreaterThan`` constraint). Ending within 1 %
+  of it lists the output in ``diagnostics["noise_at_floor"]`` (a ``"noise_at_floor"`` event).
+* **Jitter.** :func:`robust_cholesky` adds 10⁻¹² … 10⁻⁴ × mean(diag) only if a factorisation
+  fails (``diagnostics["jitter"]``, a ``"jitter_increased"`` event). Training adds none: an
+  unfactorisable evaluation is a failed step.
+* **Optimisation safety.** :func:`optimize` returns the last accepted L-BFGS iterate; a failed
+  evaluation stops it and restores that iterate (``diagnostics["stopped_early"]``, a
+  ``"restored_iterate"`` event).
+* **Hyper-parameter curb (optional, off by default).** :class:`HyperCurb`, PILCO's penalty.
+* **Variance clamping.** Negative latent variances σ_f² − ‖Rk‖² (round-off near training
+  inputs) are set to 0 and counted (``Moments.n_clamped``); one below −10⁻⁶ σ_f² is a
+  ``"negative_variance_clipped"`` event.
 """
 
 from __future__ import annotations
@@ -239,16 +219,12 @@ _RECORDERS: ContextVar[tuple[tuple[NumericalEvents, bool], ...]] = ContextVar(
 def record_numerical_events(quiet: bool = True) -> Iterator[NumericalEvents]:
     """Count the handled numerical events reported inside the block instead of warning.
 
-    Every event a model handles itself (:data:`EVENT_KINDS`: a restored iterate, a jitter
-    increase, a noise variance at its floor, clipped negative variances) goes through
-    :func:`report_event`: each active recorder counts it, and a :class:`GPNumericalWarning` is
-    issued only when none of them is ``quiet``. So a library user who calls ``fit`` directly
-    sees each event once as a warning, while the experiment runner wraps every trial in a
-    recorder and reports the counts in ``result.json`` and the run's summary. Problems a user
-    must act on stay warnings (e.g. float32 sampling too imprecise) and are never counted.
-
-    Recorders nest: an event counts in the innermost and in every enclosing one. They are
-    local to the current thread (and ``contextvars`` context); no global state is changed.
+    Every event of :data:`EVENT_KINDS` goes through :func:`report_event`: each active recorder
+    counts it, and a :class:`GPNumericalWarning` is issued only when none of them is ``quiet``
+    (a direct ``fit`` call warns; the experiment runner wraps each trial in a recorder).
+    Problems a user must act on (e.g. float32 sampling too imprecise) stay warnings and are
+    never counted. Recorders nest (an event counts in every enclosing one) and are local to
+    the current ``contextvars`` context.
 
     Parameters
     ----------
@@ -416,9 +392,8 @@ class Moments(NamedTuple):
 class GPPredictor:
     """A trained SE-kernel GP (exact or sparse) frozen for prediction, batched over E outputs.
 
-    Everything that does not depend on the query is precomputed here once, so predictions
-    are two batched matrix products (the trajectory sampler calls :meth:`moments` at every
-    step; moment matching reads the fields directly).
+    Query-independent quantities are precomputed, so a prediction is two batched matrix
+    products (the sampler calls :meth:`moments` every step; moment matching reads the fields).
 
     Attributes
     ----------
@@ -485,12 +460,8 @@ class GPPredictor:
     def _set_caches(self, source: GPPredictor) -> None:
         """Step-invariant caches: the SE support operand and [Rᵀ | β] (one product gives v and μ).
 
-        Computed from ``source``'s fields in float64 (``source`` is ``self``, or the
-        higher-precision predictor that :meth:`to` converted from); only ``_weights`` is cast,
-        once, to this predictor's dtype. In a reduced-precision predictor the support operand,
-        the log signal variances and the length-scales stay in float64: the kernel exponent is
-        computed from them (see :meth:`kernel_vectors`). For a float64 predictor these are the
-        same operations on the same values as always (results bit-identical).
+        Computed in float64 from ``source`` (``self`` or the predictor :meth:`to` converted
+        from); only ``_weights`` is cast to this dtype (see :meth:`kernel_vectors`).
         """
         hi = torch.float64
 
@@ -547,10 +518,9 @@ class GPPredictor:
     def to(self, device=None, dtype: torch.dtype | None = None) -> GPPredictor:
         """A copy on ``device`` / in ``dtype`` (self if nothing changes).
 
-        Converting to a lower precision (float32) casts every field, but the step-invariant
-        caches are computed from this predictor's values in float64 and cast once (see
-        :meth:`kernel_vectors`), so no set-up quantity goes through float32 twice. Such a
-        conversion is kept (not pickled), so repeated float32 sampling sets up once.
+        Converting to float32 casts every field, but the step-invariant caches are computed
+        from this predictor's float64 values and cast once (see :meth:`kernel_vectors`); the
+        converted copy is cached (not pickled).
 
         Raises
         ------
@@ -578,35 +548,23 @@ class GPPredictor:
     def kernel_vectors(self, x: torch.Tensor) -> torch.Tensor:
         """k_a(x, support_a) for every output: Tensor (E, n, M), for queries x of shape (n, d).
 
-        In a float32 predictor the exponent ``log k = −½‖(x − z)/w‖² + log σ_f²`` is one
-        float64 product of the augmented operands (:func:`~skillkit.models.kernels.se_operands`;
-        (d + 2) columns, ~5 % of a sampling step's work), clamped from below at
-        log σ_f² − 40 (but at least log(tiny) + 7 ≈ −80) and exponentiated in float32: entries
-        below exp(−40)·σ_f² = 4e-18 σ_f² become 4e-18 σ_f², so ``exp`` never underflows, and
-        with the weights below 1e-15 of their largest set to 0 (once, when the float32
-        predictor is made) no product k · weight is denormal. Why, measured on the balancing
-        FITC model (N = 1500, M = 300, see
-        :mod:`skillkit.models.sampling`): the augmented product has round-off
-        ε (‖x/w‖² + ‖z/w‖²) in the exponent, and in float32 that made predictive means wrong
-        by up to 0.095 predictive standard deviations near the data (3.5e-4 with the float64
-        exponent); ``exp`` of arguments whose result underflows is 10–100x slower than of
-        normal ones; and a kernel entry just above float32's underflow threshold times a small
-        weight is a denormal number, on which the (E, n, M) × (E, M, M + 1) product runs ~200x
-        slower. Raising entries below 4e-18 σ_f² changes kᵀβ and ‖Rk‖² by less than
-        float32's resolution unless M·max|β| or M·max|R|² exceed ~1e10 / σ_f², a model far too
-        ill-conditioned for float32 anyway (``sample_trajectories`` measures and reports the
-        float32 error on visited states).
+        The exponent ``log k = −½‖(x − z)/w‖² + log σ_f²`` is one float64 product of the
+        augmented operands (:func:`~skillkit.models.kernels.se_operands`), clamped to
+        [max(log σ_f² − e, b), log σ_f²] (``_KERNEL_FLOOR``) and exponentiated in this
+        predictor's dtype, so ``exp`` never underflows and no product k · weight is denormal
+        (both are many times slower than normal arithmetic):
 
-        A float64 predictor raises entries below exp(−600)·σ_f² (and below e^{−600} ≈ 3e-261)
-        to that value (:data:`FLOOR_EXPONENT_FLOAT64`), for the same reason: on the trained
-        fig4.4 balancing model 23% of the kernel entries along sampled trajectories underflowed
-        to 0 and 0.6% were denormal, and the sampler ran at 11 GFLOP/s against 28 with the
-        floor (1000 trajectories × 100 steps, one thread; bit-identical trajectories). The
-        raised entries change kᵀβ by at most M·max|β|·e^{−600}σ_f² and ‖Rk‖² by less, ~250
-        orders of magnitude below float64's resolution of any mean or variance that is not
-        itself below 1e-240; a floor at e^{−700} was measured 2.1x *slower* than none, since
-        its products with small weights are denormal. (With the floor and without it, every
-        stored experiment's smoke run is bit-identical, see ``data/README.md``.)
+        * float32: e = 40 (:data:`FLUSH_EXPONENT`), b = log(tiny) + 7 ≈ −80, and weights below
+          1e-15 of their largest are zero (:func:`flush_tiny`). The exponent stays in float64
+          because its round-off ε (‖x/w‖² + ‖z/w‖²) in float32 visibly biases means near the
+          data. The floor changes kᵀβ and ‖Rk‖² by less than float32's resolution unless
+          M·max|β| or M·max|R|² exceed ~1e10 / σ_f² (a model too ill-conditioned for float32;
+          ``sample_trajectories`` reports the float32 error on visited states).
+        * float64: e = −b = 600 (:data:`FLOOR_EXPONENT_FLOAT64`, e^{−600} ≈ 3e-261). The
+          raised entries change kᵀβ by at most M·max|β|·e^{−600}σ_f² and ‖Rk‖² by less,
+          ~250 orders of magnitude below float64's resolution of any mean or variance not
+          itself below 1e-240; sampled trajectories are bit-identical with and without the
+          floor (``data/README.md``). A lower floor (e^{−700}) would produce denormals.
         """
         query = se_operands(x.unsqueeze(0).to(self._support_operand.dtype), self._query_scale)
         e = query @ self._support_operand.transpose(-1, -2)
@@ -671,7 +629,7 @@ def flush_tiny(weights: torch.Tensor) -> torch.Tensor:
     """Reduced precision: weights below 1e-15 of their output's largest set to 0 (float64: as is).
 
     Their contribution is below float32's resolution, and a product of a small kernel entry
-    with such a weight would be a denormal number, on which matrix products run ~200x slower.
+    with such a weight would be a (slow) denormal number.
     """
     if weights.dtype == torch.float64:
         return weights
@@ -708,12 +666,10 @@ class HyperCurb:
     signal-to-noise ratio within √r_s), equals 1 at the limits w = r_w std(x_d) (or std/r_w)
     and σ_f/σ_ε = r_s, and grows as 2^p = 10⁹ at twice the limit in log space: a wall.
 
-    Why: near an equilibrium the inputs [x, u] of a forward model lie close to a linear
-    subspace, and maximum likelihood then drives the SE kernel to its linear limit (w → ∞,
-    σ_f² → ∞, σ_f²/var(y) in the hundreds on balancing data): the latent variance
-    off the data explodes and sampled predictions diverge. The thesis does not say how it
-    trained; the PILCO toolbox's defaults (Rasmussen & McHutchon: r_w = 100, r_s = 500,
-    p = 30, added to the summed negative log marginal likelihood) are used here.
+    Near an equilibrium the inputs [x, u] of a forward model lie close to a linear subspace
+    and maximum likelihood drives the SE kernel to its linear limit (w → ∞, σ_f² → ∞): the
+    latent variance off the data explodes and sampled predictions diverge. The thesis does
+    not say how it trained; the defaults are the PILCO toolbox's (Rasmussen & McHutchon).
 
     Parameters
     ----------
@@ -786,11 +742,10 @@ def optimize(
     evaluation fails (a non-finite objective or gradient, or a failed Cholesky
     factorisation) the last accepted iterate is restored (a ``"restored_iterate"`` event,
     :func:`report_event`). A line-search trial point is never
-    returned, even when its objective was lower: the line search rejected it (restoring the
-    best value seen would return rejected, degenerate points such as σ_f² → 0, ℓ → 0).
-    Evaluations at an accepted point are not repeated (they are cached), so the iterates,
-    evaluation budget and result are those of a single ``step`` call with
-    ``max_iter = n_steps``. Adam keeps the best of its iterates (every Adam step is accepted).
+    returned, even when its objective was lower (such points can be degenerate, σ_f² → 0,
+    ℓ → 0). Evaluations at accepted points are cached, so iterates, evaluation budget and
+    result equal a single ``step`` call with ``max_iter = n_steps``. Adam keeps its best
+    iterate.
 
     Parameters
     ----------
@@ -1226,8 +1181,8 @@ class _SENegLogML(torch.autograd.Function):
     * ∂/∂σ_f² = ½ ΣP / σ_f²
     * ∂/∂w_d = ½ Σ_ij P_ij (x_id − x_jd)² / w_d³ = (Σ_i x_id² (P1)_i − x_dᵀ P x_d) / w_d³
 
-    One Cholesky factorisation and one inverse per evaluation; autograd through a generic
-    Cholesky backward costs about twice as much at N = 1000.
+    One Cholesky factorisation and one inverse per evaluation (about half the cost of
+    autograd through a generic Cholesky backward).
     """
 
     @staticmethod
@@ -1406,19 +1361,18 @@ class ForwardModel:
     ``target="next"`` (default): x_{t+1} = f(x_t, u_t) + ε, the thesis's model (Secs 4.2.4,
     5.1.1; the prior mean is the training mean of x_{t+1}).
     ``target="delta"``: x_{t+1} = x_t + f(x_t, u_t) + ε, the GP learns Δx (PILCO's choice;
-    the prior predicts "no change" far from data). Measured on balancing data: with x′ the
-    conditional embedding of Ch. 5 beats the GP near the data as the thesis reports; with Δx
-    it does not. For the thesis's hyper-parameter treatment give
-    the GP a :class:`HyperCurb` (``FITC(..., curb=HyperCurb())``).
+    the prior predicts "no change" far from data). Only with x′ targets does the conditional
+    embedding of Ch. 5 beat the GP near the data, as the thesis reports (balancing data). For
+    the thesis's hyper-parameter treatment give the GP a :class:`HyperCurb`
+    (``FITC(..., curb=HyperCurb())``).
     The GP input is z = [x_t, u_t]; each state dimension has its own GP.
 
     ``mean="linear"`` gives the GP a linear prior mean (Rasmussen & Williams 2006, Sec. 2.7):
     the target is y = Wᵀ z + b + f(z) + ε with W, b from least squares on the training data
-    and f the GP of the residuals. Near an equilibrium of stiff, unstable dynamics (balancing
-    at 20 Hz) a zero-mean SE GP fitted on a few seconds of data predicts far worse than this
-    linear part alone (Table 4.2's experiment measures it); the GP then models only what the
-    linear fit misses. Everything that predicts (the sampler, :meth:`predict`, moment matching
-    and linearisation) adds the linear part exactly.
+    and f the GP of the residuals. Near an equilibrium of stiff, unstable dynamics a zero-mean
+    SE GP on little data can predict worse than the linear part alone (Table 4.2's
+    experiment). Everything that predicts (the sampler, :meth:`predict`, moment matching and
+    linearisation) adds the linear part exactly.
 
     Parameters
     ----------

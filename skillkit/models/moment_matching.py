@@ -24,11 +24,9 @@ Gaussian; these functions return Gaussian approximations of it (Figs 2.6–2.7):
 
   ``beta`` and ``iK`` are the predictor's fields, so the same code serves exact GPs
   (iK = (K + σ_ε²I)⁻¹) and FITC/VFE (iK = K_mm⁻¹ − Σ). Every Q^{ab} is formed in the log
-  domain from one (M × (d + 2))((d + 2) × M) product that carries the support set's quadratic
-  forms; its entries never exceed σ_{f,a}² σ_{f,b}², so nothing overflows. The pairs a ≤ b
-  are batched and processed in cache-sized blocks (product, ``exp`` in place, contraction with
-  β_b and iK_a), with no Python loop over dimensions (:func:`_second_moments`; timed at
-  M = 300 and 700, 8 outputs and 12 inputs, see ``benchmarks/bench_moment_matching.py``).
+  domain (entries never exceed σ_{f,a}² σ_{f,b}², so nothing overflows), all pairs a ≤ b
+  batched in cache-sized blocks (:func:`_second_moments`; timings in
+  ``benchmarks/bench_moment_matching.py``).
 * :func:`linearize` — the first-order alternative of Fig. 2.6: the predictive mean μ(m),
   its Jacobian J at m (analytic), cov(y) ≈ J S Jᵀ + diag σ²(m), cov(z, y) ≈ S Jᵀ.
 * :func:`propagate` — long-term prediction p(x_0) → p(x_1) → … → p(x_T) (Eq. 4.4) through a
@@ -37,22 +35,14 @@ Gaussian; these functions return Gaussian approximations of it (Figs 2.6–2.7):
   Δx model x_{t+1} = x_t + Δ, cov(x_{t+1}) = S + cov(Δ) + cov(x, Δ) + cov(x, Δ)ᵀ.
   Torque limits are not representable (that is the sampling approach's advantage, Sec. 4.2.1).
 
-**Round-off**. The second moments are sums β_aᵀQ^{ab}β_b whose terms can be
-many orders of magnitude larger than the result: for an exact GP near its linear limit
-(σ_f/σ_ε ≈ 1.5e3, length-scales ≈ 1.5e3 times the data's spread) |β| is huge and the terms
-exceed the predictive covariance by 1e13–1e17, so float64 keeps few or no correct digits
-(cov(y) off by 5e-4 to 2e1 relative against a 40-digit reference). Every moment-matching step
-bounds its own round-off (:class:`RoundoffEstimate`: u = 2⁻⁵³ times the magnitudes of the
-terms, Cauchy–Schwarz for Q, the conditions of the factorised matrices; :func:`_roundoff_bound`
-derives it; the actual errors were 1e-4 to 2e-2 of it where digits were lost, measured against
-40-digit arithmetic: the exponents are bounded in the worst case, and rounding errors mostly
-cancel; it costs 3–10 % of a step at M = 700–300 without gradients). :func:`moment_match`
-and :func:`propagate` warn once per call (:class:`~skillkit.models.gp.GPNumericalWarning`,
-naming the bound and its cause) when it exceeds :data:`ROUNDOFF_TOL`, or raise
-:class:`MomentPrecisionError` with ``strict=True``; PILCO checks its optimised gain's
-prediction the same way. The bound is per step (a multi-step prediction accumulates the
-steps' errors, and a gradient's error is larger). The moments themselves are the numbers
-computed without the bound, bit for bit.
+**Round-off.** The second moments β_aᵀQ^{ab}β_b are sums whose terms can exceed the result by
+many orders of magnitude (large |β|, e.g. an exact GP near its linear limit), so float64 may
+keep few or no correct digits. Every step bounds its own round-off (:class:`RoundoffEstimate`,
+derived in :func:`_roundoff_bound`; a pessimistic bound); :func:`moment_match` and
+:func:`propagate` warn once per call (:class:`~skillkit.models.gp.GPNumericalWarning`) when
+it exceeds :data:`ROUNDOFF_TOL`, or raise :class:`MomentPrecisionError` with ``strict=True``.
+The bound is per step (multi-step predictions and gradients accumulate more). Computing the
+bound does not change the moments.
 
 All computations are in torch float64; results are torch tensors.
 """
@@ -91,10 +81,9 @@ __all__ = [
     "with_linear_mean",
 ]
 
-#: Log-domain exponents below this are raised to it before ``exp``: e^-600 ≈ 3e-261 instead of
-#: an underflowing or denormal result (``exp`` is ~40× slower on underflowing and ~200× slower on
-#: denormal-producing float64 arguments here, and products with denormals are slow too). The
-#: change of any moment is below M² max|β|² e^-600, far below float64 round-off.
+#: Log-domain exponents below this are raised to it before ``exp`` (e^-600 ≈ 3e-261), avoiding
+#: slow underflowing or denormal results. Any moment changes by less than M² max|β|² e^-600,
+#: far below float64 round-off.
 LOG_FLOOR = -600.0
 
 #: Entries (float64) of one block of Q matrices in :func:`_second_moments`: 2^17 = 1 MiB, so a
@@ -105,10 +94,9 @@ BLOCK_ENTRIES = 1 << 17
 UNIT_ROUNDOFF = float(torch.finfo(DTYPE).eps) / 2
 
 #: Moment matching warns (``strict``: raises :class:`MomentPrecisionError`) when its bound on
-#: its own round-off (:class:`RoundoffEstimate`) exceeds this relative error. The bound was
-#: 50–10⁴ times the actual error in our measurements, so this flags steps that may have lost
-#: 7–10 of float64's 16 digits; tab4.2's fitted PILCO models (FITC, zero or linear mean)
-#: stayed at 2e-8 to 3e-5, an exact GP at its linear limit at 2e-1 to 4e3.
+#: its own round-off (:class:`RoundoffEstimate`) exceeds this relative error. The bound
+#: over-states the actual error by orders of magnitude, so this flags steps that may have lost
+#: 7–10 of float64's 16 digits.
 ROUNDOFF_TOL = 1e-4
 
 
@@ -415,8 +403,7 @@ def _roundoff_bound(
     * cov = second − μμᵀ + diag(latent + σ_ε²): the errors of μ enter through |μ_b| |Δμ_a|,
       the final additions cost 3u(|second| + |μ_a μ_b|) + 2u(|latent| + σ_ε²).
 
-    Measured against a 40-digit reference, the actual errors were 1e-4 to 2e-2 of the bound
-    where digits were lost (``tests/models/test_moment_matching.py``).
+    ``tests/models/test_moment_matching.py`` checks it against a 40-digit reference.
     """
     u = UNIT_ROUNDOFF
     E, M, D = pred.support.shape
@@ -774,11 +761,9 @@ def _per_step(value, name: str, shape: tuple[int, ...], T: int) -> torch.Tensor:
 def moment_matching_flops_per_step(output_dim: int, n_support: int, input_dim: int) -> int:
     """Floating-point operations of one moment-matching step (:func:`moment_match`).
 
-    Counted as the arithmetic the formulas need, with ``exp`` as one flop (as in
-    :func:`~skillkit.models.sampling.sampler_flops_per_step`, so the two compare like for
-    like; a vectorised ``exp`` costs about as much as the ~2D + 5 flops per entry around it,
-    so the count under-states the work). With E outputs, M support points, D inputs and
-    P = E(E + 1)/2 pairs a ≤ b:
+    The arithmetic the formulas need, ``exp`` counted as one flop (as in
+    :func:`~skillkit.models.sampling.sampler_flops_per_step`; this under-states the work).
+    With E outputs, M support points, D inputs and P = E(E + 1)/2 pairs a ≤ b:
 
     * per pair and entry (i, j) of Q^{ab}: 2D for the cross term (Tζ_ai)ᵀζ_bj, 2 for adding
       the quadratic-form offsets, 1 for ``exp``, 2 for the contraction with β_b; 2 more per
@@ -787,8 +772,8 @@ def moment_matching_flops_per_step(output_dim: int, n_support: int, input_dim: i
     * per output, the mean and input–output covariance: a (D × D) solve for M right-hand sides
       and two reductions.
 
-    The exponent floor's clamp, index copies and concatenations are not counted. Used with
-    measured times to report GFLOP/s (fig4.4, ``benchmarks/bench_moment_matching.py``).
+    Clamps, index copies and concatenations are not counted. Used to report GFLOP/s
+    (``benchmarks/bench_moment_matching.py``).
 
     Parameters
     ----------

@@ -24,43 +24,25 @@ feature expansion of the SE kernel (Rahimi & Recht 2007),
           \\cos(\\omega_j^\\top x + b_j), \\quad \\omega_j \\sim \\mathcal N(0, W^{-1}),\\;
           b_j \\sim U[0, 2\\pi),\\; \\theta_j \\sim \\mathcal N(0, 1).
 
-Whatever the (symmetric) matrix multiplying f̃(Z) and C chosen as above, the covariance of g is
-k(x, x′) − k(x)ᵀ iK k(x′): the predictor's posterior covariance
-(:meth:`~skillkit.models.gp.GPPredictor.latent_covariance`), so one-step marginals equal the
-per-step sampler's (Eqs 2.26–2.27). For the exact GP, iK = (K + σ_ε²I)⁻¹ and C = σ_ε² iK², which
-is Wilson et al.'s exact update (ξ = iK ε with ε the simulated observation noise). For FITC / VFE
-(iK = K_mm⁻¹ − Σ) C = Σ − Σ K_mm Σ, equivalent to their sparse update from the inducing
-distribution q(u) = N(K_mm β, K_mm Σ K_mm): g is a draw from the sparse model's *predictive*
-process (its test-point predictions, the DTC / VFE form; FITC's diagonal correction applies
-to training points only, and not at all to functions of new inputs). That is the approximation
-for sparse models.
+With C as above the covariance of g is k(x, x′) − k(x)ᵀ iK k(x′), the predictor's posterior
+covariance (:meth:`~skillkit.models.gp.GPPredictor.latent_covariance`), so one-step marginals
+equal the per-step sampler's (Eqs 2.26–2.27). Exact GP: iK = (K + σ_ε²I)⁻¹, C = σ_ε² iK²
+(Wilson et al.'s exact update). FITC / VFE (iK = K_mm⁻¹ − Σ): C = Σ − Σ K_mm Σ, their sparse
+update from q(u) = N(K_mm β, K_mm Σ K_mm); g is then a draw of the sparse model's *predictive*
+process (DTC / VFE form, no FITC diagonal correction at new inputs).
 
-Design:
-
-* **Fresh features per trajectory.** Every trajectory (function) draws its own ω, b, θ, ξ, so
-  over trajectories the prior covariance is exactly the SE kernel (E[φ(x)ᵀφ(x′)] = k(x, x′)):
-  the F-feature approximation makes each f̃ slightly non-Gaussian (a Gaussian scale mixture,
-  excess kurtosis O(1/F)) but does not bias means or covariances, so sampled moments converge
-  to the exact GP's at the Monte Carlo rate. (A basis shared by all trajectories would be
-  cheaper to evaluate but biases every covariance by O(1/√F), the same for all trajectories.)
-* **Randomness.** Function i is drawn from a torch generator seeded with ``seeds[i]``, so a
-  function depends only on its seed: results do not depend on the chunk size.
-* **Precision.** The set-up (K_ZZ, C and its square root, f̃(Z), the update vector) is
-  computed in float64 and cast once; evaluation runs in the predictor's dtype, and the kernel
-  vectors come from :meth:`~skillkit.models.gp.GPPredictor.kernel_vectors` (in float32 with
-  the float64 exponent).
-* **Cost.** Per step and output: the kernel vector (2Md + 4M), the update dot product (2M) and
-  the features (2Fd + 4F): no M² term, unlike the per-step sampler's variance kᵀ iK k
-  (:func:`pathwise_flops_per_step`). Set-up per function: 2MFd + 2M² + M F (cos).
-  Measured (``benchmarks/bench_sampler.py``, FITC N = 1500, M = 300, 12 inputs, 8 outputs,
-  F = 256, 300 trajectories, one thread of a loaded 2-core machine): set-up 6.5 ms per
-  function with fresh features (0.5 ms with a shared basis). One step of 300 trajectories
-  (best of 20, interleaved; per-step sampler in brackets): fresh features 12.3 ms float64
-  (10.1), 7.7 ms float32 (6.3); shared basis 5.9 ms float64, 4.3 ms float32. With fresh
-  features the step saves the M² variance product but reads every trajectory's own
-  (d × E·F) frequencies (29 MB per step in float32): memory-bound, no faster than the
-  per-step sampler despite 12x fewer FLOPs; a shared basis turns that into one matrix
-  product and is 1.5–1.7x faster.
+* **Features.** By default every function draws its own ω, b, θ, ξ: over trajectories the
+  prior covariance is exactly the SE kernel (each f̃ has excess kurtosis O(1/F), means and
+  covariances are unbiased). A shared basis (:class:`PathwiseBasis` ``shared_seed``) is
+  cheaper but biases every covariance by O(1/√F).
+* **Randomness.** Function i depends only on its seed ``seeds[i]``, not on the chunk size.
+* **Precision.** The set-up (K_ZZ, C and its square root, f̃(Z), the update vector) is done
+  in float64 and cast once; evaluation runs in the predictor's dtype via
+  :meth:`~skillkit.models.gp.GPPredictor.kernel_vectors`.
+* **Cost** (:func:`pathwise_flops_per_step`). Per step and output 2Md + 4M + 2M + 2Fd + 4F
+  (no M² term); set-up per function 2MFd + 2M² + MF. Fresh features are memory-bound (each
+  function reads its own (d × E·F) frequencies) and no faster than the per-step sampler; a
+  shared basis is faster. Timings: ``benchmarks/bench_sampler.py``.
 """
 
 from __future__ import annotations
@@ -114,7 +96,7 @@ class PathwiseFunctions:
         n, E, F = self.amplitudes.shape
         if self.frequencies.shape[0] == 1:  # one basis shared by all functions
             proj = (x @ self.frequencies[0]).view(n, E, F)
-        else:  # a row vector times a (d × E·F) matrix per function: 2-4x faster than (E·F × d)
+        else:  # a row vector times a (d × E·F) matrix per function
             proj = torch.bmm(x.unsqueeze(1), self.frequencies).view(n, E, F)
         prior = (proj.add_(self.phases).cos_() * self.amplitudes).sum(-1)  # (n, E)
         k = self.predictor.kernel_vectors(x)  # (E, n, M)
@@ -158,10 +140,9 @@ class PathwiseBasis:
     shared_seed : int, optional
         None (default): every function draws its own features ω, b (unbiased covariances).
         An int: one feature basis, drawn from this seed, shared by all functions (only θ and
-        ξ differ): set-up and steps are cheaper, but every function then has the covariance
-        φ(x)ᵀφ(x′) of the same F features, off the SE kernel by O(σ_f²/√F) (about 1/√(2F)
-        relative in the prior variance), the same for all functions, so it does not average
-        out over trajectories.
+        ξ differ): cheaper, but every function then has the covariance φ(x)ᵀφ(x′) of the
+        same F features, off the SE kernel by O(σ_f²/√F) (about 1/√(2F) relative in the
+        prior variance), a bias that does not average out over trajectories.
 
     Attributes
     ----------

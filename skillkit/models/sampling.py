@@ -1,75 +1,40 @@
 """Batched stochastic trajectory prediction with a learned forward model (Secs 2.1.2, 4.2.1).
 
-The one trajectory sampler every forward model uses. For B (context, ω) pairs and L
-trajectories each it draws, in one vectorised loop over time (Eq. 4.3, Fig. 2.4),
+For B (context, ω) pairs and L trajectories each, :func:`sample_trajectories` draws, in one
+vectorised loop over time (Eq. 4.3, Fig. 2.4),
 
 .. math:: u_t = \\pi_\\omega(t, x_t), \\qquad x_{t+1} \\sim p(x_{t+1} \\mid x_t, u_t),
 
-for all B·L trajectories at once: every step is a few batched matrix products (the GP
-predictor's kernel vectors, ``kᵀβ`` and ``kᵀ iK k``), which is why sampling parallelises so
-well (Sec. 4.2.1).
+for all B·L trajectories at once; each step is a few batched matrix products.
 
-Design:
-
-* **Model protocol.** Any object with ``state_dim``, ``control_dim``,
-  ``to(device, dtype)`` and ``next_state_moments(x, u) -> (mean, var, ...)`` (per-dimension
-  Gaussian, tensors of shape (n, n_x)) can be sampled; :class:`~skillkit.models.gp.ForwardModel`
-  (exact, FITC or VFE GP) is the one in this package. A model whose noise is correlated across
-  dimensions also has ``noise_factor_tensor(device, dtype) -> F`` (n_x, n_x), F Fᵀ its noise
-  covariance (the same for every state): then x' = mean + F ε, and ``var`` gives the
-  marginals, diag F Fᵀ (:class:`~skillkit.models.linear.LinearGaussianModel`).
-* **Policy.** ``policy(t, x, pair) -> u`` with ``x`` of shape (n, n_x), ``pair`` the index
-  (n,) of each row's (context, ω) pair (so a policy gathers its per-pair parameters, e.g.
-  PD gains or a reference trajectory), returning (n, n_u). Anything goes (nonlinear
-  feedback, DMP tracking); an optional ``control_limit`` saturates u (torque limits) and the
-  saturated entries are counted.
-* **Caching.** The model is moved to the device once; the predictor's step-invariant
-  quantities (scaled support inputs, their norms, β, iK) are computed when it is built.
-* **Memory.** Trajectories are processed in chunks of rows, each chunk over the whole
-  horizon; the chunk size bounds the (E, chunk, M) kernel work arrays by ``max_chunk_bytes``.
-  The Gaussian noise of all trajectories is drawn up front from one stream (shape
-  (B·L, T, n_x)), so results do not depend on the chunk size (up to round-off: the BLAS
-  blocking of a product depends on its size).
-* **Randomness.** ``rng`` (numpy Generator, int, SeedSequence or None) seeds a torch
-  generator on the device: the same seed gives the same samples. The noise is drawn in
-  float64 whatever ``dtype``, so float32 paths follow the float64 paths of the same seed.
-* **Precision: float64 by default, float32 opt-in** (``dtype=torch.float32``).
-  The float32 path keeps the set-up in float64 (support operands, β, the variance factor R,
-  cast once), computes the kernel exponent in float64 (a (d + 2)-column product, ~5 % of the
-  work), clamps it from below at log σ_f² − 40 and runs ``exp`` and the (E, n, M) × (E, M,
-  M + 1) product — 75–80 % of a step — in float32, with no denormal numbers anywhere
-  (:meth:`~skillkit.models.gp.GPPredictor.kernel_vectors` says why each step matters).
-  Measured on the balancing FITC model of ``benchmarks/bench_sampler.py`` (N = 1500,
-  M = 300, 12 inputs, 8 outputs): one-step means within 3.5e-4 predictive standard
-  deviations of float64's and variances within 8.7e-5 (relative) near the data, 1e-6 far from
-  it (with the exponent in float32: 0.095 and 0.022, from its round-off); 400 trajectories ×
-  100 steps with the same seed: KL between Gaussian fits of the final states 2e-8 against a
-  Monte Carlo floor of 0.1 (float64 with another seed). Speed:
-  0.9–1.7x float64's on one thread and 1.3–1.5x on two across the runs of
-  ``benchmarks/bench_prediction.py`` (this VM's timings vary by ±15%). The accuracy depends on
-  the model's conditioning, not on where the states are: with ‖β‖ or ‖R‖ large against σ_ε
-  (x′ targets near the GP's linear limit, σ_f²/σ_ε² ~ 1e4) float32 means were off by 0.06–0.17
-  predictive standard deviations in our tests, from rounding k and β to float32 (computing
-  ‖Rk‖² or the whole product in float64 from float32 k does not help; measured). So every
-  float32 run compares its one-step moments with float64's on visited states
-  (``precision_error``, ``GPNumericalWarning`` above :data:`PRECISION_TOL`). The default stays
-  float64: the thesis experiments' stored results (and runs in flight) were sampled in
-  float64, and float64 results are bit-identical to those of a float64-only sampler
-  (tested); switching would change every sampled number.
-* **Underflow in float64.** Far from the data kernel entries underflow: on the trained
-  fig4.4 balancing model (M = 300) 23 % of them were 0 and 0.6 % denormal along sampled
-  trajectories, and ``exp`` of such arguments and products with denormal numbers are many
-  times slower. The float64 predictor raises entries below e^{−600} σ_f² (and e^{−600}) to
-  that value (:data:`~skillkit.models.gp.FLOOR_EXPONENT_FLOAT64`): 11.0 → 27.8 GFLOP/s on
-  that model (1000 trajectories × 100 steps, one thread), bit-identical trajectories there,
-  in a GPREPS throwing prediction (500 × 25 throws) and in every experiment's smoke run;
-  the entries it changes are ~250 orders of magnitude below any mean or variance they enter.
-* **Pathwise alternative** (``method="pathwise"``, :mod:`skillkit.models.pathwise`): every
-  trajectory follows one function drawn from the GP posterior instead of independent
-  per-step draws. Same one-step marginals (tested), different multi-step statistics: on the
-  balancing FITC model the final-state spread at t = 100 was 1.1–1.9x the per-step sampler's
-  per dimension (KL of Gaussian fits 2.3 against a floor of 0.1). The per-step sampler is
-  the thesis's (Sec. 4.2.1) and stays the default.
+* **Model protocol.** ``state_dim``, ``control_dim``, ``to(device, dtype)`` and
+  ``next_state_moments(x, u) -> (mean, var, ...)`` (per-dimension Gaussian, shape (n, n_x)),
+  e.g. :class:`~skillkit.models.gp.ForwardModel`. A model with noise correlated across
+  dimensions also has ``noise_factor_tensor(device, dtype) -> F`` (n_x, n_x): then
+  x' = mean + F ε and ``var`` is diag F Fᵀ (:class:`~skillkit.models.linear.LinearGaussianModel`).
+* **Policy.** ``policy(t, x, pair) -> u``, ``x`` (n, n_x), ``pair`` (n,) the index of each
+  row's (context, ω) pair; returns (n, n_u). An optional ``control_limit`` saturates u and
+  counts the saturated entries.
+* **Memory and randomness.** Rows are processed in chunks bounded by ``max_chunk_bytes``.
+  All Gaussian noise (B·L, T, n_x) is drawn up front in float64 from one torch generator
+  seeded by ``rng``, so results do not depend on the chunk size (up to BLAS round-off) and
+  float32 paths follow the float64 paths of the same seed.
+* **Precision.** float64 by default (every stored result); float32 is opt-in. The float32
+  path keeps the set-up and the kernel exponent in float64 and runs ``exp`` and the main
+  product in float32 (:meth:`~skillkit.models.gp.GPPredictor.kernel_vectors`). Its accuracy
+  depends on the model's conditioning: near-linear-limit GPs (σ_f²/σ_ε² ~ 1e4) can be off by
+  ~0.1 predictive standard deviations, so every float32 run compares its one-step moments
+  with float64's on visited states (``precision_error``; a ``GPNumericalWarning`` above
+  :data:`PRECISION_TOL`). Speed and accuracy figures: ``benchmarks/bench_sampler.py``,
+  ``benchmarks/bench_prediction.py``.
+* **Underflow in float64.** Kernel entries below e^{−600} σ_f² are raised to that value
+  (:data:`~skillkit.models.gp.FLOOR_EXPONENT_FLOAT64`) so no ``exp`` underflows and no
+  product is denormal (every stored experiment's smoke run is bit-identical without it,
+  ``data/README.md``).
+* **Pathwise alternative** (``method="pathwise"``, :mod:`skillkit.models.pathwise`): each
+  trajectory follows one function drawn from the GP posterior. Same one-step marginals,
+  different multi-step statistics (a wider final-state spread on the balancing FITC model);
+  the per-step sampler is the thesis's (Sec. 4.2.1) and the default.
 """
 
 from __future__ import annotations
@@ -209,12 +174,10 @@ def sample_trajectories(
     device : str or torch.device, optional
         Where to compute: a CPU or CUDA device (default: the CPU).
     dtype : torch.float64 or torch.float32
-        Floating point type: float64 (default; the thesis's and every stored result's) or the
-        opt-in float32 path (see the module notes: faster, accurate for well-conditioned models;
-        its accuracy on the visited states is measured and reported as ``precision_error``).
+        float64 (default) or the opt-in float32 path (module notes; its error on the visited
+        states is reported as ``precision_error``).
     max_chunk_bytes : int
-        Bound (≥ 1) on the kernel work arrays per chunk of trajectories (default 32 MiB:
-        small arrays are recycled by the allocator and stay in cache; see the benchmark); a
+        Bound (≥ 1) on the kernel work arrays per chunk of trajectories (default 32 MiB); a
         chunk holds at least one trajectory whatever the bound.
     method : {"per-step", "pathwise", "pathwise-shared"}
         "per-step" (default, the thesis's Sec. 4.2.1): every transition is an independent

@@ -4,9 +4,9 @@
 pluggable context features φ (:mod:`skillkit.policies.features`); :class:`GaussianPolicy` is
 its context-free special case N(μ, Σ) used by episode-based REPS (2.12–2.15).
 
-Policies are immutable values: :meth:`LinearGaussianPolicy.fit` returns a new policy (the
-weighted maximum-likelihood M-step of Eqs. 3.11–3.13 with a deliberate, documented
-regularisation) and leaves the old one untouched, so a learning loop can compare the two.
+Policies are immutable: :meth:`LinearGaussianPolicy.fit` returns a new policy (the weighted
+maximum-likelihood M-step of Eqs. 3.11–3.13, regularised) and :func:`trust_region_step`
+bounds its KL and entropy loss.
 """
 
 from __future__ import annotations
@@ -460,10 +460,8 @@ class LinearGaussianPolicy:
             root = self._chol @ vec
             cov = (root * np.maximum(lam, floor)) @ root.T
             cov = 0.5 * (cov + cov.T)
-        # 5. condition-number guard: REPS with sample reuse can shrink some directions
-        # geometrically (factor ~0.4 per update measured on throwing) until round-off makes Σ
-        # indefinite; eigenvalues below MIN_RELATIVE_EIGENVALUE·λ_max are raised to that value
-        # and counted in the FitInfo.
+        # 5. condition-number guard (REPS can shrink a direction geometrically until Σ is
+        # indefinite in round-off): raise eigenvalues to MIN_RELATIVE_EIGENVALUE·λ_max, count them
         ev, evec = np.linalg.eigh(cov)
         low = MIN_RELATIVE_EIGENVALUE * ev[-1]
         n_conditioned = int(np.sum(ev < low))
@@ -644,9 +642,8 @@ def trust_region_step(
     r"""Make a weighted ML fit (Eqs. 3.11–3.13) keep REPS's KL bound and lose entropy slowly.
 
     The REPS weights meet KL(p ‖ q) = ε on the samples (Eq. 3.4), but the Gaussian fitted to
-    them does not: with tens of effective samples in 10 dimensions the fitted Σ is noisy and
-    too small, KL(π_ML ‖ π_old) is about 2ε, and directions that shrank by chance stay shrunk.
-    Two corrections, in this order:
+    them need not: with few effective samples Σ_ML is noisy and too small and
+    KL(π_ML ‖ π_old) can exceed ε. Two corrections, in this order:
 
     1. **Entropy bound** (as in MORE, Abdolmaleki et al. 2015, here applied after the fit): if
        H(π_old) − H(π_ML) > β = ``max_entropy_loss``, Σ_ML is scaled by

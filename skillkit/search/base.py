@@ -187,7 +187,7 @@ def extra_context_importance(
     A batch of N rollouts, s_i ~ μ(s), ω_i ~ π(ω|s_i), each re-scored in k extra contexts
     s′ ~ μ(s) (Sec. 3.4, :func:`skillkit.search.loop.collect`), has N (1 + k) rows. An extra
     pair (s′, ω_i) is drawn from μ(s′) m(ω), with m the marginal of ω, not from μ(s′)π(ω|s′):
-    in 20 of 21 rows ω is independent of s. Seen as one sample of the mixture
+    in the k extra rows of each rollout ω is independent of s. Seen as one sample of the mixture
     q(s, ω) = μ(s) [f π(ω|s) + (1 − f) m(ω)], f = 1/(1 + k), every row gets the
     (deterministic-mixture, balance-heuristic) importance weight
 

@@ -1,86 +1,47 @@
-r"""Contextual Bayesian optimisation behind the search interface: BoTorch's own GP, acquisition
+"""Contextual Bayesian optimisation behind the search interface: BoTorch's own GP, acquisition
 and optimiser, and only the glue.
 
 :class:`ContextualBO` keeps every real sample (s_i, ω_i, R_i), fits a BoTorch
 :class:`~botorch.models.SingleTaskGP` to R over z = [s, ω], and exposes it as
-:func:`~skillkit.search.loop.learn` expects: a ``policy`` with ``sample(contexts, rng)`` and
-``mean_of(contexts)``, and ``update(batch)`` returning :class:`CBODiagnostics`.
+:func:`~skillkit.search.loop.learn` expects (``policy.sample``/``policy.mean_of``,
+``update(batch)`` → :class:`CBODiagnostics`).
 
-What it models and how it proposes
-----------------------------------
-* **The GP** is BoTorch's ``SingleTaskGP`` with its defaults (an ARD RBF kernel with the
-  dimension-scaled priors of Hvarfner et al. 2024, a learnt homoscedastic noise, a
-  ``Standardize`` outcome transform) and a ``Normalize`` input transform to the search box,
-  because "the model works best when covariates are normalized to the unit cube and outcomes
-  are standardized" (``SingleTaskGP``'s docstring). Its hyper-parameters are fitted afresh
-  (from BoTorch's initial values, not warm-started) on all samples after every update by
-  ``fit_gpytorch_mll`` (type-II maximum likelihood with BoTorch's retry policy).
-* **A proposal** for a context s is ω = argmax_ω UCB([s, ω]) with s held fixed
-  (``optimize_acqf(..., fixed_features=...)``: its raw-sample initialisation and multi-start
-  L-BFGS-B over the ω box), where UCB(z) = μ(z) + √β σ(z) is BoTorch's analytic
-  ``UpperConfidenceBound``. With the context fixed this is the contextual GP-UCB rule of
-  Krause & Ong, "Contextual Gaussian Process Bandit Optimization", NIPS 2011: one GP over
-  (context, action), the action chosen by the UCB at the observed context. β defaults to 0.2,
-  the default of BoTorch's input constructor for ``UpperConfidenceBound``
-  (``botorch.acquisition.input_constructors.construct_inputs_ucb``). Why UCB rather than
-  (Log)EI: EI needs an incumbent *at the given context*, and the best observed reward is an
-  incumbent over all contexts; where the attainable reward depends on s (a far throwing
-  target scores lower than a near one at its best), that incumbent is out of reach and EI
-  degenerates into variance seeking. UCB needs no incumbent.
-* **The policy mean** (what the loop evaluates as "the current policy") at s is
-  argmax_ω μ([s, ω]), BoTorch's ``PosteriorMean`` optimised the same way; before the GP has
-  data it is the initial policy's mean (clipped to the box).
-* **The box** the search runs in: per dimension j, [min_s m_j(s) − k σ_j, max_s m_j(s) + k σ_j]
-  with m(s) the initial policy's mean (``task.initial_policy()``; linear in s, so its extremes
-  over the context range are at the corners), σ_j its standard deviation and k =
-  :attr:`CBOSettings.box_std` (default 2: the box holds 95 % of each marginal of π₀ at every
-  context). ``omega_low`` / ``omega_high`` set it directly instead.
-* **The first batches** (:attr:`CBOSettings.initial_batches`, default 1) are a scrambled Sobol
-  design over the box (BoTorch's ``draw_sobol_samples``), whatever the contexts: a GP needs
-  data before its acquisition means anything.
+* **GP**: ``SingleTaskGP`` with BoTorch's defaults (ARD RBF kernel with the dimension-scaled
+  priors of Hvarfner et al. 2024, learnt homoscedastic noise, ``Standardize`` outcomes) and a
+  ``Normalize`` input transform to the search box. Hyper-parameters are refitted from BoTorch's
+  initial values on all samples after every update (``fit_gpytorch_mll``).
+* **Proposal** for a context s: ω = argmax_ω UCB([s, ω]), UCB(z) = μ(z) + √β σ(z), with s fixed
+  (``optimize_acqf(..., fixed_features=...)``) — the contextual GP-UCB rule of Krause & Ong,
+  NIPS 2011. β defaults to 0.2 (BoTorch's ``construct_inputs_ucb`` default). UCB rather than
+  (Log)EI because EI needs an incumbent at the given context, which the best reward over all
+  contexts is not when the attainable reward depends on s.
+* **Policy mean** at s: argmax_ω μ([s, ω]) (``PosteriorMean``, optimised the same way), searched
+  context by context; without data, the initial policy's mean clipped to the box.
+* **Box**: per dimension j, [min_s m_j(s) − k σ_j, max_s m_j(s) + k σ_j] with m(s), σ the
+  initial policy's mean (linear in s, extremes at the context corners) and standard deviation,
+  k = :attr:`CBOSettings.box_std`; ``omega_low`` / ``omega_high`` set it directly.
+* **First batches** (:attr:`CBOSettings.initial_batches`) are a scrambled Sobol design over the
+  box (``draw_sobol_samples``).
 
-Each row of a batch gets its own proposal (q = 1, no pending points), so rows with nearly
-the same context get nearly the same ω; the loop's independent contexts are what spreads a
-batch. The rows' searches run as one ``optimize_acqf`` call over all rows' starts (BoTorch's
-parallel L-BFGS-B treats each start as its own problem, its context fixed by a per-start
-``fixed_features`` tensor); a row's proposal then depends on the other rows only through
-round-off in the batched evaluation, which the optimiser's path can amplify (2e-5 of a unit
-box in a 22-dimensional check). The policy mean is searched context by context, so it is a
-function of the context alone. Rows re-scored in extra contexts (Sec. 3.4,
-``learn(..., extra_contexts=k)``) are exact observations of R at (s′, ω) and enter the GP
-like any other row. A failed rollout (its trajectory's ``failed`` flag; its reward is the
-task's ``worst_reward``, far below the rest) enters the GP with the lowest reward of the
-working rollouts instead, so that one failure does not dominate the outcome standardisation;
-the best reward reported ignores failures.
+Each row of a batch gets its own proposal (q = 1, no pending points); all rows' searches run as
+one ``optimize_acqf`` call, so a row's proposal depends on the others only through round-off.
+Rows re-scored in extra contexts (Sec. 3.4) enter the GP like any other row. A failed rollout
+(``failed`` flag) enters the GP with the lowest working reward instead of the task's
+``worst_reward``; the best reward reported ignores failures.
 
-Cost
-----
-An exact GP: every marginal-likelihood evaluation of the fit costs O(N³) time and O(N²)
-memory in the number N of samples, every acquisition evaluation O(N²) once the posterior
-cache exists, and every proposal runs ``num_restarts`` L-BFGS-B searches in d dimensions.
-N grows by the batch size every update; past :data:`LARGE_N` samples the update warns once
-(``RuntimeWarning``). :attr:`CBOSettings.max_observations` caps N by fitting the GP on the
-most recent samples only. Measured on the throwing task (d = 41, two contexts, one CPU core
-shared with other jobs, 10 rollouts per update): a GP fit on 10–40 samples took 0.3–1.2 s,
-one UCB proposal 7–9 s (so a batch of 10 took 67–92 s) and the policy mean on 8 evaluation
-contexts 50–90 s; the acquisition searches, not the GP, dominate at this size. Every policy
-in ``learn``'s history holds its GP and its training data, so a checkpoint grows with the
-square of the number of updates.
+Cost: an exact GP, O(N³) per marginal-likelihood evaluation, and ``num_restarts`` L-BFGS-B
+searches per proposal; the acquisition searches dominate at the sizes we run. Past
+:data:`LARGE_N` samples the update warns once (``RuntimeWarning``);
+:attr:`CBOSettings.max_observations` fits on the most recent samples only. Every policy in the
+history holds its GP and data, so a checkpoint grows with the square of the number of updates.
 
-Randomness and devices
-----------------------
-No global seed is set. ``policy.sample`` draws one seed per row from the loop's ``rng``
-(the Sobol design and each proposal's raw samples and restarts); ``mean_of`` uses one seed
-drawn at the update from the algorithm's own ``rng`` (so the policy mean is a function of the
-policy), as does the GP fit (BoTorch's retries draw initial values from the priors). BoTorch
-passes a seed to its Sobol draws, but picks the restarts among the raw samples by Boltzmann
-sampling on torch's global generator (``initialize_q_batch``), so every BoTorch call runs inside
-``torch.random.fork_rng`` with the generator seeded from our seed: the global state is
-restored afterwards, and same seeds ⇒ same proposals. Tensors live on ``device`` in ``dtype``
-(float64 by default; BoTorch recommends double precision for GPs); the object pickles, so a
-:class:`~skillkit.trial.TrialContext` checkpoints and resumes it like any other algorithm.
-
-``from skillkit.search import ContextualBO`` imports it (lazily: BoTorch is slow to import).
+Randomness: no global seed is set. ``policy.sample`` draws one seed per row from the loop's
+``rng``; ``mean_of`` and the GP fit each use a seed drawn at the update from the algorithm's
+own ``rng``. Every BoTorch call runs inside ``torch.random.fork_rng`` seeded from its seed
+(BoTorch's ``initialize_q_batch`` samples torch's global generator), so same seeds ⇒ same
+proposals and the global state is restored. Tensors live on ``device`` in ``dtype`` (float64 by
+default); the object pickles, so :class:`~skillkit.trial.TrialContext` checkpoints it.
+Imported lazily by ``from skillkit.search import ContextualBO`` (BoTorch is slow to import).
 """
 
 from __future__ import annotations
@@ -128,7 +89,8 @@ class CBOSettings:
         β ≥ 0 of UCB(z) = μ(z) + √β σ(z), on the standardised reward (default 0.2, BoTorch's
         ``construct_inputs_ucb`` default).
     box_std : float
-        k > 0: the ω box is the initial policy's mean range ± k standard deviations.
+        k > 0: the ω box is the initial policy's mean range ± k standard deviations (k = 2
+        holds 95 % of each marginal of π₀).
     initial_batches : int
         Batches (updates) proposed by a Sobol design before the acquisition takes over (≥ 1).
     num_restarts : int
@@ -275,14 +237,9 @@ class CBOPolicy:
     def _argmax_rows(
         self, acqf: AcquisitionFunction, contexts: np.ndarray, seeds: np.ndarray
     ) -> np.ndarray:
-        """argmax_ω acqf([s_i, ω]) for every row s_i, shape (n, d), in one optimiser call.
-
-        Per row, BoTorch's ``gen_batch_initial_conditions`` picks ``num_restarts`` starts
-        from ``raw_samples`` Sobol points with the row's seed (as :meth:`_argmax`'s
-        ``optimize_acqf`` does); then one ``optimize_acqf`` call runs all n × restarts
-        L-BFGS-B searches from those starts, each row's context held by a per-start
-        ``fixed_features`` tensor (in BoTorch's parallel L-BFGS-B each start is its own
-        problem), and each row keeps its best start."""
+        """argmax_ω acqf([s_i, ω]) for every row s_i, shape (n, d): starts chosen per row with
+        its seed, then one ``optimize_acqf`` call over all n × restarts starts (context fixed
+        per start); each row keeps its best start."""
         n_s, n = self.context_dim, contexts.shape[0]
         restarts = self.settings.num_restarts
         starts = []

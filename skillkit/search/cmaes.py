@@ -1,53 +1,37 @@
 r"""CMA-ES behind the search interface: the ``cma`` package's own ask/tell, and only the glue.
 
-:class:`CMAES` holds a :class:`cma.CMAEvolutionStrategy` (Hansen's CMA-ES; its default
-population size λ = 4 + ⌊3 ln P⌋ and its step-size adaptation, never re-implemented here)
-and exposes it as :func:`~skillkit.search.loop.learn` expects: a ``policy`` with
-``sample(contexts, rng)`` and ``mean_of(contexts)``, and ``update(batch)`` returning
-:class:`CMAESDiagnostics`. CMA-ES minimises, so it is told the negated rewards.
+:class:`CMAES` holds a :class:`cma.CMAEvolutionStrategy` (Hansen's CMA-ES with its default
+population size λ = 4 + ⌊3 ln P⌋ and step-size adaptation) and exposes it as
+:func:`~skillkit.search.loop.learn` expects (``policy.sample``/``policy.mean_of``,
+``update(batch)`` → :class:`CMAESDiagnostics`). CMA-ES minimises, so it is told −R.
 
-What CMA-ES searches
---------------------
-A linear context mapping of the lower-level parameters,
+CMA-ES searches a linear context mapping of the lower-level parameters,
 
 .. math:: \omega(s) = b + W \varphi(s), \qquad \varphi(s) = (s - c) / h
           \qquad \theta = [b, \operatorname{vec}(W)] \in \mathbb{R}^{d (1 + n_s)},
 
-with c, h the centre and half-width of the context range (:meth:`CMAES.for_task`), so every
-coordinate of θ moves ω on the same scale. For a context-free task θ = b = ω: plain episodic
-CMA-ES. For a contextual task the fitness of a candidate θ_k is its expected reward over the
-contexts, J(θ) = E_{s∼μ}[R(ω_θ(s), s)], estimated from the rollouts of that candidate.
+with c, h the centre and half-width of the context range (:meth:`CMAES.for_task`). For a
+context-free task θ = b = ω (plain episodic CMA-ES); for a contextual one the fitness of θ_k is
+J(θ) = E_{s∼μ}[R(ω_θ(s), s)], estimated from that candidate's rollouts.
 
-One generation is one batch
----------------------------
-:func:`learn` draws each batch as N contexts s_i ~ μ(s), then ω_i = ``policy.sample``, then
-one rollout per pair (:func:`~skillkit.search.loop.collect`). Every generation ``ask``s λ
-candidates once (drawn from this object's own ``rng``, not from the loop's); the policy
-assigns rows m k … m k + m − 1 of the batch to candidate k (m = ``contexts_per_candidate``,
-each row a fresh context), and ``update`` ``tell``s CMA-ES each candidate's mean reward over
-its m rows. Hence **rollouts_per_update must equal λ m** (:attr:`CMAES.rollouts_per_update`):
-``policy.sample`` refuses any other number of contexts with a ``ValueError`` before a single
-rollout runs, and ``update`` refuses a batch whose rows are not this generation's candidates.
+One generation is one batch: each generation ``ask``s λ candidates (from this object's own
+``rng``), batch rows m k … m k + m − 1 go to candidate k (m = ``contexts_per_candidate``, each
+row a fresh context), and ``update`` ``tell``s each candidate's mean reward over its m rows.
+Hence **rollouts_per_update must equal λ m** (:attr:`CMAES.rollouts_per_update`); otherwise
+``policy.sample`` raises ``ValueError`` before any rollout, and ``update`` refuses a batch
+whose rows are not this generation's candidates, or that holds extra-context rows (Sec. 3.4;
+a candidate's ω depends on its context, so re-scored rows are not its rollouts).
 
-Why this choice: the loop draws independent contexts for every rollout, so candidates cannot
-share contexts (common random numbers); each candidate's fitness is then a noisy estimate of
-J(θ_k), with the spread of R over μ(s) in it. CMA-ES ranks candidates, so a constant offset
-is harmless, but context noise can reorder them; m > 1 averages it down at m times the
-rollouts per generation. Measured on a 2-D linear-target toy (R = −‖ω − 1 − 2 s‖²,
-s ∈ [−1, 1]², 1080 rollouts, one seed): m = 1 made no progress (mean reward −4.62 → −4.53),
-m = 3 reached −0.05, m = 6 −0.10 (and m = 4, chosen after, −0.02). So a contextual task
-defaults to m = :data:`DEFAULT_CONTEXTS_PER_CANDIDATE` (a setting of this glue, not of
-CMA-ES; not tuned per task), a context-free one to m = 1 (plain CMA-ES). Rows that re-score a
-rollout in extra contexts (Sec. 3.4) are refused: a candidate's ω depends on its context, so
-re-scored rows are no rollouts of that candidate.
+Because the loop draws independent contexts per rollout, a candidate's fitness carries the
+spread of R over μ(s), which can reorder candidates; m > 1 averages it down at m times the
+rollouts. A contextual task defaults to m = :data:`DEFAULT_CONTEXTS_PER_CANDIDATE` (a setting
+of this glue, chosen on a 2-D linear-target toy where m = 1 made no progress; not tuned per
+task), a context-free one to m = 1.
 
-Randomness: CMA-ES draws its normal deviates from ``rng`` through cma's ``randn`` option
-(no global numpy seeding; same seed ⇒ same numbers); ``policy.sample`` ignores the loop's
-``rng`` (the candidates are fixed when they are asked). The object pickles, so a
-:class:`~skillkit.trial.TrialContext` checkpoints and resumes it like any other algorithm.
-
-``from skillkit.search import CMAES`` imports it (lazily: the ``cma`` package imports pyplot,
-so importing :mod:`skillkit.search` does not import it).
+Randomness: normal deviates come from ``rng`` through cma's ``randn`` option (no global
+seeding); ``policy.sample`` ignores the loop's ``rng``. The object pickles, so
+:class:`~skillkit.trial.TrialContext` checkpoints it. Imported lazily by
+``from skillkit.search import CMAES`` (the ``cma`` package imports pyplot).
 """
 
 from __future__ import annotations

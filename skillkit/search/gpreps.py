@@ -143,12 +143,9 @@ def refit_gp(
     collection step, we update the GP model hyper-parameters").
 
     The marginal likelihood (2.28) has local optima, and a chain of warm starts can stay in
-    a poor one as data arrive (on hockey's launch model a warm chain ends at a negative log
-    marginal likelihood of 2.96 per point where a cold fit on the same 119 shots reaches
-    −1.13). ``refit="best"`` therefore optimises from the default initialisation
-    *and* from ``previous``, and keeps the fit with the larger log marginal likelihood; both
-    fits see the same additive target noise (one seed drawn from ``rng``), so the comparison
-    is of the optimisation alone.
+    a poor one as data arrive. ``refit="best"`` therefore optimises from the default
+    initialisation *and* from ``previous`` and keeps the larger log marginal likelihood; both
+    fits use the same seed (one drawn from ``rng``), so they differ in the start alone.
 
     Parameters
     ----------
@@ -304,22 +301,19 @@ class TrajectoryRewardModel:
         ``ForwardModel(FITC(n_inducing=100, device="cuda"))``); give the same device here so
         that the predictor is not copied between devices for sampling.
     dtype : torch.dtype
-        Precision of the sampled trajectories: ``torch.float64`` (default, every stored
-        result) or ``torch.float32``, the faster path of
-        :func:`~skillkit.models.sampling.sample_trajectories` (its notes give the measured
-        accuracy; rewards are computed in float64 either way).
+        Precision of the sampled trajectories: ``torch.float64`` (default) or
+        ``torch.float32``, the faster path of
+        :func:`~skillkit.models.sampling.sample_trajectories` (its notes give the accuracy);
+        rewards are computed in float64 either way.
     common_start_states : bool
         Start the L predicted trajectories of every pair of one :meth:`expected_rewards` call
         from the same L start states x₀ ~ p(x₀) (common random numbers; context-free tasks
-        only). Eq. 4.1 averages L trajectories to estimate each artificial sample's expected
-        reward E_{x₀}[R | ω], and the REPS weights compare these estimates across the M
-        samples: where single rollouts differ more between start states than between nearby
-        parameters (balancing: median −50, best −1.2 for one gain at σ = 0.1), independent
-        start states make the weights rank start states; common ones cancel the start
-        state's effect from the comparison, and each estimate stays unbiased.
+        only). Each Eq. (4.1) estimate of E_{x₀}[R | ω] stays unbiased, and the start state's
+        effect cancels from the comparison across the M samples — useful where rollouts vary
+        more between start states than between nearby parameters (balancing).
     """
 
-    dtype: torch.dtype = torch.float64  # class default: instances pickled without it resume
+    dtype: torch.dtype = torch.float64  # class default for instances pickled without it
     common_start_states: bool = False  # likewise
     #: Fraction of the last :meth:`expected_rewards` call's predicted trajectories that the
     #: task's divergence rule stopped (scored ``task.worst_reward``); None before one.

@@ -1,72 +1,51 @@
-r"""The decomposed reward model of the robot hockey task (Sec. 4.3.3, Appendix C.2).
+"""The decomposed reward model of the robot hockey task (Sec. 4.3.3, Appendix C.2).
 
 GPREPS predicts the reward of a shot with learned event models chained as in Sec. 4.3.3:
 
 1. **Launch** (a GP from ω alone): the control puck's state b_0 = [p_y, v_x, v_y] and the time
-   t_0 at which it crosses the fixed line x = :data:`X_LAUNCH`, 0.2 m beyond its start (the
-   thesis's line is "at a constant distance of 0.2 m in the x direction from the robot's
-   base"; our control puck starts at x = 0.45 m, so the line is 0.2 m past the start). Past
-   this line the racket never touches the puck again: over 40 rollouts of the initial policy
-   on random contexts the blade footprint (its 20 cm × 1.6 cm box at the recorded pose,
-   whether down or lifted) stays ≥ 8.6 cm from the puck's edge after the crossing (≥ 4.1 cm
-   for a line at 0.55 m, ≥ 6.7 cm at 0.6 m), which ``tests/search/test_hockey_model.py``
-   checks. The curved-racket pushes and multiple hits before the line are not modelled.
-   A shot whose puck never crosses (the racket missed it) is a **no-launch** outcome: a
-   second GP regresses the label +1 (crossed) / −1 (not) on ω, and a predicted shot launches
-   when a draw of its latent value is positive (a GP-regression classifier; it is only built
-   once a no-launch was observed). A puck that is not launched stays at its start, the target
-   stays in place. The GP's outputs (:class:`LaunchTargets`) are by default
-   [p_y, heading, speed, t_0] rather than [p_y, v_x, v_y, t_0] (``launch_targets``): the
-   reward is decided by the heading, and independent GPs on v_x and v_y put their errors into
-   it (5-fold CV heading error on the stored runs' shots 1.85° against 1.97° from
-   v_x, v_y on fig4.10's 119, 2.69° against 3.66° on fig4.11's 78;
-   ``benchmarks/bench_hockey_launch.py``).
+   t_0 at which it crosses the line x = :data:`X_LAUNCH`, 0.2 m past its start (the thesis's
+   line is "at a constant distance of 0.2 m in the x direction from the robot's base"). Past
+   this line the racket no longer touches the puck (checked by
+   ``tests/search/test_hockey_model.py``); pushes and multiple hits before it are not
+   modelled. A shot whose puck never crosses is a **no-launch**: once one is observed, a
+   second GP regresses +1 (crossed) / −1 (not) on ω, and a predicted shot launches when a
+   draw of its latent value is positive; an unlaunched puck stays at its start. The GP's
+   outputs (:class:`LaunchTargets`) default to [p_y, heading, speed, t_0]: the heading
+   decides the reward, and independent GPs on v_x, v_y put their errors into it
+   (``benchmarks/bench_hockey_launch.py``).
 2. **Free sliding** (a GP, iterated): Δb = b_{k+1} − b_k for b = [p, v] every ``slide_dt``,
-   with the velocity v_k alone as the input: the table is uniform, so sliding is translation
-   invariant (prior knowledge, as the thesis's decomposition also assumes). Learned from the
-   pucks' recorded paths away from racket and puck contacts (velocities are central
-   differences of the recorded positions, interpolated onto the ``slide_dt`` grid). A draw
-   whose speed falls below ``stop_speed`` or reverses its direction stops the puck for good.
-3. **Contact detection from the known puck radius r** (:func:`first_contact`): the pucks
-   touch when ‖x_c − x_t‖ ≤ 2r; inside a step the relative position is interpolated linearly
-   and the contact placed at the first root of ‖d_k + f (d_{k+1} − d_k)‖ = 2r, f ∈ [0, 1].
+   with the velocity v_k alone as input (the table is uniform, so sliding is translation
+   invariant). Learned from the pucks' recorded paths away from contacts (central-difference
+   velocities interpolated onto the ``slide_dt`` grid). A draw whose speed falls below
+   ``stop_speed`` or reverses its direction stops the puck for good.
+3. **Contact detection** from the known puck radius r (:func:`first_contact`): the pucks
+   touch when ‖x_c − x_t‖ ≤ 2r, at the first root of ‖d_k + f (d_{k+1} − d_k)‖ = 2r,
+   f ∈ [0, 1], within a step.
 4. **Contact** (a GP): both pucks' velocities just after the first contact from the control
-   puck's velocity just before it, all in the contact frame (n the unit vector from the
-   control to the target puck's centre, t = n rotated by 90°): [v·n, v·t] →
-   [v_c'·n, v_c'·t, v_t'·n, v_t'·t]. The table's isotropy (rotation invariance) is prior
-   knowledge, like translation invariance; it turns a 4-input map into a 2-input one. Both
-   pucks then slide on with model 2 (a second contact is not modelled: the control puck is
-   slowed by the hit and the target pulls away).
+   puck's velocity just before it, in the contact frame (n from the control to the target
+   centre, t = n rotated by 90°): [v·n, v·t] → [v_c'·n, v_c'·t, v_t'·n, v_t'·t] (isotropy
+   turns a 4-input map into a 2-input one). Both pucks then slide on with model 2; a second
+   contact is not modelled.
 5. **Reward**: the task's own :meth:`~skillkit.tasks.hockey.Hockey.reward_batch` on the
-   predicted puck paths, and Eq. (4.1) averages the L rewards of each pair.
+   predicted puck paths; Eq. (4.1) averages the L rewards of each pair.
 
-**Real-robot setting** (``hockey-real``, chosen automatically when ``task.observation`` is
-set): the models learn from the *observed* 30 Hz puck tracks, Butterworth-smoothed as the
-reward smooths them (:func:`~skillkit.tasks.hockey.butterworth_smooth`); the sliding step is
-the observation period. As in Sec. 4.3.3 the contact model is replaced by a model that
-predicts the target puck's final displacement vector directly, from the incoming control puck's
-position relative to the target and its velocity at the moment the pucks come within
-``real_threshold`` (centre distance); it also predicts the control puck's own remaining
-displacement from there (:class:`DisplacementModel`). By default (``displacement="hit_gp"``)
-it is a hit/miss classifier (logistic regression on the approach line's offset from the target
-and the speed) and a GP on the displacements of the hits, in the frame of the approach
-direction (isotropy, as for the contact model); a predicted miss slides on with the sliding
-model and leaves the target in place. ``displacement="gp"`` is one GP on all approaches in
-world coordinates. After a predicted hit the paths are drawn, not
-simulated: the control puck moves on a straight line at its speed to its closest approach
-(the contact point at 2r if the straight line passes within 2r) and then to its predicted
-end point; the target puck leaves b at the contact frame and reaches its predicted end point
-with a constant-deceleration profile. Every predicted path is sampled at the observation
-rate, padded with rest frames (:data:`REST_FRAMES`, more than the smoothing's ``padlen``) so
-the reward's filtfilt sees stopped pucks at the end.
+**Real-robot setting** (``hockey-real``, chosen when ``task.observation`` is set): the models
+learn from the observed 30 Hz puck tracks, Butterworth-smoothed as the reward smooths them
+(:func:`~skillkit.tasks.hockey.butterworth_smooth`); the sliding step is the observation
+period. As in Sec. 4.3.3 the contact model is replaced by one that predicts the target puck's
+final displacement (and the control puck's remaining one) from the control puck's relative
+position and velocity when the pucks come within ``real_threshold``
+(:class:`DisplacementModel`; by default a hit/miss classifier and a GP on the hits in the
+approach frame). After a predicted hit the paths are drawn, not simulated: the control puck
+moves straight to its closest approach (or the contact point at 2r) and on to its predicted
+end; the target leaves b at the contact and reaches its predicted end with constant
+deceleration. Predicted paths are sampled at the observation rate and padded with
+:data:`REST_FRAMES` rest frames so the reward's filtfilt sees stopped pucks.
 
-Each GP is built by a factory (``make_launch_model`` …, default :class:`ExactGP`), so any
-:mod:`skillkit.models` regression (ExactGP, FITC, VFE) can take its place. After each data
-collection every GP's hyper-parameters are refitted on all data (Sec. 4.1: "After each data
-collection step, we update the GP model hyper-parameters") by
-:func:`~skillkit.search.gpreps.refit_gp`: by default from the default initialisation *and*
-from the previous values, keeping the larger marginal likelihood (``refit="best"``; a chain of
-warm starts alone can stay in a poor optimum).
+Each GP comes from a factory (``make_launch_model`` …, default :class:`ExactGP`), so any
+:mod:`skillkit.models` regression can take its place. After each data collection every GP's
+hyper-parameters are refitted on all data (Sec. 4.1) by
+:func:`~skillkit.search.gpreps.refit_gp` (``refit="best"`` by default).
 """
 
 from __future__ import annotations
@@ -202,7 +181,7 @@ def _interp(times: np.ndarray, values: np.ndarray, at) -> np.ndarray:
 # ============================================================================= launch targets
 LAUNCH_TARGETS: tuple[str, ...] = ("heading", "velocity")
 """What the launch GP predicts (:class:`LaunchTargets`): ``"heading"`` [p_y, heading, speed,
-t_0] (default since issue #31) or ``"velocity"`` [p_y, v_x, v_y, t_0] (before)."""
+t_0] (the default) or ``"velocity"`` [p_y, v_x, v_y, t_0]."""
 
 
 class LaunchTargets:
@@ -258,8 +237,8 @@ class LaunchTargets:
 # ============================================================================= displacement
 DISPLACEMENT_MODELS: tuple[str, ...] = ("hit_gp", "gp")
 """Real setting's displacement model (:class:`DisplacementModel`): ``"hit_gp"`` a hit/miss
-classifier and a GP on the hits in the approach frame (default since issue #31), ``"gp"`` one
-GP on all approaches in world coordinates (before)."""
+classifier and a GP on the hits in the approach frame (the default), ``"gp"`` one GP on all
+approaches in world coordinates."""
 
 
 def approach_frame(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

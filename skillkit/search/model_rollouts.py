@@ -183,11 +183,8 @@ def worst_if_failed(
     """Score predicted trajectories as the task scores its rollouts: those the simulator would
     stop as failed (:meth:`~skillkit.tasks.base.Task.failed_batch`) get ``task.worst_reward``.
 
-    A real rollout that leaves the task's limits is stopped and scored ``worst_reward``; a
-    predicted path through the same states must score the same, or the REPS weights compare
-    real-world failures by the model's own numbers (a balancing model whose paths blow up
-    would score −1e9 … −1e37 where every real fall scores −1e7, and the weights would rank
-    parameters by how fast the model diverges).
+    A predicted path through states where the simulator stops a real rollout must score the
+    same, or the REPS weights would rank parameters by how fast the model diverges.
 
     Parameters
     ----------

@@ -1,6 +1,6 @@
 r"""Relative Entropy Policy Search: episode-based (2.12–2.15) and contextual (3.3–3.13).
 
-The maths is in two functions, in the style of bolero's C-REPS:
+The maths is in three functions, in the style of bolero's C-REPS:
 
 * :func:`reps_dual` — the sample-based dual g(η, γ; D) of Eq. (3.9)/(A.10) and its analytic
   gradient (A.11, A.12), a pure function of its arguments;
@@ -16,17 +16,16 @@ runs Table 3.1: weights from the dual, then the weighted maximum-likelihood poli
 :class:`~skillkit.search.base.WeightedMLSearch`, shared with RWR. Episode-based REPS is the
 same code path with a context-free policy (no context features, V ≡ 0).
 
-Two choices of :class:`ContextualREPS` go beyond Table 3.1
-(:data:`DEFAULT_EXTRA_CONTEXT_WEIGHTING`, :data:`DEFAULT_M_STEP`): extra contexts are
-importance-weighted by default (fig3.3 is the one experiment that uses them), and the M-step
-defaults to the thesis's weighted ML fit, with which every other stored result was made:
+Two choices of :class:`ContextualREPS` go beyond Table 3.1 (defaults
+:data:`DEFAULT_EXTRA_CONTEXT_WEIGHTING` = importance weights, :data:`DEFAULT_M_STEP` = the
+thesis's weighted ML fit):
 
 * ``extra_context_weighting`` — rows that re-score a trajectory in an extra context (Sec. 3.4)
   are not draws of μ(s)π(ω|s). ``"importance"`` makes them so by importance weights
   (:func:`~skillkit.search.base.extra_context_importance`) that become the base distribution
   q of the dual (``base_weights`` of :func:`reps_weights`: p_i ∝ q_i exp((R_i − V(s_i))/η),
-  KL(p ‖ q) ≤ ε). ``"naive"`` biases the gain towards zero (measured: 0.64 of the optimal gain
-  after one update from the optimum, ``benchmarks/bench_reps_extra_context.py``).
+  KL(p ‖ q) ≤ ε). ``"naive"`` biases the gain towards zero
+  (``benchmarks/bench_reps_extra_context.py``).
 * ``m_step`` — the weighted ML fit's KL from the old policy is about 2ε with tens of effective
   samples in 10 dimensions, and its covariance collapses. ``"trust_region"`` bounds the
   entropy loss and then the KL after the fit
@@ -43,15 +42,12 @@ Numerics of :func:`reps_weights`
 * η > 0 is enforced by optimising over log η (bounded to [1e-8, 1e8] in normalised units);
   the log-sum-exp is evaluated with a max shift, so no exponential overflows.
 * Solvers (``solver`` of :func:`reps_weights`, default :data:`DEFAULT_DUAL_SOLVER`):
-  ``"lbfgsb"`` is scipy's L-BFGS-B on (log η, γ), with which every stored result was made;
-  ``"newton"`` takes damped Newton steps in (log η, γ) with the analytic Hessian
-  (so η stays positive), from the least-squares baseline and the η where the KL bound holds
-  for it, with an Armijo
-  backtracking line search, and stops on the same projected-gradient tolerance. It needs a
-  handful of iterations where L-BFGS-B needs tens (``benchmarks/bench_reps.py``); both reach
-  the same minimiser (``tests/search/test_reps_newton.py``). Where ε is unattainable under
-  the feature constraint (η → 0, the dual's curvature vanishes) Newton does not converge and
-  L-BFGS-B runs from the start instead (said in ``message``).
+  ``"lbfgsb"`` is scipy's L-BFGS-B on (log η, γ) (the stored results' solver); ``"newton"``
+  takes damped Newton steps in (log η, γ) with the analytic Hessian and an Armijo line search
+  (:func:`_minimise_newton`), stopping on the same projected-gradient tolerance, in a handful of
+  iterations where L-BFGS-B needs tens (``benchmarks/bench_reps.py``); both reach the same
+  minimiser. Where ε is unattainable under the feature constraint (η → 0) Newton does not
+  converge and L-BFGS-B runs from the start instead (said in ``message``).
 * At the optimum ∂g/∂η = ε − KL(p ‖ uniform) (KL(p ‖ q) with base weights q), so the KL
   bound (3.4) is met with equality.
   If ε exceeds the largest KL the samples allow (ε ≥ log N for distinct rewards, less when the
@@ -94,8 +90,8 @@ ETA_UNATTAINABLE = 1e-5
 DUAL_GTOL = 1e-11
 
 DualSolver = Literal["lbfgsb", "newton"]
-#: The dual's solver by default: ``"lbfgsb"``, with which every stored result was made;
-#: ``"newton"`` reaches the same minimiser in far fewer iterations.
+#: The dual's solver by default (``"lbfgsb"``, the stored results' solver); ``"newton"`` reaches
+#: the same minimiser in far fewer iterations.
 DEFAULT_DUAL_SOLVER: DualSolver = "lbfgsb"
 
 
@@ -377,7 +373,7 @@ def reps_weights(
         feature constraint Σ p_i φ_i = Σ q_i φ_i (see :func:`reps_dual`). ``None``: uniform,
         Eq. (3.9) exactly.
     solver : {"lbfgsb", "newton"}
-        ``"lbfgsb"``: scipy's L-BFGS-B (every stored result); ``"newton"``: damped Newton steps
+        ``"lbfgsb"``: scipy's L-BFGS-B; ``"newton"``: damped Newton steps
         with the analytic Hessian (:func:`reps_dual_hessian`), the same minimiser in a handful
         of iterations (module notes). Default :data:`DEFAULT_DUAL_SOLVER`.
 
@@ -688,8 +684,8 @@ MStep = Literal["weighted_ml", "trust_region"]
 #: How REPS uses re-scored extra-context rows (Sec. 3.4) by default: ``"importance"``, which
 #: is unbiased; ``"naive"`` (the rows weighted as if drawn from μ(s)π(ω|s)) is a named option.
 DEFAULT_EXTRA_CONTEXT_WEIGHTING: ExtraContextWeighting = "importance"
-#: REPS's M-step by default: ``"weighted_ml"`` (Eqs. 3.11–3.13 alone), with which every stored
-#: result was made; ``"trust_region"`` also keeps the KL bound after the fit.
+#: REPS's M-step by default: ``"weighted_ml"`` (Eqs. 3.11–3.13 alone); ``"trust_region"`` also
+#: keeps the KL bound after the fit.
 DEFAULT_M_STEP: MStep = "weighted_ml"
 
 
@@ -718,7 +714,7 @@ class ContextualREPS(WeightedMLSearch[REPSDiagnostics]):
     extra_context_weighting : {"naive", "importance", "dual_only"}
         How rows that re-score a rollout in an extra context (``Batch.n_rollouts`` < N, Sec. 3.4)
         are used. ``"naive"``: as if drawn from μ(s)π(ω|s), which biases the gain A towards
-        zero (in 20 of 21 rows ω does not depend on s). ``"importance"``: every row of a batch
+        zero (in the re-scored rows ω does not depend on s). ``"importance"``: every row of a batch
         carries the importance weight of
         :func:`~skillkit.search.base.extra_context_importance` under the policy that drew it
         (the current policy when the batch arrives, as in Table 3.1); the weights are the base
@@ -737,7 +733,7 @@ class ContextualREPS(WeightedMLSearch[REPSDiagnostics]):
         by at most the KL budget per update).
     dual_solver : {"lbfgsb", "newton"}
         Solver of the dual (``solver`` of :func:`reps_weights`); default
-        :data:`DEFAULT_DUAL_SOLVER` (L-BFGS-B, with which every stored result was made).
+        :data:`DEFAULT_DUAL_SOLVER`.
     """
 
     def __init__(

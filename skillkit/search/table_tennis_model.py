@@ -13,9 +13,7 @@ GPREPS predicts the reward of a stroke with five learned models chained as in Se
        p(t_b + τ) = p_b + v⁺ τ + ½ g τ² + Σ_{m=2}^{4} c_m τ^m ,
 
    so the GP learns only the (smooth, ≲ 20 cm) effect of air drag, and far from its data it
-   falls back to the parabola. A direct map from landing state to the whole path was chosen
-   over a GP forward model iterated every 4 ms (as for the throwing flight) because it does
-   not compound one-step errors over ~100 steps and costs one GP query per sample. The
+   falls back to the parabola (a direct map, so no one-step errors compound). The
    incoming ball before the bounce is the cubic Hermite curve from the serve
    (:data:`~skillkit.tasks.table_tennis.SERVE_POSITION`, v) to (p_b, v⁻) over [0, t_b]; it
    never decides the reward (the racket stays behind the landing zone).
@@ -23,40 +21,25 @@ GPREPS predicts the reward of a stroke with five learned models chained as in Se
    racket trajectory is fitted with a linear model of 40 normalised Gaussian basis
    functions φ(t) of the execution time per dimension, y(t) ≈ Φ(t) W (:class:`TimeBasis`);
    a GP maps ω (17) to the weights W. The 40 × 3 (position) or 40 × 4 (quaternion) weights
-   are compressed by PCA (the strokes of one policy span a low-dimensional family; the
-   components keep all but ``pca_tolerance`` of the weights' variance) and one independent
-   GP per principal score is learned — instead of 120 or 160 GPs on strongly correlated
-   outputs. Sampled scores (GP mean + GP std · ξ) give sampled paths Φ(t) W.
-   The racket is a disc, so only its normal n decides a contact; the task records n, and the
-   quaternion is the shortest-arc rotation taking the reference normal
-   :data:`REFERENCE_NORMAL` to n (:func:`normal_to_quaternion`; the rotation about n is
-   irrelevant to the ball). Predicted quaternions are re-normalised.
+   are compressed by PCA (keeping all but ``pca_tolerance`` of their variance) with one
+   independent GP per principal score; sampled scores (GP mean + GP std · ξ) give sampled
+   paths Φ(t) W. The racket is a disc, so only its normal n decides a contact: the quaternion
+   is the shortest-arc rotation taking :data:`REFERENCE_NORMAL` to n
+   (:func:`normal_to_quaternion`). Predicted quaternions are re-normalised.
 5. **Contact** (:class:`ContactModel`): the classifier's inputs are read at one event, by one
-   function (:func:`contact_event`) for real and predicted paths alike: the incoming ball
-   ends where it first reaches the racket face (its centre one ball radius from the face
-   plane, as the simulator detects an impact) or, without that, where it ends; the inputs
-   are read at the sample of minimal ball–racket distance before that (the thesis: "at the
-   time when the absolute distance between the racket and the ball is minimal"). A real hit
-   ends the recorded incoming ball at the impact and a predicted ball, which has no contact
-   physics, would fly through the racket: stopping it at the face makes the two paths end at
-   the same sample (read at the closest approach of the flown-through path instead, the
-   ball's offset along x is +0.11 cm predicted against +2.84 cm real). The inputs are
-   x = [v_ball − v_racket (3), racket position (3), racket quaternion (4)] of the thesis
-   (``contact_features="thesis"``, default) or these and the ball's position relative to the
-   racket and its norm (``"extended"``); velocities are backward differences of the paths.
-   They go to a linear-kernel SVM (scikit-learn, inputs standardised) that classifies hit /
-   miss (labels ``info["hit"]``), and, for a hit, to a GP x ↦ the returned ball's landing
-   point p (2), trained on the hit rollouts. How a sampled path's contact enters the reward
-   is ``contact_score`` (:data:`CONTACT_SCORES`).
+   function (:func:`contact_event`) for real and predicted paths alike: the sample of minimal
+   ball–racket distance (Sec. 4.3.4) before the incoming ball first reaches the racket face,
+   so a predicted ball (no contact physics) and a recorded hit end at the same sample. The
+   inputs are x = [v_ball − v_racket (3), racket position (3), racket quaternion (4)] of the
+   thesis (``contact_features="thesis"``, default), or these and the ball's position relative
+   to the racket and its norm (``"extended"``); velocities are backward differences. A
+   linear-kernel SVM (scikit-learn, inputs standardised) classifies hit / miss (labels
+   ``info["hit"]``), and a GP trained on the hits maps x ↦ the returned ball's landing point
+   p (2). How a sampled path's contact enters the reward is ``contact_score``
+   (:data:`CONTACT_SCORES`).
 
-The reward (Eq. 4.17) follows the schedule of Sec. 4.3.4 (see :class:`TableTennisRewardModel`):
-in the *hitting* stage R = −c₁ min‖τ_b − τ_r‖ − ε c₁ ‖b − p‖ − c₁ P, in the *returning*
-stage the task's own R = −c₁ min‖τ_b − τ_r‖ − c₂ ‖b − p‖ (c₁ = c₂). A predicted miss returns
-no ball; its ‖b − p‖ is the largest possible one, P (:func:`max_target_distance`); with a
-contact score w ∈ [0, 1] a sampled path's ‖b − p‖ is w ‖b − p̂‖ + (1 − w) P. The minimum
-distance term is the task's :meth:`~skillkit.tasks.table_tennis.TableTennis.reward_batch`
-on the predicted ball (up to the first sample at the racket face, as the task counts the
-real ball up to the first sample after a hit) and racket paths.
+The reward (Eq. 4.17) and its hitting / returning schedule (Sec. 4.3.4) are described in
+:class:`TableTennisRewardModel`.
 """
 
 from __future__ import annotations
@@ -324,12 +307,8 @@ def contact_event(ball, racket, quaternion, steps, ball_radius: float):
     cut there: ``cut`` is the first sample at or behind the face (``steps`` if it never gets
     there). The event is the sample of minimal ball–racket distance before ``cut`` (Sec.
     4.3.4: "at the time when the absolute distance between the racket and the ball is
-    minimal").
-
-    A recorded hit ends at the impact (``steps`` from ``info["incoming_end"]``), before the
-    ball's centre reaches the face; a predicted ball, without contact physics, crosses the
-    face at the next sample; both give the same samples, so a predicted path that reproduces
-    a recorded one gives the same event (tested).
+    minimal"). A recorded hit (``steps`` from ``info["incoming_end"]``) and a predicted ball
+    that crosses the face give the same samples, hence the same event.
 
     Parameters
     ----------
@@ -620,15 +599,20 @@ class TableTennisRewardModel:
     Eq. (4.17):
 
     * **hitting**: R = −c₁ min‖τ_b − τ_r‖ − ε c₁ ‖b − p‖ − c₁ P, with c₁ the task's and
-      P = :func:`max_target_distance` (a predicted miss has ‖b − p‖ = P). The penalty c₁ P
+      P = :func:`max_target_distance`. The penalty c₁ P
       is the thesis's *constant* term: it does not change REPS's weights (they are
       shift-invariant), it keeps every hitting-stage reward below the returning-stage
       rewards of a hit, and ε c₁ ‖b − p‖ leaves the return all but ignored.
-    * **returning**: the task's R = −c₁ min‖τ_b − τ_r‖ − c₂ ‖b − p‖ (c₁ = c₂), p = P-distant
-      for a predicted miss.
+    * **returning**: the task's R = −c₁ min‖τ_b − τ_r‖ − c₂ ‖b − p‖ (c₁ = c₂).
 
-    With ``schedule="auto"`` the stage becomes "returning" — for good: the switch is never
-    undone — at the first :meth:`fit` at which the contact model is *good*:
+    A predicted miss returns no ball, so its ‖b − p‖ is the largest possible, P; with a contact
+    score w ∈ [0, 1] a sampled path's ‖b − p‖ is w ‖b − p̂‖ + (1 − w) P. The distance term
+    min‖τ_b − τ_r‖ is the task's :meth:`~skillkit.tasks.table_tennis.TableTennis.reward_batch`
+    on the predicted racket and ball paths, the ball counted up to its first sample at the
+    racket face (as the task counts the real ball up to the first sample after a hit).
+
+    With ``schedule="auto"`` the stage switches to "returning", for good, at the first
+    :meth:`fit` at which the contact model is *good*:
 
     * at least ``min_hits`` hit rollouts and ``min_hits`` misses among the data
       (both classes are needed to learn a boundary), and

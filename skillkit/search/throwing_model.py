@@ -19,20 +19,18 @@ The task's own :meth:`~skillkit.tasks.planar.Throwing.reward_batch` then scores 
 states, the torques of the tracker on them and the predicted ball path, and Eq. (4.1) averages
 the L rewards of each pair.
 
-Setup choices (measured; see ``fig4.6``'s summary):
+Setup choices (compared in ``fig4.6``'s summary):
 
 * The robot model's control input is the tracker's **commanded acceleration** a, not the torque
-  u = M(q) a + c(q, q̇). The tracker cancels the arm's inertia, so x' depends smoothly and almost
-  linearly on a; the torque enters through M(q)⁻¹, and from 10 throws a FITC GP on [x, u] had
-  one-step R² of 0.83 on the velocities and release-velocity errors of 4 m/s (against 1 cm and
-  3–8 cm/s on [x, a]). a is what the controller computes; from logged torques it is recovered
-  with :meth:`~skillkit.tasks.planar.Throwing.commanded_accelerations`.
+  u = M(q) a + c(q, q̇): the tracker cancels the arm's inertia, so x' depends smoothly and almost
+  linearly on a, whereas u enters through M(q)⁻¹ (a GP on [x, u] predicts far worse). From
+  logged torques a is recovered with
+  :meth:`~skillkit.tasks.planar.Throwing.commanded_accelerations`.
 * The release model learns from the hand's observed state at every control step (the ball is in
-  the hand until t_r), not from the N release events alone: 10 release events gave a
-  release-velocity RMSE of 0.47 m/s, 10 throws' hand states 0.025 m/s.
+  the hand until t_r), not from the N release events alone (an order of magnitude lower
+  release-velocity error).
 * The predicted ball path is the flight only: the held part (the hand, at most 3 m from the
-  base) never decides min_t ‖b_t − s‖ for a target 5–15 m ahead unless the ball is thrown
-  backwards.
+  base) never decides min_t ‖b_t − s‖ for a target 5–15 m ahead.
 
 Each of the three models is built by a factory (``make_robot_model`` …), so any
 :mod:`skillkit.models` regression (ExactGP, FITC, VFE) can take its place.
@@ -168,8 +166,7 @@ class ThrowingRewardModel:
         ``ForwardModel(FITC(n_inducing=50), target="delta")``).
     max_robot_points : int
         The robot GP is fitted on at most this many transitions, drawn at random from all
-        throws so far (FITC's cost is linear in them; the throws of one policy repeat one
-        another, so more add little).
+        throws so far.
     max_release_points : int
         The release GP is fitted on at most this many hand observations, drawn at random
         from all control steps of all throws (an exact GP is cubic in its data).
@@ -187,30 +184,24 @@ class ThrowingRewardModel:
         flight factories returning
         ``ForwardModel(FITC(n_inducing=50, device="cuda"), target="delta")``.
     dtype : torch.dtype
-        Precision of the sampled arm and ball trajectories: ``torch.float64`` (default, every
-        stored result) or ``torch.float32`` (the faster path of
-        :func:`~skillkit.models.sampling.sample_trajectories`); torques, release and rewards
-        are computed in float64 either way.
+        Precision of the sampled arm and ball trajectories: ``torch.float64`` (default) or
+        ``torch.float32`` (faster, :func:`~skillkit.models.sampling.sample_trajectories`);
+        torques, release and rewards are computed in float64 either way.
     stop_flight_at_ground : bool
         Stop propagating a predicted ball at its first sample at or below the ground (the
         ``stop`` rule of :func:`~skillkit.models.sampling.sample_trajectories`). :func:`land`
-        never reads a path past that sample, so the landed paths, and with them the
-        rewards, are the ones the full 250-step flight gives (the same noise per ball and
-        step; equal to round-off, 1e-14 relative, because the kernel products run on fewer
-        rows); only the cost changes, in proportion to the balls still in the air (median
-        landing at step ~105 of 250 for the imitation policy; 0.8× the prediction time of a
-        GPREPS update in ``benchmarks/bench_gpreps.py``).
-        ``False`` propagates every ball for the whole flight time, as the stored fig4.6,
-        fig4.7 and fig4.9 results were made (their experiments pin it, since round-off
-        differences would change their digits).
+        never reads past that sample, so the rewards equal the full flight's up to round-off
+        (1e-14 relative); only the cost falls (``benchmarks/bench_gpreps.py``). ``False``
+        propagates every ball for the whole flight time; the fig4.6, fig4.7 and fig4.9
+        experiments pin it so that their stored digits reproduce.
 
     Notes
     -----
     Factories are part of the checkpointed state: pass module-level functions or classes.
     """
 
-    dtype: torch.dtype = torch.float64  # class default: instances pickled without it resume
-    stop_flight_at_ground: bool = False  # likewise: instances pickled without it fly in full
+    dtype: torch.dtype = torch.float64  # class default for instances pickled without it
+    stop_flight_at_ground: bool = False  # likewise
 
     def __init__(
         self,

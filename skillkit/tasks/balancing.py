@@ -466,12 +466,9 @@ class Balancing(Task):
 
         the closed loop becomes q̈ = −ω² q̃ − 2ζω q̇ in every joint coordinate: each mode has
         the poles −ζω ± ω√(ζ² − 1). The thesis's balancing controllers are PD controllers
-        u = G[q̃; q̇] (Secs 4.2.3, 4.3.1, 5.4) with no values given; this is a standard
-        design with two numbers. The defaults (ω = 3 rad/s, ζ = 1.5) are the lowest
-        stiffness on the grid ω ∈ {2.5, 3, 4, …}, ζ ∈ {0.7, 1, 1.5, 2} whose 20 Hz closed loop
-        has spectral radius ≤ 0.95 (0.944; ω = 3, ζ = 1 has 1.02: unstable). Its gains reach
-        1.9·10³ N m/rad, more than the R = 1e-4 LQR's 1.4·10³: holding each torque for 50 ms
-        on this 70 kg robot leaves no lower-gain PD that balances robustly.
+        u = G[q̃; q̇] (Secs 4.2.3, 4.3.1, 5.4) with no values given. The defaults
+        (ω = 3 rad/s, ζ = 1.5) are the lowest stiffness on a grid of (ω, ζ) whose 20 Hz closed
+        loop has spectral radius ≤ 0.95 (ω = 3, ζ = 1 is unstable).
 
         Parameters
         ----------
@@ -536,10 +533,10 @@ class Balancing(Task):
     def initial_policy(self) -> GaussianPolicy:
         """N(ω | vec(G_lqr), Σ_0): a stabilising gain whose samples all balance.
 
-        :meth:`lqr_policy` with R = 1e-4 I and exploration 0.2% of |G_lqr| entry-wise. The
-        closed loop at 20 Hz is sensitive to independent perturbations of the 32 gains: with 1%
-        relative exploration 26% of the samples are unstable at upright (spectral radius of the
-        linearised closed loop above 1), with 0.2% none of 2000 were (tested).
+        :meth:`lqr_policy` with R = 1e-4 I and exploration 0.2% of |G_lqr| entry-wise: the
+        20 Hz closed loop is sensitive to independent perturbations of the 32 gains (at 1% a
+        quarter of the samples are unstable at upright; see :func:`design_policy` for broad
+        exploration).
         """
         return self.lqr_policy()
 
@@ -641,9 +638,12 @@ def stable_gains(
         Randomness; one stream for every draw (same seed ⇒ same gains).
     max_spectral_radius : float
     policy : GaussianPolicy, optional
-        π(ω) (default: the task's :meth:`~Balancing.initial_policy`). With 1% exploration
-        (``task.lqr_policy(exploration_std_fraction=0.01)``) about a quarter of the samples
-        have ρ > 1 and are rejected.
+        π(ω) (default: the task's :meth:`~Balancing.initial_policy`).
+
+    Raises
+    ------
+    RuntimeError
+        If more than 100 n samples are needed.
 
     Returns
     -------
@@ -793,10 +793,9 @@ def design_policy(
     Σ_d is the sample covariance of n designs ω_i = κ_i vec G_i: G_i the
     :func:`random_lqr_gains` for randomly scaled cost weights (log-scale ``spread``, base R
     ``control_weight``) and κ_i = exp(β ξ_i), ξ_i ~ N(0, 1), β = ``scale_std``, a random
-    overall gain level. Its directions are those in which balancing gains differ (isotropic
-    exploration of the 32 gains leaves the stable set: with 3% of |G| entry-wise every
-    sample of 50 diverged), so a broad π(ω) still has balancing samples. Σ_d has rank below
-    32; 10⁻⁶ of its mean variance is added to every direction.
+    overall gain level. Its directions are those in which balancing gains differ, so a broad
+    π(ω) still has balancing samples (isotropic exploration of a few % of |G| does not).
+    Σ_d has rank below 32; 10⁻⁶ of its mean variance is added to every direction.
 
     Parameters
     ----------

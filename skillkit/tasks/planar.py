@@ -152,9 +152,8 @@ def ballistic_flight(
 def path_distance(path, point) -> float:
     """Smallest distance from ``point`` to the polyline through ``path`` (its segments).
 
-    The thesis's min_t ‖b_t − s‖ over a finely sampled ball trajectory; measuring to the
-    segments rather than the samples removes the sampling error (the chord of a parabola
-    sampled every 10 ms deviates from it by at most g·dt²/8 ≈ 0.1 mm).
+    The thesis's min_t ‖b_t − s‖ (Appendix C.1), measured to the segments so the result
+    does not depend on the sampling of the path (chord error ≤ g·dt²/8 ≈ 0.1 mm at 10 ms).
 
     Parameters
     ----------
@@ -188,14 +187,8 @@ def path_distances(paths, points) -> np.ndarray:
 
 
 def _by_rows(fn, *arrays, entries: int = BLOCK_ENTRIES):
-    """``fn(*arrays)`` of a row-wise batch function, computed on blocks of whole rows.
-
-    Each block holds about ``entries`` numbers of the first array (numpy arrays or torch
-    tensors), so the function's whole-batch temporaries stay in cache (for the 12,500
-    predicted throws of a GPREPS update: path distances 5x, joint-limit penalties 2x, torques
-    2.5–4x faster). The results are concatenated along the first axis; they are the numbers of
-    one call, since every row goes through the same arithmetic (tested).
-    """
+    """``fn(*arrays)`` of a row-wise batch function on cache-sized blocks of about ``entries``
+    numbers (numpy or torch), concatenated along axis 0; equal to one whole-batch call."""
     n, per_row = arrays[0].shape[0], max(1, math.prod(arrays[0].shape[1:]))
     rows = max(1, entries // per_row)
     if n <= rows:
@@ -333,12 +326,9 @@ class Throwing(Task):
     of :func:`~skillkit.tasks.controllers.track_reference` in its inertia-weighted form,
     u = M(q)(q̈_ref + kp e + kd ė) + c(q, q̇), with MuJoCo's bias force c (gravity and
     Coriolis) as compensation and the DMP's acceleration fed forward; kp = 900 s⁻²,
-    kd = 60 s⁻¹ (every joint-space mode at 30 rad/s, critically damped). A plain diagonal
-    PD cannot do this on this robot: the light shin/thigh on the heavy torso make M(q)
-    badly conditioned, and at 200 Hz the best stable diagonal gains left the slow
-    whole-body mode at 5 rad/s with damping ratio 0.06 (0.17 rad errors on a 0.5 Hz
-    reference, against 2 mm here). Tracking errors of the demonstration: about 2 mm. The
-    1 ms physics step moves the landing point by about 1 cm compared with 0.5 ms.
+    kd = 60 s⁻¹ (every joint-space mode at 30 rad/s, critically damped). A diagonal PD
+    does not track on this robot (M(q) is badly conditioned); this one tracks the
+    demonstration to about 2 mm.
 
     **Ball.** Held at the hand (tip of the arm) until t_r; the release state is the hand's
     position and velocity at t_r, interpolated between control steps with a cubic Hermite
@@ -346,8 +336,8 @@ class Throwing(Task):
     moved to the nearest end (the hand opens at the first or last instant) and reported
     as ``info["release_clamped"]``. The flight is **closed-form drag-free ballistic
     motion** (:func:`ballistic_flight`), exact for a point mass and sampled every
-    ``ball_dt`` = 10 ms until the ball reaches the ground y = 0: Appendix C.1 describes no
-    drag, and a closed form has no integration error. Optional Gaussian noise on the
+    ``ball_dt`` = 10 ms until the ball reaches the ground y = 0 (Appendix C.1 describes no
+    drag). Optional Gaussian noise on the
     release state (``release_noise``: position and velocity std, Sec. 4.3.2.2) makes the
     task stochastic.
 
@@ -364,7 +354,7 @@ class Throwing(Task):
     **Failures.** A rollout whose joint speed exceeds ``max_joint_speed`` (200 rad/s, four
     times the limit of C.1) is stopped as diverged (:class:`SimulationFailure`), as are
     non-finite states; both get :attr:`worst_reward` = −1e10, far below the rewards of
-    working rollouts in practice (the exploring initial policy scores −50 to −5000).
+    working rollouts.
 
     Trajectory: ``states`` (T, 8) = [q, q̇] at the control steps, ``controls`` (T, 4)
     torques (N m); signals ``end_effector`` (T, 2), ``ball`` (T_b, 2) and ``ball_times``
@@ -686,37 +676,16 @@ class Throwing(Task):
         """Imitation initial policy: N(ω | ω_demo, Σ_0), no context gain.
 
         The mean is :attr:`demonstration_omega` (the DMP fitted to the shipped scripted
-        swing); its ball lands at x = 4.97 m, the thesis's "about 5 m", but without the
-        thesis's "high penalties": the swing stays inside the joint limits up to tracking
-        errors (reward −50 for the target [5, 1]). Σ_0 is diagonal: each joint's shape
-        weights have standard deviation ``exploration_std_fraction`` of that joint's largest
-        demonstrated weight magnitude, and t_r has :attr:`release_time_std` (20 ms).
+        swing); its ball lands at about 5 m (Sec. 3.4.1) inside the joint limits. Σ_0 is
+        diagonal: each joint's shape weights have standard deviation
+        ``exploration_std_fraction`` of that joint's largest demonstrated weight magnitude,
+        and t_r has :attr:`release_time_std` (20 ms).
 
-        **Coverage of the targets x ∈ [5, 15] m** (100 sampled throws on random targets,
-        seed 0; landing x, 5th / 50th / 95th percentile):
-
-        ==========  =======================  ==========================================
-        fraction    landing x (m)            note
-        ==========  =======================  ==========================================
-        0.1         3.7 / 4.7 / 6.1          default (:attr:`exploration_std_fraction`)
-        0.4         0.9 / 4.1 / 8.9          no throw beyond 14.5 m
-        0.8         −2.6 / 2.7 / 13.9
-        0.9         −3.3 / 2.3 / 15.3        :attr:`covering_std_fraction`
-        ==========  =======================  ==========================================
-
-        With the default the throws never reach x = 10 m, so the farther targets are outside
-        the initial exploration. The thesis asks the opposite (Sec. 3.5: "the initial Σ has
-        to be chosen carefully, such that the optimal solution is *within* the range of the
-        initial exploration range"), and says of the mean only that it throws about 5 m
-        (Sec. 3.4.1; it found that mean by a few context-free REPS updates, which sharpen Σ
-        rather than widen it). :attr:`covering_std_fraction` (0.9) is the smallest fraction
-        on a 0.05 grid whose 95th percentile reaches the farthest target, x = 15 m: the
-        thesis's rule read as "the farthest target is inside the 5–95% exploration band".
-        Isotropic widening spreads the throws both ways (a third land in [5, 15] m, many
-        fall behind the robot) and raises the joint-limit penalty (median reward −3800 vs
-        −670 with 0.1); no rollout of the 100 diverged. ``fig3.3`` uses the covering
-        fraction; the default stays 0.1 because ``fig4.6``, ``fig4.7`` and ``fig4.9`` were
-        made with it.
+        With the default fraction (0.1, used by ``fig4.6``, ``fig4.7``, ``fig4.9``) the
+        landing points span 3.7–6.1 m (5th–95th percentile), so far targets lie outside the
+        initial exploration. :attr:`covering_std_fraction` (0.9, used by ``fig3.3``; span
+        −3.3–15.3 m) puts the farthest target x = 15 m inside that band, Sec. 3.5's rule that
+        the optimum lie within the initial exploration (see ``data/README.md``, fig3.3).
 
         Parameters
         ----------

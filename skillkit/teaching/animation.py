@@ -1,8 +1,6 @@
 """The thesis's Figs 3.2 and 3.8 in one call each: the final policy of a stored paper run,
-rolled out at two contexts and animated with :mod:`skillkit.viz.animation`.
-
-(In :mod:`skillkit.teaching` because it reads stored results, a layer above the figures.)
-"""
+rolled out at two contexts and animated with :mod:`skillkit.viz.animation` (here, not in
+:mod:`skillkit.viz`, because it reads stored results)."""
 
 from __future__ import annotations
 
@@ -43,11 +41,10 @@ _THESIS = {
 def stored_final_policy(exp_id: str, trial: int = 0) -> LinearGaussianPolicy | None:
     """The last policy π_K of one trial of a stored paper-scale run, or None if it keeps none.
 
-    Reads only the final row of ``trial<i>__policy_mean``, ``policy_cov`` and
-    ``policy_gain`` (the arrays of :mod:`skillkit.viz.history`) from the run's ``trials.npz``
-    (:func:`skillkit.experiments.stored_run`), so it takes milliseconds where loading the
-    whole history takes seconds. fig3.3 keeps the plain contextual REPS policies
-    (π(ω|s) = N(a + A φ(s), Σ), Eq. 3.13); fig3.7 keeps none.
+    Reads only the final row of ``trial<i>__policy_mean``, ``policy_cov`` and ``policy_gain``
+    (:mod:`skillkit.viz.history` arrays) from the run's ``trials.npz``
+    (:func:`skillkit.experiments.stored_run`), not the whole history. fig3.3 keeps contextual REPS
+    policies (π(ω|s) = N(a + A φ(s), Σ), Eq. 3.13); fig3.7 keeps none.
 
     Parameters
     ----------

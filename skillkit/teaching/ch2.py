@@ -1,35 +1,14 @@
-r"""Chapter 2 step by step: a DMP's phase, basis and forcing term; a GP's noise and
-hyper-parameters; one moment-matching step against Monte Carlo samples.
+r"""Chapter 2 step by step: DMPs (Sec. 2.2.1, Eqs. 2.21–2.23), GP noise and
+hyper-parameters (Sec. 2.3, Eqs. 2.25–2.28) and one moment-matching step against Monte Carlo
+(Sec. 2.1.2, Fig. 2.7).
 
-Every number comes from the library's own pieces (:class:`~skillkit.policies.dmp.DMP`,
-:class:`~skillkit.models.gp.ExactGP` and :func:`~skillkit.models.gp.neg_log_marginal_likelihood`,
+Every number comes from the library's own :class:`~skillkit.policies.dmp.DMP`,
+:class:`~skillkit.models.gp.ExactGP`, :func:`~skillkit.models.gp.neg_log_marginal_likelihood`,
 :func:`~skillkit.models.moment_matching.moment_match` and
-:func:`~skillkit.models.moment_matching.linearize`); this module evaluates them and draws or
-tabulates the result:
-
-* DMPs (Sec. 2.2.1, Eqs. 2.21–2.23): :func:`phase_figure` (z_t of Eq. 2.22 and where the basis
-  centres sit in time), :func:`basis_figure` (the normalised Gaussians times z, over the phase
-  and over time), :func:`forcing_figure` (the least-squares target Y of Eq. 2.23,
-  :meth:`~skillkit.policies.dmp.DMP.forcing_target`, the fitted f(z_t; v) and each basis
-  function's share φ_i(z_t) v_i),
-  :func:`demonstration_figure` (curves over a dashed demonstration, as Fig. 2.11 draws it) and
-  :func:`dmp_fit_figure` (what a slider over the number of basis functions redraws).
-* GPs (Sec. 2.3, Eqs. 2.25–2.28): :func:`noisy_samples` (the data of the examples),
-  :func:`gp_with` (a GP at given hyper-parameters, no training), :func:`noise_profile` and
-  :func:`noise_profile_figure` (the log marginal likelihood (2.28) as a function of the noise
-  variance, maximised over the other hyper-parameters: why 8 points put the noise at its
-  floor), :func:`noise_by_size_table` (the learned noise variance over repeated noise draws
-  against the number of points), :func:`hyperparameter_table`, :func:`hyperparameter_figure`
-  (each hyper-parameter scaled down and up, side by side) and :func:`gp_posterior_figure`
-  (what sliders over length-scale, noise and number of points redraw).
-* Moment matching (Sec. 2.1.2, Fig. 2.7): :func:`moment_matching_check` — one step
-  p(x) = N(m, s²) → p(y) by exact moment matching and by linearisation, against Monte Carlo
-  samples of the same input pushed through the same GP (table with standard errors, histogram).
-
-Handled numerical events of the GP (a noise variance at its floor, jitter; see
-:func:`~skillkit.models.gp.record_numerical_events`) are counted here and shown in the tables
-and figure titles instead of being issued as warnings: this module's fits are made to look at
-them.
+:func:`~skillkit.models.moment_matching.linearize`; this module draws or tabulates it. Handled
+numerical events of the GP (noise at its floor, jitter;
+:func:`~skillkit.models.gp.record_numerical_events`) are counted and shown in tables and titles,
+not warned about.
 """
 
 from __future__ import annotations
@@ -375,11 +354,9 @@ def gp_with(
 ) -> ExactGP:
     """An :class:`ExactGP` conditioned on (x, y) at given hyper-parameters, not trained.
 
-    ``ExactGP(lengthscale=ℓ, outputscale=σ_f², noise=σ_ε², n_steps=0, additive_noise=0)``:
-    with zero optimisation steps the GP keeps its initial values, so the posterior
-    (Eqs. 2.26–2.27) is that of the kernel (2.25) with exactly these values (the library raises
-    a noise variance below 1.5 × its floor, 1e-6 var(y), to that value). Handled numerical
-    events (jitter) are counted, not warned about: see ``gp.diagnostics["numerical_events"]``.
+    With ``n_steps=0`` the posterior (Eqs. 2.26–2.27) is that of the kernel (2.25) at exactly these
+    values, except that the library raises a noise variance below 1.5 × its floor (1e-6 var(y)) to
+    that value. Handled events (jitter) are counted in ``gp.diagnostics["numerical_events"]``.
 
     Parameters
     ----------
@@ -448,14 +425,12 @@ class NoiseProfile:
 def noise_profile(x: ArrayLike, y: ArrayLike, noise_vars: ArrayLike) -> NoiseProfile:
     """The profile log marginal likelihood of the noise variance (Eq. 2.28).
 
-    For each σ_ε² in ``noise_vars``, log p(y | X, θ) maximised over the length-scale ℓ and the
-    signal variance σ_f² (:func:`~skillkit.models.gp.neg_log_marginal_likelihood`, the
-    objective :class:`ExactGP` minimises, with its analytic gradient; L-BFGS-B over log ℓ and
-    log σ_f² within 1e-3 … 1e3 × std(x) and 1e-4 … 1e4 × var(y), from three starting
-    length-scales, std(x) × {0.3, 1, 3}, the best kept). Targets are standardised as
-    :class:`ExactGP` does, and the value is returned in raw units (−N log std(y) added), so it
-    is comparable with ``gp.diagnostics["log_marginal_likelihood"]``. Maximum likelihood picks
-    the σ_ε² where this curve peaks.
+    For each σ_ε², log p(y | X, θ) maximised over ℓ and σ_f²
+    (:func:`~skillkit.models.gp.neg_log_marginal_likelihood` with its analytic gradient; L-BFGS-B
+    over log ℓ ∈ [1e-3, 1e3] × std(x) and log σ_f² ∈ [1e-4, 1e4] × var(y), best of three starts
+    ℓ = std(x) × {0.3, 1, 3}). Targets are standardised as :class:`ExactGP` does and the value is
+    returned in raw units (−N log std(y) added), comparable with
+    ``gp.diagnostics["log_marginal_likelihood"]``.
 
     Parameters
     ----------
@@ -586,10 +561,8 @@ def noise_by_size_table(
 ) -> pd.DataFrame:
     """The noise variance maximum likelihood learns, over repeated noise draws, by data size.
 
-    For each N, the inputs of :func:`noisy_samples` (``seed``) and ``n_draws`` independent noise
-    vectors give ``n_draws`` data sets with the same inputs; one :class:`ExactGP` fits them all
-    (one independent GP per output column, ``additive_noise=0``, default training). Noise
-    variances at the floor are counted, not warned about.
+    For each N: the inputs of :func:`noisy_samples` (``seed``) with ``n_draws`` independent noise
+    vectors, fitted by one :class:`ExactGP` (one GP per output column, ``additive_noise=0``).
 
     Parameters
     ----------
@@ -598,14 +571,14 @@ def noise_by_size_table(
     n_draws : int
         Noise draws per size, ≥ 2.
     noise_std : float
-        Standard deviation of the noise (> 0); its variance is what a good fit learns.
+        Standard deviation of the noise (> 0).
     seed : int
 
     Returns
     -------
     pandas.DataFrame
-        One row per N: the true σ_ε², the median and 10th / 90th percentiles of the learned
-        σ_ε², the median ratio learned / true, and how many fits ended at the noise floor.
+        One row per N: the true σ_ε², median and 10th / 90th percentiles of the learned σ_ε², the
+        median ratio learned / true, and how many fits ended at the noise floor.
     """
     n_draws = check_count(n_draws, "n_draws", minimum=2)
     noise_std = check_positive(noise_std, "noise_std")

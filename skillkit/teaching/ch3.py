@@ -1,23 +1,13 @@
 r"""Chapter 3 step by step: one contextual REPS update (Sec. 3.3, Table 3.1) taken apart.
 
-Every number here comes from the library's own REPS pieces
-(:func:`~skillkit.search.reps.reps_dual`, :func:`~skillkit.search.reps.reps_weights`,
-:meth:`~skillkit.policies.gaussian.LinearGaussianPolicy.fit`,
-:class:`~skillkit.search.reps.ContextualREPS`); this module only evaluates them on a grid and
-draws or tabulates the result:
-
-* :func:`dual_slice`, :func:`dual_figure` — (a) the sample-based dual g(η, γ) of Eq. (3.9)
-  along η with the baseline parameters γ held at their optimum γ*, its minimiser η*, and the
-  KL of the weights along the same slice (∂g/∂η = ε − KL, A.11: the minimum sits where the KL
-  reaches ε);
-* :func:`kl_sweep`, :func:`weights_and_kl_figure` — (b) the weights (3.10) against the rewards
-  and the advantages, (c) the achieved KL and the effective sample size against the bound ε
-  (what a slider over ε redraws);
-* :func:`policy_moments`, :func:`ellipse_points`, :func:`heaviest_samples`,
-  :func:`ellipse_figure` — (d) the new policy's 1-σ ellipse (Eqs. 3.11–3.13) over the
-  re-weighted samples, the old one beside it;
-* :func:`update_table`, :func:`diagnostics_table` — one update, or the updates of Table 3.1,
-  as a pandas table.
+Evaluates the library's own :func:`~skillkit.search.reps.reps_dual`,
+:func:`~skillkit.search.reps.reps_weights`,
+:meth:`~skillkit.policies.gaussian.LinearGaussianPolicy.fit` and
+:class:`~skillkit.search.reps.ContextualREPS` on grids, in the notebook's panels: (a) the dual
+(3.9) along η (:func:`dual_figure`), (b, c) the weights (3.10), KL and ESS against ε
+(:func:`weights_and_kl_figure`), (d) the weighted ML fit's ellipse, Eqs. 3.11–3.13
+(:func:`ellipse_figure`), and the updates as tables (:func:`update_table`,
+:func:`diagnostics_table`).
 """
 
 from __future__ import annotations
@@ -135,10 +125,9 @@ def dual_slice(
         \exp\Big(\frac{R_i - \gamma^{*T}\phi(s_i)}{\eta}\Big)\Big) + \eta\epsilon
         + \gamma^{*T}\hat\phi
 
-    The joint minimiser (η*, γ*) comes from :func:`~skillkit.search.reps.reps_weights`; each
-    point of the slice is :func:`~skillkit.search.reps.reps_dual` at (η, γ*), and the KL of
-    its weights is ε − ∂g/∂η (A.11). The dual is convex and ∂g/∂η = 0 at (η*, γ*) (when the
-    bound is active), so along the slice the minimum is at η*, where KL = ε. With no features
+    (η*, γ*) comes from :func:`~skillkit.search.reps.reps_weights`; each point is
+    :func:`~skillkit.search.reps.reps_dual` at (η, γ*), with KL = ε − ∂g/∂η (A.11). The dual is
+    convex, so with the bound active the slice's minimum is at η*, where KL = ε. With no features
     (episode-based REPS, Eq. 2.15) the slice is the whole dual.
 
     Parameters
@@ -153,7 +142,7 @@ def dual_slice(
         The grid runs from η*/span to η*·span (span > 1).
     n_points : int
         Log-spaced grid points, at least 3; η* is added to them (replacing a point within
-        1e-9 of it, e.g. the middle one of an odd count).
+        1e-9 of it).
 
     Returns
     -------
@@ -304,20 +293,14 @@ def weights_and_kl_figure(
 ):
     r"""(b) The weights (3.10) against the rewards and advantages; (c) the KL and ESS against ε.
 
-    Four panels, from :func:`~skillkit.search.reps.reps_weights` at ``epsilon`` and at every
-    bound of ``epsilons`` (:func:`kl_sweep`):
-
-    * N p_i against the reward R_i (1 = the uniform weight 1/N of the old samples): with a
-      context-dependent baseline V(s) = γᵀφ(s) a high reward in an easy context can weigh less
-      than a lower one in a hard context;
-    * N p_i against the advantage R_i − V(s_i), where Eq. (3.10) is one curve,
-      N p = N exp(A/η) / Σ_j exp(A_j/η) (a straight line of slope 1/(η ln 10) on the log axis);
-    * the achieved KL(p ‖ q) against ε: on the line KL = ε while the bound (3.4) is active, and
-      at most log N (all weight on one sample), less under the feature constraint (3.5);
-    * the effective sample size 1/Σ p_i² against ε.
-
-    The weights are drawn on a log axis; weights that underflow to 0 (tiny η) are not drawn
-    (the title counts them).
+    Four panels from :func:`~skillkit.search.reps.reps_weights` at ``epsilon`` and at each bound
+    of ``epsilons`` (:func:`kl_sweep`): N p_i against R_i (1 = the old uniform weight; with a
+    baseline V(s) = γᵀφ(s) a high reward in an easy context can weigh less than a lower one in a
+    hard context); N p_i against the advantage A_i = R_i − V(s_i), one curve
+    N p = N exp(A/η) / Σ_j exp(A_j/η) (slope 1/(η ln 10) on the log axis); KL(p ‖ q) against ε
+    (= ε while the bound (3.4) is active, at most log N, less under the feature constraint 3.5);
+    and the effective sample size 1/Σ p_i². Weights that underflow to 0 are not drawn (the title
+    counts them).
 
     Parameters
     ----------
@@ -410,17 +393,16 @@ def policy_moments(
 ) -> tuple[np.ndarray, np.ndarray]:
     r"""Mean and covariance of ω under the policy over a set of contexts.
 
-    The distribution of ω when s is drawn from the contexts with probabilities q_i (uniform by
-    default) and ω ~ π(ω|s) = N(a + Aφ(s), Σ) (Eq. 3.13):
+    With s drawn from the contexts with probabilities q_i (uniform by default) and
+    ω ~ π(ω|s) = N(a + Aφ(s), Σ) (Eq. 3.13):
 
     .. math::
         m = \sum_i q_i \mu(s_i), \qquad
         C = \Sigma + \sum_i q_i (\mu(s_i) - m)(\mu(s_i) - m)^T.
 
-    For the weighted ML fit (3.11, 3.12) on REPS weights p this is the p-weighted mean and
-    covariance of the samples ω_i: the regression splits the weighted covariance of ω into
-    the explained part A Cov_p(φ) Aᵀ and the residual Σ, and the feature constraint (3.5)
-    keeps the weighted context moments equal to the uniform ones.
+    After the weighted ML fit (3.11, 3.12) on REPS weights p this equals the p-weighted mean and
+    covariance of the samples ω_i (explained part A Cov_p(φ) Aᵀ plus residual Σ; the feature
+    constraint (3.5) keeps the weighted context moments equal to the uniform ones).
 
     Parameters
     ----------
@@ -537,12 +519,9 @@ def ellipse_figure(
 ):
     """(d) The new policy's 1-σ ellipse over the re-weighted samples, the old one beside it.
 
-    π(ω|s) depends on the context, so each policy is drawn by the mean and covariance of ω
-    over the batch's contexts (:func:`policy_moments`, uniform over the contexts): for the old
-    policy the distribution the samples were drawn from; for the new one (the weighted ML fit,
-    Eqs. 3.11–3.12) the mean and covariance of the re-weighted samples. The new policy at the
-    mean context (its Σ alone) shows how much of that spread the gain A explains. The samples
-    are drawn in two groups: the fewest that hold ``mass`` of the weight, and the others.
+    Each policy is drawn by the moments of ω over the batch's contexts (:func:`policy_moments`,
+    uniform); the new policy at the mean context (Σ alone) shows how much spread the gain A
+    explains. The fewest samples holding ``mass`` of the weight are highlighted.
 
     Parameters
     ----------

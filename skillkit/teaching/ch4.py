@@ -1,35 +1,14 @@
 r"""Chapter 4 step by step: one GPREPS iteration (Sec. 4.1, Table 4.1) taken apart.
 
-The notebook runs Table 4.1 with the library's own pieces, in the order
-:meth:`GPREPS.update <skillkit.search.gpreps.GPREPS.update>` calls them: the reward model's
-``fit`` on the real rollouts, :meth:`~skillkit.search.gpreps.GPREPS.sample_contexts` (μ̂(s)),
-the policy's ``sample`` (ω ~ π(ω|s)), the model's ``predict`` (L trajectories per pair,
-Eq. 4.1), :func:`~skillkit.search.reps.reps_weights` on the artificial samples (dual 3.9,
-weights 3.10) and the weighted ML fit
-(:meth:`~skillkit.policies.gaussian.LinearGaussianPolicy.fit_with_info`, Eqs. 3.11–3.13).
-Drawn from one generator in that order, they give the numbers of ``GPREPS.update`` itself
-(``tests/viz/test_teaching_ch4.py`` checks it). This module only sizes, tabulates and draws:
-
-* :class:`IterationSizes`, :func:`iteration_sizes`, :func:`throwing_model`,
-  :func:`step_settings` — the tiny sizes of the step-through per ``SKILLKIT_SCALE``;
-* :func:`batch_table`, :func:`fit_table`, :func:`contexts_figure`,
-  :func:`predicted_throws_figure`, :func:`weights_figure`, :func:`policy_change_table` —
-  one cell of Table 4.1 each;
-* :func:`update_comparison` — the cells' numbers beside ``GPREPS.update``'s on the same data;
-* :func:`diagnostics_table` — per-update diagnostics of a GPREPS run
-  (:class:`~skillkit.search.gpreps.GPREPSDiagnostics`) as a pandas table;
-* :class:`RewardPool`, :func:`reward_pool`, :func:`reward_estimates`,
-  :func:`reward_estimate_figure` — how M and L set
-  the spread of GPREPS's reward estimates (what the notebook's sliders redraw);
-* :func:`table_4_2` — Table 4.2 from a stored ``tab4.2`` run beside the thesis's numbers;
-  :func:`gflops_table` — Fig. 4.4's speed numbers;
-* :func:`exploration_table`, :func:`exploration_figure` — how much a stored GPREPS run still
-  explores after each part of its updates (√tr Σ against its start) and how much of its KL
-  bound ε each update spends: why fig4.10 and fig4.12 stop short at ε = 1;
-* :func:`handled_events` — the handled numerical events and failed rollouts of a block,
-  counted and shown as a table instead of warnings;
-* :func:`gpreps_model_view` — a stored GPREPS run's model layers, in the viewer or as a
-  static figure.
+The notebook calls the library's pieces in the order
+:meth:`GPREPS.update <skillkit.search.gpreps.GPREPS.update>` does — the reward model's ``fit``,
+:meth:`~skillkit.search.gpreps.GPREPS.sample_contexts` (μ̂(s)), the policy's ``sample``, the
+model's ``predict`` (Eq. 4.1), :func:`~skillkit.search.reps.reps_weights` (dual 3.9, weights
+3.10) and the weighted ML fit (Eqs. 3.11–3.13) — so from one generator it gets
+``GPREPS.update``'s own numbers (``tests/viz/test_teaching_ch4.py``). This module sizes the
+step-through (:func:`iteration_sizes`), tabulates and draws each cell, resamples the reward
+estimates behind the M, L widget (:func:`reward_estimates`), reads stored runs (Table 4.2,
+Fig. 4.4, exploration of fig4.10–4.12) and counts handled events (:func:`handled_events`).
 """
 
 from __future__ import annotations
@@ -196,11 +175,9 @@ def throwing_model(task: Throwing, sizes: IterationSizes) -> ThrowingRewardModel
 def step_settings(sizes: IterationSizes, epsilon: float = 1.0) -> GPREPSSettings:
     """GPREPS's settings of the step-through: M, L of ``sizes``, ε, μ̂(s) = the task's μ(s).
 
-    ``context_model="prior"`` because :meth:`~skillkit.search.gpreps.GPREPS.sample_contexts`
-    can then be called before any update (fig4.6 uses ``"uniform"``, the box of the observed
-    targets, which the object knows only after :meth:`~skillkit.search.gpreps.GPREPS.update`
-    has stored real samples). The weighted ML fit is regularised as in fig4.6 (a covariance
-    floor of 0.1 per update and at least 2 effective samples).
+    ``context_model="prior"`` so that :meth:`~skillkit.search.gpreps.GPREPS.sample_contexts` works
+    before any update (``"uniform"``, fig4.6's, needs the stored real samples). The weighted ML fit
+    is regularised as in fig4.6 (covariance floor 0.1 per update, at least 2 effective samples).
     """
     if not isinstance(sizes, IterationSizes):
         raise ValueError(f"sizes: expected IterationSizes, got {type(sizes).__name__}")
@@ -542,11 +519,10 @@ def _exploration(run: Any, method: str) -> tuple[list[np.ndarray], list[np.ndarr
 def exploration_table(run: Any, method: str = "gpreps") -> pd.DataFrame:
     r"""How much a GPREPS run still explores, and how much of its KL bound each update spends.
 
-    The search distribution π(ω|s) = N(a + As, Σ) explores with Σ; REPS's weights (3.10) bound
-    KL(p ‖ q) ≤ ε per update (3.5), and the weighted ML fit (3.11–3.13) shrinks Σ towards the
-    weighted samples. When every update spends its whole bound, Σ shrinks at a rate set by ε
-    and not by what the model still has to learn — at ε = 1 on hockey and table tennis the
-    search stops exploring before the hard contexts are learned (data/README.md).
+    π(ω|s) = N(a + As, Σ) explores with Σ; REPS bounds KL(p ‖ q) ≤ ε per update (3.5, weights
+    3.10) and the weighted ML fit (3.11–3.13) shrinks Σ towards the weighted samples. When every
+    update spends its whole bound, Σ shrinks at a rate set by ε, not by what the model still has to
+    learn (the ε = 1 hockey and table-tennis runs: data/README.md).
 
     Parameters
     ----------
@@ -852,12 +828,10 @@ def reward_estimate_figure(
 ):
     r"""GPREPS's reward estimates for given M and L, repeated: their mean and spread.
 
-    Left: R̂_sω = (1/L) Σ_l R(τ^[l], s) (Eq. 4.1) of each fixed pair (s_k, ω_k), repeated with
-    L of the pool's predicted throws each time; its spread shrinks like σ_k/√L. Right: the
-    policy's expected reward as GPREPS's M artificial samples estimate it, (1/M) Σ_j R̂_j,
-    whose spread falls with M (the pairs differ) and with L (each R̂_j is noisy). The
-    estimates are resampled from :func:`reward_pool`, so moving a slider costs no model
-    prediction.
+    Left: R̂_sω = (1/L) Σ_l R(τ^[l], s) (Eq. 4.1) of each fixed pair (s_k, ω_k); its spread
+    shrinks like σ_k/√L. Right: the policy's expected reward as M artificial samples estimate it,
+    (1/M) Σ_j R̂_j, whose spread falls with M and with L. Resampled from :func:`reward_pool`, so
+    no model prediction per redraw.
 
     Parameters
     ----------
@@ -968,13 +942,10 @@ class HandledEvents:
 def handled_events() -> Iterator[HandledEvents]:
     """Count a block's handled events and expected warnings instead of printing them.
 
-    Inside, the models' handled numerical events (a noise variance at its floor on the
-    noise-free data of a simulator, jitter, …) are counted by
-    :func:`~skillkit.models.gp.record_numerical_events`, the library's own mechanism (the
-    experiment runner counts them the same way), and warnings matching
-    :data:`EXPECTED_WARNINGS` (a failed rollout) are recorded. Any other warning is issued
-    again on leaving, so an unexpected problem still shows. Display the yielded object (or
-    its :meth:`~HandledEvents.table`) to see what happened.
+    Handled GP events are counted by :func:`~skillkit.models.gp.record_numerical_events` (as the
+    experiment runner does) and warnings matching :data:`EXPECTED_WARNINGS` are recorded; any other
+    warning is re-issued on leaving. Display the yielded :class:`HandledEvents` (or its
+    :meth:`~HandledEvents.table`) to see what happened.
     """
     with record_numerical_events() as events, warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")

@@ -5,18 +5,10 @@ The algorithm lives in :mod:`skillkit.models.embedding` (``ConditionalEmbedding.
 computes :math:`C = (K + \\lambda I)^{-1} \\tilde K`, ``weights_from_samples`` Eq. 5.6,
 ``apply`` Eq. 5.9), :func:`skillkit.models.embedding_prediction.predict` (the loop
 :math:`\\beta_{t+1} = C \\beta_t`) and :mod:`skillkit.models.embedding_training` (Eq. 5.16).
-The notebook calls those; this module only turns their inputs and outputs into tables and
-figures, and adds the read-outs a reader needs to hold a predicted embedding against real
-samples:
-
-* :func:`marginal_embedding` evaluates the embedding :math:`\\mu = \\Phi_{x'} \\beta` of one
-  state coordinate on a grid (a curve), :func:`empirical_embedding` the same for real samples
-  with its Monte Carlo standard error;
-* :func:`embedding_figure` draws both side by side, and :func:`draw_embedding` rebuilds the
-  embedding for other λ and length-scales (the notebook's widget).
-
-Figures are plotly (:func:`skillkit.viz.plots.plotly_figure`, the experiments' plotter).
-Nothing here is used by an experiment, so changing it never makes a stored result stale.
+This module tabulates and draws their inputs and outputs, and reads embeddings out against
+real samples (:func:`marginal_embedding`, :func:`empirical_embedding`,
+:func:`embedding_figure`, :func:`draw_embedding`). Figures are plotly
+(:func:`skillkit.viz.plots.plotly_figure`).
 """
 
 from __future__ import annotations
@@ -289,12 +281,11 @@ def marginal_embedding(points, weights, grid, lengthscale: float) -> np.ndarray:
     """The embedding :math:`\\sum_j w_j\\, k_h(p_j, y)` of one coordinate, on a grid.
 
     For a product SE kernel :math:`k(x, x') = \\prod_d k_{h_d}(x_d, x'_d)` (Eq. 2.25),
-    integrating the embedding :math:`\\mu(y) = \\sum_j \\beta_j k(x'_j, y)` over every other
-    coordinate leaves :math:`c \\sum_j \\beta_j k_{h_d}(x'_{j,d}, y_d)` with the constant
-    :math:`c = \\prod_{e \\ne d} \\sqrt{2\\pi} h_e`: the embedding of the marginal of
-    coordinate d. It is a curve one can draw, and the same formula with :math:`w_l = 1/L`
-    gives the empirical embedding of samples (:func:`empirical_embedding`), so the two are
-    compared on one scale.
+    integrating :math:`\\mu(y) = \\sum_j \\beta_j k(x'_j, y)` over the other coordinates
+    leaves :math:`c \\sum_j \\beta_j k_{h_d}(x'_{j,d}, y_d)` with
+    :math:`c = \\prod_{e \\ne d} \\sqrt{2\\pi} h_e`: the embedding of coordinate d's marginal.
+    With :math:`w_l = 1/L` it is the empirical embedding of samples
+    (:func:`empirical_embedding`), on the same scale.
 
     Parameters
     ----------
@@ -444,11 +435,10 @@ def weights_figure(betas, *, dt: float | None = None, title: str = ""):
     Returns
     -------
     plotly.graph_objects.Figure
-        Left: :math:`\\beta_t[j]` over t and the training pair j (trajectory-major, so whole
-        trajectories are bands of rows); right: :math:`\\sum_j \\beta_{t,j}` (the embedded
-        probability mass, 1 where the data cover the distribution) and :math:`\\|\\beta_t\\|_1`
-        (above the sum when weights are negative; growing values mean the propagation
-        amplifies).
+        Left: :math:`\\beta_t[j]` over t and training pair j (trajectory-major); right:
+        :math:`\\sum_j \\beta_{t,j}` (the embedded mass, 1 where the data cover the distribution)
+        and :math:`\\|\\beta_t\\|_1` (above the sum when weights are negative; growth means the
+        propagation amplifies).
     """
     b = _betas(betas)
     t, xlabel = _time_axis(b.shape[0], dt)
@@ -512,13 +502,11 @@ def embedding_figure(
 ):
     """Predicted embeddings against the empirical embeddings of real samples.
 
-    First panel: the mean read-out :math:`X'^\\top\\beta_t` of coordinate ``dim`` over t and
-    the mean of the real rollouts with ± 2 Monte Carlo standard errors. Then one panel per
-    step t in ``steps``: the predicted embedding of the coordinate's marginal,
-    :math:`\\sum_j \\beta_{t,j} k_h(x'_{j,d}, y)` (:func:`marginal_embedding`), as a curve over
-    y, and the empirical embedding of the real states at t, :math:`\\frac1L\\sum_l
-    k_h(x^{(l)}_{t,d}, y)`, with ± 2 standard errors. Where the curves agree, the predicted
-    distribution is right as the kernel k_h sees it.
+    First panel: the mean read-out :math:`X'^\\top\\beta_t` of coordinate ``dim`` over t and the
+    real rollouts' mean ± 2 Monte Carlo standard errors. Then per step t in ``steps``: the
+    predicted marginal embedding :math:`\\sum_j \\beta_{t,j} k_h(x'_{j,d}, y)`
+    (:func:`marginal_embedding`) and the empirical one of the real states,
+    :math:`\\frac1L\\sum_l k_h(x^{(l)}_{t,d}, y)`, ± 2 standard errors.
 
     Parameters
     ----------
@@ -533,10 +521,9 @@ def embedding_figure(
     dim : int
         State coordinate d.
     bandwidth : float, optional
-        h of the 1-D kernel the curves are drawn with; default the model's length-scale of
-        coordinate d (the RKHS the thesis's μ lives in). β weighs the observed successors, so
-        any h gives the embedding of that weighted sample; a smaller h shows more of its
-        shape (and of its negative weights), at a larger sampling error.
+        h of the drawn curves; default the model's length-scale of coordinate d (the RKHS of the
+        thesis's μ). A smaller h shows more of the weighted sample's shape (and its negative
+        weights) at a larger sampling error.
     label : str
         Name and unit of the coordinate.
     dt : float, optional
@@ -637,10 +624,10 @@ def draw_embedding(
 ):
     """Fit an embedding with λ and scaled length-scales, predict, draw it against real samples.
 
-    What the notebook's widget calls on every move: ``ConditionalEmbedding(inputs, targets,
+    The notebook widget's redraw: ``ConditionalEmbedding(inputs, targets,
     SE(lengthscale_factor × std(inputs)), lam)``,
-    :func:`~skillkit.models.embedding_prediction.predict` from the initial samples (Table 5.1,
-    or 5.2 with ``policy``) and :func:`embedding_figure` at one step.
+    :func:`~skillkit.models.embedding_prediction.predict` from ``initial`` (Table 5.1, or 5.2 with
+    ``policy``) and :func:`embedding_figure` at one step.
 
     Parameters
     ----------
@@ -770,15 +757,11 @@ def loss_curve_figure(
 # --------------------------------------------------------------------------- warnings
 @contextmanager
 def warnings_as_note(reason: str = "") -> Iterator[list]:
-    """Catch the warnings raised inside the block and show them once, as a note.
+    """Catch the warnings raised inside the block and show them once, as a Markdown note.
 
-    For library warnings a notebook cannot fix at their cause (they come from code whose
-    changes would make stored results stale): instead of a stderr block the reader gets one
-    Markdown note with each distinct message, how often it came, and ``reason``. Both routes a
-    warning can take are caught: ``warnings.warn`` (recorded) and text written to
-    ``sys.stderr`` inside the block (the experiment runner prints warnings above its progress
-    bars with ``tqdm.write``); other text written to stderr is passed on, and exceptions are
-    not caught.
+    For library warnings a notebook cannot fix at their cause: each distinct message with its count
+    and ``reason``. Caught are ``warnings.warn`` and text written to ``sys.stderr`` in the block
+    (the runner's ``tqdm.write``); other stderr text is passed on, exceptions are not caught.
 
     Parameters
     ----------

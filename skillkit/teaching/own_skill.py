@@ -1,21 +1,12 @@
-r"""Notebook 06, your own skill: how long its runs are per scale, and what compares the
-methods it runs on a task the reader wrote.
+r"""Notebook 06, your own skill: run sizes per scale, and the figures and tables that compare
+the methods learning a task the reader wrote.
 
-The notebook defines a skill with a few numpy functions, wraps it as a
-:class:`~skillkit.tasks.functional.TrajectoryTask` and learns it with contextual REPS,
-GPREPS on a learned forward model and CMA-ES, each through
-:func:`~skillkit.search.loop.learn`. This module only sizes, tabulates and draws:
-
-* :class:`RunSizes`, :func:`run_sizes` — updates, rollouts and model sizes per
-  ``SKILLKIT_SCALE``;
-* :func:`context_grid` — an even grid over a task's context range: the contexts every method's
-  policy mean is evaluated on, so that the learning curves compare;
-* :func:`mapping_figure` — the learned context → ω mapping of several policies, and where each
-  policy mean's rollout ends up against the context it was asked for;
-* :func:`comparison_table` — several ``learn`` results side by side: real rollouts, rewards of
-  the policy mean, and the rollouts each needed to reach given rewards.
-
-The learning curves themselves are :func:`skillkit.viz.figures.plot_learning`'s.
+The notebook wraps a few numpy functions as a :class:`~skillkit.tasks.functional.TrajectoryTask`
+and learns it with contextual REPS, GPREPS and CMA-ES through
+:func:`~skillkit.search.loop.learn`; this module sizes the runs (:func:`run_sizes`), picks the
+evaluation contexts (:func:`context_grid`), draws the learned context → ω mapping
+(:func:`mapping_figure`) and tabulates the results (:func:`comparison_table`). Learning curves
+are :func:`skillkit.viz.figures.plot_learning`'s.
 """
 
 from __future__ import annotations
@@ -163,12 +154,10 @@ def mapping_figure(
 ):
     """What several policies do across the contexts: ω(s) and where the rollout ends up.
 
-    Each policy's mean ω(s) = E[π(ω|s)] is rolled out once at every context, with the same
-    random stream for every policy (common random numbers, as
-    :class:`~skillkit.search.loop.Evaluator` does). Left: two coordinates of ω(s), one
-    marker per context. Right: the contexts (for a goal-reaching skill, the goals) and, per
-    policy, a segment from each context to the outcome of its rollout, ``outcome(trajectory)``
-    (e.g. where the hand stopped): the shorter the segments, the better the skill generalises.
+    Each policy's mean ω(s) = E[π(ω|s)] is rolled out once per context, with one random stream for
+    every policy (common random numbers, as :class:`~skillkit.search.loop.Evaluator`). Left: two
+    coordinates of ω(s). Right: per policy, a segment from each context to ``outcome(trajectory)``
+    of its rollout: the shorter, the better the skill generalises.
 
     Parameters
     ----------

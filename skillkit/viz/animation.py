@@ -1,26 +1,13 @@
 """Robots moving: task rollouts as plotly animations (Figs 3.2 and 3.8) that play without a kernel.
 
-A figure here is a plotly ``Figure`` with ``frames``, a play/pause button and a time slider, so it
-plays in a notebook and in the notebook's exported HTML alike (no viser server, no Python
-behind it). The geometry comes from the task itself: the robot's links from its joint states
-through the task's own MuJoCo model (:func:`skillkit.viz.scenes.task_model`, the model the
-viser viewer draws), the ball, racket and targets from the trajectory's signals and the
-context; between samples the state and the signals are interpolated linearly
-(:func:`skillkit.viz.scenes.interpolate`, on the signal's own clock
-:func:`skillkit.viz.scenes.signal_times`), as in the viewer.
-
-* :func:`throwing_animation` — the planar 4-link robot (Sec. 3.4.1, Appendix C.1) throwing
-  for one target per panel (Fig. 3.2: s₁ = [6, 1] m, s₂ = [12, 1] m, :data:`THROWING_TARGETS`).
-* :func:`table_tennis_animation` — the 8-DoF arm returning balls (Sec. 3.4.3, Appendix C.3),
-  the shots overlaid in one 3-D scene with the table and net (Fig. 3.8).
-* :func:`thesis_animation` — one call for a notebook: rolls out the policy mean of the
-  stored paper run's final policy (:func:`stored_final_policy`) at two contexts, or the
-  task's initial policy when the stored run keeps no policy (fig3.7 keeps none), and says
-  which in the title.
-
-Frames are few (default 40) and only the moving traces are repeated per frame, so the HTML of
-a figure stays small: at 40 frames ``fig.to_html(include_plotlyjs=False)`` is about 56 kB for
-Fig. 3.2 and 140 kB for Fig. 3.8 (plotly.js itself is embedded once per notebook).
+A figure is a plotly ``Figure`` with ``frames``, play/pause and a time slider, so it plays in a
+notebook and in its exported HTML alike. The robot's links come from the task's own MuJoCo
+model (:func:`skillkit.viz.scenes.task_model`, as in the viewer), ball, racket and targets from
+the trajectory's signals and the context, interpolated linearly on each signal's own clock
+(:func:`skillkit.viz.scenes.interpolate`, :func:`skillkit.viz.scenes.signal_times`).
+:func:`throwing_animation` draws the planar 4-link robot (Sec. 3.4.1, Appendix C.1),
+:func:`table_tennis_animation` the 8-DoF arm (Sec. 3.4.3, Appendix C.3); only the moving
+traces are repeated per frame, so the HTML stays small (tens of kB at 40 frames).
 """
 
 from __future__ import annotations
@@ -313,13 +300,11 @@ def throwing_animation(
 ):
     """The planar 4-link robot throwing, one panel per target (Fig. 3.2), as a plotly animation.
 
-    Each panel shows the robot's links (ankle → knee → hip → shoulder → hand,
-    :func:`planar_link_points` of the interpolated joint angles), the ball (signal ``ball`` on
-    ``ball_times``: in the hand until the release time t_r, then in ballistic flight until it
-    lands, Appendix C.1), the ball's whole path (dotted) and the target s. The panel title
-    gives s, t_r and the reward's distance term min_t ‖b_t − s‖ (``task.reward_terms``).
-    All panels share one clock from 0 to the last landing; a robot whose movement has ended
-    holds its last posture and a landed ball stays on the ground.
+    Each panel shows the links (:func:`planar_link_points` of the interpolated joint angles), the
+    ball (signal ``ball`` on ``ball_times``: in the hand until the release time t_r, then ballistic
+    until it lands, Appendix C.1), its path (dotted) and the target s; the title gives s, t_r and
+    the distance term min_t ‖b_t − s‖ (``task.reward_terms``). The panels share one clock from 0 to
+    the last landing; after its end a rollout holds its last state.
 
     Parameters
     ----------
@@ -331,17 +316,17 @@ def throwing_animation(
     contexts : array_like, shape (len(trajectories), 2)
         The target [x, y] of each rollout (m).
     n_frames : int
-        Frames of the animation (2 … :data:`MAX_FRAMES`; a few dozen keep the HTML small).
+        Frames of the animation (2 … :data:`MAX_FRAMES`).
     frame_ms : float
-        Milliseconds per frame when playing (100 ms plays a 2.6 s throw in 4 s).
+        Milliseconds per frame when playing.
     title, subtitle : str
         Figure title and an optional smaller line under it.
 
     Returns
     -------
     plotly.graph_objects.Figure
-        Responsive (autosize, no fixed width), equal scales on x and y, legend inside the top
-        panel; ``frames`` named "0" … "n_frames − 1".
+        Responsive, equal scales on x and y, legend inside the top panel; ``frames`` named
+        "0" … "n_frames − 1".
 
     Raises
     ------
@@ -585,17 +570,12 @@ def table_tennis_animation(
 ):
     """Table-tennis shots overlaid in one 3-D scene (Fig. 3.8), as a plotly animation.
 
-    Drawn: the table and the net; per shot, in its own colour, the arm's skeleton (platform,
-    shoulder, elbow, wrist, blade centre: :func:`arm_link_points` of the interpolated joint
-    positions), the racket blade (:func:`racket_rim` of the signals ``racket`` and
-    ``racket_normal``), the ball (signal ``ball``) and its whole path (dotted), the return
-    target b = s[3:5] (diamond) and the landing point p (open circle,
-    ``info["landing_point"]``); the arms of the second and later shots are dashed, so arms
-    that move alike stay visible.
-    When the ball lands after the recorded episode (a return flies ~1.3 s, the episode lasts
-    ``task.duration``), the ball path is continued by a straight segment to the landing point
-    (p, z = table height + ball radius) at ``info["landing_time"]``: the parabola it stands
-    for sags at most g Δt²/8 below it (2.4 cm for Δt = 0.14 s). The title lines give each
+    Drawn: table and net; per shot, in its own colour, the arm's skeleton (:func:`arm_link_points`;
+    dashed from the second shot on), the blade (:func:`racket_rim` of signals ``racket`` and
+    ``racket_normal``), the ball (signal ``ball``) and its path (dotted), the return target
+    b = s[3:5] (diamond) and the landing point p (open circle, ``info["landing_point"]``). A ball
+    that lands after the episode ends is continued by a straight segment to p at
+    ``info["landing_time"]`` (at most g Δt²/8 above the true parabola). The title lines give each
     shot's context, outcome and landing error ‖b − p‖.
 
     Parameters
@@ -610,7 +590,7 @@ def table_tennis_animation(
     n_frames : int
         Frames of the animation (2 … :data:`MAX_FRAMES`).
     frame_ms : float
-        Milliseconds per frame when playing (100 ms: about 3.5× slow motion at 40 frames).
+        Milliseconds per frame when playing.
     title, subtitle : str
         Figure title and an optional line under it.
 
@@ -806,6 +786,3 @@ def table_tennis_animation(
     )
     _controls(fig, grid, frame_ms, redraw=True, y=-(bottom - 50) / scene_h)
     return fig
-
-
-# ============================================================================ stored runs

@@ -1,15 +1,11 @@
 """``skillkit view TASK``: serve a task scene in the browser (:class:`skillkit.viz.viewer.Viewer`).
 
-Wire it into ``skillkit/cli.py`` with ``add_view_parser(sub)`` after the other sub-commands;
-``python -m skillkit.viz.cli_view TASK ...`` runs it on its own. Bad input (unknown task,
-malformed policy file, context outside the task's range, port in use, a GPREPS run without a
-reward model or with one of another task) prints one line ``skillkit view: error: ...`` and
-exits with code 2.
-
-``--gpreps RUN_DIR --trial K`` plays back the policy history of trial K of a GPREPS run folder
-and overlays its reward model's predictions (:mod:`skillkit.viz.model_layers`) for the shown
-(s, ω), one switchable layer per learned model, with a colour legend. The model file is a
-pickle: view only runs you trust.
+Wired into ``skillkit/cli.py`` by ``add_view_parser(sub)``; ``python -m skillkit.viz.cli_view
+TASK ...`` runs it alone. Bad input (unknown task, malformed policy file, context out of range,
+port in use, a GPREPS run without a reward model or with one of another task) prints one line
+``skillkit view: error: ...`` and exits with code 2. ``--gpreps RUN_DIR --trial K`` plays back
+trial K's policy history with its reward model's layers (:mod:`skillkit.viz.model_layers`);
+the model file is a pickle: view only runs you trust.
 """
 
 from __future__ import annotations

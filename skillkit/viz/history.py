@@ -30,7 +30,7 @@ key                         shape           dtype    meaning
 
 **Versioning.** ``format`` names the version. A reader accepts a file without ``format`` (the
 ``policy_*`` arrays alone) and refuses any other version with a message naming both. A change
-that an older reader would misread gets a new version string; new optional keys do not.
+an existing reader would misread gets a new version string; new optional keys do not.
 
 **Run folders.** ``skillkit reproduce`` stores the same ``policy_*`` arrays (and optionally
 ``rollouts``/``mean_reward``) per trial in the run folder's ``trials.npz``, prefixed

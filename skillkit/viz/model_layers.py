@@ -1,39 +1,33 @@
 """GPREPS reward models in the viewer: their files, and their predictions as prediction layers.
 
 A GPREPS reward model (e.g. the hockey and table-tennis models of :mod:`skillkit.search`)
-predicts a rollout with several learned models chained together. For the viewer it implements
-one method, the contract of this module::
+chains several learned models. For the viewer it implements one method, this module's
+contract::
 
     def prediction_layers(self, context, omega, n_samples: int, rng=None) -> dict[str, dict]:
         '''For one (s, ω) pair: {layer_name: {"trajectories": ndarray (L, T, 3) world points,
         "color": (r, g, b) 0–255, "times": ndarray (T,) optional}}; one layer per learned
         model; the names are descriptive and serve as the legend.'''
 
-:func:`model_layers` calls it and turns the answer into keyword dicts for
-:meth:`skillkit.viz.viewer.Viewer.add_prediction_layer`; :meth:`Viewer.add_model_layers
-<skillkit.viz.viewer.Viewer.add_model_layers>` keeps them up to date as the context and the
-policy change. :func:`save_reward_model` and :func:`load_reward_model` write and read a fitted
-model; a GPREPS run folder holds one per trial at :func:`reward_model_path`, which
-``skillkit view TASK --gpreps RUN_DIR --trial K`` overlays.
+:func:`model_layers` turns the answer into keyword dicts for
+:meth:`skillkit.viz.viewer.Viewer.add_prediction_layer`; :func:`save_reward_model` and
+:func:`load_reward_model` write and read a fitted model (one per trial of a GPREPS run folder,
+at :func:`reward_model_path`, for ``skillkit view TASK --gpreps RUN_DIR --trial K``).
 
 File format
 -----------
-Three parts, one after the other:
-
 1. the line ``skillkit-reward-model-v1`` (ASCII, ending in ``\\n``): the format and version;
 2. one line of JSON: ``{"class": "<module>.<qualname>", "skillkit": "<version>",
    "task": "<task name or empty>"}``;
 3. the model, pickled (:mod:`pickle`, highest protocol).
 
-The first two lines are read without unpickling anything, so a file of another format or
-version is refused before any of its code could run.
+The header is read without unpickling, so another format or version (the message names both)
+is refused before any of its code runs. A change an existing reader would misread gets a new
+version string; new header keys do not.
 
 .. warning::
    Unpickling runs code named by the file. Load only reward-model files you trust (ones you
    or your own runs wrote); :func:`load_reward_model` checks the header, not the pickle.
-
-**Versioning.** A reader refuses any other first line with a message naming both versions. A
-change that an older reader would misread gets a new version string; new header keys do not.
 """
 
 from __future__ import annotations
@@ -193,12 +187,10 @@ def _rebuilt_gp(cls, state: dict):
 def dumps_reward_model(model) -> bytes:
     """The bytes :func:`save_reward_model` writes (header lines and the pickled model).
 
-    A run keeps them in its ``trials.npz`` as a uint8 array ``trial<K>__reward_model``
-    (see :func:`load_gpreps_run`). A fitted GP inside the model is stored without what its fit
-    derives from the data and the hyper-parameters (the Cholesky factor, K⁻¹ and the
-    prediction weights: three quarters of its size, N² numbers each); reading it back repeats
-    that last step of the fit (:func:`_rebuilt_gp`). A table-tennis model of fig4.12 at paper
-    scale: 44 MB with them, a tenth of it without.
+    A run keeps them in ``trials.npz`` as the uint8 array ``trial<K>__reward_model``
+    (:func:`load_gpreps_run`). A fitted GP inside is stored without what its fit derives from data
+    and hyper-parameters (Cholesky factor, K⁻¹, prediction weights: N² numbers each, most of its
+    size); reading it back recomputes them (:func:`_rebuilt_gp`).
 
     Raises
     ------

@@ -1,22 +1,12 @@
 """Figures of experiment results, learning curves and GP fits (plotly and matplotlib).
 
-An experiment result (the dict :func:`skillkit.experiments.runner.run_trials` returns and
-``result.json`` holds) is drawn from its ``series`` (dicts of
-:class:`~skillkit.experiments.registry.Series` fields), one subplot per panel:
-
-* :func:`plotly_figure` gives an interactive plotly figure (``figure.html``);
-* :func:`matplotlib_figure` gives the same figure as a :class:`matplotlib.figure.Figure`
-  (``figure.png``), drawn without pyplot: no backend is selected and no pyplot state is
-  touched, so it displays in Jupyter when returned and later ``plt.show()`` calls still work;
-* :func:`write_figures` writes both files.
-
-Every figure says what it shows: the verdict with its key number in a one-line subtitle (the
-summary's ``statement``; the claim and details stay in the run's card), what each band is
-(``Series.band``) in the legend, and an axis range that stays readable when a few values run
-away (they are marked at the edge of the axis and counted in a note, see :func:`robust_range`).
-
-Figures of live objects (a ``learn()`` result, a GP fit, predicted vs real trajectories) are
-in :mod:`skillkit.viz.figures`; they draw through this module.
+A result (the dict :func:`skillkit.experiments.runner.run_trials` returns, ``result.json``) is
+drawn from its ``series`` (:class:`~skillkit.experiments.registry.Series` fields), one subplot
+per panel, by :func:`plotly_figure` (``figure.html``) or :func:`matplotlib_figure`
+(``figure.png``, drawn without pyplot so no backend or pyplot state changes);
+:func:`write_figures` writes both. Each figure carries the verdict line as its subtitle, band
+names in the legend, and a robust axis range when a few values run away (marked at the edge
+and counted, :func:`robust_range`). Figures of live objects are in :mod:`skillkit.viz.figures`.
 """
 
 from __future__ import annotations
@@ -53,8 +43,7 @@ LINEAR_HEADROOM, LINEAR_GAP = 20.0, 5.0
 MAX_CLIPPED_FRACTION = 0.25
 
 _POINT_KINDS = ("line", "markers", "lines+markers")
-#: Kinds read as another: fig4.5's stored result has "lines" series (ch4_models wrote that
-#: kind until issue #33's review).
+#: Kinds read as another (fig4.5's stored result has "lines" series).
 _KIND_ALIASES = {"lines": "line"}
 _MPL_DASH = {"solid": "-", "dash": "--", "dot": ":", "dashdot": "-."}
 

@@ -24,9 +24,9 @@ key                     shape      dtype    meaning
 ======================  =========  =======  ==================================================
 
 **Versioning.** ``__format__`` names the version (its ``"__"`` keeps it from being read as a
-layer). A reader accepts a file without it (read as v1) and
-refuses any other version with a message naming both. A change that an older reader would
-misread gets a new version string; new optional per-layer keys do not.
+layer). A reader accepts a file without it (read as v1) and refuses any other version with a
+message naming both. A change an existing reader would misread gets a new version string; new
+optional per-layer keys do not.
 """
 
 from __future__ import annotations

@@ -1,31 +1,19 @@
 """Task scenes for the viser viewer: functions that add scene nodes and return their handles.
 
-Everything here works on a :class:`viser.SceneApi` (``server.scene``) and needs no browser, so
-scenes are tested headless. Node names are paths (``/arm/link3``, ``/ball``, ``/pucks/target``,
-``/table``, ``/target``, ``/trails/ball``); +z is up and quaternions are ``wxyz`` (MuJoCo and
-viser agree).
+Everything works on a :class:`viser.SceneApi` (``server.scene``), headless. Node names are
+paths (``/arm/link3``, ``/ball``, ``/pucks/target``, ``/table``, ``/target``,
+``/trails/ball``); +z is up and quaternions are ``wxyz`` (MuJoCo and viser agree). Three
+layers: primitives (:func:`add_ball`, :func:`add_trail`, … and the meshes
+:func:`capsule_mesh`, :func:`tube_mesh`); :func:`add_mujoco_model`, one frame per body
+(``<root>/<body>``) holding its geoms at body-local poses, moved by
+:meth:`MujocoScene.set_qpos`; and :class:`TaskScene` adapters mapping a task's
+:class:`~skillkit.trajectory.Trajectory` (joint positions, ``signals``, context) onto the scene,
+chosen by :func:`task_scene`.
 
-Three layers:
-
-* **Primitives** — :func:`add_ball`, :func:`add_puck`, :func:`add_target`, :func:`add_table`,
-  :func:`add_trail` (a tube through one or many 3-D paths, optionally transparent) and the
-  meshes behind them (:func:`capsule_mesh`, :func:`tube_mesh`).
-* **MuJoCo models** — :func:`add_mujoco_model` turns any ``mujoco.MjModel`` into viser
-  primitives (box, sphere, capsule, ellipsoid, cylinder, plane, mesh): one frame per body
-  (``<root>/<body>``, posed in world coordinates) holding its geoms at their constant
-  body-local poses; :meth:`MujocoScene.set_qpos` runs ``mujoco.mj_kinematics`` and moves the
-  body frames.
-* **Task scenes** — :class:`TaskScene` adapters that know how a task's
-  :class:`~skillkit.trajectory.Trajectory` maps onto the scene: the robot's joint positions
-  per time step, the task objects read from ``Trajectory.signals`` (ball, pucks, racket),
-  the target from the context, trails, and the 3-D point of a state (where predicted state
-  trajectories are drawn). :func:`task_scene` picks the adapter for a task.
-
-Signals that are sampled on their own clock carry it as another signal (``ball_times`` for
-``ball``, ``puck_times`` for the pucks); a signal without one is taken to be sampled at the
-trajectory's period from ``times[0]`` (:func:`signal_times`). Objects are shown at a time t
-by linear interpolation between samples; before the first and after the last sample an
-object rests where its record starts or ends (a landed ball stays on the ground).
+A signal sampled on its own clock carries it as another signal (``ball_times`` for ``ball``);
+otherwise it is taken at the trajectory's period from ``times[0]`` (:func:`signal_times`).
+Objects are interpolated linearly between samples and rest at their first or last sample
+outside the record (a landed ball stays on the ground).
 """
 
 from __future__ import annotations

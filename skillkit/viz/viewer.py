@@ -1,34 +1,16 @@
 """The browser viewer: a viser server showing a task's rollouts, model predictions and learning.
 
-:class:`Viewer` serves one task scene (:mod:`skillkit.viz.scenes`) with
+:class:`Viewer` serves one task scene (:mod:`skillkit.viz.scenes`) with a timeline, context
+sliders that re-run the policy mean ω = a + A φ(s) (Eq. 3.13) or a sample ω ~ π(ω|s) (every
+rollout with the same episode seed, so the same (ω, s) gives the same trajectory), switchable
+prediction layers (:meth:`Viewer.add_prediction_layer`; a GPREPS reward model's via
+:meth:`Viewer.add_model_layers`) and learning playback of a
+:class:`~skillkit.viz.history.PolicyHistory`. File formats: :mod:`skillkit.viz.history`,
+:mod:`skillkit.viz.predictions`, :mod:`skillkit.viz.model_layers`.
 
-* a **timeline** slider and play/pause for the current rollout, and its trails;
-* **context** sliders (one per context dimension, within the task's range) that re-run the
-  policy: the rollout uses the policy mean ω = a + A φ(s) (Eq. 3.13), or a sample
-  ω ~ π(ω|s) on request; every rollout uses the same episode seed (common random numbers),
-  so the same (ω, s) always gives the same trajectory;
-* **predicted vs real** layers (:meth:`Viewer.add_prediction_layer`): any model's sampled
-  trajectories (L, T, n) drawn translucent in their own colour with their mean, each layer
-  switchable by a checkbox and listed in a colour legend beside the simulator's rollout —
-  GP sampling and embedding pre-images plug in the same way;
-* **reward models** (:meth:`Viewer.add_model_layers`): a GPREPS reward model's layers (one per
-  learned model, :mod:`skillkit.viz.model_layers`) for the shown (s, ω), recomputed whenever
-  the context, the policy update or ω changes;
-* **learning playback**: step through the policies of a saved run
-  (:class:`~skillkit.viz.history.PolicyHistory`)
-  and watch the rollout change, optionally with the trails of earlier updates.
-
-The server binds to 127.0.0.1 unless told otherwise. A port already in use raises
-:class:`PortInUseError` naming the port (viser itself would silently move to the next free
-port); :meth:`Viewer.stop` closes the server and frees the port.
-
-Quiet by default: viser's start-up banner and "Server stopped" message stay out of notebook
-cells and test output unless ``verbose=True`` (see :class:`Viewer`).
-
-Files
------
-Policy histories (learning playback) are read and written by :mod:`skillkit.viz.history`,
-prediction layers by :mod:`skillkit.viz.predictions`; each module documents its format.
+The server binds to 127.0.0.1 unless told otherwise; a port in use raises
+:class:`PortInUseError` (viser would silently take the next one); :meth:`Viewer.stop` frees the
+port. viser's banner and "Server stopped" are silenced unless ``verbose=True``.
 """
 
 from __future__ import annotations
@@ -143,13 +125,8 @@ class PredictionLayer:
 
 # ============================================================================ the viewer
 def _call_silenced(fn: Callable[[], _Result]) -> _Result:
-    """``fn()`` run in a helper thread whose ``rich`` output is dropped, its result returned
-    (its exception raised).
-
-    viser prints through rich's global console, whose capture buffer is per thread: the helper
-    thread opens a capture and never closes it, so nothing is printed, not even the empty
-    output that closing a capture displays in Jupyter; other threads print as usual.
-    """
+    """``fn()`` run in a helper thread whose ``rich`` output is dropped; its result returned, its
+    exception raised (rich's capture buffer is per thread, so other threads print as usual)."""
     import rich
 
     outcome: dict = {}
@@ -170,14 +147,8 @@ def _call_silenced(fn: Callable[[], _Result]) -> _Result:
 
 
 def _silence_server_thread(server) -> None:
-    """Drop what ``rich`` prints from now on in ``server``'s event-loop thread (viser's
-    "Server stopped" on :meth:`~viser.ViserServer.stop`), leaving other threads alone.
-
-    viser (up to 1.1 at least) prints its start-up banner and "Server stopped" whatever its
-    ``verbose`` says (that switches only the per-connection messages), so the viewer silences
-    them in the threads that print them: the constructing thread (:func:`_call_silenced`) and
-    the server's own thread (a capture opened there, never closed; the thread ends on stop).
-    """
+    """Drop what ``rich`` prints from now on in ``server``'s event-loop thread ("Server stopped"),
+    leaving other threads alone: viser prints it whatever its ``verbose`` says."""
     import rich
 
     try:
@@ -893,15 +864,11 @@ class Viewer:
     def add_model_layers(self, model, n_samples: int = 10, seed: int = 0) -> list[PredictionLayer]:
         """Overlay a GPREPS reward model's predictions for the shown (s, ω), kept up to date.
 
-        Calls ``model.prediction_layers`` (:func:`skillkit.viz.model_layers.model_layers`)
-        for the current context s and the ω of the shown rollout (the policy mean at s, or the
-        sample after "Sample ω"), and adds one prediction layer per learned model, labelled
-        with the model's descriptive layer name and listed in the legend. The layers are
-        recomputed whenever the rollout is re-run for a new (s, ω): a context slider or
-        :meth:`set_context`, a learning-playback update (:meth:`set_update`; the model stays
-        the one given, e.g. the run's last), or a sampled ω. Each computation uses the same
-        seed, so the same (s, ω) always shows the same samples. A layer switched off stays off
-        when recomputed. A second call replaces the first model.
+        Adds one prediction layer per learned model from ``model.prediction_layers``
+        (:func:`skillkit.viz.model_layers.model_layers`) for the current s and the shown ω,
+        and recomputes them on every new (s, ω) (context, :meth:`set_update` — the model stays
+        the given one — or a sampled ω), always with ``seed``, so the same (s, ω) shows the
+        same samples. A layer switched off stays off; a second call replaces the first model.
 
         Parameters
         ----------

@@ -215,13 +215,16 @@ def test_stored_pendulum_runs_judge_the_per_trial_errors(exp_id):
 
 
 @pytest.mark.parametrize("exp_id", BALANCING)
-def test_stored_balancing_runs_lack_the_per_trial_errors(exp_id):
-    """The stored paper runs kept e_r averaged over their 2 trials only: every part is "not
-    measured", so the verdict is undecided (not a verdict of the stored means)."""
+def test_stored_balancing_runs_judge_the_per_trial_errors(exp_id):
+    """The stored paper runs (2 trials) keep e_r per trial: every part is measured over both
+    trials, and the GP-over-embedding ratio is the ratio of the per-trial means of e_r over x,
+    with its paired bootstrap interval."""
     run = stored_run(exp_id)
-    readings = run.summary["judgement"]["readings"]
-    assert readings and all(r["outcome"] == "not measured" for r in readings)
-    assert run.summary["verdict"] == "undecided" and run.summary["holds"] is None
+    readings = {r["label"]: r for r in run.summary["judgement"]["readings"]}
+    assert readings and all(r["n"] == 2 for r in readings.values())
+    assert all(r["outcome"] != "not measured" for r in readings.values())
+    per_trial = run.summary["e_r_mean_over_x_per_trial"]
+    _check_ratio(readings["GP / step-based e_r"], per_trial["gp"], per_trial["step"])
     assert judge.card_lines_ok(run.summary["judgement"]["card"])
 
 

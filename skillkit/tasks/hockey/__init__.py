@@ -31,8 +31,7 @@ its z axis; the blade's long side is the flange's x axis and its face normal the
 axis. The site ``blade`` marks the blade centre. The blade box has real contact with the
 table plane z = 0 in MuJoCo (friction :data:`TABLE_FRICTION` = 0.1, a stiff ``solref``
 :data:`CONTACT_SOLREF`), so a stroke aimed below the surface slides the blade along it
-instead of passing through (without it the blade went 2–6 cm into the table); no other geom
-collides (the pucks live in pymunk).
+instead of passing through; no other geom collides (the pucks live in pymunk).
 
 Lower-level policy: a 7-joint DMP (:mod:`skillkit.policies.dmp`, Eqs. 2.21–2.23 with the
 moving-goal final velocity) whose shape weights are fitted to the shipped demonstration
@@ -79,9 +78,8 @@ controls the torques, 7) during the racket phase. Signals (time-major): ``"racke
 ``"control_puck_observed"``, ``"target_puck_observed"`` (T_o, 2). ``info``: ``hit``
 (the pucks touched), ``displacement`` (true d_T), ``racket_touched``, ``hit_time``,
 ``tau``, ``n_saturated`` (saturated torque entries), ``pucks_at_rest``, ``blade_lowest``
-(lowest blade corner height in the racket phase: with the blade–table contact it stays within
-about a millimetre of the surface, the contact's soft penetration; reported so it can be
-checked).
+(lowest blade corner height in the racket phase; about −1 mm, the contact's soft
+penetration).
 
 Modules
 -------

@@ -158,14 +158,10 @@ class Hockey(Task):
         """π(ω|s) = N(ω_demo, Σ₀) with zero context gain (imitation, Sec. 3.4.2); Σ₀ from
         :meth:`exploration_covariance`.
 
-        **Coverage of the context range** (100 shots sampled on random contexts, seed 0):
-        10% of the shots hit the target puck, and the displacements of those
-        hits span 0.05 / 1.16 / 1.45 m (5th / 50th / 95th percentile) against the required
-        d* ∈ [0, 1] m; no rollout failed. The exploration thus reaches the whole range of d*
-        and hits targets across the box, but most shots miss: REPS has few informative
-        samples in its first updates (the learning of ``fig3.5`` starts from there). Not
-        widened: the thesis gives no Σ₀ for this task, and the stored ``fig3.5`` and
-        ``fig4.10`` runs learn from this one.
+        Its samples hit the target puck across the context box and span the whole range of
+        d*, but most (about 90%) miss, so the first REPS updates have few informative
+        samples. The thesis gives no Σ₀; the stored ``fig3.5`` and ``fig4.10`` runs start
+        from this one.
         """
         from skillkit.policies.gaussian import LinearGaussianPolicy
 

@@ -8,7 +8,7 @@ The scene (SI units, +z up, table centred at the origin, the robot on the −x s
   :data:`SERVE_POSITION` behind the opponent's end with the context velocity v = [v_x, v_y,
   v_z]. The ranges :data:`VELOCITY_LOW`, :data:`VELOCITY_HIGH` are chosen so that the ball
   clears the net and bounces exactly once, inside the landing zone (:data:`LANDING_ZONE`),
-  before it reaches the robot (checked for all corners of the range in the tests).
+  before it reaches the robot.
 * **Robot**: a light BioRob-like arm on a platform moved by two prismatic axes in the
   horizontal plane, plus six revolute joints (shoulder yaw and pitch, upper-arm roll, elbow,
   forearm roll, wrist), 8 DoF in all, holding a racket; built with ``dm_control.mjcf``
@@ -21,17 +21,15 @@ The scene (SI units, +z up, table centred at the origin, the robot on the −x s
   y ∈ [−0.4, 0.4] m (:data:`RETURN_NEAR_LOW`, :data:`RETURN_NEAR_HIGH`), which is easier.
   The context is s = [v_x, v_y, v_z, b_x, b_y].
 
-How the ball is simulated, and why
-----------------------------------
-The ball is integrated by our own code (:func:`simulate_ball`), not by MuJoCo contacts: we
-want exact control of the air drag and of the impact laws, and event times found exactly
-rather than through soft-contact penetration. Free flight follows
+The ball
+--------
+The ball is integrated by :func:`simulate_ball`, not by MuJoCo contacts, so drag, impact
+laws and event times are exact. Free flight follows
 
     p̈ = g − k ‖ṗ‖ ṗ,        k = ρ C_d A / (2 m) = 0.1396 m⁻¹
 
 (ρ = 1.2 kg/m³, C_d = 0.5, A = π r², m = 2.7 g; :class:`BallPhysics`), integrated with the
-explicit midpoint rule at 2 ms (two steps per control period; exact for the drag-free
-parabola, O(h²) with drag: < 2e-5 m over a flight against an accurate ODE solution).
+explicit midpoint rule at 2 ms (exact for the drag-free parabola, O(h²) with drag).
 Events are located inside a step and handled exactly:
 
 * table bounce: v_z ← −e_t v_z with e_t = 0.9 (ITTF: a drop from 30.5 cm rebounds
@@ -44,10 +42,8 @@ Events are located inside a step and handled exactly:
 * net: the ball centre crossing x = 0 less than one radius above the net top, within the
   net's width, ends the rally there.
 
-Because the 2.7 g ball does not change the arm's motion, the arm is simulated first (its
-motion depends on ω only) and the racket pose is recorded at every control step from
-MuJoCo's forward kinematics; the ball is then integrated against that racket path
-(interpolated linearly inside a control step).
+The arm is simulated first (its motion depends on ω only), recording the racket pose at
+every control step; the ball is then integrated against that path (linear inside a step).
 
 The landing point p (C.1)
 -------------------------
@@ -63,12 +59,10 @@ Reward (Eq. C.1) and its scale
 ------------------------------
 R(τ, s) = −c₁ min_t ‖τ_b,t − τ_r,t‖ − c₂ ‖b − p‖ with c₁ = c₂ = 0.1 m⁻¹. τ_b and τ_r are the
 ball and racket-centre positions at the control steps (joined by straight segments for the
-minimum), over the incoming ball only (up to the first racket contact). With this scale
-the levels of Sec. 3.4.3 mean what the thesis says: a ball hit but not reaching the
-opponent's side lands ≈ 1 m or more from b (R ≲ −0.1); a ball in the net is b_x short of b,
-plus its lateral offset (0–1.37 m on the whole half, R ≈ 0 … −0.16; 0.2–0.6 m, R ≈ −0.02 …
-−0.07, the thesis's [−0.05, −0.02], in the near zone); R > −0.02 means a return within 20 cm
-of the target (a centred hit costs ≈ 0.002 of it).
+minimum), over the incoming ball only (up to the first racket contact). With this scale the
+levels of Sec. 3.4.3 hold: a ball hit short of the opponent's side scores R ≲ −0.1, a ball in
+the net R ≈ −0.02 … −0.07 in the near zone (the thesis's [−0.05, −0.02]), and R > −0.02 is a
+return within 20 cm of the target.
 
 Modules
 -------

@@ -40,8 +40,8 @@ RETURN_NEAR_LOW = np.array([0.2, -0.4])
 """Lower corner of the narrower *near* return zone of ``table-tennis-near`` (m)."""
 RETURN_NEAR_HIGH = np.array([0.6, 0.4])
 """Upper corner of the near return zone (m): the front part of the opponent's half, so that a
-ball in the net (p at x = 0) is 0.2–0.6 m short of the target. Our earlier default; easier than
-C.3 (targets within reach of the demonstrated return)."""
+ball in the net (p at x = 0) is 0.2–0.6 m short of the target; easier than C.3 (targets within
+reach of the demonstrated return)."""
 
 
 @dataclass(frozen=True)

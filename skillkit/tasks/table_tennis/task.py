@@ -156,16 +156,10 @@ class TableTennis(Task):
         """π(ω|s) = N(ω_demo, diag(σ²)) with zero context gain: the demonstrated stroke (g and ġ
         of the demonstration's end, τ = 1) with the exploration σ of :data:`INITIAL_STD`.
 
-        **Coverage of the context range** (100 strokes sampled on random contexts, seed 0):
-        18% of the strokes hit the ball (10% returned, 3% net, 5% out) and 82%
-        miss it; the hit balls land at x ∈ [−0.29, 0.87] m, y ∈ [−0.73, 0.34] m (5th–95th
-        percentile) against targets b on the whole opponent's half, x ∈ [0, 1.37] m,
-        y ∈ [−0.76, 0.76] m; rewards −0.40 / −0.32 / −0.05 (5th / 50th / 95th percentile).
-        The exploration reaches hits, returns and the net, but not the far and the left part
-        of the return zone: those targets are learned by moving the policy, not found by the
-        initial samples. Not widened: the thesis sets Σ "such that we get enough initial
-        exploration ... but exploration still remains safe for the robot" (Sec. 3.5) without
-        values, and the stored ``fig3.7``, ``fig4.12`` and ``fig4.13`` runs start from it.
+        About a fifth of its samples hit the ball (returns, net and out all occur); the far
+        and left parts of the return zone are not reached by the initial samples and are
+        learned by moving the policy. The thesis gives no values for Σ (Sec. 3.5); the
+        stored ``fig3.7``, ``fig4.12`` and ``fig4.13`` runs start from this one.
         """
 
         return LinearGaussianPolicy(

@@ -836,6 +836,27 @@ _KINDS_4_5 = (
 )
 
 
+def sparse_minus_standard(panels: dict, settings) -> dict[str, list[float]]:
+    """FITC's reward-prediction error minus the standard GP's where the thesis compares them:
+    at the additive-noise factors above the default and at the control-noise levels above 0
+    (one entry a setting), from fig4.5's ``summary["panels"]``."""
+    alpha0 = settings.defaults.additive_noise
+    return {
+        "additive_noise_above_default": [
+            panels["additive_noise"]["sparse"][str(a)]
+            - panels["additive_noise"]["standard"][str(a)]
+            for a in sorted(settings.additive_noise_values)
+            if a > alpha0
+        ],
+        "torque_noise_above_zero": [
+            panels["torque_noise_std"]["sparse"][str(v)]
+            - panels["torque_noise_std"]["standard"][str(v)]
+            for v in sorted(settings.torque_noise_std_values)
+            if v > 0
+        ],
+    }
+
+
 def _summarize_4_5(settings: RewardErrorSettings, trials: list[dict]) -> tuple[list[Series], dict]:
     series: list[Series] = []
     summary: dict = {"panels": {}}
@@ -923,24 +944,7 @@ def _summarize_4_5(settings: RewardErrorSettings, trials: list[dict]) -> tuple[l
             ),
         }
     )
-    # FITC's error minus the standard GP's where the thesis compares them: at the additive-noise
-    # factors above the default and at the control-noise levels above 0 (one entry a setting).
-    panels = summary["panels"]
-    alpha0 = settings.defaults.additive_noise
-    summary["sparse_minus_standard"] = {
-        "additive_noise_above_default": [
-            panels["additive_noise"]["sparse"][str(a)]
-            - panels["additive_noise"]["standard"][str(a)]
-            for a in sorted(settings.additive_noise_values)
-            if a > alpha0
-        ],
-        "torque_noise_above_zero": [
-            panels["torque_noise_std"]["sparse"][str(v)]
-            - panels["torque_noise_std"]["standard"][str(v)]
-            for v in sorted(settings.torque_noise_std_values)
-            if v > 0
-        ],
-    }
+    summary["sparse_minus_standard"] = sparse_minus_standard(summary["panels"], settings)
     return series, summary
 
 

@@ -9,16 +9,12 @@ model_moment_step` gives it as :func:`~skillkit.search.pilco.linear_gaussian_ste
 Σ_w and c). Table 4.2's experiment uses it to separate what the search methods do from what
 the GP models predict.
 
-**One noise convention: the full residual covariance Σ_w**, in PILCO's exact
-step and in sampled trajectories (x' = A x + B u + c + F ε, F Fᵀ = Σ_w, ε ~ N(0, I)). The
-alternative, independent noise per state dimension (diag Σ_w, as the GP forward models have),
-is the wrong model of the data this model is fitted to: on
-the balancing robot the residuals of positions and velocities are correlated at 0.99 (one
-unmodelled torque moves both), and independent position and velocity noise is amplified by
-the high-gain feedback. Measured (``benchmarks/bench_tab42_models.py closed-loop``'s setting,
-seed 0, π₀'s gain, 40 steps; the simulator's mean reward is −113.2): the exact expected return
-with full Σ_w is −79, −109, −334 for torque excitation 0, 10, 30 N m, with diag Σ_w −101,
-−2491, −31640. So GPREPS and PILCO predict from the same model, the better one.
+**Noise convention: the full residual covariance Σ_w**, in PILCO's exact step and in sampled
+trajectories (x' = A x + B u + c + F ε, F Fᵀ = Σ_w, ε ~ N(0, I)). Independent noise per
+dimension (diag Σ_w, as the GP forward models have) misfits data whose residuals are strongly
+correlated (on the balancing robot positions and velocities share one unmodelled torque) and
+is amplified by high-gain feedback: in ``benchmarks/bench_tab42_models.py closed-loop``'s
+setting (10 N m excitation) the exact expected return is −109 with full Σ_w, −2491 with diag.
 """
 
 from __future__ import annotations
@@ -38,7 +34,8 @@ class LinearGaussianModel:
     ``target="delta"`` regresses x' − x (then A here is I + the fitted matrix), ``"next"``
     regresses x'; the fitted dynamics are the same up to rounding. Σ_w is the full residual
     covariance (``noise_cov``), the noise of both PILCO's exact step and the sampler, which
-    draws it through ``noise_factor`` (module notes).
+    draws it through ``noise_factor`` (module notes), always derived from ``noise_cov``. Known
+    dynamics: :meth:`from_dynamics` (or assign ``A``, ``B``, ``c`` and ``noise_cov``).
 
     Parameters
     ----------
@@ -56,13 +53,69 @@ class LinearGaussianModel:
         self.target = target
         self.ridge = float(ridge)
         self.dtype = DTYPE
-        self.state_dim = 0
-        self.control_dim = 0
         self.A: np.ndarray | None = None
         self.B: np.ndarray | None = None
         self.c: np.ndarray | None = None
         self.noise_cov: np.ndarray | None = None
-        self.noise_factor: np.ndarray | None = None
+        self._factor_of: tuple[np.ndarray, np.ndarray] | None = None  # (Σ_w copy, its F)
+
+    @classmethod
+    def from_dynamics(cls, A, B, c, noise_cov) -> LinearGaussianModel:
+        """A model of known dynamics x' = A x + B u + c + w, w ~ N(0, Σ_w), without fitting.
+
+        Parameters
+        ----------
+        A : array_like, shape (n_x, n_x)
+        B : array_like, shape (n_x, n_u)
+        c : array_like, shape (n_x,)
+        noise_cov : array_like, shape (n_x, n_x)
+            Σ_w, symmetric positive semi-definite (its factor :attr:`noise_factor` is derived).
+        """
+        a = check_array(A, "A", ndim=2)
+        n_x = a.shape[0]
+        a = check_array(a, "A", shape=(n_x, n_x))
+        model = cls()
+        model.A = a
+        model.B = check_array(B, "B", shape=(n_x, None))
+        model.c = check_array(c, "c", shape=(n_x,))
+        cov = check_array(noise_cov, "noise_cov", shape=(n_x, n_x))
+        scale = max(float(np.abs(cov).max(initial=0.0)), np.finfo(float).tiny)
+        if np.abs(cov - cov.T).max(initial=0.0) > 1e-10 * scale:
+            raise ValueError("noise_cov: expected a symmetric matrix")
+        lam_min = float(np.linalg.eigvalsh(cov).min(initial=0.0)) if n_x else 0.0
+        if lam_min < -1e-10 * scale:
+            raise ValueError(
+                f"noise_cov: expected a positive semi-definite matrix; smallest eigenvalue is "
+                f"{lam_min:.3g}"
+            )
+        model.noise_cov = cov
+        return model
+
+    @property
+    def state_dim(self) -> int:
+        """n_x (0 before the dynamics are set)."""
+        return 0 if self.A is None else int(np.shape(self.A)[0])
+
+    @property
+    def control_dim(self) -> int:
+        """n_u (0 before the dynamics are set)."""
+        return 0 if self.B is None else int(np.shape(self.B)[1])
+
+    @property
+    def noise_factor(self) -> np.ndarray | None:
+        """F, the symmetric square root of Σ_w (F Fᵀ = F F = Σ_w), shape (n_x, n_x).
+
+        Derived from the current ``noise_cov`` (``None`` while it is unset) and cached; the
+        cache is recomputed whenever ``noise_cov`` is reassigned or changed in place.
+        """
+        if self.noise_cov is None:
+            return None
+        cov = np.asarray(self.noise_cov, dtype=np.float64)
+        cached = getattr(self, "_factor_of", None)  # absent in objects pickled before it
+        if cached is None or cached[0].shape != cov.shape or not np.array_equal(cached[0], cov):
+            cached = (cov.copy(), _psd_sqrt(cov))
+            self._factor_of = cached
+        return cached[1]
 
     def fit(self, states, controls, next_states, rng=None) -> LinearGaussianModel:
         """Least squares on transitions (x_t, u_t) → x_{t+1}; ``rng`` is unused.
@@ -87,17 +140,17 @@ class LinearGaussianModel:
         reg = self.ridge * np.mean(z1[:, :-1] ** 2) * np.diag([1.0] * (n_x + n_u) + [0.0])
         w = np.linalg.solve(z1.T @ z1 + reg, z1.T @ y)  # (D + 1, n_x)
         res = y - z1 @ w
-        self.state_dim, self.control_dim = n_x, n_u
         self.A = w[:n_x].T + (np.eye(n_x) if self.target == "delta" else 0.0)
         self.B = w[n_x : n_x + n_u].T
         self.c = w[-1]
         self.noise_cov = res.T @ res / max(x.shape[0] - n_x - n_u - 1, 1)
-        self.noise_factor = _psd_sqrt(self.noise_cov)
         return self
 
     def _check_fitted(self) -> None:
-        if self.A is None:
-            raise RuntimeError("LinearGaussianModel: call fit() first")
+        if self.A is None or self.B is None or self.c is None or self.noise_cov is None:
+            raise RuntimeError(
+                "LinearGaussianModel: call fit() first (or build it with from_dynamics)"
+            )
 
     def to(self, device=None, dtype: torch.dtype | None = None) -> LinearGaussianModel:
         """Itself, with predictions in ``dtype`` (the arrays are converted per call)."""
@@ -135,7 +188,7 @@ class LinearGaussianModel:
         """
         self._check_fitted()
         return torch.as_tensor(
-            self.noise_factor.copy(), dtype=self.dtype if dtype is None else dtype, device=device
+            np.array(self.noise_factor), dtype=self.dtype if dtype is None else dtype, device=device
         )
 
     def __repr__(self) -> str:

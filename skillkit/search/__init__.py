@@ -11,6 +11,7 @@ and :class:`LoopState` (what it has done; what it checkpoints).
 """
 
 from skillkit.search.base import Batch, extra_context_importance
+from skillkit.search.ccmaes import CCMAES, CCMAESDiagnostics, CCMAESSettings
 from skillkit.search.crkr import CrKR, CrKRDiagnostics, CrKRPolicy
 from skillkit.search.gpreps import (
     GPREPS,
@@ -57,6 +58,9 @@ def __getattr__(name: str):
 
 
 __all__ = [
+    "CCMAES",
+    "CCMAESDiagnostics",
+    "CCMAESSettings",
     "CMAES",
     "CBODiagnostics",
     "CBOPolicy",

@@ -75,6 +75,11 @@ def _check_callable(fn, name: str, required: bool = True):
     return fn
 
 
+def _function_name(fn) -> str:
+    """The name of a user function for messages: its qualified name, else its repr."""
+    return str(getattr(fn, "__qualname__", None) or repr(fn))
+
+
 class FunctionTask(Task):
     """A model-free task from a rollout function that returns the reward (a black box).
 
@@ -84,8 +89,10 @@ class FunctionTask(Task):
         ``rollout(omega, context, rng) -> float``: runs one episode with lower-level parameters
         ω (ndarray (parameter_dim,)) in context s (ndarray (context_dim,), ``None`` for a
         context-free task), with randomness from ``rng`` (a numpy Generator; use it for every
-        random draw and same seed ⇒ same reward), and returns the reward R(τ, s). It may
-        raise: the rollout is then recorded as failed (module notes).
+        random draw and same seed ⇒ same reward), and returns the reward R(τ, s), a real
+        number (an int, a float or a numpy real scalar; a str, a bool or a complex number is
+        refused with ``ValueError``). It may raise: the rollout is then recorded as failed
+        (module notes).
     parameter_dim : int
         Dimension d ≥ 1 of ω.
     context_low, context_high : array_like, shape (context_dim,), optional
@@ -196,11 +203,18 @@ class FunctionTask(Task):
                 + (f" of shape {np.shape(out)}" if isinstance(out, np.ndarray) else "")
                 + "; a rollout that returns (states, controls) makes a TrajectoryTask"
             )
+        kind = np.asarray(out).dtype.kind if isinstance(out, (np.ndarray, np.generic)) else ""
+        if isinstance(out, (str, bytes, bool, complex)) or kind in ("b", "c", "U", "S", "O"):
+            raise ValueError(
+                f"rollout ({_function_name(self._rollout)}): expected a real reward (an int, a "
+                f"float or a numpy real scalar), got {type(out).__name__} {out!r}"
+            )
         try:
             r = float(out)
         except (TypeError, ValueError):
             raise ValueError(
-                f"rollout: expected a scalar reward (a float), got {type(out).__name__}"
+                f"rollout ({_function_name(self._rollout)}): expected a scalar reward (a float), "
+                f"got {type(out).__name__}"
             ) from None
         if not np.isfinite(r):
             raise SimulationFailure(f"rollout returned a non-finite reward ({r})")

@@ -203,3 +203,56 @@ def test_noise_factor_of_a_rank_deficient_covariance():
     assert m.to(dtype=torch.float32).noise_factor_tensor().dtype == torch.float32
     with pytest.raises(RuntimeError, match="fit"):
         LinearGaussianModel().noise_factor_tensor()
+
+
+@pytest.mark.parametrize("build", ["from_dynamics", "assigned"])
+def test_a_hand_built_model_samples_its_known_dynamics(build):
+    """Known dynamics (no fit): one sampled step has mean A x + B u + c and covariance Σ_w
+    within 5 Monte Carlo standard errors (the samples' own fourth moments), and the noise
+    factor follows ``noise_cov`` when it is reassigned or changed in place."""
+    A = np.array([[0.9, 0.2], [-0.1, 1.0]])
+    B = np.array([[0.0], [0.3]])
+    c = np.array([0.1, -0.2])
+    cov = np.array([[0.04, 0.03], [0.03, 0.09]])
+    if build == "from_dynamics":
+        model = LinearGaussianModel.from_dynamics(A, B, c, cov)
+    else:
+        model = LinearGaussianModel()
+        model.A, model.B, model.c, model.noise_cov = A, B, c, cov
+    assert (model.state_dim, model.control_dim) == (2, 1)
+    x0, u0 = np.array([0.5, -1.0]), 0.7
+    L = 20_000
+    res = sample_trajectories(
+        model, x0[None], lambda t, x, p: torch.full((x.shape[0], 1), u0, dtype=x.dtype), 1, L,
+        rng=3,
+    )  # fmt: skip
+    x1 = res.states[0, :, 1].numpy()  # (L, 2)
+    expected = A @ x0 + B[:, 0] * u0 + c
+    assert np.all(np.abs(x1.mean(0) - expected) < 5 * mean_se(x1))
+    assert np.all(np.abs(np.cov(x1.T, bias=True) - cov) < 5 * cov_se(x1))
+    tol = fp_tol(4, np.linalg.norm(cov, 2))
+    np.testing.assert_allclose(model.noise_factor @ model.noise_factor.T, cov, atol=tol)
+    model.noise_cov = 4.0 * cov  # reassigned: the factor follows
+    np.testing.assert_allclose(model.noise_factor @ model.noise_factor.T, 4 * cov, atol=4 * tol)
+    model.noise_cov[1, 1] = 1.0  # changed in place: so does the factor
+    np.testing.assert_allclose(
+        model.noise_factor @ model.noise_factor.T, model.noise_cov, atol=fp_tol(4, 1.0)
+    )
+
+
+def test_from_dynamics_refuses_bad_input_naming_the_argument():
+    A, B, c = np.eye(2), np.ones((2, 1)), np.zeros(2)
+    with pytest.raises(ValueError, match="A: expected shape"):
+        LinearGaussianModel.from_dynamics(np.ones((2, 3)), B, c, np.eye(2))
+    with pytest.raises(ValueError, match="B: expected shape"):
+        LinearGaussianModel.from_dynamics(A, np.ones((3, 1)), c, np.eye(2))
+    with pytest.raises(ValueError, match="c: expected shape"):
+        LinearGaussianModel.from_dynamics(A, B, np.zeros(3), np.eye(2))
+    with pytest.raises(ValueError, match="noise_cov: expected a symmetric"):
+        LinearGaussianModel.from_dynamics(A, B, c, [[1.0, 0.5], [0.0, 1.0]])
+    with pytest.raises(ValueError, match="noise_cov: expected a positive semi-definite"):
+        LinearGaussianModel.from_dynamics(A, B, c, [[1.0, 0.0], [0.0, -1.0]])
+    half = LinearGaussianModel()
+    half.A = A  # B, c, noise_cov still unset
+    with pytest.raises(RuntimeError, match="fit"):
+        half.noise_factor_tensor()

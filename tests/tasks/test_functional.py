@@ -261,3 +261,29 @@ def test_without_controller_there_is_no_model_rollout():
         TrajectoryRewardModel(task)
     with pytest.raises(NotImplementedError, match="not available"):
         task.initial_states([1.0], 2)
+
+
+def _returns_a_string(omega, context, rng):
+    return "-1.23"
+
+
+@pytest.mark.parametrize(
+    ("value", "type_name"),
+    [("-1.23", "str"), (b"-1", "bytes"), (True, "bool"), (np.bool_(False), "bool"),
+     (1 + 0j, "complex"), (np.array("-1.0"), "ndarray")],
+)  # fmt: skip
+def test_a_reward_that_is_no_real_number_is_refused_naming_function_and_type(value, type_name):
+    task = _model_free(lambda omega, context, rng: value)
+    with pytest.raises(ValueError, match=rf"rollout \(.*<lambda>\): expected a real .*{type_name}"):
+        task.rollout([0.0, 0.0], [0.0, 0.0])
+    task = _model_free(_returns_a_string)
+    with pytest.raises(ValueError, match=r"rollout \(_returns_a_string\): .* got str '-1.23'"):
+        task.rollout([0.0, 0.0], [0.0, 0.0])
+
+
+@pytest.mark.parametrize("value", [-2, -2.0, np.float32(-2.0), np.int64(-2), np.array(-2.0)])
+def test_real_rewards_of_any_real_type_are_accepted(value):
+    task = _model_free(lambda omega, context, rng: value)
+    traj = task.rollout([0.0, 0.0], [0.0, 0.0])
+    assert task.reward(traj, [0.0, 0.0]) == -2.0
+    assert type(task.reward(traj, [0.0, 0.0])) is float

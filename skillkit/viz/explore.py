@@ -1,9 +1,15 @@
 """Things to change and watch in a notebook: sliders that redraw a figure made by library calls.
 
-:func:`explore` shows the figure for the default values as an ordinary output (so an exported
-HTML page or a notebook opened without a kernel still shows it), then the controls; moving a
-control redraws that same output in place (``display(..., display_id=True)``). Without
-ipywidgets, or when ``controls=False``, only the static figure is shown.
+:func:`explore` shows two outputs. The first is the figure for the default values, for pages
+without a live kernel: an exported HTML page shows it, while a front end with the widget
+manager hides it (its bundle also holds a widget view of no model, ``model_id: ""``, which
+ipywidgets renders as nothing and nbconvert skips). The second is the live part: an
+``ipywidgets.Output`` holding the figure, above the controls. A moved control redraws the
+figure into that ``Output`` by replacing its ``outputs`` from the kernel, which JupyterLab
+renders (it ignores a ``display_id`` update sent from a widget callback). Without
+ipywidgets, or when ``controls=False``, only the static figure is shown. A notebook saved
+from JupyterLab and reopened without a kernel shows the figure only where the widget state was
+saved with it (JupyterLab's "Save Widget State Automatically").
 
 >>> from skillkit.viz.explore import Slider, explore
 >>> def draw(epsilon):                     # any function returning a figure
@@ -20,6 +26,10 @@ from dataclasses import dataclass, field
 from typing import Any
 
 __all__ = ["Choice", "Exploration", "Slider", "explore"]
+
+_WIDGET_VIEW = "application/vnd.jupyter.widget-view+json"
+#: A widget view of no model: ipywidgets front ends hide it, nbconvert skips it.
+_NO_WIDGET = {"model_id": "", "version_major": 2, "version_minor": 0}
 
 
 @dataclass(frozen=True)
@@ -133,7 +143,8 @@ class Exploration:
     figure : object
         The last figure drawn.
     controls : object or None
-        The ipywidgets box of controls (None without ipywidgets).
+        The ipywidgets box of the controls and the figure's ``Output`` (None without
+        ipywidgets).
     """
 
     draw: Callable[..., Any]
@@ -141,6 +152,7 @@ class Exploration:
     figure: Any = None
     controls: Any = None
     _handle: Any = field(default=None, repr=False)
+    _output: Any = field(default=None, repr=False)
 
     def set(self, **values) -> Any:
         """Redraw with some values changed (what moving a control does); returns the figure."""
@@ -151,9 +163,38 @@ class Exploration:
             )
         self.values.update(values)
         self.figure = self.draw(**self.values)
-        if self._handle is not None:
+        if self._output is not None:
+            self._output.outputs = (_display_output(self.figure),)
+        elif self._handle is not None:
             self._handle.update(self.figure)
         return self.figure
+
+    def _moved(self, name: str, value) -> None:
+        """A control's callback: redraw, or show in the figure's place why that failed (a
+        widget callback's exception would otherwise only reach the kernel's log)."""
+        try:
+            self.set(**{name: value})
+        except Exception as err:
+            text = f"{name} = {value!r}: {type(err).__name__}: {err}\n"
+            self._output.outputs = ({"output_type": "stream", "name": "stderr", "text": text},)
+
+
+def _display_output(obj) -> dict:
+    """``obj`` as one nbformat ``display_data`` output (what ``display(obj)`` would send).
+
+    IPython's ``_ipython_display_`` hook (plotly figures have one) is switched off meanwhile:
+    it would publish the figure itself, as a separate output, instead of returning it.
+    """
+    from IPython import get_ipython
+
+    formatter = get_ipython().display_formatter
+    hook = formatter.ipython_display_formatter
+    enabled, hook.enabled = hook.enabled, False
+    try:
+        data, metadata = formatter.format(obj)
+    finally:
+        hook.enabled = enabled
+    return {"output_type": "display_data", "data": data, "metadata": metadata}
 
 
 def explore(draw: Callable[..., Any], /, *, controls: bool = True, **specs) -> Exploration:
@@ -195,18 +236,25 @@ def explore(draw: Callable[..., Any], /, *, controls: bool = True, **specs) -> E
         return shown
     if get_ipython() is None:
         return shown
-    shown._handle = display(shown.figure, display_id=True)
-    if not controls:
+    w = None
+    if controls:
+        try:
+            import ipywidgets as w
+        except ImportError:
+            pass
+    if w is None:
+        shown._handle = display(shown.figure, display_id=True)
+        if controls:
+            display("(install ipywidgets to move the controls; the figure shows the defaults)")
         return shown
-    try:
-        import ipywidgets as w
-    except ImportError:
-        display("(install ipywidgets to move the controls; the figure shows the defaults)")
-        return shown
+    figure = _display_output(shown.figure)
+    # For pages without a live kernel: the default figure, hidden where widgets are live.
+    display({**figure["data"], _WIDGET_VIEW: _NO_WIDGET}, metadata=figure["metadata"], raw=True)
+    shown._output = w.Output(outputs=(figure,))
     sliders = {k: s.widget(k) for k, s in specs.items()}
     for k, slider in sliders.items():
-        slider.observe(lambda change, k=k: shown.set(**{k: change["new"]}), names="value")
-    shown.controls = w.VBox(list(sliders.values()))
+        slider.observe(lambda change, k=k: shown._moved(k, change["new"]), names="value")
+    shown.controls = w.VBox([shown._output, *sliders.values()])
     # A page exported without widget state shows the text/plain part: say what the controls
     # are instead of ipywidgets' repr.
     bundle = dict(shown.controls._repr_mimebundle_() or {})

@@ -1,5 +1,7 @@
 """Headless Chromium driven over the DevTools protocol: a helper of the browser tests
-(``tests/viz/test_browser.py``) and of ``docs/make_screenshots.py``, not part of the package.
+(``tests/viz/test_browser.py``, ``tests/viz/test_live_widgets.py``, which also start JupyterLab
+with :class:`JupyterLab`) and of the ``docs/make_*screenshot*.py`` scripts, not part of the
+package.
 
 Needs Debian's Chromium (``apt-get install chromium``) and the ``websockets`` package (a viser
 dependency). Import it as ``from headless_browser import HeadlessBrowser`` with this folder on
@@ -20,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["HeadlessBrowser"]
+__all__ = ["HeadlessBrowser", "JupyterLab"]
 
 
 class HeadlessBrowser:
@@ -215,3 +217,185 @@ class HeadlessBrowser:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+class JupyterLab:
+    """A JupyterLab server on 127.0.0.1 for browser tests, serving one folder.
+
+    Starts ``jupyter lab`` headless on a free localhost port with a random token, its
+    settings, workspaces and runtime files in a temporary folder (news and update checks off,
+    the application exposed as ``window.jupyterapp`` for the page scripts), and stops it on
+    :meth:`close`. Use it as a context manager.
+
+    Parameters
+    ----------
+    root : str or Path
+        The folder the server serves (the notebooks the test opens).
+    timeout : float
+        Seconds to wait for the server to answer.
+    """
+
+    def __init__(self, root, timeout: float = 60.0) -> None:
+        import os
+        import secrets
+        import socket
+        import sys
+
+        self.root = Path(root)
+        if not self.root.is_dir():
+            raise ValueError(f"root: expected an existing folder, got {str(root)!r}")
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            self.port = s.getsockname()[1]
+        self.token = secrets.token_hex(16)
+        self._home = Path(tempfile.mkdtemp(prefix="skillkit-lab-"))
+        settings = self._home / "settings" / "@jupyterlab" / "apputils-extension"
+        settings.mkdir(parents=True)
+        (settings / "notification.jupyterlab-settings").write_text(
+            json.dumps({"fetchNews": "false", "checkForUpdates": False})
+        )
+        env = {
+            **os.environ,
+            "JUPYTER_RUNTIME_DIR": str(self._home / "runtime"),
+            "JUPYTER_CONFIG_DIR": str(self._home / "config"),
+            "IPYTHONDIR": str(self._home / "ipython"),
+        }
+        self._log = open(self._home / "server.log", "wb")  # noqa: SIM115  (closed in close())
+        self._proc = subprocess.Popen(
+            [
+                sys.executable, "-m", "jupyter", "lab", "--no-browser",
+                "--ServerApp.ip=127.0.0.1", f"--ServerApp.port={self.port}",
+                "--ServerApp.port_retries=0", f"--IdentityProvider.token={self.token}",
+                f"--ServerApp.root_dir={self.root}",
+                f"--LabApp.user_settings_dir={self._home / 'settings'}",
+                f"--LabApp.workspaces_dir={self._home / 'workspaces'}",
+                "--LabApp.expose_app_in_browser=True",
+                *(["--allow-root"] if os.geteuid() == 0 else []),
+            ],
+            stdout=self._log,
+            stderr=subprocess.STDOUT,
+            env=env,
+        )  # fmt: skip
+        try:
+            deadline = time.monotonic() + timeout
+            while True:
+                if self._proc.poll() is not None:
+                    raise RuntimeError(f"jupyter lab exited ({self._proc.poll()}): {self.log()}")
+                try:
+                    with urllib.request.urlopen(f"{self.url('api/status')}", timeout=5):
+                        break
+                except OSError:
+                    if time.monotonic() > deadline:
+                        raise TimeoutError(f"jupyter lab did not answer in {timeout:g} s") from None
+                    time.sleep(0.25)
+        except BaseException:
+            self.close()
+            raise
+
+    def url(self, path: str = "lab") -> str:
+        """The address of ``path`` on the server, with the token."""
+        return f"http://127.0.0.1:{self.port}/{path}?token={self.token}"
+
+    def log(self) -> str:
+        """The server's output so far (the end of it)."""
+        self._log.flush()
+        return (self._home / "server.log").read_text(errors="replace")[-4000:]
+
+    def close(self) -> None:
+        """Stop the server (and its kernels) and delete its temporary folder."""
+        if self._proc.poll() is None:
+            self._proc.terminate()  # SIGTERM: the server shuts its kernels down
+            try:
+                self._proc.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                self._proc.kill()
+                self._proc.wait()
+        self._log.close()
+        shutil.rmtree(self._home, ignore_errors=True)
+
+    def __enter__(self) -> JupyterLab:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def evaluate(browser: HeadlessBrowser, expression: str, timeout: float = 60.0):
+    """The value of a JavaScript expression in the page (promises awaited); raises on a
+    thrown error."""
+    reply = browser.call(
+        "Runtime.evaluate",
+        timeout=timeout,
+        expression=expression,
+        awaitPromise=True,
+        returnByValue=True,
+    )
+    if "exceptionDetails" in reply:
+        raise RuntimeError(f"page script failed: {reply['exceptionDetails']}")
+    return reply.get("result", {}).get("value")
+
+
+def wait_until(browser: HeadlessBrowser, expression: str, timeout: float, what: str):
+    """Poll a JavaScript expression until it is truthy; return its value."""
+    deadline = time.monotonic() + timeout
+    while True:
+        value = evaluate(browser, expression)
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise TimeoutError(f"{what}: not after {timeout:g} s")
+        time.sleep(0.25)
+
+
+def run_notebook_in_lab(
+    browser: HeadlessBrowser, lab: JupyterLab, name: str, timeout: float = 60.0
+) -> None:
+    """Open notebook ``name`` of ``lab`` in the page, wait for its kernel, run all its cells
+    and wait until the kernel is idle again (the left side bar closed)."""
+    browser.call("Emulation.setFocusEmulationEnabled", enabled=True)  # as if in front
+    browser.open(lab.url(f"lab/tree/{name}"))
+    panel = (
+        "(window.jupyterapp && [...window.jupyterapp.shell.widgets('main')]"
+        f".find(w => w.sessionContext && w.context && w.context.path === {json.dumps(name)}))"
+    )
+    kernel = (
+        f"(() => {{ const w = {panel}; const k = w && w.sessionContext.session &&"
+        " w.sessionContext.session.kernel; return k ? k.status : ''; })()"
+    )
+    wait_until(browser, f"{kernel} === 'idle'", timeout, "the notebook's kernel is idle")
+    evaluate(browser, "window.jupyterapp.shell.collapseLeft()")
+    evaluate(browser, f"window.jupyterapp.shell.activateById({panel}.id)")
+    evaluate(browser, "window.jupyterapp.commands.execute('notebook:run-all-cells')", timeout)
+    wait_until(
+        browser,
+        "[...document.querySelectorAll('.jp-Notebook .jp-InputPrompt')]"
+        ".every(e => /\\[\\d+\\]/.test(e.textContent))",
+        timeout,
+        "every cell ran",
+    )
+    wait_until(browser, f"{kernel} === 'idle'", timeout, "the kernel is idle after the run")
+
+
+def type_into_slider(
+    browser: HeadlessBrowser, text: str, index: int = 0, timeout: float = 30.0
+) -> None:
+    """Type ``text`` into the readout of the ``index``-th ipywidgets slider on the page and
+    press Enter, as a user sets a slider to an exact value."""
+    readout = f"document.querySelectorAll('.widget-slider .widget-readout')[{int(index)}]"
+    wait_until(browser, f"!!{readout}", timeout, "a slider is on the page")
+    evaluate(
+        browser,
+        f"(() => {{ const r = {readout}; r.scrollIntoView({{block: 'center'}}); r.focus();"
+        " const s = window.getSelection(); s.removeAllRanges(); const g = document.createRange();"
+        " g.selectNodeContents(r); s.addRange(g); return true; })()",
+    )
+    browser.call("Input.insertText", text=text)
+    for kind in ("keyDown", "keyUp"):
+        browser.call(
+            "Input.dispatchKeyEvent",
+            type=kind,
+            key="Enter",
+            code="Enter",
+            windowsVirtualKeyCode=13,
+            nativeVirtualKeyCode=13,
+        )

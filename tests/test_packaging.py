@@ -4,9 +4,8 @@ the README quickstart and .ci/run agree, and the pinned simulator stack imports.
 from __future__ import annotations
 
 import re
-from pathlib import Path
-
 import tomllib
+from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 

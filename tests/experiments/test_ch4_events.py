@@ -5,7 +5,6 @@ and the settings."""
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import numpy as np
@@ -15,31 +14,13 @@ from scipy import stats
 from skillkit.experiments import ch4_events as ev
 from skillkit.experiments import get, reproduce
 from skillkit.experiments.judge import card_lines_ok, judge, read, spec
-from skillkit.experiments.run import stored_run
 from skillkit.viz.model_layers import load_gpreps_run, model_layers
+from tests._claims import part as _part
+from tests._claims import stored as _stored
+from tests._claims import wilson as _wilson
 from tests._tolerances import fp_tol
 
 REPO = Path(__file__).resolve().parents[2]
-
-
-def _part(exp_id: str, label: str):
-    (part,) = [p for p in spec(exp_id).parts if p.label == label]
-    return part
-
-
-def _stored(exp_id: str):
-    try:
-        return stored_run(exp_id)
-    except FileNotFoundError as exc:  # an installed package without data/results
-        pytest.skip(str(exc))
-
-
-def _wilson(k: float, n: float) -> tuple[float, float]:
-    """The Wilson score interval in its count form (k ± ...) / (n + z²), written apart from the
-    engine's rate form."""
-    z = stats.norm.isf(0.025)
-    centre, half = k + z * z / 2, z * math.sqrt(k * (n - k) / n + z * z / 4)
-    return (centre - half) / (n + z * z), (centre + half) / (n + z * z)
 
 
 def test_fig410_placed_puck_interval_is_students_t_over_the_stored_trials():

@@ -19,6 +19,9 @@ CHAPTERS = ("ch2_preliminaries", "ch3_contextual_reps", "ch4_gpreps", "ch5_kerne
 #: writes one from scratch: its functions live in cells tagged OWN_CODE_TAG, and only there.
 OWN_CODE_TAG = "your-skill"
 OWN_CODE_NOTEBOOKS = ("06_your_own_skill",)
+#: A teaching cell shows an algorithm as plain code (it may define functions); the next code
+#: cell checks it against the library and fails loudly (an ``assert``) when they differ.
+TEACHING_TAG = "teaching"
 
 
 def _load(name: str) -> dict:
@@ -26,7 +29,12 @@ def _load(name: str) -> dict:
 
 
 def _own(cell: dict) -> bool:
-    return OWN_CODE_TAG in cell.get("metadata", {}).get("tags", [])
+    tags = cell.get("metadata", {}).get("tags", [])
+    return OWN_CODE_TAG in tags or TEACHING_TAG in tags
+
+
+def _teaching(cell: dict) -> bool:
+    return TEACHING_TAG in cell.get("metadata", {}).get("tags", [])
 
 
 def _code(nb: dict, own: bool = True) -> list[str]:
@@ -52,7 +60,15 @@ def test_stored_without_outputs_and_scaled_by_one_variable(path):
     assert "matplotlib.use" not in code and "class " not in code
     assert "def " not in "\n".join(_code(nb, own=False)), path.name
     if path.stem not in OWN_CODE_NOTEBOOKS:
-        assert not any(_own(c) for c in nb["cells"]), path.name
+        own = [c for c in nb["cells"] if OWN_CODE_TAG in c.get("metadata", {}).get("tags", [])]
+        assert not own, path.name
+    code_cells = [c for c in nb["cells"] if c["cell_type"] == "code"]
+    for i, cell in enumerate(code_cells):
+        if _teaching(cell):  # a teaching cell is followed by its check against the library
+            after = code_cells[i + 1] if i + 1 < len(code_cells) else None
+            assert after is not None and "assert " in "".join(after["source"]), (
+                f"{path.name}: teaching cell {cell['id']} is not followed by a check cell"
+            )
 
 
 def test_every_chapter_exists_and_every_experiment_is_shown_stored_and_live():

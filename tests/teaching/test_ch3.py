@@ -162,6 +162,17 @@ def test_weights_figure_draws_the_weights_3_10_on_one_exponential(batch):
     )
 
 
+def test_weights_figure_draws_the_bound_as_the_identity_on_the_log_axis(batch):
+    _, _, b, phi = batch
+    fig = ch3.weights_and_kl_figure(b.rewards, phi, 0.5, epsilons=[0.01, 0.5, 10.0])
+    line = _trace(fig, "KL = ε (the bound, Eq. 3.4)")[0]
+    assert np.allclose(line.x, line.y, rtol=1e-15)
+    # read off as drawn (straight segments on a log-ε axis): at ε = 0.5 the line is at 0.5,
+    # to within the chord error of y = ε between grid points a factor 1000^(1/199) apart
+    drawn = np.interp(np.log(0.5), np.log(line.x), line.y)
+    assert drawn == pytest.approx(0.5, rel=(1000 ** (1 / 199) - 1) ** 2)
+
+
 def test_weights_figure_says_when_the_bound_is_inactive(batch):
     _, _, b, phi = batch
     fig = ch3.weights_and_kl_figure(b.rewards, phi, 10.0, epsilons=[0.5, 10.0])

@@ -77,7 +77,8 @@ def test_smoke_hockey_real_is_not_judged_and_records_the_per_run_numbers(tmp_pat
     assert card_lines_ok(s["judgement"]["card"]) and len(s["judgement"]["card"].split("\n")) == 3
     g = s["gpreps"]
     assert len(g["initial_reward_per_trial"]) == s["n_trials"] == 2
-    assert np.mean(g["initial_reward_per_trial"]) == pytest.approx(g["initial_reward"], abs=1e-15)
+    x0 = g["initial_reward_per_trial"]  # a mean of n numbers, summed in another order
+    assert abs(np.mean(x0) - g["initial_reward"]) <= fp_tol(len(x0), scale=np.abs(x0).max())
     assert len(g["prediction_relative_error_median_per_trial"]) == 2
     assert judge("fig4.11", s, "paper").readings[1].outcome != "not measured"
 

@@ -32,3 +32,16 @@ def wilson(k: float, n: float) -> tuple[float, float]:
     z = stats.norm.isf(0.025)
     centre, half = k + z * z / 2, z * math.sqrt(k * (n - k) / n + z * z / 4)
     return (centre - half) / (n + z * z), (centre + half) / (n + z * z)
+
+
+def resummarised(exp_id: str) -> tuple[Run, dict]:
+    """The stored paper run of ``exp_id`` and today's summary of its stored trials
+    (``trials.npz``; no trial re-run)."""
+    from skillkit.experiments.registry import get
+    from skillkit.experiments.runner import load_trials
+    from skillkit.experiments.settings import apply_overrides
+
+    run = stored(exp_id)
+    exp = get(exp_id)
+    settings = apply_overrides(exp.settings[run.scale], run.settings)
+    return run, exp.summarize(settings, load_trials(run.path))[1]

@@ -11,7 +11,6 @@ import pytest
 from _tolerances import fp_tol, mc_tol
 from scipy import stats
 
-from skillkit.experiments import get
 from skillkit.experiments.ch4_balancing import (
     BalancingComparisonSettings,
     experience_to_reach,
@@ -22,11 +21,11 @@ from skillkit.experiments.ch4_balancing import (
 from skillkit.experiments.judge import card_lines_ok, judge, read, spec
 from skillkit.experiments.run import stored_run
 from skillkit.experiments.runner import run_trials
-from skillkit.experiments.settings import apply_overrides
 from skillkit.models.linear import LinearGaussianModel
 from skillkit.search import model_rollouts
 from skillkit.search.gpreps import TrajectoryRewardModel
 from skillkit.tasks import make
+from tests._claims import resummarised
 
 
 def test_experience_to_reach_is_the_first_evaluation_at_or_above_the_limit():
@@ -47,16 +46,7 @@ def _part(label: str):
 
 
 def _resummarised():
-    """The stored paper run and today's summary of its stored trials (no trial re-run)."""
-    run = stored_run("tab4.2")
-    with np.load(run.path / "trials.npz") as z:
-        trials: list[dict] = [{} for _ in range(run.result["trials"])]
-        for key in z.files:
-            trial, name = key.split("__", 1)
-            trials[int(trial.removeprefix("trial"))][name] = z[key]
-    exp = get("tab4.2")
-    st = apply_overrides(exp.settings["paper"], run.settings)
-    return run, exp.summarize(st, trials)[1]
+    return resummarised("tab4.2")
 
 
 def test_start_reading_is_the_t_interval_of_the_stored_start_rewards():

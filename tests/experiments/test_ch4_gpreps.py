@@ -9,12 +9,11 @@ import pytest
 from _tolerances import fp_tol
 from scipy import stats
 
-from skillkit.experiments import get
 from skillkit.experiments.ch4_gpreps import _noise_ratios
 from skillkit.experiments.judge import card_lines_ok, judge, read, spec
 from skillkit.experiments.run import stored_run
 from skillkit.experiments.runner import run_trials
-from skillkit.experiments.settings import apply_overrides
+from tests._claims import resummarised
 
 
 def _part(exp_id: str, label: str):
@@ -22,22 +21,8 @@ def _part(exp_id: str, label: str):
     return p
 
 
-def _stored_trials(run) -> list[dict]:
-    """The stored run's per-trial arrays (``trials.npz``, keys ``trial{i}__{name}``)."""
-    with np.load(run.path / "trials.npz") as z:
-        trials: list[dict] = [{} for _ in range(run.result["trials"])]
-        for key in z.files:
-            trial, name = key.split("__", 1)
-            trials[int(trial.removeprefix("trial"))][name] = z[key]
-    return trials
-
-
 def _resummarised(exp_id: str):
-    """The stored paper run and today's summary of its stored trials (no trial re-run)."""
-    run = stored_run(exp_id)
-    exp = get(exp_id)
-    st = apply_overrides(exp.settings["paper"], run.settings)
-    return run, exp.summarize(st, _stored_trials(run))[1]
+    return resummarised(exp_id)
 
 
 def _t_interval(x) -> tuple[float, float]:

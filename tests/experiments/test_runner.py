@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -518,3 +519,31 @@ def test_runs_and_compare_survive_foreign_result_files(toy, tmp_path, capsys):
     assert main(["compare", str(tmp_path / "list"), str(tmp_path / "bare")]) == 2
     err = capsys.readouterr().err
     assert "holds no run (expected a JSON object, got list)" in err and "Traceback" not in err
+
+
+def test_remeasure_adds_what_todays_summary_makes_and_refuses_a_changed_measurement(tmp_path):
+    """A stored run missing a measurement gets it back from its own trials.npz (recorded as
+    ``remeasured``); a stored measurement today's summary does not reproduce is refused and
+    nothing is written."""
+    import shutil
+
+    from skillkit.experiments.runner import remeasure
+
+    src = Path(__file__).resolve().parents[2] / "data" / "results" / "fig3.7-paper-s0"
+    if not src.is_dir():
+        pytest.skip("no stored fig3.7 result")
+    folder = tmp_path / "fig3.7-paper-s0"
+    shutil.copytree(src, folder)
+    path = folder / "result.json"
+    result = json.loads(path.read_text())
+    kept = result["summary"].pop("final_reward_per_trial")
+    path.write_text(json.dumps(result))
+    assert remeasure(folder, write=True) == ["final_reward_per_trial"]
+    back = json.loads(path.read_text())
+    assert back["summary"]["final_reward_per_trial"] == kept
+    assert back["remeasured"]["added"] == ["summary.final_reward_per_trial"]
+    back["summary"]["final_reward_mean"] += 1.0  # a number today's code would not make
+    path.write_text(json.dumps(back))
+    with pytest.raises(ValueError, match="final_reward_mean"):
+        remeasure(folder, write=True)
+    assert json.loads(path.read_text()) == back

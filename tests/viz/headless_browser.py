@@ -21,8 +21,21 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 __all__ = ["HeadlessBrowser", "JupyterLab"]
+
+CHROMIUM = Path("/usr/bin/chromium")
+"""Debian's headless Chromium, which the browser tests drive."""
+
+NEEDS_CHROMIUM = [
+    pytest.mark.browser,
+    pytest.mark.skipif(
+        not CHROMIUM.exists(),
+        reason="needs Debian's headless Chromium at /usr/bin/chromium (apt-get install chromium)",
+    ),
+]
+"""``pytestmark`` of a browser test module."""
 
 
 class HeadlessBrowser:

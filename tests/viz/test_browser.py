@@ -11,21 +11,17 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from headless_browser import HeadlessBrowser  # tests/viz/headless_browser.py
+from headless_browser import (  # tests/viz/headless_browser.py
+    CHROMIUM,
+    NEEDS_CHROMIUM,
+    HeadlessBrowser,
+)
 
 from skillkit.experiments import reproduce
 from skillkit.viz.model_layers import load_gpreps_run, model_layers
 from skillkit.viz.viewer import Viewer
 
-CHROMIUM = Path("/usr/bin/chromium")
-
-pytestmark = [
-    pytest.mark.browser,
-    pytest.mark.skipif(
-        not CHROMIUM.exists(),
-        reason="needs Debian's headless Chromium at /usr/bin/chromium (apt-get install chromium)",
-    ),
-]
+pytestmark = NEEDS_CHROMIUM
 
 EXPECTED_NODES = [
     "/arm/link3",

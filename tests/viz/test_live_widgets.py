@@ -7,8 +7,9 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-import pytest
 from headless_browser import (  # tests/viz/headless_browser.py
+    CHROMIUM,
+    NEEDS_CHROMIUM,
     HeadlessBrowser,
     JupyterLab,
     evaluate,
@@ -17,15 +18,7 @@ from headless_browser import (  # tests/viz/headless_browser.py
     wait_until,
 )
 
-CHROMIUM = Path("/usr/bin/chromium")
-
-pytestmark = [
-    pytest.mark.browser,
-    pytest.mark.skipif(
-        not CHROMIUM.exists(),
-        reason="needs Debian's headless Chromium at /usr/bin/chromium (apt-get install chromium)",
-    ),
-]
+pytestmark = NEEDS_CHROMIUM
 
 #: The notebook's one cell: the REPS weights of ch3-weights with an ε slider.
 SLIDER_CELL = """\

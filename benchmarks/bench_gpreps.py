@@ -21,7 +21,7 @@ restored afterwards; OpenMP/BLAS threads outside torch follow ``OMP_NUM_THREADS`
 average before and after (other processes on a shared machine inflate the times).
 
 **Task** (``--task``). ``throwing`` (the thesis's timing, Sec. 4.3.2): the decomposed model of
-Fig. 4.2 (:class:`~skillkit.search.throwing_model.ThrowingRewardModel`: FITC robot dynamics with
+Fig. 4.2 (:class:`~skillkit.tasks.throwing_model.ThrowingRewardModel`: FITC robot dynamics with
 ``--inducing`` pseudo-inputs (default 50) on at most 1000 transitions, the exact-GP release
 model on 300 hand states, the FITC flight model), trained on N₀ = 10 throws of the imitation
 policy (1240 transitions, so every data cap is already reached and later updates cost the
@@ -71,9 +71,9 @@ from skillkit.models.gp import ForwardModel
 from skillkit.models.sparse import FITC
 from skillkit.search.base import Batch
 from skillkit.search.gpreps import GPREPS, GPREPSSettings, TrajectoryRewardModel
-from skillkit.search.throwing_model import ThrowingRewardModel
 from skillkit.tasks import make
 from skillkit.tasks.balancing import Balancing, collect_balancing
+from skillkit.tasks.throwing_model import ThrowingRewardModel
 
 #: Below this M the policy fit's effective-sample-size check (default d + 1 = 33) is relaxed to
 #: 1, so that tiny timing runs do not stop there (the floor keeps Σ positive definite).

@@ -26,8 +26,8 @@ from pathlib import Path
 import numpy as np
 
 from skillkit.models.gp import ExactGP
-from skillkit.search.gpreps import refit_gp
-from skillkit.search.hockey_model import DisplacementModel, LaunchTargets, approach_frame
+from skillkit.models.reward import refit_gp
+from skillkit.tasks.hockey.model import DisplacementModel, LaunchTargets, approach_frame
 
 DATA = Path(__file__).resolve().parent / "data" / "hockey_training_sets.npz"
 """Trial 0's training sets of the fig4.10 and fig4.11 paper runs stored at commit 8fccd66 (with

@@ -12,7 +12,7 @@ shots on held-out contexts (hit rate and displacement error for hockey; outcome 
 error for table tennis).
 
 * ``fig4.10`` — hockey: GPREPS with the decomposed model of 4.3.3
-  (:class:`~skillkit.search.hockey_model.HockeyRewardModel`) against contextual REPS with
+  (:class:`~skillkit.tasks.hockey.model.HockeyRewardModel`) against contextual REPS with
   ``fig3.5``'s settings.
 * ``fig4.11`` — the real-robot setting of hockey (``hockey-real``: C.2's ranges, 30 Hz noisy
   puck tracking, Butterworth smoothing); the contact model is replaced by a GP from the
@@ -173,9 +173,9 @@ def gpreps_scales(cls, smoke: dict, quick: dict, paper: dict | None = None) -> d
 def hockey_reward_model(task, st: HockeyGPREPSSettings):
     """The decomposed hockey reward model of GPREPS (Sec. 4.3.3) with ``st``'s GP fits: the
     launch, hit-probability, sliding, contact and displacement GPs of
-    :class:`~skillkit.search.hockey_model.HockeyRewardModel` (the real-robot task: sliding
+    :class:`~skillkit.tasks.hockey.model.HockeyRewardModel` (the real-robot task: sliding
     at its observation frame rate)."""
-    from skillkit.search.hockey_model import HockeyRewardModel
+    from skillkit.tasks.hockey.model import HockeyRewardModel
 
     gp = partial(ExactGP, n_steps=st.gp_steps)
     slide_dt = None if task.observation is not None else st.slide_dt  # real: the frame rate

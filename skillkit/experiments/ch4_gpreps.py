@@ -5,7 +5,7 @@ average reward of the policy *mean* on fixed targets, against the number of real
 
 * **GPREPS** (Table 4.1, :class:`~skillkit.search.gpreps.GPREPS`): N₀ = 10 real throws, then one
   per update; the decomposed model of Fig. 4.2
-  (:class:`~skillkit.search.throwing_model.ThrowingRewardModel`: FITC robot dynamics under the
+  (:class:`~skillkit.tasks.throwing_model.ThrowingRewardModel`: FITC robot dynamics under the
   DMP tracker, a GP release model, a FITC ball-flight model) refitted on all throws at every
   update, M artificial pairs × L predicted throws, ε = 1.
 * **GP direct** (Sec. 4.3.2): the same loop with a GP from [s, ω] to R
@@ -32,8 +32,8 @@ from skillkit.models.gp import ExactGP, ForwardModel
 from skillkit.models.sparse import FITC
 from skillkit.search import ContextualREPS, learn
 from skillkit.search.gpreps import GPREPS, DirectRewardModel, GPREPSSettings
-from skillkit.search.throwing_model import ThrowingRewardModel
 from skillkit.tasks import make
+from skillkit.tasks.throwing_model import ThrowingRewardModel
 from skillkit.trial import TrialContext
 from skillkit.viz.series import trial_band
 
@@ -211,7 +211,7 @@ def throwing_reward_model(task, st: GPREPSThrowingSettings, model: str = "decomp
     st : GPREPSThrowingSettings
     model : {"decomposed", "direct"}
         The decomposed model (robot, release and flight GPs:
-        :class:`~skillkit.search.throwing_model.ThrowingRewardModel`) or GP direct (one GP
+        :class:`~skillkit.tasks.throwing_model.ThrowingRewardModel`) or GP direct (one GP
         from (s, ω) to the reward).
 
     Returns

@@ -4,7 +4,7 @@ The shared GPREPS plumbing (data schedule, scales, learning-curve and held-out e
 :mod:`skillkit.experiments.ch4_events`'s; this module holds table tennis's part.
 
 * ``fig4.12`` — table tennis: GPREPS with the five models of 4.3.4
-  (:class:`~skillkit.search.table_tennis_model.TableTennisRewardModel`, with the reward schedule
+  (:class:`~skillkit.tasks.table_tennis.model.TableTennisRewardModel`, with the reward schedule
   of Eq. 4.17), GP direct, and contextual REPS with ``fig3.7``'s settings (and the fit
   regularisation of the stored run, ``ch3_table_tennis.REGULARISED``).
 * ``fig4.13`` — table tennis: the five models, learned from 100 rollouts, against the
@@ -60,7 +60,7 @@ judges)."""
 # --------------------------------------------------------------------------- settings
 @dataclass(frozen=True)
 class TableTennisModelSettings(Settings):
-    """Model 5 and the refit of :class:`~skillkit.search.table_tennis_model.TableTennisRewardModel`
+    """Model 5 and the refit of :class:`~skillkit.tasks.table_tennis.model.TableTennisRewardModel`
     as fig4.12 and fig4.13 use them (why: the claims spec's setup table of fig4.12)."""
 
     contact_features: Literal["thesis", "extended"] = setting(
@@ -116,8 +116,8 @@ class ModelAccuracySettings(TableTennisModelSettings):
 def table_tennis_reward_model(task, st, schedule: str = "auto"):
     """The table-tennis reward model of GPREPS (Sec. 4.3.4) with ``st``'s GP fits and contact
     features, and the c₁ / c₂ ``schedule``
-    (:class:`~skillkit.search.table_tennis_model.TableTennisRewardModel`)."""
-    from skillkit.search.table_tennis_model import TableTennisRewardModel
+    (:class:`~skillkit.tasks.table_tennis.model.TableTennisRewardModel`)."""
+    from skillkit.tasks.table_tennis.model import TableTennisRewardModel
 
     gp = partial(ExactGP, n_steps=st.gp_steps)
     return TableTennisRewardModel(

@@ -19,10 +19,8 @@ from skillkit.search.gpreps import (
     GPREPSDiagnostics,
     GPREPSSettings,
     KnownRewardModel,
-    RewardModel,
     TrajectoryRewardModel,
 )
-from skillkit.search.hockey_model import HockeyPrediction, HockeyRewardModel
 from skillkit.search.loop import Evaluator, LoopState, collect, learn
 from skillkit.search.pilco import PILCO, PILCODiagnostics, PILCOSettings
 from skillkit.search.reps import (
@@ -33,8 +31,6 @@ from skillkit.search.reps import (
     reps_weights,
 )
 from skillkit.search.rwr import RWR, RWRDiagnostics, rwr_beta, rwr_weighting, rwr_weights
-from skillkit.search.table_tennis_model import TableTennisPrediction, TableTennisRewardModel
-from skillkit.search.throwing_model import ThrowingPrediction, ThrowingRewardModel
 
 #: The peers of the method comparison, imported on first use (PEP 562): BoTorch is slow to
 #: import and the ``cma`` package imports pyplot, which importing skillkit must not.
@@ -80,18 +76,11 @@ __all__ = [
     "GPREPS",
     "GPREPSDiagnostics",
     "GPREPSSettings",
-    "HockeyPrediction",
-    "HockeyRewardModel",
     "KnownRewardModel",
     "PILCO",
     "PILCODiagnostics",
     "PILCOSettings",
     "REPSDiagnostics",
-    "RewardModel",
-    "TableTennisPrediction",
-    "TableTennisRewardModel",
-    "ThrowingPrediction",
-    "ThrowingRewardModel",
     "TrajectoryRewardModel",
     "extra_context_importance",
     "REPSWeights",

@@ -35,7 +35,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Literal, Protocol, runtime_checkable
+from typing import Any, Literal
 
 import numpy as np
 import torch
@@ -43,6 +43,12 @@ import torch
 from skillkit._repr import number
 from skillkit._validation import as_generator, check_array, check_count, check_positive
 from skillkit.models.gp import ExactGP, ForwardModel, GPRegression
+from skillkit.models.reward import (
+    RewardModel,
+    check_sample_dtype,
+    gp_stats,
+    warm_start_hypers,
+)
 from skillkit.policies.features import FeatureName, check_feature_name
 from skillkit.policies.gaussian import LinearGaussianPolicy
 from skillkit.search.base import Batch, SampleBuffer, as_batch
@@ -67,150 +73,7 @@ CONTEXT_MODELS: tuple[str, ...] = ("gaussian", "uniform", "prior")
 
 
 # --------------------------------------------------------------------------- reward models
-@runtime_checkable
-class RewardModel(Protocol):
-    """What GPREPS needs from a model: fit on real data, predict expected rewards (Eq. 4.1)."""
-
-    def fit(
-        self,
-        contexts: np.ndarray,
-        omegas: np.ndarray,
-        rewards: np.ndarray,
-        trajectories: Sequence[Trajectory] | None,
-        rng: np.random.Generator,
-    ) -> dict[str, Any]:
-        """Fit on all real samples: contexts (N, context_dim), omegas (N, d), rewards (N,),
-        their trajectories (N or ``None``). Returns fit statistics (a small dict)."""
-        ...
-
-    def expected_rewards(
-        self,
-        contexts: np.ndarray,
-        omegas: np.ndarray,
-        n_trajectories: int,
-        rng: np.random.Generator,
-    ) -> np.ndarray:
-        """Predicted expected rewards R̂_sω (Eq. 4.1) of M pairs, shape (M,)."""
-        ...
-
-
-#: Warm-started ARD length-scales are capped at this many standard deviations of their input.
-WARM_LENGTHSCALE_CAP = 100.0
-
-
-def warm_start_hypers(
-    gp: GPRegression, hypers: dict[str, np.ndarray] | None, inputs: np.ndarray
-) -> None:
-    """Start the next hyper-parameter optimisation of ``gp`` at ``hypers`` (raw units).
-
-    A length-scale far beyond its input's spread switches the input off, and the gradient of
-    (2.28) vanishes there, so a warm start would keep it off for good; length-scales are capped
-    at :data:`WARM_LENGTHSCALE_CAP` standard deviations of the current ``inputs`` (N, d).
-    """
-    if hypers is None:
-        return
-    sd = inputs.std(axis=0)
-    cap = WARM_LENGTHSCALE_CAP * np.where(sd > 0, sd, 1.0)
-    gp.init_lengthscale = np.minimum(np.asarray(hypers["lengthscale"], dtype=np.float64), cap)
-    gp.init_outputscale = np.asarray(hypers["outputscale"], dtype=np.float64)
-    gp.init_noise = np.asarray(hypers["noise"], dtype=np.float64)
-
-
-#: How a model's GP hyper-parameters are refitted after each data collection step (Sec. 4.1):
-#: "cold" restarts the optimisation (2.28) at the default initialisation (PILCO's rule),
-#: "warm" at the previous fit's values, "best" runs both and keeps the larger marginal
-#: likelihood.
-RefitStart = Literal["cold", "warm", "best"]
-REFIT_STARTS: tuple[str, ...] = ("cold", "warm", "best")
-
-
-def check_refit(refit: str) -> str:
-    """``refit`` if it is one of :data:`REFIT_STARTS`, else a ValueError naming it."""
-    if refit not in REFIT_STARTS:
-        raise ValueError(f"refit: expected one of {REFIT_STARTS}, got {refit!r}")
-    return refit
-
-
-def refit_gp(
-    make_gp: Callable[[], Any],
-    x: np.ndarray,
-    y: np.ndarray,
-    rng: np.random.Generator,
-    previous: dict[str, np.ndarray] | None,
-    refit: str = "best",
-) -> tuple[Any, dict[str, Any]]:
-    """Refit a GP's hyper-parameters on all data so far (Sec. 4.1: "After each data
-    collection step, we update the GP model hyper-parameters").
-
-    The marginal likelihood (2.28) has local optima, and a chain of warm starts can stay in
-    a poor one as data arrive. ``refit="best"`` therefore optimises from the default
-    initialisation *and* from ``previous`` and keeps the larger log marginal likelihood; both
-    fits use the same seed (one drawn from ``rng``), so they differ in the start alone.
-
-    Parameters
-    ----------
-    make_gp : callable
-        Returns a new unfitted model with ``fit(x, y, rng)`` (a GP, or any other model, which
-        is then fitted once as it is).
-    x : ndarray, shape (N, d)
-        Training inputs.
-    y : ndarray, shape (N, E) or (N,)
-        Training targets.
-    rng : Generator
-        Randomness of the fit (one seed is drawn).
-    previous : dict or None
-        The previous fit's hyper-parameters (raw units, ``gp.hyperparameters``); ``None``
-        before the first fit, when every mode is a cold fit.
-    refit : {"cold", "warm", "best"}
-        Where the optimisation starts (:data:`RefitStart`).
-
-    Returns
-    -------
-    gp
-        The fitted model that was kept.
-    dict
-        ``start`` (``"cold"`` or ``"warm"``, the one kept), ``log_ml_cold`` and
-        ``log_ml_warm`` (summed over outputs; ``None`` where that start did not run).
-    """
-    check_refit(refit)
-    seed = int(rng.integers(2**63))
-    record: dict[str, Any] = {"start": "cold", "log_ml_cold": None, "log_ml_warm": None}
-    starts = {"cold": ("cold",), "warm": ("warm",), "best": ("cold", "warm")}[refit]
-    if previous is None:
-        starts = ("cold",)
-    best = None
-    for start in starts:
-        gp = make_gp()
-        if not isinstance(gp, GPRegression):
-            gp.fit(x, y, np.random.default_rng(seed))
-            return gp, record
-        if start == "warm":
-            warm_start_hypers(gp, previous, x)
-        gp.fit(x, y, np.random.default_rng(seed))
-        lml = gp.diagnostics.get("log_marginal_likelihood")
-        value = -np.inf if lml is None else float(np.sum(lml))
-        value = value if np.isfinite(value) else -np.inf
-        record[f"log_ml_{start}"] = value
-        if best is None or value > best[0]:
-            best = (value, gp, start)
-    record["start"] = best[2]
-    return best[1], record
-
-
-def gp_stats(gp: GPRegression, n_data: int) -> dict[str, Any]:
-    """What one fit of ``gp`` reports: data size, log ML, iterations, largest noise variance
-    and the numerical events the fit handled (:class:`~skillkit.models.gp.NumericalEvents`)."""
-    lml = gp.diagnostics.get("log_marginal_likelihood")
-    return {
-        "n_data": int(n_data),
-        "log_ml": None if lml is None else float(np.sum(lml)),
-        "iterations": gp.diagnostics.get("n_iterations"),
-        "noise_var_max": float(np.max(gp.hyperparameters["noise"])),
-        "numerical_events": gp.diagnostics.get("numerical_events"),
-    }
-
-
-class DirectRewardModel:
+class DirectRewardModel(RewardModel):
     r""" "GP direct" (Sec. 4.3.2): a GP regression from z = [s, ω] to the reward R.
 
     :meth:`expected_rewards` returns the GP's predictive mean E[R | s, ω] (Eq. 2.26), so L is
@@ -266,7 +129,7 @@ class DirectRewardModel:
         return f"DirectRewardModel(n_data={self.n_data}, gp={self.gp!r})"
 
 
-class TrajectoryRewardModel:
+class TrajectoryRewardModel(RewardModel):
     """A learned forward model of the task's state, scored through predicted trajectories.
 
     :meth:`fit` fits ``make_model()`` (a fresh model each time, warm-started at the previous
@@ -443,13 +306,6 @@ class TrajectoryRewardModel:
         )
 
 
-def check_sample_dtype(dtype) -> torch.dtype:
-    """``dtype`` of a reward model's sampled trajectories: float64 or float32."""
-    if dtype not in (torch.float64, torch.float32):
-        raise ValueError(f"dtype: expected torch.float64 or torch.float32, got {dtype!r}")
-    return dtype
-
-
 def _default_forward_model() -> ForwardModel:
     from skillkit.models.gp import HyperCurb
     from skillkit.models.sparse import FITC
@@ -457,7 +313,7 @@ def _default_forward_model() -> ForwardModel:
     return ForwardModel(FITC(n_inducing=100, curb=HyperCurb()))
 
 
-class KnownRewardModel:
+class KnownRewardModel(RewardModel):
     """**Test oracle**, not a learning method: the true expected reward, ignoring the data.
 
     Parameters
@@ -625,8 +481,8 @@ class GPREPS:
             raise ValueError(f"settings: expected GPREPSSettings, got {type(settings).__name__}")
         if not isinstance(reward_model, RewardModel):
             raise ValueError(
-                "reward_model: expected an object with fit(contexts, omegas, rewards, "
-                f"trajectories, rng) and expected_rewards(...), got {type(reward_model).__name__}"
+                "reward_model: expected a skillkit.models.reward.RewardModel (fit and "
+                f"expected_rewards), got {type(reward_model).__name__}"
             )
         if settings.context_model == "prior" and not isinstance(task, Task):
             raise ValueError("task: context_model='prior' needs the task (its μ(s))")

@@ -17,13 +17,13 @@ the ball of the throwing task) need those models to produce their reward signals
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass
 
 import numpy as np
 import torch
 
 from skillkit._validation import as_generator, check_array, check_count
+from skillkit.models.reward import worst_if_failed, worst_if_nonfinite
 from skillkit.models.sampling import SampledTrajectories, StepModel, sample_trajectories
 from skillkit.tasks.base import Task
 
@@ -175,44 +175,3 @@ def predict_trajectories(
     rewards, failed = worst_if_failed(rewards, flat_x, task)
     rewards = worst_if_nonfinite(rewards.reshape(B, L), task, "predict_trajectories")
     return ModelRollouts(states, controls, rewards, s, sampled, failed.reshape(B, L))
-
-
-def worst_if_failed(
-    rewards: np.ndarray, states: np.ndarray, task: Task
-) -> tuple[np.ndarray, np.ndarray]:
-    """Score predicted trajectories as the task scores its rollouts: those the simulator would
-    stop as failed (:meth:`~skillkit.tasks.base.Task.failed_batch`) get ``task.worst_reward``.
-
-    A predicted path through states where the simulator stops a real rollout must score the
-    same, or the REPS weights would rank parameters by how fast the model diverges.
-
-    Parameters
-    ----------
-    rewards : ndarray, shape (B,)
-        The task's :meth:`~skillkit.tasks.base.Task.reward_batch` of the paths.
-    states : ndarray, shape (B, T + 1, n_x)
-        The predicted states.
-    task : Task
-
-    Returns
-    -------
-    rewards : ndarray, shape (B,)
-    failed : ndarray of bool, shape (B,)
-    """
-    failed = np.asarray(task.failed_batch(states), dtype=bool)
-    return np.where(failed, task.worst_reward, rewards), failed
-
-
-def worst_if_nonfinite(rewards: np.ndarray, task: Task, where: str) -> np.ndarray:
-    """Predicted rewards with non-finite entries (a diverged model) set to ``task.worst_reward``,
-    with a ``RuntimeWarning`` that counts them (never silently)."""
-    bad = ~np.isfinite(rewards)
-    if bad.any():
-        warnings.warn(
-            f"{where}: {int(bad.sum())} of {bad.size} predicted trajectories have a "
-            f"non-finite reward (the model diverged); set to {task.worst_reward:g}",
-            RuntimeWarning,
-            stacklevel=3,
-        )
-        rewards = np.where(bad, task.worst_reward, rewards)
-    return rewards

@@ -590,7 +590,7 @@ class Throwing(Task):
         (:meth:`reference`) at control step t: the part of :meth:`controller` before the
         inverse-dynamics map u = M(q) a + c(q, q̇) (:meth:`torques`). A model of the robot
         *under* its inverse-dynamics tracker takes a as its control (the decomposed throwing
-        model of Sec. 4.3.2, :mod:`skillkit.search.throwing_model`). Same calling convention
+        model of Sec. 4.3.2, :mod:`skillkit.tasks.throwing_model`). Same calling convention
         as :meth:`controller`: ``policy(t, x, pair) -> a`` (n, 4).
         """
         import torch

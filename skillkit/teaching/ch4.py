@@ -35,9 +35,9 @@ from skillkit.policies.gaussian import LinearGaussianPolicy
 from skillkit.search.base import Batch
 from skillkit.search.gpreps import GPREPSDiagnostics, GPREPSSettings
 from skillkit.search.reps import REPSWeights
-from skillkit.search.throwing_model import ThrowingPrediction, ThrowingRewardModel
 from skillkit.tasks.base import Task
 from skillkit.tasks.planar import Throwing
+from skillkit.tasks.throwing_model import ThrowingPrediction, ThrowingRewardModel
 from skillkit.viz.plots import draw_figure
 from skillkit.viz.series import Series
 
@@ -740,7 +740,7 @@ def reward_pool(
     ----------
     model : RewardModel
         A fitted model with ``predict(contexts, omegas, L, rng)`` returning ``rewards`` (B, L)
-        (e.g. :class:`~skillkit.search.throwing_model.ThrowingRewardModel`).
+        (e.g. :class:`~skillkit.tasks.throwing_model.ThrowingRewardModel`).
     policy : LinearGaussianPolicy
         π(ω|s): the fixed ω_k are its means at ``contexts``, the pool pairs its samples.
     task : Task

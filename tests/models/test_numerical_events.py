@@ -119,8 +119,8 @@ def test_events_record_arithmetic_and_bad_kinds():
 
 
 def test_sparse_fit_and_gpreps_model_stats_carry_the_events():
+    from skillkit.models.reward import gp_stats
     from skillkit.models.sparse import FITC
-    from skillkit.search.gpreps import gp_stats
 
     rng = np.random.default_rng(0)
     X = rng.uniform(-1, 1, size=(30, 2))

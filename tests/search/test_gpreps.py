@@ -19,6 +19,7 @@ from skillkit.experiments.sanity import (
     LinearOptimumTask,
 )
 from skillkit.models.gp import ExactGP, record_numerical_events
+from skillkit.models.reward import WARM_LENGTHSCALE_CAP, RewardModel
 from skillkit.policies.gaussian import GaussianPolicy
 from skillkit.search import (
     GPREPS,
@@ -31,7 +32,6 @@ from skillkit.search import (
     collect,
     learn,
 )
-from skillkit.search.gpreps import WARM_LENGTHSCALE_CAP
 from skillkit.tasks.balancing import X_UP, Balancing
 from skillkit.trajectory import Trajectory
 from skillkit.trial import TrialContext
@@ -361,7 +361,7 @@ def test_bad_input_names_the_argument():
         learn(task, alg, 1, 5, 0, progress=False, initial_rollouts=0)
 
 
-class _ColumnPredictions:
+class _ColumnPredictions(RewardModel):
     """An oracle whose predictions of the real batch come back as a column (N, 1)."""
 
     def fit(self, contexts, omegas, rewards, trajectories, rng):
@@ -457,7 +457,7 @@ def _refit_data():
 
 
 def test_refit_best_keeps_the_larger_marginal_likelihood_of_both_starts():
-    from skillkit.search.gpreps import refit_gp
+    from skillkit.models.reward import refit_gp
 
     x, y = _refit_data()
     make = partial(ExactGP, n_steps=60)
@@ -476,7 +476,7 @@ def test_refit_best_keeps_the_larger_marginal_likelihood_of_both_starts():
 
 
 def test_refit_without_previous_fits_cold_and_names_bad_modes():
-    from skillkit.search.gpreps import refit_gp
+    from skillkit.models.reward import refit_gp
 
     x, y = _refit_data()
     gp, rec = refit_gp(partial(ExactGP, n_steps=20), x, y, np.random.default_rng(0), None, "warm")

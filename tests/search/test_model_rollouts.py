@@ -7,7 +7,8 @@ import pytest
 import torch
 from _tolerances import fp_tol
 
-from skillkit.search.model_rollouts import predict_trajectories, worst_if_failed
+from skillkit.models.reward import worst_if_failed
+from skillkit.search.model_rollouts import predict_trajectories
 from skillkit.tasks import make
 from skillkit.tasks.balancing import X_UP, stable_gains
 

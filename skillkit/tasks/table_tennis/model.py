@@ -54,8 +54,7 @@ import torch
 
 from skillkit._validation import as_generator, check_array, check_count, check_positive
 from skillkit.models.gp import ExactGP, GPRegression
-from skillkit.search.gpreps import check_refit, gp_stats, refit_gp
-from skillkit.search.model_rollouts import worst_if_nonfinite
+from skillkit.models.reward import RewardModel, check_refit, gp_stats, refit_gp, worst_if_nonfinite
 from skillkit.tasks.table_tennis import (
     SERVE_POSITION,
     TABLE_HEIGHT,
@@ -592,7 +591,7 @@ class TableTennisPrediction:
 
 
 # ----------------------------------------------------------------------------- the model
-class TableTennisRewardModel:
+class TableTennisRewardModel(RewardModel):
     r"""Decomposed GPREPS reward model of :class:`~skillkit.tasks.table_tennis.TableTennis`.
 
     The five models of Sec. 4.3.4 (see the module docstring) and the reward schedule of

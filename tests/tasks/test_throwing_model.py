@@ -13,7 +13,6 @@ from _tolerances import fp_tol
 from skillkit.models.gp import ExactGP, ForwardModel
 from skillkit.models.sparse import FITC
 from skillkit.search.gpreps import GPREPS, GPREPSSettings
-from skillkit.search.throwing_model import ThrowingRewardModel, land
 from skillkit.tasks import make
 from skillkit.tasks.planar import (
     BLOCK_ENTRIES,
@@ -23,6 +22,7 @@ from skillkit.tasks.planar import (
     path_distances,
 )
 from skillkit.tasks.planar_model import rigid_body_terms
+from skillkit.tasks.throwing_model import ThrowingRewardModel, land
 
 
 def _fitc(n_inducing, n_steps):

@@ -10,11 +10,14 @@ import numpy as np
 import pytest
 
 from skillkit.models.gp import ExactGP
-from skillkit.search import TableTennisRewardModel, collect
-from skillkit.search.table_tennis_model import (
+from skillkit.search import collect
+from skillkit.tasks import make
+from skillkit.tasks.table_tennis import SERVE_POSITION, TABLE_LENGTH, TABLE_WIDTH, simulate_ball
+from skillkit.tasks.table_tennis.model import (
     CONTACT_SCORES,
     REFERENCE_NORMAL,
     ContactModel,
+    TableTennisRewardModel,
     TimeBasis,
     contact_event,
     find_bounce,
@@ -22,8 +25,6 @@ from skillkit.search.table_tennis_model import (
     normal_to_quaternion,
     quaternion_to_normal,
 )
-from skillkit.tasks import make
-from skillkit.tasks.table_tennis import SERVE_POSITION, TABLE_LENGTH, TABLE_WIDTH, simulate_ball
 from tests._tolerances import fp_tol
 
 N_TRAIN, N_TEST = 100, 20

@@ -11,17 +11,18 @@ import pytest
 from _tolerances import fp_tol
 
 from skillkit.models.gp import ExactGP
-from skillkit.search import HockeyPrediction, HockeyRewardModel
-from skillkit.search.hockey_model import (
+from skillkit.tasks import make
+from skillkit.tasks.hockey.arm import BLADE_HALF
+from skillkit.tasks.hockey.model import (
     PUCK_Z,
     X_LAUNCH,
     DisplacementModel,
+    HockeyPrediction,
+    HockeyRewardModel,
     LaunchTargets,
     approach_frame,
     first_contact,
 )
-from skillkit.tasks import make
-from skillkit.tasks.hockey.arm import BLADE_HALF
 
 
 def _shots(task, n, seed):

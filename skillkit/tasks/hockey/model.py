@@ -6,7 +6,7 @@ GPREPS predicts the reward of a shot with learned event models chained as in Sec
    t_0 at which it crosses the line x = :data:`X_LAUNCH`, 0.2 m past its start (the thesis's
    line is "at a constant distance of 0.2 m in the x direction from the robot's base"). Past
    this line the racket no longer touches the puck (checked by
-   ``tests/search/test_hockey_model.py``); pushes and multiple hits before it are not
+   ``tests/tasks/test_hockey_model.py``); pushes and multiple hits before it are not
    modelled. A shot whose puck never crosses is a **no-launch**: once one is observed, a
    second GP regresses +1 (crossed) / −1 (not) on ω, and a predicted shot launches when a
    draw of its latent value is positive; an unlaunched puck stays at its start. The GP's
@@ -59,11 +59,16 @@ import torch
 
 from skillkit._validation import as_generator, check_array, check_count, check_positive
 from skillkit.models.gp import ExactGP, GPRegression
-from skillkit.search.gpreps import check_refit, gp_stats, refit_gp
-from skillkit.search.model_rollouts import worst_if_nonfinite
-from skillkit.search.throwing_model import subsample
-from skillkit.tasks.hockey import Hockey, butterworth_smooth
+from skillkit.models.reward import (
+    RewardModel,
+    check_refit,
+    gp_stats,
+    refit_gp,
+    subsample,
+    worst_if_nonfinite,
+)
 from skillkit.tasks.hockey.table import CONTROL_PUCK_START
+from skillkit.tasks.hockey.task import Hockey, butterworth_smooth
 
 __all__ = [
     "DISPLACEMENT_MODELS",
@@ -425,7 +430,7 @@ class HockeyPrediction:
         )
 
 
-class HockeyRewardModel:
+class HockeyRewardModel(RewardModel):
     """Decomposed GPREPS reward model of :class:`~skillkit.tasks.hockey.Hockey` (Sec. 4.3.3).
 
     Parameters

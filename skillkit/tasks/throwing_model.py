@@ -47,9 +47,16 @@ import torch
 
 from skillkit._validation import as_generator, check_array, check_count, check_positive
 from skillkit.models.gp import ExactGP, ForwardModel, GPRegression
+from skillkit.models.reward import (
+    RewardModel,
+    check_sample_dtype,
+    gp_stats,
+    subsample,
+    warm_start_hypers,
+    worst_if_failed,
+    worst_if_nonfinite,
+)
 from skillkit.models.sampling import sample_trajectories
-from skillkit.search.gpreps import check_sample_dtype, gp_stats, warm_start_hypers
-from skillkit.search.model_rollouts import worst_if_failed, worst_if_nonfinite
 from skillkit.tasks.planar import Throwing
 
 __all__ = ["ThrowingPrediction", "ThrowingRewardModel", "land"]
@@ -150,7 +157,7 @@ class ThrowingPrediction:
         )
 
 
-class ThrowingRewardModel:
+class ThrowingRewardModel(RewardModel):
     """Decomposed GPREPS reward model of :class:`~skillkit.tasks.planar.Throwing` (Fig. 4.2).
 
     Parameters
@@ -463,15 +470,6 @@ class ThrowingRewardModel:
             f"release_std={np.round(np.sqrt(self.release_var), 4).tolist()}, "
             f"flight_steps={self.flight_steps})"
         )
-
-
-def subsample(rng: np.random.Generator, n_max: int, *arrays: np.ndarray) -> tuple:
-    """The same ``n_max`` random rows of each array (all rows, in order, if there are fewer)."""
-    n = arrays[0].shape[0]
-    if n <= n_max:
-        return arrays
-    pick = rng.choice(n, n_max, replace=False)
-    return tuple(a[pick] for a in arrays)
 
 
 def _on_ground(k: int, b: torch.Tensor) -> torch.Tensor:

@@ -1,0 +1,234 @@
+"""What GPREPS needs from a reward model, and the parts that task-specific models share.
+
+A reward model (Sec. 4.1) is fitted on the real samples so far and predicts the expected
+reward R̂_sω (Eq. 4.1) of context–parameter pairs. Task-specific models live beside their
+task (``skillkit.tasks.hockey.model``, ``skillkit.tasks.table_tennis.model``,
+``skillkit.tasks.throwing_model``) and derive from :class:`RewardModel`.
+"""
+
+from __future__ import annotations
+
+import abc
+import warnings
+from collections.abc import Callable, Sequence
+from typing import Any, Literal
+
+import numpy as np
+import torch
+
+from skillkit.models.gp import GPRegression
+from skillkit.trajectory import Trajectory
+
+__all__ = [
+    "REFIT_STARTS",
+    "RewardModel",
+    "check_refit",
+    "check_sample_dtype",
+    "gp_stats",
+    "refit_gp",
+    "subsample",
+    "warm_start_hypers",
+    "worst_if_failed",
+    "worst_if_nonfinite",
+]
+
+
+class RewardModel(abc.ABC):
+    """What GPREPS needs from a model: fit on real data, predict expected rewards (Eq. 4.1)."""
+
+    @abc.abstractmethod
+    def fit(
+        self,
+        contexts: np.ndarray,
+        omegas: np.ndarray,
+        rewards: np.ndarray,
+        trajectories: Sequence[Trajectory] | None,
+        rng: np.random.Generator,
+    ) -> dict[str, Any]:
+        """Fit on all real samples: contexts (N, context_dim), omegas (N, d), rewards (N,),
+        their trajectories (N or ``None``). Returns fit statistics (a small dict)."""
+        ...
+
+    @abc.abstractmethod
+    def expected_rewards(
+        self,
+        contexts: np.ndarray,
+        omegas: np.ndarray,
+        n_trajectories: int,
+        rng: np.random.Generator,
+    ) -> np.ndarray:
+        """Predicted expected rewards R̂_sω (Eq. 4.1) of M pairs, shape (M,)."""
+        ...
+
+
+#: Warm-started ARD length-scales are capped at this many standard deviations of their input.
+WARM_LENGTHSCALE_CAP = 100.0
+
+
+def warm_start_hypers(
+    gp: GPRegression, hypers: dict[str, np.ndarray] | None, inputs: np.ndarray
+) -> None:
+    """Start the next hyper-parameter optimisation of ``gp`` at ``hypers`` (raw units).
+
+    A length-scale far beyond its input's spread switches the input off, and the gradient of
+    (2.28) vanishes there, so a warm start would keep it off for good; length-scales are capped
+    at :data:`WARM_LENGTHSCALE_CAP` standard deviations of the current ``inputs`` (N, d).
+    """
+    if hypers is None:
+        return
+    sd = inputs.std(axis=0)
+    cap = WARM_LENGTHSCALE_CAP * np.where(sd > 0, sd, 1.0)
+    gp.init_lengthscale = np.minimum(np.asarray(hypers["lengthscale"], dtype=np.float64), cap)
+    gp.init_outputscale = np.asarray(hypers["outputscale"], dtype=np.float64)
+    gp.init_noise = np.asarray(hypers["noise"], dtype=np.float64)
+
+
+#: How a model's GP hyper-parameters are refitted after each data collection step (Sec. 4.1):
+#: "cold" restarts the optimisation (2.28) at the default initialisation (PILCO's rule),
+#: "warm" at the previous fit's values, "best" runs both and keeps the larger marginal
+#: likelihood.
+RefitStart = Literal["cold", "warm", "best"]
+REFIT_STARTS: tuple[str, ...] = ("cold", "warm", "best")
+
+
+def check_refit(refit: str) -> str:
+    """``refit`` if it is one of :data:`REFIT_STARTS`, else a ValueError naming it."""
+    if refit not in REFIT_STARTS:
+        raise ValueError(f"refit: expected one of {REFIT_STARTS}, got {refit!r}")
+    return refit
+
+
+def refit_gp(
+    make_gp: Callable[[], Any],
+    x: np.ndarray,
+    y: np.ndarray,
+    rng: np.random.Generator,
+    previous: dict[str, np.ndarray] | None,
+    refit: str = "best",
+) -> tuple[Any, dict[str, Any]]:
+    """Refit a GP's hyper-parameters on all data so far (Sec. 4.1: "After each data
+    collection step, we update the GP model hyper-parameters").
+
+    The marginal likelihood (2.28) has local optima, and a chain of warm starts can stay in
+    a poor one as data arrive. ``refit="best"`` therefore optimises from the default
+    initialisation *and* from ``previous`` and keeps the larger log marginal likelihood; both
+    fits use the same seed (one drawn from ``rng``), so they differ in the start alone.
+
+    Parameters
+    ----------
+    make_gp : callable
+        Returns a new unfitted model with ``fit(x, y, rng)`` (a GP, or any other model, which
+        is then fitted once as it is).
+    x : ndarray, shape (N, d)
+        Training inputs.
+    y : ndarray, shape (N, E) or (N,)
+        Training targets.
+    rng : Generator
+        Randomness of the fit (one seed is drawn).
+    previous : dict or None
+        The previous fit's hyper-parameters (raw units, ``gp.hyperparameters``); ``None``
+        before the first fit, when every mode is a cold fit.
+    refit : {"cold", "warm", "best"}
+        Where the optimisation starts (:data:`RefitStart`).
+
+    Returns
+    -------
+    gp
+        The fitted model that was kept.
+    dict
+        ``start`` (``"cold"`` or ``"warm"``, the one kept), ``log_ml_cold`` and
+        ``log_ml_warm`` (summed over outputs; ``None`` where that start did not run).
+    """
+    check_refit(refit)
+    seed = int(rng.integers(2**63))
+    record: dict[str, Any] = {"start": "cold", "log_ml_cold": None, "log_ml_warm": None}
+    starts = {"cold": ("cold",), "warm": ("warm",), "best": ("cold", "warm")}[refit]
+    if previous is None:
+        starts = ("cold",)
+    best = None
+    for start in starts:
+        gp = make_gp()
+        if not isinstance(gp, GPRegression):
+            gp.fit(x, y, np.random.default_rng(seed))
+            return gp, record
+        if start == "warm":
+            warm_start_hypers(gp, previous, x)
+        gp.fit(x, y, np.random.default_rng(seed))
+        lml = gp.diagnostics.get("log_marginal_likelihood")
+        value = -np.inf if lml is None else float(np.sum(lml))
+        value = value if np.isfinite(value) else -np.inf
+        record[f"log_ml_{start}"] = value
+        if best is None or value > best[0]:
+            best = (value, gp, start)
+    record["start"] = best[2]
+    return best[1], record
+
+
+def gp_stats(gp: GPRegression, n_data: int) -> dict[str, Any]:
+    """What one fit of ``gp`` reports: data size, log ML, iterations, largest noise variance
+    and the numerical events the fit handled (:class:`~skillkit.models.gp.NumericalEvents`)."""
+    lml = gp.diagnostics.get("log_marginal_likelihood")
+    return {
+        "n_data": int(n_data),
+        "log_ml": None if lml is None else float(np.sum(lml)),
+        "iterations": gp.diagnostics.get("n_iterations"),
+        "noise_var_max": float(np.max(gp.hyperparameters["noise"])),
+        "numerical_events": gp.diagnostics.get("numerical_events"),
+    }
+
+
+def check_sample_dtype(dtype) -> torch.dtype:
+    """``dtype`` of a reward model's sampled trajectories: float64 or float32."""
+    if dtype not in (torch.float64, torch.float32):
+        raise ValueError(f"dtype: expected torch.float64 or torch.float32, got {dtype!r}")
+    return dtype
+
+
+def subsample(rng: np.random.Generator, n_max: int, *arrays: np.ndarray) -> tuple:
+    """The same ``n_max`` random rows of each array (all rows, in order, if there are fewer)."""
+    n = arrays[0].shape[0]
+    if n <= n_max:
+        return arrays
+    pick = rng.choice(n, n_max, replace=False)
+    return tuple(a[pick] for a in arrays)
+
+
+def worst_if_failed(
+    rewards: np.ndarray, states: np.ndarray, task: Any
+) -> tuple[np.ndarray, np.ndarray]:
+    """Score predicted trajectories as the task scores its rollouts: those the simulator would
+    stop as failed (:meth:`~skillkit.tasks.base.Task.failed_batch`) get ``task.worst_reward``.
+
+    A predicted path through states where the simulator stops a real rollout must score the
+    same, or the REPS weights would rank parameters by how fast the model diverges.
+
+    Parameters
+    ----------
+    rewards : ndarray, shape (B,)
+        The task's :meth:`~skillkit.tasks.base.Task.reward_batch` of the paths.
+    states : ndarray, shape (B, T + 1, n_x)
+        The predicted states.
+    task : Task
+
+    Returns
+    -------
+    rewards : ndarray, shape (B,)
+    failed : ndarray of bool, shape (B,)
+    """
+    failed = np.asarray(task.failed_batch(states), dtype=bool)
+    return np.where(failed, task.worst_reward, rewards), failed
+
+
+def worst_if_nonfinite(rewards: np.ndarray, task: Any, where: str) -> np.ndarray:
+    """Predicted rewards with non-finite entries (a diverged model) set to ``task.worst_reward``,
+    with a ``RuntimeWarning`` that counts them (never silently)."""
+    bad = ~np.isfinite(rewards)
+    if bad.any():
+        warnings.warn(
+            f"{where}: {int(bad.sum())} of {bad.size} predicted trajectories have a "
+            f"non-finite reward (the model diverged); set to {task.worst_reward:g}",
+            RuntimeWarning,
+            stacklevel=3,
+        )
+        rewards = np.where(bad, task.worst_reward, rewards)
+    return rewards

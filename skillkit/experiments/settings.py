@@ -35,13 +35,14 @@ import types
 import typing
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, Literal, Union
+from typing import Any, Literal, TypeVar, Union
 
 import numpy as np
 
-__all__ = ["Settings", "apply_overrides", "describe", "setting", "type_name"]
+__all__ = ["Settings", "apply_overrides", "describe", "scales", "setting", "type_name"]
 
 _DOC = "doc"
+S = TypeVar("S", bound="Settings")
 
 
 def setting(
@@ -295,3 +296,29 @@ def describe(cls: type[Settings]) -> list[tuple[str, str, str]]:
         )
         for f in dataclasses.fields(cls)
     ]
+
+
+def scales(
+    base: S,
+    *,
+    smoke: Mapping[str, Any] | None = None,
+    quick: Mapping[str, Any] | None = None,
+    paper: Mapping[str, Any] | None = None,
+) -> dict[str, S]:
+    """The three scales of an experiment: ``base`` with each scale's changes applied.
+
+    Parameters
+    ----------
+    base : Settings
+        The instance every scale starts from.
+    smoke, quick, paper : mapping, optional
+        Field name → value for that scale (a nested settings field takes a mapping of some of
+        its fields); names and types are checked as by :func:`apply_overrides`.
+
+    Returns
+    -------
+    dict
+        ``{"smoke": ..., "quick": ..., "paper": ...}``, instances of ``type(base)``.
+    """
+    changes = {"smoke": smoke, "quick": quick, "paper": paper}
+    return {scale: apply_overrides(base, dict(c or {})) for scale, c in changes.items()}

@@ -27,7 +27,8 @@ def pytest_unconfigure(config):
 # --------------------------------------------------------------------------- notebooks
 # Every notebook nbmake executes must write nothing to stderr (a warning is either fixed at its
 # cause or explained and captured on purpose): a stderr output fails the notebook's test like
-# an error would. The execution time of each notebook is printed at the end of the run.
+# an error would. The execution time of each notebook is printed at the end of the run. With
+# SKILLKIT_SITE_NOTEBOOKS set, each executed notebook is kept in that folder.
 _NOTEBOOK_SECONDS: dict[str, float] = {}
 
 
@@ -39,6 +40,11 @@ def _checked(execute):
 
         result = execute(self)
         _NOTEBOOK_SECONDS[self.filename.name] = sum(execution_seconds(result.nb).values())
+        keep = os.environ.get("SKILLKIT_SITE_NOTEBOOKS")
+        if keep and result.error is None:  # the site test (tests/viz/test_site.py) reads them
+            import nbformat
+
+            nbformat.write(result.nb, os.path.join(keep, self.filename.name))
         found = stderr_outputs(result.nb)
         if result.error is None and found:
             lines = [f"cell {i}: {text}" for i, text in found]

@@ -4,15 +4,13 @@ More Efficient Robot Skill Generalization*."""
 
 import os
 
-# skillkit never renders through dm_control (scenes go to viser), so unless the user chose an
-# OpenGL backend, tell dm_control not to probe for one (avoids GLFW errors on headless hosts).
+# skillkit never renders through dm_control: keep it from probing for an OpenGL backend
 os.environ.setdefault("MUJOCO_GL", "disable")
 
 __version__ = "0.1.0"
 __all__ = ["Trajectory", "as_generator", "__version__"]
 
-# The top-level names are imported on first use (PEP 562), so that ``import skillkit`` (and with
-# it ``skillkit --help``) does not import numpy.
+# imported on first use (PEP 562): ``import skillkit`` does not import numpy
 _LAZY = {"Trajectory": "skillkit.trajectory", "as_generator": "skillkit._validation"}
 
 

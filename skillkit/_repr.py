@@ -1,8 +1,4 @@
-"""Short summaries of arrays for ``__repr__``: a few numbers instead of whole arrays.
-
-Layer 0 (numpy only). Tensors are accepted through ``detach``/``cpu`` duck typing, so model
-classes can pass their torch tensors without this module importing torch.
-"""
+"""Short summaries of arrays (or torch tensors, duck-typed) for ``__repr__``."""
 
 from __future__ import annotations
 
@@ -23,8 +19,8 @@ def number(value, spec: str = ".3g") -> str:
 
 
 def span(values, spec: str = ".3g") -> str:
-    """``"lo…hi"`` (min and max of the finite values), one number if they are all equal,
-    ``"-"`` if there are none; ``" (k non-finite)"`` is appended when some are NaN or ±inf."""
+    """``"lo…hi"`` of the finite values (one number if equal, ``"-"`` if none), plus
+    ``" (k non-finite)"``."""
     x = _flat(values)
     finite = x[np.isfinite(x)]
     if finite.size == 0:

@@ -1,8 +1,6 @@
 """Input normalisation shared by every entry point: random generators and array checks.
 
-Every public function that takes randomness takes ``rng`` (a :class:`numpy.random.Generator`,
-an ``int`` seed, a :class:`numpy.random.SeedSequence` or ``None``) and normalises it here, in
-one place. Array checks raise :class:`ValueError` naming the offending argument.
+Array checks raise :class:`ValueError` naming the offending argument.
 """
 
 from __future__ import annotations
@@ -15,14 +13,8 @@ import numpy as np
 def as_generator(
     rng: np.random.Generator | np.random.SeedSequence | int | None,
 ) -> np.random.Generator:
-    """Return a :class:`numpy.random.Generator` for ``rng``.
-
-    Parameters
-    ----------
-    rng : Generator, SeedSequence, int or None
-        A generator is returned unchanged (so callers share its stream); an int or a
-        SeedSequence seeds a new PCG64 generator; None draws fresh OS entropy.
-    """
+    """A :class:`numpy.random.Generator` for ``rng``: a generator unchanged (sharing its
+    stream), an int ≥ 0 or a SeedSequence seeding a new PCG64, None fresh OS entropy."""
     if isinstance(rng, np.random.Generator):
         return rng
     if rng is None or isinstance(rng, np.random.SeedSequence):
@@ -37,11 +29,6 @@ def as_generator(
     )
 
 
-def spawn_seeds(seed: int | None, n: int) -> list[np.random.SeedSequence]:
-    """Independent child seed sequences, one per trial (same ``seed`` ⇒ same children)."""
-    return np.random.SeedSequence(seed).spawn(n)
-
-
 def check_array(
     value,
     name: str,
@@ -51,23 +38,10 @@ def check_array(
     finite: bool = True,
     dtype=np.float64,
 ) -> np.ndarray:
-    """Convert ``value`` to an array and validate it, raising ``ValueError`` that names ``name``.
+    """Convert ``value`` to a ``dtype`` array and validate it (``ValueError`` naming ``name``).
 
-    Parameters
-    ----------
-    value : array_like
-        The input.
-    name : str
-        Argument name used in error messages.
-    ndim : int or sequence of int, optional
-        Allowed numbers of dimensions.
-    shape : tuple, optional
-        Expected shape; ``None`` entries match any size.
-    finite : bool
-        Reject NaN and infinity.
-    dtype : numpy dtype
-        Target dtype (float64 by default). A complex numpy array is refused for a real
-        target (rather than losing its imaginary part).
+    ``ndim``: allowed numbers of dimensions; ``shape``: expected shape (``None`` entries match
+    any size); ``finite``: reject NaN and infinity. A complex array is refused for a real dtype.
     """
     if (
         isinstance(value, (np.ndarray, np.generic))
@@ -105,8 +79,7 @@ def check_array(
 
 
 def check_count(value, name: str = "n", minimum: int = 1) -> int:
-    """An integer count ≥ ``minimum`` (an int or numpy integer, not a bool), or a
-    ``ValueError`` naming ``name``."""
+    """An integer count ≥ ``minimum`` (not a bool), else ``ValueError`` naming ``name``."""
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
         raise ValueError(f"{name}: expected an integer ≥ {minimum}, got {value!r}")
     return int(value)

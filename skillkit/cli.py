@@ -1,8 +1,7 @@
 """Command line: skillkit list | settings | reproduce | runs | compare | view | demo.
 
-Building the parser imports nothing heavy (no torch, no numpy, not the experiment registry),
-so ``skillkit --help`` and ``skillkit SUB --help`` answer at once; each sub-command imports
-what it needs when it runs.
+Building the parser imports no torch, numpy or experiment registry (``--help`` answers at
+once); each sub-command imports what it needs when it runs.
 """
 
 from __future__ import annotations
@@ -17,8 +16,7 @@ from pathlib import Path
 from skillkit import __version__
 
 SCALES = ("smoke", "quick", "paper")
-"""The scales of every experiment (``skillkit.experiments.registry.SCALES``, which a test keeps
-equal), repeated here so that building the parser does not import the registry."""
+"""``skillkit.experiments.registry.SCALES``, repeated so the parser need not import it."""
 
 DEMO_IDS = ("fig2.10", "sanity3")
 """What ``skillkit demo`` runs first, at quick scale."""
@@ -32,12 +30,8 @@ DEMO_COMPARISON = {
     "reps_updates": 16,
     "keep_gpreps_model": True,
 }
-"""The thesis's point in about a minute, which ``skillkit demo`` runs last: GPREPS against REPS
-on throwing (``cmp.methods`` at quick scale with these settings: GPREPS 10 + 3 real throws, 4
-updates with M = 100, L = 3; REPS 16 updates of 25 throws), in the demo's own process while
-:data:`DEMO_IDS` run in a second one. The whole demo: 75 s of CPU (user + system, both
-processes), 117 s of wall time at load 3.7–4.2 (two regeneration jobs on the 2 cores); the
-comparison's GPREPS 46 s of it (its FITC robot-model fits), REPS 5 s. None skips it."""
+"""What ``skillkit demo`` runs last, in its own process beside :data:`DEMO_IDS`: GPREPS
+against REPS on throwing (``cmp.methods`` at quick scale with these settings)."""
 
 DESCRIPTION = """\
 Reproduce the figures and tables of Kupcsik's thesis on contextual policy search
@@ -75,11 +69,7 @@ def _cmd_list(args: argparse.Namespace) -> int:
 
 
 def _overrides(pairs: list[str]) -> dict:
-    """``KEY=VALUE`` strings to settings overrides (VALUE parsed as JSON, else kept as text).
-
-    Names and types are checked by the experiment's settings class
-    (:meth:`~skillkit.experiments.registry.Experiment.settings_for`), not here.
-    """
+    """``KEY=VALUE`` strings to settings overrides (VALUE parsed as JSON, else kept as text)."""
     out = {}
     for pair in pairs:
         key, sep, value = pair.partition("=")
@@ -92,34 +82,15 @@ def _overrides(pairs: list[str]) -> dict:
     return out
 
 
-def _wrap(label: str, text: str, max_lines: int = 4) -> list[str]:
-    """``text`` after a label, wrapped to :data:`WIDTH` and indented under the label."""
-    first = f"  {label:<8}"
-    return textwrap.wrap(
-        " ".join(text.split()) or "-",
-        WIDTH,
-        initial_indent=first,
-        subsequent_indent=" " * len(first),
-        max_lines=max_lines,
-        placeholder=" …",
-    )
-
-
 def _report(run) -> list[str]:
-    """A finished run in at most 8 lines: what ran, its card (the claim, the verdict with its
-    key number and interval, where the details are), the files written and which to open."""
+    """A finished run in at most 8 lines: what ran, its card, the files and which to open."""
     r = run.result
     n, wall = r.get("trials"), r.get("wall_time_s")
     facts = [f"{run.scale} scale", f"{n} trial{'' if n == 1 else 's'}", f"seed {r.get('seed')}"]
     if isinstance(wall, (int, float)):
         facts.append(f"{wall:.1f} s" if wall < 10 else f"{wall:.0f} s")
-    lines = textwrap.wrap(
-        f"{run.id} ({', '.join(facts)}): {run.title}",
-        WIDTH,
-        subsequent_indent="  ",
-        max_lines=2,
-        placeholder=" …",
-    )
+    head = f"{run.id} ({', '.join(facts)}): {run.title}"
+    lines = textwrap.wrap(head, WIDTH, subsequent_indent="  ", max_lines=2, placeholder=" …")
     lines += ["  " + line for line in run.card.split("\n")]
     written = [name for name in FILES if (run.path / name).exists()]
     lines.append(f"  files:  {run.path}/ ({', '.join(written)})")
@@ -154,19 +125,10 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
         if estimate is not None:
             note = " (for the scale's own settings; --set changes it)" if overrides else ""
             print(f"skillkit: {exp_id} at {args.scale} scale: {estimate}{note}", file=sys.stderr)
+        options = ("scale", "trials", "seed", "out", "executor", "workers", "address", "fresh")
+        kwargs = {k: getattr(args, k) for k in options}
         run = reproduce(
-            exp_id,
-            scale=args.scale,
-            trials=args.trials,
-            seed=args.seed,
-            out=args.out,
-            progress=not args.quiet,
-            executor=args.executor,
-            workers=args.workers,
-            address=args.address,
-            fresh=args.fresh,
-            html=not args.no_html,
-            **overrides,
+            exp_id, progress=not args.quiet, html=not args.no_html, **kwargs, **overrides
         )
         _print_runs([run], args.json)
     return 0
@@ -194,8 +156,7 @@ def _cmd_settings(args: argparse.Namespace) -> int:
 
 
 def _remeasure_runs(root: Path) -> int:
-    """``runs --remeasure``: add today's measurements to every stored result under ``root``
-    and judge it again (:func:`skillkit.experiments.runner.remeasure`); 1 if one disagrees."""
+    """``runs --remeasure`` (:func:`skillkit.experiments.runner.remeasure`); 1 if one differs."""
     from skillkit.experiments.run import rejudged
     from skillkit.experiments.runner import remeasure, write_result
 
@@ -238,7 +199,6 @@ def _cmd_runs(args: argparse.Namespace) -> int:
     for r in runs:
         wall = r["wall_time_s"]
         wall_s = f"{wall:9.1f}s" if isinstance(wall, (int, float)) else "         ?"
-        # a result.json without some key (None) shows "?" there
         v = {k: "?" if r[k] is None else str(r[k]) for k in ("id", "scale", "seed", "trials")}
         print(
             f"{r['path']:<50} {v['id']:<10} {v['scale']:<6} seed={v['seed']:<4} "
@@ -248,24 +208,12 @@ def _cmd_runs(args: argparse.Namespace) -> int:
 
 
 def results_table(root) -> str:
-    """What is stored under ``root``, one Markdown row per ``result.json`` in path order: the
-    folder, the commit that made it (with "dirty" for an uncommitted tree), trials, executor
-    and workers, wall time in minutes, the verdict (``summary["verdict"]``) and whether today's
-    code would still make it (:func:`skillkit.experiments.provenance.check_results`).
-    ``skillkit runs --markdown``; data/README.md's table "What is here" is this output.
-
-    Parameters
-    ----------
-    root : str or Path
-        A results folder, e.g. ``data/results``.
-
-    Returns
-    -------
-    str
-        The table, header included, ending in a newline.
+    """A Markdown table (ending in a newline) of the results under ``root``, one row per
+    ``result.json`` in path order: folder, commit ("dirty" for an uncommitted tree), trials,
+    executor and workers, wall time (min), verdict, and whether today's code would still make
+    it (:func:`skillkit.experiments.provenance.check_results`); data/README.md's "What is
+    here" is this output (``skillkit runs --markdown``).
     """
-    import json
-
     from skillkit.experiments.provenance import check_results
 
     lines = [
@@ -294,14 +242,8 @@ def results_table(root) -> str:
 
 
 def _check_runs(root: Path, record: bool = False, progress: bool = True) -> int:
-    """``runs --check``: whether today's code would still make each result under ``root``.
-
-    A result is current (its code fingerprint is today's), carried (the code changed, and
-    the smoke witness of today's code equals the stored one: recorded earlier, or run now)
-    or stale (:func:`skillkit.experiments.runner.check_witnesses`).
-    With ``record``, carry records are written for the results found carried now. Prints
-    the carried and stale results, then the counts; returns 1 if any is stale, else 0.
-    """
+    """``runs --check`` (:func:`skillkit.experiments.runner.check_witnesses`): prints the
+    carried and stale results and the counts; 1 if any is stale."""
     from skillkit.experiments.runner import check_witnesses
 
     if not root.exists():
@@ -320,7 +262,7 @@ def _check_runs(root: Path, record: bool = False, progress: bool = True) -> int:
 
 
 def _cell(v) -> str:
-    """A right-aligned table cell: numbers with 6 significant digits, anything else as text."""
+    """A right-aligned table cell (numbers with 6 significant digits)."""
     if isinstance(v, (int, float)) and not isinstance(v, bool):
         return f"{v:18.6g}"
     return f"{v!s:>18}"
@@ -345,9 +287,7 @@ def _cmd_compare(args: argparse.Namespace) -> int:
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
-    # Small problems, where a second BLAS / OpenMP thread only adds overhead (and spins on a busy
-    # machine: 158 s of CPU instead of 35 s for this demo on a loaded 2-core host): one thread,
-    # unless the caller chose. It takes effect because nothing has imported numpy or torch yet.
+    # small problems: one BLAS / OpenMP thread unless the caller chose (numpy is not loaded yet)
     for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(var, "1")
     from concurrent.futures import ProcessPoolExecutor
@@ -363,8 +303,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     else:
         took = "under a minute on 2 cores"
     print(f"skillkit demo: {' and '.join(DEMO_IDS)} at quick scale, {took}", file=sys.stderr)
-    # The two parts use a core each: the first experiments in a second process (no progress
-    # bars there), the comparison in this one.
+    # a core each: the first experiments in a second process, the comparison in this one
     with ProcessPoolExecutor(1, mp_context=get_context("spawn")) as pool:
         first = pool.submit(_demo_runs, DEMO_IDS, args.seed, args.out)
         comparison = None
@@ -394,8 +333,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 
 def _demo_runs(exp_ids, seed: int, out: str) -> list[str]:
-    """Run ``exp_ids`` at quick scale without progress bars; their run folders (the demo's
-    second process)."""
+    """Run ``exp_ids`` at quick scale without progress bars; their run folders."""
     from skillkit.experiments.runner import reproduce
 
     return [str(reproduce(i, scale="quick", seed=seed, out=out, progress=False).path)
@@ -403,9 +341,7 @@ def _demo_runs(exp_ids, seed: int, out: str) -> list[str]:
 
 
 def _comparison_lines(run) -> list[str]:
-    """What the demo's GPREPS-against-REPS run shows: real throws and final reward per method,
-    and how to watch the GPREPS run in the viewer (its policy history; with ``--gpreps`` also
-    its reward model's predictions, where the run stored the model)."""
+    """The demo comparison's real throws and rewards per method, and how to watch it."""
     import numpy as np
 
     lines = [
@@ -428,6 +364,17 @@ def _comparison_lines(run) -> list[str]:
     return lines
 
 
+def _cmd_site(args: argparse.Namespace) -> int:
+    from skillkit.viz.site import build_site
+
+    notebooks = sorted(Path(args.notebooks).glob("*.ipynb"))
+    if not notebooks:
+        raise ValueError(f"--notebooks: no .ipynb file in {args.notebooks!r}")
+    index = build_site(notebooks, args.out, execute=not args.executed, timeout=args.timeout)
+    print(f"{len(notebooks)} notebooks: {index}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``skillkit`` argument parser (cheap: imports no experiment, torch or numpy)."""
     parser = argparse.ArgumentParser(
@@ -436,12 +383,9 @@ def build_parser() -> argparse.ArgumentParser:
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
+    version = f"skillkit {__version__}"
     parser.add_argument(
-        "-V",
-        "--version",
-        action="version",
-        version=f"skillkit {__version__}",
-        help="show the version",
+        "-V", "--version", action="version", version=version, help="show the version"
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
@@ -451,8 +395,7 @@ def build_parser() -> argparse.ArgumentParser:
             name, help=line, description=description or f"{line[:1].upper()}{line[1:]}."
         )
 
-    p = add("list", "list experiment ids and tasks")
-    p.set_defaults(func=_cmd_list)
+    add("list", "list experiment ids and tasks").set_defaults(func=_cmd_list)
 
     p = add(
         "settings",
@@ -470,58 +413,26 @@ def build_parser() -> argparse.ArgumentParser:
         "its run folder; print the thesis's claim, our verdict and where the files are. A rerun "
         "of the same command resumes from the run's checkpoints.",
     )
-    p.add_argument(
-        "ids",
-        nargs="+",
-        metavar="ID",
-        help="experiment id(s), e.g. fig2.10 (see `skillkit list`), or `all`",
-    )
-    p.add_argument(
-        "--scale",
-        choices=SCALES,
-        default="quick",
-        help="smoke (seconds, a check of the code path), quick (minutes, faithful) or paper (the "
-        "thesis setting); default quick",
-    )
-    p.add_argument(
-        "--trials", type=int, default=None, help="independent trials (default: per experiment)"
-    )
-    p.add_argument(
-        "--seed",
-        type=int,
-        default=0,
-        help="root seed; trial i uses its i-th child stream (default 0)",
-    )
-    p.add_argument("--out", default="runs", help="output folder (default: runs/)")
-    p.add_argument("--quiet", action="store_true", help="no progress bars")
-    p.add_argument(
-        "--executor",
-        choices=("local", "process", "ray"),
-        default="local",
-        help="run trials sequentially, on all cores, or on Ray (default: local)",
-    )
-    p.add_argument(
-        "--workers", type=int, default=None, help="processes / Ray CPUs (default: all cores)"
-    )
-    p.add_argument("--address", default=None, help="address of an existing Ray cluster")
-    p.add_argument(
-        "--fresh", action="store_true", help="discard this run's checkpoints and start over"
-    )
-    p.add_argument("--no-html", action="store_true", help="skip the self-contained HTML figure")
-    p.add_argument(
-        "--set",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
+    arg = p.add_argument
+    arg("ids", nargs="+", metavar="ID", help="experiment id(s) (see `skillkit list`), or `all`")
+    arg("--scale", choices=SCALES, default="quick", help="smoke (seconds, a check of the "
+        "code path), quick (minutes, faithful; default) or paper (the thesis setting)")  # fmt: skip
+    arg("--trials", type=int, help="independent trials (default: per experiment)")
+    arg("--seed", type=int, default=0, help="root seed; trial i uses child stream i (default 0)")
+    arg("--out", default="runs", help="output folder (default: runs/)")
+    arg("--quiet", action="store_true", help="no progress bars")
+    arg("--executor", choices=("local", "process", "ray"), default="local",
+        help="run trials sequentially, on all cores, or on Ray (default: local)")  # fmt: skip
+    arg("--workers", type=int, help="processes / Ray CPUs (default: all cores)")
+    arg("--address", help="address of an existing Ray cluster")
+    arg("--fresh", action="store_true", help="discard this run's checkpoints and start over")
+    arg("--no-html", action="store_true", help="skip the self-contained HTML figure")
+    arg("--set", action="append", default=[], metavar="KEY=VALUE",
         help="override one setting of the scale (repeatable; VALUE is JSON), e.g. --set "
         "n_updates=50; names and types are checked first, and the run gets its own folder "
-        "<id>-<scale>-s<seed>-<hash> (see `skillkit settings ID`)",
-    )
-    p.add_argument(
-        "--json",
-        action="store_true",
-        help="print one JSON line {id, path, summary} per run instead of the verdict",
-    )
+        "<id>-<scale>-s<seed>-<hash> (see `skillkit settings ID`)")  # fmt: skip
+    arg("--json", action="store_true", help="print one JSON line {id, path, summary} per run "
+        "instead of the verdict")  # fmt: skip
     p.set_defaults(func=_cmd_reproduce)
 
     p = add(
@@ -529,47 +440,21 @@ def build_parser() -> argparse.ArgumentParser:
         "list finished runs in the results store",
         "List finished runs (folders holding result.json), newest first.",
     )
-    p.add_argument(
-        "folder",
-        nargs="?",
-        default=None,
-        help="results folder, e.g. data/results (the same as --root)",
-    )
-    p.add_argument(
-        "--root",
-        default=None,
-        help="results folder (default: runs/ if it exists here, else this folder when it "
-        "holds any result.json, e.g. when run inside a runs folder)",
-    )
-    p.add_argument(
-        "--check",
-        action="store_true",
-        help="check that today's code would still make each result: current (same code "
-        "fingerprint), carried (the code changed but a smoke run of it reproduces the stored "
-        "witness: recorded, or run now) or stale; print the counts, exit 1 if any is stale",
-    )
-    p.add_argument(
-        "--record",
-        action="store_true",
-        help="with --check: write a carry record into result.json of each result whose "
-        "witness is equal, so later checks are instant",
-    )
-    p.add_argument(
-        "--quiet", action="store_true", help="with --check: no progress bar over witness runs"
-    )
-    p.add_argument(
-        "--remeasure",
-        action="store_true",
-        help="summarise each stored result's trials.npz again with today's code, add the "
-        "measurements its summary lacks (every measurement both have must agree), and write "
-        "the judgement of today's claims spec into it; nothing is re-run",
-    )
-    p.add_argument(
-        "--markdown",
-        action="store_true",
-        help="print a Markdown table of the results (folder, commit, trials, executor, wall "
-        "time, verdict, whether the code changed since): data/README.md's 'What is here'",
-    )
+    arg = p.add_argument
+    arg("folder", nargs="?", help="results folder, e.g. data/results (the same as --root)")
+    arg("--root", help="results folder (default: runs/ if it exists here, else this folder "
+        "when it holds any result.json)")  # fmt: skip
+    arg("--check", action="store_true", help="whether today's code would still make each "
+        "result: current (same code fingerprint), carried (a smoke run of today's code "
+        "reproduces the stored witness) or stale; exit 1 if any is stale")  # fmt: skip
+    arg("--record", action="store_true", help="with --check: write a carry record into "
+        "result.json of each result whose witness is equal (later checks are instant)")  # fmt: skip
+    arg("--quiet", action="store_true", help="with --check: no progress bar over witness runs")
+    arg("--remeasure", action="store_true", help="summarise each stored trials.npz again, "
+        "add the measurements its summary lacks (shared ones must agree) and judge it again "
+        "with today's claims; nothing is re-run")  # fmt: skip
+    arg("--markdown", action="store_true", help="print a Markdown table of the results (commit, "
+        "trials, executor, wall time, verdict, code since), as in data/README.md")  # fmt: skip
     p.set_defaults(func=_cmd_runs)
 
     p = add(
@@ -580,27 +465,37 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("run_a", help="run folder (or its result.json)")
     p.add_argument("run_b", help="run folder (or its result.json)")
-    p.add_argument("--out", default=None, help="also write an overlay figure into this folder")
+    p.add_argument("--out", help="also write an overlay figure into this folder")
     p.set_defaults(func=_cmd_compare)
 
     p = add(
         "demo",
         "GPREPS against REPS on throwing, beside the quick fig2.10 and sanity3 experiments",
-        "Run, at quick scale and in under a minute on 2 cores (48 s on a quiet 2-core AMD EPYC, "
-        "2026-12-04): GPREPS against REPS on throwing (cmp.methods), and beside it, in a second "
-        "process, the DMP imitation figure (fig2.10) and contextual REPS, RWR and CrKR on a "
-        "problem with a known optimal policy (sanity3). Prints each one's claim, verdict and "
-        "files, and the command that opens the GPREPS run in the viewer.",
+        "Run at quick scale, in about a minute on 2 cores: GPREPS against REPS on throwing "
+        "(cmp.methods) and, in a second process, the DMP imitation figure (fig2.10) and "
+        "contextual REPS, RWR and CrKR with a known optimum (sanity3). Prints each one's claim, "
+        "verdict and files, and how to open the GPREPS run in the viewer.",
     )
-    p.add_argument("--seed", type=int, default=0, help="root seed of the runs (default 0)")
-    p.add_argument("--out", default="runs", help="output folder (default: runs/)")
-    p.add_argument("--quiet", action="store_true", help="no progress bars")
-    p.add_argument(
-        "--json",
-        action="store_true",
-        help="print one JSON line {id, path, summary} per run instead of the verdicts",
-    )
+    arg = p.add_argument
+    arg("--seed", type=int, default=0, help="root seed of the runs (default 0)")
+    arg("--out", default="runs", help="output folder (default: runs/)")
+    arg("--quiet", action="store_true", help="no progress bars")
+    arg("--json", action="store_true", help="print one JSON line {id, path, summary} per run "
+        "instead of the verdicts")  # fmt: skip
     p.set_defaults(func=_cmd_demo)
+
+    p = add(
+        "site",
+        "the notebooks as a browsable HTML site",
+        "Execute the notebooks (at SKILLKIT_SCALE, default smoke) and export them as linked "
+        "HTML pages with an index.html; equations typeset offline, figures without a kernel.",
+    )
+    arg = p.add_argument
+    arg("out", metavar="OUT", help="output folder")
+    arg("--notebooks", default="notebooks", help="folder of .ipynb files (default: notebooks/)")
+    arg("--executed", action="store_true", help="the notebooks are executed: export only")
+    arg("--timeout", type=int, default=600, help="seconds per cell (default 600)")
+    p.set_defaults(func=_cmd_site)
 
     from skillkit.viz.cli_view import add_view_parser
 
@@ -619,14 +514,11 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("skillkit: interrupted", file=sys.stderr)
         return 130
-    except BrokenPipeError:
-        # the output went into a pipe that closed early (`skillkit settings ID | head`): stop
-        # quietly, and keep Python from complaining again when it flushes stdout at exit
+    except BrokenPipeError:  # e.g. `skillkit settings ID | head`: stop quietly
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 141
     except RuntimeError as exc:
-        # A CheckpointError can only come from the checkpoint module, once it is imported
-        # (importing it up front would load every experiment before --help).
+        # a CheckpointError needs the checkpoint module, which --help must not import
         checkpoint = sys.modules.get("skillkit.experiments.checkpoint")
         if checkpoint is None or not isinstance(exc, checkpoint.CheckpointError):
             raise

@@ -1,12 +1,9 @@
-"""What an experiment measures and plots: :class:`Series` (one named curve, band, heatmap or
-bar set of a figure panel), :func:`mean_band` (mean and band over trials), :func:`trial_band`
-(the same with the band's meaning in words, for ``Series.band``) and :func:`band_text`.
+"""What an experiment measures and plots: :class:`Series` (one curve, band, heatmap or bar
+set of a figure panel) and the bands over trials (:func:`mean_band`, :func:`trial_band`,
+:func:`band_text`).
 
-Experiments build series in ``summarize`` and store them in ``result.json``
-(``Series.to_dict``); the figures in :mod:`skillkit.viz.plots` draw them. The numbers computed
-here are stored numbers, so this module is part of every experiment's code fingerprint
-(:mod:`skillkit.experiments.provenance`); it sits at the bottom of the layers so that both the
-experiments and the figures can import it. The format is documented in ``docs/formats.md``.
+Experiments store series in ``result.json`` (format: ``docs/formats.md``) and
+:mod:`skillkit.viz.plots` draws them; the numbers computed here are stored numbers.
 """
 
 from __future__ import annotations
@@ -31,28 +28,17 @@ class Series:
     name : str
         Legend label.
     x, y : list of float
-        Coordinates (for ``kind="heatmap"``: the grid axes, with values in ``z``).
+        Coordinates (for a heatmap: the grid axes, values in ``z`` of shape (len(y), len(x))).
     panel : str
-        Subplot the series belongs to (series with the same panel share axes).
+        Subplot (series of one panel share axes).
     kind : {"line", "markers", "lines+markers", "heatmap", "bar"}
-        How to draw it.
-    lower, upper : list of float, optional
-        A band around ``y`` (e.g. mean ± std or a 95% interval).
-    band : str, optional
-        What the band is, in words (e.g. ``"mean ± std over 20 trials"``, ``"95% interval of
-        the mean"``); figures show it in the legend. None: the band is drawn unlabelled.
-    z : list of list of float, optional
-        Heatmap values, shape (len(y), len(x)).
-    xlabel, ylabel : str
-        Axis labels of the panel.
-    log_x, log_y : bool
-        Logarithmic axes.
-    zmin, zmax : float, optional
-        Colour range of a heatmap (give panels compared by eye the same range).
+    lower, upper, band : list of float, list of float, str, optional
+        A band around ``y`` and what it is, in words, for the legend (e.g. ``"mean ± std over
+        20 trials"``).
+    xlabel, ylabel, log_x, log_y, zmin, zmax
+        Axis labels, logarithmic axes and a heatmap's colour range.
     dash : {"dash", "dot", "dashdot"}, optional
-        Line style of a line series; None (the default) draws it solid. Mark a reference
-        the other curves are compared with (a demonstration, a target) as ``"dash"`` so a
-        close fit drawn over it does not hide it.
+        Line style (None: solid); ``"dash"`` marks a reference the other curves are compared with.
     """
 
     name: str
@@ -77,16 +63,10 @@ class Series:
 
 
 def mean_band(curves: np.ndarray, kind: str = "std") -> tuple[list, list, list]:
-    """Mean and a band over trials for curves of shape (n_trials, n_points).
+    """Mean, lower and upper band over trials of curves (n ≥ 1, n_points), as lists.
 
-    ``kind="std"`` gives mean ± one standard deviation; ``kind="ci95"`` the 95% interval of
-    the mean (normal approximation). A single curve gets a zero-width band.
-
-    Raises
-    ------
-    ValueError
-        ``curves`` not of shape (n ≥ 1, n_points), or ``kind`` not ``"std"`` or ``"ci95"``
-        (``"gstd"``: :func:`trial_band`).
+    ``kind="std"``: mean ± one standard deviation; ``"ci95"``: the 95% interval of the mean
+    (:data:`BAND_KINDS`). A single curve gets a zero-width band.
     """
     curves = np.asarray(curves, dtype=float)
     if curves.ndim != 2 or curves.shape[0] < 1:
@@ -108,21 +88,9 @@ geometric mean ×/÷ one geometric standard deviation (mean ± std of log10, for
 
 
 def band_text(n: int, over: str = "trials", kind: str = "std") -> str:
-    """What a band over ``n`` curves is, in words (the ``Series.band`` of :func:`trial_band`).
+    """What a band over ``n`` ≥ 2 curves is, in words, e.g. ``"mean ± std over 20 trials"``.
 
-    Parameters
-    ----------
-    n : int
-        Number of curves the band is computed over, n ≥ 2 (one curve has no spread).
-    over : str
-        What the curves are, plural (``"trials"``, ``"runs"``, ``"start states"``).
-    kind : {"std", "ci95", "gstd"}
-        The statistic (:data:`BAND_KINDS`).
-
-    Returns
-    -------
-    str
-        E.g. ``"mean ± std over 20 trials"``.
+    ``over`` names the curves (plural), ``kind`` the statistic (:data:`BAND_KINDS`).
     """
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 2:
         raise ValueError(f"n: a band needs at least 2 curves, got {n!r}")
@@ -139,26 +107,11 @@ def band_text(n: int, over: str = "trials", kind: str = "std") -> str:
 
 
 def trial_band(curves, over: str = "trials", kind: str = "std") -> tuple[list, dict[str, Any]]:
-    """Mean curve over repeated curves and the :class:`Series` keywords of its band.
+    """Mean curve over curves (n, n_points) and the :class:`Series` keywords of its band.
 
-    Parameters
-    ----------
-    curves : array_like, shape (n, n_points)
-        One curve per trial (run, start state, …); ``kind="gstd"`` needs positive values.
-    over : str
-        What the n curves are, plural (the band's text says "over n <over>").
-    kind : {"std", "ci95", "gstd"}
-        ``"std"`` and ``"ci95"`` as :func:`mean_band`; ``"gstd"``: m = 10^mean(log10 c),
-        band 10^(mean(log10 c) ± std(log10 c)) (a geometric mean ×/÷ the geometric std).
-
-    Returns
-    -------
-    mean : list of float, length n_points
-        The mean (geometric for ``"gstd"``).
-    band : dict
-        ``lower``, ``upper`` (lists) and ``band`` (:func:`band_text`) to pass to
-        :class:`Series`; empty for a single curve, whose spread is undefined (no band is
-        drawn rather than a zero-width one).
+    ``kind`` as :data:`BAND_KINDS` (``"gstd"`` needs positive values and gives the geometric
+    mean). The keywords are ``lower``, ``upper`` and ``band`` (:func:`band_text` with
+    ``over``); empty for a single curve, whose spread is undefined.
     """
     curves = np.asarray(curves, dtype=float)
     if curves.ndim != 2 or curves.shape[0] < 1:

@@ -18,24 +18,19 @@ class Trajectory:
     Attributes
     ----------
     times : ndarray, shape (T,)
-        Time stamps in seconds.
+        Time stamps (s).
     states : ndarray, shape (T, n_x)
-        Robot state x_t = [q_t, q̇_t] (or the task's state) at each time stamp.
+        State x_t (e.g. [q_t, q̇_t]) at each time stamp.
     controls : ndarray, shape (T, n_u)
-        Control u_t applied from ``times[t]`` on (the last row is the control at the final
-        time stamp, usually zero or repeated).
+        Control u_t applied from ``times[t]`` on (the last row: the control at the end).
     signals : dict of str to ndarray
-        Named task signals, time-major (first axis is time, not necessarily of length T),
-        e.g. ``"ball"`` with shape (T_b, 2) or ``"racket"`` with shape (T, 3).
+        Named task signals, time-major (not necessarily of length T), e.g. ``"ball"`` (T_b, 2).
     info : dict
-        Scalars describing the episode (release time, hit flag, ...). JSON-serialisable.
+        JSON-serialisable scalars describing the episode.
     failed : bool
-        True when the simulation broke down (NaN, instability); ``message`` says why. The
-        task's reward for a failed trajectory is its worst-case reward. A failed trajectory
-        holds the states simulated before the failure where its task records them, else a
-        one-row placeholder (:attr:`has_transitions`).
+        The simulation broke down (``message`` says why); the task scores it worst. It holds
+        the states before the failure, else a one-row placeholder (:attr:`has_transitions`).
     message : str
-        Why the rollout failed, empty otherwise.
     """
 
     times: np.ndarray
@@ -87,29 +82,18 @@ class Trajectory:
 
     @property
     def has_transitions(self) -> bool:
-        """Whether the trajectory holds at least one transition: a working rollout, or a
-        failed one that kept the states before its failure (a failed rollout that kept none
-        holds a one-row placeholder)."""
+        """Whether the trajectory holds at least one transition (T ≥ 2)."""
         return self.n_steps >= 2
 
     def transitions(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """One-step transitions (x_t, u_t, x_{t+1}) for model learning.
-
-        Returns
-        -------
-        x : ndarray, shape (T-1, n_x)
-        u : ndarray, shape (T-1, n_u)
-        x_next : ndarray, shape (T-1, n_x)
-        """
+        """One-step transitions (x_t, u_t, x_{t+1}), each with T − 1 rows."""
         return self.states[:-1], self.controls[:-1], self.states[1:]
 
     def save(self, path: str | Path) -> Path:
-        """Write the trajectory to a compressed ``.npz`` file and return its path.
+        """Write the trajectory to a compressed ``.npz`` file (suffix added) and return its path.
 
-        ``.npz`` is appended to a path without it (as :func:`numpy.savez_compressed` does).
-        The arrays keep their float64 values exactly; ``info`` goes through JSON, so tuples
-        come back as lists. Raises ``ValueError`` (argument ``info``) if ``info`` is not
-        JSON-serialisable (e.g. holds numpy integers).
+        Arrays keep their values exactly; ``info`` goes through JSON (tuples come back as
+        lists; ``ValueError`` if it is not JSON-serialisable).
         """
         path = Path(path)
         arrays = {"times": self.times, "states": self.states, "controls": self.controls}

@@ -1,27 +1,13 @@
 """The trial context: what one experiment trial reports progress to and checkpoints through.
 
-An experiment's ``run_trial(settings, rng, trial)`` receives a :class:`TrialContext`, and
-:func:`skillkit.search.loop.learn` takes one as ``trial=``. It is two things in one object:
-
-* a **progress bar**: :meth:`~TrialContext.reset`, :meth:`~TrialContext.update`,
-  :meth:`~TrialContext.set_postfix` (forwarded to a tqdm-like bar, or dropped);
-* a **checkpoint store**: :meth:`~TrialContext.save` a picklable state and the generator's
-  state under a key after each unit of work, and :meth:`~TrialContext.resume` it when the work
-  starts again. States are kept as pickled snapshots, so what :meth:`~TrialContext.resume`
-  returns is the state as it was when saved, whatever happened to the object afterwards.
-
-The context keeps its snapshots in memory; a ``writer`` persists them (the experiment runner
-writes them atomically to the trial's checkpoint file, :mod:`skillkit.experiments.runner`).
-``TrialContext()`` — no bar, no writer — is the null context for library use and tests.
-
-Given the trial's record of numerical events (``events``, a
-:class:`~skillkit.models.gp.NumericalEvents` that a
-:func:`~skillkit.models.gp.record_numerical_events` block fills), the context also keeps, per
-key, the events of the work saved under it (:attr:`~TrialContext.saved_events`): those counted
-between the key's :meth:`~TrialContext.resume` (or the previous save) and each save. A run
-that resumes the key adds them back to its record, so a resumed trial counts what a trial run
-without interruption counts: work restored from a snapshot is counted once (from the saved
-counts), work done again (set-up before a resume, work after the last save) once (live).
+A :class:`TrialContext` (passed to an experiment's ``run_trial(settings, rng, trial)`` and to
+:func:`skillkit.search.loop.learn`) is a progress bar (forwarded to a tqdm-like bar, or
+dropped) and a checkpoint store: :meth:`~TrialContext.save` pickles a state and the
+generator's state under a key, :meth:`~TrialContext.resume` returns it as it was when saved.
+A ``writer`` persists the snapshots (the runner writes the trial's checkpoint file);
+``TrialContext()`` is the null context. With the trial's record of numerical events
+(``events``) the context also keeps, per key, the events of the work saved under it, and adds
+them back when a key is resumed, so a resumed trial counts what an uninterrupted one counts.
 """
 
 from __future__ import annotations
@@ -56,9 +42,7 @@ class ProgressBar(Protocol):
 
 
 class NumericalEvents(Protocol):
-    """The event record a :class:`TrialContext` keeps per key (the interface of
-    :class:`skillkit.models.gp.NumericalEvents`; declared here so this foundation layer does
-    not import the models)."""
+    """The interface of :class:`skillkit.models.gp.NumericalEvents` (without importing it)."""
 
     @classmethod
     def from_dict(cls, counts: Mapping) -> NumericalEvents: ...
@@ -95,30 +79,22 @@ class TrialContext:
     """Progress reporting and checkpointing for one trial.
 
     Work that should survive an interruption calls :meth:`resume` with a key when it starts
-    (restoring the generator and returning the state last saved under that key, or ``None``)
-    and :meth:`save` with the same key after every unit of work (e.g. every policy update).
-    Several keys (e.g. one per algorithm learning in the trial) share one context; each save
-    hands the latest snapshot of every key to ``writer``.
+    and :meth:`save` with the same key after every unit of work; several keys share a context.
 
     Parameters
     ----------
     bar : ProgressBar, optional
         Where :meth:`reset`, :meth:`update` and :meth:`set_postfix` go (default: nowhere).
     states : mapping of str to (bytes, dict), optional
-        Snapshots to resume from, as a ``writer`` received them (:attr:`snapshots`).
+        Snapshots to resume from (:attr:`snapshots`).
     writer : callable, optional
-        ``writer(snapshots, seconds)``, called after every :meth:`save` (e.g. to write a
-        checkpoint file). Without one, snapshots live in memory only.
+        ``writer(snapshots, seconds)``, called after every :meth:`save`.
     seconds : float
-        Compute time of earlier, interrupted runs of this trial (added to :attr:`seconds`;
-        finite, ≥ 0).
+        Compute time (s, ≥ 0) of earlier, interrupted runs of this trial.
     events : NumericalEvents, optional
-        The record the trial's numerical events are counted in (the runner's
-        :func:`~skillkit.models.gp.record_numerical_events`); with it the context keeps
-        :attr:`saved_events`. Without it (default), no events are kept.
+        The trial's record of numerical events; with it the context keeps :attr:`saved_events`.
     saved_events : mapping of str to dict, optional
-        Per key, the events of the work saved under it in earlier runs (:attr:`saved_events`
-        as the writer's caller received it); added to ``events`` when the key is resumed.
+        Per key, the events saved in earlier runs, added to ``events`` when the key resumes.
 
     Examples
     --------
@@ -161,7 +137,6 @@ class TrialContext:
                 self._carried.add(str(key))
             self._mark = events.copy()
 
-    # ------------------------------------------------------------------ progress
     def reset(self, total: int | None = None) -> None:
         """Restart the bar at 0 with ``total`` units of work."""
         self.bar.reset(total=total)
@@ -174,7 +149,6 @@ class TrialContext:
         """Show values beside the bar (tqdm's ``set_postfix``)."""
         self.bar.set_postfix(*args, **kwargs)
 
-    # ------------------------------------------------------------------ checkpoints
     def save(self, key: str, state: Any, rng: np.random.Generator) -> None:
         """Snapshot ``state`` (any picklable object) and ``rng``'s state under ``key``, then
         hand every key's latest snapshot to the writer."""
@@ -193,8 +167,7 @@ class TrialContext:
             self._writer(dict(self._snapshots), self.seconds)
 
     def resume(self, key: str, rng: np.random.Generator) -> Any | None:
-        """The state last saved under ``key`` (restoring ``rng`` to where it was then), or
-        ``None`` (``rng`` untouched) when nothing was saved under it."""
+        """The state last saved under ``key``, restoring ``rng`` to its state then; else None."""
         found = key in self._snapshots
         if found and not isinstance(rng, np.random.Generator):
             raise ValueError(f"rng: expected a numpy Generator, got {type(rng).__name__}")
@@ -216,8 +189,7 @@ class TrialContext:
 
     @property
     def saved_events(self) -> dict[str, dict]:
-        """Per key, the numerical events of the work saved under it (summed over runs), as
-        :meth:`~skillkit.models.gp.NumericalEvents.to_dict`; empty without ``events``."""
+        """Per key, the events of the work saved under it (summed over runs), as dicts."""
         return {key: ev.to_dict() for key, ev in self._key_events.items()}
 
     @property

@@ -1,25 +1,8 @@
 """Trajectory and reward prediction with kernel embeddings (thesis Sec. 5.2, Tables 5.1–5.2).
 
-A :class:`~skillkit.models.embedding.ConditionalEmbedding` fitted on observed transitions
-(inputs ``z_i``, successor states ``x'_i``) is the dynamics operator
-:math:`\\mathcal C_{x'|z}`. :func:`predict` rolls an initial state distribution forward:
-
-* **fixed policy** (``policy=None``, Table 5.1): ``z = x``; the embedding of x_{t+1} is
-  :math:`\\Phi_{x'}\\beta_t` and :math:`\\beta_{t+1} = (K + \\lambda I)^{-1} \\tilde K
-  \\beta_t`, :math:`\\tilde K_{ij} = k(x_i, x'_j)` (Eqs. 5.9–5.12);
-* **arbitrary, time-dependent policy** (Table 5.2, Eq. 5.14): ``z = [x, u]``; at every step
-  the observed successor states are paired with the new policy's controls,
-  :math:`z^\\pi_{j,t} = [x'_j, \\pi(x'_j, t)]`, and :math:`\\beta_{t+1} = (G + \\lambda I)^{-1}
-  \\tilde G^\\pi_t \\beta_t` with :math:`\\tilde G^\\pi_t = \\Phi_z^\\top \\Phi_{z^\\pi_t}`.
-
-Immediate rewards are embedded with a linear reward kernel, so the expected reward is
-:math:`\\mathbb E[r_t] = r'^\\top_t \\beta_t` with :math:`r'_{t,j} = r(z^\\pi_{j,t})`, the
-reward of the observed successor states under the evaluated policy (Sec. 5.4).
-
-Time indexing is 0-based and matches the rows of a :class:`~skillkit.trajectory.Trajectory`:
-row 0 is the initial state x_0, the policy is called as ``policy(states, t)`` at row ``t``,
-and ``betas[t - 1]`` holds the weights of the embedding of row ``t``.
-"""
+With a fixed policy z = x and β_{t+1} = (K + λI)⁻¹ K̃ β_t (Eqs. 5.9–5.12); with any policy
+(Eq. 5.14) z = [x, u] over z^π_{j,t} = [x'_j, π(x'_j, t)]. With a linear reward kernel
+E[r_t] = r'_tᵀ β_t (Sec. 5.4). ``betas[t - 1]`` holds the weights of row t."""
 
 from __future__ import annotations
 
@@ -41,19 +24,9 @@ Reward = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 @dataclass
 class TrajectoryEmbedding:
-    """Predicted embedding of a batch of B trajectory distributions over T rows.
-
-    Attributes
-    ----------
-    initial : ndarray, shape (B, n_x)
-        Mean of each initial state distribution (row 0).
-    betas : ndarray, shape (T - 1, N, B)
-        ``betas[t - 1]`` are the weights of the embedding of row t over the observed
-        successor states, :math:`\\mu_{x_t} = \\Phi_{x'} \\beta`.
-    rewards : ndarray, shape (T, B) or None
-        Expected immediate rewards E[r_t]; row 0 is the exact average over the initial
-        samples, rows t ≥ 1 are :math:`r'^\\top_t \\beta_t`.
-    """
+    """Predicted embedding of B trajectory distributions over T rows: the ``initial`` means
+    (B, n_x), the weights ``betas`` (T − 1, N, B) of rows 1 … T − 1 over the observed successors,
+    and the expected ``rewards`` (T, B) or None."""
 
     initial: np.ndarray
     betas: np.ndarray
@@ -69,7 +42,6 @@ class TrajectoryEmbedding:
 
     @property
     def n_steps(self) -> int:
-        """Number of rows T (initial state included)."""
         return self.betas.shape[0] + 1
 
     def total_reward(self) -> np.ndarray:
@@ -79,7 +51,7 @@ class TrajectoryEmbedding:
         return self.rewards.sum(axis=0)
 
     def means(self, model: ConditionalEmbedding) -> np.ndarray:
-        """Expected states :math:`X'^\\top \\beta_t` (linear read-out), shape (T, B, n_x)."""
+        """Expected states :math:`X'^\\top \\beta_t`, shape (T, B, n_x)."""
         body = (
             np.stack([model.mean(b) for b in self.betas])
             if len(self.betas)
@@ -88,8 +60,7 @@ class TrajectoryEmbedding:
         return np.concatenate([self.initial[None], body])
 
     def preimages(self, model: ConditionalEmbedding, **kwargs) -> np.ndarray:
-        """Most likely states per row (Eq. 2.45, :meth:`ConditionalEmbedding.preimage`),
-        shape (T, B, n_x); row 0 is the initial mean."""
+        """Most likely states per row (Eq. 2.45), shape (T, B, n_x)."""
         b = self.betas
         flat = b.transpose(1, 0, 2).reshape(b.shape[1], -1)  # (N, (T-1) B)
         decoded = model.preimage(flat, **kwargs).reshape(b.shape[0], b.shape[2], -1)
@@ -107,38 +78,11 @@ def predict(
 ) -> TrajectoryEmbedding:
     """Kernel trajectory prediction, Table 5.1 (fixed policy) and Table 5.2 (any policy).
 
-    Parameters
-    ----------
-    model : ConditionalEmbedding
-        Dynamics operator fitted on transitions: inputs ``x_i`` (fixed policy) or
-        ``[x_i, u_i]`` (with ``policy``), targets the successor states ``x'_i``.
-    initial : array_like, shape (B, n_x) or (B, L, n_x)
-        B deterministic initial states, or B initial distributions given by L samples each
-        (Eq. 5.6).
-    n_steps : int
-        Number of rows T ≥ 2 of the predicted trajectories (initial state included).
-    policy : callable, optional
-        ``policy(states, t) -> controls``: states of shape (b, M, n_x) with b ∈ {1, B}
-        give controls of shape (b', M, n_u), b' ∈ {1, B}, broadcasting over the batch (a
-        per-query policy, e.g. one gain matrix per query, returns b' = B). Deterministic
-        (e.g. the commanded torque of a feedback law). ``None`` means the data were
-        collected with the fixed policy being predicted (Table 5.1).
-    reward : callable, optional
-        ``reward(states, controls) -> r`` with shapes (b, M, n_x), (b, M, n_u) → (b, M)
-        (controls have n_u = 0 without a policy). Gives :attr:`TrajectoryEmbedding.rewards`.
-    time_invariant : bool
-        The policy ignores ``t``: :math:`\\tilde G^\\pi` is computed once instead of per step.
-    project_initial : bool
-        First step as Eq. (5.9) (default): the initial samples are embedded over the observed
-        inputs (Eq. 5.6, α) and mapped by :math:`(G + \\lambda I)^{-1} G`, so
-        :math:`\\beta_1 = (G + \\lambda I)^{-1} G \\alpha`; ``False`` uses
-        :math:`\\beta_1 = \\alpha` (Eq. 5.7's one-step read-out, equal as λ → 0). See
-        :func:`~skillkit.models.embedding.initial_weights`.
-
-    Returns
-    -------
-    TrajectoryEmbedding
-    """
+    ``model`` is fitted on x_i (fixed policy) or [x_i, u_i] → x'_i; ``initial`` (B, n_x) or L
+    samples of each (B, L, n_x) (Eq. 5.6); ``n_steps`` rows T ≥ 2. ``policy(states, t)`` maps
+    (b, M, n_x) to controls (b', M, n_u), b, b' ∈ {1, B} (None: the data-collecting policy);
+    ``reward(states, controls)`` gives (b, M). ``project_initial`` takes Eq. (5.9)'s first step,
+    else β₁ = α (Eq. 5.7)."""
     n_x = model.target_dim
     x0 = check_array(initial, "initial", ndim=(2, 3))
     if x0.shape[-1] != n_x:
@@ -198,7 +142,6 @@ def predict(
     reward_vectors: dict[int, np.ndarray] = {}
 
     def transition(t: int) -> torch.Tensor:
-        """G̃ at row t (maps the weights of row t to those of row t + 1)."""
         key = 1 if fixed else t
         if key not in grams:
             z, c = inputs_at(successors, key)
@@ -210,7 +153,6 @@ def predict(
         return grams[key]
 
     def reward_vector(t: int) -> np.ndarray:
-        """r'_t = r(x'_j, π(x'_j, t)) over the observed successors, shape (b, N)."""
         key = 1 if fixed else t
         if key not in reward_vectors:
             reward_vectors[key] = rewards_at(successors, inputs_at(successors, key)[1])

@@ -1,28 +1,8 @@
 """Hyper-parameter learning for kernel embeddings (thesis Sec. 5.3, Eqs. 5.15–5.26).
 
-Kernel embeddings have no likelihood, so the SE input-kernel hyper-parameters are found by
-minimising a prediction error on held-out data (k-fold cross-validation, 10 folds in the
-thesis). Three errors are implemented, each a pure torch function of the hyper-parameters
-whose gradient (Eqs. 5.20–5.21 and 5.24–5.26) is obtained by reverse-mode differentiation
-through the same linear algebra the predictions use:
-
-* :func:`state_embedding_error`, Eqs. (5.15)–(5.16): squared RKHS distance between the
-  observed successor feature and the predicted embedding;
-* :func:`step_reward_error`, Eqs. (5.17)–(5.19): one-step reward prediction error with a
-  linear reward kernel;
-* :func:`trajectory_reward_error`, Eqs. (5.22)–(5.23): the reward prediction error of whole
-  predicted trajectories (long-term prediction, Table 5.2 propagation).
-
-Parametrisation. The hyper-parameters are ``theta = [log w_1, …, log w_d, log λ]``: ARD
-length-scales of the SE input kernel g (Eq. 2.25) and the regulariser. The SE signal
-variance is fixed to 1 because only the ratio λ/σ_f² enters
-:math:`\\beta = (G + \\lambda I)^{-1} g(z)`.
-
-Target features. In Eq. (5.16) the target kernel must not depend on θ: if it did, the error
-would vanish trivially as its length-scales grow (all features coincide). The target Gram
-matrices are therefore fixed data here (a kernel chosen once, e.g. an SE kernel with the
-targets' standard deviations as length-scales).
-"""
+θ = [log w_1, …, log w_d, log λ] (SE input kernel, σ_f² = 1) minimises a k-fold
+cross-validated prediction error, differentiated by autograd (Eqs. 5.20–5.21, 5.24–5.26).
+Target Gram matrices are fixed: a θ-dependent target kernel would make (5.16) vanish."""
 
 from __future__ import annotations
 
@@ -61,28 +41,9 @@ __all__ = [
 Folds = Sequence[tuple[np.ndarray, np.ndarray]]
 
 
-# --------------------------------------------------------------------------- data helpers
 def kfold_splits(n: int, k: int = 10, rng=None, groups=None) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Random k-fold cross-validation splits that partition ``range(n)``.
-
-    Parameters
-    ----------
-    n : int
-        Number of samples.
-    k : int
-        Number of folds, 2 ≤ k ≤ number of groups (10 in the thesis).
-    rng : Generator, int or None
-        Randomness of the assignment.
-    groups : array_like of int, shape (n,), optional
-        Group label per sample (e.g. the trajectory a transition belongs to). Groups are
-        never split across folds, so a validation fold holds whole trajectories.
-
-    Returns
-    -------
-    list of (train_idx, val_idx)
-        k pairs of sorted index arrays; the validation sets are disjoint and cover
-        ``range(n)``, and each training set is the complement of its validation set.
-    """
+    """k random (train_idx, val_idx) splits whose validation sets partition ``range(n)``; samples
+    sharing a ``groups`` label (e.g. a trajectory) stay in one fold."""
     n = int(n)
     if n < 2:
         raise ValueError(f"n: expected at least 2 samples, got {n}")
@@ -102,24 +63,11 @@ def kfold_splits(n: int, k: int = 10, rng=None, groups=None) -> list[tuple[np.nd
 
 
 def transitions(states, controls=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Flatten M observed trajectories into transition pairs.
+    """Flatten trajectories ``states`` (M, T, n_x) into transition pairs.
 
-    Parameters
-    ----------
-    states : array_like, shape (M, T, n_x)
-    controls : array_like, shape (M, T, n_u), optional
-        If given, the inputs are state-actions ``z_t = [x_t, u_t]`` (Table 5.2); otherwise
-        states (fixed policy, Table 5.1).
-
-    Returns
-    -------
-    inputs : ndarray, shape (M (T-1), d_z)
-        z_t for t = 0, …, T−2 of every trajectory (trajectory-major).
-    successors : ndarray, shape (M (T-1), n_x)
-        x_{t+1}.
-    groups : ndarray of int, shape (M (T-1),)
-        The trajectory index of each transition (for :func:`kfold_splits`).
-    """
+    With ``controls`` (M, T, n_u) the inputs are z_t = [x_t, u_t] (Table 5.2), else states
+    (Table 5.1). Returns inputs (M(T−1), d_z), successors (M(T−1), n_x) and the trajectory index
+    of each transition (for :func:`kfold_splits`)."""
     x = check_array(states, "states", ndim=3)
     m, t, n_x = x.shape
     if t < 2:
@@ -138,7 +86,6 @@ def transitions(states, controls=None) -> tuple[np.ndarray, np.ndarray, np.ndarr
     return inputs, successors, groups
 
 
-# --------------------------------------------------------------------------- objectives
 def _unpack(theta: torch.Tensor, dim: int) -> tuple[torch.Tensor, torch.Tensor]:
     if theta.shape != (dim + 1,):
         raise ValueError(
@@ -149,7 +96,6 @@ def _unpack(theta: torch.Tensor, dim: int) -> tuple[torch.Tensor, torch.Tensor]:
 
 
 def _weights(theta: torch.Tensor, inputs: torch.Tensor, queries: torch.Tensor):
-    """Cholesky of G + λI and β = (G + λI)^{-1} g(Z, queries) for the SE kernel at θ."""
     ls, lam = _unpack(theta, inputs.shape[-1])
     chol = regularized_cholesky(se_kernel(inputs, inputs, ls, 1.0), lam)
     return chol, ls, conditional_weights(chol, se_kernel(inputs, queries, ls, 1.0))
@@ -163,33 +109,9 @@ def state_embedding_error(
     target_cross: torch.Tensor,
     target_diag: torch.Tensor,
 ) -> torch.Tensor:
-    """Squared RKHS error of predicted successor embeddings, Eqs. (5.15)–(5.16).
-
-    .. math:: J(\\theta) = \\sum_v g_y(y_v, y_v) - 2\\, g_y(y_v)^\\top \\beta_v
-              + \\beta_v^\\top G_y \\beta_v, \\qquad
-              \\beta_v = (G + \\lambda I)^{-1} g(z_v)
-
-    over validation pairs (z_v, y_v), with the operator fitted on the training pairs.
-
-    Parameters
-    ----------
-    theta : Tensor, shape (d + 1,)
-        ``[log w, log λ]`` of the SE input kernel.
-    inputs : Tensor, shape (N, d)
-        Training inputs.
-    val_inputs : Tensor, shape (V, d)
-        Validation inputs.
-    target_gram : Tensor, shape (N, N)
-        :math:`G_y` over the training targets (fixed target kernel).
-    target_cross : Tensor, shape (V, N)
-        :math:`g_y(y_v, y_j)` between validation and training targets.
-    target_diag : Tensor, shape (V,)
-        :math:`g_y(y_v, y_v)`.
-
-    Returns
-    -------
-    Tensor, scalar
-    """
+    """Squared RKHS error of predicted successor embeddings, Eqs. (5.15)–(5.16):
+    J = Σ_v g_y(y_v, y_v) − 2 g_y(y_v)ᵀβ_v + β_vᵀ G_y β_v, β_v = (G + λI)⁻¹ g(z_v), from
+    ``target_gram`` G_y (N, N), ``target_cross`` g_y(y_v, y_j) (V, N), ``target_diag`` (V,)."""
     _, _, beta = _weights(theta, inputs, val_inputs)  # (N, V)
     return (
         target_diag.sum()
@@ -205,25 +127,8 @@ def step_reward_error(
     val_inputs: torch.Tensor,
     val_rewards: torch.Tensor,
 ) -> torch.Tensor:
-    """One-step reward error with a linear reward kernel, Eqs. (5.17)–(5.19).
-
-    .. math:: J(\\theta) = \\sum_v (r'_v - r'^\\top \\beta_v)^2,
-              \\qquad \\beta_v = (G + \\lambda I)^{-1} g(z_v)
-
-    Parameters
-    ----------
-    theta : Tensor, shape (d + 1,)
-    inputs : Tensor, shape (N, d)
-        Training state-actions z_i.
-    rewards : Tensor, shape (N,)
-        Observed successor rewards r'_i = r(z'_i) of the training pairs.
-    val_inputs : Tensor, shape (V, d)
-    val_rewards : Tensor, shape (V,)
-
-    Returns
-    -------
-    Tensor, scalar
-    """
+    """One-step reward error with a linear reward kernel, Eqs. (5.17)–(5.19):
+    J = Σ_v (r'_v − r'ᵀβ_v)², β_v = (G + λI)⁻¹ g(z_v)."""
     _, _, beta = _weights(theta, inputs, val_inputs)
     return ((val_rewards - rewards @ beta) ** 2).sum()
 
@@ -237,40 +142,10 @@ def trajectory_reward_error(
     rewards: torch.Tensor,
     project_initial: bool = True,
 ) -> torch.Tensor:
-    """Long-term reward prediction error of whole trajectories, Eqs. (5.22)–(5.23).
-
-    .. math:: J(\\theta) = \\sum_i \\sum_{t \\ge 1} (r^i_t - r'^{\\pi_i \\top}_t \\beta^i_t)^2,
-              \\quad \\beta^i_1 = (G + \\lambda I)^{-1} G (G + \\lambda I)^{-1} g(z^i_0),
-              \\quad \\beta^i_{t+1} = (G + \\lambda I)^{-1} \\tilde G^{\\pi_i}_t \\beta^i_t
-
-    (0-based rows: row 0 is the observed initial state-action, whose reward is known
-    exactly and so does not enter J). β₁ is the first step of Eq. (5.9), as
-    :func:`~skillkit.models.embedding_prediction.predict` computes it, so the
-    hyper-parameters are trained for the predictor that uses them; ``project_initial=False``
-    gives β₁ = (G + λI)⁻¹ g(z⁰) (Eq. 5.23 as printed).
-
-    Parameters
-    ----------
-    theta : Tensor, shape (d + 1,)
-    inputs : Tensor, shape (N, d)
-        Training state-actions z_j.
-    initial_inputs : Tensor, shape (M, d)
-        Initial state-action z^i_0 of each of M validation trajectories.
-    bases : Tensor, shape (M, N, d) or (T - 2, M, N, d)
-        :math:`z^{\\pi_i}_{j,t} = [x'_j, \\pi_i(x'_j, t)]`: the training successors with the
-        controls of trajectory i's policy, shared by all rows (time-invariant policies) or
-        one set per row t = 1, …, T−2.
-    basis_rewards : Tensor, shape (M, N) or (T - 1, M, N)
-        :math:`r(z^{\\pi_i}_{j,t})`, shared by all rows or one per row t = 1, …, T−1.
-    rewards : Tensor, shape (M, T)
-        Observed immediate rewards of the validation trajectories.
-    project_initial : bool
-        Eq. (5.9)'s first step (:func:`~skillkit.models.embedding.initial_weights`).
-
-    Returns
-    -------
-    Tensor, scalar
-    """
+    """Long-term reward prediction error, Eqs. (5.22)–(5.23):
+    J = Σ_i Σ_{t≥1} (r^i_t − r'^{π_i}_tᵀ β^i_t)², β^i_{t+1} = (G + λI)⁻¹ G̃^{π_i}_t β^i_t, over
+    ``bases`` [x'_j, π_i(x'_j, t)] (M, N, d) or (T − 2, M, N, d) with ``basis_rewards``; β₁ is
+    Eq. (5.9)'s first step (``project_initial=False``: Eq. 5.23 as printed)."""
     n_rows = rewards.shape[1]
     ls, lam = _unpack(theta, inputs.shape[-1])
     g_train = se_kernel(inputs, inputs, ls, 1.0)
@@ -294,21 +169,10 @@ def trajectory_reward_error(
     return ((rewards[:, 1:].T - predicted) ** 2).sum()
 
 
-# --------------------------------------------------------------------------- cross-validation
 @dataclass
 class CrossValidatedLoss:
-    """A cross-validation error as a function of θ = ``[log w, log λ]``.
-
-    Attributes
-    ----------
-    folds : list of callable
-        One closure per fold, ``theta (Tensor) -> scalar Tensor`` (the fold's validation
-        error with the operator fitted on its training part).
-    dim : int
-        Input dimension d (θ has d + 1 entries).
-    n_val : int
-        Total number of validation terms (the loss is reported per term).
-    """
+    """A cross-validation error of θ: one ``theta -> Tensor`` closure per fold, the input
+    dimension and the number of validation terms (the loss is reported per term)."""
 
     folds: list[Callable[[torch.Tensor], torch.Tensor]]
     dim: int
@@ -318,7 +182,7 @@ class CrossValidatedLoss:
         return f"CrossValidatedLoss(folds={len(self.folds)}, dim={self.dim}, n_val={self.n_val})"
 
     def value_and_grad(self, theta) -> tuple[float, np.ndarray]:
-        """Mean validation error per term and its gradient w.r.t. θ (one backward per fold)."""
+        """Mean error per term and its gradient w.r.t. θ."""
         th = check_array(theta, "theta", shape=(self.dim + 1,))
         total, grad = 0.0, np.zeros_like(th)
         for fold in self.folds:
@@ -344,13 +208,8 @@ def _check_folds(folds: Folds, n: int) -> list[tuple[np.ndarray, np.ndarray]]:
     out = []
     for i, (tr, va) in enumerate(folds):
         tr, va = np.asarray(tr, dtype=int), np.asarray(va, dtype=int)
-        if (
-            tr.size == 0
-            or va.size == 0
-            or tr.min(initial=0) < 0
-            or va.min(initial=0) < 0
-            or max(tr.max(initial=0), va.max(initial=0)) >= n
-        ):
+        both = np.concatenate([tr.ravel(), va.ravel()])
+        if tr.size == 0 or va.size == 0 or both.min() < 0 or both.max() >= n:
             raise ValueError(f"folds: fold {i} has empty or out-of-range indices for {n} samples")
         out.append((tr, va))
     if not out:
@@ -361,19 +220,8 @@ def _check_folds(folds: Folds, n: int) -> list[tuple[np.ndarray, np.ndarray]]:
 def state_embedding_loss(
     inputs, targets, folds: Folds, target_kernel: gpytorch.kernels.Kernel
 ) -> CrossValidatedLoss:
-    """Cross-validated state-embedding error, Eq. (5.16) summed over folds.
-
-    Parameters
-    ----------
-    inputs : array_like, shape (N, d)
-        z_i (states for a fixed policy, state-actions otherwise).
-    targets : array_like, shape (N, d_y)
-        Successor states (or state-actions) y_i.
-    folds : sequence of (train_idx, val_idx)
-        E.g. :func:`kfold_splits` by trajectory.
-    target_kernel : gpytorch Kernel
-        Fixed kernel of the target features.
-    """
+    """Cross-validated state-embedding error (5.16) for ``inputs`` (N, d), ``targets`` (N, d_y),
+    ``folds`` and a fixed ``target_kernel``."""
     z = check_array(inputs, "inputs", ndim=2)
     y = check_array(targets, "targets", ndim=2)
     if y.shape[0] != z.shape[0]:
@@ -394,16 +242,7 @@ def state_embedding_loss(
 
 
 def step_reward_loss(inputs, rewards, folds: Folds) -> CrossValidatedLoss:
-    """Cross-validated one-step reward error, Eq. (5.19) summed over folds.
-
-    Parameters
-    ----------
-    inputs : array_like, shape (N, d)
-        State-actions z_i.
-    rewards : array_like, shape (N,)
-        Successor rewards r'_i.
-    folds : sequence of (train_idx, val_idx)
-    """
+    """Cross-validated one-step reward error (5.19) for ``inputs`` (N, d) and ``rewards`` (N,)."""
     z = check_array(inputs, "inputs", ndim=2)
     r = check_array(rewards, "rewards", shape=(z.shape[0],))
     fns = []
@@ -424,32 +263,11 @@ def trajectory_reward_loss(
     chunk: int = 8,
     project_initial: bool = True,
 ) -> CrossValidatedLoss:
-    """Cross-validated trajectory reward error, Eq. (5.23), folds over whole trajectories.
+    """Cross-validated trajectory reward error (5.23), folds over whole trajectories.
 
-    Parameters
-    ----------
-    states : array_like, shape (M, T, n_x)
-        Observed trajectories.
-    controls : array_like, shape (M, T, n_u)
-        Their (commanded) controls.
-    rewards : array_like, shape (M, T)
-        Their immediate rewards r(x_t, u_t).
-    policy : callable
-        ``policy(states, t) -> controls`` as in
-        :func:`~skillkit.models.embedding_prediction.predict`, batched over the M
-        trajectories: states of shape (1, K, n_x) give controls of shape (M, K, n_u) (row i:
-        trajectory i's policy) or (1, K, n_u) if all share one policy.
-        Time-invariant (called with t = 1).
-    reward : callable
-        ``reward(states, controls) -> r`` with shapes (b, K, n_x), (b, K, n_u) → (b, K).
-    folds : sequence of (train_idx, val_idx)
-        Splits of the M trajectories (e.g. ``kfold_splits(M, 10, rng)``).
-    chunk : int
-        Validation trajectories (≥ 1) per backward pass (bounds the memory of the
-        (chunk, N, N) transition matrices).
-    project_initial : bool
-        Eq. (5.9)'s first step, as in :func:`trajectory_reward_error`.
-    """
+    ``policy(states, t)`` is time-invariant: states (1, K, n_x) give controls (M, K, n_u) or
+    (1, K, n_u); ``reward(states, controls)`` maps (b, K, ·) to (b, K); ``chunk`` validation
+    trajectories share a backward pass."""
     x = check_array(states, "states", ndim=3)
     m, t_len, _ = x.shape
     u = check_array(controls, "controls", ndim=3)
@@ -479,28 +297,10 @@ def trajectory_reward_loss(
     return CrossValidatedLoss(fns, z_all.shape[-1], n_val)
 
 
-# --------------------------------------------------------------------------- optimisation
 @dataclass
 class FitResult:
-    """Outcome of :func:`fit_hyperparameters`.
-
-    Attributes
-    ----------
-    lengthscale : ndarray, shape (d,)
-        Learned SE length-scales w.
-    lam : float
-        Learned (or fixed) regulariser λ.
-    loss, initial_loss : float
-        Cross-validation error per term at the optimum and at the start.
-    n_evaluations : int
-        Loss/gradient evaluations.
-    success : bool
-        Whether L-BFGS-B reported convergence.
-    message : str
-        The optimiser's message.
-    at_bound : list of str
-        Hyper-parameters that ended on a bound (the optimum may lie beyond it).
-    """
+    """Outcome of :func:`fit_hyperparameters`: length-scales, λ, the loss per term at the optimum
+    and start, evaluations, the optimiser's verdict and the hyper-parameters left on a bound."""
 
     lengthscale: np.ndarray
     lam: float
@@ -530,37 +330,11 @@ def fit_hyperparameters(
     max_iter: int = 100,
     lengthscale_reference=None,
 ) -> FitResult:
-    """Minimise a cross-validated embedding error over log length-scales (and log λ).
+    """Minimise a cross-validated embedding error over log length-scales (and log λ), L-BFGS-B.
 
-    Uses L-BFGS-B with the analytic (reverse-mode) gradient; the thesis suggests conjugate
-    gradients, any gradient method fits.
-
-    Parameters
-    ----------
-    loss : CrossValidatedLoss
-        From :func:`state_embedding_loss`, :func:`step_reward_loss` or
-        :func:`trajectory_reward_loss`.
-    lengthscale : float or array_like, shape (d,)
-        Initial length-scales (e.g. the inputs' standard deviations).
-    lam : float
-        Initial (or, with ``learn_lam=False``, fixed) regulariser λ > 0.
-    learn_lam : bool
-        Optimise λ as well.
-    lengthscale_factor : float
-        Length-scales are searched in [w_ref / factor, w_ref · factor].
-    lam_bounds : (float, float)
-        Search interval of λ.
-    max_iter : int
-        L-BFGS-B iterations.
-    lengthscale_reference : float or array_like, shape (d,), optional
-        w_ref of the search box (default: the initial ``lengthscale``), so a fit started
-        elsewhere (e.g. at another fit's optimum) searches the same box; the initial values
-        are clipped into it.
-
-    Returns
-    -------
-    FitResult
-    """
+    Length-scales are searched in [w_ref / ``lengthscale_factor``, w_ref · factor] with w_ref
+    ``lengthscale_reference`` (default: the initial ``lengthscale``, clipped into the box), λ in
+    ``lam_bounds``; ``learn_lam=False`` keeps ``lam`` fixed."""
     d = loss.dim
     w0 = np.broadcast_to(check_array(lengthscale, "lengthscale", ndim=(0, 1)), (d,)).copy()
     if np.any(w0 <= 0):

@@ -1,41 +1,9 @@
 r"""A probabilistic ensemble of neural networks as a forward model (PETS, Chua et al. 2018).
 
-K small MLPs, each fitted to its own bootstrap resample of the transitions, each predicting
-
-.. math:: p_k(y \mid z) = \mathcal{N}\big(\mu_k(z), \operatorname{diag}\sigma_k^2(z)\big),
-          \qquad z = [x_t, u_t],
-
-with y = x_{t+1} (``target="next"``) or x_{t+1} − x_t (``"delta"``), as
-:class:`~skillkit.models.gp.ForwardModel`. Member disagreement is the epistemic uncertainty,
-σ_k² the aleatoric noise.
-
-* **Standardisation.** z and y are centred and scaled per column (a constant column keeps
-  scale 1); predictions are in raw units.
-* **Members.** SiLU hidden layers, a linear output of 2E numbers (mean, raw log-variance);
-  all K stacked (weights (K, d_in, d_out)) and evaluated in one batched product per layer.
-* **Bounded log-variance** (PETS, App. A.1): log σ² = l_max − softplus(l_max − r), then
-  l_min + softplus(· − l_min), a smooth clamp of r to [l_min, l_max]. The bounds are trained
-  per member and output (from :data:`LOGVAR_INIT`, penalty :data:`LOGVAR_PENALTY` ·
-  (Σ l_max − Σ l_min)); PETS shares them between members.
-* **Training.** Each member minimises the Gaussian negative log-likelihood (standardised
-  units) on minibatches of its resample D_k (N draws with replacement),
-
-  .. math:: \ell_k = \operatorname{mean}_{(z, y) \in \text{batch}, e}
-            \Big[\frac{(y_e - \mu_{k,e}(z))^2}{\sigma_{k,e}^2(z)} + \log\sigma_{k,e}^2(z)\Big],
-
-  with Adam and L2 ``weight_decay`` on the weight matrices for a fixed number of epochs
-  (no early stopping, no held-out split).
-* **Randomness.** ``fit(rng=)`` draws the resamples and seeds one CPU
-  :class:`torch.Generator` for initial weights and minibatch order: same seed, same model
-  (same device and thread count). No global seed is used.
-
-**Sampling: TS-∞** (PETS, Sec. 4.2). :meth:`ProbabilisticEnsemble.next_state_moments` returns
-for row i the moments of member i mod K; since
-:func:`~skillkit.models.sampling.sample_trajectories` keeps the row order, trajectory i uses
-member i mod K throughout (stratified: with L a multiple of K each pair gets every member L/K
-times). A ``stop`` rule drops rows and so changes members: do not combine it with TS-∞.
-:meth:`ProbabilisticEnsemble.predict` gives the equal-weight mixture's mean and variance.
-"""
+K MLPs, each fitted on its own bootstrap resample with Adam on the Gaussian negative
+log-likelihood, predict p_k(y | z) = N(μ_k(z), diag σ_k²(z)), z = [x_t, u_t], in
+standardised units, the log-variance smoothly clamped to trained bounds (PETS, App. A.1).
+Sampling is TS-∞ (PETS, Sec. 4.2): row i of a batch uses member i mod K throughout."""
 
 from __future__ import annotations
 
@@ -48,7 +16,7 @@ import torch.nn.functional as F
 
 from skillkit._repr import number
 from skillkit._validation import as_generator, check_array, check_count, check_positive
-from skillkit.models.gp import DTYPE, Moments, as_device
+from skillkit.models.gp import DTYPE, Moments, as_device, check_dtype, check_transitions
 
 __all__ = ["LOGVAR_INIT", "LOGVAR_PENALTY", "EnsembleSettings", "ProbabilisticEnsemble"]
 
@@ -62,28 +30,9 @@ _Layer = tuple[torch.Tensor, torch.Tensor]
 
 @dataclass(frozen=True)
 class EnsembleSettings:
-    """Settings of :class:`ProbabilisticEnsemble` (defaults: small networks for the thesis's
-    tasks, 2–12 inputs and up to a few thousand transitions).
-
-    Attributes
-    ----------
-    hidden_sizes : tuple of int
-        Units of each hidden layer (≥ 1 layer, each ≥ 1); (64, 64). PETS used 3–4 layers of
-        200–500 units on larger problems.
-    n_members : int
-        K ≥ 1 networks, each on its own bootstrap resample (5, as in PETS).
-    epochs : int
-        Passes over each member's resample (≥ 1); 100. The number of Adam steps is
-        ``epochs · ceil(N / batch_size)``.
-    lr : float
-        Adam's step size (> 0); 1e-3.
-    weight_decay : float
-        L2 penalty (≥ 0) on the weight matrices (not the biases or log-variance bounds),
-        Adam's coupled form: it adds ``weight_decay · W`` to the gradient; 1e-4.
-    batch_size : int
-        Transitions per minibatch and member (≥ 1); 64. A resample smaller than this is one
-        batch.
-    """
+    """Settings of :class:`ProbabilisticEnsemble`: SiLU ``hidden_sizes``, K = ``n_members``
+    networks (PETS: 5), ``epochs`` over each resample, Adam's ``lr``, the coupled L2
+    ``weight_decay`` on the weight matrices and ``batch_size`` transitions per minibatch."""
 
     hidden_sizes: tuple[int, ...] = (64, 64)
     n_members: int = 5
@@ -113,26 +62,9 @@ class EnsembleSettings:
 class ProbabilisticEnsemble:
     """K bootstrap MLPs with Gaussian outputs: a forward model x_{t+1} ~ p(· | x_t, u_t).
 
-    Implements what :func:`~skillkit.models.sampling.sample_trajectories` and
-    :class:`~skillkit.search.gpreps.TrajectoryRewardModel` use (``fit``, ``state_dim``,
-    ``control_dim``, ``to``, ``next_state_moments``), so it is a ``make_model`` of GPREPS:
-    ``TrajectoryRewardModel(task, make_model=ProbabilisticEnsemble)``, or with settings
-    ``functools.partial(ProbabilisticEnsemble, EnsembleSettings(epochs=200))``. Sampled
-    trajectories follow TS-∞ (module notes): trajectory i of a batch uses member i mod K.
-
-    Parameters
-    ----------
-    settings : EnsembleSettings, optional
-        Network sizes and training (default: ``EnsembleSettings()``).
-    target : {"delta", "next"}
-        What the networks learn: Δx = x_{t+1} − x_t (default, as PETS; a network then need
-        not reproduce the identity map) or x_{t+1}.
-    device : str or torch.device, optional
-        Where the networks are trained (default: the CPU).
-    dtype : torch.float64 or torch.float32
-        Precision of training and, unless :meth:`to` says otherwise, of predictions
-        (default float64, the package's).
-    """
+    Usable wherever a GP forward model is sampled, e.g.
+    ``TrajectoryRewardModel(task, make_model=ProbabilisticEnsemble)``. ``target`` "delta"
+    (default, PETS) learns Δx, "next" x_{t+1}; ``dtype`` is float64 or float32."""
 
     def __init__(
         self,
@@ -149,8 +81,7 @@ class ProbabilisticEnsemble:
             )
         if target not in ("delta", "next"):
             raise ValueError(f"target: expected 'delta' or 'next', got {target!r}")
-        if dtype not in (torch.float64, torch.float32):
-            raise ValueError(f"dtype: expected torch.float64 or torch.float32, got {dtype!r}")
+        check_dtype(dtype)
         self.settings = settings
         self.target = target
         self.device = as_device(device)
@@ -165,44 +96,14 @@ class ProbabilisticEnsemble:
         self._logvar_bounds: tuple[torch.Tensor, torch.Tensor] | None = None
         self._z_mean = self._z_scale = self._y_mean = self._y_scale = None
 
-    # ------------------------------------------------------------------ fitting
     @property
     def n_members(self) -> int:
-        """K, the number of networks."""
         return self.settings.n_members
 
     def fit(self, states, controls, next_states, rng=None) -> ProbabilisticEnsemble:
-        """Fit the K members on bootstrap resamples of the transitions (x_t, u_t) → x_{t+1}.
-
-        Parameters
-        ----------
-        states : array_like, shape (N, n_x)
-            x_t, N ≥ 2, n_x ≥ 1.
-        controls : array_like, shape (N, n_u)
-            u_t (n_u may be 0).
-        next_states : array_like, shape (N, n_x)
-            x_{t+1}.
-        rng : Generator, int, SeedSequence or None
-            The bootstrap resamples, initial weights and minibatch order.
-
-        Returns
-        -------
-        ProbabilisticEnsemble
-            Itself, fitted.
-        """
-        x = check_array(states, "states", ndim=2)
-        u = check_array(controls, "controls", ndim=2)
-        xn = check_array(next_states, "next_states", ndim=2)
-        if x.shape[0] < 2 or x.shape[1] < 1:
-            raise ValueError(
-                f"states: expected at least 2 transitions of at least 1 dimension, got {x.shape}"
-            )
-        if u.shape[0] != x.shape[0]:
-            raise ValueError(
-                f"controls: expected {x.shape[0]} rows like states, got shape {u.shape}"
-            )
-        if xn.shape != x.shape:
-            raise ValueError(f"next_states: expected shape {x.shape} like states, got {xn.shape}")
+        """Fit the members on bootstrap resamples of ``states`` (N, n_x), ``controls`` (N, n_u),
+        ``next_states`` (N, n_x); ``rng`` draws resamples, initial weights and minibatch order."""
+        x, u, xn = check_transitions(states, controls, next_states, min_rows=2)
         rng = as_generator(rng)
         st = self.settings
         N, K = x.shape[0], st.n_members
@@ -256,24 +157,14 @@ class ProbabilisticEnsemble:
         self.state_dim, self.control_dim, self.n_data = x.shape[1], u.shape[1], N
         return self
 
-    # ------------------------------------------------------------------ prediction
     def _check_fitted(self) -> None:
         if self._layers is None:
             raise RuntimeError("ProbabilisticEnsemble: call fit() first")
 
     def to(self, device=None, dtype: torch.dtype | None = None) -> ProbabilisticEnsemble:
-        """A shallow copy that predicts on ``device`` in ``dtype`` (default: the CPU and the
-        model's dtype); this model is unchanged.
-
-        Parameters
-        ----------
-        device : str or torch.device, optional
-        dtype : torch.float64 or torch.float32, optional
-        """
+        """A shallow copy predicting on ``device`` in ``dtype``."""
         self._check_fitted()
-        dtype = self.dtype if dtype is None else dtype
-        if dtype not in (torch.float64, torch.float32):
-            raise ValueError(f"dtype: expected torch.float64 or torch.float32, got {dtype!r}")
+        dtype = self.dtype if dtype is None else check_dtype(dtype)
         kw = {"dtype": dtype, "device": as_device(device)}
         out = ProbabilisticEnsemble.__new__(ProbabilisticEnsemble)
         out.__dict__.update(self.__dict__)
@@ -285,42 +176,14 @@ class ProbabilisticEnsemble:
         return out
 
     def member_moments(self, x: torch.Tensor, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Every member's Gaussian p_k(x_{t+1} | x_t, u_t) at every query.
-
-        Parameters
-        ----------
-        x : Tensor, shape (n, n_x)
-        u : Tensor, shape (n, n_u)
-            On the model's device, in its dtype.
-
-        Returns
-        -------
-        mean, var : Tensor, shape (K, n, n_x)
-            Raw units; ``var`` is member k's noise variance σ_k².
-        """
+        """Every member's mean and noise variance at x (n, n_x), u (n, n_u): Tensors (K, n, n_x)."""
         self._check_fitted()
         z = self._standardized(x, u)
         mean, logvar = _forward(self._layers, self._logvar_bounds, z.expand(self.n_members, -1, -1))
         return self._raw(x, mean, logvar)
 
     def next_state_moments(self, x: torch.Tensor, u: torch.Tensor) -> Moments:
-        """Row i's next-state Gaussian under member i mod K (TS-∞ sampling, module notes).
-
-        The sampler's hot path: one batched product per layer, each member evaluated on its
-        own rows only (rows i ≡ k mod K go to member k).
-
-        Parameters
-        ----------
-        x : Tensor, shape (n, n_x)
-        u : Tensor, shape (n, n_u)
-            On the model's device, in its dtype (:meth:`to`).
-
-        Returns
-        -------
-        Moments
-            ``mean`` and ``var`` of shape (n, n_x) in raw units; no variance is ever
-            clamped (``n_clamped`` and ``worst`` are 0).
-        """
+        """Row i's next-state :class:`Moments` under member i mod K (TS-∞)."""
         self._check_fitted()
         K, n = self.n_members, x.shape[0]
         z = self._standardized(x, u)
@@ -341,24 +204,8 @@ class ProbabilisticEnsemble:
         )
 
     def predict(self, states, controls) -> tuple[np.ndarray, np.ndarray]:
-        """Mean and variance of the ensemble's predictive distribution, the equal-weight
-        mixture (1/K) Σ_k N(μ_k, σ_k²), per dimension:
-
-        .. math:: \\bar\\mu = \\frac{1}{K}\\sum_k \\mu_k, \\qquad
-                  \\bar\\sigma^2 = \\frac{1}{K}\\sum_k \\sigma_k^2
-                  + \\frac{1}{K}\\sum_k (\\mu_k - \\bar\\mu)^2
-
-        (noise plus the members' disagreement).
-
-        Parameters
-        ----------
-        states : array_like, shape (n, n_x)
-        controls : array_like, shape (n, n_u)
-
-        Returns
-        -------
-        mean, var : ndarray, shape (n, n_x)
-        """
+        """Mean and variance (n, n_x) of the equal-weight mixture (1/K) Σ_k N(μ_k, σ_k²): the mean
+        of the σ_k² plus the variance of the μ_k."""
         self._check_fitted()
         x = check_array(states, "states", shape=(None, self.state_dim))
         u = check_array(controls, "controls", shape=(x.shape[0], self.control_dim))
@@ -376,7 +223,6 @@ class ProbabilisticEnsemble:
         return (torch.cat([x, u], dim=-1) - self._z_mean) / self._z_scale
 
     def _raw(self, x, mean, logvar) -> tuple[torch.Tensor, torch.Tensor]:
-        """Standardised (mean, log-variance) of y → raw next-state mean and variance."""
         mean = self._y_mean + self._y_scale * mean
         if self.target == "delta":
             mean = x + mean
@@ -396,17 +242,15 @@ class ProbabilisticEnsemble:
         )
 
 
-# --------------------------------------------------------------------------- pure functions
 def _standardizer(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Column means and scales (the standard deviation; 1 for a constant column)."""
+    """Column means and scales (std; 1 for a constant column)."""
     mean, std = a.mean(0), a.std(0)
     constant = std <= 1e-12 * np.maximum(1.0, np.abs(mean))
     return mean, np.where(constant, 1.0, std)
 
 
 def _init_layer(K: int, d_in: int, d_out: int, gen: torch.Generator, dtype, device) -> _Layer:
-    """K independent layers, weights and biases uniform on ±1/√d_in (torch.nn.Linear's
-    default), drawn from ``gen`` on the CPU in float64."""
+    """K layers uniform on ±1/√d_in (``torch.nn.Linear``'s), drawn in float64 on the CPU."""
     bound = 1.0 / math.sqrt(d_in)
     w = (2 * torch.rand((K, d_in, d_out), generator=gen, dtype=DTYPE) - 1) * bound
     b = (2 * torch.rand((K, 1, d_out), generator=gen, dtype=DTYPE) - 1) * bound
@@ -419,7 +263,7 @@ def _init_layer(K: int, d_in: int, d_out: int, gen: torch.Generator, dtype, devi
 def _forward(
     layers: list[_Layer], bounds: tuple[torch.Tensor, torch.Tensor], z: torch.Tensor
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Members' standardised mean and bounded log-variance for inputs z (K, n, D) → (K, n, E)."""
+    """Members' standardised mean and bounded log-variance: (K, n, D) → (K, n, E)."""
     h = z
     for w, b in layers[:-1]:
         h = F.silu(torch.baddbmm(b, h, w))
@@ -431,6 +275,5 @@ def _forward(
 
 
 def _nll(mean: torch.Tensor, logvar: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
-    """PETS's Gaussian loss per member, mean over rows and outputs of
-    (y − μ)² e^{−log σ²} + log σ²; shapes (K, n, E) → (K,)."""
+    """PETS's Gaussian loss per member: (K, n, E) → (K,)."""
     return ((y - mean) ** 2 * torch.exp(-logvar) + logvar).mean(dim=(1, 2))

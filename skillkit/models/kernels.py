@@ -1,10 +1,6 @@
-"""Kernels: one implementation shared by the GPs, the kernel embeddings and CrKR.
-
-The maths lives in two pure torch functions (:func:`se_kernel`, :func:`linear_kernel`); the
-classes wrap them as GPyTorch kernels, so GPyTorch's exact and sparse GPs, marginal-likelihood
-training (positive hyper-parameters stored raw behind a constraint) and batching work on
-them unchanged, while numpy code (CrKR, embeddings) calls :func:`gram`.
-"""
+"""Kernels shared by the GPs, the kernel embeddings and CrKR: pure torch functions
+(:func:`se_kernel`, :func:`linear_kernel`) wrapped as GPyTorch kernels, and :func:`gram`
+for numpy callers."""
 
 from __future__ import annotations
 
@@ -23,26 +19,12 @@ def se_kernel(
     outputscale: torch.Tensor,
     diag: bool = False,
 ) -> torch.Tensor:
-    r"""Squared-exponential kernel with ARD, Eq. (2.25).
+    r"""Squared-exponential kernel with ARD, Eq. (2.25), for x1 (..., n, d), x2 (..., m, d):
 
     .. math:: k(x, x') = \sigma_f^2 \exp\big(-\tfrac12 (x - x')^\top W^{-1} (x - x')\big),
               \quad W = \mathrm{diag}(w^2)
 
-    Parameters
-    ----------
-    x1 : Tensor, shape (..., n, d)
-    x2 : Tensor, shape (..., m, d)
-    lengthscale : Tensor, shape (..., 1, d) or broadcastable
-        The ARD length-scales w.
-    outputscale : Tensor, shape (...) or scalar
-        The signal variance σ_f².
-    diag : bool
-        Return only the diagonal (requires n == m), shape (..., n).
-
-    Returns
-    -------
-    Tensor, shape (..., n, m) (or (..., n) with ``diag``)
-    """
+    shape (..., n, m), or with ``diag`` (..., n)."""
     os = torch.as_tensor(outputscale, dtype=x1.dtype, device=x1.device)
     if diag:
         d2 = (((x1 - x2) / lengthscale) ** 2).sum(-1)
@@ -55,29 +37,10 @@ def se_kernel(
 def se_operands(
     x: torch.Tensor, lengthscale: torch.Tensor, outputscale: torch.Tensor | float | None = None
 ) -> torch.Tensor:
-    r"""Augmented operands that turn Eq. (2.25) into one matrix product.
+    r"""Augmented operands that turn Eq. (2.25) into one matrix product: (..., n, d + 2).
 
-    With a = x / w (element-wise), the query operand is ``[a, −½‖a‖², 1]`` and the support
-    operand (``outputscale`` given) is ``[b, 1, −½‖b‖² + log σ_f²]``, so that
-
-    .. math:: [a, -\tfrac12\|a\|^2, 1] \cdot [b, 1, -\tfrac12\|b\|^2 + \log\sigma_f^2]
-              = -\tfrac12\|a - b\|^2 + \log\sigma_f^2 = \log k(x, x').
-
-    Callers that evaluate the kernel against fixed support points many times (the trajectory
-    sampler: training or pseudo-inputs never change between steps) build the support operand
-    once and call :func:`se_kernel_from_operands` with fresh query operands.
-
-    Parameters
-    ----------
-    x : Tensor, shape (..., n, d)
-    lengthscale : Tensor, shape (..., 1, d) or broadcastable
-    outputscale : Tensor of shape (...), float, or None
-        σ_f² for a support operand; None for a query operand.
-
-    Returns
-    -------
-    Tensor, shape (..., n, d + 2)
-    """
+    With a = x / w the query operand is [a, −½‖a‖², 1], the support operand (``outputscale``
+    given) [b, 1, −½‖b‖² + log σ_f²]; their product is −½‖a − b‖² + log σ_f² = log k(x, x′)."""
     a = x / lengthscale
     half_sq = -0.5 * (a * a).sum(-1, keepdim=True)
     ones = torch.ones_like(half_sq)
@@ -92,21 +55,8 @@ def se_operands(
 def se_kernel_from_operands(
     query: torch.Tensor, support: torch.Tensor, log_outputscale: torch.Tensor
 ) -> torch.Tensor:
-    """k = exp(min(query · supportᵀ, log σ_f²)): Eq. (2.25) from :func:`se_operands`.
-
-    The minimum is the round-off guard ‖a − b‖² ≥ 0 (k ≤ σ_f²). When no gradient is needed
-    the product is exponentiated in place (one work array; this is the sampler's hot path).
-
-    Parameters
-    ----------
-    query : Tensor, shape (..., n, d + 2)
-    support : Tensor, shape (..., m, d + 2)
-    log_outputscale : Tensor, shape (...) or ()
-
-    Returns
-    -------
-    Tensor, shape (..., n, m)
-    """
+    """k = exp(min(query · supportᵀ, log σ_f²)): Eq. (2.25) from :func:`se_operands`, (..., n, m);
+    in place when no gradient is needed."""
     lim = log_outputscale[..., None, None] if log_outputscale.ndim else log_outputscale
     e = query @ support.transpose(-1, -2)
     if torch.is_grad_enabled() and (
@@ -124,19 +74,8 @@ def linear_kernel(
     bias: torch.Tensor | float = 0.0,
     diag: bool = False,
 ) -> torch.Tensor:
-    r"""Linear kernel :math:`k(x, x') = \sigma^2 x^\top x' + c` (CrKR, reward embeddings in Ch. 5).
-
-    Parameters
-    ----------
-    x1 : Tensor, shape (..., n, d)
-    x2 : Tensor, shape (..., m, d)
-    variance : Tensor or float
-        σ² > 0.
-    bias : Tensor or float
-        c ≥ 0 (0 gives the plain inner product).
-    diag : bool
-        Return only the diagonal, shape (..., n).
-    """
+    r"""Linear kernel :math:`k(x, x') = \sigma^2 x^\top x' + c` (CrKR, reward embeddings in Ch. 5);
+    ``diag`` gives only the diagonal."""
     var = torch.as_tensor(variance, dtype=x1.dtype, device=x1.device)
     c = torch.as_tensor(bias, dtype=x1.dtype, device=x1.device)
     if diag:
@@ -149,20 +88,8 @@ def linear_kernel(
 
 
 class SquaredExponential(gpytorch.kernels.Kernel):
-    """Eq. (2.25) as a GPyTorch kernel: ARD length-scales w and signal variance σ_f² (both
-    stored raw behind a positivity constraint).
-
-    Parameters
-    ----------
-    input_dim : int
-        Input dimension d (one length-scale per dimension).
-    lengthscale : float or array_like of shape (d,)
-        Initial length-scales.
-    outputscale : float
-        Initial σ_f².
-    batch_shape : torch.Size, optional
-        Independent hyper-parameters per batch entry (e.g. one GP per output dimension).
-    """
+    """Eq. (2.25) as a GPyTorch kernel: ARD length-scales w (``input_dim`` of them) and σ_f², both
+    raw behind a positivity constraint, float64, optionally one set per ``batch_shape`` entry."""
 
     has_lengthscale = True
 
@@ -215,15 +142,8 @@ class SquaredExponential(gpytorch.kernels.Kernel):
 
 
 class Linear(gpytorch.kernels.Kernel):
-    """Linear kernel σ² xᵀx' + c as a GPyTorch kernel (σ² raw behind a positivity constraint).
-
-    Parameters
-    ----------
-    variance : float
-        Initial σ² > 0.
-    bias : float
-        Constant offset c ≥ 0 (fixed, not learned).
-    """
+    """Linear kernel σ² xᵀx' + c as a GPyTorch kernel (σ² raw behind a positivity constraint, the
+    ``bias`` c ≥ 0 fixed)."""
 
     def __init__(
         self,
@@ -257,21 +177,7 @@ class Linear(gpytorch.kernels.Kernel):
 
 
 def gram(kernel: gpytorch.kernels.Kernel, X, Z=None) -> np.ndarray:
-    """Evaluate a kernel on numpy inputs in float64 and return a numpy Gram matrix.
-
-    Parameters
-    ----------
-    kernel : gpytorch Kernel
-        E.g. :class:`SquaredExponential` or :class:`Linear` (not modified).
-    X : array_like, shape (n, d)
-        d must be the kernel's input dimension (``ard_num_dims``) if it has one.
-    Z : array_like, shape (m, d), optional
-        Defaults to ``X``.
-
-    Returns
-    -------
-    ndarray, shape (n, m)
-    """
+    """``kernel`` evaluated on numpy inputs X (n, d) and Z (m, d) (default X) in float64: (n, m)."""
     x = check_array(X, "X", ndim=2)
     d = getattr(kernel, "ard_num_dims", None)
     if d is not None and x.shape[1] != d:

@@ -1,21 +1,8 @@
 """A linear-Gaussian forward model: x_{t+1} = A x_t + B u_t + c + w, w ~ N(0, Σ_w).
 
-The parametric counterpart of :class:`~skillkit.models.gp.ForwardModel` (the LWBR side of
-Sec. 4.2's comparison, without the locality): least squares on [x, u, 1] and the residual
-covariance. It serves the samplers of GPREPS (:meth:`LinearGaussianModel.next_state_moments`
-and :attr:`LinearGaussianModel.noise_factor`) and PILCO, for which the propagation of a
-Gaussian state under a linear controller is exact (:func:`skillkit.search.pilco.
-model_moment_step` gives it as :func:`~skillkit.search.pilco.linear_gaussian_step` of A, B,
-Σ_w and c). Table 4.2's experiment uses it to separate what the search methods do from what
-the GP models predict.
-
-**Noise convention: the full residual covariance Σ_w**, in PILCO's exact step and in sampled
-trajectories (x' = A x + B u + c + F ε, F Fᵀ = Σ_w, ε ~ N(0, I)). Independent noise per
-dimension (diag Σ_w, as the GP forward models have) misfits data whose residuals are strongly
-correlated (on the balancing robot positions and velocities share one unmodelled torque) and
-is amplified by high-gain feedback: in ``benchmarks/bench_tab42_models.py closed-loop``'s
-setting (10 N m excitation) the exact expected return is −109 with full Σ_w, −2491 with diag.
-"""
+Least squares on [x, u, 1] with the full residual covariance Σ_w (Table 4.2's parametric
+model). Sampled trajectories draw correlated noise F ε with F Fᵀ = Σ_w; PILCO's propagation
+under a linear controller is exact (:func:`~skillkit.search.pilco.linear_gaussian_step`)."""
 
 from __future__ import annotations
 
@@ -29,21 +16,9 @@ __all__ = ["LinearGaussianModel"]
 
 
 class LinearGaussianModel:
-    """x' = A x + B u + c + w, fitted by least squares; w ~ N(0, Σ_w) from the residuals.
-
-    ``target="delta"`` regresses x' − x (then A here is I + the fitted matrix), ``"next"``
-    regresses x'; the fitted dynamics are the same up to rounding. Σ_w is the full residual
-    covariance (``noise_cov``), the noise of both PILCO's exact step and the sampler, which
-    draws it through ``noise_factor`` (module notes), always derived from ``noise_cov``. Known
-    dynamics: :meth:`from_dynamics` (or assign ``A``, ``B``, ``c`` and ``noise_cov``).
-
-    Parameters
-    ----------
-    target : {"delta", "next"}
-    ridge : float
-        Ridge λ ≥ 0 on the coefficients of [x, u] (not the offset), relative to the mean
-        squared input.
-    """
+    """x' = A x + B u + c + w fitted by least squares with w ~ N(0, Σ_w) from the residuals;
+    ``target`` "delta" regresses x' − x, "next" x'; ``ridge`` λ ≥ 0 on the coefficients of
+    [x, u] is relative to the mean squared input."""
 
     def __init__(self, target: str = "delta", ridge: float = 1e-9):
         if target not in ("delta", "next"):
@@ -61,16 +36,7 @@ class LinearGaussianModel:
 
     @classmethod
     def from_dynamics(cls, A, B, c, noise_cov) -> LinearGaussianModel:
-        """A model of known dynamics x' = A x + B u + c + w, w ~ N(0, Σ_w), without fitting.
-
-        Parameters
-        ----------
-        A : array_like, shape (n_x, n_x)
-        B : array_like, shape (n_x, n_u)
-        c : array_like, shape (n_x,)
-        noise_cov : array_like, shape (n_x, n_x)
-            Σ_w, symmetric positive semi-definite (its factor :attr:`noise_factor` is derived).
-        """
+        """A model of known A (n_x, n_x), B (n_x, n_u), c (n_x,) and symmetric PSD ``noise_cov``."""
         a = check_array(A, "A", ndim=2)
         n_x = a.shape[0]
         a = check_array(a, "A", shape=(n_x, n_x))
@@ -103,11 +69,7 @@ class LinearGaussianModel:
 
     @property
     def noise_factor(self) -> np.ndarray | None:
-        """F, the symmetric square root of Σ_w (F Fᵀ = F F = Σ_w), shape (n_x, n_x).
-
-        Derived from the current ``noise_cov`` (``None`` while it is unset) and cached; the
-        cache is recomputed whenever ``noise_cov`` is reassigned or changed in place.
-        """
+        """F, the symmetric square root of Σ_w (n_x, n_x), cached until ``noise_cov`` changes."""
         if self.noise_cov is None:
             return None
         cov = np.asarray(self.noise_cov, dtype=np.float64)
@@ -118,14 +80,7 @@ class LinearGaussianModel:
         return cached[1]
 
     def fit(self, states, controls, next_states, rng=None) -> LinearGaussianModel:
-        """Least squares on transitions (x_t, u_t) → x_{t+1}; ``rng`` is unused.
-
-        Parameters
-        ----------
-        states : array_like, shape (N, n_x)
-        controls : array_like, shape (N, n_u)
-        next_states : array_like, shape (N, n_x)
-        """
+        """Least squares on ``states`` (N, n_x), ``controls`` (N, n_u), ``next_states`` (N, n_x)."""
         x = check_array(states, "states", ndim=2)
         u = check_array(controls, "controls", shape=(x.shape[0], None))
         xn = check_array(next_states, "next_states", shape=x.shape)
@@ -158,16 +113,7 @@ class LinearGaussianModel:
         return self
 
     def next_state_moments(self, x: torch.Tensor, u: torch.Tensor) -> Moments:
-        """The marginals of p(x_{t+1} | x_t, u_t): mean A x + B u + c, variance diag Σ_w.
-
-        The noise of the dimensions is correlated (Σ_w); a sampler draws it as F ε with
-        F = :attr:`noise_factor` (the per-dimension variances here are its marginals).
-
-        Parameters
-        ----------
-        x : Tensor, shape (n, n_x)
-        u : Tensor, shape (n, n_u)
-        """
+        """Mean A x + B u + c and variance diag Σ_w (the marginals) for x (n, n_x), u (n, n_u)."""
         self._check_fitted()
         kw = {"dtype": x.dtype, "device": x.device}
         A, B, c = (torch.as_tensor(a, **kw) for a in (self.A, self.B, self.c))
@@ -178,14 +124,7 @@ class LinearGaussianModel:
         )
 
     def noise_factor_tensor(self, device=None, dtype: torch.dtype | None = None) -> torch.Tensor:
-        """F with F Fᵀ = Σ_w (``noise_factor``) as a tensor: a sampler's correlated noise F ε.
-
-        Parameters
-        ----------
-        device : str or torch.device, optional
-        dtype : torch.dtype, optional
-            Default: the model's (``to``).
-        """
+        """F as a tensor (default dtype: the model's)."""
         self._check_fitted()
         return torch.as_tensor(
             np.array(self.noise_factor), dtype=self.dtype if dtype is None else dtype, device=device
@@ -203,7 +142,6 @@ class LinearGaussianModel:
 
 
 def _psd_sqrt(cov: np.ndarray) -> np.ndarray:
-    """The symmetric square root F = V diag(√λ) Vᵀ of a symmetric PSD matrix (F F = cov);
-    eigenvalues below 0 from rounding (rank-deficient residuals) are taken as 0."""
+    """Symmetric square root of a PSD matrix (negative round-off eigenvalues as 0)."""
     lam, V = np.linalg.eigh(cov)
     return (V * np.sqrt(np.clip(lam, 0.0, None))) @ V.T

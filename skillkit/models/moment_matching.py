@@ -1,51 +1,22 @@
 """Deterministic long-term prediction: exact moment matching and linearisation (Sec. 2.1.2).
 
-For a GP with SE kernels (exact or sparse, any :class:`~skillkit.models.gp.GPPredictor`)
-and a Gaussian input z ~ N(m, S), the predictive distribution of y = f(z) + ε is not
-Gaussian; these functions return Gaussian approximations of it (Figs 2.6–2.7):
+For an SE-kernel GP and z ~ N(m, S), :func:`moment_match` gives the exact moments of
+y = f(z) + ε (PILCO; Deisenroth 2010, Sec. 2.3; Figs 2.6–2.7). Per output a, with
+Λ_a = diag(w_a²) and ν_i = z_i − m:
 
-* :func:`moment_match` — the exact first and second moments of y and the exact input–output
-  covariance cov(z, y), as in PILCO (Deisenroth 2010, Sec. 2.3; Quiñonero-Candela et al.
-  2003). Per output a, with Λ_a = diag(w_a²), ν_i = z_i − m and support inputs z_i:
+.. math::
+    q_{ai} &= \\sigma_{f,a}^2 |S\\Lambda_a^{-1} + I|^{-1/2}
+              \\exp\\big(-\\tfrac12 \\nu_i^\\top (S + \\Lambda_a)^{-1} \\nu_i\\big), \\qquad
+    \\mathbb{E}[y_a] = \\beta_a^\\top q_a, \\\\
+    Q^{ab}_{ij} &= k_a(z_i, m) k_b(z_j, m) |R|^{-1/2}
+                \\exp\\big(\\tfrac12 \\zeta_{ij}^\\top R^{-1} S \\zeta_{ij}\\big), \\quad
+                R = S(\\Lambda_a^{-1} + \\Lambda_b^{-1}) + I, \\;
+                \\zeta_{ij} = \\Lambda_a^{-1}\\nu_i + \\Lambda_b^{-1}\\nu_j, \\\\
+    \\mathrm{cov}(y_a, y_b) &= \\beta_a^\\top Q^{ab} \\beta_b - \\mathbb{E}[y_a]\\mathbb{E}[y_b]
+        + \\delta_{ab}\\big(\\sigma_{f,a}^2 - \\mathrm{tr}(iK_a Q^{aa})
+                            + \\sigma_{\\varepsilon,a}^2\\big).
 
-  .. math::
-      q_{ai} &= \\sigma_{f,a}^2 |S\\Lambda_a^{-1} + I|^{-1/2}
-                \\exp\\big(-\\tfrac12 \\nu_i^\\top (S + \\Lambda_a)^{-1} \\nu_i\\big), \\qquad
-      \\mathbb{E}[y_a] = \\beta_a^\\top q_a, \\\\
-      \\mathrm{cov}(z, y_a) &= \\textstyle\\sum_i \\beta_{ai} q_{ai}
-                                 S (S + \\Lambda_a)^{-1} \\nu_i, \\\\
-      Q^{ab}_{ij} &= k_a(z_i, m) k_b(z_j, m) |R|^{-1/2}
-                  \\exp\\big(\\tfrac12 \\zeta_{ij}^\\top R^{-1} S \\zeta_{ij}\\big), \\quad
-                  R = S(\\Lambda_a^{-1} + \\Lambda_b^{-1}) + I, \\;
-                  \\zeta_{ij} = \\Lambda_a^{-1}\\nu_i + \\Lambda_b^{-1}\\nu_j, \\\\
-      \\mathrm{cov}(y_a, y_b) &= \\beta_a^\\top Q^{ab} \\beta_b - \\mathbb{E}[y_a]\\mathbb{E}[y_b]
-          + \\delta_{ab}\\big(\\sigma_{f,a}^2 - \\mathrm{tr}(iK_a Q^{aa})
-                              + \\sigma_{\\varepsilon,a}^2\\big).
-
-  ``beta`` and ``iK`` are the predictor's fields, so the same code serves exact GPs
-  (iK = (K + σ_ε²I)⁻¹) and FITC/VFE (iK = K_mm⁻¹ − Σ). Every Q^{ab} is formed in the log
-  domain (entries never exceed σ_{f,a}² σ_{f,b}², so nothing overflows), all pairs a ≤ b
-  batched in cache-sized blocks (:func:`_second_moments`; timings in
-  ``benchmarks/bench_moment_matching.py``).
-* :func:`linearize` — the first-order alternative of Fig. 2.6: the predictive mean μ(m),
-  its Jacobian J at m (analytic), cov(y) ≈ J S Jᵀ + diag σ²(m), cov(z, y) ≈ S Jᵀ.
-* :func:`propagate` — long-term prediction p(x_0) → p(x_1) → … → p(x_T) (Eq. 4.4) through a
-  :class:`~skillkit.models.gp.ForwardModel` with a linear, possibly time-varying controller
-  u_t = K_t x_t + k_t (a PD tracker is one), so that z_t = [x_t, u_t] is Gaussian; with the
-  Δx model x_{t+1} = x_t + Δ, cov(x_{t+1}) = S + cov(Δ) + cov(x, Δ) + cov(x, Δ)ᵀ.
-  Torque limits are not representable (that is the sampling approach's advantage, Sec. 4.2.1).
-
-**Round-off.** The second moments β_aᵀQ^{ab}β_b are sums whose terms can exceed the result by
-many orders of magnitude (large |β|, e.g. an exact GP near its linear limit), so float64 may
-keep few or no correct digits. Every step bounds its own round-off (:class:`RoundoffEstimate`,
-derived in :func:`_roundoff_bound`; a pessimistic bound); :func:`moment_match` and
-:func:`propagate` warn once per call (:class:`~skillkit.models.gp.GPNumericalWarning`) when
-it exceeds :data:`ROUNDOFF_TOL`, or raise :class:`MomentPrecisionError` with ``strict=True``.
-The bound is per step (multi-step predictions and gradients accumulate more). Computing the
-bound does not change the moments.
-
-All computations are in torch float64; results are torch tensors.
-"""
+Each step bounds its own float64 round-off (:class:`RoundoffEstimate`)."""
 
 from __future__ import annotations
 
@@ -81,22 +52,16 @@ __all__ = [
     "with_linear_mean",
 ]
 
-#: Log-domain exponents below this are raised to it before ``exp`` (e^-600 ≈ 3e-261), avoiding
-#: slow underflowing or denormal results. Any moment changes by less than M² max|β|² e^-600,
-#: far below float64 round-off.
+#: Log-domain exponents are raised to at least this before ``exp`` (no denormals).
 LOG_FLOOR = -600.0
 
-#: Entries (float64) of one block of Q matrices in :func:`_second_moments`: 2^17 = 1 MiB, so a
-#: block stays in the L2 cache between its product, its ``exp`` and its contractions.
+#: Entries of one cache-sized block of Q matrices in :func:`_second_moments` (1 MiB).
 BLOCK_ENTRIES = 1 << 17
 
 #: Unit round-off of float64, 2^-53.
 UNIT_ROUNDOFF = float(torch.finfo(DTYPE).eps) / 2
 
-#: Moment matching warns (``strict``: raises :class:`MomentPrecisionError`) when its bound on
-#: its own round-off (:class:`RoundoffEstimate`) exceeds this relative error. The bound
-#: over-states the actual error by orders of magnitude, so this flags steps that may have lost
-#: 7–10 of float64's 16 digits.
+#: Moment matching warns (``strict``: raises) when its round-off bound exceeds this.
 ROUNDOFF_TOL = 1e-4
 
 
@@ -106,32 +71,10 @@ class MomentPrecisionError(RuntimeError):
 
 @dataclass(frozen=True)
 class RoundoffEstimate:
-    """A bound on the float64 round-off of one moment-matching step.
-
-    Every quantity is a sum or a product whose rounding error is bounded by the unit
-    round-off u = 2⁻⁵³ times the magnitudes of its terms (:func:`_roundoff_bound` gives the
-    terms); the bound is then expressed relative to the scale of the result. It treats the
-    predictor's fields (β, iK, hyper-parameters, support points) and the input (m, S) as
-    exact: it bounds what moment matching adds, not the error already in β.
-
-    Attributes
-    ----------
-    relative_error : float
-        The largest of: |Δcov(y_a, y_b)| / √(V_aa V_bb), |ΔE[y_a]| / √V_aa (in predictive
-        standard deviations) and |Δcov(z_d, y_a)| / √(S_dd V_aa), with V = cov(y) as computed
-        (V_aa raised to its own error bound where it is smaller: ≥ 1 means no correct digit).
-    where : str
-        Which of the three it is: ``"covariance"``, ``"mean"`` or ``"input-output
-        covariance"``.
-    cancellation : float
-        The largest ratio of the sum of magnitudes Σ_ij |β_ai| Q^{ab}_ij |β_bj| (plus, for
-        a = b, Σ_ij |iK_a,ij| Q^{aa}_ij) to √(V_aa V_bb): how much larger the terms of the
-        second moments are than the result (≫ 1 for large β, e.g. an exact GP near its linear
-        limit, σ_f/σ_ε and length-scales ≫ 1).
-    condition : float
-        The largest bound on the condition numbers of the matrices factorised, R and
-        Λ^{-1/2} S Λ^{-1/2} + I.
-    """
+    """A bound on the float64 round-off of one moment-matching step (predictor and input exact):
+    the largest ``relative_error`` of cov(y), E[y] or cov(z, y) in predictive standard
+    deviations (≥ 1: no correct digit), ``where`` it is, the ``cancellation`` ratio
+    Σ_ij |β_ai| Q^{ab}_ij |β_bj| / √(V_aa V_bb) and the largest ``condition`` bound."""
 
     relative_error: float
     where: str
@@ -139,7 +82,6 @@ class RoundoffEstimate:
     condition: float
 
     def describe(self) -> str:
-        """One sentence: the bound, where, and its cause."""
         return (
             f"the {self.where} may have lost up to {self.relative_error:.1e} relative precision "
             f"to float64 round-off (estimated bound); the terms of the second moments "
@@ -151,19 +93,16 @@ class RoundoffEstimate:
 
     @staticmethod
     def worst(estimates) -> RoundoffEstimate | None:
-        """The estimate with the largest ``relative_error`` (None for none; NaN, from a step
-        that failed, is passed over)."""
+        """The estimate with the largest error (None if none; NaN skipped)."""
         estimates = [e for e in estimates if e is not None and not np.isnan(e.relative_error)]
         return max(estimates, key=lambda e: e.relative_error) if estimates else None
 
 
-#: ‖iK_a‖_F by iK tensor (a predictor's fields are not modified), so that the steps of a
-#: propagation or of PILCO's optimisation read iK once.
+#: ‖iK_a‖_F cached per iK tensor.
 _IK_NORMS = WeakIdKeyDictionary()
 
 
 def _frobenius_norms(iK: torch.Tensor) -> torch.Tensor:
-    """‖iK_a‖_F, shape (E,), computed once per tensor."""
     norms = _IK_NORMS.get(iK)
     if norms is None:
         norms = _IK_NORMS[iK] = torch.linalg.matrix_norm(iK.detach())
@@ -178,16 +117,8 @@ class _SecondMomentRoundoff(NamedTuple):
 
 @dataclass
 class GaussianPrediction:
-    """A Gaussian approximation of p(y) for a Gaussian input z ~ N(m, S).
-
-    Attributes
-    ----------
-    mean : Tensor, shape (E,)
-    cov : Tensor, shape (E, E)
-    input_output_cov : Tensor, shape (D, E)
-        cov(z, y) (not PILCO's S⁻¹cov(z, y)).
-    roundoff : RoundoffEstimate or None
-        Moment matching's bound on its own round-off (None from :func:`linearize`).
+    """A Gaussian approximation of p(y) for z ~ N(m, S): ``mean`` (E,), ``cov`` (E, E),
+    ``input_output_cov`` cov(z, y) (D, E) and the ``roundoff`` bound (None from :func:`linearize`).
     """
 
     mean: torch.Tensor
@@ -204,17 +135,11 @@ class GaussianPrediction:
 
 
 def _check_gaussian(mean, cov, dim: int, name: str = "mean") -> tuple[torch.Tensor, torch.Tensor]:
-    m = (
-        mean
-        if isinstance(mean, torch.Tensor)
-        else torch.as_tensor(check_array(mean, name, shape=(dim,)))
-    )
-    S = (
-        cov
-        if isinstance(cov, torch.Tensor)
-        else torch.as_tensor(check_array(cov, "cov", shape=(dim, dim)))
-    )
-    m, S = m.to(DTYPE), S.to(DTYPE)
+    if not isinstance(mean, torch.Tensor):
+        mean = torch.as_tensor(check_array(mean, name, shape=(dim,)))
+    if not isinstance(cov, torch.Tensor):
+        cov = torch.as_tensor(check_array(cov, "cov", shape=(dim, dim)))
+    m, S = mean.to(DTYPE), cov.to(DTYPE)
     if tuple(m.shape) != (dim,):
         raise ValueError(f"{name}: expected shape ({dim},), got {tuple(m.shape)}")
     if tuple(S.shape) != (dim, dim):
@@ -234,29 +159,9 @@ def moment_match(
 ) -> GaussianPrediction:
     """Exact mean, covariance and input–output covariance of a GP's prediction at z ~ N(m, S).
 
-    The result carries a bound on its own float64 round-off (``roundoff``); above
-    :data:`ROUNDOFF_TOL` a :class:`~skillkit.models.gp.GPNumericalWarning` names it and its
-    cause (large |β| against the predictive variance, e.g. an exact GP near its linear limit).
-
-    Parameters
-    ----------
-    predictor : GPPredictor
-        SE-kernel GP (exact or sparse), E outputs, D inputs.
-    mean : array_like or Tensor, shape (D,)
-    cov : array_like or Tensor, shape (D, D)
-        Symmetric positive semi-definite (degenerate covariances, e.g. z = [x, Kx + k], are
-        fine).
-    include_noise : bool
-        Include σ_ε² (distribution of y) or not (distribution of f).
-    strict : bool
-        Raise :class:`MomentPrecisionError` instead of warning when the round-off bound exceeds
-        :data:`ROUNDOFF_TOL`.
-
-    Returns
-    -------
-    GaussianPrediction
-        In raw target units.
-    """
+    ``mean`` (D,) and symmetric PSD ``cov`` (D, D); ``include_noise`` adds σ_ε² (y rather than
+    f); ``strict`` raises :class:`MomentPrecisionError` instead of warning when the round-off
+    bound exceeds :data:`ROUNDOFF_TOL`. Returns a :class:`GaussianPrediction` in raw units."""
     pred = predictor.to("cpu", DTYPE)
     m, S = _check_gaussian(mean, cov, pred.support.shape[-1])
     g = moment_match_step(pred, m, S, include_noise)
@@ -265,17 +170,7 @@ def moment_match(
 
 
 def check_roundoff(estimate: RoundoffEstimate | None, where: str, strict: bool = False) -> None:
-    """Warn (:class:`~skillkit.models.gp.GPNumericalWarning`) or, ``strict``, raise
-    :class:`MomentPrecisionError` when a round-off bound exceeds :data:`ROUNDOFF_TOL`.
-
-    Parameters
-    ----------
-    estimate : RoundoffEstimate or None
-        The worst bound of the call (None: nothing to check).
-    where : str
-        The caller, named in the message.
-    strict : bool
-    """
+    """Warn, or with ``strict`` raise :class:`MomentPrecisionError`, above :data:`ROUNDOFF_TOL`."""
     if estimate is None or not estimate.relative_error > ROUNDOFF_TOL:
         return
     text = f"{where}: {estimate.describe()}; tolerance {ROUNDOFF_TOL:g}"
@@ -292,17 +187,9 @@ def moment_match_step(
     strict: bool = False,
     roundoff: bool = True,
 ) -> GaussianPrediction:
-    """:func:`moment_match` without input checks, differentiable in ``m`` and ``S`` (torch
-    autograd): the step PILCO's policy gradient differentiates through. ``pred`` is a CPU
-    float64 predictor, ``m`` (D,), ``S`` (D, D) symmetric.
-
-    ``strict``: an expected latent variance negative beyond round-off (float64 cancellation
-    for input covariances far larger than the length-scales) makes the whole prediction NaN
-    instead of being clamped and reported, so an optimiser can never profit from it.
-
-    ``roundoff``: also bound the step's own round-off (:func:`_roundoff_bound`, the result's
-    ``roundoff``; O(E M D) work beside the blocks and one pass over iK, the numbers are
-    unchanged); it is not checked here."""
+    """:func:`moment_match` for a CPU float64 predictor without input checks, differentiable in
+    ``m`` and ``S``; ``strict`` turns a negative latent variance into NaN, ``roundoff`` bounds
+    the round-off."""
     E, M, D = pred.support.shape
     iL = 1.0 / pred.lengthscale  # (E, D)
     sf2 = pred.outputscale
@@ -349,15 +236,12 @@ def moment_match_step(
 
 
 def _sum_error(n: int) -> float:
-    """σ_n = 2 + 3√n: rounding a sum of n terms (and its terms' products) costs σ_n u Σ|terms|
-    (probabilistic, :func:`_roundoff_bound`)."""
+    """σ_n = 2 + 3√n, the probabilistic error factor of a sum of n terms."""
     return 2.0 + 3.0 * float(np.sqrt(n))
 
 
 def _magnitudes(pred: GPPredictor, m: torch.Tensor, nut: torch.Tensor, iL: torch.Tensor):
-    """n*_ai = ‖Λ_a^{-1/2} ν_ai‖² + ‖Λ_a^{-1/2}(|z_ai| + |m|)‖², shape (E, M): bounds the
-    size of support point i's terms in the exponents of q_ai and Q^{ab}_ij (the first) and
-    the effect of the rounding of ν_ai = z_ai − m on them (the second)."""
+    """n*_ai = ‖Λ_a^{-1/2} ν_ai‖² + ‖Λ_a^{-1/2}(|z_ai| + |m|)‖², shape (E, M)."""
     shift = (pred.support.abs() + m.abs()) * iL[:, None, :]
     return (nut * nut).sum(-1) + (shift * shift).sum(-1)
 
@@ -378,33 +262,9 @@ def _roundoff_bound(
     V: torch.Tensor,
     include_noise: bool,
 ) -> RoundoffEstimate:
-    r"""A bound on the float64 round-off of one :func:`moment_match_step` (all in scaled units),
-    from its intermediate results (``q`` … ``V``, called without gradient recording).
-
-    Exponents are bounded in the worst case: a quantity formed from k terms is off by at most
-    k·u·Σ|terms| (u = 2⁻⁵³), and an exponent off by δ gives exp off by δ + u relative. The long
-    sums (M and M² terms: Qβ, βᵀ(Qβ), tr(iK Q), βᵀq) are bounded by σ_n u Σ|terms| with
-    σ_n = 2 + 3√n, the probabilistic bound of rounding errors of random sign (Higham & Mary,
-    SIAM J. Sci. Comput. 41, 2019); the worst case n u is not approached in practice and would
-    make the bound M times looser. With n*_ai of :func:`_magnitudes`, c = D + 4 and κ ≥ cond
-    (1 + ‖·‖_F of the factorised matrix minus I):
-
-    * the exponent of Q^{ab}_ij (log σ_f² terms, ½‖ν̃‖², ½ζᵀTζ ≤ ½‖ν̃‖² (‖R⁻¹S‖ ≤ 1 in the
-      scaled form), the cross term ≤ ‖ν̃_ai‖‖ν̃_bj‖, ½ log|R|, T from a Cholesky solve) is off
-      by δ_ij ≤ u c (α_ab + (1 + κ_R)(n*_ai + n*_bj)), α_ab = |log σ_{f,a}²| +
-      |log σ_{f,b}²| + log|R| + D κ_R;
-    * (a) |Δ β_aᵀQ^{ab}β_b| ≤ Σ_ij |β_ai| Q_ij |β_bj| (δ_ij + 2σ_M u), and (b)
-      |Δ(σ_{f,a}² − tr(iK_a Q^{aa}))| ≤ u σ_{f,a}² + Σ_ij |iK_a,ij| Q_ij (δ_ij + σ_{M²} u)
-      (bounded in turn by Cauchy–Schwarz, :func:`_second_moment_roundoff`);
-    * the same for q_ai (exponent δ_ai ≤ u c (|log σ_{f,a}²| + log|S̃_a| + D κ_a +
-      (1 + κ_a) n*_ai), S̃_a = Λ_a^{-1/2}SΛ_a^{-1/2} + I): |ΔE[f_a]| ≤ Σ_i |β_ai| q_ai
-      (δ_ai + σ_M u), and for cov(z, f_a) = S Λ_a^{-1/2} Σ_i S̃_a⁻¹ν̃_ai β_ai q_ai also
-      u c κ_a Σ_i |β_ai| q_ai √(2 n*_ai) for the solve;
-    * cov = second − μμᵀ + diag(latent + σ_ε²): the errors of μ enter through |μ_b| |Δμ_a|,
-      the final additions cost 3u(|second| + |μ_a μ_b|) + 2u(|latent| + σ_ε²).
-
-    ``tests/models/test_moment_matching.py`` checks it against a 40-digit reference.
-    """
+    r"""A bound on the round-off of one :func:`moment_match_step` from its intermediates: exponent
+    errors in the worst case, long sums by σ_n u Σ|terms| (Higham & Mary, SIAM J. Sci. Comput.
+    41, 2019)."""
     u = UNIT_ROUNDOFF
     E, M, D = pred.support.shape
     c = D + 4
@@ -448,7 +308,7 @@ def _roundoff_bound(
 
 
 def _pair_indices(E: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """Output pairs (a, b) with a ≤ b: the E diagonal pairs first, then the rest row by row."""
+    """Output pairs a ≤ b: the E diagonal pairs first, then the rest row by row."""
     ia, ib = torch.triu_indices(E, E, offset=1)
     diag = torch.arange(E)
     return torch.cat([diag, ia]), torch.cat([diag, ib])
@@ -462,49 +322,10 @@ def _second_moments(
     block: int = BLOCK_ENTRIES,
     magnitude: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, ...]:
-    """E[f_a f_b] = β_aᵀ Q^{ab} β_b for all output pairs and the expected latent variances
-    σ_{f,a}² − tr(iK_a Q^{aa}), batched over pairs and support points.
-
-    For each of the P = E(E + 1)/2 pairs a ≤ b, with T = R⁻¹S (symmetric), ζ_a = Λ_a⁻¹ν and
-    log k_a = log σ_{f,a}² − ½‖Λ_a^{-1/2}ν‖²,
-
-    .. math:: \\log Q^{ab}_{ij} = \\underbrace{\\log k_{ai} + \\tfrac12 \\zeta_{ai}^\\top T
-              \\zeta_{ai} - \\tfrac12\\log|R|}_{c_{ai}} + \\underbrace{\\log k_{bj} +
-              \\tfrac12 \\zeta_{bj}^\\top T \\zeta_{bj}}_{c_{bj}} + (T\\zeta_{ai})^\\top\\zeta_{bj},
-
-    i.e. one product of the (M × (d + 2)) operand [Tζ_a, c_a, 1] with the ((d + 2) × M)
-    operand [ζ_b, 1, c_b]ᵀ: the support set's quadratic forms ride along in the product. The
-    P × M × M matrices are never held at once: blocks of whole pairs (small M) or of row
-    ranges of one pair (large M), ``block`` entries each, are formed by one batched product,
-    exponentiated in place and contracted with β_b (and, for a = b, with iK_a) while in cache.
-    Exponents are floored at :data:`LOG_FLOOR`. Differentiable (torch autograd) when a
-    gradient is being recorded (then nothing is done in place).
-
-    Parameters
-    ----------
-    pred : GPPredictor
-        CPU float64, E outputs, M support points, d inputs.
-    S : Tensor, shape (d, d)
-        Input covariance, symmetric.
-    nut : Tensor, shape (E, M, d)
-        Λ_a^{-1/2}(z_i − m).
-    iL : Tensor, shape (E, d)
-        Inverse length-scales.
-    magnitude : Tensor, shape (E, M), optional
-        n*_ai of :func:`_roundoff_bound`; given, a third output bounds the round-off
-        (:func:`_second_moment_roundoff`; the other outputs are unchanged).
-
-    Returns
-    -------
-    second : Tensor, shape (E, E)
-        β_aᵀ Q^{ab} β_b, symmetric.
-    latent_var : Tensor, shape (E,)
-        σ_{f,a}² − tr(iK_a Q^{aa}), not clamped.
-    roundoff : _SecondMomentRoundoff
-        Only with ``magnitude``: the bound on the round-off of ``second`` − diag ``latent_var``
-        (:func:`_roundoff_bound`'s terms (a) and (b)), the sums of magnitudes it scales and
-        the largest cond(R) bound.
-    """
+    """β_aᵀ Q^{ab} β_b for all pairs a ≤ b and σ_{f,a}² − tr(iK_a Q^{aa}), with
+    log Q^{ab}_{ij} = c_ai + c_bj + (Tζ_ai)ᵀζ_bj (T = R⁻¹S, ζ_a = Λ_a⁻¹ν) formed as one product of
+    [Tζ_a, c_a, 1] and [ζ_b, 1, c_b]ᵀ in blocks of ``block`` entries; with ``magnitude`` a third
+    output bounds the round-off."""
     E, M, D = nut.shape
     ia, ib = _pair_indices(E)
     P = len(ia)
@@ -581,13 +402,7 @@ def _second_moment_roundoff(
     Pm: torch.Tensor,
     logdet_r: torch.Tensor,
 ) -> _SecondMomentRoundoff:
-    """Terms (a) and (b) of :func:`_roundoff_bound`, from the diagonals d_ai = (Q^{aa}_ii)^½.
-
-    Q^{ab}_ij = E_z[k_a(z_i, z) k_b(z_j, z)] ≤ d_ai d_bj (Cauchy–Schwarz), so
-    Σ_ij |β_ai| Q^{ab}_ij |β_bj| (1, n*_ai, n*_bj) ≤ (Σ_i |β_ai| d_ai (1, n*_ai)) ⊗ (…)_b, and
-    Σ_ij |iK_a,ij| Q^{aa}_ij (1, n*_ai) ≤ ‖iK_a‖_F ‖d_a‖ ‖d_a (1, n*_a)‖: O(E M) beside the
-    blocks, no pass over them. Tight where it matters: where cancellation costs precision (large
-    |β| on support points within the input's reach) these Q entries are nearly equal."""
+    """Round-off of the second moments, by Cauchy–Schwarz on Q from its diagonal d."""
     u = UNIT_ROUNDOFF
     E, M, D = pred.support.shape
     ia, ib = _pair_indices(E)
@@ -618,12 +433,8 @@ def _second_moment_roundoff(
 def linearize(predictor: GPPredictor, mean, cov, include_noise: bool = True) -> GaussianPrediction:
     """First-order (Taylor) Gaussian approximation at z ~ N(m, S) (Fig. 2.6).
 
-    μ(m) and σ²(m) from Eqs (2.26)–(2.27); J = ∂μ/∂z at m, analytic for the SE kernel:
-    J_a = Σ_i β_ai k_a(z_i, m) Λ_a⁻¹ (z_i − m). Then cov(y) = J S Jᵀ + diag σ²(m) and
-    cov(z, y) = S Jᵀ.
-
-    Parameters and returns as :func:`moment_match`.
-    """
+    J_a = Σ_i β_ai k_a(z_i, m) Λ_a⁻¹ (z_i − m); cov(y) = J S Jᵀ + diag σ²(m), cov(z, y) = S Jᵀ.
+    Parameters and returns as :func:`moment_match`."""
     pred = predictor.to("cpu", DTYPE)
     E, M, D = pred.support.shape
     m, S = _check_gaussian(mean, cov, D)
@@ -657,33 +468,11 @@ def propagate(
     method: str = "moment_matching",
     strict: bool = False,
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Long-term Gaussian prediction of the state distribution with a linear controller.
+    """Long-term Gaussian prediction p(x_0) → … → p(x_T) with u_t = K_t x_t + k_t (Eq. 4.4).
 
-    With moment matching, the largest round-off bound of the T steps is checked once
-    (:func:`check_roundoff`: a warning above :data:`ROUNDOFF_TOL`).
-
-    Parameters
-    ----------
-    model : ForwardModel
-        Fitted GP forward model (``target`` "delta" or "next").
-    mean0 : array_like, shape (n_x,)
-    cov0 : array_like, shape (n_x, n_x)
-        p(x_0) = N(mean0, cov0).
-    horizon : int
-        T.
-    gain : array_like, shape (n_u, n_x) or (T, n_u, n_x)
-        K (or K_t) of u_t = K_t x_t + k_t.
-    offset : array_like, shape (n_u,) or (T, n_u), optional
-        k (or k_t); default 0.
-    method : {"moment_matching", "linearization"}
-    strict : bool
-        Raise :class:`MomentPrecisionError` instead of warning (moment matching).
-
-    Returns
-    -------
-    means : Tensor, shape (T + 1, n_x)
-    covs : Tensor, shape (T + 1, n_x, n_x)
-    """
+    ``gain`` is (n_u, n_x) or (T, n_u, n_x), ``offset`` (n_u,) or (T, n_u) (default 0);
+    ``method`` "moment_matching" or "linearization"; ``strict`` as :func:`moment_match`.
+    Returns means (T + 1, n_x) and covariances (T + 1, n_x, n_x)."""
     if method not in ("moment_matching", "linearization"):
         raise ValueError(f"method: expected 'moment_matching' or 'linearization', got {method!r}")
     step = moment_match if method == "moment_matching" else linearize
@@ -730,13 +519,8 @@ def propagate(
 def with_linear_mean(
     model: ForwardModel, g: GaussianPrediction, mean: torch.Tensor, cov: torch.Tensor
 ) -> GaussianPrediction:
-    """The prediction of a ``mean="linear"`` forward model's target y = Wᵀ z + b + f(z) from
-    that of its GP f at z ~ N(m, S) (``g``, moment matching or linearisation); exact:
-
-    E[y] = Wᵀ m + b + E[f], cov(y) = Wᵀ S W + cov(f) + Wᵀ C + Cᵀ W, cov(z, y) = S W + C,
-    with C = cov(z, f). A zero-mean model's ``g`` is returned as it is; ``g.roundoff`` is
-    kept as it is (it bounds the GP part's round-off relative to the GP part's moments).
-    """
+    """The prediction of y = Wᵀz + b + f(z) (``mean="linear"``) from ``g``, that of f, exactly:
+    E[y] = Wᵀm + b + E[f], cov(y) = WᵀSW + cov(f) + WᵀC + CᵀW, cov(z, y) = SW + C, C = cov(z, f)."""
     if model.linear_weights is None:
         return g
     w = model.linear_weights.to("cpu", DTYPE)
@@ -749,7 +533,6 @@ def with_linear_mean(
 
 
 def _per_step(value, name: str, shape: tuple[int, ...], T: int) -> torch.Tensor:
-    """A constant (shape) or per-step (T, *shape) controller term as a (T, *shape) tensor."""
     arr = check_array(value, name, ndim=(len(shape), len(shape) + 1))
     if arr.shape == shape:
         arr = np.broadcast_to(arr, (T, *shape))
@@ -759,39 +542,11 @@ def _per_step(value, name: str, shape: tuple[int, ...], T: int) -> torch.Tensor:
 
 
 def moment_matching_flops_per_step(output_dim: int, n_support: int, input_dim: int) -> int:
-    """Floating-point operations of one moment-matching step (:func:`moment_match`).
-
-    The arithmetic the formulas need, ``exp`` counted as one flop (as in
-    :func:`~skillkit.models.sampling.sampler_flops_per_step`; this under-states the work).
-    With E outputs, M support points, D inputs and P = E(E + 1)/2 pairs a ≤ b:
-
-    * per pair and entry (i, j) of Q^{ab}: 2D for the cross term (Tζ_ai)ᵀζ_bj, 2 for adding
-      the quadratic-form offsets, 1 for ``exp``, 2 for the contraction with β_b; 2 more per
-      entry on the E diagonal pairs for tr(iK_a Q^{aa});
-    * per pair, the operand set-up: two (M × D)(D × D) products and two quadratic forms;
-    * per output, the mean and input–output covariance: a (D × D) solve for M right-hand sides
-      and two reductions.
-
-    Clamps, index copies and concatenations are not counted. Used to report GFLOP/s
-    (``benchmarks/bench_moment_matching.py``).
-
-    Parameters
-    ----------
-    output_dim, n_support, input_dim : int
-        E, M, D (positive).
-
-    Returns
-    -------
-    int
-    """
-    E, M, D = (
-        check_count(v, name)
-        for v, name in (
-            (output_dim, "output_dim"),
-            (n_support, "n_support"),
-            (input_dim, "input_dim"),
-        )
-    )
+    """Floating-point operations of one :func:`moment_match` step (``exp`` counts one) for E
+    outputs, M support points and D inputs."""
+    E = check_count(output_dim, "output_dim")
+    M = check_count(n_support, "n_support")
+    D = check_count(input_dim, "input_dim")
     P = E * (E + 1) // 2
     q_blocks = P * M * M * (2 * D + 5) + E * M * M * 2
     operands = P * (2 * 2 * M * D * D + 2 * 2 * M * D)
@@ -800,29 +555,9 @@ def moment_matching_flops_per_step(output_dim: int, n_support: int, input_dim: i
 
 
 def gaussian_kl(mean_p, cov_p, mean_q, cov_q) -> np.ndarray:
-    """KL(N(m_p, S_p) || N(m_q, S_q)) for batches (numpy, float64).
-
-    .. math:: \\tfrac12\\big(\\mathrm{tr}(S_q^{-1}S_p) + (m_q - m_p)^\\top S_q^{-1}(m_q - m_p)
-              - d + \\log|S_q| - \\log|S_p|\\big)
-
-    Parameters
-    ----------
-    mean_p, mean_q : array_like, shape (..., d)
-    cov_p, cov_q : array_like, shape (..., d, d)
-        Positive definite. The batch shapes broadcast. Non-finite entries are not refused:
-        they give a non-finite KL for that batch entry (fig4.3 stores those as they are).
-
-    Returns
-    -------
-    ndarray, shape (...)
-
-    Raises
-    ------
-    ValueError
-        If a mean is not at least 1-D, a covariance is not (..., d, d) with the means' d, or
-        the batch shapes do not broadcast (the argument is named).
-    numpy.linalg.LinAlgError
-        If a finite covariance is not positive definite.
+    """KL(N(m_p, S_p) || N(m_q, S_q)) = ½(tr(S_q⁻¹S_p) + (m_q − m_p)ᵀS_q⁻¹(m_q − m_p) − d
+    + log|S_q| − log|S_p|) for broadcasting batches (numpy). Raises ValueError on mismatched
+    shapes and ``numpy.linalg.LinAlgError`` for a finite covariance that is not positive definite.
     """
     mp, mq = np.asarray(mean_p, float), np.asarray(mean_q, float)
     Sp, Sq = np.asarray(cov_p, float), np.asarray(cov_q, float)

@@ -1,49 +1,14 @@
 """Pathwise GP trajectory sampling: one posterior function per trajectory (Wilson et al. 2020).
 
-The thesis's sampler (Sec. 4.2.1, :func:`~skillkit.models.sampling.sample_trajectories`) draws
-every transition independently from the one-step predictive p(x_{t+1} | x_t, u_t): a
-trajectory that revisits a state gets a fresh draw of the model there. The pathwise
-alternative draws one function g ~ GP posterior per trajectory and follows it,
-
-.. math:: x_{t+1} = g(x_t, u_t) + \\varepsilon_t, \\qquad
-          \\varepsilon_t \\sim \\mathcal N(0, \\sigma_\\varepsilon^2),
-
-so the model's uncertainty is temporally consistent (the same function all along the
-trajectory). Each g is "prior function plus data update" (Matheron's rule; Wilson, Borovitskiy,
-Terenin, Mostowski & Deisenroth 2020, *Efficiently sampling functions from Gaussian process
-posteriors*, Eq. 6 / Sec. 4), per output a:
+Each trajectory follows one g ~ GP posterior, x_{t+1} = g(x_t, u_t) + ε_t, drawn by
+Matheron's rule (Wilson, Borovitskiy, Terenin, Mostowski & Deisenroth 2020, Eq. 6):
 
 .. math:: g(x) = \\tilde f(x) + k(x)^\\top \\big(\\beta - iK\\, \\tilde f(Z) - \\xi\\big),
-          \\qquad \\xi \\sim \\mathcal N(0, C), \\quad C = iK - iK\\, K_{ZZ}\\, iK,
+          \\qquad \\xi \\sim \\mathcal N(0, iK - iK\\, K_{ZZ}\\, iK),
 
-with Z, β, iK the :class:`~skillkit.models.gp.GPPredictor`'s support points, mean weights and
-variance matrix, K_ZZ the noise-free kernel matrix of Z and the prior draw f̃ a random Fourier
-feature expansion of the SE kernel (Rahimi & Recht 2007),
-
-.. math:: \\tilde f(x) = \\sqrt{2\\sigma_f^2 / F}\\, \\sum_{j=1}^F \\theta_j
-          \\cos(\\omega_j^\\top x + b_j), \\quad \\omega_j \\sim \\mathcal N(0, W^{-1}),\\;
-          b_j \\sim U[0, 2\\pi),\\; \\theta_j \\sim \\mathcal N(0, 1).
-
-With C as above the covariance of g is k(x, x′) − k(x)ᵀ iK k(x′), the predictor's posterior
-covariance (:meth:`~skillkit.models.gp.GPPredictor.latent_covariance`), so one-step marginals
-equal the per-step sampler's (Eqs 2.26–2.27). Exact GP: iK = (K + σ_ε²I)⁻¹, C = σ_ε² iK²
-(Wilson et al.'s exact update). FITC / VFE (iK = K_mm⁻¹ − Σ): C = Σ − Σ K_mm Σ, their sparse
-update from q(u) = N(K_mm β, K_mm Σ K_mm); g is then a draw of the sparse model's *predictive*
-process (DTC / VFE form, no FITC diagonal correction at new inputs).
-
-* **Features.** By default every function draws its own ω, b, θ, ξ: over trajectories the
-  prior covariance is exactly the SE kernel (each f̃ has excess kurtosis O(1/F), means and
-  covariances are unbiased). A shared basis (:class:`PathwiseBasis` ``shared_seed``) is
-  cheaper but biases every covariance by O(1/√F).
-* **Randomness.** Function i depends only on its seed ``seeds[i]``, not on the chunk size.
-* **Precision.** The set-up (K_ZZ, C and its square root, f̃(Z), the update vector) is done
-  in float64 and cast once; evaluation runs in the predictor's dtype via
-  :meth:`~skillkit.models.gp.GPPredictor.kernel_vectors`.
-* **Cost** (:func:`pathwise_flops_per_step`). Per step and output 2Md + 4M + 2M + 2Fd + 4F
-  (no M² term); set-up per function 2MFd + 2M² + MF. Fresh features are memory-bound (each
-  function reads its own (d × E·F) frequencies) and no faster than the per-step sampler; a
-  shared basis is faster. Timings: ``benchmarks/bench_sampler.py``.
-"""
+with f̃ a random Fourier feature prior draw (Rahimi & Recht 2007),
+f̃(x) = √(2σ_f²/F) Σ_j θ_j cos(ω_jᵀx + b_j). One-step marginals equal the per-step
+sampler's (Eqs 2.26–2.27)."""
 
 from __future__ import annotations
 
@@ -61,26 +26,12 @@ __all__ = ["PathwiseBasis", "PathwiseFunctions", "draw_functions", "pathwise_flo
 
 @dataclass(frozen=True)
 class PathwiseFunctions:
-    """n posterior function draws of a GP predictor, row i of a query batch evaluated by draw i.
+    """n posterior function draws of a GP predictor; row i of a query batch is evaluated by draw i.
 
-    Implements the predictor interface the forward model needs (``moments``), so a
-    :class:`~skillkit.models.gp.ForwardModel` with these functions as its predictor adds its
-    linear mean, Δx target and standardisation unchanged.
-
-    Attributes
-    ----------
-    predictor : GPPredictor
-        The GP the functions are drawn from (evaluation dtype and device).
-    frequencies : Tensor, shape (n, d, E·F) or (1, d, E·F)
-        ω_j of every function and output (output-major: column a·F + j); one leading entry
-        when all functions share one basis.
-    phases : Tensor, shape (n, E, F) or (1, E, F)
-        b_j.
-    amplitudes : Tensor, shape (n, E, F)
-        √(2σ_f²/F) θ_j.
-    update : Tensor, shape (E, n, M)
-        β − iK f̃(Z) − ξ per output and function.
-    """
+    Has the predictor's ``moments``, so it can serve a
+    :class:`~skillkit.models.gp.ForwardModel`. ``frequencies`` (n or 1, d, E·F), ``phases``
+    (n or 1, E, F) and ``amplitudes`` √(2σ_f²/F) θ_j (n, E, F) define f̃; ``update`` (E, n, M)
+    is β − iK f̃(Z) − ξ."""
 
     predictor: GPPredictor
     frequencies: torch.Tensor
@@ -92,7 +43,7 @@ class PathwiseFunctions:
         return int(self.amplitudes.shape[0])
 
     def latent(self, x: torch.Tensor) -> torch.Tensor:
-        """g_i(x_i), standardised units: Tensor (n, E), row i by function i (x of shape (n, d))."""
+        """g_i(x_i) in standardised units, Tensor (n, E), for x (n, d)."""
         n, E, F = self.amplitudes.shape
         if self.frequencies.shape[0] == 1:  # one basis shared by all functions
             proj = (x @ self.frequencies[0]).view(n, E, F)
@@ -103,20 +54,8 @@ class PathwiseFunctions:
         return prior + (k * self.update).sum(-1).T
 
     def moments(self, x: torch.Tensor, include_noise: bool = True) -> Moments:
-        """The functions' values (as ``mean``) and the observation noise σ_ε² (as ``var``).
-
-        Parameters
-        ----------
-        x : Tensor, shape (n, d)
-            One query per function (not validated: hot path).
-        include_noise : bool
-            ``var`` = σ_ε² (a noisy transition) or 0 (the latent function).
-
-        Returns
-        -------
-        Moments
-            ``mean`` = y_mean + y_scale · g(x) and ``var`` of shape (n, E), raw target units.
-        """
+        """The functions' values at x (n, d) as ``mean`` and σ_ε² (or 0 without ``include_noise``)
+        as ``var``: :class:`Moments` (n, E), raw units."""
         p = self.predictor
         g = self.latent(x)
         mean = p.y_mean + p.y_scale * g
@@ -129,27 +68,9 @@ class PathwiseFunctions:
 class PathwiseBasis:
     """The step-invariant part of pathwise sampling for one predictor; draws functions by seed.
 
-    Parameters
-    ----------
-    predictor : GPPredictor
-        The trained GP (any dtype; the set-up is done in float64 from its fields).
-    n_features : int
-        F, random Fourier features per function and output.
-    dtype : torch.dtype, optional
-        Evaluation dtype (default: the predictor's).
-    shared_seed : int, optional
-        None (default): every function draws its own features ω, b (unbiased covariances).
-        An int: one feature basis, drawn from this seed, shared by all functions (only θ and
-        ξ differ): cheaper, but every function then has the covariance φ(x)ᵀφ(x′) of the
-        same F features, off the SE kernel by O(σ_f²/√F) (about 1/√(2F) relative in the
-        prior variance), a bias that does not average out over trajectories.
-
-    Attributes
-    ----------
-    psd_clamp : float
-        The most negative eigenvalue of C relative to its largest, set to 0 (round-off; 0.0 if
-        none).
-    """
+    ``n_features`` F per function and output; ``shared_seed`` gives all functions one basis
+    (cheaper, but covariances are off by O(σ_f²/√F)). ``psd_clamp`` is the most negative
+    eigenvalue of cov(ξ) relative to its largest, set to 0."""
 
     def __init__(
         self,
@@ -194,19 +115,7 @@ class PathwiseBasis:
         )
 
     def draw(self, seeds, max_setup_bytes: int = 2**25) -> PathwiseFunctions:
-        """Functions g_i, one per seed (function i depends on ``seeds[i]`` only).
-
-        Parameters
-        ----------
-        seeds : sequence of int
-            One seed per function.
-        max_setup_bytes : int
-            Bound on the (E, M, r·F) work array of f̃(Z) (functions are set up r at a time).
-
-        Returns
-        -------
-        PathwiseFunctions
-        """
+        """Functions g_i, one per seed; ``max_setup_bytes`` bounds the f̃(Z) work array."""
         hi = self.setup
         E, M, d = hi.support.shape
         F, dev, f64 = self.n_features, hi.device, torch.float64
@@ -245,11 +154,11 @@ class PathwiseBasis:
         )
 
     def _features(self, normals: torch.Tensor, uniforms: torch.Tensor):
-        """ω = ε / w ~ N(0, diag(1/w²)) of shape (r, E, F, d) and b = 2π U of shape (r, E, F)."""
+        """ω = ε / w (r, E, F, d) and b = 2π U (r, E, F)."""
         return normals / self.setup.lengthscale[None, :, None, :], 2 * math.pi * uniforms
 
     def _cosines(self, omega: torch.Tensor, phase: torch.Tensor) -> torch.Tensor:
-        """cos(ωᵀz + b) at the support points z for r feature sets: Tensor (E, M, r, F)."""
+        """cos(ωᵀz + b) at the support points: Tensor (E, M, r, F)."""
         r, E, F, d = omega.shape
         M = self.setup.n_support
         arg = torch.bmm(self.setup.support, omega.permute(1, 3, 0, 2).reshape(E, d, r * F))
@@ -265,25 +174,9 @@ def draw_functions(
     *,
     dtype: torch.dtype | None = None,
 ) -> PathwiseFunctions:
-    """Draw n functions from a GP predictor's posterior (pathwise: RFF prior + exact update).
+    """Draw ``n`` functions from a GP predictor's posterior (RFF prior + exact update).
 
-    Parameters
-    ----------
-    predictor : GPPredictor
-    n : int
-        Number of functions.
-    n_features : int
-        F, random Fourier features per function and output.
-    rng : Generator, int, SeedSequence or None
-        Randomness (n seeds are drawn from it).
-    dtype : torch.dtype, optional
-        Evaluation dtype (default: the predictor's).
-
-    Returns
-    -------
-    PathwiseFunctions
-        Evaluate with ``functions.moments(x)`` or ``functions.latent(x)``, x of shape (n, d).
-    """
+    ``n`` seeds are drawn from ``rng``; ``dtype`` is the evaluation dtype."""
     n = check_count(n, "n")
     seeds = as_generator(rng).integers(2**63 - 1, size=n)
     return PathwiseBasis(predictor, n_features, dtype).draw(seeds)
@@ -292,12 +185,6 @@ def draw_functions(
 def pathwise_flops_per_step(
     output_dim: int, n_support: int, input_dim: int, n_features: int
 ) -> int:
-    """Floating-point operations of one pathwise transition of one trajectory.
-
-    Per output: the kernel vector as in
-    :func:`~skillkit.models.sampling.sampler_flops_per_step` (2Md + 3M + M), the update
-    kᵀv (2M), the feature projections ωᵀx (2Fd), phase, cosine (counted 1), amplitude and
-    sum (4F).
-    """
+    """Floating-point operations of one pathwise transition of one trajectory."""
     E, M, d, F = int(output_dim), int(n_support), int(input_dim), int(n_features)
     return E * (2 * M * d + 3 * M + M + 2 * M + 2 * F * d + 4 * F)

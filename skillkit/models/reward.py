@@ -1,10 +1,7 @@
-"""What GPREPS needs from a reward model, and the parts that task-specific models share.
+"""The reward-model interface of GPREPS (Sec. 4.1, Eq. 4.1) and helpers task models share.
 
-A reward model (Sec. 4.1) is fitted on the real samples so far and predicts the expected
-reward R̂_sω (Eq. 4.1) of context–parameter pairs. Task-specific models live beside their
-task (``skillkit.tasks.hockey.model``, ``skillkit.tasks.table_tennis.model``,
-``skillkit.tasks.throwing_model``) and derive from :class:`RewardModel`.
-"""
+Task-specific models (``skillkit.tasks.hockey.model``, ``skillkit.tasks.table_tennis.model``,
+``skillkit.tasks.throwing_model``) derive from :class:`RewardModel`."""
 
 from __future__ import annotations
 
@@ -14,9 +11,8 @@ from collections.abc import Callable, Sequence
 from typing import Any, Literal
 
 import numpy as np
-import torch
 
-from skillkit.models.gp import GPRegression
+from skillkit.models.gp import GPRegression, check_dtype
 from skillkit.trajectory import Trajectory
 
 __all__ = [
@@ -45,8 +41,8 @@ class RewardModel(abc.ABC):
         trajectories: Sequence[Trajectory] | None,
         rng: np.random.Generator,
     ) -> dict[str, Any]:
-        """Fit on all real samples: contexts (N, context_dim), omegas (N, d), rewards (N,),
-        their trajectories (N or ``None``). Returns fit statistics (a small dict)."""
+        """Fit on all real samples: contexts (N, context_dim), omegas (N, d), rewards (N,) and their
+        trajectories (or ``None``); returns fit statistics."""
         ...
 
     @abc.abstractmethod
@@ -68,12 +64,8 @@ WARM_LENGTHSCALE_CAP = 100.0
 def warm_start_hypers(
     gp: GPRegression, hypers: dict[str, np.ndarray] | None, inputs: np.ndarray
 ) -> None:
-    """Start the next hyper-parameter optimisation of ``gp`` at ``hypers`` (raw units).
-
-    A length-scale far beyond its input's spread switches the input off, and the gradient of
-    (2.28) vanishes there, so a warm start would keep it off for good; length-scales are capped
-    at :data:`WARM_LENGTHSCALE_CAP` standard deviations of the current ``inputs`` (N, d).
-    """
+    """Start ``gp``'s next optimisation at ``hypers`` (raw units), length-scales capped at
+    :data:`WARM_LENGTHSCALE_CAP` std of ``inputs`` (a switched-off input would stay off)."""
     if hypers is None:
         return
     sd = inputs.std(axis=0)
@@ -92,7 +84,7 @@ REFIT_STARTS: tuple[str, ...] = ("cold", "warm", "best")
 
 
 def check_refit(refit: str) -> str:
-    """``refit`` if it is one of :data:`REFIT_STARTS`, else a ValueError naming it."""
+    """``refit`` if it is one of :data:`REFIT_STARTS`, else a ValueError."""
     if refit not in REFIT_STARTS:
         raise ValueError(f"refit: expected one of {REFIT_STARTS}, got {refit!r}")
     return refit
@@ -106,39 +98,11 @@ def refit_gp(
     previous: dict[str, np.ndarray] | None,
     refit: str = "best",
 ) -> tuple[Any, dict[str, Any]]:
-    """Refit a GP's hyper-parameters on all data so far (Sec. 4.1: "After each data
-    collection step, we update the GP model hyper-parameters").
+    """Refit a GP's hyper-parameters on all data so far (Sec. 4.1).
 
-    The marginal likelihood (2.28) has local optima, and a chain of warm starts can stay in
-    a poor one as data arrive. ``refit="best"`` therefore optimises from the default
-    initialisation *and* from ``previous`` and keeps the larger log marginal likelihood; both
-    fits use the same seed (one drawn from ``rng``), so they differ in the start alone.
-
-    Parameters
-    ----------
-    make_gp : callable
-        Returns a new unfitted model with ``fit(x, y, rng)`` (a GP, or any other model, which
-        is then fitted once as it is).
-    x : ndarray, shape (N, d)
-        Training inputs.
-    y : ndarray, shape (N, E) or (N,)
-        Training targets.
-    rng : Generator
-        Randomness of the fit (one seed is drawn).
-    previous : dict or None
-        The previous fit's hyper-parameters (raw units, ``gp.hyperparameters``); ``None``
-        before the first fit, when every mode is a cold fit.
-    refit : {"cold", "warm", "best"}
-        Where the optimisation starts (:data:`RefitStart`).
-
-    Returns
-    -------
-    gp
-        The fitted model that was kept.
-    dict
-        ``start`` (``"cold"`` or ``"warm"``, the one kept), ``log_ml_cold`` and
-        ``log_ml_warm`` (summed over outputs; ``None`` where that start did not run).
-    """
+    ``refit`` "cold" starts at the default, "warm" at ``previous`` (a ``gp.hyperparameters``),
+    "best" runs both with one seed and keeps the larger log marginal likelihood (2.28).
+    Returns the model kept and ``start``, ``log_ml_cold``, ``log_ml_warm``."""
     check_refit(refit)
     seed = int(rng.integers(2**63))
     record: dict[str, Any] = {"start": "cold", "log_ml_cold": None, "log_ml_warm": None}
@@ -165,8 +129,7 @@ def refit_gp(
 
 
 def gp_stats(gp: GPRegression, n_data: int) -> dict[str, Any]:
-    """What one fit of ``gp`` reports: data size, log ML, iterations, largest noise variance
-    and the numerical events the fit handled (:class:`~skillkit.models.gp.NumericalEvents`)."""
+    """One fit's report: data size, log ML, iterations, largest noise variance, events."""
     lml = gp.diagnostics.get("log_marginal_likelihood")
     return {
         "n_data": int(n_data),
@@ -177,11 +140,8 @@ def gp_stats(gp: GPRegression, n_data: int) -> dict[str, Any]:
     }
 
 
-def check_sample_dtype(dtype) -> torch.dtype:
-    """``dtype`` of a reward model's sampled trajectories: float64 or float32."""
-    if dtype not in (torch.float64, torch.float32):
-        raise ValueError(f"dtype: expected torch.float64 or torch.float32, got {dtype!r}")
-    return dtype
+#: ``dtype`` of a reward model's sampled trajectories: float64 or float32.
+check_sample_dtype = check_dtype
 
 
 def subsample(rng: np.random.Generator, n_max: int, *arrays: np.ndarray) -> tuple:
@@ -196,32 +156,14 @@ def subsample(rng: np.random.Generator, n_max: int, *arrays: np.ndarray) -> tupl
 def worst_if_failed(
     rewards: np.ndarray, states: np.ndarray, task: Any
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Score predicted trajectories as the task scores its rollouts: those the simulator would
-    stop as failed (:meth:`~skillkit.tasks.base.Task.failed_batch`) get ``task.worst_reward``.
-
-    A predicted path through states where the simulator stops a real rollout must score the
-    same, or the REPS weights would rank parameters by how fast the model diverges.
-
-    Parameters
-    ----------
-    rewards : ndarray, shape (B,)
-        The task's :meth:`~skillkit.tasks.base.Task.reward_batch` of the paths.
-    states : ndarray, shape (B, T + 1, n_x)
-        The predicted states.
-    task : Task
-
-    Returns
-    -------
-    rewards : ndarray, shape (B,)
-    failed : ndarray of bool, shape (B,)
-    """
+    """Rewards (B,) with predicted paths the simulator would stop as failed set to
+    ``task.worst_reward``, and the failed mask."""
     failed = np.asarray(task.failed_batch(states), dtype=bool)
     return np.where(failed, task.worst_reward, rewards), failed
 
 
 def worst_if_nonfinite(rewards: np.ndarray, task: Any, where: str) -> np.ndarray:
-    """Predicted rewards with non-finite entries (a diverged model) set to ``task.worst_reward``,
-    with a ``RuntimeWarning`` that counts them (never silently)."""
+    """Non-finite predicted rewards set to ``task.worst_reward`` (a counting ``RuntimeWarning``)."""
     bad = ~np.isfinite(rewards)
     if bad.any():
         warnings.warn(

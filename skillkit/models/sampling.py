@@ -1,41 +1,7 @@
-"""Batched stochastic trajectory prediction with a learned forward model (Secs 2.1.2, 4.2.1).
-
-For B (context, ω) pairs and L trajectories each, :func:`sample_trajectories` draws, in one
-vectorised loop over time (Eq. 4.3, Fig. 2.4),
-
-.. math:: u_t = \\pi_\\omega(t, x_t), \\qquad x_{t+1} \\sim p(x_{t+1} \\mid x_t, u_t),
-
-for all B·L trajectories at once; each step is a few batched matrix products.
-
-* **Model protocol.** ``state_dim``, ``control_dim``, ``to(device, dtype)`` and
-  ``next_state_moments(x, u) -> (mean, var, ...)`` (per-dimension Gaussian, shape (n, n_x)),
-  e.g. :class:`~skillkit.models.gp.ForwardModel`. A model with noise correlated across
-  dimensions also has ``noise_factor_tensor(device, dtype) -> F`` (n_x, n_x): then
-  x' = mean + F ε and ``var`` is diag F Fᵀ (:class:`~skillkit.models.linear.LinearGaussianModel`).
-* **Policy.** ``policy(t, x, pair) -> u``, ``x`` (n, n_x), ``pair`` (n,) the index of each
-  row's (context, ω) pair; returns (n, n_u). An optional ``control_limit`` saturates u and
-  counts the saturated entries.
-* **Memory and randomness.** Rows are processed in chunks bounded by ``max_chunk_bytes``.
-  All Gaussian noise (B·L, T, n_x) is drawn up front in float64 from one torch generator
-  seeded by ``rng``, so results do not depend on the chunk size (up to BLAS round-off) and
-  float32 paths follow the float64 paths of the same seed.
-* **Precision.** float64 by default (every stored result); float32 is opt-in. The float32
-  path keeps the set-up and the kernel exponent in float64 and runs ``exp`` and the main
-  product in float32 (:meth:`~skillkit.models.gp.GPPredictor.kernel_vectors`). Its accuracy
-  depends on the model's conditioning: near-linear-limit GPs (σ_f²/σ_ε² ~ 1e4) can be off by
-  ~0.1 predictive standard deviations, so every float32 run compares its one-step moments
-  with float64's on visited states (``precision_error``; a ``GPNumericalWarning`` above
-  :data:`PRECISION_TOL`). Speed and accuracy figures: ``benchmarks/bench_sampler.py``,
-  ``benchmarks/bench_prediction.py``.
-* **Underflow in float64.** Kernel entries below e^{−600} σ_f² are raised to that value
-  (:data:`~skillkit.models.gp.FLOOR_EXPONENT_FLOAT64`) so no ``exp`` underflows and no
-  product is denormal (every stored experiment's smoke run is bit-identical without it,
-  ``data/README.md``).
-* **Pathwise alternative** (``method="pathwise"``, :mod:`skillkit.models.pathwise`): each
-  trajectory follows one function drawn from the GP posterior. Same one-step marginals,
-  different multi-step statistics (a wider final-state spread on the balancing FITC model);
-  the per-step sampler is the thesis's (Sec. 4.2.1) and the default.
-"""
+"""Batched stochastic trajectory prediction with a learned forward model (Secs 2.1.2, 4.2.1):
+u_t = π_ω(t, x_t), x_{t+1} ~ p(x_{t+1} | x_t, u_t) for B (context, ω) pairs × L trajectories
+in one vectorised loop over time (Eq. 4.3, Fig. 2.4). The noise is drawn up front in float64,
+so results do not depend on the chunk size and float32 follows float64's paths."""
 
 from __future__ import annotations
 
@@ -55,6 +21,7 @@ from skillkit.models.gp import (
     GPNumericalWarning,
     GPPredictor,
     as_device,
+    check_dtype,
     report_event,
 )
 from skillkit.models.pathwise import PathwiseBasis
@@ -88,30 +55,11 @@ Policy = Callable[[int, torch.Tensor, torch.Tensor], torch.Tensor]
 
 @dataclass
 class SampledTrajectories:
-    """Trajectories sampled for B (context, ω) pairs × L repetitions.
-
-    Attributes
-    ----------
-    states : Tensor, shape (B, L, T + 1, n_x)
-        x_0 … x_T.
-    controls : Tensor, shape (B, L, T, n_u)
-        u_0 … u_{T−1} (after saturation).
-    n_saturated : int
-        Number of control entries clipped to ``control_limit``.
-    n_variance_clamped : int
-        Number of predictive variances that were negative from round-off and set to 0
-        (see :mod:`skillkit.models.gp`).
-    worst_variance : float
-        The most negative latent variance relative to σ_f² (0 if none).
-    precision_error : float
-        float32 sampling only (0.0 in float64): the largest difference between the float32
-        and float64 one-step predictive moments on visited states (first 64 trajectories at
-        t = 0, T/2, T − 1): mean error in predictive standard deviations or relative variance
-        error. Above ``PRECISION_TOL`` (1e-2) a :class:`GPNumericalWarning` is issued.
-    stopped_at : Tensor of int64, shape (B, L), or None
-        Only with a ``stop`` rule: the step k at which each trajectory was stopped (T if it
-        never was); its states after x_k repeat x_k and its controls from u_k on are 0.
-    """
+    """Trajectories sampled for B (context, ω) pairs × L repetitions: ``states``
+    (B, L, T + 1, n_x), ``controls`` (B, L, T, n_u) after saturation, the number of saturated
+    controls and of clamped negative variances, the most negative latent variance relative to
+    σ_f², float32's largest one-step error against float64 (``precision_error``) and, with a
+    ``stop`` rule, the step each trajectory stopped at (T if never)."""
 
     states: torch.Tensor
     controls: torch.Tensor
@@ -151,69 +99,20 @@ def sample_trajectories(
     n_features: int = 256,
     stop: Callable[[int, torch.Tensor], torch.Tensor] | None = None,
 ) -> SampledTrajectories:
-    """Sample L trajectories for each of B start conditions / policies in one vectorised call.
+    """Sample L = ``n_trajectories`` trajectories of T = ``horizon`` steps for each of B start
+    states ``x0`` ((B, n_x) or (B, L, n_x)) in one vectorised call.
 
-    Parameters
-    ----------
-    model : StepModel
-        Fitted forward model, e.g. :class:`~skillkit.models.gp.ForwardModel`.
-    x0 : array_like or Tensor, shape (B, n_x) or (B, L, n_x)
-        Start states: one per pair (shared by its L trajectories) or one per trajectory
-        (e.g. drawn from the task's initial-state distribution p(x_0; s), Eq. 4.3).
-    policy : callable
-        ``policy(t, x, pair) -> u``: ``t`` the step (int), ``x`` Tensor (n, n_x), ``pair``
-        LongTensor (n,) in [0, B); returns Tensor (n, n_u) on the same device and dtype.
-    horizon : int
-        T, the number of transitions.
-    n_trajectories : int
-        L, trajectories per pair.
-    rng : Generator, int, SeedSequence or None
-        Randomness.
-    control_limit : float or array_like, shape (n_u,), optional
-        Saturate ``|u| ≤ control_limit`` (counted in ``n_saturated``).
-    device : str or torch.device, optional
-        Where to compute: a CPU or CUDA device (default: the CPU).
-    dtype : torch.float64 or torch.float32
-        float64 (default) or the opt-in float32 path (module notes; its error on the visited
-        states is reported as ``precision_error``).
-    max_chunk_bytes : int
-        Bound (≥ 1) on the kernel work arrays per chunk of trajectories (default 32 MiB); a
-        chunk holds at least one trajectory whatever the bound.
-    method : {"per-step", "pathwise", "pathwise-shared"}
-        "per-step" (default, the thesis's Sec. 4.2.1): every transition is an independent
-        draw from the one-step predictive distribution. "pathwise": every trajectory draws one
-        function from the GP posterior and follows it, with i.i.d. observation noise
-        (:mod:`skillkit.models.pathwise`; GP forward models only), each with its own random
-        features; "pathwise-shared": the same with one feature basis for all trajectories
-        (cheaper; covariances off by O(1/√F), see :class:`~skillkit.models.pathwise.PathwiseBasis`).
-    n_features : int
-        F, random Fourier features per function and output (pathwise methods).
-    stop : callable, optional
-        ``stop(k, x) -> done``: ``x`` Tensor (n, n_x) the states x_k of the trajectories
-        still running (k = 1 … T − 1), ``done`` a bool Tensor (n,). A trajectory that is done
-        is no longer propagated: x_{k+1} … x_T repeat x_k and u_k … u_{T−1} are 0 (recorded in
-        ``stopped_at``). For rollouts whose later states are not needed (a ball that has
-        landed): the states up to x_k are the ones the full rollout draws (the same noise
-        ε_{t} per trajectory and step; per-step method only), and the cost falls with the
-        number of trajectories still running.
-
-    Returns
-    -------
-    SampledTrajectories
-
-    Raises
-    ------
-    ValueError
-        On bad shapes, a device that is not a CPU or an available CUDA device, non-finite
-        start states, a ``control_limit`` that is not positive or of the wrong length, a
-        ``max_chunk_bytes`` that is not a positive integer, a policy returning the wrong shape
-        or non-finite controls, an unsupported dtype or method, pathwise sampling of a model
-        that is not a GP forward model, a ``stop`` that is not callable or is combined with a
-        pathwise method, or a ``stop`` returning anything but a bool Tensor of shape (n,).
-    """
+    ``model`` provides ``next_state_moments(x, u)`` and optionally ``noise_factor_tensor`` F
+    (correlated noise x′ = mean + F ε); ``policy(t, x, pair)`` maps states (n, n_x) and pair
+    indices (n,) to controls (n, n_u), saturated at ``control_limit``. ``dtype`` float32 warns
+    above :data:`PRECISION_TOL`; ``max_chunk_bytes`` bounds the work arrays per chunk.
+    ``method`` "per-step" (the thesis's) draws each transition independently, "pathwise"
+    follows one posterior function per trajectory with ``n_features`` random features
+    (:mod:`skillkit.models.pathwise`; "pathwise-shared": one basis). ``stop(k, x)`` (bool (n,))
+    ends trajectories early (per-step only). Raises ValueError on invalid arguments or
+    policy/``stop`` output."""
     device = as_device(device)  # as tensors report it, so the policy's controls can be checked
-    if dtype not in (torch.float64, torch.float32):
-        raise ValueError(f"dtype: expected torch.float64 or torch.float32, got {dtype!r}")
+    check_dtype(dtype)
     if method not in ("per-step", "pathwise", "pathwise-shared"):
         raise ValueError(
             f"method: expected 'per-step', 'pathwise' or 'pathwise-shared', got {method!r}"
@@ -361,12 +260,7 @@ def sample_trajectories(
 
 
 def _precision_error(source, model, states, controls, device, rows: int = 64) -> float:
-    """Max float32-vs-float64 error of the one-step predictive moments on visited states.
-
-    Evaluated on the first ``rows`` trajectories at t = 0, T/2 and T − 1: the mean error in
-    float64 predictive standard deviations and the relative variance error, whichever is
-    larger. (For pathwise sampling this checks the predictor the functions are drawn from.)
-    """
+    """Max float32-vs-float64 one-step moment error on visited states."""
     hi = source.to(device, DTYPE)
     T = controls.shape[1]
     worst = 0.0
@@ -406,11 +300,7 @@ def _check_control(u, n: int, n_u: int, dtype, device) -> None:
 
 
 def _chunk_rows(model, max_bytes: int, n: int, n_features: int = 0) -> int:
-    """Rows per chunk so that ~3 (E, rows, M) work arrays fit in ``max_bytes``.
-
-    With ``n_features`` (pathwise sampling) each row also holds its function's features
-    (E · F · (d + 2) numbers, drawn in float64) and update vector (E · M).
-    """
+    """Rows per chunk so that the kernel work arrays (and pathwise features) fit."""
     pred = getattr(model, "predictor", None)
     if pred is None:
         return n
@@ -422,12 +312,6 @@ def _chunk_rows(model, max_bytes: int, n: int, n_features: int = 0) -> int:
 
 
 def sampler_flops_per_step(output_dim: int, n_support: int, input_dim: int) -> int:
-    """Floating-point operations of one sampled transition of one trajectory with a GP model.
-
-    Per output: the scaled squared distances to the M support points (a (1 × d)(d × M)
-    product plus norms, ≈ 2Md + 3M), the exponential (counted as 1 per entry), the mean
-    kᵀβ (2M) and the variance kᵀ iK k (2M² + 2M). Used by the benchmark to compare the
-    sampler with the machine's matmul peak.
-    """
+    """Floating-point operations of one sampled GP transition of one trajectory."""
     E, M, d = int(output_dim), int(n_support), int(input_dim)
     return E * (2 * M * d + 3 * M + M + 2 * M + 2 * M * M + 2 * M)

@@ -1,41 +1,10 @@
 """Sparse GPs with M pseudo-inputs behind the :class:`~skillkit.models.gp.ExactGP` interface.
 
-Two approximations of the same shape (Sec. 2.3, 4.2.3), both O(N M²) to train and O(M²)
-per predictive variance:
-
-* :class:`FITC` — Snelson & Ghahramani's sparse GP with pseudo-inputs (SPGP), the sparse
-  model used throughout the thesis. The prior covariance of the training targets is
-  Q_nn + diag(K_nn − Q_nn) + σ_ε²I with Q_nn = K_nm K_mm⁻¹ K_mn, and the pseudo-inputs Z are
-  hyper-parameters of the marginal likelihood.
-* :class:`VFE` — Titsias's variational free energy: the collapsed bound
-  log N(y; 0, Q_nn + σ_ε²I) − tr(K_nn − Q_nn)/(2σ_ε²) ≤ log p(y), maximised over θ and Z.
-
-With Λ = diag(K_nn − Q_nn) + σ_ε²I (FITC) or σ_ε²I (VFE) and Σ = (K_mm + K_mn Λ⁻¹ K_nm)⁻¹,
-both predict
-
-.. math:: \\mu(x) = k_m(x)^\\top \\Sigma K_{mn} \\Lambda^{-1} y, \\qquad
-          \\sigma^2(x) = \\sigma_f^2 - k_m(x)^\\top (K_{mm}^{-1} - \\Sigma) k_m(x)
-                        + \\sigma_\\varepsilon^2,
-
-which is a :class:`~skillkit.models.gp.GPPredictor` with ``beta = Σ K_mn Λ⁻¹ y``,
-``iK = K_mm⁻¹ − Σ`` (PILCO's sparse form) and the variance factor
-R = diag(√(1 − 1/a)) Uᵀ L_m⁻¹ (RᵀR = iK, from A = U diag(a) Uᵀ), so sampling and moment
-matching work unchanged.
-All linear algebra goes through Cholesky factors: with K_mm = L_m L_mᵀ, V = L_m⁻¹ K_mn and
-A = I + V Λ⁻¹ Vᵀ = L_A L_Aᵀ, the log determinant is Σ log Λ + 2 Σ log diag L_A and the
-quadratic form follows from the Woodbury identity.
-
-Pseudo-inputs: initialised by k-means++ seeding (D²-sampling, Arthur & Vassilvitskii 2007) on
-the inputs scaled by their standard deviations, drawn from ``rng``; with M ≥ N all training
-inputs are used (``diagnostics["n_inducing"]`` records the M actually used). Each output has
-its own pseudo-inputs (shape (E, M, d)), all optimised jointly with the kernel
-hyper-parameters unless ``optimize_inducing=False``.
-
-Numerical policy (in addition to :mod:`skillkit.models.gp`'s): K_mm always gets a fixed
-jitter of ``jitter``·σ_f² (default 1e-8) on its diagonal, the usual safeguard against
-coinciding pseudo-inputs; diag(K_nn − Q_nn) is a variance and is clamped at 0 against
-round-off.
-"""
+:class:`FITC` (Snelson & Ghahramani's SPGP, the thesis's sparse model) and :class:`VFE`
+(Titsias's collapsed bound). With Λ = diag(K_nn − Q_nn) + σ_ε²I (FITC) or σ_ε²I (VFE) and
+Σ = (K_mm + K_mn Λ⁻¹ K_nm)⁻¹ both are a :class:`~skillkit.models.gp.GPPredictor` with
+β = Σ K_mn Λ⁻¹ y and iK = K_mm⁻¹ − Σ. Pseudo-inputs (E, M, d) start from k-means++ seeding
+and are optimised with the hyper-parameters."""
 
 from __future__ import annotations
 
@@ -52,23 +21,7 @@ __all__ = ["FITC", "VFE", "kmeans_pp"]
 
 
 def kmeans_pp(X, n: int, rng: np.random.Generator) -> np.ndarray:
-    """Indices of ``n`` rows of ``X`` chosen by k-means++ seeding (D²-sampling).
-
-    The first row is uniform; each next row is drawn with probability proportional to its
-    squared distance to the nearest row already chosen (rows identical to a chosen one are
-    never chosen again unless every row is).
-
-    Parameters
-    ----------
-    X : ndarray, shape (N, d)
-    n : int
-        Number of rows, 1 ≤ n ≤ N.
-    rng : Generator
-
-    Returns
-    -------
-    ndarray of int, shape (n,)
-    """
+    """Indices (n,) of ``n`` rows of ``X`` by k-means++ seeding (D²-sampling)."""
     N = X.shape[0]
     if not 1 <= n <= N:
         raise ValueError(f"n: expected 1 <= n <= {N}, got {n}")
@@ -87,8 +40,6 @@ def kmeans_pp(X, n: int, rng: np.random.Generator) -> np.ndarray:
 
 
 class _SparseGP(GPRegression):
-    """Shared FITC/VFE implementation (``_method`` selects the approximation)."""
-
     _method = "fitc"
 
     def __init__(
@@ -149,12 +100,7 @@ class _SparseGP(GPRegression):
         return params + ([self.inducing] if self.optimize_inducing else [])
 
     def _terms(self, factor=None):
-        """Objective and the factors the predictor needs.
-
-        Returns (negative objective summed over outputs, Lm, LA, c, Λ) with the notation of
-        the module docstring; ``factor`` is the Cholesky routine (plain during training, where
-        a failure stops the optimiser; :func:`robust_cholesky` for the final predictor).
-        """
+        """(negative objective, L_m, L_A, c) with Cholesky routine ``factor``."""
         factor = factor or _plain_cholesky
         ls = self.kernel.lengthscale[:, 0, :]
         os = self.kernel.outputscale
@@ -249,41 +195,15 @@ def _plain_cholesky(A: torch.Tensor, what: str) -> torch.Tensor:
 class FITC(_SparseGP):
     """FITC / SPGP sparse GP (Snelson & Ghahramani) with M optimised pseudo-inputs.
 
-    Parameters
-    ----------
-    n_inducing : int
-        M, the number of pseudo-inputs (M = N/4 in Fig. 4.5; all N inputs if M ≥ N); not
-        used when ``inducing`` is given (its M is).
-    inducing : array_like, shape (M, d) or (E, M, d), optional
-        Initial pseudo-inputs (default: k-means++ seeding on the training inputs).
-    optimize_inducing : bool
-        Optimise the pseudo-inputs with the hyper-parameters (default True).
-    jitter : float
-        Fixed relative jitter on K_mm (default 1e-8).
-    **kwargs
-        As :class:`~skillkit.models.gp.ExactGP` (initial values, ``noise_floor``,
-        ``additive_noise``, ``n_steps``, ``optimizer``, ``learning_rate``, ``standardize``,
-        ``curb``, ``device``: where the hyper-parameters and pseudo-inputs are optimised and the
-        predictor lives; default CPU; float64 throughout). k-means++ seeding runs in numpy
-        on the CPU, so its draws do not depend on the device.
-
-    Notes
-    -----
-    ``diagnostics["log_marginal_likelihood"]`` is the FITC log marginal likelihood summed over
-    outputs, in raw target units.
-    """
+    ``n_inducing`` M (all N inputs if M ≥ N), or initial ``inducing`` (M, d) or (E, M, d);
+    ``jitter`` is the relative jitter on K_mm; other keywords as
+    :class:`~skillkit.models.gp.ExactGP`."""
 
     _method = "fitc"
 
 
 class VFE(_SparseGP):
-    """Titsias's variational sparse GP (collapsed VFE bound), same parameters as :class:`FITC`.
-
-    Among them ``device``: where the hyper-parameters are optimised and the predictor lives;
-    default CPU; float64 throughout.
-
-    ``diagnostics["log_marginal_likelihood"]`` holds the bound (≤ the exact log marginal
-    likelihood), summed over outputs, in raw target units.
-    """
+    """Titsias's variational sparse GP, parameters as :class:`FITC`; its
+    ``diagnostics["log_marginal_likelihood"]`` is the bound."""
 
     _method = "vfe"

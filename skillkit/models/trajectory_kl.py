@@ -1,54 +1,17 @@
 r"""Trajectory-KL model learning (Sec. 4.2.4, Eqs 4.5–4.16, Appendix B).
 
-The thesis fits a probabilistic forward model p(x′ | x, u; θ) by minimising the KL between
-the marginals p_t(x) of predicted trajectories and the observed marginals q_t(x), subject to
-feature-matching constraints that link the time steps (4.10–4.13). With M observed
-trajectories the marginals are reweightings of the samples x_{i,t}, and the dual is (4.16)
+A forward model p(x′ | x, u; θ) is fitted by minimising the KL between predicted and
+observed state marginals under feature-matching constraints (4.10–4.13). With M observed
+trajectories the dual is (4.16)
 
 .. math::
     g(\gamma_{1:T}, \theta) = -\sum_{t=1}^T \log \frac1M \sum_{i=1}^M
         \exp\big(\gamma_t^\top \phi(x_{i,t}) - \gamma_{t+1}^\top \psi_{i,t}(\theta)\big)
         + \gamma_1^\top \hat\phi, \qquad \gamma_{T+1} \equiv 0,
 
-with ψ_{i,t}(θ) = E[φ(x′) | x_{i,t}, u_{i,t}; θ] the model's expected next-state feature
-(the integral over π(u|x) is the recorded control of the sample, as the sum over samples is
-the integral over q_t). The pieces, in the order they run:
-
-* :func:`state_features` — φ(x) = [x, x_i x_j (i ≤ j)] (linear and quadratic features;
-  ``cross=False`` keeps only the squares x_i²);
-* :func:`gaussian_expected_features` / :func:`gaussian_expected_features_vjp` — ψ = E[φ(x′)]
-  of a Gaussian prediction N(μ, diag v) and its gradient in closed form (B.7:
-  E[x_i x_j] = μ_i μ_j + δ_ij v_i, so ∂E[x_i²] = 2 μ_i ∂μ_i + ∂v_i);
-* :func:`trajectory_kl_dual` — g, its gradients B.4, B.5 in γ and ∂g/∂ψ (whose contraction
-  with ∂ψ/∂θ is B.6), and the marginals (4.14) as weights p_{t,i}; every sum over samples is
-  one shifted exponential (log-sum-exp), as in :func:`~skillkit.search.reps.reps_dual`;
-* two model classes with a flat parameter vector θ, each giving the predictive moments and
-  their vector–Jacobian product: :class:`LinearGaussianTKL` (x′ ~ N(Ax + Bu + c, diag σ²),
-  closed form) and :class:`PseudoDataGP` (the FITC conditional p(x′ | x, u, Z, U) whose
-  pseudo-inputs Z and pseudo-targets U are parameters, with the kernel hyper-parameters —
-  the route Sec. 4.2.4 names for GPs; its Jacobian product comes from torch autograd);
-* :func:`fit_one_step` (one-step maximum likelihood, the usual training) and
-  :func:`fit_trajectory_kl` (the dual), both L-BFGS over θ with analytic gradients.
-
-Direction of the optimisation
------------------------------
-g is concave in γ (minus a log-sum-exp of functions linear in γ): it is the Lagrange dual of
-the *minimisation* (4.10), so it is maximised over the multipliers, D(θ) = max_γ g(γ, θ) =
-min_p Σ_t KL(p_t ‖ q_t) (strong duality: the primal is convex in p). The thesis says
-"minimise the dual"; literally minimising (4.16) over γ is unbounded below. B.4–B.6 are the
-gradients of this g, so its sign is fixed; the model is trained by min_θ D(θ), with
-∇D(θ) = ∂g/∂θ at γ*(θ) (Danskin's theorem, B.6). :func:`fit_trajectory_kl` solves the inner
-maximisation by Newton's method (the Hessian in γ is block-tridiagonal in time) to a Newton
-decrement of 1e-12 for every θ the outer L-BFGS evaluates (warm-started).
-
-Feasibility. The sample-based constraints can be infeasible: the predicted feature average
-must lie in the convex hull of the observed features at the next step. Then D(θ) = +∞ and γ
-diverges. ``ridge`` λ > 0 subtracts (λ/2) Σ_t ‖γ_t‖² from g, which is the dual of the primal
-with the equality constraints replaced by the penalty (1/2λ) ‖residual‖² (soft feature
-matching); λ = 0 is the thesis's hard constraint. Features are standardised by the observed
-features' mean and standard deviation before the dual sees them (an invertible affine map:
-the hard constraint set is unchanged, λ acts in standard units).
-"""
+with ψ_{i,t}(θ) = E[φ(x′) | x_{i,t}, u_{i,t}; θ] (B.7). g is concave in γ, so the model is
+trained by min_θ D(θ), D(θ) = max_γ g(γ, θ), ∇D = ∂g/∂θ at γ* (B.6). Infeasible constraints
+give D = +∞; ``ridge`` λ > 0 subtracts (λ/2) Σ_t ‖γ_t‖² from g (soft matching)."""
 
 from __future__ import annotations
 
@@ -84,9 +47,7 @@ __all__ = [
 VJP = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 
-# --------------------------------------------------------------------------- features
 def _pairs(n: int, cross: bool) -> tuple[np.ndarray, np.ndarray]:
-    """Index pairs (i, j) of the quadratic features: i ≤ j with ``cross``, else i = j."""
     if cross:
         i, j = np.triu_indices(n)
         return i, j
@@ -94,41 +55,16 @@ def _pairs(n: int, cross: bool) -> tuple[np.ndarray, np.ndarray]:
 
 
 def state_features(x: ArrayLike, cross: bool = True) -> np.ndarray:
-    """Linear and quadratic state features φ(x) = [x, (x_i x_j)_{i ≤ j}] (Sec. 4.2.4, B.7).
+    """φ(x) = [x, (x_i x_j)_{i ≤ j}] (Sec. 4.2.4, B.7) for x (..., n): shape (..., F).
 
-    Parameters
-    ----------
-    x : array_like, shape (..., n)
-        States.
-    cross : bool
-        Include the products x_i x_j, i < j (F = n + n(n+1)/2); otherwise only the squares
-        (F = 2n).
-
-    Returns
-    -------
-    ndarray, shape (..., F)
-    """
+    ``cross=False`` keeps only the squares (F = 2n instead of n + n(n+1)/2)."""
     x = check_array(x, "x", ndim=(1, 2, 3))
     i, j = _pairs(x.shape[-1], cross)
     return np.concatenate([x, x[..., i] * x[..., j]], axis=-1)
 
 
 def gaussian_expected_features(mean: ArrayLike, var: ArrayLike, cross: bool = True) -> np.ndarray:
-    r"""ψ = E[φ(x′)] for x′ ~ N(μ, diag v), the features of :func:`state_features` (B.7).
-
-    .. math:: E[x'_i] = \mu_i, \qquad E[x'_i x'_j] = \mu_i \mu_j + \delta_{ij} v_i
-
-    Parameters
-    ----------
-    mean, var : array_like, shape (..., n)
-        Predictive mean μ and variances v ≥ 0 (independent output dimensions).
-    cross : bool
-        As :func:`state_features`.
-
-    Returns
-    -------
-    ndarray, shape (..., F)
-    """
+    r"""ψ = E[φ(x′)] for x′ ~ N(μ, diag v) (B.7): E[x′_i x′_j] = μ_i μ_j + δ_ij v_i."""
     mu = check_array(mean, "mean", ndim=(1, 2, 3))
     v = check_array(var, "var", shape=mu.shape)
     i, j = _pairs(mu.shape[-1], cross)
@@ -139,25 +75,7 @@ def gaussian_expected_features(mean: ArrayLike, var: ArrayLike, cross: bool = Tr
 def gaussian_expected_features_vjp(
     mean: ArrayLike, grad_features: ArrayLike, cross: bool = True
 ) -> tuple[np.ndarray, np.ndarray]:
-    r"""Gradient of L(ψ(μ, v)) in μ and v given ∂L/∂ψ, in closed form (B.7).
-
-    .. math:: \frac{\partial L}{\partial \mu_k} = g^{lin}_k + \sum_{(i,j)} g_{ij}
-              (\delta_{ik}\mu_j + \delta_{jk}\mu_i), \qquad
-              \frac{\partial L}{\partial v_k} = g_{kk}
-
-    (for a square, 2 μ_k g_kk: the thesis's ∂E[x_i²]/∂θ = 2 μ_i ∂μ_i/∂θ + ∂Σ_ii/∂θ).
-
-    Parameters
-    ----------
-    mean : array_like, shape (..., n)
-    grad_features : array_like, shape (..., F)
-        ∂L/∂ψ with F as in :func:`state_features`.
-    cross : bool
-
-    Returns
-    -------
-    grad_mean, grad_var : ndarray, shape (..., n)
-    """
+    r"""∂L/∂μ and ∂L/∂v (..., n) from ∂L/∂ψ (..., F) in closed form (B.7)."""
     mu = check_array(mean, "mean", ndim=(1, 2, 3))
     n = mu.shape[-1]
     i, j = _pairs(n, cross)
@@ -173,22 +91,11 @@ def gaussian_expected_features_vjp(
     return grad_mean, grad_var
 
 
-# --------------------------------------------------------------------------- the dual
 @dataclass(frozen=True)
 class DualValue:
-    """:func:`trajectory_kl_dual`'s result.
-
-    Attributes
-    ----------
-    value : float
-        g(γ, θ) of (4.16) (minus (λ/2) Σ ‖γ_t‖² with a ridge λ).
-    grad_gamma : ndarray, shape (T, F)
-        ∂g/∂γ_t: B.4 (t = 1) and B.5 (t > 1).
-    grad_predicted : ndarray, shape (T − 1, M, F)
-        ∂g/∂ψ_{i,t} = p_{t,i} γ_{t+1}; contracted with ∂ψ/∂θ it is B.6.
-    weights : ndarray, shape (T, M)
-        The marginals p_t(x_{i,t}) of (4.14) on the samples (each row sums to one).
-    """
+    """:func:`trajectory_kl_dual`'s result: ``value`` g(γ, θ) (4.16) less (λ/2) Σ ‖γ_t‖²,
+    ``grad_gamma`` ∂g/∂γ_t (T, F) (B.4, B.5), ``grad_predicted`` ∂g/∂ψ_{i,t} = p_{t,i} γ_{t+1}
+    (T − 1, M, F) (B.6 before ∂ψ/∂θ) and ``weights`` p_t(x_{i,t}) (T, M) of (4.14)."""
 
     value: float
     grad_gamma: np.ndarray
@@ -197,7 +104,6 @@ class DualValue:
 
 
 def _dual(gammas, features, predicted, phi_hat, ridge) -> DualValue:
-    """Unchecked core of :func:`trajectory_kl_dual`."""
     T, M, _ = features.shape
     a = np.einsum("tf,tmf->tm", gammas, features)
     a[:-1] -= np.einsum("tf,tmf->tm", gammas[1:], predicted)
@@ -224,29 +130,9 @@ def trajectory_kl_dual(
 ) -> DualValue:
     r"""The sample-based dual (4.16), its gradients (B.4–B.6) and the marginals (4.14).
 
-    .. math::
-        g = -\sum_{t=1}^T \log \frac1M \sum_i \exp(a_{t,i}) + \gamma_1^\top\hat\phi
-            - \frac\lambda2 \sum_t \|\gamma_t\|^2, \quad
-        a_{t,i} = \gamma_t^\top\phi(x_{i,t}) - \gamma_{t+1}^\top \psi_{i,t}, \quad
-        a_{T,i} = \gamma_T^\top\phi(x_{i,T})
-
-    Parameters
-    ----------
-    gammas : array_like, shape (T, F)
-        Lagrange multipliers γ_1 … γ_T.
-    features : array_like, shape (T, M, F)
-        φ(x_{i,t}) of the observed states, time-major.
-    predicted : array_like, shape (T − 1, M, F)
-        ψ_{i,t} = E[φ(x′) | x_{i,t}, u_{i,t}; θ], t = 1 … T − 1.
-    phi_hat : array_like, shape (F,), optional
-        The observed initial feature average φ̂ of (4.9) (default: the mean of features[0]).
-    ridge : float
-        λ ≥ 0 (soft feature matching, see the module notes); 0 is (4.16) exactly.
-
-    Returns
-    -------
-    DualValue
-    """
+    ``gammas`` (T, F), ``features`` φ(x_{i,t}) (T, M, F) time-major, ``predicted`` ψ_{i,t}
+    (T − 1, M, F), ``phi_hat`` φ̂ of (4.9) (default: the mean of ``features[0]``), ``ridge``
+    λ ≥ 0."""
     phi = check_array(features, "features", ndim=3)
     T, M, F = phi.shape
     if T < 2:
@@ -258,7 +144,6 @@ def trajectory_kl_dual(
     return _dual(g, phi, psi, ph, lam)
 
 
-# --------------------------------------------------------------------------- model classes
 def _check_inputs(model, x, u) -> tuple[np.ndarray, np.ndarray]:
     x = check_array(x, "x", shape=(None, model.state_dim))
     u = check_array(u, "u", shape=(x.shape[0], model.control_dim))
@@ -266,17 +151,7 @@ def _check_inputs(model, x, u) -> tuple[np.ndarray, np.ndarray]:
 
 
 class LinearGaussianTKL:
-    """x′ ~ N(A x + B u + c, diag σ²): θ = [vec A, vec B, c, log σ²] (row-major).
-
-    The model class where the feature constraints can hold exactly (Sec. 4.2.4): the
-    propagated mean and second moments of a linear-Gaussian system are again those of the
-    data-generating system when θ is the truth.
-
-    Parameters
-    ----------
-    state_dim, control_dim : int
-        n and m.
-    """
+    """x′ ~ N(A x + B u + c, diag σ²) with θ = [vec A, vec B, c, log σ²] (row-major)."""
 
     def __init__(self, state_dim: int, control_dim: int):
         self.state_dim = check_count(state_dim, "state_dim")
@@ -285,7 +160,6 @@ class LinearGaussianTKL:
         self.n_params = n * n + n * m + 2 * n
 
     def pack(self, A: ArrayLike, B: ArrayLike, c: ArrayLike, var: ArrayLike) -> np.ndarray:
-        """θ from A (n, n), B (n, m), c (n,) and the noise variances σ² (n,) > 0."""
         n, m = self.state_dim, self.control_dim
         A = check_array(A, "A", shape=(n, n))
         B = check_array(B, "B", shape=(n, m))
@@ -296,7 +170,6 @@ class LinearGaussianTKL:
         return np.concatenate([A.ravel(), B.ravel(), c, np.log(v)])
 
     def unpack(self, theta: ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(A, B, c, σ²) from θ."""
         n, m = self.state_dim, self.control_dim
         th = check_array(theta, "theta", shape=(self.n_params,))
         A = th[: n * n].reshape(n, n)
@@ -305,21 +178,7 @@ class LinearGaussianTKL:
         return A, B, c, np.exp(th[-n:])
 
     def moments(self, theta: ArrayLike, x: ArrayLike, u: ArrayLike):
-        """Predictive mean and variance, and their vector–Jacobian product in closed form.
-
-        Parameters
-        ----------
-        theta : array_like, shape (P,)
-        x : array_like, shape (N, n)
-        u : array_like, shape (N, m)
-
-        Returns
-        -------
-        mean, var : ndarray, shape (N, n)
-        vjp : callable
-            (∂L/∂mean, ∂L/∂var) → ∂L/∂θ: [Gᵀx, Gᵀu, Σ G, Σ_N H ⊙ σ²] with G = ∂L/∂mean,
-            H = ∂L/∂var.
-        """
+        """Mean and variance (N, n) at x (N, n), u (N, m), and their vector–Jacobian product."""
         A, B, c, v = self.unpack(theta)
         x, u = _check_inputs(self, x, u)
         mean = x @ A.T + u @ B.T + c
@@ -334,7 +193,7 @@ class LinearGaussianTKL:
         return mean, var, vjp
 
     def init_theta(self, x, u, x_next, rng=None) -> np.ndarray:
-        """Least squares on [x, u, 1] and the residual variances (the one-step ML fit)."""
+        """Least squares on [x, u, 1] and the residual variances."""
         x, u = _check_inputs(self, x, u)
         y = check_array(x_next, "x_next", shape=x.shape)
         z1 = np.hstack([x, u, np.ones((x.shape[0], 1))])
@@ -351,35 +210,10 @@ class LinearGaussianTKL:
 class PseudoDataGP:
     r"""A FITC GP whose pseudo-inputs Z and pseudo-targets U are parameters (Sec. 4.2.4).
 
-    Per output e, with z = [x, u] and the squared-exponential kernel k_e (Eq. 2.25,
-    :func:`~skillkit.models.kernels.se_kernel`), the prediction is the FITC conditional
-    p(y | z, U) (Snelson & Ghahramani's likelihood of a target given the pseudo-targets):
-
-    .. math::
-        \mu_e(z) = m_e(z) + k_e(z, Z_e) K_e^{-1} U_e, \qquad
-        v_e(z) = \sigma_{f,e}^2 - k_e(z, Z_e) K_e^{-1} k_e(Z_e, z) + \sigma_{\varepsilon,e}^2,
-
-    K_e = k_e(Z_e, Z_e) + jitter·σ_f² I. In standard FITC the pseudo-targets are integrated
-    out; here they are parameters, so the training data themselves are θ — the model class
-    the thesis proposes for trajectory-KL training of GPs. θ = [Z (E·M·d), U (E·M),
-    log w (E·d), log σ_f² (E), log σ_ε² (E)] (log parameters, App. B.1). The prior mean
-    m(z) = [z, 1] W is fixed (not trained): ``mean_weights`` W, default x (Δx targets, the
-    state persists), or e.g. a least-squares linear fit of the data.
-
-    The moments' vector–Jacobian product comes from torch autograd (B.8/B.9's terms for this
-    parametrisation); the dual's part (B.4–B.7) is closed form.
-
-    Parameters
-    ----------
-    state_dim, control_dim : int
-        n (= E, the outputs) and m.
-    n_inducing : int
-        M pseudo-inputs per output.
-    mean_weights : array_like, shape (n + m + 1, n), optional
-        W of the prior mean.
-    jitter : float
-        Relative jitter on K (default 1e-6).
-    """
+    Per output e, with z = [x, u] and K_e = k_e(Z_e, Z_e) + jitter·σ_f² I,
+    μ_e(z) = m_e(z) + k_e(z, Z_e) K_e⁻¹ U_e and
+    v_e(z) = σ_{f,e}² − k_e(z, Z_e) K_e⁻¹ k_e(Z_e, z) + σ_{ε,e}²; θ = [Z, U, log w, log σ_f²,
+    log σ_ε²]. The prior mean m(z) = [z, 1] W (``mean_weights``, default: x persists) is fixed."""
 
     def __init__(
         self,
@@ -405,8 +239,7 @@ class PseudoDataGP:
         self.n_params = int(sum(self._sizes))
 
     def split(self, theta: ArrayLike) -> dict[str, np.ndarray]:
-        """θ's parts: ``Z`` (E, M, d), ``U`` (E, M), ``log_w`` (E, d), ``log_sf2``,
-        ``log_sn2`` (E,)."""
+        """θ's parts: Z (E, M, d), U (E, M), log_w (E, d), log_sf2, log_sn2 (E,)."""
         th = check_array(theta, "theta", shape=(self.n_params,))
         E, M, d = self.state_dim, self.n_inducing, self.state_dim + self.control_dim
         parts = np.split(th, np.cumsum(self._sizes)[:-1])
@@ -432,20 +265,7 @@ class PseudoDataGP:
         return mean, var
 
     def moments(self, theta: ArrayLike, x: ArrayLike, u: ArrayLike):
-        """Predictive mean and variance (N, n) and their vector–Jacobian product.
-
-        Parameters
-        ----------
-        theta : array_like, shape (P,)
-        x : array_like, shape (N, n)
-        u : array_like, shape (N, m)
-
-        Returns
-        -------
-        mean, var : ndarray, shape (N, n)
-        vjp : callable
-            (∂L/∂mean, ∂L/∂var) → ∂L/∂θ (torch autograd through the formulas above).
-        """
+        """Mean and variance (N, n) at x (N, n), u (N, m), and their vector–Jacobian product."""
         th = torch.tensor(check_array(theta, "theta", shape=(self.n_params,)), requires_grad=True)
         x, u = _check_inputs(self, x, u)
         z = torch.as_tensor(np.hstack([x, u]))
@@ -461,10 +281,8 @@ class PseudoDataGP:
         return mean.detach().numpy(), var.detach().numpy(), vjp
 
     def init_theta(self, x, u, x_next, rng=None) -> np.ndarray:
-        """A starting θ: Z by k-means++ on the standardised inputs (shared by the outputs),
-        w = the inputs' standard deviations, σ_f² = the residual variance of the prior mean,
-        σ_ε² = σ_f²/10, and U by least squares of the residuals given those (U enters the mean
-        linearly)."""
+        """A starting θ: Z by k-means++, w = std(z), σ_f² the residual variance, σ_ε² = σ_f²/10, U
+        by least squares."""
         x, u = _check_inputs(self, x, u)
         y = check_array(x_next, "x_next", shape=x.shape)
         z = np.hstack([x, u])
@@ -502,32 +320,13 @@ class PseudoDataGP:
 Model = LinearGaussianTKL | PseudoDataGP
 
 
-# --------------------------------------------------------------------------- training
 @dataclass(frozen=True)
 class TKLFit:
-    """A trained θ and what the optimisation says.
-
-    Attributes
-    ----------
-    theta : ndarray, shape (P,)
-    objective : float
-        The final objective: the negative mean one-step log-likelihood per transition
-        (:func:`fit_one_step`) or D(θ) = max_γ g (:func:`fit_trajectory_kl`, nats summed over
-        time steps).
-    n_iterations : int
-        Outer L-BFGS iterations.
-    message : str
-        The optimiser's message.
-    gammas : ndarray, shape (T, F) or (0, 0)
-        γ*(θ) (trajectory-KL only).
-    weights : ndarray, shape (T, M) or (0, 0)
-        The marginals (4.14) at the solution (trajectory-KL only).
-    kl : ndarray, shape (T,) or (0,)
-        KL(p_t ‖ q_t) = Σ_i p_{t,i} log(M p_{t,i}) per step (trajectory-KL only).
-    feature_residual : float
-        max_t ‖E_{p_t} φ − E_{p_{t−1}} ψ‖_∞ in standardised feature units (the constraint
-        4.12 residual; λ γ_t with a ridge λ; trajectory-KL only, else NaN).
-    """
+    """A trained ``theta`` (P,), the final ``objective`` (negative mean one-step log-likelihood,
+    or D(θ) in nats summed over time), outer ``n_iterations`` and the optimiser's ``message``;
+    for trajectory-KL also γ* ``gammas`` (T, F), the marginals ``weights`` (4.14) (T, M), the
+    per-step ``kl`` (T,) and the ``feature_residual`` max_t ‖E_{p_t} φ − E_{p_{t−1}} ψ‖_∞ of
+    (4.12) (NaN otherwise)."""
 
     theta: np.ndarray
     objective: float
@@ -540,15 +339,7 @@ class TKLFit:
 
 
 def one_step_log_likelihood(model: Model, theta, x, u, x_next) -> float:
-    """Mean log N(x′ | μ(x, u), diag v(x, u)) per transition (nats; summed over dimensions;
-    −inf when a predicted variance underflows to 0).
-
-    Parameters
-    ----------
-    model : LinearGaussianTKL or PseudoDataGP
-    theta : array_like, shape (P,)
-    x, u, x_next : array_like, shapes (N, n), (N, m), (N, n)
-    """
+    """Mean log N(x′ | μ(x, u), diag v(x, u)) per transition (nats; −inf if a variance is 0)."""
     mean, var, _ = model.moments(theta, x, u)
     y = check_array(x_next, "x_next", shape=mean.shape)
     with np.errstate(divide="ignore", invalid="ignore"):  # a variance of 0 gives −inf
@@ -564,23 +355,7 @@ def _lbfgs(fun, theta0, maxiter):
 
 
 def fit_one_step(model: Model, theta0, x, u, x_next, maxiter: int = 200) -> TKLFit:
-    """One-step maximum likelihood: maximise Σ_n log N(x′_n | μ(z_n), diag v(z_n)) over θ.
-
-    The usual training of a forward model (the likelihood of the transitions, Sec. 4.2.4's
-    starting point). L-BFGS with the gradient ∂/∂μ = (μ − x′)/v, ∂/∂v = (1/v − (x′−μ)²/v²)/2
-    through the model's vector–Jacobian product.
-
-    Parameters
-    ----------
-    model : LinearGaussianTKL or PseudoDataGP
-    theta0 : array_like, shape (P,)
-    x, u, x_next : array_like, shapes (N, n), (N, m), (N, n)
-    maxiter : int
-
-    Returns
-    -------
-    TKLFit
-    """
+    """One-step maximum likelihood of the transitions by L-BFGS from ``theta0``."""
     th0 = check_array(theta0, "theta0", shape=(model.n_params,))
     x, u = _check_inputs(model, x, u)
     y = check_array(x_next, "x_next", shape=x.shape)
@@ -624,30 +399,10 @@ def trajectory_kl_objective(
     ridge: float = 0.0,
     inner_maxiter: int = 100,
 ) -> tuple[float, np.ndarray, DualValue, np.ndarray]:
-    """D(θ) = max_γ g(γ, θ) and ∇D(θ) (B.6 at γ*, Danskin), for one θ.
+    """D(θ) = max_γ g(γ, θ) and ∇D(θ) (B.6 at γ*) for one θ.
 
-    Parameters
-    ----------
-    model : LinearGaussianTKL or PseudoDataGP
-    theta : array_like, shape (P,)
-    states : array_like, shape (M, T, n)
-        Observed trajectories x_{i,1..T} (trajectory-major).
-    controls : array_like, shape (M, T − 1, m)
-        The controls u_{i,t} applied between them.
-    gammas0 : array_like, shape (T, F), optional
-        Starting multipliers (default 0).
-    cross, ridge : as :func:`state_features`, :func:`trajectory_kl_dual`.
-    inner_maxiter : int
-        Newton iterations of the inner maximisation.
-
-    Returns
-    -------
-    value : float
-    grad : ndarray, shape (P,)
-    dual : DualValue or None
-        At γ*(θ); None when the hard constraints are infeasible (value = +inf, grad = 0).
-    gammas : ndarray, shape (T, F)
-    """
+    ``states`` (M, T, n), ``controls`` (M, T − 1, m). Returns the value, the gradient (P,), the
+    :class:`DualValue` at γ* (None, with value +inf, when infeasible) and γ* (T, F)."""
     X, U = _check_trajectories(model, states, controls)
     th = check_array(theta, "theta", shape=(model.n_params,))
     prob = _Problem(model, X, U, cross, check_positive(ridge, "ridge", allow_zero=True))
@@ -656,18 +411,11 @@ def trajectory_kl_objective(
 
 
 class _Infeasible(Exception):
-    """The inner maximum exceeds T log M: the hard constraints cannot hold (D(θ) = +∞)."""
+    """g exceeds T log M: the hard constraints cannot hold (D(θ) = +∞)."""
 
 
 def _newton_max(features, predicted, phi_hat, ridge, gammas0, maxiter, tol=1e-12):
-    """max_γ g(γ) by damped Newton steps with a backtracking line search.
-
-    The Hessian of g is block-tridiagonal in time: term t of (4.16) is a log-sum-exp of
-    a_{t,i} = [γ_t; γ_{t+1}]ᵀ [φ_{t,i}; −ψ_{t,i}], whose Hessian is minus the p_t-weighted
-    covariance of [φ_{t,i}; −ψ_{t,i}]. It is assembled densely (T F × T F) and solved by
-    Cholesky with a small relative damping. Stops when the Newton decrement ∇gᵀΔ falls below
-    ``tol`` (nats). Raises :class:`_Infeasible` when g exceeds T log M (λ = 0).
-    """
+    """max_γ g(γ) by damped Newton steps (block-tridiagonal Hessian) with backtracking."""
     T, M, F = features.shape
     bound = T * math.log(M)
     gam = gammas0.copy()
@@ -714,7 +462,6 @@ def _newton_max(features, predicted, phi_hat, ridge, gammas0, maxiter, tol=1e-12
 
 
 def _cholesky(H: np.ndarray, damping: float):
-    """(L, ok) of H + damping I (ok False when not positive definite)."""
     try:
         return np.linalg.cholesky(H + damping * np.eye(H.shape[0])), True
     except np.linalg.LinAlgError:
@@ -728,12 +475,7 @@ def _cho_solve(L: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 class _Problem:
-    """The standardised features of a data set and the nested evaluation of D(θ).
-
-    Infeasibility is detected exactly: with λ = 0 and feasible constraints, max_γ g = min_p
-    Σ_t KL(p_t ‖ q_t) ≤ T log M (a reweighting of M samples is at most log M from uniform),
-    so any γ with g(γ) > T log M proves D(θ) = +∞ (weak duality) and stops the inner solve.
-    """
+    """The standardised features of a data set and the nested evaluation of D(θ)."""
 
     def __init__(self, model, X, U, cross, ridge):
         self.model, self.cross, self.ridge = model, cross, ridge
@@ -781,37 +523,12 @@ def fit_trajectory_kl(
     inner_maxiter: int = 100,
     first_step: float = 1e-3,
 ) -> TKLFit:
-    """Trajectory-KL training: min_θ max_γ g(γ, θ) of (4.16) (see the module notes).
+    """Trajectory-KL training: min_θ max_γ g(γ, θ) of (4.16) by L-BFGS over θ from ``theta0``.
 
-    The outer L-BFGS over θ evaluates D(θ) by the inner Newton maximisation over γ
-    (warm-started from the previous evaluation's γ*) and its gradient by B.6 with B.7's
-    closed form and the model's vector–Jacobian product.
-
-    Parameters
-    ----------
-    model : LinearGaussianTKL or PseudoDataGP
-    theta0 : array_like, shape (P,)
-        Start (e.g. the one-step ML fit).
-    states : array_like, shape (M, T, n)
-        Observed trajectories.
-    controls : array_like, shape (M, T − 1, m)
-        Their controls.
-    cross : bool
-        Quadratic features with products (see :func:`state_features`).
-    ridge : float
-        λ ≥ 0 of :func:`trajectory_kl_dual`.
-    maxiter, inner_maxiter : int
-        L-BFGS iterations of the outer problem, Newton iterations of the inner one.
-    first_step : float
-        Largest length s of the outer optimiser's first trial step in θ (θ = θ₀ + s y,
-        L-BFGS on y); s is divided by 4 (up to 20 times) until the steepest-descent step of
-        length s lowers D. A unit first step typically leaves the feasible region, where
-        D = +∞ and the line search would stall at θ₀.
-
-    Returns
-    -------
-    TKLFit
-    """
+    ``states`` (M, T, n), ``controls`` (M, T − 1, m); ``cross`` and ``ridge`` as in
+    :func:`state_features` and :func:`trajectory_kl_dual`. ``first_step`` is the largest first
+    step in θ, divided by 4 until the steepest-descent step lowers D (a long step leaves the
+    feasible region)."""
     X, U = _check_trajectories(model, states, controls)
     th0 = check_array(theta0, "theta0", shape=(model.n_params,))
     prob = _Problem(model, X, U, cross, check_positive(ridge, "ridge", allow_zero=True))
@@ -829,8 +546,6 @@ def fit_trajectory_kl(
         warm["gammas"] = gammas
         return value, step * grad
 
-    # θ = θ₀ + s y: L-BFGS's first trial step has unit length in y, i.e. length s in θ, so
-    # it stays in the region where the constraints are feasible (D(θ) < ∞) near θ₀.
     step = check_positive(first_step, "first_step")
     start = prob.evaluate(th0, None, inner)
     if not np.isfinite(start[0]):
@@ -839,7 +554,6 @@ def fit_trajectory_kl(
                       "cannot hold on these samples (D = +inf); theta0 returned",
                       start[3], np.full((T, M), 1.0 / M), np.full(T, np.nan), math.inf)  # fmt: skip
     warm["gammas"] = start[3]
-    # Shrink s until the steepest-descent step of length s lowers D (stays feasible).
     direction = -start[1] / max(float(np.linalg.norm(start[1])), 1e-300)
     for _ in range(20):
         if prob.evaluate(th0 + step * direction, start[3], inner)[0] < start[0]:

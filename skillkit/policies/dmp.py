@@ -1,40 +1,16 @@
 """Discrete Dynamic Movement Primitives (thesis Sec. 2.2.1, Eqs. 2.21–2.23).
 
-Several joints share one phase variable z (Eq. 2.22, z_0 = 1), whose closed-form solution
+Joints share one phase z(t) = exp(−τ α_z t) (Eq. 2.22) driving a forcing term
+f(z) = φ(z)ᵀv of K normalised Gaussian basis functions times z. Each joint follows the
+spring-damper system (Eq. 2.21) with the moving goal of Kober et al. (2010), in real time t:
 
-    z(t) = exp(-tau * alpha_z * t)
+    g_t   = g + gd (t − T_end),            T_end = duration / τ,
+    qdd_t = τ² α_x (β_x (g_t − q_t) + (gd − qd_t) / τ) + τ² f(z_t; v).
 
-drives a forcing term f(z) = phi(z)^T v per joint, built from K normalised Gaussian basis
-functions multiplied by z. Each joint follows the spring-damper transformation system
-(Eq. 2.21) with the final-velocity (moving goal) extension of Kober et al. (2010,
-"Movement templates for learning of hitting and batting"), written in real time t:
-
-    g_t   = g + gd * (t - T_end),            T_end = duration / tau,
-    qdd_t = tau^2 alpha_x (beta_x (g_t - q_t) + (gd - qd_t) / tau) + tau^2 f(z_t; v).
-
-The moving goal g_t travels with the desired final velocity gd (ġ) and passes g at the
-nominal end of the movement T_end; with gd = 0 it is the fixed attractor g of Eq. 2.21.
-
-Two deliberate readings of the thesis's equations:
-
-* The damping term carries ``qd / tau`` (Ijspeert et al. 2013; Kober et al. [34]); the
-  thesis prints it as ``-qd``, which is the same at tau = 1. With it, tau is an exact time
-  scaling: a rollout at tau' equals the tau rollout evaluated
-  at time t * tau' / tau (gd, a real-time velocity, scales along). At tau = 1 the
-  equation is exactly Eq. 2.21 as printed, and the fit target Y below is exactly Eq. 2.23.
-* Integration is *exact* for the linear part: the transformation system is a linear
-  time-invariant ODE per joint driven by u(t) = tau^2 alpha_x beta_x g_t + tau alpha_x gd
-  + tau^2 f(z_t); it is discretised with the matrix exponential and a first-order hold
-  on u between grid nodes (step at most ``dt``). The phase is evaluated in closed form.
-  With v = 0 the rollout equals the analytic solution to rounding error; with v ≠ 0 the
-  only error is the O(dt^2) linear interpolation of the smooth forcing term.
-
-Basis functions (fixed by ``n_basis``, ``alpha_z`` and ``duration``): centres
-c_i = exp(-alpha_z * s_i) at times s_i evenly spaced on [0, duration] (tau = 1), and
-bandwidths sigma_i = (c_i - c_{i+1}) / sqrt(2) (the last one reuses its neighbour's gap),
-so neighbouring Gaussians cross at exp(-1/4) of their peak. One basis function has sigma = 1
-(after normalisation it is simply z).
-"""
+The damping term carries qd/τ (Ijspeert et al. 2013), so τ is an exact time scaling; at
+τ = 1 this is Eq. 2.21 as printed. The linear ODE is integrated exactly (matrix exponential,
+first-order hold on the input between nodes of step ≤ ``dt``). Basis centres
+c_i = exp(−α_z s_i) at times s_i evenly spaced on [0, duration], widths (c_i − c_{i+1})/√2."""
 
 from __future__ import annotations
 
@@ -55,11 +31,7 @@ _LEARNABLE = ("weights", "goal", "goal_velocity", "tau")
 
 
 def _expm_small(m: np.ndarray) -> np.ndarray:
-    """exp(m) for a small dense matrix: scaling and squaring of a degree-12 Taylor polynomial.
-
-    After scaling, ||m / 2^s||_1 <= 1/4, so the truncation error is below 0.25^13 / 13! ~ 2e-18
-    (relative); cheaper than :func:`scipy.linalg.expm` for 4x4 matrices.
-    """
+    """exp(m) of a small matrix: scaling and squaring of a degree-12 Taylor polynomial."""
     norm = float(np.abs(m).sum(axis=0).max())
     s = max(0, int(np.ceil(np.log2(norm / 0.25)))) if norm > 0 else 0
     x = m / 2.0**s
@@ -75,19 +47,8 @@ def _expm_small(m: np.ndarray) -> np.ndarray:
 
 @functools.lru_cache(maxsize=64)
 def _discretise(h: float, stiffness: float, damping: float):
-    """Exact discretisation of q'' = -stiffness q - damping q' + u, u linear on [0, h].
-
-    With s = [q, q'], A = [[0, 1], [-stiffness, -damping]], B = [0, 1]^T and the augmented
-    matrix M = [[A, B, 0], [0, 0, 1], [0, 0, 0]] (input u and its slope u'), exp(M h) gives
-
-        s(h) = Phi s(0) + g_u u(0) + g_du u'   (Phi = exp(A h)).
-
-    Returns
-    -------
-    phi : ndarray, shape (2, 2)
-    g_u, g_du : ndarray, shape (2,)
-        Read-only (the result is cached).
-    """
+    """Exact discretisation of q'' = −stiffness q − damping q' + u with u linear on [0, h]:
+    s(h) = Φ s(0) + g_u u(0) + g_du u' (read-only, cached)."""
     m = np.zeros((4, 4))
     m[0, 1] = 1.0
     m[1, 0], m[1, 1], m[1, 2] = -stiffness, -damping, 1.0
@@ -102,34 +63,11 @@ def _discretise(h: float, stiffness: float, damping: float):
 class DMP:
     """Discrete DMP for ``n_joints`` joints sharing one phase (Eqs. 2.21–2.23).
 
-    Parameters
-    ----------
-    n_joints : int
-        Number of joints (transformation systems).
-    n_basis : int
-        Number K of basis functions per joint.
-    alpha_x, beta_x : float
-        Spring-damper gains of Eq. 2.21 (beta_x = alpha_x / 4 is critically damped).
-    alpha_z : float
-        Phase decay rate of Eq. 2.22 (1/s at tau = 1).
-    dt : float
-        Largest integration step in seconds.
-    duration : float
-        Nominal movement duration at tau = 1 (s): basis centres are spaced evenly in time
-        over [0, duration] and the moving goal reaches g at ``duration / tau``.
-        :meth:`fit` replaces it by the demonstration's duration times tau.
-
-    Attributes
-    ----------
-    weights : ndarray, shape (n_joints, n_basis)
-        Shape parameters v (zero until fitted).
-    goal : ndarray, shape (n_joints,) or None
-        Attractor g (None until fitted or set).
-    goal_velocity : ndarray, shape (n_joints,)
-        Final velocity gd (zero by default).
-    tau : float
-        Time scaling (> 0).
-    """
+    ``n_basis`` K basis functions per joint; ``alpha_x``, ``beta_x`` the spring-damper gains of
+    Eq. 2.21 (β_x = α_x/4: critically damped); ``alpha_z`` the phase decay of Eq. 2.22; ``dt``
+    the largest integration step (s); ``duration`` the nominal duration at τ = 1 (s). The
+    learned ``weights`` v (n_joints, n_basis), ``goal`` g, ``goal_velocity`` gd and ``tau`` are
+    attributes."""
 
     def __init__(
         self,
@@ -162,16 +100,15 @@ class DMP:
             f"beta_x={number(self.beta_x)}, alpha_z={number(self.alpha_z)})"
         )
 
-    # ------------------------------------------------------------------ basis
     @property
     def centers(self) -> np.ndarray:
-        """Basis centres c_i in phase space, shape (n_basis,), decreasing from 1."""
+        """Basis centres c_i in phase space, decreasing from 1."""
         s = np.linspace(0.0, self.duration, self.n_basis)
         return np.exp(-self.alpha_z * s)
 
     @property
     def widths(self) -> np.ndarray:
-        """Basis bandwidths sigma_i, shape (n_basis,) (see the module docstring)."""
+        """Basis bandwidths σ_i."""
         c = self.centers
         if self.n_basis == 1:
             return np.ones(1)
@@ -179,49 +116,21 @@ class DMP:
         return np.append(gaps, gaps[-1]) / np.sqrt(2.0)
 
     def phase(self, t, tau: float | None = None) -> np.ndarray:
-        """Phase z(t) = exp(-tau alpha_z t), the solution of Eq. 2.22 with z_0 = 1.
-
-        Parameters
-        ----------
-        t : array_like
-            Times since the start of the movement (s), any shape.
-        tau : float, optional
-            Time scaling (default: ``self.tau``).
-        """
+        """z(t) = exp(−τ α_z t), Eq. 2.22 (default τ: ``self.tau``)."""
         tau = self.tau if tau is None else check_positive(tau, "tau")
         return np.exp(-tau * self.alpha_z * np.asarray(t, dtype=np.float64))
 
     def basis(self, z) -> np.ndarray:
-        """Basis vector phi(z) of the forcing term f(z; v) = phi(z)^T v.
-
-        phi_i(z) = z exp(-(z - c_i)^2 / (2 sigma_i^2)) / sum_j exp(-(z - c_j)^2 / (2 sigma_j^2)).
-
-        Parameters
-        ----------
-        z : array_like, shape (n,)
-            Phase values.
-
-        Returns
-        -------
-        ndarray, shape (n, n_basis)
-        """
+        """φ(z) (n, n_basis): φ_i(z) = z ψ_i(z) / Σ_j ψ_j(z), ψ_i(z) = exp(−(z − c_i)² /
+        (2σ_i²))."""
         z = check_array(z, "z", ndim=1)
         log_psi = -((z[:, None] - self.centers) ** 2) / (2.0 * self.widths**2)
         log_psi -= log_psi.max(axis=1, keepdims=True)  # normalise stably
         psi = np.exp(log_psi)
         return psi / psi.sum(axis=1, keepdims=True) * z[:, None]
 
-    # -------------------------------------------------------------- parameters
     def replace(self, *, weights=None, goal=None, goal_velocity=None, tau=None) -> DMP:
-        """A copy with some of {weights, goal, goal_velocity, tau} replaced (validated).
-
-        Parameters
-        ----------
-        weights : array_like, shape (n_joints, n_basis), optional
-        goal, goal_velocity : array_like, shape (n_joints,), optional
-        tau : float, optional
-            Must be > 0.
-        """
+        """A copy with some of weights, goal, goal_velocity, tau replaced (validated)."""
         new = copy.deepcopy(self)
         J, K = self.n_joints, self.n_basis
         if weights is not None:
@@ -234,42 +143,14 @@ class DMP:
             new.tau = check_positive(tau, "tau")
         return new
 
-    # --------------------------------------------------------------------- fit
     def fit(self, times, q, qd, qdd, tau: float = 1.0, ridge: float = 0.0) -> DMP:
-        """Fit the shape weights v to a demonstration by least squares (Eq. 2.23).
+        """Fit the weights v to a demonstration by least squares (Eq. 2.23); returns ``self``.
 
-        Sets ``goal`` to the last demonstrated position, ``goal_velocity`` to the last
-        demonstrated velocity, ``tau`` to ``tau`` and ``duration`` to
-        tau * (times[-1] - times[0]); then solves, for all joints at once,
-
-            v = argmin ||Phi v - Y||^2 + ridge ||v||^2,
-            Y = qdd / tau^2 - alpha_x (beta_x (g_t - q) + (gd - qd) / tau),
-
-        with Phi[t, :] = phi(z(times[t] - times[0])). At tau = 1, gd = 0 this is Eq. 2.23.
-
-        Parameters
-        ----------
-        times : array_like, shape (N,)
-            Strictly increasing time stamps (s); the movement starts at ``times[0]``.
-        q, qd, qdd : array_like, shape (N, n_joints)
-            Demonstrated positions, velocities and accelerations.
-        tau : float
-            Time scaling at which the demonstration was performed (> 0).
-        ridge : float
-            Tikhonov regulariser (>= 0); use a small value when the demonstration does
-            not excite every basis function.
-
-        Returns
-        -------
-        DMP
-            ``self``, fitted.
-
-        Warns
-        -----
-        RuntimeWarning
-            If the basis matrix is rank deficient and ``ridge`` is 0 (the minimum-norm
-            solution is returned).
-        """
+        Sets ``goal`` and ``goal_velocity`` to the last demonstrated position and velocity, ``tau``
+        and ``duration`` = τ (times[-1] − times[0]), then solves
+        v = argmin ‖Φ v − Y‖² + ridge ‖v‖² with Y of :meth:`forcing_target` for ``times`` (N,)
+        and q, qd, qdd (N, n_joints). A rank-deficient basis with ``ridge=0`` warns
+        (``RuntimeWarning``)."""
         times = check_array(times, "times", ndim=1)
         n = times.shape[0]
         if n < 2:
@@ -303,24 +184,7 @@ class DMP:
         return self
 
     def forcing_target(self, times, q, qd, qdd) -> np.ndarray:
-        """The regression target Y of Eq. (2.23) that :meth:`fit` fits φ(z_t)ᵀv to.
-
-        Y = q̈ / τ² − α_x (β_x (g_t − q) + (ġ − q̇) / τ), with this DMP's ``goal`` g,
-        ``goal_velocity`` ġ and ``tau`` τ, and the moving goal g_t = g + ġ (t − duration / τ);
-        with τ = 1 and ġ = 0 it is Eq. (2.23) as printed. On the demonstration the DMP was
-        fitted to, φ(z_t)ᵀv is its least-squares fit.
-
-        Parameters
-        ----------
-        times : array_like, shape (N,)
-            Strictly increasing time stamps (s); the movement starts at ``times[0]``.
-        q, qd, qdd : array_like, shape (N, n_joints)
-            Positions, velocities and accelerations.
-
-        Returns
-        -------
-        ndarray, shape (N, n_joints)
-        """
+        """Eq. (2.23)'s target Y = q̈/τ² − α_x (β_x (g_t − q) + (ġ − q̇)/τ), shape (N, n_joints)."""
         if self.goal is None:
             raise ValueError("DMP.forcing_target: the DMP has no goal; fit() it first")
         t = check_array(times, "times", ndim=1)
@@ -337,40 +201,16 @@ class DMP:
         g_t = self._moving_goal(t, g, gd, tau)
         return qdd / tau**2 - self.alpha_x * (self.beta_x * (g_t - q) + (gd - qd) / tau)
 
-    # ----------------------------------------------------------------- rollout
     def grid(self, duration: float) -> np.ndarray:
-        """The output time grid used by :meth:`rollout` for a scalar ``duration``.
-
-        ``n = ceil(duration / dt)`` equal steps, so the grid ends exactly at ``duration``.
-
-        Returns
-        -------
-        ndarray, shape (n + 1,)
-        """
+        """The :meth:`rollout` grid for a ``duration``: ceil(duration / dt) equal steps."""
         duration = check_positive(duration, "duration")
         n = max(1, int(np.ceil(duration / self.dt - 1e-9)))
         return np.linspace(0.0, duration, n + 1)
 
     def forcing(self, t, tau: float | None = None, weights=None) -> np.ndarray:
-        """Forcing term f(z_t; v) = phi(z_t)^T v of Eq. 2.21.
-
-        Parameters
-        ----------
-        t : array_like, shape (n,)
-            Times since the start of the movement (s).
-        tau, weights : optional
-            Override ``self.tau`` and ``self.weights`` (n_joints, n_basis).
-
-        Returns
-        -------
-        ndarray, shape (n, n_joints)
-        """
+        """Forcing term f(z_t; v) (n, n_joints) at times ``t`` (n,) (Eq. 2.21)."""
         tau = self.tau if tau is None else check_positive(tau, "tau")
-        w = (
-            self.weights
-            if weights is None
-            else check_array(weights, "weights", shape=(self.n_joints, self.n_basis))
-        )
+        w = self._weights(weights)
         t = check_array(t, "t", ndim=1)
         return self.basis(self.phase(t, tau)) @ w.T
 
@@ -384,35 +224,12 @@ class DMP:
         tau: float | None = None,
         weights=None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Integrate the DMP (Eqs. 2.21–2.22 with the moving goal) from (q0, qd0).
+        """Integrate the DMP (Eqs. 2.21–2.22, moving goal) from (q0, qd0 = 0): q, qd, qdd (T,
+        n_joints).
 
-        Parameters
-        ----------
-        times : float or array_like, shape (T,)
-            A duration (s), giving the grid :meth:`grid` ``(duration)``; or uniformly
-            spaced, increasing time stamps, the movement starting at ``times[0]``.
-            Between output stamps the integrator takes equal substeps of at most ``dt``.
-        q0 : array_like, shape (n_joints,)
-            Initial positions.
-        qd0 : array_like, shape (n_joints,), optional
-            Initial velocities (default zero).
-        goal, goal_velocity, tau, weights : optional
-            Override the DMP's g (n_joints,), gd (n_joints,), tau (> 0) and v
-            (n_joints, n_basis) for this rollout.
-
-        Returns
-        -------
-        q, qd, qdd : ndarray, shape (T, n_joints)
-            Positions, velocities and accelerations at the output time stamps.
-
-        Raises
-        ------
-        ValueError
-            On malformed input (naming the argument), or if the DMP has no goal.
-        FloatingPointError
-            If the integration overflowed (e.g. an extreme tau); tasks report this as a
-            failed rollout.
-        """
+        ``times`` is a duration (the grid :meth:`grid`) or uniformly spaced increasing stamps;
+        ``goal``, ``goal_velocity``, ``tau`` and ``weights`` override the DMP's. Raises ValueError
+        on malformed input or a missing goal, FloatingPointError if the integration overflowed."""
         J = self.n_joints
         times = self._check_times(times)
         q0 = check_array(q0, "q0", shape=(J,))
@@ -425,11 +242,7 @@ class DMP:
         gd = self.goal_velocity if goal_velocity is None else goal_velocity
         gd = check_array(gd, "goal_velocity", shape=(J,))
         tau = self.tau if tau is None else check_positive(tau, "tau")
-        w = (
-            self.weights
-            if weights is None
-            else check_array(weights, "weights", shape=(J, self.n_basis))
-        )
+        w = self._weights(weights)
 
         t_out = times - times[0]
         if t_out.shape[0] == 1:
@@ -455,10 +268,12 @@ class DMP:
             raise FloatingPointError("DMP.rollout: the integration produced non-finite values")
         return q, qd, qdd
 
-    # ---------------------------------------------------------------- helpers
     def _moving_goal(self, t, goal, goal_velocity, tau) -> np.ndarray:
-        """g_t = g + gd (t - duration / tau), shape (len(t), n_joints)."""
         return goal + goal_velocity * (t[:, None] - self.duration / tau)
+
+    def _weights(self, weights) -> np.ndarray:
+        shape = (self.n_joints, self.n_basis)
+        return self.weights if weights is None else check_array(weights, "weights", shape=shape)
 
     def _check_times(self, times) -> np.ndarray:
         if np.ndim(times) == 0:
@@ -476,26 +291,8 @@ class DMP:
 
     @staticmethod
     def _integrate(s0, u, h, stiffness, damping) -> np.ndarray:
-        """Exact discretisation of s' = A s + B u with u linear between nodes.
-
-        s_{n+1} = Phi s_n + w_n with Phi = exp(A h) and w_n from the augmented matrix
-        exponential (first-order hold, see :func:`_discretise`). The recursion runs as a
-        second-order linear filter over all joints at once (Cayley–Hamilton:
-        s_{n+1} = tr s_n - det s_{n-1} + w_n + (Phi - tr I) w_{n-1}).
-
-        Parameters
-        ----------
-        s0 : ndarray, shape (2, J)
-            Initial [q; qd].
-        u : ndarray, shape (N, J)
-            Input at the grid nodes.
-        h : float
-            Grid step.
-
-        Returns
-        -------
-        ndarray, shape (N, 2, J)
-        """
+        """s_{n+1} = Φ s_n + w_n as a second-order linear filter over all joints (Cayley–Hamilton);
+        ``s0`` (2, J), ``u`` (N, J): returns (N, 2, J)."""
         phi, g_u, g_du = _discretise(h, stiffness, damping)
         du = np.diff(u, axis=0) / h
         w = g_u[None, :, None] * u[:-1, None, :] + g_du[None, :, None] * du[:, None, :]
@@ -510,24 +307,9 @@ class DMP:
 class DMPParameters:
     """Flat parameter vector ω over a chosen subset of a DMP's parameters.
 
-    The learned entries are, in this fixed order (whatever the order of ``learn``):
-    shape weights v (joint-major: ``w[j,i]`` is joint j, basis i), goal g (``g[j]``),
-    final velocity gd (``gd[j]``) and time scaling tau (``tau``). Everything not learned
-    stays as in ``dmp``.
-
-    Parameters
-    ----------
-    dmp : DMP
-        The template (usually fitted from a demonstration); it is not modified.
-    learn : sequence of {"weights", "goal", "goal_velocity", "tau"}
-        The parameters that form ω.
-
-    Examples
-    --------
-    Hockey (Sec. 3.4.2): fixed weights, learned g, gd and tau for 7 joints gives
-    ``DMPParameters(dmp, learn=("goal", "goal_velocity", "tau")).dim == 15`` (table tennis,
-    Sec. 3.4.3, learns the same for 8 joints: 17).
-    """
+    The learned entries, in this order: weights v (joint-major), goal g, final velocity gd and
+    τ; the rest stays as in ``dmp`` (not modified). E.g. hockey (Sec. 3.4.2) learns
+    ``("goal", "goal_velocity", "tau")`` for 7 joints: ``dim == 15``."""
 
     def __init__(self, dmp: DMP, learn: Sequence[str] = _LEARNABLE) -> None:
         if not isinstance(dmp, DMP):
@@ -579,13 +361,7 @@ class DMPParameters:
         return np.concatenate([np.asarray(parts[p](), dtype=np.float64) for p in self.learn])
 
     def from_vector(self, omega) -> DMP:
-        """A copy of the template DMP with the learned parameters taken from ω.
-
-        Parameters
-        ----------
-        omega : array_like, shape (dim,)
-            Finite; its ``tau`` entry (if learned) must be > 0.
-        """
+        """A copy of the template with the learned parameters from ``omega`` (τ > 0)."""
         omega = check_array(omega, "omega", shape=(self.dim,))
         J, K = self.dmp.n_joints, self.dmp.n_basis
         kw = {p: omega[self._slices[p]] for p in self.learn}

@@ -1,16 +1,8 @@
 """Context features φ(s) for linear-Gaussian upper-level policies and the REPS baseline.
 
-Two feature maps, selected by name:
-
-* ``"linear"``: φ(s) = s, so the policy mean a + Aφ(s) is affine in the context (Eq. 3.13)
-  and the REPS constraint (3.5) matches the context mean.
-* ``"quadratic"``: φ(s) = [s, upper triangle of s sᵀ (diagonal included)], so the REPS
-  constraint (3.5) matches the mean and the second moments of μ(s) (Sec. 3.2).
-
-Neither map contains a constant: the policy keeps its offset ``a`` separately, and a constant
-feature would leave the REPS dual (3.9) with a flat direction (the baseline is defined only up to
-a constant there).
-"""
+``"linear"``: φ(s) = s (Eq. 3.13); ``"quadratic"``: φ(s) = [s, s_i s_j for i ≤ j], so the
+REPS constraint (3.5) also matches second moments (Sec. 3.2). Neither has a constant: the
+policy keeps its offset, and a constant would leave the REPS dual (3.9) a flat direction."""
 
 from __future__ import annotations
 
@@ -25,17 +17,14 @@ FEATURES: tuple[str, ...] = ("linear", "quadratic")
 
 
 def check_feature_name(name: str, argname: str = "features") -> str:
-    """Return ``name`` if it names a feature map, else raise ``ValueError`` naming ``argname``."""
+    """``name`` if it names a feature map, else a ``ValueError`` naming ``argname``."""
     if name not in FEATURES:
         raise ValueError(f"{argname}: expected one of {FEATURES}, got {name!r}")
     return name
 
 
 def feature_dim(context_dim: int, name: FeatureName = "linear") -> int:
-    """Number of features F of the map ``name`` for contexts of dimension ``context_dim``.
-
-    ``linear``: F = n; ``quadratic``: F = n + n(n+1)/2.
-    """
+    """F of the map ``name`` for context dimension n: n (linear) or n + n(n+1)/2."""
     check_feature_name(name)
     if (
         isinstance(context_dim, bool)
@@ -50,23 +39,8 @@ def feature_dim(context_dim: int, name: FeatureName = "linear") -> int:
 def context_features(
     contexts, name: FeatureName = "linear", context_dim: int | None = None
 ) -> np.ndarray:
-    """Evaluate the feature map φ(s).
-
-    Parameters
-    ----------
-    contexts : array_like, shape (n, context_dim) or (context_dim,)
-        Contexts s, one per row (a single context may be given as a vector).
-    name : {"linear", "quadratic"}
-        The feature map.
-    context_dim : int, optional
-        Expected context dimension; checked when given.
-
-    Returns
-    -------
-    ndarray, shape (n, F) or (F,)
-        φ(s) per row; F = :func:`feature_dim` (context_dim, name). For ``"quadratic"`` the
-        columns are s_1..s_n followed by s_i s_j for i ≤ j in row-major order.
-    """
+    """φ(s) for ``contexts`` (n, context_dim) or (context_dim,): (n, F) or (F,), quadratic
+    products in row-major order; ``context_dim`` is checked when given."""
     check_feature_name(name)
     s = check_array(contexts, "contexts", ndim=(1, 2))
     single = s.ndim == 1

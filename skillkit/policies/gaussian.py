@@ -1,13 +1,9 @@
-"""Upper-level Gaussian policies π(ω) and π(ω|s) = N(a + Aφ(s), Σ) (Secs. 2.1.1, 3.3).
+"""Upper-level Gaussian policies π(ω|s) = N(a + Aφ(s), Σ) and π(ω) = N(μ, Σ) (Secs. 2.1.1, 3.3).
 
-:class:`LinearGaussianPolicy` is the contextual linear-Gaussian policy of Eq. (3.13) with
-pluggable context features φ (:mod:`skillkit.policies.features`); :class:`GaussianPolicy` is
-its context-free special case N(μ, Σ) used by episode-based REPS (2.12–2.15).
-
-Policies are immutable: :meth:`LinearGaussianPolicy.fit` returns a new policy (the weighted
-maximum-likelihood M-step of Eqs. 3.11–3.13, regularised) and :func:`trust_region_step`
-bounds its KL and entropy loss.
-"""
+Policies are immutable: :meth:`LinearGaussianPolicy.fit` returns the regularised weighted
+maximum-likelihood policy of Eqs. 3.11–3.13, and :func:`trust_region_step` bounds its KL and
+entropy loss. Contexts are (n, context_dim) or one (context_dim,); a context-free policy
+takes ``None`` (one sample) or ``np.zeros((n, 0))``."""
 
 from __future__ import annotations
 
@@ -32,28 +28,9 @@ RNG = np.random.Generator | np.random.SeedSequence | int | None
 
 @dataclass(frozen=True)
 class FitInfo:
-    """What a weighted maximum-likelihood fit (Eqs. 3.11–3.13) did.
-
-    Attributes
-    ----------
-    n_samples : int
-        Number of samples N.
-    effective_samples : float
-        Kish effective sample size (Σ p)² / Σ p² of the weights.
-    ridge : float
-        Relative ridge used in the regression of the mean (0 = plain Eq. 3.11).
-    cov_shrinkage : float
-        Weight κ of the previous Σ in Σ = (1 − κ) Σ_ML + κ Σ_old.
-    min_cov_ratio : float
-        Smallest eigenvalue of Σ_old^{-1/2} Σ Σ_old^{-1/2} before the floor (how much the
-        narrowest direction shrank relative to the previous policy).
-    n_floored : int
-        Number of those eigenvalues raised to the floor ``cov_floor`` (0 when the floor was
-        inactive).
-    n_conditioned : int
-        Number of eigenvalues of the new Σ raised to :data:`MIN_RELATIVE_EIGENVALUE` times its
-        largest one (the condition-number guard; 0 when inactive).
-    """
+    """What a weighted maximum-likelihood fit (Eqs. 3.11–3.13) did: samples, Kish effective sample
+    size, ridge, shrinkage κ, the smallest eigenvalue of Σ_old^{-1/2} Σ Σ_old^{-1/2} before the
+    floor, and how many eigenvalues the floor and the condition guard raised."""
 
     n_samples: int
     effective_samples: float
@@ -64,13 +41,12 @@ class FitInfo:
     n_conditioned: int = 0
 
 
-#: Condition-number guard of :meth:`LinearGaussianPolicy.fit_with_info`: no eigenvalue of a
-#: fitted Σ is left below this fraction of its largest one (condition number ≤ 1e12).
+#: No eigenvalue of a fitted Σ is left below this fraction of its largest one.
 MIN_RELATIVE_EIGENVALUE = 1e-12
 
 
 def effective_sample_size(weights: np.ndarray) -> float:
-    """Kish effective sample size (Σ w)² / Σ w² of non-negative weights, shape (N,)."""
+    """Kish effective sample size (Σ w)² / Σ w² of non-negative weights (N,)."""
     w = np.asarray(weights, dtype=np.float64)
     w = w / w.max()
     return float(w.sum() ** 2 / np.dot(w, w))
@@ -90,25 +66,9 @@ def _cholesky(cov: np.ndarray, name: str) -> np.ndarray:
 class LinearGaussianPolicy:
     r"""Contextual linear-Gaussian upper-level policy π(ω|s) = N(ω | a + A φ(s), Σ), Eq. (3.13).
 
-    Parameters
-    ----------
-    mean : array_like, shape (d,)
-        Offset a (the mean for φ(s) = 0; the mean itself for context-free policies).
-    cov : array_like, shape (d, d)
-        Covariance Σ, symmetric positive definite.
-    gain : array_like, shape (d, F), optional
-        Gain A on the context features (zeros if omitted); F = ``feature_dim(context_dim,
-        features)``.
-    context_dim : int
-        Dimension of the context s (0 for a context-free policy).
-    features : {"linear", "quadratic"}
-        Context feature map φ (:mod:`skillkit.policies.features`).
-
-    Notes
-    -----
-    Context arguments accept a batch of shape (n, context_dim) or a single context of shape
-    (context_dim,); a context-free policy takes ``np.zeros((n, 0))`` or ``None`` (one sample).
-    """
+    ``mean`` is the offset a (d,), ``cov`` Σ (d, d) symmetric positive definite, ``gain`` A
+    (d, F) (default zeros) on the context features φ named by ``features``
+    (:mod:`skillkit.policies.features`)."""
 
     def __init__(
         self, mean, cov, gain=None, context_dim: int = 0, features: FeatureName = "linear"
@@ -133,50 +93,41 @@ class LinearGaussianPolicy:
         for arr in (self._mean, self._cov, self._gain, self._chol):
             arr.setflags(write=False)
 
-    # ----------------------------------------------------------------- properties
     @property
     def dim(self) -> int:
-        """Dimension d of ω."""
         return int(self._mean.shape[0])
 
     @property
     def context_dim(self) -> int:
-        """Dimension of the context s."""
         return self._context_dim
 
     @property
     def features(self) -> str:
-        """Name of the context feature map φ."""
         return self._features
 
     @property
     def n_features(self) -> int:
-        """Number of context features F."""
         return int(self._gain.shape[1])
 
     @property
     def mean(self) -> np.ndarray:
-        """Offset a, shape (d,) (read-only)."""
         return self._mean
 
     @property
     def cov(self) -> np.ndarray:
-        """Covariance Σ, shape (d, d) (read-only)."""
         return self._cov
 
     @property
     def gain(self) -> np.ndarray:
-        """Gain A, shape (d, F) (read-only)."""
         return self._gain
 
     @property
     def coefficients(self) -> np.ndarray:
-        """[a, A] stacked column-wise, shape (d, 1 + F): the mean is [a, A] [1, φ(s)]."""
+        """[a, A], shape (d, 1 + F)."""
         return np.column_stack([self._mean, self._gain])
 
-    # ----------------------------------------------------------------- evaluation
     def phi(self, contexts: ArrayLike | None, name: str = "contexts") -> tuple[np.ndarray, bool]:
-        """Features of validated contexts: (φ, shape (n, F); whether a single context was given)."""
+        """φ of validated contexts (n, F), and whether one context was given."""
         if contexts is None:
             if self._context_dim:
                 raise ValueError(
@@ -195,32 +146,13 @@ class LinearGaussianPolicy:
         return phi, single
 
     def mean_of(self, contexts: ArrayLike | None = None) -> np.ndarray:
-        """Policy mean a + A φ(s) (Eq. 3.13).
-
-        Parameters
-        ----------
-        contexts : array_like, shape (n, context_dim) or (context_dim,), optional
-
-        Returns
-        -------
-        ndarray, shape (n, d) or (d,)
-        """
+        """Policy mean a + A φ(s) (Eq. 3.13): (n, d) or (d,)."""
         phi, single = self.phi(contexts)
         mu = self._mean + phi @ self._gain.T
         return mu[0] if single else mu
 
     def sample(self, contexts: ArrayLike | None = None, rng: RNG = None) -> np.ndarray:
-        """Draw ω ~ N(a + A φ(s), Σ) for each context.
-
-        Parameters
-        ----------
-        contexts : array_like, shape (n, context_dim) or (context_dim,), optional
-        rng : Generator, int or None
-
-        Returns
-        -------
-        ndarray, shape (n, d) or (d,)
-        """
+        """Draw ω ~ N(a + A φ(s), Σ) per context: (n, d) or (d,)."""
         rng = as_generator(rng)
         phi, single = self.phi(contexts)
         z = rng.standard_normal((phi.shape[0], self.dim))
@@ -228,18 +160,7 @@ class LinearGaussianPolicy:
         return omega[0] if single else omega
 
     def log_prob(self, omegas: ArrayLike, contexts: ArrayLike | None = None) -> np.ndarray | float:
-        """Log-density log N(ω | a + A φ(s), Σ).
-
-        Parameters
-        ----------
-        omegas : array_like, shape (n, d) or (d,)
-        contexts : array_like, shape (n, context_dim) or (context_dim,), optional
-            One context per ω (a context-free policy accepts ``None``).
-
-        Returns
-        -------
-        ndarray, shape (n,), or float for a single ω
-        """
+        """log N(ω | a + A φ(s), Σ) of ``omegas`` (n, d) or (d,), one context each."""
         w = check_array(omegas, "omegas", ndim=(1, 2))
         if w.shape[-1] != self.dim:
             raise ValueError(
@@ -260,27 +181,19 @@ class LinearGaussianPolicy:
         return float(out[0]) if single else out
 
     def log_det_cov(self) -> float:
-        """log det Σ."""
         return float(2.0 * np.sum(np.log(np.diag(self._chol))))
 
     def entropy(self) -> float:
-        """Differential entropy ½ log det(2πe Σ) of π(ω|s) (the same for every context)."""
+        """Differential entropy ½ log det(2πe Σ) (the same for every context)."""
         return 0.5 * (self.dim * (_LOG_2PI + 1.0) + self.log_det_cov())
 
     def kl(self, other: LinearGaussianPolicy, contexts: ArrayLike | None = None) -> float:
-        r"""KL(self ‖ other) averaged over contexts, in closed form.
+        r"""KL(self ‖ other) averaged over ``contexts``, in closed form.
 
         .. math:: \frac1n \sum_i \tfrac12\big[\mathrm{tr}(\Sigma_2^{-1}\Sigma_1)
                   + \delta_i^\top \Sigma_2^{-1} \delta_i - d
                   + \log\det\Sigma_2 - \log\det\Sigma_1\big],
                   \quad \delta_i = \mu_2(s_i) - \mu_1(s_i)
-
-        Parameters
-        ----------
-        other : LinearGaussianPolicy
-            Same ``dim`` and ``context_dim`` (its features may differ).
-        contexts : array_like, shape (n, context_dim) or (context_dim,), optional
-            Contexts to average over (not needed for context-free policies).
         """
         if not isinstance(other, LinearGaussianPolicy):
             raise ValueError(f"other: expected a LinearGaussianPolicy, got {type(other).__name__}")
@@ -297,7 +210,6 @@ class LinearGaussianPolicy:
         kl = 0.5 * (trace + maha - self.dim + other.log_det_cov() - self.log_det_cov())
         return float(np.mean(kl))
 
-    # ----------------------------------------------------------------- M-step
     def fit(
         self,
         contexts,
@@ -333,54 +245,15 @@ class LinearGaussianPolicy:
     ) -> tuple[LinearGaussianPolicy, FitInfo]:
         r"""Weighted maximum-likelihood estimate of a, A, Σ (Eqs. 3.11–3.13), regularised.
 
-        With normalised weights p_i = w_i / Σ w and Φ the feature rows φ(s_i):
+        With p_i = w_i / Σ w and centred features, A = Xᵀ(C + ``ridge`` diag C)⁻¹, a = ω̄ − A φ̄
+        (features without spread get a zero gain); Σ_ML = Σ p_i r_i r_iᵀ (3.12) is shrunk to
+        (1 − κ) Σ_ML + κ Σ_old (κ = ``cov_shrinkage`` ∈ [0, 1)), the eigenvalues of
+        Σ_old^{-1/2} Σ Σ_old^{-1/2} are floored at ``cov_floor`` ∈ (0, 1] and those of Σ at
+        :data:`MIN_RELATIVE_EIGENVALUE` times the largest. ``contexts`` (N, context_dim) or None,
+        ``omegas`` (N, d), non-negative ``weights`` (N,).
 
-        1. **Mean (3.11) with a relative ridge.** Centring with the weighted means φ̄, ω̄,
-           A = Xᵀ(C + Λ)⁻¹ and a = ω̄ − A φ̄, where C = Σ p_i (φ_i − φ̄)(φ_i − φ̄)ᵀ,
-           X = Σ p_i (φ_i − φ̄)(ω_i − ω̄)ᵀ and Λ = ``ridge`` · diag(C). With ``ridge=0`` this is
-           exactly (SᵀPS)⁻¹SᵀPB of Eq. (3.11); the offset is never penalised. A feature whose
-           weighted spread is at round-off level (≤ 1e-10 of its magnitude) is treated as
-           constant: the data say nothing about its gain column, which is set to 0.
-        2. **Covariance (3.12)**: Σ_ML = Σ p_i r_i r_iᵀ with residuals r_i = ω_i − a − A φ_i.
-        3. **Shrinkage towards the previous Σ**: Σ = (1 − κ) Σ_ML + κ Σ_old, κ = ``cov_shrinkage``.
-        4. **Floor relative to the previous Σ**: eigenvalues of Σ_old^{-1/2} Σ Σ_old^{-1/2} below
-           ``cov_floor`` are raised to it, so no direction shrinks by more than that factor in
-           one update and Σ stays positive definite even when the samples span fewer than d
-           directions. How often this happened is reported in :class:`FitInfo`.
-        5. **Condition-number guard**: eigenvalues of the new Σ below
-           :data:`MIN_RELATIVE_EIGENVALUE` (1e-12) times its largest are raised to that value,
-           so Σ stays numerically positive definite however long REPS keeps shrinking it
-           (counted in :attr:`FitInfo.n_conditioned`).
-
-        Parameters
-        ----------
-        contexts : array_like, shape (N, context_dim)
-            Contexts s_i (``np.zeros((N, 0))`` or ``None`` for a context-free policy).
-        omegas : array_like, shape (N, d)
-            Parameters ω_i.
-        weights : array_like, shape (N,)
-            Non-negative sample weights p_i (need not sum to one).
-        ridge : float
-            Relative ridge ≥ 0 on the gain regression.
-        cov_shrinkage : float
-            κ in [0, 1).
-        cov_floor : float
-            Relative eigenvalue floor in (0, 1].
-        min_effective_samples : float, optional
-            Smallest acceptable Kish effective sample size, finite and ≥ 0 (default d + 1:
-            fewer cannot determine a d×d covariance).
-
-        Returns
-        -------
-        (LinearGaussianPolicy, FitInfo)
-            The new policy (same class, features and context dimension) and what the fit did.
-
-        Raises
-        ------
-        ValueError
-            Wrong shapes, negative or non-finite weights, an effective sample size below
-            ``min_effective_samples`` (argument ``weights``), or weighted contexts without any
-            spread when the policy has a gain to fit (argument ``contexts``).
+        Raises ValueError on wrong shapes or weights, an effective sample size below
+        ``min_effective_samples`` (default d + 1) or contexts without spread when a gain is fitted.
         """
         ridge = check_positive(ridge, "ridge", allow_zero=True)
         kappa = check_positive(cov_shrinkage, "cov_shrinkage", allow_zero=True)
@@ -423,8 +296,7 @@ class LinearGaussianPolicy:
         n_feat = phi.shape[1]
         if n_feat:
             pc = phi - phibar
-            # A feature whose weighted spread is at round-off level carries no information
-            # about its gain column: treat it as exactly constant (its gain becomes 0).
+            # Features with round-off spread are constant (their gain becomes 0).
             spread = np.sqrt(np.maximum(p @ pc**2, 0.0))
             pc[:, spread <= 1e-10 * np.max(np.abs(phi), axis=0)] = 0.0
             C = (pc * p[:, None]).T @ pc
@@ -460,8 +332,7 @@ class LinearGaussianPolicy:
             root = self._chol @ vec
             cov = (root * np.maximum(lam, floor)) @ root.T
             cov = 0.5 * (cov + cov.T)
-        # 5. condition-number guard (REPS can shrink a direction geometrically until Σ is
-        # indefinite in round-off): raise eigenvalues to MIN_RELATIVE_EIGENVALUE·λ_max, count them
+        # 5. condition-number guard
         ev, evec = np.linalg.eigh(cov)
         low = MIN_RELATIVE_EIGENVALUE * ev[-1]
         n_conditioned = int(np.sum(ev < low))
@@ -472,18 +343,8 @@ class LinearGaussianPolicy:
         return self._new(a, cov, A), info
 
     def interpolate(self, other: LinearGaussianPolicy, t: float) -> LinearGaussianPolicy:
-        """The policy a fraction ``t`` of the way from this one to ``other``.
-
-        a_t = a + t (a' − a), A_t = A + t (A' − A), Σ_t = (1 − t) Σ + t Σ' (so the mean at
-        every context moves linearly and Σ_t stays positive definite).
-
-        Parameters
-        ----------
-        other : LinearGaussianPolicy
-            Same ``dim``, ``context_dim`` and features.
-        t : float
-            In [0, 1].
-        """
+        """The policy a fraction t ∈ [0, 1] of the way to ``other`` (same dimensions and features):
+        a and A linearly, Σ_t = (1 − t) Σ + t Σ'."""
         if not isinstance(other, LinearGaussianPolicy) or (
             other.dim,
             other.context_dim,
@@ -506,7 +367,6 @@ class LinearGaussianPolicy:
         return LinearGaussianPolicy(mean, cov, gain, self._context_dim, self._features)
 
     def _summary(self) -> str:
-        """mean a, standard deviations √diag Σ, condition number of Σ (and max |A_ij|)."""
         ev = np.linalg.eigvalsh(self._cov)
         text = (
             f"mean={vector(self._mean)}, std={span(np.sqrt(np.diag(self._cov)))}, "
@@ -524,18 +384,8 @@ class LinearGaussianPolicy:
 
 
 class GaussianPolicy(LinearGaussianPolicy):
-    """Context-free upper-level policy π(ω) = N(μ, Σ) (episode-based REPS, Eqs. 2.12–2.15).
-
-    The special case ``context_dim=0`` of :class:`LinearGaussianPolicy`; every method accepts
-    ``contexts=None`` (one sample) or ``np.zeros((n, 0))`` (n samples).
-
-    Parameters
-    ----------
-    mean : array_like, shape (d,)
-        μ.
-    cov : array_like, shape (d, d)
-        Σ, symmetric positive definite.
-    """
+    """Context-free upper-level policy π(ω) = N(μ, Σ) (episode-based REPS, Eqs. 2.12–2.15), the
+    ``context_dim=0`` case of :class:`LinearGaussianPolicy`."""
 
     def __init__(self, mean, cov):
         super().__init__(mean, cov, None, 0, "linear")
@@ -547,28 +397,11 @@ class GaussianPolicy(LinearGaussianPolicy):
         return f"GaussianPolicy(dim={self.dim}, {self._summary()})"
 
 
-# --------------------------------------------------------------------------- trust-region M-step
 @dataclass(frozen=True)
 class TrustRegionStep:
-    """What :func:`trust_region_step` did to a weighted maximum-likelihood fit.
-
-    Attributes
-    ----------
-    ml_kl : float
-        KL(π_ML ‖ π_old) of the weighted ML fit, averaged over the contexts.
-    ml_entropy_loss : float
-        H(π_old) − H(π_ML) of the fit (nats).
-    cov_scale : float
-        Factor c ≥ 1 applied to Σ_ML so that the entropy loss is at most the bound (1: the
-        entropy bound was inactive).
-    step : float
-        t in (0, 1]: the new policy lies this fraction of the way from π_old to the (scaled)
-        fit (1: the KL bound was inactive).
-    kl : float
-        KL(π_new ‖ π_old), averaged over the contexts (≤ ε up to 1e-9 relative).
-    entropy_loss : float
-        H(π_old) − H(π_new) (≤ the entropy bound).
-    """
+    """What :func:`trust_region_step` did: KL and entropy loss of the ML fit (``ml_kl``,
+    ``ml_entropy_loss``), the scale c ≥ 1 of Σ_ML, the interpolation step t ∈ (0, 1] and the
+    new policy's ``kl`` and ``entropy_loss`` (1, 1: the bounds were inactive)."""
 
     ml_kl: float
     ml_entropy_loss: float
@@ -584,34 +417,16 @@ def interpolation_kl(
     contexts: ArrayLike | None,
     t: ArrayLike,
 ) -> tuple[np.ndarray, np.ndarray]:
-    r"""KL(π_t ‖ π_old) of the interpolated policy π_t = ``old.interpolate(new, t)`` and its
-    derivative in t, in closed form.
+    r"""KL(π_t ‖ π_old) of π_t = ``old.interpolate(new, t)`` and its derivative in t.
 
-    With μ_i the eigenvalues of Σ_old⁻¹ Σ_new and M the context average of
-    δ(s)ᵀ Σ_old⁻¹ δ(s), δ(s) = μ_new(s) − μ_old(s):
+    With μ_i the eigenvalues of Σ_old⁻¹ Σ_new and M the context average of δᵀ Σ_old⁻¹ δ,
+    δ = μ_new(s) − μ_old(s):
 
     .. math::
         \mathrm{KL}(t) = \tfrac12 \sum_i \big(\lambda_i - 1 - \log\lambda_i\big)
             + \tfrac12 t^2 M, \quad \lambda_i = 1 + t(\mu_i - 1),
-        \qquad
-        \frac{d\,\mathrm{KL}}{dt} = \tfrac12 \sum_i (\mu_i - 1)\Big(1 - \frac1{\lambda_i}\Big)
-            + t M.
 
-    KL(t) is convex, KL(0) = 0 and KL′(0) = 0, so it increases on [0, 1].
-
-    Parameters
-    ----------
-    old, new : LinearGaussianPolicy
-        Same dimensions and features.
-    contexts : array_like, shape (n, context_dim), or None
-        Contexts the mean term is averaged over (``None`` for context-free policies).
-    t : array_like, shape (m,) or scalar
-        Fractions in [0, 1].
-
-    Returns
-    -------
-    kl, dkl : ndarray, shape of ``t``
-    """
+    convex and increasing on [0, 1]."""
     mu, maha = _interpolation_terms(old, new, contexts)
     t = np.asarray(t, dtype=np.float64)
     lam = 1.0 + t[..., None] * (mu - 1.0)
@@ -621,7 +436,6 @@ def interpolation_kl(
 
 
 def _interpolation_terms(old, new, contexts) -> tuple[np.ndarray, float]:
-    """Eigenvalues of Σ_old⁻¹Σ_new, shape (d,), and the mean Mahalanobis term M."""
     chol = old._chol
     m = linalg.solve_triangular(
         chol, linalg.solve_triangular(chol, new.cov, lower=True).T, lower=True
@@ -639,38 +453,13 @@ def trust_region_step(
     epsilon: float,
     max_entropy_loss: float,
 ) -> tuple[LinearGaussianPolicy, TrustRegionStep]:
-    r"""Make a weighted ML fit (Eqs. 3.11–3.13) keep REPS's KL bound and lose entropy slowly.
+    r"""Make a weighted ML fit keep REPS's KL bound (Eq. 3.4) and lose entropy slowly.
 
-    The REPS weights meet KL(p ‖ q) = ε on the samples (Eq. 3.4), but the Gaussian fitted to
-    them need not: with few effective samples Σ_ML is noisy and too small and
-    KL(π_ML ‖ π_old) can exceed ε. Two corrections, in this order:
-
-    1. **Entropy bound** (as in MORE, Abdolmaleki et al. 2015, here applied after the fit): if
-       H(π_old) − H(π_ML) > β = ``max_entropy_loss``, Σ_ML is scaled by
-       c = exp(2 (H(π_old) − H(π_ML) − β) / d), so the entropy loss is exactly β.
-    2. **KL bound**: if KL(π ‖ π_old) > ε, the policy is moved back towards π_old along
-       :meth:`LinearGaussianPolicy.interpolate` to the t in (0, 1) with KL(π_t ‖ π_old) = ε
-       (the closed form of :func:`interpolation_kl`, solved by Newton's method from t = 1,
-       which converges monotonically because KL(t) is convex and increasing). Interpolation
-       does not undo step 1: log det is concave, so the entropy loss of π_t is at most t β.
-
-    Parameters
-    ----------
-    old : LinearGaussianPolicy
-        π_old, the policy that drew the samples.
-    fitted : LinearGaussianPolicy
-        π_ML, the weighted ML fit.
-    contexts : array_like, shape (n, context_dim), or None
-        Contexts over which KL(π ‖ π_old) is averaged (the samples' contexts).
-    epsilon : float
-        KL bound ε > 0.
-    max_entropy_loss : float
-        β > 0, the largest entropy loss per update (nats).
-
-    Returns
-    -------
-    (LinearGaussianPolicy, TrustRegionStep)
-    """
+    First, if H(π_old) − H(π_ML) > β = ``max_entropy_loss``, Σ_ML is scaled by
+    c = exp(2 (H(π_old) − H(π_ML) − β) / d) (as in MORE, Abdolmaleki et al. 2015). Then, if
+    KL(π ‖ π_old) > ε = ``epsilon`` (averaged over ``contexts``), the policy is interpolated back
+    towards π_old to KL(π_t ‖ π_old) = ε (Newton's method on :func:`interpolation_kl`).
+    Returns the new policy and a :class:`TrustRegionStep`."""
     eps = check_positive(epsilon, "epsilon")
     beta = check_positive(max_entropy_loss, "max_entropy_loss")
     d = old.dim

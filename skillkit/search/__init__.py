@@ -1,13 +1,8 @@
-"""Policy search: REPS, GPREPS, PILCO, CrKR, RWR, their peers CMA-ES and BO, and the loop.
+"""Policy search: REPS, GPREPS, PILCO, CrKR, RWR, the peers CMA-ES, C-CMA-ES and BO, and the loop.
 
-The peers of the method comparison are :class:`CMAES` (the ``cma`` package) and
-:class:`ContextualBO` (BoTorch), exported lazily.
-
-Every algorithm holds a current ``policy`` (with ``sample(contexts, rng)`` and
-``mean_of(contexts)``) and an ``update(batch)`` taking one :class:`Batch` and returning
-diagnostics, so :func:`skillkit.search.loop.learn` runs any of them. The loop is built from
-:func:`collect` (one batch of rollouts), :class:`Evaluator` (the policy mean on fixed contexts)
-and :class:`LoopState` (what it has done; what it checkpoints).
+Every algorithm holds a ``policy`` (``sample(contexts, rng)``, ``mean_of(contexts)``) and an
+``update(batch)`` taking one :class:`Batch` and returning diagnostics, so
+:func:`~skillkit.search.loop.learn` runs any of them.
 """
 
 from skillkit.search.base import Batch, extra_context_importance
@@ -32,8 +27,7 @@ from skillkit.search.reps import (
 )
 from skillkit.search.rwr import RWR, RWRDiagnostics, rwr_beta, rwr_weighting, rwr_weights
 
-#: The peers of the method comparison, imported on first use (PEP 562): BoTorch is slow to
-#: import and the ``cma`` package imports pyplot, which importing skillkit must not.
+#: Imported on first use (PEP 562): BoTorch is slow to import and ``cma`` imports pyplot.
 _LAZY = {
     "CMAES": "skillkit.search.cmaes",
     "CMAESDiagnostics": "skillkit.search.cmaes",

@@ -1,19 +1,10 @@
-r"""What the search algorithms share: the batch, sample reuse and the weighted ML step.
+"""What the search algorithms share: the batch, sample reuse and the weighted ML step.
 
-Every algorithm's ``update`` takes one :class:`Batch` of samples (s_i, ω_i, R_i, and the
-trajectories τ_i they came from), validated once when it is built. Model-free algorithms use
-the (s, ω, R) arrays; a model-based one (GPREPS) also learns from the trajectories.
-
-Contextual REPS and RWR run the same loop (Table 3.1): take a batch of (s_i, ω_i, R_i), keep the
-last L batches (:class:`SampleBuffer`), weight the kept samples, and refit the linear-Gaussian
-policy by weighted maximum likelihood (Eqs. 3.11–3.13,
-:meth:`~skillkit.policies.gaussian.LinearGaussianPolicy.fit_with_info`). They differ only in
-the weights: REPS solves its dual for p_i ∝ exp((R_i − V(s_i))/η) (Eq. 3.10), RWR takes
-w_i ∝ exp(β R_i) (Eq. 2.18). :class:`WeightedMLSearch` runs the loop; a subclass supplies
-:meth:`~WeightedMLSearch._weigh` and its diagnostics dataclass, and may override two hooks
-(REPS does): :meth:`~WeightedMLSearch._importance` (importance weights of a new
-batch's rows, e.g. :func:`extra_context_importance` for re-scored extra-context rows) and
-:meth:`~WeightedMLSearch._m_step` (what becomes of the weighted ML fit).
+Every ``update`` takes one :class:`Batch` (s_i, ω_i, R_i and the trajectories τ_i).
+Contextual REPS and RWR run the same loop (Table 3.1), :class:`WeightedMLSearch`: keep the last
+L batches (:class:`SampleBuffer`), weight the kept samples (:meth:`~WeightedMLSearch._weigh`:
+Eq. 3.10 for REPS, Eq. 2.18 for RWR) and refit the linear-Gaussian policy by weighted maximum
+likelihood (Eqs. 3.11–3.13).
 """
 
 from __future__ import annotations
@@ -36,19 +27,9 @@ from skillkit.trajectory import Trajectory
 def check_batch(
     contexts: ArrayLike | None, omegas: ArrayLike, rewards: ArrayLike, dim: int, context_dim: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Validate one batch of samples for a policy of dimension ``dim`` and ``context_dim``.
+    """Validated (contexts, omegas, rewards) of shapes (N, context_dim), (N, dim), (N,).
 
-    Parameters
-    ----------
-    contexts : array_like, shape (N, context_dim)
-        ``None`` is accepted for context-free policies.
-    omegas : array_like, shape (N, dim)
-    rewards : array_like, shape (N,)
-        Must be finite (NaN/inf raise ``ValueError`` naming ``rewards``).
-
-    Returns
-    -------
-    (contexts, omegas, rewards) as float64 arrays of shapes (N, context_dim), (N, dim), (N,).
+    ``contexts`` may be ``None`` when ``context_dim`` is 0; rewards must be finite.
     """
     w = check_array(omegas, "omegas", ndim=2)
     if w.shape[1] != dim:
@@ -65,34 +46,22 @@ def check_batch(
 
 @dataclass(frozen=True, repr=False)
 class Batch:
-    """One batch of samples for ``algorithm.update(batch)``, validated once when built.
+    """One batch of samples for ``algorithm.update(batch)``, validated when built.
 
-    Row i is one sample: the context s_i, the parameters ω_i ~ π(ω|s_i), the reward
-    R(τ_i, s_i) and (optionally) the trajectory τ_i it was scored on. With extra contexts
-    (Sec. 3.4, :func:`skillkit.search.loop.collect`) a trajectory appears in several rows,
-    each re-scored in another context.
+    Row i is a sample: context s_i, parameters ω_i ~ π(ω|s_i), reward R(τ_i, s_i) and optionally
+    the trajectory τ_i.
 
     Parameters
     ----------
     contexts : array_like, shape (N, context_dim), or None
-        Contexts s_i; ``None`` for a context-free task (stored as shape (N, 0)).
+        ``None`` for a context-free task (stored as shape (N, 0)).
     omegas : array_like, shape (N, d)
-        Parameters ω_i (N ≥ 1).
     rewards : array_like, shape (N,)
-        Finite rewards R_i.
+        Finite.
     trajectories : sequence of Trajectory, optional
-        τ_i, one per row (model-based algorithms learn from them; model-free ones ignore them).
     n_rollouts : int, optional
-        The first ``n_rollouts`` rows are rollouts in their own contexts, s_i ~ μ(s) and
-        ω_i ~ π(ω|s_i); the remaining rows re-score them in extra contexts (Sec. 3.4), so their
-        (s, ω) pairs are not drawn from μ(s)π(ω|s) (:func:`extra_context_importance`).
-        Default (``None``): every row is a rollout (stored as N).
-
-    Raises
-    ------
-    ValueError
-        Naming ``contexts``, ``omegas``, ``rewards``, ``trajectories`` or ``n_rollouts`` when
-        a shape disagrees, a value is not finite, or ``n_rollouts`` is not in 1..N.
+        The first ``n_rollouts`` rows are rollouts in their own contexts; the rest re-score them
+        in extra contexts (Sec. 3.4). Default: N.
     """
 
     contexts: np.ndarray
@@ -134,13 +103,7 @@ class Batch:
         return int(self.contexts.shape[1])
 
     def check_dims(self, dim: int, context_dim: int) -> Batch:
-        """This batch, after checking it fits a policy with ``dim`` and ``context_dim``.
-
-        Raises
-        ------
-        ValueError
-            Naming ``omegas`` or ``contexts`` when a dimension differs.
-        """
+        """This batch, after checking it fits ``dim`` and ``context_dim``."""
         if self.dim != dim:
             raise ValueError(f"omegas: expected shape (N, {dim}), got {self.omegas.shape}")
         if self.context_dim != context_dim:
@@ -163,11 +126,41 @@ class Batch:
 
 
 def as_batch(batch: Batch, dim: int, context_dim: int) -> Batch:
-    """``batch`` after checking it is a :class:`Batch` for ``dim`` and ``context_dim``
-    (what every ``update`` starts with)."""
+    """``batch`` after checking it is a :class:`Batch` for ``dim`` and ``context_dim``."""
     if not isinstance(batch, Batch):
         raise ValueError(f"batch: expected a skillkit.search.Batch, got {type(batch).__name__}")
     return batch.check_dims(dim, context_dim)
+
+
+def rollouts_only(batch: Batch, algorithm: str) -> Batch:
+    """``batch`` after checking it has no rows re-scored in extra contexts."""
+    if batch.n_rollouts != len(batch):
+        raise ValueError(
+            f"batch: {algorithm} takes rollouts only; rows re-scored in extra contexts "
+            "(learn's extra_contexts > 0) were not drawn from its policy in their context"
+        )
+    return batch
+
+
+def check_policy(policy: LinearGaussianPolicy) -> LinearGaussianPolicy:
+    """``policy`` after checking it is a :class:`LinearGaussianPolicy`."""
+    if not isinstance(policy, LinearGaussianPolicy):
+        raise ValueError(f"policy: expected a LinearGaussianPolicy, got {type(policy).__name__}")
+    return policy
+
+
+def query_contexts(contexts, context_dim: int) -> tuple[np.ndarray, bool]:
+    """Contexts of shape (n, context_dim), and whether one context (or ``None``) was given."""
+    if contexts is None:
+        if context_dim:
+            raise ValueError(f"contexts: this policy needs contexts of shape (n, {context_dim})")
+        return np.zeros((1, 0)), True
+    s = check_array(contexts, "contexts", ndim=(1, 2))
+    if s.shape[-1] != context_dim:
+        raise ValueError(
+            f"contexts: expected shape (n, {context_dim}) or ({context_dim},), got {s.shape}"
+        )
+    return (s[None, :], True) if s.ndim == 1 else (s, False)
 
 
 def _check_n_rollouts(k, n: int) -> int:
@@ -184,20 +177,15 @@ def extra_context_importance(
 ) -> np.ndarray:
     r"""Importance weights that make a batch with extra contexts stand for μ(s)π(ω|s).
 
-    A batch of N rollouts, s_i ~ μ(s), ω_i ~ π(ω|s_i), each re-scored in k extra contexts
-    s′ ~ μ(s) (Sec. 3.4, :func:`skillkit.search.loop.collect`), has N (1 + k) rows. An extra
-    pair (s′, ω_i) is drawn from μ(s′) m(ω), with m the marginal of ω, not from μ(s′)π(ω|s′):
-    in the k extra rows of each rollout ω is independent of s. Seen as one sample of the mixture
-    q(s, ω) = μ(s) [f π(ω|s) + (1 − f) m(ω)], f = 1/(1 + k), every row gets the
-    (deterministic-mixture, balance-heuristic) importance weight
+    In the k re-scored rows (s′, ω_i) of each of the N rollouts (Sec. 3.4) ω is drawn from its
+    marginal m, not from π(ω|s′). As samples of q(s, ω) = μ(s)[f π(ω|s) + (1 − f) m(ω)],
+    f = 1/(1 + k), every row gets the balance-heuristic weight
 
     .. math::
         w(s, \omega) = \frac{\pi(\omega|s)}{f\,\pi(\omega|s) + (1 - f)\,\hat m(\omega)},
         \qquad \hat m(\omega) = \frac1N \sum_{j=1}^N \pi(\omega|s_j),
 
-    with m estimated by the mixture of π(ω|s_j) over the batch's own contexts. With the exact
-    m, E[w | s] = 1 under q; always 0 < w ≤ 1/f = 1 + k. Cost: M N log-densities (M = N (1 + k)
-    rows), held in one (M N, d) array.
+    with 0 < w ≤ 1 + k.
 
     Parameters
     ----------
@@ -206,14 +194,12 @@ def extra_context_importance(
     contexts : array_like, shape (M, context_dim)
         All rows' contexts, the N rollouts first.
     omegas : array_like, shape (M, d)
-        All rows' parameters.
     n_rollouts : int
-        N, 1 ≤ N ≤ M (M = N: every w is 1).
+        N, 1 ≤ N ≤ M.
 
     Returns
     -------
     ndarray, shape (M,)
-        w, computed in log space.
     """
     s = check_array(contexts, "contexts", ndim=2)
     w = check_array(omegas, "omegas", shape=(s.shape[0], policy.dim))
@@ -230,13 +216,7 @@ def extra_context_importance(
 
 
 class SampleBuffer:
-    """The last ``n_batches`` batches of (context, ω, reward) samples (data reuse, Table 3.1).
-
-    Parameters
-    ----------
-    n_batches : int or None
-        Number of batches kept, the newest included (``None`` keeps all).
-    """
+    """The last ``n_batches`` batches of samples (data reuse, Table 3.1; ``None`` keeps all)."""
 
     def __init__(self, n_batches: int | None):
         if n_batches is not None:
@@ -251,27 +231,22 @@ class SampleBuffer:
         n_rollouts: int | None = None,
         importance: np.ndarray | None = None,
     ) -> None:
-        """Append a validated batch (oldest batch dropped when full).
-
-        ``n_rollouts``: its first rows that are rollouts in their own contexts (``None``: all);
-        ``importance``: its rows' importance weights, shape (M,), stored normalised to mean
-        one so that every batch keeps a mass proportional to its rows (``None``: all one).
-        """
+        """Append a batch (the oldest dropped when full); ``importance`` is stored at mean one."""
         if importance is not None:
             importance = importance / importance.mean()
         self._batches.append((contexts, omegas, rewards, n_rollouts, importance))
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """All kept samples: contexts (N, s), omegas (N, d), rewards (N,), oldest first."""
+        """All kept contexts (N, s), omegas (N, d) and rewards (N,), oldest first."""
         s, w, r = (np.concatenate([b[i] for b in self._batches]) for i in range(3))
         return s, w, r
 
     def rollout_mask(self) -> np.ndarray:
-        """Whether each kept row is a rollout in its own context, shape (N,), oldest first."""
-        return np.concatenate([_rows(b) < _n_rollouts(b) for b in self._batches])
+        """Whether each kept row is a rollout in its own context, shape (N,)."""
+        return np.concatenate([np.arange(b[2].shape[0]) < _n_rollouts(b) for b in self._batches])
 
     def importance(self) -> np.ndarray | None:
-        """The kept rows' importance weights, shape (N,) (``None`` when every batch has none)."""
+        """The kept rows' importance weights, shape (N,) (``None`` when no batch has any)."""
         if all(_importance(b) is None for b in self._batches):
             return None
         return np.concatenate(
@@ -294,13 +269,8 @@ class SampleBuffer:
         return f"SampleBuffer({keep} batches; {len(self._batches)} kept, {len(self)} samples)"
 
 
-def _rows(b: tuple) -> np.ndarray:
-    return np.arange(b[2].shape[0])
-
-
 def _n_rollouts(b: tuple) -> int:
-    """A kept batch's rollouts (a batch stored as a 3-tuple, from a buffer pickled without
-    rollout counts, counts every row as one rollout)."""
+    """A kept batch's rollouts (every row for a batch pickled as a 3-tuple)."""
     return b[2].shape[0] if len(b) < 4 or b[3] is None else b[3]
 
 
@@ -316,18 +286,17 @@ Fields = dict[str, Any]  # diagnostics fields by name
 class WeightedMLSearch(Generic[D]):
     """Policy search by reweighted samples and a weighted ML refit (Table 3.1).
 
-    Subclasses set ``_diagnostics`` (a dataclass with fields ``n_samples``, ``policy_kl``,
-    ``mean_reward``, ``fit`` and those returned by :meth:`_weigh`) and implement
-    :meth:`_weigh`. All state is in instance attributes, so an algorithm pickles.
+    Subclasses set ``_diagnostics`` (a dataclass taking ``n_samples``, ``policy_kl``,
+    ``mean_reward``, ``fit`` and the fields :meth:`_weigh` returns) and implement :meth:`_weigh`.
 
     Parameters
     ----------
     policy : LinearGaussianPolicy
         Initial upper-level policy π(ω|s).
     n_reuse_batches : int or None
-        L: the weights and the fit use the last L batches, the newest included (``None``: all).
+        L: the last L batches are used, the newest included (``None``: all).
     ridge, cov_shrinkage, cov_floor, min_effective_samples
-        Regularisation of the weighted ML fit, see
+        Regularisation of
         :meth:`~skillkit.policies.gaussian.LinearGaussianPolicy.fit_with_info`.
     """
 
@@ -342,10 +311,7 @@ class WeightedMLSearch(Generic[D]):
         cov_floor: float,
         min_effective_samples: float | None,
     ):
-        if not isinstance(policy, LinearGaussianPolicy):
-            raise ValueError(
-                f"policy: expected a LinearGaussianPolicy, got {type(policy).__name__}"
-            )
+        check_policy(policy)
         self._fit_kwargs = {
             "ridge": ridge,
             "cov_shrinkage": cov_shrinkage,
@@ -366,24 +332,8 @@ class WeightedMLSearch(Generic[D]):
         raise NotImplementedError
 
     def update(self, batch: Batch) -> D:
-        """Add a batch, weight the last L batches (:meth:`_weigh`) and refit the policy.
-
-        In order: the batch's importance weights under the current policy
-        (:meth:`_importance`) are kept with it in the buffer; the kept rows are weighted
-        (:meth:`_weigh`); the policy is refitted by weighted ML (Eqs. 3.11–3.13) and passed
-        through :meth:`_m_step`; KL(π_new ‖ π_old) is averaged over the kept contexts.
-
-        Parameters
-        ----------
-        batch : Batch
-            Contexts s_i (N, context_dim), parameters ω_i ~ π(ω|s_i) (N, d) and rewards
-            R(τ_i, s_i) (N,); the trajectories, if any, are not used.
-
-        Returns
-        -------
-        The subclass's diagnostics (:class:`~skillkit.search.reps.REPSDiagnostics`,
-        :class:`~skillkit.search.rwr.RWRDiagnostics`).
-        """
+        """Add a batch, weight the last L batches and refit the policy (Eqs. 3.11–3.13); returns the
+        subclass's diagnostics, ``policy_kl`` being KL(π_new ‖ π_old) over the kept contexts."""
         pol = self._policy
         batch = as_batch(batch, pol.dim, pol.context_dim)
         importance = self._importance(batch)
@@ -405,19 +355,17 @@ class WeightedMLSearch(Generic[D]):
         )
 
     def _importance(self, batch: Batch) -> np.ndarray | None:
-        """Importance weights of a new batch's rows under the current (sampling) policy, kept
-        with the batch (default ``None``: every row counts as drawn from μ(s)π(ω|s))."""
+        """Importance weights of a new batch's rows, kept with it (default ``None``)."""
         return None
 
     def _m_step(
         self, old: LinearGaussianPolicy, fitted: LinearGaussianPolicy, contexts: np.ndarray
     ) -> tuple[LinearGaussianPolicy, Fields]:
-        """The new policy from the weighted ML fit, and the diagnostics fields this adds
-        (default: the fit itself, no fields)."""
+        """The new policy from the fit and the diagnostics fields it adds (default: the fit)."""
         return fitted, {}
 
     def _settings_repr(self) -> str:
-        """The subclass's own settings, for :meth:`__repr__` (e.g. ``"epsilon=0.5"``)."""
+        """The subclass's settings for :meth:`__repr__`."""
         return ""
 
     def __repr__(self) -> str:

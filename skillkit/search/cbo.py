@@ -1,47 +1,17 @@
-"""Contextual Bayesian optimisation behind the search interface: BoTorch's own GP, acquisition
-and optimiser, and only the glue.
+"""Contextual Bayesian optimisation (BoTorch) behind the search interface.
 
-:class:`ContextualBO` keeps every real sample (s_i, ω_i, R_i), fits a BoTorch
-:class:`~botorch.models.SingleTaskGP` to R over z = [s, ω], and exposes it as
-:func:`~skillkit.search.loop.learn` expects (``policy.sample``/``policy.mean_of``,
-``update(batch)`` → :class:`CBODiagnostics`).
+:class:`ContextualBO` keeps every sample (s_i, ω_i, R_i) and fits BoTorch's ``SingleTaskGP``
+(its default kernel, priors, noise and ``Standardize``; inputs normalised to the search box) to
+R over z = [s, ω] after every update. For a context s it proposes
+ω = argmax_ω UCB([s, ω]), UCB = μ + √β σ with s fixed (the contextual GP-UCB of Krause & Ong,
+NIPS 2011); the policy mean is argmax_ω μ([s, ω]) (π₀'s mean in the box without data). The
+box is, per dimension, the range of π₀'s mean over the context corners ± k standard
+deviations; the first ``initial_batches`` batches are a scrambled Sobol design in it. A failed
+rollout enters the GP with the lowest working reward.
 
-* **GP**: ``SingleTaskGP`` with BoTorch's defaults (ARD RBF kernel with the dimension-scaled
-  priors of Hvarfner et al. 2024, learnt homoscedastic noise, ``Standardize`` outcomes) and a
-  ``Normalize`` input transform to the search box. Hyper-parameters are refitted from BoTorch's
-  initial values on all samples after every update (``fit_gpytorch_mll``).
-* **Proposal** for a context s: ω = argmax_ω UCB([s, ω]), UCB(z) = μ(z) + √β σ(z), with s fixed
-  (``optimize_acqf(..., fixed_features=...)``) — the contextual GP-UCB rule of Krause & Ong,
-  NIPS 2011. β defaults to 0.2 (BoTorch's ``construct_inputs_ucb`` default). UCB rather than
-  (Log)EI because EI needs an incumbent at the given context, which the best reward over all
-  contexts is not when the attainable reward depends on s.
-* **Policy mean** at s: argmax_ω μ([s, ω]) (``PosteriorMean``, optimised the same way), searched
-  context by context; without data, the initial policy's mean clipped to the box.
-* **Box**: per dimension j, [min_s m_j(s) − k σ_j, max_s m_j(s) + k σ_j] with m(s), σ the
-  initial policy's mean (linear in s, extremes at the context corners) and standard deviation,
-  k = :attr:`CBOSettings.box_std`; ``omega_low`` / ``omega_high`` set it directly.
-* **First batches** (:attr:`CBOSettings.initial_batches`) are a scrambled Sobol design over the
-  box (``draw_sobol_samples``).
-
-Each row of a batch gets its own proposal (q = 1, no pending points); all rows' searches run as
-one ``optimize_acqf`` call, so a row's proposal depends on the others only through round-off.
-Rows re-scored in extra contexts (Sec. 3.4) enter the GP like any other row. A failed rollout
-(``failed`` flag) enters the GP with the lowest working reward instead of the task's
-``worst_reward``; the best reward reported ignores failures.
-
-Cost: an exact GP, O(N³) per marginal-likelihood evaluation, and ``num_restarts`` L-BFGS-B
-searches per proposal; the acquisition searches dominate at the sizes we run. Past
-:data:`LARGE_N` samples the update warns once (``RuntimeWarning``);
-:attr:`CBOSettings.max_observations` fits on the most recent samples only. Every policy in the
-history holds its GP and data, so a checkpoint grows with the square of the number of updates.
-
-Randomness: no global seed is set. ``policy.sample`` draws one seed per row from the loop's
-``rng``; ``mean_of`` and the GP fit each use a seed drawn at the update from the algorithm's
-own ``rng``. Every BoTorch call runs inside ``torch.random.fork_rng`` seeded from its seed
-(BoTorch's ``initialize_q_batch`` samples torch's global generator), so same seeds ⇒ same
-proposals and the global state is restored. Tensors live on ``device`` in ``dtype`` (float64 by
-default); the object pickles, so :class:`~skillkit.trial.TrialContext` checkpoints it.
-Imported lazily by ``from skillkit.search import ContextualBO`` (BoTorch is slow to import).
+Randomness: ``policy.sample`` draws one seed per row from the loop's ``rng``; ``mean_of`` and
+the GP fit use seeds from the algorithm's own ``rng``; every BoTorch call runs inside
+``torch.random.fork_rng`` seeded with its seed, so global state is untouched.
 """
 
 from __future__ import annotations
@@ -68,11 +38,9 @@ from numpy.typing import ArrayLike
 
 from skillkit._validation import as_generator, check_array, check_count, check_positive
 from skillkit.policies.gaussian import LinearGaussianPolicy
-from skillkit.search.base import Batch, as_batch
+from skillkit.search.base import Batch, as_batch, check_policy, query_contexts
 
-__all__ = ["LARGE_N", "CBODiagnostics", "CBOPolicy", "CBOSettings", "ContextualBO"]
-
-#: Samples beyond which an update warns that the exact GP's O(N³) fit dominates (once per run).
+#: Samples beyond which an update warns (once) that the exact GP's O(N³) fit dominates.
 LARGE_N = 2000
 
 _SEED_BOUND = 2**31  # seeds for torch and BoTorch's Sobol engine: non-negative int32
@@ -80,30 +48,23 @@ _SEED_BOUND = 2**31  # seeds for torch and BoTorch's Sobol engine: non-negative 
 
 @dataclass(frozen=True)
 class CBOSettings:
-    """Settings of :class:`ContextualBO` (module notes); the defaults are BoTorch's where it
-    has one.
+    """Settings of :class:`ContextualBO` (BoTorch's defaults where it has one).
 
     Attributes
     ----------
     beta : float
-        β ≥ 0 of UCB(z) = μ(z) + √β σ(z), on the standardised reward (default 0.2, BoTorch's
-        ``construct_inputs_ucb`` default).
+        β ≥ 0 of UCB on the standardised reward.
     box_std : float
-        k > 0: the ω box is the initial policy's mean range ± k standard deviations (k = 2
-        holds 95 % of each marginal of π₀).
+        k > 0: the ω box is π₀'s mean range ± k standard deviations.
     initial_batches : int
-        Batches (updates) proposed by a Sobol design before the acquisition takes over (≥ 1).
-    num_restarts : int
-        L-BFGS-B starts per proposal (``optimize_acqf``'s ``num_restarts``, which has no
-        default; 10 as in BoTorch's tutorials, e.g. the closed-loop and TuRBO ones).
-    raw_samples : int
-        Sobol points the starts are chosen from (``raw_samples``; 512 as in the same
-        tutorials); ≥ ``num_restarts``.
+        Batches proposed by a Sobol design before UCB takes over (≥ 1).
+    num_restarts, raw_samples : int
+        L-BFGS-B starts per proposal, and the Sobol points they are chosen from
+        (``optimize_acqf``).
     rollouts_per_update : int
-        The batch size this algorithm suggests for :func:`learn` (any works: every row gets its
-        own proposal); a setting of this glue, not of BoTorch.
+        The batch size suggested for :func:`learn` (any works).
     max_observations : int or None
-        Fit the GP on at most this many samples, the most recent (``None``: all; ≥ 2).
+        Fit the GP on at most this many most recent samples (``None``: all; ≥ 2).
     """
 
     beta: float = 0.2
@@ -130,8 +91,7 @@ class CBOSettings:
 
 @contextlib.contextmanager
 def _seeded(seed: int, device: torch.device) -> Iterator[None]:
-    """Torch's global generator (and ``device``'s, on a GPU) seeded with ``seed`` inside, and
-    restored on exit: what makes BoTorch's draws reproducible without touching global state."""
+    """Torch's global generator (and ``device``'s) seeded with ``seed`` inside, restored on exit."""
     cuda = []
     if device.type == "cuda":
         cuda = [torch.cuda.current_device() if device.index is None else device.index]
@@ -146,26 +106,10 @@ def _seeded(seed: int, device: torch.device) -> Iterator[None]:
 class CBOPolicy:
     """One fitted GP (or none yet) as a policy: UCB proposals and the posterior-mean argmax.
 
-    Immutable apart from its timing counters; :class:`ContextualBO` makes a new one after every
-    update.
-
-    Parameters
-    ----------
-    model : SingleTaskGP or None
-        The GP over z = [s, ω] (``None`` before it has data: ``mean_of`` is π₀'s mean).
-    initial : LinearGaussianPolicy
-        π₀, whose (clipped) mean is the policy mean without a GP.
-    omega_bounds : ndarray, shape (2, d)
-        The search box (lower row, upper row).
-    explore_randomly : bool
-        Propose a Sobol design in the box instead of maximising UCB.
-    settings : CBOSettings
-    mean_seed : int
-        Seed of every ``mean_of`` search (so the mean is a function of the policy).
-    n_updates : int
-        Updates done when this policy was made.
-    device, dtype
-        Where and in what precision BoTorch computes.
+    Made by :class:`ContextualBO` after every update: ``model`` is the GP over z = [s, ω]
+    (``None`` before data, when the mean is π₀'s clipped to ``omega_bounds`` (2, d)),
+    ``explore_randomly`` proposes a Sobol design, ``mean_seed`` seeds every ``mean_of`` search,
+    and BoTorch runs on ``device`` in ``dtype``.
     """
 
     def __init__(
@@ -189,7 +133,7 @@ class CBOPolicy:
         self.mean_seed = int(mean_seed)
         self.n_updates = int(n_updates)
         self.device, self.dtype = device, dtype
-        #: Seconds spent in ``sample`` and in ``mean_of`` (timing only; no effect on results).
+        #: Seconds spent in ``sample`` and in ``mean_of``.
         self.sample_seconds = 0.0
         self.mean_seconds = 0.0
 
@@ -203,22 +147,11 @@ class CBOPolicy:
         """Dimension of the context s."""
         return self.initial.context_dim
 
-    def _contexts(self, contexts) -> tuple[np.ndarray, bool]:
-        n_s = self.context_dim
-        if contexts is None:
-            if n_s:
-                raise ValueError(f"contexts: this policy needs contexts of shape (n, {n_s})")
-            return np.zeros((1, 0)), True
-        s = check_array(contexts, "contexts", ndim=(1, 2))
-        if s.shape[-1] != n_s:
-            raise ValueError(f"contexts: expected shape (n, {n_s}) or ({n_s},), got {s.shape}")
-        return (s[None, :], True) if s.ndim == 1 else (s, False)
-
     def _tensor(self, x) -> torch.Tensor:
         return torch.tensor(np.asarray(x), dtype=self.dtype, device=self.device)
 
     def _argmax(self, acqf: AcquisitionFunction, context: np.ndarray, seed: int) -> np.ndarray:
-        """argmax_ω acqf([s, ω]) over the box with s fixed: BoTorch's ``optimize_acqf``."""
+        """argmax_ω acqf([s, ω]) over the box with s fixed."""
         n_s = self.context_dim
         bounds = np.hstack([np.vstack([context, context]), self.omega_bounds])
         with _seeded(seed, self.device):
@@ -237,9 +170,8 @@ class CBOPolicy:
     def _argmax_rows(
         self, acqf: AcquisitionFunction, contexts: np.ndarray, seeds: np.ndarray
     ) -> np.ndarray:
-        """argmax_ω acqf([s_i, ω]) for every row s_i, shape (n, d): starts chosen per row with
-        its seed, then one ``optimize_acqf`` call over all n × restarts starts (context fixed
-        per start); each row keeps its best start."""
+        """argmax_ω acqf([s_i, ω]) for every row, shape (n, d): starts per row from its seed,
+        then one ``optimize_acqf`` call over all of them."""
         n_s, n = self.context_dim, contexts.shape[0]
         restarts = self.settings.num_restarts
         starts = []
@@ -278,17 +210,10 @@ class CBOPolicy:
     def sample(self, contexts: ArrayLike | None = None, rng=None) -> np.ndarray:
         """One proposal ω per context, shape (n, d) (or (d,) for one context or None).
 
-        A Sobol design in the box while the policy explores randomly, else argmax_ω UCB([s, ω])
-        for each row's s (module notes), the rows searched in one batched optimiser call
-        (:meth:`_argmax_rows`). One seed per row (or one for the design) is drawn from
-        ``rng``; same ``rng`` state and contexts ⇒ same proposals.
-
-        Raises
-        ------
-        ValueError
-            Naming ``contexts`` when their shape does not fit, or ``rng``.
+        A Sobol design in the box while exploring randomly, else argmax_ω UCB([s, ω]) per row; the
+        seeds come from ``rng``. ``ValueError`` when ``contexts`` do not fit.
         """
-        s, single = self._contexts(contexts)
+        s, single = query_contexts(contexts, self.context_dim)
         rng = as_generator(rng)
         start = time.perf_counter()
         if self.explore_randomly or self.model is None:
@@ -306,10 +231,9 @@ class CBOPolicy:
         return omega[0] if single else omega
 
     def mean_of(self, contexts: ArrayLike | None = None) -> np.ndarray:
-        """argmax_ω μ([s, ω]) per context (π₀'s mean clipped to the box before the GP has
-        data), shape (n, d) or (d,). Deterministic: each context is searched with the same
-        seed, so a context's mean does not depend on the others asked with it."""
-        s, single = self._contexts(contexts)
+        """argmax_ω μ([s, ω]) per context with a fixed seed (π₀'s clipped mean without a GP), shape
+        (n, d) or (d,)."""
+        s, single = query_contexts(contexts, self.context_dim)
         start = time.perf_counter()
         if self.model is None:
             low, high = self.omega_bounds
@@ -336,33 +260,11 @@ class CBOPolicy:
 class CBODiagnostics:
     """What one :meth:`ContextualBO.update` did.
 
-    Attributes
-    ----------
-    n_updates : int
-        Updates done, this one included.
-    n_observations : int
-        Samples kept so far; the GP is fitted on ``n_fitted`` of them.
-    n_fitted : int
-        Samples the GP was fitted on (0: no GP yet, fewer than two samples).
-    mean_reward : float
-        Mean reward of the batch's rollouts (re-scored rows excluded).
-    best_reward : float
-        Best reward of any working rollout so far (NaN while there is none).
-    n_failed : int
-        Failed rows of this batch (entered the GP at the lowest working reward).
-    random_batch : bool
-        Whether this batch was a Sobol design (not UCB proposals).
-    fit_seconds : float
-        Time of building and fitting the GP.
-    acquisition_seconds : float
-        Time the policy that proposed this batch spent in ``sample`` (its acquisition searches).
-    lengthscales : tuple of float
-        The kernel's ARD lengthscales, [s, ω] order, in units of the normalised box (context
-        range and ω box mapped to [0, 1]).
-    noise_std : float
-        The learnt noise standard deviation, in reward units.
-    signal_std : float
-        The kernel's standard deviation, in reward units.
+    ``n_fitted`` of the ``n_observations`` samples fitted the GP (0: none yet); ``mean_reward`` is
+    over the batch's rollouts, ``best_reward`` over every working rollout so far (NaN while there
+    is none); ``random_batch`` says the batch was a Sobol design; ``acquisition_seconds`` is the
+    proposing policy's time in ``sample``; ``lengthscales`` are in units of the normalised box,
+    [s, ω] order; ``noise_std`` and ``signal_std`` in reward units.
     """
 
     n_updates: int
@@ -397,27 +299,19 @@ class ContextualBO:
     Parameters
     ----------
     policy : LinearGaussianPolicy
-        Initial policy π₀ (e.g. ``task.initial_policy()``): its mean is the policy mean before
-        any data, and with its standard deviations it sets the ω box (module notes). Its mean
-        must be linear in s (``features="linear"``) unless the box is given.
+        π₀: the policy mean before any data and, with its standard deviations, the ω box (its
+        mean must then be linear in s).
     context_low, context_high : array_like, shape (context_dim,)
-        The context range (the GP's input normalisation; required for a contextual policy,
-        :meth:`for_task` takes the task's). A dimension of zero width is mapped with width 1.
+        The context range (required for a contextual policy; zero width is mapped to width 1).
     omega_low, omega_high : array_like, shape (d,), optional
         The ω box, low < high (default: from ``policy`` and ``settings.box_std``).
     settings : CBOSettings, optional
-        Default ``CBOSettings()``.
     rng : Generator, int or None
-        The algorithm's own stream: the seeds of the GP fits and of ``mean_of``.
+        The algorithm's own stream (GP fits and ``mean_of``).
     device : str or torch.device, optional
         Where BoTorch computes (default CPU).
     dtype : torch.dtype
         torch.float64 (default) or torch.float32.
-
-    Raises
-    ------
-    ValueError
-        Naming the argument that does not fit.
     """
 
     def __init__(
@@ -433,10 +327,7 @@ class ContextualBO:
         device: str | torch.device | None = None,
         dtype: torch.dtype = torch.float64,
     ):
-        if not isinstance(policy, LinearGaussianPolicy):
-            raise ValueError(
-                f"policy: expected a LinearGaussianPolicy, got {type(policy).__name__}"
-            )
+        check_policy(policy)
         settings = CBOSettings() if settings is None else settings
         if not isinstance(settings, CBOSettings):
             raise ValueError(f"settings: expected a CBOSettings, got {type(settings).__name__}")
@@ -501,8 +392,7 @@ class ContextualBO:
 
     @classmethod
     def for_task(cls, task, policy: LinearGaussianPolicy | None = None, **kwargs) -> ContextualBO:
-        """Contextual BO on a task: ``policy`` (default ``task.initial_policy()``) and the
-        task's context range. Other keyword arguments go to :class:`ContextualBO`."""
+        """Contextual BO on a task's context range (default policy ``task.initial_policy()``)."""
         if task.context_dim:
             kwargs.setdefault("context_low", task.context_low)
             kwargs.setdefault("context_high", task.context_high)
@@ -511,17 +401,17 @@ class ContextualBO:
     # ----------------------------------------------------------------- state
     @property
     def policy(self) -> CBOPolicy:
-        """The current GP's policy (:class:`CBOPolicy`)."""
+        """The current :class:`CBOPolicy`."""
         return self._policy
 
     @property
     def rollouts_per_update(self) -> int:
-        """The suggested N for :func:`learn` (``settings.rollouts_per_update``)."""
+        """The suggested N for :func:`learn`."""
         return self.settings.rollouts_per_update
 
     @property
     def omega_bounds(self) -> np.ndarray:
-        """The ω box, shape (2, d): lower and upper row."""
+        """The ω box, shape (2, d)."""
         return self._omega_bounds.copy()
 
     @property
@@ -544,18 +434,9 @@ class ContextualBO:
 
     # ----------------------------------------------------------------- update
     def update(self, batch: Batch) -> CBODiagnostics:
-        """Add a batch to the samples, refit the GP on them, and make the next policy.
+        """Add a batch to the samples, refit the GP and make the next policy.
 
-        Parameters
-        ----------
-        batch : Batch
-            Contexts (N, context_dim), parameters (N, d) and rewards (N,), e.g. from
-            ``learn``; the trajectories, if any, only say which rollouts failed.
-
-        Raises
-        ------
-        ValueError
-            Naming ``batch`` when it is not a :class:`Batch` of this policy's dimensions.
+        The batch's trajectories, if any, only say which rollouts failed.
         """
         pol = self._policy
         batch = as_batch(batch, pol.dim, pol.context_dim)
@@ -586,8 +467,7 @@ class ContextualBO:
         )
 
     def _fit(self) -> SingleTaskGP | None:
-        """BoTorch's SingleTaskGP on the (most recent ``max_observations``) samples, fitted by
-        ``fit_gpytorch_mll`` under a seed from the algorithm's stream; ``None`` below two."""
+        """The GP on the (most recent ``max_observations``) samples; ``None`` below two."""
         seed = int(self._rng.integers(_SEED_BOUND))
         cap = self.settings.max_observations
         keep = slice(None) if cap is None else slice(-cap, None)

@@ -1,37 +1,16 @@
-r"""CMA-ES behind the search interface: the ``cma`` package's own ask/tell, and only the glue.
-
-:class:`CMAES` holds a :class:`cma.CMAEvolutionStrategy` (Hansen's CMA-ES with its default
-population size λ = 4 + ⌊3 ln P⌋ and step-size adaptation) and exposes it as
-:func:`~skillkit.search.loop.learn` expects (``policy.sample``/``policy.mean_of``,
-``update(batch)`` → :class:`CMAESDiagnostics`). CMA-ES minimises, so it is told −R.
+r"""CMA-ES (the ``cma`` package's ask/tell) behind the search interface.
 
 CMA-ES searches a linear context mapping of the lower-level parameters,
 
-.. math:: \omega(s) = b + W \varphi(s), \qquad \varphi(s) = (s - c) / h
+.. math:: \omega(s) = b + W \varphi(s), \qquad \varphi(s) = (s - c) / h,
           \qquad \theta = [b, \operatorname{vec}(W)] \in \mathbb{R}^{d (1 + n_s)},
 
-with c, h the centre and half-width of the context range (:meth:`CMAES.for_task`). For a
-context-free task θ = b = ω (plain episodic CMA-ES); for a contextual one the fitness of θ_k is
-J(θ) = E_{s∼μ}[R(ω_θ(s), s)], estimated from that candidate's rollouts.
-
-One generation is one batch: each generation ``ask``s λ candidates (from this object's own
-``rng``), batch rows m k … m k + m − 1 go to candidate k (m = ``contexts_per_candidate``, each
-row a fresh context), and ``update`` ``tell``s each candidate's mean reward over its m rows.
-Hence **rollouts_per_update must equal λ m** (:attr:`CMAES.rollouts_per_update`); otherwise
-``policy.sample`` raises ``ValueError`` before any rollout, and ``update`` refuses a batch
-whose rows are not this generation's candidates, or that holds extra-context rows (Sec. 3.4;
-a candidate's ω depends on its context, so re-scored rows are not its rollouts).
-
-Because the loop draws independent contexts per rollout, a candidate's fitness carries the
-spread of R over μ(s), which can reorder candidates; m > 1 averages it down at m times the
-rollouts. A contextual task defaults to m = :data:`DEFAULT_CONTEXTS_PER_CANDIDATE` (a setting
-of this glue, chosen on a 2-D linear-target toy where m = 1 made no progress; not tuned per
-task), a context-free one to m = 1.
-
-Randomness: normal deviates come from ``rng`` through cma's ``randn`` option (no global
-seeding); ``policy.sample`` ignores the loop's ``rng``. The object pickles, so
-:class:`~skillkit.trial.TrialContext` checkpoints it. Imported lazily by
-``from skillkit.search import CMAES`` (the ``cma`` package imports pyplot).
+with c, h the centre and half-width of the context range; for a context-free task θ = ω.
+CMA-ES minimises, so it is told −R. One generation is one batch: λ candidates (cma's default
+λ = 4 + ⌊3 ln P⌋), rows m k … m k + m − 1 going to candidate k, each in a fresh context, and the
+fitness of a candidate is its mean reward over its m rows (m = ``contexts_per_candidate``,
+which averages down the spread of R over μ(s)). Hence ``rollouts_per_update`` must be λ m.
+Normal deviates come from the object's own ``rng`` (cma's ``randn`` option).
 """
 
 from __future__ import annotations
@@ -45,20 +24,17 @@ from numpy.typing import ArrayLike
 
 from skillkit._validation import as_generator, check_array, check_count, check_positive
 from skillkit.policies.gaussian import LinearGaussianPolicy
-from skillkit.search.base import Batch, as_batch
+from skillkit.search.base import Batch, as_batch, check_policy, query_contexts, rollouts_only
 
-__all__ = ["CMAES", "DEFAULT_CONTEXTS_PER_CANDIDATE", "CMAESDiagnostics", "CMAESPolicy"]
-
-#: cma options this glue sets (the user's ``options`` may override all but ``randn``/``seed``):
-#: quiet, and no log files written to the working directory.
+#: cma options set here: quiet, and no log files.
 QUIET_OPTIONS: dict[str, Any] = {"verbose": -9, "verb_disp": 0, "verb_log": 0}
 
-#: m, rollouts (contexts) per candidate of the contextual variant unless given (module notes).
+#: m, contexts per candidate of a contextual task unless given.
 DEFAULT_CONTEXTS_PER_CANDIDATE = 4
 
 
 class _Randn:
-    """cma's ``randn`` option drawing from a numpy Generator (picklable; no global seeding)."""
+    """cma's ``randn`` option drawing from a numpy Generator (picklable)."""
 
     def __init__(self, rng: np.random.Generator):
         self.rng = rng
@@ -70,24 +46,10 @@ class _Randn:
 class CMAESPolicy:
     """One CMA-ES generation as a policy: its λ candidates and its mean, mapped to ω(s).
 
-    Immutable; :class:`CMAES` makes a new one after every ``tell``.
-
-    Parameters
-    ----------
-    theta_mean : ndarray, shape (P,)
-        The distribution mean of θ = [b, vec(W)] (P = d (1 + context_dim)).
-    population : ndarray, shape (λ, P)
-        The candidates ``ask`` returned for this generation.
-    dim, context_dim : int
-        d and the context dimension.
-    context_center, context_scale : ndarray, shape (context_dim,)
-        c and h of φ(s) = (s − c) / h.
-    contexts_per_candidate : int
-        m: consecutive rows of a batch per candidate.
-    generation : int
-        Generations told so far.
-    sigma : float
-        CMA-ES's step size σ.
+    Made by :class:`CMAES` after every ``tell``: ``theta_mean`` (P,) is the mean of
+    θ = [b, vec(W)], P = d (1 + context_dim), ``population`` (λ, P) the candidates, c and h of
+    φ(s) = (s − c) / h are ``context_center`` and ``context_scale``, and m =
+    ``contexts_per_candidate``.
     """
 
     def __init__(
@@ -130,29 +92,14 @@ class CMAESPolicy:
 
     @property
     def n_rows(self) -> int:
-        """λ m, the rows (rollouts) one generation needs."""
+        """λ m, the rollouts one generation needs."""
         return self.popsize * self.contexts_per_candidate
 
     def offset_and_gain(self, theta: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
-        """(b, W) of a θ, shapes (d,) and (d, context_dim): ω(s) = b + W (s − c) / h."""
+        """(b, W) of a θ, shapes (d,) and (d, context_dim)."""
         theta = np.asarray(theta, dtype=np.float64)
         d = self._dim
         return theta[:d], theta[d:].reshape(d, self._context_dim)
-
-    def _contexts(self, contexts, name: str = "contexts") -> tuple[np.ndarray, bool]:
-        if contexts is None:
-            if self._context_dim:
-                raise ValueError(
-                    f"{name}: this policy needs contexts of shape (n, {self._context_dim})"
-                )
-            return np.zeros((1, 0)), True
-        s = check_array(contexts, name, ndim=(1, 2))
-        if s.shape[-1] != self._context_dim:
-            raise ValueError(
-                f"{name}: expected shape (n, {self._context_dim}) or ({self._context_dim},), "
-                f"got {s.shape}"
-            )
-        return (s[None, :], True) if s.ndim == 1 else (s, False)
 
     def _omega(self, thetas: np.ndarray, s: np.ndarray) -> np.ndarray:
         """ω_i = b_i + W_i φ(s_i) for row-wise θ_i (n, P) and s_i (n, context_dim)."""
@@ -163,21 +110,16 @@ class CMAESPolicy:
 
     def mean_of(self, contexts: ArrayLike | None = None) -> np.ndarray:
         """ω(s) of the distribution mean: shape (n, d), or (d,) for one context (or None)."""
-        s, single = self._contexts(contexts)
+        s, single = query_contexts(contexts, self._context_dim)
         omega = self._omega(np.broadcast_to(self.theta_mean, (s.shape[0], self.theta_mean.size)), s)
         return omega[0] if single else omega
 
     def sample(self, contexts: ArrayLike | None = None, rng=None) -> np.ndarray:
-        """The generation's candidates in the given contexts, shape (λ m, d): row i is
-        candidate i // m in context s_i. ``rng`` is unused (the candidates were asked).
+        """The candidates in the given contexts, shape (λ m, d): row i is candidate i // m in s_i.
 
-        Raises
-        ------
-        ValueError
-            Naming ``contexts`` unless there are exactly λ m of them (λ m =
-            ``rollouts_per_update`` of :func:`~skillkit.search.loop.learn`).
+        ``rng`` is unused. ``ValueError`` unless there are exactly λ m contexts.
         """
-        s, single = self._contexts(contexts)
+        s, single = query_contexts(contexts, self._context_dim)
         if s.shape[0] != self.n_rows:
             raise ValueError(
                 f"contexts: a CMA-ES generation evaluates popsize λ={self.popsize} candidates × "
@@ -198,26 +140,9 @@ class CMAESPolicy:
 
 @dataclass(frozen=True)
 class CMAESDiagnostics:
-    """What one :meth:`CMAES.update` (one ``tell``) did.
-
-    Attributes
-    ----------
-    generation : int
-        Generations told so far (cma's ``countiter``).
-    n_evaluations : int
-        Candidates evaluated so far (cma's ``countevals``).
-    mean_reward : float
-        Mean reward of the batch.
-    best_reward : float
-        Best candidate's reward (its mean over its m rows).
-    sigma : float
-        Step size σ after the update.
-    axis_ratio : float
-        Ratio of the longest to the shortest axis of CMA-ES's covariance (its conditioning).
-    stop : dict
-        cma's termination criteria met (``es.stop()``; empty while none is). The loop keeps
-        asking and telling regardless; a met criterion says the search has converged or stalled.
-    """
+    """What one :meth:`CMAES.update` (one ``tell``) did: cma's ``countiter`` and ``countevals``, the
+    batch's mean reward and the best candidate's, σ and the axis ratio of the covariance after the
+    update, and cma's termination criteria met (``es.stop()``; the loop carries on regardless)."""
 
     generation: int
     n_evaluations: int
@@ -239,32 +164,25 @@ class CMAESDiagnostics:
 class CMAES:
     """CMA-ES (the ``cma`` package) as a policy-search algorithm for :func:`learn`.
 
-    Starts at the mean of an upper-level policy with its exploration: x₀ = θ of the policy
-    mean, per-coordinate standard deviations √diag Σ (for b and for each column of W), so
-    CMA-ES starts from what REPS starts from. Everything else is cma's default unless
-    ``options`` says otherwise.
+    It starts at the policy mean with per-coordinate standard deviations √diag Σ (for b and for
+    each column of W); everything else is cma's default unless ``options`` says otherwise.
 
     Parameters
     ----------
     policy : LinearGaussianPolicy
-        Initial policy with linear context features (e.g. ``task.initial_policy()``): b₀ =
-        a + A c, W₀ = A diag(h); its covariance Σ sets the initial standard deviations.
+        Initial policy with linear context features: b₀ = a + A c, W₀ = A diag(h).
     contexts_per_candidate : int, optional
-        m ≥ 1 rollouts (contexts) per candidate in a contextual task (module notes; default
-        :data:`DEFAULT_CONTEXTS_PER_CANDIDATE`); must be 1 (the default) for a context-free
-        task.
+        m ≥ 1 (default :data:`DEFAULT_CONTEXTS_PER_CANDIDATE` for a contextual task, else 1, the
+        only value a context-free task allows).
     context_center, context_scale : array_like, shape (context_dim,), optional
-        c and h > 0 of φ(s) = (s − c) / h (default 0 and 1; :meth:`for_task` takes the task's
-        range).
+        c and h > 0 of φ(s) (default 0 and 1; :meth:`for_task` takes the task's range).
     sigma0 : float, optional
-        CMA-ES's initial step size (default: the largest of the standard deviations, the
-        others set through cma's ``CMA_stds``).
+        Initial step size (default: the largest standard deviation).
     options : dict, optional
-        cma options (``cma.CMAOptions()`` lists them), e.g. ``{"popsize": 20}``; they override
-        :data:`QUIET_OPTIONS` and ``CMA_stds``. ``seed`` and ``randn`` are refused: the
-        randomness is ``rng``.
+        cma options, overriding :data:`QUIET_OPTIONS` and ``CMA_stds``; ``seed`` and ``randn``
+        are refused.
     rng : Generator, int or None
-        CMA-ES's own stream (its normal deviates). Same seed ⇒ same candidates.
+        CMA-ES's own stream.
     """
 
     def __init__(
@@ -278,11 +196,7 @@ class CMAES:
         options: dict[str, Any] | None = None,
         rng: np.random.Generator | int | None = None,
     ):
-        if not isinstance(policy, LinearGaussianPolicy):
-            raise ValueError(
-                f"policy: expected a LinearGaussianPolicy, got {type(policy).__name__}"
-            )
-        if policy.context_dim and policy.features != "linear":
+        if check_policy(policy).context_dim and policy.features != "linear":
             raise ValueError(
                 f"policy: CMAES maps contexts linearly; got features={policy.features!r}"
             )
@@ -324,9 +238,7 @@ class CMAES:
 
     @classmethod
     def for_task(cls, task, policy: LinearGaussianPolicy | None = None, **kwargs) -> CMAES:
-        """CMA-ES on a task: ``policy`` (default ``task.initial_policy()``), and φ(s) scaled to
-        the task's context range (c its centre, h its half-width, 1 where the range is a
-        point). Other keyword arguments go to :class:`CMAES`."""
+        """CMA-ES on a task, φ(s) scaled to its context range (h = 1 where the range is a point)."""
         low = np.asarray(task.context_low, dtype=np.float64)
         high = np.asarray(task.context_high, dtype=np.float64)
         half = (high - low) / 2
@@ -337,12 +249,12 @@ class CMAES:
     # ----------------------------------------------------------------- state
     @property
     def policy(self) -> CMAESPolicy:
-        """This generation's candidates and mean (:class:`CMAESPolicy`)."""
+        """This generation's :class:`CMAESPolicy`."""
         return self._policy
 
     @property
     def popsize(self) -> int:
-        """λ, candidates per generation (cma's default unless ``options`` set ``popsize``)."""
+        """λ, candidates per generation."""
         return int(self._es.popsize)
 
     @property
@@ -352,7 +264,7 @@ class CMAES:
 
     @property
     def es(self) -> cma.CMAEvolutionStrategy:
-        """The underlying ``cma.CMAEvolutionStrategy`` (read it; changing it voids the glue)."""
+        """The underlying ``cma.CMAEvolutionStrategy`` (read only)."""
         return self._es
 
     def _ask(self) -> CMAESPolicy:
@@ -377,22 +289,16 @@ class CMAES:
         Parameters
         ----------
         batch : Batch
-            λ m rows drawn with ``self.policy.sample`` (row i: candidate i // m in context
-            s_i) and their rewards; the trajectories are not used.
+            λ m rows drawn with ``self.policy.sample``; trajectories are not used.
 
         Raises
         ------
         ValueError
-            Naming ``batch`` when it has rows re-scored in extra contexts, not λ m rows, or
-            parameters other than this generation's candidates in its contexts.
+            Naming ``batch`` when it has extra-context rows, not λ m rows, or parameters other than
+            this generation's candidates in its contexts.
         """
         pol = self._policy
-        batch = as_batch(batch, pol.dim, pol.context_dim)
-        if batch.n_rollouts != len(batch):
-            raise ValueError(
-                "batch: CMAES takes rollouts only; rows re-scored in extra contexts "
-                "(learn's extra_contexts > 0) are no rollouts of a candidate"
-            )
+        batch = rollouts_only(as_batch(batch, pol.dim, pol.context_dim), "CMAES")
         if len(batch) != pol.n_rows:
             raise ValueError(
                 f"batch: expected {pol.n_rows} rows (popsize λ={pol.popsize} × "

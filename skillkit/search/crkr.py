@@ -1,28 +1,17 @@
 r"""Cost-regularized Kernel Regression (CrKR, Kober et al.), Eqs. (2.19)–(2.20).
 
-CrKR represents the upper-level policy non-parametrically by its samples. For a query
-context s*, π(ω|s*) = N(μ(s*), σ²(s*) D) with
+CrKR represents the upper-level policy by its samples: π(ω|s*) = N(μ(s*), σ²(s*) D) with
 
 .. math::
     \mu(s_*) = m_0(s_*) + k(s_*)^\top (K + \lambda C)^{-1} (\Omega - m_0(S)),  \quad (2.19)
 
     \sigma^2(s_*) = k(s_*, s_*) + \lambda - k(s_*)^\top (K + \lambda C)^{-1} k(s_*),  \quad (2.20)
 
-with the Gram matrix K of the sample contexts, k(s*) the kernel between the samples and s*, and
-the cost matrix C = W⁻¹, W = diag(w), w_i = exp(β (R_i − max R)) (the RWR weights, with β
-chosen by :func:`~skillkit.search.rwr.rwr_beta`). Kernels come from
-:mod:`skillkit.models.kernels` (one implementation for GPs, embeddings and CrKR).
-
-Our choices, beyond Eqs. (2.19)–(2.20)
---------------------------------------
-* **Prior mean** m₀(s): the mean of the initial policy (Eq. 2.19 is the case m₀ = 0). Before
-  the first update the policy *is* the initial policy.
-* **Numerics**: (K + λC)⁻¹ = W^{1/2} (W^{1/2} K W^{1/2} + λ I)⁻¹ W^{1/2}, factorised by Cholesky.
-  The middle matrix has eigenvalues ≥ λ, and samples whose weight underflows to 0 (infinite
-  cost) simply drop out instead of producing inf.
-* **Per-dimension scale**: Eq. (2.20) gives one variance for all dimensions of ω (the
-  kernel is shared); ``variance_scale`` (D = diag(variance_scale)) rescales it per dimension,
-  default ones, as in the thesis.
+K the Gram matrix of the sample contexts, k(s*) the kernel between them and s*, and the cost
+matrix C = W⁻¹, W = diag(w), w_i = exp(β (R_i − max R)) (the RWR weights,
+:func:`~skillkit.search.rwr.rwr_beta`). Beyond Eqs. (2.19)–(2.20): the prior mean m₀ is the
+initial policy's mean (2.19 has m₀ = 0); (K + λC)⁻¹ = W^{1/2} (W^{1/2} K W^{1/2} + λ I)⁻¹ W^{1/2}
+by Cholesky, so samples whose weight underflows drop out; D = diag(``variance_scale``).
 """
 
 from __future__ import annotations
@@ -35,21 +24,19 @@ from scipy import linalg
 
 from skillkit._validation import as_generator, check_array, check_positive
 from skillkit.policies.gaussian import RNG, LinearGaussianPolicy
-from skillkit.search.base import Batch, SampleBuffer, as_batch, check_batch
+from skillkit.search.base import Batch, SampleBuffer, as_batch, check_batch, query_contexts
 from skillkit.search.rwr import rwr_weighting
 
 
 def gram(kernel, X, Z=None) -> np.ndarray:
-    """:func:`skillkit.models.kernels.gram`, imported on first use (this module does not
-    load torch/gpytorch when imported; :mod:`skillkit.search` as a whole does, through
-    GPREPS and PILCO)."""
+    """:func:`skillkit.models.kernels.gram`, imported on first use (no torch at import)."""
     from skillkit.models.kernels import gram as kernel_gram
 
     return kernel_gram(kernel, X, Z)
 
 
 def kernel_diag(kernel, X: np.ndarray, chunk: int = 256) -> np.ndarray:
-    """k(x_i, x_i) for the rows of X, shape (n,), in chunks (never an n × n matrix)."""
+    """k(x_i, x_i) for the rows of X, shape (n,), in chunks."""
     parts = [np.diag(gram(kernel, X[i : i + chunk])) for i in range(0, X.shape[0], chunk)]
     return np.concatenate(parts) if parts else np.zeros(0)
 
@@ -60,22 +47,17 @@ class CrKRPolicy:
     Parameters
     ----------
     prior : LinearGaussianPolicy
-        Supplies the prior mean m₀(s) and the dimensions.
+        Supplies m₀(s) and the dimensions.
     kernel : gpytorch kernel
-        Kernel on contexts, e.g. :class:`skillkit.models.kernels.Linear` or
-        :class:`~skillkit.models.kernels.SquaredExponential` (evaluated with
-        :func:`~skillkit.models.kernels.gram`).
+        Kernel on contexts (:mod:`skillkit.models.kernels`).
     contexts : array_like, shape (N, context_dim)
-        Sample contexts S.
     omegas : array_like, shape (N, d)
-        Sample parameters Ω.
     weights : array_like, shape (N,)
-        Non-negative weights w with a positive sum, any scale: they are divided by their
-        maximum, so C = (W / max w)⁻¹ (the weights exp(β (R − max R)) of the module notes).
+        Non-negative, positive sum, any scale (divided by their maximum).
     lam : float
         λ > 0.
     variance_scale : array_like, shape (d,), optional
-        Per-dimension scale of σ² (default ones).
+        D's diagonal (default ones).
     """
 
     def __init__(
@@ -122,25 +104,16 @@ class CrKRPolicy:
         """Dimension of the context s."""
         return self.prior.context_dim
 
-    def _query(self, contexts) -> tuple[np.ndarray, bool]:
-        s = check_array(contexts, "contexts", ndim=(1, 2))
-        if s.shape[-1] != self.context_dim:
-            raise ValueError(
-                f"contexts: expected shape (n, {self.context_dim}) or ({self.context_dim},), "
-                f"got {s.shape}"
-            )
-        return (s[None, :], True) if s.ndim == 1 else (s, False)
-
     def mean_of(self, contexts: ArrayLike) -> np.ndarray:
-        """μ(s*) of Eq. (2.19): shape (n, d) for contexts (n, context_dim), (d,) for one."""
-        s, single = self._query(contexts)
+        """μ(s*) of Eq. (2.19): shape (n, d), or (d,) for one context."""
+        s, single = query_contexts(contexts, self.context_dim)
         b = self._u[:, None] * gram(self.kernel, self._s, s)  # (N, n): W^{1/2} k(s*)
         mu = self.prior.mean_of(s) + b.T @ self._alpha
         return mu[0] if single else mu
 
     def variance_of(self, contexts: ArrayLike) -> np.ndarray | float:
-        """σ²(s*) of Eq. (2.20): shape (n,) for contexts (n, context_dim), float for one."""
-        s, single = self._query(contexts)
+        """σ²(s*) of Eq. (2.20): shape (n,), or a float for one context."""
+        s, single = query_contexts(contexts, self.context_dim)
         b = self._u[:, None] * gram(self.kernel, self._s, s)
         k_ss = kernel_diag(self.kernel, s)
         var = k_ss + self.lam - np.sum(b * linalg.cho_solve(self._chol, b), axis=0)
@@ -149,7 +122,7 @@ class CrKRPolicy:
     def sample(self, contexts: ArrayLike, rng: RNG = None) -> np.ndarray:
         """ω ~ N(μ(s), σ²(s) D) per context: shape (n, d), or (d,) for one context."""
         rng = as_generator(rng)
-        s, single = self._query(contexts)
+        s, single = query_contexts(contexts, self.context_dim)
         mu = np.atleast_2d(self.mean_of(s))
         var = np.atleast_1d(self.variance_of(s))
         if np.any(var <= 0):
@@ -162,21 +135,8 @@ class CrKRPolicy:
 
 @dataclass(frozen=True)
 class CrKRDiagnostics:
-    """What one :meth:`CrKR.update` did.
-
-    Attributes
-    ----------
-    n_samples : int
-        Samples the policy now rests on.
-    beta : float
-        β of the weights w = exp(β (R − max R)).
-    kl : float
-        KL(w/Σw ‖ uniform).
-    ess : float
-        Kish effective sample size of the weights.
-    mean_reward : float
-        Mean reward of the newest batch.
-    """
+    """What one :meth:`CrKR.update` did: samples used, β, KL(w ‖ uniform) and Kish effective sample
+    size of the weights, and the newest batch's mean reward."""
 
     n_samples: int
     beta: float
@@ -197,15 +157,15 @@ class CrKR:
     Parameters
     ----------
     prior : LinearGaussianPolicy
-        Initial policy: sampled from until the first update, then the prior mean m₀(s).
+        Sampled from until the first update, then the prior mean m₀(s).
     kernel : gpytorch kernel
-        Kernel on contexts (from :mod:`skillkit.models.kernels`).
+        Kernel on contexts.
     lam : float
-        λ > 0 in Eqs. (2.19)–(2.20): the regulariser, and the smallest exploration variance.
+        λ > 0: the regulariser, and the smallest exploration variance.
     beta_scale : float
-        β = ``beta_scale`` / std(R) (:func:`~skillkit.search.rwr.rwr_beta`).
+        β = ``beta_scale`` / std(R).
     n_reuse_batches : int or None
-        Batches kept (``None``: all samples, as in Kober et al.; memory and time grow as N², N³).
+        Batches kept (``None``: all, as in Kober et al.).
     variance_scale : array_like, shape (d,), optional
         Per-dimension scale of σ².
     """
@@ -236,14 +196,7 @@ class CrKR:
         return self._policy
 
     def update(self, batch: Batch) -> CrKRDiagnostics:
-        """Add a batch and rebuild the kernel policy (2.19–2.20) on the kept samples.
-
-        Parameters
-        ----------
-        batch : Batch
-            Contexts (N, context_dim), parameters (N, d) and finite rewards (N,); the
-            trajectories, if any, are not used.
-        """
+        """Add a batch and rebuild the kernel policy (2.19–2.20) on the kept samples."""
         prior = self._prior
         batch = as_batch(batch, prior.dim, prior.context_dim)
         self._buffer.add(batch.contexts, batch.omegas, batch.rewards)

@@ -1,33 +1,16 @@
 r"""Gaussian Process REPS (GPREPS, Sec. 4.1, Table 4.1) and its reward models.
 
-GPREPS is contextual REPS on *artificial* samples. Each :meth:`GPREPS.update` takes a batch of
-real rollouts and runs the three steps of Table 4.1:
+Each :meth:`GPREPS.update` takes a batch of real rollouts and runs Table 4.1: (1) refit the
+reward model on all real data; (2) draw M contexts s^[j] from μ̂(s) (a Gaussian or box fitted
+to the observed contexts, or the task's μ(s)) and ω^[j] ~ π(ω|s^[j]), and predict
 
-1. **Train the model** on all real data so far (:meth:`RewardModel.fit`).
-2. **Predict rewards**: estimate the context distribution μ̂(s) from the observed contexts
-   (a Gaussian, a uniform box, or the task's own μ(s)), draw M contexts s^[j] ~ μ̂(s) and
-   parameters ω^[j] ~ π(ω|s^[j]), and predict the expected reward of each pair with the model,
+.. math:: \mathcal{R}_{s\omega}^{[j]} = \frac{1}{L} \sum_{l=1}^{L} R(\tau^{[j,l]}, s^{[j]}),
+          \quad \tau^{[j,l]} \sim p_{\text{model}}(\tau \mid \omega^{[j]}, s^{[j]}) \quad (4.1)
 
-   .. math:: \mathcal{R}_{s\omega}^{[j]} = \frac{1}{L} \sum_{l=1}^{L} R(\tau^{[j,l]}, s^{[j]}),
-             \quad \tau^{[j,l]} \sim p_{\text{model}}(\tau \mid \omega^{[j]}, s^{[j]}) \quad (4.1)
-
-3. **Update the policy** with the REPS weights (dual 3.9, weights 3.10) and the weighted
-   maximum-likelihood fit (3.11–3.13) on the M artificial samples *only* — the real rewards
-   never enter the dual. This is the code path of
-   :class:`~skillkit.search.reps.ContextualREPS` itself: GPREPS holds one with
-   ``n_reuse_batches=1`` and feeds it a :class:`~skillkit.search.base.Batch` of the artificial
-   samples, so model-free REPS and GPREPS share one dual and one fit.
-
-Reward models (:class:`RewardModel`):
-
-* :class:`TrajectoryRewardModel` — a forward model of the task's state (e.g. a sparse GP,
-  Sec. 4.2) fitted on the real transitions; rewards from L sampled trajectories per pair
-  through the task's own controller and reward (:func:`~skillkit.search.model_rollouts.
-  predict_trajectories`, Eqs. 4.1–4.3). For step-based tasks (balancing, pendulum).
-* :class:`DirectRewardModel` — "GP direct" (Sec. 4.3.2): one GP from [s, ω] to R, whose mean is
-  the predicted expected reward (no trajectories, L unused).
-* :class:`KnownRewardModel` — an *oracle for tests*: the true expected reward function, which
-  ignores the data. Not a learning method.
+(3) update the policy with :class:`~skillkit.search.reps.ContextualREPS` on the M artificial
+samples only. Reward models: :class:`TrajectoryRewardModel` (a forward model of the state,
+Sec. 4.2, scored through predicted trajectories), :class:`DirectRewardModel` ("GP direct",
+Sec. 4.3.2) and :class:`KnownRewardModel` (a test oracle).
 """
 
 from __future__ import annotations
@@ -43,29 +26,13 @@ import torch
 from skillkit._repr import number
 from skillkit._validation import as_generator, check_array, check_count, check_positive
 from skillkit.models.gp import ExactGP, ForwardModel, GPRegression
-from skillkit.models.reward import (
-    RewardModel,
-    check_sample_dtype,
-    gp_stats,
-    warm_start_hypers,
-)
+from skillkit.models.reward import RewardModel, check_sample_dtype, gp_stats, warm_start_hypers
 from skillkit.policies.features import FeatureName, check_feature_name
 from skillkit.policies.gaussian import LinearGaussianPolicy
 from skillkit.search.base import Batch, SampleBuffer, as_batch
 from skillkit.search.reps import ContextualREPS, REPSDiagnostics
 from skillkit.tasks.base import Task
 from skillkit.trajectory import Trajectory
-
-__all__ = [
-    "CONTEXT_MODELS",
-    "DirectRewardModel",
-    "GPREPS",
-    "GPREPSDiagnostics",
-    "GPREPSSettings",
-    "KnownRewardModel",
-    "RewardModel",
-    "TrajectoryRewardModel",
-]
 
 ContextModel = Literal["gaussian", "uniform", "prior"]
 #: The context distributions μ̂(s) GPREPS can fit (Sec. 4.1).
@@ -74,19 +41,16 @@ CONTEXT_MODELS: tuple[str, ...] = ("gaussian", "uniform", "prior")
 
 # --------------------------------------------------------------------------- reward models
 class DirectRewardModel(RewardModel):
-    r""" "GP direct" (Sec. 4.3.2): a GP regression from z = [s, ω] to the reward R.
+    """ "GP direct" (Sec. 4.3.2): a GP regression from z = [s, ω] to R.
 
-    :meth:`expected_rewards` returns the GP's predictive mean E[R | s, ω] (Eq. 2.26), so L is
-    not used and no randomness is consumed. Each :meth:`fit` starts the hyper-parameter
-    optimisation (2.28) at the previous fit's values (warm start) when ``warm_start``.
+    :meth:`expected_rewards` is the GP's predictive mean (Eq. 2.26); L is unused.
 
     Parameters
     ----------
     gp : ExactGP, FITC or VFE, optional
-        The unfitted GP regression to use (default ``ExactGP()``, the thesis's settings). It
-        is trained and queried on its own ``device`` (e.g. ``ExactGP(device="cuda")``).
+        The unfitted GP (default ``ExactGP()``), trained and queried on its own ``device``.
     warm_start : bool
-        Start each refit at the previous hyper-parameters.
+        Start each refit's hyper-parameter optimisation (2.28) at the previous values.
     """
 
     def __init__(self, gp: GPRegression | None = None, warm_start: bool = True):
@@ -99,14 +63,7 @@ class DirectRewardModel(RewardModel):
         self.n_data = 0
 
     def fit(self, contexts, omegas, rewards, trajectories=None, rng=None) -> dict[str, Any]:
-        """Fit the GP on inputs [s_i, ω_i] (N, context_dim + d) and targets R_i (N,).
-
-        Returns
-        -------
-        dict
-            ``n_data``, ``log_ml`` (log marginal likelihood 2.28), ``iterations``,
-            ``noise_var_max``, ``numerical_events`` (what the fit handled, by kind).
-        """
+        """Fit the GP on [s_i, ω_i] → R_i; returns its fit statistics (``n_data``, ``log_ml``)."""
         s = check_array(contexts, "contexts", ndim=2)
         w = check_array(omegas, "omegas", shape=(s.shape[0], None))
         r = check_array(rewards, "rewards", shape=(s.shape[0],))
@@ -119,7 +76,7 @@ class DirectRewardModel(RewardModel):
         return gp_stats(self.gp, r.shape[0])
 
     def expected_rewards(self, contexts, omegas, n_trajectories=1, rng=None) -> np.ndarray:
-        """GP mean of R at [s_j, ω_j], shape (M,); ``n_trajectories`` and ``rng`` are unused."""
+        """GP mean of R at [s_j, ω_j], shape (M,)."""
         s = check_array(contexts, "contexts", ndim=2)
         w = check_array(omegas, "omegas", shape=(s.shape[0], None))
         mean, _ = self.gp.predict(np.hstack([s, w]))
@@ -132,54 +89,32 @@ class DirectRewardModel(RewardModel):
 class TrajectoryRewardModel(RewardModel):
     """A learned forward model of the task's state, scored through predicted trajectories.
 
-    :meth:`fit` fits ``make_model()`` (a fresh model each time, warm-started at the previous
-    hyper-parameters when it is a :class:`~skillkit.models.gp.ForwardModel`) on
-    ``task.transitions`` of every non-failed real trajectory; :meth:`expected_rewards` samples
-    L trajectories per pair with :func:`~skillkit.search.model_rollouts.predict_trajectories`
-    (start states p(x₀; s) Eq. 4.3, the task's controller and ``reward_batch``; a path the
-    task's simulator would stop as failed scores ``task.worst_reward``, as a real rollout does)
-    and averages their rewards (Eq. 4.1).
+    :meth:`fit` fits a fresh ``make_model()`` on the transitions of the real trajectories;
+    :meth:`expected_rewards` averages the task's reward over L trajectories per pair predicted by
+    :func:`~skillkit.search.model_rollouts.predict_trajectories` (Eqs. 4.1–4.3).
 
     Parameters
     ----------
     task : Task
-        A task with ``supports_model_rollout`` (balancing, pendulum).
+        A task with ``supports_model_rollout``.
     make_model : callable, optional
-        ``make_model()`` returns an unfitted forward model with ``fit(states, controls,
-        next_states, rng=)`` and the :class:`~skillkit.models.sampling.StepModel` interface
-        (default: ``ForwardModel(FITC(n_inducing=100, curb=HyperCurb()))``: x′ targets, the
-        sparse GP of Sec. 4.2 with PILCO's hyper-parameter curb). It is
-        part of the checkpointed state: use a class or a module-level function (or a
-        ``functools.partial`` of one), not a lambda, where checkpoints are taken.
+        Returns an unfitted forward model (default ``ForwardModel(FITC(n_inducing=100,
+        curb=HyperCurb()))``); checkpointed, so not a lambda.
     horizon : int, optional
-        T, predicted transitions per trajectory (default: that of the first real trajectory).
+        T (default: that of the first real trajectory).
     warm_start : bool
         Start each GP refit at the previous hyper-parameters.
+    device, dtype
+        Where and in which precision (float64 or float32) trajectories are sampled.
     prior_trajectories : sequence of Trajectory, optional
-        Real experience collected before the search (e.g. the random-policy rollouts that
-        start the models of Sec. 4.3.1); every fit learns their transitions too.
-    device : str or torch.device, optional
-        Where trajectories are sampled. The forward model is trained on its own GP's
-        ``device`` (e.g. a ``make_model`` returning
-        ``ForwardModel(FITC(n_inducing=100, device="cuda"))``); give the same device here so
-        that the predictor is not copied between devices for sampling.
-    dtype : torch.dtype
-        Precision of the sampled trajectories: ``torch.float64`` (default) or
-        ``torch.float32``, the faster path of
-        :func:`~skillkit.models.sampling.sample_trajectories` (its notes give the accuracy);
-        rewards are computed in float64 either way.
+        Real experience from before the search, learned by every fit.
     common_start_states : bool
-        Start the L predicted trajectories of every pair of one :meth:`expected_rewards` call
-        from the same L start states x₀ ~ p(x₀) (common random numbers; context-free tasks
-        only). Each Eq. (4.1) estimate of E_{x₀}[R | ω] stays unbiased, and the start state's
-        effect cancels from the comparison across the M samples — useful where rollouts vary
-        more between start states than between nearby parameters (balancing).
+        The same L start states for every pair of one call (context-free tasks only).
     """
 
-    dtype: torch.dtype = torch.float64  # class default for instances pickled without it
-    common_start_states: bool = False  # likewise
-    #: Fraction of the last :meth:`expected_rewards` call's predicted trajectories that the
-    #: task's divergence rule stopped (scored ``task.worst_reward``); None before one.
+    dtype: torch.dtype = torch.float64  # class defaults for instances pickled without them
+    common_start_states: bool = False
+    #: Fraction of the last call's predicted trajectories stopped as failed.
     last_failed_fraction: float | None = None
 
     def __init__(
@@ -224,18 +159,8 @@ class TrajectoryRewardModel(RewardModel):
         self.n_data = 0
 
     def fit(self, contexts, omegas, rewards, trajectories, rng=None) -> dict[str, Any]:
-        """Fit a fresh forward model on the transitions of ``trajectories`` and of the
-        ``prior_trajectories``: every working rollout's, and a failed rollout's up to its
-        failure where it kept them (:attr:`~skillkit.trajectory.Trajectory.has_transitions`;
-        a balancing robot that falls shows the model where a bad gain leads, as PILCO's
-        rollouts do).
-
-        Returns
-        -------
-        dict
-            ``n_data`` (transitions), ``n_trajectories``, and for a GP ``log_ml``,
-            ``iterations``, ``noise_var_max``, ``numerical_events``.
-        """
+        """Fit a fresh forward model on the transitions of ``trajectories`` and of the prior ones
+        (a failed rollout's up to its failure, where kept); returns its fit statistics."""
         if trajectories is None:
             raise ValueError("trajectories: a TrajectoryRewardModel learns from trajectories")
         ok = [t for t in [*self.prior_trajectories, *trajectories] if t.has_transitions]
@@ -249,7 +174,7 @@ class TrajectoryRewardModel(RewardModel):
                     "is unknown (pass horizon=)"
                 )
             self.horizon = int(whole[0].states.shape[0] - 1)
-        # A trajectory re-scored in extra contexts appears in several rows: learn it once.
+        # A trajectory re-scored in extra contexts appears in several rows.
         unique = list({id(t): t for t in ok}.values())
         parts = [self.task.transitions(t) for t in unique]
         x, u, xn = (np.concatenate(p) for p in zip(*parts, strict=True))
@@ -267,14 +192,12 @@ class TrajectoryRewardModel(RewardModel):
         return stats
 
     def start_states(self, n_pairs: int, n_trajectories: int, rng) -> np.ndarray:
-        """Common start states x₀ (n_pairs, L, n_x): L draws of the task's start distribution,
-        the same for every pair (``common_start_states``)."""
+        """L start states shared by all pairs, shape (n_pairs, L, n_x)."""
         x0 = self.task.initial_states(None, n_trajectories, as_generator(rng))
         return np.repeat(x0[None], n_pairs, axis=0)
 
     def expected_rewards(self, contexts, omegas, n_trajectories, rng=None) -> np.ndarray:
-        """Mean reward of L predicted trajectories per pair (Eq. 4.1), shape (M,); from common
-        start states when ``common_start_states`` (drawn from ``rng`` first)."""
+        """Mean reward of L predicted trajectories per pair (Eq. 4.1), shape (M,)."""
         from skillkit.search import model_rollouts
 
         if self.model is None:
@@ -319,9 +242,7 @@ class KnownRewardModel(RewardModel):
     Parameters
     ----------
     expected_reward : callable
-        ``expected_reward(contexts (M, context_dim), omegas (M, d)) -> (M,)``, the exact
-        E[R | s, ω] of the system (e.g. −‖ω − a* − A* s‖²_W for
-        :class:`~skillkit.experiments.sanity.LinearOptimumTask`).
+        ``expected_reward(contexts (M, context_dim), omegas (M, d)) -> (M,)``.
     """
 
     def __init__(self, expected_reward: Callable[[np.ndarray, np.ndarray], np.ndarray]):
@@ -351,22 +272,13 @@ class GPREPSSettings:
     Attributes
     ----------
     epsilon : float
-        KL bound ε > 0 of the REPS update (Eq. 3.4); 1 in the thesis (the dual sees M samples,
-        so its Lagrangian parameters are well estimated).
-    n_artificial : int
-        M ≥ 2, artificial (s, ω) pairs per update (500 in the thesis).
-    n_trajectories : int
-        L ≥ 1, predicted trajectories per pair averaged in Eq. (4.1) (25 in the thesis;
-        unused by :class:`DirectRewardModel`).
+        KL bound ε > 0 (Eq. 3.4).
+    n_artificial, n_trajectories : int
+        M ≥ 2 artificial samples per update, L ≥ 1 predicted trajectories each (Eq. 4.1).
     context_model : {"gaussian", "uniform", "prior"}
-        μ̂(s): a Gaussian fitted to the observed contexts (mean, covariance), the smallest box
-        holding them (uniform), or the task's own μ(s) (``task.sample_context``; needs
-        ``task``).
-    baseline_features : {"linear", "quadratic"}
-        Features φ(s) of the REPS baseline V(s) = γᵀφ(s) (constraint 3.5).
-    ridge, cov_shrinkage, cov_floor, min_effective_samples
-        Regularisation of the weighted ML fit (3.11–3.13), passed to the same fit as
-        :class:`~skillkit.search.reps.ContextualREPS`.
+        μ̂(s): a Gaussian fitted to the observed contexts, their bounding box, or the task's μ(s).
+    baseline_features, ridge, cov_shrinkage, cov_floor, min_effective_samples
+        As :class:`~skillkit.search.reps.ContextualREPS`.
     """
 
     epsilon: float = 1.0
@@ -395,28 +307,10 @@ class GPREPSSettings:
 class GPREPSDiagnostics:
     """What one :meth:`GPREPS.update` did.
 
-    Attributes
-    ----------
-    reps : REPSDiagnostics
-        The REPS update on the artificial samples (η, KL vs ε, ESS; ``reps.n_samples`` = M).
-    n_real : int
-        Real samples the model was fitted on (all so far).
-    predicted_real_reward : float or None
-        Mean model prediction of the new batch's real (s, ω), made *before* refitting
-        (``None`` at the first update, when there is no model yet).
-    real_reward : float
-        Mean real reward of the new batch.
-    prediction_bias : float or None
-        ``predicted_real_reward − real_reward`` (the model's bias on unseen data).
-    prediction_rmse : float or None
-        Root mean squared error of those predictions per sample.
-    model_fit : dict
-        The reward model's fit statistics (:meth:`RewardModel.fit`).
-    artificial_reward_mean : float
-        Mean predicted reward R̂ of the M artificial samples.
-    time_training, time_prediction, time_policy : float
-        Seconds spent refitting the model, predicting the artificial rewards (and the real
-        batch's), and in the REPS weighting and weighted ML fit.
+    ``reps`` is the REPS update on the M artificial samples; ``n_real`` the real samples the model
+    was fitted on (``model_fit``: its statistics); ``predicted_real_reward``, ``prediction_bias``
+    and ``prediction_rmse`` compare the model's prediction for the new batch, made before
+    refitting (``None`` at the first update), with its ``real_reward``; ``time_*`` are seconds.
     """
 
     reps: REPSDiagnostics
@@ -452,20 +346,13 @@ class GPREPS:
     policy : LinearGaussianPolicy
         Initial upper-level policy π(ω|s).
     reward_model : RewardModel
-        E.g. :class:`TrajectoryRewardModel` or :class:`DirectRewardModel`; refitted on all real
-        data at every update (it is part of this object's state, so it is checkpointed).
+        Refitted on all real data at every update.
     settings : GPREPSSettings, optional
     rng : Generator, int or None
-        GPREPS's own stream for the model fits, artificial contexts, parameters and predicted
-        trajectories (the real rollouts come from the loop's stream). Same seed ⇒ same numbers.
+        GPREPS's own stream. Draws per update: the new batch's prediction (from the second
+        update), the model fit, M contexts, M parameters, the M × L predicted trajectories.
     task : Task, optional
-        Needed for ``context_model="prior"`` (μ̂ = the task's μ(s)).
-
-    Notes
-    -----
-    Order of draws from ``rng`` in one update: the prediction of the new batch (from the
-    second update on), the model fit, M contexts (``"gaussian"``/``"uniform"``/``"prior"``),
-    M parameters ω ~ π(ω|s), the M × L predicted trajectories.
+        Needed for ``context_model="prior"``.
     """
 
     def __init__(
@@ -517,18 +404,14 @@ class GPREPS:
         return len(self._real)
 
     def real_data(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """All real samples so far: contexts (N, context_dim), omegas (N, d), rewards (N,)."""
+        """All real contexts (N, context_dim), omegas (N, d) and rewards (N,)."""
         if not len(self._real):
             pol = self.policy
             return np.zeros((0, pol.context_dim)), np.zeros((0, pol.dim)), np.zeros(0)
         return self._real.arrays()
 
     def sample_contexts(self, n: int) -> np.ndarray:
-        """n contexts from μ̂(s) fitted to the observed contexts, shape (n, context_dim).
-
-        ``"gaussian"``: N(mean, cov + 1e-10 I) of the observed contexts; ``"uniform"``: the
-        box [min, max] of each coordinate; ``"prior"``: ``task.sample_context``.
-        """
+        """n contexts from μ̂(s), shape (n, context_dim) (``"gaussian"``: covariance + 1e-10 I)."""
         pol, rng = self.policy, self._rng
         if pol.context_dim == 0:
             return np.zeros((n, 0))
@@ -544,30 +427,20 @@ class GPREPS:
         return rng.multivariate_normal(mean, cov, size=n, method="cholesky")
 
     def update(self, batch: Batch) -> GPREPSDiagnostics:
-        """One GPREPS iteration (Table 4.1) after observing a batch of real rollouts.
+        """One GPREPS iteration (Table 4.1) after a batch of real rollouts.
 
-        Parameters
-        ----------
-        batch : Batch
-            Real samples (s_i, ω_i, R_i) and, for a :class:`TrajectoryRewardModel`, their
-            trajectories τ_i. After one batch without trajectories none are kept any more
-            (also not from later batches): the model sees every trajectory or none.
-
-        Returns
-        -------
-        GPREPSDiagnostics
+        After one batch without trajectories none are kept any more: the model sees all or none.
         """
         pol, st, rng = self.policy, self.settings, self._rng
         batch = as_batch(batch, pol.dim, pol.context_dim)
         if self._trajectories is not None and batch.trajectories is None:
-            self._trajectories = None  # from now on the model sees no trajectories
+            self._trajectories = None  # the model sees all trajectories or none
         t0 = time.perf_counter()
         predicted = None
         if self.n_updates:  # the model's bias on the new, unseen real rollouts
             predicted = self.reward_model.expected_rewards(
                 batch.contexts, batch.omegas, st.n_trajectories, rng
             )
-            # Shape only (dtype kept): a non-finite prediction is reported in the diagnostics.
             predicted = check_array(
                 predicted,
                 "reward_model.expected_rewards",

@@ -1,27 +1,10 @@
-"""The model-free learning loop of Table 3.1, shared by every model-free experiment.
+"""The learning loop of Table 3.1, shared by every experiment.
 
-The loop is built from three named pieces, and :func:`learn` runs them top to bottom:
-
-* :func:`collect` — observe N contexts s_i ~ μ(s), draw ω_i ~ π(ω|s_i), roll out and score
-  R(τ_i, s_i): one :class:`~skillkit.search.base.Batch` for ``algorithm.update(batch)``. With
-  ``extra_contexts=k`` each trajectory is also re-scored in k freshly drawn contexts through the
-  task's reward (the *extra context* variant of Sec. 3.4), which is only valid when the
-  trajectory does not depend on the context. The batch marks its first N rows as the
-  rollouts (``Batch.n_rollouts``); in the re-scored rows ω does not depend on s, which
-  :class:`~skillkit.search.reps.ContextualREPS` corrects with ``extra_context_weighting``.
-* :class:`Evaluator` — the average reward of the policy *mean* on fixed contexts.
-* :class:`LoopState` — what the loop has done so far (curves, diagnostics, policies, callback
-  values, the algorithm); the state a :class:`~skillkit.trial.TrialContext` checkpoints after
-  every update, so a later call resumes where an interrupted one stopped.
-
-Learning curves
----------------
-* ``mean_reward``: average reward of the policy *mean* ω = E[π(ω|s)] on fixed evaluation
-  contexts, before the first update and after each update. Evaluation rollouts are not counted
-  as rollouts and use their own random stream, re-seeded identically at every evaluation
-  (common random numbers), so they neither perturb learning nor add update-to-update noise.
-* ``explore_reward``: average reward of the exploratory rollouts of each batch (in their own
-  contexts, extra-context re-scorings excluded).
+:func:`learn` runs :func:`collect` (one :class:`~skillkit.search.base.Batch` of rollouts, with
+``extra_contexts=k`` each trajectory also re-scored in k fresh contexts, Sec. 3.4),
+``algorithm.update(batch)`` and an :class:`Evaluator` (the reward of the policy mean on fixed
+contexts, with its own, identically re-seeded stream), and records a :class:`LoopState`, which
+a :class:`~skillkit.trial.TrialContext` checkpoints after every update.
 """
 
 from __future__ import annotations
@@ -55,7 +38,7 @@ class SearchPolicy(Protocol):
 
 
 class SearchAlgorithm(Protocol):
-    """A policy-search algorithm: a current policy and an update from a batch of samples."""
+    """A policy-search algorithm: a current policy and an update from a batch."""
 
     @property
     def policy(self) -> SearchPolicy: ...
@@ -74,32 +57,12 @@ def collect(
     rng: np.random.Generator | int | None,
     extra_contexts: int = 0,
 ) -> Batch:
-    """Roll out ``n`` samples of ``policy`` on ``task`` (one batch of Table 3.1).
+    """Roll out ``n`` ≥ 1 samples of ``policy`` on ``task`` (one batch of Table 3.1).
 
-    Draws, in this order from ``rng``: contexts s_i ~ μ(s) (n, context_dim); parameters
-    ω_i ~ π(ω|s_i); one rollout τ_i per pair; then, with ``extra_contexts=k``, k fresh
-    contexts per trajectory (n k, context_dim).
-
-    Parameters
-    ----------
-    task : Task
-    policy : SearchPolicy
-        E.g. ``algorithm.policy``; dimensions must match the task.
-    n : int
-        Rollouts N ≥ 1.
-    rng : Generator, int or None
-    extra_contexts : int
-        k ≥ 0 extra contexts per trajectory (Sec. 3.4); needs a contextual task whose
-        trajectories do not depend on the context.
-
-    Returns
-    -------
-    Batch
-        N (1 + k) rows: first the N rollouts in their own contexts, then each trajectory's k
-        re-scorings (rows N + i k … N + (i + 1) k − 1 re-score trajectory i, with ω_i and
-        τ_i repeated); ``n_rollouts`` = N. The re-scored pairs (s′, ω_i) are not draws of
-        μ(s)π(ω|s): how an algorithm uses them is its choice, e.g. ContextualREPS's
-        ``extra_context_weighting`` (:func:`~skillkit.search.base.extra_context_importance`).
+    Draws from ``rng``, in order: contexts s_i ~ μ(s), parameters ω_i ~ π(ω|s_i), one rollout per
+    pair, then n k extra contexts. With ``extra_contexts`` = k > 0 (Sec. 3.4; a contextual task
+    whose trajectories do not depend on the context) the batch has N (1 + k) rows: the N rollouts,
+    then trajectory i's k re-scorings at rows N + i k … N + (i + 1) k − 1 (``n_rollouts`` = N).
     """
     n = check_count(n, "n", 1)
     n_extra = _check_extra_contexts(task, extra_contexts)
@@ -123,20 +86,8 @@ def collect(
 # --------------------------------------------------------------------------- evaluation
 @dataclass(frozen=True, repr=False)
 class Evaluator:
-    """Average reward of a policy's mean on fixed contexts, with common random numbers.
-
-    Every call rolls out ω = E[π(ω|s)] once per context with a generator seeded by ``seed``
-    afresh, so two policies are compared on the same noise and evaluation never touches the
-    learning stream.
-
-    Parameters
-    ----------
-    task : Task
-    contexts : ndarray, shape (m, context_dim)
-        Evaluation contexts (already validated; see :meth:`draw`).
-    seed : int
-        Seed of the evaluation stream.
-    """
+    """Average reward of a policy's mean on fixed ``contexts`` (m, context_dim), each call with a
+    generator seeded afresh by ``seed`` (common random numbers)."""
 
     task: Task
     contexts: np.ndarray
@@ -150,15 +101,13 @@ class Evaluator:
         contexts: ArrayLike | None = None,
         seed: int | None = None,
     ) -> Evaluator:
-        """An evaluator on ``contexts`` (default: :data:`N_EVAL_CONTEXTS` contexts drawn from
-        ``rng``), with its seed drawn from ``rng`` after them; a given ``seed`` replaces the
-        drawn one (the draw still happens, so ``rng``'s later stream is the same).
+        """An evaluator on ``contexts`` (default :data:`N_EVAL_CONTEXTS` drawn from ``rng``),
+        its seed drawn from ``rng`` after them (and replaced by ``seed`` if given).
 
         Raises
         ------
         ValueError
-            Naming ``eval_contexts`` when a context has the wrong shape or lies outside μ(s),
-            ``eval_seed`` when ``seed`` is not a non-negative integer, or ``rng``.
+            Naming ``eval_contexts`` or ``eval_seed`` when they do not fit.
         """
         rng = as_generator(rng)
         if contexts is None:
@@ -175,17 +124,10 @@ class Evaluator:
         return cls(task, eval_s, drawn if seed is None else check_count(seed, "eval_seed", 0))
 
     def __call__(self, policy: SearchPolicy) -> float:
-        """Mean of R(τ, s) over the contexts s for ω = the policy mean at s."""
+        """Mean of R(τ, s) over the contexts for ω = the policy mean at s."""
         eval_rng = np.random.default_rng(self.seed)
-        means = np.atleast_2d(policy.mean_of(self.contexts))
-        return float(
-            np.mean(
-                [
-                    self.task.evaluate(w, s, eval_rng)[0]
-                    for w, s in zip(means, self.contexts, strict=True)
-                ]
-            )
-        )
+        pairs = zip(np.atleast_2d(policy.mean_of(self.contexts)), self.contexts, strict=True)
+        return float(np.mean([self.task.evaluate(w, s, eval_rng)[0] for w, s in pairs]))
 
     def __repr__(self) -> str:
         return (
@@ -197,36 +139,12 @@ class Evaluator:
 # --------------------------------------------------------------------------- loop state
 @dataclass(repr=False)
 class LoopState:
-    """Everything :func:`learn` has done so far: what it checkpoints after every update.
+    """Everything :func:`learn` has done after ``k`` updates: what it checkpoints.
 
-    Attributes
-    ----------
-    algorithm : SearchAlgorithm
-        The algorithm (its policy and sample buffer).
-    eval_contexts : ndarray, shape (m, context_dim)
-        The :class:`Evaluator`'s contexts.
-    eval_seed : int
-        The :class:`Evaluator`'s seed.
-    k : int
-        Updates done.
-    mean_reward : list of float
-        k + 1 evaluations of the policy mean (before the first update, after each one).
-    explore_reward : list of float
-        k mean rewards of the exploratory rollouts (extra-context re-scorings excluded).
-    n_failed : list of int
-        k numbers of failed rollouts.
-    diagnostics : list
-        k values returned by ``algorithm.update``.
-    callback : list
-        k + 1 values returned by the callback (``None`` without one).
-    policies : list of SearchPolicy
-        k + 1 policies (before the first update, after each one).
-    initial_rollouts : int or None
-        Rollouts of the first batch when it differs from the others (``None``: all batches
-        have the same size, e.g. GPREPS's N₀ initial rollouts, Table 4.1).
-    rollouts_per_update : int or None
-        N, the rollouts of every later batch (``None`` in states saved without
-        it); a resumed :func:`learn` must use the same N and N₀.
+    ``mean_reward``, ``callback`` and ``policies`` hold k + 1 entries (before the first update and
+    after each); ``explore_reward`` (the rollouts' mean reward), ``n_failed`` and ``diagnostics``
+    hold k. ``initial_rollouts`` is N₀ where the first batch differs from N =
+    ``rollouts_per_update`` (``None`` in states saved without it).
     """
 
     algorithm: SearchAlgorithm
@@ -245,8 +163,7 @@ class LoopState:
     def record_update(
         self, batch: Batch, n_rollouts: int, diagnostics: Any, mean_reward: float, callback: Any
     ) -> None:
-        """Append update k + 1: its batch (the first ``n_rollouts`` rows are the rollouts),
-        the update's diagnostics, the evaluation and the callback value after it."""
+        """Append update k + 1 (its first ``n_rollouts`` rows are the rollouts)."""
         self.k += 1
         self.explore_reward.append(float(batch.rewards[:n_rollouts].mean()))
         self.n_failed.append(sum(t.failed for t in batch.trajectories[:n_rollouts]))
@@ -256,16 +173,14 @@ class LoopState:
         self.policies.append(self.algorithm.policy)
 
     def rollouts(self, n_rollouts: int) -> np.ndarray:
-        """Rollouts done after 0, 1, …, k updates, shape (k + 1,): N₀ + (j − 1) N after update
-        j ≥ 1 (N₀ = ``initial_rollouts``, default N = ``n_rollouts``)."""
+        """Rollouts after 0, 1, …, k updates, shape (k + 1,): N₀ + (j − 1) N after update j ≥ 1."""
         counts = n_rollouts * np.arange(self.k + 1)
         if self.initial_rollouts is not None and self.k:
             counts[1:] += self.initial_rollouts - n_rollouts
         return counts
 
     def result(self, n_rollouts: int) -> dict:
-        """The curves as :func:`learn` returns them (``n_rollouts`` rollouts per update after
-        the first batch of ``initial_rollouts``)."""
+        """The curves as :func:`learn` returns them."""
         counts = self.rollouts(n_rollouts)
         return {
             "rollouts": counts,
@@ -309,63 +224,34 @@ def learn(
     initial_rollouts: int | None = None,
     eval_seed: int | None = None,
 ) -> dict:
-    """Run model-free policy search on a task (Table 3.1).
+    """Run policy search on a task (Table 3.1): K = ``n_updates`` updates of N =
+    ``rollouts_per_update`` rollouts each (N₀ = ``initial_rollouts`` in the first batch).
 
     Parameters
     ----------
     task : Task
-        The task (contexts, rollouts, rewards).
     algorithm : SearchAlgorithm
-        E.g. :class:`~skillkit.search.reps.ContextualREPS`, :class:`~skillkit.search.rwr.RWR`,
-        :class:`~skillkit.search.crkr.CrKR`; its policy must match the task's dimensions.
-        Updated in place.
-    n_updates : int
-        Number of policy updates K ≥ 1.
-    rollouts_per_update : int
-        Rollouts N ≥ 1 per update.
+        Its policy must match the task's dimensions; updated in place.
     rng : Generator, int or None
         All randomness (contexts, exploration, rollouts, evaluation seed).
     trial : TrialContext, optional
-        The trial this run belongs to (what an experiment's ``run_trial`` receives). The loop
-        advances its progress bar by one per update (the trial's owner sets the total with
-        ``trial.reset``) and checkpoints the :class:`LoopState` and the generator under
-        ``checkpoint_key`` after every update; a call with the same key resumes where the last
-        one stopped, giving the same numbers as an uninterrupted run (it must use the same
-        ``rollouts_per_update`` and ``initial_rollouts``, else ``ValueError``). Without a trial the
-        loop shows its own progress bar and keeps no checkpoints.
-    progress : bool
-        Show that progress bar (only used without ``trial``).
+        Advanced by one per update, and checkpointing the :class:`LoopState` and the generator
+        under ``checkpoint_key``: a call with the same key resumes with the same numbers as an
+        uninterrupted run (same N and N₀ required). Without a trial (``progress``): a progress
+        bar, no checkpoints.
     extra_contexts : int
-        k ≥ 0 extra contexts per trajectory (Sec. 3.4, :func:`collect`).
-    eval_contexts : array_like, shape (m, context_dim), optional
-        Contexts on which the policy mean is evaluated (default: :data:`N_EVAL_CONTEXTS`
-        contexts drawn from the task at the start), see :class:`Evaluator`.
+        k ≥ 0 extra contexts per trajectory (:func:`collect`).
+    eval_contexts, eval_seed : optional
+        Contexts (m, context_dim) and seed of the :class:`Evaluator` (default: drawn from ``rng``).
     callback : callable, optional
-        ``callback(k, algorithm)`` after the initial evaluation (k = 0) and after each update
-        k = 1..K (e.g. to record parameter errors). Its return values are collected in the
-        result's ``callback`` list (K + 1 entries), which survives checkpoint and resume —
-        record through return values, not through side effects, in resumable experiments.
-    checkpoint_key : str
-        Key of this loop's state in ``trial`` (distinct per ``learn`` call within a trial).
-    initial_rollouts : int, optional
-        N₀ ≥ 1, the rollouts of the first batch (GPREPS starts its model from N₀ rollouts, then
-        collects N per update, Table 4.1); default N, every batch the same size.
-    eval_seed : int, optional
-        Seed of the :class:`Evaluator`'s stream (default: drawn from ``rng``). Give several
-        runs the same seed (and contexts) to evaluate them on the same noise, e.g. the same
-        start states of a context-free task.
+        ``callback(k, algorithm)`` for k = 0..K; its return values are kept (and checkpointed).
 
     Returns
     -------
     dict
-        ``rollouts`` (K + 1,) rollouts so far at each evaluation (0, N₀, N₀ + N, …);
-        ``mean_reward`` (K + 1,) average reward of the policy mean on ``eval_contexts``;
-        ``explore_rollouts`` (K,) and ``explore_reward`` (K,) for the exploratory rollouts;
-        ``n_failed`` (K,) failed rollouts per batch; ``diagnostics`` (list of K update
-        diagnostics); ``callback`` (list of K + 1 callback return values);
-        ``eval_contexts`` (m, context_dim); ``policy`` (the final policy); ``policies``
-        (the K + 1 policies, before the first update and after each one: what the viewer's
-        learning playback steps through, see :func:`policy_history_arrays`).
+        ``rollouts`` (K + 1,) at each evaluation; ``mean_reward`` (K + 1,); ``explore_rollouts``
+        and ``explore_reward`` (K,); ``n_failed`` (K,); ``diagnostics`` (K); ``callback``
+        (K + 1); ``eval_contexts``; ``policy`` (the final one); ``policies`` (K + 1).
     """
     _check_task_and_algorithm(task, algorithm)
     n_updates = check_count(n_updates, "n_updates", 1)
@@ -378,7 +264,7 @@ def learn(
         )
     rng = as_generator(rng)
 
-    # Set up: the evaluator's draws come first on every run, resumed or not.
+    # The evaluator's draws come first on every run, resumed or not.
     evaluator = Evaluator.draw(task, rng, eval_contexts, eval_seed)
     state = None if trial is None else trial.resume(checkpoint_key, rng)
     if state is None:
@@ -405,7 +291,6 @@ def learn(
     )
     bar.update(state.k)
 
-    # Learn: collect, update, evaluate, record, checkpoint.
     try:
         for k in range(state.k + 1, n_updates + 1):
             n_k = n0 if k == 1 else n
@@ -425,20 +310,9 @@ def learn(
 
 
 def policy_history_arrays(policies) -> dict[str, np.ndarray]:
-    """The ``policy_*`` arrays of a learning run's policies (linear-Gaussian ones), the format
-    :func:`skillkit.viz.history.load_policy_history` reads from a run folder's ``trials.npz``.
-
-    Parameters
-    ----------
-    policies : sequence of LinearGaussianPolicy
-        E.g. ``learn(...)["policies"]`` (K + 1 policies).
-
-    Returns
-    -------
-    dict
-        ``policy_mean`` (K+1, d), ``policy_cov`` (K+1, d, d), ``policy_gain`` (K+1, d, F),
-        ``policy_context_dim`` and ``policy_features``.
-    """
+    """The ``policy_*`` arrays of a run's linear-Gaussian policies, as ``trials.npz`` stores them
+    (:func:`skillkit.viz.history.load_policy_history`): ``policy_mean`` (K+1, d), ``policy_cov``
+    (K+1, d, d), ``policy_gain`` (K+1, d, F), ``policy_context_dim``, ``policy_features``."""
     from skillkit.policies.gaussian import LinearGaussianPolicy
 
     if not policies or not all(isinstance(p, LinearGaussianPolicy) for p in policies):
@@ -465,8 +339,7 @@ def _check_task_and_algorithm(task: Task, algorithm: SearchAlgorithm) -> None:
 
 
 def _check_resumed_rollouts(state: LoopState, n: int, n0: int, key: str) -> None:
-    """A resumed state must have been collected with the same N and N₀: its rollout counts
-    (:meth:`LoopState.rollouts`) are computed from them."""
+    """A resumed state must have been collected with the same N and N₀."""
     saved_n = state.rollouts_per_update
     if saved_n is not None and saved_n != n:
         raise ValueError(
@@ -484,13 +357,9 @@ def _check_resumed_rollouts(state: LoopState, n: int, n0: int, key: str) -> None
 def _check_extra_contexts(task: Task, extra_contexts: int) -> int:
     n_extra = check_count(extra_contexts, "extra_contexts", 0)
     if n_extra and (task.trajectory_depends_on_context or task.context_dim == 0):
+        why = "no context" if task.context_dim == 0 else "trajectories that depend on the context"
         raise ValueError(
-            f"extra_contexts: task {task.name!r} "
-            + (
-                "has no context"
-                if task.context_dim == 0
-                else "has trajectories that depend on the context"
-            )
-            + "; re-scoring a trajectory in other contexts is not valid (Sec. 3.4)"
+            f"extra_contexts: task {task.name!r} has {why}; re-scoring a trajectory in other "
+            "contexts is not valid (Sec. 3.4)"
         )
     return n_extra

@@ -1,18 +1,15 @@
-r"""Predicted rollouts of a task under a learned forward model: the *Predict Rewards* step of
-GPREPS (Table 4.1, Eqs. 4.1–4.3).
+r"""Predicted rollouts of a task under a learned forward model (GPREPS's *Predict Rewards* step,
+Table 4.1, Eqs. 4.1–4.3).
 
-For B (ω, s) pairs and L trajectories each, the start states come from the task's
-:meth:`~skillkit.tasks.base.Task.initial_states` (p(x₀; s), Eq. 4.3), the controls from the
-task's own batched :meth:`~skillkit.tasks.base.Task.controller` (the lower-level policy the
-simulator runs), the next states from :func:`~skillkit.models.sampling.sample_trajectories`,
-and the rewards from :meth:`~skillkit.tasks.base.Task.reward_batch`, the same definition that
-scores simulated trajectories. The expected reward of each pair is the average
+Start states come from :meth:`~skillkit.tasks.base.Task.initial_states` (Eq. 4.3), controls
+from the task's batched :meth:`~skillkit.tasks.base.Task.controller`, next states from
+:func:`~skillkit.models.sampling.sample_trajectories`, and rewards from
+:meth:`~skillkit.tasks.base.Task.reward_batch`; each pair's expected reward is
 
 .. math:: \mathcal{R}_{s\omega} = \frac{1}{L} \sum_{l=1}^{L} R(\tau^{[l]}, s). \qquad (4.1)
 
-Only tasks whose reward is a function of the modelled states and controls are supported here
-(``supports_model_rollout``); tasks modelled by decomposed event models (hockey, table tennis,
-the ball of the throwing task) need those models to produce their reward signals.
+Only tasks whose reward is a function of the modelled states and controls are supported
+(``supports_model_rollout``).
 """
 
 from __future__ import annotations
@@ -34,22 +31,10 @@ __all__ = ["ModelRollouts", "predict_trajectories", "worst_if_failed", "worst_if
 class ModelRollouts:
     """L predicted trajectories for each of B (ω, s) pairs, scored by the task's reward.
 
-    Attributes
-    ----------
-    states : ndarray, shape (B, L, T + 1, n_x)
-        x₀ … x_T.
-    controls : ndarray, shape (B, L, T + 1, n_u)
-        u₀ … u_T: the controller's output at every predicted state (u_T at the last state, so
-        the arrays have the simulator's layout and :meth:`Task.reward_batch` scores them as it
-        scores a simulated trajectory).
-    rewards : ndarray, shape (B, L)
-        R(τ^{[l]}, s_b); ``task.worst_reward`` where ``failed``.
-    contexts : ndarray, shape (B, context_dim)
-    sampled : SampledTrajectories
-        The sampler's output (saturation and variance-clamping counts).
-    failed : ndarray of bool, shape (B, L)
-        Predicted paths the task's simulator would stop as failed
-        (:meth:`~skillkit.tasks.base.Task.failed_batch`), scored as such.
+    ``states`` (B, L, T + 1, n_x) and ``controls`` (B, L, T + 1, n_u, the controller's output at
+    every predicted state: the simulator's layout), ``rewards`` (B, L; ``task.worst_reward``
+    where ``failed``, the paths the simulator would stop), ``contexts`` (B, context_dim) and the
+    sampler's output ``sampled``.
     """
 
     states: np.ndarray
@@ -61,7 +46,7 @@ class ModelRollouts:
 
     @property
     def expected_rewards(self) -> np.ndarray:
-        """R̂_b = mean over the L trajectories of pair b (Eq. 4.1), shape (B,)."""
+        """R̂_b, the mean over pair b's L trajectories (Eq. 4.1), shape (B,)."""
         return self.rewards.mean(axis=1)
 
     def __repr__(self) -> str:
@@ -88,34 +73,22 @@ def predict_trajectories(
     device=None,
     dtype: torch.dtype = torch.float64,
 ) -> ModelRollouts:
-    """Sample L model trajectories for each (ω, s) pair and score them with the task's reward.
+    """Sample L = ``n_samples`` model trajectories of T = ``horizon`` steps per (ω, s) pair and
+    score them with the task's reward.
 
     Parameters
     ----------
     task : Task
-        A task with ``supports_model_rollout`` (its controller and reward run on model states).
+        With ``supports_model_rollout``.
     model : StepModel
-        A fitted forward model, e.g. :class:`~skillkit.models.gp.ForwardModel`, of the task's
-        ``model_signals()`` state and controls.
+        A fitted forward model of the task's ``model_signals()`` state and controls.
     omegas : array_like, shape (B, parameter_dim)
     contexts : array_like, shape (B, context_dim), optional
         Omit for context-free tasks.
-    horizon : int
-        T, the number of predicted transitions (≥ 1).
-    n_samples : int
-        L, trajectories per pair (≥ 1).
-    rng : Generator, int or None
-        Randomness of the start states and the model noise.
     x0 : array_like, shape (B, n_x) or (B, L, n_x), optional
-        Start states (default: L draws of ``task.initial_states(s_b, L, rng)`` per pair).
-    control_limit : float or array_like, optional
+        Start states (default: drawn from ``task.initial_states``).
+    control_limit, device, dtype
         Passed to :func:`~skillkit.models.sampling.sample_trajectories`.
-    device, dtype
-        Where and in which precision to sample.
-
-    Returns
-    -------
-    ModelRollouts
     """
     if not isinstance(task, Task):
         raise ValueError(f"task: expected a Task, got {type(task).__name__}")

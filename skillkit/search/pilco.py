@@ -1,47 +1,26 @@
 r"""PILCO (Deisenroth & Rasmussen 2011), the model-based baseline of Table 4.2 (Sec. 4.3.1).
 
-PILCO learns one deterministic lower-level controller, here the linear PD feedback of the
-balancing task u = G (x − x_up) (ω = vec G, row-major, 4 × 8), by gradient ascent on the
-return its GP forward model predicts. Each :meth:`PILCO.update` runs, top to bottom:
+PILCO learns the balancing task's linear feedback u = G (x − x_up) (ω = vec G, row-major,
+4 × 8) by gradient ascent on the return its GP forward model predicts. Each
+:meth:`PILCO.update`:
 
-1. **Learn the model.** A sparse GP (FITC, Sec. 4.2) of the dynamics, by default of
-   Δx = x_{t+1} − x_t (PILCO's target), fitted on every real transition so far
-   (:class:`~skillkit.search.gpreps.TrajectoryRewardModel`'s fit, so GPREPS and PILCO learn
-   their models the same way).
-2. **Predict.** p(x_0) = N(m_0, S_0) (the task's start distribution) is propagated over the
-   horizon by exact moment matching (Sec. 2.1.2, :func:`~skillkit.models.moment_matching.
-   moment_match`): because the controller is linear, z_t = [x_t; u_t] is Gaussian with
-   mean [m_t; G d_t] and covariance [[S_t, S_t Gᵀ], [G S_t, G S_t Gᵀ]], d_t = m_t − x_up.
-3. **Expected return** in closed form from the moments (:func:`expected_return`):
+1. fits a sparse GP (FITC, Sec. 4.2) of the dynamics on every real transition so far
+   (:class:`~skillkit.search.gpreps.TrajectoryRewardModel`'s fit);
+2. propagates p(x_0) = N(m_0, S_0) over the horizon by exact moment matching (Sec. 2.1.2):
+   with a linear controller z_t = [x_t; u_t] is Gaussian with mean [m_t; G d_t] and covariance
+   [[S_t, S_t Gᵀ], [G S_t, G S_t Gᵀ]], d_t = m_t − x_up;
+3. scores the expected return in closed form (:func:`expected_return`)
 
-   .. math:: J(G) = -\sum_{t=1}^{T} \mathbb{E}\big[\tilde x_t^\top Q \tilde x_t
-             + r_u u_t^\top u_t\big]
-             = -\sum_{t=1}^{T} \mathrm{tr}(Q S_t) + d_t^\top Q d_t
-             + r_u\big(\mathrm{tr}(G S_t G^\top) + \lVert G d_t\rVert^2\big),
+   .. math:: J(G) = -\sum_{t=1}^{T} \mathrm{tr}(Q S_t) + d_t^\top Q d_t
+             + r_u\big(\mathrm{tr}(G S_t G^\top) + \lVert G d_t\rVert^2\big);
 
-   the expectation of the task's reward R(τ) (:meth:`~skillkit.tasks.balancing.Balancing.
-   reward_batch`) under the predicted marginals.
-4. **Optimise.** ∂J/∂G through the whole propagation by torch autograd (float64), L-BFGS-B
-   (scipy) from the current gain; only completed L-BFGS iterates are accepted.
-   The optimised gain's prediction is checked for round-off: moment matching bounds its own
-   (:class:`~skillkit.models.moment_matching.RoundoffEstimate`; an exact GP near its linear
-   limit can lose every digit of the second moments), and a bound above
-   :data:`~skillkit.models.moment_matching.ROUNDOFF_TOL` is warned about once per update
-   (``PILCOSettings.strict``: raised), and reported in the diagnostics.
-5. **Apply.** The next real rollout uses the new G (the learning loop does it).
+4. maximises J by L-BFGS-B with torch autograd gradients (:func:`optimize_gain`), and checks
+   the optimised gain's prediction for round-off
+   (:func:`~skillkit.models.moment_matching.check_roundoff`).
 
-Real experience collected before learning (Sec. 4.3.1's 6 s of a random policy; tab4.2 uses
-rollouts with torque excitation) is given as ``prior_trajectories`` and learned by every fit.
-The first batch of the learning loop comes from ``initial_policy``, a Gaussian over gains; from
-the first update on the policy is the deterministic G (:class:`DeterministicPolicy`), whose
-starting point is that Gaussian's mean. A
-:class:`~skillkit.models.linear.LinearGaussianModel` can replace the GP; its Gaussian step is
-exact (:func:`model_moment_step`).
-
-**Torque limits.** The balancing robot's actuators are unlimited (the MuJoCo model sets no
-``ctrlrange``), so the controller is not squashed. PILCO's sine squashing of the controller
-(which keeps z Gaussian-propagable) is not implemented; on a task with torque limits this PILCO
-would optimise an unsquashed controller the simulator then clips.
+The first batch comes from ``initial_policy`` (a Gaussian over gains); afterwards the policy
+is the deterministic G. The controller is not squashed (the balancing robot has no torque
+limits). A :class:`~skillkit.models.linear.LinearGaussianModel` can replace the GP.
 """
 
 from __future__ import annotations
@@ -68,21 +47,7 @@ from skillkit.policies.gaussian import GaussianPolicy
 from skillkit.search.base import Batch, as_batch
 from skillkit.search.gpreps import TrajectoryRewardModel
 
-__all__ = [
-    "DeterministicPolicy",
-    "GPMomentStep",
-    "PILCO",
-    "PILCODiagnostics",
-    "PILCOSettings",
-    "expected_return",
-    "gp_moment_step",
-    "linear_gaussian_step",
-    "model_moment_step",
-    "optimize_gain",
-]
-
-#: ``step(mean_z (D,), cov_z (D, D)) -> (mean_x' (n,), cov_x' (n, n))``: one transition of a
-#: Gaussian state–control distribution, differentiable (torch float64).
+#: ``step(mean_z (D,), cov_z (D, D)) -> (mean_x' (n,), cov_x' (n, n))``, torch float64.
 MomentStep = Callable[[torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor]]
 
 
@@ -92,10 +57,9 @@ def _sym(S: torch.Tensor) -> torch.Tensor:
 
 # --------------------------------------------------------------------------- dynamics steps
 def model_moment_step(model, roundoff: bool = True) -> MomentStep:
-    """The Gaussian transition of a fitted forward model: moment matching for a GP
-    :class:`~skillkit.models.gp.ForwardModel` (:func:`gp_moment_step`, ``roundoff`` passed
-    on), the exact step of a :class:`~skillkit.models.linear.LinearGaussianModel` (its full
-    noise covariance Σ_w, the sampler's too: :mod:`skillkit.models.linear`)."""
+    """The Gaussian transition of a fitted forward model: :func:`gp_moment_step` for a GP, the
+    exact :func:`linear_gaussian_step` for a :class:`~skillkit.models.linear.LinearGaussianModel`.
+    """
     from skillkit.models.linear import LinearGaussianModel
 
     if isinstance(model, LinearGaussianModel):
@@ -105,45 +69,18 @@ def model_moment_step(model, roundoff: bool = True) -> MomentStep:
 
 
 def gp_moment_step(model: ForwardModel, roundoff: bool = True) -> GPMomentStep:
-    """The moment-matching transition of a fitted GP forward model (Sec. 2.1.2).
-
-    With the Δx model x' = x + Δ: mean m_x + E[Δ], covariance S_x + cov(Δ) + C + Cᵀ with
-    C = cov(x, Δ) the state rows of the input–output covariance; with the x' model the
-    prediction itself. A ``mean="linear"`` model's linear part is added exactly
-    (:func:`~skillkit.models.moment_matching.with_linear_mean`). A step whose expected latent
-    variance is negative beyond round-off (cancellation at huge state covariances) returns
-    NaN, which :func:`optimize_gain` treats as a failed evaluation.
-
-    Parameters
-    ----------
-    model : ForwardModel
-        Fitted, SE kernel (exact or sparse GP).
-    roundoff : bool
-        Bound each step's round-off (3–10 % of a step's time; :class:`GPMomentStep`).
-
-    Returns
-    -------
-    GPMomentStep
-        A :data:`MomentStep` that also keeps the largest round-off bound of its steps.
-    """
+    """The moment-matching transition (Sec. 2.1.2) of a fitted GP forward model (SE kernel),
+    bounding each step's round-off when ``roundoff``: a :class:`GPMomentStep`."""
     return GPMomentStep(model, roundoff)
 
 
 class GPMomentStep:
-    """The :data:`MomentStep` of :func:`gp_moment_step`, with the round-off of its steps.
+    """The :data:`MomentStep` of :func:`gp_moment_step`.
 
-    Each call is one moment-matching step; ``roundoff`` keeps the largest bound on their
-    float64 round-off (:class:`~skillkit.models.moment_matching.RoundoffEstimate`) since
-    construction or :meth:`reset`, for the caller to check
-    (:func:`~skillkit.models.moment_matching.check_roundoff`) once per prediction.
-
-    Parameters
-    ----------
-    model : ForwardModel
-        Fitted, SE kernel (exact or sparse GP).
-    roundoff : bool
-        Bound the round-off at all (off: ``roundoff`` stays None; PILCO's optimisation runs
-        without it and checks the optimised gain's prediction once).
+    With a Δx model x' = x + Δ the mean is m_x + E[Δ] and the covariance S_x + cov(Δ) + C + Cᵀ,
+    C = cov(x, Δ); a ``mean="linear"`` model's linear part is added exactly. ``roundoff`` keeps
+    the largest round-off bound of the steps since construction or :meth:`reset` (``None`` with
+    ``roundoff=False``).
     """
 
     def __init__(self, model: ForwardModel, roundoff: bool = True):
@@ -155,7 +92,7 @@ class GPMomentStep:
         self.roundoff: RoundoffEstimate | None = None
 
     def reset(self) -> None:
-        """Forget the steps taken so far (``roundoff`` back to None)."""
+        """Forget the steps taken so far."""
         self.roundoff = None
 
     def __call__(
@@ -177,22 +114,9 @@ class GPMomentStep:
 
 
 def linear_gaussian_step(A, B, noise_cov, offset=None) -> MomentStep:
-    """The exact transition of x' = A x + B u + c + w, w ~ N(0, Σ_w): moment matching is exact.
-
-    Parameters
-    ----------
-    A : array_like, shape (n, n)
-    B : array_like, shape (n, m)
-    noise_cov : array_like, shape (n, n)
-        Σ_w, symmetric positive semi-definite.
-    offset : array_like, shape (n,), optional
-        c (default 0).
-
-    Returns
-    -------
-    MomentStep
-        mean [A B] m_z + c, covariance [A B] S_z [A B]ᵀ + Σ_w.
-    """
+    """The exact transition of x' = A x + B u + c + w, w ~ N(0, Σ_w): mean [A B] m_z + c,
+    covariance [A B] S_z [A B]ᵀ + Σ_w (A (n, n), B (n, m), Σ_w = ``noise_cov`` symmetric PSD,
+    c = ``offset`` default 0)."""
     a = check_array(A, "A", ndim=2)
     if a.shape[0] != a.shape[1]:
         raise ValueError(f"A: expected a square matrix, got shape {a.shape}")
@@ -229,41 +153,30 @@ def expected_return(
     control_weight: float = 0.0,
     score_initial: bool = False,
 ) -> torch.Tensor:
-    r"""PILCO's expected return of the feedback u = G (x − x_target), differentiable in G.
+    r"""PILCO's expected return J(G) of the feedback u = G (x − x_target), differentiable in G.
 
-    Propagates p(x_0) = N(m_0, S_0) through ``step`` with z_t = [x_t; G d_t] Gaussian
-    (d_t = x_t − x_target) and sums the closed-form expected stage rewards
+    Propagates N(m_0, S_0) through ``step`` and sums the expected stage rewards
 
     .. math:: -\mathbb{E}[\tilde x^\top Q \tilde x + r_u u^\top u]
               = -\big(\mathrm{tr}(Q S) + d^\top Q d + r_u(\mathrm{tr}(G S G^\top)
               + \lVert G d\rVert^2)\big)
 
-    over t = 1..T (the task's R(τ), Sec. 4.3.1), plus t = 0 when ``score_initial`` (the LQR
-    convention Σ_{t≥0}).
+    over t = 1..T (and t = 0 with ``score_initial``).
 
     Parameters
     ----------
     step : MomentStep
-        :func:`gp_moment_step` or :func:`linear_gaussian_step`.
     gain : Tensor, shape (m, n)
-        G, float64 (with ``requires_grad`` for the policy gradient).
-    mean0 : array_like, shape (n,)
-    cov0 : array_like, shape (n, n)
+        G, float64.
+    mean0, cov0 : array_like, shapes (n,) and (n, n)
     horizon : int
         T ≥ 1.
     target : array_like, shape (n,)
-        x_target (x_up for balancing).
     state_weights : array_like, shape (n, n)
         Q.
     control_weight : float
         r_u ≥ 0.
     score_initial : bool
-        Include the t = 0 stage.
-
-    Returns
-    -------
-    Tensor, shape ()
-        J(G) (a reward: higher is better).
     """
     T = check_count(horizon, "horizon", 1)
     if not isinstance(gain, torch.Tensor) or gain.ndim != 2:
@@ -303,30 +216,12 @@ def optimize_gain(
     max_iterations: int = 100,
     tolerance: float = 1e-9,
 ) -> tuple[np.ndarray, dict[str, Any]]:
-    """Maximise ``objective(G)`` with L-BFGS-B from G₀, gradients by torch autograd.
+    """Maximise ``objective(G)`` by L-BFGS-B from ``gain0`` with torch autograd gradients.
 
-    Only completed iterates are kept: the result is the best objective value among G₀ and the
-    iterates L-BFGS-B accepted (a line-search trial point is never returned). A non-finite
-    objective (a diverging prediction) or one whose evaluation fails in a Cholesky
-    factorisation is reported to L-BFGS-B as a very large cost with zero gradient, so the line
-    search backs off.
-
-    Parameters
-    ----------
-    objective : callable
-        ``objective(G: Tensor (m, n), float64, requires_grad) -> Tensor ()``.
-    gain0 : array_like, shape (m, n)
-    max_iterations : int
-        L-BFGS-B iterations.
-    tolerance : float
-        Relative change of the objective at which L-BFGS-B stops (``ftol``).
-
-    Returns
-    -------
-    gain : ndarray, shape (m, n)
-    info : dict
-        ``value0``, ``value`` (objective at G₀ and at the result), ``n_iterations``,
-        ``n_evaluations``, ``message``.
+    Returns the best of G₀ and the accepted iterates (never a line-search trial) and ``info``
+    (``value0``, ``value``, ``n_iterations``, ``n_evaluations``, ``message``). A non-finite
+    objective or a failed Cholesky counts as a very large cost with zero gradient;
+    ``tolerance`` is L-BFGS-B's ``ftol``.
     """
     g0 = check_array(gain0, "gain0", ndim=2)
     max_iterations = check_count(max_iterations, "max_iterations", 1)
@@ -376,12 +271,7 @@ def optimize_gain(
 
 # --------------------------------------------------------------------------- the algorithm
 class DeterministicPolicy:
-    """A context-free point-mass "policy" ω = μ: what PILCO learns (no exploration).
-
-    Parameters
-    ----------
-    mean : array_like, shape (d,)
-    """
+    """A context-free point-mass policy ω = μ, shape (d,): what PILCO learns."""
 
     context_dim = 0
 
@@ -390,7 +280,7 @@ class DeterministicPolicy:
         self.dim = int(self.mean.shape[0])
 
     def sample(self, contexts=None, rng=None) -> np.ndarray:
-        """μ for each context: shape (n, d) for contexts (n, 0), (d,) for ``None``."""
+        """μ per context: shape (n, d) for contexts (n, 0), (d,) for ``None``."""
         if contexts is None:
             return self.mean.copy()
         contexts = np.asarray(contexts)
@@ -415,16 +305,15 @@ class PILCOSettings:
     Attributes
     ----------
     policy_iterations : int
-        L-BFGS-B iterations of each policy optimisation (tab4.2 uses 50; each iteration costs
-        one or more propagations over the horizon and their gradients).
+        L-BFGS-B iterations per policy optimisation.
     tolerance : float
         L-BFGS-B's relative ``ftol``.
     horizon : int or None
         T of the predicted return (default: the task's ``n_steps``).
     strict : bool
-        Moment matching's round-off bound for the optimised gain's prediction above
-        :data:`~skillkit.models.moment_matching.ROUNDOFF_TOL` raises
-        :class:`~skillkit.models.moment_matching.MomentPrecisionError` instead of warning.
+        Raise :class:`~skillkit.models.moment_matching.MomentPrecisionError` instead of warning
+        when the optimised gain's round-off bound exceeds
+        :data:`~skillkit.models.moment_matching.ROUNDOFF_TOL`.
     """
 
     policy_iterations: int = 100
@@ -441,33 +330,11 @@ class PILCOSettings:
 
 @dataclass(frozen=True, repr=False)
 class PILCODiagnostics:
-    """What one :meth:`PILCO.update` did.
-
-    Attributes
-    ----------
-    n_data : int
-        Real transitions the model was fitted on.
-    model_fit : dict
-        The forward model's fit statistics (``log_ml``, ``iterations``, ...).
-    predicted_real_reward : float or None
-        The previous model's expected return of the gain that was just rolled out (``None``
-        at the first update).
-    real_reward : float
-        Mean real reward of the new batch.
-    return_before, return_after : float
-        The new model's expected return J of the gain before and after the optimisation.
-    n_iterations, n_evaluations : int
-        L-BFGS-B iterations and objective evaluations.
-    message : str
-        L-BFGS-B's stopping message.
-    time_training, time_policy : float
-        Seconds in model learning and in policy optimisation.
-    roundoff : float or None
-        Moment matching's bound on the relative round-off of the predicted moments for the
-        optimised gain (the largest over the horizon; a warning above
-        :data:`~skillkit.models.moment_matching.ROUNDOFF_TOL`); None for a linear-Gaussian
-        model (exact step).
-    """
+    """What one :meth:`PILCO.update` did: the model fit (``n_data`` transitions, ``model_fit``
+    statistics), the previous model's J of the gain just rolled out (``None`` at first) against
+    the batch's real reward, the new model's J before and after the L-BFGS-B optimisation
+    (iterations, evaluations, message), the seconds spent, and the optimised gain's round-off
+    bound (``None`` for a linear-Gaussian model)."""
 
     n_data: int
     model_fit: dict
@@ -493,28 +360,18 @@ class PILCODiagnostics:
 class PILCO:
     """PILCO for the balancing task: a linear feedback gain optimised through moment matching.
 
-    A search algorithm in the sense of :func:`~skillkit.search.loop.learn`: ``policy`` (what
-    the next rollouts use) and ``update(batch)`` (the five steps of the module docstring).
-
     Parameters
     ----------
     task : Balancing
-        Context-free, with the linear feedback u = G (x − x_up), the start distribution
-        N(x_up, σ² I) (σ = ``task.initial_std``) and the quadratic reward (Q, r_u).
     initial_policy : GaussianPolicy
-        The random policy of the first rollouts (over the 32 gains); its mean is the
-        optimisation's starting gain.
+        The random policy of the first rollouts over the 32 gains; its mean is the starting gain.
     make_model : callable, optional
-        Returns an unfitted forward model (default
-        ``ForwardModel(FITC(n_inducing=100, curb=HyperCurb()))``, x′ targets; a
-        :class:`~skillkit.models.linear.LinearGaussianModel` is propagated exactly); see
-        :class:`~skillkit.search.gpreps.TrajectoryRewardModel`.
+        As :class:`~skillkit.search.gpreps.TrajectoryRewardModel`'s.
     settings : PILCOSettings, optional
     rng : Generator, int or None
-        The models' fitting randomness (k-means++ seeding of pseudo-inputs).
+        The model fits' randomness.
     prior_trajectories : sequence of Trajectory, optional
-        Real experience collected before learning (the random-policy rollouts of Sec. 4.3.1),
-        learned by every model fit.
+        Real experience from before learning, learned by every fit.
     """
 
     def __init__(
@@ -560,16 +417,13 @@ class PILCO:
         return DeterministicPolicy(self.gain.ravel())
 
     def expected_return(self, gain) -> float:
-        """J(G) (:func:`expected_return`) under the current model, for G of shape (4, 8).
-
-        Its moment-matching round-off is checked (a warning, or with ``settings.strict`` an
-        error, above :data:`~skillkit.models.moment_matching.ROUNDOFF_TOL`)."""
+        """J(G) under the current model for G of shape (4, 8), its round-off checked."""
         value, roundoff = self._predict(gain)
         check_roundoff(roundoff, "PILCO.expected_return", self.settings.strict)
         return value
 
     def _predict(self, gain, roundoff: bool = True) -> tuple[float, RoundoffEstimate | None]:
-        """J(G) and (``roundoff``) the largest round-off bound of its moment-matching steps."""
+        """J(G) and the largest round-off bound of its steps."""
         if self.model.model is None:
             raise RuntimeError("PILCO: call update() before predicting")
         G = torch.as_tensor(check_array(gain, "gain", shape=(4, 8)), dtype=DTYPE)
@@ -592,13 +446,7 @@ class PILCO:
         return objective
 
     def update(self, batch: Batch) -> PILCODiagnostics:
-        """Learn the model on all real data, then optimise the gain on it.
-
-        Parameters
-        ----------
-        batch : Batch
-            New real rollouts (empty contexts, gains, rewards, trajectories).
-        """
+        """Learn the model on all real data, then optimise the gain on it."""
         batch = as_batch(batch, 32, 0)
         if batch.trajectories is None:
             raise ValueError("batch: PILCO learns from trajectories; the batch has none")
@@ -607,7 +455,6 @@ class PILCO:
             predicted = self._predict(self.gain, roundoff=False)[0]  # checked when optimised
         self.trajectories.extend(batch.trajectories)
 
-        # 1. Learn the model.
         t0 = time.perf_counter()
         n = len(self.trajectories)
         fit = self.model.fit(
@@ -615,13 +462,11 @@ class PILCO:
         )
         t1 = time.perf_counter()
 
-        # 2.–4. Predict, score and optimise the gain through the whole propagation.
         objective = self._objective(model_moment_step(self.model.model, roundoff=False))
         gain, info = optimize_gain(
             objective, self.gain, self.settings.policy_iterations, self.settings.tolerance
         )
         t2 = time.perf_counter()
-        # The optimised gain's prediction: is it free of round-off?
         roundoff = self._predict(gain)[1]
         check_roundoff(roundoff, "PILCO.update", self.settings.strict)
         self.gain = gain

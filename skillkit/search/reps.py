@@ -1,59 +1,17 @@
-r"""Relative Entropy Policy Search: episode-based (2.12–2.15) and contextual (3.3–3.13).
+r"""Relative Entropy Policy Search: episode-based (Eqs. 2.12–2.15) and contextual (3.3–3.13).
 
-The maths is in three functions, in the style of bolero's C-REPS:
+:func:`reps_dual` is the sample-based dual g(η, γ) of Eq. (3.9)/(A.10) with its gradient
+(A.11, A.12), :func:`reps_dual_hessian` its Hessian, and :func:`reps_weights` minimises it and
+returns the weights p_i ∝ exp((R_i − V(s_i))/η) of Eq. (3.10). :class:`ContextualREPS` runs
+Table 3.1 on them (:class:`~skillkit.search.base.WeightedMLSearch`); with a context-free policy
+(no features, V ≡ 0) it is episode-based REPS.
 
-* :func:`reps_dual` — the sample-based dual g(η, γ; D) of Eq. (3.9)/(A.10) and its analytic
-  gradient (A.11, A.12), a pure function of its arguments;
-* :func:`reps_dual_hessian` — its analytic Hessian, (1/η) times the p-weighted covariance of
-  [(R_i − γᵀφ_i)/η, φ_i] (positive semi-definite: the dual is convex);
-* :func:`reps_weights` — minimises the dual (scipy's L-BFGS-B, or Newton's method with the
-  analytic Hessian: ``solver="newton"``) and returns the sample weights
-  p_i ∝ exp((R_i − V(s_i))/η) of Eq. (3.10) with diagnostics.
-
-:class:`ContextualREPS` only holds state (the policy and the last L batches of samples) and
-runs Table 3.1: weights from the dual, then the weighted maximum-likelihood policy
-(Eqs. 3.11–3.13, :meth:`~skillkit.policies.gaussian.LinearGaussianPolicy.fit`); that loop is
-:class:`~skillkit.search.base.WeightedMLSearch`, shared with RWR. Episode-based REPS is the
-same code path with a context-free policy (no context features, V ≡ 0).
-
-Two choices of :class:`ContextualREPS` go beyond Table 3.1 (defaults
-:data:`DEFAULT_EXTRA_CONTEXT_WEIGHTING` = importance weights, :data:`DEFAULT_M_STEP` = the
-thesis's weighted ML fit):
-
-* ``extra_context_weighting`` — rows that re-score a trajectory in an extra context (Sec. 3.4)
-  are not draws of μ(s)π(ω|s). ``"importance"`` makes them so by importance weights
-  (:func:`~skillkit.search.base.extra_context_importance`) that become the base distribution
-  q of the dual (``base_weights`` of :func:`reps_weights`: p_i ∝ q_i exp((R_i − V(s_i))/η),
-  KL(p ‖ q) ≤ ε). ``"naive"`` biases the gain towards zero
-  (``benchmarks/bench_reps_extra_context.py``).
-* ``m_step`` — the weighted ML fit's KL from the old policy is about 2ε with tens of effective
-  samples in 10 dimensions, and its covariance collapses. ``"trust_region"`` bounds the
-  entropy loss and then the KL after the fit
-  (:func:`~skillkit.policies.gaussian.trust_region_step`); the KL after the M-step is in every
-  update's diagnostics (``policy_kl``, and the fit's own in ``m_step.ml_kl``).
-
-Numerics of :func:`reps_weights`
---------------------------------
-* Rewards are shifted by their maximum and divided by their standard deviation, and the
-  baseline features are centred at their sample mean φ̂ and whitened. The weights are
-  invariant to both transforms (g(η, γ; σR + c) = σ g(η/σ, γ/σ; R) + c, and the feature
-  constraint (3.5) is the same set for any invertible linear map of φ), so the optimiser always
-  sees rewards of unit spread, whatever their magnitude (1e-6 … 1e6).
-* η > 0 is enforced by optimising over log η (bounded to [1e-8, 1e8] in normalised units);
-  the log-sum-exp is evaluated with a max shift, so no exponential overflows.
-* Solvers (``solver`` of :func:`reps_weights`, default :data:`DEFAULT_DUAL_SOLVER`):
-  ``"lbfgsb"`` is scipy's L-BFGS-B on (log η, γ) (the stored results' solver); ``"newton"``
-  takes damped Newton steps in (log η, γ) with the analytic Hessian and an Armijo line search
-  (:func:`_minimise_newton`), stopping on the same projected-gradient tolerance, in a handful of
-  iterations where L-BFGS-B needs tens (``benchmarks/bench_reps.py``); both reach the same
-  minimiser. Where ε is unattainable under the feature constraint (η → 0) Newton does not
-  converge and L-BFGS-B runs from the start instead (said in ``message``).
-* At the optimum ∂g/∂η = ε − KL(p ‖ uniform) (KL(p ‖ q) with base weights q), so the KL
-  bound (3.4) is met with equality.
-  If ε exceeds the largest KL the samples allow (ε ≥ log N for distinct rewards, less when the
-  feature constraint (3.5) must hold too), η runs towards its lower bound; this is reported
-  (``kl_bound_active=False``), not hidden. The flag is derived from the achieved KL
-  (KL ≥ (1 − :data:`KL_TOLERANCE`) ε), not from where η stopped.
+Numerics of :func:`reps_weights`: rewards are shifted by their maximum and divided by their
+standard deviation, and the baseline features centred and whitened; the weights are invariant
+to both (g(η, γ; σR + c) = σ g(η/σ, γ/σ; R) + c). η > 0 is optimised as log η within
+:data:`ETA_BOUNDS`. At the optimum ∂g/∂η = ε − KL(p ‖ q), so the bound (3.4) holds with
+equality; where ε exceeds what the samples and constraint (3.5) allow, η runs to its lower
+bound and ``kl_bound_active`` is False (judged from the achieved KL, :data:`KL_TOLERANCE`).
 """
 
 from __future__ import annotations
@@ -75,23 +33,21 @@ from skillkit.policies.gaussian import (
     trust_region_step,
 )
 from skillkit.search.base import Batch, Fields, WeightedMLSearch, extra_context_importance
-from skillkit.search.base import SampleBuffer as SampleBuffer  # re-exported (and old pickles)
+from skillkit.search.base import SampleBuffer as SampleBuffer  # re-exported (pickles name it here)
 from skillkit.search.base import check_batch as check_batch  # re-exported
 
 #: Bounds of η in normalised reward units (rewards divided by their standard deviation).
 ETA_BOUNDS = (1e-8, 1e8)
-#: Relative tolerance on the achieved KL: the bound (3.4) counts as active (met with equality)
-#: when KL ≥ (1 − tol) ε, and a solution is successful only if KL ≤ (1 + tol) ε.
+#: Relative tolerance on the achieved KL: the bound (3.4) is active when KL ≥ (1 − tol) ε,
+#: and a solution succeeds only if KL ≤ (1 + tol) ε.
 KL_TOLERANCE = 1e-3
-#: η (normalised units) below which a KL short of ε means that ε is unattainable: the weights
-#: are then, to within exp(−1/η) of the smallest reward gap, the η → 0 limit of Eq. (3.10).
+#: η (normalised units) below which a KL short of ε means that ε is unattainable.
 ETA_UNATTAINABLE = 1e-5
 #: Projected-gradient tolerance in (log η, γ), normalised units, of both solvers.
 DUAL_GTOL = 1e-11
 
 DualSolver = Literal["lbfgsb", "newton"]
-#: The dual's solver by default (``"lbfgsb"``, the stored results' solver); ``"newton"`` reaches
-#: the same minimiser in far fewer iterations.
+#: The dual's default solver.
 DEFAULT_DUAL_SOLVER: DualSolver = "lbfgsb"
 
 
@@ -104,12 +60,8 @@ def _dual(
     log_base: np.ndarray | None = None,
     phihat: np.ndarray | None = None,
 ):
-    """Unchecked core of :func:`reps_dual`; also returns the weights p (softmax).
-
-    ``log_base`` is log q_i of normalised base weights (``None``: uniform q_i = 1/N, computed
-    without the logarithms, so uniform weights give the stored results' numbers to the last
-    bit). ``phihat``: φ̂ computed once by the caller exactly as here (a solver's loop), or ``None``.
-    """
+    """Unchecked :func:`reps_dual`, also returning p; ``log_base`` is log q (``None``: uniform,
+    computed without logarithms), ``phihat`` a precomputed φ̂."""
     eta, gamma = params[0], params[1:]
     adv = rewards - features @ gamma
     a = adv / eta
@@ -147,40 +99,39 @@ def reps_dual(
             + \eta\epsilon + \gamma^\top\hat\phi,
         \qquad \hat\phi = \frac1N \sum_i \phi(s_i)
 
-    With base weights q (normalised to sum to one) the samples stand for the weighted
-    empirical distribution Σ q_i δ_i instead of the uniform one (e.g. importance weights of
-    samples not drawn from μ(s)π(ω|s), :func:`~skillkit.search.base.extra_context_importance`):
-    1/N becomes q_i inside the logarithm and φ̂ = Σ q_i φ(s_i); the KL of Eq. (3.4) is then
-    KL(p ‖ q). q uniform gives Eq. (3.9).
+    With base weights q the samples stand for Σ q_i δ_i: 1/N becomes q_i inside the logarithm,
+    φ̂ = Σ q_i φ(s_i), and the KL of Eq. (3.4) is KL(p ‖ q).
 
     Parameters
     ----------
     params : array_like, shape (1 + F,)
         [η, γ_1, …, γ_F] with η > 0.
     rewards : array_like, shape (N,)
-        Rewards R_i.
     features : array_like, shape (N, F)
         Baseline features φ(s_i) (F = 0 for episode-based REPS).
     epsilon : float
         KL bound ε > 0.
     base_weights : array_like, shape (N,), optional
-        Non-negative base weights q_i with a positive sum (normalised here); ``None``: uniform.
+        q_i ≥ 0 with a positive sum (normalised here); ``None``: uniform.
 
     Returns
     -------
     value : float
-        g(η, γ).
     grad : ndarray, shape (1 + F,)
-        [∂g/∂η (A.11), ∂g/∂γ (A.12)]. Note ∂g/∂η = ε − KL(p ‖ q) with the weights
-        p_i ∝ q_i exp((R_i − γᵀφ(s_i))/η) of Eq. (3.10).
+        [∂g/∂η, ∂g/∂γ], with ∂g/∂η = ε − KL(p ‖ q) for the weights (3.10).
     """
+    value, grad, _ = _dual(*_dual_args(params, rewards, features, epsilon, base_weights))
+    return float(value), grad
+
+
+def _dual_args(params, rewards, features, epsilon, base_weights):
+    """Validated (params, rewards, features, ε, log q) of :func:`reps_dual`."""
     r, phi = check_samples(rewards, features)
     x = check_array(params, "params", shape=(1 + phi.shape[1],))
     if not x[0] > 0:
         raise ValueError(f"params: η = params[0] must be > 0, got {x[0]!r}")
     log_q = _log_base(base_weights, r.shape[0])
-    value, grad, _ = _dual(x, r, phi, check_positive(epsilon, "epsilon"), log_q)
-    return float(value), grad
+    return x, r, phi, check_positive(epsilon, "epsilon"), log_q
 
 
 def _phihat(features: np.ndarray, log_base: np.ndarray | None) -> np.ndarray:
@@ -189,8 +140,7 @@ def _phihat(features: np.ndarray, log_base: np.ndarray | None) -> np.ndarray:
 
 
 def _hessian_workspace(features: np.ndarray) -> np.ndarray:
-    """(F + 2, N) array [·, φ, 1]ᵀ whose first row :func:`_dual_hessian` fills (rows of
-    samples are contiguous: the products below run at memory speed)."""
+    """Reusable (F + 2, N) storage of [·, φ, 1]ᵀ for :func:`_dual_hessian`."""
     n, n_feat = features.shape
     work = np.empty((n_feat + 2, n))
     work[1:-1] = features.T
@@ -207,13 +157,8 @@ def _dual_hessian(
     phihat: np.ndarray | None = None,
     work: np.ndarray | None = None,
 ):
-    """:func:`_dual` and the Hessian: value, grad, hess (1 + F, 1 + F), p.
-
-    With w_i = [A_i/η, φ_i] the Hessian is Cov_p(w)/η. One product Wᵀ(p ∘ W) of
-    W = [A/η − c, φ, 1] gives E_p[wwᵀ] and E_p[w] (the column of ones); c = A_j/η at the
-    heaviest sample keeps E_p[A/η − c] of the order of its spread, so the covariance
-    E_p[wwᵀ] − E_p[w]E_p[w]ᵀ loses little to cancellation. ``work``
-    (:func:`_hessian_workspace`) is W's reusable storage (a solver's loop)."""
+    """:func:`_dual` and the Hessian Cov_p(w)/η, from one product Wᵀ(p ∘ W) with W = [A/η − c,
+    φ, 1] (c: A/η at the heaviest sample, against cancellation): value, grad, hess, p."""
     value, grad, p = _dual(params, rewards, features, epsilon, log_base, phihat)
     eta = params[0]
     Wt = _hessian_workspace(features) if work is None else work  # Wᵀ
@@ -232,20 +177,15 @@ def reps_dual_hessian(
     epsilon: float,
     base_weights: ArrayLike | None = None,
 ) -> np.ndarray:
-    r"""Hessian of the REPS dual g(η, γ) of :func:`reps_dual` (Eq. 3.9 / A.10).
+    r"""Hessian of the REPS dual of :func:`reps_dual`.
 
-    With A_i = R_i − γᵀφ(s_i), the weights p_i ∝ q_i exp(A_i/η) of Eq. (3.10) and
-    w_i = [A_i/η, φ(s_i)] (the derivative of the exponent A_i/η is −w_i/η),
+    With A_i = R_i − γᵀφ(s_i), the weights p of Eq. (3.10) and w_i = [A_i/η, φ(s_i)],
 
     .. math::
-        \nabla^2 g = \frac1\eta \mathrm{Cov}_p(w)
-        = \frac1\eta \begin{pmatrix} \mathrm{Var}_p(A)/\eta^2 & \mathrm{Cov}_p(A, \phi)^\top/\eta
-          \\ \mathrm{Cov}_p(\phi, A)/\eta & \mathrm{Cov}_p(\phi) \end{pmatrix},
+        \nabla^2 g = \frac1\eta \mathrm{Cov}_p(w),
 
-    the derivative of the gradient (A.11, A.12): ∂²g/∂η² = Var_p(A)/η³, ∂²g/∂η∂γ =
-    Cov_p(φ, A)/η², ∂²g/∂γ² = Cov_p(φ)/η. It is positive semi-definite (g is convex). The
-    covariance is computed around the weighted mean from the max-shifted weights, so no
-    exponential overflows.
+    i.e. ∂²g/∂η² = Var_p(A)/η³, ∂²g/∂η∂γ = Cov_p(φ, A)/η², ∂²g/∂γ² = Cov_p(φ)/η: positive
+    semi-definite (g is convex).
 
     Parameters
     ----------
@@ -257,49 +197,35 @@ def reps_dual_hessian(
     ndarray, shape (1 + F, 1 + F)
         Symmetric, in the order [η, γ_1, …, γ_F].
     """
-    r, phi = check_samples(rewards, features)
-    x = check_array(params, "params", shape=(1 + phi.shape[1],))
-    if not x[0] > 0:
-        raise ValueError(f"params: η = params[0] must be > 0, got {x[0]!r}")
-    log_q = _log_base(base_weights, r.shape[0])
-    return _dual_hessian(x, r, phi, check_positive(epsilon, "epsilon"), log_q)[2]
+    return _dual_hessian(*_dual_args(params, rewards, features, epsilon, base_weights))[2]
 
 
 # --------------------------------------------------------------------------- weights
 @dataclass(frozen=True)
 class DualSolution:
-    """What the minimiser of the REPS dual says, shared by :class:`REPSWeights` and
-    :class:`REPSDiagnostics`.
+    """The minimiser of the REPS dual (shared by :class:`REPSWeights` and :class:`REPSDiagnostics`).
 
     Attributes
     ----------
     eta : float
-        Temperature η (in reward units); ``inf`` when all rewards are equal (uniform weights).
+        η in reward units (``inf`` when all rewards are equal).
     gamma : ndarray, shape (F,)
-        Baseline coefficients γ (in reward units per feature unit).
-    baseline : ndarray, shape (N,)
-        V(s_i) = γᵀφ(s_i) at the samples.
+        Baseline coefficients γ; ``baseline`` (N,) is V(s_i) = γᵀφ(s_i).
     dual : float
-        g(η, γ) at the solution (reward units).
-    kl : float
-        KL(p ‖ uniform) = Σ p_i log(N p_i) actually achieved (KL(p ‖ q) with base weights q;
-        ≤ ε up to solver tolerance).
-    ess : float
-        Kish effective sample size 1 / Σ p_i².
+        g(η, γ) at the solution.
+    kl, ess : float
+        Achieved KL(p ‖ q) (q uniform without base weights) and Kish ESS 1 / Σ p_i².
     feature_error : float
-        max |Σ p_i φ(s_i) − φ̂| (constraint 3.5 residual, feature units).
+        max |Σ p_i φ(s_i) − φ̂|, the residual of constraint (3.5).
     kl_bound_active : bool
-        Whether the achieved KL meets the bound: KL ≥ (1 − :data:`KL_TOLERANCE`) ε. False when
-        ε exceeds what the samples and the feature constraint (3.5) allow, or when all rewards
-        are equal (uniform weights).
+        KL ≥ (1 − :data:`KL_TOLERANCE`) ε.
     success : bool
-        The constraints hold: KL within :data:`KL_TOLERANCE` ε of ε when the bound is active,
-        or, when it is not, η has run below :data:`ETA_UNATTAINABLE` (ε is unattainable);
-        and the feature constraint (3.5) holds to 1e-6 of the features' spread.
+        The KL is within :data:`KL_TOLERANCE` of ε (or, bound inactive, η fell below
+        :data:`ETA_UNATTAINABLE`), and (3.5) holds to 1e-6 of the features' spread.
     message : str
-        Optimiser message.
+        The solver's message.
     epsilon : float
-        The KL bound ε the weights were solved for.
+        The bound ε solved for.
     """
 
     eta: float
@@ -315,7 +241,6 @@ class DualSolution:
     epsilon: float
 
     def _summary(self) -> str:
-        """η, achieved KL against ε, ESS and convergence, without the arrays."""
         bound = "" if self.kl_bound_active else ", bound inactive"
         return (
             f"eta={self.eta:.4g}, kl={self.kl:.4g} (epsilon={self.epsilon:.4g}{bound}), "
@@ -328,17 +253,8 @@ class DualSolution:
 
 @dataclass(frozen=True, repr=False)
 class REPSWeights(DualSolution):
-    """Solution of the REPS dual on a set of samples.
-
-    Attributes
-    ----------
-    eta, gamma, baseline, dual, kl, ess, feature_error, kl_bound_active, success, message, epsilon
-        See :class:`DualSolution`.
-    weights : ndarray, shape (N,)
-        p_i of Eq. (3.10), summing to one.
-    n_iterations : int
-        Iterations of the dual's solver (L-BFGS-B or Newton).
-    """
+    """Solution of the REPS dual (:class:`DualSolution`) with the weights p_i (N,) of Eq. (3.10)
+    and the solver's ``n_iterations``."""
 
     weights: np.ndarray
     n_iterations: int
@@ -354,10 +270,7 @@ def reps_weights(
     base_weights: ArrayLike | None = None,
     solver: DualSolver = DEFAULT_DUAL_SOLVER,
 ) -> REPSWeights:
-    r"""Solve the REPS dual (3.9) and return the sample weights (3.10) with diagnostics.
-
-    Minimises g(η, γ) of :func:`reps_dual` over (log η, γ) after normalising rewards and
-    whitening features (see the module notes), then maps η, γ back to the original units.
+    """Solve the REPS dual (3.9) for the sample weights (3.10), with diagnostics.
 
     Parameters
     ----------
@@ -368,19 +281,15 @@ def reps_weights(
     epsilon : float
         KL bound ε > 0 (Eq. 3.4).
     base_weights : array_like, shape (N,), optional
-        Base weights q_i ≥ 0 (positive sum, normalised here): the samples stand for Σ q_i δ_i,
-        the weights are p_i ∝ q_i exp((R_i − V(s_i))/η), the bound is KL(p ‖ q) ≤ ε and the
-        feature constraint Σ p_i φ_i = Σ q_i φ_i (see :func:`reps_dual`). ``None``: uniform,
-        Eq. (3.9) exactly.
+        q_i ≥ 0: p_i ∝ q_i exp((R_i − V(s_i))/η), KL(p ‖ q) ≤ ε and Σ p_i φ_i = Σ q_i φ_i
+        (:func:`reps_dual`). ``None``: uniform, Eq. (3.9).
     solver : {"lbfgsb", "newton"}
-        ``"lbfgsb"``: scipy's L-BFGS-B; ``"newton"``: damped Newton steps
-        with the analytic Hessian (:func:`reps_dual_hessian`), the same minimiser in a handful
-        of iterations (module notes). Default :data:`DEFAULT_DUAL_SOLVER`.
+        scipy's L-BFGS-B, or damped Newton with the analytic Hessian (the same minimiser in
+        fewer iterations; L-BFGS-B takes over where Newton does not converge).
 
     Returns
     -------
     REPSWeights
-        ``n_iterations`` and ``message`` are the solver's.
     """
     eps = check_positive(epsilon, "epsilon")
     _check_choice(solver, "solver", get_args(DualSolver))
@@ -428,8 +337,6 @@ def reps_weights(
     gamma = r_scale * (transform @ theta)
     kl = kl_from_uniform(p) if q is None else _kl_log_base(p, log_q)
     feature_error = float(np.max(np.abs(p @ phi - phihat))) if n_feat else 0.0
-    # The bound is active when the achieved KL meets it, whatever η did (with
-    # features, an unattainable ε leaves η just above its lower bound with KL well below ε).
     active = kl >= (1.0 - KL_TOLERANCE) * eps
     near_lower = eta_n <= ETA_UNATTAINABLE
     kl_ok = (active and kl <= (1.0 + KL_TOLERANCE) * eps) or (not active and near_lower)
@@ -455,8 +362,7 @@ def reps_weights(
 def _minimise_lbfgsb(
     r_n: np.ndarray, psi: np.ndarray, eps: float, log_q: np.ndarray | None
 ) -> tuple[np.ndarray, int, str]:
-    """Minimise the normalised dual over y = (log η, θ) with scipy's L-BFGS-B from (0, 0):
-    the minimiser, iterations, message."""
+    """L-BFGS-B on the normalised dual, y = (log η, θ) from 0: minimiser, iterations, message."""
 
     phihat = _phihat(psi, log_q)  # the same numbers as _dual's own, computed once
 
@@ -486,24 +392,15 @@ _MAX_LOG_ETA_STEP, _NEWTON_MAX_ITER = 2.0, 50
 def _minimise_newton(
     r_n: np.ndarray, psi: np.ndarray, eps: float, log_q: np.ndarray | None
 ) -> tuple[np.ndarray, int, str, bool]:
-    """Minimise the normalised dual over y = (log η, θ) by damped Newton steps from (0, 0):
-    the minimiser, iterations, message and whether the gradient tolerance was met.
+    """Damped Newton on the normalised dual over y = (log η, θ): minimiser, iterations, message,
+    converged.
 
-    It starts at the least-squares baseline θ₀ and the log η where the KL bound holds for it
-    (:func:`_warm_start_log_eta`). The direction solves H_y Δy = −∇_y g with the Hessian in y,
-    H_y = J H J + diag(max(η ∂g/∂η, 0), 0), J = diag(η, 1), H of :func:`reps_dual_hessian`
-    (positive semi-definite; the exact Hessian in y wherever ∂g/∂η ≥ 0, in particular at the
-    minimiser, so convergence is quadratic), eigenvalues floored at 1e-12 of the largest; the
-    step is scaled to change log η by at most 2. Armijo backtracking (c = 1e-4, halving) on
-    g(y + t Δy), log η projected on its bounds; at a bound whose gradient points outwards, η
-    is held and θ alone takes the Newton step. Stops when the projected gradient in y is at
-    most :data:`DUAL_GTOL` (as L-BFGS-B), or unconverged after 50 iterations or when no step
-    decreases g any more.
-
-    Unconverged runs happen where ε exceeds what the feature constraint (3.5) allows: the
-    minimiser is then at η → 0, where the dual tends to the piecewise-linear
-    max_i(R_i − θᵀψ_i) + θᵀψ̂ and its Hessian (∝ 1/η) carries no useful curvature;
-    :func:`reps_weights` then runs L-BFGS-B from the start (the default solver's answer)."""
+    Starts at the least-squares baseline and the log η where KL = ε for it; directions solve
+    H_y Δy = −∇_y g with H_y = J H J + diag(max(η ∂g/∂η, 0), 0), J = diag(η, 1) (eigenvalues
+    floored), log η changing by at most 2 per step, Armijo backtracking; η is held at a bound whose
+    gradient points outwards. Stops at the projected-gradient tolerance :data:`DUAL_GTOL`, after 50
+    iterations, or when g no longer decreases (ε unattainable under (3.5): η → 0).
+    """
     lo, hi = np.log(ETA_BOUNDS[0]), np.log(ETA_BOUNDS[1])
 
     phihat, work = _phihat(psi, log_q), _hessian_workspace(psi)
@@ -513,10 +410,7 @@ def _minimise_newton(
         value, grad, hess, _ = _dual_hessian(x, r_n, psi, eps, log_q, phihat, work)
         return x, value, grad, hess
 
-    # Start at the least-squares baseline θ₀ = Σ q_i ψ_i R_i (ψ is whitened under q) and the
-    # η where the KL bound holds for it (a 1-D root of ∂g/∂η = ε − KL, increasing in log η),
-    # so that the weights are neither uniform nor on a few samples: from (0, 0) the first
-    # Newton steps extrapolate a far-off quadratic model.
+    # Start at the least-squares baseline θ₀ = Σ q_i ψ_i R_i (ψ is whitened under q).
     y = np.zeros(1 + psi.shape[1])
     y[1:] = (r_n / r_n.shape[0] if log_q is None else np.exp(log_q) * r_n) @ psi
     n_iterations, (x, value, grad, hess) = _warm_start_log_eta(evaluate, y, lo, hi, eps)
@@ -528,8 +422,7 @@ def _minimise_newton(
             return y, n_iterations, "Newton: projected gradient below tolerance", True
         if n_iterations == _NEWTON_MAX_ITER:
             return y, n_iterations, "Newton: iteration limit reached", False
-        # Hessian in y: J H J + diag(η ∂g/∂η, 0), J = diag(η, 1); the second term only where
-        # it is non-negative (then it stays positive semi-definite; at the minimiser ∂g/∂η = 0).
+        # H_y = J H J + diag(max(η ∂g/∂η, 0), 0), J = diag(η, 1): positive semi-definite.
         hess_y = hess * np.concatenate([[x[0]], np.ones(y.shape[0] - 1)])
         hess_y[0] *= x[0]
         hess_y[0, 0] += max(grad_y[0], 0.0)
@@ -548,8 +441,7 @@ def _minimise_newton(
             x_t, value_t, grad_t, hess_t = evaluate(trial)
             if value_t <= value + 1e-4 * t * slope:
                 break
-            # At round-off level g no longer decreases: accept a step that keeps g within
-            # round-off and reduces the gradient.
+            # At round-off level: accept a step that keeps g and reduces the gradient.
             grad_t_y = np.concatenate([[x_t[0] * grad_t[0]], grad_t[1:]])
             flat = value_t <= value + 4e-16 * max(1.0, abs(value))
             if flat and np.max(np.abs(grad_t_y)) < np.max(np.abs(grad_y)):
@@ -564,10 +456,8 @@ def _minimise_newton(
 
 
 def _warm_start_log_eta(evaluate, y: np.ndarray, lo: float, hi: float, eps: float):
-    """Set y[0] to a log η in [lo, hi] where ∂g/∂η(η, θ = y[1:]) = ε − KL vanishes to 5e-2 ε
-    (Newton on log η, steps of at most 2, bisection when a step leaves the bracket; near
-    ``lo`` where the KL never reaches ε).
-    Returns the number of evaluations and the last one, at y."""
+    """Set y[0] to a log η where ε − KL vanishes to 5e-2 ε (safeguarded Newton/bisection);
+    returns the evaluations and the last one."""
     a, b, n = lo, hi, 0
     while True:
         n += 1
@@ -589,8 +479,7 @@ def _warm_start_log_eta(evaluate, y: np.ndarray, lo: float, hi: float, eps: floa
 
 
 def _newton_direction(hess: np.ndarray, grad: np.ndarray) -> np.ndarray:
-    """−H⁻¹g for a symmetric positive semi-definite H, eigenvalues floored at 1e-12 of the
-    largest (a singular direction, e.g. all weight on one sample, gets a bounded step)."""
+    """−H⁻¹g for a symmetric PSD H, eigenvalues floored at 1e-12 of the largest."""
     if grad.size == 0:
         return grad
     if not (np.isfinite(hess).all() and np.isfinite(grad).all()):
@@ -610,14 +499,13 @@ def kl_from_uniform(weights: np.ndarray) -> float:
 
 
 def _kl_log_base(p: np.ndarray, log_q: np.ndarray) -> float:
-    """KL(p ‖ q) from log q (normalised): a base weight that underflows in exp(log q) but
-    carries weight in p stays finite (its ratio is formed in log space)."""
+    """KL(p ‖ q) from log q, finite where q underflows."""
     pos = p > 0
     return float(np.sum(p[pos] * (np.log(p[pos]) - log_q[pos])))
 
 
 def _log_base(base_weights: ArrayLike | None, n: int) -> np.ndarray | None:
-    """log q of validated base weights, normalised to sum to one (``None`` stays ``None``)."""
+    """log q of validated base weights, normalised (``None`` stays ``None``)."""
     if base_weights is None:
         return None
     q = check_array(base_weights, "base_weights", shape=(n,))
@@ -644,25 +532,10 @@ def check_samples(rewards, features) -> tuple[np.ndarray, np.ndarray]:
 # --------------------------------------------------------------------------- algorithm
 @dataclass(frozen=True, repr=False)
 class REPSDiagnostics(DualSolution):
-    """What one :meth:`ContextualREPS.update` did.
-
-    Attributes
-    ----------
-    eta, gamma, baseline, dual, kl, ess, feature_error, kl_bound_active, success, message, epsilon
-        From :class:`REPSWeights` (``baseline`` is V(s_i) at the samples used).
-    n_samples : int
-        Samples used (the last L batches).
-    policy_kl : float
-        KL(π_new ‖ π_old) averaged over the contexts used, after the M-step (every update).
-    mean_reward : float
-        Mean reward of the newest batch.
-    fit : FitInfo
-        What the weighted maximum-likelihood fit did (effective samples, floor hits).
-    m_step : TrustRegionStep or None
-        With ``m_step="trust_region"``: the fit's own KL and entropy loss and what the
-        entropy and KL bounds did to it (:func:`~skillkit.policies.gaussian.trust_region_step`);
-        ``None`` with ``m_step="weighted_ml"`` (then ``policy_kl`` is the fit's KL).
-    """
+    """What one :meth:`ContextualREPS.update` did: the :class:`DualSolution`, the samples used, the
+    mean reward of the newest batch, KL(π_new ‖ π_old) over the contexts used (``policy_kl``), the
+    weighted ML fit's :class:`~skillkit.policies.gaussian.FitInfo`, and with
+    ``m_step="trust_region"`` the :class:`~skillkit.policies.gaussian.TrustRegionStep`."""
 
     n_samples: int
     policy_kl: float
@@ -681,59 +554,42 @@ class REPSDiagnostics(DualSolution):
 ExtraContextWeighting = Literal["naive", "importance", "dual_only"]
 MStep = Literal["weighted_ml", "trust_region"]
 
-#: How REPS uses re-scored extra-context rows (Sec. 3.4) by default: ``"importance"``, which
-#: is unbiased; ``"naive"`` (the rows weighted as if drawn from μ(s)π(ω|s)) is a named option.
+#: How REPS uses re-scored extra-context rows (Sec. 3.4) by default.
 DEFAULT_EXTRA_CONTEXT_WEIGHTING: ExtraContextWeighting = "importance"
-#: REPS's M-step by default: ``"weighted_ml"`` (Eqs. 3.11–3.13 alone); ``"trust_region"`` also
-#: keeps the KL bound after the fit.
+#: REPS's M-step by default (Eqs. 3.11–3.13 alone).
 DEFAULT_M_STEP: MStep = "weighted_ml"
 
 
 class ContextualREPS(WeightedMLSearch[REPSDiagnostics]):
-    """Contextual (and, with a context-free policy, episode-based) REPS, Table 3.1.
+    """Contextual (with a context-free policy: episode-based) REPS, Table 3.1.
 
-    :meth:`update` adds a batch, solves the dual (3.9) on the last L batches for the weights
-    (3.10) and refits the policy (3.11–3.13); see :class:`~skillkit.search.base.WeightedMLSearch`.
+    :meth:`update` adds a batch, solves the dual (3.9) on the last L batches for the weights (3.10)
+    and refits the policy (3.11–3.13).
 
     Parameters
     ----------
     policy : LinearGaussianPolicy
-        Initial upper-level policy π(ω|s) (a :class:`~skillkit.policies.gaussian.GaussianPolicy`
-        gives episode-based REPS).
+        Initial upper-level policy π(ω|s).
     epsilon : float
-        KL bound ε > 0 (Eq. 3.4); the thesis uses 0.5–1.
+        KL bound ε > 0 (Eq. 3.4).
     n_reuse_batches : int or None
-        L: the dual and the fit use the last L batches, the newest included (``None``: all).
-        The thesis's throwing setting (25 rollouts per update, reuse the last 200) is L = 8.
+        L: the last L batches are used, the newest included (``None``: all).
     baseline_features : {"linear", "quadratic"}
-        Features φ(s) of the baseline V(s) = γᵀφ(s) and of constraint (3.5). ``"quadratic"``
-        matches the mean and second moments of μ(s) and captures rewards whose expectation is
-        quadratic in s.
+        Features φ(s) of the baseline V(s) = γᵀφ(s) and of constraint (3.5).
     ridge, cov_shrinkage, cov_floor, min_effective_samples
         Regularisation of the weighted ML fit (:class:`~skillkit.search.base.WeightedMLSearch`).
     extra_context_weighting : {"naive", "importance", "dual_only"}
-        How rows that re-score a rollout in an extra context (``Batch.n_rollouts`` < N, Sec. 3.4)
-        are used. ``"naive"``: as if drawn from μ(s)π(ω|s), which biases the gain A towards
-        zero (in the re-scored rows ω does not depend on s). ``"importance"``: every row of a batch
-        carries the importance weight of
-        :func:`~skillkit.search.base.extra_context_importance` under the policy that drew it
-        (the current policy when the batch arrives, as in Table 3.1); the weights are the base
-        distribution q of the dual (:func:`reps_weights`), so p_i ∝ q_i exp((R_i − V(s_i))/η)
-        and the fit sees the extra rows weighted accordingly. ``"dual_only"``: the dual uses
-        every row as ``"naive"`` does, the fit only the rollouts (their weights renormalised).
-        Default :data:`DEFAULT_EXTRA_CONTEXT_WEIGHTING`. Batches without extra rows are
-        unaffected.
+        Rows re-scored in extra contexts (Sec. 3.4) count as drawn from μ(s)π(ω|s) (biasing the
+        gain towards zero), carry the importance weights of
+        :func:`~skillkit.search.base.extra_context_importance` as the dual's base weights q, or
+        enter the dual only.
     m_step : {"weighted_ml", "trust_region"}
-        ``"weighted_ml"``: the policy is the weighted ML fit (3.11–3.13), whose KL from the
-        old policy can be twice ε. ``"trust_region"``: the fit is passed through
-        :func:`~skillkit.policies.gaussian.trust_region_step` (entropy loss ≤ β, then
-        KL(π_new ‖ π_old) ≤ ε). Default :data:`DEFAULT_M_STEP`.
+        The weighted ML fit, or that fit through
+        :func:`~skillkit.policies.gaussian.trust_region_step` (entropy loss ≤ β, KL ≤ ε).
     entropy_loss_bound : float, optional
-        β > 0 of ``m_step="trust_region"`` in nats per update (default ε: the entropy may fall
-        by at most the KL budget per update).
+        β > 0 in nats per update (default ε).
     dual_solver : {"lbfgsb", "newton"}
-        Solver of the dual (``solver`` of :func:`reps_weights`); default
-        :data:`DEFAULT_DUAL_SOLVER`.
+        ``solver`` of :func:`reps_weights`.
     """
 
     def __init__(
@@ -794,9 +650,7 @@ class ContextualREPS(WeightedMLSearch[REPSDiagnostics]):
         )
 
     def _weigh(self, contexts: np.ndarray, rewards: np.ndarray) -> tuple[np.ndarray, Fields]:
-        """Weights (3.10) from the dual (3.9) with baseline features φ(s) of the contexts, on
-        the kept rows' importance weights (``"importance"``), or zero on extra-context rows
-        after the dual (``"dual_only"``)."""
+        """Weights (3.10) of the kept rows; zero on extra-context rows with ``"dual_only"``."""
         phi = context_features(contexts, self.baseline_features) if contexts.shape[1] else None
         sol = reps_weights(
             rewards, phi, self.epsilon, self._buffer.importance(), solver=self.dual_solver
@@ -819,7 +673,7 @@ class ContextualREPS(WeightedMLSearch[REPSDiagnostics]):
     def _m_step(
         self, old: LinearGaussianPolicy, fitted: LinearGaussianPolicy, contexts: np.ndarray
     ) -> tuple[LinearGaussianPolicy, Fields]:
-        """The weighted ML fit, or its trust-region correction (``m_step="trust_region"``)."""
+        """The weighted ML fit, or its trust-region correction."""
         if self.m_step == "weighted_ml":
             return fitted, {}
         new, step = trust_region_step(old, fitted, contexts, self.epsilon, self.entropy_loss_bound)

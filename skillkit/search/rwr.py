@@ -27,15 +27,7 @@ from skillkit.search.reps import kl_from_uniform
 
 
 def rwr_beta(rewards: ArrayLike, beta_scale: float = 1.0) -> float:
-    """β = ``beta_scale`` / std(R) (0 when all rewards are equal, giving uniform weights).
-
-    Parameters
-    ----------
-    rewards : array_like, shape (N,)
-        Finite rewards, N ≥ 1.
-    beta_scale : float
-        Dimensionless scale > 0.
-    """
+    """β = ``beta_scale`` / std(R) over rewards of shape (N,), N ≥ 1 (0 when all are equal)."""
     r = check_array(rewards, "rewards", ndim=1)
     if r.size == 0:
         raise ValueError("rewards: expected at least one sample, got shape (0,)")
@@ -45,19 +37,7 @@ def rwr_beta(rewards: ArrayLike, beta_scale: float = 1.0) -> float:
 
 
 def rwr_weights(rewards: ArrayLike, beta: float) -> np.ndarray:
-    """Normalised weights w_i ∝ exp(β R_i) (Eq. 2.18), computed as exp(β (R_i − max R)).
-
-    Parameters
-    ----------
-    rewards : array_like, shape (N,)
-    beta : float
-        β ≥ 0.
-
-    Returns
-    -------
-    ndarray, shape (N,)
-        Weights summing to one.
-    """
+    """Normalised weights w_i ∝ exp(β R_i) (Eq. 2.18) of rewards (N,), for β ≥ 0."""
     r = check_array(rewards, "rewards", ndim=1)
     if r.size == 0:
         raise ValueError("rewards: expected at least one sample, got shape (0,)")
@@ -67,22 +47,8 @@ def rwr_weights(rewards: ArrayLike, beta: float) -> np.ndarray:
 
 
 def rwr_weighting(rewards: ArrayLike, beta_scale: float = 1.0) -> tuple[np.ndarray, Fields]:
-    """Weights w_i ∝ exp(β R_i) (Eq. 2.18) with β from :func:`rwr_beta`, and their diagnostics.
-
-    Parameters
-    ----------
-    rewards : array_like, shape (N,)
-    beta_scale : float
-        Dimensionless scale > 0.
-
-    Returns
-    -------
-    weights : ndarray, shape (N,)
-        Weights summing to one.
-    fields : dict
-        ``beta`` (β used), ``kl`` (KL(w ‖ uniform)) and ``ess`` (Kish effective sample size),
-        as in :class:`RWRDiagnostics` and :class:`~skillkit.search.crkr.CrKRDiagnostics`.
-    """
+    """Weights w_i ∝ exp(β R_i) (Eq. 2.18) with β from :func:`rwr_beta`, and their diagnostics
+    ``beta``, ``kl`` (KL(w ‖ uniform)) and ``ess`` (Kish effective sample size)."""
     beta = rwr_beta(rewards, beta_scale)
     p = rwr_weights(rewards, beta)
     return p, {"beta": beta, "kl": kl_from_uniform(p), "ess": effective_sample_size(p)}
@@ -90,25 +56,9 @@ def rwr_weighting(rewards: ArrayLike, beta_scale: float = 1.0) -> tuple[np.ndarr
 
 @dataclass(frozen=True)
 class RWRDiagnostics:
-    """What one :meth:`RWR.update` did.
-
-    Attributes
-    ----------
-    n_samples : int
-        Samples used (the last L batches).
-    beta : float
-        β used (reward units⁻¹).
-    kl : float
-        KL(w ‖ uniform) of the weights.
-    ess : float
-        Kish effective sample size of the weights.
-    policy_kl : float
-        KL(π_new ‖ π_old) averaged over the contexts used.
-    mean_reward : float
-        Mean reward of the newest batch.
-    fit : FitInfo
-        What the weighted maximum-likelihood fit did.
-    """
+    """What one :meth:`RWR.update` did: the samples used (the last L batches), β, KL(w ‖ uniform)
+    and the Kish effective sample size of the weights, KL(π_new ‖ π_old) averaged over the
+    contexts used, the newest batch's mean reward, and the weighted ML fit's ``FitInfo``."""
 
     n_samples: int
     beta: float

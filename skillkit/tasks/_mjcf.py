@@ -13,27 +13,11 @@ GRAVITY = 9.81
 def mjcf_root(
     model: str, timestep: float, *, geom_rgba=None, contacts: bool = True
 ) -> mjcf.RootElement:
-    """An empty MJCF model with the settings every task's robot shares.
+    """An empty MJCF model named ``model`` with the settings every task's robot shares.
 
-    Time step ``timestep``, gravity −9.81 m/s² along z, MuJoCo's semi-implicit Euler
-    integrator, angles in radians, and geoms that collide with nothing by default
-    (``contype = conaffinity = 0``: contacts are simulated outside MuJoCo, in pymunk or
-    the ball model, or not at all).
-
-    Parameters
-    ----------
-    model : str
-        Model name.
-    timestep : float
-        Physics time step (s), > 0.
-    geom_rgba : sequence of 4 floats, optional
-        Default geom colour.
-    contacts : bool
-        False also switches MuJoCo's contact detection off (``<flag contact="disable"/>``).
-
-    Returns
-    -------
-    dm_control.mjcf.RootElement
+    Time step ``timestep`` (s), gravity along −z, semi-implicit Euler, radians, and geoms
+    colliding with nothing (contacts are simulated elsewhere); ``contacts=False`` also
+    disables MuJoCo's contact detection.
     """
     root = mjcf.RootElement(model=model)
     root.option.timestep = check_positive(timestep, "timestep")

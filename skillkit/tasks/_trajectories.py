@@ -17,31 +17,12 @@ def quintic(
     *,
     clip: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Quintic from (start, start_velocity, 0) to (end, end_velocity, 0) over ``duration``.
+    """Quintic from (start, start_velocity, 0) to (end, end_velocity, 0) over ``duration`` T.
 
-    With u = t / T the profile is q(u) = q₀ + T q̇₀ u + c₃ u³ + c₄ u⁴ + c₅ u⁵, zero
-    acceleration at both ends. With a = q₁ − q₀ − T q̇₀ and b = T (q̇₁ − q̇₀) the end conditions
-    q(1) = q₁, q̇(1) = q̇₁, q̈(1) = 0 give, in closed form, c₃ = 10a − 4b, c₄ = −15a + 7b,
-    c₅ = 6a − 3b. From
-    rest to rest (q̇₀ = q̇₁ = 0, q₀ = 0, q₁ = 1) it is the minimum-jerk profile
-    10u³ − 15u⁴ + 6u⁵.
-
-    Parameters
-    ----------
-    t : array_like, shape (N,)
-        Times (s), measured from the start of the profile.
-    duration : float
-        T > 0 (s).
-    start, end, start_velocity, end_velocity : float or array_like, shape (n,)
-        Boundary positions and velocities (one per joint for vector profiles).
-    clip : bool
-        Hold the end values outside [0, T] (u clipped to [0, 1]; the velocity there is the
-        profile's, zero for rest-to-rest profiles).
-
-    Returns
-    -------
-    q, qd, qdd : ndarray, shape (N,) or (N, n)
-        Position, velocity and acceleration at ``t``.
+    q(u) = q₀ + T q̇₀ u + c₃ u³ + c₄ u⁴ + c₅ u⁵, u = t / T, with a = q₁ − q₀ − T q̇₀,
+    b = T (q̇₁ − q̇₀): c₃ = 10a − 4b, c₄ = −15a + 7b, c₅ = 6a − 3b (rest to rest: minimum jerk
+    10u³ − 15u⁴ + 6u⁵). Boundary values are scalars or (n,); ``clip`` holds the end values
+    outside [0, T]. Returns q, q̇, q̈ at ``t``, shape (N,) or (N, n).
     """
     T = check_positive(duration, "duration")
     q0, q1, v0, v1 = np.broadcast_arrays(

@@ -1,20 +1,10 @@
 """Low-level trajectory trackers: a PD law and a MuJoCo reference-tracking loop.
 
-The thesis's robot tasks (Appendix C) turn a desired joint trajectory (from a DMP, Eqs
-2.21–2.23) into torques with a PD tracking controller. This module holds that piece once:
-
-* :func:`pd_torque` is the pure, vectorised PD law
-  ``u = kp (q_ref − q) + kd (q̇_ref − q̇) + bias``.
-* :func:`run_feedback` runs a compiled MuJoCo model under any state-feedback law with
-  zero-order-hold torques computed at the control rate.
-* :func:`track_reference` is that loop with the PD law, optionally adding MuJoCo's bias
-  forces (``data.qfrc_bias`` = gravity + Coriolis/centrifugal terms c(q, q̇)) as gravity
-  compensation, and optionally in its inertia-weighted (computed-torque) form
-  u = M(q)(q̈_ref + kp e + kd ė) + c(q, q̇).
-
-Torques are applied through ``data.qfrc_applied`` on the tracked joints' degrees of freedom,
-so the tracker works on any model whose tracked joints are hinges or slides, with or
-without ``<motor>`` actuators (``data.ctrl`` is left untouched).
+The robot tasks (Appendix C) turn a desired joint trajectory (a DMP, Eqs. 2.21–2.23) into
+torques with a PD tracking controller: :func:`pd_torque` is the law, :func:`run_feedback` runs
+a MuJoCo model under any state feedback with zero-order-hold torques, and
+:func:`track_reference` combines them. Torques go through ``data.qfrc_applied`` on the
+tracked hinge or slide joints (``data.ctrl`` is untouched).
 """
 
 from __future__ import annotations
@@ -39,23 +29,8 @@ _INSTABILITY_WARNINGS = (
 def pd_torque(q, qd, q_ref, qd_ref, kp, kd, bias=None) -> np.ndarray:
     """PD tracking torque ``u = kp ⊙ (q_ref − q) + kd ⊙ (q̇_ref − q̇) + bias``.
 
-    Pure and vectorised: every argument broadcasts against the joint axis (the last one).
-
-    Parameters
-    ----------
-    q, qd : array_like, shape (..., n)
-        Joint positions and velocities.
-    q_ref, qd_ref : array_like, shape (..., n)
-        Desired positions and velocities.
-    kp, kd : float or array_like, shape (n,)
-        Proportional and derivative gains (diagonal gain matrices), non-negative.
-    bias : array_like, shape (..., n), optional
-        Feed-forward torque added to the PD term, e.g. gravity compensation.
-
-    Returns
-    -------
-    ndarray, shape (..., n)
-        Joint torques.
+    Every argument broadcasts against the joint axis (the last one): ``q``, ``qd``, ``q_ref``,
+    ``qd_ref``, ``bias`` (..., n); non-negative ``kp``, ``kd`` scalar or (n,). Returns (..., n).
     """
     q = check_array(q, "q")
     qd = check_array(qd, "qd")
@@ -72,32 +47,20 @@ def pd_torque(q, qd, q_ref, qd_ref, kp, kd, bias=None) -> np.ndarray:
 
 
 def _pd(q, qd, q_ref, qd_ref, kp, kd, bias=None) -> np.ndarray:
-    """The PD law of :func:`pd_torque` without input validation (inner loops)."""
+    """:func:`pd_torque` without validation."""
     u = kp * (q_ref - q) + kd * (qd_ref - qd)
     return u if bias is None else u + bias
 
 
 def _instability_count(data: mujoco.MjData) -> int:
-    """Total count of MuJoCo's instability warnings (bad qpos, qvel, qacc) so far."""
+    """Count of MuJoCo's instability warnings so far."""
     return sum(data.warning[w].number for w in _INSTABILITY_WARNINGS)
 
 
 def joint_addresses(
     model: mujoco.MjModel, joint_ids: Sequence[int] | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Joint ids and their ``qpos`` and ``qvel``/dof addresses.
-
-    Parameters
-    ----------
-    model : mujoco.MjModel
-        Compiled model.
-    joint_ids : sequence of int, optional
-        Joints to address (default: every joint). Each must be a hinge or a slide.
-
-    Returns
-    -------
-    ids, qpos_adr, dof_adr : ndarray of int, shape (n,)
-    """
+    """Joint ids (default every joint; hinges or slides) and their ``qpos`` and dof addresses."""
     ids = np.arange(model.njnt) if joint_ids is None else np.asarray(joint_ids, dtype=int).ravel()
     if ids.size == 0:
         raise ValueError("joint_ids: expected at least one joint")
@@ -125,46 +88,34 @@ def run_feedback(
 ) -> dict[str, np.ndarray]:
     """Run MuJoCo under a state-feedback law with zero-order-hold torques.
 
-    For each control step ``t = 0..n_steps-1`` the loop
-
-    1. computes the position/velocity-dependent quantities of the current state
-       (``mujoco.mj_step1``; ``mj_forward`` for the RK4 integrator), so kinematics
-       (``site_xpos``) and the bias force ``qfrc_bias`` are current; records ``q[t], q̇[t]``
-       of the controlled joints and calls ``on_step(t, data)``;
-    2. asks ``u[t] = controller(t, q[t], q̇[t], data)``;
-    3. holds ``u[t]`` in ``data.qfrc_applied`` on the controlled joints' degrees of freedom
-       for ``control_dt / model.opt.timestep`` physics steps (``mj_step2`` then
-       ``mj_step(nstep=...)``).
-
-    After the call ``data`` holds the state at time ``n_steps · control_dt``, one control
-    step after the last recorded row.
+    At each control step t the loop updates the state-dependent quantities (``mj_step1``;
+    ``mj_forward`` for RK4), records q[t], q̇[t], calls ``on_step(t, data)``, asks
+    ``u[t] = controller(t, q[t], q̇[t], data)`` and holds it in ``qfrc_applied`` for
+    ``control_dt / timestep`` physics steps. ``data`` (set to the initial state) ends at time
+    ``n_steps · control_dt``.
 
     Parameters
     ----------
     model, data : mujoco.MjModel, mujoco.MjData
-        Compiled model and its data, set to the initial state (advanced in place).
     controller : callable
-        ``controller(t, q, qd, data) -> u`` with ``q, qd, u`` of shape (n,).
+        ``controller(t, q, qd, data) -> u``, each of shape (n,).
     n_steps : int
-        Number of control steps T.
+        Control steps T.
     control_dt : float
-        Control period in seconds; a whole multiple of ``model.opt.timestep``.
+        Control period (s), a whole multiple of ``model.opt.timestep``.
     joint_ids : sequence of int, optional
-        The ``n`` controlled joints (hinge or slide). Default: every joint.
+        The n controlled joints (default every joint).
     on_step : callable, optional
-        ``on_step(t, data)``, called after the state of step ``t`` is recorded.
 
     Returns
     -------
     dict
-        ``q``, ``qd``: (T, n) joint positions and velocities at the control steps;
-        ``u``: (T, n) applied torques.
+        ``q``, ``qd``, ``u``: (T, n) at the control steps.
 
     Raises
     ------
     SimulationFailure
-        If the state or a torque becomes non-finite, or MuJoCo flags an instability (it
-        would otherwise silently reset the simulation).
+        On a non-finite state or torque, or an instability MuJoCo flagged (and reset).
     """
     ids, qadr, dadr = joint_addresses(model, joint_ids)
     n = ids.size
@@ -175,32 +126,22 @@ def run_feedback(
     substeps = control_substeps(model, control_dt)
     rk4 = int(model.opt.integrator) == int(mujoco.mjtIntegrator.mjINT_RK4)
 
-    q_out = np.empty((n_steps, n))
-    qd_out = np.empty((n_steps, n))
-    u_out = np.empty((n_steps, n))
+    q_out, qd_out, u_out = (np.empty((n_steps, n)) for _ in range(3))
     warn0 = _instability_count(data)
     data.qfrc_applied[dadr] = 0.0
     for t in range(n_steps):
-        if rk4:
-            mujoco.mj_forward(model, data)
-        else:
-            mujoco.mj_step1(model, data)
+        (mujoco.mj_forward if rk4 else mujoco.mj_step1)(model, data)
         q_out[t] = data.qpos[qadr]
         qd_out[t] = data.qvel[dadr]
         if on_step is not None:
             on_step(t, data)
         u_out[t] = controller(t, q_out[t], qd_out[t], data)
         data.qfrc_applied[dadr] = u_out[t]
-        if rk4:
-            mujoco.mj_step(model, data)
-        else:
-            mujoco.mj_step2(model, data)
+        (mujoco.mj_step if rk4 else mujoco.mj_step2)(model, data)
         if substeps > 1:
             mujoco.mj_step(model, data, nstep=substeps - 1)
     data.qfrc_applied[dadr] = 0.0
-    # MuJoCo checks qpos/qvel/qacc every step and, on NaN/inf or huge values, warns and resets
-    # the state; so one check of its warning counters (and of our outputs) after the loop
-    # catches every blow-up without a per-step cost.
+    # MuJoCo warns and resets on a blow-up: its warning counters catch it after the loop
     if _instability_count(data) != warn0:
         raise SimulationFailure(
             "MuJoCo flagged an unstable simulation (non-finite or huge "
@@ -232,66 +173,36 @@ def track_reference(
     qdd_ref=None,
     inertia_weighted: bool = False,
 ) -> dict[str, np.ndarray]:
-    """Track a joint reference with zero-order-hold PD torques in MuJoCo.
+    """Track a joint reference with zero-order-hold PD torques in MuJoCo (:func:`run_feedback`).
 
-    At control step ``t`` the torque is (:func:`pd_torque`)
+    u[t] = kp ⊙ (q_ref[t] − q[t]) + kd ⊙ (q̇_ref[t] − q̇[t]) + c(q[t], q̇[t]), with c MuJoCo's
+    bias force ``qfrc_bias`` (only with ``gravity_compensation``). With ``inertia_weighted``
+    it is the computed-torque tracker
 
-    ``u[t] = kp ⊙ (q_ref[t] − q[t]) + kd ⊙ (q̇_ref[t] − q̇[t]) + c(q[t], q̇[t])``
+        u[t] = M(q[t]) (q̈_ref[t] + kp ⊙ e[t] + kd ⊙ ė[t]) + c(q[t], q̇[t]),
 
-    where ``c`` is MuJoCo's bias force ``qfrc_bias`` (gravity plus Coriolis/centrifugal
-    terms, evaluated at the start of the step; only with ``gravity_compensation``), saturated
-    at ``±torque_limit`` if given, and held for ``control_dt`` (:func:`run_feedback` runs
-    the loop).
-
-    With ``inertia_weighted`` the PD acceleration is mapped through the joint-space inertia
-    M(q) (MuJoCo's ``qM``, the block of the tracked joints), plus an optional feed-forward
-    reference acceleration — the computed-torque (inverse-dynamics) tracker
-
-    ``u[t] = M(q[t]) (q̈_ref[t] + kp ⊙ e[t] + kd ⊙ ė[t]) + c(q[t], q̇[t])``.
-
-    Every joint-space mode then has the same natural frequency √kp and damping kd, which a
-    diagonal PD cannot achieve on robots whose inertia matrix is badly conditioned (light
-    distal links on heavy proximal ones) without destabilising the fast modes at a finite
-    control rate.
+    giving every joint-space mode the frequency √kp and damping kd. ``torque_limit``
+    saturates |u| and the saturated entries are counted.
 
     Parameters
     ----------
     model, data : mujoco.MjModel, mujoco.MjData
-        Compiled model and its data, already set to the initial state (``data`` is advanced
-        in place).
     q_ref, qd_ref : array_like, shape (T, n)
-        Desired joint positions and velocities at the control steps.
+        Reference at the control steps, columns in ``joint_ids`` order.
     control_dt : float
-        Control period in seconds; must be a whole multiple of ``model.opt.timestep``.
     kp, kd : float or array_like, shape (n,)
-        PD gains.
     joint_ids : sequence of int, optional
-        The ``n`` tracked joints (hinge or slide), in the column order of ``q_ref``.
-        Default: every joint of the model.
     gravity_compensation : bool
-        Add ``qfrc_bias`` to the PD torque.
     torque_limit : float or array_like, shape (n,), optional
-        Actuator saturation ``|u| ≤ torque_limit``; the number of saturated (step, joint)
-        entries is returned as ``n_saturated`` so it is reported, not hidden.
     on_step : callable, optional
-        ``on_step(t, data)`` called at every control step after the state is recorded.
     qdd_ref : array_like, shape (T, n), optional
-        Reference accelerations, fed forward (only with ``inertia_weighted``).
+        Fed-forward acceleration (only with ``inertia_weighted``).
     inertia_weighted : bool
-        Use the computed-torque form above (``kp`` in 1/s², ``kd`` in 1/s).
 
     Returns
     -------
     dict
-        ``q``, ``qd``: (T, n) joint positions and velocities at the control steps;
-        ``u``: (T, n) applied torques; ``n_saturated``: int.
-
-    Raises
-    ------
-    SimulationFailure
-        If the state becomes non-finite or MuJoCo flags an instability.
-    ValueError
-        On bad shapes, gains or a control period that is not a multiple of the time step.
+        ``q``, ``qd``, ``u`` (T, n) and ``n_saturated``.
     """
     ids, _, dadr = joint_addresses(model, joint_ids)
     n = ids.size
@@ -332,10 +243,7 @@ def track_reference(
 
 
 def control_substeps(model: mujoco.MjModel, control_dt: float) -> int:
-    """Number of physics steps per control period, ``control_dt / model.opt.timestep``.
-
-    Raises ``ValueError`` unless the ratio is a positive whole number.
-    """
+    """Physics steps per control period; ``ValueError`` unless a positive whole number."""
     control_dt = check_positive(control_dt, "control_dt")
     ratio = control_dt / model.opt.timestep
     substeps = int(round(ratio))
@@ -348,14 +256,14 @@ def control_substeps(model: mujoco.MjModel, control_dt: float) -> int:
 
 
 def _as_slice(index: np.ndarray) -> slice | np.ndarray:
-    """A contiguous increasing index array as a slice (cheaper views in inner loops)."""
+    """A contiguous increasing index array as a slice."""
     if index.size and np.array_equal(index, np.arange(index[0], index[0] + index.size)):
         return slice(int(index[0]), int(index[0]) + index.size)
     return index
 
 
 def _gain(value, name: str, n: int) -> np.ndarray:
-    """A non-negative gain, scalar or per joint, as shape (n,) (or () for a scalar)."""
+    """A non-negative gain, scalar or shape (n,)."""
     g = check_array(value, name, ndim=(0, 1))
     if g.ndim == 1 and g.shape[0] != n:
         raise ValueError(f"{name}: expected a scalar or shape ({n},), got {g.shape}")

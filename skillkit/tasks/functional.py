@@ -1,47 +1,19 @@
-r"""Your own skill as a :class:`~skillkit.tasks.base.Task`, built from a few functions.
+"""Your own skill as a :class:`~skillkit.tasks.base.Task`, built from a few functions.
 
-Two small classes turn your simulator (or your robot) into a task that
-:func:`~skillkit.search.loop.learn`, :class:`~skillkit.search.reps.ContextualREPS`,
-:class:`~skillkit.search.crkr.CrKR`, :class:`~skillkit.search.rwr.RWR`,
-:class:`~skillkit.search.gpreps.GPREPS` and :class:`~skillkit.search.cmaes.CMAES` accept:
+* :class:`FunctionTask` (model-free): a black box ``rollout(omega, context, rng) -> float``;
+  GPREPS runs on it with a :class:`~skillkit.search.gpreps.DirectRewardModel`.
+* :class:`TrajectoryTask` (model-based): ``rollout(omega, context, rng) -> (states,
+  controls)`` scored by a batched ``reward(states, controls, contexts)``; with a batched
+  ``controller`` and ``initial_states`` it supports step-based forward models
+  (:class:`~skillkit.search.gpreps.TrajectoryRewardModel`, Eqs. 4.1–4.3).
 
-* :class:`FunctionTask` — **model-free**, a black box that returns only the reward:
-  ``rollout(omega, context, rng) -> float``. GPREPS runs on it with a
-  :class:`~skillkit.search.gpreps.DirectRewardModel` (a GP from [s, ω] to R).
-* :class:`TrajectoryTask` — **model-based**, a simulator that returns the trajectory:
-  ``rollout(omega, context, rng) -> (states, controls)``, scored by your batched
-  ``reward(states, controls, contexts)``. With a batched ``controller`` (the lower-level
-  policy your rollout runs) and ``initial_states`` (where rollouts start) it also supports
-  step-based forward models, i.e. GPREPS with a
-  :class:`~skillkit.search.gpreps.TrajectoryRewardModel` (Eqs. 4.1–4.3).
-
-The context distribution μ(s) is uniform on ``[context_low, context_high]`` unless a
-``context_sampler(rng, n) -> (n, context_dim)`` is given (its draws must lie in the bounds,
-which :meth:`~skillkit.tasks.base.Task.check_context` enforces for every context). Without
-bounds the task is context-free and ``rollout`` gets ``context=None``.
-
-What goes wrong, and what happens then:
-
-* **Your rollout raises** (any ``Exception``: a simulator error, a lost connection to the
-  robot) or **returns a non-finite reward or trajectory**: the rollout is recorded as a
-  *failed* trajectory whose ``message`` holds the error (``"rollout raised RuntimeError:
-  …"``), scored :attr:`~skillkit.tasks.base.Task.worst_reward`, reported through a
-  ``RuntimeWarning``; the run goes on (the same path as a simulator failure in every
-  thesis task, :meth:`~skillkit.tasks.base.Task.rollout`). A NaN reward is such a failure
-  too, not an exception: a black box cannot tell a blown-up simulation from a bug, and one
-  bad episode must not end a run on a robot.
-* **Your functions return the wrong thing** (a reward that is not a scalar, states or controls
-  of the wrong shape, a reward batch not of shape (B,), a controller output not of shape
-  (n, control_dim), contexts outside the bounds): ``ValueError`` naming the function
-  (``rollout``, ``reward``, ``controller``, ``initial_states``, ``context_sampler``). These
-  are bugs, the same at every call, so the run stops at the first one.
-
-Checkpoints (:class:`~skillkit.trial.TrialContext`) pickle the algorithm, and a model-based
-algorithm holds the task: use module-level functions (or ``functools.partial`` of them), not
-lambdas, where a run is checkpointed.
-
-These classes are not in the task registry (they are yours, not the thesis's); they are
-exported by :mod:`skillkit.tasks`.
+μ(s) is uniform on ``[context_low, context_high]`` unless ``context_sampler(rng, n)`` is given;
+without bounds the task is context-free and ``rollout`` gets ``context=None``. A rollout that
+raises or returns non-finite values is recorded as a *failed* trajectory (message
+``"rollout raised …"``, :attr:`~skillkit.tasks.base.Task.worst_reward`, a ``RuntimeWarning``)
+and the run goes on; a function returning the wrong shape or type raises ``ValueError`` naming
+it. Checkpoints pickle the task: use module-level functions (or ``functools.partial``), not
+lambdas. These tasks are not in the registry.
 
 Example (model-free)::
 
@@ -76,7 +48,7 @@ def _check_callable(fn, name: str, required: bool = True):
 
 
 def _function_name(fn) -> str:
-    """The name of a user function for messages: its qualified name, else its repr."""
+    """A user function's qualified name, else its repr."""
     return str(getattr(fn, "__qualname__", None) or repr(fn))
 
 
@@ -86,36 +58,27 @@ class FunctionTask(Task):
     Parameters
     ----------
     rollout : callable
-        ``rollout(omega, context, rng) -> float``: runs one episode with lower-level parameters
-        ω (ndarray (parameter_dim,)) in context s (ndarray (context_dim,), ``None`` for a
-        context-free task), with randomness from ``rng`` (a numpy Generator; use it for every
-        random draw and same seed ⇒ same reward), and returns the reward R(τ, s), a real
-        number (an int, a float or a numpy real scalar; a str, a bool or a complex number is
-        refused with ``ValueError``). It may raise: the rollout is then recorded as failed
-        (module notes).
+        ``rollout(omega, context, rng) -> float``: one episode with ω (parameter_dim,) in
+        context s (context_dim,) or None, drawing randomness only from the numpy Generator
+        ``rng``; returns a real reward R(τ, s) (str, bool, complex are refused). It may raise.
     parameter_dim : int
         Dimension d ≥ 1 of ω.
     context_low, context_high : array_like, shape (context_dim,), optional
-        Bounds of the context; μ(s) is uniform on them unless ``context_sampler`` is given.
-        Omit both for a context-free task.
+        Bounds of the context (omit both for a context-free task).
     context_sampler : callable, optional
-        ``context_sampler(rng, n) -> (n, context_dim)``: draws s ~ μ(s) (inside the bounds).
+        ``context_sampler(rng, n) -> (n, context_dim)`` inside the bounds.
     initial_mean : array_like, shape (d,), optional
-        Mean of the initial upper-level policy π₀(ω|s) = N(initial_mean, diag(initial_std²))
-        (default zeros; the gain on the context starts at zero).
+        Mean of π₀(ω|s) = N(initial_mean, diag(initial_std²)) (default zeros, zero gain).
     initial_std : float or array_like, shape (d,)
-        Its standard deviations (> 0), the initial exploration (default 1).
+        Its standard deviations, > 0.
     name : str
-        The task's name (in messages and reprs).
     worst_reward : float
-        Reward of a failed rollout: below any reward a working rollout gets.
+        Reward of a failed rollout.
 
     Notes
     -----
-    The trajectory of a black-box rollout is empty (no states, no controls); its reward is
-    kept in ``trajectory.info["reward"]`` with the context it was earned in, and
-    :meth:`~skillkit.tasks.base.Task.reward` returns it for that context only (a black box
-    cannot re-score an episode in another context, so ``extra_contexts`` is refused).
+    The trajectory is empty; ``info["reward"]`` keeps the reward with its context, and
+    :meth:`~skillkit.tasks.base.Task.reward` refuses any other context.
     """
 
     trajectory_depends_on_context = True
@@ -169,10 +132,8 @@ class FunctionTask(Task):
             self.context_low, self.context_high = lo, hi
         self._context_sampler = _check_callable(sampler, "context_sampler", required=False)
 
-    # ----------------------------------------------------------------- contexts
     def sample_context(self, rng=None, n: int | None = None) -> np.ndarray:
-        """Draw contexts s ~ μ(s): uniform on the bounds, or ``context_sampler``'s draws
-        (checked: shape (n, context_dim), finite, inside the bounds)."""
+        """Draw s ~ μ(s): uniform on the bounds, or ``context_sampler``'s (checked) draws."""
         if self._context_sampler is None:
             return super().sample_context(rng, n)
         rng = as_generator(rng)
@@ -186,10 +147,8 @@ class FunctionTask(Task):
             self.check_context(row, "context_sampler")
         return s[0] if n is None else s
 
-    # ----------------------------------------------------------------- episodes
     def _call_rollout(self, omega: np.ndarray, context: np.ndarray, rng) -> Any:
-        """The user's rollout; whatever it raises becomes a :class:`SimulationFailure`, which
-        :meth:`Task.rollout` records as a failed trajectory with the error's message."""
+        """The user's rollout; whatever it raises becomes a :class:`SimulationFailure`."""
         try:
             return self._rollout(omega.copy(), context.copy() if self.context_dim else None, rng)
         except Exception as exc:
@@ -218,12 +177,8 @@ class FunctionTask(Task):
             ) from None
         if not np.isfinite(r):
             raise SimulationFailure(f"rollout returned a non-finite reward ({r})")
-        return Trajectory(
-            np.zeros(1),
-            np.zeros((1, 0)),
-            np.zeros((1, 0)),
-            info={"reward": r, "context": context.tolist()},
-        )
+        empty = (np.zeros(1), np.zeros((1, 0)), np.zeros((1, 0)))
+        return Trajectory(*empty, info={"reward": r, "context": context.tolist()})
 
     def _reward(self, trajectory: Trajectory, context: np.ndarray) -> float:
         if "reward" not in trajectory.info or "context" not in trajectory.info:
@@ -246,43 +201,27 @@ class FunctionTask(Task):
 class TrajectoryTask(FunctionTask):
     """A task from a rollout function that returns the trajectory, and a reward on trajectories.
 
-    With ``controller`` and ``initial_states`` the task supports step-based forward models
-    (``supports_model_rollout``): GPREPS's :class:`~skillkit.search.gpreps.TrajectoryRewardModel`
-    learns x_{t+1} from (x_t, u_t) of the real trajectories (:meth:`Task.transitions`: states
-    [:−1], controls [:−1], states [1:]), starts predicted rollouts at ``initial_states``, runs
-    ``controller`` on the predicted states and scores them with ``reward``.
-
     Parameters
     ----------
     rollout : callable
-        ``rollout(omega, context, rng) -> (states, controls)``: one episode, states of shape
-        (T, state_dim) (x_0 … x_{T−1}) and controls of shape (T, control_dim) (u_t applied
-        from x_t; the last row is the control at the final state). It may raise (the rollout
-        is then recorded as failed). For the model-based path the controls must be what
-        ``controller`` computes from the states (:meth:`controller_mismatch` measures it).
+        ``rollout(omega, context, rng) -> (states, controls)``: states (T, state_dim), controls
+        (T, control_dim) (u_t applied from x_t). For the model-based path the controls must be
+        what ``controller`` computes (:meth:`controller_mismatch`).
     reward : callable
-        ``reward(states, controls, contexts) -> rewards``: batched and numpy, states
-        (B, T, state_dim), controls (B, T, control_dim), contexts (B, context_dim) (B, 0 for
-        a context-free task), rewards (B,). The one definition of R(τ, s): it scores real and
-        predicted trajectories alike.
-    parameter_dim, state_dim : int
-        Dimensions (≥ 1) of ω and of the state x.
-    control_dim : int
-        Dimension (≥ 0) of the control u.
+        ``reward(states, controls, contexts) -> rewards``, numpy and batched: (B, T,
+        state_dim), (B, T, control_dim), (B, context_dim) → (B,). Scores real and predicted
+        trajectories alike.
+    parameter_dim, state_dim, control_dim : int
+        Dimensions of ω, x (≥ 1) and u (≥ 0).
     controller : callable, optional
-        ``controller(t, x, omegas, contexts) -> u``: the lower-level policy, batched and in
-        torch: t the step (int), x (n, state_dim), omegas (n, parameter_dim), contexts
-        (n, context_dim) Tensors (row i belongs to one (ω, s) pair); returns u (n, control_dim)
-        (a Tensor, or an array converted to one). Write it with Tensor operators and torch
-        functions.
+        ``controller(t, x, omegas, contexts) -> u`` in torch: x (n, state_dim), omegas
+        (n, parameter_dim), contexts (n, context_dim) Tensors; u (n, control_dim).
     initial_states : callable, optional
-        ``initial_states(context, n, rng) -> (n, state_dim)``: n draws of the start state
-        x_0 ~ p(x_0; s) (``context`` None for a context-free task).
+        ``initial_states(context, n, rng) -> (n, state_dim)``, draws of x_0 ~ p(x_0; s).
     dt : float
-        Time step between states (> 0; the trajectory's time stamps).
+        Time between states (> 0).
     trajectory_depends_on_context : bool
-        False if the rollout ignores the context (it only enters the reward): a trajectory can
-        then be re-scored in other contexts (``extra_contexts`` of :func:`learn`, Sec. 3.4).
+        False if the context only enters the reward (re-scoring in other contexts, Sec. 3.4).
     context_low, context_high, context_sampler, initial_mean, initial_std, name, worst_reward
         As for :class:`FunctionTask`.
     """
@@ -332,7 +271,6 @@ class TrajectoryTask(FunctionTask):
             f"the task was built without {' and '.join(missing)}" if missing else ""
         )
 
-    # ----------------------------------------------------------------- episodes
     def _simulate(self, omega, context, rng) -> Trajectory:
         out = self._call_rollout(omega, context, rng)
         if isinstance(out, Trajectory) or not isinstance(out, (tuple, list)) or len(out) != 2:
@@ -345,19 +283,11 @@ class TrajectoryTask(FunctionTask):
         controls = check_array(
             out[1], "rollout (controls)", shape=(states.shape[0], self.control_dim), finite=False
         )
-        return Trajectory(
-            self.dt * np.arange(states.shape[0]),
-            states,
-            controls,
-            info={"context": context.tolist()},
-        )
+        times = self.dt * np.arange(states.shape[0])
+        return Trajectory(times, states, controls, info={"context": context.tolist()})
 
     def reward_batch(self, states, controls, signals, contexts) -> np.ndarray:
-        """R(τ_b, s_b) of B trajectories through ``reward`` (numpy in, shape (B,) out).
-
-        Tensors (on the CPU) are converted to numpy float64 before ``reward`` sees them.
-        Raises ``ValueError`` naming ``reward`` when its output is not of shape (B,).
-        """
+        """R(τ_b, s_b) through ``reward`` on float64 numpy arrays; ``ValueError`` unless (B,)."""
         x = np.asarray(states, dtype=np.float64)
         u = np.asarray(controls, dtype=np.float64)
         s = np.asarray(contexts, dtype=np.float64).reshape(x.shape[0], self.context_dim)
@@ -367,9 +297,8 @@ class TrajectoryTask(FunctionTask):
     def _reward(self, trajectory: Trajectory, context: np.ndarray) -> float:
         return Task._reward(self, trajectory, context)
 
-    # ----------------------------------------------------------------- model-based search
     def model_signals(self) -> ModelSignals:
-        """x = (x0, x1, …), u = (u0, u1, …); no other signal."""
+        """x = (x0, x1, …), u = (u0, u1, …)."""
         return ModelSignals(
             state=tuple(f"x{i}" for i in range(self.state_dim)),
             control=tuple(f"u{j}" for j in range(self.control_dim)),
@@ -384,9 +313,8 @@ class TrajectoryTask(FunctionTask):
         return check_array(x0, "initial_states", shape=(n, self.state_dim))
 
     def controller(self, omegas, contexts=None, device=None, dtype=None):
-        """``controller`` for B (ω, s) pairs as ``policy(t, x, pair) -> u`` (the sampler's form,
-        :meth:`Task.controller`); raises ``ValueError`` naming ``controller`` when its output
-        is not of shape (n, control_dim)."""
+        """``controller`` for B (ω, s) pairs as ``policy(t, x, pair) -> u``
+        (:meth:`Task.controller`); ``ValueError`` unless its output is (n, control_dim)."""
         import torch
 
         self._require_model_rollout("controller")
@@ -414,9 +342,8 @@ class TrajectoryTask(FunctionTask):
         return policy
 
     def controller_mismatch(self, omega, context, trajectory: Trajectory) -> float:
-        """Largest |u_t − controller(t, x_t)| over the trajectory's states x_0 … x_{T−2}: zero
-        (up to rounding) when ``controller`` is the policy ``rollout`` ran (the premise of the
-        model-based path), larger with control noise or a different controller."""
+        """max |u_t − controller(t, x_t)| over x_0 … x_{T−2}: zero when ``controller`` is the
+        policy ``rollout`` ran."""
         import torch
 
         policy = self.controller(

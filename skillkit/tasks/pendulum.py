@@ -1,18 +1,10 @@
 """The single-link pendulum of Sec. 5.4 (and the stochastic pendulum of Fig. 4.8).
 
-Dynamics (Sec. 5.4)::
-
-    α̈ = −9.81 sin α + u,       |u| ≤ 3,       Δt = 0.1 s
-
-controlled by the stochastic linear state feedback u ~ N(Kᵀx, σ_u²), x = [α, α̇], clipped
-to the torque limit |u| ≤ 3 (the actuator's limit, part of the model, as in the thesis).
-The lower-level parameters are the feedback gains ω = K (thesis value K = [−3, −1]); the
-context is the initial state s = x_0. Between control steps the torque is held constant and
-the ODE is integrated with classical Runge–Kutta (4th order, 10 sub-steps of 10 ms), which is
-accurate to ~1e-9 here, so the discrete-time map is effectively exact.
-
-The trajectory reward is R(τ, s) = −Σ_{t=1}^{T} (α_t² + 0.1 α̇_t²), the sum of immediate
-quadratic rewards r(x_t) Fig. 4.8 refers to (the thesis gives no constants; these are ours).
+Dynamics α̈ = −9.81 sin α + u, |u| ≤ 3, Δt = 0.1 s, under the stochastic linear feedback
+u ~ N(Kᵀx, σ_u²), x = [α, α̇], clipped to the torque limit. ω = K (thesis K = [−3, −1]); the
+context is the initial state s = x_0. The torque is held over each control period and the ODE
+integrated with RK4 (10 sub-steps). R(τ, s) = −Σ_{t=1}^{T} (α_t² + 0.1 α̇_t²) (Fig. 4.8; the
+constants are ours).
 """
 
 from __future__ import annotations
@@ -32,23 +24,7 @@ THESIS_GAINS = np.array([-3.0, -1.0])
 def pendulum_dynamics(
     x: np.ndarray, u: np.ndarray, dt: float = 0.1, substeps: int = 10
 ) -> np.ndarray:
-    """Deterministic successor state of α̈ = −9.81 sin α + u with u held for ``dt`` (RK4).
-
-    Parameters
-    ----------
-    x : ndarray, shape (..., 2)
-        States [α, α̇].
-    u : ndarray, shape (...)
-        Torques (already limited).
-    dt : float
-        Control period.
-    substeps : int
-        RK4 steps per control period.
-
-    Returns
-    -------
-    ndarray, shape (..., 2)
-    """
+    """Successor of states x (..., 2) = [α, α̇] under torques u (...) held for ``dt`` (RK4)."""
     x = np.asarray(x, dtype=np.float64)
     u = np.asarray(u, dtype=np.float64)
     h = dt / substeps
@@ -124,18 +100,13 @@ class Pendulum(Task):
             u = feedback_torque(states[t], omega, noise[t])
             controls[t, 0] = u
             states[t + 1] = pendulum_dynamics(states[t], u, self.dt)
-        return Trajectory(
-            times=self.dt * np.arange(T + 1),
-            states=states,
-            controls=controls,
-            info={"gains": omega.tolist()},
-        )
+        times = self.dt * np.arange(T + 1)
+        return Trajectory(times, states, controls, info={"gains": omega.tolist()})
 
-    # ------------------------------------------------------------------ model-based search
     supports_model_rollout = True
 
     def model_signals(self) -> ModelSignals:
-        """x = [α, α̇], u = the applied torque; no other signal."""
+        """x = [α, α̇], u = the applied torque."""
         return ModelSignals(state=("alpha", "alpha_dot"), control=("torque",))
 
     def initial_states(self, context, n: int, rng=None) -> np.ndarray:
@@ -144,12 +115,7 @@ class Pendulum(Task):
         return np.tile(s, (check_count(n), 1))
 
     def controller(self, omegas, contexts=None, device=None, dtype=None):
-        """u = clip(K_bᵀ x, −3, 3) for pair b, K_b = ω_b (the commanded torque).
-
-        The simulator adds N(0, σ_u²) torque noise before the limit; for model rollouts that
-        noise belongs to the stochastic dynamics the model learns (the recorded controls of
-        a noise-free pendulum are exactly this policy's output).
-        """
+        """u = clip(K_bᵀ x, −3, 3), K_b = ω_b; the torque noise belongs to the learned dynamics."""
         import torch
 
         gains = torch.as_tensor(
@@ -186,8 +152,7 @@ def pendulum(**kwargs) -> Pendulum:
 
 @register("pendulum-stochastic", "pendulum", "contextual")
 def pendulum_stochastic(**kwargs) -> Pendulum:
-    """Fig. 4.8 setting: the same pendulum with strong torque noise (σ_u = 1.5) and T = 30, so
-    single rollouts of the same (s, ω) give widely different rewards."""
+    """Fig. 4.8 setting: strong torque noise (σ_u = 1.5) and T = 30."""
     kwargs.setdefault("control_noise", 1.5)
     kwargs.setdefault("horizon", 30)
     kwargs.setdefault("name", "pendulum-stochastic")

@@ -1,7 +1,6 @@
 """The planar 4-link robot of Appendix C.1 as a MuJoCo model built with ``dm_control.mjcf``.
 
-The robot is "roughly modeled as a human with ankle, knee, hip and shoulder joints"
-(Sec. 3.4.1, Fig. 3.1): four links in one vertical plane,
+A human-like robot with ankle, knee, hip and shoulder joints (Sec. 3.4.1, Fig. 3.1):
 
 ==========  =====  ========  ===========================================
 link        mass   length    joint at its lower end (hinge about +y)
@@ -12,30 +11,12 @@ torso       26.5   1.0 m     hip
 arm          8.5   1.0 m     shoulder, at the top of the torso
 ==========  =====  ========  ===========================================
 
-(total 70 kg, standing height 2 m, as in Sec. 4.3.1). Conventions:
-
-* MuJoCo's x–z plane is the robot's plane: +x is forward (towards the targets), +z up.
-  The thesis's 2-D coordinates ``[x, y]`` of Appendix C.1 are MuJoCo's ``[x, z]``.
-* The **base is fixed to the ground**: the ankle hinge is attached to the world, so the
-  robot cannot tip over as a whole or slide; "losing balance" means the links fall
-  around the ankle.
-* All hinge axes are +y, so a positive angle tilts a link that points up forwards (+x).
-  With ``q = 0`` shin, thigh and torso stand upright and the arm hangs down along the
-  torso; the arm points straight up at ``q_4 = π``. The upright posture of the thesis is
-  therefore ``q = [0, 0, 0, π]``, and the joint limits of Appendix C.1 read naturally:
-  the knee only flexes (``q_2 ≤ 0.05``), the hip flexes forwards (``q_3 ≤ 2``) and the arm
-  turns from hanging (0) backwards, over the head (π) to pointing forwards (1.5π).
-* Links are uniform thin rods: mass ``m`` at the middle of the link and moment of inertia
-  ``m l² / 12`` about the centre (the thesis gives no inertia; this is our assumption).
-* No joint limits, damping, friction or contacts are modelled (every geom has
-  ``contype = conaffinity = 0``): the thesis's limits are soft, enforced by the reward, and
-  links may pass through the ground. All four joints carry a ``<motor>`` actuator (gear 1,
-  unlimited), i.e. all are torque-actuated.
-* The default time step is 1 ms with MuJoCo's semi-implicit Euler integrator.
-
-A site ``hand`` marks the tip of the arm (where the ball is held in the throwing task).
-:class:`PlanarRobot` is one compiled robot with its hand site, as the throwing and balancing
-tasks hold it.
+Conventions: MuJoCo's x–z plane is the robot's (+x forward, +z up; the thesis's [x, y]).
+The base is fixed to the ground. All hinge axes are +y, so a positive angle tilts an upward
+link forwards; at q = 0 the legs and torso stand upright and the arm hangs down, so upright is
+q = [0, 0, 0, π]. Links are uniform thin rods (inertia m l²/12, our assumption); no joint
+limits, damping or contacts (the limits of C.1 are soft, in the reward); every joint has a
+unit-gear motor. Time step 1 ms, semi-implicit Euler. A site ``hand`` marks the arm's tip.
 """
 
 from __future__ import annotations
@@ -52,6 +33,8 @@ LINK_NAMES = ("shin", "thigh", "torso", "arm")
 JOINT_NAMES = ("ankle", "knee", "hip", "shoulder")
 LINK_MASSES = np.array([17.5, 17.5, 26.5, 8.5])
 LINK_LENGTHS = np.array([0.5, 0.5, 1.0, 1.0])
+STATE_NAMES = JOINT_NAMES + tuple(f"{j}_velocity" for j in JOINT_NAMES)
+TORQUE_NAMES = tuple(f"{j}_torque" for j in JOINT_NAMES)
 UPRIGHT = np.array([0.0, 0.0, 0.0, np.pi])
 """Upright posture q = [0, 0, 0, π] (rad): legs and torso vertical, arm pointing up."""
 TIMESTEP = 1e-3
@@ -59,18 +42,7 @@ TIMESTEP = 1e-3
 
 
 def build_planar_robot(timestep: float = TIMESTEP) -> mjcf.RootElement:
-    """MJCF model of the planar 4-link robot (Appendix C.1).
-
-    Parameters
-    ----------
-    timestep : float
-        Physics time step in seconds.
-
-    Returns
-    -------
-    dm_control.mjcf.RootElement
-        The model; compile with ``mjcf.Physics.from_mjcf_model``.
-    """
+    """MJCF model (``dm_control.mjcf.RootElement``) of the planar 4-link robot (Appendix C.1)."""
     root = mjcf_root("planar_4link", timestep, geom_rgba=[0.55, 0.6, 0.7, 1.0])
     root.worldbody.add("light", pos=[0, -6, 4], dir=[0, 1, -0.5])
     root.worldbody.add(
@@ -113,15 +85,11 @@ def build_planar_robot(timestep: float = TIMESTEP) -> mjcf.RootElement:
 
 
 def compile_planar_robot(timestep: float = TIMESTEP) -> mjcf.Physics:
-    """Compile :func:`build_planar_robot` into a ``dm_control.mjcf.Physics``.
-
-    Use ``physics.model.ptr`` / ``physics.data.ptr`` (raw ``mujoco.MjModel``/``MjData``)
-    with ``mujoco.mj_step`` in inner loops.
-    """
+    """Compile :func:`build_planar_robot` into a ``dm_control.mjcf.Physics``."""
     return mjcf.Physics.from_mjcf_model(build_planar_robot(timestep))
 
 
-@functools.cache  # constants of the robot: computed once, not at every control step
+@functools.cache
 def _chain_constants() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """H (4, 4), b (4,) and the rod inertias I (4,) of :func:`rigid_body_terms`."""
     a = np.zeros((4, 4))  # a[k, j]: lever of absolute angle θ_j in the centre of mass of link k
@@ -135,27 +103,13 @@ def _chain_constants() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def rigid_body_terms(q, qd, gravity: float = GRAVITY):
-    """Joint-space inertia M(q) and bias force c(q, q̇) of the robot, in closed form (torch).
+    """Joint-space inertia M(q) (..., 4, 4) and bias force c(q, q̇) (..., 4) in closed form.
 
-    The equations of motion M(q) q̈ + c(q, q̇) = u of :func:`build_planar_robot` (MuJoCo's
-    ``qM`` and ``qfrc_bias``). With absolute link angles θ = L q (L lower triangular ones)
-    the centre of mass of link k is p_k = Σ_j a_kj (sin θ_j, cos θ_j) (in the x–z plane), so
-    the kinetic energy is ½ θ̇ᵀ (H ⊙ cos(θ_i − θ_j) + diag I) θ̇ with H = Aᵀ diag(m) A, and
-    the potential g Σ_j b_j cos θ_j with b = Aᵀ m. Lagrange's equations in θ give
-    M_θ = H ⊙ cos(θ_i − θ_j) + diag I and h_θ,i = Σ_j H_ij sin(θ_i − θ_j) θ̇_j² − g b_i sin θ_i;
-    in joint coordinates M = Lᵀ M_θ L and c = Lᵀ h_θ.
-
-    Parameters
-    ----------
-    q, qd : Tensor, shape (..., 4)
-        Joint angles and velocities.
-    gravity : float
-        g (m/s²).
-
-    Returns
-    -------
-    M : Tensor, shape (..., 4, 4)
-    c : Tensor, shape (..., 4)
+    MuJoCo's ``qM`` and ``qfrc_bias`` of torch ``q``, ``qd`` (..., 4). With absolute angles
+    θ = L q (L lower-triangular ones) and link centres p_k = Σ_j a_kj (sin θ_j, cos θ_j),
+    H = Aᵀ diag(m) A and b = Aᵀ m, Lagrange's equations give
+    M_θ = H ⊙ cos(θ_i − θ_j) + diag I, h_θ,i = Σ_j H_ij sin(θ_i − θ_j) θ̇_j² − g b_i sin θ_i,
+    and M = Lᵀ M_θ L, c = Lᵀ h_θ.
     """
     import torch
 
@@ -173,25 +127,17 @@ def rigid_body_terms(q, qd, gravity: float = GRAVITY):
 
 
 class PlanarRobot:
-    """Compiled planar robot (one per task instance) and its hand site."""
+    """Compiled planar robot (one per task instance)."""
 
     def __init__(self, timestep: float) -> None:
         self.physics = compile_planar_robot(timestep)
         self.model: mujoco.MjModel = self.physics.model.ptr
         self.data: mujoco.MjData = self.physics.data.ptr
-        self.hand = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_SITE, "hand")
         self.gravity = float(-self.model.opt.gravity[2])
-        self._vel = np.zeros(6)
 
     def reset(self, q: np.ndarray, qd: np.ndarray) -> None:
+        """Set the state (q, q̇) and recompute its kinematics."""
         mujoco.mj_resetData(self.model, self.data)
         self.data.qpos[:] = q
         self.data.qvel[:] = qd
         mujoco.mj_forward(self.model, self.data)
-
-    def hand_state(self, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
-        """Hand position and velocity in the robot plane, [x, z] each (current kinematics)."""
-        mujoco.mj_objectVelocity(
-            self.model, data, mujoco.mjtObj.mjOBJ_SITE, self.hand, self._vel, 0
-        )
-        return data.site_xpos[self.hand][[0, 2]].copy(), self._vel[[3, 5]].copy()

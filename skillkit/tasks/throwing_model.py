@@ -1,39 +1,19 @@
-r"""The decomposed reward model of the ball-throwing task (Sec. 4.3.2, Fig. 4.2).
+"""The decomposed reward model of the ball-throwing task (Sec. 4.3.2, Fig. 4.2).
 
-GPREPS predicts the reward of a throw with three learned models chained as in Fig. 4.2:
+GPREPS predicts a throw's reward with three learned models chained as in Fig. 4.2:
 
-1. **Robot dynamics** (a sparse FITC GP, Sec. 4.2): x_{t+1} ~ p(x_{t+1} | x_t, a_t) for the arm
-   state x = [q, q̇] (8) under its tracking controller, learned from the observed transitions.
-   The DMP tracker of :class:`~skillkit.tasks.planar.Throwing` runs on the *predicted* states in
-   torch (:meth:`~skillkit.tasks.planar.Throwing.acceleration_controller`), so L trajectories of
-   M pairs are sampled in one batch (:func:`~skillkit.models.sampling.sample_trajectories`).
-2. **Release** (a standard GP): the ball's position and velocity b_0 = [p, v] (4) at the
-   release time t_r from the arm state x(t_r), i.e. a learned forward kinematics of the hand
-   that holds the ball, plus a Gaussian release error whose variance is estimated from the
-   observed release states (zero for a deterministic hand, the release noise of Sec. 4.3.2.2
-   for ``throwing-noisy``).
-3. **Free flight** (a sparse FITC GP): b_{k+1} ~ p(b_{k+1} | b_k) every ``ball_dt``, learned from
-   the observed ball flights, iterated from b_0 until the ball reaches the ground.
+1. **Robot dynamics** x_{t+1} ~ p(x_{t+1} | x_t, a_t) of x = [q, q̇] under the tracker, with
+   the tracker's commanded acceleration a as control (smooth in a, unlike the torque); the
+   DMP tracker runs on the predicted states
+   (:meth:`~skillkit.tasks.planar.Throwing.acceleration_controller`).
+2. **Release**: the ball state b_0 = [p, v] at t_r from x(t_r), learned from the hand at every
+   control step, plus a Gaussian release error estimated from the observed releases.
+3. **Free flight** b_{k+1} ~ p(b_{k+1} | b_k) every ``ball_dt``, iterated until the ground.
 
-The task's own :meth:`~skillkit.tasks.planar.Throwing.reward_batch` then scores the predicted arm
-states, the torques of the tracker on them and the predicted ball path, and Eq. (4.1) averages
-the L rewards of each pair.
-
-Setup choices (compared in ``fig4.6``'s summary):
-
-* The robot model's control input is the tracker's **commanded acceleration** a, not the torque
-  u = M(q) a + c(q, q̇): the tracker cancels the arm's inertia, so x' depends smoothly and almost
-  linearly on a, whereas u enters through M(q)⁻¹ (a GP on [x, u] predicts far worse). From
-  logged torques a is recovered with
-  :meth:`~skillkit.tasks.planar.Throwing.commanded_accelerations`.
-* The release model learns from the hand's observed state at every control step (the ball is in
-  the hand until t_r), not from the N release events alone (an order of magnitude lower
-  release-velocity error).
-* The predicted ball path is the flight only: the held part (the hand, at most 3 m from the
-  base) never decides min_t ‖b_t − s‖ for a target 5–15 m ahead.
-
-Each of the three models is built by a factory (``make_robot_model`` …), so any
-:mod:`skillkit.models` regression (ExactGP, FITC, VFE) can take its place.
+:meth:`~skillkit.tasks.planar.Throwing.reward_batch` scores the predicted arm states, the
+tracker's torques and the predicted flight (the held part never decides the distance to a
+target 5–15 m ahead), and Eq. (4.1) averages the L rewards of each pair. Each model comes from
+a factory, so any :mod:`skillkit.models` regression can take its place.
 """
 
 from __future__ import annotations
@@ -65,36 +45,22 @@ __all__ = ["ThrowingPrediction", "ThrowingRewardModel", "land"]
 def _robot_model() -> ForwardModel:
     from skillkit.models.sparse import FITC
 
-    return ForwardModel(FITC(n_inducing=50), target="delta")  # as its stored results
+    return ForwardModel(FITC(n_inducing=50), target="delta")
 
 
 def _release_model() -> GPRegression:
     return ExactGP()
 
 
-def _flight_model() -> ForwardModel:
-    from skillkit.models.sparse import FITC
-
-    return ForwardModel(FITC(n_inducing=50), target="delta")  # as its stored results
+_flight_model = _robot_model
 
 
 def land(paths: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Stop predicted ball paths at the ground y = 0.
+    """Stop predicted ball paths (B, K, 2) at the ground y = 0.
 
-    The first sample at or below the ground is moved onto it (linear interpolation from the
-    sample before) and every later sample repeats it, so the path's segments end where the
-    ball lands.
-
-    Parameters
-    ----------
-    paths : ndarray, shape (B, K, 2)
-        [x, y] samples, y up; the first sample is the release point.
-
-    Returns
-    -------
-    paths : ndarray, shape (B, K, 2)
-    landed : ndarray of bool, shape (B,)
-        Whether the ball reached the ground within the K samples.
+    The first sample at or below the ground (after the release point) is moved onto it by
+    linear interpolation and repeats to the end. Returns the paths and ``landed`` (B,), whether
+    the ball reached the ground within the K samples.
     """
     paths = check_array(paths, "paths", shape=(None, None, 2))
     below = paths[:, :, 1] <= 0.0
@@ -115,23 +81,11 @@ def land(paths: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 class ThrowingPrediction:
     """L predicted throws for each of B (ω, s) pairs.
 
-    Attributes
-    ----------
-    states : ndarray, shape (B, L, T, 8)
-        Predicted arm states at the control steps.
-    torques : ndarray, shape (B, L, T, 4)
-        The tracker's torques on them (u = M(q) a + c).
-    release : ndarray, shape (B, L, 4)
-        Predicted ball state [p_x, p_y, v_x, v_y] at t_r.
-    ball : ndarray, shape (B, L, K, 2)
-        Predicted ball flight, stopped at the ground (:func:`land`).
-    rewards : ndarray, shape (B, L)
-    landed : ndarray of bool, shape (B, L)
-        Whether the predicted ball reached the ground within the flight horizon.
-    failed : ndarray of bool, shape (B, L)
-        Predicted arm paths the simulator would stop as diverged
-        (:meth:`~skillkit.tasks.planar.Throwing.failed_batch`); their reward is the task's
-        ``worst_reward`` (:func:`~skillkit.search.model_rollouts.worst_if_failed`).
+    ``states`` (B, L, T, 8) and the tracker's ``torques`` (B, L, T, 4) on them, the ball state
+    ``release`` [p_x, p_y, v_x, v_y] (B, L, 4) at t_r, the ``ball`` flight (B, L, K, 2)
+    stopped at the ground (:func:`land`), ``rewards`` (B, L), ``landed`` (B, L) whether it
+    reached the ground, and ``failed`` (B, L) the arm paths the simulator would stop (scored
+    ``worst_reward``).
     """
 
     states: np.ndarray
@@ -163,52 +117,28 @@ class ThrowingRewardModel(RewardModel):
     Parameters
     ----------
     task : Throwing
-    make_robot_model : callable, optional
-        Returns an unfitted forward model of x = [q, q̇] with control a (default
-        ``ForwardModel(FITC(n_inducing=50), target="delta")``).
-    make_release_model : callable, optional
-        Returns an unfitted GP regression x → [p, v] (default ``ExactGP()``).
-    make_flight_model : callable, optional
-        Returns an unfitted forward model of the ball state [p, v] with no control (default
-        ``ForwardModel(FITC(n_inducing=50), target="delta")``).
-    max_robot_points : int
-        The robot GP is fitted on at most this many transitions, drawn at random from all
-        throws so far.
-    max_release_points : int
-        The release GP is fitted on at most this many hand observations, drawn at random
-        from all control steps of all throws (an exact GP is cubic in its data).
-    max_flight_points : int
-        Likewise for the flight GP's transitions.
+    make_robot_model, make_release_model, make_flight_model : callable, optional
+        Module-level factories of unfitted models: forward models of x (control a) and of the
+        ball state (default FITC with 50 inducing points), the regression x → [p, v]
+        (default ``ExactGP()``).
+    max_robot_points, max_release_points, max_flight_points : int
+        Each GP is fitted on at most this many points, drawn at random.
     flight_time : float
-        Seconds of predicted flight (s); a ball still in the air then is counted in
-        ``not_landed`` and scored on its path so far.
+        Seconds of predicted flight; a ball still in the air is scored on its path so far.
     warm_start : bool
-        Start each GP's hyper-parameter optimisation at its previous values.
+        Start each hyper-parameter optimisation at the previous values.
     device : str or torch.device, optional
-        Where trajectories are sampled (float64). Each GP is trained on its own ``device``,
-        so a GPU user gives it to the factories as well, e.g.
-        ``make_release_model=partial(FITC, n_inducing=50, device="cuda")`` and robot and
-        flight factories returning
-        ``ForwardModel(FITC(n_inducing=50, device="cuda"), target="delta")``.
+        Where trajectories are sampled (the factories choose the GPs' devices).
     dtype : torch.dtype
-        Precision of the sampled arm and ball trajectories: ``torch.float64`` (default) or
-        ``torch.float32`` (faster, :func:`~skillkit.models.sampling.sample_trajectories`);
-        torques, release and rewards are computed in float64 either way.
+        Precision of the sampled trajectories (float64 or float32); torques, release and
+        rewards are float64.
     stop_flight_at_ground : bool
-        Stop propagating a predicted ball at its first sample at or below the ground (the
-        ``stop`` rule of :func:`~skillkit.models.sampling.sample_trajectories`). :func:`land`
-        never reads past that sample, so the rewards equal the full flight's up to round-off
-        (1e-14 relative); only the cost falls (``benchmarks/bench_gpreps.py``). ``False``
-        propagates every ball for the whole flight time; the fig4.6, fig4.7 and fig4.9
-        experiments pin it so that their stored digits reproduce.
-
-    Notes
-    -----
-    Factories are part of the checkpointed state: pass module-level functions or classes.
+        Stop propagating a ball at its first sample at or below the ground (rewards equal up
+        to round-off); the stored fig4.6, fig4.7, fig4.9 results pin ``False``.
     """
 
-    dtype: torch.dtype = torch.float64  # class default for instances pickled without it
-    stop_flight_at_ground: bool = False  # likewise
+    dtype: torch.dtype = torch.float64  # defaults of instances pickled without them
+    stop_flight_at_ground: bool = False
 
     def __init__(
         self,
@@ -258,7 +188,6 @@ class ThrowingRewardModel(RewardModel):
         self._hypers: dict[str, dict | None] = {"robot": None, "release": None, "flight": None}
         self.n_data = 0
 
-    # ------------------------------------------------------------------ data
     def robot_data(self, trajectories) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Transitions (x_t, a_t, x_{t+1}) of the throws, a the commanded accelerations."""
         parts = [self.task.transitions(t) for t in trajectories]
@@ -266,10 +195,7 @@ class ThrowingRewardModel(RewardModel):
         return x, self.task.commanded_accelerations(x, u), xn
 
     def hand_data(self, trajectories) -> tuple[np.ndarray, np.ndarray]:
-        """Arm states x_t (N, 8) and the hand's [p, v] (N, 4) at every control step.
-
-        The hand's velocity is the central difference of its observed positions
-        (``np.gradient``; one-sided at the ends)."""
+        """Arm states x_t (N, 8) and the hand's [p, v] (N, 4, v by ``np.gradient``) per step."""
         dt = self.task.control_dt
         xs, bs = [], []
         for t in trajectories:
@@ -290,10 +216,8 @@ class ThrowingRewardModel(RewardModel):
         return xs, bs
 
     def flight_data(self, trajectories) -> tuple[np.ndarray, np.ndarray]:
-        """Ball flight transitions (b_k, b_{k+1}), b = [p, v] every ``ball_dt``.
-
-        Velocities are central differences of the observed positions (exact for a parabola);
-        the last, off-grid landing sample is dropped."""
+        """Ball flight transitions (b_k, b_{k+1}), b = [p, v] every ``ball_dt`` (v by central
+        differences; the off-grid landing sample is dropped)."""
         dt = self.task.ball_dt
         xs, xns = [], []
         for t in trajectories:
@@ -318,7 +242,6 @@ class ThrowingRewardModel(RewardModel):
         hi = np.take_along_axis(states, k[..., None, None] + 1, axis=-2)[..., 0, :]
         return (1.0 - f[..., None]) * lo + f[..., None] * hi
 
-    # ------------------------------------------------------------------ fit
     def _fit_gp(self, key: str, model, x: np.ndarray, y_or_u, xn=None, rng=None):
         gp = getattr(model, "gp", model)
         if self.warm_start and isinstance(gp, GPRegression):
@@ -335,13 +258,9 @@ class ThrowingRewardModel(RewardModel):
     def fit(self, contexts, omegas, rewards, trajectories, rng=None) -> dict[str, Any]:
         """Refit the three models on every non-failed real throw.
 
-        Returns
-        -------
-        dict
-            ``n_data`` (robot transitions), ``n_trajectories``, ``n_release``,
-            ``n_flight``, ``release_std`` (4,) and, per GP model, ``robot``, ``release`` and
-            ``flight``: its ``n_data``, ``log_ml``, ``iterations``, ``noise_var_max`` and
-            ``numerical_events`` (what the fit handled, by kind).
+        Returns ``n_data`` (robot transitions), ``n_robot``, ``n_trajectories``, ``n_release``,
+        ``n_flight``, ``release_std`` (4,) and per GP ``robot``, ``release``, ``flight`` its
+        :func:`~skillkit.models.reward.gp_stats`.
         """
         if trajectories is None:
             raise ValueError("trajectories: the throwing model learns from trajectories")
@@ -383,22 +302,9 @@ class ThrowingRewardModel(RewardModel):
                 stats[key] = gp_stats(gp, n)
         return stats
 
-    # ------------------------------------------------------------------ predict
     def predict(self, contexts, omegas, n_trajectories: int, rng=None) -> ThrowingPrediction:
-        """Sample L throws for each of B (ω, s) pairs through the three models.
-
-        Parameters
-        ----------
-        contexts : array_like, shape (B, 2)
-        omegas : array_like, shape (B, 41)
-        n_trajectories : int
-            L ≥ 1.
-        rng : Generator, int or None
-
-        Returns
-        -------
-        ThrowingPrediction
-        """
+        """Sample L = ``n_trajectories`` throws for each of B pairs, ``contexts`` (B, 2) and
+        ``omegas`` (B, 41), through the three models."""
         if self.robot is None:
             raise RuntimeError("ThrowingRewardModel: call fit() before predicting")
         task = self.task
@@ -407,8 +313,7 @@ class ThrowingRewardModel(RewardModel):
         L, rng = check_count(n_trajectories, "n_trajectories"), as_generator(rng)
         B, T = w.shape[0], task.n_steps
         device = torch.device("cpu" if self.device is None else self.device)
-        # Every throw starts at rest in the same posture, whatever the target (and a target
-        # drawn from a Gaussian μ̂(s) may lie outside the task's range).
+        # the start does not depend on s (which may lie outside the task's range)
         x0 = np.broadcast_to(task.initial_states(task.context_low, 1), (B, L, 8))
         dtype = self.dtype
         accel = task.acceleration_controller(w, device=device)  # float64: a_T and the torques
@@ -473,7 +378,7 @@ class ThrowingRewardModel(RewardModel):
 
 
 def _on_ground(k: int, b: torch.Tensor) -> torch.Tensor:
-    """A ball at or below the ground y = 0 has landed: its later flight is not needed."""
+    """A ball at or below the ground y = 0 has landed."""
     return b[:, 1] <= 0.0
 
 

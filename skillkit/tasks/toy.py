@@ -1,9 +1,5 @@
-"""A toy contextual task with a known optimum, for tests, benchmarks and teaching.
-
-Not in the task registry (it has no robot, no scene and no thesis figure); the sanity
-experiment's :class:`~skillkit.experiments.sanity.LinearOptimumTask` is its weighted,
-3-D relative.
-"""
+"""A toy contextual task with a known optimum, for tests, benchmarks and teaching (not
+registered; :class:`~skillkit.experiments.sanity.LinearOptimumTask` is its 3-D relative)."""
 
 from __future__ import annotations
 
@@ -19,14 +15,8 @@ __all__ = ["LinearTarget"]
 class LinearTarget(Task):
     """R(s, ω) = −‖ω − g s‖² on s ∈ [−1, 1]², ω ∈ R²: the optimal policy mean is ω = g s.
 
-    The trajectory is ω itself (one state, no controls) and does not depend on s, so a
-    rollout can be re-scored in other contexts (the extra-context variant of Sec. 3.4). The
-    optimal linear-Gaussian policy has gain A = g I and offset 0.
-
-    Parameters
-    ----------
-    gain : float
-        g (default 2).
+    The trajectory is ω itself and does not depend on s (re-scorable, Sec. 3.4).
+    ``gain`` is g.
     """
 
     name = "linear-target"

@@ -11,12 +11,10 @@ from dm_control import mjcf
 from skillkit._validation import check_array
 from skillkit.tasks._mjcf import mjcf_root
 
-# ----------------------------------------------------------------------------- arm constants
 N_JOINTS = 7
 JOINT_AXES = ((0, 0, 1), (0, 1, 0), (0, 0, 1), (0, 1, 0), (0, 0, 1), (0, 1, 0), (0, 0, 1))
 LINK_OFFSETS = (0.1575, 0.1530, 0.2000, 0.2000, 0.2000, 0.1900, 0.0000)
-"""Position of joint i+1 along the z axis of link i (link 0 = base), m; joint 2 is at
-0.3105 m, the elbow 0.4 m and the wrist 0.79 m further up at q = 0 (LWR-4 d1, d3, d5)."""
+"""Position of joint i+1 along the z axis of link i (link 0 = base), m (LWR-4 d1, d3, d5)."""
 FLANGE_OFFSET = 0.078
 """Flange distance from the wrist along the last link's z axis (LWR-4 d7), m."""
 LINK_MASSES = (2.7, 2.7, 2.7, 2.7, 1.7, 1.6, 0.3)
@@ -30,7 +28,7 @@ TORQUE_LIMITS = np.array([176.0, 176.0, 100.0, 100.0, 100.0, 38.0, 38.0])
 KP = np.array([2500.0, 2500.0, 1200.0, 1200.0, 400.0, 400.0, 150.0])
 """PD stiffness per joint, N m / rad."""
 KD = np.array([90.0, 90.0, 45.0, 45.0, 14.0, 14.0, 5.0])
-"""PD damping per joint, N m s / rad (about critical for the armature plus link inertia)."""
+"""PD damping per joint, N m s / rad."""
 SHAFT_LENGTH, SHAFT_MASS, SHAFT_RADIUS = 0.45, 0.25, 0.012
 BLADE_HALF = (0.10, 0.008, 0.04)
 """Blade half sizes along the flange's x (long side), y (face normal) and z axes, m."""
@@ -42,100 +40,45 @@ TIMESTEP = 0.002
 CONTROL_DT = 0.004
 """Control period of the PD tracker (250 Hz) and time step of the puck table, s."""
 TABLE_FRICTION = 0.1
-"""Coulomb friction coefficient between the blade and the table surface (our choice: a
-plastic blade on a smooth table; the thesis gives none)."""
+"""Coulomb friction between the blade and the table (our choice; the thesis gives none)."""
 CONTACT_SOLREF = (0.004, 1.0)
-"""MuJoCo ``solref`` (time constant, damping ratio) of the blade–table contact: the stiffest
-the 2 ms step allows (time constant 2 Δt), so the blade sinks at most a few millimetres."""
+"""MuJoCo ``solref`` (time constant, damping ratio) of the blade–table contact (2 Δt: the
+stiffest the step allows)."""
 
 
-# ============================================================================= the arm
 def build_arm_mjcf(timestep: float = TIMESTEP) -> mjcf.RootElement:
-    """MJCF model of the KUKA-LWR-like 7-DoF arm with its hockey racket.
-
-    Parameters
-    ----------
-    timestep : float
-        Physics time step, s.
-
-    Returns
-    -------
-    dm_control.mjcf.RootElement
-        Bodies ``link1`` … ``link7`` with hinge joints ``j1`` … ``j7`` (axes
-        :data:`JOINT_AXES`, ranges :data:`JOINT_LIMITS`, armature :data:`ARMATURE`), sites
-        ``flange`` and ``blade``. The blade box collides with the table plane (and nothing
-        else collides): friction :data:`TABLE_FRICTION`, ``solref`` :data:`CONTACT_SOLREF`.
-        Compile with ``mujoco.MjModel.from_xml_string(root.to_xml_string())`` (or use
-        :func:`arm_model`).
-    """
+    """MJCF model of the arm: bodies ``link1`` … ``link7`` with hinge joints ``j1`` … ``j7``
+    (:data:`JOINT_AXES`, :data:`JOINT_LIMITS`, :data:`ARMATURE`), sites ``flange`` and
+    ``blade``; only the blade box and the table plane collide (:data:`TABLE_FRICTION`,
+    :data:`CONTACT_SOLREF`). ``timestep`` in s; :func:`arm_model` compiles it."""
     root = mjcf_root("lwr_hockey", timestep, geom_rgba=[1.0, 0.55, 0.1, 1.0])
     root.worldbody.add("light", pos=[0, 0, 3], dir=[0, 0, -1])
+    contact = {"friction": [TABLE_FRICTION, 0.005, 0.0001], "solref": list(CONTACT_SOLREF)}
+    table = {"size": [3, 2, 0.1], "pos": [1.2, 0.3, 0], "rgba": [0.9, 0.9, 0.88, 1]}
     root.worldbody.add(
-        "geom",
-        name="table",
-        type="plane",
-        size=[3, 2, 0.1],
-        pos=[1.2, 0.3, 0],
-        rgba=[0.9, 0.9, 0.88, 1],
-        contype=1,
-        conaffinity=0,
-        friction=[TABLE_FRICTION, 0.005, 0.0001],
-        solref=list(CONTACT_SOLREF),
+        "geom", name="table", type="plane", contype=1, conaffinity=0, **table, **contact
     )
-    root.worldbody.add(
-        "geom",
-        name="base",
-        type="cylinder",
-        size=[0.08, LINK_OFFSETS[0] / 2],
-        pos=[0, 0, LINK_OFFSETS[0] / 2],
-        mass=5.0,
-        rgba=[0.3, 0.3, 0.3, 1],
-    )
+    half = LINK_OFFSETS[0] / 2
+    base = {"size": [0.08, half], "pos": [0, 0, half], "mass": 5.0, "rgba": [0.3, 0.3, 0.3, 1]}
+    root.worldbody.add("geom", name="base", type="cylinder", **base)
     parent = root.worldbody
     for i in range(N_JOINTS):
         body = parent.add("body", name=f"link{i + 1}", pos=[0, 0, LINK_OFFSETS[i]])
-        body.add(
-            "joint",
-            name=f"j{i + 1}",
-            type="hinge",
-            axis=list(JOINT_AXES[i]),
-            range=[-JOINT_LIMITS[i], JOINT_LIMITS[i]],
-            limited=True,
-            armature=ARMATURE[i],
-        )
+        hinge = {"type": "hinge", "axis": list(JOINT_AXES[i]), "limited": True}
+        limits = [-JOINT_LIMITS[i], JOINT_LIMITS[i]]
+        body.add("joint", name=f"j{i + 1}", range=limits, armature=ARMATURE[i], **hinge)
         length = LINK_OFFSETS[i + 1] if i + 1 < N_JOINTS else FLANGE_OFFSET
-        body.add(
-            "geom",
-            name=f"link{i + 1}_geom",
-            type="capsule",
-            size=[0.06 - 0.004 * i],
-            fromto=[0, 0, 0, 0, 0, max(length, 0.04)],
-            mass=LINK_MASSES[i],
-        )
+        tip = [0, 0, 0, 0, 0, max(length, 0.04)]
+        link = {"size": [0.06 - 0.004 * i], "fromto": tip, "mass": LINK_MASSES[i]}
+        body.add("geom", name=f"link{i + 1}_geom", type="capsule", **link)
         parent = body
     parent.add("site", name="flange", pos=[0, 0, FLANGE_OFFSET], size=[0.01])
-    parent.add(
-        "geom",
-        name="shaft",
-        type="capsule",
-        size=[SHAFT_RADIUS],
-        mass=SHAFT_MASS,
-        fromto=[0, 0, FLANGE_OFFSET, 0, 0, FLANGE_OFFSET + SHAFT_LENGTH],
-        rgba=[0.2, 0.2, 0.2, 1],
-    )
-    parent.add(
-        "geom",
-        name="blade",
-        type="box",
-        size=list(BLADE_HALF),
-        mass=BLADE_MASS,
-        pos=[0, 0, BLADE_OFFSET],
-        rgba=[0.1, 0.1, 0.1, 1],
-        contype=0,
-        conaffinity=1,
-        friction=[TABLE_FRICTION, 0.005, 0.0001],
-        solref=list(CONTACT_SOLREF),
-    )
+    ends = [0, 0, FLANGE_OFFSET, 0, 0, FLANGE_OFFSET + SHAFT_LENGTH]
+    shaft = {"size": [SHAFT_RADIUS], "mass": SHAFT_MASS, "rgba": [0.2, 0.2, 0.2, 1]}
+    parent.add("geom", name="shaft", type="capsule", fromto=ends, **shaft)
+    blade = {"size": list(BLADE_HALF), "mass": BLADE_MASS, "pos": [0, 0, BLADE_OFFSET]}
+    blade.update(rgba=[0.1, 0.1, 0.1, 1], contype=0, conaffinity=1, **contact)
+    parent.add("geom", name="blade", type="box", **blade)
     parent.add("site", name="blade", pos=[0, 0, BLADE_OFFSET], size=[0.01])
     return root
 
@@ -164,10 +107,8 @@ def _axis_rotation(axis: tuple[int, int, int], angle: np.ndarray) -> np.ndarray:
 
 
 def arm_forward_kinematics(q) -> tuple[np.ndarray, np.ndarray]:
-    """Pose of the blade centre for joint angles ``q`` (an independent numpy chain).
-
-    The chain is p = Σ_i R_0 … R_{i−1} [0, 0, l_i] + R_0 … R_6 [0, 0, BLADE_OFFSET] with
-    R_i the rotation of joint i+1 about its axis and l_i = :data:`LINK_OFFSETS`.
+    """Pose of the blade centre for joint angles ``q`` (an independent numpy chain):
+    p = Σ_i R_0 … R_{i−1} [0, 0, l_i] + R_0 … R_6 [0, 0, BLADE_OFFSET], l_i = :data:`LINK_OFFSETS`.
 
     Parameters
     ----------
@@ -194,20 +135,9 @@ def arm_forward_kinematics(q) -> tuple[np.ndarray, np.ndarray]:
 
 
 def blade_pose(position, rotation) -> np.ndarray:
-    """Blade [x, y, z, yaw] and its lowest/highest corner heights from 3-D poses.
-
-    Parameters
-    ----------
-    position : array_like, shape (..., 3)
-        Blade centre.
-    rotation : array_like, shape (..., 3, 3)
-        Blade frame (columns: long side, face normal, shaft).
-
-    Returns
-    -------
-    ndarray, shape (..., 6)
-        [x, y, z, yaw, z_low, z_high]; yaw is the heading of the long side on the table.
-    """
+    """Blade [x, y, z, yaw, z_low, z_high], shape (..., 6), from its centre (..., 3) and frame
+    (..., 3, 3) (columns: long side, face normal, shaft); yaw is the long side's heading and
+    z_low, z_high the lowest and highest corner heights."""
     position = np.asarray(position, dtype=np.float64)
     rotation = np.asarray(rotation, dtype=np.float64)
     reach = np.abs(rotation[..., 2, :]) @ np.asarray(BLADE_HALF)

@@ -26,16 +26,7 @@ DEMO_POSTURE = np.array([-0.5, 0.6, 0.0, 1.5, 0.0, 1.0, 0.0])
 DEMO_FILE = "hockey.npz"
 
 
-# ============================================================================= demonstration
-def _ik_blade(
-    model: mujoco.MjModel,
-    data: mujoco.MjData,
-    site: int,
-    position: np.ndarray,
-    rotation: np.ndarray,
-    q: np.ndarray,
-    posture: np.ndarray,
-) -> np.ndarray:
+def _ik_blade(model, data, site: int, position, rotation, q, posture) -> np.ndarray:
     """Damped least-squares IK for the blade pose with a null-space pull towards ``posture``."""
     jacp, jacr = np.zeros((3, N_JOINTS)), np.zeros((3, N_JOINTS))
     q = q.copy()
@@ -43,20 +34,9 @@ def _ik_blade(
         data.qpos[:] = q
         mujoco.mj_kinematics(model, data)
         mujoco.mj_comPos(model, data)
-        r_err = rotation @ data.site_xmat[site].reshape(3, 3).T
-        err = np.concatenate(
-            [
-                position - data.site_xpos[site],
-                0.5
-                * np.array(
-                    [
-                        r_err[2, 1] - r_err[1, 2],
-                        r_err[0, 2] - r_err[2, 0],
-                        r_err[1, 0] - r_err[0, 1],
-                    ]
-                ),
-            ]
-        )
+        r = rotation @ data.site_xmat[site].reshape(3, 3).T
+        axis = np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
+        err = np.concatenate([position - data.site_xpos[site], 0.5 * axis])
         mujoco.mj_jacSite(model, data, jacp, jacr, site)
         jac = np.vstack([jacp, jacr])
         pinv = jac.T @ np.linalg.inv(jac @ jac.T + 1e-10 * np.eye(6))
@@ -70,26 +50,13 @@ def _ik_blade(
 
 
 def make_demonstration(dt: float = TIMESTEP) -> dict[str, np.ndarray]:
-    """The demonstrated hitting stroke (deterministic; the shipped file is its output).
+    """The demonstrated hitting stroke sampled every ``dt`` s (deterministic; the shipped file).
 
-    The blade slides, upright and 4.5 cm above the table, along a straight line of
-    :data:`DEMO_BACKSWING` towards :data:`TARGET_CENTRE`, face normal along the line, and
-    reaches the control puck's centre line with speed :data:`DEMO_HIT_SPEED` at the end of
-    :data:`DEMO_DURATION` (quintic timing: at rest at the start, zero path acceleration at
-    the end). Joint angles come from damped least-squares inverse kinematics of the MuJoCo
-    model, warm-started along the path; velocities and accelerations from second-order
-    finite differences.
-
-    Parameters
-    ----------
-    dt : float
-        Sampling period, s.
-
-    Returns
-    -------
-    dict
-        ``times`` (N,), ``q``, ``qd``, ``qdd`` (N, 7), ``blade`` (N, 3) desired blade
-        centre, ``control_puck_start`` (2,), ``direction`` (2,).
+    The upright blade slides :data:`DEMO_BACKSWING` along a straight line towards
+    :data:`TARGET_CENTRE` and reaches the control puck with speed :data:`DEMO_HIT_SPEED` after
+    :data:`DEMO_DURATION` (quintic timing); joint angles by damped least-squares IK, their
+    derivatives by finite differences. Returns ``times`` (N,), ``q``, ``qd``, ``qdd`` (N, 7),
+    ``blade`` (N, 3), ``control_puck_start`` (2,) and ``direction`` (2,).
     """
     dt = check_positive(dt, "dt")
     model = arm_model()

@@ -2,50 +2,27 @@
 
 GPREPS predicts the reward of a shot with learned event models chained as in Sec. 4.3.3:
 
-1. **Launch** (a GP from ω alone): the control puck's state b_0 = [p_y, v_x, v_y] and the time
-   t_0 at which it crosses the line x = :data:`X_LAUNCH`, 0.2 m past its start (the thesis's
-   line is "at a constant distance of 0.2 m in the x direction from the robot's base"). Past
-   this line the racket no longer touches the puck (checked by
-   ``tests/tasks/test_hockey_model.py``); pushes and multiple hits before it are not
-   modelled. A shot whose puck never crosses is a **no-launch**: once one is observed, a
-   second GP regresses +1 (crossed) / −1 (not) on ω, and a predicted shot launches when a
-   draw of its latent value is positive; an unlaunched puck stays at its start. The GP's
-   outputs (:class:`LaunchTargets`) default to [p_y, heading, speed, t_0]: the heading
-   decides the reward, and independent GPs on v_x, v_y put their errors into it
-   (``benchmarks/bench_hockey_launch.py``).
-2. **Free sliding** (a GP, iterated): Δb = b_{k+1} − b_k for b = [p, v] every ``slide_dt``,
-   with the velocity v_k alone as input (the table is uniform, so sliding is translation
-   invariant). Learned from the pucks' recorded paths away from contacts (central-difference
-   velocities interpolated onto the ``slide_dt`` grid). A draw whose speed falls below
-   ``stop_speed`` or reverses its direction stops the puck for good.
-3. **Contact detection** from the known puck radius r (:func:`first_contact`): the pucks
-   touch when ‖x_c − x_t‖ ≤ 2r, at the first root of ‖d_k + f (d_{k+1} − d_k)‖ = 2r,
-   f ∈ [0, 1], within a step.
-4. **Contact** (a GP): both pucks' velocities just after the first contact from the control
-   puck's velocity just before it, in the contact frame (n from the control to the target
-   centre, t = n rotated by 90°): [v·n, v·t] → [v_c'·n, v_c'·t, v_t'·n, v_t'·t] (isotropy
-   turns a 4-input map into a 2-input one). Both pucks then slide on with model 2; a second
-   contact is not modelled.
-5. **Reward**: the task's own :meth:`~skillkit.tasks.hockey.Hockey.reward_batch` on the
-   predicted puck paths; Eq. (4.1) averages the L rewards of each pair.
+1. **Launch** (GP on ω): the control puck's state [p_y, v_x, v_y] and time t_0 where it
+   crosses the line x = :data:`X_LAUNCH`, 0.2 m past its start (the racket no longer touches
+   it there); targets per :class:`LaunchTargets`. Once a shot that never crosses is seen, a
+   second GP regresses ±1 (crossed or not) on ω and a shot launches when a draw is positive.
+2. **Free sliding** (GP, iterated): Δ[p, v] over ``slide_dt`` from the velocity v alone (the
+   table is uniform); a draw slower than ``stop_speed`` or reversing stops the puck.
+3. **Contact detection** from the puck radius r (:func:`first_contact`).
+4. **Contact** (GP): both pucks' velocities after the first contact from the control puck's
+   velocity before it, in the contact frame [n, t] (n from the control to the target centre).
+5. **Reward**: the task's :meth:`~skillkit.tasks.hockey.Hockey.reward_batch` on the predicted
+   paths; Eq. (4.1) averages the L rewards of a pair.
 
-**Real-robot setting** (``hockey-real``, chosen when ``task.observation`` is set): the models
-learn from the observed 30 Hz puck tracks, Butterworth-smoothed as the reward smooths them
-(:func:`~skillkit.tasks.hockey.butterworth_smooth`); the sliding step is the observation
-period. As in Sec. 4.3.3 the contact model is replaced by one that predicts the target puck's
-final displacement (and the control puck's remaining one) from the control puck's relative
-position and velocity when the pucks come within ``real_threshold``
-(:class:`DisplacementModel`; by default a hit/miss classifier and a GP on the hits in the
-approach frame). After a predicted hit the paths are drawn, not simulated: the control puck
-moves straight to its closest approach (or the contact point at 2r) and on to its predicted
-end; the target leaves b at the contact and reaches its predicted end with constant
-deceleration. Predicted paths are sampled at the observation rate and padded with
-:data:`REST_FRAMES` rest frames so the reward's filtfilt sees stopped pucks.
+In the **real-robot setting** (``hockey-real``) the models learn from the observed tracks,
+smoothed as the reward smooths them, the sliding step is the observation period, and the
+contact model is replaced by :class:`DisplacementModel` (Sec. 4.3.3): the pucks' final
+displacements from the control puck's state where it comes within ``real_threshold``. After
+a predicted hit the paths are drawn straight to those end points (the target with constant
+deceleration) and padded with :data:`REST_FRAMES` rest frames for the reward's filter.
 
-Each GP comes from a factory (``make_launch_model`` …, default :class:`ExactGP`), so any
-:mod:`skillkit.models` regression can take its place. After each data collection every GP's
-hyper-parameters are refitted on all data (Sec. 4.1) by
-:func:`~skillkit.search.gpreps.refit_gp` (``refit="best"`` by default).
+Each GP comes from a factory (default :class:`ExactGP`) and is refitted after each data
+collection (Sec. 4.1) by :func:`~skillkit.models.reward.refit_gp`.
 """
 
 from __future__ import annotations
@@ -70,19 +47,6 @@ from skillkit.models.reward import (
 from skillkit.tasks.hockey.table import CONTROL_PUCK_START
 from skillkit.tasks.hockey.task import Hockey, butterworth_smooth
 
-__all__ = [
-    "DISPLACEMENT_MODELS",
-    "DisplacementModel",
-    "LAUNCH_TARGETS",
-    "LaunchTargets",
-    "HockeyPrediction",
-    "HockeyRewardModel",
-    "PUCK_Z",
-    "REST_FRAMES",
-    "X_LAUNCH",
-    "first_contact",
-]
-
 X_LAUNCH = float(CONTROL_PUCK_START[0]) + 0.2
 """The launch line x = 0.65 m (0.2 m past the control puck's start), m."""
 PUCK_Z = 0.0125
@@ -91,22 +55,9 @@ REST_FRAMES = 15
 """Rest frames appended to predicted real-setting paths (the smoothing's padlen is 9)."""
 
 
-# ============================================================================= geometry
 def _segment_hit(d0: np.ndarray, d1: np.ndarray, distance: float) -> tuple[np.ndarray, np.ndarray]:
-    """First f ∈ [0, 1] with ‖d0 + f (d1 − d0)‖ = distance, per row.
-
-    Parameters
-    ----------
-    d0, d1 : ndarray, shape (..., 2)
-        Relative positions at the segment's ends.
-    distance : float
-
-    Returns
-    -------
-    hit : ndarray of bool, shape (...)
-    f : ndarray, shape (...)
-        0 where d0 is already within ``distance``; undefined (0) where not ``hit``.
-    """
+    """First f ∈ [0, 1] with ‖d0 + f (d1 − d0)‖ = distance for rows (..., 2): hit (...) and f
+    (...), 0 where d0 is already within ``distance`` or where not ``hit``."""
     e = d1 - d0
     a = np.sum(e * e, axis=-1)
     b = np.sum(d0 * e, axis=-1)
@@ -122,11 +73,9 @@ def _segment_hit(d0: np.ndarray, d1: np.ndarray, distance: float) -> tuple[np.nd
 def first_contact(control, target, radius: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Detect the first contact of two pucks of radius r on sampled paths.
 
-    The pucks touch when their centre distance ‖x_c − x_t‖ ≤ 2r. Between two samples k, k+1
-    the relative position d = x_c − x_t is interpolated linearly, and the contact is the
-    first f ∈ [0, 1] with ‖d_k + f (d_{k+1} − d_k)‖ = 2r. (Across a collision step the chord
-    cuts the corner of the V-shaped relative path, so a contact that bounced back within one
-    sample is still found.)
+    The pucks touch when ‖x_c − x_t‖ ≤ 2r; between samples k, k+1 the relative position
+    d = x_c − x_t is interpolated linearly and the contact is the first f ∈ [0, 1] with
+    ‖d_k + f (d_{k+1} − d_k)‖ = 2r.
 
     Parameters
     ----------
@@ -177,13 +126,19 @@ def _frame(n: np.ndarray) -> np.ndarray:
     return np.stack([n, t], axis=-2)
 
 
+def _rotate(R: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Both (x, y) pairs of the rows of y (N, 4) rotated by R (N, 2, 2)."""
+    return np.concatenate(
+        [np.einsum("nij,nj->ni", R, y[:, :2]), np.einsum("nij,nj->ni", R, y[:, 2:])], 1
+    )
+
+
 def _interp(times: np.ndarray, values: np.ndarray, at) -> np.ndarray:
     """Linear interpolation of (T, 2) values at times ``at`` (scalar or (n,))."""
     at = np.asarray(at, dtype=np.float64)
     return np.stack([np.interp(at, times, values[:, i]) for i in range(values.shape[1])], -1)
 
 
-# ============================================================================= launch targets
 LAUNCH_TARGETS: tuple[str, ...] = ("heading", "velocity")
 """What the launch GP predicts (:class:`LaunchTargets`): ``"heading"`` [p_y, heading, speed,
 t_0] (the default) or ``"velocity"`` [p_y, v_x, v_y, t_0]."""
@@ -195,8 +150,8 @@ class LaunchTargets:
     Parameters
     ----------
     kind : {"heading", "velocity"}
-        ``"heading"``: [p_y, ψ, ‖v‖, t_0] with ψ = atan2(v_y, v_x) (the shot's direction, which
-        decides hits, gets a GP of its own); ``"velocity"``: [p_y, v_x, v_y, t_0] unchanged.
+        ``"heading"``: [p_y, ψ, ‖v‖, t_0] with ψ = atan2(v_y, v_x) (the direction, which
+        decides hits, gets a GP of its own); ``"velocity"``: [p_y, v_x, v_y, t_0].
     """
 
     def __init__(self, kind: str = "heading"):
@@ -205,17 +160,7 @@ class LaunchTargets:
         self.kind = kind
 
     def encode(self, state: np.ndarray) -> np.ndarray:
-        """GP targets from launch states.
-
-        Parameters
-        ----------
-        state : ndarray, shape (N, 4)
-            [p_y, v_x, v_y, t_0].
-
-        Returns
-        -------
-        ndarray, shape (N, 4)
-        """
+        """GP targets (N, 4) from launch states [p_y, v_x, v_y, t_0] (N, 4)."""
         state = np.asarray(state, dtype=np.float64)
         if self.kind == "velocity":
             return state.copy()
@@ -239,7 +184,6 @@ class LaunchTargets:
         return f"LaunchTargets({self.kind!r})"
 
 
-# ============================================================================= displacement
 DISPLACEMENT_MODELS: tuple[str, ...] = ("hit_gp", "gp")
 """Real setting's displacement model (:class:`DisplacementModel`): ``"hit_gp"`` a hit/miss
 classifier and a GP on the hits in the approach frame (the default), ``"gp"`` one GP on all
@@ -252,13 +196,12 @@ def approach_frame(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     Parameters
     ----------
     x : ndarray, shape (N, 4)
-        [x_c − b, v_c]: the control puck's position relative to the target and its velocity.
+        [x_c − b, v_c]: position relative to the target and velocity of the control puck.
 
     Returns
     -------
     features : ndarray, shape (N, 2)
-        [h, ‖v_c‖], h the signed offset of the straight line of approach from the target's
-        centre (|h| < 2r: the line passes within contact distance).
+        [h, ‖v_c‖], h the signed offset of the line of approach from the target's centre.
     frames : ndarray, shape (N, 2, 2)
         Rows [u, u⊥], u = v_c / ‖v_c‖ (a puck at rest gets u = x).
     """
@@ -271,20 +214,26 @@ def approach_frame(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.column_stack([h, speed]), frames
 
 
+def _classifier_inputs(x: np.ndarray) -> np.ndarray:
+    """[|h|, ‖v_c‖] of :func:`approach_frame`, the hit classifier's inputs."""
+    feats, _ = approach_frame(x)
+    return np.column_stack([np.abs(feats[:, 0]), feats[:, 1]])
+
+
 class DisplacementModel:
     """Real setting: where both pucks end up once the control puck comes within the threshold.
 
     Parameters
     ----------
     kind : {"hit_gp", "gp"}
-        ``"hit_gp"``: P(hit) from a logistic regression (scikit-learn, standardised features
-        [|h|, ‖v_c‖] of :func:`approach_frame`), and a GP [h, ‖v_c‖] (2) → both pucks'
-        displacements in the approach frame (4), fitted on the hits only; a miss leaves the
-        target in place. ``"gp"``: one GP [x_c − b, v_c] (4) → [Δy_target, Δx_control] (4)
-        in world coordinates on every approach, every approach a hit.
+        ``"hit_gp"``: P(hit) from a logistic regression on the standardised [|h|, ‖v_c‖] of
+        :func:`approach_frame`, and a GP [h, ‖v_c‖] → both pucks' displacements in the
+        approach frame (4), fitted on the hits; a miss leaves the target in place. ``"gp"``:
+        one GP [x_c − b, v_c] → [Δy_target, Δx_control] (4) in world coordinates, every
+        approach a hit.
     hit_distance : float
-        A recorded approach is a hit when the target puck's (smoothed) end point is more than
-        this from its start, m (its tracking noise stays below it).
+        A recorded approach is a hit when the target puck ends more than this from its
+        start, m.
 
     Attributes
     ----------
@@ -315,10 +264,7 @@ class DisplacementModel:
             return x, y
         keep = self.hits(y)
         feats, R = approach_frame(x[keep])
-        local = np.concatenate(
-            [np.einsum("nij,nj->ni", R, y[keep, :2]), np.einsum("nij,nj->ni", R, y[keep, 2:])], 1
-        )
-        return feats, local
+        return feats, _rotate(R, y[keep])
 
     def fit_classifier(self, x: np.ndarray, y: np.ndarray) -> None:
         """Fit P(hit | approach) on every recorded approach (``"hit_gp"`` only)."""
@@ -332,9 +278,8 @@ class DisplacementModel:
         self.hit_rate = float(hit.mean()) if hit.size else 0.0
         self.classifier = None
         if 0 < hit.sum() < hit.size:
-            feats, _ = approach_frame(x)
             self.classifier = make_pipeline(StandardScaler(), LogisticRegression(C=100.0))
-            self.classifier.fit(np.column_stack([np.abs(feats[:, 0]), feats[:, 1]]), hit)
+            self.classifier.fit(_classifier_inputs(x), hit)
 
     def hit_probability(self, x: np.ndarray) -> np.ndarray:
         """P(hit) of approaches x (N, 4), shape (N,); 1 for ``"gp"``, 0 without a GP."""
@@ -345,10 +290,7 @@ class DisplacementModel:
             return np.zeros(x.shape[0])
         if self.classifier is None or x.shape[0] == 0:
             return np.full(x.shape[0], self.hit_rate)
-        feats, _ = approach_frame(x)
-        return self.classifier.predict_proba(np.column_stack([np.abs(feats[:, 0]), feats[:, 1]]))[
-            :, 1
-        ]
+        return self.classifier.predict_proba(_classifier_inputs(x))[:, 1]
 
     def draw_hits(self, x: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """Bernoulli draws of hit / miss for approaches x (N, 4), shape (N,) bool."""
@@ -367,17 +309,12 @@ class DisplacementModel:
             return self.gp.sample(x, 1, rng).reshape(x.shape[0], -1)
         feats, R = approach_frame(x)
         local = self.gp.sample(feats, 1, rng).reshape(x.shape[0], -1)
-        RT = np.swapaxes(R, 1, 2)
-        return np.concatenate(
-            [np.einsum("nij,nj->ni", RT, local[:, :2]), np.einsum("nij,nj->ni", RT, local[:, 2:])],
-            1,
-        )
+        return _rotate(np.swapaxes(R, 1, 2), local)
 
     def __repr__(self) -> str:
         return f"DisplacementModel({self.kind!r}, fitted={self.gp is not None})"
 
 
-# ============================================================================= prediction
 @dataclass(frozen=True)
 class HockeyPrediction:
     """L predicted shots for each of B (ω, s) pairs.
@@ -385,18 +322,15 @@ class HockeyPrediction:
     Attributes
     ----------
     control, target : ndarray, shape (B, L, K, 2)
-        Predicted puck paths (what the reward reads), padded with the last position. In
-        the simulated setting sample 0 is the start, sample 1 the launch point and then one
-        sample every ``slide_dt`` (the contact point replaces the sample of its step); in
-        the real setting one sample per observation frame from t = 0.
+        Predicted puck paths, padded with the last position: simulated setting, the start,
+        the launch point, then one sample every ``slide_dt`` (the contact point replaces the
+        sample of its step); real setting, one sample per observation frame from t = 0.
     launch : ndarray, shape (B, L, 4)
         [x, y, v_x, v_y] of the control puck at the launch line (the start and zero velocity
         where the shot is not launched).
     launched : ndarray of bool, shape (B, L)
     contact : ndarray of bool, shape (B, L)
-        Whether the pucks touched (real setting: whether they came within the threshold
-        and the displacement model drew a hit; with ``displacement="gp"``, whether the
-        straight line of approach passes within 2r).
+        Whether the pucks touched (real setting: a drawn hit of the displacement model).
     contact_index : ndarray of int, shape (B, L)
         The path sample of the contact (−1 if none).
     rewards : ndarray, shape (B, L)
@@ -436,26 +370,18 @@ class HockeyRewardModel(RewardModel):
     Parameters
     ----------
     task : Hockey
-    make_launch_model : callable, optional
-        Each factory returns an unfitted :mod:`skillkit.models` GP regression (ExactGP, FITC,
-        VFE; default ``ExactGP()``). The launch model: ω (15) → the ``launch_targets``
-        (4) at the launch line.
-    make_launch_probability_model : callable, optional
-        Returns an unfitted GP regression ω → ±1 (crossed or not).
-    make_sliding_model : callable, optional
-        Returns an unfitted GP regression v (2) → Δ[p, v] (4) over ``slide_dt``.
-    make_contact_model : callable, optional
-        Returns an unfitted GP regression [v·n, v·t] → post-contact velocities (4), contact
-        frame (simulated setting).
-    make_displacement_model : callable, optional
-        Returns an unfitted GP regression of the displacements (real setting; inputs and
-        outputs per ``displacement``, :class:`DisplacementModel`).
+    make_launch_model, make_launch_probability_model, make_sliding_model : callable, optional
+        Each ``make_*`` returns an unfitted :mod:`skillkit.models` GP regression (default
+        ``ExactGP()``): ω (15) → ``launch_targets`` (4); ω → ±1 (crossed or not); v (2) →
+        Δ[p, v] (4).
+    make_contact_model, make_displacement_model : callable, optional
+        [v·n, v·t] → post-contact velocities (4); the real setting's displacements
+        (:class:`DisplacementModel`).
     real : bool, optional
         Learn from the smoothed observed tracks with the displacement model (default: when
         ``task.observation`` is set).
     slide_dt : float, optional
-        Step of the sliding model, s (default 0.04; the observation period in the real
-        setting).
+        Step of the sliding model, s (default 0.04; the observation period when ``real``).
     stop_speed : float
         A predicted puck slower than this (m/s) has stopped.
     horizon : float
@@ -468,20 +394,13 @@ class HockeyRewardModel(RewardModel):
     max_sliding_points, max_contact_points : int
         Each GP is fitted on at most this many points, drawn at random.
     refit : {"best", "cold", "warm"}
-        Where each GP's hyper-parameter optimisation starts after a data collection
-        (:func:`~skillkit.search.gpreps.refit_gp`): the default initialisation, the previous
-        values, or both, keeping the larger marginal likelihood (default).
+        Where each GP's hyper-parameter optimisation starts (:func:`refit_gp`).
     launch_targets : {"heading", "velocity"}
-        The launch GP's outputs (:class:`LaunchTargets`): [p_y, heading, speed, t_0]
-        (default) or [p_y, v_x, v_y, t_0].
+        The launch GP's outputs (:class:`LaunchTargets`).
     displacement : {"hit_gp", "gp"}
-        The real setting's displacement model (:class:`DisplacementModel`): a hit/miss
-        classifier and a GP on the hits in the approach frame (default), or one GP on all
-        approaches in world coordinates.
+        The real setting's :class:`DisplacementModel`.
     device : str or torch.device, optional
-        Where the fitted GPs' predictors are queried (float64); randomness is drawn in numpy,
-        so results do not depend on it. Training happens on each GP's own ``device`` (give
-        it to the factories as well for a GPU).
+        Where the fitted GPs' predictors are queried (float64; randomness is drawn in numpy).
 
     Notes
     -----
@@ -559,10 +478,8 @@ class HockeyRewardModel(RewardModel):
 
     # ------------------------------------------------------------------ data
     def paths(self, trajectory) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The puck paths a model learns from: times (T,), control and target (T, 2).
-
-        The true recorded paths, or in the real setting the observed 30 Hz tracks smoothed
-        with the reward's Butterworth filter."""
+        """The puck paths a model learns from, times (T,), control and target (T, 2): recorded,
+        or in the real setting observed and smoothed with the reward's filter."""
         sig = trajectory.signals
         if not self.real:
             return sig["puck_times"], sig["control_puck"], sig["target_puck"]
@@ -574,11 +491,8 @@ class HockeyRewardModel(RewardModel):
         return sig["observation_times"], smooth[0], smooth[1]
 
     def launch_data(self, trajectories) -> tuple[np.ndarray, np.ndarray]:
-        """Whether each shot crossed :data:`X_LAUNCH` (N,) and, where it did, its
-        [p_y, v_x, v_y, t_0] there (NaN rows elsewhere), shape (N, 4).
-
-        Position and time by linear interpolation between the two samples around the line,
-        velocity by interpolating the central differences (``np.gradient``) of the path."""
+        """Whether each shot crossed :data:`X_LAUNCH` (N,) and its [p_y, v_x, v_y, t_0] there
+        (N, 4; NaN rows elsewhere), interpolated linearly (velocities from ``np.gradient``)."""
         crossed, states = [], []
         for t in trajectories:
             times, c, _ = self.paths(t)
@@ -607,10 +521,9 @@ class HockeyRewardModel(RewardModel):
     def sliding_data(self, trajectories) -> tuple[np.ndarray, np.ndarray]:
         """Sliding transitions: velocities v_k (N, 2) and Δ[p, v] (N, 4) over ``slide_dt``.
 
-        Both paths are resampled on a ``slide_dt`` grid (control puck from its launch
-        crossing, target puck from its first contact), transitions within
-        ``contact_margin`` of the contact dropped, and only those starting faster than
-        ``stop_speed`` kept (so the stopping transitions are in, the resting pucks out)."""
+        Both paths resampled on a ``slide_dt`` grid (the control puck from its launch, the
+        target from the contact), without transitions within ``contact_margin`` of the
+        contact or starting slower than ``stop_speed``."""
         dt, xs, ys = self.slide_dt, [], []
         for t in trajectories:
             times, c, y = self.paths(t)
@@ -642,15 +555,9 @@ class HockeyRewardModel(RewardModel):
         return np.concatenate(xs), np.concatenate(ys)
 
     def contact_data(self, trajectories) -> tuple[np.ndarray, np.ndarray]:
-        """Contacts on the recorded paths (:func:`first_contact`) in the contact frame.
-
-        Returns
-        -------
-        x : ndarray, shape (N, 2)
-            [v·n, v·t], v the control puck's velocity ``contact_margin`` before the contact.
-        y : ndarray, shape (N, 4)
-            [v_c'·n, v_c'·t, v_t'·n, v_t'·t] ``contact_margin`` + one sample after it.
-        """
+        """Contacts on the recorded paths (:func:`first_contact`) in the contact frame: x =
+        [v·n, v·t] (N, 2) ``contact_margin`` before, y = [v_c'·n, v_c'·t, v_t'·n, v_t'·t]
+        (N, 4) ``contact_margin`` and one sample after."""
         xs, ys = [], []
         for t in trajectories:
             times, c, y = self.paths(t)
@@ -688,8 +595,7 @@ class HockeyRewardModel(RewardModel):
 
     # ------------------------------------------------------------------ fit
     def _fit_gp(self, key: str, x: np.ndarray, y: np.ndarray, rng) -> tuple[Any, dict]:
-        """Refit GP ``key`` on (x, y) (:func:`~skillkit.search.gpreps.refit_gp`); the fitted
-        GP and the refit record (``start``, ``log_ml_cold``, ``log_ml_warm``)."""
+        """Refit GP ``key`` on (x, y) (:func:`refit_gp`); the GP and the refit record."""
         hypers = getattr(self, "_hypers", {})
         gp, record = refit_gp(
             getattr(self, f"make_{key}_model"), x, y, rng, hypers.get(key), self.refit
@@ -702,11 +608,10 @@ class HockeyRewardModel(RewardModel):
         return gp, record
 
     def _launch_targets(self) -> LaunchTargets:
-        return LaunchTargets(getattr(self, "launch_targets", "velocity"))  # older pickles
+        return LaunchTargets(getattr(self, "launch_targets", "velocity"))  # pickles without it
 
     def _displacement_model(self) -> DisplacementModel | None:
-        """The fitted displacement model (a bare GP from an older pickle is the ``"gp"``
-        kind), or None."""
+        """The fitted displacement model (a bare pickled GP is the ``"gp"`` kind), or None."""
         m = self.models.get("displacement")
         if m is None or isinstance(m, DisplacementModel):
             return m
@@ -721,15 +626,10 @@ class HockeyRewardModel(RewardModel):
         -------
         dict
             ``n_data`` (sliding transitions), ``n_trajectories``, ``n_launched``,
-            ``n_contacts`` and, per fitted GP (``launch``, ``launch_probability``,
-            ``sliding``, ``contact`` or ``displacement``), its ``n_data``, ``log_ml``,
-            ``iterations``, ``noise_var_max``, ``numerical_events`` (what the fit
-            handled, by kind), the refit's ``start`` (``"cold"`` or ``"warm"``, the one kept)
-            and both starts' ``log_ml_cold`` / ``log_ml_warm`` (None where not run); in the
-            real setting with ``displacement="hit_gp"`` also ``n_hits`` and the classifier's
-            ``hit_accuracy`` on its training data.
+            ``n_contacts``; per fitted GP its :func:`gp_stats` and refit record; with
+            ``displacement="hit_gp"`` also ``n_hits`` and the classifier's ``hit_accuracy``.
         """
-        self.refit = check_refit(getattr(self, "refit", "best"))  # older pickles lack it
+        self.refit = check_refit(getattr(self, "refit", "best"))  # pickles without it
         if trajectories is None:
             raise ValueError("trajectories: the hockey model learns from trajectories")
         ok = list({id(t): t for t in trajectories if not t.failed}.values())
@@ -786,8 +686,7 @@ class HockeyRewardModel(RewardModel):
         return stats
 
     def _fit_displacement(self, ok, rng, gps, records, sizes) -> dict[str, Any]:
-        """Fit the real setting's :class:`DisplacementModel` (into ``self.models``; its GP
-        into ``gps``, ``records``, ``sizes`` under ``"displacement"``); its own stats."""
+        """Fit the real setting's :class:`DisplacementModel`; its own stats."""
         model = DisplacementModel(getattr(self, "displacement", "gp"))
         cx, cy = self.displacement_data(ok)
         out: dict[str, Any] = {"n_contacts": int(cx.shape[0])}
@@ -840,20 +739,8 @@ class HockeyRewardModel(RewardModel):
         return state, np.maximum(draw[:, 3], 0.0), launched
 
     def predict(self, contexts, omegas, n_trajectories: int, rng=None) -> HockeyPrediction:
-        """Sample L shots for each of B (ω, s) pairs through the event models.
-
-        Parameters
-        ----------
-        contexts : array_like, shape (B, 3)
-        omegas : array_like, shape (B, 15)
-        n_trajectories : int
-            L ≥ 1.
-        rng : Generator, int or None
-
-        Returns
-        -------
-        HockeyPrediction
-        """
+        """Sample L = ``n_trajectories`` shots for each of B pairs, contexts (B, 3) and omegas
+        (B, 15), through the event models."""
         if self.models["launch"] is None:
             raise RuntimeError("HockeyRewardModel: call fit() before predicting")
         task = self.task
@@ -871,16 +758,8 @@ class HockeyRewardModel(RewardModel):
             keys = task.model_signals().signals
             rewards = task.reward_batch(None, None, {keys[0]: control, keys[1]: target}, sl)
         rewards = worst_if_nonfinite(rewards, task, "HockeyRewardModel.predict")
-        K = control.shape[1]
-        return HockeyPrediction(
-            control.reshape(B, L, K, 2),
-            target.reshape(B, L, K, 2),
-            launch.reshape(B, L, 4),
-            launched.reshape(B, L),
-            contact.reshape(B, L),
-            index.reshape(B, L),
-            rewards.reshape(B, L),
-        )
+        out = (control, target, launch, launched, contact, index, rewards)
+        return HockeyPrediction(*(a.reshape(B, L, *a.shape[1:]) for a in out))
 
     def _predict_simulated(self, launch, launched, s, rng):
         """Slide, detect the first contact by radius, apply the contact model, slide on."""
@@ -924,9 +803,8 @@ class HockeyRewardModel(RewardModel):
         return np.stack(cp, 1), np.stack(yp, 1), contact, index
 
     def _predict_real(self, launch, t0, launched, s, rng):
-        """Real setting: slide at the frame rate until the pucks come within the threshold;
-        there the displacement model draws hit or miss; a miss slides on (the target stays), a
-        hit draws the paths to the model's end points (see the module)."""
+        """Real setting: slide until the pucks come within the threshold, draw hit or miss there;
+        a miss slides on, a hit draws the paths to the model's end points."""
         n, dt, r2 = launch.shape[0], self.slide_dt, 2 * self.radius
         c = launch.copy()
         b = s[:, :2]
@@ -995,13 +873,11 @@ class HockeyRewardModel(RewardModel):
             contact[i] = touch or model.kind == "hit_gp"
             index[i] = len(head) - 1
         K = max(len(p) for p in controls) + REST_FRAMES
-        pad = lambda p: np.vstack([p, np.tile(p[-1], (K - len(p), 1))])  # noqa: E731
-        return (
-            np.stack([pad(p) for p in controls]),
-            np.stack([pad(p) for p in targets]),
-            contact,
-            index,
+        pc, pt = (
+            np.stack([np.vstack([p, np.tile(p[-1], (K - len(p), 1))]) for p in ps])
+            for ps in (controls, targets)
         )
+        return pc, pt, contact, index
 
     def expected_rewards(self, contexts, omegas, n_trajectories, rng=None) -> np.ndarray:
         """R̂_sω: the mean reward of L predicted shots per pair (Eq. 4.1), shape (B,)."""
@@ -1009,24 +885,11 @@ class HockeyRewardModel(RewardModel):
 
     # ------------------------------------------------------------------ viewer
     def prediction_layers(self, context, omega, n_samples: int, rng=None) -> dict[str, dict]:
-        """Predicted puck paths of one (s, ω) pair, one layer per event model, for a viewer.
+        """Predicted puck paths of one pair, context (3,) and omega (15,), per event model.
 
-        Parameters
-        ----------
-        context : array_like, shape (3,)
-        omega : array_like, shape (15,)
-        n_samples : int
-            L predicted shots.
-        rng : Generator, int or None
-
-        Returns
-        -------
-        dict
-            ``{name: {"trajectories": ndarray (L, T, 3), "color": (r, g, b)}}``, world
-            points at the pucks' centre height :data:`PUCK_Z`: the launch model's state as a
-            0.1 s velocity arrow from the launch point, the control puck sliding up to the
-            contact, and after it the control and the target puck (each row padded with its
-            last point). The names are the legend.
+        Returns ``{legend: {"trajectories": (L, T, 3), "color": (r, g, b)}}`` at the pucks'
+        centre height :data:`PUCK_Z`: the launch state as a 0.1 s velocity arrow, the control
+        puck up to the contact, and after it both pucks (rows padded with their last point).
         """
         s = check_array(context, "context", shape=(self.task.context_dim,))
         w = check_array(omega, "omega", shape=(self.task.parameter_dim,))
@@ -1049,24 +912,13 @@ class HockeyRewardModel(RewardModel):
             return np.concatenate([xy, np.full(xy.shape[:-1] + (1,), PUCK_Z)], axis=-1)
 
         after = "displacement model" if self.real else "contact model"
-        return {
-            f"launch model: control puck at x={X_LAUNCH:.2f} m": {
-                "trajectories": lift(arrow),
-                "color": (255, 140, 0),
-            },
-            "sliding model: control puck": {
-                "trajectories": lift(np.stack(before)),
-                "color": (30, 120, 255),
-            },
-            f"{after}: control puck after contact": {
-                "trajectories": lift(np.stack(after_c)),
-                "color": (120, 200, 255),
-            },
-            f"{after}: target puck": {
-                "trajectories": lift(np.stack(after_y)),
-                "color": (220, 40, 40),
-            },
-        }
+        layers = (
+            (f"launch model: control puck at x={X_LAUNCH:.2f} m", arrow, (255, 140, 0)),
+            ("sliding model: control puck", np.stack(before), (30, 120, 255)),
+            (f"{after}: control puck after contact", np.stack(after_c), (120, 200, 255)),
+            (f"{after}: target puck", np.stack(after_y), (220, 40, 40)),
+        )
+        return {name: {"trajectories": lift(xy), "color": rgb} for name, xy, rgb in layers}
 
     def __repr__(self) -> str:
         fitted = [k for k, m in self.models.items() if m is not None]

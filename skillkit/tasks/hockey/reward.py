@@ -38,16 +38,13 @@ class Observation:
         check_count(self.order, "order")
 
 
-# ============================================================================= reward, smoothing
 def hockey_reward(control_puck, target_puck, context) -> float:
     """R(τ, s) = −min_t ‖x_t − b‖ − |d_T − d*| (Appendix C.2).
 
     Parameters
     ----------
     control_puck : array_like, shape (T, 2)
-        Control-puck trajectory x_{1:T}, m. Sampled at :data:`RECORD_DT` (1 cm of travel
-        at 1 m/s), the minimum over samples overestimates the continuous one by less than
-        (v Δt / 2)² / (2 min‖x − b‖) ≈ 0.4 mm near a hit.
+        Control-puck trajectory x_{1:T}, m.
     target_puck : array_like, shape (T', 2)
         Target-puck trajectory; d_T = ‖y_{T'} − y_1‖.
     context : array_like, shape (3,)
@@ -66,19 +63,8 @@ def hockey_reward(control_puck, target_puck, context) -> float:
 
 
 def hockey_reward_batch(control_puck, target_puck, contexts) -> np.ndarray:
-    """:func:`hockey_reward` for a batch of (simulated or predicted) puck trajectories.
-
-    Parameters
-    ----------
-    control_puck : array_like, shape (B, T, 2)
-    target_puck : array_like, shape (B, T', 2)
-    contexts : array_like, shape (B, 3)
-
-    Returns
-    -------
-    ndarray, shape (B,)
-        −min_t ‖x_t − b‖ − |‖y_T' − y_1‖ − d*| per trajectory.
-    """
+    """:func:`hockey_reward` of a batch: pucks (B, T, 2) and (B, T', 2), contexts (B, 3);
+    shape (B,)."""
     x = check_array(control_puck, "control_puck", shape=(None, None, 2))
     y = check_array(target_puck, "target_puck", shape=(x.shape[0], None, 2))
     s = check_array(contexts, "contexts", shape=(x.shape[0], 3))
@@ -92,25 +78,9 @@ def hockey_reward_batch(control_puck, target_puck, contexts) -> np.ndarray:
 def butterworth_smooth(
     values, rate: float, cutoff: float = BUTTER_CUTOFF, order: int = BUTTER_ORDER, axis: int = 0
 ) -> np.ndarray:
-    """Zero-phase Butterworth low-pass filtering of a sampled signal (``scipy.signal.filtfilt``).
-
-    Parameters
-    ----------
-    values : array_like, shape (T, ...)
-        Time-major samples.
-    rate : float
-        Sampling rate, Hz.
-    cutoff : float
-        Cut-off frequency, Hz, below the Nyquist frequency rate / 2.
-    order : int
-        Filter order (the forward–backward pass doubles the effective order).
-    axis : int
-        The time axis (1 for batch-first arrays (B, T, ...)).
-
-    Returns
-    -------
-    ndarray, shape (T, ...)
-    """
+    """Zero-phase Butterworth low-pass filtering (``scipy.signal.filtfilt``) of samples along
+    ``axis`` at ``rate`` Hz, cut-off below the Nyquist frequency; the forward–backward pass
+    doubles the effective ``order``. Raises ValueError for too few samples."""
     x = check_array(values, "values", ndim=(1, 2, 3))
     rate = check_positive(rate, "rate")
     cutoff = check_positive(cutoff, "cutoff")

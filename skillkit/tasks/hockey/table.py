@@ -17,7 +17,6 @@ TARGET_CENTRE = np.array([2.0, 0.75])
 """Centre of the simulated target region; the demonstration shoots towards it."""
 
 
-# ============================================================================= the pucks
 @dataclass(frozen=True)
 class TablePhysics:
     """Physical constants of the puck table (pymunk).
@@ -25,22 +24,18 @@ class TablePhysics:
     Attributes
     ----------
     puck_radius, puck_mass, puck_height : float
-        Puck geometry (m) and mass (kg), ice-hockey-puck-like.
+        Puck geometry (m) and mass (kg).
     friction : float
-        Coulomb sliding-friction coefficient μ between puck and table; deceleration μ g.
-    restitution_pucks : float
-        Coefficient of restitution of puck–puck collisions.
-    restitution_racket, friction_racket : float
-        Restitution and Coulomb friction of racket–puck contacts.
+        Coulomb sliding friction μ between puck and table (deceleration μ g).
+    restitution_pucks, restitution_racket, friction_racket : float
+        Restitution of puck–puck and racket–puck contacts; friction of the latter.
     gravity : float
-        g, m/s², for the friction deceleration.
+        g, m/s².
     dt : float
-        Time step, s; the arm's PD control period too (the racket pose is read once per
-        step), so a whole multiple of the MuJoCo time step :data:`TIMESTEP`.
+        Time step, s: the arm's control period, a whole multiple of the MuJoCo step.
     free_dt : float
-        Time step once the racket is lifted and only the pucks move, s. Pymunk integrates
-        semi-implicitly, so a puck launched at v₀ slides v₀²/(2 μ g) + O(v₀ Δt / 2) (4 mm
-        at 1 m/s and 8 ms).
+        Time step once the racket is lifted, s. Pymunk integrates semi-implicitly, so a puck
+        launched at v₀ slides v₀²/(2 μ g) + O(v₀ Δt / 2).
     """
 
     puck_radius: float = 0.04
@@ -79,24 +74,8 @@ class TablePhysics:
 
 
 def coulomb_friction(velocity, deceleration: float, dt: float) -> np.ndarray:
-    """One step of Coulomb sliding friction: reduce the speed by ``deceleration · dt``.
-
-    v ← v · max(0, 1 − a Δt / ‖v‖): the puck decelerates at a = μ g against its motion and
-    stops exactly (instead of reversing) when the speed falls below a Δt.
-
-    Parameters
-    ----------
-    velocity : array_like, shape (2,)
-        Puck velocity, m/s.
-    deceleration : float
-        a = μ g ≥ 0, m/s².
-    dt : float
-        Time step, s.
-
-    Returns
-    -------
-    ndarray, shape (2,)
-    """
+    """One step of Coulomb sliding friction on a velocity (2,), m/s: v ← v · max(0, 1 − a Δt /
+    ‖v‖) with a = μ g = ``deceleration`` (m/s²), so the puck stops instead of reversing."""
     v = np.asarray(velocity, dtype=np.float64)
     speed = math.hypot(v[0], v[1])
     if speed <= deceleration * dt:
@@ -117,15 +96,14 @@ class PuckTable:
     physics : TablePhysics
         Constants.
     racket : bool
-        Add the kinematic blade (a box of :data:`BLADE_HALF` footprint), initially out of
-        play (not colliding) until :meth:`move_racket` puts it down.
+        Add the kinematic blade (a box of :data:`BLADE_HALF` footprint), out of play until
+        :meth:`move_racket` puts it down.
 
     Attributes
     ----------
     hit_time : float or None
         Time of the first puck–puck contact.
     racket_touched : bool
-        Whether the racket touched a puck.
     time : float
         Simulated time, s.
     """
@@ -149,18 +127,10 @@ class PuckTable:
         self.racket_touched = False
         self.control = self._add_puck(check_array(control_start, "control_start", shape=(2,)))
         self.target = self._add_puck(check_array(target_start, "target_start", shape=(2,)))
-        space.on_collision(
-            _PUCK,
-            _PUCK,
-            begin=self._on_puck_contact,
-            pre_solve=self._set_contact(physics.restitution_pucks, 0.0),
-        )
-        space.on_collision(
-            _RACKET,
-            _PUCK,
-            begin=self._on_racket_contact,
-            pre_solve=self._set_contact(physics.restitution_racket, physics.friction_racket),
-        )
+        pucks = self._set_contact(physics.restitution_pucks, 0.0)
+        space.on_collision(_PUCK, _PUCK, begin=self._on_puck_contact, pre_solve=pucks)
+        racket_puck = self._set_contact(physics.restitution_racket, physics.friction_racket)
+        space.on_collision(_RACKET, _PUCK, begin=self._on_racket_contact, pre_solve=racket_puck)
         self.racket = None
         if racket:
             body = pymunk.Body(body_type=pymunk.Body.KINEMATIC)
@@ -209,15 +179,8 @@ class PuckTable:
         self.racket_touched = True
 
     def move_racket(self, pose, next_pose, active: bool) -> None:
-        """Place the blade at ``pose`` and give it the velocity that reaches ``next_pose`` in dt.
-
-        Parameters
-        ----------
-        pose, next_pose : array_like, shape (3,)
-            Blade [x, y, yaw] now and one step later.
-        active : bool
-            Whether the blade is down on the table (collides with the pucks).
-        """
+        """Place the blade at ``pose`` [x, y, yaw] with the velocity that reaches ``next_pose``
+        in dt; ``active``: the blade is down on the table (collides with the pucks)."""
         if self.racket is None:
             raise ValueError("racket: this table was built without a racket")
         dt = self.physics.dt

@@ -1,4 +1,17 @@
-"""The table-tennis scene and ball: flight with air drag, table bounces, racket impacts, net."""
+"""The table-tennis scene and ball: flight with air drag, table bounces, racket impacts, net.
+
+Free flight follows p̈ = g − k ‖ṗ‖ ṗ (App. C.3, no spin), integrated by the explicit midpoint
+rule (exact for the drag-free parabola). Events are located inside a step and handled exactly:
+
+* table bounce: v_z ← −e_t v_z (horizontal velocity kept);
+* racket impact on the blade disc of normal n: v_b ← v_b − (1 + e_r)(v_rel · n) n with
+  v_rel = v_b − v_p, v_p the racket's velocity at the contact point (one-way coupling; the
+  rim and the rest of the robot are ignored);
+* net: the centre crossing x = 0 less than one radius above the net top, within its width.
+
+The first bounce on the table or a racket contact *arms* the ball; its next touch of the table
+plane (or any touch off the table, or the net) is *terminal* and gives the landing point p.
+"""
 
 from __future__ import annotations
 
@@ -9,7 +22,6 @@ import numpy as np
 
 from skillkit._validation import check_array, check_positive
 
-# ----------------------------------------------------------------------------- the scene
 TABLE_LENGTH = 2.74
 """Table length along x (m), regulation size."""
 TABLE_WIDTH = 1.525
@@ -22,49 +34,40 @@ NET_OVERHANG = 0.1525
 """How far the net extends beyond each side line (m)."""
 
 SERVE_POSITION = np.array([1.6, 0.0, 1.0])
-"""Fixed launch point of the incoming ball (m): 0.23 m behind the opponent's end line,
-0.24 m above the table."""
+"""Fixed launch point of the incoming ball (m), behind the opponent's end line."""
 VELOCITY_LOW = np.array([-5.8, -0.4, 2.0])
 """Lower corner of the launch-velocity range [v_x, v_y, v_z] (m/s)."""
 VELOCITY_HIGH = np.array([-5.0, 0.4, 2.5])
-"""Upper corner of the launch-velocity range (m/s). Every velocity in the box makes the ball
-clear the net and bounce once inside :data:`LANDING_ZONE` (flight ≈ 0.4–0.6 s to the bounce)."""
+"""Upper corner of the launch-velocity range (m/s); every velocity in the box clears the net
+and bounces once inside :data:`LANDING_ZONE`."""
 LANDING_ZONE = np.array([[-1.25, -0.35], [-0.40, 0.35]])
 """Landing zone on the robot's half, [[x_min, y_min], [x_max, y_max]] (m)."""
 RETURN_LOW = np.array([0.0, -0.5 * TABLE_WIDTH])
-"""Lower corner of the return zone, [b_x, b_y] (m): the whole opponent's half, as C.3 says ("the
-return target position b is also varied uniformly on the opponent's side of the table")."""
+"""Lower corner of the return zone [b_x, b_y] (m): the whole opponent's half (C.3)."""
 RETURN_HIGH = np.array([0.5 * TABLE_LENGTH, 0.5 * TABLE_WIDTH])
 """Upper corner of the return zone (m): the opponent's end line and side line."""
 RETURN_NEAR_LOW = np.array([0.2, -0.4])
 """Lower corner of the narrower *near* return zone of ``table-tennis-near`` (m)."""
 RETURN_NEAR_HIGH = np.array([0.6, 0.4])
-"""Upper corner of the near return zone (m): the front part of the opponent's half, so that a
-ball in the net (p at x = 0) is 0.2–0.6 m short of the target; easier than C.3 (targets within
-reach of the demonstrated return)."""
+"""Upper corner of the near return zone (m), the front of the opponent's half."""
 
 
 @dataclass(frozen=True)
 class BallPhysics:
-    """Constants of the ball model (Appendix C.3: ballistic flight with air drag, no spin).
+    """Constants of the ball model (Appendix C.3).
 
     Attributes
     ----------
-    radius : float
-        Ball radius r (m): 40 mm ball.
-    mass : float
-        Ball mass (kg): 2.7 g.
+    radius, mass : float
+        Ball radius r (m) and mass m (kg).
     drag : float
-        Quadratic drag coefficient k = ρ C_d π r² / (2 m) (1/m) in p̈ = g − k‖ṗ‖ṗ, with air
-        density ρ = 1.2 kg/m³ and drag coefficient C_d = 0.5: k = 0.1396 m⁻¹.
+        k = ρ C_d π r² / (2 m) (1/m) with ρ = 1.2 kg/m³, C_d = 0.5.
     gravity : float
-        Gravitational acceleration (m/s²), along −z.
-    table_restitution : float
-        Coefficient of restitution e_t of a table bounce (v_z ← −e_t v_z).
-    racket_restitution : float
-        Coefficient of restitution e_r of the racket along its normal.
+        m/s², along −z.
+    table_restitution, racket_restitution : float
+        e_t of a table bounce and e_r of the racket along its normal.
     racket_radius : float
-        Radius of the (disc-shaped) racket blade (m).
+        Radius of the disc-shaped blade (m).
     """
 
     radius: float = 0.02
@@ -87,26 +90,13 @@ class BallPhysics:
                 )
 
 
-# ----------------------------------------------------------------------------- racket path
 @dataclass
 class RacketPath:
-    """The racket's rigid motion sampled at the control steps (from MuJoCo's kinematics).
+    """The racket's rigid motion sampled at uniformly spaced ``times`` (K,): blade ``center``,
+    unit ``normal``, ``velocity`` and world-frame ``angular_velocity``, each (K, 3), SI units.
 
-    Between samples the pose and velocities are interpolated linearly (the normal is
-    re-normalised). Outside [times[0], times[-1]] there is no racket.
-
-    Attributes
-    ----------
-    times : ndarray, shape (K,)
-        Uniformly spaced sample times (s).
-    center : ndarray, shape (K, 3)
-        Blade centre (m).
-    normal : ndarray, shape (K, 3)
-        Unit normal of the blade.
-    velocity : ndarray, shape (K, 3)
-        Linear velocity of the blade centre (m/s).
-    angular_velocity : ndarray, shape (K, 3)
-        Angular velocity of the racket (rad/s), world frame.
+    Linear interpolation between samples (the normal re-normalised); no racket outside
+    [times[0], times[-1]].
     """
 
     times: np.ndarray
@@ -134,14 +124,9 @@ class RacketPath:
 
     @property
     def max_speed(self) -> float:
-        """Largest speed of a blade point over the samples: max_k ‖v_k‖ + ‖ω_k‖ R_max, with
-        R_max = 0.1 m covering the blade (used to size the proximity test)."""
-        return float(
-            np.max(
-                np.linalg.norm(self.velocity, axis=1)
-                + 0.1 * np.linalg.norm(self.angular_velocity, axis=1)
-            )
-        )
+        """Largest speed of a blade point, max_k ‖v_k‖ + 0.1 m ‖ω_k‖."""
+        speed = np.linalg.norm(self.velocity, axis=1)
+        return float(np.max(speed + 0.1 * np.linalg.norm(self.angular_velocity, axis=1)))
 
     @classmethod
     def at_rest(cls, center, normal, t_end: float) -> RacketPath:
@@ -157,8 +142,7 @@ class RacketPath:
         return self._t0 <= t <= self._t1
 
     def near(self, t: float, p, distance: float) -> bool:
-        """Whether point p is within ``distance`` of the blade centre sampled nearest to t
-        (a cheap float test run before the exact contact check)."""
+        """Whether point p is within ``distance`` of the blade centre sampled nearest to t."""
         i = min(max(int(round((t - self._t0) / self._dt)), 0), len(self._centers) - 1)
         c = self._centers[i]
         dx, dy, dz = p[0] - c[0], p[1] - c[1], p[2] - c[2]
@@ -186,24 +170,13 @@ class RacketPath:
         return face[:3], face[3:], v, w
 
 
-# ----------------------------------------------------------------------------- ball flight
 @dataclass
 class BallEvent:
-    """A discrete event of the ball flight.
+    """A discrete event of the ball flight at ``time`` (s) and ``position`` (3,), with the
+    velocities just before and after it (equal for terminal events).
 
-    Attributes
-    ----------
-    kind : {"table", "racket", "net", "plane"}
-        ``table``: a bounce on the table that does not end the rally (the incoming bounce);
-        ``racket``: a racket impact; ``net``: the ball touches the net (terminal);
-        ``plane``: a terminal touch of the table plane — by the armed ball, on or off the
-        table, or by a ball that has not bounced yet, off the table.
-    time : float
-        Event time (s).
-    position : ndarray, shape (3,)
-        Ball centre at the event.
-    velocity_before, velocity_after : ndarray, shape (3,)
-        Ball velocity just before and just after the event (equal for terminal events).
+    ``kind``: ``table`` (the non-terminal bounce), ``racket``, or the terminal ``net`` and
+    ``plane`` (a terminal touch of the table plane, see the module docstring).
     """
 
     kind: str
@@ -219,18 +192,9 @@ class BallEvent:
 
 @dataclass
 class BallFlight:
-    """Result of :func:`simulate_ball`.
-
-    Attributes
-    ----------
-    times : ndarray, shape (N,)
-        Recording times k·dt, k = 0..N−1 (s).
-    positions, velocities : ndarray, shape (N, 3)
-        Ball centre and velocity at the recording times. After the terminal event the ball
-        is held at the event position with zero velocity (the rally is over).
-    events : list of BallEvent
-        All events in time order; at most one terminal event, the last.
-    """
+    """Result of :func:`simulate_ball`: ``times`` k·dt (N,), ball ``positions`` and
+    ``velocities`` (N, 3) (held at the terminal event with zero velocity after it), and the
+    ``events`` in time order (at most one terminal event, the last)."""
 
     times: np.ndarray
     positions: np.ndarray
@@ -248,14 +212,13 @@ class BallFlight:
 
 
 def _acceleration(vx: float, vy: float, vz: float, drag: float, gravity: float):
-    """p̈ = g − k‖v‖v, on plain floats (the inner loop runs ~10³ times per flight)."""
+    """p̈ = g − k‖v‖v on plain floats."""
     kv = drag * math.sqrt(vx * vx + vy * vy + vz * vz)
     return -kv * vx, -kv * vy, -kv * vz - gravity
 
 
 def _advance(p, v, h: float, drag: float, gravity: float):
-    """One explicit-midpoint step of length h on float triples: exact when the acceleration
-    is constant (the drag-free parabola), second order with drag."""
+    """One explicit-midpoint step of length h on float triples."""
     ax, ay, az = _acceleration(v[0], v[1], v[2], drag, gravity)
     hh = 0.5 * h * h
     p_new = (p[0] + h * v[0] + hh * ax, p[1] + h * v[1] + hh * ay, p[2] + h * v[2] + hh * az)
@@ -298,11 +261,9 @@ def simulate_ball(
 ) -> BallFlight:
     """Integrate the ball from its launch state through bounces and racket impacts.
 
-    Free flight obeys p̈ = g − k‖ṗ‖ṗ (explicit midpoint rule, ``dt / substeps`` per step).
-    Inside each step the earliest event (table plane, net plane, racket face) is located —
-    exactly for a constant acceleration, by linear interpolation for the moving racket —
-    the state is advanced to it, the event law applied, and the step finished (see the
-    module docstring for the laws and for when a table-plane touch is terminal).
+    Steps of ``dt / substeps``; inside each the earliest event (table plane, net plane, racket
+    face) is located, the state advanced to it, the event law of the module docstring applied,
+    and the step finished.
 
     Parameters
     ----------
@@ -315,12 +276,12 @@ def simulate_ball(
     physics : BallPhysics, optional
         Ball constants (default :class:`BallPhysics`).
     racket : RacketPath, optional
-        The racket's motion; None for a flight without racket.
+        The racket's motion (None: no racket).
     substeps : int
         Integration steps per recording period.
     max_extra_time : float
-        If no terminal event happened within ``duration``, keep integrating (not recorded,
-        racket ignored) for at most this long to find it.
+        Without a terminal event within ``duration``, integrate (unrecorded, without the
+        racket) at most this much longer to find it (s).
 
     Returns
     -------
@@ -366,10 +327,7 @@ def simulate_ball(
 
 
 class _BallIntegrator:
-    """Event-driven stepping of one ball (the state machine behind :func:`simulate_ball`).
-
-    States are float triples; arrays are only built at events.
-    """
+    """Event-driven stepping of one ball on float triples (behind :func:`simulate_ball`)."""
 
     def __init__(self, physics: BallPhysics, racket: RacketPath | None):
         self.physics = physics
@@ -379,16 +337,10 @@ class _BallIntegrator:
         self.done = False
         self.plane_z = TABLE_HEIGHT + physics.radius
         self.net_top = TABLE_HEIGHT + NET_HEIGHT + physics.radius
-        # The exact racket test runs only when the ball is within this distance (plus its
-        # own travel in the step) of the nearest racket sample: blade and ball radii, the
-        # racket's travel over a sample period, and 2 cm to spare.
+        # the exact racket test runs only within this distance (plus the ball's travel)
         if racket is not None:
-            self._reach = (
-                physics.racket_radius
-                + physics.radius
-                + 0.02
-                + racket.max_speed * (racket.times[1] - racket.times[0])
-            )
+            reach = physics.racket_radius + physics.radius + 0.02
+            self._reach = reach + racket.max_speed * (racket.times[1] - racket.times[0])
 
     def step(self, p, v, t: float, h: float):
         """Advance (p, v) from time t by h, handling every event inside the step."""
@@ -425,12 +377,8 @@ class _BallIntegrator:
         return p, v
 
     def _racket_crossing(self, p0, p1, t: float, h: float) -> float | None:
-        """Time into the step at which the ball reaches the blade face, or None.
-
-        The signed distance of the ball centre to the blade plane, minus the ball radius,
-        is interpolated linearly over the step; a sign change from outside is a contact if
-        the ball centre then projects inside the blade disc.
-        """
+        """Time into the step at which the ball reaches the blade face, or None: a sign change
+        of the (linearly interpolated) signed distance minus r, inside the blade disc."""
         rk = self.racket
         if not (rk.active(t) and rk.active(t + h)):
             return None
@@ -485,6 +433,3 @@ class _BallIntegrator:
     def _terminate(self, kind: str, p, v, t) -> None:
         self.events.append(BallEvent(kind, t, p.copy(), v.copy(), v.copy()))
         self.done = True
-
-
-# ----------------------------------------------------------------------------- the robot

@@ -20,7 +20,6 @@ from skillkit.tasks.table_tennis.ball import (
     simulate_ball,
 )
 
-# ----------------------------------------------------------------------------- demonstration
 DEMO_PATH = Path(__file__).resolve().parents[2] / "data" / "demonstrations" / "table_tennis.npz"
 """The shipped forehand demonstration (package data); :func:`write_demonstration` rebuilds it."""
 HIT_TIME = 0.72
@@ -28,12 +27,12 @@ HIT_TIME = 0.72
 RETURN_FLIGHT_TIME = 0.55
 """Flight time (s) of the demonstrated return from racket to table."""
 PREFERRED_POSTURE = np.array([0.0, 0.0, -0.6, 0.3, 0.0, -1.0, 0.0, 0.0])
-"""A relaxed forehand posture the stroke design is pulled towards (regularises the IK)."""
+"""A relaxed forehand posture the stroke design's IK is pulled towards."""
 
 
 def nominal_context() -> np.ndarray:
-    """The demonstration's context s₀ = [v₀, b₀], shape (5,): the centre of the launch-velocity
-    range and of the near return zone (b₀ = [0.4, 0] m, where the stroke was designed)."""
+    """The demonstration's context s₀ = [v₀, b₀], shape (5,): the centres of the launch-velocity
+    range and of the near return zone."""
     return np.concatenate(
         [0.5 * (VELOCITY_LOW + VELOCITY_HIGH), 0.5 * (RETURN_NEAR_LOW + RETURN_NEAR_HIGH)]
     )
@@ -44,29 +43,14 @@ def design_stroke(
 ) -> dict:
     """The racket state that returns the ball of ``context`` to its target, and joints for it.
 
-    1. Fly the incoming ball (no racket) to ``hit_time``: position p_h, velocity v_in.
-    2. Solve (by Newton on :func:`simulate_ball`) for the outgoing velocity v_out that lands
-       on b after ``flight_time``.
-    3. For a frictionless impact v_out − v_in ∥ n, so the blade normal is
-       n = (v_out − v_in)/‖·‖ and the racket's normal speed follows from the impact law:
-       v_r·n = v_in·n + (v_out − v_in)·n / (1 + e_r); the racket velocity is taken along n.
-    4. Inverse kinematics (least squares, pulled to :data:`PREFERRED_POSTURE`) for the blade
-       centre at p_h with normal n; joint velocities q̇ from the site Jacobian, trading the
-       racket's linear velocity (weight 100), its angular velocity (weight 3) and joint
-       speeds (platform axes 200× costlier than the arm joints).
+    The ball of ``context`` (default :func:`nominal_context`) at ``hit_time`` has p_h, v_in;
+    Newton on :func:`simulate_ball` gives the v_out that lands on b after ``flight_time``. A
+    frictionless impact has n ∥ v_out − v_in and racket velocity (v_in·n + (v_out − v_in)·n /
+    (1 + e_r)) n. Least-squares IK (pulled to :data:`PREFERRED_POSTURE`) places the blade at
+    p_h with normal n, and q̇ follows from the site Jacobian.
 
-    Parameters
-    ----------
-    context : array_like, shape (5,), optional
-        Default :func:`nominal_context`.
-    hit_time, flight_time : float
-        Contact time after launch and the return's flight time (s).
-
-    Returns
-    -------
-    dict
-        ``q`` (8,), ``qd`` (8,), ``position`` (3,), ``normal`` (3,), ``racket_velocity`` (3,),
-        ``ball_velocity_in`` (3,), ``ball_velocity_out`` (3,).
+    Returns ``q``, ``qd`` (8,), ``position``, ``normal``, ``racket_velocity``,
+    ``ball_velocity_in`` and ``ball_velocity_out`` (3,).
     """
     import mujoco
     from scipy.optimize import fsolve, least_squares
@@ -87,13 +71,8 @@ def design_stroke(
         return [ev.position[0] - b[0], ev.position[1] - b[1], ev.time - flight_time]
 
     # drag-free guess with 10% more horizontal speed for the drag
-    guess = np.array(
-        [
-            1.1 * (b[0] - p_h[0]) / flight_time,
-            1.1 * (b[1] - p_h[1]) / flight_time,
-            (TABLE_HEIGHT + 0.02 - p_h[2]) / flight_time + 0.5 * 9.81 * flight_time,
-        ]
-    )
+    vz = (TABLE_HEIGHT + 0.02 - p_h[2]) / flight_time + 0.5 * 9.81 * flight_time
+    guess = np.array([1.1 * (b[0] - p_h[0]) / flight_time, 1.1 * (b[1] - p_h[1]) / flight_time, vz])
     v_out, _, ok, msg = fsolve(miss, guess, full_output=True)
     if ok != 1:
         raise RuntimeError(f"design_stroke: no return velocity found ({msg})")
@@ -133,19 +112,10 @@ def design_stroke(
 
 
 def forehand_demonstration(dt: float = 0.002) -> dict[str, np.ndarray]:
-    """The forehand stroke the DMP imitates (our stand-in for the thesis's kinesthetic
-    teach-in), deterministic.
-
-    From :func:`design_stroke` at the nominal context (hit pose q_h, joint velocity q̇_h at
-    t_h = :data:`HIT_TIME`): the arm starts at rest in a ready pose q_r = q_h − 0.2 D q̇_h,
-    draws back to q_b = q_h − 0.6 D q̇_h (at rest, t = 0.35 s) and swings forward to
-    (q_h, q̇_h) at t_h, each segment a quintic with zero end accelerations (D = t_h − 0.35 s).
-
-    Returns
-    -------
-    dict
-        ``times`` (N,), ``q``, ``qd``, ``qdd`` (N, 8).
-    """
+    """The forehand stroke the DMP imitates (our stand-in for kinesthetic teach-in): from rest
+    at q_h − 0.2 D q̇_h back to q_h − 0.6 D q̇_h at 0.35 s, then forward to (q_h, q̇_h) of
+    :func:`design_stroke` at :data:`HIT_TIME` (quintics, D = HIT_TIME − 0.35 s). Returns
+    ``times`` (N,), ``q``, ``qd``, ``qdd`` (N, 8)."""
     dt = check_positive(dt, "dt")
     stroke = design_stroke()
     q_h, qd_h = stroke["q"], stroke["qd"]

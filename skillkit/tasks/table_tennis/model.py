@@ -2,43 +2,26 @@ r"""The decomposed reward model of robot table tennis (Sec. 4.3.4, Fig. 4.13, Ap
 
 GPREPS predicts the reward of a stroke with five learned models chained as in Sec. 4.3.4:
 
-1. **Incoming-ball landing** (a GP): v = s[:3] ↦ the bounce on the robot's half
-   y_b = [p_x, p_y, v⁻ (3), v⁺ (3), t_b] — landing point, the ball's velocity just before
-   and just after the bounce, and the bounce time. Learned from the recorded ball of every
-   rollout: the bounce is located in ``signals["ball"]`` by local quadratic fits on either
-   side of its lowest sample on the table (:func:`find_bounce`).
-2. **Bounce trajectory** (a GP): the landing state x_b = [p_x, p_y, v⁺] ↦ the coefficients
-   c (3 × 3) of the flight after the bounce *relative to the drag-free parabola*,
+1. **Incoming-ball landing** (GP): v = s[:3] ↦ the bounce on the robot's half
+   [p_x, p_y, v⁻ (3), v⁺ (3), t_b], located in the recorded ball by :func:`find_bounce`.
+2. **Bounce trajectory** (GP): [p_x, p_y, v⁺] ↦ the coefficients c (3 × 3) of the flight
+   after the bounce relative to the drag-free parabola,
 
        p(t_b + τ) = p_b + v⁺ τ + ½ g τ² + Σ_{m=2}^{4} c_m τ^m ,
 
-   so the GP learns only the (smooth, ≲ 20 cm) effect of air drag, and far from its data it
-   falls back to the parabola (a direct map, so no one-step errors compound). The
-   incoming ball before the bounce is the cubic Hermite curve from the serve
-   (:data:`~skillkit.tasks.table_tennis.SERVE_POSITION`, v) to (p_b, v⁻) over [0, t_b]; it
-   never decides the reward (the racket stays behind the landing zone).
-3. **Racket position** and 4. **racket orientation** (time-dependent GPs): each recorded
-   racket trajectory is fitted with a linear model of 40 normalised Gaussian basis
-   functions φ(t) of the execution time per dimension, y(t) ≈ Φ(t) W (:class:`TimeBasis`);
-   a GP maps ω (17) to the weights W. The 40 × 3 (position) or 40 × 4 (quaternion) weights
-   are compressed by PCA (keeping all but ``pca_tolerance`` of their variance) with one
-   independent GP per principal score; sampled scores (GP mean + GP std · ξ) give sampled
-   paths Φ(t) W. The racket is a disc, so only its normal n decides a contact: the quaternion
-   is the shortest-arc rotation taking :data:`REFERENCE_NORMAL` to n
-   (:func:`normal_to_quaternion`). Predicted quaternions are re-normalised.
-5. **Contact** (:class:`ContactModel`): the classifier's inputs are read at one event, by one
-   function (:func:`contact_event`) for real and predicted paths alike: the sample of minimal
-   ball–racket distance (Sec. 4.3.4) before the incoming ball first reaches the racket face,
-   so a predicted ball (no contact physics) and a recorded hit end at the same sample. The
-   inputs are x = [v_ball − v_racket (3), racket position (3), racket quaternion (4)] of the
-   thesis (``contact_features="thesis"``, default), or these and the ball's position relative
-   to the racket and its norm (``"extended"``); velocities are backward differences. A
-   linear-kernel SVM (scikit-learn, inputs standardised) classifies hit / miss (labels
-   ``info["hit"]``), and a GP trained on the hits maps x ↦ the returned ball's landing point
-   p (2). How a sampled path's contact enters the reward is ``contact_score``
-   (:data:`CONTACT_SCORES`).
+   so far from its data it falls back to the parabola. Before the bounce the ball is the
+   cubic Hermite curve from the serve (:data:`~skillkit.tasks.table_tennis.SERVE_POSITION`, v)
+   to (p_b, v⁻).
+3. **Racket position** and 4. **racket orientation**: each recorded racket path is fitted with
+   40 normalised Gaussian basis functions of time, y(t) ≈ Φ(t) W (:class:`TimeBasis`), and a
+   GP maps ω (17) to the PCA scores of W (one GP per kept score). The orientation is the
+   shortest-arc quaternion taking :data:`REFERENCE_NORMAL` to the blade normal
+   (:func:`normal_to_quaternion`).
+5. **Contact** (:class:`ContactModel`): a linear SVM classifies hit / miss from the inputs read
+   at :func:`contact_event` on real and predicted paths alike, and a GP maps them to the
+   returned ball's landing point p (2).
 
-The reward (Eq. 4.17) and its hitting / returning schedule (Sec. 4.3.4) are described in
+The reward (Eq. 4.17) and its hitting / returning schedule are described in
 :class:`TableTennisRewardModel`.
 """
 
@@ -63,24 +46,9 @@ from skillkit.tasks.table_tennis import (
     TableTennis,
 )
 
-__all__ = [
-    "CONTACT_FEATURES",
-    "CONTACT_SCORES",
-    "REFERENCE_NORMAL",
-    "ContactModel",
-    "TableTennisPrediction",
-    "TableTennisRewardModel",
-    "TimeBasis",
-    "contact_event",
-    "find_bounce",
-    "max_target_distance",
-    "normal_to_quaternion",
-    "quaternion_to_normal",
-]
-
 REFERENCE_NORMAL = np.array([1.0, 0.0, 0.0])
-"""Racket normal of the identity quaternion: facing the opponent (+x). The forehand stroke's
-normals stay in the +x half-space, far from the shortest arc's singularity at −x."""
+"""Racket normal of the identity quaternion: facing the opponent (+x), far from the forehand's
+normals (the shortest arc is singular at −x)."""
 
 SCHEDULES = ("auto", "hitting", "returning")
 CONTACT_FEATURES = ("thesis", "extended")
@@ -89,12 +57,11 @@ CONTACT_SCORES = ("probability", "decision", "margin")
 """How a sampled path's contact enters its reward (:meth:`ContactModel.weights`)."""
 
 
-# ----------------------------------------------------------------------------- helpers
 class TimeBasis:
     r"""Normalised Gaussian basis functions of execution time (Sec. 4.3.4).
 
-    φ_i(t) = b_i(t) / Σ_j b_j(t), b_i(t) = exp(−(t − μ_i)² / (2 h²)), with n centres μ_i
-    spread evenly over [0, t_end] and h the spacing of the centres.
+    φ_i(t) = b_i(t) / Σ_j b_j(t), b_i(t) = exp(−(t − μ_i)² / (2 h²)), n centres μ_i evenly
+    over [0, t_end], h their spacing.
 
     Parameters
     ----------
@@ -152,9 +119,8 @@ def quaternion_to_normal(quaternions) -> np.ndarray:
 
 
 def max_target_distance(task: TableTennis) -> float:
-    """P = max ‖b − p‖: the largest distance between a target b of the task's return zone
-    (``context_low/high[3:]``) and a landing point p on the table (|x| ≤ L/2, |y| ≤ W/2)
-    — attained at corners, as the distance is convex."""
+    """P = max ‖b − p‖ over targets b of the task's return zone and landing points p on the
+    table (attained at corners: the distance is convex)."""
     lo, hi = task.context_low[3:5], task.context_high[3:5]
     targets = np.array([[x, y] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])])
     hx, hy = 0.5 * TABLE_LENGTH, 0.5 * TABLE_WIDTH
@@ -163,28 +129,12 @@ def max_target_distance(task: TableTennis) -> float:
 
 
 def find_bounce(times, ball, plane: float, t_end: float, n_fit: int = 7) -> np.ndarray | None:
-    """The incoming ball's bounce on the robot's half located in its recorded samples.
+    """The incoming ball's bounce [p_x, p_y, v⁻ (3), v⁺ (3), t_b] on the robot's half, (9,),
+    from recorded ``times`` (T,) and ``ball`` (T, 3), or None without enough samples.
 
-    The lowest sample above the table (x ∈ [−L/2, 0]) before ``t_end`` is taken as the
-    bounce; quadratics in t are fitted (least squares) to the ``n_fit`` samples before and
-    after its neighbours. The bounce time t_b solves z_pre(t) = ``plane``; p_b = pre-fit
-    (x, y) at t_b, v⁻ and v⁺ the derivatives of the pre- and post-fits at t_b.
-
-    Parameters
-    ----------
-    times : ndarray, shape (T,)
-    ball : ndarray, shape (T, 3)
-    plane : float
-        Height of the ball centre at a bounce (table height + ball radius).
-    t_end : float
-        Only samples before this time are used (the incoming ball's end).
-    n_fit : int
-        Samples per side.
-
-    Returns
-    -------
-    ndarray, shape (9,) or None
-        [p_x, p_y, v⁻ (3), v⁺ (3), t_b]; None when no bounce with enough samples is found.
+    Quadratics in t are fitted to the ``n_fit`` samples before and after the neighbours of
+    the lowest sample above the robot's half before ``t_end``; t_b solves z_pre(t) = ``plane``
+    (the ball centre's height at a bounce), v⁻ and v⁺ are the fits' derivatives at t_b.
     """
     keep = (times < t_end) & (ball[:, 0] >= -0.5 * TABLE_LENGTH) & (ball[:, 0] <= 0.0)
     idx = np.flatnonzero(keep)
@@ -232,7 +182,6 @@ def _backward_velocity(paths: np.ndarray, k: np.ndarray, dt: float) -> np.ndarra
     return (paths[rows, k0] - paths[rows, k0 - 1]) / dt
 
 
-# ----------------------------------------------------------------------------- GP on weights
 class _ScoresGP:
     """A GP from inputs to the PCA scores of many correlated outputs (basis weights)."""
 
@@ -241,9 +190,8 @@ class _ScoresGP:
         self.gp: Any = None
 
     def fit(self, x, y, rng, previous=None, refit: str = "best") -> dict[str, Any]:
-        """PCA of y (N, D), then a GP x (N, d) ↦ the k kept scores, refitted by
-        :func:`~skillkit.search.gpreps.refit_gp` from ``previous`` hyper-parameters (used only
-        when they have the same k). Returns refit_gp's record."""
+        """PCA of y (N, D), then a GP x (N, d) ↦ the k kept scores (:func:`refit_gp`, from
+        ``previous`` when it has the same k); returns the refit record."""
         self.mean = y.mean(axis=0)
         u, sv, vt = np.linalg.svd(y - self.mean, full_matrices=False)
         var = sv**2
@@ -294,40 +242,19 @@ class _Constant:
         return np.full(np.asarray(x).shape[0], 1.0 if self.label else -1.0)
 
 
-# ----------------------------------------------------------------------------- contact
 def contact_event(ball, racket, quaternion, steps, ball_radius: float):
     r"""Where model 5 reads its inputs: one rule for real and predicted paths.
 
-    The incoming ball *reaches the racket face* between samples k − 1 and k when the signed
-    distance of its centre to the face plane, g_k = (p_b − p_r)·n_k minus the ball radius
-    (taken on the side the ball was at k − 1), changes from > 0 to ≤ 0 — the simulator's
-    impact test (:mod:`skillkit.tasks.table_tennis.ball`) on the recorded samples, without its
-    disc test, so a ball passing beside the disc reaches the plane too. The incoming ball is
-    cut there: ``cut`` is the first sample at or behind the face (``steps`` if it never gets
-    there). The event is the sample of minimal ball–racket distance before ``cut`` (Sec.
-    4.3.4: "at the time when the absolute distance between the racket and the ball is
-    minimal"). A recorded hit (``steps`` from ``info["incoming_end"]``) and a predicted ball
-    that crosses the face give the same samples, hence the same event.
+    The incoming ball reaches the racket face between samples k − 1 and k when its signed
+    distance to the face plane, (p_b − p_r)·n_k minus the ball radius on the side it was at
+    k − 1, changes from > 0 to ≤ 0 (the simulator's impact test without the disc test);
+    ``cut`` is the first sample at or behind the face (``steps`` if none). The event is the
+    sample of minimal ball–racket distance before ``cut`` (Sec. 4.3.4), so a recorded hit and
+    a predicted ball that crosses the face give the same event.
 
-    Parameters
-    ----------
-    ball, racket : ndarray, shape (n, T, 3)
-        Ball and racket-centre positions at the control times.
-    quaternion : ndarray, shape (n, T, 4)
-        Racket orientation [w, x, y, z] (the face normal is :func:`quaternion_to_normal`).
-    steps : array_like of int, shape (n,)
-        The first ``steps`` samples (≥ 1) are the incoming ball.
-    ball_radius : float
-        m.
-
-    Returns
-    -------
-    event : ndarray of int, shape (n,)
-        The event sample.
-    cut : ndarray of int, shape (n,)
-        Samples of the incoming ball before the face (1 ≤ cut ≤ steps).
-    distance : ndarray, shape (n,)
-        ‖p_b − p_r‖ at the event (m).
+    ``ball``, ``racket`` (n, T, 3) are positions at the control times, ``quaternion`` (n, T,
+    4) the racket orientation and the first ``steps`` (n,) samples the incoming ball. Returns
+    the ``event`` sample, ``cut`` (1 ≤ cut ≤ steps) and the distance at the event (m), each (n,).
     """
     ball = np.asarray(ball, dtype=np.float64)
     racket = np.asarray(racket, dtype=np.float64)
@@ -358,10 +285,8 @@ def contact_event(ball, racket, quaternion, steps, ball_radius: float):
 class ContactModel:
     r"""Model 5 of Sec. 4.3.4: the contact classifier and the returned ball's landing point.
 
-    "The fifth model predicts the landing position of the returned ball in case of a
-    contact, which is detected by a Support Vector Machine (SVM) classifier with a linear
-    kernel" — inputs from :meth:`inputs` (:func:`contact_event`), a linear SVM for hit /
-    miss, and a GP inputs ↦ landing point p (2,) on the hits.
+    Inputs from :meth:`inputs`, a linear SVM for hit / miss, and a GP inputs ↦ landing point
+    p (2) fitted on the hits.
 
     Parameters
     ----------
@@ -370,24 +295,18 @@ class ContactModel:
     ball_radius : float
         m (:func:`contact_event`).
     features : {"thesis", "extended"}
-        "thesis" (10): [v_ball − v_racket (3), racket position (3), racket quaternion (4)],
-        the thesis's "relative velocity of the ball and the racket, the position and
-        orientation of the racket". "extended" (14) adds the ball's position relative to the
-        racket (3) and its norm (1) (ours).
+        "thesis" (10): [v_ball − v_racket (3), racket position (3), racket quaternion (4)];
+        "extended" (14, ours) adds the ball's position relative to the racket (3) and its norm.
     score : {"probability", "decision", "margin"}
-        The weight w ∈ [0, 1] a sampled path's contact gets in the reward (:meth:`weights`):
-        "probability": the SVM's probability of a hit calibrated by Platt scaling
-        (scikit-learn's ``CalibratedClassifierCV(method="sigmoid")``, cross-validated);
-        "decision": 1 where the SVM decides "hit", else 0 (the hard decision on each sampled
-        path); "margin": the decision softened inside the SVM's margin, clip((1 + f) / 2, 0,
-        1) of its decision value f.
+        The weight w ∈ [0, 1] of a sampled path's contact in the reward (:meth:`weights`): the
+        SVM's Platt-calibrated hit probability (``CalibratedClassifierCV``), its hard
+        decision, or clip((1 + f) / 2, 0, 1) of its decision value f.
     make_classifier : callable
         Returns an unfitted scikit-learn classifier with ``decision_function``.
     make_return_model : callable
         Returns an unfitted GP regression (inputs ↦ p).
     refit : {"cold", "warm", "best"}
-        How the landing GP's hyper-parameters are refitted
-        (:func:`~skillkit.search.gpreps.refit_gp`).
+        How the landing GP is refitted (:func:`refit_gp`).
     """
 
     def __init__(
@@ -423,24 +342,8 @@ class ContactModel:
         return 10 if self.features == "thesis" else 14
 
     def inputs(self, ball, racket, quaternion, steps) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The classifier's inputs at :func:`contact_event`'s event.
-
-        Parameters
-        ----------
-        ball, racket : ndarray, shape (n, T, 3)
-        quaternion : ndarray, shape (n, T, 4)
-        steps : array_like of int, shape (n,)
-            The first ``steps`` samples are the incoming ball.
-
-        Returns
-        -------
-        x : ndarray, shape (n, 10) or (n, 14)
-            [v_ball − v_racket (3), racket position (3), racket quaternion (4)] and, with
-            ``features="extended"``, [p_ball − p_racket (3), ‖p_ball − p_racket‖ (1)].
-        event : ndarray of int, shape (n,)
-        cut : ndarray of int, shape (n,)
-            See :func:`contact_event`.
-        """
+        """The classifier's inputs x (n, 10 or 14) at :func:`contact_event`'s event, with its
+        ``event`` and ``cut`` (n,); arguments as :func:`contact_event`'s."""
         event, cut, dist = contact_event(ball, racket, quaternion, steps, self.ball_radius)
         rows = np.arange(event.shape[0])
         rel = _backward_velocity(ball, event, self.dt) - _backward_velocity(racket, event, self.dt)
@@ -484,18 +387,8 @@ class ContactModel:
         return stats
 
     def weights(self, x) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Contact weights of inputs x (n, d).
-
-        Returns
-        -------
-        weight : ndarray, shape (n,)
-            w ∈ [0, 1] of ``score`` (0 everywhere while there is no landing model: no
-            predicted return).
-        decision : ndarray of bool, shape (n,)
-            The SVM's hit decision.
-        margin : ndarray, shape (n,)
-            The SVM's decision value f (> 0: hit).
-        """
+        """Contact weights w ∈ [0, 1] of inputs x (n, d) (0 without a landing model), the SVM's
+        hit decisions and its decision values f (> 0: hit), each shape (n,)."""
         if self.classifier is None:
             raise RuntimeError("ContactModel: call fit() before weights()")
         decision = np.asarray(self.classifier.predict(x), dtype=bool)
@@ -520,7 +413,6 @@ class ContactModel:
         return f"ContactModel(features={self.features!r}, score={self.score!r})"
 
 
-# ----------------------------------------------------------------------------- prediction
 @dataclass(frozen=True)
 class TableTennisPrediction:
     """L predicted strokes for each of B (ω, s) pairs.
@@ -529,31 +421,22 @@ class TableTennisPrediction:
     ----------
     times : ndarray, shape (T,)
         The task's control times (s).
-    ball : ndarray, shape (B, L, T, 3)
-        Predicted incoming ball (Hermite curve to the bounce, then the bounce model).
-    racket : ndarray, shape (B, L, T, 3)
-        Predicted racket centre Φ(t) W.
+    ball, racket : ndarray, shape (B, L, T, 3)
+        Predicted incoming ball and racket centre.
     quaternion : ndarray, shape (B, L, T, 4)
-        Predicted racket orientation (unit quaternions, [w, x, y, z]).
+        Predicted racket orientation (unit [w, x, y, z]).
     bounce : ndarray, shape (B, L, 9)
-        Sampled landing state [p_x, p_y, v⁻, v⁺, t_b] of the incoming ball.
+        Sampled bounce [p_x, p_y, v⁻, v⁺, t_b] of the incoming ball.
     closest : ndarray, shape (B, L)
         min‖τ_b − τ_r‖ on the incoming ball (m).
-    contact : ndarray of bool, shape (B, L)
-        The SVM's hit decision at the contact event (:func:`contact_event`).
-    margin : ndarray, shape (B, L)
-        The SVM's decision value (> 0: hit).
+    contact, margin : ndarray, shape (B, L)
+        The SVM's hit decision and decision value at :func:`contact_event`.
     landing : ndarray, shape (B, L, 2)
         Sampled landing point p of the returned ball (NaN where the contact weight is 0).
     rewards : ndarray, shape (B, L)
-        Eq. (4.17) with the weights of ``stage``.
-    stage : str
-        "hitting" or "returning".
-    contact_score : ndarray, shape (B, L)
-        The contact weight w ∈ [0, 1] in the reward (:meth:`ContactModel.weights`).
-    face : ndarray of int, shape (B, L)
-        Samples of the incoming ball before it reaches the racket face (``cut`` of
-        :func:`contact_event`).
+        Eq. (4.17) in ``stage`` ("hitting" or "returning").
+    contact_score, face : ndarray, shape (B, L)
+        The contact weight w in the reward and the ``cut`` of :func:`contact_event`.
     """
 
     times: np.ndarray
@@ -590,35 +473,23 @@ class TableTennisPrediction:
         )
 
 
-# ----------------------------------------------------------------------------- the model
 class TableTennisRewardModel(RewardModel):
     r"""Decomposed GPREPS reward model of :class:`~skillkit.tasks.table_tennis.TableTennis`.
 
-    The five models of Sec. 4.3.4 (see the module docstring) and the reward schedule of
-    Eq. (4.17):
+    The five models of the module docstring and the reward schedule of Eq. (4.17):
 
-    * **hitting**: R = −c₁ min‖τ_b − τ_r‖ − ε c₁ ‖b − p‖ − c₁ P, with c₁ the task's and
-      P = :func:`max_target_distance`. The penalty c₁ P
-      is the thesis's *constant* term: it does not change REPS's weights (they are
-      shift-invariant), it keeps every hitting-stage reward below the returning-stage
-      rewards of a hit, and ε c₁ ‖b − p‖ leaves the return all but ignored.
-    * **returning**: the task's R = −c₁ min‖τ_b − τ_r‖ − c₂ ‖b − p‖ (c₁ = c₂).
+    * **hitting**: R = −c₁ min‖τ_b − τ_r‖ − ε c₁ ‖b − p‖ − c₁ P, P =
+      :func:`max_target_distance` (the constant c₁ P keeps it below every returning reward);
+    * **returning**: the task's R = −c₁ min‖τ_b − τ_r‖ − c₂ ‖b − p‖.
 
-    A predicted miss returns no ball, so its ‖b − p‖ is the largest possible, P; with a contact
-    score w ∈ [0, 1] a sampled path's ‖b − p‖ is w ‖b − p̂‖ + (1 − w) P. The distance term
-    min‖τ_b − τ_r‖ is the task's :meth:`~skillkit.tasks.table_tennis.TableTennis.reward_batch`
-    on the predicted racket and ball paths, the ball counted up to its first sample at the
-    racket face (as the task counts the real ball up to the first sample after a hit).
+    A predicted miss has ‖b − p‖ = P; with contact weight w a sampled path has
+    w ‖b − p̂‖ + (1 − w) P. min‖τ_b − τ_r‖ is the task's reward on the predicted paths, the
+    ball counted up to its first sample at the racket face.
 
     With ``schedule="auto"`` the stage switches to "returning", for good, at the first
-    :meth:`fit` at which the contact model is *good*:
-
-    * at least ``min_hits`` hit rollouts and ``min_hits`` misses among the data
-      (both classes are needed to learn a boundary), and
-    * the SVM's 5-fold stratified cross-validated *balanced* accuracy ≥ ``min_svm_accuracy``
-      (balanced, because early data are mostly misses and "always miss" has a high plain
-      accuracy), and
-    * the landing GP's 5-fold cross-validated RMSE of p ≤ ``max_landing_rmse`` (m).
+    :meth:`fit` with at least ``min_hits`` hits and misses, a 5-fold cross-validated balanced
+    SVM accuracy ≥ ``min_svm_accuracy`` and a cross-validated landing RMSE ≤
+    ``max_landing_rmse`` (m).
 
     Parameters
     ----------
@@ -628,16 +499,11 @@ class TableTennisRewardModel(RewardModel):
         landing state ↦ drag coefficients (model 2), ω ↦ PCA scores of the basis weights
         (models 3 and 4, one instance each), contact inputs ↦ p (model 5).
     make_classifier : callable
-        Returns an unfitted scikit-learn classifier (default: standardisation and
-        ``SVC(kernel="linear")``).
+        Returns an unfitted scikit-learn classifier (default: standardised linear SVC).
     schedule : {"auto", "hitting", "returning"}
         Reward stage; "hitting"/"returning" force it.
-    contact_features : {"thesis", "extended"}
-        Inputs of model 5 (:class:`ContactModel`): "thesis" (default), [v_rel (3), racket
-        position (3), quaternion (4)] as in Sec. 4.3.4; "extended" adds the ball's position
-        relative to the racket (3) and its norm (1).
-    contact_score : {"probability", "decision", "margin"}
-        How a sampled path's contact enters its reward (:class:`ContactModel`).
+    contact_features, contact_score : str
+        Inputs and reward weight of model 5 (:class:`ContactModel`).
     epsilon : float
         ε of the hitting stage.
     min_hits, min_svm_accuracy, max_landing_rmse
@@ -651,13 +517,9 @@ class TableTennisRewardModel(RewardModel):
     max_points : int
         Each GP is fitted on at most this many rollouts (random subset).
     refit : {"cold", "warm", "best"}
-        Where each GP's hyper-parameter optimisation starts after new data
-        (:func:`~skillkit.search.gpreps.refit_gp`; "best": from the default initialisation and
-        from the previous values, keeping the larger marginal likelihood).
+        Where each GP's hyper-parameter optimisation starts (:func:`refit_gp`).
     device : str or torch.device, optional
-        Where the sampled paths are assembled (Φ W, ball–racket distances), float64. The GPs
-        train on their own ``device`` (give it to the factories, e.g.
-        ``partial(ExactGP, device="cuda")``).
+        Where the sampled racket paths Φ W are assembled (float64).
 
     Notes
     -----
@@ -707,14 +569,9 @@ class TableTennisRewardModel(RewardModel):
         self.make_classifier = make_classifier or _linear_svm
         self.schedule = schedule
         self.refit = check_refit(refit)
+        scene = (task.control_dt, task.ball.radius, contact_features, contact_score)
         self.contact = ContactModel(
-            task.control_dt,
-            task.ball.radius,
-            contact_features,
-            contact_score,
-            self.make_classifier,
-            self.make_return_model,
-            self.refit,
+            *scene, self.make_classifier, self.make_return_model, self.refit
         )
         self.contact_features, self.contact_score = contact_features, contact_score
         self.stage = "returning" if schedule == "returning" else "hitting"
@@ -740,19 +597,9 @@ class TableTennisRewardModel(RewardModel):
 
     # ------------------------------------------------------------------ data
     def bounce_data(self, trajectories) -> tuple[np.ndarray, np.ndarray, list[int]]:
-        """Models 1 and 2's targets from the recorded balls (inputs: v = s[:3] and y[:, [0, 1,
-        5, 6, 7]]).
-
-        Returns
-        -------
-        y : ndarray, shape (n, 9)
-            [p_x, p_y, v⁻, v⁺, t_b] (:func:`find_bounce`).
-        c : ndarray, shape (n, 9)
-            Drag coefficients [c_2, c_3, c_4] × (x, y, z) of the flight after the bounce, fitted
-            by least squares to the incoming samples after t_b.
-        used : list of int
-            Indices of the trajectories with a located bounce.
-        """
+        """Models 1 and 2's targets: bounces y (n, 9) (:func:`find_bounce`), the least-squares
+        drag coefficients c (n, 9) of the flight after them, and the indices of the
+        trajectories with a located bounce."""
         task = self.task
         t = task.times
         g = np.array([0.0, 0.0, -task.ball.gravity])
@@ -800,9 +647,8 @@ class TableTennisRewardModel(RewardModel):
         return self._contact_model().returns
 
     def _contact_model(self) -> ContactModel:
-        """Model 5; a model pickled without a :class:`ContactModel` (a stored run's
-        ``reward_model``) gets one built from its classifier and landing GP, with the event
-        and the score it was fitted with ("decision")."""
+        """Model 5; a pickled model without a :class:`ContactModel` gets one built from its
+        classifier and landing GP (score "decision")."""
         contact = self.__dict__.get("contact")
         if contact is None:
             contact = ContactModel(
@@ -822,8 +668,7 @@ class TableTennisRewardModel(RewardModel):
         return self._contact_model().inputs(ball, racket, quaternion, steps)
 
     def _real_contact_data(self, trajectories):
-        """Model 5's inputs x, labels hit (N,) and landing points p (N, 2) of recorded
-        rollouts, by the same :meth:`ContactModel.inputs` as predicted paths."""
+        """Model 5's inputs x, labels hit (N,) and landing points p (N, 2) of recorded rollouts."""
         t = self.task.times
         ball = np.stack([tr.signals["ball"] for tr in trajectories])
         racket = np.stack([tr.signals["racket"] for tr in trajectories])
@@ -839,8 +684,7 @@ class TableTennisRewardModel(RewardModel):
 
     # ------------------------------------------------------------------ fit
     def _fit_gp(self, key: str, make_gp, x, y, rng, records: dict):
-        """Refit one GP with :func:`~skillkit.search.gpreps.refit_gp` from its previous
-        hyper-parameters (when their shape still fits)."""
+        """Refit one GP (:func:`refit_gp`) from its previous hyper-parameters if they fit."""
         h = self._hypers[key]
         if h is not None and np.shape(h["lengthscale"]) != (y.shape[1], x.shape[1]):
             h = None
@@ -852,28 +696,10 @@ class TableTennisRewardModel(RewardModel):
     def fit(self, contexts, omegas, rewards, trajectories, rng=None) -> dict[str, Any]:
         """Refit the five models on every non-failed rollout and update the reward stage.
 
-        Parameters
-        ----------
-        contexts : array_like, shape (N, 5)
-        omegas : array_like, shape (N, 17)
-        rewards : array_like, shape (N,)
-            Unused (the models learn from the trajectories).
-        trajectories : sequence of Trajectory, length N
-        rng : Generator, int or None
-
-        Returns
-        -------
-        dict
-            ``n_data``/``n_trajectories``, ``n_bounces``, ``n_hits``, ``stage``,
-            ``criterion`` (``n_hits``, ``n_misses``, ``svm_cv_balanced_accuracy``,
-            ``svm_cv_accuracy``, ``majority_rate``, ``landing_cv_rmse``, ``good``),
-            ``pca_components`` and per GP (``landing``, ``bounce``, ``racket_position``,
-            ``racket_orientation``, ``returns``) its ``n_data``, ``log_ml``,
-            ``iterations``, ``noise_var_max``, ``numerical_events``; ``refit``: per GP
-            (``landing``, ``bounce``, ``position``, ``orientation``, ``returns``) the
-            start kept and the log marginal likelihoods of the starts tried
-            (:func:`~skillkit.search.gpreps.refit_gp`); ``calibration_folds`` (the contact
-            probability's cross-validation folds); ``fit_seconds``.
+        ``contexts`` (N, 5), ``omegas`` (N, 17) and ``trajectories`` (N); ``rewards`` is unused.
+        Returns ``n_data``, ``n_bounces``, ``n_hits``, ``stage``, the ``criterion`` of the
+        schedule, ``pca_components``, per GP its :func:`gp_stats`, the ``refit`` records,
+        ``calibration_folds`` and ``fit_seconds``.
         """
         t0 = time.perf_counter()
         task = self.task
@@ -984,20 +810,8 @@ class TableTennisRewardModel(RewardModel):
 
     # ------------------------------------------------------------------ predict
     def predict(self, contexts, omegas, n_trajectories: int, rng=None) -> TableTennisPrediction:
-        """Sample L strokes for each of B (ω, s) pairs through the five models.
-
-        Parameters
-        ----------
-        contexts : array_like, shape (B, 5)
-        omegas : array_like, shape (B, 17)
-        n_trajectories : int
-            L ≥ 1.
-        rng : Generator, int or None
-
-        Returns
-        -------
-        TableTennisPrediction
-        """
+        """Sample L = ``n_trajectories`` strokes for each of B pairs, contexts (B, 5) and omegas
+        (B, 17), through the five models."""
         if self.landing is None:
             raise RuntimeError("TableTennisRewardModel: call fit() before predicting")
         task = self.task
@@ -1055,21 +869,10 @@ class TableTennisRewardModel(RewardModel):
         incoming = np.minimum(steps, face + 1)
         rewards, closest = self._rewards(ball, racket, incoming, landing, weight, s, L)
         rewards = worst_if_nonfinite(rewards, task, "TableTennisRewardModel.predict")
-        return TableTennisPrediction(
-            t.copy(),
-            ball.reshape(B, L, T, 3),
-            racket.reshape(B, L, T, 3),
-            quat.reshape(B, L, T, 4),
-            yb.reshape(B, L, 9),
-            closest.reshape(B, L),
-            contact.reshape(B, L),
-            margin.reshape(B, L),
-            landing.reshape(B, L, 2),
-            rewards.reshape(B, L),
-            self.stage,
-            weight.reshape(B, L),
-            face.reshape(B, L),
-        )
+        arrays = (ball, racket, quat, yb, closest, contact, margin, landing, rewards)
+        shaped = [a.reshape(B, L, *a.shape[1:]) for a in arrays]
+        extra = (weight.reshape(B, L), face.reshape(B, L))
+        return TableTennisPrediction(t.copy(), *shaped, self.stage, *extra)
 
     def _rewards(self, ball, racket, steps, landing, weight, s, L):
         """Eq. (4.17) of the current stage with ‖b − p‖ = w ‖b − p̂‖ + (1 − w) P for contact
@@ -1089,35 +892,15 @@ class TableTennisRewardModel(RewardModel):
         return hitting - c2 * dist, closest
 
     def heldout_errors(self, contexts, omegas, trajectories, n_samples: int, rng=None) -> dict:
-        """Each model's error on rollouts it was not fitted on (Fig. 4.13's comparison).
+        """Each model's error on the simulator's rollouts of pairs it was not fitted on (Fig.
+        4.13), with ``n_samples`` sampled strokes per pair.
 
-        Parameters
-        ----------
-        contexts : array_like, shape (B, 5)
-        omegas : array_like, shape (B, 17)
-        trajectories : sequence of Trajectory, length B
-            The simulator's rollouts of the pairs.
-        n_samples : int
-            L sampled strokes per pair.
-        rng : Generator, int or None
-
-        Returns
-        -------
-        dict
-            * ``bounce_position_error_m``: median ‖p̂_b − p_b‖ of model 1's sampled bounce
-              points against the recorded bounce (:func:`find_bounce`);
-            * ``incoming_path_error_m``: median over pairs of the largest distance between the
-              mean predicted and the recorded incoming ball before the racket (models 1, 2);
-            * ``racket_position_rmse_m``: RMSE of the sampled racket centres (models 3) over
-              the episode;
-            * ``contact_accuracy``, ``contact_majority_rate``: the SVM's hit/miss accuracy
-              on the recorded inputs at the contact event (:func:`contact_event`), and the
-              majority class's rate;
-            * ``contact_accuracy_predicted``: the same decision on the *predicted* paths
-              (all five models chained; the majority vote of the L samples);
-            * ``return_landing_error_m``: median ‖p̂ − p‖ of model 5's landing points from the
-              recorded inputs of the held-out hits (NaN without hits or a return model);
-            * ``n_hits``, ``n_pairs``.
+        Returns the medians ``bounce_position_error_m`` (model 1), ``incoming_path_error_m``
+        (largest distance of the mean predicted incoming ball, models 1–2) and
+        ``return_landing_error_m`` (model 5 on the hits), ``racket_position_rmse_m`` (model
+        3), the SVM's ``contact_accuracy`` on recorded inputs and on the predicted paths
+        (``contact_accuracy_predicted``, majority vote of the samples),
+        ``contact_majority_rate``, ``n_hits`` and ``n_pairs``.
         """
         if self.landing is None:
             raise RuntimeError("TableTennisRewardModel: call fit() before heldout_errors()")
@@ -1162,26 +945,11 @@ class TableTennisRewardModel(RewardModel):
         return self.predict(contexts, omegas, n_trajectories, rng).expected_rewards
 
     def prediction_layers(self, context, omega, n_samples: int, rng=None) -> dict[str, dict]:
-        """Fig. 4.13's layers of one (s, ω) pair for the browser viewer.
+        """Fig. 4.13's layers of one pair, context (5,) and omega (17,), for the viewer.
 
-        Parameters
-        ----------
-        context : array_like, shape (5,)
-        omega : array_like, shape (17,)
-        n_samples : int
-            L sampled strokes.
-        rng : Generator, int or None
-
-        Returns
-        -------
-        dict
-            ``{name: {"trajectories": (L', T', 3) world points, "color": (r, g, b),
-            "times": (T',) optional}}``: the incoming ball of models 1–2 (black, (L, T, 3)),
-            stopped at its last sample before the racket face where the SVM predicts a
-            contact (where model 5 reads its inputs, :func:`contact_event`), the racket
-            centre of models 3–4 (blue, (L, T, 3)), and the returned landing points of model
-            5 as small red diamonds on the table (one (5, 3) closed marker path per predicted
-            contact, (n_contacts, 5, 3)).
+        Returns ``{legend: {"trajectories": (L', T', 3), "color": (r, g, b), "times": (T',)
+        optional}}``: the incoming ball (stopped before the racket face where the SVM predicts
+        a contact), the racket centre, and the returned landing points as small diamonds.
         """
         s = self.task.check_context(context)
         w = self.task.check_omega(omega)
@@ -1195,22 +963,15 @@ class TableTennisRewardModel(RewardModel):
         diamond = np.array([[r, 0, 0], [0, r, 0], [-r, 0, 0], [0, -r, 0], [r, 0, 0]])
         pts = pred.landing[0][pred.contact[0]]
         centres = np.column_stack([pts, np.full(len(pts), self.plane)])
-        return {
-            "landing+bounce models: incoming ball": {
-                "trajectories": ball,
-                "color": (0, 0, 0),
-                "times": pred.times,
-            },
-            "racket models: racket centre": {
-                "trajectories": pred.racket[0],
-                "color": (0, 0, 255),
-                "times": pred.times,
-            },
-            "contact model: returned landing points": {
-                "trajectories": centres[:, None, :] + diamond[None],
-                "color": (255, 0, 0),
-            },
+        layers = {
+            "landing+bounce models: incoming ball": (ball, (0, 0, 0)),
+            "racket models: racket centre": (pred.racket[0], (0, 0, 255)),
+            "contact model: returned landing points": (centres[:, None] + diamond, (255, 0, 0)),
         }
+        out = {name: {"trajectories": xyz, "color": rgb} for name, (xyz, rgb) in layers.items()}
+        for name in list(out)[:2]:
+            out[name]["times"] = pred.times
+        return out
 
     def __repr__(self) -> str:
         state = "unfitted" if self.landing is None else f"{self.n_data} rollouts"

@@ -1,13 +1,11 @@
 """Robots moving: task rollouts as plotly animations (Figs 3.2 and 3.8) that play without a kernel.
 
 A figure is a plotly ``Figure`` with ``frames``, play/pause and a time slider, so it plays in a
-notebook and in its exported HTML alike. The robot's links come from the task's own MuJoCo
-model (:func:`skillkit.viz.scenes.task_model`, as in the viewer), ball, racket and targets from
-the trajectory's signals and the context, interpolated linearly on each signal's own clock
-(:func:`skillkit.viz.scenes.interpolate`, :func:`skillkit.viz.scenes.signal_times`).
-:func:`throwing_animation` draws the planar 4-link robot (Sec. 3.4.1, Appendix C.1),
-:func:`table_tennis_animation` the 8-DoF arm (Sec. 3.4.3, Appendix C.3); only the moving
-traces are repeated per frame, so the HTML stays small (tens of kB at 40 frames).
+notebook and in its exported HTML alike; only the moving traces are repeated per frame. The
+robot's links come from the task's own MuJoCo model (:func:`skillkit.viz.scenes.task_model`),
+ball, racket and targets from the trajectory's signals and the context, interpolated linearly
+on each signal's own clock (:func:`skillkit.viz.scenes.interpolate`,
+:func:`skillkit.viz.scenes.signal_times`).
 """
 
 from __future__ import annotations
@@ -20,19 +18,12 @@ import numpy as np
 from skillkit._validation import check_array, check_positive
 from skillkit.trajectory import Trajectory
 from skillkit.viz.plots import REFERENCE_WIDTH
-from skillkit.viz.scenes import COLORS, interpolate, signal_times, task_model
+from skillkit.viz.scenes import COLORS, interpolate, kinematic_points, signal_times, task_model
 
 __all__ = [
-    "MAX_FRAMES",
-    "TABLE_TENNIS_CONTEXTS",
-    "THROWING_TARGETS",
-    "arm_link_points",
-    "frame_times",
-    "planar_link_points",
-    "racket_rim",
-    "table_tennis_animation",
-    "throwing_animation",
-]
+    "MAX_FRAMES", "TABLE_TENNIS_CONTEXTS", "THROWING_TARGETS", "arm_link_points", "frame_times",
+    "planar_link_points", "racket_rim", "table_tennis_animation", "throwing_animation",
+]  # fmt: skip
 
 MAX_FRAMES = 200
 """Most frames an animation may have (the HTML grows with each)."""
@@ -40,9 +31,8 @@ THROWING_TARGETS = np.array([[6.0, 1.0], [12.0, 1.0]])
 """The two targets of Fig. 3.2 (Sec. 3.4.1: s₁ = [6, 1] m, s₂ = [12, 1] m)."""
 TABLE_TENNIS_CONTEXTS = np.array([[-5.8, 0.0, 2.5, 0.6, -0.3], [-5.0, 0.0, 2.25, 0.9, 0.3]])
 """Two contexts s = [v_x, v_y, v_z, b_x, b_y] for Fig. 3.8: a fast flat serve returned to the
-right, a slower one returned far to the left. The serves have v_y = 0 because the initial
-stroke (no context gain) hits only balls that come straight down the table (at v_y = ±0.2 m/s
-it misses); the targets are not chosen where that stroke lands."""
+right, a slower one returned far to the left (v_y = 0: the initial stroke, without context
+gain, hits only balls coming straight down the table)."""
 
 _PLANAR_BODIES = ("shin", "thigh", "torso", "arm")  # origins: ankle, knee, hip, shoulder
 _ARM_BODIES = ("platform", "upper_arm", "forearm", "hand")  # floor, shoulder, elbow, wrist
@@ -54,23 +44,17 @@ def _rgb(name: str) -> str:
     return f"rgb({r},{g},{b})"
 
 
-# ============================================================================ kinematics
 def _points(model: mujoco.MjModel, qpos: np.ndarray, bodies: Sequence[str], site: str):
     """World positions (N, len(bodies) + 1, 3) of the body origins and the site per row of qpos."""
-    data = mujoco.MjData(model)
-    ids = [model.body(b).id for b in bodies]
-    sid = model.site(site).id
-    out = np.empty((qpos.shape[0], len(ids) + 1, 3))
-    for i, row in enumerate(qpos):
-        data.qpos[:] = row
-        mujoco.mj_kinematics(model, data)
-        out[i, :-1] = data.xpos[ids]
-        out[i, -1] = data.site_xpos[sid]
-    return out
+    return kinematic_points(model, qpos, [model.body(b).id for b in bodies], [model.site(site).id])
 
 
-def _require_task(task, cls) -> mujoco.MjModel:
-    """The MuJoCo model of ``task``, which must be a ``cls``."""
+def _model(task, kind: str) -> mujoco.MjModel:
+    """The MuJoCo model of ``task``, which must be a throwing or table-tennis task."""
+    if kind == "throwing":
+        from skillkit.tasks.planar import Throwing as cls
+    else:
+        from skillkit.tasks.table_tennis import TableTennis as cls
     if not isinstance(task, cls):
         raise ValueError(f"task: expected a {cls.__name__} task, got {type(task).__name__}")
     model = task_model(task)
@@ -79,87 +63,33 @@ def _require_task(task, cls) -> mujoco.MjModel:
     return model
 
 
-def _throwing_model(task) -> mujoco.MjModel:
-    from skillkit.tasks.planar import Throwing
-
-    return _require_task(task, Throwing)
-
-
-def _table_tennis_model(task) -> mujoco.MjModel:
-    from skillkit.tasks.table_tennis import TableTennis
-
-    return _require_task(task, TableTennis)
-
-
 def planar_link_points(task, q) -> np.ndarray:
-    """Joint and hand positions of the planar 4-link robot (Appendix C.1) in its plane.
+    """Ankle, knee, hip, shoulder and hand of the planar 4-link robot (Appendix C.1) per row of
+    joint angles q (N, 4), shape (N, 5, 2) in the thesis's [x, y] (m).
 
-    The robot's own MuJoCo model (``task.scene_model()``) posed with ``mujoco.mj_kinematics``:
-    the origins of the shin, thigh, torso and arm bodies (ankle, knee, hip and shoulder
-    hinges) and the ``hand`` site, in the thesis's [x, y] (MuJoCo's [x, z], y up). With
-    absolute angles θ_k = q_1 + … + q_k, joint k + 1 sits at Σ_{j≤k} l_j (sin θ_j, cos θ_j)
-    and the hand l_4 (−sin θ_4, −cos θ_4) beyond the shoulder
-    (:func:`skillkit.tasks.planar.hand_kinematics`).
-
-    Parameters
-    ----------
-    task : Throwing
-        Supplies the model.
-    q : array_like, shape (N, 4)
-        Joint angles (rad).
-
-    Returns
-    -------
-    ndarray, shape (N, 5, 2)
-        Ankle, knee, hip, shoulder, hand per row (m).
+    The task's MuJoCo model posed with ``mujoco.mj_kinematics`` (body origins of shin, thigh,
+    torso, arm and the ``hand`` site): with θ_k = q_1 + … + q_k, joint k + 1 sits at
+    Σ_{j≤k} l_j (sin θ_j, cos θ_j) and the hand l_4 (−sin θ_4, −cos θ_4) beyond the shoulder.
     """
-    model = _throwing_model(task)
+    model = _model(task, "throwing")
     q = check_array(q, "q", shape=(None, 4))
     return _points(model, q, _PLANAR_BODIES, "hand")[..., [0, 2]]
 
 
 def arm_link_points(task, q) -> np.ndarray:
-    """Skeleton of the table-tennis arm (Appendix C.3) in world coordinates.
-
-    The arm's MuJoCo model (``task.scene_model()``) posed with ``mujoco.mj_kinematics``: the
-    platform's origin on the floor, the shoulder (top of the 1.2 m column), elbow and wrist
-    (origins of the ``upper_arm``, ``forearm`` and ``hand`` bodies) and the blade centre (site
-    ``racket``).
-
-    Parameters
-    ----------
-    task : TableTennis
-        Supplies the model.
-    q : array_like, shape (N, 8)
-        Joint positions [base_x, base_y, shoulder yaw, shoulder pitch, upper-arm roll, elbow,
-        forearm roll, wrist] (m, rad).
-
-    Returns
-    -------
-    ndarray, shape (N, 5, 3)
-        Platform, shoulder, elbow, wrist, blade centre per row (m).
+    """Skeleton of the table-tennis arm (Appendix C.3) per row of joint positions q (N, 8)
+    ([base_x, base_y, shoulder yaw, shoulder pitch, upper-arm roll, elbow, forearm roll, wrist]):
+    platform origin, shoulder, elbow, wrist and blade centre (site ``racket``), shape (N, 5, 3).
     """
-    model = _table_tennis_model(task)
+    model = _model(task, "table-tennis")
     q = check_array(q, "q", shape=(None, model.nq))
     return _points(model, q, _ARM_BODIES, "racket")
 
 
 def racket_rim(center, normal, radius: float, n: int = 16) -> np.ndarray:
-    """Closed rim of a disc blade: c + r (cos φ u + sin φ v), φ = 0 … 2π, u ⟂ v ⟂ n.
-
-    Parameters
-    ----------
-    center, normal : array_like, shape (3,)
-        Blade centre and normal (any length > 0; normalised here).
-    radius : float
-        Blade radius r (m).
-    n : int
-        Points on the rim before closing it (≥ 3).
-
-    Returns
-    -------
-    ndarray, shape (n + 1, 3)
-        The first point repeated at the end.
+    """Closed rim of a disc blade: c + r (cos φ u + sin φ v), φ = 0 … 2π, u ⟂ v ⟂ n, for
+    ``center`` and ``normal`` (3,) (any length > 0) and ``n`` ≥ 3 points; shape (n + 1, 3),
+    the first point repeated at the end.
     """
     c = check_array(center, "center", shape=(3,))
     nv = check_array(normal, "normal", shape=(3,))
@@ -178,8 +108,8 @@ def racket_rim(center, normal, radius: float, n: int = 16) -> np.ndarray:
     return c + float(radius) * (np.cos(phi)[:, None] * u + np.sin(phi)[:, None] * v)
 
 
-# ============================================================================ time and input
-def _check_trajectories(trajectories) -> list[Trajectory]:
+def _check_input(task, trajectories, contexts, n_frames, frame_ms, width: int):
+    """The rollouts, the checked contexts (one row each), ``n_frames`` and ``frame_ms``."""
     if isinstance(trajectories, Trajectory):
         trajectories = [trajectories]
     if not isinstance(trajectories, Sequence) or not trajectories:
@@ -192,17 +122,17 @@ def _check_trajectories(trajectories) -> list[Trajectory]:
         if not isinstance(tr, Trajectory):
             raise ValueError(f"trajectories[{i}]: expected a Trajectory, got {type(tr).__name__}")
         if tr.failed:
-            raise ValueError(
-                f"trajectories[{i}]: a failed rollout has nothing to show ({tr.message})"
-            )
-    return list(trajectories)
+            msg = f"trajectories[{i}]: a failed rollout has nothing to show ({tr.message})"
+            raise ValueError(msg)
+    s = check_array(contexts, "contexts", shape=(len(trajectories), width))
+    s = np.stack([task.check_context(row, "contexts") for row in s])
+    return list(trajectories), s, _check_frames(n_frames), check_positive(frame_ms, "frame_ms")
 
 
 def _check_signal(tr: Trajectory, i: int, key: str, shape: tuple) -> np.ndarray:
     if key not in tr.signals:
-        raise ValueError(
-            f"trajectories[{i}]: has no signal {key!r} (signals: {sorted(tr.signals)})"
-        )
+        msg = f"trajectories[{i}]: has no signal {key!r} (signals: {sorted(tr.signals)})"
+        raise ValueError(msg)
     return check_array(tr.signals[key], f"trajectories[{i}].signals[{key!r}]", shape=shape)
 
 
@@ -227,123 +157,74 @@ def _at(times: np.ndarray, values: np.ndarray, grid: np.ndarray) -> np.ndarray:
     return np.stack([interpolate(times, values, t) for t in grid])
 
 
-# ============================================================================ plotly pieces
-def _controls(fig, grid: np.ndarray, frame_ms: float, redraw: bool, y: float) -> None:
-    """Play/pause buttons and a time slider below the plot, one step per frame."""
+def _finish(fig, grid, frame_ms: float, redraw: bool, y: float, title: str, lines, **layout):
+    """Title (``lines`` under it), layout, play/pause buttons and a time slider below the plot."""
+    sub = "<br>".join(lines)
+    text = f"{title}<br><span style='font-size:12px'>{sub}</span>" if sub else title
+    legend = {"yanchor": "top", "bgcolor": "rgba(255,255,255,0.7)", "font": {"size": 11}}
+    layout["legend"] = {**layout["legend"], **legend}
+    fig.update_layout(
+        title={"text": text, "x": 0.01, "xanchor": "left", "font": {"size": 15}},
+        autosize=True, **layout, template="plotly_white",
+    )  # fmt: skip
     play = {
         "frame": {"duration": frame_ms, "redraw": redraw},
         "fromcurrent": False,  # from the start: a finished auto-play can be replayed
         "transition": {"duration": 0},
         "mode": "immediate",
     }
-    still = {
-        "frame": {"duration": 0, "redraw": redraw},
-        "mode": "immediate",
-        "transition": {"duration": 0},
-    }
+    still = {"frame": {"duration": 0, "redraw": redraw}, "mode": "immediate"}
+    still["transition"] = {"duration": 0}
     fig.update_layout(
-        updatemenus=[
-            {
-                "type": "buttons",
-                "direction": "left",
-                "showactive": False,
-                "x": 0.0,
-                "xanchor": "left",
-                "y": y,
-                "yanchor": "top",
-                "pad": {"t": 0, "r": 10},
-                "buttons": [
-                    {"label": "▶", "method": "animate", "args": [None, play]},
-                    {"label": "❚❚", "method": "animate", "args": [[None], still]},
-                ],
-            }
-        ],
-        sliders=[
-            {
-                "active": 0,
-                "x": 0.2,
-                "len": 0.8,
-                "xanchor": "left",
-                "y": y + 0.02,
-                "yanchor": "top",
-                "pad": {"t": 0, "b": 0},
-                "currentvalue": {
-                    "prefix": "t = ",
-                    "suffix": " s",
-                    "xanchor": "right",
-                    "font": {"size": 12},
-                },
-                "steps": [
-                    {"label": f"{t:.2f}", "method": "animate", "args": [[str(k)], still]}
-                    for k, t in enumerate(grid)
-                ],
-            }
-        ],
-    )
+        updatemenus=[{
+            "type": "buttons", "direction": "left", "showactive": False, "x": 0.0,
+            "xanchor": "left", "y": y, "yanchor": "top", "pad": {"t": 0, "r": 10},
+            "buttons": [
+                {"label": "▶", "method": "animate", "args": [None, play]},
+                {"label": "❚❚", "method": "animate", "args": [[None], still]},
+            ],
+        }],
+        sliders=[{
+            "active": 0, "x": 0.2, "len": 0.8, "xanchor": "left", "y": y + 0.02,
+            "yanchor": "top", "pad": {"t": 0, "b": 0},
+            "currentvalue": {
+                "prefix": "t = ", "suffix": " s", "xanchor": "right", "font": {"size": 12},
+            },
+            "steps": [
+                {"label": f"{t:.2f}", "method": "animate", "args": [[str(k)], still]}
+                for k, t in enumerate(grid)
+            ],
+        }],
+    )  # fmt: skip
+    return fig
 
 
-def _title(title: str, lines: Sequence[str]) -> str:
-    sub = "<br>".join(lines)
-    return f"{title}<br><span style='font-size:12px'>{sub}</span>" if sub else title
-
-
-# ============================================================================ throwing
 def throwing_animation(
-    task,
-    trajectories,
-    contexts,
-    *,
-    n_frames: int = 40,
-    frame_ms: float = 100.0,
-    title: str = "Throwing for two targets (Fig. 3.2)",
-    subtitle: str = "",
-):
+    task, trajectories, contexts, *, n_frames: int = 40, frame_ms: float = 100.0,
+    title: str = "Throwing for two targets (Fig. 3.2)", subtitle: str = "",
+):  # fmt: skip
     """The planar 4-link robot throwing, one panel per target (Fig. 3.2), as a plotly animation.
 
-    Each panel shows the links (:func:`planar_link_points` of the interpolated joint angles), the
-    ball (signal ``ball`` on ``ball_times``: in the hand until the release time t_r, then ballistic
-    until it lands, Appendix C.1), its path (dotted) and the target s; the title gives s, t_r and
-    the distance term min_t ‖b_t − s‖ (``task.reward_terms``). The panels share one clock from 0 to
-    the last landing; after its end a rollout holds its last state.
+    Each panel shows the links (:func:`planar_link_points`), the ball (signal ``ball`` on
+    ``ball_times``: in the hand until the release time t_r, then ballistic until it lands,
+    Appendix C.1), its path (dotted) and the target s; the panel title gives s, t_r and the
+    distance term min_t ‖b_t − s‖ (``task.reward_terms``). The panels share one clock; a
+    finished rollout holds its last state.
 
-    Parameters
-    ----------
-    task : Throwing
-        The task the rollouts come from (its model and reward terms are used).
-    trajectories : sequence of Trajectory
-        1–4 non-failed rollouts of ``task`` (states (T, 8) = [q, q̇], signals ``ball`` (N, 2)
-        and ``ball_times`` (N,)).
-    contexts : array_like, shape (len(trajectories), 2)
-        The target [x, y] of each rollout (m).
-    n_frames : int
-        Frames of the animation (2 … :data:`MAX_FRAMES`).
-    frame_ms : float
-        Milliseconds per frame when playing.
-    title, subtitle : str
-        Figure title and an optional smaller line under it.
-
-    Returns
-    -------
-    plotly.graph_objects.Figure
-        Responsive, equal scales on x and y, legend inside the top panel; ``frames`` named
-        "0" … "n_frames − 1".
-
-    Raises
-    ------
-    ValueError
-        Wrong task, a failed or malformed trajectory, contexts of the wrong shape or outside
-        the task's range, or a bad ``n_frames`` (each naming the argument).
+    ``trajectories`` are 1–4 non-failed rollouts of ``task`` (states (T, 8) = [q, q̇], signals
+    ``ball`` (N, 2) and ``ball_times`` (N,)); ``contexts`` (len(trajectories), 2) their targets
+    [x, y] (m); ``n_frames`` (2 … :data:`MAX_FRAMES`) frames of ``frame_ms`` milliseconds;
+    ``subtitle`` an optional smaller line under the title. The figure has equal scales on x
+    and y and ``frames`` named "0" … "n_frames − 1". ``ValueError`` (naming the argument) for
+    a wrong task, a failed or malformed trajectory, contexts of the wrong shape or outside the
+    task's range, or a bad ``n_frames``.
     """
     import plotly.graph_objects as go
     from plotly.subplots import make_subplots
 
-    model = _throwing_model(task)
-    trajs = _check_trajectories(trajectories)
+    model = _model(task, "throwing")
+    trajs, s, n_frames, frame_ms = _check_input(task, trajectories, contexts, n_frames, frame_ms, 2)
     n = len(trajs)
-    s = check_array(contexts, "contexts", shape=(n, 2))
-    s = np.stack([task.check_context(row, "contexts") for row in s])
-    n_frames = _check_frames(n_frames)
-    frame_ms = check_positive(frame_ms, "frame_ms")
     balls, ball_t = [], []
     for i, tr in enumerate(trajs):
         check_array(tr.states, f"trajectories[{i}].states", shape=(None, 8))
@@ -364,8 +245,7 @@ def throwing_animation(
     every = np.vstack([*(lk.reshape(-1, 2) for lk in links), *balls, s])
     x0, x1 = float(every[:, 0].min()) - 0.6, float(every[:, 0].max()) + 0.6
     y0, y1 = min(-0.3, float(every[:, 1].min()) - 0.2), float(every[:, 1].max()) + 0.4
-    plot_w = REFERENCE_WIDTH - 60 - 20
-    panel_h = int(np.ceil((y1 - y0) * plot_w / (x1 - x0)))
+    panel_h = int(np.ceil((y1 - y0) * (REFERENCE_WIDTH - 60 - 20) / (x1 - x0)))
     gap, top, bottom = 42, 92 if subtitle else 72, 120
     plot_h = n * panel_h + (n - 1) * gap
     names = []
@@ -380,243 +260,114 @@ def throwing_animation(
     fig = make_subplots(
         rows=n, cols=1, subplot_titles=names, vertical_spacing=gap / plot_h if n > 1 else 0
     )
-
     animated = []
     for i in range(n):
-        row = i + 1
-        first = i == 0
-        fig.add_trace(
-            go.Scatter(
-                x=[x0, x1],
-                y=[0, 0],
-                mode="lines",
-                line={"color": "rgb(150,140,120)", "width": 2},
-                name="ground",
-                showlegend=False,
-                hoverinfo="skip",
-            ),
-            row=row,
-            col=1,
-        )
-        fig.add_trace(
-            go.Scatter(
-                x=balls[i][:, 0],
-                y=balls[i][:, 1],
-                mode="lines",
-                line={"color": _rgb("ball"), "width": 1.5, "dash": "dot"},
-                name="ball path",
-                legendgroup="path",
-                showlegend=first,
-                hoverinfo="skip",
-            ),
-            row=row,
-            col=1,
-        )
-        fig.add_trace(
-            go.Scatter(
-                x=[s[i, 0]],
-                y=[s[i, 1]],
-                mode="markers",
-                marker={"symbol": "x", "size": 13, "color": _rgb("target")},
-                name="target s",
-                legendgroup="target",
-                showlegend=first,
-            ),
-            row=row,
-            col=1,
-        )
-        animated.append(len(fig.data))
-        fig.add_trace(
-            go.Scatter(
-                x=links[i][0, :, 0],
-                y=links[i][0, :, 1],
-                mode="lines+markers",
-                line={"color": "rgb(90,100,125)", "width": 6},
-                marker={"size": 7, "color": "rgb(60,65,80)"},
-                name="robot",
-                legendgroup="robot",
-                showlegend=first,
-                hoverinfo="skip",
-            ),
-            row=row,
-            col=1,
-        )
-        animated.append(len(fig.data))
-        fig.add_trace(
-            go.Scatter(
-                x=ball_at[i][:1, 0],
-                y=ball_at[i][:1, 1],
-                mode="markers",
-                marker={"size": 10, "color": _rgb("ball"), "line": {"width": 1, "color": "black"}},
-                name="ball",
-                legendgroup="ball",
-                showlegend=first,
-                hoverinfo="skip",
-            ),
-            row=row,
-            col=1,
-        )
-        suffix = "" if row == 1 else str(row)
-        fig.update_xaxes(
-            range=[x0, x1],
-            constrain="domain",
-            row=row,
-            col=1,
-            title_text="x (m)" if row == n else None,
-            zeroline=False,
-        )
+        row, first = i + 1, i == 0
+        quiet = {"hoverinfo": "skip", "row": row, "col": 1}
+        fig.add_scatter(
+            x=[x0, x1], y=[0, 0], mode="lines", line={"color": "rgb(150,140,120)", "width": 2},
+            name="ground", showlegend=False, **quiet,
+        )  # fmt: skip
+        fig.add_scatter(
+            x=balls[i][:, 0], y=balls[i][:, 1], mode="lines",
+            line={"color": _rgb("ball"), "width": 1.5, "dash": "dot"}, name="ball path",
+            legendgroup="path", showlegend=first, **quiet,
+        )  # fmt: skip
+        fig.add_scatter(
+            x=[s[i, 0]], y=[s[i, 1]], mode="markers",
+            marker={"symbol": "x", "size": 13, "color": _rgb("target")}, name="target s",
+            legendgroup="target", showlegend=first, row=row, col=1,
+        )  # fmt: skip
+        animated += [len(fig.data), len(fig.data) + 1]
+        fig.add_scatter(
+            x=links[i][0, :, 0], y=links[i][0, :, 1], mode="lines+markers",
+            line={"color": "rgb(90,100,125)", "width": 6},
+            marker={"size": 7, "color": "rgb(60,65,80)"},
+            name="robot", legendgroup="robot", showlegend=first, **quiet,
+        )  # fmt: skip
+        fig.add_scatter(
+            x=ball_at[i][:1, 0], y=ball_at[i][:1, 1], mode="markers",
+            marker={"size": 10, "color": _rgb("ball"), "line": {"width": 1, "color": "black"}},
+            name="ball", legendgroup="ball", showlegend=first, **quiet,
+        )  # fmt: skip
+        x_title = "x (m)" if row == n else None
+        axes = {"constrain": "domain", "row": row, "col": 1, "zeroline": False}
+        fig.update_xaxes(range=[x0, x1], title_text=x_title, **axes)
+        anchor = f"x{'' if row == 1 else row}"
         fig.update_yaxes(
-            range=[y0, y1],
-            scaleanchor=f"x{suffix}",
-            scaleratio=1,
-            constrain="domain",
-            title_text="y (m)",
-            row=row,
-            col=1,
-            zeroline=False,
+            range=[y0, y1], scaleanchor=anchor, scaleratio=1, title_text="y (m)", **axes
         )
 
-    frames = []
-    for k in range(n_frames):
-        data = []
-        for i in range(n):
-            data.append(go.Scatter(x=links[i][k, :, 0], y=links[i][k, :, 1]))
-            data.append(go.Scatter(x=ball_at[i][k : k + 1, 0], y=ball_at[i][k : k + 1, 1]))
-        frames.append(go.Frame(name=str(k), data=data, traces=animated))
-    fig.frames = frames
-    height = top + plot_h + bottom
-    fig.update_layout(
-        title={
-            "text": _title(title, [subtitle] if subtitle else []),
-            "x": 0.01,
-            "xanchor": "left",
-            "font": {"size": 15},
-        },
-        height=height,
-        autosize=True,
-        margin={"t": top, "b": bottom, "l": 60, "r": 20, "autoexpand": True},
-        legend={
-            "x": 0.99,
-            "xanchor": "right",
-            "y": 1.0,
-            "yanchor": "top",
-            "bgcolor": "rgba(255,255,255,0.7)",
-            "font": {"size": 11},
-        },
-        template="plotly_white",
-    )
+    def frame(k: int) -> list:
+        xys = [xy for i in range(n) for xy in (links[i][k], ball_at[i][k : k + 1])]
+        return [go.Scatter(x=xy[:, 0], y=xy[:, 1]) for xy in xys]
+
+    fig.frames = [go.Frame(name=str(k), data=frame(k), traces=animated) for k in range(n_frames)]
     for annotation in fig.layout.annotations:
         annotation.font = {"size": 12}
-    _controls(fig, grid, frame_ms, redraw=False, y=-(bottom - 55) / plot_h)
-    return fig
+    return _finish(
+        fig, grid, frame_ms, False, -(bottom - 55) / plot_h, title, [subtitle] if subtitle else [],
+        height=top + plot_h + bottom,
+        margin={"t": top, "b": bottom, "l": 60, "r": 20, "autoexpand": True},
+        legend={"x": 0.99, "xanchor": "right", "y": 1.0},
+    )  # fmt: skip
 
 
-# ============================================================================ table tennis
 def _table_traces(go, tt) -> list:
     """Table top, its lines and the net (Appendix C.3's regulation table, +z up)."""
     hx, hy, z = tt.TABLE_LENGTH / 2, tt.TABLE_WIDTH / 2, tt.TABLE_HEIGHT
+    quad = {"i": [0, 0], "j": [1, 2], "k": [2, 3], "showlegend": False, "hoverinfo": "skip"}
     top = go.Mesh3d(
-        x=[-hx, hx, hx, -hx],
-        y=[-hy, -hy, hy, hy],
-        z=[z] * 4,
-        i=[0, 0],
-        j=[1, 2],
-        k=[2, 3],
-        color=_rgb("table"),
-        opacity=0.85,
-        name="table",
-        showlegend=False,
-        hoverinfo="skip",
-        flatshading=True,
-    )
+        x=[-hx, hx, hx, -hx], y=[-hy, -hy, hy, hy], z=[z] * 4, color=_rgb("table"),
+        opacity=0.85, name="table", flatshading=True, **quad,
+    )  # fmt: skip
     # the edge, then (after a break) the centre line; z a hair above the top
     xs = [-hx, hx, hx, -hx, -hx, None, -hx, hx]
     ys = [-hy, -hy, hy, hy, -hy, None, 0.0, 0.0]
     lines = go.Scatter3d(
-        x=xs,
-        y=ys,
-        z=[None if v is None else z + 0.002 for v in xs],
-        mode="lines",
-        line={"color": "white", "width": 3},
-        showlegend=False,
-        hoverinfo="skip",
-    )
+        x=xs, y=ys, z=[None if v is None else z + 0.002 for v in xs], mode="lines",
+        line={"color": "white", "width": 3}, showlegend=False, hoverinfo="skip",
+    )  # fmt: skip
     ny, nz = hy + tt.NET_OVERHANG, z + tt.NET_HEIGHT
     net = go.Mesh3d(
-        x=[0.0] * 4,
-        y=[-ny, ny, ny, -ny],
-        z=[z, z, nz, nz],
-        i=[0, 0],
-        j=[1, 2],
-        k=[2, 3],
-        color="rgb(235,235,235)",
-        opacity=0.6,
-        name="net",
-        showlegend=False,
-        hoverinfo="skip",
-    )
+        x=[0.0] * 4, y=[-ny, ny, ny, -ny], z=[z, z, nz, nz], color="rgb(235,235,235)",
+        opacity=0.6, name="net", **quad,
+    )  # fmt: skip
     return [top, lines, net]
 
 
+def _xyz(a: np.ndarray) -> dict:
+    return {"x": a[:, 0], "y": a[:, 1], "z": a[:, 2]}
+
+
 def table_tennis_animation(
-    task,
-    trajectories,
-    contexts,
-    *,
-    n_frames: int = 40,
-    frame_ms: float = 100.0,
-    title: str = "Two table-tennis shots (Fig. 3.8)",
-    subtitle: str = "",
-):
+    task, trajectories, contexts, *, n_frames: int = 40, frame_ms: float = 100.0,
+    title: str = "Two table-tennis shots (Fig. 3.8)", subtitle: str = "",
+):  # fmt: skip
     """Table-tennis shots overlaid in one 3-D scene (Fig. 3.8), as a plotly animation.
 
-    Drawn: table and net; per shot, in its own colour, the arm's skeleton (:func:`arm_link_points`;
-    dashed from the second shot on), the blade (:func:`racket_rim` of signals ``racket`` and
-    ``racket_normal``), the ball (signal ``ball``) and its path (dotted), the return target
-    b = s[3:5] (diamond) and the landing point p (open circle, ``info["landing_point"]``). A ball
-    that lands after the episode ends is continued by a straight segment to p at
-    ``info["landing_time"]`` (at most g Δt²/8 above the true parabola). The title lines give each
-    shot's context, outcome and landing error ‖b − p‖.
+    Drawn: table and net; per shot, in its own colour, the arm's skeleton
+    (:func:`arm_link_points`; dashed from the second shot on), the blade (:func:`racket_rim` of
+    signals ``racket`` and ``racket_normal``), the ball (signal ``ball``) and its path (dotted),
+    the return target b = s[3:5] (diamond) and the landing point p (open circle,
+    ``info["landing_point"]``). A ball landing after the episode ends is continued by a
+    straight segment to p at ``info["landing_time"]`` (at most g Δt²/8 above the parabola).
+    The title lines give each shot's context, outcome and landing error ‖b − p‖.
 
-    Parameters
-    ----------
-    task : TableTennis
-        The task the rollouts come from.
-    trajectories : sequence of Trajectory
-        1–4 non-failed rollouts (states (T, 16) = [q, q̇]; signals ``ball``, ``racket``,
-        ``racket_normal`` (T, 3)).
-    contexts : array_like, shape (len(trajectories), 5)
-        s = [v_x, v_y, v_z, b_x, b_y] of each rollout.
-    n_frames : int
-        Frames of the animation (2 … :data:`MAX_FRAMES`).
-    frame_ms : float
-        Milliseconds per frame when playing.
-    title, subtitle : str
-        Figure title and an optional line under it.
-
-    Returns
-    -------
-    plotly.graph_objects.Figure
-        One responsive 3-D scene (axes fixed, equal scales), legend inside; ``frames``
-        named "0" … "n_frames − 1".
-
-    Raises
-    ------
-    ValueError
-        Wrong task, a failed or malformed trajectory, contexts of the wrong shape or outside
-        the task's range, or a bad ``n_frames`` (each naming the argument).
+    ``trajectories`` are 1–4 non-failed rollouts (states (T, 16) = [q, q̇]; signals ``ball``,
+    ``racket``, ``racket_normal`` (T, 3)); ``contexts`` (len(trajectories), 5) their
+    s = [v_x, v_y, v_z, b_x, b_y]; the rest and the errors as for :func:`throwing_animation`.
+    Returns one 3-D scene (axes fixed, equal scales).
     """
     import plotly.graph_objects as go
 
     from skillkit.tasks import table_tennis as tt
 
-    model = _table_tennis_model(task)
-    trajs = _check_trajectories(trajectories)
+    model = _model(task, "table-tennis")
+    trajs, s, n_frames, frame_ms = _check_input(
+        task, trajectories, contexts, n_frames, frame_ms, task.context_dim
+    )
     n = len(trajs)
-    s = check_array(contexts, "contexts", shape=(n, task.context_dim))
-    s = np.stack([task.check_context(row, "contexts") for row in s])
-    n_frames = _check_frames(n_frames)
-    frame_ms = check_positive(frame_ms, "frame_ms")
     z_land = tt.TABLE_HEIGHT + task.ball.radius
     shots = []
     for i, tr in enumerate(trajs):
@@ -647,101 +398,57 @@ def table_tennis_animation(
     fig = go.Figure(data=_table_traces(go, tt))
     animated, lines = [], []
     for i, (sh, si) in enumerate(zip(shots, s, strict=True)):
-        color, group = _SHOT_COLORS[i], f"shot{i + 1}"
+        color, shot = _SHOT_COLORS[i], f"shot {i + 1}"
         info = sh["tr"].info
         err = float(np.linalg.norm(si[3:5] - sh["p"]))
         hit = info.get("hit_time")
         lines.append(
-            f"shot {i + 1}: v = [{si[0]:g}, {si[1]:g}, {si[2]:g}] m/s, b = [{si[3]:g}, {si[4]:g}] m"
+            f"{shot}: v = [{si[0]:g}, {si[1]:g}, {si[2]:g}] m/s, b = [{si[3]:g}, {si[4]:g}] m"
             f" → {info.get('outcome', '?')}"
             + (f" (hit at {hit:.2f} s)" if hit is not None else "")
             + f", lands {100 * err:.0f} cm from b"
         )
-        common = {"legendgroup": group, "showlegend": False, "hoverinfo": "skip"}
-        fig.add_trace(
-            go.Scatter3d(
-                x=sh["ball"][:, 0],
-                y=sh["ball"][:, 1],
-                z=sh["ball"][:, 2],
-                mode="lines",
-                line={"color": color, "width": 2, "dash": "dot"},
-                name=f"shot {i + 1} ball path",
-                **common,
-            )
-        )
-        fig.add_trace(
-            go.Scatter3d(
-                x=[si[3], sh["p"][0]],
-                y=[si[4], sh["p"][1]],
-                z=[tt.TABLE_HEIGHT + 0.005] * 2,
-                mode="markers",
-                marker={"symbol": ["diamond", "circle-open"], "size": [7, 8], "color": color},
-                name=f"shot {i + 1} target b, landing p",
-                legendgroup=group,
-                showlegend=False,
-            )
-        )
-        animated.append(len(fig.data))
-        fig.add_trace(
-            go.Scatter3d(
-                x=sh["arm"][0, :, 0],
-                y=sh["arm"][0, :, 1],
-                z=sh["arm"][0, :, 2],
-                mode="lines+markers",
-                line={"color": color, "width": 7, "dash": "solid" if i == 0 else "dash"},
-                marker={"size": 3, "color": color},
-                name=f"shot {i + 1}",
-                legendgroup=group,
-                showlegend=True,
-                hoverinfo="skip",
-            )
-        )
-        animated.append(len(fig.data))
-        fig.add_trace(
-            go.Scatter3d(
-                x=sh["rim"][0, :, 0],
-                y=sh["rim"][0, :, 1],
-                z=sh["rim"][0, :, 2],
-                mode="lines",
-                line={"color": color, "width": 6},
-                name=f"shot {i + 1} racket",
-                **common,
-            )
-        )
-        animated.append(len(fig.data))
-        fig.add_trace(
-            go.Scatter3d(
-                x=sh["ball_at"][:1, 0],
-                y=sh["ball_at"][:1, 1],
-                z=sh["ball_at"][:1, 2],
-                mode="markers",
-                marker={"size": 5, "color": _rgb("ball"), "line": {"width": 2, "color": color}},
-                name=f"shot {i + 1} ball",
-                **common,
-            )
-        )
+        group = {"legendgroup": f"shot{i + 1}", "showlegend": False}
+        common = {**group, "hoverinfo": "skip"}
+        fig.add_scatter3d(
+            **_xyz(sh["ball"]), mode="lines", line={"color": color, "width": 2, "dash": "dot"},
+            name=f"{shot} ball path", **common,
+        )  # fmt: skip
+        fig.add_scatter3d(
+            x=[si[3], sh["p"][0]], y=[si[4], sh["p"][1]], z=[tt.TABLE_HEIGHT + 0.005] * 2,
+            mode="markers",
+            marker={"symbol": ["diamond", "circle-open"], "size": [7, 8], "color": color},
+            name=f"{shot} target b, landing p", **group,
+        )  # fmt: skip
+        animated += [len(fig.data), len(fig.data) + 1, len(fig.data) + 2]
+        fig.add_scatter3d(
+            **_xyz(sh["arm"][0]), mode="lines+markers",
+            line={"color": color, "width": 7, "dash": "solid" if i == 0 else "dash"},
+            marker={"size": 3, "color": color}, name=shot, **{**common, "showlegend": True},
+        )  # fmt: skip
+        fig.add_scatter3d(
+            **_xyz(sh["rim"][0]), mode="lines", line={"color": color, "width": 6},
+            name=f"{shot} racket", **common,
+        )  # fmt: skip
+        fig.add_scatter3d(
+            **_xyz(sh["ball_at"][:1]), mode="markers",
+            marker={"size": 5, "color": _rgb("ball"), "line": {"width": 2, "color": color}},
+            name=f"{shot} ball", **common,
+        )  # fmt: skip
 
-    frames = []
-    for k in range(n_frames):
-        data = []
+    def frame(k: int) -> list:
+        out = []
         for sh in shots:
-            arm, rim, ball = sh["arm"][k], sh["rim"][k], sh["ball_at"][k]
-            data.append(go.Scatter3d(x=arm[:, 0], y=arm[:, 1], z=arm[:, 2]))
-            data.append(go.Scatter3d(x=rim[:, 0], y=rim[:, 1], z=rim[:, 2]))
-            data.append(go.Scatter3d(x=[ball[0]], y=[ball[1]], z=[ball[2]]))
-        frames.append(go.Frame(name=str(k), data=data, traces=animated))
-    fig.frames = frames
+            ball = sh["ball_at"][k]
+            out += [go.Scatter3d(**_xyz(sh["arm"][k])), go.Scatter3d(**_xyz(sh["rim"][k]))]
+            out.append(go.Scatter3d(x=[ball[0]], y=[ball[1]], z=[ball[2]]))
+        return out
 
-    every = np.vstack(
-        [
-            *(sh["arm"].reshape(-1, 3) for sh in shots),
-            *(sh["ball"] for sh in shots),
-            [
-                [-tt.TABLE_LENGTH / 2, -tt.TABLE_WIDTH / 2 - tt.NET_OVERHANG, 0.0],
-                [tt.TABLE_LENGTH / 2, tt.TABLE_WIDTH / 2 + tt.NET_OVERHANG, 0.0],
-            ],
-        ]
-    )
+    fig.frames = [go.Frame(name=str(k), data=frame(k), traces=animated) for k in range(n_frames)]
+    half = (tt.TABLE_LENGTH / 2, tt.TABLE_WIDTH / 2 + tt.NET_OVERHANG, 0.0)
+    corners = [[-half[0], -half[1], 0.0], half]
+    drawn = [*(sh["arm"].reshape(-1, 3) for sh in shots), *(sh["ball"] for sh in shots)]
+    every = np.vstack([*drawn, corners])
     lo, hi = every.min(axis=0) - 0.15, every.max(axis=0) + 0.15
     lo[2] = 0.0
     span = hi - lo
@@ -752,37 +459,20 @@ def table_tennis_animation(
         )
     head = 60 + 17 * (len(lines) + bool(subtitle))
     scene_h, bottom = 520, 90
-    fig.update_layout(
-        title={
-            "text": _title(title, ([subtitle] if subtitle else []) + lines),
-            "x": 0.01,
-            "xanchor": "left",
-            "font": {"size": 15},
+    scene = {
+        f"{a}axis": {"range": [lo[j], hi[j]], "title": {"text": f"{a} (m)"}, "autorange": False}
+        for j, a in enumerate("xyz")
+    }
+    scene.update(
+        aspectmode="manual",
+        aspectratio={"x": ratio[0], "y": ratio[1], "z": ratio[2]},
+        camera={
+            "eye": {"x": -1.0, "y": -1.1, "z": 0.55}, "center": {"x": -0.2, "y": 0.05, "z": -0.15},
         },
-        height=head + scene_h + bottom,
-        autosize=True,
+    )  # fmt: skip
+    return _finish(
+        fig, grid, frame_ms, True, -(bottom - 50) / scene_h, title,
+        ([subtitle] if subtitle else []) + lines, height=head + scene_h + bottom,
         margin={"t": head, "b": bottom, "l": 10, "r": 10, "autoexpand": True},
-        legend={
-            "x": 0.01,
-            "xanchor": "left",
-            "y": 0.98,
-            "yanchor": "top",
-            "bgcolor": "rgba(255,255,255,0.7)",
-            "font": {"size": 11},
-        },
-        scene={
-            "xaxis": {"range": [lo[0], hi[0]], "title": {"text": "x (m)"}, "autorange": False},
-            "yaxis": {"range": [lo[1], hi[1]], "title": {"text": "y (m)"}, "autorange": False},
-            "zaxis": {"range": [lo[2], hi[2]], "title": {"text": "z (m)"}, "autorange": False},
-            "aspectmode": "manual",
-            "aspectratio": {"x": ratio[0], "y": ratio[1], "z": ratio[2]},
-            "camera": {
-                "eye": {"x": -1.0, "y": -1.1, "z": 0.55},
-                "center": {"x": -0.2, "y": 0.05, "z": -0.15},
-            },
-        },
-        uirevision="table-tennis",
-        template="plotly_white",
-    )
-    _controls(fig, grid, frame_ms, redraw=True, y=-(bottom - 50) / scene_h)
-    return fig
+        legend={"x": 0.01, "xanchor": "left", "y": 0.98}, scene=scene, uirevision="table-tennis",
+    )  # fmt: skip

@@ -24,56 +24,30 @@ def add_view_parser(subparsers) -> argparse.ArgumentParser:
         description="Serve a task's rollouts, model predictions and learning playback in the "
         "browser. Open the printed URL; Ctrl-C stops the server.",
     )
-    p.add_argument("task", help="task name (see `skillkit list`)")
-    p.add_argument(
-        "--policy",
-        metavar="FILE",
-        help="policy history .npz (skillkit.viz.history.save_policy_history) or a "
-        "`skillkit reproduce` run folder; enables learning playback",
-    )
-    p.add_argument(
-        "--gpreps",
-        metavar="RUN_DIR",
-        help="a GPREPS `skillkit reproduce` run folder: plays back its policy history and "
-        "overlays its reward model's predictions (a pickle: only runs you trust)",
-    )
-    p.add_argument("--trial", type=int, default=0, help="trial of a run folder (default 0)")
-    p.add_argument(
-        "--samples",
-        type=int,
-        default=10,
-        metavar="L",
-        help="trajectories each learned model of --gpreps samples (default 10)",
-    )
-    p.add_argument(
-        "--context",
-        type=float,
-        nargs="+",
-        metavar="S",
-        help="initial context s, one number per context dimension (default: mid-range)",
-    )
-    p.add_argument(
-        "--predictions",
-        metavar="FILE",
-        help="prediction layers .npz (skillkit.viz.predictions.save_predictions) to overlay",
-    )
-    p.add_argument("--port", type=int, default=DEFAULT_PORT, help=f"port (default {DEFAULT_PORT})")
-    p.add_argument(
-        "--host",
-        default=DEFAULT_HOST,
-        help=f"interface to bind (default {DEFAULT_HOST}: this machine only)",
-    )
-    p.add_argument("--seed", type=int, default=0, help="episode seed of the rollouts")
-    p.add_argument(
-        "--no-envmap",
-        action="store_true",
-        help="light without the HDRI environment map: much faster in browsers without a GPU",
-    )
-    p.add_argument(
-        "--verbose",
-        action="store_true",
-        help="let viser print its banner and a line per browser connection",
-    )
+    add = p.add_argument
+    # fmt: off
+    add("task", help="task name (see `skillkit list`)")
+    add("--policy", metavar="FILE", help="policy history .npz (skillkit.viz.history."
+        "save_policy_history) or a `skillkit reproduce` run folder; enables learning playback")
+    add("--gpreps", metavar="RUN_DIR", help="a GPREPS `skillkit reproduce` run folder: plays "
+        "back its policy history and overlays its reward model's predictions (a pickle: only "
+        "runs you trust)")
+    add("--trial", type=int, default=0, help="trial of a run folder (default 0)")
+    add("--samples", type=int, default=10, metavar="L",
+        help="trajectories each learned model of --gpreps samples (default 10)")
+    add("--context", type=float, nargs="+", metavar="S",
+        help="initial context s, one number per context dimension (default: mid-range)")
+    add("--predictions", metavar="FILE",
+        help="prediction layers .npz (skillkit.viz.predictions.save_predictions) to overlay")
+    add("--port", type=int, default=DEFAULT_PORT, help=f"port (default {DEFAULT_PORT})")
+    add("--host", default=DEFAULT_HOST,
+        help=f"interface to bind (default {DEFAULT_HOST}: this machine only)")
+    add("--seed", type=int, default=0, help="episode seed of the rollouts")
+    add("--no-envmap", action="store_true",
+        help="light without the HDRI environment map: much faster in browsers without a GPU")
+    add("--verbose", action="store_true",
+        help="let viser print its banner and a line per browser connection")
+    # fmt: on
     p.set_defaults(func=run_view)
     return p
 
@@ -89,15 +63,9 @@ def build_viewer(args: argparse.Namespace, history=None):
     if history is None and args.policy is not None:
         history = load_policy_history(args.policy, args.trial)
     return Viewer(
-        task,
-        context=args.context,
-        history=history,
-        host=args.host,
-        port=args.port,
-        seed=args.seed,
-        environment=not args.no_envmap,
-        verbose=args.verbose,
-    )
+        task, context=args.context, history=history, host=args.host, port=args.port,
+        seed=args.seed, environment=not args.no_envmap, verbose=args.verbose,
+    )  # fmt: skip
 
 
 def run_view(args: argparse.Namespace) -> int:
@@ -126,18 +94,16 @@ def run_view(args: argparse.Namespace) -> int:
     # From here on the server runs: every way out stops it and frees the port, also a Ctrl-C
     # that lands before serve_forever (while layers are added or the line below is printed).
     try:
+        stage = "predictions"
         try:
             for spec in layers:
                 viewer.add_prediction_layer(**spec)
-        except ValueError as exc:
-            print(f"skillkit view: error: predictions: {exc}", file=sys.stderr)
-            return 2
-        if model is not None:
-            try:
+            stage = "gpreps"
+            if model is not None:
                 viewer.add_model_layers(model, getattr(args, "samples", 10), seed=args.seed)
-            except ValueError as exc:
-                print(f"skillkit view: error: gpreps: {exc}", file=sys.stderr)
-                return 2
+        except ValueError as exc:
+            print(f"skillkit view: error: {stage}: {exc}", file=sys.stderr)
+            return 2
         print(
             f"skillkit view: serving {viewer.task.name} at {viewer.url} (Ctrl-C to stop)",
             flush=True,

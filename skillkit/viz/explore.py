@@ -1,15 +1,12 @@
 """Things to change and watch in a notebook: sliders that redraw a figure made by library calls.
 
 :func:`explore` shows two outputs. The first is the figure for the default values, for pages
-without a live kernel: an exported HTML page shows it, while a front end with the widget
-manager hides it (its bundle also holds a widget view of no model, ``model_id: ""``, which
-ipywidgets renders as nothing and nbconvert skips). The second is the live part: an
-``ipywidgets.Output`` holding the figure, above the controls. A moved control redraws the
-figure into that ``Output`` by replacing its ``outputs`` from the kernel, which JupyterLab
-renders (it ignores a ``display_id`` update sent from a widget callback). Without
-ipywidgets, or when ``controls=False``, only the static figure is shown. A notebook saved
-from JupyterLab and reopened without a kernel shows the figure only where the widget state was
-saved with it (JupyterLab's "Save Widget State Automatically").
+without a live kernel: an exported HTML page shows it, a front end with the widget manager
+hides it (its bundle also holds a widget view of no model, which ipywidgets renders as nothing
+and nbconvert skips). The second is the live part: an ``ipywidgets.Output`` holding the figure,
+above the controls; a moved control redraws the figure by replacing the ``Output``'s
+``outputs`` from the kernel (JupyterLab ignores a ``display_id`` update sent from a widget
+callback). Without ipywidgets, or with ``controls=False``, only the static figure is shown.
 
 >>> from skillkit.viz.explore import Slider, explore
 >>> def draw(epsilon):                     # any function returning a figure
@@ -20,6 +17,7 @@ saved with it (JupyterLab's "Save Widget State Automatically").
 
 from __future__ import annotations
 
+import contextlib
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -34,20 +32,9 @@ _NO_WIDGET = {"model_id": "", "version_major": 2, "version_minor": 0}
 
 @dataclass(frozen=True)
 class Slider:
-    """A numeric control.
-
-    Attributes
-    ----------
-    low, high : float
-        Range, ``low < high`` (both > 0 when ``log``).
-    default : float
-        Initial value, within the range.
-    step : float or None
-        Step of a linear slider (default: 1/100 of the range; an int slider when ``low``,
-        ``high``, ``default`` and ``step`` are all ints).
-    log : bool
-        A logarithmic slider (ipywidgets ``FloatLogSlider``).
-    """
+    """A numeric control: range ``low < high`` (both > 0 when ``log``, a ``FloatLogSlider``),
+    ``default`` within it, ``step`` of a linear slider (default: 1/100 of the range; an int
+    slider when ``low``, ``high``, ``default`` and ``step`` are all ints)."""
 
     low: float
     high: float
@@ -63,9 +50,8 @@ class Slider:
         if not self.low < self.high:
             raise ValueError(f"low, high: expected low < high, got {self.low}, {self.high}")
         if not self.low <= self.default <= self.high:
-            raise ValueError(
-                f"default: expected a value in [{self.low}, {self.high}], got {self.default}"
-            )
+            msg = f"default: expected a value in [{self.low}, {self.high}], got {self.default}"
+            raise ValueError(msg)
         if self.log and self.low <= 0:
             raise ValueError(f"low: a log slider needs low > 0, got {self.low}")
         if self.step is not None and not self.step > 0:
@@ -81,28 +67,16 @@ class Slider:
         """The ipywidgets slider."""
         import ipywidgets as w
 
-        style = {"description_width": "initial"}
+        common = {"description": description, "continuous_update": False}
+        common["style"] = {"description_width": "initial"}
         if self.log:
+            lo, hi = math.log10(self.low), math.log10(self.high)
             return w.FloatLogSlider(
-                value=self.default,
-                base=10,
-                min=math.log10(self.low),
-                max=math.log10(self.high),
-                step=(math.log10(self.high) - math.log10(self.low)) / 100,
-                description=description,
-                continuous_update=False,
-                style=style,
+                value=self.default, base=10, min=lo, max=hi, step=(hi - lo) / 100, **common
             )
-        if self.integer:
-            return w.IntSlider(
-                value=self.default, min=self.low, max=self.high, step=self.step or 1,
-                description=description, continuous_update=False, style=style,
-            )  # fmt: skip
-        return w.FloatSlider(
-            value=self.default, min=self.low, max=self.high,
-            step=self.step or (self.high - self.low) / 100,
-            description=description, continuous_update=False, style=style,
-        )  # fmt: skip
+        kind, step = (w.IntSlider, self.step or 1) if self.integer else (w.FloatSlider, None)
+        step = step or self.step or (self.high - self.low) / 100
+        return kind(value=self.default, min=self.low, max=self.high, step=step, **common)
 
 
 @dataclass(frozen=True)
@@ -132,20 +106,9 @@ class Choice:
 
 @dataclass
 class Exploration:
-    """What :func:`explore` returns: the current values, the last figure, and :meth:`set`.
-
-    Attributes
-    ----------
-    draw : callable
-        ``draw(**values) -> figure``.
-    values : dict
-        The current value of each control.
-    figure : object
-        The last figure drawn.
-    controls : object or None
-        The ipywidgets box of the controls and the figure's ``Output`` (None without
-        ipywidgets).
-    """
+    """What :func:`explore` returns: ``draw(**values) -> figure``, the current ``values``, the
+    last ``figure`` drawn and the ipywidgets box of the ``controls`` and the figure's
+    ``Output`` (None without ipywidgets); :meth:`set` does what moving a control does."""
 
     draw: Callable[..., Any]
     values: dict[str, Any]
@@ -158,9 +121,8 @@ class Exploration:
         """Redraw with some values changed (what moving a control does); returns the figure."""
         unknown = set(values) - set(self.values)
         if unknown:
-            raise ValueError(
-                f"values: unknown control(s) {sorted(unknown)}; known {sorted(self.values)}"
-            )
+            msg = f"values: unknown control(s) {sorted(unknown)}; known {sorted(self.values)}"
+            raise ValueError(msg)
         self.values.update(values)
         self.figure = self.draw(**self.values)
         if self._output is not None:
@@ -170,8 +132,7 @@ class Exploration:
         return self.figure
 
     def _moved(self, name: str, value) -> None:
-        """A control's callback: redraw, or show in the figure's place why that failed (a
-        widget callback's exception would otherwise only reach the kernel's log)."""
+        """A control's callback: redraw, or show in the figure's place why that failed."""
         try:
             self.set(**{name: value})
         except Exception as err:
@@ -180,11 +141,7 @@ class Exploration:
 
 
 def _display_output(obj) -> dict:
-    """``obj`` as one nbformat ``display_data`` output (what ``display(obj)`` would send).
-
-    IPython's ``_ipython_display_`` hook (plotly figures have one) is switched off meanwhile:
-    it would publish the figure itself, as a separate output, instead of returning it.
-    """
+    """``obj`` as one ``display_data`` output, IPython's ``_ipython_display_`` hook off."""
     from IPython import get_ipython
 
     formatter = get_ipython().display_formatter
@@ -198,27 +155,13 @@ def _display_output(obj) -> dict:
 
 
 def explore(draw: Callable[..., Any], /, *, controls: bool = True, **specs) -> Exploration:
-    """Show ``draw(**defaults)`` and controls that redraw it.
+    """Show ``draw(**defaults)`` and controls that redraw it (``controls=False``: the static
+    figure only).
 
-    Parameters
-    ----------
-    draw : callable
-        ``draw(**values)`` returning something Jupyter displays (a plotly figure, a
-        :class:`~skillkit.viz.plots.NotebookFigure`, a pandas table). It should call the
-        library; the notebook holds no logic.
-    controls : bool
-        Show the ipywidgets controls (default). False: the static figure only.
-    **specs : Slider or Choice
-        One control per keyword argument of ``draw``.
-
-    Returns
-    -------
-    Exploration
-
-    Raises
-    ------
-    ValueError
-        When a spec is not a :class:`Slider` or :class:`Choice`, or none is given.
+    ``draw(**values)`` returns something Jupyter displays (a plotly figure, a
+    :class:`~skillkit.viz.plots.NotebookFigure`, a table) by calling the library; ``specs`` are
+    one :class:`Slider` or :class:`Choice` per keyword argument of ``draw`` (``ValueError``
+    when one is not, or none is given).
     """
     if not callable(draw):
         raise ValueError(f"draw: expected a callable, got {type(draw).__name__}")
@@ -238,10 +181,8 @@ def explore(draw: Callable[..., Any], /, *, controls: bool = True, **specs) -> E
         return shown
     w = None
     if controls:
-        try:
+        with contextlib.suppress(ImportError):
             import ipywidgets as w
-        except ImportError:
-            pass
     if w is None:
         shown._handle = display(shown.figure, display_id=True)
         if controls:

@@ -1,12 +1,11 @@
 """Figures from live objects, without building series by hand: a learning run
-(:func:`plot_learning`), a 1-D GP fit (:func:`plot_gp_fit`), named curves
-(:func:`line_figure`), model-predicted against real trajectories (:func:`prediction_figure`),
-a reward model's sampled paths over the real ones (:func:`model_paths_figure`), and those of a
-stored GPREPS run's last model (:func:`gpreps_run_paths_figure`).
+(:func:`plot_learning`), a 1-D GP fit (:func:`plot_gp_fit`), named curves (:func:`line_figure`),
+model-predicted against real trajectories (:func:`prediction_figure`), a reward model's sampled
+paths over the real ones (:func:`model_paths_figure`, :func:`gpreps_run_paths_figure`).
 
-Each builds :class:`~skillkit.series.Series` and draws them with the same code as the
-experiment figures (:mod:`skillkit.viz.plots`), returning a plotly ``Figure`` or a
-:class:`~skillkit.viz.plots.NotebookFigure` (``backend="matplotlib"``).
+Each builds :class:`~skillkit.series.Series` and draws them as the experiment figures are drawn
+(:func:`skillkit.viz.plots.draw_figure`): a plotly ``Figure``, or a
+:class:`~skillkit.viz.plots.NotebookFigure` with ``backend="matplotlib"``.
 """
 
 from __future__ import annotations
@@ -19,56 +18,40 @@ import numpy as np
 from skillkit.viz.plots import BACKENDS, draw_figure
 
 __all__ = [
-    "gpreps_run_paths_figure",
-    "line_figure",
-    "model_paths_figure",
-    "plot_gp_fit",
-    "plot_learning",
-    "prediction_figure",
-]
+    "gpreps_run_paths_figure", "line_figure", "model_paths_figure", "plot_gp_fit",
+    "plot_learning", "prediction_figure",
+]  # fmt: skip
 
-
-# ------------------------------------------------------------------------ learning curves
 _LEARN_KEYS = ("rollouts", "mean_reward", "explore_rollouts", "explore_reward")
+#: Trajectory signals drawn as the real paths of :func:`model_paths_figure` (world x, y[, z]).
+REAL_PATH_SIGNALS: tuple[str, ...] = ("control_puck", "target_puck", "ball")
+
+
+def _draw(title: str, series: list, backend: str):
+    return draw_figure({"title": title, "series": [s.to_dict() for s in series]}, backend)
+
+
+def _check_backend(backend: str) -> None:
+    if backend not in BACKENDS:
+        raise ValueError(f"backend: expected one of {BACKENDS}, got {backend!r}")
 
 
 def plot_learning(
-    runs,
-    *,
-    label: str = "policy mean",
-    backend: str = "plotly",
-    explore: bool = True,
-    title: str = "learning curve",
-    ylabel: str = "reward",
-):
-    """Learning curves of :func:`skillkit.search.loop.learn` results, without building dicts.
+    runs, *, label: str = "policy mean", backend: str = "plotly", explore: bool = True,
+    title: str = "learning curve", ylabel: str = "reward",
+):  # fmt: skip
+    """Learning curves of :func:`skillkit.search.loop.learn` results: the reward of the policy
+    mean against the number of rollouts so far, one panel.
 
-    Parameters
-    ----------
-    runs : dict, sequence of dicts, or mapping of str to either
-        One ``learn`` result; several runs of the same setting (drawn as their mean with a
-        mean ± std band over runs; all runs must share the rollout grid); or a mapping
-        ``{label: result or runs}`` to compare settings in one figure.
-    label : str
-        Legend name when ``runs`` is not a mapping.
-    backend : {"plotly", "matplotlib"}
-        Which figure object to return.
-    explore : bool
-        Also draw the average reward of the exploratory rollouts of each batch
-        (``explore_reward`` at ``explore_rollouts``), as markers.
-    title, ylabel : str
-        Figure title and y-axis label.
-
-    Returns
-    -------
-    plotly.graph_objects.Figure or NotebookFigure
-        One panel: reward of the policy mean (evaluated on the evaluation contexts) against
-        the number of rollouts so far.
+    ``runs`` is one ``learn`` result; runs of one setting (drawn as their mean with a mean ± std
+    band; they must share the rollout grid); or ``{label: result or runs}`` to compare settings
+    (``label`` names a single setting). ``explore`` also draws the exploratory rollouts'
+    average reward per batch (``explore_reward`` at ``explore_rollouts``) as markers.
+    ``backend`` is "plotly" (a ``Figure``) or "matplotlib" (a ``NotebookFigure``).
     """
     from skillkit.series import Series, trial_band
 
-    if backend not in BACKENDS:
-        raise ValueError(f"backend: expected one of {BACKENDS}, got {backend!r}")
+    _check_backend(backend)
     if isinstance(runs, Mapping) and "rollouts" not in runs:
         if not runs:
             raise ValueError("runs: empty mapping")
@@ -100,15 +83,8 @@ def plot_learning(
         if explore and ex.size:
             groups_of.append(name)
             ey = np.mean(np.stack([c["explore_reward"] for c in curves]), axis=0)
-            series.append(
-                Series(
-                    f"{name}: exploration batches" + (" (mean over runs)" if n > 1 else ""),
-                    ex.tolist(),
-                    ey.tolist(),
-                    kind="markers",
-                    **common,
-                )
-            )
+            what = f"{name}: exploration batches" + (" (mean over runs)" if n > 1 else "")
+            series.append(Series(what, ex.tolist(), ey.tolist(), kind="markers", **common))
     # a run's exploration markers take the colour of its curve
     dicts = [{**s.to_dict(), "_group": g} for s, g in zip(series, groups_of, strict=True)]
     return draw_figure({"title": title, "series": dicts}, backend)
@@ -123,60 +99,31 @@ def _check_learn(r, name: str) -> dict[str, np.ndarray]:
     out = {k: np.asarray(r[k], dtype=float).ravel() for k in _LEARN_KEYS}
     for a, b in (("rollouts", "mean_reward"), ("explore_rollouts", "explore_reward")):
         if out[a].shape != out[b].shape:
-            raise ValueError(
-                f"{name}: {a} and {b} differ in length ({out[a].size} vs {out[b].size})"
-            )
+            msg = f"{name}: {a} and {b} differ in length ({out[a].size} vs {out[b].size})"
+            raise ValueError(msg)
     if out["rollouts"].size == 0:
         raise ValueError(f"{name}: empty learning curve")
     return out
 
 
-# ----------------------------------------------------------------------------- GP fits
 def plot_gp_fit(
-    model,
-    x_train,
-    y_train,
-    x_test,
-    *,
-    backend: str = "plotly",
-    include_noise: bool = True,
-    f_true=None,
-    label: str = "GP",
-    title: str = "GP regression",
-    xlabel: str = "x",
+    model, x_train, y_train, x_test, *, backend: str = "plotly", include_noise: bool = True,
+    f_true=None, label: str = "GP", title: str = "GP regression", xlabel: str = "x",
     ylabel: str = "y",
-):
-    """A fitted 1-D GP regression: predictive mean, 95% band and the training data.
+):  # fmt: skip
+    """A fitted 1-D GP regression: predictive mean, 95% band (mean ± 1.96 σ) and the data.
 
-    Parameters
-    ----------
-    model : fitted GP regression
-        Anything with ``predict(X, include_noise) -> (mean, var)`` as
-        :meth:`skillkit.models.gp.ExactGP.predict` (Eqs 2.26–2.27), fitted on 1-D inputs and
-        one output.
-    x_train : array_like, shape (N,) or (N, 1)
-    y_train : array_like, shape (N,)
-        The data the model was fitted on (drawn as points).
-    x_test : array_like, shape (n,) or (n, 1)
-        Where to draw mean and band (sorted for drawing), n ≥ 2.
-    backend : {"plotly", "matplotlib"}
-    include_noise : bool
-        Band of y = f(x) + ε (True, default) or of the latent f (False).
-    f_true : callable, optional
-        The true function, drawn at ``x_test`` for comparison.
-    label, title, xlabel, ylabel : str
-        Legend name of the mean, figure title, axis labels (give units).
-
-    Returns
-    -------
-    plotly.graph_objects.Figure or NotebookFigure
-        Traces: the mean with its band (mean ± 1.96 σ), the data points, and ``f_true``.
+    ``model`` has ``predict(X, include_noise) -> (mean, var)`` as
+    :meth:`skillkit.models.gp.ExactGP.predict` (Eqs 2.26–2.27), fitted on 1-D inputs
+    ``x_train`` (N,) or (N, 1) and one output ``y_train`` (N,), drawn as points. Mean and band
+    are drawn at ``x_test`` (n ≥ 2, sorted); the band is of y = f(x) + ε
+    (``include_noise``) or of the latent f. ``f_true``, the true function, is drawn for
+    comparison; ``label`` names the mean.
     """
     from skillkit._validation import check_array
     from skillkit.series import Series
 
-    if backend not in BACKENDS:
-        raise ValueError(f"backend: expected one of {BACKENDS}, got {backend!r}")
+    _check_backend(backend)
     if not callable(getattr(model, "predict", None)):
         raise ValueError(
             "model: expected a fitted GP with predict(X, include_noise), "
@@ -197,28 +144,23 @@ def plot_gp_fit(
     if mean.ndim == 2 and mean.shape[1] == 1:
         mean, var = mean[:, 0], var[:, 0]
     if mean.shape != xte.shape:
-        raise ValueError(
-            f"model: expected one output (predictions of shape ({xte.size},)), got {mean.shape}"
-        )
+        msg = f"model: expected one output (predictions of shape ({xte.size},)), got {mean.shape}"
+        raise ValueError(msg)
     half = 1.96 * np.sqrt(np.maximum(var, 0.0))
     common = {"panel": "", "xlabel": xlabel, "ylabel": ylabel}
+    band = f"95% band of {'y' if include_noise else 'f'} (mean ± 1.96 σ)"
+    lower, upper = (mean - half).tolist(), (mean + half).tolist()
     series = [
         Series(
-            f"{label} mean",
-            xte.tolist(),
-            mean.tolist(),
-            lower=(mean - half).tolist(),
-            upper=(mean + half).tolist(),
-            band=f"95% band of {'y' if include_noise else 'f'} (mean ± 1.96 σ)",
+            f"{label} mean", xte.tolist(), mean.tolist(), lower=lower, upper=upper, band=band,
             **common,
         ),
         Series("data", xtr.tolist(), ytr.tolist(), kind="markers", **common),
-    ]
+    ]  # fmt: skip
     if f_true is not None:
-        series.append(
-            Series("true function", xte.tolist(), np.asarray(f_true(xte), float).tolist(), **common)
-        )
-    return draw_figure({"title": title, "series": [s.to_dict() for s in series]}, backend)
+        f = np.asarray(f_true(xte), float).tolist()
+        series.append(Series("true function", xte.tolist(), f, **common))
+    return _draw(title, series, backend)
 
 
 def _column(x: np.ndarray, name: str) -> np.ndarray:
@@ -231,31 +173,13 @@ def _column(x: np.ndarray, name: str) -> np.ndarray:
     return x
 
 
-# ------------------------------------------------------------------------ named curves
 def line_figure(
-    curves: Mapping,
-    *,
-    title: str = "",
-    xlabel: str = "",
-    ylabel: str = "",
-    log_y: bool = False,
+    curves: Mapping, *, title: str = "", xlabel: str = "", ylabel: str = "", log_y: bool = False,
     backend: str = "plotly",
-):
-    """One panel of named curves, without building series by hand.
-
-    Parameters
-    ----------
-    curves : mapping of str to (x, y)
-        Legend label → a pair of 1-D arrays of equal length.
-    title, xlabel, ylabel : str
-    log_y : bool
-        Logarithmic y axis.
-    backend : {"plotly", "matplotlib"}
-
-    Returns
-    -------
-    plotly.graph_objects.Figure or NotebookFigure
-    """
+):  # fmt: skip
+    """One panel of named curves: ``curves`` maps a legend label to a pair (x, y) of 1-D arrays
+    of equal length; ``log_y`` draws a logarithmic y axis. Returns a plotly ``Figure`` or a
+    :class:`~skillkit.viz.plots.NotebookFigure` (``backend="matplotlib"``)."""
     from skillkit._validation import check_array
     from skillkit.series import Series
 
@@ -270,41 +194,22 @@ def line_figure(
         series.append(
             Series(str(label), x.tolist(), y.tolist(), xlabel=xlabel, ylabel=ylabel, log_y=log_y)
         )
-    return draw_figure({"title": title, "series": [s.to_dict() for s in series]}, backend)
+    return _draw(title, series, backend)
 
 
 def prediction_figure(
-    predicted,
-    real,
-    dim: int = 0,
-    *,
-    label: str = "",
-    dt: float | None = None,
+    predicted, real, dim: int = 0, *, label: str = "", dt: float | None = None,
     backend: str = "plotly",
-):
-    """Model-predicted against real trajectories of one state dimension, a panel per pair.
+):  # fmt: skip
+    """Model-predicted against real trajectories of state dimension ``dim``, a panel per pair:
+    the predicted mean with a 5th–95th percentile band over the L samples, and the real one.
 
-    Parameters
-    ----------
-    predicted : ModelRollouts or array_like, shape (B, L, T + 1, n_x) or (B, T + 1, n_x)
-        L predicted trajectories of each of B (ω, s) pairs
-        (:func:`skillkit.search.model_rollouts.predict_trajectories`), or one deterministic
-        prediction per pair (e.g. an embedding's mean trajectory), drawn without a band.
-    real : sequence of Trajectory or array_like, shape (B, T_real, n_x)
-        The simulator's trajectories of the same pairs.
-    dim : int
-        State dimension to draw.
-    label : str
-        The y-axis label (e.g. ``"joint 1 angle [rad]"``).
-    dt : float, optional
-        Time step; the x axis is the step index when omitted.
-    backend : {"plotly", "matplotlib"}
-
-    Returns
-    -------
-    plotly.graph_objects.Figure or NotebookFigure
-        Per pair: the predicted mean with a 5th–95th percentile band over the L samples, and
-        the real trajectory.
+    ``predicted`` is a ``ModelRollouts`` or an array (B, L, T + 1, n_x) of L predicted
+    trajectories for each of B (ω, s) pairs
+    (:func:`skillkit.search.model_rollouts.predict_trajectories`), or (B, T + 1, n_x) of one
+    deterministic prediction per pair (no band); ``real`` the simulator's trajectories
+    (Trajectory or array (B, T_real, n_x)). ``label`` is the y-axis label; ``dt`` the time
+    step (default: the x axis is the step index).
     """
     from skillkit.series import Series
 
@@ -312,15 +217,13 @@ def prediction_figure(
     if states.ndim == 3:  # one deterministic prediction per pair (e.g. an embedding's means)
         states = states[:, None]
     if states.ndim != 4:
-        raise ValueError(
-            f"predicted: expected shape (B, L, T + 1, n_x) or (B, T + 1, n_x), got {states.shape}"
-        )
+        msg = f"predicted: expected shape (B, L, T + 1, n_x) or (B, T + 1, n_x), got {states.shape}"
+        raise ValueError(msg)
     B, L, T1, n_x = states.shape
     reals = [np.asarray(getattr(r, "states", r), dtype=float) for r in real]
     if len(reals) != B:
-        raise ValueError(
-            f"real: expected {B} trajectories (one per predicted pair), got {len(reals)}"
-        )
+        msg = f"real: expected {B} trajectories (one per predicted pair), got {len(reals)}"
+        raise ValueError(msg)
     if isinstance(dim, bool) or not isinstance(dim, (int, np.integer)) or not 0 <= dim < n_x:
         raise ValueError(f"dim: expected an integer in [0, {n_x}), got {dim!r}")
     step = 1.0 if dt is None else float(dt)
@@ -333,64 +236,26 @@ def prediction_figure(
         band = {}
         if L > 1:
             lo, hi = np.percentile(y, [5, 95], axis=0)
-            band = {
-                "lower": lo.tolist(),
-                "upper": hi.tolist(),
-                "band": f"5th–95th percentile of {L} predicted trajectories",
-            }
+            what = f"5th–95th percentile of {L} predicted trajectories"
+            band = {"lower": lo.tolist(), "upper": hi.tolist(), "band": what}
         series.append(Series("predicted mean", x, y.mean(axis=0).tolist(), **band, **common))
-        r = reals[b]
-        n = min(len(r), T1)
-        series.append(Series("real", x[:n], r[:n, dim].tolist(), **common))
-    return draw_figure(
-        {"title": "predicted vs real", "series": [s.to_dict() for s in series]}, backend
-    )
-
-
-# ------------------------------------------------------------------------ model paths
-#: Trajectory signals drawn as the real paths of :func:`model_paths_figure` (world x, y[, z]).
-REAL_PATH_SIGNALS: tuple[str, ...] = ("control_puck", "target_puck", "ball")
+        n = min(len(reals[b]), T1)
+        series.append(Series("real", x[:n], reals[b][:n, dim].tolist(), **common))
+    return _draw("predicted vs real", series, backend)
 
 
 def model_paths_figure(
-    model,
-    context,
-    omega,
-    real=None,
-    *,
-    n_samples: int = 10,
-    rng=None,
-    axes: tuple[int, int] = (0, 1),
-    title: str = "",
-    backend: str = "plotly",
-):
-    """A reward model's sampled paths for one (s, ω) over the simulator's, seen from above.
+    model, context, omega, real=None, *, n_samples: int = 10, rng=None,
+    axes: tuple[int, int] = (0, 1), title: str = "", backend: str = "plotly",
+):  # fmt: skip
+    """A reward model's sampled paths for one (s, ω) over the simulator's, seen from above: what
+    ``skillkit view TASK --gpreps RUN`` overlays in 3-D, as a static figure.
 
-    What ``skillkit view TASK --gpreps RUN`` overlays in 3-D, as a static figure: one legend
-    entry per model layer (e.g. the launch, sliding and contact models of hockey, the five
-    table-tennis models), each with its L sampled paths, and the real paths in black.
-
-    Parameters
-    ----------
-    model : object
-        A reward model with ``prediction_layers`` (see :mod:`skillkit.viz.model_layers`).
-    context : array_like, shape (context_dim,)
-    omega : array_like, shape (dim,)
-    real : Trajectory or mapping of str to ndarray, optional
-        The simulator's rollout of the same pair: its signals in :data:`REAL_PATH_SIGNALS`
-        that are present are drawn, or named world paths of shape (T, 2) or (T, 3).
-    n_samples : int
-        L, the paths each layer samples.
-    rng : Generator, int or None
-        Passed on to the model.
-    axes : pair of int
-        The world axes drawn, (0, 1) for the top view x–y, (0, 2) for the side view x–z.
-    title : str
-    backend : {"plotly", "matplotlib"}
-
-    Returns
-    -------
-    plotly.graph_objects.Figure or NotebookFigure
+    ``model`` has ``prediction_layers`` (:mod:`skillkit.viz.model_layers`); each layer is one
+    legend entry with its ``n_samples`` paths (``rng`` passed on). ``real`` is the simulator's
+    rollout of the pair (its signals in :data:`REAL_PATH_SIGNALS` are drawn) or a mapping of
+    named world paths (T, 2) or (T, 3). ``axes`` are the world axes drawn: (0, 1) the top
+    view x–y, (0, 2) the side view x–z.
     """
     from skillkit.series import Series
     from skillkit.viz.model_layers import model_layers
@@ -409,14 +274,8 @@ def model_paths_figure(
         paths = layer["trajectories"][..., list(axes)]  # (L, T, 2)
         gaps = np.full((paths.shape[0], 1, 2), np.nan)
         joined = np.concatenate([paths, gaps], axis=1).reshape(-1, 2)
-        series.append(
-            Series(
-                f"{layer['label']} ({paths.shape[0]} sampled)",
-                joined[:, 0].tolist(),
-                joined[:, 1].tolist(),
-                **panel,
-            )  # fmt: skip
-        )
+        what = f"{layer['label']} ({paths.shape[0]} sampled)"
+        series.append(Series(what, joined[:, 0].tolist(), joined[:, 1].tolist(), **panel))
     if real is not None:
         signals = getattr(real, "signals", None)
         if signals is not None:
@@ -433,62 +292,25 @@ def model_paths_figure(
                     f"real[{key!r}]: expected a path of shape (T, 2) or (T, 3) holding axes "
                     f"{tuple(axes)}, got shape {p.shape}"
                 )
-            series.append(
-                Series(
-                    f"real: {key.replace('_', ' ')}",
-                    p[:, axes[0]].tolist(),
-                    p[:, axes[1]].tolist(),
-                    **panel,
-                )  # fmt: skip
-            )
-    result = {"title": title or "predicted paths over the real ones", "series": []}
-    result["series"] = [s.to_dict() for s in series]
-    return draw_figure(result, backend)
+            what = f"real: {key.replace('_', ' ')}"
+            series.append(Series(what, p[:, axes[0]].tolist(), p[:, axes[1]].tolist(), **panel))
+    return _draw(title or "predicted paths over the real ones", series, backend)
 
 
 def gpreps_run_paths_figure(
-    run_dir,
-    trial: int = 0,
-    *,
-    update: int = -1,
-    context=None,
-    n_samples: int = 10,
-    seed: int = 0,
-    axes: tuple[int, int] = (0, 1),
-    backend: str = "plotly",
-):
-    """The stored GPREPS run's last reward model against the simulator, as a static figure.
+    run_dir, trial: int = 0, *, update: int = -1, context=None, n_samples: int = 10,
+    seed: int = 0, axes: tuple[int, int] = (0, 1), backend: str = "plotly",
+):  # fmt: skip
+    """A stored GPREPS run's last reward model against the simulator (:func:`model_paths_figure`).
 
-    The policy mean of update ``update`` at ``context`` is rolled out in the model's task and
-    drawn with the model's sampled paths over it
-    (:func:`model_paths_figure`): the picture
-    ``skillkit view TASK --gpreps RUN_DIR --trial K`` shows in 3-D.
+    The policy mean of update ``update`` (Python indexing; -1 the final one) of trial
+    ``trial`` at ``context`` (default: one sampled with ``seed``, which also seeds the real
+    rollout and the model's samples) is rolled out in the model's task and drawn with the
+    model's ``n_samples`` sampled paths per layer over it, on world ``axes``.
 
     .. warning::
        This unpickles the reward model (:func:`~skillkit.viz.model_layers.load_gpreps_run`):
        load only runs you trust.
-
-    Parameters
-    ----------
-    run_dir : str or Path
-        A GPREPS run folder (:func:`~skillkit.viz.model_layers.load_gpreps_run`).
-    trial : int
-        Which trial.
-    update : int
-        Which policy of the history (Python indexing; -1 the final one).
-    context : array_like, shape (context_dim,), optional
-        The context; one sampled from the task with ``seed`` when omitted.
-    n_samples : int
-        L, the paths each model layer samples.
-    seed : int
-        Seeds the context, the real rollout and the model's samples.
-    axes : pair of int
-        World axes drawn ((0, 1): top view).
-    backend : {"plotly", "matplotlib"}
-
-    Returns
-    -------
-    plotly.graph_objects.Figure or NotebookFigure
     """
     from skillkit.viz.model_layers import load_gpreps_run
 

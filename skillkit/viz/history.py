@@ -1,18 +1,15 @@
 """Policy histories: the upper-level policies of a learning run, for the viewer's playback.
 
-:class:`PolicyHistory` holds π_0 (initial) … π_K (after the K-th update) of a run;
-:class:`PolicyRecorder` collects them as the ``callback`` of
-:func:`skillkit.search.loop.learn`; :func:`save_policy_history` and
-:func:`load_policy_history` write and read the file format below, which
-``skillkit view TASK --policy FILE`` plays back (:class:`skillkit.viz.viewer.Viewer`).
+:class:`PolicyHistory` holds π_0 (initial) … π_K (after the K-th update); :class:`PolicyRecorder`
+collects them as the ``callback`` of :func:`skillkit.search.loop.learn`;
+:func:`save_policy_history` and :func:`load_policy_history` write and read the file that
+``skillkit view TASK --policy FILE`` plays back.
 
 File format
 -----------
-A NumPy ``.npz`` archive (``np.savez_compressed``; read with ``allow_pickle=False``, so every
-entry is a plain array). One policy is a history of length 1. K is the number of updates,
-d = dim ω, F the number of context features (F = context_dim for ``"linear"`` features,
-see :mod:`skillkit.policies.features`). Each policy is π_k(ω|s) = N(a_k + A_k φ(s), Σ_k)
-(Eq. 3.13):
+A NumPy ``.npz`` archive (``np.savez_compressed``; read with ``allow_pickle=False``). K is the
+number of updates, d = dim ω, F the number of context features; each policy is
+π_k(ω|s) = N(a_k + A_k φ(s), Σ_k) (Eq. 3.13):
 
 ==========================  ==============  =======  ==========================================
 key                         shape           dtype    meaning
@@ -28,15 +25,12 @@ key                         shape           dtype    meaning
 ``mean_reward``             (K+1,)          float64  optional: reward of each policy's mean
 ==========================  ==============  =======  ==========================================
 
-**Versioning.** ``format`` names the version. A reader accepts a file without ``format`` (the
-``policy_*`` arrays alone) and refuses any other version with a message naming both. A change
-an existing reader would misread gets a new version string; new optional keys do not.
-
-**Run folders.** ``skillkit reproduce`` stores the same ``policy_*`` arrays (and optionally
-``rollouts``/``mean_reward``) per trial in the run folder's ``trials.npz``, prefixed
-``trial<i>__`` (``trial0__policy_mean`` …), when the experiment's ``run_trial`` returned
-:meth:`PolicyRecorder.arrays` (or :func:`skillkit.search.loop.policy_history_arrays`) in its
-result; :func:`load_policy_history` reads a trial of such a folder directly.
+``format`` names the version; a file without it (the ``policy_*`` arrays alone) is accepted,
+any other version refused with a message naming both. A change an existing reader would misread
+gets a new version string; new optional keys do not. ``skillkit reproduce`` stores the same
+arrays per trial in a run folder's ``trials.npz``, prefixed ``trial<i>__``, when the
+experiment's ``run_trial`` returned :meth:`PolicyRecorder.arrays`; :func:`load_policy_history`
+reads such a folder directly.
 """
 
 from __future__ import annotations
@@ -52,12 +46,9 @@ from skillkit.policies.gaussian import LinearGaussianPolicy
 from skillkit.viz._npz import read_npz
 
 __all__ = [
-    "HISTORY_FORMAT",
-    "PolicyHistory",
-    "PolicyRecorder",
-    "load_policy_history",
+    "HISTORY_FORMAT", "PolicyHistory", "PolicyRecorder", "load_policy_history",
     "save_policy_history",
-]
+]  # fmt: skip
 
 HISTORY_FORMAT = "skillkit-policy-history-v1"
 """The ``format`` entry of a policy-history file (see the module docstring)."""
@@ -65,25 +56,10 @@ HISTORY_FORMAT = "skillkit-policy-history-v1"
 
 @dataclass(frozen=True)
 class PolicyHistory:
-    """The upper-level policies of a learning run, one per update (k = 0 … K).
-
-    Attributes
-    ----------
-    policies : tuple of LinearGaussianPolicy
-        π_0 (initial) … π_K, all with the same ``dim`` and ``context_dim``.
-    rollouts : ndarray, shape (K+1,), optional
-        Rollouts used before each policy.
-    mean_reward : ndarray, shape (K+1,), optional
-        Reward of each policy's mean, as the learning loop evaluated it.
-    task : str
-        Name of the task it was learned on ("" if unknown).
-
-    Raises
-    ------
-    ValueError
-        No policies, a policy that is not a :class:`LinearGaussianPolicy`, mismatched
-        dimensions, or ``rollouts``/``mean_reward`` of the wrong shape.
-    """
+    """The upper-level policies π_0 … π_K of a learning run (same ``dim`` and ``context_dim``),
+    with optional ``rollouts`` used before each and ``mean_reward`` of each policy's mean
+    (K+1,), and the ``task`` name ("" if unknown). ``ValueError``: no policies, another policy
+    class, mismatched dimensions or shapes."""
 
     policies: tuple
     rollouts: np.ndarray | None = None
@@ -95,9 +71,8 @@ class PolicyHistory:
             raise ValueError("policies: expected at least one policy")
         for i, p in enumerate(self.policies):
             if not isinstance(p, LinearGaussianPolicy):
-                raise ValueError(
-                    f"policies: entry {i} is a {type(p).__name__}, not a LinearGaussianPolicy"
-                )
+                msg = f"policies: entry {i} is a {type(p).__name__}, not a LinearGaussianPolicy"
+                raise ValueError(msg)
         first = self.policies[0]
         if any((p.dim, p.context_dim) != (first.dim, first.context_dim) for p in self.policies):
             raise ValueError("policies: expected the same dim and context_dim for every update")
@@ -133,17 +108,11 @@ def _policy_arrays(policies: Sequence[LinearGaussianPolicy]) -> dict[str, np.nda
 
 
 class PolicyRecorder:
-    """Records the policy after every update of a learning run.
+    """Records ``algorithm.policy`` after every update of a learning run into :attr:`policies`.
 
-    Pass it as ``callback`` to :func:`skillkit.search.loop.learn` (it is called with
-    ``(k, algorithm)`` for k = 0 … K) and save with :meth:`save`, or return :meth:`arrays`
-    from an experiment's ``run_trial`` so ``skillkit reproduce`` stores them in
-    ``trials.npz``.
-
-    Attributes
-    ----------
-    policies : list of LinearGaussianPolicy
-        ``algorithm.policy`` at each call, in order.
+    Pass it as ``callback`` to :func:`skillkit.search.loop.learn` (called with
+    ``(k, algorithm)`` for k = 0 … K) and :meth:`save`, or return :meth:`arrays` from an
+    experiment's ``run_trial`` so ``skillkit reproduce`` stores them in ``trials.npz``.
     """
 
     def __init__(self) -> None:
@@ -163,45 +132,23 @@ class PolicyRecorder:
 
     def save(self, path, *, result: Mapping | None = None, task: str = "") -> Path:
         """Write the history; ``result`` (the dict ``learn`` returns) adds rollouts and rewards."""
-        result = result or {}
+        r = result or {}
         return save_policy_history(
-            path,
-            self.policies,
-            rollouts=result.get("rollouts"),
-            mean_reward=result.get("mean_reward"),
+            path, self.policies, rollouts=r.get("rollouts"), mean_reward=r.get("mean_reward"),
             task=task,
-        )
+        )  # fmt: skip
 
 
 def save_policy_history(
-    path,
-    policies: Sequence[LinearGaussianPolicy],
-    *,
-    rollouts=None,
-    mean_reward=None,
+    path, policies: Sequence[LinearGaussianPolicy], *, rollouts=None, mean_reward=None,
     task: str = "",
-) -> Path:
-    """Write policies π_0 … π_K to a policy-history ``.npz`` (format in the module docstring).
-
-    Parameters
-    ----------
-    path : str or Path
-        Output file (``.npz`` is appended if missing).
-    policies : sequence of LinearGaussianPolicy
-        One per update, same dimensions.
-    rollouts, mean_reward : array_like, shape (K+1,), optional
-    task : str
-        Task name.
-
-    Returns
-    -------
-    Path
-        The file written.
+) -> Path:  # fmt: skip
+    """Write policies π_0 … π_K (one per update, same dimensions) to a policy-history
+    ``.npz`` (``.npz`` appended if missing) with optional ``rollouts``, ``mean_reward`` (K+1,)
+    and the task name; returns the file written.
     """
-    from skillkit.search.loop import policy_history_arrays
-
     history = PolicyHistory(tuple(policies), rollouts, mean_reward, str(task))  # validates
-    arrays = policy_history_arrays(history.policies)
+    arrays = _policy_arrays(history.policies)
     arrays.update(format=np.asarray(HISTORY_FORMAT), task=np.asarray(history.task))
     if history.rollouts is not None:
         arrays["rollouts"] = history.rollouts
@@ -230,11 +177,8 @@ def _history_from(arrays: Mapping[str, np.ndarray], prefix: str, source: str) ->
 
     mean, cov, gain = get("policy_mean"), get("policy_cov"), get("policy_gain")
     context_dim, features = get("policy_context_dim"), get("policy_features")
-    if (
-        mean.ndim != 2
-        or cov.ndim != 3
-        or gain.ndim != 3
-        or not (mean.shape[0] == cov.shape[0] == gain.shape[0])
+    if (mean.ndim, cov.ndim, gain.ndim) != (2, 3, 3) or not (
+        mean.shape[0] == cov.shape[0] == gain.shape[0]
     ):
         raise ValueError(
             f"policy: {source} has inconsistent shapes policy_mean {mean.shape}, "
@@ -257,19 +201,8 @@ def _history_from(arrays: Mapping[str, np.ndarray], prefix: str, source: str) ->
 
 
 def load_policy_history(path, trial: int = 0) -> PolicyHistory:
-    """Read a policy history: a ``.npz`` file or a ``skillkit reproduce`` run folder.
-
-    Parameters
-    ----------
-    path : str or Path
-        A file written by :func:`save_policy_history`, or a run folder whose ``trials.npz``
-        holds ``trial<i>__policy_*`` arrays.
-    trial : int
-        Which trial of a run folder.
-
-    Returns
-    -------
-    PolicyHistory
+    """Read a policy history: a file written by :func:`save_policy_history`, or trial ``trial``
+    of a ``skillkit reproduce`` run folder whose ``trials.npz`` holds ``trial<i>__policy_*``.
 
     Raises
     ------

@@ -1,18 +1,15 @@
 """GPREPS reward models in the viewer: their files, and their predictions as prediction layers.
 
-A GPREPS reward model (e.g. the hockey and table-tennis models of :mod:`skillkit.search`)
-chains several learned models. For the viewer it implements one method, this module's
-contract::
+A GPREPS reward model (the hockey and table-tennis models of :mod:`skillkit.search`) chains
+several learned models. For the viewer it implements one method, this module's contract::
 
     def prediction_layers(self, context, omega, n_samples: int, rng=None) -> dict[str, dict]:
         '''For one (s, ω) pair: {layer_name: {"trajectories": ndarray (L, T, 3) world points,
         "color": (r, g, b) 0–255, "times": ndarray (T,) optional}}; one layer per learned
-        model; the names are descriptive and serve as the legend.'''
+        model; the descriptive names serve as the legend.'''
 
 :func:`model_layers` turns the answer into keyword dicts for
-:meth:`skillkit.viz.viewer.Viewer.add_prediction_layer`; :func:`save_reward_model` and
-:func:`load_reward_model` write and read a fitted model (one per trial of a GPREPS run folder,
-at :func:`reward_model_path`, for ``skillkit view TASK --gpreps RUN_DIR --trial K``).
+:meth:`skillkit.viz.viewer.Viewer.add_prediction_layer`.
 
 File format
 -----------
@@ -26,8 +23,8 @@ is refused before any of its code runs. A change an existing reader would misrea
 version string; new header keys do not.
 
 .. warning::
-   Unpickling runs code named by the file. Load only reward-model files you trust (ones you
-   or your own runs wrote); :func:`load_reward_model` checks the header, not the pickle.
+   Unpickling runs code named by the file. Load only reward-model files you trust;
+   :func:`load_reward_model` checks the header, not the pickle.
 """
 
 from __future__ import annotations
@@ -45,16 +42,10 @@ from skillkit._validation import check_array, check_count
 from skillkit.viz.scenes import check_rgb, node_name
 
 __all__ = [
-    "REWARD_MODEL_FORMAT",
-    "check_model_task",
-    "dumps_reward_model",
-    "load_gpreps_run",
-    "load_reward_model",
-    "loads_reward_model",
-    "model_layers",
-    "reward_model_path",
+    "REWARD_MODEL_FORMAT", "check_model_task", "dumps_reward_model", "load_gpreps_run",
+    "load_reward_model", "loads_reward_model", "model_layers", "reward_model_path",
     "save_reward_model",
-]
+]  # fmt: skip
 
 REWARD_MODEL_FORMAT = "skillkit-reward-model-v1"
 """The first line of a reward-model file (see the module docstring)."""
@@ -82,46 +73,15 @@ def check_has_layers(model, argname: str = "model") -> None:
 
 
 def reward_model_path(run_dir, trial: int = 0) -> Path:
-    """Where a GPREPS run folder keeps the reward model of trial ``trial``.
-
-    Parameters
-    ----------
-    run_dir : str or Path
-        A ``skillkit reproduce`` run folder (``DIR/<id>-<scale>-s<seed>``).
-    trial : int
-        Trial index (≥ 0).
-
-    Returns
-    -------
-    Path
-        ``run_dir / f"reward_model_trial{trial}.pkl"``: the model fitted at the trial's last
-        update.
-    """
+    """Where a GPREPS run folder (``DIR/<id>-<scale>-s<seed>``) keeps the reward model fitted
+    at the last update of trial ``trial`` ≥ 0: ``run_dir / f"reward_model_trial{trial}.pkl"``."""
     return Path(run_dir) / f"reward_model_trial{check_count(trial, 'trial', minimum=0)}.pkl"
 
 
 def save_reward_model(path, model) -> Path:
-    """Write a fitted reward model (format in the module docstring).
-
-    Parameters
-    ----------
-    path : str or Path
-        Output file (its folder must exist); conventionally :func:`reward_model_path`.
-    model : object
-        A picklable model with a ``prediction_layers`` method (the module's contract). If it
-        has ``task.name``, the header records it.
-
-    Returns
-    -------
-    Path
-        The file written.
-
-    Raises
-    ------
-    ValueError
-        The model has no ``prediction_layers`` method or cannot be pickled (argument
-        ``model``).
-    """
+    """Write a fitted, picklable reward model (with ``prediction_layers``; its ``task.name``
+    goes into the header) to ``path`` (conventionally :func:`reward_model_path`); returns the
+    path. ``ValueError`` (argument ``model``) if it has no such method or cannot be pickled."""
     data = dumps_reward_model(model)
     path = Path(path)
     tmp = path.with_name(path.name + ".tmp")
@@ -131,27 +91,10 @@ def save_reward_model(path, model) -> Path:
 
 
 def load_reward_model(path):
-    """Read a reward model written by :func:`save_reward_model`.
-
-    .. warning::
-       This unpickles the file, which runs code it names: load only files you trust.
-
-    Parameters
-    ----------
-    path : str or Path
-
-    Returns
-    -------
-    object
-        The model (it has a ``prediction_layers`` method).
-
-    Raises
-    ------
-    ValueError
-        Missing file, not a reward-model file, another format version, a header that is not
-        JSON, a pickle that does not load (e.g. its class is gone from this skillkit), or an
-        object other than the header's class (argument ``model``).
-    """
+    """Read a reward model written by :func:`save_reward_model` (it unpickles the file: load
+    only files you trust). ``ValueError`` (argument ``model``): missing file, not a reward-model
+    file, another format version, a malformed header, a pickle that does not load here, or an
+    object other than the header's class."""
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"model: no such file {path}")
@@ -159,8 +102,7 @@ def load_reward_model(path):
 
 
 class _CompactPickler(pickle.Pickler):
-    """Pickles a fitted GP (:class:`~skillkit.models.gp.GPRegression`) without its derived
-    caches ``predictor`` and ``cholesky``; :func:`_rebuilt_gp` remakes them when it loads."""
+    """Pickles a fitted GP without its derived caches (:func:`_rebuilt_gp` remakes them)."""
 
     def reducer_override(self, obj):
         from skillkit.models.gp import GPRegression
@@ -172,8 +114,7 @@ class _CompactPickler(pickle.Pickler):
 
 
 def _rebuilt_gp(cls, state: dict):
-    """A fitted GP from its state without the caches: the fit's last step (the predictor from
-    the stored data and hyper-parameters) made again."""
+    """A fitted GP from its state without the caches: the fit's last step made again."""
     import torch
 
     gp = cls.__new__(cls)
@@ -188,15 +129,9 @@ def dumps_reward_model(model) -> bytes:
     """The bytes :func:`save_reward_model` writes (header lines and the pickled model).
 
     A run keeps them in ``trials.npz`` as the uint8 array ``trial<K>__reward_model``
-    (:func:`load_gpreps_run`). A fitted GP inside is stored without what its fit derives from data
-    and hyper-parameters (Cholesky factor, K⁻¹, prediction weights: N² numbers each, most of its
-    size); reading it back recomputes them (:func:`_rebuilt_gp`).
-
-    Raises
-    ------
-    ValueError
-        The model has no ``prediction_layers`` method or cannot be pickled (argument
-        ``model``).
+    (:func:`load_gpreps_run`). A fitted GP inside is stored without what its fit derives from
+    the data and hyper-parameters (Cholesky factor, prediction weights), recomputed on reading.
+    Raises as :func:`save_reward_model`.
     """
     import skillkit
 
@@ -207,17 +142,10 @@ def dumps_reward_model(model) -> bytes:
         payload = buffer.getvalue()
     except (pickle.PicklingError, TypeError, AttributeError) as exc:
         raise ValueError(f"model: a {type(model).__name__} cannot be pickled ({exc})") from None
-    header = {
-        "class": _class_path(model),
-        "skillkit": skillkit.__version__,
-        "task": _model_task_name(model),
-    }
+    header = {"class": _class_path(model), "skillkit": skillkit.__version__}
+    header["task"] = _model_task_name(model)
     return (
-        REWARD_MODEL_FORMAT.encode("ascii")
-        + b"\n"
-        + json.dumps(header).encode("utf-8")
-        + b"\n"
-        + payload
+        b"%s\n%s\n" % (REWARD_MODEL_FORMAT.encode("ascii"), json.dumps(header).encode()) + payload
     )
 
 
@@ -230,9 +158,8 @@ def loads_reward_model(data: bytes, source: str = "the data"):
     if first != REWARD_MODEL_FORMAT.encode("ascii"):
         if first.startswith(_MAGIC_PREFIX):
             found = first.decode("ascii", "replace")
-            raise ValueError(
-                f"model: {path} has format {found!r}, expected {REWARD_MODEL_FORMAT!r}"
-            )
+            msg = f"model: {path} has format {found!r}, expected {REWARD_MODEL_FORMAT!r}"
+            raise ValueError(msg)
         raise ValueError(
             f"model: {path} is not a skillkit reward-model file (it does not start with "
             f"{REWARD_MODEL_FORMAT!r}; see skillkit.viz.model_layers)"
@@ -257,64 +184,35 @@ def loads_reward_model(data: bytes, source: str = "the data"):
 
 
 def check_model_task(model, task_name: str) -> None:
-    """Refuse a model fitted on another task than ``task_name``.
-
-    Models that do not say (no ``task.name``) pass.
-
-    Raises
-    ------
-    ValueError
-        ``model.task.name`` differs from ``task_name`` (argument ``model``).
-    """
+    """Raise ``ValueError`` (argument ``model``) for a model fitted on another task than
+    ``task_name``; models that do not say (no ``task.name``) pass."""
     fitted = _model_task_name(model)
     if fitted and fitted != task_name:
-        raise ValueError(
-            f"model: the reward model was fitted on task {fitted!r}, not {task_name!r}"
-        )
+        msg = f"model: the reward model was fitted on task {fitted!r}, not {task_name!r}"
+        raise ValueError(msg)
 
 
 def model_layers(model, context, omega, n_samples: int = 10, rng=None) -> list[dict]:
     """The model's predicted paths for one (s, ω) pair, as prediction layers.
 
-    Parameters
-    ----------
-    model : object
-        Has ``prediction_layers(context, omega, n_samples, rng)`` (module docstring).
-    context : array_like, shape (context_dim,)
-        The context s.
-    omega : array_like, shape (dim,)
-        The lower-level policy parameters ω.
-    n_samples : int
-        L, the number of trajectories each learned model samples.
-    rng : Generator, int or None
-        Passed on to the model.
-
-    Returns
-    -------
-    list of dict
-        One keyword dict per layer, in the model's order, for
-        :meth:`skillkit.viz.viewer.Viewer.add_prediction_layer`: ``name`` (the descriptive
-        name made a scene-path component, e.g. ``"sliding model: control puck"`` →
-        ``"sliding_model_control_puck"``; made unique), ``label`` (the descriptive name, for
-        the checkbox and the legend), ``trajectories`` (L, T, 3) with T ≥ 1, ``color``,
-        ``space="points"`` and, if the model gave them, ``times`` (T,) and ``opacity``.
+    ``model.prediction_layers(context, omega, n_samples, rng)`` (module docstring) samples L =
+    ``n_samples`` trajectories per learned model. Returns one keyword dict per layer, in the
+    model's order, for :meth:`skillkit.viz.viewer.Viewer.add_prediction_layer`: ``name`` (the
+    descriptive name made a unique path component, ``"sliding model: control puck"`` →
+    ``"sliding_model_control_puck"``), ``label`` (the descriptive name), ``trajectories``
+    (L, T, 3), ``color``, ``space="points"`` and, if given, ``times`` (T,) and ``opacity``.
 
     Raises
     ------
     ValueError
-        The model has no ``prediction_layers``, or its answer is not a mapping of non-empty
-        names to dicts with finite ``trajectories`` of shape (L, T, 3) (L, T ≥ 1), an RGB
-        ``color`` in 0–255, and non-decreasing ``times`` of shape (T,); each message names
-        the layer.
+        No ``prediction_layers``, or an answer that is not a mapping of non-empty names to
+        dicts with finite ``trajectories`` (L, T, 3), L, T ≥ 1, an RGB ``color`` in 0–255 and
+        non-decreasing ``times`` (T,); each message names the layer.
     """
     check_has_layers(model)
     n_samples = check_count(n_samples, "n_samples")
-    answer = model.prediction_layers(
-        np.asarray(context, dtype=np.float64),
-        np.asarray(omega, dtype=np.float64),
-        n_samples,
-        rng=rng,
-    )
+    s, w = np.asarray(context, dtype=np.float64), np.asarray(omega, dtype=np.float64)
+    answer = model.prediction_layers(s, w, n_samples, rng=rng)
     if not isinstance(answer, Mapping):
         raise ValueError(
             f"model: prediction_layers returned a {type(answer).__name__}, expected a dict "
@@ -353,34 +251,17 @@ def model_layers(model, context, omega, n_samples: int = 10, rng=None) -> list[d
 
 
 def load_gpreps_run(run_dir, trial: int = 0):
-    """The policy history and the reward model of one trial of a GPREPS run folder.
+    """The policy history and the reward model of one trial of a GPREPS run folder (what
+    ``skillkit view TASK --gpreps RUN_DIR --trial K`` shows).
 
-    What ``skillkit view TASK --gpreps RUN_DIR --trial K`` shows.
+    The folder's ``trials.npz`` holds the trial's policy history
+    (:func:`skillkit.viz.history.load_policy_history`); the model is the file at
+    :func:`reward_model_path` or the uint8 array ``trial<K>__reward_model`` in ``trials.npz``
+    (:func:`dumps_reward_model`; what ``fig4.10``–``fig4.12`` store).
 
-    .. warning::
-       This unpickles the reward model (:func:`load_reward_model`): load only runs you trust.
-
-    Parameters
-    ----------
-    run_dir : str or Path
-        A ``skillkit reproduce`` folder of a GPREPS experiment: ``trials.npz`` with the trial's
-        policy history (:func:`skillkit.viz.history.load_policy_history`) and the model, either
-        in the file at :func:`reward_model_path` or as the uint8 array
-        ``trial<K>__reward_model`` in ``trials.npz`` (:func:`dumps_reward_model`; what the
-        experiments ``fig4.10``–``fig4.12`` store).
-    trial : int
-
-    Returns
-    -------
-    history : PolicyHistory
-    model : object
-        The reward model of the trial's last update.
-
-    Raises
-    ------
-    ValueError
-        No such folder (argument ``gpreps``), no reward model for the trial, or the errors of
-        :func:`~skillkit.viz.history.load_policy_history` and :func:`load_reward_model`.
+    It unpickles the reward model (of the trial's last update): load only runs you trust.
+    Returns (history, model); ``ValueError`` for no such folder (argument ``gpreps``), no
+    reward model for the trial, or the errors of the two loaders.
     """
     from skillkit.viz.history import load_policy_history
 

@@ -1,8 +1,6 @@
 """Checks of an executed notebook: which cells wrote to stderr, and how long each cell ran.
 
-The test suite applies both to every notebook nbmake executes (the repository's root
-``conftest.py``): a notebook with a stderr output fails, and the execution times are printed
-at the end of the run. Use them on your own executed notebooks too::
+The test suite applies both to every notebook nbmake executes (the root ``conftest.py``)::
 
     nb = nbformat.read("executed.ipynb", as_version=4)
     stderr_outputs(nb)        # [(cell index, first line of the text), ...]
@@ -25,18 +23,8 @@ def _cells(nb: Mapping) -> list:
 
 
 def stderr_outputs(nb: Mapping) -> list[tuple[int, str]]:
-    """The stream outputs named ``stderr`` of an executed notebook.
-
-    Parameters
-    ----------
-    nb : mapping
-        An nbformat 4 notebook (``nbformat.NotebookNode`` or the parsed JSON).
-
-    Returns
-    -------
-    list of (int, str)
-        (cell index, the text's first non-empty line) per stderr output, in order.
-    """
+    """(cell index, the text's first non-empty line) of each ``stderr`` stream output of an
+    executed nbformat 4 notebook (``NotebookNode`` or the parsed JSON), in order."""
     found = []
     for i, cell in enumerate(_cells(nb)):
         if cell.get("cell_type") != "code":
@@ -55,14 +43,8 @@ def _time(value: str) -> datetime:
 
 
 def execution_seconds(nb: Mapping) -> dict[int, float]:
-    """Seconds each code cell ran, from the ``execution`` timestamps nbclient records with
-    ``record_timing=True`` (``iopub.execute_input`` to ``shell.execute_reply``).
-
-    Returns
-    -------
-    dict of int to float
-        Cell index → seconds, for the cells that carry both timestamps.
-    """
+    """Seconds each code cell ran, by cell index, from the ``execution`` timestamps nbclient
+    records with ``record_timing=True``, for the cells that carry both."""
     times = {}
     for i, cell in enumerate(_cells(nb)):
         stamps = cell.get("metadata", {}).get("execution", {})

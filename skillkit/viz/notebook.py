@@ -1,6 +1,6 @@
-"""The viewer inside a Jupyter notebook: an inline frame on a running viser server, or a static
-screenshot of the task's scene when no server can start (a headless CI kernel, a port that is
-taken, a remote kernel whose ports the browser cannot reach).
+"""The viewer inside a Jupyter notebook: an inline frame on a running viser server, or the
+task's static screenshot when no server can start (a headless kernel, a taken port, a remote
+kernel whose ports the browser cannot reach); and :func:`export_html` for offline pages.
 
 >>> shown = show_viewer("throwing")             # doctest: +SKIP
 >>> shown                                        # the cell shows the live 3-D scene
@@ -23,10 +23,8 @@ SCREENSHOT_DIR = Path(__file__).resolve().parents[2] / "docs"
 
 
 def scene_screenshot(task_name: str) -> Path | None:
-    """The documentation's screenshot of a task's scene (its base variant), or None.
-
-    ``throwing-noisy`` falls back to ``throwing``, ``hockey-real`` to ``hockey``.
-    """
+    """The documentation's screenshot of a task's scene (its base variant: ``throwing-noisy``
+    falls back to ``throwing``), or None."""
     name = str(task_name)
     while name:
         path = SCREENSHOT_DIR / f"scene_{name}.png"
@@ -40,20 +38,9 @@ def scene_screenshot(task_name: str) -> Path | None:
 
 @dataclass
 class NotebookViewer:
-    """What :func:`show_viewer` returns: displays as an inline frame on the live server, or as
-    the static screenshot with the reason the server did not start.
-
-    Attributes
-    ----------
-    viewer : Viewer or None
-        The running viewer (None when it could not start).
-    screenshot : Path or None
-        The static fallback image.
-    reason : str
-        Why there is no live viewer ("" when there is one).
-    height : int
-        Height of the frame or image in pixels.
-    """
+    """What :func:`show_viewer` returns: displays as an inline frame on the live ``viewer``, or
+    as the static ``screenshot`` with the ``reason`` the server did not start; ``height`` in
+    pixels."""
 
     viewer: object | None
     screenshot: Path | None
@@ -96,33 +83,13 @@ class NotebookViewer:
 
 
 def show_viewer(
-    task,
-    *,
-    live: bool = True,
-    height: int = 480,
-    environment: bool = False,
-    **viewer_kwargs,
+    task, *, live: bool = True, height: int = 480, environment: bool = False, **viewer_kwargs
 ) -> NotebookViewer:
-    """Start a :class:`~skillkit.viz.viewer.Viewer` for ``task`` on a free port and show it
-    inline; fall back to the task's static screenshot when it cannot start.
-
-    Parameters
-    ----------
-    task : Task or str
-        The task or its registry name.
-    live : bool
-        Try to start a server (False: show the screenshot straight away, e.g. in CI).
-    height : int
-        Frame height in pixels (positive).
-    environment : bool
-        viser's HDRI lighting (slow in browsers without a GPU; off by default here).
-    **viewer_kwargs
-        Passed to :class:`~skillkit.viz.viewer.Viewer` (policy, context, history, seed, host).
-
-    Returns
-    -------
-    NotebookViewer
-        Call ``.stop()`` when done (or let the kernel end).
+    """Start a :class:`~skillkit.viz.viewer.Viewer` for ``task`` (or its registry name) on a
+    free port and show it inline; fall back to the task's static screenshot when it cannot
+    start, or with ``live=False``. ``height`` is the frame's in pixels; ``environment`` turns on
+    viser's HDRI lighting (slow without a GPU); ``viewer_kwargs`` go to the Viewer. Call
+    ``.stop()`` on the result when done.
     """
     from skillkit.viz.viewer import Viewer
 
@@ -141,14 +108,13 @@ def show_viewer(
     return NotebookViewer(viewer, screenshot, "", height)
 
 
-#: MathJax 2.7 as a local copy (the ``jupyter_server_mathjax`` package): the configuration an
-#: exported page loads from the folder ``mathjax/`` beside it.
+#: The MathJax 2.7 configuration an exported page loads from the folder ``mathjax/`` beside it
+#: (a local copy of the ``jupyter_server_mathjax`` package).
 MATHJAX_CONFIG = "TeX-AMS-MML_HTMLorMML-full,Safe"
 
-#: MathJax 2.7's HTML-CSS output fails on a prime after a bold symbol (``\mathbf{x}'_i``:
-#: "Math Processing Error", fontInherit of undefined) in Chromium; the browser's own MathML
-#: (MathJax's NativeMML output, in the same configuration) typesets it, at the price of bold
-#: symbols shown upright. Registered before nbconvert's own MathJax configuration.
+#: MathJax 2.7's HTML-CSS output fails on a prime after a bold symbol (``\mathbf{x}'_i``) in
+#: Chromium; the browser's own MathML (NativeMML output) typesets it. Registered before
+#: nbconvert's own MathJax configuration.
 _MATHML_RENDERER = (
     '<script type="text/x-mathjax-config">MathJax.Hub.Register.StartupHook("End Jax", '
     'function () { return MathJax.Hub.setRenderer("NativeMML"); });</script>'
@@ -156,47 +122,28 @@ _MATHML_RENDERER = (
 
 
 def export_html(notebook, out_dir=None, *, execute: bool = False, timeout: int = 600):
-    """Export a notebook to HTML whose equations render offline.
+    """Export a notebook to HTML whose equations render offline; returns the HTML file.
 
-    ``jupyter nbconvert --to html`` makes pages that load MathJax from a CDN, so without a
-    network their equations stay raw ``$$``. This writes ``<out_dir>/<name>.html`` loading
-    MathJax from ``<out_dir>/mathjax/`` (copied once from the installed
-    ``jupyter_server_mathjax`` package, ≈ 10 MB): the page and that folder work offline and
-    can be moved together.
-
-    Parameters
-    ----------
-    notebook : str or Path
-        An ``.ipynb`` file.
-    out_dir : str or Path, optional
-        Output folder (default: the notebook's folder); created if missing.
-    execute : bool
-        Execute the notebook first (in its own folder, with nbclient), as
-        ``nbconvert --execute`` would.
-    timeout : int
-        Seconds per cell when executing.
-
-    Returns
-    -------
-    Path
-        The HTML file.
+    Writes ``<out_dir>/<name>.html`` (default ``out_dir``: the notebook's folder, created if
+    missing) loading MathJax from ``<out_dir>/mathjax/`` (copied once from the installed
+    ``jupyter_server_mathjax``), so page and folder work offline and move together.
+    ``execute`` runs the notebook first (in its own folder, nbclient, ``timeout`` seconds per
+    cell), as ``nbconvert --execute`` would.
     """
-    from pathlib import Path as _Path
-
     import jupyter_server_mathjax
     import nbformat
     from nbconvert import HTMLExporter
 
-    source = _Path(notebook)
+    source = Path(notebook)
     if source.suffix != ".ipynb" or not source.is_file():
         raise ValueError(f"notebook: expected an existing .ipynb file, got {str(notebook)!r}")
     if isinstance(timeout, bool) or not isinstance(timeout, int) or timeout <= 0:
         raise ValueError(f"timeout: expected a positive number of seconds, got {timeout!r}")
-    out = _Path(out_dir) if out_dir is not None else source.parent
+    out = Path(out_dir) if out_dir is not None else source.parent
     out.mkdir(parents=True, exist_ok=True)
     local = out / "mathjax"
     if not (local / "MathJax.js").is_file():
-        static = _Path(jupyter_server_mathjax.__file__).parent / "static"
+        static = Path(jupyter_server_mathjax.__file__).parent / "static"
         shutil.copytree(static, local, dirs_exist_ok=True)
     nb = nbformat.read(source, as_version=4)
     if execute:

@@ -3,14 +3,14 @@
 A result (the dict :func:`skillkit.experiments.runner.run_trials` returns, ``result.json``) is
 drawn from its ``series`` (:class:`~skillkit.experiments.registry.Series` fields), one subplot
 per panel, by :func:`plotly_figure` (``figure.html``) or :func:`matplotlib_figure`
-(``figure.png``, drawn without pyplot so no backend or pyplot state changes);
-:func:`write_figures` writes both. Each figure carries the verdict line as its subtitle, band
-names in the legend, and a robust axis range when a few values run away (marked at the edge
-and counted, :func:`robust_range`). Figures of live objects are in :mod:`skillkit.viz.figures`.
+(``figure.png``, without pyplot); :func:`write_figures` writes both. Each figure carries the
+verdict line as its subtitle, band names in the legend, and a robust axis range when a few
+values run away (:func:`robust_range`). Figures of live objects: :mod:`skillkit.viz.figures`.
 """
 
 from __future__ import annotations
 
+import io
 import math
 import re
 import textwrap
@@ -47,28 +47,18 @@ _POINT_KINDS = ("line", "markers", "lines+markers")
 _KIND_ALIASES = {"lines": "line"}
 _MPL_DASH = {"solid": "-", "dash": "--", "dot": ":", "dashdot": "-."}
 
-#: Width (px) the plotly figures' text is wrapped for: a notebook cell. The figures themselves
-#: are responsive (no fixed width): they fill the cell they are drawn in.
+#: Width (px) the plotly figures' text is wrapped for (a notebook cell); the figures are responsive.
 REFERENCE_WIDTH = 820
 #: Height (px) of one row of plotly panels (the plot area, without titles and tick labels).
 PANEL_HEIGHT = 300
 
 
-# ----------------------------------------------------------------------------- verdict
 @dataclass(frozen=True)
 class Verdict:
-    """How an experiment result came out, as its summary records it.
-
-    Attributes
-    ----------
-    claim : str
-        The claim in plain words ("" when none is recorded).
-    word : str
-        "holds", "does not hold", "undecided", "not judged" or "no verdict recorded".
-    statement : str
-        The verdict line: the key number with its interval beside the thesis's ("" when none
-        is recorded).
-    """
+    """How an experiment result came out, as its summary records it: the ``claim`` in plain
+    words, the ``word`` ("holds", "does not hold", "undecided", "not judged" or "no verdict
+    recorded") and the verdict line ``statement`` (the key number with its interval beside
+    the thesis's); "" where not recorded."""
 
     claim: str
     word: str
@@ -77,8 +67,8 @@ class Verdict:
 
 def verdict(result: Mapping) -> Verdict | None:
     """The claim and verdict of an experiment result (``summary["claim"]``, ``["verdict"]``,
-    ``["statement"]``, as :func:`skillkit.experiments.judge.apply` writes them), or None for
-    results that are not experiment results (no ``summary``, e.g. a learning curve)."""
+    ``["statement"]``, as :func:`skillkit.experiments.judge.apply` writes them); None without
+    a ``summary`` (e.g. a learning curve)."""
     if not isinstance(result, Mapping):
         raise ValueError(f"result: expected a dict, got {type(result).__name__}")
     summary = result.get("summary")
@@ -93,18 +83,14 @@ def verdict(result: Mapping) -> Verdict | None:
 
 
 def subtitle(result: Mapping, width: int | None = None) -> str:
-    """The subtitle of an experiment figure: one line, the verdict with its key number and
-    interval beside the thesis's (the card's second line, ``summary["statement"]``), or the
-    outcome alone where no statement is recorded; "" for results without a summary. The
-    claim and the details stay out of the figure (``Run.card``, ``Run.details()``).
-    ``width`` wraps the line (None: no wrapping)."""
+    """The subtitle of an experiment figure: the verdict line (``summary["statement"]``), or the
+    outcome alone where none is recorded; "" for results without a summary. ``width`` wraps it
+    (None: no wrapping)."""
     v = verdict(result)
     if v is None:
         return ""
     line = v.statement or v.word
-    if width is None:
-        return line
-    return textwrap.fill(line, width=max(int(width), 20))
+    return line if width is None else textwrap.fill(line, width=max(int(width), 20))
 
 
 def _title(result: Mapping) -> str:
@@ -114,40 +100,23 @@ def _title(result: Mapping) -> str:
 
 
 class NotebookFigure(Figure):
-    """A :class:`matplotlib.figure.Figure` on an Agg canvas that shows itself in Jupyter.
-
-    Jupyter displays a bare ``Figure`` only once pyplot has set up the inline backend; this
-    one renders its own PNG (``_repr_png_``) so a cell returning it always shows the figure,
-    with pyplot imported or not. It is not registered with pyplot: ``plt.show()`` and
-    ``plt.gcf()`` never see it.
-    """
+    """A :class:`matplotlib.figure.Figure` on an Agg canvas that shows itself in Jupyter
+    (``_repr_png_``) with pyplot imported or not; pyplot never sees it."""
 
     def __init__(self, *args, **kwargs) -> None:
         super().__init__(*args, **kwargs)
         FigureCanvasAgg(self)
 
     def _repr_png_(self) -> bytes:
-        import io
-
         buf = io.BytesIO()
         self.savefig(buf, format="png", dpi=90)
         return buf.getvalue()
 
 
-# ------------------------------------------------------------------------- axis ranges
 @dataclass(frozen=True)
 class AxisRange:
-    """A readable range of one panel's y axis.
-
-    Attributes
-    ----------
-    lo, hi : float
-        The smallest and largest value shown to scale (data units).
-    axis : tuple of float
-        The axis limits in data units (``lo`` and ``hi`` with a margin).
-    log : bool
-        Whether the axis is logarithmic.
-    """
+    """A readable range of one panel's y axis: ``lo``, ``hi`` the smallest and largest value
+    shown to scale, ``axis`` the limits with a margin (data units), ``log`` a log axis."""
 
     lo: float
     hi: float
@@ -175,13 +144,8 @@ def robust_range(values, log: bool) -> AxisRange | None:
     :data:`LINEAR_GAP`·s (linear). A side that would lose more than
     :data:`MAX_CLIPPED_FRACTION` of the values is not clipped.
 
-    Parameters
-    ----------
-    values : array_like
-        The panel's plotted values (non-finite ones, and non-positive ones on a log axis,
-        are ignored).
-    log : bool
-        Logarithmic axis.
+    ``values`` are the panel's plotted values (non-finite ones, and non-positive ones on a log
+    axis, are ignored).
     """
     t = np.asarray(values, dtype=float).ravel()
     t = t[np.isfinite(t)]
@@ -258,98 +222,60 @@ class _Panel:
     n_named: int = 0  # distinct series names (a panel with >= 2 needs a legend)
 
 
-def _panels(series: list[dict]) -> list[str]:
-    seen: list[str] = []
-    for s in series:
-        if s.get("panel", "") not in seen:
-            seen.append(s.get("panel", ""))
-    return seen
+def _clip_note(points: list[dict], rng: AxisRange) -> str:
+    """How many values lie off scale on each side, and the most extreme of them."""
+    masks = [rng.clipped(s["y"]) for s in points]
+    parts = []
+    for side, edge, word, pick, reduce, where in (
+        (0, 1, "above", max, np.max, "(max {}) ▲ at the top edge"),
+        (1, 0, "below", min, np.min, "(min {}) ▼ at the bottom edge"),
+    ):
+        count = sum(int(m[side].sum()) for m in masks)
+        if count:
+            extreme = pick(
+                float(reduce(np.asarray(s["y"], float)[m[side]]))
+                for s, m in zip(points, masks, strict=True)
+                if m[side].any()
+            )
+            parts.append(
+                f"{count} value{'s' if count > 1 else ''} {word} {_fmt(rng.axis[edge])} "
+                + where.format(_fmt(extreme))
+            )
+    return "; ".join(parts)
 
 
 def _layout(series: list[dict]) -> list[_Panel]:
     """Per panel: labels, the robust range, the note on clipped values, the band texts."""
     out = []
-    for i, name in enumerate(_panels(series)):
+    for i, name in enumerate(dict.fromkeys(s.get("panel", "") for s in series)):
         members = [s for s in series if s.get("panel", "") == name]
         log_y = any(s.get("log_y") for s in members)
         points = [s for s in members if s.get("kind", "line") in _POINT_KINDS]
+        banded = [s for s in points if _has_band(s)]
         values = np.concatenate([np.asarray(s["y"], dtype=float).ravel() for s in points] or [[]])
         rng = robust_range(values, log_y)
-        note = ""
-        if rng is not None:
-            above = [rng.clipped(s["y"])[0] for s in points]
-            below = [rng.clipped(s["y"])[1] for s in points]
-            n_above, n_below = sum(int(a.sum()) for a in above), sum(int(b.sum()) for b in below)
-            parts = []
-            if n_above:
-                top = max(
-                    float(np.max(np.asarray(s["y"], float)[a]))
-                    for s, a in zip(points, above, strict=True)
-                    if a.any()
-                )
-                parts.append(
-                    f"{n_above} value{'s' if n_above > 1 else ''} above {_fmt(rng.axis[1])} "
-                    f"(max {_fmt(top)}) ▲ at the top edge"
-                )
-            if n_below:
-                low = min(
-                    float(np.min(np.asarray(s["y"], float)[b]))
-                    for s, b in zip(points, below, strict=True)
-                    if b.any()
-                )
-                parts.append(
-                    f"{n_below} value{'s' if n_below > 1 else ''} below {_fmt(rng.axis[0])} "
-                    f"(min {_fmt(low)}) ▼ at the bottom edge"
-                )
-            note = "; ".join(parts)
         floor = 1.0
         if log_y:
-            every = np.concatenate(
-                [values]
-                + [
-                    np.asarray(s[k], dtype=float).ravel()
-                    for s in points
-                    if _has_band(s)
-                    for k in ("lower", "upper")
-                ]
-            )
+            bounds = (s[k] for s in banded for k in ("lower", "upper"))
+            every = np.concatenate([values] + [np.asarray(b, dtype=float).ravel() for b in bounds])
             every = every[np.isfinite(every) & (every > 0)]
             floor = rng.axis[0] if rng is not None else (float(every.min()) if every.size else 1.0)
-        bands = []
-        for s in members:
-            if _has_band(s) and s.get("band") and s["band"] not in bands:
-                bands.append(s["band"])
+        bands = list(dict.fromkeys(s["band"] for s in members if _has_band(s) and s.get("band")))
         kinds = tuple(dict.fromkeys(s.get("kind", "line") for s in members))
         log_x = _draw_log_x(members)
         xaxis = yaxis = None
         if points and set(kinds) <= set(_POINT_KINDS):
-            xs = np.concatenate([_floats(s["x"]) for s in points])
-            xaxis = _limits(xs, log_x, pad=0.03)
+            xaxis = _limits(np.concatenate([_floats(s["x"]) for s in points]), log_x, pad=0.03)
             if rng is None:
-                ys = [values] + [
-                    a for s in points if _has_band(s) for a in _band_arrays(s, log_y, floor)
-                ]
+                ys = [values] + [a for s in banded for a in _band_arrays(s, log_y, floor)]
                 yaxis = _limits(np.concatenate(ys), log_y, pad=0.06)
         label_x = next((s["xlabel"] for s in members if s.get("xlabel")), "")
         label_y = next((s["ylabel"] for s in members if s.get("ylabel")), "")
-        out.append(
-            _Panel(
-                name=name,
-                index=i,
-                xlabel=_axis_label(label_x, log_x),
-                ylabel=_axis_label(label_y, log_y),
-                log_y=log_y,
-                range=rng,
-                note=note,
-                bands=bands,
-                floor=floor,
-                log_x=log_x,
-                xaxis=xaxis,
-                yaxis=yaxis,
-                kinds=kinds,
-                n_named=len({s["name"] for s in members}),
-            )
-        )
+        out.append(_Panel(
+            name, i, _axis_label(label_x, log_x), _axis_label(label_y, log_y), log_y, rng,
+            _clip_note(points, rng) if rng is not None else "", bands, floor, log_x, xaxis, yaxis,
+            kinds, len({s["name"] for s in members}),
+        ))  # fmt: skip
     return out
 
 
@@ -369,9 +295,7 @@ def _to_float(e) -> float:
 
 
 def _draw_log_x(members: list[dict]) -> bool:
-    """Whether a panel's x axis is drawn logarithmic: some series asks for it (``log_x``) and
-    its positive x values span at least one decade. Over less than a decade a log axis reads
-    as a linear one (its ticks are evenly spaced numbers), so it is drawn linear."""
+    """Whether a log x axis is asked for and the positive x span at least a decade."""
     if not any(s.get("log_x") for s in members):
         return False
     xs = np.concatenate([_floats(s["x"]) for s in members] or [[]])
@@ -384,16 +308,12 @@ _LOG_WORDS = re.compile(r"\s*\(\s*log(?:arithmic)? scale\s*\)|log(?:arithmic)? s
 
 
 def _axis_label(label: str, log: bool) -> str:
-    """An axis label that agrees with the axis drawn: a linear axis never says "log scale"
-    ("rollouts (log scale; after the first batch)" becomes "rollouts (after the first
-    batch)"); a log axis keeps its label."""
+    """An axis label that agrees with the axis drawn: a linear axis drops "log scale"."""
     return label if log or not label else _LOG_WORDS.sub("", label).strip()
 
 
 def _limits(v: np.ndarray, log: bool, pad: float) -> tuple[float, float] | None:
-    """Axis limits (data units) containing the finite values of ``v`` (positive ones on a log
-    axis) with a margin of ``pad`` times their span (in decades on a log axis); None when
-    there are none."""
+    """Limits around the finite (log: positive) values of ``v``, ``pad`` × span beyond."""
     v = np.asarray(v, dtype=float).ravel()
     v = v[np.isfinite(v) & ((v > 0) if log else True)]
     if not v.size:
@@ -407,16 +327,12 @@ def _limits(v: np.ndarray, log: bool, pad: float) -> tuple[float, float] | None:
 
 
 def _has_band(s: Mapping) -> bool:
-    return (
-        s.get("kind", "line") in _POINT_KINDS
-        and s.get("lower") is not None
-        and s.get("upper") is not None
-    )
+    kind = s.get("kind", "line")
+    return kind in _POINT_KINDS and s.get("lower") is not None and s.get("upper") is not None
 
 
 def _band_arrays(s: Mapping, log_y: bool, floor: float) -> tuple[np.ndarray, np.ndarray]:
-    """Lower and upper band; on a log axis, non-positive lower bounds go to ``floor``, the
-    panel's smallest positive value (the axis bottom when the range is clipped)."""
+    """Lower and upper band; on a log axis non-positive lower bounds go to ``floor``."""
     lower = np.asarray(s["lower"], dtype=float)
     upper = np.asarray(s["upper"], dtype=float)
     if log_y:
@@ -425,8 +341,7 @@ def _band_arrays(s: Mapping, log_y: bool, floor: float) -> tuple[np.ndarray, np.
 
 
 def _band_label(s: Mapping, panel: _Panel) -> str | None:
-    """Legend text of a series' band: None when unlabelled or when the panel's bands all
-    say the same (then one grey swatch explains them)."""
+    """Legend text of a band; None when unlabelled or all the panel's bands say the same."""
     if not s.get("band") or len(panel.bands) == 1:
         return None
     return f"{s['name']}: shaded {s['band']}"
@@ -437,26 +352,22 @@ def _grid(n: int) -> tuple[int, int]:
     return math.ceil(n / ncols), ncols
 
 
-# ------------------------------------------------------------------------------ plotly
+def _axis_range(limits, log: bool) -> list[float] | None:
+    """plotly's range of an axis with these limits (log10 of them on a log axis)."""
+    if limits is None:
+        return None
+    a, b = limits
+    return [math.log10(a), math.log10(b)] if log else [a, b]
+
+
 def plotly_figure(result: dict):
     """A plotly figure with one subplot per panel of ``result["series"]``.
 
-    Title: ``"<id>: <title> (<scale>)"``; subtitle: the verdict line (:func:`subtitle`).
-    Bands are labelled in the legend from ``Series.band``; panels with runaway values get a
-    robust axis range (:func:`robust_range`), the clipped values drawn as triangles at the
-    edge (hover shows their values) and counted in a note; every other panel gets axis ranges
-    that contain all its data.
-
-    The figure is responsive (``autosize``, no fixed width): it fills the notebook cell or page
-    it is drawn in. Its text is wrapped for :data:`REFERENCE_WIDTH` pixels; the legend is a
-    horizontal one below the panels, each heatmap has its own colour bar (with its name and
-    values) beside its panel, and log axes label their ticks as powers of ten.
-
-    Returns
-    -------
-    plotly.graph_objects.Figure
+    Title ``"<id>: <title> (<scale>)"``, subtitle the verdict line (:func:`subtitle`), bands
+    named in the legend (``Series.band``); panels with runaway values get a robust axis range
+    (:func:`robust_range`), the clipped values drawn as triangles at the edge and counted in a
+    note. Responsive, its text wrapped for :data:`REFERENCE_WIDTH` pixels.
     """
-    import plotly.graph_objects as go
     from plotly.subplots import make_subplots
 
     series = _check_result(result)
@@ -470,194 +381,98 @@ def plotly_figure(result: dict):
     row_gap = 75 + 18 * name_lines  # tick labels and x title, then the next row's panel titles
     plot_h = nrows * PANEL_HEIGHT + (nrows - 1) * row_gap
     fig = make_subplots(
-        rows=nrows,
-        cols=ncols,
-        subplot_titles=names,
+        rows=nrows, cols=ncols, subplot_titles=names,
         horizontal_spacing=h_space if ncols > 1 else 0.02,
         vertical_spacing=row_gap / plot_h if nrows > 1 else 0.3,
-    )
+    )  # fmt: skip
     colors = _colors(series)
     shown: set[str] = set()
     # dashed series (references such as a demonstration) are drawn over the others, which
     # would hide them; the legend keeps the series' order (legendrank)
-    order = sorted(range(len(series)), key=lambda i: _dashed(series[i]))
-    for rank in order:
+    for rank in sorted(range(len(series)), key=lambda i: _dashed(series[i])):
         s = series[rank]
         panel = panels[[p.name for p in panels].index(s.get("panel", ""))]
-        row, col = panel.index // ncols + 1, panel.index % ncols + 1
+        cell = {"row": panel.index // ncols + 1, "col": panel.index % ncols + 1}
         color = colors[s.get("_group", s["name"])]
         kind = s.get("kind", "line")
         if kind == "heatmap":
-            sub = fig.get_subplot(row, col)
+            sub = fig.get_subplot(**cell)
             x1, (y0, y1) = sub.xaxis.domain[1], sub.yaxis.domain
-            fig.add_trace(
-                go.Heatmap(
-                    x=s["x"],
-                    y=s["y"],
-                    z=s["z"],
-                    name=s["name"],
-                    colorscale="Viridis",
-                    zmin=s.get("zmin"),
-                    zmax=s.get("zmax"),
-                    showscale=True,
-                    colorbar={
-                        "title": {"text": _colorbar_title(s["name"]), "side": "right"},
-                        "x": x1 + 0.01,
-                        "xanchor": "left",
-                        "y": (y0 + y1) / 2,
-                        "yanchor": "middle",
-                        "len": y1 - y0,
-                        "lenmode": "fraction",
-                        "thickness": 12,
-                        "ticks": "outside",
-                        "showticklabels": True,
-                        "exponentformat": "power",
-                    },
-                ),
-                row=row,
-                col=col,
-            )
+            bar = {
+                "title": {"text": _colorbar_title(s["name"]), "side": "right"},
+                "x": x1 + 0.01, "xanchor": "left", "y": (y0 + y1) / 2, "yanchor": "middle",
+                "len": y1 - y0, "lenmode": "fraction", "thickness": 12, "ticks": "outside",
+                "showticklabels": True, "exponentformat": "power",
+            }  # fmt: skip
+            fig.add_heatmap(
+                x=s["x"], y=s["y"], z=s["z"], name=s["name"], colorscale="Viridis",
+                zmin=s.get("zmin"), zmax=s.get("zmax"), showscale=True, colorbar=bar, **cell,
+            )  # fmt: skip
             continue
+        legend = {"showlegend": s["name"] not in shown, "legendrank": 1000 + rank}
         if kind == "bar":
-            fig.add_trace(
-                go.Bar(
-                    x=s["x"],
-                    y=s["y"],
-                    name=s["name"],
-                    marker_color=color,
-                    showlegend=s["name"] not in shown,
-                    legendrank=1000 + rank,
-                ),
-                row=row,
-                col=col,
-            )
+            fig.add_bar(x=s["x"], y=s["y"], name=s["name"], marker_color=color, **legend, **cell)
             shown.add(s["name"])
             continue
         if _has_band(s):
             lower, upper = _band_arrays(s, panel.log_y, panel.floor)
             label = _band_label(s, panel)
-            fig.add_trace(
-                go.Scatter(
-                    x=list(s["x"]) + list(s["x"])[::-1],
-                    y=upper.tolist() + lower[::-1].tolist(),
-                    fill="toself",
-                    line={"width": 0},
-                    fillcolor=color,
-                    opacity=0.2,
-                    hoverinfo="skip",
-                    showlegend=label is not None and label not in shown,
-                    name=label or f"{s['name']} (band)",
-                    legendrank=1000 + rank,
-                ),
-                row=row,
-                col=col,
-            )
+            fig.add_scatter(
+                x=list(s["x"]) + list(s["x"])[::-1], y=upper.tolist() + lower[::-1].tolist(),
+                fill="toself", line={"width": 0}, fillcolor=color, opacity=0.2,
+                hoverinfo="skip", showlegend=label is not None and label not in shown,
+                name=label or f"{s['name']} (band)", legendrank=1000 + rank, **cell,
+            )  # fmt: skip
             if label:
                 shown.add(label)
         mode = {"line": "lines", "markers": "markers"}.get(kind, kind)
-        if _single_point(s):
-            mode = "lines+markers"
-        fig.add_trace(
-            go.Scatter(
-                x=s["x"],
-                y=s["y"],
-                mode=mode,
-                name=s["name"],
-                line={"color": color, "dash": s.get("dash") or "solid"},
-                marker={"color": color},
-                showlegend=s["name"] not in shown,
-                legendrank=1000 + rank,
-            ),
-            row=row,
-            col=col,
-        )
+        fig.add_scatter(
+            x=s["x"], y=s["y"], mode="lines+markers" if _single_point(s) else mode,
+            name=s["name"], line={"color": color, "dash": s.get("dash") or "solid"},
+            marker={"color": color}, **legend, **cell,
+        )  # fmt: skip
         shown.add(s["name"])
-        if panel.range is not None:
-            for mask, edge, symbol in zip(
-                panel.range.clipped(s["y"]),
-                panel.range.axis[::-1],
-                ("triangle-up", "triangle-down"),
-                strict=True,
-            ):
-                if mask.any():
-                    ys = np.asarray(s["y"], dtype=float)[mask]
-                    fig.add_trace(
-                        go.Scatter(
-                            x=np.asarray(s["x"])[mask].tolist(),
-                            y=[edge] * int(mask.sum()),
-                            mode="markers",
-                            marker={"color": color, "symbol": symbol, "size": 10},
-                            name=f"{s['name']} (off scale)",
-                            hovertext=[f"{s['name']}: {_fmt(v)} (off scale)" for v in ys],
-                            hoverinfo="text",
-                            cliponaxis=False,
-                            showlegend=False,
-                        ),
-                        row=row,
-                        col=col,
-                    )
+        if panel.range is None:
+            continue
+        for mask, edge, symbol in zip(
+            panel.range.clipped(s["y"]), panel.range.axis[::-1], ("triangle-up", "triangle-down"),
+            strict=True,
+        ):  # fmt: skip
+            if mask.any():
+                ys = np.asarray(s["y"], dtype=float)[mask]
+                fig.add_scatter(
+                    x=np.asarray(s["x"])[mask].tolist(), y=[edge] * int(mask.sum()),
+                    mode="markers", marker={"color": color, "symbol": symbol, "size": 10},
+                    name=f"{s['name']} (off scale)", hoverinfo="text", cliponaxis=False,
+                    hovertext=[f"{s['name']}: {_fmt(v)} (off scale)" for v in ys],
+                    showlegend=False, **cell,
+                )  # fmt: skip
     for panel in panels:
-        row, col = panel.index // ncols + 1, panel.index % ncols + 1
-        xrange = None
-        if panel.xaxis is not None:
-            a, b = panel.xaxis
-            xrange = [math.log10(a), math.log10(b)] if panel.log_x else [a, b]
-        fig.update_xaxes(
-            title_text=panel.xlabel,
-            type="log" if panel.log_x else None,
-            range=xrange,
-            exponentformat="power" if panel.log_x else None,  # 10⁻⁶, not SI's "1µ"
-            automargin=True,
-            row=row,
-            col=col,
-        )
-        yrange = None
+        cell = {"row": panel.index // ncols + 1, "col": panel.index % ncols + 1}
         limits = panel.range.axis if panel.range is not None else panel.yaxis
-        if limits is not None:
-            a, b = limits
-            yrange = [math.log10(a), math.log10(b)] if panel.log_y else [a, b]
-        fig.update_yaxes(
-            title_text=panel.ylabel,
-            type="log" if panel.log_y else None,
-            range=yrange,
-            exponentformat="power" if panel.log_y else None,
-            automargin=True,
-            row=row,
-            col=col,
-        )
+        for update, label, log, lims in (
+            (fig.update_xaxes, panel.xlabel, panel.log_x, panel.xaxis),
+            (fig.update_yaxes, panel.ylabel, panel.log_y, limits),
+        ):
+            update(
+                title_text=label, type="log" if log else None, range=_axis_range(lims, log),
+                exponentformat="power" if log else None,  # 10⁻⁶, not SI's "1µ"
+                automargin=True, **cell,
+            )  # fmt: skip
         if panel.note:
             fig.add_annotation(
-                text=_wrap_html(panel.note, int(col_px / 5.5)),
-                xref="x domain",
-                yref="y domain",
-                x=0.01,
-                y=0.99,
-                xanchor="left",
-                yanchor="top",
-                align="left",
-                showarrow=False,
-                font={"size": 10},
-                bgcolor="rgba(255,255,255,0.8)",
-                row=row,
-                col=col,
-            )
-        if len(panel.bands) == 1:
-            label = f"shaded: {panel.bands[0]}"
-            if label not in shown:
-                shown.add(label)
-                fig.add_trace(
-                    go.Scatter(
-                        x=[None],
-                        y=[None],
-                        mode="markers",
-                        marker={"symbol": "square", "size": 12, "color": _BAND_SWATCH},
-                        opacity=0.4,
-                        name=label,
-                        legendrank=2000 + len(series),
-                    ),
-                    row=row,
-                    col=col,
-                )
+                text=_wrap_html(panel.note, int(col_px / 5.5)), xref="x domain",
+                yref="y domain", x=0.01, y=0.99, xanchor="left", yanchor="top", align="left",
+                showarrow=False, font={"size": 10}, bgcolor="rgba(255,255,255,0.8)", **cell,
+            )  # fmt: skip
+        label = f"shaded: {panel.bands[0]}" if len(panel.bands) == 1 else None
+        if label is not None and label not in shown:
+            shown.add(label)
+            fig.add_scatter(
+                x=[None], y=[None], mode="markers", opacity=0.4, name=label,
+                marker={"symbol": "square", "size": 12, "color": _BAND_SWATCH},
+                legendrank=2000 + len(series), **cell,
+            )  # fmt: skip
     fig.update_xaxes(automargin=True)
     fig.update_yaxes(automargin=True)
     for k in range(len(panels), nrows * ncols):  # an empty grid cell shows no axes
@@ -681,35 +496,23 @@ def plotly_figure(result: dict):
     bottom = 70 + legend_h
     fig.update_layout(
         title={
-            "text": text,
-            "x": 0.01,
-            "xanchor": "left",
-            "xref": "container",
-            "y": 1 - 14 / (top + plot_h + bottom),
-            "yanchor": "top",
-            "yref": "container",
+            "text": text, "x": 0.01, "xanchor": "left", "xref": "container",
+            "y": 1 - 14 / (top + plot_h + bottom), "yanchor": "top", "yref": "container",
             "font": {"size": 15},
         },
         margin={"t": top, "b": bottom, "l": 70, "r": 80 if heat else 20, "autoexpand": True},
-        height=top + plot_h + bottom,
-        autosize=True,
-        showlegend=show_legend,
+        height=top + plot_h + bottom, autosize=True, showlegend=show_legend,
         legend={
-            "orientation": "h",
-            "x": 0,
-            "xanchor": "left",
-            "y": -70 / plot_h,
-            "yanchor": "top",
-            "font": {"size": 11},
+            "orientation": "h", "x": 0, "xanchor": "left", "y": -70 / plot_h,
+            "yanchor": "top", "font": {"size": 11},
         },
         template="plotly_white",
-    )
+    )  # fmt: skip
     return fig
 
 
 def _colors(series: list[dict]) -> dict[str, str]:
-    """The colour of each series group (``_group``, default its name), in order of first
-    appearance."""
+    """The colour of each series group (``_group``, default its name), in order."""
     colors: dict[str, str] = {}
     for s in series:
         colors.setdefault(s.get("_group", s["name"]), _COLORS[len(colors) % len(_COLORS)])
@@ -722,20 +525,16 @@ def _dashed(s: Mapping) -> bool:
 
 def _wrap_html(text: str, width: int) -> str:
     """``text`` wrapped to ``width`` characters with ``<br>`` (plotly's line break)."""
-    lines = textwrap.wrap(text, width=max(int(width), 12)) or [""]
-    return "<br>".join(lines)
+    return "<br>".join(textwrap.wrap(text, width=max(int(width), 12)) or [""])
 
 
 def _colorbar_title(name: str) -> str:
-    """A heatmap's colour-bar title: its series name up to the first comma (the quantity,
-    e.g. "log10 e_α" of "log10 e_α, GP regression"), wrapped short."""
+    """A heatmap's colour-bar title: its series name up to the first comma, wrapped short."""
     return _wrap_html(name.split(",")[0].strip() or name, 16)
 
 
 def _legend_height(entries: list[str]) -> int:
-    """Pixels a horizontal legend of these entries needs at :data:`REFERENCE_WIDTH`: its
-    entries packed into rows, each entry its text (~6.2 px a character) and 45 px of
-    symbol and gap."""
+    """Pixels a horizontal legend of these entries needs (~6.2 px a character + 45)."""
     rows, used, avail = 1, 0.0, REFERENCE_WIDTH - 90
     for name in entries:
         w = 45 + 6.2 * len(name)
@@ -745,18 +544,9 @@ def _legend_height(entries: list[str]) -> int:
     return 8 + 20 * rows
 
 
-# -------------------------------------------------------------------------- matplotlib
 def matplotlib_figure(result: dict):
-    """The same figure as :func:`plotly_figure`, drawn with matplotlib (used for the PNG).
-
-    The figure is a :class:`NotebookFigure` (a :class:`matplotlib.figure.Figure` on an Agg
-    canvas; no pyplot, no backend change): a notebook displays it when a cell returns it,
-    ``fig.savefig`` writes it, and pyplot's state and backend stay as they were.
-
-    Returns
-    -------
-    NotebookFigure
-    """
+    """The same figure as :func:`plotly_figure`, drawn with matplotlib (used for the PNG), as a
+    :class:`NotebookFigure` (an Agg canvas: no pyplot, no backend change)."""
     from matplotlib.patches import Patch
 
     series = _check_result(result)
@@ -780,55 +570,34 @@ def matplotlib_figure(result: dict):
         kind = s.get("kind", "line")
         if kind == "heatmap":
             mesh = ax.pcolormesh(
-                s["x"],
-                s["y"],
-                s["z"],
-                shading="auto",
-                cmap="viridis",
-                vmin=s.get("zmin"),
+                s["x"], s["y"], s["z"], shading="auto", cmap="viridis", vmin=s.get("zmin"),
                 vmax=s.get("zmax"),
-            )
+            )  # fmt: skip
             bar = fig.colorbar(mesh, ax=ax)
             bar.set_label(s["name"].split(",")[0].strip() or s["name"], fontsize=8)
-        elif kind == "bar":
+            continue
+        if kind == "bar":
             ax.bar([str(v) for v in s["x"]], s["y"], color=color, label=s["name"])
-        else:
-            if _has_band(s):
-                lower, upper = _band_arrays(s, panel.log_y, panel.floor)
-                ax.fill_between(
-                    s["x"],
-                    lower,
-                    upper,
-                    color=color,
-                    alpha=0.2,
-                    linewidth=0,
-                    label=_band_label(s, panel) or "_nolegend_",
-                )
-            marker = "o" if kind in ("markers", "lines+markers") or _single_point(s) else None
-            ax.plot(
-                s["x"],
-                s["y"],
-                marker=marker,
-                linestyle="none" if kind == "markers" else _MPL_DASH[s.get("dash") or "solid"],
-                color=color,
-                label=s["name"],
-                markersize=3,
-                zorder=2.5 if _dashed(s) else 2,  # a dashed reference is drawn over the fit
-            )
-            if panel.range is not None:
-                for mask, edge, marker in zip(
-                    panel.range.clipped(s["y"]), panel.range.axis[::-1], ("^", "v"), strict=True
-                ):
-                    if mask.any():
-                        ax.plot(
-                            np.asarray(s["x"])[mask],
-                            [edge] * int(mask.sum()),
-                            marker,
-                            color=color,
-                            markersize=6,
-                            clip_on=False,
-                            label="_nolegend_",
-                        )
+            continue
+        if _has_band(s):
+            lower, upper = _band_arrays(s, panel.log_y, panel.floor)
+            label = _band_label(s, panel) or "_nolegend_"
+            ax.fill_between(s["x"], lower, upper, color=color, alpha=0.2, linewidth=0, label=label)
+        ax.plot(
+            s["x"], s["y"], color=color, label=s["name"], markersize=3,
+            marker="o" if kind in ("markers", "lines+markers") or _single_point(s) else None,
+            linestyle="none" if kind == "markers" else _MPL_DASH[s.get("dash") or "solid"],
+            zorder=2.5 if _dashed(s) else 2,  # a dashed reference is drawn over the fit
+        )  # fmt: skip
+        if panel.range is not None:
+            for mask, edge, marker in zip(
+                panel.range.clipped(s["y"]), panel.range.axis[::-1], ("^", "v"), strict=True
+            ):
+                if mask.any():
+                    ax.plot(
+                        np.asarray(s["x"])[mask], [edge] * int(mask.sum()), marker, color=color,
+                        markersize=6, clip_on=False, label="_nolegend_",
+                    )  # fmt: skip
     for panel in panels:
         ax = axes[panel.index // ncols][panel.index % ncols]
         ax.set_title(panel.name, fontsize=10)
@@ -842,51 +611,32 @@ def matplotlib_figure(result: dict):
             ax.set_ylim(*panel.range.axis)
         if panel.note:
             ax.text(
-                0.01,
-                0.99,
-                textwrap.fill(panel.note, width=70),
-                transform=ax.transAxes,
-                ha="left",
-                va="top",
-                fontsize=7,
+                0.01, 0.99, textwrap.fill(panel.note, width=70), transform=ax.transAxes,
+                ha="left", va="top", fontsize=7,
                 bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none", "pad": 1.5},
-            )
+            )  # fmt: skip
         handles, labels = ax.get_legend_handles_labels()
         if len(panel.bands) == 1:
             handles.append(Patch(color=_BAND_SWATCH, alpha=0.4, linewidth=0))
             labels.append(f"shaded: {panel.bands[0]}")
         if len(handles) > _LEGEND_INSIDE_MAX:  # a long legend would hide the data: below the axes
             ax.legend(
-                handles,
-                labels,
-                fontsize=7,
-                loc="upper center",
-                bbox_to_anchor=(0.5, -0.16),
-                ncol=2,
-                frameon=False,
-            )
+                handles, labels, fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16),
+                ncol=2, frameon=False,
+            )  # fmt: skip
         elif handles:
             ax.legend(handles, labels, fontsize=7)
     for k in range(len(panels), nrows * ncols):
         axes[k // ncols][k % ncols].axis("off")
-    fig.suptitle(
-        head + (f"\n{sub}" if sub else ""),
-        x=0.01,
-        ha="left",
-        fontsize=sub_fs if sub else 10,
-        multialignment="left",
-    )
+    title = head + (f"\n{sub}" if sub else "")
+    fontsize = sub_fs if sub else 10
+    fig.suptitle(title, x=0.01, ha="left", fontsize=fontsize, multialignment="left")
     return fig
 
 
 def write_figures(result: dict, folder: str | Path, html: bool = True) -> tuple[Path | None, Path]:
     """Write ``figure.html`` (plotly, self-contained; skipped with ``html=False``) and
-    ``figure.png`` (matplotlib, Agg canvas) into ``folder``.
-
-    Returns
-    -------
-    (html_path or None, png_path)
-    """
+    ``figure.png`` (matplotlib) into ``folder``; returns (html_path or None, png_path)."""
     folder = Path(folder)
     html_path = None
     if html:
@@ -898,14 +648,12 @@ def write_figures(result: dict, folder: str | Path, html: bool = True) -> tuple[
 
 
 def _check_result(result) -> list[dict]:
+    """The series as dicts; series of one ``"_group"`` (default: name) share a colour."""
     if not isinstance(result, Mapping):
         raise ValueError(f"result: expected a result dict, got {type(result).__name__}")
     series = result.get("series")
     if not isinstance(series, Sequence) or isinstance(series, str) or not series:
         raise ValueError("result: expected a non-empty 'series' list of Series dicts")
-    # Besides Series fields, a series dict may carry "_group": series of one group share a
-    # colour (default: series of one name do).
-    # Kinds in _KIND_ALIASES are read as the kind they name.
     out = []
     for i, s in enumerate(series):
         s = s.to_dict() if hasattr(s, "to_dict") else s
@@ -921,12 +669,8 @@ def _check_result(result) -> list[dict]:
 
 
 def _single_point(s: Mapping) -> bool:
-    """A line series with one finite point: drawn as a marker (a line of one point is
-    invisible)."""
-    if s.get("kind", "line") != "line":
-        return False
-    y = _floats(s["y"])
-    return int(np.isfinite(y).sum()) == 1
+    """A line series with one finite point (drawn as a marker: a point line is invisible)."""
+    return s.get("kind", "line") == "line" and int(np.isfinite(_floats(s["y"])).sum()) == 1
 
 
 def draw_figure(result: dict, backend: str):

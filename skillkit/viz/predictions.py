@@ -1,9 +1,8 @@
 """Prediction-layer files: models' predicted trajectories for ``skillkit view --predictions``.
 
-:func:`save_predictions` writes, and :func:`load_predictions` reads, the trajectories a model
-predicted (e.g. L sampled trajectories from :mod:`skillkit.models.sampling`, or embedding
-pre-images) so that :meth:`skillkit.viz.viewer.Viewer.add_prediction_layer` can overlay them on
-the simulated rollout, one switchable layer per model.
+:func:`save_predictions` writes, and :func:`load_predictions` reads, trajectories a model
+predicted (e.g. L samples from :mod:`skillkit.models.sampling`, or embedding pre-images) for
+:meth:`skillkit.viz.viewer.Viewer.add_prediction_layer`, one switchable layer per model.
 
 File format
 -----------
@@ -23,10 +22,9 @@ key                     shape      dtype    meaning
 ``__format__``          ()         str      ``"skillkit-predictions-v1"``
 ======================  =========  =======  ==================================================
 
-**Versioning.** ``__format__`` names the version (its ``"__"`` keeps it from being read as a
-layer). A reader accepts a file without it (read as v1) and refuses any other version with a
-message naming both. A change an existing reader would misread gets a new version string; new
-optional per-layer keys do not.
+``__format__`` names the version (its ``"__"`` keeps it from being read as a layer); a file
+without it is read as v1, any other version refused with a message naming both. A change an
+existing reader would misread gets a new version string; new optional per-layer keys do not.
 """
 
 from __future__ import annotations
@@ -47,32 +45,15 @@ _FORMAT_KEY = "__format__"
 
 
 def save_predictions(
-    path,
-    layers: Mapping[str, np.ndarray],
-    *,
-    colors: Mapping | None = None,
-    opacities: Mapping | None = None,
-    times: Mapping | None = None,
-    space: str = "state",
-) -> Path:
-    """Write prediction layers ``{name: (L, T, n)}`` for ``skillkit view --predictions``.
+    path, layers: Mapping[str, np.ndarray], *, colors: Mapping | None = None,
+    opacities: Mapping | None = None, times: Mapping | None = None, space: str = "state",
+) -> Path:  # fmt: skip
+    """Write prediction layers ``{name: (L, T, n)}`` (names non-empty, without ``"__"``) to
+    ``path`` (``.npz`` appended if missing) and return the file written.
 
-    Parameters
-    ----------
-    path : str or Path
-        Output file (``.npz`` is appended if missing).
-    layers : mapping of str to array_like, shape (L, T, n)
-        Predicted trajectories per layer name (non-empty, without ``"__"``).
-    colors, opacities, times : mapping of str to array_like, optional
-        Per-layer RGB (3,) in 0–255, opacity in (0, 1] and time stamps (T,); layers not named
-        get the viewer's defaults.
-    space : {"state", "points"}
-        What the last axis of every layer holds (see the module docstring).
-
-    Returns
-    -------
-    Path
-        The file written.
+    ``colors``, ``opacities`` and ``times`` map layer names to an RGB (3,) in 0–255, an opacity
+    in (0, 1] and time stamps (T,); layers not named get the viewer's defaults. ``space``
+    ("state" or "points") says what the last axis of every layer holds.
     """
     if space not in ("state", "points"):
         raise ValueError(f"space: expected 'state' or 'points', got {space!r}")
@@ -91,33 +72,16 @@ def save_predictions(
 
 
 def load_predictions(path) -> list[dict]:
-    """Read a prediction-layer file.
-
-    Parameters
-    ----------
-    path : str or Path
-        A file written by :func:`save_predictions`.
-
-    Returns
-    -------
-    list of dict
-        One keyword dict per layer, sorted by name, for
-        :meth:`skillkit.viz.viewer.Viewer.add_prediction_layer`: ``name``, ``trajectories``
-        and those of ``color``, ``opacity``, ``times``, ``space`` the file holds. Shapes are
-        checked when the layer is added.
-
-    Raises
-    ------
-    ValueError
-        Unreadable file, another format version, or no layers (argument ``predictions``).
-    """
+    """Read a prediction-layer file: one keyword dict per layer, sorted by name, for
+    :meth:`skillkit.viz.viewer.Viewer.add_prediction_layer` (``name``, ``trajectories`` and
+    those of ``color``, ``opacity``, ``times``, ``space`` the file holds). ``ValueError``
+    (argument ``predictions``): unreadable file, another format version, or no layers."""
     path = Path(path)
     arrays = read_npz(path, "predictions")
     fmt = arrays.get(_FORMAT_KEY)
     if fmt is not None and str(fmt) != PREDICTIONS_FORMAT:
-        raise ValueError(
-            f"predictions: {path} has format {str(fmt)!r}, expected {PREDICTIONS_FORMAT!r}"
-        )
+        msg = f"predictions: {path} has format {str(fmt)!r}, expected {PREDICTIONS_FORMAT!r}"
+        raise ValueError(msg)
     layers = []
     for name in sorted(k for k in arrays if "__" not in k):
         spec = {"name": name, "trajectories": arrays[name]}

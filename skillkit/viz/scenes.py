@@ -1,23 +1,18 @@
 """Task scenes for the viser viewer: functions that add scene nodes and return their handles.
 
-Everything works on a :class:`viser.SceneApi` (``server.scene``), headless. Node names are
-paths (``/arm/link3``, ``/ball``, ``/pucks/target``, ``/table``, ``/target``,
-``/trails/ball``); +z is up and quaternions are ``wxyz`` (MuJoCo and viser agree). Three
-layers: primitives (:func:`add_ball`, :func:`add_trail`, … and the meshes
-:func:`capsule_mesh`, :func:`tube_mesh`); :func:`add_mujoco_model`, one frame per body
-(``<root>/<body>``) holding its geoms at body-local poses, moved by
-:meth:`MujocoScene.set_qpos`; and :class:`TaskScene` adapters mapping a task's
-:class:`~skillkit.trajectory.Trajectory` (joint positions, ``signals``, context) onto the scene,
-chosen by :func:`task_scene`.
-
-A signal sampled on its own clock carries it as another signal (``ball_times`` for ``ball``);
-otherwise it is taken at the trajectory's period from ``times[0]`` (:func:`signal_times`).
-Objects are interpolated linearly between samples and rest at their first or last sample
-outside the record (a landed ball stays on the ground).
+Everything works headless on a :class:`viser.SceneApi` (``server.scene``). Node names are paths
+(``/arm/link3``, ``/ball``, ``/trails/ball``); +z is up and quaternions are ``wxyz``. Three
+layers: primitives (:func:`add_ball`, :func:`add_trail`, the meshes :func:`capsule_mesh`,
+:func:`tube_mesh`); :func:`add_mujoco_model`, one frame per body holding its geoms at body-local
+poses; and :class:`TaskScene` adapters mapping a task's trajectory (joint positions, ``signals``,
+context) onto the scene, chosen by :func:`task_scene`. A signal sampled on its own clock carries
+it as another signal (``ball_times`` for ``ball``, :func:`signal_times`); objects are
+interpolated linearly and rest at their first or last sample outside the record.
 """
 
 from __future__ import annotations
 
+import importlib
 import re
 import warnings
 from abc import ABC, abstractmethod
@@ -31,41 +26,19 @@ from skillkit._validation import check_array, check_positive
 from skillkit.trajectory import Trajectory
 
 __all__ = [
-    "COLORS",
-    "HockeyScene",
-    "MujocoScene",
-    "MujocoTaskScene",
-    "PendulumScene",
-    "PlanarScene",
-    "TableTennisScene",
-    "TaskScene",
-    "ThrowingScene",
-    "add_ball",
-    "add_mujoco_model",
-    "add_puck",
-    "add_table",
-    "add_target",
-    "add_trail",
-    "capsule_mesh",
-    "interpolate",
-    "signal_times",
-    "task_model",
-    "task_scene",
-    "tube_mesh",
-]
+    "COLORS", "HockeyScene", "MujocoScene", "MujocoTaskScene", "PendulumScene", "PlanarScene",
+    "TableTennisScene", "TaskScene", "ThrowingScene", "add_ball", "add_mujoco_model", "add_puck",
+    "add_table", "add_target", "add_trail", "capsule_mesh", "interpolate", "signal_times",
+    "task_model", "task_scene", "tube_mesh",
+]  # fmt: skip
 
 RGB = tuple[int, int, int]
 
 COLORS: dict[str, RGB] = {
-    "robot": (160, 170, 190),
-    "ball": (245, 130, 30),
-    "control_puck": (30, 30, 30),
-    "target_puck": (200, 30, 40),
-    "target": (40, 170, 60),
-    "table": (60, 110, 170),
-    "trail": (30, 100, 220),
-    "prediction": (220, 40, 160),
-}
+    "robot": (160, 170, 190), "ball": (245, 130, 30), "control_puck": (30, 30, 30),
+    "target_puck": (200, 30, 40), "target": (40, 170, 60), "table": (60, 110, 170),
+    "trail": (30, 100, 220), "prediction": (220, 40, 160),
+}  # fmt: skip
 """Default colours (RGB, 0–255) of the scene objects."""
 
 _MJ_DEFAULT_RGBA = np.array([0.5, 0.5, 0.5, 1.0])
@@ -73,7 +46,6 @@ _INFINITE_PLANE_HALF_SIZE = 10.0
 _NAME_RE = re.compile(r"[^A-Za-z0-9_.\-]")
 
 
-# ============================================================================ geometry helpers
 def node_name(name: str) -> str:
     """A path component: MuJoCo names with ``/`` or spaces made safe."""
     return _NAME_RE.sub("_", name)
@@ -101,34 +73,25 @@ def check_opacity(opacity, argname: str = "opacity") -> float | None:
     return None if v == 1.0 else v
 
 
+def _position(position, argname: str = "position") -> tuple:
+    return tuple(check_array(position, argname, shape=(3,)))
+
+
 def capsule_mesh(
     radius: float, half_length: float, segments: int = 16, rings: int = 4
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Triangle mesh of a capsule along z, centred at the origin (MuJoCo's capsule).
+    """Triangle mesh of a capsule along z centred at the origin (MuJoCo's capsule): radius r,
+    cylinder half-length h ≥ 0, spanning z ∈ [−h − r, h + r]; ``segments`` (≥ 3) vertices
+    around the axis, ``rings`` (≥ 1) latitude rings per hemisphere.
 
-    Parameters
-    ----------
-    radius : float
-        Radius r of the cylinder and the two hemispherical caps.
-    half_length : float
-        Half-length h ≥ 0 of the cylindrical part; the capsule spans z ∈ [−h − r, h + r].
-    segments : int
-        Vertices around the axis (≥ 3).
-    rings : int
-        Latitude rings per hemisphere (≥ 1).
-
-    Returns
-    -------
-    vertices : ndarray, shape (2 + 2·rings·segments, 3)
-    faces : ndarray, shape (4·rings·segments, 3), int
-        Counter-clockwise seen from outside (outward normals).
+    Returns vertices, shape (2 + 2·rings·segments, 3), and faces, shape (4·rings·segments, 3),
+    counter-clockwise seen from outside.
     """
     radius = check_positive(radius, "radius")
     half_length = check_positive(half_length, "half_length", allow_zero=True)
     if int(segments) < 3 or int(rings) < 1:
-        raise ValueError(
-            f"segments, rings: expected segments >= 3 and rings >= 1, got {segments}, {rings}"
-        )
+        msg = f"segments, rings: expected segments >= 3 and rings >= 1, got {segments}, {rings}"
+        raise ValueError(msg)
     segments, rings = int(segments), int(rings)
     polar = np.linspace(0.0, np.pi / 2, rings + 1)[1:]  # from the pole, the equator included
     z_rho = [(half_length + radius * np.cos(p), radius * np.sin(p)) for p in polar]
@@ -144,46 +107,31 @@ def capsule_mesh(
     n_rings = len(z_rho)
     k = np.arange(segments)
     k1 = (k + 1) % segments
-    first = 1
-    faces = [np.column_stack([np.zeros(segments, int), first + k, first + k1])]
+    faces = [np.column_stack([np.zeros(segments, int), 1 + k, 1 + k1])]
     for i in range(n_rings - 1):
-        a, b = first + i * segments + k, first + i * segments + k1
-        c, d = first + (i + 1) * segments + k1, first + (i + 1) * segments + k
+        a, b = 1 + i * segments + k, 1 + i * segments + k1
+        c, d = 1 + (i + 1) * segments + k1, 1 + (i + 1) * segments + k
         faces += [np.column_stack([a, d, c]), np.column_stack([a, c, b])]
-    last = first + (n_rings - 1) * segments
+    last = 1 + (n_rings - 1) * segments
     faces.append(np.column_stack([np.full(segments, vertices.shape[0] - 1), last + k1, last + k]))
     return vertices, np.vstack(faces).astype(np.int64)
 
 
 def tube_mesh(paths, radius: float, sides: int = 6) -> tuple[np.ndarray, np.ndarray]:
-    """Triangle mesh of tubes of constant radius along one or many polylines.
+    """Triangle mesh of tubes of constant ``radius`` along one or L polylines, shape (T, 3) or
+    (L, T, 3), T ≥ 2, with ``sides`` (≥ 3) vertices per cross-section.
 
-    The cross-section at each point lies in the plane normal to the local tangent (central
-    differences); its orientation is carried along by parallel transport, so the tube does
-    not twist. Repeated points (an object at rest) reuse the previous tangent.
-
-    Parameters
-    ----------
-    paths : array_like, shape (T, 3) or (L, T, 3)
-        One or L polylines with T ≥ 2 points each.
-    radius : float
-        Tube radius.
-    sides : int
-        Vertices per cross-section (≥ 3).
-
-    Returns
-    -------
-    vertices : ndarray, shape (L·T·sides, 3)
-    faces : ndarray, shape (2·L·(T−1)·sides, 3), int
-        Open-ended tubes; render double-sided.
+    Each cross-section lies in the plane normal to the local tangent (central differences),
+    carried along by parallel transport (no twist); repeated points reuse the previous
+    tangent. Returns vertices (L·T·sides, 3) and faces (2·L·(T−1)·sides, 3) of open-ended
+    tubes (render double-sided).
     """
     p = check_array(paths, "paths", ndim=(2, 3))
     if p.ndim == 2:
         p = p[None]
     if p.shape[-1] != 3 or p.shape[1] < 2:
-        raise ValueError(
-            f"paths: expected shape (T, 3) or (L, T, 3) with T >= 2, got {np.shape(paths)}"
-        )
+        msg = f"paths: expected shape (T, 3) or (L, T, 3) with T >= 2, got {np.shape(paths)}"
+        raise ValueError(msg)
     radius = check_positive(radius, "radius")
     if int(sides) < 3:
         raise ValueError(f"sides: expected at least 3 sides, got {sides}")
@@ -203,8 +151,7 @@ def tube_mesh(paths, radius: float, sides: int = 6) -> tuple[np.ndarray, np.ndar
         tan = np.where(degenerate[:, t, None], previous_t, tangent[:, t])
         n = previous_n - np.sum(previous_n * tan, axis=1, keepdims=True) * tan
         n_len = np.linalg.norm(n, axis=1, keepdims=True)
-        # The tangent turned parallel to the carried normal: restart from any perpendicular.
-        lost = n_len[:, 0] < 1e-6
+        lost = n_len[:, 0] < 1e-6  # the tangent turned parallel to the carried normal
         if np.any(lost):
             alt = np.cross(tan[lost], [0.0, 0.0, 1.0])
             bad = np.linalg.norm(alt, axis=1) < 1e-6
@@ -233,22 +180,8 @@ def tube_mesh(paths, radius: float, sides: int = 6) -> tuple[np.ndarray, np.ndar
 
 
 def interpolate(times, values, t: float) -> np.ndarray:
-    """Values at time ``t``, linearly interpolated between samples.
-
-    Parameters
-    ----------
-    times : array_like, shape (T,)
-        Non-decreasing sample times.
-    values : array_like, shape (T, ...)
-        Samples.
-    t : float
-        Query time. Before ``times[0]`` the first sample and after ``times[-1]`` the last one is
-        returned (the object rests where its record starts or ends).
-
-    Returns
-    -------
-    ndarray, shape values.shape[1:]
-    """
+    """Values (T, ...) at time ``t``, linearly interpolated between samples at non-decreasing
+    ``times`` (T,); before ``times[0]`` the first sample, after ``times[-1]`` the last one."""
     times = np.asarray(times, dtype=np.float64)
     values = np.asarray(values, dtype=np.float64)
     if times.ndim != 1 or values.shape[:1] != times.shape or times.shape[0] == 0:
@@ -269,9 +202,9 @@ def interpolate(times, values, t: float) -> np.ndarray:
 def signal_times(trajectory: Trajectory, key: str, times_key: str | None = None) -> np.ndarray:
     """Time stamps of ``trajectory.signals[key]``, shape (T_s,).
 
-    ``signals[times_key]`` when given (default ``key + "_times"`` if present); otherwise the
-    trajectory's ``times`` when the lengths agree, else samples taken at the trajectory's
-    period from ``times[0]`` (a signal recorded at the control rate beyond the arm's motion).
+    ``signals[times_key]`` when given (default ``key + "_times"`` if present); else the
+    trajectory's ``times`` when the lengths agree, else samples at the trajectory's period
+    from ``times[0]``.
     """
     signals = trajectory.signals
     if key not in signals:
@@ -280,9 +213,8 @@ def signal_times(trajectory: Trajectory, key: str, times_key: str | None = None)
     times_key = times_key or (f"{key}_times" if f"{key}_times" in signals else None)
     if times_key is not None:
         if times_key not in signals or signals[times_key].shape != (n,):
-            raise ValueError(
-                f"trajectory: signal {times_key!r} must hold the {n} time stamps of {key!r}"
-            )
+            msg = f"trajectory: signal {times_key!r} must hold the {n} time stamps of {key!r}"
+            raise ValueError(msg)
         return signals[times_key]
     t = trajectory.times
     if n == t.shape[0]:
@@ -292,81 +224,47 @@ def signal_times(trajectory: Trajectory, key: str, times_key: str | None = None)
     return t[0] + (t[1] - t[0]) * np.arange(n)
 
 
-# ============================================================================ primitives
 def add_ball(
-    scene,
-    name: str = "/ball",
-    radius: float = 0.05,
-    color=COLORS["ball"],
-    *,
-    opacity: float | None = None,
-    position=(0.0, 0.0, 0.0),
-    visible: bool = True,
-):
+    scene, name: str = "/ball", radius: float = 0.05, color=COLORS["ball"], *,
+    opacity: float | None = None, position=(0.0, 0.0, 0.0), visible: bool = True,
+):  # fmt: skip
     """A ball (icosphere) of ``radius`` metres at ``position``; returns its handle."""
     return scene.add_icosphere(
-        check_path(name),
-        radius=check_positive(radius, "radius"),
-        color=check_rgb(color),
-        opacity=check_opacity(opacity),
-        subdivisions=2,
-        position=tuple(check_array(position, "position", shape=(3,))),
+        check_path(name), radius=check_positive(radius, "radius"), color=check_rgb(color),
+        opacity=check_opacity(opacity), subdivisions=2, position=_position(position),
         visible=visible,
-    )
+    )  # fmt: skip
 
 
 def add_puck(
-    scene,
-    name: str,
-    radius: float,
-    height: float,
-    color=COLORS["control_puck"],
-    *,
+    scene, name: str, radius: float, height: float, color=COLORS["control_puck"], *,
     position=(0.0, 0.0, 0.0),
-):
+):  # fmt: skip
     """A puck: a cylinder along z of ``radius`` and ``height``, centred at ``position``."""
     return scene.add_cylinder(
-        check_path(name),
-        radius=check_positive(radius, "radius"),
-        height=check_positive(height, "height"),
-        color=check_rgb(color),
-        position=tuple(check_array(position, "position", shape=(3,))),
-    )
+        check_path(name), radius=check_positive(radius, "radius"),
+        height=check_positive(height, "height"), color=check_rgb(color),
+        position=_position(position),
+    )  # fmt: skip
 
 
 def add_target(
-    scene,
-    name: str = "/target",
-    radius: float = 0.1,
-    color=COLORS["target"],
-    *,
-    opacity: float | None = 0.6,
-    position=(0.0, 0.0, 0.0),
-    flat: bool = False,
-):
+    scene, name: str = "/target", radius: float = 0.1, color=COLORS["target"], *,
+    opacity: float | None = 0.6, position=(0.0, 0.0, 0.0), flat: bool = False,
+):  # fmt: skip
     """A target marker: a translucent sphere, or a thin disc on a surface (``flat=True``)."""
     name, color, opacity = check_path(name), check_rgb(color), check_opacity(opacity)
     radius = check_positive(radius, "radius")
-    position = tuple(check_array(position, "position", shape=(3,)))
+    style = {"radius": radius, "color": color, "opacity": opacity}
     if flat:
-        return scene.add_cylinder(
-            name, radius=radius, height=0.004, color=color, opacity=opacity, position=position
-        )
-    return scene.add_icosphere(
-        name, radius=radius, color=color, opacity=opacity, subdivisions=2, position=position
-    )
+        return scene.add_cylinder(name, height=0.004, **style, position=_position(position))
+    return scene.add_icosphere(name, **style, subdivisions=2, position=_position(position))
 
 
 def add_table(
-    scene,
-    name: str = "/table",
-    size=(2.74, 1.525),
-    height: float = 0.76,
-    *,
-    center=(0.0, 0.0),
-    thickness: float = 0.03,
-    color=COLORS["table"],
-):
+    scene, name: str = "/table", size=(2.74, 1.525), height: float = 0.76, *,
+    center=(0.0, 0.0), thickness: float = 0.03, color=COLORS["table"],
+):  # fmt: skip
     """A table top: a box of ``size`` (x, y) metres whose upper surface is at ``height``."""
     size = check_array(size, "size", shape=(2,))
     if np.any(size <= 0):
@@ -374,72 +272,34 @@ def add_table(
     thickness = check_positive(thickness, "thickness")
     cx, cy = check_array(center, "center", shape=(2,))
     return scene.add_box(
-        check_path(name),
-        color=check_rgb(color),
+        check_path(name), color=check_rgb(color),
         dimensions=(float(size[0]), float(size[1]), thickness),
         position=(cx, cy, float(height) - thickness / 2),
-    )
+    )  # fmt: skip
 
 
 def add_trail(
-    scene,
-    name: str,
-    paths,
-    color=COLORS["trail"],
-    *,
-    radius: float = 0.008,
-    opacity: float | None = None,
-    visible: bool = True,
-):
-    """Trails: a tube through each of one or L paths (:func:`tube_mesh`), as one mesh node.
-
-    Parameters
-    ----------
-    scene : viser.SceneApi
-    name : str
-        Node path, e.g. ``/trails/ball``.
-    paths : array_like, shape (T, 3) or (L, T, 3)
-        World-frame points, T ≥ 2.
-    color : RGB
-    radius : float
-        Tube radius (m).
-    opacity : float in (0, 1], optional
-        Transparency (predicted trajectories are drawn translucent).
-    """
+    scene, name: str, paths, color=COLORS["trail"], *, radius: float = 0.008,
+    opacity: float | None = None, visible: bool = True,
+):  # fmt: skip
+    """Tubes through each of one or L world-frame paths (T, 3) or (L, T, 3), T ≥ 2, as one mesh
+    node (:func:`tube_mesh`) of ``radius`` metres; predictions are drawn translucent
+    (``opacity`` in (0, 1])."""
     vertices, faces = tube_mesh(paths, radius)
     return scene.add_mesh_simple(
-        check_path(name),
-        vertices,
-        faces,
-        color=check_rgb(color),
-        opacity=check_opacity(opacity),
-        side="double",
-        cast_shadow=False,
-        receive_shadow=False,
+        check_path(name), vertices, faces, color=check_rgb(color),
+        opacity=check_opacity(opacity), side="double", cast_shadow=False, receive_shadow=False,
         visible=visible,
-    )
+    )  # fmt: skip
 
 
-# ============================================================================ MuJoCo models
 @dataclass
 class MujocoScene:
     """Viser nodes of a MuJoCo model (built by :func:`add_mujoco_model`).
 
-    Attributes
-    ----------
-    model : mujoco.MjModel
-    data : mujoco.MjData
-        Scratch data for the kinematics (not the simulator's).
-    root : str
-        Path prefix of the body frames.
-    bodies : dict of str to FrameHandle
-        ``<root>/<body>`` frame of every body with a visible geom, posed in world coordinates.
-    geoms : dict of str to handle
-        Every geom node by path.
-    body_ids : dict of str to int
-        MuJoCo body id of each body frame path.
-    skipped : list of str
-        Geoms not drawn and why (unsupported type, hidden group, fully transparent).
+    ``data`` is scratch data for the kinematics; ``bodies`` the ``<root>/<body>`` frame of
+    every body with a visible geom (world pose), ``body_ids`` their MuJoCo body ids, ``geoms``
+    every geom node by path, ``skipped`` the geoms not drawn and why.
     """
 
     model: mujoco.MjModel
@@ -452,32 +312,38 @@ class MujocoScene:
 
     def set_qpos(self, qpos) -> None:
         """Pose the body frames for joint positions ``qpos`` (nq,) with ``mujoco.mj_kinematics``."""
-        q = check_array(qpos, "qpos", shape=(self.model.nq,))
-        self.data.qpos[:] = q
+        self.data.qpos[:] = check_array(qpos, "qpos", shape=(self.model.nq,))
         mujoco.mj_kinematics(self.model, self.data)
         for path, b in self.body_ids.items():
-            handle = self.bodies[path]
-            handle.position = self.data.xpos[b].copy()
-            handle.wxyz = self.data.xquat[b].copy()
+            self.bodies[path].position = self.data.xpos[b].copy()
+            self.bodies[path].wxyz = self.data.xquat[b].copy()
 
     def positions(self, qpos, site: int | None = None) -> np.ndarray:
-        """World position of a site (or, if ``site`` is None, of the last body's origin) for
-        each row of joint positions, shape (N, nq) → (N, 3); the display is not moved."""
+        """World position of a site (None: the last body's origin) per row of joint positions,
+        shape (N, nq) → (N, 3); the display is not moved."""
         q = check_array(qpos, "qpos", ndim=2)
         if q.shape[1] != self.model.nq:
             raise ValueError(f"qpos: expected shape (N, {self.model.nq}), got {q.shape}")
-        data = mujoco.MjData(self.model)
-        out = np.empty((q.shape[0], 3))
-        for i, row in enumerate(q):
-            data.qpos[:] = row
-            mujoco.mj_kinematics(self.model, data)
-            out[i] = data.xpos[self.model.nbody - 1] if site is None else data.site_xpos[site]
-        return out
+        ids = ([self.model.nbody - 1], []) if site is None else ([], [site])
+        return kinematic_points(self.model, q, *ids)[:, 0]
 
     @property
     def nodes(self) -> dict:
         """Every node of the model by path (body frames and geoms)."""
         return {**self.bodies, **self.geoms}
+
+
+def kinematic_points(model: mujoco.MjModel, qpos: np.ndarray, bodies, sites) -> np.ndarray:
+    """World positions (N, len(bodies) + len(sites), 3) of the body origins and sites (ids) per
+    row of joint positions ``qpos`` (N, nq), by ``mujoco.mj_kinematics`` on scratch data."""
+    data = mujoco.MjData(model)
+    out = np.empty((qpos.shape[0], len(bodies) + len(sites), 3))
+    for i, row in enumerate(qpos):
+        data.qpos[:] = row
+        mujoco.mj_kinematics(model, data)
+        out[i, : len(bodies)] = data.xpos[bodies]
+        out[i, len(bodies) :] = data.site_xpos[sites]
+    return out
 
 
 def _geom_color(model: mujoco.MjModel, g: int) -> tuple[RGB, float]:
@@ -492,95 +358,57 @@ def _geom_color(model: mujoco.MjModel, g: int) -> tuple[RGB, float]:
 def add_geom(scene, name: str, model: mujoco.MjModel, geom: int, *, position=None, wxyz=None):
     """Add MuJoCo geom ``geom`` as a viser primitive at ``name``, or return None if unsupported.
 
-    The node's pose is the geom's pose in its body frame (``geom_pos``, ``geom_quat``) unless
-    ``position``/``wxyz`` are given. Sizes follow MuJoCo: sphere (r), capsule (r, half-length),
-    ellipsoid (3 semi-axes), cylinder (r, half-height), box (3 half-sizes), plane (2
-    half-sizes, 0 = infinite, drawn 10 m), mesh (the compiled vertices in the geom frame).
+    The pose is the geom's in its body frame unless ``position``/``wxyz`` are given. Sizes
+    follow MuJoCo: sphere (r), capsule (r, half-length), ellipsoid (semi-axes), cylinder (r,
+    half-height), box (half-sizes), plane (half-sizes, 0 = infinite, drawn 10 m), mesh.
     """
     gtype = int(model.geom_type[geom])
     size = np.asarray(model.geom_size[geom], dtype=np.float64)
     color, alpha = _geom_color(model, geom)
-    opacity = None if alpha >= 1.0 else alpha
-    pose = {
-        "position": tuple(
-            np.asarray(model.geom_pos[geom] if position is None else position, float)
-        ),
-        "wxyz": tuple(np.asarray(model.geom_quat[geom] if wxyz is None else wxyz, float)),
-    }
+    pos = model.geom_pos[geom] if position is None else position
+    quat = model.geom_quat[geom] if wxyz is None else wxyz
+    kw = {"color": color, "opacity": None if alpha >= 1.0 else alpha}
+    kw.update(position=tuple(np.asarray(pos, float)), wxyz=tuple(np.asarray(quat, float)))
     T = mujoco.mjtGeom
     if gtype == T.mjGEOM_SPHERE:
-        return scene.add_icosphere(name, radius=size[0], color=color, opacity=opacity, **pose)
+        return scene.add_icosphere(name, radius=size[0], **kw)
     if gtype == T.mjGEOM_ELLIPSOID:
-        return scene.add_icosphere(
-            name, radius=1.0, color=color, opacity=opacity, scale=tuple(size), **pose
-        )
+        return scene.add_icosphere(name, radius=1.0, scale=tuple(size), **kw)
     if gtype == T.mjGEOM_CAPSULE:
-        v, f = capsule_mesh(size[0], size[1])
-        return scene.add_mesh_simple(name, v, f, color=color, opacity=opacity, **pose)
+        return scene.add_mesh_simple(name, *capsule_mesh(size[0], size[1]), **kw)
     if gtype == T.mjGEOM_CYLINDER:
-        return scene.add_cylinder(
-            name, radius=size[0], height=2.0 * size[1], color=color, opacity=opacity, **pose
-        )
+        return scene.add_cylinder(name, radius=size[0], height=2.0 * size[1], **kw)
     if gtype == T.mjGEOM_BOX:
-        return scene.add_box(
-            name, color=color, dimensions=tuple(2.0 * size[:3]), opacity=opacity, **pose
-        )
+        return scene.add_box(name, dimensions=tuple(2.0 * size[:3]), **kw)
     if gtype == T.mjGEOM_PLANE:
         hx, hy = (s if s > 0 else _INFINITE_PLANE_HALF_SIZE for s in size[:2])
         v = np.array([[-hx, -hy, 0.0], [hx, -hy, 0.0], [hx, hy, 0.0], [-hx, hy, 0.0]])
         f = np.array([[0, 1, 2], [0, 2, 3]])
-        return scene.add_mesh_simple(
-            name, v, f, color=color, opacity=opacity, side="double", cast_shadow=False, **pose
-        )
+        return scene.add_mesh_simple(name, v, f, side="double", cast_shadow=False, **kw)
     if gtype == T.mjGEOM_MESH:
         m = int(model.geom_dataid[geom])
         va, vn = int(model.mesh_vertadr[m]), int(model.mesh_vertnum[m])
         fa, fn = int(model.mesh_faceadr[m]), int(model.mesh_facenum[m])
-        return scene.add_mesh_simple(
-            name,
-            np.asarray(model.mesh_vert[va : va + vn], float),
-            np.asarray(model.mesh_face[fa : fa + fn]),
-            color=color,
-            opacity=opacity,
-            **pose,
-        )
+        v = np.asarray(model.mesh_vert[va : va + vn], float)
+        return scene.add_mesh_simple(name, v, np.asarray(model.mesh_face[fa : fa + fn]), **kw)
     return None
 
 
 def add_mujoco_model(
-    scene,
-    model: mujoco.MjModel,
-    root: str = "/arm",
-    *,
-    world_paths: Mapping[str, str] | None = None,
-    skip_geoms: Sequence[str] = (),
+    scene, model: mujoco.MjModel, root: str = "/arm", *,
+    world_paths: Mapping[str, str] | None = None, skip_geoms: Sequence[str] = (),
     max_group: int = 2,
-) -> MujocoScene:
+) -> MujocoScene:  # fmt: skip
     """Add every visible geom of a MuJoCo model, one frame per body.
 
-    Body ``b`` becomes a frame ``<root>/<body name>`` (``body<b>`` if unnamed; the world body
-    is ``<root>/world``) posed at the body's world pose; its geoms are children
-    ``<root>/<body>/<geom name>`` at their constant body-local poses, so a time step only
-    moves the body frames (:meth:`MujocoScene.set_qpos`). The initial pose is ``qpos0``.
-
-    Parameters
-    ----------
-    scene : viser.SceneApi
-    model : mujoco.MjModel
-    root : str
-        Path prefix, e.g. ``/arm``.
-    world_paths : mapping of str to str, optional
-        Paths for named geoms of the world body (static scenery), e.g. ``{"table": "/table"}``.
-    skip_geoms : sequence of str
-        Names of geoms not to draw.
-    max_group : int
-        Geoms in groups above this are not drawn (MuJoCo's viewer shows groups 0–2).
-
-    Returns
-    -------
-    MujocoScene
-        Geoms of unsupported types (height fields, SDFs) are listed in ``skipped`` and reported
-        with a ``RuntimeWarning``.
+    Body ``b`` becomes a frame ``<root>/<body name>`` (``body<b>`` if unnamed, ``world`` for
+    the world body) at its world pose (``qpos0``); its geoms are children
+    ``<root>/<body>/<geom name>`` at constant body-local poses, so a time step only moves the
+    body frames (:meth:`MujocoScene.set_qpos`). ``world_paths`` gives named geoms of the world
+    body (static scenery) their own paths, e.g. ``{"table": "/table"}``; ``skip_geoms`` names
+    geoms not to draw; geoms in groups above ``max_group`` are hidden (as in MuJoCo's viewer).
+    Geoms of unsupported types (height fields, SDFs) are listed in ``skipped`` and reported
+    with a ``RuntimeWarning``.
     """
     if not isinstance(model, mujoco.MjModel):
         raise ValueError(f"model: expected a mujoco.MjModel, got {type(model).__name__}")
@@ -600,14 +428,15 @@ def add_mujoco_model(
         gname = model.geom(g).name
         label = node_name(gname) if gname else f"geom{g}"
         b = int(model.geom_bodyid[g])
-        if gname in skip_geoms:
-            out.skipped.append(f"{label}: skipped on request")
-            continue
-        if int(model.geom_group[g]) > max_group:
-            out.skipped.append(f"{label}: group {int(model.geom_group[g])} > {max_group}")
-            continue
-        if _geom_color(model, g)[1] <= 0.0:
-            out.skipped.append(f"{label}: fully transparent")
+        group = int(model.geom_group[g])
+        why = (
+            "skipped on request" if gname in skip_geoms
+            else f"group {group} > {max_group}" if group > max_group
+            else "fully transparent" if _geom_color(model, g)[1] <= 0.0
+            else ""
+        )  # fmt: skip
+        if why:
+            out.skipped.append(f"{label}: {why}")
             continue
         if gname in world_paths:
             if b != 0:
@@ -615,25 +444,21 @@ def add_mujoco_model(
                     f"world_paths: geom {gname!r} is not static (it belongs to body "
                     f"{model.body(b).name!r}, not the world body)"
                 )
-            handle = add_geom(scene, world_paths[gname], model, g)
-            if handle is None:
-                unsupported.append(label)
-                continue
-            out.geoms[world_paths[gname]] = handle
-            continue
-        bname = model.body(b).name
-        body_path = f"{root}/{node_name(bname) if bname else f'body{b}'}" if b else f"{root}/world"
-        if body_path not in out.bodies:
-            out.bodies[body_path] = scene.add_frame(
-                body_path, show_axes=False, position=tuple(data.xpos[b]), wxyz=tuple(data.xquat[b])
-            )
-            out.body_ids[body_path] = b
-        path = f"{body_path}/{label}"
+            path = world_paths[gname]
+        else:
+            bname = model.body(b).name
+            body = f"{root}/{node_name(bname) if bname else f'body{b}'}" if b else f"{root}/world"
+            if body not in out.bodies:
+                out.bodies[body] = scene.add_frame(
+                    body, show_axes=False, position=tuple(data.xpos[b]), wxyz=tuple(data.xquat[b])
+                )
+                out.body_ids[body] = b
+            path = f"{body}/{label}"
         handle = add_geom(scene, path, model, g)
         if handle is None:
             unsupported.append(label)
-            continue
-        out.geoms[path] = handle
+        else:
+            out.geoms[path] = handle
     if unsupported:
         out.skipped += [f"{u}: unsupported geom type" for u in unsupported]
         warnings.warn(
@@ -651,40 +476,32 @@ def task_model(task) -> mujoco.MjModel | None:
     return model if isinstance(model, mujoco.MjModel) else None
 
 
-# ============================================================================ task scenes
 class TaskScene(ABC):
-    """How one task's trajectories appear in a viser scene.
-
-    Subclasses build their nodes in ``__init__`` and implement :meth:`show` (pose everything
-    at a time t of a trajectory), :meth:`trails` (named 3-D paths of a trajectory) and
-    :meth:`points` (the 3-D point of a state, where predicted state trajectories are drawn).
-
-    Attributes
-    ----------
-    task : Task
-    scene : viser.SceneApi
-    nodes : dict of str to handle
-        Every node the scene built, by path.
-    camera_position, camera_look_at : tuple of float
-        A good initial view.
-    """
+    """How one task's trajectories appear in a viser scene: subclasses build their ``nodes``
+    (by path) in ``__init__`` and implement :meth:`show`, :meth:`trails` and :meth:`points`;
+    ``camera_position``, ``camera_look_at`` give a good initial view."""
 
     camera_position: tuple[float, float, float] = (3.0, -3.0, 2.0)
     camera_look_at: tuple[float, float, float] = (0.0, 0.0, 0.5)
+    task_type: tuple[str, str] | None = None  # (module, class) of the task drawn
 
     def __init__(self, scene, task) -> None:
-        self.scene = scene
-        self.task = task
+        self.scene, self.task = scene, task
         self.nodes: dict = {}
 
     def _add(self, handle):
         self.nodes[handle.name] = handle
         return handle
 
+    def _mid_context(self) -> None:
+        t = self.task
+        self.set_context(0.5 * (np.asarray(t.context_low) + np.asarray(t.context_high)))
+
     @classmethod
-    @abstractmethod
     def accepts(cls, task) -> bool:
-        """Whether this adapter draws ``task``."""
+        """Whether this adapter draws ``task`` (an instance of :attr:`task_type`)."""
+        module, name = cls.task_type
+        return isinstance(task, getattr(importlib.import_module(module), name))
 
     @abstractmethod
     def show(self, trajectory: Trajectory, t: float) -> None:
@@ -718,50 +535,32 @@ class TaskScene(ABC):
 class PendulumScene(TaskScene):
     """The single-link pendulum of Sec. 5.4, drawn from primitives (it has no MuJoCo model).
 
-    A pivot at ``PIVOT`` and a rod of length ``LENGTH`` with a bob, swinging in the x–z plane:
-    the bob is at pivot + l (sin α, 0, −cos α), so α = 0 hangs down and α > 0 swings to +x.
-    Nodes: ``/pendulum/pivot``, ``/pendulum/link1`` (rotates with α), ``/pendulum/link1/rod``,
-    ``/pendulum/link1/bob``.
+    A rod of length ``LENGTH`` with a bob swings about ``PIVOT`` in the x–z plane: the bob is
+    at pivot + l (sin α, 0, −cos α). Nodes: ``/pendulum/pivot``, ``/pendulum/link1`` (rotates
+    with α), ``/pendulum/link1/rod``, ``/pendulum/link1/bob``.
     """
 
     LENGTH = 1.0
     PIVOT = (0.0, 0.0, 1.2)
     camera_position = (0.0, -3.2, 1.2)
     camera_look_at = (0.0, 0.0, 0.9)
+    task_type = ("skillkit.tasks.pendulum", "Pendulum")
     state_dim = 2
 
     def __init__(self, scene, task) -> None:
         super().__init__(scene, task)
-        length = self.LENGTH
-        self._add(
-            scene.add_icosphere(
-                "/pendulum/pivot", radius=0.05, color=(60, 60, 60), position=self.PIVOT
-            )
-        )
-        self.link = self._add(
-            scene.add_frame("/pendulum/link1", show_axes=False, position=self.PIVOT)
-        )
+        length, add = self.LENGTH, self._add
+        pivot = {"color": (60, 60, 60), "position": self.PIVOT}
+        add(scene.add_icosphere("/pendulum/pivot", radius=0.05, **pivot))
+        self.link = add(scene.add_frame("/pendulum/link1", show_axes=False, position=self.PIVOT))
         v, f = capsule_mesh(0.02, length / 2)
-        self._add(
-            scene.add_mesh_simple(
-                "/pendulum/link1/rod", v, f, color=COLORS["robot"], position=(0.0, 0.0, -length / 2)
-            )
-        )
-        self._add(
-            scene.add_icosphere(
-                "/pendulum/link1/bob",
-                radius=0.08,
-                color=COLORS["ball"],
-                position=(0.0, 0.0, -length),
-            )
-        )
-        self._add(scene.add_grid("/ground", width=4.0, height=4.0))
-
-    @classmethod
-    def accepts(cls, task) -> bool:
-        from skillkit.tasks.pendulum import Pendulum
-
-        return isinstance(task, Pendulum)
+        add(scene.add_mesh_simple(
+            "/pendulum/link1/rod", v, f, color=COLORS["robot"], position=(0.0, 0.0, -length / 2)
+        ))  # fmt: skip
+        add(scene.add_icosphere(
+            "/pendulum/link1/bob", radius=0.08, color=COLORS["ball"], position=(0.0, 0.0, -length)
+        ))  # fmt: skip
+        add(scene.add_grid("/ground", width=4.0, height=4.0))
 
     def set_angle(self, alpha: float) -> None:
         """Rotate the link to angle α (rad) about the −y axis through the pivot."""
@@ -786,10 +585,9 @@ class PendulumScene(TaskScene):
 class MujocoTaskScene(TaskScene):
     """Any task that exposes its MuJoCo model (:func:`task_model`) with states x = [q, q̇].
 
-    The robot is drawn by :func:`add_mujoco_model` under ``/arm``; the joint positions at a time
-    step are ``states[:, :nq]`` (the task may instead provide ``qpos(trajectory)`` returning
-    shape (T, nq)). The 3-D point of a state is the position of site :attr:`effector_site`
-    (default: the model's first site, else the last body's origin).
+    The robot is drawn by :func:`add_mujoco_model` under ``/arm``; the joint positions are
+    ``states[:, :nq]`` (or the task's ``qpos(trajectory)``, shape (T, nq)). The 3-D point of a
+    state is site :attr:`effector_site` (default: the first site, else the last body's origin).
     """
 
     effector_site: str | None = None
@@ -800,9 +598,8 @@ class MujocoTaskScene(TaskScene):
         super().__init__(scene, task)
         model = task_model(task)
         if model is None:
-            raise ValueError(
-                f"task: {type(task).__name__} exposes no MuJoCo model (needs Task.scene_model())"
-            )
+            msg = f"task: {type(task).__name__} exposes no MuJoCo model (needs Task.scene_model())"
+            raise ValueError(msg)
         self.robot = add_mujoco_model(
             scene, model, "/arm", world_paths=self.world_paths, skip_geoms=self.skip_geoms
         )
@@ -814,7 +611,7 @@ class MujocoTaskScene(TaskScene):
 
     @classmethod
     def accepts(cls, task) -> bool:
-        return task_model(task) is not None
+        return super().accepts(task) if cls.task_type else task_model(task) is not None
 
     @property
     def state_dim(self) -> int:
@@ -826,8 +623,7 @@ class MujocoTaskScene(TaskScene):
         getter = getattr(self.task, "qpos", None)
         if callable(getter):
             return np.asarray(getter(trajectory), dtype=np.float64)
-        m = self.robot.model
-        x = trajectory.states
+        m, x = self.robot.model, trajectory.states
         if x.shape[1] != m.nq + m.nv:
             raise ValueError(
                 f"trajectory: states have {x.shape[1]} columns; expected [q, q̇] with "
@@ -856,45 +652,31 @@ def _plane_to_3d(xy: np.ndarray) -> np.ndarray:
 
 
 class PlanarScene(MujocoTaskScene):
-    """The planar 4-link robot of Appendix C.1 (balancing, Sec. 4.3.1): the robot in the x–z
-    plane on its ground; the 3-D point of a state is the hand."""
+    """The planar 4-link robot of Appendix C.1 (balancing, Sec. 4.3.1) in the x–z plane; the
+    3-D point of a state is the hand."""
 
     effector_site = "hand"
     camera_position = (2.6, -4.2, 1.8)
     camera_look_at = (0.2, 0.0, 1.0)
-
-    @classmethod
-    def accepts(cls, task) -> bool:
-        from skillkit.tasks.balancing import Balancing
-
-        return isinstance(task, Balancing)
+    task_type = ("skillkit.tasks.balancing", "Balancing")
 
 
 class ThrowingScene(PlanarScene):
-    """Ball throwing with the planar 4-link robot (Sec. 3.4.1, Appendix C.1).
-
-    Adds ``/ball`` (signal ``ball`` in the robot plane [x, y] on ``ball_times``) and
-    ``/target`` (the context [x, y]); trails ``effector`` (hand) and ``ball``.
-    """
+    """Ball throwing with the planar 4-link robot (Sec. 3.4.1, Appendix C.1): adds ``/ball``
+    (signal ``ball`` in the robot plane on ``ball_times``) and ``/target`` (the context)."""
 
     camera_position = (5.5, -8.0, 2.6)
     camera_look_at = (5.5, 0.0, 1.6)
+    task_type = ("skillkit.tasks.planar", "Throwing")
 
     def __init__(self, scene, task) -> None:
         super().__init__(scene, task)
         self.ball = self._add(add_ball(scene, "/ball", 0.08))
         self.target = self._add(add_target(scene, "/target", 0.2))
-        self.set_context(0.5 * (np.asarray(task.context_low) + np.asarray(task.context_high)))
-
-    @classmethod
-    def accepts(cls, task) -> bool:
-        from skillkit.tasks.planar import Throwing
-
-        return isinstance(task, Throwing)
+        self._mid_context()
 
     def set_context(self, context) -> None:
-        s = self.task.check_context(context)
-        self.target.position = tuple(_plane_to_3d(s))
+        self.target.position = tuple(_plane_to_3d(self.task.check_context(context)))
 
     def show(self, trajectory: Trajectory, t: float) -> None:
         super().show(trajectory, t)
@@ -906,51 +688,29 @@ class ThrowingScene(PlanarScene):
 
 
 class HockeyScene(MujocoTaskScene):
-    """Robot hockey (Appendix C.2): the arm with its racket, the table, two pucks, the target.
-
-    ``/pucks/control`` and ``/pucks/target`` follow the signals ``control_puck`` and
-    ``target_puck`` (on ``puck_times``); ``/target`` is a translucent disc of radius d*
-    around the target puck's start b (the context [b_x, b_y, d*]): the target puck should
-    end on its rim. Trails: ``effector`` (blade), ``control_puck``, ``target_puck``.
-    """
+    """Robot hockey (Appendix C.2): the arm, the table, ``/pucks/control`` and ``/pucks/target``
+    (signals ``control_puck``, ``target_puck`` on ``puck_times``) and ``/target``, a disc of
+    radius d* around the target puck's start b (context [b_x, b_y, d*])."""
 
     effector_site = "blade"
     world_paths = {"table": "/table"}
     camera_position = (-0.6, -1.8, 1.8)
     camera_look_at = (1.3, 0.4, 0.0)
+    task_type = ("skillkit.tasks.hockey", "Hockey")
 
     def __init__(self, scene, task) -> None:
         super().__init__(scene, task)
-        phys = task.physics
-        self._half_height = phys.puck_height / 2
         from skillkit.tasks.hockey import CONTROL_PUCK_START
 
+        r, h = task.physics.puck_radius, task.physics.puck_height
+        self._half_height = h / 2
         start = np.append(CONTROL_PUCK_START, self._half_height)
         self.control_puck = self._add(
-            add_puck(
-                scene,
-                "/pucks/control",
-                phys.puck_radius,
-                phys.puck_height,
-                COLORS["control_puck"],
-                position=start,
-            )
+            add_puck(scene, "/pucks/control", r, h, COLORS["control_puck"], position=start)
         )
-        self.target_puck = self._add(
-            add_puck(
-                scene, "/pucks/target", phys.puck_radius, phys.puck_height, COLORS["target_puck"]
-            )
-        )
-        self.target = self._add(
-            add_target(scene, "/target", phys.puck_radius, flat=True, opacity=0.35)
-        )
-        self.set_context(0.5 * (np.asarray(task.context_low) + np.asarray(task.context_high)))
-
-    @classmethod
-    def accepts(cls, task) -> bool:
-        from skillkit.tasks.hockey import Hockey
-
-        return isinstance(task, Hockey)
+        self.target_puck = self._add(add_puck(scene, "/pucks/target", r, h, COLORS["target_puck"]))
+        self.target = self._add(add_target(scene, "/target", r, flat=True, opacity=0.35))
+        self._mid_context()
 
     def set_context(self, context) -> None:
         s = self.task.check_context(context)
@@ -974,15 +734,13 @@ class HockeyScene(MujocoTaskScene):
 
 
 class TableTennisScene(MujocoTaskScene):
-    """Robot table tennis (Appendix C.3): the arm, the table and net, the ball, the target.
-
-    ``/ball`` follows signal ``ball`` (T, 3); ``/target`` is a flat disc at the return target
-    b = context[3:5] on the table surface. Trails: ``effector`` (racket centre) and ``ball``.
-    """
+    """Robot table tennis (Appendix C.3): the arm, the table and net, ``/ball`` (signal
+    ``ball`` (T, 3)) and ``/target``, a flat disc at the return target b = context[3:5]."""
 
     effector_site = "racket"
     camera_position = (-3.0, -2.2, 1.9)
     camera_look_at = (-0.6, 0.1, 0.85)
+    task_type = ("skillkit.tasks.table_tennis", "TableTennis")
 
     def __init__(self, scene, task) -> None:
         super().__init__(scene, task)
@@ -990,27 +748,14 @@ class TableTennisScene(MujocoTaskScene):
 
         self._height = tt.TABLE_HEIGHT
         self._add(add_table(scene, "/table", (tt.TABLE_LENGTH, tt.TABLE_WIDTH), tt.TABLE_HEIGHT))
-        net_width = tt.TABLE_WIDTH + 2 * tt.NET_OVERHANG
-        self._add(
-            scene.add_box(
-                "/net",
-                color=(240, 240, 240),
-                opacity=0.7,
-                dimensions=(0.01, net_width, tt.NET_HEIGHT),
-                position=(0.0, 0.0, tt.TABLE_HEIGHT + tt.NET_HEIGHT / 2),
-            )
-        )
+        net_width, net_z = tt.TABLE_WIDTH + 2 * tt.NET_OVERHANG, tt.TABLE_HEIGHT + tt.NET_HEIGHT / 2
+        net = {"color": (240, 240, 240), "opacity": 0.7, "position": (0.0, 0.0, net_z)}
+        self._add(scene.add_box("/net", dimensions=(0.01, net_width, tt.NET_HEIGHT), **net))
         self.ball = self._add(add_ball(scene, "/ball", task.ball.radius))
         self.target = self._add(
             add_target(scene, "/target", 0.1, flat=True, position=(0.5, 0.0, self._height + 0.003))
         )
-        self.set_context(0.5 * (np.asarray(task.context_low) + np.asarray(task.context_high)))
-
-    @classmethod
-    def accepts(cls, task) -> bool:
-        from skillkit.tasks.table_tennis import TableTennis
-
-        return isinstance(task, TableTennis)
+        self._mid_context()
 
     def set_context(self, context) -> None:
         s = self.task.check_context(context)
@@ -1018,35 +763,21 @@ class TableTennisScene(MujocoTaskScene):
 
     def show(self, trajectory: Trajectory, t: float) -> None:
         super().show(trajectory, t)
-        self.ball.position = tuple(
-            interpolate(signal_times(trajectory, "ball"), trajectory.signals["ball"], t)
-        )
+        ball = interpolate(signal_times(trajectory, "ball"), trajectory.signals["ball"], t)
+        self.ball.position = tuple(ball)
 
     def trails(self, trajectory: Trajectory) -> dict[str, np.ndarray]:
         return {**super().trails(trajectory), "ball": trajectory.signals["ball"]}
 
 
 _ADAPTERS: tuple[type[TaskScene], ...] = (
-    PendulumScene,
-    PlanarScene,
-    ThrowingScene,
-    HockeyScene,
-    TableTennisScene,
-    MujocoTaskScene,
-)
+    PendulumScene, PlanarScene, ThrowingScene, HockeyScene, TableTennisScene, MujocoTaskScene,
+)  # fmt: skip
 
 
 def task_scene(scene, task) -> TaskScene:
-    """Build the scene of ``task`` with the first adapter that accepts it.
-
-    Specific adapters (pendulum, throwing, hockey, table tennis) come first; any other task
-    exposing a MuJoCo model (:func:`task_model`) gets the generic :class:`MujocoTaskScene`.
-
-    Raises
-    ------
-    ValueError
-        No adapter draws the task (argument ``task``).
-    """
+    """Build the scene of ``task`` with the first adapter that accepts it (the specific ones
+    first, then :class:`MujocoTaskScene`); ``ValueError`` (argument ``task``) if none does."""
     for adapter in _ADAPTERS:
         try:
             accepted = adapter.accepts(task)

@@ -2,15 +2,10 @@
 
 :class:`Viewer` serves one task scene (:mod:`skillkit.viz.scenes`) with a timeline, context
 sliders that re-run the policy mean ω = a + A φ(s) (Eq. 3.13) or a sample ω ~ π(ω|s) (every
-rollout with the same episode seed, so the same (ω, s) gives the same trajectory), switchable
-prediction layers (:meth:`Viewer.add_prediction_layer`; a GPREPS reward model's via
-:meth:`Viewer.add_model_layers`) and learning playback of a
-:class:`~skillkit.viz.history.PolicyHistory`. File formats: :mod:`skillkit.viz.history`,
-:mod:`skillkit.viz.predictions`, :mod:`skillkit.viz.model_layers`.
-
-The server binds to 127.0.0.1 unless told otherwise; a port in use raises
-:class:`PortInUseError` (viser would silently take the next one); :meth:`Viewer.stop` frees the
-port. viser's banner and "Server stopped" are silenced unless ``verbose=True``.
+rollout with the same episode seed), switchable prediction layers and learning playback of a
+:class:`~skillkit.viz.history.PolicyHistory`. It binds to 127.0.0.1 unless told otherwise; a
+port in use raises :class:`PortInUseError` (viser would silently take the next one). viser's
+banner and "Server stopped" are silenced unless ``verbose=True``.
 """
 
 from __future__ import annotations
@@ -44,13 +39,8 @@ from skillkit.viz.scenes import (
 )
 
 __all__ = [
-    "DEFAULT_HOST",
-    "DEFAULT_PORT",
-    "PortInUseError",
-    "PredictionLayer",
-    "Viewer",
-    "start_server",
-]
+    "DEFAULT_HOST", "DEFAULT_PORT", "PortInUseError", "PredictionLayer", "Viewer", "start_server",
+]  # fmt: skip
 
 PREDICTION_COLORS = [(220, 40, 160), (150, 70, 220), (20, 170, 170), (230, 160, 0)]
 """Colours given to prediction layers in turn when none is specified."""
@@ -60,13 +50,7 @@ _Result = TypeVar("_Result")
 
 
 class PortInUseError(OSError):
-    """The viewer's port is taken by another process (``errno`` EADDRINUSE).
-
-    Attributes
-    ----------
-    host : str
-    port : int
-    """
+    """The viewer's port (``port`` on ``host``) is taken by another process (EADDRINUSE)."""
 
     def __init__(self, host: str, port: int, detail: str = "") -> None:
         super().__init__(
@@ -75,27 +59,12 @@ class PortInUseError(OSError):
         self.errno, self.host, self.port = errno.EADDRINUSE, host, port
 
 
-# ============================================================================ prediction layers
 @dataclass
 class PredictionLayer:
-    """One model's predicted trajectories in the scene.
-
-    Attributes
-    ----------
-    name : str
-    points : ndarray, shape (L, T, 3)
-        World-frame paths drawn (the scene's point of each predicted state); T = 1 for
-        predicted points (e.g. landing points), drawn as dots.
-    times : ndarray, shape (T,)
-    color : tuple of int
-    opacity : float
-    nodes : dict of str to handle
-        ``/predictions/<name>/samples`` (translucent tubes), ``…/mean`` (the mean path) and
-        ``…/now`` (the L predicted points at the timeline's time).
-    checkbox : GuiCheckboxHandle or None
-    label : str
-        What the checkbox and the legend call the layer (default: ``name``).
-    """
+    """One model's predicted trajectories in the scene: world-frame ``points`` (L, T, 3) (T = 1:
+    predicted points, drawn as dots) at ``times`` (T,); ``nodes`` ``/predictions/<name>/samples``
+    (translucent tubes), ``…/mean`` (the mean path) and ``…/now`` (the L points at the
+    timeline's time); ``label`` names it in the checkbox and the legend (default: ``name``)."""
 
     name: str
     points: np.ndarray
@@ -123,10 +92,8 @@ class PredictionLayer:
         return interpolate(self.times, np.swapaxes(self.points, 0, 1), t)
 
 
-# ============================================================================ the viewer
 def _call_silenced(fn: Callable[[], _Result]) -> _Result:
-    """``fn()`` run in a helper thread whose ``rich`` output is dropped; its result returned, its
-    exception raised (rich's capture buffer is per thread, so other threads print as usual)."""
+    """``fn()`` in a helper thread whose ``rich`` output is dropped; result or error passed on."""
     import rich
 
     outcome: dict = {}
@@ -147,8 +114,7 @@ def _call_silenced(fn: Callable[[], _Result]) -> _Result:
 
 
 def _silence_server_thread(server) -> None:
-    """Drop what ``rich`` prints from now on in ``server``'s event-loop thread ("Server stopped"),
-    leaving other threads alone: viser prints it whatever its ``verbose`` says."""
+    """Drop what ``rich`` prints from now on in ``server``'s event-loop thread."""
     import rich
 
     try:
@@ -161,24 +127,11 @@ def start_server(
     host: str = DEFAULT_HOST, port: int = 0, *, label: str | None = None, verbose: bool = False
 ):
     """Start a viser server, quiet unless ``verbose``: what :class:`Viewer` serves from, and a
-    server for building scenes by hand (:func:`skillkit.viz.scenes.task_scene`) in a notebook.
+    server for building scenes by hand (:func:`skillkit.viz.scenes.task_scene`).
 
-    Parameters
-    ----------
-    host : str
-        Interface to bind (127.0.0.1: this machine only).
-    port : int
-        TCP port (0: any free port). viser moves on to the next free port if it is taken;
-        :meth:`Viewer.start` refuses that instead.
-    label : str, optional
-        Title of the GUI panel.
-    verbose : bool
-        Let viser print its banner, "Server stopped" and a line per browser connection.
-
-    Returns
-    -------
-    viser.ViserServer
-        Running; stop it with ``server.stop()``.
+    ``port`` 0 takes any free port (viser moves on to the next free one if it is taken;
+    :meth:`Viewer.start` refuses that); ``label`` titles the GUI panel; ``verbose`` lets viser
+    print its banner and a line per connection. Returns the running ``viser.ViserServer``.
     """
     import viser
 
@@ -212,30 +165,12 @@ def _check_port(host: str, port: int) -> None:
 class Viewer:
     """A viser server showing one task: rollouts, predictions and learning playback.
 
-    Parameters
-    ----------
-    task : Task or str
-        The task, or its registry name.
-    policy : LinearGaussianPolicy, optional
-        Upper-level policy π(ω|s) (default: the task's initial policy, or the last policy of
-        ``history``).
-    context : array_like, shape (context_dim,), optional
-        Initial context (default: the middle of the task's range).
-    history : PolicyHistory, optional
-        Policies of a learning run, for learning playback.
-    host : str
-        Interface to bind (127.0.0.1: this machine only).
-    port : int
-        TCP port (0: any free port).
-    seed : int
-        Episode seed of every rollout, and seed of the ω samples.
-    environment : bool
-        Light the scene with viser's HDRI environment map (default). False uses a hemisphere
-        light instead, which renders far faster in browsers without a GPU (software WebGL).
-    verbose : bool
-        Let viser print its start-up banner, "Server stopped" and a line per browser
-        connection (default False: nothing lands in notebook cells or test output; the URL
-        is :attr:`url`).
+    ``task`` is a Task or its registry name; ``policy`` the upper-level policy π(ω|s) (default:
+    the last of ``history``, a :class:`PolicyHistory` for learning playback, else the task's
+    initial policy); ``context`` the initial context (default: mid-range); ``port`` 0 takes any
+    free port; ``seed`` seeds every rollout's episode and the ω samples; ``environment=False``
+    lights with a hemisphere light instead of viser's HDRI map (far faster without a GPU);
+    ``verbose`` lets viser print its banner and a line per browser connection.
 
     Examples
     --------
@@ -245,25 +180,16 @@ class Viewer:
     """
 
     def __init__(
-        self,
-        task,
-        policy: LinearGaussianPolicy | None = None,
-        context=None,
-        *,
-        history: PolicyHistory | None = None,
-        host: str = DEFAULT_HOST,
-        port: int = DEFAULT_PORT,
-        seed: int = 0,
-        environment: bool = True,
-        verbose: bool = False,
-    ) -> None:
+        self, task, policy: LinearGaussianPolicy | None = None, context=None, *,
+        history: PolicyHistory | None = None, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT,
+        seed: int = 0, environment: bool = True, verbose: bool = False,
+    ) -> None:  # fmt: skip
         from skillkit.tasks import Task, make
 
         self.task = make(task) if isinstance(task, str) else task
         if not isinstance(self.task, Task):
-            raise ValueError(
-                f"task: expected a Task or a registered task name, got {type(task).__name__}"
-            )
+            msg = f"task: expected a Task or a registered task name, got {type(task).__name__}"
+            raise ValueError(msg)
         if history is not None and not isinstance(history, PolicyHistory):
             raise ValueError(f"history: expected a PolicyHistory, got {type(history).__name__}")
         if history is not None and history.task and history.task != self.task.name:
@@ -279,44 +205,30 @@ class Viewer:
         if context is None:
             context = 0.5 * (np.asarray(self.task.context_low) + np.asarray(self.task.context_high))
         self.context = self.task.check_context(context)
-        if (
-            not isinstance(port, (int, np.integer))
-            or isinstance(port, bool)
-            or not 0 <= port < 65536
-        ):
+        bad_port = not isinstance(port, (int, np.integer)) or isinstance(port, bool)
+        if bad_port or not 0 <= port < 65536:
             raise ValueError(f"port: expected an integer in [0, 65535], got {port!r}")
         if not isinstance(host, str) or not host:
             raise ValueError(f"host: expected a host name or address, got {host!r}")
         self.host, self._requested_port, self.seed = host, int(port), int(seed)
         self.environment, self.verbose = bool(environment), bool(verbose)
         self._omega_rng = as_generator(self.seed)
-        self.server = None
+        self.server = self.trajectory = self.omega = self.model = self._thread = None
         self.scene: TaskScene | None = None
-        self.trajectory: Trajectory | None = None
-        self.omega: np.ndarray | None = None
         self.time = 0.0
         self.update_index = len(history) - 1 if history is not None else None
         self.layers: dict[str, PredictionLayer] = {}
-        self.model = None
-        self.model_samples, self.model_seed = 10, 0
-        self.model_layer_names: list[str] = []
-        self._model_key: tuple | None = None
-        self._model_error = ""
-        self._trail_nodes: dict = {}
-        self._ghost_nodes: dict = {}
-        self._lock = threading.RLock()
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
-        self.playing = False
-        self.stepping_updates = False
-        self.gui: dict = {}
+        self.model_samples, self.model_seed, self.model_layer_names = 10, 0, []
+        self._model_key, self._model_error = None, ""
+        self._trail_nodes, self._ghost_nodes, self.gui = {}, {}, {}
+        self._lock, self._stop = threading.RLock(), threading.Event()
+        self.playing = self.stepping_updates = False
         self._local = threading.local()  # .quiet: this thread is moving a GUI input itself
 
     def _check_policy(self, policy, name: str) -> LinearGaussianPolicy:
         if not isinstance(policy, LinearGaussianPolicy):
-            raise ValueError(
-                f"{name}: expected a LinearGaussianPolicy, got {type(policy).__name__}"
-            )
+            msg = f"{name}: expected a LinearGaussianPolicy, got {type(policy).__name__}"
+            raise ValueError(msg)
         t = self.task
         if policy.dim != t.parameter_dim or policy.context_dim != t.context_dim:
             raise ValueError(
@@ -325,7 +237,6 @@ class Viewer:
             )
         return policy
 
-    # ----------------------------------------------------------------- lifecycle
     @property
     def port(self) -> int:
         """The bound port (the requested one; the OS's choice for port 0)."""
@@ -337,29 +248,19 @@ class Viewer:
         return f"http://{host}:{self.port}/"
 
     def start(self) -> Viewer:
-        """Start the server, build the scene and the GUI and show the first rollout.
-
-        Raises
-        ------
-        PortInUseError
-            The port is taken (the message names it).
-        """
+        """Start the server, build the scene and the GUI and show the first rollout; raises
+        :class:`PortInUseError` when the port is taken."""
         if self.server is not None:
             raise ValueError("viewer: already started")
-        if self._requested_port:
-            _check_port(self.host, self._requested_port)
-        server = start_server(
-            self.host,
-            self._requested_port,
-            label=f"skillkit · {self.task.name}",
-            verbose=self.verbose,
-        )
-        if self._requested_port and server.get_port() != self._requested_port:
+        port = self._requested_port
+        if port:
+            _check_port(self.host, port)
+        label = f"skillkit · {self.task.name}"
+        server = start_server(self.host, port, label=label, verbose=self.verbose)
+        if port and server.get_port() != port:
             bound = server.get_port()
             server.stop()  # viser moved on to the next free port: refuse that
-            raise PortInUseError(
-                self.host, self._requested_port, f" (taken while starting; viser offered {bound})"
-            )
+            raise PortInUseError(self.host, port, f" (taken while starting; viser offered {bound})")
         self.server = server
         try:
             with self._lock:
@@ -368,11 +269,9 @@ class Viewer:
                 if not self.environment:
                     server.scene.configure_environment_map(None)
                     server.scene.add_light_hemisphere(
-                        "/lights/hemisphere",
-                        sky_color=(255, 255, 255),
-                        ground_color=(120, 120, 120),
-                        intensity=2.0,
-                    )
+                        "/lights/hemisphere", sky_color=(255, 255, 255),
+                        ground_color=(120, 120, 120), intensity=2.0,
+                    )  # fmt: skip
                 cam = server.initial_camera
                 cam.position, cam.look_at = self.scene.camera_position, self.scene.camera_look_at
                 self._build_gui()
@@ -413,10 +312,8 @@ class Viewer:
         finally:
             self.stop()
 
-    # ----------------------------------------------------------------- GUI
     def _build_gui(self) -> None:
-        gui, task = self.server.gui, self.task
-        g = self.gui
+        gui, task, g = self.server.gui, self.task, self.gui
         g["status"] = gui.add_markdown("")
         with gui.add_folder("Playback"):
             g["time"] = gui.add_slider("time [s]", min=0.0, max=1.0, step=0.01, initial_value=0.0)
@@ -446,12 +343,7 @@ class Viewer:
             with gui.add_folder("Learning playback"):
                 K = len(self.history) - 1
                 g["update"] = gui.add_slider(
-                    "policy update k",
-                    min=0,
-                    max=max(K, 1),
-                    step=1,
-                    initial_value=K,
-                    disabled=K == 0,
+                    "policy update k", min=0, max=max(K, 1), step=1, initial_value=K, disabled=not K
                 )
                 g["step_updates"] = gui.add_button("Step through updates", icon="player-play")
                 g["ghosts"] = gui.add_checkbox("trails of earlier updates", False)
@@ -480,22 +372,25 @@ class Viewer:
         if "tree" in self.gui:
             self.gui["tree"].content = self._tree_markdown()
 
-    # ----------------------------------------------------------------- rollouts
     def _require_started(self) -> None:
         if self.server is None:
             raise ValueError("viewer: not started; call start() first")
 
+    def _roll_out(self, policy, sample: bool = False):
+        """(ω, trajectory) of ``policy``'s mean (or a sample) in the current context."""
+        s = self.context if self.task.context_dim else None
+        ctx = self.context[None, :] if self.task.context_dim else np.zeros((1, 0))
+        if sample:
+            omega = np.atleast_2d(policy.sample(ctx, self._omega_rng))[0]
+        else:
+            omega = np.atleast_2d(policy.mean_of(ctx))[0]
+        return omega, self.task.rollout(omega, s, np.random.default_rng(self.seed))
+
     def _rerun(self, sample: bool = False) -> Trajectory:
         """Roll out the policy in the current context (mean ω, or a sample) and show it."""
         with self._lock:
-            s = self.context if self.task.context_dim else None
-            ctx = self.context[None, :] if self.task.context_dim else np.zeros((1, 0))
-            if sample:
-                omega = np.atleast_2d(self.policy.sample(ctx, self._omega_rng))[0]
-            else:
-                omega = np.atleast_2d(self.policy.mean_of(ctx))[0]
-            traj = self.task.rollout(omega, s, np.random.default_rng(self.seed))
-            self.omega, self.trajectory = omega, traj
+            self.omega, traj = self._roll_out(self.policy, sample)
+            self.trajectory = traj
             if self.model is not None:
                 self._update_model_layers()
             status = "sampled ω" if sample else "mean ω"
@@ -503,7 +398,7 @@ class Viewer:
                 self.gui["status"].content = f"**rollout failed** ({status}): {traj.message}"
                 self._draw_trails()
                 return traj
-            reward = self.task.reward(traj, s)
+            reward = self.task.reward(traj, self.context if self.task.context_dim else None)
             self.gui["status"].content = f"reward R = {reward:.4g} ({status})"
             t0, t1 = self.scene.time_range(traj)
             slider = self.gui["time"]
@@ -525,8 +420,7 @@ class Viewer:
             return self._rerun()
 
     def _set_quietly(self, pairs) -> None:
-        """Move GUI inputs to values without running their callbacks (viser runs the callbacks
-        of a value assigned in Python synchronously, in the assigning thread)."""
+        """Move GUI inputs without running their callbacks (viser runs them synchronously)."""
         self._local.quiet = True
         try:
             for handle, value in pairs:
@@ -557,7 +451,7 @@ class Viewer:
             self._rerun()
 
     def set_time(self, t: float) -> None:
-        """Show the current rollout, trails' markers and prediction layers at time ``t``."""
+        """Show the current rollout and the prediction layers' points at time ``t``."""
         self._require_started()
         with self._lock:
             self.time = float(t)
@@ -595,26 +489,28 @@ class Viewer:
                 if "status" in self.gui and self.server is not None:
                     self.gui["status"].content = f"**playback stopped**: {exc}"
 
-    # ----------------------------------------------------------------- trails
     def _remove(self, nodes: dict) -> None:
         for handle in nodes.values():
             handle.remove()
         nodes.clear()
+
+    def _add_trails(self, nodes: dict, traj: Trajectory, prefix: str, color=None, **style):
+        """A trail per path of ``traj`` with at least two points, kept in ``nodes``."""
+        for key, path in self.scene.trails(traj).items():
+            if path.shape[0] >= 2:
+                c = color or (COLORS["ball"] if key == "ball" else COLORS["trail"])
+                handle = add_trail(self.server.scene, f"{prefix}/{key}", path, c, **style)
+                nodes[handle.name] = handle
 
     def _draw_trails(self) -> None:
         with self._lock:
             self._remove(self._trail_nodes)
             traj = self.trajectory
             if traj is not None and not traj.failed and self.gui["trails"].value:
-                for key, path in self.scene.trails(traj).items():
-                    if path.shape[0] >= 2:
-                        color = COLORS["ball"] if key == "ball" else COLORS["trail"]
-                        handle = add_trail(self.server.scene, f"/trails/{key}", path, color)
-                        self._trail_nodes[handle.name] = handle
+                self._add_trails(self._trail_nodes, traj, "/trails")
             self._refresh_legend()
             self._refresh_tree()
 
-    # ----------------------------------------------------------------- learning playback
     def set_update(self, k: int) -> Trajectory:
         """Show policy π_k of the history (learning playback) and re-run it."""
         self._require_started()
@@ -647,81 +543,35 @@ class Viewer:
         """Trails of earlier updates' rollouts, fading from old (light) to new."""
         with self._lock:
             self._remove(self._ghost_nodes)
-            if self.history is None or not self.gui["ghosts"].value:
-                self._refresh_tree()
-                return
-            s = self.context if self.task.context_dim else None
-            ctx = self.context[None, :] if self.task.context_dim else np.zeros((1, 0))
-            updates = self.ghost_updates()
-            for i, k in enumerate(updates):
-                omega = np.atleast_2d(self.history[k].mean_of(ctx))[0]
-                traj = self.task.rollout(omega, s, np.random.default_rng(self.seed))
-                if traj.failed:
-                    continue
-                opacity = 0.15 + 0.6 * (i + 1) / len(updates)
-                for key, path in self.scene.trails(traj).items():
-                    if path.shape[0] >= 2:
-                        handle = add_trail(
-                            self.server.scene,
-                            f"/history/update{k}/{key}",
-                            path,
-                            (120, 120, 120),
-                            radius=0.005,
-                            opacity=opacity,
-                        )
-                        self._ghost_nodes[handle.name] = handle
+            if self.history is not None and self.gui["ghosts"].value:
+                updates = self.ghost_updates()
+                for i, k in enumerate(updates):
+                    _, traj = self._roll_out(self.history[k])
+                    if not traj.failed:
+                        self._add_trails(
+                            self._ghost_nodes, traj, f"/history/update{k}", (120, 120, 120),
+                            radius=0.005, opacity=0.15 + 0.6 * (i + 1) / len(updates),
+                        )  # fmt: skip
             self._refresh_tree()
 
-    # ----------------------------------------------------------------- predictions
     def add_prediction_layer(
-        self,
-        name: str,
-        trajectories,
-        color=None,
-        opacity: float = 0.3,
-        *,
-        times=None,
-        space: str = "state",
-        label: str | None = None,
-        visible: bool = True,
-    ) -> PredictionLayer:
+        self, name: str, trajectories, color=None, opacity: float = 0.3, *, times=None,
+        space: str = "state", label: str | None = None, visible: bool = True,
+    ) -> PredictionLayer:  # fmt: skip
         """Overlay a model's predicted trajectories on the real rollout.
 
-        Parameters
-        ----------
-        name : str
-            Layer name (a path component, e.g. ``"gp"`` or ``"embedding"``); replaces a layer
-            of the same name.
-        trajectories : array_like, shape (L, T, n)
-            L sampled (or pre-image) trajectories of T steps: states (n = the task's state
-            dimension, drawn at the scene's point of a state, e.g. the end effector; T ≥ 2) or
-            3-D points (n = 3 with ``space="points"``; T = 1 gives L predicted points, e.g.
-            landing points, drawn as dots).
-        color : RGB, optional
-            Layer colour (default: the next of :data:`PREDICTION_COLORS`).
-        opacity : float in (0, 1]
-            Opacity of the sampled paths; the mean path is drawn at twice it (at most 1).
-        times : array_like, shape (T,), optional
-            Time stamps (default: the current rollout's first T times).
-        space : {"state", "points"}
-        label : str, optional
-            What the checkbox and the legend call the layer (default: ``name``), e.g.
-            ``"sliding model: control puck"``.
-        visible : bool
-            Whether the layer starts shown (its checkbox ticked).
-
-        Returns
-        -------
-        PredictionLayer
-            Its nodes are ``/predictions/<name>/samples``, ``…/mean`` and ``…/now``; a checkbox
-            in the "Predictions" folder switches it on and off, and the folder's legend lists
-            it with its colour.
+        ``name`` is a path component (e.g. ``"gp"``; replaces a layer of the same name);
+        ``trajectories`` (L, T, n) are L sampled trajectories of T steps: states
+        (``space="state"``, drawn at the scene's point of a state; T ≥ 2) or 3-D points
+        (``space="points"``, n = 3; T = 1 gives L points, drawn as dots). ``color`` defaults to
+        the next of :data:`PREDICTION_COLORS`; ``opacity`` is the sampled paths' (the mean path
+        gets twice it, at most 1); ``times`` (T,) default to the rollout's first T times;
+        ``label`` names the layer in its checkbox and the legend (default: ``name``).
         """
         self._require_started()
         if not isinstance(name, str) or not name or node_name(name) != name:
-            raise ValueError(
-                f"name: expected a layer name of letters, digits, '_', '.', '-', got {name!r}"
-            )
+            msg = f"name: expected a layer name of letters, digits, '_', '.', '-', got {name!r}"
+            raise ValueError(msg)
         if label is not None and (not isinstance(label, str) or not label.strip()):
             raise ValueError(f"label: expected a non-empty string, got {label!r}")
         x = check_array(trajectories, "trajectories", ndim=3)
@@ -742,9 +592,8 @@ class Viewer:
             points = self.scene.points(x)
         elif space == "points":
             if n != 3:
-                raise ValueError(
-                    f"trajectories: space='points' needs shape (L, T, 3), got {x.shape}"
-                )
+                msg = f"trajectories: space='points' needs shape (L, T, 3), got {x.shape}"
+                raise ValueError(msg)
             points = x
         else:
             raise ValueError(f"space: expected 'state' or 'points', got {space!r}")
@@ -767,30 +616,24 @@ class Viewer:
             base = check_path(f"/predictions/{name}")
             scene = self.server.scene
             layer = PredictionLayer(name, points, times, color, opacity, label=label or name)
+            nodes = layer.nodes
             if T >= 2:
-                layer.nodes[f"{base}/samples"] = add_trail(
+                nodes[f"{base}/samples"] = add_trail(
                     scene, f"{base}/samples", points, color, radius=0.004, opacity=opacity
                 )
-                layer.nodes[f"{base}/mean"] = add_trail(
-                    scene,
-                    f"{base}/mean",
-                    points.mean(axis=0),
-                    color,
-                    radius=0.008,
+                nodes[f"{base}/mean"] = add_trail(
+                    scene, f"{base}/mean", points.mean(axis=0), color, radius=0.008,
                     opacity=min(1.0, 2 * opacity),
-                )
+                )  # fmt: skip
             else:  # predicted points: the L dots and their mean
-                layer.nodes[f"{base}/samples"] = scene.add_point_cloud(
+                nodes[f"{base}/samples"] = scene.add_point_cloud(
                     f"{base}/samples", points[:, 0], color, point_size=0.02, point_shape="circle"
                 )
-                layer.nodes[f"{base}/mean"] = scene.add_point_cloud(
-                    f"{base}/mean",
-                    points[:, 0].mean(axis=0, keepdims=True),
-                    color,
-                    point_size=0.045,
-                    point_shape="diamond",
-                )
-            layer.nodes[f"{base}/now"] = scene.add_point_cloud(
+                nodes[f"{base}/mean"] = scene.add_point_cloud(
+                    f"{base}/mean", points[:, 0].mean(axis=0, keepdims=True), color,
+                    point_size=0.045, point_shape="diamond",
+                )  # fmt: skip
+            nodes[f"{base}/now"] = scene.add_point_cloud(
                 f"{base}/now", layer.at(self.time), color, point_size=0.03, point_shape="circle"
             )
             layer.visible = visible
@@ -824,13 +667,9 @@ class Viewer:
             self._refresh_legend()
             self._refresh_tree()
 
-    # ----------------------------------------------------------------- legend
     def legend(self) -> list[tuple[str, tuple]]:
-        """What the legend lists: (label, RGB) for the simulator's rollout and each layer.
-
-        The simulator's rollout comes first (its trails' colour, and the ball trail's where the
-        rollout has a ``ball`` signal), then the prediction layers in the order they were added.
-        """
+        """What the legend lists, (label, RGB): the simulator's rollout (and its ball trail
+        where the rollout has a ``ball`` signal), then the prediction layers in order."""
         entries = [("simulator rollout", COLORS["trail"])]
         traj = self.trajectory
         if traj is not None and not traj.failed and "ball" in traj.signals:
@@ -847,50 +686,31 @@ class Viewer:
         if self.model is not None:
             head = (
                 f"<div><b>reward model</b> {html.escape(type(self.model).__name__)}: "
-                f"L = {self.model_samples} samples per learned model, for the shown (s, ω)"
-                "</div>"
+                f"L = {self.model_samples} samples per learned model, for the shown (s, ω)</div>"
             )
             if self._model_error:
-                head += (
-                    f"<div><b>model prediction failed</b>: {html.escape(self._model_error)}</div>"
-                )
+                error = html.escape(self._model_error)
+                head += f"<div><b>model prediction failed</b>: {error}</div>"
         return f'<div style="font-size: 0.85em">{head}{"".join(rows)}</div>'
 
     def _refresh_legend(self) -> None:
         if "legend" in self.gui:
             self.gui["legend"].content = self._legend_html()
 
-    # ----------------------------------------------------------------- reward models
     def add_model_layers(self, model, n_samples: int = 10, seed: int = 0) -> list[PredictionLayer]:
         """Overlay a GPREPS reward model's predictions for the shown (s, ω), kept up to date.
 
-        Adds one prediction layer per learned model from ``model.prediction_layers``
-        (:func:`skillkit.viz.model_layers.model_layers`) for the current s and the shown ω,
-        and recomputes them on every new (s, ω) (context, :meth:`set_update` — the model stays
-        the given one — or a sampled ω), always with ``seed``, so the same (s, ω) shows the
-        same samples. A layer switched off stays off; a second call replaces the first model.
-
-        Parameters
-        ----------
-        model : object
-            Has ``prediction_layers(context, omega, n_samples, rng)``; if it has ``task.name``
-            it must be this viewer's task.
-        n_samples : int
-            L, the trajectories each learned model samples.
-        seed : int
-            Seed of every computation (common random numbers).
-
-        Returns
-        -------
-        list of PredictionLayer
-            The layers, in the model's order (node names ``/predictions/<layer>/…``, the
-            layer names made path components; see :attr:`model_layer_names`).
+        One prediction layer per learned model (:func:`skillkit.viz.model_layers.model_layers`,
+        ``n_samples`` = L trajectories each), recomputed on every new (s, ω) always with
+        ``seed``, so the same (s, ω) shows the same samples. A layer switched off stays off; a
+        second call replaces the first model. Returns the layers in the model's order (see
+        :attr:`model_layer_names`).
 
         Raises
         ------
         ValueError
-            The model has no ``prediction_layers``, was fitted on another task, or its
-            answer has the wrong shapes (the message names the layer).
+            The model has no ``prediction_layers(context, omega, n_samples, rng)``, was fitted
+            on another task (``task.name``), or its answer has the wrong shapes.
         """
         from skillkit.viz.model_layers import check_has_layers, check_model_task
 
@@ -913,18 +733,17 @@ class Viewer:
     def remove_model_layers(self) -> None:
         """Remove the reward model's layers and stop recomputing them (no-op if none)."""
         with self._lock:
-            for name in list(self.model_layer_names):
-                self.remove_prediction_layer(name)
+            self._remove_model_layers()
             self.model, self._model_key, self._model_error = None, None, ""
             self.gui["predictions"].visible = bool(self.layers)
             self._refresh_legend()
 
-    def _update_model_layers(self, raise_errors: bool = False) -> None:
-        """(Re)compute the model's layers for the shown (s, ω) unless they are up to date.
+    def _remove_model_layers(self) -> None:
+        for name in list(self.model_layer_names):
+            self.remove_prediction_layer(name)
 
-        Errors raise if ``raise_errors``, else (a GUI callback) they remove the layers and
-        show in the legend.
-        """
+    def _update_model_layers(self, raise_errors: bool = False) -> None:
+        """(Re)compute the model layers for the shown (s, ω); errors raise or go to the legend."""
         from skillkit.viz.model_layers import model_layers
 
         with self._lock:
@@ -933,25 +752,18 @@ class Viewer:
             if key == self._model_key:
                 return
             shown = {n: self.layers[n].visible for n in self.model_layer_names}
+            rng = np.random.default_rng(self.model_seed)
             try:
-                specs = model_layers(
-                    self.model,
-                    s,
-                    self.omega,
-                    self.model_samples,
-                    rng=np.random.default_rng(self.model_seed),
-                )
+                specs = model_layers(self.model, s, self.omega, self.model_samples, rng=rng)
             except Exception as exc:
                 if raise_errors:
                     raise
-                for name in list(self.model_layer_names):
-                    self.remove_prediction_layer(name)
+                self._remove_model_layers()
                 self._model_key, self._model_error = key, f"{type(exc).__name__}: {exc}"
                 self._refresh_legend()
                 return
             with self.server.atomic():
-                for name in list(self.model_layer_names):
-                    self.remove_prediction_layer(name)
+                self._remove_model_layers()
                 for i, spec in enumerate(specs):
                     default = PREDICTION_COLORS[i % len(PREDICTION_COLORS)]
                     spec = {"color": default, **spec, "visible": shown.get(spec["name"], True)}

@@ -39,29 +39,11 @@ _THESIS = {
 
 
 def stored_final_policy(exp_id: str, trial: int = 0) -> LinearGaussianPolicy | None:
-    """The last policy π_K of one trial of a stored paper-scale run, or None if it keeps none.
+    """The last policy π_K (Eq. 3.13) of ``trial`` of the stored paper run of ``exp_id``.
 
-    Reads only the final row of ``trial<i>__policy_mean``, ``policy_cov`` and ``policy_gain``
-    (:mod:`skillkit.viz.history` arrays) from the run's ``trials.npz``
-    (:func:`skillkit.experiments.stored_run`), not the whole history. fig3.3 keeps contextual REPS
-    policies (π(ω|s) = N(a + A φ(s), Σ), Eq. 3.13); fig3.7 keeps none.
-
-    Parameters
-    ----------
-    exp_id : str
-        Experiment id, e.g. ``"fig3.3"``.
-    trial : int
-        Which trial of the run.
-
-    Returns
-    -------
-    LinearGaussianPolicy or None
-        None when there is no stored run of ``exp_id``, no ``trials.npz``, or no policy in it.
-
-    Raises
-    ------
-    ValueError
-        A negative ``trial``, or a run that has policies but not for ``trial``.
+    Reads the final rows of ``trial<i>__policy_mean``, ``policy_cov`` and ``policy_gain`` from
+    its ``trials.npz``. None when there is no stored run, no ``trials.npz`` or no policy in
+    it (fig3.7 keeps none); ``ValueError`` for a negative ``trial`` or one without a policy.
     """
     from skillkit.experiments import stored_run
 
@@ -91,37 +73,12 @@ def stored_final_policy(exp_id: str, trial: int = 0) -> LinearGaussianPolicy | N
 
 
 def thesis_animation(figure: str, contexts=None, *, trial: int = 0, n_frames: int = 40, **kwargs):
-    """Fig. 3.2 or Fig. 3.8 in one call: the policy mean's rollouts at two contexts, animated.
+    """Fig. 3.2 or Fig. 3.8 (``figure``): the policy mean's rollouts (``rng=0``) at the
+    ``contexts`` (k, context_dim) (default the thesis's two), animated in ``n_frames`` frames.
 
-    The policy is the final policy of the stored paper run behind the figure
-    (:func:`stored_final_policy`: ``fig3.3`` for Fig. 3.2, ``fig3.7`` for Fig. 3.8); when that
-    run keeps no policy, the task's initial policy. The subtitle says which. Each rollout uses
-    ω = μ(s), the policy mean at the context (no exploration noise), with ``rng=0``.
-
-    Parameters
-    ----------
-    figure : {"fig3.2", "fig3.8"}
-        Which thesis figure.
-    contexts : array_like, shape (k, context_dim), optional
-        Default :data:`THROWING_TARGETS` (the thesis's two targets) or
-        :data:`TABLE_TENNIS_CONTEXTS`.
-    trial : int
-        Trial of the stored run whose final policy is used.
-    n_frames : int
-        Frames of the animation.
-    **kwargs
-        Passed on to :func:`throwing_animation` / :func:`table_tennis_animation`
-        (``frame_ms``, ``title``).
-
-    Returns
-    -------
-    plotly.graph_objects.Figure
-
-    Raises
-    ------
-    ValueError
-        An unknown ``figure``; a stored policy whose dimensions do not fit the task; a
-        rollout that failed (argument ``trajectories``); bad contexts or ``n_frames``.
+    The policy is :func:`stored_final_policy` of ``trial`` of the run behind the figure
+    (fig3.3 for Fig. 3.2, fig3.7 for Fig. 3.8), else the task's initial policy; the subtitle
+    says which. ``kwargs`` (``frame_ms``, ``title``) go to the animation.
     """
     from skillkit.tasks import make
 

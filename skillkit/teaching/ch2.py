@@ -1,14 +1,12 @@
-r"""Chapter 2 step by step: DMPs (Sec. 2.2.1, Eqs. 2.21–2.23), GP noise and
-hyper-parameters (Sec. 2.3, Eqs. 2.25–2.28) and one moment-matching step against Monte Carlo
-(Sec. 2.1.2, Fig. 2.7).
+r"""Chapter 2 step by step: DMPs (Sec. 2.2.1, Eqs. 2.21–2.23), GP noise and hyper-parameters
+(Sec. 2.3, Eqs. 2.25–2.28) and one moment-matching step against Monte Carlo (Sec. 2.1.2,
+Fig. 2.7).
 
-Every number comes from the library's own :class:`~skillkit.policies.dmp.DMP`,
-:class:`~skillkit.models.gp.ExactGP`, :func:`~skillkit.models.gp.neg_log_marginal_likelihood`,
-:func:`~skillkit.models.moment_matching.moment_match` and
-:func:`~skillkit.models.moment_matching.linearize`; this module draws or tabulates it. Handled
-numerical events of the GP (noise at its floor, jitter;
-:func:`~skillkit.models.gp.record_numerical_events`) are counted and shown in tables and titles,
-not warned about.
+Every number comes from the library's :class:`~skillkit.policies.dmp.DMP`,
+:class:`~skillkit.models.gp.ExactGP` and :mod:`~skillkit.models.moment_matching`. Handled
+numerical events of the GP (:func:`~skillkit.models.gp.record_numerical_events`) are counted
+and shown in tables and titles, not warned about. Figures take ``backend`` in
+{"plotly", "matplotlib"} and return a plotly figure or a ``NotebookFigure``.
 """
 
 from __future__ import annotations
@@ -34,45 +32,26 @@ from skillkit.models.gp import (
 )
 from skillkit.models.moment_matching import GaussianPrediction, linearize, moment_match
 from skillkit.policies.dmp import DMP
+from skillkit.teaching._common import draw, index, sig
 from skillkit.viz.figures import plot_gp_fit
-from skillkit.viz.plots import draw_figure
 from skillkit.viz.series import Series
 
 __all__ = [
-    "POOL",
-    "MomentMatchingCheck",
-    "NoiseProfile",
-    "basis_figure",
-    "demonstration_figure",
-    "dmp_fit_figure",
-    "forcing_figure",
-    "gp_posterior_figure",
-    "gp_with",
-    "hyperparameter_figure",
-    "hyperparameter_table",
-    "moment_matching_check",
-    "noise_by_size_table",
-    "noise_profile",
-    "noise_profile_figure",
-    "noisy_samples",
-    "phase_figure",
-]
+    "POOL", "MomentMatchingCheck", "NoiseProfile", "basis_figure", "demonstration_figure",
+    "dmp_fit_figure", "forcing_figure", "gp_posterior_figure", "gp_with", "hyperparameter_figure",
+    "hyperparameter_table", "moment_matching_check", "noise_by_size_table", "noise_profile",
+    "noise_profile_figure", "noisy_samples", "phase_figure",
+]  # fmt: skip
 
-#: Points drawn by :func:`noisy_samples` before the first ``n_points`` are kept, so the data
-#: sets of one seed are nested: 8 points are the first 8 of the 40.
+#: Inputs drawn by :func:`noisy_samples` before the first ``n_points`` are kept, so the data
+#: sets of one seed are nested.
 POOL = 200
-
-
-def _sig(value: float, digits: int = 4) -> float:
-    """``value`` rounded to ``digits`` significant digits (for tables)."""
-    value = float(value)
-    if value == 0 or not np.isfinite(value):
-        return value
-    return float(f"{value:.{digits - 1}e}")
-
-
-def _result(title: str, series: list[Series]) -> dict:
-    return {"title": title, "series": [s.to_dict() for s in series]}
+_EVENT_WORDS = {
+    "noise_at_floor": "noise at its floor",
+    "jitter_increased": "jitter added",
+    "restored_iterate": "optimiser restored an iterate",
+    "negative_variance_clipped": "negative variances clipped",
+}
 
 
 def _times(times: ArrayLike) -> np.ndarray:
@@ -83,89 +62,52 @@ def _times(times: ArrayLike) -> np.ndarray:
 
 
 def _events_text(events: NumericalEvents) -> str:
-    """ "" or ", handled: noise at its floor ×1, …" for a figure title."""
-    words = {
-        "noise_at_floor": "noise at its floor",
-        "jitter_increased": "jitter added",
-        "restored_iterate": "optimiser restored an iterate",
-        "negative_variance_clipped": "negative variances clipped",
-    }
-    seen = [f"{words.get(k, k)} ×{n}" for k, n in events.counts.items() if n]
+    """A title's note on handled events: "" or " (handled: noise at its floor ×1, …)"."""
+    seen = [f"{_EVENT_WORDS.get(k, k)} ×{n}" for k, n in events.counts.items() if n]
     return f" (handled: {', '.join(seen)})" if seen else ""
+
+
+def _dmp(dmp) -> DMP:
+    if not isinstance(dmp, DMP):
+        raise ValueError(f"dmp: expected a DMP, got {type(dmp).__name__}")
+    return dmp
+
+
+def _fitted(gp, name: str = "gp") -> ExactGP:
+    if not isinstance(gp, ExactGP) or gp.predictor is None:
+        raise ValueError(f"{name}: expected a fitted ExactGP")
+    return gp
 
 
 # ------------------------------------------------------------------------------- DMPs
 def phase_figure(dmp: DMP, times: ArrayLike, *, backend: str = "plotly"):
-    """The phase z_t = exp(−τ α_z t) of Eq. (2.22) over time, with the basis centres.
-
-    Parameters
-    ----------
-    dmp : DMP
-        Its ``tau``, ``alpha_z`` and basis centres c_i are drawn.
-    times : array_like, shape (T,)
-        Strictly increasing times since the start of the movement (s).
-    backend : {"plotly", "matplotlib"}
-
-    Returns
-    -------
-    plotly.graph_objects.Figure or NotebookFigure
-        One panel: z(t) (:meth:`DMP.phase`) and, as markers, the centres c_i at the times
-        t_i = −ln(c_i) / (τ α_z) where the phase passes them (evenly spaced over the nominal
-        duration: the basis functions are spread evenly in time, not in z).
-    """
-    if not isinstance(dmp, DMP):
-        raise ValueError(f"dmp: expected a DMP, got {type(dmp).__name__}")
+    """The phase z_t = exp(−τ α_z t) of Eq. (2.22) over ``times`` (s), with the basis centres
+    c_i marked at t_i = −ln(c_i) / (τ α_z), where the phase passes them."""
+    centres = _dmp(dmp).centers
     t = _times(times)
-    centres = dmp.centers
     t_c = -np.log(centres) / (dmp.tau * dmp.alpha_z)
     kw = {"xlabel": "t [s]", "ylabel": "phase z"}
+    z = f"z(t) = exp(−τ α_z t), α_z = {dmp.alpha_z:g}"
     series = [
-        Series(
-            f"z(t) = exp(−τ α_z t), α_z = {dmp.alpha_z:g}", t.tolist(), dmp.phase(t).tolist(), **kw
-        ),
-        Series(
-            f"basis centres c_i ({dmp.n_basis})",
-            t_c.tolist(),
-            centres.tolist(),
-            kind="markers",
-            **kw,
-        ),
-    ]
-    return draw_figure(_result("The phase z(t) (Eq. 2.22) runs from 1 towards 0", series), backend)
+        Series(z, t.tolist(), dmp.phase(t).tolist(), **kw),
+        Series(f"basis centres c_i ({dmp.n_basis})", t_c.tolist(), centres.tolist(),
+               kind="markers", **kw),
+    ]  # fmt: skip
+    return draw("The phase z(t) (Eq. 2.22) runs from 1 towards 0", series, backend)
 
 
 def basis_figure(dmp: DMP, times: ArrayLike, *, backend: str = "plotly"):
-    """The basis functions φ_i of the forcing term f(z) = φ(z)ᵀv, over the phase and over time.
-
-    φ_i(z) = z ψ_i(z) / Σ_j ψ_j(z) with Gaussians ψ_i(z) = exp(−(z − c_i)² / (2σ_i²))
-    (:meth:`DMP.basis`): normalised Gaussians multiplied by z, so Σ_i φ_i(z) = z and the
-    forcing term fades out with the phase (Sec. 2.2.1).
-
-    Parameters
-    ----------
-    dmp : DMP
-    times : array_like, shape (T,)
-        Times (s) of the right panel; the left one spans the phase values z(times).
-    backend : {"plotly", "matplotlib"}
-
-    Returns
-    -------
-    plotly.graph_objects.Figure or NotebookFigure
-        Two panels, φ_1 … φ_K and their sum (dashed) against z and against t.
-    """
-    if not isinstance(dmp, DMP):
-        raise ValueError(f"dmp: expected a DMP, got {type(dmp).__name__}")
+    """The basis functions φ_i(z) = z ψ_i(z) / Σ_j ψ_j(z) of the forcing term f(z) = φ(z)ᵀv,
+    ψ_i Gaussians in z (Sec. 2.2.1), and their sum z, over the phase z(times) and over
+    ``times``."""
+    _dmp(dmp)
     t = _times(times)
     z_t = dmp.phase(t)
     z = np.linspace(float(z_t.min()), 1.0, t.shape[0])
     series = []
     for label, x, zz in (("over the phase z", z, z), ("over time t", t, z_t)):
         phi = dmp.basis(zz)
-        kw = {
-            "panel": label,
-            "xlabel": "phase z" if x is z else "t [s]",
-            "ylabel": "φ_i",
-        }
+        kw = {"panel": label, "xlabel": "phase z" if x is z else "t [s]", "ylabel": "φ_i"}
         series += [
             Series(f"φ_{i + 1}", x.tolist(), phi[:, i].tolist(), **kw) for i in range(dmp.n_basis)
         ]
@@ -173,7 +115,7 @@ def basis_figure(dmp: DMP, times: ArrayLike, *, backend: str = "plotly"):
             Series("Σ_i φ_i = z", x.tolist(), phi.sum(axis=1).tolist(), dash="dash", **kw)
         )
     title = f"{dmp.n_basis} basis functions: normalised Gaussians times z (Sec. 2.2.1)"
-    return draw_figure(_result(title, series), backend)
+    return draw(title, series, backend)
 
 
 def forcing_figure(
@@ -186,40 +128,23 @@ def forcing_figure(
     joint: int = 0,
     backend: str = "plotly",
 ):
-    """The fitted forcing term against its target, and each basis function's share.
+    """The fitted forcing term f(z_t; v) = φ(z_t)ᵀv against its target Y (Eq. 2.23), and its
+    terms φ_i(z_t) v_i.
 
     Parameters
     ----------
     dmp : DMP
-        Fitted on the demonstration (``times``, ``q``, ``qd``, ``qdd``).
-    times : array_like, shape (N,)
-    q, qd, qdd : array_like, shape (N, n_joints)
+        Fitted on the demonstration ``times`` (N,), ``q``, ``qd``, ``qdd`` (N, n_joints).
     joint : int
         The joint drawn.
-    backend : {"plotly", "matplotlib"}
-
-    Returns
-    -------
-    plotly.graph_objects.Figure or NotebookFigure
-        Left: the target Y of Eq. (2.23) (:meth:`DMP.forcing_target`, dashed) and the fitted
-        f(z_t; v) = φ(z_t)ᵀv (:meth:`DMP.forcing`). Right: the terms φ_i(z_t) v_i, whose sum
-        is f: a weight v_i scales one bump of the forcing term, active while the phase passes
-        its centre.
     """
-    if not isinstance(dmp, DMP):
-        raise ValueError(f"dmp: expected a DMP, got {type(dmp).__name__}")
-    if (
-        isinstance(joint, bool)
-        or not isinstance(joint, (int, np.integer))
-        or not 0 <= joint < dmp.n_joints
-    ):
-        raise ValueError(f"joint: expected an integer in [0, {dmp.n_joints}), got {joint!r}")
+    _dmp(dmp)
+    joint = index(joint, "joint", dmp.n_joints)
     t = _times(times)
     target = dmp.forcing_target(t, q, qd, qdd)[:, joint]
     f = dmp.forcing(t - t[0])[:, joint]
     phi = dmp.basis(dmp.phase(t - t[0]))
-    # each term where its basis function is active (above 1% of its peak), so the panel's
-    # scale is set by the bumps, not by the long stretches where a term is ~0
+    # each term only where its basis function is above 1% of its peak
     parts = np.where(phi >= 0.01 * phi.max(axis=0), phi * dmp.weights[joint], np.nan)
     left = {"panel": "forcing term f(z_t; v)", "xlabel": "t [s]", "ylabel": FORCING_LABEL}
     right = {"panel": "its terms φ_i(z_t) v_i", "xlabel": "t [s]", "ylabel": FORCING_LABEL}
@@ -233,7 +158,7 @@ def forcing_figure(
     ]
     rmse = float(np.sqrt(np.mean((f - target) ** 2)))
     title = f"The forcing term fitted by least squares (Eq. 2.23): RMSE {rmse:.3g} rad/s²"
-    return draw_figure(_result(title, series), backend)
+    return draw(title, series, backend)
 
 
 def demonstration_figure(
@@ -245,21 +170,8 @@ def demonstration_figure(
     ylabel: str = "q [rad]",
     backend: str = "plotly",
 ):
-    """Curves over a demonstration drawn dashed on top, as the thesis draws Fig. 2.11.
-
-    Parameters
-    ----------
-    times : array_like, shape (T,)
-    demonstration : array_like, shape (T,)
-    curves : mapping of str to array_like, shape (T,)
-        Legend label → values at ``times`` (solid).
-    title, ylabel : str
-    backend : {"plotly", "matplotlib"}
-
-    Returns
-    -------
-    plotly.graph_objects.Figure or NotebookFigure
-    """
+    """Curves (label → values at ``times``, shape (T,)) with the demonstration (T,) dashed on
+    top, as Fig. 2.11."""
     t = _times(times)
     demo = check_array(demonstration, "demonstration", shape=t.shape)
     if not isinstance(curves, Mapping):
@@ -271,28 +183,12 @@ def demonstration_figure(
     for label, y in curves.items():
         y = check_array(y, f"curves[{label!r}]", shape=t.shape)
         series.append(Series(str(label), t.tolist(), y.tolist(), **kw))
-    return draw_figure(_result(title, series), backend)
+    return draw(title, series, backend)
 
 
 def dmp_fit_figure(n_basis: int, *, backend: str = "plotly", **dmp_options):
-    """A DMP with ``n_basis`` weights fitted to the reach of Fig. 2.9, over the demonstration.
-
-    What the notebook's slider over the number of basis functions redraws: the demonstration
-    (:func:`~skillkit.experiments.ch2.reach_demonstration`, dashed), the fitted DMP's rollout
-    (Eqs. 2.21–2.23) and its RMSE in the title.
-
-    Parameters
-    ----------
-    n_basis : int
-        Number K of basis functions, ≥ 1.
-    backend : {"plotly", "matplotlib"}
-    **dmp_options
-        Further :class:`DMP` arguments (``alpha_x``, ``beta_x``, ``alpha_z``).
-
-    Returns
-    -------
-    plotly.graph_objects.Figure or NotebookFigure
-    """
+    """A DMP with ``n_basis`` ≥ 1 weights (Eqs. 2.21–2.23) fitted to the reach of Fig. 2.9,
+    its rollout over the demonstration and its RMSE; ``dmp_options`` go to :class:`DMP`."""
     n_basis = check_count(n_basis, "n_basis")
     times, q, qd, qdd = reach_demonstration()
     dmp = DMP(n_joints=1, n_basis=n_basis, **dmp_options).fit(times, q, qd, qdd)
@@ -314,23 +210,11 @@ def noisy_samples(
     high: float = 4.0,
     function: Callable[[np.ndarray], np.ndarray] = fig2_12_function,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Noisy observations y = f(x) + ε, ε ~ N(0, noise_std²), of the Fig. 2.12 function.
+    """Noisy observations y = f(x) + ε, ε ~ N(0, noise_std²), x ~ U(low, high).
 
-    :data:`POOL` inputs x ~ U(low, high) and as many standard normal draws are taken from
-    ``default_rng(seed)`` and the first ``n_points`` kept, so for one seed the data sets are
-    nested (more points add to the fewer ones).
-
-    Parameters
-    ----------
-    n_points : int
-        1 ≤ n_points ≤ :data:`POOL`.
-    noise_std : float
-        Standard deviation of ε (≥ 0; variance noise_std²).
-    seed : int
-    low, high : float
-        Input interval, low < high.
-    function : callable
-        f, vectorised over an (n,) array (default ``fig2_12_function``: sin(1.5x) + 0.2x).
+    :data:`POOL` inputs and as many normal draws are taken from ``default_rng(seed)`` and the
+    first ``n_points`` (1 … :data:`POOL`) kept, so for one seed the data sets are nested.
+    ``function`` is vectorised (default the Fig. 2.12 function sin(1.5x) + 0.2x).
 
     Returns
     -------
@@ -352,29 +236,12 @@ def noisy_samples(
 def gp_with(
     x: ArrayLike, y: ArrayLike, *, lengthscale: float, signal_var: float, noise_var: float
 ) -> ExactGP:
-    """An :class:`ExactGP` conditioned on (x, y) at given hyper-parameters, not trained.
-
-    With ``n_steps=0`` the posterior (Eqs. 2.26–2.27) is that of the kernel (2.25) at exactly these
-    values, except that the library raises a noise variance below 1.5 × its floor (1e-6 var(y)) to
-    that value. Handled events (jitter) are counted in ``gp.diagnostics["numerical_events"]``.
-
-    Parameters
-    ----------
-    x : array_like, shape (N, 1)
-    y : array_like, shape (N,)
-    lengthscale, signal_var, noise_var : float
-        ℓ, σ_f² and σ_ε² (> 0), in the units of x and y.
-
-    Returns
-    -------
-    ExactGP
-    """
-    for name, v in (
-        ("lengthscale", lengthscale),
-        ("signal_var", signal_var),
-        ("noise_var", noise_var),
-    ):
-        check_positive(v, name)
+    """An :class:`ExactGP` on x (N, 1), y (N,) at the hyper-parameters ℓ, σ_f², σ_ε² (> 0, raw
+    units), not trained: the posterior (2.26–2.27) of kernel (2.25), except that a noise
+    variance below 1.5 × its floor (1e-6 var(y)) is raised to it."""
+    check_positive(lengthscale, "lengthscale")
+    check_positive(signal_var, "signal_var")
+    check_positive(noise_var, "noise_var")
     with record_numerical_events():
         return ExactGP(
             lengthscale=lengthscale,
@@ -399,16 +266,13 @@ def _data(x: ArrayLike, y: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
 
 @dataclass(frozen=True)
 class NoiseProfile:
-    """The log marginal likelihood (2.28) along the noise variance (:func:`noise_profile`).
+    """The log marginal likelihood (2.28) along σ_ε² (:func:`noise_profile`), raw units.
 
     Attributes
     ----------
-    noise_vars : ndarray, shape (G,)
-        The fixed noise variances σ_ε².
-    log_ml : ndarray, shape (G,)
-        max over ℓ, σ_f² of log p(y | X, θ) at each σ_ε² (raw units).
-    lengthscale, signal_var : ndarray, shape (G,)
-        The maximising ℓ and σ_f² (raw units).
+    noise_vars, log_ml, lengthscale, signal_var : ndarray, shape (G,)
+        The fixed σ_ε², the maximum over ℓ and σ_f² of log p(y | X, θ) there, and the
+        maximising ℓ and σ_f².
     """
 
     noise_vars: np.ndarray
@@ -423,25 +287,12 @@ class NoiseProfile:
 
 
 def noise_profile(x: ArrayLike, y: ArrayLike, noise_vars: ArrayLike) -> NoiseProfile:
-    """The profile log marginal likelihood of the noise variance (Eq. 2.28).
+    """The profile log marginal likelihood (2.28) of the noise variances (G,) > 0, units of y².
 
-    For each σ_ε², log p(y | X, θ) maximised over ℓ and σ_f²
-    (:func:`~skillkit.models.gp.neg_log_marginal_likelihood` with its analytic gradient; L-BFGS-B
-    over log ℓ ∈ [1e-3, 1e3] × std(x) and log σ_f² ∈ [1e-4, 1e4] × var(y), best of three starts
-    ℓ = std(x) × {0.3, 1, 3}). Targets are standardised as :class:`ExactGP` does and the value is
-    returned in raw units (−N log std(y) added), comparable with
-    ``gp.diagnostics["log_marginal_likelihood"]``.
-
-    Parameters
-    ----------
-    x : array_like, shape (N, 1)
-    y : array_like, shape (N,)
-    noise_vars : array_like, shape (G,)
-        Noise variances σ_ε² (> 0) in the units of y².
-
-    Returns
-    -------
-    NoiseProfile
+    For each σ_ε², :func:`~skillkit.models.gp.neg_log_marginal_likelihood` is minimised over
+    log ℓ ∈ [1e-3, 1e3] std(x) and log σ_f² ∈ [1e-4, 1e4] var(y) by L-BFGS-B, best of the
+    starts ℓ = std(x) × {0.3, 1, 3}, on targets standardised as :class:`ExactGP` does; the
+    value is in raw units (−N log std(y) added), as ``gp.diagnostics["log_marginal_likelihood"]``.
     """
     x, y = _data(x, y)
     nv = check_array(noise_vars, "noise_vars", ndim=1)
@@ -463,22 +314,15 @@ def noise_profile(x: ArrayLike, y: ArrayLike, noise_vars: ArrayLike) -> NoisePro
         return float(value.detach()), t.grad.numpy().copy()
 
     def each(ls: np.ndarray, os_: np.ndarray) -> np.ndarray:
-        """Every output's own term (the sum's terms are independent)."""
+        """Every output's own term."""
         with torch.no_grad():
-            return np.array(
-                [
-                    float(
-                        neg_log_marginal_likelihood(
-                            X,
-                            Y[g : g + 1],
-                            torch.tensor([[ls[g]]], dtype=DTYPE),
-                            torch.tensor([os_[g]], dtype=DTYPE),
-                            noise[g : g + 1],
-                        )
-                    )
-                    for g in range(G)
-                ]
-            )
+            return np.array([
+                float(neg_log_marginal_likelihood(
+                    X, Y[g : g + 1], torch.tensor([[ls[g]]], dtype=DTYPE),
+                    torch.tensor([os_[g]], dtype=DTYPE), noise[g : g + 1],
+                ))
+                for g in range(G)
+            ])  # fmt: skip
 
     bounds = [(np.log(1e-3 * sd), np.log(1e3 * sd))] * G + [(np.log(1e-4), np.log(1e4))] * G
     best = np.full(G, np.inf)
@@ -501,24 +345,9 @@ def noise_profile_figure(
     noise_vars: ArrayLike | None = None,
     backend: str = "plotly",
 ):
-    """:func:`noise_profile` of several data sets, a panel each, relative to its maximum.
-
-    Parameters
-    ----------
-    datasets : mapping of str to (x, y)
-        Panel title → data, x of shape (N, 1), y of shape (N,).
-    true_noise_var : float, optional
-        The variance of the noise that was added, drawn as a dashed vertical line.
-    noise_vars : array_like, optional
-        The σ_ε² grid (default: 25 values log-spaced over 1e-6 … 1).
-    backend : {"plotly", "matplotlib"}
-
-    Returns
-    -------
-    plotly.graph_objects.Figure or NotebookFigure
-        Per data set: log marginal likelihood minus its maximum over the grid, against σ_ε²
-        (log axis), the maximum marked.
-    """
+    """:func:`noise_profile` of each data set (title → (x, y)) minus its maximum, a panel each,
+    over ``noise_vars`` (default 25 values log-spaced over 1e-6 … 1); ``true_noise_var`` is
+    drawn dashed."""
     if not isinstance(datasets, Mapping) or not datasets:
         raise ValueError("datasets: expected a non-empty mapping of label to (x, y)")
     grid = (
@@ -548,8 +377,7 @@ def noise_profile_figure(
             series.append(
                 Series(f"true σ_ε² = {v:g}", [v, v], [float(rel.min()), 0.0], dash="dash", **kw)
             )
-    title = "Profile likelihood of the noise variance (Eq. 2.28)"
-    return draw_figure(_result(title, series), backend)
+    return draw("Profile likelihood of the noise variance (Eq. 2.28)", series, backend)
 
 
 def noise_by_size_table(
@@ -559,26 +387,12 @@ def noise_by_size_table(
     noise_std: float = 0.1,
     seed: int = 0,
 ) -> pd.DataFrame:
-    """The noise variance maximum likelihood learns, over repeated noise draws, by data size.
+    """The noise variance maximum likelihood learns, by data size N (2 … :data:`POOL`).
 
-    For each N: the inputs of :func:`noisy_samples` (``seed``) with ``n_draws`` independent noise
-    vectors, fitted by one :class:`ExactGP` (one GP per output column, ``additive_noise=0``).
-
-    Parameters
-    ----------
-    sizes : sequence of int
-        Numbers of points N (each 2 … :data:`POOL`).
-    n_draws : int
-        Noise draws per size, ≥ 2.
-    noise_std : float
-        Standard deviation of the noise (> 0).
-    seed : int
-
-    Returns
-    -------
-    pandas.DataFrame
-        One row per N: the true σ_ε², median and 10th / 90th percentiles of the learned σ_ε², the
-        median ratio learned / true, and how many fits ended at the noise floor.
+    For each N, the inputs of :func:`noisy_samples` (``seed``) with ``n_draws`` ≥ 2 noise
+    vectors are fitted by one :class:`ExactGP` (a GP per column, ``additive_noise=0``). One row
+    per N: true σ_ε², median and 10th / 90th percentiles of the learned σ_ε², median / true and
+    the fits at the noise floor.
     """
     n_draws = check_count(n_draws, "n_draws", minimum=2)
     noise_std = check_positive(noise_std, "noise_std")
@@ -596,11 +410,11 @@ def noise_by_size_table(
         rows.append(
             {
                 "points N": n,
-                "true σ_ε²": _sig(noise_std**2),
-                "learned σ_ε², median": _sig(med),
-                "10th percentile": _sig(lo),
-                "90th percentile": _sig(hi),
-                "median / true": _sig(med / noise_std**2, 3),
+                "true σ_ε²": sig(noise_std**2),
+                "learned σ_ε², median": sig(med),
+                "10th percentile": sig(lo),
+                "90th percentile": sig(hi),
+                "median / true": sig(med / noise_std**2, 3),
                 f"at the floor (of {n_draws})": len(gp.diagnostics["noise_at_floor"]),
             }
         )
@@ -610,39 +424,26 @@ def noise_by_size_table(
 def hyperparameter_table(
     gps: Mapping[str, ExactGP], *, true_noise_var: float | None = None
 ) -> pd.DataFrame:
-    """The learned hyper-parameters of fitted 1-D GPs, one row each.
+    """The learned hyper-parameters of fitted 1-D GPs (label → GP), one row each.
 
-    Parameters
-    ----------
-    gps : mapping of str to ExactGP
-        Fitted, one input and one output.
-    true_noise_var : float, optional
-        Adds a column with the noise variance that was added to the data.
-
-    Returns
-    -------
-    pandas.DataFrame
-        Points N, length-scale ℓ, signal variance σ_f², noise variance σ_ε² (raw units,
-        ``gp.hyperparameters``), the log marginal likelihood (2.28) and whether the noise
-        ended at its floor (``diagnostics["noise_at_floor"]``); values rounded to 4
-        significant digits (the likelihood to 5).
+    Columns: points N, ℓ, σ_f², σ_ε² (raw units), ``true σ_ε²`` if given, the log marginal
+    likelihood (2.28) and whether the noise ended at its floor; 4 significant digits (the
+    likelihood 5).
     """
     if not isinstance(gps, Mapping) or not gps:
         raise ValueError("gps: expected a non-empty mapping of label to fitted ExactGP")
     rows = {}
     for label, gp in gps.items():
-        if not isinstance(gp, ExactGP) or gp.predictor is None:
-            raise ValueError(f"gps[{label!r}]: expected a fitted ExactGP")
-        h = gp.hyperparameters
+        h = _fitted(gp, f"gps[{label!r}]").hyperparameters
         row = {
             "points N": int(gp.diagnostics["n_data"]),
-            "length-scale ℓ": _sig(h["lengthscale"][0, 0]),
-            "signal variance σ_f²": _sig(h["outputscale"][0]),
-            "noise variance σ_ε²": _sig(h["noise"][0]),
+            "length-scale ℓ": sig(h["lengthscale"][0, 0]),
+            "signal variance σ_f²": sig(h["outputscale"][0]),
+            "noise variance σ_ε²": sig(h["noise"][0]),
         }
         if true_noise_var is not None:
             row["true σ_ε²"] = check_positive(true_noise_var, "true_noise_var")
-        row["log marginal likelihood"] = _sig(np.sum(gp.diagnostics["log_marginal_likelihood"]), 5)
+        row["log marginal likelihood"] = sig(np.sum(gp.diagnostics["log_marginal_likelihood"]), 5)
         row["noise at its floor"] = "yes" if gp.diagnostics["noise_at_floor"] else "no"
         rows[str(label)] = row
     return pd.DataFrame.from_dict(rows, orient="index")
@@ -651,17 +452,9 @@ def hyperparameter_table(
 def _band_series(gp: ExactGP, xs: np.ndarray, name: str, panel: str) -> Series:
     mean, var = gp.predict(xs[:, None])
     mean, half = np.ravel(mean), 1.96 * np.sqrt(np.maximum(np.ravel(var), 0.0))
-    return Series(
-        name,
-        xs.tolist(),
-        mean.tolist(),
-        lower=(mean - half).tolist(),
-        upper=(mean + half).tolist(),
-        band="95% band of y (mean ± 1.96 σ)",
-        panel=panel,
-        xlabel="x",
-        ylabel="y",
-    )
+    return Series(name, xs.tolist(), mean.tolist(), lower=(mean - half).tolist(),
+                  upper=(mean + half).tolist(), band="95% band of y (mean ± 1.96 σ)",
+                  panel=panel, xlabel="x", ylabel="y")  # fmt: skip
 
 
 def hyperparameter_figure(
@@ -673,34 +466,14 @@ def hyperparameter_figure(
     x_test: ArrayLike | None = None,
     backend: str = "plotly",
 ):
-    """Each hyper-parameter of a fitted GP divided and multiplied by ``factor``, side by side.
+    """Each hyper-parameter of a GP fitted on x (N, 1), y (N,) ÷ and × ``factor`` (> 1).
 
-    Three panels (length-scale ℓ, signal variance σ_f², noise variance σ_ε²); in each, the
-    posterior (Eqs. 2.26–2.27, 95% band of y) at the learned θ and with that one
-    hyper-parameter ÷ ``factor`` and × ``factor`` (:func:`gp_with`), the others kept, over the
-    data.
-
-    Parameters
-    ----------
-    x : array_like, shape (N, 1)
-    y : array_like, shape (N,)
-        The data ``gp`` was fitted on.
-    gp : ExactGP
-        Fitted (one input, one output).
-    factor : float
-        > 1.
-    x_test : array_like, shape (n,), optional
-        Where to draw (default: the data's range widened by a quarter on each side, 161 points, so
-        the prior's return far from the data shows).
-    backend : {"plotly", "matplotlib"}
-
-    Returns
-    -------
-    plotly.graph_objects.Figure or NotebookFigure
+    A panel per ℓ, σ_f², σ_ε²: the posterior (2.26–2.27, 95% band of y) at the learned θ and
+    with that one value scaled (:func:`gp_with`), over the data, at ``x_test`` (n,) (default
+    the data's range widened by a quarter each side, 161 points).
     """
     x, y = _data(x, y)
-    if not isinstance(gp, ExactGP) or gp.predictor is None:
-        raise ValueError("gp: expected a fitted ExactGP")
+    _fitted(gp)
     factor = check_positive(factor, "factor")
     if factor <= 1:
         raise ValueError(f"factor: expected a number > 1, got {factor!r}")
@@ -710,40 +483,24 @@ def hyperparameter_figure(
     else:
         xs = np.sort(check_array(x_test, "x_test", ndim=1))
     h = gp.hyperparameters
-    theta = {
-        "lengthscale": float(h["lengthscale"][0, 0]),
-        "signal_var": float(h["outputscale"][0]),
-        "noise_var": float(h["noise"][0]),
-    }
-    names = {
-        "lengthscale": "length-scale ℓ",
-        "signal_var": "signal variance σ_f²",
-        "noise_var": "noise variance σ_ε²",
-    }
+    params = (
+        ("lengthscale", "length-scale ℓ", h["lengthscale"][0, 0]),
+        ("signal_var", "signal variance σ_f²", h["outputscale"][0]),
+        ("noise_var", "noise variance σ_ε²", h["noise"][0]),
+    )
+    theta = {key: float(v) for key, _, v in params}
     series = []
-    for key, label in names.items():
+    for key, label, _ in params:
         v = theta[key]
         panel = f"{label}: {v / factor:.2g} / {v:.2g} / {v * factor:.2g}"
-        for name, scale in (
-            (f"÷ {factor:g}", 1 / factor),
-            ("learned θ", 1.0),
-            (f"× {factor:g}", factor),
-        ):
+        scales = ((f"÷ {factor:g}", 1 / factor), ("learned θ", 1.0), (f"× {factor:g}", factor))
+        for name, scale in scales:
             model = gp if scale == 1.0 else gp_with(x, y, **{**theta, key: v * scale})
             series.append(_band_series(model, xs, name, panel))
-        series.append(
-            Series(
-                "data",
-                x[:, 0].tolist(),
-                y.tolist(),
-                kind="markers",
-                panel=panel,
-                xlabel="x",
-                ylabel="y",
-            )
-        )
+        series.append(Series("data", x[:, 0].tolist(), y.tolist(), kind="markers", panel=panel,
+                             xlabel="x", ylabel="y"))  # fmt: skip
     title = f"One hyper-parameter at a time ÷ {factor:g} and × {factor:g}, the others as learned"
-    return draw_figure(_result(title, series), backend)
+    return draw(title, series, backend)
 
 
 def gp_posterior_figure(
@@ -756,29 +513,9 @@ def gp_posterior_figure(
     seed: int = 0,
     backend: str = "plotly",
 ):
-    """A GP posterior at chosen hyper-parameters on the first ``n_points`` noisy samples.
-
-    What the notebook's sliders redraw: :func:`noisy_samples` (``seed``, noise ``noise_std``),
-    :func:`gp_with` at (ℓ, σ_f², σ_ε²) and :func:`~skillkit.viz.figures.plot_gp_fit` with the
-    true function, over x ∈ [−6, 6] (the data lie in [−4, 4]).
-
-    Parameters
-    ----------
-    lengthscale, noise_var : float
-        ℓ and σ_ε² (> 0).
-    n_points : int
-        1 … :data:`POOL`.
-    signal_var : float
-        σ_f² (> 0; default 1, near what the 40-point example learns).
-    noise_std : float
-        Standard deviation of the noise in the data.
-    seed : int
-    backend : {"plotly", "matplotlib"}
-
-    Returns
-    -------
-    plotly.graph_objects.Figure or NotebookFigure
-    """
+    """The notebook slider's redraw: :func:`gp_with` at (ℓ, σ_f², σ_ε²) on the first
+    ``n_points`` of :func:`noisy_samples`, drawn by :func:`~skillkit.viz.figures.plot_gp_fit`
+    with the true function over x ∈ [−6, 6]."""
     x, y = noisy_samples(n_points, noise_std=noise_std, seed=seed)
     xs = np.linspace(-6.0, 6.0, 241)
     with record_numerical_events() as events:
@@ -801,13 +538,10 @@ class MomentMatchingCheck:
     ----------
     input_mean, input_var : float
         m and s².
-    moment_matched : GaussianPrediction
-        Exact mean and variance of p(y) (:func:`~skillkit.models.moment_matching.moment_match`).
-    linearised : GaussianPrediction
-        The Gaussian of linearisation at m (:func:`~skillkit.models.moment_matching.linearize`).
+    moment_matched, linearised : GaussianPrediction
+        The exact moments of p(y) and the Gaussian of linearisation at m.
     samples : ndarray, shape (n,)
-        y_j = μ(x_j) + σ(x_j) ε_j with x_j ~ N(m, s²) (:meth:`ExactGP.sample`): exact draws from
-        p(y), the truth both Gaussians approximate.
+        Exact draws y_j = μ(x_j) + σ(x_j) ε_j, x_j ~ N(m, s²).
     density_grid, density : ndarray, shape (G,)
         p(y) by quadrature (:func:`~skillkit.experiments.ch2_gp.successor_density`).
     """
@@ -821,11 +555,7 @@ class MomentMatchingCheck:
     density: np.ndarray
 
     def standard_errors(self) -> tuple[float, float]:
-        """Standard errors of the sample mean and the sample variance.
-
-        s.e.(mean) = √(v / n); s.e.(variance) = √((μ₄ − v²) / n), the large-n standard error of
-        the sample variance (μ₄ the fourth central sample moment, v the sample variance).
-        """
+        """Standard errors √(v/n) of the sample mean and √((μ₄ − v²)/n) of the sample variance."""
         y = self.samples
         n = y.shape[0]
         c = y - y.mean()
@@ -834,17 +564,8 @@ class MomentMatchingCheck:
         return float(np.sqrt(v / n)), float(np.sqrt(max(m4 - v * v, 0.0) / n))
 
     def table(self) -> pd.DataFrame:
-        """Mean and variance of each, and the Gaussians' distance from the samples in s.e.
-
-        Returns
-        -------
-        pandas.DataFrame
-            Rows: Monte Carlo, moment matching, linearisation. Columns: mean, variance, their
-            standard errors (0 for the closed forms, computed without sampling) and
-            (value − sample value) / s.e. for mean and variance (|·| ≲ 2 is agreement within
-            the samples' own error). Means and variances rounded to 5 significant digits,
-            standard errors to 2, distances to 0.1 s.e.
-        """
+        """Mean and variance of Monte Carlo, moment matching and linearisation, their standard
+        errors (0 for the closed forms) and each Gaussian's distance from the samples in s.e."""
         se_m, se_v = self.standard_errors()
         mc_m, mc_v = float(self.samples.mean()), float(self.samples.var())
         rows = {f"Monte Carlo ({self.samples.shape[0]:,} samples)": (mc_m, mc_v, se_m, se_v)}
@@ -855,10 +576,10 @@ class MomentMatchingCheck:
             rows[label] = (float(g.mean[0]), float(g.cov[0, 0]), 0.0, 0.0)
         out = {
             label: {
-                "mean": _sig(m, 5),
-                "variance": _sig(v, 5),
-                "s.e. of mean": _sig(sm, 2),
-                "s.e. of variance": _sig(sv, 2),
+                "mean": sig(m, 5),
+                "variance": sig(v, 5),
+                "s.e. of mean": sig(sm, 2),
+                "s.e. of variance": sig(sv, 2),
                 "mean − MC [s.e.]": round((m - mc_m) / se_m, 1),
                 "variance − MC [s.e.]": round((v - mc_v) / se_v, 1),
             }
@@ -880,33 +601,17 @@ class MomentMatchingCheck:
         )
 
     def figure(self, *, bins: int = 80, backend: str = "plotly"):
-        """Histogram of the samples with p(y) and both Gaussians.
-
-        Parameters
-        ----------
-        bins : int
-            Histogram bins (density-normalised).
-        backend : {"plotly", "matplotlib"}
-
-        Returns
-        -------
-        plotly.graph_objects.Figure or NotebookFigure
-        """
+        """Density histogram of the samples (``bins`` ≥ 2) with p(y) and both Gaussians."""
         bins = check_count(bins, "bins", minimum=2)
         hist, edges = np.histogram(self.samples, bins=bins, density=True)
         centres = 0.5 * (edges[1:] + edges[:-1])
         g = self.density_grid
         kw = {"xlabel": "y", "ylabel": "density p(y)"}
         series = [
-            Series(
-                f"Monte Carlo histogram ({self.samples.shape[0]:,} samples)",
-                centres.tolist(),
-                hist.tolist(),
-                kind="bar",
-                **kw,
-            ),
+            Series(f"Monte Carlo histogram ({self.samples.shape[0]:,} samples)",
+                   centres.tolist(), hist.tolist(), kind="bar", **kw),
             Series("p(y) by quadrature", g.tolist(), self.density.tolist(), dash="dash", **kw),
-        ]
+        ]  # fmt: skip
         for label, pred in (
             ("moment matching", self.moment_matched),
             ("linearisation", self.linearised),
@@ -918,7 +623,7 @@ class MomentMatchingCheck:
             f"One step of x ~ N({self.input_mean:g}, {self.input_var:g}) through the GP "
             "(Sec. 2.1.2, Fig. 2.7)"
         )
-        return draw_figure(_result(title, series), backend)
+        return draw(title, series, backend)
 
 
 def moment_matching_check(
@@ -930,27 +635,10 @@ def moment_matching_check(
     rng=0,
     n_grid: int = 401,
 ) -> MomentMatchingCheck:
-    """Moment matching and linearisation of one step, and Monte Carlo samples of the same step.
-
-    Parameters
-    ----------
-    gp : ExactGP
-        Fitted, one input and one output.
-    mean, var : float
-        The Gaussian input N(m, s²) (var > 0).
-    n_samples : int
-        Monte Carlo draws, ≥ 2.
-    rng : Generator, int or None
-        The draws' randomness (same seed ⇒ same samples).
-    n_grid : int
-        Points of the quadrature density's grid.
-
-    Returns
-    -------
-    MomentMatchingCheck
-    """
-    if not isinstance(gp, ExactGP) or gp.predictor is None:
-        raise ValueError("gp: expected a fitted ExactGP")
+    """Moment matching, linearisation and ``n_samples`` Monte Carlo draws (from ``rng``) of one
+    step of N(mean, var) through a fitted GP with one input and one output; the quadrature
+    density on ``n_grid`` points."""
+    _fitted(gp)
     if gp.predictor.input_dim != 1 or gp.predictor.output_dim != 1:
         raise ValueError("gp: expected one input and one output")
     m = float(check_array(mean, "mean", ndim=0))

@@ -1,13 +1,11 @@
 r"""Chapter 3 step by step: one contextual REPS update (Sec. 3.3, Table 3.1) taken apart.
 
-Evaluates the library's own :func:`~skillkit.search.reps.reps_dual`,
-:func:`~skillkit.search.reps.reps_weights`,
-:meth:`~skillkit.policies.gaussian.LinearGaussianPolicy.fit` and
-:class:`~skillkit.search.reps.ContextualREPS` on grids, in the notebook's panels: (a) the dual
-(3.9) along η (:func:`dual_figure`), (b, c) the weights (3.10), KL and ESS against ε
-(:func:`weights_and_kl_figure`), (d) the weighted ML fit's ellipse, Eqs. 3.11–3.13
-(:func:`ellipse_figure`), and the updates as tables (:func:`update_table`,
-:func:`diagnostics_table`).
+The library's :func:`~skillkit.search.reps.reps_dual`, :func:`~skillkit.search.reps.reps_weights`
+and :meth:`~skillkit.policies.gaussian.LinearGaussianPolicy.fit` evaluated on grids for the
+notebook's panels: (a) the dual (3.9) along η, (b, c) the weights (3.10), KL and ESS against
+ε, (d) the weighted ML fit's ellipse (3.11–3.13), and the updates as tables. Samples are
+rewards R_i (N,), N ≥ 2 and not all equal, with baseline features φ(s_i) (N, F) or ``None``
+(episode-based REPS, Eq. 2.15). Figures take ``backend`` in {"plotly", "matplotlib"}.
 """
 
 from __future__ import annotations
@@ -29,36 +27,24 @@ from skillkit.search.reps import (
     reps_dual,
     reps_weights,
 )
-from skillkit.viz.plots import PANEL_HEIGHT, draw_figure
+from skillkit.teaching._common import draw, index_pair, sig
+from skillkit.viz.plots import PANEL_HEIGHT
 from skillkit.viz.series import Series
 
 __all__ = [
-    "COLUMNS",
-    "DEFAULT_EPSILONS",
-    "DualSlice",
-    "KLSweep",
-    "diagnostics_table",
-    "dual_figure",
-    "dual_slice",
-    "ellipse_figure",
-    "ellipse_points",
-    "heaviest_samples",
-    "kl_sweep",
-    "policy_moments",
-    "update_table",
-    "weights_and_kl_figure",
-]
+    "COLUMNS", "DEFAULT_EPSILONS", "DualSlice", "KLSweep", "diagnostics_table", "dual_figure",
+    "dual_slice", "ellipse_figure", "ellipse_points", "heaviest_samples", "kl_sweep",
+    "policy_moments", "update_table", "weights_and_kl_figure",
+]  # fmt: skip
 
-#: Pixels :func:`ellipse_figure`'s panel gets beyond a standard one (equal axis scales need
-#: the height).
+#: Pixels :func:`ellipse_figure`'s panel gets beyond a standard one (for equal axis scales).
 ELLIPSE_EXTRA_HEIGHT = 160
-#: The ε grid of :func:`weights_and_kl_figure` when none is given (log-spaced, 0.01 … 10).
+#: The ε grid of :func:`weights_and_kl_figure` when none is given.
 DEFAULT_EPSILONS = np.geomspace(0.01, 10.0, 19)
 
 
 def _samples(rewards: ArrayLike, features: ArrayLike | None) -> tuple[np.ndarray, np.ndarray]:
-    """Rewards (N,) and baseline features (N, F) (F = 0 for ``None``), validated as the REPS
-    dual validates them; the figures here need at least two samples."""
+    """Rewards (N,), N ≥ 2, and features (N, F), validated as the REPS dual does."""
     r, phi = check_samples(rewards, features)
     if r.shape[0] < 2:
         raise ValueError(f"rewards: expected at least 2 samples, got shape {r.shape}")
@@ -66,7 +52,6 @@ def _samples(rewards: ArrayLike, features: ArrayLike | None) -> tuple[np.ndarray
 
 
 def _solve(rewards: np.ndarray, phi: np.ndarray, epsilon: float) -> REPSWeights:
-    """:func:`reps_weights` on validated samples; all-equal rewards have no finite η."""
     solution = reps_weights(rewards, phi if phi.shape[1] else None, epsilon)
     if not np.isfinite(solution.eta):
         raise ValueError(
@@ -76,27 +61,24 @@ def _solve(rewards: np.ndarray, phi: np.ndarray, epsilon: float) -> REPSWeights:
     return solution
 
 
-def _sig(value: float, digits: int = 4) -> float:
-    """``value`` rounded to ``digits`` significant digits (for tables)."""
-    return float(f"{value:.{digits}g}")
+def _policy(pol, name: str) -> LinearGaussianPolicy:
+    if not isinstance(pol, LinearGaussianPolicy):
+        raise ValueError(f"{name}: expected a LinearGaussianPolicy, got {type(pol).__name__}")
+    return pol
 
 
 # ------------------------------------------------------------------------------ (a) the dual
 @dataclass(frozen=True)
 class DualSlice:
-    """The REPS dual (3.9) along η with γ held at its optimum (what :func:`dual_slice` returns).
+    """The REPS dual (3.9) along η with γ at its optimum γ* (:func:`dual_slice`).
 
     Attributes
     ----------
-    eta : ndarray, shape (n,)
-        The η grid (reward units), log-spaced around η* and containing it.
-    value : ndarray, shape (n,)
-        g(η, γ*) at the grid (reward units).
-    kl : ndarray, shape (n,)
-        KL(p_η ‖ uniform) of the weights p_η,i ∝ exp((R_i − γ*ᵀφ(s_i))/η) at the grid,
-        = ε − ∂g/∂η (A.11).
+    eta, value, kl : ndarray, shape (n,)
+        The η grid (log-spaced, containing η*), g(η, γ*) there (reward units) and the KL of
+        the weights p_η,i ∝ exp((R_i − γ*ᵀφ(s_i))/η) from uniform, = ε − ∂g/∂η (A.11).
     solution : REPSWeights
-        The joint minimiser (η*, γ*) of the dual (:func:`~skillkit.search.reps.reps_weights`).
+        The joint minimiser (η*, γ*).
     """
 
     eta: np.ndarray
@@ -118,40 +100,16 @@ def dual_slice(
     span: float = 10.0,
     n_points: int = 81,
 ) -> DualSlice:
-    r"""The sample-based dual g(η, γ) of Eq. (3.9) along η, with γ fixed at its optimum γ*.
+    r"""The sample-based dual of Eq. (3.9) along η, with γ at its optimum γ*:
 
     .. math::
         g(\eta, \gamma^*) = \eta \log\Big(\frac1N \sum_i
         \exp\Big(\frac{R_i - \gamma^{*T}\phi(s_i)}{\eta}\Big)\Big) + \eta\epsilon
         + \gamma^{*T}\hat\phi
 
-    (η*, γ*) comes from :func:`~skillkit.search.reps.reps_weights`; each point is
-    :func:`~skillkit.search.reps.reps_dual` at (η, γ*), with KL = ε − ∂g/∂η (A.11). The dual is
-    convex, so with the bound active the slice's minimum is at η*, where KL = ε. With no features
-    (episode-based REPS, Eq. 2.15) the slice is the whole dual.
-
-    Parameters
-    ----------
-    rewards : array_like, shape (N,)
-        Rewards R_i, N ≥ 2, not all equal.
-    features : array_like, shape (N, F), or None
-        Baseline features φ(s_i) (``None``: none, episode-based REPS).
-    epsilon : float
-        KL bound ε > 0 (Eq. 3.4).
-    span : float
-        The grid runs from η*/span to η*·span (span > 1).
-    n_points : int
-        Log-spaced grid points, at least 3; η* is added to them (replacing a point within
-        1e-9 of it).
-
-    Returns
-    -------
-    DualSlice
-
-    Raises
-    ------
-    ValueError
-        Naming ``rewards``, ``features``, ``epsilon``, ``span`` or ``n_points``.
+    on ``n_points`` ≥ 3 log-spaced values from η*/span to η*·span (span > 1), η* added
+    (replacing a point within 1e-9 of it). The dual is convex, so with the bound ε > 0
+    (Eq. 3.4) active the minimum is at η*, where KL = ε.
     """
     r, phi = _samples(rewards, features)
     eps = check_positive(epsilon, "epsilon")
@@ -177,73 +135,38 @@ def dual_figure(
     span: float = 10.0,
     backend: str = "plotly",
 ):
-    """(a) The REPS dual (3.9) along η with γ at its optimum, and the KL along the same slice.
-
-    Two panels over a log η axis (:func:`dual_slice`): g(η, γ*) with its minimiser η*
-    marked, and KL(p_η ‖ uniform) = ε − ∂g/∂η (A.11) with the bound ε, reached at η*.
-
-    Parameters
-    ----------
-    rewards, features, epsilon, span
-        As :func:`dual_slice`.
-    backend : {"plotly", "matplotlib"}
-
-    Returns
-    -------
-    plotly.graph_objects.Figure or NotebookFigure
-    """
+    """(a) :func:`dual_slice` over a log η axis: g(η, γ*) with η* marked, and the KL along
+    the slice with the bound ε."""
     s = dual_slice(rewards, features, epsilon, span=span)
     sol = s.solution
     n_feat = sol.gamma.shape[0]
     held = f"the {n_feat} baseline parameters γ held at their optimum γ*" if n_feat else "no γ"
     left = {"panel": f"dual g(η, γ*), {held}", "xlabel": "η (reward units)", "ylabel": "g(η, γ*)"}
-    right = {
-        "panel": "KL of the weights along the same slice",
-        "xlabel": "η (reward units)",
-        "ylabel": "KL(p ‖ q)",
-    }
+    right = {"panel": "KL of the weights along the same slice", "xlabel": "η (reward units)",
+             "ylabel": "KL(p ‖ q)"}  # fmt: skip
+    for p in (left, right):
+        p["log_x"] = True
     star = f"minimiser η* = {sol.eta:.3g}"
     ends = [float(s.eta[0]), float(s.eta[-1])]
+    bound = f"bound ε = {sol.epsilon:.3g} (Eq. 3.4)"
     series = [
-        Series("g(η, γ*) (Eq. 3.9)", s.eta.tolist(), s.value.tolist(), log_x=True, **left),
-        Series(star, [sol.eta], [s.value_at_minimum], kind="markers", log_x=True, **left),
-        Series(
-            "KL(p_η ‖ q) = ε − ∂g/∂η (A.11)", s.eta.tolist(), s.kl.tolist(), log_x=True, **right
-        ),
-        Series(
-            f"bound ε = {sol.epsilon:.3g} (Eq. 3.4)",
-            ends,
-            [sol.epsilon, sol.epsilon],
-            dash="dash",
-            log_x=True,
-            **right,
-        ),
-        Series(star, [sol.eta], [sol.kl], kind="markers", log_x=True, **right),
+        Series("g(η, γ*) (Eq. 3.9)", s.eta.tolist(), s.value.tolist(), **left),
+        Series(star, [sol.eta], [s.value_at_minimum], kind="markers", **left),
+        Series("KL(p_η ‖ q) = ε − ∂g/∂η (A.11)", s.eta.tolist(), s.kl.tolist(), **right),
+        Series(bound, ends, [sol.epsilon, sol.epsilon], dash="dash", **right),
+        Series(star, [sol.eta], [sol.kl], kind="markers", **right),
     ]
     title = f"(a) the REPS dual along η, N = {s.solution.weights.shape[0]} samples"
     if not sol.kl_bound_active:
         title += ": ε is above the largest KL these samples allow, η* sits at its lower bound"
-    return draw_figure({"title": title, "series": [x.to_dict() for x in series]}, backend)
+    return draw(title, series, backend)
 
 
 # ------------------------------------------------------------------- (b, c) weights and KL
 @dataclass(frozen=True)
 class KLSweep:
-    """The REPS weights' diagnostics over a grid of bounds ε (what :func:`kl_sweep` returns).
-
-    Attributes
-    ----------
-    epsilon : ndarray, shape (m,)
-        The bounds ε.
-    kl : ndarray, shape (m,)
-        Achieved KL(p ‖ uniform) for each ε (= ε while the bound is active).
-    ess : ndarray, shape (m,)
-        Effective sample size 1/Σ p_i² for each ε.
-    eta : ndarray, shape (m,)
-        The minimiser η* for each ε (reward units).
-    active : ndarray of bool, shape (m,)
-        Whether the bound is met with equality (``kl_bound_active``).
-    """
+    """The REPS weights' diagnostics over bounds ε (:func:`kl_sweep`), each shape (m,): the
+    bounds, the achieved KL, the ESS 1/Σ p_i², η* and whether the bound is active."""
 
     epsilon: np.ndarray
     kl: np.ndarray
@@ -253,22 +176,8 @@ class KLSweep:
 
 
 def kl_sweep(rewards: ArrayLike, features: ArrayLike | None, epsilons: ArrayLike) -> KLSweep:
-    """Solve the REPS dual (3.9) for each bound ε on one batch (Eqs. 3.4, 3.10).
-
-    Parameters
-    ----------
-    rewards : array_like, shape (N,)
-        Rewards R_i, N ≥ 2, not all equal.
-    features : array_like, shape (N, F), or None
-        Baseline features φ(s_i).
-    epsilons : array_like, shape (m,)
-        Bounds ε > 0, m ≥ 1.
-
-    Returns
-    -------
-    KLSweep
-        One :func:`~skillkit.search.reps.reps_weights` solution per ε, summarised.
-    """
+    """:func:`~skillkit.search.reps.reps_weights` (Eqs. 3.4, 3.10) for each bound of
+    ``epsilons`` (m,), all > 0, on one batch."""
     r, phi = _samples(rewards, features)
     eps = check_array(epsilons, "epsilons", ndim=1)
     if eps.size == 0 or np.any(eps <= 0):
@@ -291,32 +200,12 @@ def weights_and_kl_figure(
     epsilons: ArrayLike | None = None,
     backend: str = "plotly",
 ):
-    r"""(b) The weights (3.10) against the rewards and advantages; (c) the KL and ESS against ε.
+    r"""(b) The weights (3.10) at ``epsilon``; (c) the KL and ESS over ``epsilons``.
 
-    Four panels from :func:`~skillkit.search.reps.reps_weights` at ``epsilon`` and at each bound
-    of ``epsilons`` (:func:`kl_sweep`): N p_i against R_i (1 = the old uniform weight; with a
-    baseline V(s) = γᵀφ(s) a high reward in an easy context can weigh less than a lower one in a
-    hard context); N p_i against the advantage A_i = R_i − V(s_i), one curve
-    N p = N exp(A/η) / Σ_j exp(A_j/η) (slope 1/(η ln 10) on the log axis); KL(p ‖ q) against ε
-    (= ε while the bound (3.4) is active, at most log N, less under the feature constraint 3.5);
-    and the effective sample size 1/Σ p_i². Weights that underflow to 0 are not drawn (the title
-    counts them).
-
-    Parameters
-    ----------
-    rewards : array_like, shape (N,)
-        Rewards R_i, N ≥ 2, not all equal.
-    features : array_like, shape (N, F), or None
-        Baseline features φ(s_i).
-    epsilon : float
-        The bound ε > 0 whose weights are drawn (marked in the lower panels).
-    epsilons : array_like, shape (m,), optional
-        The bounds of the lower panels (default :data:`DEFAULT_EPSILONS`).
-    backend : {"plotly", "matplotlib"}
-
-    Returns
-    -------
-    plotly.graph_objects.Figure or NotebookFigure
+    Four panels: N p_i against R_i and against the advantage A_i = R_i − γᵀφ(s_i) (1 = uniform;
+    one curve N exp(A/η) / Σ_j exp(A_j/η)), KL(p ‖ q) against ε (= ε while the bound 3.4 is
+    active, at most log N) and 1/Σ p_i², over ``epsilons`` (default :data:`DEFAULT_EPSILONS`,
+    :func:`kl_sweep`). Weights that underflow to 0 are not drawn (the title counts them).
     """
     r, phi = _samples(rewards, features)
     eps = check_positive(epsilon, "epsilon")
@@ -337,8 +226,7 @@ def weights_and_kl_figure(
     for p in (kp, ep):
         p.update(log_x=True)
     e_ends = [float(sweep.epsilon.min()), float(sweep.epsilon.max())]
-    # The identity KL = ε through many points: straight segments between two ends would bow
-    # on the log-ε axis (reading ≈ 5.7 at ε = 0.5 for ends 0.01 and 10).
+    # KL = ε through many points: a straight segment would bow on the log-ε axis
     identity = np.geomspace(e_ends[0], e_ends[1], 200).tolist()
     uniform = "uniform weights 1/N (the old samples)"
     here = f"this ε = {eps:.3g}"
@@ -364,7 +252,7 @@ def weights_and_kl_figure(
     n_zero = int(np.sum(sol.weights == 0))
     if n_zero:
         title += f"; {n_zero} weights underflow to 0 (not drawn)"
-    return draw_figure({"title": title, "series": [x.to_dict() for x in series]}, backend)
+    return draw(title, series, backend)
 
 
 # ------------------------------------------------------------------------ (d) the ellipse
@@ -394,35 +282,19 @@ def _weights(weights: ArrayLike, n: int) -> np.ndarray:
 def policy_moments(
     policy: LinearGaussianPolicy, contexts: ArrayLike | None, weights: ArrayLike | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
-    r"""Mean and covariance of ω under the policy over a set of contexts.
+    r"""Mean (d,) and covariance (d, d) of ω under the policy over contexts (n, context_dim).
 
-    With s drawn from the contexts with probabilities q_i (uniform by default) and
-    ω ~ π(ω|s) = N(a + Aφ(s), Σ) (Eq. 3.13):
+    With s_i drawn with probabilities q_i (``weights``, normalised; default uniform) and
+    ω ~ N(a + Aφ(s), Σ) (Eq. 3.13):
 
     .. math::
         m = \sum_i q_i \mu(s_i), \qquad
         C = \Sigma + \sum_i q_i (\mu(s_i) - m)(\mu(s_i) - m)^T.
 
-    After the weighted ML fit (3.11, 3.12) on REPS weights p this equals the p-weighted mean and
-    covariance of the samples ω_i (explained part A Cov_p(φ) Aᵀ plus residual Σ; the feature
-    constraint (3.5) keeps the weighted context moments equal to the uniform ones).
-
-    Parameters
-    ----------
-    policy : LinearGaussianPolicy
-    contexts : array_like, shape (n, context_dim), or None
-        ``None`` for a context-free policy.
-    weights : array_like, shape (n,), optional
-        q_i ≥ 0 with a positive sum (normalised here); ``None``: uniform.
-
-    Returns
-    -------
-    mean : ndarray, shape (d,)
-    cov : ndarray, shape (d, d)
+    After the weighted ML fit (3.11, 3.12) on REPS weights p this is the p-weighted mean and
+    covariance of the samples ω_i.
     """
-    if not isinstance(policy, LinearGaussianPolicy):
-        raise ValueError(f"policy: expected a LinearGaussianPolicy, got {type(policy).__name__}")
-    s = _contexts(policy, contexts)
+    s = _contexts(_policy(policy, "policy"), contexts)
     mu = np.atleast_2d(policy.mean_of(s))
     q = np.full(mu.shape[0], 1.0 / mu.shape[0]) if weights is None else _weights(weights, len(mu))
     mean = q @ mu
@@ -432,41 +304,16 @@ def policy_moments(
 
 
 def _dims(dims, d: int) -> tuple[int, int]:
-    ok = (
-        isinstance(dims, (tuple, list))
-        and len(dims) == 2
-        and all(isinstance(i, (int, np.integer)) and not isinstance(i, bool) for i in dims)
-        and all(0 <= i < d for i in dims)
-        and dims[0] != dims[1]
-    )
-    if not ok:
-        raise ValueError(
-            f"dims: expected two different parameter indices in [0, {d}), got {dims!r}"
-        )
-    return int(dims[0]), int(dims[1])
+    return index_pair(dims, "dims", d, "parameter indices")
 
 
 def ellipse_points(
     mean: ArrayLike, cov: ArrayLike, dims: tuple[int, int] = (0, 1), n_points: int = 101
 ) -> np.ndarray:
-    r"""The 1-σ ellipse of a Gaussian's two-dimensional marginal, as a closed curve.
+    r"""The 1-σ ellipse of a Gaussian's marginal on ``dims``, shape (n_points, 2), closed.
 
-    With C the 2 × 2 block of ``cov`` at ``dims`` and C = V Λ Vᵀ, the points
+    With C = V Λ Vᵀ the 2 × 2 block of ``cov`` (symmetric positive semi-definite), the points
     m + V Λ^{1/2} [cos t, sin t]ᵀ, t ∈ [0, 2π], satisfy (x − m)ᵀ C⁻¹ (x − m) = 1.
-
-    Parameters
-    ----------
-    mean : array_like, shape (d,)
-    cov : array_like, shape (d, d)
-        Symmetric positive semi-definite.
-    dims : (int, int)
-        Two different parameter indices.
-    n_points : int
-        Points on the curve, at least 3 (the first is repeated as the last).
-
-    Returns
-    -------
-    ndarray, shape (n_points, 2)
     """
     m = check_array(mean, "mean", ndim=1)
     c = check_array(cov, "cov", shape=(m.shape[0], m.shape[0]))
@@ -484,21 +331,8 @@ def ellipse_points(
 
 
 def heaviest_samples(weights: ArrayLike, mass: float = 0.5) -> np.ndarray:
-    """Indices of the fewest samples whose weights hold at least ``mass`` of the total.
-
-    Parameters
-    ----------
-    weights : array_like, shape (N,)
-        Non-negative weights with a positive sum.
-    mass : float
-        Fraction of the total weight, in (0, 1].
-
-    Returns
-    -------
-    ndarray of int, shape (k,)
-        Sorted indices; the k heaviest samples (ties broken by index), k the smallest count
-        whose weights sum to ≥ ``mass`` · Σ w (up to round-off, 1e-12 of the total).
-    """
+    """Sorted indices of the fewest samples whose weights hold at least ``mass`` ∈ (0, 1] of
+    the total (ties broken by index, round-off 1e-12 of the total)."""
     w = check_array(weights, "weights", ndim=1)
     p = _weights(w, w.shape[0])
     mass = check_positive(mass, "mass")
@@ -522,33 +356,12 @@ def ellipse_figure(
 ):
     """(d) The new policy's 1-σ ellipse over the re-weighted samples, the old one beside it.
 
-    Each policy is drawn by the moments of ω over the batch's contexts (:func:`policy_moments`,
-    uniform); the new policy at the mean context (Σ alone) shows how much spread the gain A
-    explains. The fewest samples holding ``mass`` of the weight are highlighted.
-
-    Parameters
-    ----------
-    old, new : LinearGaussianPolicy
-        The policy that drew the samples and the fitted one (same dimensions).
-    contexts : array_like, shape (N, context_dim), or None
-        The samples' contexts (``None`` for context-free policies).
-    omegas : array_like, shape (N, d)
-        The samples' parameters ω_i.
-    weights : array_like, shape (N,)
-        Their REPS weights p_i (Eq. 3.10).
-    dims : (int, int)
-        The two parameter dimensions drawn.
-    mass : float
-        Fraction of the weight whose heaviest samples are highlighted, in (0, 1].
-    backend : {"plotly", "matplotlib"}
-
-    Returns
-    -------
-    plotly.graph_objects.Figure or NotebookFigure
+    Each policy is drawn by :func:`policy_moments` over the batch's contexts (N, context_dim);
+    the new one also at the mean context (Σ alone). The samples ω_i (N, d) holding ``mass`` of
+    the REPS weights p_i (3.10) are highlighted; axes have equal scales.
     """
     for name, pol in (("old", old), ("new", new)):
-        if not isinstance(pol, LinearGaussianPolicy):
-            raise ValueError(f"{name}: expected a LinearGaussianPolicy, got {type(pol).__name__}")
+        _policy(pol, name)
     if (new.dim, new.context_dim) != (old.dim, old.context_dim):
         raise ValueError(
             f"new: expected dim={old.dim}, context_dim={old.context_dim} (as old), "
@@ -572,28 +385,17 @@ def ellipse_figure(
         "new policy, 1σ over the batch's contexts": (new_curve, None),
         "new policy at the mean context (Σ alone), 1σ": (at_mean, "dot"),
     }
+    held = f"samples holding {mass:.0%} of the weight ({heavy.sum()} of {w.shape[0]})"
     series = [
-        Series(
-            f"samples holding {mass:.0%} of the weight ({heavy.sum()} of {w.shape[0]})",
-            w[heavy, i].tolist(),
-            w[heavy, j].tolist(),
-            kind="markers",
-            **labels,
-        ),
-        Series(
-            "the other samples",
-            w[~heavy, i].tolist(),
-            w[~heavy, j].tolist(),
-            kind="markers",
-            **labels,
-        ),
+        Series(held, w[heavy, i].tolist(), w[heavy, j].tolist(), kind="markers", **labels),
+        Series("the other samples", w[~heavy, i].tolist(), w[~heavy, j].tolist(),
+               kind="markers", **labels),
     ] + [
         Series(name, xy[:, 0].tolist(), xy[:, 1].tolist(), dash=dash, **labels)
         for name, (xy, dash) in curves.items()
-    ]
+    ]  # fmt: skip
     title = f"(d) the new policy over the re-weighted samples, parameters ω_{i + 1} and ω_{j + 1}"
-    fig = draw_figure({"title": title, "series": [x.to_dict() for x in series]}, backend)
-    # one unit of ω_i as long as one of ω_j (a circle stays a circle), in a taller panel
+    fig = draw(title, series, backend)
     if backend == "plotly":
         fig.update_xaxes(constrain="domain")
         fig.update_yaxes(scaleanchor="x", scaleratio=1, constrain="domain")
@@ -611,27 +413,16 @@ def ellipse_figure(
 # ------------------------------------------------------------------------------ tables
 #: Columns of :func:`update_table` and :func:`diagnostics_table`.
 COLUMNS = (
-    "N (samples used)",
-    "ε",
-    "η",
-    "KL(p ‖ q)",
-    "bound active",
-    "ESS",
-    "mean reward (batch)",
+    "N (samples used)", "ε", "η", "KL(p ‖ q)", "bound active", "ESS", "mean reward (batch)",
     "KL(π_new ‖ π_old)",
-)
+)  # fmt: skip
 
 
 def _row(sol: DualSolution, n: int, mean_reward: float, policy_kl: float) -> dict:
     """A table row: the dual's diagnostics, the batch's mean reward and the policy's KL."""
-    values = (sol.epsilon, sol.eta, sol.kl)
-    row = {"N (samples used)": n}
-    row.update({c: _sig(v) for c, v in zip(COLUMNS[1:4], values, strict=True)})
-    row["bound active"] = bool(sol.kl_bound_active)
-    row["ESS"] = _sig(sol.ess)
-    row["mean reward (batch)"] = _sig(mean_reward)
-    row["KL(π_new ‖ π_old)"] = _sig(policy_kl)
-    return row
+    values = (n, sig(sol.epsilon), sig(sol.eta), sig(sol.kl), bool(sol.kl_bound_active),
+              sig(sol.ess), sig(mean_reward), sig(policy_kl))  # fmt: skip
+    return dict(zip(COLUMNS, values, strict=True))
 
 
 def update_table(
@@ -644,59 +435,29 @@ def update_table(
 ) -> pd.DataFrame:
     """One REPS update (weights 3.10, weighted ML fit 3.11–3.12) as a one-row table.
 
-    Parameters
-    ----------
-    solution : REPSWeights
-        The dual's solution on the batch (:func:`~skillkit.search.reps.reps_weights`).
-    rewards : array_like, shape (N,)
-        The batch's rewards (their mean is reported).
-    old, new : LinearGaussianPolicy
-        The policy before the update and the fitted one.
-    contexts : array_like, shape (N, context_dim), or None
-        The batch's contexts: KL(π_new ‖ π_old) is averaged over them (as
-        :class:`~skillkit.search.reps.ContextualREPS` reports it).
-    optimum : array_like, shape (d, 1 + F), optional
-        Known optimal coefficients θ* = [a*, A*]; adds the largest coefficient error
-        max |θ − θ*| of the old and the new policy (θ = ``policy.coefficients``).
-
-    Returns
-    -------
-    pandas.DataFrame
-        One row (index ``update`` = "by hand"); columns :data:`COLUMNS` (values to 4
-        significant digits), then ``max|θ − θ*| before`` and ``after`` with ``optimum``.
+    Columns :data:`COLUMNS` (4 significant digits): the dual's ``solution``, the mean of the
+    batch's ``rewards`` (N,) and KL(π_new ‖ π_old) averaged over its ``contexts``. With the
+    optimal coefficients θ* = [a*, A*] (d, 1 + F) as ``optimum``, also max |θ − θ*| of the
+    old and the new policy.
     """
     if not isinstance(solution, REPSWeights):
         raise ValueError(f"solution: expected REPSWeights, got {type(solution).__name__}")
     n = solution.weights.shape[0]
     r = check_array(rewards, "rewards", shape=(n,))
     for name, pol in (("old", old), ("new", new)):
-        if not isinstance(pol, LinearGaussianPolicy):
-            raise ValueError(f"{name}: expected a LinearGaussianPolicy, got {type(pol).__name__}")
+        _policy(pol, name)
     s = _contexts(old, contexts, n)
     row = _row(solution, n, float(r.mean()), new.kl(old, s))
     if optimum is not None:
         theta = check_array(optimum, "optimum", shape=old.coefficients.shape)
-        row["max|θ − θ*| before"] = _sig(np.abs(old.coefficients - theta).max())
-        row["max|θ − θ*| after"] = _sig(np.abs(new.coefficients - theta).max())
+        row["max|θ − θ*| before"] = sig(np.abs(old.coefficients - theta).max())
+        row["max|θ − θ*| after"] = sig(np.abs(new.coefficients - theta).max())
     return pd.DataFrame([row], index=pd.Index(["by hand"], name="update"))
 
 
 def diagnostics_table(updates: Sequence) -> pd.DataFrame:
-    """The updates of Table 3.1 as a table, one row per :meth:`ContextualREPS.update`.
-
-    Parameters
-    ----------
-    updates : sequence of REPSDiagnostics
-        What :meth:`~skillkit.search.reps.ContextualREPS.update` returned, in order.
-
-    Returns
-    -------
-    pandas.DataFrame
-        Index ``update`` = 1 … k; columns :data:`COLUMNS` (values to 4 significant
-        digits): the samples the dual used (the last L batches), ε, η, the achieved KL, whether
-        the bound is active, the effective sample size, the newest batch's mean reward and
-        KL(π_new ‖ π_old) averaged over the samples' contexts.
-    """
+    """The updates of Table 3.1, one row per :meth:`ContextualREPS.update` result
+    (REPSDiagnostics), columns :data:`COLUMNS`; index ``update`` = 1 … k."""
     if isinstance(updates, (str, bytes)) or not isinstance(updates, Sequence) or not updates:
         raise ValueError("updates: expected a non-empty list of ContextualREPS.update results")
     rows = []

@@ -1,14 +1,11 @@
-r"""Chapter 4 step by step: one GPREPS iteration (Sec. 4.1, Table 4.1) taken apart.
+"""Chapter 4 step by step: one GPREPS iteration (Sec. 4.1, Table 4.1) taken apart.
 
 The notebook calls the library's pieces in the order
-:meth:`GPREPS.update <skillkit.search.gpreps.GPREPS.update>` does — the reward model's ``fit``,
-:meth:`~skillkit.search.gpreps.GPREPS.sample_contexts` (μ̂(s)), the policy's ``sample``, the
-model's ``predict`` (Eq. 4.1), :func:`~skillkit.search.reps.reps_weights` (dual 3.9, weights
-3.10) and the weighted ML fit (Eqs. 3.11–3.13) — so from one generator it gets
-``GPREPS.update``'s own numbers (``tests/viz/test_teaching_ch4.py``). This module sizes the
-step-through (:func:`iteration_sizes`), tabulates and draws each cell, resamples the reward
-estimates behind the M, L widget (:func:`reward_estimates`), reads stored runs (Table 4.2,
-Fig. 4.4, exploration of fig4.10–4.12) and counts handled events (:func:`handled_events`).
+:meth:`GPREPS.update <skillkit.search.gpreps.GPREPS.update>` does (model fit, μ̂(s), policy
+samples, Eq. 4.1, weights 3.10, ML fit 3.11–3.13), so from one generator it gets its numbers.
+This module sizes, tabulates and draws those cells, resamples the reward estimates of the
+M, L widget and reads stored runs (Table 4.2, Fig. 4.4, fig4.10–4.12). Figures take
+``backend`` in {"plotly", "matplotlib"}.
 """
 
 from __future__ import annotations
@@ -38,38 +35,17 @@ from skillkit.search.reps import REPSWeights
 from skillkit.tasks.base import Task
 from skillkit.tasks.planar import Throwing
 from skillkit.tasks.throwing_model import ThrowingPrediction, ThrowingRewardModel
-from skillkit.viz.plots import draw_figure
+from skillkit.teaching._common import draw
 from skillkit.viz.series import Series
 
 __all__ = [
-    "EXPECTED_WARNINGS",
-    "HandledEvents",
-    "IterationSizes",
-    "ModelView",
-    "RewardPool",
-    "SCALES",
-    "THESIS_TABLE_4_2",
-    "batch_table",
-    "contexts_figure",
-    "diagnostics_table",
-    "exploration_figure",
-    "exploration_table",
-    "fit_table",
-    "gflops_table",
-    "gpreps_model_view",
-    "handled_events",
-    "iteration_sizes",
-    "policy_change_table",
-    "predicted_throws_figure",
-    "reward_estimate_figure",
-    "reward_estimates",
-    "reward_pool",
-    "step_settings",
-    "table_4_2",
-    "throwing_model",
-    "update_comparison",
-    "weights_figure",
-]
+    "EXPECTED_WARNINGS", "HandledEvents", "IterationSizes", "ModelView", "RewardPool", "SCALES",
+    "THESIS_TABLE_4_2", "batch_table", "contexts_figure", "diagnostics_table", "exploration_figure",
+    "exploration_table", "fit_table", "gflops_table", "gpreps_model_view", "handled_events",
+    "iteration_sizes", "policy_change_table", "predicted_throws_figure", "reward_estimate_figure",
+    "reward_estimates", "reward_pool", "step_settings", "table_4_2", "throwing_model",
+    "update_comparison", "weights_figure",
+]  # fmt: skip
 
 
 # --------------------------------------------------------------------------- sizes
@@ -77,31 +53,11 @@ __all__ = [
 class IterationSizes:
     """How big the notebook's GPREPS step-through is at one scale.
 
-    Attributes
-    ----------
-    n_initial : int
-        N₀, real throws before the first update (Table 4.1: "a higher N in the first
-        iteration").
-    n_artificial : int
-        M, artificial (s, ω) pairs per update.
-    n_trajectories : int
-        L, predicted throws per pair (Eq. 4.1).
-    n_updates : int
-        Updates of the short loop after the first one (the step-through's), one real throw
-        each.
-    n_inducing : int
-        Pseudo-inputs of the FITC flight model.
-    gp_steps : int
-        L-BFGS iterations of the release and flight GPs' hyper-parameter fits (2.28).
-    robot_inducing : int
-        Pseudo-inputs of the FITC robot-dynamics model.
-    robot_steps : int
-        L-BFGS iterations of the robot model's fit: 150 at every scale, as fig4.6 (with 20 to
-        60 the predicted arm lags the real one and the ball lands metres short).
-    max_points : int
-        Transitions each FITC model is fitted on at most.
-    pool_pairs, pool_repeats, max_trajectories : int
-        The reward pool of the M, L widget (:func:`reward_pool`).
+    N₀ real throws before the first update, M artificial pairs per update, L predicted
+    throws per pair (Eq. 4.1), updates after the first (one real throw each); pseudo-inputs
+    of the FITC flight and robot models and L-BFGS steps of the GP fits (2.28; 150 for the
+    robot at every scale, as fig4.6), at most ``max_points`` transitions each; the reward
+    pool of the M, L widget (:func:`reward_pool`).
     """
 
     n_initial: int
@@ -118,8 +74,8 @@ class IterationSizes:
     max_trajectories: int
 
 
-#: The step-through's sizes per ``SKILLKIT_SCALE``. "paper" has the thesis's N₀ = 10, M = 500,
-#: L = 25 and fig4.6's model sizes; "smoke" runs in seconds (what CI executes).
+#: The step-through's sizes per ``SKILLKIT_SCALE``; "paper" has the thesis's N₀ = 10, M = 500,
+#: L = 25 and fig4.6's model sizes.
 SCALES: dict[str, IterationSizes] = {
     "smoke": IterationSizes(
         n_initial=8, n_artificial=30, n_trajectories=3, n_updates=1, n_inducing=15,
@@ -146,21 +102,28 @@ def iteration_sizes(scale: str) -> IterationSizes:
     return SCALES[scale]
 
 
+def _sizes(sizes) -> IterationSizes:
+    if not isinstance(sizes, IterationSizes):
+        raise ValueError(f"sizes: expected IterationSizes, got {type(sizes).__name__}")
+    return sizes
+
+
+def _reps(weights) -> REPSWeights:
+    if not isinstance(weights, REPSWeights):
+        raise ValueError(f"weights: expected REPSWeights, got {type(weights).__name__}")
+    return weights
+
+
 def _fitc_model(n_inducing: int, n_steps: int) -> ForwardModel:
-    """A FITC forward model of Δx (the target fig4.6's stored results were made with)."""
+    """A FITC forward model of Δx."""
     return ForwardModel(FITC(n_inducing=n_inducing, n_steps=n_steps), target="delta")
 
 
 def throwing_model(task: Throwing, sizes: IterationSizes) -> ThrowingRewardModel:
-    """The decomposed throwing model of Fig. 4.2 at the step-through's sizes.
-
-    A FITC robot model with ``sizes.robot_inducing`` pseudo-inputs fitted with
-    ``sizes.robot_steps`` L-BFGS iterations, an exact release GP and a FITC flight model with
-    ``sizes.n_inducing`` pseudo-inputs, both fitted with ``sizes.gp_steps``, each on at most
-    ``sizes.max_points`` points; the library defaults otherwise (balls stop at the ground).
-    """
-    if not isinstance(sizes, IterationSizes):
-        raise ValueError(f"sizes: expected IterationSizes, got {type(sizes).__name__}")
+    """The decomposed throwing model of Fig. 4.2 at the step-through's ``sizes``: FITC robot
+    and flight models and an exact release GP (at most 300 points), the library's defaults
+    otherwise."""
+    _sizes(sizes)
     return ThrowingRewardModel(
         task,
         make_robot_model=partial(_fitc_model, sizes.robot_inducing, sizes.robot_steps),
@@ -173,14 +136,9 @@ def throwing_model(task: Throwing, sizes: IterationSizes) -> ThrowingRewardModel
 
 
 def step_settings(sizes: IterationSizes, epsilon: float = 1.0) -> GPREPSSettings:
-    """GPREPS's settings of the step-through: M, L of ``sizes``, ε, μ̂(s) = the task's μ(s).
-
-    ``context_model="prior"`` so that :meth:`~skillkit.search.gpreps.GPREPS.sample_contexts` works
-    before any update (``"uniform"``, fig4.6's, needs the stored real samples). The weighted ML fit
-    is regularised as in fig4.6 (covariance floor 0.1 per update, at least 2 effective samples).
-    """
-    if not isinstance(sizes, IterationSizes):
-        raise ValueError(f"sizes: expected IterationSizes, got {type(sizes).__name__}")
+    """GPREPS's settings of the step-through: M, L of ``sizes``, ε, ``context_model="prior"``
+    (μ̂(s) = the task's μ(s), usable before any update) and fig4.6's regularised ML fit."""
+    _sizes(sizes)
     return GPREPSSettings(
         epsilon=epsilon,
         n_artificial=sizes.n_artificial,
@@ -193,9 +151,8 @@ def step_settings(sizes: IterationSizes, epsilon: float = 1.0) -> GPREPSSettings
 
 # --------------------------------------------------------------------------- tables
 def batch_table(batch: Batch) -> pd.DataFrame:
-    """The real throws of a batch, one row per rollout: target s = [x, y], the release time
-    t_r and landing point x the simulator reports (NaN for a failed rollout), and the reward
-    R(τ, s)."""
+    """The real throws of a batch: target s = [x, y], release time, landing x (NaN for a
+    failed rollout) and reward R(τ, s)."""
     if not isinstance(batch, Batch):
         raise ValueError(f"batch: expected a Batch, got {type(batch).__name__}")
     n = batch.n_rollouts
@@ -215,12 +172,8 @@ def batch_table(batch: Batch) -> pd.DataFrame:
 
 
 def fit_table(stats: Mapping) -> pd.DataFrame:
-    """A reward model's fit statistics (``RewardModel.fit``), one row per learned GP.
-
-    Columns: training points, L-BFGS iterations, log marginal likelihood (2.28), the largest
-    noise variance, and the handled numerical events of the fit
-    (:data:`~skillkit.models.gp.EVENT_KINDS`) that occurred.
-    """
+    """A reward model's fit statistics (``RewardModel.fit``), one row per learned GP: points,
+    iterations, log ML (2.28), the largest noise variance and the handled events."""
     if not isinstance(stats, Mapping):
         raise ValueError(f"stats: expected the dict a reward model's fit returns, got {stats!r}")
     rows = {}
@@ -249,30 +202,13 @@ def policy_change_table(
 ) -> pd.DataFrame:
     """What the weighted ML fit (3.11–3.13) did to the policy, in one row.
 
-    Parameters
-    ----------
-    old, new : LinearGaussianPolicy
-        π before and after the update.
-    contexts : array_like, shape (M, context_dim)
-        The artificial contexts the update used.
-    weights : REPSWeights
-        The dual's solution on the M samples.
-    rewards : array_like, shape (M,)
-        Their predicted rewards R̂ (Eq. 4.1).
-
-    Returns
-    -------
-    DataFrame
-        KL(π_new ‖ π_old) averaged over the contexts (the weighted ML fit can exceed ε), ε,
-        the dual's KL(p ‖ uniform), the effective sample size 1/Σp² of M, the entropies of
-        both policies, the mean predicted reward Σ R̂/M and its p-weighted mean Σ p R̂ (what
-        the model expects of the new policy, to first order).
+    With the M artificial ``contexts`` (M, context_dim), the dual's ``weights`` and the
+    predicted ``rewards`` R̂ (M,): KL(π_new ‖ π_old) averaged over the contexts (it can exceed
+    ε), ε, KL(p ‖ uniform), the ESS, both entropies, Σ R̂/M and Σ p R̂.
     """
     if not isinstance(old, LinearGaussianPolicy) or not isinstance(new, LinearGaussianPolicy):
         raise ValueError("old, new: expected LinearGaussianPolicy objects")
-    if not isinstance(weights, REPSWeights):
-        raise ValueError(f"weights: expected REPSWeights, got {type(weights).__name__}")
-    p = weights.weights
+    p = _reps(weights).weights
     s = check_array(contexts, "contexts", shape=(p.shape[0], old.context_dim))
     r = check_array(rewards, "rewards", shape=p.shape)
     return pd.DataFrame(
@@ -294,24 +230,12 @@ def policy_change_table(
 def diagnostics_table(
     diagnostics: Sequence, policy_rewards: ArrayLike | None = None
 ) -> pd.DataFrame:
-    """Per-update diagnostics of GPREPS (:class:`~skillkit.search.gpreps.GPREPSDiagnostics`).
+    """One row per :class:`~skillkit.search.gpreps.GPREPSDiagnostics` of ``GPREPS.update``.
 
-    Parameters
-    ----------
-    diagnostics : sequence of GPREPSDiagnostics
-        What each :meth:`GPREPS.update <skillkit.search.gpreps.GPREPS.update>` returned.
-    policy_rewards : array_like, shape (n_updates,), optional
-        The policy mean's evaluated reward after each update (e.g. ``learn``'s
-        ``mean_reward``, aligned by the caller).
-
-    Returns
-    -------
-    DataFrame
-        One row per update: real samples the model saw, η, the dual's KL and ε, the ESS of
-        the M artificial samples, the model's prediction of the new real batch (made before
-        refitting; NaN at the first update, when there is no model yet) against its real
-        reward, the mean predicted reward of the artificial samples, the policy mean's
-        reward (if given), and the seconds spent training, predicting and updating the policy.
+    Columns: real samples, η, KL, ε, ESS of the M artificial samples, the model's prediction
+    of the new real batch (NaN before the first model) against its real reward, the mean R̂,
+    the policy mean's reward (``policy_rewards`` (n_updates,), if given) and the seconds spent
+    training, predicting and updating the policy.
     """
     diags = list(diagnostics) if isinstance(diagnostics, Sequence) else []
     if not diags or not all(hasattr(d, "reps") and hasattr(d, "n_real") for d in diags):
@@ -350,28 +274,10 @@ def update_comparison(
     diagnostics: GPREPSDiagnostics,
     update_policy: LinearGaussianPolicy,
 ) -> pd.DataFrame:
-    """The step-through's numbers beside those of one ``GPREPS.update`` on the same data.
-
-    Parameters
-    ----------
-    weights : REPSWeights
-        The step-through's dual solution.
-    policy : LinearGaussianPolicy
-        The step-through's new policy.
-    diagnostics : GPREPSDiagnostics
-        What ``GPREPS.update`` returned.
-    update_policy : LinearGaussianPolicy
-        The policy after that update.
-
-    Returns
-    -------
-    DataFrame
-        Rows η, KL, ESS, the largest |a| entry of the policy mean and log det Σ; columns
-        "cells above", "GPREPS.update" and "equal" (exact equality: the same draws from one
-        generator in the same order give the same floating-point numbers).
-    """
-    if not isinstance(weights, REPSWeights):
-        raise ValueError(f"weights: expected REPSWeights, got {type(weights).__name__}")
+    """The step-through's dual solution and new policy beside one ``GPREPS.update`` on the
+    same data (its diagnostics and policy): η, KL, ESS, max |a| and log det Σ, and whether
+    they are exactly equal (the same draws in the same order give the same numbers)."""
+    _reps(weights)
     if not hasattr(diagnostics, "reps"):
         raise ValueError("diagnostics: expected GPREPSDiagnostics")
     for name, pol in (("policy", policy), ("update_policy", update_policy)):
@@ -391,20 +297,8 @@ def update_comparison(
 
 
 def gflops_table(run: Any) -> pd.DataFrame:
-    """Fig. 4.4's speed numbers as a table, one row per thread count.
-
-    Parameters
-    ----------
-    run : Run or mapping
-        A ``fig4.4`` run or its summary, with ``trajectories_in_mm_time``, ``mm_gflops``
-        and ``sampling_gflops`` (per thread count; sampling per number of trajectories N).
-
-    Returns
-    -------
-    DataFrame
-        Columns: sampled trajectories that take one moment-matching prediction's time, the
-        counted GFLOP/s of moment matching, and of sampling for each N.
-    """
+    """Fig. 4.4's speed numbers per thread count, from a ``fig4.4`` run or its summary:
+    trajectories sampled in one moment-matching time, and the GFLOP/s of both."""
     summary = getattr(run, "summary", run)
     keys = ("trajectories_in_mm_time", "mm_gflops", "sampling_gflops")
     if not isinstance(summary, Mapping) or any(k not in summary for k in keys):
@@ -434,25 +328,13 @@ _TAB42_METHODS = {
 
 
 def table_4_2(run: Any) -> pd.DataFrame:
-    """Table 4.2 (required experience to reach each reward limit) beside the thesis's numbers.
+    """Table 4.2 (experience to reach each reward limit) beside :data:`THESIS_TABLE_4_2`.
 
-    Parameters
-    ----------
-    run : Run or mapping
-        A ``tab4.2`` run (``stored_run("tab4.2")`` or ``reproduce("tab4.2", ...)``) or its
-        ``summary``: per method (``pilco``, ``gpreps``, ``reps`` and the linear-model
-        variants) ``limits[limit]["experience_s_mean"]`` (mean over the trials that reached
-        the limit, ``None`` if none did) and ``n_reached``.
-
-    Returns
-    -------
-    DataFrame
-        Rows: the methods; columns: per reward limit −100, −10, −1.5, our mean experience in
-        seconds to 0.01 s over the trials that reached it (NaN: none did), the median over all
-        trials with a trial that never reached it counted as slower than any that did (what the
-        verdict judges, :func:`~skillkit.experiments.ch4_balancing.median_reached`; NaN where
-        at most half reached it), how many trials reached it, and the thesis's seconds
-        (:data:`THESIS_TABLE_4_2`; a linear-model variant is set beside its method's).
+    ``run`` is a ``tab4.2`` run or its summary. Per method and limit −100, −10, −1.5: the mean
+    seconds over the trials that reached it, the median over all trials with a trial that
+    never reached it counted as slowest (:func:`~skillkit.experiments.ch4_balancing.median_reached`,
+    what the verdict judges), the trials that reached it, and the thesis's seconds (a
+    linear-model variant beside its method's).
     """
     summary = getattr(run, "summary", run)
     if not isinstance(summary, Mapping) or "pilco" not in summary:
@@ -519,32 +401,12 @@ def _exploration(run: Any, method: str) -> tuple[list[np.ndarray], list[np.ndarr
 def exploration_table(run: Any, method: str = "gpreps") -> pd.DataFrame:
     r"""How much a GPREPS run still explores, and how much of its KL bound each update spends.
 
-    π(ω|s) = N(a + As, Σ) explores with Σ; REPS bounds KL(p ‖ q) ≤ ε per update (3.5, weights
-    3.10) and the weighted ML fit (3.11–3.13) shrinks Σ towards the weighted samples. When every
-    update spends its whole bound, Σ shrinks at a rate set by ε, not by what the model still has to
-    learn (the ε = 1 hockey and table-tennis runs: data/README.md).
-
-    Parameters
-    ----------
-    run : Run
-        A stored or fresh GPREPS run whose ``trials.npz`` holds each trial's policy history
-        (``trial<i>__policy_cov``, shape (K + 1, D, D)) and the KL of each update
-        (``trial<i>__<method>_kl``, shape (K,)): fig4.10, fig4.11, fig4.12.
-    method : str
-        The search whose KL is read (``"gpreps"``).
-
-    Returns
-    -------
-    DataFrame
-        One row per trial: √tr Σ_k / √tr Σ_0 after a quarter, half, three quarters and all
-        of the K updates, the KL of the last update and the share of updates whose KL is
-        within 1% of ε; the last row is the median over trials. Columns say ε.
-
-    Raises
-    ------
-    ValueError
-        ``run`` is not a run, has no ``trials.npz``, no ``epsilon`` setting or no policy
-        history; ``method`` has no stored KL.
+    REPS bounds KL(p ‖ q) ≤ ε per update (3.5) and the weighted ML fit (3.11–3.13) shrinks Σ;
+    when every update spends its whole bound, Σ shrinks at a rate set by ε. ``run`` (fig4.10,
+    fig4.11, fig4.12) stores ``trial<i>__policy_cov`` (K + 1, D, D) and ``trial<i>__<method>_kl``
+    (K,) in its ``trials.npz``. One row per trial and a median row: √tr Σ_k / √tr Σ_0 after a
+    quarter, half, three quarters and all of the updates, the last update's KL and the share of
+    updates with KL ≥ 0.99 ε.
     """
     scales, kls, epsilon = _exploration(run, method)
     rows = []
@@ -561,17 +423,8 @@ def exploration_table(run: Any, method: str = "gpreps") -> pd.DataFrame:
 
 
 def exploration_figure(run: Any, method: str = "gpreps", backend: str = "plotly"):
-    """√tr Σ_k / √tr Σ_0 after each update k (log axis), one line per trial; the title says ε
-    and how many updates spent all of it (the numbers of :func:`exploration_table`).
-
-    Parameters
-    ----------
-    run : Run
-        As for :func:`exploration_table`.
-    method : str
-        The search whose KL is read.
-    backend : {"plotly", "matplotlib"}
-    """
+    """√tr Σ_k / √tr Σ_0 after each update k (log axis), one line per trial, of the run of
+    :func:`exploration_table`."""
     scales, kls, epsilon = _exploration(run, method)
     series = [
         Series(f"trial {t}", list(range(len(scale))), scale.tolist(), xlabel="update k",
@@ -583,21 +436,24 @@ def exploration_figure(run: Any, method: str = "gpreps", backend: str = "plotly"
         f"{run.id}: the search distribution's width; ε = {epsilon:g}, "
         f"{100 * at_bound:.0f}% of the updates at KL ≥ 0.99 ε"
     )
-    return draw_figure(_result(title, series), backend)
+    return draw(title, series, backend)
 
 
 # --------------------------------------------------------------------------- figures
-def contexts_figure(real: ArrayLike, artificial: ArrayLike, backend: str = "plotly"):
-    """The targets of the real throws and the M artificial ones drawn from μ̂(s).
+def _xy(points: np.ndarray) -> tuple[list, list]:
+    return points[:, 0].tolist(), points[:, 1].tolist()
 
-    Parameters
-    ----------
-    real : array_like, shape (N, 2)
-        Observed contexts s_i.
-    artificial : array_like, shape (M, 2)
-        s^[j] ~ μ̂(s).
-    backend : {"plotly", "matplotlib"}
-    """
+
+def _joined(paths) -> tuple[list, list]:
+    """Paths (each (K, 2)) as one polyline broken by NaN gaps."""
+    pieces = []
+    for p in paths:
+        pieces += [np.asarray(p, dtype=float), np.full((1, 2), np.nan)]
+    return _xy(np.concatenate(pieces))
+
+
+def contexts_figure(real: ArrayLike, artificial: ArrayLike, backend: str = "plotly"):
+    """The targets (N, 2) of the real throws and the M artificial ones (M, 2) from μ̂(s)."""
     s_real = check_array(real, "real", shape=(None, 2))
     s_art = check_array(artificial, "artificial", shape=(None, 2))
     common = {"kind": "markers", "xlabel": "target x [m]", "ylabel": "target y [m]"}
@@ -605,7 +461,7 @@ def contexts_figure(real: ArrayLike, artificial: ArrayLike, backend: str = "plot
         Series(f"artificial s ~ μ̂(s) (M = {len(s_art)})", *_xy(s_art), **common),
         Series(f"real throws (N = {len(s_real)})", *_xy(s_real), **common),
     ]
-    return draw_figure(_result("contexts of the real and the artificial samples", series), backend)
+    return draw("contexts of the real and the artificial samples", series, backend)
 
 
 def predicted_throws_figure(
@@ -614,18 +470,8 @@ def predicted_throws_figure(
     n_pairs: int = 3,
     backend: str = "plotly",
 ):
-    """Predicted ball flights of the first artificial pairs over the real throws' flights.
-
-    Parameters
-    ----------
-    prediction : ThrowingPrediction
-        L predicted throws of each of the M pairs (``ThrowingRewardModel.predict``).
-    real : Batch
-        The real throws the models learnt from (their ``ball`` signals are drawn).
-    n_pairs : int
-        How many artificial pairs to draw (each with its L flights and its target).
-    backend : {"plotly", "matplotlib"}
-    """
+    """The L predicted ball flights of the first ``n_pairs`` artificial pairs
+    (``ThrowingRewardModel.predict``) over the flights of the real throws."""
     if not isinstance(prediction, ThrowingPrediction):
         raise ValueError(f"prediction: expected a ThrowingPrediction, got {prediction!r:.60}")
     if not isinstance(real, Batch) or real.trajectories is None:
@@ -639,35 +485,20 @@ def predicted_throws_figure(
         series.append(
             Series(f"pair {j + 1}: {L} predicted flights", *_joined(prediction.ball[j]), **common)
         )
-    return draw_figure(_result("predicted ball flights over the real ones", series), backend)
+    return draw("predicted ball flights over the real ones", series, backend)
 
 
 def weights_figure(
     weights: REPSWeights, rewards: ArrayLike, features: ArrayLike, backend: str = "plotly"
 ):
-    """The REPS weights of the M artificial samples against their advantage.
-
-    p_j ∝ exp((R̂_j − γᵀφ(s_j))/η) (Eq. 3.10): on a log axis the samples lie on one straight
-    line of slope 1/η (drawn as the closed form), and the uniform weight 1/M is marked.
-
-    Parameters
-    ----------
-    weights : REPSWeights
-        :func:`~skillkit.search.reps.reps_weights` on the artificial samples.
-    rewards : array_like, shape (M,)
-        Their predicted rewards R̂ (Eq. 4.1).
-    features : array_like, shape (M, F)
-        The baseline features φ(s_j) the dual used.
-    backend : {"plotly", "matplotlib"}
-    """
-    if not isinstance(weights, REPSWeights):
-        raise ValueError(f"weights: expected REPSWeights, got {type(weights).__name__}")
-    p = weights.weights
+    """The REPS weights p_j ∝ exp((R̂_j − γᵀφ(s_j))/η) (Eq. 3.10) of the M artificial samples
+    against their advantage, with the closed form (a line of slope 1/η on the log axis) and
+    1/M; ``rewards`` R̂ (M,) and ``features`` φ(s_j) (M, F) as the dual used them."""
+    p = _reps(weights).weights
     r = check_array(rewards, "rewards", shape=p.shape)
     phi = check_array(features, "features", shape=(p.shape[0], weights.gamma.shape[0]))
     adv = r - phi @ weights.gamma
     grid = np.linspace(adv.min(), adv.max(), 50)
-    # log p_j = A_j/η − log Σ_i exp(A_i/η): the closed form through all samples
     shift = adv.max() / weights.eta
     log_z = shift + np.log(np.sum(np.exp(adv / weights.eta - shift)))
     common = {"xlabel": "advantage R̂ − V(s) (Eq. 3.10)", "ylabel": "weight p", "log_y": True}
@@ -682,43 +513,15 @@ def weights_figure(
         f"REPS weights: KL = {weights.kl:.3g} (ε = {weights.epsilon:.3g}), "
         f"ESS = {weights.ess:.3g} of {p.size}"
     )
-    return draw_figure(_result(title, series), backend)
-
-
-def _xy(points: np.ndarray) -> tuple[list, list]:
-    return points[:, 0].tolist(), points[:, 1].tolist()
-
-
-def _joined(paths) -> tuple[list, list]:
-    """Paths (each (K, 2)) as one polyline broken by NaN gaps."""
-    pieces = []
-    for p in paths:
-        p = np.asarray(p, dtype=float)
-        pieces += [p, np.full((1, 2), np.nan)]
-    joined = np.concatenate(pieces)
-    return joined[:, 0].tolist(), joined[:, 1].tolist()
-
-
-def _result(title: str, series: Sequence[Series]) -> dict:
-    return {"title": title, "series": [s.to_dict() for s in series]}
+    return draw(title, series, backend)
 
 
 # --------------------------------------------------------------------------- M, L widget
 @dataclass(frozen=True)
 class RewardPool:
-    """Predicted rewards to resample GPREPS's reward estimates from (the M, L widget).
-
-    Attributes
-    ----------
-    contexts : ndarray, shape (K, context_dim)
-        The fixed contexts s_k.
-    omegas : ndarray, shape (K, d)
-        The fixed parameter vectors ω_k (the policy mean at s_k).
-    fixed : ndarray, shape (K, P)
-        P predicted rewards R(τ, s_k) of each fixed pair.
-    pairs : ndarray, shape (Q, L_max)
-        L_max predicted rewards of each of Q pairs s ~ μ(s), ω ~ π(ω|s).
-    """
+    """Predicted rewards the M, L widget resamples: K fixed pairs (s_k, ω_k), ω_k the policy
+    mean, with P rewards each (``fixed`` (K, P)), and Q pairs s ~ μ(s), ω ~ π(ω|s) with L_max
+    rewards each (``pairs`` (Q, L_max))."""
 
     contexts: np.ndarray
     omegas: np.ndarray
@@ -734,26 +537,14 @@ def reward_pool(
     contexts: ArrayLike,
     rng: np.random.Generator | int | None = None,
 ) -> RewardPool:
-    """Predict the rewards :func:`reward_estimate_figure` resamples, once.
+    """Predict once the rewards :func:`reward_estimate_figure` resamples.
 
-    Parameters
-    ----------
-    model : RewardModel
-        A fitted model with ``predict(contexts, omegas, L, rng)`` returning ``rewards`` (B, L)
-        (e.g. :class:`~skillkit.tasks.throwing_model.ThrowingRewardModel`).
-    policy : LinearGaussianPolicy
-        π(ω|s): the fixed ω_k are its means at ``contexts``, the pool pairs its samples.
-    task : Task
-        μ(s) of the pool pairs (``task.sample_context``).
-    sizes : IterationSizes
-        ``pool_repeats × max_trajectories`` rewards per fixed pair, ``pool_pairs`` pool pairs
-        with ``max_trajectories`` rewards each.
-    contexts : array_like, shape (K, context_dim)
-        The fixed contexts.
-    rng : Generator, int or None
+    ``model.predict(contexts, omegas, L, rng).rewards`` (B, L) gives ``pool_repeats ×
+    max_trajectories`` rewards of the policy mean at each fixed context (K, context_dim), and
+    ``max_trajectories`` of each of ``pool_pairs`` pairs drawn from ``task.sample_context``
+    and ``policy``.
     """
-    if not isinstance(sizes, IterationSizes):
-        raise ValueError(f"sizes: expected IterationSizes, got {type(sizes).__name__}")
+    _sizes(sizes)
     rng = as_generator(rng)
     s = check_array(contexts, "contexts", shape=(None, policy.context_dim))
     w = np.atleast_2d(policy.mean_of(s))
@@ -768,28 +559,15 @@ def reward_pool(
 def reward_estimates(
     pool: RewardPool, n_artificial: int, n_trajectories: int, n_repeats: int, seed: int = 0
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Repeated reward estimates of GPREPS for M and L, resampled from a :class:`RewardPool`.
-
-    Parameters
-    ----------
-    pool : RewardPool
-    n_artificial : int
-        M ≥ 1, pairs averaged in the policy's estimate.
-    n_trajectories : int
-        L, 1 ≤ L ≤ min(P, L_max), predicted rewards averaged per pair (Eq. 4.1).
-    n_repeats : int
-        R ≥ 2 estimates of each kind.
-    seed : int
-        Seed of the resampling.
+    """``n_repeats`` ≥ 2 reward estimates of GPREPS for M and L, resampled from ``pool``.
 
     Returns
     -------
-    fixed : ndarray, shape (K, R)
-        R̂ of each fixed pair: the mean of L of its P pooled rewards, drawn without
-        replacement (standard deviation ≈ σ_k/√L for P ≫ L).
-    policy : ndarray, shape (R,)
-        (1/M) Σ_j R̂_j: M pool pairs drawn with replacement, each R̂_j the mean of L of its
-        L_max pooled rewards (without replacement).
+    fixed : ndarray, shape (K, n_repeats)
+        R̂ of each fixed pair: the mean of L of its P rewards, drawn without replacement.
+    policy : ndarray, shape (n_repeats,)
+        (1/M) Σ_j R̂_j over M pool pairs drawn with replacement, each R̂_j the mean of L of its
+        L_max rewards; 1 ≤ L ≤ min(P, L_max).
     """
     if not isinstance(pool, RewardPool):
         raise ValueError(f"pool: expected a RewardPool, got {type(pool).__name__}")
@@ -826,68 +604,47 @@ def reward_estimate_figure(
     seed: int = 0,
     backend: str = "plotly",
 ):
-    r"""GPREPS's reward estimates for given M and L, repeated: their mean and spread.
-
-    Left: R̂_sω = (1/L) Σ_l R(τ^[l], s) (Eq. 4.1) of each fixed pair (s_k, ω_k); its spread
-    shrinks like σ_k/√L. Right: the policy's expected reward as M artificial samples estimate it,
-    (1/M) Σ_j R̂_j, whose spread falls with M and with L. Resampled from :func:`reward_pool`, so
-    no model prediction per redraw.
-
-    Parameters
-    ----------
-    pool : RewardPool
-    n_artificial : int
-        M ≥ 1.
-    n_trajectories : int
-        L, 1 ≤ L ≤ the pool's L_max (and ≤ its P).
-    n_repeats : int
-        How many estimates of each kind are drawn (≥ 2).
-    seed : int
-        Seed of the resampling (the same seed gives the same figure).
-    backend : {"plotly", "matplotlib"}
-    """
+    r""":func:`reward_estimates` drawn: left, R̂_sω = (1/L) Σ_l R(τ^[l], s) (Eq. 4.1) of each
+    fixed pair (spread σ_k/√L); right, the policy's estimate from M pairs (spread falling with
+    M and L). Each panel's y range is the pool's, so moving M or L changes only the spread."""
     fixed, policy = reward_estimates(pool, n_artificial, n_trajectories, n_repeats, seed)
     L = n_trajectories
-    left = f"R̂ of {fixed.shape[0]} fixed pairs (L = {L}), {n_repeats} estimates each"
-    right = f"policy's mean R̂ from M = {n_artificial} pairs × L = {L}"
+    left = {
+        "panel": f"R̂ of {fixed.shape[0]} fixed pairs (L = {L}), {n_repeats} estimates each",
+        "xlabel": "target x of the pair [m]",
+        "ylabel": "R̂ (Eq. 4.1)",
+    }
+    right = {"panel": f"policy's mean R̂ from M = {n_artificial} pairs × L = {L}",
+             "xlabel": "estimate", "ylabel": "mean R̂ of M pairs"}  # fmt: skip
     xs = pool.contexts[:, 0]
     repeats = np.arange(1, n_repeats + 1, dtype=float)
     mean_fixed, sd_fixed = fixed.mean(axis=1), fixed.std(axis=1, ddof=1)
     ref = pool.pairs.mean()
     series = [
         Series("estimates", np.repeat(xs, n_repeats).tolist(), fixed.reshape(-1).tolist(),
-               panel=left, kind="markers", xlabel="target x of the pair [m]",
-               ylabel="R̂ (Eq. 4.1)"),
-        Series("mean ± std of the estimates", xs.tolist(), mean_fixed.tolist(), panel=left,
+               kind="markers", **left),
+        Series("mean ± std of the estimates", xs.tolist(), mean_fixed.tolist(),
                kind="lines+markers", lower=(mean_fixed - sd_fixed).tolist(),
-               upper=(mean_fixed + sd_fixed).tolist(), band=f"± std over {n_repeats}",
-               xlabel="target x of the pair [m]", ylabel="R̂ (Eq. 4.1)"),
-        Series("policy estimates", repeats.tolist(), policy.tolist(), panel=right,
-               kind="markers", xlabel="estimate", ylabel="mean R̂ of M pairs"),
+               upper=(mean_fixed + sd_fixed).tolist(), band=f"± std over {n_repeats}", **left),
+        Series("policy estimates", repeats.tolist(), policy.tolist(), kind="markers", **right),
         Series(f"pool mean ({pool.pairs.size} predicted throws)", [1.0, float(n_repeats)],
-               [ref, ref], panel=right, dash="dash", xlabel="estimate",
-               ylabel="mean R̂ of M pairs"),
+               [ref, ref], dash="dash", **right),
     ]  # fmt: skip
     title = (
         f"std of R̂ per pair {', '.join(f'{v:.3g}' for v in sd_fixed)}; "
         f"std of the policy's estimate {policy.std(ddof=1):.3g}"
     )
-    fig = draw_figure(_result(title, series), backend)
+    fig = draw(title, series, backend)
     if backend == "plotly":
-        _fix_ranges(fig, pool)
+        means = pool.pairs.mean(axis=1)
+        ranges = {"yaxis": (float(pool.fixed.min()), float(pool.fixed.max())),
+                  "yaxis2": (float(means.min()), float(means.max()))}  # fmt: skip
+        for axis, (lo, hi) in ranges.items():
+            pad = 0.05 * (hi - lo) if hi > lo else 1.0
+            if axis in fig.layout:
+                fig.layout[axis].range = (lo - pad, hi + pad)
+                fig.layout[axis].autorange = False
     return fig
-
-
-def _fix_ranges(fig, pool: RewardPool) -> None:
-    """Hold each panel's y range at the pool's full range, so moving M or L changes the
-    spread drawn, not the axis."""
-    lo_f, hi_f = float(pool.fixed.min()), float(pool.fixed.max())
-    lo_p, hi_p = float(pool.pairs.mean(axis=1).min()), float(pool.pairs.mean(axis=1).max())
-    for axis, (lo, hi) in (("yaxis", (lo_f, hi_f)), ("yaxis2", (lo_p, hi_p))):
-        pad = 0.05 * (hi - lo) if hi > lo else 1.0
-        if axis in fig.layout:
-            fig.layout[axis].range = (lo - pad, hi + pad)
-            fig.layout[axis].autorange = False
 
 
 # --------------------------------------------------------------------------- warnings
@@ -901,15 +658,8 @@ EXPECTED_WARNINGS: dict[str, str] = {
 
 @dataclass
 class HandledEvents:
-    """What :func:`handled_events` caught: numerical events by kind and expected warnings.
-
-    Attributes
-    ----------
-    numerical : NumericalEvents
-        Handled GP events (:data:`~skillkit.models.gp.EVENT_KINDS`), counted.
-    warnings : list of str
-        The messages of expected warnings (:data:`EXPECTED_WARNINGS`).
-    """
+    """What :func:`handled_events` caught: the counted handled GP events (``numerical``,
+    :data:`~skillkit.models.gp.EVENT_KINDS`) and the messages of expected warnings."""
 
     numerical: Any
     warnings: list[str] = field(default_factory=list)
@@ -940,13 +690,9 @@ class HandledEvents:
 
 @contextmanager
 def handled_events() -> Iterator[HandledEvents]:
-    """Count a block's handled events and expected warnings instead of printing them.
-
-    Handled GP events are counted by :func:`~skillkit.models.gp.record_numerical_events` (as the
-    experiment runner does) and warnings matching :data:`EXPECTED_WARNINGS` are recorded; any other
-    warning is re-issued on leaving. Display the yielded :class:`HandledEvents` (or its
-    :meth:`~HandledEvents.table`) to see what happened.
-    """
+    """Count a block's handled GP events (:func:`~skillkit.models.gp.record_numerical_events`)
+    and warnings matching :data:`EXPECTED_WARNINGS` instead of printing them; any other
+    warning is re-issued on leaving."""
     with record_numerical_events() as events, warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         shown = HandledEvents(events)
@@ -994,9 +740,8 @@ def gpreps_model_view(
     """A stored GPREPS run's last reward model over its final policy, with model layers.
 
     With ``live`` and a server that starts: :func:`~skillkit.viz.notebook.show_viewer` with
-    the run's policy history and :meth:`~skillkit.viz.viewer.Viewer.add_model_layers` (one
-    switchable layer per learned model). Otherwise the same layers drawn from above by
-    :func:`~skillkit.viz.figures.gpreps_run_paths_figure`.
+    the run's policy history and one switchable layer per learned model; otherwise the same
+    layers drawn from above (:func:`~skillkit.viz.figures.gpreps_run_paths_figure`).
 
     .. warning:: This unpickles the run's reward model: load only runs you trust.
     """

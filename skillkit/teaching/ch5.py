@@ -1,14 +1,8 @@
 """Chapter 5 step by step: kernel trajectory prediction (Tables 5.1, 5.2) and model selection
-(Sec. 5.3), shown with the library's own pieces.
-
-The algorithm lives in :mod:`skillkit.models.embedding` (``ConditionalEmbedding.operator``
-computes :math:`C = (K + \\lambda I)^{-1} \\tilde K`, ``weights_from_samples`` Eq. 5.6,
-``apply`` Eq. 5.9), :func:`skillkit.models.embedding_prediction.predict` (the loop
-:math:`\\beta_{t+1} = C \\beta_t`) and :mod:`skillkit.models.embedding_training` (Eq. 5.16).
-This module tabulates and draws their inputs and outputs, and reads embeddings out against
-real samples (:func:`marginal_embedding`, :func:`empirical_embedding`,
-:func:`embedding_figure`, :func:`draw_embedding`). Figures are plotly
-(:func:`skillkit.viz.plots.plotly_figure`).
+(Sec. 5.3). The algorithm lives in :mod:`skillkit.models.embedding` (C = (K + λI)⁻¹K̃,
+Eqs. 5.6, 5.9), :func:`skillkit.models.embedding_prediction.predict` (β_{t+1} = C β_t) and
+:mod:`skillkit.models.embedding_training` (Eq. 5.16); this module tabulates and draws their
+inputs and outputs, against real samples. Figures are plotly.
 """
 
 from __future__ import annotations
@@ -17,6 +11,7 @@ import io
 import re
 import sys
 import warnings
+from collections import Counter
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager, redirect_stderr
 
@@ -29,29 +24,24 @@ from skillkit.models.embedding_prediction import predict
 from skillkit.models.embedding_training import CrossValidatedLoss, FitResult
 from skillkit.models.kernels import SquaredExponential, gram
 from skillkit.tasks.pendulum import feedback_torque
+from skillkit.teaching._common import index
 from skillkit.viz.plots import plotly_figure
 from skillkit.viz.series import Series
 
 __all__ = [
-    "agreement_table",
-    "draw_embedding",
-    "embedding_figure",
-    "empirical_embedding",
-    "fit_table",
-    "loss_curve_figure",
-    "marginal_embedding",
-    "matrices_figure",
-    "pendulum_policy",
-    "prediction_table",
-    "warnings_as_note",
-    "weights_figure",
-    "weights_table",
-]
+    "agreement_table", "draw_embedding", "embedding_figure", "empirical_embedding", "fit_table",
+    "loss_curve_figure", "marginal_embedding", "matrices_figure", "pendulum_policy",
+    "prediction_table", "warnings_as_note", "weights_figure", "weights_table",
+]  # fmt: skip
 
 Policy = Callable[[np.ndarray, int], np.ndarray]
 
+#: A line of ``warnings.formatwarning``: ``file:line: Category: message``.
 _WARNING_LINE = re.compile(r"^\S.*:\d+: (\w*Warning): (.*)$")
-"""A line of ``warnings.formatwarning``: ``file:line: Category: message``."""
+
+
+def _plot(title: str, series: Sequence[Series]):
+    return plotly_figure({"title": title, "series": [s.to_dict() for s in series]})
 
 
 # --------------------------------------------------------------------------- tables
@@ -61,32 +51,11 @@ def weights_table(
     reference=None,
     names: Sequence[str] | None = None,
 ) -> pd.DataFrame:
-    """What one embedding's weights say, Eqs. (5.7, 5.8): the mean read-out and the weights' size.
+    """What one embedding μ = Φ_y β says, Eqs. (5.7, 5.8), as a column ``value``.
 
-    Parameters
-    ----------
-    embedding : ConditionalEmbedding
-        The fitted operator; its targets y_j are the points the weights sit on.
-    beta : array_like, shape (N,)
-        Weights of one embedding :math:`\\mu = \\Phi_y \\beta` (e.g.
-        ``embedding.weights_from_samples(queries)``, Eq. 5.6).
-    reference : array_like, shape (d_y,), optional
-        A value to hold the read-out against (e.g. the simulator's successor).
-    names : sequence of str, optional
-        One name per target dimension (default ``y[0]``, ``y[1]``, …).
-
-    Returns
-    -------
-    DataFrame
-        Column ``value``; rows: the expected target :math:`\\mathbb E[y_d] = Y^\\top\\beta`
-        per dimension, the reference per dimension (if given), :math:`\\sum_j \\beta_j` (1 when
-        the queries lie where the data are, with λ small) and :math:`\\|\\beta\\|_1` (larger
-        than the sum when some weights are negative).
-
-    Raises
-    ------
-    ValueError
-        ``beta`` not of shape (N,), ``reference`` or ``names`` not one per target dimension.
+    Rows: the expected target E[y_d] = Yᵀβ per dimension (``names``, default ``y[d]``),
+    ``reference`` (d_y,) per dimension if given, Σ_j β_j (1 where the queries lie in the data,
+    λ small) and ‖β‖₁ (above the sum when weights are negative); ``beta`` has shape (N,).
     """
     b = check_array(beta, "beta", shape=(embedding.n,))
     d = embedding.target_dim
@@ -104,24 +73,8 @@ def weights_table(
 
 
 def agreement_table(pairs: Mapping[str, tuple]) -> pd.DataFrame:
-    """By-hand steps against the library's loop: the largest difference of each pair.
-
-    Parameters
-    ----------
-    pairs : mapping of str to (array_like, array_like)
-        Name → (computed by hand, computed by the library), arrays of equal shape.
-
-    Returns
-    -------
-    DataFrame
-        Per name: ``max |by hand − library|`` and ``max |library|`` (their ratio is the
-        relative difference; round-off gives ~1e-15 times the condition of G + λI).
-
-    Raises
-    ------
-    ValueError
-        An empty mapping, or a pair whose arrays differ in shape.
-    """
+    """By-hand steps against the library's: per name → (by hand, library) arrays of one shape,
+    ``max |by hand − library|`` and ``max |library|``."""
     if not isinstance(pairs, Mapping) or not pairs:
         raise ValueError("pairs: expected a non-empty mapping of name to (by hand, library)")
     rows = {}
@@ -150,35 +103,11 @@ def prediction_table(
 ) -> pd.DataFrame:
     """How well each model's embedded mean follows the real rollouts (Table 5.1 or 5.2).
 
-    For each model: :func:`~skillkit.models.embedding_prediction.predict` from the initial
-    samples, the mean read-out :math:`\\hat x_t = X'^\\top \\beta_t` and its root mean square
-    error against the mean of the real rollouts over t = 1, …, T, per state dimension.
-
-    Parameters
-    ----------
-    models : mapping of str to ConditionalEmbedding or (ConditionalEmbedding, policy)
-        Label → a state model (inputs x, Table 5.1), or a state-action model (inputs
-        ``[x, u]``) with the policy ``policy(states, t) -> controls`` it predicts (Table 5.2,
-        e.g. :func:`pendulum_policy`; time-invariant).
-    initial : array_like, shape (L, n_x)
-        Samples of the initial state distribution (Eq. 5.6).
-    real_states : array_like, shape (L', T + 1, n_x)
-        L' ≥ 2 real rollouts from that distribution (row 0: the start).
-    names : sequence of str, optional
-        State dimension names for the columns.
-
-    Returns
-    -------
-    DataFrame
-        Per model: ``RMSE <name>`` per dimension, the Monte Carlo standard error of the real
-        mean averaged over t (an RMSE near it is as good as the truth is known), the largest
-        :math:`\\|\\beta_t\\|_1` and the last :math:`\\sum_j \\beta_{T,j}`.
-
-    Raises
-    ------
-    ValueError
-        Empty ``models``, a value that is not a model or (model, policy), arrays of the wrong
-        shape, or ``names`` not one per state dimension.
+    ``models`` maps a label to a state model or to (state-action model, time-invariant
+    ``policy(states, t)``, e.g. :func:`pendulum_policy`). From ``initial`` samples (L, n_x)
+    (Eq. 5.6), per model and state dimension (``names``): the RMSE of x̂_t = X'ᵀβ_t against
+    the mean of ``real_states`` (L' ≥ 2, T + 1, n_x) over t = 1 … T, that mean's Monte Carlo
+    standard error averaged over t, the largest ‖β_t‖₁ and the last Σ_j β_{T,j}.
     """
     if not isinstance(models, Mapping) or not models:
         raise ValueError("models: expected a non-empty mapping of label to ConditionalEmbedding")
@@ -218,23 +147,9 @@ def prediction_table(
 
 
 def fit_table(initial_lengthscale, initial_lam: float, fit: FitResult) -> pd.DataFrame:
-    """Hyper-parameters before and after
-    :func:`~skillkit.models.embedding_training.fit_hyperparameters` (Sec. 5.3).
-
-    Parameters
-    ----------
-    initial_lengthscale : array_like, shape (d,)
-        The start of the fit.
-    initial_lam : float
-        The start λ.
-    fit : FitResult
-
-    Returns
-    -------
-    DataFrame
-        Rows ``start`` and ``fitted``; columns the length-scales w_k, λ and the loss's
-        cross-validated error per validation term (Eq. 5.16, 5.19 or 5.23).
-    """
+    """Length-scales w_k (d,), λ and the cross-validated error per validation term (Eq. 5.16,
+    5.19 or 5.23) at the start and after
+    :func:`~skillkit.models.embedding_training.fit_hyperparameters` (Sec. 5.3)."""
     w0 = check_array(initial_lengthscale, "initial_lengthscale", ndim=1)
     if w0.shape != fit.lengthscale.shape:
         raise ValueError(
@@ -252,22 +167,9 @@ def fit_table(initial_lengthscale, initial_lam: float, fit: FitResult) -> pd.Dat
 
 # --------------------------------------------------------------------------- policies
 def pendulum_policy(gains) -> Policy:
-    """The pendulum's commanded feedback torque as a policy for Table 5.2's prediction.
-
-    :math:`\\pi(x, t) = \\mathrm{clip}(K^\\top x, -3, 3)`
-    (:func:`~skillkit.tasks.pendulum.feedback_torque` without noise), in the form
-    :func:`~skillkit.models.embedding_prediction.predict` calls: ``policy(states, t)`` with
-    states of shape (b, M, 2) returns controls of shape (b, M, 1). Time-invariant.
-
-    Parameters
-    ----------
-    gains : array_like, shape (2,)
-        K = [k_α, k_α̇].
-
-    Returns
-    -------
-    callable
-    """
+    """The pendulum's feedback torque clip(Kᵀx, −3, 3), K = [k_α, k_α̇] (2,), as the
+    time-invariant policy ``policy(states (b, M, 2), t) -> controls (b, M, 1)`` that
+    :func:`~skillkit.models.embedding_prediction.predict` calls (Table 5.2)."""
     k = check_array(gains, "gains", shape=(2,))
 
     def policy(states: np.ndarray, t: int) -> np.ndarray:
@@ -278,29 +180,13 @@ def pendulum_policy(gains) -> Policy:
 
 # --------------------------------------------------------------------------- read-outs
 def marginal_embedding(points, weights, grid, lengthscale: float) -> np.ndarray:
-    """The embedding :math:`\\sum_j w_j\\, k_h(p_j, y)` of one coordinate, on a grid.
+    r"""The embedding Σ_j w_j k_h(p_j, y) of one coordinate on ``grid`` (G,), shape (G,) or
+    (G, B).
 
-    For a product SE kernel :math:`k(x, x') = \\prod_d k_{h_d}(x_d, x'_d)` (Eq. 2.25),
-    integrating :math:`\\mu(y) = \\sum_j \\beta_j k(x'_j, y)` over the other coordinates
-    leaves :math:`c \\sum_j \\beta_j k_{h_d}(x'_{j,d}, y_d)` with
-    :math:`c = \\prod_{e \\ne d} \\sqrt{2\\pi} h_e`: the embedding of coordinate d's marginal.
-    With :math:`w_l = 1/L` it is the empirical embedding of samples
-    (:func:`empirical_embedding`), on the same scale.
-
-    Parameters
-    ----------
-    points : array_like, shape (N,)
-        Coordinate d of the points the weights sit on (e.g. the observed successors x'_j).
-    weights : array_like, shape (N,) or (N, B)
-        β (Eq. 5.8) or 1/L.
-    grid : array_like, shape (G,)
-        Where to evaluate.
-    lengthscale : float
-        h > 0 of the 1-D SE kernel (the model's :math:`w_d` to read the thesis's μ).
-
-    Returns
-    -------
-    ndarray, shape (G,) or (G, B)
+    For a product SE kernel (Eq. 2.25), integrating μ(y) = Σ_j β_j k(x'_j, y) over the other
+    coordinates leaves c Σ_j β_j k_{h_d}(x'_{j,d}, y_d), c = Π_{e≠d} √(2π) h_e: the
+    embedding of coordinate d's marginal. ``points`` (N,) are coordinate d of the points the
+    ``weights`` (N,) or (N, B) sit on; with w = 1/L it is :func:`empirical_embedding`.
     """
     p = check_array(points, "points", ndim=1)
     w = check_array(weights, "weights", ndim=(1, 2))
@@ -312,22 +198,8 @@ def marginal_embedding(points, weights, grid, lengthscale: float) -> np.ndarray:
 
 
 def empirical_embedding(samples, grid, lengthscale: float) -> tuple[np.ndarray, np.ndarray]:
-    """Empirical embedding :math:`\\frac1L \\sum_l k_h(x_l, y)` of samples, and its standard error.
-
-    Parameters
-    ----------
-    samples : array_like, shape (L,)
-        L ≥ 2 samples of one coordinate (e.g. real states at step t).
-    grid : array_like, shape (G,)
-    lengthscale : float
-        h > 0 (as in :func:`marginal_embedding`).
-
-    Returns
-    -------
-    mean : ndarray, shape (G,)
-    standard_error : ndarray, shape (G,)
-        :math:`\\mathrm{sd}_l\\, k_h(x_l, y) / \\sqrt L`, the Monte Carlo error of the mean.
-    """
+    """The empirical embedding (1/L) Σ_l k_h(x_l, y) of L ≥ 2 samples of one coordinate on
+    ``grid`` (G,), and its Monte Carlo standard error sd_l k_h(x_l, y) / √L."""
     s = check_array(samples, "samples", ndim=1)
     if s.size < 2:
         raise ValueError(f"samples: expected at least 2 samples, got {s.size}")
@@ -347,7 +219,7 @@ def _compact(z: np.ndarray, digits: int = 4) -> list:
 
 
 def _diverging(fig) -> None:
-    """Heatmaps with negative values get a diverging colour scale centred on 0 (blue < 0 < red)."""
+    """Heatmaps with negative values get a diverging colour scale centred on 0."""
     for trace in fig.data:
         if trace.type == "heatmap" and np.nanmin(np.asarray(trace.z, dtype=float)) < 0:
             trace.update(colorscale="RdBu", reversescale=True, zmid=0.0)
@@ -356,23 +228,9 @@ def _diverging(fig) -> None:
 def matrices_figure(matrices: Mapping[str, object], *, pairs: int | None = None, title: str = ""):
     """Heatmaps of kernel matrices (K, K̃, C of Table 5.1; G, G̃^π, C^π of Table 5.2).
 
-    Each matrix gets its own panel and a colour bar with its values (titled with the part of
-    its name before " = "); row i is drawn at the top as in a printed matrix, and a matrix
-    with negative entries gets a diverging colour scale centred on 0.
-
-    Parameters
-    ----------
-    matrices : mapping of str to array_like, shape (n, m)
-        Panel title → matrix, e.g. ``{"K = k(xᵢ, xⱼ)": embedding.gram, "C = (K + λI)⁻¹K̃":
-        embedding.operator(x_next)}``.
-    pairs : int, optional
-        Show only the first ``pairs`` rows and columns (a block of whole trajectories reads
-        better than 300 × 300 cells); default all.
-    title : str
-
-    Returns
-    -------
-    plotly.graph_objects.Figure
+    A panel per title → matrix (n, m), its colour bar titled with the name before " = ", row
+    i at the top, a diverging scale when entries are negative; ``pairs`` shows only the first
+    rows and columns.
     """
     if not isinstance(matrices, Mapping) or not matrices:
         raise ValueError("matrices: expected a non-empty mapping of title to 2-D array")
@@ -383,18 +241,11 @@ def matrices_figure(matrices: Mapping[str, object], *, pairs: int | None = None,
         if n_show is not None:
             m = m[:n_show, :n_show]
         series.append(
-            Series(
-                str(name).split("=")[0].strip() or str(name),
-                list(range(m.shape[1])),
-                list(range(m.shape[0])),
-                panel=str(name),
-                kind="heatmap",
-                z=_compact(m),
-                xlabel="column j (training pair)",
-                ylabel="row i (training pair)",
-            ).to_dict()
-        )
-    fig = plotly_figure({"title": title, "series": series})
+            Series(str(name).split("=")[0].strip() or str(name), list(range(m.shape[1])),
+                   list(range(m.shape[0])), panel=str(name), kind="heatmap", z=_compact(m),
+                   xlabel="column j (training pair)", ylabel="row i (training pair)")
+        )  # fmt: skip
+    fig = _plot(title, series)
     fig.update_yaxes(autorange="reversed")
     _diverging(fig)
     return fig
@@ -421,43 +272,22 @@ def _time_axis(n: int, dt: float | None, start: int = 1) -> tuple[list, str]:
 
 
 def weights_figure(betas, *, dt: float | None = None, title: str = ""):
-    """The weights β_t of every predicted step (Table 5.1's loop), as a map and as sums.
+    """The weights β_t (T, N) or (T, N, 1) of every predicted step (Table 5.1's loop).
 
-    Parameters
-    ----------
-    betas : array_like, shape (T, N) or (T, N, 1)
-        β_1, …, β_T of one predicted distribution (``predict(...).betas[:, :, 0]``); row t − 1
-        weighs the observed successors x'_j for the embedding of x_t.
-    dt : float, optional
-        Time step (the x axis is the step index when omitted).
-    title : str
-
-    Returns
-    -------
-    plotly.graph_objects.Figure
-        Left: :math:`\\beta_t[j]` over t and training pair j (trajectory-major); right:
-        :math:`\\sum_j \\beta_{t,j}` (the embedded mass, 1 where the data cover the distribution)
-        and :math:`\\|\\beta_t\\|_1` (above the sum when weights are negative; growth means the
-        propagation amplifies).
+    Left: β_t[j] over t (seconds with ``dt``) and training pair j; right: Σ_j β_{t,j} (1 where
+    the data cover the distribution) and ‖β_t‖₁ (growth means the propagation amplifies).
     """
     b = _betas(betas)
     t, xlabel = _time_axis(b.shape[0], dt)
-    heat = Series(
-        "β_t[j]",
-        t,
-        list(range(b.shape[1])),
-        panel="β_t[j] per training pair",
-        kind="heatmap",
-        z=_compact(b.T),
-        xlabel=xlabel,
-        ylabel="training pair j",
-    )
+    heat = Series("β_t[j]", t, list(range(b.shape[1])), panel="β_t[j] per training pair",
+                  kind="heatmap", z=_compact(b.T), xlabel=xlabel,
+                  ylabel="training pair j")  # fmt: skip
     common = {"panel": "sum and size of β_t", "xlabel": xlabel, "ylabel": "weights"}
     lines = [
         Series("sum of β_t", t, b.sum(axis=1).tolist(), **common),
         Series("‖β_t‖₁", t, np.abs(b).sum(axis=1).tolist(), **common),
     ]
-    fig = plotly_figure({"title": title, "series": [s.to_dict() for s in (heat, *lines)]})
+    fig = _plot(title, (heat, *lines))
     fig.update_yaxes(autorange="reversed", row=1, col=1)
     _diverging(fig)
     return fig
@@ -472,13 +302,8 @@ def _lengthscale(embedding: ConditionalEmbedding, dim: int) -> float:
 
 
 def _to_scale(fig) -> None:
-    """Every value of every panel drawn to scale.
-
-    :func:`~skillkit.viz.plots.plotly_figure` gives a panel a robust y range when a few
-    values run away from the rest; an embedding curve is ~0 over most of its grid (the tails
-    of a distribution), so its peak would be clipped as if it ran away. Its clipped-value
-    markers and notes are removed and the y axes range over all values again.
-    """
+    """Undo the robust y range of :func:`~skillkit.viz.plots.plotly_figure` (an embedding is
+    ~0 over most of its grid, so its peak would be clipped): every value drawn to scale."""
     fig.data = [t for t in fig.data if not str(t.name or "").endswith("(off scale)")]
     notes = ("at the top edge", "at the bottom edge")  # plots' note on clipped values
     fig.layout.annotations = [
@@ -500,42 +325,14 @@ def embedding_figure(
     grid_points: int = 121,
     title: str = "",
 ):
-    """Predicted embeddings against the empirical embeddings of real samples.
+    """Predicted embeddings β_t (T, N) or (T, N, 1) against real rollouts (L ≥ 2, T + 1, n_x).
 
-    First panel: the mean read-out :math:`X'^\\top\\beta_t` of coordinate ``dim`` over t and the
-    real rollouts' mean ± 2 Monte Carlo standard errors. Then per step t in ``steps``: the
-    predicted marginal embedding :math:`\\sum_j \\beta_{t,j} k_h(x'_{j,d}, y)`
-    (:func:`marginal_embedding`) and the empirical one of the real states,
-    :math:`\\frac1L\\sum_l k_h(x^{(l)}_{t,d}, y)`, ± 2 standard errors.
-
-    Parameters
-    ----------
-    embedding : ConditionalEmbedding
-        The dynamics model; its targets are the observed successor states x'_j.
-    betas : array_like, shape (T, N) or (T, N, 1)
-        β_1, …, β_T of one predicted distribution.
-    real_states : array_like, shape (L, T + 1, n_x)
-        L ≥ 2 real rollouts from the same initial distribution (row 0: the start).
-    steps : sequence of int
-        Steps t (1 ≤ t ≤ T) to draw the embeddings at.
-    dim : int
-        State coordinate d.
-    bandwidth : float, optional
-        h of the drawn curves; default the model's length-scale of coordinate d (the RKHS of the
-        thesis's μ). A smaller h shows more of the weighted sample's shape (and its negative
-        weights) at a larger sampling error.
-    label : str
-        Name and unit of the coordinate.
-    dt : float, optional
-        Time step (the x axis of the first panel and the panel titles use seconds).
-    grid_points : int
-        Points of the evaluation grid (≥ 2): it spans the real samples and the successors
-        holding the predicted weights (|β_j| ≥ 1% of the largest), ± 3 h.
-    title : str
-
-    Returns
-    -------
-    plotly.graph_objects.Figure
+    First panel: the read-out X'ᵀβ_t of coordinate ``dim`` (named ``label``) over t (seconds
+    with ``dt``) and the real mean ± 2 standard errors. Then per step of ``steps`` (1 … T):
+    :func:`marginal_embedding` of β_t and :func:`empirical_embedding` of the real states ± 2
+    standard errors, on ``grid_points`` over the real samples and the successors holding the
+    weights (|β_j| ≥ 1% of the largest) ± 3 h. ``bandwidth`` h defaults to the model's
+    length-scale of the coordinate (the RKHS of the thesis's μ).
     """
     b = _betas(betas)
     real = check_array(real_states, "real_states", ndim=3)
@@ -547,8 +344,7 @@ def embedding_figure(
             f"real_states: expected shape (L >= 2, {b.shape[0] + 1}, {n_x}) for {b.shape[0]} "
             f"predicted steps, got {real.shape}"
         )
-    if isinstance(dim, bool) or not isinstance(dim, (int, np.integer)) or not 0 <= dim < n_x:
-        raise ValueError(f"dim: expected an integer in [0, {n_x}), got {dim!r}")
+    index(dim, "dim", n_x)
     if isinstance(steps, (int, np.integer)) or not steps:
         raise ValueError(f"steps: expected a non-empty sequence of steps, got {steps!r}")
     shown = [check_count(s, "steps") for s in steps]
@@ -572,18 +368,15 @@ def embedding_figure(
     mean = real[:, :, dim].mean(axis=0)
     se = real[:, :, dim].std(axis=0, ddof=1) / np.sqrt(real.shape[0])
     band = f"± 2 standard errors ({real.shape[0]} real samples)"
+
+    def real_series(x, emp, emp_se, common) -> Series:
+        return Series("real samples", x, emp.tolist(), lower=(emp - 2 * emp_se).tolist(),
+                      upper=(emp + 2 * emp_se).tolist(), band=band, **common)  # fmt: skip
+
     common = {"panel": f"mean of {label}: X′ᵀβ_t", "xlabel": xlabel, "ylabel": label}
     series = [
         Series("predicted", t_pred, _mean_paths(embedding, b)[:, dim].tolist(), **common),
-        Series(
-            "real samples",
-            t_real,
-            mean.tolist(),
-            lower=(mean - 2 * se).tolist(),
-            upper=(mean + 2 * se).tolist(),
-            band=band,
-            **common,
-        ),
+        real_series(t_real, mean, se, common),
     ]
     predicted = marginal_embedding(pts, weights, grid, h)  # (G, S)
     for k, s in enumerate(shown):
@@ -592,17 +385,9 @@ def embedding_figure(
         common = {"panel": f"embedding at {when}", "xlabel": label, "ylabel": f"μ (h = {h:.3g})"}
         series += [
             Series("predicted", grid.tolist(), predicted[:, k].tolist(), **common),
-            Series(
-                "real samples",
-                grid.tolist(),
-                emp.tolist(),
-                lower=(emp - 2 * emp_se).tolist(),
-                upper=(emp + 2 * emp_se).tolist(),
-                band=band,
-                **common,
-            ),
+            real_series(grid.tolist(), emp, emp_se, common),
         ]
-    fig = plotly_figure({"title": title, "series": [s.to_dict() for s in series]})
+    fig = _plot(title, series)
     _to_scale(fig)
     return fig
 
@@ -622,43 +407,13 @@ def draw_embedding(
     label: str = "α [rad]",
     dt: float | None = None,
 ):
-    """Fit an embedding with λ and scaled length-scales, predict, draw it against real samples.
+    """The notebook widget's redraw: fit, predict, and draw one step against real samples.
 
-    The notebook widget's redraw: ``ConditionalEmbedding(inputs, targets,
-    SE(lengthscale_factor × std(inputs)), lam)``,
-    :func:`~skillkit.models.embedding_prediction.predict` from ``initial`` (Table 5.1, or 5.2 with
-    ``policy``) and :func:`embedding_figure` at one step.
-
-    Parameters
-    ----------
-    inputs : array_like, shape (N, d_z)
-        Observed inputs (states x_i, or state-actions [x_i, u_i] with ``policy``).
-    targets : array_like, shape (N, n_x)
-        Observed successor states x'_i.
-    initial : array_like, shape (L, n_x)
-        Samples of the initial state distribution.
-    real_states : array_like, shape (L', T + 1, n_x)
-        Real rollouts from it.
-    lam : float
-        Regulariser λ > 0 (Eq. 5.3).
-    lengthscale_factor : float
-        The SE length-scales are this factor (> 0) times the inputs' standard deviations.
-    step : int
-        The step t (1 ≤ t ≤ T) whose embedding is drawn.
-    dim : int
-        State coordinate drawn.
-    bandwidth : float, optional
-        h of the drawn curves (:func:`embedding_figure`); default the model's length-scale.
-    policy : callable, optional
-        For a state-action model (Table 5.2), e.g. :func:`pendulum_policy`.
-    label : str
-    dt : float, optional
-
-    Returns
-    -------
-    plotly.graph_objects.Figure
-        Titled with λ, the length-scales w, the sum of β_step and the largest
-        :math:`\\|\\beta_t\\|_1`.
+    ``ConditionalEmbedding(inputs, targets, SE(lengthscale_factor × std(inputs)), lam)`` on
+    inputs (N, d_z) (states, or state-actions with ``policy``, Table 5.2) and successors
+    (N, n_x), :func:`~skillkit.models.embedding_prediction.predict` from ``initial`` (L, n_x)
+    and :func:`embedding_figure` at ``step`` (1 ≤ step ≤ T of ``real_states``), titled with
+    λ, w, Σβ_step and the largest ‖β_t‖₁.
     """
     z = check_array(inputs, "inputs", ndim=2)
     factor = check_positive(lengthscale_factor, "lengthscale_factor")
@@ -671,13 +426,8 @@ def draw_embedding(
     sd = z.std(axis=0)
     ls = factor * np.where(sd > 0, sd, 1.0)
     model = ConditionalEmbedding(z, targets, SquaredExponential(z.shape[1], lengthscale=ls), lam)
-    traj = predict(
-        model,
-        check_array(initial, "initial", ndim=2)[None],
-        real.shape[1],
-        policy=policy,
-        time_invariant=policy is not None,
-    )
+    x0 = check_array(initial, "initial", ndim=2)[None]
+    traj = predict(model, x0, real.shape[1], policy=policy, time_invariant=policy is not None)
     betas = traj.betas[:, :, 0]
     widths = ", ".join(f"{v:.3g}" for v in ls)
     title = (
@@ -685,16 +435,9 @@ def draw_embedding(
         f"max ‖β_t‖₁ = {np.abs(betas).sum(axis=1).max():.3g}"
     )
     return embedding_figure(
-        model,
-        betas,
-        real,
-        steps=(step,),
-        dim=dim,
-        bandwidth=bandwidth,
-        label=label,
-        dt=dt,
+        model, betas, real, steps=(step,), dim=dim, bandwidth=bandwidth, label=label, dt=dt,
         title=title,
-    )
+    )  # fmt: skip
 
 
 def loss_curve_figure(
@@ -705,29 +448,10 @@ def loss_curve_figure(
     factors=None,
     title: str = "cross-validated embedding error (5.16)",
 ):
-    """The cross-validated error as a function of a common length-scale factor, one curve per λ.
-
-    Evaluates ``loss`` at θ = [log(f · w), log λ] (Sec. 5.3): the objective
-    :func:`~skillkit.models.embedding_training.fit_hyperparameters` minimises, on one line
-    through its search space.
-
-    Parameters
-    ----------
-    loss : CrossValidatedLoss
-        E.g. :func:`~skillkit.models.embedding_training.state_embedding_loss`.
-    lengthscale : array_like, shape (d,)
-        Reference length-scales w (e.g. the inputs' standard deviations).
-    lams : sequence of float
-        λ > 0 of each curve.
-    factors : array_like, optional
-        Factors f > 0 (default 9 values from 0.03 to 10, evenly on a log scale).
-    title : str
-
-    Returns
-    -------
-    plotly.graph_objects.Figure
-        Log–log axes; the error is per validation term.
-    """
+    """The cross-validated ``loss`` at θ = [log(f · w), log λ] (Sec. 5.3), over factors f > 0
+    (default 9 log-spaced from 0.03 to 10) of the length-scales w (d,), a curve per λ of
+    ``lams``: the objective of :func:`~skillkit.models.embedding_training.fit_hyperparameters`
+    on one line through its search space, on log–log axes."""
     w = check_array(lengthscale, "lengthscale", shape=(loss.dim,))
     if np.any(w <= 0):
         raise ValueError(f"lengthscale: expected positive values, got {w}")
@@ -741,37 +465,20 @@ def loss_curve_figure(
         lam = check_positive(lam, "lams")
         values = [loss(np.append(np.log(v * w), np.log(lam))) for v in f]
         series.append(
-            Series(
-                f"λ = {lam:.3g}",
-                f.tolist(),
-                values,
-                xlabel="length-scale factor f (× w)",
-                ylabel="CV error per term",
-                log_x=True,
-                log_y=True,
-            ).to_dict()
-        )
-    return plotly_figure({"title": title, "series": series})
+            Series(f"λ = {lam:.3g}", f.tolist(), values, xlabel="length-scale factor f (× w)",
+                   ylabel="CV error per term", log_x=True, log_y=True)
+        )  # fmt: skip
+    return _plot(title, series)
 
 
 # --------------------------------------------------------------------------- warnings
 @contextmanager
 def warnings_as_note(reason: str = "") -> Iterator[list]:
-    """Catch the warnings raised inside the block and show them once, as a Markdown note.
+    """Catch the block's warnings and show them once, as a Markdown note with ``reason``.
 
-    For library warnings a notebook cannot fix at their cause: each distinct message with its count
-    and ``reason``. Caught are ``warnings.warn`` and text written to ``sys.stderr`` in the block
-    (the runner's ``tqdm.write``); other stderr text is passed on, exceptions are not caught.
-
-    Parameters
-    ----------
-    reason : str
-        Why the warnings are expected here (shown with them).
-
-    Yields
-    ------
-    list of str
-        The caught messages (filled when the block ends).
+    Caught are ``warnings.warn`` and warning lines written to ``sys.stderr`` (the runner's
+    ``tqdm.write``); other stderr text is passed on, exceptions are not caught. Yields the list
+    of caught messages, filled when the block ends.
     """
     found: list[str] = []
     text = io.StringIO()
@@ -791,9 +498,7 @@ def warnings_as_note(reason: str = "") -> Iterator[list]:
         print("\n".join(other), file=sys.stderr)
     if not found:
         return
-    counts: dict[str, int] = {}
-    for message in found:
-        counts[message] = counts.get(message, 0) + 1
+    counts = Counter(found)
     lines = [f"- {m}" + (f" (×{n})" if n > 1 else "") for m, n in counts.items()]
     head = "**Library warnings, caught:**" + (f" {reason}" if reason else "")
     note = head + "\n" + "\n".join(lines)

@@ -1,12 +1,7 @@
-r"""Notebook 06, your own skill: run sizes per scale, and the figures and tables that compare
-the methods learning a task the reader wrote.
-
-The notebook wraps a few numpy functions as a :class:`~skillkit.tasks.functional.TrajectoryTask`
-and learns it with contextual REPS, GPREPS and CMA-ES through
-:func:`~skillkit.search.loop.learn`; this module sizes the runs (:func:`run_sizes`), picks the
-evaluation contexts (:func:`context_grid`), draws the learned context → ω mapping
-(:func:`mapping_figure`) and tabulates the results (:func:`comparison_table`). Learning curves
-are :func:`skillkit.viz.figures.plot_learning`'s.
+"""Notebook 06, your own skill: a task the reader wrote
+(:class:`~skillkit.tasks.functional.TrajectoryTask`) learned by contextual REPS, GPREPS and
+CMA-ES through :func:`~skillkit.search.loop.learn`. This module sizes the runs, picks the
+evaluation contexts, draws the learned context → ω mapping and tabulates the results.
 """
 
 from __future__ import annotations
@@ -21,18 +16,13 @@ from numpy.typing import ArrayLike
 from skillkit._validation import check_array, check_count
 from skillkit.experiments.ch4_balancing import experience_to_reach
 from skillkit.tasks.base import Task
+from skillkit.teaching._common import draw, index_pair
 from skillkit.trajectory import Trajectory
-from skillkit.viz.plots import draw_figure
 from skillkit.viz.series import Series
 
 __all__ = [
-    "SCALES",
-    "RunSizes",
-    "comparison_table",
-    "context_grid",
-    "mapping_figure",
-    "run_sizes",
-]
+    "SCALES", "RunSizes", "comparison_table", "context_grid", "mapping_figure", "run_sizes",
+]  # fmt: skip
 
 
 # --------------------------------------------------------------------------- sizes
@@ -40,28 +30,10 @@ __all__ = [
 class RunSizes:
     """How long each method of the notebook runs at one scale.
 
-    Attributes
-    ----------
-    reps_updates : int
-        Updates K of contextual REPS.
-    reps_rollouts : int
-        Real rollouts N per REPS update.
-    cmaes_generations : int
-        Generations of CMA-ES (each λ candidates × m contexts real rollouts).
-    gpreps_initial : int
-        N₀, real rollouts before GPREPS's first update (Table 4.1: "a higher N in the first
-        iteration").
-    gpreps_updates : int
-        GPREPS updates K, the first on the N₀ initial rollouts: N₀ + (K − 1) N real rollouts
-        in all.
-    gpreps_rollouts : int
-        Real rollouts N per later GPREPS update.
-    n_artificial : int
-        M, artificial (s, ω) pairs per GPREPS update.
-    n_trajectories : int
-        L, trajectories predicted per pair (Eq. 4.1).
-    gp_steps : int
-        L-BFGS iterations of each forward-model fit (2.28); 150 is the thesis's setting.
+    REPS: K updates of N real rollouts; CMA-ES: generations (λ candidates × m contexts
+    rollouts each); GPREPS: N₀ initial rollouts (Table 4.1), K updates, N rollouts per later
+    update (N₀ + (K − 1) N in all), M artificial pairs and L trajectories per pair (Eq. 4.1),
+    and the L-BFGS steps of each model fit (2.28; the thesis uses 150).
     """
 
     reps_updates: int
@@ -75,10 +47,8 @@ class RunSizes:
     gp_steps: int
 
 
-#: The notebook's sizes per ``SKILLKIT_SCALE``: "smoke" runs in seconds (what CI executes),
-#: "quick" in a few minutes, "paper" uses the thesis's GPREPS setting (N₀ = 10, then one real
-#: rollout per update, M = 500, L = 25) and runs the model-free methods for thousands of
-#: rollouts.
+#: The notebook's sizes per ``SKILLKIT_SCALE``; "paper" has the thesis's GPREPS setting
+#: (N₀ = 10, then one real rollout per update, M = 500, L = 25).
 SCALES: dict[str, RunSizes] = {
     "smoke": RunSizes(
         reps_updates=15, reps_rollouts=20, cmaes_generations=10, gpreps_initial=10,
@@ -106,20 +76,9 @@ def run_sizes(scale: str) -> RunSizes:
 
 # --------------------------------------------------------------------------- contexts
 def context_grid(task: Task, n_per_dim: int) -> np.ndarray:
-    """An even grid over the task's context range [context_low, context_high].
-
-    Parameters
-    ----------
-    task : Task
-        A contextual task (context_dim ≥ 1).
-    n_per_dim : int
-        Points per context dimension (≥ 1; one point is the range's centre).
-
-    Returns
-    -------
-    ndarray, shape (n_per_dim ** context_dim, context_dim)
-        The grid, the last context dimension varying fastest.
-    """
+    """An even grid of ``n_per_dim`` ≥ 1 points per dimension (one: the centre) over a
+    contextual task's [context_low, context_high], shape (n_per_dim ** context_dim,
+    context_dim), the last dimension varying fastest."""
     _check_task(task)
     n = check_count(n_per_dim, "n_per_dim")
     low = np.asarray(task.context_low, dtype=np.float64)
@@ -154,39 +113,12 @@ def mapping_figure(
 ):
     """What several policies do across the contexts: ω(s) and where the rollout ends up.
 
-    Each policy's mean ω(s) = E[π(ω|s)] is rolled out once per context, with one random stream for
-    every policy (common random numbers, as :class:`~skillkit.search.loop.Evaluator`). Left: two
-    coordinates of ω(s). Right: per policy, a segment from each context to ``outcome(trajectory)``
-    of its rollout: the shorter, the better the skill generalises.
-
-    Parameters
-    ----------
-    task : Task
-        A contextual task whose context is a point in the plane of the outcome
-        (context_dim = 2).
-    policies : mapping of str to policy
-        Label → anything with ``mean_of(contexts)`` (a
-        :class:`~skillkit.policies.gaussian.LinearGaussianPolicy`, a CMA-ES policy, a
-        ``learn`` result's ``"policy"``).
-    outcome : callable
-        ``outcome(trajectory) -> (2,)``: the point a rollout reached, in the context's
-        coordinates. Not called for failed rollouts (drawn as gaps).
-    contexts : array_like, shape (n, 2)
-        Where to evaluate (e.g. :func:`context_grid`).
-    omega_dims : pair of int
-        The coordinates of ω drawn on the left.
-    omega_label : str
-        Name of ω's coordinates on the left axes (``"ω"`` gives ω1, ω2, …).
-    outcome_label : str
-        Unit or name of the right panel's axes (e.g. ``"[m]"``).
-    seed : int
-        Seed of the rollouts' stream (the same for every policy).
-    title : str
-    backend : {"plotly", "matplotlib"}
-
-    Returns
-    -------
-    plotly.graph_objects.Figure or NotebookFigure
+    Each policy's mean ω(s) is rolled out once per context, every policy with the same random
+    stream from ``seed`` (common random numbers). Left: the coordinates ``omega_dims`` of ω(s)
+    (axes ``omega_label`` 1, 2, …). Right: per policy, a segment from each context to
+    ``outcome(trajectory)`` (2,) of its rollout (gaps for failed rollouts).
+    The task's context is a point in the outcome's plane; ``policies`` maps labels to anything
+    with ``mean_of(contexts)``; ``contexts`` (n, 2); ``outcome_label`` the right axes' unit.
     """
     _check_task(task)
     if task.context_dim != 2:
@@ -200,29 +132,12 @@ def mapping_figure(
         raise ValueError(f"outcome: expected a callable, got {type(outcome).__name__}")
     s = check_array(contexts, "contexts", shape=(None, 2))
     d = task.parameter_dim
-    if (
-        not isinstance(omega_dims, (tuple, list))
-        or len(omega_dims) != 2
-        or any(isinstance(i, bool) or not isinstance(i, (int, np.integer)) for i in omega_dims)
-        or not all(0 <= i < d for i in omega_dims)
-        or omega_dims[0] == omega_dims[1]
-    ):
-        raise ValueError(
-            f"omega_dims: expected two different coordinates of ω in [0, {d}), got {omega_dims!r}"
-        )
-    i, j = (int(k) for k in omega_dims)
-    left = {
-        "panel": "policy mean ω(s) at the contexts",
-        "kind": "markers",
-        "xlabel": f"{omega_label}{i + 1}",
-        "ylabel": f"{omega_label}{j + 1}",
-    }
+    i, j = index_pair(omega_dims, "omega_dims", d, "coordinates of ω")
+    left = {"panel": "policy mean ω(s) at the contexts", "kind": "markers",
+            "xlabel": f"{omega_label}{i + 1}", "ylabel": f"{omega_label}{j + 1}"}  # fmt: skip
     unit = f" {outcome_label}" if outcome_label else ""
-    right = {
-        "panel": "context s → outcome of the policy mean's rollout",
-        "xlabel": f"x{unit}",
-        "ylabel": f"y{unit}",
-    }
+    right = {"panel": "context s → outcome of the policy mean's rollout", "xlabel": f"x{unit}",
+             "ylabel": f"y{unit}"}  # fmt: skip
     mapped, reached_paths = [], []
     for label, policy in policies.items():
         if not callable(getattr(policy, "mean_of", None)):
@@ -251,29 +166,17 @@ def mapping_figure(
     # the contexts last: drawn over the segments that start at them
     targets = Series("contexts s", s[:, 0].tolist(), s[:, 1].tolist(), kind="markers", **right)
     series = [*mapped, *reached_paths, targets]
-    return draw_figure({"title": title, "series": [x.to_dict() for x in series]}, backend)
+    return draw(title, series, backend)
 
 
 # --------------------------------------------------------------------------- tables
 def comparison_table(runs: Mapping, levels: Sequence[float] = ()) -> pd.DataFrame:
-    """Several :func:`~skillkit.search.loop.learn` results side by side.
+    """Several :func:`~skillkit.search.loop.learn` results (label → result) side by side.
 
-    Parameters
-    ----------
-    runs : mapping of str to dict
-        Method label → its ``learn`` result. Compare runs evaluated on the same contexts with
-        the same seed (``eval_contexts``, ``eval_seed``), or the rewards are not comparable.
-    levels : sequence of float
-        Rewards of the policy mean to reach; one column each.
-
-    Returns
-    -------
-    DataFrame
-        One row per method: real rollouts executed (``learn``'s count; evaluation rollouts of
-        the policy mean are not counted), updates, the policy mean's reward before the first
-        update, after the last and at its best, for each level the real rollouts after which
-        the policy mean first reached it (NaN: not within the run; read off the evaluations,
-        one per update), and the failed rollouts.
+    Compare runs evaluated on the same contexts with the same seed. One row per method: real
+    rollouts (evaluations not counted), updates, the policy mean's reward before the first
+    update, after the last and at its best, for each of ``levels`` the real rollouts after
+    which it first reached it (NaN: not within the run), and the failed rollouts.
     """
     if not isinstance(runs, Mapping) or not runs:
         raise ValueError("runs: expected a non-empty mapping of label to learn() result")

@@ -11,30 +11,12 @@ __all__ = ["claims_table", "experiments_table", "live_run_times", "method_compar
 
 
 def claims_table(ids: Iterable[str] | None = None, root=None):
-    """One row per stored result: the claim in plain words, the verdict, our key number with
-    its 95% interval across trials, the thesis's number, and which code made it.
+    """One row per stored result of ``ids`` (default all) under ``root`` (default
+    ``data/results``): the claim, the verdict, our key number with its 95% interval across
+    trials, the thesis's number and which code made it (the README scoreboard's rows,
+    :func:`skillkit.experiments.run.claim_rows`).
 
-    Made by :func:`skillkit.experiments.run.claim_rows`, the same rows as the README's
-    scoreboard; ``stored_run(id).details()`` has the quotes, every reading and the setup.
-
-    Parameters
-    ----------
-    ids : iterable of str, optional
-        Experiment ids (default: every stored result).
-    root : path, optional
-        Results folder (default: ``data/results``, see
-        :func:`skillkit.experiments.run.results_root`).
-
-    Returns
-    -------
-    pandas.DataFrame
-        Index ``id`` (with a stored variant's overrides); columns ``claim``, ``verdict``,
-        ``ours [95% interval]``, ``thesis``, ``made by``.
-
-    Raises
-    ------
-    ValueError
-        When an id is not a registered experiment.
+    Index ``id`` (with a stored variant's overrides); ``ValueError`` for an unregistered id.
     """
     import pandas as pd
 
@@ -61,23 +43,11 @@ def claims_table(ids: Iterable[str] | None = None, root=None):
 
 
 def live_run_times(ids: Iterable[str], scale: str):
-    """How long the live re-runs of a notebook take at ``scale``, before they start.
+    """How long the live re-runs of experiments ``ids`` take at ``scale``, before they start.
 
-    Smoke and quick times are the measured table of :mod:`skillkit.experiments.timings`
-    (``skillkit settings --times``); paper times are the stored paper result's own compute
-    (the sum of its trials' times, ``data/results/<id>-paper-s0/result.json``).
-
-    Parameters
-    ----------
-    ids : iterable of str
-        The experiment ids the notebook re-runs.
-    scale : {"smoke", "quick", "paper"}
-
-    Returns
-    -------
-    pandas.DataFrame
-        Index ``id`` plus a last row ``all``; columns ``seconds`` (NaN where not measured)
-        and ``expected`` (in words).
+    Smoke and quick times are measured (:mod:`skillkit.experiments.timings`); paper times are
+    the stored paper result's summed trial times. Index ``id`` and a last row ``all``;
+    columns ``seconds`` (NaN where not measured) and ``expected`` (in words).
     """
     import json
 
@@ -115,15 +85,8 @@ def live_run_times(ids: Iterable[str], scale: str):
 
 
 def experiments_table():
-    """Every registered experiment: its title, its trials per scale and the measured wall time
-    of its smoke and quick runs (:mod:`skillkit.experiments.timings`).
-
-    Returns
-    -------
-    pandas.DataFrame
-        Index ``id`` in thesis order; columns ``title``, ``trials (smoke / quick / paper)``,
-        ``smoke``, ``quick``.
-    """
+    """Every registered experiment in thesis order: title, trials per scale and the measured
+    wall time of its smoke and quick runs."""
     import pandas as pd
 
     from skillkit.experiments import timings
@@ -147,23 +110,8 @@ def experiments_table():
 
 
 def method_comparison_table(run):
-    """A ``cmp.methods`` run's comparison: one row per task and method.
-
-    Made by :func:`skillkit.experiments.run.comparison_rows` (the README's comparison tables
-    are the same rows).
-
-    Parameters
-    ----------
-    run : Run
-        A ``cmp.methods`` run (``reproduce`` or ``stored_run``).
-
-    Returns
-    -------
-    pandas.DataFrame
-        Index (task, method); columns real rollouts, reward of π₀, final reward, real rollouts
-        to each of the task's thresholds (with the trials that reached it), compute seconds,
-        failed rollouts. Thresholds differ between tasks: a task's other cells are empty.
-    """
+    """A ``cmp.methods`` run's comparison, one row per (task, method): the README's rows
+    (:func:`skillkit.experiments.run.comparison_rows`); other tasks' threshold cells empty."""
     import pandas as pd
 
     from skillkit.experiments.run import comparison_rows

@@ -1,0 +1,42 @@
+"""Helpers the chapter modules share: rounding for tables, drawing a list of series, and
+the checks of an index argument."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+import numpy as np
+
+from skillkit.viz.plots import draw_figure
+from skillkit.viz.series import Series
+
+
+def sig(value: float, digits: int = 4) -> float:
+    """``value`` rounded to ``digits`` significant digits (for tables)."""
+    return float(f"{float(value):.{digits}g}")
+
+
+def draw(title: str, series: Iterable[Series], backend: str = "plotly"):
+    """:func:`~skillkit.viz.plots.draw_figure` of ``series`` under ``title``."""
+    return draw_figure({"title": title, "series": [s.to_dict() for s in series]}, backend)
+
+
+def index(value, name: str, n: int) -> int:
+    """An integer in [0, n), or a ``ValueError`` naming ``name``."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 0 <= value < n:
+        raise ValueError(f"{name}: expected an integer in [0, {n}), got {value!r}")
+    return int(value)
+
+
+def index_pair(value, name: str, n: int, what: str) -> tuple[int, int]:
+    """Two different integers in [0, n), or a ``ValueError`` naming ``name``."""
+    ok = (
+        isinstance(value, (tuple, list))
+        and len(value) == 2
+        and all(isinstance(i, (int, np.integer)) and not isinstance(i, bool) for i in value)
+        and all(0 <= i < n for i in value)
+        and value[0] != value[1]
+    )
+    if not ok:
+        raise ValueError(f"{name}: expected two different {what} in [0, {n}), got {value!r}")
+    return int(value[0]), int(value[1])

@@ -1,10 +1,8 @@
 """Chapter 2 experiments (Preliminaries).
 
-``fig2.10`` (thesis Figs. 2.9–2.11): a 1-DoF demonstration (q, q̇, q̈), the DMP without its
-forcing term (v = 0) and the DMP whose 10 shape weights are fitted to the demonstration by
-least squares (Eq. 2.23). The summary holds the measurements (RMSEs as fractions of the
-demonstration's range, end errors to g); the claim and how it is judged are in
-``skillkit/data/claims/ch2.toml``.
+``fig2.10`` (Figs 2.9–2.11): a 1-DoF demonstration (q, q̇, q̈), the DMP without its forcing
+term (v = 0) and the DMP whose shape weights are fitted to it by least squares (Eq. 2.23);
+RMSEs as fractions of the demonstration's range and end errors to g.
 """
 
 from __future__ import annotations
@@ -16,7 +14,7 @@ from numpy.polynomial import Polynomial
 
 from skillkit._validation import check_positive
 from skillkit.experiments.registry import Experiment, Series, register
-from skillkit.experiments.settings import Settings, setting
+from skillkit.experiments.settings import Settings, scales, setting
 from skillkit.policies.dmp import DMP
 from skillkit.trial import TrialContext
 
@@ -37,24 +35,9 @@ def reach_demonstration(
         q(s) = q_start + (q_goal - q_start) (10 s^3 - 15 s^4 + 6 s^5) + overshoot b(s) / b(4/7),
         b(s) = s^4 (1 - s)^3,
 
-    a minimum-jerk reach plus a bump peaking at s = 4/7; q̇ and q̈ are its exact derivatives,
-    all three vanish at both ends (apart from q itself).
-
-    Parameters
-    ----------
-    duration : float
-        Length of the movement (s).
-    dt : float
-        Sampling step (s); the grid has ``round(duration / dt) + 1`` samples.
-    q_start, q_goal : float
-        Start and end angle (rad).
-    overshoot : float
-        Amplitude of the bump added to the reach (rad).
-
-    Returns
-    -------
-    times : ndarray, shape (N,)
-    q, qd, qdd : ndarray, shape (N, 1)
+    a minimum-jerk reach plus a bump peaking at s = 4/7, sampled every ``dt`` seconds
+    (``round(duration / dt) + 1`` samples; angles in rad). Returns ``times`` (N,) and q, q̇,
+    q̈ (N, 1), the exact derivatives (q̇ and q̈ vanish at both ends).
     """
     duration = check_positive(duration, "duration")
     dt = check_positive(dt, "dt")
@@ -72,76 +55,54 @@ def reach_demonstration(
 
 
 FORCING_LABEL = "f [rad/s²]"
-"""Y label of the forcing-term panel: f enters q̈ = τ² α_x(…) + τ² f with a unitless τ, so it
-is an acceleration (rad/s²), like the fit target Y of Eq. 2.23."""
+"""Y label of the forcing-term panel (f enters q̈ = τ² α_x(…) + τ² f: an acceleration)."""
 
 
 @dataclass(frozen=True)
 class DMPImitationSettings(Settings):
     """Settings of ``fig2.10`` (Sec. 2.3, Figs 2.9–2.11); the same at every scale."""
 
-    duration: float = setting(1.0, "Length of the demonstration (s); Fig. 2.9 stand-in.", above=0)
-    dt: float = setting(
-        1e-3, "Sampling step of the demonstration and integration step of the DMP (s).", above=0
-    )
+    duration: float = setting(1.0, "Length of the demonstration (s).", above=0)
+    dt: float = setting(1e-3, "Sampling and integration step (s).", above=0)
     q_start: float = setting(0.0, "Start angle of the demonstration (rad).")
     q_goal: float = setting(1.0, "Goal angle g of the demonstration and the DMP (rad).")
-    overshoot: float = setting(
-        0.25, "Amplitude of the bump added to the minimum-jerk reach (rad): what f must learn."
-    )
-    n_basis: int = setting(
-        10, "Basis functions of the forcing term f(z; v) (Eq. 2.21; Fig. 2.10b uses 10).", minimum=1
-    )
+    overshoot: float = setting(0.25, "Amplitude of the bump f must learn (rad).")
+    n_basis: int = setting(10, "Basis functions of the forcing term (Eq. 2.21).", minimum=1)
     alpha_x: float = setting(25.0, "Spring gain α_x of the DMP (Eq. 2.21).", above=0)
-    beta_x: float = setting(
-        6.25, "Damper gain β_x of the DMP (Eq. 2.21; α_x / 4 is critically damped).", above=0
-    )
+    beta_x: float = setting(6.25, "Damper gain β_x (Eq. 2.21; α_x / 4: critical).", above=0)
     alpha_z: float = setting(3.0, "Decay rate α_z of the phase z (Eq. 2.22).", above=0)
 
 
-QUICK = DMPImitationSettings()
-# Every scale is the thesis setting (10 basis functions, one demonstration): it takes seconds,
-# so quick scales nothing down.
-SCALES = {"smoke": QUICK, "quick": QUICK, "paper": QUICK}
+SCALES = scales(DMPImitationSettings())  # seconds: every scale is the thesis setting
 
 
 def _run_trial(
     settings: DMPImitationSettings, rng: np.random.Generator, trial: TrialContext
 ) -> dict:
-    """Fit the DMP to the demonstration and roll out with and without its forcing term.
-
-    The experiment is deterministic: ``rng`` is not used.
-    """
+    """Fit the DMP to the demonstration and roll out with and without its forcing term
+    (deterministic: ``rng`` is not used)."""
     trial.reset(total=3)
     times, q, qd, qdd = reach_demonstration(
         settings.duration, settings.dt, settings.q_start, settings.q_goal, settings.overshoot
     )
     trial.update()
     dmp = DMP(
-        1,
-        n_basis=settings.n_basis,
-        alpha_x=settings.alpha_x,
-        beta_x=settings.beta_x,
-        alpha_z=settings.alpha_z,
-        dt=settings.dt,
-    ).fit(times, q, qd, qdd)
+        1, n_basis=settings.n_basis, alpha_x=settings.alpha_x, beta_x=settings.beta_x,
+        alpha_z=settings.alpha_z, dt=settings.dt,
+    ).fit(times, q, qd, qdd)  # fmt: skip
     trial.update()
     free = dmp.rollout(times, q[0], qd[0], weights=np.zeros_like(dmp.weights))
     fitted = dmp.rollout(times, q[0], qd[0])
     # Eq. 2.23's regression target Y and the fitted forcing term f(z_t; v), both at tau = 1.
     target = dmp.forcing_target(times, q, qd, qdd)[:, 0]
     trial.update()
+    out = {"times": times}
+    for src, arrays in (("demo", (q, qd, qdd)), ("free", free), ("dmp", fitted)):
+        out.update(
+            {f"{src}_{k}": a[:, 0] for k, a in zip(("q", "qd", "qdd"), arrays[:3], strict=True)}
+        )
     return {
-        "times": times,
-        "demo_q": q[:, 0],
-        "demo_qd": qd[:, 0],
-        "demo_qdd": qdd[:, 0],
-        "free_q": free[0][:, 0],
-        "free_qd": free[1][:, 0],
-        "free_qdd": free[2][:, 0],
-        "dmp_q": fitted[0][:, 0],
-        "dmp_qd": fitted[1][:, 0],
-        "dmp_qdd": fitted[2][:, 0],
+        **out,
         "forcing_target": target,
         "forcing_fit": dmp.forcing(times)[:, 0],
         "weights": dmp.weights[0],
@@ -168,37 +129,20 @@ def _summarize(settings: DMPImitationSettings, trials: list[dict]) -> tuple[list
         ("qd", "velocity q̇ [rad/s]"),
         ("qdd", "acceleration q̈ [rad/s²]"),
     ]
-    series = [
-        Series(
-            name=names[src],
-            x=t,
-            y=np.asarray(tr[f"{src}_{key}"]).tolist(),
-            panel=label,
-            xlabel="time [s]",
-            ylabel=label,
-            dash="dash" if src == "demo" else None,  # the thesis draws the demonstration dashed
-        )
+
+    def line(name, key, panel, ylabel, dash=None):
+        y = np.asarray(tr[key]).tolist()
+        return Series(name, t, y, panel=panel, xlabel="time [s]", ylabel=ylabel, dash=dash)
+
+    series = [  # the thesis draws the demonstration dashed
+        line(names[src], f"{src}_{key}", label, label, "dash" if src == "demo" else None)
         for key, label in panels
         for src in ("demo", "free", "dmp")
     ]
+    forcing = "forcing term f(z)"
     series += [
-        Series(
-            name="target Y (Eq. 2.23)",
-            x=t,
-            y=np.asarray(tr["forcing_target"]).tolist(),
-            panel="forcing term f(z)",
-            xlabel="time [s]",
-            ylabel=FORCING_LABEL,
-            dash="dash",
-        ),
-        Series(
-            name="fitted f(z; v)",
-            x=t,
-            y=np.asarray(tr["forcing_fit"]).tolist(),
-            panel="forcing term f(z)",
-            xlabel="time [s]",
-            ylabel=FORCING_LABEL,
-        ),
+        line("target Y (Eq. 2.23)", "forcing_target", forcing, FORCING_LABEL, "dash"),
+        line("fitted f(z; v)", "forcing_fit", forcing, FORCING_LABEL),
     ]
     demo_q = np.asarray(tr["demo_q"])
     q_range = float(np.ptp(demo_q))

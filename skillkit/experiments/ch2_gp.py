@@ -1,34 +1,27 @@
 """Chapter 2 GP experiments: GP regression (Fig. 2.12) and deterministic prediction (Figs 2.6–2.7).
 
-* ``fig2.12`` — GP regression (Eqs 2.26–2.27) of a 1-D function from 1, a few and many noisy
-  samples, with fixed hyper-parameters: predictive mean, 95% band of y_*, and samples from
-  p(f_* | x_*, D). As points arrive the band narrows and the samples converge to the function.
-* ``fig2.7`` — a GP model of a 1-D nonlinear function, a Gaussian input N(μ_x, σ_x²), and the
-  successor distribution p(y) = ∫ p(y | x) N(x | μ_x, σ_x²) dx three ways: the truth (a Monte
-  Carlo histogram and its density by quadrature), the Gaussian of exact moment matching
-  (Fig. 2.7) and the Gaussian of linearisation at μ_x (Fig. 2.6). The summary gives the
-  moment errors and KL(p || Gaussian) of both approximations.
-
-The claims and how they are judged are in ``skillkit/data/claims/ch2.toml``.
+* ``fig2.12``: GP regression (Eqs 2.26–2.27) of a 1-D function from 1, a few and many noisy
+  samples with fixed hyper-parameters: mean, 95% band of y_* and samples of p(f_* | x_*, D).
+* ``fig2.7``: the successor distribution p(y) = ∫ p(y | x) N(x | μ_x, σ_x²) dx of a 1-D GP
+  model three ways: the truth (Monte Carlo and quadrature), exact moment matching (Fig. 2.7)
+  and linearisation at μ_x (Fig. 2.6), with moment errors and KL(p ‖ Gaussian).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 import torch
 
 from skillkit.experiments.registry import Experiment, Series, register
-from skillkit.experiments.settings import Settings, setting
+from skillkit.experiments.settings import Settings, scales, setting
 from skillkit.models.gp import ExactGP, record_numerical_events, robust_cholesky
 from skillkit.models.moment_matching import linearize, moment_match
 from skillkit.trial import TrialContext
 
 GP_BAND = "95% interval of y: GP mean ± 1.96 σ (noise included)"
-"""``Series.band`` of the GP fits of ``fig2.12`` and ``fig2.7``: the predictive mean ± 1.96
-predictive standard deviations of a noisy observation y (Eqs. 2.26–2.27 plus σ_n², from
-:meth:`~skillkit.models.gp.ExactGP.predict`), of one fitted GP (no trials involved)."""
+"""``Series.band`` of the GP fits of ``fig2.12`` and ``fig2.7`` (Eqs 2.26–2.27 plus σ_n²)."""
 
 __all__ = [
     "DeterministicPredictionSettings",
@@ -55,34 +48,19 @@ class GPRegressionSettings(Settings):
     """Settings of ``fig2.12`` (Sec. 2.4, Eqs 2.26–2.27); the same at every scale."""
 
     n_points: tuple[int, ...] = setting(
-        (1, 4, 25),
-        "Observations of each panel, increasing (Fig. 2.12: one, a few, many).",
-        minimum=1,
+        (1, 4, 25), "Observations of each panel, increasing (one, a few, many).", minimum=1
     )
-    noise_std: float = setting(
-        0.1, "Std σ_n of the observation noise, also the GP's noise (Eq. 2.26).", above=0
-    )
+    noise_std: float = setting(0.1, "Std σ_n of the observation noise and the GP's.", above=0)
     lengthscale: float = setting(0.8, "Fixed SE length-scale of the GP (Eq. 2.24).", above=0)
-    outputscale: float = setting(
-        1.0, "Fixed SE signal variance σ_f² of the GP (Eq. 2.24).", above=0
-    )
-    x_range: tuple[float, float] = setting(
-        (-4.0, 4.0), "Interval of the inputs: observations, plot grid and test points."
-    )
-    n_grid: int = setting(
-        161, "Plot grid points of the mean, band and posterior samples.", minimum=1
-    )
-    n_function_samples: int = setting(
-        5, "Functions drawn from p(f_* | x_*, D) per panel.", minimum=1
-    )
-    n_test: int = setting(
-        2000, "Noisy test points that measure the 95% band's coverage.", minimum=1
-    )
+    outputscale: float = setting(1.0, "Fixed SE signal variance σ_f² (Eq. 2.24).", above=0)
+    x_range: tuple[float, float] = setting((-4.0, 4.0), "Interval of inputs, grid and tests.")
+    n_grid: int = setting(161, "Plot grid points.", minimum=1)
+    n_function_samples: int = setting(5, "Functions drawn from p(f_* | x_*, D).", minimum=1)
+    n_test: int = setting(2000, "Noisy test points of the 95% band's coverage.", minimum=1)
 
 
-QUICK_2_12 = GPRegressionSettings()
-# Every scale is the thesis setting (1, few and many points): seconds, nothing scaled down.
-SCALES_2_12 = {"smoke": QUICK_2_12, "quick": QUICK_2_12, "paper": QUICK_2_12}
+# Every scale is the thesis setting: seconds, nothing scaled down.
+SCALES_2_12 = scales(GPRegressionSettings())
 
 
 def _run_2_12(
@@ -98,21 +76,15 @@ def _run_2_12(
     y = fig2_12_function(X) + settings.noise_std * rng.standard_normal(X.shape)
     for n in settings.n_points:
         gp = ExactGP(
-            lengthscale=settings.lengthscale,
-            outputscale=settings.outputscale,
-            noise=settings.noise_std**2,
-            n_steps=0,
-            additive_noise=0.0,
-            standardize=False,
-        ).fit(X[:n, None], y[:n])
+            lengthscale=settings.lengthscale, outputscale=settings.outputscale,
+            noise=settings.noise_std**2, n_steps=0, additive_noise=0.0, standardize=False,
+        ).fit(X[:n, None], y[:n])  # fmt: skip
         mean, var = gp.predict(grid[:, None])
         cov = gp.predictor.latent_covariance(torch.as_tensor(grid[:, None]))[0]
         with record_numerical_events():  # the jitter is kept below (and counted by the run)
             L, jitter = robust_cholesky(cov, "posterior covariance on the grid")
-        samples = (
-            mean[None, :]
-            + (L.numpy() @ rng.standard_normal((len(grid), settings.n_function_samples))).T
-        )
+        draws = rng.standard_normal((len(grid), settings.n_function_samples))
+        samples = mean[None, :] + (L.numpy() @ draws).T
         tm, tv = gp.predict(test[:, None])
         inside = np.abs(test_y - tm) <= 1.96 * np.sqrt(tv)
         out[f"n{n}"] = {
@@ -131,6 +103,15 @@ def _run_2_12(
     return out
 
 
+def _gp_band(name: str, x, mean, std, kw: dict) -> Series:
+    lower, upper = (mean - 1.96 * std).tolist(), (mean + 1.96 * std).tolist()
+    return Series(name, x.tolist(), mean.tolist(), lower=lower, upper=upper, band=GP_BAND, **kw)
+
+
+def _points(name: str, x, y, kw: dict) -> Series:
+    return Series(name, np.asarray(x).tolist(), np.asarray(y).tolist(), kind="markers", **kw)
+
+
 def _summarize_2_12(
     settings: GPRegressionSettings, trials: list[dict]
 ) -> tuple[list[Series], dict]:
@@ -142,28 +123,10 @@ def _summarize_2_12(
         panel = f"{n} sample{'s' if n > 1 else ''}"
         kw = dict(panel=panel, xlabel="x", ylabel="y")
         series.append(Series("true function", grid.tolist(), fig2_12_function(grid).tolist(), **kw))
-        series.append(
-            Series(
-                "GP mean, 95% band of y",
-                grid.tolist(),
-                r["mean"].tolist(),
-                lower=(r["mean"] - 1.96 * r["std"]).tolist(),
-                upper=(r["mean"] + 1.96 * r["std"]).tolist(),
-                band=GP_BAND,
-                **kw,
-            )
-        )
+        series.append(_gp_band("GP mean, 95% band of y", grid, r["mean"], r["std"], kw))
         for i, s in enumerate(r["samples"]):
             series.append(Series(f"sample {i + 1} of p(f*|x*,D)", grid.tolist(), s.tolist(), **kw))
-        series.append(
-            Series(
-                "observations",
-                np.asarray(r["X"]).tolist(),
-                np.asarray(r["y"]).tolist(),
-                kind="markers",
-                **kw,
-            )
-        )
+        series.append(_points("observations", r["X"], r["y"], kw))
     per_n = {
         n: {
             k: float(np.mean([t[f"n{n}"][k] for t in trials]))
@@ -201,35 +164,21 @@ class DeterministicPredictionSettings(Settings):
     """Settings of ``fig2.7`` (Sec. 2.4.1, Figs 2.6–2.7)."""
 
     n_train: int = setting(40, "Noisy observations of f(x) = sin(2x) that train the GP.", minimum=1)
-    train_range: tuple[float, float] = setting(
-        (-2.5, 2.5), "Interval of the training inputs (and of the plotted model)."
-    )
+    train_range: tuple[float, float] = setting((-2.5, 2.5), "Interval of the training inputs.")
     train_noise_std: float = setting(0.05, "Std of the training observations' noise.", minimum=0)
-    n_steps: int = setting(
-        100,
-        "Optimisation steps of the GP's hyper-parameters (marginal likelihood, Eq. 2.28).",
-        minimum=0,
-    )
+    n_steps: int = setting(100, "Marginal-likelihood steps of the GP (Eq. 2.28).", minimum=0)
     input_mean: float = setting(0.4, "Mean μ_x of the Gaussian input N(μ_x, σ_x²) (Fig. 2.6).")
     input_std: float = setting(0.5, "Std σ_x of the Gaussian input (Fig. 2.6).", above=0)
-    n_monte_carlo: int = setting(
-        200_000, "Monte Carlo samples of the successor distribution (the histogram).", minimum=1
-    )
+    n_monte_carlo: int = setting(200_000, "Monte Carlo samples of the successor.", minimum=1)
     n_bins: int = setting(80, "Bins of the Monte Carlo histogram.", minimum=1)
-    n_quadrature: int = setting(
-        2001,
-        "Trapezoid nodes of the true successor density p(y) (Eq. 4.4) and its moments.",
-        minimum=2,
-    )
+    n_quadrature: int = setting(2001, "Trapezoid nodes of p(y) (Eq. 4.4).", minimum=2)
 
 
-QUICK_2_7 = DeterministicPredictionSettings()
-SCALES_2_7 = {
-    "smoke": replace(QUICK_2_7, n_monte_carlo=100_000, n_steps=40),
-    # quick scales down: Monte-Carlo samples of the true successor density 1e6→2e5
-    "quick": QUICK_2_7,
-    "paper": replace(QUICK_2_7, n_monte_carlo=1_000_000),
-}
+SCALES_2_7 = scales(
+    DeterministicPredictionSettings(),
+    smoke=dict(n_monte_carlo=100_000, n_steps=40),
+    paper=dict(n_monte_carlo=1_000_000),
+)
 
 
 def successor_density(
@@ -331,58 +280,25 @@ def _summarize_2_7(
     r = trials[0]
     m, s = settings.input_mean, settings.input_std
     xg, yg = r["x_grid"], r["y_grid"]
-    model = dict(
-        panel="model f(x) (GP) and its linearisation at the input mean", xlabel="x", ylabel="y"
-    )
+    model = dict(panel="model f(x) (GP) and its linearisation at the input mean", xlabel="x")
+    model["ylabel"] = "y"
     inp = dict(panel="input distribution N(x | mu_x, sigma_x^2)", xlabel="x", ylabel="density")
     out = dict(panel="successor distribution p(y)", xlabel="y", ylabel="density")
     series = [
-        Series(
-            "GP model (mean, 95% band)",
-            xg.tolist(),
-            r["gp_mean"].tolist(),
-            lower=(r["gp_mean"] - 1.96 * r["gp_std"]).tolist(),
-            upper=(r["gp_mean"] + 1.96 * r["gp_std"]).tolist(),
-            band=GP_BAND,
-            **model,
-        ),
-        Series(
-            "training data",
-            np.asarray(r["train_X"]).tolist(),
-            np.asarray(r["train_y"]).tolist(),
-            kind="markers",
-            **model,
-        ),
+        _gp_band("GP model (mean, 95% band)", xg, r["gp_mean"], r["gp_std"], model),
+        _points("training data", r["train_X"], r["train_y"], model),
         Series("linearisation (tangent)", xg.tolist(), r["tangent"].tolist(), **model),
         Series("input density", xg.tolist(), _gauss(xg, m, s * s).tolist(), **inp),
-        Series(
-            "Monte Carlo histogram",
-            r["hist_centres"].tolist(),
-            r["hist"].tolist(),
-            kind="markers",
-            **out,
-        ),
+        _points("Monte Carlo histogram", r["hist_centres"], r["hist"], out),
         Series("true density (quadrature)", yg.tolist(), r["true_density"].tolist(), **out),
-        Series(
-            "moment matching", yg.tolist(), _gauss(yg, r["mm_mean"], r["mm_var"]).tolist(), **out
-        ),
-        Series(
-            "linearisation", yg.tolist(), _gauss(yg, r["lin_mean"], r["lin_var"]).tolist(), **out
-        ),
     ]
+    for name, key in (("moment matching", "mm"), ("linearisation", "lin")):
+        g = _gauss(yg, r[f"{key}_mean"], r[f"{key}_var"])
+        series.append(Series(name, yg.tolist(), g.tolist(), **out))
     keys = (
-        "true_mean",
-        "true_var",
-        "mc_mean",
-        "mc_var",
-        "mm_mean",
-        "mm_var",
-        "lin_mean",
-        "lin_var",
-        "kl_mm",
-        "kl_lin",
-        "density_mass",
-    )
+        "true_mean", "true_var", "mc_mean", "mc_var", "mm_mean", "mm_var", "lin_mean", "lin_var",
+        "kl_mm", "kl_lin", "density_mass",
+    )  # fmt: skip
     avg = {k: float(np.mean([t[k] for t in trials])) for k in keys}
     summary = {
         **avg,

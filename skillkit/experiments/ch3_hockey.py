@@ -1,121 +1,68 @@
 """Chapter 3, robot hockey: ``fig3.5`` — contextual REPS (ε = 0.5) versus CrKR (linear kernel).
 
-Thesis (Sec. 3.4.2, Fig. 3.5): on the hockey task of Appendix C.2
-(:mod:`skillkit.tasks.hockey`) contextual REPS ends with policies that hit the target puck in
-95% of the contexts with a displacement error below 20 cm and keeps improving up to ~8000
-rollouts; CrKR with a linear kernel stops improving after ~5000 rollouts with a lower hit
-rate and larger displacement errors.
-
-One trial runs both algorithms from the same initial policy (the task's imitation policy,
-:meth:`skillkit.tasks.hockey.Hockey.initial_policy`) with the shared model-free loop
-(:func:`skillkit.search.loop.learn`, Table 3.1) and records
-
-* the learning curve: the average reward of the policy *mean* on ``n_eval_contexts`` fixed
-  contexts after every update (and the average reward of the exploratory rollouts);
-* every ``heldout_every`` updates (and at the end), on ``n_heldout`` held-out contexts drawn
-  once per trial: the policy mean's average reward, hit rate (the pucks touched) and
-  displacement error |d_T − d*| (over all held-out contexts, and over the hits only).
-
-The summary keeps the final values per trial (the claim compares the two algorithms trial by
-trial); the claim and how it is judged are in ``skillkit/data/claims/ch3.toml``.
-
-Settings (documented in :class:`HockeySettings`)
-------------------------------------------------
-The thesis does not give the batch size or data reuse for hockey. We reuse 200 samples as
-in its throwing protocol (Sec. 3.4.1) but draw 50 rollouts per update (L = 4 batches): with
-ε = 0.5 the REPS weights of a first batch of 25 have an effective sample size of ~12, too few
-to fit the 15×15 covariance. Paper scale: 200 updates, 10,000 rollouts per algorithm (the
-thesis's curves run to ~10^4).
-
-CrKR (Eqs. 2.19–2.20, :class:`skillkit.search.CrKR`) starts from the same initial policy
-(its prior mean m₀) with a linear kernel on normalised contexts,
-k(s, s') = zᵀz' + 1 with z = (s − s̄) / h (:class:`NormalisedLinear`; s̄ and h the centre and
-half-widths of the context box, the constant 1 an intercept); λ = ``crkr_lam``; per-dimension
-variance scale D = diag(Σ₀) / (k(s̄, s̄) + λ), so that CrKR's first exploration σ²(s̄) D equals
-the diagonal of the initial REPS covariance Σ₀ (CrKR explores with a diagonal covariance, REPS
-with a full one — the difference the thesis blames for CrKR's weaker results). The
-normalisation matters: on raw contexts (k = sᵀs'/‖s̄‖² + 1) the context-dependent part of the
-kernel is small next to the intercept, the ridge λ C suppresses any context dependence of the
-mean and CrKR did not improve at all in 10,000 rollouts (hit rate 0.32 → 0.34). λ and β
-were chosen from {0.1, 0.2, 0.5, 2} × {1, 2, 5} on quick-scale runs (0.2 and 2 did best).
+Thesis (Sec. 3.4.2, Fig. 3.5): on the hockey task of Appendix C.2 contextual REPS ends with
+policies that hit the target puck in 95% of the contexts with a displacement error below
+20 cm; CrKR with a linear kernel stops improving earlier, with a lower hit rate. Both run the
+learning-curve experiment of :mod:`skillkit.experiments.curves` from the imitation policy,
+with :func:`heldout_scores` every ``heldout_every`` updates; 50 rollouts per update, the last
+200 reused (the thesis gives no batch size for hockey). CrKR (Eqs. 2.19–2.20) uses the kernel
+k(s, s') = zᵀz' + 1 on normalised contexts z = (s − s̄) / h (:class:`NormalisedLinear`) and
+the variance scale D = diag(Σ₀) / (k(s̄, s̄) + λ), so that its first exploration matches the
+diagonal of REPS's Σ₀. The claim is judged in ``skillkit/data/claims/ch3.toml``.
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
 import torch
 
 from skillkit._validation import check_array
+from skillkit.experiments.curves import curve_series, run_curve
 from skillkit.experiments.registry import Experiment, Series, register
-from skillkit.experiments.settings import Settings, setting
+from skillkit.experiments.settings import Settings, scales, setting
 from skillkit.models.kernels import Linear
 from skillkit.tasks import make
 from skillkit.trial import TrialContext
-from skillkit.viz.series import trial_band
 
-__all__ = [
-    "HockeySettings",
-    "NormalisedLinear",
-    "heldout_scores",
-    "make_algorithm",
-]
+__all__ = ["HockeySettings", "NormalisedLinear", "heldout_scores", "make_algorithm"]
 
 
 @dataclass(frozen=True)
 class HockeySettings(Settings):
     """Settings of ``fig3.5`` (robot hockey, Sec. 3.4.2, App. C.2); see the module docstring."""
 
+    # fmt: off
     task: Literal["hockey", "hockey-real"] = setting(
-        "hockey", "Registered task: the simulated setting of C.2 or its real-robot variant."
-    )
+        "hockey", "Registered task: the simulated setting of C.2 or its real-robot variant.")
     epsilon: float = setting(0.5, "KL bound ε of contextual REPS (Eq. 3.4, Sec. 3.4.2).", above=0)
-    crkr_lam: float = setting(
-        0.2, "CrKR's λ (Eqs 2.19–2.20): regulariser and exploration floor.", above=0
-    )
-    crkr_beta_scale: float = setting(
-        2.0, "CrKR's sample weights exp(β (R − max R)) with β = crkr_beta_scale / std(R).", above=0
-    )
+    crkr_lam: float = setting(0.2, "CrKR's λ (Eqs 2.19–2.20): regulariser and exploration "
+                              "floor.", above=0)
+    crkr_beta_scale: float = setting(2.0, "CrKR's sample weights exp(β (R − max R)) with "
+                                     "β = crkr_beta_scale / std(R).", above=0)
     n_updates: int = setting(16, "Policy updates per algorithm (Table 3.1 loop).", minimum=1)
-    rollouts_per_update: int = setting(
-        50, "Rollouts N between updates (the thesis gives none for hockey; see above).", minimum=1
-    )
-    n_reuse_batches: int = setting(
-        4, "Batches L each update reuses (REPS and CrKR): the last L × N = 200 rollouts.", minimum=1
-    )
-    n_eval_contexts: int = setting(
-        6, "Fixed contexts of the per-update learning curve (reward of the policy mean).", minimum=1
-    )
-    n_heldout: int = setting(
-        30,
-        "Held-out contexts of the hit rate and the displacement error |d_T − d*| (m).",
-        minimum=1,
-    )
-    heldout_every: int = setting(
-        8, "Held-out evaluation every this many updates (and after the last one).", minimum=1
-    )
+    rollouts_per_update: int = setting(50, "Rollouts N between updates.", minimum=1)
+    n_reuse_batches: int = setting(4, "Batches L each update reuses (REPS and CrKR): the last "
+                                   "L × N = 200 rollouts.", minimum=1)
+    n_eval_contexts: int = setting(6, "Fixed contexts of the learning curve.", minimum=1)
+    n_heldout: int = setting(30, "Held-out contexts of the hit rate and the displacement error "
+                             "|d_T − d*| (m).", minimum=1)
+    heldout_every: int = setting(8, "Held-out evaluation every this many updates (and after "
+                                 "the last).", minimum=1)
+    # fmt: on
 
 
-QUICK = HockeySettings()
-SCALES = {
-    "smoke": replace(
-        QUICK,
-        n_updates=1,
-        rollouts_per_update=25,
-        n_eval_contexts=2,
-        n_heldout=3,
-        heldout_every=1,
-        epsilon=0.2,  # a gentle bound keeps the effective sample size of 25 samples above 16
-    ),
-    # quick scales down: updates 200→16 per algorithm (800 rollouts; same ε = 0.5, 50 per
-    # update, last 200 reused), learning-curve contexts 10→6, held-out contexts 100→30,
-    # trials 3→1
-    "quick": QUICK,
-    "paper": replace(QUICK, n_updates=200, n_eval_contexts=10, n_heldout=100, heldout_every=40),
-}
+SCALES = scales(
+    HockeySettings(),
+    # smoke: a gentle bound keeps the effective sample size of 25 samples above 16
+    smoke={"n_updates": 1, "rollouts_per_update": 25, "n_eval_contexts": 2, "n_heldout": 3,
+           "heldout_every": 1, "epsilon": 0.2},
+    # quick: 16 of 200 updates, 6 of 10 learning-curve contexts, 30 of 100 held-out, 1 trial
+    paper={"n_updates": 200, "n_eval_contexts": 10, "n_heldout": 100, "heldout_every": 40},
+)  # fmt: skip
 ALGORITHMS = ("reps", "crkr")
 LABELS = {"reps": "contextual REPS (ε = 0.5)", "crkr": "CrKR (linear kernel)"}
 THESIS = {"reps_hit_rate": 0.95, "reps_displacement_error_m": 0.20}
@@ -162,9 +109,8 @@ def make_algorithm(name: str, task, settings: HockeySettings):
 
     prior = task.initial_policy()
     if name == "reps":
-        return ContextualREPS(
-            prior, epsilon=settings.epsilon, n_reuse_batches=settings.n_reuse_batches
-        )
+        return ContextualREPS(prior, epsilon=settings.epsilon,
+                              n_reuse_batches=settings.n_reuse_batches)  # fmt: skip
     if name == "crkr":
         low, high = np.asarray(task.context_low), np.asarray(task.context_high)
         centre, half = 0.5 * (low + high), 0.5 * (high - low)
@@ -172,35 +118,21 @@ def make_algorithm(name: str, task, settings: HockeySettings):
         k_cc = float(gram(kernel, centre[None, :])[0, 0])
         lam = settings.crkr_lam
         scale = np.diag(prior.cov) / (k_cc + lam)
-        return CrKR(
-            prior,
-            kernel,
-            lam=lam,
-            beta_scale=settings.crkr_beta_scale,
-            n_reuse_batches=settings.n_reuse_batches,
-            variance_scale=scale,
-        )
+        return CrKR(prior, kernel, lam=lam, beta_scale=settings.crkr_beta_scale,
+                    n_reuse_batches=settings.n_reuse_batches, variance_scale=scale)  # fmt: skip
     raise ValueError(f"name: expected one of {ALGORITHMS}, got {name!r}")
 
 
 def heldout_scores(task, policy, contexts, rng=None) -> dict[str, float]:
-    """Roll out the policy mean on each context and score it.
-
-    Parameters
-    ----------
-    task : Hockey
-    policy : object with ``mean_of(contexts)``
-    contexts : ndarray, shape (n, 3)
-    rng : Generator, int or None
-        Randomness of the rollouts (observation noise of ``hockey-real``).
+    """The policy mean's shots on ``contexts`` (n, 3), scored; ``rng``: the rollouts'
+    randomness (observation noise of ``hockey-real``).
 
     Returns
     -------
     dict
-        ``reward`` (mean R), ``hit_rate``, ``displacement_error`` (mean |d_T − d*| over all
-        contexts; a miss leaves d_T = 0), ``displacement_error_hits`` (over hits; NaN if none),
-        ``blade_lowest`` (lowest blade corner over all rollouts, m: the blade–table contact
-        keeps it within about a millimetre of the surface), ``failed`` (count).
+        ``reward`` (mean R), ``hit_rate``, ``displacement_error`` (mean |d_T − d*|; a miss
+        leaves d_T = 0), ``displacement_error_hits`` (over hits; NaN if none), ``blade_lowest``
+        (lowest blade corner over all rollouts, m), ``failed`` (count).
     """
     from skillkit._validation import as_generator
 
@@ -227,55 +159,26 @@ def heldout_scores(task, policy, contexts, rng=None) -> dict[str, float]:
 
 
 def _run_trial(settings: HockeySettings, rng: np.random.Generator, trial: TrialContext) -> dict:
-    """Both algorithms, same task, same evaluation and held-out contexts.
-
-    Each ``learn`` call checkpoints after every update through the trial context, so an
-    interrupted paper-scale trial resumes with the same numbers.
-    """
-    from skillkit.search.loop import learn
-
+    """Both algorithms, same task, same evaluation and held-out contexts."""
     task = make(settings.task)
     K, N = settings.n_updates, settings.rollouts_per_update
-    every = settings.heldout_every
     heldout = task.sample_context(rng, n=settings.n_heldout)
     eval_contexts = task.sample_context(rng, n=settings.n_eval_contexts)
     heldout_seed = int(rng.integers(2**63))
     trial.reset(total=len(ALGORITHMS) * K)
 
-    def record(k: int, alg) -> dict | None:
-        if k % every == 0 or k == K:
-            return heldout_scores(task, alg.policy, heldout, heldout_seed)
-        return None
+    def score(policy) -> dict:
+        return heldout_scores(task, policy, heldout, heldout_seed)
 
     out: dict = {"heldout_contexts": heldout}
     for name, alg_rng in zip(ALGORITHMS, rng.spawn(len(ALGORITHMS)), strict=True):
         t0 = time.perf_counter()
-        res = learn(
-            task,
-            make_algorithm(name, task, settings),
-            K,
-            N,
-            alg_rng,
-            trial=trial,
-            eval_contexts=eval_contexts,
-            callback=record,
-            checkpoint_key=name,
-        )
-        out[f"{name}_rollouts"] = res["rollouts"]
-        out[f"{name}_mean_reward"] = res["mean_reward"]
-        out[f"{name}_explore_rollouts"] = res["explore_rollouts"]
-        out[f"{name}_explore_reward"] = res["explore_reward"]
-        out[f"{name}_n_failed"] = res["n_failed"]
-        points = [(k * N, v) for k, v in enumerate(res["callback"]) if v is not None]
-        out[f"{name}_heldout_rollouts"] = np.array([p[0] for p in points])
-        for key in (
-            "reward",
-            "hit_rate",
-            "displacement_error",
-            "displacement_error_hits",
-            "blade_lowest",
-        ):
-            out[f"{name}_heldout_{key}"] = np.array([p[1][key] for p in points])
+        algo = make_algorithm(name, task, settings)
+        arrays, res = run_curve(task, algo, name, K, N, alg_rng, trial, eval_contexts,
+                                score=score, every=settings.heldout_every)  # fmt: skip
+        out.update(arrays)
+        for key in ("explore_rollouts", "explore_reward", "n_failed"):
+            out[f"{name}_{key}"] = res[key]
         out[f"{name}_wall_time_s"] = time.perf_counter() - t0  # this process's share
     return out
 
@@ -299,46 +202,20 @@ def _summarize(settings: HockeySettings, trials: list[dict]) -> tuple[list[Serie
     panels = [
         ("mean_reward", "rollouts", "reward of the policy mean", "average reward"),
         ("heldout_hit_rate", "heldout_rollouts", "hit rate (held-out contexts)", "hit rate"),
-        (
-            "heldout_displacement_error",
-            "heldout_rollouts",
-            "displacement error |d_T − d*| (held-out)",
-            "error [m]",
-        ),
-    ]
+        ("heldout_displacement_error", "heldout_rollouts",
+         "displacement error |d_T − d*| (held-out)", "error [m]"),
+    ]  # fmt: skip
     for name in ALGORITHMS:
-        for key, xkey, panel, ylabel in panels:
-            y, band = trial_band(_stack(trials, f"{name}_{key}"))
-            series.append(
-                Series(
-                    name=LABELS[name],
-                    x=np.asarray(trials[0][f"{name}_{xkey}"]).tolist(),
-                    y=y,
-                    **band,
-                    panel=panel,
-                    xlabel="rollouts",
-                    ylabel=ylabel,
-                )
-            )
+        series += [curve_series(trials, f"{name}_{xkey}", f"{name}_{key}", LABELS[name], panel,
+                                ylabel, log_x=False, xlabel="rollouts")
+                   for key, xkey, panel, ylabel in panels]  # fmt: skip
         stats = {}
-        for key in (
-            "mean_reward",
-            "heldout_reward",
-            "heldout_hit_rate",
-            "heldout_displacement_error",
-            "heldout_displacement_error_hits",
-        ):
+        for key in ("mean_reward", "heldout_reward", "heldout_hit_rate",
+                    "heldout_displacement_error", "heldout_displacement_error_hits"):  # fmt: skip
             vals = _stack(trials, f"{name}_{key}")
             stats[f"initial_{key}"] = _nan_stats(vals[:, 0])[0]
             stats[f"final_{key}"], stats[f"final_{key}_std"] = _nan_stats(vals[:, -1])
-        for key in (
-            "heldout_hit_rate",
-            "heldout_displacement_error_hits",
-            "heldout_reward",
-            "heldout_displacement_error",
-            "mean_reward",
-        ):
-            stats[f"final_{key}_per_trial"] = _stack(trials, f"{name}_{key}")[:, -1].tolist()
+            stats[f"final_{key}_per_trial"] = vals[:, -1].tolist()
         curve = _stack(trials, f"{name}_mean_reward")
         stats["initial_mean_reward_per_trial"] = curve[:, 0].tolist()
         lowest = [
@@ -358,14 +235,9 @@ def _summarize(settings: HockeySettings, trials: list[dict]) -> tuple[list[Serie
     return series, summary
 
 
-register(
-    Experiment(
-        id="fig3.5",
-        title="Robot hockey: contextual REPS (ε = 0.5) vs CrKR with a linear kernel",
-        settings_class=HockeySettings,
-        settings=SCALES,
-        run_trial=_run_trial,
-        summarize=_summarize,
-        trials={"smoke": 1, "quick": 1, "paper": 5},
-    )
-)
+# fmt: off
+register(Experiment(
+    id="fig3.5", title="Robot hockey: contextual REPS (ε = 0.5) vs CrKR with a linear kernel",
+    settings_class=HockeySettings, settings=SCALES, run_trial=_run_trial, summarize=_summarize,
+    trials={"smoke": 1, "quick": 1, "paper": 5}))
+# fmt: on

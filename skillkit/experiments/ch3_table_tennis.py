@@ -1,33 +1,28 @@
 """Fig. 3.7: contextual REPS learns table-tennis returns (Sec. 3.4.3).
 
-Contextual REPS (ε = 0.6, Table 3.1) with a linear-Gaussian upper-level policy
-π(ω|s) = N(a + A s, Σ) learns the 17 DMP parameters ω = [g, ġ, τ] of the table-tennis task
-(:mod:`skillkit.tasks.table_tennis`) from the context s = [v_x, v_y, v_z, b_x, b_y], starting
-from the demonstrated forehand with zero context gain. Each update draws 50 contexts and
-rollouts and reuses the last 200 rollouts, as in the thesis's robot experiments (see
-:class:`TableTennisSettings` for the batch size). The learning curve is the reward of the policy
-*mean* on fixed evaluation contexts (:func:`skillkit.search.loop.learn`).
-
-After learning, the final policy mean is played on fresh contexts and each shot is
-classified (returned / net / out / missed), which makes the thesis's failure mode — a
-policy that puts the ball into the net, reward in [−0.05, −0.02] — visible in the summary.
-The claim and how it is judged are in ``skillkit/data/claims/ch3.toml``; the variants tried
-are in ``data/notes/fig3.7.md``.
+Contextual REPS (ε = 0.6, Table 3.1) with a linear-Gaussian policy π(ω|s) = N(a + A s, Σ)
+learns the 17 DMP parameters ω = [g, ġ, τ] of :mod:`skillkit.tasks.table_tennis` from the
+context s = [v_x, v_y, v_z, b_x, b_y], starting from the demonstrated forehand, through the
+learning-curve experiment of :mod:`skillkit.experiments.curves`. The final policy mean is then
+played on fresh contexts and each shot classified (returned / net / out / missed), which shows
+the thesis's failure mode: a policy that puts the ball into the net, reward in [−0.05, −0.02].
+The claim is judged in ``skillkit/data/claims/ch3.toml``; the variants tried are in
+``data/notes/fig3.7.md``.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
+from skillkit.experiments.curves import curve_series, run_curve
 from skillkit.experiments.registry import Experiment, Series, register
-from skillkit.experiments.settings import Settings, setting
+from skillkit.experiments.settings import Settings, scales, setting
 from skillkit.policies.features import FeatureName
 from skillkit.policies.gaussian import effective_sample_size
 from skillkit.search.reps import ContextualREPS
 from skillkit.trial import TrialContext
-from skillkit.viz.series import trial_band
 
 THESIS_GOOD_REWARD = -0.02
 """Sec. 3.4.3: above −0.02 the ball lands within 20–30 cm of the target."""
@@ -40,105 +35,52 @@ OUTCOMES = ("returned", "net", "out", "missed")
 
 @dataclass(frozen=True)
 class TableTennisSettings(Settings):
-    """Settings of ``fig3.7`` (table tennis, Sec. 3.4.3).
+    """Settings of ``fig3.7`` (table tennis, Sec. 3.4.3); paper: 120 updates × 50 rollouts.
 
-    ``n_updates`` × ``rollouts_per_update`` exploratory rollouts per trial (paper: 6000, past
-    the thesis's ~4000; quick: 1000); each update reuses the last 200 rollouts as in Sec. 3.4.
-    The paper scale runs 10 trials, so that the share of runs stuck at the net can be set
-    beside the thesis's "some runs".
-
-    Choices the thesis leaves open for this task, and why:
-
-    * 50 rollouts per update (the thesis gives 25 for throwing, nothing for table tennis).
-      With 25, the first update fits a 17×17 Σ and a 17×5 gain from a Kish ESS of ≈ 10
-      (ε = 0.6): the policy jumps by 6–8 nats of KL and in our runs 1 of 4 quick trials never
-      learned and 2 of 3 paper trials stalled at −0.04…−0.05; with 50 all runs learned
-      (≈ −0.01).
-    * A linear baseline V(s) = γᵀs: the quadratic one (20 features) is fitted from as few
-      samples in the first updates and did slightly worse.
-    * The weighted ML fit is the thesis's (Eqs. 3.11–3.13): no shrinkage of Σ towards the
-      previous one (``cov_shrinkage`` = 0) and no effective-sample-size floor beyond the
-      library's own (``min_effective_samples`` = ``None``: a Kish ESS of d + 1 = 18, below
-      which a 17×17 Σ is not determined). An update whose weights fall below that floor keeps
-      the current policy (:class:`KeepPolicyREPS`), and the count of such updates is in the
-      result (``n_skipped_updates``); the thesis says nothing about this case.
-    * :data:`REGULARISED` (``cov_shrinkage`` = 0.2, ``min_effective_samples`` = 10) is the
-      setting of the stored variant run ``fig3.7-paper-s0-f82e2c5b``, kept as a named option
-      (``--set cov_shrinkage=0.2 --set min_effective_samples=10``); fig4.12's REPS baseline
-      pins it so its stored result stays valid. It is not in the thesis, and it removes the
-      thesis's "some runs get stuck hitting the net" behaviour.
+    The thesis leaves open, for this task: the batch size (50: with 25 the first update fits
+    a 17×17 Σ from a Kish ESS of ≈ 10 and some runs never learned), the baseline (linear
+    V(s) = γᵀs) and the fit's regularisation (none, as Eqs. 3.11–3.13: an update whose
+    weights have a Kish ESS below d + 1 = 18 keeps the policy, :class:`KeepPolicyREPS`, and
+    is counted). :data:`REGULARISED` is the fit of the stored variant run
+    ``fig3.7-paper-s0-f82e2c5b`` and of fig4.12's REPS baseline (not in the thesis).
     """
 
+    # fmt: off
     epsilon: float = setting(0.6, "KL bound ε of contextual REPS (Eq. 3.4, Sec. 3.4.3).", above=0)
-    rollouts_per_update: int = setting(
-        50,
-        "Rollouts N between updates (the thesis gives none for table tennis; see above).",
-        minimum=1,
-    )
-    n_reuse_batches: int = setting(
-        4, "Batches L each update reuses: the last L × N = 200 rollouts (Sec. 3.4).", minimum=1
-    )
+    rollouts_per_update: int = setting(50, "Rollouts N between updates.", minimum=1)
+    n_reuse_batches: int = setting(4, "Batches L each update reuses: the last L × N = 200 "
+                                   "rollouts (Sec. 3.4).", minimum=1)
     baseline_features: FeatureName = setting(
-        "linear", "Context features of the REPS value-function baseline V(s) (Eq. 3.8)."
-    )
+        "linear", "Context features of the REPS value-function baseline V(s) (Eq. 3.8).")
     min_effective_samples: float | None = setting(
-        None,
-        "Weighted ML fit (Eqs 3.11–3.13): the least effective sample size it accepts "
-        "(None: the library's d + 1; below it the update keeps the policy and is counted).",
-        minimum=0,
-    )
-    cov_shrinkage: float = setting(
-        0.0,
-        "Weight of the previous Σ in the new one (0: the thesis's fit, no shrinkage).",
-        minimum=0,
-    )
+        None, "Least effective sample size the weighted ML fit accepts (None: d + 1; below it "
+        "the update keeps the policy and is counted).", minimum=0)
+    cov_shrinkage: float = setting(0.0, "Weight of the previous Σ in the new one (0: the "
+                                   "thesis's fit).", minimum=0)
     n_updates: int = setting(20, "Policy updates (Table 3.1 loop).", minimum=1)
-    n_eval_contexts: int = setting(
-        8,
-        "Fixed contexts of the learning curve (reward of the policy mean; not counted).",
-        minimum=1,
-    )
-    n_final_contexts: int = setting(
-        40, "Fresh contexts on which the final policy mean's shots are classified.", minimum=1
-    )
+    n_eval_contexts: int = setting(8, "Fixed contexts of the learning curve.", minimum=1)
+    n_final_contexts: int = setting(40, "Fresh contexts on which the final policy mean's shots "
+                                    "are classified.", minimum=1)
+    # fmt: on
 
 
-QUICK = TableTennisSettings()
 REGULARISED = {"cov_shrinkage": 0.2, "min_effective_samples": 10.0}
 """A regularised weighted ML fit (not in the thesis), a named variant:
 ``dataclasses.replace(settings, **REGULARISED)``."""
-SCALES = {
-    "smoke": replace(
-        QUICK,
-        rollouts_per_update=12,
-        n_reuse_batches=2,
-        min_effective_samples=3.0,
-        n_updates=2,
-        n_eval_contexts=2,
-        n_final_contexts=3,
-    ),
-    # quick scales down: updates 120→20 (1000 of 6000 rollouts; same ε = 0.6, 50 per update),
-    # learning-curve contexts 12→8, final contexts 200→40, trials 10→1
-    "quick": QUICK,
-    "paper": replace(QUICK, n_updates=120, n_eval_contexts=12, n_final_contexts=200),
-}
+SCALES = scales(
+    TableTennisSettings(),
+    smoke={"rollouts_per_update": 12, "n_reuse_batches": 2, "min_effective_samples": 3.0,
+           "n_updates": 2, "n_eval_contexts": 2, "n_final_contexts": 3},
+    # quick: 20 of 120 updates, 8 of 12 learning-curve contexts, 40 of 200 final, 1 trial
+    paper={"n_updates": 120, "n_eval_contexts": 12, "n_final_contexts": 200},
+)  # fmt: skip
 
 
 @dataclass(frozen=True)
 class SkippedUpdate:
-    """Diagnostics of a :class:`KeepPolicyREPS` update whose weighted ML fit was refused.
-
-    Attributes
-    ----------
-    ess : float
-        Kish effective sample size of the REPS weights.
-    needed : float
-        The least the fit accepts (``min_effective_samples``, default d + 1).
-    n_samples : int
-        Samples the weights were computed on (the last L batches).
-    message : str
-        The fit's error message.
-    """
+    """A :class:`KeepPolicyREPS` update whose weighted ML fit was refused: the weights' Kish
+    effective sample size ``ess``, the least the fit accepts (``needed``), the samples they
+    were computed on and the fit's error ``message``."""
 
     ess: float
     needed: float
@@ -147,15 +89,10 @@ class SkippedUpdate:
 
 
 class KeepPolicyREPS(ContextualREPS):
-    """Contextual REPS that keeps its policy when the weighted ML fit refuses the weights.
-
-    The fit (Eqs. 3.11–3.13) needs a Kish effective sample size of at least
-    ``min_effective_samples`` (default d + 1) to determine Σ. When the REPS weights of an
-    update have fewer, :meth:`update` keeps the current policy, returns a
-    :class:`SkippedUpdate` instead of the REPS diagnostics and counts it in
-    :attr:`n_skipped`; the batch stays in the reuse buffer, so the next update weighs it
-    together with the next batch. Any other error of the update is raised as before.
-    """
+    """Contextual REPS that keeps its policy when the weighted ML fit (Eqs. 3.11–3.13)
+    refuses the weights (Kish ESS below ``min_effective_samples``, default d + 1): the update
+    returns a :class:`SkippedUpdate`, counted in :attr:`n_skipped`, and the batch stays in the
+    reuse buffer. Any other error is raised."""
 
     n_skipped: int = 0
     _last_ess: float | None = None
@@ -181,32 +118,16 @@ class KeepPolicyREPS(ContextualREPS):
 
 
 def run_trial(settings: TableTennisSettings, rng: np.random.Generator, trial: TrialContext) -> dict:
-    """One contextual-REPS learning run on the table-tennis task, then a final evaluation.
-
-    Returns
-    -------
-    dict
-        ``rollouts`` (K+1,), ``mean_reward`` (K+1,) learning curve; ``explore_reward`` (K,);
-        ``final_rewards`` (M,) and ``final_outcomes`` (M,) of the final policy mean on M
-        fresh contexts, ``final_landing_error`` (M,) ‖b − p‖; ``n_failed`` (total);
-        ``n_skipped_updates``: updates that kept the policy (:class:`KeepPolicyREPS`).
-    """
-    from skillkit.search.loop import learn
+    """One contextual-REPS learning run, then the final policy mean's shots on fresh
+    contexts (``final_rewards``, ``final_outcomes``, ``final_landing_error`` ‖b − p‖)."""
     from skillkit.tasks import make
 
     task = make("table-tennis")
     algorithm = make_reps(task, settings)
     eval_contexts = task.sample_context(rng, n=settings.n_eval_contexts)
     trial.reset(total=settings.n_updates)
-    curves = learn(
-        task,
-        algorithm,
-        settings.n_updates,
-        settings.rollouts_per_update,
-        rng,
-        trial=trial,
-        eval_contexts=eval_contexts,
-    )
+    _, curves = run_curve(task, algorithm, "learn", settings.n_updates,
+                          settings.rollouts_per_update, rng, trial, eval_contexts)  # fmt: skip
     contexts = task.sample_context(rng, n=settings.n_final_contexts)
     _, shots = shot_scores(task, curves["policy"], contexts, rng)
     return {
@@ -225,26 +146,15 @@ def make_reps(task, settings: TableTennisSettings) -> KeepPolicyREPS:
     """Contextual REPS from ``task``'s imitation policy with ``settings``' ε, reuse, baseline
     and fit regularisation (the model-free learner of fig3.7, and fig4.12's baseline); an
     update whose weights are too few for the fit keeps the policy (:class:`KeepPolicyREPS`)."""
-    return KeepPolicyREPS(
-        task.initial_policy(),
-        settings.epsilon,
-        n_reuse_batches=settings.n_reuse_batches,
-        baseline_features=settings.baseline_features,
-        min_effective_samples=settings.min_effective_samples,
-        cov_shrinkage=settings.cov_shrinkage,
-    )
+    return KeepPolicyREPS(task.initial_policy(), settings.epsilon,
+                          n_reuse_batches=settings.n_reuse_batches,
+                          baseline_features=settings.baseline_features,
+                          min_effective_samples=settings.min_effective_samples,
+                          cov_shrinkage=settings.cov_shrinkage)  # fmt: skip
 
 
 def shot_scores(task, policy, contexts, rng=None) -> tuple[dict[str, float], dict]:
-    """Play the policy mean's shot on each context and classify it.
-
-    Parameters
-    ----------
-    task : TableTennis
-    policy : object with ``mean_of(contexts)``
-    contexts : ndarray, shape (n, 5)
-    rng : Generator, int or None
-        Randomness of the rollouts (the simulation is deterministic).
+    """Play the policy mean's shot on each of ``contexts`` (n, 5) and classify it.
 
     Returns
     -------
@@ -278,53 +188,25 @@ def summarize(settings: TableTennisSettings, trials: list[dict]) -> tuple[list[S
     fractions, and the headline numbers next to the thesis's claims."""
     x = np.asarray(trials[0]["rollouts"], dtype=float).tolist()
     curves = np.array([t["mean_reward"] for t in trials], dtype=float)
-    m, band = trial_band(curves)
     panel, ylabel = "learning curve", "reward of the policy mean"
-    series = [
-        Series(
-            "contextual REPS (mean ± std)",
-            x,
-            m,
-            panel,
-            "line",
-            **band,
-            xlabel="rollouts",
-            ylabel=ylabel,
-        )
-    ]
+    mean = curve_series(trials, "rollouts", "mean_reward", "contextual REPS (mean ± std)", panel,
+                        ylabel, log_x=False, xlabel="rollouts")  # fmt: skip
+    series = [mean]
     for i, c in enumerate(curves):
-        series.append(
-            Series(f"trial {i + 1}", x, c.tolist(), panel, "line", xlabel="rollouts", ylabel=ylabel)
-        )
-    series.append(
-        Series(
-            "thesis: good policy (−0.02)",
-            [x[0], x[-1]],
-            [THESIS_GOOD_REWARD] * 2,
-            panel,
-            "line",
-            xlabel="rollouts",
-            ylabel=ylabel,
-        )
-    )
+        series.append(Series(f"trial {i + 1}", x, c.tolist(), panel, "line", xlabel="rollouts",
+                             ylabel=ylabel))  # fmt: skip
+    series.append(Series("thesis: good policy (−0.02)", [x[0], x[-1]], [THESIS_GOOD_REWARD] * 2,
+                         panel, "line", xlabel="rollouts", ylabel=ylabel))  # fmt: skip
 
     final = np.array([float(np.mean(t["final_rewards"])) for t in trials])
     fractions = {
         o: [float(np.mean(np.asarray(t["final_outcomes"]) == o)) for t in trials] for o in OUTCOMES
     }
-    series.append(
-        Series(
-            "final policy: share of shots",
-            list(OUTCOMES),
-            [float(np.mean(fractions[o])) for o in OUTCOMES],
-            "final policy outcomes",
-            "bar",
-            xlabel="outcome",
-            ylabel="fraction of shots",
-        )
-    )
+    series.append(Series("final policy: share of shots", list(OUTCOMES),
+                         [float(np.mean(fractions[o])) for o in OUTCOMES], "final policy outcomes",
+                         "bar", xlabel="outcome", ylabel="fraction of shots"))  # fmt: skip
 
-    mean_curve = np.asarray(m)
+    mean_curve = np.asarray(mean.y)
     reached = np.flatnonzero(mean_curve > THESIS_GOOD_REWARD)
     returned_errors = _pooled(trials, "final_landing_error", "returned")
     net_rewards = _pooled(trials, "final_rewards", "net")
@@ -357,7 +239,7 @@ def summarize(settings: TableTennisSettings, trials: list[dict]) -> tuple[list[S
             "good_reward": THESIS_GOOD_REWARD,
             "net_band": list(THESIS_NET_BAND),
             "rollouts": THESIS_ROLLOUTS,
-        },
+        },  # fmt: skip
         "learned": bool(final.mean() > curves[:, 0].mean() + 0.05),
     }
     return series, summary
@@ -371,14 +253,9 @@ def _pooled(trials: list[dict], key: str, outcome: str) -> np.ndarray:
     return np.concatenate(picked)
 
 
-register(
-    Experiment(
-        id="fig3.7",
-        title="Table tennis: contextual REPS (ε = 0.6) learning returns to a target",
-        settings_class=TableTennisSettings,
-        settings=SCALES,
-        run_trial=run_trial,
-        summarize=summarize,
-        trials={"smoke": 1, "quick": 1, "paper": 10},
-    )
-)
+# fmt: off
+register(Experiment(
+    id="fig3.7", title="Table tennis: contextual REPS (ε = 0.6) learning returns to a target",
+    settings_class=TableTennisSettings, settings=SCALES, run_trial=run_trial,
+    summarize=summarize, trials={"smoke": 1, "quick": 1, "paper": 10}))
+# fmt: on

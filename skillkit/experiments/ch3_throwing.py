@@ -1,49 +1,35 @@
 """Chapter 3, ball throwing (Sec. 3.4.1, Fig. 3.3): contextual REPS vs REPS + extra context.
 
-Both variants run the model-free loop of Table 3.1 (:func:`skillkit.search.loop.learn`) with
-:class:`~skillkit.search.reps.ContextualREPS` on the ``throwing`` task, starting from the
-task's imitation policy with an exploration wide enough that its throws reach the farthest
-targets (``initial_std_fraction``, :meth:`~skillkit.tasks.planar.Throwing.initial_policy`):
-25 rollouts per update, the dual and the weighted ML fit reuse the
-last 200 rollouts (L = 8 batches), ε = 0.6. The *extra context* variant re-scores every
-trajectory in ``extra_contexts`` = 20 freshly drawn contexts through the known reward model
-(valid because the throw does not depend on the target); the re-scored rows enter REPS with
-importance weights (``extra_context_weighting="importance"``, the library default: the naive
-use biases the context gain towards zero).
+Both arms run the learning-curve experiment of :mod:`skillkit.experiments.curves` (Table 3.1
+loop, contextual REPS, ε = 0.6, 25 rollouts per update, the last 200 reused) from the task's
+imitation policy with an exploration wide enough to reach the farthest targets
+(:meth:`~skillkit.tasks.planar.Throwing.initial_policy`). The *extra context* arm re-scores
+every throw in ``extra_contexts`` freshly drawn targets through the known reward model (the
+throw does not depend on the target), with importance weights.
 
-Per trial the result holds both learning curves (average reward of the policy mean on fixed
-evaluation targets) and the final policies' ball-to-target distances on a grid of targets,
-which the summary splits into near (x < 13 m) and far (x ≥ 13 m) targets, the split of the
-thesis's claim "the error for targets further away (s ≥ [13, 3] m) could raise up to 0.5 m,
-otherwise the maximal error was smaller than 10 cm" (the thesis prints "s ≤ [13, 3]", which
-contradicts "further away"). Per arm and trial the summary records the largest near and far
-error and whether the final policy is within both bounds at every target
-(``within_bounds_per_trial``); the claim and how it is judged are in
-``skillkit/data/claims/ch3.toml``.
-
-Numerics: with fewer effective samples than parameters in early updates the ML covariance is
-rank deficient, so the fit floors every direction at ``cov_floor`` times its previous
-variance; and since REPS keeps shrinking some directions geometrically, the fit's
-condition-number guard keeps Σ's condition number below 1e12 (how many updates it fired in is
-in the summary).
+The summary splits the final policies' ball-to-target distances on a grid into near
+(x < 13 m) and far (x ≥ 13 m) targets, the thesis's "up to 0.5 m further away, otherwise below
+10 cm" (it prints "s ≤ [13, 3]", which contradicts "further away"); the claim is judged in
+``skillkit/data/claims/ch3.toml``. Early updates have fewer effective samples than parameters,
+so the ML fit floors every direction of Σ at ``cov_floor`` times its previous variance.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
 
+from skillkit.experiments.curves import curve_series, curve_stats, run_curve
 from skillkit.experiments.registry import Experiment, Series, register
-from skillkit.experiments.settings import Settings, setting
+from skillkit.experiments.settings import Settings, scales, setting
 from skillkit.policies.features import FeatureName
 from skillkit.policies.gaussian import LinearGaussianPolicy
-from skillkit.search import ContextualREPS, learn
+from skillkit.search import ContextualREPS
 from skillkit.search.loop import policy_history_arrays
 from skillkit.tasks import make
 from skillkit.trial import TrialContext
-from skillkit.viz.series import trial_band
 
 __all__ = ["ThrowingSettings", "run_trial", "summarize", "target_grid"]
 
@@ -59,84 +45,44 @@ THESIS = {"near_max_error_m": 0.1, "far_max_error_m": 0.5, "rollouts_to_converge
 class ThrowingSettings(Settings):
     """Settings of ``fig3.3`` (ball throwing with the planar 4-link robot, Sec. 3.4.1)."""
 
-    n_updates: int = setting(
-        40,
-        "Policy updates per method (Table 3.1); rollouts = n_updates × rollouts_per_update.",
-        minimum=1,
-    )
-    n_eval_contexts: int = setting(
-        8,
-        "Fixed targets of the learning curve (reward of the policy mean; not counted).",
-        minimum=1,
-    )
+    # fmt: off
+    n_updates: int = setting(40, "Policy updates per method (Table 3.1).", minimum=1)
+    n_eval_contexts: int = setting(8, "Fixed targets of the learning curve.", minimum=1)
     epsilon: float = setting(0.6, "KL bound ε of contextual REPS (Eq. 3.4, Sec. 3.4.1).", above=0)
     rollouts_per_update: int = setting(25, "Rollouts N between updates (Sec. 3.4.1).", minimum=1)
-    n_reuse_batches: int = setting(
-        8, "Batches L each update reuses: the last L × N = 200 rollouts (Sec. 3.4.1).", minimum=1
-    )
-    extra_contexts: int = setting(
-        20,
-        "Extra contexts each trajectory is re-scored in, extra-context variant (Sec. 3.4.1).",
-        minimum=0,
-    )
+    n_reuse_batches: int = setting(8, "Batches L each update reuses: the last L × N = 200 "
+                                   "rollouts (Sec. 3.4.1).", minimum=1)
+    extra_contexts: int = setting(20, "Extra contexts each throw is re-scored in, extra-context "
+                                  "arm (Sec. 3.4.1).", minimum=0)
     baseline_features: FeatureName = setting(
-        "quadratic", "Context features of the REPS value-function baseline V(s) (Eq. 3.8)."
-    )
+        "quadratic", "Context features of the REPS value-function baseline V(s) (Eq. 3.8).")
     policy_features: FeatureName = setting(
-        "linear", "Context features φ(s) of the policy π(ω|s) = N(a + A φ(s), Σ) (Eq. 3.10)."
-    )
-    min_effective_samples: float = setting(
-        2.0,
-        "Weighted ML fit (Eqs 3.11–3.13): the least effective sample size it accepts.",
-        minimum=0,
-    )
-    cov_floor: float = setting(
-        0.1,
-        "No direction of Σ shrinks below this fraction of its previous variance per update.",
-        above=0,
-        maximum=1,
-    )
-    cov_shrinkage: float = setting(
-        0.0, "Weight of the previous Σ in the new one (0: none).", minimum=0
-    )
+        "linear", "Context features φ(s) of the policy π(ω|s) = N(a + A φ(s), Σ) (Eq. 3.10).")
+    min_effective_samples: float = setting(2.0, "Least effective sample size the weighted ML "
+                                           "fit accepts (Eqs 3.11–3.13).", minimum=0)
+    cov_floor: float = setting(0.1, "No direction of Σ shrinks below this fraction of its "
+                               "previous variance per update.", above=0, maximum=1)
+    cov_shrinkage: float = setting(0.0, "Weight of the previous Σ in the new one.", minimum=0)
     initial_std_fraction: float = setting(
-        0.9,
-        "Initial exploration: shape-weight std relative to each joint's largest demonstrated "
-        "weight (Throwing.covering_std_fraction: sampled throws reach x = 15 m; Sec. 3.5).",
-        above=0,
-    )
+        0.9, "Initial shape-weight std relative to each joint's largest demonstrated weight "
+        "(sampled throws reach x = 15 m; Sec. 3.5).", above=0)
     m_step: Literal["weighted_ml", "trust_region"] = setting(
-        "weighted_ml",
-        "M-step of both arms: the thesis's weighted ML fit (Eqs 3.11–3.13) or "
-        "its trust-region correction.",
-    )
+        "weighted_ml", "M-step: the weighted ML fit (Eqs 3.11–3.13) or its trust-region "
+        "correction.")
     grid_x: tuple[float, ...] = setting(
         (5.0, 6.0, 7.0, 8.0, 9.0, 10.0, 11.0, 12.0, 13.0, 14.0, 15.0),
-        "Target x coordinates (m) of the final-error grid; x ≥ 13 m count as far.",
-    )
-    grid_y: tuple[float, ...] = setting(
-        (1.0, 2.0, 3.0), "Target y coordinates (m) of the final-error grid."
-    )
+        "Target x (m) of the final-error grid; x ≥ 13 m count as far.")
+    grid_y: tuple[float, ...] = setting((1.0, 2.0, 3.0), "Target y (m) of the final-error grid.")
+    # fmt: on
 
 
-QUICK = ThrowingSettings()
-SCALES = {
-    "smoke": replace(
-        QUICK,
-        n_updates=2,
-        rollouts_per_update=4,
-        n_reuse_batches=2,
-        extra_contexts=2,
-        n_eval_contexts=1,
-        grid_x=(6.0, 14.0),
-        grid_y=(2.0,),
-    ),
-    # quick scales down: updates 200→40 per method (1000 of the thesis's 5000 rollouts; same
-    # ε = 0.6, 25 rollouts per update, last 200 reused), learning-curve targets 20→8,
-    # trials 20→2
-    "quick": QUICK,
-    "paper": replace(QUICK, n_updates=200, n_eval_contexts=20),
-}
+SCALES = scales(
+    ThrowingSettings(),
+    smoke={"n_updates": 2, "rollouts_per_update": 4, "n_reuse_batches": 2, "extra_contexts": 2,
+           "n_eval_contexts": 1, "grid_x": (6.0, 14.0), "grid_y": (2.0,)},
+    # quick: 40 of the thesis's 200 updates, 8 of 20 learning-curve targets, trials 20→2
+    paper={"n_updates": 200, "n_eval_contexts": 20},
+)  # fmt: skip
 
 
 def target_grid(settings: ThrowingSettings) -> np.ndarray:
@@ -178,34 +124,19 @@ def run_trial(settings: ThrowingSettings, rng: np.random.Generator, trial: Trial
     out: dict = {"targets": targets}
     seeds = rng.spawn(2)
     trial.reset(total=2 * settings.n_updates)
-    for key, extra, child in zip(
-        ("reps", "extra"), (0, settings.extra_contexts), seeds, strict=True
-    ):
+    for key, extra, child in zip(("reps", "extra"), (0, settings.extra_contexts), seeds,
+                                 strict=True):  # fmt: skip
         init = task.initial_policy(settings.initial_std_fraction)
         init = LinearGaussianPolicy(
             init.mean, init.cov, context_dim=task.context_dim, features=settings.policy_features
         )
-        algo = ContextualREPS(
-            init,
-            settings.epsilon,
-            n_reuse_batches=settings.n_reuse_batches,
-            baseline_features=settings.baseline_features,
-            cov_floor=settings.cov_floor,
-            cov_shrinkage=settings.cov_shrinkage,
-            min_effective_samples=settings.min_effective_samples,
-            m_step=settings.m_step,
-        )
-        curves = learn(
-            task,
-            algo,
-            settings.n_updates,
-            settings.rollouts_per_update,
-            child,
-            trial=trial,
-            extra_contexts=extra,
-            eval_contexts=eval_contexts,
-            checkpoint_key=key,
-        )
+        algo = ContextualREPS(init, settings.epsilon, n_reuse_batches=settings.n_reuse_batches,
+                              baseline_features=settings.baseline_features,
+                              cov_floor=settings.cov_floor, cov_shrinkage=settings.cov_shrinkage,
+                              min_effective_samples=settings.min_effective_samples,
+                              m_step=settings.m_step)  # fmt: skip
+        _, curves = run_curve(task, algo, key, settings.n_updates, settings.rollouts_per_update,
+                              child, trial, eval_contexts, extra_contexts=extra)  # fmt: skip
         dist, pen = final_errors(task, curves["policy"], targets)
         out["rollouts"] = curves["rollouts"]
         out[f"{key}_mean_reward"] = curves["mean_reward"]
@@ -227,34 +158,16 @@ def summarize(settings: ThrowingSettings, trials: list[dict]) -> tuple[list[Seri
     series: list[Series] = []
     summary: dict = {"n_trials": len(trials), "rollouts": int(x[-1])}
     for key, label in zip(("reps", "extra"), METHODS, strict=True):
-        curves = np.array([t[f"{key}_mean_reward"] for t in trials], dtype=float)
-        m, band = trial_band(curves)
-        series.append(
-            Series(
-                label,
-                x,
-                m,
-                panel="learning curves",
-                **band,
-                xlabel="rollouts",
-                ylabel="average reward of the policy mean",
-            )
-        )
+        series.append(curve_series(trials, "rollouts", f"{key}_mean_reward", label,
+                                   "learning curves", "average reward of the policy mean",
+                                   log_x=False, xlabel="rollouts"))  # fmt: skip
         dist = np.array([t[f"{key}_distance"] for t in trials], dtype=float)  # (trials, targets)
         pen = np.array([t[f"{key}_penalty"] for t in trials], dtype=float)
         per_x = [float(np.nanmean(dist[:, targets[:, 0] == gx])) for gx in settings.grid_x]
-        series.append(
-            Series(
-                label,
-                list(settings.grid_x),
-                per_x,
-                panel="final ball-to-target distance",
-                kind="lines+markers",
-                xlabel="target x (m)",
-                ylabel="distance (m), mean over y and trials",
-            )
-        )
-        final = curves[:, -1]
+        series.append(Series(label, list(settings.grid_x), per_x,
+                             panel="final ball-to-target distance", kind="lines+markers",
+                             xlabel="target x (m)",
+                             ylabel="distance (m), mean over y and trials"))  # fmt: skip
         near_max, far_max = _trial_max(dist[:, ~far]), _trial_max(dist[:, far])
         within = (
             ~np.isnan(dist).any(axis=1)
@@ -262,10 +175,7 @@ def summarize(settings: ThrowingSettings, trials: list[dict]) -> tuple[list[Seri
             & (far_max <= THESIS["far_max_error_m"])
         )
         summary[key] = {
-            "initial_reward": float(curves[:, 0].mean()),
-            "final_reward_mean": float(final.mean()),
-            "final_reward_std": float(final.std(ddof=1)) if len(trials) > 1 else 0.0,
-            "final_reward_per_trial": final.tolist(),
+            **curve_stats(trials, key),
             "near_distance_mean_m": float(np.nanmean(dist[:, ~far])),
             "near_distance_max_m": float(np.nanmax(dist[:, ~far])),
             "far_distance_mean_m": float(np.nanmean(dist[:, far])),
@@ -305,14 +215,10 @@ def _median(values: np.ndarray) -> float | None:
     return float(np.median(finite)) if finite.size else None
 
 
-register(
-    Experiment(
-        id="fig3.3",
-        title="Ball throwing: contextual REPS vs REPS + extra context (planar 4-link robot)",
-        settings_class=ThrowingSettings,
-        settings=SCALES,
-        run_trial=run_trial,
-        summarize=summarize,
-        trials={"smoke": 2, "quick": 2, "paper": 20},
-    )
-)
+# fmt: off
+register(Experiment(
+    id="fig3.3",
+    title="Ball throwing: contextual REPS vs REPS + extra context (planar 4-link robot)",
+    settings_class=ThrowingSettings, settings=SCALES, run_trial=run_trial, summarize=summarize,
+    trials={"smoke": 2, "quick": 2, "paper": 20}))
+# fmt: on

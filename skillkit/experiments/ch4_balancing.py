@@ -2,43 +2,31 @@
 
 How much real experience each method needs to find a PD controller u = G x̃ (ω = the 32 gains
 of G) that balances the planar 4-link robot, and how much computation. Every method starts
-from the same Gaussian π₀(ω) over gains and is scored by the same evaluator: the mean reward
-R = −Σ_t x̃_tᵀ x̃_t of the current controller (the policy mean; PILCO's deterministic gain) from
-50 start states, the same for every method of a trial, after every update.
+from the same Gaussian π₀(ω) (:func:`initial_policy_42`, far below the first limit) and is
+scored after every update by the mean reward R = −Σ_t x̃_tᵀ x̃_t of its current controller from
+start states common to the methods of a trial.
 
-* **PILCO** (:class:`~skillkit.search.pilco.PILCO`): a FITC dynamics model, moment-matching
-  propagation, the analytic gradient of the expected return, L-BFGS; one real rollout of the
-  learned gain per update.
-* **GPREPS** (:class:`~skillkit.search.gpreps.GPREPS`, context-free): the same FITC model,
-  M artificial gains × L sampled trajectories per update, ε = 1; one real rollout per update.
-* **REPS** (context-free :class:`~skillkit.search.reps.ContextualREPS`): model-free, 25 rollouts
-  per update.
+PILCO (FITC dynamics, moment matching, analytic gradients) and GPREPS (the same model, M
+gains × L predicted trajectories, ε = 1) make one real rollout per update, model-free REPS 25.
 
-π₀ starts far below the first limit, as the thesis's REPS must have (it needs 1425 s to reach
-−100): its mean is a detuned minimum-effort gain, its covariance follows a family of LQR
-designs, so that its exploration reaches good gains while half its samples balance
-(:func:`initial_policy_42`). GPREPS predicts all artificial gains of one update from common
-start states (``TrajectoryRewardModel(common_start_states=True)``). The model-based methods
-start their models from 6 s of real experience of a random policy, as the thesis: twelve 0.5-s
-rollouts of gains drawn from π₀ with white torque excitation of 3 N m (the excitation is part
-of the recorded control, so the model can tell the effect of u from that of x); short, gently
-excited rollouts keep the data near upright, where the learned controllers act (with three 2-s
-rollouts at 30 N m every model we fitted mispredicted upright: ``data/notes/tab4.2.md`` lists
-the variants tried). Those 6 s count as experience. The claims spec's setup table
-(``skillkit/data/claims/ch4.toml``) says where we depart and why.
+The model-based methods start from 6 s of real experience of a random policy (gains from π₀
+with white torque excitation), which counts as experience. Departures from the thesis are in
+the claims spec's setup table (``skillkit/data/claims/ch4.toml``).
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from functools import partial
 
 import numpy as np
 
 from skillkit.experiments.ch4_gpreps import COV_FLOOR, MIN_EFFECTIVE_SAMPLES
+from skillkit.experiments.curves import CurveTask, register_curve_task
+from skillkit.experiments.judge import quoted_numbers
 from skillkit.experiments.registry import Experiment, Series, register
-from skillkit.experiments.settings import Settings, setting
+from skillkit.experiments.settings import Settings, scales, setting
 from skillkit.models.gp import ForwardModel
 from skillkit.models.linear import LinearGaussianModel
 from skillkit.models.sparse import FITC
@@ -71,16 +59,16 @@ LABELS = {
     "pilco_linear": "PILCO (linear model)",
     "gpreps_linear": "GPREPS (linear model)",
 }
-THESIS_42 = {
-    "limits": [-100.0, -10.0, -1.5],
-    "experience_s": {
-        "pilco": [10.18, 11.46, 12.18],
-        "gpreps": [10.68, 20.52, 38.50],
-        "reps": [1425.0, 2300.0, 4075.0],
-    },
-    "compute": "PILCO needed at least twice GPREPS's computation time",
-}
-"""Table 4.2's numbers (Sec. 4.3.1), stored beside ours in the summary."""
+
+
+def thesis_42() -> dict:
+    """Table 4.2's numbers as the claims spec records them: the limits and, per method, the
+    experience (s) to reach each."""
+    x = quoted_numbers("tab4.2")  # PILCO ×3, GPREPS ×3, REPS ×3, then the limits
+    return {
+        "limits": x[9:12],
+        "experience_s": {m: x[3 * i : 3 * i + 3] for i, m in enumerate(METHODS)},
+    }
 
 
 @dataclass(frozen=True)
@@ -88,107 +76,56 @@ class BalancingComparisonSettings(Settings):
     """Settings of ``tab4.2`` (PILCO, GPREPS and REPS on balancing, Sec. 4.3.1)."""
 
     initial_std: float = setting(
-        0.07,
-        "σ of the start distribution x₀ ~ N(x_up, σ² I) (rad, rad/s). The thesis says only "
-        "'Gaussian'; at 0.07 the LQR gain (R = 1e-4) scores −0.55, a factor 2.7 inside the "
-        "smallest limit −1.5 (at 0.1 it scored −1.1: a knife-edge).",
-        above=0,
+        0.07, "σ of the start distribution x₀ ~ N(x_up, σ² I) (rad, rad/s).", above=0
     )
     limits: tuple[float, ...] = setting((-100.0, -10.0, -1.5), "Reward limits of Table 4.2.")
     start_control_weight: float = setting(
-        1.0,
-        "R of the LQR design whose gain, scaled by start_gain_scale, is π₀'s mean (R ≥ 1: the "
-        "minimum-effort controller).",
-        above=0,
+        1.0, "R of the LQR design whose scaled gain is π₀'s mean (R ≥ 1: minimum effort).", above=0
     )
     start_gain_scale: float = setting(
-        0.68,
-        "κ: π₀'s mean is κ G_lqr(R = start_control_weight), a detuned controller that balances "
-        "badly (−183 ± 11 at σ = 0.07, 400 start states; 0.66 does not balance). REPS's "
-        "start must lie below −100: the thesis's REPS needs 1425 s to reach it.",
-        above=0,
+        0.68, "κ: π₀'s mean is κ G_lqr(R = start_control_weight), a detuned controller.", above=0
     )
     exploration: float = setting(
-        0.7,
-        "c: π₀'s covariance is c² times that of randomly weighted and scaled LQR designs "
-        "(skillkit.tasks.balancing.design_policy); the LQR gain (R = 1e-4) lies 10 of its "
-        "standard deviations (Mahalanobis) from π₀'s mean (was 1909).",
-        above=0,
+        0.7, "c: π₀'s covariance is c² times that of random LQR designs (design_policy).", above=0
     )
     n_designs: int = setting(300, "Designs whose covariance shapes π₀'s.", minimum=2)
     design_spread: float = setting(
         2.0, "Log-scale spread of the designs' cost weights (random_lqr_gains).", minimum=0
     )
-    design_control_weight: float = setting(
-        1e-2, "Base R of the designs (random_lqr_gains).", above=0
-    )
+    design_control_weight: float = setting(1e-2, "Base R of the designs.", above=0)
     gain_scale_std: float = setting(
-        0.15, "σ of the designs' log overall gain level (a random κ_i = exp(0.15 ξ)).", minimum=0
+        0.15, "σ of the designs' log overall gain level (κ_i = exp(0.15 ξ)).", minimum=0
     )
-    design_seed: int = setting(
-        0, "Seed of the designs: the same π₀ in every trial and for every method.", minimum=0
-    )
+    design_seed: int = setting(0, "Seed of the designs: the same π₀ everywhere.", minimum=0)
     common_start_states: bool = setting(
-        True,
-        "GPREPS predicts every artificial gain of one update from the same L start states "
-        "(common random numbers for the expected reward of Eq. 4.1); False: L own draws each.",
+        True, "GPREPS predicts all gains of an update from the same L start states (Eq. 4.1)."
     )
     excitation_std: float = setting(
-        3.0,
-        "σ_ξ (N m) of the white torque excitation of the random policy's initial rollouts "
-        "(0: the sampled gains' feedback alone, which cannot separate u from x). 3 N m keeps "
-        "the data near upright; 30 (before) put the links 0.5–1 rad out within 0.25 s "
-        "(benchmarks/bench_tab42_models.py fit).",
-        minimum=0,
+        3.0, "σ_ξ (N m) of the torque excitation of the random-policy rollouts.", minimum=0
     )
     n_random: int = setting(
-        12,
-        "Random-policy rollouts before learning (n_random × random_steps × 50 ms = 6 s, "
-        "Sec. 4.3.1).",
-        minimum=1,
+        12, "Random-policy rollouts (n_random × random_steps × 50 ms = 6 s, Sec. 4.3.1).", minimum=1
     )
-    random_steps: int = setting(
-        10,
-        "Control steps of each random-policy rollout (10: 0.5 s; the learning rollouts have "
-        "40). The thesis gives only the total (6 s); each rollout starts from the start "
-        "distribution near upright, where the learned controllers act (before: 3 × 40).",
-        minimum=1,
-    )
-    n_eval: int = setting(
-        50,
-        "Start states of the evaluation, the same for every method of a trial (fixed seed).",
-        minimum=1,
-    )
-    n_inducing: int = setting(
-        100, "Pseudo-inputs of the FITC dynamics model (PILCO, GPREPS).", minimum=1
-    )
+    random_steps: int = setting(10, "Control steps of each random-policy rollout.", minimum=1)
+    n_eval: int = setting(50, "Evaluation start states, common to the methods.", minimum=1)
+    n_inducing: int = setting(100, "Pseudo-inputs of the FITC dynamics model.", minimum=1)
     model_mean: str = setting(
-        "linear",
-        "Prior mean of the FITC model: 'linear' (least squares, the GP models the residual) "
-        "or 'zero' (PILCO's).",
+        "linear", "Prior mean of the FITC model: 'linear' (least squares) or 'zero' (PILCO's)."
     )
     linear_variant: bool = setting(
         True, "Also run PILCO and GPREPS with a linear-Gaussian model (a diagnostic variant)."
     )
     gp_steps: int = setting(100, "L-BFGS iterations of each FITC hyper-parameter fit.", minimum=0)
     pilco_updates: int = setting(10, "PILCO updates (one real rollout each).", minimum=1)
-    policy_iterations: int = setting(
-        50, "L-BFGS iterations of each PILCO policy optimisation.", minimum=1
-    )
+    policy_iterations: int = setting(50, "L-BFGS iterations of each PILCO update.", minimum=1)
     gpreps_updates: int = setting(20, "GPREPS updates (one real rollout each).", minimum=1)
-    n_artificial: int = setting(
-        500, "M, GPREPS's artificial gains per update (Sec. 4.3.2).", minimum=2
-    )
-    n_trajectories: int = setting(
-        10, "L, trajectories predicted per artificial gain (Eq. 4.1).", minimum=1
-    )
+    n_artificial: int = setting(500, "M, GPREPS's artificial gains per update.", minimum=2)
+    n_trajectories: int = setting(10, "L, trajectories per artificial gain (Eq. 4.1).", minimum=1)
     epsilon: float = setting(1.0, "KL bound ε of GPREPS.", above=0)
     reps_updates: int = setting(100, "REPS updates.", minimum=1)
     reps_rollouts_per_update: int = setting(25, "REPS rollouts per update (fig3.3).", minimum=1)
     reps_epsilon: float = setting(0.5, "KL bound of REPS.", above=0)
-    reps_reuse_batches: int = setting(
-        8, "Batches REPS reuses (the last 200 rollouts, fig3.3).", minimum=1
-    )
+    reps_reuse_batches: int = setting(8, "Batches REPS reuses (fig3.3).", minimum=1)
 
     def check(self) -> None:
         """Limits negative and rising (harder ones later); a known model mean."""
@@ -217,7 +154,7 @@ def initial_policy_42(st: BalancingComparisonSettings, task: Balancing) -> Gauss
 
 # --------------------------------------------------------------------------- one trial
 def _fitc(n_inducing: int, n_steps: int, mean: str) -> ForwardModel:
-    # Δx targets, as in the stored paper result (ForwardModel's default target is x′).
+    # Δx targets (ForwardModel's default target is x′).
     return ForwardModel(FITC(n_inducing=n_inducing, n_steps=n_steps), target="delta", mean=mean)
 
 
@@ -450,7 +387,7 @@ def summarize_42(st: BalancingComparisonSettings, trials: list[dict]):
     for limit in st.limits:
         series.append(Series(f"limit {limit:g}", [lo, hi], [-limit, -limit],
                              panel="cost of the current controller", kind="line"))  # fmt: skip
-    summary: dict = {"n_trials": len(trials), "thesis_numbers": dict(THESIS_42)}
+    summary: dict = {"n_trials": len(trials), "thesis_numbers": thesis_42()}
     for key in methods(st):
         summary[key] = _method_table(st, trials, key)
     summary["random_policy_reward_mean"] = float(
@@ -463,12 +400,7 @@ def summarize_42(st: BalancingComparisonSettings, trials: list[dict]):
 
 def median_reached(per_trial) -> float | None:
     """Median over trials of the experience (or computation time) to reach a limit, a trial
-    that never reached it counting as +∞ (it needed more than its run's budget); None when
-    the median is not finite (at most half the trials reached it).
-
-    The thesis reports one number per method and limit; with runs that do not all reach a
-    limit, the median is defined where the mean over the runs that did would hide the ones
-    that did not."""
+    that never reached it counting as +∞; None when at most half the trials reached it."""
     x = np.median([np.inf if v is None else float(v) for v in per_trial])
     return float(x) if np.isfinite(x) else None
 
@@ -478,30 +410,53 @@ _SMOKE = dict(
     n_inducing=15, gp_steps=5, pilco_updates=2, policy_iterations=2, gpreps_updates=2,
     n_artificial=20, n_trajectories=2, reps_updates=2, reps_rollouts_per_update=6, n_eval=5,
 )  # fmt: skip
-_PAPER = dict(pilco_updates=12, gpreps_updates=30, reps_updates=400)
-_QUICK = dict(
-    pilco_updates=6, policy_iterations=30, gp_steps=50, gpreps_updates=10, n_artificial=200,
-    n_trajectories=5, reps_updates=50,
-)  # fmt: skip
-"""The quick scale scales down the paper setting (same methods, models, ε, reward, limits):
-PILCO updates 12→6 (L-BFGS policy iterations 50→30), GPREPS updates 30→10 with M 500→200 and
-L 10→5, REPS updates 400→50, hyper-parameter L-BFGS iterations 100→50, trials 5→1; the FITC
-model keeps its 100 pseudo-inputs. ≈ 3.5 min of CPU time (``benchmarks/bench_scales.py``);
-the earlier quick (10 / 20 / 100 updates at M = 500, L = 10) needed ≈ 15 min, scaled from
-the stored paper run's trial times."""
 
 register(
     Experiment(
         id="tab4.2",
         title="Balancing: real experience PILCO, GPREPS and REPS need to reach −100, −10, −1.5",
         settings_class=BalancingComparisonSettings,
-        settings={
-            "smoke": replace(BalancingComparisonSettings(), **_SMOKE),
-            "quick": replace(BalancingComparisonSettings(), **_QUICK),
-            "paper": replace(BalancingComparisonSettings(), **_PAPER),
-        },
+        settings=scales(
+            BalancingComparisonSettings(),
+            smoke=_SMOKE,
+            quick=dict(
+                pilco_updates=6,
+                policy_iterations=30,
+                gp_steps=50,
+                gpreps_updates=10,
+                n_artificial=200,
+                n_trajectories=5,
+                reps_updates=50,
+            ),
+            paper=dict(pilco_updates=12, gpreps_updates=30, reps_updates=400),
+        ),  # fmt: skip
         run_trial=run_trial_42,
         summarize=summarize_42,
         trials={"smoke": 1, "quick": 1, "paper": 5},
     )
 )
+
+
+def _balancing_setup(th, rng) -> tuple:
+    """Table 4.2's task, π₀, 50 common start states and 6 s of random-policy experience."""
+    task = make("balancing", initial_std=th.initial_std)
+    policy = initial_policy_42(th, task)
+    prior = random_prior(th, policy, rng)["trajectories"]
+    rollouts = random_experience(task, prior) / (task.n_steps * task.control_dt)
+    return task, policy, np.zeros((th.n_eval, 0)), prior, rollouts
+
+
+# fmt: off
+register_curve_task("balancing", CurveTask(
+    experiment="tab4.2",
+    thresholds=(-100.0, -10.0, -1.5),
+    thresholds_source="Table 4.2's reward limits",
+    reps=lambda task, th, policy: reps_algorithm(th, policy),
+    reps_schedule=lambda th: (th.reps_updates, *(th.reps_rollouts_per_update,) * 2),
+    gpreps=lambda task, th, policy, prior, rng: gpreps_algorithm(
+        task, th, policy, prior, fitc_model(th), rng),
+    gpreps_schedule=lambda th: (th.gpreps_updates, 1, 1),  # one rollout per update
+    gpreps_updates="gpreps_updates",
+    setup=_balancing_setup,
+))
+# fmt: on

@@ -1,211 +1,147 @@
-"""Chapter 4, GPREPS with discrete-event models: hockey (Sec. 4.3.3) and the plumbing shared
-with table tennis (Sec. 4.3.4, :mod:`skillkit.experiments.ch4_table_tennis`).
+"""Chapter 4, GPREPS with discrete-event models: hockey (Sec. 4.3.3) and the GPREPS runs
+shared with table tennis (Sec. 4.3.4, :mod:`skillkit.experiments.ch4_table_tennis`).
 
-Every GPREPS run follows Table 4.1 with the data schedule its text describes: N₀ = 20 real
-rollouts before the first update ("we usually choose a higher N in the first iteration, e.g.
-N = 20"), then one per update, M artificial (s, ω) pairs with L predicted trajectories each,
-ε = 0.5 (throwing's ε = 1 collapsed the search on these tasks; the settings' ``epsilon``), μ̂(s)
-the box of the observed contexts. All methods start from the task's imitation
-policy and are scored by the same evaluators: the reward of the policy *mean* on fixed
-contexts after every update (the learning curve) and, every few updates, the policy mean's
-shots on held-out contexts (hit rate and displacement error for hockey; outcome and landing
-error for table tennis).
+Every GPREPS run follows Table 4.1: N₀ = 20 real rollouts before the first update (Sec. 4.1:
+"e.g. N = 20"), then one per update, M artificial (s, ω) pairs with L predicted trajectories
+each, ε = 0.5, μ̂(s) the box of the observed contexts. All methods start from the task's
+imitation policy and are scored by :mod:`skillkit.experiments.curves`: the reward of the policy
+mean on fixed contexts after every update and, every few updates, the task's held-out scores
+(hit rate and displacement error for hockey; outcome and landing error for table tennis).
 
 * ``fig4.10`` — hockey: GPREPS with the decomposed model of 4.3.3
   (:class:`~skillkit.tasks.hockey.model.HockeyRewardModel`) against contextual REPS with
   ``fig3.5``'s settings.
-* ``fig4.11`` — the real-robot setting of hockey (``hockey-real``: C.2's ranges, 30 Hz noisy
-  puck tracking, Butterworth smoothing); the contact model is replaced by a GP from the
-  incoming puck's relative state to the target puck's displacement. GPREPS only, 5 runs, a 95%
-  confidence band.
+* ``fig4.11`` — the real-robot setting (``hockey-real``: C.2's ranges, 30 Hz noisy puck
+  tracking, Butterworth smoothing) with a displacement model in place of the contact model.
+  GPREPS only, 5 runs, a 95% confidence band.
 
-Table tennis (``fig4.12``, ``fig4.13``) is :mod:`skillkit.experiments.ch4_table_tennis`, which
-shares this module's GPREPS plumbing.
-
-How each run is judged, and where it departs from the thesis and why, is the claims spec's
-(``skillkit/data/claims/ch4.toml``); the variants tried are listed in ``data/notes/<id>.md``.
+How each run is judged is the claims spec's (``skillkit/data/claims/ch4.toml``).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from functools import partial
 from typing import Literal
 
 import numpy as np
 from scipy import stats
 
-from skillkit.experiments.ch3_hockey import (
-    HockeySettings,
-    heldout_scores,
-)
+from skillkit.experiments.ch3_hockey import HockeySettings, heldout_scores
 from skillkit.experiments.ch3_hockey import make_algorithm as hockey_algorithm
-from skillkit.experiments.ch4_gpreps import gpreps_stats, rollouts_to_reach, run_gpreps
-from skillkit.experiments.registry import Experiment, Series, register
-from skillkit.experiments.settings import Settings, setting
+from skillkit.experiments.curves import (
+    CurveTask,
+    curve_series,
+    gpreps_stats,
+    heldout_stats,
+    register_curve_task,
+    rollouts_to_reach,
+    run_curve,
+    run_gpreps,
+)
+from skillkit.experiments.registry import Experiment, register
+from skillkit.experiments.settings import Settings, scales, setting
 from skillkit.models.gp import ExactGP
-from skillkit.search.loop import learn, policy_history_arrays
+from skillkit.search.loop import policy_history_arrays
 from skillkit.tasks import make
 from skillkit.trial import TrialContext
 from skillkit.viz.model_layers import dumps_reward_model
-from skillkit.viz.series import trial_band
 
 __all__ = ["HockeyGPREPSSettings", "hockey_reward_model"]
 
 THESIS_410 = {"gpreps_rollouts": 120, "gpreps_displacement_error_m": 0.05, "reps_rollouts": 10000}
-"""The thesis's numbers on Fig. 4.10, kept in the summary as ``thesis_numbers`` (the claims spec
-judges)."""
+"""The thesis's numbers on Fig. 4.10, kept in the summary as ``thesis_numbers``."""
 
 
-# --------------------------------------------------------------------------- settings
 @dataclass(frozen=True)
 class EventGPREPSSettings(Settings):
     """GPREPS settings shared by the hockey and table-tennis experiments (Table 4.1)."""
 
-    n_initial: int = setting(
-        20, "N₀, real rollouts before the first update (Sec. 4.1: N = 20).", minimum=2
-    )
-    n_updates: int = setting(
-        100, "GPREPS updates, one real rollout each (N₀ + K in all).", minimum=1
-    )
-    n_artificial: int = setting(
-        500, "M, artificial (s, ω) pairs per update (Sec. 4.3.2).", minimum=2
-    )
-    n_trajectories: int = setting(
-        10, "L, predicted trajectories per artificial pair (Eq. 4.1).", minimum=1
-    )
-    epsilon: float = setting(
-        0.5,
-        "KL bound ε of GPREPS: 0.5, the thesis's REPS value on hockey (Sec. 3.3.2) and the low "
-        "end of its range ε ∈ [0.5, 1] (Sec. 3.4); throwing's ε = 1 (Sec. 4.3.2) collapsed the "
-        "search before the hard contexts were learned (data/notes/fig4.10.md).",
-        above=0,
-    )
+    # fmt: off
+    n_initial: int = setting(20, "N₀, real rollouts before the first update (Sec. 4.1).",
+                             minimum=2)
+    n_updates: int = setting(100, "GPREPS updates, one real rollout each.", minimum=1)
+    n_artificial: int = setting(500, "M, artificial (s, ω) pairs per update.", minimum=2)
+    n_trajectories: int = setting(10, "L, predicted trajectories per pair (Eq. 4.1).", minimum=1)
+    epsilon: float = setting(0.5, "KL bound ε of GPREPS: the thesis's REPS value on hockey "
+                             "(throwing's ε = 1 collapsed the search, data/notes/fig4.10.md).",
+                             above=0)
     context_model: Literal["gaussian", "uniform", "prior"] = setting(
-        "uniform", "μ̂(s): the box of the observed contexts."
-    )
+        "uniform", "μ̂(s): the box of the observed contexts.")
     gp_steps: int = setting(100, "L-BFGS iterations of every GP's hyper-parameter fit.", minimum=0)
-    n_eval_contexts: int = setting(
-        10, "Fixed contexts of the learning curve (policy mean).", minimum=1
-    )
-    n_heldout: int = setting(50, "Held-out contexts of the shot scores (policy mean).", minimum=1)
-    heldout_every: int = setting(
-        20, "Held-out scores every this many updates (and the last).", minimum=1
-    )
+    n_eval_contexts: int = setting(10, "Fixed contexts of the learning curve.", minimum=1)
+    n_heldout: int = setting(50, "Held-out contexts of the shot scores.", minimum=1)
+    heldout_every: int = setting(20, "Held-out scores every this many updates.", minimum=1)
+    # fmt: on
 
 
 @dataclass(frozen=True)
 class HockeyGPREPSSettings(EventGPREPSSettings):
     """Settings of ``fig4.10`` and ``fig4.11`` (hockey; REPS with ``fig3.5``'s settings)."""
 
+    # fmt: off
     task: Literal["hockey", "hockey-real"] = setting(
-        "hockey", "Registered task: hockey (fig4.10) or hockey-real (fig4.11)."
-    )
-    slide_dt: float = setting(
-        0.04, "Step of the sliding-puck model, s (hockey-real: the 30 Hz frame period).", above=0
-    )
-    max_sliding_points: int = setting(
-        150,
-        "Transitions the sliding GP is fitted on (its prediction cost grows with their "
-        "square; see the claims spec's setup table).",
-        minimum=2,
-    )
+        "hockey", "Registered task: hockey (fig4.10) or hockey-real (fig4.11).")
+    slide_dt: float = setting(0.04, "Step of the sliding-puck model, s (hockey-real: its "
+                              "30 Hz frame period).", above=0)
+    max_sliding_points: int = setting(150, "Transitions the sliding GP is fitted on.", minimum=2)
     refit: Literal["best", "cold", "warm"] = setting(
-        "best",
-        "Where each GP's hyper-parameter refit after a data collection starts: default "
-        "initialisation and previous values, keeping the larger marginal likelihood (best), "
-        "or one of them (Sec. 4.1).",
-    )
+        "best", "Start of each GP refit (Sec. 4.1): default initialisation (cold), previous "
+        "values (warm), or both keeping the larger marginal likelihood (best).")
     launch_targets: Literal["heading", "velocity"] = setting(
-        "heading",
-        "Launch GP outputs: [p_y, heading, speed, t_0] or [p_y, v_x, v_y, t_0].",
-    )
+        "heading", "Launch GP outputs: [p_y, heading, speed, t_0] or [p_y, v_x, v_y, t_0].")
     displacement: Literal["hit_gp", "gp"] = setting(
-        "hit_gp",
-        "hockey-real's displacement model: hit/miss classifier and a GP on the hits in the "
-        "approach frame, or one GP on all approaches.",
-    )
+        "hit_gp", "hockey-real's displacement model: a hit/miss classifier and a GP on the hits, "
+        "or one GP on all approaches.")
     reps_updates: int = setting(200, "REPS updates (0: no REPS run).", minimum=0)
     reps_rollouts_per_update: int = setting(50, "REPS rollouts per update (fig3.5).", minimum=1)
     reps_epsilon: float = setting(0.5, "KL bound of REPS (fig3.5).", above=0)
-    reps_reuse_batches: int = setting(
-        4, "Batches REPS reuses (fig3.5: the last 200 rollouts).", minimum=1
-    )
+    reps_reuse_batches: int = setting(4, "Batches REPS reuses (fig3.5).", minimum=1)
+    # fmt: on
 
 
-GPREPS_SMOKE = {
-    "n_initial": 4,
-    "n_updates": 2,
-    "n_artificial": 20,
-    "n_trajectories": 2,
-    "gp_steps": 10,
-    "n_eval_contexts": 1,
-    "n_heldout": 2,
-    "heldout_every": 1,
-}
-"""The smoke scale's changes of every GPREPS experiment here (seconds per run)."""
-GPREPS_QUICK = {
-    "n_updates": 15,
-    "n_artificial": 200,
-    "n_trajectories": 5,
-    "gp_steps": 60,
-    "n_heldout": 20,
-    "heldout_every": 5,
-}
-"""The quick scale's changes (minutes per run): the thesis's GPREPS (the same decomposed
-models, ε = 0.5, N₀ = 20, one real rollout per update) scaled down to updates 100→15 (fig4.11
-61→15, table tennis 130→15), M 500→200, L 10→5 (fig4.11 keeps its 5), hyper-parameter
-L-BFGS iterations 100→60, held-out contexts 50→20 (scored every 5 updates instead of 20);
-REPS updates 200→20 (fig4.10) and 80→10 (fig4.12); trials fig4.10 2→1, fig4.11 5→3,
-fig4.12 3→1."""
+# fmt: off
+GPREPS_SMOKE = {"n_initial": 4, "n_updates": 2, "n_artificial": 20, "n_trajectories": 2,
+                "gp_steps": 10, "n_eval_contexts": 1, "n_heldout": 2, "heldout_every": 1}
+"""The smoke scale's changes of every GPREPS experiment here."""
+GPREPS_QUICK = {"n_updates": 15, "n_artificial": 200, "n_trajectories": 5, "gp_steps": 60,
+                "n_heldout": 20, "heldout_every": 5}
+"""The quick scale's changes: updates 100→15 (fig4.11 61→15, table tennis 130→15), M 500→200,
+L 10→5, L-BFGS iterations 100→60, held-out contexts 50→20 (scored every 5 updates)."""
+# fmt: on
 
 
 def gpreps_scales(cls, smoke: dict, quick: dict, paper: dict | None = None) -> dict:
-    base = cls()
-    return {
-        "smoke": replace(base, **GPREPS_SMOKE, **smoke),
-        "quick": replace(base, **GPREPS_QUICK, **quick),
-        "paper": replace(base, **(paper or {})),
-    }
+    """The three scales of ``cls``: the shared changes plus the experiment's own."""
+    return scales(cls(), smoke={**GPREPS_SMOKE, **smoke}, quick={**GPREPS_QUICK, **quick},
+                  paper=paper)  # fmt: skip
 
 
 # --------------------------------------------------------------------------- models
 def hockey_reward_model(task, st: HockeyGPREPSSettings):
-    """The decomposed hockey reward model of GPREPS (Sec. 4.3.3) with ``st``'s GP fits: the
-    launch, hit-probability, sliding, contact and displacement GPs of
-    :class:`~skillkit.tasks.hockey.model.HockeyRewardModel` (the real-robot task: sliding
-    at its observation frame rate)."""
+    """The decomposed hockey reward model of GPREPS (Sec. 4.3.3) with ``st``'s GP fits
+    (:class:`~skillkit.tasks.hockey.model.HockeyRewardModel`; the real-robot task slides at
+    its observation frame rate)."""
     from skillkit.tasks.hockey.model import HockeyRewardModel
 
     gp = partial(ExactGP, n_steps=st.gp_steps)
     slide_dt = None if task.observation is not None else st.slide_dt  # real: the frame rate
-    return HockeyRewardModel(
-        task,
-        make_launch_model=gp,
-        make_launch_probability_model=gp,
-        make_sliding_model=gp,
-        make_contact_model=gp,
-        make_displacement_model=gp,
-        slide_dt=slide_dt,
-        max_sliding_points=st.max_sliding_points,
-        refit=st.refit,
-        launch_targets=st.launch_targets,
-        displacement=st.displacement,
-    )
+    return HockeyRewardModel(task, make_launch_model=gp, make_launch_probability_model=gp,
+                             make_sliding_model=gp, make_contact_model=gp,
+                             make_displacement_model=gp, slide_dt=slide_dt,
+                             max_sliding_points=st.max_sliding_points, refit=st.refit,
+                             launch_targets=st.launch_targets,
+                             displacement=st.displacement)  # fmt: skip
 
 
 def gpreps_run(task, st, key, model, rng, trial, eval_contexts, score, keep_model=False):
-    """GPREPS with ``model``; held-out ``score(policy)`` every ``heldout_every`` updates."""
-    every, K = st.heldout_every, st.n_updates
-
-    def record(k: int, alg):
-        return score(alg.policy) if k % every == 0 or k == K else None
-
+    """GPREPS with ``model``; held-out ``score(policy)`` every ``heldout_every`` updates, the
+    model's stage and refit starts per update, and with ``keep_model`` the model and the
+    policy history."""
     out = run_gpreps(task, st, key, model, st.n_artificial, st.n_trajectories, rng, trial,
-                      eval_contexts, callback=record)  # fmt: skip
+                     eval_contexts, score=score)  # fmt: skip
     diags = out.pop(f"{key}_diagnostics")
     algo = out.pop(f"{key}_algorithm")
-    out.update(_heldout(key, out.pop(f"{key}_callback"), lambda k: st.n_initial + k - 1))
     out[f"{key}_stage"] = np.array([str(d.model_fit.get("stage", "")) for d in diags])
     starts = [[v["start"] for v in d.model_fit.values() if isinstance(v, dict) and "start" in v]
               for d in diags]  # fmt: skip
@@ -221,32 +157,10 @@ def gpreps_run(task, st, key, model, rng, trial, eval_contexts, score, keep_mode
 
 
 def reps_run(task, algorithm, key, n_updates, n_per_update, rng, trial, eval_contexts, score,
-              every: int) -> dict:  # fmt: skip
+             every: int) -> dict:  # fmt: skip
     """Model-free REPS; held-out ``score(policy)`` every ``every`` updates."""
-
-    def record(k: int, alg):
-        return score(alg.policy) if k % every == 0 or k == n_updates else None
-
-    curves = learn(task, algorithm, n_updates, n_per_update, rng, trial=trial,
-                   eval_contexts=eval_contexts, callback=record, checkpoint_key=key)  # fmt: skip
-    out = {f"{key}_rollouts": curves["rollouts"], f"{key}_mean_reward": curves["mean_reward"]}
-    out.update(_heldout(key, curves["callback"], lambda k: k * n_per_update))
-    return out
-
-
-def _heldout(key: str, values: list, rollouts_after) -> dict:
-    """The held-out scores the loop's callback returned (None between evaluations) as arrays
-    ``f"{key}_heldout_<score>"``, with ``f"{key}_heldout_rollouts"`` (real rollouts after update
-    k: ``rollouts_after(k)``, 0 before the first)."""
-    points = [(k, v) for k, v in enumerate(values) if v is not None]
-    out = {
-        f"{key}_heldout_rollouts": np.array(
-            [0 if k == 0 else rollouts_after(k) for k, _ in points], dtype=float
-        )
-    }
-    for name in points[0][1]:
-        out[f"{key}_heldout_{name}"] = np.array([v[name] for _, v in points], dtype=float)
-    return out
+    return run_curve(task, algorithm, key, n_updates, n_per_update, rng, trial, eval_contexts,
+                     score=score, every=every)[0]  # fmt: skip
 
 
 # --------------------------------------------------------------------------- hockey
@@ -264,55 +178,29 @@ def run_trial_hockey(st: HockeyGPREPSSettings, rng: np.random.Generator, trial: 
 
     out: dict = {"heldout_contexts": heldout}
     out.update(gpreps_run(task, st, "gpreps", hockey_reward_model(task, st), seeds[0], trial,
-                           eval_contexts, score, keep_model=True))  # fmt: skip
+                          eval_contexts, score, keep_model=True))  # fmt: skip
     if st.reps_updates:
-        reps = hockey_algorithm(
-            "reps",
-            task,
-            HockeySettings(epsilon=st.reps_epsilon, n_reuse_batches=st.reps_reuse_batches),
-        )
+        reps = _reps(task, st)
         every = max(1, st.reps_updates // 5)
         out.update(reps_run(task, reps, "reps", st.reps_updates, st.reps_rollouts_per_update,
-                             seeds[1], trial, eval_contexts, score, every))  # fmt: skip
+                            seeds[1], trial, eval_contexts, score, every))  # fmt: skip
     return out
 
 
-def curve_series(trials, key, x_key, y_key, label, panel, ylabel, band="std", log_x=True) -> Series:
-    x = np.asarray(trials[0][f"{key}_{x_key}"], dtype=float)
-    ys = np.array([t[f"{key}_{y_key}"] for t in trials], dtype=float)
-    keep = x > 0 if log_x else np.ones_like(x, dtype=bool)
-    m, spread = trial_band(ys[:, keep], kind=band)
-    return Series(label, x[keep].tolist(), m, panel=panel, **spread,
-                  xlabel="real rollouts (log scale)" if log_x else "real rollouts",
-                  ylabel=ylabel, log_x=log_x)  # fmt: skip
-
-
-def final_stats(trials, key, names) -> dict:
-    out: dict = {"rollouts": int(trials[0][f"{key}_rollouts"][-1])}
-    for name in names:
-        v = np.array([t[f"{key}_heldout_{name}"] for t in trials], dtype=float)
-        out[f"initial_{name}"] = _nanmean(v[:, 0])
-        out[f"final_{name}"] = _nanmean(v[:, -1])
-        out[f"final_{name}_per_trial"] = v[:, -1].tolist()
-        if name == "reward":  # a paired reading of start against end needs both per trial
-            out["initial_reward_per_trial"] = v[:, 0].tolist()
-    curves = np.array([t[f"{key}_mean_reward"] for t in trials], dtype=float)
-    out["final_mean_reward"] = float(curves[:, -1].mean())
-    return out
-
-
-def _nanmean(values: np.ndarray) -> float:
-    """Mean of the finite entries of ``values``; NaN if there are none (no warning)."""
-    ok = values[np.isfinite(values)]
-    return float(ok.mean()) if ok.size else float("nan")
+def _reps(task, st: HockeyGPREPSSettings):
+    """fig3.5's contextual REPS with ``st``'s ε and reuse."""
+    hs = HockeySettings(epsilon=st.reps_epsilon, n_reuse_batches=st.reps_reuse_batches)
+    return hockey_algorithm("reps", task, hs)
 
 
 def gpreps_event_stats(trials, key) -> dict:
+    """:func:`~skillkit.experiments.curves.gpreps_stats` with the median relative error per
+    trial, the share of GP refits that kept the warm start and the update at which the reward
+    schedule switched to returning (where recorded)."""
     out = gpreps_stats(trials, key)
     rel = [np.asarray(t[f"{key}_relative_error"][1:], dtype=float) for t in trials]
     out["prediction_relative_error_median_per_trial"] = [
-        float(np.nanmedian(r)) if np.any(np.isfinite(r)) else None for r in rel
-    ]
+        float(np.nanmedian(r)) if np.any(np.isfinite(r)) else None for r in rel]  # fmt: skip
     if all(f"{key}_refit_gps" in t for t in trials):
         gps = sum(int(np.sum(t[f"{key}_refit_gps"])) for t in trials)
         warm = sum(int(np.sum(t[f"{key}_refit_warm_kept"])) for t in trials)
@@ -320,8 +208,7 @@ def gpreps_event_stats(trials, key) -> dict:
     stages = [list(t[f"{key}_stage"]) for t in trials]
     if any(s and s[-1] for s in stages):
         out["switched_to_returning_at_update"] = [
-            (s.index("returning") + 1) if "returning" in s else None for s in stages
-        ]
+            (s.index("returning") + 1) if "returning" in s else None for s in stages]  # fmt: skip
     return out
 
 
@@ -331,37 +218,36 @@ error of d* (the target puck stays), ``displacement_error_hits`` is the placed p
 (hits only)."""
 
 
+def _curves(trials, key, label, panels, **kw) -> list:
+    """The learning curve and the held-out displacement error of run ``key``."""
+    (p1, y1), (p2, y2) = panels
+    return [curve_series(trials, f"{key}_rollouts", f"{key}_mean_reward", label, p1, y1, **kw),
+            curve_series(trials, f"{key}_heldout_rollouts", f"{key}_heldout_displacement_error",
+                         label, p2, y2, **kw)]  # fmt: skip
+
+
 def summarize_410(st: HockeyGPREPSSettings, trials: list[dict]):
     keys = ("gpreps", "reps") if st.reps_updates else ("gpreps",)
     labels = {"gpreps": "GPREPS", "reps": "REPS (ε = 0.5)"}
-    series = []
-    for key in keys:
-        series.append(curve_series(trials, key, "rollouts", "mean_reward", labels[key],
-                              "learning curves", "reward of the policy mean"))  # fmt: skip
-        series.append(curve_series(trials, key, "heldout_rollouts", "heldout_displacement_error",
-                              labels[key], "held-out displacement error",
-                              "|d_T − d*| (m)"))  # fmt: skip
+    panels = (("learning curves", "reward of the policy mean"),
+              ("held-out displacement error", "|d_T − d*| (m)"))  # fmt: skip
+    series = [s for key in keys for s in _curves(trials, key, labels[key], panels)]
     summary: dict = {"n_trials": len(trials), "thesis_numbers": dict(THESIS_410)}
     for key in keys:
-        summary[key] = final_stats(trials, key, HOCKEY_SCORES)
+        summary[key] = heldout_stats(trials, key, HOCKEY_SCORES)
     summary["gpreps"].update(gpreps_event_stats(trials, "gpreps"))
     if st.reps_updates:
         summary["reps_rollouts_to_gpreps_final_reward"] = rollouts_to_reach(
-            trials, "reps", summary["gpreps"]["final_reward"], "heldout_reward", "heldout_rollouts"
-        )
+            trials, "reps", summary["gpreps"]["final_reward"], "heldout_reward",
+            "heldout_rollouts")  # fmt: skip
     return series, summary
 
 
 def summarize_411(st: HockeyGPREPSSettings, trials: list[dict]):
-    series = [
-        curve_series(trials, "gpreps", "rollouts", "mean_reward", "GPREPS (mean, 95% CI)",
-                "learning curve", "reward of the policy mean (smoothed observations)",
-                band="ci95"),
-        curve_series(trials, "gpreps", "heldout_rollouts", "heldout_displacement_error",
-                "GPREPS (mean, 95% CI)", "held-out displacement error", "|d_T − d*| (m)",
-                band="ci95"),
-    ]  # fmt: skip
-    g = final_stats(trials, "gpreps", HOCKEY_SCORES)
+    panels = (("learning curve", "reward of the policy mean (smoothed observations)"),
+              ("held-out displacement error", "|d_T − d*| (m)"))  # fmt: skip
+    series = _curves(trials, "gpreps", "GPREPS (mean, 95% CI)", panels, band="ci95")
+    g = heldout_stats(trials, "gpreps", HOCKEY_SCORES)
     g.update(gpreps_event_stats(trials, "gpreps"))
     for when in ("initial", "final"):
         v = np.array([t["gpreps_heldout_reward"][0 if when == "initial" else -1] for t in trials])
@@ -379,39 +265,30 @@ def _ci95(values: np.ndarray) -> tuple[float, float]:
 
 
 # --------------------------------------------------------------------------- registry
-register(
-    Experiment(
-        id="fig4.10",
-        title="Robot hockey: GPREPS (decomposed event models) vs REPS",
-        settings_class=HockeyGPREPSSettings,
-        settings=gpreps_scales(
-            HockeyGPREPSSettings,
-            smoke={"reps_updates": 1, "reps_rollouts_per_update": 25, "reps_epsilon": 0.2},
-            quick={"reps_updates": 20},
-        ),
-        run_trial=run_trial_hockey,
-        summarize=summarize_410,
-        trials={"smoke": 1, "quick": 1, "paper": 5},
-    )
-)
-register(
-    Experiment(
-        id="fig4.11",
-        title="Robot hockey, real-robot setting: GPREPS with a displacement model",
-        settings_class=HockeyGPREPSSettings,
-        settings=gpreps_scales(
-            HockeyGPREPSSettings,
-            smoke={"task": "hockey-real", "reps_updates": 0},
-            quick={"task": "hockey-real", "reps_updates": 0},
-            paper={
-                "task": "hockey-real",
-                "reps_updates": 0,
-                "n_updates": 61,
-                "n_trajectories": 5,
-            },  # fmt: skip
-        ),
-        run_trial=run_trial_hockey,
-        summarize=summarize_411,
-        trials={"smoke": 2, "quick": 3, "paper": 5},
-    )
-)
+# fmt: off
+register(Experiment(
+    id="fig4.10", title="Robot hockey: GPREPS (decomposed event models) vs REPS",
+    settings_class=HockeyGPREPSSettings,
+    settings=gpreps_scales(HockeyGPREPSSettings, quick={"reps_updates": 20}, smoke={
+        "reps_updates": 1, "reps_rollouts_per_update": 25, "reps_epsilon": 0.2}),
+    run_trial=run_trial_hockey, summarize=summarize_410,
+    trials={"smoke": 1, "quick": 1, "paper": 5}))
+register(Experiment(
+    id="fig4.11", title="Robot hockey, real-robot setting: GPREPS with a displacement model",
+    settings_class=HockeyGPREPSSettings,
+    settings=gpreps_scales(HockeyGPREPSSettings, smoke={"task": "hockey-real", "reps_updates": 0},
+                           quick={"task": "hockey-real", "reps_updates": 0},
+                           paper={"task": "hockey-real", "reps_updates": 0, "n_updates": 61,
+                                  "n_trajectories": 5}),
+    run_trial=run_trial_hockey, summarize=summarize_411,
+    trials={"smoke": 2, "quick": 3, "paper": 5}))
+register_curve_task("hockey", CurveTask(
+    experiment="fig4.10",
+    thresholds=(-0.2, -0.05),
+    thresholds_source="Sec. 3.4.2: REPS's displacement error “remained below 20cm”; Sec. 4.3.3: "
+    "GPREPS's “less than 5 cm” (a hit placing the puck d off its target scores R = −d)",
+    reps=lambda task, st, policy: _reps(task, st),
+    reps_schedule=lambda st: (st.reps_updates, *(st.reps_rollouts_per_update,) * 2),
+    reward_model=hockey_reward_model,
+))
+# fmt: on

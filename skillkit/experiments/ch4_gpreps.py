@@ -1,43 +1,54 @@
 """Chapter 4, GPREPS on ball throwing (Sec. 4.3.2, Figs 4.6, 4.7 and 4.9).
 
-Every run starts from the task's imitation policy and is scored by the same evaluator: the
-average reward of the policy *mean* on fixed targets, against the number of real rollouts.
+Every run starts from the task's imitation policy and is scored by the learning-curve
+evaluator of :mod:`skillkit.experiments.curves` (reward of the policy mean on fixed targets
+against real rollouts):
 
-* **GPREPS** (Table 4.1, :class:`~skillkit.search.gpreps.GPREPS`): N₀ = 10 real throws, then one
-  per update; the decomposed model of Fig. 4.2
-  (:class:`~skillkit.tasks.throwing_model.ThrowingRewardModel`: FITC robot dynamics under the
-  DMP tracker, a GP release model, a FITC ball-flight model) refitted on all throws at every
-  update, M artificial pairs × L predicted throws, ε = 1.
-* **GP direct** (Sec. 4.3.2): the same loop with a GP from [s, ω] to R
-  (:class:`~skillkit.search.gpreps.DirectRewardModel`).
-* **REPS**: model-free contextual REPS with the settings of ``fig3.3`` (25 rollouts per update,
-  the last 200 reused, ε = 0.6), up to 5000 rollouts.
+* **GPREPS** (Table 4.1): N₀ = 10 real throws, then one per update; the decomposed model of
+  Fig. 4.2 (:class:`~skillkit.tasks.throwing_model.ThrowingRewardModel`) refitted on all throws
+  at every update, M artificial pairs × L predicted throws, ε = 1.
+* **GP direct** (Sec. 4.3.2): the same loop with a GP from [s, ω] to R.
+* **REPS**: contextual REPS with the settings of ``fig3.3``, up to 5000 rollouts.
 
-``fig4.6`` compares the three, ``fig4.7`` runs GPREPS with M = 50 … 1000 artificial samples and
-``fig4.9`` runs REPS and GPREPS on ``throwing`` and on ``throwing-noisy`` (release noise 7.5 cm
-and 0.3 m/s). The settings' docs say where they depart from the thesis and why.
+``fig4.6`` compares the three, ``fig4.7`` runs GPREPS with M = 50 … 1000 and ``fig4.9`` runs
+REPS and GPREPS on ``throwing`` and ``throwing-noisy`` (release noise 7.5 cm and 0.3 m/s).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from functools import partial
 
 import numpy as np
 
 from skillkit.experiments.ch3_throwing import final_errors, target_grid
+from skillkit.experiments.curves import (
+    COV_FLOOR,
+    MIN_EFFECTIVE_SAMPLES,
+    CurveTask,
+    curve_series,
+    curve_stats,
+    finite_or_none,
+    gpreps_algorithm,
+    gpreps_stats,
+    register_curve_task,
+    rollouts_to_reach,
+    run_curve,
+    run_gpreps,
+)
 from skillkit.experiments.registry import Experiment, Series, register
-from skillkit.experiments.settings import Settings, setting
+from skillkit.experiments.settings import Settings, scales, setting
 from skillkit.models.gp import ExactGP, ForwardModel
 from skillkit.models.sparse import FITC
-from skillkit.search import ContextualREPS, learn
-from skillkit.search.gpreps import GPREPS, DirectRewardModel, GPREPSSettings
+from skillkit.search import ContextualREPS
+from skillkit.search.gpreps import DirectRewardModel
 from skillkit.tasks import make
 from skillkit.tasks.throwing_model import ThrowingRewardModel
 from skillkit.trial import TrialContext
-from skillkit.viz.series import trial_band
 
 __all__ = [
+    "COV_FLOOR",
+    "MIN_EFFECTIVE_SAMPLES",
     "GPREPSThrowingSettings",
     "SampleSizeSettings",
     "StochasticThrowingSettings",
@@ -46,82 +57,40 @@ __all__ = [
     "throwing_reward_model",
 ]
 
-COV_FLOOR = 0.1
-"""The weighted ML fit of every method keeps each direction of Σ above this fraction of its
-previous variance per update (as fig3.3): with M = 50 artificial samples, or 25 rollouts, the
-effective sample size is below the 42 a full 41 × 41 covariance needs."""
-MIN_EFFECTIVE_SAMPLES = 2.0
-"""The least effective sample size the regularised fit accepts (as fig3.3)."""
 THESIS_46 = {"gpreps_rollouts_to_converge": (30, 40), "reps_rollouts_to_converge": 5000}
 """fig4.6: the thesis's numbers (Sec. 4.3.2), stored beside ours in the summary."""
 THESIS_49 = {"reps_noisy": -1086.0, "reps": -715.0, "gpreps_noisy": -68.0, "gpreps": -64.0}
 """fig4.9: the final rewards of the Fig. 4.9 captions, stored beside ours in the summary."""
 
 
-def finite_or_none(value) -> float | None:
-    """``value`` as a float, or None for a missing or non-finite number (as ``result.json``
-    stores NaN)."""
-    if value is None:
-        return None
-    value = float(value)
-    return value if np.isfinite(value) else None
-
-
 @dataclass(frozen=True)
 class GPREPSThrowingSettings(Settings):
     """Settings of ``fig4.6`` (GPREPS, GP direct and REPS on throwing, Sec. 4.3.2)."""
 
-    n_initial: int = setting(
-        10, "N₀, real throws before the first GPREPS update (Sec. 4.3.2).", minimum=2
-    )
-    n_updates: int = setting(
-        30,
-        "GPREPS / GP-direct updates; the first learns from the N₀ initial throws, each later "
-        "one from one new throw (real throws = N₀ + n_updates − 1).",
-        minimum=1,
-    )
-    n_artificial: int = setting(
-        500, "M, artificial (s, ω) pairs per update (Sec. 4.3.2).", minimum=2
-    )
-    n_trajectories: int = setting(
-        25, "L, predicted throws per artificial pair (Eq. 4.1).", minimum=1
-    )
+    # fmt: off
+    n_initial: int = setting(10, "N₀, real throws before the first GPREPS update.", minimum=2)
+    n_updates: int = setting(30, "GPREPS / GP-direct updates, one new throw each after the "
+                             "first (real throws = N₀ + n_updates − 1).", minimum=1)
+    n_artificial: int = setting(500, "M, artificial (s, ω) pairs per update.", minimum=2)
+    n_trajectories: int = setting(25, "L, predicted throws per pair (Eq. 4.1).", minimum=1)
     epsilon: float = setting(1.0, "KL bound ε of GPREPS and GP direct (Sec. 4.3.2).", above=0)
-    context_model: str = setting(
-        "uniform", "μ̂(s): the box of the observed targets (C.1's μ(s) is uniform)."
-    )
-    gp_steps: int = setting(
-        150,
-        "L-BFGS iterations of the release, flight and GP-direct hyper-parameter fits.",
-        minimum=0,
-    )
-    robot_steps: int = setting(
-        150,
-        "L-BFGS iterations of the robot GP's fit (60 left it 6 m off on the landing point).",
-        minimum=0,
-    )
+    context_model: str = setting("uniform", "μ̂(s): the box of the observed targets.")
+    gp_steps: int = setting(150, "L-BFGS iterations of the release, flight and GP-direct "
+                            "hyper-parameter fits.", minimum=0)
+    robot_steps: int = setting(150, "L-BFGS iterations of the robot GP's fit.", minimum=0)
     robot_inducing: int = setting(50, "Pseudo-inputs of the FITC robot-dynamics GP.", minimum=1)
     flight_inducing: int = setting(50, "Pseudo-inputs of the FITC ball-flight GP.", minimum=1)
-    max_robot_points: int = setting(
-        1000,
-        "Robot transitions the FITC GP is fitted on, drawn from all throws (cost bound).",
-        minimum=2,
-    )
-    reps_updates: int = setting(
-        200, "REPS updates (× rollouts per update = 5000 rollouts).", minimum=1
-    )
+    max_robot_points: int = setting(1000, "Robot transitions the FITC GP is fitted on, drawn "
+                                    "from all throws.", minimum=2)
+    reps_updates: int = setting(200, "REPS updates (× 25 = 5000 rollouts).", minimum=1)
     reps_rollouts_per_update: int = setting(25, "REPS rollouts per update (fig3.3).", minimum=1)
     reps_epsilon: float = setting(0.6, "KL bound of REPS (fig3.3).", above=0)
-    reps_reuse_batches: int = setting(
-        8, "Batches REPS reuses (the last 200 rollouts, fig3.3).", minimum=1
-    )
-    n_eval_contexts: int = setting(
-        8, "Fixed targets of the learning curves (policy mean).", minimum=1
-    )
-    grid_x: tuple[float, ...] = setting(
-        (5.0, 7.5, 10.0, 12.5, 15.0), "Target x (m) of the final ball-to-target distances."
-    )
+    reps_reuse_batches: int = setting(8, "Batches REPS reuses (fig3.3).", minimum=1)
+    n_eval_contexts: int = setting(8, "Fixed targets of the learning curves.", minimum=1)
+    grid_x: tuple[float, ...] = setting((5.0, 7.5, 10.0, 12.5, 15.0),
+                                        "Target x (m) of the final ball-to-target distances.")
     grid_y: tuple[float, ...] = setting((1.0, 3.0), "Target y (m) of the final distances.")
+    # fmt: on
 
 
 @dataclass(frozen=True)
@@ -137,59 +106,32 @@ class SampleSizeSettings(GPREPSThrowingSettings):
 class StochasticThrowingSettings(GPREPSThrowingSettings):
     """Settings of ``fig4.9`` (REPS and GPREPS on deterministic and noisy throwing)."""
 
-    release_noise: tuple[float, float] = setting(
-        (0.075, 0.3),
-        "Std of the release position (m) and velocity (m/s) (Sec. 4.3.2.2).",
-        minimum=0,
-    )
-    n_final_rollouts: int = setting(
-        10,
-        "Noisy rollouts per target that estimate each final policy's expected reward.",
-        minimum=1,
-    )
+    # fmt: off
+    release_noise: tuple[float, float] = setting((0.075, 0.3), "Std of the release position (m) "
+                                                 "and velocity (m/s) (Sec. 4.3.2.2).", minimum=0)
+    n_final_rollouts: int = setting(10, "Noisy rollouts per target that estimate each final "
+                                    "policy's expected reward.", minimum=1)
+    # fmt: on
 
 
-SMOKE = {
-    "n_initial": 3,
-    "n_updates": 2,
-    "n_artificial": 20,
-    "n_trajectories": 2,
-    "gp_steps": 10,
-    "robot_inducing": 10,
-    "flight_inducing": 10,
-    "max_robot_points": 200,
-    "reps_updates": 2,
-    "reps_rollouts_per_update": 4,
-    "reps_reuse_batches": 2,
-    "n_eval_contexts": 1,
-    "grid_x": (8.0,),
-    "grid_y": (2.0,),
-}
-"""The smoke scale's changes, shared by the three experiments (seconds per run)."""
-QUICK = {
-    "n_updates": 8,
-    "n_artificial": 200,
-    "n_trajectories": 5,
-    "gp_steps": 60,
-    "reps_updates": 40,
-}
-"""The quick scale's changes, shared by the three experiments (minutes per run): the thesis's
-GPREPS (decomposed models, ε = 1, N₀ = 10) scaled down to GPREPS / GP-direct updates 30→8
-(fig4.7 and fig4.9: 20→8; 18 real throws), M 500→200, L 25→5 (fig4.7's paper L is 5),
-release / flight L-BFGS iterations 150→60 (the robot GP keeps its 150), REPS updates 200→40
-(1000 rollouts), learning-curve targets 20→8; fig4.6 trials 3→2, fig4.7 M ∈ {50, 200} of
-{50, …, 1000} and trials 2→1, fig4.9 trials 2→1. One GPREPS update costs ≈ 10 s of CPU
-time here (``benchmarks/bench_scales.py`` measures every id)."""
+# fmt: off
+SMOKE = {"n_initial": 3, "n_updates": 2, "n_artificial": 20, "n_trajectories": 2, "gp_steps": 10,
+         "robot_inducing": 10, "flight_inducing": 10, "max_robot_points": 200, "reps_updates": 2,
+         "reps_rollouts_per_update": 4, "reps_reuse_batches": 2, "n_eval_contexts": 1,
+         "grid_x": (8.0,), "grid_y": (2.0,)}
+"""The smoke scale's changes, shared by the three experiments."""
+QUICK = {"n_updates": 8, "n_artificial": 200, "n_trajectories": 5, "gp_steps": 60,
+         "reps_updates": 40}
+"""The quick scale's changes, shared by the three experiments: GPREPS / GP-direct updates
+30→8 (fig4.7 and fig4.9: 20→8), M 500→200, L 25→5, release / flight L-BFGS iterations
+150→60 (the robot GP keeps its 150), REPS updates 200→40, learning-curve targets 20→8."""
+# fmt: on
 
 
 def _scales(cls, smoke: dict | None = None, quick: dict | None = None, paper=None) -> dict:
     """The three scales of a settings class: the shared changes plus the experiment's own."""
-    base = cls()
-    return {
-        "smoke": replace(base, **SMOKE, **(smoke or {})),
-        "quick": replace(base, **QUICK, **(quick or {})),
-        "paper": replace(base, n_eval_contexts=20, **(paper or {})),
-    }
+    return scales(cls(), smoke={**SMOKE, **(smoke or {})}, quick={**QUICK, **(quick or {})},
+                  paper={"n_eval_contexts": 20, **(paper or {})})  # fmt: skip
 
 
 # --------------------------------------------------------------------------- one run
@@ -198,134 +140,42 @@ def _fitc(n_inducing: int, n_steps: int) -> ForwardModel:
     return ForwardModel(FITC(n_inducing=n_inducing, n_steps=n_steps), target="delta")
 
 
-def _exact(n_steps: int) -> ExactGP:
-    return ExactGP(n_steps=n_steps)
-
-
 def throwing_reward_model(task, st: GPREPSThrowingSettings, model: str = "decomposed"):
-    """The reward model of GPREPS on throwing (Sec. 4.3.2) with ``st``'s GP sizes.
-
-    Parameters
-    ----------
-    task : Throwing
-    st : GPREPSThrowingSettings
-    model : {"decomposed", "direct"}
-        The decomposed model (robot, release and flight GPs:
-        :class:`~skillkit.tasks.throwing_model.ThrowingRewardModel`) or GP direct (one GP
-        from (s, ω) to the reward).
-
-    Returns
-    -------
-    RewardModel
-    """
-    if model == "decomposed":
-        return ThrowingRewardModel(
-            task,
-            make_robot_model=partial(_fitc, st.robot_inducing, st.robot_steps),
-            make_release_model=partial(_exact, st.gp_steps),
-            make_flight_model=partial(_fitc, st.flight_inducing, st.gp_steps),
-            max_robot_points=st.max_robot_points,
-            # The full 2.5 s flight of every ball, as the stored results were made (stopping
-            # at the ground gives the same predictions to round-off, not to the last digit).
-            stop_flight_at_ground=False,
-        )
+    """The reward model of GPREPS on throwing (Sec. 4.3.2) with ``st``'s GP sizes:
+    ``model="decomposed"``, the robot, release and flight GPs of Fig. 4.2
+    (:class:`~skillkit.tasks.throwing_model.ThrowingRewardModel`), or ``"direct"``, one GP from
+    (s, ω) to the reward."""
+    if model == "decomposed":  # the full 2.5 s flight of every ball, as the results were made
+        return ThrowingRewardModel(task, make_robot_model=partial(_fitc, st.robot_inducing,
+                                   st.robot_steps),
+                                   make_release_model=partial(ExactGP, n_steps=st.gp_steps),
+                                   make_flight_model=partial(_fitc, st.flight_inducing,
+                                                             st.gp_steps),
+                                   max_robot_points=st.max_robot_points,
+                                   stop_flight_at_ground=False)  # fmt: skip
     return DirectRewardModel(ExactGP(n_steps=st.gp_steps))
-
-
-def gpreps_algorithm(task, st, reward_model, n_artificial: int, n_traj: int, rng) -> GPREPS:
-    """GPREPS (Table 4.1) from the task's π₀: ε and μ̂ from ``st``, the policy fit's
-    regularisation (:data:`COV_FLOOR`, :data:`MIN_EFFECTIVE_SAMPLES`), M = ``n_artificial``
-    artificial samples with L = ``n_traj`` predicted trajectories each, and
-    ``reward_model``."""
-    settings = GPREPSSettings(
-        epsilon=st.epsilon,
-        n_artificial=n_artificial,
-        n_trajectories=n_traj,
-        context_model=st.context_model,
-        cov_floor=COV_FLOOR,
-        min_effective_samples=MIN_EFFECTIVE_SAMPLES,
-    )
-    return GPREPS(task.initial_policy(), reward_model, settings, rng=rng, task=task)
-
-
-def run_gpreps(
-    task, st, key, reward_model, n_artificial, n_traj, rng, trial, eval_contexts, callback=None
-) -> dict:
-    """One GPREPS run through the loop of Table 4.1; curves and per-update diagnostics.
-
-    ``reward_model`` is a :class:`~skillkit.search.gpreps.RewardModel` or one of the throwing
-    shorthands ``"decomposed"`` / ``"direct"``; ``callback`` goes to :func:`learn` (its
-    returns are ``f"{key}_callback"``). ``f"{key}_algorithm"`` is the GPREPS object after the
-    last update (callers drop it before returning a trial).
-    """
-    if isinstance(reward_model, str):
-        reward_model = throwing_reward_model(task, st, reward_model)
-    algo_rng, loop_rng = rng.spawn(2)
-    algo = gpreps_algorithm(task, st, reward_model, n_artificial, n_traj, algo_rng)
-    curves = learn(
-        task,
-        algo,
-        st.n_updates,
-        1,
-        loop_rng,
-        trial=trial,
-        eval_contexts=eval_contexts,
-        checkpoint_key=key,
-        initial_rollouts=st.n_initial,
-        callback=callback,
-    )
-    diags = curves["diagnostics"]
-    rel = [
-        np.nan if d.prediction_bias is None else abs(d.prediction_bias) / abs(d.real_reward)
-        for d in diags
-    ]
-    return {
-        f"{key}_rollouts": curves["rollouts"],
-        f"{key}_mean_reward": curves["mean_reward"],
-        f"{key}_relative_error": np.array(rel),
-        f"{key}_time_training": np.array([d.time_training for d in diags]),
-        f"{key}_time_prediction": np.array([d.time_prediction for d in diags]),
-        f"{key}_time_policy": np.array([d.time_policy for d in diags]),
-        f"{key}_kl": np.array([d.reps.kl for d in diags]),
-        f"{key}_policy": curves["policy"],
-        f"{key}_policies": curves["policies"],
-        f"{key}_diagnostics": diags,
-        f"{key}_callback": curves["callback"],
-        f"{key}_algorithm": algo,
-    }
 
 
 def reps_algorithm(task, st) -> ContextualREPS:
     """Model-free contextual REPS on throwing with fig3.3's settings (ε, reused batches and
     the quadratic baseline from ``st``), from the task's π₀."""
-    return ContextualREPS(
-        task.initial_policy(),
-        st.reps_epsilon,
-        n_reuse_batches=st.reps_reuse_batches,
-        baseline_features="quadratic",
-        cov_floor=COV_FLOOR,
-        min_effective_samples=MIN_EFFECTIVE_SAMPLES,
-    )
+    return ContextualREPS(task.initial_policy(), st.reps_epsilon,
+                          n_reuse_batches=st.reps_reuse_batches, baseline_features="quadratic",
+                          cov_floor=COV_FLOOR,
+                          min_effective_samples=MIN_EFFECTIVE_SAMPLES)  # fmt: skip
+
+
+def _gpreps(task, st, key, model, m, rng, trial, eval_contexts) -> dict:
+    return run_gpreps(task, st, key, throwing_reward_model(task, st, model), m,
+                      st.n_trajectories, rng, trial, eval_contexts)  # fmt: skip
 
 
 def _run_reps(task, st, key, rng, trial, eval_contexts) -> dict:
     """Model-free contextual REPS with fig3.3's settings (:func:`reps_algorithm`)."""
-    algo = reps_algorithm(task, st)
-    curves = learn(
-        task,
-        algo,
-        st.reps_updates,
-        st.reps_rollouts_per_update,
-        rng,
-        trial=trial,
-        eval_contexts=eval_contexts,
-        checkpoint_key=key,
-    )
-    return {
-        f"{key}_rollouts": curves["rollouts"],
-        f"{key}_mean_reward": curves["mean_reward"],
-        f"{key}_policy": curves["policy"],
-    }
+    out, curves = run_curve(task, reps_algorithm(task, st), key, st.reps_updates,
+                            st.reps_rollouts_per_update, rng, trial, eval_contexts)  # fmt: skip
+    out[f"{key}_policy"] = curves["policy"]
+    return out
 
 
 def _finish(task, st, out: dict, keys) -> dict:
@@ -335,75 +185,30 @@ def _finish(task, st, out: dict, keys) -> dict:
     for key in keys:
         dist, _ = final_errors(task, out.pop(f"{key}_policy"), targets)
         out[f"{key}_distance"] = dist
-        for extra in ("policies", "diagnostics", "callback", "algorithm"):
+        for extra in ("policies", "diagnostics", "algorithm"):
             out.pop(f"{key}_{extra}", None)
     return out
 
 
-def _learning_series(trials, keys, labels, panel="learning curves") -> list[Series]:
-    series = []
-    for key, label in zip(keys, labels, strict=True):
-        x = np.asarray(trials[0][f"{key}_rollouts"], dtype=float)
-        curves = np.array([t[f"{key}_mean_reward"] for t in trials], dtype=float)
-        m, band = trial_band(curves)
-        series.append(
-            Series(
-                label,
-                x[1:].tolist(),
-                m[1:],
-                panel=panel,
-                **{k: v[1:] if isinstance(v, list) else v for k, v in band.items()},
-                xlabel="real rollouts (log scale; after the first batch)",
-                ylabel="average reward of the policy mean",
-                log_x=True,
-            )
-        )
-    return series
+def _learning_series(trials, keys, labels) -> list[Series]:
+    return [curve_series(trials, f"{k}_rollouts", f"{k}_mean_reward", label, "learning curves",
+                         "average reward of the policy mean",
+                         xlabel="real rollouts (log scale; after the first batch)",
+                         drop_first=True)
+            for k, label in zip(keys, labels, strict=True)]  # fmt: skip
 
 
 def _method_summary(trials, key) -> dict:
-    curves = np.array([t[f"{key}_mean_reward"] for t in trials], dtype=float)
-    final = curves[:, -1]
     dist = np.array([t[f"{key}_distance"] for t in trials], dtype=float)
     out = {
         "rollouts": int(trials[0][f"{key}_rollouts"][-1]),
-        "initial_reward": float(curves[:, 0].mean()),
-        "final_reward_mean": float(final.mean()),
-        "final_reward_std": float(final.std(ddof=1)) if len(trials) > 1 else 0.0,
-        "final_reward_per_trial": final.tolist(),
+        **curve_stats(trials, key),
         "final_distance_mean_m": float(np.nanmean(dist)),
         "final_distance_max_m": float(np.nanmax(dist)) if np.isfinite(dist).any() else None,
     }
     if f"{key}_relative_error" in trials[0]:
         out.update(gpreps_stats(trials, key))
     return out
-
-
-def gpreps_stats(trials, key) -> dict:
-    """What a GPREPS run's trials say about its model and cost: the model's relative error
-    on the next real rollout (median, and the fraction below 10%), the mean seconds per
-    update in training, prediction and the policy update, and the largest KL."""
-    rel = np.concatenate([t[f"{key}_relative_error"][1:] for t in trials])
-    return {
-        "prediction_relative_error_median": float(np.nanmedian(rel)) if rel.size else None,
-        "prediction_relative_error_below_10pct": float(np.nanmean(rel < 0.1)) if rel.size else None,
-        "time_per_update_s": {
-            part: float(np.mean(np.concatenate([t[f"{key}_time_{part}"] for t in trials])))
-            for part in ("training", "prediction", "policy")
-        },
-        "max_kl": float(max(np.max(t[f"{key}_kl"]) for t in trials)),
-    }
-
-
-def rollouts_to_reach(
-    trials, key, level: float, curve: str = "mean_reward", x: str = "rollouts"
-) -> float | None:
-    """Rollouts after which run ``key``'s curve ``f"{key}_{curve}"`` (mean over trials, NaN
-    ignored) first reaches ``level``, read off ``f"{key}_{x}"``; None if it never does."""
-    at = np.asarray(trials[0][f"{key}_{x}"], dtype=float)
-    m = np.nanmean([t[f"{key}_{curve}"] for t in trials], axis=0)
-    hit = np.flatnonzero(m >= level)
-    return float(at[hit[0]]) if hit.size else None
 
 
 # --------------------------------------------------------------------------- fig4.6
@@ -414,28 +219,23 @@ def run_trial_46(st: GPREPSThrowingSettings, rng: np.random.Generator, trial: Tr
     seeds = rng.spawn(3)
     trial.reset(total=2 * st.n_updates + st.reps_updates)
     out: dict = {}
-    out.update(run_gpreps(task, st, "gpreps", "decomposed", st.n_artificial,
-                           st.n_trajectories, seeds[0], trial, eval_contexts))  # fmt: skip
-    out.update(run_gpreps(task, st, "direct", "direct", st.n_artificial,
-                           st.n_trajectories, seeds[1], trial, eval_contexts))  # fmt: skip
+    for key, model, seed in (("gpreps", "decomposed", seeds[0]), ("direct", "direct", seeds[1])):
+        out.update(_gpreps(task, st, key, model, st.n_artificial, seed, trial, eval_contexts))
     out.update(_run_reps(task, st, "reps", seeds[2], trial, eval_contexts))
     return _finish(task, st, out, ("gpreps", "direct", "reps"))
 
 
 def summarize_46(st: GPREPSThrowingSettings, trials: list[dict]):
-    """The learning curves of GPREPS, GP direct and REPS, and what the claims spec reads of
-    them: per method the final and start rewards per trial and each trial's absolute deviation
-    from the mean final reward; for GPREPS its gain over the run and after 30 real throws,
-    and the median relative error of its reward predictions per trial; REPS's rollouts to
-    reach each trial's GPREPS final reward over GPREPS's throws."""
+    """Learning curves of GPREPS, GP direct and REPS and what the claims spec reads of them
+    (per-trial start and final rewards, GPREPS's gain and prediction error, REPS's rollouts
+    to reach GPREPS's final reward)."""
     keys, labels = ("gpreps", "direct", "reps"), ("GPREPS", "GP direct", "REPS")
     series = _learning_series(trials, keys, labels)
     summary: dict = {"n_trials": len(trials), "thesis_numbers": dict(THESIS_46)}
     for key in keys:
         summary[key] = _method_summary(trials, key)
     summary["reps_rollouts_to_gpreps_final"] = rollouts_to_reach(
-        trials, "reps", summary["gpreps"]["final_reward_mean"]
-    )
+        trials, "reps", summary["gpreps"]["final_reward_mean"])  # fmt: skip
     for key in keys:
         summary[key].update(_per_trial(trials, key))
     g = summary["gpreps"]
@@ -448,18 +248,15 @@ def summarize_46(st: GPREPSThrowingSettings, trials: list[dict]):
         ]
     g["prediction_relative_error_median_per_trial"] = [
         finite_or_none(np.nanmedian(t["gpreps_relative_error"][1:]))
-        if np.isfinite(t["gpreps_relative_error"][1:]).any()
-        else None
-        for t in trials
-    ]
+        if np.isfinite(t["gpreps_relative_error"][1:]).any() else None for t in trials
+    ]  # fmt: skip
     summary["reps_over_gpreps_rollouts_per_trial"] = _reps_over_gpreps(trials)
     return series, summary
 
 
 def _per_trial(trials, key) -> dict:
-    """A method's start reward per trial (its curve's first point) and each trial's absolute
-    deviation from the mean final reward over trials (a spread that can be compared between
-    methods with an interval)."""
+    """A method's start reward per trial and each trial's absolute deviation from the mean
+    final reward over trials."""
     curves = np.array([t[f"{key}_mean_reward"] for t in trials], dtype=float)
     final = curves[:, -1]
     return {
@@ -473,9 +270,8 @@ def _difference(a, b) -> list[float]:
 
 
 def _reps_over_gpreps(trials) -> list[float]:
-    """Per trial: REPS's rollouts until its curve first reaches that trial's GPREPS final
-    reward, over GPREPS's real throws; a trial where REPS never reaches it counts REPS's whole
-    run (a lower bound)."""
+    """Per trial: REPS's rollouts until its curve reaches the trial's GPREPS final reward,
+    over GPREPS's throws (REPS's whole run, a lower bound, where it never does)."""
     out = []
     for t in trials:
         g_throws = float(t["gpreps_rollouts"][-1])
@@ -497,44 +293,31 @@ def run_trial_47(st: SampleSizeSettings, rng: np.random.Generator, trial: TrialC
     for m, seed in zip(st.n_artificial_values, seeds, strict=True):
         key = f"m{m}"
         keys.append(key)
-        out.update(run_gpreps(task, st, key, "decomposed", m, st.n_trajectories, seed, trial,
-                               eval_contexts))  # fmt: skip
+        out.update(_gpreps(task, st, key, "decomposed", m, seed, trial, eval_contexts))
     return _finish(task, st, out, keys)
 
 
 def summarize_47(st: SampleSizeSettings, trials: list[dict]):
-    """The learning curves for each M, the final reward against M, and what the claims spec
-    reads of them: the change of the final reward between every two M per trial (the arms of
-    a trial share π₀ and the evaluation targets) and each trial's absolute deviation from the
-    mean final reward of its M."""
+    """Learning curves for each M, the final reward against M, and its change between every
+    two M per trial (the arms of a trial share π₀ and the evaluation targets)."""
     keys = [f"m{m}" for m in st.n_artificial_values]
     series = _learning_series(trials, keys, [f"M = {m}" for m in st.n_artificial_values])
     summary: dict = {"n_trials": len(trials), "n_artificial_values": list(st.n_artificial_values)}
     for key in keys:
         summary[key] = _method_summary(trials, key)
     finals = [summary[k]["final_reward_mean"] for k in keys]
-    series.append(
-        Series(
-            "final reward",
-            list(st.n_artificial_values),
-            finals,
-            panel="final reward against M",
-            kind="lines+markers",
-            xlabel="artificial samples M (log scale)",
-            ylabel="final average reward of the policy mean",
-            log_x=True,
-        )
-    )
+    series.append(Series("final reward", list(st.n_artificial_values), finals,
+                         panel="final reward against M", kind="lines+markers",
+                         xlabel="artificial samples M (log scale)",
+                         ylabel="final average reward of the policy mean", log_x=True))  # fmt: skip
     for key in keys:
         summary[key].update(_per_trial(trials, key))
     values = sorted(st.n_artificial_values)
     summary["final_reward_change_per_trial"] = {
-        f"m{a}_to_m{b}": _difference(
-            summary[f"m{b}"]["final_reward_per_trial"], summary[f"m{a}"]["final_reward_per_trial"]
-        )
-        for i, a in enumerate(values)
-        for b in values[i + 1 :]
-    }
+        f"m{a}_to_m{b}": _difference(summary[f"m{b}"]["final_reward_per_trial"],
+                                     summary[f"m{a}"]["final_reward_per_trial"])
+        for i, a in enumerate(values) for b in values[i + 1 :]
+    }  # fmt: skip
     return series, summary
 
 
@@ -548,8 +331,8 @@ def run_trial_49(st: StochasticThrowingSettings, rng: np.random.Generator, trial
     out: dict = {}
     policies = {}
     for i, (suffix, task) in enumerate(tasks.items()):
-        g = run_gpreps(task, st, f"gpreps{suffix}", "decomposed", st.n_artificial,
-                        st.n_trajectories, seeds[2 * i], trial, eval_contexts)  # fmt: skip
+        g = _gpreps(task, st, f"gpreps{suffix}", "decomposed", st.n_artificial, seeds[2 * i],
+                    trial, eval_contexts)  # fmt: skip
         r = _run_reps(task, st, f"reps{suffix}", seeds[2 * i + 1], trial, eval_contexts)
         out.update(g)
         out.update(r)
@@ -560,11 +343,9 @@ def run_trial_49(st: StochasticThrowingSettings, rng: np.random.Generator, trial
     final_rng = rng.spawn(1)[0]
     for key, pol in policies.items():
         means = np.atleast_2d(pol.mean_of(eval_contexts))
-        rewards = [
-            noisy.evaluate(w, s, final_rng)[0]
-            for w, s in zip(means, eval_contexts, strict=True)
-            for _ in range(st.n_final_rollouts)
-        ]
+        rewards = [noisy.evaluate(w, s, final_rng)[0]
+                   for w, s in zip(means, eval_contexts, strict=True)
+                   for _ in range(st.n_final_rollouts)]  # fmt: skip
         out[f"{key}_noisy_expected_reward"] = float(np.mean(rewards))
     return _finish(tasks[""], st, out, list(policies))
 
@@ -579,13 +360,11 @@ def summarize_49(st: StochasticThrowingSettings, trials: list[dict]):
     for key in keys:
         summary[key] = _method_summary(trials, key)
         summary[key]["noisy_expected_reward"] = float(
-            np.mean([t[f"{key}_noisy_expected_reward"] for t in trials])
-        )
+            np.mean([t[f"{key}_noisy_expected_reward"] for t in trials]))  # fmt: skip
     summary["noise_ratio"] = {**_noise_ratios(summary), **_same_noise_ratios(summary)}
     for key in keys:
         summary[key]["noisy_expected_reward_per_trial"] = [
-            float(t[f"{key}_noisy_expected_reward"]) for t in trials
-        ]
+            float(t[f"{key}_noisy_expected_reward"]) for t in trials]  # fmt: skip
     return series, summary
 
 
@@ -595,18 +374,15 @@ def _noise_ratios(summary: dict) -> dict[str, float]:
 
     def ratio(key: str) -> float:
         return abs(summary[f"{key}_noisy"]["final_reward_mean"]) / max(
-            abs(summary[key]["final_reward_mean"]), 1e-12
-        )
+            abs(summary[key]["final_reward_mean"]), 1e-12)  # fmt: skip
 
     return {"reps": ratio("reps"), "gpreps": ratio("gpreps"), "thesis_reps": 1086 / 715,
             "thesis_gpreps": 68 / 64}  # fmt: skip
 
 
 def _same_noise_ratios(summary: dict) -> dict[str, float | None]:
-    """|noisy-trained| / |deterministic-trained| expected reward of REPS's and GPREPS's final
-    policy means, both evaluated under the same release noise (``noisy_expected_reward``,
-    ``n_final_rollouts`` noisy throws per learning-curve target); None where the summary does
-    not record it."""
+    """|noisy-trained| / |deterministic-trained| expected reward under the same release noise
+    of REPS's and GPREPS's final policy means; None where the summary does not record it."""
 
     def ratio(key: str) -> float | None:
         noisy = finite_or_none(summary[f"{key}_noisy"].get("noisy_expected_reward"))
@@ -618,43 +394,33 @@ def _same_noise_ratios(summary: dict) -> dict[str, float | None]:
     return {"reps_same_noise": ratio("reps"), "gpreps_same_noise": ratio("gpreps")}
 
 
-register(
-    Experiment(
-        id="fig4.6",
-        title="Ball throwing: GPREPS (decomposed GP models) vs GP direct vs REPS",
-        settings_class=GPREPSThrowingSettings,
-        settings=_scales(GPREPSThrowingSettings),
-        run_trial=run_trial_46,
-        summarize=summarize_46,
-        trials={"smoke": 1, "quick": 2, "paper": 5},
-    )
-)
-register(
-    Experiment(
-        id="fig4.7",
-        title="Ball throwing: GPREPS with 50 to 1000 artificial samples",
-        settings_class=SampleSizeSettings,
-        settings=_scales(
-            SampleSizeSettings,
-            smoke={"n_artificial_values": (10, 20)},
-            quick={"n_artificial_values": (50, 200)},
-            paper={"n_trajectories": 5, "n_updates": 20},
-        ),
-        run_trial=run_trial_47,
-        summarize=summarize_47,
-        trials={"smoke": 1, "quick": 1, "paper": 5},
-    )
-)
-register(
-    Experiment(
-        id="fig4.9",
-        title="Stochastic ball throwing: REPS and GPREPS with and without release noise",
-        settings_class=StochasticThrowingSettings,
-        settings=_scales(
-            StochasticThrowingSettings, smoke={"n_final_rollouts": 2}, paper={"n_updates": 20}
-        ),
-        run_trial=run_trial_49,
-        summarize=summarize_49,
-        trials={"smoke": 1, "quick": 1, "paper": 5},
-    )
-)
+# fmt: off
+register(Experiment(
+    id="fig4.6", title="Ball throwing: GPREPS (decomposed GP models) vs GP direct vs REPS",
+    settings_class=GPREPSThrowingSettings, settings=_scales(GPREPSThrowingSettings),
+    run_trial=run_trial_46, summarize=summarize_46, trials={"smoke": 1, "quick": 2, "paper": 5}))
+register(Experiment(
+    id="fig4.7", title="Ball throwing: GPREPS with 50 to 1000 artificial samples",
+    settings_class=SampleSizeSettings,
+    settings=_scales(SampleSizeSettings, smoke={"n_artificial_values": (10, 20)},
+                     quick={"n_artificial_values": (50, 200)},
+                     paper={"n_trajectories": 5, "n_updates": 20}),
+    run_trial=run_trial_47, summarize=summarize_47, trials={"smoke": 1, "quick": 1, "paper": 5}))
+register(Experiment(
+    id="fig4.9",
+    title="Stochastic ball throwing: REPS and GPREPS with and without release noise",
+    settings_class=StochasticThrowingSettings,
+    settings=_scales(StochasticThrowingSettings, smoke={"n_final_rollouts": 2},
+                     paper={"n_updates": 20}),
+    run_trial=run_trial_49, summarize=summarize_49, trials={"smoke": 1, "quick": 1, "paper": 5}))
+register_curve_task("throwing", CurveTask(
+    experiment="fig4.6",
+    thresholds=(-100.0, -50.0),
+    thresholds_source="R ≈ −c₁ × the ball's distance to the target with c₁ = 100 per metre "
+    "(Appendix C.1): −100 is 1 m off on average, −50 the 0.5 m bound of Sec. 3.4.1 (Fig. 3.3); "
+    "the thesis's final rewards are −715 (REPS) and −64 (GPREPS) in Fig. 4.9's caption",
+    reps=lambda task, st, policy: reps_algorithm(task, st),
+    reps_schedule=lambda st: (st.reps_updates, *(st.reps_rollouts_per_update,) * 2),
+    reward_model=throwing_reward_model,
+))
+# fmt: on

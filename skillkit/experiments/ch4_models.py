@@ -1,55 +1,34 @@
 """Chapter 4 model experiments on the planar 4-link robot (Secs 4.2.2–4.2.3, Figs 4.3–4.5).
 
 Models are :class:`~skillkit.models.gp.ForwardModel` on transitions (x_t, u_t) → x_{t+1} at
-the 20 Hz control rate; u_t is the commanded torque and the torque noise is part of the
-stochastic dynamics the GP has to capture. fig4.3 and fig4.5 follow the thesis's setup: the
-GP learns x_{t+1} (not Δx), with PILCO's hyper-parameter curb
-(:class:`~skillkit.models.gp.HyperCurb`), and the controllers are PD controllers
-(:meth:`~skillkit.tasks.balancing.Balancing.pd_gain`). Where ours departs from the thesis's
-setup, the claims spec (``skillkit/data/claims/ch4.toml``) says so and why.
+20 Hz (u_t the commanded torque; the torque noise is part of the dynamics). fig4.3 and fig4.5
+follow the thesis: the GP learns x_{t+1} with PILCO's hyper-parameter curb
+(:class:`~skillkit.models.gp.HyperCurb`) under PD controllers
+(:meth:`~skillkit.tasks.balancing.Balancing.pd_gain`); departures are in
+``skillkit/data/claims/ch4.toml``.
 
-* ``fig4.3`` — sampling accuracy vs number of sampled trajectories. The lower-level policy is
-  a linear trajectory-tracking PD controller u = G (x − r_t) + u_ff,t around a reference
-  swinging every joint by ``amplitude`` rad (:meth:`~skillkit.tasks.balancing.Balancing.
-  swing_reference`, u_ff its inverse dynamics); linear in x, so moment matching applies with
-  the per-step offset u_ff,t − G r_t. A FITC model is trained on tracking rollouts (thesis:
-  12000 points, 700 pseudo-inputs, horizon 300); for each of ``n_start`` start distributions
-  N(m_0, σ_0²I) (m_0 around r_0, σ_0 log-uniform) the ground truth p(x_t) is the Gaussian
-  fitted to ``n_ground_truth`` sampled trajectories; approximations are Gaussians fitted to
-  n fresh samples, and moment matching (:func:`~skillkit.models.moment_matching.propagate`).
-  Scores are Σ_t KL(p(x_t) ‖ p̃(x_t)) normalised per start so that moment matching scores 100.
-* ``fig4.4`` — wall time of one moment-matching prediction vs sampling N trajectories with
-  the same model and horizon, with 1 and 2 torch threads (timings are measurements, so
-  they differ between runs even with the same seed). Its model is the earlier one: feedback
-  around upright with gains from N(vec G_lqr, (1% |G_lqr|)²) (:data:`DATA_EXPLORATION`,
-  kept robustly balancing by :func:`~skillkit.tasks.balancing.stable_gains`), Δx targets.
-* ``fig4.5`` — reward-prediction error E[(R̂ − R)²] of the standard GP vs FITC (M = N/4)
-  for 50 start states x_0 (T = 20, 20 sampled trajectories each) while one training setting
-  varies: the additive-noise factor α (σ_add = α 10⁻² std(y)), the number of
-  hyper-parameter optimisation steps, the torque noise, the number of training
-  trajectories. One PD controller balances throughout; R is the reward of a real rollout
-  from x_0 (the balancing reward −Σ_t x̃_tᵀ x̃_t of Sec. 4.2.3). Two floors are reported: the
-  noise floor Var(R | x_0) (repeated real rollouts from x_0) and the error of predicting the
-  training rollouts' mean reward. The optimisation-steps panel is also trained without the
-  curb, which shows its effect.
+* ``fig4.3``: Σ_t KL(p ‖ p̃) of Gaussians fitted to n sampled trajectories and of moment
+  matching against the ground truth (many samples), normalised so moment matching scores 100
+  (FITC model of a tracking PD controller around a swinging reference).
+* ``fig4.4``: wall time of one moment-matching prediction vs sampling N trajectories (1 and
+  2 torch threads; a model of feedback around upright with Δx targets).
+* ``fig4.5``: reward-prediction error E[(R̂ − R)²] of the standard GP vs FITC (M = N/4) while
+  one training setting varies, with the noise floor Var(R | x_0) and the constant predictor.
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 import torch
 
+from skillkit.experiments.judge import thesis_value
 from skillkit.experiments.registry import Experiment, Series, register
-from skillkit.experiments.settings import Settings, setting
+from skillkit.experiments.settings import Settings, scales, setting
 from skillkit.models.gp import ExactGP, ForwardModel, HyperCurb
-from skillkit.models.moment_matching import (
-    gaussian_kl,
-    moment_matching_flops_per_step,
-    propagate,
-)
+from skillkit.models.moment_matching import gaussian_kl, moment_matching_flops_per_step, propagate
 from skillkit.models.sampling import sample_trajectories, sampler_flops_per_step
 from skillkit.models.sparse import FITC
 from skillkit.tasks import make
@@ -66,8 +45,7 @@ from skillkit.trial import TrialContext
 __all__ = ["gaussian_fit", "time_predictions"]
 
 DATA_EXPLORATION = 0.01
-"""Exploration of fig4.4's data controllers: σ = 1% of |G_lqr| (R = 1e-4) entry-wise (kept so
-that its stored result stays valid; fig4.3 and fig4.5 use the thesis's PD controllers)."""
+"""Exploration of fig4.4's data controllers: σ = 1% of |G_lqr| (R = 1e-4) entry-wise."""
 
 
 def _data_policy(task: Balancing):
@@ -97,104 +75,66 @@ def _model(
         n_steps=settings.n_opt_steps if n_steps is None else n_steps,
         curb=HyperCurb() if curb else None,
     )
-    gp = (
-        ExactGP(**kw)
-        if kind == "standard"
-        else FITC(n_inducing=n_inducing or max(1, n_data // 4), **kw)
-    )
-    return ForwardModel(gp, target=target)
+    if kind == "standard":
+        return ForwardModel(ExactGP(**kw), target=target)
+    return ForwardModel(FITC(n_inducing=n_inducing or max(1, n_data // 4), **kw), target=target)
 
 
 # ---------------------------------------------------------------------------- fig4.3
-THESIS_4_3 = {"samples_to_match_mm_75pct": 20, "samples_to_match_mm_95pct": 50}
-"""The thesis's counts (kept in the summary as ``thesis_numbers``; the claims spec judges)."""
 
 
 @dataclass(frozen=True)
 class SamplingAccuracySettings(Settings):
     """Settings of ``fig4.3`` (Sec. 4.2.2, Fig. 4.3; the planar 4-link robot of Fig. 3.1)."""
 
-    n_data: int = setting(
-        1800,
-        "Training transitions of the FITC model (thesis: 12000), whole trajectories.",
-        minimum=1,
-    )
-    n_pseudo: int = setting(150, "Pseudo-inputs M of the FITC model (thesis: 700).", minimum=1)
-    horizon: int = setting(
-        60,
-        "Steps T of the training trajectories and of the predictions (20 Hz; thesis: 300).",
-        minimum=1,
-    )
-    n_start: int = setting(
-        20,
-        "Start distributions N(m_0, σ_0² I) (thesis: 100 'with varying initial variance').",
-        minimum=1,
-    )
+    n_data: int = setting(1800, "Training transitions of FITC (thesis: 12000).", minimum=1)
+    n_pseudo: int = setting(150, "Pseudo-inputs M of FITC (thesis: 700).", minimum=1)
+    horizon: int = setting(60, "Steps T of training and prediction (thesis: 300).", minimum=1)
+    n_start: int = setting(20, "Start distributions N(m_0, σ_0² I) (thesis: 100).", minimum=1)
     n_ground_truth: int = setting(
-        300,
-        "Sampled trajectories whose Gaussian fit is the ground truth p(x_t) (thesis: 1000).",
-        minimum=10,
+        300, "Sampled trajectories of the ground truth p(x_t) (thesis: 1000).", minimum=10
     )
     sample_sizes: tuple[int, ...] = setting(
-        (10, 20, 50, 100),
-        "Numbers of sampled trajectories compared with moment matching (≥ 10).",
-        minimum=10,
+        (10, 20, 50, 100), "Numbers of sampled trajectories compared (≥ 10).", minimum=10
     )
-    amplitude: float = setting(
-        0.6, "Amplitude (rad) of the swinging reference on every joint (Balancing.swing_reference)."
-    )
+    amplitude: float = setting(0.6, "Amplitude (rad) of the swinging reference on every joint.")
     period: float = setting(4.0, "Period (s) of the swinging reference.", above=0)
     initial_std: float = setting(
-        0.05,
-        "Std (rad, rad/s) of the training starts and of the test means m_0 around r_0.",
-        minimum=0,
+        0.05, "Std of the training starts and of the means m_0 around r_0.", minimum=0
     )
     torque_noise_std: float = setting(0.5, "Std of the torque noise of the robot (N m).", minimum=0)
     initial_std_range: tuple[float, float] = setting(
-        (0.01, 0.1), "Interval of σ_0 (rad, rad/s), drawn log-uniformly per start.", above=0
+        (0.01, 0.1), "Interval of σ_0, drawn log-uniformly per start.", above=0
     )
     n_opt_steps: int = setting(50, "Hyper-parameter optimisation steps of the model.", minimum=0)
     additive_noise: float = setting(
-        1.0, "Additive-noise factor α of the model: σ_add = α 10⁻² std(y) (Sec. 4.2.3).", minimum=0
+        1.0, "Additive-noise factor α: σ_add = α 10⁻² std(y) (Sec. 4.2.3).", minimum=0
     )
     curb: bool = setting(True, "Train with PILCO's hyper-parameter curb (HyperCurb).")
     gp_target: str = setting("next", "What the GP learns: 'next' (x′, the thesis) or 'delta'.")
 
     def check(self) -> None:
-        """At least one sample size (each ≥ 10 by its bound: a Gaussian fit in 8-D)."""
         if not self.sample_sizes:
             raise ValueError("sample_sizes: expected at least one number of trajectories")
-        if self.gp_target not in ("next", "delta"):
-            raise ValueError(f"gp_target: expected 'next' or 'delta', got {self.gp_target!r}")
+        _check_target(self.gp_target)
 
 
-QUICK_4_3 = SamplingAccuracySettings()
-SCALES_4_3 = {
-    "smoke": replace(
-        QUICK_4_3,
-        n_data=120,
-        n_pseudo=20,
-        horizon=6,
-        n_start=3,
-        n_ground_truth=150,
-        sample_sizes=(10, 40),
+def _check_target(target: str) -> None:
+    if target not in ("next", "delta"):
+        raise ValueError(f"gp_target: expected 'next' or 'delta', got {target!r}")
+
+
+SCALES_4_3 = scales(
+    SamplingAccuracySettings(),
+    smoke=dict(
+        n_data=120, n_pseudo=20, horizon=6, n_start=3, n_ground_truth=150, sample_sizes=(10, 40),
         n_opt_steps=5,
     ),
-    # quick scales down: training transitions 12000→1800, pseudo-inputs 700→150, horizon
-    # 300→60, start distributions 100→20, ground-truth samples 1000→300, sample sizes 8→4
-    # (10…100), hyper-parameter steps 150→50
-    "quick": QUICK_4_3,
-    "paper": replace(
-        QUICK_4_3,
-        n_data=12000,
-        n_pseudo=700,
-        horizon=300,
-        n_start=100,
-        n_ground_truth=1000,
-        sample_sizes=(10, 15, 20, 30, 50, 75, 100, 200),
-        n_opt_steps=150,
+    paper=dict(
+        n_data=12000, n_pseudo=700, horizon=300, n_start=100, n_ground_truth=1000,
+        sample_sizes=(10, 15, 20, 30, 50, 75, 100, 200), n_opt_steps=150,
     ),
-}
+)  # fmt: skip
 
 
 def _train_balancing_model(
@@ -240,12 +180,8 @@ def _run_4_3(
     sizes = list(settings.sample_sizes)
     B, T, n_gt = settings.n_start, settings.horizon, settings.n_ground_truth
     L = n_gt + sum(sizes)
-    task = make(
-        "balancing",
-        n_steps=T,
-        torque_noise_std=settings.torque_noise_std,
-        initial_std=settings.initial_std,
-    )
+    noise, std = settings.torque_noise_std, settings.initial_std
+    task = make("balancing", n_steps=T, torque_noise_std=noise, initial_std=std)
     G = task.pd_gain()
     ref, ff = task.swing_reference(settings.amplitude, settings.period)
     offsets = ff[:T] - ref[:T] @ G.T  # u_t = G x_t + (u_ff,t − G r_t): linear in x_t
@@ -255,13 +191,9 @@ def _run_4_3(
     if st is None:
         data = _tracking_data(task, G, ref, ff, max(1, int(np.ceil(settings.n_data / T))), rng)
         model = _model(
-            "sparse",
-            len(data["x"]),
-            settings,
-            n_inducing=settings.n_pseudo,
-            curb=settings.curb,
-            target=settings.gp_target,
-        )
+            "sparse", len(data["x"]), settings, n_inducing=settings.n_pseudo,
+            curb=settings.curb, target=settings.gp_target,
+        )  # fmt: skip
         t0 = time.perf_counter()
         model.fit(data["x"], data["u"], data["x_next"], rng=rng)
         lo, hi = np.log(settings.initial_std_range)
@@ -308,10 +240,14 @@ def _run_4_3(
         )
     }  # fmt: skip
     out["n_variance_clamped"] = st["n_variance_clamped"]
-    out["model_jitter"] = model.gp.diagnostics["jitter"]
-    out["max_signal_to_noise"] = model.gp.diagnostics["max_signal_to_noise"]
-    out["max_lengthscale_ratio"] = model.gp.diagnostics["max_lengthscale_ratio"]
+    d = model.gp.diagnostics
+    out["model_jitter"] = d["jitter"]
+    out["max_signal_to_noise"] = d["max_signal_to_noise"]
+    out["max_lengthscale_ratio"] = d["max_lengthscale_ratio"]
     return out
+
+
+_MATCH = "trajectories to match MM"
 
 
 def _first_reaching(sizes, values, level=100.0):
@@ -328,22 +264,14 @@ def _summarize_4_3(
     )
     pct = {q: np.percentile(scores, q, axis=0) for q in (50, 75, 95)}
     kw = dict(
-        panel="sampling accuracy",
-        xlabel="number of sampled trajectories",
-        ylabel="normalised KL (moment matching = 100)",
-        log_x=True,
-        log_y=True,
-    )
+        panel="sampling accuracy", xlabel="number of sampled trajectories",
+        ylabel="normalised KL (moment matching = 100)", log_x=True, log_y=True,
+    )  # fmt: skip
     series = [
-        Series(
-            f"sampling, {q}th percentile over start states",
-            sizes,
-            pct[q].tolist(),
-            kind="lines+markers",
-            **kw,
-        )
+        Series(f"sampling, {q}th percentile over start states", sizes, pct[q].tolist(),
+               kind="lines+markers", **kw)
         for q in (50, 75, 95)
-    ]
+    ]  # fmt: skip
     series.append(Series("moment matching", sizes, [100.0] * len(sizes), **kw))
     n75, n95 = _first_reaching(sizes, pct[75]), _first_reaching(sizes, pct[95])
     summary = {
@@ -352,7 +280,10 @@ def _summarize_4_3(
         },
         "samples_to_match_mm_75pct": n75,
         "samples_to_match_mm_95pct": n95,
-        "thesis_numbers": dict(THESIS_4_3),
+        "thesis_numbers": {  # the claims spec's
+            f"samples_to_match_mm_{q}pct": int(thesis_value("fig4.3", f"{_MATCH}, {q}%"))
+            for q in (75, 95)
+        },
         "mean_kl_per_step_mm": float(np.mean([t["kl_mm"].mean() for t in trials])),
         "n_start_states": int(scores.shape[0]),
         "n_variance_clamped": int(sum(t["n_variance_clamped"] for t in trials)),
@@ -360,14 +291,10 @@ def _summarize_4_3(
             "n_data": int(trials[0]["n_data"]),
             "n_pseudo_inputs": settings.n_pseudo,
             "horizon": settings.horizon,
-            "train_time_s": float(np.mean([t.get("train_time_s", np.nan) for t in trials])),
-            "max_signal_to_noise": float(max(t.get("max_signal_to_noise", np.nan) for t in trials)),
-            "max_lengthscale_ratio": float(
-                max(t.get("max_lengthscale_ratio", np.nan) for t in trials)
-            ),
-            "data_tracking_error_rad": float(
-                np.mean([t.get("tracking_error", np.nan) for t in trials])
-            ),
+            "train_time_s": float(np.mean([t["train_time_s"] for t in trials])),
+            "max_signal_to_noise": float(max(t["max_signal_to_noise"] for t in trials)),
+            "max_lengthscale_ratio": float(max(t["max_lengthscale_ratio"] for t in trials)),
+            "data_tracking_error_rad": float(np.mean([t["tracking_error"] for t in trials])),
         },
     }
     return series, summary
@@ -391,47 +318,32 @@ register(
 class ComputeTimeSettings(Settings):
     """Settings of ``fig4.4`` (Sec. 4.2.2, Fig. 4.4): timings, so numbers vary between runs."""
 
-    n_data: int = setting(600, "Training transitions of the FITC model (thesis: 1500).", minimum=1)
-    n_pseudo: int = setting(100, "Pseudo-inputs M of the FITC model (thesis: 300).", minimum=1)
-    horizon: int = setting(30, "Steps T of every prediction (20 Hz; thesis: 100).", minimum=1)
+    n_data: int = setting(600, "Training transitions of FITC (thesis: 1500).", minimum=1)
+    n_pseudo: int = setting(100, "Pseudo-inputs M of FITC (thesis: 300).", minimum=1)
+    horizon: int = setting(30, "Steps T of every prediction (thesis: 100).", minimum=1)
     n_trajectories: tuple[int, ...] = setting(
         (10, 100, 1000, 3000), "Numbers N of sampled trajectories timed, increasing.", minimum=1
     )
-    threads: tuple[int, ...] = setting(
-        (1, 2), "Torch thread counts timed (the claim is about one core).", minimum=1
-    )
-    repeats: int = setting(3, "Timings repeated (minimum kept; one run above N = 1000).", minimum=1)
+    threads: tuple[int, ...] = setting((1, 2), "Torch thread counts timed.", minimum=1)
+    repeats: int = setting(3, "Timings repeated (minimum kept; once above N = 1000).", minimum=1)
     torque_noise_std: float = setting(0.5, "Std of the torque noise of the robot (N m).", minimum=0)
     n_opt_steps: int = setting(30, "Hyper-parameter optimisation steps of the model.", minimum=0)
     additive_noise: float = setting(
-        1.0, "Additive-noise factor α of the model: σ_add = α 10⁻² std(y) (Sec. 4.2.3).", minimum=0
+        1.0, "Additive-noise factor α: σ_add = α 10⁻² std(y) (Sec. 4.2.3).", minimum=0
     )
 
 
-QUICK_4_4 = ComputeTimeSettings()
-SCALES_4_4 = {
-    "smoke": replace(
-        QUICK_4_4,
-        n_data=100,
-        n_pseudo=20,
-        horizon=5,
-        n_trajectories=(10, 100),
-        threads=(1,),
-        repeats=1,
+SCALES_4_4 = scales(
+    ComputeTimeSettings(),
+    smoke=dict(
+        n_data=100, n_pseudo=20, horizon=5, n_trajectories=(10, 100), threads=(1,), repeats=1,
         n_opt_steps=5,
     ),
-    # quick scales down: training transitions 1500→600, pseudo-inputs 300→100, horizon
-    # 100→30, trajectory counts up to 3000 (not 10000), hyper-parameter steps 150→30
-    "quick": QUICK_4_4,
-    "paper": replace(
-        QUICK_4_4,
-        n_data=1500,
-        n_pseudo=300,
-        horizon=100,
-        n_trajectories=(10, 100, 1000, 3000, 10000),
+    paper=dict(
+        n_data=1500, n_pseudo=300, horizon=100, n_trajectories=(10, 100, 1000, 3000, 10000),
         n_opt_steps=150,
     ),
-}
+)  # fmt: skip
 
 
 def time_predictions(
@@ -447,19 +359,10 @@ def time_predictions(
 ) -> dict:
     """Wall time of one moment-matching prediction and of sampling N trajectories.
 
-    Same model, controller and horizon for both.
-
-    For each torch thread count: the minimum over ``repeats`` of the time of
-    :func:`~skillkit.models.moment_matching.propagate` over ``horizon`` steps, and of
-    :func:`~skillkit.models.sampling.sample_trajectories` of N trajectories from N(m0, S0)
-    with u = G x̃ (minimum over ``repeats`` for N ≤ 1000, one run above). The thread count is
-    restored afterwards.
-
-    Returns
-    -------
-    dict
-        ``mm_time`` {threads: s}, ``sampling_time`` {threads: [s per N]},
-        ``trajectories_in_mm_time`` {threads: N·t_MM / t_sampling(N) at the largest N}.
+    Per torch thread count (restored afterwards), same model, u = G x̃ and horizon: the
+    minimum over ``repeats`` (one run above N = 1000) of ``propagate`` and of sampling N
+    trajectories from N(m0, S0). Returns ``mm_time`` {threads: s}, ``sampling_time``
+    {threads: [s per N]} and ``trajectories_in_mm_time`` (N·t_MM / t_sampling at the largest N).
     """
     policy = feedback_policy(torch.as_tensor(G[None]))
     k = -G @ X_UP
@@ -476,17 +379,11 @@ def time_predictions(
             times = []
             for n in n_trajectories:
                 x0 = m0 + rng.standard_normal((1, n, len(m0))) @ chol.T
-                reps = repeats if n <= 1000 else 1
-                times.append(
-                    min(
-                        _timed(
-                            lambda x0=x0, n=n: sample_trajectories(
-                                model, x0, policy, horizon, n, rng
-                            )
-                        )
-                        for _ in range(reps)
-                    )
-                )
+
+                def sample(x0=x0, n=n):
+                    return sample_trajectories(model, x0, policy, horizon, n, rng)
+
+                times.append(min(_timed(sample) for _ in range(repeats if n <= 1000 else 1)))
             out["mm_time"][str(th)] = mm
             out["sampling_time"][str(th)] = times
             out["trajectories_in_mm_time"][str(th)] = mm * n_trajectories[-1] / times[-1]
@@ -507,17 +404,9 @@ def _run_4_4(settings: ComputeTimeSettings, rng: np.random.Generator, trial: Tri
     trial.update()
     m0 = X_UP + task.initial_std * rng.standard_normal(8)
     G = stable_gains(task, 1, rng, policy=_data_policy(task))[0].reshape(4, 8)
-    out = time_predictions(
-        model,
-        m0,
-        0.05**2 * np.eye(8),
-        G,
-        settings.horizon,
-        list(settings.n_trajectories),
-        list(settings.threads),
-        settings.repeats,
-        rng,
-    )
+    ns, threads = list(settings.n_trajectories), list(settings.threads)
+    S0 = 0.05**2 * np.eye(8)
+    out = time_predictions(model, m0, S0, G, settings.horizon, ns, threads, settings.repeats, rng)
     trial.update()
     return {**out, "n_data": len(data["x"]), "n_pseudo": model.predictor.n_support}
 
@@ -525,22 +414,13 @@ def _run_4_4(settings: ComputeTimeSettings, rng: np.random.Generator, trial: Tri
 def _summarize_4_4(settings: ComputeTimeSettings, trials: list[dict]) -> tuple[list[Series], dict]:
     ns = list(settings.n_trajectories)
     kw = dict(
-        panel="compute time of one long-term prediction",
-        xlabel="number of sampled trajectories",
-        ylabel="wall time (s)",
-        log_x=True,
-        log_y=True,
-    )
+        panel="compute time of one long-term prediction", xlabel="number of sampled trajectories",
+        ylabel="wall time (s)", log_x=True, log_y=True,
+    )  # fmt: skip
     series = []
-    summary: dict = {
-        "mm_time_s": {},
-        "sampling_time_s": {},
-        "trajectories_in_mm_time": {},
-        "mm_gflops": {},
-        "sampling_gflops": {},
-    }
-    # Counted flops (exp as one flop in both) of one step of the balancing model: E = n_x
-    # outputs, D = n_x + n_u inputs, x = [q, q̇] of the robot's joints and one torque per joint.
+    keys = ("mm_time_s", "sampling_time_s", "trajectories_in_mm_time", "mm_gflops")
+    summary: dict = {k: {} for k in (*keys, "sampling_gflops")}
+    # Counted flops (exp as one flop) of one step: n_x outputs, n_x + n_u inputs.
     T, M = settings.horizon, trials[0]["n_pseudo"]
     n_x = X_UP.size
     n_u = n_x // 2
@@ -574,8 +454,6 @@ def _summarize_4_4(settings: ComputeTimeSettings, trials: list[dict]) -> tuple[l
             "flops_per_prediction": {
                 "moment_matching": mm_flops,
                 "sampling_per_trajectory": sample_flops,
-                "counted": "moment_matching_flops_per_step and sampler_flops_per_step "
-                "(exp counted as one flop in both)",
             },
         }
     )
@@ -606,17 +484,15 @@ _PANELS_4_5 = (
 
 @dataclass(frozen=True)
 class TrainingSetting(Settings):
-    """One training setting of ``fig4.5``: the default every panel varies one field of.
-
-    The field order is part of the experiment's seeds (``_seed(root, 3, *cfg.values())``).
-    """
+    """One training setting of ``fig4.5``: the default every panel varies one field of (the
+    field order is part of the experiment's seeds)."""
 
     additive_noise: float = setting(
         1.0, "Additive-noise factor α: σ_add = α 10⁻² std(y) (Sec. 4.2.3).", minimum=0
     )
     n_opt_steps: int = setting(50, "Hyper-parameter optimisation steps (thesis: 150).", minimum=0)
     torque_noise_std: float = setting(0.5, "Std of the torque noise of the robot (N m).", minimum=0)
-    n_train: int = setting(15, "Training trajectories (T steps each; thesis: 50).", minimum=1)
+    n_train: int = setting(15, "Training trajectories (thesis: 50).", minimum=1)
 
 
 @dataclass(frozen=True)
@@ -624,8 +500,7 @@ class RewardErrorSettings(Settings):
     """Settings of ``fig4.5`` (Sec. 4.2.3, Fig. 4.5): one panel per ``*_values`` field."""
 
     defaults: TrainingSetting = setting(
-        TrainingSetting(),
-        "The default training setting; ``--set`` takes a mapping of some of its fields.",
+        TrainingSetting(), "The default training setting (``--set`` takes a mapping)."
     )
     additive_noise_values: tuple[float, ...] = setting(
         (0.1, 1.0, 10.0), "Additive-noise factors α of the first panel.", minimum=0
@@ -639,77 +514,48 @@ class RewardErrorSettings(Settings):
     n_train_values: tuple[int, ...] = setting(
         (5, 15), "Training-trajectory counts of the fourth panel.", minimum=1
     )
-    n_pairs: int = setting(
-        15, "Test start states x_0 whose rewards are predicted (thesis: 50).", minimum=1
-    )
-    initial_std: float = setting(
-        0.1, "Std of the initial state around upright (rad, rad/s; Sec. 4.2.3).", minimum=0
-    )
+    n_pairs: int = setting(15, "Test start states x_0 (thesis: 50).", minimum=1)
+    initial_std: float = setting(0.1, "Std of the initial state around upright.", minimum=0)
     horizon: int = setting(20, "Steps T of training and test trajectories (thesis: 20).", minimum=1)
-    n_predicted: int = setting(
-        10, "Trajectories sampled from a model per test pair (thesis: 20).", minimum=1
-    )
+    n_predicted: int = setting(10, "Trajectories sampled per test pair (thesis: 20).", minimum=1)
     pseudo_fraction: float = setting(
-        0.25, "Pseudo-inputs of FITC as a fraction of N (M = N/4).", above=0, maximum=1
+        0.25, "Pseudo-inputs of FITC as a fraction of N.", above=0, maximum=1
     )
-    natural_frequency: float = setting(
-        3.0, "ω (rad/s) of the PD controller (:meth:`Balancing.pd_gain`) used throughout.", above=0
-    )
+    natural_frequency: float = setting(3.0, "ω (rad/s) of the PD controller.", above=0)
     damping: float = setting(1.5, "ζ of the PD controller.", above=0)
     gp_target: str = setting("next", "What the GPs learn: 'next' (x′, the thesis) or 'delta'.")
     uncurbed_panels: tuple[str, ...] = setting(
-        ("n_opt_steps",),
-        "Panels whose settings are also trained without the hyper-parameter curb (its effect).",
+        ("n_opt_steps",), "Panels also trained without the hyper-parameter curb."
     )
     n_truth: int = setting(
-        5,
-        "Real rollouts per test start state; their variance gives the noise floor (≥ 2).",
-        minimum=2,
+        5, "Real rollouts per test start (their variance: the floor).", minimum=2
     )
 
     def check(self) -> None:
-        """Panels named in ``uncurbed_panels`` exist; ``gp_target`` is known."""
         names = [k for k, _ in _PANELS_4_5]
         bad = [p for p in self.uncurbed_panels if p not in names]
         if bad:
             raise ValueError(f"uncurbed_panels: expected names from {names}, got {bad}")
-        if self.gp_target not in ("next", "delta"):
-            raise ValueError(f"gp_target: expected 'next' or 'delta', got {self.gp_target!r}")
+        _check_target(self.gp_target)
 
 
-QUICK_4_5 = RewardErrorSettings()
-SCALES_4_5 = {
-    "smoke": replace(
-        QUICK_4_5,
-        defaults=TrainingSetting(1.0, 5, 0.5, 2),
-        additive_noise_values=(1.0, 10.0),
-        n_opt_steps_values=(5,),
-        torque_noise_std_values=(0.5,),
-        n_train_values=(2,),
-        n_pairs=3,
-        horizon=5,
-        n_predicted=3,
-        n_truth=2,
+SCALES_4_5 = scales(
+    RewardErrorSettings(),
+    smoke=dict(
+        defaults=TrainingSetting(1.0, 5, 0.5, 2), additive_noise_values=(1.0, 10.0),
+        n_opt_steps_values=(5,), torque_noise_std_values=(0.5,), n_train_values=(2,), n_pairs=3,
+        horizon=5, n_predicted=3, n_truth=2,
     ),
-    # quick scales down: default training trajectories 50→15 and steps 150→50, panel values
-    # 6→3 noise factors, 6→2 step counts, 5→2 control noises, 4→2 data sizes, test pairs
-    # 50→15, sampled trajectories 20→10, real rollouts per pair 10→5
-    "quick": QUICK_4_5,
-    "paper": replace(
-        QUICK_4_5,
+    paper=dict(
         defaults=TrainingSetting(1.0, 150, 0.5, 50),
         additive_noise_values=(0.1, 0.3, 1.0, 3.0, 10.0, 30.0),
         n_opt_steps_values=(10, 25, 50, 100, 150, 250),
-        torque_noise_std_values=(0.0, 0.25, 0.5, 1.0, 2.0),
-        n_train_values=(10, 20, 50, 100),
-        n_pairs=50,
-        n_predicted=20,
-        n_truth=10,
+        torque_noise_std_values=(0.0, 0.25, 0.5, 1.0, 2.0), n_train_values=(10, 20, 50, 100),
+        n_pairs=50, n_predicted=20, n_truth=10,
     ),
-}
+)  # fmt: skip
 REWARD_ERROR_LABEL = "mean squared reward error [reward²]"
-"""Y label of ``fig4.5``: (predicted − real trajectory reward)², averaged over the test pairs
-(the balancing reward −(x̃ᵀQx̃ + r_u uᵀu) is unitless)."""
+"""Y label of ``fig4.5`` (the balancing reward is unitless)."""
 
 
 def _seed(root: int, *keys) -> np.random.Generator:
@@ -719,24 +565,16 @@ def _seed(root: int, *keys) -> np.random.Generator:
 
 
 def _evaluate_4_5(cfg: dict, settings: RewardErrorSettings, root: int, curbs=(True,)) -> dict:
-    """Train both models for one training setting and measure their reward-prediction errors.
+    """Train both models on one training setting and measure their reward-prediction errors.
 
-    One PD controller G throughout (Sec. 4.2.3: "set such that the pendulum is robustly
-    balanced ... from a random set of initial positions"). A test pair is a start state x_0:
-    its real reward R is that of one real rollout from x_0 (the thesis's R(s, ω)), and
-    ``n_truth`` rollouts from the same x_0 give Var(R | x_0), the error even a perfect model
-    makes (the *noise floor*). The *constant predictor* predicts the mean reward of the
-    training rollouts for every x_0. ``curbs`` lists the hyper-parameter treatments trained
-    (True: :class:`~skillkit.models.gp.HyperCurb`; False: plain ML-II, reported under
-    ``"<kind>_uncurbed"``); both see the same data and draws.
+    One PD controller G throughout. A test pair is a start state x_0 whose real reward R is
+    that of one real rollout; ``n_truth`` rollouts from x_0 give the noise floor Var(R | x_0).
+    The constant predictor predicts the training rollouts' mean reward. ``curbs``: True trains
+    with :class:`~skillkit.models.gp.HyperCurb`, False without (``"<kind>_uncurbed"``).
     """
     T = settings.horizon
-    task = make(
-        "balancing",
-        n_steps=T,
-        torque_noise_std=cfg["torque_noise_std"],
-        initial_std=settings.initial_std,
-    )
+    noise = cfg["torque_noise_std"]
+    task = make("balancing", n_steps=T, torque_noise_std=noise, initial_std=settings.initial_std)
     G = task.pd_gain(settings.natural_frequency, settings.damping)
     train = collect_balancing(
         task, cfg["n_train"], _seed(root, 1, cfg["torque_noise_std"], cfg["n_train"]), gain=G
@@ -760,26 +598,16 @@ def _evaluate_4_5(cfg: dict, settings: RewardErrorSettings, root: int, curbs=(Tr
     for curb in curbs:
         for kind in ("standard", "sparse"):
             model = _model(
-                kind,
-                N,
-                settings,
-                additive_noise=cfg["additive_noise"],
-                n_steps=cfg["n_opt_steps"],
-                n_inducing=max(1, int(settings.pseudo_fraction * N)),
-                curb=curb,
-                target=settings.gp_target,
-            )
+                kind, N, settings, additive_noise=cfg["additive_noise"],
+                n_steps=cfg["n_opt_steps"], n_inducing=max(1, int(settings.pseudo_fraction * N)),
+                curb=curb, target=settings.gp_target,
+            )  # fmt: skip
             t0 = time.perf_counter()
             model.fit(train["x"], train["u"], train["x_next"], rng=_seed(root, 3, *cfg.values()))
             train_time = time.perf_counter() - t0
-            res = sample_trajectories(
-                model,
-                x0,
-                feedback_policy(torch.as_tensor(gains)),
-                T,
-                settings.n_predicted,
-                _seed(root, 4, *cfg.values()),
-            )
+            policy = feedback_policy(torch.as_tensor(gains))
+            draws = _seed(root, 4, *cfg.values())
+            res = sample_trajectories(model, x0, policy, T, settings.n_predicted, draws)
             predicted = sampled_rewards(task, res.states.numpy(), gains).mean(1)
             d = model.gp.diagnostics
             out[kind if curb else f"{kind}_uncurbed"] = {
@@ -796,8 +624,8 @@ def _evaluate_4_5(cfg: dict, settings: RewardErrorSettings, root: int, curbs=(Tr
 
 
 def _configs_4_5(settings: RewardErrorSettings) -> list[tuple[dict, bool]]:
-    """The distinct training settings of the four panels, each with whether it is also
-    trained without the curb (it belongs to a panel of ``uncurbed_panels``)."""
+    """The distinct training settings of the panels, each with whether it is also trained
+    without the curb."""
     defaults = settings.defaults.to_dict()
     configs: list[dict] = []
     uncurbed: list[bool] = []
@@ -837,9 +665,9 @@ _KINDS_4_5 = (
 
 
 def sparse_minus_standard(panels: dict, settings) -> dict[str, list[float]]:
-    """FITC's reward-prediction error minus the standard GP's where the thesis compares them:
-    at the additive-noise factors above the default and at the control-noise levels above 0
-    (one entry a setting), from fig4.5's ``summary["panels"]``."""
+    """FITC's reward-prediction error minus the standard GP's (from fig4.5's
+    ``summary["panels"]``) at the additive-noise factors above the default and the
+    control-noise levels above 0, where the thesis compares them."""
     alpha0 = settings.defaults.additive_noise
     return {
         "additive_noise_above_default": [
@@ -866,40 +694,33 @@ def _summarize_4_5(settings: RewardErrorSettings, trials: list[dict]) -> tuple[l
         v = r.get(kind)
         return None if v is None else v if isinstance(v, float) else v["squared_error"]
 
+    results = [r for t in trials for r in t["results"]]
+
+    def at(cfg: dict) -> list[dict]:
+        return [r for r in results if r["config"] == cfg]
+
     for key, label in _PANELS_4_5:
         values = list(getattr(settings, f"{key}_values"))
         panel = {}
         for kind, name in _KINDS_4_5:
             if kind.endswith("_uncurbed") and key not in settings.uncurbed_panels:
                 continue
-            errs = []
-            for v in values:
-                cfg = dict(defaults, **{key: v})
-                vals = [value(r, kind) for t in trials for r in t["results"] if r["config"] == cfg]
-                errs.append(float(np.mean(vals)))
-            floor = kind in ("noise_floor", "constant_predictor")
-            series.append(
-                Series(
-                    name,
-                    values,
-                    errs,
-                    panel=label,
-                    kind="line" if floor else "lines+markers",
-                    xlabel=label,
-                    ylabel=REWARD_ERROR_LABEL,
-                    log_x=key == "additive_noise",
-                    log_y=True,
-                )
-            )
+            errs = [
+                float(np.mean([value(r, kind) for r in at(dict(defaults, **{key: v}))]))
+                for v in values
+            ]
+            line = "line" if kind in ("noise_floor", "constant_predictor") else "lines+markers"
+            series.append(Series(name, values, errs, panel=label, kind=line, xlabel=label,
+                                 ylabel=REWARD_ERROR_LABEL, log_x=key == "additive_noise",
+                                 log_y=True))  # fmt: skip
             panel[kind] = dict(zip(map(str, values), errs, strict=True))
         summary["panels"][key] = panel
-    default = [r for t in trials for r in t["results"] if r["config"] == defaults]
-    by_steps = {
-        str(v): [
-            r for t in trials for r in t["results"] if r["config"] == dict(defaults, n_opt_steps=v)
-        ]
-        for v in settings.n_opt_steps_values
-    }
+    default = at(defaults)
+    by_steps = {str(v): at(dict(defaults, n_opt_steps=v)) for v in settings.n_opt_steps_values}
+
+    def most(kind, key, rs):
+        return float(np.max([r[kind][key] for r in rs]))
+
     summary.update(
         {
             "default_setting": defaults,
@@ -915,12 +736,8 @@ def _summarize_4_5(settings: RewardErrorSettings, trials: list[dict]) -> tuple[l
             "hyperparameters_by_steps": {
                 kind: {
                     v: {
-                        "max_signal_to_noise": float(
-                            np.max([r[kind]["max_signal_to_noise"] for r in rs])
-                        ),
-                        "max_lengthscale_ratio": float(
-                            np.max([r[kind]["max_lengthscale_ratio"] for r in rs])
-                        ),
+                        k: most(kind, k, rs)
+                        for k in ("max_signal_to_noise", "max_lengthscale_ratio")
                     }
                     for v, rs in by_steps.items()
                     if all(kind in r for r in rs)
@@ -929,19 +746,13 @@ def _summarize_4_5(settings: RewardErrorSettings, trials: list[dict]) -> tuple[l
             },
             "numerical_events": {
                 k: {
-                    "jitter": max(r[k]["jitter"] for t in trials for r in t["results"] if k in r),
-                    "noise_at_floor": sum(
-                        r[k]["noise_at_floor"] for t in trials for r in t["results"] if k in r
-                    ),
-                    "stopped_early": sum(
-                        r[k]["stopped_early"] for t in trials for r in t["results"] if k in r
-                    ),
+                    "jitter": max(r[k]["jitter"] for r in results if k in r),
+                    "noise_at_floor": sum(r[k]["noise_at_floor"] for r in results if k in r),
+                    "stopped_early": sum(r[k]["stopped_early"] for r in results if k in r),
                 }
                 for k in ("standard", "sparse")
             },
-            "n_failed_truth_rollouts": sum(
-                r["n_failed_truth"] for t in trials for r in t["results"]
-            ),
+            "n_failed_truth_rollouts": sum(r["n_failed_truth"] for r in results),
         }
     )
     summary["sparse_minus_standard"] = sparse_minus_standard(summary["panels"], settings)

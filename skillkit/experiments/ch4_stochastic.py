@@ -1,56 +1,31 @@
 """Chapter 4, learning with stochastic dynamics (Sec. 4.3.2.2, Fig. 4.8).
 
-``fig4.8`` — one context–parameter pair (s, ω) of the stochastic single-link pendulum
-(:func:`skillkit.tasks.pendulum.pendulum_stochastic`: torque noise σ_u = 1.5, T = 30; the
-context is the start state s = [α₀, α̇₀], ω the feedback gains K of u = Kᵀx) rolled out many
-times on the real (simulated) system. Fig. 4.8 shows the sampled trajectories and the
-distribution of the trajectory reward R(τ, s) = Σ_t r(x_t) with its mean, the expected reward
-R_sω = E[R(τ, s)]. The point of the figure (Sec. 4.3.2.2): under stochastic dynamics the
-reward of one rollout varies widely, so model-free REPS, which sees one rollout per (s, ω),
-scores each pair with a noisy estimate of R_sω and its dual (Eq. 3.9) is biased; GPREPS
-averages L trajectories sampled from a learned forward model (Eq. 4.1).
+``fig4.8``: one context–parameter pair (s, ω) of the stochastic pendulum
+(:func:`skillkit.tasks.pendulum.pendulum_stochastic`, σ_u = 1.5, T = 30; s = [α₀, α̇₀], ω the
+gains K of u = Kᵀx) rolled out many times. Under stochastic dynamics single-rollout rewards
+R(τ, s) vary widely around R_sω = E[R(τ, s)], so model-free REPS scores each pair with a noisy
+estimate while GPREPS averages L model trajectories (Eq. 4.1). One trial:
 
-One trial:
+1. ``n_real`` real rollouts of the pair: the Monte Carlo R_MC, its standard error (the noise
+   floor of every comparison) and the spread of single rewards;
+2. a GP forward model (Δx targets) fitted on ``n_train`` real rollouts of nearby pairs, with
+   the *commanded* torque as input (:func:`commanded_transitions`);
+3. ``n_model`` model trajectories of the pair: the model's reward distribution and, for each
+   L in ``sample_sizes``, the RMSE against R_MC of the average of L model trajectories beside
+   that of L real rollouts (:func:`block_rmse`).
 
-1. ``n_real`` rollouts of the pair on the real system: their rewards give the Monte Carlo
-   expected reward R_MC (with its standard error, the noise floor of every comparison
-   below) and the spread of single-rollout rewards; a few trajectories are kept for the
-   figure.
-2. A GP forward model (:class:`~skillkit.models.gp.ForwardModel` on an
-   :class:`~skillkit.models.gp.ExactGP`, Δx targets) is fitted on the transitions of
-   ``n_train`` real rollouts of *other* pairs near (s, ω): contexts uniform within
-   ``train_context_halfwidth`` of s, gains ω ~ N(K, diag(``train_gain_std``²)) (the task's
-   initial policy around the thesis gains), as GPREPS's model is fitted on the rollouts of
-   its current policy, not on repetitions of the pair it evaluates. The model input is the
-   *commanded* torque u_t = clip(Kᵀx_t, −3, 3), the output of the task's controller that
-   model rollouts run (:meth:`~skillkit.tasks.pendulum.Pendulum.controller`): the torque
-   noise then is part of the stochastic dynamics the GP learns. (The trajectories record
-   the applied, noisy torque; with it as input the transition would be deterministic and
-   the model's rollouts would lose the noise.)
-3. ``n_model`` model trajectories of the pair
-   (:func:`~skillkit.search.model_rollouts.predict_trajectories`): the model's reward
-   distribution and expected reward against R_MC; and, for each L in ``sample_sizes``, the
-   root-mean-square error against R_MC of the average of L model trajectories (Eq. 4.1;
-   non-overlapping blocks of the n_model trajectories) beside that of the average of L real
-   rollouts (L = 1: the single rollout model-free REPS scores a pair with). The real
-   averages are scored against R_MC of the same rollouts, which makes their RMSE slightly
-   optimistic at large L (few blocks); the model's are independent of R_MC.
-
-The thesis reports no result here; our own readings of these numbers (the spread of single
-rollouts against |R_MC|, the model average's RMSE against one real rollout's) are in the
-claims spec (``skillkit/data/claims/ch4.toml``). The noise floor of every comparison
-with R_MC is its standard error, reported beside it.
+The thesis reports no result here; our readings are in ``skillkit/data/claims/ch4.toml``.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 import torch
 
 from skillkit.experiments.registry import Experiment, Series, register
-from skillkit.experiments.settings import Settings, setting
+from skillkit.experiments.settings import Settings, scales, setting
 from skillkit.models.gp import ExactGP, ForwardModel
 from skillkit.search.model_rollouts import predict_trajectories
 from skillkit.tasks import make
@@ -58,11 +33,7 @@ from skillkit.tasks.pendulum import THESIS_GAINS, Pendulum
 from skillkit.trial import TrialContext
 from skillkit.viz.series import trial_band
 
-__all__ = [
-    "StochasticRewardSettings",
-    "block_rmse",
-    "commanded_transitions",
-]
+__all__ = ["StochasticRewardSettings", "block_rmse", "commanded_transitions"]
 
 REWARD_LABEL = "trajectory reward R(τ, s) = −Σ_t (α_t² + 0.1 α̇_t²)"
 ERROR_LABEL = "RMSE of the estimate of R_sω"
@@ -77,71 +48,43 @@ class StochasticRewardSettings(Settings):
     """Settings of ``fig4.8`` (Sec. 4.3.2.2, Fig. 4.8; the stochastic pendulum)."""
 
     context: tuple[float, float] = setting(
-        (float(np.pi / 2), 0.0),
-        "The context s = [α₀, α̇₀] of the evaluated pair (rad, rad/s): the pendulum starts "
-        "horizontal at rest (the thesis does not give its start state).",
+        (float(np.pi / 2), 0.0), "Context s = [α₀, α̇₀] of the pair (rad, rad/s): horizontal."
     )
     gains: tuple[float, float] = setting(
-        tuple(float(g) for g in THESIS_GAINS),
-        "The parameters ω = K of the evaluated pair, u = Kᵀx (thesis gains, Sec. 5.4).",
+        tuple(float(g) for g in THESIS_GAINS), "Parameters ω = K of the pair (Sec. 5.4 gains)."
     )
-    control_noise: float = setting(
-        1.5, "Std σ_u of the torque noise (N m; the pendulum-stochastic task's value)."
-    )
+    control_noise: float = setting(1.5, "Std σ_u of the torque noise (N m).")
     horizon: int = setting(30, "Control steps T of every trajectory (Δt = 0.1 s).", minimum=1)
-    n_real: int = setting(
-        400,
-        "Real rollouts of the pair: the Monte Carlo estimate of R_sω and the histogram.",
-        minimum=1,
-    )
+    n_real: int = setting(400, "Real rollouts of the pair (Monte Carlo R_sω).", minimum=1)
     n_shown: int = setting(20, "Real and model trajectories drawn in the left panels.", minimum=1)
-    n_train: int = setting(
-        20,
-        "Real rollouts of nearby pairs whose transitions train the GP model (T each).",
-        minimum=1,
-    )
+    n_train: int = setting(20, "Real rollouts of nearby pairs that train the GP.", minimum=1)
     train_context_halfwidth: tuple[float, float] = setting(
-        (0.5, 1.0),
-        "Half-widths of the uniform context box around s of the training rollouts "
-        "(rad, rad/s; clipped to the task's context range).",
-        minimum=0,
+        (0.5, 1.0), "Half-widths of the training contexts' box around s (clipped).", minimum=0
     )
     train_gain_std: tuple[float, float] = setting(
-        (0.5, 0.25),
-        "Std of the training gains ω ~ N(K, diag(std²)) (the task's initial policy).",
-        minimum=0,
+        (0.5, 0.25), "Std of the training gains ω ~ N(K, diag(std²)).", minimum=0
     )
-    n_model: int = setting(
-        2000,
-        "Model trajectories of the pair: split into blocks of L for the L-averages.",
-        minimum=1,
-    )
+    n_model: int = setting(2000, "Model trajectories of the pair (blocks of L).", minimum=1)
     sample_sizes: tuple[int, ...] = setting(
         (1, 5, 25, 100), "Numbers L of trajectories averaged (Eq. 4.1), increasing."
     )
     n_bins: int = setting(30, "Bins of the reward histograms.", minimum=1)
-    n_opt_steps: int = setting(
-        100, "Hyper-parameter optimisation steps (L-BFGS) of the GP.", minimum=0
-    )
+    n_opt_steps: int = setting(100, "Hyper-parameter optimisation steps of the GP.", minimum=0)
     additive_noise: float = setting(
-        1.0, "Additive-noise factor α of the GP: σ_add = α 10⁻² std(y) (Sec. 4.2.3).", minimum=0
+        1.0, "Additive-noise factor α: σ_add = α 10⁻² std(y) (Sec. 4.2.3).", minimum=0
     )
 
     def check(self) -> None:
-        """Sizes the L-averages need and stochastic dynamics (ranges: the fields' bounds)."""
+        """Sizes the L-averages need and stochastic dynamics."""
         sizes = self.sample_sizes
         if not sizes or min(sizes) < 1 or list(sizes) != sorted(set(sizes)):
             raise ValueError(f"sample_sizes: expected increasing integers ≥ 1, got {sizes}")
-        if self.n_model < 2 * max(sizes):
-            raise ValueError(
-                f"n_model: need at least two blocks of the largest L = {max(sizes)}, "
-                f"got {self.n_model}"
-            )
-        if self.n_real < 2 * max(sizes):
-            raise ValueError(
-                f"n_real: need at least two blocks of the largest L = {max(sizes)}, "
-                f"got {self.n_real}"
-            )
+        for name in ("n_model", "n_real"):
+            if getattr(self, name) < 2 * max(sizes):
+                raise ValueError(
+                    f"{name}: need at least two blocks of the largest L = {max(sizes)}, "
+                    f"got {getattr(self, name)}"
+                )
         if not self.control_noise > 0:
             raise ValueError(
                 f"control_noise: the experiment needs stochastic dynamics (σ_u > 0), "
@@ -149,50 +92,25 @@ class StochasticRewardSettings(Settings):
             )
 
 
-QUICK = StochasticRewardSettings()
-SCALES = {
-    "smoke": replace(
-        QUICK,
-        horizon=10,
-        n_real=60,
-        n_shown=5,
-        n_train=4,
-        n_model=100,
-        sample_sizes=(1, 5, 20),
-        n_bins=10,
-        n_opt_steps=5,
+SCALES = scales(
+    StochasticRewardSettings(),
+    smoke=dict(
+        horizon=10, n_real=60, n_shown=5, n_train=4, n_model=100, sample_sizes=(1, 5, 20),
+        n_bins=10, n_opt_steps=5,
     ),
-    # quick scales down: real rollouts 1000→400, GP training rollouts 30→20, model samples
-    # 5000→2000, hyper-parameter steps 150→100
-    "quick": QUICK,
-    "paper": replace(QUICK, n_real=1000, n_train=30, n_model=5000, n_opt_steps=150),
-}
+    paper=dict(n_real=1000, n_train=30, n_model=5000, n_opt_steps=150),
+)  # fmt: skip
 
 
 def commanded_transitions(
     task: Pendulum, trajectory, omega: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Transitions (x_t, u_t, x_{t+1}) of a real rollout with u_t the commanded torque.
+    """Transitions (x_t, u_t, x_{t+1}) of a real rollout with u_t the commanded torque
+    clip(Kᵀx_t, −3, 3) (what model rollouts' controller outputs): the torque noise becomes
+    part of the stochastic transition the model learns.
 
-    ``task.transitions`` gives the applied torque clip(Kᵀx_t + ε_t, −3, 3); with that input
-    the pendulum's transition is deterministic. Model rollouts run the task's controller,
-    whose output is the commanded torque clip(Kᵀx_t, −3, 3), so the model is trained on
-    that: the torque noise ε_t becomes part of the stochastic transition it learns.
-
-    Parameters
-    ----------
-    task : Pendulum
-    trajectory : Trajectory
-        A rollout of ``task`` with gains ``omega``.
-    omega : ndarray, shape (2,)
-        The gains K of the rollout.
-
-    Returns
-    -------
-    X : ndarray, shape (T, 2)
-    U : ndarray, shape (T, 1)
-        Commanded torques.
-    X_next : ndarray, shape (T, 2)
+    Returns X (T, 2), U (T, 1) and X_next (T, 2) of ``trajectory``, a rollout of ``task``
+    with the gains ``omega`` (2,).
     """
     x, _, x_next = task.transitions(trajectory)
     policy = task.controller(np.asarray(omega, dtype=float)[None])
@@ -202,19 +120,9 @@ def commanded_transitions(
 
 
 def block_rmse(samples: np.ndarray, L: int, target: float) -> float:
-    """Root-mean-square error of the average of L samples as an estimate of ``target``.
-
-    The samples are split into ⌊n / L⌋ non-overlapping blocks of L (in order); returns
-    sqrt(mean_b (mean(block_b) − target)²).
-
-    Parameters
-    ----------
-    samples : ndarray, shape (n,)
-    L : int
-        Block size, 1 ≤ L ≤ n.
-    target : float
-        The value estimated (here the Monte Carlo expected reward).
-    """
+    """RMSE of the average of L samples as an estimate of ``target``:
+    sqrt(mean_b (mean(block_b) − target)²) over the ⌊n / L⌋ consecutive blocks of L of
+    ``samples`` (n,), 1 ≤ L ≤ n (ValueError otherwise)."""
     samples = np.asarray(samples, dtype=float)
     if samples.ndim != 1:
         raise ValueError(f"samples: expected a 1-D array, got shape {samples.shape}")
@@ -253,10 +161,8 @@ def _run_trial(
         w_i = omega + np.asarray(settings.train_gain_std) * rng.standard_normal(2)
         x, u, xn = commanded_transitions(task, task.rollout(w_i, s_i, rng), w_i)
         X.append(x), U.append(u), Xn.append(xn)
-    model = ForwardModel(  # Δx, as in the stored paper results (ForwardModel's default is x′)
-        ExactGP(additive_noise=settings.additive_noise, n_steps=settings.n_opt_steps),
-        target="delta",
-    )
+    gp = ExactGP(additive_noise=settings.additive_noise, n_steps=settings.n_opt_steps)
+    model = ForwardModel(gp, target="delta")
     model.fit(np.concatenate(X), np.concatenate(U), np.concatenate(Xn), rng=rng)
     trial.update()
     # 3. model trajectories of the pair (Eq. 4.1)
@@ -329,12 +235,7 @@ def _summarize(settings: StochasticRewardSettings, trials: list[dict]) -> tuple[
         Series(REAL, centres, hist["real"], kind="lines+markers", **hkw),
         Series(MODEL, centres, hist["model"], kind="lines+markers", **hkw),
         Series("R_sω, Monte Carlo (real)", [r_mc, r_mc], [0.0, top], **hkw),
-        Series(
-            "R̂_sω, model average (Eq. 4.1)",
-            [float(model.mean())] * 2,
-            [0.0, top],
-            **hkw,
-        ),
+        Series("R̂_sω, model average (Eq. 4.1)", [float(model.mean())] * 2, [0.0, top], **hkw),
     ]
     ekw = dict(panel=ERROR_PANEL, xlabel="L (trajectories averaged)", ylabel=ERROR_LABEL)
     ekw.update(log_x=True, log_y=True)
@@ -364,7 +265,6 @@ def _summarize(settings: StochasticRewardSettings, trials: list[dict]) -> tuple[
         "sample_sizes": sizes,
         "rmse_real_L": dict(zip(map(str, sizes), rmse_real.tolist(), strict=True)),
         "rmse_model_L": dict(zip(map(str, sizes), rmse_model.tolist(), strict=True)),
-        "noise_floor": "expected_reward_mc_se: the standard error of the Monte Carlo R_sω",
         "n_model_training_transitions": int(trials[0]["n_data"]),
         "model_noise_std": np.asarray(trials[0]["noise_std"]).tolist(),
         "n_variance_clamped": int(sum(t["n_variance_clamped"] for t in trials)),

@@ -1,17 +1,15 @@
 """Chapter 4, GPREPS with discrete-event models on table tennis (Sec. 4.3.4).
 
-The shared GPREPS plumbing (data schedule, scales, learning-curve and held-out evaluators) is
-:mod:`skillkit.experiments.ch4_events`'s; this module holds table tennis's part.
+* ``fig4.12`` — GPREPS with the five models of 4.3.4
+  (:class:`~skillkit.tasks.table_tennis.model.TableTennisRewardModel`, reward schedule of
+  Eq. 4.17), GP direct, and contextual REPS with ``fig3.7``'s settings and the fit
+  regularisation of the stored run (``ch3_table_tennis.REGULARISED``); the GPREPS runs are
+  :mod:`skillkit.experiments.ch4_events`'s.
+* ``fig4.13`` — the five models, learned from 100 rollouts, against the simulator on held-out
+  rollouts (10 sampled trajectories each).
 
-* ``fig4.12`` — table tennis: GPREPS with the five models of 4.3.4
-  (:class:`~skillkit.tasks.table_tennis.model.TableTennisRewardModel`, with the reward schedule
-  of Eq. 4.17), GP direct, and contextual REPS with ``fig3.7``'s settings (and the fit
-  regularisation of the stored run, ``ch3_table_tennis.REGULARISED``).
-* ``fig4.13`` — table tennis: the five models, learned from 100 rollouts, against the
-  simulator on held-out rollouts (10 sampled trajectories each).
-
-How each run is judged, and where it departs from the thesis and why, is the claims spec's
-(``skillkit/data/claims/ch4.toml``); the variants tried are listed in ``data/notes/fig4.12.md``.
+How each run is judged is the claims spec's (``skillkit/data/claims/ch4.toml``); the variants
+tried are in ``data/notes/fig4.12.md``.
 """
 
 from __future__ import annotations
@@ -30,16 +28,20 @@ from skillkit.experiments.ch3_table_tennis import (
 )
 from skillkit.experiments.ch4_events import (
     EventGPREPSSettings,
-    curve_series,
-    final_stats,
     gpreps_event_stats,
     gpreps_run,
     gpreps_scales,
     reps_run,
 )
-from skillkit.experiments.ch4_gpreps import rollouts_to_reach
+from skillkit.experiments.curves import (
+    CurveTask,
+    curve_series,
+    heldout_stats,
+    register_curve_task,
+    rollouts_to_reach,
+)
 from skillkit.experiments.registry import Experiment, Series, register
-from skillkit.experiments.settings import Settings, setting
+from skillkit.experiments.settings import Settings, scales, setting
 from skillkit.models.gp import ExactGP
 from skillkit.search.gpreps import DirectRewardModel
 from skillkit.tasks import make
@@ -53,63 +55,48 @@ __all__ = [
 ]
 
 THESIS_412 = {"gpreps_rollouts": 150, "gpreps_landing_error_m": 0.30, "reps_rollouts": 4000}
-"""The thesis's numbers on Fig. 4.12, kept in the summary as ``thesis_numbers`` (the claims spec
-judges)."""
+"""The thesis's numbers on Fig. 4.12, kept in the summary as ``thesis_numbers``."""
 
 
-# --------------------------------------------------------------------------- settings
+# fmt: off
 @dataclass(frozen=True)
 class TableTennisModelSettings(Settings):
     """Model 5 and the refit of :class:`~skillkit.tasks.table_tennis.model.TableTennisRewardModel`
     as fig4.12 and fig4.13 use them (why: the claims spec's setup table of fig4.12)."""
 
     contact_features: Literal["thesis", "extended"] = setting(
-        "extended",
-        "Contact-model inputs: the thesis's ten (relative velocity, racket position and "
-        "quaternion) or ours, with the ball's position relative to the racket and the distance "
-        "(measured: the thesis's ten do not separate hits from misses here; "
-        "data/notes/fig4.12.md).",
-    )
+        "extended", "Contact-model inputs: the thesis's ten (relative velocity, racket position "
+        "and quaternion) or ours, adding the ball's position relative to the racket and the "
+        "distance (the thesis's ten do not separate hits from misses here).")
     contact_score: Literal["probability", "decision", "margin"] = setting(
-        "probability",
-        "Contact weight of a sampled path in its reward: the SVM's Platt-calibrated hit "
-        "probability, its hard decision, or the decision softened inside its margin.",
-    )
+        "probability", "Contact weight of a sampled path: the SVM's Platt-calibrated hit "
+        "probability, its hard decision, or the decision softened inside its margin.")
     refit: Literal["cold", "warm", "best"] = setting(
-        "best",
-        "GP hyper-parameters after each data collection (Sec. 4.1): cold, warm, or both "
-        "keeping the larger marginal likelihood.",
-    )
+        "best", "GP hyper-parameters after each data collection (Sec. 4.1): cold, warm, or both "
+        "keeping the larger marginal likelihood.")
 
 
 @dataclass(frozen=True)
 class TableTennisGPREPSSettings(EventGPREPSSettings, TableTennisModelSettings):
-    """Settings of ``fig4.12`` (table tennis; REPS with ``fig3.7``'s settings and the fit
-    regularisation it was stored with,
-    :data:`~skillkit.experiments.ch3_table_tennis.REGULARISED`)."""
+    """Settings of ``fig4.12`` (table tennis)."""
 
     n_updates: int = setting(130, "GPREPS / GP-direct updates (N₀ + K = 150 rollouts).", minimum=1)
     schedule: Literal["auto", "hitting", "returning"] = setting(
-        "auto",
-        "Reward schedule of Eq. 4.17: 'auto' switches c₁ = c₂ once the contact model "
-        "is good (see TableTennisRewardModel), or a forced 'hitting' / 'returning'.",
-    )
-    reps_updates: int = setting(
-        80, "REPS updates (× 50 rollouts = 4000, the thesis's count).", minimum=1
-    )
+        "auto", "Reward schedule of Eq. 4.17: 'auto' switches c₁ = c₂ once the contact model "
+        "is good, or a forced 'hitting' / 'returning'.")
+    reps_updates: int = setting(80, "REPS updates (× 50 rollouts = 4000).", minimum=1)
 
 
 @dataclass(frozen=True)
 class ModelAccuracySettings(TableTennisModelSettings):
     """Settings of ``fig4.13`` (the five table-tennis models against the simulator)."""
 
-    n_rollouts: int = setting(
-        100, "Rollouts of the initial policy the models learn from.", minimum=1
-    )
+    n_rollouts: int = setting(100, "Rollouts of π₀ the models learn from.", minimum=1)
     n_heldout: int = setting(20, "Held-out rollouts the predictions are compared with.", minimum=1)
     n_samples: int = setting(10, "Sampled trajectories per held-out (s, ω) (Fig. 4.13).", minimum=1)
     n_shown: int = setting(3, "Held-out rollouts drawn in the figure (hits first).", minimum=1)
     gp_steps: int = setting(100, "L-BFGS iterations of every GP's hyper-parameter fit.", minimum=0)
+# fmt: on
 
 
 # --------------------------------------------------------------------------- models
@@ -120,17 +107,10 @@ def table_tennis_reward_model(task, st, schedule: str = "auto"):
     from skillkit.tasks.table_tennis.model import TableTennisRewardModel
 
     gp = partial(ExactGP, n_steps=st.gp_steps)
-    return TableTennisRewardModel(
-        task,
-        make_landing_model=gp,
-        make_bounce_model=gp,
-        make_racket_model=gp,
-        make_return_model=gp,
-        schedule=schedule,
-        contact_features=st.contact_features,
-        contact_score=st.contact_score,
-        refit=st.refit,
-    )
+    return TableTennisRewardModel(task, make_landing_model=gp, make_bounce_model=gp,
+                                  make_racket_model=gp, make_return_model=gp, schedule=schedule,
+                                  contact_features=st.contact_features,
+                                  contact_score=st.contact_score, refit=st.refit)  # fmt: skip
 
 
 # --------------------------------------------------------------------------- table tennis
@@ -151,8 +131,7 @@ def run_trial_412(st: TableTennisGPREPSSettings, rng: np.random.Generator, trial
                            seeds[0], trial, eval_contexts, score, keep_model=True))  # fmt: skip
     direct = DirectRewardModel(ExactGP(n_steps=st.gp_steps))
     out.update(gpreps_run(task, st, "direct", direct, seeds[1], trial, eval_contexts, score))
-    # fig3.7's REPS with the fit regularisation the stored fig4.12 result was made with
-    tt = replace(TableTennisSettings(), **REGULARISED)
+    tt = _reps_settings()
     reps = make_reps(task, tt)
     every = max(1, st.reps_updates // 5)
     out.update(reps_run(task, reps, "reps", st.reps_updates, tt.rollouts_per_update, seeds[2],
@@ -168,21 +147,22 @@ def summarize_412(st: TableTennisGPREPSSettings, trials: list[dict]):
     labels = {"gpreps": "GPREPS", "direct": "GP direct", "reps": "REPS (ε = 0.6)"}
     series = []
     for key in keys:
-        series.append(curve_series(trials, key, "rollouts", "mean_reward", labels[key],
-                              "learning curves", "reward of the policy mean"))  # fmt: skip
-        series.append(curve_series(trials, key, "heldout_rollouts", "heldout_landing_error",
-                              labels[key], "held-out landing error", "‖b − p‖ (m)"))  # fmt: skip
+        series.append(curve_series(trials, f"{key}_rollouts", f"{key}_mean_reward", labels[key],
+                                   "learning curves", "reward of the policy mean"))  # fmt: skip
+        series.append(curve_series(trials, f"{key}_heldout_rollouts",
+                                   f"{key}_heldout_landing_error", labels[key],
+                                   "held-out landing error", "‖b − p‖ (m)"))  # fmt: skip
     summary: dict = {"n_trials": len(trials), "thesis_numbers": dict(THESIS_412)}
     for key in keys:
-        summary[key] = final_stats(trials, key, TT_SCORES)
+        summary[key] = heldout_stats(trials, key, TT_SCORES)
         summary[key]["final_net_or_missed_per_trial"] = [  # GP direct's "net, or even miss"
-            float(t[f"{key}_heldout_net"][-1] + t[f"{key}_heldout_missed"][-1]) for t in trials
-        ]
+            float(t[f"{key}_heldout_net"][-1] + t[f"{key}_heldout_missed"][-1])
+            for t in trials]  # fmt: skip
     for key in ("gpreps", "direct"):
         summary[key].update(gpreps_event_stats(trials, key))
     summary["reps_rollouts_to_gpreps_final_reward"] = rollouts_to_reach(
-        trials, "reps", summary["gpreps"]["final_reward"], "heldout_reward", "heldout_rollouts"
-    )
+        trials, "reps", summary["gpreps"]["final_reward"], "heldout_reward",
+        "heldout_rollouts")  # fmt: skip
     return series, summary
 
 
@@ -219,21 +199,15 @@ def run_trial_413(st: ModelAccuracySettings, rng: np.random.Generator, trial: Tr
     out["shown_ball_real"] = np.stack([t_te[i].signals["ball"] for i in shown])
     out["shown_racket_real"] = np.stack([t_te[i].signals["racket"] for i in shown])
     out["shown_landing_real"] = np.array(
-        [t_te[i].info["landing_point"] if t_te[i].info["hit"] else [np.nan] * 2 for i in shown]
-    )
+        [t_te[i].info["landing_point"] if t_te[i].info["hit"] else [np.nan] * 2
+         for i in shown])  # fmt: skip
     return out
 
 
-MODEL_ERRORS = {
-    "bounce_position_error_m": 0.05,
-    "racket_position_rmse_m": 0.03,
-    "contact_accuracy": 0.9,
-    "return_landing_error_m": 0.30,
-}
-"""fig4.13's thresholds, fixed before any run (median bounce-point error, racket-position RMSE
-over the stroke, held-out hit/miss accuracy of the contact SVM, median error of the returned
-landing point: the thesis's 30 cm), kept in the summary as ``thresholds`` (the claims spec
-judges)."""
+MODEL_ERRORS = {"bounce_position_error_m": 0.05, "racket_position_rmse_m": 0.03,
+                "contact_accuracy": 0.9, "return_landing_error_m": 0.30}  # fmt: skip
+"""fig4.13's thresholds, fixed before any run (median bounce-point error, racket-position RMSE,
+hit/miss accuracy of the contact SVM, median returned landing error), kept in the summary."""
 
 
 def _nan_joined(paths: np.ndarray, cols) -> tuple[list, list]:
@@ -269,52 +243,46 @@ def summarize_413(st: ModelAccuracySettings, trials: list[dict]):
     series.append(Series("returned landing point (hits), simulator", lr[:, 0].tolist(),
                          lr[:, 1].tolist(), "top view (x–y)", "markers", xlabel="x (m)",
                          ylabel="y (m)"))  # fmt: skip
-    errors = {
-        k[len("accuracy_") :]: float(np.mean([t[k] for t in trials]))
-        for k in t0
-        if k.startswith("accuracy_")
-    }
-    per_trial = {  # a reading across trials needs each trial's number
-        k[len("accuracy_") :]: [float(t[k]) for t in trials]
-        for k in t0
-        if k.startswith("accuracy_")
-    }
+    keys = [k for k in t0 if k.startswith("accuracy_")]
+    errors = {k[len("accuracy_") :]: float(np.mean([t[k] for t in trials])) for k in keys}
+    per_trial = {k[len("accuracy_") :]: [float(t[k]) for t in trials] for k in keys}
     summary: dict = {"n_trials": len(trials), "errors": errors,
                      "thresholds": dict(MODEL_ERRORS), "errors_per_trial": per_trial}  # fmt: skip
     return series, summary
 
 
 # --------------------------------------------------------------------------- registry
-register(
-    Experiment(
-        id="fig4.12",
-        title="Robot table tennis: GPREPS (five models) vs GP direct vs REPS",
-        settings_class=TableTennisGPREPSSettings,
-        settings=gpreps_scales(
-            TableTennisGPREPSSettings,
-            smoke={"reps_updates": 1},
-            quick={"reps_updates": 10},
-        ),
-        run_trial=run_trial_412,
-        summarize=summarize_412,
-        trials={"smoke": 1, "quick": 1, "paper": 5},
-    )
-)
-register(
-    Experiment(
-        id="fig4.13",
-        title="Robot table tennis: the five models' predictions against the simulator",
-        settings_class=ModelAccuracySettings,
-        settings={
-            "smoke": ModelAccuracySettings(
-                n_rollouts=20, n_heldout=3, n_samples=2, n_shown=1, gp_steps=10
-            ),
-            # quick scales down: held-out rollouts 20→10, L-BFGS iterations 100→60
-            "quick": ModelAccuracySettings(n_heldout=10, gp_steps=60),
-            "paper": ModelAccuracySettings(),
-        },
-        run_trial=run_trial_413,
-        summarize=summarize_413,
-        trials={"smoke": 1, "quick": 1, "paper": 1},
-    )
-)
+# fmt: off
+register(Experiment(
+    id="fig4.12", title="Robot table tennis: GPREPS (five models) vs GP direct vs REPS",
+    settings_class=TableTennisGPREPSSettings,
+    settings=gpreps_scales(TableTennisGPREPSSettings, smoke={"reps_updates": 1},
+                           quick={"reps_updates": 10}),
+    run_trial=run_trial_412, summarize=summarize_412,
+    trials={"smoke": 1, "quick": 1, "paper": 5}))
+register(Experiment(
+    id="fig4.13",
+    title="Robot table tennis: the five models' predictions against the simulator",
+    settings_class=ModelAccuracySettings,
+    settings=scales(ModelAccuracySettings(), smoke={"n_rollouts": 20, "n_heldout": 3,
+                    "n_samples": 2, "n_shown": 1, "gp_steps": 10},
+                    quick={"n_heldout": 10, "gp_steps": 60}),
+    run_trial=run_trial_413, summarize=summarize_413,
+    trials={"smoke": 1, "quick": 1, "paper": 1}))
+
+
+def _reps_settings() -> TableTennisSettings:
+    """fig3.7's settings with the fit regularisation the stored fig4.12 result was made with."""
+    return replace(TableTennisSettings(), **REGULARISED)
+
+
+register_curve_task("table-tennis", CurveTask(
+    experiment="fig4.12",
+    thresholds=(-0.05, -0.02),
+    thresholds_source="Sec. 3.4.3: high-quality policies have “a reward above -0.02”; balls in "
+    "the net score “in interval [−0.05, −0.02]”",
+    reps=lambda task, st, policy: make_reps(task, _reps_settings()),
+    reps_schedule=lambda st: (st.reps_updates, *(_reps_settings().rollouts_per_update,) * 2),
+    reward_model=lambda task, st: table_tennis_reward_model(task, st, st.schedule),
+))
+# fmt: on

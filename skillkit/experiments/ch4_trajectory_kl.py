@@ -1,46 +1,26 @@
 """Sec. 4.2.4: trajectory-KL model learning (Eqs 4.5–4.16, Appendix B) against one-step ML.
 
-``sec4.2.4`` trains two forward-model classes of :mod:`skillkit.models.trajectory_kl` — a
-linear-Gaussian model x′ ~ N(Ax + Bu + c, diag σ²) and a FITC GP whose pseudo-inputs and
-pseudo-targets are parameters (:class:`~skillkit.models.trajectory_kl.PseudoDataGP`) — by
-one-step maximum likelihood and by the trajectory-KL dual (started from the ML fit), on three
-data sets, and scores them on held-out trajectories:
-
-* **linear** — a linear-Gaussian system with known truth (n = 2, m = 1) under feedback
-  u = K x + a_i s_t + ξ_t (s_t a fixed multi-sine, a_i ~ N(1, 0.5²) per trajectory,
-  ξ_t ~ N(0, 0.5²)): the data come from the linear model class, so the feature constraints can
-  hold and the parameter error against the truth is measured;
-* **pendulum** — the pendulum of Sec. 5.4 (T = 20, Δt = 0.1 s, u = clip(Kᵀx + N(0, σ_u²), ±3),
-  K = [−3, −1], start states uniform on [−π, π] × [−4, 4]), as in ``fig5.3``–``fig5.5``;
-* **balancing** — the planar 4-link robot under the PD controller of
-  :meth:`~skillkit.tasks.balancing.Balancing.pd_gain` with white torque excitation (the
-  data of Table 4.2's models), start states N(x_up, σ² I).
-
-Scores on held-out trajectories (same distribution, fresh draws):
-
-* **multi-step error** — the model's mean prediction from the observed x₁ in closed loop:
-  x̂_{t+1} = μ(x̂_t, û_t) with û_t = κ(x̂_t) + (u_t − κ(x_t)) (κ the trajectory's feedback,
-  clipped for the pendulum, so the recorded excitation is replayed and û_t = u_t on the true
-  states); the squared error per state dimension in units of the training states' standard
-  deviation, averaged over t = 2 … T and trajectories (and at t = T);
-* **trajectory log-likelihood** — Σ_{t≥2} log N(x_t; m_t, diag s_t²) per trajectory, (m_t, s_t²)
-  the moments of ``n_samples`` trajectories sampled from the model in the same closed loop;
-* **one-step log-likelihood** — what ML maximises, per held-out transition.
-
-Floors: the true model's scores (linear system) and the time-indexed mean of the training
-trajectories as a trivial predictor.
+``sec4.2.4`` trains a linear-Gaussian model x′ ~ N(Ax + Bu + c, diag σ²) and a FITC GP with
+pseudo-data parameters (:mod:`skillkit.models.trajectory_kl`) by one-step maximum likelihood
+and by the trajectory-KL dual (started from the ML fit) on three data sets — a linear system
+with known truth under feedback plus a multi-sine and white excitation, the pendulum of
+Sec. 5.4 and the 4-link robot under a PD controller with torque excitation — and scores them
+on held-out trajectories: the closed-loop multi-step error of the mean prediction (feedback
+on the predicted state, recorded excitation replayed; squared error in training-std units),
+the trajectory log-likelihood under sampled trajectories' moments, and the one-step
+log-likelihood. Floors: the true model (linear system) and the training mean trajectory.
 """
 
 from __future__ import annotations
 
 import time
 import warnings
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
 from skillkit.experiments.registry import Experiment, Series, register
-from skillkit.experiments.settings import Settings, setting
+from skillkit.experiments.settings import Settings, scales, setting
 from skillkit.experiments.store import flatten
 from skillkit.models.trajectory_kl import (
     LinearGaussianTKL,
@@ -61,8 +41,7 @@ SYSTEMS = ("linear", "pendulum", "balancing")
 CLASSES = ("linear", "fitc")
 CLASS_LABELS = {"linear": "linear-Gaussian", "fitc": "FITC pseudo-data GP"}
 DIVERGED = 100.0
-"""A held-out prediction whose mean squared error (training-std units) exceeds this counts as
-diverged (the trivial predictor scores about 1)."""
+"""Mean squared error (training-std units) above which a prediction has diverged."""
 
 # The linear system with known truth (data come from the model class).
 LIN_A = np.array([[0.95, 0.10], [-0.10, 0.90]])
@@ -79,52 +58,36 @@ class TrajectoryKLSettings(Settings):
     systems: tuple[str, ...] = setting(
         SYSTEMS, "Data sets: 'linear' (known truth), 'pendulum' (Sec. 5.4), 'balancing'."
     )
-    n_train: int = setting(
-        40, "Observed training trajectories M per data set (Eq. 4.16's M).", minimum=2
-    )
+    n_train: int = setting(40, "Training trajectories M per data set (Eq. 4.16).", minimum=2)
     n_test: int = setting(40, "Held-out trajectories per data set.", minimum=1)
     horizon: int = setting(20, "Time steps T per trajectory (states x_1 … x_T).", minimum=3)
     linear_excitation: float = setting(
-        0.5, "σ of the white control excitation ξ_t of the linear system (and of a_i).", minimum=0
+        0.5, "σ of the excitation ξ_t of the linear system (and of a_i).", minimum=0
     )
-    pendulum_control_noise: float = setting(
-        0.05, "σ_u of the pendulum's torque noise (Sec. 5.4).", minimum=0
-    )
+    pendulum_control_noise: float = setting(0.05, "σ_u of the pendulum (Sec. 5.4).", minimum=0)
     balancing_initial_std: float = setting(
-        0.1, "σ of the balancing start states N(x_up, σ² I) (rad, rad/s), as tab4.2.", minimum=0
+        0.1, "σ of the balancing start states N(x_up, σ² I), as tab4.2.", minimum=0
     )
     balancing_excitation: float = setting(
-        30.0,
-        "σ_ξ (N m) of the white torque excitation of the balancing data, as tab4.2.",
-        minimum=0,
+        30.0, "σ_ξ (N m) of the torque excitation of the balancing data, as tab4.2.", minimum=0
     )
-    n_inducing: int = setting(
-        20, "Pseudo-inputs M per output of the FITC pseudo-data GP.", minimum=1
-    )
+    n_inducing: int = setting(20, "Pseudo-inputs per output of the FITC GP.", minimum=1)
     cross: bool = setting(
-        False,
-        "Quadratic features with the products x_i x_j (else the squares x_i² only, as B.7 "
-        "writes them; with products F = 44 on balancing and the hard constraints were "
-        "infeasible at the ML fit with 40 and 100 trajectories).",
+        False, "Quadratic features with the products x_i x_j (else the squares only, as B.7)."
     )
     ridges: tuple[float, ...] = setting(
         (0.0, 0.1),
-        "λ of the dual: 0 is the thesis's hard feature constraints (read by the claims spec); "
-        "λ > 0 the soft-constraint variants (penalty ‖residual‖²/2λ in standardised feature "
-        "units).",
+        "λ of the dual: 0 the thesis's hard feature constraints, λ > 0 soft ones (penalty "
+        "‖residual‖²/2λ in standardised feature units).",
         minimum=0,
     )
-    ml_iterations: int = setting(300, "L-BFGS iterations of one-step ML (FITC class).", minimum=1)
-    tkl_iterations: int = setting(
-        100, "Outer L-BFGS iterations of trajectory-KL training.", minimum=1
-    )
+    ml_iterations: int = setting(300, "L-BFGS iterations of one-step ML (FITC).", minimum=1)
+    tkl_iterations: int = setting(100, "Outer L-BFGS iterations of trajectory KL.", minimum=1)
     inner_iterations: int = setting(100, "Newton iterations of each inner max over γ.", minimum=1)
-    n_samples: int = setting(
-        50, "Sampled trajectories per held-out start (trajectory LL).", minimum=2
-    )
+    n_samples: int = setting(50, "Sampled trajectories per held-out start.", minimum=2)
 
     def check(self) -> None:
-        """Known systems, ridges with 0 first (the claims spec reads λ = 0); ranges are bounds."""
+        """Known systems; ridges with 0 first (the claims spec reads λ = 0)."""
         bad = sorted(set(self.systems) - set(SYSTEMS))
         if bad or not self.systems:
             raise ValueError(f"systems: expected a subset of {SYSTEMS}, got {self.systems}")
@@ -135,20 +98,9 @@ class TrajectoryKLSettings(Settings):
 # --------------------------------------------------------------------------- data
 @dataclass(frozen=True)
 class TrajectoryData:
-    """Observed trajectories and the feedback that produced them.
-
-    Attributes
-    ----------
-    states : ndarray, shape (M, T, n)
-    controls : ndarray, shape (M, T − 1, m)
-    gains : ndarray, shape (M, m, n)
-        κ_i(x) = clip(K_i (x − x_ref) + offset, ±u_limit) per trajectory.
-    x_ref : ndarray, shape (n,)
-    u_limit : float
-        Control limit (inf: none).
-    n_failed : int
-        Rollouts that failed (fell) and were replaced while collecting.
-    """
+    """Observed trajectories: states (M, T, n), controls (M, T − 1, m), the feedback gains
+    (M, m, n) of κ_i(x) = clip(K_i (x − x_ref) + offset, ±u_limit) (u_limit inf: none) and
+    the failed rollouts replaced while collecting."""
 
     states: np.ndarray
     controls: np.ndarray
@@ -159,8 +111,7 @@ class TrajectoryData:
 
     @property
     def offsets(self) -> np.ndarray:
-        """ξ_{i,t} = u_{i,t} − K_i (x_{i,t} − x_ref), shape (M, T − 1, m): the recorded
-        excitation the closed-loop replay adds."""
+        """ξ_{i,t} = u_{i,t} − K_i (x_{i,t} − x_ref) (M, T − 1, m): the replayed excitation."""
         dx = self.states[:, :-1] - self.x_ref
         return self.controls - np.einsum("imn,itn->itm", self.gains, dx)
 
@@ -175,17 +126,10 @@ class TrajectoryData:
 
 
 def linear_system(n: int, horizon: int, excitation: float, rng: np.random.Generator):
-    """``n`` trajectories of the linear-Gaussian system with known truth (LIN_*).
-
-    u_t = K x_t + a_i s_t + ξ_t with s_t = sin(2πt/7) + cos(2πt/11.3), a_i ~ N(1, σ²),
-    ξ_t ~ N(0, σ²) (σ = ``excitation``); x_1 ~ N(0, I). The common multi-sine makes the
-    feature averages vary with t, so A, B and c are identifiable from them (feature-matching
-    constraints see only averages over trajectories).
-
-    Returns
-    -------
-    TrajectoryData
-    """
+    """``n`` trajectories (:class:`TrajectoryData`) of the linear-Gaussian system with known
+    truth (LIN_*): u_t = K x_t + a_i s_t + ξ_t with s_t = sin(2πt/7) + cos(2πt/11.3),
+    a_i ~ N(1, σ²), ξ_t ~ N(0, σ²) (σ = ``excitation``), x_1 ~ N(0, I); the common
+    multi-sine makes A, B and c identifiable from feature averages."""
     T = horizon
     s = np.sin(2 * np.pi * np.arange(T) / 7) + np.cos(2 * np.pi * np.arange(T) / 11.3)
     X = np.zeros((n, T, 2))
@@ -223,8 +167,8 @@ def _balancing(n: int, st: TrajectoryKLSettings, rng) -> TrajectoryData:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
             traj = task.rollout(G.ravel(), rng=rng)
-        if traj.failed:  # the excitation toppled the robot: replaced and counted, as
-            failed += 1  # collect_balancing does (about 1 in 300 rollouts here)
+        if traj.failed:  # the excitation toppled the robot: replaced and counted
+            failed += 1
             if failed > n:
                 raise RuntimeError(f"balancing: {failed} rollouts failed for {len(X)} kept")
             continue
@@ -244,25 +188,9 @@ def _data(system: str, n: int, st: TrajectoryKLSettings, rng) -> TrajectoryData:
 
 # --------------------------------------------------------------------------- evaluation
 def closed_loop_predictions(model, theta, data: TrajectoryData, n_samples: int, rng):
-    """Mean prediction and sampled trajectories of ``model`` from each observed x₁.
-
-    The feedback of each trajectory acts on the predicted state and the recorded excitation
-    is replayed: û_t = clip(K_i(x̂_t − x_ref) + ξ_{i,t}, ±u_limit).
-
-    Parameters
-    ----------
-    model : LinearGaussianTKL or PseudoDataGP
-    theta : ndarray, shape (P,)
-    data : TrajectoryData
-    n_samples : int
-        L sampled trajectories per start.
-    rng : Generator
-
-    Returns
-    -------
-    mean : ndarray, shape (M, T, n)
-        x̂_t (mean propagated through the mean).
-    samples : ndarray, shape (L, M, T, n)
+    """Mean prediction x̂_t (M, T, n) and ``n_samples`` sampled trajectories (L, M, T, n) of
+    ``model`` at ``theta`` from each observed x₁, the feedback acting on the predicted state
+    and the recorded excitation replayed: û_t = clip(K_i(x̂_t − x_ref) + ξ_{i,t}, ±u_limit).
     """
     X, xi = data.states, data.offsets
     M, T, n = X.shape
@@ -327,8 +255,7 @@ def _model(cls: str, data: TrajectoryData, st: TrajectoryKLSettings):
     n, m = data.states.shape[-1], data.controls.shape[-1]
     if cls == "linear":
         return LinearGaussianTKL(n, m)
-    # Prior mean: the least-squares linear fit (fixed, shared by ML and TKL); the GP models
-    # the residual (tab4.2's finding: a zero mean predicts the balancing closed loop badly).
+    # Prior mean: the least-squares linear fit (fixed, shared by ML and TKL).
     x, u, y = data.transitions()
     z1 = np.hstack([x, u, np.ones((x.shape[0], 1))])
     W, *_ = np.linalg.lstsq(z1, y, rcond=None)
@@ -524,22 +451,22 @@ def summarize(st: TrajectoryKLSettings, trials: list[dict]):
 
 
 # --------------------------------------------------------------------------- registration
-QUICK = TrajectoryKLSettings()
-SMOKE = replace(
-    QUICK, n_train=6, n_test=4, horizon=6, n_inducing=5, ml_iterations=20, tkl_iterations=5,
-    inner_iterations=50, n_samples=5, ridges=(0.0, 0.1),
+# The thesis reports no experiment for Sec. 4.2.4: paper is our largest setting.
+_SCALES = scales(
+    TrajectoryKLSettings(),
+    smoke=dict(
+        n_train=6, n_test=4, horizon=6, n_inducing=5, ml_iterations=20, tkl_iterations=5,
+        inner_iterations=50, n_samples=5, ridges=(0.0, 0.1),
+    ),
+    paper=dict(n_train=100, n_test=100),
 )  # fmt: skip
-PAPER = replace(QUICK, n_train=100, n_test=100)
-# quick scales the paper setting down: training and test trajectories 100→40 each, trials 5→1
-"""The thesis reports no experiment for Sec. 4.2.4: paper is our largest setting (100 training
-and 100 held-out trajectories per data set, 5 trials)."""
 
 register(
     Experiment(
         id="sec4.2.4",
         title="Trajectory-KL model learning (4.10–4.16, App. B) vs one-step ML",
         settings_class=TrajectoryKLSettings,
-        settings={"smoke": SMOKE, "quick": QUICK, "paper": PAPER},
+        settings=_SCALES,
         run_trial=run_trial,
         summarize=summarize,
         trials={"smoke": 1, "quick": 1, "paper": 5},

@@ -1,54 +1,22 @@
-"""Chapter 5 experiments: kernel embeddings versus GP models for trajectory and reward prediction.
+"""Chapter 5 experiments: kernel embeddings versus GP models (Sec. 5.4).
 
-``fig5.3``, ``fig5.4``, ``fig5.5`` (Sec. 5.4, pendulum α̈ = −9.81 sin α + u, Δt = 0.1 s,
-u ~ N(Kᵀx, 0.05²), |u| ≤ 3, K = [−3, −1]): 15 observed trajectories of 20 steps from random
-initial states train (a) a conditional embedding x → x' whose SE length-scales and λ minimise
-the 10-fold cross-validated state-embedding error (Eq. 5.16) and (b) a GP forward model
-(one GP per state dimension, marginal likelihood Eq. 2.28). On a grid of query states they
-predict the expected successor state (single step: ``fig5.3`` e_α, ``fig5.4`` e_α̇) and the
-expected 20-step trajectory (``fig5.5``, Σ_t e_{x_t}); the ground truth is a Monte Carlo
-average through the true dynamics. The embedding's predictive mean is the expected value of
-the state read out with the observed successors, E[x'] = X'ᵀβ (as E[r] = r'ᵀβ for rewards);
-the error of the pre-image decoding (most likely state, Eq. 2.45) is reported as well. The
-GP's multi-step prediction averages sampled trajectories
-(:func:`~skillkit.models.sampling.sample_trajectories`). Both models see the same data with
-the same fixed policy. The GP learns x' as the thesis's (Secs 4.2.4, 5.1.1;
-``gp_target="next"``, zero prior mean after standardisation; ``"delta"`` learns Δx) with
-PILCO's hyper-parameter curb (``gp_curb``). Floors: the constant predictor (the mean observed
-successor, or the mean observed state per step for ``fig5.5``) and the Monte Carlo variance of
-the ground truth, as panels (c), (d) and numbers.
+``fig5.3``–``fig5.5`` (pendulum α̈ = −9.81 sin α + u, Δt = 0.1 s, u ~ N(Kᵀx, 0.05²), |u| ≤ 3,
+K = [−3, −1]): 15 observed trajectories of 20 steps train (a) a conditional embedding x → x'
+whose SE length-scales and λ minimise the 10-fold cross-validated state-embedding error
+(Eq. 5.16) and (b) a GP forward model (Eq. 2.28). On a grid of query states both predict the
+expected successor (``fig5.3`` e_α, ``fig5.4`` e_α̇) and the expected 20-step trajectory
+(``fig5.5``, Σ_t e_{x_t}) against a Monte Carlo ground truth. The embedding's prediction is
+E[x'] = X'ᵀβ; the pre-image (Eq. 2.45) is reported too.
 
-``fig5.6``, ``fig5.7`` (Sec. 5.4, balancing the planar 4-link robot, T = 40, initial std
-0.3, torque noise 4 in ``fig5.6`` and varied in ``fig5.7``). As in the thesis, ONE PD
-controller balances the robot from random start states
-(:meth:`~skillkit.tasks.balancing.Balancing.pd_gain`, ω = 3, ζ = 1.5, the same gain for every
-trajectory). The observed trajectories are its rollouts from start states drawn from
-N(x_up, 0.3² I) with the torque noise. With the controller fixed, the only thing that varies
-between the thesis's "experiments" is the start state, so a *test pair* is a start state
-x₀ᵢ from the same distribution and its ground truth R_i = E[R | x₀ᵢ] over the torque noise is
-the mean of ``truth_rollouts`` real rollouts from x₀ᵢ (thesis: 100). e_r = mean_i (R̂_i −
-R_i)². Predictions from x₀ᵢ: GP sampling (M trajectories through the learned x' model) and
-embeddings over state-actions z = [x, u] (Table 5.2 with the PD policy, Eq. 5.9's first step,
-linear reward kernel E[r_t] = r'ᵀβ_t) trained by the step-based (Eq. 5.17/5.19) or the
-trajectory-based (Eq. 5.23) reward error with k-fold cross-validation over trajectories.
-Floors: the constant predictor R̂ = mean observed trajectory reward, and the noise floor
-mean_i Var(R | x₀ᵢ) / ``truth_rollouts`` (the Monte Carlo variance of the ground truth); the
-summary also gives mean_i Var(R | x₀ᵢ) (one rollout's spread) and Var_i(R_i) (the error of
-the oracle constant).
+``fig5.6``, ``fig5.7`` (balancing the planar 4-link robot, T = 40, initial std 0.3): one PD
+controller (:meth:`~skillkit.tasks.balancing.Balancing.pd_gain`) balances from random start
+states. A test pair is a start state x₀ᵢ and R_i = E[R | x₀ᵢ], the mean of
+``truth_rollouts`` real rollouts; e_r = mean_i (R̂_i − R_i)². Predictors: GP sampling, and
+embeddings over z = [x, u] (Table 5.2, linear reward kernel E[r_t] = r'ᵀβ_t) fitted by the
+step-based (Eq. 5.17/5.19) or trajectory-based (Eq. 5.23) cross-validated reward error.
 
-Choices the thesis leaves open (ours, stated here and in the setup table of each id's claim,
-``skillkit/data/claims/ch5.toml``): the PD gains; λ of both embedding fits is learned within
-[``lam_min``, 1] (a smaller λ lets the 40-step propagation amplify ‖β‖₁); the trajectory-based
-fit is started both at the step-based fit's initial values and at its optimum and keeps the
-lower cross-validated loss (Eq. 5.23 has a plateau where every β ≈ 0 and the prediction is
-0: tiny length-scales or λ → 1 make a held-out start orthogonal to the data, with loss
-Σ r_t²; a single start can end there); the target kernel of Eq. 5.16 (pendulum) is fixed
-(learning it with θ makes the error vanish trivially): by default an SE kernel with the
-successor states' standard deviations as length-scales (``target_kernel="se"``), or linear
-(``"linear"``: Eq. 5.16 becomes the squared error of the mean read-out).
-
-A summary holds measurements only; the claims these ids judge, their readings and the setup
-tables are in ``skillkit/data/claims/ch5.toml``, the variants tried in ``data/notes/``.
+Floors of every id: the constant predictor and the Monte Carlo variance of the ground truth.
+The setup choices the thesis leaves open are listed in ``skillkit/data/claims/ch5.toml``.
 """
 
 from __future__ import annotations
@@ -63,7 +31,7 @@ import torch
 
 import skillkit.tasks.planar  # noqa: F401  (registers the balancing tasks)
 from skillkit.experiments.registry import Experiment, Series, register
-from skillkit.experiments.settings import Settings, setting
+from skillkit.experiments.settings import Settings, scales, setting
 from skillkit.models.embedding import ConditionalEmbedding
 from skillkit.models.embedding_prediction import predict
 from skillkit.models.embedding_training import (
@@ -85,16 +53,22 @@ from skillkit.viz.series import trial_band
 
 __all__ = ["embedding_expected_rewards"]
 
+_DIAGNOSTICS = ("max_lengthscale_ratio", "max_signal_to_noise", "curb_penalty")
+
 
 def _initial_lengthscales(x: np.ndarray) -> np.ndarray:
     sd = x.std(axis=0)
     return np.where(sd > 0, sd, 1.0)
 
 
+def _gp(settings) -> ForwardModel:
+    curb = HyperCurb() if settings.gp_curb else None
+    return ForwardModel(ExactGP(n_steps=settings.gp_steps, curb=curb), target=settings.gp_target)
+
+
 # =========================================================================== pendulum
 def _target_kernel(kind: str, targets: np.ndarray):
-    """Fixed target-feature kernel of Eq. 5.16: SE with the targets' standard deviations as
-    length-scales, or linear (then Eq. 5.16 is the squared error of the mean read-out)."""
+    """Fixed target kernel of Eq. 5.16: SE with the targets' stds as length-scales, or linear."""
     if kind == "se":
         return SquaredExponential(targets.shape[1], lengthscale=_initial_lengthscales(targets))
     if kind == "linear":
@@ -108,73 +82,35 @@ class PendulumSettings(Settings):
 
     n_trajectories: int = setting(15, "Observed trajectories (thesis: 15).", minimum=2)
     horizon: int = setting(
-        20, "Steps per observed trajectory and of the predicted trajectory (thesis: 20).", minimum=1
+        20, "Steps per observed and predicted trajectory (thesis: 20).", minimum=1
     )
-    control_noise: float = setting(
-        0.05, "Std σ_u of the controls u ~ N(Kᵀx, σ_u²) (N m; thesis: 0.05).", minimum=0
-    )
+    control_noise: float = setting(0.05, "Std σ_u of the controls (N m; thesis: 0.05).", minimum=0)
     grid: int = setting(17, "Query grid points per axis over the context range.", minimum=1)
-    truth_samples: int = setting(
-        200, "Monte Carlo samples of the true successor state per query (single step).", minimum=2
-    )
-    truth_rollouts: int = setting(
-        50, "Monte Carlo rollouts of the true 20-step trajectory per query (fig5.5).", minimum=2
-    )
+    truth_samples: int = setting(200, "Monte Carlo successors per query (single step).", minimum=2)
+    truth_rollouts: int = setting(50, "Monte Carlo 20-step rollouts per query (fig5.5).", minimum=2)
     gp_samples: int = setting(30, "Trajectories sampled from the GP per query (fig5.5).", minimum=1)
-    cv_folds: int = setting(
-        10, "Cross-validation folds over trajectories of Eq. 5.16 (thesis: 10).", minimum=2
-    )
-    max_iter: int = setting(
-        50, "L-BFGS-B iterations of the embedding's hyper-parameters.", minimum=1
-    )
+    cv_folds: int = setting(10, "Cross-validation folds of Eq. 5.16 (thesis: 10).", minimum=2)
+    max_iter: int = setting(50, "L-BFGS-B iterations of the embedding.", minimum=1)
     lam0: float = setting(1e-3, "Initial regulariser λ of the embedding (Eq. 5.3).", above=0)
     lam_min: float = setting(
-        1e-6,
-        "Lower bound of the learned λ: 1e-6 for the single-step maps (fig5.3, fig5.4), 1e-3 "
-        "for the 20-step prediction (fig5.5), where the one-step objective's λ ~ 1e-5 lets the "
-        "propagation amplify β.",
-        above=0,
+        1e-6, "Lower bound of the learned λ (1e-3 for the 20-step fig5.5).", above=0
     )
-    gp_steps: int = setting(
-        150, "Marginal-likelihood optimisation steps of the GP (Eq. 2.28).", minimum=0
-    )
-    gp_target: Literal["delta", "next"] = setting(
-        "next", "What the GP learns: x' (next, the thesis's, zero prior mean) or Δx (delta)."
-    )
-    gp_curb: bool = setting(
-        True, "PILCO's hyper-parameter penalty (HyperCurb) on the GP's marginal likelihood."
-    )
+    gp_steps: int = setting(150, "Marginal-likelihood steps of the GP (Eq. 2.28).", minimum=0)
+    gp_target: Literal["delta", "next"] = setting("next", "What the GP learns: x' (next) or Δx.")
+    gp_curb: bool = setting(True, "PILCO's hyper-parameter penalty (HyperCurb) on the GP.")
     target_kernel: Literal["se", "linear"] = setting(
         "se", "Target features of Eq. 5.16: SE with std length-scales, or linear."
     )
 
 
-QUICK_PENDULUM = PendulumSettings()
-SCALES_PENDULUM = {
-    "smoke": replace(
-        QUICK_PENDULUM,
-        n_trajectories=3,
-        horizon=4,
-        grid=4,
-        truth_samples=20,
-        truth_rollouts=5,
-        gp_samples=4,
-        cv_folds=3,
-        max_iter=3,
-        gp_steps=3,
+SCALES_PENDULUM = scales(
+    PendulumSettings(),
+    smoke=dict(
+        n_trajectories=3, horizon=4, grid=4, truth_samples=20, truth_rollouts=5, gp_samples=4,
+        cv_folds=3, max_iter=3, gp_steps=3,
     ),
-    # quick scales down: error-map grid 41²→17², ground-truth samples 1000→200 and rollouts
-    # 200→50, GP samples 100→30, embedding iterations 100→50, trials 5→1
-    "quick": QUICK_PENDULUM,
-    "paper": replace(
-        QUICK_PENDULUM,
-        grid=41,
-        truth_samples=1000,
-        truth_rollouts=200,
-        gp_samples=100,
-        max_iter=100,
-    ),
-}
+    paper=dict(grid=41, truth_samples=1000, truth_rollouts=200, gp_samples=100, max_iter=100),
+)  # fmt: skip
 
 
 def _pendulum_trial(
@@ -189,25 +125,18 @@ def _pendulum_trial(
     x, xn, groups = transitions(states)
     trial.update()
 
-    # Embedding: Eq. 5.16 with 10-fold cross-validation over trajectories.
+    # Embedding: Eq. 5.16 with k-fold cross-validation over trajectories.
     folds = kfold_splits(len(x), min(settings.cv_folds, n_traj), rng, groups=groups)
-    target_kernel = _target_kernel(settings.target_kernel, xn)
-    loss = state_embedding_loss(x, xn, folds, target_kernel)
+    loss = state_embedding_loss(x, xn, folds, _target_kernel(settings.target_kernel, xn))
     fit = fit_hyperparameters(
-        loss,
-        _initial_lengthscales(x),
-        max(settings.lam0, settings.lam_min),
-        lam_bounds=(settings.lam_min, 1.0),
-        max_iter=settings.max_iter,
-    )
+        loss, _initial_lengthscales(x), max(settings.lam0, settings.lam_min),
+        lam_bounds=(settings.lam_min, 1.0), max_iter=settings.max_iter,
+    )  # fmt: skip
     emb = ConditionalEmbedding(x, xn, SquaredExponential(2, lengthscale=fit.lengthscale), fit.lam)
     trial.update()
 
-    # GP forward model on the same transitions (fixed policy: no control input).
-    no_u = np.zeros((len(x), 0))
-    curb = HyperCurb() if settings.gp_curb else None
-    gp = ForwardModel(ExactGP(n_steps=settings.gp_steps, curb=curb), target=settings.gp_target)
-    gp.fit(x, no_u, xn, rng=rng)
+    gp = _gp(settings)  # on the same transitions; the policy is fixed: no control input
+    gp.fit(x, np.zeros((len(x), 0)), xn, rng=rng)
     trial.update()
 
     n = settings.grid
@@ -225,10 +154,7 @@ def _pendulum_trial(
         "emb_cv_initial_loss": fit.initial_loss,
         "emb_fit_success": fit.success,
         "gp_lengthscale": gp.gp.hyperparameters["lengthscale"],
-        "gp_diagnostics": {
-            k: gp.gp.diagnostics.get(k)
-            for k in ("max_lengthscale_ratio", "max_signal_to_noise", "curb_penalty")
-        },
+        "gp_diagnostics": {k: gp.gp.diagnostics.get(k) for k in _DIAGNOSTICS},
     }
 
     if not multi_step:
@@ -273,14 +199,8 @@ def _pendulum_trial(
     pre, lin = traj.preimages(emb), traj.means(emb)
     out["time_embedding"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    sampled = sample_trajectories(
-        gp,
-        query,
-        lambda t, xt, p: xt.new_zeros((xt.shape[0], 0)),
-        horizon,
-        settings.gp_samples,
-        rng,
-    )
+    no_u = lambda t, xt, p: xt.new_zeros((xt.shape[0], 0))  # noqa: E731
+    sampled = sample_trajectories(gp, query, no_u, horizon, settings.gp_samples, rng)
     gp_mean = sampled.states.mean(dim=1).numpy().transpose(1, 0, 2)  # (T+1, G, 2)
     out["time_gp"] = time.perf_counter() - t0
     # Constant predictor: the mean observed state at each step (ignores the start state).
@@ -317,39 +237,39 @@ def _median_or_none(values: np.ndarray) -> float | None:
     return float(np.median(values)) if values.size else None
 
 
-def _per_trial_medians(trials: list[dict], key: str) -> dict:
-    """Each trial's median error near and away from its own observed states, per model
-    (:func:`_near_data` of that trial), and the fraction of the grid near them."""
-    near = [_near_data(t, np.shape(t[f"emb_{key}"])[0]) for t in trials]
-    maps = {name: [np.asarray(t[f"{m}_{key}"]) for t in trials] for name, m in _MODELS}
+def _medians(maps: dict, near: np.ndarray) -> dict:
+    """Median error per model near (``near``) and away from the observed states."""
     return {
-        "per_trial_fraction_of_grid_near_data": [float(np.mean(c)) for c in near],
-        "per_trial_median_error_near_data": {
-            name: [_median_or_none(e[c]) for e, c in zip(maps[name], near, strict=True)]
-            for name in maps
-        },
-        "per_trial_median_error_far_from_data": {
-            name: [_median_or_none(e[~c]) for e, c in zip(maps[name], near, strict=True)]
-            for name in maps
-        },
+        where: {name: _median_or_none(maps[m][cells]) for name, m in _MODELS}
+        for where, cells in (("near_data", near), ("far_from_data", ~near))
     }
 
 
-def _pendulum_summary(key: str, label: str, unit: str):
-    """``summarize`` of a pendulum error map: ``label`` names the error (also in the summary),
-    ``unit`` its unit (in the panel titles).
+def _per_trial_medians(trials: list[dict], key: str) -> dict:
+    """Each trial's median errors near and away from its own observed states
+    (:func:`_near_data` of that trial), and the fraction of the grid near them."""
+    near = [_near_data(t, np.shape(t[f"emb_{key}"])[0]) for t in trials]
+    per = [
+        _medians({m: np.asarray(t[f"{m}_{key}"]) for _, m in _MODELS}, c)
+        for t, c in zip(trials, near, strict=True)
+    ]
+    out: dict = {"per_trial_fraction_of_grid_near_data": [float(np.mean(c)) for c in near]}
+    for where in ("near_data", "far_from_data"):
+        out[f"per_trial_median_error_{where}"] = {n: [p[where][n] for p in per] for n, _ in _MODELS}
+    return out
 
-    Besides the maps' means over trials, the summary holds what a judgement across trials
-    needs: each trial's grid-mean error per predictor (``per_trial_mean_error``), each trial's
-    median error near and away from its own observed states, and the prediction times."""
+
+def _pendulum_summary(key: str, label: str, unit: str):
+    """``summarize`` of a pendulum error map ``key``: ``label`` names the error, ``unit`` its
+    unit. The summary keeps per-trial grid means and medians near / away from the data."""
 
     def summarize(settings: PendulumSettings, trials: list[dict]) -> tuple[list[Series], dict]:
         maps = {
             m: np.mean([t[f"{m}_{key}"] for t in trials], axis=0)
             for m in ("emb", "emb_preimage", "gp", "const", "floor")
         }
-        # Exact zeros (e.g. the floor where the control saturates) are drawn at 10⁻³⁰, below
-        # the colour ranges, which come from the positive values: (a)–(c) share one, (d) its own.
+        # Exact zeros are drawn at 10⁻³⁰, below the colour ranges, which come from the
+        # positive values: (a)–(c) share one, (d) has its own.
         logs = {m: np.log10(np.maximum(v, 1e-30)) for m, v in maps.items()}
         pos = {m: logs[m][maps[m] > 0] for m in maps}
         finite = np.concatenate([pos[m] for m in ("emb", "gp", "const")])
@@ -360,51 +280,29 @@ def _pendulum_summary(key: str, label: str, unit: str):
         xs = np.concatenate([np.append(tr[:, 0], np.nan) for tr in obs])
         ys = np.concatenate([np.append(tr[:, 1], np.nan) for tr in obs])
         series: list[Series] = []
+        axes = dict(xlabel="α (rad)", ylabel="α̇ (rad/s)")
         for m, title in _PENDULUM_PANELS:
             panel = f"{title}: log10 {label} ({label} in {unit})"
             lo, hi = (zmin, zmax) if m != "floor" else (float(fl.min()), float(fl.max()))
-            series.append(
-                Series(
-                    name=f"log10 {label}, {title[4:]}",
-                    x=t0["alpha"],
-                    y=t0["alpha_dot"],
-                    z=logs[m],
-                    panel=panel,
-                    kind="heatmap",
-                    xlabel="α (rad)",
-                    ylabel="α̇ (rad/s)",
-                    zmin=lo,
-                    zmax=hi,
-                )
-            )
-            series.append(
-                Series(
-                    name="observed trajectories",
-                    x=xs,
-                    y=ys,
-                    panel=panel,
-                    kind="line",
-                    xlabel="α (rad)",
-                    ylabel="α̇ (rad/s)",
-                )
-            )
-        per_trial = {m: [float(np.mean(t[f"{m}_{key}"])) for t in trials] for m in maps}
-        mean_emb, mean_gp = float(np.mean(maps["emb"])), float(np.mean(maps["gp"]))
+            series += [
+                Series(f"log10 {label}, {title[4:]}", t0["alpha"], t0["alpha_dot"], z=logs[m],
+                       panel=panel, kind="heatmap", zmin=lo, zmax=hi, **axes),
+                Series("observed trajectories", xs, ys, panel=panel, kind="line", **axes),
+            ]  # fmt: skip
         better_map = maps["emb"] < maps["gp"]
         near = _near_data(t0, better_map.shape[0])
+        medians = _medians(maps, near)
+
+        def fraction(cells):
+            return float(np.mean(better_map[cells])) if cells.any() else None
+
         summary = {
             "n_trials": len(trials),
             "error": label,
-            "mean_error_embedding": mean_emb,
-            "mean_error_gp": mean_gp,
+            "mean_error_embedding": float(np.mean(maps["emb"])),
+            "mean_error_gp": float(np.mean(maps["gp"])),
             "mean_error_constant": float(np.mean(maps["const"])),
             "mean_noise_floor": float(np.mean(maps["floor"])),
-            "floors": {
-                "noise": "Monte Carlo variance of the ground-truth mean at each cell "
-                "(variance over the truth samples / their number), averaged over the grid",
-                "constant": "the mean observed successor (fig5.3, fig5.4) or the mean observed "
-                "state at each step (fig5.5), whatever the query",
-            },
             "mean_error_embedding_preimage": float(np.mean(maps["emb_preimage"])),
             "fraction_of_grid_where_embedding_preimage_better": float(
                 np.mean(maps["emb_preimage"] < maps["gp"])
@@ -412,24 +310,18 @@ def _pendulum_summary(key: str, label: str, unit: str):
             "median_log10_error_embedding": float(np.median(logs["emb"])),
             "median_log10_error_gp": float(np.median(logs["gp"])),
             "fraction_of_grid_where_embedding_better": float(np.mean(better_map)),
-            "near_data": "cells whose nearest observed state (first trial) is within 10% of "
-            "the grid span on both axes",
             "fraction_of_grid_near_data": float(np.mean(near)),
-            "fraction_embedding_better_near_data": float(np.mean(better_map[near]))
-            if near.any()
-            else None,
-            "fraction_embedding_better_far_from_data": float(np.mean(better_map[~near]))
-            if (~near).any()
-            else None,
-            "median_error_near_data": {name: _median_or_none(maps[m][near]) for name, m in _MODELS},
-            "median_error_far_from_data": {
-                name: _median_or_none(maps[m][~near]) for name, m in _MODELS
-            },
+            "fraction_embedding_better_near_data": fraction(near),
+            "fraction_embedding_better_far_from_data": fraction(~near),
+            "median_error_near_data": medians["near_data"],
+            "median_error_far_from_data": medians["far_from_data"],
             "fraction_of_grid_where_embedding_beats_constant": float(
                 np.mean(maps["emb"] < maps["const"])
             ),
             "fraction_of_grid_where_gp_beats_constant": float(np.mean(maps["gp"] < maps["const"])),
-            "per_trial_mean_error": per_trial,
+            "per_trial_mean_error": {
+                m: [float(np.mean(t[f"{m}_{key}"])) for t in trials] for m in maps
+            },
             **_per_trial_medians(trials, key),
             "shared_colour_range_log10": [zmin, zmax],
             "embedding_lengthscale": [np.asarray(t["emb_lengthscale"]).tolist() for t in trials],
@@ -447,9 +339,9 @@ def _pendulum_summary(key: str, label: str, unit: str):
 
 
 SCALES_PENDULUM_MULTI = {k: replace(v, lam_min=1e-3) for k, v in SCALES_PENDULUM.items()}
-"""fig5.5's scales: λ ≥ 1e-3 for the 20-step propagation (as fig5.6 / fig5.7)."""
+"""fig5.5's scales: λ ≥ 1e-3 for the 20-step propagation."""
 
-PENDULUM_ERRORS = (
+for _id, _key, _label, _unit, _multi, _what in (
     ("fig5.3", "e_alpha", "e_α", "rad²", False, "single-step prediction error of α"),
     ("fig5.4", "e_alpha_dot", "e_α̇", "(rad/s)²", False, "single-step prediction error of α̇"),
     (
@@ -460,11 +352,7 @@ PENDULUM_ERRORS = (
         True,
         "20-step trajectory prediction error",
     ),
-)
-"""Per pendulum id: error key, its symbol, its unit (squared errors of α in rad and α̇ in rad/s;
-fig5.5 sums both over the steps), multi-step, what it is."""
-
-for _id, _key, _label, _unit, _multi, _what in PENDULUM_ERRORS:
+):
     register(
         Experiment(
             id=_id,
@@ -480,12 +368,8 @@ for _id, _key, _label, _unit, _multi, _what in PENDULUM_ERRORS:
 
 # =========================================================================== balancing
 def _rollouts_from(task, gain: np.ndarray, x0: np.ndarray, n: int, rng) -> tuple:
-    """``n`` real rollouts of the feedback law u = G x̃ plus the task's torque noise, all from
-    the start state ``x0`` (:meth:`~skillkit.tasks.balancing.Balancing.rollout_from`).
-
-    Returns ``(states (n, T+1, 8), controls (n, T+1, 4), failed (n,) bool)``; a diverged
-    rollout (the task's divergence check) is flagged and its arrays are NaN.
-    """
+    """``n`` real rollouts of u = G x̃ plus torque noise from ``x0``: states (n, T+1, 8),
+    controls (n, T+1, 4) and failed (n,) bool (a diverged rollout's arrays are NaN)."""
     T1 = task.n_steps + 1
     states = np.full((n, T1, 8), np.nan)
     controls = np.full((n, T1, 4), np.nan)
@@ -502,9 +386,8 @@ def _rollouts_from(task, gain: np.ndarray, x0: np.ndarray, n: int, rng) -> tuple
 
 
 def _balancing_truth(task, gain, starts: np.ndarray, settings, rng) -> dict:
-    """The ground truth of every test pair: R_i = E[R | x₀ᵢ] over the torque noise, from
-    ``truth_rollouts`` real rollouts per start state (thesis: 100), with its Monte Carlo
-    variance Var(R | x₀ᵢ) / n and the spread of single rollouts Var(R | x₀ᵢ)."""
+    """R_i = E[R | x₀ᵢ] from ``truth_rollouts`` real rollouts per start state, its Monte
+    Carlo variance Var(R | x₀ᵢ) / n and the single-rollout spread Var(R | x₀ᵢ)."""
     n_roll = settings.truth_rollouts
     returns = np.empty((len(starts), n_roll))
     for i, x0 in enumerate(starts):
@@ -519,6 +402,11 @@ def _balancing_truth(task, gain, starts: np.ndarray, settings, rng) -> dict:
         "truth_rollout_var": var,
         "failed": int(np.sum(np.isnan(returns))),
     }
+
+
+def _feedback(gain: np.ndarray):
+    """The policy u = G (x − x_up) on embedding states (B, K, 8)."""
+    return lambda s, t: np.einsum("ij,bkj->bki", gain, s - X_UP)
 
 
 def embedding_expected_rewards(
@@ -536,26 +424,19 @@ def embedding_expected_rewards(
         Embedding of the transitions z = [x, u] → x'.
     x0 : ndarray, shape (B, 8) or (B, L, 8)
         Start states (or L samples of each of B start distributions).
-    gain : ndarray, shape (4, 8)
-        Feedback gain G of u = G (x − x_up).
-    horizon : int
-        Number of steps T.
-    reward : callable
-        Immediate reward r(x, u) of the task (vectorised over leading axes).
+    gain, horizon, reward
+        G (4, 8) of u = G (x − x_up), the number of steps T and r(x, u) (vectorised).
 
     Returns
     -------
     rewards : ndarray, shape (B,)
-        Predicted expected trajectory rewards Σ_{t=1}^{T} E[r_t].
+        Σ_{t=1}^{T} E[r_t].
     beta_l1 : ndarray, shape (B,)
-        max_t ‖β_t‖₁ per start (weights that grow far beyond 1 mean the propagation is
-        unstable: E[r_t] = r'ᵀβ_t then amplifies).
+        max_t ‖β_t‖₁ per start (far above 1: the propagation is unstable).
     """
-
-    def policy(s, t):
-        return np.einsum("ij,bkj->bki", gain, s - X_UP)
-
-    traj = predict(model, x0, horizon + 1, policy=policy, reward=reward, time_invariant=True)
+    traj = predict(
+        model, x0, horizon + 1, policy=_feedback(gain), reward=reward, time_invariant=True
+    )
     return traj.rewards[1:].sum(axis=0), np.abs(traj.betas).sum(axis=1).max(axis=0)
 
 
@@ -564,54 +445,24 @@ class BalancingSettings(Settings):
     """Settings shared by ``fig5.6`` and ``fig5.7`` (balancing the 4-link robot, Sec. 5.4)."""
 
     horizon: int = setting(40, "Steps T of every trajectory (thesis: 40).", minimum=1)
-    initial_std: float = setting(
-        0.3, "Std of the initial state around upright (rad, rad/s; thesis: 0.3).", minimum=0
-    )
-    pd_frequency: float = setting(
-        3.0, "Natural frequency ω of the PD controller (Balancing.pd_gain; rad/s).", above=0
-    )
-    pd_damping: float = setting(
-        1.5, "Damping ratio ζ of the PD controller (Balancing.pd_gain).", above=0
-    )
-    gp_samples: int = setting(
-        100, "Trajectories M sampled from the GP per test start state (thesis: 100).", minimum=1
-    )
-    cv_folds: int = setting(
-        10,
-        "Cross-validation folds over trajectories (thesis: 10; fewer if fewer trajectories).",
-        minimum=2,
-    )
+    initial_std: float = setting(0.3, "Std of the initial state (thesis: 0.3).", minimum=0)
+    pd_frequency: float = setting(3.0, "ω of the PD controller (rad/s).", above=0)
+    pd_damping: float = setting(1.5, "Damping ratio ζ of the PD controller.", above=0)
+    gp_samples: int = setting(100, "GP trajectories M per test start (thesis: 100).", minimum=1)
+    cv_folds: int = setting(10, "Cross-validation folds over trajectories (thesis: 10).", minimum=2)
     lam0: float = setting(1e-3, "Initial regulariser λ of the embeddings (Eq. 5.3).", above=0)
-    lam_min: float = setting(
-        1e-3,
-        "Lower bound of λ in both embedding fits: smaller λ lets the 40-step propagation "
-        "β_{t+1} = (G + λI)⁻¹G̃β_t amplify (‖β‖₁ ≫ 1).",
-        above=0,
-    )
-    test_pairs: int = setting(
-        40, "Test start states x₀ᵢ whose expected reward is predicted.", minimum=1
-    )
-    truth_rollouts: int = setting(
-        30, "Real rollouts per test start state for its expected reward (thesis: 100).", minimum=2
-    )
-    max_iter: int = setting(
-        40, "L-BFGS-B iterations of the embeddings' hyper-parameters.", minimum=1
-    )
-    gp_steps: int = setting(
-        100, "Marginal-likelihood optimisation steps of the GP (Eq. 2.28).", minimum=0
-    )
+    lam_min: float = setting(1e-3, "Lower bound of λ in both embedding fits.", above=0)
+    test_pairs: int = setting(40, "Test start states x₀ᵢ.", minimum=1)
+    truth_rollouts: int = setting(30, "Real rollouts per test start (thesis: 100).", minimum=2)
+    max_iter: int = setting(40, "L-BFGS-B iterations of the embeddings.", minimum=1)
+    gp_steps: int = setting(100, "Marginal-likelihood steps of the GP (Eq. 2.28).", minimum=0)
     trajectory_start: Literal["both", "step", "default"] = setting(
         "both",
-        "Start(s) of the trajectory-based fit (Eq. 5.23): the step-based fit's initial values "
-        "(default: the inputs' stds, lam0), its optimum (step), or both, keeping the lower "
-        "cross-validated loss (both; a single start can end on the β ≈ 0 plateau).",
+        "Start(s) of the Eq. 5.23 fit: the step-based fit's initial values (default), its "
+        "optimum (step), or both, keeping the lower cross-validated loss.",
     )
-    gp_target: Literal["delta", "next"] = setting(
-        "next", "What the GP learns: x' (next, the thesis's) or Δx (delta)."
-    )
-    gp_curb: bool = setting(
-        True, "PILCO's hyper-parameter penalty (HyperCurb) on the GP's marginal likelihood."
-    )
+    gp_target: Literal["delta", "next"] = setting("next", "What the GP learns: x' (next) or Δx.")
+    gp_curb: bool = setting(True, "PILCO's hyper-parameter penalty (HyperCurb) on the GP.")
 
 
 @dataclass(frozen=True)
@@ -620,7 +471,7 @@ class RewardVsDataSettings(BalancingSettings):
 
     torque_noise: float = setting(4.0, "Std of the torque noise (N m; thesis: 4).", minimum=0)
     n_trajectories: tuple[int, ...] = setting(
-        (3, 8), "Numbers of observed trajectories the models learn from (x axis).", minimum=2
+        (3, 8), "Numbers of observed trajectories (x axis).", minimum=2
     )
 
 
@@ -636,42 +487,24 @@ class RewardVsNoiseSettings(BalancingSettings):
 
 _BALANCING_PAPER = dict(test_pairs=200, truth_rollouts=100, max_iter=30, gp_steps=150)
 _BALANCING_SMOKE = dict(
-    horizon=5,
-    gp_samples=4,
-    test_pairs=3,
-    truth_rollouts=3,
-    max_iter=2,
-    gp_steps=2,
+    horizon=5, gp_samples=4, test_pairs=3, truth_rollouts=3, max_iter=2, gp_steps=2
 )
-QUICK_5_6 = RewardVsDataSettings()
-SCALES_5_6 = {
-    "smoke": replace(QUICK_5_6, **_BALANCING_SMOKE, n_trajectories=(2, 3)),
-    # quick scales down: test pairs 200→40, ground-truth rollouts 100→30, GP steps 150→100,
-    # trajectory counts (2, 4, 6, 10)→(3, 8)
-    "quick": QUICK_5_6,
-    # Sized for ~15 min on one core: the trajectory-based fit costs ~10 s per loss evaluation
-    # at 20 trajectories (N = 800), so the x axis stops at 10.
-    "paper": replace(QUICK_5_6, **_BALANCING_PAPER, n_trajectories=(2, 4, 6, 10)),
-}
-QUICK_5_7 = RewardVsNoiseSettings()
-SCALES_5_7 = {
-    "smoke": replace(QUICK_5_7, **_BALANCING_SMOKE, n_trajectories=2, torque_noise=(1.0, 4.0)),
-    # quick scales down: test pairs 100→40, ground-truth rollouts 50→30, GP steps 150→100,
-    # noise levels (1, 2, 4, 8)→(1, 4, 8) N m, trajectories 6→5
-    "quick": QUICK_5_7,
-    # Sized for ~15 min on one core: one ground truth per noise level.
-    "paper": replace(
-        QUICK_5_7,
-        **{**_BALANCING_PAPER, "test_pairs": 100, "truth_rollouts": 50},
-        n_trajectories=6,
-        torque_noise=(1.0, 2.0, 4.0, 8.0),
-    ),
-}
+SCALES_5_6 = scales(
+    RewardVsDataSettings(),
+    smoke={**_BALANCING_SMOKE, "n_trajectories": (2, 3)},
+    paper={**_BALANCING_PAPER, "n_trajectories": (2, 4, 6, 10)},
+)
+SCALES_5_7 = scales(
+    RewardVsNoiseSettings(),
+    smoke={**_BALANCING_SMOKE, "n_trajectories": 2, "torque_noise": (1.0, 4.0)},
+    paper={
+        **_BALANCING_PAPER, "test_pairs": 100, "truth_rollouts": 50, "n_trajectories": 6,
+        "torque_noise": (1.0, 2.0, 4.0, 8.0),
+    },
+)  # fmt: skip
 
 E_R_LABEL = "e_r = mean (R̂ − R)² [reward²]"
-"""Y label of ``fig5.6`` / ``fig5.7``: the squared error of the predicted expected trajectory
-reward R̂_i, averaged over the test start states (the balancing reward −(x̃ᵀQx̃ + r_u uᵀu) is
-unitless, so e_r is in reward²)."""
+"""Y label of ``fig5.6`` / ``fig5.7`` (the balancing reward is unitless)."""
 
 _METHODS = (
     ("gp", "GP sampling (M={gp_samples})"),
@@ -732,11 +565,7 @@ def _balancing_case(
     r_next = rewards[:, 1:].ravel()
     horizon = states.shape[1] - 1
 
-    def train_policy(s, t):
-        return np.einsum("ij,bkj->bki", gain, s - X_UP)
-
-    k = min(settings.cv_folds, n_traj)
-    folds_traj = kfold_splits(n_traj, k, rng)
+    folds_traj = kfold_splits(n_traj, min(settings.cv_folds, n_traj), rng)
     folds_step = [
         (np.flatnonzero(np.isin(groups, tr)), np.flatnonzero(np.isin(groups, va)))
         for tr, va in folds_traj
@@ -747,7 +576,9 @@ def _balancing_case(
     fits = {"step": fit_hyperparameters(step_reward_loss(z, r_next, folds_step), ls0, lam0, **fit)}
     # Eq. 5.23 from the step-based fit's initial values and from its optimum (trajectory_start
     # "both" keeps the lower cross-validated loss; "default" / "step" use one start only).
-    traj_loss = trajectory_reward_loss(states, controls, rewards, train_policy, reward, folds_traj)
+    traj_loss = trajectory_reward_loss(
+        states, controls, rewards, _feedback(gain), reward, folds_traj
+    )
     starts_ = {"default": (ls0, lam0), "step": (fits["step"].lengthscale, fits["step"].lam)}
     keys = ["default", "step"] if settings.trajectory_start == "both" else []
     tried = {
@@ -758,8 +589,7 @@ def _balancing_case(
     fits["trajectory"] = tried[best]
     trial.update()
 
-    observed_return = rewards[:, 1:].sum(axis=1)
-    constant = float(observed_return.mean())
+    constant = float(rewards[:, 1:].sum(axis=1).mean())
     out = {
         "redrawn_observed": redrawn,
         "n_transitions": len(z),
@@ -768,11 +598,12 @@ def _balancing_case(
         "trajectory_start": best,
         "trajectory_per_start": {},
     }
+
+    def model(f):
+        return ConditionalEmbedding(z, xn, SquaredExponential(12, lengthscale=f.lengthscale), f.lam)
+
     for key, f in tried.items():  # every start's fit, scored (evidence of the β ≈ 0 plateau)
-        model = ConditionalEmbedding(
-            z, xn, SquaredExponential(12, lengthscale=f.lengthscale), f.lam
-        )
-        pred, beta_l1 = embedding_expected_rewards(model, starts, gain, horizon, reward)
+        pred, beta_l1 = embedding_expected_rewards(model(f), starts, gain, horizon, reward)
         out["trajectory_per_start"][key] = {
             "cv_loss": f.loss,
             "e_r": float(np.mean((pred - truth) ** 2)),
@@ -782,32 +613,25 @@ def _balancing_case(
             "n_at_bound": len(f.at_bound),
         }
     for name, f in fits.items():
-        kernel = SquaredExponential(12, lengthscale=f.lengthscale)
-        model = ConditionalEmbedding(z, xn, kernel, f.lam)
+        emb = model(f)
         t0 = time.perf_counter()
-        pred, beta_l1 = embedding_expected_rewards(model, starts, gain, horizon, reward)
-        out[f"time_{name}"] = time.perf_counter() - t0
-        out[f"e_r_{name}"] = float(np.mean((pred - truth) ** 2))
-        out[f"median_sq_err_{name}"] = float(np.median((pred - truth) ** 2))
-        out[f"pred_mean_{name}"] = float(np.mean(pred))
-        out[f"beta_l1_max_{name}"] = float(np.max(beta_l1))
-        out[f"lengthscale_{name}"] = f.lengthscale
-        out[f"lam_{name}"] = f.lam
-        out[f"cv_loss_{name}"] = f.loss
-        out[f"cv_initial_loss_{name}"] = f.initial_loss
-        out[f"fit_success_{name}"] = f.success
-        out[f"fit_at_bound_{name}"] = f.at_bound
+        pred, beta_l1 = embedding_expected_rewards(emb, starts, gain, horizon, reward)
+        measured = dict(
+            time=time.perf_counter() - t0, e_r=float(np.mean((pred - truth) ** 2)),
+            median_sq_err=float(np.median((pred - truth) ** 2)), pred_mean=float(np.mean(pred)),
+            beta_l1_max=float(np.max(beta_l1)), lengthscale=f.lengthscale, lam=f.lam,
+            cv_loss=f.loss, cv_initial_loss=f.initial_loss, fit_success=f.success,
+            fit_at_bound=f.at_bound,
+        )  # fmt: skip
+        out.update({f"{k}_{name}": v for k, v in measured.items()})
     trial.update()
 
-    curb = HyperCurb() if settings.gp_curb else None
-    gp = ForwardModel(ExactGP(n_steps=settings.gp_steps, curb=curb), target=settings.gp_target)
+    gp = _gp(settings)
     gp.fit(z[:, :8], z[:, 8:], xn, rng=rng)
-    n_test = len(starts)
-    gains = torch.from_numpy(np.broadcast_to(gain, (n_test, 4, 8)).copy())
+    gains = torch.from_numpy(np.broadcast_to(gain, (len(starts), 4, 8)).copy())
     t0 = time.perf_counter()
-    sampled = sample_trajectories(
-        gp, starts, feedback_policy(gains), horizon, settings.gp_samples, rng
-    )
+    policy = feedback_policy(gains)
+    sampled = sample_trajectories(gp, starts, policy, horizon, settings.gp_samples, rng)
     xs = sampled.states.numpy()  # (B, M, T+1, 8)
     us = np.einsum("ij,bmtj->bmti", gain, xs - X_UP)  # commanded torques
     gp_pred = reward(xs, us)[:, :, 1:].sum(axis=-1).mean(axis=1)
@@ -815,13 +639,11 @@ def _balancing_case(
     finite = np.isfinite(gp_pred)
     out["gp_nonfinite_predictions"] = int(np.sum(~finite))
     sq = (gp_pred[finite] - truth[finite]) ** 2
-    out["e_r_gp"] = float(np.mean(sq)) if finite.any() else np.nan
-    out["median_sq_err_gp"] = float(np.median(sq)) if finite.any() else np.nan
-    out["pred_mean_gp"] = float(np.mean(gp_pred[finite])) if finite.any() else np.nan
-    out["gp_diagnostics"] = {
-        k: gp.gp.diagnostics.get(k)
-        for k in ("max_lengthscale_ratio", "max_signal_to_noise", "curb_penalty")
-    }
+    any_ = finite.any()
+    out["e_r_gp"] = float(np.mean(sq)) if any_ else np.nan
+    out["median_sq_err_gp"] = float(np.median(sq)) if any_ else np.nan
+    out["pred_mean_gp"] = float(np.mean(gp_pred[finite])) if any_ else np.nan
+    out["gp_diagnostics"] = {k: gp.gp.diagnostics.get(k) for k in _DIAGNOSTICS}
     trial.update()
     return out
 
@@ -847,8 +669,8 @@ def _fig56_trial(
     st = trial.resume("fig5.6", rng)
     if st is None:
         starts = task.initial_states(None, settings.test_pairs, rng)
-        st = {"starts": starts, "truth": _balancing_truth(task, gain, starts, settings, rng)}
-        st["cases"] = []
+        truth = _balancing_truth(task, gain, starts, settings, rng)
+        st = {"starts": starts, "truth": truth, "cases": []}
         trial.save("fig5.6", st, rng)
     trial.update(1 + 3 * len(st["cases"]))
     for m in counts[len(st["cases"]) :]:
@@ -871,9 +693,8 @@ def _fig57_trial(
     # Resumable after every noise level; the test start states are shared by all levels.
     st = trial.resume("fig5.7", rng)
     if st is None:
-        task = _task(settings, levels[0])
-        st = {"starts": task.initial_states(None, settings.test_pairs, rng), "cases": []}
-        st["stats"] = []
+        starts = _task(settings, levels[0]).initial_states(None, settings.test_pairs, rng)
+        st = {"starts": starts, "cases": [], "stats": []}
     trial.update(4 * len(st["cases"]))
     for noise in levels[len(st["cases"]) :]:
         task = _task(settings, noise)
@@ -881,18 +702,9 @@ def _fig57_trial(
         truth = _balancing_truth(task, gain, st["starts"], settings, rng)
         st["stats"].append(_truth_stats(truth))
         trial.update()
-        st["cases"].append(
-            _balancing_case(
-                task,
-                gain,
-                settings.n_trajectories,
-                st["starts"],
-                truth["truth"],
-                settings,
-                rng,
-                trial,
-            )  # fmt: skip
-        )
+        m = settings.n_trajectories
+        case = _balancing_case(task, gain, m, st["starts"], truth["truth"], settings, rng, trial)
+        st["cases"].append(case)
         trial.save("fig5.7", st, rng)
     return {
         "x": levels,
@@ -914,12 +726,9 @@ def _spread(values: list[float | None]) -> float:
 
 
 def _reward_summary(xlabel: str, fig: str):
-    """``summarize`` of ``fig5.6`` / ``fig5.7``: e_r per predictor against ``xlabel``.
-
-    Besides the means over trials, the summary holds each trial's e_r per predictor at every
-    x (``e_r_per_trial[m][i]``: one value per trial at ``x[i]``), averaged over the x values
-    (``e_r_mean_over_x_per_trial``) and, for ``fig5.7``, each trial's max / min e_r across
-    the noise levels: what a judgement across trials needs."""
+    """``summarize`` of ``fig5.6`` / ``fig5.7``: e_r per predictor against ``xlabel``, with
+    each trial's e_r per x (``e_r_per_trial[m][i]``), its mean over x and, for ``fig5.7``,
+    each trial's max / min across the noise levels."""
 
     def summarize(settings: BalancingSettings, trials: list[dict]) -> tuple[list[Series], dict]:
         x = list(trials[0]["x"])
@@ -931,27 +740,18 @@ def _reward_summary(xlabel: str, fig: str):
         series = []
         for m, label in _METHODS + _FLOORS:
             y, band = trial_band(err[m])
+            kind = "lines+markers" if m in dict(_METHODS) else "line"
             series.append(
-                Series(
-                    name=label.format(gp_samples=settings.gp_samples),
-                    x=x,
-                    y=y,
-                    **band,
-                    panel="reward prediction error",
-                    kind="lines+markers" if m in dict(_METHODS) else "line",
-                    xlabel=xlabel,
-                    ylabel=E_R_LABEL,
-                    log_y=True,
-                )
-            )
+                Series(label.format(gp_samples=settings.gp_samples), x, y, **band, kind=kind,
+                       panel="reward prediction error", xlabel=xlabel, ylabel=E_R_LABEL,
+                       log_y=True)
+            )  # fmt: skip
         mean = {m: err[m].mean(axis=0) for m in err}
-        n = len(x)
-        emb_below_gp = [
-            bool(mean["step"][i] < mean["gp"][i] and mean["trajectory"][i] < mean["gp"][i])
-            for i in range(n)
-        ]
-        traj_below_step = [bool(mean["trajectory"][i] < mean["step"][i]) for i in range(n)]
-        traj_below_const = [bool(mean["trajectory"][i] < mean["constant"][i]) for i in range(n)]
+        below = {
+            (a, b): [bool(u < v) for u, v in zip(mean[a], mean[b], strict=True)]
+            for a, b in (("step", "gp"), ("trajectory", "gp"), ("trajectory", "step"),
+                         ("trajectory", "constant"))
+        }  # fmt: skip
 
         def per_case(key):
             return [[c[key] for c in t["cases"]] for t in trials]
@@ -961,11 +761,6 @@ def _reward_summary(xlabel: str, fig: str):
             "x": x,
             "mean_e_r": {m: mean[m].tolist() for m in err},
             "floors": {
-                "noise": "Monte Carlo variance of the ground truth: mean_i Var(R | x₀ᵢ) / "
-                "truth_rollouts (the error a perfect predictor still shows against it)",
-                "constant": "e_r of the constant predictor R̂ = mean reward of the observed "
-                "trajectories (no model); the oracle constant (mean true R over the test "
-                "starts) scores truth_reward_var",
                 "truth_rollout_var": np.mean([t["truth_rollout_var"] for t in trials], 0).tolist(),
                 "truth_reward_var": np.mean([t["truth_reward_var"] for t in trials], 0).tolist(),
             },
@@ -992,9 +787,11 @@ def _reward_summary(xlabel: str, fig: str):
             "trajectory_fit_starts": per_case("trajectory_per_start"),
             "gp_over_trajectory_based_ratio": (mean["gp"] / mean["trajectory"]).tolist(),
             "gp_over_step_based_ratio": (mean["gp"] / mean["step"]).tolist(),
-            "embedding_below_gp": emb_below_gp,
-            "trajectory_based_below_step_based": traj_below_step,
-            "trajectory_based_below_constant": traj_below_const,
+            "embedding_below_gp": [
+                a and b for a, b in zip(below["step", "gp"], below["trajectory", "gp"], strict=True)
+            ],
+            "trajectory_based_below_step_based": below["trajectory", "step"],
+            "trajectory_based_below_constant": below["trajectory", "constant"],
             "gp_nonfinite_predictions": int(np.sum(per_case("gp_nonfinite_predictions"))),
             "failed_truth_rollouts": int(sum(sum(t["failed_truth_rollouts"]) for t in trials)),
             "redrawn_observed_trajectories": int(np.sum(per_case("redrawn_observed"))),

@@ -1,12 +1,9 @@
 """Atomic, self-checking checkpoints for experiment trials.
 
-A checkpoint file is ``MAGIC + header length + JSON header + pickled payload``. The header
-records what the payload belongs to — experiment id, settings, trial seed, skillkit version
-and a fingerprint of the code that can change the trial's numbers
-(:mod:`skillkit.experiments.provenance`) — and the SHA-256 of the payload. Loading checks
-all of it: a truncated or corrupted file, or one written for other settings, another trial
-or other code, raises :class:`CheckpointError` (never silently resumed from). Writes go to a
-temporary file that is renamed into place, so a crash mid-write leaves the old checkpoint.
+A file is ``MAGIC + header length + JSON header + pickled payload``; the header binds the
+payload to its experiment, settings, trial, seed and code (skillkit version and
+:mod:`skillkit.experiments.provenance` fingerprint) and holds its SHA-256. A corrupt file or
+one of another run raises :class:`CheckpointError`; writes are renamed into place.
 """
 
 from __future__ import annotations
@@ -22,7 +19,7 @@ from typing import Any, NamedTuple
 MAGIC = b"SKILLKIT-CKPT-1\n"
 
 START_OVER = "start over with `skillkit reproduce ... --fresh` or `reproduce(..., fresh=True)`"
-"""What a refused checkpoint's message tells the user to do (from the shell or from Python)."""
+"""What a refused checkpoint's message tells the user to do."""
 
 
 class CheckpointError(RuntimeError):
@@ -30,8 +27,7 @@ class CheckpointError(RuntimeError):
 
 
 def code_fingerprint(func) -> str:
-    """skillkit version plus :func:`skillkit.experiments.provenance.code_fingerprint` of the
-    module defining ``func`` (its experiment module and the skillkit code it imports)."""
+    """skillkit version plus the provenance fingerprint of the module defining ``func``."""
     import skillkit
     from skillkit.experiments.provenance import code_fingerprint as fingerprint
 
@@ -56,33 +52,15 @@ def identity(exp_id: str, settings: dict, trial: int, seed: int, code: str) -> d
 def save(
     path: str | Path, ident: dict, payload: Any, kind: str, seconds: float | None = None
 ) -> None:
-    """Write ``payload`` atomically with a header binding it to ``ident``.
-
-    Parameters
-    ----------
-    path : path
-        Destination file.
-    ident : dict
-        From :func:`identity`.
-    payload : any picklable object
-        The state (``kind="state"``: mid-trial state; ``kind="result"``: the finished trial).
-    kind : {"state", "result"}
-    seconds : float, optional
-        Compute time spent on the trial so far (summed over resumed runs), kept in the header.
-    """
+    """Write ``payload`` (picklable; ``kind`` ``"state"`` mid-trial or ``"result"``) to
+    ``path`` atomically with a header binding it to ``ident`` (:func:`identity`) and the
+    trial's compute ``seconds`` so far."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     body = pickle.dumps(payload, protocol=pickle.HIGHEST_PROTOCOL)
-    header = json.dumps(
-        {
-            **ident,
-            "kind": kind,
-            "sha256": hashlib.sha256(body).hexdigest(),
-            "size": len(body),
-            "seconds": seconds,
-        },
-        sort_keys=True,
-    ).encode()
+    sha = hashlib.sha256(body).hexdigest()
+    fields = {**ident, "kind": kind, "sha256": sha, "size": len(body), "seconds": seconds}
+    header = json.dumps(fields, sort_keys=True).encode()
     tmp = path.with_name(path.name + f".tmp{os.getpid()}")
     with open(tmp, "wb") as fh:
         fh.write(MAGIC + struct.pack("<I", len(header)) + header + body)
@@ -100,18 +78,13 @@ class Loaded(NamedTuple):
 
 
 def load(path: str | Path, ident: dict) -> Loaded | None:
-    """Load a checkpoint written by :func:`save`; ``None`` if there is none.
-
-    Returns
-    -------
-    Loaded
-        ``(kind, payload, seconds)``.
+    """The checkpoint at ``path`` (:class:`Loaded`), or None if there is none.
 
     Raises
     ------
     CheckpointError
-        Truncated/corrupted file, or a header that does not match ``ident`` (the message says
-        which field differs).
+        A truncated or corrupted file, or a header that does not match ``ident`` (naming
+        the field).
     """
     path = Path(path)
     if not path.exists():

@@ -1,36 +1,20 @@
 r"""``cmp.methods``: REPS, GPREPS, CMA-ES and contextual BO on the thesis's tasks.
 
-Not a figure of the thesis: the comparison a researcher would make before choosing a method,
-on the same tasks, from the same initial policy, evaluated the same way. Each method runs
-through :func:`~skillkit.search.loop.learn` on
+Not a figure of the thesis: the comparison a researcher would make before choosing a method.
+Every method runs the learning-curve experiment of :mod:`skillkit.experiments.curves` on
+throwing (Appendix C.1), hockey (C.3), table tennis (C.4) and balancing (Sec. 4.3.1), from the
+task's initial policy (balancing: Table 4.2's π₀), evaluated after every update on the same
+contexts with the same evaluation seed. REPS and GPREPS run as the task's thesis experiment
+runs them (its :class:`~skillkit.experiments.curves.CurveTask` profile: settings at the same
+scale, reward model, REPS baseline); **CMA-ES** (cma's defaults, a linear context mapping, m = 4
+contexts per candidate) gets REPS's real-rollout budget and **contextual BO** (BoTorch's
+defaults) GPREPS's. The model-based methods on balancing start from Table 4.2's 6 s of
+random-policy experience, counted as 1.2 rollouts.
 
-* **throwing** (Appendix C.1), **hockey** (C.3), **table tennis** (C.4) and **balancing**
-  (Sec. 4.3.1);
-* **REPS** and **GPREPS** exactly as the thesis experiments run them — the settings of
-  ``fig4.6`` (throwing), ``fig4.10`` (hockey), ``fig4.12`` (table tennis) and ``tab4.2``
-  (balancing) at the same scale, their reward models and their REPS baselines (built by the
-  same functions);
-* **CMA-ES** (:class:`~skillkit.search.cmaes.CMAES`, cma's defaults: λ = 4 + ⌊3 ln n⌋; a linear
-  context mapping with m = 4 contexts per candidate) with REPS's real-rollout budget;
-* **contextual BO** (:class:`~skillkit.search.cbo.ContextualBO`, BoTorch's defaults) with
-  GPREPS's real-rollout budget (its cost grows with the cube of the data).
-
-Every method of a trial starts from the task's initial policy (balancing: Table 4.2's π₀) and is
-evaluated after every update on the same contexts with the same evaluation seed (the policy
-mean; balancing: 50 common start states). The model-based methods on balancing start from
-Table 4.2's 6 s of random-policy experience, counted as real rollouts (6 s = 1.2 rollouts of
-5 s).
-
-What is measured per task and method: the real rollouts after which the mean learning curve
-first reaches each of the task's reward thresholds (:data:`THRESHOLDS`, from the thesis), the
-final reward (mean ± std over trials), and the compute time (wall-clock seconds of the learning
-run — rollouts, updates and evaluations — on the machine of the run). The thesis makes no claim
-about CMA-ES or Bayesian optimisation: the claims spec (``skillkit/data/claims/comparisons.toml``)
-says so and holds the setup table. The summary names, per task, the method with the best final
-reward and those that reached each threshold with the fewest real rollouts (``winners``).
-
-``import skillkit.experiments`` registers this experiment, as every other (the package
-``__init__``'s registration imports are not part of any experiment's code fingerprint).
+Per task and method the summary gives the real rollouts after which the mean learning curve
+first reaches each of the task's thresholds, the final reward (mean ± std over trials), the
+compute time, and the ``winners``. The thesis makes no claim about CMA-ES or BO
+(``skillkit/data/claims/comparisons.toml``).
 """
 
 from __future__ import annotations
@@ -41,97 +25,63 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from skillkit.experiments import ch4_balancing as balancing42
-from skillkit.experiments.ch3_hockey import HockeySettings
-from skillkit.experiments.ch3_hockey import make_algorithm as hockey_algorithm
-from skillkit.experiments.ch3_table_tennis import REGULARISED, TableTennisSettings, make_reps
-from skillkit.experiments.ch4_events import hockey_reward_model
-from skillkit.experiments.ch4_gpreps import (
-    gpreps_algorithm,
-    reps_algorithm,
-    rollouts_to_reach,
-    throwing_reward_model,
+from skillkit.experiments import (  # noqa: F401  profiles
+    ch4_balancing,
+    ch4_events,
+    ch4_gpreps,
+    ch4_table_tennis,
 )
-from skillkit.experiments.ch4_table_tennis import table_tennis_reward_model
-from skillkit.experiments.registry import SCALES, Experiment, Series, get, register
-from skillkit.experiments.settings import Settings, setting
-from skillkit.search.loop import learn, policy_history_arrays
+from skillkit.experiments.curves import (
+    CurveTask,
+    curve_series,
+    curve_stats,
+    curve_task,
+    rollouts_to_reach,
+    run_curve,
+)
+from skillkit.experiments.registry import SCALES, Experiment, get, register
+from skillkit.experiments.settings import Settings, scales, setting
+from skillkit.search.loop import policy_history_arrays
 from skillkit.tasks import make
 from skillkit.trial import TrialContext
 from skillkit.viz.model_layers import dumps_reward_model
-from skillkit.viz.series import trial_band
 
-__all__ = ["METHODS", "TASKS", "THRESHOLDS", "MethodComparisonSettings", "thesis_settings"]
+__all__ = ["METHODS", "TASKS", "MethodComparisonSettings", "thesis_settings"]
 
 TASKS = ("throwing", "hockey", "table-tennis", "balancing")
 """The registered tasks of the comparison."""
 METHODS = ("reps", "gpreps", "cmaes", "cbo")
 """The methods, in the order they run."""
 LABELS = {"reps": "REPS", "gpreps": "GPREPS", "cmaes": "CMA-ES", "cbo": "contextual BO"}
-THESIS_SETUP = {"throwing": "fig4.6", "hockey": "fig4.10", "table-tennis": "fig4.12",
-                "balancing": "tab4.2"}  # fmt: skip
-"""The thesis experiment whose settings (at the same scale) REPS and GPREPS use per task."""
-THRESHOLDS: dict[str, tuple[tuple[float, ...], str]] = {
-    "throwing": (
-        (-100.0, -50.0),
-        "R ≈ −c₁ × the ball's distance to the target with c₁ = 100 per metre (Appendix C.1): "
-        "−100 is 1 m off on average, −50 the 0.5 m bound of Sec. 3.4.1 (Fig. 3.3); the "
-        "thesis's final rewards are −715 (REPS) and −64 (GPREPS) in Fig. 4.9's caption",
-    ),
-    "hockey": (
-        (-0.2, -0.05),
-        "Sec. 3.4.2: REPS's displacement error “remained below 20cm”; Sec. 4.3.3: GPREPS's "
-        "“less than 5 cm” (a hit placing the puck d off its target scores R = −d)",
-    ),
-    "table-tennis": (
-        (-0.05, -0.02),
-        "Sec. 3.4.3: high-quality policies have “a reward above -0.02”; balls in the net score "
-        "“in interval [−0.05, −0.02]”",
-    ),
-    "balancing": ((-100.0, -10.0, -1.5), "Table 4.2's reward limits"),
-}
-"""Per task: the reward levels whose real-rollout cost is compared, and where they come from."""
 
 
 @dataclass(frozen=True)
 class MethodComparisonSettings(Settings):
     """Settings of ``cmp.methods``; REPS and GPREPS take theirs from the thesis experiments."""
 
+    # fmt: off
     tasks: tuple[str, ...] = setting(TASKS, f"Tasks compared (a subset of {TASKS}).")
     methods: tuple[str, ...] = setting(METHODS, f"Methods compared (a subset of {METHODS}).")
-    thesis_scale: str = setting(
-        "quick",
-        "Scale of the thesis experiments (fig4.6, fig4.10, fig4.12, tab4.2) whose REPS and "
-        "GPREPS settings are used.",
-    )
-    gpreps_updates: int = setting(
-        0, "GPREPS updates, one real rollout each (0: the thesis experiment's).", minimum=0
-    )
-    n_artificial: int = setting(
-        0, "GPREPS's M, artificial samples per update (0: the thesis experiment's).", minimum=0
-    )
-    n_trajectories: int = setting(
-        0, "GPREPS's L, predicted trajectories per sample (0: the thesis experiment's).", minimum=0
-    )
+    thesis_scale: str = setting("quick", "Scale of the thesis experiments (fig4.6, fig4.10, "
+                                "fig4.12, tab4.2) whose REPS and GPREPS settings are used.")
+    gpreps_updates: int = setting(0, "GPREPS updates (0: the thesis experiment's).", minimum=0)
+    n_artificial: int = setting(0, "GPREPS's M (0: the thesis experiment's).", minimum=0)
+    n_trajectories: int = setting(0, "GPREPS's L (0: the thesis experiment's).", minimum=0)
     reps_updates: int = setting(0, "REPS updates (0: the thesis experiment's).", minimum=0)
     keep_gpreps_model: bool = setting(
-        False,
-        "Store GPREPS's policy history on the first task (`skillkit view TASK --policy RUN_DIR` "
-        "plays it back) and, where the reward model draws prediction layers (hockey, table "
-        "tennis), the model (`--gpreps RUN_DIR` overlays its predictions).",
-    )
-    cmaes_budget: int = setting(
-        0, "Real rollouts of CMA-ES (0: REPS's budget on the task).", minimum=0
-    )
-    cbo_budget: int = setting(
-        0, "Real rollouts of contextual BO (0: GPREPS's budget on the task).", minimum=0
-    )
+        False, "Store GPREPS's policy history on the first task (`skillkit view TASK --policy "
+        "RUN_DIR`) and a reward model that draws prediction layers (`--gpreps RUN_DIR`).")
+    cmaes_budget: int = setting(0, "Real rollouts of CMA-ES (0: REPS's).", minimum=0)
+    cbo_budget: int = setting(0, "Real rollouts of contextual BO (0: GPREPS's).", minimum=0)
+    # fmt: on
 
 
-SMOKE = MethodComparisonSettings(thesis_scale="smoke", cmaes_budget=24, cbo_budget=6)
-QUICK = MethodComparisonSettings()
-PAPER = MethodComparisonSettings(thesis_scale="paper")
-SETTINGS = {"smoke": SMOKE, "quick": QUICK, "paper": PAPER}
+SETTINGS = scales(
+    MethodComparisonSettings(),
+    smoke={"thesis_scale": "smoke", "cmaes_budget": 24, "cbo_budget": 6},
+    paper={"thesis_scale": "paper"},
+)
+PAPER = SETTINGS["paper"]
 
 
 def _check(st: MethodComparisonSettings) -> None:
@@ -150,6 +100,7 @@ class _Setup:
 
     task: object
     name: str
+    profile: CurveTask
     thesis: Settings
     policy: object
     eval_contexts: np.ndarray
@@ -161,77 +112,36 @@ class _Setup:
 def thesis_settings(name: str, st: MethodComparisonSettings) -> Settings:
     """The settings of task ``name``'s thesis experiment at ``st.thesis_scale``, with the
     GPREPS and REPS sizes that ``st`` sets (non-zero) in their place."""
-    thesis = get(THESIS_SETUP[name]).settings[st.thesis_scale]
-    updates = "gpreps_updates" if name == "balancing" else "n_updates"
-    sizes = {updates: st.gpreps_updates, "n_artificial": st.n_artificial,
+    profile = curve_task(name)
+    thesis = get(profile.experiment).settings[st.thesis_scale]
+    sizes = {profile.gpreps_updates: st.gpreps_updates, "n_artificial": st.n_artificial,
              "n_trajectories": st.n_trajectories, "reps_updates": st.reps_updates}  # fmt: skip
     return replace(thesis, **{k: v for k, v in sizes.items() if v})
 
 
 def _setup(name: str, st: MethodComparisonSettings, rng: np.random.Generator) -> _Setup:
-    thesis = thesis_settings(name, st)
-    prior, prior_rollouts = [], 0.0
-    if name == "balancing":
-        task = make("balancing", initial_std=thesis.initial_std)
-        policy = balancing42.initial_policy_42(thesis, task)
-        evals = np.zeros((thesis.n_eval, 0))
-        prior = balancing42.random_prior(thesis, policy, rng)["trajectories"]
-        prior_rollouts = balancing42.random_experience(task, prior) / (
-            task.n_steps * task.control_dt
-        )
+    profile, thesis = curve_task(name), thesis_settings(name, st)
+    if profile.setup is not None:
+        task, policy, evals, prior, prior_rollouts = profile.setup(thesis, rng)
     else:
         task = make(name)
         policy = task.initial_policy()
         evals = task.sample_context(rng, n=thesis.n_eval_contexts)
-    return _Setup(task, name, thesis, policy, evals, int(rng.integers(2**63)), prior,
+        prior, prior_rollouts = [], 0.0
+    return _Setup(task, name, profile, thesis, policy, evals, int(rng.integers(2**63)), prior,
                   prior_rollouts)  # fmt: skip
 
 
 def _schedule(method: str, s: _Setup) -> tuple[int, int, int]:
-    """(updates K, rollouts per update N, initial rollouts N₀) of the thesis experiment's
-    REPS or GPREPS on ``s``, read from its settings."""
-    th = s.thesis
+    """(updates K, rollouts per update N, initial rollouts N₀) of REPS or GPREPS on ``s``."""
     if method == "gpreps":
-        if s.name == "balancing":  # tab4.2: one rollout per update after the random prior
-            return th.gpreps_updates, 1, 1
-        return th.n_updates, 1, th.n_initial
-    if s.name == "table-tennis":  # fig3.7's batch size
-        n = replace(TableTennisSettings(), **REGULARISED).rollouts_per_update
-        return th.reps_updates, n, n
-    return th.reps_updates, th.reps_rollouts_per_update, th.reps_rollouts_per_update
+        return s.profile.gpreps_schedule(s.thesis)
+    return s.profile.reps_schedule(s.thesis)
 
 
 def _real_rollouts(k: int, n: int, n0: int) -> int:
     """Real rollouts of a :func:`learn` run of k updates: N₀ first, then N per update."""
     return n0 + (k - 1) * n
-
-
-def _reps(s: _Setup):
-    """The thesis experiment's REPS baseline on ``s``."""
-    th = s.thesis
-    if s.name == "throwing":  # fig4.6's REPS (fig3.3's settings)
-        return reps_algorithm(s.task, th)
-    if s.name == "hockey":  # fig4.10's REPS (fig3.5's settings)
-        hs = HockeySettings(epsilon=th.reps_epsilon, n_reuse_batches=th.reps_reuse_batches)
-        return hockey_algorithm("reps", s.task, hs)
-    if s.name == "table-tennis":  # fig4.12's REPS (fig3.7's, with the stored regularisation)
-        return make_reps(s.task, replace(TableTennisSettings(), **REGULARISED))
-    return balancing42.reps_algorithm(th, s.policy)
-
-
-def _gpreps(s: _Setup, rng):
-    """The thesis experiment's GPREPS on ``s``."""
-    th = s.thesis
-    if s.name == "balancing":
-        return balancing42.gpreps_algorithm(s.task, th, s.policy, s.prior,
-                                            balancing42.fitc_model(th), rng)  # fmt: skip
-    if s.name == "throwing":
-        model = throwing_reward_model(s.task, th, "decomposed")
-    elif s.name == "hockey":
-        model = hockey_reward_model(s.task, th)
-    else:
-        model = table_tennis_reward_model(s.task, th, th.schedule)
-    return gpreps_algorithm(s.task, th, model, th.n_artificial, th.n_trajectories, rng)
 
 
 def _peer_budget(method: str, s: _Setup, st: MethodComparisonSettings) -> int:
@@ -244,9 +154,10 @@ def _peer_budget(method: str, s: _Setup, st: MethodComparisonSettings) -> int:
 def _algorithm(method: str, s: _Setup, st: MethodComparisonSettings, rng):
     """(algorithm, updates, rollouts per update, initial rollouts) of ``method`` on ``s``."""
     if method == "reps":
-        return (_reps(s), *_schedule("reps", s))
+        return (s.profile.reps(s.task, s.thesis, s.policy), *_schedule("reps", s))
     if method == "gpreps":
-        return (_gpreps(s, rng), *_schedule("gpreps", s))
+        algo = s.profile.make_gpreps(s.task, s.thesis, s.policy, s.prior, rng)
+        return (algo, *_schedule("gpreps", s))
     budget = _peer_budget(method, s, st)
     if method == "cmaes":
         from skillkit.search.cmaes import CMAES  # here: the cma package imports pyplot
@@ -272,9 +183,8 @@ def _run_method(method: str, s: _Setup, st, rng, trial: TrialContext) -> dict:
         return took if step else 0.0
 
     key = f"{s.name}/{method}"
-    c = learn(s.task, algo, k, n, rng, trial=trial, eval_contexts=s.eval_contexts,
-              eval_seed=s.eval_seed, checkpoint_key=key, initial_rollouts=n0,
-              callback=clock)  # fmt: skip
+    _, c = run_curve(s.task, algo, key, k, n, rng, trial, s.eval_contexts, eval_seed=s.eval_seed,
+                     initial_rollouts=n0, callback=clock)  # fmt: skip
     prior = s.prior_rollouts if method == "gpreps" and s.prior else 0.0
     out = {
         f"{key}_rollouts": c["rollouts"].astype(float) + prior,
@@ -313,7 +223,6 @@ def run_trial(st: MethodComparisonSettings, rng: np.random.Generator, trial: Tri
 
 # --------------------------------------------------------------------------- summary
 def _method_row(trials: list[dict], key: str, thresholds) -> dict:
-    final = np.array([t[f"{key}_mean_reward"][-1] for t in trials], dtype=float)
     reached = {}
     for level in thresholds:
         per_trial = [rollouts_to_reach([t], key, level) for t in trials]
@@ -324,10 +233,7 @@ def _method_row(trials: list[dict], key: str, thresholds) -> dict:
         }
     return {
         "real_rollouts": float(trials[0][f"{key}_rollouts"][-1]),
-        "initial_reward": float(np.mean([t[f"{key}_mean_reward"][0] for t in trials])),
-        "final_reward_mean": float(final.mean()),
-        "final_reward_std": float(final.std(ddof=1)) if len(trials) > 1 else 0.0,
-        "final_reward_per_trial": final.tolist(),
+        **curve_stats(trials, key),
         "time_s_mean": float(np.mean([t[f"{key}_time_s"][-1] for t in trials])),
         "failed_rollouts": int(sum(t[f"{key}_n_failed"] for t in trials)),
         "thresholds": reached,
@@ -356,35 +262,26 @@ def summarize(st: MethodComparisonSettings, trials: list[dict]):
     """Learning curves per task (reward vs real rollouts, log x) and the comparison table."""
     series, table = [], {}
     for name in st.tasks:
-        levels, source = THRESHOLDS[name]
+        profile = curve_task(name)
+        levels = profile.thresholds
         row = {m: _method_row(trials, f"{name}/{m}", levels) for m in st.methods}
-        for m in st.methods:
-            key = f"{name}/{m}"
-            x = np.asarray(trials[0][f"{key}_rollouts"], dtype=float)
-            m_curve, band = trial_band(np.array([t[f"{key}_mean_reward"] for t in trials]))
-            series.append(Series(LABELS[m], x[1:].tolist(), m_curve[1:], panel=name,
-                                 **{k: v[1:] if isinstance(v, list) else v
-                                    for k, v in band.items()},
-                                 xlabel="real rollouts (log scale)",
-                                 ylabel="reward of the policy mean", log_x=True))  # fmt: skip
+        series += [curve_series(trials, f"{name}/{m}_rollouts", f"{name}/{m}_mean_reward",
+                                LABELS[m], name, "reward of the policy mean", drop_first=True)
+                   for m in st.methods]  # fmt: skip
         table[name] = {
             "thresholds": list(levels),
-            "thresholds_source": source,
-            "thesis_settings": THESIS_SETUP[name],
+            "thresholds_source": profile.thresholds_source,
+            "thesis_settings": profile.experiment,
             "methods": row,
             "winners": _winners(row, levels),
         }
     return series, {"n_trials": len(trials), "tasks": table}
 
 
-register(
-    Experiment(
-        id="cmp.methods",
-        title="REPS, GPREPS, CMA-ES and contextual BO on the thesis's tasks (not a thesis figure)",
-        settings_class=MethodComparisonSettings,
-        settings=SETTINGS,
-        run_trial=run_trial,
-        summarize=summarize,
-        trials={"smoke": 1, "quick": 2, "paper": 5},
-    )
-)
+# fmt: off
+register(Experiment(
+    id="cmp.methods",
+    title="REPS, GPREPS, CMA-ES and contextual BO on the thesis's tasks (not a thesis figure)",
+    settings_class=MethodComparisonSettings, settings=SETTINGS, run_trial=run_trial,
+    summarize=summarize, trials={"smoke": 1, "quick": 2, "paper": 5}))
+# fmt: on

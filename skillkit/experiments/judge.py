@@ -1,27 +1,18 @@
 """Claims as data, judged by one engine with a 95% interval across trials.
 
-A run stores what was measured (its ``summary``: numbers and per-trial arrays). How those
-numbers are *judged* lives in the claims spec, one TOML file per chapter in
-``skillkit/data/claims/``: for every experiment id the thesis's sentences (quote and location),
-a claim in plain words, and the **parts** that judge it. A part names
-
-* the quantity: a path into the summary (``"gpreps.final_reward_per_trial"``; a list of keys
-  where a key holds a dot; ``"settings.n_heldout"`` reads the run's settings);
-* the statistic that turns it into an estimate with a 95% interval (:data:`STATISTICS`);
-* the reading: ``op`` and ``threshold`` (a number or another path), what the thesis says in
-  numbers (``thesis``), a one-line ``reason`` and whether the reading was ``fixed`` before or
-  after the numbers were seen;
-* ``own = true`` for a check of ours beyond the thesis's sentence, shown beside the verdict and
-  never deciding it.
+A run stores what was measured (its ``summary``). How it is *judged* lives in the claims
+spec, one TOML file per chapter in ``skillkit/data/claims/``: per experiment id the thesis's
+sentences (quote and location), the claim in plain words, a setup table and the **parts**. A
+part names the quantity (a path into the summary, or ``settings.<name>``), the statistic that
+makes it an estimate with a 95% interval (:data:`STATISTICS`), the reading (``op``,
+``threshold``, the thesis's number, a ``reason``, whether it was ``fixed`` before or after the
+numbers were seen), and ``own = true`` for a check of ours that never decides the verdict.
 
 A part **holds** when its interval lies wholly on the claim's side of the threshold, **does not
-hold** when it lies wholly on the other side, and is **undecided** when it straddles it (or the
-run lacks the number); an undecided part says how many trials (or contexts) the measured spread
-needs to decide it. An experiment's verdict is "does not hold" if a thesis part does not hold,
-else "undecided" if one is undecided, else "holds". Smoke runs and ids whose quoted passage
-reports no result are "not judged".
-
-Changing a reading changes the verdict at the next load of the run: no trial is re-run.
+hold** when wholly on the other, and is **undecided** when it straddles it (saying how many
+trials would decide it). The verdict is "does not hold" if a thesis part does not hold, else
+"undecided" if one is, else "holds"; smoke runs and ids whose passage reports no result are
+"not judged". A changed reading re-judges every run at its next load.
 
 Examples
 --------
@@ -56,8 +47,10 @@ __all__ = [
     "apply",
     "judge",
     "normalise_text",
+    "quoted_numbers",
     "spec",
     "specs",
+    "thesis_value",
 ]
 
 SPEC_DIR = Path(__file__).resolve().parent.parent / "data" / "claims"
@@ -92,21 +85,15 @@ JUDGEMENT_KEYS = frozenset(
     {"claim", "holds", "statement", "thesis", "not_judged", "own_checks", "claim_parts",
      "setup", "variants", "verdict", "judgement"}
 )  # fmt: skip
-"""Summary keys that hold a judgement or its words (a claim, a verdict, our words about the
-numbers, the setup table), never a measurement."""
+"""Summary keys that hold a judgement or its words, never a measurement."""
 
 HOLDS, FAILS, UNDECIDED, NOT_JUDGED = "holds", "does not hold", "undecided", "not judged"
 
 
 # ------------------------------------------------------------------------------ the spec
 def normalise_text(text: str) -> str:
-    """``text`` with end-of-line hyphenation undone and every run of whitespace one space.
-
-    The thesis text breaks lines inside sentences and hyphenates at line ends; a quote in the
-    spec is copied from it character for character (markup included) and appears verbatim in
-    ``normalise_text(thesis_text)``. A hyphen that ends a line and is followed by a lowercase
-    letter joins the two parts ("rep-\\nresents" → "represents").
-    """
+    """``text`` with end-of-line hyphenation undone ("rep-\\nresents" → "represents") and
+    every run of whitespace one space: a spec quote appears verbatim in the normalised thesis."""
     text = re.sub(r"(\w)-[ \t]*\n\s*(?=[a-z])", r"\1", text)
     return " ".join(text.split())
 
@@ -277,6 +264,41 @@ def spec(exp_id: str) -> Claim:
     if exp_id not in table:
         raise ValueError(f"exp_id: no claim for {exp_id!r}; known: {', '.join(table)}")
     return table[exp_id]
+
+
+_NUMBER = re.compile(r"[-−]?\d+(?:\.\d+)?")
+
+
+def _numbers(text: str) -> list[float]:
+    return [float(m.replace("−", "-")) for m in _NUMBER.findall(text)]
+
+
+def thesis_value(exp_id: str, label: str) -> float:
+    """The thesis's number of the part ``label`` of ``exp_id``: the first number in the
+    part's ``thesis`` text (``"≈ 50 in the top 95%"`` → 50.0).
+
+    Raises
+    ------
+    ValueError
+        ``exp_id`` has no part ``label``, or its ``thesis`` text holds no number.
+    """
+    for p in spec(exp_id).parts:
+        if p.label == label:
+            found = _numbers(p.thesis)
+            if not found:
+                raise ValueError(f"label: the thesis text of {exp_id} {label!r} has no number")
+            return found[0]
+    raise ValueError(f"label: {exp_id} has no part {label!r}")
+
+
+def quoted_numbers(exp_id: str) -> list[float]:
+    """The numbers the spec of ``exp_id`` records in parentheses after its quotes' locations,
+    in order (``"Table 4.2 caption (PILCO 10.18 / 11.46 s, …)"`` → [10.18, 11.46, …]; ``−``
+    is a minus sign)."""
+    return [
+        x for q in spec(exp_id).quotes if "(" in q.location
+        for x in _numbers(q.location.split("(", 1)[1])
+    ]  # fmt: skip
 
 
 # ----------------------------------------------------------------------------- statistics
@@ -468,20 +490,7 @@ def _estimate(p: Part, summary: Mapping, settings: Mapping) -> tuple:
 
 
 def read(p: Part, summary: Mapping, settings: Mapping | None = None) -> Reading:
-    """Judge one part on a run's summary (and settings).
-
-    Parameters
-    ----------
-    p : Part
-    summary : mapping
-        The run's measurements.
-    settings : mapping, optional
-        The run's settings (paths starting with ``settings.``).
-
-    Returns
-    -------
-    Reading
-    """
+    """Judge one part on a run's summary (and settings, for ``settings.`` paths)."""
     got = _estimate(p, summary, settings or {})
     if got is None:
         return Reading(p, None, None, None, 0, "not measured", "not recorded in this run")
@@ -530,8 +539,8 @@ class Judgement:
         return {HOLDS: True, FAILS: False}.get(self.outcome)
 
     def key(self) -> Reading | None:
-        """The reading the card shows: the first that fails, else the first undecided, else
-        the first thesis part."""
+        """The reading the card shows: the first failing, undecided or unmeasured thesis part,
+        else the first."""
         rs = self.thesis_readings
         for wanted in (FAILS, UNDECIDED, "not measured"):
             for r in rs:
@@ -551,8 +560,8 @@ class Judgement:
         return _fit(f"{r.part.label} {r.number()}, thesis {r.part.thesis}: {self.outcome}")
 
     def card(self) -> str:
-        """At most three lines of at most :data:`CARD_WIDTH` characters: the claim, the verdict
-        with its key number and interval beside the thesis's, where the details are."""
+        """At most three lines of :data:`CARD_WIDTH` characters: the claim, the verdict line,
+        the tally and where the details are."""
         lines = [f"{self.claim.id}: {self.claim.plain}", self.verdict_line()]
         rs = self.thesis_readings
         words = {HOLDS: "hold", FAILS: "fail", UNDECIDED: "undecided", "not measured": "unmeasured"}
@@ -568,8 +577,7 @@ class Judgement:
         return "\n".join(lines)
 
     def details(self) -> str:
-        """Markdown: the quotes, every reading with its reason and when it was fixed, our own
-        checks, the setup table and notes."""
+        """Markdown: the quotes, every reading, the setup table and the notes."""
         c = self.claim
         out = [f"### {c.id}: {c.plain}", ""]
         out += [f"> {q.text}\n>\n> — {q.location}\n" for q in c.quotes]
@@ -619,22 +627,8 @@ def _fit(line: str) -> str:
 def judge(
     exp_id: str, summary: Mapping[str, Any], scale: str, settings: Mapping | None = None
 ) -> Judgement:
-    """Judge a run's measurements against the spec of ``exp_id``.
-
-    Parameters
-    ----------
-    exp_id : str
-    summary : mapping
-        The run's summary (its measurements; judgement keys are ignored).
-    scale : str
-        "smoke" runs are never judged.
-    settings : mapping, optional
-        The run's settings.
-
-    Returns
-    -------
-    Judgement
-    """
+    """Judge a run's summary (and settings) against the spec of ``exp_id`` ("smoke" runs are
+    not judged)."""
     claim = spec(exp_id)
     readings = tuple(read(p, summary, settings) for p in claim.parts)
     thesis = tuple(r for r, p in zip(readings, claim.parts, strict=True) if not p.own)
@@ -668,12 +662,9 @@ def is_judged(exp_id: str) -> bool:
 
 def apply(summary: Mapping[str, Any], exp_id: str, scale: str,
           settings: Mapping | None = None) -> dict[str, Any]:  # fmt: skip
-    """``summary``'s measurements with the judgement in front: ``claim`` (plain words),
-    ``holds`` (True / False / None), ``verdict`` (the outcome), ``statement`` (the card's
-    verdict line), ``thesis`` (the quotes), ``own_checks`` and ``judgement``
-    (:meth:`Judgement.as_dict`). Judgement keys already in ``summary`` are replaced. An id the
-    spec does not judge (an experiment registered outside this package) keeps its summary.
-    """
+    """``summary`` with the judgement in front (``claim``, ``holds``, ``verdict``,
+    ``statement``, ``thesis``, ``own_checks``, ``judgement``), replacing any earlier one; an
+    id the spec does not judge keeps its summary."""
     if not is_judged(exp_id):
         return dict(summary)
     j = judge(exp_id, summary, scale, settings)

@@ -1,32 +1,17 @@
 """Provenance of a result: which code made it, and whether that code has changed since.
 
-Three records go into every ``result.json``:
-
-* ``git``: the commit of the working tree that made the run and whether the tree had
-  uncommitted changes to tracked files (None outside a git checkout, e.g. an installed wheel);
-* ``code_fingerprint``: a hash of the code that can change the experiment's numbers — the
-  experiment's module and every skillkit module it imports, directly or inside functions,
-  transitively (found by reading the sources, not by importing them; a name imported from a
-  package's ``__init__``, or from an excluded module that only re-exports it, is followed to
-  the module that defines it), and the shipped demonstrations those modules name. Not part of
-  it: the plotting and viewer code of :mod:`skillkit.viz` (the series and bands experiments
-  store are computed in :mod:`skillkit.series`, which is part of it), the command line, and
-  the runner (its trial seeding and executors are held fixed by tests: same seed, same
-  numbers, whichever executor). Each source file enters as its token stream without
-  comments, docstrings or blank lines, so editing documentation or formatting leaves the
-  fingerprint unchanged, while any change to code does change it;
-* ``witness`` (quick and paper runs): the measurements (:func:`measurements`) of a smoke run
-  of the same experiment and seed made by the same code
-  (:func:`skillkit.experiments.runner.smoke_witness`).
+``result.json`` records ``git`` (the commit and whether tracked files were dirty; None outside
+a checkout), ``code_fingerprint`` (a hash of the experiment's module and every skillkit module
+it imports, transitively, found by reading the sources, plus the shipped demonstrations they
+name; without :data:`EXCLUDED` code, and as token streams without comments, docstrings or
+blank lines) and, for quick and paper runs, a ``witness``: the :func:`measurements` of a smoke
+run of the same id and seed by the same code.
 
 A result whose fingerprint equals today's is *current*. When the code changed, a fresh smoke
-witness equal to the stored one (:func:`compare_witness`, within round-off) shows that the
-change (a refactor, a move, a new measurement) reproduces what the result's code measured:
-the result is *carried*, and a carry record in ``result.json`` (``carried``) says so for
-today's fingerprint without running anything again. Otherwise it is *stale*: it may not be
-what today's code would produce. :func:`staleness` and :func:`check_results` read
-fingerprints and carry records only; :func:`skillkit.experiments.runner.check_witnesses`
-(``skillkit runs --check DIR``) also runs the witnesses.
+witness equal to the stored one within round-off (:func:`compare_witness`) *carries* it (a
+carry record in ``result.json`` says so for today's fingerprint); otherwise it is *stale*.
+:func:`staleness` and :func:`check_results` read fingerprints and carry records only;
+:func:`skillkit.experiments.runner.check_witnesses` also runs the witnesses.
 """
 
 from __future__ import annotations
@@ -55,15 +40,11 @@ EXCLUDED = (
     "skillkit.experiments.judge",
 )
 """Modules (and packages) whose code cannot change an experiment's numbers: figures, the
-viewer, the command line, the measured-time table, and the claims engine (it judges stored
-numbers; changing a reading re-judges every run at its next load, no trial re-runs)."""
+viewer, the command line, the measured-time table and the claims engine."""
 
 NOT_FOLLOWED = ("skillkit.experiments",)
-"""Packages whose ``__init__`` is hashed but not followed: ``skillkit.experiments`` imports
-every experiment module to register it, which is not code one experiment runs. Their
-top-level imports of their own submodules (``from skillkit.experiments import ch2``) are left
-out of the hash too (:func:`_registration_lines`): registering another experiment changes no
-number of this one, and a submodule this experiment does use enters as its own file."""
+"""Packages whose ``__init__`` is hashed but not followed (``skillkit.experiments`` imports
+every experiment to register it); their imports of their own submodules are not hashed."""
 
 _SKIPPED_TOKENS = {tokenize.COMMENT, tokenize.NL, tokenize.ENCODING, tokenize.ENDMARKER}
 
@@ -103,12 +84,8 @@ def _imports(path: Path, own_name: str | None) -> dict[str, bool]:
 
 @lru_cache(maxsize=512)
 def _imports_cached(path: Path, own_name: str | None, mtime_ns: int, size: int) -> dict[str, bool]:
-    """skillkit modules imported anywhere in ``path`` (top level or inside functions).
-
-    Returns ``{module: follow}``: ``follow`` is False for a package that is only imported as
-    the parent of a submodule (``from skillkit.models import gp`` runs ``skillkit/models/
-    __init__.py``, whose code is hashed, but what that ``__init__`` imports in turn — e.g. a
-    registry importing every experiment — is not what this file uses).
+    """``{module: follow}`` of the skillkit modules imported anywhere in ``path``; ``follow``
+    is False for a package only imported as the parent of a submodule (hashed, not followed).
     """
     tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
     is_package = path.name == "__init__.py"
@@ -145,12 +122,8 @@ def _imports_cached(path: Path, own_name: str | None, mtime_ns: int, size: int) 
 
 @lru_cache(maxsize=256)
 def _reexports(package: str) -> dict[str, str]:
-    """``{name: module}`` for the names a skillkit package's ``__init__`` imports from its
-    own modules (``from skillkit.search.reps import ContextualREPS``) or exports lazily
-    through a module-level ``_LAZY = {"name": "module", ...}`` dict read by its
-    ``__getattr__`` (PEP 562); also for the names an :data:`EXCLUDED` plain module imports
-    (``skillkit.viz.series`` re-exports :mod:`skillkit.series`), so that code an experiment
-    imports through an excluded module is followed to where it is defined."""
+    """``{name: module}`` of the names a package's ``__init__`` imports or exports lazily
+    (a module-level ``_LAZY`` dict, PEP 562), or an :data:`EXCLUDED` module re-exports."""
     file = _module_file(package)
     if file is None:
         return {}
@@ -180,8 +153,8 @@ def _reexports(package: str) -> dict[str, str]:
 
 
 def _defining_module(base: str, name: str) -> str:
-    """The module that ``from base import name`` runs for ``name``: the submodule
-    ``base.name``, the module a package re-exports ``name`` from, or ``base`` itself."""
+    """The module ``from base import name`` runs: ``base.name``, the re-exporting source, or
+    ``base``."""
     if _module_file(f"{base}.{name}") is not None:
         return f"{base}.{name}"
     source = _reexports(base).get(name)
@@ -191,19 +164,8 @@ def _defining_module(base: str, name: str) -> str:
 
 
 def source_closure(path: str | Path) -> list[Path]:
-    """``path`` and every skillkit source file it imports, transitively, sorted.
-
-    Parameters
-    ----------
-    path : path
-        A Python source file (an experiment module, or any module whose skillkit imports
-        should be followed).
-
-    Returns
-    -------
-    list of Path
-        The files, excluding :data:`EXCLUDED` modules (unless ``path`` itself is one).
-    """
+    """``path`` and every skillkit source file it imports, transitively, sorted (without
+    :data:`EXCLUDED` modules unless ``path`` is one)."""
     start = Path(path).resolve()
     hashed = {start}
     followed = {start}
@@ -237,8 +199,7 @@ def _docstring_lines(tree: ast.AST) -> set[int]:
 
 
 def _registration_lines(tree: ast.Module, package: str) -> set[int]:
-    """Lines of a package ``__init__``'s top-level statements that only import its own
-    submodules (``from package import submodule``, each name a module file)."""
+    """Lines of a package ``__init__``'s imports of its own submodules."""
     lines: set[int] = set()
     for node in tree.body:
         if (
@@ -253,8 +214,8 @@ def _registration_lines(tree: ast.Module, package: str) -> set[int]:
 
 @lru_cache(maxsize=512)
 def _normalised(path: Path, mtime_ns: int, size: int) -> bytes:
-    """The file's code as a token stream without comments, docstrings and blank lines (and,
-    for a :data:`NOT_FOLLOWED` package's ``__init__``, without its submodule imports)."""
+    """The file's code as a token stream without comments, docstrings and blank lines (and
+    a :data:`NOT_FOLLOWED` package's submodule imports)."""
     text = path.read_text(encoding="utf-8")
     tree = ast.parse(text, filename=str(path))
     skip = _docstring_lines(tree)
@@ -275,8 +236,7 @@ def _normalised(path: Path, mtime_ns: int, size: int) -> bytes:
 
 
 DATA_FOLDER = PACKAGE_ROOT / "data" / "demonstrations"
-"""Shipped data that code reads by file name; a file enters a fingerprint (as its bytes)
-when a source file of the closure names it."""
+"""Shipped data; a file enters a fingerprint (its bytes) when a closure file names it."""
 
 
 def _data_files(files: list[Path]) -> list[Path]:
@@ -286,8 +246,8 @@ def _data_files(files: list[Path]) -> list[Path]:
 
 
 def fingerprint_files(files: list[Path]) -> str:
-    """SHA-256 (16 hex digits) of the normalised sources of ``files``, their names, and the
-    bytes of the shipped data files they name."""
+    """SHA-256 (16 hex digits) of the normalised sources of ``files``, their names and the
+    shipped data files they name."""
     digest = hashlib.sha256()
     for file in sorted(files):
         name = _module_name(file) or file.name
@@ -301,20 +261,8 @@ def fingerprint_files(files: list[Path]) -> str:
 
 
 def code_fingerprint(obj: Callable | str | Path) -> str:
-    """Fingerprint of the code that can change the numbers of ``obj``.
-
-    Parameters
-    ----------
-    obj : callable, str or path
-        A function (its defining module is followed), an experiment id registered in
-        :mod:`skillkit.experiments.registry`, or a source file.
-
-    Returns
-    -------
-    str
-        16 hex digits; equal for two trees whose code (ignoring comments, docstrings and
-        formatting) in the closure is equal.
-    """
+    """Fingerprint (16 hex digits) of the code that can change the numbers of ``obj``: a
+    function (its module is followed), a registered experiment id, or a source file."""
     if isinstance(obj, Path) or (isinstance(obj, str) and obj.endswith(".py")):
         path = Path(obj)
     elif isinstance(obj, str):
@@ -339,15 +287,8 @@ def _source_file(func: Callable) -> str:
 
 
 def git_state(path: str | Path | None = None) -> dict[str, Any]:
-    """The git commit of the checkout holding ``path`` (default: the package) and whether it
-    has uncommitted changes to tracked files.
-
-    Returns
-    -------
-    dict
-        ``{"commit": str or None, "dirty": bool or None}``; both None when the package is not
-        inside a git checkout or git is not installed.
-    """
+    """``{"commit", "dirty"}`` of the checkout holding ``path`` (default: the package);
+    both None outside a git checkout."""
     where = Path(path) if path is not None else PACKAGE_ROOT
     try:
         commit = subprocess.run(
@@ -369,10 +310,8 @@ def git_state(path: str | Path | None = None) -> dict[str, Any]:
 
 
 def provenance(exp_id: str) -> dict[str, Any]:
-    """What ``result.json`` records about the code that made a run of ``exp_id``:
-    ``{"git": git_state(), "code_fingerprint": str or None}`` (None when the experiment's
-    trial function has no source file, e.g. one built in an interactive session: such a run
-    is listed as stale by :func:`check_results`)."""
+    """``{"git", "code_fingerprint"}`` of a run of ``exp_id`` (fingerprint None when the
+    trial function has no source file)."""
     try:
         fingerprint = code_fingerprint(exp_id)
     except ValueError:
@@ -382,31 +321,23 @@ def provenance(exp_id: str) -> dict[str, Any]:
 
 # ---------------------------------------------------------------------------- the witness
 SERIES_MEASURED = ("x", "y", "lower", "upper", "z")
-"""The fields of a stored series (:class:`skillkit.series.Series`) that hold measured
-numbers; the others (name, panel, labels, axis types, colour range, line style) are
-presentation."""
+"""The fields of a stored series that hold measured numbers (the others are presentation)."""
 
 WITNESS_RTOL = 1e-6
 """Relative part of the round-off tolerance of :func:`compare_witness`:
-|a − b| ≤ WITNESS_RTOL · max(|a|, |b|) + WITNESS_ATOL. The same code with the same seed on
-the same machine gives bit-equal numbers; a refactor that computes the same thing may sum in
-another order or let BLAS pick another kernel, which moves the last digits (~1e-16 relative
-per operation, amplified by iterated fits and long sums to far below 1e-6), while a change of
-a constant or an algorithm moves smoke-scale numbers by orders of magnitude more."""
+|a − b| ≤ WITNESS_RTOL · max(|a|, |b|) + WITNESS_ATOL."""
 
 WITNESS_ATOL = 1e-12
-"""Absolute part of the round-off tolerance (:data:`WITNESS_RTOL`): numbers that should be 0
-and come out as round-off residues of size ~1e-16 compare equal."""
+"""Absolute part of the round-off tolerance (:data:`WITNESS_RTOL`)."""
 
 WITNESS_SCALE = "smoke"
-"""The scale a witness runs at: seconds per experiment, the same code path as paper scale."""
+"""The scale a witness runs at."""
 
 _DROPPED = object()
 
 
 def _measured(value: Any) -> Any:
-    """``value`` without judgement keys and text; :data:`_DROPPED` when nothing is left of a
-    non-empty container, or ``value`` is text (or anything else that is not a number)."""
+    """``value`` without judgement keys and text (:data:`_DROPPED` when nothing is left)."""
     if isinstance(value, dict):
         out = {}
         for key, item in value.items():
@@ -429,28 +360,15 @@ def _measured(value: Any) -> Any:
 
 
 def measurements(summary: dict[str, Any]) -> dict[str, Any]:
-    """The measured numbers of a run's ``summary``: what a witness compares.
-
-    Parameters
-    ----------
-    summary : dict
-        A ``summary`` as ``result.json`` stores it (nested dicts and lists).
-
-    Returns
-    -------
-    dict
-        The same tree with every key of :data:`JUDGEMENT_KEYS` removed wherever it appears
-        and only numeric leaves kept (int, float, bool, None; a non-finite float becomes
-        None, as in ``result.json``): text is judgement or presentation and may change
-        freely. A dict or list that held only text or judgement is removed with it.
-    """
+    """The measured numbers of a run's ``summary`` (what a witness compares): the tree
+    without :data:`JUDGEMENT_KEYS` and text, numeric leaves only (int, float, bool, None; a
+    non-finite float becomes None)."""
     kept = _measured(summary)
     return kept if isinstance(kept, dict) else {}
 
 
 def series_measurements(series: list) -> list[dict[str, Any]]:
-    """The measured numbers of a run's series: per series (in order), the numeric leaves of
-    its :data:`SERIES_MEASURED` fields (``Series`` objects or their ``to_dict``)."""
+    """Per series, the numeric leaves of its :data:`SERIES_MEASURED` fields."""
     out = []
     for s in series:
         fields = s.to_dict() if hasattr(s, "to_dict") else dict(s)
@@ -464,8 +382,7 @@ def _is_leaf(value: Any) -> bool:
 
 
 def _equal(a: Any, b: Any) -> bool:
-    """Two leaves equal within the round-off tolerance (:data:`WITNESS_RTOL`); None and NaN
-    equal each other; booleans only equal booleans."""
+    """Leaves equal within the round-off tolerance (None equals NaN; bools only bools)."""
     a_none = a is None or (isinstance(a, float) and math.isnan(a))
     b_none = b is None or (isinstance(b, float) and math.isnan(b))
     if a_none or b_none:
@@ -490,8 +407,8 @@ def _short(value: Any) -> str:
 def walk_differences(
     stored: Any, fresh: Any, path: str, skip: set[str], out: list[tuple[str, str]]
 ):
-    """Append ``(path, text)`` for each difference of ``fresh`` from ``stored`` (text
-    ``"added: ..."`` for a leaf only ``fresh`` has)."""
+    """Append ``(path, text)`` per difference of ``fresh`` from ``stored`` (``"added: ..."``
+    for what only ``fresh`` has)."""
     if path in skip:
         return
     if isinstance(stored, dict) and isinstance(fresh, dict):
@@ -551,21 +468,17 @@ def _differences(stored: dict, fresh: dict, skip: set[str] = frozenset()) -> lis
 
 def unstable_paths(first: dict[str, Any], second: dict[str, Any]) -> list[str]:
     """Paths of the measurements that differ between two witnesses of the same code and seed
-    (measured times, e.g.): a witness lists them under ``unstable`` and
-    :func:`compare_witness` skips them."""
+    (listed under ``unstable``, skipped by :func:`compare_witness`)."""
     return sorted({path for path, _ in _differences(first, second)})
 
 
 def compare_witness(stored: dict[str, Any], fresh: dict[str, Any]) -> tuple[bool, list[str]]:
     """Whether a fresh witness reproduces a stored one.
 
-    Every numeric leaf of the stored witness's ``summary`` and ``series`` must be in the fresh
-    one and equal within the round-off tolerance |a − b| ≤ :data:`WITNESS_RTOL` · max(|a|,
-    |b|) + :data:`WITNESS_ATOL` (None and NaN equal each other; a list of numbers is one
-    measurement and must keep its length). Leaves only the fresh witness has are new
-    measurements: allowed, and listed as ``"added: <path> = <value>"``. Paths the stored
-    witness lists under ``unstable`` (they differed between two runs of the same code) are
-    not compared.
+    Every numeric leaf of the stored ``summary`` and ``series`` must be in the fresh one and
+    equal within :data:`WITNESS_RTOL` and :data:`WITNESS_ATOL` (a list of numbers keeps its
+    length); leaves only the fresh one has are allowed and listed as ``"added: ..."``; the
+    stored ``unstable`` paths are not compared.
 
     Parameters
     ----------
@@ -577,8 +490,7 @@ def compare_witness(stored: dict[str, Any], fresh: dict[str, Any]) -> tuple[bool
     equal : bool
         True when nothing but additions differs.
     differences : list of str
-        One line per difference naming the path (``summary.a.b``, ``series[2].y``) and both
-        values (stored -> fresh); the ``"added: ..."`` lines last.
+        One line per difference (path, stored -> fresh); the ``"added: ..."`` lines last.
     """
     skip = set(stored.get("unstable") or ())
     found = [text for _, text in _differences(stored, fresh, skip)]
@@ -602,28 +514,16 @@ def carried_reason(record: dict[str, Any]) -> str:
 
 
 def staleness(result: dict[str, Any], known: set[str] | None = None) -> tuple[bool, str]:
-    """Whether today's code would still make ``result`` (a ``result.json`` as a dict).
-
-    Cheap: it compares fingerprints and reads the carry records, it runs nothing
-    (:func:`skillkit.experiments.runner.check_witnesses` runs the witnesses).
-
-    Parameters
-    ----------
-    result : dict
-        The run's record (``id``, and ``code_fingerprint`` / ``git`` when it has provenance,
-        ``carried`` when a witness showed that later code gives the same numbers).
-    known : set of str, optional
-        The registered ids (looked up when not given).
+    """Whether today's code would still make ``result`` (a ``result.json`` as a dict),
+    from fingerprints and carry records alone.
 
     Returns
     -------
     stale : bool
-        True when the result has no fingerprint (made before provenance was recorded), its id
-        is not registered, or the fingerprint of its experiment's code has changed and no
-        carry record names today's fingerprint.
+        True without a fingerprint, for an unregistered id, or when the fingerprint changed
+        and no carry record names today's.
     reason : str
-        Why it is stale, ``"current"``, or ``"carried (code changed at <commit>, witness
-        equal)"``.
+        Why it is stale, ``"current"`` or ``"carried (...)"``.
     """
     if known is None:
         from skillkit.experiments.registry import ids
@@ -652,24 +552,9 @@ def _status(stale: bool, reason: str) -> str:
 
 
 def check_results(root: str | Path) -> list[dict[str, Any]]:
-    """Every ``result.json`` under ``root`` with whether today's code would still make it
-    (:func:`staleness`; nothing runs: a result whose code changed and that has no carry
-    record for today's code is stale until its witness runs,
-    :func:`skillkit.experiments.runner.check_witnesses`).
-
-    Parameters
-    ----------
-    root : path
-        Folder searched for ``result.json`` files.
-
-    Returns
-    -------
-    list of dict
-        ``path``, ``id``, ``status`` (``"current"``, ``"carried"`` or ``"stale"``),
-        ``stale`` (bool) and ``reason`` (``"current"``, ``"carried (...)"`` or why it is
-        stale), in path order. A result without a fingerprint, or of an id no longer
-        registered, is stale; so is one whose code changed and has no carry record.
-    """
+    """Every ``result.json`` under ``root`` with :func:`staleness` (nothing runs): dicts of
+    ``path``, ``id``, ``status`` (current, carried or stale), ``stale`` and ``reason``, in
+    path order."""
     from skillkit.experiments.registry import ids
 
     known = set(ids())

@@ -1,24 +1,12 @@
 """Experiment registry: every figure/table id of the thesis that skillkit reproduces.
 
-An :class:`Experiment` is data plus three functions, so the runner (and its executors) can
-run trials anywhere:
-
-* ``run_trial(settings, rng, trial) -> dict`` runs one independent trial and returns
-  JSON-able numbers and numpy arrays (curves, errors, ...); ``trial`` is the trial's
-  :class:`~skillkit.trial.TrialContext` (progress bar and mid-trial checkpoints).
-* ``summarize(settings, trials) -> (series, summary)`` turns the list of trial results into
-  the plotted :class:`Series` and a ``summary`` dict of what was measured (numbers and
-  per-trial arrays). How those numbers are judged is data: the claims spec read by
-  :mod:`skillkit.experiments.judge`, which puts its verdict in front of the summary.
-
-``settings`` is an instance of the experiment's frozen settings dataclass
-(:mod:`skillkit.experiments.settings`), one per scale: ``smoke`` (seconds, for tests and
-notebook CI), ``quick`` (faithful but small, minutes on 2 cores) and ``paper`` (the thesis
-setting).
-
-The chapter modules register their experiments when they are imported. Importing this module
-imports the package :mod:`skillkit.experiments` first, whose ``__init__`` imports every chapter
-module, so :func:`get` and :func:`ids` always see all of them.
+An :class:`Experiment` is data plus two functions: ``run_trial(settings, rng, trial) -> dict``
+runs one independent trial, ``summarize(settings, trials) -> (series, summary)`` makes the
+plotted :class:`Series` and the measurements; the claims spec
+(:mod:`skillkit.experiments.judge`) judges them. ``settings`` has one instance per scale:
+``smoke`` (seconds, for tests), ``quick`` (faithful but small) and ``paper`` (the thesis
+setting). Importing this module imports :mod:`skillkit.experiments`, whose ``__init__``
+registers every chapter module.
 """
 
 from __future__ import annotations
@@ -40,27 +28,22 @@ class Experiment:
 
     Attributes
     ----------
-    id : str
-        Thesis id, e.g. ``"fig3.3"``.
-    title : str
-        What it shows.
+    id, title : str
+        Thesis id (``"fig3.3"``) and what it shows.
     settings_class : type
         The experiment's frozen :class:`~skillkit.experiments.settings.Settings` dataclass.
     settings : dict
-        ``{"smoke": ..., "quick": ..., "paper": ...}``: one instance of ``settings_class``
-        per scale.
+        One instance of ``settings_class`` per scale (``"smoke"``, ``"quick"``, ``"paper"``).
     run_trial : callable
-        ``run_trial(settings, rng, trial) -> dict`` (one independent trial; ``trial`` is a
-        :class:`~skillkit.trial.TrialContext`: ``reset(total=...)``, ``update()``, and
-        ``save``/``resume`` for mid-trial checkpoints).
+        ``run_trial(settings, rng, trial) -> dict``, ``trial`` a
+        :class:`~skillkit.trial.TrialContext` (progress, mid-trial checkpoints).
     summarize : callable
-        ``summarize(settings, trials) -> (list[Series], dict)``: the plotted series and the
-        measurements.
+        ``summarize(settings, trials) -> (list[Series], dict)``.
     trials : dict
         Default number of trials per scale.
     claim : str
-        The claim in plain words; filled from the claims spec (``plain``) at registration
-        when empty. An experiment registered outside this package must give it.
+        The claim in plain words (from the spec's ``plain`` when empty; an experiment
+        registered outside this package must give it).
     """
 
     id: str
@@ -73,14 +56,8 @@ class Experiment:
     claim: str = ""
 
     def settings_for(self, scale: str, **overrides) -> Settings:
-        """The settings of ``scale`` with ``overrides`` applied, names and types checked.
-
-        Raises
-        ------
-        ValueError
-            An unknown scale, an unknown setting name (the message lists the valid ones) or
-            a value of the wrong type (the message names the field and the expected type).
-        """
+        """The settings of ``scale`` with ``overrides`` applied; ValueError for an unknown
+        scale or name or a value of the wrong type."""
         if scale not in SCALES:
             raise ValueError(f"scale: expected one of {SCALES}, got {scale!r}")
         try:

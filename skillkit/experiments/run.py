@@ -1,12 +1,8 @@
-"""A finished experiment run as an object: what :func:`~skillkit.experiments.runner.reproduce`
-returns and what :func:`load_run` reads back from a run folder or from ``data/results``.
+"""A finished experiment run: what :func:`~skillkit.experiments.runner.reproduce` returns and
+:func:`load_run` reads back from a run folder or ``data/results``.
 
-A :class:`Run` holds the contents of ``result.json`` (settings, series, summary with the thesis's
-claim and our verdict) and the folder it lives in. It draws its figure (:meth:`Run.figure` for
-plotly, :meth:`Run.png` for the stored PNG) and shows itself in Jupyter as a short card —
-title, verdict, headline numbers — through ``_repr_markdown_``. It is also path-like
-(``os.fspath(run)``, ``run / "result.json"``), so code that treated ``reproduce``'s return value
-as the run folder keeps working.
+A :class:`Run` holds ``result.json`` and its folder, draws its figure, shows itself in Jupyter
+as a card (claim, verdict, key number) and is path-like (``os.fspath(run)``, ``run / "x"``).
 """
 
 from __future__ import annotations
@@ -77,15 +73,12 @@ class Run:
 
     @property
     def holds(self) -> bool | None:
-        """True / False when the claim holds / does not hold here; None when undecided or not
-        judged (:attr:`outcome` says which)."""
+        """True / False when the claim holds / does not hold; None otherwise."""
         return self.summary.get("holds")
 
     @property
     def judgement(self):
-        """The claims engine's verdict on this run
-        (:class:`~skillkit.experiments.judge.Judgement`), or None for an id the spec does not
-        judge."""
+        """The :class:`~skillkit.experiments.judge.Judgement` of this run (None: not judged)."""
         from skillkit.experiments import judge
 
         if not judge.is_judged(self.id):
@@ -100,8 +93,7 @@ class Run:
 
     @property
     def verdict(self) -> str:
-        """One line: the key number with its 95% interval beside the thesis's, and the
-        outcome (the card's second line)."""
+        """The card's second line: key number, 95% interval, the thesis's, outcome."""
         j = self.judgement
         if j is not None:
             return j.verdict_line()
@@ -110,8 +102,7 @@ class Run:
 
     @property
     def card(self) -> str:
-        """At most three lines of at most 100 characters: the claim, the verdict with its key
-        number and interval beside the thesis's, where the details are."""
+        """The claims engine's card (:meth:`~skillkit.experiments.judge.Judgement.card`)."""
         j = self.judgement
         if j is not None:
             return j.card()
@@ -119,8 +110,7 @@ class Run:
         return f"{self.id}: {claim if isinstance(claim, str) else self.title}\n{self.verdict}"
 
     def details(self) -> str:
-        """Markdown: the thesis's sentences, every reading with its interval, reason and when
-        it was fixed, our own checks, the setup table, and which code made the run."""
+        """Markdown: the judgement's details and which code made the run."""
         j = self.judgement
         body = "" if j is None else j.details()
         git = self.result.get("git") or {}
@@ -134,9 +124,8 @@ class Run:
 
     @property
     def stale(self) -> str | None:
-        """Why today's code would not make this run any more (no code fingerprint recorded,
-        or the experiment's code changed since and no witness carried it;
-        :func:`~skillkit.experiments.provenance.staleness`), or None when it is current."""
+        """Why today's code would not make this run any more
+        (:func:`~skillkit.experiments.provenance.staleness`), or None."""
         from skillkit.experiments.provenance import staleness
 
         stale, reason = staleness(self.result)
@@ -156,10 +145,8 @@ class Run:
         return matplotlib_figure(self.result)
 
     def png(self):
-        """The stored ``figure.png`` as an ``IPython.display.Image`` (displays in Jupyter).
-
-        Raises ``FileNotFoundError`` naming the path if the run folder has no PNG.
-        """
+        """The stored ``figure.png`` as an ``IPython.display.Image`` (FileNotFoundError
+        without one)."""
         path = self.path / "figure.png"
         if not path.exists():
             raise FileNotFoundError(f"png: no figure.png in run folder {self.path}")
@@ -187,14 +174,14 @@ class Run:
 
 
 def load_run(path: str | os.PathLike) -> Run:
-    """Read a run folder (or its ``result.json``) written by ``reproduce``.
+    """Read a run folder (or its ``result.json``), judged by today's claims spec.
 
     Raises
     ------
     FileNotFoundError
-        If there is no ``result.json`` at ``path``.
+        No ``result.json`` at ``path``.
     ValueError
-        If ``result.json`` is not valid JSON or not a JSON object.
+        ``result.json`` is not a JSON object.
     """
     p = Path(path)
     folder = p.parent if p.name == "result.json" else p
@@ -213,8 +200,7 @@ def load_run(path: str | os.PathLike) -> Run:
 
 
 def rejudged(result: dict) -> dict:
-    """``result`` with its summary judged again by today's claims spec (the measurements are
-    kept; no trial is re-run)."""
+    """``result`` with its summary judged again by today's claims spec."""
     from skillkit.experiments import judge
 
     summary = result.get("summary")
@@ -228,12 +214,8 @@ def rejudged(result: dict) -> dict:
 
 
 def results_root() -> Path:
-    """The repository's ``data/results`` folder (paper-scale results), or the folder named by
-    the environment variable ``SKILLKIT_RESULTS``.
-
-    Raises ``FileNotFoundError`` when neither exists (e.g. an installed wheel without the
-    repository's data folder).
-    """
+    """The folder named by ``SKILLKIT_RESULTS``, else the repository's ``data/results``
+    (FileNotFoundError when neither exists)."""
     env = os.environ.get("SKILLKIT_RESULTS")
     candidates = [Path(env)] if env else []
     candidates.append(Path(__file__).resolve().parents[2] / "data" / "results")
@@ -248,10 +230,7 @@ def results_root() -> Path:
 
 
 def stored_run(exp_id: str, scale: str = "paper", seed: int = 0) -> Run:
-    """The stored paper-scale run of ``exp_id`` from :func:`results_root`.
-
-    Raises ``FileNotFoundError`` naming the id if it has no stored run.
-    """
+    """The stored run of ``exp_id`` in :func:`results_root` (FileNotFoundError without)."""
     folder = results_root() / f"{exp_id}-{scale}-s{seed}"
     if not (folder / "result.json").exists():
         raise FileNotFoundError(f"exp_id: no stored {scale}-scale run of {exp_id!r} in {folder}")
@@ -271,11 +250,9 @@ def claim_rows(root: str | os.PathLike | None = None, ids: Any = None) -> list[d
     Returns
     -------
     list of dict
-        ``id``; ``variant`` (the settings it overrides, "" for the registered paper
-        settings); ``claim`` (plain words); ``verdict`` (holds / does not hold / undecided /
-        not judged); ``ours`` (the key reading's label, estimate and 95% interval);
-        ``thesis`` (the thesis's number); ``card``; ``made`` (the commit that made it, and
-        whether it is current, carried by its witness or stale); ``stale`` (bool); ``path``.
+        ``id``, ``variant`` (overridden settings), ``claim``, ``verdict``, ``ours`` (key
+        reading with its interval), ``thesis``, ``card``, ``made`` (commit and status),
+        ``stale`` and ``path``.
     """
     from skillkit.experiments.provenance import check_results
     from skillkit.experiments.registry import ids as registered
@@ -310,8 +287,7 @@ def claim_rows(root: str | os.PathLike | None = None, ids: Any = None) -> list[d
 
 
 COMPARISON_PREFIX = "cmp."
-"""Ids of comparisons of ours (``cmp.methods``): no thesis claim, so not in :func:`scoreboard`;
-:func:`comparison_markdown` shows them."""
+"""Ids of comparisons of ours (no thesis claim; shown by :func:`comparison_markdown`)."""
 
 
 def comparison_rows(summary: dict) -> list[dict[str, Any]]:
@@ -320,11 +296,9 @@ def comparison_rows(summary: dict) -> list[dict[str, Any]]:
     Returns
     -------
     list of dict
-        ``task``, ``method``, ``real rollouts`` (of the whole run), ``reward π₀``, ``final
-        reward`` (mean ± std over trials), one ``to R ≥ level`` per threshold (real rollouts
-        after which the mean learning curve first reaches it, and in how many trials the
-        curve did; "—" when the mean curve never did), ``compute s`` (mean wall-clock seconds
-        of a run, rollouts included) and ``failed`` (failed rollouts, all trials).
+        ``task``, ``method``, ``real rollouts``, ``reward π₀``, ``final reward`` (mean ± std),
+        ``to R ≥ level`` per threshold (rollouts until the mean curve reaches it, "—" never;
+        trials whose curve did), ``compute s`` and ``failed``.
     """
     from skillkit.experiments.cmp_methods import LABELS
 
@@ -351,15 +325,13 @@ def comparison_rows(summary: dict) -> list[dict[str, Any]]:
 
 
 def _count(x: float) -> str:
-    """A count of rollouts as it reads best: whole numbers in full (10050, not 1.005e+04), a
-    mean over trials that is not whole with one decimal."""
+    """A count of rollouts: whole numbers in full, other means with one decimal."""
     return f"{round(x):d}" if float(x).is_integer() else f"{x:.1f}"
 
 
 def comparison_section(run: Run) -> str:
-    """README's comparison section for a stored ``cmp.methods`` run: which run, how many
-    trials at which scale, the commit that made it, **stale** with the reason when today's
-    code would not make it any more, then :func:`comparison_markdown` of its summary."""
+    """README's comparison section of a stored ``cmp.methods`` run: which run, its trials,
+    scale and commit (and why it is stale), then :func:`comparison_markdown`."""
     stale = run.stale
     status = f"; **stale**: {stale}" if stale else ""
     return (
@@ -386,16 +358,8 @@ def comparison_markdown(summary: dict) -> str:
 
 
 def scoreboard(root: str | os.PathLike | None = None) -> str:
-    """The README's scoreboard, made from the stored results: one line per result, in thesis
-    order (:func:`claim_rows`): id, the claim in plain words, the verdict, our key number with
-    its 95% interval across trials, the thesis's number, and the commit that made it (current,
-    carried by its witness, or stale). Comparisons of ours (``cmp.*``) have their own table.
-
-    Returns
-    -------
-    str
-        A Markdown table (header and one line per result), ending in a newline.
-    """
+    """The README's scoreboard: a Markdown table with one line per stored result
+    (:func:`claim_rows`, without ``cmp.*``), ending in a newline."""
     lines = [
         "| id | claim | verdict | ours [95% interval] | thesis | made by |",
         "|---|---|---|---|---|---|",

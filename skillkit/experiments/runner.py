@@ -1,27 +1,15 @@
 """``reproduce``: run an experiment's trials (locally, on all cores or on Ray), checkpoint and
 resume them, and write ``result.json``, ``figure.html``, ``figure.png`` and ``trials.npz``.
 
-Trial ``i`` of a run with root seed ``seed`` always uses the ``i``-th child of
-``SeedSequence(seed)``, so the numbers do not depend on the executor, on how many trials run
-at once, or on interruptions: every finished trial, and every state an experiment saves
-mid-trial through :meth:`~skillkit.trial.TrialContext.save`, is checkpointed atomically under
-``<run folder>/trials/`` (:func:`run_folder`), and rerunning the same command resumes from
-there.
-
-Every trial runs inside :func:`~skillkit.models.gp.record_numerical_events`: the numerical
-events the models handle themselves (a restored iterate, a jitter increase, a noise variance at
-its floor, clipped negative variances) are counted, not printed in every fit, and reported per
-trial and in total in ``result.json`` (``numerical_events``) and in the summary
-(``summary["handled_numerical_events"]``, after the verdict). Warnings that remain (what a
-user must act on) are written above the progress bars, not through them; those of trials run
-in other processes come back with their results and are issued by the process that started
-them.
-
-A run at ``quick`` or ``paper`` scale also stores its *witness* (:func:`smoke_witness`): the
-measurements of a smoke run of the same experiment and seed, made by the same code. When the
-code changes later, a fresh witness equal to the stored one carries the result forward
-without rerunning it (:func:`check_witnesses`); :func:`add_witness` gives a stored result its
-witness afterwards.
+Trial ``i`` of a run with root seed ``seed`` uses the ``i``-th child of ``SeedSequence(seed)``,
+so the numbers depend neither on the executor nor on interruptions: finished trials and
+mid-trial states (:meth:`~skillkit.trial.TrialContext.save`) are checkpointed atomically under
+``<run folder>/trials/`` and a rerun resumes from there. Each trial runs inside
+:func:`~skillkit.models.gp.record_numerical_events` (counts in ``numerical_events`` and
+``summary["handled_numerical_events"]``); remaining warnings are written above the progress
+bars, and those of worker processes are issued again by the process that started them.
+Quick and paper runs store a smoke *witness* (:func:`smoke_witness`, see
+:mod:`skillkit.experiments.provenance`).
 """
 
 from __future__ import annotations
@@ -108,29 +96,23 @@ def to_jsonable(obj):
 
 
 class _Finished(NamedTuple):
-    """The payload of a finished trial's checkpoint (``kind="result"``).
-
-    Checkpoints written before the numerical-event record hold the bare result dict.
-    """
+    """The payload of a finished trial's checkpoint (``kind="result"``; one written before
+    the numerical-event record holds the bare result dict)."""
 
     result: dict
     numerical_events: dict | None  # NumericalEvents.to_dict() of the whole trial; None: unknown
 
 
 class _Partial(NamedTuple):
-    """The payload of a mid-trial checkpoint (``kind="state"``).
-
-    Checkpoints written before the numerical-event record hold the bare snapshots.
-    """
+    """The payload of a mid-trial checkpoint (``kind="state"``; or the bare snapshots)."""
 
     states: dict
     saved_events: dict | None  # TrialContext.saved_events at the save; None: unknown
 
 
 def _state_writer(path: str, ident: dict | None, saved_events: Callable[[], dict | None]) -> Writer:
-    """A :class:`~skillkit.trial.TrialContext` writer that checkpoints mid-trial states to
-    ``path`` atomically (:func:`skillkit.experiments.checkpoint.save`, ``kind="state"``),
-    with the numerical events of the saved work (``saved_events()``; ``None``: not known)."""
+    """A :class:`~skillkit.trial.TrialContext` writer checkpointing mid-trial states to ``path``
+    with the numerical events of the saved work (``saved_events()``; None: unknown)."""
 
     def write(snapshots, seconds: float) -> None:
         payload = _Partial(dict(snapshots), saved_events())
@@ -140,19 +122,15 @@ def _state_writer(path: str, ident: dict | None, saved_events: Callable[[], dict
 
 
 def _show_above_bars(message, category, filename, lineno, file=None, line=None) -> None:
-    """``warnings.showwarning`` that prints with ``tqdm.write``: above the progress bars,
-    which are cleared and redrawn, instead of through them."""
+    """``warnings.showwarning`` through ``tqdm.write``: above the progress bars."""
     text = warnings.formatwarning(message, category, filename, lineno, line)
     tqdm.write(text.rstrip("\n"), file=file or sys.stderr)
 
 
 @contextmanager
 def _trial_warnings(how: str) -> Iterator[list[tuple]]:
-    """Where the warnings issued inside go: ``"pass"`` as usual (nothing changed), ``"bars"``
-    above the progress bars (:func:`_show_above_bars`), ``"collect"`` into the yielded list as
-    ``(message, category, filename, lineno)`` for the process that started a worker to issue
-    them again (:func:`_replay_warnings`). Filters are never changed, and whatever is
-    changed is restored on leaving (``warnings.catch_warnings``)."""
+    """Where warnings go: ``"pass"`` as usual, ``"bars"`` above the progress bars,
+    ``"collect"`` into the yielded list as ``(message, category, filename, lineno)``."""
     if how == "pass":
         yield []
         return
@@ -167,8 +145,7 @@ def _trial_warnings(how: str) -> Iterator[list[tuple]]:
 
 
 def _replay_warnings(records: list[tuple], progress: bool) -> None:
-    """Issue the warnings a worker collected (:func:`_trial_warnings`) in this process, under
-    its filters; above the progress bars when they are shown."""
+    """Issue the warnings a worker collected (:func:`_trial_warnings`) in this process."""
     if not records:
         return
     with _trial_warnings("bars" if progress else "pass"):
@@ -186,21 +163,11 @@ def _execute_trial(
     show_progress: bool,
     in_worker: bool = False,
 ) -> tuple[dict, dict]:
-    """Run (or resume) one trial; checkpoint its result. Module-level so workers can pickle it.
+    """Run (or resume) one trial and checkpoint its result (module-level: workers pickle it).
 
-    The trial runs inside :func:`~skillkit.models.gp.record_numerical_events`: the numerical
-    events the models handle (restored iterates, jitter, …) are counted, not warned about.
-    The remaining warnings are shown above the trial's progress bar (``show_progress``), or,
-    ``in_worker``, collected and returned for the starting process to issue
-    (:func:`_replay_warnings`).
-
-    Returns the trial's result and whether and how it ran: ``{"seconds": compute time summed
-    over all runs of this trial (None if a checkpoint predates the record), "resumed": True if
-    it continued from a checkpoint, "numerical_events": the counts
-    (:meth:`~skillkit.models.gp.NumericalEvents.to_dict`) of the trial's work, each piece
-    counted once over interrupted and resumed runs (see
-    :attr:`~skillkit.trial.TrialContext.saved_events`; None if a checkpoint predates the
-    record), "warnings": the collected warnings}``.
+    Returns the result and ``{"seconds": compute time over all runs of the trial, "resumed",
+    "numerical_events": counts of the trial's work, each piece once over resumed runs (None:
+    a checkpoint predates the record), "warnings": collected in a worker}``.
     """
     exp = get(exp_id)
     states, seconds, saved = None, 0.0, {}
@@ -252,8 +219,7 @@ def _execute_trial(
 
 
 def _start_ray(ray, kwargs: dict, attempts: int = 3) -> None:
-    """``ray.init`` with retries: a local Ray node can time out while starting on a busy
-    machine (its raylet waits a fixed 15 s for the metrics agent; ray-project/ray#65983)."""
+    """``ray.init`` with retries: a local Ray node can time out starting on a busy machine."""
     for attempt in range(1, attempts + 1):
         try:
             ray.init(include_dashboard=False, log_to_driver=False, **kwargs)
@@ -270,11 +236,7 @@ def _start_ray(ray, kwargs: dict, attempts: int = 3) -> None:
 
 
 def _exit_with_parent(parent: int, interval: float = 1.0) -> None:
-    """Process-pool initializer: end this worker when the process that started it is gone.
-
-    Without it, killing ``skillkit reproduce`` (SIGTERM, ``kill -9``) leaves its workers
-    computing trials nobody collects. Their checkpoints are kept: a rerun resumes.
-    """
+    """Process-pool initializer: end this worker when the process that started it is gone."""
     import threading
 
     def watch() -> None:
@@ -286,13 +248,7 @@ def _exit_with_parent(parent: int, interval: float = 1.0) -> None:
 
 
 def _stop_pool(pool: ProcessPoolExecutor) -> None:
-    """Cancel a process pool's queued trials and end its running workers at once.
-
-    ``ProcessPoolExecutor.__exit__`` would wait for every submitted trial, so Ctrl-C or a
-    failed trial would return only after all the others had finished. What the stopped
-    trials saved (finished results, mid-trial states) stays in their checkpoints: a rerun
-    resumes from there, as after ``kill -9``.
-    """
+    """Cancel a process pool's queued trials and end its workers now (their checkpoints stay)."""
     processes = list((getattr(pool, "_processes", None) or {}).values())
     pool.shutdown(wait=False, cancel_futures=True)
     for proc in processes:
@@ -302,9 +258,7 @@ def _stop_pool(pool: ProcessPoolExecutor) -> None:
 
 
 def _run_pending(exp_id, settings, jobs, executor, workers, address, progress) -> dict[int, tuple]:
-    """Run jobs = [(index, seed_seq, ckpt_path, ident)] with the chosen executor; returns
-    {index: (result, info)} as :func:`_execute_trial`; the warnings of trials run in other
-    processes are issued here as they finish (above the progress bar)."""
+    """Run jobs = [(index, seed_seq, ckpt_path, ident)]; {index: (result, info)}."""
     results: dict[int, tuple] = {}
     if not jobs:
         return results
@@ -371,9 +325,7 @@ def _run_pending(exp_id, settings, jobs, executor, workers, address, progress) -
 
 
 def _check_run_arguments(trials, seed, executor, workers, address) -> None:
-    """Raise ``ValueError`` naming the argument for a bad trial count, seed, executor or
-    worker count, or for workers / an address the executor would ignore (checked before any
-    trial runs or any checkpoint is deleted)."""
+    """ValueError naming a bad argument, or workers / an address the executor would ignore."""
     if trials is not None:
         check_count(trials, "trials")
     check_count(seed, "seed", minimum=0)
@@ -444,7 +396,7 @@ def run_trials(
             path = str(Path(checkpoint_dir) / f"trial_{i:03d}.ckpt")
             ident = checkpoint.identity(exp.id, settings.to_dict(), i, int(seed), code)
             jobs.append((i, child, path, ident))
-    # Read before the trials run: the code that was imported is the code on disk now.
+    # read before the trials run: the code imported is the code on disk now
     made_by = provenance(exp.id)
     t0 = time.perf_counter()
     load_before = _load_average()
@@ -452,18 +404,12 @@ def run_trials(
     results = [done[i][0] for i in range(n_trials)]
     timing = [done[i][1] for i in range(n_trials)]
     series, summary = exp.summarize(settings, results)
-    # the judgement of the claims spec in front of the measurements; smoke is not judged
     summary = judged(summary, exp.id, scale, to_jsonable(settings.to_dict()))
     events = _event_totals([t["numerical_events"] for t in timing])
-    # After the verdict keys: the counts over the trials that have a record. Not named
-    # "numerical_events": fig4.5's summary has its own, per model, under that name.
+    # not "numerical_events": fig4.5's summary has its own, per model, under that name
     summary = {**summary, "handled_numerical_events": _summary_events(events)}
-    if executor == "local":
-        used = 1
-    elif executor == "ray" and address:
-        used = None  # an existing cluster's own CPUs
-    else:
-        used = workers or os.cpu_count()
+    # CPUs used: None on an existing Ray cluster (address is only given with executor "ray")
+    used = 1 if executor == "local" else None if address else workers or os.cpu_count()
     return {
         "id": exp.id,
         "title": exp.title,
@@ -475,16 +421,12 @@ def run_trials(
         "trials": n_trials,
         "executor": executor,
         "workers": used,
-        # the git commit (and whether the checkout had uncommitted changes) and the
-        # fingerprint of the code the experiment runs (skillkit.experiments.provenance)
         "git": made_by["git"],
         "code_fingerprint": made_by["code_fingerprint"],
         "versions": versions(),
         "machine": {
             "platform": platform.platform(),
             "processor": platform.machine(),
-            # round-off, and so the last digits of iterated fits, depend on the CPU and on
-            # the SIMD kernels torch dispatches to
             "cpu_model": _cpu_model(),
             "torch_cpu_capability": _torch_cpu_capability(),
             "cpus": os.cpu_count(),
@@ -492,12 +434,8 @@ def run_trials(
             "load_average_after": _load_average(),
         },
         "wall_time_s": time.perf_counter() - t0,
-        # compute time of each trial, summed over interrupted and resumed runs (None: its
-        # checkpoint predates this record); trials that continued from a checkpoint
         "trial_time_s": [t["seconds"] for t in timing],
         "resumed_trials": sum(t["resumed"] for t in timing),
-        # numerical events the models handled (counted instead of warned about), per trial
-        # (None: its checkpoint predates this record) and over the trials that have a record
         "numerical_events": events,
         "series": [to_jsonable(s.to_dict()) for s in series],
         "summary": to_jsonable(summary),
@@ -506,8 +444,7 @@ def run_trials(
 
 
 def _event_totals(per_trial: list[dict | None]) -> dict:
-    """``{"per_trial": [...], "total": {kind: count, ..., "max_jitter": j}}`` (plus
-    ``"trials_without_record"`` when some trials' checkpoints predate the record)."""
+    """``{"per_trial", "total"}`` (and ``"trials_without_record"``) of the trials' events."""
     total = NumericalEvents()
     for counts in per_trial:
         if counts is not None:
@@ -520,15 +457,13 @@ def _event_totals(per_trial: list[dict | None]) -> dict:
 
 
 def _summary_events(events: dict) -> dict:
-    """The summary's ``handled_numerical_events``: the totals, and how many trials have no
-    record."""
+    """The summary's ``handled_numerical_events``: the totals (and the trials without)."""
     missing = events.get("trials_without_record")
     return {**events["total"], **({"trials_without_record": missing} if missing else {})}
 
 
 def _cpu_model() -> str | None:
-    """The CPU's model name (``/proc/cpuinfo`` on Linux, else :func:`platform.processor`), or
-    None when neither says."""
+    """The CPU's model name (``/proc/cpuinfo``, else :func:`platform.processor`) or None."""
     try:
         with open("/proc/cpuinfo", encoding="utf-8") as f:
             for line in f:
@@ -540,7 +475,7 @@ def _cpu_model() -> str | None:
 
 
 def _torch_cpu_capability() -> str | None:
-    """The SIMD level torch's CPU kernels use (``torch.backends.cpu.get_cpu_capability``)."""
+    """The SIMD level torch's CPU kernels use."""
     import torch
 
     try:
@@ -560,14 +495,9 @@ def _load_average() -> list[float] | None:
 def run_folder(
     exp_id: str, scale: str, seed: int, out: str | Path, overrides: dict | None = None
 ) -> Path:
-    """The folder a run writes to.
-
-    ``<out>/<id>-<scale>-s<seed>`` for the scale's own settings, and
-    ``<out>/<id>-<scale>-s<seed>-<hash>`` for a run whose settings differ from the scale's:
-    ``<hash>`` is the first 8 hex digits of the SHA-256 of the differing fields and their
-    values (JSON, sorted keys), so a run with overrides never writes into a standard run's
-    folder and the same overrides always find their own folder (and checkpoints) again.
-    Overrides equal to the scale's values change nothing, so they give the standard folder.
+    """The folder a run writes to: ``<out>/<id>-<scale>-s<seed>``, with ``-<hash>`` appended
+    when the settings differ from the scale's (the first 8 hex digits of the SHA-256 of the
+    differing fields as sorted JSON).
 
     Raises
     ------
@@ -603,16 +533,11 @@ def reproduce(
     """Run an experiment, resuming from its checkpoints, and write its results.
 
     Writes ``result.json``, ``figure.html``, ``figure.png`` and ``trials.npz`` into
-    :func:`run_folder` (its own folder for a run with ``overrides``) and returns the finished
-    :class:`~skillkit.experiments.run.Run`: its settings, series and summary (claim, verdict,
-    headline numbers), ``.figure()`` and ``.png()``; in Jupyter it shows itself as a card. It is
-    path-like (``run.path`` is the folder; ``os.fspath(run)`` and ``run / "result.json"`` work).
-    ``fresh=True`` deletes earlier checkpoints of this run first; ``html=False`` skips the
-    (4–5 MB, self-contained) HTML figure. At ``quick`` and ``paper`` scale the result is then
-    given its witness (:func:`smoke_witness`, the smoke scale of the same id and seed, from
-    :data:`WITNESS_REPEATS` runs; kept from the folder's earlier ``result.json`` when the same
-    code made it) unless ``witness=False``. Other arguments as in :func:`run_trials`; they
-    and the overrides are checked before anything runs or is deleted.
+    :func:`run_folder` and returns the :class:`~skillkit.experiments.run.Run`. ``fresh=True``
+    deletes earlier checkpoints first; ``html=False`` skips the HTML figure; at ``quick`` and
+    ``paper`` scale the result gets its witness (:func:`smoke_witness`, kept from the folder's
+    earlier result when the same code made it) unless ``witness=False``. Other arguments as in
+    :func:`run_trials`; all are checked before anything runs or is deleted.
     """
     from skillkit.viz.plots import write_figures
 
@@ -657,15 +582,8 @@ def reproduce(
 
 
 def write_result(folder: str | Path, result: dict) -> str:
-    """Write ``result`` as ``folder/result.json``, atomically (a temporary file renamed over
-    the old one), in the store's format: ``json.dumps(result, indent=1)``, keys in the dict's
-    order, no trailing newline.
-
-    Returns
-    -------
-    str
-        The text written.
-    """
+    """Write ``result`` as ``folder/result.json`` atomically (``json.dumps(result,
+    indent=1)``, no trailing newline) and return the text written."""
     folder = Path(folder)
     text = json.dumps(result, indent=1)
     tmp = folder / "result.json.tmp"
@@ -685,10 +603,8 @@ def _stored_witness(folder: Path) -> dict | None:
 
 
 def _witness_for(result: dict, previous: dict | None, progress: bool) -> dict | None:
-    """The witness of a just written ``result``: ``previous`` (the one its folder held) when
-    the same code made it for the same seed, else a new :func:`smoke_witness`. None, with a
-    warning, when the witness run fails or the code on disk changed during the run (then no
-    witness could show what the result's code does)."""
+    """``previous`` when the same code made it for the same seed, else a new
+    :func:`smoke_witness`; None, with a warning, when that fails or the code changed."""
     fingerprint, seed = result.get("code_fingerprint"), result["seed"]
     if fingerprint is None:
         return None
@@ -723,8 +639,7 @@ WITNESSED_SCALES = ("quick", "paper")
 """Scales whose results :func:`reproduce` stores with a smoke witness."""
 
 WITNESS_REPEATS = 2
-"""Smoke runs a stored witness is made from: the measurements that differ between them (a
-measured time, e.g.) are listed as ``unstable`` and never compared."""
+"""Smoke runs a stored witness is made from (what differs between them is ``unstable``)."""
 
 
 def smoke_witness(
@@ -735,33 +650,23 @@ def smoke_witness(
     repeats: int = 1,
     progress: bool = False,
 ) -> dict:
-    """The measurements of a smoke run of ``exp_id``, made by the code installed now.
-
-    Runs :func:`run_trials` at ``smoke`` scale (the local executor, no checkpoints, no
-    figures) with the warnings of its trials silenced: a witness is a check of the code, its
-    warnings are not the stored run's.
+    """The measurements of a smoke run of ``exp_id`` by today's code (local executor, no
+    checkpoints, no figures, warnings silenced).
 
     Parameters
     ----------
-    exp_id : str
-        Experiment id.
-    seed : int
-        Root seed (the stored result's).
-    trials : int, optional
-        Number of trials (default: the experiment's smoke default).
+    exp_id, seed, trials
+        Experiment id, root seed and trials (default: the smoke default).
     repeats : int
-        Smoke runs to make; with 2 or more, the measurements that differ between them are
-        listed under ``unstable`` (:func:`skillkit.experiments.provenance.unstable_paths`).
+        Smoke runs to make; what differs between them is listed under ``unstable``.
     progress : bool
         Show the trials' progress bars.
 
     Returns
     -------
     dict
-        ``{"scale": "smoke", "seed", "trials", "commit" (git commit or None),
-        "code_fingerprint", "summary" (:func:`~skillkit.experiments.provenance.measurements`
-        of the summary), "series" (:func:`~skillkit.experiments.provenance.series_measurements`),
-        "unstable" (list of paths)}``.
+        ``scale``, ``seed``, ``trials``, ``commit``, ``code_fingerprint``, ``summary`` and
+        ``series`` (their measurements) and ``unstable`` (paths).
     """
     check_count(repeats, "repeats")
     made = []
@@ -787,32 +692,14 @@ def smoke_witness(
 def check_witnesses(
     root: str | Path, *, record: bool = False, progress: bool = True
 ) -> list[dict[str, Any]]:
-    """Every ``result.json`` under ``root`` with whether today's code would still make it,
-    running the witnesses it takes to know.
+    """Every ``result.json`` under ``root`` with whether today's code would still make it
+    (``skillkit runs --check DIR``): as :func:`~skillkit.experiments.provenance.check_results`,
+    and a result whose code changed without a carry record has its smoke witness run and
+    compared (:func:`~skillkit.experiments.provenance.compare_witness`): equal is carried.
 
-    Like :func:`~skillkit.experiments.provenance.check_results`, and the smoke witness
-    (:func:`smoke_witness`, same id and seed) of each result whose code changed and that has
-    no carry record for today's code is run and compared with the stored one
-    (:func:`~skillkit.experiments.provenance.compare_witness`): equal means the result is
-    carried, different means stale (``skillkit runs --check DIR``).
-
-    Parameters
-    ----------
-    root : path
-        Folder searched for ``result.json`` files.
-    record : bool
-        Write a carry record (``{"code_fingerprint": today's, "commit": HEAD, "checked": ISO
-        date}``) into ``result.json`` of each result whose witness is equal, so later checks
-        find it without running anything.
-    progress : bool
-        Show a progress bar over the witness runs.
-
-    Returns
-    -------
-    list of dict
-        The rows of :func:`~skillkit.experiments.provenance.check_results`, with ``status``,
-        ``stale`` and ``reason`` updated by the witnesses (a result without a witness stays
-        stale).
+    ``record`` writes a carry record (``code_fingerprint``, ``commit``, ``checked`` date)
+    into each carried ``result.json``; ``progress`` shows a bar over the witness runs.
+    Returns the rows of :func:`~skillkit.experiments.provenance.check_results`, updated.
     """
     from datetime import date
 
@@ -871,28 +758,13 @@ def check_witnesses(
 
 
 def add_witness(folder: str | Path, *, progress: bool = False) -> dict:
-    """Give a stored result its smoke witness (:func:`smoke_witness`, from
-    :data:`WITNESS_REPEATS` runs), written as ``"witness"`` into its ``result.json``; every
-    other key is kept as it was.
-
-    Parameters
-    ----------
-    folder : path
-        A run folder (or its ``result.json``).
-    progress : bool
-        Show the trials' progress bars.
-
-    Returns
-    -------
-    dict
-        The witness.
+    """Give a stored run folder (or its ``result.json``) its smoke witness, written as
+    ``"witness"`` (every other key kept), and return it.
 
     Raises
     ------
     ValueError
-        The result has no code fingerprint, or today's code fingerprint of its experiment
-        differs from it (a witness must come from the code that made the result), or the code
-        changed while the witness ran.
+        Today's code fingerprint is not the result's, or the code changed meanwhile.
     """
     folder = Path(folder)
     if folder.name == "result.json":
@@ -919,9 +791,7 @@ def add_witness(folder: str | Path, *, progress: bool = False) -> dict:
 
 
 def load_trials(folder: str | Path) -> list[dict[str, np.ndarray]]:
-    """The per-trial arrays of a run folder's ``trials.npz`` (keys ``trial{i}__{name}``), one
-    dict per trial in order (arrays a trial returned that were ragged or not numeric were
-    never stored)."""
+    """The per-trial arrays of a run folder's ``trials.npz``, one dict per trial."""
     with np.load(Path(folder) / "trials.npz", allow_pickle=False) as z:
         trials: dict[int, dict] = {}
         for key in z.files:
@@ -934,8 +804,7 @@ def load_trials(folder: str | Path) -> list[dict[str, np.ndarray]]:
 
 
 def _merge_added(stored: dict, fresh: dict) -> list[str]:
-    """Add to ``stored`` (in place) the keys of ``fresh`` it lacks, recursively through dicts;
-    the paths added."""
+    """Add to ``stored`` (in place) the keys of ``fresh`` it lacks, recursively; the paths."""
     added = []
     for key, value in fresh.items():
         if key not in stored:
@@ -947,34 +816,19 @@ def _merge_added(stored: dict, fresh: dict) -> list[str]:
 
 
 def remeasure(folder: str | Path, *, write: bool = False) -> list[str]:
-    """Summarise a stored run's trials (``trials.npz``) again with today's code, and add the
-    measurements its stored summary lacks (a per-trial array a claim's reading needs).
+    """Summarise a stored run's ``trials.npz`` again with today's code and add the
+    measurements its summary lacks.
 
-    Today's summary must reproduce every measurement the stored summary and today's both have
-    (within the witness tolerance of :func:`~skillkit.experiments.provenance.compare_witness`):
-    otherwise nothing is written. Measurements today's summary cannot make from the stored
-    arrays (what the runner added, or arrays a trial returned ragged: missing or None today)
-    are kept as stored. The
-    judgement in front of the summary is made again from the claims spec. The run records
-    ``remeasured``: the commit, the date and the paths added.
+    Today's summary must reproduce every measurement both have (the witness tolerance), else
+    nothing is written; what it cannot make from the stored arrays is kept as stored. The
+    judgement is made again; the run records ``remeasured`` (commit, date, paths added).
 
-    Parameters
-    ----------
-    folder : path
-        A stored run folder with ``result.json`` and ``trials.npz``.
-    write : bool
-        Write the new summary into ``result.json`` (False: only report).
-
-    Returns
-    -------
-    list of str
-        The summary paths added.
+    Returns the summary paths added; ``write=False`` only reports them.
 
     Raises
     ------
     ValueError
-        Today's summary disagrees with a stored measurement (the message names the paths), or
-        the stored trials cannot be summarised by today's code.
+        Today's summary disagrees with a stored one (naming the paths) or cannot be made.
     """
     from datetime import date
 

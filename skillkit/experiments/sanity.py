@@ -4,32 +4,23 @@ The problem (:class:`LinearOptimumTask`): contexts s ~ U([−1, 1]²), parameter
 
     R(s, ω) = −(ω − a* − A* s)ᵀ W (ω − a* − A* s) + ν,     ν ~ N(0, σ_ν²) (σ_ν = 0 by default),
 
-so the optimal upper-level policy is the deterministic linear policy ω = a* + A* s. Its
-"trajectory" is just ω (it does not depend on s), so rewards are a pure function of the
-trajectory and the context, as the Task contract requires.
+so the optimal upper-level policy is the linear ω = a* + A* s (the "trajectory" is ω).
 
 Contextual REPS (Table 3.1), RWR (2.18) and CrKR (2.19–2.20, linear kernel) learn from the same
-initial policy N(0, 0.5² I) with the same loop (:func:`skillkit.search.loop.learn`), 25 rollouts
-per update and the last 8 batches (200 samples) reused, as in the thesis's throwing setting.
-RWR's and CrKR's β follows :func:`~skillkit.search.rwr.rwr_beta` with ``beta_scale=1`` (sample
-weights with KL ≈ 0.5 from uniform, like REPS with ε = 0.5).
-
-The error of a policy is the parameter error ‖[a, A] − [a*, A*]‖_F of the least-squares linear
-fit to its mean function on a 5 × 5 grid of contexts (exactly the parameter error for the
-linear-Gaussian policies of REPS and RWR; a linear summary of CrKR's kernel mean).
-
-The thesis reports no result on this problem: our checks on it (REPS's and RWR's final
-parameter error below ``threshold``) are in ``skillkit/data/claims/ch3.toml``.
+initial policy with the same loop (:func:`skillkit.search.loop.learn`), 25 rollouts per update
+and 200 samples reused (the thesis's throwing setting). A policy's error is ‖[a, A] − [a*, A*]‖_F
+of the least-squares linear fit to its mean on a 5 × 5 grid of contexts. The thesis reports no
+result here; our checks are in ``skillkit/data/claims/ch3.toml``.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
 from skillkit.experiments.registry import Experiment, Series, register
-from skillkit.experiments.settings import Settings, setting
+from skillkit.experiments.settings import Settings, scales, setting
 from skillkit.models.kernels import Linear
 from skillkit.policies.gaussian import LinearGaussianPolicy
 from skillkit.search.crkr import CrKR
@@ -140,13 +131,8 @@ class SanitySettings(Settings):
     )
 
 
-QUICK = SanitySettings()
-SCALES = {
-    "smoke": replace(QUICK, n_updates=3),
-    # quick scales down: updates 200→120 per algorithm, trials 10→3
-    "quick": QUICK,
-    "paper": replace(QUICK, n_updates=200),
-}
+SCALES = scales(SanitySettings(), smoke=dict(n_updates=3), paper=dict(n_updates=200))
+QUICK = SCALES["quick"]
 
 
 def make_algorithm(name: str, task: LinearOptimumTask, settings: SanitySettings):
@@ -159,13 +145,8 @@ def make_algorithm(name: str, task: LinearOptimumTask, settings: SanitySettings)
         return RWR(init, settings.beta_scale, reuse)
     if name == "CrKR":
         kernel = Linear(variance=settings.kernel_variance, bias=settings.kernel_bias)
-        return CrKR(
-            init,
-            kernel,
-            lam=settings.crkr_lam,
-            beta_scale=settings.beta_scale,
-            n_reuse_batches=reuse,
-        )
+        lam, beta = settings.crkr_lam, settings.beta_scale
+        return CrKR(init, kernel, lam=lam, beta_scale=beta, n_reuse_batches=reuse)
     raise ValueError(f"name: expected one of {ALGORITHMS}, got {name!r}")
 
 
@@ -180,16 +161,10 @@ def run_trial(settings: SanitySettings, rng: np.random.Generator, trial: TrialCo
     for name, stream in zip(ALGORITHMS, streams, strict=True):
         alg = make_algorithm(name, task, settings)
         res = learn(
-            task,
-            alg,
-            settings.n_updates,
-            settings.rollouts_per_update,
-            stream,
-            trial=trial,
-            eval_contexts=grid,
-            callback=lambda k, a: parameter_error(a.policy, optimum, grid),
+            task, alg, settings.n_updates, settings.rollouts_per_update, stream, trial=trial,
+            eval_contexts=grid, callback=lambda k, a: parameter_error(a.policy, optimum, grid),
             checkpoint_key=name,
-        )
+        )  # fmt: skip
         errors_arr = np.array(res["callback"])
         below = np.flatnonzero(errors_arr < settings.threshold)
         out[f"{name}_rollouts"] = res["rollouts"]
@@ -211,30 +186,14 @@ def summarize(settings: SanitySettings, trials: list[dict]) -> tuple[list[Series
         x = np.asarray(trials[0][f"{name}_rollouts"]).tolist()
         err = np.array([t[f"{name}_error"] for t in trials])
         y, band = trial_band(err, kind="gstd")
+        panel = "parameter error of the policy mean"
+        ylabel = "‖[a, A] − [a*, A*]‖_F"
         series.append(
-            Series(
-                name,
-                x,
-                y,
-                panel="parameter error of the policy mean",
-                **band,
-                xlabel="rollouts",
-                ylabel="‖[a, A] − [a*, A*]‖_F",
-                log_y=True,
-            )
+            Series(name, x, y, panel, **band, xlabel="rollouts", ylabel=ylabel, log_y=True)
         )
         y, band = trial_band(np.array([t[f"{name}_mean_reward"] for t in trials]))
-        series.append(
-            Series(
-                name,
-                x,
-                y,
-                panel="reward of the policy mean",
-                **band,
-                xlabel="rollouts",
-                ylabel="average reward on 25 grid contexts",
-            )
-        )
+        panel, ylabel = "reward of the policy mean", "average reward on 25 grid contexts"
+        series.append(Series(name, x, y, panel, **band, xlabel="rollouts", ylabel=ylabel))
         hits = [int(t[f"{name}_rollouts_to_threshold"]) for t in trials]
         reached = [h for h in hits if h >= 0]
         summary[name] = {

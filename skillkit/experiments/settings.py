@@ -1,31 +1,13 @@
 """Typed experiment settings: frozen dataclasses whose fields are documented and checked.
 
-Every experiment declares its settings as a frozen dataclass deriving from :class:`Settings`.
-Each field is declared with :func:`setting`, which records its default (the ``quick`` value)
-and a description (meaning, unit, thesis section) in the field's metadata, so the registry,
-the CLI (``skillkit settings ID``) and the contract tests can list them. The three scales of
-an experiment are instances of that class::
-
-    @dataclass(frozen=True)
-    class ThrowingSettings(Settings):
-        n_updates: int = setting(40, "policy updates per method (Table 3.1)", minimum=1)
-        epsilon: float = setting(0.6, "KL bound ε of REPS (Eq. 3.4, Sec. 3.4.1)", above=0)
-
-    QUICK = ThrowingSettings()
-    PAPER = dataclasses.replace(QUICK, n_updates=200)
-    SMOKE = dataclasses.replace(QUICK, n_updates=2)
-
-Constructing an instance (directly or with :func:`dataclasses.replace`) checks every value
-against the field's annotation and normalises it: lists become tuples (so instances are
-hashable and immutable), an ``int`` given for a ``float`` field becomes a ``float``, and a
-mapping given for a nested settings field updates that field's instance. Anything else — a
-string for an int, a float for an int, a bool for a number, NaN or ±inf for a float, a list
-with an element of the wrong type, a value outside a ``Literal``, a number outside the range
-the field declares (``setting(..., minimum=1)``) — raises :class:`ValueError` naming the field
-and what was expected. :func:`apply_overrides` adds the check of the names.
-
-``dataclasses.asdict(settings)`` (:meth:`Settings.to_dict`) is what ``result.json`` stores
-and what checkpoint identities hash (tuples are written as JSON lists).
+An experiment declares its settings as a frozen dataclass deriving from :class:`Settings`,
+each field with :func:`setting` (default, description, range); its three scales are instances
+(:func:`scales`). Construction checks every value against the field's annotation and range and
+normalises it: lists become tuples, an ``int`` for a ``float`` field a ``float``, and a mapping
+given for a nested settings field updates that field's instance. Anything else (a string for
+an int, a bool for a number, NaN or ±inf, a value outside a ``Literal`` or the field's range)
+raises :class:`ValueError` naming the field. ``dataclasses.asdict(settings)``
+(:meth:`Settings.to_dict`) is what ``result.json`` stores and checkpoint identities hash.
 """
 
 from __future__ import annotations
@@ -53,20 +35,10 @@ def setting(
     above: float | None = None,
     maximum: float | None = None,
 ) -> Any:
-    """A settings field with its default and its description (meaning, unit, thesis section).
-
-    Parameters
-    ----------
-    default : any
-        The default value (by convention the ``quick`` scale's). Lists are given as tuples;
-        a nested :class:`Settings` default is an instance (frozen, so sharing it is safe).
-    doc : str
-        What the field means, its unit and the thesis section or equation it comes from.
-    minimum, above, maximum : float, optional
-        The field's range: value ≥ ``minimum``, value > ``above``, value ≤ ``maximum``. For a
-        list field every number in it is checked; ``None`` entries (where the type allows
-        them) are not. Checked on every construction, shown by ``skillkit settings ID``.
-    """
+    """A settings field: its ``default`` (the ``quick`` scale's; lists as tuples, a nested
+    :class:`Settings` as an instance), ``doc`` (meaning, unit, thesis section) and range
+    (value ≥ ``minimum``, > ``above``, ≤ ``maximum``; every number of a list field), checked
+    on every construction and shown by ``skillkit settings ID``."""
     if not isinstance(doc, str) or not doc.strip():
         raise ValueError("doc: every settings field needs a description")
     bounds = {"minimum": minimum, "above": above, "maximum": maximum}
@@ -196,12 +168,9 @@ def _coerce(value: Any, tp: Any, current: Any = None) -> Any:
 
 @dataclass(frozen=True)
 class Settings:
-    """Base class of the experiments' settings (frozen dataclasses, see the module docstring).
-
-    Subclasses declare every field with :func:`setting`. Instances are immutable and
-    validated on construction; derive variants with :func:`dataclasses.replace` (validated
-    too) or, checking the names first, :func:`apply_overrides`.
-    """
+    """Base class of the experiments' settings: fields declared with :func:`setting`,
+    validated on construction (also by :func:`dataclasses.replace` and
+    :func:`apply_overrides`)."""
 
     def __post_init__(self) -> None:
         hints = typing.get_type_hints(type(self))
@@ -225,10 +194,8 @@ class Settings:
         self.check()
 
     def check(self) -> None:
-        """Checks beyond the field types (ranges, relations between fields), run on every
-        construction, so ``--set``, :func:`apply_overrides` and :func:`dataclasses.replace`
-        reject bad values before any work starts. Subclasses override it and raise
-        ``ValueError`` naming the field."""
+        """Checks beyond the field types (relations between fields), run on every
+        construction; subclasses raise ``ValueError`` naming the field."""
 
     def to_dict(self) -> dict[str, Any]:
         """The settings as a plain dict (``dataclasses.asdict``; sequences stay tuples)."""
@@ -241,20 +208,8 @@ class Settings:
 
 
 def apply_overrides(settings: Settings, overrides: Mapping[str, Any]) -> Settings:
-    """``settings`` with some fields replaced, names and types checked.
-
-    Parameters
-    ----------
-    settings : Settings
-        The instance to start from (a scale of an experiment).
-    overrides : mapping
-        Field name → new value. A nested settings field also takes a mapping of some of its
-        own fields (the others keep their values).
-
-    Returns
-    -------
-    Settings
-        A new instance of the same class.
+    """``settings`` with the fields of ``overrides`` (name → value; a nested settings field
+    also takes a mapping of some of its fields) replaced.
 
     Raises
     ------
@@ -305,20 +260,7 @@ def scales(
     quick: Mapping[str, Any] | None = None,
     paper: Mapping[str, Any] | None = None,
 ) -> dict[str, S]:
-    """The three scales of an experiment: ``base`` with each scale's changes applied.
-
-    Parameters
-    ----------
-    base : Settings
-        The instance every scale starts from.
-    smoke, quick, paper : mapping, optional
-        Field name → value for that scale (a nested settings field takes a mapping of some of
-        its fields); names and types are checked as by :func:`apply_overrides`.
-
-    Returns
-    -------
-    dict
-        ``{"smoke": ..., "quick": ..., "paper": ...}``, instances of ``type(base)``.
-    """
+    """``{"smoke": ..., "quick": ..., "paper": ...}``: ``base`` with each scale's changes
+    (field name → value, checked as by :func:`apply_overrides`) applied."""
     changes = {"smoke": smoke, "quick": quick, "paper": paper}
     return {scale: apply_overrides(base, dict(c or {})) for scale, c in changes.items()}

@@ -12,17 +12,9 @@ EXPECTED = "expected a run folder or its result.json, as written by `skillkit re
 
 
 def find_root(cwd: str | Path | None = None) -> Path:
-    """The results folder ``skillkit runs`` lists when given none.
-
-    ``runs/`` in ``cwd`` (default: the current folder) if it exists; else ``cwd`` itself if any
-    ``result.json`` lies below it (the command was started inside a runs folder, or inside one
-    run's folder). Paths are relative when ``cwd`` is None.
-
-    Raises
-    ------
-    ValueError
-        Naming both places looked at, when neither holds runs.
-    """
+    """The folder ``skillkit runs`` lists when given none: ``runs/`` in ``cwd`` (default: the
+    current folder, paths relative), else ``cwd`` if a ``result.json`` lies below it; else
+    ValueError naming both."""
     base = Path(".") if cwd is None else Path(cwd)
     if (base / "runs").is_dir():
         return base / "runs"
@@ -35,17 +27,9 @@ def find_root(cwd: str | Path | None = None) -> Path:
 
 
 def list_runs(root: str | Path = "runs") -> list[dict]:
-    """Every finished run below ``root`` (a folder holding ``result.json``), newest first.
-
-    Files that are not valid JSON or hold no JSON object are skipped; a missing key reads as
-    None.
-
-    Returns
-    -------
-    list of dict
-        ``path``, ``id``, ``scale``, ``seed``, ``trials``, ``executor``, ``wall_time_s`` and the
-        ``summary`` of each run.
-    """
+    """Every run below ``root`` (a folder holding a JSON-object ``result.json``), newest
+    first: ``path``, ``id``, ``scale``, ``seed``, ``trials``, ``executor``, ``wall_time_s``
+    and ``summary`` (None where missing)."""
     root = Path(root)
     if not root.exists():
         raise ValueError(f"root: no results folder at {root}")
@@ -57,18 +41,12 @@ def list_runs(root: str | Path = "runs") -> list[dict]:
             continue
         if not isinstance(r, dict):  # some other tool's result.json: not a run
             continue
+        keys = ("id", "scale", "seed", "trials")
         runs.append(
-            {
-                "path": str(path.parent),
-                "id": r.get("id"),
-                "scale": r.get("scale"),
-                "seed": r.get("seed"),
-                "trials": r.get("trials"),
-                "executor": r.get("executor", "local"),
-                "wall_time_s": r.get("wall_time_s"),
-                "summary": r.get("summary", {}),
-            }
-        )
+            {"path": str(path.parent), **{k: r.get(k) for k in keys},
+             "executor": r.get("executor", "local"), "wall_time_s": r.get("wall_time_s"),
+             "summary": r.get("summary", {})}
+        )  # fmt: skip
     return runs
 
 
@@ -83,18 +61,15 @@ def _kind(value) -> str:
 
 
 def read_result(path: str | Path) -> dict:
-    """The ``result.json`` of a run folder (or the file itself), checked for what
-    :func:`compare` reads.
+    """The ``result.json`` of a run folder (or the file), checked for what :func:`compare`
+    reads.
 
     Raises
     ------
     FileNotFoundError
-        If ``path`` does not exist, or is a folder without ``result.json``.
+        No such path, or a folder without ``result.json``.
     ValueError
-        One line naming the file and the field: ``path`` is another file, the file is not valid
-        JSON or not a JSON object, it has neither ``summary`` nor ``series``, ``summary`` or
-        ``settings`` is not an object, or ``series`` is missing or malformed (not a list, an
-        entry not an object, an entry without a string ``name``, ``x`` or ``y`` not lists).
+        One line naming the file and the field that is not as a run writes it.
     """
     p = Path(path)
     if not p.exists():
@@ -142,6 +117,7 @@ def read_result(path: str | Path) -> dict:
 
 
 def flatten(d: dict, prefix: str = "") -> dict:
+    """Nested dicts as one dict with dotted keys."""
     out = {}
     for k, v in d.items():
         key = f"{prefix}{k}"
@@ -155,32 +131,23 @@ def flatten(d: dict, prefix: str = "") -> dict:
 def compare(
     path_a: str | Path, path_b: str | Path
 ) -> tuple[list[tuple[str, object, object]], dict]:
-    """Two runs side by side.
-
-    Both are read with :func:`read_result`, so a file that is not a run's ``result.json`` is
-    refused with one line naming the file and the field, before anything is printed.
+    """Two runs side by side (both read by :func:`read_result`).
 
     Returns
     -------
     rows : list of (key, value_a, value_b)
-        The flattened ``summary`` entries of both runs, plus their settings, trial count,
-        executor, workers, resumed trials and wall time.
+        The flattened summaries, settings, trial counts, executors, workers, resumed trials
+        and wall times.
     result : dict
-        A result-like dict whose series overlay both runs' curves (names suffixed `` [A]``
-        and `` [B]``), ready for :func:`skillkit.viz.plots.write_figures`.
+        A result-like dict whose series overlay both runs' (`` [A]``, `` [B]``).
     """
     a, b = read_result(path_a), read_result(path_b)
     run_keys = ("trials", "executor", "workers", "resumed_trials", "wall_time_s")
     fa, fb = (
-        flatten(
-            {
-                "summary": r.get("summary", {}),
-                "settings": r.get("settings", {}),
-                **{k: r.get(k) for k in run_keys},
-            }
-        )
+        flatten({"summary": r.get("summary", {}), "settings": r.get("settings", {}),
+                 **{k: r.get(k) for k in run_keys}})
         for r in (a, b)
-    )
+    )  # fmt: skip
     rows = [(k, fa.get(k), fb.get(k)) for k in sorted(set(fa) | set(fb))]
     series = []
     for tag, r in (("A", a), ("B", b)):
@@ -188,10 +155,5 @@ def compare(
             fields = {k: v for k, v in s.items() if k in Series.__dataclass_fields__}
             fields["name"] = f"{s['name']} [{tag}]"
             series.append(fields)
-    merged = {
-        "id": f"{a.get('id')} vs {b.get('id')}",
-        "title": "comparison",
-        "scale": "",
-        "series": series,
-    }
-    return rows, merged
+    return rows, {"id": f"{a.get('id')} vs {b.get('id')}", "title": "comparison", "scale": "",
+                  "series": series}  # fmt: skip

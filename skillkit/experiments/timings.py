@@ -1,18 +1,12 @@
 """Measured wall times of every experiment id at the ``smoke`` and ``quick`` scales.
 
-``benchmarks/bench_scales.py`` times each registered id (default trials, the local executor,
-``OMP_NUM_THREADS=1``) and writes the table to ``skillkit/data/scale_times.json``; this module
-reads it so that ``skillkit settings ID`` can show the times and ``skillkit reproduce`` can say
-how long a run will take before it starts. Nothing here imports torch or the experiments, so
-the command line stays fast.
-
-File format::
+``benchmarks/bench_scales.py`` writes ``skillkit/data/scale_times.json`` (seconds of a whole
+``reproduce`` call with the default trials)::
 
     {"machine": "...", "cores": 2, "load_before": 0.1, "commit": "...", "date": "...",
      "times": {"fig2.10": {"smoke": 5.2, "quick": 41.0}, ...}}
 
-Times are seconds for the whole ``reproduce`` call with the experiment's default number of
-trials.
+``skillkit settings`` and ``skillkit reproduce`` read it; nothing here imports torch.
 """
 
 from __future__ import annotations
@@ -36,21 +30,8 @@ def _table() -> dict[str, Any]:
 
 
 def measured_seconds(exp_id: str, scale: str) -> float | None:
-    """The measured wall time of ``reproduce(exp_id, scale=scale)`` in seconds.
-
-    Parameters
-    ----------
-    exp_id : str
-        Experiment id, e.g. ``"fig3.3"``.
-    scale : str
-        ``"smoke"``, ``"quick"`` or ``"paper"``.
-
-    Returns
-    -------
-    float or None
-        Seconds with the default number of trials on the machine named in the table, or None
-        where the id and scale were not measured.
-    """
+    """The measured seconds of ``reproduce(exp_id, scale=scale)`` with the default trials,
+    or None where not measured."""
     entry = _table().get("times", {}).get(exp_id, {})
     value = entry.get(scale) if isinstance(entry, dict) else None
     return float(value) if isinstance(value, (int, float)) and value >= 0 else None
@@ -87,10 +68,7 @@ def format_seconds(seconds: float | None) -> str:
 
 
 def estimate(exp_id: str, scale: str, trials: int | None, default_trials: int) -> str | None:
-    """A one-line estimate of a run's wall time, scaled linearly in the number of trials.
-
-    Returns None where the id and scale were not measured (paper scale is not benchmarked).
-    """
+    """A one-line estimate of a run's wall time, linear in the trials (None: not measured)."""
     seconds = measured_seconds(exp_id, scale)
     if seconds is None:
         return None

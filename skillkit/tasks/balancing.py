@@ -1,12 +1,10 @@
 """Balancing the planar 4-link robot (Sec. 4.3.1, Sec. 5.4) and its model-learning helpers.
 
-:class:`Balancing` (registered ``balancing`` and ``balancing-noisy``) runs the linear state
-feedback u = G (x − x_up) around upright on the robot of :mod:`skillkit.tasks.planar_model`.
-The helpers here are the domain code of the model experiments of Chs. 4–5: the upright
-state :data:`X_UP`, robustly balancing gains drawn from the initial policy
-(:func:`stable_gains`) or from randomised LQR designs (:func:`random_lqr_gains`), data
-collection (:func:`collect_balancing`) and the batched torch feedback policy for the
-trajectory sampler (:func:`feedback_policy`).
+:class:`Balancing` runs the linear state feedback u = G (x − x_up) around upright on the robot
+of :mod:`skillkit.tasks.planar_model`. The helpers serve the model experiments of Chs. 4–5:
+robustly balancing gains (:func:`stable_gains`, :func:`random_lqr_gains`,
+:func:`design_policy`), data collection (:func:`collect_balancing`) and the batched torch
+feedback policy (:func:`feedback_policy`).
 """
 
 from __future__ import annotations
@@ -25,7 +23,13 @@ from skillkit.tasks.base import (
     state_transitions,
 )
 from skillkit.tasks.controllers import control_substeps, run_feedback
-from skillkit.tasks.planar_model import JOINT_NAMES, TIMESTEP, UPRIGHT, PlanarRobot
+from skillkit.tasks.planar_model import (
+    STATE_NAMES,
+    TIMESTEP,
+    TORQUE_NAMES,
+    UPRIGHT,
+    PlanarRobot,
+)
 from skillkit.tasks.registry import register
 from skillkit.trajectory import Trajectory
 
@@ -52,62 +56,19 @@ def _is_tensor(x) -> bool:
 class Balancing(Task):
     """Balancing the planar 4-link robot around upright (Sec. 4.3.1; Sec. 5.4 settings).
 
-    **Lower-level policy** (32 parameters): the linear feedback u_t = G x̃_t with
-    x̃_t = [q_t − q_up, q̇_t] the deviation from upright q_up = [0, 0, 0, π] and the gain
-    matrix G (4 × 8) = ω reshaped **row-major** (``G[i, j] = ω[8 i + j]``: row i gives the
-    torque of joint i). No gravity compensation: gravity exerts no torque at upright.
-    Optional Gaussian torque noise (``torque_noise_std``, N m) is added to the applied
-    torque, making the dynamics stochastic (Sec. 5.4 uses 4). Optional white torque
-    *excitation* (``excitation_std``, N m) makes the lower-level policy itself random,
-    u_t = G x̃_t + ξ_t: it is part of the recorded control (a forward model sees it), unlike
-    the noise, and is what collects informative data for model learning (the "random policy"
-    of Sec. 4.3.1's initial experience).
-
-    **Episode.** The initial state is Gaussian around upright, q_0 ~ N(q_up, σ² I),
-    q̇_0 ~ N(0, σ² I) with σ = ``initial_std`` (0.3 as in Sec. 5.4). Torques are computed
-    at ``control_dt`` (20 Hz default) and held over the period (1 ms physics steps) for
-    ``n_steps`` = T control steps (40, so 2 s).
-
-    **Reward**
+    ω (32) is the gain G (4 × 8) row-major (``G[i, j] = ω[8 i + j]``) of u_t = G x̃_t + ξ_t,
+    x̃_t = [q_t − q_up, q̇_t], q_up = [0, 0, 0, π]. The excitation ξ_t ~ N(0, ``excitation_std``²)
+    is part of the recorded control; the torque noise (``torque_noise_std``, N m) only of the
+    applied torque. x_0 ~ N(x_up, ``initial_std``² I); the torque is held over each
+    ``control_dt`` (a multiple of 1 ms) for T = ``n_steps`` steps. The reward is
 
         R(τ) = −Σ_{t=1}^{T} (x̃_tᵀ Q x̃_t + r_u u_tᵀ u_t),
 
-    with Q = ``state_weights`` (default I₈, the −Σ (x_t − x_r)ᵀ(x_t − x_r) of Sec. 4.2) and
-    r_u = ``control_weight`` (default 0). Sec. 5.4's immediate reward
-    −10 q̃ᵀq̃ − 0.1 q̇ᵀq̇ − 10⁻⁵ uᵀu is the ``balancing-noisy`` variant (Q = diag(10 I₄,
-    0.1 I₄), r_u = 1e-5, torque noise 4). u_t is the commanded torque G x̃_t; u_T is the
-    command at the final state (computed, not applied).
-
-    **Failures.** A run with a joint angle more than ``max_angle`` (20 rad) from upright or a
-    speed above ``max_joint_speed`` (100 rad/s) is stopped as diverged at that control step
-    (:class:`SimulationFailure`), so every working rollout has a bounded reward and
-    :attr:`worst_reward` (−1e7) lies below it in practice. The failed trajectory keeps the
-    states before the divergence (all within the limits): they are real experience of
-    where a bad gain leads, which PILCO and GPREPS learn (:meth:`transitions`).
-
-    Trajectory: ``times`` (T+1,), ``states`` (T+1, 8) = [q, q̇] at the control steps,
-    ``controls`` (T+1, 4) commanded torques (with the excitation); signals ``torque_noise``
-    and ``excitation`` (T, 4). Use
-    :func:`balancing_transitions` for the (x_t, u_t, x_{t+1}) transitions.
-
-    Parameters
-    ----------
-    initial_std : float
-        σ of the initial state distribution (rad, rad/s).
-    torque_noise_std : float
-        Standard deviation of the additive torque noise (N m), 0 for deterministic dynamics.
-    n_steps : int
-        Horizon T in control steps.
-    control_dt : float
-        Control period (s), a multiple of the 1 ms physics step.
-    state_weights : array_like, shape (8, 8) or (8,), optional
-        Q (a vector is its diagonal); default identity.
-    control_weight : float
-        r_u ≥ 0.
-    excitation_std : float
-        Standard deviation of the white torque excitation ξ_t (N m), 0 for the feedback alone.
-    max_angle, max_joint_speed : float
-        Divergence thresholds.
+    Q = ``state_weights`` ((8,) diagonal or (8, 8) PSD; default I₈, Sec. 4.2), r_u =
+    ``control_weight`` ≥ 0; u_T is computed, not applied. A joint more than ``max_angle`` rad
+    from upright, faster than ``max_joint_speed`` rad/s or non-finite stops the run
+    (:class:`SimulationFailure`). Trajectory: ``states`` (T+1, 8) = [q, q̇], ``controls``
+    (T+1, 4) commanded torques, signals ``torque_noise`` and ``excitation`` (T, 4).
     """
 
     name = "balancing"
@@ -153,7 +114,6 @@ class Balancing(Task):
         self.max_angle = check_positive(max_angle, "max_angle")
         self.max_joint_speed = check_positive(max_joint_speed, "max_joint_speed")
 
-    # ------------------------------------------------------------------ episodes
     @staticmethod
     def gain_matrix(omega) -> np.ndarray:
         """G (4, 8) from ω (32,), row-major."""
@@ -202,30 +162,11 @@ class Balancing(Task):
     def rollout_from(
         self, omega, initial_state, rng=None, *, reference=None, feedforward=None
     ) -> Trajectory:
-        """One episode from a given x_0, optionally tracking a reference (Sec. 4.2.2).
+        """One episode from x_0 = ``initial_state`` (8,), optionally tracking a reference.
 
-        The controller is u_t = G (x_t − r_t) + u_ff,t + ξ_t: with the default reference
-        r_t = x_up and u_ff = 0 it is :meth:`rollout`'s feedback; with a time-varying r_t it
-        is the linear trajectory-tracking PD controller of Sec. 4.2.2 (linear in x_t, so
-        moment matching applies with the per-step offset u_ff,t − G r_t). Failures are
-        reported as in :meth:`~skillkit.tasks.base.Task.rollout`.
-
-        Parameters
-        ----------
-        omega : array_like, shape (32,)
-            G row-major.
-        initial_state : array_like, shape (8,)
-            x_0 = [q_0, q̇_0].
-        rng : Generator, int or None
-            The torque noise and excitation.
-        reference : array_like, shape (T+1, 8), optional
-            r_t (default x_up at every step).
-        feedforward : array_like, shape (T+1, 4), optional
-            u_ff,t (default 0).
-
-        Returns
-        -------
-        Trajectory
+        u_t = G (x_t − r_t) + u_ff,t + ξ_t: the linear trajectory-tracking PD controller of
+        Sec. 4.2.2 with ``reference`` r_t (T+1, 8), default x_up, and ``feedforward`` u_ff,t
+        (T+1, 4), default 0. Failures as in :meth:`~skillkit.tasks.base.Task.rollout`.
         """
         T1 = self.n_steps + 1
         x0 = check_array(initial_state, "initial_state", shape=(8,))
@@ -240,27 +181,10 @@ class Balancing(Task):
     def swing_reference(
         self, amplitudes, period: float = 4.0, phases=(0.0, 0.5, 1.0, 1.5)
     ) -> tuple[np.ndarray, np.ndarray]:
-        """A large-amplitude swinging reference around upright and its inverse dynamics.
+        """A swinging reference r_t = [q_r, q̇_r] (T+1, 8) and its feed-forward (T+1, 4).
 
-        q_r(t) = q_up + a ⊙ sin(2π t / P + φ) over the task's T control steps, with q̇_r, q̈_r
-        its derivatives, and the feed-forward torque u_ff(t) = M(q_r) q̈_r + c(q_r, q̇_r) + g(q_r)
-        (``mujoco.mj_inverse``): with :meth:`rollout_from` this is the linear
-        trajectory-tracking PD controller of Sec. 4.2.2, u = G (x − r_t) + u_ff,t.
-
-        Parameters
-        ----------
-        amplitudes : array_like, shape (4,) or ()
-            a (rad) per joint.
-        period : float
-            P (s).
-        phases : array_like, shape (4,)
-            φ (rad) per joint.
-
-        Returns
-        -------
-        reference : ndarray, shape (T+1, 8)
-            r_t = [q_r, q̇_r] at the control steps.
-        feedforward : ndarray, shape (T+1, 4)
+        q_r(t) = q_up + a ⊙ sin(2π t / P + φ) and u_ff = M(q_r) q̈_r + c(q_r, q̇_r)
+        (``mujoco.mj_inverse``), for :meth:`rollout_from`.
         """
         a = np.broadcast_to(check_array(amplitudes, "amplitudes", ndim=(0, 1)), (4,))
         phi = check_array(phases, "phases", shape=(4,))
@@ -279,8 +203,7 @@ class Balancing(Task):
         return np.hstack([q, qd]), ff
 
     def _beyond_limits(self, x: np.ndarray) -> np.ndarray:
-        """Whether states x (..., 8) are non-finite, faster than ``max_joint_speed`` or more
-        than ``max_angle`` from upright: the divergence rule, shape (...)."""
+        """The divergence rule of states x (..., 8), shape (...)."""
         with np.errstate(invalid="ignore"):
             speed = np.abs(x[..., 4:]).max(axis=-1)
             angle = np.abs(x[..., :4] - UPRIGHT).max(axis=-1)
@@ -288,18 +211,14 @@ class Balancing(Task):
         return ~(np.isfinite(x).all(axis=-1) & within)
 
     def failed_batch(self, states) -> np.ndarray:
-        """Trajectories (B, T + 1, 8) with a state beyond the divergence limits (non-finite,
-        a joint faster than ``max_joint_speed`` or more than ``max_angle`` from upright),
-        shape (B,): the rule a rollout is stopped by (:meth:`_check_state`), so a predicted
-        path through such a state scores :attr:`worst_reward` as the real rollout would."""
+        """Paths (B, T + 1, 8) with a state beyond the divergence limits, shape (B,)."""
         states = check_array(states, "states", ndim=3, finite=False)
         if states.shape[2] != 8:
             raise ValueError(f"states: expected shape (B, T + 1, 8), got {states.shape}")
         return self._beyond_limits(states).any(axis=1)
 
     def _check_state(self, t, states, commanded, noise, excitation) -> None:
-        """Stop the episode as diverged when x_t (``states[t]``) is non-finite or beyond the
-        limits, keeping x_0 … x_{t−1} (all within them) as the failure's partial trajectory."""
+        """Raise :class:`SimulationFailure` (keeping x_0 … x_{t−1}) if x_t diverged."""
         x = states[t]
         if not self._beyond_limits(x):
             return
@@ -320,22 +239,9 @@ class Balancing(Task):
             )
         raise SimulationFailure(f"diverged: {what} at t = {t * self.control_dt:.3f} s", partial)
 
-    # ------------------------------------------------------------------ reward
     def reward_batch(self, states, controls, signals=None, contexts=None):
-        """R(τ) = −Σ_{t=1}^{T} (x̃_tᵀ Q x̃_t + r_u u_tᵀ u_t) per trajectory (Sec. 4.2).
-
-        Parameters
-        ----------
-        states : ndarray or Tensor, shape (B, T+1, 8)
-        controls : ndarray or Tensor, shape (B, T+1, 4)
-            Commanded torques u_t = G x̃_t (row 0 is not scored).
-        signals, contexts
-            Unused (the task is context-free).
-
-        Returns
-        -------
-        ndarray or Tensor, shape (B,)
-        """
+        """R(τ) = −Σ_{t=1}^{T} (x̃_tᵀ Q x̃_t + r_u u_tᵀ u_t) of states (B, T+1, 8) and
+        commanded torques (B, T+1, 4), numpy or torch, shape (B,)."""
         if _is_tensor(states):  # one formula for numpy and torch (einsum and sum agree)
             import torch
 
@@ -349,20 +255,10 @@ class Balancing(Task):
         return -(cost + self.control_weight * (u**2).sum((1, 2)))
 
     def immediate_reward(self, states, controls):
-        """The immediate reward r(x, u) = −(x̃ᵀ Q x̃ + r_u uᵀu), vectorised over leading axes.
+        """r(x, u) = −(x̃ᵀ Q x̃ + r_u uᵀu) of states (..., 8) and controls (..., 4), shape (...).
 
-        Summed over rows 1..T of a trajectory it is :meth:`reward_batch` (up to rounding:
-        the trajectory reward sums in one product). Chapter 5's embeddings predict its
-        expectation per step (a linear reward kernel, Eq. 5.17).
-
-        Parameters
-        ----------
-        states : array_like, shape (..., 8)
-        controls : array_like, shape (..., 4)
-
-        Returns
-        -------
-        ndarray, shape (...)
+        Summed over rows 1..T it is :meth:`reward_batch` (up to rounding); Chapter 5 predicts
+        its expectation per step (Eq. 5.17).
         """
         d = np.asarray(states) - X_UP
         return -(
@@ -370,15 +266,11 @@ class Balancing(Task):
             + self.control_weight * (np.asarray(controls) ** 2).sum(-1)
         )
 
-    # ------------------------------------------------------------------ model-based search
     supports_model_rollout = True
 
     def model_signals(self) -> ModelSignals:
-        """x = [q, q̇] (8), u = the commanded joint torques (4); no other signal."""
-        return ModelSignals(
-            state=tuple(JOINT_NAMES) + tuple(f"{j}_velocity" for j in JOINT_NAMES),
-            control=tuple(f"{j}_torque" for j in JOINT_NAMES),
-        )
+        """x = [q, q̇] (8), u = the commanded joint torques (4)."""
+        return ModelSignals(STATE_NAMES, TORQUE_NAMES)
 
     def initial_states(self, context=None, n: int = 1, rng=None) -> np.ndarray:
         """x_0 = x_up + σ ξ, ξ ~ N(0, I₈): the simulator's start distribution, shape (n, 8)."""
@@ -386,10 +278,7 @@ class Balancing(Task):
         return X_UP + self.initial_std * as_generator(rng).standard_normal((check_count(n), 8))
 
     def controller(self, omegas, contexts=None, device=None, dtype=None):
-        """u = G_b (x − x_up) for pair b, G_b = ω_b as (4, 8) row-major.
-
-        The same law as :func:`feedback_policy` (which it returns).
-        """
+        """u = G_b (x − x_up), G_b = ω_b row-major (:func:`feedback_policy`)."""
         import torch
 
         omegas = check_array(omegas, "omegas", shape=(None, 32))
@@ -404,19 +293,9 @@ class Balancing(Task):
         """The planar robot's compiled MuJoCo model."""
         return self.robot.model
 
-    # ------------------------------------------------------------------ policy
     def linearization(self) -> tuple[np.ndarray, np.ndarray]:
-        """Discrete-time linearisation at upright for one control period.
-
-        ``mujoco.mjd_transitionFD`` (centred differences) gives x⁺ = A x + B u for one physics
-        step at (q_up, 0, u = 0); holding u for the k = control_dt / timestep steps of a
-        control period gives A_c = A^k and B_c = Σ_{i<k} A^i B.
-
-        Returns
-        -------
-        A_c : ndarray, shape (8, 8)
-        B_c : ndarray, shape (8, 4)
-        """
+        """Linearisation (A_c (8, 8), B_c (8, 4)) at upright per control period: A_c = A^k,
+        B_c = Σ_{i<k} A^i B from one physics step's ``mujoco.mjd_transitionFD``."""
         model, data = self.robot.model, self.robot.data
         self.robot.reset(UPRIGHT, np.zeros(4))
         data.ctrl[:] = 0.0
@@ -429,21 +308,10 @@ class Balancing(Task):
         return a_c, b_c
 
     def lqr_gain(self, state_weights=None, control_weight: float = 1e-4) -> np.ndarray:
-        """Discrete LQR gain G = −K at upright (u = G x̃), from :meth:`linearization`.
+        """Discrete LQR gain G = −K (4, 8) at upright (u = G x̃), from :meth:`linearization`.
 
-        K = (R + B_cᵀ P B_c)⁻¹ B_cᵀ P A_c with P the solution of the discrete algebraic Riccati
-        equation for cost Σ x̃ᵀ Q x̃ + uᵀ R u, R = ``control_weight`` · I₄.
-
-        Parameters
-        ----------
-        state_weights : array_like, shape (8, 8), optional
-            Q (default: the task's reward weights).
-        control_weight : float
-            R / I (> 0).
-
-        Returns
-        -------
-        ndarray, shape (4, 8)
+        K = (R + B_cᵀ P B_c)⁻¹ B_cᵀ P A_c, P the discrete Riccati solution for the cost
+        Σ x̃ᵀ Q x̃ + uᵀ R u, Q = ``state_weights`` (default the reward's), R = ``control_weight`` I₄.
         """
         q_w = (
             self.state_weights
@@ -457,30 +325,11 @@ class Balancing(Task):
         return -k
 
     def pd_gain(self, natural_frequency: float = 3.0, damping: float = 1.5) -> np.ndarray:
-        """The PD controller u = G x̃ = K_p q̃ + K_d q̇ with gravity-stiffness compensation.
+        """The PD gain G = [K_p, K_d] (4, 8) with gravity-stiffness compensation.
 
-        Linearised at upright the robot obeys M q̈ = u − K_g q̃ (M the mass matrix, K_g =
-        ∂(bias force)/∂q at rest, negative: gravity pushes the links over). With
-
-            K_p = K_g − ω² M,    K_d = −2 ζ ω M,
-
-        the closed loop becomes q̈ = −ω² q̃ − 2ζω q̇ in every joint coordinate: each mode has
-        the poles −ζω ± ω√(ζ² − 1). The thesis's balancing controllers are PD controllers
-        u = G[q̃; q̇] (Secs 4.2.3, 4.3.1, 5.4) with no values given. The defaults
-        (ω = 3 rad/s, ζ = 1.5) are the lowest stiffness on a grid of (ω, ζ) whose 20 Hz closed
-        loop has spectral radius ≤ 0.95 (ω = 3, ζ = 1 is unstable).
-
-        Parameters
-        ----------
-        natural_frequency : float
-            ω > 0 (rad/s).
-        damping : float
-            ζ > 0.
-
-        Returns
-        -------
-        ndarray, shape (4, 8)
-            G = [K_p, K_d] (row-major as ω; u = G x̃).
+        Linearised at upright M q̈ = u − K_g q̃; K_p = K_g − ω² M, K_d = −2 ζ ω M make every
+        mode q̈ = −ω² q̃ − 2ζω q̇ (Secs 4.2.3, 4.3.1, 5.4 give no values; ω = 3 rad/s, ζ = 1.5
+        is the softest stable setting at 20 Hz).
         """
         w = check_positive(natural_frequency, "natural_frequency")
         z = check_positive(damping, "damping")
@@ -505,23 +354,8 @@ class Balancing(Task):
     def lqr_policy(
         self, control_weight: float = 1e-4, exploration_std_fraction: float | None = None
     ) -> GaussianPolicy:
-        """N(ω | vec G, Σ) around the LQR gain G of :meth:`lqr_gain`, flattened row-major.
-
-        Σ is diagonal with standard deviations ``exploration_std_fraction`` × |G| entry-wise
-        (default :attr:`exploration_std_fraction`).
-
-        Parameters
-        ----------
-        control_weight : float
-            R / I of the LQR design (> 0): 1e-4 balances tightly, ≥ 1 is the sluggish
-            minimum-effort controller (its gains barely change above 1).
-        exploration_std_fraction : float, optional
-            > 0.
-
-        Returns
-        -------
-        GaussianPolicy
-        """
+        """N(ω | vec G, Σ) around :meth:`lqr_gain` (R = ``control_weight`` I), Σ diagonal with
+        std ``exploration_std_fraction`` (default :attr:`exploration_std_fraction`) × |G|."""
         frac = (
             self.exploration_std_fraction
             if exploration_std_fraction is None
@@ -531,53 +365,20 @@ class Balancing(Task):
         return GaussianPolicy(g, np.diag((frac * np.abs(g)) ** 2))
 
     def initial_policy(self) -> GaussianPolicy:
-        """N(ω | vec(G_lqr), Σ_0): a stabilising gain whose samples all balance.
-
-        :meth:`lqr_policy` with R = 1e-4 I and exploration 0.2% of |G_lqr| entry-wise: the
-        20 Hz closed loop is sensitive to independent perturbations of the 32 gains (at 1% a
-        quarter of the samples are unstable at upright; see :func:`design_policy` for broad
-        exploration).
-        """
+        """:meth:`lqr_policy` with R = 1e-4 I and exploration 0.2%: all samples balance."""
         return self.lqr_policy()
 
 
 def balancing_transitions(trajectory: Trajectory) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The (x_t, u_t, x_{t+1}) transitions of a balancing trajectory at the control rate.
-
-    The same as :meth:`Balancing.transitions` (the training data of GP forward models and
-    conditional embeddings, Chs. 4–5), for callers without a task instance.
-
-    Parameters
-    ----------
-    trajectory : Trajectory
-        A (non-failed) :class:`Balancing` trajectory with T + 1 states.
-
-    Returns
-    -------
-    x : ndarray, shape (T, 8)
-    u : ndarray, shape (T, 4)
-        Commanded torques (the torque noise is part of the stochastic dynamics).
-    x_next : ndarray, shape (T, 8)
-    """
+    """:meth:`Balancing.transitions` without a task: x (T, 8), u (T, 4), x_next (T, 8)."""
     return state_transitions(trajectory, 8, 4)
 
 
 def feedback_policy(gains, reference=None, feedforward=None):
-    """The sampler policy u = G_b (x − r_t) + u_ff,t for pair b (default r_t = x_up, u_ff = 0).
+    """The sampler policy u = G_b (x − r_t) + u_ff,t (default r_t = x_up, u_ff = 0).
 
-    Parameters
-    ----------
-    gains : Tensor, shape (B, 4, 8)
-    reference : array_like, shape (T+1, 8), optional
-        r_t, e.g. from :meth:`Balancing.swing_reference`.
-    feedforward : array_like, shape (T+1, 4), optional
-
-    Returns
-    -------
-    callable
-        ``policy(t, x, pair) -> u`` for
-        :func:`~skillkit.models.sampling.sample_trajectories`, on the device and dtype of
-        ``gains``.
+    ``gains`` Tensor (B, 4, 8), ``reference`` (T+1, 8), ``feedforward`` (T+1, 4); returns
+    ``policy(t, x, pair) -> u`` on the device and dtype of ``gains``.
     """
     import torch
 
@@ -595,22 +396,8 @@ def feedback_policy(gains, reference=None, feedforward=None):
 
 
 def sampled_rewards(task: Balancing, states, gains) -> np.ndarray:
-    """Rewards of sampled (predicted) state trajectories under the feedback u = G_b x̃.
-
-    Parameters
-    ----------
-    task : Balancing
-    states : ndarray, shape (B, L, T+1, 8)
-        L sampled trajectories for each of B controllers.
-    gains : ndarray, shape (B, 4, 8)
-
-    Returns
-    -------
-    ndarray, shape (B, L)
-        :meth:`Balancing.reward_batch` of each trajectory with the commanded torques
-        recomputed from the states; non-finite rewards (diverged samples) are
-        :attr:`Balancing.worst_reward`, as :meth:`Task.reward` scores them.
-    """
+    """Rewards (B, L) of sampled states (B, L, T+1, 8) under u = G_b x̃, gains (B, 4, 8);
+    non-finite rewards become :attr:`Balancing.worst_reward`."""
     B, L, T1, _ = states.shape
     controls = np.einsum("bij,bltj->blti", gains, states - X_UP)
     r = task.reward_batch(states.reshape(B * L, T1, 8), controls.reshape(B * L, T1, 4))
@@ -624,30 +411,11 @@ def stable_gains(
     max_spectral_radius: float = 0.98,
     policy: GaussianPolicy | None = None,
 ) -> np.ndarray:
-    """``n`` samples ω ~ π(ω) whose feedback balances robustly.
+    """``n`` samples ω ~ π(ω) (default the task's initial policy), shape (n, 32), that balance.
 
-    ω is kept if the closed loop of the task's linearisation at upright (Δt = control period)
-    is stable with margin: ρ(A_c + B_c G) ≤ ``max_spectral_radius``, G = ω as (4, 8); Sec.
-    4.2.3 uses a controller that "robustly balances" the robot.
-
-    Parameters
-    ----------
-    task : Balancing
-    n : int
-    rng : Generator, int or None
-        Randomness; one stream for every draw (same seed ⇒ same gains).
-    max_spectral_radius : float
-    policy : GaussianPolicy, optional
-        π(ω) (default: the task's :meth:`~Balancing.initial_policy`).
-
-    Raises
-    ------
-    RuntimeError
-        If more than 100 n samples are needed.
-
-    Returns
-    -------
-    ndarray, shape (n, 32)
+    ω is kept if ρ(A_c + B_c G) ≤ ``max_spectral_radius`` for the linearisation at upright
+    (Sec. 4.2.3: a controller that "robustly balances"). Raises a RuntimeError if more than
+    100 n samples are needed.
     """
     rng = as_generator(rng)
     A, B = task.linearization()
@@ -679,31 +447,14 @@ def collect_balancing(
     policy: GaussianPolicy | None = None,
     gain=None,
 ) -> dict:
-    """Roll out ``n_trajectories`` robustly balancing ω (:func:`stable_gains` of ``policy``,
-    default the task's initial policy) from random x_0; or one fixed controller ``gain``.
-
-    Failed rollouts (the robot fell or diverged) are replaced by new ones and counted.
-
-    Parameters
-    ----------
-    task : Balancing
-    n_trajectories : int
-    rng : Generator, int or None
-        Randomness of the gains, start states and noise: one stream for every rollout
-        (same seed ⇒ same data).
-    max_spectral_radius : float
-        See :func:`stable_gains` (not used with ``gain``).
-    policy : GaussianPolicy, optional
-        π(ω) the controllers are drawn from (not with ``gain``).
-    gain : array_like, shape (4, 8) or (32,), optional
-        One controller G for every rollout (e.g. :meth:`Balancing.pd_gain`): only x_0 and
-        the torque noise vary.
+    """Roll out ``n_trajectories`` balancing ω (:func:`stable_gains` of ``policy``), or one
+    fixed ``gain`` (4, 8) for all, from random x_0; failed rollouts are replaced and counted.
 
     Returns
     -------
     dict
-        ``omegas`` (n, 32), ``trajectories`` (list), ``x``, ``u``, ``x_next`` (n·T, ·) the
-        stacked transitions, ``n_failed``.
+        ``omegas`` (n, 32), ``trajectories``, the stacked transitions ``x``, ``u``,
+        ``x_next`` (n·T, ·) and ``n_failed``.
     """
     rng = as_generator(rng)
     omegas, trajs, n_failed = [], [], 0
@@ -744,27 +495,10 @@ def collect_balancing(
 def random_lqr_gains(
     task: Balancing, n: int, spread: float, control_weight: float, rng
 ) -> np.ndarray:
-    """Stabilising controllers: LQR gains for randomly scaled cost weights.
+    """``n`` LQR gains (n, 4, 8) for randomly scaled cost weights.
 
-    Q = diag(q_task ⊙ exp(s ξ)), R = r₀ exp(s ξ') I with ξ ~ N(0, I), ξ' ~ N(0, 1), s =
-    ``spread`` and r₀ = ``control_weight``; each gain is :meth:`Balancing.lqr_gain`.
-
-    Parameters
-    ----------
-    task : Balancing
-    n : int
-        Number of gains, ≥ 1.
-    spread : float
-        s ≥ 0, the log-scale spread of the cost weights.
-    control_weight : float
-        r₀ > 0.
-    rng : Generator, int or None
-        Randomness (same seed ⇒ same gains).
-
-    Returns
-    -------
-    ndarray, shape (n, 4, 8)
-        Gains G with u = G x̃.
+    Q = diag(q_task ⊙ exp(s ξ)), R = r₀ exp(s ξ') I, ξ ~ N(0, I), ξ' ~ N(0, 1), s = ``spread``
+    ≥ 0, r₀ = ``control_weight``.
     """
     n = check_count(n, "n")
     spread = check_positive(spread, "spread", allow_zero=True)
@@ -788,34 +522,11 @@ def design_policy(
     scale_std: float = 0.15,
     rng=0,
 ) -> GaussianPolicy:
-    """A Gaussian π(ω) = N(ω | mean, c² Σ_d) whose exploration follows balancing controllers.
+    """π(ω) = N(ω | mean, c² Σ_d) exploring along balancing controllers.
 
-    Σ_d is the sample covariance of n designs ω_i = κ_i vec G_i: G_i the
-    :func:`random_lqr_gains` for randomly scaled cost weights (log-scale ``spread``, base R
-    ``control_weight``) and κ_i = exp(β ξ_i), ξ_i ~ N(0, 1), β = ``scale_std``, a random
-    overall gain level. Its directions are those in which balancing gains differ, so a broad
-    π(ω) still has balancing samples (isotropic exploration of a few % of |G| does not).
-    Σ_d has rank below 32; 10⁻⁶ of its mean variance is added to every direction.
-
-    Parameters
-    ----------
-    task : Balancing
-    mean : array_like, shape (32,) or (4, 8)
-        The policy mean (G row-major).
-    exploration : float
-        c > 0, the scale of the exploration (standard deviations relative to the designs').
-    n_designs : int
-        n ≥ 2.
-    spread, control_weight : float
-        See :func:`random_lqr_gains`.
-    scale_std : float
-        β ≥ 0.
-    rng : Generator, int or None
-        Randomness of the designs (a fixed seed gives the same π(ω) every time).
-
-    Returns
-    -------
-    GaussianPolicy
+    Σ_d is the sample covariance of ``n_designs`` ω_i = κ_i vec G_i, G_i from
+    :func:`random_lqr_gains` and κ_i = exp(β ξ_i), β = ``scale_std``, plus 10⁻⁶ of its mean
+    variance; c = ``exploration``. ``mean`` (32,) or (4, 8).
     """
     mu = check_array(mean, "mean", ndim=(1, 2)).reshape(-1)
     if mu.size != 32:
@@ -841,8 +552,7 @@ def balancing(**kwargs) -> Balancing:
 
 @register("balancing-noisy", "planar", "context-free")
 def balancing_noisy(**kwargs) -> Balancing:
-    """Balancing with Sec. 5.4's settings: torque noise std 4 N m, T = 40, and reward
-    −10 q̃ᵀq̃ − 0.1 q̇ᵀq̇ − 1e-5 uᵀu."""
+    """Balancing with Sec. 5.4's torque noise (4 N m) and reward weights."""
     kwargs.setdefault("torque_noise_std", 4.0)
     kwargs.setdefault("state_weights", np.concatenate([np.full(4, 10.0), np.full(4, 0.1)]))
     kwargs.setdefault("control_weight", 1e-5)

@@ -1,21 +1,14 @@
-"""The Task contract (DESIGN.md): context distribution, parameter space, rollout, reward.
+"""The Task contract: context distribution μ(s), parameter space, rollout, reward.
 
-A task is a small class in the style of dm_control's suite: it knows its context
-distribution μ(s) (:meth:`Task.sample_context`), the dimension of the lower-level policy
-parameters ω, a sensible initial upper-level policy, how to run one episode
-(:meth:`Task.rollout`) and how to score a trajectory in a context (:meth:`Task.reward`).
-Rewards are pure functions of the trajectory and the context, so a trajectory can be
-re-scored in other contexts (the *extra context* trick of Sec. 3.4) whenever the trajectory
-does not depend on the context (``trajectory_depends_on_context`` is False).
-
-For model-based search (Ch. 4–5) a task also states what a forward model learns
-(:meth:`Task.model_signals`, :meth:`Task.transitions`), where model rollouts start
-(:meth:`Task.initial_states`), the very lower-level policy the simulator runs as a batched
-torch callable for :func:`~skillkit.models.sampling.sample_trajectories`
-(:meth:`Task.controller`), and the batched reward on (predicted) trajectories
-(:meth:`Task.reward_batch`), which is the single definition :meth:`Task.reward` goes through.
-A task that cannot support a part says so: :attr:`Task.supports_model_rollout` is False and
-the method raises ``NotImplementedError`` with the reason.
+A task (in the style of dm_control's suite) samples contexts (:meth:`Task.sample_context`),
+runs one episode for lower-level parameters ω (:meth:`Task.rollout`) and scores a trajectory
+in a context (:meth:`Task.reward`). Rewards are pure functions of trajectory and context, so
+a trajectory that does not depend on the context (``trajectory_depends_on_context`` False)
+can be re-scored in other contexts (Sec. 3.4). For model-based search (Chs. 4–5) a task names
+what a forward model learns (:meth:`Task.model_signals`, :meth:`Task.transitions`), where
+model rollouts start (:meth:`Task.initial_states`), its lower-level policy as a batched torch
+callable (:meth:`Task.controller`) and the batched reward (:meth:`Task.reward_batch`); a task
+that cannot has :attr:`Task.supports_model_rollout` False and raises ``NotImplementedError``.
 """
 
 from __future__ import annotations
@@ -38,11 +31,8 @@ class SimulationFailure(RuntimeError):
     message : str
         What failed, and when.
     partial : Trajectory, optional
-        The episode up to the last state before the failure (at least two time stamps, so at
-        least one transition). :meth:`Task.rollout` keeps it in the failed trajectory: the
-        transitions before a robot falls are real experience, which model learners such as
-        PILCO and GPREPS learn (Sec. 4.3.1), while the rollout's reward stays the task's
-        worst.
+        The episode up to the last state before the failure (≥ 2 time stamps). The failed
+        trajectory keeps it: model learners use these transitions (Sec. 4.3.1).
     """
 
     def __init__(self, message: str, partial: Trajectory | None = None):
@@ -59,10 +49,8 @@ def state_transitions(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(x_t, u_t, x_{t+1}) of a trajectory: states[:−1], controls[:−1], states[1:].
 
-    A failed trajectory gives the transitions simulated before its failure when it kept them
-    (:attr:`~skillkit.trajectory.Trajectory.has_transitions`). Raises a ValueError for a
-    failed trajectory that kept none or states/controls not of shapes (T, state_dim) and
-    (T, control_dim).
+    Raises a ValueError for a failed trajectory that kept no states or for states/controls
+    not of shapes (T, state_dim), (T, control_dim).
     """
     if not trajectory.has_transitions:
         raise ValueError(
@@ -80,15 +68,8 @@ def state_transitions(
 class ModelSignals:
     """What a forward model of a task learns (names, in array-column order).
 
-    Attributes
-    ----------
-    state : tuple of str
-        Names of the model state x (the columns of :meth:`Task.transitions`'s X and of
-        :meth:`Task.initial_states`).
-    control : tuple of str
-        Names of the control u (the columns of U; empty when the model has no control input).
-    signals : tuple of str
-        Named trajectory signals :meth:`Task.reward_batch` reads besides states and controls.
+    ``state`` names x, ``control`` u (may be empty), ``signals`` the trajectory signals
+    :meth:`Task.reward_batch` reads besides states and controls.
     """
 
     state: tuple[str, ...]
@@ -125,25 +106,15 @@ class Task(ABC):
     Attributes
     ----------
     name : str
-        Registry name.
-    context_dim : int
-        Dimension of the context s (0 for context-free tasks).
-    parameter_dim : int
-        Dimension of the lower-level policy parameters ω.
+    context_dim, parameter_dim : int
+        Dimensions of s (0: context-free) and of ω.
     context_low, context_high : ndarray, shape (context_dim,)
-        Bounds of the context distribution μ(s) (uniform unless :meth:`sample_context` is
-        overridden). Contexts outside them are rejected by :meth:`check_context`.
+        Bounds of the uniform μ(s); :meth:`check_context` rejects contexts outside them.
     worst_reward : float
-        Reward given to a failed (NaN, unstable) rollout: lower than any reward a working
-        rollout can get in practice.
-    trajectory_depends_on_context : bool
-        Whether the rollout itself depends on s (False for throwing: the target only enters
-        the reward; True for hockey: the target puck is part of the scene).
-    supports_model_rollout : bool
-        Whether :meth:`transitions` and :meth:`controller` exist, i.e. a step-based forward
-        model of the simulated state can be learned and rolled out under the task's own
-        lower-level policy. False for tasks modelled by decomposed event models (hockey,
-        table tennis); :attr:`no_model_rollout_reason` then says why.
+        Reward of a failed rollout.
+    trajectory_depends_on_context, supports_model_rollout : bool
+        Whether the rollout depends on s; whether :meth:`transitions` and :meth:`controller`
+        exist (else :attr:`no_model_rollout_reason` says why).
     """
 
     name: str = "task"
@@ -157,18 +128,8 @@ class Task(ABC):
     supports_model_rollout: bool = False
     no_model_rollout_reason: str = "this task defines no step-based forward model"
 
-    # ----------------------------------------------------------------- contexts
     def sample_context(self, rng=None, n: int | None = None) -> np.ndarray:
-        """Draw contexts s ~ μ(s).
-
-        Parameters
-        ----------
-        rng : Generator, int or None
-            Randomness.
-        n : int, optional
-            Number of contexts (an integer ≥ 0). ``None`` returns one context of shape
-            (context_dim,), otherwise shape (n, context_dim).
-        """
+        """Draw contexts s ~ μ(s): shape (context_dim,) for ``n=None``, else (n, context_dim)."""
         rng = as_generator(rng)
         size = (self.context_dim,) if n is None else (check_count(n, "n", 0), self.context_dim)
         low, high = np.asarray(self.context_low), np.asarray(self.context_high)
@@ -200,26 +161,12 @@ class Task(ABC):
         """Validate lower-level parameters: shape (parameter_dim,), finite."""
         return check_array(omega, name, shape=(self.parameter_dim,))
 
-    # ----------------------------------------------------------------- episodes
     def rollout(self, omega, context=None, rng=None) -> Trajectory:
-        """Run one episode with lower-level parameters ω in context s.
+        """Run one episode with ω, shape (parameter_dim,), in context s (None if context-free).
 
-        Parameters
-        ----------
-        omega : array_like, shape (parameter_dim,)
-            Lower-level policy parameters.
-        context : array_like, shape (context_dim,), optional
-            The context (omit for context-free tasks).
-        rng : Generator, int or None
-            Randomness of the episode (initial state, noise). Same seed ⇒ same trajectory.
-
-        Returns
-        -------
-        Trajectory
-            With ``failed=True`` and a message if the physics produced non-finite values;
-            the failure is reported through a ``RuntimeWarning``, never raised. A failed
-            trajectory keeps the states simulated before the failure where the task records
-            them (:class:`SimulationFailure`'s ``partial``), else one placeholder row.
+        Same ``rng`` seed ⇒ same trajectory. A diverged episode is not raised: it returns a
+        ``failed`` trajectory (with a ``RuntimeWarning``) keeping the states before the failure
+        (:class:`SimulationFailure`'s ``partial``), else one placeholder row.
         """
         omega = self.check_omega(omega)
         s = self.check_context(context)
@@ -230,9 +177,8 @@ class Task(ABC):
             except (SimulationFailure, FloatingPointError, OverflowError) as exc:
                 partial = getattr(exc, "partial", None)
                 return self._failed(omega, s, f"{type(exc).__name__}: {exc}", partial)
-        if not (np.all(np.isfinite(traj.states)) and np.all(np.isfinite(traj.controls))) or not all(
-            np.all(np.isfinite(v)) for v in traj.signals.values()
-        ):
+        arrays = (traj.states, traj.controls, *traj.signals.values())
+        if not all(np.all(np.isfinite(a)) for a in arrays):
             return self._failed(omega, s, "non-finite values in the simulated trajectory")
         return traj
 
@@ -249,30 +195,21 @@ class Task(ABC):
             stacklevel=3,
         )
         info = {"omega": omega.tolist(), "context": context.tolist()}
-        if partial is not None:
-            return Trajectory(
-                partial.times,
-                partial.states,
-                partial.controls,
-                signals=partial.signals,
-                info={**partial.info, **info},
-                failed=True,
-                message=message,
-            )
+        if partial is None:
+            one = (np.zeros(1), np.zeros((1, 1)), np.zeros((1, 1)))
+            return Trajectory(*one, info=info, failed=True, message=message)
         return Trajectory(
-            np.zeros(1),
-            np.zeros((1, 1)),
-            np.zeros((1, 1)),
-            info=info,
+            partial.times,
+            partial.states,
+            partial.controls,
+            signals=partial.signals,
+            info={**partial.info, **info},
             failed=True,
             message=message,
         )
 
     def reward(self, trajectory: Trajectory, context=None) -> float:
-        """Reward R(τ, s) of a trajectory in a context (a pure function of both).
-
-        A failed trajectory gets :attr:`worst_reward`.
-        """
+        """Reward R(τ, s) of a trajectory in a context; :attr:`worst_reward` if it failed."""
         s = self.check_context(context)
         if trajectory.failed:
             return float(self.worst_reward)
@@ -291,132 +228,61 @@ class Task(ABC):
         traj = self.rollout(omega, context, rng)
         return self.reward(traj, context), traj
 
-    # ----------------------------------------------------------------- model-based search
     def model_signals(self) -> ModelSignals:
         """The signals a forward model of this task learns (:class:`ModelSignals`)."""
         raise NotImplementedError(f"{self.name}: the task does not name its model signals")
 
     def transitions(self, trajectory: Trajectory) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The model training data of one trajectory: (x_t, u_t, x_{t+1}) at the control rate.
+        """Model training data (x_t, u_t, x_{t+1}) of one trajectory, each with T − 1 rows.
 
-        The default takes the simulator's own states and controls,
-        X = states[:−1], U = controls[:−1], X' = states[1:].
-
-        Parameters
-        ----------
-        trajectory : Trajectory
-            A trajectory of this task: a working one, or a failed one that kept the states
-            before its failure (:attr:`~skillkit.trajectory.Trajectory.has_transitions`).
-
-        Returns
-        -------
-        X : ndarray, shape (T−1, state_dim)
-        U : ndarray, shape (T−1, control_dim)
-        X_next : ndarray, shape (T−1, state_dim)
-
-        Raises
-        ------
-        NotImplementedError
-            If the task does not support step-based models (:attr:`supports_model_rollout`).
-        ValueError
-            For a failed trajectory without states or one of the wrong shape.
+        Default :func:`state_transitions`. Raises ``NotImplementedError`` without
+        :attr:`supports_model_rollout`.
         """
         self._require_model_rollout("transitions")
         sig = self.model_signals()
         return state_transitions(trajectory, sig.state_dim, sig.control_dim)
 
     def initial_states(self, context, n: int, rng=None) -> np.ndarray:
-        """``n`` draws of the start state x_0 ~ p(x_0; s) of model rollouts (Eq. 4.3).
-
-        Parameters
-        ----------
-        context : array_like, shape (context_dim,) or None
-        n : int
-            Number of draws, ≥ 1.
-        rng : Generator, int or None
-            Randomness (unused by tasks with a deterministic start).
-
-        Returns
-        -------
-        ndarray, shape (n, state_dim)
-        """
+        """``n`` ≥ 1 draws of the start state x_0 ~ p(x_0; s) of model rollouts (Eq. 4.3),
+        shape (n, state_dim)."""
         raise NotImplementedError(f"{self.name}: the task defines no start distribution")
 
     def controller(self, omegas, contexts=None, device=None, dtype=None):
-        """The lower-level policy of B (ω, s) pairs as one batched torch callable.
+        """The simulator's lower-level policy of B (ω, s) pairs as one batched torch callable.
 
-        Exactly the controller the simulator runs, evaluated on (predicted) states, in the
-        form :func:`~skillkit.models.sampling.sample_trajectories` takes:
-        ``policy(t, x, pair) -> u`` with ``t`` the control step (int), ``x`` Tensor
-        (n, state_dim), ``pair`` LongTensor (n,) in [0, B), ``u`` Tensor (n, control_dim)
-        on the device and dtype of the policy.
-
-        Parameters
-        ----------
-        omegas : array_like, shape (B, parameter_dim)
-        contexts : array_like, shape (B, context_dim), optional
-        device : str or torch.device, optional
-            Where the policy's tensors live (default: the CPU).
-        dtype : torch.dtype, optional
-            Default ``torch.float64``.
-
-        Raises
-        ------
-        NotImplementedError
-            If the task does not support step-based models (:attr:`supports_model_rollout`).
+        ``policy(t, x, pair) -> u`` as :func:`~skillkit.models.sampling.sample_trajectories`
+        takes it: ``t`` the control step, ``x`` (n, state_dim), ``pair`` LongTensor (n,) in
+        [0, B), ``u`` (n, control_dim) on ``device`` (default CPU) in ``dtype`` (default
+        float64). ``omegas`` (B, parameter_dim), ``contexts`` (B, context_dim). Raises
+        ``NotImplementedError`` without :attr:`supports_model_rollout`.
         """
         self._require_model_rollout("controller")
         raise NotImplementedError(f"{self.name}: controller is not implemented")
 
     def reward_batch(self, states, controls, signals, contexts) -> np.ndarray:
-        """Rewards R(τ_b, s_b) of a batch of (simulated or predicted) trajectories.
+        """Rewards R(τ_b, s_b), shape (B,), of (simulated or predicted) trajectories.
 
-        The one definition of the task's reward: :meth:`reward` calls it on a batch of one.
-
-        Parameters
-        ----------
-        states : array_like or Tensor, shape (B, T, state_dim)
-        controls : array_like or Tensor, shape (B, T, control_dim)
-        signals : dict of str to array_like, each (B, ...)
-            The named signals of :meth:`reward_signals` (batch first).
-        contexts : array_like, shape (B, context_dim)
-
-        Returns
-        -------
-        ndarray or Tensor, shape (B,)
+        The one definition of the reward (:meth:`reward` calls it on a batch of one):
+        ``states`` (B, T, state_dim), ``controls`` (B, T, control_dim), ``signals`` those of
+        :meth:`reward_signals` batch first, ``contexts`` (B, context_dim).
         """
         raise NotImplementedError(f"{self.name}: reward_batch is not implemented")
 
     def failed_batch(self, states) -> np.ndarray:
-        """Which trajectories of a batch the task's simulator would stop as failed.
+        """Which state paths (B, T + 1, state_dim) the simulator would stop as failed, (B,).
 
-        The task's divergence rule (the one its rollouts raise :class:`SimulationFailure`
-        by) applied to whole state paths, so that a predicted path is scored as a real rollout
-        through the same states is: with :attr:`worst_reward`
-        (:func:`~skillkit.search.model_rollouts.worst_if_failed`). Default: the task stops no
-        run for its states (all False).
-
-        Parameters
-        ----------
-        states : array_like, shape (B, T + 1, state_dim)
-
-        Returns
-        -------
-        ndarray of bool, shape (B,)
+        The divergence rule of the rollouts applied to (predicted) paths, which then score
+        :attr:`worst_reward`. Default: none fails.
         """
         states = check_array(states, "states", ndim=3, finite=False)
         return np.zeros(states.shape[0], dtype=bool)
 
     def reward_signals(self, trajectory: Trajectory) -> dict[str, np.ndarray]:
-        """The named signals :meth:`reward_batch` reads from one trajectory (unbatched).
-
-        Default: none.
-        """
+        """The named signals :meth:`reward_batch` reads from one trajectory (default none)."""
         return {}
 
     def scene_model(self):
-        """What the viewer draws: the task's compiled ``mujoco.MjModel``, or None when the
-        task has no MuJoCo model (the viewer then draws a dedicated scene)."""
+        """The task's compiled ``mujoco.MjModel`` for the viewer, or None."""
         return None
 
     def _require_model_rollout(self, what: str) -> None:
@@ -433,7 +299,6 @@ class Task(ABC):
         )
         return float(r[0])
 
-    # ----------------------------------------------------------------- subclass hooks
     @abstractmethod
     def _simulate(
         self, omega: np.ndarray, context: np.ndarray, rng: np.random.Generator

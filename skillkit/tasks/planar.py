@@ -1,20 +1,9 @@
-"""Tasks on the planar 4-link robot of Appendix C.1: ball throwing (3.4.1) and balancing (4.3.1).
+"""Ball throwing (Sec. 3.4.1) on the planar 4-link robot of Appendix C.1.
 
-The robot (masses [17.5, 17.5, 26.5, 8.5] kg, lengths [0.5, 0.5, 1.0, 1.0] m, ankle–knee–
-hip–shoulder hinges, base fixed to the ground, every joint torque-actuated) is the MuJoCo
-model of :mod:`skillkit.tasks.planar_model`; see there for the joint conventions
-(``q = [0, 0, 0, π]`` is upright with the arm pointing up). Both tasks step the compiled
-``mujoco.MjModel``/``MjData`` directly with ``mujoco.mj_step`` (1 ms physics step) through
-:func:`skillkit.tasks.controllers.run_feedback`, with torques held constant over each
-control period (zero-order hold).
-
-* :class:`Throwing` (registered ``throwing``, and ``throwing-noisy`` with release noise): a
-  DMP reference tracked by an inertia-weighted PD controller with gravity compensation; the
-  ball leaves the hand at the release time t_r and flies to the ground. Context s = [x, y],
-  the target.
-* :class:`~skillkit.tasks.balancing.Balancing` (registered ``balancing`` and
-  ``balancing-noisy``, in :mod:`skillkit.tasks.balancing`): a linear state feedback u = G x̃
-  around upright from a random initial state. Context-free.
+The robot is the MuJoCo model of :mod:`skillkit.tasks.planar_model` (joint conventions there),
+stepped at 1 ms with torques held over each control period
+(:mod:`skillkit.tasks.controllers`). Balancing on the same robot is
+:mod:`skillkit.tasks.balancing`.
 """
 
 from __future__ import annotations
@@ -33,9 +22,10 @@ from skillkit.tasks._trajectories import quintic
 from skillkit.tasks.base import ModelSignals, SimulationFailure, Task, check_count
 from skillkit.tasks.controllers import control_substeps, track_reference
 from skillkit.tasks.planar_model import (
-    JOINT_NAMES,
     LINK_LENGTHS,
+    STATE_NAMES,
     TIMESTEP,
+    TORQUE_NAMES,
     UPRIGHT,
     PlanarRobot,
     rigid_body_terms,
@@ -57,38 +47,24 @@ __all__ = [
 DEMONSTRATION_FILE = (
     Path(__file__).resolve().parents[1] / "data" / "demonstrations" / "throwing.npz"
 )
-"""The shipped throwing demonstration (regenerate with :func:`write_throwing_demonstration`)."""
+"""The shipped throwing demonstration (:func:`write_throwing_demonstration`)."""
 
 # Joint and velocity limits of Appendix C.1, x = [q, q̇].
 Q_LOWER = np.array([-0.8, -2.5, -0.1, 0.0])
 Q_UPPER = np.array([0.8, 0.05, 2.0, 1.5 * np.pi])
 QD_LIMIT = 50.0
-#: Numbers per block of the row-wise batch computations (:func:`_by_rows`): 2 MiB of float64.
+#: Numbers per block of the row-wise batch computations (:func:`_by_rows`).
 BLOCK_ENTRIES = 1 << 18
 X_LOWER = np.concatenate([Q_LOWER, np.full(4, -QD_LIMIT)])
 X_UPPER = np.concatenate([Q_UPPER, np.full(4, QD_LIMIT)])
 
 
 def hand_kinematics(q, qd=None) -> tuple[np.ndarray, np.ndarray | None]:
-    """Closed-form planar forward kinematics of the hand (tip of the arm).
+    """Closed-form forward kinematics of the hand (tip of the arm).
 
-    With absolute link angles θ_k = q_1 + … + q_k (from the upward vertical, positive
-    forwards), links 1–3 point along (sin θ_k, cos θ_k) and the arm, hanging at q_4 = 0,
-    along (−sin θ_4, −cos θ_4).
-
-    Parameters
-    ----------
-    q : array_like, shape (..., 4)
-        Joint angles.
-    qd : array_like, shape (..., 4), optional
-        Joint velocities.
-
-    Returns
-    -------
-    position : ndarray, shape (..., 2)
-        Hand [x, y] (y up).
-    velocity : ndarray, shape (..., 2) or None
-        Hand velocity if ``qd`` is given.
+    With absolute link angles θ_k = q_1 + … + q_k (from the upward vertical), links 1–3
+    point along (sin θ_k, cos θ_k) and the arm (hanging at q_4 = 0) along (−sin θ_4, −cos θ_4).
+    Returns the hand [x, y] (y up) of ``q`` (..., 4) and its velocity for ``qd`` (else None).
     """
     q = check_array(q, "q")
     if q.shape[-1:] != (4,):
@@ -112,34 +88,15 @@ def ballistic_flight(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Drag-free flight of a point mass from ``position`` until it reaches the ground y = 0.
 
-    b(t) = p_0 + v_0 t − ½ g t² e_y, sampled every ``dt`` seconds and at the landing time
-    t_land = (v_y + √(v_y² + 2 g p_y)) / g (so the last sample lies exactly on the ground).
-    A ball released at or below the ground (p_y ≤ 0) lands at once (t_land = 0).
-
-    Parameters
-    ----------
-    position, velocity : array_like, shape (2,)
-        Release state [x, y], [v_x, v_y] (y up).
-    gravity : float
-        g in m/s².
-    dt : float
-        Sampling period in seconds.
-
-    Returns
-    -------
-    times : ndarray, shape (N,)
-        Times since release, from 0 to t_land.
-    path : ndarray, shape (N, 2)
-        Ball positions.
+    b(t) = p_0 + v_0 t − ½ g t² e_y, sampled every ``dt`` s and at the landing time
+    t_land = (v_y + √(v_y² + 2 g p_y)) / g (0 for p_y ≤ 0). ``position``, ``velocity``: the
+    release state [x, y], [v_x, v_y] (y up). Returns the times (N,) and the path (N, 2).
     """
     p = check_array(position, "position", shape=(2,))
     v = check_array(velocity, "velocity", shape=(2,))
     g = check_positive(gravity, "gravity")
     dt = check_positive(dt, "dt")
-    if p[1] <= 0.0:
-        t_land = 0.0
-    else:
-        t_land = (v[1] + np.sqrt(v[1] ** 2 + 2.0 * g * p[1])) / g
+    t_land = 0.0 if p[1] <= 0.0 else (v[1] + np.sqrt(v[1] ** 2 + 2.0 * g * p[1])) / g
     n = int(np.floor(t_land / dt))
     t = np.append(np.arange(n + 1) * dt, t_land) if t_land > n * dt else np.arange(n + 1) * dt
     path = p + np.outer(t, v)
@@ -150,33 +107,15 @@ def ballistic_flight(
 
 
 def path_distance(path, point) -> float:
-    """Smallest distance from ``point`` to the polyline through ``path`` (its segments).
-
-    The thesis's min_t ‖b_t − s‖ (Appendix C.1), measured to the segments so the result
-    does not depend on the sampling of the path (chord error ≤ g·dt²/8 ≈ 0.1 mm at 10 ms).
-
-    Parameters
-    ----------
-    path : array_like, shape (N, 2)
-    point : array_like, shape (2,)
-    """
+    """min_t ‖b_t − s‖ of Appendix C.1: distance from ``point`` (2,) to the polyline
+    ``path`` (N, 2), measured to its segments (independent of the sampling)."""
     path = check_array(path, "path", shape=(None, 2))
     point = check_array(point, "point", shape=(2,))
     return float(path_distances(path[None], point[None])[0])
 
 
 def path_distances(paths, points) -> np.ndarray:
-    """:func:`path_distance` for a batch of equally long paths.
-
-    Parameters
-    ----------
-    paths : array_like, shape (B, N, 2)
-    points : array_like, shape (B, 2)
-
-    Returns
-    -------
-    ndarray, shape (B,)
-    """
+    """:func:`path_distance` of equally long ``paths`` (B, N, 2) and ``points`` (B, 2), (B,)."""
     paths = check_array(paths, "paths", shape=(None, None, 2))
     points = check_array(points, "points", shape=(paths.shape[0], 2))
     if paths.shape[1] == 0:
@@ -187,8 +126,7 @@ def path_distances(paths, points) -> np.ndarray:
 
 
 def _by_rows(fn, *arrays, entries: int = BLOCK_ENTRIES):
-    """``fn(*arrays)`` of a row-wise batch function on cache-sized blocks of about ``entries``
-    numbers (numpy or torch), concatenated along axis 0; equal to one whole-batch call."""
+    """``fn(*arrays)`` of a row-wise function on blocks of about ``entries`` numbers."""
     n, per_row = arrays[0].shape[0], max(1, math.prod(arrays[0].shape[1:]))
     rows = max(1, entries // per_row)
     if n <= rows:
@@ -202,7 +140,7 @@ def _by_rows(fn, *arrays, entries: int = BLOCK_ENTRIES):
 
 
 def _path_distances(paths: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """:func:`path_distances` of validated paths (B, N ≥ 2, 2) and points (B, 2)."""
+    """:func:`path_distances` of validated paths (B, N ≥ 2, 2)."""
     point = points[:, None, :]
     a, ab = paths[:, :-1], np.diff(paths, axis=1)
     len2 = np.einsum("bij,bij->bi", ab, ab)
@@ -214,32 +152,24 @@ def _path_distances(paths: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 
 def joint_limit_penalty(states) -> np.ndarray:
-    """Joint-limit penalty f_c(x_t) of Appendix C.1 for each time step.
+    """Joint-limit penalty f_c(x_t) of Appendix C.1 of states (T, 8), shape (T,).
 
-    f_c(x) = (x_l − x)ᵀ 1_l (x_l − x) + (x_u − x)ᵀ 1_u (x_u − x), where 1_l (1_u) selects the
-    entries at or below the lower (at or above the upper) limit; x = [q, q̇] with
-    q_l = [−0.8, −2.5, −0.1, 0], q_u = [0.8, 0.05, 2, 1.5π] rad and |q̇| ≤ 50 rad/s.
-
-    Parameters
-    ----------
-    states : array_like, shape (T, 8)
-
-    Returns
-    -------
-    ndarray, shape (T,)
+    f_c(x) = (x_l − x)ᵀ 1_l (x_l − x) + (x_u − x)ᵀ 1_u (x_u − x), 1_l (1_u) selecting the
+    entries at or beyond the lower (upper) limit; x = [q, q̇] with q_l = [−0.8, −2.5, −0.1, 0],
+    q_u = [0.8, 0.05, 2, 1.5π] rad and |q̇| ≤ 50 rad/s.
     """
     return _joint_limit_penalty(check_array(states, "states", shape=(None, 8)))
 
 
 def _joint_limit_penalty(x: np.ndarray) -> np.ndarray:
-    """f_c of :func:`joint_limit_penalty` for states of shape (..., 8), unvalidated."""
+    """f_c of states (..., 8), unvalidated."""
     low = np.where(x <= X_LOWER, X_LOWER - x, 0.0)
     high = np.where(x >= X_UPPER, X_UPPER - x, 0.0)
     return (low**2).sum(axis=-1) + (high**2).sum(axis=-1)
 
 
 def _too_fast(qd: np.ndarray, limit: float) -> np.ndarray:
-    """Whether a joint speed exceeds ``limit`` (rad/s) at each step of ``qd`` (..., 4)."""
+    """Whether a joint speed exceeds ``limit`` at each step of ``qd`` (..., 4)."""
     with np.errstate(invalid="ignore"):
         return np.abs(qd).max(axis=-1) > limit
 
@@ -255,7 +185,7 @@ def _check_divergence(qd: np.ndarray, limit: float, control_dt: float) -> None:
 
 
 def _bump(t: np.ndarray, t0: float, t1: float) -> tuple[np.ndarray, ...]:
-    """Smooth 0→1→0 bump sin²(π u) on [t0, t1], u = (t − t0)/(t1 − t0), with derivatives."""
+    """Bump sin²(π u) on [t0, t1], u = (t − t0)/(t1 − t0), with its derivatives."""
     T = t1 - t0
     u = np.clip((t - t0) / T, 0.0, 1.0)
     inside = (t >= t0) & (t <= t1)
@@ -275,16 +205,10 @@ DEMO_RELEASE_TIME = 0.61
 def throwing_demonstration(dt: float = 1e-3, duration: float = 1.0) -> dict[str, np.ndarray]:
     """The scripted throwing swing the initial policy imitates (deterministic).
 
-    From standing (q = 0, arm hanging) to upright (q = [0, 0, 0, π]) in ``duration``
-    seconds: the robot dips (ankle +0.15 rad, knee −0.4 rad, hip +0.3 rad, each a sin² bump
-    over the first 0.8 s) while the arm swings backwards, over the head, to pointing up (a
-    minimum-jerk turn of π between 0.1 s and 0.9 s). The ball is released at
-    :data:`DEMO_RELEASE_TIME` (0.61 s), when the hand moves forwards and up at about 45°.
-
-    Returns
-    -------
-    dict
-        ``times`` (N,), ``q``, ``qd``, ``qdd`` (N, 4), ``release_time`` (scalar array).
+    From q = 0 (arm hanging) to upright [0, 0, 0, π]: ankle +0.15, knee −0.4, hip +0.3 rad
+    sin² bumps over [0, 0.8] s and a minimum-jerk arm turn of π over [0.1, 0.9] s; release
+    at :data:`DEMO_RELEASE_TIME`. Returns ``times`` (N,), ``q``, ``qd``, ``qdd`` (N, 4) and
+    ``release_time``.
     """
     t = np.arange(int(round(duration / dt)) + 1) * dt
     q = np.zeros((t.size, 4))
@@ -299,85 +223,36 @@ def throwing_demonstration(dt: float = 1e-3, duration: float = 1.0) -> dict[str,
 
 
 def write_throwing_demonstration(path: str | Path = DEMONSTRATION_FILE) -> Path:
-    """Regenerate the shipped demonstration file (``skillkit/data/demonstrations/throwing.npz``).
-
-    Deterministic: the file holds exactly :func:`throwing_demonstration`'s arrays.
-    """
+    """Write :func:`throwing_demonstration`'s arrays to ``path`` (the shipped file)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     np.savez_compressed(path, **throwing_demonstration())
     return path
 
 
-# ============================================================================ throwing
 class Throwing(Task):
     """Ball throwing with the planar 4-link robot (Sec. 3.4.1, Appendix C.1).
 
-    **Context** s = [x, y]: the target, x ∈ [5, 15] m ahead of the ankle and y ∈ [1, 3] m
-    above the ground, uniform. (Appendix C.1 says y ∈ [0, 3], Sec. 3.4.1 y ∈ [1, 3]; we use
-    3.4.1's range, the setting of Fig. 3.3, and let ``target_y`` change it.)
+    The context s = [x, y] is the target, x ∈ [5, 15] m ahead, y ∈ ``target_y`` (Sec. 3.4.1's
+    [1, 3] m; C.1 says [0, 3]), uniform. ω (41) holds the shape weights of a 4-joint DMP with
+    10 basis functions per joint (joint-major) and the release time t_r (s). The DMP runs from
+    :data:`THROW_START` at rest to upright [0, 0, 0, π] (τ = 1) and is tracked for ``horizon``
+    s at ``control_dt`` by the inertia-weighted PD tracker u = M(q)(q̈_ref + kp e + kd ė) +
+    c(q, q̇) (:func:`~skillkit.tasks.controllers.track_reference`; gains in 1/s², 1/s).
 
-    **Lower-level policy** ω (41): the shape weights of a 4-joint DMP with 10 basis
-    functions per joint (joint-major, :class:`~skillkit.policies.dmp.DMPParameters` with
-    ``learn=("weights",)``) and the release time t_r (s). The DMP starts at the initial
-    posture :data:`THROW_START` at rest and its goal is fixed to upright ``[0, 0, 0, π]``
-    with zero final velocity (τ = 1, nominal duration 1 s). The DMP reference is tracked
-    for ``horizon`` seconds (1.25 s) at ``control_dt`` (100 Hz default) by the PD tracker
-    of :func:`~skillkit.tasks.controllers.track_reference` in its inertia-weighted form,
-    u = M(q)(q̈_ref + kp e + kd ė) + c(q, q̇), with MuJoCo's bias force c (gravity and
-    Coriolis) as compensation and the DMP's acceleration fed forward; kp = 900 s⁻²,
-    kd = 60 s⁻¹ (every joint-space mode at 30 rad/s, critically damped). A diagonal PD
-    does not track on this robot (M(q) is badly conditioned); this one tracks the
-    demonstration to about 2 mm.
-
-    **Ball.** Held at the hand (tip of the arm) until t_r; the release state is the hand's
-    position and velocity at t_r, interpolated between control steps with a cubic Hermite
-    polynomial (so the outcome is smooth in t_r). A release time outside [0, horizon] is
-    moved to the nearest end (the hand opens at the first or last instant) and reported
-    as ``info["release_clamped"]``. The flight is **closed-form drag-free ballistic
-    motion** (:func:`ballistic_flight`), exact for a point mass and sampled every
-    ``ball_dt`` = 10 ms until the ball reaches the ground y = 0 (Appendix C.1 describes no
-    drag). Optional Gaussian noise on the
-    release state (``release_noise``: position and velocity std, Sec. 4.3.2.2) makes the
-    task stochastic.
-
-    **Reward** (Appendix C.1)
+    The ball leaves the hand at t_r (clamped to [0, horizon], ``info["release_clamped"]``) with
+    the hand's cubic-Hermite-interpolated state plus Gaussian ``release_noise`` (position m,
+    velocity m/s; Sec. 4.3.2.2) and flies drag-free (:func:`ballistic_flight`, every
+    ``ball_dt``) to y = 0. The reward (Appendix C.1) is
 
         R(τ, s) = −c1 min_t ‖b_t − s‖ − c2 Σ_t f_c(x_t) − c3 Σ_t u_tᵀ u_t,
 
-    c1 = 1e2, c2 = 1e3, c3 = 1e-8, with the ball path b (held part and flight) measured to
-    its segments (:func:`path_distance`; the distance of C.1's formula, not the "minimum
-    squared distance" of Sec. 3.4.1's prose), the joint-limit penalty f_c of
-    :func:`joint_limit_penalty` and the applied torques u, both summed over the control
-    steps. The trajectory does not depend on s, so it can be re-scored in other contexts.
-
-    **Failures.** A rollout whose joint speed exceeds ``max_joint_speed`` (200 rad/s, four
-    times the limit of C.1) is stopped as diverged (:class:`SimulationFailure`), as are
-    non-finite states; both get :attr:`worst_reward` = −1e10, far below the rewards of
-    working rollouts.
-
-    Trajectory: ``states`` (T, 8) = [q, q̇] at the control steps, ``controls`` (T, 4)
-    torques (N m); signals ``end_effector`` (T, 2), ``ball`` (T_b, 2) and ``ball_times``
-    (T_b,) in [x, y] (y up, metres); ``info`` holds the release time, release state,
-    landing point and flight time.
-
-    Parameters
-    ----------
-    control_dt : float
-        Control period (s), a multiple of the 1 ms physics step.
-    horizon : float
-        Simulated duration of the movement (s).
-    kp, kd : float or array_like, shape (4,)
-        Inertia-weighted PD gains (1/s², 1/s).
-    target_y : tuple of float
-        Range of the target height y.
-    release_noise : tuple of float
-        Standard deviations of Gaussian noise added to the release position (m) and
-        velocity (m/s); (0, 0) is the deterministic task.
-    ball_dt : float
-        Sampling period of the ball flight (s).
-    max_joint_speed : float
-        Divergence threshold (rad/s).
+    c1 = 1e2, c2 = 1e3, c3 = 1e-8, over the ball path b (:func:`path_distance`), the
+    joint-limit penalty f_c (:func:`joint_limit_penalty`) and the torques; the trajectory does
+    not depend on s. A joint faster than ``max_joint_speed`` rad/s stops the rollout
+    (:class:`SimulationFailure`). Trajectory: ``states`` (T, 8) = [q, q̇], ``controls``
+    (T, 4) torques; signals ``end_effector`` (T, 2), ``ball`` (T_b, 2), ``ball_times``
+    (T_b,); ``info`` the release, landing point and flight time.
     """
 
     name = "throwing"
@@ -427,7 +302,6 @@ class Throwing(Task):
         dmp.goal = UPRIGHT.copy()
         self.parameters = DMPParameters(dmp, learn=("weights",))
 
-    # ------------------------------------------------------------------ episodes
     def reference(self, omega) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The DMP reference (q_ref, q̇_ref, q̈_ref), each (T, 4), at the control steps for ω."""
         omega = self.check_omega(omega)
@@ -491,32 +365,17 @@ class Throwing(Task):
         k = min(int(np.floor(t_rel / h)), self.n_steps - 2)
         u = (t_rel - k * h) / h
         p0, p1, m0, m1 = hand_p[k], hand_p[k + 1], hand_v[k] * h, hand_v[k + 1] * h
-        h00, h10, h01, h11 = (
-            2 * u**3 - 3 * u**2 + 1,
-            u**3 - 2 * u**2 + u,
-            -2 * u**3 + 3 * u**2,
-            u**3 - u**2,
-        )
-        d00, d10, d01, d11 = (
-            6 * u**2 - 6 * u,
-            3 * u**2 - 4 * u + 1,
-            -6 * u**2 + 6 * u,
-            3 * u**2 - 2 * u,
-        )
+        h00, h10 = 2 * u**3 - 3 * u**2 + 1, u**3 - 2 * u**2 + u
+        h01, h11 = -2 * u**3 + 3 * u**2, u**3 - u**2
+        d00, d10 = 6 * u**2 - 6 * u, 3 * u**2 - 4 * u + 1
+        d01, d11 = -6 * u**2 + 6 * u, 3 * u**2 - 2 * u
         pos = h00 * p0 + h10 * m0 + h01 * p1 + h11 * m1
         vel = (d00 * p0 + d10 * m0 + d01 * p1 + d11 * m1) / h
         return pos, vel
 
-    # ------------------------------------------------------------------ reward
     def reward_terms(self, trajectory: Trajectory, context) -> dict[str, float]:
-        """The three terms of the reward (Appendix C.1) before weighting.
-
-        Returns
-        -------
-        dict
-            ``distance`` min_t ‖b_t − s‖ (m), ``joint_penalty`` Σ_t f_c(x_t) and
-            ``energy`` Σ_t u_tᵀu_t.
-        """
+        """The unweighted reward terms ``distance`` min_t ‖b_t − s‖ (m), ``joint_penalty``
+        Σ_t f_c(x_t) and ``energy`` Σ_t u_tᵀu_t (Appendix C.1)."""
         s = self.check_context(context)
         terms = self.reward_terms_batch(
             trajectory.states[None],
@@ -528,8 +387,8 @@ class Throwing(Task):
 
     @staticmethod
     def reward_terms_batch(states, controls, ball, contexts) -> dict[str, np.ndarray]:
-        """:meth:`reward_terms` for a batch: states (B, T, 8), controls (B, T, 4), ball paths
-        (B, N, 2) and targets (B, 2); each term of shape (B,)."""
+        """:meth:`reward_terms` of states (B, T, 8), controls (B, T, 4), ball paths (B, N, 2)
+        and targets (B, 2); each term (B,)."""
         states = check_array(states, "states", shape=(None, None, 8))
         controls = check_array(controls, "controls", shape=(states.shape[0], None, 4))
         return {
@@ -539,10 +398,9 @@ class Throwing(Task):
         }
 
     def reward_batch(self, states, controls, signals, contexts) -> np.ndarray:
-        """R = −c1 min_t ‖b_t − s‖ − c2 Σ_t f_c(x_t) − c3 Σ_t u_tᵀu_t (Appendix C.1), shape (B,).
+        """R = −c1 min_t ‖b_t − s‖ − c2 Σ_t f_c(x_t) − c3 Σ_t u_tᵀu_t, shape (B,) (numpy).
 
-        ``signals["ball"]`` (B, N, 2) holds the ball paths (held part and flight; paths of
-        one batch have equal length, e.g. predicted ones); numpy only.
+        ``signals["ball"]`` (B, N, 2): ball paths of equal length.
         """
         terms = self.reward_terms_batch(states, controls, signals["ball"], contexts)
         return -(
@@ -555,11 +413,9 @@ class Throwing(Task):
         """The ball path, ``{"ball": (N, 2)}``."""
         return {"ball": trajectory.signals["ball"]}
 
-    # ------------------------------------------------------------------ model-based search
     def failed_batch(self, states) -> np.ndarray:
-        """Trajectories (B, T + 1, 8) = [q, q̇] with a non-finite state or a joint faster than
-        ``max_joint_speed``, shape (B,): the rule a rollout is stopped by, so a predicted
-        path through such a state scores :attr:`worst_reward` as the real rollout would."""
+        """Paths (B, T + 1, 8) with a non-finite state or a joint faster than
+        ``max_joint_speed``, shape (B,)."""
         states = check_array(states, "states", ndim=3, finite=False)
         if states.shape[2] != 8:
             raise ValueError(f"states: expected shape (B, T + 1, 8), got {states.shape}")
@@ -569,29 +425,20 @@ class Throwing(Task):
     supports_model_rollout = True
 
     def model_signals(self) -> ModelSignals:
-        """x = [q, q̇] (8), u = the applied joint torques (4); the reward also reads the ball
-        path, which follows from the hand state at the release time (:func:`ballistic_flight`)."""
-        return ModelSignals(
-            state=tuple(JOINT_NAMES) + tuple(f"{j}_velocity" for j in JOINT_NAMES),
-            control=tuple(f"{j}_torque" for j in JOINT_NAMES),
-            signals=("ball",),
-        )
+        """x = [q, q̇] (8), u = the joint torques (4), and the ball path."""
+        return ModelSignals(STATE_NAMES, TORQUE_NAMES, ("ball",))
 
     def initial_states(self, context, n: int, rng=None) -> np.ndarray:
-        """Every throw starts at rest in :data:`THROW_START`: ``n`` copies of [q_0, 0]
-        (shape (n, 8); ``rng`` is unused)."""
+        """``n`` copies of the rest state [:data:`THROW_START`, 0], shape (n, 8)."""
         self.check_context(context)
         return np.tile(np.concatenate([THROW_START, np.zeros(4)]), (check_count(n), 1))
 
     def acceleration_controller(self, omegas, contexts=None, device=None, dtype=None):
-        """The tracker's commanded joint acceleration on predicted states (batched torch).
+        """The tracker's commanded acceleration on predicted states, ``policy(t, x, pair) -> a``.
 
-        a = q̈_ref,t + kp (q_ref,t − q) + kd (q̇_ref,t − q̇) with the DMP reference of ω_b
-        (:meth:`reference`) at control step t: the part of :meth:`controller` before the
-        inverse-dynamics map u = M(q) a + c(q, q̇) (:meth:`torques`). A model of the robot
-        *under* its inverse-dynamics tracker takes a as its control (the decomposed throwing
-        model of Sec. 4.3.2, :mod:`skillkit.tasks.throwing_model`). Same calling convention
-        as :meth:`controller`: ``policy(t, x, pair) -> a`` (n, 4).
+        a = q̈_ref,t + kp (q_ref,t − q) + kd (q̇_ref,t − q̇) for the DMP reference of ω_b: the
+        part of :meth:`controller` before u = M(q) a + c(q, q̇) (:meth:`torques`); the control
+        of the decomposed throwing model (Sec. 4.3.2).
         """
         import torch
 
@@ -613,12 +460,8 @@ class Throwing(Task):
         return policy
 
     def torques(self, states, accelerations):
-        """Inverse dynamics u = M(q) a + c(q, q̇) of the tracker (torch tensors, shape (..., 4)).
-
-        ``states`` (..., 8) = [q, q̇]; M and c in closed form
-        (:func:`~skillkit.tasks.planar_model.rigid_body_terms`, MuJoCo's to ~1e-12), in
-        cache-sized blocks of rows (:func:`_by_rows`; the numbers of one call).
-        """
+        """Inverse dynamics u = M(q) a + c(q, q̇) of torch ``states`` (..., 8), ``accelerations``
+        (..., 4) (:func:`~skillkit.tasks.planar_model.rigid_body_terms`)."""
 
         def inverse_dynamics(x, a):
             m, c = rigid_body_terms(x[..., :4], x[..., 4:], self.robot.gravity)
@@ -627,11 +470,8 @@ class Throwing(Task):
         return _by_rows(inverse_dynamics, states, accelerations)
 
     def commanded_accelerations(self, states, controls) -> np.ndarray:
-        """The tracker's commanded accelerations a = M(q)⁻¹ (u − c(q, q̇)) of logged torques.
-
-        The inverse of :meth:`torques`; what the controller computed internally, recovered
-        from a trajectory's states (..., 8) and torques (..., 4). Returns (..., 4).
-        """
+        """a = M(q)⁻¹ (u − c(q, q̇)) of logged states (N, 8) and torques (N, 4): the inverse of
+        :meth:`torques`."""
         import torch
 
         x = torch.as_tensor(check_array(states, "states", shape=(None, 8)))
@@ -640,12 +480,8 @@ class Throwing(Task):
         return torch.linalg.solve(m, u - c).numpy()
 
     def controller(self, omegas, contexts=None, device=None, dtype=None):
-        """The inertia-weighted PD tracker of the DMP reference, on predicted states.
-
-        u = M(q)(q̈_ref,t + kp (q_ref,t − q) + kd (q̇_ref,t − q̇)) + c(q, q̇): the commanded
-        acceleration of :meth:`acceleration_controller` through :meth:`torques`.
-        ``t`` must be below the number of control steps.
-        """
+        """The inertia-weighted PD tracker on predicted states: :meth:`torques` of
+        :meth:`acceleration_controller` (``t`` below the number of control steps)."""
         accel = self.acceleration_controller(omegas, contexts, device=device, dtype=dtype)
 
         def policy(t: int, x, pair):
@@ -657,7 +493,6 @@ class Throwing(Task):
         """The planar robot's compiled MuJoCo model."""
         return self.robot.model
 
-    # ------------------------------------------------------------------ policy
     @cached_property
     def demonstration_omega(self) -> np.ndarray:
         """ω of the shipped demonstration: DMP weights fitted to it (Eq. 2.23) and its t_r."""
@@ -673,25 +508,13 @@ class Throwing(Task):
     release_time_std = 0.02
 
     def initial_policy(self, exploration_std_fraction: float | None = None) -> LinearGaussianPolicy:
-        """Imitation initial policy: N(ω | ω_demo, Σ_0), no context gain.
+        """Imitation initial policy N(ω | ω_demo, Σ_0), no context gain.
 
-        The mean is :attr:`demonstration_omega` (the DMP fitted to the shipped scripted
-        swing); its ball lands at about 5 m (Sec. 3.4.1) inside the joint limits. Σ_0 is
-        diagonal: each joint's shape weights have standard deviation
-        ``exploration_std_fraction`` of that joint's largest demonstrated weight magnitude,
-        and t_r has :attr:`release_time_std` (20 ms).
-
-        With the default fraction (0.1, used by ``fig4.6``, ``fig4.7``, ``fig4.9``) the
-        landing points span 3.7–6.1 m (5th–95th percentile), so far targets lie outside the
-        initial exploration. :attr:`covering_std_fraction` (0.9, used by ``fig3.3``; span
-        −3.3–15.3 m) puts the farthest target x = 15 m inside that band, Sec. 3.5's rule that
-        the optimum lie within the initial exploration (see ``data/README.md``, fig3.3).
-
-        Parameters
-        ----------
-        exploration_std_fraction : float, optional
-            Std of the shape weights relative to each joint's largest demonstrated weight
-            magnitude (default :attr:`exploration_std_fraction`, 0.1).
+        The mean is :attr:`demonstration_omega` (ball lands near 5 m, Sec. 3.4.1). Σ_0 is
+        diagonal: each joint's weights have std ``exploration_std_fraction`` (default
+        :attr:`exploration_std_fraction`) of its largest demonstrated weight magnitude, t_r
+        :attr:`release_time_std`. :attr:`covering_std_fraction` puts the farthest target
+        inside the initial exploration (Sec. 3.5's rule; ``fig3.3``).
         """
         frac = (
             self.exploration_std_fraction

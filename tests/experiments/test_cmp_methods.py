@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from skillkit.experiments import cmp_methods
+from skillkit.experiments.curves import curve_task
 from skillkit.experiments.registry import get
 from skillkit.experiments.runner import run_trials
 from skillkit.tasks import make
@@ -60,7 +61,7 @@ def test_summary_names_winners_and_is_not_a_thesis_verdict(result):
     assert "setup" not in s  # the setup table is the spec's (comparisons.toml)
     for task in TASKS:
         row = s["tasks"][task]
-        assert row["thresholds"] == list(cmp_methods.THRESHOLDS[task][0])
+        assert row["thresholds"] == list(curve_task(task).thresholds)
         best = row["winners"]["best_final_reward"]
         finals = {m: v["final_reward_mean"] for m, v in row["methods"].items()}
         assert finals[best] == max(finals.values())
@@ -184,3 +185,15 @@ def test_the_comparison_is_never_judged_and_its_card_is_short(result, scale):
         "cmp.methods: " + judge.spec("cmp.methods").plain
     )
     assert s["judgement"]["readings"] == []
+
+
+def test_every_compared_task_has_a_learning_curve_profile():
+    from skillkit.experiments.curves import register_curve_task
+
+    for task in cmp_methods.TASKS:
+        profile = curve_task(task)
+        assert get(profile.experiment).settings_class is not None and profile.thresholds
+    with pytest.raises(ValueError, match="has no learning-curve profile"):
+        curve_task("pendulum")
+    with pytest.raises(ValueError, match="unknown task"):
+        register_curve_task("juggling", curve_task("hockey"))

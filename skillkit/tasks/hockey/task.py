@@ -53,11 +53,10 @@ class Hockey(Task):
     physics : TablePhysics
         Puck-table constants.
     observation : Observation, optional
-        Noisy 30 Hz puck tracking with Butterworth smoothing (the real-robot setting); the
-        reward then uses the smoothed observations instead of the true puck positions.
+        Noisy puck tracking of the real-robot setting; the reward then reads the smoothed
+        observations.
     exploration_std : array_like, shape (15,), optional
-        Per-parameter exploration standard deviations of the initial policy before the
-        blade-height projection of :meth:`exploration_covariance` (default
+        Exploration standard deviations of the initial policy (default
         :meth:`default_exploration`).
     name : str
         Registry name.
@@ -68,8 +67,7 @@ class Hockey(Task):
     context_names = ("b_x", "b_y", "d_star")
     trajectory_depends_on_context = True
     worst_reward = -20.0
-    """Below any working rollout: the miss term is at most ‖x_0 − b‖ < 3 m and a target
-    puck launched by this arm travels a few metres at most."""
+    """Below any working rollout (‖x_0 − b‖ < 3 m; a launched puck travels a few metres)."""
 
     def __init__(
         self,
@@ -114,15 +112,8 @@ class Hockey(Task):
 
     @staticmethod
     def default_exploration() -> np.ndarray:
-        """Initial exploration standard deviations for ω = [g, ġ, τ] (before the projection
-        of :meth:`exploration_covariance`).
-
-        g: [0.06, 0.04, 0.06, 0.05, 0.06, 0.05, 0.2] rad (joint 7 rolls the blade about the
-        vertical shaft and so aims the shot without moving the blade); ġ: 0.25 rad/s; τ: 0.1.
-        Around the demonstration this spreads the control puck's launch direction by about
-        10° and its speed by about 0.35 m/s (1.5 m/s nominal), which covers the directions
-        (≈ 28°–57°) and speeds (≈ 1.1–1.9 m/s) the target region needs.
-        """
+        """Initial exploration standard deviations of ω = [g, ġ, τ], shape (15,): g in rad
+        (joint 7 rolls the blade about the shaft and so aims the shot), ġ 0.25 rad/s, τ 0.1."""
         return np.concatenate(
             [[0.06, 0.04, 0.06, 0.05, 0.06, 0.05, 0.2], np.full(N_JOINTS, 0.25), [0.1]]
         )
@@ -132,10 +123,8 @@ class Hockey(Task):
 
         Σ₀ = blockdiag(P D_g P + (0.1 σ̄_g)² I, P D_ġ P + (0.1 σ̄_ġ)² I, σ_τ²) with D the squared
         :attr:`exploration_std`, σ̄ their means and P = I − n nᵀ, n the unit row of the blade
-        height's Jacobian ∂z/∂q at the demonstrated goal. The blade touches the pucks only
-        within 2 cm of its demonstrated height, so exploration that lifts the blade is
-        wasted; P removes it from the goal and from the final velocity (which would make
-        the blade dive or lift in the follow-through).
+        height's Jacobian ∂z/∂q at the demonstrated goal: P removes exploration that lifts or
+        lowers the blade (it touches the pucks only within 2 cm of its demonstrated height).
         """
         data = mujoco.MjData(self.model)
         data.qpos[:] = self.demo_omega[:N_JOINTS]
@@ -155,14 +144,8 @@ class Hockey(Task):
         return cov
 
     def initial_policy(self):
-        """π(ω|s) = N(ω_demo, Σ₀) with zero context gain (imitation, Sec. 3.4.2); Σ₀ from
-        :meth:`exploration_covariance`.
-
-        Its samples hit the target puck across the context box and span the whole range of
-        d*, but most (about 90%) miss, so the first REPS updates have few informative
-        samples. The thesis gives no Σ₀; the stored ``fig3.5`` and ``fig4.10`` runs start
-        from this one.
-        """
+        """π(ω|s) = N(ω_demo, Σ₀) with zero context gain (imitation, Sec. 3.4.2), Σ₀ from
+        :meth:`exploration_covariance` (the thesis gives none)."""
         from skillkit.policies.gaussian import LinearGaussianPolicy
 
         return LinearGaussianPolicy(
@@ -173,22 +156,10 @@ class Hockey(Task):
 
     # ------------------------------------------------------------------ simulation
     def reference(self, omega: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Joint reference of ω: the DMP stroke followed by the follow-through.
+        """Joint reference of ω = [g, ġ, τ] (15,): the DMP stroke and the follow-through, as
+        times (T,), q_ref and qd_ref (T, 7) at the control period ``physics.dt``.
 
-        Parameters
-        ----------
-        omega : ndarray, shape (15,)
-            [g, ġ, τ].
-
-        Returns
-        -------
-        times, q_ref, qd_ref : ndarray, shapes (T,), (T, 7), (T, 7)
-            At the control period ``physics.dt``.
-
-        Raises
-        ------
-        SimulationFailure
-            If τ is outside :data:`TAU_RANGE`.
+        Raises :class:`SimulationFailure` if τ is outside :data:`TAU_RANGE`.
         """
         tau = float(omega[-1])
         if not TAU_RANGE[0] <= tau <= TAU_RANGE[1]:
@@ -208,22 +179,14 @@ class Hockey(Task):
         return dt * np.arange(q_ref.shape[0]), q_ref, qd_ref
 
     def simulate_arm(self, omega: np.ndarray) -> dict[str, np.ndarray]:
-        """Track the reference of ω in MuJoCo; the blade pose at every control step.
-
-        Returns
-        -------
-        dict
-            ``times`` (T,), ``q``, ``qd``, ``u`` (T, 7), ``blade`` (T, 6) from
-            :func:`blade_pose`, ``n_saturated``.
-        """
+        """Track the reference of ω in MuJoCo: ``times`` (T,), ``q``, ``qd``, ``u`` (T, 7), the
+        ``blade`` pose (T, 6) of :func:`blade_pose` and ``n_saturated``."""
         times, q_ref, qd_ref = self.reference(omega)
         model, data = self.model, self.data
         mujoco.mj_resetData(model, data)
         data.qpos[:] = self.q0
         mujoco.mj_forward(model, data)
-        site_pos = np.empty((times.shape[0], 3))
-        site_mat = np.empty((times.shape[0], 9))
-        site = self._site
+        site_pos, site_mat, site = np.empty((len(times), 3)), np.empty((len(times), 9)), self._site
 
         def record(t: int, d: mujoco.MjData) -> None:
             site_pos[t] = d.site_xpos[site]
@@ -241,9 +204,8 @@ class Hockey(Task):
             torque_limit=TORQUE_LIMITS,
             on_step=record,
         )
-        blade = blade_pose(site_pos, site_mat.reshape(-1, 3, 3))
         out["times"] = times
-        out["blade"] = blade
+        out["blade"] = blade_pose(site_pos, site_mat.reshape(-1, 3, 3))
         return out
 
     def _simulate(
@@ -271,8 +233,7 @@ class Hockey(Task):
         if puck_times[-1] < table.time:
             puck_times.append(table.time)
             pucks.append(table.positions)
-        puck_times = np.array(puck_times)
-        pucks = np.array(pucks)
+        puck_times, pucks = np.array(puck_times), np.array(pucks)
         if not np.all(np.isfinite(pucks)):
             raise SimulationFailure("non-finite puck positions in pymunk")
         arm_rows = slice(0, n_arm, every)
@@ -317,9 +278,8 @@ class Hockey(Task):
 
     # ------------------------------------------------------------------ reward
     def reward_signals(self, trajectory: Trajectory) -> dict[str, np.ndarray]:
-        """The puck trajectories the reward reads: ``control_puck``, ``target_puck`` (T_p, 2),
-        or in the real-robot setting the observed ``control_puck_observed``,
-        ``target_puck_observed`` (T_o, 2)."""
+        """The puck trajectories the reward reads (T, 2): true or, in the real-robot setting,
+        observed."""
         sig = trajectory.signals
         keys = self._reward_keys()
         if any(k not in sig for k in keys):
@@ -334,10 +294,8 @@ class Hockey(Task):
     def reward_batch(self, states, controls, signals, contexts) -> np.ndarray:
         """R = −min_t ‖x_t − b‖ − |d_T − d*| (:func:`hockey_reward_batch`), shape (B,).
 
-        Reads only the puck trajectories in ``signals`` (batch first, equal lengths within a
-        batch), so predicted puck trajectories of the thesis's event models score the same
-        way; ``states`` and ``controls`` are unused. In the real-robot setting the observed
-        pucks are Butterworth-smoothed along time first. numpy only.
+        Reads only the puck trajectories in ``signals`` (B, T, 2), so predicted ones score the
+        same way; in the real-robot setting they are Butterworth-smoothed along time first.
         """
         x, y = (np.asarray(signals[k], dtype=np.float64) for k in self._reward_keys())
         obs = self.observation
@@ -357,8 +315,7 @@ class Hockey(Task):
     )
 
     def model_signals(self) -> ModelSignals:
-        """The modelled state is the pucks' (x, y) positions; no control input (ω enters the
-        event models directly); the reward reads the puck trajectories."""
+        """The pucks' (x, y) positions; no control input (ω enters the event models)."""
         return ModelSignals(
             state=("control_puck_x", "control_puck_y", "target_puck_x", "target_puck_y"),
             control=(),
@@ -366,8 +323,7 @@ class Hockey(Task):
         )
 
     def initial_states(self, context, n: int, rng=None) -> np.ndarray:
-        """The pucks at rest where the episode starts: [x_control, b] for every draw, shape
-        (n, 4) (``rng`` is unused: the start is deterministic)."""
+        """The pucks at rest, [x_control, b] for every draw, shape (n, 4); ``rng`` unused."""
         s = self.check_context(context)
         return np.tile(np.concatenate([CONTROL_PUCK_START, s[:2]]), (check_count(n), 1))
 

@@ -37,31 +37,23 @@ from skillkit.tasks.table_tennis.demonstration import load_demonstration
 from skillkit.trajectory import Trajectory
 
 
-# ----------------------------------------------------------------------------- the task
 class TableTennis(Task):
     """Return an incoming ball to a target on the opponent's side (Sec. 3.4.3, App. C.3).
 
-    Lower-level policy: a DMP per joint (10 basis functions, shape weights fitted to the
-    shipped forehand demonstration and fixed) of which ω = [g (8), ġ (8), τ] — final
-    positions, final velocities and time scaling, 17 parameters — is learned
-    (:class:`skillkit.policies.dmp.DMPParameters`). The reference is tracked by PD control
-    with bias compensation at ``control_dt``; the episode lasts ``duration`` seconds from
-    the ball's launch, and the ball is then followed (racket gone) until it lands.
-
-    The context s = [v_x, v_y, v_z, b_x, b_y] is uniform on the box of
-    :data:`VELOCITY_LOW`/:data:`VELOCITY_HIGH` × ``return_low``/``return_high`` (default the
-    whole opponent's half, :data:`RETURN_LOW`/:data:`RETURN_HIGH`, as C.3).
-    The simulation is deterministic (C.3 neglects spin and measurement noise): ``rng`` is
-    accepted and unused.
+    Lower-level policy: a DMP per joint (10 basis functions fitted to the forehand
+    demonstration) of which ω = [g (8), ġ (8), τ] is learned; PD tracking with bias
+    compensation at ``control_dt`` for ``duration`` seconds from the ball's launch, after
+    which the ball is followed until it lands. The context s = [v_x, v_y, v_z, b_x, b_y] is
+    uniform on :data:`VELOCITY_LOW`/:data:`VELOCITY_HIGH` × ``return_low``/``return_high``.
+    The simulation is deterministic (``rng`` is unused).
 
     Parameters
     ----------
     return_low, return_high : array_like, shape (2,)
-        Corners of the return zone of b = [b_x, b_y] (m), on the opponent's half x ≥ 0
-        (default the whole half; ``table-tennis-near`` uses :data:`RETURN_NEAR_LOW`,
-        :data:`RETURN_NEAR_HIGH`).
+        Corners of the return zone of b = [b_x, b_y] (m) on the opponent's half x ≥ 0
+        (default the whole half, as C.3).
     reward_weights : tuple of float
-        (c₁, c₂) of Eq. C.1, in 1/m; the thesis uses c₁ = c₂ for model-free search.
+        (c₁, c₂) of Eq. C.1, in 1/m.
     duration : float
         Episode length (s) of the robot simulation and of the recorded signals.
     control_dt : float
@@ -90,8 +82,7 @@ class TableTennis(Task):
     parameter_dim = 17
     context_names = ("v_x", "v_y", "v_z", "b_x", "b_y")
     worst_reward = -5.0
-    """Below any working rollout: the landing point is within ~15 m of the target (drag
-    bounds the flight) and the racket within ~4 m of the ball, so R > −2."""
+    """Below any working rollout (drag bounds the flight, so R > −2)."""
     trajectory_depends_on_context = True
 
     def __init__(
@@ -106,7 +97,6 @@ class TableTennis(Task):
         return_low=RETURN_LOW,
         return_high=RETURN_HIGH,
     ):
-
         low = check_array(return_low, "return_low", shape=(2,))
         high = check_array(return_high, "return_high", shape=(2,))
         if np.any(low > high) or low[0] < 0.0 or not (on_table(*low) and on_table(*high)):
@@ -153,15 +143,8 @@ class TableTennis(Task):
         return omega
 
     def initial_policy(self):
-        """π(ω|s) = N(ω_demo, diag(σ²)) with zero context gain: the demonstrated stroke (g and ġ
-        of the demonstration's end, τ = 1) with the exploration σ of :data:`INITIAL_STD`.
-
-        About a fifth of its samples hit the ball (returns, net and out all occur); the far
-        and left parts of the return zone are not reached by the initial samples and are
-        learned by moving the policy. The thesis gives no values for Σ (Sec. 3.5); the
-        stored ``fig3.7``, ``fig4.12`` and ``fig4.13`` runs start from this one.
-        """
-
+        """π(ω|s) = N(ω_demo, diag(σ²)) with zero context gain: the demonstrated stroke (τ = 1)
+        with σ = :data:`INITIAL_STD` (the thesis gives no Σ, Sec. 3.5)."""
         return LinearGaussianPolicy(
             mean=self.parameters.to_vector(),
             cov=np.diag(INITIAL_STD**2),
@@ -170,7 +153,6 @@ class TableTennis(Task):
 
     # ------------------------------------------------------------------ simulation
     def _simulate(self, omega: np.ndarray, context: np.ndarray, rng: np.random.Generator):
-
         dmp = self.parameters.from_vector(omega)
         q_ref, qd_ref, _ = dmp.rollout(self.times, self.q0)
         model, data, sid = self.model, self.data, self._site
@@ -259,15 +241,12 @@ class TableTennis(Task):
     def reward_batch(self, states, controls, signals, contexts) -> np.ndarray:
         """R = −c₁ min_t ‖τ_b − τ_r‖ − c₂ ‖b − p‖ (Eq. C.1) per trajectory, shape (B,).
 
-        The minimum runs over the first ``incoming_steps`` samples of ball − racket, between
-        samples along straight segments (:func:`min_segment_distance`). Reads only
-        ``signals`` (``ball``, ``racket`` (B, T, 3), ``landing_point`` (B, 2),
-        ``incoming_steps`` (B,)), so predicted ball and racket trajectories and landing
-        points of the thesis's event models score the same way. numpy only.
+        The minimum runs over the first ``incoming_steps`` samples of ball − racket along
+        straight segments (:func:`min_segment_distance`). Reads only ``signals`` (``ball``,
+        ``racket`` (B, T, 3), ``landing_point`` (B, 2), ``incoming_steps`` (B,)), so predicted
+        ones score the same way; non-finite predictions score non-finite.
         """
         c1, c2 = self.reward_weights
-        # Shapes only for the signals: predicted ones may hold non-finite samples, which
-        # score non-finite and are handled by the caller (Task.reward, the event models).
         ball = check_array(signals["ball"], "signals['ball']", shape=(None, None, 3), finite=False)
         n, T = ball.shape[:2]
         racket = check_array(signals["racket"], "signals['racket']", shape=(n, T, 3), finite=False)
@@ -299,9 +278,7 @@ class TableTennis(Task):
     )
 
     def model_signals(self) -> ModelSignals:
-        """The modelled state is the ball's position and velocity; no control input (ω enters
-        the event models directly); the reward reads ball, racket, landing point and the
-        length of the incoming ball."""
+        """The ball's position and velocity; no control input (ω enters the event models)."""
         return ModelSignals(
             state=("ball_x", "ball_y", "ball_z", "ball_vx", "ball_vy", "ball_vz"),
             control=(),
@@ -309,8 +286,7 @@ class TableTennis(Task):
         )
 
     def initial_states(self, context, n: int, rng=None) -> np.ndarray:
-        """The served ball: [:data:`SERVE_POSITION`, v] with v = s[:3] for every draw, shape
-        (n, 6) (``rng`` is unused: the serve is deterministic, C.3 neglects noise)."""
+        """The served ball [:data:`SERVE_POSITION`, s[:3]] for every draw, shape (n, 6)."""
         s = self.check_context(context)
         return np.tile(np.concatenate([SERVE_POSITION, s[:3]]), (check_count(n), 1))
 

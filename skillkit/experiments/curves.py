@@ -1,0 +1,390 @@
+"""The learning-curve experiment shared by Chapters 3 and 4 and ``cmp.methods``.
+
+A run learns with :func:`~skillkit.search.loop.learn` (Table 3.1; Table 4.1 for GPREPS) from
+the task's imitation policy and records the reward of the policy *mean* on fixed evaluation
+contexts after every update, against the real rollouts so far; optionally, every few updates,
+the task's held-out scores of the policy mean. A trial's arrays are named ``f"{key}_<name>"``
+per run; the summary helpers read them back (mean ± band over trials, final values per trial,
+the rollouts a curve needs to reach a level).
+
+What differs between tasks is the task's :class:`CurveTask` profile, registered beside the
+task (:func:`register_curve_task`) by the module that owns its reward model:
+the thesis experiment whose settings REPS and GPREPS use, the reward thresholds, the REPS
+baseline and the GPREPS reward model.
+
+A new task gets the experiment itself from :func:`learning_curves`: REPS and GPREPS on the
+task with the settings blocks :class:`REPSBlock`, :class:`GPREPSBlock` and
+:class:`EvaluationBlock` (nested in :class:`CurveSettings`; ``--set gpreps={"n_updates": 5}``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+
+from skillkit.experiments.registry import Experiment, Series, register
+from skillkit.experiments.settings import Settings, scales, setting
+from skillkit.search import ContextualREPS, learn
+from skillkit.search.gpreps import GPREPS, GPREPSSettings
+from skillkit.tasks import make, names
+from skillkit.trial import TrialContext
+from skillkit.viz.series import trial_band
+
+# fmt: off
+__all__ = ["COV_FLOOR", "MIN_EFFECTIVE_SAMPLES", "CurveSettings", "CurveTask", "EvaluationBlock",
+           "GPREPSBlock", "REPSBlock", "curve_series", "curve_stats", "curve_task",
+           "finite_or_none", "gpreps_algorithm", "gpreps_stats", "heldout_arrays",
+           "heldout_stats", "learning_curves", "nan_mean", "register_curve_task",
+           "rollouts_to_reach", "run_curve", "run_gpreps"]
+# fmt: on
+
+COV_FLOOR = 0.1
+"""The weighted ML fit of GPREPS and the Chapter 4 REPS baselines keeps each direction of Σ
+above this fraction of its previous variance per update: with M = 50 artificial samples, or
+25 rollouts, the effective sample size is below the 42 a full 41 × 41 covariance needs."""
+MIN_EFFECTIVE_SAMPLES = 2.0
+"""The least effective sample size the regularised fit accepts (as fig3.3)."""
+
+
+def _gpreps_schedule(st: Settings) -> tuple[int, int, int]:
+    return st.n_updates, 1, st.n_initial
+
+
+@dataclass(frozen=True)
+class CurveTask:
+    """What a registered task supplies to the learning-curve experiments.
+
+    ``experiment`` is the thesis experiment whose settings (at a scale) REPS and GPREPS use on
+    the task; ``thresholds`` the reward levels whose real-rollout cost is compared, with their
+    ``thresholds_source``. The callables take that experiment's settings ``st``:
+    ``reps(task, st, policy)`` builds the model-free REPS baseline and ``reps_schedule(st)``
+    gives its (updates K, rollouts per update N, first batch N₀); ``reward_model(task, st)``
+    is GPREPS's reward model, used by :meth:`make_gpreps` unless ``gpreps(task, st, policy,
+    prior, rng)`` builds GPREPS itself; ``gpreps_schedule(st)`` defaults to (``n_updates``, 1,
+    ``n_initial``) and ``gpreps_updates`` names the field of GPREPS's updates. ``setup(st,
+    rng)`` returns ``(task, policy, eval_contexts, prior, prior_rollouts)`` where the default
+    (the registered task, its imitation policy, ``n_eval_contexts`` drawn contexts, no prior
+    data) does not fit.
+    """
+
+    experiment: str
+    thresholds: tuple[float, ...]
+    thresholds_source: str
+    reps: Callable[..., Any]
+    reps_schedule: Callable[[Settings], tuple[int, int, int]]
+    reward_model: Callable[..., Any] | None = None
+    gpreps: Callable[..., Any] | None = None
+    gpreps_schedule: Callable[[Settings], tuple[int, int, int]] = _gpreps_schedule
+    gpreps_updates: str = "n_updates"
+    setup: Callable[..., tuple] | None = None
+
+    def make_gpreps(self, task, settings: Settings, policy, prior, rng) -> GPREPS:
+        """GPREPS on ``task`` with ``settings`` (:attr:`gpreps`, or the default)."""
+        if self.gpreps is not None:
+            return self.gpreps(task, settings, policy, prior, rng)
+        model = self.reward_model(task, settings)
+        return gpreps_algorithm(task, settings, model, settings.n_artificial,
+                                settings.n_trajectories, rng)  # fmt: skip
+
+
+_PROFILES: dict[str, CurveTask] = {}
+
+
+def register_curve_task(name: str, profile: CurveTask) -> None:
+    """Attach ``profile`` to the registered task ``name`` (done by the module that owns the
+    task's reward model)."""
+    if name not in names():
+        raise ValueError(f"name: unknown task {name!r}; registered tasks: {', '.join(names())}")
+    _PROFILES[name] = profile
+
+
+def curve_task(name: str) -> CurveTask:
+    """The :class:`CurveTask` profile of the registered task ``name``."""
+    if name not in _PROFILES:
+        known = ", ".join(sorted(_PROFILES)) or "none"
+        raise ValueError(f"task: {name!r} has no learning-curve profile; tasks with one: {known}")
+    return _PROFILES[name]
+
+
+# --------------------------------------------------------------------------- runs
+def heldout_arrays(key: str, values: list, rollouts_after: Callable[[int], float]) -> dict:
+    """The held-out scores a :func:`learn` callback returned (None between evaluations) as
+    arrays ``f"{key}_heldout_<score>"``, with ``f"{key}_heldout_rollouts"`` (real rollouts
+    after update k: ``rollouts_after(k)``, 0 before the first)."""
+    points = [(k, v) for k, v in enumerate(values) if v is not None]
+    out = {
+        f"{key}_heldout_rollouts": np.array(
+            [0 if k == 0 else rollouts_after(k) for k, _ in points], dtype=float
+        )
+    }
+    for name in points[0][1]:
+        out[f"{key}_heldout_{name}"] = np.array([v[name] for _, v in points], dtype=float)
+    return out
+
+
+def run_curve(task, algorithm, key: str, n_updates: int, rollouts_per_update: int, rng,
+              trial: TrialContext | None, eval_contexts, *,
+              score: Callable[[Any], dict] | None = None, every: int = 1,
+              rollouts_after: Callable[[int], float] | None = None,
+              **learn_kwargs) -> tuple[dict, dict]:  # fmt: skip
+    """One :func:`~skillkit.search.loop.learn` run (``key`` its checkpoint key and array
+    prefix): ``(arrays, curves)``, ``arrays`` holding ``f"{key}_rollouts"`` and
+    ``f"{key}_mean_reward"`` (K+1,) and, with ``score``, ``score(policy)`` before the first
+    update, every ``every`` updates and after the last (:func:`heldout_arrays`, with
+    ``rollouts_after(k)`` real rollouts after update k, default k × N); ``curves`` is
+    :func:`learn`'s result. Other keywords go to :func:`learn`."""
+    if score is not None:
+
+        def record(k: int, alg):
+            return score(alg.policy) if k % every == 0 or k == n_updates else None
+
+        learn_kwargs["callback"] = record
+    curves = learn(task, algorithm, n_updates, rollouts_per_update, rng, trial=trial,
+                   eval_contexts=eval_contexts, checkpoint_key=key, **learn_kwargs)  # fmt: skip
+    out = {f"{key}_rollouts": curves["rollouts"], f"{key}_mean_reward": curves["mean_reward"]}
+    if score is not None:
+        after = rollouts_after or (lambda k: k * rollouts_per_update)
+        out.update(heldout_arrays(key, curves["callback"], after))
+    return out, curves
+
+
+def gpreps_algorithm(task, st, reward_model, n_artificial: int, n_traj: int, rng) -> GPREPS:
+    """GPREPS (Table 4.1) from the task's π₀: ε and μ̂ from ``st``, the policy fit's
+    regularisation (:data:`COV_FLOOR`, :data:`MIN_EFFECTIVE_SAMPLES`), M = ``n_artificial``
+    artificial samples with L = ``n_traj`` predicted trajectories each, and
+    ``reward_model``."""
+    settings = GPREPSSettings(epsilon=st.epsilon, n_artificial=n_artificial,
+                              n_trajectories=n_traj, context_model=st.context_model,
+                              cov_floor=COV_FLOOR,
+                              min_effective_samples=MIN_EFFECTIVE_SAMPLES)  # fmt: skip
+    return GPREPS(task.initial_policy(), reward_model, settings, rng=rng, task=task)
+
+
+def run_gpreps(task, st, key, reward_model, n_artificial, n_traj, rng, trial, eval_contexts,
+               score=None) -> dict:  # fmt: skip
+    """One GPREPS run (N₀ = ``st.n_initial`` real rollouts, then one per update); curves,
+    per-update diagnostics and, with ``score``, held-out scores every ``st.heldout_every``
+    updates. ``f"{key}_policy"``, ``_policies``, ``_diagnostics`` and ``_algorithm`` hold
+    objects (callers drop them before returning a trial)."""
+    algo_rng, loop_rng = rng.spawn(2)
+    algo = gpreps_algorithm(task, st, reward_model, n_artificial, n_traj, algo_rng)
+    out, curves = run_curve(task, algo, key, st.n_updates, 1, loop_rng, trial, eval_contexts,
+                            score=score, every=getattr(st, "heldout_every", 1),
+                            rollouts_after=lambda k: st.n_initial + k - 1,
+                            initial_rollouts=st.n_initial)  # fmt: skip
+    diags = curves["diagnostics"]
+    rel = [np.nan if d.prediction_bias is None else abs(d.prediction_bias) / abs(d.real_reward)
+           for d in diags]  # fmt: skip
+    out.update({
+        f"{key}_relative_error": np.array(rel),
+        f"{key}_time_training": np.array([d.time_training for d in diags]),
+        f"{key}_time_prediction": np.array([d.time_prediction for d in diags]),
+        f"{key}_time_policy": np.array([d.time_policy for d in diags]),
+        f"{key}_kl": np.array([d.reps.kl for d in diags]),
+        f"{key}_policy": curves["policy"],
+        f"{key}_policies": curves["policies"],
+        f"{key}_diagnostics": diags,
+        f"{key}_algorithm": algo,
+    })  # fmt: skip
+    return out
+
+
+# --------------------------------------------------------------------------- summaries
+def curve_series(trials, x_key: str, y_key: str, label: str, panel: str, ylabel: str, *,
+                 band: str = "std", log_x: bool = True, xlabel: str | None = None,
+                 drop_first: bool = False) -> Series:  # fmt: skip
+    """Mean ± ``band`` over trials of ``y_key`` against ``x_key`` (the first trial's); on a
+    log axis only the points with x > 0, or with ``drop_first`` those after the first."""
+    x = np.asarray(trials[0][x_key], dtype=float)
+    ys = np.array([t[y_key] for t in trials], dtype=float)
+    keep = np.ones_like(x, dtype=bool)
+    if drop_first:
+        keep[0] = False
+    elif log_x:
+        keep = x > 0
+    m, spread = trial_band(ys[:, keep], kind=band)
+    if xlabel is None:
+        xlabel = "real rollouts (log scale)" if log_x else "real rollouts"
+    return Series(label, x[keep].tolist(), m, panel=panel, **spread, xlabel=xlabel,
+                  ylabel=ylabel, log_x=log_x)  # fmt: skip
+
+
+def curve_stats(trials, key: str) -> dict:
+    """Start and final reward of the curves ``f"{key}_mean_reward"``: mean over trials, the
+    final values' std (ddof 1; 0 for one trial) and per trial."""
+    curves = np.array([t[f"{key}_mean_reward"] for t in trials], dtype=float)
+    final = curves[:, -1]
+    return {
+        "initial_reward": float(curves[:, 0].mean()),
+        "final_reward_mean": float(final.mean()),
+        "final_reward_std": float(final.std(ddof=1)) if len(trials) > 1 else 0.0,
+        "final_reward_per_trial": final.tolist(),
+    }
+
+
+def nan_mean(values) -> float:
+    """Mean of the finite entries of ``values``; NaN if there are none (no warning)."""
+    values = np.asarray(values, dtype=float)
+    ok = values[np.isfinite(values)]
+    return float(ok.mean()) if ok.size else float("nan")
+
+
+def finite_or_none(value) -> float | None:
+    """``value`` as a float, or None for a missing or non-finite number (as ``result.json``
+    stores NaN)."""
+    if value is None:
+        return None
+    value = float(value)
+    return value if np.isfinite(value) else None
+
+
+def heldout_stats(trials, key: str, names) -> dict:
+    """Per held-out score ``name``: its first and last value (mean over trials, NaN ignored)
+    and the last per trial; the reward's first per trial; the curve's final mean reward."""
+    out: dict = {"rollouts": int(trials[0][f"{key}_rollouts"][-1])}
+    for name in names:
+        v = np.array([t[f"{key}_heldout_{name}"] for t in trials], dtype=float)
+        out[f"initial_{name}"] = nan_mean(v[:, 0])
+        out[f"final_{name}"] = nan_mean(v[:, -1])
+        out[f"final_{name}_per_trial"] = v[:, -1].tolist()
+        if name == "reward":  # a paired reading of start against end needs both per trial
+            out["initial_reward_per_trial"] = v[:, 0].tolist()
+    curves = np.array([t[f"{key}_mean_reward"] for t in trials], dtype=float)
+    out["final_mean_reward"] = float(curves[:, -1].mean())
+    return out
+
+
+def gpreps_stats(trials, key) -> dict:
+    """What a GPREPS run's trials say about its model and cost: the model's relative error
+    on the next real rollout (median, and the fraction below 10%), the mean seconds per
+    update in training, prediction and the policy update, and the largest KL."""
+    rel = np.concatenate([t[f"{key}_relative_error"][1:] for t in trials])
+    return {
+        "prediction_relative_error_median": float(np.nanmedian(rel)) if rel.size else None,
+        "prediction_relative_error_below_10pct": float(np.nanmean(rel < 0.1)) if rel.size else None,
+        "time_per_update_s": {
+            part: float(np.mean(np.concatenate([t[f"{key}_time_{part}"] for t in trials])))
+            for part in ("training", "prediction", "policy")
+        },
+        "max_kl": float(max(np.max(t[f"{key}_kl"]) for t in trials)),
+    }
+
+
+def rollouts_to_reach(trials, key, level: float, curve: str = "mean_reward",
+                      x: str = "rollouts") -> float | None:  # fmt: skip
+    """Rollouts after which run ``key``'s curve ``f"{key}_{curve}"`` (mean over trials, NaN
+    ignored) first reaches ``level``, read off ``f"{key}_{x}"``; None if it never does."""
+    at = np.asarray(trials[0][f"{key}_{x}"], dtype=float)
+    m = np.nanmean([t[f"{key}_{curve}"] for t in trials], axis=0)
+    hit = np.flatnonzero(m >= level)
+    return float(at[hit[0]]) if hit.size else None
+
+
+# --------------------------------------------------------------------------- the experiment
+# fmt: off
+@dataclass(frozen=True)
+class REPSBlock(Settings):
+    """Model-free contextual REPS (Table 3.1), its fit regularised as GPREPS's
+    (:data:`COV_FLOOR`, :data:`MIN_EFFECTIVE_SAMPLES`)."""
+
+    n_updates: int = setting(20, "Policy updates K (0: REPS does not run).", minimum=0)
+    rollouts_per_update: int = setting(25, "Rollouts N between updates.", minimum=1)
+    epsilon: float = setting(0.6, "KL bound ε (Eq. 3.4).", above=0)
+    n_reuse_batches: int = setting(8, "Batches L each update reuses (the last L × N).", minimum=1)
+
+
+@dataclass(frozen=True)
+class GPREPSBlock(Settings):
+    """GPREPS (Table 4.1)."""
+
+    n_updates: int = setting(10, "Updates K, one real rollout each after the first (0: GPREPS "
+                             "does not run).", minimum=0)
+    n_initial: int = setting(10, "N₀, real rollouts before the first update.", minimum=2)
+    n_artificial: int = setting(200, "M, artificial (s, ω) pairs per update.", minimum=2)
+    n_trajectories: int = setting(5, "L, predicted trajectories per pair (Eq. 4.1).", minimum=1)
+    epsilon: float = setting(1.0, "KL bound ε (Sec. 4.3.2).", above=0)
+    context_model: Literal["gaussian", "uniform", "prior"] = setting(
+        "uniform", "μ̂(s), the context distribution of the artificial samples.")
+
+
+@dataclass(frozen=True)
+class EvaluationBlock(Settings):
+    """The learning curve's evaluation."""
+
+    n_eval_contexts: int = setting(10, "Fixed contexts the policy mean is scored on.", minimum=1)
+
+
+@dataclass(frozen=True)
+class CurveSettings(Settings):
+    """Settings of a :func:`learning_curves` experiment."""
+
+    task: str = setting("throwing", "Registered task the methods learn.")
+    reps: REPSBlock = setting(REPSBlock(), "Model-free REPS.")
+    gpreps: GPREPSBlock = setting(GPREPSBlock(), "GPREPS with the experiment's reward model.")
+    evaluation: EvaluationBlock = setting(EvaluationBlock(), "The learning curve's evaluation.")
+# fmt: on
+
+_SMOKE = {"reps": {"n_updates": 2, "rollouts_per_update": 5, "n_reuse_batches": 2},
+          "gpreps": {"n_updates": 2, "n_initial": 5, "n_artificial": 20, "n_trajectories": 2},
+          "evaluation": {"n_eval_contexts": 2}}  # fmt: skip
+
+
+def learning_curves(exp_id: str, title: str, task: str, *,
+                    reward_model: Callable[[Any], Any] | None = None,
+                    thresholds: tuple[float, ...] = (), claim: str = "",
+                    smoke: dict | None = None, quick: dict | None = None,
+                    paper: dict | None = None) -> Experiment:  # fmt: skip
+    """Register and return the experiment ``exp_id``: REPS and GPREPS on the registered
+    ``task`` from its imitation policy, scored on the same fixed contexts against real
+    rollouts (``reproduce(exp_id, scale="smoke")`` runs it). ``reward_model(task)`` is
+    GPREPS's (without one GPREPS does not run); the summary gives the real rollouts each
+    method's mean curve needs to reach each of ``thresholds``; ``claim`` says what the run
+    shows (an id outside the claims spec needs one); ``smoke``, ``quick``, ``paper``: each
+    scale's changes of :class:`CurveSettings` (a block as a mapping of some of its fields)."""
+    off = {"gpreps": {"n_updates": 0}} if reward_model is None else {}
+    changes = {"smoke": {**_SMOKE, **off, **(smoke or {})}, "quick": {**off, **(quick or {})},
+               "paper": {**off, **(paper or {})}}  # fmt: skip
+
+    def run_trial(st: CurveSettings, rng: np.random.Generator, trial: TrialContext) -> dict:
+        made = make(st.task)
+        eval_contexts = made.sample_context(rng, n=st.evaluation.n_eval_contexts)
+        runs = [m for m, block in (("reps", st.reps), ("gpreps", st.gpreps)) if block.n_updates]
+        trial.reset(total=sum(getattr(st, m).n_updates for m in runs))
+        out: dict = {}
+        for method, r in zip(runs, rng.spawn(len(runs)), strict=True):
+            if method == "reps":
+                b = st.reps
+                algo = ContextualREPS(made.initial_policy(), b.epsilon,
+                                      n_reuse_batches=b.n_reuse_batches, cov_floor=COV_FLOOR,
+                                      min_effective_samples=MIN_EFFECTIVE_SAMPLES)  # fmt: skip
+                out.update(run_curve(made, algo, "reps", b.n_updates, b.rollouts_per_update, r,
+                                     trial, eval_contexts)[0])  # fmt: skip
+            else:
+                b = st.gpreps
+                g = run_gpreps(made, b, "gpreps", reward_model(made), b.n_artificial,
+                               b.n_trajectories, r, trial, eval_contexts)  # fmt: skip
+                out.update({k: v for k, v in g.items() if isinstance(v, np.ndarray)})
+        return out
+
+    def summarize(st: CurveSettings, trials: list[dict]):
+        runs = [m for m in ("reps", "gpreps") if f"{m}_mean_reward" in trials[0]]
+        series = [curve_series(trials, f"{m}_rollouts", f"{m}_mean_reward", m.upper(),
+                               "learning curves", "reward of the policy mean", drop_first=True)
+                  for m in runs]  # fmt: skip
+        summary: dict = {"n_trials": len(trials)}
+        for m in runs:
+            summary[m] = {"real_rollouts": float(trials[0][f"{m}_rollouts"][-1]),
+                          **curve_stats(trials, m),
+                          "rollouts_to_reach": {f"{level:g}": rollouts_to_reach(trials, m, level)
+                                                for level in thresholds}}  # fmt: skip
+            if m == "gpreps":
+                summary[m].update(gpreps_stats(trials, m))
+        return series, summary
+
+    base = CurveSettings(task=task)
+    return register(Experiment(id=exp_id, title=title, settings_class=CurveSettings,
+                               settings=scales(base, **changes), run_trial=run_trial,
+                               summarize=summarize, claim=claim))  # fmt: skip

@@ -235,8 +235,15 @@ def results_table(root) -> str:
         since = {"current": "unchanged", "carried": "carried (witness equal)"}.get(
             row["status"], f"stale: {row['reason'].split(' (')[0]}"
         )
-        cells = [Path(row["path"]).name, commit, str(result.get("trials", "?")), executor,
-                 wall_min, verdict, since]  # fmt: skip
+        cells = [
+            Path(row["path"]).name,
+            commit,
+            str(result.get("trials", "?")),
+            executor,
+            wall_min,
+            verdict,
+            since,
+        ]
         lines.append("| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |")
     return "\n".join(lines) + "\n"
 
@@ -308,10 +315,18 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         first = pool.submit(_demo_runs, DEMO_IDS, args.seed, args.out)
         comparison = None
         if DEMO_COMPARISON is not None:
-            print("skillkit demo: GPREPS against REPS on throwing (cmp.methods), beside them",
-                  file=sys.stderr)  # fmt: skip
-            comparison = reproduce("cmp.methods", scale="quick", seed=args.seed, out=args.out,
-                                   progress=not args.quiet, **DEMO_COMPARISON)  # fmt: skip
+            print(
+                "skillkit demo: GPREPS against REPS on throwing (cmp.methods), beside them",
+                file=sys.stderr,
+            )
+            comparison = reproduce(
+                "cmp.methods",
+                scale="quick",
+                seed=args.seed,
+                out=args.out,
+                progress=not args.quiet,
+                **DEMO_COMPARISON,
+            )
         paths = first.result()
     for path in paths:
         _print_runs([load_run(path)], args.json)
@@ -336,8 +351,9 @@ def _demo_runs(exp_ids, seed: int, out: str) -> list[str]:
     """Run ``exp_ids`` at quick scale without progress bars; their run folders."""
     from skillkit.experiments.runner import reproduce
 
-    return [str(reproduce(i, scale="quick", seed=seed, out=out, progress=False).path)
-            for i in exp_ids]  # fmt: skip
+    return [
+        str(reproduce(i, scale="quick", seed=seed, out=out, progress=False).path) for i in exp_ids
+    ]
 
 
 def _comparison_lines(run) -> list[str]:
@@ -415,24 +431,41 @@ def build_parser() -> argparse.ArgumentParser:
     )
     arg = p.add_argument
     arg("ids", nargs="+", metavar="ID", help="experiment id(s) (see `skillkit list`), or `all`")
-    arg("--scale", choices=SCALES, default="quick", help="smoke (seconds, a check of the "
-        "code path), quick (minutes, faithful; default) or paper (the thesis setting)")  # fmt: skip
+    arg(
+        "--scale",
+        choices=SCALES,
+        default="quick",
+        help="smoke (seconds, a check of the "
+        "code path), quick (minutes, faithful; default) or paper (the thesis setting)",
+    )
     arg("--trials", type=int, help="independent trials (default: per experiment)")
     arg("--seed", type=int, default=0, help="root seed; trial i uses child stream i (default 0)")
     arg("--out", default="runs", help="output folder (default: runs/)")
     arg("--quiet", action="store_true", help="no progress bars")
-    arg("--executor", choices=("local", "process", "ray"), default="local",
-        help="run trials sequentially, on all cores, or on Ray (default: local)")  # fmt: skip
+    arg(
+        "--executor",
+        choices=("local", "process", "ray"),
+        default="local",
+        help="run trials sequentially, on all cores, or on Ray (default: local)",
+    )
     arg("--workers", type=int, help="processes / Ray CPUs (default: all cores)")
     arg("--address", help="address of an existing Ray cluster")
     arg("--fresh", action="store_true", help="discard this run's checkpoints and start over")
     arg("--no-html", action="store_true", help="skip the self-contained HTML figure")
-    arg("--set", action="append", default=[], metavar="KEY=VALUE",
+    arg(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
         help="override one setting of the scale (repeatable; VALUE is JSON), e.g. --set "
         "n_updates=50; names and types are checked first, and the run gets its own folder "
-        "<id>-<scale>-s<seed>-<hash> (see `skillkit settings ID`)")  # fmt: skip
-    arg("--json", action="store_true", help="print one JSON line {id, path, summary} per run "
-        "instead of the verdict")  # fmt: skip
+        "<id>-<scale>-s<seed>-<hash> (see `skillkit settings ID`)",
+    )
+    arg(
+        "--json",
+        action="store_true",
+        help="print one JSON line {id, path, summary} per run instead of the verdict",
+    )
     p.set_defaults(func=_cmd_reproduce)
 
     p = add(
@@ -442,19 +475,38 @@ def build_parser() -> argparse.ArgumentParser:
     )
     arg = p.add_argument
     arg("folder", nargs="?", help="results folder, e.g. data/results (the same as --root)")
-    arg("--root", help="results folder (default: runs/ if it exists here, else this folder "
-        "when it holds any result.json)")  # fmt: skip
-    arg("--check", action="store_true", help="whether today's code would still make each "
+    arg(
+        "--root",
+        help="results folder (default: runs/ if it exists here, else this folder "
+        "when it holds any result.json)",
+    )
+    arg(
+        "--check",
+        action="store_true",
+        help="whether today's code would still make each "
         "result: current (same code fingerprint), carried (a smoke run of today's code "
-        "reproduces the stored witness) or stale; exit 1 if any is stale")  # fmt: skip
-    arg("--record", action="store_true", help="with --check: write a carry record into "
-        "result.json of each result whose witness is equal (later checks are instant)")  # fmt: skip
+        "reproduces the stored witness) or stale; exit 1 if any is stale",
+    )
+    arg(
+        "--record",
+        action="store_true",
+        help="with --check: write a carry record into "
+        "result.json of each result whose witness is equal (later checks are instant)",
+    )
     arg("--quiet", action="store_true", help="with --check: no progress bar over witness runs")
-    arg("--remeasure", action="store_true", help="summarise each stored trials.npz again, "
+    arg(
+        "--remeasure",
+        action="store_true",
+        help="summarise each stored trials.npz again, "
         "add the measurements its summary lacks (shared ones must agree) and judge it again "
-        "with today's claims; nothing is re-run")  # fmt: skip
-    arg("--markdown", action="store_true", help="print a Markdown table of the results (commit, "
-        "trials, executor, wall time, verdict, code since), as in data/README.md")  # fmt: skip
+        "with today's claims; nothing is re-run",
+    )
+    arg(
+        "--markdown",
+        action="store_true",
+        help="print a Markdown table of the results (commit, "
+        "trials, executor, wall time, verdict, code since), as in data/README.md",
+    )
     p.set_defaults(func=_cmd_runs)
 
     p = add(
@@ -480,8 +532,11 @@ def build_parser() -> argparse.ArgumentParser:
     arg("--seed", type=int, default=0, help="root seed of the runs (default 0)")
     arg("--out", default="runs", help="output folder (default: runs/)")
     arg("--quiet", action="store_true", help="no progress bars")
-    arg("--json", action="store_true", help="print one JSON line {id, path, summary} per run "
-        "instead of the verdicts")  # fmt: skip
+    arg(
+        "--json",
+        action="store_true",
+        help="print one JSON line {id, path, summary} per run instead of the verdicts",
+    )
     p.set_defaults(func=_cmd_demo)
 
     p = add(

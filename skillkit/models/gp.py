@@ -25,11 +25,7 @@ from linear_operator.utils.errors import NanError, NotPSDError
 
 from skillkit._repr import number, span
 from skillkit._validation import as_generator, check_array, check_count, check_positive
-from skillkit.models.kernels import (
-    SquaredExponential,
-    se_kernel,
-    se_operands,
-)
+from skillkit.models.kernels import SquaredExponential, se_kernel, se_operands
 
 __all__ = [
     "DTYPE",
@@ -299,11 +295,6 @@ class GPPredictor:
 
     def __getstate__(self) -> dict:
         return {k: v for k, v in self.__dict__.items() if k != "_reduced"}
-
-    def __setstate__(self, state: dict) -> None:
-        self.__dict__.update(state)
-        if "_query_scale" not in state:  # pickled without the float32 caches: rebuild them
-            self._set_caches(self)
 
     def _set_caches(self, source: GPPredictor) -> None:
         """Float64 caches from ``source``: the support operand and [Rᵀ | β]."""
@@ -611,9 +602,6 @@ def _check_method(method: str) -> str:
 class GPRegression:
     """Shared base of :class:`ExactGP` and the sparse GPs."""
 
-    #: Default for objects pickled without a ``device``.
-    device = torch.device("cpu")
-
     def __init__(
         self,
         *,
@@ -711,7 +699,7 @@ class GPRegression:
         self._build(rng)
         sd = X.std(axis=0)
         input_std = torch.as_tensor(np.where(sd > 0, sd, 1.0), dtype=DTYPE, device=self.device)
-        curb = getattr(self, "curb", None)  # objects pickled without a curb have none
+        curb = self.curb
 
         def objective() -> torch.Tensor:
             loss = self._loss()

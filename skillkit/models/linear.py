@@ -73,7 +73,7 @@ class LinearGaussianModel:
         if self.noise_cov is None:
             return None
         cov = np.asarray(self.noise_cov, dtype=np.float64)
-        cached = getattr(self, "_factor_of", None)  # absent in objects pickled before it
+        cached = self._factor_of
         if cached is None or cached[0].shape != cov.shape or not np.array_equal(cached[0], cov):
             cached = (cov.copy(), _psd_sqrt(cov))
             self._factor_of = cached

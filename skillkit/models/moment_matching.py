@@ -226,9 +226,20 @@ def moment_match_step(
     if extra is not None:
         with torch.no_grad():
             estimate = _roundoff_bound(
-                pred, S, magnitude, extra, q=q, sol=sol, Sa=Sa, logdet_sa=logdet_sa, mu=mu,
-                second=second, latent_var=latent_var, V=V, include_noise=include_noise,
-            )  # fmt: skip
+                pred,
+                S,
+                magnitude,
+                extra,
+                q=q,
+                sol=sol,
+                Sa=Sa,
+                logdet_sa=logdet_sa,
+                mu=mu,
+                second=second,
+                latent_var=latent_var,
+                V=V,
+                include_noise=include_noise,
+            )
     s = pred.y_scale
     return GaussianPrediction(
         pred.y_mean + s * mu, s[:, None] * V * s[None, :], io * s[None, :], estimate

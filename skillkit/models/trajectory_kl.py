@@ -186,9 +186,8 @@ class LinearGaussianTKL:
 
         def vjp(g_mean: np.ndarray, g_var: np.ndarray) -> np.ndarray:
             return np.concatenate(
-                [(g_mean.T @ x).ravel(), (g_mean.T @ u).ravel(), g_mean.sum(0),
-                 g_var.sum(0) * v]
-            )  # fmt: skip
+                [(g_mean.T @ x).ravel(), (g_mean.T @ u).ravel(), g_mean.sum(0), g_var.sum(0) * v]
+            )
 
         return mean, var, vjp
 
@@ -273,9 +272,11 @@ class PseudoDataGP:
 
         def vjp(g_mean: np.ndarray, g_var: np.ndarray) -> np.ndarray:
             (g,) = torch.autograd.grad(
-                (mean, var), th, (torch.as_tensor(g_mean), torch.as_tensor(g_var)),
+                (mean, var),
+                th,
+                (torch.as_tensor(g_mean), torch.as_tensor(g_var)),
                 retain_graph=True,
-            )  # fmt: skip
+            )
             return g.numpy().copy()
 
         return mean.detach().numpy(), var.detach().numpy(), vjp
@@ -295,16 +296,22 @@ class PseudoDataGP:
         res = y - np.hstack([z, np.ones((N, 1))]) @ self.mean_weights
         sf2 = np.maximum(res.var(0), 1e-10)
         th = np.concatenate(
-            [np.broadcast_to(z[idx], (E, M, d)).ravel(), np.zeros(E * M),
-             np.broadcast_to(np.log(sd), (E, d)).ravel(), np.log(sf2), np.log(sf2 / 10)]
-        )  # fmt: skip
+            [
+                np.broadcast_to(z[idx], (E, M, d)).ravel(),
+                np.zeros(E * M),
+                np.broadcast_to(np.log(sd), (E, d)).ravel(),
+                np.log(sf2),
+                np.log(sf2 / 10),
+            ]
+        )
         # U by least squares: μ − m = Kzm K⁻¹ U is linear in U (K⁻¹U = α).
         p = self.split(th)
         w, lsf = np.exp(p["log_w"]), p["log_sf2"]
         for e in range(E):
             k = np.exp(lsf[e] - 0.5 * (((z[:, None, :] - p["Z"][e][None]) / w[e]) ** 2).sum(-1))
-            Km = np.exp(lsf[e] - 0.5 * (((p["Z"][e][:, None] - p["Z"][e][None]) / w[e]) ** 2)
-                        .sum(-1)) + self.jitter * np.exp(lsf[e]) * np.eye(M)  # fmt: skip
+            Km = np.exp(
+                lsf[e] - 0.5 * (((p["Z"][e][:, None] - p["Z"][e][None]) / w[e]) ** 2).sum(-1)
+            ) + self.jitter * np.exp(lsf[e]) * np.eye(M)
             reg = 1e-6 * np.trace(k.T @ k) / M * np.eye(M)
             alpha = np.linalg.solve(k.T @ k + reg, k.T @ res[:, e])
             p["U"][e] = Km @ alpha
@@ -349,9 +356,12 @@ def one_step_log_likelihood(model: Model, theta, x, u, x_next) -> float:
 
 def _lbfgs(fun, theta0, maxiter):
     return optimize.minimize(
-        fun, theta0, jac=True, method="L-BFGS-B",
+        fun,
+        theta0,
+        jac=True,
+        method="L-BFGS-B",
         options={"maxiter": int(maxiter), "maxcor": 30, "ftol": 1e-12, "gtol": 1e-8},
-    )  # fmt: skip
+    )
 
 
 def fit_one_step(model: Model, theta0, x, u, x_next, maxiter: int = 200) -> TKLFit:
@@ -374,8 +384,16 @@ def fit_one_step(model: Model, theta0, x, u, x_next, maxiter: int = 200) -> TKLF
 
     res = _lbfgs(fun, th0, maxiter)
     empty = np.zeros((0, 0))
-    return TKLFit(res.x, float(res.fun), int(res.nit), str(res.message), empty, empty,
-                  np.zeros(0), float("nan"))  # fmt: skip
+    return TKLFit(
+        res.x,
+        float(res.fun),
+        int(res.nit),
+        str(res.message),
+        empty,
+        empty,
+        np.zeros(0),
+        float("nan"),
+    )
 
 
 def _check_trajectories(model, states, controls):
@@ -499,10 +517,18 @@ class _Problem:
 
         zero = np.zeros(self.gamma_shape)
         try:
-            gammas = _newton_max(self.features, psi, phi_hat, self.ridge,
-                                 zero if gammas0 is None else gammas0, inner_maxiter)  # fmt: skip
-            if gammas0 is not None and not _dual(gammas, self.features, psi, phi_hat,
-                                                 self.ridge).value >= 0.0:  # fmt: skip
+            gammas = _newton_max(
+                self.features,
+                psi,
+                phi_hat,
+                self.ridge,
+                zero if gammas0 is None else gammas0,
+                inner_maxiter,
+            )
+            if (
+                gammas0 is not None
+                and not _dual(gammas, self.features, psi, phi_hat, self.ridge).value >= 0.0
+            ):
                 gammas = _newton_max(self.features, psi, phi_hat, self.ridge, zero, inner_maxiter)
         except _Infeasible:
             return math.inf, np.zeros(self.model.n_params), None, zero
@@ -550,9 +576,17 @@ def fit_trajectory_kl(
     start = prob.evaluate(th0, None, inner)
     if not np.isfinite(start[0]):
         T, M = prob.T, prob.M
-        return TKLFit(th0, math.inf, 0, "infeasible at theta0: the feature constraints (4.12) "
-                      "cannot hold on these samples (D = +inf); theta0 returned",
-                      start[3], np.full((T, M), 1.0 / M), np.full(T, np.nan), math.inf)  # fmt: skip
+        return TKLFit(
+            th0,
+            math.inf,
+            0,
+            "infeasible at theta0: the feature constraints (4.12) "
+            "cannot hold on these samples (D = +inf); theta0 returned",
+            start[3],
+            np.full((T, M), 1.0 / M),
+            np.full(T, np.nan),
+            math.inf,
+        )
     warm["gammas"] = start[3]
     direction = -start[1] / max(float(np.linalg.norm(start[1])), 1e-300)
     for _ in range(20):

@@ -243,17 +243,19 @@ class SampleBuffer:
 
     def rollout_mask(self) -> np.ndarray:
         """Whether each kept row is a rollout in its own context, shape (N,)."""
-        return np.concatenate([np.arange(b[2].shape[0]) < _n_rollouts(b) for b in self._batches])
+        return np.concatenate(
+            [
+                np.arange(r.shape[0]) < (r.shape[0] if n is None else n)
+                for _, _, r, n, _ in self._batches
+            ]
+        )
 
     def importance(self) -> np.ndarray | None:
         """The kept rows' importance weights, shape (N,) (``None`` when no batch has any)."""
-        if all(_importance(b) is None for b in self._batches):
+        if all(b[4] is None for b in self._batches):
             return None
         return np.concatenate(
-            [
-                np.ones(b[2].shape[0]) if _importance(b) is None else _importance(b)
-                for b in self._batches
-            ]
+            [np.ones(r.shape[0]) if q is None else q for _, _, r, _, q in self._batches]
         )
 
     def __len__(self) -> int:
@@ -267,15 +269,6 @@ class SampleBuffer:
     def __repr__(self) -> str:
         keep = "all" if self.max_batches is None else f"last {self.max_batches}"
         return f"SampleBuffer({keep} batches; {len(self._batches)} kept, {len(self)} samples)"
-
-
-def _n_rollouts(b: tuple) -> int:
-    """A kept batch's rollouts (every row for a batch pickled as a 3-tuple)."""
-    return b[2].shape[0] if len(b) < 4 or b[3] is None else b[3]
-
-
-def _importance(b: tuple) -> np.ndarray | None:
-    return None if len(b) < 5 else b[4]
 
 
 # --------------------------------------------------------------------------- algorithm

@@ -112,8 +112,6 @@ class TrajectoryRewardModel(RewardModel):
         The same L start states for every pair of one call (context-free tasks only).
     """
 
-    dtype: torch.dtype = torch.float64  # class defaults for instances pickled without them
-    common_start_states: bool = False
     #: Fraction of the last call's predicted trajectories stopped as failed.
     last_failed_fraction: float | None = None
 

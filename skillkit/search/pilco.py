@@ -439,9 +439,15 @@ class PILCO:
 
         def objective(G: torch.Tensor) -> torch.Tensor:
             return expected_return(
-                step, G, self.mean0, self.cov0, self.horizon, X_UP,
-                task.state_weights, task.control_weight,
-            )  # fmt: skip
+                step,
+                G,
+                self.mean0,
+                self.cov0,
+                self.horizon,
+                X_UP,
+                task.state_weights,
+                task.control_weight,
+            )
 
         return objective
 

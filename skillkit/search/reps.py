@@ -301,13 +301,20 @@ def reps_weights(
     r_max, r_scale = float(r.max()), float(r.std())
     if not r_scale > 0:
         return REPSWeights(
-            weights=np.full(n, 1.0 / n) if q is None else q, eta=np.inf, gamma=np.zeros(n_feat),
+            weights=np.full(n, 1.0 / n) if q is None else q,
+            eta=np.inf,
+            gamma=np.zeros(n_feat),
             baseline=np.zeros(n),
-            dual=r_max, kl=0.0, ess=float(n) if q is None else effective_sample_size(q),
-            feature_error=0.0, kl_bound_active=False,
-            success=True, message="all rewards are equal: the base weights", epsilon=eps,
+            dual=r_max,
+            kl=0.0,
+            ess=float(n) if q is None else effective_sample_size(q),
+            feature_error=0.0,
+            kl_bound_active=False,
+            success=True,
+            message="all rewards are equal: the base weights",
+            epsilon=eps,
             n_iterations=0,
-        )  # fmt: skip
+        )
 
     # Normalise: unit-spread rewards with maximum 0; centred, whitened features.
     r_n = (r - r_max) / r_scale
@@ -625,11 +632,6 @@ class ContextualREPS(WeightedMLSearch[REPSDiagnostics]):
         )
 
     _diagnostics = REPSDiagnostics
-    # Class defaults: an instance pickled without these attributes runs the thesis's REPS.
-    extra_context_weighting: ExtraContextWeighting = "naive"
-    m_step: MStep = "weighted_ml"
-    entropy_loss_bound: float | None = None
-    dual_solver: DualSolver = "lbfgsb"
 
     def _settings_repr(self) -> str:
         text = f"epsilon={self.epsilon:.4g}, baseline_features={self.baseline_features!r}"

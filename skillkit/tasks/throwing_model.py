@@ -137,9 +137,6 @@ class ThrowingRewardModel(RewardModel):
         to round-off); the stored fig4.6, fig4.7, fig4.9 results pin ``False``.
     """
 
-    dtype: torch.dtype = torch.float64  # defaults of instances pickled without them
-    stop_flight_at_ground: bool = False
-
     def __init__(
         self,
         task: Throwing,

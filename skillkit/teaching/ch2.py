@@ -37,11 +37,24 @@ from skillkit.viz.figures import plot_gp_fit
 from skillkit.viz.series import Series
 
 __all__ = [
-    "POOL", "MomentMatchingCheck", "NoiseProfile", "basis_figure", "demonstration_figure",
-    "dmp_fit_figure", "forcing_figure", "gp_posterior_figure", "gp_with", "hyperparameter_figure",
-    "hyperparameter_table", "moment_matching_check", "noise_by_size_table", "noise_profile",
-    "noise_profile_figure", "noisy_samples", "phase_figure",
-]  # fmt: skip
+    "POOL",
+    "MomentMatchingCheck",
+    "NoiseProfile",
+    "basis_figure",
+    "demonstration_figure",
+    "dmp_fit_figure",
+    "forcing_figure",
+    "gp_posterior_figure",
+    "gp_with",
+    "hyperparameter_figure",
+    "hyperparameter_table",
+    "moment_matching_check",
+    "noise_by_size_table",
+    "noise_profile",
+    "noise_profile_figure",
+    "noisy_samples",
+    "phase_figure",
+]
 
 #: Inputs drawn by :func:`noisy_samples` before the first ``n_points`` are kept, so the data
 #: sets of one seed are nested.
@@ -90,9 +103,14 @@ def phase_figure(dmp: DMP, times: ArrayLike, *, backend: str = "plotly"):
     z = f"z(t) = exp(−τ α_z t), α_z = {dmp.alpha_z:g}"
     series = [
         Series(z, t.tolist(), dmp.phase(t).tolist(), **kw),
-        Series(f"basis centres c_i ({dmp.n_basis})", t_c.tolist(), centres.tolist(),
-               kind="markers", **kw),
-    ]  # fmt: skip
+        Series(
+            f"basis centres c_i ({dmp.n_basis})",
+            t_c.tolist(),
+            centres.tolist(),
+            kind="markers",
+            **kw,
+        ),
+    ]
     return draw("The phase z(t) (Eq. 2.22) runs from 1 towards 0", series, backend)
 
 
@@ -316,13 +334,20 @@ def noise_profile(x: ArrayLike, y: ArrayLike, noise_vars: ArrayLike) -> NoisePro
     def each(ls: np.ndarray, os_: np.ndarray) -> np.ndarray:
         """Every output's own term."""
         with torch.no_grad():
-            return np.array([
-                float(neg_log_marginal_likelihood(
-                    X, Y[g : g + 1], torch.tensor([[ls[g]]], dtype=DTYPE),
-                    torch.tensor([os_[g]], dtype=DTYPE), noise[g : g + 1],
-                ))
-                for g in range(G)
-            ])  # fmt: skip
+            return np.array(
+                [
+                    float(
+                        neg_log_marginal_likelihood(
+                            X,
+                            Y[g : g + 1],
+                            torch.tensor([[ls[g]]], dtype=DTYPE),
+                            torch.tensor([os_[g]], dtype=DTYPE),
+                            noise[g : g + 1],
+                        )
+                    )
+                    for g in range(G)
+                ]
+            )
 
     bounds = [(np.log(1e-3 * sd), np.log(1e3 * sd))] * G + [(np.log(1e-4), np.log(1e4))] * G
     best = np.full(G, np.inf)
@@ -381,11 +406,7 @@ def noise_profile_figure(
 
 
 def noise_by_size_table(
-    sizes=(8, 20, 40),
-    *,
-    n_draws: int = 20,
-    noise_std: float = 0.1,
-    seed: int = 0,
+    sizes=(8, 20, 40), *, n_draws: int = 20, noise_std: float = 0.1, seed: int = 0
 ) -> pd.DataFrame:
     """The noise variance maximum likelihood learns, by data size N (2 … :data:`POOL`).
 
@@ -452,9 +473,17 @@ def hyperparameter_table(
 def _band_series(gp: ExactGP, xs: np.ndarray, name: str, panel: str) -> Series:
     mean, var = gp.predict(xs[:, None])
     mean, half = np.ravel(mean), 1.96 * np.sqrt(np.maximum(np.ravel(var), 0.0))
-    return Series(name, xs.tolist(), mean.tolist(), lower=(mean - half).tolist(),
-                  upper=(mean + half).tolist(), band="95% band of y (mean ± 1.96 σ)",
-                  panel=panel, xlabel="x", ylabel="y")  # fmt: skip
+    return Series(
+        name,
+        xs.tolist(),
+        mean.tolist(),
+        lower=(mean - half).tolist(),
+        upper=(mean + half).tolist(),
+        band="95% band of y (mean ± 1.96 σ)",
+        panel=panel,
+        xlabel="x",
+        ylabel="y",
+    )
 
 
 def hyperparameter_figure(
@@ -497,8 +526,17 @@ def hyperparameter_figure(
         for name, scale in scales:
             model = gp if scale == 1.0 else gp_with(x, y, **{**theta, key: v * scale})
             series.append(_band_series(model, xs, name, panel))
-        series.append(Series("data", x[:, 0].tolist(), y.tolist(), kind="markers", panel=panel,
-                             xlabel="x", ylabel="y"))  # fmt: skip
+        series.append(
+            Series(
+                "data",
+                x[:, 0].tolist(),
+                y.tolist(),
+                kind="markers",
+                panel=panel,
+                xlabel="x",
+                ylabel="y",
+            )
+        )
     title = f"One hyper-parameter at a time ÷ {factor:g} and × {factor:g}, the others as learned"
     return draw(title, series, backend)
 
@@ -608,10 +646,15 @@ class MomentMatchingCheck:
         g = self.density_grid
         kw = {"xlabel": "y", "ylabel": "density p(y)"}
         series = [
-            Series(f"Monte Carlo histogram ({self.samples.shape[0]:,} samples)",
-                   centres.tolist(), hist.tolist(), kind="bar", **kw),
+            Series(
+                f"Monte Carlo histogram ({self.samples.shape[0]:,} samples)",
+                centres.tolist(),
+                hist.tolist(),
+                kind="bar",
+                **kw,
+            ),
             Series("p(y) by quadrature", g.tolist(), self.density.tolist(), dash="dash", **kw),
-        ]  # fmt: skip
+        ]
         for label, pred in (
             ("moment matching", self.moment_matched),
             ("linearisation", self.linearised),
@@ -627,13 +670,7 @@ class MomentMatchingCheck:
 
 
 def moment_matching_check(
-    gp: ExactGP,
-    mean: float,
-    var: float,
-    *,
-    n_samples: int = 100_000,
-    rng=0,
-    n_grid: int = 401,
+    gp: ExactGP, mean: float, var: float, *, n_samples: int = 100_000, rng=0, n_grid: int = 401
 ) -> MomentMatchingCheck:
     """Moment matching, linearisation and ``n_samples`` Monte Carlo draws (from ``rng``) of one
     step of N(mean, var) through a fitted GP with one input and one output; the quadrature

@@ -32,10 +32,21 @@ from skillkit.viz.plots import PANEL_HEIGHT
 from skillkit.viz.series import Series
 
 __all__ = [
-    "COLUMNS", "DEFAULT_EPSILONS", "DualSlice", "KLSweep", "diagnostics_table", "dual_figure",
-    "dual_slice", "ellipse_figure", "ellipse_points", "heaviest_samples", "kl_sweep",
-    "policy_moments", "update_table", "weights_and_kl_figure",
-]  # fmt: skip
+    "COLUMNS",
+    "DEFAULT_EPSILONS",
+    "DualSlice",
+    "KLSweep",
+    "diagnostics_table",
+    "dual_figure",
+    "dual_slice",
+    "ellipse_figure",
+    "ellipse_points",
+    "heaviest_samples",
+    "kl_sweep",
+    "policy_moments",
+    "update_table",
+    "weights_and_kl_figure",
+]
 
 #: Pixels :func:`ellipse_figure`'s panel gets beyond a standard one (for equal axis scales).
 ELLIPSE_EXTRA_HEIGHT = 160
@@ -142,8 +153,11 @@ def dual_figure(
     n_feat = sol.gamma.shape[0]
     held = f"the {n_feat} baseline parameters γ held at their optimum γ*" if n_feat else "no γ"
     left = {"panel": f"dual g(η, γ*), {held}", "xlabel": "η (reward units)", "ylabel": "g(η, γ*)"}
-    right = {"panel": "KL of the weights along the same slice", "xlabel": "η (reward units)",
-             "ylabel": "KL(p ‖ q)"}  # fmt: skip
+    right = {
+        "panel": "KL of the weights along the same slice",
+        "xlabel": "η (reward units)",
+        "ylabel": "KL(p ‖ q)",
+    }
     for p in (left, right):
         p["log_x"] = True
     star = f"minimiser η* = {sol.eta:.3g}"
@@ -388,12 +402,17 @@ def ellipse_figure(
     held = f"samples holding {mass:.0%} of the weight ({heavy.sum()} of {w.shape[0]})"
     series = [
         Series(held, w[heavy, i].tolist(), w[heavy, j].tolist(), kind="markers", **labels),
-        Series("the other samples", w[~heavy, i].tolist(), w[~heavy, j].tolist(),
-               kind="markers", **labels),
+        Series(
+            "the other samples",
+            w[~heavy, i].tolist(),
+            w[~heavy, j].tolist(),
+            kind="markers",
+            **labels,
+        ),
     ] + [
         Series(name, xy[:, 0].tolist(), xy[:, 1].tolist(), dash=dash, **labels)
         for name, (xy, dash) in curves.items()
-    ]  # fmt: skip
+    ]
     title = f"(d) the new policy over the re-weighted samples, parameters ω_{i + 1} and ω_{j + 1}"
     fig = draw(title, series, backend)
     if backend == "plotly":
@@ -413,15 +432,29 @@ def ellipse_figure(
 # ------------------------------------------------------------------------------ tables
 #: Columns of :func:`update_table` and :func:`diagnostics_table`.
 COLUMNS = (
-    "N (samples used)", "ε", "η", "KL(p ‖ q)", "bound active", "ESS", "mean reward (batch)",
+    "N (samples used)",
+    "ε",
+    "η",
+    "KL(p ‖ q)",
+    "bound active",
+    "ESS",
+    "mean reward (batch)",
     "KL(π_new ‖ π_old)",
-)  # fmt: skip
+)
 
 
 def _row(sol: DualSolution, n: int, mean_reward: float, policy_kl: float) -> dict:
     """A table row: the dual's diagnostics, the batch's mean reward and the policy's KL."""
-    values = (n, sig(sol.epsilon), sig(sol.eta), sig(sol.kl), bool(sol.kl_bound_active),
-              sig(sol.ess), sig(mean_reward), sig(policy_kl))  # fmt: skip
+    values = (
+        n,
+        sig(sol.epsilon),
+        sig(sol.eta),
+        sig(sol.kl),
+        bool(sol.kl_bound_active),
+        sig(sol.ess),
+        sig(mean_reward),
+        sig(policy_kl),
+    )
     return dict(zip(COLUMNS, values, strict=True))
 
 

@@ -39,13 +39,34 @@ from skillkit.teaching._common import draw
 from skillkit.viz.series import Series
 
 __all__ = [
-    "EXPECTED_WARNINGS", "HandledEvents", "IterationSizes", "ModelView", "RewardPool", "SCALES",
-    "THESIS_TABLE_4_2", "batch_table", "contexts_figure", "diagnostics_table", "exploration_figure",
-    "exploration_table", "fit_table", "gflops_table", "gpreps_model_view", "handled_events",
-    "iteration_sizes", "policy_change_table", "predicted_throws_figure", "reward_estimate_figure",
-    "reward_estimates", "reward_pool", "step_settings", "table_4_2", "throwing_model",
-    "update_comparison", "weights_figure",
-]  # fmt: skip
+    "EXPECTED_WARNINGS",
+    "HandledEvents",
+    "IterationSizes",
+    "ModelView",
+    "RewardPool",
+    "SCALES",
+    "THESIS_TABLE_4_2",
+    "batch_table",
+    "contexts_figure",
+    "diagnostics_table",
+    "exploration_figure",
+    "exploration_table",
+    "fit_table",
+    "gflops_table",
+    "gpreps_model_view",
+    "handled_events",
+    "iteration_sizes",
+    "policy_change_table",
+    "predicted_throws_figure",
+    "reward_estimate_figure",
+    "reward_estimates",
+    "reward_pool",
+    "step_settings",
+    "table_4_2",
+    "throwing_model",
+    "update_comparison",
+    "weights_figure",
+]
 
 
 # --------------------------------------------------------------------------- sizes
@@ -78,21 +99,48 @@ class IterationSizes:
 #: L = 25 and fig4.6's model sizes.
 SCALES: dict[str, IterationSizes] = {
     "smoke": IterationSizes(
-        n_initial=8, n_artificial=30, n_trajectories=3, n_updates=1, n_inducing=15,
-        gp_steps=20, robot_inducing=20, robot_steps=150, max_points=300, pool_pairs=30,
-        pool_repeats=6, max_trajectories=10,
+        n_initial=8,
+        n_artificial=30,
+        n_trajectories=3,
+        n_updates=1,
+        n_inducing=15,
+        gp_steps=20,
+        robot_inducing=20,
+        robot_steps=150,
+        max_points=300,
+        pool_pairs=30,
+        pool_repeats=6,
+        max_trajectories=10,
     ),
     "quick": IterationSizes(
-        n_initial=10, n_artificial=200, n_trajectories=5, n_updates=5, n_inducing=50,
-        gp_steps=60, robot_inducing=50, robot_steps=150, max_points=1000, pool_pairs=100,
-        pool_repeats=10, max_trajectories=20,
+        n_initial=10,
+        n_artificial=200,
+        n_trajectories=5,
+        n_updates=5,
+        n_inducing=50,
+        gp_steps=60,
+        robot_inducing=50,
+        robot_steps=150,
+        max_points=1000,
+        pool_pairs=100,
+        pool_repeats=10,
+        max_trajectories=20,
     ),
     "paper": IterationSizes(
-        n_initial=10, n_artificial=500, n_trajectories=25, n_updates=10, n_inducing=50,
-        gp_steps=150, robot_inducing=50, robot_steps=150, max_points=1000, pool_pairs=200,
-        pool_repeats=20, max_trajectories=25,
+        n_initial=10,
+        n_artificial=500,
+        n_trajectories=25,
+        n_updates=10,
+        n_inducing=50,
+        gp_steps=150,
+        robot_inducing=50,
+        robot_steps=150,
+        max_points=1000,
+        pool_pairs=200,
+        pool_repeats=20,
+        max_trajectories=25,
     ),
-}  # fmt: skip
+}
 
 
 def iteration_sizes(scale: str) -> IterationSizes:
@@ -283,10 +331,14 @@ def update_comparison(
     for name, pol in (("policy", policy), ("update_policy", update_policy)):
         if not isinstance(pol, LinearGaussianPolicy):
             raise ValueError(f"{name}: expected a LinearGaussianPolicy")
-    ours = [weights.eta, weights.kl, weights.ess, np.abs(policy.mean).max(),
-            policy.log_det_cov()]  # fmt: skip
-    theirs = [diagnostics.reps.eta, diagnostics.reps.kl, diagnostics.reps.ess,
-              np.abs(update_policy.mean).max(), update_policy.log_det_cov()]  # fmt: skip
+    ours = [weights.eta, weights.kl, weights.ess, np.abs(policy.mean).max(), policy.log_det_cov()]
+    theirs = [
+        diagnostics.reps.eta,
+        diagnostics.reps.kl,
+        diagnostics.reps.ess,
+        np.abs(update_policy.mean).max(),
+        update_policy.log_det_cov(),
+    ]
     equal = [a == b for a, b in zip(ours, theirs, strict=True)]
     equal[3] = bool(np.array_equal(policy.mean, update_policy.mean))
     equal[4] = bool(np.array_equal(policy.cov, update_policy.cov))
@@ -427,10 +479,16 @@ def exploration_figure(run: Any, method: str = "gpreps", backend: str = "plotly"
     :func:`exploration_table`."""
     scales, kls, epsilon = _exploration(run, method)
     series = [
-        Series(f"trial {t}", list(range(len(scale))), scale.tolist(), xlabel="update k",
-               ylabel="√tr Σ_k / √tr Σ_0 (search width against the start)", log_y=True)
+        Series(
+            f"trial {t}",
+            list(range(len(scale))),
+            scale.tolist(),
+            xlabel="update k",
+            ylabel="√tr Σ_k / √tr Σ_0 (search width against the start)",
+            log_y=True,
+        )
         for t, scale in enumerate(scales)
-    ]  # fmt: skip
+    ]
     at_bound = np.mean(np.concatenate([kl >= 0.99 * epsilon for kl in kls]))
     title = (
         f"{run.id}: the search distribution's width; ε = {epsilon:g}, "
@@ -465,10 +523,7 @@ def contexts_figure(real: ArrayLike, artificial: ArrayLike, backend: str = "plot
 
 
 def predicted_throws_figure(
-    prediction: ThrowingPrediction,
-    real: Batch,
-    n_pairs: int = 3,
-    backend: str = "plotly",
+    prediction: ThrowingPrediction, real: Batch, n_pairs: int = 3, backend: str = "plotly"
 ):
     """The L predicted ball flights of the first ``n_pairs`` artificial pairs
     (``ThrowingRewardModel.predict``) over the flights of the real throws."""
@@ -503,12 +558,17 @@ def weights_figure(
     log_z = shift + np.log(np.sum(np.exp(adv / weights.eta - shift)))
     common = {"xlabel": "advantage R̂ − V(s) (Eq. 3.10)", "ylabel": "weight p", "log_y": True}
     series = [
-        Series(f"artificial samples (M = {p.size})", adv.tolist(), p.tolist(), kind="markers",
-               **common),
-        Series(f"exp(A/η)/Z, η = {weights.eta:.3g}", grid.tolist(),
-               np.exp(grid / weights.eta - log_z).tolist(), **common),
+        Series(
+            f"artificial samples (M = {p.size})", adv.tolist(), p.tolist(), kind="markers", **common
+        ),
+        Series(
+            f"exp(A/η)/Z, η = {weights.eta:.3g}",
+            grid.tolist(),
+            np.exp(grid / weights.eta - log_z).tolist(),
+            **common,
+        ),
         Series("uniform 1/M", [grid[0], grid[-1]], [1.0 / p.size] * 2, dash="dash", **common),
-    ]  # fmt: skip
+    ]
     title = (
         f"REPS weights: KL = {weights.kl:.3g} (ε = {weights.epsilon:.3g}), "
         f"ESS = {weights.ess:.3g} of {p.size}"
@@ -585,9 +645,11 @@ def reward_estimates(
     Q, L_max = pool.pairs.shape
     L = n_trajectories
     fixed = np.array(
-        [[pool.fixed[k, rng.choice(P, L, replace=False)].mean() for _ in range(n_repeats)]
-         for k in range(K)]
-    )  # fmt: skip
+        [
+            [pool.fixed[k, rng.choice(P, L, replace=False)].mean() for _ in range(n_repeats)]
+            for k in range(K)
+        ]
+    )
     policy = np.empty(n_repeats)
     for r in range(n_repeats):
         rows = rng.choice(Q, n_artificial, replace=True)
@@ -614,22 +676,42 @@ def reward_estimate_figure(
         "xlabel": "target x of the pair [m]",
         "ylabel": "R̂ (Eq. 4.1)",
     }
-    right = {"panel": f"policy's mean R̂ from M = {n_artificial} pairs × L = {L}",
-             "xlabel": "estimate", "ylabel": "mean R̂ of M pairs"}  # fmt: skip
+    right = {
+        "panel": f"policy's mean R̂ from M = {n_artificial} pairs × L = {L}",
+        "xlabel": "estimate",
+        "ylabel": "mean R̂ of M pairs",
+    }
     xs = pool.contexts[:, 0]
     repeats = np.arange(1, n_repeats + 1, dtype=float)
     mean_fixed, sd_fixed = fixed.mean(axis=1), fixed.std(axis=1, ddof=1)
     ref = pool.pairs.mean()
     series = [
-        Series("estimates", np.repeat(xs, n_repeats).tolist(), fixed.reshape(-1).tolist(),
-               kind="markers", **left),
-        Series("mean ± std of the estimates", xs.tolist(), mean_fixed.tolist(),
-               kind="lines+markers", lower=(mean_fixed - sd_fixed).tolist(),
-               upper=(mean_fixed + sd_fixed).tolist(), band=f"± std over {n_repeats}", **left),
+        Series(
+            "estimates",
+            np.repeat(xs, n_repeats).tolist(),
+            fixed.reshape(-1).tolist(),
+            kind="markers",
+            **left,
+        ),
+        Series(
+            "mean ± std of the estimates",
+            xs.tolist(),
+            mean_fixed.tolist(),
+            kind="lines+markers",
+            lower=(mean_fixed - sd_fixed).tolist(),
+            upper=(mean_fixed + sd_fixed).tolist(),
+            band=f"± std over {n_repeats}",
+            **left,
+        ),
         Series("policy estimates", repeats.tolist(), policy.tolist(), kind="markers", **right),
-        Series(f"pool mean ({pool.pairs.size} predicted throws)", [1.0, float(n_repeats)],
-               [ref, ref], dash="dash", **right),
-    ]  # fmt: skip
+        Series(
+            f"pool mean ({pool.pairs.size} predicted throws)",
+            [1.0, float(n_repeats)],
+            [ref, ref],
+            dash="dash",
+            **right,
+        ),
+    ]
     title = (
         f"std of R̂ per pair {', '.join(f'{v:.3g}' for v in sd_fixed)}; "
         f"std of the policy's estimate {policy.std(ddof=1):.3g}"
@@ -637,8 +719,10 @@ def reward_estimate_figure(
     fig = draw(title, series, backend)
     if backend == "plotly":
         means = pool.pairs.mean(axis=1)
-        ranges = {"yaxis": (float(pool.fixed.min()), float(pool.fixed.max())),
-                  "yaxis2": (float(means.min()), float(means.max()))}  # fmt: skip
+        ranges = {
+            "yaxis": (float(pool.fixed.min()), float(pool.fixed.max())),
+            "yaxis2": (float(means.min()), float(means.max())),
+        }
         for axis, (lo, hi) in ranges.items():
             pad = 0.05 * (hi - lo) if hi > lo else 1.0
             if axis in fig.layout:
@@ -652,7 +736,7 @@ def reward_estimate_figure(
 EXPECTED_WARNINGS: dict[str, str] = {
     r"rollout failed": "an exploring policy drove the simulated robot unstable; the rollout "
     "is reported as failed and scored with the task's worst reward (Task.rollout), as the "
-    "method being reproduced would have to cope with",
+    "method being reproduced would have to cope with"
 }
 
 
@@ -673,8 +757,9 @@ class HandledEvents:
         for pattern, reason in EXPECTED_WARNINGS.items():
             hits = [m for m in self.warnings if re.search(pattern, m)]
             if hits:
-                rows.append({"event": pattern, "count": len(hits), "meaning": reason,
-                             "example": hits[0]})  # fmt: skip
+                rows.append(
+                    {"event": pattern, "count": len(hits), "meaning": reason, "example": hits[0]}
+                )
         columns = ["event", "count", "meaning", "example"]
         return pd.DataFrame(rows, columns=columns).fillna("")
 
@@ -726,8 +811,12 @@ class ModelView:
             display(self.shown)
             return
         display(self.figure)
-        display(HTML(f"<small>no live viewer ({self.shown.reason}): the model layers drawn "
-                     "from above instead</small>"))  # fmt: skip
+        display(
+            HTML(
+                f"<small>no live viewer ({self.shown.reason}): the model layers drawn "
+                "from above instead</small>"
+            )
+        )
 
     def stop(self) -> None:
         """Stop the viewer's server (idempotent)."""

@@ -29,10 +29,20 @@ from skillkit.viz.plots import plotly_figure
 from skillkit.viz.series import Series
 
 __all__ = [
-    "agreement_table", "draw_embedding", "embedding_figure", "empirical_embedding", "fit_table",
-    "loss_curve_figure", "marginal_embedding", "matrices_figure", "pendulum_policy",
-    "prediction_table", "warnings_as_note", "weights_figure", "weights_table",
-]  # fmt: skip
+    "agreement_table",
+    "draw_embedding",
+    "embedding_figure",
+    "empirical_embedding",
+    "fit_table",
+    "loss_curve_figure",
+    "marginal_embedding",
+    "matrices_figure",
+    "pendulum_policy",
+    "prediction_table",
+    "warnings_as_note",
+    "weights_figure",
+    "weights_table",
+]
 
 Policy = Callable[[np.ndarray, int], np.ndarray]
 
@@ -46,10 +56,7 @@ def _plot(title: str, series: Sequence[Series]):
 
 # --------------------------------------------------------------------------- tables
 def weights_table(
-    embedding: ConditionalEmbedding,
-    beta,
-    reference=None,
-    names: Sequence[str] | None = None,
+    embedding: ConditionalEmbedding, beta, reference=None, names: Sequence[str] | None = None
 ) -> pd.DataFrame:
     """What one embedding μ = Φ_y β says, Eqs. (5.7, 5.8), as a column ``value``.
 
@@ -96,10 +103,7 @@ def _mean_paths(embedding: ConditionalEmbedding, betas: np.ndarray) -> np.ndarra
 
 
 def prediction_table(
-    models: Mapping[str, object],
-    initial,
-    real_states,
-    names: Sequence[str] | None = None,
+    models: Mapping[str, object], initial, real_states, names: Sequence[str] | None = None
 ) -> pd.DataFrame:
     """How well each model's embedded mean follows the real rollouts (Table 5.1 or 5.2).
 
@@ -158,10 +162,7 @@ def fit_table(initial_lengthscale, initial_lam: float, fit: FitResult) -> pd.Dat
         )
     lam0 = check_positive(initial_lam, "initial_lam")
     cols = [f"w[{k}]" for k in range(w0.size)]
-    data = {
-        "start": [*w0, lam0, fit.initial_loss],
-        "fitted": [*fit.lengthscale, fit.lam, fit.loss],
-    }
+    data = {"start": [*w0, lam0, fit.initial_loss], "fitted": [*fit.lengthscale, fit.lam, fit.loss]}
     return pd.DataFrame(data, index=[*cols, "λ", "CV error per term"]).T.rename_axis("θ")
 
 
@@ -241,10 +242,17 @@ def matrices_figure(matrices: Mapping[str, object], *, pairs: int | None = None,
         if n_show is not None:
             m = m[:n_show, :n_show]
         series.append(
-            Series(str(name).split("=")[0].strip() or str(name), list(range(m.shape[1])),
-                   list(range(m.shape[0])), panel=str(name), kind="heatmap", z=_compact(m),
-                   xlabel="column j (training pair)", ylabel="row i (training pair)")
-        )  # fmt: skip
+            Series(
+                str(name).split("=")[0].strip() or str(name),
+                list(range(m.shape[1])),
+                list(range(m.shape[0])),
+                panel=str(name),
+                kind="heatmap",
+                z=_compact(m),
+                xlabel="column j (training pair)",
+                ylabel="row i (training pair)",
+            )
+        )
     fig = _plot(title, series)
     fig.update_yaxes(autorange="reversed")
     _diverging(fig)
@@ -279,9 +287,16 @@ def weights_figure(betas, *, dt: float | None = None, title: str = ""):
     """
     b = _betas(betas)
     t, xlabel = _time_axis(b.shape[0], dt)
-    heat = Series("β_t[j]", t, list(range(b.shape[1])), panel="β_t[j] per training pair",
-                  kind="heatmap", z=_compact(b.T), xlabel=xlabel,
-                  ylabel="training pair j")  # fmt: skip
+    heat = Series(
+        "β_t[j]",
+        t,
+        list(range(b.shape[1])),
+        panel="β_t[j] per training pair",
+        kind="heatmap",
+        z=_compact(b.T),
+        xlabel=xlabel,
+        ylabel="training pair j",
+    )
     common = {"panel": "sum and size of β_t", "xlabel": xlabel, "ylabel": "weights"}
     lines = [
         Series("sum of β_t", t, b.sum(axis=1).tolist(), **common),
@@ -370,8 +385,15 @@ def embedding_figure(
     band = f"± 2 standard errors ({real.shape[0]} real samples)"
 
     def real_series(x, emp, emp_se, common) -> Series:
-        return Series("real samples", x, emp.tolist(), lower=(emp - 2 * emp_se).tolist(),
-                      upper=(emp + 2 * emp_se).tolist(), band=band, **common)  # fmt: skip
+        return Series(
+            "real samples",
+            x,
+            emp.tolist(),
+            lower=(emp - 2 * emp_se).tolist(),
+            upper=(emp + 2 * emp_se).tolist(),
+            band=band,
+            **common,
+        )
 
     common = {"panel": f"mean of {label}: X′ᵀβ_t", "xlabel": xlabel, "ylabel": label}
     series = [
@@ -435,9 +457,16 @@ def draw_embedding(
         f"max ‖β_t‖₁ = {np.abs(betas).sum(axis=1).max():.3g}"
     )
     return embedding_figure(
-        model, betas, real, steps=(step,), dim=dim, bandwidth=bandwidth, label=label, dt=dt,
+        model,
+        betas,
+        real,
+        steps=(step,),
+        dim=dim,
+        bandwidth=bandwidth,
+        label=label,
+        dt=dt,
         title=title,
-    )  # fmt: skip
+    )
 
 
 def loss_curve_figure(
@@ -465,9 +494,16 @@ def loss_curve_figure(
         lam = check_positive(lam, "lams")
         values = [loss(np.append(np.log(v * w), np.log(lam))) for v in f]
         series.append(
-            Series(f"λ = {lam:.3g}", f.tolist(), values, xlabel="length-scale factor f (× w)",
-                   ylabel="CV error per term", log_x=True, log_y=True)
-        )  # fmt: skip
+            Series(
+                f"λ = {lam:.3g}",
+                f.tolist(),
+                values,
+                xlabel="length-scale factor f (× w)",
+                ylabel="CV error per term",
+                log_x=True,
+                log_y=True,
+            )
+        )
     return _plot(title, series)
 
 

@@ -20,9 +20,7 @@ from skillkit.teaching._common import draw, index_pair
 from skillkit.trajectory import Trajectory
 from skillkit.viz.series import Series
 
-__all__ = [
-    "SCALES", "RunSizes", "comparison_table", "context_grid", "mapping_figure", "run_sizes",
-]  # fmt: skip
+__all__ = ["SCALES", "RunSizes", "comparison_table", "context_grid", "mapping_figure", "run_sizes"]
 
 
 # --------------------------------------------------------------------------- sizes
@@ -51,20 +49,39 @@ class RunSizes:
 #: (N₀ = 10, then one real rollout per update, M = 500, L = 25).
 SCALES: dict[str, RunSizes] = {
     "smoke": RunSizes(
-        reps_updates=15, reps_rollouts=20, cmaes_generations=10, gpreps_initial=10,
-        gpreps_updates=6, gpreps_rollouts=2, n_artificial=100, n_trajectories=5, gp_steps=50,
+        reps_updates=15,
+        reps_rollouts=20,
+        cmaes_generations=10,
+        gpreps_initial=10,
+        gpreps_updates=6,
+        gpreps_rollouts=2,
+        n_artificial=100,
+        n_trajectories=5,
+        gp_steps=50,
     ),
     "quick": RunSizes(
-        reps_updates=40, reps_rollouts=20, cmaes_generations=30, gpreps_initial=10,
-        gpreps_updates=16, gpreps_rollouts=2, n_artificial=500, n_trajectories=10,
+        reps_updates=40,
+        reps_rollouts=20,
+        cmaes_generations=30,
+        gpreps_initial=10,
+        gpreps_updates=16,
+        gpreps_rollouts=2,
+        n_artificial=500,
+        n_trajectories=10,
         gp_steps=150,
     ),
     "paper": RunSizes(
-        reps_updates=100, reps_rollouts=20, cmaes_generations=80, gpreps_initial=10,
-        gpreps_updates=41, gpreps_rollouts=1, n_artificial=500, n_trajectories=25,
+        reps_updates=100,
+        reps_rollouts=20,
+        cmaes_generations=80,
+        gpreps_initial=10,
+        gpreps_updates=41,
+        gpreps_rollouts=1,
+        n_artificial=500,
+        n_trajectories=25,
         gp_steps=150,
     ),
-}  # fmt: skip
+}
 
 
 def run_sizes(scale: str) -> RunSizes:
@@ -133,11 +150,18 @@ def mapping_figure(
     s = check_array(contexts, "contexts", shape=(None, 2))
     d = task.parameter_dim
     i, j = index_pair(omega_dims, "omega_dims", d, "coordinates of ω")
-    left = {"panel": "policy mean ω(s) at the contexts", "kind": "markers",
-            "xlabel": f"{omega_label}{i + 1}", "ylabel": f"{omega_label}{j + 1}"}  # fmt: skip
+    left = {
+        "panel": "policy mean ω(s) at the contexts",
+        "kind": "markers",
+        "xlabel": f"{omega_label}{i + 1}",
+        "ylabel": f"{omega_label}{j + 1}",
+    }
     unit = f" {outcome_label}" if outcome_label else ""
-    right = {"panel": "context s → outcome of the policy mean's rollout", "xlabel": f"x{unit}",
-             "ylabel": f"y{unit}"}  # fmt: skip
+    right = {
+        "panel": "context s → outcome of the policy mean's rollout",
+        "xlabel": f"x{unit}",
+        "ylabel": f"y{unit}",
+    }
     mapped, reached_paths = [], []
     for label, policy in policies.items():
         if not callable(getattr(policy, "mean_of", None)):

@@ -21,18 +21,24 @@ from skillkit.viz.plots import REFERENCE_WIDTH
 from skillkit.viz.scenes import COLORS, interpolate, kinematic_points, signal_times, task_model
 
 __all__ = [
-    "MAX_FRAMES", "TABLE_TENNIS_CONTEXTS", "THROWING_TARGETS", "arm_link_points", "frame_times",
-    "planar_link_points", "racket_rim", "table_tennis_animation", "throwing_animation",
-]  # fmt: skip
+    "MAX_FRAMES",
+    "TABLE_TENNIS_CONTEXTS",
+    "THROWING_TARGETS",
+    "arm_link_points",
+    "frame_times",
+    "planar_link_points",
+    "racket_rim",
+    "table_tennis_animation",
+    "throwing_animation",
+]
 
 MAX_FRAMES = 200
 """Most frames an animation may have (the HTML grows with each)."""
 THROWING_TARGETS = np.array([[6.0, 1.0], [12.0, 1.0]])
 """The two targets of Fig. 3.2 (Sec. 3.4.1: s₁ = [6, 1] m, s₂ = [12, 1] m)."""
 TABLE_TENNIS_CONTEXTS = np.array([[-5.8, 0.0, 2.5, 0.6, -0.3], [-5.0, 0.0, 2.25, 0.9, 0.3]])
-"""Two contexts s = [v_x, v_y, v_z, b_x, b_y] for Fig. 3.8: a fast flat serve returned to the
-right, a slower one returned far to the left (v_y = 0: the initial stroke, without context
-gain, hits only balls coming straight down the table)."""
+"""Two contexts s = [v_x, v_y, v_z, b_x, b_y] for Fig. 3.8 (v_y = 0: the initial stroke, without
+context gain, hits only balls coming straight down the table)."""
 
 _PLANAR_BODIES = ("shin", "thigh", "torso", "arm")  # origins: ankle, knee, hip, shoulder
 _ARM_BODIES = ("platform", "upper_arm", "forearm", "hand")  # floor, shoulder, elbow, wrist
@@ -57,10 +63,7 @@ def _model(task, kind: str) -> mujoco.MjModel:
         from skillkit.tasks.table_tennis import TableTennis as cls
     if not isinstance(task, cls):
         raise ValueError(f"task: expected a {cls.__name__} task, got {type(task).__name__}")
-    model = task_model(task)
-    if model is None:  # pragma: no cover - both tasks expose their model
-        raise ValueError(f"task: {type(task).__name__} exposes no MuJoCo model")
-    return model
+    return task_model(task)
 
 
 def planar_link_points(task, q) -> np.ndarray:
@@ -165,8 +168,10 @@ def _finish(fig, grid, frame_ms: float, redraw: bool, y: float, title: str, line
     layout["legend"] = {**layout["legend"], **legend}
     fig.update_layout(
         title={"text": text, "x": 0.01, "xanchor": "left", "font": {"size": 15}},
-        autosize=True, **layout, template="plotly_white",
-    )  # fmt: skip
+        autosize=True,
+        **layout,
+        template="plotly_white",
+    )
     play = {
         "frame": {"duration": frame_ms, "redraw": redraw},
         "fromcurrent": False,  # from the start: a finished auto-play can be replayed
@@ -176,33 +181,57 @@ def _finish(fig, grid, frame_ms: float, redraw: bool, y: float, title: str, line
     still = {"frame": {"duration": 0, "redraw": redraw}, "mode": "immediate"}
     still["transition"] = {"duration": 0}
     fig.update_layout(
-        updatemenus=[{
-            "type": "buttons", "direction": "left", "showactive": False, "x": 0.0,
-            "xanchor": "left", "y": y, "yanchor": "top", "pad": {"t": 0, "r": 10},
-            "buttons": [
-                {"label": "▶", "method": "animate", "args": [None, play]},
-                {"label": "❚❚", "method": "animate", "args": [[None], still]},
-            ],
-        }],
-        sliders=[{
-            "active": 0, "x": 0.2, "len": 0.8, "xanchor": "left", "y": y + 0.02,
-            "yanchor": "top", "pad": {"t": 0, "b": 0},
-            "currentvalue": {
-                "prefix": "t = ", "suffix": " s", "xanchor": "right", "font": {"size": 12},
-            },
-            "steps": [
-                {"label": f"{t:.2f}", "method": "animate", "args": [[str(k)], still]}
-                for k, t in enumerate(grid)
-            ],
-        }],
-    )  # fmt: skip
+        updatemenus=[
+            {
+                "type": "buttons",
+                "direction": "left",
+                "showactive": False,
+                "x": 0.0,
+                "xanchor": "left",
+                "y": y,
+                "yanchor": "top",
+                "pad": {"t": 0, "r": 10},
+                "buttons": [
+                    {"label": "▶", "method": "animate", "args": [None, play]},
+                    {"label": "❚❚", "method": "animate", "args": [[None], still]},
+                ],
+            }
+        ],
+        sliders=[
+            {
+                "active": 0,
+                "x": 0.2,
+                "len": 0.8,
+                "xanchor": "left",
+                "y": y + 0.02,
+                "yanchor": "top",
+                "pad": {"t": 0, "b": 0},
+                "currentvalue": {
+                    "prefix": "t = ",
+                    "suffix": " s",
+                    "xanchor": "right",
+                    "font": {"size": 12},
+                },
+                "steps": [
+                    {"label": f"{t:.2f}", "method": "animate", "args": [[str(k)], still]}
+                    for k, t in enumerate(grid)
+                ],
+            }
+        ],
+    )
     return fig
 
 
 def throwing_animation(
-    task, trajectories, contexts, *, n_frames: int = 40, frame_ms: float = 100.0,
-    title: str = "Throwing for two targets (Fig. 3.2)", subtitle: str = "",
-):  # fmt: skip
+    task,
+    trajectories,
+    contexts,
+    *,
+    n_frames: int = 40,
+    frame_ms: float = 100.0,
+    title: str = "Throwing for two targets (Fig. 3.2)",
+    subtitle: str = "",
+):
     """The planar 4-link robot throwing, one panel per target (Fig. 3.2), as a plotly animation.
 
     Each panel shows the links (:func:`planar_link_points`), the ball (signal ``ball`` on
@@ -265,31 +294,57 @@ def throwing_animation(
         row, first = i + 1, i == 0
         quiet = {"hoverinfo": "skip", "row": row, "col": 1}
         fig.add_scatter(
-            x=[x0, x1], y=[0, 0], mode="lines", line={"color": "rgb(150,140,120)", "width": 2},
-            name="ground", showlegend=False, **quiet,
-        )  # fmt: skip
+            x=[x0, x1],
+            y=[0, 0],
+            mode="lines",
+            line={"color": "rgb(150,140,120)", "width": 2},
+            name="ground",
+            showlegend=False,
+            **quiet,
+        )
         fig.add_scatter(
-            x=balls[i][:, 0], y=balls[i][:, 1], mode="lines",
-            line={"color": _rgb("ball"), "width": 1.5, "dash": "dot"}, name="ball path",
-            legendgroup="path", showlegend=first, **quiet,
-        )  # fmt: skip
+            x=balls[i][:, 0],
+            y=balls[i][:, 1],
+            mode="lines",
+            line={"color": _rgb("ball"), "width": 1.5, "dash": "dot"},
+            name="ball path",
+            legendgroup="path",
+            showlegend=first,
+            **quiet,
+        )
         fig.add_scatter(
-            x=[s[i, 0]], y=[s[i, 1]], mode="markers",
-            marker={"symbol": "x", "size": 13, "color": _rgb("target")}, name="target s",
-            legendgroup="target", showlegend=first, row=row, col=1,
-        )  # fmt: skip
+            x=[s[i, 0]],
+            y=[s[i, 1]],
+            mode="markers",
+            marker={"symbol": "x", "size": 13, "color": _rgb("target")},
+            name="target s",
+            legendgroup="target",
+            showlegend=first,
+            row=row,
+            col=1,
+        )
         animated += [len(fig.data), len(fig.data) + 1]
         fig.add_scatter(
-            x=links[i][0, :, 0], y=links[i][0, :, 1], mode="lines+markers",
+            x=links[i][0, :, 0],
+            y=links[i][0, :, 1],
+            mode="lines+markers",
             line={"color": "rgb(90,100,125)", "width": 6},
             marker={"size": 7, "color": "rgb(60,65,80)"},
-            name="robot", legendgroup="robot", showlegend=first, **quiet,
-        )  # fmt: skip
+            name="robot",
+            legendgroup="robot",
+            showlegend=first,
+            **quiet,
+        )
         fig.add_scatter(
-            x=ball_at[i][:1, 0], y=ball_at[i][:1, 1], mode="markers",
+            x=ball_at[i][:1, 0],
+            y=ball_at[i][:1, 1],
+            mode="markers",
             marker={"size": 10, "color": _rgb("ball"), "line": {"width": 1, "color": "black"}},
-            name="ball", legendgroup="ball", showlegend=first, **quiet,
-        )  # fmt: skip
+            name="ball",
+            legendgroup="ball",
+            showlegend=first,
+            **quiet,
+        )
         x_title = "x (m)" if row == n else None
         axes = {"constrain": "domain", "row": row, "col": 1, "zeroline": False}
         fig.update_xaxes(range=[x0, x1], title_text=x_title, **axes)
@@ -306,11 +361,17 @@ def throwing_animation(
     for annotation in fig.layout.annotations:
         annotation.font = {"size": 12}
     return _finish(
-        fig, grid, frame_ms, False, -(bottom - 55) / plot_h, title, [subtitle] if subtitle else [],
+        fig,
+        grid,
+        frame_ms,
+        False,
+        -(bottom - 55) / plot_h,
+        title,
+        [subtitle] if subtitle else [],
         height=top + plot_h + bottom,
         margin={"t": top, "b": bottom, "l": 60, "r": 20, "autoexpand": True},
         legend={"x": 0.99, "xanchor": "right", "y": 1.0},
-    )  # fmt: skip
+    )
 
 
 def _table_traces(go, tt) -> list:
@@ -318,21 +379,37 @@ def _table_traces(go, tt) -> list:
     hx, hy, z = tt.TABLE_LENGTH / 2, tt.TABLE_WIDTH / 2, tt.TABLE_HEIGHT
     quad = {"i": [0, 0], "j": [1, 2], "k": [2, 3], "showlegend": False, "hoverinfo": "skip"}
     top = go.Mesh3d(
-        x=[-hx, hx, hx, -hx], y=[-hy, -hy, hy, hy], z=[z] * 4, color=_rgb("table"),
-        opacity=0.85, name="table", flatshading=True, **quad,
-    )  # fmt: skip
+        x=[-hx, hx, hx, -hx],
+        y=[-hy, -hy, hy, hy],
+        z=[z] * 4,
+        color=_rgb("table"),
+        opacity=0.85,
+        name="table",
+        flatshading=True,
+        **quad,
+    )
     # the edge, then (after a break) the centre line; z a hair above the top
     xs = [-hx, hx, hx, -hx, -hx, None, -hx, hx]
     ys = [-hy, -hy, hy, hy, -hy, None, 0.0, 0.0]
     lines = go.Scatter3d(
-        x=xs, y=ys, z=[None if v is None else z + 0.002 for v in xs], mode="lines",
-        line={"color": "white", "width": 3}, showlegend=False, hoverinfo="skip",
-    )  # fmt: skip
+        x=xs,
+        y=ys,
+        z=[None if v is None else z + 0.002 for v in xs],
+        mode="lines",
+        line={"color": "white", "width": 3},
+        showlegend=False,
+        hoverinfo="skip",
+    )
     ny, nz = hy + tt.NET_OVERHANG, z + tt.NET_HEIGHT
     net = go.Mesh3d(
-        x=[0.0] * 4, y=[-ny, ny, ny, -ny], z=[z, z, nz, nz], color="rgb(235,235,235)",
-        opacity=0.6, name="net", **quad,
-    )  # fmt: skip
+        x=[0.0] * 4,
+        y=[-ny, ny, ny, -ny],
+        z=[z, z, nz, nz],
+        color="rgb(235,235,235)",
+        opacity=0.6,
+        name="net",
+        **quad,
+    )
     return [top, lines, net]
 
 
@@ -341,9 +418,15 @@ def _xyz(a: np.ndarray) -> dict:
 
 
 def table_tennis_animation(
-    task, trajectories, contexts, *, n_frames: int = 40, frame_ms: float = 100.0,
-    title: str = "Two table-tennis shots (Fig. 3.8)", subtitle: str = "",
-):  # fmt: skip
+    task,
+    trajectories,
+    contexts,
+    *,
+    n_frames: int = 40,
+    frame_ms: float = 100.0,
+    title: str = "Two table-tennis shots (Fig. 3.8)",
+    subtitle: str = "",
+):
     """Table-tennis shots overlaid in one 3-D scene (Fig. 3.8), as a plotly animation.
 
     Drawn: table and net; per shot, in its own colour, the arm's skeleton
@@ -411,30 +494,44 @@ def table_tennis_animation(
         group = {"legendgroup": f"shot{i + 1}", "showlegend": False}
         common = {**group, "hoverinfo": "skip"}
         fig.add_scatter3d(
-            **_xyz(sh["ball"]), mode="lines", line={"color": color, "width": 2, "dash": "dot"},
-            name=f"{shot} ball path", **common,
-        )  # fmt: skip
+            **_xyz(sh["ball"]),
+            mode="lines",
+            line={"color": color, "width": 2, "dash": "dot"},
+            name=f"{shot} ball path",
+            **common,
+        )
         fig.add_scatter3d(
-            x=[si[3], sh["p"][0]], y=[si[4], sh["p"][1]], z=[tt.TABLE_HEIGHT + 0.005] * 2,
+            x=[si[3], sh["p"][0]],
+            y=[si[4], sh["p"][1]],
+            z=[tt.TABLE_HEIGHT + 0.005] * 2,
             mode="markers",
             marker={"symbol": ["diamond", "circle-open"], "size": [7, 8], "color": color},
-            name=f"{shot} target b, landing p", **group,
-        )  # fmt: skip
+            name=f"{shot} target b, landing p",
+            **group,
+        )
         animated += [len(fig.data), len(fig.data) + 1, len(fig.data) + 2]
         fig.add_scatter3d(
-            **_xyz(sh["arm"][0]), mode="lines+markers",
+            **_xyz(sh["arm"][0]),
+            mode="lines+markers",
             line={"color": color, "width": 7, "dash": "solid" if i == 0 else "dash"},
-            marker={"size": 3, "color": color}, name=shot, **{**common, "showlegend": True},
-        )  # fmt: skip
+            marker={"size": 3, "color": color},
+            name=shot,
+            **{**common, "showlegend": True},
+        )
         fig.add_scatter3d(
-            **_xyz(sh["rim"][0]), mode="lines", line={"color": color, "width": 6},
-            name=f"{shot} racket", **common,
-        )  # fmt: skip
+            **_xyz(sh["rim"][0]),
+            mode="lines",
+            line={"color": color, "width": 6},
+            name=f"{shot} racket",
+            **common,
+        )
         fig.add_scatter3d(
-            **_xyz(sh["ball_at"][:1]), mode="markers",
+            **_xyz(sh["ball_at"][:1]),
+            mode="markers",
             marker={"size": 5, "color": _rgb("ball"), "line": {"width": 2, "color": color}},
-            name=f"{shot} ball", **common,
-        )  # fmt: skip
+            name=f"{shot} ball",
+            **common,
+        )
 
     def frame(k: int) -> list:
         out = []
@@ -467,12 +564,21 @@ def table_tennis_animation(
         aspectmode="manual",
         aspectratio={"x": ratio[0], "y": ratio[1], "z": ratio[2]},
         camera={
-            "eye": {"x": -1.0, "y": -1.1, "z": 0.55}, "center": {"x": -0.2, "y": 0.05, "z": -0.15},
+            "eye": {"x": -1.0, "y": -1.1, "z": 0.55},
+            "center": {"x": -0.2, "y": 0.05, "z": -0.15},
         },
-    )  # fmt: skip
+    )
     return _finish(
-        fig, grid, frame_ms, True, -(bottom - 50) / scene_h, title,
-        ([subtitle] if subtitle else []) + lines, height=head + scene_h + bottom,
+        fig,
+        grid,
+        frame_ms,
+        True,
+        -(bottom - 50) / scene_h,
+        title,
+        ([subtitle] if subtitle else []) + lines,
+        height=head + scene_h + bottom,
         margin={"t": head, "b": bottom, "l": 10, "r": 10, "autoexpand": True},
-        legend={"x": 0.01, "xanchor": "left", "y": 0.98}, scene=scene, uirevision="table-tennis",
-    )  # fmt: skip
+        legend={"x": 0.01, "xanchor": "left", "y": 0.98},
+        scene=scene,
+        uirevision="table-tennis",
+    )

@@ -25,29 +25,57 @@ def add_view_parser(subparsers) -> argparse.ArgumentParser:
         "browser. Open the printed URL; Ctrl-C stops the server.",
     )
     add = p.add_argument
-    # fmt: off
     add("task", help="task name (see `skillkit list`)")
-    add("--policy", metavar="FILE", help="policy history .npz (skillkit.viz.history."
-        "save_policy_history) or a `skillkit reproduce` run folder; enables learning playback")
-    add("--gpreps", metavar="RUN_DIR", help="a GPREPS `skillkit reproduce` run folder: plays "
+    add(
+        "--policy",
+        metavar="FILE",
+        help="policy history .npz (skillkit.viz.history."
+        "save_policy_history) or a `skillkit reproduce` run folder; enables learning playback",
+    )
+    add(
+        "--gpreps",
+        metavar="RUN_DIR",
+        help="a GPREPS `skillkit reproduce` run folder: plays "
         "back its policy history and overlays its reward model's predictions (a pickle: only "
-        "runs you trust)")
+        "runs you trust)",
+    )
     add("--trial", type=int, default=0, help="trial of a run folder (default 0)")
-    add("--samples", type=int, default=10, metavar="L",
-        help="trajectories each learned model of --gpreps samples (default 10)")
-    add("--context", type=float, nargs="+", metavar="S",
-        help="initial context s, one number per context dimension (default: mid-range)")
-    add("--predictions", metavar="FILE",
-        help="prediction layers .npz (skillkit.viz.predictions.save_predictions) to overlay")
+    add(
+        "--samples",
+        type=int,
+        default=10,
+        metavar="L",
+        help="trajectories each learned model of --gpreps samples (default 10)",
+    )
+    add(
+        "--context",
+        type=float,
+        nargs="+",
+        metavar="S",
+        help="initial context s, one number per context dimension (default: mid-range)",
+    )
+    add(
+        "--predictions",
+        metavar="FILE",
+        help="prediction layers .npz (skillkit.viz.predictions.save_predictions) to overlay",
+    )
     add("--port", type=int, default=DEFAULT_PORT, help=f"port (default {DEFAULT_PORT})")
-    add("--host", default=DEFAULT_HOST,
-        help=f"interface to bind (default {DEFAULT_HOST}: this machine only)")
+    add(
+        "--host",
+        default=DEFAULT_HOST,
+        help=f"interface to bind (default {DEFAULT_HOST}: this machine only)",
+    )
     add("--seed", type=int, default=0, help="episode seed of the rollouts")
-    add("--no-envmap", action="store_true",
-        help="light without the HDRI environment map: much faster in browsers without a GPU")
-    add("--verbose", action="store_true",
-        help="let viser print its banner and a line per browser connection")
-    # fmt: on
+    add(
+        "--no-envmap",
+        action="store_true",
+        help="light without the HDRI environment map: much faster in browsers without a GPU",
+    )
+    add(
+        "--verbose",
+        action="store_true",
+        help="let viser print its banner and a line per browser connection",
+    )
     p.set_defaults(func=run_view)
     return p
 
@@ -63,9 +91,15 @@ def build_viewer(args: argparse.Namespace, history=None):
     if history is None and args.policy is not None:
         history = load_policy_history(args.policy, args.trial)
     return Viewer(
-        task, context=args.context, history=history, host=args.host, port=args.port,
-        seed=args.seed, environment=not args.no_envmap, verbose=args.verbose,
-    )  # fmt: skip
+        task,
+        context=args.context,
+        history=history,
+        host=args.host,
+        port=args.port,
+        seed=args.seed,
+        environment=not args.no_envmap,
+        verbose=args.verbose,
+    )
 
 
 def run_view(args: argparse.Namespace) -> int:
@@ -77,7 +111,7 @@ def run_view(args: argparse.Namespace) -> int:
 
     model = history = None
     try:
-        if getattr(args, "gpreps", None) is not None:
+        if args.gpreps is not None:
             if args.policy is not None:
                 raise ValueError(
                     "policy: give --policy or --gpreps, not both (a GPREPS run folder holds "
@@ -91,8 +125,7 @@ def run_view(args: argparse.Namespace) -> int:
     except (ValueError, PortInUseError) as exc:
         print(f"skillkit view: error: {exc}", file=sys.stderr)
         return 2
-    # From here on the server runs: every way out stops it and frees the port, also a Ctrl-C
-    # that lands before serve_forever (while layers are added or the line below is printed).
+    # the server runs: every way out (a Ctrl-C before serve_forever too) stops it
     try:
         stage = "predictions"
         try:
@@ -100,7 +133,7 @@ def run_view(args: argparse.Namespace) -> int:
                 viewer.add_prediction_layer(**spec)
             stage = "gpreps"
             if model is not None:
-                viewer.add_model_layers(model, getattr(args, "samples", 10), seed=args.seed)
+                viewer.add_model_layers(model, args.samples, seed=args.seed)
         except ValueError as exc:
             print(f"skillkit view: error: {stage}: {exc}", file=sys.stderr)
             return 2

@@ -1,12 +1,8 @@
 """Things to change and watch in a notebook: sliders that redraw a figure made by library calls.
 
-:func:`explore` shows two outputs. The first is the figure for the default values, for pages
-without a live kernel: an exported HTML page shows it, a front end with the widget manager
-hides it (its bundle also holds a widget view of no model, which ipywidgets renders as nothing
-and nbconvert skips). The second is the live part: an ``ipywidgets.Output`` holding the figure,
-above the controls; a moved control redraws the figure by replacing the ``Output``'s
-``outputs`` from the kernel (JupyterLab ignores a ``display_id`` update sent from a widget
-callback). Without ipywidgets, or with ``controls=False``, only the static figure is shown.
+:func:`explore` shows the figure for the default values (for exported pages; hidden where
+widgets are live) and an ``ipywidgets.Output`` holding the figure above the controls, which a
+moved control redraws. Without ipywidgets, or with ``controls=False``, only the static figure.
 
 >>> from skillkit.viz.explore import Slider, explore
 >>> def draw(epsilon):                     # any function returning a figure
@@ -99,9 +95,11 @@ class Choice:
         import ipywidgets as w
 
         return w.Dropdown(
-            options=list(self.options), value=self.default, description=description,
+            options=list(self.options),
+            value=self.default,
+            description=description,
             style={"description_width": "initial"},
-        )  # fmt: skip
+        )
 
 
 @dataclass
@@ -196,8 +194,7 @@ def explore(draw: Callable[..., Any], /, *, controls: bool = True, **specs) -> E
     for k, slider in sliders.items():
         slider.observe(lambda change, k=k: shown._moved(k, change["new"]), names="value")
     shown.controls = w.VBox([shown._output, *sliders.values()])
-    # A page exported without widget state shows the text/plain part: say what the controls
-    # are instead of ipywidgets' repr.
+    # an exported page without widget state shows text/plain: name the controls there
     bundle = dict(shown.controls._repr_mimebundle_() or {})
     names = ", ".join(specs)
     bundle["text/plain"] = f"(controls for {names}: run the notebook in Jupyter to move them)"

@@ -18,9 +18,13 @@ import numpy as np
 from skillkit.viz.plots import BACKENDS, draw_figure
 
 __all__ = [
-    "gpreps_run_paths_figure", "line_figure", "model_paths_figure", "plot_gp_fit",
-    "plot_learning", "prediction_figure",
-]  # fmt: skip
+    "gpreps_run_paths_figure",
+    "line_figure",
+    "model_paths_figure",
+    "plot_gp_fit",
+    "plot_learning",
+    "prediction_figure",
+]
 
 _LEARN_KEYS = ("rollouts", "mean_reward", "explore_rollouts", "explore_reward")
 #: Trajectory signals drawn as the real paths of :func:`model_paths_figure` (world x, y[, z]).
@@ -37,9 +41,14 @@ def _check_backend(backend: str) -> None:
 
 
 def plot_learning(
-    runs, *, label: str = "policy mean", backend: str = "plotly", explore: bool = True,
-    title: str = "learning curve", ylabel: str = "reward",
-):  # fmt: skip
+    runs,
+    *,
+    label: str = "policy mean",
+    backend: str = "plotly",
+    explore: bool = True,
+    title: str = "learning curve",
+    ylabel: str = "reward",
+):
     """Learning curves of :func:`skillkit.search.loop.learn` results: the reward of the policy
     mean against the number of rollouts so far, one panel.
 
@@ -107,10 +116,19 @@ def _check_learn(r, name: str) -> dict[str, np.ndarray]:
 
 
 def plot_gp_fit(
-    model, x_train, y_train, x_test, *, backend: str = "plotly", include_noise: bool = True,
-    f_true=None, label: str = "GP", title: str = "GP regression", xlabel: str = "x",
+    model,
+    x_train,
+    y_train,
+    x_test,
+    *,
+    backend: str = "plotly",
+    include_noise: bool = True,
+    f_true=None,
+    label: str = "GP",
+    title: str = "GP regression",
+    xlabel: str = "x",
     ylabel: str = "y",
-):  # fmt: skip
+):
     """A fitted 1-D GP regression: predictive mean, 95% band (mean ± 1.96 σ) and the data.
 
     ``model`` has ``predict(X, include_noise) -> (mean, var)`` as
@@ -149,14 +167,11 @@ def plot_gp_fit(
     half = 1.96 * np.sqrt(np.maximum(var, 0.0))
     common = {"panel": "", "xlabel": xlabel, "ylabel": ylabel}
     band = f"95% band of {'y' if include_noise else 'f'} (mean ± 1.96 σ)"
-    lower, upper = (mean - half).tolist(), (mean + half).tolist()
+    fit = {"lower": (mean - half).tolist(), "upper": (mean + half).tolist(), "band": band}
     series = [
-        Series(
-            f"{label} mean", xte.tolist(), mean.tolist(), lower=lower, upper=upper, band=band,
-            **common,
-        ),
+        Series(f"{label} mean", xte.tolist(), mean.tolist(), **fit, **common),
         Series("data", xtr.tolist(), ytr.tolist(), kind="markers", **common),
-    ]  # fmt: skip
+    ]
     if f_true is not None:
         f = np.asarray(f_true(xte), float).tolist()
         series.append(Series("true function", xte.tolist(), f, **common))
@@ -174,9 +189,14 @@ def _column(x: np.ndarray, name: str) -> np.ndarray:
 
 
 def line_figure(
-    curves: Mapping, *, title: str = "", xlabel: str = "", ylabel: str = "", log_y: bool = False,
+    curves: Mapping,
+    *,
+    title: str = "",
+    xlabel: str = "",
+    ylabel: str = "",
+    log_y: bool = False,
     backend: str = "plotly",
-):  # fmt: skip
+):
     """One panel of named curves: ``curves`` maps a legend label to a pair (x, y) of 1-D arrays
     of equal length; ``log_y`` draws a logarithmic y axis. Returns a plotly ``Figure`` or a
     :class:`~skillkit.viz.plots.NotebookFigure` (``backend="matplotlib"``)."""
@@ -185,22 +205,25 @@ def line_figure(
 
     if not isinstance(curves, Mapping) or not curves:
         raise ValueError("curves: expected a non-empty mapping of label to (x, y)")
-    series = []
+    series, axis = [], {"xlabel": xlabel, "ylabel": ylabel, "log_y": log_y}
     for label, pair in curves.items():
         if not (isinstance(pair, (tuple, list)) and len(pair) == 2):
             raise ValueError(f"curves[{label!r}]: expected a pair (x, y)")
         x = check_array(pair[0], f"curves[{label!r}] x", ndim=1)
         y = check_array(pair[1], f"curves[{label!r}] y", shape=x.shape)
-        series.append(
-            Series(str(label), x.tolist(), y.tolist(), xlabel=xlabel, ylabel=ylabel, log_y=log_y)
-        )
+        series.append(Series(str(label), x.tolist(), y.tolist(), **axis))
     return _draw(title, series, backend)
 
 
 def prediction_figure(
-    predicted, real, dim: int = 0, *, label: str = "", dt: float | None = None,
+    predicted,
+    real,
+    dim: int = 0,
+    *,
+    label: str = "",
+    dt: float | None = None,
     backend: str = "plotly",
-):  # fmt: skip
+):
     """Model-predicted against real trajectories of state dimension ``dim``, a panel per pair:
     the predicted mean with a 5th–95th percentile band over the L samples, and the real one.
 
@@ -245,9 +268,17 @@ def prediction_figure(
 
 
 def model_paths_figure(
-    model, context, omega, real=None, *, n_samples: int = 10, rng=None,
-    axes: tuple[int, int] = (0, 1), title: str = "", backend: str = "plotly",
-):  # fmt: skip
+    model,
+    context,
+    omega,
+    real=None,
+    *,
+    n_samples: int = 10,
+    rng=None,
+    axes: tuple[int, int] = (0, 1),
+    title: str = "",
+    backend: str = "plotly",
+):
     """A reward model's sampled paths for one (s, ω) over the simulator's, seen from above: what
     ``skillkit view TASK --gpreps RUN`` overlays in 3-D, as a static figure.
 
@@ -298,9 +329,16 @@ def model_paths_figure(
 
 
 def gpreps_run_paths_figure(
-    run_dir, trial: int = 0, *, update: int = -1, context=None, n_samples: int = 10,
-    seed: int = 0, axes: tuple[int, int] = (0, 1), backend: str = "plotly",
-):  # fmt: skip
+    run_dir,
+    trial: int = 0,
+    *,
+    update: int = -1,
+    context=None,
+    n_samples: int = 10,
+    seed: int = 0,
+    axes: tuple[int, int] = (0, 1),
+    backend: str = "plotly",
+):
     """A stored GPREPS run's last reward model against the simulator (:func:`model_paths_figure`).
 
     The policy mean of update ``update`` (Python indexing; -1 the final one) of trial
@@ -330,5 +368,6 @@ def gpreps_run_paths_figure(
     real = task.rollout(omega, s, rng)
     k = update % len(policies)
     title = f"{Path(run_dir).name}, trial {trial}, update {k}: predicted vs real paths"
-    return model_paths_figure(model, s, omega, real, n_samples=n_samples, rng=rng, axes=axes,
-                              title=title, backend=backend)  # fmt: skip
+    return model_paths_figure(
+        model, s, omega, real, n_samples=n_samples, rng=rng, axes=axes, title=title, backend=backend
+    )

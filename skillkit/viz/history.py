@@ -25,12 +25,9 @@ key                         shape           dtype    meaning
 ``mean_reward``             (K+1,)          float64  optional: reward of each policy's mean
 ==========================  ==============  =======  ==========================================
 
-``format`` names the version; a file without it (the ``policy_*`` arrays alone) is accepted,
-any other version refused with a message naming both. A change an existing reader would misread
-gets a new version string; new optional keys do not. ``skillkit reproduce`` stores the same
-arrays per trial in a run folder's ``trials.npz``, prefixed ``trial<i>__``, when the
-experiment's ``run_trial`` returned :meth:`PolicyRecorder.arrays`; :func:`load_policy_history`
-reads such a folder directly.
+A file without ``format`` (the ``policy_*`` arrays alone) is accepted, another version refused.
+``skillkit reproduce`` stores the same arrays per trial in a run folder's ``trials.npz``,
+prefixed ``trial<i>__``, when ``run_trial`` returned :meth:`PolicyRecorder.arrays`.
 """
 
 from __future__ import annotations
@@ -46,9 +43,12 @@ from skillkit.policies.gaussian import LinearGaussianPolicy
 from skillkit.viz._npz import read_npz
 
 __all__ = [
-    "HISTORY_FORMAT", "PolicyHistory", "PolicyRecorder", "load_policy_history",
+    "HISTORY_FORMAT",
+    "PolicyHistory",
+    "PolicyRecorder",
+    "load_policy_history",
     "save_policy_history",
-]  # fmt: skip
+]
 
 HISTORY_FORMAT = "skillkit-policy-history-v1"
 """The ``format`` entry of a policy-history file (see the module docstring)."""
@@ -134,15 +134,22 @@ class PolicyRecorder:
         """Write the history; ``result`` (the dict ``learn`` returns) adds rollouts and rewards."""
         r = result or {}
         return save_policy_history(
-            path, self.policies, rollouts=r.get("rollouts"), mean_reward=r.get("mean_reward"),
+            path,
+            self.policies,
+            rollouts=r.get("rollouts"),
+            mean_reward=r.get("mean_reward"),
             task=task,
-        )  # fmt: skip
+        )
 
 
 def save_policy_history(
-    path, policies: Sequence[LinearGaussianPolicy], *, rollouts=None, mean_reward=None,
+    path,
+    policies: Sequence[LinearGaussianPolicy],
+    *,
+    rollouts=None,
+    mean_reward=None,
     task: str = "",
-) -> Path:  # fmt: skip
+) -> Path:
     """Write policies π_0 … π_K (one per update, same dimensions) to a policy-history
     ``.npz`` (``.npz`` appended if missing) with optional ``rollouts``, ``mean_reward`` (K+1,)
     and the task name; returns the file written.

@@ -18,9 +18,8 @@ File format
    "task": "<task name or empty>"}``;
 3. the model, pickled (:mod:`pickle`, highest protocol).
 
-The header is read without unpickling, so another format or version (the message names both)
-is refused before any of its code runs. A change an existing reader would misread gets a new
-version string; new header keys do not.
+The header is read without unpickling, so another format or version is refused before any of
+its code runs.
 
 .. warning::
    Unpickling runs code named by the file. Load only reward-model files you trust;
@@ -42,10 +41,16 @@ from skillkit._validation import check_array, check_count
 from skillkit.viz.scenes import check_rgb, node_name
 
 __all__ = [
-    "REWARD_MODEL_FORMAT", "check_model_task", "dumps_reward_model", "load_gpreps_run",
-    "load_reward_model", "loads_reward_model", "model_layers", "reward_model_path",
+    "REWARD_MODEL_FORMAT",
+    "check_model_task",
+    "dumps_reward_model",
+    "load_gpreps_run",
+    "load_reward_model",
+    "loads_reward_model",
+    "model_layers",
+    "reward_model_path",
     "save_reward_model",
-]  # fmt: skip
+]
 
 REWARD_MODEL_FORMAT = "skillkit-reward-model-v1"
 """The first line of a reward-model file (see the module docstring)."""
@@ -152,8 +157,7 @@ def dumps_reward_model(model) -> bytes:
 def loads_reward_model(data: bytes, source: str = "the data"):
     """Read a reward model from the bytes of :func:`dumps_reward_model` (``source`` names them
     in errors). Same checks and warning as :func:`load_reward_model`."""
-    f = io.BytesIO(bytes(data))
-    path = source
+    f, path = io.BytesIO(bytes(data)), source
     first = f.readline(_MAX_LINE).rstrip(b"\n")
     if first != REWARD_MODEL_FORMAT.encode("ascii"):
         if first.startswith(_MAGIC_PREFIX):

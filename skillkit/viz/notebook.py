@@ -149,9 +149,8 @@ def export_html(notebook, out_dir=None, *, execute: bool = False, timeout: int =
     if execute:
         from nbclient import NotebookClient
 
-        NotebookClient(
-            nb, timeout=timeout, resources={"metadata": {"path": str(source.parent)}}
-        ).execute()
+        resources = {"metadata": {"path": str(source.parent)}}
+        NotebookClient(nb, timeout=timeout, resources=resources).execute()
     exporter = HTMLExporter(mathjax_url=f"mathjax/MathJax.js?config={MATHJAX_CONFIG}")
     body, _ = exporter.from_notebook_node(nb)
     marker = '<script type="text/x-mathjax-config">'

@@ -43,8 +43,6 @@ LINEAR_HEADROOM, LINEAR_GAP = 20.0, 5.0
 MAX_CLIPPED_FRACTION = 0.25
 
 _POINT_KINDS = ("line", "markers", "lines+markers")
-#: Kinds read as another (fig4.5's stored result has "lines" series).
-_KIND_ALIASES = {"lines": "line"}
 _MPL_DASH = {"solid": "-", "dash": "--", "dot": ":", "dashdot": "-."}
 
 #: Width (px) the plotly figures' text is wrapped for (a notebook cell); the figures are responsive.
@@ -271,11 +269,24 @@ def _layout(series: list[dict]) -> list[_Panel]:
                 yaxis = _limits(np.concatenate(ys), log_y, pad=0.06)
         label_x = next((s["xlabel"] for s in members if s.get("xlabel")), "")
         label_y = next((s["ylabel"] for s in members if s.get("ylabel")), "")
-        out.append(_Panel(
-            name, i, _axis_label(label_x, log_x), _axis_label(label_y, log_y), log_y, rng,
-            _clip_note(points, rng) if rng is not None else "", bands, floor, log_x, xaxis, yaxis,
-            kinds, len({s["name"] for s in members}),
-        ))  # fmt: skip
+        out.append(
+            _Panel(
+                name,
+                i,
+                _axis_label(label_x, log_x),
+                _axis_label(label_y, log_y),
+                log_y,
+                rng,
+                _clip_note(points, rng) if rng is not None else "",
+                bands,
+                floor,
+                log_x,
+                xaxis,
+                yaxis,
+                kinds,
+                len({s["name"] for s in members}),
+            )
+        )
     return out
 
 
@@ -303,8 +314,11 @@ def _draw_log_x(members: list[dict]) -> bool:
     return bool(xs.size) and float(xs.max()) >= 10.0 * float(xs.min())
 
 
-_LOG_WORDS = re.compile(r"\s*\(\s*log(?:arithmic)? scale\s*\)|log(?:arithmic)? scale\s*[;,]\s*|"
-                        r"\s*[;,]\s*log(?:arithmic)? scale", re.IGNORECASE)  # fmt: skip
+_LOG_WORDS = re.compile(
+    r"\s*\(\s*log(?:arithmic)? scale\s*\)|log(?:arithmic)? scale\s*[;,]\s*|"
+    r"\s*[;,]\s*log(?:arithmic)? scale",
+    re.IGNORECASE,
+)
 
 
 def _axis_label(label: str, log: bool) -> str:
@@ -381,10 +395,12 @@ def plotly_figure(result: dict):
     row_gap = 75 + 18 * name_lines  # tick labels and x title, then the next row's panel titles
     plot_h = nrows * PANEL_HEIGHT + (nrows - 1) * row_gap
     fig = make_subplots(
-        rows=nrows, cols=ncols, subplot_titles=names,
+        rows=nrows,
+        cols=ncols,
+        subplot_titles=names,
         horizontal_spacing=h_space if ncols > 1 else 0.02,
         vertical_spacing=row_gap / plot_h if nrows > 1 else 0.3,
-    )  # fmt: skip
+    )
     colors = _colors(series)
     shown: set[str] = set()
     # dashed series (references such as a demonstration) are drawn over the others, which
@@ -398,16 +414,32 @@ def plotly_figure(result: dict):
         if kind == "heatmap":
             sub = fig.get_subplot(**cell)
             x1, (y0, y1) = sub.xaxis.domain[1], sub.yaxis.domain
+            name = s["name"].split(",")[0].strip() or s["name"]  # the colour bar's title
             bar = {
-                "title": {"text": _colorbar_title(s["name"]), "side": "right"},
-                "x": x1 + 0.01, "xanchor": "left", "y": (y0 + y1) / 2, "yanchor": "middle",
-                "len": y1 - y0, "lenmode": "fraction", "thickness": 12, "ticks": "outside",
-                "showticklabels": True, "exponentformat": "power",
-            }  # fmt: skip
+                "title": {"text": _wrap_html(name, 16), "side": "right"},
+                "x": x1 + 0.01,
+                "xanchor": "left",
+                "y": (y0 + y1) / 2,
+                "yanchor": "middle",
+                "len": y1 - y0,
+                "lenmode": "fraction",
+                "thickness": 12,
+                "ticks": "outside",
+                "showticklabels": True,
+                "exponentformat": "power",
+            }
             fig.add_heatmap(
-                x=s["x"], y=s["y"], z=s["z"], name=s["name"], colorscale="Viridis",
-                zmin=s.get("zmin"), zmax=s.get("zmax"), showscale=True, colorbar=bar, **cell,
-            )  # fmt: skip
+                x=s["x"],
+                y=s["y"],
+                z=s["z"],
+                name=s["name"],
+                colorscale="Viridis",
+                zmin=s.get("zmin"),
+                zmax=s.get("zmax"),
+                showscale=True,
+                colorbar=bar,
+                **cell,
+            )
             continue
         legend = {"showlegend": s["name"] not in shown, "legendrank": 1000 + rank}
         if kind == "bar":
@@ -418,35 +450,54 @@ def plotly_figure(result: dict):
             lower, upper = _band_arrays(s, panel.log_y, panel.floor)
             label = _band_label(s, panel)
             fig.add_scatter(
-                x=list(s["x"]) + list(s["x"])[::-1], y=upper.tolist() + lower[::-1].tolist(),
-                fill="toself", line={"width": 0}, fillcolor=color, opacity=0.2,
-                hoverinfo="skip", showlegend=label is not None and label not in shown,
-                name=label or f"{s['name']} (band)", legendrank=1000 + rank, **cell,
-            )  # fmt: skip
+                x=list(s["x"]) + list(s["x"])[::-1],
+                y=upper.tolist() + lower[::-1].tolist(),
+                fill="toself",
+                line={"width": 0},
+                fillcolor=color,
+                opacity=0.2,
+                hoverinfo="skip",
+                showlegend=label is not None and label not in shown,
+                name=label or f"{s['name']} (band)",
+                legendrank=1000 + rank,
+                **cell,
+            )
             if label:
                 shown.add(label)
         mode = {"line": "lines", "markers": "markers"}.get(kind, kind)
         fig.add_scatter(
-            x=s["x"], y=s["y"], mode="lines+markers" if _single_point(s) else mode,
-            name=s["name"], line={"color": color, "dash": s.get("dash") or "solid"},
-            marker={"color": color}, **legend, **cell,
-        )  # fmt: skip
+            x=s["x"],
+            y=s["y"],
+            mode="lines+markers" if _single_point(s) else mode,
+            name=s["name"],
+            line={"color": color, "dash": s.get("dash") or "solid"},
+            marker={"color": color},
+            **legend,
+            **cell,
+        )
         shown.add(s["name"])
         if panel.range is None:
             continue
         for mask, edge, symbol in zip(
-            panel.range.clipped(s["y"]), panel.range.axis[::-1], ("triangle-up", "triangle-down"),
+            panel.range.clipped(s["y"]),
+            panel.range.axis[::-1],
+            ("triangle-up", "triangle-down"),
             strict=True,
-        ):  # fmt: skip
+        ):
             if mask.any():
                 ys = np.asarray(s["y"], dtype=float)[mask]
                 fig.add_scatter(
-                    x=np.asarray(s["x"])[mask].tolist(), y=[edge] * int(mask.sum()),
-                    mode="markers", marker={"color": color, "symbol": symbol, "size": 10},
-                    name=f"{s['name']} (off scale)", hoverinfo="text", cliponaxis=False,
+                    x=np.asarray(s["x"])[mask].tolist(),
+                    y=[edge] * int(mask.sum()),
+                    mode="markers",
+                    marker={"color": color, "symbol": symbol, "size": 10},
+                    name=f"{s['name']} (off scale)",
+                    hoverinfo="text",
+                    cliponaxis=False,
                     hovertext=[f"{s['name']}: {_fmt(v)} (off scale)" for v in ys],
-                    showlegend=False, **cell,
-                )  # fmt: skip
+                    showlegend=False,
+                    **cell,
+                )
     for panel in panels:
         cell = {"row": panel.index // ncols + 1, "col": panel.index % ncols + 1}
         limits = panel.range.axis if panel.range is not None else panel.yaxis
@@ -455,24 +506,41 @@ def plotly_figure(result: dict):
             (fig.update_yaxes, panel.ylabel, panel.log_y, limits),
         ):
             update(
-                title_text=label, type="log" if log else None, range=_axis_range(lims, log),
+                title_text=label,
+                type="log" if log else None,
+                range=_axis_range(lims, log),
                 exponentformat="power" if log else None,  # 10⁻⁶, not SI's "1µ"
-                automargin=True, **cell,
-            )  # fmt: skip
+                automargin=True,
+                **cell,
+            )
         if panel.note:
             fig.add_annotation(
-                text=_wrap_html(panel.note, int(col_px / 5.5)), xref="x domain",
-                yref="y domain", x=0.01, y=0.99, xanchor="left", yanchor="top", align="left",
-                showarrow=False, font={"size": 10}, bgcolor="rgba(255,255,255,0.8)", **cell,
-            )  # fmt: skip
+                text=_wrap_html(panel.note, int(col_px / 5.5)),
+                xref="x domain",
+                yref="y domain",
+                x=0.01,
+                y=0.99,
+                xanchor="left",
+                yanchor="top",
+                align="left",
+                showarrow=False,
+                font={"size": 10},
+                bgcolor="rgba(255,255,255,0.8)",
+                **cell,
+            )
         label = f"shaded: {panel.bands[0]}" if len(panel.bands) == 1 else None
         if label is not None and label not in shown:
             shown.add(label)
             fig.add_scatter(
-                x=[None], y=[None], mode="markers", opacity=0.4, name=label,
+                x=[None],
+                y=[None],
+                mode="markers",
+                opacity=0.4,
+                name=label,
                 marker={"symbol": "square", "size": 12, "color": _BAND_SWATCH},
-                legendrank=2000 + len(series), **cell,
-            )  # fmt: skip
+                legendrank=2000 + len(series),
+                **cell,
+            )
     fig.update_xaxes(automargin=True)
     fig.update_yaxes(automargin=True)
     for k in range(len(panels), nrows * ncols):  # an empty grid cell shows no axes
@@ -496,18 +564,29 @@ def plotly_figure(result: dict):
     bottom = 70 + legend_h
     fig.update_layout(
         title={
-            "text": text, "x": 0.01, "xanchor": "left", "xref": "container",
-            "y": 1 - 14 / (top + plot_h + bottom), "yanchor": "top", "yref": "container",
+            "text": text,
+            "x": 0.01,
+            "xanchor": "left",
+            "xref": "container",
+            "y": 1 - 14 / (top + plot_h + bottom),
+            "yanchor": "top",
+            "yref": "container",
             "font": {"size": 15},
         },
         margin={"t": top, "b": bottom, "l": 70, "r": 80 if heat else 20, "autoexpand": True},
-        height=top + plot_h + bottom, autosize=True, showlegend=show_legend,
+        height=top + plot_h + bottom,
+        autosize=True,
+        showlegend=show_legend,
         legend={
-            "orientation": "h", "x": 0, "xanchor": "left", "y": -70 / plot_h,
-            "yanchor": "top", "font": {"size": 11},
+            "orientation": "h",
+            "x": 0,
+            "xanchor": "left",
+            "y": -70 / plot_h,
+            "yanchor": "top",
+            "font": {"size": 11},
         },
         template="plotly_white",
-    )  # fmt: skip
+    )
     return fig
 
 
@@ -526,11 +605,6 @@ def _dashed(s: Mapping) -> bool:
 def _wrap_html(text: str, width: int) -> str:
     """``text`` wrapped to ``width`` characters with ``<br>`` (plotly's line break)."""
     return "<br>".join(textwrap.wrap(text, width=max(int(width), 12)) or [""])
-
-
-def _colorbar_title(name: str) -> str:
-    """A heatmap's colour-bar title: its series name up to the first comma, wrapped short."""
-    return _wrap_html(name.split(",")[0].strip() or name, 16)
 
 
 def _legend_height(entries: list[str]) -> int:
@@ -570,9 +644,14 @@ def matplotlib_figure(result: dict):
         kind = s.get("kind", "line")
         if kind == "heatmap":
             mesh = ax.pcolormesh(
-                s["x"], s["y"], s["z"], shading="auto", cmap="viridis", vmin=s.get("zmin"),
+                s["x"],
+                s["y"],
+                s["z"],
+                shading="auto",
+                cmap="viridis",
+                vmin=s.get("zmin"),
                 vmax=s.get("zmax"),
-            )  # fmt: skip
+            )
             bar = fig.colorbar(mesh, ax=ax)
             bar.set_label(s["name"].split(",")[0].strip() or s["name"], fontsize=8)
             continue
@@ -584,20 +663,29 @@ def matplotlib_figure(result: dict):
             label = _band_label(s, panel) or "_nolegend_"
             ax.fill_between(s["x"], lower, upper, color=color, alpha=0.2, linewidth=0, label=label)
         ax.plot(
-            s["x"], s["y"], color=color, label=s["name"], markersize=3,
+            s["x"],
+            s["y"],
+            color=color,
+            label=s["name"],
+            markersize=3,
             marker="o" if kind in ("markers", "lines+markers") or _single_point(s) else None,
             linestyle="none" if kind == "markers" else _MPL_DASH[s.get("dash") or "solid"],
             zorder=2.5 if _dashed(s) else 2,  # a dashed reference is drawn over the fit
-        )  # fmt: skip
+        )
         if panel.range is not None:
             for mask, edge, marker in zip(
                 panel.range.clipped(s["y"]), panel.range.axis[::-1], ("^", "v"), strict=True
             ):
                 if mask.any():
                     ax.plot(
-                        np.asarray(s["x"])[mask], [edge] * int(mask.sum()), marker, color=color,
-                        markersize=6, clip_on=False, label="_nolegend_",
-                    )  # fmt: skip
+                        np.asarray(s["x"])[mask],
+                        [edge] * int(mask.sum()),
+                        marker,
+                        color=color,
+                        markersize=6,
+                        clip_on=False,
+                        label="_nolegend_",
+                    )
     for panel in panels:
         ax = axes[panel.index // ncols][panel.index % ncols]
         ax.set_title(panel.name, fontsize=10)
@@ -611,21 +699,23 @@ def matplotlib_figure(result: dict):
             ax.set_ylim(*panel.range.axis)
         if panel.note:
             ax.text(
-                0.01, 0.99, textwrap.fill(panel.note, width=70), transform=ax.transAxes,
-                ha="left", va="top", fontsize=7,
+                0.01,
+                0.99,
+                textwrap.fill(panel.note, width=70),
+                transform=ax.transAxes,
+                ha="left",
+                va="top",
+                fontsize=7,
                 bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none", "pad": 1.5},
-            )  # fmt: skip
+            )
         handles, labels = ax.get_legend_handles_labels()
         if len(panel.bands) == 1:
             handles.append(Patch(color=_BAND_SWATCH, alpha=0.4, linewidth=0))
             labels.append(f"shaded: {panel.bands[0]}")
-        if len(handles) > _LEGEND_INSIDE_MAX:  # a long legend would hide the data: below the axes
-            ax.legend(
-                handles, labels, fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16),
-                ncol=2, frameon=False,
-            )  # fmt: skip
-        elif handles:
-            ax.legend(handles, labels, fontsize=7)
+        below = {"loc": "upper center", "bbox_to_anchor": (0.5, -0.16), "ncol": 2, "frameon": False}
+        if handles:  # a long legend would hide the data: below the axes
+            place = below if len(handles) > _LEGEND_INSIDE_MAX else {}
+            ax.legend(handles, labels, fontsize=7, **place)
     for k in range(len(panels), nrows * ncols):
         axes[k // ncols][k % ncols].axis("off")
     title = head + (f"\n{sub}" if sub else "")
@@ -660,8 +750,6 @@ def _check_result(result) -> list[dict]:
         if not isinstance(s, Mapping) or not {"name", "x", "y"} <= set(s):
             raise ValueError(f"result: series[{i}] lacks 'name', 'x' or 'y'")
         s = dict(s)
-        if s.get("kind") in _KIND_ALIASES:
-            s["kind"] = _KIND_ALIASES[s["kind"]]
         if s.get("dash") is not None and s["dash"] not in DASHES:
             raise ValueError(f"result: series[{i}] dash {s['dash']!r} is not one of {DASHES}")
         out.append(s)

@@ -22,9 +22,7 @@ key                     shape      dtype    meaning
 ``__format__``          ()         str      ``"skillkit-predictions-v1"``
 ======================  =========  =======  ==================================================
 
-``__format__`` names the version (its ``"__"`` keeps it from being read as a layer); a file
-without it is read as v1, any other version refused with a message naming both. A change an
-existing reader would misread gets a new version string; new optional per-layer keys do not.
+A file without ``__format__`` is read as v1, another version refused.
 """
 
 from __future__ import annotations
@@ -45,9 +43,14 @@ _FORMAT_KEY = "__format__"
 
 
 def save_predictions(
-    path, layers: Mapping[str, np.ndarray], *, colors: Mapping | None = None,
-    opacities: Mapping | None = None, times: Mapping | None = None, space: str = "state",
-) -> Path:  # fmt: skip
+    path,
+    layers: Mapping[str, np.ndarray],
+    *,
+    colors: Mapping | None = None,
+    opacities: Mapping | None = None,
+    times: Mapping | None = None,
+    space: str = "state",
+) -> Path:
     """Write prediction layers ``{name: (L, T, n)}`` (names non-empty, without ``"__"``) to
     ``path`` (``.npz`` appended if missing) and return the file written.
 

@@ -1,13 +1,11 @@
 """Task scenes for the viser viewer: functions that add scene nodes and return their handles.
 
 Everything works headless on a :class:`viser.SceneApi` (``server.scene``). Node names are paths
-(``/arm/link3``, ``/ball``, ``/trails/ball``); +z is up and quaternions are ``wxyz``. Three
-layers: primitives (:func:`add_ball`, :func:`add_trail`, the meshes :func:`capsule_mesh`,
-:func:`tube_mesh`); :func:`add_mujoco_model`, one frame per body holding its geoms at body-local
-poses; and :class:`TaskScene` adapters mapping a task's trajectory (joint positions, ``signals``,
-context) onto the scene, chosen by :func:`task_scene`. A signal sampled on its own clock carries
-it as another signal (``ball_times`` for ``ball``, :func:`signal_times`); objects are
-interpolated linearly and rest at their first or last sample outside the record.
+(``/arm/link3``, ``/ball``); +z is up and quaternions are ``wxyz``. Three layers: primitives
+(:func:`add_ball`, :func:`add_trail`, :func:`capsule_mesh`, :func:`tube_mesh`);
+:func:`add_mujoco_model`, one frame per body holding its geoms; and :class:`TaskScene` adapters
+mapping a task's trajectory onto the scene, chosen by :func:`task_scene`. A signal on its own
+clock carries it as another signal (``ball_times`` for ``ball``, :func:`signal_times`).
 """
 
 from __future__ import annotations
@@ -26,19 +24,41 @@ from skillkit._validation import check_array, check_positive
 from skillkit.trajectory import Trajectory
 
 __all__ = [
-    "COLORS", "HockeyScene", "MujocoScene", "MujocoTaskScene", "PendulumScene", "PlanarScene",
-    "TableTennisScene", "TaskScene", "ThrowingScene", "add_ball", "add_mujoco_model", "add_puck",
-    "add_table", "add_target", "add_trail", "capsule_mesh", "interpolate", "signal_times",
-    "task_model", "task_scene", "tube_mesh",
-]  # fmt: skip
+    "COLORS",
+    "HockeyScene",
+    "MujocoScene",
+    "MujocoTaskScene",
+    "PendulumScene",
+    "PlanarScene",
+    "TableTennisScene",
+    "TaskScene",
+    "ThrowingScene",
+    "add_ball",
+    "add_mujoco_model",
+    "add_puck",
+    "add_table",
+    "add_target",
+    "add_trail",
+    "capsule_mesh",
+    "interpolate",
+    "signal_times",
+    "task_model",
+    "task_scene",
+    "tube_mesh",
+]
 
 RGB = tuple[int, int, int]
 
 COLORS: dict[str, RGB] = {
-    "robot": (160, 170, 190), "ball": (245, 130, 30), "control_puck": (30, 30, 30),
-    "target_puck": (200, 30, 40), "target": (40, 170, 60), "table": (60, 110, 170),
-    "trail": (30, 100, 220), "prediction": (220, 40, 160),
-}  # fmt: skip
+    "robot": (160, 170, 190),
+    "ball": (245, 130, 30),
+    "control_puck": (30, 30, 30),
+    "target_puck": (200, 30, 40),
+    "target": (40, 170, 60),
+    "table": (60, 110, 170),
+    "trail": (30, 100, 220),
+    "prediction": (220, 40, 160),
+}
 """Default colours (RGB, 0–255) of the scene objects."""
 
 _MJ_DEFAULT_RGBA = np.array([0.5, 0.5, 0.5, 1.0])
@@ -225,33 +245,56 @@ def signal_times(trajectory: Trajectory, key: str, times_key: str | None = None)
 
 
 def add_ball(
-    scene, name: str = "/ball", radius: float = 0.05, color=COLORS["ball"], *,
-    opacity: float | None = None, position=(0.0, 0.0, 0.0), visible: bool = True,
-):  # fmt: skip
+    scene,
+    name: str = "/ball",
+    radius: float = 0.05,
+    color=COLORS["ball"],
+    *,
+    opacity: float | None = None,
+    position=(0.0, 0.0, 0.0),
+    visible: bool = True,
+):
     """A ball (icosphere) of ``radius`` metres at ``position``; returns its handle."""
     return scene.add_icosphere(
-        check_path(name), radius=check_positive(radius, "radius"), color=check_rgb(color),
-        opacity=check_opacity(opacity), subdivisions=2, position=_position(position),
+        check_path(name),
+        radius=check_positive(radius, "radius"),
+        color=check_rgb(color),
+        opacity=check_opacity(opacity),
+        subdivisions=2,
+        position=_position(position),
         visible=visible,
-    )  # fmt: skip
+    )
 
 
 def add_puck(
-    scene, name: str, radius: float, height: float, color=COLORS["control_puck"], *,
+    scene,
+    name: str,
+    radius: float,
+    height: float,
+    color=COLORS["control_puck"],
+    *,
     position=(0.0, 0.0, 0.0),
-):  # fmt: skip
+):
     """A puck: a cylinder along z of ``radius`` and ``height``, centred at ``position``."""
     return scene.add_cylinder(
-        check_path(name), radius=check_positive(radius, "radius"),
-        height=check_positive(height, "height"), color=check_rgb(color),
+        check_path(name),
+        radius=check_positive(radius, "radius"),
+        height=check_positive(height, "height"),
+        color=check_rgb(color),
         position=_position(position),
-    )  # fmt: skip
+    )
 
 
 def add_target(
-    scene, name: str = "/target", radius: float = 0.1, color=COLORS["target"], *,
-    opacity: float | None = 0.6, position=(0.0, 0.0, 0.0), flat: bool = False,
-):  # fmt: skip
+    scene,
+    name: str = "/target",
+    radius: float = 0.1,
+    color=COLORS["target"],
+    *,
+    opacity: float | None = 0.6,
+    position=(0.0, 0.0, 0.0),
+    flat: bool = False,
+):
     """A target marker: a translucent sphere, or a thin disc on a surface (``flat=True``)."""
     name, color, opacity = check_path(name), check_rgb(color), check_opacity(opacity)
     radius = check_positive(radius, "radius")
@@ -262,9 +305,15 @@ def add_target(
 
 
 def add_table(
-    scene, name: str = "/table", size=(2.74, 1.525), height: float = 0.76, *,
-    center=(0.0, 0.0), thickness: float = 0.03, color=COLORS["table"],
-):  # fmt: skip
+    scene,
+    name: str = "/table",
+    size=(2.74, 1.525),
+    height: float = 0.76,
+    *,
+    center=(0.0, 0.0),
+    thickness: float = 0.03,
+    color=COLORS["table"],
+):
     """A table top: a box of ``size`` (x, y) metres whose upper surface is at ``height``."""
     size = check_array(size, "size", shape=(2,))
     if np.any(size <= 0):
@@ -272,25 +321,38 @@ def add_table(
     thickness = check_positive(thickness, "thickness")
     cx, cy = check_array(center, "center", shape=(2,))
     return scene.add_box(
-        check_path(name), color=check_rgb(color),
+        check_path(name),
+        color=check_rgb(color),
         dimensions=(float(size[0]), float(size[1]), thickness),
         position=(cx, cy, float(height) - thickness / 2),
-    )  # fmt: skip
+    )
 
 
 def add_trail(
-    scene, name: str, paths, color=COLORS["trail"], *, radius: float = 0.008,
-    opacity: float | None = None, visible: bool = True,
-):  # fmt: skip
+    scene,
+    name: str,
+    paths,
+    color=COLORS["trail"],
+    *,
+    radius: float = 0.008,
+    opacity: float | None = None,
+    visible: bool = True,
+):
     """Tubes through each of one or L world-frame paths (T, 3) or (L, T, 3), T ≥ 2, as one mesh
     node (:func:`tube_mesh`) of ``radius`` metres; predictions are drawn translucent
     (``opacity`` in (0, 1])."""
     vertices, faces = tube_mesh(paths, radius)
     return scene.add_mesh_simple(
-        check_path(name), vertices, faces, color=check_rgb(color),
-        opacity=check_opacity(opacity), side="double", cast_shadow=False, receive_shadow=False,
+        check_path(name),
+        vertices,
+        faces,
+        color=check_rgb(color),
+        opacity=check_opacity(opacity),
+        side="double",
+        cast_shadow=False,
+        receive_shadow=False,
         visible=visible,
-    )  # fmt: skip
+    )
 
 
 @dataclass
@@ -395,10 +457,14 @@ def add_geom(scene, name: str, model: mujoco.MjModel, geom: int, *, position=Non
 
 
 def add_mujoco_model(
-    scene, model: mujoco.MjModel, root: str = "/arm", *,
-    world_paths: Mapping[str, str] | None = None, skip_geoms: Sequence[str] = (),
+    scene,
+    model: mujoco.MjModel,
+    root: str = "/arm",
+    *,
+    world_paths: Mapping[str, str] | None = None,
+    skip_geoms: Sequence[str] = (),
     max_group: int = 2,
-) -> MujocoScene:  # fmt: skip
+) -> MujocoScene:
     """Add every visible geom of a MuJoCo model, one frame per body.
 
     Body ``b`` becomes a frame ``<root>/<body name>`` (``body<b>`` if unnamed, ``world`` for
@@ -430,11 +496,14 @@ def add_mujoco_model(
         b = int(model.geom_bodyid[g])
         group = int(model.geom_group[g])
         why = (
-            "skipped on request" if gname in skip_geoms
-            else f"group {group} > {max_group}" if group > max_group
-            else "fully transparent" if _geom_color(model, g)[1] <= 0.0
+            "skipped on request"
+            if gname in skip_geoms
+            else f"group {group} > {max_group}"
+            if group > max_group
+            else "fully transparent"
+            if _geom_color(model, g)[1] <= 0.0
             else ""
-        )  # fmt: skip
+        )
         if why:
             out.skipped.append(f"{label}: {why}")
             continue
@@ -554,12 +623,10 @@ class PendulumScene(TaskScene):
         add(scene.add_icosphere("/pendulum/pivot", radius=0.05, **pivot))
         self.link = add(scene.add_frame("/pendulum/link1", show_axes=False, position=self.PIVOT))
         v, f = capsule_mesh(0.02, length / 2)
-        add(scene.add_mesh_simple(
-            "/pendulum/link1/rod", v, f, color=COLORS["robot"], position=(0.0, 0.0, -length / 2)
-        ))  # fmt: skip
-        add(scene.add_icosphere(
-            "/pendulum/link1/bob", radius=0.08, color=COLORS["ball"], position=(0.0, 0.0, -length)
-        ))  # fmt: skip
+        rod = {"color": COLORS["robot"], "position": (0.0, 0.0, -length / 2)}
+        add(scene.add_mesh_simple("/pendulum/link1/rod", v, f, **rod))
+        bob = {"radius": 0.08, "color": COLORS["ball"], "position": (0.0, 0.0, -length)}
+        add(scene.add_icosphere("/pendulum/link1/bob", **bob))
         add(scene.add_grid("/ground", width=4.0, height=4.0))
 
     def set_angle(self, alpha: float) -> None:
@@ -771,8 +838,13 @@ class TableTennisScene(MujocoTaskScene):
 
 
 _ADAPTERS: tuple[type[TaskScene], ...] = (
-    PendulumScene, PlanarScene, ThrowingScene, HockeyScene, TableTennisScene, MujocoTaskScene,
-)  # fmt: skip
+    PendulumScene,
+    PlanarScene,
+    ThrowingScene,
+    HockeyScene,
+    TableTennisScene,
+    MujocoTaskScene,
+)
 
 
 def task_scene(scene, task) -> TaskScene:

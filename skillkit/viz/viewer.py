@@ -39,8 +39,13 @@ from skillkit.viz.scenes import (
 )
 
 __all__ = [
-    "DEFAULT_HOST", "DEFAULT_PORT", "PortInUseError", "PredictionLayer", "Viewer", "start_server",
-]  # fmt: skip
+    "DEFAULT_HOST",
+    "DEFAULT_PORT",
+    "PortInUseError",
+    "PredictionLayer",
+    "Viewer",
+    "start_server",
+]
 
 PREDICTION_COLORS = [(220, 40, 160), (150, 70, 220), (20, 170, 170), (230, 160, 0)]
 """Colours given to prediction layers in turn when none is specified."""
@@ -113,16 +118,6 @@ def _call_silenced(fn: Callable[[], _Result]) -> _Result:
     return outcome["value"]
 
 
-def _silence_server_thread(server) -> None:
-    """Drop what ``rich`` prints from now on in ``server``'s event-loop thread."""
-    import rich
-
-    try:
-        server.get_event_loop().call_soon_threadsafe(rich.get_console().begin_capture)
-    except RuntimeError:  # the loop is already closed: nothing more will print there
-        pass
-
-
 def start_server(
     host: str = DEFAULT_HOST, port: int = 0, *, label: str | None = None, verbose: bool = False
 ):
@@ -140,8 +135,13 @@ def start_server(
 
     if verbose:
         return make()
+    import rich
+
     server = _call_silenced(make)
-    _silence_server_thread(server)
+    try:  # drop what rich prints from now on in the server's event-loop thread
+        server.get_event_loop().call_soon_threadsafe(rich.get_console().begin_capture)
+    except RuntimeError:  # the loop is already closed: nothing more will print there
+        pass
     return server
 
 
@@ -180,10 +180,18 @@ class Viewer:
     """
 
     def __init__(
-        self, task, policy: LinearGaussianPolicy | None = None, context=None, *,
-        history: PolicyHistory | None = None, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT,
-        seed: int = 0, environment: bool = True, verbose: bool = False,
-    ) -> None:  # fmt: skip
+        self,
+        task,
+        policy: LinearGaussianPolicy | None = None,
+        context=None,
+        *,
+        history: PolicyHistory | None = None,
+        host: str = DEFAULT_HOST,
+        port: int = DEFAULT_PORT,
+        seed: int = 0,
+        environment: bool = True,
+        verbose: bool = False,
+    ) -> None:
         from skillkit.tasks import Task, make
 
         self.task = make(task) if isinstance(task, str) else task
@@ -269,9 +277,11 @@ class Viewer:
                 if not self.environment:
                     server.scene.configure_environment_map(None)
                     server.scene.add_light_hemisphere(
-                        "/lights/hemisphere", sky_color=(255, 255, 255),
-                        ground_color=(120, 120, 120), intensity=2.0,
-                    )  # fmt: skip
+                        "/lights/hemisphere",
+                        sky_color=(255, 255, 255),
+                        ground_color=(120, 120, 120),
+                        intensity=2.0,
+                    )
                 cam = server.initial_camera
                 cam.position, cam.look_at = self.scene.camera_position, self.scene.camera_look_at
                 self._build_gui()
@@ -549,15 +559,27 @@ class Viewer:
                     _, traj = self._roll_out(self.history[k])
                     if not traj.failed:
                         self._add_trails(
-                            self._ghost_nodes, traj, f"/history/update{k}", (120, 120, 120),
-                            radius=0.005, opacity=0.15 + 0.6 * (i + 1) / len(updates),
-                        )  # fmt: skip
+                            self._ghost_nodes,
+                            traj,
+                            f"/history/update{k}",
+                            (120, 120, 120),
+                            radius=0.005,
+                            opacity=0.15 + 0.6 * (i + 1) / len(updates),
+                        )
             self._refresh_tree()
 
     def add_prediction_layer(
-        self, name: str, trajectories, color=None, opacity: float = 0.3, *, times=None,
-        space: str = "state", label: str | None = None, visible: bool = True,
-    ) -> PredictionLayer:  # fmt: skip
+        self,
+        name: str,
+        trajectories,
+        color=None,
+        opacity: float = 0.3,
+        *,
+        times=None,
+        space: str = "state",
+        label: str | None = None,
+        visible: bool = True,
+    ) -> PredictionLayer:
         """Overlay a model's predicted trajectories on the real rollout.
 
         ``name`` is a path component (e.g. ``"gp"``; replaces a layer of the same name);
@@ -622,17 +644,24 @@ class Viewer:
                     scene, f"{base}/samples", points, color, radius=0.004, opacity=opacity
                 )
                 nodes[f"{base}/mean"] = add_trail(
-                    scene, f"{base}/mean", points.mean(axis=0), color, radius=0.008,
+                    scene,
+                    f"{base}/mean",
+                    points.mean(axis=0),
+                    color,
+                    radius=0.008,
                     opacity=min(1.0, 2 * opacity),
-                )  # fmt: skip
+                )
             else:  # predicted points: the L dots and their mean
                 nodes[f"{base}/samples"] = scene.add_point_cloud(
                     f"{base}/samples", points[:, 0], color, point_size=0.02, point_shape="circle"
                 )
                 nodes[f"{base}/mean"] = scene.add_point_cloud(
-                    f"{base}/mean", points[:, 0].mean(axis=0, keepdims=True), color,
-                    point_size=0.045, point_shape="diamond",
-                )  # fmt: skip
+                    f"{base}/mean",
+                    points[:, 0].mean(axis=0, keepdims=True),
+                    color,
+                    point_size=0.045,
+                    point_shape="diamond",
+                )
             nodes[f"{base}/now"] = scene.add_point_cloud(
                 f"{base}/now", layer.at(self.time), color, point_size=0.03, point_shape="circle"
             )

@@ -113,31 +113,13 @@ def test_same_seed_same_result_and_batches_without_extras_are_unaffected():
         np.testing.assert_array_equal(other.cov, fits[0].cov)
 
 
-def test_buffer_marks_rollouts_across_batches_and_reads_old_batches():
+def test_buffer_marks_rollouts_across_batches():
     buf = SampleBuffer(2)
     s, w, r = np.zeros((6, 1)), np.zeros((6, 1)), np.zeros(6)
     buf.add(s, w, r, 2, np.arange(1.0, 7.0))
     buf.add(s[:3], w[:3], r[:3])
     np.testing.assert_array_equal(buf.rollout_mask(), [1, 1, 0, 0, 0, 0, 1, 1, 1])
     np.testing.assert_allclose(buf.importance(), np.r_[np.arange(1.0, 7.0) / 3.5, np.ones(3)])
-    buf._batches.append((s[:2], w[:2], r[:2]))  # a batch pickled without rollout counts
-    np.testing.assert_array_equal(buf.rollout_mask(), [1, 1, 1, 1, 1])
-    assert buf.arrays()[0].shape == (5, 1)
-
-
-def test_reps_pickled_before_the_options_runs_as_before():
-    task = Target()
-    batch = collect(task, task.initial_policy(), 10, 4, extra_contexts=3)
-    new = ContextualREPS(task.initial_policy(), 0.5, extra_context_weighting="naive")
-    old = ContextualREPS(task.initial_policy(), 0.5)
-    for name in ("extra_context_weighting", "m_step", "entropy_loss_bound"):
-        del vars(old)[name]  # an instance pickled without the options
-    old._buffer._batches.append((batch.contexts[:10], batch.omegas[:10], batch.rewards[:10]))
-    new._buffer.add(batch.contexts[:10], batch.omegas[:10], batch.rewards[:10])
-    old.update(batch)
-    new.update(batch)
-    np.testing.assert_array_equal(old.policy.gain, new.policy.gain)
-    np.testing.assert_array_equal(old.policy.cov, new.policy.cov)
 
 
 def test_bad_input_names_the_argument():

@@ -420,16 +420,3 @@ def test_refit_records_the_start_kept_for_every_gp(data):
         assert v["log_ml_cold"] is not None and v["log_ml_warm"] is not None, key
         kept = v[f"log_ml_{v['start']}"]
         assert kept == max(v["log_ml_cold"], v["log_ml_warm"]), key
-
-
-def test_a_model_pickled_before_the_contact_model_still_predicts(fitted):
-    """A stored run's reward model (trials.npz) may predate ContactModel and refit: it gets a
-    ContactModel from its own classifier and landing GP."""
-    _, model, _, _, (s, w, _, _) = fitted
-    old = copy.copy(model)
-    contact = old.__dict__.pop("contact")
-    del old.__dict__["refit"]
-    old.__dict__.update(classifier=contact.classifier, returns=contact.returns)
-    pred = old.predict(s[:2], w[:2], 3, rng=0)
-    assert pred.rewards.shape == (2, 3)
-    assert old.contact.score == "decision" and old.classifier is contact.classifier

@@ -527,18 +527,6 @@ def test_axis_ranges_contain_every_point_and_band():
     assert line.get_marker() == "o"
 
 
-def test_lines_kind_counts_in_the_robust_range():
-    """ "lines" (plotly's word) is read as "line": a runaway value in it gets the robust
-    range and its note (fig4.5's noise floor at 1e-32 stretched the axis to 1e-30)."""
-    series = [
-        Series("a", list(range(20)), list(np.linspace(1, 30, 20)), panel="p", log_y=True),
-        Series("floor", [0, 1], [1.6e-32, 1.0], panel="p", kind="lines", log_y=True),
-    ]
-    fig = plotly_figure(_result([s.to_dict() for s in series]))
-    assert fig.layout.yaxis.range[0] > -10
-    assert any("below" in (a.text or "") for a in fig.layout.annotations)
-
-
 def test_every_heatmap_has_a_titled_colour_bar_with_values():
     """ch5's heatmaps: each panel's colour bar shows tick labels and what it measures (a
     panel with another colour range, fig5.3's noise floor, gets its own)."""

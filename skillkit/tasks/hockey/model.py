@@ -596,28 +596,13 @@ class HockeyRewardModel(RewardModel):
     # ------------------------------------------------------------------ fit
     def _fit_gp(self, key: str, x: np.ndarray, y: np.ndarray, rng) -> tuple[Any, dict]:
         """Refit GP ``key`` on (x, y) (:func:`refit_gp`); the GP and the refit record."""
-        hypers = getattr(self, "_hypers", {})
-        gp, record = refit_gp(
-            getattr(self, f"make_{key}_model"), x, y, rng, hypers.get(key), self.refit
-        )
+        make = getattr(self, f"make_{key}_model")
+        gp, record = refit_gp(make, x, y, rng, self._hypers[key], self.refit)
         if isinstance(gp, GPRegression):
-            hypers[key] = gp.hyperparameters
-            self._hypers = hypers
+            self._hypers[key] = gp.hyperparameters
         if self.device is not None:
             gp.predictor = gp.predictor.to(torch.device(self.device))
         return gp, record
-
-    def _launch_targets(self) -> LaunchTargets:
-        return LaunchTargets(getattr(self, "launch_targets", "velocity"))  # pickles without it
-
-    def _displacement_model(self) -> DisplacementModel | None:
-        """The fitted displacement model (a bare pickled GP is the ``"gp"`` kind), or None."""
-        m = self.models.get("displacement")
-        if m is None or isinstance(m, DisplacementModel):
-            return m
-        wrapped = DisplacementModel("gp")
-        wrapped.gp = m
-        return wrapped
 
     def fit(self, contexts, omegas, rewards, trajectories, rng=None) -> dict[str, Any]:
         """Refit the event models on every non-failed real shot.
@@ -629,7 +614,6 @@ class HockeyRewardModel(RewardModel):
             ``n_contacts``; per fitted GP its :func:`gp_stats` and refit record; with
             ``displacement="hit_gp"`` also ``n_hits`` and the classifier's ``hit_accuracy``.
         """
-        self.refit = check_refit(getattr(self, "refit", "best"))  # pickles without it
         if trajectories is None:
             raise ValueError("trajectories: the hockey model learns from trajectories")
         ok = list({id(t): t for t in trajectories if not t.failed}.values())
@@ -654,7 +638,7 @@ class HockeyRewardModel(RewardModel):
         self.models = dict.fromkeys(self._KEYS)
         records: dict[str, dict] = {}
         gps: dict[str, Any] = {}
-        targets = self._launch_targets().encode(launch[crossed])
+        targets = LaunchTargets(self.launch_targets).encode(launch[crossed])
         gps["launch"], records["launch"] = self._fit_gp("launch", w[crossed], targets, rng)
         sizes["launch"] = int(crossed.sum())
         if not crossed.all():
@@ -687,7 +671,7 @@ class HockeyRewardModel(RewardModel):
 
     def _fit_displacement(self, ok, rng, gps, records, sizes) -> dict[str, Any]:
         """Fit the real setting's :class:`DisplacementModel`; its own stats."""
-        model = DisplacementModel(getattr(self, "displacement", "gp"))
+        model = DisplacementModel(self.displacement)
         cx, cy = self.displacement_data(ok)
         out: dict[str, Any] = {"n_contacts": int(cx.shape[0])}
         cx, cy = subsample(rng, self.max_contact_points, cx, cy)
@@ -729,7 +713,7 @@ class HockeyRewardModel(RewardModel):
     def _launch(self, w: np.ndarray, rng) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Launch states [x, y, v_x, v_y] (n, 4), times t_0 (n,) and launched flags (n,)."""
         n = w.shape[0]
-        draw = self._launch_targets().decode(self._draw("launch", w, rng))
+        draw = LaunchTargets(self.launch_targets).decode(self._draw("launch", w, rng))
         launched = np.ones(n, dtype=bool)
         if self.models["launch_probability"] is not None:
             launched = self._draw("launch_probability", w, rng)[:, 0] > 0
@@ -814,7 +798,7 @@ class HockeyRewardModel(RewardModel):
         at = np.zeros((n, 4))
         steps = [c[:, :2].copy()]
         ends = np.full(n, -1)
-        model = self._displacement_model()
+        model = self.models["displacement"]
         for k in range(self.n_slide):
             if not moving.any():
                 break

@@ -458,11 +458,6 @@ class TableTennisPrediction:
         """R̂ = mean of the L rewards of each pair (Eq. 4.1), shape (B,)."""
         return self.rewards.mean(axis=1)
 
-    @property
-    def contact_probability(self) -> np.ndarray:
-        """Fraction of the L samples the SVM calls hits, shape (B,)."""
-        return self.contact.mean(axis=1)
-
     def __repr__(self) -> str:
         B, L, T, _ = self.ball.shape
         r = self.expected_rewards
@@ -639,33 +634,17 @@ class TableTennisRewardModel(RewardModel):
     @property
     def classifier(self):
         """The contact SVM (model 5)."""
-        return self._contact_model().classifier
+        return self.contact.classifier
 
     @property
     def returns(self):
         """The returned ball's landing GP (model 5; None before two hits)."""
-        return self._contact_model().returns
-
-    def _contact_model(self) -> ContactModel:
-        """Model 5; a pickled model without a :class:`ContactModel` gets one built from its
-        classifier and landing GP (score "decision")."""
-        contact = self.__dict__.get("contact")
-        if contact is None:
-            contact = ContactModel(
-                self.task.control_dt,
-                self.task.ball.radius,
-                self.__dict__.get("contact_features", "extended"),
-                "decision",
-            )
-            contact.classifier = self.__dict__.get("classifier")
-            contact.returns = self.__dict__.get("returns")
-            self.__dict__["contact"] = contact
-        return contact
+        return self.contact.returns
 
     def contact_inputs(self, ball, racket, quaternion, steps):
         """Model 5's inputs (:meth:`ContactModel.inputs`): x (n, 10 or 14), the event sample
         (n,) and the samples before the racket face (n,)."""
-        return self._contact_model().inputs(ball, racket, quaternion, steps)
+        return self.contact.inputs(ball, racket, quaternion, steps)
 
     def _real_contact_data(self, trajectories):
         """Model 5's inputs x, labels hit (N,) and landing points p (N, 2) of recorded rollouts."""
@@ -688,7 +667,7 @@ class TableTennisRewardModel(RewardModel):
         h = self._hypers[key]
         if h is not None and np.shape(h["lengthscale"]) != (y.shape[1], x.shape[1]):
             h = None
-        gp, records[key] = refit_gp(make_gp, x, y, rng, h, getattr(self, "refit", "best"))
+        gp, records[key] = refit_gp(make_gp, x, y, rng, h, self.refit)
         if isinstance(gp, GPRegression):
             self._hypers[key] = gp.hyperparameters
         return gp
@@ -723,7 +702,6 @@ class TableTennisRewardModel(RewardModel):
 
         # models 1, 2: landing and bounce trajectory
         refits: dict[str, Any] = {}
-        refit = getattr(self, "refit", "best")  # a model pickled without refit
         yb, cb, used = self.bounce_data(trajs)
         if len(used) < 2:
             raise ValueError("trajectories: fewer than two incoming-ball bounces were found")
@@ -737,7 +715,7 @@ class TableTennisRewardModel(RewardModel):
         wp, wq = self.racket_weights(trajs)
         for key, target in (("position", wp), ("orientation", wq)):
             model = _ScoresGP(self.make_racket_model, self.pca_tolerance, self.max_components)
-            refits[key] = model.fit(w, target, rng, self._hypers[key], refit)
+            refits[key] = model.fit(w, target, rng, self._hypers[key], self.refit)
             if isinstance(model.gp, GPRegression):
                 self._hypers[key] = model.gp.hyperparameters
             setattr(self, f"racket_{key}", model)
@@ -858,7 +836,7 @@ class TableTennisRewardModel(RewardModel):
         quat /= np.linalg.norm(quat, axis=-1, keepdims=True)
 
         # model 5: contact and return, read where the ball reaches the racket face
-        cm = self._contact_model()
+        cm = self.contact
         x, _, face = cm.inputs(ball, racket, quat, steps)
         weight, contact, margin = cm.weights(x)
         landing = np.full((n, 2), np.nan)
@@ -977,7 +955,7 @@ class TableTennisRewardModel(RewardModel):
         state = "unfitted" if self.landing is None else f"{self.n_data} rollouts"
         return (
             f"TableTennisRewardModel(task={self.task.name!r}, {state}, stage={self.stage!r}, "
-            f"schedule={self.schedule!r}, contact={self._contact_model()!r}, "
+            f"schedule={self.schedule!r}, contact={self.contact!r}, "
             f"n_basis={self.basis.n_basis}, "
             f"penalty={self.penalty:.4g} m)"
         )

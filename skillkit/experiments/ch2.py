@@ -87,9 +87,13 @@ def _run_trial(
     )
     trial.update()
     dmp = DMP(
-        1, n_basis=settings.n_basis, alpha_x=settings.alpha_x, beta_x=settings.beta_x,
-        alpha_z=settings.alpha_z, dt=settings.dt,
-    ).fit(times, q, qd, qdd)  # fmt: skip
+        1,
+        n_basis=settings.n_basis,
+        alpha_x=settings.alpha_x,
+        beta_x=settings.beta_x,
+        alpha_z=settings.alpha_z,
+        dt=settings.dt,
+    ).fit(times, q, qd, qdd)
     trial.update()
     free = dmp.rollout(times, q[0], qd[0], weights=np.zeros_like(dmp.weights))
     fitted = dmp.rollout(times, q[0], qd[0])

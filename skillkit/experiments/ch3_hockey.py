@@ -35,34 +35,46 @@ __all__ = ["HockeySettings", "NormalisedLinear", "heldout_scores", "make_algorit
 class HockeySettings(Settings):
     """Settings of ``fig3.5`` (robot hockey, Sec. 3.4.2, App. C.2); see the module docstring."""
 
-    # fmt: off
     task: Literal["hockey", "hockey-real"] = setting(
-        "hockey", "Registered task: the simulated setting of C.2 or its real-robot variant.")
+        "hockey", "Registered task: the simulated setting of C.2 or its real-robot variant."
+    )
     epsilon: float = setting(0.5, "KL bound ε of contextual REPS (Eq. 3.4, Sec. 3.4.2).", above=0)
-    crkr_lam: float = setting(0.2, "CrKR's λ (Eqs 2.19–2.20): regulariser and exploration "
-                              "floor.", above=0)
-    crkr_beta_scale: float = setting(2.0, "CrKR's sample weights exp(β (R − max R)) with "
-                                     "β = crkr_beta_scale / std(R).", above=0)
+    crkr_lam: float = setting(
+        0.2, "CrKR's λ (Eqs 2.19–2.20): regulariser and exploration floor.", above=0
+    )
+    crkr_beta_scale: float = setting(
+        2.0, "CrKR's sample weights exp(β (R − max R)) with β = crkr_beta_scale / std(R).", above=0
+    )
     n_updates: int = setting(16, "Policy updates per algorithm (Table 3.1 loop).", minimum=1)
     rollouts_per_update: int = setting(50, "Rollouts N between updates.", minimum=1)
-    n_reuse_batches: int = setting(4, "Batches L each update reuses (REPS and CrKR): the last "
-                                   "L × N = 200 rollouts.", minimum=1)
+    n_reuse_batches: int = setting(
+        4, "Batches L each update reuses (REPS and CrKR): the last L × N = 200 rollouts.", minimum=1
+    )
     n_eval_contexts: int = setting(6, "Fixed contexts of the learning curve.", minimum=1)
-    n_heldout: int = setting(30, "Held-out contexts of the hit rate and the displacement error "
-                             "|d_T − d*| (m).", minimum=1)
-    heldout_every: int = setting(8, "Held-out evaluation every this many updates (and after "
-                                 "the last).", minimum=1)
-    # fmt: on
+    n_heldout: int = setting(
+        30,
+        "Held-out contexts of the hit rate and the displacement error |d_T − d*| (m).",
+        minimum=1,
+    )
+    heldout_every: int = setting(
+        8, "Held-out evaluation every this many updates (and after the last).", minimum=1
+    )
 
 
 SCALES = scales(
     HockeySettings(),
     # smoke: a gentle bound keeps the effective sample size of 25 samples above 16
-    smoke={"n_updates": 1, "rollouts_per_update": 25, "n_eval_contexts": 2, "n_heldout": 3,
-           "heldout_every": 1, "epsilon": 0.2},
+    smoke={
+        "n_updates": 1,
+        "rollouts_per_update": 25,
+        "n_eval_contexts": 2,
+        "n_heldout": 3,
+        "heldout_every": 1,
+        "epsilon": 0.2,
+    },
     # quick: 16 of 200 updates, 6 of 10 learning-curve contexts, 30 of 100 held-out, 1 trial
     paper={"n_updates": 200, "n_eval_contexts": 10, "n_heldout": 100, "heldout_every": 40},
-)  # fmt: skip
+)
 ALGORITHMS = ("reps", "crkr")
 LABELS = {"reps": "contextual REPS (ε = 0.5)", "crkr": "CrKR (linear kernel)"}
 THESIS = {"reps_hit_rate": 0.95, "reps_displacement_error_m": 0.20}
@@ -109,8 +121,9 @@ def make_algorithm(name: str, task, settings: HockeySettings):
 
     prior = task.initial_policy()
     if name == "reps":
-        return ContextualREPS(prior, epsilon=settings.epsilon,
-                              n_reuse_batches=settings.n_reuse_batches)  # fmt: skip
+        return ContextualREPS(
+            prior, epsilon=settings.epsilon, n_reuse_batches=settings.n_reuse_batches
+        )
     if name == "crkr":
         low, high = np.asarray(task.context_low), np.asarray(task.context_high)
         centre, half = 0.5 * (low + high), 0.5 * (high - low)
@@ -118,8 +131,14 @@ def make_algorithm(name: str, task, settings: HockeySettings):
         k_cc = float(gram(kernel, centre[None, :])[0, 0])
         lam = settings.crkr_lam
         scale = np.diag(prior.cov) / (k_cc + lam)
-        return CrKR(prior, kernel, lam=lam, beta_scale=settings.crkr_beta_scale,
-                    n_reuse_batches=settings.n_reuse_batches, variance_scale=scale)  # fmt: skip
+        return CrKR(
+            prior,
+            kernel,
+            lam=lam,
+            beta_scale=settings.crkr_beta_scale,
+            n_reuse_batches=settings.n_reuse_batches,
+            variance_scale=scale,
+        )
     raise ValueError(f"name: expected one of {ALGORITHMS}, got {name!r}")
 
 
@@ -174,8 +193,18 @@ def _run_trial(settings: HockeySettings, rng: np.random.Generator, trial: TrialC
     for name, alg_rng in zip(ALGORITHMS, rng.spawn(len(ALGORITHMS)), strict=True):
         t0 = time.perf_counter()
         algo = make_algorithm(name, task, settings)
-        arrays, res = run_curve(task, algo, name, K, N, alg_rng, trial, eval_contexts,
-                                score=score, every=settings.heldout_every)  # fmt: skip
+        arrays, res = run_curve(
+            task,
+            algo,
+            name,
+            K,
+            N,
+            alg_rng,
+            trial,
+            eval_contexts,
+            score=score,
+            every=settings.heldout_every,
+        )
         out.update(arrays)
         for key in ("explore_rollouts", "explore_reward", "n_failed"):
             out[f"{name}_{key}"] = res[key]
@@ -202,28 +231,43 @@ def _summarize(settings: HockeySettings, trials: list[dict]) -> tuple[list[Serie
     panels = [
         ("mean_reward", "rollouts", "reward of the policy mean", "average reward"),
         ("heldout_hit_rate", "heldout_rollouts", "hit rate (held-out contexts)", "hit rate"),
-        ("heldout_displacement_error", "heldout_rollouts",
-         "displacement error |d_T − d*| (held-out)", "error [m]"),
-    ]  # fmt: skip
+        (
+            "heldout_displacement_error",
+            "heldout_rollouts",
+            "displacement error |d_T − d*| (held-out)",
+            "error [m]",
+        ),
+    ]
     for name in ALGORITHMS:
-        series += [curve_series(trials, f"{name}_{xkey}", f"{name}_{key}", LABELS[name], panel,
-                                ylabel, log_x=False, xlabel="rollouts")
-                   for key, xkey, panel, ylabel in panels]  # fmt: skip
+        series += [
+            curve_series(
+                trials,
+                f"{name}_{xkey}",
+                f"{name}_{key}",
+                LABELS[name],
+                panel,
+                ylabel,
+                log_x=False,
+                xlabel="rollouts",
+            )
+            for key, xkey, panel, ylabel in panels
+        ]
         stats = {}
-        for key in ("mean_reward", "heldout_reward", "heldout_hit_rate",
-                    "heldout_displacement_error", "heldout_displacement_error_hits"):  # fmt: skip
+        for key in (
+            "mean_reward",
+            "heldout_reward",
+            "heldout_hit_rate",
+            "heldout_displacement_error",
+            "heldout_displacement_error_hits",
+        ):
             vals = _stack(trials, f"{name}_{key}")
             stats[f"initial_{key}"] = _nan_stats(vals[:, 0])[0]
             stats[f"final_{key}"], stats[f"final_{key}_std"] = _nan_stats(vals[:, -1])
             stats[f"final_{key}_per_trial"] = vals[:, -1].tolist()
         curve = _stack(trials, f"{name}_mean_reward")
         stats["initial_mean_reward_per_trial"] = curve[:, 0].tolist()
-        lowest = [
-            np.min(t[f"{name}_heldout_blade_lowest"])
-            for t in trials
-            if f"{name}_heldout_blade_lowest" in t
-        ]
-        stats["heldout_blade_lowest_m"] = float(min(lowest)) if lowest else float("nan")
+        lowest = min(np.min(t[f"{name}_heldout_blade_lowest"]) for t in trials)
+        stats["heldout_blade_lowest_m"] = float(lowest)
         stats["failed_rollouts"] = int(sum(int(np.sum(t[f"{name}_n_failed"])) for t in trials))
         stats["wall_time_s"] = float(np.mean([t[f"{name}_wall_time_s"] for t in trials]))
         summary[name] = stats
@@ -235,9 +279,14 @@ def _summarize(settings: HockeySettings, trials: list[dict]) -> tuple[list[Serie
     return series, summary
 
 
-# fmt: off
-register(Experiment(
-    id="fig3.5", title="Robot hockey: contextual REPS (ε = 0.5) vs CrKR with a linear kernel",
-    settings_class=HockeySettings, settings=SCALES, run_trial=_run_trial, summarize=_summarize,
-    trials={"smoke": 1, "quick": 1, "paper": 5}))
-# fmt: on
+register(
+    Experiment(
+        id="fig3.5",
+        title="Robot hockey: contextual REPS (ε = 0.5) vs CrKR with a linear kernel",
+        settings_class=HockeySettings,
+        settings=SCALES,
+        run_trial=_run_trial,
+        summarize=_summarize,
+        trials={"smoke": 1, "quick": 1, "paper": 5},
+    )
+)

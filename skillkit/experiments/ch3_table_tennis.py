@@ -37,31 +37,35 @@ OUTCOMES = ("returned", "net", "out", "missed")
 class TableTennisSettings(Settings):
     """Settings of ``fig3.7`` (table tennis, Sec. 3.4.3); paper: 120 updates × 50 rollouts.
 
-    The thesis leaves open, for this task: the batch size (50: with 25 the first update fits
-    a 17×17 Σ from a Kish ESS of ≈ 10 and some runs never learned), the baseline (linear
-    V(s) = γᵀs) and the fit's regularisation (none, as Eqs. 3.11–3.13: an update whose
-    weights have a Kish ESS below d + 1 = 18 keeps the policy, :class:`KeepPolicyREPS`, and
-    is counted). :data:`REGULARISED` is the fit of the stored variant run
-    ``fig3.7-paper-s0-f82e2c5b`` and of fig4.12's REPS baseline (not in the thesis).
+    The thesis leaves open the batch size, the baseline (linear V(s) = γᵀs) and the fit's
+    regularisation (none, as Eqs. 3.11–3.13: an update whose weights have a Kish ESS below
+    d + 1 = 18 keeps the policy, :class:`KeepPolicyREPS`, and is counted). :data:`REGULARISED`
+    is the fit of the stored variant run ``fig3.7-paper-s0-f82e2c5b`` and of fig4.12's REPS
+    baseline (not in the thesis).
     """
 
-    # fmt: off
     epsilon: float = setting(0.6, "KL bound ε of contextual REPS (Eq. 3.4, Sec. 3.4.3).", above=0)
     rollouts_per_update: int = setting(50, "Rollouts N between updates.", minimum=1)
-    n_reuse_batches: int = setting(4, "Batches L each update reuses: the last L × N = 200 "
-                                   "rollouts (Sec. 3.4).", minimum=1)
+    n_reuse_batches: int = setting(
+        4, "Batches L each update reuses: the last L × N = 200 rollouts (Sec. 3.4).", minimum=1
+    )
     baseline_features: FeatureName = setting(
-        "linear", "Context features of the REPS value-function baseline V(s) (Eq. 3.8).")
+        "linear", "Context features of the REPS value-function baseline V(s) (Eq. 3.8)."
+    )
     min_effective_samples: float | None = setting(
-        None, "Least effective sample size the weighted ML fit accepts (None: d + 1; below it "
-        "the update keeps the policy and is counted).", minimum=0)
-    cov_shrinkage: float = setting(0.0, "Weight of the previous Σ in the new one (0: the "
-                                   "thesis's fit).", minimum=0)
+        None,
+        "Least effective sample size the weighted ML fit accepts (None: d + 1; below it "
+        "the update keeps the policy and is counted).",
+        minimum=0,
+    )
+    cov_shrinkage: float = setting(
+        0.0, "Weight of the previous Σ in the new one (0: the thesis's fit).", minimum=0
+    )
     n_updates: int = setting(20, "Policy updates (Table 3.1 loop).", minimum=1)
     n_eval_contexts: int = setting(8, "Fixed contexts of the learning curve.", minimum=1)
-    n_final_contexts: int = setting(40, "Fresh contexts on which the final policy mean's shots "
-                                    "are classified.", minimum=1)
-    # fmt: on
+    n_final_contexts: int = setting(
+        40, "Fresh contexts on which the final policy mean's shots are classified.", minimum=1
+    )
 
 
 REGULARISED = {"cov_shrinkage": 0.2, "min_effective_samples": 10.0}
@@ -69,11 +73,17 @@ REGULARISED = {"cov_shrinkage": 0.2, "min_effective_samples": 10.0}
 ``dataclasses.replace(settings, **REGULARISED)``."""
 SCALES = scales(
     TableTennisSettings(),
-    smoke={"rollouts_per_update": 12, "n_reuse_batches": 2, "min_effective_samples": 3.0,
-           "n_updates": 2, "n_eval_contexts": 2, "n_final_contexts": 3},
+    smoke={
+        "rollouts_per_update": 12,
+        "n_reuse_batches": 2,
+        "min_effective_samples": 3.0,
+        "n_updates": 2,
+        "n_eval_contexts": 2,
+        "n_final_contexts": 3,
+    },
     # quick: 20 of 120 updates, 8 of 12 learning-curve contexts, 40 of 200 final, 1 trial
     paper={"n_updates": 120, "n_eval_contexts": 12, "n_final_contexts": 200},
-)  # fmt: skip
+)
 
 
 @dataclass(frozen=True)
@@ -126,8 +136,16 @@ def run_trial(settings: TableTennisSettings, rng: np.random.Generator, trial: Tr
     algorithm = make_reps(task, settings)
     eval_contexts = task.sample_context(rng, n=settings.n_eval_contexts)
     trial.reset(total=settings.n_updates)
-    _, curves = run_curve(task, algorithm, "learn", settings.n_updates,
-                          settings.rollouts_per_update, rng, trial, eval_contexts)  # fmt: skip
+    _, curves = run_curve(
+        task,
+        algorithm,
+        "learn",
+        settings.n_updates,
+        settings.rollouts_per_update,
+        rng,
+        trial,
+        eval_contexts,
+    )
     contexts = task.sample_context(rng, n=settings.n_final_contexts)
     _, shots = shot_scores(task, curves["policy"], contexts, rng)
     return {
@@ -146,11 +164,14 @@ def make_reps(task, settings: TableTennisSettings) -> KeepPolicyREPS:
     """Contextual REPS from ``task``'s imitation policy with ``settings``' ε, reuse, baseline
     and fit regularisation (the model-free learner of fig3.7, and fig4.12's baseline); an
     update whose weights are too few for the fit keeps the policy (:class:`KeepPolicyREPS`)."""
-    return KeepPolicyREPS(task.initial_policy(), settings.epsilon,
-                          n_reuse_batches=settings.n_reuse_batches,
-                          baseline_features=settings.baseline_features,
-                          min_effective_samples=settings.min_effective_samples,
-                          cov_shrinkage=settings.cov_shrinkage)  # fmt: skip
+    return KeepPolicyREPS(
+        task.initial_policy(),
+        settings.epsilon,
+        n_reuse_batches=settings.n_reuse_batches,
+        baseline_features=settings.baseline_features,
+        min_effective_samples=settings.min_effective_samples,
+        cov_shrinkage=settings.cov_shrinkage,
+    )
 
 
 def shot_scores(task, policy, contexts, rng=None) -> tuple[dict[str, float], dict]:
@@ -189,22 +210,48 @@ def summarize(settings: TableTennisSettings, trials: list[dict]) -> tuple[list[S
     x = np.asarray(trials[0]["rollouts"], dtype=float).tolist()
     curves = np.array([t["mean_reward"] for t in trials], dtype=float)
     panel, ylabel = "learning curve", "reward of the policy mean"
-    mean = curve_series(trials, "rollouts", "mean_reward", "contextual REPS (mean ± std)", panel,
-                        ylabel, log_x=False, xlabel="rollouts")  # fmt: skip
+    mean = curve_series(
+        trials,
+        "rollouts",
+        "mean_reward",
+        "contextual REPS (mean ± std)",
+        panel,
+        ylabel,
+        log_x=False,
+        xlabel="rollouts",
+    )
     series = [mean]
     for i, c in enumerate(curves):
-        series.append(Series(f"trial {i + 1}", x, c.tolist(), panel, "line", xlabel="rollouts",
-                             ylabel=ylabel))  # fmt: skip
-    series.append(Series("thesis: good policy (−0.02)", [x[0], x[-1]], [THESIS_GOOD_REWARD] * 2,
-                         panel, "line", xlabel="rollouts", ylabel=ylabel))  # fmt: skip
+        series.append(
+            Series(f"trial {i + 1}", x, c.tolist(), panel, "line", xlabel="rollouts", ylabel=ylabel)
+        )
+    series.append(
+        Series(
+            "thesis: good policy (−0.02)",
+            [x[0], x[-1]],
+            [THESIS_GOOD_REWARD] * 2,
+            panel,
+            "line",
+            xlabel="rollouts",
+            ylabel=ylabel,
+        )
+    )
 
     final = np.array([float(np.mean(t["final_rewards"])) for t in trials])
     fractions = {
         o: [float(np.mean(np.asarray(t["final_outcomes"]) == o)) for t in trials] for o in OUTCOMES
     }
-    series.append(Series("final policy: share of shots", list(OUTCOMES),
-                         [float(np.mean(fractions[o])) for o in OUTCOMES], "final policy outcomes",
-                         "bar", xlabel="outcome", ylabel="fraction of shots"))  # fmt: skip
+    series.append(
+        Series(
+            "final policy: share of shots",
+            list(OUTCOMES),
+            [float(np.mean(fractions[o])) for o in OUTCOMES],
+            "final policy outcomes",
+            "bar",
+            xlabel="outcome",
+            ylabel="fraction of shots",
+        )
+    )
 
     mean_curve = np.asarray(mean.y)
     reached = np.flatnonzero(mean_curve > THESIS_GOOD_REWARD)
@@ -233,13 +280,12 @@ def summarize(settings: TableTennisSettings, trials: list[dict]) -> tuple[list[S
         "rollouts_to_mean_curve_above_-0.02": float(x[reached[0]]) if reached.size else None,
         "total_rollouts_per_trial": float(x[-1]),
         "failed_rollouts": int(sum(t["n_failed"] for t in trials)),
-        # trials of runs made with a fit that could not skip an update have no count
-        "skipped_updates": int(sum(t.get("n_skipped_updates", 0) for t in trials)),
+        "skipped_updates": int(sum(t["n_skipped_updates"] for t in trials)),
         "thesis_numbers": {
             "good_reward": THESIS_GOOD_REWARD,
             "net_band": list(THESIS_NET_BAND),
             "rollouts": THESIS_ROLLOUTS,
-        },  # fmt: skip
+        },
         "learned": bool(final.mean() > curves[:, 0].mean() + 0.05),
     }
     return series, summary
@@ -253,9 +299,14 @@ def _pooled(trials: list[dict], key: str, outcome: str) -> np.ndarray:
     return np.concatenate(picked)
 
 
-# fmt: off
-register(Experiment(
-    id="fig3.7", title="Table tennis: contextual REPS (ε = 0.6) learning returns to a target",
-    settings_class=TableTennisSettings, settings=SCALES, run_trial=run_trial,
-    summarize=summarize, trials={"smoke": 1, "quick": 1, "paper": 10}))
-# fmt: on
+register(
+    Experiment(
+        id="fig3.7",
+        title="Table tennis: contextual REPS (ε = 0.6) learning returns to a target",
+        settings_class=TableTennisSettings,
+        settings=SCALES,
+        run_trial=run_trial,
+        summarize=summarize,
+        trials={"smoke": 1, "quick": 1, "paper": 10},
+    )
+)

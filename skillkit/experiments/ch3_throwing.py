@@ -45,44 +45,62 @@ THESIS = {"near_max_error_m": 0.1, "far_max_error_m": 0.5, "rollouts_to_converge
 class ThrowingSettings(Settings):
     """Settings of ``fig3.3`` (ball throwing with the planar 4-link robot, Sec. 3.4.1)."""
 
-    # fmt: off
     n_updates: int = setting(40, "Policy updates per method (Table 3.1).", minimum=1)
     n_eval_contexts: int = setting(8, "Fixed targets of the learning curve.", minimum=1)
     epsilon: float = setting(0.6, "KL bound ε of contextual REPS (Eq. 3.4, Sec. 3.4.1).", above=0)
     rollouts_per_update: int = setting(25, "Rollouts N between updates (Sec. 3.4.1).", minimum=1)
-    n_reuse_batches: int = setting(8, "Batches L each update reuses: the last L × N = 200 "
-                                   "rollouts (Sec. 3.4.1).", minimum=1)
-    extra_contexts: int = setting(20, "Extra contexts each throw is re-scored in, extra-context "
-                                  "arm (Sec. 3.4.1).", minimum=0)
+    n_reuse_batches: int = setting(
+        8, "Batches L each update reuses: the last L × N = 200 rollouts (Sec. 3.4.1).", minimum=1
+    )
+    extra_contexts: int = setting(
+        20, "Extra contexts each throw is re-scored in, extra-context arm (Sec. 3.4.1).", minimum=0
+    )
     baseline_features: FeatureName = setting(
-        "quadratic", "Context features of the REPS value-function baseline V(s) (Eq. 3.8).")
+        "quadratic", "Context features of the REPS value-function baseline V(s) (Eq. 3.8)."
+    )
     policy_features: FeatureName = setting(
-        "linear", "Context features φ(s) of the policy π(ω|s) = N(a + A φ(s), Σ) (Eq. 3.10).")
-    min_effective_samples: float = setting(2.0, "Least effective sample size the weighted ML "
-                                           "fit accepts (Eqs 3.11–3.13).", minimum=0)
-    cov_floor: float = setting(0.1, "No direction of Σ shrinks below this fraction of its "
-                               "previous variance per update.", above=0, maximum=1)
+        "linear", "Context features φ(s) of the policy π(ω|s) = N(a + A φ(s), Σ) (Eq. 3.10)."
+    )
+    min_effective_samples: float = setting(
+        2.0, "Least effective sample size the weighted ML fit accepts (Eqs 3.11–3.13).", minimum=0
+    )
+    cov_floor: float = setting(
+        0.1,
+        "No direction of Σ shrinks below this fraction of its previous variance per update.",
+        above=0,
+        maximum=1,
+    )
     cov_shrinkage: float = setting(0.0, "Weight of the previous Σ in the new one.", minimum=0)
     initial_std_fraction: float = setting(
-        0.9, "Initial shape-weight std relative to each joint's largest demonstrated weight "
-        "(sampled throws reach x = 15 m; Sec. 3.5).", above=0)
+        0.9,
+        "Initial shape-weight std relative to each joint's largest demonstrated weight "
+        "(sampled throws reach x = 15 m; Sec. 3.5).",
+        above=0,
+    )
     m_step: Literal["weighted_ml", "trust_region"] = setting(
-        "weighted_ml", "M-step: the weighted ML fit (Eqs 3.11–3.13) or its trust-region "
-        "correction.")
+        "weighted_ml", "M-step: the weighted ML fit (Eqs 3.11–3.13) or its trust-region correction."
+    )
     grid_x: tuple[float, ...] = setting(
         (5.0, 6.0, 7.0, 8.0, 9.0, 10.0, 11.0, 12.0, 13.0, 14.0, 15.0),
-        "Target x (m) of the final-error grid; x ≥ 13 m count as far.")
+        "Target x (m) of the final-error grid; x ≥ 13 m count as far.",
+    )
     grid_y: tuple[float, ...] = setting((1.0, 2.0, 3.0), "Target y (m) of the final-error grid.")
-    # fmt: on
 
 
 SCALES = scales(
     ThrowingSettings(),
-    smoke={"n_updates": 2, "rollouts_per_update": 4, "n_reuse_batches": 2, "extra_contexts": 2,
-           "n_eval_contexts": 1, "grid_x": (6.0, 14.0), "grid_y": (2.0,)},
+    smoke={
+        "n_updates": 2,
+        "rollouts_per_update": 4,
+        "n_reuse_batches": 2,
+        "extra_contexts": 2,
+        "n_eval_contexts": 1,
+        "grid_x": (6.0, 14.0),
+        "grid_y": (2.0,),
+    },
     # quick: 40 of the thesis's 200 updates, 8 of 20 learning-curve targets, trials 20→2
     paper={"n_updates": 200, "n_eval_contexts": 20},
-)  # fmt: skip
+)
 
 
 def target_grid(settings: ThrowingSettings) -> np.ndarray:
@@ -124,19 +142,34 @@ def run_trial(settings: ThrowingSettings, rng: np.random.Generator, trial: Trial
     out: dict = {"targets": targets}
     seeds = rng.spawn(2)
     trial.reset(total=2 * settings.n_updates)
-    for key, extra, child in zip(("reps", "extra"), (0, settings.extra_contexts), seeds,
-                                 strict=True):  # fmt: skip
+    for key, extra, child in zip(
+        ("reps", "extra"), (0, settings.extra_contexts), seeds, strict=True
+    ):
         init = task.initial_policy(settings.initial_std_fraction)
         init = LinearGaussianPolicy(
             init.mean, init.cov, context_dim=task.context_dim, features=settings.policy_features
         )
-        algo = ContextualREPS(init, settings.epsilon, n_reuse_batches=settings.n_reuse_batches,
-                              baseline_features=settings.baseline_features,
-                              cov_floor=settings.cov_floor, cov_shrinkage=settings.cov_shrinkage,
-                              min_effective_samples=settings.min_effective_samples,
-                              m_step=settings.m_step)  # fmt: skip
-        _, curves = run_curve(task, algo, key, settings.n_updates, settings.rollouts_per_update,
-                              child, trial, eval_contexts, extra_contexts=extra)  # fmt: skip
+        algo = ContextualREPS(
+            init,
+            settings.epsilon,
+            n_reuse_batches=settings.n_reuse_batches,
+            baseline_features=settings.baseline_features,
+            cov_floor=settings.cov_floor,
+            cov_shrinkage=settings.cov_shrinkage,
+            min_effective_samples=settings.min_effective_samples,
+            m_step=settings.m_step,
+        )
+        _, curves = run_curve(
+            task,
+            algo,
+            key,
+            settings.n_updates,
+            settings.rollouts_per_update,
+            child,
+            trial,
+            eval_contexts,
+            extra_contexts=extra,
+        )
         dist, pen = final_errors(task, curves["policy"], targets)
         out["rollouts"] = curves["rollouts"]
         out[f"{key}_mean_reward"] = curves["mean_reward"]
@@ -158,16 +191,32 @@ def summarize(settings: ThrowingSettings, trials: list[dict]) -> tuple[list[Seri
     series: list[Series] = []
     summary: dict = {"n_trials": len(trials), "rollouts": int(x[-1])}
     for key, label in zip(("reps", "extra"), METHODS, strict=True):
-        series.append(curve_series(trials, "rollouts", f"{key}_mean_reward", label,
-                                   "learning curves", "average reward of the policy mean",
-                                   log_x=False, xlabel="rollouts"))  # fmt: skip
+        series.append(
+            curve_series(
+                trials,
+                "rollouts",
+                f"{key}_mean_reward",
+                label,
+                "learning curves",
+                "average reward of the policy mean",
+                log_x=False,
+                xlabel="rollouts",
+            )
+        )
         dist = np.array([t[f"{key}_distance"] for t in trials], dtype=float)  # (trials, targets)
         pen = np.array([t[f"{key}_penalty"] for t in trials], dtype=float)
         per_x = [float(np.nanmean(dist[:, targets[:, 0] == gx])) for gx in settings.grid_x]
-        series.append(Series(label, list(settings.grid_x), per_x,
-                             panel="final ball-to-target distance", kind="lines+markers",
-                             xlabel="target x (m)",
-                             ylabel="distance (m), mean over y and trials"))  # fmt: skip
+        series.append(
+            Series(
+                label,
+                list(settings.grid_x),
+                per_x,
+                panel="final ball-to-target distance",
+                kind="lines+markers",
+                xlabel="target x (m)",
+                ylabel="distance (m), mean over y and trials",
+            )
+        )
         near_max, far_max = _trial_max(dist[:, ~far]), _trial_max(dist[:, far])
         within = (
             ~np.isnan(dist).any(axis=1)
@@ -215,10 +264,14 @@ def _median(values: np.ndarray) -> float | None:
     return float(np.median(finite)) if finite.size else None
 
 
-# fmt: off
-register(Experiment(
-    id="fig3.3",
-    title="Ball throwing: contextual REPS vs REPS + extra context (planar 4-link robot)",
-    settings_class=ThrowingSettings, settings=SCALES, run_trial=run_trial, summarize=summarize,
-    trials={"smoke": 2, "quick": 2, "paper": 20}))
-# fmt: on
+register(
+    Experiment(
+        id="fig3.3",
+        title="Ball throwing: contextual REPS vs REPS + extra context (planar 4-link robot)",
+        settings_class=ThrowingSettings,
+        settings=SCALES,
+        run_trial=run_trial,
+        summarize=summarize,
+        trials={"smoke": 2, "quick": 2, "paper": 20},
+    )
+)

@@ -148,8 +148,16 @@ def initial_policy_42(st: BalancingComparisonSettings, task: Balancing) -> Gauss
             f"start_gain_scale: π₀'s mean {st.start_gain_scale:g} G_lqr does not balance "
             f"(spectral radius {radius:.3f} of the closed loop at upright)"
         )
-    return design_policy(task, mean, st.exploration, st.n_designs, st.design_spread,
-                         st.design_control_weight, st.gain_scale_std, st.design_seed)  # fmt: skip
+    return design_policy(
+        task,
+        mean,
+        st.exploration,
+        st.n_designs,
+        st.design_spread,
+        st.design_control_weight,
+        st.gain_scale_std,
+        st.design_seed,
+    )
 
 
 # --------------------------------------------------------------------------- one trial
@@ -188,14 +196,29 @@ def _curves(key, c, offset_s, rollout_s, parts) -> dict:
     }
 
 
-def _run_pilco(task, st, pi0, prior, key, make_model, rng, trial, evals, eval_seed) -> dict:
+def _run_model_based(task, st, pi0, prior, key, make_model, rng, trial, evals, eval_seed) -> dict:
+    """PILCO (``key`` ``"pilco..."``) or GPREPS from the ``prior`` trajectories; its curves."""
     alg_rng, loop_rng = rng.spawn(2)
-    settings = PILCOSettings(policy_iterations=st.policy_iterations)
-    algo = PILCO(task, pi0, make_model, settings, rng=alg_rng, prior_trajectories=prior)
-    c = learn(task, algo, st.pilco_updates, 1, loop_rng, trial=trial, checkpoint_key=key,
-              eval_contexts=evals, eval_seed=eval_seed)  # fmt: skip
+    if key.startswith("pilco"):
+        settings = PILCOSettings(policy_iterations=st.policy_iterations)
+        algo = PILCO(task, pi0, make_model, settings, rng=alg_rng, prior_trajectories=prior)
+        updates, parts = st.pilco_updates, ("training", "policy")
+    else:
+        algo = gpreps_algorithm(task, st, pi0, prior, make_model, alg_rng)
+        updates, parts = st.gpreps_updates, ("training", "prediction", "policy")
+    c = learn(
+        task,
+        algo,
+        updates,
+        1,
+        loop_rng,
+        trial=trial,
+        checkpoint_key=key,
+        eval_contexts=evals,
+        eval_seed=eval_seed,
+    )
     rollout_s = task.n_steps * task.control_dt
-    return _curves(key, c, random_experience(task, prior), rollout_s, ("training", "policy"))
+    return _curves(key, c, random_experience(task, prior), rollout_s, parts)
 
 
 def random_prior(st: BalancingComparisonSettings, pi0: GaussianPolicy, rng) -> dict:
@@ -203,8 +226,12 @@ def random_prior(st: BalancingComparisonSettings, pi0: GaussianPolicy, rng) -> d
     rollouts of ``random_steps`` steps with gains drawn from π₀ and white torque excitation of
     ``excitation_std`` (:func:`~skillkit.tasks.balancing.collect_balancing`'s dict:
     ``trajectories``, ``n_failed``, ...)."""
-    excited = make("balancing", initial_std=st.initial_std, excitation_std=st.excitation_std,
-                   n_steps=st.random_steps)  # fmt: skip
+    excited = make(
+        "balancing",
+        initial_std=st.initial_std,
+        excitation_std=st.excitation_std,
+        n_steps=st.random_steps,
+    )
     return collect_balancing(excited, st.n_random, rng, 1.0, policy=pi0)
 
 
@@ -219,8 +246,13 @@ def gpreps_algorithm(task, st: BalancingComparisonSettings, pi0, prior, make_mod
         min_effective_samples=MIN_EFFECTIVE_SAMPLES,
     )
     # The horizon is the learning rollouts' (the random-policy ones may be shorter).
-    model = TrajectoryRewardModel(task, make_model, horizon=task.n_steps, prior_trajectories=prior,
-                                  common_start_states=st.common_start_states)  # fmt: skip
+    model = TrajectoryRewardModel(
+        task,
+        make_model,
+        horizon=task.n_steps,
+        prior_trajectories=prior,
+        common_start_states=st.common_start_states,
+    )
     return GPREPS(pi0, model, settings, rng=rng, task=task)
 
 
@@ -240,16 +272,6 @@ def fitc_model(st: BalancingComparisonSettings):
     """``make_model`` of Table 4.2's FITC dynamics model (pseudo-inputs, fit iterations and
     prior mean of ``st``; Δx targets)."""
     return partial(_fitc, st.n_inducing, st.gp_steps, st.model_mean)
-
-
-def _run_gpreps(task, st, pi0, prior, key, make_model, rng, trial, evals, eval_seed) -> dict:
-    alg_rng, loop_rng = rng.spawn(2)
-    algo = gpreps_algorithm(task, st, pi0, prior, make_model, alg_rng)
-    c = learn(task, algo, st.gpreps_updates, 1, loop_rng, trial=trial, checkpoint_key=key,
-              eval_contexts=evals, eval_seed=eval_seed)  # fmt: skip
-    rollout_s = task.n_steps * task.control_dt
-    parts = ("training", "prediction", "policy")
-    return _curves(key, c, random_experience(task, prior), rollout_s, parts)
 
 
 def methods(st: BalancingComparisonSettings) -> tuple[str, ...]:
@@ -274,23 +296,31 @@ def run_trial_42(st: BalancingComparisonSettings, rng: np.random.Generator, tria
         "random_policy_rewards": np.array([task.reward(t) for t in prior]),
         "random_policy_failed": random["n_failed"],
     }
-    out.update(_run_pilco(task, st, pi0, prior, "pilco", gp, pilco_rng, trial, evals, eval_seed))
-    out.update(_run_gpreps(task, st, pi0, prior, "gpreps", gp, gpreps_rng, trial, evals, eval_seed))
+    for key, r in (("pilco", pilco_rng), ("gpreps", gpreps_rng)):
+        out.update(_run_model_based(task, st, pi0, prior, key, gp, r, trial, evals, eval_seed))
 
     # REPS (model-free: no initial data).
     reps = reps_algorithm(st, pi0)
     t0 = time.perf_counter()
-    c = learn(task, reps, st.reps_updates, st.reps_rollouts_per_update, reps_rng, trial=trial,
-              checkpoint_key="reps", eval_contexts=evals, eval_seed=eval_seed)  # fmt: skip
+    c = learn(
+        task,
+        reps,
+        st.reps_updates,
+        st.reps_rollouts_per_update,
+        reps_rng,
+        trial=trial,
+        checkpoint_key="reps",
+        eval_contexts=evals,
+        eval_seed=eval_seed,
+    )
     out["reps_experience"] = task.n_steps * task.control_dt * c["rollouts"].astype(float)
     out["reps_mean_reward"] = c["mean_reward"]
     out["reps_time_total"] = time.perf_counter() - t0
 
     if st.linear_variant:  # the same searches with a model that can predict the closed loop
         lin = LinearGaussianModel
-        for key, run, r in (("pilco_linear", _run_pilco, lin_p_rng),
-                            ("gpreps_linear", _run_gpreps, lin_g_rng)):  # fmt: skip
-            out.update(run(task, st, pi0, prior, key, lin, r, trial, evals, eval_seed))
+        for key, r in (("pilco_linear", lin_p_rng), ("gpreps_linear", lin_g_rng)):
+            out.update(_run_model_based(task, st, pi0, prior, key, lin, r, trial, evals, eval_seed))
     return out
 
 
@@ -319,8 +349,10 @@ def _first_index(rewards, limit) -> int | None:
 def _method_table(st, trials, key) -> dict:
     rows = {}
     for limit in st.limits:
-        per = [experience_to_reach(t[f"{key}_experience"], t[f"{key}_mean_reward"], limit)
-               for t in trials]  # fmt: skip
+        per = [
+            experience_to_reach(t[f"{key}_experience"], t[f"{key}_mean_reward"], limit)
+            for t in trials
+        ]
         reached = [x for x in per if x is not None]
         row = {
             "experience_s_per_trial": per,
@@ -330,8 +362,10 @@ def _method_table(st, trials, key) -> dict:
         }
         if key != "reps":
             idx = [_first_index(t[f"{key}_mean_reward"], limit) for t in trials]
-            comp = [None if i is None else float(t[f"{key}_time_cumulative"][i])
-                    for t, i in zip(trials, idx, strict=True)]  # fmt: skip
+            comp = [
+                None if i is None else float(t[f"{key}_time_cumulative"][i])
+                for t, i in zip(trials, idx, strict=True)
+            ]
             done = [c for c in comp if c is not None]
             row["compute_time_s_mean"] = float(np.mean(done)) if done else None
             row["compute_time_s_per_trial"] = comp
@@ -377,16 +411,31 @@ def summarize_42(st: BalancingComparisonSettings, trials: list[dict]):
     for key in methods(st):
         costs = [np.maximum(-np.asarray(t[f"{key}_mean_reward"], float), 1e-12) for t in trials]
         mean, band = trial_band(costs, kind="gstd")
-        series.append(Series(
-            LABELS[key], list(map(float, trials[0][f"{key}_experience"])), mean,
-            panel="cost of the current controller", xlabel="real experience (s)",
-            ylabel="−reward (50 common start states)", log_x=True, log_y=True, **band,
-        ))  # fmt: skip
+        series.append(
+            Series(
+                LABELS[key],
+                list(map(float, trials[0][f"{key}_experience"])),
+                mean,
+                panel="cost of the current controller",
+                xlabel="real experience (s)",
+                ylabel="−reward (50 common start states)",
+                log_x=True,
+                log_y=True,
+                **band,
+            )
+        )
     x_all = np.concatenate([t[f"{k}_experience"] for t in trials for k in methods(st)])
     lo, hi = float(np.min(x_all[x_all > 0])), float(np.max(x_all))
     for limit in st.limits:
-        series.append(Series(f"limit {limit:g}", [lo, hi], [-limit, -limit],
-                             panel="cost of the current controller", kind="line"))  # fmt: skip
+        series.append(
+            Series(
+                f"limit {limit:g}",
+                [lo, hi],
+                [-limit, -limit],
+                panel="cost of the current controller",
+                kind="line",
+            )
+        )
     summary: dict = {"n_trials": len(trials), "thesis_numbers": thesis_42()}
     for key in methods(st):
         summary[key] = _method_table(st, trials, key)
@@ -407,9 +456,17 @@ def median_reached(per_trial) -> float | None:
 
 # --------------------------------------------------------------------------- registration
 _SMOKE = dict(
-    n_inducing=15, gp_steps=5, pilco_updates=2, policy_iterations=2, gpreps_updates=2,
-    n_artificial=20, n_trajectories=2, reps_updates=2, reps_rollouts_per_update=6, n_eval=5,
-)  # fmt: skip
+    n_inducing=15,
+    gp_steps=5,
+    pilco_updates=2,
+    policy_iterations=2,
+    gpreps_updates=2,
+    n_artificial=20,
+    n_trajectories=2,
+    reps_updates=2,
+    reps_rollouts_per_update=6,
+    n_eval=5,
+)
 
 register(
     Experiment(
@@ -429,7 +486,7 @@ register(
                 reps_updates=50,
             ),
             paper=dict(pilco_updates=12, gpreps_updates=30, reps_updates=400),
-        ),  # fmt: skip
+        ),
         run_trial=run_trial_42,
         summarize=summarize_42,
         trials={"smoke": 1, "quick": 1, "paper": 5},
@@ -446,17 +503,19 @@ def _balancing_setup(th, rng) -> tuple:
     return task, policy, np.zeros((th.n_eval, 0)), prior, rollouts
 
 
-# fmt: off
-register_curve_task("balancing", CurveTask(
-    experiment="tab4.2",
-    thresholds=(-100.0, -10.0, -1.5),
-    thresholds_source="Table 4.2's reward limits",
-    reps=lambda task, th, policy: reps_algorithm(th, policy),
-    reps_schedule=lambda th: (th.reps_updates, *(th.reps_rollouts_per_update,) * 2),
-    gpreps=lambda task, th, policy, prior, rng: gpreps_algorithm(
-        task, th, policy, prior, fitc_model(th), rng),
-    gpreps_schedule=lambda th: (th.gpreps_updates, 1, 1),  # one rollout per update
-    gpreps_updates="gpreps_updates",
-    setup=_balancing_setup,
-))
-# fmt: on
+register_curve_task(
+    "balancing",
+    CurveTask(
+        experiment="tab4.2",
+        thresholds=(-100.0, -10.0, -1.5),
+        thresholds_source="Table 4.2's reward limits",
+        reps=lambda task, th, policy: reps_algorithm(th, policy),
+        reps_schedule=lambda th: (th.reps_updates, *(th.reps_rollouts_per_update,) * 2),
+        gpreps=lambda task, th, policy, prior, rng: gpreps_algorithm(
+            task, th, policy, prior, fitc_model(th), rng
+        ),
+        gpreps_schedule=lambda th: (th.gpreps_updates, 1, 1),  # one rollout per update
+        gpreps_updates="gpreps_updates",
+        setup=_balancing_setup,
+    ),
+)

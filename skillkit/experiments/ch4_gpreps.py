@@ -67,30 +67,37 @@ THESIS_49 = {"reps_noisy": -1086.0, "reps": -715.0, "gpreps_noisy": -68.0, "gpre
 class GPREPSThrowingSettings(Settings):
     """Settings of ``fig4.6`` (GPREPS, GP direct and REPS on throwing, Sec. 4.3.2)."""
 
-    # fmt: off
     n_initial: int = setting(10, "N₀, real throws before the first GPREPS update.", minimum=2)
-    n_updates: int = setting(30, "GPREPS / GP-direct updates, one new throw each after the "
-                             "first (real throws = N₀ + n_updates − 1).", minimum=1)
+    n_updates: int = setting(
+        30,
+        "GPREPS / GP-direct updates, one new throw each after the "
+        "first (real throws = N₀ + n_updates − 1).",
+        minimum=1,
+    )
     n_artificial: int = setting(500, "M, artificial (s, ω) pairs per update.", minimum=2)
     n_trajectories: int = setting(25, "L, predicted throws per pair (Eq. 4.1).", minimum=1)
     epsilon: float = setting(1.0, "KL bound ε of GPREPS and GP direct (Sec. 4.3.2).", above=0)
     context_model: str = setting("uniform", "μ̂(s): the box of the observed targets.")
-    gp_steps: int = setting(150, "L-BFGS iterations of the release, flight and GP-direct "
-                            "hyper-parameter fits.", minimum=0)
+    gp_steps: int = setting(
+        150,
+        "L-BFGS iterations of the release, flight and GP-direct hyper-parameter fits.",
+        minimum=0,
+    )
     robot_steps: int = setting(150, "L-BFGS iterations of the robot GP's fit.", minimum=0)
     robot_inducing: int = setting(50, "Pseudo-inputs of the FITC robot-dynamics GP.", minimum=1)
     flight_inducing: int = setting(50, "Pseudo-inputs of the FITC ball-flight GP.", minimum=1)
-    max_robot_points: int = setting(1000, "Robot transitions the FITC GP is fitted on, drawn "
-                                    "from all throws.", minimum=2)
+    max_robot_points: int = setting(
+        1000, "Robot transitions the FITC GP is fitted on, drawn from all throws.", minimum=2
+    )
     reps_updates: int = setting(200, "REPS updates (× 25 = 5000 rollouts).", minimum=1)
     reps_rollouts_per_update: int = setting(25, "REPS rollouts per update (fig3.3).", minimum=1)
     reps_epsilon: float = setting(0.6, "KL bound of REPS (fig3.3).", above=0)
     reps_reuse_batches: int = setting(8, "Batches REPS reuses (fig3.3).", minimum=1)
     n_eval_contexts: int = setting(8, "Fixed targets of the learning curves.", minimum=1)
-    grid_x: tuple[float, ...] = setting((5.0, 7.5, 10.0, 12.5, 15.0),
-                                        "Target x (m) of the final ball-to-target distances.")
+    grid_x: tuple[float, ...] = setting(
+        (5.0, 7.5, 10.0, 12.5, 15.0), "Target x (m) of the final ball-to-target distances."
+    )
     grid_y: tuple[float, ...] = setting((1.0, 3.0), "Target y (m) of the final distances.")
-    # fmt: on
 
 
 @dataclass(frozen=True)
@@ -106,32 +113,55 @@ class SampleSizeSettings(GPREPSThrowingSettings):
 class StochasticThrowingSettings(GPREPSThrowingSettings):
     """Settings of ``fig4.9`` (REPS and GPREPS on deterministic and noisy throwing)."""
 
-    # fmt: off
-    release_noise: tuple[float, float] = setting((0.075, 0.3), "Std of the release position (m) "
-                                                 "and velocity (m/s) (Sec. 4.3.2.2).", minimum=0)
-    n_final_rollouts: int = setting(10, "Noisy rollouts per target that estimate each final "
-                                    "policy's expected reward.", minimum=1)
-    # fmt: on
+    release_noise: tuple[float, float] = setting(
+        (0.075, 0.3),
+        "Std of the release position (m) and velocity (m/s) (Sec. 4.3.2.2).",
+        minimum=0,
+    )
+    n_final_rollouts: int = setting(
+        10,
+        "Noisy rollouts per target that estimate each final policy's expected reward.",
+        minimum=1,
+    )
 
 
-# fmt: off
-SMOKE = {"n_initial": 3, "n_updates": 2, "n_artificial": 20, "n_trajectories": 2, "gp_steps": 10,
-         "robot_inducing": 10, "flight_inducing": 10, "max_robot_points": 200, "reps_updates": 2,
-         "reps_rollouts_per_update": 4, "reps_reuse_batches": 2, "n_eval_contexts": 1,
-         "grid_x": (8.0,), "grid_y": (2.0,)}
+SMOKE = {
+    "n_initial": 3,
+    "n_updates": 2,
+    "n_artificial": 20,
+    "n_trajectories": 2,
+    "gp_steps": 10,
+    "robot_inducing": 10,
+    "flight_inducing": 10,
+    "max_robot_points": 200,
+    "reps_updates": 2,
+    "reps_rollouts_per_update": 4,
+    "reps_reuse_batches": 2,
+    "n_eval_contexts": 1,
+    "grid_x": (8.0,),
+    "grid_y": (2.0,),
+}
 """The smoke scale's changes, shared by the three experiments."""
-QUICK = {"n_updates": 8, "n_artificial": 200, "n_trajectories": 5, "gp_steps": 60,
-         "reps_updates": 40}
+QUICK = {
+    "n_updates": 8,
+    "n_artificial": 200,
+    "n_trajectories": 5,
+    "gp_steps": 60,
+    "reps_updates": 40,
+}
 """The quick scale's changes, shared by the three experiments: GPREPS / GP-direct updates
 30→8 (fig4.7 and fig4.9: 20→8), M 500→200, L 25→5, release / flight L-BFGS iterations
 150→60 (the robot GP keeps its 150), REPS updates 200→40, learning-curve targets 20→8."""
-# fmt: on
 
 
 def _scales(cls, smoke: dict | None = None, quick: dict | None = None, paper=None) -> dict:
     """The three scales of a settings class: the shared changes plus the experiment's own."""
-    return scales(cls(), smoke={**SMOKE, **(smoke or {})}, quick={**QUICK, **(quick or {})},
-                  paper={"n_eval_contexts": 20, **(paper or {})})  # fmt: skip
+    return scales(
+        cls(),
+        smoke={**SMOKE, **(smoke or {})},
+        quick={**QUICK, **(quick or {})},
+        paper={"n_eval_contexts": 20, **(paper or {})},
+    )
 
 
 # --------------------------------------------------------------------------- one run
@@ -146,34 +176,56 @@ def throwing_reward_model(task, st: GPREPSThrowingSettings, model: str = "decomp
     (:class:`~skillkit.tasks.throwing_model.ThrowingRewardModel`), or ``"direct"``, one GP from
     (s, ω) to the reward."""
     if model == "decomposed":  # the full 2.5 s flight of every ball, as the results were made
-        return ThrowingRewardModel(task, make_robot_model=partial(_fitc, st.robot_inducing,
-                                   st.robot_steps),
-                                   make_release_model=partial(ExactGP, n_steps=st.gp_steps),
-                                   make_flight_model=partial(_fitc, st.flight_inducing,
-                                                             st.gp_steps),
-                                   max_robot_points=st.max_robot_points,
-                                   stop_flight_at_ground=False)  # fmt: skip
+        return ThrowingRewardModel(
+            task,
+            make_robot_model=partial(_fitc, st.robot_inducing, st.robot_steps),
+            make_release_model=partial(ExactGP, n_steps=st.gp_steps),
+            make_flight_model=partial(_fitc, st.flight_inducing, st.gp_steps),
+            max_robot_points=st.max_robot_points,
+            stop_flight_at_ground=False,
+        )
     return DirectRewardModel(ExactGP(n_steps=st.gp_steps))
 
 
 def reps_algorithm(task, st) -> ContextualREPS:
     """Model-free contextual REPS on throwing with fig3.3's settings (ε, reused batches and
     the quadratic baseline from ``st``), from the task's π₀."""
-    return ContextualREPS(task.initial_policy(), st.reps_epsilon,
-                          n_reuse_batches=st.reps_reuse_batches, baseline_features="quadratic",
-                          cov_floor=COV_FLOOR,
-                          min_effective_samples=MIN_EFFECTIVE_SAMPLES)  # fmt: skip
+    return ContextualREPS(
+        task.initial_policy(),
+        st.reps_epsilon,
+        n_reuse_batches=st.reps_reuse_batches,
+        baseline_features="quadratic",
+        cov_floor=COV_FLOOR,
+        min_effective_samples=MIN_EFFECTIVE_SAMPLES,
+    )
 
 
 def _gpreps(task, st, key, model, m, rng, trial, eval_contexts) -> dict:
-    return run_gpreps(task, st, key, throwing_reward_model(task, st, model), m,
-                      st.n_trajectories, rng, trial, eval_contexts)  # fmt: skip
+    return run_gpreps(
+        task,
+        st,
+        key,
+        throwing_reward_model(task, st, model),
+        m,
+        st.n_trajectories,
+        rng,
+        trial,
+        eval_contexts,
+    )
 
 
 def _run_reps(task, st, key, rng, trial, eval_contexts) -> dict:
     """Model-free contextual REPS with fig3.3's settings (:func:`reps_algorithm`)."""
-    out, curves = run_curve(task, reps_algorithm(task, st), key, st.reps_updates,
-                            st.reps_rollouts_per_update, rng, trial, eval_contexts)  # fmt: skip
+    out, curves = run_curve(
+        task,
+        reps_algorithm(task, st),
+        key,
+        st.reps_updates,
+        st.reps_rollouts_per_update,
+        rng,
+        trial,
+        eval_contexts,
+    )
     out[f"{key}_policy"] = curves["policy"]
     return out
 
@@ -191,11 +243,19 @@ def _finish(task, st, out: dict, keys) -> dict:
 
 
 def _learning_series(trials, keys, labels) -> list[Series]:
-    return [curve_series(trials, f"{k}_rollouts", f"{k}_mean_reward", label, "learning curves",
-                         "average reward of the policy mean",
-                         xlabel="real rollouts (log scale; after the first batch)",
-                         drop_first=True)
-            for k, label in zip(keys, labels, strict=True)]  # fmt: skip
+    return [
+        curve_series(
+            trials,
+            f"{k}_rollouts",
+            f"{k}_mean_reward",
+            label,
+            "learning curves",
+            "average reward of the policy mean",
+            xlabel="real rollouts (log scale; after the first batch)",
+            drop_first=True,
+        )
+        for k, label in zip(keys, labels, strict=True)
+    ]
 
 
 def _method_summary(trials, key) -> dict:
@@ -235,7 +295,8 @@ def summarize_46(st: GPREPSThrowingSettings, trials: list[dict]):
     for key in keys:
         summary[key] = _method_summary(trials, key)
     summary["reps_rollouts_to_gpreps_final"] = rollouts_to_reach(
-        trials, "reps", summary["gpreps"]["final_reward_mean"])  # fmt: skip
+        trials, "reps", summary["gpreps"]["final_reward_mean"]
+    )
     for key in keys:
         summary[key].update(_per_trial(trials, key))
     g = summary["gpreps"]
@@ -248,8 +309,10 @@ def summarize_46(st: GPREPSThrowingSettings, trials: list[dict]):
         ]
     g["prediction_relative_error_median_per_trial"] = [
         finite_or_none(np.nanmedian(t["gpreps_relative_error"][1:]))
-        if np.isfinite(t["gpreps_relative_error"][1:]).any() else None for t in trials
-    ]  # fmt: skip
+        if np.isfinite(t["gpreps_relative_error"][1:]).any()
+        else None
+        for t in trials
+    ]
     summary["reps_over_gpreps_rollouts_per_trial"] = _reps_over_gpreps(trials)
     return series, summary
 
@@ -306,18 +369,28 @@ def summarize_47(st: SampleSizeSettings, trials: list[dict]):
     for key in keys:
         summary[key] = _method_summary(trials, key)
     finals = [summary[k]["final_reward_mean"] for k in keys]
-    series.append(Series("final reward", list(st.n_artificial_values), finals,
-                         panel="final reward against M", kind="lines+markers",
-                         xlabel="artificial samples M (log scale)",
-                         ylabel="final average reward of the policy mean", log_x=True))  # fmt: skip
+    series.append(
+        Series(
+            "final reward",
+            list(st.n_artificial_values),
+            finals,
+            panel="final reward against M",
+            kind="lines+markers",
+            xlabel="artificial samples M (log scale)",
+            ylabel="final average reward of the policy mean",
+            log_x=True,
+        )
+    )
     for key in keys:
         summary[key].update(_per_trial(trials, key))
     values = sorted(st.n_artificial_values)
     summary["final_reward_change_per_trial"] = {
-        f"m{a}_to_m{b}": _difference(summary[f"m{b}"]["final_reward_per_trial"],
-                                     summary[f"m{a}"]["final_reward_per_trial"])
-        for i, a in enumerate(values) for b in values[i + 1 :]
-    }  # fmt: skip
+        f"m{a}_to_m{b}": _difference(
+            summary[f"m{b}"]["final_reward_per_trial"], summary[f"m{a}"]["final_reward_per_trial"]
+        )
+        for i, a in enumerate(values)
+        for b in values[i + 1 :]
+    }
     return series, summary
 
 
@@ -331,8 +404,16 @@ def run_trial_49(st: StochasticThrowingSettings, rng: np.random.Generator, trial
     out: dict = {}
     policies = {}
     for i, (suffix, task) in enumerate(tasks.items()):
-        g = _gpreps(task, st, f"gpreps{suffix}", "decomposed", st.n_artificial, seeds[2 * i],
-                    trial, eval_contexts)  # fmt: skip
+        g = _gpreps(
+            task,
+            st,
+            f"gpreps{suffix}",
+            "decomposed",
+            st.n_artificial,
+            seeds[2 * i],
+            trial,
+            eval_contexts,
+        )
         r = _run_reps(task, st, f"reps{suffix}", seeds[2 * i + 1], trial, eval_contexts)
         out.update(g)
         out.update(r)
@@ -343,9 +424,11 @@ def run_trial_49(st: StochasticThrowingSettings, rng: np.random.Generator, trial
     final_rng = rng.spawn(1)[0]
     for key, pol in policies.items():
         means = np.atleast_2d(pol.mean_of(eval_contexts))
-        rewards = [noisy.evaluate(w, s, final_rng)[0]
-                   for w, s in zip(means, eval_contexts, strict=True)
-                   for _ in range(st.n_final_rollouts)]  # fmt: skip
+        rewards = [
+            noisy.evaluate(w, s, final_rng)[0]
+            for w, s in zip(means, eval_contexts, strict=True)
+            for _ in range(st.n_final_rollouts)
+        ]
         out[f"{key}_noisy_expected_reward"] = float(np.mean(rewards))
     return _finish(tasks[""], st, out, list(policies))
 
@@ -360,11 +443,13 @@ def summarize_49(st: StochasticThrowingSettings, trials: list[dict]):
     for key in keys:
         summary[key] = _method_summary(trials, key)
         summary[key]["noisy_expected_reward"] = float(
-            np.mean([t[f"{key}_noisy_expected_reward"] for t in trials]))  # fmt: skip
+            np.mean([t[f"{key}_noisy_expected_reward"] for t in trials])
+        )
     summary["noise_ratio"] = {**_noise_ratios(summary), **_same_noise_ratios(summary)}
     for key in keys:
         summary[key]["noisy_expected_reward_per_trial"] = [
-            float(t[f"{key}_noisy_expected_reward"]) for t in trials]  # fmt: skip
+            float(t[f"{key}_noisy_expected_reward"]) for t in trials
+        ]
     return series, summary
 
 
@@ -374,19 +459,24 @@ def _noise_ratios(summary: dict) -> dict[str, float]:
 
     def ratio(key: str) -> float:
         return abs(summary[f"{key}_noisy"]["final_reward_mean"]) / max(
-            abs(summary[key]["final_reward_mean"]), 1e-12)  # fmt: skip
+            abs(summary[key]["final_reward_mean"]), 1e-12
+        )
 
-    return {"reps": ratio("reps"), "gpreps": ratio("gpreps"), "thesis_reps": 1086 / 715,
-            "thesis_gpreps": 68 / 64}  # fmt: skip
+    return {
+        "reps": ratio("reps"),
+        "gpreps": ratio("gpreps"),
+        "thesis_reps": 1086 / 715,
+        "thesis_gpreps": 68 / 64,
+    }
 
 
 def _same_noise_ratios(summary: dict) -> dict[str, float | None]:
     """|noisy-trained| / |deterministic-trained| expected reward under the same release noise
-    of REPS's and GPREPS's final policy means; None where the summary does not record it."""
+    of REPS's and GPREPS's final policy means; None where one is not finite."""
 
     def ratio(key: str) -> float | None:
-        noisy = finite_or_none(summary[f"{key}_noisy"].get("noisy_expected_reward"))
-        det = finite_or_none(summary[key].get("noisy_expected_reward"))
+        noisy = finite_or_none(summary[f"{key}_noisy"]["noisy_expected_reward"])
+        det = finite_or_none(summary[key]["noisy_expected_reward"])
         if noisy is None or det is None:
             return None
         return abs(noisy) / max(abs(det), 1e-12)
@@ -394,33 +484,56 @@ def _same_noise_ratios(summary: dict) -> dict[str, float | None]:
     return {"reps_same_noise": ratio("reps"), "gpreps_same_noise": ratio("gpreps")}
 
 
-# fmt: off
-register(Experiment(
-    id="fig4.6", title="Ball throwing: GPREPS (decomposed GP models) vs GP direct vs REPS",
-    settings_class=GPREPSThrowingSettings, settings=_scales(GPREPSThrowingSettings),
-    run_trial=run_trial_46, summarize=summarize_46, trials={"smoke": 1, "quick": 2, "paper": 5}))
-register(Experiment(
-    id="fig4.7", title="Ball throwing: GPREPS with 50 to 1000 artificial samples",
-    settings_class=SampleSizeSettings,
-    settings=_scales(SampleSizeSettings, smoke={"n_artificial_values": (10, 20)},
-                     quick={"n_artificial_values": (50, 200)},
-                     paper={"n_trajectories": 5, "n_updates": 20}),
-    run_trial=run_trial_47, summarize=summarize_47, trials={"smoke": 1, "quick": 1, "paper": 5}))
-register(Experiment(
-    id="fig4.9",
-    title="Stochastic ball throwing: REPS and GPREPS with and without release noise",
-    settings_class=StochasticThrowingSettings,
-    settings=_scales(StochasticThrowingSettings, smoke={"n_final_rollouts": 2},
-                     paper={"n_updates": 20}),
-    run_trial=run_trial_49, summarize=summarize_49, trials={"smoke": 1, "quick": 1, "paper": 5}))
-register_curve_task("throwing", CurveTask(
-    experiment="fig4.6",
-    thresholds=(-100.0, -50.0),
-    thresholds_source="R ≈ −c₁ × the ball's distance to the target with c₁ = 100 per metre "
-    "(Appendix C.1): −100 is 1 m off on average, −50 the 0.5 m bound of Sec. 3.4.1 (Fig. 3.3); "
-    "the thesis's final rewards are −715 (REPS) and −64 (GPREPS) in Fig. 4.9's caption",
-    reps=lambda task, st, policy: reps_algorithm(task, st),
-    reps_schedule=lambda st: (st.reps_updates, *(st.reps_rollouts_per_update,) * 2),
-    reward_model=throwing_reward_model,
-))
-# fmt: on
+register(
+    Experiment(
+        id="fig4.6",
+        title="Ball throwing: GPREPS (decomposed GP models) vs GP direct vs REPS",
+        settings_class=GPREPSThrowingSettings,
+        settings=_scales(GPREPSThrowingSettings),
+        run_trial=run_trial_46,
+        summarize=summarize_46,
+        trials={"smoke": 1, "quick": 2, "paper": 5},
+    )
+)
+register(
+    Experiment(
+        id="fig4.7",
+        title="Ball throwing: GPREPS with 50 to 1000 artificial samples",
+        settings_class=SampleSizeSettings,
+        settings=_scales(
+            SampleSizeSettings,
+            smoke={"n_artificial_values": (10, 20)},
+            quick={"n_artificial_values": (50, 200)},
+            paper={"n_trajectories": 5, "n_updates": 20},
+        ),
+        run_trial=run_trial_47,
+        summarize=summarize_47,
+        trials={"smoke": 1, "quick": 1, "paper": 5},
+    )
+)
+register(
+    Experiment(
+        id="fig4.9",
+        title="Stochastic ball throwing: REPS and GPREPS with and without release noise",
+        settings_class=StochasticThrowingSettings,
+        settings=_scales(
+            StochasticThrowingSettings, smoke={"n_final_rollouts": 2}, paper={"n_updates": 20}
+        ),
+        run_trial=run_trial_49,
+        summarize=summarize_49,
+        trials={"smoke": 1, "quick": 1, "paper": 5},
+    )
+)
+register_curve_task(
+    "throwing",
+    CurveTask(
+        experiment="fig4.6",
+        thresholds=(-100.0, -50.0),
+        thresholds_source="R ≈ −c₁ × the ball's distance to the target with c₁ = 100 per metre "
+        "(Appendix C.1): −100 is 1 m off on average, −50 the 0.5 m bound of Sec. 3.4.1 (Fig. 3.3); "
+        "the thesis's final rewards are −715 (REPS) and −64 (GPREPS) in Fig. 4.9's caption",
+        reps=lambda task, st, policy: reps_algorithm(task, st),
+        reps_schedule=lambda st: (st.reps_updates, *(st.reps_rollouts_per_update,) * 2),
+        reward_model=throwing_reward_model,
+    ),
+)

@@ -127,14 +127,24 @@ def _check_target(target: str) -> None:
 SCALES_4_3 = scales(
     SamplingAccuracySettings(),
     smoke=dict(
-        n_data=120, n_pseudo=20, horizon=6, n_start=3, n_ground_truth=150, sample_sizes=(10, 40),
+        n_data=120,
+        n_pseudo=20,
+        horizon=6,
+        n_start=3,
+        n_ground_truth=150,
+        sample_sizes=(10, 40),
         n_opt_steps=5,
     ),
     paper=dict(
-        n_data=12000, n_pseudo=700, horizon=300, n_start=100, n_ground_truth=1000,
-        sample_sizes=(10, 15, 20, 30, 50, 75, 100, 200), n_opt_steps=150,
+        n_data=12000,
+        n_pseudo=700,
+        horizon=300,
+        n_start=100,
+        n_ground_truth=1000,
+        sample_sizes=(10, 15, 20, 30, 50, 75, 100, 200),
+        n_opt_steps=150,
     ),
-)  # fmt: skip
+)
 
 
 def _train_balancing_model(
@@ -147,9 +157,13 @@ def _train_balancing_model(
         task, max(1, int(np.ceil(settings.n_data / T))), rng, policy=_data_policy(task)
     )
     model = _model(
-        "sparse", len(data["x"]), settings, n_inducing=settings.n_pseudo, curb=False,
+        "sparse",
+        len(data["x"]),
+        settings,
+        n_inducing=settings.n_pseudo,
+        curb=False,
         target="delta",
-    )  # fmt: skip
+    )
     model.fit(data["x"], data["u"], data["x_next"], rng=rng)
     return task, model, data
 
@@ -191,9 +205,13 @@ def _run_4_3(
     if st is None:
         data = _tracking_data(task, G, ref, ff, max(1, int(np.ceil(settings.n_data / T))), rng)
         model = _model(
-            "sparse", len(data["x"]), settings, n_inducing=settings.n_pseudo,
-            curb=settings.curb, target=settings.gp_target,
-        )  # fmt: skip
+            "sparse",
+            len(data["x"]),
+            settings,
+            n_inducing=settings.n_pseudo,
+            curb=settings.curb,
+            target=settings.gp_target,
+        )
         t0 = time.perf_counter()
         model.fit(data["x"], data["u"], data["x_next"], rng=rng)
         lo, hi = np.log(settings.initial_std_range)
@@ -232,13 +250,8 @@ def _run_4_3(
         st["done"] = b + 1
         trial.save("fig4.3", st, rng)
         trial.update()
-    out = {
-        k: st[k]
-        for k in (
-            "kl_mm", "kl_samples", "sigma0", "n_data", "n_failed_rollouts", "tracking_error",
-            "train_time_s",
-        )
-    }  # fmt: skip
+    keys = "kl_mm kl_samples sigma0 n_data n_failed_rollouts tracking_error train_time_s".split()
+    out = {k: st[k] for k in keys}
     out["n_variance_clamped"] = st["n_variance_clamped"]
     d = model.gp.diagnostics
     out["model_jitter"] = d["jitter"]
@@ -264,14 +277,22 @@ def _summarize_4_3(
     )
     pct = {q: np.percentile(scores, q, axis=0) for q in (50, 75, 95)}
     kw = dict(
-        panel="sampling accuracy", xlabel="number of sampled trajectories",
-        ylabel="normalised KL (moment matching = 100)", log_x=True, log_y=True,
-    )  # fmt: skip
+        panel="sampling accuracy",
+        xlabel="number of sampled trajectories",
+        ylabel="normalised KL (moment matching = 100)",
+        log_x=True,
+        log_y=True,
+    )
     series = [
-        Series(f"sampling, {q}th percentile over start states", sizes, pct[q].tolist(),
-               kind="lines+markers", **kw)
+        Series(
+            f"sampling, {q}th percentile over start states",
+            sizes,
+            pct[q].tolist(),
+            kind="lines+markers",
+            **kw,
+        )
         for q in (50, 75, 95)
-    ]  # fmt: skip
+    ]
     series.append(Series("moment matching", sizes, [100.0] * len(sizes), **kw))
     n75, n95 = _first_reaching(sizes, pct[75]), _first_reaching(sizes, pct[95])
     summary = {
@@ -336,14 +357,22 @@ class ComputeTimeSettings(Settings):
 SCALES_4_4 = scales(
     ComputeTimeSettings(),
     smoke=dict(
-        n_data=100, n_pseudo=20, horizon=5, n_trajectories=(10, 100), threads=(1,), repeats=1,
+        n_data=100,
+        n_pseudo=20,
+        horizon=5,
+        n_trajectories=(10, 100),
+        threads=(1,),
+        repeats=1,
         n_opt_steps=5,
     ),
     paper=dict(
-        n_data=1500, n_pseudo=300, horizon=100, n_trajectories=(10, 100, 1000, 3000, 10000),
+        n_data=1500,
+        n_pseudo=300,
+        horizon=100,
+        n_trajectories=(10, 100, 1000, 3000, 10000),
         n_opt_steps=150,
     ),
-)  # fmt: skip
+)
 
 
 def time_predictions(
@@ -414,9 +443,12 @@ def _run_4_4(settings: ComputeTimeSettings, rng: np.random.Generator, trial: Tri
 def _summarize_4_4(settings: ComputeTimeSettings, trials: list[dict]) -> tuple[list[Series], dict]:
     ns = list(settings.n_trajectories)
     kw = dict(
-        panel="compute time of one long-term prediction", xlabel="number of sampled trajectories",
-        ylabel="wall time (s)", log_x=True, log_y=True,
-    )  # fmt: skip
+        panel="compute time of one long-term prediction",
+        xlabel="number of sampled trajectories",
+        ylabel="wall time (s)",
+        log_x=True,
+        log_y=True,
+    )
     series = []
     keys = ("mm_time_s", "sampling_time_s", "trajectories_in_mm_time", "mm_gflops")
     summary: dict = {k: {} for k in (*keys, "sampling_gflops")}
@@ -542,18 +574,27 @@ class RewardErrorSettings(Settings):
 SCALES_4_5 = scales(
     RewardErrorSettings(),
     smoke=dict(
-        defaults=TrainingSetting(1.0, 5, 0.5, 2), additive_noise_values=(1.0, 10.0),
-        n_opt_steps_values=(5,), torque_noise_std_values=(0.5,), n_train_values=(2,), n_pairs=3,
-        horizon=5, n_predicted=3, n_truth=2,
+        defaults=TrainingSetting(1.0, 5, 0.5, 2),
+        additive_noise_values=(1.0, 10.0),
+        n_opt_steps_values=(5,),
+        torque_noise_std_values=(0.5,),
+        n_train_values=(2,),
+        n_pairs=3,
+        horizon=5,
+        n_predicted=3,
+        n_truth=2,
     ),
     paper=dict(
         defaults=TrainingSetting(1.0, 150, 0.5, 50),
         additive_noise_values=(0.1, 0.3, 1.0, 3.0, 10.0, 30.0),
         n_opt_steps_values=(10, 25, 50, 100, 150, 250),
-        torque_noise_std_values=(0.0, 0.25, 0.5, 1.0, 2.0), n_train_values=(10, 20, 50, 100),
-        n_pairs=50, n_predicted=20, n_truth=10,
+        torque_noise_std_values=(0.0, 0.25, 0.5, 1.0, 2.0),
+        n_train_values=(10, 20, 50, 100),
+        n_pairs=50,
+        n_predicted=20,
+        n_truth=10,
     ),
-)  # fmt: skip
+)
 REWARD_ERROR_LABEL = "mean squared reward error [reward²]"
 """Y label of ``fig4.5`` (the balancing reward is unitless)."""
 
@@ -598,10 +639,15 @@ def _evaluate_4_5(cfg: dict, settings: RewardErrorSettings, root: int, curbs=(Tr
     for curb in curbs:
         for kind in ("standard", "sparse"):
             model = _model(
-                kind, N, settings, additive_noise=cfg["additive_noise"],
-                n_steps=cfg["n_opt_steps"], n_inducing=max(1, int(settings.pseudo_fraction * N)),
-                curb=curb, target=settings.gp_target,
-            )  # fmt: skip
+                kind,
+                N,
+                settings,
+                additive_noise=cfg["additive_noise"],
+                n_steps=cfg["n_opt_steps"],
+                n_inducing=max(1, int(settings.pseudo_fraction * N)),
+                curb=curb,
+                target=settings.gp_target,
+            )
             t0 = time.perf_counter()
             model.fit(train["x"], train["u"], train["x_next"], rng=_seed(root, 3, *cfg.values()))
             train_time = time.perf_counter() - t0
@@ -710,9 +756,19 @@ def _summarize_4_5(settings: RewardErrorSettings, trials: list[dict]) -> tuple[l
                 for v in values
             ]
             line = "line" if kind in ("noise_floor", "constant_predictor") else "lines+markers"
-            series.append(Series(name, values, errs, panel=label, kind=line, xlabel=label,
-                                 ylabel=REWARD_ERROR_LABEL, log_x=key == "additive_noise",
-                                 log_y=True))  # fmt: skip
+            series.append(
+                Series(
+                    name,
+                    values,
+                    errs,
+                    panel=label,
+                    kind=line,
+                    xlabel=label,
+                    ylabel=REWARD_ERROR_LABEL,
+                    log_x=key == "additive_noise",
+                    log_y=True,
+                )
+            )
             panel[kind] = dict(zip(map(str, values), errs, strict=True))
         summary["panels"][key] = panel
     default = at(defaults)

@@ -95,11 +95,17 @@ class StochasticRewardSettings(Settings):
 SCALES = scales(
     StochasticRewardSettings(),
     smoke=dict(
-        horizon=10, n_real=60, n_shown=5, n_train=4, n_model=100, sample_sizes=(1, 5, 20),
-        n_bins=10, n_opt_steps=5,
+        horizon=10,
+        n_real=60,
+        n_shown=5,
+        n_train=4,
+        n_model=100,
+        sample_sizes=(1, 5, 20),
+        n_bins=10,
+        n_opt_steps=5,
     ),
     paper=dict(n_real=1000, n_train=30, n_model=5000, n_opt_steps=150),
-)  # fmt: skip
+)
 
 
 def commanded_transitions(

@@ -31,14 +31,14 @@ from skillkit.experiments.ch4_events import (
     gpreps_event_stats,
     gpreps_run,
     gpreps_scales,
-    reps_run,
+    heldout_curves,
 )
 from skillkit.experiments.curves import (
     CurveTask,
-    curve_series,
     heldout_stats,
     register_curve_task,
     rollouts_to_reach,
+    run_curve,
 )
 from skillkit.experiments.registry import Experiment, Series, register
 from skillkit.experiments.settings import Settings, scales, setting
@@ -58,22 +58,27 @@ THESIS_412 = {"gpreps_rollouts": 150, "gpreps_landing_error_m": 0.30, "reps_roll
 """The thesis's numbers on Fig. 4.12, kept in the summary as ``thesis_numbers``."""
 
 
-# fmt: off
 @dataclass(frozen=True)
 class TableTennisModelSettings(Settings):
     """Model 5 and the refit of :class:`~skillkit.tasks.table_tennis.model.TableTennisRewardModel`
     as fig4.12 and fig4.13 use them (why: the claims spec's setup table of fig4.12)."""
 
     contact_features: Literal["thesis", "extended"] = setting(
-        "extended", "Contact-model inputs: the thesis's ten (relative velocity, racket position "
+        "extended",
+        "Contact-model inputs: the thesis's ten (relative velocity, racket position "
         "and quaternion) or ours, adding the ball's position relative to the racket and the "
-        "distance (the thesis's ten do not separate hits from misses here).")
+        "distance (the thesis's ten do not separate hits from misses here).",
+    )
     contact_score: Literal["probability", "decision", "margin"] = setting(
-        "probability", "Contact weight of a sampled path: the SVM's Platt-calibrated hit "
-        "probability, its hard decision, or the decision softened inside its margin.")
+        "probability",
+        "Contact weight of a sampled path: the SVM's Platt-calibrated hit "
+        "probability, its hard decision, or the decision softened inside its margin.",
+    )
     refit: Literal["cold", "warm", "best"] = setting(
-        "best", "GP hyper-parameters after each data collection (Sec. 4.1): cold, warm, or both "
-        "keeping the larger marginal likelihood.")
+        "best",
+        "GP hyper-parameters after each data collection (Sec. 4.1): cold, warm, or both "
+        "keeping the larger marginal likelihood.",
+    )
 
 
 @dataclass(frozen=True)
@@ -82,8 +87,10 @@ class TableTennisGPREPSSettings(EventGPREPSSettings, TableTennisModelSettings):
 
     n_updates: int = setting(130, "GPREPS / GP-direct updates (N₀ + K = 150 rollouts).", minimum=1)
     schedule: Literal["auto", "hitting", "returning"] = setting(
-        "auto", "Reward schedule of Eq. 4.17: 'auto' switches c₁ = c₂ once the contact model "
-        "is good, or a forced 'hitting' / 'returning'.")
+        "auto",
+        "Reward schedule of Eq. 4.17: 'auto' switches c₁ = c₂ once the contact model "
+        "is good, or a forced 'hitting' / 'returning'.",
+    )
     reps_updates: int = setting(80, "REPS updates (× 50 rollouts = 4000).", minimum=1)
 
 
@@ -96,7 +103,6 @@ class ModelAccuracySettings(TableTennisModelSettings):
     n_samples: int = setting(10, "Sampled trajectories per held-out (s, ω) (Fig. 4.13).", minimum=1)
     n_shown: int = setting(3, "Held-out rollouts drawn in the figure (hits first).", minimum=1)
     gp_steps: int = setting(100, "L-BFGS iterations of every GP's hyper-parameter fit.", minimum=0)
-# fmt: on
 
 
 # --------------------------------------------------------------------------- models
@@ -107,10 +113,17 @@ def table_tennis_reward_model(task, st, schedule: str = "auto"):
     from skillkit.tasks.table_tennis.model import TableTennisRewardModel
 
     gp = partial(ExactGP, n_steps=st.gp_steps)
-    return TableTennisRewardModel(task, make_landing_model=gp, make_bounce_model=gp,
-                                  make_racket_model=gp, make_return_model=gp, schedule=schedule,
-                                  contact_features=st.contact_features,
-                                  contact_score=st.contact_score, refit=st.refit)  # fmt: skip
+    return TableTennisRewardModel(
+        task,
+        make_landing_model=gp,
+        make_bounce_model=gp,
+        make_racket_model=gp,
+        make_return_model=gp,
+        schedule=schedule,
+        contact_features=st.contact_features,
+        contact_score=st.contact_score,
+        refit=st.refit,
+    )
 
 
 # --------------------------------------------------------------------------- table tennis
@@ -127,15 +140,37 @@ def run_trial_412(st: TableTennisGPREPSSettings, rng: np.random.Generator, trial
         return shot_scores(task, policy, heldout, heldout_seed)[0]
 
     out: dict = {}
-    out.update(gpreps_run(task, st, "gpreps", table_tennis_reward_model(task, st, st.schedule),
-                           seeds[0], trial, eval_contexts, score, keep_model=True))  # fmt: skip
+    out.update(
+        gpreps_run(
+            task,
+            st,
+            "gpreps",
+            table_tennis_reward_model(task, st, st.schedule),
+            seeds[0],
+            trial,
+            eval_contexts,
+            score,
+            keep_model=True,
+        )
+    )
     direct = DirectRewardModel(ExactGP(n_steps=st.gp_steps))
     out.update(gpreps_run(task, st, "direct", direct, seeds[1], trial, eval_contexts, score))
     tt = _reps_settings()
     reps = make_reps(task, tt)
     every = max(1, st.reps_updates // 5)
-    out.update(reps_run(task, reps, "reps", st.reps_updates, tt.rollouts_per_update, seeds[2],
-                         trial, eval_contexts, score, every))  # fmt: skip
+    arrays, _ = run_curve(
+        task,
+        reps,
+        "reps",
+        st.reps_updates,
+        tt.rollouts_per_update,
+        seeds[2],
+        trial,
+        eval_contexts,
+        score=score,
+        every=every,
+    )
+    out.update(arrays)
     return out
 
 
@@ -145,24 +180,24 @@ TT_SCORES = ("reward", "returned", "net", "missed", "landing_error")
 def summarize_412(st: TableTennisGPREPSSettings, trials: list[dict]):
     keys = ("gpreps", "direct", "reps")
     labels = {"gpreps": "GPREPS", "direct": "GP direct", "reps": "REPS (ε = 0.6)"}
-    series = []
-    for key in keys:
-        series.append(curve_series(trials, f"{key}_rollouts", f"{key}_mean_reward", labels[key],
-                                   "learning curves", "reward of the policy mean"))  # fmt: skip
-        series.append(curve_series(trials, f"{key}_heldout_rollouts",
-                                   f"{key}_heldout_landing_error", labels[key],
-                                   "held-out landing error", "‖b − p‖ (m)"))  # fmt: skip
+    panels = (
+        ("learning curves", "reward of the policy mean"),
+        ("held-out landing error", "‖b − p‖ (m)"),
+    )
+    series = [
+        s for key in keys for s in heldout_curves(trials, key, labels[key], panels, "landing_error")
+    ]
     summary: dict = {"n_trials": len(trials), "thesis_numbers": dict(THESIS_412)}
     for key in keys:
         summary[key] = heldout_stats(trials, key, TT_SCORES)
         summary[key]["final_net_or_missed_per_trial"] = [  # GP direct's "net, or even miss"
-            float(t[f"{key}_heldout_net"][-1] + t[f"{key}_heldout_missed"][-1])
-            for t in trials]  # fmt: skip
+            float(t[f"{key}_heldout_net"][-1] + t[f"{key}_heldout_missed"][-1]) for t in trials
+        ]
     for key in ("gpreps", "direct"):
         summary[key].update(gpreps_event_stats(trials, key))
     summary["reps_rollouts_to_gpreps_final_reward"] = rollouts_to_reach(
-        trials, "reps", summary["gpreps"]["final_reward"], "heldout_reward",
-        "heldout_rollouts")  # fmt: skip
+        trials, "reps", summary["gpreps"]["final_reward"], "heldout_reward", "heldout_rollouts"
+    )
     return series, summary
 
 
@@ -199,13 +234,17 @@ def run_trial_413(st: ModelAccuracySettings, rng: np.random.Generator, trial: Tr
     out["shown_ball_real"] = np.stack([t_te[i].signals["ball"] for i in shown])
     out["shown_racket_real"] = np.stack([t_te[i].signals["racket"] for i in shown])
     out["shown_landing_real"] = np.array(
-        [t_te[i].info["landing_point"] if t_te[i].info["hit"] else [np.nan] * 2
-         for i in shown])  # fmt: skip
+        [t_te[i].info["landing_point"] if t_te[i].info["hit"] else [np.nan] * 2 for i in shown]
+    )
     return out
 
 
-MODEL_ERRORS = {"bounce_position_error_m": 0.05, "racket_position_rmse_m": 0.03,
-                "contact_accuracy": 0.9, "return_landing_error_m": 0.30}  # fmt: skip
+MODEL_ERRORS = {
+    "bounce_position_error_m": 0.05,
+    "racket_position_rmse_m": 0.03,
+    "contact_accuracy": 0.9,
+    "return_landing_error_m": 0.30,
+}
 """fig4.13's thresholds, fixed before any run (median bounce-point error, racket-position RMSE,
 hit/miss accuracy of the contact SVM, median returned landing error), kept in the summary."""
 
@@ -222,8 +261,10 @@ def _nan_joined(paths: np.ndarray, cols) -> tuple[list, list]:
 def summarize_413(st: ModelAccuracySettings, trials: list[dict]):
     t0 = trials[0]
     series = []
-    for view, cols, ylabel in (("side view (x–z)", (0, 2), "z (m)"),
-                               ("top view (x–y)", (0, 1), "y (m)")):  # fmt: skip
+    for view, cols, ylabel in (
+        ("side view (x–z)", (0, 2), "z (m)"),
+        ("top view (x–y)", (0, 1), "y (m)"),
+    ):
         for name, key, kind in (
             ("incoming ball, models 1–2 (10 samples)", "shown_ball_predicted", "line"),
             ("racket, models 3–4 (10 samples)", "shown_racket_predicted", "line"),
@@ -231,44 +272,63 @@ def summarize_413(st: ModelAccuracySettings, trials: list[dict]):
             pred = np.asarray(t0[key], dtype=float)
             x, y = _nan_joined(pred.reshape(-1, *pred.shape[2:]), cols)
             series.append(Series(name, x, y, view, kind, xlabel="x (m)", ylabel=ylabel))
-        for name, key in (("ball, simulator", "shown_ball_real"),
-                          ("racket, simulator", "shown_racket_real")):  # fmt: skip
+        for name, key in (
+            ("ball, simulator", "shown_ball_real"),
+            ("racket, simulator", "shown_racket_real"),
+        ):
             x, y = _nan_joined(np.asarray(t0[key], dtype=float), cols)
             series.append(Series(name, x, y, view, "line", xlabel="x (m)", ylabel=ylabel))
     lp = np.asarray(t0["shown_landing_predicted"], dtype=float).reshape(-1, 2)
     lr = np.asarray(t0["shown_landing_real"], dtype=float)
-    series.append(Series("returned landing point, model 5", lp[:, 0].tolist(),
-                         lp[:, 1].tolist(), "top view (x–y)", "markers", xlabel="x (m)",
-                         ylabel="y (m)"))  # fmt: skip
-    series.append(Series("returned landing point (hits), simulator", lr[:, 0].tolist(),
-                         lr[:, 1].tolist(), "top view (x–y)", "markers", xlabel="x (m)",
-                         ylabel="y (m)"))  # fmt: skip
+    for name, pts in (
+        ("returned landing point, model 5", lp),
+        ("returned landing point (hits), simulator", lr),
+    ):
+        xy = (pts[:, 0].tolist(), pts[:, 1].tolist())
+        series.append(
+            Series(name, *xy, "top view (x–y)", "markers", xlabel="x (m)", ylabel="y (m)")
+        )
     keys = [k for k in t0 if k.startswith("accuracy_")]
     errors = {k[len("accuracy_") :]: float(np.mean([t[k] for t in trials])) for k in keys}
     per_trial = {k[len("accuracy_") :]: [float(t[k]) for t in trials] for k in keys}
-    summary: dict = {"n_trials": len(trials), "errors": errors,
-                     "thresholds": dict(MODEL_ERRORS), "errors_per_trial": per_trial}  # fmt: skip
+    summary: dict = {
+        "n_trials": len(trials),
+        "errors": errors,
+        "thresholds": dict(MODEL_ERRORS),
+        "errors_per_trial": per_trial,
+    }
     return series, summary
 
 
 # --------------------------------------------------------------------------- registry
-# fmt: off
-register(Experiment(
-    id="fig4.12", title="Robot table tennis: GPREPS (five models) vs GP direct vs REPS",
-    settings_class=TableTennisGPREPSSettings,
-    settings=gpreps_scales(TableTennisGPREPSSettings, smoke={"reps_updates": 1},
-                           quick={"reps_updates": 10}),
-    run_trial=run_trial_412, summarize=summarize_412,
-    trials={"smoke": 1, "quick": 1, "paper": 5}))
-register(Experiment(
-    id="fig4.13",
-    title="Robot table tennis: the five models' predictions against the simulator",
-    settings_class=ModelAccuracySettings,
-    settings=scales(ModelAccuracySettings(), smoke={"n_rollouts": 20, "n_heldout": 3,
-                    "n_samples": 2, "n_shown": 1, "gp_steps": 10},
-                    quick={"n_heldout": 10, "gp_steps": 60}),
-    run_trial=run_trial_413, summarize=summarize_413,
-    trials={"smoke": 1, "quick": 1, "paper": 1}))
+register(
+    Experiment(
+        id="fig4.12",
+        title="Robot table tennis: GPREPS (five models) vs GP direct vs REPS",
+        settings_class=TableTennisGPREPSSettings,
+        settings=gpreps_scales(
+            TableTennisGPREPSSettings, smoke={"reps_updates": 1}, quick={"reps_updates": 10}
+        ),
+        run_trial=run_trial_412,
+        summarize=summarize_412,
+        trials={"smoke": 1, "quick": 1, "paper": 5},
+    )
+)
+register(
+    Experiment(
+        id="fig4.13",
+        title="Robot table tennis: the five models' predictions against the simulator",
+        settings_class=ModelAccuracySettings,
+        settings=scales(
+            ModelAccuracySettings(),
+            smoke={"n_rollouts": 20, "n_heldout": 3, "n_samples": 2, "n_shown": 1, "gp_steps": 10},
+            quick={"n_heldout": 10, "gp_steps": 60},
+        ),
+        run_trial=run_trial_413,
+        summarize=summarize_413,
+        trials={"smoke": 1, "quick": 1, "paper": 1},
+    )
+)
 
 
 def _reps_settings() -> TableTennisSettings:
@@ -276,13 +336,15 @@ def _reps_settings() -> TableTennisSettings:
     return replace(TableTennisSettings(), **REGULARISED)
 
 
-register_curve_task("table-tennis", CurveTask(
-    experiment="fig4.12",
-    thresholds=(-0.05, -0.02),
-    thresholds_source="Sec. 3.4.3: high-quality policies have “a reward above -0.02”; balls in "
-    "the net score “in interval [−0.05, −0.02]”",
-    reps=lambda task, st, policy: make_reps(task, _reps_settings()),
-    reps_schedule=lambda st: (st.reps_updates, *(_reps_settings().rollouts_per_update,) * 2),
-    reward_model=lambda task, st: table_tennis_reward_model(task, st, st.schedule),
-))
-# fmt: on
+register_curve_task(
+    "table-tennis",
+    CurveTask(
+        experiment="fig4.12",
+        thresholds=(-0.05, -0.02),
+        thresholds_source="Sec. 3.4.3: high-quality policies have “a reward above -0.02”; balls in "
+        "the net score “in interval [−0.05, −0.02]”",
+        reps=lambda task, st, policy: make_reps(task, _reps_settings()),
+        reps_schedule=lambda st: (st.reps_updates, *(_reps_settings().rollouts_per_update,) * 2),
+        reward_model=lambda task, st: table_tennis_reward_model(task, st, st.schedule),
+    ),
+)

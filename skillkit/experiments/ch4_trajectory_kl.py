@@ -174,8 +174,9 @@ def _balancing(n: int, st: TrajectoryKLSettings, rng) -> TrajectoryData:
             continue
         X.append(traj.states)
         U.append(traj.controls[:-1])
-    return TrajectoryData(np.array(X), np.array(U), np.broadcast_to(G, (n, 4, 8)).copy(),
-                          X_UP.copy(), np.inf, failed)  # fmt: skip
+    return TrajectoryData(
+        np.array(X), np.array(U), np.broadcast_to(G, (n, 4, 8)).copy(), X_UP.copy(), np.inf, failed
+    )
 
 
 def _data(system: str, n: int, st: TrajectoryKLSettings, rng) -> TrajectoryData:
@@ -286,9 +287,15 @@ def _fit_and_score(system, cls, train, test, scale, st, rng, trial) -> dict:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
             fit = fit_trajectory_kl(
-                model, theta_ml, train.states, train.controls, cross=st.cross, ridge=ridge,
-                maxiter=st.tkl_iterations, inner_maxiter=st.inner_iterations,
-            )  # fmt: skip
+                model,
+                theta_ml,
+                train.states,
+                train.controls,
+                cross=st.cross,
+                ridge=ridge,
+                maxiter=st.tkl_iterations,
+                inner_maxiter=st.inner_iterations,
+            )
         out[key] = {
             "time_s": time.perf_counter() - t0,
             "iterations": fit.n_iterations,
@@ -319,9 +326,14 @@ def _objective(model, theta, data: TrajectoryData, st: TrajectoryKLSettings, rid
     with np.errstate(all="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         value = trajectory_kl_objective(
-            model, theta, data.states, data.controls, cross=st.cross, ridge=ridge,
+            model,
+            theta,
+            data.states,
+            data.controls,
+            cross=st.cross,
+            ridge=ridge,
             inner_maxiter=st.inner_iterations,
-        )[0]  # fmt: skip
+        )[0]
     return float(value) if np.isfinite(value) and value < 1e6 else float("inf")
 
 
@@ -374,12 +386,11 @@ def _unflatten(flat: dict) -> dict:
 
 
 # --------------------------------------------------------------------------- summary
-METRICS = (
-    "multistep_error", "multistep_error_median", "diverged", "final_error", "trajectory_ll",
-    "one_step_ll", "dual_objective",
-    "time_s", "iterations", "dynamics_error_max", "noise_log_var_error_max", "kl_total",
-    "feature_residual", "moved", "objective", "objective_at_ml",
-)  # fmt: skip
+METRICS = tuple(
+    "multistep_error multistep_error_median diverged final_error trajectory_ll one_step_ll "
+    "dual_objective time_s iterations dynamics_error_max noise_log_var_error_max kl_total "
+    "feature_residual moved objective objective_at_ml".split()
+)
 
 
 def _methods(st: TrajectoryKLSettings) -> list[str]:
@@ -430,22 +441,31 @@ def summarize(st: TrajectoryKLSettings, trials: list[dict]):
                 ]
                 curve = np.mean([r[cls][key]["error_per_step"] for r in runs], axis=0)
                 label = "true model" if key == "truth" else _method_label(key)
-                series.append(Series(
-                    f"{CLASS_LABELS[cls]}, {label}", list(range(2, T + 1)),
-                    [float(v) if np.isfinite(v) else None for v in curve], panel=panel,
-                    xlabel="time step t", ylabel="squared error (training std² units)",
-                    log_y=True,
-                ))  # fmt: skip
+                series.append(
+                    Series(
+                        f"{CLASS_LABELS[cls]}, {label}",
+                        list(range(2, T + 1)),
+                        [float(v) if np.isfinite(v) else None for v in curve],
+                        panel=panel,
+                        xlabel="time step t",
+                        ylabel="squared error (training std² units)",
+                        log_y=True,
+                    )
+                )
             ml, tkl = cell["ml"]["multistep_error"], cell["tkl_0"]["multistep_error"]
             cell["tkl_over_ml"] = None if ml is None or tkl is None or ml == 0 else tkl / ml
-            cell["tkl_lower_trials"] = int(sum(
-                r[cls]["tkl_0"]["multistep_error"] < r[cls]["ml"]["multistep_error"] for r in runs
-            ))  # fmt: skip
+            cell["tkl_lower_trials"] = int(
+                sum(
+                    r[cls]["tkl_0"]["multistep_error"] < r[cls]["ml"]["multistep_error"]
+                    for r in runs
+                )
+            )
             cell_sys[cls] = cell
         cell_sys["failed_rollouts_replaced"] = int(sum(r["n_failed_rollouts"] for r in runs))
         trivial = cell_sys["trivial_multistep_error"]
-        series.append(Series("trivial: training mean trajectory", [2, T],
-                             [trivial, trivial], panel=panel))  # fmt: skip
+        series.append(
+            Series("trivial: training mean trajectory", [2, T], [trivial, trivial], panel=panel)
+        )
         summary["cells"][system] = cell_sys
     return series, summary
 
@@ -455,11 +475,18 @@ def summarize(st: TrajectoryKLSettings, trials: list[dict]):
 _SCALES = scales(
     TrajectoryKLSettings(),
     smoke=dict(
-        n_train=6, n_test=4, horizon=6, n_inducing=5, ml_iterations=20, tkl_iterations=5,
-        inner_iterations=50, n_samples=5, ridges=(0.0, 0.1),
+        n_train=6,
+        n_test=4,
+        horizon=6,
+        n_inducing=5,
+        ml_iterations=20,
+        tkl_iterations=5,
+        inner_iterations=50,
+        n_samples=5,
+        ridges=(0.0, 0.1),
     ),
     paper=dict(n_train=100, n_test=100),
-)  # fmt: skip
+)
 
 register(
     Experiment(

@@ -106,11 +106,18 @@ class PendulumSettings(Settings):
 SCALES_PENDULUM = scales(
     PendulumSettings(),
     smoke=dict(
-        n_trajectories=3, horizon=4, grid=4, truth_samples=20, truth_rollouts=5, gp_samples=4,
-        cv_folds=3, max_iter=3, gp_steps=3,
+        n_trajectories=3,
+        horizon=4,
+        grid=4,
+        truth_samples=20,
+        truth_rollouts=5,
+        gp_samples=4,
+        cv_folds=3,
+        max_iter=3,
+        gp_steps=3,
     ),
     paper=dict(grid=41, truth_samples=1000, truth_rollouts=200, gp_samples=100, max_iter=100),
-)  # fmt: skip
+)
 
 
 def _pendulum_trial(
@@ -129,9 +136,12 @@ def _pendulum_trial(
     folds = kfold_splits(len(x), min(settings.cv_folds, n_traj), rng, groups=groups)
     loss = state_embedding_loss(x, xn, folds, _target_kernel(settings.target_kernel, xn))
     fit = fit_hyperparameters(
-        loss, _initial_lengthscales(x), max(settings.lam0, settings.lam_min),
-        lam_bounds=(settings.lam_min, 1.0), max_iter=settings.max_iter,
-    )  # fmt: skip
+        loss,
+        _initial_lengthscales(x),
+        max(settings.lam0, settings.lam_min),
+        lam_bounds=(settings.lam_min, 1.0),
+        max_iter=settings.max_iter,
+    )
     emb = ConditionalEmbedding(x, xn, SquaredExponential(2, lengthscale=fit.lengthscale), fit.lam)
     trial.update()
 
@@ -285,10 +295,19 @@ def _pendulum_summary(key: str, label: str, unit: str):
             panel = f"{title}: log10 {label} ({label} in {unit})"
             lo, hi = (zmin, zmax) if m != "floor" else (float(fl.min()), float(fl.max()))
             series += [
-                Series(f"log10 {label}, {title[4:]}", t0["alpha"], t0["alpha_dot"], z=logs[m],
-                       panel=panel, kind="heatmap", zmin=lo, zmax=hi, **axes),
+                Series(
+                    f"log10 {label}, {title[4:]}",
+                    t0["alpha"],
+                    t0["alpha_dot"],
+                    z=logs[m],
+                    panel=panel,
+                    kind="heatmap",
+                    zmin=lo,
+                    zmax=hi,
+                    **axes,
+                ),
                 Series("observed trajectories", xs, ys, panel=panel, kind="line", **axes),
-            ]  # fmt: skip
+            ]
         better_map = maps["emb"] < maps["gp"]
         near = _near_data(t0, better_map.shape[0])
         medians = _medians(maps, near)
@@ -498,10 +517,13 @@ SCALES_5_7 = scales(
     RewardVsNoiseSettings(),
     smoke={**_BALANCING_SMOKE, "n_trajectories": 2, "torque_noise": (1.0, 4.0)},
     paper={
-        **_BALANCING_PAPER, "test_pairs": 100, "truth_rollouts": 50, "n_trajectories": 6,
+        **_BALANCING_PAPER,
+        "test_pairs": 100,
+        "truth_rollouts": 50,
+        "n_trajectories": 6,
         "torque_noise": (1.0, 2.0, 4.0, 8.0),
     },
-)  # fmt: skip
+)
 
 E_R_LABEL = "e_r = mean (R̂ − R)² [reward²]"
 """Y label of ``fig5.6`` / ``fig5.7`` (the balancing reward is unitless)."""
@@ -552,10 +574,7 @@ def _observed(task, gain, n_traj: int, rng) -> tuple[np.ndarray, np.ndarray, int
     return np.stack([tr.states for tr in runs]), np.stack([tr.controls for tr in runs]), failed
 
 
-def _balancing_case(
-    task, gain: np.ndarray, n_traj: int, starts: np.ndarray, truth: np.ndarray, settings, rng,
-    trial,
-) -> dict:  # fmt: skip
+def _balancing_case(task, gain, n_traj: int, starts, truth, settings, rng, trial) -> dict:
     """Train the three predictors on ``n_traj`` observed PD trajectories and score them on
     the test start states."""
     reward = task.immediate_reward
@@ -617,12 +636,18 @@ def _balancing_case(
         t0 = time.perf_counter()
         pred, beta_l1 = embedding_expected_rewards(emb, starts, gain, horizon, reward)
         measured = dict(
-            time=time.perf_counter() - t0, e_r=float(np.mean((pred - truth) ** 2)),
-            median_sq_err=float(np.median((pred - truth) ** 2)), pred_mean=float(np.mean(pred)),
-            beta_l1_max=float(np.max(beta_l1)), lengthscale=f.lengthscale, lam=f.lam,
-            cv_loss=f.loss, cv_initial_loss=f.initial_loss, fit_success=f.success,
+            time=time.perf_counter() - t0,
+            e_r=float(np.mean((pred - truth) ** 2)),
+            median_sq_err=float(np.median((pred - truth) ** 2)),
+            pred_mean=float(np.mean(pred)),
+            beta_l1_max=float(np.max(beta_l1)),
+            lengthscale=f.lengthscale,
+            lam=f.lam,
+            cv_loss=f.loss,
+            cv_initial_loss=f.initial_loss,
+            fit_success=f.success,
             fit_at_bound=f.at_bound,
-        )  # fmt: skip
+        )
         out.update({f"{k}_{name}": v for k, v in measured.items()})
     trial.update()
 
@@ -742,16 +767,28 @@ def _reward_summary(xlabel: str, fig: str):
             y, band = trial_band(err[m])
             kind = "lines+markers" if m in dict(_METHODS) else "line"
             series.append(
-                Series(label.format(gp_samples=settings.gp_samples), x, y, **band, kind=kind,
-                       panel="reward prediction error", xlabel=xlabel, ylabel=E_R_LABEL,
-                       log_y=True)
-            )  # fmt: skip
+                Series(
+                    label.format(gp_samples=settings.gp_samples),
+                    x,
+                    y,
+                    **band,
+                    kind=kind,
+                    panel="reward prediction error",
+                    xlabel=xlabel,
+                    ylabel=E_R_LABEL,
+                    log_y=True,
+                )
+            )
         mean = {m: err[m].mean(axis=0) for m in err}
         below = {
             (a, b): [bool(u < v) for u, v in zip(mean[a], mean[b], strict=True)]
-            for a, b in (("step", "gp"), ("trajectory", "gp"), ("trajectory", "step"),
-                         ("trajectory", "constant"))
-        }  # fmt: skip
+            for a, b in (
+                ("step", "gp"),
+                ("trajectory", "gp"),
+                ("trajectory", "step"),
+                ("trajectory", "constant"),
+            )
+        }
 
         def per_case(key):
             return [[c[key] for c in t["cases"]] for t in trials]

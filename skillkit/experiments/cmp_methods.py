@@ -59,21 +59,24 @@ LABELS = {"reps": "REPS", "gpreps": "GPREPS", "cmaes": "CMA-ES", "cbo": "context
 class MethodComparisonSettings(Settings):
     """Settings of ``cmp.methods``; REPS and GPREPS take theirs from the thesis experiments."""
 
-    # fmt: off
     tasks: tuple[str, ...] = setting(TASKS, f"Tasks compared (a subset of {TASKS}).")
     methods: tuple[str, ...] = setting(METHODS, f"Methods compared (a subset of {METHODS}).")
-    thesis_scale: str = setting("quick", "Scale of the thesis experiments (fig4.6, fig4.10, "
-                                "fig4.12, tab4.2) whose REPS and GPREPS settings are used.")
+    thesis_scale: str = setting(
+        "quick",
+        "Scale of the thesis experiments (fig4.6, fig4.10, "
+        "fig4.12, tab4.2) whose REPS and GPREPS settings are used.",
+    )
     gpreps_updates: int = setting(0, "GPREPS updates (0: the thesis experiment's).", minimum=0)
     n_artificial: int = setting(0, "GPREPS's M (0: the thesis experiment's).", minimum=0)
     n_trajectories: int = setting(0, "GPREPS's L (0: the thesis experiment's).", minimum=0)
     reps_updates: int = setting(0, "REPS updates (0: the thesis experiment's).", minimum=0)
     keep_gpreps_model: bool = setting(
-        False, "Store GPREPS's policy history on the first task (`skillkit view TASK --policy "
-        "RUN_DIR`) and a reward model that draws prediction layers (`--gpreps RUN_DIR`).")
+        False,
+        "Store GPREPS's policy history on the first task (`skillkit view TASK --policy "
+        "RUN_DIR`) and a reward model that draws prediction layers (`--gpreps RUN_DIR`).",
+    )
     cmaes_budget: int = setting(0, "Real rollouts of CMA-ES (0: REPS's).", minimum=0)
     cbo_budget: int = setting(0, "Real rollouts of contextual BO (0: GPREPS's).", minimum=0)
-    # fmt: on
 
 
 SETTINGS = scales(
@@ -114,8 +117,12 @@ def thesis_settings(name: str, st: MethodComparisonSettings) -> Settings:
     GPREPS and REPS sizes that ``st`` sets (non-zero) in their place."""
     profile = curve_task(name)
     thesis = get(profile.experiment).settings[st.thesis_scale]
-    sizes = {profile.gpreps_updates: st.gpreps_updates, "n_artificial": st.n_artificial,
-             "n_trajectories": st.n_trajectories, "reps_updates": st.reps_updates}  # fmt: skip
+    sizes = {
+        profile.gpreps_updates: st.gpreps_updates,
+        "n_artificial": st.n_artificial,
+        "n_trajectories": st.n_trajectories,
+        "reps_updates": st.reps_updates,
+    }
     return replace(thesis, **{k: v for k, v in sizes.items() if v})
 
 
@@ -128,8 +135,9 @@ def _setup(name: str, st: MethodComparisonSettings, rng: np.random.Generator) ->
         policy = task.initial_policy()
         evals = task.sample_context(rng, n=thesis.n_eval_contexts)
         prior, prior_rollouts = [], 0.0
-    return _Setup(task, name, profile, thesis, policy, evals, int(rng.integers(2**63)), prior,
-                  prior_rollouts)  # fmt: skip
+    return _Setup(
+        task, name, profile, thesis, policy, evals, int(rng.integers(2**63)), prior, prior_rollouts
+    )
 
 
 def _schedule(method: str, s: _Setup) -> tuple[int, int, int]:
@@ -168,8 +176,9 @@ def _algorithm(method: str, s: _Setup, st: MethodComparisonSettings, rng):
     from skillkit.search.cbo import CBOSettings, ContextualBO
 
     n = min(CBOSettings().rollouts_per_update, budget)  # its default batch, within the budget
-    algo = ContextualBO.for_task(s.task, policy=s.policy, settings=CBOSettings(
-        rollouts_per_update=n), rng=rng)  # fmt: skip
+    algo = ContextualBO.for_task(
+        s.task, policy=s.policy, settings=CBOSettings(rollouts_per_update=n), rng=rng
+    )
     return algo, max(1, math.ceil(budget / n)), n, n
 
 
@@ -183,8 +192,19 @@ def _run_method(method: str, s: _Setup, st, rng, trial: TrialContext) -> dict:
         return took if step else 0.0
 
     key = f"{s.name}/{method}"
-    _, c = run_curve(s.task, algo, key, k, n, rng, trial, s.eval_contexts, eval_seed=s.eval_seed,
-                     initial_rollouts=n0, callback=clock)  # fmt: skip
+    _, c = run_curve(
+        s.task,
+        algo,
+        key,
+        k,
+        n,
+        rng,
+        trial,
+        s.eval_contexts,
+        eval_seed=s.eval_seed,
+        initial_rollouts=n0,
+        callback=clock,
+    )
     prior = s.prior_rollouts if method == "gpreps" and s.prior else 0.0
     out = {
         f"{key}_rollouts": c["rollouts"].astype(float) + prior,
@@ -211,8 +231,9 @@ def _updates(method: str, s: _Setup, st) -> int:
 def run_trial(st: MethodComparisonSettings, rng: np.random.Generator, trial: TrialContext):
     """Every method on every task of ``st`` from the same π₀, evaluated the same way."""
     _check(st)
-    setups = [_setup(name, st, r) for name, r in zip(st.tasks, rng.spawn(len(st.tasks)),
-                                                     strict=True)]  # fmt: skip
+    setups = [
+        _setup(name, st, r) for name, r in zip(st.tasks, rng.spawn(len(st.tasks)), strict=True)
+    ]
     trial.reset(total=sum(_updates(m, s, st) for s in setups for m in st.methods))
     out: dict = {}
     for s, task_rng in zip(setups, rng.spawn(len(setups)), strict=True):
@@ -265,9 +286,18 @@ def summarize(st: MethodComparisonSettings, trials: list[dict]):
         profile = curve_task(name)
         levels = profile.thresholds
         row = {m: _method_row(trials, f"{name}/{m}", levels) for m in st.methods}
-        series += [curve_series(trials, f"{name}/{m}_rollouts", f"{name}/{m}_mean_reward",
-                                LABELS[m], name, "reward of the policy mean", drop_first=True)
-                   for m in st.methods]  # fmt: skip
+        series += [
+            curve_series(
+                trials,
+                f"{name}/{m}_rollouts",
+                f"{name}/{m}_mean_reward",
+                LABELS[m],
+                name,
+                "reward of the policy mean",
+                drop_first=True,
+            )
+            for m in st.methods
+        ]
         table[name] = {
             "thresholds": list(levels),
             "thresholds_source": profile.thresholds_source,
@@ -278,10 +308,14 @@ def summarize(st: MethodComparisonSettings, trials: list[dict]):
     return series, {"n_trials": len(trials), "tasks": table}
 
 
-# fmt: off
-register(Experiment(
-    id="cmp.methods",
-    title="REPS, GPREPS, CMA-ES and contextual BO on the thesis's tasks (not a thesis figure)",
-    settings_class=MethodComparisonSettings, settings=SETTINGS, run_trial=run_trial,
-    summarize=summarize, trials={"smoke": 1, "quick": 2, "paper": 5}))
-# fmt: on
+register(
+    Experiment(
+        id="cmp.methods",
+        title="REPS, GPREPS, CMA-ES and contextual BO on the thesis's tasks (not a thesis figure)",
+        settings_class=MethodComparisonSettings,
+        settings=SETTINGS,
+        run_trial=run_trial,
+        summarize=summarize,
+        trials={"smoke": 1, "quick": 2, "paper": 5},
+    )
+)

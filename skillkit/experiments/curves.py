@@ -33,13 +33,29 @@ from skillkit.tasks import make, names
 from skillkit.trial import TrialContext
 from skillkit.viz.series import trial_band
 
-# fmt: off
-__all__ = ["COV_FLOOR", "MIN_EFFECTIVE_SAMPLES", "CurveSettings", "CurveTask", "EvaluationBlock",
-           "GPREPSBlock", "REPSBlock", "curve_series", "curve_stats", "curve_task",
-           "finite_or_none", "gpreps_algorithm", "gpreps_stats", "heldout_arrays",
-           "heldout_stats", "learning_curves", "nan_mean", "register_curve_task",
-           "rollouts_to_reach", "run_curve", "run_gpreps"]
-# fmt: on
+__all__ = [
+    "COV_FLOOR",
+    "MIN_EFFECTIVE_SAMPLES",
+    "CurveSettings",
+    "CurveTask",
+    "EvaluationBlock",
+    "GPREPSBlock",
+    "REPSBlock",
+    "curve_series",
+    "curve_stats",
+    "curve_task",
+    "finite_or_none",
+    "gpreps_algorithm",
+    "gpreps_stats",
+    "heldout_arrays",
+    "heldout_stats",
+    "learning_curves",
+    "nan_mean",
+    "register_curve_task",
+    "rollouts_to_reach",
+    "run_curve",
+    "run_gpreps",
+]
 
 COV_FLOOR = 0.1
 """The weighted ML fit of GPREPS and the Chapter 4 REPS baselines keeps each direction of Σ
@@ -86,8 +102,9 @@ class CurveTask:
         if self.gpreps is not None:
             return self.gpreps(task, settings, policy, prior, rng)
         model = self.reward_model(task, settings)
-        return gpreps_algorithm(task, settings, model, settings.n_artificial,
-                                settings.n_trajectories, rng)  # fmt: skip
+        return gpreps_algorithm(
+            task, settings, model, settings.n_artificial, settings.n_trajectories, rng
+        )
 
 
 _PROFILES: dict[str, CurveTask] = {}
@@ -125,11 +142,21 @@ def heldout_arrays(key: str, values: list, rollouts_after: Callable[[int], float
     return out
 
 
-def run_curve(task, algorithm, key: str, n_updates: int, rollouts_per_update: int, rng,
-              trial: TrialContext | None, eval_contexts, *,
-              score: Callable[[Any], dict] | None = None, every: int = 1,
-              rollouts_after: Callable[[int], float] | None = None,
-              **learn_kwargs) -> tuple[dict, dict]:  # fmt: skip
+def run_curve(
+    task,
+    algorithm,
+    key: str,
+    n_updates: int,
+    rollouts_per_update: int,
+    rng,
+    trial: TrialContext | None,
+    eval_contexts,
+    *,
+    score: Callable[[Any], dict] | None = None,
+    every: int = 1,
+    rollouts_after: Callable[[int], float] | None = None,
+    **learn_kwargs,
+) -> tuple[dict, dict]:
     """One :func:`~skillkit.search.loop.learn` run (``key`` its checkpoint key and array
     prefix): ``(arrays, curves)``, ``arrays`` holding ``f"{key}_rollouts"`` and
     ``f"{key}_mean_reward"`` (K+1,) and, with ``score``, ``score(policy)`` before the first
@@ -142,8 +169,17 @@ def run_curve(task, algorithm, key: str, n_updates: int, rollouts_per_update: in
             return score(alg.policy) if k % every == 0 or k == n_updates else None
 
         learn_kwargs["callback"] = record
-    curves = learn(task, algorithm, n_updates, rollouts_per_update, rng, trial=trial,
-                   eval_contexts=eval_contexts, checkpoint_key=key, **learn_kwargs)  # fmt: skip
+    curves = learn(
+        task,
+        algorithm,
+        n_updates,
+        rollouts_per_update,
+        rng,
+        trial=trial,
+        eval_contexts=eval_contexts,
+        checkpoint_key=key,
+        **learn_kwargs,
+    )
     out = {f"{key}_rollouts": curves["rollouts"], f"{key}_mean_reward": curves["mean_reward"]}
     if score is not None:
         after = rollouts_after or (lambda k: k * rollouts_per_update)
@@ -156,46 +192,75 @@ def gpreps_algorithm(task, st, reward_model, n_artificial: int, n_traj: int, rng
     regularisation (:data:`COV_FLOOR`, :data:`MIN_EFFECTIVE_SAMPLES`), M = ``n_artificial``
     artificial samples with L = ``n_traj`` predicted trajectories each, and
     ``reward_model``."""
-    settings = GPREPSSettings(epsilon=st.epsilon, n_artificial=n_artificial,
-                              n_trajectories=n_traj, context_model=st.context_model,
-                              cov_floor=COV_FLOOR,
-                              min_effective_samples=MIN_EFFECTIVE_SAMPLES)  # fmt: skip
+    settings = GPREPSSettings(
+        epsilon=st.epsilon,
+        n_artificial=n_artificial,
+        n_trajectories=n_traj,
+        context_model=st.context_model,
+        cov_floor=COV_FLOOR,
+        min_effective_samples=MIN_EFFECTIVE_SAMPLES,
+    )
     return GPREPS(task.initial_policy(), reward_model, settings, rng=rng, task=task)
 
 
-def run_gpreps(task, st, key, reward_model, n_artificial, n_traj, rng, trial, eval_contexts,
-               score=None) -> dict:  # fmt: skip
+def run_gpreps(
+    task, st, key, reward_model, n_artificial, n_traj, rng, trial, eval_contexts, score=None
+) -> dict:
     """One GPREPS run (N₀ = ``st.n_initial`` real rollouts, then one per update); curves,
     per-update diagnostics and, with ``score``, held-out scores every ``st.heldout_every``
     updates. ``f"{key}_policy"``, ``_policies``, ``_diagnostics`` and ``_algorithm`` hold
     objects (callers drop them before returning a trial)."""
     algo_rng, loop_rng = rng.spawn(2)
     algo = gpreps_algorithm(task, st, reward_model, n_artificial, n_traj, algo_rng)
-    out, curves = run_curve(task, algo, key, st.n_updates, 1, loop_rng, trial, eval_contexts,
-                            score=score, every=getattr(st, "heldout_every", 1),
-                            rollouts_after=lambda k: st.n_initial + k - 1,
-                            initial_rollouts=st.n_initial)  # fmt: skip
+    out, curves = run_curve(
+        task,
+        algo,
+        key,
+        st.n_updates,
+        1,
+        loop_rng,
+        trial,
+        eval_contexts,
+        score=score,
+        every=getattr(st, "heldout_every", 1),
+        rollouts_after=lambda k: st.n_initial + k - 1,
+        initial_rollouts=st.n_initial,
+    )
     diags = curves["diagnostics"]
-    rel = [np.nan if d.prediction_bias is None else abs(d.prediction_bias) / abs(d.real_reward)
-           for d in diags]  # fmt: skip
-    out.update({
-        f"{key}_relative_error": np.array(rel),
-        f"{key}_time_training": np.array([d.time_training for d in diags]),
-        f"{key}_time_prediction": np.array([d.time_prediction for d in diags]),
-        f"{key}_time_policy": np.array([d.time_policy for d in diags]),
-        f"{key}_kl": np.array([d.reps.kl for d in diags]),
-        f"{key}_policy": curves["policy"],
-        f"{key}_policies": curves["policies"],
-        f"{key}_diagnostics": diags,
-        f"{key}_algorithm": algo,
-    })  # fmt: skip
+    rel = [
+        np.nan if d.prediction_bias is None else abs(d.prediction_bias) / abs(d.real_reward)
+        for d in diags
+    ]
+    out.update(
+        {
+            f"{key}_relative_error": np.array(rel),
+            f"{key}_time_training": np.array([d.time_training for d in diags]),
+            f"{key}_time_prediction": np.array([d.time_prediction for d in diags]),
+            f"{key}_time_policy": np.array([d.time_policy for d in diags]),
+            f"{key}_kl": np.array([d.reps.kl for d in diags]),
+            f"{key}_policy": curves["policy"],
+            f"{key}_policies": curves["policies"],
+            f"{key}_diagnostics": diags,
+            f"{key}_algorithm": algo,
+        }
+    )
     return out
 
 
 # --------------------------------------------------------------------------- summaries
-def curve_series(trials, x_key: str, y_key: str, label: str, panel: str, ylabel: str, *,
-                 band: str = "std", log_x: bool = True, xlabel: str | None = None,
-                 drop_first: bool = False) -> Series:  # fmt: skip
+def curve_series(
+    trials,
+    x_key: str,
+    y_key: str,
+    label: str,
+    panel: str,
+    ylabel: str,
+    *,
+    band: str = "std",
+    log_x: bool = True,
+    xlabel: str | None = None,
+    drop_first: bool = False,
+) -> Series:
     """Mean ± ``band`` over trials of ``y_key`` against ``x_key`` (the first trial's); on a
     log axis only the points with x > 0, or with ``drop_first`` those after the first."""
     x = np.asarray(trials[0][x_key], dtype=float)
@@ -208,8 +273,9 @@ def curve_series(trials, x_key: str, y_key: str, label: str, panel: str, ylabel:
     m, spread = trial_band(ys[:, keep], kind=band)
     if xlabel is None:
         xlabel = "real rollouts (log scale)" if log_x else "real rollouts"
-    return Series(label, x[keep].tolist(), m, panel=panel, **spread, xlabel=xlabel,
-                  ylabel=ylabel, log_x=log_x)  # fmt: skip
+    return Series(
+        label, x[keep].tolist(), m, panel=panel, **spread, xlabel=xlabel, ylabel=ylabel, log_x=log_x
+    )
 
 
 def curve_stats(trials, key: str) -> dict:
@@ -273,8 +339,9 @@ def gpreps_stats(trials, key) -> dict:
     }
 
 
-def rollouts_to_reach(trials, key, level: float, curve: str = "mean_reward",
-                      x: str = "rollouts") -> float | None:  # fmt: skip
+def rollouts_to_reach(
+    trials, key, level: float, curve: str = "mean_reward", x: str = "rollouts"
+) -> float | None:
     """Rollouts after which run ``key``'s curve ``f"{key}_{curve}"`` (mean over trials, NaN
     ignored) first reaches ``level``, read off ``f"{key}_{x}"``; None if it never does."""
     at = np.asarray(trials[0][f"{key}_{x}"], dtype=float)
@@ -284,7 +351,6 @@ def rollouts_to_reach(trials, key, level: float, curve: str = "mean_reward",
 
 
 # --------------------------------------------------------------------------- the experiment
-# fmt: off
 @dataclass(frozen=True)
 class REPSBlock(Settings):
     """Model-free contextual REPS (Table 3.1), its fit regularised as GPREPS's
@@ -300,14 +366,16 @@ class REPSBlock(Settings):
 class GPREPSBlock(Settings):
     """GPREPS (Table 4.1)."""
 
-    n_updates: int = setting(10, "Updates K, one real rollout each after the first (0: GPREPS "
-                             "does not run).", minimum=0)
+    n_updates: int = setting(
+        10, "Updates K, one real rollout each after the first (0: GPREPS does not run).", minimum=0
+    )
     n_initial: int = setting(10, "N₀, real rollouts before the first update.", minimum=2)
     n_artificial: int = setting(200, "M, artificial (s, ω) pairs per update.", minimum=2)
     n_trajectories: int = setting(5, "L, predicted trajectories per pair (Eq. 4.1).", minimum=1)
     epsilon: float = setting(1.0, "KL bound ε (Sec. 4.3.2).", above=0)
     context_model: Literal["gaussian", "uniform", "prior"] = setting(
-        "uniform", "μ̂(s), the context distribution of the artificial samples.")
+        "uniform", "μ̂(s), the context distribution of the artificial samples."
+    )
 
 
 @dataclass(frozen=True)
@@ -325,18 +393,27 @@ class CurveSettings(Settings):
     reps: REPSBlock = setting(REPSBlock(), "Model-free REPS.")
     gpreps: GPREPSBlock = setting(GPREPSBlock(), "GPREPS with the experiment's reward model.")
     evaluation: EvaluationBlock = setting(EvaluationBlock(), "The learning curve's evaluation.")
-# fmt: on
-
-_SMOKE = {"reps": {"n_updates": 2, "rollouts_per_update": 5, "n_reuse_batches": 2},
-          "gpreps": {"n_updates": 2, "n_initial": 5, "n_artificial": 20, "n_trajectories": 2},
-          "evaluation": {"n_eval_contexts": 2}}  # fmt: skip
 
 
-def learning_curves(exp_id: str, title: str, task: str, *,
-                    reward_model: Callable[[Any], Any] | None = None,
-                    thresholds: tuple[float, ...] = (), claim: str = "",
-                    smoke: dict | None = None, quick: dict | None = None,
-                    paper: dict | None = None) -> Experiment:  # fmt: skip
+_SMOKE = {
+    "reps": {"n_updates": 2, "rollouts_per_update": 5, "n_reuse_batches": 2},
+    "gpreps": {"n_updates": 2, "n_initial": 5, "n_artificial": 20, "n_trajectories": 2},
+    "evaluation": {"n_eval_contexts": 2},
+}
+
+
+def learning_curves(
+    exp_id: str,
+    title: str,
+    task: str,
+    *,
+    reward_model: Callable[[Any], Any] | None = None,
+    thresholds: tuple[float, ...] = (),
+    claim: str = "",
+    smoke: dict | None = None,
+    quick: dict | None = None,
+    paper: dict | None = None,
+) -> Experiment:
     """Register and return the experiment ``exp_id``: REPS and GPREPS on the registered
     ``task`` from its imitation policy, scored on the same fixed contexts against real
     rollouts (``reproduce(exp_id, scale="smoke")`` runs it). ``reward_model(task)`` is
@@ -345,8 +422,11 @@ def learning_curves(exp_id: str, title: str, task: str, *,
     shows (an id outside the claims spec needs one); ``smoke``, ``quick``, ``paper``: each
     scale's changes of :class:`CurveSettings` (a block as a mapping of some of its fields)."""
     off = {"gpreps": {"n_updates": 0}} if reward_model is None else {}
-    changes = {"smoke": {**_SMOKE, **off, **(smoke or {})}, "quick": {**off, **(quick or {})},
-               "paper": {**off, **(paper or {})}}  # fmt: skip
+    changes = {
+        "smoke": {**_SMOKE, **off, **(smoke or {})},
+        "quick": {**off, **(quick or {})},
+        "paper": {**off, **(paper or {})},
+    }
 
     def run_trial(st: CurveSettings, rng: np.random.Generator, trial: TrialContext) -> dict:
         made = make(st.task)
@@ -357,34 +437,77 @@ def learning_curves(exp_id: str, title: str, task: str, *,
         for method, r in zip(runs, rng.spawn(len(runs)), strict=True):
             if method == "reps":
                 b = st.reps
-                algo = ContextualREPS(made.initial_policy(), b.epsilon,
-                                      n_reuse_batches=b.n_reuse_batches, cov_floor=COV_FLOOR,
-                                      min_effective_samples=MIN_EFFECTIVE_SAMPLES)  # fmt: skip
-                out.update(run_curve(made, algo, "reps", b.n_updates, b.rollouts_per_update, r,
-                                     trial, eval_contexts)[0])  # fmt: skip
+                algo = ContextualREPS(
+                    made.initial_policy(),
+                    b.epsilon,
+                    n_reuse_batches=b.n_reuse_batches,
+                    cov_floor=COV_FLOOR,
+                    min_effective_samples=MIN_EFFECTIVE_SAMPLES,
+                )
+                out.update(
+                    run_curve(
+                        made,
+                        algo,
+                        "reps",
+                        b.n_updates,
+                        b.rollouts_per_update,
+                        r,
+                        trial,
+                        eval_contexts,
+                    )[0]
+                )
             else:
                 b = st.gpreps
-                g = run_gpreps(made, b, "gpreps", reward_model(made), b.n_artificial,
-                               b.n_trajectories, r, trial, eval_contexts)  # fmt: skip
+                g = run_gpreps(
+                    made,
+                    b,
+                    "gpreps",
+                    reward_model(made),
+                    b.n_artificial,
+                    b.n_trajectories,
+                    r,
+                    trial,
+                    eval_contexts,
+                )
                 out.update({k: v for k, v in g.items() if isinstance(v, np.ndarray)})
         return out
 
     def summarize(st: CurveSettings, trials: list[dict]):
         runs = [m for m in ("reps", "gpreps") if f"{m}_mean_reward" in trials[0]]
-        series = [curve_series(trials, f"{m}_rollouts", f"{m}_mean_reward", m.upper(),
-                               "learning curves", "reward of the policy mean", drop_first=True)
-                  for m in runs]  # fmt: skip
+        series = [
+            curve_series(
+                trials,
+                f"{m}_rollouts",
+                f"{m}_mean_reward",
+                m.upper(),
+                "learning curves",
+                "reward of the policy mean",
+                drop_first=True,
+            )
+            for m in runs
+        ]
         summary: dict = {"n_trials": len(trials)}
         for m in runs:
-            summary[m] = {"real_rollouts": float(trials[0][f"{m}_rollouts"][-1]),
-                          **curve_stats(trials, m),
-                          "rollouts_to_reach": {f"{level:g}": rollouts_to_reach(trials, m, level)
-                                                for level in thresholds}}  # fmt: skip
+            summary[m] = {
+                "real_rollouts": float(trials[0][f"{m}_rollouts"][-1]),
+                **curve_stats(trials, m),
+                "rollouts_to_reach": {
+                    f"{level:g}": rollouts_to_reach(trials, m, level) for level in thresholds
+                },
+            }
             if m == "gpreps":
                 summary[m].update(gpreps_stats(trials, m))
         return series, summary
 
     base = CurveSettings(task=task)
-    return register(Experiment(id=exp_id, title=title, settings_class=CurveSettings,
-                               settings=scales(base, **changes), run_trial=run_trial,
-                               summarize=summarize, claim=claim))  # fmt: skip
+    return register(
+        Experiment(
+            id=exp_id,
+            title=title,
+            settings_class=CurveSettings,
+            settings=scales(base, **changes),
+            run_trial=run_trial,
+            summarize=summarize,
+            claim=claim,
+        )
+    )

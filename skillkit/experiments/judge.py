@@ -82,9 +82,9 @@ _Z = float(stats.norm.ppf(0.5 + LEVEL / 2))
 _BOOTSTRAP_RESAMPLES = 9999
 
 JUDGEMENT_KEYS = frozenset(
-    {"claim", "holds", "statement", "thesis", "not_judged", "own_checks", "claim_parts",
-     "setup", "variants", "verdict", "judgement"}
-)  # fmt: skip
+    "claim holds statement thesis not_judged own_checks claim_parts setup variants verdict "
+    "judgement".split()
+)
 """Summary keys that hold a judgement or its words, never a measurement."""
 
 HOLDS, FAILS, UNDECIDED, NOT_JUDGED = "holds", "does not hold", "undecided", "not judged"
@@ -296,9 +296,11 @@ def quoted_numbers(exp_id: str) -> list[float]:
     in order (``"Table 4.2 caption (PILCO 10.18 / 11.46 s, …)"`` → [10.18, 11.46, …]; ``−``
     is a minus sign)."""
     return [
-        x for q in spec(exp_id).quotes if "(" in q.location
+        x
+        for q in spec(exp_id).quotes
+        if "(" in q.location
         for x in _numbers(q.location.split("(", 1)[1])
-    ]  # fmt: skip
+    ]
 
 
 # ----------------------------------------------------------------------------- statistics
@@ -340,11 +342,19 @@ class Reading:
     def as_dict(self) -> dict[str, Any]:
         p = self.part
         return {
-            "label": p.label, "own": p.own, "estimate": self.estimate, "lower": self.lower,
-            "upper": self.upper, "n": self.n, "outcome": self.outcome, "needed": self.needed,
-            "reading": f"{p.statistic} {p.op} {_threshold_text(p)}", "thesis": p.thesis,
-            "reason": p.reason, "fixed": p.fixed,
-        }  # fmt: skip
+            "label": p.label,
+            "own": p.own,
+            "estimate": self.estimate,
+            "lower": self.lower,
+            "upper": self.upper,
+            "n": self.n,
+            "outcome": self.outcome,
+            "needed": self.needed,
+            "reading": f"{p.statistic} {p.op} {_threshold_text(p)}",
+            "thesis": p.thesis,
+            "reason": p.reason,
+            "fixed": p.fixed,
+        }
 
 
 def _g(x: float, digits: int) -> tuple[str, str]:
@@ -459,15 +469,21 @@ def _estimate(p: Part, summary: Mapping, settings: Mapping) -> tuple:
         if x.size < 2:
             return est, math.nan, math.nan, 1, "one trial: an interval needs ≥ 2", thr
         res = stats.bootstrap(
-            (x, y), lambda a, b, axis=-1: np.mean(a, axis=axis) / np.mean(b, axis=axis),
-            paired=True, vectorized=True, n_resamples=_BOOTSTRAP_RESAMPLES,
-            confidence_level=LEVEL, method="percentile", rng=np.random.default_rng(0),
-        )  # fmt: skip
+            (x, y),
+            lambda a, b, axis=-1: np.mean(a, axis=axis) / np.mean(b, axis=axis),
+            paired=True,
+            vectorized=True,
+            n_resamples=_BOOTSTRAP_RESAMPLES,
+            confidence_level=LEVEL,
+            method="percentile",
+            rng=np.random.default_rng(0),
+        )
         lo, hi = float(res.confidence_interval.low), float(res.confidence_interval.high)
         needed = ""
         if lo <= thr <= hi:
-            needed = _trials_needed(res.standard_error * math.sqrt(x.size), abs(est - thr),
-                                    x.size, "trials")  # fmt: skip
+            needed = _trials_needed(
+                res.standard_error * math.sqrt(x.size), abs(est - thr), x.size, "trials"
+            )
         return est, lo, hi, x.size, needed, thr
     if p.statistic == "rate":
         count = p.count if isinstance(p.count, int) else _lookup(tree, p.count)
@@ -597,8 +613,15 @@ class Judgement:
                 outcome = r.outcome + (f"; {r.needed}" if r.needed else "")
                 what = "items" if p.statistic == "rate" else "trials"
                 reading = f"{p.statistic} over {r.n} {what} {p.op} {_threshold_text(p)}"
-                cells = [name, r.number(), p.thesis, reading, outcome, p.reason,
-                         f"{p.fixed} the numbers"]  # fmt: skip
+                cells = [
+                    name,
+                    r.number(),
+                    p.thesis,
+                    reading,
+                    outcome,
+                    p.reason,
+                    f"{p.fixed} the numbers",
+                ]
                 out.append("| " + " | ".join(_cell(c) for c in cells) + " |")
         if c.setup:
             out += ["", "| setting | thesis | ours | why |", "|---|---|---|---|"]
@@ -660,8 +683,9 @@ def is_judged(exp_id: str) -> bool:
     return claim is not None and bool(claim.parts or claim.no_result)
 
 
-def apply(summary: Mapping[str, Any], exp_id: str, scale: str,
-          settings: Mapping | None = None) -> dict[str, Any]:  # fmt: skip
+def apply(
+    summary: Mapping[str, Any], exp_id: str, scale: str, settings: Mapping | None = None
+) -> dict[str, Any]:
     """``summary`` with the judgement in front (``claim``, ``holds``, ``verdict``,
     ``statement``, ``thesis``, ``own_checks``, ``judgement``), replacing any earlier one; an
     id the spec does not judge keeps its summary."""
@@ -671,10 +695,13 @@ def apply(summary: Mapping[str, Any], exp_id: str, scale: str,
     rest = {k: v for k, v in summary.items() if k not in JUDGEMENT_KEYS}
     judged = j.outcome != NOT_JUDGED or bool(j.claim.no_result and scale != "smoke")
     own = {
-        r.part.label: {"holds": {HOLDS: True, FAILS: False}.get(r.outcome) if judged else None,
-                       "criterion": f"{r.part.label} {r.part.op} {_threshold_text(r.part)}"}
-        for r in j.readings if r.part.own
-    }  # fmt: skip
+        r.part.label: {
+            "holds": {HOLDS: True, FAILS: False}.get(r.outcome) if judged else None,
+            "criterion": f"{r.part.label} {r.part.op} {_threshold_text(r.part)}",
+        }
+        for r in j.readings
+        if r.part.own
+    }
     head = {
         "claim": j.claim.plain,
         "holds": j.holds,

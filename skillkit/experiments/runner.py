@@ -60,16 +60,7 @@ def versions() -> dict[str, str]:
     from importlib import metadata
 
     out = {"python": platform.python_version()}
-    for pkg in (
-        "skillkit",
-        "numpy",
-        "scipy",
-        "torch",
-        "gpytorch",
-        "mujoco",
-        "dm-control",
-        "pymunk",
-    ):
+    for pkg in "skillkit numpy scipy torch gpytorch mujoco dm-control pymunk".split():
         try:
             out[pkg] = metadata.version(pkg)
         except metadata.PackageNotFoundError:
@@ -96,23 +87,22 @@ def to_jsonable(obj):
 
 
 class _Finished(NamedTuple):
-    """The payload of a finished trial's checkpoint (``kind="result"``; one written before
-    the numerical-event record holds the bare result dict)."""
+    """The payload of a finished trial's checkpoint (``kind="result"``)."""
 
     result: dict
-    numerical_events: dict | None  # NumericalEvents.to_dict() of the whole trial; None: unknown
+    numerical_events: dict  # NumericalEvents.to_dict() of the whole trial
 
 
 class _Partial(NamedTuple):
-    """The payload of a mid-trial checkpoint (``kind="state"``; or the bare snapshots)."""
+    """The payload of a mid-trial checkpoint (``kind="state"``)."""
 
     states: dict
-    saved_events: dict | None  # TrialContext.saved_events at the save; None: unknown
+    saved_events: dict  # TrialContext.saved_events at the save
 
 
-def _state_writer(path: str, ident: dict | None, saved_events: Callable[[], dict | None]) -> Writer:
+def _state_writer(path: str, ident: dict | None, saved_events: Callable[[], dict]) -> Writer:
     """A :class:`~skillkit.trial.TrialContext` writer checkpointing mid-trial states to ``path``
-    with the numerical events of the saved work (``saved_events()``; None: unknown)."""
+    with the numerical events of the saved work (``saved_events()``)."""
 
     def write(snapshots, seconds: float) -> None:
         payload = _Partial(dict(snapshots), saved_events())
@@ -166,8 +156,8 @@ def _execute_trial(
     """Run (or resume) one trial and checkpoint its result (module-level: workers pickle it).
 
     Returns the result and ``{"seconds": compute time over all runs of the trial, "resumed",
-    "numerical_events": counts of the trial's work, each piece once over resumed runs (None:
-    a checkpoint predates the record), "warnings": collected in a worker}``.
+    "numerical_events": counts of the trial's work, each piece once over resumed runs,
+    "warnings": collected in a worker}``.
     """
     exp = get(exp_id)
     states, seconds, saved = None, 0.0, {}
@@ -176,34 +166,18 @@ def _execute_trial(
         if found is not None:
             if found.kind == "result":
                 done = found.payload
-                if not isinstance(done, _Finished):  # written before the event record
-                    done = _Finished(done, None)
                 info = {"seconds": found.seconds, "resumed": True, "warnings": []}
                 return done.result, {**info, "numerical_events": done.numerical_events}
             part = found.payload
-            if not isinstance(part, _Partial):  # written before the event record
-                part = _Partial(part, None)
             states, seconds, saved = part.states, found.seconds or 0.0, part.saved_events
     how = "collect" if in_worker else "bars" if show_progress else "pass"
     with _trial_warnings(how) as caught, record_numerical_events() as events:
-        known = saved is not None  # else: earlier runs' events are unknown
         writer = (
-            None
-            if ckpt_path is None
-            else _state_writer(ckpt_path, ident, lambda: ctx.saved_events if known else None)
+            None if ckpt_path is None else _state_writer(ckpt_path, ident, lambda: ctx.saved_events)
         )
-        try:
-            ctx = TrialContext(
-                states=states,
-                writer=writer,
-                seconds=seconds,
-                events=events if known else None,
-                saved_events=saved,
-            )
-        except ValueError as exc:  # mid-trial states in an older format
-            raise checkpoint.CheckpointError(
-                f"{ckpt_path}: {exc}; {checkpoint.START_OVER}"
-            ) from None
+        ctx = TrialContext(
+            states=states, writer=writer, seconds=seconds, events=events, saved_events=saved
+        )
         if show_progress:
             ctx.bar = tqdm(desc=f"{exp_id} trial {index + 1}", leave=False)
         try:
@@ -211,7 +185,7 @@ def _execute_trial(
         finally:
             ctx.bar.close()
     seconds = ctx.seconds
-    counts = events.to_dict() if known else None
+    counts = events.to_dict()
     if ckpt_path is not None:
         checkpoint.save(ckpt_path, ident, _Finished(result, counts), kind="result", seconds=seconds)
     info = {"seconds": seconds, "resumed": states is not None, "numerical_events": counts}
@@ -407,7 +381,7 @@ def run_trials(
     summary = judged(summary, exp.id, scale, to_jsonable(settings.to_dict()))
     events = _event_totals([t["numerical_events"] for t in timing])
     # not "numerical_events": fig4.5's summary has its own, per model, under that name
-    summary = {**summary, "handled_numerical_events": _summary_events(events)}
+    summary = {**summary, "handled_numerical_events": dict(events["total"])}
     # CPUs used: None on an existing Ray cluster (address is only given with executor "ray")
     used = 1 if executor == "local" else None if address else workers or os.cpu_count()
     return {
@@ -443,23 +417,12 @@ def run_trials(
     }
 
 
-def _event_totals(per_trial: list[dict | None]) -> dict:
-    """``{"per_trial", "total"}`` (and ``"trials_without_record"``) of the trials' events."""
+def _event_totals(per_trial: list[dict]) -> dict:
+    """``{"per_trial", "total"}`` of the trials' numerical events."""
     total = NumericalEvents()
     for counts in per_trial:
-        if counts is not None:
-            total.update(counts)
-    out = {"per_trial": per_trial, "total": total.to_dict()}
-    missing = sum(counts is None for counts in per_trial)
-    if missing:
-        out["trials_without_record"] = missing
-    return out
-
-
-def _summary_events(events: dict) -> dict:
-    """The summary's ``handled_numerical_events``: the totals (and the trials without)."""
-    missing = events.get("trials_without_record")
-    return {**events["total"], **({"trials_without_record": missing} if missing else {})}
+        total.update(counts)
+    return {"per_trial": per_trial, "total": total.to_dict()}
 
 
 def _cpu_model() -> str | None:

@@ -161,10 +161,16 @@ def run_trial(settings: SanitySettings, rng: np.random.Generator, trial: TrialCo
     for name, stream in zip(ALGORITHMS, streams, strict=True):
         alg = make_algorithm(name, task, settings)
         res = learn(
-            task, alg, settings.n_updates, settings.rollouts_per_update, stream, trial=trial,
-            eval_contexts=grid, callback=lambda k, a: parameter_error(a.policy, optimum, grid),
+            task,
+            alg,
+            settings.n_updates,
+            settings.rollouts_per_update,
+            stream,
+            trial=trial,
+            eval_contexts=grid,
+            callback=lambda k, a: parameter_error(a.policy, optimum, grid),
             checkpoint_key=name,
-        )  # fmt: skip
+        )
         errors_arr = np.array(res["callback"])
         below = np.flatnonzero(errors_arr < settings.threshold)
         out[f"{name}_rollouts"] = res["rollouts"]

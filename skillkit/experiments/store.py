@@ -43,10 +43,14 @@ def list_runs(root: str | Path = "runs") -> list[dict]:
             continue
         keys = ("id", "scale", "seed", "trials")
         runs.append(
-            {"path": str(path.parent), **{k: r.get(k) for k in keys},
-             "executor": r.get("executor", "local"), "wall_time_s": r.get("wall_time_s"),
-             "summary": r.get("summary", {})}
-        )  # fmt: skip
+            {
+                "path": str(path.parent),
+                **{k: r.get(k) for k in keys},
+                "executor": r.get("executor", "local"),
+                "wall_time_s": r.get("wall_time_s"),
+                "summary": r.get("summary", {}),
+            }
+        )
     return runs
 
 
@@ -144,10 +148,15 @@ def compare(
     a, b = read_result(path_a), read_result(path_b)
     run_keys = ("trials", "executor", "workers", "resumed_trials", "wall_time_s")
     fa, fb = (
-        flatten({"summary": r.get("summary", {}), "settings": r.get("settings", {}),
-                 **{k: r.get(k) for k in run_keys}})
+        flatten(
+            {
+                "summary": r.get("summary", {}),
+                "settings": r.get("settings", {}),
+                **{k: r.get(k) for k in run_keys},
+            }
+        )
         for r in (a, b)
-    )  # fmt: skip
+    )
     rows = [(k, fa.get(k), fb.get(k)) for k in sorted(set(fa) | set(fb))]
     series = []
     for tag, r in (("A", a), ("B", b)):
@@ -155,5 +164,9 @@ def compare(
             fields = {k: v for k, v in s.items() if k in Series.__dataclass_fields__}
             fields["name"] = f"{s['name']} [{tag}]"
             series.append(fields)
-    return rows, {"id": f"{a.get('id')} vs {b.get('id')}", "title": "comparison", "scale": "",
-                  "series": series}  # fmt: skip
+    return rows, {
+        "id": f"{a.get('id')} vs {b.get('id')}",
+        "title": "comparison",
+        "scale": "",
+        "series": series,
+    }

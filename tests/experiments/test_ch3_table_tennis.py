@@ -68,6 +68,7 @@ def _trial(final_rewards, outcomes, curve, errors):
         "mean_reward": np.array(curve),
         "explore_reward": np.array(curve[1:]),
         "n_failed": 0,
+        "n_skipped_updates": 0,
         "final_rewards": np.array(final_rewards),
         "final_outcomes": list(outcomes),
         "final_landing_error": np.array(errors),

@@ -226,8 +226,12 @@ def test_the_random_policy_gives_six_seconds_near_upright():
 
     st = BalancingComparisonSettings()
     task = make("balancing", initial_std=st.initial_std)
-    excited = make("balancing", initial_std=st.initial_std, excitation_std=st.excitation_std,
-                   n_steps=st.random_steps)  # fmt: skip
+    excited = make(
+        "balancing",
+        initial_std=st.initial_std,
+        excitation_std=st.excitation_std,
+        n_steps=st.random_steps,
+    )
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         data = collect_balancing(excited, st.n_random, 0, 1.0, policy=initial_policy_42(st, task))

@@ -22,8 +22,16 @@ DATA = Path(__file__).resolve().parents[2] / "data" / "results"
 
 
 def _part(**kw) -> judge.Part:
-    base = dict(label="x", quantity="x", statistic="mean", op="<", threshold=0.0,
-                thesis="< 0", reason="r", fixed="before")  # fmt: skip
+    base = dict(
+        label="x",
+        quantity="x",
+        statistic="mean",
+        op="<",
+        threshold=0.0,
+        thesis="< 0",
+        reason="r",
+        fixed="before",
+    )
     return judge._part({**base, **kw}, "test")
 
 
@@ -158,8 +166,11 @@ def test_a_verdict_fails_on_one_failing_thesis_part_and_own_checks_never_decide(
     fails = _part(label="b", op="<", threshold=0.0)
     own_fails = _part(label="c", op="<", threshold=0.0, own=True)
     summary = {"x": [1.0, 1.1, 0.9], "n_trials": 3}
-    for parts, want in [((holds,), "holds"), ((holds, fails), "does not hold"),
-                        ((holds, own_fails), "holds")]:  # fmt: skip
+    for parts, want in [
+        ((holds,), "holds"),
+        ((holds, fails), "does not hold"),
+        ((holds, own_fails), "holds"),
+    ]:
         monkeypatch.setattr(judge, "spec", lambda _id, p=parts: _claim(*p))
         j = judge.judge("fig0.0", summary, "paper")
         assert j.outcome == want

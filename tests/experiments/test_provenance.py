@@ -143,14 +143,25 @@ def test_results_table_names_commit_verdict_and_staleness(tmp_path):
     exp_id = "fig2.10"
     current = provenance.code_fingerprint(exp_id)
     cases = {
-        "a-current": {"id": exp_id, "code_fingerprint": current, "trials": 3, "wall_time_s": 90,
-                      "git": {"commit": "abcdef123", "dirty": True}, "executor": "process",
-                      "workers": 2, "summary": {"verdict": "holds"}},
-        "b-changed": {"id": exp_id, "code_fingerprint": "0" * 16, "trials": 1,
-                      "git": {"commit": "1234567", "dirty": False},
-                      "summary": {"verdict": "undecided"}},
+        "a-current": {
+            "id": exp_id,
+            "code_fingerprint": current,
+            "trials": 3,
+            "wall_time_s": 90,
+            "git": {"commit": "abcdef123", "dirty": True},
+            "executor": "process",
+            "workers": 2,
+            "summary": {"verdict": "holds"},
+        },
+        "b-changed": {
+            "id": exp_id,
+            "code_fingerprint": "0" * 16,
+            "trials": 1,
+            "git": {"commit": "1234567", "dirty": False},
+            "summary": {"verdict": "undecided"},
+        },
         "c-missing": {"id": exp_id, "summary": {}},
-    }  # fmt: skip
+    }
     for name, result in cases.items():
         (tmp_path / name).mkdir()
         (tmp_path / name / "result.json").write_text(json.dumps(result))
@@ -294,8 +305,13 @@ def test_compare_witness_allows_added_measurements_and_ignores_text_and_unstable
 
 def _result(folder, exp_id, fingerprint, seed, witness=None):
     folder.mkdir(parents=True)
-    result = {"id": exp_id, "seed": seed, "code_fingerprint": fingerprint,
-              "git": {"commit": "abc1234", "dirty": False}, "summary": {"holds": True}}  # fmt: skip
+    result = {
+        "id": exp_id,
+        "seed": seed,
+        "code_fingerprint": fingerprint,
+        "git": {"commit": "abc1234", "dirty": False},
+        "summary": {"holds": True},
+    }
     if witness is not None:
         result["witness"] = witness
     (folder / "result.json").write_text(json.dumps(result, indent=1))
@@ -340,8 +356,11 @@ def test_check_results_counts_and_a_recorded_carry_needs_no_run(tmp_path, monkey
     assert calls == [2]
     assert provenance.staleness(carried) == (False, status["b-carried"][1])
     assert [r["status"] for r in provenance.check_results(tmp_path)] == [
-        "current", "carried", "stale", "stale"
-    ]  # fmt: skip
+        "current",
+        "carried",
+        "stale",
+        "stale",
+    ]
     assert calls == [2]  # check_results runs nothing
 
 

@@ -450,8 +450,10 @@ def test_cli_refuses_nan_and_infinity_settings(tmp_path, capsys):
 
 def test_cli_refuses_settings_outside_their_range_and_lists_the_ranges(tmp_path, capsys):
     """``sanity3 --set threshold=-1`` used to run and report "error < -1" in 0 trials."""
-    for pair, expected in (("threshold=-1", "threshold: expected > 0, got -1"),
-                           ("n_updates=0", "n_updates: expected ≥ 1, got 0")):  # fmt: skip
+    for pair, expected in (
+        ("threshold=-1", "threshold: expected > 0, got -1"),
+        ("n_updates=0", "n_updates: expected ≥ 1, got 0"),
+    ):
         args = ["reproduce", "sanity3", "--scale", "smoke", "--out", str(tmp_path), "--quiet"]
         assert main(args + ["--set", pair]) == 2
         assert expected in capsys.readouterr().err

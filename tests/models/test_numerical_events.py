@@ -251,28 +251,6 @@ def test_an_interrupted_trial_resumes_without_losing_or_doubling_events(events_e
     assert per_trial[0] == per_trial[1] == {**EXPECTED, "restored_iterate": 6}
 
 
-def test_checkpoints_from_before_the_record_give_unknown_counts(events_exp, tmp_path):
-    from skillkit.experiments import checkpoint
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        run = reproduce("toy30.3", "smoke", seed=0, out=tmp_path, progress=False, html=False)
-        path = run.path / "trials" / "trial_000.ckpt"
-        ident = checkpoint.identity(
-            "toy30.3",
-            run.result["settings"],
-            0,
-            0,
-            checkpoint.code_fingerprint(events_exp.run_trial),
-        )
-        old = checkpoint.load(path, ident)
-        checkpoint.save(path, ident, old.payload.result, kind="result", seconds=old.seconds)
-        again = reproduce("toy30.3", "smoke", seed=0, out=tmp_path, progress=False, html=False)
-    events = again.result["numerical_events"]
-    assert events["per_trial"] == [None] and events["trials_without_record"] == 1
-    assert again.summary["handled_numerical_events"]["trials_without_record"] == 1
-
-
 def test_a_worker_returns_its_counts_and_warnings_for_the_caller(events_exp):
     exp = events_exp
     settings = exp.settings_for("smoke")

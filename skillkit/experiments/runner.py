@@ -613,8 +613,8 @@ def smoke_witness(
     repeats: int = 1,
     progress: bool = False,
 ) -> dict:
-    """The measurements of a smoke run of ``exp_id`` by today's code (local executor, no
-    checkpoints, no figures, warnings silenced).
+    """The measurements of a smoke run of ``exp_id`` by today's code (local executor, one torch
+    thread, no checkpoints, no figures, warnings silenced).
 
     Parameters
     ----------
@@ -631,12 +631,21 @@ def smoke_witness(
         ``scale``, ``seed``, ``trials``, ``commit``, ``code_fingerprint``, ``summary`` and
         ``series`` (their measurements) and ``unstable`` (paths).
     """
+    import torch
+
     check_count(repeats, "repeats")
     made = []
+    threads = torch.get_num_threads()
     for _ in range(repeats):
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            result = run_trials(exp_id, WITNESS_SCALE, trials, seed, progress, executor="local")
+        # one torch thread, as the witnesses are recorded: a parallel reduction sums in another
+        # order (fig2.12's sample spreads move by 1e-5 with two threads); restored afterwards
+        torch.set_num_threads(1)
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                result = run_trials(exp_id, WITNESS_SCALE, trials, seed, progress, executor="local")
+        finally:
+            torch.set_num_threads(threads)
         made.append(
             {
                 "scale": WITNESS_SCALE,

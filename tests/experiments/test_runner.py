@@ -549,3 +549,28 @@ def test_remeasure_adds_what_todays_summary_makes_and_refuses_a_changed_measurem
     with pytest.raises(ValueError, match="final_reward_mean"):
         remeasure(folder, write=True)
     assert json.loads(path.read_text()) == back
+
+
+def test_a_witness_runs_on_one_torch_thread_whatever_the_callers_setting():
+    """fig2.12's sample spreads depend on the order of a parallel reduction: the witness of a
+    caller at two torch threads equals the stored one (made at one), and the caller keeps two."""
+    import json
+    from pathlib import Path
+
+    import torch
+
+    from skillkit.experiments.provenance import compare_witness
+    from skillkit.experiments.runner import smoke_witness
+
+    stored = json.loads(
+        (Path(__file__).parents[2] / "data/results/fig2.12-paper-s0/result.json").read_text()
+    )["witness"]
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        fresh = smoke_witness("fig2.12", int(stored["seed"]), trials=stored["trials"])
+        assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(before)
+    equal, differences = compare_witness(stored, fresh)
+    assert equal, differences[:3]

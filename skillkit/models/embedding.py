@@ -107,11 +107,27 @@ def rkhs_expectation(beta, alpha, gram_matrix) -> np.ndarray:
 
 
 class ConditionalEmbedding:
-    """Empirical conditional mean embedding :math:`\\mu_{y|z} = \\Phi_y (G+\\lambda I)^{-1} g(z)`.
+    """Empirical conditional mean embedding :math:`\\mu_{y|z} = \\Phi_y (G+\\lambda I)^{-1} g(z)`
+    (Eqs. 2.38–2.40, 5.2–5.8).
 
-    Eqs. 2.38–2.40, 5.2–5.8, fitted on ``inputs`` (N, d_z) and ``targets`` (N, d_y) with input
-    kernel ``kernel`` and regulariser ``lam``; ``target_kernel`` (default ``kernel`` if
-    d_y = d_z) serves :meth:`preimage`."""
+    Parameters
+    ----------
+    inputs : array_like, shape (N, d_z)
+    targets : array_like, shape (N, d_y)
+    kernel : gpytorch.kernels.Kernel
+        g, the input kernel.
+    lam : float, default 1e-3
+        λ > 0.
+    target_kernel : gpytorch.kernels.Kernel, optional
+        For :meth:`preimage` (default ``kernel`` if d_y = d_z).
+
+    Raises
+    ------
+    ValueError
+        On mismatched rows or no data.
+    numpy.linalg.LinAlgError
+        If G + λI is not numerically positive definite.
+    """
 
     def __init__(
         self,

@@ -78,11 +78,33 @@ def predict(
 ) -> TrajectoryEmbedding:
     """Kernel trajectory prediction, Table 5.1 (fixed policy) and Table 5.2 (any policy).
 
-    ``model`` is fitted on x_i (fixed policy) or [x_i, u_i] → x'_i; ``initial`` (B, n_x) or L
-    samples of each (B, L, n_x) (Eq. 5.6); ``n_steps`` rows T ≥ 2. ``policy(states, t)`` maps
-    (b, M, n_x) to controls (b', M, n_u), b, b' ∈ {1, B} (None: the data-collecting policy);
-    ``reward(states, controls)`` gives (b, M). ``project_initial`` takes Eq. (5.9)'s first step,
-    else β₁ = α (Eq. 5.7)."""
+    Parameters
+    ----------
+    model : ConditionalEmbedding
+        Fitted on x_i (fixed policy) or [x_i, u_i] → x'_i, N pairs.
+    initial : array_like, shape (B, n_x) or (B, L, n_x)
+        Start states, or L samples of each (Eq. 5.6).
+    n_steps : int
+        T ≥ 2 rows.
+    policy : callable, optional
+        ``policy(states, t)``: (b, M, n_x) → controls (b', M, n_u), b, b' ∈ {1, B}
+        (None: the data-collecting policy).
+    reward : callable, optional
+        ``reward(states, controls)`` → (b, M).
+    time_invariant : bool, default False
+        The policy ignores ``t``: G̃^π is computed once instead of per step.
+    project_initial : bool, default True
+        First step as Eq. (5.9); else β₁ = α (Eq. 5.7).
+
+    Returns
+    -------
+    TrajectoryEmbedding
+
+    Raises
+    ------
+    ValueError
+        On bad shapes or ``n_steps`` < 2, or policy/reward output of the wrong shape.
+    """
     n_x = model.target_dim
     x0 = check_array(initial, "initial", ndim=(2, 3))
     if x0.shape[-1] != n_x:

@@ -332,9 +332,32 @@ def fit_hyperparameters(
 ) -> FitResult:
     """Minimise a cross-validated embedding error over log length-scales (and log λ), L-BFGS-B.
 
-    Length-scales are searched in [w_ref / ``lengthscale_factor``, w_ref · factor] with w_ref
-    ``lengthscale_reference`` (default: the initial ``lengthscale``, clipped into the box), λ in
-    ``lam_bounds``; ``learn_lam=False`` keeps ``lam`` fixed."""
+    Parameters
+    ----------
+    loss : CrossValidatedLoss
+        The error to minimise, over d input dimensions.
+    lengthscale : float or array_like, shape (d,)
+        Initial length-scales (> 0).
+    lam : float, default 1e-3
+        Initial (or fixed) λ, inside ``lam_bounds``.
+    learn_lam : bool, default True
+        Optimise λ too; False keeps ``lam`` fixed.
+    lengthscale_factor : float, default 100
+        Length-scales are searched in [w_ref / factor, w_ref · factor].
+    lam_bounds : (float, float), default (1e-6, 1.0)
+    max_iter : int, default 100
+    lengthscale_reference : float or array_like, shape (d,), optional
+        w_ref (default: the initial ``lengthscale``, clipped into the box).
+
+    Returns
+    -------
+    FitResult
+
+    Raises
+    ------
+    ValueError
+        On non-positive length-scales or λ outside ``lam_bounds``.
+    """
     d = loss.dim
     w0 = np.broadcast_to(check_array(lengthscale, "lengthscale", ndim=(0, 1)), (d,)).copy()
     if np.any(w0 <= 0):

@@ -63,8 +63,17 @@ class ProbabilisticEnsemble:
     """K bootstrap MLPs with Gaussian outputs: a forward model x_{t+1} ~ p(· | x_t, u_t).
 
     Usable wherever a GP forward model is sampled, e.g.
-    ``TrajectoryRewardModel(task, make_model=ProbabilisticEnsemble)``. ``target`` "delta"
-    (default, PETS) learns Δx, "next" x_{t+1}; ``dtype`` is float64 or float32."""
+    ``TrajectoryRewardModel(task, make_model=ProbabilisticEnsemble)``.
+
+    Parameters
+    ----------
+    settings : EnsembleSettings, optional
+        Network and training settings (default ``EnsembleSettings()``).
+    target : {"delta", "next"}, default "delta"
+        Learn Δx (PETS) or x_{t+1}.
+    device : str or torch.device, optional
+    dtype : torch.float64 or torch.float32, default float64
+    """
 
     def __init__(
         self,
@@ -101,8 +110,21 @@ class ProbabilisticEnsemble:
         return self.settings.n_members
 
     def fit(self, states, controls, next_states, rng=None) -> ProbabilisticEnsemble:
-        """Fit the members on bootstrap resamples of ``states`` (N, n_x), ``controls`` (N, n_u),
-        ``next_states`` (N, n_x); ``rng`` draws resamples, initial weights and minibatch order."""
+        """Fit the members on bootstrap resamples.
+
+        Parameters
+        ----------
+        states : array_like, shape (N, n_x)
+        controls : array_like, shape (N, n_u)
+        next_states : array_like, shape (N, n_x)
+            N ≥ 2.
+        rng : Generator, int, SeedSequence or None
+            Draws the resamples, initial weights and minibatch order.
+
+        Returns
+        -------
+        self
+        """
         x, u, xn = check_transitions(states, controls, next_states, min_rows=2)
         rng = as_generator(rng)
         st = self.settings

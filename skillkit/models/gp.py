@@ -431,8 +431,22 @@ class HyperCurb:
     """A soft box on the SE hyper-parameters, the PILCO toolbox's ``hypCurb.m`` penalty.
 
     Added to −(2.28) per output: Σ_d ((log w_d − log std(x_d)) / log r_w)^p +
-    ((log σ_f − log σ_ε) / log r_s)^p, r_w = ``lengthscale_ratio``, r_s = ``snr``, even
-    p = ``power``."""
+    ((log σ_f − log σ_ε) / log r_s)^p.
+
+    Parameters
+    ----------
+    lengthscale_ratio : float, default 100
+        r_w > 1, the allowed ratio of a length-scale w_d to std(x_d).
+    snr : float, default 500
+        r_s > 1, the allowed signal-to-noise ratio σ_f / σ_ε.
+    power : int, default 30
+        p, an even integer ≥ 2 (the box's steepness).
+
+    Raises
+    ------
+    ValueError
+        If a ratio is not above 1 or ``power`` is not an even integer ≥ 2.
+    """
 
     lengthscale_ratio: float = 100.0
     snr: float = 500.0
@@ -452,7 +466,20 @@ class HyperCurb:
         noise: torch.Tensor,
         input_std: torch.Tensor,
     ) -> torch.Tensor:
-        """The penalty summed over outputs: Tensor ()."""
+        """The penalty summed over outputs.
+
+        Parameters
+        ----------
+        lengthscale : Tensor, shape (E, d)
+        outputscale, noise : Tensor, shape (E,)
+            σ_f², σ_ε².
+        input_std : Tensor, shape (d,)
+            std(x_d) of the training inputs.
+
+        Returns
+        -------
+        Tensor, shape ()
+        """
         p = int(self.power)
         ls = (torch.log(lengthscale) - torch.log(input_std)) / math.log(self.lengthscale_ratio)
         snr = 0.5 * (torch.log(outputscale) - torch.log(noise)) / math.log(self.snr)
@@ -663,9 +690,26 @@ class GPRegression:
         return text + ")"
 
     def fit(self, X, Y, rng=None) -> GPRegression:
-        """Fit the hyper-parameters on X (N, d), Y (N, E) or (N,) and cache the predictor.
+        """Fit the hyper-parameters on (2.28) and cache the predictor.
 
-        ``rng`` draws the additive target noise and pseudo-input initialisation."""
+        Parameters
+        ----------
+        X : array_like, shape (N, d)
+            Training inputs.
+        Y : array_like, shape (N, E) or (N,)
+            Training targets, one GP per column.
+        rng : Generator, int, SeedSequence or None
+            Draws the additive target noise and the pseudo-input initialisation.
+
+        Returns
+        -------
+        self
+
+        Raises
+        ------
+        ValueError
+            On bad shapes or non-finite data.
+        """
         X = check_array(X, "X", ndim=2)
         Y = check_array(Y, "Y", ndim=(1, 2))
         self._squeeze = Y.ndim == 1
@@ -762,7 +806,24 @@ class GPRegression:
         return self.predictor
 
     def predict(self, X, include_noise: bool = True) -> tuple[np.ndarray, np.ndarray]:
-        """Predictive mean and variance (n, E) or (n,) at X (n, d) (Eqs 2.26–2.27)."""
+        """Predictive moments (Eqs 2.26–2.27).
+
+        Parameters
+        ----------
+        X : array_like, shape (n, d)
+            Test inputs.
+        include_noise : bool, default True
+            Add σ_ε² to the latent variance.
+
+        Returns
+        -------
+        mean, var : ndarray, shape (n, E), or (n,) when fitted on a 1-D Y
+
+        Raises
+        ------
+        RuntimeError
+            Before :meth:`fit`.
+        """
         pred = self._check_fitted()
         x = check_array(X, "X", ndim=2)
         if x.shape[1] != pred.input_dim:
@@ -776,7 +837,19 @@ class GPRegression:
         return (mean[:, 0], var[:, 0]) if self._squeeze else (mean, var)
 
     def sample(self, X, n_samples: int, rng, include_noise: bool = True) -> np.ndarray:
-        """Independent draws (n, n_samples, E) from the predictive marginals."""
+        """Independent draws from the predictive marginals.
+
+        Parameters
+        ----------
+        X : array_like, shape (n, d)
+        n_samples : int
+        rng : Generator, int, SeedSequence or None
+        include_noise : bool, default True
+
+        Returns
+        -------
+        ndarray, shape (n, n_samples, E), or (n, n_samples) when fitted on a 1-D Y
+        """
         mean, var = self.predict(X, include_noise)
         mean, var = mean.reshape(mean.shape[0], -1), var.reshape(var.shape[0], -1)
         L = check_count(n_samples, "n_samples")
@@ -882,10 +955,31 @@ class _BatchedExactGP(gpytorch.models.ExactGP):
 class ExactGP(GPRegression):
     """Full GP regression, one GP per output, batched in one GPyTorch model (``self.model``).
 
-    Initial ``lengthscale``, ``outputscale``, ``noise`` are in raw units (default std(x),
-    var(y), var(y)/100); σ_ε² ≥ ``noise_floor`` · var(y); ``additive_noise`` α adds
-    N(0, (α·10⁻²·std(y))²) to the targets (Sec. 4.2.3); ``n_steps`` L-BFGS or Adam steps on
-    (2.28) (150, the thesis's); ``curb`` an optional :class:`HyperCurb`."""
+    Parameters
+    ----------
+    lengthscale : float or array_like, shape (d,) or (E, d), optional
+        Initial w in raw input units (default std(x)).
+    outputscale, noise : float, optional
+        Initial σ_f², σ_ε² in raw target units (default var(y), var(y)/100).
+    noise_floor : float, default 1e-6
+        σ_ε² ≥ ``noise_floor`` · var(y).
+    additive_noise : float, default 1.0
+        α: adds N(0, (α·10⁻²·std(y))²) to the targets (Sec. 4.2.3); 0 for none.
+    n_steps : int, default 150
+        Optimiser steps on −(2.28) (the thesis's 150).
+    optimizer : {"lbfgs", "adam"}
+    learning_rate : float, default 0.05
+    standardize : bool, default True
+        Fit on standardised targets (predictions are in raw units).
+    curb : HyperCurb, optional
+        Penalty on the hyper-parameters.
+    device : str or torch.device, optional
+
+    Raises
+    ------
+    ValueError
+        On non-positive scales or an unknown optimiser.
+    """
 
     def _build(self, rng: np.random.Generator) -> None:
         E, N = self.Y.shape
@@ -933,11 +1027,23 @@ class ExactGP(GPRegression):
 
 
 class ForwardModel:
-    """A GP forward model on z = [x_t, u_t] (Sec. 4.2), one unfitted ``gp`` per state dimension.
+    """A GP forward model p(x_{t+1} | x_t, u_t) on z = [x_t, u_t] (Sec. 4.2).
 
-    ``target`` "next" learns x_{t+1} (the thesis, Secs 4.2.4, 5.1.1), "delta" x_{t+1} − x_t
-    (PILCO); ``mean`` "linear" adds a least-squares prior mean Wᵀz + b (Rasmussen & Williams,
-    Sec. 2.7)."""
+    Parameters
+    ----------
+    gp : GPRegression
+        Unfitted :class:`ExactGP`, :class:`~skillkit.models.sparse.FITC` or
+        :class:`~skillkit.models.sparse.VFE`; one output per state dimension.
+    target : {"next", "delta"}
+        "next" learns x_{t+1} (the thesis, Secs 4.2.4, 5.1.1), "delta" x_{t+1} − x_t (PILCO).
+    mean : {"zero", "linear"}
+        "linear" adds a least-squares prior mean Wᵀz + b (Rasmussen & Williams, Sec. 2.7).
+
+    Raises
+    ------
+    ValueError
+        On an unknown ``gp`` type, ``target`` or ``mean``.
+    """
 
     def __init__(self, gp: GPRegression, target: str = "next", mean: str = "zero"):
         if not isinstance(gp, GPRegression):
@@ -976,7 +1082,20 @@ class ForwardModel:
         return self._predictor
 
     def fit(self, states, controls, next_states, rng=None) -> ForwardModel:
-        """Fit on ``states`` (N, n_x), ``controls`` (N, n_u) and ``next_states``."""
+        """Fit the GP on N transitions.
+
+        Parameters
+        ----------
+        states : array_like, shape (N, n_x)
+        controls : array_like, shape (N, n_u)
+        next_states : array_like, shape (N, n_x)
+        rng : Generator, int, SeedSequence or None
+            Passed to ``gp.fit``.
+
+        Returns
+        -------
+        self
+        """
         x, u, xn = check_transitions(states, controls, next_states)
         self.state_dim, self.control_dim = x.shape[1], u.shape[1]
         y = xn - x if self.delta else xn
@@ -1022,6 +1141,22 @@ class ForwardModel:
         return m._replace(mean=x + m.mean) if self.delta else m
 
     def predict(self, states, controls) -> tuple[np.ndarray, np.ndarray]:
+        """Per-dimension moments of p(x_{t+1} | x_t, u_t).
+
+        Parameters
+        ----------
+        states : array_like, shape (n, n_x)
+        controls : array_like, shape (n, n_u)
+
+        Returns
+        -------
+        mean, var : ndarray, shape (n, n_x)
+
+        Raises
+        ------
+        RuntimeError
+            Before :meth:`fit`.
+        """
         pred = self.predictor
         x = check_array(states, "states", shape=(None, self.state_dim))
         u = check_array(controls, "controls", shape=(x.shape[0], self.control_dim))

@@ -19,12 +19,27 @@ def se_kernel(
     outputscale: torch.Tensor,
     diag: bool = False,
 ) -> torch.Tensor:
-    r"""Squared-exponential kernel with ARD, Eq. (2.25), for x1 (..., n, d), x2 (..., m, d):
+    r"""Squared-exponential kernel with ARD, Eq. (2.25).
 
     .. math:: k(x, x') = \sigma_f^2 \exp\big(-\tfrac12 (x - x')^\top W^{-1} (x - x')\big),
               \quad W = \mathrm{diag}(w^2)
 
-    shape (..., n, m), or with ``diag`` (..., n)."""
+    Parameters
+    ----------
+    x1 : Tensor, shape (..., n, d)
+    x2 : Tensor, shape (..., m, d)
+        With ``diag``, shape (..., n, d).
+    lengthscale : Tensor, shape (..., 1, d) or (d,)
+        w.
+    outputscale : Tensor, shape (...) or ()
+        σ_f².
+    diag : bool, default False
+        Return only k(x1_i, x2_i).
+
+    Returns
+    -------
+    Tensor, shape (..., n, m), or (..., n) with ``diag``
+    """
     os = torch.as_tensor(outputscale, dtype=x1.dtype, device=x1.device)
     if diag:
         d2 = (((x1 - x2) / lengthscale) ** 2).sum(-1)
@@ -88,8 +103,26 @@ def linear_kernel(
 
 
 class SquaredExponential(gpytorch.kernels.Kernel):
-    """Eq. (2.25) as a GPyTorch kernel: ARD length-scales w (``input_dim`` of them) and σ_f², both
-    raw behind a positivity constraint, float64, optionally one set per ``batch_shape`` entry."""
+    """Eq. (2.25) as a GPyTorch kernel, float64, positivity-constrained hyper-parameters.
+
+    Parameters
+    ----------
+    input_dim : int
+        d, the number of ARD length-scales.
+    lengthscale : float or array_like, shape (d,), default 1.0
+        Initial w.
+    outputscale : float, default 1.0
+        Initial σ_f².
+    batch_shape : torch.Size, optional
+        One set of hyper-parameters per batch entry (e.g. per GP output).
+    **kwargs
+        Passed to :class:`gpytorch.kernels.Kernel`.
+
+    Raises
+    ------
+    ValueError
+        On a non-positive ``input_dim``, ``lengthscale`` or ``outputscale``.
+    """
 
     has_lengthscale = True
 

@@ -16,9 +16,23 @@ __all__ = ["LinearGaussianModel"]
 
 
 class LinearGaussianModel:
-    """x' = A x + B u + c + w fitted by least squares with w ~ N(0, Σ_w) from the residuals;
-    ``target`` "delta" regresses x' − x, "next" x'; ``ridge`` λ ≥ 0 on the coefficients of
-    [x, u] is relative to the mean squared input."""
+    """Linear-Gaussian forward model x' = A x + B u + c + w, w ~ N(0, Σ_w).
+
+    Parameters
+    ----------
+    target : {"delta", "next"}, default "delta"
+        Regress x' − x or x'.
+    ridge : float, default 1e-9
+        λ ≥ 0 on the coefficients of [x, u], relative to the mean squared input.
+
+    Attributes
+    ----------
+    A : ndarray, shape (n_x, n_x)
+    B : ndarray, shape (n_x, n_u)
+    c : ndarray, shape (n_x,)
+    noise_cov : ndarray, shape (n_x, n_x)
+        Σ_w, from the residuals.
+    """
 
     def __init__(self, target: str = "delta", ridge: float = 1e-9):
         if target not in ("delta", "next"):
@@ -80,7 +94,25 @@ class LinearGaussianModel:
         return cached[1]
 
     def fit(self, states, controls, next_states, rng=None) -> LinearGaussianModel:
-        """Least squares on ``states`` (N, n_x), ``controls`` (N, n_u), ``next_states`` (N, n_x)."""
+        """Least squares for A, B, c; Σ_w from the residuals.
+
+        Parameters
+        ----------
+        states : array_like, shape (N, n_x)
+        controls : array_like, shape (N, n_u)
+        next_states : array_like, shape (N, n_x)
+        rng : ignored
+            For the forward-model interface.
+
+        Returns
+        -------
+        self
+
+        Raises
+        ------
+        ValueError
+            On bad shapes or fewer than n_x + n_u + 1 transitions.
+        """
         x = check_array(states, "states", ndim=2)
         u = check_array(controls, "controls", shape=(x.shape[0], None))
         xn = check_array(next_states, "next_states", shape=x.shape)

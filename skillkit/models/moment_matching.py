@@ -117,8 +117,16 @@ class _SecondMomentRoundoff(NamedTuple):
 
 @dataclass
 class GaussianPrediction:
-    """A Gaussian approximation of p(y) for z ~ N(m, S): ``mean`` (E,), ``cov`` (E, E),
-    ``input_output_cov`` cov(z, y) (D, E) and the ``roundoff`` bound (None from :func:`linearize`).
+    """A Gaussian approximation of p(y) for z ~ N(m, S), in raw units.
+
+    Attributes
+    ----------
+    mean : Tensor, shape (E,)
+    cov : Tensor, shape (E, E)
+    input_output_cov : Tensor, shape (D, E)
+        cov(z, y).
+    roundoff : RoundoffEstimate or None
+        Bound on the float64 round-off (None from :func:`linearize`).
     """
 
     mean: torch.Tensor
@@ -157,11 +165,33 @@ def _check_gaussian(mean, cov, dim: int, name: str = "mean") -> tuple[torch.Tens
 def moment_match(
     predictor: GPPredictor, mean, cov, include_noise: bool = True, strict: bool = False
 ) -> GaussianPrediction:
-    """Exact mean, covariance and input–output covariance of a GP's prediction at z ~ N(m, S).
+    """Exact mean, covariance and input–output covariance of a GP's prediction at z ~ N(m, S)
+    (Sec. 2.1.2; PILCO's moment matching).
 
-    ``mean`` (D,) and symmetric PSD ``cov`` (D, D); ``include_noise`` adds σ_ε² (y rather than
-    f); ``strict`` raises :class:`MomentPrecisionError` instead of warning when the round-off
-    bound exceeds :data:`ROUNDOFF_TOL`. Returns a :class:`GaussianPrediction` in raw units."""
+    Parameters
+    ----------
+    predictor : GPPredictor
+        A fitted SE-kernel GP (e.g. ``ForwardModel.predictor``), E outputs on D inputs.
+    mean : array_like or Tensor, shape (D,)
+        m.
+    cov : array_like or Tensor, shape (D, D)
+        S, symmetric positive semi-definite.
+    include_noise : bool, default True
+        Add σ_ε² (predict y rather than f).
+    strict : bool, default False
+        Raise instead of warning when the round-off bound exceeds :data:`ROUNDOFF_TOL`.
+
+    Returns
+    -------
+    GaussianPrediction
+
+    Raises
+    ------
+    ValueError
+        On bad shapes, non-finite values, or a ``cov`` that is not symmetric PSD.
+    MomentPrecisionError
+        With ``strict``, when the round-off bound exceeds :data:`ROUNDOFF_TOL`.
+    """
     pred = predictor.to("cpu", DTYPE)
     m, S = _check_gaussian(mean, cov, pred.support.shape[-1])
     g = moment_match_step(pred, m, S, include_noise)
@@ -481,9 +511,34 @@ def propagate(
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Long-term Gaussian prediction p(x_0) → … → p(x_T) with u_t = K_t x_t + k_t (Eq. 4.4).
 
-    ``gain`` is (n_u, n_x) or (T, n_u, n_x), ``offset`` (n_u,) or (T, n_u) (default 0);
-    ``method`` "moment_matching" or "linearization"; ``strict`` as :func:`moment_match`.
-    Returns means (T + 1, n_x) and covariances (T + 1, n_x, n_x)."""
+    Parameters
+    ----------
+    model : ForwardModel
+        A fitted GP forward model.
+    mean0 : array_like or Tensor, shape (n_x,)
+    cov0 : array_like or Tensor, shape (n_x, n_x)
+        p(x_0) = N(mean0, cov0).
+    horizon : int
+        T.
+    gain : array_like, shape (n_u, n_x) or (T, n_u, n_x)
+        K_t, shared or per step.
+    offset : array_like, shape (n_u,) or (T, n_u), optional
+        k_t (default 0).
+    method : {"moment_matching", "linearization"}
+        :func:`moment_match` or :func:`linearize` (Fig. 2.6) per step.
+    strict : bool, default False
+        As :func:`moment_match`.
+
+    Returns
+    -------
+    means : Tensor, shape (T + 1, n_x)
+    covs : Tensor, shape (T + 1, n_x, n_x)
+
+    Raises
+    ------
+    ValueError
+        On bad shapes, an unknown ``method`` or a non-positive ``horizon``.
+    """
     if method not in ("moment_matching", "linearization"):
         raise ValueError(f"method: expected 'moment_matching' or 'linearization', got {method!r}")
     step = moment_match if method == "moment_matching" else linearize

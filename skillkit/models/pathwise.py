@@ -176,7 +176,23 @@ def draw_functions(
 ) -> PathwiseFunctions:
     """Draw ``n`` functions from a GP predictor's posterior (RFF prior + exact update).
 
-    ``n`` seeds are drawn from ``rng``; ``dtype`` is the evaluation dtype."""
+    Parameters
+    ----------
+    predictor : GPPredictor
+        A fitted SE-kernel GP, E outputs on d inputs, M support points.
+    n : int
+        Number of functions; one seed per function is drawn from ``rng``.
+    n_features : int, default 256
+        F, random Fourier features per function and output.
+    rng : Generator, int, SeedSequence or None
+    dtype : torch.dtype, optional
+        Evaluation dtype (default the predictor's).
+
+    Returns
+    -------
+    PathwiseFunctions
+        Row i of a query batch (n, d) is evaluated by function i.
+    """
     n = check_count(n, "n")
     seeds = as_generator(rng).integers(2**63 - 1, size=n)
     return PathwiseBasis(predictor, n_features, dtype).draw(seeds)

@@ -41,8 +41,22 @@ class RewardModel(abc.ABC):
         trajectories: Sequence[Trajectory] | None,
         rng: np.random.Generator,
     ) -> dict[str, Any]:
-        """Fit on all real samples: contexts (N, context_dim), omegas (N, d), rewards (N,) and their
-        trajectories (or ``None``); returns fit statistics."""
+        """Fit on all real samples so far.
+
+        Parameters
+        ----------
+        contexts : ndarray, shape (N, context_dim)
+        omegas : ndarray, shape (N, d)
+            Policy parameters ω.
+        rewards : ndarray, shape (N,)
+        trajectories : sequence of Trajectory, length N, or None
+        rng : Generator
+
+        Returns
+        -------
+        dict
+            Fit statistics.
+        """
         ...
 
     @abc.abstractmethod
@@ -53,7 +67,20 @@ class RewardModel(abc.ABC):
         n_trajectories: int,
         rng: np.random.Generator,
     ) -> np.ndarray:
-        """Predicted expected rewards R̂_sω (Eq. 4.1) of M pairs, shape (M,)."""
+        """Predicted expected rewards R̂_sω (Eq. 4.1).
+
+        Parameters
+        ----------
+        contexts : ndarray, shape (M, context_dim)
+        omegas : ndarray, shape (M, d)
+        n_trajectories : int
+            L, sampled trajectories per pair (where the model samples).
+        rng : Generator
+
+        Returns
+        -------
+        ndarray, shape (M,)
+        """
         ...
 
 
@@ -100,9 +127,32 @@ def refit_gp(
 ) -> tuple[Any, dict[str, Any]]:
     """Refit a GP's hyper-parameters on all data so far (Sec. 4.1).
 
-    ``refit`` "cold" starts at the default, "warm" at ``previous`` (a ``gp.hyperparameters``),
-    "best" runs both with one seed and keeps the larger log marginal likelihood (2.28).
-    Returns the model kept and ``start``, ``log_ml_cold``, ``log_ml_warm``."""
+    Parameters
+    ----------
+    make_gp : callable
+        ``make_gp() -> gp``, a fresh unfitted model.
+    x : ndarray, shape (N, d)
+    y : ndarray, shape (N, E) or (N,)
+    rng : Generator
+        One seed is drawn and shared by both starts.
+    previous : dict or None
+        The previous fit's ``gp.hyperparameters`` (None: cold start only).
+    refit : {"cold", "warm", "best"}
+        "cold" starts at the default initialisation, "warm" at ``previous``, "best" runs both
+        and keeps the larger log marginal likelihood (2.28).
+
+    Returns
+    -------
+    gp
+        The fitted model kept.
+    record : dict
+        ``start``, ``log_ml_cold``, ``log_ml_warm``.
+
+    Raises
+    ------
+    ValueError
+        On an unknown ``refit``.
+    """
     check_refit(refit)
     seed = int(rng.integers(2**63))
     record: dict[str, Any] = {"start": "cold", "log_ml_cold": None, "log_ml_warm": None}

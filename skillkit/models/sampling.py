@@ -55,11 +55,27 @@ Policy = Callable[[int, torch.Tensor, torch.Tensor], torch.Tensor]
 
 @dataclass
 class SampledTrajectories:
-    """Trajectories sampled for B (context, ω) pairs × L repetitions: ``states``
-    (B, L, T + 1, n_x), ``controls`` (B, L, T, n_u) after saturation, the number of saturated
-    controls and of clamped negative variances, the most negative latent variance relative to
-    σ_f², float32's largest one-step error against float64 (``precision_error``) and, with a
-    ``stop`` rule, the step each trajectory stopped at (T if never)."""
+    """Trajectories sampled for B (context, ω) pairs × L repetitions.
+
+    Attributes
+    ----------
+    states : Tensor, shape (B, L, T + 1, n_x)
+        x_0 … x_T.
+    controls : Tensor, shape (B, L, T, n_u)
+        u_0 … u_{T−1}, after saturation.
+    n_saturated : int
+        Control entries clipped to ``control_limit``.
+    n_variance_clamped : int
+        Negative (round-off) predictive variances set to 0.
+    worst_variance : float
+        Most negative latent variance relative to σ_f² (0 if none).
+    precision_error : float
+        float32 only: largest one-step moment error against float64 on visited states
+        (warns above :data:`PRECISION_TOL`); 0.0 in float64.
+    stopped_at : Tensor of int64, shape (B, L), or None
+        With a ``stop`` rule: the step k each trajectory stopped at (T if never); later
+        states repeat x_k, later controls are 0.
+    """
 
     states: torch.Tensor
     controls: torch.Tensor
@@ -99,18 +115,53 @@ def sample_trajectories(
     n_features: int = 256,
     stop: Callable[[int, torch.Tensor], torch.Tensor] | None = None,
 ) -> SampledTrajectories:
-    """Sample L = ``n_trajectories`` trajectories of T = ``horizon`` steps for each of B start
-    states ``x0`` ((B, n_x) or (B, L, n_x)) in one vectorised call.
+    """Sample L trajectories for each of B start states / policies in one vectorised call.
 
-    ``model`` provides ``next_state_moments(x, u)`` and optionally ``noise_factor_tensor`` F
-    (correlated noise x′ = mean + F ε); ``policy(t, x, pair)`` maps states (n, n_x) and pair
-    indices (n,) to controls (n, n_u), saturated at ``control_limit``. ``dtype`` float32 warns
-    above :data:`PRECISION_TOL`; ``max_chunk_bytes`` bounds the work arrays per chunk.
-    ``method`` "per-step" (the thesis's) draws each transition independently, "pathwise"
-    follows one posterior function per trajectory with ``n_features`` random features
-    (:mod:`skillkit.models.pathwise`; "pathwise-shared": one basis). ``stop(k, x)`` (bool (n,))
-    ends trajectories early (per-step only). Raises ValueError on invalid arguments or
-    policy/``stop`` output."""
+    Parameters
+    ----------
+    model : StepModel
+        Fitted forward model with ``next_state_moments(x, u)`` and optionally
+        ``noise_factor_tensor`` F (correlated noise x′ = mean + F ε), e.g.
+        :class:`~skillkit.models.gp.ForwardModel`.
+    x0 : array_like or Tensor, shape (B, n_x) or (B, L, n_x)
+        Start states, per pair or per trajectory (drawn from p(x_0; s), Eq. 4.3).
+    policy : callable
+        ``policy(t, x, pair) -> u``: step ``t``, states (n, n_x), pair indices (n,) in [0, B);
+        returns controls (n, n_u) on the same device and dtype.
+    horizon : int
+        T, the number of transitions.
+    n_trajectories : int, default 1
+        L, trajectories per pair.
+    rng : Generator, int, SeedSequence or None
+        Randomness.
+    control_limit : float or array_like, shape (n_u,), optional
+        Saturates ``|u| ≤ control_limit``.
+    device : str or torch.device, optional
+        CPU (default) or an available CUDA device.
+    dtype : torch.float64 or torch.float32, default float64
+        float32 warns when ``precision_error`` exceeds :data:`PRECISION_TOL`.
+    max_chunk_bytes : int, default 2**25
+        Bound on the kernel work arrays per chunk (at least one trajectory per chunk).
+    method : {"per-step", "pathwise", "pathwise-shared"}
+        "per-step" (the thesis's, Sec. 4.2.1): independent draws per transition; "pathwise":
+        one posterior function per trajectory (:mod:`skillkit.models.pathwise`, GP forward
+        models only); "pathwise-shared": one feature basis for all trajectories.
+    n_features : int, default 256
+        F, random Fourier features per function and output (pathwise methods).
+    stop : callable, optional
+        ``stop(k, x) -> done``, bool (n,) for states x_k (k = 1 … T − 1): done trajectories
+        stop propagating (per-step only; ``stopped_at``).
+
+    Returns
+    -------
+    SampledTrajectories
+
+    Raises
+    ------
+    ValueError
+        On bad shapes, device, dtype, method or limits, non-finite start states, and on
+        policy or ``stop`` output of the wrong shape, type or non-finite values.
+    """
     device = as_device(device)  # as tensors report it, so the policy's controls can be checked
     check_dtype(dtype)
     if method not in ("per-step", "pathwise", "pathwise-shared"):

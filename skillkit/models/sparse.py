@@ -195,15 +195,33 @@ def _plain_cholesky(A: torch.Tensor, what: str) -> torch.Tensor:
 class FITC(_SparseGP):
     """FITC / SPGP sparse GP (Snelson & Ghahramani) with M optimised pseudo-inputs.
 
-    ``n_inducing`` M (all N inputs if M ≥ N), or initial ``inducing`` (M, d) or (E, M, d);
-    ``jitter`` is the relative jitter on K_mm; other keywords as
-    :class:`~skillkit.models.gp.ExactGP`."""
+    Parameters
+    ----------
+    n_inducing : int, default 100
+        M; all N training inputs are used if M ≥ N.
+    inducing : array_like, shape (M, d) or (E, M, d), optional
+        Initial pseudo-inputs (default: k-means++ seeding on the standardised inputs).
+    optimize_inducing : bool, default True
+        Optimise the pseudo-inputs with the hyper-parameters.
+    jitter : float, default 1e-8
+        Relative jitter (× σ_f²) on K_mm.
+    **kwargs
+        As :class:`~skillkit.models.gp.ExactGP`.
+
+    Raises
+    ------
+    ValueError
+        On a non-positive ``n_inducing`` or ``jitter``, or ``inducing`` of the wrong shape
+        (at :meth:`fit`).
+    """
 
     _method = "fitc"
 
 
 class VFE(_SparseGP):
-    """Titsias's variational sparse GP, parameters as :class:`FITC`; its
-    ``diagnostics["log_marginal_likelihood"]`` is the bound."""
+    """Titsias's variational sparse GP (VFE), parameters as :class:`FITC`.
+
+    ``diagnostics["log_marginal_likelihood"]`` holds the collapsed bound, not Eq. (2.28).
+    """
 
     _method = "vfe"

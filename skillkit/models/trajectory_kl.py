@@ -365,7 +365,23 @@ def _lbfgs(fun, theta0, maxiter):
 
 
 def fit_one_step(model: Model, theta0, x, u, x_next, maxiter: int = 200) -> TKLFit:
-    """One-step maximum likelihood of the transitions by L-BFGS from ``theta0``."""
+    """One-step maximum likelihood of the transitions by L-BFGS.
+
+    Parameters
+    ----------
+    model : Model
+        P = ``model.n_params``.
+    theta0 : array_like, shape (P,)
+    x : array_like, shape (N, n)
+    u : array_like, shape (N, m)
+    x_next : array_like, shape (N, n)
+    maxiter : int, default 200
+
+    Returns
+    -------
+    TKLFit
+        ``objective`` is the negative mean one-step log-likelihood.
+    """
     th0 = check_array(theta0, "theta0", shape=(model.n_params,))
     x, u = _check_inputs(model, x, u)
     y = check_array(x_next, "x_next", shape=x.shape)
@@ -549,12 +565,30 @@ def fit_trajectory_kl(
     inner_maxiter: int = 100,
     first_step: float = 1e-3,
 ) -> TKLFit:
-    """Trajectory-KL training: min_θ max_γ g(γ, θ) of (4.16) by L-BFGS over θ from ``theta0``.
+    """Trajectory-KL training: min_θ max_γ g(γ, θ) of (4.16) by L-BFGS over θ.
 
-    ``states`` (M, T, n), ``controls`` (M, T − 1, m); ``cross`` and ``ridge`` as in
-    :func:`state_features` and :func:`trajectory_kl_dual`. ``first_step`` is the largest first
-    step in θ, divided by 4 until the steepest-descent step lowers D (a long step leaves the
-    feasible region)."""
+    Parameters
+    ----------
+    model : Model
+        E.g. :class:`LinearGaussianTKL` or :class:`PseudoDataGP`, P = ``model.n_params``.
+    theta0 : array_like, shape (P,)
+        Start (e.g. a :func:`fit_one_step` result).
+    states : array_like, shape (M, T, n)
+        M observed trajectories.
+    controls : array_like, shape (M, T − 1, m)
+    cross : bool, default True
+        Cross products in φ (:func:`state_features`, B.7).
+    ridge : float, default 0.0
+        λ ≥ 0 of :func:`trajectory_kl_dual`.
+    maxiter, inner_maxiter : int, default 100
+        Outer L-BFGS iterations over θ; Newton iterations over γ per evaluation.
+    first_step : float, default 1e-3
+        Largest first step in θ, divided by 4 until the steepest-descent step lowers D.
+
+    Returns
+    -------
+    TKLFit
+    """
     X, U = _check_trajectories(model, states, controls)
     th0 = check_array(theta0, "theta0", shape=(model.n_params,))
     prob = _Problem(model, X, U, cross, check_positive(ridge, "ridge", allow_zero=True))

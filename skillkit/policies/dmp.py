@@ -63,11 +63,37 @@ def _discretise(h: float, stiffness: float, damping: float):
 class DMP:
     """Discrete DMP for ``n_joints`` joints sharing one phase (Eqs. 2.21–2.23).
 
-    ``n_basis`` K basis functions per joint; ``alpha_x``, ``beta_x`` the spring-damper gains of
-    Eq. 2.21 (β_x = α_x/4: critically damped); ``alpha_z`` the phase decay of Eq. 2.22; ``dt``
-    the largest integration step (s); ``duration`` the nominal duration at τ = 1 (s). The
-    learned ``weights`` v (n_joints, n_basis), ``goal`` g, ``goal_velocity`` gd and ``tau`` are
-    attributes."""
+    Parameters
+    ----------
+    n_joints : int
+        J.
+    n_basis : int, default 10
+        K basis functions per joint.
+    alpha_x, beta_x : float, default 25.0, 6.25
+        Spring-damper gains of Eq. 2.21 (β_x = α_x/4: critically damped).
+    alpha_z : float, default 3.0
+        Phase decay of Eq. 2.22.
+    dt : float, default 1e-3
+        Largest integration step (s).
+    duration : float, default 1.0
+        Nominal duration at τ = 1 (s).
+
+    Attributes
+    ----------
+    weights : ndarray, shape (J, K)
+        v (zeros until :meth:`fit`).
+    goal : ndarray, shape (J,), or None
+        g.
+    goal_velocity : ndarray, shape (J,)
+        gd.
+    tau : float
+        τ, the time scaling.
+
+    Raises
+    ------
+    ValueError
+        On a non-positive count, gain or time.
+    """
 
     def __init__(
         self,
@@ -144,13 +170,31 @@ class DMP:
         return new
 
     def fit(self, times, q, qd, qdd, tau: float = 1.0, ridge: float = 0.0) -> DMP:
-        """Fit the weights v to a demonstration by least squares (Eq. 2.23); returns ``self``.
+        """Fit the weights v to a demonstration by least squares (Eq. 2.23).
 
-        Sets ``goal`` and ``goal_velocity`` to the last demonstrated position and velocity, ``tau``
-        and ``duration`` = τ (times[-1] − times[0]), then solves
-        v = argmin ‖Φ v − Y‖² + ridge ‖v‖² with Y of :meth:`forcing_target` for ``times`` (N,)
-        and q, qd, qdd (N, n_joints). A rank-deficient basis with ``ridge=0`` warns
-        (``RuntimeWarning``)."""
+        Sets ``goal``, ``goal_velocity`` to the last demonstrated position and velocity, ``tau``
+        and ``duration`` = τ (times[-1] − times[0]), then solves v = argmin ‖Φ v − Y‖² +
+        ridge ‖v‖² with Y of :meth:`forcing_target`.
+
+        Parameters
+        ----------
+        times : array_like, shape (N,)
+            Strictly increasing time stamps (s), N ≥ 2.
+        q, qd, qdd : array_like, shape (N, J)
+            Demonstrated positions, velocities, accelerations.
+        tau : float, default 1.0
+        ridge : float, default 0.0
+            Ridge on v; a rank-deficient basis with ``ridge=0`` warns (``RuntimeWarning``).
+
+        Returns
+        -------
+        self
+
+        Raises
+        ------
+        ValueError
+            On bad shapes, non-increasing ``times`` or a non-positive ``tau``.
+        """
         times = check_array(times, "times", ndim=1)
         n = times.shape[0]
         if n < 2:
@@ -224,12 +268,33 @@ class DMP:
         tau: float | None = None,
         weights=None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Integrate the DMP (Eqs. 2.21–2.22, moving goal) from (q0, qd0 = 0): q, qd, qdd (T,
-        n_joints).
+        """Integrate the DMP (Eqs. 2.21–2.22, moving goal) exactly between grid nodes.
 
-        ``times`` is a duration (the grid :meth:`grid`) or uniformly spaced increasing stamps;
-        ``goal``, ``goal_velocity``, ``tau`` and ``weights`` override the DMP's. Raises ValueError
-        on malformed input or a missing goal, FloatingPointError if the integration overflowed."""
+        Parameters
+        ----------
+        times : float or array_like, shape (T,)
+            A duration (s; the grid of :meth:`grid`) or uniformly spaced increasing stamps.
+        q0 : array_like, shape (J,)
+        qd0 : array_like, shape (J,), optional
+            Default 0.
+        goal, goal_velocity : array_like, shape (J,), optional
+            Override g, gd.
+        tau : float, optional
+            Overrides τ.
+        weights : array_like, shape (J, K), optional
+            Overrides v.
+
+        Returns
+        -------
+        q, qd, qdd : ndarray, shape (T, J)
+
+        Raises
+        ------
+        ValueError
+            On malformed input or a missing goal.
+        FloatingPointError
+            If the integration overflowed.
+        """
         J = self.n_joints
         times = self._check_times(times)
         q0 = check_array(q0, "q0", shape=(J,))
@@ -309,7 +374,22 @@ class DMPParameters:
 
     The learned entries, in this order: weights v (joint-major), goal g, final velocity gd and
     τ; the rest stays as in ``dmp`` (not modified). E.g. hockey (Sec. 3.4.2) learns
-    ``("goal", "goal_velocity", "tau")`` for 7 joints: ``dim == 15``."""
+    ``("goal", "goal_velocity", "tau")`` for 7 joints: ``dim == 15``.
+
+    Parameters
+    ----------
+    dmp : DMP
+        The template.
+    learn : sequence of {"weights", "goal", "goal_velocity", "tau"}
+        Non-empty, without repeats (default all).
+
+    Attributes
+    ----------
+    dim : int
+        Length of ω.
+    names : list of str
+        A label per entry of ω.
+    """
 
     def __init__(self, dmp: DMP, learn: Sequence[str] = _LEARNABLE) -> None:
         if not isinstance(dmp, DMP):

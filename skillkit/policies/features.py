@@ -24,7 +24,24 @@ def check_feature_name(name: str, argname: str = "features") -> str:
 
 
 def feature_dim(context_dim: int, name: FeatureName = "linear") -> int:
-    """F of the map ``name`` for context dimension n: n (linear) or n + n(n+1)/2."""
+    """Number of features F of the map ``name``.
+
+    Parameters
+    ----------
+    context_dim : int
+        n ≥ 0.
+    name : {"linear", "quadratic"}, default "linear"
+
+    Returns
+    -------
+    int
+        n (linear) or n + n(n+1)/2 (quadratic).
+
+    Raises
+    ------
+    ValueError
+        On an unknown ``name`` or a negative or non-integer ``context_dim``.
+    """
     check_feature_name(name)
     if (
         isinstance(context_dim, bool)
@@ -39,8 +56,25 @@ def feature_dim(context_dim: int, name: FeatureName = "linear") -> int:
 def context_features(
     contexts, name: FeatureName = "linear", context_dim: int | None = None
 ) -> np.ndarray:
-    """φ(s) for ``contexts`` (n, context_dim) or (context_dim,): (n, F) or (F,), quadratic
-    products in row-major order; ``context_dim`` is checked when given."""
+    """Context features φ(s).
+
+    Parameters
+    ----------
+    contexts : array_like, shape (n, context_dim) or (context_dim,)
+    name : {"linear", "quadratic"}, default "linear"
+        Quadratic products s_i s_j (i ≤ j) follow s in row-major order.
+    context_dim : int, optional
+        Checked against the contexts' width when given.
+
+    Returns
+    -------
+    ndarray, shape (n, F), or (F,) for one context
+
+    Raises
+    ------
+    ValueError
+        On an unknown ``name`` or a shape mismatch.
+    """
     check_feature_name(name)
     s = check_array(contexts, "contexts", ndim=(1, 2))
     single = s.ndim == 1

@@ -66,9 +66,26 @@ def _cholesky(cov: np.ndarray, name: str) -> np.ndarray:
 class LinearGaussianPolicy:
     r"""Contextual linear-Gaussian upper-level policy π(ω|s) = N(ω | a + A φ(s), Σ), Eq. (3.13).
 
-    ``mean`` is the offset a (d,), ``cov`` Σ (d, d) symmetric positive definite, ``gain`` A
-    (d, F) (default zeros) on the context features φ named by ``features``
-    (:mod:`skillkit.policies.features`)."""
+    Parameters
+    ----------
+    mean : array_like, shape (d,)
+        The offset a.
+    cov : array_like, shape (d, d)
+        Σ, symmetric positive definite.
+    gain : array_like, shape (d, F), optional
+        A on the context features (default zeros).
+    context_dim : int, default 0
+        Dimension of the context s.
+    features : {"linear", "quadratic"}, default "linear"
+        φ, named as in :mod:`skillkit.policies.features`; F = ``feature_dim(context_dim,
+        features)``.
+
+    Raises
+    ------
+    ValueError
+        On bad shapes, a ``cov`` that is not symmetric positive definite, or an unknown
+        ``features``.
+    """
 
     def __init__(
         self, mean, cov, gain=None, context_dim: int = 0, features: FeatureName = "linear"
@@ -146,13 +163,34 @@ class LinearGaussianPolicy:
         return phi, single
 
     def mean_of(self, contexts: ArrayLike | None = None) -> np.ndarray:
-        """Policy mean a + A φ(s) (Eq. 3.13): (n, d) or (d,)."""
+        """Policy mean a + A φ(s) (Eq. 3.13).
+
+        Parameters
+        ----------
+        contexts : array_like, shape (n, context_dim) or (context_dim,), or None
+            None only for a context-free policy.
+
+        Returns
+        -------
+        ndarray, shape (n, d), or (d,) for one context
+        """
         phi, single = self.phi(contexts)
         mu = self._mean + phi @ self._gain.T
         return mu[0] if single else mu
 
     def sample(self, contexts: ArrayLike | None = None, rng: RNG = None) -> np.ndarray:
-        """Draw ω ~ N(a + A φ(s), Σ) per context: (n, d) or (d,)."""
+        """Draw ω ~ N(a + A φ(s), Σ), one per context.
+
+        Parameters
+        ----------
+        contexts : array_like, shape (n, context_dim) or (context_dim,), or None
+            None (one draw) only for a context-free policy; ``np.zeros((n, 0))`` draws n.
+        rng : Generator, int, SeedSequence or None
+
+        Returns
+        -------
+        ndarray, shape (n, d), or (d,) for one context
+        """
         rng = as_generator(rng)
         phi, single = self.phi(contexts)
         z = rng.standard_normal((phi.shape[0], self.dim))
@@ -247,13 +285,35 @@ class LinearGaussianPolicy:
 
         With p_i = w_i / Σ w and centred features, A = Xᵀ(C + ``ridge`` diag C)⁻¹, a = ω̄ − A φ̄
         (features without spread get a zero gain); Σ_ML = Σ p_i r_i r_iᵀ (3.12) is shrunk to
-        (1 − κ) Σ_ML + κ Σ_old (κ = ``cov_shrinkage`` ∈ [0, 1)), the eigenvalues of
-        Σ_old^{-1/2} Σ Σ_old^{-1/2} are floored at ``cov_floor`` ∈ (0, 1] and those of Σ at
-        :data:`MIN_RELATIVE_EIGENVALUE` times the largest. ``contexts`` (N, context_dim) or None,
-        ``omegas`` (N, d), non-negative ``weights`` (N,).
+        (1 − κ) Σ_ML + κ Σ_old, the eigenvalues of Σ_old^{-1/2} Σ Σ_old^{-1/2} are floored at
+        ``cov_floor`` and those of Σ at :data:`MIN_RELATIVE_EIGENVALUE` times the largest.
 
-        Raises ValueError on wrong shapes or weights, an effective sample size below
-        ``min_effective_samples`` (default d + 1) or contexts without spread when a gain is fitted.
+        Parameters
+        ----------
+        contexts : array_like, shape (N, context_dim), or None
+        omegas : array_like, shape (N, d)
+        weights : array_like, shape (N,)
+            Non-negative sample weights (e.g. REPS's exp(R/η)).
+        ridge : float, default 1e-6
+            Relative ridge on the feature covariance C.
+        cov_shrinkage : float, default 0.0
+            κ ∈ [0, 1).
+        cov_floor : float, default 1e-4
+            Eigenvalue floor ∈ (0, 1] relative to Σ_old.
+        min_effective_samples : float, optional
+            Least Kish effective sample size (default d + 1).
+
+        Returns
+        -------
+        policy : LinearGaussianPolicy
+            A new policy of the same type.
+        info : FitInfo
+
+        Raises
+        ------
+        ValueError
+            On wrong shapes or weights, too few effective samples, or contexts without spread
+            when a gain is fitted.
         """
         ridge = check_positive(ridge, "ridge", allow_zero=True)
         kappa = check_positive(cov_shrinkage, "cov_shrinkage", allow_zero=True)
@@ -385,7 +445,15 @@ class LinearGaussianPolicy:
 
 class GaussianPolicy(LinearGaussianPolicy):
     """Context-free upper-level policy π(ω) = N(μ, Σ) (episode-based REPS, Eqs. 2.12–2.15), the
-    ``context_dim=0`` case of :class:`LinearGaussianPolicy`."""
+    ``context_dim=0`` case of :class:`LinearGaussianPolicy`.
+
+    Parameters
+    ----------
+    mean : array_like, shape (d,)
+        μ.
+    cov : array_like, shape (d, d)
+        Σ, symmetric positive definite.
+    """
 
     def __init__(self, mean, cov):
         super().__init__(mean, cov, None, 0, "linear")

@@ -17,6 +17,7 @@ from skillkit.trajectory import Trajectory
 
 __all__ = [
     "REFIT_STARTS",
+    "Prediction",
     "RewardModel",
     "check_refit",
     "check_sample_dtype",
@@ -27,6 +28,17 @@ __all__ = [
     "worst_if_failed",
     "worst_if_nonfinite",
 ]
+
+
+class Prediction:
+    """Base of a reward model's prediction: ``rewards`` (B, L), one per predicted trajectory."""
+
+    rewards: np.ndarray
+
+    @property
+    def expected_rewards(self) -> np.ndarray:
+        """R̂ = mean of the L rewards of each pair (Eq. 4.1), shape (B,)."""
+        return self.rewards.mean(axis=1)
 
 
 class RewardModel(abc.ABC):

@@ -20,7 +20,7 @@ import numpy as np
 import torch
 
 from skillkit._validation import as_generator, check_array, check_count
-from skillkit.models.reward import worst_if_failed, worst_if_nonfinite
+from skillkit.models.reward import Prediction, worst_if_failed, worst_if_nonfinite
 from skillkit.models.sampling import SampledTrajectories, StepModel, sample_trajectories
 from skillkit.tasks.base import Task
 
@@ -28,7 +28,7 @@ __all__ = ["ModelRollouts", "predict_trajectories", "worst_if_failed", "worst_if
 
 
 @dataclass(frozen=True)
-class ModelRollouts:
+class ModelRollouts(Prediction):
     """L predicted trajectories for each of B (ω, s) pairs, scored by the task's reward.
 
     ``states`` (B, L, T + 1, n_x) and ``controls`` (B, L, T + 1, n_u, the controller's output at
@@ -43,11 +43,6 @@ class ModelRollouts:
     contexts: np.ndarray
     sampled: SampledTrajectories
     failed: np.ndarray
-
-    @property
-    def expected_rewards(self) -> np.ndarray:
-        """R̂_b, the mean over pair b's L trajectories (Eq. 4.1), shape (B,)."""
-        return self.rewards.mean(axis=1)
 
     def __repr__(self) -> str:
         B, L, T1, n_x = self.states.shape

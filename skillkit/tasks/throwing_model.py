@@ -28,6 +28,7 @@ import torch
 from skillkit._validation import as_generator, check_array, check_count, check_positive
 from skillkit.models.gp import ExactGP, ForwardModel, GPRegression
 from skillkit.models.reward import (
+    Prediction,
     RewardModel,
     check_sample_dtype,
     gp_stats,
@@ -78,7 +79,7 @@ def land(paths: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 @dataclass(frozen=True)
-class ThrowingPrediction:
+class ThrowingPrediction(Prediction):
     """L predicted throws for each of B (ω, s) pairs.
 
     ``states`` (B, L, T, 8) and the tracker's ``torques`` (B, L, T, 4) on them, the ball state
@@ -95,11 +96,6 @@ class ThrowingPrediction:
     rewards: np.ndarray
     landed: np.ndarray
     failed: np.ndarray
-
-    @property
-    def expected_rewards(self) -> np.ndarray:
-        """R̂ = mean of the L rewards of each pair (Eq. 4.1), shape (B,)."""
-        return self.rewards.mean(axis=1)
 
     def __repr__(self) -> str:
         B, L, T, _ = self.states.shape

@@ -37,6 +37,7 @@ import torch
 from skillkit._validation import as_generator, check_array, check_count, check_positive
 from skillkit.models.gp import ExactGP, GPRegression
 from skillkit.models.reward import (
+    Prediction,
     RewardModel,
     check_refit,
     gp_stats,
@@ -316,7 +317,7 @@ class DisplacementModel:
 
 
 @dataclass(frozen=True)
-class HockeyPrediction:
+class HockeyPrediction(Prediction):
     """L predicted shots for each of B (ω, s) pairs.
 
     Attributes
@@ -343,11 +344,6 @@ class HockeyPrediction:
     contact: np.ndarray
     contact_index: np.ndarray
     rewards: np.ndarray
-
-    @property
-    def expected_rewards(self) -> np.ndarray:
-        """R̂ = mean of the L rewards of each pair (Eq. 4.1), shape (B,)."""
-        return self.rewards.mean(axis=1)
 
     @property
     def displacements(self) -> np.ndarray:

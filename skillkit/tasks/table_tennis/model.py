@@ -37,7 +37,14 @@ import torch
 
 from skillkit._validation import as_generator, check_array, check_count, check_positive
 from skillkit.models.gp import ExactGP, GPRegression
-from skillkit.models.reward import RewardModel, check_refit, gp_stats, refit_gp, worst_if_nonfinite
+from skillkit.models.reward import (
+    Prediction,
+    RewardModel,
+    check_refit,
+    gp_stats,
+    refit_gp,
+    worst_if_nonfinite,
+)
 from skillkit.tasks.table_tennis import (
     SERVE_POSITION,
     TABLE_HEIGHT,
@@ -414,7 +421,7 @@ class ContactModel:
 
 
 @dataclass(frozen=True)
-class TableTennisPrediction:
+class TableTennisPrediction(Prediction):
     """L predicted strokes for each of B (ω, s) pairs.
 
     Attributes
@@ -452,11 +459,6 @@ class TableTennisPrediction:
     stage: str
     contact_score: np.ndarray | None = None
     face: np.ndarray | None = None
-
-    @property
-    def expected_rewards(self) -> np.ndarray:
-        """R̂ = mean of the L rewards of each pair (Eq. 4.1), shape (B,)."""
-        return self.rewards.mean(axis=1)
 
     def __repr__(self) -> str:
         B, L, T, _ = self.ball.shape

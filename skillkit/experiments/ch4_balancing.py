@@ -510,7 +510,6 @@ register_curve_task(
         thresholds=(-100.0, -10.0, -1.5),
         thresholds_source="Table 4.2's reward limits",
         reps=lambda task, th, policy: reps_algorithm(th, policy),
-        reps_schedule=lambda th: (th.reps_updates, *(th.reps_rollouts_per_update,) * 2),
         gpreps=lambda task, th, policy, prior, rng: gpreps_algorithm(
             task, th, policy, prior, fitc_model(th), rng
         ),

@@ -368,7 +368,6 @@ register_curve_task(
         "Sec. 4.3.3: GPREPS's “less than 5 cm” (a hit placing the puck d off its target "
         "scores R = −d)",
         reps=lambda task, st, policy: _reps(task, st),
-        reps_schedule=lambda st: (st.reps_updates, *(st.reps_rollouts_per_update,) * 2),
         reward_model=hockey_reward_model,
     ),
 )

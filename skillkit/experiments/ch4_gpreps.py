@@ -533,7 +533,6 @@ register_curve_task(
         "(Appendix C.1): −100 is 1 m off on average, −50 the 0.5 m bound of Sec. 3.4.1 (Fig. 3.3); "
         "the thesis's final rewards are −715 (REPS) and −64 (GPREPS) in Fig. 4.9's caption",
         reps=lambda task, st, policy: reps_algorithm(task, st),
-        reps_schedule=lambda st: (st.reps_updates, *(st.reps_rollouts_per_update,) * 2),
         reward_model=throwing_reward_model,
     ),
 )

@@ -69,6 +69,10 @@ def _gpreps_schedule(st: Settings) -> tuple[int, int, int]:
     return st.n_updates, 1, st.n_initial
 
 
+def _reps_schedule(st: Settings) -> tuple[int, int, int]:
+    return st.reps_updates, st.reps_rollouts_per_update, st.reps_rollouts_per_update
+
+
 @dataclass(frozen=True)
 class CurveTask:
     """What a registered task supplies to the learning-curve experiments.
@@ -77,7 +81,8 @@ class CurveTask:
     the task; ``thresholds`` the reward levels whose real-rollout cost is compared, with their
     ``thresholds_source``. The callables take that experiment's settings ``st``:
     ``reps(task, st, policy)`` builds the model-free REPS baseline and ``reps_schedule(st)``
-    gives its (updates K, rollouts per update N, first batch N₀); ``reward_model(task, st)``
+    gives its (updates K, rollouts per update N, first batch N₀), by default
+    (``reps_updates``, ``reps_rollouts_per_update`` twice); ``reward_model(task, st)``
     is GPREPS's reward model, used by :meth:`make_gpreps` unless ``gpreps(task, st, policy,
     prior, rng)`` builds GPREPS itself; ``gpreps_schedule(st)`` defaults to (``n_updates``, 1,
     ``n_initial``) and ``gpreps_updates`` names the field of GPREPS's updates. ``setup(st,
@@ -90,7 +95,7 @@ class CurveTask:
     thresholds: tuple[float, ...]
     thresholds_source: str
     reps: Callable[..., Any]
-    reps_schedule: Callable[[Settings], tuple[int, int, int]]
+    reps_schedule: Callable[[Settings], tuple[int, int, int]] = _reps_schedule
     reward_model: Callable[..., Any] | None = None
     gpreps: Callable[..., Any] | None = None
     gpreps_schedule: Callable[[Settings], tuple[int, int, int]] = _gpreps_schedule

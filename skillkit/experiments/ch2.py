@@ -79,21 +79,14 @@ SCALES = scales(DMPImitationSettings())  # seconds: every scale is the thesis se
 def _run_trial(
     settings: DMPImitationSettings, rng: np.random.Generator, trial: TrialContext
 ) -> dict:
-    """Fit the DMP to the demonstration and roll out with and without its forcing term
-    (deterministic: ``rng`` is not used)."""
+    """Fit the DMP and roll out with and without its forcing term (``rng`` unused)."""
     trial.reset(total=3)
     times, q, qd, qdd = reach_demonstration(
         settings.duration, settings.dt, settings.q_start, settings.q_goal, settings.overshoot
     )
     trial.update()
-    dmp = DMP(
-        1,
-        n_basis=settings.n_basis,
-        alpha_x=settings.alpha_x,
-        beta_x=settings.beta_x,
-        alpha_z=settings.alpha_z,
-        dt=settings.dt,
-    ).fit(times, q, qd, qdd)
+    gains = {k: getattr(settings, k) for k in ("n_basis", "alpha_x", "beta_x", "alpha_z", "dt")}
+    dmp = DMP(1, **gains).fit(times, q, qd, qdd)
     trial.update()
     free = dmp.rollout(times, q[0], qd[0], weights=np.zeros_like(dmp.weights))
     fitted = dmp.rollout(times, q[0], qd[0])
@@ -173,6 +166,5 @@ register(
         settings=SCALES,
         run_trial=_run_trial,
         summarize=_summarize,
-        trials={"smoke": 1, "quick": 1, "paper": 1},
     )
 )

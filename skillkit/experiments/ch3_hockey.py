@@ -1,14 +1,12 @@
 """Chapter 3, robot hockey: ``fig3.5`` — contextual REPS (ε = 0.5) versus CrKR (linear kernel).
 
-Thesis (Sec. 3.4.2, Fig. 3.5): on the hockey task of Appendix C.2 contextual REPS ends with
-policies that hit the target puck in 95% of the contexts with a displacement error below
-20 cm; CrKR with a linear kernel stops improving earlier, with a lower hit rate. Both run the
-learning-curve experiment of :mod:`skillkit.experiments.curves` from the imitation policy,
-with :func:`heldout_scores` every ``heldout_every`` updates; 50 rollouts per update, the last
-200 reused (the thesis gives no batch size for hockey). CrKR (Eqs. 2.19–2.20) uses the kernel
-k(s, s') = zᵀz' + 1 on normalised contexts z = (s − s̄) / h (:class:`NormalisedLinear`) and
-the variance scale D = diag(Σ₀) / (k(s̄, s̄) + λ), so that its first exploration matches the
-diagonal of REPS's Σ₀. The claim is judged in ``skillkit/data/claims/ch3.toml``.
+Thesis (Sec. 3.4.2): on the hockey task of Appendix C.2 REPS's policies hit the target puck in
+95% of the contexts, displacement error below 20 cm; CrKR stops improving earlier. Both learn
+through :mod:`skillkit.experiments.curves` from the imitation policy (50 rollouts per update,
+the last 200 reused), scored by :func:`heldout_scores`. CrKR (Eqs. 2.19–2.20) uses
+k(s, s') = zᵀz' + 1 on z = (s − s̄) / h (:class:`NormalisedLinear`) and D = diag(Σ₀) /
+(k(s̄, s̄) + λ), so that its first exploration matches REPS's. Judged in
+``skillkit/data/claims/ch3.toml``.
 """
 
 from __future__ import annotations
@@ -21,8 +19,8 @@ import numpy as np
 import torch
 
 from skillkit._validation import check_array
-from skillkit.experiments.curves import curve_series, run_curve
-from skillkit.experiments.registry import Experiment, Series, register
+from skillkit.experiments.curves import curve_series, experiment, heldout_setup, run_curve
+from skillkit.experiments.registry import Series
 from skillkit.experiments.settings import Settings, scales, setting
 from skillkit.models.kernels import Linear
 from skillkit.tasks import make
@@ -36,29 +34,17 @@ class HockeySettings(Settings):
     """Settings of ``fig3.5`` (robot hockey, Sec. 3.4.2, App. C.2); see the module docstring."""
 
     task: Literal["hockey", "hockey-real"] = setting(
-        "hockey", "Registered task: the simulated setting of C.2 or its real-robot variant."
+        "hockey", "C.2's simulated task or its real-robot variant."
     )
     epsilon: float = setting(0.5, "KL bound ε of contextual REPS (Eq. 3.4, Sec. 3.4.2).", above=0)
-    crkr_lam: float = setting(
-        0.2, "CrKR's λ (Eqs 2.19–2.20): regulariser and exploration floor.", above=0
-    )
-    crkr_beta_scale: float = setting(
-        2.0, "CrKR's sample weights exp(β (R − max R)) with β = crkr_beta_scale / std(R).", above=0
-    )
+    crkr_lam: float = setting(0.2, "CrKR's λ (Eqs 2.19–2.20).", above=0)
+    crkr_beta_scale: float = setting(2.0, "CrKR's β = crkr_beta_scale / std(R).", above=0)
     n_updates: int = setting(16, "Policy updates per algorithm (Table 3.1 loop).", minimum=1)
     rollouts_per_update: int = setting(50, "Rollouts N between updates.", minimum=1)
-    n_reuse_batches: int = setting(
-        4, "Batches L each update reuses (REPS and CrKR): the last L × N = 200 rollouts.", minimum=1
-    )
+    n_reuse_batches: int = setting(4, "Batches L each update reuses (REPS and CrKR).", minimum=1)
     n_eval_contexts: int = setting(6, "Fixed contexts of the learning curve.", minimum=1)
-    n_heldout: int = setting(
-        30,
-        "Held-out contexts of the hit rate and the displacement error |d_T − d*| (m).",
-        minimum=1,
-    )
-    heldout_every: int = setting(
-        8, "Held-out evaluation every this many updates (and after the last).", minimum=1
-    )
+    n_heldout: int = setting(30, "Held-out contexts of the hit rate and error.", minimum=1)
+    heldout_every: int = setting(8, "Held-out evaluation every this many updates.", minimum=1)
 
 
 SCALES = scales(
@@ -78,6 +64,9 @@ SCALES = scales(
 ALGORITHMS = ("reps", "crkr")
 LABELS = {"reps": "contextual REPS (ε = 0.5)", "crkr": "CrKR (linear kernel)"}
 THESIS = {"reps_hit_rate": 0.95, "reps_displacement_error_m": 0.20}
+HOCKEY_SCORES = ("reward", "hit_rate", "displacement_error", "displacement_error_hits")
+"""Held-out scores summarised per method: ``displacement_error`` counts a miss as an error of
+d* (the target puck stays), ``displacement_error_hits`` is the placed puck's (hits only)."""
 
 
 class NormalisedLinear(Linear):
@@ -114,7 +103,6 @@ def make_algorithm(name: str, task, settings: HockeySettings):
     name : {"reps", "crkr"}
     task : skillkit.tasks.hockey.Hockey
     settings : HockeySettings
-        ``epsilon``, ``n_reuse_batches``, ``crkr_lam``, ``crkr_beta_scale``.
     """
     from skillkit.models.kernels import gram
     from skillkit.search import ContextualREPS, CrKR
@@ -181,16 +169,10 @@ def _run_trial(settings: HockeySettings, rng: np.random.Generator, trial: TrialC
     """Both algorithms, same task, same evaluation and held-out contexts."""
     task = make(settings.task)
     K, N = settings.n_updates, settings.rollouts_per_update
-    heldout = task.sample_context(rng, n=settings.n_heldout)
-    eval_contexts = task.sample_context(rng, n=settings.n_eval_contexts)
-    heldout_seed = int(rng.integers(2**63))
+    heldout, eval_contexts, score, seeds = heldout_setup(task, settings, rng, 2, heldout_scores)
     trial.reset(total=len(ALGORITHMS) * K)
-
-    def score(policy) -> dict:
-        return heldout_scores(task, policy, heldout, heldout_seed)
-
     out: dict = {"heldout_contexts": heldout}
-    for name, alg_rng in zip(ALGORITHMS, rng.spawn(len(ALGORITHMS)), strict=True):
+    for name, alg_rng in zip(ALGORITHMS, seeds, strict=True):
         t0 = time.perf_counter()
         algo = make_algorithm(name, task, settings)
         arrays, res = run_curve(
@@ -210,10 +192,6 @@ def _run_trial(settings: HockeySettings, rng: np.random.Generator, trial: TrialC
             out[f"{name}_{key}"] = res[key]
         out[f"{name}_wall_time_s"] = time.perf_counter() - t0  # this process's share
     return out
-
-
-def _stack(trials: list[dict], key: str) -> np.ndarray:
-    return np.array([np.asarray(t[key], dtype=float) for t in trials])
 
 
 def _nan_stats(values: np.ndarray) -> tuple[float, float]:
@@ -253,19 +231,14 @@ def _summarize(settings: HockeySettings, trials: list[dict]) -> tuple[list[Serie
             for key, xkey, panel, ylabel in panels
         ]
         stats = {}
-        for key in (
-            "mean_reward",
-            "heldout_reward",
-            "heldout_hit_rate",
-            "heldout_displacement_error",
-            "heldout_displacement_error_hits",
-        ):
-            vals = _stack(trials, f"{name}_{key}")
+        for key in ("mean_reward", *(f"heldout_{score}" for score in HOCKEY_SCORES)):
+            vals = np.array([np.asarray(t[f"{name}_{key}"], dtype=float) for t in trials])
             stats[f"initial_{key}"] = _nan_stats(vals[:, 0])[0]
             stats[f"final_{key}"], stats[f"final_{key}_std"] = _nan_stats(vals[:, -1])
             stats[f"final_{key}_per_trial"] = vals[:, -1].tolist()
-        curve = _stack(trials, f"{name}_mean_reward")
-        stats["initial_mean_reward_per_trial"] = curve[:, 0].tolist()
+        stats["initial_mean_reward_per_trial"] = [
+            float(t[f"{name}_mean_reward"][0]) for t in trials
+        ]
         lowest = min(np.min(t[f"{name}_heldout_blade_lowest"]) for t in trials)
         stats["heldout_blade_lowest_m"] = float(lowest)
         stats["failed_rollouts"] = int(sum(int(np.sum(t[f"{name}_n_failed"])) for t in trials))
@@ -279,14 +252,10 @@ def _summarize(settings: HockeySettings, trials: list[dict]) -> tuple[list[Serie
     return series, summary
 
 
-register(
-    Experiment(
-        id="fig3.5",
-        title="Robot hockey: contextual REPS (ε = 0.5) vs CrKR with a linear kernel",
-        settings_class=HockeySettings,
-        settings=SCALES,
-        run_trial=_run_trial,
-        summarize=_summarize,
-        trials={"smoke": 1, "quick": 1, "paper": 5},
-    )
+experiment(
+    "fig3.5",
+    "Robot hockey: contextual REPS (ε = 0.5) vs CrKR with a linear kernel",
+    SCALES,
+    _run_trial,
+    _summarize,
 )

@@ -1,13 +1,11 @@
 """Fig. 3.7: contextual REPS learns table-tennis returns (Sec. 3.4.3).
 
-Contextual REPS (ε = 0.6, Table 3.1) with a linear-Gaussian policy π(ω|s) = N(a + A s, Σ)
-learns the 17 DMP parameters ω = [g, ġ, τ] of :mod:`skillkit.tasks.table_tennis` from the
-context s = [v_x, v_y, v_z, b_x, b_y], starting from the demonstrated forehand, through the
-learning-curve experiment of :mod:`skillkit.experiments.curves`. The final policy mean is then
-played on fresh contexts and each shot classified (returned / net / out / missed), which shows
-the thesis's failure mode: a policy that puts the ball into the net, reward in [−0.05, −0.02].
-The claim is judged in ``skillkit/data/claims/ch3.toml``; the variants tried are in
-``data/notes/fig3.7.md``.
+Contextual REPS (ε = 0.6, Table 3.1) with π(ω|s) = N(a + A s, Σ) learns the 17 DMP parameters
+ω = [g, ġ, τ] of :mod:`skillkit.tasks.table_tennis` from s = [v_x, v_y, v_z, b_x, b_y] and the
+demonstrated forehand, through :mod:`skillkit.experiments.curves`. The final policy mean's
+shots on fresh contexts are classified (returned / net / out / missed), which shows the
+thesis's failure mode: balls into the net, reward in [−0.05, −0.02]. Judged in
+``skillkit/data/claims/ch3.toml``; the variants tried: ``data/notes/fig3.7.md``.
 """
 
 from __future__ import annotations
@@ -16,20 +14,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from skillkit.experiments.curves import curve_series, run_curve
-from skillkit.experiments.registry import Experiment, Series, register
+from skillkit.experiments.curves import curve_series, experiment, run_curve
+from skillkit.experiments.judge import quoted_numbers
+from skillkit.experiments.registry import Series
 from skillkit.experiments.settings import Settings, scales, setting
 from skillkit.policies.features import FeatureName
 from skillkit.policies.gaussian import effective_sample_size
 from skillkit.search.reps import ContextualREPS
 from skillkit.trial import TrialContext
 
-THESIS_GOOD_REWARD = -0.02
-"""Sec. 3.4.3: above −0.02 the ball lands within 20–30 cm of the target."""
-THESIS_NET_BAND = (-0.05, -0.02)
-"""Sec. 3.4.3: policies hitting the net reach rewards in this interval."""
-THESIS_ROLLOUTS = 4000
-"""Sec. 3.4.3: good policies after ~4000 rollouts."""
 OUTCOMES = ("returned", "net", "out", "missed")
 
 
@@ -37,35 +30,22 @@ OUTCOMES = ("returned", "net", "out", "missed")
 class TableTennisSettings(Settings):
     """Settings of ``fig3.7`` (table tennis, Sec. 3.4.3); paper: 120 updates × 50 rollouts.
 
-    The thesis leaves open the batch size, the baseline (linear V(s) = γᵀs) and the fit's
-    regularisation (none, as Eqs. 3.11–3.13: an update whose weights have a Kish ESS below
-    d + 1 = 18 keeps the policy, :class:`KeepPolicyREPS`, and is counted). :data:`REGULARISED`
-    is the fit of the stored variant run ``fig3.7-paper-s0-f82e2c5b`` and of fig4.12's REPS
-    baseline (not in the thesis).
+    The fit is unregularised as Eqs. 3.11–3.13 (an update whose Kish ESS is below d + 1 = 18
+    keeps the policy, :class:`KeepPolicyREPS`); :data:`REGULARISED` is the fit of the stored
+    variant run ``fig3.7-paper-s0-f82e2c5b`` and of fig4.12's REPS baseline.
     """
 
     epsilon: float = setting(0.6, "KL bound ε of contextual REPS (Eq. 3.4, Sec. 3.4.3).", above=0)
     rollouts_per_update: int = setting(50, "Rollouts N between updates.", minimum=1)
-    n_reuse_batches: int = setting(
-        4, "Batches L each update reuses: the last L × N = 200 rollouts (Sec. 3.4).", minimum=1
-    )
-    baseline_features: FeatureName = setting(
-        "linear", "Context features of the REPS value-function baseline V(s) (Eq. 3.8)."
-    )
+    n_reuse_batches: int = setting(4, "Batches L each update reuses (Sec. 3.4).", minimum=1)
+    baseline_features: FeatureName = setting("linear", "Context features of V(s) (Eq. 3.8).")
     min_effective_samples: float | None = setting(
-        None,
-        "Least effective sample size the weighted ML fit accepts (None: d + 1; below it "
-        "the update keeps the policy and is counted).",
-        minimum=0,
+        None, "Least ESS the ML fit accepts (None: d + 1).", minimum=0
     )
-    cov_shrinkage: float = setting(
-        0.0, "Weight of the previous Σ in the new one (0: the thesis's fit).", minimum=0
-    )
+    cov_shrinkage: float = setting(0.0, "Weight of the previous Σ in the new one.", minimum=0)
     n_updates: int = setting(20, "Policy updates (Table 3.1 loop).", minimum=1)
     n_eval_contexts: int = setting(8, "Fixed contexts of the learning curve.", minimum=1)
-    n_final_contexts: int = setting(
-        40, "Fresh contexts on which the final policy mean's shots are classified.", minimum=1
-    )
+    n_final_contexts: int = setting(40, "Contexts the final shots are classified on.", minimum=1)
 
 
 REGULARISED = {"cov_shrinkage": 0.2, "min_effective_samples": 10.0}
@@ -205,8 +185,10 @@ def shot_scores(task, policy, contexts, rng=None) -> tuple[dict[str, float], dic
 
 
 def summarize(settings: TableTennisSettings, trials: list[dict]) -> tuple[list[Series], dict]:
-    """Learning curve (mean ± std over trials, and each trial), the final policies' outcome
-    fractions, and the headline numbers next to the thesis's claims."""
+    """Learning curve (mean ± std and each trial), the final policies' outcome fractions and
+    the headline numbers beside the thesis's."""
+    thesis = quoted_numbers("fig3.7")  # rollouts, net band, good reward (Sec. 3.4.3)
+    good = thesis[3]
     x = np.asarray(trials[0]["rollouts"], dtype=float).tolist()
     curves = np.array([t["mean_reward"] for t in trials], dtype=float)
     panel, ylabel = "learning curve", "reward of the policy mean"
@@ -220,60 +202,46 @@ def summarize(settings: TableTennisSettings, trials: list[dict]) -> tuple[list[S
         log_x=False,
         xlabel="rollouts",
     )
-    series = [mean]
-    for i, c in enumerate(curves):
-        series.append(
-            Series(f"trial {i + 1}", x, c.tolist(), panel, "line", xlabel="rollouts", ylabel=ylabel)
-        )
-    series.append(
-        Series(
-            "thesis: good policy (−0.02)",
-            [x[0], x[-1]],
-            [THESIS_GOOD_REWARD] * 2,
-            panel,
-            "line",
-            xlabel="rollouts",
-            ylabel=ylabel,
-        )
-    )
-
+    lines = [(f"trial {i + 1}", x, c.tolist()) for i, c in enumerate(curves)]
+    lines.append(("thesis: good policy (−0.02)", [x[0], x[-1]], [good] * 2))
+    series = [mean] + [
+        Series(name, xs, ys, panel, "line", xlabel="rollouts", ylabel=ylabel)
+        for name, xs, ys in lines
+    ]
     final = np.array([float(np.mean(t["final_rewards"])) for t in trials])
     fractions = {
         o: [float(np.mean(np.asarray(t["final_outcomes"]) == o)) for t in trials] for o in OUTCOMES
     }
+    shares = {o: float(np.mean(fractions[o])) for o in OUTCOMES}
     series.append(
         Series(
             "final policy: share of shots",
             list(OUTCOMES),
-            [float(np.mean(fractions[o])) for o in OUTCOMES],
+            list(shares.values()),
             "final policy outcomes",
             "bar",
             xlabel="outcome",
             ylabel="fraction of shots",
         )
     )
-
-    mean_curve = np.asarray(mean.y)
-    reached = np.flatnonzero(mean_curve > THESIS_GOOD_REWARD)
+    reached = np.flatnonzero(np.asarray(mean.y) > good)
     returned_errors = _pooled(trials, "final_landing_error", "returned")
-    net_rewards = _pooled(trials, "final_rewards", "net")
+    net = _pooled(trials, "final_rewards", "net")
     summary = {
         "n_trials": len(trials),
         "initial_reward": float(curves[:, 0].mean()),
         "final_reward_per_trial": final.tolist(),
         "final_reward_mean": float(final.mean()),
         "final_curve_reward_per_trial": curves[:, -1].tolist(),
-        "fraction_runs_above_-0.02": float(np.mean(final > THESIS_GOOD_REWARD)),
+        "fraction_runs_above_-0.02": float(np.mean(final > good)),
         "net_fraction_per_trial": fractions["net"],
-        "net_fraction_mean": float(np.mean(fractions["net"])),
+        "net_fraction_mean": shares["net"],
         "fraction_runs_with_net_failures_above_10pct": float(
             np.mean(np.array(fractions["net"]) > 0.1)
         ),
-        "outcome_fractions_mean": {o: float(np.mean(fractions[o])) for o in OUTCOMES},
-        "net_shot_reward_mean": float(net_rewards.mean()) if net_rewards.size else None,
-        "net_shot_reward_range": [float(net_rewards.min()), float(net_rewards.max())]
-        if net_rewards.size
-        else None,
+        "outcome_fractions_mean": shares,
+        "net_shot_reward_mean": float(net.mean()) if net.size else None,
+        "net_shot_reward_range": [float(net.min()), float(net.max())] if net.size else None,
         "median_landing_error_of_returns_m": float(np.median(returned_errors))
         if returned_errors.size
         else None,
@@ -282,9 +250,9 @@ def summarize(settings: TableTennisSettings, trials: list[dict]) -> tuple[list[S
         "failed_rollouts": int(sum(t["n_failed"] for t in trials)),
         "skipped_updates": int(sum(t["n_skipped_updates"] for t in trials)),
         "thesis_numbers": {
-            "good_reward": THESIS_GOOD_REWARD,
-            "net_band": list(THESIS_NET_BAND),
-            "rollouts": THESIS_ROLLOUTS,
+            "good_reward": good,
+            "net_band": thesis[1:3],
+            "rollouts": int(thesis[0]),
         },
         "learned": bool(final.mean() > curves[:, 0].mean() + 0.05),
     }
@@ -299,14 +267,11 @@ def _pooled(trials: list[dict], key: str, outcome: str) -> np.ndarray:
     return np.concatenate(picked)
 
 
-register(
-    Experiment(
-        id="fig3.7",
-        title="Table tennis: contextual REPS (ε = 0.6) learning returns to a target",
-        settings_class=TableTennisSettings,
-        settings=SCALES,
-        run_trial=run_trial,
-        summarize=summarize,
-        trials={"smoke": 1, "quick": 1, "paper": 10},
-    )
+experiment(
+    "fig3.7",
+    "Table tennis: contextual REPS (ε = 0.6) learning returns to a target",
+    SCALES,
+    run_trial,
+    summarize,
+    (1, 1, 10),
 )

@@ -1,17 +1,12 @@
 """Chapter 3, ball throwing (Sec. 3.4.1, Fig. 3.3): contextual REPS vs REPS + extra context.
 
-Both arms run the learning-curve experiment of :mod:`skillkit.experiments.curves` (Table 3.1
-loop, contextual REPS, ε = 0.6, 25 rollouts per update, the last 200 reused) from the task's
-imitation policy with an exploration wide enough to reach the farthest targets
-(:meth:`~skillkit.tasks.planar.Throwing.initial_policy`). The *extra context* arm re-scores
-every throw in ``extra_contexts`` freshly drawn targets through the known reward model (the
-throw does not depend on the target), with importance weights.
-
-The summary splits the final policies' ball-to-target distances on a grid into near
-(x < 13 m) and far (x ≥ 13 m) targets, the thesis's "up to 0.5 m further away, otherwise below
-10 cm" (it prints "s ≤ [13, 3]", which contradicts "further away"); the claim is judged in
-``skillkit/data/claims/ch3.toml``. Early updates have fewer effective samples than parameters,
-so the ML fit floors every direction of Σ at ``cov_floor`` times its previous variance.
+Both arms learn through :mod:`skillkit.experiments.curves` (contextual REPS, ε = 0.6, 25
+rollouts per update, the last 200 reused) from the task's imitation policy, its exploration
+wide enough for the farthest targets; the *extra context* arm re-scores every throw in
+``extra_contexts`` fresh targets through the known reward model, with importance weights. The
+summary splits the final ball-to-target distances into near (x < 13 m) and far targets, the
+thesis's "up to 0.5 m further away, otherwise below 10 cm" (judged in
+``skillkit/data/claims/ch3.toml``). The ML fit floors Σ at ``cov_floor`` (few early samples).
 """
 
 from __future__ import annotations
@@ -21,8 +16,8 @@ from typing import Literal
 
 import numpy as np
 
-from skillkit.experiments.curves import curve_series, curve_stats, run_curve
-from skillkit.experiments.registry import Experiment, Series, register
+from skillkit.experiments.curves import curve_series, curve_stats, experiment, run_curve
+from skillkit.experiments.registry import Series
 from skillkit.experiments.settings import Settings, scales, setting
 from skillkit.policies.features import FeatureName
 from skillkit.policies.gaussian import LinearGaussianPolicy
@@ -49,36 +44,24 @@ class ThrowingSettings(Settings):
     n_eval_contexts: int = setting(8, "Fixed targets of the learning curve.", minimum=1)
     epsilon: float = setting(0.6, "KL bound ε of contextual REPS (Eq. 3.4, Sec. 3.4.1).", above=0)
     rollouts_per_update: int = setting(25, "Rollouts N between updates (Sec. 3.4.1).", minimum=1)
-    n_reuse_batches: int = setting(
-        8, "Batches L each update reuses: the last L × N = 200 rollouts (Sec. 3.4.1).", minimum=1
-    )
-    extra_contexts: int = setting(
-        20, "Extra contexts each throw is re-scored in, extra-context arm (Sec. 3.4.1).", minimum=0
-    )
-    baseline_features: FeatureName = setting(
-        "quadratic", "Context features of the REPS value-function baseline V(s) (Eq. 3.8)."
-    )
+    n_reuse_batches: int = setting(8, "Batches L each update reuses (Sec. 3.4.1).", minimum=1)
+    extra_contexts: int = setting(20, "Contexts each throw is re-scored in (extra arm).", minimum=0)
+    baseline_features: FeatureName = setting("quadratic", "Context features of V(s) (Eq. 3.8).")
     policy_features: FeatureName = setting(
-        "linear", "Context features φ(s) of the policy π(ω|s) = N(a + A φ(s), Σ) (Eq. 3.10)."
+        "linear", "Context features φ(s) of the policy (Eq. 3.10)."
     )
     min_effective_samples: float = setting(
-        2.0, "Least effective sample size the weighted ML fit accepts (Eqs 3.11–3.13).", minimum=0
+        2.0, "Least ESS the ML fit accepts (Eqs 3.11–3.13).", minimum=0
     )
     cov_floor: float = setting(
-        0.1,
-        "No direction of Σ shrinks below this fraction of its previous variance per update.",
-        above=0,
-        maximum=1,
+        0.1, "Least share of each variance of Σ an update keeps.", above=0, maximum=1
     )
     cov_shrinkage: float = setting(0.0, "Weight of the previous Σ in the new one.", minimum=0)
     initial_std_fraction: float = setting(
-        0.9,
-        "Initial shape-weight std relative to each joint's largest demonstrated weight "
-        "(sampled throws reach x = 15 m; Sec. 3.5).",
-        above=0,
+        0.9, "Initial std / largest demonstrated weight.", above=0
     )
     m_step: Literal["weighted_ml", "trust_region"] = setting(
-        "weighted_ml", "M-step: the weighted ML fit (Eqs 3.11–3.13) or its trust-region correction."
+        "weighted_ml", "The weighted ML fit (Eqs 3.11–3.13) or its trust-region correction."
     )
     grid_x: tuple[float, ...] = setting(
         (5.0, 6.0, 7.0, 8.0, 9.0, 10.0, 11.0, 12.0, 13.0, 14.0, 15.0),
@@ -115,13 +98,9 @@ def final_errors(task, policy, targets: np.ndarray) -> tuple[np.ndarray, np.ndar
     dist, penalty = [], []
     for w, s in zip(means, targets, strict=True):
         traj = task.rollout(w, s, rng=0)
-        if traj.failed:
-            dist.append(np.nan)
-            penalty.append(np.nan)
-            continue
-        terms = task.reward_terms(traj, s)
-        dist.append(terms["distance"])
-        penalty.append(terms["joint_penalty"])
+        terms = {} if traj.failed else task.reward_terms(traj, s)
+        dist.append(terms.get("distance", np.nan))
+        penalty.append(terms.get("joint_penalty", np.nan))
     return np.array(dist), np.array(penalty)
 
 
@@ -131,10 +110,9 @@ def run_trial(settings: ThrowingSettings, rng: np.random.Generator, trial: Trial
     Returns
     -------
     dict
-        ``rollouts`` (K+1,); per method m in {"reps", "extra"}: ``{m}_mean_reward`` (K+1,)
-        learning curve, ``{m}_explore_reward`` (K,), ``{m}_failed`` (K,),
-        ``{m}_distance`` and ``{m}_penalty`` (n_targets,) of the final policy mean on
-        :func:`target_grid`; ``targets`` (n_targets, 2).
+        ``rollouts`` (K+1,); per method m in {"reps", "extra"}: ``{m}_mean_reward`` (K+1,),
+        ``{m}_explore_reward`` and ``{m}_failed`` (K,), the final policy mean's
+        ``{m}_distance`` and ``{m}_penalty`` on ``targets`` (:func:`target_grid`).
     """
     task = make("throwing")
     eval_contexts = task.sample_context(rng, n=settings.n_eval_contexts)
@@ -223,16 +201,13 @@ def summarize(settings: ThrowingSettings, trials: list[dict]) -> tuple[list[Seri
             & (near_max < THESIS["near_max_error_m"])
             & (far_max <= THESIS["far_max_error_m"])
         )
-        summary[key] = {
-            **curve_stats(trials, key),
-            "near_distance_mean_m": float(np.nanmean(dist[:, ~far])),
-            "near_distance_max_m": float(np.nanmax(dist[:, ~far])),
-            "far_distance_mean_m": float(np.nanmean(dist[:, far])),
-            "far_distance_max_m": float(np.nanmax(dist[:, far])),
-            "near_distance_max_per_trial_m": near_max.tolist(),
-            "far_distance_max_per_trial_m": far_max.tolist(),
-            "near_distance_trial_max_median_m": _median(near_max),
-            "far_distance_trial_max_median_m": _median(far_max),
+        summary[key] = stats = curve_stats(trials, key)
+        for side, cols, top in (("near", ~far, near_max), ("far", far, far_max)):
+            stats[f"{side}_distance_mean_m"] = float(np.nanmean(dist[:, cols]))
+            stats[f"{side}_distance_max_m"] = float(np.nanmax(dist[:, cols]))
+            stats[f"{side}_distance_max_per_trial_m"] = top.tolist()
+            stats[f"{side}_distance_trial_max_median_m"] = _median(top)
+        stats |= {
             "trials_within_bounds": int(within.sum()),
             "within_bounds_per_trial": within.tolist(),
             "final_joint_penalty_mean": float(np.nanmean(pen)),
@@ -252,8 +227,7 @@ def summarize(settings: ThrowingSettings, trials: list[dict]) -> tuple[list[Seri
 
 
 def _trial_max(dist: np.ndarray) -> np.ndarray:
-    """Largest distance per trial (row) of ``dist`` (trials, targets), failed throws (NaN)
-    left out as in the pooled numbers; NaN for a trial whose throws all failed."""
+    """Largest distance per trial (row), failed throws (NaN) left out; NaN if all failed."""
     top = np.where(np.isnan(dist), -np.inf, dist).max(axis=1)
     return np.where(np.isfinite(top), top, np.nan)
 
@@ -264,14 +238,11 @@ def _median(values: np.ndarray) -> float | None:
     return float(np.median(finite)) if finite.size else None
 
 
-register(
-    Experiment(
-        id="fig3.3",
-        title="Ball throwing: contextual REPS vs REPS + extra context (planar 4-link robot)",
-        settings_class=ThrowingSettings,
-        settings=SCALES,
-        run_trial=run_trial,
-        summarize=summarize,
-        trials={"smoke": 2, "quick": 2, "paper": 20},
-    )
+experiment(
+    "fig3.3",
+    "Ball throwing: contextual REPS vs REPS + extra context (planar 4-link robot)",
+    SCALES,
+    run_trial,
+    summarize,
+    (2, 2, 20),
 )

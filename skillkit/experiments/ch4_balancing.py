@@ -1,17 +1,12 @@
 """Chapter 4, Table 4.2: balancing with PILCO, GPREPS and REPS (Sec. 4.3.1).
 
-How much real experience each method needs to find a PD controller u = G x̃ (ω = the 32 gains
-of G) that balances the planar 4-link robot, and how much computation. Every method starts
-from the same Gaussian π₀(ω) (:func:`initial_policy_42`, far below the first limit) and is
-scored after every update by the mean reward R = −Σ_t x̃_tᵀ x̃_t of its current controller from
-start states common to the methods of a trial.
-
-PILCO (FITC dynamics, moment matching, analytic gradients) and GPREPS (the same model, M
-gains × L predicted trajectories, ε = 1) make one real rollout per update, model-free REPS 25.
-
-The model-based methods start from 6 s of real experience of a random policy (gains from π₀
-with white torque excitation), which counts as experience. Departures from the thesis are in
-the claims spec's setup table (``skillkit/data/claims/ch4.toml``).
+How much real experience (and computation) each method needs to find a PD controller
+u = G x̃ (ω = the 32 gains of G) that balances the planar 4-link robot. Every method starts
+from the same π₀(ω) (:func:`initial_policy_42`) and is scored after every update by the mean
+reward R = −Σ_t x̃_tᵀ x̃_t of its controller from start states common to a trial. PILCO (FITC
+dynamics, moment matching) and GPREPS (the same model, M gains × L predicted trajectories,
+ε = 1) make one real rollout per update after 6 s of random-policy experience (counted),
+REPS 25. Departures from the thesis: the setup table of ``skillkit/data/claims/ch4.toml``.
 """
 
 from __future__ import annotations
@@ -22,10 +17,16 @@ from functools import partial
 
 import numpy as np
 
-from skillkit.experiments.ch4_gpreps import COV_FLOOR, MIN_EFFECTIVE_SAMPLES
-from skillkit.experiments.curves import CurveTask, register_curve_task
+from skillkit.experiments.curves import (
+    COV_FLOOR,
+    MIN_EFFECTIVE_SAMPLES,
+    CurveTask,
+    experiment,
+    register_curve_task,
+    regularised_reps,
+)
 from skillkit.experiments.judge import quoted_numbers
-from skillkit.experiments.registry import Experiment, Series, register
+from skillkit.experiments.registry import Series
 from skillkit.experiments.settings import Settings, scales, setting
 from skillkit.models.gp import ForwardModel
 from skillkit.models.linear import LinearGaussianModel
@@ -52,13 +53,8 @@ __all__ = [
 
 METHODS = ("pilco", "gpreps", "reps")
 LINEAR_METHODS = ("pilco_linear", "gpreps_linear")
-LABELS = {
-    "pilco": "PILCO",
-    "gpreps": "GPREPS",
-    "reps": "REPS",
-    "pilco_linear": "PILCO (linear model)",
-    "gpreps_linear": "GPREPS (linear model)",
-}
+LABELS = {"pilco": "PILCO", "gpreps": "GPREPS", "reps": "REPS"}
+LABELS |= {f"{m}_linear": f"{LABELS[m]} (linear model)" for m in ("pilco", "gpreps")}
 
 
 def thesis_42() -> dict:
@@ -75,46 +71,28 @@ def thesis_42() -> dict:
 class BalancingComparisonSettings(Settings):
     """Settings of ``tab4.2`` (PILCO, GPREPS and REPS on balancing, Sec. 4.3.1)."""
 
-    initial_std: float = setting(
-        0.07, "σ of the start distribution x₀ ~ N(x_up, σ² I) (rad, rad/s).", above=0
-    )
+    initial_std: float = setting(0.07, "σ of x₀ ~ N(x_up, σ² I) (rad, rad/s).", above=0)
     limits: tuple[float, ...] = setting((-100.0, -10.0, -1.5), "Reward limits of Table 4.2.")
     start_control_weight: float = setting(
-        1.0, "R of the LQR design whose scaled gain is π₀'s mean (R ≥ 1: minimum effort).", above=0
+        1.0, "R of the LQR design scaled into π₀'s mean.", above=0
     )
     start_gain_scale: float = setting(
-        0.68, "κ: π₀'s mean is κ G_lqr(R = start_control_weight), a detuned controller.", above=0
+        0.68, "κ: π₀'s mean is κ G_lqr(start_control_weight).", above=0
     )
-    exploration: float = setting(
-        0.7, "c: π₀'s covariance is c² times that of random LQR designs (design_policy).", above=0
-    )
+    exploration: float = setting(0.7, "c: π₀'s covariance is c² that of the designs.", above=0)
     n_designs: int = setting(300, "Designs whose covariance shapes π₀'s.", minimum=2)
-    design_spread: float = setting(
-        2.0, "Log-scale spread of the designs' cost weights (random_lqr_gains).", minimum=0
-    )
+    design_spread: float = setting(2.0, "Log-scale spread of the designs' cost weights.", minimum=0)
     design_control_weight: float = setting(1e-2, "Base R of the designs.", above=0)
-    gain_scale_std: float = setting(
-        0.15, "σ of the designs' log overall gain level (κ_i = exp(0.15 ξ)).", minimum=0
-    )
+    gain_scale_std: float = setting(0.15, "σ of the designs' log gain level.", minimum=0)
     design_seed: int = setting(0, "Seed of the designs: the same π₀ everywhere.", minimum=0)
-    common_start_states: bool = setting(
-        True, "GPREPS predicts all gains of an update from the same L start states (Eq. 4.1)."
-    )
-    excitation_std: float = setting(
-        3.0, "σ_ξ (N m) of the torque excitation of the random-policy rollouts.", minimum=0
-    )
-    n_random: int = setting(
-        12, "Random-policy rollouts (n_random × random_steps × 50 ms = 6 s, Sec. 4.3.1).", minimum=1
-    )
+    common_start_states: bool = setting(True, "One set of L start states per update (Eq. 4.1).")
+    excitation_std: float = setting(3.0, "σ_ξ (N m) of the random policy's torques.", minimum=0)
+    n_random: int = setting(12, "Random-policy rollouts (6 s in all, Sec. 4.3.1).", minimum=1)
     random_steps: int = setting(10, "Control steps of each random-policy rollout.", minimum=1)
     n_eval: int = setting(50, "Evaluation start states, common to the methods.", minimum=1)
     n_inducing: int = setting(100, "Pseudo-inputs of the FITC dynamics model.", minimum=1)
-    model_mean: str = setting(
-        "linear", "Prior mean of the FITC model: 'linear' (least squares) or 'zero' (PILCO's)."
-    )
-    linear_variant: bool = setting(
-        True, "Also run PILCO and GPREPS with a linear-Gaussian model (a diagnostic variant)."
-    )
+    model_mean: str = setting("linear", "FITC prior mean: 'linear' or 'zero' (PILCO's).")
+    linear_variant: bool = setting(True, "Also run PILCO and GPREPS with a linear model.")
     gp_steps: int = setting(100, "L-BFGS iterations of each FITC hyper-parameter fit.", minimum=0)
     pilco_updates: int = setting(10, "PILCO updates (one real rollout each).", minimum=1)
     policy_iterations: int = setting(50, "L-BFGS iterations of each PILCO update.", minimum=1)
@@ -160,7 +138,6 @@ def initial_policy_42(st: BalancingComparisonSettings, task: Balancing) -> Gauss
     )
 
 
-# --------------------------------------------------------------------------- one trial
 def _fitc(n_inducing: int, n_steps: int, mean: str) -> ForwardModel:
     # Δx targets (ForwardModel's default target is x′).
     return ForwardModel(FITC(n_inducing=n_inducing, n_steps=n_steps), target="delta", mean=mean)
@@ -175,29 +152,8 @@ def random_experience(task: Balancing, trajectories) -> float:
     return float(sum(steps) * task.control_dt)
 
 
-def _compute(diagnostics, parts) -> np.ndarray:
-    """Cumulative seconds of the given ``time_*`` parts after 0, 1, …, K updates."""
-    per = [sum(getattr(d, f"time_{p}") for p in parts) for d in diagnostics]
-    return np.concatenate([[0.0], np.cumsum(per)])
-
-
-def _curves(key, c, offset_s, rollout_s, parts) -> dict:
-    """A model-based run's curves: experience, evaluated reward, cumulative compute, and
-    the model's prediction of each real rollout's reward against the real one."""
-    d = c["diagnostics"]
-    return {
-        f"{key}_experience": offset_s + rollout_s * c["rollouts"],
-        f"{key}_mean_reward": c["mean_reward"],
-        f"{key}_time_cumulative": _compute(d, parts),
-        f"{key}_predicted": np.array(
-            [np.nan if x.predicted_real_reward is None else x.predicted_real_reward for x in d]
-        ),
-        f"{key}_real": np.array([x.real_reward for x in d]),
-    }
-
-
 def _run_model_based(task, st, pi0, prior, key, make_model, rng, trial, evals, eval_seed) -> dict:
-    """PILCO (``key`` ``"pilco..."``) or GPREPS from the ``prior`` trajectories; its curves."""
+    """PILCO (``key`` "pilco...") or GPREPS from ``prior``: experience, reward, compute."""
     alg_rng, loop_rng = rng.spawn(2)
     if key.startswith("pilco"):
         settings = PILCOSettings(policy_iterations=st.policy_iterations)
@@ -217,8 +173,18 @@ def _run_model_based(task, st, pi0, prior, key, make_model, rng, trial, evals, e
         eval_contexts=evals,
         eval_seed=eval_seed,
     )
+    d = c["diagnostics"]
+    per = [sum(getattr(x, f"time_{p}") for p in parts) for x in d]
     rollout_s = task.n_steps * task.control_dt
-    return _curves(key, c, random_experience(task, prior), rollout_s, parts)
+    return {  # with the model's prediction of each real rollout's reward and the real one
+        f"{key}_experience": random_experience(task, prior) + rollout_s * c["rollouts"],
+        f"{key}_mean_reward": c["mean_reward"],
+        f"{key}_time_cumulative": np.concatenate([[0.0], np.cumsum(per)]),
+        f"{key}_predicted": np.array(
+            [np.nan if x.predicted_real_reward is None else x.predicted_real_reward for x in d]
+        ),
+        f"{key}_real": np.array([x.real_reward for x in d]),
+    }
 
 
 def random_prior(st: BalancingComparisonSettings, pi0: GaussianPolicy, rng) -> dict:
@@ -258,14 +224,7 @@ def gpreps_algorithm(task, st: BalancingComparisonSettings, pi0, prior, make_mod
 
 def reps_algorithm(st: BalancingComparisonSettings, pi0) -> ContextualREPS:
     """Table 4.2's model-free REPS (no initial data)."""
-    return ContextualREPS(
-        pi0,
-        st.reps_epsilon,
-        n_reuse_batches=st.reps_reuse_batches,
-        baseline_features="linear",
-        cov_floor=COV_FLOOR,
-        min_effective_samples=MIN_EFFECTIVE_SAMPLES,
-    )
+    return regularised_reps(pi0, st.reps_epsilon, st.reps_reuse_batches, "linear")
 
 
 def fitc_model(st: BalancingComparisonSettings):
@@ -324,7 +283,6 @@ def run_trial_42(st: BalancingComparisonSettings, rng: np.random.Generator, tria
     return out
 
 
-# --------------------------------------------------------------------------- summary
 def experience_to_reach(experience, rewards, limit: float) -> float | None:
     """Experience (s) at the first evaluation whose reward is ≥ ``limit``; None if never.
 
@@ -347,38 +305,26 @@ def _first_index(rewards, limit) -> int | None:
 
 
 def _method_table(st, trials, key) -> dict:
+    cols = {"experience_s": "experience"}
+    if key != "reps":
+        cols["compute_time_s"] = "time_cumulative"
     rows = {}
     for limit in st.limits:
-        per = [
-            experience_to_reach(t[f"{key}_experience"], t[f"{key}_mean_reward"], limit)
-            for t in trials
-        ]
-        reached = [x for x in per if x is not None]
-        row = {
-            "experience_s_per_trial": per,
-            "experience_s_mean": float(np.mean(reached)) if reached else None,
-            "experience_s_median": median_reached(per),
-            "n_reached": len(reached),
-        }
-        if key != "reps":
-            idx = [_first_index(t[f"{key}_mean_reward"], limit) for t in trials]
-            comp = [
-                None if i is None else float(t[f"{key}_time_cumulative"][i])
+        idx = [_first_index(t[f"{key}_mean_reward"], limit) for t in trials]
+        row: dict = {"n_reached": sum(i is not None for i in idx)}
+        for name, col in cols.items():
+            per = [
+                None if i is None else float(t[f"{key}_{col}"][i])
                 for t, i in zip(trials, idx, strict=True)
             ]
-            done = [c for c in comp if c is not None]
-            row["compute_time_s_mean"] = float(np.mean(done)) if done else None
-            row["compute_time_s_per_trial"] = comp
-            row["compute_time_s_median"] = median_reached(comp)
-        # A trial that never reaches the limit counts its whole run (a lower bound).
-        row["experience_s_censored_per_trial"] = [
-            float(t[f"{key}_experience"][-1]) if x is None else x
-            for t, x in zip(trials, per, strict=True)
-        ]
-        if key != "reps":
-            row["compute_time_s_censored_per_trial"] = [
-                float(t[f"{key}_time_cumulative"][-1]) if c is None else c
-                for t, c in zip(trials, comp, strict=True)
+            done = [x for x in per if x is not None]
+            row[f"{name}_per_trial"] = per
+            row[f"{name}_mean"] = float(np.mean(done)) if done else None
+            row[f"{name}_median"] = median_reached(per)
+            # A trial that never reaches the limit counts its whole run (a lower bound).
+            row[f"{name}_censored_per_trial"] = [
+                float(t[f"{key}_{col}"][-1]) if x is None else x
+                for t, x in zip(trials, per, strict=True)
             ]
         rows[f"{limit:g}"] = row
     final = [float(t[f"{key}_mean_reward"][-1]) for t in trials]
@@ -394,20 +340,18 @@ def _method_table(st, trials, key) -> dict:
         ok = np.isfinite(pred) & (real > -1e6)
         rel = np.abs(pred[ok] - real[ok]) / np.abs(real[ok])
         out["prediction_relative_error_median"] = float(np.median(rel)) if rel.size else None
-        out["compute_time_s_total_mean"] = float(
-            np.mean([t[f"{key}_time_cumulative"][-1] for t in trials])
-        )
-    else:
-        out["compute_time_s_total_mean"] = float(np.mean([t["reps_time_total"] for t in trials]))
+    times = [
+        t["reps_time_total"] if key == "reps" else t[f"{key}_time_cumulative"][-1] for t in trials
+    ]
+    out["compute_time_s_total_mean"] = float(np.mean(times))
     return out
 
 
 def summarize_42(st: BalancingComparisonSettings, trials: list[dict]):
     """The cost curves of every method and, per method and limit, the experience (and for the
-    model-based methods the computation time) to reach it per trial: as measured (None: never
-    reached), its mean over the trials that reached, its median, and censored (a trial that
-    never reaches counts its whole run, a lower bound); final rewards; π₀'s start reward."""
-    series = []
+    model-based methods the computation time) to reach it: per trial (None: never), mean over
+    the trials that reached, median and censored; final rewards; π₀'s start reward."""
+    series, panel = [], "cost of the current controller"
     for key in methods(st):
         costs = [np.maximum(-np.asarray(t[f"{key}_mean_reward"], float), 1e-12) for t in trials]
         mean, band = trial_band(costs, kind="gstd")
@@ -416,7 +360,7 @@ def summarize_42(st: BalancingComparisonSettings, trials: list[dict]):
                 LABELS[key],
                 list(map(float, trials[0][f"{key}_experience"])),
                 mean,
-                panel="cost of the current controller",
+                panel=panel,
                 xlabel="real experience (s)",
                 ylabel="−reward (50 common start states)",
                 log_x=True,
@@ -426,16 +370,7 @@ def summarize_42(st: BalancingComparisonSettings, trials: list[dict]):
         )
     x_all = np.concatenate([t[f"{k}_experience"] for t in trials for k in methods(st)])
     lo, hi = float(np.min(x_all[x_all > 0])), float(np.max(x_all))
-    for limit in st.limits:
-        series.append(
-            Series(
-                f"limit {limit:g}",
-                [lo, hi],
-                [-limit, -limit],
-                panel="cost of the current controller",
-                kind="line",
-            )
-        )
+    series += [Series(f"limit {v:g}", [lo, hi], [-v, -v], panel, "line") for v in st.limits]
     summary: dict = {"n_trials": len(trials), "thesis_numbers": thesis_42()}
     for key in methods(st):
         summary[key] = _method_table(st, trials, key)
@@ -454,7 +389,6 @@ def median_reached(per_trial) -> float | None:
     return float(x) if np.isfinite(x) else None
 
 
-# --------------------------------------------------------------------------- registration
 _SMOKE = dict(
     n_inducing=15,
     gp_steps=5,
@@ -468,29 +402,25 @@ _SMOKE = dict(
     n_eval=5,
 )
 
-register(
-    Experiment(
-        id="tab4.2",
-        title="Balancing: real experience PILCO, GPREPS and REPS need to reach −100, −10, −1.5",
-        settings_class=BalancingComparisonSettings,
-        settings=scales(
-            BalancingComparisonSettings(),
-            smoke=_SMOKE,
-            quick=dict(
-                pilco_updates=6,
-                policy_iterations=30,
-                gp_steps=50,
-                gpreps_updates=10,
-                n_artificial=200,
-                n_trajectories=5,
-                reps_updates=50,
-            ),
-            paper=dict(pilco_updates=12, gpreps_updates=30, reps_updates=400),
+experiment(
+    "tab4.2",
+    "Balancing: real experience PILCO, GPREPS and REPS need to reach −100, −10, −1.5",
+    scales(
+        BalancingComparisonSettings(),
+        smoke=_SMOKE,
+        quick=dict(
+            pilco_updates=6,
+            policy_iterations=30,
+            gp_steps=50,
+            gpreps_updates=10,
+            n_artificial=200,
+            n_trajectories=5,
+            reps_updates=50,
         ),
-        run_trial=run_trial_42,
-        summarize=summarize_42,
-        trials={"smoke": 1, "quick": 1, "paper": 5},
-    )
+        paper=dict(pilco_updates=12, gpreps_updates=30, reps_updates=400),
+    ),
+    run_trial_42,
+    summarize_42,
 )
 
 

@@ -1,21 +1,13 @@
 """Chapter 4, GPREPS with discrete-event models: hockey (Sec. 4.3.3) and the GPREPS runs
 shared with table tennis (Sec. 4.3.4, :mod:`skillkit.experiments.ch4_table_tennis`).
 
-Every GPREPS run follows Table 4.1: N₀ = 20 real rollouts before the first update (Sec. 4.1:
-"e.g. N = 20"), then one per update, M artificial (s, ω) pairs with L predicted trajectories
-each, ε = 0.5, μ̂(s) the box of the observed contexts. All methods start from the task's
-imitation policy and are scored by :mod:`skillkit.experiments.curves`: the reward of the policy
-mean on fixed contexts after every update and, every few updates, the task's held-out scores
-(hit rate and displacement error for hockey; outcome and landing error for table tennis).
-
-* ``fig4.10`` — hockey: GPREPS with the decomposed model of 4.3.3
-  (:class:`~skillkit.tasks.hockey.model.HockeyRewardModel`) against contextual REPS with
-  ``fig3.5``'s settings.
-* ``fig4.11`` — the real-robot setting (``hockey-real``: C.2's ranges, 30 Hz noisy puck
-  tracking, Butterworth smoothing) with a displacement model in place of the contact model.
-  GPREPS only, 5 runs, a 95% confidence band.
-
-How each run is judged is the claims spec's (``skillkit/data/claims/ch4.toml``).
+GPREPS follows Table 4.1: N₀ = 20 real rollouts (Sec. 4.1), then one per update, M pairs × L
+predicted trajectories, ε = 0.5, μ̂(s) the box of the observed contexts. Every method learns
+from the task's imitation policy through :mod:`skillkit.experiments.curves`, with the task's
+held-out scores every few updates. ``fig4.10``: hockey, GPREPS with the decomposed model of
+4.3.3 against REPS with ``fig3.5``'s settings; ``fig4.11``: the real-robot setting
+(``hockey-real``: noisy 30 Hz puck tracking) with a displacement model, GPREPS only, a 95%
+confidence band. The claims are judged in ``skillkit/data/claims/ch4.toml``.
 """
 
 from __future__ import annotations
@@ -27,30 +19,28 @@ from typing import Literal
 import numpy as np
 from scipy import stats
 
-from skillkit.experiments.ch3_hockey import HockeySettings, heldout_scores
+from skillkit.experiments.ch3_hockey import HOCKEY_SCORES, HockeySettings, heldout_scores
 from skillkit.experiments.ch3_hockey import make_algorithm as hockey_algorithm
 from skillkit.experiments.curves import (
     CurveTask,
     curve_series,
+    experiment,
     gpreps_stats,
+    heldout_setup,
     heldout_stats,
+    kept_model,
     register_curve_task,
     rollouts_to_reach,
     run_curve,
     run_gpreps,
 )
-from skillkit.experiments.registry import Experiment, register
+from skillkit.experiments.judge import quoted_numbers, thesis_value
 from skillkit.experiments.settings import Settings, scales, setting
 from skillkit.models.gp import ExactGP
-from skillkit.search.loop import policy_history_arrays
 from skillkit.tasks import make
 from skillkit.trial import TrialContext
-from skillkit.viz.model_layers import dumps_reward_model
 
 __all__ = ["HockeyGPREPSSettings", "hockey_reward_model"]
-
-THESIS_410 = {"gpreps_rollouts": 120, "gpreps_displacement_error_m": 0.05, "reps_rollouts": 10000}
-"""The thesis's numbers on Fig. 4.10, kept in the summary as ``thesis_numbers``."""
 
 
 @dataclass(frozen=True)
@@ -61,12 +51,7 @@ class EventGPREPSSettings(Settings):
     n_updates: int = setting(100, "GPREPS updates, one real rollout each.", minimum=1)
     n_artificial: int = setting(500, "M, artificial (s, ω) pairs per update.", minimum=2)
     n_trajectories: int = setting(10, "L, predicted trajectories per pair (Eq. 4.1).", minimum=1)
-    epsilon: float = setting(
-        0.5,
-        "KL bound ε of GPREPS: the thesis's REPS value on hockey "
-        "(throwing's ε = 1 collapsed the search, data/notes/fig4.10.md).",
-        above=0,
-    )
+    epsilon: float = setting(0.5, "KL bound ε of GPREPS (data/notes/fig4.10.md).", above=0)
     context_model: Literal["gaussian", "uniform", "prior"] = setting(
         "uniform", "μ̂(s): the box of the observed contexts."
     )
@@ -81,24 +66,18 @@ class HockeyGPREPSSettings(EventGPREPSSettings):
     """Settings of ``fig4.10`` and ``fig4.11`` (hockey; REPS with ``fig3.5``'s settings)."""
 
     task: Literal["hockey", "hockey-real"] = setting(
-        "hockey", "Registered task: hockey (fig4.10) or hockey-real (fig4.11)."
+        "hockey", "hockey (fig4.10) or hockey-real (fig4.11)."
     )
-    slide_dt: float = setting(
-        0.04, "Step of the sliding-puck model, s (hockey-real: its 30 Hz frame period).", above=0
-    )
+    slide_dt: float = setting(0.04, "Sliding-puck model step, s (real: frame period).", above=0)
     max_sliding_points: int = setting(150, "Transitions the sliding GP is fitted on.", minimum=2)
     refit: Literal["best", "cold", "warm"] = setting(
-        "best",
-        "Start of each GP refit (Sec. 4.1): default initialisation (cold), previous "
-        "values (warm), or both keeping the larger marginal likelihood (best).",
+        "best", "GP refit start (Sec. 4.1): cold, warm or the better of both."
     )
     launch_targets: Literal["heading", "velocity"] = setting(
-        "heading", "Launch GP outputs: [p_y, heading, speed, t_0] or [p_y, v_x, v_y, t_0]."
+        "heading", "Launch GP outputs: heading and speed, or v_x and v_y."
     )
     displacement: Literal["hit_gp", "gp"] = setting(
-        "hit_gp",
-        "hockey-real's displacement model: a hit/miss classifier and a GP on the hits, "
-        "or one GP on all approaches.",
+        "hit_gp", "hockey-real: a hit classifier and a GP on hits, or one GP."
     )
     reps_updates: int = setting(200, "REPS updates (0: no REPS run).", minimum=0)
     reps_rollouts_per_update: int = setting(50, "REPS rollouts per update (fig3.5).", minimum=1)
@@ -136,7 +115,6 @@ def gpreps_scales(cls, smoke: dict, quick: dict, paper: dict | None = None) -> d
     )
 
 
-# --------------------------------------------------------------------------- models
 def hockey_reward_model(task, st: HockeyGPREPSSettings):
     """The decomposed hockey reward model of GPREPS (Sec. 4.3.3) with ``st``'s GP fits
     (:class:`~skillkit.tasks.hockey.model.HockeyRewardModel`; the real-robot task slides at
@@ -161,23 +139,11 @@ def hockey_reward_model(task, st: HockeyGPREPSSettings):
 
 
 def gpreps_run(task, st, key, model, rng, trial, eval_contexts, score, keep_model=False):
-    """GPREPS with ``model``; held-out ``score(policy)`` every ``heldout_every`` updates, the
+    """GPREPS with ``model`` (:func:`~skillkit.experiments.curves.run_gpreps`), with the
     model's stage and refit starts per update, and with ``keep_model`` the model and the
     policy history."""
-    out = run_gpreps(
-        task,
-        st,
-        key,
-        model,
-        st.n_artificial,
-        st.n_trajectories,
-        rng,
-        trial,
-        eval_contexts,
-        score=score,
-    )
-    diags = out.pop(f"{key}_diagnostics")
-    algo = out.pop(f"{key}_algorithm")
+    out, curves, algo = run_gpreps(task, st, key, model, rng, trial, eval_contexts, score)
+    diags = curves["diagnostics"]
     out[f"{key}_stage"] = np.array([str(d.model_fit.get("stage", "")) for d in diags])
     starts = [
         [v["start"] for v in d.model_fit.values() if isinstance(v, dict) and "start" in v]
@@ -187,56 +153,37 @@ def gpreps_run(task, st, key, model, rng, trial, eval_contexts, score, keep_mode
         out[f"{key}_refit_gps"] = np.array([len(x) for x in starts])
         out[f"{key}_refit_warm_kept"] = np.array([x.count("warm") for x in starts])
     if keep_model:
-        out["reward_model"] = np.frombuffer(dumps_reward_model(algo.reward_model), np.uint8)
-        out.update(policy_history_arrays(out[f"{key}_policies"]))
-    out.pop(f"{key}_policies", None)
-    out.pop(f"{key}_policy")
+        out.update(kept_model(algo, curves["policies"]))
     return out
 
 
-# --------------------------------------------------------------------------- hockey
+def reps_curve(task, algo, st, rollouts_per_update, rng, trial, eval_contexts, score) -> dict:
+    """REPS's run of ``st.reps_updates`` updates, held-out scores five times over it."""
+    return run_curve(
+        task,
+        algo,
+        "reps",
+        st.reps_updates,
+        rollouts_per_update,
+        rng,
+        trial,
+        eval_contexts,
+        score=score,
+        every=max(1, st.reps_updates // 5),
+    )[0]
+
+
 def run_trial_hockey(st: HockeyGPREPSSettings, rng: np.random.Generator, trial: TrialContext):
     """GPREPS (and, with ``reps_updates``, REPS) on ``st.task`` from the imitation policy."""
     task = make(st.task)
-    heldout = task.sample_context(rng, n=st.n_heldout)
-    eval_contexts = task.sample_context(rng, n=st.n_eval_contexts)
-    heldout_seed = int(rng.integers(2**63))
-    seeds = rng.spawn(2)
+    heldout, eval_contexts, score, seeds = heldout_setup(task, st, rng, 2, heldout_scores)
     trial.reset(total=st.n_updates + st.reps_updates)
-
-    def score(policy) -> dict:
-        return heldout_scores(task, policy, heldout, heldout_seed)
-
-    out: dict = {"heldout_contexts": heldout}
-    out.update(
-        gpreps_run(
-            task,
-            st,
-            "gpreps",
-            hockey_reward_model(task, st),
-            seeds[0],
-            trial,
-            eval_contexts,
-            score,
-            keep_model=True,
-        )
-    )
+    model = hockey_reward_model(task, st)
+    out = {"heldout_contexts": heldout}
+    out.update(gpreps_run(task, st, "gpreps", model, seeds[0], trial, eval_contexts, score, True))
     if st.reps_updates:
-        reps = _reps(task, st)
-        every = max(1, st.reps_updates // 5)
-        arrays, _ = run_curve(
-            task,
-            reps,
-            "reps",
-            st.reps_updates,
-            st.reps_rollouts_per_update,
-            seeds[1],
-            trial,
-            eval_contexts,
-            score=score,
-            every=every,
-        )
-        out.update(arrays)
+        n = st.reps_rollouts_per_update
+        out.update(reps_curve(task, _reps(task, st), st, n, seeds[1], trial, eval_contexts, score))
     return out
 
 
@@ -267,12 +214,6 @@ def gpreps_event_stats(trials, key) -> dict:
     return out
 
 
-HOCKEY_SCORES = ("reward", "hit_rate", "displacement_error", "displacement_error_hits")
-"""Held-out shot scores summarised per method: ``displacement_error`` counts a miss as an
-error of d* (the target puck stays), ``displacement_error_hits`` is the placed puck's error
-(hits only)."""
-
-
 def heldout_curves(trials, key, label, panels, heldout="displacement_error", **kw) -> list:
     """The learning curve and the held-out score ``heldout`` of run ``key`` on ``panels``
     ((panel, ylabel) of each)."""
@@ -285,23 +226,45 @@ def heldout_curves(trials, key, label, panels, heldout="displacement_error", **k
     ]
 
 
-def summarize_410(st: HockeyGPREPSSettings, trials: list[dict]):
-    keys = ("gpreps", "reps") if st.reps_updates else ("gpreps",)
-    labels = {"gpreps": "GPREPS", "reps": "REPS (ε = 0.5)"}
-    panels = (
-        ("learning curves", "reward of the policy mean"),
-        ("held-out displacement error", "|d_T − d*| (m)"),
-    )
-    series = [s for key in keys for s in heldout_curves(trials, key, labels[key], panels)]
-    summary: dict = {"n_trials": len(trials), "thesis_numbers": dict(THESIS_410)}
-    for key in keys:
-        summary[key] = heldout_stats(trials, key, HOCKEY_SCORES)
-    summary["gpreps"].update(gpreps_event_stats(trials, "gpreps"))
-    if st.reps_updates:
+def event_summary(trials, exp_id: str, labels: dict, panels, scores, heldout: str, parts) -> tuple:
+    """Series and summary of fig4.10 and fig4.12: per run of ``labels`` (key → label) its
+    learning curve and held-out ``heldout`` score, its held-out ``scores``, the model
+    statistics of the GPREPS runs, and REPS's rollouts to reach GPREPS's final reward; beside
+    them the thesis's numbers, read from the claims spec's ``parts`` (rollouts, error in cm)."""
+    thesis = {
+        "gpreps_rollouts": int(thesis_value(exp_id, parts[0])),
+        f"gpreps_{heldout}_m": thesis_value(exp_id, parts[1]) / 100,
+        "reps_rollouts": int(quoted_numbers(exp_id)[0]),
+    }
+    series = [
+        s
+        for key, label in labels.items()
+        for s in heldout_curves(trials, key, label, panels, heldout)
+    ]
+    summary: dict = {"n_trials": len(trials), "thesis_numbers": thesis}
+    for key in labels:
+        summary[key] = heldout_stats(trials, key, scores)
+        if key != "reps":
+            summary[key].update(gpreps_event_stats(trials, key))
+    if "reps" in labels:
         summary["reps_rollouts_to_gpreps_final_reward"] = rollouts_to_reach(
             trials, "reps", summary["gpreps"]["final_reward"], "heldout_reward", "heldout_rollouts"
         )
     return series, summary
+
+
+def summarize_410(st: HockeyGPREPSSettings, trials: list[dict]):
+    labels = {"gpreps": "GPREPS", "reps": "REPS (ε = 0.5)"}
+    if not st.reps_updates:
+        labels.pop("reps")
+    panels = (
+        ("learning curves", "reward of the policy mean"),
+        ("held-out displacement error", "|d_T − d*| (m)"),
+    )
+    parts = ("real shots used", "placed-puck error")
+    return event_summary(
+        trials, "fig4.10", labels, panels, HOCKEY_SCORES, "displacement_error", parts
+    )
 
 
 def summarize_411(st: HockeyGPREPSSettings, trials: list[dict]):
@@ -327,37 +290,29 @@ def _ci95(values: np.ndarray) -> tuple[float, float]:
     return float(values.mean() - half), float(values.mean() + half)
 
 
-# --------------------------------------------------------------------------- registry
-register(
-    Experiment(
-        id="fig4.10",
-        title="Robot hockey: GPREPS (decomposed event models) vs REPS",
-        settings_class=HockeyGPREPSSettings,
-        settings=gpreps_scales(
-            HockeyGPREPSSettings,
-            quick={"reps_updates": 20},
-            smoke={"reps_updates": 1, "reps_rollouts_per_update": 25, "reps_epsilon": 0.2},
-        ),
-        run_trial=run_trial_hockey,
-        summarize=summarize_410,
-        trials={"smoke": 1, "quick": 1, "paper": 5},
-    )
+experiment(
+    "fig4.10",
+    "Robot hockey: GPREPS (decomposed event models) vs REPS",
+    gpreps_scales(
+        HockeyGPREPSSettings,
+        quick={"reps_updates": 20},
+        smoke={"reps_updates": 1, "reps_rollouts_per_update": 25, "reps_epsilon": 0.2},
+    ),
+    run_trial_hockey,
+    summarize_410,
 )
-register(
-    Experiment(
-        id="fig4.11",
-        title="Robot hockey, real-robot setting: GPREPS with a displacement model",
-        settings_class=HockeyGPREPSSettings,
-        settings=gpreps_scales(
-            HockeyGPREPSSettings,
-            smoke={"task": "hockey-real", "reps_updates": 0},
-            quick={"task": "hockey-real", "reps_updates": 0},
-            paper={"task": "hockey-real", "reps_updates": 0, "n_updates": 61, "n_trajectories": 5},
-        ),
-        run_trial=run_trial_hockey,
-        summarize=summarize_411,
-        trials={"smoke": 2, "quick": 3, "paper": 5},
-    )
+experiment(
+    "fig4.11",
+    "Robot hockey, real-robot setting: GPREPS with a displacement model",
+    gpreps_scales(
+        HockeyGPREPSSettings,
+        smoke={"task": "hockey-real", "reps_updates": 0},
+        quick={"task": "hockey-real", "reps_updates": 0},
+        paper={"task": "hockey-real", "reps_updates": 0, "n_updates": 61, "n_trajectories": 5},
+    ),
+    run_trial_hockey,
+    summarize_411,
+    (2, 3, 5),
 )
 register_curve_task(
     "hockey",

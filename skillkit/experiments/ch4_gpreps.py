@@ -1,17 +1,11 @@
 """Chapter 4, GPREPS on ball throwing (Sec. 4.3.2, Figs 4.6, 4.7 and 4.9).
 
-Every run starts from the task's imitation policy and is scored by the learning-curve
-evaluator of :mod:`skillkit.experiments.curves` (reward of the policy mean on fixed targets
-against real rollouts):
-
-* **GPREPS** (Table 4.1): N₀ = 10 real throws, then one per update; the decomposed model of
-  Fig. 4.2 (:class:`~skillkit.tasks.throwing_model.ThrowingRewardModel`) refitted on all throws
-  at every update, M artificial pairs × L predicted throws, ε = 1.
-* **GP direct** (Sec. 4.3.2): the same loop with a GP from [s, ω] to R.
-* **REPS**: contextual REPS with the settings of ``fig3.3``, up to 5000 rollouts.
-
-``fig4.6`` compares the three, ``fig4.7`` runs GPREPS with M = 50 … 1000 and ``fig4.9`` runs
-REPS and GPREPS on ``throwing`` and ``throwing-noisy`` (release noise 7.5 cm and 0.3 m/s).
+Every run learns from the task's imitation policy through :mod:`skillkit.experiments.curves`:
+**GPREPS** (Table 4.1; N₀ = 10 real throws, then one per update, the decomposed model of
+Fig. 4.2 refitted at every update, M pairs × L predicted throws, ε = 1), **GP direct** (the
+same loop with one GP from [s, ω] to R) and **REPS** with ``fig3.3``'s settings. ``fig4.6``
+compares the three, ``fig4.7`` runs GPREPS with M = 50 … 1000 and ``fig4.9`` runs REPS and
+GPREPS with and without release noise (7.5 cm and 0.3 m/s).
 """
 
 from __future__ import annotations
@@ -28,15 +22,18 @@ from skillkit.experiments.curves import (
     CurveTask,
     curve_series,
     curve_stats,
+    experiment,
     finite_or_none,
     gpreps_algorithm,
     gpreps_stats,
     register_curve_task,
+    regularised_reps,
     rollouts_to_reach,
     run_curve,
     run_gpreps,
 )
-from skillkit.experiments.registry import Experiment, Series, register
+from skillkit.experiments.judge import quoted_numbers
+from skillkit.experiments.registry import Series
 from skillkit.experiments.settings import Settings, scales, setting
 from skillkit.models.gp import ExactGP, ForwardModel
 from skillkit.models.sparse import FITC
@@ -57,45 +54,29 @@ __all__ = [
     "throwing_reward_model",
 ]
 
-THESIS_46 = {"gpreps_rollouts_to_converge": (30, 40), "reps_rollouts_to_converge": 5000}
-"""fig4.6: the thesis's numbers (Sec. 4.3.2), stored beside ours in the summary."""
-THESIS_49 = {"reps_noisy": -1086.0, "reps": -715.0, "gpreps_noisy": -68.0, "gpreps": -64.0}
-"""fig4.9: the final rewards of the Fig. 4.9 captions, stored beside ours in the summary."""
-
 
 @dataclass(frozen=True)
 class GPREPSThrowingSettings(Settings):
     """Settings of ``fig4.6`` (GPREPS, GP direct and REPS on throwing, Sec. 4.3.2)."""
 
     n_initial: int = setting(10, "N₀, real throws before the first GPREPS update.", minimum=2)
-    n_updates: int = setting(
-        30,
-        "GPREPS / GP-direct updates, one new throw each after the "
-        "first (real throws = N₀ + n_updates − 1).",
-        minimum=1,
-    )
+    n_updates: int = setting(30, "GPREPS / GP-direct updates, one throw each.", minimum=1)
     n_artificial: int = setting(500, "M, artificial (s, ω) pairs per update.", minimum=2)
     n_trajectories: int = setting(25, "L, predicted throws per pair (Eq. 4.1).", minimum=1)
     epsilon: float = setting(1.0, "KL bound ε of GPREPS and GP direct (Sec. 4.3.2).", above=0)
     context_model: str = setting("uniform", "μ̂(s): the box of the observed targets.")
-    gp_steps: int = setting(
-        150,
-        "L-BFGS iterations of the release, flight and GP-direct hyper-parameter fits.",
-        minimum=0,
-    )
+    gp_steps: int = setting(150, "L-BFGS iterations of the release, flight, direct GPs.", minimum=0)
     robot_steps: int = setting(150, "L-BFGS iterations of the robot GP's fit.", minimum=0)
     robot_inducing: int = setting(50, "Pseudo-inputs of the FITC robot-dynamics GP.", minimum=1)
     flight_inducing: int = setting(50, "Pseudo-inputs of the FITC ball-flight GP.", minimum=1)
-    max_robot_points: int = setting(
-        1000, "Robot transitions the FITC GP is fitted on, drawn from all throws.", minimum=2
-    )
+    max_robot_points: int = setting(1000, "Robot transitions the FITC GP is fitted on.", minimum=2)
     reps_updates: int = setting(200, "REPS updates (× 25 = 5000 rollouts).", minimum=1)
     reps_rollouts_per_update: int = setting(25, "REPS rollouts per update (fig3.3).", minimum=1)
     reps_epsilon: float = setting(0.6, "KL bound of REPS (fig3.3).", above=0)
     reps_reuse_batches: int = setting(8, "Batches REPS reuses (fig3.3).", minimum=1)
     n_eval_contexts: int = setting(8, "Fixed targets of the learning curves.", minimum=1)
     grid_x: tuple[float, ...] = setting(
-        (5.0, 7.5, 10.0, 12.5, 15.0), "Target x (m) of the final ball-to-target distances."
+        (5.0, 7.5, 10.0, 12.5, 15.0), "Target x (m) of the final distances."
     )
     grid_y: tuple[float, ...] = setting((1.0, 3.0), "Target y (m) of the final distances.")
 
@@ -105,7 +86,7 @@ class SampleSizeSettings(GPREPSThrowingSettings):
     """Settings of ``fig4.7`` (GPREPS with different numbers of artificial samples)."""
 
     n_artificial_values: tuple[int, ...] = setting(
-        (50, 100, 200, 500, 1000), "The M compared (Sec. 4.3.2.1, Fig. 4.7).", minimum=2
+        (50, 100, 200, 500, 1000), "The M compared (Sec. 4.3.2.1).", minimum=2
     )
 
 
@@ -114,15 +95,9 @@ class StochasticThrowingSettings(GPREPSThrowingSettings):
     """Settings of ``fig4.9`` (REPS and GPREPS on deterministic and noisy throwing)."""
 
     release_noise: tuple[float, float] = setting(
-        (0.075, 0.3),
-        "Std of the release position (m) and velocity (m/s) (Sec. 4.3.2.2).",
-        minimum=0,
+        (0.075, 0.3), "Std of release position (m) and velocity (m/s).", minimum=0
     )
-    n_final_rollouts: int = setting(
-        10,
-        "Noisy rollouts per target that estimate each final policy's expected reward.",
-        minimum=1,
-    )
+    n_final_rollouts: int = setting(10, "Noisy rollouts per target per final policy.", minimum=1)
 
 
 SMOKE = {
@@ -141,7 +116,6 @@ SMOKE = {
     "grid_x": (8.0,),
     "grid_y": (2.0,),
 }
-"""The smoke scale's changes, shared by the three experiments."""
 QUICK = {
     "n_updates": 8,
     "n_artificial": 200,
@@ -149,9 +123,8 @@ QUICK = {
     "gp_steps": 60,
     "reps_updates": 40,
 }
-"""The quick scale's changes, shared by the three experiments: GPREPS / GP-direct updates
-30→8 (fig4.7 and fig4.9: 20→8), M 500→200, L 25→5, release / flight L-BFGS iterations
-150→60 (the robot GP keeps its 150), REPS updates 200→40, learning-curve targets 20→8."""
+"""The quick scale's changes, shared by the three experiments (the robot GP keeps its 150
+L-BFGS iterations)."""
 
 
 def _scales(cls, smoke: dict | None = None, quick: dict | None = None, paper=None) -> dict:
@@ -164,7 +137,6 @@ def _scales(cls, smoke: dict | None = None, quick: dict | None = None, paper=Non
     )
 
 
-# --------------------------------------------------------------------------- one run
 def _fitc(n_inducing: int, n_steps: int) -> ForwardModel:
     # Δx targets, as in the stored paper results (ForwardModel's default target is x′).
     return ForwardModel(FITC(n_inducing=n_inducing, n_steps=n_steps), target="delta")
@@ -190,56 +162,39 @@ def throwing_reward_model(task, st: GPREPSThrowingSettings, model: str = "decomp
 def reps_algorithm(task, st) -> ContextualREPS:
     """Model-free contextual REPS on throwing with fig3.3's settings (ε, reused batches and
     the quadratic baseline from ``st``), from the task's π₀."""
-    return ContextualREPS(
-        task.initial_policy(),
-        st.reps_epsilon,
-        n_reuse_batches=st.reps_reuse_batches,
-        baseline_features="quadratic",
-        cov_floor=COV_FLOOR,
-        min_effective_samples=MIN_EFFECTIVE_SAMPLES,
-    )
+    return regularised_reps(task.initial_policy(), st.reps_epsilon, st.reps_reuse_batches)
 
 
-def _gpreps(task, st, key, model, m, rng, trial, eval_contexts) -> dict:
-    return run_gpreps(
-        task,
-        st,
-        key,
-        throwing_reward_model(task, st, model),
-        m,
-        st.n_trajectories,
-        rng,
-        trial,
-        eval_contexts,
-    )
+def _run(task, st, key, model, rng, trial, eval_contexts, m=None) -> tuple[dict, object]:
+    """One run's arrays and final policy: REPS (``model`` "reps") or GPREPS with ``model``."""
+    if model == "reps":
+        out, curves = run_curve(
+            task,
+            reps_algorithm(task, st),
+            key,
+            st.reps_updates,
+            st.reps_rollouts_per_update,
+            rng,
+            trial,
+            eval_contexts,
+        )
+    else:
+        reward_model = throwing_reward_model(task, st, model)
+        out, curves, _ = run_gpreps(task, st, key, reward_model, rng, trial, eval_contexts, None, m)
+    return out, curves["policy"]
 
 
-def _run_reps(task, st, key, rng, trial, eval_contexts) -> dict:
-    """Model-free contextual REPS with fig3.3's settings (:func:`reps_algorithm`)."""
-    out, curves = run_curve(
-        task,
-        reps_algorithm(task, st),
-        key,
-        st.reps_updates,
-        st.reps_rollouts_per_update,
-        rng,
-        trial,
-        eval_contexts,
-    )
-    out[f"{key}_policy"] = curves["policy"]
-    return out
-
-
-def _finish(task, st, out: dict, keys) -> dict:
-    """Final ball-to-target distances of each run's policy mean; drop the policy objects."""
-    targets = target_grid(st)
-    out["targets"] = targets
-    for key in keys:
-        dist, _ = final_errors(task, out.pop(f"{key}_policy"), targets)
-        out[f"{key}_distance"] = dist
-        for extra in ("policies", "diagnostics", "algorithm"):
-            out.pop(f"{key}_{extra}", None)
-    return out
+def _learn(st, rng, trial, runs) -> tuple[dict, dict, np.ndarray]:
+    """The runs ``(key, model, M, task)``: arrays with final distances, policies, targets."""
+    eval_contexts = runs[0][3].sample_context(rng, n=st.n_eval_contexts)
+    trial.reset(total=sum(st.reps_updates if r[1] == "reps" else st.n_updates for r in runs))
+    out, policies = {"targets": target_grid(st)}, {}
+    for (key, model, m, task), seed in zip(runs, rng.spawn(len(runs)), strict=True):
+        arrays, policies[key] = _run(task, st, key, model, seed, trial, eval_contexts, m)
+        out.update(arrays)
+    for key, policy in policies.items():
+        out[f"{key}_distance"] = final_errors(runs[0][3], policy, out["targets"])[0]
+    return out, policies, eval_contexts
 
 
 def _learning_series(trials, keys, labels) -> list[Series]:
@@ -258,7 +213,9 @@ def _learning_series(trials, keys, labels) -> list[Series]:
     ]
 
 
-def _method_summary(trials, key) -> dict:
+def _method_summary(trials, key, per_trial: bool = False) -> dict:
+    """A run's rewards, final distances, GPREPS's model statistics and, with ``per_trial``,
+    the start reward and absolute deviation from the mean final reward per trial."""
     dist = np.array([t[f"{key}_distance"] for t in trials], dtype=float)
     out = {
         "rollouts": int(trials[0][f"{key}_rollouts"][-1]),
@@ -268,40 +225,38 @@ def _method_summary(trials, key) -> dict:
     }
     if f"{key}_relative_error" in trials[0]:
         out.update(gpreps_stats(trials, key))
+    if per_trial:
+        curves = np.array([t[f"{key}_mean_reward"] for t in trials], dtype=float)
+        out["initial_reward_per_trial"] = curves[:, 0].tolist()
+        deviation = np.abs(curves[:, -1] - curves[:, -1].mean())
+        out["final_reward_abs_deviation_per_trial"] = deviation.tolist()
     return out
 
 
-# --------------------------------------------------------------------------- fig4.6
 def run_trial_46(st: GPREPSThrowingSettings, rng: np.random.Generator, trial: TrialContext):
     """GPREPS, GP direct and REPS on ``throwing`` from the same policy and targets."""
     task = make("throwing")
-    eval_contexts = task.sample_context(rng, n=st.n_eval_contexts)
-    seeds = rng.spawn(3)
-    trial.reset(total=2 * st.n_updates + st.reps_updates)
-    out: dict = {}
-    for key, model, seed in (("gpreps", "decomposed", seeds[0]), ("direct", "direct", seeds[1])):
-        out.update(_gpreps(task, st, key, model, st.n_artificial, seed, trial, eval_contexts))
-    out.update(_run_reps(task, st, "reps", seeds[2], trial, eval_contexts))
-    return _finish(task, st, out, ("gpreps", "direct", "reps"))
+    runs = [("gpreps", "decomposed"), ("direct", "direct"), ("reps", "reps")]
+    return _learn(st, rng, trial, [(key, model, None, task) for key, model in runs])[0]
 
 
 def summarize_46(st: GPREPSThrowingSettings, trials: list[dict]):
-    """Learning curves of GPREPS, GP direct and REPS and what the claims spec reads of them
-    (per-trial start and final rewards, GPREPS's gain and prediction error, REPS's rollouts
-    to reach GPREPS's final reward)."""
+    """Learning curves of GPREPS, GP direct and REPS and what the claims spec reads of them."""
     keys, labels = ("gpreps", "direct", "reps"), ("GPREPS", "GP direct", "REPS")
     series = _learning_series(trials, keys, labels)
-    summary: dict = {"n_trials": len(trials), "thesis_numbers": dict(THESIS_46)}
+    x = quoted_numbers("fig4.6")  # GPREPS converges in x[0]–x[1] rollouts, REPS in x[2]
+    thesis = {"gpreps_rollouts_to_converge": (int(x[0]), int(x[1]))}
+    thesis["reps_rollouts_to_converge"] = int(x[2])
+    summary: dict = {"n_trials": len(trials), "thesis_numbers": thesis}
     for key in keys:
-        summary[key] = _method_summary(trials, key)
+        summary[key] = _method_summary(trials, key, per_trial=True)
     summary["reps_rollouts_to_gpreps_final"] = rollouts_to_reach(
         trials, "reps", summary["gpreps"]["final_reward_mean"]
     )
-    for key in keys:
-        summary[key].update(_per_trial(trials, key))
     g = summary["gpreps"]
-    g["gain_per_trial"] = _difference(g["final_reward_per_trial"], g["initial_reward_per_trial"])
-    converge = min(THESIS_46["gpreps_rollouts_to_converge"])
+    gain = np.subtract(g["final_reward_per_trial"], g["initial_reward_per_trial"])
+    g["gain_per_trial"] = gain.tolist()
+    converge = min(thesis["gpreps_rollouts_to_converge"])
     at = np.flatnonzero(np.asarray(trials[0]["gpreps_rollouts"]) == converge)
     if at.size:
         g[f"gain_after_{converge}_per_trial"] = [
@@ -317,24 +272,8 @@ def summarize_46(st: GPREPSThrowingSettings, trials: list[dict]):
     return series, summary
 
 
-def _per_trial(trials, key) -> dict:
-    """A method's start reward per trial and each trial's absolute deviation from the mean
-    final reward over trials."""
-    curves = np.array([t[f"{key}_mean_reward"] for t in trials], dtype=float)
-    final = curves[:, -1]
-    return {
-        "initial_reward_per_trial": curves[:, 0].tolist(),
-        "final_reward_abs_deviation_per_trial": np.abs(final - final.mean()).tolist(),
-    }
-
-
-def _difference(a, b) -> list[float]:
-    return (np.asarray(a, dtype=float) - np.asarray(b, dtype=float)).tolist()
-
-
 def _reps_over_gpreps(trials) -> list[float]:
-    """Per trial: REPS's rollouts until its curve reaches the trial's GPREPS final reward,
-    over GPREPS's throws (REPS's whole run, a lower bound, where it never does)."""
+    """Per trial: REPS's rollouts to reach GPREPS's final reward (or all) over GPREPS's."""
     out = []
     for t in trials:
         g_throws = float(t["gpreps_rollouts"][-1])
@@ -344,20 +283,11 @@ def _reps_over_gpreps(trials) -> list[float]:
     return out
 
 
-# --------------------------------------------------------------------------- fig4.7
 def run_trial_47(st: SampleSizeSettings, rng: np.random.Generator, trial: TrialContext):
     """GPREPS with each M of ``n_artificial_values`` from the same policy and targets."""
     task = make("throwing")
-    eval_contexts = task.sample_context(rng, n=st.n_eval_contexts)
-    seeds = rng.spawn(len(st.n_artificial_values))
-    trial.reset(total=st.n_updates * len(st.n_artificial_values))
-    out: dict = {}
-    keys = []
-    for m, seed in zip(st.n_artificial_values, seeds, strict=True):
-        key = f"m{m}"
-        keys.append(key)
-        out.update(_gpreps(task, st, key, "decomposed", m, seed, trial, eval_contexts))
-    return _finish(task, st, out, keys)
+    runs = [(f"m{m}", "decomposed", m, task) for m in st.n_artificial_values]
+    return _learn(st, rng, trial, runs)[0]
 
 
 def summarize_47(st: SampleSizeSettings, trials: list[dict]):
@@ -367,7 +297,7 @@ def summarize_47(st: SampleSizeSettings, trials: list[dict]):
     series = _learning_series(trials, keys, [f"M = {m}" for m in st.n_artificial_values])
     summary: dict = {"n_trials": len(trials), "n_artificial_values": list(st.n_artificial_values)}
     for key in keys:
-        summary[key] = _method_summary(trials, key)
+        summary[key] = _method_summary(trials, key, per_trial=True)
     finals = [summary[k]["final_reward_mean"] for k in keys]
     series.append(
         Series(
@@ -381,46 +311,28 @@ def summarize_47(st: SampleSizeSettings, trials: list[dict]):
             log_x=True,
         )
     )
-    for key in keys:
-        summary[key].update(_per_trial(trials, key))
     values = sorted(st.n_artificial_values)
     summary["final_reward_change_per_trial"] = {
-        f"m{a}_to_m{b}": _difference(
+        f"m{a}_to_m{b}": np.subtract(
             summary[f"m{b}"]["final_reward_per_trial"], summary[f"m{a}"]["final_reward_per_trial"]
-        )
+        ).tolist()
         for i, a in enumerate(values)
         for b in values[i + 1 :]
     }
     return series, summary
 
 
-# --------------------------------------------------------------------------- fig4.9
 def run_trial_49(st: StochasticThrowingSettings, rng: np.random.Generator, trial: TrialContext):
-    """REPS and GPREPS on deterministic and noisy throwing from the same policy and targets."""
-    tasks = {"": make("throwing"), "_noisy": make("throwing", release_noise=st.release_noise)}
-    eval_contexts = tasks[""].sample_context(rng, n=st.n_eval_contexts)
-    seeds = rng.spawn(4)
-    trial.reset(total=2 * (st.n_updates + st.reps_updates))
-    out: dict = {}
-    policies = {}
-    for i, (suffix, task) in enumerate(tasks.items()):
-        g = _gpreps(
-            task,
-            st,
-            f"gpreps{suffix}",
-            "decomposed",
-            st.n_artificial,
-            seeds[2 * i],
-            trial,
-            eval_contexts,
-        )
-        r = _run_reps(task, st, f"reps{suffix}", seeds[2 * i + 1], trial, eval_contexts)
-        out.update(g)
-        out.update(r)
-        policies[f"gpreps{suffix}"] = g[f"gpreps{suffix}_policy"]
-        policies[f"reps{suffix}"] = r[f"reps{suffix}_policy"]
-    # Expected reward of each final policy mean under noise: n_final_rollouts per target.
-    noisy = tasks["_noisy"]
+    """REPS and GPREPS on deterministic and noisy throwing from the same policy and targets;
+    each final policy mean's expected reward under the noise (``n_final_rollouts`` per
+    target)."""
+    det, noisy = make("throwing"), make("throwing", release_noise=st.release_noise)
+    runs = [
+        (f"{method}{suffix}", "decomposed" if method == "gpreps" else "reps", None, task)
+        for suffix, task in (("", det), ("_noisy", noisy))
+        for method in ("gpreps", "reps")
+    ]
+    out, policies, eval_contexts = _learn(st, rng, trial, runs)
     final_rng = rng.spawn(1)[0]
     for key, pol in policies.items():
         means = np.atleast_2d(pol.mean_of(eval_contexts))
@@ -430,22 +342,21 @@ def run_trial_49(st: StochasticThrowingSettings, rng: np.random.Generator, trial
             for _ in range(st.n_final_rollouts)
         ]
         out[f"{key}_noisy_expected_reward"] = float(np.mean(rewards))
-    return _finish(tasks[""], st, out, list(policies))
+    return out
 
 
 def summarize_49(st: StochasticThrowingSettings, trials: list[dict]):
-    """The learning curves of REPS and GPREPS with and without release noise, and each final
-    policy mean's expected reward under the noise (per trial and mean over trials)."""
+    """Learning curves with and without release noise; final expected rewards under it."""
     keys = ("reps", "reps_noisy", "gpreps", "gpreps_noisy")
     labels = ("REPS", "REPS, noisy", "GPREPS", "GPREPS, noisy")
     series = _learning_series(trials, keys, labels)
-    summary: dict = {"n_trials": len(trials), "thesis_numbers": dict(THESIS_49)}
+    summary: dict = {"n_trials": len(trials), "thesis_numbers": _thesis_49()}
     for key in keys:
         summary[key] = _method_summary(trials, key)
         summary[key]["noisy_expected_reward"] = float(
             np.mean([t[f"{key}_noisy_expected_reward"] for t in trials])
         )
-    summary["noise_ratio"] = {**_noise_ratios(summary), **_same_noise_ratios(summary)}
+    summary["noise_ratio"] = _noise_ratios(summary)
     for key in keys:
         summary[key]["noisy_expected_reward_per_trial"] = [
             float(t[f"{key}_noisy_expected_reward"]) for t in trials
@@ -453,76 +364,54 @@ def summarize_49(st: StochasticThrowingSettings, trials: list[dict]):
     return series, summary
 
 
-def _noise_ratios(summary: dict) -> dict[str, float]:
-    """|noisy| / |deterministic| final learning-curve reward of REPS and GPREPS, beside the
-    thesis's (REPS 1086 / 715, GPREPS 68 / 64)."""
-
-    def ratio(key: str) -> float:
-        return abs(summary[f"{key}_noisy"]["final_reward_mean"]) / max(
-            abs(summary[key]["final_reward_mean"]), 1e-12
-        )
-
-    return {
-        "reps": ratio("reps"),
-        "gpreps": ratio("gpreps"),
-        "thesis_reps": 1086 / 715,
-        "thesis_gpreps": 68 / 64,
-    }
+def _thesis_49() -> dict[str, float]:
+    """The final rewards of the Fig. 4.9 captions as the claims spec quotes them."""
+    keys = ("reps_noisy", "reps", "gpreps_noisy", "gpreps")
+    return dict(zip(keys, quoted_numbers("fig4.9"), strict=True))
 
 
-def _same_noise_ratios(summary: dict) -> dict[str, float | None]:
-    """|noisy-trained| / |deterministic-trained| expected reward under the same release noise
-    of REPS's and GPREPS's final policy means; None where one is not finite."""
+def _noise_ratios(summary: dict) -> dict[str, float | None]:
+    """|noisy| / |deterministic| final rewards (ours, the thesis's, and under the same noise)."""
 
-    def ratio(key: str) -> float | None:
-        noisy = finite_or_none(summary[f"{key}_noisy"]["noisy_expected_reward"])
-        det = finite_or_none(summary[key]["noisy_expected_reward"])
-        if noisy is None or det is None:
-            return None
-        return abs(noisy) / max(abs(det), 1e-12)
+    def ratio(noisy, det) -> float | None:
+        return None if noisy is None or det is None else abs(noisy) / max(abs(det), 1e-12)
 
-    return {"reps_same_noise": ratio("reps"), "gpreps_same_noise": ratio("gpreps")}
+    out, thesis = {}, _thesis_49()
+    for key in ("reps", "gpreps"):
+        n, d = summary[f"{key}_noisy"], summary[key]
+        out[key] = ratio(n["final_reward_mean"], d["final_reward_mean"])
+        out[f"thesis_{key}"] = thesis[f"{key}_noisy"] / thesis[key]
+        expected = [finite_or_none(x.get("noisy_expected_reward")) for x in (n, d)]
+        out[f"{key}_same_noise"] = ratio(*expected)
+    return out
 
 
-register(
-    Experiment(
-        id="fig4.6",
-        title="Ball throwing: GPREPS (decomposed GP models) vs GP direct vs REPS",
-        settings_class=GPREPSThrowingSettings,
-        settings=_scales(GPREPSThrowingSettings),
-        run_trial=run_trial_46,
-        summarize=summarize_46,
-        trials={"smoke": 1, "quick": 2, "paper": 5},
-    )
+experiment(
+    "fig4.6",
+    "Ball throwing: GPREPS (decomposed GP models) vs GP direct vs REPS",
+    _scales(GPREPSThrowingSettings),
+    run_trial_46,
+    summarize_46,
+    (1, 2, 5),
 )
-register(
-    Experiment(
-        id="fig4.7",
-        title="Ball throwing: GPREPS with 50 to 1000 artificial samples",
-        settings_class=SampleSizeSettings,
-        settings=_scales(
-            SampleSizeSettings,
-            smoke={"n_artificial_values": (10, 20)},
-            quick={"n_artificial_values": (50, 200)},
-            paper={"n_trajectories": 5, "n_updates": 20},
-        ),
-        run_trial=run_trial_47,
-        summarize=summarize_47,
-        trials={"smoke": 1, "quick": 1, "paper": 5},
-    )
+experiment(
+    "fig4.7",
+    "Ball throwing: GPREPS with 50 to 1000 artificial samples",
+    _scales(
+        SampleSizeSettings,
+        smoke={"n_artificial_values": (10, 20)},
+        quick={"n_artificial_values": (50, 200)},
+        paper={"n_trajectories": 5, "n_updates": 20},
+    ),
+    run_trial_47,
+    summarize_47,
 )
-register(
-    Experiment(
-        id="fig4.9",
-        title="Stochastic ball throwing: REPS and GPREPS with and without release noise",
-        settings_class=StochasticThrowingSettings,
-        settings=_scales(
-            StochasticThrowingSettings, smoke={"n_final_rollouts": 2}, paper={"n_updates": 20}
-        ),
-        run_trial=run_trial_49,
-        summarize=summarize_49,
-        trials={"smoke": 1, "quick": 1, "paper": 5},
-    )
+experiment(
+    "fig4.9",
+    "Stochastic ball throwing: REPS and GPREPS with and without release noise",
+    _scales(StochasticThrowingSettings, smoke={"n_final_rollouts": 2}, paper={"n_updates": 20}),
+    run_trial_49,
+    summarize_49,
 )
 register_curve_task(
     "throwing",

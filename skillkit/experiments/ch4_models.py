@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 import torch
@@ -46,6 +47,9 @@ __all__ = ["gaussian_fit", "time_predictions"]
 
 DATA_EXPLORATION = 0.01
 """Exploration of fig4.4's data controllers: σ = 1% of |G_lqr| (R = 1e-4) entry-wise."""
+_ALPHA = "Additive-noise factor α: σ_add = α 10⁻² std(y) (Sec. 4.2.3)."
+_TORQUE_NOISE = "Std of the torque noise of the robot (N m)."
+_TARGET = "What the GP learns: 'next' (x′, the thesis) or 'delta'."
 
 
 def _data_policy(task: Balancing):
@@ -61,15 +65,14 @@ def gaussian_fit(samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def _model(
     kind: str,
-    n_data: int,
     settings: SamplingAccuracySettings | ComputeTimeSettings | RewardErrorSettings,
-    *,
-    n_inducing: int | None = None,
+    n_inducing: int,
+    curb: bool,
+    target: str,
     additive_noise: float | None = None,
     n_steps: int | None = None,
-    curb: bool = True,
-    target: str = "next",
 ) -> ForwardModel:
+    """A standard GP or FITC forward model; noise and steps default to the settings'."""
     kw = dict(
         additive_noise=settings.additive_noise if additive_noise is None else additive_noise,
         n_steps=settings.n_opt_steps if n_steps is None else n_steps,
@@ -77,7 +80,7 @@ def _model(
     )
     if kind == "standard":
         return ForwardModel(ExactGP(**kw), target=target)
-    return ForwardModel(FITC(n_inducing=n_inducing or max(1, n_data // 4), **kw), target=target)
+    return ForwardModel(FITC(n_inducing=n_inducing, **kw), target=target)
 
 
 # ---------------------------------------------------------------------------- fig4.3
@@ -91,37 +94,21 @@ class SamplingAccuracySettings(Settings):
     n_pseudo: int = setting(150, "Pseudo-inputs M of FITC (thesis: 700).", minimum=1)
     horizon: int = setting(60, "Steps T of training and prediction (thesis: 300).", minimum=1)
     n_start: int = setting(20, "Start distributions N(m_0, σ_0² I) (thesis: 100).", minimum=1)
-    n_ground_truth: int = setting(
-        300, "Sampled trajectories of the ground truth p(x_t) (thesis: 1000).", minimum=10
-    )
-    sample_sizes: tuple[int, ...] = setting(
-        (10, 20, 50, 100), "Numbers of sampled trajectories compared (≥ 10).", minimum=10
-    )
+    n_ground_truth: int = setting(300, "Ground-truth trajectories (thesis: 1000).", minimum=10)
+    sample_sizes: tuple[int, ...] = setting((10, 20, 50, 100), "Sample sizes compared.", minimum=10)
     amplitude: float = setting(0.6, "Amplitude (rad) of the swinging reference on every joint.")
     period: float = setting(4.0, "Period (s) of the swinging reference.", above=0)
-    initial_std: float = setting(
-        0.05, "Std of the training starts and of the means m_0 around r_0.", minimum=0
-    )
-    torque_noise_std: float = setting(0.5, "Std of the torque noise of the robot (N m).", minimum=0)
-    initial_std_range: tuple[float, float] = setting(
-        (0.01, 0.1), "Interval of σ_0, drawn log-uniformly per start.", above=0
-    )
+    initial_std: float = setting(0.05, "Std of training starts and m_0 around r_0.", minimum=0)
+    torque_noise_std: float = setting(0.5, _TORQUE_NOISE, minimum=0)
+    initial_std_range: tuple[float, float] = setting((0.01, 0.1), "Log-uniform σ_0.", above=0)
     n_opt_steps: int = setting(50, "Hyper-parameter optimisation steps of the model.", minimum=0)
-    additive_noise: float = setting(
-        1.0, "Additive-noise factor α: σ_add = α 10⁻² std(y) (Sec. 4.2.3).", minimum=0
-    )
+    additive_noise: float = setting(1.0, _ALPHA, minimum=0)
     curb: bool = setting(True, "Train with PILCO's hyper-parameter curb (HyperCurb).")
-    gp_target: str = setting("next", "What the GP learns: 'next' (x′, the thesis) or 'delta'.")
+    gp_target: Literal["next", "delta"] = setting("next", _TARGET)
 
     def check(self) -> None:
         if not self.sample_sizes:
             raise ValueError("sample_sizes: expected at least one number of trajectories")
-        _check_target(self.gp_target)
-
-
-def _check_target(target: str) -> None:
-    if target not in ("next", "delta"):
-        raise ValueError(f"gp_target: expected 'next' or 'delta', got {target!r}")
 
 
 SCALES_4_3 = scales(
@@ -156,34 +143,24 @@ def _train_balancing_model(
     data = collect_balancing(
         task, max(1, int(np.ceil(settings.n_data / T))), rng, policy=_data_policy(task)
     )
-    model = _model(
-        "sparse",
-        len(data["x"]),
-        settings,
-        n_inducing=settings.n_pseudo,
-        curb=False,
-        target="delta",
-    )
+    model = _model("sparse", settings, settings.n_pseudo, False, "delta")
     model.fit(data["x"], data["u"], data["x_next"], rng=rng)
     return task, model, data
 
 
-def _tracking_data(task: Balancing, G, reference, feedforward, n: int, rng) -> dict:
-    """``n`` rollouts of the tracking PD from x_0 ~ N(r_0, σ² I), σ = ``task.initial_std``;
-    failed rollouts are replaced and counted."""
+def _tracking_data(task: Balancing, G, ref, ff, n: int, rng) -> dict:
+    """``n`` tracking-PD rollouts from x_0 ~ N(r_0, σ² I), failed ones replaced and counted."""
     parts, n_failed, errors = [], 0, []
     while len(parts) < n:
-        x0 = reference[0] + task.initial_std * rng.standard_normal(8)
-        traj = task.rollout_from(
-            G.ravel(), x0, rng=rng, reference=reference, feedforward=feedforward
-        )
+        x0 = ref[0] + task.initial_std * rng.standard_normal(8)
+        traj = task.rollout_from(G.ravel(), x0, rng=rng, reference=ref, feedforward=ff)
         if traj.failed:
             n_failed += 1
             if n_failed > 10 * n:
                 raise RuntimeError(f"fig4.3: {n_failed} tracking rollouts failed")
             continue
         parts.append(task.transitions(traj))
-        errors.append(np.abs(traj.states[:, :4] - reference[:, :4]).max())
+        errors.append(np.abs(traj.states[:, :4] - ref[:, :4]).max())
     x, u, xn = (np.vstack([p[i] for p in parts]) for i in range(3))
     return {"x": x, "u": u, "x_next": xn, "n_failed": n_failed, "tracking_error": errors}
 
@@ -204,14 +181,7 @@ def _run_4_3(
     st = trial.resume("fig4.3", rng)
     if st is None:
         data = _tracking_data(task, G, ref, ff, max(1, int(np.ceil(settings.n_data / T))), rng)
-        model = _model(
-            "sparse",
-            len(data["x"]),
-            settings,
-            n_inducing=settings.n_pseudo,
-            curb=settings.curb,
-            target=settings.gp_target,
-        )
+        model = _model("sparse", settings, settings.n_pseudo, settings.curb, settings.gp_target)
         t0 = time.perf_counter()
         model.fit(data["x"], data["u"], data["x_next"], rng=rng)
         lo, hi = np.log(settings.initial_std_range)
@@ -251,16 +221,19 @@ def _run_4_3(
         trial.save("fig4.3", st, rng)
         trial.update()
     keys = "kl_mm kl_samples sigma0 n_data n_failed_rollouts tracking_error train_time_s".split()
-    out = {k: st[k] for k in keys}
-    out["n_variance_clamped"] = st["n_variance_clamped"]
     d = model.gp.diagnostics
-    out["model_jitter"] = d["jitter"]
-    out["max_signal_to_noise"] = d["max_signal_to_noise"]
-    out["max_lengthscale_ratio"] = d["max_lengthscale_ratio"]
-    return out
+    out = {k: st[k] for k in [*keys, "n_variance_clamped"]} | {"model_jitter": d["jitter"]}
+    return out | {k: d[k] for k in _HYPER}
 
 
 _MATCH = "trajectories to match MM"
+_HYPER = ("max_signal_to_noise", "max_lengthscale_ratio")
+
+
+def _loglog(panel: str, ylabel: str) -> dict:
+    return dict(
+        panel=panel, xlabel="number of sampled trajectories", ylabel=ylabel, log_x=True, log_y=True
+    )
 
 
 def _first_reaching(sizes, values, level=100.0):
@@ -276,31 +249,17 @@ def _summarize_4_3(
         [100.0 * t["kl_samples"].sum(-1) / t["kl_mm"].sum(-1)[:, None] for t in trials]
     )
     pct = {q: np.percentile(scores, q, axis=0) for q in (50, 75, 95)}
-    kw = dict(
-        panel="sampling accuracy",
-        xlabel="number of sampled trajectories",
-        ylabel="normalised KL (moment matching = 100)",
-        log_x=True,
-        log_y=True,
-    )
+    kw = _loglog("sampling accuracy", "normalised KL (moment matching = 100)")
+    name = "sampling, {}th percentile over start states"
     series = [
-        Series(
-            f"sampling, {q}th percentile over start states",
-            sizes,
-            pct[q].tolist(),
-            kind="lines+markers",
-            **kw,
-        )
-        for q in (50, 75, 95)
+        Series(name.format(q), sizes, pct[q].tolist(), kind="lines+markers", **kw) for q in pct
     ]
     series.append(Series("moment matching", sizes, [100.0] * len(sizes), **kw))
-    n75, n95 = _first_reaching(sizes, pct[75]), _first_reaching(sizes, pct[95])
     summary = {
         "percentiles": {
             str(q): dict(zip(map(str, sizes), pct[q].tolist(), strict=True)) for q in pct
         },
-        "samples_to_match_mm_75pct": n75,
-        "samples_to_match_mm_95pct": n95,
+        **{f"samples_to_match_mm_{q}pct": _first_reaching(sizes, pct[q]) for q in (75, 95)},
         "thesis_numbers": {  # the claims spec's
             f"samples_to_match_mm_{q}pct": int(thesis_value("fig4.3", f"{_MATCH}, {q}%"))
             for q in (75, 95)
@@ -313,8 +272,7 @@ def _summarize_4_3(
             "n_pseudo_inputs": settings.n_pseudo,
             "horizon": settings.horizon,
             "train_time_s": float(np.mean([t["train_time_s"] for t in trials])),
-            "max_signal_to_noise": float(max(t["max_signal_to_noise"] for t in trials)),
-            "max_lengthscale_ratio": float(max(t["max_lengthscale_ratio"] for t in trials)),
+            **{k: float(max(t[k] for t in trials)) for k in _HYPER},
             "data_tracking_error_rad": float(np.mean([t["tracking_error"] for t in trials])),
         },
     }
@@ -329,7 +287,6 @@ register(
         settings=SCALES_4_3,
         run_trial=_run_4_3,
         summarize=_summarize_4_3,
-        trials={"smoke": 1, "quick": 1, "paper": 1},
     )
 )
 
@@ -347,11 +304,9 @@ class ComputeTimeSettings(Settings):
     )
     threads: tuple[int, ...] = setting((1, 2), "Torch thread counts timed.", minimum=1)
     repeats: int = setting(3, "Timings repeated (minimum kept; once above N = 1000).", minimum=1)
-    torque_noise_std: float = setting(0.5, "Std of the torque noise of the robot (N m).", minimum=0)
+    torque_noise_std: float = setting(0.5, _TORQUE_NOISE, minimum=0)
     n_opt_steps: int = setting(30, "Hyper-parameter optimisation steps of the model.", minimum=0)
-    additive_noise: float = setting(
-        1.0, "Additive-noise factor α: σ_add = α 10⁻² std(y) (Sec. 4.2.3).", minimum=0
-    )
+    additive_noise: float = setting(1.0, _ALPHA, minimum=0)
 
 
 SCALES_4_4 = scales(
@@ -442,13 +397,7 @@ def _run_4_4(settings: ComputeTimeSettings, rng: np.random.Generator, trial: Tri
 
 def _summarize_4_4(settings: ComputeTimeSettings, trials: list[dict]) -> tuple[list[Series], dict]:
     ns = list(settings.n_trajectories)
-    kw = dict(
-        panel="compute time of one long-term prediction",
-        xlabel="number of sampled trajectories",
-        ylabel="wall time (s)",
-        log_x=True,
-        log_y=True,
-    )
+    kw = _loglog("compute time of one long-term prediction", "wall time (s)")
     series = []
     keys = ("mm_time_s", "sampling_time_s", "trajectories_in_mm_time", "mm_gflops")
     summary: dict = {k: {} for k in (*keys, "sampling_gflops")}
@@ -461,10 +410,10 @@ def _summarize_4_4(settings: ComputeTimeSettings, trials: list[dict]) -> tuple[l
     for th in map(str, settings.threads):
         st = np.median([t["sampling_time"][th] for t in trials], axis=0)
         mm = float(np.median([t["mm_time"][th] for t in trials]))
-        series.append(
-            Series(f"sampling, {th} thread(s)", ns, st.tolist(), kind="lines+markers", **kw)
-        )
-        series.append(Series(f"moment matching, {th} thread(s)", ns, [mm] * len(ns), **kw))
+        series += [
+            Series(f"sampling, {th} thread(s)", ns, st.tolist(), kind="lines+markers", **kw),
+            Series(f"moment matching, {th} thread(s)", ns, [mm] * len(ns), **kw),
+        ]
         summary["mm_time_s"][th] = mm
         summary["sampling_time_s"][th] = dict(zip(map(str, ns), st.tolist(), strict=True))
         summary["trajectories_in_mm_time"][th] = float(
@@ -474,21 +423,17 @@ def _summarize_4_4(settings: ComputeTimeSettings, trials: list[dict]) -> tuple[l
         summary["sampling_gflops"][th] = {
             str(n): sample_flops * n / t / 1e9 for n, t in zip(ns, st.tolist(), strict=True)
         }
-    summary.update(
-        {
-            "model": {
-                "n_data": trials[0]["n_data"],
-                "n_pseudo_inputs": trials[0]["n_pseudo"],
-                "horizon": settings.horizon,
-                "state_dim": n_x,
-                "control_dim": n_u,
-            },
-            "flops_per_prediction": {
-                "moment_matching": mm_flops,
-                "sampling_per_trajectory": sample_flops,
-            },
-        }
-    )
+    summary["model"] = {
+        "n_data": trials[0]["n_data"],
+        "n_pseudo_inputs": trials[0]["n_pseudo"],
+        "horizon": settings.horizon,
+        "state_dim": n_x,
+        "control_dim": n_u,
+    }
+    summary["flops_per_prediction"] = {
+        "moment_matching": mm_flops,
+        "sampling_per_trajectory": sample_flops,
+    }
     return series, summary
 
 
@@ -500,7 +445,6 @@ register(
         settings=SCALES_4_4,
         run_trial=_run_4_4,
         summarize=_summarize_4_4,
-        trials={"smoke": 1, "quick": 1, "paper": 1},
     )
 )
 
@@ -519,11 +463,9 @@ class TrainingSetting(Settings):
     """One training setting of ``fig4.5``: the default every panel varies one field of (the
     field order is part of the experiment's seeds)."""
 
-    additive_noise: float = setting(
-        1.0, "Additive-noise factor α: σ_add = α 10⁻² std(y) (Sec. 4.2.3).", minimum=0
-    )
+    additive_noise: float = setting(1.0, _ALPHA, minimum=0)
     n_opt_steps: int = setting(50, "Hyper-parameter optimisation steps (thesis: 150).", minimum=0)
-    torque_noise_std: float = setting(0.5, "Std of the torque noise of the robot (N m).", minimum=0)
+    torque_noise_std: float = setting(0.5, _TORQUE_NOISE, minimum=0)
     n_train: int = setting(15, "Training trajectories (thesis: 50).", minimum=1)
 
 
@@ -550,25 +492,18 @@ class RewardErrorSettings(Settings):
     initial_std: float = setting(0.1, "Std of the initial state around upright.", minimum=0)
     horizon: int = setting(20, "Steps T of training and test trajectories (thesis: 20).", minimum=1)
     n_predicted: int = setting(10, "Trajectories sampled per test pair (thesis: 20).", minimum=1)
-    pseudo_fraction: float = setting(
-        0.25, "Pseudo-inputs of FITC as a fraction of N.", above=0, maximum=1
-    )
+    pseudo_fraction: float = setting(0.25, "FITC's pseudo-inputs M / N.", above=0, maximum=1)
     natural_frequency: float = setting(3.0, "ω (rad/s) of the PD controller.", above=0)
     damping: float = setting(1.5, "ζ of the PD controller.", above=0)
-    gp_target: str = setting("next", "What the GPs learn: 'next' (x′, the thesis) or 'delta'.")
-    uncurbed_panels: tuple[str, ...] = setting(
-        ("n_opt_steps",), "Panels also trained without the hyper-parameter curb."
-    )
-    n_truth: int = setting(
-        5, "Real rollouts per test start (their variance: the floor).", minimum=2
-    )
+    gp_target: Literal["next", "delta"] = setting("next", _TARGET)
+    uncurbed_panels: tuple[str, ...] = setting(("n_opt_steps",), "Panels also trained uncurbed.")
+    n_truth: int = setting(5, "Real rollouts per test start (variance: the floor).", minimum=2)
 
     def check(self) -> None:
         names = [k for k, _ in _PANELS_4_5]
         bad = [p for p in self.uncurbed_panels if p not in names]
         if bad:
             raise ValueError(f"uncurbed_panels: expected names from {names}, got {bad}")
-        _check_target(self.gp_target)
 
 
 SCALES_4_5 = scales(
@@ -606,13 +541,8 @@ def _seed(root: int, *keys) -> np.random.Generator:
 
 
 def _evaluate_4_5(cfg: dict, settings: RewardErrorSettings, root: int, curbs=(True,)) -> dict:
-    """Train both models on one training setting and measure their reward-prediction errors.
-
-    One PD controller G throughout. A test pair is a start state x_0 whose real reward R is
-    that of one real rollout; ``n_truth`` rollouts from x_0 give the noise floor Var(R | x_0).
-    The constant predictor predicts the training rollouts' mean reward. ``curbs``: True trains
-    with :class:`~skillkit.models.gp.HyperCurb`, False without (``"<kind>_uncurbed"``).
-    """
+    """Both models' reward-prediction errors for one training setting (``curbs``: with the
+    HyperCurb and/or without, ``"<kind>_uncurbed"``); R of a test start: one real rollout."""
     T = settings.horizon
     noise = cfg["torque_noise_std"]
     task = make("balancing", n_steps=T, torque_noise_std=noise, initial_std=settings.initial_std)
@@ -636,18 +566,11 @@ def _evaluate_4_5(cfg: dict, settings: RewardErrorSettings, root: int, curbs=(Tr
         "n_failed_truth": int(sum(t.failed for row in rollouts for t in row)),
     }
     N = len(train["x"])
+    M = max(1, int(settings.pseudo_fraction * N))
     for curb in curbs:
         for kind in ("standard", "sparse"):
-            model = _model(
-                kind,
-                N,
-                settings,
-                additive_noise=cfg["additive_noise"],
-                n_steps=cfg["n_opt_steps"],
-                n_inducing=max(1, int(settings.pseudo_fraction * N)),
-                curb=curb,
-                target=settings.gp_target,
-            )
+            alpha, steps = cfg["additive_noise"], cfg["n_opt_steps"]
+            model = _model(kind, settings, M, curb, settings.gp_target, alpha, steps)
             t0 = time.perf_counter()
             model.fit(train["x"], train["u"], train["x_next"], rng=_seed(root, 3, *cfg.values()))
             train_time = time.perf_counter() - t0
@@ -663,15 +586,13 @@ def _evaluate_4_5(cfg: dict, settings: RewardErrorSettings, root: int, curbs=(Tr
                 "jitter": d["jitter"],
                 "noise_at_floor": len(d["noise_at_floor"]),
                 "stopped_early": d["stopped_early"] is not None,
-                "max_signal_to_noise": d["max_signal_to_noise"],
-                "max_lengthscale_ratio": d["max_lengthscale_ratio"],
+                **{k: d[k] for k in _HYPER},
             }
     return out
 
 
 def _configs_4_5(settings: RewardErrorSettings) -> list[tuple[dict, bool]]:
-    """The distinct training settings of the panels, each with whether it is also trained
-    without the curb."""
+    """The panels' distinct training settings, each with whether it is also trained uncurbed."""
     defaults = settings.defaults.to_dict()
     configs: list[dict] = []
     uncurbed: list[bool] = []
@@ -714,20 +635,14 @@ def sparse_minus_standard(panels: dict, settings) -> dict[str, list[float]]:
     """FITC's reward-prediction error minus the standard GP's (from fig4.5's
     ``summary["panels"]``) at the additive-noise factors above the default and the
     control-noise levels above 0, where the thesis compares them."""
-    alpha0 = settings.defaults.additive_noise
+
+    def diff(key: str, above: float) -> list[float]:
+        p, values = panels[key], sorted(getattr(settings, f"{key}_values"))
+        return [p["sparse"][str(v)] - p["standard"][str(v)] for v in values if v > above]
+
     return {
-        "additive_noise_above_default": [
-            panels["additive_noise"]["sparse"][str(a)]
-            - panels["additive_noise"]["standard"][str(a)]
-            for a in sorted(settings.additive_noise_values)
-            if a > alpha0
-        ],
-        "torque_noise_above_zero": [
-            panels["torque_noise_std"]["sparse"][str(v)]
-            - panels["torque_noise_std"]["standard"][str(v)]
-            for v in sorted(settings.torque_noise_std_values)
-            if v > 0
-        ],
+        "additive_noise_above_default": diff("additive_noise", settings.defaults.additive_noise),
+        "torque_noise_above_zero": diff("torque_noise_std", 0),
     }
 
 
@@ -748,6 +663,9 @@ def _summarize_4_5(settings: RewardErrorSettings, trials: list[dict]) -> tuple[l
     for key, label in _PANELS_4_5:
         values = list(getattr(settings, f"{key}_values"))
         panel = {}
+        kw = dict(
+            panel=label, xlabel=label, ylabel=REWARD_ERROR_LABEL, log_x=key == "additive_noise"
+        )
         for kind, name in _KINDS_4_5:
             if kind.endswith("_uncurbed") and key not in settings.uncurbed_panels:
                 continue
@@ -756,19 +674,7 @@ def _summarize_4_5(settings: RewardErrorSettings, trials: list[dict]) -> tuple[l
                 for v in values
             ]
             line = "line" if kind in ("noise_floor", "constant_predictor") else "lines+markers"
-            series.append(
-                Series(
-                    name,
-                    values,
-                    errs,
-                    panel=label,
-                    kind=line,
-                    xlabel=label,
-                    ylabel=REWARD_ERROR_LABEL,
-                    log_x=key == "additive_noise",
-                    log_y=True,
-                )
-            )
+            series.append(Series(name, values, errs, kind=line, log_y=True, **kw))
             panel[kind] = dict(zip(map(str, values), errs, strict=True))
         summary["panels"][key] = panel
     default = at(defaults)
@@ -777,40 +683,35 @@ def _summarize_4_5(settings: RewardErrorSettings, trials: list[dict]) -> tuple[l
     def most(kind, key, rs):
         return float(np.max([r[kind][key] for r in rs]))
 
-    summary.update(
-        {
-            "default_setting": defaults,
-            "default_squared_error": {
-                k: float(np.mean([value(r, k) for r in default]))
-                for k in ("standard", "sparse", "noise_floor", "constant_predictor")
-            },
-            "mean_real_reward": float(np.mean([r["real_reward_mean"] for r in default])),
-            "train_time_s_default": {
-                k: float(np.mean([r[k]["train_time_s"] for r in default]))
-                for k in ("standard", "sparse")
-            },
-            "hyperparameters_by_steps": {
-                kind: {
-                    v: {
-                        k: most(kind, k, rs)
-                        for k in ("max_signal_to_noise", "max_lengthscale_ratio")
-                    }
-                    for v, rs in by_steps.items()
-                    if all(kind in r for r in rs)
-                }
-                for kind in ("standard", "sparse", "standard_uncurbed", "sparse_uncurbed")
-            },
-            "numerical_events": {
-                k: {
-                    "jitter": max(r[k]["jitter"] for r in results if k in r),
-                    "noise_at_floor": sum(r[k]["noise_at_floor"] for r in results if k in r),
-                    "stopped_early": sum(r[k]["stopped_early"] for r in results if k in r),
-                }
-                for k in ("standard", "sparse")
-            },
-            "n_failed_truth_rollouts": sum(r["n_failed_truth"] for r in results),
-        }
-    )
+    summary |= {
+        "default_setting": defaults,
+        "default_squared_error": {
+            k: float(np.mean([value(r, k) for r in default]))
+            for k in ("standard", "sparse", "noise_floor", "constant_predictor")
+        },
+        "mean_real_reward": float(np.mean([r["real_reward_mean"] for r in default])),
+        "train_time_s_default": {
+            k: float(np.mean([r[k]["train_time_s"] for r in default]))
+            for k in ("standard", "sparse")
+        },
+        "hyperparameters_by_steps": {
+            kind: {
+                v: {k: most(kind, k, rs) for k in _HYPER}
+                for v, rs in by_steps.items()
+                if all(kind in r for r in rs)
+            }
+            for kind in ("standard", "sparse", "standard_uncurbed", "sparse_uncurbed")
+        },
+        "numerical_events": {
+            k: {
+                "jitter": max(r[k]["jitter"] for r in results if k in r),
+                "noise_at_floor": sum(r[k]["noise_at_floor"] for r in results if k in r),
+                "stopped_early": sum(r[k]["stopped_early"] for r in results if k in r),
+            }
+            for k in ("standard", "sparse")
+        },
+        "n_failed_truth_rollouts": sum(r["n_failed_truth"] for r in results),
+    }
     summary["sparse_minus_standard"] = sparse_minus_standard(summary["panels"], settings)
     return series, summary
 
@@ -823,6 +724,5 @@ register(
         settings=SCALES_4_5,
         run_trial=_run_4_5,
         summarize=_summarize_4_5,
-        trials={"smoke": 1, "quick": 1, "paper": 1},
     )
 )

@@ -1,20 +1,13 @@
 """Chapter 4, learning with stochastic dynamics (Sec. 4.3.2.2, Fig. 4.8).
 
-``fig4.8``: one context–parameter pair (s, ω) of the stochastic pendulum
-(:func:`skillkit.tasks.pendulum.pendulum_stochastic`, σ_u = 1.5, T = 30; s = [α₀, α̇₀], ω the
-gains K of u = Kᵀx) rolled out many times. Under stochastic dynamics single-rollout rewards
-R(τ, s) vary widely around R_sω = E[R(τ, s)], so model-free REPS scores each pair with a noisy
-estimate while GPREPS averages L model trajectories (Eq. 4.1). One trial:
-
-1. ``n_real`` real rollouts of the pair: the Monte Carlo R_MC, its standard error (the noise
-   floor of every comparison) and the spread of single rewards;
-2. a GP forward model (Δx targets) fitted on ``n_train`` real rollouts of nearby pairs, with
-   the *commanded* torque as input (:func:`commanded_transitions`);
-3. ``n_model`` model trajectories of the pair: the model's reward distribution and, for each
-   L in ``sample_sizes``, the RMSE against R_MC of the average of L model trajectories beside
-   that of L real rollouts (:func:`block_rmse`).
-
-The thesis reports no result here; our readings are in ``skillkit/data/claims/ch4.toml``.
+``fig4.8``: one context–parameter pair (s, ω) of the stochastic pendulum (σ_u = 1.5, T = 30;
+s = [α₀, α̇₀], ω the gains K of u = Kᵀx). Single-rollout rewards R(τ, s) vary widely around
+R(s, ω) = E[R(τ, s)]: model-free REPS scores a pair with one of them, GPREPS with the average
+of L model trajectories (Eq. 4.1). A trial rolls the pair out ``n_real`` times (the Monte Carlo
+R_MC and its standard error, the noise floor), fits a GP forward model (Δx targets, commanded
+torque as input) on ``n_train`` rollouts of nearby pairs, and compares the RMSE against R_MC of
+L-averages of model and of real trajectories (:func:`block_rmse`). The thesis reports no
+result; our readings are in ``skillkit/data/claims/ch4.toml``.
 """
 
 from __future__ import annotations
@@ -36,11 +29,8 @@ from skillkit.viz.series import trial_band
 __all__ = ["StochasticRewardSettings", "block_rmse", "commanded_transitions"]
 
 REWARD_LABEL = "trajectory reward R(τ, s) = −Σ_t (α_t² + 0.1 α̇_t²)"
-ERROR_LABEL = "RMSE of the estimate of R_sω"
-HIST_PANEL = "reward distribution"
 REAL = "real rollouts"
 MODEL = "GP model trajectories"
-ERROR_PANEL = "error of the L-trajectory average"
 
 
 @dataclass(frozen=True)
@@ -55,7 +45,7 @@ class StochasticRewardSettings(Settings):
     )
     control_noise: float = setting(1.5, "Std σ_u of the torque noise (N m).")
     horizon: int = setting(30, "Control steps T of every trajectory (Δt = 0.1 s).", minimum=1)
-    n_real: int = setting(400, "Real rollouts of the pair (Monte Carlo R_sω).", minimum=1)
+    n_real: int = setting(400, "Real rollouts of the pair (Monte Carlo R(s, ω)).", minimum=1)
     n_shown: int = setting(20, "Real and model trajectories drawn in the left panels.", minimum=1)
     n_train: int = setting(20, "Real rollouts of nearby pairs that train the GP.", minimum=1)
     train_context_halfwidth: tuple[float, float] = setting(
@@ -111,13 +101,9 @@ SCALES = scales(
 def commanded_transitions(
     task: Pendulum, trajectory, omega: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Transitions (x_t, u_t, x_{t+1}) of a real rollout with u_t the commanded torque
-    clip(Kᵀx_t, −3, 3) (what model rollouts' controller outputs): the torque noise becomes
-    part of the stochastic transition the model learns.
-
-    Returns X (T, 2), U (T, 1) and X_next (T, 2) of ``trajectory``, a rollout of ``task``
-    with the gains ``omega`` (2,).
-    """
+    """Transitions X (T, 2), U (T, 1), X_next (T, 2) of ``trajectory`` (a rollout of ``task``
+    with gains ``omega`` (2,)), u_t the commanded torque clip(Kᵀx_t, −3, 3): the torque noise
+    becomes part of the stochastic transition the model learns."""
     x, _, x_next = task.transitions(trajectory)
     policy = task.controller(np.asarray(omega, dtype=float)[None])
     with torch.no_grad():
@@ -198,8 +184,7 @@ def _run_trial(
 
 
 def _histogram(values: np.ndarray, edges: np.ndarray) -> list[float]:
-    """Density (per unit reward) of ``values`` on the bins ``edges``; values outside count
-    in the outer bins, so every sample is shown."""
+    """Density of ``values`` on the bins ``edges``, values outside counted in the outer bins."""
     counts, _ = np.histogram(np.clip(values, edges[0], edges[-1]), bins=edges)
     return (counts / (values.size * np.diff(edges))).tolist()
 
@@ -235,16 +220,16 @@ def _summarize(settings: StochasticRewardSettings, trials: list[dict]) -> tuple[
     centres = (0.5 * (edges[1:] + edges[:-1])).tolist()
     hist = {"real": _histogram(real, edges), "model": _histogram(model, edges)}
     top = max(max(hist["real"]), max(hist["model"]))
-    panel = f"{HIST_PANEL} ({real.size} real, {model.size} model trajectories)"
+    panel = f"reward distribution ({real.size} real, {model.size} model trajectories)"
     hkw = dict(panel=panel, xlabel=REWARD_LABEL, ylabel="density [1/reward]")
     series += [
         Series(REAL, centres, hist["real"], kind="lines+markers", **hkw),
         Series(MODEL, centres, hist["model"], kind="lines+markers", **hkw),
-        Series("R_sω, Monte Carlo (real)", [r_mc, r_mc], [0.0, top], **hkw),
-        Series("R̂_sω, model average (Eq. 4.1)", [float(model.mean())] * 2, [0.0, top], **hkw),
+        Series("R(s, ω), Monte Carlo (real)", [r_mc, r_mc], [0.0, top], **hkw),
+        Series("R̂(s, ω), model average (Eq. 4.1)", [float(model.mean())] * 2, [0.0, top], **hkw),
     ]
-    ekw = dict(panel=ERROR_PANEL, xlabel="L (trajectories averaged)", ylabel=ERROR_LABEL)
-    ekw.update(log_x=True, log_y=True)
+    ekw = dict(panel="error of the L-trajectory average", xlabel="L (trajectories averaged)")
+    ekw.update(ylabel="RMSE of the estimate of R(s, ω)", log_x=True, log_y=True)
     for key, name in (
         ("rmse_real", "average of L real rollouts (L = 1: model-free REPS)"),
         ("rmse_model", "average of L GP model trajectories (GPREPS)"),
@@ -288,6 +273,5 @@ register(
         settings=SCALES,
         run_trial=_run_trial,
         summarize=_summarize,
-        trials={"smoke": 1, "quick": 1, "paper": 1},
     )
 )

@@ -1,15 +1,10 @@
 """Chapter 4, GPREPS with discrete-event models on table tennis (Sec. 4.3.4).
 
-* ``fig4.12`` — GPREPS with the five models of 4.3.4
-  (:class:`~skillkit.tasks.table_tennis.model.TableTennisRewardModel`, reward schedule of
-  Eq. 4.17), GP direct, and contextual REPS with ``fig3.7``'s settings and the fit
-  regularisation of the stored run (``ch3_table_tennis.REGULARISED``); the GPREPS runs are
-  :mod:`skillkit.experiments.ch4_events`'s.
-* ``fig4.13`` — the five models, learned from 100 rollouts, against the simulator on held-out
-  rollouts (10 sampled trajectories each).
-
-How each run is judged is the claims spec's (``skillkit/data/claims/ch4.toml``); the variants
-tried are in ``data/notes/fig4.12.md``.
+``fig4.12``: GPREPS with the five models of 4.3.4 (reward schedule of Eq. 4.17; the runs of
+:mod:`skillkit.experiments.ch4_events`), GP direct, and REPS with ``fig3.7``'s settings and
+the stored run's fit (``ch3_table_tennis.REGULARISED``). ``fig4.13``: the five models, learned
+from 100 rollouts, against the simulator on held-out rollouts. Judged in
+``skillkit/data/claims/ch4.toml``; the variants tried: ``data/notes/fig4.12.md``.
 """
 
 from __future__ import annotations
@@ -28,19 +23,18 @@ from skillkit.experiments.ch3_table_tennis import (
 )
 from skillkit.experiments.ch4_events import (
     EventGPREPSSettings,
-    gpreps_event_stats,
+    event_summary,
     gpreps_run,
     gpreps_scales,
-    heldout_curves,
+    reps_curve,
 )
 from skillkit.experiments.curves import (
     CurveTask,
-    heldout_stats,
+    experiment,
+    heldout_setup,
     register_curve_task,
-    rollouts_to_reach,
-    run_curve,
 )
-from skillkit.experiments.registry import Experiment, Series, register
+from skillkit.experiments.registry import Series
 from skillkit.experiments.settings import Settings, scales, setting
 from skillkit.models.gp import ExactGP
 from skillkit.search.gpreps import DirectRewardModel
@@ -54,9 +48,6 @@ __all__ = [
     "table_tennis_reward_model",
 ]
 
-THESIS_412 = {"gpreps_rollouts": 150, "gpreps_landing_error_m": 0.30, "reps_rollouts": 4000}
-"""The thesis's numbers on Fig. 4.12, kept in the summary as ``thesis_numbers``."""
-
 
 @dataclass(frozen=True)
 class TableTennisModelSettings(Settings):
@@ -64,20 +55,13 @@ class TableTennisModelSettings(Settings):
     as fig4.12 and fig4.13 use them (why: the claims spec's setup table of fig4.12)."""
 
     contact_features: Literal["thesis", "extended"] = setting(
-        "extended",
-        "Contact-model inputs: the thesis's ten (relative velocity, racket position "
-        "and quaternion) or ours, adding the ball's position relative to the racket and the "
-        "distance (the thesis's ten do not separate hits from misses here).",
+        "extended", "Contact-model inputs: the thesis's ten, or with the ball's relative position."
     )
     contact_score: Literal["probability", "decision", "margin"] = setting(
-        "probability",
-        "Contact weight of a sampled path: the SVM's Platt-calibrated hit "
-        "probability, its hard decision, or the decision softened inside its margin.",
+        "probability", "Contact weight: the SVM's hit probability, decision or soft margin."
     )
     refit: Literal["cold", "warm", "best"] = setting(
-        "best",
-        "GP hyper-parameters after each data collection (Sec. 4.1): cold, warm, or both "
-        "keeping the larger marginal likelihood.",
+        "best", "GP refit start (Sec. 4.1): cold, warm or the better of both."
     )
 
 
@@ -87,9 +71,7 @@ class TableTennisGPREPSSettings(EventGPREPSSettings, TableTennisModelSettings):
 
     n_updates: int = setting(130, "GPREPS / GP-direct updates (N₀ + K = 150 rollouts).", minimum=1)
     schedule: Literal["auto", "hitting", "returning"] = setting(
-        "auto",
-        "Reward schedule of Eq. 4.17: 'auto' switches c₁ = c₂ once the contact model "
-        "is good, or a forced 'hitting' / 'returning'.",
+        "auto", "Eq. 4.17's c₁ / c₂ schedule ('auto': switch once contacts are modelled)."
     )
     reps_updates: int = setting(80, "REPS updates (× 50 rollouts = 4000).", minimum=1)
 
@@ -105,7 +87,6 @@ class ModelAccuracySettings(TableTennisModelSettings):
     gp_steps: int = setting(100, "L-BFGS iterations of every GP's hyper-parameter fit.", minimum=0)
 
 
-# --------------------------------------------------------------------------- models
 def table_tennis_reward_model(task, st, schedule: str = "auto"):
     """The table-tennis reward model of GPREPS (Sec. 4.3.4) with ``st``'s GP fits and contact
     features, and the c₁ / c₂ ``schedule``
@@ -126,82 +107,46 @@ def table_tennis_reward_model(task, st, schedule: str = "auto"):
     )
 
 
-# --------------------------------------------------------------------------- table tennis
 def run_trial_412(st: TableTennisGPREPSSettings, rng: np.random.Generator, trial: TrialContext):
     """GPREPS (five models), GP direct and REPS on ``table-tennis`` from the imitation policy."""
     task = make("table-tennis")
-    heldout = task.sample_context(rng, n=st.n_heldout)
-    eval_contexts = task.sample_context(rng, n=st.n_eval_contexts)
-    heldout_seed = int(rng.integers(2**63))
-    seeds = rng.spawn(3)
+    _, eval_contexts, score, seeds = heldout_setup(task, st, rng, 3, _shot_scores)
     trial.reset(total=2 * st.n_updates + st.reps_updates)
-
-    def score(policy) -> dict:
-        return shot_scores(task, policy, heldout, heldout_seed)[0]
-
-    out: dict = {}
-    out.update(
-        gpreps_run(
-            task,
-            st,
-            "gpreps",
-            table_tennis_reward_model(task, st, st.schedule),
-            seeds[0],
-            trial,
-            eval_contexts,
-            score,
-            keep_model=True,
-        )
-    )
+    model = table_tennis_reward_model(task, st, st.schedule)
+    out = gpreps_run(task, st, "gpreps", model, seeds[0], trial, eval_contexts, score, True)
     direct = DirectRewardModel(ExactGP(n_steps=st.gp_steps))
     out.update(gpreps_run(task, st, "direct", direct, seeds[1], trial, eval_contexts, score))
     tt = _reps_settings()
     reps = make_reps(task, tt)
-    every = max(1, st.reps_updates // 5)
-    arrays, _ = run_curve(
-        task,
-        reps,
-        "reps",
-        st.reps_updates,
-        tt.rollouts_per_update,
-        seeds[2],
-        trial,
-        eval_contexts,
-        score=score,
-        every=every,
-    )
-    out.update(arrays)
+    n = tt.rollouts_per_update
+    out.update(reps_curve(task, reps, st, n, seeds[2], trial, eval_contexts, score))
     return out
+
+
+def _shot_scores(task, policy, contexts, seed) -> dict:
+    return shot_scores(task, policy, contexts, seed)[0]
 
 
 TT_SCORES = ("reward", "returned", "net", "missed", "landing_error")
 
 
 def summarize_412(st: TableTennisGPREPSSettings, trials: list[dict]):
-    keys = ("gpreps", "direct", "reps")
     labels = {"gpreps": "GPREPS", "direct": "GP direct", "reps": "REPS (ε = 0.6)"}
     panels = (
         ("learning curves", "reward of the policy mean"),
         ("held-out landing error", "‖b − p‖ (m)"),
     )
-    series = [
-        s for key in keys for s in heldout_curves(trials, key, labels[key], panels, "landing_error")
-    ]
-    summary: dict = {"n_trials": len(trials), "thesis_numbers": dict(THESIS_412)}
-    for key in keys:
-        summary[key] = heldout_stats(trials, key, TT_SCORES)
-        summary[key]["final_net_or_missed_per_trial"] = [  # GP direct's "net, or even miss"
+    parts = ("real rollouts used", "landing error")
+    series, summary = event_summary(
+        trials, "fig4.12", labels, panels, TT_SCORES, "landing_error", parts
+    )
+    for key in labels:  # GP direct's "net, or even miss"
+        summary[key]["final_net_or_missed_per_trial"] = [
             float(t[f"{key}_heldout_net"][-1] + t[f"{key}_heldout_missed"][-1]) for t in trials
         ]
-    for key in ("gpreps", "direct"):
-        summary[key].update(gpreps_event_stats(trials, key))
-    summary["reps_rollouts_to_gpreps_final_reward"] = rollouts_to_reach(
-        trials, "reps", summary["gpreps"]["final_reward"], "heldout_reward", "heldout_rollouts"
-    )
     return series, summary
 
 
-# --------------------------------------------------------------------------- fig4.13
 def run_trial_413(st: ModelAccuracySettings, rng: np.random.Generator, trial: TrialContext):
     """Fit the five models on ``n_rollouts`` rollouts of the initial policy; compare their
     samples with the simulator on ``n_heldout`` fresh (s, ω) pairs."""
@@ -265,18 +210,14 @@ def summarize_413(st: ModelAccuracySettings, trials: list[dict]):
         ("side view (x–z)", (0, 2), "z (m)"),
         ("top view (x–y)", (0, 1), "y (m)"),
     ):
-        for name, key, kind in (
-            ("incoming ball, models 1–2 (10 samples)", "shown_ball_predicted", "line"),
-            ("racket, models 3–4 (10 samples)", "shown_racket_predicted", "line"),
-        ):
-            pred = np.asarray(t0[key], dtype=float)
-            x, y = _nan_joined(pred.reshape(-1, *pred.shape[2:]), cols)
-            series.append(Series(name, x, y, view, kind, xlabel="x (m)", ylabel=ylabel))
         for name, key in (
+            ("incoming ball, models 1–2 (10 samples)", "shown_ball_predicted"),
+            ("racket, models 3–4 (10 samples)", "shown_racket_predicted"),
             ("ball, simulator", "shown_ball_real"),
             ("racket, simulator", "shown_racket_real"),
         ):
-            x, y = _nan_joined(np.asarray(t0[key], dtype=float), cols)
+            paths = np.asarray(t0[key], dtype=float)  # (shown, [samples,] T, 3)
+            x, y = _nan_joined(paths.reshape(-1, *paths.shape[-2:]), cols)
             series.append(Series(name, x, y, view, "line", xlabel="x (m)", ylabel=ylabel))
     lp = np.asarray(t0["shown_landing_predicted"], dtype=float).reshape(-1, 2)
     lr = np.asarray(t0["shown_landing_real"], dtype=float)
@@ -289,45 +230,30 @@ def summarize_413(st: ModelAccuracySettings, trials: list[dict]):
             Series(name, *xy, "top view (x–y)", "markers", xlabel="x (m)", ylabel="y (m)")
         )
     keys = [k for k in t0 if k.startswith("accuracy_")]
-    errors = {k[len("accuracy_") :]: float(np.mean([t[k] for t in trials])) for k in keys}
     per_trial = {k[len("accuracy_") :]: [float(t[k]) for t in trials] for k in keys}
-    summary: dict = {
-        "n_trials": len(trials),
-        "errors": errors,
-        "thresholds": dict(MODEL_ERRORS),
-        "errors_per_trial": per_trial,
-    }
-    return series, summary
+    errors = {k[len("accuracy_") :]: float(np.mean([t[k] for t in trials])) for k in keys}
+    summary = {"n_trials": len(trials), "errors": errors, "thresholds": dict(MODEL_ERRORS)}
+    return series, {**summary, "errors_per_trial": per_trial}
 
 
-# --------------------------------------------------------------------------- registry
-register(
-    Experiment(
-        id="fig4.12",
-        title="Robot table tennis: GPREPS (five models) vs GP direct vs REPS",
-        settings_class=TableTennisGPREPSSettings,
-        settings=gpreps_scales(
-            TableTennisGPREPSSettings, smoke={"reps_updates": 1}, quick={"reps_updates": 10}
-        ),
-        run_trial=run_trial_412,
-        summarize=summarize_412,
-        trials={"smoke": 1, "quick": 1, "paper": 5},
-    )
+experiment(
+    "fig4.12",
+    "Robot table tennis: GPREPS (five models) vs GP direct vs REPS",
+    gpreps_scales(TableTennisGPREPSSettings, smoke={"reps_updates": 1}, quick={"reps_updates": 10}),
+    run_trial_412,
+    summarize_412,
 )
-register(
-    Experiment(
-        id="fig4.13",
-        title="Robot table tennis: the five models' predictions against the simulator",
-        settings_class=ModelAccuracySettings,
-        settings=scales(
-            ModelAccuracySettings(),
-            smoke={"n_rollouts": 20, "n_heldout": 3, "n_samples": 2, "n_shown": 1, "gp_steps": 10},
-            quick={"n_heldout": 10, "gp_steps": 60},
-        ),
-        run_trial=run_trial_413,
-        summarize=summarize_413,
-        trials={"smoke": 1, "quick": 1, "paper": 1},
-    )
+experiment(
+    "fig4.13",
+    "Robot table tennis: the five models' predictions against the simulator",
+    scales(
+        ModelAccuracySettings(),
+        smoke={"n_rollouts": 20, "n_heldout": 3, "n_samples": 2, "n_shown": 1, "gp_steps": 10},
+        quick={"n_heldout": 10, "gp_steps": 60},
+    ),
+    run_trial_413,
+    summarize_413,
+    (1, 1, 1),
 )
 
 

@@ -61,25 +61,14 @@ class TrajectoryKLSettings(Settings):
     n_train: int = setting(40, "Training trajectories M per data set (Eq. 4.16).", minimum=2)
     n_test: int = setting(40, "Held-out trajectories per data set.", minimum=1)
     horizon: int = setting(20, "Time steps T per trajectory (states x_1 … x_T).", minimum=3)
-    linear_excitation: float = setting(
-        0.5, "σ of the excitation ξ_t of the linear system (and of a_i).", minimum=0
-    )
+    linear_excitation: float = setting(0.5, "σ of ξ_t and a_i of the linear system.", minimum=0)
     pendulum_control_noise: float = setting(0.05, "σ_u of the pendulum (Sec. 5.4).", minimum=0)
-    balancing_initial_std: float = setting(
-        0.1, "σ of the balancing start states N(x_up, σ² I), as tab4.2.", minimum=0
-    )
-    balancing_excitation: float = setting(
-        30.0, "σ_ξ (N m) of the torque excitation of the balancing data, as tab4.2.", minimum=0
-    )
+    balancing_initial_std: float = setting(0.1, "σ of N(x_up, σ² I), as tab4.2.", minimum=0)
+    balancing_excitation: float = setting(30.0, "σ_ξ (N m) of the torques, as tab4.2.", minimum=0)
     n_inducing: int = setting(20, "Pseudo-inputs per output of the FITC GP.", minimum=1)
-    cross: bool = setting(
-        False, "Quadratic features with the products x_i x_j (else the squares only, as B.7)."
-    )
+    cross: bool = setting(False, "Quadratic features with x_i x_j (else squares, as B.7).")
     ridges: tuple[float, ...] = setting(
-        (0.0, 0.1),
-        "λ of the dual: 0 the thesis's hard feature constraints, λ > 0 soft ones (penalty "
-        "‖residual‖²/2λ in standardised feature units).",
-        minimum=0,
+        (0.0, 0.1), "λ of the dual: 0 hard feature constraints (thesis), > 0 soft ones.", minimum=0
     )
     ml_iterations: int = setting(300, "L-BFGS iterations of one-step ML (FITC).", minimum=1)
     tkl_iterations: int = setting(100, "Outer L-BFGS iterations of trajectory KL.", minimum=1)
@@ -277,9 +266,7 @@ def _fit_and_score(system, cls, train, test, scale, st, rng, trial) -> dict:
         theta_ml, ml_iters = fit.theta, fit.n_iterations
     out: dict = {"ml": {"time_s": time.perf_counter() - t0, "iterations": ml_iters}}
     out["ml"].update(_scores(model, theta_ml, test, scale, st.n_samples, rng))
-    d_ml = _objective(model, theta_ml, train, st, 0.0)
-    out["ml"]["dual_objective"] = d_ml
-    out["ml"]["theta"] = theta_ml
+    out["ml"] |= {"dual_objective": _objective(model, theta_ml, train, st, 0.0), "theta": theta_ml}
     trial.update()
     for ridge in st.ridges:
         key = _tkl_key(ridge)
@@ -287,14 +274,7 @@ def _fit_and_score(system, cls, train, test, scale, st, rng, trial) -> dict:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
             fit = fit_trajectory_kl(
-                model,
-                theta_ml,
-                train.states,
-                train.controls,
-                cross=st.cross,
-                ridge=ridge,
-                maxiter=st.tkl_iterations,
-                inner_maxiter=st.inner_iterations,
+                model, theta_ml, ridge=ridge, maxiter=st.tkl_iterations, **_dual_args(train, st)
             )
         out[key] = {
             "time_s": time.perf_counter() - t0,
@@ -314,7 +294,7 @@ def _fit_and_score(system, cls, train, test, scale, st, rng, trial) -> dict:
         truth = model.pack(LIN_A, LIN_B, LIN_C, LIN_VAR)
         out["truth"] = _scores(model, truth, test, scale, st.n_samples, rng)
         out["truth"]["dual_objective"] = _objective(model, truth, train, st, 0.0)
-        for key in ["ml"] + [_tkl_key(r) for r in st.ridges]:
+        for key in _methods(st):
             out[key].update(_parameter_error(model, out[key]["theta"]))
     for key in out:
         out[key].pop("theta", None)
@@ -325,16 +305,15 @@ def _objective(model, theta, data: TrajectoryData, st: TrajectoryKLSettings, rid
     """D(θ) = max_γ g on the training trajectories (inf when the inner maximum diverges)."""
     with np.errstate(all="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        value = trajectory_kl_objective(
-            model,
-            theta,
-            data.states,
-            data.controls,
-            cross=st.cross,
-            ridge=ridge,
-            inner_maxiter=st.inner_iterations,
-        )[0]
+        value = trajectory_kl_objective(model, theta, ridge=ridge, **_dual_args(data, st))[0]
     return float(value) if np.isfinite(value) and value < 1e6 else float("inf")
+
+
+def _dual_args(d: TrajectoryData, st: TrajectoryKLSettings) -> dict:
+    """Trajectories and fixed options of the dual of Eq. 4.16."""
+    return dict(
+        states=d.states, controls=d.controls, cross=st.cross, inner_maxiter=st.inner_iterations
+    )
 
 
 def _parameter_error(model: LinearGaussianTKL, theta) -> dict:
@@ -427,6 +406,7 @@ def summarize(st: TrajectoryKLSettings, trials: list[dict]):
             "trivial_multistep_error": _mean([r["trivial"]["multistep_error"] for r in runs])
         }
         panel = f"{system}: multi-step error on held-out trajectories"
+        kw = dict(panel=panel, xlabel="time step t", ylabel="squared error (training std² units)")
         for cls in CLASSES:
             cell: dict = {}
             for key in _methods(st) + (["truth"] if "truth" in runs[0][cls] else []):
@@ -441,25 +421,15 @@ def summarize(st: TrajectoryKLSettings, trials: list[dict]):
                 ]
                 curve = np.mean([r[cls][key]["error_per_step"] for r in runs], axis=0)
                 label = "true model" if key == "truth" else _method_label(key)
-                series.append(
-                    Series(
-                        f"{CLASS_LABELS[cls]}, {label}",
-                        list(range(2, T + 1)),
-                        [float(v) if np.isfinite(v) else None for v in curve],
-                        panel=panel,
-                        xlabel="time step t",
-                        ylabel="squared error (training std² units)",
-                        log_y=True,
-                    )
-                )
+                y = [float(v) if np.isfinite(v) else None for v in curve]
+                name = f"{CLASS_LABELS[cls]}, {label}"
+                series.append(Series(name, list(range(2, T + 1)), y, log_y=True, **kw))
             ml, tkl = cell["ml"]["multistep_error"], cell["tkl_0"]["multistep_error"]
             cell["tkl_over_ml"] = None if ml is None or tkl is None or ml == 0 else tkl / ml
-            cell["tkl_lower_trials"] = int(
-                sum(
-                    r[cls]["tkl_0"]["multistep_error"] < r[cls]["ml"]["multistep_error"]
-                    for r in runs
-                )
-            )
+            lower = [
+                r[cls]["tkl_0"]["multistep_error"] < r[cls]["ml"]["multistep_error"] for r in runs
+            ]
+            cell["tkl_lower_trials"] = int(sum(lower))
             cell_sys[cls] = cell
         cell_sys["failed_rollouts_replaced"] = int(sum(r["n_failed_rollouts"] for r in runs))
         trivial = cell_sys["trivial_multistep_error"]

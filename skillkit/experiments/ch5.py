@@ -1,22 +1,20 @@
 """Chapter 5 experiments: kernel embeddings versus GP models (Sec. 5.4).
 
-``fig5.3``–``fig5.5`` (pendulum α̈ = −9.81 sin α + u, Δt = 0.1 s, u ~ N(Kᵀx, 0.05²), |u| ≤ 3,
-K = [−3, −1]): 15 observed trajectories of 20 steps train (a) a conditional embedding x → x'
-whose SE length-scales and λ minimise the 10-fold cross-validated state-embedding error
-(Eq. 5.16) and (b) a GP forward model (Eq. 2.28). On a grid of query states both predict the
+``fig5.3``–``fig5.5``, the pendulum α̈ = −9.81 sin α + u (Δt = 0.1 s, u ~ N(Kᵀx, 0.05²),
+|u| ≤ 3, K = [−3, −1]): 15 observed trajectories of 20 steps train a conditional embedding
+x → x' (SE length-scales and λ minimise the 10-fold cross-validated state-embedding error,
+Eq. 5.16) and a GP forward model (Eq. 2.28). On a grid of query states both predict the
 expected successor (``fig5.3`` e_α, ``fig5.4`` e_α̇) and the expected 20-step trajectory
-(``fig5.5``, Σ_t e_{x_t}) against a Monte Carlo ground truth. The embedding's prediction is
-E[x'] = X'ᵀβ; the pre-image (Eq. 2.45) is reported too.
+(``fig5.5``, Σ_t e_{x_t}) against a Monte Carlo truth; the embedding predicts E[x'] = X'ᵀβ
+and the pre-image (Eq. 2.45).
 
-``fig5.6``, ``fig5.7`` (balancing the planar 4-link robot, T = 40, initial std 0.3): one PD
-controller (:meth:`~skillkit.tasks.balancing.Balancing.pd_gain`) balances from random start
-states. A test pair is a start state x₀ᵢ and R_i = E[R | x₀ᵢ], the mean of
-``truth_rollouts`` real rollouts; e_r = mean_i (R̂_i − R_i)². Predictors: GP sampling, and
-embeddings over z = [x, u] (Table 5.2, linear reward kernel E[r_t] = r'ᵀβ_t) fitted by the
-step-based (Eq. 5.17/5.19) or trajectory-based (Eq. 5.23) cross-validated reward error.
-
-Floors of every id: the constant predictor and the Monte Carlo variance of the ground truth.
-The setup choices the thesis leaves open are listed in ``skillkit/data/claims/ch5.toml``.
+``fig5.6``, ``fig5.7``, balancing the planar 4-link robot (T = 40, initial std 0.3) with one
+PD controller: a test pair is a start state x₀ᵢ and R_i = E[R | x₀ᵢ] from ``truth_rollouts``
+real rollouts; e_r = mean_i (R̂_i − R_i)². Predictors: GP sampling, and embeddings over
+z = [x, u] (Table 5.2, linear reward kernel E[r_t] = r'ᵀβ_t) fitted by the step-based
+(Eq. 5.17/5.19) or trajectory-based (Eq. 5.23) cross-validated reward error. Floors: the
+constant predictor and the Monte Carlo variance of the truth. Open setup choices are in
+``skillkit/data/claims/ch5.toml``.
 """
 
 from __future__ import annotations
@@ -81,9 +79,7 @@ class PendulumSettings(Settings):
     """Settings of ``fig5.3``, ``fig5.4`` and ``fig5.5`` (pendulum, Sec. 5.4)."""
 
     n_trajectories: int = setting(15, "Observed trajectories (thesis: 15).", minimum=2)
-    horizon: int = setting(
-        20, "Steps per observed and predicted trajectory (thesis: 20).", minimum=1
-    )
+    horizon: int = setting(20, "Steps per observed and predicted trajectory.", minimum=1)
     control_noise: float = setting(0.05, "Std σ_u of the controls (N m; thesis: 0.05).", minimum=0)
     grid: int = setting(17, "Query grid points per axis over the context range.", minimum=1)
     truth_samples: int = setting(200, "Monte Carlo successors per query (single step).", minimum=2)
@@ -92,15 +88,11 @@ class PendulumSettings(Settings):
     cv_folds: int = setting(10, "Cross-validation folds of Eq. 5.16 (thesis: 10).", minimum=2)
     max_iter: int = setting(50, "L-BFGS-B iterations of the embedding.", minimum=1)
     lam0: float = setting(1e-3, "Initial regulariser λ of the embedding (Eq. 5.3).", above=0)
-    lam_min: float = setting(
-        1e-6, "Lower bound of the learned λ (1e-3 for the 20-step fig5.5).", above=0
-    )
+    lam_min: float = setting(1e-6, "Lower bound of the learned λ (fig5.5: 1e-3).", above=0)
     gp_steps: int = setting(150, "Marginal-likelihood steps of the GP (Eq. 2.28).", minimum=0)
     gp_target: Literal["delta", "next"] = setting("next", "What the GP learns: x' (next) or Δx.")
     gp_curb: bool = setting(True, "PILCO's hyper-parameter penalty (HyperCurb) on the GP.")
-    target_kernel: Literal["se", "linear"] = setting(
-        "se", "Target features of Eq. 5.16: SE with std length-scales, or linear."
-    )
+    target_kernel: Literal["se", "linear"] = setting("se", "Target kernel of Eq. 5.16.")
 
 
 SCALES_PENDULUM = scales(
@@ -135,13 +127,9 @@ def _pendulum_trial(
     # Embedding: Eq. 5.16 with k-fold cross-validation over trajectories.
     folds = kfold_splits(len(x), min(settings.cv_folds, n_traj), rng, groups=groups)
     loss = state_embedding_loss(x, xn, folds, _target_kernel(settings.target_kernel, xn))
-    fit = fit_hyperparameters(
-        loss,
-        _initial_lengthscales(x),
-        max(settings.lam0, settings.lam_min),
-        lam_bounds=(settings.lam_min, 1.0),
-        max_iter=settings.max_iter,
-    )
+    lam0 = max(settings.lam0, settings.lam_min)
+    opts = dict(lam_bounds=(settings.lam_min, 1.0), max_iter=settings.max_iter)
+    fit = fit_hyperparameters(loss, _initial_lengthscales(x), lam0, **opts)
     emb = ConditionalEmbedding(x, xn, SquaredExponential(2, lengthscale=fit.lengthscale), fit.lam)
     trial.update()
 
@@ -167,7 +155,31 @@ def _pendulum_trial(
         "gp_diagnostics": {k: gp.gp.diagnostics.get(k) for k in _DIAGNOSTICS},
     }
 
-    if not multi_step:
+    if multi_step:  # the truth: Monte Carlo rollouts through the true dynamics
+        r = settings.truth_rollouts
+        xs = np.broadcast_to(query, (r,) + query.shape).copy()
+        truth, floor = [query], np.zeros(len(query))
+        for _ in range(horizon):
+            xs = pendulum_dynamics(
+                xs, feedback_torque(xs, gains, sigma * rng.standard_normal(xs.shape[:-1])), dt
+            )
+            truth.append(xs.mean(axis=0))
+            floor += xs.var(axis=0, ddof=1).sum(axis=-1) / r  # MC variance of the truth, Σ_t
+        truth = np.stack(truth)  # (T+1, G, 2)
+        out["floor_e_traj"] = floor.reshape(n, n)
+        trial.update()
+        t0 = time.perf_counter()
+        traj = predict(emb, query, horizon + 1)
+        pre, lin = traj.preimages(emb), traj.means(emb)
+        out["time_embedding"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        no_u = lambda t, xt, p: xt.new_zeros((xt.shape[0], 0))  # noqa: E731
+        sampled = sample_trajectories(gp, query, no_u, horizon, settings.gp_samples, rng)
+        gp_mean = sampled.states.mean(dim=1).numpy().transpose(1, 0, 2)  # (T+1, G, 2)
+        out["time_gp"] = time.perf_counter() - t0
+        # Constant predictor: the mean observed state at each step (ignores the start state).
+        const = np.broadcast_to(states.mean(axis=0)[:, None], truth.shape)
+    else:
         xq = np.broadcast_to(query, (settings.truth_samples,) + query.shape)
         noise = sigma * rng.standard_normal(xq.shape[:-1])
         samples = pendulum_dynamics(xq, feedback_torque(xq, gains, noise), dt)
@@ -184,46 +196,19 @@ def _pendulum_trial(
         out["time_gp"] = time.perf_counter() - t0
         trial.update()
         const = np.broadcast_to(xn.mean(axis=0), truth.shape)  # mean observed successor
-        for name, pred in (("emb", lin), ("emb_preimage", pre), ("gp", gp_mean), ("const", const)):
-            err = (pred - truth) ** 2
+    for name, pred in (("emb", lin), ("emb_preimage", pre), ("gp", gp_mean), ("const", const)):
+        err = (pred - truth) ** 2
+        if multi_step:
+            out[f"{name}_e_traj"] = err[1:].sum(axis=(0, 2)).reshape(n, n)
+        else:
             out[f"{name}_e_alpha"] = err[:, 0].reshape(n, n)
             out[f"{name}_e_alpha_dot"] = err[:, 1].reshape(n, n)
-        trial.update()
-        return out
-
-    # 20-step prediction. Ground truth: Monte Carlo rollouts through the true dynamics.
-    r = settings.truth_rollouts
-    xs = np.broadcast_to(query, (r,) + query.shape).copy()
-    truth, floor = [query], np.zeros(len(query))
-    for _ in range(horizon):
-        xs = pendulum_dynamics(
-            xs, feedback_torque(xs, gains, sigma * rng.standard_normal(xs.shape[:-1])), dt
-        )
-        truth.append(xs.mean(axis=0))
-        floor += xs.var(axis=0, ddof=1).sum(axis=-1) / r  # MC variance of the truth, Σ_t
-    truth = np.stack(truth)  # (T+1, G, 2)
-    out["floor_e_traj"] = floor.reshape(n, n)
-    trial.update()
-    t0 = time.perf_counter()
-    traj = predict(emb, query, horizon + 1)
-    pre, lin = traj.preimages(emb), traj.means(emb)
-    out["time_embedding"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    no_u = lambda t, xt, p: xt.new_zeros((xt.shape[0], 0))  # noqa: E731
-    sampled = sample_trajectories(gp, query, no_u, horizon, settings.gp_samples, rng)
-    gp_mean = sampled.states.mean(dim=1).numpy().transpose(1, 0, 2)  # (T+1, G, 2)
-    out["time_gp"] = time.perf_counter() - t0
-    # Constant predictor: the mean observed state at each step (ignores the start state).
-    const = np.broadcast_to(states.mean(axis=0)[:, None], truth.shape)
-    for name, pred in (("emb", lin), ("emb_preimage", pre), ("gp", gp_mean), ("const", const)):
-        out[f"{name}_e_traj"] = ((pred[1:] - truth[1:]) ** 2).sum(axis=(0, 2)).reshape(n, n)
     trial.update()
     return out
 
 
 def _near_data(t0: dict, n: int) -> np.ndarray:
-    """Grid cells whose nearest observed state lies within 10% of the grid's span on both
-    axes (the "vicinity of the observed trajectories"), shape (n, n) bool."""
+    """(n, n) bool: cells within 10% of the grid's span of an observed state on both axes."""
     a, ad = np.asarray(t0["alpha"]), np.asarray(t0["alpha_dot"])
     span = np.array([np.ptp(a), np.ptp(ad)])
     cells = np.stack(np.meshgrid(a, ad), axis=-1).reshape(-1, 2) / span
@@ -256,8 +241,7 @@ def _medians(maps: dict, near: np.ndarray) -> dict:
 
 
 def _per_trial_medians(trials: list[dict], key: str) -> dict:
-    """Each trial's median errors near and away from its own observed states
-    (:func:`_near_data` of that trial), and the fraction of the grid near them."""
+    """Each trial's median errors near and away from its own observed states."""
     near = [_near_data(t, np.shape(t[f"emb_{key}"])[0]) for t in trials]
     per = [
         _medians({m: np.asarray(t[f"{m}_{key}"]) for _, m in _MODELS}, c)
@@ -270,8 +254,7 @@ def _per_trial_medians(trials: list[dict], key: str) -> dict:
 
 
 def _pendulum_summary(key: str, label: str, unit: str):
-    """``summarize`` of a pendulum error map ``key``: ``label`` names the error, ``unit`` its
-    unit. The summary keeps per-trial grid means and medians near / away from the data."""
+    """``summarize`` of the pendulum error map ``key`` (``label`` in ``unit``)."""
 
     def summarize(settings: PendulumSettings, trials: list[dict]) -> tuple[list[Series], dict]:
         maps = {
@@ -290,23 +273,14 @@ def _pendulum_summary(key: str, label: str, unit: str):
         xs = np.concatenate([np.append(tr[:, 0], np.nan) for tr in obs])
         ys = np.concatenate([np.append(tr[:, 1], np.nan) for tr in obs])
         series: list[Series] = []
-        axes = dict(xlabel="α (rad)", ylabel="α̇ (rad/s)")
         for m, title in _PENDULUM_PANELS:
-            panel = f"{title}: log10 {label} ({label} in {unit})"
+            kw = dict(panel=f"{title}: log10 {label} ({label} in {unit})", xlabel="α (rad)")
+            kw["ylabel"] = "α̇ (rad/s)"
             lo, hi = (zmin, zmax) if m != "floor" else (float(fl.min()), float(fl.max()))
+            hm = dict(z=logs[m], kind="heatmap", zmin=lo, zmax=hi, **kw)
             series += [
-                Series(
-                    f"log10 {label}, {title[4:]}",
-                    t0["alpha"],
-                    t0["alpha_dot"],
-                    z=logs[m],
-                    panel=panel,
-                    kind="heatmap",
-                    zmin=lo,
-                    zmax=hi,
-                    **axes,
-                ),
-                Series("observed trajectories", xs, ys, panel=panel, kind="line", **axes),
+                Series(f"log10 {label}, {title[4:]}", t0["alpha"], t0["alpha_dot"], **hm),
+                Series("observed trajectories", xs, ys, kind="line", **kw),
             ]
         better_map = maps["emb"] < maps["gp"]
         near = _near_data(t0, better_map.shape[0])
@@ -360,18 +334,12 @@ def _pendulum_summary(key: str, label: str, unit: str):
 SCALES_PENDULUM_MULTI = {k: replace(v, lam_min=1e-3) for k, v in SCALES_PENDULUM.items()}
 """fig5.5's scales: λ ≥ 1e-3 for the 20-step propagation."""
 
-for _id, _key, _label, _unit, _multi, _what in (
-    ("fig5.3", "e_alpha", "e_α", "rad²", False, "single-step prediction error of α"),
-    ("fig5.4", "e_alpha_dot", "e_α̇", "(rad/s)²", False, "single-step prediction error of α̇"),
-    (
-        "fig5.5",
-        "e_traj",
-        "Σ_t e_x_t",
-        "rad² + (rad/s)²",
-        True,
-        "20-step trajectory prediction error",
-    ),
+for _id, _key, _label, _unit, _what in (
+    ("fig5.3", "e_alpha", "e_α", "rad²", "single-step prediction error of α"),
+    ("fig5.4", "e_alpha_dot", "e_α̇", "(rad/s)²", "single-step prediction error of α̇"),
+    ("fig5.5", "e_traj", "Σ_t e_x_t", "rad² + (rad/s)²", "20-step trajectory prediction error"),
 ):
+    _multi = _key == "e_traj"
     register(
         Experiment(
             id=_id,
@@ -387,8 +355,7 @@ for _id, _key, _label, _unit, _multi, _what in (
 
 # =========================================================================== balancing
 def _rollouts_from(task, gain: np.ndarray, x0: np.ndarray, n: int, rng) -> tuple:
-    """``n`` real rollouts of u = G x̃ plus torque noise from ``x0``: states (n, T+1, 8),
-    controls (n, T+1, 4) and failed (n,) bool (a diverged rollout's arrays are NaN)."""
+    """``n`` real rollouts from ``x0``: states, controls (NaN where diverged) and failed (n,)."""
     T1 = task.n_steps + 1
     states = np.full((n, T1, 8), np.nan)
     controls = np.full((n, T1, 4), np.nan)
@@ -405,8 +372,7 @@ def _rollouts_from(task, gain: np.ndarray, x0: np.ndarray, n: int, rng) -> tuple
 
 
 def _balancing_truth(task, gain, starts: np.ndarray, settings, rng) -> dict:
-    """R_i = E[R | x₀ᵢ] from ``truth_rollouts`` real rollouts per start state, its Monte
-    Carlo variance Var(R | x₀ᵢ) / n and the single-rollout spread Var(R | x₀ᵢ)."""
+    """R_i = E[R | x₀ᵢ] from real rollouts, its Monte Carlo variance and Var(R | x₀ᵢ)."""
     n_roll = settings.truth_rollouts
     returns = np.empty((len(starts), n_roll))
     for i, x0 in enumerate(starts):
@@ -476,9 +442,7 @@ class BalancingSettings(Settings):
     max_iter: int = setting(40, "L-BFGS-B iterations of the embeddings.", minimum=1)
     gp_steps: int = setting(100, "Marginal-likelihood steps of the GP (Eq. 2.28).", minimum=0)
     trajectory_start: Literal["both", "step", "default"] = setting(
-        "both",
-        "Start(s) of the Eq. 5.23 fit: the step-based fit's initial values (default), its "
-        "optimum (step), or both, keeping the lower cross-validated loss.",
+        "both", "Start of the Eq. 5.23 fit: the step-based fit's initial values or optimum."
     )
     gp_target: Literal["delta", "next"] = setting("next", "What the GP learns: x' (next) or Δx.")
     gp_curb: bool = setting(True, "PILCO's hyper-parameter penalty (HyperCurb) on the GP.")
@@ -489,18 +453,14 @@ class RewardVsDataSettings(BalancingSettings):
     """Settings of ``fig5.6``: the error against the number of observed trajectories."""
 
     torque_noise: float = setting(4.0, "Std of the torque noise (N m; thesis: 4).", minimum=0)
-    n_trajectories: tuple[int, ...] = setting(
-        (3, 8), "Numbers of observed trajectories (x axis).", minimum=2
-    )
+    n_trajectories: tuple[int, ...] = setting((3, 8), "Observed trajectories (x).", minimum=2)
 
 
 @dataclass(frozen=True)
 class RewardVsNoiseSettings(BalancingSettings):
     """Settings of ``fig5.7``: the error against the torque noise."""
 
-    torque_noise: tuple[float, ...] = setting(
-        (1.0, 4.0, 8.0), "Stds of the torque noise (N m; x axis).", minimum=0
-    )
+    torque_noise: tuple[float, ...] = setting((1.0, 4.0, 8.0), "Torque-noise stds (x).", minimum=0)
     n_trajectories: int = setting(5, "Observed trajectories the models learn from.", minimum=2)
 
 
@@ -535,6 +495,8 @@ _METHODS = (
 )
 _COMPARED = ("gp", "step", "trajectory", "constant")
 """The predictors whose e_r the summary keeps per trial."""
+_FITS = ("step", "trajectory")
+"""The embeddings' two fits (Eqs 5.17 and 5.23)."""
 _FLOORS = (
     ("constant", "constant predictor (mean observed reward)"),
     ("noise", "noise floor: mean Var(R | x₀ᵢ) / truth rollouts"),
@@ -555,8 +517,7 @@ def _pd_gain(task, settings: BalancingSettings) -> np.ndarray:
 
 
 def _observed(task, gain, n_traj: int, rng) -> tuple[np.ndarray, np.ndarray, int]:
-    """``n_traj`` working PD rollouts from random start states (the task's x₀ distribution);
-    returns states (M, T+1, 8), commanded controls (M, T+1, 4) and the diverged ones redrawn."""
+    """``n_traj`` working PD rollouts: states, commanded controls and the number redrawn."""
     runs, failed = [], 0
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
@@ -575,8 +536,7 @@ def _observed(task, gain, n_traj: int, rng) -> tuple[np.ndarray, np.ndarray, int
 
 
 def _balancing_case(task, gain, n_traj: int, starts, truth, settings, rng, trial) -> dict:
-    """Train the three predictors on ``n_traj`` observed PD trajectories and score them on
-    the test start states."""
+    """Train the three predictors on ``n_traj`` PD trajectories; score them on ``starts``."""
     reward = task.immediate_reward
     states, controls, redrawn = _observed(task, gain, n_traj, rng)
     rewards = reward(states, controls)  # (M, T+1)
@@ -595,13 +555,11 @@ def _balancing_case(task, gain, n_traj: int, starts, truth, settings, rng, trial
     fits = {"step": fit_hyperparameters(step_reward_loss(z, r_next, folds_step), ls0, lam0, **fit)}
     # Eq. 5.23 from the step-based fit's initial values and from its optimum (trajectory_start
     # "both" keeps the lower cross-validated loss; "default" / "step" use one start only).
-    traj_loss = trajectory_reward_loss(
-        states, controls, rewards, _feedback(gain), reward, folds_traj
-    )
+    loss = trajectory_reward_loss(states, controls, rewards, _feedback(gain), reward, folds_traj)
     starts_ = {"default": (ls0, lam0), "step": (fits["step"].lengthscale, fits["step"].lam)}
     keys = ["default", "step"] if settings.trajectory_start == "both" else []
     tried = {
-        key: fit_hyperparameters(traj_loss, *starts_[key], lengthscale_reference=ls0, **fit)
+        key: fit_hyperparameters(loss, *starts_[key], lengthscale_reference=ls0, **fit)
         for key in keys or [settings.trajectory_start]
     }
     best = min(tried, key=lambda k_: tried[k_].loss)
@@ -698,12 +656,10 @@ def _fig56_trial(
         st = {"starts": starts, "truth": truth, "cases": []}
         trial.save("fig5.6", st, rng)
     trial.update(1 + 3 * len(st["cases"]))
+    truth = st["truth"]["truth"]
     for m in counts[len(st["cases"]) :]:
-        st["cases"].append(
-            _balancing_case(
-                task, gain, int(m), st["starts"], st["truth"]["truth"], settings, rng, trial
-            )
-        )
+        case = _balancing_case(task, gain, int(m), st["starts"], truth, settings, rng, trial)
+        st["cases"].append(case)
         trial.save("fig5.6", st, rng)
     stats = {k: [v] * len(counts) for k, v in _truth_stats(st["truth"]).items()}
     stats["failed_truth_rollouts"] = [st["truth"]["failed"]]  # one ground truth for all x
@@ -751,44 +707,25 @@ def _spread(values: list[float | None]) -> float:
 
 
 def _reward_summary(xlabel: str, fig: str):
-    """``summarize`` of ``fig5.6`` / ``fig5.7``: e_r per predictor against ``xlabel``, with
-    each trial's e_r per x (``e_r_per_trial[m][i]``), its mean over x and, for ``fig5.7``,
-    each trial's max / min across the noise levels."""
+    """``summarize`` of ``fig5.6`` / ``fig5.7``: e_r per predictor against ``xlabel``."""
 
     def summarize(settings: BalancingSettings, trials: list[dict]) -> tuple[list[Series], dict]:
         x = list(trials[0]["x"])
         err = {
-            m: np.array([[c[f"e_r_{m}"] for c in t["cases"]] for t in trials])
-            for m in ("gp", "step", "trajectory", "constant")
+            m: np.array([[c[f"e_r_{m}"] for c in t["cases"]] for t in trials]) for m in _COMPARED
         }
         err["noise"] = np.array([t["truth_mc_floor"] for t in trials], dtype=float)
         series = []
+        kw = dict(panel="reward prediction error", xlabel=xlabel, ylabel=E_R_LABEL, log_y=True)
         for m, label in _METHODS + _FLOORS:
             y, band = trial_band(err[m])
             kind = "lines+markers" if m in dict(_METHODS) else "line"
-            series.append(
-                Series(
-                    label.format(gp_samples=settings.gp_samples),
-                    x,
-                    y,
-                    **band,
-                    kind=kind,
-                    panel="reward prediction error",
-                    xlabel=xlabel,
-                    ylabel=E_R_LABEL,
-                    log_y=True,
-                )
-            )
+            name = label.format(gp_samples=settings.gp_samples)
+            series.append(Series(name, x, y, **band, kind=kind, **kw))
         mean = {m: err[m].mean(axis=0) for m in err}
-        below = {
-            (a, b): [bool(u < v) for u, v in zip(mean[a], mean[b], strict=True)]
-            for a, b in (
-                ("step", "gp"),
-                ("trajectory", "gp"),
-                ("trajectory", "step"),
-                ("trajectory", "constant"),
-            )
-        }
+
+        def below(a: str, b: str) -> list[bool]:
+            return [bool(u < v) for u, v in zip(mean[a], mean[b], strict=True)]
 
         def per_case(key):
             return [[c[key] for c in t["cases"]] for t in trials]
@@ -808,27 +745,24 @@ def _reward_summary(xlabel: str, fig: str):
                 m: np.mean(per_case(f"pred_mean_{m}"), 0).tolist() for m, _ in _METHODS
             },
             "truth_reward_mean": np.mean([t["truth_reward_mean"] for t in trials], 0).tolist(),
-            "embedding_lam": {m: per_case(f"lam_{m}") for m in ("step", "trajectory")},
-            "embedding_beta_l1_max": {
-                m: per_case(f"beta_l1_max_{m}") for m in ("step", "trajectory")
-            },
+            "embedding_lam": {m: per_case(f"lam_{m}") for m in _FITS},
+            "embedding_beta_l1_max": {m: per_case(f"beta_l1_max_{m}") for m in _FITS},
             "embedding_cv_loss": {
                 m: {"final": per_case(f"cv_loss_{m}"), "initial": per_case(f"cv_initial_loss_{m}")}
-                for m in ("step", "trajectory")
+                for m in _FITS
             },
             "fit_at_bound": {
-                m: [c[f"fit_at_bound_{m}"] for t in trials for c in t["cases"]]
-                for m in ("step", "trajectory")
+                m: [c for r in per_case(f"fit_at_bound_{m}") for c in r] for m in _FITS
             },
             "gp_diagnostics": per_case("gp_diagnostics"),
             "trajectory_fit_starts": per_case("trajectory_per_start"),
             "gp_over_trajectory_based_ratio": (mean["gp"] / mean["trajectory"]).tolist(),
             "gp_over_step_based_ratio": (mean["gp"] / mean["step"]).tolist(),
             "embedding_below_gp": [
-                a and b for a, b in zip(below["step", "gp"], below["trajectory", "gp"], strict=True)
+                a and b for a, b in zip(below("step", "gp"), below("trajectory", "gp"), strict=True)
             ],
-            "trajectory_based_below_step_based": below["trajectory", "step"],
-            "trajectory_based_below_constant": below["trajectory", "constant"],
+            "trajectory_based_below_step_based": below("trajectory", "step"),
+            "trajectory_based_below_constant": below("trajectory", "constant"),
             "gp_nonfinite_predictions": int(np.sum(per_case("gp_nonfinite_predictions"))),
             "failed_truth_rollouts": int(sum(sum(t["failed_truth_rollouts"]) for t in trials)),
             "redrawn_observed_trajectories": int(np.sum(per_case("redrawn_observed"))),
@@ -847,26 +781,18 @@ def _reward_summary(xlabel: str, fig: str):
     return summarize
 
 
-register(
-    Experiment(
-        id="fig5.6",
-        title="Balancing: expected-reward error vs observed trajectories, embedding vs GP",
-        settings_class=RewardVsDataSettings,
-        settings=SCALES_5_6,
-        run_trial=_fig56_trial,
-        summarize=_reward_summary("observed trajectories", "fig5.6"),
-        trials={"smoke": 1, "quick": 1, "paper": 2},
+for _id, _x, _unit, _cls, _scales, _run in (
+    ("fig5.6", "observed trajectories", "", RewardVsDataSettings, SCALES_5_6, _fig56_trial),
+    ("fig5.7", "torque noise", " std (N m)", RewardVsNoiseSettings, SCALES_5_7, _fig57_trial),
+):
+    register(
+        Experiment(
+            id=_id,
+            title=f"Balancing: expected-reward error vs {_x}, embedding vs GP",
+            settings_class=_cls,
+            settings=_scales,
+            run_trial=_run,
+            summarize=_reward_summary(_x + _unit, _id),
+            trials={"smoke": 1, "quick": 1, "paper": 2},
+        )
     )
-)
-
-register(
-    Experiment(
-        id="fig5.7",
-        title="Balancing: expected-reward error vs torque noise, embedding vs GP",
-        settings_class=RewardVsNoiseSettings,
-        settings=SCALES_5_7,
-        run_trial=_fig57_trial,
-        summarize=_reward_summary("torque noise std (N m)", "fig5.7"),
-        trials={"smoke": 1, "quick": 1, "paper": 2},
-    )
-)

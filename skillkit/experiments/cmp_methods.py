@@ -1,20 +1,15 @@
 r"""``cmp.methods``: REPS, GPREPS, CMA-ES and contextual BO on the thesis's tasks.
 
-Not a figure of the thesis: the comparison a researcher would make before choosing a method.
-Every method runs the learning-curve experiment of :mod:`skillkit.experiments.curves` on
-throwing (Appendix C.1), hockey (C.3), table tennis (C.4) and balancing (Sec. 4.3.1), from the
-task's initial policy (balancing: Table 4.2's π₀), evaluated after every update on the same
-contexts with the same evaluation seed. REPS and GPREPS run as the task's thesis experiment
-runs them (its :class:`~skillkit.experiments.curves.CurveTask` profile: settings at the same
-scale, reward model, REPS baseline); **CMA-ES** (cma's defaults, a linear context mapping, m = 4
-contexts per candidate) gets REPS's real-rollout budget and **contextual BO** (BoTorch's
-defaults) GPREPS's. The model-based methods on balancing start from Table 4.2's 6 s of
-random-policy experience, counted as 1.2 rollouts.
-
-Per task and method the summary gives the real rollouts after which the mean learning curve
-first reaches each of the task's thresholds, the final reward (mean ± std over trials), the
-compute time, and the ``winners``. The thesis makes no claim about CMA-ES or BO
-(``skillkit/data/claims/comparisons.toml``).
+Not a figure of the thesis: every method runs the learning curve of
+:mod:`skillkit.experiments.curves` on throwing, hockey, table tennis and balancing from the
+task's initial policy (balancing: Table 4.2's π₀ and 6 s of random-policy experience, 1.2
+rollouts, for the model-based methods), evaluated on the same contexts and seed. REPS and
+GPREPS run as the task's thesis experiment runs them (its
+:class:`~skillkit.experiments.curves.CurveTask` profile, at the same scale); **CMA-ES** (cma's
+defaults, m = 4 contexts per candidate) gets REPS's real-rollout budget and **contextual BO**
+(BoTorch's defaults) GPREPS's. The summary gives per task and method the real rollouts to
+reach each threshold, the final reward, the compute time and the ``winners``; the thesis makes
+no claim about CMA-ES or BO (``skillkit/data/claims/comparisons.toml``).
 """
 
 from __future__ import annotations
@@ -36,15 +31,15 @@ from skillkit.experiments.curves import (
     curve_series,
     curve_stats,
     curve_task,
+    experiment,
+    kept_model,
     rollouts_to_reach,
     run_curve,
 )
-from skillkit.experiments.registry import SCALES, Experiment, get, register
+from skillkit.experiments.registry import SCALES, get
 from skillkit.experiments.settings import Settings, scales, setting
-from skillkit.search.loop import policy_history_arrays
 from skillkit.tasks import make
 from skillkit.trial import TrialContext
-from skillkit.viz.model_layers import dumps_reward_model
 
 __all__ = ["METHODS", "TASKS", "MethodComparisonSettings", "thesis_settings"]
 
@@ -62,18 +57,14 @@ class MethodComparisonSettings(Settings):
     tasks: tuple[str, ...] = setting(TASKS, f"Tasks compared (a subset of {TASKS}).")
     methods: tuple[str, ...] = setting(METHODS, f"Methods compared (a subset of {METHODS}).")
     thesis_scale: str = setting(
-        "quick",
-        "Scale of the thesis experiments (fig4.6, fig4.10, "
-        "fig4.12, tab4.2) whose REPS and GPREPS settings are used.",
+        "quick", "Scale of the thesis experiments giving REPS's and GPREPS's settings."
     )
     gpreps_updates: int = setting(0, "GPREPS updates (0: the thesis experiment's).", minimum=0)
     n_artificial: int = setting(0, "GPREPS's M (0: the thesis experiment's).", minimum=0)
     n_trajectories: int = setting(0, "GPREPS's L (0: the thesis experiment's).", minimum=0)
     reps_updates: int = setting(0, "REPS updates (0: the thesis experiment's).", minimum=0)
     keep_gpreps_model: bool = setting(
-        False,
-        "Store GPREPS's policy history on the first task (`skillkit view TASK --policy "
-        "RUN_DIR`) and a reward model that draws prediction layers (`--gpreps RUN_DIR`).",
+        False, "Store GPREPS's policies and model on the first task (view)."
     )
     cmaes_budget: int = setting(0, "Real rollouts of CMA-ES (0: REPS's).", minimum=0)
     cbo_budget: int = setting(0, "Real rollouts of contextual BO (0: GPREPS's).", minimum=0)
@@ -96,7 +87,6 @@ def _check(st: MethodComparisonSettings) -> None:
         raise ValueError(f"thesis_scale: expected one of {SCALES}, got {st.thesis_scale!r}")
 
 
-# --------------------------------------------------------------------------- one task
 @dataclass
 class _Setup:
     """What every method of one task shares: the task, π₀, the thesis settings, evaluation."""
@@ -140,33 +130,15 @@ def _setup(name: str, st: MethodComparisonSettings, rng: np.random.Generator) ->
     )
 
 
-def _schedule(method: str, s: _Setup) -> tuple[int, int, int]:
-    """(updates K, rollouts per update N, initial rollouts N₀) of REPS or GPREPS on ``s``."""
-    if method == "gpreps":
-        return s.profile.gpreps_schedule(s.thesis)
-    return s.profile.reps_schedule(s.thesis)
-
-
-def _real_rollouts(k: int, n: int, n0: int) -> int:
-    """Real rollouts of a :func:`learn` run of k updates: N₀ first, then N per update."""
-    return n0 + (k - 1) * n
-
-
-def _peer_budget(method: str, s: _Setup, st: MethodComparisonSettings) -> int:
-    """Real rollouts of CMA-ES (default: REPS's on the task) or BO (default: GPREPS's)."""
-    if method == "cmaes":
-        return st.cmaes_budget or _real_rollouts(*_schedule("reps", s))
-    return st.cbo_budget or _real_rollouts(*_schedule("gpreps", s))
-
-
 def _algorithm(method: str, s: _Setup, st: MethodComparisonSettings, rng):
-    """(algorithm, updates, rollouts per update, initial rollouts) of ``method`` on ``s``."""
+    """(algorithm, K, N, N₀) of ``method``; CMA-ES gets REPS's rollouts, BO GPREPS's."""
+    reps, gpreps = s.profile.reps_schedule(s.thesis), s.profile.gpreps_schedule(s.thesis)
     if method == "reps":
-        return (s.profile.reps(s.task, s.thesis, s.policy), *_schedule("reps", s))
+        return (s.profile.reps(s.task, s.thesis, s.policy), *reps)
     if method == "gpreps":
-        algo = s.profile.make_gpreps(s.task, s.thesis, s.policy, s.prior, rng)
-        return (algo, *_schedule("gpreps", s))
-    budget = _peer_budget(method, s, st)
+        return (s.profile.make_gpreps(s.task, s.thesis, s.policy, s.prior, rng), *gpreps)
+    k, n, n0 = reps if method == "cmaes" else gpreps
+    budget = (st.cmaes_budget if method == "cmaes" else st.cbo_budget) or n0 + (k - 1) * n
     if method == "cmaes":
         from skillkit.search.cmaes import CMAES  # here: the cma package imports pyplot
 
@@ -213,18 +185,14 @@ def _run_method(method: str, s: _Setup, st, rng, trial: TrialContext) -> dict:
         f"{key}_n_failed": int(np.sum(c["n_failed"])),
     }
     if method == "gpreps" and st.keep_gpreps_model and s.name == st.tasks[0]:
-        out.update(policy_history_arrays(c["policies"]))  # `skillkit view TASK --policy RUN`
-        if callable(getattr(algo.reward_model, "prediction_layers", None)):  # hockey, tt
-            model = dumps_reward_model(algo.reward_model)  # `skillkit view TASK --gpreps RUN`
-            out["reward_model"] = np.frombuffer(model, np.uint8)
+        out.update(kept_model(algo, c["policies"]))
     return out
 
 
 def _updates(method: str, s: _Setup, st) -> int:
-    """The number of updates ``method`` runs on ``s`` (the progress bar's share): REPS's and
-    GPREPS's from their settings; a peer's from its population, so it is built (no fit)."""
+    """Updates of ``method`` on ``s`` (the progress bar's share); a peer is built (no fit)."""
     if method in ("reps", "gpreps"):
-        return _schedule(method, s)[0]
+        return getattr(s.profile, f"{method}_schedule")(s.thesis)[0]
     return _algorithm(method, s, st, np.random.default_rng(0))[1]
 
 
@@ -242,7 +210,6 @@ def run_trial(st: MethodComparisonSettings, rng: np.random.Generator, trial: Tri
     return out
 
 
-# --------------------------------------------------------------------------- summary
 def _method_row(trials: list[dict], key: str, thresholds) -> dict:
     reached = {}
     for level in thresholds:
@@ -262,9 +229,7 @@ def _method_row(trials: list[dict], key: str, thresholds) -> dict:
 
 
 def _winners(row: dict, thresholds) -> dict:
-    """Per task: the method with the best final reward, and per threshold the methods that
-    reached it (on the mean curve) with the fewest real rollouts — all of them on a tie, "π₀"
-    when the initial policy is already there, None when no method reached it."""
+    """The best final reward and, per threshold, the methods fastest to reach it (or "π₀")."""
     best_final = max(row, key=lambda m: row[m]["final_reward_mean"])
     first = {}
     for level in thresholds:
@@ -308,14 +273,11 @@ def summarize(st: MethodComparisonSettings, trials: list[dict]):
     return series, {"n_trials": len(trials), "tasks": table}
 
 
-register(
-    Experiment(
-        id="cmp.methods",
-        title="REPS, GPREPS, CMA-ES and contextual BO on the thesis's tasks (not a thesis figure)",
-        settings_class=MethodComparisonSettings,
-        settings=SETTINGS,
-        run_trial=run_trial,
-        summarize=summarize,
-        trials={"smoke": 1, "quick": 2, "paper": 5},
-    )
+experiment(
+    "cmp.methods",
+    "REPS, GPREPS, CMA-ES and contextual BO on the thesis's tasks (not a thesis figure)",
+    SETTINGS,
+    run_trial,
+    summarize,
+    (1, 2, 5),
 )

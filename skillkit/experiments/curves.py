@@ -2,19 +2,10 @@
 
 A run learns with :func:`~skillkit.search.loop.learn` (Table 3.1; Table 4.1 for GPREPS) from
 the task's imitation policy and records the reward of the policy *mean* on fixed evaluation
-contexts after every update, against the real rollouts so far; optionally, every few updates,
-the task's held-out scores of the policy mean. A trial's arrays are named ``f"{key}_<name>"``
-per run; the summary helpers read them back (mean ± band over trials, final values per trial,
-the rollouts a curve needs to reach a level).
-
-What differs between tasks is the task's :class:`CurveTask` profile, registered beside the
-task (:func:`register_curve_task`) by the module that owns its reward model:
-the thesis experiment whose settings REPS and GPREPS use, the reward thresholds, the REPS
-baseline and the GPREPS reward model.
-
-A new task gets the experiment itself from :func:`learning_curves`: REPS and GPREPS on the
-task with the settings blocks :class:`REPSBlock`, :class:`GPREPSBlock` and
-:class:`EvaluationBlock` (nested in :class:`CurveSettings`; ``--set gpreps={"n_updates": 5}``).
+contexts after every update against the real rollouts so far, and optionally the task's
+held-out scores every few updates; a trial's arrays are named ``f"{key}_<name>"`` per run.
+A task's :class:`CurveTask` profile (:func:`register_curve_task`) says how REPS and GPREPS
+run on it; :func:`learning_curves` builds the experiment for a new task.
 """
 
 from __future__ import annotations
@@ -25,12 +16,15 @@ from typing import Any, Literal
 
 import numpy as np
 
-from skillkit.experiments.registry import Experiment, Series, register
+from skillkit.experiments.registry import SCALES, Experiment, Series, register
 from skillkit.experiments.settings import Settings, scales, setting
+from skillkit.policies.features import FeatureName
 from skillkit.search import ContextualREPS, learn
 from skillkit.search.gpreps import GPREPS, GPREPSSettings
+from skillkit.search.loop import policy_history_arrays
 from skillkit.tasks import make, names
 from skillkit.trial import TrialContext
+from skillkit.viz.model_layers import dumps_reward_model
 from skillkit.viz.series import trial_band
 
 __all__ = [
@@ -44,14 +38,17 @@ __all__ = [
     "curve_series",
     "curve_stats",
     "curve_task",
+    "experiment",
     "finite_or_none",
     "gpreps_algorithm",
     "gpreps_stats",
-    "heldout_arrays",
+    "heldout_setup",
     "heldout_stats",
+    "kept_model",
     "learning_curves",
     "nan_mean",
     "register_curve_task",
+    "regularised_reps",
     "rollouts_to_reach",
     "run_curve",
     "run_gpreps",
@@ -59,46 +56,38 @@ __all__ = [
 
 COV_FLOOR = 0.1
 """The weighted ML fit of GPREPS and the Chapter 4 REPS baselines keeps each direction of Σ
-above this fraction of its previous variance per update: with M = 50 artificial samples, or
-25 rollouts, the effective sample size is below the 42 a full 41 × 41 covariance needs."""
+above this fraction of its previous variance per update (M = 50 or N = 25 samples are fewer
+than a full 41 × 41 covariance needs)."""
 MIN_EFFECTIVE_SAMPLES = 2.0
 """The least effective sample size the regularised fit accepts (as fig3.3)."""
-
-
-def _gpreps_schedule(st: Settings) -> tuple[int, int, int]:
-    return st.n_updates, 1, st.n_initial
-
-
-def _reps_schedule(st: Settings) -> tuple[int, int, int]:
-    return st.reps_updates, st.reps_rollouts_per_update, st.reps_rollouts_per_update
 
 
 @dataclass(frozen=True)
 class CurveTask:
     """What a registered task supplies to the learning-curve experiments.
 
-    ``experiment`` is the thesis experiment whose settings (at a scale) REPS and GPREPS use on
-    the task; ``thresholds`` the reward levels whose real-rollout cost is compared, with their
-    ``thresholds_source``. The callables take that experiment's settings ``st``:
-    ``reps(task, st, policy)`` builds the model-free REPS baseline and ``reps_schedule(st)``
-    gives its (updates K, rollouts per update N, first batch N₀), by default
-    (``reps_updates``, ``reps_rollouts_per_update`` twice); ``reward_model(task, st)``
-    is GPREPS's reward model, used by :meth:`make_gpreps` unless ``gpreps(task, st, policy,
-    prior, rng)`` builds GPREPS itself; ``gpreps_schedule(st)`` defaults to (``n_updates``, 1,
-    ``n_initial``) and ``gpreps_updates`` names the field of GPREPS's updates. ``setup(st,
+    ``experiment``: the thesis experiment whose settings ``st`` (at a scale) REPS and GPREPS
+    use; ``thresholds``: the reward levels whose real-rollout cost is compared. The callables
+    take ``st``: ``reps(task, st, policy)`` builds REPS, ``reps_schedule(st)`` and
+    ``gpreps_schedule(st)`` give (updates K, rollouts per update N, first batch N₀);
+    ``reward_model(task, st)`` is GPREPS's unless ``gpreps(task, st, policy, prior, rng)``
+    builds GPREPS itself; ``gpreps_updates`` names the field of GPREPS's updates; ``setup(st,
     rng)`` returns ``(task, policy, eval_contexts, prior, prior_rollouts)`` where the default
-    (the registered task, its imitation policy, ``n_eval_contexts`` drawn contexts, no prior
-    data) does not fit.
+    (the task's imitation policy, ``n_eval_contexts`` contexts, no prior data) does not fit.
     """
 
     experiment: str
     thresholds: tuple[float, ...]
     thresholds_source: str
     reps: Callable[..., Any]
-    reps_schedule: Callable[[Settings], tuple[int, int, int]] = _reps_schedule
+    reps_schedule: Callable[[Settings], tuple] = lambda st: (
+        st.reps_updates,
+        st.reps_rollouts_per_update,
+        st.reps_rollouts_per_update,
+    )
     reward_model: Callable[..., Any] | None = None
     gpreps: Callable[..., Any] | None = None
-    gpreps_schedule: Callable[[Settings], tuple[int, int, int]] = _gpreps_schedule
+    gpreps_schedule: Callable[[Settings], tuple] = lambda st: (st.n_updates, 1, st.n_initial)
     gpreps_updates: str = "n_updates"
     setup: Callable[..., tuple] | None = None
 
@@ -106,10 +95,7 @@ class CurveTask:
         """GPREPS on ``task`` with ``settings`` (:attr:`gpreps`, or the default)."""
         if self.gpreps is not None:
             return self.gpreps(task, settings, policy, prior, rng)
-        model = self.reward_model(task, settings)
-        return gpreps_algorithm(
-            task, settings, model, settings.n_artificial, settings.n_trajectories, rng
-        )
+        return gpreps_algorithm(task, settings, self.reward_model(task, settings), rng)
 
 
 _PROFILES: dict[str, CurveTask] = {}
@@ -131,22 +117,6 @@ def curve_task(name: str) -> CurveTask:
     return _PROFILES[name]
 
 
-# --------------------------------------------------------------------------- runs
-def heldout_arrays(key: str, values: list, rollouts_after: Callable[[int], float]) -> dict:
-    """The held-out scores a :func:`learn` callback returned (None between evaluations) as
-    arrays ``f"{key}_heldout_<score>"``, with ``f"{key}_heldout_rollouts"`` (real rollouts
-    after update k: ``rollouts_after(k)``, 0 before the first)."""
-    points = [(k, v) for k, v in enumerate(values) if v is not None]
-    out = {
-        f"{key}_heldout_rollouts": np.array(
-            [0 if k == 0 else rollouts_after(k) for k, _ in points], dtype=float
-        )
-    }
-    for name in points[0][1]:
-        out[f"{key}_heldout_{name}"] = np.array([v[name] for _, v in points], dtype=float)
-    return out
-
-
 def run_curve(
     task,
     algorithm,
@@ -164,10 +134,10 @@ def run_curve(
 ) -> tuple[dict, dict]:
     """One :func:`~skillkit.search.loop.learn` run (``key`` its checkpoint key and array
     prefix): ``(arrays, curves)``, ``arrays`` holding ``f"{key}_rollouts"`` and
-    ``f"{key}_mean_reward"`` (K+1,) and, with ``score``, ``score(policy)`` before the first
-    update, every ``every`` updates and after the last (:func:`heldout_arrays`, with
-    ``rollouts_after(k)`` real rollouts after update k, default k × N); ``curves`` is
-    :func:`learn`'s result. Other keywords go to :func:`learn`."""
+    ``f"{key}_mean_reward"`` (K+1,) and, with ``score``, ``f"{key}_heldout_<score>"`` of
+    ``score(policy)`` before the first update, every ``every`` updates and after the last,
+    against ``f"{key}_heldout_rollouts"`` (``rollouts_after(k)`` real rollouts after update k,
+    default k × N); ``curves`` is :func:`learn`'s result. Other keywords go to :func:`learn`."""
     if score is not None:
 
         def record(k: int, alg):
@@ -188,19 +158,59 @@ def run_curve(
     out = {f"{key}_rollouts": curves["rollouts"], f"{key}_mean_reward": curves["mean_reward"]}
     if score is not None:
         after = rollouts_after or (lambda k: k * rollouts_per_update)
-        out.update(heldout_arrays(key, curves["callback"], after))
+        points = [(k, v) for k, v in enumerate(curves["callback"]) if v is not None]
+        x = [0 if k == 0 else after(k) for k, _ in points]
+        out[f"{key}_heldout_rollouts"] = np.array(x, dtype=float)
+        for name in points[0][1]:
+            out[f"{key}_heldout_{name}"] = np.array([v[name] for _, v in points], dtype=float)
     return out, curves
 
 
-def gpreps_algorithm(task, st, reward_model, n_artificial: int, n_traj: int, rng) -> GPREPS:
-    """GPREPS (Table 4.1) from the task's π₀: ε and μ̂ from ``st``, the policy fit's
-    regularisation (:data:`COV_FLOOR`, :data:`MIN_EFFECTIVE_SAMPLES`), M = ``n_artificial``
-    artificial samples with L = ``n_traj`` predicted trajectories each, and
-    ``reward_model``."""
+def heldout_setup(task, st, rng, n_runs: int, scorer) -> tuple:
+    """Held-out and evaluation contexts, the held-out ``score(policy)`` (``scorer(task,
+    policy, heldout, seed)``, one seed for all) and ``n_runs`` seeds."""
+    heldout = task.sample_context(rng, n=st.n_heldout)
+    eval_contexts = task.sample_context(rng, n=st.n_eval_contexts)
+    heldout_seed = int(rng.integers(2**63))
+
+    def score(policy) -> dict:
+        return scorer(task, policy, heldout, heldout_seed)
+
+    return heldout, eval_contexts, score, rng.spawn(n_runs)
+
+
+def regularised_reps(
+    policy, epsilon: float, n_reuse_batches: int, baseline_features: FeatureName = "quadratic"
+) -> ContextualREPS:
+    """Contextual REPS (Table 3.1) with the fit regularised as GPREPS's (:data:`COV_FLOOR`,
+    :data:`MIN_EFFECTIVE_SAMPLES`)."""
+    return ContextualREPS(
+        policy,
+        epsilon,
+        n_reuse_batches,
+        baseline_features,
+        cov_floor=COV_FLOOR,
+        min_effective_samples=MIN_EFFECTIVE_SAMPLES,
+    )
+
+
+def kept_model(algo: GPREPS, policies) -> dict:
+    """GPREPS's policy history (``skillkit view TASK --policy RUN``) and, where it draws
+    prediction layers (hockey, table tennis), its reward model (``--gpreps RUN``)."""
+    out = policy_history_arrays(policies)
+    if callable(getattr(algo.reward_model, "prediction_layers", None)):
+        out["reward_model"] = np.frombuffer(dumps_reward_model(algo.reward_model), np.uint8)
+    return out
+
+
+def gpreps_algorithm(task, st, reward_model, rng, n_artificial: int | None = None) -> GPREPS:
+    """GPREPS (Table 4.1) from the task's π₀ with ``reward_model``: ε, μ̂, M (unless
+    ``n_artificial`` is given) and L from ``st``, the fit regularised by :data:`COV_FLOOR` and
+    :data:`MIN_EFFECTIVE_SAMPLES`."""
     settings = GPREPSSettings(
         epsilon=st.epsilon,
-        n_artificial=n_artificial,
-        n_trajectories=n_traj,
+        n_artificial=n_artificial or st.n_artificial,
+        n_trajectories=st.n_trajectories,
         context_model=st.context_model,
         cov_floor=COV_FLOOR,
         min_effective_samples=MIN_EFFECTIVE_SAMPLES,
@@ -209,14 +219,13 @@ def gpreps_algorithm(task, st, reward_model, n_artificial: int, n_traj: int, rng
 
 
 def run_gpreps(
-    task, st, key, reward_model, n_artificial, n_traj, rng, trial, eval_contexts, score=None
-) -> dict:
-    """One GPREPS run (N₀ = ``st.n_initial`` real rollouts, then one per update); curves,
-    per-update diagnostics and, with ``score``, held-out scores every ``st.heldout_every``
-    updates. ``f"{key}_policy"``, ``_policies``, ``_diagnostics`` and ``_algorithm`` hold
-    objects (callers drop them before returning a trial)."""
+    task, st, key, reward_model, rng, trial, eval_contexts, score=None, n_artificial=None
+) -> tuple[dict, dict, GPREPS]:
+    """One GPREPS run (N₀ = ``st.n_initial`` real rollouts, then one per update):
+    ``(arrays, curves, algorithm)``, the arrays of :func:`run_curve` (held-out scores every
+    ``st.heldout_every`` updates) with the per-update model error, times and KL."""
     algo_rng, loop_rng = rng.spawn(2)
-    algo = gpreps_algorithm(task, st, reward_model, n_artificial, n_traj, algo_rng)
+    algo = gpreps_algorithm(task, st, reward_model, algo_rng, n_artificial)
     out, curves = run_curve(
         task,
         algo,
@@ -236,23 +245,13 @@ def run_gpreps(
         np.nan if d.prediction_bias is None else abs(d.prediction_bias) / abs(d.real_reward)
         for d in diags
     ]
-    out.update(
-        {
-            f"{key}_relative_error": np.array(rel),
-            f"{key}_time_training": np.array([d.time_training for d in diags]),
-            f"{key}_time_prediction": np.array([d.time_prediction for d in diags]),
-            f"{key}_time_policy": np.array([d.time_policy for d in diags]),
-            f"{key}_kl": np.array([d.reps.kl for d in diags]),
-            f"{key}_policy": curves["policy"],
-            f"{key}_policies": curves["policies"],
-            f"{key}_diagnostics": diags,
-            f"{key}_algorithm": algo,
-        }
-    )
-    return out
+    out[f"{key}_relative_error"] = np.array(rel)
+    for part in ("training", "prediction", "policy"):
+        out[f"{key}_time_{part}"] = np.array([getattr(d, f"time_{part}") for d in diags])
+    out[f"{key}_kl"] = np.array([d.reps.kl for d in diags])
+    return out, curves, algo
 
 
-# --------------------------------------------------------------------------- summaries
 def curve_series(
     trials,
     x_key: str,
@@ -355,7 +354,22 @@ def rollouts_to_reach(
     return float(at[hit[0]]) if hit.size else None
 
 
-# --------------------------------------------------------------------------- the experiment
+def experiment(
+    exp_id: str,
+    title: str,
+    settings: dict[str, Settings],
+    run_trial: Callable[..., dict],
+    summarize: Callable[..., tuple],
+    trials: tuple[int, int, int] = (1, 1, 5),
+    claim: str = "",
+) -> Experiment:
+    """Register the experiment ``exp_id`` (:class:`~skillkit.experiments.registry.Experiment`,
+    its settings class that of ``settings``) with ``trials`` per scale (smoke, quick, paper)."""
+    cls = type(settings["paper"])
+    runs = dict(zip(SCALES, trials, strict=True))
+    return register(Experiment(exp_id, title, cls, settings, run_trial, summarize, runs, claim))
+
+
 @dataclass(frozen=True)
 class REPSBlock(Settings):
     """Model-free contextual REPS (Table 3.1), its fit regularised as GPREPS's
@@ -371,15 +385,13 @@ class REPSBlock(Settings):
 class GPREPSBlock(Settings):
     """GPREPS (Table 4.1)."""
 
-    n_updates: int = setting(
-        10, "Updates K, one real rollout each after the first (0: GPREPS does not run).", minimum=0
-    )
+    n_updates: int = setting(10, "Updates K (0: GPREPS does not run).", minimum=0)
     n_initial: int = setting(10, "N₀, real rollouts before the first update.", minimum=2)
     n_artificial: int = setting(200, "M, artificial (s, ω) pairs per update.", minimum=2)
     n_trajectories: int = setting(5, "L, predicted trajectories per pair (Eq. 4.1).", minimum=1)
     epsilon: float = setting(1.0, "KL bound ε (Sec. 4.3.2).", above=0)
     context_model: Literal["gaussian", "uniform", "prior"] = setting(
-        "uniform", "μ̂(s), the context distribution of the artificial samples."
+        "uniform", "μ̂(s) of the artificial samples."
     )
 
 
@@ -442,39 +454,14 @@ def learning_curves(
         for method, r in zip(runs, rng.spawn(len(runs)), strict=True):
             if method == "reps":
                 b = st.reps
-                algo = ContextualREPS(
-                    made.initial_policy(),
-                    b.epsilon,
-                    n_reuse_batches=b.n_reuse_batches,
-                    cov_floor=COV_FLOOR,
-                    min_effective_samples=MIN_EFFECTIVE_SAMPLES,
+                algo = regularised_reps(made.initial_policy(), b.epsilon, b.n_reuse_batches)
+                arrays, _ = run_curve(
+                    made, algo, "reps", b.n_updates, b.rollouts_per_update, r, trial, eval_contexts
                 )
-                out.update(
-                    run_curve(
-                        made,
-                        algo,
-                        "reps",
-                        b.n_updates,
-                        b.rollouts_per_update,
-                        r,
-                        trial,
-                        eval_contexts,
-                    )[0]
-                )
+                out.update(arrays)
             else:
-                b = st.gpreps
-                g = run_gpreps(
-                    made,
-                    b,
-                    "gpreps",
-                    reward_model(made),
-                    b.n_artificial,
-                    b.n_trajectories,
-                    r,
-                    trial,
-                    eval_contexts,
-                )
-                out.update({k: v for k, v in g.items() if isinstance(v, np.ndarray)})
+                model = reward_model(made)
+                out.update(run_gpreps(made, st.gpreps, "gpreps", model, r, trial, eval_contexts)[0])
         return out
 
     def summarize(st: CurveSettings, trials: list[dict]):
@@ -504,15 +491,5 @@ def learning_curves(
                 summary[m].update(gpreps_stats(trials, m))
         return series, summary
 
-    base = CurveSettings(task=task)
-    return register(
-        Experiment(
-            id=exp_id,
-            title=title,
-            settings_class=CurveSettings,
-            settings=scales(base, **changes),
-            run_trial=run_trial,
-            summarize=summarize,
-            claim=claim,
-        )
-    )
+    settings = scales(CurveSettings(task=task), **changes)
+    return experiment(exp_id, title, settings, run_trial, summarize, (1, 1, 1), claim)

@@ -1,16 +1,11 @@
 """``sanity3``: contextual policy search on a problem with a known optimal linear policy.
 
-The problem (:class:`LinearOptimumTask`): contexts s ~ U([−1, 1]²), parameters ω ∈ R³ and
-
-    R(s, ω) = −(ω − a* − A* s)ᵀ W (ω − a* − A* s) + ν,     ν ~ N(0, σ_ν²) (σ_ν = 0 by default),
-
-so the optimal upper-level policy is the linear ω = a* + A* s (the "trajectory" is ω).
-
+:class:`LinearOptimumTask`: s ~ U([−1, 1]²), ω ∈ R³ and R(s, ω) = −(ω − a* − A* s)ᵀ W
+(ω − a* − A* s) + ν, ν ~ N(0, σ_ν²), so the optimal policy is the linear ω = a* + A* s.
 Contextual REPS (Table 3.1), RWR (2.18) and CrKR (2.19–2.20, linear kernel) learn from the same
-initial policy with the same loop (:func:`skillkit.search.loop.learn`), 25 rollouts per update
-and 200 samples reused (the thesis's throwing setting). A policy's error is ‖[a, A] − [a*, A*]‖_F
-of the least-squares linear fit to its mean on a 5 × 5 grid of contexts. The thesis reports no
-result here; our checks are in ``skillkit/data/claims/ch3.toml``.
+initial policy with :func:`skillkit.search.loop.learn` (25 rollouts per update, 200 reused); a
+policy's error is ‖[a, A] − [a*, A*]‖_F of the least-squares linear fit to its mean on a 5 × 5
+grid. The thesis reports no result here; our checks: ``skillkit/data/claims/ch3.toml``.
 """
 
 from __future__ import annotations
@@ -19,7 +14,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from skillkit.experiments.registry import Experiment, Series, register
+from skillkit._validation import check_positive
+from skillkit.experiments.curves import experiment
+from skillkit.experiments.registry import Series
 from skillkit.experiments.settings import Settings, scales, setting
 from skillkit.models.kernels import Linear
 from skillkit.policies.gaussian import LinearGaussianPolicy
@@ -61,12 +58,8 @@ class LinearOptimumTask(Task):
     trajectory_depends_on_context = False
 
     def __init__(self, noise_std: float = 0.0, init_std: float = 0.5):
-        if not (np.isfinite(noise_std) and noise_std >= 0):
-            raise ValueError(f"noise_std: expected a finite value >= 0, got {noise_std!r}")
-        if not (np.isfinite(init_std) and init_std > 0):
-            raise ValueError(f"init_std: expected a finite value > 0, got {init_std!r}")
-        self.noise_std = float(noise_std)
-        self.init_std = float(init_std)
+        self.noise_std = check_positive(noise_std, "noise_std", allow_zero=True)
+        self.init_std = check_positive(init_std, "init_std")
 
     @property
     def optimal_coefficients(self) -> np.ndarray:
@@ -105,30 +98,18 @@ class SanitySettings(Settings):
     """Settings of ``sanity3`` (the learning loop of Table 3.1 on :class:`LinearOptimumTask`)."""
 
     n_updates: int = setting(120, "Policy updates per algorithm (Table 3.1 loop).", minimum=1)
-    rollouts_per_update: int = setting(
-        25, "Rollouts N between updates (Sec. 3.4.1's throwing setting).", minimum=1
-    )
-    n_reuse_batches: int = setting(
-        8, "Batches L each update reuses: the last L × N = 200 rollouts (Sec. 3.4.1).", minimum=1
-    )
+    rollouts_per_update: int = setting(25, "Rollouts N between updates (Sec. 3.4.1).", minimum=1)
+    n_reuse_batches: int = setting(8, "Batches L each update reuses (Sec. 3.4.1).", minimum=1)
     epsilon: float = setting(0.5, "KL bound ε of contextual REPS (Eq. 3.4).", above=0)
     beta_scale: float = setting(
-        1.0, "RWR's and CrKR's β = beta_scale / std(R) (Eq. 2.18; KL ≈ 0.5 from uniform).", above=0
+        1.0, "RWR's and CrKR's β = beta_scale / std(R) (Eq. 2.18).", above=0
     )
     crkr_lam: float = setting(0.01, "CrKR's regulariser λ (Eqs. 2.19–2.20).", above=0)
-    kernel_variance: float = setting(
-        0.25, "Variance σ² of CrKR's linear kernel σ² sᵀs' + c.", above=0
-    )
+    kernel_variance: float = setting(0.25, "σ² of CrKR's kernel σ² sᵀs' + c.", above=0)
     kernel_bias: float = setting(0.25, "Bias c of CrKR's linear kernel σ² sᵀs' + c.", minimum=0)
-    noise_std: float = setting(
-        0.0, "Std σ_ν of the additive reward noise (reward units).", minimum=0
-    )
-    init_std: float = setting(
-        0.5, "Std of the initial policy N(0, init_std² I) (zero gain).", above=0
-    )
-    threshold: float = setting(
-        1e-2, "Parameter error ‖[a, A] − [a*, A*]‖_F counted as reaching the optimum.", above=0
-    )
+    noise_std: float = setting(0.0, "Std σ_ν of the additive reward noise.", minimum=0)
+    init_std: float = setting(0.5, "Std of the initial policy N(0, init_std² I).", above=0)
+    threshold: float = setting(1e-2, "Parameter error counted as reaching the optimum.", above=0)
 
 
 SCALES = scales(SanitySettings(), smoke=dict(n_updates=3), paper=dict(n_updates=200))
@@ -159,10 +140,9 @@ def run_trial(settings: SanitySettings, rng: np.random.Generator, trial: TrialCo
     streams = rng.spawn(len(ALGORITHMS))
     trial.reset(total=len(ALGORITHMS) * settings.n_updates)
     for name, stream in zip(ALGORITHMS, streams, strict=True):
-        alg = make_algorithm(name, task, settings)
         res = learn(
             task,
-            alg,
+            make_algorithm(name, task, settings),
             settings.n_updates,
             settings.rollouts_per_update,
             stream,
@@ -171,10 +151,9 @@ def run_trial(settings: SanitySettings, rng: np.random.Generator, trial: TrialCo
             callback=lambda k, a: parameter_error(a.policy, optimum, grid),
             checkpoint_key=name,
         )
-        errors_arr = np.array(res["callback"])
-        below = np.flatnonzero(errors_arr < settings.threshold)
+        out[f"{name}_error"] = errors = np.array(res["callback"])
+        below = np.flatnonzero(errors < settings.threshold)
         out[f"{name}_rollouts"] = res["rollouts"]
-        out[f"{name}_error"] = errors_arr
         out[f"{name}_mean_reward"] = res["mean_reward"]
         out[f"{name}_explore_reward"] = res["explore_reward"]
         out[f"{name}_rollouts_to_threshold"] = int(res["rollouts"][below[0]]) if below.size else -1
@@ -193,7 +172,7 @@ def summarize(settings: SanitySettings, trials: list[dict]) -> tuple[list[Series
         err = np.array([t[f"{name}_error"] for t in trials])
         y, band = trial_band(err, kind="gstd")
         panel = "parameter error of the policy mean"
-        ylabel = "‖[a, A] − [a*, A*]‖_F"
+        ylabel = "Frobenius error ‖[a, A] − [a*, A*]‖"
         series.append(
             Series(name, x, y, panel, **band, xlabel="rollouts", ylabel=ylabel, log_y=True)
         )
@@ -217,14 +196,11 @@ def summarize(settings: SanitySettings, trials: list[dict]) -> tuple[list[Series
     return series, summary
 
 
-register(
-    Experiment(
-        id="sanity3",
-        title="Contextual policy search with a known optimal linear policy: REPS vs RWR vs CrKR",
-        settings_class=SanitySettings,
-        settings=SCALES,
-        run_trial=run_trial,
-        summarize=summarize,
-        trials={"smoke": 2, "quick": 3, "paper": 10},
-    )
+experiment(
+    "sanity3",
+    "Contextual policy search with a known optimal linear policy: REPS vs RWR vs CrKR",
+    SCALES,
+    run_trial,
+    summarize,
+    (2, 3, 10),
 )

@@ -40,8 +40,7 @@ def regularized_cholesky(gram_matrix: torch.Tensor, lam: float | torch.Tensor) -
     if int(info.max()) > 0:
         lam_v = float(lam.detach()) if isinstance(lam, torch.Tensor) else float(lam)
         raise np.linalg.LinAlgError(
-            f"lam: G + λI is not numerically positive definite at λ={lam_v:.3g} (N={n}); "
-            "increase lam"
+            f"lam: G + λI is not positive definite at λ={lam_v:.3g}; increase lam"
         )
     return chol
 
@@ -83,9 +82,7 @@ def rollout_weights(
         elif g_t.ndim == 3:
             v = torch.einsum("bij,jb->ib", g_t, beta)
         else:
-            raise ValueError(
-                f"transition: expected shape (N, N) or (B, N, N), got {tuple(g_t.shape)}"
-            )
+            raise ValueError(f"transition: expected (N, N) or (B, N, N), got {tuple(g_t.shape)}")
         beta = conditional_weights(chol, v)
         betas.append(beta)
     return torch.stack(betas)
@@ -140,9 +137,7 @@ class ConditionalEmbedding:
         z = check_array(inputs, "inputs", ndim=2)
         y = check_array(targets, "targets", ndim=2)
         if y.shape[0] != z.shape[0]:
-            raise ValueError(
-                f"targets: expected {z.shape[0]} rows like inputs, got shape {y.shape}"
-            )
+            raise ValueError(f"targets: expected {z.shape[0]} rows like inputs, got {y.shape}")
         if z.shape[0] < 1:
             raise ValueError("inputs: expected at least one training pair, got none")
         self.lam = check_positive(lam, "lam")
@@ -184,20 +179,16 @@ class ConditionalEmbedding:
 
     def cross_kernel(self, points: torch.Tensor) -> torch.Tensor:
         """g(z_i, p) for ``points`` (M, d_z) or (B, M, d_z): (N, M) or (B, N, M)."""
-        if points.shape[-1] != self.input_dim:
-            raise ValueError(
-                f"points: expected {self.input_dim} columns like the training inputs, "
-                f"got shape {tuple(points.shape)}"
-            )
+        self._points(points, "points")
         with torch.no_grad():
             return self.kernel.forward(self._z, points.to(torch.float64))
 
-    def _points(self, value, name: str, ndim) -> np.ndarray:
-        arr = check_array(value, name, ndim=ndim)
+    def _points(self, value, name: str, ndim=None):
+        """``value`` (an array unless a Tensor) with ``input_dim`` columns, else ValueError."""
+        arr = value if ndim is None else check_array(value, name, ndim=ndim)
         if arr.shape[-1] != self.input_dim:
             raise ValueError(
-                f"{name}: expected {self.input_dim} columns like the training inputs, "
-                f"got shape {arr.shape}"
+                f"{name}: expected {self.input_dim} columns, got shape {tuple(arr.shape)}"
             )
         return arr
 
@@ -234,23 +225,19 @@ class ConditionalEmbedding:
         out = conditional_weights(self._chol, g @ at).numpy()
         return out[:, 0] if a.ndim == 1 else out
 
-    def _beta(self, beta) -> np.ndarray:
-        b = check_array(beta, "beta", ndim=(1, 2))
-        if b.shape[0] != self.n:
+    def _rows(self, value, name: str) -> np.ndarray:
+        """``value`` (N,) or (N, k), one row per training pair, else ValueError."""
+        arr = check_array(value, name, ndim=(1, 2))
+        if arr.shape[0] != self.n:
             raise ValueError(
-                f"beta: expected {self.n} rows (one per training pair), got shape {b.shape}"
+                f"{name}: expected {self.n} rows (one per training pair), got {arr.shape}"
             )
-        return b
+        return arr
 
     def expected(self, values, beta) -> np.ndarray:
         """:math:`f'^\\top \\beta` for ``values`` f(y_i) (N,) or (N, k), e.g. rewards (Sec. 5.4)."""
-        b = self._beta(beta)
-        v = check_array(values, "values", ndim=(1, 2))
-        if v.shape[0] != self.n:
-            raise ValueError(
-                f"values: expected {self.n} rows (one per training pair), got shape {v.shape}"
-            )
-        return b.T @ v
+        b = self._rows(beta, "beta")
+        return b.T @ self._rows(values, "values")
 
     def mean(self, beta) -> np.ndarray:
         """Expected target :math:`Y^\\top \\beta`: (d_y,) or (B, d_y)."""
@@ -261,19 +248,15 @@ class ConditionalEmbedding:
 
         Linear target kernel: Yᵀβ. SE kernel: the mean-shift fixed point y ← Σ_i w_i y_i / Σ_i w_i,
         w_i = β_i k(y, y_i), from the best training target; columns that stop early warn."""
-        b = self._beta(beta)
+        b = self._rows(beta, "beta")
         kern = self.target_kernel
         if kern is None:
-            raise ValueError(
-                "target_kernel: a target kernel is needed for pre-images when "
-                "targets and inputs differ in dimension"
-            )
+            raise ValueError("target_kernel: needed for pre-images when targets and inputs differ")
         if isinstance(kern, Linear):
             return self.mean(b)
         if not isinstance(kern, SquaredExponential):
             raise ValueError(
-                "target_kernel: pre-images are implemented for SquaredExponential "
-                f"and Linear kernels, got {type(kern).__name__}"
+                f"target_kernel: expected SquaredExponential or Linear, got {type(kern).__name__}"
             )
         single = b.ndim == 1
         x, ok = _se_preimage(self.targets, b.reshape(self.n, -1), kern, int(max_iter), float(tol))

@@ -52,12 +52,7 @@ class TrajectoryEmbedding:
 
     def means(self, model: ConditionalEmbedding) -> np.ndarray:
         """Expected states :math:`X'^\\top \\beta_t`, shape (T, B, n_x)."""
-        body = (
-            np.stack([model.mean(b) for b in self.betas])
-            if len(self.betas)
-            else np.zeros((0,) + self.initial.shape)
-        )
-        return np.concatenate([self.initial[None], body])
+        return np.concatenate([self.initial[None], *(model.mean(b)[None] for b in self.betas)])
 
     def preimages(self, model: ConditionalEmbedding, **kwargs) -> np.ndarray:
         """Most likely states per row (Eq. 2.45), shape (T, B, n_x)."""
@@ -108,16 +103,12 @@ def predict(
     n_x = model.target_dim
     x0 = check_array(initial, "initial", ndim=(2, 3))
     if x0.shape[-1] != n_x:
-        raise ValueError(
-            f"initial: expected states with {n_x} columns like the model's targets, "
-            f"got shape {x0.shape}"
-        )
+        raise ValueError(f"initial: expected {n_x} columns like the targets, got shape {x0.shape}")
     samples = x0 if x0.ndim == 3 else x0[:, None, :]  # (B, L, n_x)
     n_rows = check_count(n_steps, "n_steps", minimum=2)  # initial state + one prediction
     if policy is None and model.input_dim != n_x:
         raise ValueError(
-            f"policy: the model's inputs have {model.input_dim} columns but its "
-            f"targets {n_x}; a state-action model needs a policy (Table 5.2)"
+            f"policy: needed for a state-action model ({model.input_dim} inputs, {n_x} targets)"
         )
     fixed = policy is None or time_invariant
 
@@ -126,24 +117,17 @@ def predict(
             controls = np.zeros(states.shape[:-1] + (0,))
         else:
             controls = check_array(policy(states, t), "policy(states, t)", ndim=3)
-        if controls.shape[1] != states.shape[1] or controls.shape[0] not in (
-            1,
-            states.shape[0],
-            samples.shape[0],
-        ):
-            raise ValueError(
-                "policy(states, t): expected controls of shape "
-                f"(b, {states.shape[1]}, n_u) for states of shape {states.shape}, "
-                f"got {controls.shape}"
-            )
+        rows = (1, states.shape[0], samples.shape[0])
+        if controls.shape[1] != states.shape[1] or controls.shape[0] not in rows:
+            got = controls.shape
+            raise ValueError(f"policy(states, t): expected (b, {states.shape[1]}, n_u), got {got}")
         b = max(states.shape[0], controls.shape[0])
         s = np.broadcast_to(states, (b,) + states.shape[1:])
         c = np.broadcast_to(controls, (b,) + controls.shape[1:])
         z = np.concatenate([s, c], axis=-1)
         if z.shape[-1] != model.input_dim:
             raise ValueError(
-                f"policy(states, t): state-action inputs have {z.shape[-1]} columns, "
-                f"the model was trained on {model.input_dim}"
+                f"policy(states, t): gives {z.shape[-1]} input columns, expected {model.input_dim}"
             )
         return z, c
 
@@ -155,7 +139,7 @@ def predict(
         )
         if r.shape != controls.shape[:-1]:
             raise ValueError(
-                f"reward(states, controls): expected shape {controls.shape[:-1]}, got {r.shape}"
+                f"reward(states, controls): expected {controls.shape[:-1]}, got {r.shape}"
             )
         return r
 

@@ -71,9 +71,7 @@ def transitions(states, controls=None) -> tuple[np.ndarray, np.ndarray, np.ndarr
     x = check_array(states, "states", ndim=3)
     m, t, n_x = x.shape
     if t < 2:
-        raise ValueError(
-            f"states: expected at least 2 time steps per trajectory, got shape {x.shape}"
-        )
+        raise ValueError(f"states: expected at least 2 time steps, got shape {x.shape}")
     z = x
     if controls is not None:
         u = check_array(controls, "controls", ndim=3)
@@ -88,10 +86,7 @@ def transitions(states, controls=None) -> tuple[np.ndarray, np.ndarray, np.ndarr
 
 def _unpack(theta: torch.Tensor, dim: int) -> tuple[torch.Tensor, torch.Tensor]:
     if theta.shape != (dim + 1,):
-        raise ValueError(
-            f"theta: expected [log lengthscales ({dim}), log lam], i.e. shape "
-            f"({dim + 1},), got {tuple(theta.shape)}"
-        )
+        raise ValueError(f"theta: expected shape ({dim + 1},), got {tuple(theta.shape)}")
     return torch.exp(theta[:dim]), torch.exp(theta[dim])
 
 
@@ -230,13 +225,8 @@ def state_embedding_loss(
     fns = []
     folds = _check_folds(folds, z.shape[0])
     for tr, va in folds:
-        args = (
-            _t(z[tr]),
-            _t(z[va]),
-            _t(g_y[np.ix_(tr, tr)]),
-            _t(g_y[np.ix_(va, tr)]),
-            _t(np.diag(g_y)[va]),
-        )
+        parts = (z[tr], z[va], g_y[np.ix_(tr, tr)], g_y[np.ix_(va, tr)], np.diag(g_y)[va])
+        args = tuple(_t(a) for a in parts)
         fns.append(lambda th, a=args: state_embedding_error(th, *a))
     return CrossValidatedLoss(fns, z.shape[1], sum(len(va) for _, va in folds))
 
@@ -282,8 +272,7 @@ def trajectory_reward_loss(
         c = check_array(policy(xp_tr[None], 1), "policy(states, t)", ndim=3)
         if c.shape[0] not in (1, m) or c.shape[1] != xp_tr.shape[0]:
             raise ValueError(
-                f"policy(states, t): expected controls of shape ({m} or 1, "
-                f"{xp_tr.shape[0]}, n_u), got {c.shape}"
+                f"policy(states, t): expected ({m} or 1, {xp_tr.shape[0]}, n_u), got {c.shape}"
             )
         c = np.broadcast_to(c, (m,) + c.shape[1:])[va]
         s = np.broadcast_to(xp_tr[None], (len(va),) + xp_tr.shape)
@@ -359,9 +348,14 @@ def fit_hyperparameters(
         On non-positive length-scales or λ outside ``lam_bounds``.
     """
     d = loss.dim
-    w0 = np.broadcast_to(check_array(lengthscale, "lengthscale", ndim=(0, 1)), (d,)).copy()
-    if np.any(w0 <= 0):
-        raise ValueError(f"lengthscale: expected positive values, got {w0}")
+
+    def positive(value, name: str) -> np.ndarray:
+        w = np.broadcast_to(check_array(value, name, ndim=(0, 1)), (d,)).copy()
+        if np.any(w <= 0):
+            raise ValueError(f"{name}: expected positive values, got {w}")
+        return w
+
+    w0 = positive(lengthscale, "lengthscale")
     lam = check_positive(lam, "lam")
     lo_l, hi_l = (check_positive(v, "lam_bounds") for v in lam_bounds)
     if not lo_l <= lam <= hi_l:
@@ -369,34 +363,24 @@ def fit_hyperparameters(
     f = check_positive(lengthscale_factor, "lengthscale_factor")
     ref = w0
     if lengthscale_reference is not None:
-        ref = np.broadcast_to(
-            check_array(lengthscale_reference, "lengthscale_reference", ndim=(0, 1)), (d,)
-        ).copy()
-        if np.any(ref <= 0):
-            raise ValueError(f"lengthscale_reference: expected positive values, got {ref}")
+        ref = positive(lengthscale_reference, "lengthscale_reference")
         w0 = np.clip(w0, ref / f, ref * f)
     bounds = [(np.log(w / f), np.log(w * f)) for w in ref]
     theta0 = np.append(np.log(w0), np.log(lam))
 
-    if learn_lam:
+    fixed = [] if learn_lam else [np.log(lam)]  # log λ, when not learnt
 
-        def fun(th):
-            return loss.value_and_grad(th)
+    def fun(th):
+        v, g = loss.value_and_grad(np.append(th, fixed))
+        return v, g[: len(th)]
 
-        x0, bnds = theta0, bounds + [(np.log(lo_l), np.log(hi_l))]
-    else:
-
-        def fun(th):
-            v, g = loss.value_and_grad(np.append(th, np.log(lam)))
-            return v, g[:d]
-
-        x0, bnds = theta0[:d], bounds
-
+    x0 = theta0[: len(theta0) - len(fixed)]
+    bnds = bounds + [(np.log(lo_l), np.log(hi_l))] if learn_lam else bounds
     initial = loss(theta0)
     res = minimize(
         fun, x0, jac=True, method="L-BFGS-B", bounds=bnds, options={"maxiter": int(max_iter)}
     )
-    theta = res.x if learn_lam else np.append(res.x, np.log(lam))
+    theta = np.append(res.x, fixed)
     names = [f"lengthscale[{i}]" for i in range(d)] + (["lam"] if learn_lam else [])
     at_bound = [
         n

@@ -16,7 +16,7 @@ import torch.nn.functional as F
 
 from skillkit._repr import number
 from skillkit._validation import as_generator, check_array, check_count, check_positive
-from skillkit.models.gp import DTYPE, Moments, as_device, check_dtype, check_transitions
+from skillkit.models.gp import DTYPE, Moments, TransitionModel, as_device, check_dtype
 
 __all__ = ["LOGVAR_INIT", "LOGVAR_PENALTY", "EnsembleSettings", "ProbabilisticEnsemble"]
 
@@ -42,16 +42,10 @@ class EnsembleSettings:
     batch_size: int = 64
 
     def __post_init__(self) -> None:
-        sizes = self.hidden_sizes
-        if (
-            not isinstance(sizes, tuple)
-            or not sizes
-            or any(isinstance(h, bool) or not isinstance(h, (int, np.integer)) for h in sizes)
-            or min(sizes) < 1
-        ):
-            raise ValueError(
-                f"hidden_sizes: expected a non-empty tuple of positive integers, got {sizes!r}"
-            )
+        if not isinstance(self.hidden_sizes, tuple) or not self.hidden_sizes:
+            raise ValueError(f"hidden_sizes: expected a non-empty tuple, got {self.hidden_sizes!r}")
+        for h in self.hidden_sizes:
+            check_count(h, "hidden_sizes")
         check_count(self.n_members, "n_members")
         check_count(self.epochs, "epochs")
         check_positive(self.lr, "lr")
@@ -59,7 +53,7 @@ class EnsembleSettings:
         check_count(self.batch_size, "batch_size")
 
 
-class ProbabilisticEnsemble:
+class ProbabilisticEnsemble(TransitionModel):
     """K bootstrap MLPs with Gaussian outputs: a forward model x_{t+1} ~ p(· | x_t, u_t).
 
     Usable wherever a GP forward model is sampled, e.g.
@@ -85,14 +79,10 @@ class ProbabilisticEnsemble:
         if settings is None:
             settings = EnsembleSettings()
         if not isinstance(settings, EnsembleSettings):
-            raise ValueError(
-                f"settings: expected an EnsembleSettings, got {type(settings).__name__}"
-            )
-        if target not in ("delta", "next"):
-            raise ValueError(f"target: expected 'delta' or 'next', got {target!r}")
+            raise ValueError(f"settings: expected EnsembleSettings, got {type(settings).__name__}")
+        super().__init__(target)
         check_dtype(dtype)
         self.settings = settings
-        self.target = target
         self.device = as_device(device)
         self.dtype = dtype
         self.state_dim = 0
@@ -109,23 +99,10 @@ class ProbabilisticEnsemble:
     def n_members(self) -> int:
         return self.settings.n_members
 
-    def fit(self, states, controls, next_states, rng=None) -> ProbabilisticEnsemble:
-        """Fit the members on bootstrap resamples.
+    _min_rows = 2
 
-        Parameters
-        ----------
-        states : array_like, shape (N, n_x)
-        controls : array_like, shape (N, n_u)
-        next_states : array_like, shape (N, n_x)
-            N ≥ 2.
-        rng : Generator, int, SeedSequence or None
-            Draws the resamples, initial weights and minibatch order.
-
-        Returns
-        -------
-        self
-        """
-        x, u, xn = check_transitions(states, controls, next_states, min_rows=2)
+    def _fit(self, x: np.ndarray, u: np.ndarray, xn: np.ndarray, rng) -> None:
+        """Fit the members on bootstrap resamples (``rng``: resamples, weights, minibatches)."""
         rng = as_generator(rng)
         st = self.settings
         N, K = x.shape[0], st.n_members
@@ -177,7 +154,6 @@ class ProbabilisticEnsemble:
             torch.as_tensor(a, **kw) for a in (z_mean, z_scale, y_mean, y_scale)
         )
         self.state_dim, self.control_dim, self.n_data = x.shape[1], u.shape[1], N
-        return self
 
     def _check_fitted(self) -> None:
         if self._layers is None:
@@ -217,13 +193,7 @@ class ProbabilisticEnsemble:
         E = mean.shape[-1]
         mean = mean.transpose(0, 1).reshape(m * K, E)[:n]
         logvar = logvar.transpose(0, 1).reshape(m * K, E)[:n]
-        mean, var = self._raw(x, mean, logvar)
-        return Moments(
-            mean,
-            var,
-            torch.zeros((), dtype=torch.int64, device=x.device),
-            torch.zeros((), dtype=x.dtype, device=x.device),
-        )
+        return Moments.exact(*self._raw(x, mean, logvar))
 
     def predict(self, states, controls) -> tuple[np.ndarray, np.ndarray]:
         """Mean and variance (n, n_x) of the equal-weight mixture (1/K) Σ_k N(μ_k, σ_k²): the mean
@@ -236,10 +206,7 @@ class ProbabilisticEnsemble:
             mean, var = self.member_moments(torch.as_tensor(x, **kw), torch.as_tensor(u, **kw))
             mu = mean.mean(0)
             total = var.mean(0) + ((mean - mu) ** 2).mean(0)
-        return (
-            mu.cpu().numpy().astype(np.float64),
-            total.cpu().numpy().astype(np.float64),
-        )
+        return tuple(t.cpu().numpy().astype(np.float64) for t in (mu, total))
 
     def _standardized(self, x: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
         return (torch.cat([x, u], dim=-1) - self._z_mean) / self._z_scale
@@ -276,10 +243,7 @@ def _init_layer(K: int, d_in: int, d_out: int, gen: torch.Generator, dtype, devi
     bound = 1.0 / math.sqrt(d_in)
     w = (2 * torch.rand((K, d_in, d_out), generator=gen, dtype=DTYPE) - 1) * bound
     b = (2 * torch.rand((K, 1, d_out), generator=gen, dtype=DTYPE) - 1) * bound
-    return (
-        w.to(dtype=dtype, device=device).requires_grad_(),
-        b.to(dtype=dtype, device=device).requires_grad_(),
-    )
+    return tuple(t.to(dtype=dtype, device=device).requires_grad_() for t in (w, b))
 
 
 def _forward(

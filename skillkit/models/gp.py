@@ -15,7 +15,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from contextvars import ContextVar
 from dataclasses import dataclass, field
-from typing import NamedTuple
+from typing import NamedTuple, Self
 
 import gpytorch
 import numpy as np
@@ -40,6 +40,7 @@ __all__ = [
     "HyperCurb",
     "Moments",
     "NumericalEvents",
+    "TransitionModel",
     "as_device",
     "check_dtype",
     "check_transitions",
@@ -145,10 +146,8 @@ _RECORDERS: ContextVar[tuple[tuple[NumericalEvents, bool], ...]] = ContextVar(
 
 @contextmanager
 def record_numerical_events(quiet: bool = True) -> Iterator[NumericalEvents]:
-    """Count the handled numerical events reported inside the block (nesting; per context).
-
-    With ``quiet`` (default) they are not warned about; otherwise they are, unless an
-    enclosing recorder is quiet. Yields the block's :class:`NumericalEvents`."""
+    """Yield the :class:`NumericalEvents` reported inside the block (nesting, per context),
+    warned about only when no active recorder is ``quiet``."""
     events = NumericalEvents()
     token = _RECORDERS.set((*_RECORDERS.get(), (events, bool(quiet))))
     try:
@@ -178,7 +177,7 @@ def as_device(device, name: str = "device") -> torch.device:
         dev = torch.device(device)
     except (RuntimeError, TypeError):
         raise ValueError(
-            f"{name}: expected a device such as 'cpu', 'cuda' or 'cuda:0', got {device!r}"
+            f"{name}: expected a device such as 'cpu' or 'cuda:0', got {device!r}"
         ) from None
     if dev.type == "cpu":
         return torch.device("cpu")
@@ -190,8 +189,7 @@ def as_device(device, name: str = "device") -> torch.device:
         return torch.device("cuda", torch.cuda.current_device())
     if dev.index >= torch.cuda.device_count():
         raise ValueError(
-            f"{name}: {device!r} requested but only {torch.cuda.device_count()} CUDA "
-            "device(s) are available"
+            f"{name}: {device!r} but {torch.cuda.device_count()} CUDA device(s) available"
         )
     return dev
 
@@ -209,10 +207,7 @@ def check_transitions(states, controls, next_states, min_rows: int = 0):
     u = check_array(controls, "controls", ndim=2)
     xn = check_array(next_states, "next_states", ndim=2)
     if min_rows and (x.shape[0] < min_rows or x.shape[1] < 1):
-        raise ValueError(
-            f"states: expected at least {min_rows} transitions of at least 1 dimension, got "
-            f"{x.shape}"
-        )
+        raise ValueError(f"states: expected at least {min_rows} rows and 1 column, got {x.shape}")
     if u.shape[0] != x.shape[0]:
         raise ValueError(f"controls: expected {x.shape[0]} rows like states, got shape {u.shape}")
     if xn.shape != x.shape:
@@ -246,8 +241,16 @@ def robust_cholesky(A: torch.Tensor, what: str = "matrix") -> tuple[torch.Tensor
             )
             return torch.where(failed[..., None, None], L2, L), j
     raise GPNumericalError(
-        f"{what}: not positive definite even with jitter {_JITTER_LEVELS[-1]:.0e} x mean(diag)"
+        f"{what}: not positive definite even with jitter {_JITTER_LEVELS[-1]:.0e}"
     )
+
+
+def plain_cholesky(A: torch.Tensor, what: str) -> torch.Tensor:
+    """Cholesky factor of ``A``, or :class:`GPNumericalError` (no jitter: inside an optimiser)."""
+    L, info = torch.linalg.cholesky_ex(A)
+    if torch.any(info):
+        raise GPNumericalError(f"{what}: not positive definite at these hyper-parameters")
+    return L
 
 
 class Moments(NamedTuple):
@@ -258,6 +261,12 @@ class Moments(NamedTuple):
     var: torch.Tensor
     n_clamped: torch.Tensor
     worst: torch.Tensor
+
+    @classmethod
+    def exact(cls, mean: torch.Tensor, var: torch.Tensor) -> Moments:
+        """Moments with no variance clamped."""
+        zero = torch.zeros((), dtype=mean.dtype, device=mean.device)
+        return cls(mean, var, zero.long(), zero)
 
 
 @dataclass(frozen=True)
@@ -298,15 +307,13 @@ class GPPredictor:
 
     def _set_caches(self, source: GPPredictor) -> None:
         """Float64 caches from ``source``: the support operand and [Rᵀ | β]."""
-        hi = torch.float64
-
-        def setup(name: str) -> torch.Tensor:
-            return getattr(source, name).to(device=self.device, dtype=hi)
-
-        lengthscale = setup("lengthscale")[:, None, :]
-        outputscale = setup("outputscale")
-        operand = se_operands(setup("support"), lengthscale, outputscale).contiguous()
-        weights = torch.cat([setup("var_factor").transpose(-1, -2), setup("beta")[..., None]], -1)
+        support, lengthscale, outputscale, var_factor, beta = (
+            getattr(source, k).to(device=self.device, dtype=torch.float64)
+            for k in ("support", "lengthscale", "outputscale", "var_factor", "beta")
+        )
+        lengthscale = lengthscale[:, None, :]
+        operand = se_operands(support, lengthscale, outputscale).contiguous()
+        weights = torch.cat([var_factor.transpose(-1, -2), beta[..., None]], -1)
         self.__dict__.update(  # frozen dataclass: the caches are set directly
             _support_operand=operand,
             _log_outputscale=torch.log(outputscale),
@@ -414,33 +421,31 @@ def flush_tiny(weights: torch.Tensor) -> torch.Tensor:
     return weights.masked_fill(weights.abs() < 1e-15 * top, 0.0)
 
 
-def warn_if_clamped(m: Moments, where: str) -> None:
-    worst = float(m.worst)
+def warn_if_clamped(where: str, worst, n_clamped=1) -> None:
+    """Report variances set to 0 whose ``worst`` (relative to σ_f²) is beyond round-off."""
+    worst = float(worst)
     if worst < -VARIANCE_TOL:
         report_event(
             "negative_variance_clipped",
-            f"{where}: {int(m.n_clamped)} predictive variance(s) were negative (worst "
-            f"{worst:.2e} x sigma_f^2, beyond round-off) and were set to 0; the model is "
-            "ill-conditioned (raise noise_floor or additive_noise)",
+            f"{where}: {int(n_clamped)} predictive variance(s) were negative (worst {worst:.2e} "
+            "x sigma_f^2, beyond round-off) and were set to 0",
             stacklevel=3,
         )
 
 
 @dataclass(frozen=True)
 class HyperCurb:
-    """A soft box on the SE hyper-parameters, the PILCO toolbox's ``hypCurb.m`` penalty.
-
-    Added to −(2.28) per output: Σ_d ((log w_d − log std(x_d)) / log r_w)^p +
-    ((log σ_f − log σ_ε) / log r_s)^p.
+    """A soft box on the SE hyper-parameters (PILCO's ``hypCurb.m``), added to −(2.28) per output:
+    Σ_d ((log w_d − log std(x_d)) / log r_w)^p + ((log σ_f − log σ_ε) / log r_s)^p.
 
     Parameters
     ----------
     lengthscale_ratio : float, default 100
-        r_w > 1, the allowed ratio of a length-scale w_d to std(x_d).
+        r_w > 1, the allowed w_d / std(x_d).
     snr : float, default 500
-        r_s > 1, the allowed signal-to-noise ratio σ_f / σ_ε.
+        r_s > 1, the allowed σ_f / σ_ε.
     power : int, default 30
-        p, an even integer ≥ 2 (the box's steepness).
+        p, an even integer ≥ 2.
 
     Raises
     ------
@@ -466,20 +471,8 @@ class HyperCurb:
         noise: torch.Tensor,
         input_std: torch.Tensor,
     ) -> torch.Tensor:
-        """The penalty summed over outputs.
-
-        Parameters
-        ----------
-        lengthscale : Tensor, shape (E, d)
-        outputscale, noise : Tensor, shape (E,)
-            σ_f², σ_ε².
-        input_std : Tensor, shape (d,)
-            std(x_d) of the training inputs.
-
-        Returns
-        -------
-        Tensor, shape ()
-        """
+        """The penalty summed over outputs, Tensor (), for ``lengthscale`` (E, d), σ_f² and σ_ε²
+        (E,) and the training inputs' ``input_std`` (d,)."""
         p = int(self.power)
         ls = (torch.log(lengthscale) - torch.log(input_std)) / math.log(self.lengthscale_ratio)
         snr = 0.5 * (torch.log(outputscale) - torch.log(noise)) / math.log(self.snr)
@@ -490,8 +483,8 @@ class _Diverged(Exception):
     pass
 
 
+#: L-BFGS stops when the objective changes by less than this in one iteration.
 TOLERANCE_CHANGE = 1e-12
-"""L-BFGS stops when the objective changes by less than this in one iteration."""
 
 
 def optimize(
@@ -501,12 +494,9 @@ def optimize(
     method: str = "lbfgs",
     learning_rate: float = 0.05,
 ) -> dict:
-    """Minimise ``loss_fn`` over ``parameters`` with L-BFGS or Adam; the result is always a
-    completed iterate.
-
-    L-BFGS runs one iteration per ``step``; a failed evaluation restores the last accepted
-    iterate (a ``"restored_iterate"`` event). Returns ``trace``, ``n_evaluations``,
-    ``n_iterations``, ``best`` and ``stopped_early``."""
+    """Minimise ``loss_fn`` over ``parameters`` (L-BFGS, one iteration per step, or Adam), ending
+    on a completed iterate: a failed evaluation restores the last one (``"restored_iterate"``).
+    Returns ``trace``, ``n_evaluations``, ``n_iterations``, ``best`` and ``stopped_early``."""
     _check_method(method)
     trace: list[float] = []
     stopped = None
@@ -528,11 +518,6 @@ def optimize(
 
     def snapshot() -> list[torch.Tensor]:
         return [p.detach().clone() for p in parameters]
-
-    def restore(state: list[torch.Tensor]) -> None:
-        with torch.no_grad():
-            for p, v in zip(parameters, state, strict=True):
-                p.copy_(v)
 
     best_state, best_value = snapshot(), math.nan
     n_iter = 0
@@ -597,7 +582,9 @@ def optimize(
                     n_iter += 1
         except _Diverged as exc:
             stopped = str(exc)
-    restore(best_state)
+    with torch.no_grad():
+        for p, v in zip(parameters, best_state, strict=True):
+            p.copy_(v)
     if not math.isfinite(best_value):
         with torch.no_grad():
             try:
@@ -695,9 +682,8 @@ class GPRegression:
         Parameters
         ----------
         X : array_like, shape (N, d)
-            Training inputs.
         Y : array_like, shape (N, E) or (N,)
-            Training targets, one GP per column.
+            One GP per column.
         rng : Generator, int, SeedSequence or None
             Draws the additive target noise and the pseudo-input initialisation.
 
@@ -722,8 +708,7 @@ class GPRegression:
         N, E = Y.shape
         diag: dict = {"n_data": N, "input_dim": X.shape[1], "output_dim": E}
         # Additive target noise (Sec. 4.2.3).
-        raw_std = Y.std(axis=0)
-        sigma_add = self.additive_noise * 1e-2 * raw_std
+        sigma_add = self.additive_noise * 1e-2 * Y.std(axis=0)
         if self.additive_noise > 0:
             Y = Y + sigma_add * rng.standard_normal(Y.shape)
         diag["additive_noise_std"] = sigma_add
@@ -739,10 +724,11 @@ class GPRegression:
         self.Y = torch.as_tensor(  # (E, N), standardised
             ((Y - m) / s).T.copy(), dtype=DTYPE, device=self.device
         )
-        self._init = self._initial_hypers(X)
-        self._build(rng)
         sd = X.std(axis=0)
-        input_std = torch.as_tensor(np.where(sd > 0, sd, 1.0), dtype=DTYPE, device=self.device)
+        self._input_sd = np.where(sd > 0, sd, 1.0)  # std(x_d), 1 for a constant input
+        self._init = self._initial_hypers()
+        self._build(rng)
+        input_std = torch.as_tensor(self._input_sd, dtype=DTYPE, device=self.device)
         curb = self.curb
 
         def objective() -> torch.Tensor:
@@ -779,21 +765,15 @@ class GPRegression:
         self.diagnostics = diag
         return self
 
-    def _initial_hypers(self, X: np.ndarray) -> dict:
+    def _initial_hypers(self) -> dict:
         """PILCO's initial values: w = std(x), σ_f² = var(y), σ_ε² = σ_f²/100."""
-        E, d = self.Y.shape[0], X.shape[1]
-        if self.init_lengthscale is None:
-            sd = X.std(axis=0)
-            ls = np.where(sd > 0, sd, 1.0)
-        else:
-            ls = self.init_lengthscale
+        E, d = self.Y.shape[0], self._input_sd.shape[0]
+        ls = self._input_sd if self.init_lengthscale is None else self.init_lengthscale
         try:
             ls = np.broadcast_to(ls, (E, d)).copy()
         except ValueError:
-            raise ValueError(
-                f"lengthscale: expected a scalar, shape ({d},) or ({E}, {d}), got shape "
-                f"{np.shape(self.init_lengthscale)}"
-            ) from None
+            got = np.shape(self.init_lengthscale)
+            raise ValueError(f"lengthscale: expected (), ({d},) or ({E}, {d}), got {got}") from None
         scale2 = self.y_scale**2
         os = np.ones(E) if self.init_outputscale is None else self.init_outputscale / scale2
         nz = 1e-2 * os if self.init_noise is None else self.init_noise / scale2
@@ -811,7 +791,6 @@ class GPRegression:
         Parameters
         ----------
         X : array_like, shape (n, d)
-            Test inputs.
         include_noise : bool, default True
             Add σ_ε² to the latent variance.
 
@@ -825,14 +804,12 @@ class GPRegression:
             Before :meth:`fit`.
         """
         pred = self._check_fitted()
-        x = check_array(X, "X", ndim=2)
-        if x.shape[1] != pred.input_dim:
-            raise ValueError(f"X: expected {pred.input_dim} columns, got shape {x.shape}")
+        x = check_array(X, "X", shape=(None, pred.input_dim))
         with torch.no_grad():
             m = pred.moments(
                 torch.as_tensor(x, dtype=pred.dtype, device=pred.device), include_noise
             )
-        warn_if_clamped(m, type(self).__name__)
+        warn_if_clamped(type(self).__name__, m.worst, m.n_clamped)
         mean, var = m.mean.cpu().numpy(), m.var.cpu().numpy()
         return (mean[:, 0], var[:, 0]) if self._squeeze else (mean, var)
 
@@ -868,6 +845,14 @@ class GPRegression:
             "noise": (pred.noise.cpu() * s2).numpy(),
         }
 
+    def _hypers(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """w (E, d), σ_f² (E,), σ_ε² (E,) as trained."""
+        return (
+            self.kernel.lengthscale[:, 0, :],
+            self.kernel.outputscale,
+            self.likelihood.noise[:, 0],
+        )
+
     def _standardisation_tensors(self) -> tuple[torch.Tensor, torch.Tensor]:
         return (
             torch.as_tensor(self.y_mean, dtype=DTYPE, device=self.device),
@@ -899,12 +884,8 @@ class _SENegLogML(torch.autograd.Function):
     def forward(ctx, lengthscale, outputscale, noise, X, Y):
         K = se_kernel(X, X, lengthscale[:, None, :], outputscale)
         K.diagonal(dim1=-2, dim2=-1).add_(noise[:, None])
-        L, info = torch.linalg.cholesky_ex(K)
+        L = plain_cholesky(K, "K + noise*I")
         K.diagonal(dim1=-2, dim2=-1).sub_(noise[:, None])  # back to K_f (saves an N x N copy)
-        if torch.any(info):
-            raise GPNumericalError(
-                "K + noise*I is not numerically positive definite at these hyper-parameters"
-            )
         alpha = torch.cholesky_solve(Y.unsqueeze(-1), L).squeeze(-1)
         N = X.shape[0]
         value = (
@@ -972,7 +953,6 @@ class ExactGP(GPRegression):
     standardize : bool, default True
         Fit on standardised targets (predictions are in raw units).
     curb : HyperCurb, optional
-        Penalty on the hyper-parameters.
     device : str or torch.device, optional
 
     Raises
@@ -984,18 +964,13 @@ class ExactGP(GPRegression):
     def _build(self, rng: np.random.Generator) -> None:
         E, N = self.Y.shape
         d = self.X.shape[1]
-        kernel, likelihood = self._hyper_modules(E, d)
-        self.model = _BatchedExactGP(self.X.expand(E, N, d), self.Y, likelihood, kernel).to(
-            self.device, DTYPE
-        )
-        self.likelihood = likelihood
+        self.kernel, self.likelihood = self._hyper_modules(E, d)
+        self.model = _BatchedExactGP(
+            self.X.expand(E, N, d), self.Y, self.likelihood, self.kernel
+        ).to(self.device, DTYPE)
 
     def _parameters(self) -> list[torch.nn.Parameter]:
         return list(self.model.parameters())
-
-    def _hypers(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        kern = self.model.covar_module
-        return kern.lengthscale[:, 0, :], kern.outputscale, self.likelihood.noise[:, 0]
 
     def _loss(self) -> torch.Tensor:
         return neg_log_marginal_likelihood(self.X, self.Y, *self._hypers())
@@ -1026,7 +1001,36 @@ class ExactGP(GPRegression):
         return pred, {"jitter": jitter, "log_marginal_likelihood": lml.cpu().numpy()}
 
 
-class ForwardModel:
+class TransitionModel:
+    """Base of the forward models p(x_{t+1} | x_t, u_t): ``target`` "delta" learns x_{t+1} − x_t,
+    "next" x_{t+1}."""
+
+    _min_rows = 0  # transitions needed by check_transitions
+
+    def __init__(self, target: str):
+        if target not in ("delta", "next"):
+            raise ValueError(f"target: expected 'delta' or 'next', got {target!r}")
+        self.target = target
+
+    def fit(self, states, controls, next_states, rng=None) -> Self:
+        """Fit the model on N transitions.
+
+        Parameters
+        ----------
+        states, next_states : array_like, shape (N, n_x)
+        controls : array_like, shape (N, n_u)
+        rng : Generator, int, SeedSequence or None
+            The fit's randomness (target noise, initial weights, resamples).
+
+        Returns
+        -------
+        self
+        """
+        self._fit(*check_transitions(states, controls, next_states, self._min_rows), rng)
+        return self
+
+
+class ForwardModel(TransitionModel):
     """A GP forward model p(x_{t+1} | x_t, u_t) on z = [x_t, u_t] (Sec. 4.2).
 
     Parameters
@@ -1047,15 +1051,11 @@ class ForwardModel:
 
     def __init__(self, gp: GPRegression, target: str = "next", mean: str = "zero"):
         if not isinstance(gp, GPRegression):
-            raise ValueError(
-                f"gp: expected an ExactGP, FITC or VFE instance, got {type(gp).__name__}"
-            )
-        if target not in ("delta", "next"):
-            raise ValueError(f"target: expected 'delta' or 'next', got {target!r}")
+            raise ValueError(f"gp: expected an ExactGP, FITC or VFE, got {type(gp).__name__}")
+        super().__init__(target)
         if mean not in ("zero", "linear"):
             raise ValueError(f"mean: expected 'zero' or 'linear', got {mean!r}")
         self.gp = gp
-        self.target = target
         self.mean = mean
         self.linear_weights: torch.Tensor | None = None
         self.state_dim = 0
@@ -1081,22 +1081,7 @@ class ForwardModel:
             raise RuntimeError("ForwardModel: call fit() first")
         return self._predictor
 
-    def fit(self, states, controls, next_states, rng=None) -> ForwardModel:
-        """Fit the GP on N transitions.
-
-        Parameters
-        ----------
-        states : array_like, shape (N, n_x)
-        controls : array_like, shape (N, n_u)
-        next_states : array_like, shape (N, n_x)
-        rng : Generator, int, SeedSequence or None
-            Passed to ``gp.fit``.
-
-        Returns
-        -------
-        self
-        """
-        x, u, xn = check_transitions(states, controls, next_states)
+    def _fit(self, x: np.ndarray, u: np.ndarray, xn: np.ndarray, rng) -> None:
         self.state_dim, self.control_dim = x.shape[1], u.shape[1]
         y = xn - x if self.delta else xn
         z = np.hstack([x, u])
@@ -1109,18 +1094,9 @@ class ForwardModel:
         self._predictor = self.gp.predictor
         if self.linear_weights is not None:
             self.linear_weights = self.linear_weights.to(self._predictor.device)
-        return self
-
-    def linear_mean(self, z: torch.Tensor) -> torch.Tensor | float:
-        if self.linear_weights is None:
-            return 0.0
-        w = self.linear_weights.to(z.device, z.dtype)
-        return z @ w[:-1] + w[-1]
 
     def to(self, device=None, dtype: torch.dtype | None = None) -> ForwardModel:
-        out = ForwardModel.__new__(ForwardModel)
-        out.__dict__.update(self.__dict__)
-        out._predictor = self.predictor.to(device, dtype)
+        out = self.with_predictor(self.predictor.to(device, dtype))
         if self.linear_weights is not None:
             out.linear_weights = self.linear_weights.to(out._predictor.device, out._predictor.dtype)
         return out
@@ -1137,7 +1113,8 @@ class ForwardModel:
         z = torch.cat([x, u], dim=-1)
         m = self.predictor.moments(z)
         if self.linear_weights is not None:
-            m = m._replace(mean=m.mean + self.linear_mean(z))
+            w = self.linear_weights.to(z.device, z.dtype)
+            m = m._replace(mean=m.mean + (z @ w[:-1] + w[-1]))
         return m._replace(mean=x + m.mean) if self.delta else m
 
     def predict(self, states, controls) -> tuple[np.ndarray, np.ndarray]:
@@ -1165,5 +1142,5 @@ class ForwardModel:
                 torch.as_tensor(x, dtype=pred.dtype, device=pred.device),
                 torch.as_tensor(u, dtype=pred.dtype, device=pred.device),
             )
-        warn_if_clamped(m, "ForwardModel")
+        warn_if_clamped("ForwardModel", m.worst, m.n_clamped)
         return m.mean.cpu().numpy(), m.var.cpu().numpy()

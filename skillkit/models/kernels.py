@@ -102,6 +102,27 @@ def linear_kernel(
     )
 
 
+def _positive(name: str) -> property:
+    """The parameter ``raw_<name>`` registered behind a positivity constraint, as a property."""
+    raw = f"raw_{name}"
+
+    def get(self) -> torch.Tensor:
+        return getattr(self, f"{raw}_constraint").transform(getattr(self, raw))
+
+    def set_(self, value) -> None:
+        param = getattr(self, raw)
+        value = torch.as_tensor(value, dtype=param.dtype, device=param.device)
+        self.initialize(**{raw: getattr(self, f"{raw}_constraint").inverse_transform(value)})
+
+    return property(get, set_)
+
+
+def _register_positive(kernel: gpytorch.kernels.Kernel, name: str) -> None:
+    kernel.register_parameter(f"raw_{name}", torch.nn.Parameter(torch.zeros(kernel.batch_shape)))
+    kernel.register_constraint(f"raw_{name}", Positive())
+    kernel.double()  # float64 by default (DESIGN.md); before the values are set, so they are exact
+
+
 class SquaredExponential(gpytorch.kernels.Kernel):
     """Eq. (2.25) as a GPyTorch kernel, float64, positivity-constrained hyper-parameters.
 
@@ -139,12 +160,7 @@ class SquaredExponential(gpytorch.kernels.Kernel):
         super().__init__(
             ard_num_dims=int(input_dim), batch_shape=batch_shape or torch.Size([]), **kwargs
         )
-        self.register_parameter(
-            "raw_outputscale", torch.nn.Parameter(torch.zeros(self.batch_shape))
-        )
-        self.register_constraint("raw_outputscale", Positive())
-        # float64 by default (DESIGN.md); before the values are set, so they are exact
-        self.double()
+        _register_positive(self, "outputscale")
         try:
             ls = torch.as_tensor(
                 np.broadcast_to(np.asarray(lengthscale, dtype=float), (int(input_dim),)).copy()
@@ -159,16 +175,7 @@ class SquaredExponential(gpytorch.kernels.Kernel):
         self.lengthscale = ls.expand(*self.batch_shape, 1, int(input_dim)).clone()
         self.outputscale = torch.full(self.batch_shape, float(outputscale), dtype=torch.float64)
 
-    @property
-    def outputscale(self) -> torch.Tensor:
-        return self.raw_outputscale_constraint.transform(self.raw_outputscale)
-
-    @outputscale.setter
-    def outputscale(self, value) -> None:
-        value = torch.as_tensor(
-            value, dtype=self.raw_outputscale.dtype, device=self.raw_outputscale.device
-        )
-        self.initialize(raw_outputscale=self.raw_outputscale_constraint.inverse_transform(value))
+    outputscale = _positive("outputscale")
 
     def forward(self, x1, x2, diag: bool = False, **params):
         return se_kernel(x1, x2, self.lengthscale, self.outputscale, diag=diag)
@@ -188,22 +195,11 @@ class Linear(gpytorch.kernels.Kernel):
         super().__init__(batch_shape=batch_shape or torch.Size([]), **kwargs)
         check_positive(variance, "variance")
         check_positive(bias, "bias", allow_zero=True)
-        self.register_parameter("raw_variance", torch.nn.Parameter(torch.zeros(self.batch_shape)))
-        self.register_constraint("raw_variance", Positive())
-        self.double()
+        _register_positive(self, "variance")
         self.variance = torch.full(self.batch_shape, float(variance), dtype=torch.float64)
         self.bias = float(bias)
 
-    @property
-    def variance(self) -> torch.Tensor:
-        return self.raw_variance_constraint.transform(self.raw_variance)
-
-    @variance.setter
-    def variance(self, value) -> None:
-        value = torch.as_tensor(
-            value, dtype=self.raw_variance.dtype, device=self.raw_variance.device
-        )
-        self.initialize(raw_variance=self.raw_variance_constraint.inverse_transform(value))
+    variance = _positive("variance")
 
     def forward(self, x1, x2, diag: bool = False, **params):
         return linear_kernel(x1, x2, self.variance, self.bias, diag=diag)
@@ -214,9 +210,7 @@ def gram(kernel: gpytorch.kernels.Kernel, X, Z=None) -> np.ndarray:
     x = check_array(X, "X", ndim=2)
     d = getattr(kernel, "ard_num_dims", None)
     if d is not None and x.shape[1] != d:
-        raise ValueError(
-            f"X: expected {d} columns (the kernel's input dimension), got shape {x.shape}"
-        )
+        raise ValueError(f"X: expected {d} columns like the kernel, got shape {x.shape}")
     z = x if Z is None else check_array(Z, "Z", ndim=2)
     if z.shape[1] != x.shape[1]:
         raise ValueError(f"Z: expected {x.shape[1]} columns like X, got shape {z.shape}")

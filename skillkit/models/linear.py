@@ -10,12 +10,12 @@ import numpy as np
 import torch
 
 from skillkit._validation import check_array
-from skillkit.models.gp import DTYPE, Moments
+from skillkit.models.gp import DTYPE, Moments, TransitionModel
 
 __all__ = ["LinearGaussianModel"]
 
 
-class LinearGaussianModel:
+class LinearGaussianModel(TransitionModel):
     """Linear-Gaussian forward model x' = A x + B u + c + w, w ~ N(0, Σ_w).
 
     Parameters
@@ -35,11 +35,9 @@ class LinearGaussianModel:
     """
 
     def __init__(self, target: str = "delta", ridge: float = 1e-9):
-        if target not in ("delta", "next"):
-            raise ValueError(f"target: expected 'delta' or 'next', got {target!r}")
+        super().__init__(target)
         if not np.isfinite(ridge) or ridge < 0:
             raise ValueError(f"ridge: expected a finite number >= 0, got {ridge!r}")
-        self.target = target
         self.ridge = float(ridge)
         self.dtype = DTYPE
         self.A: np.ndarray | None = None
@@ -65,8 +63,7 @@ class LinearGaussianModel:
         lam_min = float(np.linalg.eigvalsh(cov).min(initial=0.0)) if n_x else 0.0
         if lam_min < -1e-10 * scale:
             raise ValueError(
-                f"noise_cov: expected a positive semi-definite matrix; smallest eigenvalue is "
-                f"{lam_min:.3g}"
+                f"noise_cov: expected a positive semi-definite matrix, min eigenvalue {lam_min:.3g}"
             )
         model.noise_cov = cov
         return model
@@ -93,34 +90,12 @@ class LinearGaussianModel:
             self._factor_of = cached
         return cached[1]
 
-    def fit(self, states, controls, next_states, rng=None) -> LinearGaussianModel:
-        """Least squares for A, B, c; Σ_w from the residuals.
-
-        Parameters
-        ----------
-        states : array_like, shape (N, n_x)
-        controls : array_like, shape (N, n_u)
-        next_states : array_like, shape (N, n_x)
-        rng : ignored
-            For the forward-model interface.
-
-        Returns
-        -------
-        self
-
-        Raises
-        ------
-        ValueError
-            On bad shapes or fewer than n_x + n_u + 1 transitions.
-        """
-        x = check_array(states, "states", ndim=2)
-        u = check_array(controls, "controls", shape=(x.shape[0], None))
-        xn = check_array(next_states, "next_states", shape=x.shape)
+    def _fit(self, x: np.ndarray, u: np.ndarray, xn: np.ndarray, rng) -> None:
+        """Least squares for A, B, c (≥ n_x + n_u + 1 transitions); Σ_w from the residuals."""
         n_x, n_u = x.shape[1], u.shape[1]
         if x.shape[0] < n_x + n_u + 1:
             raise ValueError(
-                f"states: expected at least {n_x + n_u + 1} transitions for {n_x + n_u + 1} "
-                f"coefficients per output, got {x.shape[0]}"
+                f"states: expected at least {n_x + n_u + 1} transitions, got {x.shape[0]}"
             )
         z1 = np.hstack([x, u, np.ones((x.shape[0], 1))])
         y = xn - x if self.target == "delta" else xn
@@ -131,13 +106,10 @@ class LinearGaussianModel:
         self.B = w[n_x : n_x + n_u].T
         self.c = w[-1]
         self.noise_cov = res.T @ res / max(x.shape[0] - n_x - n_u - 1, 1)
-        return self
 
     def _check_fitted(self) -> None:
         if self.A is None or self.B is None or self.c is None or self.noise_cov is None:
-            raise RuntimeError(
-                "LinearGaussianModel: call fit() first (or build it with from_dynamics)"
-            )
+            raise RuntimeError("LinearGaussianModel: call fit() or from_dynamics() first")
 
     def to(self, device=None, dtype: torch.dtype | None = None) -> LinearGaussianModel:
         """Itself, with predictions in ``dtype`` (the arrays are converted per call)."""
@@ -151,9 +123,7 @@ class LinearGaussianModel:
         A, B, c = (torch.as_tensor(a, **kw) for a in (self.A, self.B, self.c))
         mean = x @ A.T + u @ B.T + c
         var = torch.as_tensor(np.diag(self.noise_cov).copy(), **kw).expand_as(mean)
-        return Moments(
-            mean, var, torch.zeros((), dtype=torch.int64, device=x.device), torch.zeros((), **kw)
-        )
+        return Moments.exact(mean, var)
 
     def noise_factor_tensor(self, device=None, dtype: torch.dtype | None = None) -> torch.Tensor:
         """F as a tensor (default dtype: the model's)."""

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass
-from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -36,7 +35,7 @@ from skillkit.models.gp import (
     ForwardModel,
     GPNumericalWarning,
     GPPredictor,
-    report_event,
+    warn_if_clamped,
 )
 
 __all__ = [
@@ -100,19 +99,6 @@ class RoundoffEstimate:
 
 #: ‖iK_a‖_F cached per iK tensor.
 _IK_NORMS = WeakIdKeyDictionary()
-
-
-def _frobenius_norms(iK: torch.Tensor) -> torch.Tensor:
-    norms = _IK_NORMS.get(iK)
-    if norms is None:
-        norms = _IK_NORMS[iK] = torch.linalg.matrix_norm(iK.detach())
-    return norms
-
-
-class _SecondMomentRoundoff(NamedTuple):
-    bound: torch.Tensor  # (E, E) absolute bound on second − diag(latent_var)
-    terms: torch.Tensor  # (E, E) Σ|β_a| Q |β_b| (+ Σ|iK_a| Q^{aa} on the diagonal)
-    condition: float  # the largest bound on cond(R)
 
 
 @dataclass
@@ -236,11 +222,13 @@ def moment_match_step(
     q = sf2[:, None] * torch.exp(torch.clamp_min(-0.5 * quad - 0.5 * logdet_sa[:, None], LOG_FLOOR))
     bq = pred.beta * q
     mu = bq.sum(-1)  # (E,)
-    io = S @ (iL * (sol @ bq[..., None]).squeeze(-1)).T  # (D, E)
+    v = (sol @ bq[..., None]).squeeze(-1)  # (E, D): S̃⁻¹ Σ β q ν̃
+    io = S @ (iL * v).T  # (D, E)
     extra = None
     if roundoff:
-        with torch.no_grad():
-            magnitude = _magnitudes(pred, m.detach(), nut.detach(), iL)
+        with torch.no_grad():  # n*_ai = ‖Λ_a^{-1/2} ν_ai‖² + ‖Λ_a^{-1/2}(|z_ai| + |m|)‖², (E, M)
+            shift = (pred.support.abs() + m.abs()) * iL[:, None, :]
+            magnitude = (nut * nut).sum(-1) + (shift * shift).sum(-1)
         second, latent_var, extra = _second_moments(pred, S, nut, iL, magnitude=magnitude)
     else:
         second, latent_var = _second_moments(pred, S, nut, iL)
@@ -248,104 +236,58 @@ def moment_match_step(
         nan = torch.full((), float("nan"), dtype=DTYPE)
         mu, second, latent_var = mu + nan, second + nan, latent_var + nan
     else:
-        _report_clamp(latent_var / sf2, "moment_match")
+        warn_if_clamped("moment_match", (latent_var / sf2).detach().min())
+    noise = pred.noise if include_noise else 0.0
     V = second - mu[:, None] * mu[None, :]
-    V = V + torch.diag(latent_var.clamp_min(0.0) + (pred.noise if include_noise else 0.0))
+    V = V + torch.diag(latent_var.clamp_min(0.0) + noise)
     V = 0.5 * (V + V.T)
-    estimate = None
-    if extra is not None:
-        with torch.no_grad():
-            estimate = _roundoff_bound(
-                pred,
-                S,
-                magnitude,
-                extra,
-                q=q,
-                sol=sol,
-                Sa=Sa,
-                logdet_sa=logdet_sa,
-                mu=mu,
-                second=second,
-                latent_var=latent_var,
-                V=V,
-                include_noise=include_noise,
-            )
     s = pred.y_scale
-    return GaussianPrediction(
-        pred.y_mean + s * mu, s[:, None] * V * s[None, :], io * s[None, :], estimate
-    )
+    g = GaussianPrediction(pred.y_mean + s * mu, s[:, None] * V * s[None, :], io * s[None, :])
+    if extra is None:
+        return g
+    bound, terms, cond_r = extra
+    # The round-off bound: exponent errors in the worst case, long sums by σ_n u Σ|terms|
+    # (Higham & Mary, SIAM J. Sci. Comput. 41, 2019).
+    with torch.no_grad():
+        u, c = UNIT_ROUNDOFF, D + 4
+        cond_a = 1.0 + torch.linalg.matrix_norm(Sa - eye)  # ≥ cond(S̃_a), (E,)
+        alpha = torch.log(sf2).abs() + logdet_sa + D * cond_a
+        delta = c * (alpha[:, None] + (1.0 + cond_a)[:, None] * magnitude)  # (E, M), units of u
+        w = pred.beta.abs() * q  # (E, M)
+        err_mu = u * (w * (delta + _sum_error(M))).sum(-1)  # (E,)
+        err_v = u * (sol.abs() @ (w * (delta + _sum_error(M)))[..., None]).squeeze(-1)
+        err_v = err_v + u * c * cond_a[:, None] * (w * (2.0 * magnitude).sqrt()).sum(-1)[:, None]
+        err_io = S.abs() @ (iL * (err_v + u * (D + 2) * v.abs())).T  # (D, E)
+        amu = mu.abs()
+        err_cov = (
+            bound
+            + amu[None, :] * err_mu[:, None]
+            + amu[:, None] * err_mu[None, :]
+            + 3 * u * (second.abs() + amu[:, None] * amu[None, :])
+            + torch.diag(2 * u * (latent_var.abs() + noise))
+        )
+        # V_aa at least its own error bound: a variance with no correct digit gives errors ≥ 1.
+        tiny = torch.finfo(DTYPE).tiny
+        sd = torch.maximum(V.diagonal(), err_cov.diagonal()).clamp_min(tiny).sqrt()
+        scale = sd[:, None] * sd[None, :]
+        sd_in = S.diagonal().clamp_min(0.0).sqrt()[:, None] * sd[None, :]
+        rel = {
+            "covariance": float((err_cov / scale).max()),
+            "mean": float((err_mu / sd).max()),
+            "input-output covariance": float(
+                torch.where(sd_in > 0, err_io / sd_in.clamp_min(tiny), 0.0).max()
+            ),
+        }
+        where = max(rel, key=rel.get)
+        cancellation = float((terms / scale).max())
+        condition = max(cond_r, float(cond_a.max()))
+        g.roundoff = RoundoffEstimate(rel[where], where, cancellation, condition)
+    return g
 
 
 def _sum_error(n: int) -> float:
     """σ_n = 2 + 3√n, the probabilistic error factor of a sum of n terms."""
     return 2.0 + 3.0 * float(np.sqrt(n))
-
-
-def _magnitudes(pred: GPPredictor, m: torch.Tensor, nut: torch.Tensor, iL: torch.Tensor):
-    """n*_ai = ‖Λ_a^{-1/2} ν_ai‖² + ‖Λ_a^{-1/2}(|z_ai| + |m|)‖², shape (E, M)."""
-    shift = (pred.support.abs() + m.abs()) * iL[:, None, :]
-    return (nut * nut).sum(-1) + (shift * shift).sum(-1)
-
-
-def _roundoff_bound(
-    pred: GPPredictor,
-    S: torch.Tensor,
-    magnitude: torch.Tensor,
-    extra: _SecondMomentRoundoff,
-    *,
-    q: torch.Tensor,
-    sol: torch.Tensor,
-    Sa: torch.Tensor,
-    logdet_sa: torch.Tensor,
-    mu: torch.Tensor,
-    second: torch.Tensor,
-    latent_var: torch.Tensor,
-    V: torch.Tensor,
-    include_noise: bool,
-) -> RoundoffEstimate:
-    r"""A bound on the round-off of one :func:`moment_match_step` from its intermediates: exponent
-    errors in the worst case, long sums by σ_n u Σ|terms| (Higham & Mary, SIAM J. Sci. Comput.
-    41, 2019)."""
-    u = UNIT_ROUNDOFF
-    E, M, D = pred.support.shape
-    c = D + 4
-    eye = torch.eye(D, dtype=DTYPE)
-    cond_a = 1.0 + torch.linalg.matrix_norm(Sa - eye)  # ≥ cond(S̃_a), (E,)
-    alpha = torch.log(pred.outputscale).abs() + logdet_sa + D * cond_a
-    delta = c * (alpha[:, None] + (1.0 + cond_a)[:, None] * magnitude)  # (E, M), units of u
-    w = pred.beta.abs() * q  # (E, M)
-    err_mu = u * (w * (delta + _sum_error(M))).sum(-1)  # (E,)
-    v = (sol @ (pred.beta * q)[..., None]).squeeze(-1)  # (E, D): S̃⁻¹ Σ β q ν̃
-    err_v = u * (sol.abs() @ (w * (delta + _sum_error(M)))[..., None]).squeeze(-1)
-    err_v = err_v + u * c * cond_a[:, None] * (w * (2.0 * magnitude).sqrt()).sum(-1)[:, None]
-    iL = 1.0 / pred.lengthscale
-    err_io = S.abs() @ (iL * (err_v + u * (D + 2) * v.abs())).T  # (D, E)
-    amu = mu.abs()
-    err_cov = (
-        extra.bound
-        + amu[None, :] * err_mu[:, None]
-        + amu[:, None] * err_mu[None, :]
-        + 3 * u * (second.abs() + amu[:, None] * amu[None, :])
-        + torch.diag(2 * u * (latent_var.abs() + (pred.noise if include_noise else 0.0)))
-    )
-    # V_aa at least its own error bound: a variance with no correct digit gives errors ≥ 1.
-    sd = torch.maximum(V.diagonal(), err_cov.diagonal()).clamp_min(torch.finfo(DTYPE).tiny).sqrt()
-    scale = sd[:, None] * sd[None, :]
-    sd_in = S.diagonal().clamp_min(0.0).sqrt()[:, None] * sd[None, :]
-    rel = {
-        "covariance": float((err_cov / scale).max()),
-        "mean": float((err_mu / sd).max()),
-        "input-output covariance": float(
-            torch.where(sd_in > 0, err_io / sd_in.clamp_min(torch.finfo(DTYPE).tiny), 0.0).max()
-        ),
-    }
-    where = max(rel, key=rel.get)
-    return RoundoffEstimate(
-        rel[where],
-        where,
-        float((extra.terms / scale).max()),
-        max(extra.condition, float(cond_a.max())),
-    )
 
 
 def _pair_indices(E: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -430,45 +372,35 @@ def _second_moments(
     second = torch.zeros((E, E), dtype=DTYPE).index_put((ia, ib), s).index_put((ib, ia), s)
     if magnitude is None:
         return second, pred.outputscale - trace
+    # Round-off by Cauchy–Schwarz on Q from its diagonal d: absolute bound on second −
+    # diag(latent_var), Σ|β_a| Q |β_b| (+ Σ|iK_a| Q^{aa} on the diagonal), max bound on cond(R).
     with torch.no_grad():
         d = torch.exp(0.5 * torch.clamp_min(ca[:E] + cb[:E] + (Ta[:E] * za[:E]).sum(-1), LOG_FLOOR))
-        extra = _second_moment_roundoff(pred, magnitude, d, Pm, logdet_r)
-    return second, pred.outputscale - trace, extra
-
-
-def _second_moment_roundoff(
-    pred: GPPredictor,
-    magnitude: torch.Tensor,
-    d: torch.Tensor,
-    Pm: torch.Tensor,
-    logdet_r: torch.Tensor,
-) -> _SecondMomentRoundoff:
-    """Round-off of the second moments, by Cauchy–Schwarz on Q from its diagonal d."""
-    u = UNIT_ROUNDOFF
-    E, M, D = pred.support.shape
-    ia, ib = _pair_indices(E)
-    bd = pred.beta.abs() * d
-    s0, s1 = bd.sum(-1), (bd * magnitude).sum(-1)  # (E,)
-    terms0 = s0[ia] * s0[ib]
-    terms1 = s1[ia] * s0[ib] + s0[ia] * s1[ib]
-    cond_r = 1.0 + torch.linalg.matrix_norm(Pm)  # ≥ cond(R) = cond(P + I)
-    log_sf2 = torch.log(pred.outputscale).abs()
-    alpha = log_sf2[ia] + log_sf2[ib] + logdet_r + D * cond_r
-    c = D + 4  # exponent error per unit of (α, n*): c α_ab + c (1 + κ_R)(n*_ai + n*_bj)
-    pair = u * ((c * alpha + 2 * _sum_error(M)) * terms0 + c * (1.0 + cond_r) * terms1)
-    norm_ik = _frobenius_norms(pred.iK)  # (E,)
-    dn = torch.linalg.vector_norm(d, dim=-1)
-    t0 = norm_ik * dn * dn
-    t1 = norm_ik * dn * torch.linalg.vector_norm(d * magnitude, dim=-1)
-    lat = u * (
-        pred.outputscale
-        + (c * alpha[:E] + _sum_error(M * M)) * t0
-        + 2 * c * (1.0 + cond_r[:E]) * t1
-    )
-    sym = torch.zeros((E, E), dtype=DTYPE)
-    bound = sym.index_put((ia, ib), pair).index_put((ib, ia), pair) + torch.diag(lat)
-    terms = sym.index_put((ia, ib), terms0).index_put((ib, ia), terms0) + torch.diag(t0)
-    return _SecondMomentRoundoff(bound, terms, float(cond_r.max()))
+        u = UNIT_ROUNDOFF
+        bd = pred.beta.abs() * d
+        s0, s1 = bd.sum(-1), (bd * magnitude).sum(-1)  # (E,)
+        terms0 = s0[ia] * s0[ib]
+        terms1 = s1[ia] * s0[ib] + s0[ia] * s1[ib]
+        cond_r = 1.0 + torch.linalg.matrix_norm(Pm)  # ≥ cond(R) = cond(P + I)
+        log_sf2 = torch.log(pred.outputscale).abs()
+        alpha = log_sf2[ia] + log_sf2[ib] + logdet_r + D * cond_r
+        c = D + 4  # exponent error per unit of (α, n*): c α_ab + c (1 + κ_R)(n*_ai + n*_bj)
+        pair = u * ((c * alpha + 2 * _sum_error(M)) * terms0 + c * (1.0 + cond_r) * terms1)
+        norm_ik = _IK_NORMS.get(pred.iK)  # ‖iK_a‖_F, (E,)
+        if norm_ik is None:
+            norm_ik = _IK_NORMS[pred.iK] = torch.linalg.matrix_norm(pred.iK.detach())
+        dn = torch.linalg.vector_norm(d, dim=-1)
+        t0 = norm_ik * dn * dn
+        t1 = norm_ik * dn * torch.linalg.vector_norm(d * magnitude, dim=-1)
+        lat = u * (
+            pred.outputscale
+            + (c * alpha[:E] + _sum_error(M * M)) * t0
+            + 2 * c * (1.0 + cond_r[:E]) * t1
+        )
+        sym = torch.zeros((E, E), dtype=DTYPE)
+        bound = sym.index_put((ia, ib), pair).index_put((ib, ia), pair) + torch.diag(lat)
+        terms = sym.index_put((ia, ib), terms0).index_put((ib, ia), terms0) + torch.diag(t0)
+    return second, pred.outputscale - trace, (bound, terms, float(cond_r.max()))
 
 
 def linearize(predictor: GPPredictor, mean, cov, include_noise: bool = True) -> GaussianPrediction:
@@ -481,22 +413,11 @@ def linearize(predictor: GPPredictor, mean, cov, include_noise: bool = True) -> 
     m, S = _check_gaussian(mean, cov, D)
     k = pred.kernel_vectors(m[None, :])[:, 0, :]  # (E, M)
     mom = pred.moments(m[None, :], include_noise)
-    _report_clamp(mom.worst.reshape(1), "linearize")
+    warn_if_clamped("linearize", mom.worst)
     J = ((pred.beta * k)[:, :, None] * (pred.support - m)).sum(1) / pred.lengthscale**2  # (E, D)
     J = pred.y_scale[:, None] * J
     V = J @ S @ J.T + torch.diag(mom.var[0])
     return GaussianPrediction(mom.mean[0], 0.5 * (V + V.T), S @ J.T)
-
-
-def _report_clamp(rel: torch.Tensor, where: str) -> None:
-    worst = float(rel.detach().min())
-    if worst < -VARIANCE_TOL:
-        report_event(
-            "negative_variance_clipped",
-            f"{where}: an expected latent variance was negative ({worst:.2e} x sigma_f^2, beyond "
-            "round-off) and was set to 0",
-            stacklevel=3,
-        )
 
 
 def propagate(
@@ -638,10 +559,7 @@ def gaussian_kl(mean_p, cov_p, mean_q, cov_q) -> np.ndarray:
     try:
         np.broadcast_shapes(mp.shape[:-1], mq.shape[:-1], Sp.shape[:-2], Sq.shape[:-2])
     except ValueError:
-        raise ValueError(
-            f"mean_p, cov_p, mean_q, cov_q: batch shapes {mp.shape[:-1]}, {Sp.shape[:-2]}, "
-            f"{mq.shape[:-1]}, {Sq.shape[:-2]} do not broadcast"
-        ) from None
+        raise ValueError("mean_p, cov_p, mean_q, cov_q: batch shapes do not broadcast") from None
     Lq = np.linalg.cholesky(Sq)
     Lp = np.linalg.cholesky(Sp)
     A = np.linalg.solve(Lq, Lp)

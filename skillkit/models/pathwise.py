@@ -1,7 +1,7 @@
 """Pathwise GP trajectory sampling: one posterior function per trajectory (Wilson et al. 2020).
 
 Each trajectory follows one g ~ GP posterior, x_{t+1} = g(x_t, u_t) + ε_t, drawn by
-Matheron's rule (Wilson, Borovitskiy, Terenin, Mostowski & Deisenroth 2020, Eq. 6):
+Matheron's rule (Wilson et al. 2020, Eq. 6):
 
 .. math:: g(x) = \\tilde f(x) + k(x)^\\top \\big(\\beta - iK\\, \\tilde f(Z) - \\xi\\big),
           \\qquad \\xi \\sim \\mathcal N(0, iK - iK\\, K_{ZZ}\\, iK),
@@ -60,9 +60,7 @@ class PathwiseFunctions:
         g = self.latent(x)
         mean = p.y_mean + p.y_scale * g
         noise = p.noise if include_noise else torch.zeros_like(p.noise)
-        var = (p.y_scale**2 * noise).expand_as(mean)
-        zero = torch.zeros((), dtype=x.dtype, device=x.device)
-        return Moments(mean, var, torch.zeros((), dtype=torch.long, device=x.device), zero)
+        return Moments.exact(mean, (p.y_scale**2 * noise).expand_as(mean))
 
 
 class PathwiseBasis:

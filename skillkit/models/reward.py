@@ -1,7 +1,5 @@
-"""The reward-model interface of GPREPS (Sec. 4.1, Eq. 4.1) and helpers task models share.
-
-Task-specific models (``skillkit.tasks.hockey.model``, ``skillkit.tasks.table_tennis.model``,
-``skillkit.tasks.throwing_model``) derive from :class:`RewardModel`."""
+"""The reward-model interface of GPREPS (Sec. 4.1, Eq. 4.1) and what the task models
+(``skillkit.tasks.*model``) share: validation, GP refitting and failure handling."""
 
 from __future__ import annotations
 
@@ -12,6 +10,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from skillkit._validation import as_generator, check_array, check_count
 from skillkit.models.gp import GPRegression, check_dtype
 from skillkit.trajectory import Trajectory
 
@@ -19,11 +18,14 @@ __all__ = [
     "REFIT_STARTS",
     "Prediction",
     "RewardModel",
+    "check_choice",
+    "check_factories",
     "check_refit",
     "check_sample_dtype",
     "gp_stats",
     "refit_gp",
     "subsample",
+    "usable_trajectories",
     "warm_start_hypers",
     "worst_if_failed",
     "worst_if_nonfinite",
@@ -42,7 +44,10 @@ class Prediction:
 
 
 class RewardModel(abc.ABC):
-    """What GPREPS needs from a model: fit on real data, predict expected rewards (Eq. 4.1)."""
+    """What GPREPS needs from a model: fit on real data, predict expected rewards (Eq. 4.1).
+
+    Task models set ``task``, ``refit`` and ``_hypers`` (previous GP hyper-parameters by key)
+    and implement ``predict`` returning a :class:`Prediction`."""
 
     @abc.abstractmethod
     def fit(
@@ -71,7 +76,6 @@ class RewardModel(abc.ABC):
         """
         ...
 
-    @abc.abstractmethod
     def expected_rewards(
         self,
         contexts: np.ndarray,
@@ -79,7 +83,7 @@ class RewardModel(abc.ABC):
         n_trajectories: int,
         rng: np.random.Generator,
     ) -> np.ndarray:
-        """Predicted expected rewards R̂_sω (Eq. 4.1).
+        """Predicted expected rewards R̂_sω (Eq. 4.1), by default of ``self.predict``.
 
         Parameters
         ----------
@@ -93,10 +97,42 @@ class RewardModel(abc.ABC):
         -------
         ndarray, shape (M,)
         """
-        ...
+        return self.predict(contexts, omegas, n_trajectories, rng).expected_rewards
+
+    def _pairs(self, fitted: bool, contexts, omegas, n_trajectories, rng) -> tuple:
+        """Validated (ω (B, d), s (B, context_dim), L, generator) of a fitted task model."""
+        if not fitted:
+            raise RuntimeError(f"{type(self).__name__}: call fit() before predicting")
+        w = check_array(omegas, "omegas", shape=(None, self.task.parameter_dim))
+        s = check_array(contexts, "contexts", shape=(w.shape[0], self.task.context_dim))
+        return w, s, check_count(n_trajectories, "n_trajectories"), as_generator(rng)
+
+    def _refit(self, key: str, make_gp: Callable[[], Any], x, y, rng) -> tuple[Any, dict]:
+        """Refit GP ``key`` from its previous hyper-parameters (:func:`refit_gp`); the GP and
+        the refit record."""
+        gp, record = refit_gp(make_gp, x, y, rng, self._hypers[key], self.refit)
+        if isinstance(gp, GPRegression):
+            self._hypers[key] = gp.hyperparameters
+        return gp, record
 
 
-#: Warm-started ARD length-scales are capped at this many standard deviations of their input.
+def check_factories(**factories) -> None:
+    """ValueError naming a ``make_*`` factory that is neither None nor callable."""
+    for name, f in factories.items():
+        if f is not None and not callable(f):
+            raise ValueError(f"{name}: expected a callable, got {type(f).__name__}")
+
+
+def usable_trajectories(trajectories, what: str) -> list:
+    """The distinct non-failed trajectories; ValueError for None or none left."""
+    if trajectories is None:
+        raise ValueError(f"trajectories: the {what} model learns from trajectories")
+    ok = list({id(t): t for t in trajectories if not t.failed}.values())
+    if not ok:
+        raise ValueError("trajectories: every trajectory failed; nothing to learn from")
+    return ok
+
+
 WARM_LENGTHSCALE_CAP = 100.0
 
 
@@ -104,7 +140,7 @@ def warm_start_hypers(
     gp: GPRegression, hypers: dict[str, np.ndarray] | None, inputs: np.ndarray
 ) -> None:
     """Start ``gp``'s next optimisation at ``hypers`` (raw units), length-scales capped at
-    :data:`WARM_LENGTHSCALE_CAP` std of ``inputs`` (a switched-off input would stay off)."""
+    :data:`WARM_LENGTHSCALE_CAP` std of ``inputs``."""
     if hypers is None:
         return
     sd = inputs.std(axis=0)
@@ -114,19 +150,20 @@ def warm_start_hypers(
     gp.init_noise = np.asarray(hypers["noise"], dtype=np.float64)
 
 
-#: How a model's GP hyper-parameters are refitted after each data collection step (Sec. 4.1):
-#: "cold" restarts the optimisation (2.28) at the default initialisation (PILCO's rule),
-#: "warm" at the previous fit's values, "best" runs both and keeps the larger marginal
-#: likelihood.
 RefitStart = Literal["cold", "warm", "best"]
 REFIT_STARTS: tuple[str, ...] = ("cold", "warm", "best")
 
 
+def check_choice(value, choices: tuple, name: str):
+    """``value`` if it is one of ``choices``, else a ValueError naming ``name``."""
+    if value not in choices:
+        raise ValueError(f"{name}: expected one of {choices}, got {value!r}")
+    return value
+
+
 def check_refit(refit: str) -> str:
     """``refit`` if it is one of :data:`REFIT_STARTS`, else a ValueError."""
-    if refit not in REFIT_STARTS:
-        raise ValueError(f"refit: expected one of {REFIT_STARTS}, got {refit!r}")
-    return refit
+    return check_choice(refit, REFIT_STARTS, "refit")
 
 
 def refit_gp(
@@ -143,27 +180,19 @@ def refit_gp(
     ----------
     make_gp : callable
         ``make_gp() -> gp``, a fresh unfitted model.
-    x : ndarray, shape (N, d)
-    y : ndarray, shape (N, E) or (N,)
+    x, y : ndarray, shape (N, d) and (N, E) or (N,)
     rng : Generator
         One seed is drawn and shared by both starts.
     previous : dict or None
         The previous fit's ``gp.hyperparameters`` (None: cold start only).
     refit : {"cold", "warm", "best"}
-        "cold" starts at the default initialisation, "warm" at ``previous``, "best" runs both
-        and keeps the larger log marginal likelihood (2.28).
+        Start at the default initialisation (PILCO's rule), at ``previous``, or both keeping
+        the larger log marginal likelihood (2.28); ValueError otherwise.
 
     Returns
     -------
-    gp
-        The fitted model kept.
-    record : dict
-        ``start``, ``log_ml_cold``, ``log_ml_warm``.
-
-    Raises
-    ------
-    ValueError
-        On an unknown ``refit``.
+    gp, record
+        The fitted model kept; ``{start, log_ml_cold, log_ml_warm}``.
     """
     check_refit(refit)
     seed = int(rng.integers(2**63))
@@ -202,7 +231,6 @@ def gp_stats(gp: GPRegression, n_data: int) -> dict[str, Any]:
     }
 
 
-#: ``dtype`` of a reward model's sampled trajectories: float64 or float32.
 check_sample_dtype = check_dtype
 
 

@@ -17,12 +17,11 @@ from skillkit._repr import number, span
 from skillkit._validation import as_generator, check_count, check_positive
 from skillkit.models.gp import (
     DTYPE,
-    VARIANCE_TOL,
     GPNumericalWarning,
     GPPredictor,
     as_device,
     check_dtype,
-    report_event,
+    warn_if_clamped,
 )
 from skillkit.models.pathwise import PathwiseBasis
 
@@ -60,21 +59,19 @@ class SampledTrajectories:
     Attributes
     ----------
     states : Tensor, shape (B, L, T + 1, n_x)
-        x_0 … x_T.
     controls : Tensor, shape (B, L, T, n_u)
-        u_0 … u_{T−1}, after saturation.
+        After saturation.
     n_saturated : int
         Control entries clipped to ``control_limit``.
     n_variance_clamped : int
-        Negative (round-off) predictive variances set to 0.
+        Negative predictive variances set to 0.
     worst_variance : float
         Most negative latent variance relative to σ_f² (0 if none).
     precision_error : float
-        float32 only: largest one-step moment error against float64 on visited states
-        (warns above :data:`PRECISION_TOL`); 0.0 in float64.
+        float32: largest one-step moment error against float64 on visited states; else 0.
     stopped_at : Tensor of int64, shape (B, L), or None
-        With a ``stop`` rule: the step k each trajectory stopped at (T if never); later
-        states repeat x_k, later controls are 0.
+        With ``stop``: the step k each trajectory stopped at (T if never); later states repeat
+        x_k, later controls are 0.
     """
 
     states: torch.Tensor
@@ -120,9 +117,8 @@ def sample_trajectories(
     Parameters
     ----------
     model : StepModel
-        Fitted forward model with ``next_state_moments(x, u)`` and optionally
-        ``noise_factor_tensor`` F (correlated noise x′ = mean + F ε), e.g.
-        :class:`~skillkit.models.gp.ForwardModel`.
+        Fitted, e.g. :class:`~skillkit.models.gp.ForwardModel`; an optional
+        ``noise_factor_tensor`` F gives correlated noise x′ = mean + F ε.
     x0 : array_like or Tensor, shape (B, n_x) or (B, L, n_x)
         Start states, per pair or per trajectory (drawn from p(x_0; s), Eq. 4.3).
     policy : callable
@@ -133,11 +129,9 @@ def sample_trajectories(
     n_trajectories : int, default 1
         L, trajectories per pair.
     rng : Generator, int, SeedSequence or None
-        Randomness.
     control_limit : float or array_like, shape (n_u,), optional
         Saturates ``|u| ≤ control_limit``.
     device : str or torch.device, optional
-        CPU (default) or an available CUDA device.
     dtype : torch.float64 or torch.float32, default float64
         float32 warns when ``precision_error`` exceeds :data:`PRECISION_TOL`.
     max_chunk_bytes : int, default 2**25
@@ -159,8 +153,7 @@ def sample_trajectories(
     Raises
     ------
     ValueError
-        On bad shapes, device, dtype, method or limits, non-finite start states, and on
-        policy or ``stop`` output of the wrong shape, type or non-finite values.
+        On bad arguments, and on policy or ``stop`` output of the wrong shape, type or values.
     """
     device = as_device(device)  # as tensors report it, so the policy's controls can be checked
     check_dtype(dtype)
@@ -178,11 +171,8 @@ def sample_trajectories(
             model, "with_predictor"
         ):
             raise ValueError(
-                "model: pathwise sampling needs a fitted GP forward model (ForwardModel), got "
-                f"{type(model).__name__}"
+                f"model: pathwise sampling needs a fitted ForwardModel, got {type(model).__name__}"
             )
-        if isinstance(n_features, bool) or int(n_features) != n_features or n_features < 1:
-            raise ValueError(f"n_features: expected a positive integer, got {n_features!r}")
     n_x, n_u = int(model.state_dim), int(model.control_dim)
     if int(horizon) != horizon or horizon < 1:
         raise ValueError(f"horizon: expected a positive integer, got {horizon!r}")
@@ -251,7 +241,7 @@ def sample_trajectories(
             for t in range(T):
                 u = policy(t, x, p)
                 if t == 0 and lo == 0:
-                    _check_control(u, hi - lo, n_u, dtype, device)
+                    _check_tensor(u, "policy", (hi - lo, n_u), dtype, device)
                 if limit is not None:
                     n_sat += (u.abs() > limit).sum()
                     u = torch.maximum(torch.minimum(u, limit), -limit)
@@ -266,7 +256,8 @@ def sample_trajectories(
                     n_clamp += m[2]
                     worst = torch.minimum(worst, m[3])
                 if stop is not None and t + 1 < T:
-                    done = _check_stop(stop(t + 1, x), x.shape[0], device)
+                    done = _check_tensor(stop(t + 1, x), "stop", (x.shape[0],), torch.bool)
+                    done = done.to(device)
                     if bool(done.any()):
                         if isinstance(rows, slice):
                             rows = torch.arange(lo, hi, device=device)
@@ -280,25 +271,26 @@ def sample_trajectories(
                             break
     if not torch.isfinite(controls).all():
         raise ValueError("policy: returned non-finite controls")
-    precision = 0.0
+    precision = 0.0  # float32: the largest one-step moment error against float64, visited states
     if dtype != DTYPE:
-        precision = _precision_error(source, model, states, controls, device)
+        exact = source.to(device, DTYPE)
+        for t in sorted({0, T // 2, T - 1}):
+            xs, us = states[:64, t], controls[:64, t]
+            a = exact.next_state_moments(xs.to(DTYPE), us.to(DTYPE))
+            b = model.next_state_moments(xs, us)
+            var = a.var.clamp_min(torch.finfo(DTYPE).tiny)
+            err_mean = ((b.mean.to(DTYPE) - a.mean).abs() / var.sqrt()).max()
+            err_var = ((b.var.to(DTYPE) - a.var).abs() / var).max()
+            precision = max(precision, float(err_mean), float(err_var))
         if precision > PRECISION_TOL:
             warnings.warn(
-                f"sample_trajectories: {dtype} predictions differ from float64 by up to "
-                f"{precision:.2e} (predictive std for means, relative for variances) on the "
-                "visited states; the model is too ill-conditioned for float32, use float64",
+                f"sample_trajectories: {dtype} moments differ from float64 by up to "
+                f"{precision:.2e} on the visited states (too ill-conditioned for float32)",
                 GPNumericalWarning,
                 stacklevel=2,
             )
     worst_f = float(worst)
-    if worst_f < -VARIANCE_TOL:  # handled (set to 0): counted by a recorder, else a warning
-        report_event(
-            "negative_variance_clipped",
-            f"sample_trajectories: {int(n_clamp)} predictive variances were negative (worst "
-            f"{worst_f:.2e} x sigma_f^2, beyond round-off) and set to 0",
-            stacklevel=2,
-        )
+    warn_if_clamped("sample_trajectories", worst_f, n_clamp)
     return SampledTrajectories(
         states.reshape(B, L, T + 1, n_x),
         controls.reshape(B, L, T, n_u),
@@ -310,44 +302,23 @@ def sample_trajectories(
     )
 
 
-def _precision_error(source, model, states, controls, device, rows: int = 64) -> float:
-    """Max float32-vs-float64 one-step moment error on visited states."""
-    hi = source.to(device, DTYPE)
-    T = controls.shape[1]
-    worst = 0.0
-    for t in sorted({0, T // 2, T - 1}):
-        x, u = states[:rows, t], controls[:rows, t]
-        a = hi.next_state_moments(x.to(DTYPE), u.to(DTYPE))
-        b = model.next_state_moments(x, u)
-        var = a.var.clamp_min(torch.finfo(DTYPE).tiny)
-        err_mean = ((b.mean.to(DTYPE) - a.mean).abs() / var.sqrt()).max()
-        err_var = ((b.var.to(DTYPE) - a.var).abs() / var).max()
-        worst = max(worst, float(err_mean), float(err_var))
-    return worst
-
-
-def _check_stop(done, n: int, device) -> torch.Tensor:
-    if not isinstance(done, torch.Tensor) or done.dtype != torch.bool or tuple(done.shape) != (n,):
+def _check_tensor(value, name: str, shape: tuple, dtype, device=None) -> torch.Tensor:
+    """``value`` if a ``dtype`` Tensor of ``shape`` (on ``device`` if given), else ValueError."""
+    if not (
+        isinstance(value, torch.Tensor)
+        and tuple(value.shape) == shape
+        and value.dtype == dtype
+        and (device is None or value.device == torch.device(device))
+    ):
         got = (
-            f"{done.dtype} of shape {tuple(done.shape)}"
-            if isinstance(done, torch.Tensor)
-            else type(done).__name__
+            f"{value.dtype} of shape {tuple(value.shape)} on {value.device}"
+            if isinstance(value, torch.Tensor)
+            else type(value).__name__
         )
-        raise ValueError(f"stop: expected a bool Tensor of shape ({n},), got {got}")
-    return done.to(device)
-
-
-def _check_control(u, n: int, n_u: int, dtype, device) -> None:
-    if not isinstance(u, torch.Tensor):
-        raise ValueError(
-            f"policy: expected a torch.Tensor of shape ({n}, {n_u}), got {type(u).__name__}"
-        )
-    if tuple(u.shape) != (n, n_u):
-        raise ValueError(f"policy: expected controls of shape ({n}, {n_u}), got {tuple(u.shape)}")
-    if u.dtype != dtype or u.device != torch.device(device):
-        raise ValueError(
-            f"policy: expected controls as {dtype} on {device}, got {u.dtype} on {u.device}"
-        )
+        where = "" if device is None else f" on {device}"
+        kind = str(dtype).removeprefix("torch.")
+        raise ValueError(f"{name}: expected a {kind} Tensor of shape {shape}{where}, got {got}")
+    return value
 
 
 def _chunk_rows(model, max_bytes: int, n: int, n_features: int = 0) -> int:

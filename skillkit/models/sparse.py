@@ -14,7 +14,7 @@ import numpy as np
 import torch
 
 from skillkit._validation import check_array, check_positive
-from skillkit.models.gp import DTYPE, GPNumericalError, GPPredictor, GPRegression, robust_cholesky
+from skillkit.models.gp import DTYPE, GPPredictor, GPRegression, plain_cholesky, robust_cholesky
 from skillkit.models.kernels import se_kernel
 
 __all__ = ["FITC", "VFE", "kmeans_pp"]
@@ -71,15 +71,12 @@ class _SparseGP(GPRegression):
         if self.init_inducing is not None:
             Z = self.init_inducing
             if Z.shape[-1] != d or (Z.ndim == 3 and Z.shape[0] != E):
-                raise ValueError(
-                    f"inducing: expected shape (M, {d}) or ({E}, M, {d}), got {Z.shape}"
-                )
+                raise ValueError(f"inducing: expected (M, {d}) or ({E}, M, {d}), got {Z.shape}")
             Z = np.broadcast_to(Z, (E, *Z.shape[-2:])).copy()
         elif self.n_inducing >= N:
             Z = np.broadcast_to(X, (E, N, d)).copy()
         else:
-            sd = X.std(axis=0)
-            idx = kmeans_pp(X / np.where(sd > 0, sd, 1.0), self.n_inducing, rng)
+            idx = kmeans_pp(X / self._input_sd, self.n_inducing, rng)
             Z = np.broadcast_to(X[idx], (E, self.n_inducing, d)).copy()
         self.diagnostics_init = {"n_inducing": Z.shape[1]}
         self.inducing = torch.nn.Parameter(
@@ -88,23 +85,14 @@ class _SparseGP(GPRegression):
         )
         self.kernel, self.likelihood = self._hyper_modules(E, d)
 
-    def _hypers(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        return (
-            self.kernel.lengthscale[:, 0, :],
-            self.kernel.outputscale,
-            self.likelihood.noise[:, 0],
-        )
-
     def _parameters(self) -> list[torch.nn.Parameter]:
         params = list(self.kernel.parameters()) + list(self.likelihood.parameters())
         return params + ([self.inducing] if self.optimize_inducing else [])
 
     def _terms(self, factor=None):
         """(negative objective, L_m, L_A, c) with Cholesky routine ``factor``."""
-        factor = factor or _plain_cholesky
-        ls = self.kernel.lengthscale[:, 0, :]
-        os = self.kernel.outputscale
-        noise = self.likelihood.noise[:, 0]
+        factor = factor or plain_cholesky
+        ls, os, noise = self._hypers()
         E, N = self.Y.shape
         Z = self.inducing
         M = Z.shape[1]
@@ -163,17 +151,8 @@ class _SparseGP(GPRegression):
         iK = Lm_inv.transpose(-1, -2) @ (eye - torch.cholesky_inverse(LA)) @ Lm_inv
         iK = 0.5 * (iK + iK.transpose(-1, -2))
         y_mean, y_scale = self._standardisation_tensors()
-        pred = GPPredictor(
-            self.inducing.detach().clone(),
-            self.kernel.lengthscale.detach()[:, 0, :],
-            self.kernel.outputscale.detach(),
-            self.likelihood.noise.detach()[:, 0],
-            beta,
-            iK,
-            R,
-            y_mean,
-            y_scale,
-        )
+        hypers = (t.detach() for t in self._hypers())
+        pred = GPPredictor(self.inducing.detach().clone(), *hypers, beta, iK, R, y_mean, y_scale)
         N = self.Y.shape[1]
         objective = -float(value) - N * float(torch.log(y_scale).sum())
         return pred, {
@@ -181,15 +160,6 @@ class _SparseGP(GPRegression):
             "jitter": max(jit.values()),
             "log_marginal_likelihood": objective,
         }
-
-
-def _plain_cholesky(A: torch.Tensor, what: str) -> torch.Tensor:
-    L, info = torch.linalg.cholesky_ex(A)
-    if torch.any(info):
-        raise GPNumericalError(
-            f"{what}: not numerically positive definite at these hyper-parameters"
-        )
-    return L
 
 
 class FITC(_SparseGP):

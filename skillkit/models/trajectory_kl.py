@@ -16,13 +16,13 @@ give D = +∞; ``ridge`` λ > 0 subtracts (λ/2) Σ_t ‖γ_t‖² from g (soft 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
 from numpy.typing import ArrayLike
 from scipy import optimize
+from scipy.linalg import cho_solve
 
 from skillkit._validation import as_generator, check_array, check_count, check_positive
 from skillkit.models.kernels import se_kernel
@@ -43,15 +43,9 @@ __all__ = [
     "trajectory_kl_objective",
 ]
 
-#: A model's vector–Jacobian product: (∂L/∂mean (N, n), ∂L/∂var (N, n)) → ∂L/∂θ (P,).
-VJP = Callable[[np.ndarray, np.ndarray], np.ndarray]
-
 
 def _pairs(n: int, cross: bool) -> tuple[np.ndarray, np.ndarray]:
-    if cross:
-        i, j = np.triu_indices(n)
-        return i, j
-    return np.arange(n), np.arange(n)
+    return np.triu_indices(n) if cross else (np.arange(n), np.arange(n))
 
 
 def state_features(x: ArrayLike, cross: bool = True) -> np.ndarray:
@@ -339,10 +333,10 @@ class TKLFit:
     objective: float
     n_iterations: int
     message: str
-    gammas: np.ndarray
-    weights: np.ndarray
-    kl: np.ndarray
-    feature_residual: float
+    gammas: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    weights: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    kl: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    feature_residual: float = math.nan
 
 
 def one_step_log_likelihood(model: Model, theta, x, u, x_next) -> float:
@@ -399,28 +393,7 @@ def fit_one_step(model: Model, theta0, x, u, x_next, maxiter: int = 200) -> TKLF
         return value, vjp(g_mean, g_var)
 
     res = _lbfgs(fun, th0, maxiter)
-    empty = np.zeros((0, 0))
-    return TKLFit(
-        res.x,
-        float(res.fun),
-        int(res.nit),
-        str(res.message),
-        empty,
-        empty,
-        np.zeros(0),
-        float("nan"),
-    )
-
-
-def _check_trajectories(model, states, controls):
-    X = check_array(states, "states", ndim=3)
-    M, T, n = X.shape
-    if n != model.state_dim:
-        raise ValueError(f"states: expected {model.state_dim} state dimensions, got {n}")
-    if T < 2:
-        raise ValueError(f"states: expected at least 2 time steps, got {T}")
-    U = check_array(controls, "controls", shape=(M, T - 1, model.control_dim))
-    return X, U
+    return TKLFit(res.x, float(res.fun), int(res.nit), str(res.message))
 
 
 def trajectory_kl_objective(
@@ -437,9 +410,8 @@ def trajectory_kl_objective(
 
     ``states`` (M, T, n), ``controls`` (M, T − 1, m). Returns the value, the gradient (P,), the
     :class:`DualValue` at γ* (None, with value +inf, when infeasible) and γ* (T, F)."""
-    X, U = _check_trajectories(model, states, controls)
+    prob = _Problem(model, states, controls, cross, ridge)
     th = check_array(theta, "theta", shape=(model.n_params,))
-    prob = _Problem(model, X, U, cross, check_positive(ridge, "ridge", allow_zero=True))
     g0 = None if gammas0 is None else check_array(gammas0, "gammas0", shape=prob.gamma_shape)
     return prob.evaluate(th, g0, check_count(inner_maxiter, "inner_maxiter"))
 
@@ -470,13 +442,14 @@ def _newton_max(features, predicted, phi_hat, ridge, gammas0, maxiter, tol=1e-12
         scale = max(float(np.mean(np.diag(H))), 1e-300)
         damping = 1e-12 * scale
         while True:
-            L, ok = _cholesky(H, damping)
-            if ok:
+            try:
+                L = np.linalg.cholesky(H + damping * np.eye(H.shape[0]))
                 break
-            damping *= 100.0
-            if damping > scale:
-                raise _Infeasible
-        step = _cho_solve(L, grad)
+            except np.linalg.LinAlgError:
+                damping *= 100.0
+                if damping > scale:
+                    raise _Infeasible from None
+        step = cho_solve((L, True), grad)
         decrement = float(grad @ step)
         if decrement < tol:
             break
@@ -495,25 +468,19 @@ def _newton_max(features, predicted, phi_hat, ridge, gammas0, maxiter, tol=1e-12
     return gam
 
 
-def _cholesky(H: np.ndarray, damping: float):
-    try:
-        return np.linalg.cholesky(H + damping * np.eye(H.shape[0])), True
-    except np.linalg.LinAlgError:
-        return None, False
-
-
-def _cho_solve(L: np.ndarray, b: np.ndarray) -> np.ndarray:
-    from scipy.linalg import cho_solve
-
-    return cho_solve((L, True), b)
-
-
 class _Problem:
     """The standardised features of a data set and the nested evaluation of D(θ)."""
 
-    def __init__(self, model, X, U, cross, ridge):
-        self.model, self.cross, self.ridge = model, cross, ridge
+    def __init__(self, model, states, controls, cross, ridge):
+        X = check_array(states, "states", ndim=3)
         M, T, n = X.shape
+        if n != model.state_dim:
+            raise ValueError(f"states: expected {model.state_dim} state dimensions, got {n}")
+        if T < 2:
+            raise ValueError(f"states: expected at least 2 time steps, got {T}")
+        U = check_array(controls, "controls", shape=(M, T - 1, model.control_dim))
+        self.model, self.cross = model, cross
+        self.ridge = check_positive(ridge, "ridge", allow_zero=True)
         self.M, self.T = M, T
         phi = state_features(X, cross)  # (M, T, F)
         self.loc = phi.reshape(-1, phi.shape[-1]).mean(0)
@@ -532,23 +499,14 @@ class _Problem:
         phi_hat = self.features[0].mean(0)
 
         zero = np.zeros(self.gamma_shape)
+        args = (self.features, psi, phi_hat, self.ridge)
         try:
-            gammas = _newton_max(
-                self.features,
-                psi,
-                phi_hat,
-                self.ridge,
-                zero if gammas0 is None else gammas0,
-                inner_maxiter,
-            )
-            if (
-                gammas0 is not None
-                and not _dual(gammas, self.features, psi, phi_hat, self.ridge).value >= 0.0
-            ):
-                gammas = _newton_max(self.features, psi, phi_hat, self.ridge, zero, inner_maxiter)
+            gammas = _newton_max(*args, zero if gammas0 is None else gammas0, inner_maxiter)
+            if gammas0 is not None and not _dual(gammas, *args).value >= 0.0:
+                gammas = _newton_max(*args, zero, inner_maxiter)  # a bad warm start: from 0
         except _Infeasible:
             return math.inf, np.zeros(self.model.n_params), None, zero
-        d = _dual(gammas, self.features, psi, phi_hat, self.ridge)
+        d = _dual(gammas, *args)
         g_psi = (d.grad_predicted / self.scale).reshape(-1, psi.shape[-1])
         g_mean, g_var = gaussian_expected_features_vjp(mean, g_psi, self.cross)
         return d.value, vjp(g_mean, g_var), d, gammas
@@ -589,9 +547,8 @@ def fit_trajectory_kl(
     -------
     TKLFit
     """
-    X, U = _check_trajectories(model, states, controls)
+    prob = _Problem(model, states, controls, cross, ridge)
     th0 = check_array(theta0, "theta0", shape=(model.n_params,))
-    prob = _Problem(model, X, U, cross, check_positive(ridge, "ridge", allow_zero=True))
     inner = check_count(inner_maxiter, "inner_maxiter")
     warm = {"gammas": None}
 

@@ -63,6 +63,9 @@ def _discretise(h: float, stiffness: float, damping: float):
 class DMP:
     """Discrete DMP for ``n_joints`` joints sharing one phase (Eqs. 2.21–2.23).
 
+    The learned state is ``weights`` v (J, K; zeros until :meth:`fit`), ``goal`` g (J,) or
+    ``None``, ``goal_velocity`` gd (J,) and the time scaling ``tau`` τ.
+
     Parameters
     ----------
     n_joints : int
@@ -73,21 +76,8 @@ class DMP:
         Spring-damper gains of Eq. 2.21 (β_x = α_x/4: critically damped).
     alpha_z : float, default 3.0
         Phase decay of Eq. 2.22.
-    dt : float, default 1e-3
-        Largest integration step (s).
-    duration : float, default 1.0
-        Nominal duration at τ = 1 (s).
-
-    Attributes
-    ----------
-    weights : ndarray, shape (J, K)
-        v (zeros until :meth:`fit`).
-    goal : ndarray, shape (J,), or None
-        g.
-    goal_velocity : ndarray, shape (J,)
-        gd.
-    tau : float
-        τ, the time scaling.
+    dt, duration : float, default 1e-3, 1.0
+        Largest integration step and nominal duration at τ = 1 (s).
 
     Raises
     ------
@@ -135,10 +125,9 @@ class DMP:
     @property
     def widths(self) -> np.ndarray:
         """Basis bandwidths σ_i."""
-        c = self.centers
         if self.n_basis == 1:
             return np.ones(1)
-        gaps = -np.diff(c)
+        gaps = -np.diff(self.centers)
         return np.append(gaps, gaps[-1]) / np.sqrt(2.0)
 
     def phase(self, t, tau: float | None = None) -> np.ndarray:
@@ -189,29 +178,13 @@ class DMP:
         Returns
         -------
         self
-
-        Raises
-        ------
-        ValueError
-            On bad shapes, non-increasing ``times`` or a non-positive ``tau``.
         """
-        times = check_array(times, "times", ndim=1)
-        n = times.shape[0]
-        if n < 2:
-            raise ValueError(f"times: expected at least 2 time stamps, got {n}")
-        if np.any(np.diff(times) <= 0):
-            raise ValueError("times: expected strictly increasing time stamps")
-        shape = (n, self.n_joints)
-        q = check_array(q, "q", shape=shape)
-        qd = check_array(qd, "qd", shape=shape)
-        qdd = check_array(qdd, "qdd", shape=shape)
+        t, q, qd, qdd = self._check_demo(times, q, qd, qdd, 2)
         tau = check_positive(tau, "tau")
         ridge = check_positive(ridge, "ridge", allow_zero=True)
-
-        t = times - times[0]
         self.tau, self.duration = tau, tau * t[-1]
         self.goal, self.goal_velocity = q[-1].copy(), qd[-1].copy()
-        target = self._forcing_target(t, q, qd, qdd)
+        target = self.forcing_target(times, q, qd, qdd)
         phi = self.basis(self.phase(t, tau))
         if ridge > 0:
             phi = np.vstack([phi, np.sqrt(ridge) * np.eye(self.n_basis)])
@@ -231,19 +204,21 @@ class DMP:
         """Eq. (2.23)'s target Y = q̈/τ² − α_x (β_x (g_t − q) + (ġ − q̇)/τ), shape (N, n_joints)."""
         if self.goal is None:
             raise ValueError("DMP.forcing_target: the DMP has no goal; fit() it first")
-        t = check_array(times, "times", ndim=1)
-        if t.shape[0] == 0 or np.any(np.diff(t) <= 0):
-            raise ValueError("times: expected strictly increasing time stamps")
-        shape = (t.shape[0], self.n_joints)
-        q = check_array(q, "q", shape=shape)
-        qd = check_array(qd, "qd", shape=shape)
-        qdd = check_array(qdd, "qdd", shape=shape)
-        return self._forcing_target(t - t[0], q, qd, qdd)
-
-    def _forcing_target(self, t, q, qd, qdd) -> np.ndarray:
+        t, q, qd, qdd = self._check_demo(times, q, qd, qdd, 1)
         tau, g, gd = self.tau, self.goal, self.goal_velocity
         g_t = self._moving_goal(t, g, gd, tau)
         return qdd / tau**2 - self.alpha_x * (self.beta_x * (g_t - q) + (gd - qd) / tau)
+
+    def _check_demo(self, times, q, qd, qdd, min_n: int) -> tuple[np.ndarray, ...]:
+        """Times (N,) from 0, strictly increasing, and q, qd, qdd (N, J) of a demonstration."""
+        t = check_array(times, "times", ndim=1)
+        if t.shape[0] < min_n:
+            raise ValueError(f"times: expected at least {min_n} time stamps, got {t.shape[0]}")
+        if np.any(np.diff(t) <= 0):
+            raise ValueError("times: expected strictly increasing time stamps")
+        shape = (t.shape[0], self.n_joints)
+        arrays = (check_array(a, n, shape=shape) for a, n in ((q, "q"), (qd, "qd"), (qdd, "qdd")))
+        return (t - t[0], *arrays)
 
     def grid(self, duration: float) -> np.ndarray:
         """The :meth:`rollout` grid for a ``duration``: ceil(duration / dt) equal steps."""
@@ -274,15 +249,10 @@ class DMP:
         ----------
         times : float or array_like, shape (T,)
             A duration (s; the grid of :meth:`grid`) or uniformly spaced increasing stamps.
-        q0 : array_like, shape (J,)
-        qd0 : array_like, shape (J,), optional
-            Default 0.
-        goal, goal_velocity : array_like, shape (J,), optional
-            Override g, gd.
-        tau : float, optional
-            Overrides τ.
-        weights : array_like, shape (J, K), optional
-            Overrides v.
+        q0, qd0 : array_like, shape (J,)
+            Start position and velocity (default 0).
+        goal, goal_velocity, tau, weights : optional
+            Override g (J,), gd (J,), τ and v (J, K).
 
         Returns
         -------
@@ -299,11 +269,9 @@ class DMP:
         times = self._check_times(times)
         q0 = check_array(q0, "q0", shape=(J,))
         qd0 = np.zeros(J) if qd0 is None else check_array(qd0, "qd0", shape=(J,))
-        if goal is None:
-            if self.goal is None:
-                raise ValueError("goal: the DMP has no goal yet; pass goal= or fit() it first")
-            goal = self.goal
-        goal = check_array(goal, "goal", shape=(J,))
+        if goal is None and self.goal is None:
+            raise ValueError("goal: the DMP has no goal yet; pass goal= or fit() it first")
+        goal = check_array(self.goal if goal is None else goal, "goal", shape=(J,))
         gd = self.goal_velocity if goal_velocity is None else goal_velocity
         gd = check_array(gd, "goal_velocity", shape=(J,))
         tau = self.tau if tau is None else check_positive(tau, "tau")
@@ -376,19 +344,14 @@ class DMPParameters:
     τ; the rest stays as in ``dmp`` (not modified). E.g. hockey (Sec. 3.4.2) learns
     ``("goal", "goal_velocity", "tau")`` for 7 joints: ``dim == 15``.
 
+    ``dim`` is the length of ω and ``names`` a label per entry.
+
     Parameters
     ----------
     dmp : DMP
         The template.
     learn : sequence of {"weights", "goal", "goal_velocity", "tau"}
         Non-empty, without repeats (default all).
-
-    Attributes
-    ----------
-    dim : int
-        Length of ω.
-    names : list of str
-        A label per entry of ω.
     """
 
     def __init__(self, dmp: DMP, learn: Sequence[str] = _LEARNABLE) -> None:
@@ -407,7 +370,6 @@ class DMPParameters:
         self.dmp = dmp
         self.learn = tuple(p for p in _LEARNABLE if p in learn)
         J, K = dmp.n_joints, dmp.n_basis
-        sizes = {"weights": J * K, "goal": J, "goal_velocity": J, "tau": 1}
         labels = {
             "weights": [f"w[{j},{i}]" for j in range(J) for i in range(K)],
             "goal": [f"g[{j}]" for j in range(J)],
@@ -417,8 +379,8 @@ class DMPParameters:
         self._slices: dict[str, slice] = {}
         start = 0
         for p in self.learn:
-            self._slices[p] = slice(start, start + sizes[p])
-            start += sizes[p]
+            self._slices[p] = slice(start, start + len(labels[p]))
+            start += len(labels[p])
         self.dim = start
         self.names = [n for p in self.learn for n in labels[p]]
 
@@ -432,13 +394,7 @@ class DMPParameters:
     def to_vector(self, dmp: DMP | None = None) -> np.ndarray:
         """ω of ``dmp`` (default: the template), shape (dim,)."""
         dmp = self.dmp if dmp is None else dmp
-        parts = {
-            "weights": lambda: dmp.weights.ravel(),
-            "goal": lambda: dmp.goal,
-            "goal_velocity": lambda: dmp.goal_velocity,
-            "tau": lambda: np.array([dmp.tau]),
-        }
-        return np.concatenate([np.asarray(parts[p](), dtype=np.float64) for p in self.learn])
+        return np.concatenate([np.ravel(getattr(dmp, p)).astype(np.float64) for p in self.learn])
 
     def from_vector(self, omega) -> DMP:
         """A copy of the template with the learned parameters from ``omega`` (τ > 0)."""

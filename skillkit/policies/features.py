@@ -24,24 +24,8 @@ def check_feature_name(name: str, argname: str = "features") -> str:
 
 
 def feature_dim(context_dim: int, name: FeatureName = "linear") -> int:
-    """Number of features F of the map ``name``.
-
-    Parameters
-    ----------
-    context_dim : int
-        n ≥ 0.
-    name : {"linear", "quadratic"}, default "linear"
-
-    Returns
-    -------
-    int
-        n (linear) or n + n(n+1)/2 (quadratic).
-
-    Raises
-    ------
-    ValueError
-        On an unknown ``name`` or a negative or non-integer ``context_dim``.
-    """
+    """Number of features F of the map ``name`` for contexts of dimension n = ``context_dim`` ≥ 0:
+    n (linear) or n + n(n+1)/2 (quadratic); ``ValueError`` on a bad ``name`` or ``context_dim``."""
     check_feature_name(name)
     if (
         isinstance(context_dim, bool)
@@ -56,25 +40,9 @@ def feature_dim(context_dim: int, name: FeatureName = "linear") -> int:
 def context_features(
     contexts, name: FeatureName = "linear", context_dim: int | None = None
 ) -> np.ndarray:
-    """Context features φ(s).
-
-    Parameters
-    ----------
-    contexts : array_like, shape (n, context_dim) or (context_dim,)
-    name : {"linear", "quadratic"}, default "linear"
-        Quadratic products s_i s_j (i ≤ j) follow s in row-major order.
-    context_dim : int, optional
-        Checked against the contexts' width when given.
-
-    Returns
-    -------
-    ndarray, shape (n, F), or (F,) for one context
-
-    Raises
-    ------
-    ValueError
-        On an unknown ``name`` or a shape mismatch.
-    """
+    """Context features φ(s) of contexts (n, context_dim) or (context_dim,): shape (n, F), or (F,)
+    for one context. Quadratic products s_i s_j (i ≤ j) follow s in row-major order;
+    ``context_dim``, when given, is checked against the contexts' width (``ValueError``)."""
     check_feature_name(name)
     s = check_array(contexts, "contexts", ndim=(1, 2))
     single = s.ndim == 1

@@ -52,6 +52,26 @@ def effective_sample_size(weights: np.ndarray) -> float:
     return float(w.sum() ** 2 / np.dot(w, w))
 
 
+def query_contexts(contexts: ArrayLike | None, context_dim: int) -> tuple[np.ndarray, bool]:
+    """Contexts of shape (n, context_dim), and whether one context (or ``None``) was given."""
+    if contexts is None:
+        if context_dim:
+            raise ValueError(f"contexts: this policy needs contexts of shape (n, {context_dim})")
+        return np.zeros((1, 0)), True
+    s = check_array(contexts, "contexts", ndim=(1, 2))
+    if s.shape[-1] != context_dim:
+        raise ValueError(
+            f"contexts: expected shape (n, {context_dim}) or ({context_dim},), got {s.shape}"
+        )
+    return (s[None, :], True) if s.ndim == 1 else (s, False)
+
+
+def _whitened(chol: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """L⁻¹ Σ L⁻ᵀ for the Cholesky factor L of Σ_old, symmetrised."""
+    m = linalg.solve_triangular(chol, linalg.solve_triangular(chol, cov, lower=True).T, lower=True)
+    return 0.5 * (m + m.T)
+
+
 def _cholesky(cov: np.ndarray, name: str) -> np.ndarray:
     try:
         return linalg.cholesky(cov, lower=True)
@@ -68,23 +88,19 @@ class LinearGaussianPolicy:
 
     Parameters
     ----------
-    mean : array_like, shape (d,)
-        The offset a.
-    cov : array_like, shape (d, d)
-        Σ, symmetric positive definite.
+    mean, cov : array_like, shapes (d,) and (d, d)
+        The offset a and Σ (symmetric positive definite).
     gain : array_like, shape (d, F), optional
         A on the context features (default zeros).
     context_dim : int, default 0
         Dimension of the context s.
     features : {"linear", "quadratic"}, default "linear"
-        φ, named as in :mod:`skillkit.policies.features`; F = ``feature_dim(context_dim,
-        features)``.
+        φ (:mod:`skillkit.policies.features`); F = ``feature_dim(context_dim, features)``.
 
     Raises
     ------
     ValueError
-        On bad shapes, a ``cov`` that is not symmetric positive definite, or an unknown
-        ``features``.
+        On bad shapes, a ``cov`` that is not symmetric positive definite, or unknown features.
     """
 
     def __init__(
@@ -143,59 +159,37 @@ class LinearGaussianPolicy:
         """[a, A], shape (d, 1 + F)."""
         return np.column_stack([self._mean, self._gain])
 
-    def phi(self, contexts: ArrayLike | None, name: str = "contexts") -> tuple[np.ndarray, bool]:
+    def phi(self, contexts: ArrayLike | None) -> tuple[np.ndarray, bool]:
         """φ of validated contexts (n, F), and whether one context was given."""
-        if contexts is None:
-            if self._context_dim:
-                raise ValueError(
-                    f"{name}: this policy needs contexts of shape (n, {self._context_dim}), "
-                    "got None"
-                )
-            return np.zeros((1, 0)), True
-        s = check_array(contexts, name, ndim=(1, 2))
-        if s.shape[-1] != self._context_dim:
-            raise ValueError(
-                f"{name}: expected shape (n, {self._context_dim}) or ({self._context_dim},), "
-                f"got {s.shape}"
-            )
-        single = s.ndim == 1
-        phi = context_features(s[None, :] if single else s, self._features)
-        return phi, single
+        s, single = query_contexts(contexts, self._context_dim)
+        return context_features(s, self._features), single
 
     def mean_of(self, contexts: ArrayLike | None = None) -> np.ndarray:
-        """Policy mean a + A φ(s) (Eq. 3.13).
-
-        Parameters
-        ----------
-        contexts : array_like, shape (n, context_dim) or (context_dim,), or None
-            None only for a context-free policy.
-
-        Returns
-        -------
-        ndarray, shape (n, d), or (d,) for one context
-        """
+        """Policy mean a + A φ(s) (Eq. 3.13) of contexts (n, context_dim) or (context_dim,), or
+        ``None`` for a context-free policy: shape (n, d), or (d,) for one context."""
         phi, single = self.phi(contexts)
         mu = self._mean + phi @ self._gain.T
         return mu[0] if single else mu
 
     def sample(self, contexts: ArrayLike | None = None, rng: RNG = None) -> np.ndarray:
-        """Draw ω ~ N(a + A φ(s), Σ), one per context.
-
-        Parameters
-        ----------
-        contexts : array_like, shape (n, context_dim) or (context_dim,), or None
-            None (one draw) only for a context-free policy; ``np.zeros((n, 0))`` draws n.
-        rng : Generator, int, SeedSequence or None
-
-        Returns
-        -------
-        ndarray, shape (n, d), or (d,) for one context
-        """
+        """Draw ω ~ N(a + A φ(s), Σ), one per context (as :meth:`mean_of`; ``np.zeros((n, 0))``
+        draws n from a context-free policy): shape (n, d), or (d,) for one context."""
         rng = as_generator(rng)
         phi, single = self.phi(contexts)
         z = rng.standard_normal((phi.shape[0], self.dim))
         omega = self._mean + phi @ self._gain.T + z @ self._chol.T
         return omega[0] if single else omega
+
+    def _row_phi(self, contexts, n: int, single: bool = False) -> np.ndarray:
+        """φ of one context per ω of n (``None``: zero-width contexts of a context-free policy)."""
+        if contexts is None and self._context_dim == 0:
+            contexts = np.zeros(0) if single else np.zeros((n, 0))
+        phi, one = self.phi(contexts)
+        if one != single or phi.shape[0] != n:
+            raise ValueError(
+                f"contexts: expected one context per ω ({n}), got {np.shape(contexts)}"
+            )
+        return phi
 
     def log_prob(self, omegas: ArrayLike, contexts: ArrayLike | None = None) -> np.ndarray | float:
         """log N(ω | a + A φ(s), Σ) of ``omegas`` (n, d) or (d,), one context each."""
@@ -206,14 +200,7 @@ class LinearGaussianPolicy:
             )
         single = w.ndim == 1
         w2 = w[None, :] if single else w
-        if contexts is None and self._context_dim == 0:
-            contexts = np.zeros(0) if single else np.zeros((w2.shape[0], 0))
-        phi, single_ctx = self.phi(contexts)
-        if single_ctx != single or phi.shape[0] != w2.shape[0]:
-            raise ValueError(
-                f"contexts: expected one context per ω ({w2.shape[0]}), got {np.shape(contexts)}"
-            )
-        diff = w2 - self._mean - phi @ self._gain.T
+        diff = w2 - self._mean - self._row_phi(contexts, w2.shape[0], single) @ self._gain.T
         maha = np.sum(linalg.solve_triangular(self._chol, diff.T, lower=True) ** 2, axis=0)
         out = -0.5 * (self.dim * _LOG_2PI + self.log_det_cov() + maha)
         return float(out[0]) if single else out
@@ -233,13 +220,7 @@ class LinearGaussianPolicy:
                   + \log\det\Sigma_2 - \log\det\Sigma_1\big],
                   \quad \delta_i = \mu_2(s_i) - \mu_1(s_i)
         """
-        if not isinstance(other, LinearGaussianPolicy):
-            raise ValueError(f"other: expected a LinearGaussianPolicy, got {type(other).__name__}")
-        if other.dim != self.dim or other.context_dim != self.context_dim:
-            raise ValueError(
-                f"other: expected dim={self.dim}, context_dim={self.context_dim}; "
-                f"got dim={other.dim}, context_dim={other.context_dim}"
-            )
+        self._check_other(other, ("dim", "context_dim"))
         mu1 = np.atleast_2d(self.mean_of(contexts))
         mu2 = np.atleast_2d(other.mean_of(contexts))
         l2 = other._chol
@@ -248,27 +229,9 @@ class LinearGaussianPolicy:
         kl = 0.5 * (trace + maha - self.dim + other.log_det_cov() - self.log_det_cov())
         return float(np.mean(kl))
 
-    def fit(
-        self,
-        contexts,
-        omegas,
-        weights,
-        *,
-        ridge: float = 1e-6,
-        cov_shrinkage: float = 0.0,
-        cov_floor: float = 1e-4,
-        min_effective_samples: float | None = None,
-    ) -> LinearGaussianPolicy:
+    def fit(self, contexts, omegas, weights, **kwargs: float | None) -> LinearGaussianPolicy:
         """Weighted maximum-likelihood policy (Eqs. 3.11–3.13); see :meth:`fit_with_info`."""
-        return self.fit_with_info(
-            contexts,
-            omegas,
-            weights,
-            ridge=ridge,
-            cov_shrinkage=cov_shrinkage,
-            cov_floor=cov_floor,
-            min_effective_samples=min_effective_samples,
-        )[0]
+        return self.fit_with_info(contexts, omegas, weights, **kwargs)[0]
 
     def fit_with_info(
         self,
@@ -294,12 +257,8 @@ class LinearGaussianPolicy:
         omegas : array_like, shape (N, d)
         weights : array_like, shape (N,)
             Non-negative sample weights (e.g. REPS's exp(R/η)).
-        ridge : float, default 1e-6
-            Relative ridge on the feature covariance C.
-        cov_shrinkage : float, default 0.0
-            κ ∈ [0, 1).
-        cov_floor : float, default 1e-4
-            Eigenvalue floor ∈ (0, 1] relative to Σ_old.
+        ridge, cov_shrinkage, cov_floor : float
+            Relative ridge on C, κ ∈ [0, 1), eigenvalue floor ∈ (0, 1].
         min_effective_samples : float, optional
             Least Kish effective sample size (default d + 1).
 
@@ -312,8 +271,7 @@ class LinearGaussianPolicy:
         Raises
         ------
         ValueError
-            On wrong shapes or weights, too few effective samples, or contexts without spread
-            when a gain is fitted.
+            On wrong shapes or weights, too few effective samples, or contexts without spread.
         """
         ridge = check_positive(ridge, "ridge", allow_zero=True)
         kappa = check_positive(cov_shrinkage, "cov_shrinkage", allow_zero=True)
@@ -327,13 +285,7 @@ class LinearGaussianPolicy:
         if B.shape[1] != d:
             raise ValueError(f"omegas: expected shape (N, {d}), got {B.shape}")
         n = B.shape[0]
-        if contexts is None and self._context_dim == 0:
-            contexts = np.zeros((n, 0))
-        phi, single = self.phi(contexts)
-        if single or phi.shape[0] != n:
-            raise ValueError(
-                f"contexts: expected shape ({n}, {self._context_dim}), got {np.shape(contexts)}"
-            )
+        phi = self._row_phi(contexts, n)
         w = check_array(weights, "weights", shape=(n,))
         if np.any(w < 0) or not np.any(w > 0):
             raise ValueError("weights: expected non-negative weights with a positive sum")
@@ -347,8 +299,7 @@ class LinearGaussianPolicy:
         if ess < need:
             raise ValueError(
                 f"weights: effective sample size {ess:.3g} (of {n} samples) is below the "
-                f"{need:g} needed "
-                f"to fit the {d}x{d} covariance Σ (Eq. 3.12)"
+                f"{need:g} needed to fit the {d}x{d} covariance Σ (Eq. 3.12)"
             )
 
         # 1. mean: weighted, centred ridge regression (Eq. 3.11)
@@ -383,10 +334,7 @@ class LinearGaussianPolicy:
         cov = 0.5 * (cov + cov.T)
         # 3. shrinkage and 4. floor, both relative to the previous Σ
         cov = (1.0 - kappa) * cov + kappa * self._cov
-        m = linalg.solve_triangular(
-            self._chol, linalg.solve_triangular(self._chol, cov, lower=True).T, lower=True
-        )
-        lam, vec = np.linalg.eigh(0.5 * (m + m.T))
+        lam, vec = np.linalg.eigh(_whitened(self._chol, cov))
         n_floored = int(np.sum(lam < floor))
         if n_floored:
             root = self._chol @ vec
@@ -405,15 +353,7 @@ class LinearGaussianPolicy:
     def interpolate(self, other: LinearGaussianPolicy, t: float) -> LinearGaussianPolicy:
         """The policy a fraction t ∈ [0, 1] of the way to ``other`` (same dimensions and features):
         a and A linearly, Σ_t = (1 − t) Σ + t Σ'."""
-        if not isinstance(other, LinearGaussianPolicy) or (
-            other.dim,
-            other.context_dim,
-            other.features,
-        ) != (self.dim, self.context_dim, self.features):
-            raise ValueError(
-                f"other: expected a LinearGaussianPolicy with dim={self.dim}, "
-                f"context_dim={self.context_dim}, features={self.features!r}"
-            )
+        self._check_other(other, ("dim", "context_dim", "features"))
         t = check_positive(t, "t", allow_zero=True)
         if t > 1.0:
             raise ValueError(f"t: expected a value in [0, 1], got {t!r}")
@@ -422,6 +362,14 @@ class LinearGaussianPolicy:
             (1.0 - t) * self._cov + t * other.cov,
             self._gain + t * (other.gain - self._gain),
         )
+
+    def _check_other(self, other, keys: tuple[str, ...]) -> None:
+        """``ValueError`` unless ``other`` is a policy with this one's ``keys``."""
+        want = ", ".join(f"{k}={getattr(self, k)!r}" for k in keys)
+        if not isinstance(other, LinearGaussianPolicy) or any(
+            getattr(other, k) != getattr(self, k) for k in keys
+        ):
+            raise ValueError(f"other: expected a LinearGaussianPolicy with {want}, got {other!r}")
 
     def _new(self, mean: np.ndarray, cov: np.ndarray, gain: np.ndarray) -> LinearGaussianPolicy:
         return LinearGaussianPolicy(mean, cov, gain, self._context_dim, self._features)
@@ -449,10 +397,8 @@ class GaussianPolicy(LinearGaussianPolicy):
 
     Parameters
     ----------
-    mean : array_like, shape (d,)
-        μ.
-    cov : array_like, shape (d, d)
-        Σ, symmetric positive definite.
+    mean, cov : array_like, shapes (d,) and (d, d)
+        μ and Σ (symmetric positive definite).
     """
 
     def __init__(self, mean, cov):
@@ -495,23 +441,14 @@ def interpolation_kl(
             + \tfrac12 t^2 M, \quad \lambda_i = 1 + t(\mu_i - 1),
 
     convex and increasing on [0, 1]."""
-    mu, maha = _interpolation_terms(old, new, contexts)
+    mu = np.linalg.eigvalsh(_whitened(old._chol, new.cov))
+    delta = np.atleast_2d(new.mean_of(contexts)) - np.atleast_2d(old.mean_of(contexts))
+    maha = np.mean(np.sum(linalg.solve_triangular(old._chol, delta.T, lower=True) ** 2, axis=0))
     t = np.asarray(t, dtype=np.float64)
     lam = 1.0 + t[..., None] * (mu - 1.0)
     kl = 0.5 * np.sum(lam - 1.0 - np.log(lam), axis=-1) + 0.5 * t**2 * maha
     dkl = 0.5 * np.sum((mu - 1.0) * (1.0 - 1.0 / lam), axis=-1) + t * maha
     return kl, dkl
-
-
-def _interpolation_terms(old, new, contexts) -> tuple[np.ndarray, float]:
-    chol = old._chol
-    m = linalg.solve_triangular(
-        chol, linalg.solve_triangular(chol, new.cov, lower=True).T, lower=True
-    )
-    mu = np.linalg.eigvalsh(0.5 * (m + m.T))
-    delta = np.atleast_2d(new.mean_of(contexts)) - np.atleast_2d(old.mean_of(contexts))
-    maha = float(np.mean(np.sum(linalg.solve_triangular(chol, delta.T, lower=True) ** 2, axis=0)))
-    return mu, maha
 
 
 def trust_region_step(

@@ -22,6 +22,8 @@ from skillkit._validation import check_array, check_count
 from skillkit.policies.gaussian import LinearGaussianPolicy
 from skillkit.trajectory import Trajectory
 
+S = TypeVar("S")
+
 
 # --------------------------------------------------------------------------- samples
 def check_batch(
@@ -46,10 +48,8 @@ def check_batch(
 
 @dataclass(frozen=True, repr=False)
 class Batch:
-    """One batch of samples for ``algorithm.update(batch)``, validated when built.
-
-    Row i is a sample: context s_i, parameters ω_i ~ π(ω|s_i), reward R(τ_i, s_i) and optionally
-    the trajectory τ_i.
+    """One batch of samples (s_i, ω_i ~ π(ω|s_i), R(τ_i, s_i), optionally τ_i) for
+    ``algorithm.update(batch)``, validated when built.
 
     Parameters
     ----------
@@ -57,11 +57,10 @@ class Batch:
         ``None`` for a context-free task (stored as shape (N, 0)).
     omegas : array_like, shape (N, d)
     rewards : array_like, shape (N,)
-        Finite.
     trajectories : sequence of Trajectory, optional
     n_rollouts : int, optional
-        The first ``n_rollouts`` rows are rollouts in their own contexts; the rest re-score them
-        in extra contexts (Sec. 3.4). Default: N.
+        The first ``n_rollouts`` rows (default N) are rollouts in their own contexts; the rest
+        re-score them in extra contexts (Sec. 3.4).
     """
 
     contexts: np.ndarray
@@ -102,17 +101,6 @@ class Batch:
         """Dimension of the context s (0 for a context-free task)."""
         return int(self.contexts.shape[1])
 
-    def check_dims(self, dim: int, context_dim: int) -> Batch:
-        """This batch, after checking it fits ``dim`` and ``context_dim``."""
-        if self.dim != dim:
-            raise ValueError(f"omegas: expected shape (N, {dim}), got {self.omegas.shape}")
-        if self.context_dim != context_dim:
-            raise ValueError(
-                f"contexts: expected shape (N, {context_dim}), got {self.contexts.shape}"
-                + (" (a contextual policy needs contexts)" if self.context_dim == 0 else "")
-            )
-        return self
-
     def __repr__(self) -> str:
         r = self.rewards
         n_traj = "none" if self.trajectories is None else str(len(self.trajectories))
@@ -129,7 +117,14 @@ def as_batch(batch: Batch, dim: int, context_dim: int) -> Batch:
     """``batch`` after checking it is a :class:`Batch` for ``dim`` and ``context_dim``."""
     if not isinstance(batch, Batch):
         raise ValueError(f"batch: expected a skillkit.search.Batch, got {type(batch).__name__}")
-    return batch.check_dims(dim, context_dim)
+    if batch.dim != dim:
+        raise ValueError(f"omegas: expected shape (N, {dim}), got {batch.omegas.shape}")
+    if batch.context_dim != context_dim:
+        raise ValueError(
+            f"contexts: expected shape (N, {context_dim}), got {batch.contexts.shape}"
+            + (" (a contextual policy needs contexts)" if batch.context_dim == 0 else "")
+        )
+    return batch
 
 
 def rollouts_only(batch: Batch, algorithm: str) -> Batch:
@@ -142,25 +137,26 @@ def rollouts_only(batch: Batch, algorithm: str) -> Batch:
     return batch
 
 
-def check_policy(policy: LinearGaussianPolicy) -> LinearGaussianPolicy:
+def check_policy(policy: LinearGaussianPolicy, name: str = "policy") -> LinearGaussianPolicy:
     """``policy`` after checking it is a :class:`LinearGaussianPolicy`."""
     if not isinstance(policy, LinearGaussianPolicy):
-        raise ValueError(f"policy: expected a LinearGaussianPolicy, got {type(policy).__name__}")
+        raise ValueError(f"{name}: expected a LinearGaussianPolicy, got {type(policy).__name__}")
     return policy
 
 
-def query_contexts(contexts, context_dim: int) -> tuple[np.ndarray, bool]:
-    """Contexts of shape (n, context_dim), and whether one context (or ``None``) was given."""
-    if contexts is None:
-        if context_dim:
-            raise ValueError(f"contexts: this policy needs contexts of shape (n, {context_dim})")
-        return np.zeros((1, 0)), True
-    s = check_array(contexts, "contexts", ndim=(1, 2))
-    if s.shape[-1] != context_dim:
-        raise ValueError(
-            f"contexts: expected shape (n, {context_dim}) or ({context_dim},), got {s.shape}"
-        )
-    return (s[None, :], True) if s.ndim == 1 else (s, False)
+def check_settings(settings: S | None, cls: type[S]) -> S:
+    """``settings`` (``None``: ``cls()``) after checking it is a ``cls``."""
+    settings = cls() if settings is None else settings
+    if not isinstance(settings, cls):
+        raise ValueError(f"settings: expected {cls.__name__}, got {type(settings).__name__}")
+    return settings
+
+
+def fields_repr(obj: Any, *names: str) -> str:
+    """``Type(name=value, …)`` of some attributes of ``obj``, floats as ``.4g``."""
+    values = ((n, getattr(obj, n)) for n in names)
+    text = ", ".join(f"{n}={v:.4g}" if isinstance(v, float) else f"{n}={v}" for n, v in values)
+    return f"{type(obj).__name__}({text})"
 
 
 def _check_n_rollouts(k, n: int) -> int:
@@ -289,8 +285,7 @@ class WeightedMLSearch(Generic[D]):
     n_reuse_batches : int or None
         L: the last L batches are used, the newest included (``None``: all).
     ridge, cov_shrinkage, cov_floor, min_effective_samples
-        Regularisation of
-        :meth:`~skillkit.policies.gaussian.LinearGaussianPolicy.fit_with_info`.
+        Regularisation of :meth:`~skillkit.policies.gaussian.LinearGaussianPolicy.fit_with_info`.
     """
 
     _diagnostics: Callable[..., D]

@@ -37,8 +37,8 @@ from gpytorch.mlls import ExactMarginalLogLikelihood
 from numpy.typing import ArrayLike
 
 from skillkit._validation import as_generator, check_array, check_count, check_positive
-from skillkit.policies.gaussian import LinearGaussianPolicy
-from skillkit.search.base import Batch, as_batch, check_policy, query_contexts
+from skillkit.policies.gaussian import LinearGaussianPolicy, query_contexts
+from skillkit.search.base import Batch, as_batch, check_policy, check_settings
 
 #: Samples beyond which an update warns (once) that the exact GP's O(N³) fit dominates.
 LARGE_N = 2000
@@ -52,15 +52,12 @@ class CBOSettings:
 
     Attributes
     ----------
-    beta : float
-        β ≥ 0 of UCB on the standardised reward.
-    box_std : float
-        k > 0: the ω box is π₀'s mean range ± k standard deviations.
+    beta, box_std : float
+        β ≥ 0 of UCB on the standardised reward; k > 0 of the ω box (π₀'s mean range ± k std).
     initial_batches : int
         Batches proposed by a Sobol design before UCB takes over (≥ 1).
     num_restarts, raw_samples : int
-        L-BFGS-B starts per proposal, and the Sobol points they are chosen from
-        (``optimize_acqf``).
+        ``optimize_acqf``'s L-BFGS-B starts per proposal, and the Sobol points they come from.
     rollouts_per_update : int
         The batch size suggested for :func:`learn` (any works).
     max_observations : int or None
@@ -126,6 +123,7 @@ class CBOPolicy:
     ):
         self.model = model
         self.initial = initial
+        self.dim, self.context_dim = initial.dim, initial.context_dim
         self.omega_bounds = np.array(omega_bounds, dtype=np.float64)
         self.omega_bounds.setflags(write=False)
         self.explore_randomly = bool(explore_randomly)
@@ -136,16 +134,6 @@ class CBOPolicy:
         #: Seconds spent in ``sample`` and in ``mean_of``.
         self.sample_seconds = 0.0
         self.mean_seconds = 0.0
-
-    @property
-    def dim(self) -> int:
-        """Dimension d of ω."""
-        return self.initial.dim
-
-    @property
-    def context_dim(self) -> int:
-        """Dimension of the context s."""
-        return self.initial.context_dim
 
     def _tensor(self, x) -> torch.Tensor:
         return torch.tensor(np.asarray(x), dtype=self.dtype, device=self.device)
@@ -299,8 +287,7 @@ class ContextualBO:
     Parameters
     ----------
     policy : LinearGaussianPolicy
-        π₀: the policy mean before any data and, with its standard deviations, the ω box (its
-        mean must then be linear in s).
+        π₀: the mean before any data and, with its standard deviations, the ω box.
     context_low, context_high : array_like, shape (context_dim,)
         The context range (required for a contextual policy; zero width is mapped to width 1).
     omega_low, omega_high : array_like, shape (d,), optional
@@ -308,10 +295,8 @@ class ContextualBO:
     settings : CBOSettings, optional
     rng : Generator, int or None
         The algorithm's own stream (GP fits and ``mean_of``).
-    device : str or torch.device, optional
-        Where BoTorch computes (default CPU).
-    dtype : torch.dtype
-        torch.float64 (default) or torch.float32.
+    device, dtype : optional
+        Where BoTorch computes (default CPU), in torch.float64 (default) or torch.float32.
     """
 
     def __init__(
@@ -328,9 +313,7 @@ class ContextualBO:
         dtype: torch.dtype = torch.float64,
     ):
         check_policy(policy)
-        settings = CBOSettings() if settings is None else settings
-        if not isinstance(settings, CBOSettings):
-            raise ValueError(f"settings: expected a CBOSettings, got {type(settings).__name__}")
+        settings = check_settings(settings, CBOSettings)
         if dtype not in (torch.float64, torch.float32):
             raise ValueError(f"dtype: expected torch.float64 or torch.float32, got {dtype!r}")
         try:

@@ -32,7 +32,7 @@ CMA-ES (h_σ, ℓ_max, weights on the best half only). Samples are drawn by the 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -40,7 +40,14 @@ from numpy.typing import ArrayLike
 from skillkit._validation import check_array, check_count, check_positive
 from skillkit.policies.features import check_feature_name, context_features
 from skillkit.policies.gaussian import LinearGaussianPolicy
-from skillkit.search.base import Batch, as_batch, check_policy, rollouts_only
+from skillkit.search.base import (
+    Batch,
+    as_batch,
+    check_policy,
+    check_settings,
+    fields_repr,
+    rollouts_only,
+)
 
 
 # ----------------------------------------------------------------- pure functions
@@ -77,9 +84,13 @@ def advantage_weights(advantages: ArrayLike) -> np.ndarray:
     return w
 
 
-def _design(features: ArrayLike, name: str) -> np.ndarray:
-    phi = check_array(features, name, ndim=2)
-    return np.hstack([np.ones((phi.shape[0], 1)), phi])
+def _design(features: ArrayLike, ridge: float) -> tuple[np.ndarray, np.ndarray]:
+    """[1, φ_k] (N, 1 + F) and the ridge λ I₀ (no penalty on the intercept)."""
+    phi = check_array(features, "features", ndim=2)
+    lam = check_positive(ridge, "ridge", allow_zero=True)
+    return np.hstack([np.ones((phi.shape[0], 1)), phi]), lam * np.diag(
+        np.r_[0.0, np.ones(phi.shape[1])]
+    )
 
 
 def fit_baseline(
@@ -93,12 +104,10 @@ def fit_baseline(
     I₀ the identity without the intercept; ``features`` (N, F) are φ_V(s_k) (F = 0: V is the mean
     reward), ``rewards`` (N,), ``ridge`` λ ≥ 0. Returns β (1 + F,) and V(s_k) (N,).
     """
-    psi = _design(features, "features")
+    psi, reg = _design(features, ridge)
     r = check_array(rewards, "rewards", shape=(psi.shape[0],))
     if r.size == 0:
         raise ValueError("rewards: expected at least one sample, got shape (0,)")
-    lam = check_positive(ridge, "ridge", allow_zero=True)
-    reg = lam * np.diag(np.r_[0.0, np.ones(psi.shape[1] - 1)])
     beta = np.linalg.lstsq(psi.T @ psi + reg, psi.T @ r, rcond=None)[0]
     return beta, psi @ beta
 
@@ -111,13 +120,11 @@ def weighted_linear_regression(
     ``features`` (N, F), ``targets`` (N, d), ``weights`` (N,) non-negative and not all zero,
     ``ridge`` λ ≥ 0 on the gain A only.
     """
-    x = _design(features, "features")
+    x, reg = _design(features, ridge)
     y = check_array(targets, "targets", shape=(x.shape[0], None))
     w = check_array(weights, "weights", shape=(x.shape[0],))
     if np.any(w < 0) or not np.any(w > 0):
         raise ValueError("weights: expected non-negative weights, not all zero")
-    lam = check_positive(ridge, "ridge", allow_zero=True)
-    reg = lam * np.diag(np.r_[0.0, np.ones(x.shape[1] - 1)])
     xw = x * w[:, None]
     return np.linalg.lstsq(xw.T @ x + reg, xw.T @ y, rcond=None)[0].T
 
@@ -201,10 +208,8 @@ class CCMAESSettings:
     ----------
     baseline_features : {"linear", "quadratic"}
         φ_V of the baseline.
-    baseline_ridge : float
-        λ_V ≥ 0 of the baseline's ridge regression.
-    mean_ridge : float
-        λ ≥ 0 on the gain A in the regression of the mean.
+    baseline_ridge, mean_ridge : float
+        λ_V ≥ 0 of the baseline's ridge regression, λ ≥ 0 on the gain A of the mean.
     max_log_step : float
         ℓ_max > 0, the largest increase of ln σ in one update.
     """
@@ -238,12 +243,7 @@ class CCMAESDiagnostics:
     h_sigma: bool
 
     def __repr__(self) -> str:
-        return (
-            f"CCMAESDiagnostics(generation={self.generation}, n_samples={self.n_samples}, "
-            f"mean_reward={self.mean_reward:.4g}, advantage_std={self.advantage_std:.4g}, "
-            f"sigma={self.sigma:.4g}, axis_ratio={self.axis_ratio:.4g}, "
-            f"std_max={self.std_max:.4g}, path_norm={self.path_norm:.4g}, h_sigma={self.h_sigma})"
-        )
+        return fields_repr(self, *(f.name for f in fields(self)))
 
 
 class CCMAES:
@@ -258,10 +258,7 @@ class CCMAES:
 
     def __init__(self, policy: LinearGaussianPolicy, settings: CCMAESSettings | None = None):
         check_policy(policy)
-        settings = CCMAESSettings() if settings is None else settings
-        if not isinstance(settings, CCMAESSettings):
-            raise ValueError(f"settings: expected CCMAESSettings, got {type(settings).__name__}")
-        self.settings = settings
+        self.settings = check_settings(settings, CCMAESSettings)
         d = policy.dim
         self._dims = (d, policy.context_dim)
         self._features = policy.features

@@ -23,8 +23,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from skillkit._validation import as_generator, check_array, check_count, check_positive
-from skillkit.policies.gaussian import LinearGaussianPolicy
-from skillkit.search.base import Batch, as_batch, check_policy, query_contexts, rollouts_only
+from skillkit.policies.gaussian import LinearGaussianPolicy, query_contexts
+from skillkit.search.base import Batch, as_batch, check_policy, rollouts_only
 
 #: cma options set here: quiet, and no log files.
 QUIET_OPTIONS: dict[str, Any] = {"verbose": -9, "verb_disp": 0, "verb_log": 0}
@@ -64,7 +64,7 @@ class CMAESPolicy:
         generation: int,
         sigma: float,
     ):
-        self._dim, self._context_dim = int(dim), int(context_dim)
+        self.dim, self.context_dim = int(dim), int(context_dim)
         self.theta_mean = np.array(theta_mean, dtype=np.float64)
         self.population = np.array(population, dtype=np.float64)
         self.context_center = np.array(context_center, dtype=np.float64)
@@ -74,16 +74,6 @@ class CMAESPolicy:
         self.contexts_per_candidate = int(contexts_per_candidate)
         self.generation = int(generation)
         self.sigma = float(sigma)
-
-    @property
-    def dim(self) -> int:
-        """Dimension d of ω."""
-        return self._dim
-
-    @property
-    def context_dim(self) -> int:
-        """Dimension of the context s."""
-        return self._context_dim
 
     @property
     def popsize(self) -> int:
@@ -98,19 +88,19 @@ class CMAESPolicy:
     def offset_and_gain(self, theta: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """(b, W) of a θ, shapes (d,) and (d, context_dim)."""
         theta = np.asarray(theta, dtype=np.float64)
-        d = self._dim
-        return theta[:d], theta[d:].reshape(d, self._context_dim)
+        d = self.dim
+        return theta[:d], theta[d:].reshape(d, self.context_dim)
 
     def _omega(self, thetas: np.ndarray, s: np.ndarray) -> np.ndarray:
         """ω_i = b_i + W_i φ(s_i) for row-wise θ_i (n, P) and s_i (n, context_dim)."""
-        d = self._dim
+        d = self.dim
         phi = (s - self.context_center) / self.context_scale
-        gain = thetas[:, d:].reshape(thetas.shape[0], d, self._context_dim)
+        gain = thetas[:, d:].reshape(thetas.shape[0], d, self.context_dim)
         return thetas[:, :d] + np.einsum("nij,nj->ni", gain, phi)
 
     def mean_of(self, contexts: ArrayLike | None = None) -> np.ndarray:
         """ω(s) of the distribution mean: shape (n, d), or (d,) for one context (or None)."""
-        s, single = query_contexts(contexts, self._context_dim)
+        s, single = query_contexts(contexts, self.context_dim)
         omega = self._omega(np.broadcast_to(self.theta_mean, (s.shape[0], self.theta_mean.size)), s)
         return omega[0] if single else omega
 
@@ -119,7 +109,7 @@ class CMAESPolicy:
 
         ``rng`` is unused. ``ValueError`` unless there are exactly λ m contexts.
         """
-        s, single = query_contexts(contexts, self._context_dim)
+        s, single = query_contexts(contexts, self.context_dim)
         if s.shape[0] != self.n_rows:
             raise ValueError(
                 f"contexts: a CMA-ES generation evaluates popsize λ={self.popsize} candidates × "
@@ -172,8 +162,7 @@ class CMAES:
     policy : LinearGaussianPolicy
         Initial policy with linear context features: b₀ = a + A c, W₀ = A diag(h).
     contexts_per_candidate : int, optional
-        m ≥ 1 (default :data:`DEFAULT_CONTEXTS_PER_CANDIDATE` for a contextual task, else 1, the
-        only value a context-free task allows).
+        m ≥ 1 (default :data:`DEFAULT_CONTEXTS_PER_CANDIDATE`; 1 for a context-free task).
     context_center, context_scale : array_like, shape (context_dim,), optional
         c and h > 0 of φ(s) (default 0 and 1; :meth:`for_task` takes the task's range).
     sigma0 : float, optional
@@ -232,7 +221,7 @@ class CMAES:
             opts["CMA_stds"] = (stds / sigma).tolist()
         opts.update(options)
         opts.update({"randn": _Randn(as_generator(rng)), "seed": np.nan})
-        self._dims = (d, n_s)
+        self.dims = (d, n_s)
         self._es = cma.CMAEvolutionStrategy(x0.tolist(), sigma, opts)
         self._policy = self._ask()
 
@@ -269,7 +258,7 @@ class CMAES:
 
     def _ask(self) -> CMAESPolicy:
         es = self._es
-        d, n_s = self._dims
+        d, n_s = self.dims
         return CMAESPolicy(
             theta_mean=es.result.xfavorite,
             population=np.asarray(es.ask(), dtype=np.float64),
@@ -284,19 +273,9 @@ class CMAES:
 
     # ----------------------------------------------------------------- update
     def update(self, batch: Batch) -> CMAESDiagnostics:
-        """Tell CMA-ES this generation's rewards, and ask the next generation.
-
-        Parameters
-        ----------
-        batch : Batch
-            λ m rows drawn with ``self.policy.sample``; trajectories are not used.
-
-        Raises
-        ------
-        ValueError
-            Naming ``batch`` when it has extra-context rows, not λ m rows, or parameters other than
-            this generation's candidates in its contexts.
-        """
+        """Tell CMA-ES this generation's rewards (a batch of λ m rows drawn with
+        ``self.policy.sample``), and ask the next generation; ``ValueError`` naming ``batch`` when
+        it has extra-context rows, not λ m rows, or other parameters than the candidates."""
         pol = self._policy
         batch = rollouts_only(as_batch(batch, pol.dim, pol.context_dim), "CMAES")
         if len(batch) != pol.n_rows:
@@ -329,7 +308,7 @@ class CMAES:
         return diagnostics
 
     def __repr__(self) -> str:
-        d, n_s = self._dims
+        d, n_s = self.dims
         return (
             f"CMAES(dim={d}, context_dim={n_s}, popsize={self.popsize}, "
             f"contexts_per_candidate={self.contexts_per_candidate}, "

@@ -23,8 +23,15 @@ from numpy.typing import ArrayLike
 from scipy import linalg
 
 from skillkit._validation import as_generator, check_array, check_positive
-from skillkit.policies.gaussian import RNG, LinearGaussianPolicy
-from skillkit.search.base import Batch, SampleBuffer, as_batch, check_batch, query_contexts
+from skillkit.policies.gaussian import RNG, LinearGaussianPolicy, query_contexts
+from skillkit.search.base import (
+    Batch,
+    SampleBuffer,
+    as_batch,
+    check_batch,
+    check_policy,
+    fields_repr,
+)
 from skillkit.search.rwr import rwr_weighting
 
 
@@ -33,12 +40,6 @@ def gram(kernel, X, Z=None) -> np.ndarray:
     from skillkit.models.kernels import gram as kernel_gram
 
     return kernel_gram(kernel, X, Z)
-
-
-def kernel_diag(kernel, X: np.ndarray, chunk: int = 256) -> np.ndarray:
-    """k(x_i, x_i) for the rows of X, shape (n,), in chunks."""
-    parts = [np.diag(gram(kernel, X[i : i + chunk])) for i in range(0, X.shape[0], chunk)]
-    return np.concatenate(parts) if parts else np.zeros(0)
 
 
 class CrKRPolicy:
@@ -50,8 +51,7 @@ class CrKRPolicy:
         Supplies m₀(s) and the dimensions.
     kernel : gpytorch kernel
         Kernel on contexts (:mod:`skillkit.models.kernels`).
-    contexts : array_like, shape (N, context_dim)
-    omegas : array_like, shape (N, d)
+    contexts, omegas : array_like, shapes (N, context_dim) and (N, d)
     weights : array_like, shape (N,)
         Non-negative, positive sum, any scale (divided by their maximum).
     lam : float
@@ -71,6 +71,7 @@ class CrKRPolicy:
         variance_scale=None,
     ):
         self.prior = prior
+        self.dim, self.context_dim = prior.dim, prior.context_dim
         self.kernel = kernel
         self.lam = check_positive(lam, "lam")
         d, s_dim = prior.dim, prior.context_dim
@@ -94,16 +95,6 @@ class CrKRPolicy:
         resid = w_omega - prior.mean_of(s)
         self._alpha = linalg.cho_solve(self._chol, self._u[:, None] * resid)  # (N, d)
 
-    @property
-    def dim(self) -> int:
-        """Dimension d of ω."""
-        return self.prior.dim
-
-    @property
-    def context_dim(self) -> int:
-        """Dimension of the context s."""
-        return self.prior.context_dim
-
     def mean_of(self, contexts: ArrayLike) -> np.ndarray:
         """μ(s*) of Eq. (2.19): shape (n, d), or (d,) for one context."""
         s, single = query_contexts(contexts, self.context_dim)
@@ -115,7 +106,9 @@ class CrKRPolicy:
         """σ²(s*) of Eq. (2.20): shape (n,), or a float for one context."""
         s, single = query_contexts(contexts, self.context_dim)
         b = self._u[:, None] * gram(self.kernel, self._s, s)
-        k_ss = kernel_diag(self.kernel, s)
+        k_ss = np.concatenate(
+            [np.diag(gram(self.kernel, s[i : i + 256])) for i in range(0, len(s), 256)]
+        )
         var = k_ss + self.lam - np.sum(b * linalg.cho_solve(self._chol, b), axis=0)
         return float(var[0]) if single else var
 
@@ -127,9 +120,8 @@ class CrKRPolicy:
         var = np.atleast_1d(self.variance_of(s))
         if np.any(var <= 0):
             raise FloatingPointError(f"CrKR variance σ²(s) ≤ 0 (min {var.min():.3g}); increase lam")
-        omega = mu + np.sqrt(var)[:, None] * np.sqrt(self.variance_scale) * rng.standard_normal(
-            mu.shape
-        )
+        scale = np.sqrt(var)[:, None] * np.sqrt(self.variance_scale)
+        omega = mu + scale * rng.standard_normal(mu.shape)
         return omega[0] if single else omega
 
 
@@ -145,10 +137,7 @@ class CrKRDiagnostics:
     mean_reward: float
 
     def __repr__(self) -> str:
-        return (
-            f"CrKRDiagnostics(n_samples={self.n_samples}, beta={self.beta:.4g}, "
-            f"kl={self.kl:.4g}, ess={self.ess:.4g}, mean_reward={self.mean_reward:.4g})"
-        )
+        return fields_repr(self, "n_samples", "beta", "kl", "ess", "mean_reward")
 
 
 class CrKR:
@@ -179,8 +168,7 @@ class CrKR:
         n_reuse_batches: int | None = None,
         variance_scale=None,
     ):
-        if not isinstance(prior, LinearGaussianPolicy):
-            raise ValueError(f"prior: expected a LinearGaussianPolicy, got {type(prior).__name__}")
+        check_policy(prior, "prior")
         self.kernel = kernel
         self.lam = check_positive(lam, "lam")
         self.beta_scale = check_positive(beta_scale, "beta_scale")

@@ -29,7 +29,7 @@ from skillkit.models.gp import ExactGP, ForwardModel, GPRegression
 from skillkit.models.reward import RewardModel, check_sample_dtype, gp_stats, warm_start_hypers
 from skillkit.policies.features import FeatureName, check_feature_name
 from skillkit.policies.gaussian import LinearGaussianPolicy
-from skillkit.search.base import Batch, SampleBuffer, as_batch
+from skillkit.search.base import Batch, SampleBuffer, as_batch, check_settings
 from skillkit.search.reps import ContextualREPS, REPSDiagnostics
 from skillkit.tasks.base import Task
 from skillkit.trajectory import Trajectory
@@ -62,12 +62,16 @@ class DirectRewardModel(RewardModel):
         self.hyperparameters: dict[str, np.ndarray] | None = None
         self.n_data = 0
 
+    @staticmethod
+    def _inputs(contexts, omegas) -> np.ndarray:
+        """z = [s, ω], shape (N, context_dim + d)."""
+        s = check_array(contexts, "contexts", ndim=2)
+        return np.hstack([s, check_array(omegas, "omegas", shape=(s.shape[0], None))])
+
     def fit(self, contexts, omegas, rewards, trajectories=None, rng=None) -> dict[str, Any]:
         """Fit the GP on [s_i, ω_i] → R_i; returns its fit statistics (``n_data``, ``log_ml``)."""
-        s = check_array(contexts, "contexts", ndim=2)
-        w = check_array(omegas, "omegas", shape=(s.shape[0], None))
-        r = check_array(rewards, "rewards", shape=(s.shape[0],))
-        z = np.hstack([s, w])
+        z = self._inputs(contexts, omegas)
+        r = check_array(rewards, "rewards", shape=(z.shape[0],))
         if self.warm_start:
             warm_start_hypers(self.gp, self.hyperparameters, z)
         self.gp.fit(z, r, as_generator(rng))
@@ -77,9 +81,7 @@ class DirectRewardModel(RewardModel):
 
     def expected_rewards(self, contexts, omegas, n_trajectories=1, rng=None) -> np.ndarray:
         """GP mean of R at [s_j, ω_j], shape (M,)."""
-        s = check_array(contexts, "contexts", ndim=2)
-        w = check_array(omegas, "omegas", shape=(s.shape[0], None))
-        mean, _ = self.gp.predict(np.hstack([s, w]))
+        mean, _ = self.gp.predict(self._inputs(contexts, omegas))
         return np.asarray(mean, dtype=np.float64).reshape(-1)
 
     def __repr__(self) -> str:
@@ -361,9 +363,7 @@ class GPREPS:
         rng: np.random.Generator | int | None = None,
         task: Task | None = None,
     ):
-        settings = GPREPSSettings() if settings is None else settings
-        if not isinstance(settings, GPREPSSettings):
-            raise ValueError(f"settings: expected GPREPSSettings, got {type(settings).__name__}")
+        settings = check_settings(settings, GPREPSSettings)
         if not isinstance(reward_model, RewardModel):
             raise ValueError(
                 "reward_model: expected a skillkit.models.reward.RewardModel (fit and "
@@ -400,13 +400,6 @@ class GPREPS:
     def n_real(self) -> int:
         """Real samples collected so far."""
         return len(self._real)
-
-    def real_data(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """All real contexts (N, context_dim), omegas (N, d) and rewards (N,)."""
-        if not len(self._real):
-            pol = self.policy
-            return np.zeros((0, pol.context_dim)), np.zeros((0, pol.dim)), np.zeros(0)
-        return self._real.arrays()
 
     def sample_contexts(self, n: int) -> np.ndarray:
         """n contexts from μ̂(s), shape (n, context_dim) (``"gaussian"``: covariance + 1e-10 I)."""
@@ -451,7 +444,7 @@ class GPREPS:
         self._real.add(batch.contexts, batch.omegas, batch.rewards)
         if self._trajectories is not None:
             self._trajectories.extend(batch.trajectories)
-        s_real, w_real, r_real = self.real_data()
+        s_real, w_real, r_real = self._real.arrays()
         t1 = time.perf_counter()
         fit_stats = self.reward_model.fit(s_real, w_real, r_real, self._trajectories, rng)
         t_train = time.perf_counter() - t1

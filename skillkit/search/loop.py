@@ -102,13 +102,8 @@ class Evaluator:
         seed: int | None = None,
     ) -> Evaluator:
         """An evaluator on ``contexts`` (default :data:`N_EVAL_CONTEXTS` drawn from ``rng``),
-        its seed drawn from ``rng`` after them (and replaced by ``seed`` if given).
-
-        Raises
-        ------
-        ValueError
-            Naming ``eval_contexts`` or ``eval_seed`` when they do not fit.
-        """
+        its seed drawn from ``rng`` after them (and replaced by ``seed`` if given);
+        ``ValueError`` naming ``eval_contexts`` or ``eval_seed`` when they do not fit."""
         rng = as_generator(rng)
         if contexts is None:
             eval_s = task.sample_context(rng, n=N_EVAL_CONTEXTS)
@@ -235,10 +230,9 @@ def learn(
     rng : Generator, int or None
         All randomness (contexts, exploration, rollouts, evaluation seed).
     trial : TrialContext, optional
-        Advanced by one per update, and checkpointing the :class:`LoopState` and the generator
-        under ``checkpoint_key``: a call with the same key resumes with the same numbers as an
-        uninterrupted run (same N and N₀ required). Without a trial (``progress``): a progress
-        bar, no checkpoints.
+        Advanced per update; checkpoints the :class:`LoopState` and the generator under
+        ``checkpoint_key``, so a call with the same key (same N and N₀) resumes with the same
+        numbers. Without one: a progress bar (``progress``), no checkpoints.
     extra_contexts : int
         k ≥ 0 extra contexts per trajectory (:func:`collect`).
     eval_contexts, eval_seed : optional
@@ -249,11 +243,18 @@ def learn(
     Returns
     -------
     dict
-        ``rollouts`` (K + 1,) at each evaluation; ``mean_reward`` (K + 1,); ``explore_rollouts``
-        and ``explore_reward`` (K,); ``n_failed`` (K,); ``diagnostics`` (K); ``callback``
-        (K + 1); ``eval_contexts``; ``policy`` (the final one); ``policies`` (K + 1).
+        :meth:`LoopState.result`: ``rollouts``, ``mean_reward`` and ``callback`` (K + 1),
+        ``explore_rollouts``, ``explore_reward``, ``n_failed`` and ``diagnostics`` (K),
+        ``eval_contexts``, ``policy`` (the final one) and ``policies`` (K + 1).
     """
-    _check_task_and_algorithm(task, algorithm)
+    if not isinstance(task, Task):
+        raise ValueError(f"task: expected a Task, got {type(task).__name__}")
+    pol = algorithm.policy
+    if pol.dim != task.parameter_dim or pol.context_dim != task.context_dim:
+        raise ValueError(
+            f"algorithm: policy has dim={pol.dim}, context_dim={pol.context_dim}; task "
+            f"{task.name!r} needs dim={task.parameter_dim}, context_dim={task.context_dim}"
+        )
     n_updates = check_count(n_updates, "n_updates", 1)
     n = check_count(rollouts_per_update, "rollouts_per_update", 1)
     n0 = n if initial_rollouts is None else check_count(initial_rollouts, "initial_rollouts", 1)
@@ -280,7 +281,18 @@ def learn(
                 f"n_updates: the state saved under checkpoint_key={checkpoint_key!r} has "
                 f"{state.k} updates, more than n_updates={n_updates}"
             )
-        _check_resumed_rollouts(state, n, n0, checkpoint_key)
+        saved_n = state.rollouts_per_update
+        if saved_n is not None and saved_n != n:
+            raise ValueError(
+                f"rollouts_per_update: the state saved under checkpoint_key={checkpoint_key!r} "
+                f"was collected with {saved_n} rollouts per update, got {n}"
+            )
+        saved_n0 = state.initial_rollouts if state.initial_rollouts is not None else saved_n
+        if saved_n0 is not None and saved_n0 != n0:
+            raise ValueError(
+                f"initial_rollouts: the state saved under checkpoint_key={checkpoint_key!r} has "
+                f"a first batch of {saved_n0} rollouts, got {n0}"
+            )
         vars(algorithm).update(vars(state.algorithm))
         state.algorithm = algorithm
         evaluator = Evaluator(task, state.eval_contexts, state.eval_seed)
@@ -324,34 +336,6 @@ def policy_history_arrays(policies) -> dict[str, np.ndarray]:
         "policy_context_dim": np.asarray(policies[0].context_dim),
         "policy_features": np.asarray(policies[0].features),
     }
-
-
-def _check_task_and_algorithm(task: Task, algorithm: SearchAlgorithm) -> None:
-    if not isinstance(task, Task):
-        raise ValueError(f"task: expected a Task, got {type(task).__name__}")
-    pol = algorithm.policy
-    if pol.dim != task.parameter_dim or pol.context_dim != task.context_dim:
-        raise ValueError(
-            f"algorithm: policy has dim={pol.dim}, context_dim={pol.context_dim}; "
-            f"task {task.name!r} "
-            f"needs dim={task.parameter_dim}, context_dim={task.context_dim}"
-        )
-
-
-def _check_resumed_rollouts(state: LoopState, n: int, n0: int, key: str) -> None:
-    """A resumed state must have been collected with the same N and N₀."""
-    saved_n = state.rollouts_per_update
-    if saved_n is not None and saved_n != n:
-        raise ValueError(
-            f"rollouts_per_update: the state saved under checkpoint_key={key!r} was collected "
-            f"with {saved_n} rollouts per update, got {n}"
-        )
-    saved_n0 = state.initial_rollouts if state.initial_rollouts is not None else saved_n
-    if saved_n0 is not None and saved_n0 != n0:
-        raise ValueError(
-            f"initial_rollouts: the state saved under checkpoint_key={key!r} has a first "
-            f"batch of {saved_n0} rollouts, got {n0}"
-        )
 
 
 def _check_extra_contexts(task: Task, extra_contexts: int) -> int:

@@ -1,15 +1,8 @@
 r"""Predicted rollouts of a task under a learned forward model (GPREPS's *Predict Rewards* step,
-Table 4.1, Eqs. 4.1–4.3).
-
-Start states come from :meth:`~skillkit.tasks.base.Task.initial_states` (Eq. 4.3), controls
-from the task's batched :meth:`~skillkit.tasks.base.Task.controller`, next states from
-:func:`~skillkit.models.sampling.sample_trajectories`, and rewards from
-:meth:`~skillkit.tasks.base.Task.reward_batch`; each pair's expected reward is
-
-.. math:: \mathcal{R}_{s\omega} = \frac{1}{L} \sum_{l=1}^{L} R(\tau^{[l]}, s). \qquad (4.1)
-
-Only tasks whose reward is a function of the modelled states and controls are supported
-(``supports_model_rollout``).
+Table 4.1, Eqs. 4.1–4.3): start states from the task's ``initial_states`` (Eq. 4.3), controls
+from its batched ``controller``, next states from
+:func:`~skillkit.models.sampling.sample_trajectories`, rewards from its ``reward_batch``, and
+:math:`\mathcal{R}_{s\omega} = \frac{1}{L} \sum_{l=1}^{L} R(\tau^{[l]}, s)` (4.1).
 """
 
 from __future__ import annotations
@@ -24,17 +17,16 @@ from skillkit.models.reward import Prediction, worst_if_failed, worst_if_nonfini
 from skillkit.models.sampling import SampledTrajectories, StepModel, sample_trajectories
 from skillkit.tasks.base import Task
 
-__all__ = ["ModelRollouts", "predict_trajectories", "worst_if_failed", "worst_if_nonfinite"]
+__all__ = ["ModelRollouts", "predict_trajectories"]
 
 
 @dataclass(frozen=True)
 class ModelRollouts(Prediction):
     """L predicted trajectories for each of B (ω, s) pairs, scored by the task's reward.
 
-    ``states`` (B, L, T + 1, n_x) and ``controls`` (B, L, T + 1, n_u, the controller's output at
-    every predicted state: the simulator's layout), ``rewards`` (B, L; ``task.worst_reward``
-    where ``failed``, the paths the simulator would stop), ``contexts`` (B, context_dim) and the
-    sampler's output ``sampled``.
+    ``states`` (B, L, T + 1, n_x), ``controls`` (B, L, T + 1, n_u) at every predicted state,
+    ``rewards`` (B, L; ``task.worst_reward`` where ``failed``), ``contexts`` (B, context_dim)
+    and the sampler's output ``sampled``.
     """
 
     states: np.ndarray
@@ -68,8 +60,7 @@ def predict_trajectories(
     device=None,
     dtype: torch.dtype = torch.float64,
 ) -> ModelRollouts:
-    """Sample L = ``n_samples`` model trajectories of T = ``horizon`` steps per (ω, s) pair and
-    score them with the task's reward.
+    """Sample and score L = ``n_samples`` model trajectories of T = ``horizon`` steps per pair.
 
     Parameters
     ----------

@@ -1,26 +1,16 @@
 r"""PILCO (Deisenroth & Rasmussen 2011), the model-based baseline of Table 4.2 (Sec. 4.3.1).
 
 PILCO learns the balancing task's linear feedback u = G (x − x_up) (ω = vec G, row-major,
-4 × 8) by gradient ascent on the return its GP forward model predicts. Each
-:meth:`PILCO.update`:
-
-1. fits a sparse GP (FITC, Sec. 4.2) of the dynamics on every real transition so far
-   (:class:`~skillkit.search.gpreps.TrajectoryRewardModel`'s fit);
-2. propagates p(x_0) = N(m_0, S_0) over the horizon by exact moment matching (Sec. 2.1.2):
-   with a linear controller z_t = [x_t; u_t] is Gaussian with mean [m_t; G d_t] and covariance
-   [[S_t, S_t Gᵀ], [G S_t, G S_t Gᵀ]], d_t = m_t − x_up;
-3. scores the expected return in closed form (:func:`expected_return`)
-
-   .. math:: J(G) = -\sum_{t=1}^{T} \mathrm{tr}(Q S_t) + d_t^\top Q d_t
-             + r_u\big(\mathrm{tr}(G S_t G^\top) + \lVert G d_t\rVert^2\big);
-
-4. maximises J by L-BFGS-B with torch autograd gradients (:func:`optimize_gain`), and checks
-   the optimised gain's prediction for round-off
-   (:func:`~skillkit.models.moment_matching.check_roundoff`).
+4 × 8). Each :meth:`PILCO.update` fits a sparse GP (FITC, Sec. 4.2) of the dynamics on every
+real transition so far, propagates p(x_0) = N(m_0, S_0) over the horizon by exact moment
+matching (Sec. 2.1.2; with a linear controller z_t = [x_t; u_t] is Gaussian), scores the
+expected return in closed form (:func:`expected_return`) and maximises it by L-BFGS-B with
+torch autograd gradients (:func:`optimize_gain`), checking the optimised gain's prediction for
+round-off (:func:`~skillkit.models.moment_matching.check_roundoff`).
 
 The first batch comes from ``initial_policy`` (a Gaussian over gains); afterwards the policy
-is the deterministic G. The controller is not squashed (the balancing robot has no torque
-limits). A :class:`~skillkit.models.linear.LinearGaussianModel` can replace the GP.
+is the deterministic G, not squashed (the balancing robot has no torque limits). A
+:class:`~skillkit.models.linear.LinearGaussianModel` can replace the GP.
 """
 
 from __future__ import annotations
@@ -44,7 +34,7 @@ from skillkit.models.moment_matching import (
     with_linear_mean,
 )
 from skillkit.policies.gaussian import GaussianPolicy
-from skillkit.search.base import Batch, as_batch
+from skillkit.search.base import Batch, as_batch, check_settings
 from skillkit.search.gpreps import TrajectoryRewardModel
 
 #: ``step(mean_z (D,), cov_z (D, D)) -> (mean_x' (n,), cov_x' (n, n))``, torch float64.
@@ -65,17 +55,11 @@ def model_moment_step(model, roundoff: bool = True) -> MomentStep:
     if isinstance(model, LinearGaussianModel):
         model._check_fitted()
         return linear_gaussian_step(model.A, model.B, model.noise_cov, model.c)
-    return gp_moment_step(model, roundoff)
-
-
-def gp_moment_step(model: ForwardModel, roundoff: bool = True) -> GPMomentStep:
-    """The moment-matching transition (Sec. 2.1.2) of a fitted GP forward model (SE kernel),
-    bounding each step's round-off when ``roundoff``: a :class:`GPMomentStep`."""
     return GPMomentStep(model, roundoff)
 
 
 class GPMomentStep:
-    """The :data:`MomentStep` of :func:`gp_moment_step`.
+    """The moment-matching transition (Sec. 2.1.2) of a fitted GP forward model (SE kernel).
 
     With a Δx model x' = x + Δ the mean is m_x + E[Δ] and the covariance S_x + cov(Δ) + C + Cᵀ,
     C = cov(x, Δ); a ``mean="linear"`` model's linear part is added exactly. ``roundoff`` keeps
@@ -111,6 +95,10 @@ class GPMomentStep:
     def __repr__(self) -> str:
         worst = "none" if self.roundoff is None else f"{self.roundoff.relative_error:.1e}"
         return f"GPMomentStep(model={type(self.model.gp).__name__}, worst round-off {worst})"
+
+
+#: The :class:`GPMomentStep` of a fitted GP forward model, bounding round-off when ``roundoff``.
+gp_moment_step = GPMomentStep
 
 
 def linear_gaussian_step(A, B, noise_cov, offset=None) -> MomentStep:
@@ -168,12 +156,10 @@ def expected_return(
     step : MomentStep
     gain : Tensor, shape (m, n)
         G, float64.
-    mean0, cov0 : array_like, shapes (n,) and (n, n)
+    mean0, cov0, target, state_weights : array_like
+        m_0 (n,), S_0 (n, n), x_target (n,) and Q (n, n).
     horizon : int
         T ≥ 1.
-    target : array_like, shape (n,)
-    state_weights : array_like, shape (n, n)
-        Q.
     control_weight : float
         r_u ≥ 0.
     score_initial : bool
@@ -281,18 +267,15 @@ class DeterministicPolicy:
 
     def sample(self, contexts=None, rng=None) -> np.ndarray:
         """μ per context: shape (n, d) for contexts (n, 0), (d,) for ``None``."""
-        if contexts is None:
+        if contexts is None or np.ndim(contexts) == 1:
             return self.mean.copy()
         contexts = np.asarray(contexts)
-        if contexts.ndim == 1:
-            return self.mean.copy()
         if contexts.ndim != 2 or contexts.shape[1] != 0:
             raise ValueError(f"contexts: expected shape (n, 0), got {contexts.shape}")
         return np.tile(self.mean, (contexts.shape[0], 1))
 
-    def mean_of(self, contexts=None) -> np.ndarray:
-        """μ, as :meth:`sample`."""
-        return self.sample(contexts)
+    #: μ, as :meth:`sample`.
+    mean_of = sample
 
     def __repr__(self) -> str:
         return f"DeterministicPolicy(dim={self.dim})"
@@ -300,21 +283,11 @@ class DeterministicPolicy:
 
 @dataclass(frozen=True)
 class PILCOSettings:
-    """Settings of :class:`PILCO`.
-
-    Attributes
-    ----------
-    policy_iterations : int
-        L-BFGS-B iterations per policy optimisation.
-    tolerance : float
-        L-BFGS-B's relative ``ftol``.
-    horizon : int or None
-        T of the predicted return (default: the task's ``n_steps``).
-    strict : bool
-        Raise :class:`~skillkit.models.moment_matching.MomentPrecisionError` instead of warning
-        when the optimised gain's round-off bound exceeds
-        :data:`~skillkit.models.moment_matching.ROUNDOFF_TOL`.
-    """
+    """Settings of :class:`PILCO`: L-BFGS-B's iterations per policy optimisation and relative
+    ``ftol``, the horizon T of the predicted return (default: the task's ``n_steps``), and
+    ``strict``: raise :class:`~skillkit.models.moment_matching.MomentPrecisionError` instead of
+    warning when the optimised gain's round-off bound exceeds
+    :data:`~skillkit.models.moment_matching.ROUNDOFF_TOL`."""
 
     policy_iterations: int = 100
     tolerance: float = 1e-9
@@ -392,11 +365,7 @@ class PILCO:
             )
         if not isinstance(initial_policy, GaussianPolicy) or initial_policy.dim != 32:
             raise ValueError("initial_policy: expected a GaussianPolicy over the 32 gains")
-        self.settings = PILCOSettings() if settings is None else settings
-        if not isinstance(self.settings, PILCOSettings):
-            raise ValueError(
-                f"settings: expected PILCOSettings, got {type(self.settings).__name__}"
-            )
+        self.settings = check_settings(settings, PILCOSettings)
         self.task = task
         self.model = TrajectoryRewardModel(
             task, make_model=make_model, prior_trajectories=prior_trajectories
@@ -436,20 +405,8 @@ class PILCO:
         from skillkit.tasks.balancing import X_UP
 
         task = self.task
-
-        def objective(G: torch.Tensor) -> torch.Tensor:
-            return expected_return(
-                step,
-                G,
-                self.mean0,
-                self.cov0,
-                self.horizon,
-                X_UP,
-                task.state_weights,
-                task.control_weight,
-            )
-
-        return objective
+        args = (self.mean0, self.cov0, self.horizon, X_UP, task.state_weights, task.control_weight)
+        return lambda G: expected_return(step, G, *args)
 
     def update(self, batch: Batch) -> PILCODiagnostics:
         """Learn the model on all real data, then optimise the gain on it."""

@@ -177,56 +177,21 @@ def reps_dual_hessian(
     epsilon: float,
     base_weights: ArrayLike | None = None,
 ) -> np.ndarray:
-    r"""Hessian of the REPS dual of :func:`reps_dual`.
-
-    With A_i = R_i − γᵀφ(s_i), the weights p of Eq. (3.10) and w_i = [A_i/η, φ(s_i)],
-
-    .. math::
-        \nabla^2 g = \frac1\eta \mathrm{Cov}_p(w),
-
-    i.e. ∂²g/∂η² = Var_p(A)/η³, ∂²g/∂η∂γ = Cov_p(φ, A)/η², ∂²g/∂γ² = Cov_p(φ)/η: positive
-    semi-definite (g is convex).
-
-    Parameters
-    ----------
-    params, rewards, features, epsilon, base_weights
-        As :func:`reps_dual`.
-
-    Returns
-    -------
-    ndarray, shape (1 + F, 1 + F)
-        Symmetric, in the order [η, γ_1, …, γ_F].
-    """
+    r"""Hessian ∇²g = Cov_p(w)/η of :func:`reps_dual` (same arguments), w_i = [A_i/η, φ(s_i)],
+    A_i = R_i − γᵀφ(s_i), p the weights (3.10): positive semi-definite, shape (1 + F, 1 + F) in
+    the order [η, γ]."""
     return _dual_hessian(*_dual_args(params, rewards, features, epsilon, base_weights))[2]
 
 
 # --------------------------------------------------------------------------- weights
 @dataclass(frozen=True)
 class DualSolution:
-    """The minimiser of the REPS dual (shared by :class:`REPSWeights` and :class:`REPSDiagnostics`).
-
-    Attributes
-    ----------
-    eta : float
-        η in reward units (``inf`` when all rewards are equal).
-    gamma : ndarray, shape (F,)
-        Baseline coefficients γ; ``baseline`` (N,) is V(s_i) = γᵀφ(s_i).
-    dual : float
-        g(η, γ) at the solution.
-    kl, ess : float
-        Achieved KL(p ‖ q) (q uniform without base weights) and Kish ESS 1 / Σ p_i².
-    feature_error : float
-        max |Σ p_i φ(s_i) − φ̂|, the residual of constraint (3.5).
-    kl_bound_active : bool
-        KL ≥ (1 − :data:`KL_TOLERANCE`) ε.
-    success : bool
-        The KL is within :data:`KL_TOLERANCE` of ε (or, bound inactive, η fell below
-        :data:`ETA_UNATTAINABLE`), and (3.5) holds to 1e-6 of the features' spread.
-    message : str
-        The solver's message.
-    epsilon : float
-        The bound ε solved for.
-    """
+    """The minimiser of the REPS dual for the bound ``epsilon``: η in reward units (``inf`` when
+    all rewards are equal), γ and the baseline V(s_i) = γᵀφ(s_i) (N,), g(η, γ), the achieved
+    KL(p ‖ q) and Kish ESS, ``feature_error`` = max |Σ p_i φ(s_i) − φ̂| (constraint 3.5),
+    ``kl_bound_active`` (KL ≥ (1 − :data:`KL_TOLERANCE`) ε), and ``success``: the KL within
+    :data:`KL_TOLERANCE` of ε (or, bound inactive, η below :data:`ETA_UNATTAINABLE`) and (3.5)
+    holding to 1e-6 of the features' spread."""
 
     eta: float
     gamma: np.ndarray
@@ -281,11 +246,10 @@ def reps_weights(
     epsilon : float
         KL bound ε > 0 (Eq. 3.4).
     base_weights : array_like, shape (N,), optional
-        q_i ≥ 0: p_i ∝ q_i exp((R_i − V(s_i))/η), KL(p ‖ q) ≤ ε and Σ p_i φ_i = Σ q_i φ_i
-        (:func:`reps_dual`). ``None``: uniform, Eq. (3.9).
+        q_i ≥ 0 (:func:`reps_dual`); ``None``: uniform, Eq. (3.9).
     solver : {"lbfgsb", "newton"}
-        scipy's L-BFGS-B, or damped Newton with the analytic Hessian (the same minimiser in
-        fewer iterations; L-BFGS-B takes over where Newton does not converge).
+        L-BFGS-B, or damped Newton with the analytic Hessian (L-BFGS-B takes over where Newton
+        does not converge).
 
     Returns
     -------
@@ -297,7 +261,7 @@ def reps_weights(
     n, n_feat = phi.shape
     log_q = _log_base(base_weights, n)
     q = None if log_q is None else np.exp(log_q)
-    phihat = phi.mean(axis=0) if q is None else q @ phi
+    phihat = _phihat(phi, log_q)
     r_max, r_scale = float(r.max()), float(r.std())
     if not r_scale > 0:
         return REPSWeights(
@@ -399,23 +363,16 @@ _MAX_LOG_ETA_STEP, _NEWTON_MAX_ITER = 2.0, 50
 def _minimise_newton(
     r_n: np.ndarray, psi: np.ndarray, eps: float, log_q: np.ndarray | None
 ) -> tuple[np.ndarray, int, str, bool]:
-    """Damped Newton on the normalised dual over y = (log η, θ): minimiser, iterations, message,
-    converged.
-
-    Starts at the least-squares baseline and the log η where KL = ε for it; directions solve
-    H_y Δy = −∇_y g with H_y = J H J + diag(max(η ∂g/∂η, 0), 0), J = diag(η, 1) (eigenvalues
-    floored), log η changing by at most 2 per step, Armijo backtracking; η is held at a bound whose
-    gradient points outwards. Stops at the projected-gradient tolerance :data:`DUAL_GTOL`, after 50
-    iterations, or when g no longer decreases (ε unattainable under (3.5): η → 0).
-    """
+    """Damped Newton on the normalised dual over y = (log η, θ) from the least-squares baseline:
+    minimiser, iterations, message, converged (Armijo backtracking, η held at a bound whose
+    gradient points outwards)."""
     lo, hi = np.log(ETA_BOUNDS[0]), np.log(ETA_BOUNDS[1])
 
     phihat, work = _phihat(psi, log_q), _hessian_workspace(psi)
 
     def evaluate(y: np.ndarray):
         x = np.concatenate([[np.exp(y[0])], y[1:]])
-        value, grad, hess, _ = _dual_hessian(x, r_n, psi, eps, log_q, phihat, work)
-        return x, value, grad, hess
+        return x, *_dual_hessian(x, r_n, psi, eps, log_q, phihat, work)[:3]
 
     # Start at the least-squares baseline θ₀ = Σ q_i ψ_i R_i (ψ is whitened under q).
     y = np.zeros(1 + psi.shape[1])
@@ -429,7 +386,7 @@ def _minimise_newton(
             return y, n_iterations, "Newton: projected gradient below tolerance", True
         if n_iterations == _NEWTON_MAX_ITER:
             return y, n_iterations, "Newton: iteration limit reached", False
-        # H_y = J H J + diag(max(η ∂g/∂η, 0), 0), J = diag(η, 1): positive semi-definite.
+        # H_y = J H J + diag(max(η ∂g/∂η, 0), 0), J = diag(η, 1): PSD, eigenvalues floored.
         hess_y = hess * np.concatenate([[x[0]], np.ones(y.shape[0] - 1)])
         hess_y[0] *= x[0]
         hess_y[0, 0] += max(grad_y[0], 0.0)
@@ -523,6 +480,7 @@ def _log_base(base_weights: ArrayLike | None, n: int) -> np.ndarray | None:
 
 
 def check_samples(rewards, features) -> tuple[np.ndarray, np.ndarray]:
+    """Validated rewards (N,), N ≥ 1, and features (N, F) (``None``: F = 0)."""
     r = check_array(rewards, "rewards", ndim=1)
     if r.shape[0] == 0:
         raise ValueError("rewards: expected at least one sample, got shape (0,)")
@@ -539,10 +497,9 @@ def check_samples(rewards, features) -> tuple[np.ndarray, np.ndarray]:
 # --------------------------------------------------------------------------- algorithm
 @dataclass(frozen=True, repr=False)
 class REPSDiagnostics(DualSolution):
-    """What one :meth:`ContextualREPS.update` did: the :class:`DualSolution`, the samples used, the
-    mean reward of the newest batch, KL(π_new ‖ π_old) over the contexts used (``policy_kl``), the
-    weighted ML fit's :class:`~skillkit.policies.gaussian.FitInfo`, and with
-    ``m_step="trust_region"`` the :class:`~skillkit.policies.gaussian.TrustRegionStep`."""
+    """What one :meth:`ContextualREPS.update` did: the :class:`DualSolution`, the fields of
+    :meth:`~skillkit.search.base.WeightedMLSearch.update`, and with ``m_step="trust_region"`` the
+    :class:`~skillkit.policies.gaussian.TrustRegionStep`."""
 
     n_samples: int
     policy_kl: float
@@ -586,15 +543,14 @@ class ContextualREPS(WeightedMLSearch[REPSDiagnostics]):
     ridge, cov_shrinkage, cov_floor, min_effective_samples
         Regularisation of the weighted ML fit (:class:`~skillkit.search.base.WeightedMLSearch`).
     extra_context_weighting : {"naive", "importance", "dual_only"}
-        Rows re-scored in extra contexts (Sec. 3.4) count as drawn from μ(s)π(ω|s) (biasing the
-        gain towards zero), carry the importance weights of
-        :func:`~skillkit.search.base.extra_context_importance` as the dual's base weights q, or
-        enter the dual only.
+        Rows re-scored in extra contexts (Sec. 3.4) count as drawn from μ(s)π(ω|s), carry
+        :func:`~skillkit.search.base.extra_context_importance` as base weights q, or enter the
+        dual only.
     m_step : {"weighted_ml", "trust_region"}
         The weighted ML fit, or that fit through
-        :func:`~skillkit.policies.gaussian.trust_region_step` (entropy loss ≤ β, KL ≤ ε).
+        :func:`~skillkit.policies.gaussian.trust_region_step`.
     entropy_loss_bound : float, optional
-        β > 0 in nats per update (default ε).
+        β > 0 of the trust region in nats per update (default ε).
     dual_solver : {"lbfgsb", "newton"}
         ``solver`` of :func:`reps_weights`.
     """

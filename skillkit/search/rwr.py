@@ -20,17 +20,15 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from skillkit._validation import check_array, check_positive
+from skillkit._validation import check_positive
 from skillkit.policies.gaussian import FitInfo, LinearGaussianPolicy, effective_sample_size
-from skillkit.search.base import Fields, WeightedMLSearch
-from skillkit.search.reps import kl_from_uniform
+from skillkit.search.base import Fields, WeightedMLSearch, fields_repr
+from skillkit.search.reps import check_samples, kl_from_uniform
 
 
 def rwr_beta(rewards: ArrayLike, beta_scale: float = 1.0) -> float:
     """β = ``beta_scale`` / std(R) over rewards of shape (N,), N ≥ 1 (0 when all are equal)."""
-    r = check_array(rewards, "rewards", ndim=1)
-    if r.size == 0:
-        raise ValueError("rewards: expected at least one sample, got shape (0,)")
+    r = check_samples(rewards, None)[0]
     kappa = check_positive(beta_scale, "beta_scale")
     sd = float(r.std())
     return kappa / sd if sd > 0 else 0.0
@@ -38,9 +36,7 @@ def rwr_beta(rewards: ArrayLike, beta_scale: float = 1.0) -> float:
 
 def rwr_weights(rewards: ArrayLike, beta: float) -> np.ndarray:
     """Normalised weights w_i ∝ exp(β R_i) (Eq. 2.18) of rewards (N,), for β ≥ 0."""
-    r = check_array(rewards, "rewards", ndim=1)
-    if r.size == 0:
-        raise ValueError("rewards: expected at least one sample, got shape (0,)")
+    r = check_samples(rewards, None)[0]
     b = check_positive(beta, "beta", allow_zero=True)
     w = np.exp(b * (r - r.max()))
     return w / w.sum()
@@ -69,11 +65,8 @@ class RWRDiagnostics:
     fit: FitInfo
 
     def __repr__(self) -> str:
-        return (
-            f"RWRDiagnostics(n_samples={self.n_samples}, beta={self.beta:.4g}, "
-            f"kl={self.kl:.4g}, ess={self.ess:.4g}, policy_kl={self.policy_kl:.4g}, "
-            f"mean_reward={self.mean_reward:.4g})"
-        )
+        names = ("n_samples", "beta", "kl", "ess", "policy_kl", "mean_reward")
+        return fields_repr(self, *names)
 
 
 class RWR(WeightedMLSearch[RWRDiagnostics]):

@@ -13,12 +13,8 @@ GRAVITY = 9.81
 def mjcf_root(
     model: str, timestep: float, *, geom_rgba=None, contacts: bool = True
 ) -> mjcf.RootElement:
-    """An empty MJCF model named ``model`` with the settings every task's robot shares.
-
-    Time step ``timestep`` (s), gravity along −z, semi-implicit Euler, radians, and geoms
-    colliding with nothing (contacts are simulated elsewhere); ``contacts=False`` also
-    disables MuJoCo's contact detection.
-    """
+    """An empty MJCF model: ``timestep`` (s), gravity along −z, semi-implicit Euler, radians,
+    non-colliding geoms; ``contacts=False`` disables contact detection."""
     root = mjcf.RootElement(model=model)
     root.option.timestep = check_positive(timestep, "timestep")
     root.option.gravity = [0.0, 0.0, -GRAVITY]

@@ -17,12 +17,10 @@ def quintic(
     *,
     clip: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Quintic from (start, start_velocity, 0) to (end, end_velocity, 0) over ``duration`` T.
-
-    q(u) = q₀ + T q̇₀ u + c₃ u³ + c₄ u⁴ + c₅ u⁵, u = t / T, with a = q₁ − q₀ − T q̇₀,
-    b = T (q̇₁ − q̇₀): c₃ = 10a − 4b, c₄ = −15a + 7b, c₅ = 6a − 3b (rest to rest: minimum jerk
-    10u³ − 15u⁴ + 6u⁵). Boundary values are scalars or (n,); ``clip`` holds the end values
-    outside [0, T]. Returns q, q̇, q̈ at ``t``, shape (N,) or (N, n).
+    """Quintic q(u) = q₀ + T q̇₀ u + c₃ u³ + c₄ u⁴ + c₅ u⁵, u = t / T, from (start,
+    start_velocity, 0) to (end, end_velocity, 0) over ``duration`` T: a = q₁ − q₀ − T q̇₀,
+    b = T (q̇₁ − q̇₀), c₃ = 10a − 4b, c₄ = −15a + 7b, c₅ = 6a − 3b. Boundary values scalars or
+    (n,); ``clip`` holds the ends outside [0, T]. Returns q, q̇, q̈, shape (N,) or (N, n).
     """
     T = check_positive(duration, "duration")
     q0, q1, v0, v1 = np.broadcast_arrays(

@@ -1,11 +1,6 @@
-"""Balancing the planar 4-link robot (Sec. 4.3.1, Sec. 5.4) and its model-learning helpers.
-
-:class:`Balancing` runs the linear state feedback u = G (x − x_up) around upright on the robot
-of :mod:`skillkit.tasks.planar_model`. The helpers serve the model experiments of Chs. 4–5:
-robustly balancing gains (:func:`stable_gains`, :func:`random_lqr_gains`,
-:func:`design_policy`), data collection (:func:`collect_balancing`) and the batched torch
-feedback policy (:func:`feedback_policy`).
-"""
+"""Balancing the planar 4-link robot (Sec. 4.3.1, Sec. 5.4) with u = G (x − x_up), and the
+helpers of the model experiments of Chs. 4–5: balancing gains, data collection and the batched
+torch feedback policy."""
 
 from __future__ import annotations
 
@@ -49,26 +44,16 @@ X_UP = np.concatenate([UPRIGHT, np.zeros(4)])
 """The upright state x_up = [q_up, 0] (8,)."""
 
 
-def _is_tensor(x) -> bool:
-    return type(x).__module__.startswith("torch")
-
-
 class Balancing(Task):
     """Balancing the planar 4-link robot around upright (Sec. 4.3.1; Sec. 5.4 settings).
 
-    ω (32) is the gain G (4 × 8) row-major (``G[i, j] = ω[8 i + j]``) of u_t = G x̃_t + ξ_t,
-    x̃_t = [q_t − q_up, q̇_t], q_up = [0, 0, 0, π]. The excitation ξ_t ~ N(0, ``excitation_std``²)
-    is part of the recorded control; the torque noise (``torque_noise_std``, N m) only of the
-    applied torque. x_0 ~ N(x_up, ``initial_std``² I); the torque is held over each
-    ``control_dt`` (a multiple of 1 ms) for T = ``n_steps`` steps. The reward is
-
-        R(τ) = −Σ_{t=1}^{T} (x̃_tᵀ Q x̃_t + r_u u_tᵀ u_t),
-
-    Q = ``state_weights`` ((8,) diagonal or (8, 8) PSD; default I₈, Sec. 4.2), r_u =
-    ``control_weight`` ≥ 0; u_T is computed, not applied. A joint more than ``max_angle`` rad
-    from upright, faster than ``max_joint_speed`` rad/s or non-finite stops the run
-    (:class:`SimulationFailure`). Trajectory: ``states`` (T+1, 8) = [q, q̇], ``controls``
-    (T+1, 4) commanded torques, signals ``torque_noise`` and ``excitation`` (T, 4).
+    ω (32) is G (4 × 8) row-major of u_t = G x̃_t + ξ_t, x̃_t = [q_t − q_up, q̇_t]; the
+    excitation ξ_t ~ N(0, ``excitation_std``²) is recorded in the control, the torque noise
+    (``torque_noise_std``, N m) only applied. x_0 ~ N(x_up, ``initial_std``² I), T =
+    ``n_steps`` steps of ``control_dt``. Reward R(τ) = −Σ_{t=1}^{T} (x̃_tᵀ Q x̃_t + r_u u_tᵀ u_t),
+    Q = ``state_weights`` ((8,) or (8, 8) PSD, default I₈), r_u = ``control_weight``. A joint
+    beyond ``max_angle`` rad from upright or ``max_joint_speed`` rad/s stops the run. Signals
+    ``torque_noise`` and ``excitation`` (T, 4).
     """
 
     name = "balancing"
@@ -162,11 +147,8 @@ class Balancing(Task):
     def rollout_from(
         self, omega, initial_state, rng=None, *, reference=None, feedforward=None
     ) -> Trajectory:
-        """One episode from x_0 = ``initial_state`` (8,), optionally tracking a reference.
-
-        u_t = G (x_t − r_t) + u_ff,t + ξ_t: the linear trajectory-tracking PD controller of
-        Sec. 4.2.2 with ``reference`` r_t (T+1, 8), default x_up, and ``feedforward`` u_ff,t
-        (T+1, 4), default 0. Failures as in :meth:`~skillkit.tasks.base.Task.rollout`.
+        """One episode from x_0 = ``initial_state`` (8,) under u_t = G (x_t − r_t) + u_ff,t + ξ_t
+        (Sec. 4.2.2), ``reference`` r_t (T+1, 8) default x_up, ``feedforward`` (T+1, 4) default 0.
         """
         T1 = self.n_steps + 1
         x0 = check_array(initial_state, "initial_state", shape=(8,))
@@ -181,11 +163,8 @@ class Balancing(Task):
     def swing_reference(
         self, amplitudes, period: float = 4.0, phases=(0.0, 0.5, 1.0, 1.5)
     ) -> tuple[np.ndarray, np.ndarray]:
-        """A swinging reference r_t = [q_r, q̇_r] (T+1, 8) and its feed-forward (T+1, 4).
-
-        q_r(t) = q_up + a ⊙ sin(2π t / P + φ) and u_ff = M(q_r) q̈_r + c(q_r, q̇_r)
-        (``mujoco.mj_inverse``), for :meth:`rollout_from`.
-        """
+        """Reference q_r(t) = q_up + a ⊙ sin(2π t / P + φ) as [q_r, q̇_r] (T+1, 8) and its
+        feed-forward u_ff = M(q_r) q̈_r + c(q_r, q̇_r) (T+1, 4), for :meth:`rollout_from`."""
         a = np.broadcast_to(check_array(amplitudes, "amplitudes", ndim=(0, 1)), (4,))
         phi = check_array(phases, "phases", shape=(4,))
         w = 2.0 * np.pi / check_positive(period, "period")
@@ -203,7 +182,6 @@ class Balancing(Task):
         return np.hstack([q, qd]), ff
 
     def _beyond_limits(self, x: np.ndarray) -> np.ndarray:
-        """The divergence rule of states x (..., 8), shape (...)."""
         with np.errstate(invalid="ignore"):
             speed = np.abs(x[..., 4:]).max(axis=-1)
             angle = np.abs(x[..., :4] - UPRIGHT).max(axis=-1)
@@ -240,9 +218,8 @@ class Balancing(Task):
         raise SimulationFailure(f"diverged: {what} at t = {t * self.control_dt:.3f} s", partial)
 
     def reward_batch(self, states, controls, signals=None, contexts=None):
-        """R(τ) = −Σ_{t=1}^{T} (x̃_tᵀ Q x̃_t + r_u u_tᵀ u_t) of states (B, T+1, 8) and
-        commanded torques (B, T+1, 4), numpy or torch, shape (B,)."""
-        if _is_tensor(states):  # one formula for numpy and torch (einsum and sum agree)
+        """R(τ) of states (B, T+1, 8) and torques (B, T+1, 4), numpy or torch, shape (B,)."""
+        if type(states).__module__.startswith("torch"):
             import torch
 
             xp, kw = torch, {"dtype": states.dtype, "device": states.device}
@@ -255,11 +232,8 @@ class Balancing(Task):
         return -(cost + self.control_weight * (u**2).sum((1, 2)))
 
     def immediate_reward(self, states, controls):
-        """r(x, u) = −(x̃ᵀ Q x̃ + r_u uᵀu) of states (..., 8) and controls (..., 4), shape (...).
-
-        Summed over rows 1..T it is :meth:`reward_batch` (up to rounding); Chapter 5 predicts
-        its expectation per step (Eq. 5.17).
-        """
+        """r(x, u) = −(x̃ᵀ Q x̃ + r_u uᵀu) of states (..., 8), controls (..., 4), shape (...);
+        summed over rows 1..T it is :meth:`reward_batch` (Eq. 5.17 predicts it per step)."""
         d = np.asarray(states) - X_UP
         return -(
             np.einsum("...i,ij,...j->...", d, self.state_weights, d)
@@ -294,8 +268,8 @@ class Balancing(Task):
         return self.robot.model
 
     def linearization(self) -> tuple[np.ndarray, np.ndarray]:
-        """Linearisation (A_c (8, 8), B_c (8, 4)) at upright per control period: A_c = A^k,
-        B_c = Σ_{i<k} A^i B from one physics step's ``mujoco.mjd_transitionFD``."""
+        """Linearisation at upright per control period, A_c = A^k (8, 8), B_c = Σ_{i<k} A^i B
+        (8, 4), from one physics step's ``mujoco.mjd_transitionFD``."""
         model, data = self.robot.model, self.robot.data
         self.robot.reset(UPRIGHT, np.zeros(4))
         data.ctrl[:] = 0.0
@@ -308,11 +282,9 @@ class Balancing(Task):
         return a_c, b_c
 
     def lqr_gain(self, state_weights=None, control_weight: float = 1e-4) -> np.ndarray:
-        """Discrete LQR gain G = −K (4, 8) at upright (u = G x̃), from :meth:`linearization`.
-
-        K = (R + B_cᵀ P B_c)⁻¹ B_cᵀ P A_c, P the discrete Riccati solution for the cost
-        Σ x̃ᵀ Q x̃ + uᵀ R u, Q = ``state_weights`` (default the reward's), R = ``control_weight`` I₄.
-        """
+        """Discrete LQR gain G = −K = −(R + B_cᵀ P B_c)⁻¹ B_cᵀ P A_c (4, 8) at upright, P the
+        Riccati solution for Σ x̃ᵀ Q x̃ + uᵀ R u, Q = ``state_weights`` (default the reward's),
+        R = ``control_weight`` I₄."""
         q_w = (
             self.state_weights
             if state_weights is None
@@ -325,12 +297,8 @@ class Balancing(Task):
         return -k
 
     def pd_gain(self, natural_frequency: float = 3.0, damping: float = 1.5) -> np.ndarray:
-        """The PD gain G = [K_p, K_d] (4, 8) with gravity-stiffness compensation.
-
-        Linearised at upright M q̈ = u − K_g q̃; K_p = K_g − ω² M, K_d = −2 ζ ω M make every
-        mode q̈ = −ω² q̃ − 2ζω q̇ (Secs 4.2.3, 4.3.1, 5.4 give no values; ω = 3 rad/s, ζ = 1.5
-        is the softest stable setting at 20 Hz).
-        """
+        """PD gain G = [K_p, K_d] (4, 8), K_p = K_g − ω² M, K_d = −2 ζ ω M for the upright
+        linearisation M q̈ = u − K_g q̃: modes q̈ = −ω² q̃ − 2ζω q̇ (Secs 4.2.3, 5.4)."""
         w = check_positive(natural_frequency, "natural_frequency")
         z = check_positive(damping, "damping")
         model, data = self.robot.model, self.robot.data
@@ -411,12 +379,8 @@ def stable_gains(
     max_spectral_radius: float = 0.98,
     policy: GaussianPolicy | None = None,
 ) -> np.ndarray:
-    """``n`` samples ω ~ π(ω) (default the task's initial policy), shape (n, 32), that balance.
-
-    ω is kept if ρ(A_c + B_c G) ≤ ``max_spectral_radius`` for the linearisation at upright
-    (Sec. 4.2.3: a controller that "robustly balances"). Raises a RuntimeError if more than
-    100 n samples are needed.
-    """
+    """``n`` samples ω ~ π(ω) (default the initial policy), (n, 32), with ρ(A_c + B_c G) ≤
+    ``max_spectral_radius`` (Sec. 4.2.3); RuntimeError after 100 n tries."""
     rng = as_generator(rng)
     A, B = task.linearization()
     policy = task.initial_policy() if policy is None else policy
@@ -447,14 +411,13 @@ def collect_balancing(
     policy: GaussianPolicy | None = None,
     gain=None,
 ) -> dict:
-    """Roll out ``n_trajectories`` balancing ω (:func:`stable_gains` of ``policy``), or one
-    fixed ``gain`` (4, 8) for all, from random x_0; failed rollouts are replaced and counted.
+    """Roll out ``n_trajectories`` balancing ω (:func:`stable_gains`), or one fixed ``gain``
+    (4, 8), from random x_0; failed rollouts are replaced and counted.
 
     Returns
     -------
     dict
-        ``omegas`` (n, 32), ``trajectories``, the stacked transitions ``x``, ``u``,
-        ``x_next`` (n·T, ·) and ``n_failed``.
+        ``omegas`` (n, 32), ``trajectories``, transitions ``x``, ``u``, ``x_next``, ``n_failed``.
     """
     rng = as_generator(rng)
     omegas, trajs, n_failed = [], [], 0
@@ -495,11 +458,8 @@ def collect_balancing(
 def random_lqr_gains(
     task: Balancing, n: int, spread: float, control_weight: float, rng
 ) -> np.ndarray:
-    """``n`` LQR gains (n, 4, 8) for randomly scaled cost weights.
-
-    Q = diag(q_task ⊙ exp(s ξ)), R = r₀ exp(s ξ') I, ξ ~ N(0, I), ξ' ~ N(0, 1), s = ``spread``
-    ≥ 0, r₀ = ``control_weight``.
-    """
+    """``n`` LQR gains (n, 4, 8) for Q = diag(q_task ⊙ exp(s ξ)), R = r₀ exp(s ξ') I,
+    ξ ~ N(0, I₈), ξ' ~ N(0, 1), s = ``spread``, r₀ = ``control_weight``."""
     n = check_count(n, "n")
     spread = check_positive(spread, "spread", allow_zero=True)
     rng = as_generator(rng)
@@ -522,12 +482,9 @@ def design_policy(
     scale_std: float = 0.15,
     rng=0,
 ) -> GaussianPolicy:
-    """π(ω) = N(ω | mean, c² Σ_d) exploring along balancing controllers.
-
-    Σ_d is the sample covariance of ``n_designs`` ω_i = κ_i vec G_i, G_i from
-    :func:`random_lqr_gains` and κ_i = exp(β ξ_i), β = ``scale_std``, plus 10⁻⁶ of its mean
-    variance; c = ``exploration``. ``mean`` (32,) or (4, 8).
-    """
+    """π(ω) = N(ω | mean, c² Σ_d), Σ_d the sample covariance (+ 10⁻⁶ of its mean variance)
+    of ``n_designs`` ω_i = exp(β ξ_i) vec G_i (:func:`random_lqr_gains`), β = ``scale_std``,
+    c = ``exploration``, ``mean`` (32,) or (4, 8)."""
     mu = check_array(mean, "mean", ndim=(1, 2)).reshape(-1)
     if mu.size != 32:
         raise ValueError(f"mean: expected shape (32,) or (4, 8), got {np.shape(mean)}")

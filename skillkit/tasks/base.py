@@ -1,14 +1,11 @@
 """The Task contract: context distribution μ(s), parameter space, rollout, reward.
 
-A task (in the style of dm_control's suite) samples contexts (:meth:`Task.sample_context`),
-runs one episode for lower-level parameters ω (:meth:`Task.rollout`) and scores a trajectory
-in a context (:meth:`Task.reward`). Rewards are pure functions of trajectory and context, so
-a trajectory that does not depend on the context (``trajectory_depends_on_context`` False)
-can be re-scored in other contexts (Sec. 3.4). For model-based search (Chs. 4–5) a task names
-what a forward model learns (:meth:`Task.model_signals`, :meth:`Task.transitions`), where
-model rollouts start (:meth:`Task.initial_states`), its lower-level policy as a batched torch
-callable (:meth:`Task.controller`) and the batched reward (:meth:`Task.reward_batch`); a task
-that cannot has :attr:`Task.supports_model_rollout` False and raises ``NotImplementedError``.
+A task samples contexts, runs one episode for parameters ω (:meth:`Task.rollout`) and scores
+a trajectory in a context; rewards are pure functions of both, so a context-independent
+trajectory can be re-scored in other contexts (Sec. 3.4). For model-based search (Chs. 4–5)
+a task names what a forward model learns (:meth:`Task.model_signals`), where model rollouts
+start (:meth:`Task.initial_states`), its batched torch policy (:meth:`Task.controller`) and
+its batched reward (:meth:`Task.reward_batch`).
 """
 
 from __future__ import annotations
@@ -29,10 +26,8 @@ class SimulationFailure(RuntimeError):
     Parameters
     ----------
     message : str
-        What failed, and when.
     partial : Trajectory, optional
-        The episode up to the last state before the failure (≥ 2 time stamps). The failed
-        trajectory keeps it: model learners use these transitions (Sec. 4.3.1).
+        The episode before the failure (≥ 2 time stamps), kept for model learning (Sec. 4.3.1).
     """
 
     def __init__(self, message: str, partial: Trajectory | None = None):
@@ -47,11 +42,8 @@ class SimulationFailure(RuntimeError):
 def state_transitions(
     trajectory: Trajectory, state_dim: int, control_dim: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(x_t, u_t, x_{t+1}) of a trajectory: states[:−1], controls[:−1], states[1:].
-
-    Raises a ValueError for a failed trajectory that kept no states or for states/controls
-    not of shapes (T, state_dim), (T, control_dim).
-    """
+    """(x_t, u_t, x_{t+1}) = states[:−1], controls[:−1], states[1:]; ValueError for a failed
+    trajectory without states or shapes other than (T, state_dim), (T, control_dim)."""
     if not trajectory.has_transitions:
         raise ValueError(
             "trajectory: a failed trajectory that kept no states has no transitions "
@@ -66,11 +58,8 @@ def state_transitions(
 
 @dataclass(frozen=True)
 class ModelSignals:
-    """What a forward model of a task learns (names, in array-column order).
-
-    ``state`` names x, ``control`` u (may be empty), ``signals`` the trajectory signals
-    :meth:`Task.reward_batch` reads besides states and controls.
-    """
+    """Names (in column order) of what a forward model learns: ``state`` x, ``control`` u,
+    and the ``signals`` :meth:`Task.reward_batch` reads besides them."""
 
     state: tuple[str, ...]
     control: tuple[str, ...] = ()
@@ -88,20 +77,16 @@ class ModelSignals:
 
     @property
     def state_dim(self) -> int:
-        """Dimension of x."""
         return len(self.state)
 
     @property
     def control_dim(self) -> int:
-        """Dimension of u."""
         return len(self.control)
 
 
 class Task(ABC):
-    """Base class of every task.
-
-    Subclasses set the class attributes and implement :meth:`_simulate` and
-    :meth:`reward_batch` (with :meth:`reward_signals`), or override :meth:`_reward`.
+    """Base class of every task: subclasses set the attributes and implement :meth:`_simulate`
+    and :meth:`reward_batch` (with :meth:`reward_signals`), or override :meth:`_reward`.
 
     Attributes
     ----------
@@ -109,12 +94,12 @@ class Task(ABC):
     context_dim, parameter_dim : int
         Dimensions of s (0: context-free) and of ω.
     context_low, context_high : ndarray, shape (context_dim,)
-        Bounds of the uniform μ(s); :meth:`check_context` rejects contexts outside them.
+        Bounds of the uniform μ(s).
     worst_reward : float
         Reward of a failed rollout.
     trajectory_depends_on_context, supports_model_rollout : bool
-        Whether the rollout depends on s; whether :meth:`transitions` and :meth:`controller`
-        exist (else :attr:`no_model_rollout_reason` says why).
+        Whether the rollout depends on s; whether model rollouts exist (else
+        :attr:`no_model_rollout_reason` says why).
     """
 
     name: str = "task"
@@ -162,11 +147,10 @@ class Task(ABC):
         return check_array(omega, name, shape=(self.parameter_dim,))
 
     def rollout(self, omega, context=None, rng=None) -> Trajectory:
-        """Run one episode with ω, shape (parameter_dim,), in context s (None if context-free).
+        """Run one episode with ω (parameter_dim,) in context s (None if context-free).
 
-        Same ``rng`` seed ⇒ same trajectory. A diverged episode is not raised: it returns a
-        ``failed`` trajectory (with a ``RuntimeWarning``) keeping the states before the failure
-        (:class:`SimulationFailure`'s ``partial``), else one placeholder row.
+        Same ``rng`` seed ⇒ same trajectory. A diverged episode returns a ``failed`` trajectory
+        (and a ``RuntimeWarning``) keeping :class:`SimulationFailure`'s ``partial`` states.
         """
         omega = self.check_omega(omega)
         s = self.check_context(context)
@@ -233,11 +217,7 @@ class Task(ABC):
         raise NotImplementedError(f"{self.name}: the task does not name its model signals")
 
     def transitions(self, trajectory: Trajectory) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Model training data (x_t, u_t, x_{t+1}) of one trajectory, each with T − 1 rows.
-
-        Default :func:`state_transitions`. Raises ``NotImplementedError`` without
-        :attr:`supports_model_rollout`.
-        """
+        """Model training data (x_t, u_t, x_{t+1}), T − 1 rows each (:func:`state_transitions`)."""
         self._require_model_rollout("transitions")
         sig = self.model_signals()
         return state_transitions(trajectory, sig.state_dim, sig.control_dim)
@@ -248,32 +228,24 @@ class Task(ABC):
         raise NotImplementedError(f"{self.name}: the task defines no start distribution")
 
     def controller(self, omegas, contexts=None, device=None, dtype=None):
-        """The simulator's lower-level policy of B (ω, s) pairs as one batched torch callable.
+        """The lower-level policy of B (ω, s) pairs as a batched torch callable.
 
-        ``policy(t, x, pair) -> u`` as :func:`~skillkit.models.sampling.sample_trajectories`
-        takes it: ``t`` the control step, ``x`` (n, state_dim), ``pair`` LongTensor (n,) in
-        [0, B), ``u`` (n, control_dim) on ``device`` (default CPU) in ``dtype`` (default
-        float64). ``omegas`` (B, parameter_dim), ``contexts`` (B, context_dim). Raises
-        ``NotImplementedError`` without :attr:`supports_model_rollout`.
+        ``policy(t, x, pair) -> u``: control step ``t``, ``x`` (n, state_dim), ``pair``
+        LongTensor (n,) in [0, B), ``u`` (n, control_dim) on ``device`` in ``dtype`` (default
+        float64). ``omegas`` (B, parameter_dim), ``contexts`` (B, context_dim).
         """
         self._require_model_rollout("controller")
         raise NotImplementedError(f"{self.name}: controller is not implemented")
 
     def reward_batch(self, states, controls, signals, contexts) -> np.ndarray:
-        """Rewards R(τ_b, s_b), shape (B,), of (simulated or predicted) trajectories.
-
-        The one definition of the reward (:meth:`reward` calls it on a batch of one):
-        ``states`` (B, T, state_dim), ``controls`` (B, T, control_dim), ``signals`` those of
-        :meth:`reward_signals` batch first, ``contexts`` (B, context_dim).
-        """
+        """Rewards R(τ_b, s_b) (B,) of simulated or predicted ``states`` (B, T, state_dim),
+        ``controls`` (B, T, control_dim), :meth:`reward_signals` ``signals`` batch first and
+        ``contexts`` (B, context_dim); :meth:`reward` calls it on a batch of one."""
         raise NotImplementedError(f"{self.name}: reward_batch is not implemented")
 
     def failed_batch(self, states) -> np.ndarray:
-        """Which state paths (B, T + 1, state_dim) the simulator would stop as failed, (B,).
-
-        The divergence rule of the rollouts applied to (predicted) paths, which then score
-        :attr:`worst_reward`. Default: none fails.
-        """
+        """Which (predicted) state paths (B, T + 1, state_dim) the simulator would stop as
+        failed, (B,); they score :attr:`worst_reward`. Default: none."""
         states = check_array(states, "states", ndim=3, finite=False)
         return np.zeros(states.shape[0], dtype=bool)
 
@@ -292,7 +264,6 @@ class Task(ABC):
             )
 
     def _reward(self, trajectory: Trajectory, context: np.ndarray) -> float:
-        """R(τ, s) through :meth:`reward_batch` on a batch of one."""
         signals = {k: np.asarray(v)[None] for k, v in self.reward_signals(trajectory).items()}
         r = self.reward_batch(
             trajectory.states[None], trajectory.controls[None], signals, context[None]

@@ -1,10 +1,6 @@
-"""Low-level trajectory trackers: a PD law and a MuJoCo reference-tracking loop.
-
-The robot tasks (Appendix C) turn a desired joint trajectory (a DMP, Eqs. 2.21–2.23) into
-torques with a PD tracking controller: :func:`pd_torque` is the law, :func:`run_feedback` runs
-a MuJoCo model under any state feedback with zero-order-hold torques, and
-:func:`track_reference` combines them. Torques go through ``data.qfrc_applied`` on the
-tracked hinge or slide joints (``data.ctrl`` is untouched).
+"""Low-level trackers of the robot tasks (Appendix C): the PD law :func:`pd_torque`, the
+zero-order-hold MuJoCo feedback loop :func:`run_feedback` and :func:`track_reference`, which
+tracks a joint reference (a DMP, Eqs. 2.21–2.23). Torques go through ``data.qfrc_applied``.
 """
 
 from __future__ import annotations
@@ -47,13 +43,11 @@ def pd_torque(q, qd, q_ref, qd_ref, kp, kd, bias=None) -> np.ndarray:
 
 
 def _pd(q, qd, q_ref, qd_ref, kp, kd, bias=None) -> np.ndarray:
-    """:func:`pd_torque` without validation."""
     u = kp * (q_ref - q) + kd * (qd_ref - qd)
     return u if bias is None else u + bias
 
 
 def _instability_count(data: mujoco.MjData) -> int:
-    """Count of MuJoCo's instability warnings so far."""
     return sum(data.warning[w].number for w in _INSTABILITY_WARNINGS)
 
 
@@ -86,23 +80,16 @@ def run_feedback(
     joint_ids: Sequence[int] | None = None,
     on_step: Callable[[int, mujoco.MjData], None] | None = None,
 ) -> dict[str, np.ndarray]:
-    """Run MuJoCo under a state-feedback law with zero-order-hold torques.
-
-    At each control step t the loop updates the state-dependent quantities (``mj_step1``;
-    ``mj_forward`` for RK4), records q[t], q̇[t], calls ``on_step(t, data)``, asks
-    ``u[t] = controller(t, q[t], q̇[t], data)`` and holds it in ``qfrc_applied`` for
-    ``control_dt / timestep`` physics steps. ``data`` (set to the initial state) ends at time
-    ``n_steps · control_dt``.
+    """Run MuJoCo under a state-feedback law, u[t] = controller(t, q[t], q̇[t], data) held
+    for ``control_dt`` (after ``on_step(t, data)``), from the state in ``data``.
 
     Parameters
     ----------
     model, data : mujoco.MjModel, mujoco.MjData
     controller : callable
         ``controller(t, q, qd, data) -> u``, each of shape (n,).
-    n_steps : int
-        Control steps T.
-    control_dt : float
-        Control period (s), a whole multiple of ``model.opt.timestep``.
+    n_steps, control_dt : int, float
+        Control steps T; control period (s), a multiple of ``model.opt.timestep``.
     joint_ids : sequence of int, optional
         The n controlled joints (default every joint).
     on_step : callable, optional
@@ -110,7 +97,7 @@ def run_feedback(
     Returns
     -------
     dict
-        ``q``, ``qd``, ``u``: (T, n) at the control steps.
+        ``q``, ``qd``, ``u`` (T, n) at the control steps.
 
     Raises
     ------
@@ -141,7 +128,6 @@ def run_feedback(
         if substeps > 1:
             mujoco.mj_step(model, data, nstep=substeps - 1)
     data.qfrc_applied[dadr] = 0.0
-    # MuJoCo warns and resets on a blow-up: its warning counters catch it after the loop
     if _instability_count(data) != warn0:
         raise SimulationFailure(
             "MuJoCo flagged an unstable simulation (non-finite or huge "
@@ -173,31 +159,21 @@ def track_reference(
     qdd_ref=None,
     inertia_weighted: bool = False,
 ) -> dict[str, np.ndarray]:
-    """Track a joint reference with zero-order-hold PD torques in MuJoCo (:func:`run_feedback`).
+    """Track a joint reference with PD torques (:func:`run_feedback`).
 
-    u[t] = kp ⊙ (q_ref[t] − q[t]) + kd ⊙ (q̇_ref[t] − q̇[t]) + c(q[t], q̇[t]), with c MuJoCo's
-    bias force ``qfrc_bias`` (only with ``gravity_compensation``). With ``inertia_weighted``
-    it is the computed-torque tracker
-
-        u[t] = M(q[t]) (q̈_ref[t] + kp ⊙ e[t] + kd ⊙ ė[t]) + c(q[t], q̇[t]),
-
-    giving every joint-space mode the frequency √kp and damping kd. ``torque_limit``
-    saturates |u| and the saturated entries are counted.
+    u[t] = kp ⊙ e[t] + kd ⊙ ė[t] + c(q[t], q̇[t]), e = q_ref − q, c the bias force
+    ``qfrc_bias`` (with ``gravity_compensation``); with ``inertia_weighted`` the computed-torque
+    tracker u[t] = M(q[t]) (q̈_ref[t] + kp ⊙ e[t] + kd ⊙ ė[t]) + c. ``torque_limit`` clips |u|.
 
     Parameters
     ----------
-    model, data : mujoco.MjModel, mujoco.MjData
+    model, data, control_dt, joint_ids, on_step
+        As :func:`run_feedback`'s.
     q_ref, qd_ref : array_like, shape (T, n)
         Reference at the control steps, columns in ``joint_ids`` order.
-    control_dt : float
-    kp, kd : float or array_like, shape (n,)
-    joint_ids : sequence of int, optional
-    gravity_compensation : bool
-    torque_limit : float or array_like, shape (n,), optional
-    on_step : callable, optional
+    kp, kd, torque_limit : float or array_like, shape (n,)
     qdd_ref : array_like, shape (T, n), optional
         Fed-forward acceleration (only with ``inertia_weighted``).
-    inertia_weighted : bool
 
     Returns
     -------
@@ -256,14 +232,12 @@ def control_substeps(model: mujoco.MjModel, control_dt: float) -> int:
 
 
 def _as_slice(index: np.ndarray) -> slice | np.ndarray:
-    """A contiguous increasing index array as a slice."""
     if index.size and np.array_equal(index, np.arange(index[0], index[0] + index.size)):
         return slice(int(index[0]), int(index[0]) + index.size)
     return index
 
 
 def _gain(value, name: str, n: int) -> np.ndarray:
-    """A non-negative gain, scalar or shape (n,)."""
     g = check_array(value, name, ndim=(0, 1))
     if g.ndim == 1 and g.shape[0] != n:
         raise ValueError(f"{name}: expected a scalar or shape ({n},), got {g.shape}")

@@ -8,12 +8,9 @@
   (:class:`~skillkit.search.gpreps.TrajectoryRewardModel`, Eqs. 4.1–4.3).
 
 μ(s) is uniform on ``[context_low, context_high]`` unless ``context_sampler(rng, n)`` is given;
-without bounds the task is context-free and ``rollout`` gets ``context=None``. A rollout that
-raises or returns non-finite values is recorded as a *failed* trajectory (message
-``"rollout raised …"``, :attr:`~skillkit.tasks.base.Task.worst_reward`, a ``RuntimeWarning``)
-and the run goes on; a function returning the wrong shape or type raises ``ValueError`` naming
-it. Checkpoints pickle the task: use module-level functions (or ``functools.partial``), not
-lambdas. These tasks are not in the registry.
+without bounds the task is context-free (``context=None``). A rollout that raises or returns
+non-finite values is a *failed* trajectory (``worst_reward``, a ``RuntimeWarning``); a wrong
+shape or type raises ``ValueError``. Checkpoints pickle the task: use module-level functions.
 
 Example (model-free)::
 
@@ -48,7 +45,6 @@ def _check_callable(fn, name: str, required: bool = True):
 
 
 def _function_name(fn) -> str:
-    """A user function's qualified name, else its repr."""
     return str(getattr(fn, "__qualname__", None) or repr(fn))
 
 
@@ -59,26 +55,22 @@ class FunctionTask(Task):
     ----------
     rollout : callable
         ``rollout(omega, context, rng) -> float``: one episode with ω (parameter_dim,) in
-        context s (context_dim,) or None, drawing randomness only from the numpy Generator
-        ``rng``; returns a real reward R(τ, s) (str, bool, complex are refused). It may raise.
+        context s (context_dim,) or None, random only through ``rng``; returns R(τ, s).
     parameter_dim : int
-        Dimension d ≥ 1 of ω.
     context_low, context_high : array_like, shape (context_dim,), optional
-        Bounds of the context (omit both for a context-free task).
+        Context bounds (omit both for a context-free task).
     context_sampler : callable, optional
         ``context_sampler(rng, n) -> (n, context_dim)`` inside the bounds.
     initial_mean : array_like, shape (d,), optional
         Mean of π₀(ω|s) = N(initial_mean, diag(initial_std²)) (default zeros, zero gain).
     initial_std : float or array_like, shape (d,)
-        Its standard deviations, > 0.
+        Its standard deviations.
     name : str
     worst_reward : float
-        Reward of a failed rollout.
 
     Notes
     -----
-    The trajectory is empty; ``info["reward"]`` keeps the reward with its context, and
-    :meth:`~skillkit.tasks.base.Task.reward` refuses any other context.
+    The trajectory keeps only ``info["reward"]`` and its context; other contexts are refused.
     """
 
     trajectory_depends_on_context = True
@@ -148,7 +140,6 @@ class FunctionTask(Task):
         return s[0] if n is None else s
 
     def _call_rollout(self, omega: np.ndarray, context: np.ndarray, rng) -> Any:
-        """The user's rollout; whatever it raises becomes a :class:`SimulationFailure`."""
         try:
             return self._rollout(omega.copy(), context.copy() if self.context_dim else None, rng)
         except Exception as exc:
@@ -204,24 +195,20 @@ class TrajectoryTask(FunctionTask):
     Parameters
     ----------
     rollout : callable
-        ``rollout(omega, context, rng) -> (states, controls)``: states (T, state_dim), controls
-        (T, control_dim) (u_t applied from x_t). For the model-based path the controls must be
-        what ``controller`` computes (:meth:`controller_mismatch`).
+        ``rollout(omega, context, rng) -> (states, controls)``, (T, state_dim) and (T,
+        control_dim); the controls should be ``controller``'s (:meth:`controller_mismatch`).
     reward : callable
-        ``reward(states, controls, contexts) -> rewards``, numpy and batched: (B, T,
-        state_dim), (B, T, control_dim), (B, context_dim) → (B,). Scores real and predicted
-        trajectories alike.
+        ``reward(states, controls, contexts) -> rewards``, batched numpy: (B, T, state_dim),
+        (B, T, control_dim), (B, context_dim) → (B,), for real and predicted trajectories.
     parameter_dim, state_dim, control_dim : int
-        Dimensions of ω, x (≥ 1) and u (≥ 0).
     controller : callable, optional
-        ``controller(t, x, omegas, contexts) -> u`` in torch: x (n, state_dim), omegas
-        (n, parameter_dim), contexts (n, context_dim) Tensors; u (n, control_dim).
+        ``controller(t, x, omegas, contexts) -> u`` on torch Tensors (n, ·), u (n, control_dim).
     initial_states : callable, optional
         ``initial_states(context, n, rng) -> (n, state_dim)``, draws of x_0 ~ p(x_0; s).
     dt : float
-        Time between states (> 0).
+        Time between states.
     trajectory_depends_on_context : bool
-        False if the context only enters the reward (re-scoring in other contexts, Sec. 3.4).
+        False if the context only enters the reward (Sec. 3.4).
     context_low, context_high, context_sampler, initial_mean, initial_std, name, worst_reward
         As for :class:`FunctionTask`.
     """
@@ -313,8 +300,7 @@ class TrajectoryTask(FunctionTask):
         return check_array(x0, "initial_states", shape=(n, self.state_dim))
 
     def controller(self, omegas, contexts=None, device=None, dtype=None):
-        """``controller`` for B (ω, s) pairs as ``policy(t, x, pair) -> u``
-        (:meth:`Task.controller`); ``ValueError`` unless its output is (n, control_dim)."""
+        """``controller`` for B (ω, s) pairs as ``policy(t, x, pair) -> u``."""
         import torch
 
         self._require_model_rollout("controller")
@@ -342,8 +328,7 @@ class TrajectoryTask(FunctionTask):
         return policy
 
     def controller_mismatch(self, omega, context, trajectory: Trajectory) -> float:
-        """max |u_t − controller(t, x_t)| over x_0 … x_{T−2}: zero when ``controller`` is the
-        policy ``rollout`` ran."""
+        """max |u_t − controller(t, x_t)| over x_0 … x_{T−2} (zero for ``rollout``'s policy)."""
         import torch
 
         policy = self.controller(

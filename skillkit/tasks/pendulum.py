@@ -54,14 +54,13 @@ class Pendulum(Task):
     Parameters
     ----------
     horizon : int
-        Number of control steps T ≥ 1 (20 in Sec. 5.4).
+        Control steps T (20 in Sec. 5.4).
     control_noise : float
-        Standard deviation σ_u of the Gaussian torque noise (0.05 in Sec. 5.4).
+        Std σ_u of the torque noise (0.05 in Sec. 5.4).
     dt : float
-        Control period Δt in seconds (0.1).
+        Control period Δt (s).
     alpha_range, velocity_range : float
-        The context (initial state) is uniform on [−alpha_range, alpha_range] ×
-        [−velocity_range, velocity_range] (both > 0).
+        The context (initial state) is uniform on [−α_r, α_r] × [−v_r, v_r].
     """
 
     context_names = ("alpha0", "alpha_dot0")

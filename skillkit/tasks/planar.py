@@ -1,10 +1,5 @@
-"""Ball throwing (Sec. 3.4.1) on the planar 4-link robot of Appendix C.1.
-
-The robot is the MuJoCo model of :mod:`skillkit.tasks.planar_model` (joint conventions there),
-stepped at 1 ms with torques held over each control period
-(:mod:`skillkit.tasks.controllers`). Balancing on the same robot is
-:mod:`skillkit.tasks.balancing`.
-"""
+"""Ball throwing (Sec. 3.4.1) on the planar 4-link robot of Appendix C.1
+(:mod:`skillkit.tasks.planar_model`), stepped at 1 ms with torques held per control period."""
 
 from __future__ import annotations
 
@@ -60,11 +55,10 @@ X_UPPER = np.concatenate([Q_UPPER, np.full(4, QD_LIMIT)])
 
 
 def hand_kinematics(q, qd=None) -> tuple[np.ndarray, np.ndarray | None]:
-    """Closed-form forward kinematics of the hand (tip of the arm).
+    """Closed-form hand [x, y] (y up) of ``q`` (..., 4) and its velocity for ``qd`` (else None).
 
-    With absolute link angles θ_k = q_1 + … + q_k (from the upward vertical), links 1–3
-    point along (sin θ_k, cos θ_k) and the arm (hanging at q_4 = 0) along (−sin θ_4, −cos θ_4).
-    Returns the hand [x, y] (y up) of ``q`` (..., 4) and its velocity for ``qd`` (else None).
+    Absolute angles θ_k = q_1 + … + q_k; links 1–3 point along (sin θ_k, cos θ_k), the arm
+    along (−sin θ_4, −cos θ_4).
     """
     q = check_array(q, "q")
     if q.shape[-1:] != (4,):
@@ -86,11 +80,9 @@ def hand_kinematics(q, qd=None) -> tuple[np.ndarray, np.ndarray | None]:
 def ballistic_flight(
     position, velocity, gravity: float = 9.81, dt: float = 0.01
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Drag-free flight of a point mass from ``position`` until it reaches the ground y = 0.
-
-    b(t) = p_0 + v_0 t − ½ g t² e_y, sampled every ``dt`` s and at the landing time
-    t_land = (v_y + √(v_y² + 2 g p_y)) / g (0 for p_y ≤ 0). ``position``, ``velocity``: the
-    release state [x, y], [v_x, v_y] (y up). Returns the times (N,) and the path (N, 2).
+    """Drag-free flight b(t) = p_0 + v_0 t − ½ g t² e_y from the release ``position`` [x, y]
+    and ``velocity`` (y up), sampled every ``dt`` s and at the landing time
+    t_land = (v_y + √(v_y² + 2 g p_y)) / g (0 for p_y ≤ 0). Returns times (N,), path (N, 2).
     """
     p = check_array(position, "position", shape=(2,))
     v = check_array(velocity, "velocity", shape=(2,))
@@ -107,8 +99,8 @@ def ballistic_flight(
 
 
 def path_distance(path, point) -> float:
-    """min_t ‖b_t − s‖ of Appendix C.1: distance from ``point`` (2,) to the polyline
-    ``path`` (N, 2), measured to its segments (independent of the sampling)."""
+    """min_t ‖b_t − s‖ of Appendix C.1: distance from ``point`` (2,) to the polyline ``path``
+    (N, 2)'s segments."""
     path = check_array(path, "path", shape=(None, 2))
     point = check_array(point, "point", shape=(2,))
     return float(path_distances(path[None], point[None])[0])
@@ -140,7 +132,6 @@ def _by_rows(fn, *arrays, entries: int = BLOCK_ENTRIES):
 
 
 def _path_distances(paths: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """:func:`path_distances` of validated paths (B, N ≥ 2, 2)."""
     point = points[:, None, :]
     a, ab = paths[:, :-1], np.diff(paths, axis=1)
     len2 = np.einsum("bij,bij->bi", ab, ab)
@@ -152,17 +143,13 @@ def _path_distances(paths: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 
 def joint_limit_penalty(states) -> np.ndarray:
-    """Joint-limit penalty f_c(x_t) of Appendix C.1 of states (T, 8), shape (T,).
-
-    f_c(x) = (x_l − x)ᵀ 1_l (x_l − x) + (x_u − x)ᵀ 1_u (x_u − x), 1_l (1_u) selecting the
-    entries at or beyond the lower (upper) limit; x = [q, q̇] with q_l = [−0.8, −2.5, −0.1, 0],
-    q_u = [0.8, 0.05, 2, 1.5π] rad and |q̇| ≤ 50 rad/s.
-    """
+    """Joint-limit penalty f_c(x) = (x_l − x)ᵀ 1_l (x_l − x) + (x_u − x)ᵀ 1_u (x_u − x) of
+    Appendix C.1 of states (T, 8), (T,); 1_l (1_u) selects entries beyond the lower (upper)
+    limits :data:`X_LOWER`, :data:`X_UPPER`."""
     return _joint_limit_penalty(check_array(states, "states", shape=(None, 8)))
 
 
 def _joint_limit_penalty(x: np.ndarray) -> np.ndarray:
-    """f_c of states (..., 8), unvalidated."""
     low = np.where(x <= X_LOWER, X_LOWER - x, 0.0)
     high = np.where(x >= X_UPPER, X_UPPER - x, 0.0)
     return (low**2).sum(axis=-1) + (high**2).sum(axis=-1)
@@ -172,16 +159,6 @@ def _too_fast(qd: np.ndarray, limit: float) -> np.ndarray:
     """Whether a joint speed exceeds ``limit`` at each step of ``qd`` (..., 4)."""
     with np.errstate(invalid="ignore"):
         return np.abs(qd).max(axis=-1) > limit
-
-
-def _check_divergence(qd: np.ndarray, limit: float, control_dt: float) -> None:
-    """Raise :class:`SimulationFailure` if a joint speed exceeds ``limit`` (rad/s)."""
-    fast = _too_fast(qd, limit)
-    if fast.any():
-        t = int(np.argmax(fast))
-        raise SimulationFailure(
-            f"diverged: a joint speed exceeds {limit:g} rad/s at t = {t * control_dt:.3f} s"
-        )
 
 
 def _bump(t: np.ndarray, t0: float, t1: float) -> tuple[np.ndarray, ...]:
@@ -203,13 +180,10 @@ DEMO_RELEASE_TIME = 0.61
 
 
 def throwing_demonstration(dt: float = 1e-3, duration: float = 1.0) -> dict[str, np.ndarray]:
-    """The scripted throwing swing the initial policy imitates (deterministic).
-
-    From q = 0 (arm hanging) to upright [0, 0, 0, π]: ankle +0.15, knee −0.4, hip +0.3 rad
-    sin² bumps over [0, 0.8] s and a minimum-jerk arm turn of π over [0.1, 0.9] s; release
-    at :data:`DEMO_RELEASE_TIME`. Returns ``times`` (N,), ``q``, ``qd``, ``qdd`` (N, 4) and
-    ``release_time``.
-    """
+    """The scripted swing the initial policy imitates: from q = 0 to upright, ankle +0.15,
+    knee −0.4, hip +0.3 rad sin² bumps over [0, 0.8] s, a minimum-jerk arm turn of π over
+    [0.1, 0.9] s, release at :data:`DEMO_RELEASE_TIME`. Returns ``times`` (N,), ``q``, ``qd``,
+    ``qdd`` (N, 4) and ``release_time``."""
     t = np.arange(int(round(duration / dt)) + 1) * dt
     q = np.zeros((t.size, 4))
     qd = np.zeros_like(q)
@@ -233,26 +207,19 @@ def write_throwing_demonstration(path: str | Path = DEMONSTRATION_FILE) -> Path:
 class Throwing(Task):
     """Ball throwing with the planar 4-link robot (Sec. 3.4.1, Appendix C.1).
 
-    The context s = [x, y] is the target, x ∈ [5, 15] m ahead, y ∈ ``target_y`` (Sec. 3.4.1's
-    [1, 3] m; C.1 says [0, 3]), uniform. ω (41) holds the shape weights of a 4-joint DMP with
-    10 basis functions per joint (joint-major) and the release time t_r (s). The DMP runs from
-    :data:`THROW_START` at rest to upright [0, 0, 0, π] (τ = 1) and is tracked for ``horizon``
-    s at ``control_dt`` by the inertia-weighted PD tracker u = M(q)(q̈_ref + kp e + kd ė) +
-    c(q, q̇) (:func:`~skillkit.tasks.controllers.track_reference`; gains in 1/s², 1/s).
-
-    The ball leaves the hand at t_r (clamped to [0, horizon], ``info["release_clamped"]``) with
-    the hand's cubic-Hermite-interpolated state plus Gaussian ``release_noise`` (position m,
-    velocity m/s; Sec. 4.3.2.2) and flies drag-free (:func:`ballistic_flight`, every
-    ``ball_dt``) to y = 0. The reward (Appendix C.1) is
+    The target s = [x, y] is uniform on [5, 15] m × ``target_y`` (Sec. 3.4.1's [1, 3] m; C.1
+    says [0, 3]). ω (41): the joint-major weights of a 4-joint, 10-basis DMP from
+    :data:`THROW_START` to upright, and the release time t_r (s). The DMP is tracked by
+    u = M(q)(q̈_ref + kp e + kd ė) + c(q, q̇) (:func:`~skillkit.tasks.controllers.track_reference`).
+    At t_r (clamped to [0, horizon]) the ball leaves the hand with its interpolated state plus
+    Gaussian ``release_noise`` (m, m/s; Sec. 4.3.2.2) and flies drag-free to y = 0. Reward
+    (Appendix C.1)
 
         R(τ, s) = −c1 min_t ‖b_t − s‖ − c2 Σ_t f_c(x_t) − c3 Σ_t u_tᵀ u_t,
 
-    c1 = 1e2, c2 = 1e3, c3 = 1e-8, over the ball path b (:func:`path_distance`), the
-    joint-limit penalty f_c (:func:`joint_limit_penalty`) and the torques; the trajectory does
-    not depend on s. A joint faster than ``max_joint_speed`` rad/s stops the rollout
-    (:class:`SimulationFailure`). Trajectory: ``states`` (T, 8) = [q, q̇], ``controls``
-    (T, 4) torques; signals ``end_effector`` (T, 2), ``ball`` (T_b, 2), ``ball_times``
-    (T_b,); ``info`` the release, landing point and flight time.
+    c1 = 1e2, c2 = 1e3, c3 = 1e-8 (:func:`path_distance`, :func:`joint_limit_penalty`). A
+    joint faster than ``max_joint_speed`` rad/s fails the rollout. Signals ``end_effector``
+    (T, 2), ``ball`` (T_b, 2), ``ball_times`` (T_b,).
     """
 
     name = "throwing"
@@ -328,7 +295,12 @@ class Throwing(Task):
             qdd_ref=qdd_ref,
             inertia_weighted=True,
         )
-        _check_divergence(out["qd"], self.max_joint_speed, self.control_dt)
+        fast = _too_fast(out["qd"], self.max_joint_speed)
+        if fast.any():
+            raise SimulationFailure(
+                f"diverged: a joint speed exceeds {self.max_joint_speed:g} rad/s at "
+                f"t = {int(np.argmax(fast)) * self.control_dt:.3f} s"
+            )
         hand_p, hand_v = hand_kinematics(out["q"], out["qd"])
         t_req = float(omega[-1])
         t_rel = min(max(t_req, 0.0), float(self.times[-1]))
@@ -360,7 +332,7 @@ class Throwing(Task):
     def _release_state(
         self, t_rel: float, hand_p: np.ndarray, hand_v: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Hand position/velocity at t_rel: cubic Hermite between the control steps."""
+        """Hand position and velocity at t_rel, cubic Hermite between control steps."""
         h = self.control_dt
         k = min(int(np.floor(t_rel / h)), self.n_steps - 2)
         u = (t_rel - k * h) / h
@@ -434,12 +406,9 @@ class Throwing(Task):
         return np.tile(np.concatenate([THROW_START, np.zeros(4)]), (check_count(n), 1))
 
     def acceleration_controller(self, omegas, contexts=None, device=None, dtype=None):
-        """The tracker's commanded acceleration on predicted states, ``policy(t, x, pair) -> a``.
-
-        a = q̈_ref,t + kp (q_ref,t − q) + kd (q̇_ref,t − q̇) for the DMP reference of ω_b: the
-        part of :meth:`controller` before u = M(q) a + c(q, q̇) (:meth:`torques`); the control
-        of the decomposed throwing model (Sec. 4.3.2).
-        """
+        """The tracker's commanded acceleration ``policy(t, x, pair) -> a`` on predicted states,
+        a = q̈_ref,t + kp (q_ref,t − q) + kd (q̇_ref,t − q̇) of ω_b's DMP (:meth:`controller`
+        before :meth:`torques`; the control of the throwing model, Sec. 4.3.2)."""
         import torch
 
         omegas = check_array(omegas, "omegas", shape=(None, self.parameter_dim))
@@ -508,13 +477,11 @@ class Throwing(Task):
     release_time_std = 0.02
 
     def initial_policy(self, exploration_std_fraction: float | None = None) -> LinearGaussianPolicy:
-        """Imitation initial policy N(ω | ω_demo, Σ_0), no context gain.
+        """Imitation initial policy N(ω | :attr:`demonstration_omega`, Σ_0), no context gain.
 
-        The mean is :attr:`demonstration_omega` (ball lands near 5 m, Sec. 3.4.1). Σ_0 is
-        diagonal: each joint's weights have std ``exploration_std_fraction`` (default
-        :attr:`exploration_std_fraction`) of its largest demonstrated weight magnitude, t_r
-        :attr:`release_time_std`. :attr:`covering_std_fraction` puts the farthest target
-        inside the initial exploration (Sec. 3.5's rule; ``fig3.3``).
+        Σ_0 diagonal: each joint's weights have std ``exploration_std_fraction`` of its largest
+        demonstrated weight, t_r :attr:`release_time_std`. :attr:`covering_std_fraction` puts
+        the farthest target inside the initial exploration (Sec. 3.5; ``fig3.3``).
         """
         frac = (
             self.exploration_std_fraction

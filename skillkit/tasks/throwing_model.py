@@ -1,19 +1,12 @@
 """The decomposed reward model of the ball-throwing task (Sec. 4.3.2, Fig. 4.2).
 
-GPREPS predicts a throw's reward with three learned models chained as in Fig. 4.2:
-
-1. **Robot dynamics** x_{t+1} ~ p(x_{t+1} | x_t, a_t) of x = [q, q̇] under the tracker, with
-   the tracker's commanded acceleration a as control (smooth in a, unlike the torque); the
-   DMP tracker runs on the predicted states
-   (:meth:`~skillkit.tasks.planar.Throwing.acceleration_controller`).
-2. **Release**: the ball state b_0 = [p, v] at t_r from x(t_r), learned from the hand at every
-   control step, plus a Gaussian release error estimated from the observed releases.
-3. **Free flight** b_{k+1} ~ p(b_{k+1} | b_k) every ``ball_dt``, iterated until the ground.
-
-:meth:`~skillkit.tasks.planar.Throwing.reward_batch` scores the predicted arm states, the
-tracker's torques and the predicted flight (the held part never decides the distance to a
-target 5–15 m ahead), and Eq. (4.1) averages the L rewards of each pair. Each model comes from
-a factory, so any :mod:`skillkit.models` regression can take its place.
+Three learned models chained as in Fig. 4.2: 1. **robot dynamics** x_{t+1} ~ p(x_{t+1} | x_t,
+a_t) of x = [q, q̇] with the tracker's commanded acceleration a as control
+(:meth:`~skillkit.tasks.planar.Throwing.acceleration_controller`); 2. **release** b_0 = [p, v]
+from x(t_r), learned from the hand at every step, plus a Gaussian release error from the
+observed releases; 3. **free flight** b_{k+1} ~ p(b_{k+1} | b_k) every ``ball_dt`` until the
+ground. The task's reward scores the predicted states, torques and flight; Eq. (4.1) averages
+the L rewards of each pair.
 """
 
 from __future__ import annotations
@@ -30,9 +23,11 @@ from skillkit.models.gp import ExactGP, ForwardModel, GPRegression
 from skillkit.models.reward import (
     Prediction,
     RewardModel,
+    check_factories,
     check_sample_dtype,
     gp_stats,
     subsample,
+    usable_trajectories,
     warm_start_hypers,
     worst_if_failed,
     worst_if_nonfinite,
@@ -57,12 +52,8 @@ _flight_model = _robot_model
 
 
 def land(paths: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Stop predicted ball paths (B, K, 2) at the ground y = 0.
-
-    The first sample at or below the ground (after the release point) is moved onto it by
-    linear interpolation and repeats to the end. Returns the paths and ``landed`` (B,), whether
-    the ball reached the ground within the K samples.
-    """
+    """Stop ball paths (B, K, 2) at the ground y = 0: the first sample at or below it (after
+    the release) is interpolated onto it and repeated. Returns the paths and ``landed`` (B,)."""
     paths = check_array(paths, "paths", shape=(None, None, 2))
     below = paths[:, :, 1] <= 0.0
     below[:, 0] = False  # the release point itself never counts as the landing
@@ -80,14 +71,9 @@ def land(paths: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 @dataclass(frozen=True)
 class ThrowingPrediction(Prediction):
-    """L predicted throws for each of B (ω, s) pairs.
-
-    ``states`` (B, L, T, 8) and the tracker's ``torques`` (B, L, T, 4) on them, the ball state
-    ``release`` [p_x, p_y, v_x, v_y] (B, L, 4) at t_r, the ``ball`` flight (B, L, K, 2)
-    stopped at the ground (:func:`land`), ``rewards`` (B, L), ``landed`` (B, L) whether it
-    reached the ground, and ``failed`` (B, L) the arm paths the simulator would stop (scored
-    ``worst_reward``).
-    """
+    """L predicted throws for each of B (ω, s) pairs: ``states`` (B, L, T, 8), ``torques``
+    (B, L, T, 4), ``release`` [p, v] (B, L, 4) at t_r, the ``ball`` flight (B, L, K, 2) stopped
+    at the ground (:func:`land`), ``rewards``, ``landed`` and ``failed`` (B, L)."""
 
     states: np.ndarray
     torques: np.ndarray
@@ -114,23 +100,20 @@ class ThrowingRewardModel(RewardModel):
     ----------
     task : Throwing
     make_robot_model, make_release_model, make_flight_model : callable, optional
-        Module-level factories of unfitted models: forward models of x (control a) and of the
-        ball state (default FITC with 50 inducing points), the regression x → [p, v]
-        (default ``ExactGP()``).
+        Module-level factories: forward models of x and of the ball (default FITC, 50
+        inducing points), the regression x → [p, v] (default ``ExactGP()``).
     max_robot_points, max_release_points, max_flight_points : int
-        Each GP is fitted on at most this many points, drawn at random.
+        Each GP is fitted on at most this many random points.
     flight_time : float
-        Seconds of predicted flight; a ball still in the air is scored on its path so far.
+        Seconds of predicted flight.
     warm_start : bool
         Start each hyper-parameter optimisation at the previous values.
     device : str or torch.device, optional
-        Where trajectories are sampled (the factories choose the GPs' devices).
+        Where trajectories are sampled.
     dtype : torch.dtype
-        Precision of the sampled trajectories (float64 or float32); torques, release and
-        rewards are float64.
+        Precision of the sampled trajectories (float64 or float32).
     stop_flight_at_ground : bool
-        Stop propagating a ball at its first sample at or below the ground (rewards equal up
-        to round-off); the stored fig4.6, fig4.7, fig4.9 results pin ``False``.
+        Stop propagating a landed ball (the stored fig4.6, fig4.7, fig4.9 results pin False).
     """
 
     def __init__(
@@ -150,13 +133,11 @@ class ThrowingRewardModel(RewardModel):
     ):
         if not isinstance(task, Throwing):
             raise ValueError(f"task: expected a Throwing task, got {type(task).__name__}")
-        for name, f in (
-            ("make_robot_model", make_robot_model),
-            ("make_release_model", make_release_model),
-            ("make_flight_model", make_flight_model),
-        ):
-            if f is not None and not callable(f):
-                raise ValueError(f"{name}: expected a callable, got {type(f).__name__}")
+        check_factories(
+            make_robot_model=make_robot_model,
+            make_release_model=make_release_model,
+            make_flight_model=make_flight_model,
+        )
         self.task = task
         self.make_robot_model = make_robot_model or _robot_model
         self.make_release_model = make_release_model or _release_model
@@ -188,7 +169,7 @@ class ThrowingRewardModel(RewardModel):
         return x, self.task.commanded_accelerations(x, u), xn
 
     def hand_data(self, trajectories) -> tuple[np.ndarray, np.ndarray]:
-        """Arm states x_t (N, 8) and the hand's [p, v] (N, 4, v by ``np.gradient``) per step."""
+        """Arm states x_t (N, 8) and the hand's [p, v] (N, 4) per step."""
         dt = self.task.control_dt
         xs, bs = [], []
         for t in trajectories:
@@ -209,8 +190,7 @@ class ThrowingRewardModel(RewardModel):
         return xs, bs
 
     def flight_data(self, trajectories) -> tuple[np.ndarray, np.ndarray]:
-        """Ball flight transitions (b_k, b_{k+1}), b = [p, v] every ``ball_dt`` (v by central
-        differences; the off-grid landing sample is dropped)."""
+        """Ball flight transitions (b_k, b_{k+1}), b = [p, v] every ``ball_dt``."""
         dt = self.task.ball_dt
         xs, xns = [], []
         for t in trajectories:
@@ -249,17 +229,10 @@ class ThrowingRewardModel(RewardModel):
         return model
 
     def fit(self, contexts, omegas, rewards, trajectories, rng=None) -> dict[str, Any]:
-        """Refit the three models on every non-failed real throw.
-
-        Returns ``n_data`` (robot transitions), ``n_robot``, ``n_trajectories``, ``n_release``,
-        ``n_flight``, ``release_std`` (4,) and per GP ``robot``, ``release``, ``flight`` its
-        :func:`~skillkit.models.reward.gp_stats`.
-        """
-        if trajectories is None:
-            raise ValueError("trajectories: the throwing model learns from trajectories")
-        ok = list({id(t): t for t in trajectories if not t.failed}.values())
-        if not ok:
-            raise ValueError("trajectories: every trajectory failed; nothing to learn from")
+        """Refit the three models on every non-failed real throw; returns ``n_data``,
+        ``n_robot``, ``n_trajectories``, ``n_release``, ``n_flight``, ``release_std`` (4,) and
+        per GP its :func:`~skillkit.models.reward.gp_stats`."""
+        ok = usable_trajectories(trajectories, "throwing")
         rng = as_generator(rng)
         x, a, xn = self.robot_data(ok)
         n_robot = x.shape[0]
@@ -298,12 +271,8 @@ class ThrowingRewardModel(RewardModel):
     def predict(self, contexts, omegas, n_trajectories: int, rng=None) -> ThrowingPrediction:
         """Sample L = ``n_trajectories`` throws for each of B pairs, ``contexts`` (B, 2) and
         ``omegas`` (B, 41), through the three models."""
-        if self.robot is None:
-            raise RuntimeError("ThrowingRewardModel: call fit() before predicting")
+        w, s, L, rng = self._pairs(self.robot is not None, contexts, omegas, n_trajectories, rng)
         task = self.task
-        w = check_array(omegas, "omegas", shape=(None, task.parameter_dim))
-        s = check_array(contexts, "contexts", shape=(w.shape[0], task.context_dim))
-        L, rng = check_count(n_trajectories, "n_trajectories"), as_generator(rng)
         B, T = w.shape[0], task.n_steps
         device = torch.device("cpu" if self.device is None else self.device)
         # the start does not depend on s (which may lie outside the task's range)
@@ -356,10 +325,6 @@ class ThrowingRewardModel(RewardModel):
             landed.reshape(B, L),
             failed.reshape(B, L),
         )
-
-    def expected_rewards(self, contexts, omegas, n_trajectories, rng=None) -> np.ndarray:
-        """R̂_sω: the mean reward of L predicted throws per pair (Eq. 4.1), shape (B,)."""
-        return self.predict(contexts, omegas, n_trajectories, rng).expected_rewards
 
     def __repr__(self) -> str:
         state = "unfitted" if self.robot is None else f"{self.n_data} robot transitions"

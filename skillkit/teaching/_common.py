@@ -1,14 +1,34 @@
-"""Helpers the chapter modules share: rounding for tables, drawing a list of series, and
-the checks of an index argument."""
+"""Helpers the chapter modules share: sizes per scale, rounding for tables, drawing a list of
+series, and argument checks."""
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 
 import numpy as np
 
 from skillkit.viz.plots import draw_figure
 from skillkit.viz.series import Series
+
+
+def per_scale(cls, **columns: tuple) -> dict:
+    """``{scale: cls(**sizes)}`` from columns field → (smoke, quick, paper)."""
+    names = ("smoke", "quick", "paper")
+    return {s: cls(**{k: v[i] for k, v in columns.items()}) for i, s in enumerate(names)}
+
+
+def at_scale(table: Mapping, scale: str):
+    """``table[scale]``, or a ``ValueError`` naming ``scale``."""
+    if scale not in table:
+        raise ValueError(f"scale: expected one of {tuple(table)}, got {scale!r}")
+    return table[scale]
+
+
+def expect(value, cls, name: str, what: str = ""):
+    """``value`` if it is a ``cls``, else a ``ValueError`` naming ``name``."""
+    if not isinstance(value, cls):
+        raise ValueError(f"{name}: expected {what or cls.__name__}, got {type(value).__name__}")
+    return value
 
 
 def sig(value: float, digits: int = 4) -> float:
@@ -19,6 +39,11 @@ def sig(value: float, digits: int = 4) -> float:
 def draw(title: str, series: Iterable[Series], backend: str = "plotly"):
     """:func:`~skillkit.viz.plots.draw_figure` of ``series`` under ``title``."""
     return draw_figure({"title": title, "series": [s.to_dict() for s in series]}, backend)
+
+
+def xy(points: np.ndarray) -> tuple[list, list]:
+    """The columns of ``points`` (n, 2) as two lists."""
+    return points[:, 0].tolist(), points[:, 1].tolist()
 
 
 def index(value, name: str, n: int) -> int:

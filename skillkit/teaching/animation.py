@@ -1,6 +1,4 @@
-"""The thesis's Figs 3.2 and 3.8 in one call each: the final policy of a stored paper run,
-rolled out at two contexts and animated with :mod:`skillkit.viz.animation` (here, not in
-:mod:`skillkit.viz`, because it reads stored results)."""
+"""Figs 3.2 and 3.8: a stored paper run's final policy rolled out at two contexts, animated."""
 
 from __future__ import annotations
 
@@ -16,9 +14,6 @@ from skillkit.viz.animation import (
     table_tennis_animation,
     throwing_animation,
 )
-
-__all__ = ["stored_final_policy", "thesis_animation"]
-
 
 _THESIS = {
     "fig3.2": {
@@ -39,12 +34,8 @@ _THESIS = {
 
 
 def stored_final_policy(exp_id: str, trial: int = 0) -> LinearGaussianPolicy | None:
-    """The last policy π_K (Eq. 3.13) of ``trial`` of the stored paper run of ``exp_id``.
-
-    Reads the final rows of ``trial<i>__policy_mean``, ``policy_cov`` and ``policy_gain`` from
-    its ``trials.npz``. None when there is no stored run, no ``trials.npz`` or no policy in
-    it (fig3.7 keeps none); ``ValueError`` for a negative ``trial`` or one without a policy.
-    """
+    """The last policy π_K (Eq. 3.13) of ``trial`` of the stored paper run of ``exp_id``, or
+    None without a stored run or policy; ``ValueError`` for a bad ``trial``."""
     from skillkit.experiments import stored_run
 
     if isinstance(trial, bool) or not isinstance(trial, (int, np.integer)) or trial < 0:
@@ -73,12 +64,9 @@ def stored_final_policy(exp_id: str, trial: int = 0) -> LinearGaussianPolicy | N
 
 
 def thesis_animation(figure: str, contexts=None, *, trial: int = 0, n_frames: int = 40, **kwargs):
-    """Fig. 3.2 or Fig. 3.8 (``figure``): the policy mean's rollouts (``rng=0``) at the
-    ``contexts`` (k, context_dim) (default the thesis's two), animated in ``n_frames`` frames.
-
-    The policy is :func:`stored_final_policy` of ``trial`` of the run behind the figure
-    (fig3.3 for Fig. 3.2, fig3.7 for Fig. 3.8), else the task's initial policy; the subtitle
-    says which. ``kwargs`` (``frame_ms``, ``title``) go to the animation.
+    """Fig. 3.2 or 3.8 (``figure``): the policy mean's rollouts at ``contexts`` (k,
+    context_dim) (default the thesis's two) in ``n_frames`` frames, the policy
+    :func:`stored_final_policy` or else the task's initial one; ``kwargs`` go to the animation.
     """
     from skillkit.tasks import make
 

@@ -1,18 +1,14 @@
-r"""Chapter 2 step by step: DMPs (Sec. 2.2.1, Eqs. 2.21–2.23), GP noise and hyper-parameters
-(Sec. 2.3, Eqs. 2.25–2.28) and one moment-matching step against Monte Carlo (Sec. 2.1.2,
-Fig. 2.7).
-
-Every number comes from the library's :class:`~skillkit.policies.dmp.DMP`,
-:class:`~skillkit.models.gp.ExactGP` and :mod:`~skillkit.models.moment_matching`. Handled
-numerical events of the GP (:func:`~skillkit.models.gp.record_numerical_events`) are counted
-and shown in tables and titles, not warned about. Figures take ``backend`` in
-{"plotly", "matplotlib"} and return a plotly figure or a ``NotebookFigure``.
+r"""Chapter 2 step by step with the library's DMP, ExactGP and moment matching: DMPs
+(Sec. 2.2.1, Eqs. 2.21–2.23), GP noise and hyper-parameters (Sec. 2.3, Eqs. 2.25–2.28) and one
+moment-matching step against Monte Carlo (Sec. 2.1.2, Fig. 2.7). Handled GP events are counted
+in tables and titles, not warned about. Figures take ``backend`` in {"plotly", "matplotlib"}.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 import pandas as pd
@@ -32,29 +28,9 @@ from skillkit.models.gp import (
 )
 from skillkit.models.moment_matching import GaussianPrediction, linearize, moment_match
 from skillkit.policies.dmp import DMP
-from skillkit.teaching._common import draw, index, sig
+from skillkit.teaching._common import draw, expect, index, sig
 from skillkit.viz.figures import plot_gp_fit
 from skillkit.viz.series import Series
-
-__all__ = [
-    "POOL",
-    "MomentMatchingCheck",
-    "NoiseProfile",
-    "basis_figure",
-    "demonstration_figure",
-    "dmp_fit_figure",
-    "forcing_figure",
-    "gp_posterior_figure",
-    "gp_with",
-    "hyperparameter_figure",
-    "hyperparameter_table",
-    "moment_matching_check",
-    "noise_by_size_table",
-    "noise_profile",
-    "noise_profile_figure",
-    "noisy_samples",
-    "phase_figure",
-]
 
 #: Inputs drawn by :func:`noisy_samples` before the first ``n_points`` are kept, so the data
 #: sets of one seed are nested.
@@ -80,45 +56,32 @@ def _events_text(events: NumericalEvents) -> str:
     return f" (handled: {', '.join(seen)})" if seen else ""
 
 
-def _dmp(dmp) -> DMP:
-    if not isinstance(dmp, DMP):
-        raise ValueError(f"dmp: expected a DMP, got {type(dmp).__name__}")
-    return dmp
-
-
 def _fitted(gp, name: str = "gp") -> ExactGP:
     if not isinstance(gp, ExactGP) or gp.predictor is None:
         raise ValueError(f"{name}: expected a fitted ExactGP")
     return gp
 
 
-# ------------------------------------------------------------------------------- DMPs
 def phase_figure(dmp: DMP, times: ArrayLike, *, backend: str = "plotly"):
-    """The phase z_t = exp(−τ α_z t) of Eq. (2.22) over ``times`` (s), with the basis centres
-    c_i marked at t_i = −ln(c_i) / (τ α_z), where the phase passes them."""
-    centres = _dmp(dmp).centers
+    """The phase z_t = exp(−τ α_z t) (Eq. 2.22) over ``times`` (s), the basis centres c_i
+    marked where it passes them."""
+    centres = expect(dmp, DMP, "dmp", "a DMP").centers
     t = _times(times)
     t_c = -np.log(centres) / (dmp.tau * dmp.alpha_z)
     kw = {"xlabel": "t [s]", "ylabel": "phase z"}
     z = f"z(t) = exp(−τ α_z t), α_z = {dmp.alpha_z:g}"
+    centre_label = f"basis centres c_i ({dmp.n_basis})"
     series = [
         Series(z, t.tolist(), dmp.phase(t).tolist(), **kw),
-        Series(
-            f"basis centres c_i ({dmp.n_basis})",
-            t_c.tolist(),
-            centres.tolist(),
-            kind="markers",
-            **kw,
-        ),
+        Series(centre_label, t_c.tolist(), centres.tolist(), kind="markers", **kw),
     ]
     return draw("The phase z(t) (Eq. 2.22) runs from 1 towards 0", series, backend)
 
 
 def basis_figure(dmp: DMP, times: ArrayLike, *, backend: str = "plotly"):
-    """The basis functions φ_i(z) = z ψ_i(z) / Σ_j ψ_j(z) of the forcing term f(z) = φ(z)ᵀv,
-    ψ_i Gaussians in z (Sec. 2.2.1), and their sum z, over the phase z(times) and over
-    ``times``."""
-    _dmp(dmp)
+    """The basis φ_i(z) = z ψ_i(z) / Σ_j ψ_j(z) of f(z) = φ(z)ᵀv (Sec. 2.2.1) and their sum z,
+    over the phase z(times) and over ``times``."""
+    expect(dmp, DMP, "dmp", "a DMP")
     t = _times(times)
     z_t = dmp.phase(t)
     z = np.linspace(float(z_t.min()), 1.0, t.shape[0])
@@ -156,7 +119,7 @@ def forcing_figure(
     joint : int
         The joint drawn.
     """
-    _dmp(dmp)
+    expect(dmp, DMP, "dmp", "a DMP")
     joint = index(joint, "joint", dmp.n_joints)
     t = _times(times)
     target = dmp.forcing_target(t, q, qd, qdd)[:, joint]
@@ -188,14 +151,10 @@ def demonstration_figure(
     ylabel: str = "q [rad]",
     backend: str = "plotly",
 ):
-    """Curves (label → values at ``times``, shape (T,)) with the demonstration (T,) dashed on
-    top, as Fig. 2.11."""
+    """Curves (label → values (T,) at ``times``) under the demonstration (T,), as Fig. 2.11."""
     t = _times(times)
     demo = check_array(demonstration, "demonstration", shape=t.shape)
-    if not isinstance(curves, Mapping):
-        raise ValueError(
-            f"curves: expected a mapping of label to values, got {type(curves).__name__}"
-        )
+    expect(curves, Mapping, "curves", "a mapping of label to values")
     kw = {"xlabel": "t [s]", "ylabel": ylabel}
     series = [Series("demonstration", t.tolist(), demo.tolist(), dash="dash", **kw)]
     for label, y in curves.items():
@@ -205,20 +164,18 @@ def demonstration_figure(
 
 
 def dmp_fit_figure(n_basis: int, *, backend: str = "plotly", **dmp_options):
-    """A DMP with ``n_basis`` ≥ 1 weights (Eqs. 2.21–2.23) fitted to the reach of Fig. 2.9,
-    its rollout over the demonstration and its RMSE; ``dmp_options`` go to :class:`DMP`."""
+    """A DMP with ``n_basis`` weights (``dmp_options`` to :class:`DMP`) fitted to the reach of
+    Fig. 2.9: its rollout over the demonstration and its RMSE."""
     n_basis = check_count(n_basis, "n_basis")
     times, q, qd, qdd = reach_demonstration()
     dmp = DMP(n_joints=1, n_basis=n_basis, **dmp_options).fit(times, q, qd, qdd)
     q_dmp = dmp.rollout(times, q0=q[0])[0][:, 0]
     rmse = float(np.sqrt(np.mean((q_dmp - q[:, 0]) ** 2)))
     title = f"DMP with {n_basis} basis function{'s' if n_basis > 1 else ''}: RMSE {rmse:.2g} rad"
-    return demonstration_figure(
-        times, q[:, 0], {f"DMP, {n_basis} weights": q_dmp}, title=title, backend=backend
-    )
+    curves = {f"DMP, {n_basis} weights": q_dmp}
+    return demonstration_figure(times, q[:, 0], curves, title=title, backend=backend)
 
 
-# -------------------------------------------------------------------------------- GPs
 def noisy_samples(
     n_points: int,
     *,
@@ -228,11 +185,9 @@ def noisy_samples(
     high: float = 4.0,
     function: Callable[[np.ndarray], np.ndarray] = fig2_12_function,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Noisy observations y = f(x) + ε, ε ~ N(0, noise_std²), x ~ U(low, high).
-
-    :data:`POOL` inputs and as many normal draws are taken from ``default_rng(seed)`` and the
-    first ``n_points`` (1 … :data:`POOL`) kept, so for one seed the data sets are nested.
-    ``function`` is vectorised (default the Fig. 2.12 function sin(1.5x) + 0.2x).
+    """Noisy observations y = f(x) + ε, ε ~ N(0, noise_std²), x ~ U(low, high): the first
+    ``n_points`` of :data:`POOL` draws (nested per seed); ``function`` is vectorised (default
+    Fig. 2.12's sin(1.5x) + 0.2x).
 
     Returns
     -------
@@ -254,20 +209,14 @@ def noisy_samples(
 def gp_with(
     x: ArrayLike, y: ArrayLike, *, lengthscale: float, signal_var: float, noise_var: float
 ) -> ExactGP:
-    """An :class:`ExactGP` on x (N, 1), y (N,) at the hyper-parameters ℓ, σ_f², σ_ε² (> 0, raw
-    units), not trained: the posterior (2.26–2.27) of kernel (2.25), except that a noise
-    variance below 1.5 × its floor (1e-6 var(y)) is raised to it."""
+    """An untrained :class:`ExactGP` on x (N, 1), y (N,) at ℓ, σ_f², σ_ε² (> 0, raw units):
+    the posterior (2.26–2.27) of kernel (2.25), σ_ε² at least 1.5 × its floor."""
     check_positive(lengthscale, "lengthscale")
     check_positive(signal_var, "signal_var")
     check_positive(noise_var, "noise_var")
+    theta = {"lengthscale": lengthscale, "outputscale": signal_var, "noise": noise_var}
     with record_numerical_events():
-        return ExactGP(
-            lengthscale=lengthscale,
-            outputscale=signal_var,
-            noise=noise_var,
-            n_steps=0,
-            additive_noise=0.0,
-        ).fit(x, y, rng=0)
+        return ExactGP(**theta, n_steps=0, additive_noise=0.0).fit(x, y, rng=0)
 
 
 def _data(x: ArrayLike, y: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
@@ -289,8 +238,7 @@ class NoiseProfile:
     Attributes
     ----------
     noise_vars, log_ml, lengthscale, signal_var : ndarray, shape (G,)
-        The fixed σ_ε², the maximum over ℓ and σ_f² of log p(y | X, θ) there, and the
-        maximising ℓ and σ_f².
+        σ_ε², the maximum over ℓ and σ_f² of log p(y | X, θ), and the maximising ℓ, σ_f².
     """
 
     noise_vars: np.ndarray
@@ -305,13 +253,9 @@ class NoiseProfile:
 
 
 def noise_profile(x: ArrayLike, y: ArrayLike, noise_vars: ArrayLike) -> NoiseProfile:
-    """The profile log marginal likelihood (2.28) of the noise variances (G,) > 0, units of y².
-
-    For each σ_ε², :func:`~skillkit.models.gp.neg_log_marginal_likelihood` is minimised over
-    log ℓ ∈ [1e-3, 1e3] std(x) and log σ_f² ∈ [1e-4, 1e4] var(y) by L-BFGS-B, best of the
-    starts ℓ = std(x) × {0.3, 1, 3}, on targets standardised as :class:`ExactGP` does; the
-    value is in raw units (−N log std(y) added), as ``gp.diagnostics["log_marginal_likelihood"]``.
-    """
+    """The profile log marginal likelihood (2.28) of the noise variances (G,) > 0 (units y²):
+    maximised over ℓ ∈ [1e-3, 1e3] std(x), σ_f² ∈ [1e-4, 1e4] var(y) by L-BFGS-B from three
+    starts, on standardised targets, reported in raw units as :class:`ExactGP` does."""
     x, y = _data(x, y)
     nv = check_array(noise_vars, "noise_vars", ndim=1)
     if nv.size == 0 or np.any(nv <= 0):
@@ -333,21 +277,10 @@ def noise_profile(x: ArrayLike, y: ArrayLike, noise_vars: ArrayLike) -> NoisePro
 
     def each(ls: np.ndarray, os_: np.ndarray) -> np.ndarray:
         """Every output's own term."""
+        T = partial(torch.tensor, dtype=DTYPE)
         with torch.no_grad():
-            return np.array(
-                [
-                    float(
-                        neg_log_marginal_likelihood(
-                            X,
-                            Y[g : g + 1],
-                            torch.tensor([[ls[g]]], dtype=DTYPE),
-                            torch.tensor([os_[g]], dtype=DTYPE),
-                            noise[g : g + 1],
-                        )
-                    )
-                    for g in range(G)
-                ]
-            )
+            terms = [(Y[g : g + 1], T([[ls[g]]]), T([os_[g]]), noise[g : g + 1]) for g in range(G)]
+            return np.array([float(neg_log_marginal_likelihood(X, *a)) for a in terms])
 
     bounds = [(np.log(1e-3 * sd), np.log(1e3 * sd))] * G + [(np.log(1e-4), np.log(1e4))] * G
     best = np.full(G, np.inf)
@@ -370,16 +303,12 @@ def noise_profile_figure(
     noise_vars: ArrayLike | None = None,
     backend: str = "plotly",
 ):
-    """:func:`noise_profile` of each data set (title → (x, y)) minus its maximum, a panel each,
-    over ``noise_vars`` (default 25 values log-spaced over 1e-6 … 1); ``true_noise_var`` is
-    drawn dashed."""
+    """:func:`noise_profile` minus its maximum, a panel per data set (title → (x, y)), over
+    ``noise_vars`` (default 25 log-spaced in 1e-6 … 1); ``true_noise_var`` dashed."""
     if not isinstance(datasets, Mapping) or not datasets:
         raise ValueError("datasets: expected a non-empty mapping of label to (x, y)")
-    grid = (
-        np.geomspace(1e-6, 1.0, 25)
-        if noise_vars is None
-        else check_array(noise_vars, "noise_vars", ndim=1)
-    )
+    default = np.geomspace(1e-6, 1.0, 25)
+    grid = default if noise_vars is None else check_array(noise_vars, "noise_vars", ndim=1)
     v = None if true_noise_var is None else check_positive(true_noise_var, "true_noise_var")
     series = []
     for label, pair in datasets.items():
@@ -408,13 +337,9 @@ def noise_profile_figure(
 def noise_by_size_table(
     sizes=(8, 20, 40), *, n_draws: int = 20, noise_std: float = 0.1, seed: int = 0
 ) -> pd.DataFrame:
-    """The noise variance maximum likelihood learns, by data size N (2 … :data:`POOL`).
-
-    For each N, the inputs of :func:`noisy_samples` (``seed``) with ``n_draws`` ≥ 2 noise
-    vectors are fitted by one :class:`ExactGP` (a GP per column, ``additive_noise=0``). One row
-    per N: true σ_ε², median and 10th / 90th percentiles of the learned σ_ε², median / true and
-    the fits at the noise floor.
-    """
+    """The noise variance ML learns per data size N (2 … :data:`POOL`), over ``n_draws``
+    noise vectors on :func:`noisy_samples`' inputs: true σ_ε², the learned median and 10th /
+    90th percentiles, median / true and the fits at the noise floor."""
     n_draws = check_count(n_draws, "n_draws", minimum=2)
     noise_std = check_positive(noise_std, "noise_std")
     sizes = [check_count(n, "sizes", minimum=2) for n in sizes]
@@ -445,12 +370,8 @@ def noise_by_size_table(
 def hyperparameter_table(
     gps: Mapping[str, ExactGP], *, true_noise_var: float | None = None
 ) -> pd.DataFrame:
-    """The learned hyper-parameters of fitted 1-D GPs (label → GP), one row each.
-
-    Columns: points N, ℓ, σ_f², σ_ε² (raw units), ``true σ_ε²`` if given, the log marginal
-    likelihood (2.28) and whether the noise ended at its floor; 4 significant digits (the
-    likelihood 5).
-    """
+    """A row per fitted 1-D GP (label → GP): N, ℓ, σ_f², σ_ε² (raw units), ``true σ_ε²`` if
+    given, the log marginal likelihood (2.28) and whether the noise is at its floor."""
     if not isinstance(gps, Mapping) or not gps:
         raise ValueError("gps: expected a non-empty mapping of label to fitted ExactGP")
     rows = {}
@@ -470,20 +391,12 @@ def hyperparameter_table(
     return pd.DataFrame.from_dict(rows, orient="index")
 
 
-def _band_series(gp: ExactGP, xs: np.ndarray, name: str, panel: str) -> Series:
+def _band_series(gp: ExactGP, xs: np.ndarray, name: str, kw: dict) -> Series:
     mean, var = gp.predict(xs[:, None])
     mean, half = np.ravel(mean), 1.96 * np.sqrt(np.maximum(np.ravel(var), 0.0))
-    return Series(
-        name,
-        xs.tolist(),
-        mean.tolist(),
-        lower=(mean - half).tolist(),
-        upper=(mean + half).tolist(),
-        band="95% band of y (mean ± 1.96 σ)",
-        panel=panel,
-        xlabel="x",
-        ylabel="y",
-    )
+    lo, hi = (mean - half).tolist(), (mean + half).tolist()
+    band = "95% band of y (mean ± 1.96 σ)"
+    return Series(name, xs.tolist(), mean.tolist(), lower=lo, upper=hi, band=band, **kw)
 
 
 def hyperparameter_figure(
@@ -495,12 +408,9 @@ def hyperparameter_figure(
     x_test: ArrayLike | None = None,
     backend: str = "plotly",
 ):
-    """Each hyper-parameter of a GP fitted on x (N, 1), y (N,) ÷ and × ``factor`` (> 1).
-
-    A panel per ℓ, σ_f², σ_ε²: the posterior (2.26–2.27, 95% band of y) at the learned θ and
-    with that one value scaled (:func:`gp_with`), over the data, at ``x_test`` (n,) (default
-    the data's range widened by a quarter each side, 161 points).
-    """
+    """A panel per hyper-parameter of a GP fitted on x (N, 1), y (N,): the posterior
+    (2.26–2.27) at the learned θ and with that value ÷ and × ``factor`` > 1, at ``x_test``
+    (n,) (default the data's range widened by a quarter each side)."""
     x, y = _data(x, y)
     _fitted(gp)
     factor = check_positive(factor, "factor")
@@ -521,22 +431,13 @@ def hyperparameter_figure(
     series = []
     for key, label, _ in params:
         v = theta[key]
-        panel = f"{label}: {v / factor:.2g} / {v:.2g} / {v * factor:.2g}"
+        kw = {"panel": f"{label}: {v / factor:.2g} / {v:.2g} / {v * factor:.2g}"}
+        kw |= {"xlabel": "x", "ylabel": "y"}
         scales = ((f"÷ {factor:g}", 1 / factor), ("learned θ", 1.0), (f"× {factor:g}", factor))
         for name, scale in scales:
             model = gp if scale == 1.0 else gp_with(x, y, **{**theta, key: v * scale})
-            series.append(_band_series(model, xs, name, panel))
-        series.append(
-            Series(
-                "data",
-                x[:, 0].tolist(),
-                y.tolist(),
-                kind="markers",
-                panel=panel,
-                xlabel="x",
-                ylabel="y",
-            )
-        )
+            series.append(_band_series(model, xs, name, kw))
+        series.append(Series("data", x[:, 0].tolist(), y.tolist(), kind="markers", **kw))
     title = f"One hyper-parameter at a time ÷ {factor:g} and × {factor:g}, the others as learned"
     return draw(title, series, backend)
 
@@ -551,9 +452,8 @@ def gp_posterior_figure(
     seed: int = 0,
     backend: str = "plotly",
 ):
-    """The notebook slider's redraw: :func:`gp_with` at (ℓ, σ_f², σ_ε²) on the first
-    ``n_points`` of :func:`noisy_samples`, drawn by :func:`~skillkit.viz.figures.plot_gp_fit`
-    with the true function over x ∈ [−6, 6]."""
+    """The slider's redraw: :func:`gp_with` on :func:`noisy_samples` with the true function,
+    over x ∈ [−6, 6]."""
     x, y = noisy_samples(n_points, noise_std=noise_std, seed=seed)
     xs = np.linspace(-6.0, 6.0, 241)
     with record_numerical_events() as events:
@@ -567,7 +467,6 @@ def gp_posterior_figure(
         return plot_gp_fit(gp, x, y, xs, f_true=fig2_12_function, backend=backend, title=title)
 
 
-# --------------------------------------------------------------------- moment matching
 @dataclass(frozen=True)
 class MomentMatchingCheck:
     """One step p(x) = N(m, s²) → p(y) through a 1-D GP, three ways (Sec. 2.1.2, Fig. 2.7).
@@ -602,8 +501,7 @@ class MomentMatchingCheck:
         return float(np.sqrt(v / n)), float(np.sqrt(max(m4 - v * v, 0.0) / n))
 
     def table(self) -> pd.DataFrame:
-        """Mean and variance of Monte Carlo, moment matching and linearisation, their standard
-        errors (0 for the closed forms) and each Gaussian's distance from the samples in s.e."""
+        """Mean, variance and standard errors of each method, and distances from Monte Carlo."""
         se_m, se_v = self.standard_errors()
         mc_m, mc_v = float(self.samples.mean()), float(self.samples.var())
         rows = {f"Monte Carlo ({self.samples.shape[0]:,} samples)": (mc_m, mc_v, se_m, se_v)}
@@ -645,14 +543,9 @@ class MomentMatchingCheck:
         centres = 0.5 * (edges[1:] + edges[:-1])
         g = self.density_grid
         kw = {"xlabel": "y", "ylabel": "density p(y)"}
+        mc = f"Monte Carlo histogram ({self.samples.shape[0]:,} samples)"
         series = [
-            Series(
-                f"Monte Carlo histogram ({self.samples.shape[0]:,} samples)",
-                centres.tolist(),
-                hist.tolist(),
-                kind="bar",
-                **kw,
-            ),
+            Series(mc, centres.tolist(), hist.tolist(), kind="bar", **kw),
             Series("p(y) by quadrature", g.tolist(), self.density.tolist(), dash="dash", **kw),
         ]
         for label, pred in (
@@ -672,9 +565,8 @@ class MomentMatchingCheck:
 def moment_matching_check(
     gp: ExactGP, mean: float, var: float, *, n_samples: int = 100_000, rng=0, n_grid: int = 401
 ) -> MomentMatchingCheck:
-    """Moment matching, linearisation and ``n_samples`` Monte Carlo draws (from ``rng``) of one
-    step of N(mean, var) through a fitted GP with one input and one output; the quadrature
-    density on ``n_grid`` points."""
+    """One step of N(mean, var) through a fitted 1-D GP: moment matching, linearisation,
+    ``n_samples`` Monte Carlo draws and the quadrature density on ``n_grid`` points."""
     _fitted(gp)
     if gp.predictor.input_dim != 1 or gp.predictor.output_dim != 1:
         raise ValueError("gp: expected one input and one output")

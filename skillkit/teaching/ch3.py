@@ -1,11 +1,8 @@
-r"""Chapter 3 step by step: one contextual REPS update (Sec. 3.3, Table 3.1) taken apart.
-
-The library's :func:`~skillkit.search.reps.reps_dual`, :func:`~skillkit.search.reps.reps_weights`
-and :meth:`~skillkit.policies.gaussian.LinearGaussianPolicy.fit` evaluated on grids for the
-notebook's panels: (a) the dual (3.9) along η, (b, c) the weights (3.10), KL and ESS against
-ε, (d) the weighted ML fit's ellipse (3.11–3.13), and the updates as tables. Samples are
-rewards R_i (N,), N ≥ 2 and not all equal, with baseline features φ(s_i) (N, F) or ``None``
-(episode-based REPS, Eq. 2.15). Figures take ``backend`` in {"plotly", "matplotlib"}.
+r"""Chapter 3 step by step: one contextual REPS update (Sec. 3.3, Table 3.1) taken apart with
+the library's dual, weights and ML fit: (a) the dual (3.9) along η, (b, c) the weights (3.10),
+KL and ESS against ε, (d) the fit's ellipse (3.11–3.13), and tables. Samples are rewards R_i
+(N,), N ≥ 2, not all equal, with baseline features φ(s_i) (N, F) or ``None`` (Eq. 2.15).
+Figures take ``backend`` in {"plotly", "matplotlib"}.
 """
 
 from __future__ import annotations
@@ -27,26 +24,9 @@ from skillkit.search.reps import (
     reps_dual,
     reps_weights,
 )
-from skillkit.teaching._common import draw, index_pair, sig
+from skillkit.teaching._common import draw, expect, index_pair, sig, xy
 from skillkit.viz.plots import PANEL_HEIGHT
 from skillkit.viz.series import Series
-
-__all__ = [
-    "COLUMNS",
-    "DEFAULT_EPSILONS",
-    "DualSlice",
-    "KLSweep",
-    "diagnostics_table",
-    "dual_figure",
-    "dual_slice",
-    "ellipse_figure",
-    "ellipse_points",
-    "heaviest_samples",
-    "kl_sweep",
-    "policy_moments",
-    "update_table",
-    "weights_and_kl_figure",
-]
 
 #: Pixels :func:`ellipse_figure`'s panel gets beyond a standard one (for equal axis scales).
 ELLIPSE_EXTRA_HEIGHT = 160
@@ -73,12 +53,9 @@ def _solve(rewards: np.ndarray, phi: np.ndarray, epsilon: float) -> REPSWeights:
 
 
 def _policy(pol, name: str) -> LinearGaussianPolicy:
-    if not isinstance(pol, LinearGaussianPolicy):
-        raise ValueError(f"{name}: expected a LinearGaussianPolicy, got {type(pol).__name__}")
-    return pol
+    return expect(pol, LinearGaussianPolicy, name, "a LinearGaussianPolicy")
 
 
-# ------------------------------------------------------------------------------ (a) the dual
 @dataclass(frozen=True)
 class DualSlice:
     """The REPS dual (3.9) along η with γ at its optimum γ* (:func:`dual_slice`).
@@ -86,8 +63,7 @@ class DualSlice:
     Attributes
     ----------
     eta, value, kl : ndarray, shape (n,)
-        The η grid (log-spaced, containing η*), g(η, γ*) there (reward units) and the KL of
-        the weights p_η,i ∝ exp((R_i − γ*ᵀφ(s_i))/η) from uniform, = ε − ∂g/∂η (A.11).
+        The η grid (containing η*), g(η, γ*) and KL(p_η ‖ uniform) = ε − ∂g/∂η (A.11).
     solution : REPSWeights
         The joint minimiser (η*, γ*).
     """
@@ -118,9 +94,7 @@ def dual_slice(
         \exp\Big(\frac{R_i - \gamma^{*T}\phi(s_i)}{\eta}\Big)\Big) + \eta\epsilon
         + \gamma^{*T}\hat\phi
 
-    on ``n_points`` ≥ 3 log-spaced values from η*/span to η*·span (span > 1), η* added
-    (replacing a point within 1e-9 of it). The dual is convex, so with the bound ε > 0
-    (Eq. 3.4) active the minimum is at η*, where KL = ε.
+    on ``n_points`` ≥ 3 log-spaced values from η*/span to η*·span (span > 1), η* included.
     """
     r, phi = _samples(rewards, features)
     eps = check_positive(epsilon, "epsilon")
@@ -146,20 +120,14 @@ def dual_figure(
     span: float = 10.0,
     backend: str = "plotly",
 ):
-    """(a) :func:`dual_slice` over a log η axis: g(η, γ*) with η* marked, and the KL along
-    the slice with the bound ε."""
+    """(a) :func:`dual_slice` over log η: g(η, γ*) and the KL with the bound ε, η* marked."""
     s = dual_slice(rewards, features, epsilon, span=span)
     sol = s.solution
     n_feat = sol.gamma.shape[0]
     held = f"the {n_feat} baseline parameters γ held at their optimum γ*" if n_feat else "no γ"
-    left = {"panel": f"dual g(η, γ*), {held}", "xlabel": "η (reward units)", "ylabel": "g(η, γ*)"}
-    right = {
-        "panel": "KL of the weights along the same slice",
-        "xlabel": "η (reward units)",
-        "ylabel": "KL(p ‖ q)",
-    }
-    for p in (left, right):
-        p["log_x"] = True
+    axes = {"xlabel": "η (reward units)", "log_x": True}
+    left = {"panel": f"dual g(η, γ*), {held}", "ylabel": "g(η, γ*)", **axes}
+    right = {"panel": "KL of the weights along the same slice", "ylabel": "KL(p ‖ q)", **axes}
     star = f"minimiser η* = {sol.eta:.3g}"
     ends = [float(s.eta[0]), float(s.eta[-1])]
     bound = f"bound ε = {sol.epsilon:.3g} (Eq. 3.4)"
@@ -176,11 +144,9 @@ def dual_figure(
     return draw(title, series, backend)
 
 
-# ------------------------------------------------------------------- (b, c) weights and KL
 @dataclass(frozen=True)
 class KLSweep:
-    """The REPS weights' diagnostics over bounds ε (:func:`kl_sweep`), each shape (m,): the
-    bounds, the achieved KL, the ESS 1/Σ p_i², η* and whether the bound is active."""
+    """Over bounds ε (:func:`kl_sweep`), each (m,): ε, KL, ESS 1/Σ p_i², η*, bound active."""
 
     epsilon: np.ndarray
     kl: np.ndarray
@@ -190,8 +156,7 @@ class KLSweep:
 
 
 def kl_sweep(rewards: ArrayLike, features: ArrayLike | None, epsilons: ArrayLike) -> KLSweep:
-    """:func:`~skillkit.search.reps.reps_weights` (Eqs. 3.4, 3.10) for each bound of
-    ``epsilons`` (m,), all > 0, on one batch."""
+    """:func:`~skillkit.search.reps.reps_weights` (3.4, 3.10) per bound ``epsilons`` (m,) > 0."""
     r, phi = _samples(rewards, features)
     eps = check_array(epsilons, "epsilons", ndim=1)
     if eps.size == 0 or np.any(eps <= 0):
@@ -214,12 +179,9 @@ def weights_and_kl_figure(
     epsilons: ArrayLike | None = None,
     backend: str = "plotly",
 ):
-    r"""(b) The weights (3.10) at ``epsilon``; (c) the KL and ESS over ``epsilons``.
-
-    Four panels: N p_i against R_i and against the advantage A_i = R_i − γᵀφ(s_i) (1 = uniform;
-    one curve N exp(A/η) / Σ_j exp(A_j/η)), KL(p ‖ q) against ε (= ε while the bound 3.4 is
-    active, at most log N) and 1/Σ p_i², over ``epsilons`` (default :data:`DEFAULT_EPSILONS`,
-    :func:`kl_sweep`). Weights that underflow to 0 are not drawn (the title counts them).
+    r"""(b) N p_i (3.10) at ``epsilon`` against R_i and the advantage R_i − γᵀφ(s_i); (c) KL
+    and ESS over ``epsilons`` (default :data:`DEFAULT_EPSILONS`). Weights that underflow to 0
+    are not drawn (the title counts them).
     """
     r, phi = _samples(rewards, features)
     eps = check_positive(epsilon, "epsilon")
@@ -269,7 +231,6 @@ def weights_and_kl_figure(
     return draw(title, series, backend)
 
 
-# ------------------------------------------------------------------------ (d) the ellipse
 def _contexts(policy: LinearGaussianPolicy, contexts: ArrayLike | None, n: int | None = None):
     """Contexts (n, context_dim) for ``policy`` (``None`` allowed for a context-free one)."""
     if contexts is None:
@@ -296,17 +257,12 @@ def _weights(weights: ArrayLike, n: int) -> np.ndarray:
 def policy_moments(
     policy: LinearGaussianPolicy, contexts: ArrayLike | None, weights: ArrayLike | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
-    r"""Mean (d,) and covariance (d, d) of ω under the policy over contexts (n, context_dim).
-
-    With s_i drawn with probabilities q_i (``weights``, normalised; default uniform) and
-    ω ~ N(a + Aφ(s), Σ) (Eq. 3.13):
+    r"""Mean (d,) and covariance (d, d) of ω ~ N(a + Aφ(s), Σ) (Eq. 3.13) over contexts
+    (n, context_dim) drawn with probabilities q_i (``weights``, default uniform):
 
     .. math::
         m = \sum_i q_i \mu(s_i), \qquad
         C = \Sigma + \sum_i q_i (\mu(s_i) - m)(\mu(s_i) - m)^T.
-
-    After the weighted ML fit (3.11, 3.12) on REPS weights p this is the p-weighted mean and
-    covariance of the samples ω_i.
     """
     s = _contexts(_policy(policy, "policy"), contexts)
     mu = np.atleast_2d(policy.mean_of(s))
@@ -324,11 +280,8 @@ def _dims(dims, d: int) -> tuple[int, int]:
 def ellipse_points(
     mean: ArrayLike, cov: ArrayLike, dims: tuple[int, int] = (0, 1), n_points: int = 101
 ) -> np.ndarray:
-    r"""The 1-σ ellipse of a Gaussian's marginal on ``dims``, shape (n_points, 2), closed.
-
-    With C = V Λ Vᵀ the 2 × 2 block of ``cov`` (symmetric positive semi-definite), the points
-    m + V Λ^{1/2} [cos t, sin t]ᵀ, t ∈ [0, 2π], satisfy (x − m)ᵀ C⁻¹ (x − m) = 1.
-    """
+    r"""The closed 1-σ ellipse m + V Λ^{1/2} [cos t, sin t]ᵀ of a Gaussian's marginal on
+    ``dims`` (C = V Λ Vᵀ, ``cov`` symmetric PSD), shape (n_points, 2)."""
     m = check_array(mean, "mean", ndim=1)
     c = check_array(cov, "cov", shape=(m.shape[0], m.shape[0]))
     i, j = _dims(dims, m.shape[0])
@@ -345,8 +298,7 @@ def ellipse_points(
 
 
 def heaviest_samples(weights: ArrayLike, mass: float = 0.5) -> np.ndarray:
-    """Sorted indices of the fewest samples whose weights hold at least ``mass`` ∈ (0, 1] of
-    the total (ties broken by index, round-off 1e-12 of the total)."""
+    """Sorted indices of the fewest samples holding ``mass`` ∈ (0, 1] of the weight."""
     w = check_array(weights, "weights", ndim=1)
     p = _weights(w, w.shape[0])
     mass = check_positive(mass, "mass")
@@ -368,11 +320,9 @@ def ellipse_figure(
     mass: float = 0.5,
     backend: str = "plotly",
 ):
-    """(d) The new policy's 1-σ ellipse over the re-weighted samples, the old one beside it.
-
-    Each policy is drawn by :func:`policy_moments` over the batch's contexts (N, context_dim);
-    the new one also at the mean context (Σ alone). The samples ω_i (N, d) holding ``mass`` of
-    the REPS weights p_i (3.10) are highlighted; axes have equal scales.
+    """(d) The old and new policies' 1-σ ellipses (:func:`policy_moments` over the contexts
+    (N, context_dim); the new one also at the mean context) over the samples ω_i (N, d), those
+    holding ``mass`` of the weights highlighted; axes have equal scales.
     """
     for name, pol in (("old", old), ("new", new)):
         _policy(pol, name)
@@ -401,18 +351,9 @@ def ellipse_figure(
     }
     held = f"samples holding {mass:.0%} of the weight ({heavy.sum()} of {w.shape[0]})"
     series = [
-        Series(held, w[heavy, i].tolist(), w[heavy, j].tolist(), kind="markers", **labels),
-        Series(
-            "the other samples",
-            w[~heavy, i].tolist(),
-            w[~heavy, j].tolist(),
-            kind="markers",
-            **labels,
-        ),
-    ] + [
-        Series(name, xy[:, 0].tolist(), xy[:, 1].tolist(), dash=dash, **labels)
-        for name, (xy, dash) in curves.items()
-    ]
+        Series(name, w[m, i].tolist(), w[m, j].tolist(), kind="markers", **labels)
+        for name, m in ((held, heavy), ("the other samples", ~heavy))
+    ] + [Series(name, *xy(pts), dash=dash, **labels) for name, (pts, dash) in curves.items()]
     title = f"(d) the new policy over the re-weighted samples, parameters ω_{i + 1} and ω_{j + 1}"
     fig = draw(title, series, backend)
     if backend == "plotly":
@@ -429,7 +370,6 @@ def ellipse_figure(
     return fig
 
 
-# ------------------------------------------------------------------------------ tables
 #: Columns of :func:`update_table` and :func:`diagnostics_table`.
 COLUMNS = (
     "N (samples used)",
@@ -445,17 +385,9 @@ COLUMNS = (
 
 def _row(sol: DualSolution, n: int, mean_reward: float, policy_kl: float) -> dict:
     """A table row: the dual's diagnostics, the batch's mean reward and the policy's KL."""
-    values = (
-        n,
-        sig(sol.epsilon),
-        sig(sol.eta),
-        sig(sol.kl),
-        bool(sol.kl_bound_active),
-        sig(sol.ess),
-        sig(mean_reward),
-        sig(policy_kl),
-    )
-    return dict(zip(COLUMNS, values, strict=True))
+    first = [sig(v) for v in (sol.epsilon, sol.eta, sol.kl)]
+    last = [sig(v) for v in (sol.ess, mean_reward, policy_kl)]
+    return dict(zip(COLUMNS, (n, *first, bool(sol.kl_bound_active), *last), strict=True))
 
 
 def update_table(
@@ -466,16 +398,11 @@ def update_table(
     contexts: ArrayLike | None,
     optimum: ArrayLike | None = None,
 ) -> pd.DataFrame:
-    """One REPS update (weights 3.10, weighted ML fit 3.11–3.12) as a one-row table.
-
-    Columns :data:`COLUMNS` (4 significant digits): the dual's ``solution``, the mean of the
-    batch's ``rewards`` (N,) and KL(π_new ‖ π_old) averaged over its ``contexts``. With the
-    optimal coefficients θ* = [a*, A*] (d, 1 + F) as ``optimum``, also max |θ − θ*| of the
-    old and the new policy.
+    """One REPS update (3.10–3.12) as a row of :data:`COLUMNS`: the dual's ``solution``, mean
+    ``rewards`` (N,), KL(π_new ‖ π_old) over ``contexts``; with ``optimum`` θ* (d, 1 + F) also
+    max |θ − θ*| before and after.
     """
-    if not isinstance(solution, REPSWeights):
-        raise ValueError(f"solution: expected REPSWeights, got {type(solution).__name__}")
-    n = solution.weights.shape[0]
+    n = expect(solution, REPSWeights, "solution").weights.shape[0]
     r = check_array(rewards, "rewards", shape=(n,))
     for name, pol in (("old", old), ("new", new)):
         _policy(pol, name)
@@ -489,8 +416,7 @@ def update_table(
 
 
 def diagnostics_table(updates: Sequence) -> pd.DataFrame:
-    """The updates of Table 3.1, one row per :meth:`ContextualREPS.update` result
-    (REPSDiagnostics), columns :data:`COLUMNS`; index ``update`` = 1 … k."""
+    """Table 3.1: a row of :data:`COLUMNS` per ``ContextualREPS.update`` result."""
     if isinstance(updates, (str, bytes)) or not isinstance(updates, Sequence) or not updates:
         raise ValueError("updates: expected a non-empty list of ContextualREPS.update results")
     rows = []

@@ -1,11 +1,7 @@
-"""Chapter 4 step by step: one GPREPS iteration (Sec. 4.1, Table 4.1) taken apart.
-
-The notebook calls the library's pieces in the order
-:meth:`GPREPS.update <skillkit.search.gpreps.GPREPS.update>` does (model fit, μ̂(s), policy
-samples, Eq. 4.1, weights 3.10, ML fit 3.11–3.13), so from one generator it gets its numbers.
-This module sizes, tabulates and draws those cells, resamples the reward estimates of the
-M, L widget and reads stored runs (Table 4.2, Fig. 4.4, fig4.10–4.12). Figures take
-``backend`` in {"plotly", "matplotlib"}.
+"""Chapter 4 step by step: one GPREPS iteration (Sec. 4.1, Table 4.1) taken apart, in the
+order :meth:`GPREPS.update <skillkit.search.gpreps.GPREPS.update>` runs it (model fit, μ̂(s),
+Eq. 4.1, weights 3.10, ML fit 3.11–3.13); the M, L widget's reward estimates and stored runs
+(Table 4.2, Fig. 4.4, fig4.10–4.12). Figures take ``backend`` in {"plotly", "matplotlib"}.
 """
 
 from __future__ import annotations
@@ -24,7 +20,7 @@ import pandas as pd
 from numpy.typing import ArrayLike
 
 from skillkit._validation import as_generator, check_array, check_count
-from skillkit.experiments.ch4_balancing import median_reached
+from skillkit.experiments.ch4_balancing import LABELS, median_reached, thesis_42
 from skillkit.experiments.ch4_gpreps import COV_FLOOR, MIN_EFFECTIVE_SAMPLES
 from skillkit.models.gp import EVENT_KINDS, ExactGP, ForwardModel, record_numerical_events
 from skillkit.models.sparse import FITC
@@ -35,51 +31,15 @@ from skillkit.search.reps import REPSWeights
 from skillkit.tasks.base import Task
 from skillkit.tasks.planar import Throwing
 from skillkit.tasks.throwing_model import ThrowingPrediction, ThrowingRewardModel
-from skillkit.teaching._common import draw
+from skillkit.teaching._common import at_scale, draw, expect, per_scale, xy
 from skillkit.viz.series import Series
 
-__all__ = [
-    "EXPECTED_WARNINGS",
-    "HandledEvents",
-    "IterationSizes",
-    "ModelView",
-    "RewardPool",
-    "SCALES",
-    "THESIS_TABLE_4_2",
-    "batch_table",
-    "contexts_figure",
-    "diagnostics_table",
-    "exploration_figure",
-    "exploration_table",
-    "fit_table",
-    "gflops_table",
-    "gpreps_model_view",
-    "handled_events",
-    "iteration_sizes",
-    "policy_change_table",
-    "predicted_throws_figure",
-    "reward_estimate_figure",
-    "reward_estimates",
-    "reward_pool",
-    "step_settings",
-    "table_4_2",
-    "throwing_model",
-    "update_comparison",
-    "weights_figure",
-]
 
-
-# --------------------------------------------------------------------------- sizes
 @dataclass(frozen=True)
 class IterationSizes:
-    """How big the notebook's GPREPS step-through is at one scale.
-
-    N₀ real throws before the first update, M artificial pairs per update, L predicted
-    throws per pair (Eq. 4.1), updates after the first (one real throw each); pseudo-inputs
-    of the FITC flight and robot models and L-BFGS steps of the GP fits (2.28; 150 for the
-    robot at every scale, as fig4.6), at most ``max_points`` transitions each; the reward
-    pool of the M, L widget (:func:`reward_pool`).
-    """
+    """The step-through's sizes at one scale: N₀, M, L (Eq. 4.1), later updates; FITC
+    pseudo-inputs and L-BFGS steps (2.28) of the flight and robot models, at most
+    ``max_points`` transitions each; the reward pool of :func:`reward_pool`."""
 
     n_initial: int
     n_artificial: int
@@ -97,81 +57,36 @@ class IterationSizes:
 
 #: The step-through's sizes per ``SKILLKIT_SCALE``; "paper" has the thesis's N₀ = 10, M = 500,
 #: L = 25 and fig4.6's model sizes.
-SCALES: dict[str, IterationSizes] = {
-    "smoke": IterationSizes(
-        n_initial=8,
-        n_artificial=30,
-        n_trajectories=3,
-        n_updates=1,
-        n_inducing=15,
-        gp_steps=20,
-        robot_inducing=20,
-        robot_steps=150,
-        max_points=300,
-        pool_pairs=30,
-        pool_repeats=6,
-        max_trajectories=10,
-    ),
-    "quick": IterationSizes(
-        n_initial=10,
-        n_artificial=200,
-        n_trajectories=5,
-        n_updates=5,
-        n_inducing=50,
-        gp_steps=60,
-        robot_inducing=50,
-        robot_steps=150,
-        max_points=1000,
-        pool_pairs=100,
-        pool_repeats=10,
-        max_trajectories=20,
-    ),
-    "paper": IterationSizes(
-        n_initial=10,
-        n_artificial=500,
-        n_trajectories=25,
-        n_updates=10,
-        n_inducing=50,
-        gp_steps=150,
-        robot_inducing=50,
-        robot_steps=150,
-        max_points=1000,
-        pool_pairs=200,
-        pool_repeats=20,
-        max_trajectories=25,
-    ),
-}
+SCALES: dict[str, IterationSizes] = per_scale(
+    IterationSizes,
+    n_initial=(8, 10, 10),
+    n_artificial=(30, 200, 500),
+    n_trajectories=(3, 5, 25),
+    n_updates=(1, 5, 10),
+    n_inducing=(15, 50, 50),
+    gp_steps=(20, 60, 150),
+    robot_inducing=(20, 50, 50),
+    robot_steps=(150, 150, 150),
+    max_points=(300, 1000, 1000),
+    pool_pairs=(30, 100, 200),
+    pool_repeats=(6, 10, 20),
+    max_trajectories=(10, 20, 25),
+)
 
 
 def iteration_sizes(scale: str) -> IterationSizes:
     """The step-through's sizes at ``scale`` (a key of :data:`SCALES`)."""
-    if scale not in SCALES:
-        raise ValueError(f"scale: expected one of {tuple(SCALES)}, got {scale!r}")
-    return SCALES[scale]
-
-
-def _sizes(sizes) -> IterationSizes:
-    if not isinstance(sizes, IterationSizes):
-        raise ValueError(f"sizes: expected IterationSizes, got {type(sizes).__name__}")
-    return sizes
-
-
-def _reps(weights) -> REPSWeights:
-    if not isinstance(weights, REPSWeights):
-        raise ValueError(f"weights: expected REPSWeights, got {type(weights).__name__}")
-    return weights
+    return at_scale(SCALES, scale)
 
 
 def _fitc_model(n_inducing: int, n_steps: int) -> ForwardModel:
-    """A FITC forward model of Δx."""
     return ForwardModel(FITC(n_inducing=n_inducing, n_steps=n_steps), target="delta")
 
 
 def throwing_model(task: Throwing, sizes: IterationSizes) -> ThrowingRewardModel:
-    """The decomposed throwing model of Fig. 4.2 at the step-through's ``sizes``: FITC robot
-    and flight models and an exact release GP (at most 300 points), the library's defaults
-    otherwise."""
-    _sizes(sizes)
+    """The decomposed throwing model of Fig. 4.2 at ``sizes``: FITC robot and flight models,
+    an exact release GP (at most 300 points)."""
+    expect(sizes, IterationSizes, "sizes")
     return ThrowingRewardModel(
         task,
         make_robot_model=partial(_fitc_model, sizes.robot_inducing, sizes.robot_steps),
@@ -184,9 +99,8 @@ def throwing_model(task: Throwing, sizes: IterationSizes) -> ThrowingRewardModel
 
 
 def step_settings(sizes: IterationSizes, epsilon: float = 1.0) -> GPREPSSettings:
-    """GPREPS's settings of the step-through: M, L of ``sizes``, ε, ``context_model="prior"``
-    (μ̂(s) = the task's μ(s), usable before any update) and fig4.6's regularised ML fit."""
-    _sizes(sizes)
+    """GPREPS's settings: M, L of ``sizes``, ε, μ̂(s) = the task's μ(s) and fig4.6's ML fit."""
+    expect(sizes, IterationSizes, "sizes")
     return GPREPSSettings(
         epsilon=epsilon,
         n_artificial=sizes.n_artificial,
@@ -197,13 +111,9 @@ def step_settings(sizes: IterationSizes, epsilon: float = 1.0) -> GPREPSSettings
     )
 
 
-# --------------------------------------------------------------------------- tables
 def batch_table(batch: Batch) -> pd.DataFrame:
-    """The real throws of a batch: target s = [x, y], release time, landing x (NaN for a
-    failed rollout) and reward R(τ, s)."""
-    if not isinstance(batch, Batch):
-        raise ValueError(f"batch: expected a Batch, got {type(batch).__name__}")
-    n = batch.n_rollouts
+    """A batch's real throws: target s, release time, landing x (NaN: failed) and reward."""
+    n = expect(batch, Batch, "batch", "a Batch").n_rollouts
     trajs = list(batch.trajectories or [])[:n]
     info = [(t.info or {}) if t is not None and not t.failed else {} for t in trajs]
     info += [{}] * (n - len(info))
@@ -220,8 +130,8 @@ def batch_table(batch: Batch) -> pd.DataFrame:
 
 
 def fit_table(stats: Mapping) -> pd.DataFrame:
-    """A reward model's fit statistics (``RewardModel.fit``), one row per learned GP: points,
-    iterations, log ML (2.28), the largest noise variance and the handled events."""
+    """``RewardModel.fit``'s statistics, a row per GP: points, iterations, log ML (2.28), the
+    largest noise variance and the handled events."""
     if not isinstance(stats, Mapping):
         raise ValueError(f"stats: expected the dict a reward model's fit returns, got {stats!r}")
     rows = {}
@@ -248,15 +158,12 @@ def policy_change_table(
     weights: REPSWeights,
     rewards: ArrayLike,
 ) -> pd.DataFrame:
-    """What the weighted ML fit (3.11–3.13) did to the policy, in one row.
-
-    With the M artificial ``contexts`` (M, context_dim), the dual's ``weights`` and the
-    predicted ``rewards`` R̂ (M,): KL(π_new ‖ π_old) averaged over the contexts (it can exceed
-    ε), ε, KL(p ‖ uniform), the ESS, both entropies, Σ R̂/M and Σ p R̂.
-    """
+    """What the weighted ML fit (3.11–3.13) did, in one row: KL(π_new ‖ π_old) over the M
+    ``contexts`` (M, context_dim), ε, KL(p ‖ uniform), ESS, entropies, Σ R̂/M and Σ p R̂ of
+    ``rewards`` R̂ (M,)."""
     if not isinstance(old, LinearGaussianPolicy) or not isinstance(new, LinearGaussianPolicy):
         raise ValueError("old, new: expected LinearGaussianPolicy objects")
-    p = _reps(weights).weights
+    p = expect(weights, REPSWeights, "weights").weights
     s = check_array(contexts, "contexts", shape=(p.shape[0], old.context_dim))
     r = check_array(rewards, "rewards", shape=p.shape)
     return pd.DataFrame(
@@ -278,21 +185,15 @@ def policy_change_table(
 def diagnostics_table(
     diagnostics: Sequence, policy_rewards: ArrayLike | None = None
 ) -> pd.DataFrame:
-    """One row per :class:`~skillkit.search.gpreps.GPREPSDiagnostics` of ``GPREPS.update``.
-
-    Columns: real samples, η, KL, ε, ESS of the M artificial samples, the model's prediction
-    of the new real batch (NaN before the first model) against its real reward, the mean R̂,
-    the policy mean's reward (``policy_rewards`` (n_updates,), if given) and the seconds spent
-    training, predicting and updating the policy.
-    """
+    """A row per :class:`~skillkit.search.gpreps.GPREPSDiagnostics`: real samples, η, KL, ε,
+    ESS, predicted (NaN before a model) and real reward of the new batch, mean R̂, the policy
+    mean's ``policy_rewards`` (n_updates,) if given, and the seconds of each phase."""
     diags = list(diagnostics) if isinstance(diagnostics, Sequence) else []
     if not diags or not all(hasattr(d, "reps") and hasattr(d, "n_real") for d in diags):
         raise ValueError("diagnostics: expected a non-empty sequence of GPREPSDiagnostics")
-    evaluated = (
-        np.full(len(diags), np.nan)
-        if policy_rewards is None
-        else check_array(policy_rewards, "policy_rewards", shape=(len(diags),))
-    )
+    evaluated = np.full(len(diags), np.nan)
+    if policy_rewards is not None:
+        evaluated = check_array(policy_rewards, "policy_rewards", shape=(len(diags),))
     rows = []
     for d, policy_reward in zip(diags, evaluated, strict=True):
         predicted = d.predicted_real_reward
@@ -322,23 +223,18 @@ def update_comparison(
     diagnostics: GPREPSDiagnostics,
     update_policy: LinearGaussianPolicy,
 ) -> pd.DataFrame:
-    """The step-through's dual solution and new policy beside one ``GPREPS.update`` on the
-    same data (its diagnostics and policy): η, KL, ESS, max |a| and log det Σ, and whether
-    they are exactly equal (the same draws in the same order give the same numbers)."""
-    _reps(weights)
+    """The step-through's η, KL, ESS, max |a| and log det Σ beside one ``GPREPS.update`` on
+    the same draws, and whether they are exactly equal."""
+    expect(weights, REPSWeights, "weights")
     if not hasattr(diagnostics, "reps"):
         raise ValueError("diagnostics: expected GPREPSDiagnostics")
     for name, pol in (("policy", policy), ("update_policy", update_policy)):
-        if not isinstance(pol, LinearGaussianPolicy):
-            raise ValueError(f"{name}: expected a LinearGaussianPolicy")
-    ours = [weights.eta, weights.kl, weights.ess, np.abs(policy.mean).max(), policy.log_det_cov()]
-    theirs = [
-        diagnostics.reps.eta,
-        diagnostics.reps.kl,
-        diagnostics.reps.ess,
-        np.abs(update_policy.mean).max(),
-        update_policy.log_det_cov(),
-    ]
+        expect(pol, LinearGaussianPolicy, name, "a LinearGaussianPolicy")
+
+    def row(w, pol: LinearGaussianPolicy) -> list:
+        return [w.eta, w.kl, w.ess, np.abs(pol.mean).max(), pol.log_det_cov()]
+
+    ours, theirs = row(weights, policy), row(diagnostics.reps, update_policy)
     equal = [a == b for a, b in zip(ours, theirs, strict=True)]
     equal[3] = bool(np.array_equal(policy.mean, update_policy.mean))
     equal[4] = bool(np.array_equal(policy.cov, update_policy.cov))
@@ -349,8 +245,8 @@ def update_comparison(
 
 
 def gflops_table(run: Any) -> pd.DataFrame:
-    """Fig. 4.4's speed numbers per thread count, from a ``fig4.4`` run or its summary:
-    trajectories sampled in one moment-matching time, and the GFLOP/s of both."""
+    """Fig. 4.4 per thread count (a ``fig4.4`` run or its summary): trajectories sampled in
+    one moment-matching time and both GFLOP/s."""
     summary = getattr(run, "summary", run)
     keys = ("trajectories_in_mm_time", "mm_gflops", "sampling_gflops")
     if not isinstance(summary, Mapping) or any(k not in summary for k in keys):
@@ -364,30 +260,17 @@ def gflops_table(run: Any) -> pd.DataFrame:
     return pd.DataFrame.from_dict(rows, orient="index").rename_axis("threads")
 
 
-#: Table 4.2 of the thesis: seconds of real experience to reach each reward limit.
+#: Table 4.2 of the thesis (its claims spec): seconds of real experience to reach each limit.
 THESIS_TABLE_4_2: dict[str, tuple[float, float, float]] = {
-    "PILCO": (10.18, 11.46, 12.18),
-    "GPREPS": (10.68, 20.52, 38.50),
-    "REPS": (1425.0, 2300.0, 4075.0),
-}
-_TAB42_METHODS = {
-    "pilco": ("PILCO", "PILCO"),
-    "gpreps": ("GPREPS", "GPREPS"),
-    "reps": ("REPS", "REPS"),
-    "pilco_linear": ("PILCO (linear model)", "PILCO"),
-    "gpreps_linear": ("GPREPS (linear model)", "GPREPS"),
+    LABELS[m]: tuple(v) for m, v in thesis_42()["experience_s"].items()
 }
 
 
 def table_4_2(run: Any) -> pd.DataFrame:
-    """Table 4.2 (experience to reach each reward limit) beside :data:`THESIS_TABLE_4_2`.
-
-    ``run`` is a ``tab4.2`` run or its summary. Per method and limit −100, −10, −1.5: the mean
-    seconds over the trials that reached it, the median over all trials with a trial that
-    never reached it counted as slowest (:func:`~skillkit.experiments.ch4_balancing.median_reached`,
-    what the verdict judges), the trials that reached it, and the thesis's seconds (a
-    linear-model variant beside its method's).
-    """
+    """Table 4.2 of a ``tab4.2`` run (or its summary) beside :data:`THESIS_TABLE_4_2`: per
+    method and limit the mean seconds of the trials that reached it, the median with misses
+    slowest (:func:`~skillkit.experiments.ch4_balancing.median_reached`), the count reached and
+    the thesis's seconds."""
     summary = getattr(run, "summary", run)
     if not isinstance(summary, Mapping) or "pilco" not in summary:
         raise ValueError("run: expected a tab4.2 run or its summary (with a 'pilco' entry)")
@@ -401,7 +284,7 @@ def table_4_2(run: Any) -> pd.DataFrame:
         names=["reward limit", ""],
     )
     rows, index = [], []
-    for key, (label, thesis_key) in _TAB42_METHODS.items():
+    for key, label in LABELS.items():
         entry = summary.get(key)
         if not isinstance(entry, Mapping) or "limits" not in entry:
             continue
@@ -416,7 +299,7 @@ def table_4_2(run: Any) -> pd.DataFrame:
                 np.nan if mean is None else round(float(mean), 2),
                 np.nan if median is None else round(float(median), 2),
                 f"{reached}/{n_trials}" if reached is not None else "",
-                THESIS_TABLE_4_2[thesis_key][i],
+                THESIS_TABLE_4_2[LABELS[key.split("_")[0]]][i],
             ]
         rows.append(row)
         index.append(label)
@@ -451,14 +334,10 @@ def _exploration(run: Any, method: str) -> tuple[list[np.ndarray], list[np.ndarr
 
 
 def exploration_table(run: Any, method: str = "gpreps") -> pd.DataFrame:
-    r"""How much a GPREPS run still explores, and how much of its KL bound each update spends.
-
-    REPS bounds KL(p ‖ q) ≤ ε per update (3.5) and the weighted ML fit (3.11–3.13) shrinks Σ;
-    when every update spends its whole bound, Σ shrinks at a rate set by ε. ``run`` (fig4.10,
-    fig4.11, fig4.12) stores ``trial<i>__policy_cov`` (K + 1, D, D) and ``trial<i>__<method>_kl``
-    (K,) in its ``trials.npz``. One row per trial and a median row: √tr Σ_k / √tr Σ_0 after a
-    quarter, half, three quarters and all of the updates, the last update's KL and the share of
-    updates with KL ≥ 0.99 ε.
+    r"""How much a GPREPS run still explores and how much of its bound ε (3.5) each update
+    spends. ``run`` (fig4.10–4.12) stores ``trial<i>__policy_cov`` (K + 1, D, D) and
+    ``trial<i>__<method>_kl`` (K,). A row per trial and a median: √tr Σ_k / √tr Σ_0 after ¼, ½,
+    ¾ and all updates, the last KL and the share of updates at KL ≥ 0.99 ε.
     """
     scales, kls, epsilon = _exploration(run, method)
     rows = []
@@ -475,8 +354,7 @@ def exploration_table(run: Any, method: str = "gpreps") -> pd.DataFrame:
 
 
 def exploration_figure(run: Any, method: str = "gpreps", backend: str = "plotly"):
-    """√tr Σ_k / √tr Σ_0 after each update k (log axis), one line per trial, of the run of
-    :func:`exploration_table`."""
+    """√tr Σ_k / √tr Σ_0 over updates k, a line per trial (see :func:`exploration_table`)."""
     scales, kls, epsilon = _exploration(run, method)
     series = [
         Series(
@@ -497,27 +375,22 @@ def exploration_figure(run: Any, method: str = "gpreps", backend: str = "plotly"
     return draw(title, series, backend)
 
 
-# --------------------------------------------------------------------------- figures
-def _xy(points: np.ndarray) -> tuple[list, list]:
-    return points[:, 0].tolist(), points[:, 1].tolist()
-
-
 def _joined(paths) -> tuple[list, list]:
     """Paths (each (K, 2)) as one polyline broken by NaN gaps."""
     pieces = []
     for p in paths:
         pieces += [np.asarray(p, dtype=float), np.full((1, 2), np.nan)]
-    return _xy(np.concatenate(pieces))
+    return xy(np.concatenate(pieces))
 
 
 def contexts_figure(real: ArrayLike, artificial: ArrayLike, backend: str = "plotly"):
-    """The targets (N, 2) of the real throws and the M artificial ones (M, 2) from μ̂(s)."""
+    """Targets of the real throws (N, 2) and of the artificial ones from μ̂(s) (M, 2)."""
     s_real = check_array(real, "real", shape=(None, 2))
     s_art = check_array(artificial, "artificial", shape=(None, 2))
     common = {"kind": "markers", "xlabel": "target x [m]", "ylabel": "target y [m]"}
     series = [
-        Series(f"artificial s ~ μ̂(s) (M = {len(s_art)})", *_xy(s_art), **common),
-        Series(f"real throws (N = {len(s_real)})", *_xy(s_real), **common),
+        Series(f"artificial s ~ μ̂(s) (M = {len(s_art)})", *xy(s_art), **common),
+        Series(f"real throws (N = {len(s_real)})", *xy(s_real), **common),
     ]
     return draw("contexts of the real and the artificial samples", series, backend)
 
@@ -525,8 +398,7 @@ def contexts_figure(real: ArrayLike, artificial: ArrayLike, backend: str = "plot
 def predicted_throws_figure(
     prediction: ThrowingPrediction, real: Batch, n_pairs: int = 3, backend: str = "plotly"
 ):
-    """The L predicted ball flights of the first ``n_pairs`` artificial pairs
-    (``ThrowingRewardModel.predict``) over the flights of the real throws."""
+    """The L predicted flights of the first ``n_pairs`` artificial pairs over the real ones."""
     if not isinstance(prediction, ThrowingPrediction):
         raise ValueError(f"prediction: expected a ThrowingPrediction, got {prediction!r:.60}")
     if not isinstance(real, Batch) or real.trajectories is None:
@@ -546,27 +418,22 @@ def predicted_throws_figure(
 def weights_figure(
     weights: REPSWeights, rewards: ArrayLike, features: ArrayLike, backend: str = "plotly"
 ):
-    """The REPS weights p_j ∝ exp((R̂_j − γᵀφ(s_j))/η) (Eq. 3.10) of the M artificial samples
-    against their advantage, with the closed form (a line of slope 1/η on the log axis) and
-    1/M; ``rewards`` R̂ (M,) and ``features`` φ(s_j) (M, F) as the dual used them."""
-    p = _reps(weights).weights
+    """The REPS weights p_j ∝ exp((R̂_j − γᵀφ(s_j))/η) (Eq. 3.10) against the advantage, with
+    the closed form and 1/M; ``rewards`` R̂ (M,), ``features`` φ(s_j) (M, F)."""
+    p = expect(weights, REPSWeights, "weights").weights
     r = check_array(rewards, "rewards", shape=p.shape)
     phi = check_array(features, "features", shape=(p.shape[0], weights.gamma.shape[0]))
     adv = r - phi @ weights.gamma
     grid = np.linspace(adv.min(), adv.max(), 50)
     shift = adv.max() / weights.eta
     log_z = shift + np.log(np.sum(np.exp(adv / weights.eta - shift)))
+    curve = np.exp(grid / weights.eta - log_z).tolist()
     common = {"xlabel": "advantage R̂ − V(s) (Eq. 3.10)", "ylabel": "weight p", "log_y": True}
     series = [
         Series(
             f"artificial samples (M = {p.size})", adv.tolist(), p.tolist(), kind="markers", **common
         ),
-        Series(
-            f"exp(A/η)/Z, η = {weights.eta:.3g}",
-            grid.tolist(),
-            np.exp(grid / weights.eta - log_z).tolist(),
-            **common,
-        ),
+        Series(f"exp(A/η)/Z, η = {weights.eta:.3g}", grid.tolist(), curve, **common),
         Series("uniform 1/M", [grid[0], grid[-1]], [1.0 / p.size] * 2, dash="dash", **common),
     ]
     title = (
@@ -576,12 +443,10 @@ def weights_figure(
     return draw(title, series, backend)
 
 
-# --------------------------------------------------------------------------- M, L widget
 @dataclass(frozen=True)
 class RewardPool:
-    """Predicted rewards the M, L widget resamples: K fixed pairs (s_k, ω_k), ω_k the policy
-    mean, with P rewards each (``fixed`` (K, P)), and Q pairs s ~ μ(s), ω ~ π(ω|s) with L_max
-    rewards each (``pairs`` (Q, L_max))."""
+    """Predicted rewards of the M, L widget: ``fixed`` (K, P) at K pairs (s_k, policy mean)
+    and ``pairs`` (Q, L_max) at Q pairs s ~ μ(s), ω ~ π(ω|s)."""
 
     contexts: np.ndarray
     omegas: np.ndarray
@@ -597,14 +462,10 @@ def reward_pool(
     contexts: ArrayLike,
     rng: np.random.Generator | int | None = None,
 ) -> RewardPool:
-    """Predict once the rewards :func:`reward_estimate_figure` resamples.
-
-    ``model.predict(contexts, omegas, L, rng).rewards`` (B, L) gives ``pool_repeats ×
-    max_trajectories`` rewards of the policy mean at each fixed context (K, context_dim), and
-    ``max_trajectories`` of each of ``pool_pairs`` pairs drawn from ``task.sample_context``
-    and ``policy``.
-    """
-    _sizes(sizes)
+    """The rewards :func:`reward_estimate_figure` resamples, from ``model.predict``:
+    ``pool_repeats × max_trajectories`` at each fixed context (K, context_dim) and
+    ``max_trajectories`` at each of ``pool_pairs`` pairs drawn from the task and ``policy``."""
+    expect(sizes, IterationSizes, "sizes")
     rng = as_generator(rng)
     s = check_array(contexts, "contexts", shape=(None, policy.context_dim))
     w = np.atleast_2d(policy.mean_of(s))
@@ -629,8 +490,7 @@ def reward_estimates(
         (1/M) Σ_j R̂_j over M pool pairs drawn with replacement, each R̂_j the mean of L of its
         L_max rewards; 1 ≤ L ≤ min(P, L_max).
     """
-    if not isinstance(pool, RewardPool):
-        raise ValueError(f"pool: expected a RewardPool, got {type(pool).__name__}")
+    expect(pool, RewardPool, "pool", "a RewardPool")
     n_artificial = check_count(n_artificial, "n_artificial")
     n_trajectories = check_count(n_trajectories, "n_trajectories")
     if n_trajectories > min(pool.pairs.shape[1], pool.fixed.shape[1]):
@@ -666,33 +526,22 @@ def reward_estimate_figure(
     seed: int = 0,
     backend: str = "plotly",
 ):
-    r""":func:`reward_estimates` drawn: left, R̂_sω = (1/L) Σ_l R(τ^[l], s) (Eq. 4.1) of each
-    fixed pair (spread σ_k/√L); right, the policy's estimate from M pairs (spread falling with
-    M and L). Each panel's y range is the pool's, so moving M or L changes only the spread."""
+    r""":func:`reward_estimates` drawn: R̂_sω = (1/L) Σ_l R(τ^[l], s) (Eq. 4.1) per fixed pair,
+    and the policy's estimate from M pairs; y ranges are the pool's."""
     fixed, policy = reward_estimates(pool, n_artificial, n_trajectories, n_repeats, seed)
     L = n_trajectories
-    left = {
-        "panel": f"R̂ of {fixed.shape[0]} fixed pairs (L = {L}), {n_repeats} estimates each",
-        "xlabel": "target x of the pair [m]",
-        "ylabel": "R̂ (Eq. 4.1)",
-    }
-    right = {
-        "panel": f"policy's mean R̂ from M = {n_artificial} pairs × L = {L}",
-        "xlabel": "estimate",
-        "ylabel": "mean R̂ of M pairs",
-    }
+    left = {"panel": f"R̂ of {fixed.shape[0]} fixed pairs (L = {L}), {n_repeats} estimates each"}
+    left |= {"xlabel": "target x of the pair [m]", "ylabel": "R̂ (Eq. 4.1)"}
+    right = {"panel": f"policy's mean R̂ from M = {n_artificial} pairs × L = {L}"}
+    right |= {"xlabel": "estimate", "ylabel": "mean R̂ of M pairs"}
     xs = pool.contexts[:, 0]
     repeats = np.arange(1, n_repeats + 1, dtype=float)
     mean_fixed, sd_fixed = fixed.mean(axis=1), fixed.std(axis=1, ddof=1)
     ref = pool.pairs.mean()
+    pool_mean = [1.0, float(n_repeats)], [ref, ref]
+    estimates = np.repeat(xs, n_repeats).tolist(), fixed.reshape(-1).tolist()
     series = [
-        Series(
-            "estimates",
-            np.repeat(xs, n_repeats).tolist(),
-            fixed.reshape(-1).tolist(),
-            kind="markers",
-            **left,
-        ),
+        Series("estimates", *estimates, kind="markers", **left),
         Series(
             "mean ± std of the estimates",
             xs.tolist(),
@@ -704,13 +553,7 @@ def reward_estimate_figure(
             **left,
         ),
         Series("policy estimates", repeats.tolist(), policy.tolist(), kind="markers", **right),
-        Series(
-            f"pool mean ({pool.pairs.size} predicted throws)",
-            [1.0, float(n_repeats)],
-            [ref, ref],
-            dash="dash",
-            **right,
-        ),
+        Series(f"pool mean ({pool.pairs.size} predicted throws)", *pool_mean, dash="dash", **right),
     ]
     title = (
         f"std of R̂ per pair {', '.join(f'{v:.3g}' for v in sd_fixed)}; "
@@ -731,7 +574,6 @@ def reward_estimate_figure(
     return fig
 
 
-# --------------------------------------------------------------------------- warnings
 #: Warnings the chapter's cells cause by design, with the reason each is expected.
 EXPECTED_WARNINGS: dict[str, str] = {
     r"rollout failed": "an exploring policy drove the simulated robot unstable; the rollout "
@@ -742,18 +584,15 @@ EXPECTED_WARNINGS: dict[str, str] = {
 
 @dataclass
 class HandledEvents:
-    """What :func:`handled_events` caught: the counted handled GP events (``numerical``,
-    :data:`~skillkit.models.gp.EVENT_KINDS`) and the messages of expected warnings."""
+    """What :func:`handled_events` caught: GP events (``numerical``) and expected warnings."""
 
     numerical: Any
     warnings: list[str] = field(default_factory=list)
 
     def table(self) -> pd.DataFrame:
         """One row per kind that occurred: count, what it means, an example message."""
-        rows = []
-        for kind, n in self.numerical.counts.items():
-            if n:
-                rows.append({"event": kind, "count": n, "meaning": EVENT_KINDS[kind]})
+        counts = self.numerical.counts.items()
+        rows = [{"event": k, "count": n, "meaning": EVENT_KINDS[k]} for k, n in counts if n]
         for pattern, reason in EXPECTED_WARNINGS.items():
             hits = [m for m in self.warnings if re.search(pattern, m)]
             if hits:
@@ -775,9 +614,8 @@ class HandledEvents:
 
 @contextmanager
 def handled_events() -> Iterator[HandledEvents]:
-    """Count a block's handled GP events (:func:`~skillkit.models.gp.record_numerical_events`)
-    and warnings matching :data:`EXPECTED_WARNINGS` instead of printing them; any other
-    warning is re-issued on leaving."""
+    """Count a block's handled GP events and :data:`EXPECTED_WARNINGS` instead of printing
+    them; other warnings are re-issued on leaving."""
     with record_numerical_events() as events, warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         shown = HandledEvents(events)
@@ -795,11 +633,9 @@ def handled_events() -> Iterator[HandledEvents]:
         warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
 
 
-# --------------------------------------------------------------------------- viewer
 @dataclass
 class ModelView:
-    """What :func:`gpreps_model_view` returns: the viewer with the model layers, or the
-    static top view of the same layers with the viewer's screenshot reason."""
+    """The viewer with model layers, or their static top view (:func:`gpreps_model_view`)."""
 
     shown: Any
     figure: Any = None
@@ -811,12 +647,8 @@ class ModelView:
             display(self.shown)
             return
         display(self.figure)
-        display(
-            HTML(
-                f"<small>no live viewer ({self.shown.reason}): the model layers drawn "
-                "from above instead</small>"
-            )
-        )
+        why = f"no live viewer ({self.shown.reason}): the model layers drawn from above instead"
+        display(HTML(f"<small>{why}</small>"))
 
     def stop(self) -> None:
         """Stop the viewer's server (idempotent)."""
@@ -826,11 +658,8 @@ class ModelView:
 def gpreps_model_view(
     run_dir: str | Path, *, live: bool, trial: int = 0, n_samples: int = 5
 ) -> ModelView:
-    """A stored GPREPS run's last reward model over its final policy, with model layers.
-
-    With ``live`` and a server that starts: :func:`~skillkit.viz.notebook.show_viewer` with
-    the run's policy history and one switchable layer per learned model; otherwise the same
-    layers drawn from above (:func:`~skillkit.viz.figures.gpreps_run_paths_figure`).
+    """A stored GPREPS run's last reward model over its final policy: with ``live`` the
+    viewer with a layer per learned model, else the layers drawn from above.
 
     .. warning:: This unpickles the run's reward model: load only runs you trust.
     """

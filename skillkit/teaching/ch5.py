@@ -1,8 +1,6 @@
-"""Chapter 5 step by step: kernel trajectory prediction (Tables 5.1, 5.2) and model selection
-(Sec. 5.3). The algorithm lives in :mod:`skillkit.models.embedding` (C = (K + λI)⁻¹K̃,
-Eqs. 5.6, 5.9), :func:`skillkit.models.embedding_prediction.predict` (β_{t+1} = C β_t) and
-:mod:`skillkit.models.embedding_training` (Eq. 5.16); this module tabulates and draws their
-inputs and outputs, against real samples. Figures are plotly.
+"""Chapter 5 step by step: kernel trajectory prediction (Tables 5.1, 5.2, C = (K + λI)⁻¹K̃,
+β_{t+1} = C β_t) and model selection (Sec. 5.3, Eq. 5.16), the library's embedding models
+tabulated and drawn against real samples. Figures are plotly.
 """
 
 from __future__ import annotations
@@ -24,25 +22,8 @@ from skillkit.models.embedding_prediction import predict
 from skillkit.models.embedding_training import CrossValidatedLoss, FitResult
 from skillkit.models.kernels import SquaredExponential, gram
 from skillkit.tasks.pendulum import feedback_torque
-from skillkit.teaching._common import index
-from skillkit.viz.plots import plotly_figure
+from skillkit.teaching._common import draw, index
 from skillkit.viz.series import Series
-
-__all__ = [
-    "agreement_table",
-    "draw_embedding",
-    "embedding_figure",
-    "empirical_embedding",
-    "fit_table",
-    "loss_curve_figure",
-    "marginal_embedding",
-    "matrices_figure",
-    "pendulum_policy",
-    "prediction_table",
-    "warnings_as_note",
-    "weights_figure",
-    "weights_table",
-]
 
 Policy = Callable[[np.ndarray, int], np.ndarray]
 
@@ -50,19 +31,11 @@ Policy = Callable[[np.ndarray, int], np.ndarray]
 _WARNING_LINE = re.compile(r"^\S.*:\d+: (\w*Warning): (.*)$")
 
 
-def _plot(title: str, series: Sequence[Series]):
-    return plotly_figure({"title": title, "series": [s.to_dict() for s in series]})
-
-
-# --------------------------------------------------------------------------- tables
 def weights_table(
     embedding: ConditionalEmbedding, beta, reference=None, names: Sequence[str] | None = None
 ) -> pd.DataFrame:
-    """What one embedding μ = Φ_y β says, Eqs. (5.7, 5.8), as a column ``value``.
-
-    Rows: the expected target E[y_d] = Yᵀβ per dimension (``names``, default ``y[d]``),
-    ``reference`` (d_y,) per dimension if given, Σ_j β_j (1 where the queries lie in the data,
-    λ small) and ‖β‖₁ (above the sum when weights are negative); ``beta`` has shape (N,).
+    """What one embedding μ = Φ_y β (N,) says (Eqs. 5.7, 5.8), a column ``value``: E[y_d] =
+    Yᵀβ per dimension (``names``), ``reference`` (d_y,) if given, Σ_j β_j and ‖β‖₁.
     """
     b = check_array(beta, "beta", shape=(embedding.n,))
     d = embedding.target_dim
@@ -80,8 +53,7 @@ def weights_table(
 
 
 def agreement_table(pairs: Mapping[str, tuple]) -> pd.DataFrame:
-    """By-hand steps against the library's: per name → (by hand, library) arrays of one shape,
-    ``max |by hand − library|`` and ``max |library|``."""
+    """Per name → (by hand, library) arrays: max |by hand − library| and max |library|."""
     if not isinstance(pairs, Mapping) or not pairs:
         raise ValueError("pairs: expected a non-empty mapping of name to (by hand, library)")
     rows = {}
@@ -107,11 +79,10 @@ def prediction_table(
 ) -> pd.DataFrame:
     """How well each model's embedded mean follows the real rollouts (Table 5.1 or 5.2).
 
-    ``models`` maps a label to a state model or to (state-action model, time-invariant
-    ``policy(states, t)``, e.g. :func:`pendulum_policy`). From ``initial`` samples (L, n_x)
-    (Eq. 5.6), per model and state dimension (``names``): the RMSE of x̂_t = X'ᵀβ_t against
-    the mean of ``real_states`` (L' ≥ 2, T + 1, n_x) over t = 1 … T, that mean's Monte Carlo
-    standard error averaged over t, the largest ‖β_t‖₁ and the last Σ_j β_{T,j}.
+    ``models``: label → state model or (state-action model, ``policy(states, t)``). From
+    ``initial`` (L, n_x), per state dimension (``names``): the RMSE of x̂_t = X'ᵀβ_t against
+    the mean of ``real_states`` (L' ≥ 2, T + 1, n_x), its Monte Carlo standard error, the
+    largest ‖β_t‖₁ and Σ_j β_{T,j}.
     """
     if not isinstance(models, Mapping) or not models:
         raise ValueError("models: expected a non-empty mapping of label to ConditionalEmbedding")
@@ -151,9 +122,7 @@ def prediction_table(
 
 
 def fit_table(initial_lengthscale, initial_lam: float, fit: FitResult) -> pd.DataFrame:
-    """Length-scales w_k (d,), λ and the cross-validated error per validation term (Eq. 5.16,
-    5.19 or 5.23) at the start and after
-    :func:`~skillkit.models.embedding_training.fit_hyperparameters` (Sec. 5.3)."""
+    """Length-scales w (d,), λ and the CV error per term (Eq. 5.16) before and after ``fit``."""
     w0 = check_array(initial_lengthscale, "initial_lengthscale", ndim=1)
     if w0.shape != fit.lengthscale.shape:
         raise ValueError(
@@ -166,11 +135,9 @@ def fit_table(initial_lengthscale, initial_lam: float, fit: FitResult) -> pd.Dat
     return pd.DataFrame(data, index=[*cols, "λ", "CV error per term"]).T.rename_axis("θ")
 
 
-# --------------------------------------------------------------------------- policies
 def pendulum_policy(gains) -> Policy:
-    """The pendulum's feedback torque clip(Kᵀx, −3, 3), K = [k_α, k_α̇] (2,), as the
-    time-invariant policy ``policy(states (b, M, 2), t) -> controls (b, M, 1)`` that
-    :func:`~skillkit.models.embedding_prediction.predict` calls (Table 5.2)."""
+    """clip(Kᵀx, −3, 3), K = ``gains`` (2,), as ``policy(states (b, M, 2), t) -> (b, M, 1)``
+    for :func:`~skillkit.models.embedding_prediction.predict` (Table 5.2)."""
     k = check_array(gains, "gains", shape=(2,))
 
     def policy(states: np.ndarray, t: int) -> np.ndarray:
@@ -179,15 +146,10 @@ def pendulum_policy(gains) -> Policy:
     return policy
 
 
-# --------------------------------------------------------------------------- read-outs
 def marginal_embedding(points, weights, grid, lengthscale: float) -> np.ndarray:
-    r"""The embedding Σ_j w_j k_h(p_j, y) of one coordinate on ``grid`` (G,), shape (G,) or
-    (G, B).
-
-    For a product SE kernel (Eq. 2.25), integrating μ(y) = Σ_j β_j k(x'_j, y) over the other
-    coordinates leaves c Σ_j β_j k_{h_d}(x'_{j,d}, y_d), c = Π_{e≠d} √(2π) h_e: the
-    embedding of coordinate d's marginal. ``points`` (N,) are coordinate d of the points the
-    ``weights`` (N,) or (N, B) sit on; with w = 1/L it is :func:`empirical_embedding`.
+    r"""Σ_j w_j k_h(p_j, y) on ``grid`` (G,), shape (G,) or (G, B): up to a constant, the
+    embedding of one coordinate's marginal under a product SE kernel (Eq. 2.25). ``points``
+    (N,) carry ``weights`` (N,) or (N, B).
     """
     p = check_array(points, "points", ndim=1)
     w = check_array(weights, "weights", ndim=(1, 2))
@@ -199,8 +161,7 @@ def marginal_embedding(points, weights, grid, lengthscale: float) -> np.ndarray:
 
 
 def empirical_embedding(samples, grid, lengthscale: float) -> tuple[np.ndarray, np.ndarray]:
-    """The empirical embedding (1/L) Σ_l k_h(x_l, y) of L ≥ 2 samples of one coordinate on
-    ``grid`` (G,), and its Monte Carlo standard error sd_l k_h(x_l, y) / √L."""
+    """(1/L) Σ_l k_h(x_l, y) of L ≥ 2 ``samples`` on ``grid`` (G,) and its standard error."""
     s = check_array(samples, "samples", ndim=1)
     if s.size < 2:
         raise ValueError(f"samples: expected at least 2 samples, got {s.size}")
@@ -210,7 +171,6 @@ def empirical_embedding(samples, grid, lengthscale: float) -> tuple[np.ndarray, 
     return k.mean(axis=1), k.std(axis=1, ddof=1) / np.sqrt(s.size)
 
 
-# --------------------------------------------------------------------------- figures
 def _compact(z: np.ndarray, digits: int = 4) -> list:
     """``z`` rounded to ``digits`` significant digits of its largest entry (smaller JSON)."""
     top = float(np.max(np.abs(z))) if z.size else 0.0
@@ -227,33 +187,22 @@ def _diverging(fig) -> None:
 
 
 def matrices_figure(matrices: Mapping[str, object], *, pairs: int | None = None, title: str = ""):
-    """Heatmaps of kernel matrices (K, K̃, C of Table 5.1; G, G̃^π, C^π of Table 5.2).
-
-    A panel per title → matrix (n, m), its colour bar titled with the name before " = ", row
-    i at the top, a diverging scale when entries are negative; ``pairs`` shows only the first
-    rows and columns.
-    """
+    """Heatmaps of kernel matrices (Tables 5.1, 5.2), a panel per title → matrix (n, m), row
+    i at the top; ``pairs`` shows only the first rows and columns."""
     if not isinstance(matrices, Mapping) or not matrices:
         raise ValueError("matrices: expected a non-empty mapping of title to 2-D array")
     n_show = None if pairs is None else check_count(pairs, "pairs")
+    heat = {"kind": "heatmap", "xlabel": "column j (training pair)"}
+    heat["ylabel"] = "row i (training pair)"
     series = []
     for name, value in matrices.items():
         m = check_array(value, f"matrices[{name!r}]", ndim=2)
         if n_show is not None:
             m = m[:n_show, :n_show]
-        series.append(
-            Series(
-                str(name).split("=")[0].strip() or str(name),
-                list(range(m.shape[1])),
-                list(range(m.shape[0])),
-                panel=str(name),
-                kind="heatmap",
-                z=_compact(m),
-                xlabel="column j (training pair)",
-                ylabel="row i (training pair)",
-            )
-        )
-    fig = _plot(title, series)
+        label = str(name).split("=")[0].strip() or str(name)
+        x, y = list(range(m.shape[1])), list(range(m.shape[0]))
+        series.append(Series(label, x, y, panel=str(name), z=_compact(m), **heat))
+    fig = draw(title, series)
     fig.update_yaxes(autorange="reversed")
     _diverging(fig)
     return fig
@@ -280,29 +229,18 @@ def _time_axis(n: int, dt: float | None, start: int = 1) -> tuple[list, str]:
 
 
 def weights_figure(betas, *, dt: float | None = None, title: str = ""):
-    """The weights β_t (T, N) or (T, N, 1) of every predicted step (Table 5.1's loop).
-
-    Left: β_t[j] over t (seconds with ``dt``) and training pair j; right: Σ_j β_{t,j} (1 where
-    the data cover the distribution) and ‖β_t‖₁ (growth means the propagation amplifies).
-    """
+    """The weights β_t (T, N) or (T, N, 1) of every predicted step (Table 5.1's loop) over
+    t (seconds with ``dt``), with Σ_j β_{t,j} and ‖β_t‖₁."""
     b = _betas(betas)
     t, xlabel = _time_axis(b.shape[0], dt)
-    heat = Series(
-        "β_t[j]",
-        t,
-        list(range(b.shape[1])),
-        panel="β_t[j] per training pair",
-        kind="heatmap",
-        z=_compact(b.T),
-        xlabel=xlabel,
-        ylabel="training pair j",
-    )
+    kw = {"panel": "β_t[j] per training pair", "kind": "heatmap", "ylabel": "training pair j"}
+    heat = Series("β_t[j]", t, list(range(b.shape[1])), z=_compact(b.T), xlabel=xlabel, **kw)
     common = {"panel": "sum and size of β_t", "xlabel": xlabel, "ylabel": "weights"}
     lines = [
         Series("sum of β_t", t, b.sum(axis=1).tolist(), **common),
         Series("‖β_t‖₁", t, np.abs(b).sum(axis=1).tolist(), **common),
     ]
-    fig = _plot(title, (heat, *lines))
+    fig = draw(title, (heat, *lines))
     fig.update_yaxes(autorange="reversed", row=1, col=1)
     _diverging(fig)
     return fig
@@ -342,12 +280,10 @@ def embedding_figure(
 ):
     """Predicted embeddings β_t (T, N) or (T, N, 1) against real rollouts (L ≥ 2, T + 1, n_x).
 
-    First panel: the read-out X'ᵀβ_t of coordinate ``dim`` (named ``label``) over t (seconds
-    with ``dt``) and the real mean ± 2 standard errors. Then per step of ``steps`` (1 … T):
-    :func:`marginal_embedding` of β_t and :func:`empirical_embedding` of the real states ± 2
-    standard errors, on ``grid_points`` over the real samples and the successors holding the
-    weights (|β_j| ≥ 1% of the largest) ± 3 h. ``bandwidth`` h defaults to the model's
-    length-scale of the coordinate (the RKHS of the thesis's μ).
+    First X'ᵀβ_t of coordinate ``dim`` (``label``) over t against the real mean ± 2 s.e.;
+    then per step of ``steps`` (1 … T) :func:`marginal_embedding` of β_t against
+    :func:`empirical_embedding` of the real states. ``bandwidth`` h defaults to the model's
+    length-scale of the coordinate.
     """
     b = _betas(betas)
     real = check_array(real_states, "real_states", ndim=3)
@@ -365,11 +301,10 @@ def embedding_figure(
     shown = [check_count(s, "steps") for s in steps]
     if max(shown) > b.shape[0]:
         raise ValueError(f"steps: expected steps in 1..{b.shape[0]}, got {list(steps)}")
-    h = (
-        _lengthscale(embedding, dim)
-        if bandwidth is None
-        else check_positive(bandwidth, "bandwidth")
-    )
+    if bandwidth is None:
+        h = _lengthscale(embedding, dim)
+    else:
+        h = check_positive(bandwidth, "bandwidth")
     n_grid = check_count(grid_points, "grid_points", minimum=2)
     pts = embedding.targets[:, dim]
     weights = b[[s - 1 for s in shown]].T  # (N, S)
@@ -385,15 +320,8 @@ def embedding_figure(
     band = f"± 2 standard errors ({real.shape[0]} real samples)"
 
     def real_series(x, emp, emp_se, common) -> Series:
-        return Series(
-            "real samples",
-            x,
-            emp.tolist(),
-            lower=(emp - 2 * emp_se).tolist(),
-            upper=(emp + 2 * emp_se).tolist(),
-            band=band,
-            **common,
-        )
+        lo, hi = (emp - 2 * emp_se).tolist(), (emp + 2 * emp_se).tolist()
+        return Series("real samples", x, emp.tolist(), lower=lo, upper=hi, band=band, **common)
 
     common = {"panel": f"mean of {label}: X′ᵀβ_t", "xlabel": xlabel, "ylabel": label}
     series = [
@@ -409,7 +337,7 @@ def embedding_figure(
             Series("predicted", grid.tolist(), predicted[:, k].tolist(), **common),
             real_series(grid.tolist(), emp, emp_se, common),
         ]
-    fig = _plot(title, series)
+    fig = draw(title, series)
     _to_scale(fig)
     return fig
 
@@ -429,22 +357,17 @@ def draw_embedding(
     label: str = "α [rad]",
     dt: float | None = None,
 ):
-    """The notebook widget's redraw: fit, predict, and draw one step against real samples.
-
-    ``ConditionalEmbedding(inputs, targets, SE(lengthscale_factor × std(inputs)), lam)`` on
-    inputs (N, d_z) (states, or state-actions with ``policy``, Table 5.2) and successors
-    (N, n_x), :func:`~skillkit.models.embedding_prediction.predict` from ``initial`` (L, n_x)
-    and :func:`embedding_figure` at ``step`` (1 ≤ step ≤ T of ``real_states``), titled with
-    λ, w, Σβ_step and the largest ‖β_t‖₁.
+    """The widget's redraw: ``ConditionalEmbedding`` with SE(``lengthscale_factor`` ×
+    std(inputs)) and ``lam`` on inputs (N, d_z) and ``targets`` (N, n_x), predicted from
+    ``initial`` (L, n_x) and drawn by :func:`embedding_figure` at ``step`` (1 … T).
     """
     z = check_array(inputs, "inputs", ndim=2)
     factor = check_positive(lengthscale_factor, "lengthscale_factor")
     lam = check_positive(lam, "lam")
     real = check_array(real_states, "real_states", ndim=3)
-    if isinstance(step, bool) or not isinstance(step, (int, np.integer)):
+    is_int = isinstance(step, (int, np.integer)) and not isinstance(step, bool)
+    if not (is_int and 1 <= step <= real.shape[1] - 1):
         raise ValueError(f"step: expected an integer in [1, {real.shape[1] - 1}], got {step!r}")
-    if not 1 <= step <= real.shape[1] - 1:
-        raise ValueError(f"step: expected an integer in [1, {real.shape[1] - 1}], got {step}")
     sd = z.std(axis=0)
     ls = factor * np.where(sd > 0, sd, 1.0)
     model = ConditionalEmbedding(z, targets, SquaredExponential(z.shape[1], lengthscale=ls), lam)
@@ -477,10 +400,8 @@ def loss_curve_figure(
     factors=None,
     title: str = "cross-validated embedding error (5.16)",
 ):
-    """The cross-validated ``loss`` at θ = [log(f · w), log λ] (Sec. 5.3), over factors f > 0
-    (default 9 log-spaced from 0.03 to 10) of the length-scales w (d,), a curve per λ of
-    ``lams``: the objective of :func:`~skillkit.models.embedding_training.fit_hyperparameters`
-    on one line through its search space, on log–log axes."""
+    """The cross-validated ``loss`` at θ = [log(f · w), log λ] (Sec. 5.3) over ``factors``
+    f > 0 (default 9 in 0.03 … 10) of the length-scales w (d,), a curve per λ of ``lams``."""
     w = check_array(lengthscale, "lengthscale", shape=(loss.dim,))
     if np.any(w <= 0):
         raise ValueError(f"lengthscale: expected positive values, got {w}")
@@ -489,33 +410,19 @@ def loss_curve_figure(
         raise ValueError(f"factors: expected at least 2 positive values, got {f}")
     if not lams:
         raise ValueError("lams: expected at least one λ")
+    kw = {"xlabel": "length-scale factor f (× w)", "ylabel": "CV error per term"}
     series = []
     for lam in lams:
         lam = check_positive(lam, "lams")
         values = [loss(np.append(np.log(v * w), np.log(lam))) for v in f]
-        series.append(
-            Series(
-                f"λ = {lam:.3g}",
-                f.tolist(),
-                values,
-                xlabel="length-scale factor f (× w)",
-                ylabel="CV error per term",
-                log_x=True,
-                log_y=True,
-            )
-        )
-    return _plot(title, series)
+        series.append(Series(f"λ = {lam:.3g}", f.tolist(), values, log_x=True, log_y=True, **kw))
+    return draw(title, series)
 
 
-# --------------------------------------------------------------------------- warnings
 @contextmanager
 def warnings_as_note(reason: str = "") -> Iterator[list]:
-    """Catch the block's warnings and show them once, as a Markdown note with ``reason``.
-
-    Caught are ``warnings.warn`` and warning lines written to ``sys.stderr`` (the runner's
-    ``tqdm.write``); other stderr text is passed on, exceptions are not caught. Yields the list
-    of caught messages, filled when the block ends.
-    """
+    """Show the block's warnings (``warnings.warn`` and warning lines on stderr) once, as a
+    Markdown note with ``reason``; yields the caught messages, filled when the block ends."""
     found: list[str] = []
     text = io.StringIO()
     with warnings.catch_warnings(record=True) as caught, redirect_stderr(text):

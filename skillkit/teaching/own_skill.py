@@ -1,7 +1,5 @@
-"""Notebook 06, your own skill: a task the reader wrote
-(:class:`~skillkit.tasks.functional.TrajectoryTask`) learned by contextual REPS, GPREPS and
-CMA-ES through :func:`~skillkit.search.loop.learn`. This module sizes the runs, picks the
-evaluation contexts, draws the learned context → ω mapping and tabulates the results.
+"""Notebook 06, your own skill: a reader's task learned by contextual REPS, GPREPS and CMA-ES
+(:func:`~skillkit.search.loop.learn`), sized, evaluated on a context grid, drawn and tabulated.
 """
 
 from __future__ import annotations
@@ -16,23 +14,15 @@ from numpy.typing import ArrayLike
 from skillkit._validation import check_array, check_count
 from skillkit.experiments.ch4_balancing import experience_to_reach
 from skillkit.tasks.base import Task
-from skillkit.teaching._common import draw, index_pair
+from skillkit.teaching._common import at_scale, draw, expect, index_pair, per_scale, xy
 from skillkit.trajectory import Trajectory
 from skillkit.viz.series import Series
 
-__all__ = ["SCALES", "RunSizes", "comparison_table", "context_grid", "mapping_figure", "run_sizes"]
 
-
-# --------------------------------------------------------------------------- sizes
 @dataclass(frozen=True)
 class RunSizes:
-    """How long each method of the notebook runs at one scale.
-
-    REPS: K updates of N real rollouts; CMA-ES: generations (λ candidates × m contexts
-    rollouts each); GPREPS: N₀ initial rollouts (Table 4.1), K updates, N rollouts per later
-    update (N₀ + (K − 1) N in all), M artificial pairs and L trajectories per pair (Eq. 4.1),
-    and the L-BFGS steps of each model fit (2.28; the thesis uses 150).
-    """
+    """How long each method runs at one scale: REPS updates × rollouts, CMA-ES generations,
+    GPREPS N₀, updates, rollouts per later update, M, L (Eq. 4.1) and L-BFGS steps (2.28)."""
 
     reps_updates: int
     reps_rollouts: int
@@ -47,55 +37,28 @@ class RunSizes:
 
 #: The notebook's sizes per ``SKILLKIT_SCALE``; "paper" has the thesis's GPREPS setting
 #: (N₀ = 10, then one real rollout per update, M = 500, L = 25).
-SCALES: dict[str, RunSizes] = {
-    "smoke": RunSizes(
-        reps_updates=15,
-        reps_rollouts=20,
-        cmaes_generations=10,
-        gpreps_initial=10,
-        gpreps_updates=6,
-        gpreps_rollouts=2,
-        n_artificial=100,
-        n_trajectories=5,
-        gp_steps=50,
-    ),
-    "quick": RunSizes(
-        reps_updates=40,
-        reps_rollouts=20,
-        cmaes_generations=30,
-        gpreps_initial=10,
-        gpreps_updates=16,
-        gpreps_rollouts=2,
-        n_artificial=500,
-        n_trajectories=10,
-        gp_steps=150,
-    ),
-    "paper": RunSizes(
-        reps_updates=100,
-        reps_rollouts=20,
-        cmaes_generations=80,
-        gpreps_initial=10,
-        gpreps_updates=41,
-        gpreps_rollouts=1,
-        n_artificial=500,
-        n_trajectories=25,
-        gp_steps=150,
-    ),
-}
+SCALES: dict[str, RunSizes] = per_scale(
+    RunSizes,
+    reps_updates=(15, 40, 100),
+    reps_rollouts=(20, 20, 20),
+    cmaes_generations=(10, 30, 80),
+    gpreps_initial=(10, 10, 10),
+    gpreps_updates=(6, 16, 41),
+    gpreps_rollouts=(2, 2, 1),
+    n_artificial=(100, 500, 500),
+    n_trajectories=(5, 10, 25),
+    gp_steps=(50, 150, 150),
+)
 
 
 def run_sizes(scale: str) -> RunSizes:
     """The notebook's sizes at ``scale`` (a key of :data:`SCALES`)."""
-    if scale not in SCALES:
-        raise ValueError(f"scale: expected one of {tuple(SCALES)}, got {scale!r}")
-    return SCALES[scale]
+    return at_scale(SCALES, scale)
 
 
-# --------------------------------------------------------------------------- contexts
 def context_grid(task: Task, n_per_dim: int) -> np.ndarray:
-    """An even grid of ``n_per_dim`` ≥ 1 points per dimension (one: the centre) over a
-    contextual task's [context_low, context_high], shape (n_per_dim ** context_dim,
-    context_dim), the last dimension varying fastest."""
+    """An even grid of ``n_per_dim`` points per dimension (one: the centre) over the task's
+    context box, shape (n_per_dim ** context_dim, context_dim), the last varying fastest."""
     _check_task(task)
     n = check_count(n_per_dim, "n_per_dim")
     low = np.asarray(task.context_low, dtype=np.float64)
@@ -108,13 +71,10 @@ def context_grid(task: Task, n_per_dim: int) -> np.ndarray:
 
 
 def _check_task(task) -> None:
-    if not isinstance(task, Task):
-        raise ValueError(f"task: expected a Task, got {type(task).__name__}")
-    if task.context_dim == 0:
+    if expect(task, Task, "task", "a Task").context_dim == 0:
         raise ValueError(f"task: {task.name!r} has no context (context_dim = 0)")
 
 
-# --------------------------------------------------------------------------- figures
 def mapping_figure(
     task: Task,
     policies: Mapping,
@@ -128,14 +88,9 @@ def mapping_figure(
     title: str = "the learned mapping s → ω and where it leads",
     backend: str = "plotly",
 ):
-    """What several policies do across the contexts: ω(s) and where the rollout ends up.
-
-    Each policy's mean ω(s) is rolled out once per context, every policy with the same random
-    stream from ``seed`` (common random numbers). Left: the coordinates ``omega_dims`` of ω(s)
-    (axes ``omega_label`` 1, 2, …). Right: per policy, a segment from each context to
-    ``outcome(trajectory)`` (2,) of its rollout (gaps for failed rollouts).
-    The task's context is a point in the outcome's plane; ``policies`` maps labels to anything
-    with ``mean_of(contexts)``; ``contexts`` (n, 2); ``outcome_label`` the right axes' unit.
+    """What several policies (label → anything with ``mean_of``) do across ``contexts``
+    (n, 2): the coordinates ``omega_dims`` of ω(s), and a segment from each context to
+    ``outcome(trajectory)`` (2,) of the mean's rollout (one ``seed`` for all policies).
     """
     _check_task(task)
     if task.context_dim != 2:
@@ -150,18 +105,11 @@ def mapping_figure(
     s = check_array(contexts, "contexts", shape=(None, 2))
     d = task.parameter_dim
     i, j = index_pair(omega_dims, "omega_dims", d, "coordinates of ω")
-    left = {
-        "panel": "policy mean ω(s) at the contexts",
-        "kind": "markers",
-        "xlabel": f"{omega_label}{i + 1}",
-        "ylabel": f"{omega_label}{j + 1}",
-    }
+    left = {"panel": "policy mean ω(s) at the contexts", "kind": "markers"}
+    left |= {"xlabel": f"{omega_label}{i + 1}", "ylabel": f"{omega_label}{j + 1}"}
     unit = f" {outcome_label}" if outcome_label else ""
-    right = {
-        "panel": "context s → outcome of the policy mean's rollout",
-        "xlabel": f"x{unit}",
-        "ylabel": f"y{unit}",
-    }
+    right = {"panel": "context s → outcome of the policy mean's rollout"}
+    right |= {"xlabel": f"x{unit}", "ylabel": f"y{unit}"}
     mapped, reached_paths = [], []
     for label, policy in policies.items():
         if not callable(getattr(policy, "mean_of", None)):
@@ -183,24 +131,17 @@ def mapping_figure(
                 reached[k] = check_array(outcome(trajectory), "outcome", shape=(2,))
         path = np.stack([s, reached, np.full_like(s, np.nan)], axis=1).reshape(-1, 2)
         name = str(label)
-        mapped.append(Series(name, omegas[:, i].tolist(), omegas[:, j].tolist(), **left))
-        reached_paths.append(
-            Series(name, path[:, 0].tolist(), path[:, 1].tolist(), kind="lines+markers", **right)
-        )
+        mapped.append(Series(name, *xy(omegas[:, [i, j]]), **left))
+        reached_paths.append(Series(name, *xy(path), kind="lines+markers", **right))
     # the contexts last: drawn over the segments that start at them
-    targets = Series("contexts s", s[:, 0].tolist(), s[:, 1].tolist(), kind="markers", **right)
-    series = [*mapped, *reached_paths, targets]
-    return draw(title, series, backend)
+    targets = Series("contexts s", *xy(s), kind="markers", **right)
+    return draw(title, [*mapped, *reached_paths, targets], backend)
 
 
-# --------------------------------------------------------------------------- tables
 def comparison_table(runs: Mapping, levels: Sequence[float] = ()) -> pd.DataFrame:
-    """Several :func:`~skillkit.search.loop.learn` results (label → result) side by side.
-
-    Compare runs evaluated on the same contexts with the same seed. One row per method: real
-    rollouts (evaluations not counted), updates, the policy mean's reward before the first
-    update, after the last and at its best, for each of ``levels`` the real rollouts after
-    which it first reached it (NaN: not within the run), and the failed rollouts.
+    """:func:`~skillkit.search.loop.learn` results (label → result), a row each: real
+    rollouts, updates, the policy mean's reward before, final and best, the rollouts to reach
+    each of ``levels`` (NaN: never) and the failed rollouts.
     """
     if not isinstance(runs, Mapping) or not runs:
         raise ValueError("runs: expected a non-empty mapping of label to learn() result")

@@ -7,28 +7,26 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 
-__all__ = ["claims_table", "experiments_table", "live_run_times", "method_comparison_table"]
+
+def _known(ids: str | Iterable[str]) -> list[str]:
+    """``ids`` as a list, or a ``ValueError`` naming the unregistered ones."""
+    from skillkit.experiments.registry import ids as registered
+
+    ids = [ids] if isinstance(ids, str) else list(ids)
+    unknown = sorted(set(ids) - set(registered()))
+    if unknown:
+        raise ValueError(f"ids: unknown experiment id(s) {unknown}")
+    return ids
 
 
 def claims_table(ids: Iterable[str] | None = None, root=None):
-    """One row per stored result of ``ids`` (default all) under ``root`` (default
-    ``data/results``): the claim, the verdict, our key number with its 95% interval across
-    trials, the thesis's number and which code made it (the README scoreboard's rows,
-    :func:`skillkit.experiments.run.claim_rows`).
-
-    Index ``id`` (with a stored variant's overrides); ``ValueError`` for an unregistered id.
-    """
+    """The README scoreboard's rows (:func:`skillkit.experiments.run.claim_rows`) of ``ids``
+    (default all) under ``root``: claim, verdict, ours [95% interval], thesis, made by."""
     import pandas as pd
 
-    from skillkit.experiments.registry import ids as registered
     from skillkit.experiments.run import claim_rows
 
-    if ids is not None:
-        ids = [ids] if isinstance(ids, str) else list(ids)
-        unknown = sorted(set(ids) - set(registered()))
-        if unknown:
-            raise ValueError(f"ids: unknown experiment id(s) {unknown}")
-    rows = claim_rows(root, ids)
+    rows = claim_rows(root, None if ids is None else _known(ids))
     table = pd.DataFrame(
         {
             "id": [f"{r['id']} ({r['variant']})" if r["variant"] else r["id"] for r in rows],
@@ -43,12 +41,8 @@ def claims_table(ids: Iterable[str] | None = None, root=None):
 
 
 def live_run_times(ids: Iterable[str], scale: str):
-    """How long the live re-runs of experiments ``ids`` take at ``scale``, before they start.
-
-    Smoke and quick times are measured (:mod:`skillkit.experiments.timings`); paper times are
-    the stored paper result's summed trial times. Index ``id`` and a last row ``all``;
-    columns ``seconds`` (NaN where not measured) and ``expected`` (in words).
-    """
+    """How long re-running ``ids`` at ``scale`` takes (measured, or the stored paper run's
+    trial times), a row per id and ``all``: ``seconds`` (NaN: unknown) and ``expected``."""
     import json
 
     import numpy as np
@@ -56,15 +50,11 @@ def live_run_times(ids: Iterable[str], scale: str):
 
     from skillkit.experiments import timings
     from skillkit.experiments.registry import SCALES
-    from skillkit.experiments.registry import ids as registered
     from skillkit.experiments.run import stored_run
 
     if scale not in SCALES:
         raise ValueError(f"scale: expected one of {list(SCALES)}, got {scale!r}")
-    ids = [ids] if isinstance(ids, str) else list(ids)
-    unknown = sorted(set(ids) - set(registered()))
-    if unknown:
-        raise ValueError(f"ids: unknown experiment id(s) {unknown}")
+    ids = _known(ids)
     seconds = []
     for exp_id in ids:
         value = timings.measured_seconds(exp_id, scale) if scale != "paper" else None
@@ -85,8 +75,7 @@ def live_run_times(ids: Iterable[str], scale: str):
 
 
 def experiments_table():
-    """Every registered experiment in thesis order: title, trials per scale and the measured
-    wall time of its smoke and quick runs."""
+    """Every registered experiment: title, trials per scale, smoke and quick wall times."""
     import pandas as pd
 
     from skillkit.experiments import timings
@@ -95,13 +84,12 @@ def experiments_table():
     rows = []
     for exp_id in ids():
         exp = get(exp_id)
+        trials = " / ".join(str(exp.trials[s]) for s in ("smoke", "quick", "paper"))
         rows.append(
             {
                 "id": exp_id,
                 "title": exp.title,
-                "trials (smoke / quick / paper)": " / ".join(
-                    str(exp.trials[s]) for s in ("smoke", "quick", "paper")
-                ),
+                "trials (smoke / quick / paper)": trials,
                 "smoke": timings.format_seconds(timings.measured_seconds(exp_id, "smoke")),
                 "quick": timings.format_seconds(timings.measured_seconds(exp_id, "quick")),
             }
@@ -110,8 +98,7 @@ def experiments_table():
 
 
 def method_comparison_table(run):
-    """A ``cmp.methods`` run's comparison, one row per (task, method): the README's rows
-    (:func:`skillkit.experiments.run.comparison_rows`); other tasks' threshold cells empty."""
+    """A ``cmp.methods`` run's README rows, one per (task, method)."""
     import pandas as pd
 
     from skillkit.experiments.run import comparison_rows

@@ -111,7 +111,7 @@ def racket_rim(center, normal, radius: float, n: int = 16) -> np.ndarray:
     return c + float(radius) * (np.cos(phi)[:, None] * u + np.sin(phi)[:, None] * v)
 
 
-def _check_input(task, trajectories, contexts, n_frames, frame_ms, width: int):
+def _check_input(task, trajectories, contexts, n_frames, frame_ms):
     """The rollouts, the checked contexts (one row each), ``n_frames`` and ``frame_ms``."""
     if isinstance(trajectories, Trajectory):
         trajectories = [trajectories]
@@ -127,7 +127,7 @@ def _check_input(task, trajectories, contexts, n_frames, frame_ms, width: int):
         if tr.failed:
             msg = f"trajectories[{i}]: a failed rollout has nothing to show ({tr.message})"
             raise ValueError(msg)
-    s = check_array(contexts, "contexts", shape=(len(trajectories), width))
+    s = check_array(contexts, "contexts", shape=(len(trajectories), task.context_dim))
     s = np.stack([task.check_context(row, "contexts") for row in s])
     return list(trajectories), s, _check_frames(n_frames), check_positive(frame_ms, "frame_ms")
 
@@ -155,20 +155,35 @@ def frame_times(start: float, end: float, n_frames: int) -> np.ndarray:
     return np.linspace(float(start), float(end), n)
 
 
+def _clock(trajs: list, clocks: list, n_frames: int) -> np.ndarray:
+    """Frame times from the first start to the last end of the rollouts and their signals."""
+    start = min(float(tr.times[0]) for tr in trajs)
+    end = max(max(float(tr.times[-1]), float(t[-1])) for tr, t in zip(trajs, clocks, strict=True))
+    return frame_times(start, end, n_frames)
+
+
 def _at(times: np.ndarray, values: np.ndarray, grid: np.ndarray) -> np.ndarray:
     """Linear interpolation of ``values`` (T, ...) at each grid time (the viewer's rule)."""
     return np.stack([interpolate(times, values, t) for t in grid])
 
 
-def _finish(fig, grid, frame_ms: float, redraw: bool, y: float, title: str, lines, **layout):
-    """Title (``lines`` under it), layout, play/pause buttons and a time slider below the plot."""
+def _finish(fig, play: tuple, title: str, lines, body: float, margin: dict, legend, **layout):
+    """Frames, title (``lines`` under it), layout (height: the margins and ``body``), and
+    play/pause buttons and a time slider at ``y``; ``play`` = (grid, frame, animated traces,
+    frame_ms, redraw, y), frame k's data ``frame(k)``."""
+    import plotly.graph_objects as go
+
+    grid, frame, animated, frame_ms, redraw, y = play
+    fig.frames = [go.Frame(name=str(k), data=frame(k), traces=animated) for k in range(len(grid))]
     sub = "<br>".join(lines)
     text = f"{title}<br><span style='font-size:12px'>{sub}</span>" if sub else title
-    legend = {"yanchor": "top", "bgcolor": "rgba(255,255,255,0.7)", "font": {"size": 11}}
-    layout["legend"] = {**layout["legend"], **legend}
+    legend = {**legend, "yanchor": "top", "bgcolor": "rgba(255,255,255,0.7)", "font": {"size": 11}}
     fig.update_layout(
         title={"text": text, "x": 0.01, "xanchor": "left", "font": {"size": 15}},
         autosize=True,
+        height=margin["t"] + body + margin["b"],
+        margin={**margin, "autoexpand": True},
+        legend=legend,
         **layout,
         template="plotly_white",
     )
@@ -180,45 +195,38 @@ def _finish(fig, grid, frame_ms: float, redraw: bool, y: float, title: str, line
     }
     still = {"frame": {"duration": 0, "redraw": redraw}, "mode": "immediate"}
     still["transition"] = {"duration": 0}
-    fig.update_layout(
-        updatemenus=[
-            {
-                "type": "buttons",
-                "direction": "left",
-                "showactive": False,
-                "x": 0.0,
-                "xanchor": "left",
-                "y": y,
-                "yanchor": "top",
-                "pad": {"t": 0, "r": 10},
-                "buttons": [
-                    {"label": "▶", "method": "animate", "args": [None, play]},
-                    {"label": "❚❚", "method": "animate", "args": [[None], still]},
-                ],
-            }
-        ],
-        sliders=[
-            {
-                "active": 0,
-                "x": 0.2,
-                "len": 0.8,
-                "xanchor": "left",
-                "y": y + 0.02,
-                "yanchor": "top",
-                "pad": {"t": 0, "b": 0},
-                "currentvalue": {
-                    "prefix": "t = ",
-                    "suffix": " s",
-                    "xanchor": "right",
-                    "font": {"size": 12},
-                },
-                "steps": [
-                    {"label": f"{t:.2f}", "method": "animate", "args": [[str(k)], still]}
-                    for k, t in enumerate(grid)
-                ],
-            }
-        ],
-    )
+    buttons = [
+        {"label": "▶", "method": "animate", "args": [None, play]},
+        {"label": "❚❚", "method": "animate", "args": [[None], still]},
+    ]
+    menu = {
+        "type": "buttons",
+        "direction": "left",
+        "showactive": False,
+        "x": 0.0,
+        "xanchor": "left",
+        "y": y,
+        "yanchor": "top",
+        "pad": {"t": 0, "r": 10},
+        "buttons": buttons,
+    }
+    now = {"prefix": "t = ", "suffix": " s", "xanchor": "right", "font": {"size": 12}}
+    steps = [
+        {"label": f"{t:.2f}", "method": "animate", "args": [[str(k)], still]}
+        for k, t in enumerate(grid)
+    ]
+    slider = {
+        "active": 0,
+        "x": 0.2,
+        "len": 0.8,
+        "xanchor": "left",
+        "y": y + 0.02,
+        "yanchor": "top",
+        "pad": {"t": 0, "b": 0},
+        "currentvalue": now,
+        "steps": steps,
+    }
+    fig.update_layout(updatemenus=[menu], sliders=[slider])
     return fig
 
 
@@ -251,8 +259,8 @@ def throwing_animation(
     import plotly.graph_objects as go
     from plotly.subplots import make_subplots
 
-    model = _model(task, "throwing")
-    trajs, s, n_frames, frame_ms = _check_input(task, trajectories, contexts, n_frames, frame_ms, 2)
+    _model(task, "throwing")
+    trajs, s, n_frames, frame_ms = _check_input(task, trajectories, contexts, n_frames, frame_ms)
     n = len(trajs)
     balls, ball_t = [], []
     for i, tr in enumerate(trajs):
@@ -261,13 +269,8 @@ def throwing_animation(
         _check_signal(tr, i, "ball_times", (ball.shape[0],))
         balls.append(ball)
         ball_t.append(signal_times(tr, "ball"))
-    start = min(float(tr.times[0]) for tr in trajs)
-    end = max(max(float(tr.times[-1]), float(bt[-1])) for tr, bt in zip(trajs, ball_t, strict=True))
-    grid = frame_times(start, end, n_frames)
-    links = [
-        _points(model, _at(tr.times, tr.states[:, :4], grid), _PLANAR_BODIES, "hand")[..., [0, 2]]
-        for tr in trajs
-    ]
+    grid = _clock(trajs, ball_t, n_frames)
+    links = [planar_link_points(task, _at(tr.times, tr.states[:, :4], grid)) for tr in trajs]
     ball_at = [_at(bt, b, grid) for bt, b in zip(ball_t, balls, strict=True)]
 
     # extent: everything drawn, with a margin; equal scales in x and y
@@ -279,12 +282,10 @@ def throwing_animation(
     plot_h = n * panel_h + (n - 1) * gap
     names = []
     for tr, si in zip(trajs, s, strict=True):
-        terms = task.reward_terms(tr, si)
-        t_r = tr.info.get("release_time")
+        t_r, cm = tr.info.get("release_time"), 100 * task.reward_terms(tr, si)["distance"]
         release = f", release t_r = {t_r:.3f} s" if t_r is not None else ""
         names.append(
-            f"target s = [{si[0]:g}, {si[1]:g}] m{release}, "
-            f"closest ball–target {100 * terms['distance']:.0f} cm"
+            f"target s = [{si[0]:g}, {si[1]:g}] m{release}, closest ball–target {cm:.0f} cm"
         )
     fig = make_subplots(
         rows=n, cols=1, subplot_titles=names, vertical_spacing=gap / plot_h if n > 1 else 0
@@ -303,8 +304,7 @@ def throwing_animation(
             **quiet,
         )
         fig.add_scatter(
-            x=balls[i][:, 0],
-            y=balls[i][:, 1],
+            **_xyz(balls[i]),
             mode="lines",
             line={"color": _rgb("ball"), "width": 1.5, "dash": "dot"},
             name="ball path",
@@ -325,8 +325,7 @@ def throwing_animation(
         )
         animated += [len(fig.data), len(fig.data) + 1]
         fig.add_scatter(
-            x=links[i][0, :, 0],
-            y=links[i][0, :, 1],
+            **_xyz(links[i][0]),
             mode="lines+markers",
             line={"color": "rgb(90,100,125)", "width": 6},
             marker={"size": 7, "color": "rgb(60,65,80)"},
@@ -336,8 +335,7 @@ def throwing_animation(
             **quiet,
         )
         fig.add_scatter(
-            x=ball_at[i][:1, 0],
-            y=ball_at[i][:1, 1],
+            **_xyz(ball_at[i][:1]),
             mode="markers",
             marker={"size": 10, "color": _rgb("ball"), "line": {"width": 1, "color": "black"}},
             name="ball",
@@ -355,23 +353,14 @@ def throwing_animation(
 
     def frame(k: int) -> list:
         xys = [xy for i in range(n) for xy in (links[i][k], ball_at[i][k : k + 1])]
-        return [go.Scatter(x=xy[:, 0], y=xy[:, 1]) for xy in xys]
+        return [go.Scatter(**_xyz(xy)) for xy in xys]
 
-    fig.frames = [go.Frame(name=str(k), data=frame(k), traces=animated) for k in range(n_frames)]
     for annotation in fig.layout.annotations:
         annotation.font = {"size": 12}
-    return _finish(
-        fig,
-        grid,
-        frame_ms,
-        False,
-        -(bottom - 55) / plot_h,
-        title,
-        [subtitle] if subtitle else [],
-        height=top + plot_h + bottom,
-        margin={"t": top, "b": bottom, "l": 60, "r": 20, "autoexpand": True},
-        legend={"x": 0.99, "xanchor": "right", "y": 1.0},
-    )
+    play = (grid, frame, animated, frame_ms, False, -(bottom - 55) / plot_h)
+    margin = {"t": top, "b": bottom, "l": 60, "r": 20}
+    legend = {"x": 0.99, "xanchor": "right", "y": 1.0}
+    return _finish(fig, play, title, [subtitle] if subtitle else [], plot_h, margin, legend)
 
 
 def _table_traces(go, tt) -> list:
@@ -414,7 +403,8 @@ def _table_traces(go, tt) -> list:
 
 
 def _xyz(a: np.ndarray) -> dict:
-    return {"x": a[:, 0], "y": a[:, 1], "z": a[:, 2]}
+    """plotly's ``x``, ``y`` (and ``z``) of points (N, 2) or (N, 3)."""
+    return {k: a[:, j] for j, k in enumerate("xyz"[: a.shape[1]])}
 
 
 def table_tennis_animation(
@@ -447,9 +437,7 @@ def table_tennis_animation(
     from skillkit.tasks import table_tennis as tt
 
     model = _model(task, "table-tennis")
-    trajs, s, n_frames, frame_ms = _check_input(
-        task, trajectories, contexts, n_frames, frame_ms, task.context_dim
-    )
+    trajs, s, n_frames, frame_ms = _check_input(task, trajectories, contexts, n_frames, frame_ms)
     n = len(trajs)
     z_land = tt.TABLE_HEIGHT + task.ball.radius
     shots = []
@@ -465,15 +453,11 @@ def table_tennis_animation(
         if t_land is not None and t_land > bt[-1] and tr.info.get("outcome") != "net":
             bt, ball = np.append(bt, t_land), np.vstack([ball, [p[0], p[1], z_land]])
         shots.append({"tr": tr, "ball": ball, "bt": bt, "racket": racket, "normal": normal, "p": p})
-    start = min(float(tr.times[0]) for tr in trajs)
-    end = max(max(float(sh["tr"].times[-1]), float(sh["bt"][-1])) for sh in shots)
-    grid = frame_times(start, end, n_frames)
+    grid = _clock(trajs, [sh["bt"] for sh in shots], n_frames)
     radius = task.ball.racket_radius
     for sh in shots:
         tr = sh["tr"]
-        sh["arm"] = _points(
-            model, _at(tr.times, tr.states[:, : model.nq], grid), _ARM_BODIES, "racket"
-        )
+        sh["arm"] = arm_link_points(task, _at(tr.times, tr.states[:, : model.nq], grid))
         sh["ball_at"] = _at(sh["bt"], sh["ball"], grid)
         c, nv = _at(tr.times, sh["racket"], grid), _at(tr.times, sh["normal"], grid)
         sh["rim"] = np.stack([racket_rim(ck, nk, radius) for ck, nk in zip(c, nv, strict=True)])
@@ -541,7 +525,6 @@ def table_tennis_animation(
             out.append(go.Scatter3d(x=[ball[0]], y=[ball[1]], z=[ball[2]]))
         return out
 
-    fig.frames = [go.Frame(name=str(k), data=frame(k), traces=animated) for k in range(n_frames)]
     half = (tt.TABLE_LENGTH / 2, tt.TABLE_WIDTH / 2 + tt.NET_OVERHANG, 0.0)
     corners = [[-half[0], -half[1], 0.0], half]
     drawn = [*(sh["arm"].reshape(-1, 3) for sh in shots), *(sh["ball"] for sh in shots)]
@@ -568,17 +551,10 @@ def table_tennis_animation(
             "center": {"x": -0.2, "y": 0.05, "z": -0.15},
         },
     )
+    play = (grid, frame, animated, frame_ms, True, -(bottom - 50) / scene_h)
+    margin = {"t": head, "b": bottom, "l": 10, "r": 10}
+    legend = {"x": 0.01, "xanchor": "left", "y": 0.98}
+    lines = ([subtitle] if subtitle else []) + lines
     return _finish(
-        fig,
-        grid,
-        frame_ms,
-        True,
-        -(bottom - 50) / scene_h,
-        title,
-        ([subtitle] if subtitle else []) + lines,
-        height=head + scene_h + bottom,
-        margin={"t": head, "b": bottom, "l": 10, "r": 10, "autoexpand": True},
-        legend={"x": 0.01, "xanchor": "left", "y": 0.98},
-        scene=scene,
-        uirevision="table-tennis",
+        fig, play, title, lines, scene_h, margin, legend, scene=scene, uirevision="table-tennis"
     )

@@ -90,16 +90,8 @@ def build_viewer(args: argparse.Namespace, history=None):
     task = make(args.task)
     if history is None and args.policy is not None:
         history = load_policy_history(args.policy, args.trial)
-    return Viewer(
-        task,
-        context=args.context,
-        history=history,
-        host=args.host,
-        port=args.port,
-        seed=args.seed,
-        environment=not args.no_envmap,
-        verbose=args.verbose,
-    )
+    given = {k: getattr(args, k) for k in ("context", "host", "port", "seed", "verbose")}
+    return Viewer(task, history=history, environment=not args.no_envmap, **given)
 
 
 def run_view(args: argparse.Namespace) -> int:

@@ -1,11 +1,7 @@
-"""Figures from live objects, without building series by hand: a learning run
-(:func:`plot_learning`), a 1-D GP fit (:func:`plot_gp_fit`), named curves (:func:`line_figure`),
-model-predicted against real trajectories (:func:`prediction_figure`), a reward model's sampled
-paths over the real ones (:func:`model_paths_figure`, :func:`gpreps_run_paths_figure`).
-
-Each builds :class:`~skillkit.series.Series` and draws them as the experiment figures are drawn
-(:func:`skillkit.viz.plots.draw_figure`): a plotly ``Figure``, or a
-:class:`~skillkit.viz.plots.NotebookFigure` with ``backend="matplotlib"``.
+"""Figures from live objects (learning runs, GP fits, curves, predicted against real paths):
+each builds :class:`~skillkit.series.Series` and draws them as the experiment figures are drawn
+(:func:`skillkit.viz.plots.draw_figure`), as a plotly ``Figure`` or, with
+``backend="matplotlib"``, a :class:`~skillkit.viz.plots.NotebookFigure`.
 """
 
 from __future__ import annotations
@@ -15,7 +11,9 @@ from pathlib import Path
 
 import numpy as np
 
-from skillkit.viz.plots import BACKENDS, draw_figure
+from skillkit._validation import check_array
+from skillkit.series import Series, trial_band
+from skillkit.viz.plots import check_backend, draw_figure
 
 __all__ = [
     "gpreps_run_paths_figure",
@@ -33,11 +31,6 @@ REAL_PATH_SIGNALS: tuple[str, ...] = ("control_puck", "target_puck", "ball")
 
 def _draw(title: str, series: list, backend: str):
     return draw_figure({"title": title, "series": [s.to_dict() for s in series]}, backend)
-
-
-def _check_backend(backend: str) -> None:
-    if backend not in BACKENDS:
-        raise ValueError(f"backend: expected one of {BACKENDS}, got {backend!r}")
 
 
 def plot_learning(
@@ -58,9 +51,7 @@ def plot_learning(
     average reward per batch (``explore_reward`` at ``explore_rollouts``) as markers.
     ``backend`` is "plotly" (a ``Figure``) or "matplotlib" (a ``NotebookFigure``).
     """
-    from skillkit.series import Series, trial_band
-
-    _check_backend(backend)
+    check_backend(backend)
     if isinstance(runs, Mapping) and "rollouts" not in runs:
         if not runs:
             raise ValueError("runs: empty mapping")
@@ -138,10 +129,7 @@ def plot_gp_fit(
     (``include_noise``) or of the latent f. ``f_true``, the true function, is drawn for
     comparison; ``label`` names the mean.
     """
-    from skillkit._validation import check_array
-    from skillkit.series import Series
-
-    _check_backend(backend)
+    check_backend(backend)
     if not callable(getattr(model, "predict", None)):
         raise ValueError(
             "model: expected a fitted GP with predict(X, include_noise), "
@@ -200,9 +188,6 @@ def line_figure(
     """One panel of named curves: ``curves`` maps a legend label to a pair (x, y) of 1-D arrays
     of equal length; ``log_y`` draws a logarithmic y axis. Returns a plotly ``Figure`` or a
     :class:`~skillkit.viz.plots.NotebookFigure` (``backend="matplotlib"``)."""
-    from skillkit._validation import check_array
-    from skillkit.series import Series
-
     if not isinstance(curves, Mapping) or not curves:
         raise ValueError("curves: expected a non-empty mapping of label to (x, y)")
     series, axis = [], {"xlabel": xlabel, "ylabel": ylabel, "log_y": log_y}
@@ -234,8 +219,6 @@ def prediction_figure(
     (Trajectory or array (B, T_real, n_x)). ``label`` is the y-axis label; ``dt`` the time
     step (default: the x axis is the step index).
     """
-    from skillkit.series import Series
-
     states = np.asarray(getattr(predicted, "states", predicted), dtype=float)
     if states.ndim == 3:  # one deterministic prediction per pair (e.g. an embedding's means)
         states = states[:, None]
@@ -288,7 +271,6 @@ def model_paths_figure(
     named world paths (T, 2) or (T, 3). ``axes`` are the world axes drawn: (0, 1) the top
     view x–y, (0, 2) the side view x–z.
     """
-    from skillkit.series import Series
     from skillkit.viz.model_layers import model_layers
 
     if (
@@ -344,11 +326,8 @@ def gpreps_run_paths_figure(
     The policy mean of update ``update`` (Python indexing; -1 the final one) of trial
     ``trial`` at ``context`` (default: one sampled with ``seed``, which also seeds the real
     rollout and the model's samples) is rolled out in the model's task and drawn with the
-    model's ``n_samples`` sampled paths per layer over it, on world ``axes``.
-
-    .. warning::
-       This unpickles the reward model (:func:`~skillkit.viz.model_layers.load_gpreps_run`):
-       load only runs you trust.
+    model's ``n_samples`` sampled paths per layer over it, on world ``axes``. It unpickles the
+    reward model (:func:`~skillkit.viz.model_layers.load_gpreps_run`): load only runs you trust.
     """
     from skillkit.viz.model_layers import load_gpreps_run
 

@@ -32,6 +32,7 @@ prefixed ``trial<i>__``, when ``run_trial`` returned :meth:`PolicyRecorder.array
 
 from __future__ import annotations
 
+import zipfile
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -40,7 +41,6 @@ import numpy as np
 
 from skillkit._validation import check_array
 from skillkit.policies.gaussian import LinearGaussianPolicy
-from skillkit.viz._npz import read_npz
 
 __all__ = [
     "HISTORY_FORMAT",
@@ -100,6 +100,16 @@ class PolicyHistory:
         return f"PolicyHistory({', '.join(parts)})"
 
 
+def read_npz(path: str | Path, name: str) -> dict[str, np.ndarray]:
+    """Every array of an ``.npz`` file, read without pickles (``ValueError`` naming ``name``
+    when it is not a readable archive)."""
+    try:
+        with np.load(Path(path), allow_pickle=False) as data:
+            return {k: data[k] for k in data.files}
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+        raise ValueError(f"{name}: {path} is not a readable .npz file ({exc})") from None
+
+
 def _policy_arrays(policies: Sequence[LinearGaussianPolicy]) -> dict[str, np.ndarray]:
     """The ``policy_*`` arrays of the file format, after validating ``policies``."""
     from skillkit.search.loop import policy_history_arrays
@@ -132,14 +142,8 @@ class PolicyRecorder:
 
     def save(self, path, *, result: Mapping | None = None, task: str = "") -> Path:
         """Write the history; ``result`` (the dict ``learn`` returns) adds rollouts and rewards."""
-        r = result or {}
-        return save_policy_history(
-            path,
-            self.policies,
-            rollouts=r.get("rollouts"),
-            mean_reward=r.get("mean_reward"),
-            task=task,
-        )
+        curve = {k: (result or {}).get(k) for k in ("rollouts", "mean_reward")}
+        return save_policy_history(path, self.policies, task=task, **curve)
 
 
 def save_policy_history(

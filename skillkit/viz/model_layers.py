@@ -261,11 +261,9 @@ def load_gpreps_run(run_dir, trial: int = 0):
     The folder's ``trials.npz`` holds the trial's policy history
     (:func:`skillkit.viz.history.load_policy_history`); the model is the file at
     :func:`reward_model_path` or the uint8 array ``trial<K>__reward_model`` in ``trials.npz``
-    (:func:`dumps_reward_model`; what ``fig4.10``–``fig4.12`` store).
-
-    It unpickles the reward model (of the trial's last update): load only runs you trust.
-    Returns (history, model); ``ValueError`` for no such folder (argument ``gpreps``), no
-    reward model for the trial, or the errors of the two loaders.
+    (:func:`dumps_reward_model`; what ``fig4.10``–``fig4.12`` store), of the trial's last
+    update. Returns (history, model); ``ValueError`` for no such folder (argument
+    ``gpreps``), no reward model for the trial, or the errors of the two loaders.
     """
     from skillkit.viz.history import load_policy_history
 

@@ -25,14 +25,11 @@ SCREENSHOT_DIR = Path(__file__).resolve().parents[2] / "docs"
 def scene_screenshot(task_name: str) -> Path | None:
     """The documentation's screenshot of a task's scene (its base variant: ``throwing-noisy``
     falls back to ``throwing``), or None."""
-    name = str(task_name)
-    while name:
-        path = SCREENSHOT_DIR / f"scene_{name}.png"
+    parts = str(task_name).split("-")
+    for k in range(len(parts), 0, -1):
+        path = SCREENSHOT_DIR / f"scene_{'-'.join(parts[:k])}.png"
         if path.exists():
             return path
-        if "-" not in name:
-            return None
-        name = name.rsplit("-", 1)[0]
     return None
 
 

@@ -219,6 +219,10 @@ class _Panel:
     kinds: tuple[str, ...] = ()  # the kinds of its series
     n_named: int = 0  # distinct series names (a panel with >= 2 needs a legend)
 
+    def cell(self, ncols: int) -> dict:
+        """plotly's ``row`` and ``col`` of the panel in a grid of ``ncols`` columns."""
+        return {"row": self.index // ncols + 1, "col": self.index % ncols + 1}
+
 
 def _clip_note(points: list[dict], rng: AxisRange) -> str:
     """How many values lie off scale on each side, and the most extreme of them."""
@@ -267,24 +271,13 @@ def _layout(series: list[dict]) -> list[_Panel]:
             if rng is None:
                 ys = [values] + [a for s in banded for a in _band_arrays(s, log_y, floor)]
                 yaxis = _limits(np.concatenate(ys), log_y, pad=0.06)
-        label_x = next((s["xlabel"] for s in members if s.get("xlabel")), "")
-        label_y = next((s["ylabel"] for s in members if s.get("ylabel")), "")
+        xl, yl = (next((s[k] for s in members if s.get(k)), "") for k in ("xlabel", "ylabel"))
+        xl, yl = _axis_label(xl, log_x), _axis_label(yl, log_y)
+        note = _clip_note(points, rng) if rng is not None else ""
+        n_named = len({s["name"] for s in members})
         out.append(
             _Panel(
-                name,
-                i,
-                _axis_label(label_x, log_x),
-                _axis_label(label_y, log_y),
-                log_y,
-                rng,
-                _clip_note(points, rng) if rng is not None else "",
-                bands,
-                floor,
-                log_x,
-                xaxis,
-                yaxis,
-                kinds,
-                len({s["name"] for s in members}),
+                name, i, xl, yl, log_y, rng, note, bands, floor, log_x, xaxis, yaxis, kinds, n_named
             )
         )
     return out
@@ -361,6 +354,18 @@ def _band_label(s: Mapping, panel: _Panel) -> str | None:
     return f"{s['name']}: shaded {s['band']}"
 
 
+def _off_scale(panel: _Panel, s: Mapping):
+    """(x, y at the axis edge, values, side: 0 above, 1 below) of the values of ``s`` that lie
+    off the panel's robust range, per side holding any."""
+    if panel.range is None:
+        return
+    clipped = panel.range.clipped(s["y"])
+    for side, (mask, edge) in enumerate(zip(clipped, panel.range.axis[::-1], strict=True)):
+        if mask.any():
+            ys = np.asarray(s["y"], dtype=float)[mask]
+            yield np.asarray(s["x"])[mask], [edge] * int(mask.sum()), ys, side
+
+
 def _grid(n: int) -> tuple[int, int]:
     ncols = min(n, 2)
     return math.ceil(n / ncols), ncols
@@ -401,14 +406,14 @@ def plotly_figure(result: dict):
         horizontal_spacing=h_space if ncols > 1 else 0.02,
         vertical_spacing=row_gap / plot_h if nrows > 1 else 0.3,
     )
-    colors = _colors(series)
+    colors, by_name = _colors(series), {p.name: p for p in panels}
     shown: set[str] = set()
     # dashed series (references such as a demonstration) are drawn over the others, which
     # would hide them; the legend keeps the series' order (legendrank)
     for rank in sorted(range(len(series)), key=lambda i: _dashed(series[i])):
         s = series[rank]
-        panel = panels[[p.name for p in panels].index(s.get("panel", ""))]
-        cell = {"row": panel.index // ncols + 1, "col": panel.index % ncols + 1}
+        panel = by_name[s.get("panel", "")]
+        cell = panel.cell(ncols)
         color = colors[s.get("_group", s["name"])]
         kind = s.get("kind", "line")
         if kind == "heatmap":
@@ -476,30 +481,22 @@ def plotly_figure(result: dict):
             **cell,
         )
         shown.add(s["name"])
-        if panel.range is None:
-            continue
-        for mask, edge, symbol in zip(
-            panel.range.clipped(s["y"]),
-            panel.range.axis[::-1],
-            ("triangle-up", "triangle-down"),
-            strict=True,
-        ):
-            if mask.any():
-                ys = np.asarray(s["y"], dtype=float)[mask]
-                fig.add_scatter(
-                    x=np.asarray(s["x"])[mask].tolist(),
-                    y=[edge] * int(mask.sum()),
-                    mode="markers",
-                    marker={"color": color, "symbol": symbol, "size": 10},
-                    name=f"{s['name']} (off scale)",
-                    hoverinfo="text",
-                    cliponaxis=False,
-                    hovertext=[f"{s['name']}: {_fmt(v)} (off scale)" for v in ys],
-                    showlegend=False,
-                    **cell,
-                )
+        for x, y, ys, side in _off_scale(panel, s):
+            symbol = ("triangle-up", "triangle-down")[side]
+            fig.add_scatter(
+                x=x.tolist(),
+                y=y,
+                mode="markers",
+                marker={"color": color, "symbol": symbol, "size": 10},
+                name=f"{s['name']} (off scale)",
+                hoverinfo="text",
+                cliponaxis=False,
+                hovertext=[f"{s['name']}: {_fmt(v)} (off scale)" for v in ys],
+                showlegend=False,
+                **cell,
+            )
     for panel in panels:
-        cell = {"row": panel.index // ncols + 1, "col": panel.index % ncols + 1}
+        cell = panel.cell(ncols)
         limits = panel.range.axis if panel.range is not None else panel.yaxis
         for update, label, log, lims in (
             (fig.update_xaxes, panel.xlabel, panel.log_x, panel.xaxis),
@@ -636,9 +633,9 @@ def matplotlib_figure(result: dict):
         figsize=(fig_w, 3.8 * nrows + 0.15 + n_lines * sub_fs * 1.3 / 72), layout="constrained"
     )
     axes = fig.subplots(nrows, ncols, squeeze=False)
-    colors = _colors(series)
+    colors, by_name = _colors(series), {p.name: p for p in panels}
     for s in series:
-        panel = panels[[p.name for p in panels].index(s.get("panel", ""))]
+        panel = by_name[s.get("panel", "")]
         ax = axes[panel.index // ncols][panel.index % ncols]
         color = colors[s.get("_group", s["name"])]
         kind = s.get("kind", "line")
@@ -672,20 +669,8 @@ def matplotlib_figure(result: dict):
             linestyle="none" if kind == "markers" else _MPL_DASH[s.get("dash") or "solid"],
             zorder=2.5 if _dashed(s) else 2,  # a dashed reference is drawn over the fit
         )
-        if panel.range is not None:
-            for mask, edge, marker in zip(
-                panel.range.clipped(s["y"]), panel.range.axis[::-1], ("^", "v"), strict=True
-            ):
-                if mask.any():
-                    ax.plot(
-                        np.asarray(s["x"])[mask],
-                        [edge] * int(mask.sum()),
-                        marker,
-                        color=color,
-                        markersize=6,
-                        clip_on=False,
-                        label="_nolegend_",
-                    )
+        for x, y, _, side in _off_scale(panel, s):
+            ax.plot(x, y, "^v"[side], color=color, markersize=6, clip_on=False, label="_nolegend_")
     for panel in panels:
         ax = axes[panel.index // ncols][panel.index % ncols]
         ax.set_title(panel.name, fontsize=10)
@@ -761,9 +746,13 @@ def _single_point(s: Mapping) -> bool:
     return s.get("kind", "line") == "line" and int(np.isfinite(_floats(s["y"])).sum()) == 1
 
 
+def check_backend(backend: str) -> None:
+    """``ValueError`` unless ``backend`` is one of :data:`BACKENDS`."""
+    if backend not in BACKENDS:
+        raise ValueError(f"backend: expected one of {BACKENDS}, got {backend!r}")
+
+
 def draw_figure(result: dict, backend: str):
-    if backend == "plotly":
-        return plotly_figure(result)
-    if backend == "matplotlib":
-        return matplotlib_figure(result)
-    raise ValueError(f"backend: expected one of {BACKENDS}, got {backend!r}")
+    """:func:`plotly_figure` or :func:`matplotlib_figure` of ``result``, by ``backend``."""
+    check_backend(backend)
+    return (plotly_figure if backend == "plotly" else matplotlib_figure)(result)

@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from skillkit._validation import check_array
-from skillkit.viz._npz import read_npz
+from skillkit.viz.history import read_npz
 
 __all__ = ["PREDICTIONS_FORMAT", "load_predictions", "save_predictions"]
 

@@ -660,6 +660,7 @@ class MujocoTaskScene(TaskScene):
     effector_site: str | None = None
     world_paths: dict[str, str] = {}
     skip_geoms: tuple[str, ...] = ()
+    ball = None  # a ``/ball`` node following signal ``ball``, placed by :meth:`_world`
 
     def __init__(self, scene, task) -> None:
         super().__init__(scene, task)
@@ -700,6 +701,14 @@ class MujocoTaskScene(TaskScene):
 
     def show(self, trajectory: Trajectory, t: float) -> None:
         self.robot.set_qpos(interpolate(trajectory.times, self.qpos(trajectory), t))
+        if self.ball is not None:
+            ball = interpolate(signal_times(trajectory, "ball"), trajectory.signals["ball"], t)
+            self.ball.position = tuple(self._world(ball))
+
+    @staticmethod
+    def _world(points: np.ndarray) -> np.ndarray:
+        """World points of the ``ball`` signal's samples."""
+        return points
 
     def points(self, states) -> np.ndarray:
         m = self.robot.model
@@ -710,12 +719,10 @@ class MujocoTaskScene(TaskScene):
         return self.robot.positions(q, self._site).reshape(*x.shape[:-1], 3)
 
     def trails(self, trajectory: Trajectory) -> dict[str, np.ndarray]:
-        return {"effector": self.robot.positions(self.qpos(trajectory), self._site)}
-
-
-def _plane_to_3d(xy: np.ndarray) -> np.ndarray:
-    """The planar robot's [x, y] (y up) → world [x, 0, y]."""
-    return np.stack([xy[..., 0], np.zeros_like(xy[..., 0]), xy[..., 1]], axis=-1)
+        out = {"effector": self.robot.positions(self.qpos(trajectory), self._site)}
+        if self.ball is not None:
+            out["ball"] = self._world(trajectory.signals["ball"])
+        return out
 
 
 class PlanarScene(MujocoTaskScene):
@@ -743,15 +750,12 @@ class ThrowingScene(PlanarScene):
         self._mid_context()
 
     def set_context(self, context) -> None:
-        self.target.position = tuple(_plane_to_3d(self.task.check_context(context)))
+        self.target.position = tuple(self._world(self.task.check_context(context)))
 
-    def show(self, trajectory: Trajectory, t: float) -> None:
-        super().show(trajectory, t)
-        ball = interpolate(signal_times(trajectory, "ball"), trajectory.signals["ball"], t)
-        self.ball.position = tuple(_plane_to_3d(ball))
-
-    def trails(self, trajectory: Trajectory) -> dict[str, np.ndarray]:
-        return {**super().trails(trajectory), "ball": _plane_to_3d(trajectory.signals["ball"])}
+    @staticmethod
+    def _world(xy: np.ndarray) -> np.ndarray:
+        """The planar robot's [x, y] (y up) → world [x, 0, y]."""
+        return np.stack([xy[..., 0], np.zeros_like(xy[..., 0]), xy[..., 1]], axis=-1)
 
 
 class HockeyScene(MujocoTaskScene):
@@ -827,14 +831,6 @@ class TableTennisScene(MujocoTaskScene):
     def set_context(self, context) -> None:
         s = self.task.check_context(context)
         self.target.position = (s[3], s[4], self._height + 0.003)
-
-    def show(self, trajectory: Trajectory, t: float) -> None:
-        super().show(trajectory, t)
-        ball = interpolate(signal_times(trajectory, "ball"), trajectory.signals["ball"], t)
-        self.ball.position = tuple(ball)
-
-    def trails(self, trajectory: Trajectory) -> dict[str, np.ndarray]:
-        return {**super().trails(trajectory), "ball": trajectory.signals["ball"]}
 
 
 _ADAPTERS: tuple[type[TaskScene], ...] = (

@@ -11,6 +11,7 @@ banner and "Server stopped" are silenced unless ``verbose=True``.
 from __future__ import annotations
 
 import errno
+import functools
 import html
 import socket
 import threading
@@ -130,9 +131,7 @@ def start_server(
     """
     import viser
 
-    def make():
-        return viser.ViserServer(host=host, port=port, verbose=verbose, label=label)
-
+    make = functools.partial(viser.ViserServer, host=host, port=port, verbose=verbose, label=label)
     if verbose:
         return make()
     import rich
@@ -329,7 +328,7 @@ class Viewer:
             g["time"] = gui.add_slider("time [s]", min=0.0, max=1.0, step=0.01, initial_value=0.0)
             g["play"] = gui.add_button("Play", icon="player-play")
             g["trails"] = gui.add_checkbox("trails", True)
-        g["time"].on_update(self._on_time_slider)
+        g["time"].on_update(self._unless_quiet(lambda: self.set_time(g["time"].value)))
         g["play"].on_click(lambda _: self.set_playing(not self.playing))
         g["trails"].on_update(lambda _: self._draw_trails())
         if task.context_dim:
@@ -342,7 +341,7 @@ class Viewer:
                     slider = gui.add_slider(
                         label, min=lo, max=hi, step=step, initial_value=float(self.context[i])
                     )
-                    slider.on_update(lambda _event: self._context_from_gui())
+                    slider.on_update(self._unless_quiet(self._context_from_gui))
                     g["context"].append(slider)
         with gui.add_folder("Policy"):
             g["sample"] = gui.add_button("Sample ω ~ π(ω|s)")
@@ -358,17 +357,16 @@ class Viewer:
                 g["step_updates"] = gui.add_button("Step through updates", icon="player-play")
                 g["ghosts"] = gui.add_checkbox("trails of earlier updates", False)
                 g["history_info"] = gui.add_markdown("")
-            g["update"].on_update(self._on_update_slider)
+            g["update"].on_update(
+                self._unless_quiet(lambda: self.set_update(int(g["update"].value)))
+            )
             g["step_updates"].on_click(lambda _: self._toggle_update_stepping())
             g["ghosts"].on_update(lambda _: self._draw_ghosts())
         g["predictions"] = gui.add_folder("Predictions", visible=False)
         with g["predictions"]:
             g["legend"] = gui.add_html("")
         with gui.add_folder("Scene tree", expand_by_default=False):
-            g["tree"] = gui.add_markdown(self._tree_markdown())
-
-    def _tree_markdown(self) -> str:
-        return "\n".join(f"- `{n}`" for n in self.node_names())
+            g["tree"] = gui.add_markdown("")
 
     def node_names(self) -> list[str]:
         """Paths of every scene node the viewer made (task scene, trails, predictions)."""
@@ -380,7 +378,7 @@ class Viewer:
 
     def _refresh_tree(self) -> None:
         if "tree" in self.gui:
-            self.gui["tree"].content = self._tree_markdown()
+            self.gui["tree"].content = "\n".join(f"- `{n}`" for n in self.node_names())
 
     def _require_started(self) -> None:
         if self.server is None:
@@ -438,20 +436,11 @@ class Viewer:
         finally:
             self._local.quiet = False
 
-    def _quiet(self) -> bool:
-        return getattr(self._local, "quiet", False)
-
-    def _on_time_slider(self, _event) -> None:
-        if not self._quiet():
-            self.set_time(self.gui["time"].value)
-
-    def _on_update_slider(self, _event) -> None:
-        if not self._quiet():
-            self.set_update(int(self.gui["update"].value))
+    def _unless_quiet(self, fn: Callable[[], object]) -> Callable:
+        """A GUI callback running ``fn()`` unless this thread is moving the input itself."""
+        return lambda _event: None if getattr(self._local, "quiet", False) else fn()
 
     def _context_from_gui(self) -> None:
-        if self._quiet():
-            return
         values = [float(slider.value) for slider in self.gui["context"]]
         with self._lock:
             if np.array_equal(values, self.context):
@@ -639,32 +628,26 @@ class Viewer:
             scene = self.server.scene
             layer = PredictionLayer(name, points, times, color, opacity, label=label or name)
             nodes = layer.nodes
+            dots = functools.partial(scene.add_point_cloud, colors=color)
             if T >= 2:
-                nodes[f"{base}/samples"] = add_trail(
-                    scene, f"{base}/samples", points, color, radius=0.004, opacity=opacity
+                trail = functools.partial(add_trail, scene, color=color)
+                nodes[f"{base}/samples"] = trail(
+                    f"{base}/samples", points, opacity=opacity, radius=0.004
                 )
-                nodes[f"{base}/mean"] = add_trail(
-                    scene,
-                    f"{base}/mean",
-                    points.mean(axis=0),
-                    color,
-                    radius=0.008,
-                    opacity=min(1.0, 2 * opacity),
+                mean, mean_opacity = points.mean(axis=0), min(1.0, 2 * opacity)
+                nodes[f"{base}/mean"] = trail(
+                    f"{base}/mean", mean, opacity=mean_opacity, radius=0.008
                 )
             else:  # predicted points: the L dots and their mean
-                nodes[f"{base}/samples"] = scene.add_point_cloud(
-                    f"{base}/samples", points[:, 0], color, point_size=0.02, point_shape="circle"
+                samples, mean = points[:, 0], points[:, 0].mean(axis=0, keepdims=True)
+                nodes[f"{base}/samples"] = dots(
+                    f"{base}/samples", samples, point_size=0.02, point_shape="circle"
                 )
-                nodes[f"{base}/mean"] = scene.add_point_cloud(
-                    f"{base}/mean",
-                    points[:, 0].mean(axis=0, keepdims=True),
-                    color,
-                    point_size=0.045,
-                    point_shape="diamond",
+                nodes[f"{base}/mean"] = dots(
+                    f"{base}/mean", mean, point_size=0.045, point_shape="diamond"
                 )
-            nodes[f"{base}/now"] = scene.add_point_cloud(
-                f"{base}/now", layer.at(self.time), color, point_size=0.03, point_shape="circle"
-            )
+            now = layer.at(self.time)
+            nodes[f"{base}/now"] = dots(f"{base}/now", now, point_size=0.03, point_shape="circle")
             layer.visible = visible
             folder = self.gui["predictions"]
             folder.visible = True
@@ -705,7 +688,9 @@ class Viewer:
             entries.append(("simulator rollout: ball", COLORS["ball"]))
         return entries + [(layer.label, layer.color) for layer in self.layers.values()]
 
-    def _legend_html(self) -> str:
+    def _refresh_legend(self) -> None:
+        if "legend" not in self.gui:
+            return
         rows = [
             f'<div><span style="color: rgb{tuple(color)}; font-size: 1.2em">&#9632;</span> '
             f"{html.escape(label)}</div>"
@@ -720,20 +705,14 @@ class Viewer:
             if self._model_error:
                 error = html.escape(self._model_error)
                 head += f"<div><b>model prediction failed</b>: {error}</div>"
-        return f'<div style="font-size: 0.85em">{head}{"".join(rows)}</div>'
-
-    def _refresh_legend(self) -> None:
-        if "legend" in self.gui:
-            self.gui["legend"].content = self._legend_html()
+        self.gui["legend"].content = f'<div style="font-size: 0.85em">{head}{"".join(rows)}</div>'
 
     def add_model_layers(self, model, n_samples: int = 10, seed: int = 0) -> list[PredictionLayer]:
         """Overlay a GPREPS reward model's predictions for the shown (s, ω), kept up to date.
 
-        One prediction layer per learned model (:func:`skillkit.viz.model_layers.model_layers`,
-        ``n_samples`` = L trajectories each), recomputed on every new (s, ω) always with
-        ``seed``, so the same (s, ω) shows the same samples. A layer switched off stays off; a
-        second call replaces the first model. Returns the layers in the model's order (see
-        :attr:`model_layer_names`).
+        One layer per learned model (:func:`skillkit.viz.model_layers.model_layers`, L =
+        ``n_samples``), recomputed with ``seed`` on every new (s, ω); a layer switched off stays
+        off; a second call replaces the model. Returns the layers in the model's order.
 
         Raises
         ------

@@ -107,8 +107,8 @@ def _axis_rotation(axis: tuple[int, int, int], angle: np.ndarray) -> np.ndarray:
 
 
 def arm_forward_kinematics(q) -> tuple[np.ndarray, np.ndarray]:
-    """Pose of the blade centre for joint angles ``q`` (an independent numpy chain):
-    p = Σ_i R_0 … R_{i−1} [0, 0, l_i] + R_0 … R_6 [0, 0, BLADE_OFFSET], l_i = :data:`LINK_OFFSETS`.
+    """Blade pose p = Σ_i R_0 … R_{i−1} [0, 0, l_i] + R_0 … R_6 [0, 0, BLADE_OFFSET] by an
+    independent numpy chain, l_i = :data:`LINK_OFFSETS`.
 
     Parameters
     ----------
@@ -117,10 +117,8 @@ def arm_forward_kinematics(q) -> tuple[np.ndarray, np.ndarray]:
 
     Returns
     -------
-    position : ndarray, shape (..., 3)
-        Blade centre in the world (table) frame, m.
-    rotation : ndarray, shape (..., 3, 3)
-        Blade frame: columns are its long side, face normal and shaft direction.
+    position, rotation : ndarray, shape (..., 3), (..., 3, 3)
+        Blade centre (m) and frame (columns: long side, face normal, shaft).
     """
     q = check_array(q, "q", ndim=(1, 2))
     if q.shape[-1] != N_JOINTS:

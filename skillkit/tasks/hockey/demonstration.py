@@ -50,13 +50,10 @@ def _ik_blade(model, data, site: int, position, rotation, q, posture) -> np.ndar
 
 
 def make_demonstration(dt: float = TIMESTEP) -> dict[str, np.ndarray]:
-    """The demonstrated hitting stroke sampled every ``dt`` s (deterministic; the shipped file).
-
-    The upright blade slides :data:`DEMO_BACKSWING` along a straight line towards
-    :data:`TARGET_CENTRE` and reaches the control puck with speed :data:`DEMO_HIT_SPEED` after
-    :data:`DEMO_DURATION` (quintic timing); joint angles by damped least-squares IK, their
-    derivatives by finite differences. Returns ``times`` (N,), ``q``, ``qd``, ``qdd`` (N, 7),
-    ``blade`` (N, 3), ``control_puck_start`` (2,) and ``direction`` (2,).
+    """The demonstrated stroke every ``dt`` s: the upright blade slides :data:`DEMO_BACKSWING`
+    towards :data:`TARGET_CENTRE`, reaching the control puck at :data:`DEMO_HIT_SPEED` after
+    :data:`DEMO_DURATION` (quintic timing, damped least-squares IK). Returns ``times`` (N,),
+    ``q``, ``qd``, ``qdd`` (N, 7), ``blade`` (N, 3), ``control_puck_start``, ``direction`` (2,).
     """
     dt = check_positive(dt, "dt")
     model = arm_model()

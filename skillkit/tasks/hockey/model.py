@@ -1,28 +1,15 @@
 """The decomposed reward model of the robot hockey task (Sec. 4.3.3, Appendix C.2).
 
-GPREPS predicts the reward of a shot with learned event models chained as in Sec. 4.3.3:
-
-1. **Launch** (GP on ω): the control puck's state [p_y, v_x, v_y] and time t_0 where it
-   crosses the line x = :data:`X_LAUNCH`, 0.2 m past its start (the racket no longer touches
-   it there); targets per :class:`LaunchTargets`. Once a shot that never crosses is seen, a
-   second GP regresses ±1 (crossed or not) on ω and a shot launches when a draw is positive.
-2. **Free sliding** (GP, iterated): Δ[p, v] over ``slide_dt`` from the velocity v alone (the
-   table is uniform); a draw slower than ``stop_speed`` or reversing stops the puck.
-3. **Contact detection** from the puck radius r (:func:`first_contact`).
-4. **Contact** (GP): both pucks' velocities after the first contact from the control puck's
-   velocity before it, in the contact frame [n, t] (n from the control to the target centre).
-5. **Reward**: the task's :meth:`~skillkit.tasks.hockey.Hockey.reward_batch` on the predicted
-   paths; Eq. (4.1) averages the L rewards of a pair.
-
-In the **real-robot setting** (``hockey-real``) the models learn from the observed tracks,
-smoothed as the reward smooths them, the sliding step is the observation period, and the
-contact model is replaced by :class:`DisplacementModel` (Sec. 4.3.3): the pucks' final
-displacements from the control puck's state where it comes within ``real_threshold``. After
-a predicted hit the paths are drawn straight to those end points (the target with constant
-deceleration) and padded with :data:`REST_FRAMES` rest frames for the reward's filter.
-
-Each GP comes from a factory (default :class:`ExactGP`) and is refitted after each data
-collection (Sec. 4.1) by :func:`~skillkit.models.reward.refit_gp`.
+Event models chained as in Sec. 4.3.3: 1. **launch** (GP ω ↦ the control puck's state where
+it crosses x = :data:`X_LAUNCH`, :class:`LaunchTargets`; once a shot that never crosses is
+seen, a second GP regresses ±1 on ω and a shot launches when a draw is positive); 2. **free
+sliding** (GP v ↦ Δ[p, v] over ``slide_dt``, iterated; slower than ``stop_speed`` or
+reversing stops); 3. **contact detection** from the puck radius (:func:`first_contact`);
+4. **contact** (GP: both velocities after the contact in the frame [n, t]); 5. the task's
+reward on the predicted paths, averaged over L (Eq. 4.1). In the **real setting**
+(``hockey-real``) the models learn from the smoothed observed tracks and the contact model is
+:class:`DisplacementModel`: after a predicted hit the paths run straight to its end points,
+padded with :data:`REST_FRAMES` rest frames for the reward's filter.
 """
 
 from __future__ import annotations
@@ -39,10 +26,12 @@ from skillkit.models.gp import ExactGP, GPRegression
 from skillkit.models.reward import (
     Prediction,
     RewardModel,
+    check_choice,
+    check_factories,
     check_refit,
     gp_stats,
-    refit_gp,
     subsample,
+    usable_trajectories,
     worst_if_nonfinite,
 )
 from skillkit.tasks.hockey.table import CONTROL_PUCK_START
@@ -57,8 +46,7 @@ REST_FRAMES = 15
 
 
 def _segment_hit(d0: np.ndarray, d1: np.ndarray, distance: float) -> tuple[np.ndarray, np.ndarray]:
-    """First f ∈ [0, 1] with ‖d0 + f (d1 − d0)‖ = distance for rows (..., 2): hit (...) and f
-    (...), 0 where d0 is already within ``distance`` or where not ``hit``."""
+    """Hit (...) and the first f ∈ [0, 1] with ‖d0 + f (d1 − d0)‖ = distance (0 if none/inside)."""
     e = d1 - d0
     a = np.sum(e * e, axis=-1)
     b = np.sum(d0 * e, axis=-1)
@@ -72,11 +60,7 @@ def _segment_hit(d0: np.ndarray, d1: np.ndarray, distance: float) -> tuple[np.nd
 
 
 def first_contact(control, target, radius: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Detect the first contact of two pucks of radius r on sampled paths.
-
-    The pucks touch when ‖x_c − x_t‖ ≤ 2r; between samples k, k+1 the relative position
-    d = x_c − x_t is interpolated linearly and the contact is the first f ∈ [0, 1] with
-    ‖d_k + f (d_{k+1} − d_k)‖ = 2r.
+    """First contact ‖d_k + f (d_{k+1} − d_k)‖ = 2r, d = x_c − x_t linear between samples.
 
     Parameters
     ----------
@@ -87,11 +71,8 @@ def first_contact(control, target, radius: float) -> tuple[np.ndarray, np.ndarra
 
     Returns
     -------
-    hit : ndarray of bool, shape (B,) (or () for one path)
-    k : ndarray of int, shape (B,)
-        The segment [k, k+1] of the first contact (0 where no hit).
-    f : ndarray, shape (B,)
-        Where in the segment, so the contact is at x_k + f (x_{k+1} − x_k).
+    hit, k, f : ndarray, shape (B,) (or () for one path)
+        Whether they touch, and the contact x_k + f (x_{k+1} − x_k) (0, 0 where no hit).
     """
     c = check_array(control, "control", ndim=(2, 3))
     t = check_array(target, "target", shape=c.shape)
@@ -112,7 +93,7 @@ def first_contact(control, target, radius: float) -> tuple[np.ndarray, np.ndarra
 
 
 def _crossing(path: np.ndarray, x_line: float) -> tuple[int, float] | None:
-    """First segment (k − 1, k) where path[:, 0] reaches x_line and the fraction in it."""
+    """First k where path[k, 0] reaches x_line (from below) and the fraction in (k − 1, k)."""
     above = path[:, 0] >= x_line
     if not above.any() or above[0]:
         return None
@@ -122,7 +103,7 @@ def _crossing(path: np.ndarray, x_line: float) -> tuple[int, float] | None:
 
 
 def _frame(n: np.ndarray) -> np.ndarray:
-    """Rotation rows [n, t], t = n rotated by +90°, shape (..., 2, 2)."""
+    """Rotation rows [n, n rotated by +90°], shape (..., 2, 2)."""
     t = np.stack([-n[..., 1], n[..., 0]], axis=-1)
     return np.stack([n, t], axis=-2)
 
@@ -135,33 +116,27 @@ def _rotate(R: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 
 def _interp(times: np.ndarray, values: np.ndarray, at) -> np.ndarray:
-    """Linear interpolation of (T, 2) values at times ``at`` (scalar or (n,))."""
     at = np.asarray(at, dtype=np.float64)
     return np.stack([np.interp(at, times, values[:, i]) for i in range(values.shape[1])], -1)
 
 
 LAUNCH_TARGETS: tuple[str, ...] = ("heading", "velocity")
-"""What the launch GP predicts (:class:`LaunchTargets`): ``"heading"`` [p_y, heading, speed,
-t_0] (the default) or ``"velocity"`` [p_y, v_x, v_y, t_0]."""
 
 
 class LaunchTargets:
-    """The launch GP's outputs and the launch state [p_y, v_x, v_y, t_0] they stand for.
+    """The launch GP's outputs for the launch state [p_y, v_x, v_y, t_0].
 
     Parameters
     ----------
     kind : {"heading", "velocity"}
-        ``"heading"``: [p_y, ψ, ‖v‖, t_0] with ψ = atan2(v_y, v_x) (the direction, which
-        decides hits, gets a GP of its own); ``"velocity"``: [p_y, v_x, v_y, t_0].
+        [p_y, ψ, ‖v‖, t_0] with ψ = atan2(v_y, v_x), or [p_y, v_x, v_y, t_0].
     """
 
     def __init__(self, kind: str = "heading"):
-        if kind not in LAUNCH_TARGETS:
-            raise ValueError(f"launch_targets: expected one of {LAUNCH_TARGETS}, got {kind!r}")
-        self.kind = kind
+        self.kind = check_choice(kind, LAUNCH_TARGETS, "launch_targets")
 
     def encode(self, state: np.ndarray) -> np.ndarray:
-        """GP targets (N, 4) from launch states [p_y, v_x, v_y, t_0] (N, 4)."""
+        """GP targets (N, 4) of launch states (N, 4)."""
         state = np.asarray(state, dtype=np.float64)
         if self.kind == "velocity":
             return state.copy()
@@ -170,8 +145,7 @@ class LaunchTargets:
         return np.column_stack([state[:, 0], heading, np.hypot(v[:, 0], v[:, 1]), state[:, 3]])
 
     def decode(self, targets: np.ndarray) -> np.ndarray:
-        """Launch states [p_y, v_x, v_y, t_0] (N, 4) from GP targets or draws (N, 4); a drawn
-        speed below 0 means a puck at rest (speed 0)."""
+        """Launch states (N, 4) of GP targets or draws (N, 4); a negative speed is a rest."""
         targets = np.asarray(targets, dtype=np.float64)
         if self.kind == "velocity":
             return targets.copy()
@@ -186,9 +160,6 @@ class LaunchTargets:
 
 
 DISPLACEMENT_MODELS: tuple[str, ...] = ("hit_gp", "gp")
-"""Real setting's displacement model (:class:`DisplacementModel`): ``"hit_gp"`` a hit/miss
-classifier and a GP on the hits in the approach frame (the default), ``"gp"`` one GP on all
-approaches in world coordinates."""
 
 
 def approach_frame(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -197,14 +168,13 @@ def approach_frame(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     Parameters
     ----------
     x : ndarray, shape (N, 4)
-        [x_c − b, v_c]: position relative to the target and velocity of the control puck.
+        [x_c − b, v_c]: position relative to the target, velocity.
 
     Returns
     -------
-    features : ndarray, shape (N, 2)
-        [h, ‖v_c‖], h the signed offset of the line of approach from the target's centre.
-    frames : ndarray, shape (N, 2, 2)
-        Rows [u, u⊥], u = v_c / ‖v_c‖ (a puck at rest gets u = x).
+    features, frames : ndarray, shape (N, 2), (N, 2, 2)
+        [h, ‖v_c‖], h the signed offset of the line of approach from the target's centre;
+        rows [u, u⊥], u = v_c / ‖v_c‖ (x at rest).
     """
     x = np.asarray(x, dtype=np.float64)
     rel, v = x[:, :2], x[:, 2:]
@@ -216,7 +186,6 @@ def approach_frame(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _classifier_inputs(x: np.ndarray) -> np.ndarray:
-    """[|h|, ‖v_c‖] of :func:`approach_frame`, the hit classifier's inputs."""
     feats, _ = approach_frame(x)
     return np.column_stack([np.abs(feats[:, 0]), feats[:, 1]])
 
@@ -227,14 +196,11 @@ class DisplacementModel:
     Parameters
     ----------
     kind : {"hit_gp", "gp"}
-        ``"hit_gp"``: P(hit) from a logistic regression on the standardised [|h|, ‖v_c‖] of
-        :func:`approach_frame`, and a GP [h, ‖v_c‖] → both pucks' displacements in the
-        approach frame (4), fitted on the hits; a miss leaves the target in place. ``"gp"``:
-        one GP [x_c − b, v_c] → [Δy_target, Δx_control] (4) in world coordinates, every
-        approach a hit.
+        ``"hit_gp"``: P(hit) by logistic regression on [|h|, ‖v_c‖] (:func:`approach_frame`)
+        and a GP [h, ‖v_c‖] → both displacements in the approach frame, fitted on the hits;
+        ``"gp"``: one GP [x_c − b, v_c] → [Δy_target, Δx_control] in world coordinates.
     hit_distance : float
-        A recorded approach is a hit when the target puck ends more than this from its
-        start, m.
+        An approach is a hit when the target puck moved more than this, m.
 
     Attributes
     ----------
@@ -246,21 +212,18 @@ class DisplacementModel:
     """
 
     def __init__(self, kind: str = "hit_gp", hit_distance: float = 0.08):
-        if kind not in DISPLACEMENT_MODELS:
-            raise ValueError(f"displacement: expected one of {DISPLACEMENT_MODELS}, got {kind!r}")
-        self.kind = kind
+        self.kind = check_choice(kind, DISPLACEMENT_MODELS, "displacement")
         self.hit_distance = check_positive(hit_distance, "hit_distance")
         self.gp = None
         self.classifier = None
         self.hit_rate = 1.0
 
     def hits(self, y: np.ndarray) -> np.ndarray:
-        """Which recorded approaches (targets y (N, 4)) moved the target puck, shape (N,)."""
+        """Which recorded approaches (targets y (N, 4)) moved the target puck, (N,)."""
         return np.linalg.norm(np.asarray(y)[:, :2], axis=1) > self.hit_distance
 
     def gp_data(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The GP's inputs and targets from approaches x (N, 4) and displacements y (N, 4):
-        all rows unchanged (``"gp"``) or the hits in the approach frame (``"hit_gp"``)."""
+        """GP inputs and targets: all rows (``"gp"``) or the hits in the approach frame."""
         if self.kind == "gp":
             return x, y
         keep = self.hits(y)
@@ -268,7 +231,7 @@ class DisplacementModel:
         return feats, _rotate(R, y[keep])
 
     def fit_classifier(self, x: np.ndarray, y: np.ndarray) -> None:
-        """Fit P(hit | approach) on every recorded approach (``"hit_gp"`` only)."""
+        """Fit P(hit | approach) on every recorded approach (``"hit_gp"``)."""
         if self.kind == "gp":
             return
         from sklearn.linear_model import LogisticRegression
@@ -283,7 +246,7 @@ class DisplacementModel:
             self.classifier.fit(_classifier_inputs(x), hit)
 
     def hit_probability(self, x: np.ndarray) -> np.ndarray:
-        """P(hit) of approaches x (N, 4), shape (N,); 1 for ``"gp"``, 0 without a GP."""
+        """P(hit) of approaches x (N, 4), (N,); 1 for ``"gp"``, 0 without a GP."""
         x = np.asarray(x, dtype=np.float64)
         if self.kind == "gp":
             return np.ones(x.shape[0])
@@ -294,15 +257,14 @@ class DisplacementModel:
         return self.classifier.predict_proba(_classifier_inputs(x))[:, 1]
 
     def draw_hits(self, x: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        """Bernoulli draws of hit / miss for approaches x (N, 4), shape (N,) bool."""
+        """Bernoulli hit draws for approaches x (N, 4), (N,) bool."""
         p = self.hit_probability(x)
         if self.kind == "gp":
             return p > 0
         return rng.random(p.shape[0]) < p
 
     def draw(self, x: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        """One draw of [Δy_target, Δx_control] (N, 4) in world coordinates for approaches x
-        (N, 4) that hit (zeros without a GP)."""
+        """One draw of [Δy_target, Δx_control] (N, 4), world frame (zeros without a GP)."""
         x = np.asarray(x, dtype=np.float64)
         if self.gp is None or x.shape[0] == 0:
             return np.zeros((x.shape[0], 4))
@@ -320,21 +282,10 @@ class DisplacementModel:
 class HockeyPrediction(Prediction):
     """L predicted shots for each of B (ω, s) pairs.
 
-    Attributes
-    ----------
-    control, target : ndarray, shape (B, L, K, 2)
-        Predicted puck paths, padded with the last position: simulated setting, the start,
-        the launch point, then one sample every ``slide_dt`` (the contact point replaces the
-        sample of its step); real setting, one sample per observation frame from t = 0.
-    launch : ndarray, shape (B, L, 4)
-        [x, y, v_x, v_y] of the control puck at the launch line (the start and zero velocity
-        where the shot is not launched).
-    launched : ndarray of bool, shape (B, L)
-    contact : ndarray of bool, shape (B, L)
-        Whether the pucks touched (real setting: a drawn hit of the displacement model).
-    contact_index : ndarray of int, shape (B, L)
-        The path sample of the contact (−1 if none).
-    rewards : ndarray, shape (B, L)
+    ``control``, ``target`` (B, L, K, 2): puck paths padded with the last position (simulated:
+    start, launch point, then every ``slide_dt``; real: every observation frame); ``launch``
+    (B, L, 4) [x, y, v_x, v_y] at the launch line (the start at rest if not ``launched``);
+    ``contact`` (B, L) and its path sample ``contact_index`` (−1 if none); ``rewards`` (B, L).
     """
 
     control: np.ndarray
@@ -367,40 +318,29 @@ class HockeyRewardModel(RewardModel):
     ----------
     task : Hockey
     make_launch_model, make_launch_probability_model, make_sliding_model : callable, optional
-        Each ``make_*`` returns an unfitted :mod:`skillkit.models` GP regression (default
-        ``ExactGP()``): ω (15) → ``launch_targets`` (4); ω → ±1 (crossed or not); v (2) →
-        Δ[p, v] (4).
     make_contact_model, make_displacement_model : callable, optional
-        [v·n, v·t] → post-contact velocities (4); the real setting's displacements
-        (:class:`DisplacementModel`).
+        Unfitted GP regressions (default ``ExactGP``, module-level for checkpoints) of
+        ω → ``launch_targets``, ω → ±1, v → Δ[p, v], [v·n, v·t] → post-contact velocities,
+        and the real setting's :class:`DisplacementModel`.
     real : bool, optional
-        Learn from the smoothed observed tracks with the displacement model (default: when
-        ``task.observation`` is set).
+        Learn from the smoothed observed tracks (default: when ``task.observation`` is set).
     slide_dt : float, optional
-        Step of the sliding model, s (default 0.04; the observation period when ``real``).
-    stop_speed : float
-        A predicted puck slower than this (m/s) has stopped.
-    horizon : float
-        Longest predicted sliding after the launch, s.
+        Sliding step, s (default 0.04; the observation period when ``real``).
+    stop_speed, horizon : float
+        Speed (m/s) below which a puck stops; longest predicted sliding (s).
     real_threshold : float
-        Centre distance (m) at which the real setting's displacement model takes over.
+        Centre distance (m) at which the displacement model takes over.
     contact_margin : float, optional
-        Sliding transitions within this time (s) of a puck contact are not learned from
-        (default 0.02 s; 0.25 s in the real setting, where smoothing spreads a contact).
+        Sliding transitions this close (s) to a contact are not learned (default 0.02;
+        0.25 in the real setting).
     max_sliding_points, max_contact_points : int
-        Each GP is fitted on at most this many points, drawn at random.
+        Each GP is fitted on at most this many random points.
     refit : {"best", "cold", "warm"}
-        Where each GP's hyper-parameter optimisation starts (:func:`refit_gp`).
-    launch_targets : {"heading", "velocity"}
-        The launch GP's outputs (:class:`LaunchTargets`).
-    displacement : {"hit_gp", "gp"}
-        The real setting's :class:`DisplacementModel`.
+        Start of each hyper-parameter optimisation (:func:`refit_gp`).
+    launch_targets, displacement : str
+        :class:`LaunchTargets` and :class:`DisplacementModel` kinds.
     device : str or torch.device, optional
-        Where the fitted GPs' predictors are queried (float64; randomness is drawn in numpy).
-
-    Notes
-    -----
-    Factories are part of the checkpointed state: pass module-level functions or classes.
+        Where the fitted GPs' predictors are queried.
     """
 
     _KEYS = ("launch", "launch_probability", "sliding", "contact", "displacement")
@@ -435,9 +375,8 @@ class HockeyRewardModel(RewardModel):
             "make_contact_model": make_contact_model,
             "make_displacement_model": make_displacement_model,
         }
+        check_factories(**factories)
         for name, f in factories.items():
-            if f is not None and not callable(f):
-                raise ValueError(f"{name}: expected a callable, got {type(f).__name__}")
             setattr(self, name, f or ExactGP)
         self.task = task
         self.real = task.observation is not None if real is None else bool(real)
@@ -515,11 +454,8 @@ class HockeyRewardModel(RewardModel):
         return float((1 - f[k]) * times[k] + f[k] * times[k + 1])
 
     def sliding_data(self, trajectories) -> tuple[np.ndarray, np.ndarray]:
-        """Sliding transitions: velocities v_k (N, 2) and Δ[p, v] (N, 4) over ``slide_dt``.
-
-        Both paths resampled on a ``slide_dt`` grid (the control puck from its launch, the
-        target from the contact), without transitions within ``contact_margin`` of the
-        contact or starting slower than ``stop_speed``."""
+        """Sliding transitions v_k (N, 2) → Δ[p, v] (N, 4) on a ``slide_dt`` grid (control puck
+        from its launch, target from the contact), none near a contact or slow."""
         dt, xs, ys = self.slide_dt, [], []
         for t in trajectories:
             times, c, y = self.paths(t)
@@ -591,11 +527,7 @@ class HockeyRewardModel(RewardModel):
 
     # ------------------------------------------------------------------ fit
     def _fit_gp(self, key: str, x: np.ndarray, y: np.ndarray, rng) -> tuple[Any, dict]:
-        """Refit GP ``key`` on (x, y) (:func:`refit_gp`); the GP and the refit record."""
-        make = getattr(self, f"make_{key}_model")
-        gp, record = refit_gp(make, x, y, rng, self._hypers[key], self.refit)
-        if isinstance(gp, GPRegression):
-            self._hypers[key] = gp.hyperparameters
+        gp, record = self._refit(key, getattr(self, f"make_{key}_model"), x, y, rng)
         if self.device is not None:
             gp.predictor = gp.predictor.to(torch.device(self.device))
         return gp, record
@@ -603,18 +535,11 @@ class HockeyRewardModel(RewardModel):
     def fit(self, contexts, omegas, rewards, trajectories, rng=None) -> dict[str, Any]:
         """Refit the event models on every non-failed real shot.
 
-        Returns
-        -------
-        dict
-            ``n_data`` (sliding transitions), ``n_trajectories``, ``n_launched``,
-            ``n_contacts``; per fitted GP its :func:`gp_stats` and refit record; with
-            ``displacement="hit_gp"`` also ``n_hits`` and the classifier's ``hit_accuracy``.
+        Returns ``n_data`` (sliding transitions), ``n_trajectories``, ``n_launched``,
+        ``n_contacts``, per GP its :func:`gp_stats` and refit record, and with ``"hit_gp"``
+        ``n_hits`` and ``hit_accuracy``.
         """
-        if trajectories is None:
-            raise ValueError("trajectories: the hockey model learns from trajectories")
-        ok = list({id(t): t for t in trajectories if not t.failed}.values())
-        if not ok:
-            raise ValueError("trajectories: every trajectory failed; nothing to learn from")
+        ok = usable_trajectories(trajectories, "hockey")
         rng = as_generator(rng)
         omegas = check_array(omegas, "omegas", shape=(None, self.task.parameter_dim))
         if omegas.shape[0] != len(trajectories):
@@ -630,42 +555,36 @@ class HockeyRewardModel(RewardModel):
         if crossed.sum() < 2:
             raise ValueError("trajectories: fewer than two launched shots to learn from")
         stats: dict[str, Any] = {"n_trajectories": len(ok), "n_launched": int(crossed.sum())}
-        sizes: dict[str, int] = {}
         self.models = dict.fromkeys(self._KEYS)
-        records: dict[str, dict] = {}
-        gps: dict[str, Any] = {}
-        targets = LaunchTargets(self.launch_targets).encode(launch[crossed])
-        gps["launch"], records["launch"] = self._fit_gp("launch", w[crossed], targets, rng)
-        sizes["launch"] = int(crossed.sum())
+        fits: dict[str, tuple] = {}  # key: (gp, refit record, points)
+
+        def fit(key: str, x: np.ndarray, y: np.ndarray):
+            gp, record = self._fit_gp(key, x, y, rng)
+            fits[key] = (gp, record, int(x.shape[0]))
+            return gp
+
+        fit("launch", w[crossed], LaunchTargets(self.launch_targets).encode(launch[crossed]))
         if not crossed.all():
-            labels = np.where(crossed, 1.0, -1.0)
-            gps["launch_probability"], records["launch_probability"] = self._fit_gp(
-                "launch_probability", w, labels, rng
-            )
-            sizes["launch_probability"] = len(w)
+            fit("launch_probability", w, np.where(crossed, 1.0, -1.0))
         x, y = self.sliding_data(ok)
         self.n_data = int(x.shape[0])
-        x, y = subsample(rng, self.max_sliding_points, x, y)
-        gps["sliding"], records["sliding"] = self._fit_gp("sliding", x, y, rng)
-        sizes["sliding"] = int(x.shape[0])
-        self.models.update(gps)
+        fit("sliding", *subsample(rng, self.max_sliding_points, x, y))
+        self.models.update({key: f[0] for key, f in fits.items()})
         if self.real:
-            stats.update(self._fit_displacement(ok, rng, gps, records, sizes))
+            stats.update(self._fit_displacement(ok, rng, fit))
         else:
             cx, cy = self.contact_data(ok)
             stats["n_contacts"] = int(cx.shape[0])
             if cx.shape[0] >= 2:
                 cx, cy = subsample(rng, self.max_contact_points, cx, cy)
-                gps["contact"], records["contact"] = self._fit_gp("contact", cx, cy, rng)
-                self.models["contact"] = gps["contact"]
-                sizes["contact"] = int(cx.shape[0])
+                self.models["contact"] = fit("contact", cx, cy)
         stats["n_data"] = self.n_data
-        for name, n in sizes.items():
-            if isinstance(gps[name], GPRegression):
-                stats[name] = {**gp_stats(gps[name], n), **records[name]}
+        for key, (gp, record, n) in fits.items():
+            if isinstance(gp, GPRegression):
+                stats[key] = {**gp_stats(gp, n), **record}
         return stats
 
-    def _fit_displacement(self, ok, rng, gps, records, sizes) -> dict[str, Any]:
+    def _fit_displacement(self, ok, rng, fit) -> dict[str, Any]:
         """Fit the real setting's :class:`DisplacementModel`; its own stats."""
         model = DisplacementModel(self.displacement)
         cx, cy = self.displacement_data(ok)
@@ -674,9 +593,7 @@ class HockeyRewardModel(RewardModel):
         model.fit_classifier(cx, cy)
         gx, gy = model.gp_data(cx, cy)
         if gx.shape[0] >= 2:
-            model.gp, records["displacement"] = self._fit_gp("displacement", gx, gy, rng)
-            gps["displacement"] = model.gp
-            sizes["displacement"] = int(gx.shape[0])
+            model.gp = fit("displacement", gx, gy)
             self.models["displacement"] = model
         if model.kind == "hit_gp":
             out["n_hits"] = int(gx.shape[0])
@@ -721,13 +638,9 @@ class HockeyRewardModel(RewardModel):
     def predict(self, contexts, omegas, n_trajectories: int, rng=None) -> HockeyPrediction:
         """Sample L = ``n_trajectories`` shots for each of B pairs, contexts (B, 3) and omegas
         (B, 15), through the event models."""
-        if self.models["launch"] is None:
-            raise RuntimeError("HockeyRewardModel: call fit() before predicting")
-        task = self.task
-        w = check_array(omegas, "omegas", shape=(None, task.parameter_dim))
-        s = check_array(contexts, "contexts", shape=(w.shape[0], task.context_dim))
-        L, rng = check_count(n_trajectories, "n_trajectories"), as_generator(rng)
-        B = w.shape[0]
+        fitted = self.models["launch"] is not None
+        w, s, L, rng = self._pairs(fitted, contexts, omegas, n_trajectories, rng)
+        task, B = self.task, w.shape[0]
         wl, sl = np.repeat(w, L, axis=0), np.repeat(s, L, axis=0)
         launch, t0, launched = self._launch(wl, rng)
         if self.real:
@@ -859,18 +772,10 @@ class HockeyRewardModel(RewardModel):
         )
         return pc, pt, contact, index
 
-    def expected_rewards(self, contexts, omegas, n_trajectories, rng=None) -> np.ndarray:
-        """R̂_sω: the mean reward of L predicted shots per pair (Eq. 4.1), shape (B,)."""
-        return self.predict(contexts, omegas, n_trajectories, rng).expected_rewards
-
     # ------------------------------------------------------------------ viewer
     def prediction_layers(self, context, omega, n_samples: int, rng=None) -> dict[str, dict]:
-        """Predicted puck paths of one pair, context (3,) and omega (15,), per event model.
-
-        Returns ``{legend: {"trajectories": (L, T, 3), "color": (r, g, b)}}`` at the pucks'
-        centre height :data:`PUCK_Z`: the launch state as a 0.1 s velocity arrow, the control
-        puck up to the contact, and after it both pucks (rows padded with their last point).
-        """
+        """``{legend: {"trajectories": (L, T, 3), "color": (r, g, b)}}`` of one pair's predicted
+        launch arrows (0.1 s) and puck paths before and after the contact, at :data:`PUCK_Z`."""
         s = check_array(context, "context", shape=(self.task.context_dim,))
         w = check_array(omega, "omega", shape=(self.task.parameter_dim,))
         p = self.predict(s[None], w[None], check_count(n_samples, "n_samples"), rng)

@@ -43,10 +43,8 @@ def hockey_reward(control_puck, target_puck, context) -> float:
 
     Parameters
     ----------
-    control_puck : array_like, shape (T, 2)
-        Control-puck trajectory x_{1:T}, m.
-    target_puck : array_like, shape (T', 2)
-        Target-puck trajectory; d_T = ‖y_{T'} − y_1‖.
+    control_puck, target_puck : array_like, shape (T, 2), (T', 2)
+        Puck paths x and y (m); d_T = ‖y_{T'} − y_1‖.
     context : array_like, shape (3,)
         s = [b_x, b_y, d*].
 
@@ -78,9 +76,8 @@ def hockey_reward_batch(control_puck, target_puck, contexts) -> np.ndarray:
 def butterworth_smooth(
     values, rate: float, cutoff: float = BUTTER_CUTOFF, order: int = BUTTER_ORDER, axis: int = 0
 ) -> np.ndarray:
-    """Zero-phase Butterworth low-pass filtering (``scipy.signal.filtfilt``) of samples along
-    ``axis`` at ``rate`` Hz, cut-off below the Nyquist frequency; the forward–backward pass
-    doubles the effective ``order``. Raises ValueError for too few samples."""
+    """Zero-phase Butterworth low-pass (``scipy.signal.filtfilt``) of samples along ``axis`` at
+    ``rate`` Hz; ValueError for too few samples."""
     x = check_array(values, "values", ndim=(1, 2, 3))
     rate = check_positive(rate, "rate")
     cutoff = check_positive(cutoff, "cutoff")

@@ -26,16 +26,12 @@ class TablePhysics:
     puck_radius, puck_mass, puck_height : float
         Puck geometry (m) and mass (kg).
     friction : float
-        Coulomb sliding friction μ between puck and table (deceleration μ g).
+        Coulomb sliding friction μ (deceleration μ g).
     restitution_pucks, restitution_racket, friction_racket : float
         Restitution of puck–puck and racket–puck contacts; friction of the latter.
     gravity : float
-        g, m/s².
-    dt : float
-        Time step, s: the arm's control period, a whole multiple of the MuJoCo step.
-    free_dt : float
-        Time step once the racket is lifted, s. Pymunk integrates semi-implicitly, so a puck
-        launched at v₀ slides v₀²/(2 μ g) + O(v₀ Δt / 2).
+    dt, free_dt : float
+        Time step (s): the arm's control period; once the racket is lifted.
     """
 
     puck_radius: float = 0.04
@@ -74,8 +70,8 @@ class TablePhysics:
 
 
 def coulomb_friction(velocity, deceleration: float, dt: float) -> np.ndarray:
-    """One step of Coulomb sliding friction on a velocity (2,), m/s: v ← v · max(0, 1 − a Δt /
-    ‖v‖) with a = μ g = ``deceleration`` (m/s²), so the puck stops instead of reversing."""
+    """One step of Coulomb friction on a velocity (2,): v ← v · max(0, 1 − a Δt / ‖v‖), a = μ g
+    = ``deceleration`` (m/s²)."""
     v = np.asarray(velocity, dtype=np.float64)
     speed = math.hypot(v[0], v[1])
     if speed <= deceleration * dt:
@@ -94,9 +90,8 @@ class PuckTable:
     control_start, target_start : array_like, shape (2,)
         Initial puck positions, m.
     physics : TablePhysics
-        Constants.
     racket : bool
-        Add the kinematic blade (a box of :data:`BLADE_HALF` footprint), out of play until
+        Add the kinematic blade (a :data:`BLADE_HALF` box), out of play until
         :meth:`move_racket` puts it down.
 
     Attributes
@@ -105,7 +100,6 @@ class PuckTable:
         Time of the first puck–puck contact.
     racket_touched : bool
     time : float
-        Simulated time, s.
     """
 
     def __init__(
@@ -213,14 +207,12 @@ class PuckTable:
     @property
     def positions(self) -> np.ndarray:
         """Control and target puck positions, shape (2, 2)."""
-        c, t = self.control.position, self.target.position
-        return np.array([[c.x, c.y], [t.x, t.y]])
+        return np.array([tuple(b.position) for b in (self.control, self.target)])
 
     @property
     def velocities(self) -> np.ndarray:
         """Control and target puck velocities, shape (2, 2)."""
-        c, t = self.control.velocity, self.target.velocity
-        return np.array([[c.x, c.y], [t.x, t.y]])
+        return np.array([tuple(b.velocity) for b in (self.control, self.target)])
 
     @property
     def at_rest(self) -> bool:

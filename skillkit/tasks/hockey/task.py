@@ -44,22 +44,18 @@ RECORD_DT = 0.008
 
 
 class Hockey(Task):
-    """Robot hockey of Appendix C.2 (see the module docstring for the model).
+    """Robot hockey of Appendix C.2 (:mod:`skillkit.tasks.hockey`).
 
     Parameters
     ----------
     context_low, context_high : array_like, shape (3,)
         Ranges of s = [b_x, b_y, d*] (default: the simulated task of C.2).
     physics : TablePhysics
-        Puck-table constants.
     observation : Observation, optional
-        Noisy puck tracking of the real-robot setting; the reward then reads the smoothed
-        observations.
+        Noisy puck tracking of the real-robot setting, read (smoothed) by the reward.
     exploration_std : array_like, shape (15,), optional
-        Exploration standard deviations of the initial policy (default
-        :meth:`default_exploration`).
+        Of the initial policy (default :meth:`default_exploration`).
     name : str
-        Registry name.
     """
 
     context_dim = 3
@@ -112,20 +108,15 @@ class Hockey(Task):
 
     @staticmethod
     def default_exploration() -> np.ndarray:
-        """Initial exploration standard deviations of ω = [g, ġ, τ], shape (15,): g in rad
-        (joint 7 rolls the blade about the shaft and so aims the shot), ġ 0.25 rad/s, τ 0.1."""
+        """Initial exploration standard deviations of ω = [g, ġ, τ], shape (15,)."""
         return np.concatenate(
             [[0.06, 0.04, 0.06, 0.05, 0.06, 0.05, 0.2], np.full(N_JOINTS, 0.25), [0.1]]
         )
 
     def exploration_covariance(self) -> np.ndarray:
-        """Covariance Σ₀ of the initial policy, shape (15, 15).
-
-        Σ₀ = blockdiag(P D_g P + (0.1 σ̄_g)² I, P D_ġ P + (0.1 σ̄_ġ)² I, σ_τ²) with D the squared
-        :attr:`exploration_std`, σ̄ their means and P = I − n nᵀ, n the unit row of the blade
-        height's Jacobian ∂z/∂q at the demonstrated goal: P removes exploration that lifts or
-        lowers the blade (it touches the pucks only within 2 cm of its demonstrated height).
-        """
+        """Σ₀ = blockdiag(P D_g P + (0.1 σ̄_g)² I, P D_ġ P + (0.1 σ̄_ġ)² I, σ_τ²) (15, 15), D the
+        squared :attr:`exploration_std`, σ̄ their means, P = I − n nᵀ removing the blade-height
+        direction n ∝ ∂z/∂q at the demonstrated goal."""
         data = mujoco.MjData(self.model)
         data.qpos[:] = self.demo_omega[:N_JOINTS]
         mujoco.mj_kinematics(self.model, data)
@@ -144,8 +135,7 @@ class Hockey(Task):
         return cov
 
     def initial_policy(self):
-        """π(ω|s) = N(ω_demo, Σ₀) with zero context gain (imitation, Sec. 3.4.2), Σ₀ from
-        :meth:`exploration_covariance` (the thesis gives none)."""
+        """π(ω|s) = N(ω_demo, Σ₀) (:meth:`exploration_covariance`), zero gain (Sec. 3.4.2)."""
         from skillkit.policies.gaussian import LinearGaussianPolicy
 
         return LinearGaussianPolicy(
@@ -156,11 +146,8 @@ class Hockey(Task):
 
     # ------------------------------------------------------------------ simulation
     def reference(self, omega: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Joint reference of ω = [g, ġ, τ] (15,): the DMP stroke and the follow-through, as
-        times (T,), q_ref and qd_ref (T, 7) at the control period ``physics.dt``.
-
-        Raises :class:`SimulationFailure` if τ is outside :data:`TAU_RANGE`.
-        """
+        """Times (T,), q_ref, qd_ref (T, 7) of ω's DMP stroke and follow-through at ``physics.dt``;
+        :class:`SimulationFailure` for τ outside :data:`TAU_RANGE`."""
         tau = float(omega[-1])
         if not TAU_RANGE[0] <= tau <= TAU_RANGE[1]:
             raise SimulationFailure(
@@ -278,8 +265,7 @@ class Hockey(Task):
 
     # ------------------------------------------------------------------ reward
     def reward_signals(self, trajectory: Trajectory) -> dict[str, np.ndarray]:
-        """The puck trajectories the reward reads (T, 2): true or, in the real-robot setting,
-        observed."""
+        """The puck trajectories (T, 2) the reward reads (observed in the real setting)."""
         sig = trajectory.signals
         keys = self._reward_keys()
         if any(k not in sig for k in keys):
@@ -292,11 +278,8 @@ class Hockey(Task):
         return ("control_puck_observed", "target_puck_observed")
 
     def reward_batch(self, states, controls, signals, contexts) -> np.ndarray:
-        """R = −min_t ‖x_t − b‖ − |d_T − d*| (:func:`hockey_reward_batch`), shape (B,).
-
-        Reads only the puck trajectories in ``signals`` (B, T, 2), so predicted ones score the
-        same way; in the real-robot setting they are Butterworth-smoothed along time first.
-        """
+        """R = −min_t ‖x_t − b‖ − |d_T − d*| (:func:`hockey_reward_batch`) of the puck paths in
+        ``signals`` (B, T, 2) (Butterworth-smoothed first in the real setting), shape (B,)."""
         x, y = (np.asarray(signals[k], dtype=np.float64) for k in self._reward_keys())
         obs = self.observation
         if obs is not None:

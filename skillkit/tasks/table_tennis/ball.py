@@ -54,21 +54,9 @@ RETURN_NEAR_HIGH = np.array([0.6, 0.4])
 
 @dataclass(frozen=True)
 class BallPhysics:
-    """Constants of the ball model (Appendix C.3).
-
-    Attributes
-    ----------
-    radius, mass : float
-        Ball radius r (m) and mass m (kg).
-    drag : float
-        k = ρ C_d π r² / (2 m) (1/m) with ρ = 1.2 kg/m³, C_d = 0.5.
-    gravity : float
-        m/s², along −z.
-    table_restitution, racket_restitution : float
-        e_t of a table bounce and e_r of the racket along its normal.
-    racket_radius : float
-        Radius of the disc-shaped blade (m).
-    """
+    """Constants of the ball model (Appendix C.3): ``radius`` r (m), ``mass`` m (kg), ``drag``
+    k = ρ C_d π r² / (2 m) (1/m, ρ = 1.2 kg/m³, C_d = 0.5), ``gravity`` (m/s², −z), restitutions
+    e_t of the table and e_r of the racket, and the blade disc's ``racket_radius`` (m)."""
 
     radius: float = 0.02
     mass: float = 0.0027
@@ -92,12 +80,9 @@ class BallPhysics:
 
 @dataclass
 class RacketPath:
-    """The racket's rigid motion sampled at uniformly spaced ``times`` (K,): blade ``center``,
-    unit ``normal``, ``velocity`` and world-frame ``angular_velocity``, each (K, 3), SI units.
-
-    Linear interpolation between samples (the normal re-normalised); no racket outside
-    [times[0], times[-1]].
-    """
+    """The racket's rigid motion at uniformly spaced ``times`` (K,): blade ``center``, unit
+    ``normal``, ``velocity`` and world-frame ``angular_velocity``, each (K, 3), interpolated
+    linearly in between; no racket outside [times[0], times[-1]]."""
 
     times: np.ndarray
     center: np.ndarray
@@ -172,12 +157,9 @@ class RacketPath:
 
 @dataclass
 class BallEvent:
-    """A discrete event of the ball flight at ``time`` (s) and ``position`` (3,), with the
-    velocities just before and after it (equal for terminal events).
-
-    ``kind``: ``table`` (the non-terminal bounce), ``racket``, or the terminal ``net`` and
-    ``plane`` (a terminal touch of the table plane, see the module docstring).
-    """
+    """An event of the ball flight at ``time`` (s) and ``position`` (3,) with the velocities
+    before and after it; ``kind`` ``table`` (the bounce), ``racket``, or the terminal ``net``
+    and ``plane``."""
 
     kind: str
     time: float
@@ -240,10 +222,6 @@ def _first_crossing(d0: float, rate: float, accel: float, h: float) -> float:
     return min(min(roots), h) if roots else h
 
 
-def _net_half_width() -> float:
-    return 0.5 * TABLE_WIDTH + NET_OVERHANG
-
-
 def on_table(x: float, y: float) -> bool:
     return abs(x) <= 0.5 * TABLE_LENGTH and abs(y) <= 0.5 * TABLE_WIDTH
 
@@ -259,29 +237,21 @@ def simulate_ball(
     substeps: int = 2,
     max_extra_time: float = 3.0,
 ) -> BallFlight:
-    """Integrate the ball from its launch state through bounces and racket impacts.
-
-    Steps of ``dt / substeps``; inside each the earliest event (table plane, net plane, racket
-    face) is located, the state advanced to it, the event law of the module docstring applied,
-    and the step finished.
+    """Integrate the ball from its launch state through bounces and racket impacts, in steps
+    of ``dt / substeps``, each advanced to its earliest event (table, net, racket face).
 
     Parameters
     ----------
     position, velocity : array_like, shape (3,)
         Launch state (m, m/s).
-    duration : float
-        Recorded span (s): states are returned at k·dt for k = 0..round(duration/dt).
-    dt : float
-        Recording period (s), usually the robot's control period.
+    duration, dt : float
+        Recorded span and period (s): states at k·dt, k = 0..round(duration/dt).
     physics : BallPhysics, optional
-        Ball constants (default :class:`BallPhysics`).
     racket : RacketPath, optional
-        The racket's motion (None: no racket).
     substeps : int
         Integration steps per recording period.
     max_extra_time : float
-        Without a terminal event within ``duration``, integrate (unrecorded, without the
-        racket) at most this much longer to find it (s).
+        How much longer (s, unrecorded, no racket) to look for a terminal event.
 
     Returns
     -------
@@ -327,7 +297,7 @@ def simulate_ball(
 
 
 class _BallIntegrator:
-    """Event-driven stepping of one ball on float triples (behind :func:`simulate_ball`)."""
+    """Event-driven stepping of one ball on float triples."""
 
     def __init__(self, physics: BallPhysics, racket: RacketPath | None):
         self.physics = physics
@@ -377,8 +347,7 @@ class _BallIntegrator:
         return p, v
 
     def _racket_crossing(self, p0, p1, t: float, h: float) -> float | None:
-        """Time into the step at which the ball reaches the blade face, or None: a sign change
-        of the (linearly interpolated) signed distance minus r, inside the blade disc."""
+        """Time into the step at which the ball reaches the blade disc's face, or None."""
         rk = self.racket
         if not (rk.active(t) and rk.active(t + h)):
             return None
@@ -414,7 +383,7 @@ class _BallIntegrator:
             return p, v
         if kind == "net":
             p[0] = 0.0
-            if abs(p[1]) <= _net_half_width() and p[2] < self.net_top:
+            if abs(p[1]) <= 0.5 * TABLE_WIDTH + NET_OVERHANG and p[2] < self.net_top:
                 self._terminate("net", p, v, t)
             return p, v
         # racket impact: reflect the normal relative velocity with restitution e_r

@@ -31,8 +31,7 @@ PREFERRED_POSTURE = np.array([0.0, 0.0, -0.6, 0.3, 0.0, -1.0, 0.0, 0.0])
 
 
 def nominal_context() -> np.ndarray:
-    """The demonstration's context s₀ = [v₀, b₀], shape (5,): the centres of the launch-velocity
-    range and of the near return zone."""
+    """s₀ = [v₀, b₀] (5,): the centres of the launch-velocity range and the near return zone."""
     return np.concatenate(
         [0.5 * (VELOCITY_LOW + VELOCITY_HIGH), 0.5 * (RETURN_NEAR_LOW + RETURN_NEAR_HIGH)]
     )
@@ -41,16 +40,13 @@ def nominal_context() -> np.ndarray:
 def design_stroke(
     context=None, hit_time: float = HIT_TIME, flight_time: float = RETURN_FLIGHT_TIME
 ) -> dict:
-    """The racket state that returns the ball of ``context`` to its target, and joints for it.
+    """The racket state returning the ball of ``context`` (default :func:`nominal_context`),
+    at p_h with v_in at ``hit_time``, to b after ``flight_time``, and joints for it.
 
-    The ball of ``context`` (default :func:`nominal_context`) at ``hit_time`` has p_h, v_in;
-    Newton on :func:`simulate_ball` gives the v_out that lands on b after ``flight_time``. A
-    frictionless impact has n ∥ v_out − v_in and racket velocity (v_in·n + (v_out − v_in)·n /
-    (1 + e_r)) n. Least-squares IK (pulled to :data:`PREFERRED_POSTURE`) places the blade at
-    p_h with normal n, and q̇ follows from the site Jacobian.
-
-    Returns ``q``, ``qd`` (8,), ``position``, ``normal``, ``racket_velocity``,
-    ``ball_velocity_in`` and ``ball_velocity_out`` (3,).
+    Newton gives v_out; a frictionless impact has n ∥ v_out − v_in and racket velocity
+    (v_in·n + (v_out − v_in)·n / (1 + e_r)) n; IK pulled to :data:`PREFERRED_POSTURE`. Returns
+    ``q``, ``qd`` (8,), ``position``, ``normal``, ``racket_velocity``, ``ball_velocity_in`` and
+    ``ball_velocity_out`` (3,).
     """
     import mujoco
     from scipy.optimize import fsolve, least_squares

@@ -1,28 +1,18 @@
 r"""The decomposed reward model of robot table tennis (Sec. 4.3.4, Fig. 4.13, App. C.3).
 
-GPREPS predicts the reward of a stroke with five learned models chained as in Sec. 4.3.4:
+Five learned models chained as in Sec. 4.3.4:
 
-1. **Incoming-ball landing** (GP): v = s[:3] ↦ the bounce on the robot's half
-   [p_x, p_y, v⁻ (3), v⁺ (3), t_b], located in the recorded ball by :func:`find_bounce`.
-2. **Bounce trajectory** (GP): [p_x, p_y, v⁺] ↦ the coefficients c (3 × 3) of the flight
-   after the bounce relative to the drag-free parabola,
+1. **landing** (GP): v = s[:3] ↦ the bounce [p_x, p_y, v⁻ (3), v⁺ (3), t_b] on the robot's half
+   (:func:`find_bounce`); before it the ball is the cubic Hermite curve from the serve;
+2. **bounce trajectory** (GP): [p_x, p_y, v⁺] ↦ c (3 × 3) of
+   p(t_b + τ) = p_b + v⁺ τ + ½ g τ² + Σ_{m=2}^{4} c_m τ^m (the parabola far from the data);
+3. **racket position** and 4. **orientation** (quaternion of the blade normal,
+   :func:`normal_to_quaternion`): GPs ω ↦ the PCA scores of the weights W of
+   y(t) ≈ Φ(t) W (:class:`TimeBasis`);
+5. **contact** (:class:`ContactModel`): a linear SVM for hit / miss and a GP for the returned
+   ball's landing point, read at :func:`contact_event`.
 
-       p(t_b + τ) = p_b + v⁺ τ + ½ g τ² + Σ_{m=2}^{4} c_m τ^m ,
-
-   so far from its data it falls back to the parabola. Before the bounce the ball is the
-   cubic Hermite curve from the serve (:data:`~skillkit.tasks.table_tennis.SERVE_POSITION`, v)
-   to (p_b, v⁻).
-3. **Racket position** and 4. **racket orientation**: each recorded racket path is fitted with
-   40 normalised Gaussian basis functions of time, y(t) ≈ Φ(t) W (:class:`TimeBasis`), and a
-   GP maps ω (17) to the PCA scores of W (one GP per kept score). The orientation is the
-   shortest-arc quaternion taking :data:`REFERENCE_NORMAL` to the blade normal
-   (:func:`normal_to_quaternion`).
-5. **Contact** (:class:`ContactModel`): a linear SVM classifies hit / miss from the inputs read
-   at :func:`contact_event` on real and predicted paths alike, and a GP maps them to the
-   returned ball's landing point p (2).
-
-The reward (Eq. 4.17) and its hitting / returning schedule are described in
-:class:`TableTennisRewardModel`.
+The reward schedule (Eq. 4.17) is :class:`TableTennisRewardModel`'s.
 """
 
 from __future__ import annotations
@@ -40,6 +30,8 @@ from skillkit.models.gp import ExactGP, GPRegression
 from skillkit.models.reward import (
     Prediction,
     RewardModel,
+    check_choice,
+    check_factories,
     check_refit,
     gp_stats,
     refit_gp,
@@ -54,8 +46,7 @@ from skillkit.tasks.table_tennis import (
 )
 
 REFERENCE_NORMAL = np.array([1.0, 0.0, 0.0])
-"""Racket normal of the identity quaternion: facing the opponent (+x), far from the forehand's
-normals (the shortest arc is singular at −x)."""
+"""Racket normal of the identity quaternion (+x; the shortest arc is singular at −x)."""
 
 SCHEDULES = ("auto", "hitting", "returning")
 CONTACT_FEATURES = ("thesis", "extended")
@@ -65,10 +56,8 @@ CONTACT_SCORES = ("probability", "decision", "margin")
 
 
 class TimeBasis:
-    r"""Normalised Gaussian basis functions of execution time (Sec. 4.3.4).
-
-    φ_i(t) = b_i(t) / Σ_j b_j(t), b_i(t) = exp(−(t − μ_i)² / (2 h²)), n centres μ_i evenly
-    over [0, t_end], h their spacing.
+    r"""Normalised Gaussian basis functions φ_i(t) = b_i(t) / Σ_j b_j(t) (Sec. 4.3.4),
+    b_i(t) = exp(−(t − μ_i)² / (2 h²)), centres μ_i evenly over [0, t_end], h their spacing.
 
     Parameters
     ----------
@@ -105,10 +94,8 @@ class TimeBasis:
 
 
 def normal_to_quaternion(normals) -> np.ndarray:
-    r"""Shortest-arc rotation q = [w, x, y, z] taking :data:`REFERENCE_NORMAL` r to n.
-
-    q = normalise([1 + r·n, r × n]); shape (..., 3) → (..., 4), w ≥ 0.
-    """
+    r"""Shortest-arc rotation q = normalise([1 + r·n, r × n]) = [w, x, y, z] taking
+    :data:`REFERENCE_NORMAL` r to n; (..., 3) → (..., 4), w ≥ 0."""
     n = np.asarray(normals, dtype=np.float64)
     n = n / np.linalg.norm(n, axis=-1, keepdims=True)
     r = np.broadcast_to(REFERENCE_NORMAL, n.shape)
@@ -121,13 +108,11 @@ def quaternion_to_normal(quaternions) -> np.ndarray:
     q = np.asarray(quaternions, dtype=np.float64)
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
     w, x, y, z = np.moveaxis(q, -1, 0)
-    # first column of the rotation matrix: R e_x
     return np.stack([1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y)], axis=-1)
 
 
 def max_target_distance(task: TableTennis) -> float:
-    """P = max ‖b − p‖ over targets b of the task's return zone and landing points p on the
-    table (attained at corners: the distance is convex)."""
+    """P = max ‖b − p‖ over return-zone targets b and table points p (at corners)."""
     lo, hi = task.context_low[3:5], task.context_high[3:5]
     targets = np.array([[x, y] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])])
     hx, hy = 0.5 * TABLE_LENGTH, 0.5 * TABLE_WIDTH
@@ -136,12 +121,11 @@ def max_target_distance(task: TableTennis) -> float:
 
 
 def find_bounce(times, ball, plane: float, t_end: float, n_fit: int = 7) -> np.ndarray | None:
-    """The incoming ball's bounce [p_x, p_y, v⁻ (3), v⁺ (3), t_b] on the robot's half, (9,),
-    from recorded ``times`` (T,) and ``ball`` (T, 3), or None without enough samples.
+    """The incoming ball's bounce [p_x, p_y, v⁻ (3), v⁺ (3), t_b] (9,) from ``times`` (T,)
+    and ``ball`` (T, 3), or None without enough samples.
 
-    Quadratics in t are fitted to the ``n_fit`` samples before and after the neighbours of
-    the lowest sample above the robot's half before ``t_end``; t_b solves z_pre(t) = ``plane``
-    (the ball centre's height at a bounce), v⁻ and v⁺ are the fits' derivatives at t_b.
+    Quadratics in t fitted to the ``n_fit`` samples before and after the lowest sample over
+    the robot's half before ``t_end``; t_b solves z_pre(t) = ``plane``, v∓ their slopes there.
     """
     keep = (times < t_end) & (ball[:, 0] >= -0.5 * TABLE_LENGTH) & (ball[:, 0] <= 0.0)
     idx = np.flatnonzero(keep)
@@ -183,22 +167,21 @@ def _hermite(t, t1, p0, v0, p1, v1):
 
 
 def _backward_velocity(paths: np.ndarray, k: np.ndarray, dt: float) -> np.ndarray:
-    """(p_k − p_{k−1}) / dt of paths (n, T, 3) at indices k (n,) (forward at k = 0)."""
+    """(p_k − p_{k−1}) / dt of paths (n, T, 3) at k (n,) (forward at k = 0)."""
     k0 = np.maximum(k, 1)
     rows = np.arange(paths.shape[0])
     return (paths[rows, k0] - paths[rows, k0 - 1]) / dt
 
 
 class _ScoresGP:
-    """A GP from inputs to the PCA scores of many correlated outputs (basis weights)."""
+    """A GP from inputs to the PCA scores of many correlated outputs."""
 
     def __init__(self, make_gp: Callable[[], Any], tolerance: float, max_components: int):
         self.make_gp, self.tolerance, self.max_components = make_gp, tolerance, max_components
         self.gp: Any = None
 
     def fit(self, x, y, rng, previous=None, refit: str = "best") -> dict[str, Any]:
-        """PCA of y (N, D), then a GP x (N, d) ↦ the k kept scores (:func:`refit_gp`, from
-        ``previous`` when it has the same k); returns the refit record."""
+        """PCA of y (N, D), a GP x ↦ the k kept scores (:func:`refit_gp`); the refit record."""
         self.mean = y.mean(axis=0)
         u, sv, vt = np.linalg.svd(y - self.mean, full_matrices=False)
         var = sv**2
@@ -214,7 +197,7 @@ class _ScoresGP:
         return record
 
     def sample(self, x, L: int, rng) -> np.ndarray:
-        """Sampled outputs (B, L, D): scores ~ N(GP mean, GP var) independently."""
+        """Sampled outputs (B, L, D)."""
         z = self.gp.sample(x, L, rng).reshape(x.shape[0], L, -1)
         return self.mean + z @ self.components
 
@@ -228,7 +211,6 @@ def _gp(n_steps: int = 150) -> ExactGP:
 
 
 def _linear_svm():
-    """Standardised inputs → a linear-kernel SVM (scikit-learn ``SVC(kernel="linear")``)."""
     from sklearn.pipeline import make_pipeline
     from sklearn.preprocessing import StandardScaler
     from sklearn.svm import SVC
@@ -250,18 +232,13 @@ class _Constant:
 
 
 def contact_event(ball, racket, quaternion, steps, ball_radius: float):
-    r"""Where model 5 reads its inputs: one rule for real and predicted paths.
+    r"""Where model 5 reads its inputs, one rule for real and predicted paths (Sec. 4.3.4).
 
-    The incoming ball reaches the racket face between samples k − 1 and k when its signed
-    distance to the face plane, (p_b − p_r)·n_k minus the ball radius on the side it was at
-    k − 1, changes from > 0 to ≤ 0 (the simulator's impact test without the disc test);
-    ``cut`` is the first sample at or behind the face (``steps`` if none). The event is the
-    sample of minimal ball–racket distance before ``cut`` (Sec. 4.3.4), so a recorded hit and
-    a predicted ball that crosses the face give the same event.
-
-    ``ball``, ``racket`` (n, T, 3) are positions at the control times, ``quaternion`` (n, T,
-    4) the racket orientation and the first ``steps`` (n,) samples the incoming ball. Returns
-    the ``event`` sample, ``cut`` (1 ≤ cut ≤ steps) and the distance at the event (m), each (n,).
+    ``cut`` is the first sample at or behind the racket face: the signed distance
+    (p_b − p_r)·n_k less the ball radius changes from > 0 to ≤ 0 (``steps`` if never); the
+    ``event`` is the sample of least ball–racket distance before it. ``ball``, ``racket``
+    (n, T, 3), ``quaternion`` (n, T, 4), the first ``steps`` (n,) samples the incoming ball.
+    Returns ``event``, ``cut`` (1 ≤ cut ≤ steps) and the distance at the event (m), each (n,).
     """
     ball = np.asarray(ball, dtype=np.float64)
     racket = np.asarray(racket, dtype=np.float64)
@@ -290,28 +267,21 @@ def contact_event(ball, racket, quaternion, steps, ball_radius: float):
 
 
 class ContactModel:
-    r"""Model 5 of Sec. 4.3.4: the contact classifier and the returned ball's landing point.
-
-    Inputs from :meth:`inputs`, a linear SVM for hit / miss, and a GP inputs ↦ landing point
-    p (2) fitted on the hits.
+    r"""Model 5 of Sec. 4.3.4: a linear SVM for hit / miss on :meth:`inputs` and a GP inputs
+    ↦ the returned ball's landing point p (2), fitted on the hits.
 
     Parameters
     ----------
-    dt : float
-        Control period (s) of the backward-difference velocities.
-    ball_radius : float
-        m (:func:`contact_event`).
+    dt, ball_radius : float
+        Control period (s) of the velocities; ball radius (m).
     features : {"thesis", "extended"}
-        "thesis" (10): [v_ball − v_racket (3), racket position (3), racket quaternion (4)];
-        "extended" (14, ours) adds the ball's position relative to the racket (3) and its norm.
+        [v_ball − v_racket (3), racket position (3), quaternion (4)]; "extended" adds the
+        ball's position relative to the racket (3) and its norm.
     score : {"probability", "decision", "margin"}
-        The weight w ∈ [0, 1] of a sampled path's contact in the reward (:meth:`weights`): the
-        SVM's Platt-calibrated hit probability (``CalibratedClassifierCV``), its hard
-        decision, or clip((1 + f) / 2, 0, 1) of its decision value f.
-    make_classifier : callable
-        Returns an unfitted scikit-learn classifier with ``decision_function``.
-    make_return_model : callable
-        Returns an unfitted GP regression (inputs ↦ p).
+        The contact weight w ∈ [0, 1] in the reward (:meth:`weights`): the Platt-calibrated
+        hit probability, the hard decision, or clip((1 + f) / 2, 0, 1) of the SVM value f.
+    make_classifier, make_return_model : callable
+        An unfitted scikit-learn classifier with ``decision_function``; a GP regression.
     refit : {"cold", "warm", "best"}
         How the landing GP is refitted (:func:`refit_gp`).
     """
@@ -326,12 +296,8 @@ class ContactModel:
         make_return_model: Callable[[], Any] | None = None,
         refit: str = "best",
     ):
-        if features not in CONTACT_FEATURES:
-            raise ValueError(
-                f"contact_features: expected one of {CONTACT_FEATURES}, got {features!r}"
-            )
-        if score not in CONTACT_SCORES:
-            raise ValueError(f"contact_score: expected one of {CONTACT_SCORES}, got {score!r}")
+        check_choice(features, CONTACT_FEATURES, "contact_features")
+        check_choice(score, CONTACT_SCORES, "contact_score")
         self.dt = check_positive(dt, "dt")
         self.ball_radius = check_positive(ball_radius, "ball_radius")
         self.features, self.score = features, score
@@ -349,8 +315,7 @@ class ContactModel:
         return 10 if self.features == "thesis" else 14
 
     def inputs(self, ball, racket, quaternion, steps) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The classifier's inputs x (n, 10 or 14) at :func:`contact_event`'s event, with its
-        ``event`` and ``cut`` (n,); arguments as :func:`contact_event`'s."""
+        """Inputs x (n, 10 or 14) at :func:`contact_event`'s event, with ``event``, ``cut``."""
         event, cut, dist = contact_event(ball, racket, quaternion, steps, self.ball_radius)
         rows = np.arange(event.shape[0])
         rel = _backward_velocity(ball, event, self.dt) - _backward_velocity(racket, event, self.dt)
@@ -360,8 +325,8 @@ class ContactModel:
         return np.hstack(parts), event, cut
 
     def fit(self, x, hit, p, rng) -> dict[str, Any]:
-        """Fit the classifier on all inputs x (N, d) with labels hit (N,) and the landing GP
-        on the hits' p (N, 2). Returns ``{"n_hits", "calibration_folds", "returns_refit"}``."""
+        """Fit the classifier on x (N, d), hit (N,) and the landing GP on the hits' p (N, 2).
+        Returns ``{"n_hits", "calibration_folds", "returns_refit"}``."""
         x = check_array(x, "x", shape=(None, self.n_features))
         hit = np.asarray(hit, dtype=bool)
         p = check_array(p, "p", shape=(x.shape[0], 2))
@@ -394,8 +359,8 @@ class ContactModel:
         return stats
 
     def weights(self, x) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Contact weights w ∈ [0, 1] of inputs x (n, d) (0 without a landing model), the SVM's
-        hit decisions and its decision values f (> 0: hit), each shape (n,)."""
+        """Contact weights w ∈ [0, 1] (0 without a landing model), the SVM's decisions and its
+        decision values f (> 0: hit) of inputs x (n, d), each (n,)."""
         if self.classifier is None:
             raise RuntimeError("ContactModel: call fit() before weights()")
         decision = np.asarray(self.classifier.predict(x), dtype=bool)
@@ -411,7 +376,7 @@ class ContactModel:
         return np.asarray(weight, dtype=np.float64), decision, margin
 
     def sample_landing(self, x, rng) -> np.ndarray:
-        """One sampled landing point per input row, (n, 2) (NaN without a landing model)."""
+        """One sampled landing point per row, (n, 2) (NaN without a landing model)."""
         if self.returns is None or len(x) == 0:
             return np.full((len(x), 2), np.nan)
         return _sample_gp(self.returns, x, 1, rng).reshape(-1, 2)
@@ -424,26 +389,12 @@ class ContactModel:
 class TableTennisPrediction(Prediction):
     """L predicted strokes for each of B (ω, s) pairs.
 
-    Attributes
-    ----------
-    times : ndarray, shape (T,)
-        The task's control times (s).
-    ball, racket : ndarray, shape (B, L, T, 3)
-        Predicted incoming ball and racket centre.
-    quaternion : ndarray, shape (B, L, T, 4)
-        Predicted racket orientation (unit [w, x, y, z]).
-    bounce : ndarray, shape (B, L, 9)
-        Sampled bounce [p_x, p_y, v⁻, v⁺, t_b] of the incoming ball.
-    closest : ndarray, shape (B, L)
-        min‖τ_b − τ_r‖ on the incoming ball (m).
-    contact, margin : ndarray, shape (B, L)
-        The SVM's hit decision and decision value at :func:`contact_event`.
-    landing : ndarray, shape (B, L, 2)
-        Sampled landing point p of the returned ball (NaN where the contact weight is 0).
-    rewards : ndarray, shape (B, L)
-        Eq. (4.17) in ``stage`` ("hitting" or "returning").
-    contact_score, face : ndarray, shape (B, L)
-        The contact weight w in the reward and the ``cut`` of :func:`contact_event`.
+    ``times`` (T,) the control times; the incoming ``ball`` and ``racket`` centre (B, L, T, 3);
+    ``quaternion`` (B, L, T, 4) the unit racket orientation; ``bounce`` (B, L, 9) the sampled
+    bounce; ``closest`` (B, L) min‖τ_b − τ_r‖ (m); ``contact``, ``margin`` (B, L) the SVM's
+    decision and value; ``landing`` (B, L, 2) the returned ball's sampled landing point (NaN
+    at contact weight 0); ``rewards`` (B, L) Eq. (4.17) in ``stage``; ``contact_score`` and
+    ``face`` (B, L) the contact weight and :func:`contact_event`'s ``cut``.
     """
 
     times: np.ndarray
@@ -473,30 +424,21 @@ class TableTennisPrediction(Prediction):
 class TableTennisRewardModel(RewardModel):
     r"""Decomposed GPREPS reward model of :class:`~skillkit.tasks.table_tennis.TableTennis`.
 
-    The five models of the module docstring and the reward schedule of Eq. (4.17):
-
-    * **hitting**: R = −c₁ min‖τ_b − τ_r‖ − ε c₁ ‖b − p‖ − c₁ P, P =
-      :func:`max_target_distance` (the constant c₁ P keeps it below every returning reward);
-    * **returning**: the task's R = −c₁ min‖τ_b − τ_r‖ − c₂ ‖b − p‖.
-
-    A predicted miss has ‖b − p‖ = P; with contact weight w a sampled path has
-    w ‖b − p̂‖ + (1 − w) P. min‖τ_b − τ_r‖ is the task's reward on the predicted paths, the
-    ball counted up to its first sample at the racket face.
-
-    With ``schedule="auto"`` the stage switches to "returning", for good, at the first
-    :meth:`fit` with at least ``min_hits`` hits and misses, a 5-fold cross-validated balanced
-    SVM accuracy ≥ ``min_svm_accuracy`` and a cross-validated landing RMSE ≤
+    Reward schedule of Eq. (4.17): **hitting** R = −c₁ min‖τ_b − τ_r‖ − ε c₁ ‖b − p‖ − c₁ P,
+    P = :func:`max_target_distance` (below every returning reward); **returning** the task's
+    R = −c₁ min‖τ_b − τ_r‖ − c₂ ‖b − p‖. A sampled path of contact weight w has
+    ‖b − p‖ = w ‖b − p̂‖ + (1 − w) P. With ``schedule="auto"`` the stage switches to
+    "returning" for good at the first :meth:`fit` with ≥ ``min_hits`` hits and misses, a
+    5-fold balanced SVM accuracy ≥ ``min_svm_accuracy`` and a landing RMSE ≤
     ``max_landing_rmse`` (m).
 
     Parameters
     ----------
     task : TableTennis
     make_landing_model, make_bounce_model, make_racket_model, make_return_model : callable
-        Return an unfitted GP regression (default ``ExactGP()``): v ↦ bounce (model 1),
-        landing state ↦ drag coefficients (model 2), ω ↦ PCA scores of the basis weights
-        (models 3 and 4, one instance each), contact inputs ↦ p (model 5).
+        Unfitted GP regressions (default ``ExactGP()``) of models 1, 2, 3–4 and 5.
     make_classifier : callable
-        Returns an unfitted scikit-learn classifier (default: standardised linear SVC).
+        An unfitted scikit-learn classifier (default: standardised linear SVC).
     schedule : {"auto", "hitting", "returning"}
         Reward stage; "hitting"/"returning" force it.
     contact_features, contact_score : str
@@ -507,20 +449,14 @@ class TableTennisRewardModel(RewardModel):
         The "good contact model" criterion of ``schedule="auto"``.
     n_basis : int
         Basis functions per racket dimension (40 in the thesis).
-    pca_tolerance : float
-        Fraction of the basis weights' variance the PCA may drop.
-    max_components : int
-        At most this many principal scores (GPs) per racket model.
+    pca_tolerance, max_components : float, int
+        Variance fraction the PCA may drop; most principal scores per racket model.
     max_points : int
         Each GP is fitted on at most this many rollouts (random subset).
     refit : {"cold", "warm", "best"}
         Where each GP's hyper-parameter optimisation starts (:func:`refit_gp`).
     device : str or torch.device, optional
         Where the sampled racket paths Φ W are assembled (float64).
-
-    Notes
-    -----
-    Factories are part of the checkpointed state: pass module-level functions or classes.
     """
 
     def __init__(
@@ -547,24 +483,20 @@ class TableTennisRewardModel(RewardModel):
     ):
         if not isinstance(task, TableTennis):
             raise ValueError(f"task: expected a TableTennis task, got {type(task).__name__}")
-        for name, f in (
-            ("make_landing_model", make_landing_model),
-            ("make_bounce_model", make_bounce_model),
-            ("make_racket_model", make_racket_model),
-            ("make_return_model", make_return_model),
-            ("make_classifier", make_classifier),
-        ):
-            if f is not None and not callable(f):
-                raise ValueError(f"{name}: expected a callable, got {type(f).__name__}")
-        if schedule not in SCHEDULES:
-            raise ValueError(f"schedule: expected one of {SCHEDULES}, got {schedule!r}")
+        check_factories(
+            make_landing_model=make_landing_model,
+            make_bounce_model=make_bounce_model,
+            make_racket_model=make_racket_model,
+            make_return_model=make_return_model,
+            make_classifier=make_classifier,
+        )
         self.task = task
         self.make_landing_model = make_landing_model or _gp
         self.make_bounce_model = make_bounce_model or _gp
         self.make_racket_model = make_racket_model or _gp
         self.make_return_model = make_return_model or _gp
         self.make_classifier = make_classifier or _linear_svm
-        self.schedule = schedule
+        self.schedule = check_choice(schedule, SCHEDULES, "schedule")
         self.refit = check_refit(refit)
         scene = (task.control_dt, task.ball.radius, contact_features, contact_score)
         self.contact = ContactModel(
@@ -594,9 +526,8 @@ class TableTennisRewardModel(RewardModel):
 
     # ------------------------------------------------------------------ data
     def bounce_data(self, trajectories) -> tuple[np.ndarray, np.ndarray, list[int]]:
-        """Models 1 and 2's targets: bounces y (n, 9) (:func:`find_bounce`), the least-squares
-        drag coefficients c (n, 9) of the flight after them, and the indices of the
-        trajectories with a located bounce."""
+        """Bounces y (n, 9) (:func:`find_bounce`), the least-squares coefficients c (n, 9) of
+        the flight after them, and the indices of the trajectories with a bounce."""
         task = self.task
         t = task.times
         g = np.array([0.0, 0.0, -task.ball.gravity])
@@ -621,7 +552,7 @@ class TableTennisRewardModel(RewardModel):
         return np.array(ys).reshape(-1, 9), np.array(cs).reshape(-1, 9), used
 
     def racket_weights(self, trajectories) -> tuple[np.ndarray, np.ndarray]:
-        """40-basis weights of each racket path (N, n·3) and quaternion path (N, n·4)."""
+        """Basis weights of each racket path (N, n·3) and quaternion path (N, n·4)."""
         phi = self.basis(self.task.times)
         solve = np.linalg.solve(
             phi.T @ phi + self.basis.ridge * np.eye(self.basis.n_basis), phi.T
@@ -644,17 +575,15 @@ class TableTennisRewardModel(RewardModel):
         return self.contact.returns
 
     def contact_inputs(self, ball, racket, quaternion, steps):
-        """Model 5's inputs (:meth:`ContactModel.inputs`): x (n, 10 or 14), the event sample
-        (n,) and the samples before the racket face (n,)."""
+        """Model 5's inputs (:meth:`ContactModel.inputs`)."""
         return self.contact.inputs(ball, racket, quaternion, steps)
 
     def _real_contact_data(self, trajectories):
-        """Model 5's inputs x, labels hit (N,) and landing points p (N, 2) of recorded rollouts."""
+        """Model 5's inputs x, labels hit (N,) and landing points p (N, 2) of rollouts."""
         t = self.task.times
         ball = np.stack([tr.signals["ball"] for tr in trajectories])
         racket = np.stack([tr.signals["racket"] for tr in trajectories])
         quat = normal_to_quaternion(np.stack([tr.signals["racket_normal"] for tr in trajectories]))
-        # strictly the incoming ball: samples at or before the hit (or the terminal event)
         steps = np.array(
             [int(np.searchsorted(t, tr.info["incoming_end"], side="right")) for tr in trajectories]
         )
@@ -664,24 +593,11 @@ class TableTennisRewardModel(RewardModel):
         return x, hit, p
 
     # ------------------------------------------------------------------ fit
-    def _fit_gp(self, key: str, make_gp, x, y, rng, records: dict):
-        """Refit one GP (:func:`refit_gp`) from its previous hyper-parameters if they fit."""
-        h = self._hypers[key]
-        if h is not None and np.shape(h["lengthscale"]) != (y.shape[1], x.shape[1]):
-            h = None
-        gp, records[key] = refit_gp(make_gp, x, y, rng, h, self.refit)
-        if isinstance(gp, GPRegression):
-            self._hypers[key] = gp.hyperparameters
-        return gp
-
     def fit(self, contexts, omegas, rewards, trajectories, rng=None) -> dict[str, Any]:
-        """Refit the five models on every non-failed rollout and update the reward stage.
-
-        ``contexts`` (N, 5), ``omegas`` (N, 17) and ``trajectories`` (N); ``rewards`` is unused.
-        Returns ``n_data``, ``n_bounces``, ``n_hits``, ``stage``, the ``criterion`` of the
-        schedule, ``pca_components``, per GP its :func:`gp_stats`, the ``refit`` records,
-        ``calibration_folds`` and ``fit_seconds``.
-        """
+        """Refit the five models on every non-failed rollout and update the reward stage
+        (``rewards`` unused). Returns ``n_data``, ``n_bounces``, ``n_hits``, ``stage``, the
+        schedule's ``criterion``, ``pca_components``, per GP its :func:`gp_stats`, the
+        ``refit`` records, ``calibration_folds`` and ``fit_seconds``."""
         t0 = time.perf_counter()
         task = self.task
         if trajectories is None:
@@ -707,10 +623,9 @@ class TableTennisRewardModel(RewardModel):
         yb, cb, used = self.bounce_data(trajs)
         if len(used) < 2:
             raise ValueError("trajectories: fewer than two incoming-ball bounces were found")
-        vb = s[used, :3]
-        self.landing = self._fit_gp("landing", self.make_landing_model, vb, yb, rng, refits)
-        xb = np.hstack([yb[:, :2], yb[:, 5:8]])
-        self.bounce = self._fit_gp("bounce", self.make_bounce_model, xb, cb, rng, refits)
+        for key, x, y in (("landing", s[used, :3], yb), ("bounce", yb[:, [0, 1, 5, 6, 7]], cb)):
+            gp, refits[key] = self._refit(key, getattr(self, f"make_{key}_model"), x, y, rng)
+            setattr(self, key, gp)
         stats["n_bounces"] = len(used)
 
         # models 3, 4: racket position and orientation
@@ -792,12 +707,9 @@ class TableTennisRewardModel(RewardModel):
     def predict(self, contexts, omegas, n_trajectories: int, rng=None) -> TableTennisPrediction:
         """Sample L = ``n_trajectories`` strokes for each of B pairs, contexts (B, 5) and omegas
         (B, 17), through the five models."""
-        if self.landing is None:
-            raise RuntimeError("TableTennisRewardModel: call fit() before predicting")
+        fitted = self.landing is not None
+        w, s, L, rng = self._pairs(fitted, contexts, omegas, n_trajectories, rng)
         task = self.task
-        w = check_array(omegas, "omegas", shape=(None, task.parameter_dim))
-        s = check_array(contexts, "contexts", shape=(w.shape[0], task.context_dim))
-        L, rng = check_count(n_trajectories, "n_trajectories"), as_generator(rng)
         B, t = w.shape[0], task.times
         T, n = t.shape[0], B * L
         device = torch.device("cpu" if self.device is None else self.device)
@@ -872,14 +784,12 @@ class TableTennisRewardModel(RewardModel):
         return hitting - c2 * dist, closest
 
     def heldout_errors(self, contexts, omegas, trajectories, n_samples: int, rng=None) -> dict:
-        """Each model's error on the simulator's rollouts of pairs it was not fitted on (Fig.
-        4.13), with ``n_samples`` sampled strokes per pair.
+        """Each model's error on held-out rollouts (Fig. 4.13), ``n_samples`` strokes per pair.
 
-        Returns the medians ``bounce_position_error_m`` (model 1), ``incoming_path_error_m``
-        (largest distance of the mean predicted incoming ball, models 1–2) and
-        ``return_landing_error_m`` (model 5 on the hits), ``racket_position_rmse_m`` (model
-        3), the SVM's ``contact_accuracy`` on recorded inputs and on the predicted paths
-        (``contact_accuracy_predicted``, majority vote of the samples),
+        Returns the medians ``bounce_position_error_m``, ``incoming_path_error_m`` (largest
+        gap of the mean predicted ball) and ``return_landing_error_m``, the
+        ``racket_position_rmse_m``, the SVM's ``contact_accuracy`` on recorded and
+        (``contact_accuracy_predicted``, majority vote) predicted paths,
         ``contact_majority_rate``, ``n_hits`` and ``n_pairs``.
         """
         if self.landing is None:
@@ -920,25 +830,17 @@ class TableTennisRewardModel(RewardModel):
             "n_pairs": len(trajs),
         }
 
-    def expected_rewards(self, contexts, omegas, n_trajectories, rng=None) -> np.ndarray:
-        """R̂_sω: the mean reward of L predicted strokes per pair (Eq. 4.1), shape (B,)."""
-        return self.predict(contexts, omegas, n_trajectories, rng).expected_rewards
-
     def prediction_layers(self, context, omega, n_samples: int, rng=None) -> dict[str, dict]:
-        """Fig. 4.13's layers of one pair, context (5,) and omega (17,), for the viewer.
-
-        Returns ``{legend: {"trajectories": (L', T', 3), "color": (r, g, b), "times": (T',)
-        optional}}``: the incoming ball (stopped before the racket face where the SVM predicts
-        a contact), the racket centre, and the returned landing points as small diamonds.
-        """
+        """Fig. 4.13's layers of one pair, ``{legend: {"trajectories": (L', T', 3), "color":
+        (r, g, b), "times"?: (T',)}}``: the incoming ball (stopped at the face on a predicted
+        contact), the racket centre and the returned landing points as diamonds."""
         s = self.task.check_context(context)
         w = self.task.check_omega(omega)
         pred = self.predict(s[None], w[None], check_count(n_samples, "n_samples"), rng)
         ball = pred.ball[0].copy()
-        if pred.face is not None:
-            for i in np.flatnonzero(pred.contact[0]):
-                last = max(int(pred.face[0, i]) - 1, 0)
-                ball[i, last + 1 :] = ball[i, last]
+        for i in np.flatnonzero(pred.contact[0]):
+            last = max(int(pred.face[0, i]) - 1, 0)
+            ball[i, last + 1 :] = ball[i, last]
         r = 0.025
         diamond = np.array([[r, 0, 0], [0, r, 0], [-r, 0, 0], [0, -r, 0], [r, 0, 0]])
         pts = pred.landing[0][pred.contact[0]]

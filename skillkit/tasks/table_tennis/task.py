@@ -40,42 +40,30 @@ from skillkit.trajectory import Trajectory
 class TableTennis(Task):
     """Return an incoming ball to a target on the opponent's side (Sec. 3.4.3, App. C.3).
 
-    Lower-level policy: a DMP per joint (10 basis functions fitted to the forehand
-    demonstration) of which ω = [g (8), ġ (8), τ] is learned; PD tracking with bias
-    compensation at ``control_dt`` for ``duration`` seconds from the ball's launch, after
-    which the ball is followed until it lands. The context s = [v_x, v_y, v_z, b_x, b_y] is
-    uniform on :data:`VELOCITY_LOW`/:data:`VELOCITY_HIGH` × ``return_low``/``return_high``.
-    The simulation is deterministic (``rng`` is unused).
+    ω = [g (8), ġ (8), τ] of a per-joint DMP fitted to the forehand demonstration, PD-tracked
+    at ``control_dt`` for ``duration`` s; the ball is followed until it lands. s = [v_x, v_y,
+    v_z, b_x, b_y] is uniform on :data:`VELOCITY_LOW`/:data:`VELOCITY_HIGH` ×
+    ``return_low``/``return_high``. Deterministic (``rng`` unused).
 
     Parameters
     ----------
     return_low, return_high : array_like, shape (2,)
-        Corners of the return zone of b = [b_x, b_y] (m) on the opponent's half x ≥ 0
-        (default the whole half, as C.3).
+        Corners of the return zone (m) on the opponent's half (default the whole half, C.3).
     reward_weights : tuple of float
         (c₁, c₂) of Eq. C.1, in 1/m.
-    duration : float
-        Episode length (s) of the robot simulation and of the recorded signals.
-    control_dt : float
-        Control period (s); also the sampling of the recorded signals.
-    physics_dt : float
-        MuJoCo time step (s); ``control_dt`` must be a multiple of it.
+    duration, control_dt, physics_dt : float
+        Episode length, control (and recording) period and MuJoCo step (s).
     ball : BallPhysics, optional
-        Ball constants.
     demonstration : dict, optional
         ``times``, ``q``, ``qd``, ``qdd`` to imitate (default: the shipped file).
     name : str
-        Registry name.
 
-    Trajectory contents
-    -------------------
-    ``states`` (T, 16) = [q, q̇]; ``controls`` (T, 8) joint torques/forces;
-    ``signals["ball"]`` (T, 3) ball centre, ``signals["racket"]`` (T, 3) blade centre,
-    ``signals["racket_normal"]`` (T, 3); ``info``: ``hit`` (bool), ``net`` (bool: the
-    returned ball ended in the net), ``landing_point`` p (2,), ``outcome``
-    (returned/net/out/missed), ``hit_time`` (s or None), ``incoming_end`` (s: the end of the
-    incoming ball, the first racket contact or else the landing), ``landing_time`` (s),
-    ``n_saturated`` (saturated torque entries).
+    Notes
+    -----
+    Signals ``ball``, ``racket``, ``racket_normal`` (T, 3); ``info``: ``hit``, ``net``,
+    ``landing_point`` p (2,), ``outcome`` (returned/net/out/missed), ``hit_time``,
+    ``incoming_end`` (the first racket contact, else the landing), ``landing_time``,
+    ``n_saturated``.
     """
 
     context_dim = 5
@@ -143,8 +131,7 @@ class TableTennis(Task):
         return omega
 
     def initial_policy(self):
-        """π(ω|s) = N(ω_demo, diag(σ²)) with zero context gain: the demonstrated stroke (τ = 1)
-        with σ = :data:`INITIAL_STD` (the thesis gives no Σ, Sec. 3.5)."""
+        """π(ω|s) = N(ω_demo, diag(:data:`INITIAL_STD`²)), zero context gain (Sec. 3.5)."""
         return LinearGaussianPolicy(
             mean=self.parameters.to_vector(),
             cov=np.diag(INITIAL_STD**2),
@@ -224,9 +211,8 @@ class TableTennis(Task):
 
     # ------------------------------------------------------------------ reward
     def reward_signals(self, trajectory: Trajectory) -> dict[str, np.ndarray]:
-        """``ball``, ``racket`` (T, 3), the ``landing_point`` p (2,) and ``incoming_steps``:
-        the samples of the incoming ball — those up to ``info["incoming_end"]`` and the first
-        one after it, so the segment across a racket contact counts."""
+        """``ball``, ``racket`` (T, 3), ``landing_point`` p (2,) and ``incoming_steps``, the
+        samples up to ``info["incoming_end"]`` and one after it."""
         t = trajectory.times
         keep = min(
             int(np.searchsorted(t, trajectory.info["incoming_end"], side="right")) + 1, t.shape[0]
@@ -239,13 +225,9 @@ class TableTennis(Task):
         }
 
     def reward_batch(self, states, controls, signals, contexts) -> np.ndarray:
-        """R = −c₁ min_t ‖τ_b − τ_r‖ − c₂ ‖b − p‖ (Eq. C.1) per trajectory, shape (B,).
-
-        The minimum runs over the first ``incoming_steps`` samples of ball − racket along
-        straight segments (:func:`min_segment_distance`). Reads only ``signals`` (``ball``,
-        ``racket`` (B, T, 3), ``landing_point`` (B, 2), ``incoming_steps`` (B,)), so predicted
-        ones score the same way; non-finite predictions score non-finite.
-        """
+        """R = −c₁ min_t ‖τ_b − τ_r‖ − c₂ ‖b − p‖ (Eq. C.1), shape (B,), of ``signals`` ``ball``,
+        ``racket`` (B, T, 3), ``landing_point`` (B, 2) and ``incoming_steps`` (B,); the minimum
+        runs over the first ``incoming_steps`` samples (:func:`min_segment_distance`)."""
         c1, c2 = self.reward_weights
         ball = check_array(signals["ball"], "signals['ball']", shape=(None, None, 3), finite=False)
         n, T = ball.shape[:2]
@@ -296,8 +278,7 @@ class TableTennis(Task):
 
 
 def min_segment_distance(relative) -> float:
-    """Smallest ‖d‖ along the polyline through the rows of ``relative`` (shape (n, 3)):
-    each segment d(u) = d_k + u (d_{k+1} − d_k), u ∈ [0, 1], is minimised in closed form."""
+    """Smallest ‖d‖ along the polyline through the rows of ``relative`` (n, 3)."""
     d = check_array(relative, "relative", ndim=2)
     if d.shape[0] == 1:
         return float(np.linalg.norm(d[0]))
@@ -316,8 +297,7 @@ def table_tennis(**kwargs) -> TableTennis:
 
 @register("table-tennis-near", "contextual")
 def table_tennis_near(**kwargs) -> TableTennis:
-    """Easier than C.3: targets only in the near return zone x ∈ [0.2, 0.6], y ∈ [−0.4, 0.4] m
-    (:data:`RETURN_NEAR_LOW`, :data:`RETURN_NEAR_HIGH`)."""
+    """Targets only in the near return zone x ∈ [0.2, 0.6], y ∈ [−0.4, 0.4] m."""
     kwargs.setdefault("return_low", RETURN_NEAR_LOW)
     kwargs.setdefault("return_high", RETURN_NEAR_HIGH)
     kwargs.setdefault("name", "table-tennis-near")

@@ -30,8 +30,7 @@ DEMO_COMPARISON = {
     "reps_updates": 16,
     "keep_gpreps_model": True,
 }
-"""What ``skillkit demo`` runs last, in its own process beside :data:`DEMO_IDS`: GPREPS
-against REPS on throwing (``cmp.methods`` at quick scale with these settings)."""
+"""The settings of ``cmp.methods`` ``skillkit demo`` runs beside :data:`DEMO_IDS`."""
 
 DESCRIPTION = """\
 Reproduce the figures and tables of Kupcsik's thesis on contextual policy search
@@ -60,8 +59,7 @@ def _cmd_list(args: argparse.Namespace) -> int:
 
     print("experiments:")
     for exp_id in registry.ids():
-        exp = registry.get(exp_id)
-        print(f"  {exp_id:<12} {exp.title}")
+        print(f"  {exp_id:<12} {registry.get(exp_id).title}")
     print("tasks:")
     for name in names():
         print(f"  {name}")
@@ -99,13 +97,12 @@ def _report(run) -> list[str]:
     return lines
 
 
-def _print_runs(runs, as_json: bool) -> None:
-    """Each run's report, or with ``as_json`` one JSON line ``{id, path, summary}`` per run."""
-    for run in runs:
-        if as_json:
-            print(json.dumps({"id": run.id, "path": str(run.path), "summary": run.summary}))
-        else:
-            print("\n".join(_report(run)), flush=True)
+def _print_run(run, as_json: bool) -> None:
+    """The run's report, or with ``as_json`` the JSON line ``{id, path, summary}``."""
+    if as_json:
+        print(json.dumps({"id": run.id, "path": str(run.path), "summary": run.summary}))
+    else:
+        print("\n".join(_report(run)), flush=True)
 
 
 def _cmd_reproduce(args: argparse.Namespace) -> int:
@@ -130,7 +127,7 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
         run = reproduce(
             exp_id, progress=not args.quiet, html=not args.no_html, **kwargs, **overrides
         )
-        _print_runs([run], args.json)
+        _print_run(run, args.json)
     return 0
 
 
@@ -169,10 +166,27 @@ def _remeasure_runs(root: Path) -> int:
         except ValueError as exc:
             failed += "differs" in str(exc)
             note = str(exc).split(": ", 1)[1]
-        result = json.loads(path.read_text())
-        write_result(folder, rejudged(result))
+        write_result(folder, rejudged(json.loads(path.read_text())))
         print(f"{folder.name}: {note}; judged again")
     return int(failed > 0)
+
+
+def _check_runs(root: Path, record: bool, progress: bool) -> int:
+    """``runs --check`` (:func:`skillkit.experiments.runner.check_witnesses`); 1 if one is
+    stale."""
+    from skillkit.experiments.runner import check_witnesses
+
+    if not root.exists():
+        raise ValueError(f"--root: no results folder at {root}")
+    rows = check_witnesses(root, record=record, progress=progress)
+    for status in ("carried", "stale"):
+        for r in rows:
+            if r["status"] == status:
+                print(f"{status:<8} {r['path']:<45} {r['id']:<10} {r['reason']}")
+    counts = {s: sum(r["status"] == s for r in rows) for s in ("current", "carried", "stale")}
+    tally = ", ".join(f"{n} {s}" for s, n in counts.items())
+    print(f"{len(rows)} results under {root}: {tally}")
+    return 1 if counts["stale"] else 0
 
 
 def _cmd_runs(args: argparse.Namespace) -> int:
@@ -187,7 +201,7 @@ def _cmd_runs(args: argparse.Namespace) -> int:
     if args.record and not args.check:
         raise SystemExit("runs: --record goes with --check")
     if args.check:
-        return _check_runs(root, record=args.record, progress=not args.quiet)
+        return _check_runs(root, args.record, not args.quiet)
     if args.remeasure:
         return _remeasure_runs(root)
     if args.markdown:
@@ -208,12 +222,9 @@ def _cmd_runs(args: argparse.Namespace) -> int:
 
 
 def results_table(root) -> str:
-    """A Markdown table (ending in a newline) of the results under ``root``, one row per
-    ``result.json`` in path order: folder, commit ("dirty" for an uncommitted tree), trials,
-    executor and workers, wall time (min), verdict, and whether today's code would still make
-    it (:func:`skillkit.experiments.provenance.check_results`); data/README.md's "What is
-    here" is this output (``skillkit runs --markdown``).
-    """
+    """data/README.md's Markdown table of the results under ``root`` (``skillkit runs
+    --markdown``): folder, commit, trials, executor, wall time, verdict and staleness."""
+    from skillkit.experiments.judge import markdown_row
     from skillkit.experiments.provenance import check_results
 
     lines = [
@@ -235,37 +246,10 @@ def results_table(root) -> str:
         since = {"current": "unchanged", "carried": "carried (witness equal)"}.get(
             row["status"], f"stale: {row['reason'].split(' (')[0]}"
         )
-        cells = [
-            Path(row["path"]).name,
-            commit,
-            str(result.get("trials", "?")),
-            executor,
-            wall_min,
-            verdict,
-            since,
-        ]
-        lines.append("| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |")
+        trials = str(result.get("trials", "?"))
+        cells = [Path(row["path"]).name, commit, trials, executor, wall_min, verdict, since]
+        lines.append(markdown_row(cells))
     return "\n".join(lines) + "\n"
-
-
-def _check_runs(root: Path, record: bool = False, progress: bool = True) -> int:
-    """``runs --check`` (:func:`skillkit.experiments.runner.check_witnesses`): prints the
-    carried and stale results and the counts; 1 if any is stale."""
-    from skillkit.experiments.runner import check_witnesses
-
-    if not root.exists():
-        raise ValueError(f"--root: no results folder at {root}")
-    rows = check_witnesses(root, record=record, progress=progress)
-    for status in ("carried", "stale"):
-        for r in rows:
-            if r["status"] == status:
-                print(f"{status:<8} {r['path']:<45} {r['id']:<10} {r['reason']}")
-    counts = {s: sum(r["status"] == s for r in rows) for s in ("current", "carried", "stale")}
-    print(
-        f"{len(rows)} results under {root}: {counts['current']} current, "
-        f"{counts['carried']} carried, {counts['stale']} stale"
-    )
-    return 1 if counts["stale"] else 0
 
 
 def _cell(v) -> str:
@@ -315,28 +299,21 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         first = pool.submit(_demo_runs, DEMO_IDS, args.seed, args.out)
         comparison = None
         if DEMO_COMPARISON is not None:
-            print(
-                "skillkit demo: GPREPS against REPS on throwing (cmp.methods), beside them",
-                file=sys.stderr,
-            )
+            note = "GPREPS against REPS on throwing (cmp.methods), beside them"
+            print(f"skillkit demo: {note}", file=sys.stderr)
+            options = {"scale": "quick", "seed": args.seed, "out": args.out}
             comparison = reproduce(
-                "cmp.methods",
-                scale="quick",
-                seed=args.seed,
-                out=args.out,
-                progress=not args.quiet,
-                **DEMO_COMPARISON,
+                "cmp.methods", progress=not args.quiet, **options, **DEMO_COMPARISON
             )
         paths = first.result()
     for path in paths:
-        _print_runs([load_run(path)], args.json)
+        _print_run(load_run(path), args.json)
         if not args.json:
             print()
-    if comparison is not None:
-        if args.json:
-            _print_runs([comparison], True)
-        else:
-            print("\n".join(_comparison_lines(comparison)) + "\n", flush=True)
+    if comparison is not None and args.json:
+        _print_run(comparison, True)
+    elif comparison is not None:
+        print("\n".join(_comparison_lines(comparison)) + "\n", flush=True)
     if not args.json:
         following = (
             "next: `skillkit list` (every experiment), `skillkit reproduce ID`, "
@@ -400,30 +377,35 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     version = f"skillkit {__version__}"
-    parser.add_argument(
-        "-V", "--version", action="version", version=version, help="show the version"
-    )
+    parser.add_argument("-V", "--version", action="version", version=version)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    def add(name: str, line: str, description: str | None = None) -> argparse.ArgumentParser:
+    def add(name, func, line: str, description: str | None = None) -> argparse.ArgumentParser:
         """A sub-command with its one-line help (also its description, unless given)."""
-        return sub.add_parser(
-            name, help=line, description=description or f"{line[:1].upper()}{line[1:]}."
-        )
+        p = sub.add_parser(name, help=line, description=description or f"{line.capitalize()}.")
+        p.set_defaults(func=func)
+        return p
 
-    add("list", "list experiment ids and tasks").set_defaults(func=_cmd_list)
+    def runs_options(p: argparse.ArgumentParser) -> None:
+        """The options ``reproduce`` and ``demo`` share."""
+        p.add_argument("--seed", type=int, default=0, help="root seed; trial i uses child i")
+        p.add_argument("--out", default="runs", help="output folder (default: runs/)")
+        p.add_argument("--quiet", action="store_true", help="no progress bars")
+        p.add_argument("--json", action="store_true", help="a JSON line {id, path, summary} a run")
 
+    add("list", _cmd_list, "list experiment ids and tasks")
     p = add(
         "settings",
+        _cmd_settings,
         "an experiment's settings: meaning, type, values",
         "An experiment's settings at each scale (meaning, unit, type, range, values) and its "
         "measured wall time at smoke and quick scale.",
     )
     p.add_argument("id", metavar="ID", help="experiment id, e.g. fig3.3 (see `skillkit list`)")
-    p.set_defaults(func=_cmd_settings)
 
     p = add(
         "reproduce",
+        _cmd_reproduce,
         "reproduce a thesis figure or table",
         "Run an experiment and write result.json, figure.html, figure.png and trials.npz into "
         "its run folder; print the thesis's claim, our verdict and where the files are. A rerun "
@@ -431,23 +413,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     arg = p.add_argument
     arg("ids", nargs="+", metavar="ID", help="experiment id(s) (see `skillkit list`), or `all`")
-    arg(
-        "--scale",
-        choices=SCALES,
-        default="quick",
-        help="smoke (seconds, a check of the "
-        "code path), quick (minutes, faithful; default) or paper (the thesis setting)",
-    )
+    scales = "smoke (seconds), quick (minutes, faithful; default) or paper (the thesis's)"
+    arg("--scale", choices=SCALES, default="quick", help=scales)
     arg("--trials", type=int, help="independent trials (default: per experiment)")
-    arg("--seed", type=int, default=0, help="root seed; trial i uses child stream i (default 0)")
-    arg("--out", default="runs", help="output folder (default: runs/)")
-    arg("--quiet", action="store_true", help="no progress bars")
-    arg(
-        "--executor",
-        choices=("local", "process", "ray"),
-        default="local",
-        help="run trials sequentially, on all cores, or on Ray (default: local)",
-    )
+    runs_options(p)
+    executors = "trials one by one, on all cores or on Ray (default: local)"
+    arg("--executor", choices=("local", "process", "ray"), default="local", help=executors)
     arg("--workers", type=int, help="processes / Ray CPUs (default: all cores)")
     arg("--address", help="address of an existing Ray cluster")
     arg("--fresh", action="store_true", help="discard this run's checkpoints and start over")
@@ -457,90 +428,41 @@ def build_parser() -> argparse.ArgumentParser:
         action="append",
         default=[],
         metavar="KEY=VALUE",
-        help="override one setting of the scale (repeatable; VALUE is JSON), e.g. --set "
-        "n_updates=50; names and types are checked first, and the run gets its own folder "
-        "<id>-<scale>-s<seed>-<hash> (see `skillkit settings ID`)",
+        help="override one setting (repeatable; VALUE is JSON), e.g. --set n_updates=50; checked "
+        "first, the run gets its own folder <id>-<scale>-s<seed>-<hash>",
     )
-    arg(
-        "--json",
-        action="store_true",
-        help="print one JSON line {id, path, summary} per run instead of the verdict",
-    )
-    p.set_defaults(func=_cmd_reproduce)
 
-    p = add(
-        "runs",
-        "list finished runs in the results store",
-        "List finished runs (folders holding result.json), newest first.",
-    )
+    p = add("runs", _cmd_runs, "list finished runs (folders holding result.json), newest first")
     arg = p.add_argument
     arg("folder", nargs="?", help="results folder, e.g. data/results (the same as --root)")
-    arg(
-        "--root",
-        help="results folder (default: runs/ if it exists here, else this folder "
-        "when it holds any result.json)",
-    )
-    arg(
-        "--check",
-        action="store_true",
-        help="whether today's code would still make each "
-        "result: current (same code fingerprint), carried (a smoke run of today's code "
-        "reproduces the stored witness) or stale; exit 1 if any is stale",
-    )
-    arg(
-        "--record",
-        action="store_true",
-        help="with --check: write a carry record into "
-        "result.json of each result whose witness is equal (later checks are instant)",
-    )
+    arg("--root", help="results folder (default: runs/ if here, else this folder)")
+    check = "whether today's code would still make each result (current, carried or stale)"
+    arg("--check", action="store_true", help=check)
+    arg("--record", action="store_true", help="with --check: write carry records into result.json")
     arg("--quiet", action="store_true", help="with --check: no progress bar over witness runs")
-    arg(
-        "--remeasure",
-        action="store_true",
-        help="summarise each stored trials.npz again, "
-        "add the measurements its summary lacks (shared ones must agree) and judge it again "
-        "with today's claims; nothing is re-run",
-    )
-    arg(
-        "--markdown",
-        action="store_true",
-        help="print a Markdown table of the results (commit, "
-        "trials, executor, wall time, verdict, code since), as in data/README.md",
-    )
-    p.set_defaults(func=_cmd_runs)
+    remeasure = "summarise each stored trials.npz again, add what its summary lacks, judge it again"
+    arg("--remeasure", action="store_true", help=remeasure)
+    arg("--markdown", action="store_true", help="a Markdown table of them, as in data/README.md")
 
-    p = add(
-        "compare",
-        "two runs' summaries and curves side by side",
-        "Two runs' summaries, settings and run times side by side; with --out also an overlay "
-        "of their curves.",
-    )
+    p = add("compare", _cmd_compare, "two runs' summaries, settings and run times side by side")
     p.add_argument("run_a", help="run folder (or its result.json)")
     p.add_argument("run_b", help="run folder (or its result.json)")
     p.add_argument("--out", help="also write an overlay figure into this folder")
-    p.set_defaults(func=_cmd_compare)
 
     p = add(
         "demo",
+        _cmd_demo,
         "GPREPS against REPS on throwing, beside the quick fig2.10 and sanity3 experiments",
         "Run at quick scale, in about a minute on 2 cores: GPREPS against REPS on throwing "
         "(cmp.methods) and, in a second process, the DMP imitation figure (fig2.10) and "
         "contextual REPS, RWR and CrKR with a known optimum (sanity3). Prints each one's claim, "
         "verdict and files, and how to open the GPREPS run in the viewer.",
     )
-    arg = p.add_argument
-    arg("--seed", type=int, default=0, help="root seed of the runs (default 0)")
-    arg("--out", default="runs", help="output folder (default: runs/)")
-    arg("--quiet", action="store_true", help="no progress bars")
-    arg(
-        "--json",
-        action="store_true",
-        help="print one JSON line {id, path, summary} per run instead of the verdicts",
-    )
-    p.set_defaults(func=_cmd_demo)
+    runs_options(p)
 
     p = add(
         "site",
+        _cmd_site,
         "the notebooks as a browsable HTML site",
         "Execute the notebooks (at SKILLKIT_SCALE, default smoke) and export them as linked "
         "HTML pages with an index.html; equations typeset offline, figures without a kernel.",
@@ -550,7 +472,6 @@ def build_parser() -> argparse.ArgumentParser:
     arg("--notebooks", default="notebooks", help="folder of .ipynb files (default: notebooks/)")
     arg("--executed", action="store_true", help="the notebooks are executed: export only")
     arg("--timeout", type=int, default=600, help="seconds per cell (default 600)")
-    p.set_defaults(func=_cmd_site)
 
     from skillkit.viz.cli_view import add_view_parser
 

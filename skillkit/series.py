@@ -1,10 +1,5 @@
-"""What an experiment measures and plots: :class:`Series` (one curve, band, heatmap or bar
-set of a figure panel) and the bands over trials (:func:`mean_band`, :func:`trial_band`,
-:func:`band_text`).
-
-Experiments store series in ``result.json`` (format: ``docs/formats.md``) and
-:mod:`skillkit.viz.plots` draws them; the numbers computed here are stored numbers.
-"""
+"""What an experiment plots: :class:`Series` (stored in ``result.json``, format
+``docs/formats.md``) and the bands over trials (:func:`mean_band`, :func:`trial_band`)."""
 
 from __future__ import annotations
 
@@ -33,12 +28,11 @@ class Series:
         Subplot (series of one panel share axes).
     kind : {"line", "markers", "lines+markers", "heatmap", "bar"}
     lower, upper, band : list of float, list of float, str, optional
-        A band around ``y`` and what it is, in words, for the legend (e.g. ``"mean ± std over
-        20 trials"``).
+        A band around ``y`` and what it is, in words (:func:`band_text`).
     xlabel, ylabel, log_x, log_y, zmin, zmax
         Axis labels, logarithmic axes and a heatmap's colour range.
     dash : {"dash", "dot", "dashdot"}, optional
-        Line style (None: solid); ``"dash"`` marks a reference the other curves are compared with.
+        Line style (None: solid); ``"dash"`` marks a reference.
     """
 
     name: str
@@ -63,11 +57,8 @@ class Series:
 
 
 def mean_band(curves: np.ndarray, kind: str = "std") -> tuple[list, list, list]:
-    """Mean, lower and upper band over trials of curves (n ≥ 1, n_points), as lists.
-
-    ``kind="std"``: mean ± one standard deviation; ``"ci95"``: the 95% interval of the mean
-    (:data:`BAND_KINDS`). A single curve gets a zero-width band.
-    """
+    """Mean, lower and upper band (``kind`` "std" or "ci95", :data:`BAND_KINDS`) over curves
+    of shape (n ≥ 1, n_points), as lists; a single curve gets a zero-width band."""
     curves = np.asarray(curves, dtype=float)
     if curves.ndim != 2 or curves.shape[0] < 1:
         raise ValueError(f"curves: expected shape (n >= 1, n_points), got {curves.shape}")
@@ -88,10 +79,7 @@ geometric mean ×/÷ one geometric standard deviation (mean ± std of log10, for
 
 
 def band_text(n: int, over: str = "trials", kind: str = "std") -> str:
-    """What a band over ``n`` ≥ 2 curves is, in words, e.g. ``"mean ± std over 20 trials"``.
-
-    ``over`` names the curves (plural), ``kind`` the statistic (:data:`BAND_KINDS`).
-    """
+    """What a band of ``kind`` over ``n`` ≥ 2 ``over`` is, e.g. ``"mean ± std over 20 trials"``."""
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 2:
         raise ValueError(f"n: a band needs at least 2 curves, got {n!r}")
     if not isinstance(over, str) or not over:
@@ -107,12 +95,8 @@ def band_text(n: int, over: str = "trials", kind: str = "std") -> str:
 
 
 def trial_band(curves, over: str = "trials", kind: str = "std") -> tuple[list, dict[str, Any]]:
-    """Mean curve over curves (n, n_points) and the :class:`Series` keywords of its band.
-
-    ``kind`` as :data:`BAND_KINDS` (``"gstd"`` needs positive values and gives the geometric
-    mean). The keywords are ``lower``, ``upper`` and ``band`` (:func:`band_text` with
-    ``over``); empty for a single curve, whose spread is undefined.
-    """
+    """Mean curve over curves (n, n_points) (geometric for ``kind="gstd"``) and the
+    :class:`Series` keywords ``lower``, ``upper`` and ``band`` (none for a single curve)."""
     curves = np.asarray(curves, dtype=float)
     if curves.ndim != 2 or curves.shape[0] < 1:
         raise ValueError(f"curves: expected shape (n >= 1, n_points), got {curves.shape}")

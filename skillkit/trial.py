@@ -1,14 +1,5 @@
-"""The trial context: what one experiment trial reports progress to and checkpoints through.
-
-A :class:`TrialContext` (passed to an experiment's ``run_trial(settings, rng, trial)`` and to
-:func:`skillkit.search.loop.learn`) is a progress bar (forwarded to a tqdm-like bar, or
-dropped) and a checkpoint store: :meth:`~TrialContext.save` pickles a state and the
-generator's state under a key, :meth:`~TrialContext.resume` returns it as it was when saved.
-A ``writer`` persists the snapshots (the runner writes the trial's checkpoint file);
-``TrialContext()`` is the null context. With the trial's record of numerical events
-(``events``) the context also keeps, per key, the events of the work saved under it, and adds
-them back when a key is resumed, so a resumed trial counts what an uninterrupted one counts.
-"""
+"""The trial context an experiment's ``run_trial(settings, rng, trial)`` reports progress to
+and checkpoints through (:class:`TrialContext`; ``TrialContext()`` is the null context)."""
 
 from __future__ import annotations
 
@@ -56,20 +47,8 @@ class NumericalEvents(Protocol):
     def to_dict(self) -> dict: ...
 
 
-class NullBar:
+class NullBar(ProgressBar):
     """A progress bar that shows nothing (the bar of a context without one)."""
-
-    def reset(self, total: int | None = None) -> None:
-        """Do nothing."""
-
-    def update(self, n: int = 1) -> None:
-        """Do nothing."""
-
-    def set_postfix(self, *args: Any, **kwargs: Any) -> None:
-        """Do nothing."""
-
-    def close(self) -> None:
-        """Do nothing."""
 
     def __repr__(self) -> str:
         return "NullBar()"
@@ -80,6 +59,9 @@ class TrialContext:
 
     Work that should survive an interruption calls :meth:`resume` with a key when it starts
     and :meth:`save` with the same key after every unit of work; several keys share a context.
+    With ``events`` it also keeps, per key, the numerical events of the work saved under it
+    and adds them back when the key resumes, so a resumed trial counts what an uninterrupted
+    one counts.
 
     Parameters
     ----------
@@ -91,10 +73,8 @@ class TrialContext:
         ``writer(snapshots, seconds)``, called after every :meth:`save`.
     seconds : float
         Compute time (s, ≥ 0) of earlier, interrupted runs of this trial.
-    events : NumericalEvents, optional
-        The trial's record of numerical events; with it the context keeps :attr:`saved_events`.
-    saved_events : mapping of str to dict, optional
-        Per key, the events saved in earlier runs, added to ``events`` when the key resumes.
+    events, saved_events : NumericalEvents, mapping of str to dict, optional
+        The trial's record of numerical events, and per key the events of earlier runs.
 
     Examples
     --------

@@ -27,7 +27,7 @@ class CheckpointError(RuntimeError):
 
 
 def code_fingerprint(func) -> str:
-    """skillkit version plus the provenance fingerprint of the module defining ``func``."""
+    """skillkit version and the provenance fingerprint of the module defining ``func``."""
     import skillkit
     from skillkit.experiments.provenance import code_fingerprint as fingerprint
 
@@ -52,9 +52,8 @@ def identity(exp_id: str, settings: dict, trial: int, seed: int, code: str) -> d
 def save(
     path: str | Path, ident: dict, payload: Any, kind: str, seconds: float | None = None
 ) -> None:
-    """Write ``payload`` (picklable; ``kind`` ``"state"`` mid-trial or ``"result"``) to
-    ``path`` atomically with a header binding it to ``ident`` (:func:`identity`) and the
-    trial's compute ``seconds`` so far."""
+    """Write ``payload`` (``kind`` ``"state"`` mid-trial or ``"result"``) to ``path``
+    atomically, bound to ``ident`` (:func:`identity`), with the compute ``seconds`` so far."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     body = pickle.dumps(payload, protocol=pickle.HIGHEST_PROTOCOL)
@@ -78,14 +77,8 @@ class Loaded(NamedTuple):
 
 
 def load(path: str | Path, ident: dict) -> Loaded | None:
-    """The checkpoint at ``path`` (:class:`Loaded`), or None if there is none.
-
-    Raises
-    ------
-    CheckpointError
-        A truncated or corrupted file, or a header that does not match ``ident`` (naming
-        the field).
-    """
+    """The checkpoint at ``path`` (:class:`Loaded`), or None if there is none; CheckpointError
+    for a truncated or corrupted file, or a header not matching ``ident`` (naming the field)."""
     path = Path(path)
     if not path.exists():
         return None

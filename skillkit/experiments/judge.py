@@ -1,18 +1,17 @@
 """Claims as data, judged by one engine with a 95% interval across trials.
 
-A run stores what was measured (its ``summary``). How it is *judged* lives in the claims
-spec, one TOML file per chapter in ``skillkit/data/claims/``: per experiment id the thesis's
-sentences (quote and location), the claim in plain words, a setup table and the **parts**. A
-part names the quantity (a path into the summary, or ``settings.<name>``), the statistic that
-makes it an estimate with a 95% interval (:data:`STATISTICS`), the reading (``op``,
-``threshold``, the thesis's number, a ``reason``, whether it was ``fixed`` before or after the
-numbers were seen), and ``own = true`` for a check of ours that never decides the verdict.
+A run stores what was measured (its ``summary``); the claims spec, one TOML file per chapter
+in ``skillkit/data/claims/``, says how it is judged: per experiment id the thesis's sentences
+(quote and location), the claim in plain words, a setup table and the **parts**. A part names
+the quantity (a path into the summary, or ``settings.<name>``), the statistic that makes it an
+estimate with a 95% interval (:data:`STATISTICS`), the reading (``op``, ``threshold``, the
+thesis's number, a ``reason``, whether it was ``fixed`` before or after the numbers were seen),
+and ``own = true`` for a check of ours that never decides the verdict.
 
 A part **holds** when its interval lies wholly on the claim's side of the threshold, **does not
-hold** when wholly on the other, and is **undecided** when it straddles it (saying how many
-trials would decide it). The verdict is "does not hold" if a thesis part does not hold, else
-"undecided" if one is, else "holds"; smoke runs and ids whose passage reports no result are
-"not judged". A changed reading re-judges every run at its next load.
+hold** when wholly on the other, and is **undecided** when it straddles it. The verdict is
+"does not hold" if a thesis part does not hold, else "undecided" if one is, else "holds";
+smoke runs and ids whose passage reports no result are "not judged".
 
 Examples
 --------
@@ -35,42 +34,15 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-__all__ = [
-    "CARD_WIDTH",
-    "JUDGEMENT_KEYS",
-    "Claim",
-    "Judgement",
-    "Part",
-    "Quote",
-    "Reading",
-    "STATISTICS",
-    "apply",
-    "judge",
-    "normalise_text",
-    "quoted_numbers",
-    "spec",
-    "specs",
-    "thesis_value",
-]
-
 SPEC_DIR = Path(__file__).resolve().parent.parent / "data" / "claims"
 """The folder of the claims spec (one ``*.toml`` per chapter)."""
 
 STATISTICS = ("mean", "paired", "ratio", "rate", "fraction", "value")
-"""How a part turns its quantity into an estimate and a 95% interval:
-
-* ``mean``: the mean of a per-trial array, Student-t interval over trials;
-* ``paired``: the mean per-trial difference ``quantity − minus`` (two arms run with the same
-  seeds in each trial), Student-t interval;
-* ``ratio``: ``mean(quantity) / mean(over)`` of two per-trial arrays, percentile bootstrap over
-  trials (resampled in pairs);
-* ``rate``: a success rate over ``count`` items per trial (per-trial rates or one rate),
-  Wilson interval on the pooled counts;
-* ``fraction``: the fraction of trials whose value satisfies ``each_op each_threshold``, Wilson
-  interval over trials;
-* ``value``: one number without sampling noise (a deterministic computation, or a quantity
-  measured once); its interval is the point. The part's ``reason`` says why that is fair.
-"""
+"""How a part turns its quantity into an estimate and a 95% interval: ``mean`` (Student-t over
+trials), ``paired`` (mean of ``quantity − minus``, Student-t), ``ratio`` (``mean(quantity) /
+mean(over)``, paired percentile bootstrap), ``rate`` (over ``count`` items per trial, Wilson),
+``fraction`` (of trials meeting ``each_op each_threshold``, Wilson) and ``value`` (one number
+without sampling noise; the interval is the point)."""
 
 OPS = {"<": np.less, "<=": np.less_equal, ">": np.greater, ">=": np.greater_equal}
 CARD_WIDTH = 100
@@ -168,37 +140,26 @@ def _part(raw: Mapping[str, Any], where: str) -> Part:
     for name in ("label", "quantity", "statistic", "op", "threshold", "thesis", "reason", "fixed"):
         if name not in raw:
             raise ValueError(f"{where}: missing field {name!r}")
-    if raw["statistic"] not in STATISTICS:
-        raise ValueError(
-            f"{where}.statistic: expected one of {STATISTICS}, got {raw['statistic']!r}"
-        )
-    if raw["op"] not in OPS:
-        raise ValueError(f"{where}.op: expected one of {tuple(OPS)}, got {raw['op']!r}")
-    if raw["fixed"] not in ("before", "after"):
-        raise ValueError(f"{where}.fixed: expected 'before' or 'after', got {raw['fixed']!r}")
-    if len(raw["label"]) > 32:
-        raise ValueError(f"{where}.label: at most 32 characters, got {raw['label']!r}")
-    if len(raw["thesis"]) > 24:
-        raise ValueError(f"{where}.thesis: at most 24 characters, got {raw['thesis']!r}")
+    choices = {"statistic": STATISTICS, "op": tuple(OPS), "fixed": ("before", "after")}
+    for name, allowed in choices.items():
+        if raw[name] not in allowed:
+            expected = "'before' or 'after'" if name == "fixed" else f"one of {allowed}"
+            raise ValueError(f"{where}.{name}: expected {expected}, got {raw[name]!r}")
+    for name, most in (("label", 32), ("thesis", 24)):
+        if len(raw[name]) > most:
+            raise ValueError(f"{where}.{name}: at most {most} characters, got {raw[name]!r}")
     kw = dict(raw)
-    kw["quantity"] = _path(raw["quantity"], f"{where}.quantity")
-    thr = raw["threshold"]
-    kw["threshold"] = (
-        float(thr) if isinstance(thr, (int, float)) else _path(thr, f"{where}.threshold")
-    )
-    for key in ("minus", "over"):
-        if key in raw:
-            kw[key] = _path(raw[key], f"{where}.{key}")
-    if "count" in raw and not isinstance(raw["count"], int):
-        kw["count"] = _path(raw["count"], f"{where}.count")
-    need = {"paired": "minus", "ratio": "over", "rate": "count", "fraction": "each_op"}
-    if raw["statistic"] in need and need[raw["statistic"]] not in raw:
-        raise ValueError(
-            f"{where}: statistic {raw['statistic']!r} needs {need[raw['statistic']]!r}"
-        )
-    if raw["statistic"] == "fraction" and (
-        "each_threshold" not in raw or raw["each_op"] not in OPS
-    ):
+    for key in ("quantity", "threshold", "minus", "over", "count"):
+        value = raw.get(key)
+        if key == "threshold" and isinstance(value, (int, float)):
+            kw[key] = float(value)
+        elif key in raw and not (key == "count" and isinstance(value, int)):
+            kw[key] = _path(value, f"{where}.{key}")
+    stat = raw["statistic"]
+    need = {"paired": "minus", "ratio": "over", "rate": "count", "fraction": "each_op"}.get(stat)
+    if need and need not in raw:
+        raise ValueError(f"{where}: statistic {stat!r} needs {need!r}")
+    if stat == "fraction" and ("each_threshold" not in raw or raw["each_op"] not in OPS):
         raise ValueError(
             f"{where}: statistic 'fraction' needs each_op in {tuple(OPS)} and each_threshold"
         )
@@ -217,9 +178,9 @@ def _claim(raw: Mapping[str, Any], source: str) -> Claim:
         or len(plain) > CARD_WIDTH - len(exp_id) - 3
         or len(plain.split()) > PLAIN_WORDS
     ):
+        most = CARD_WIDTH - len(exp_id) - 3
         raise ValueError(
-            f"{where}.plain: expected the claim in ≤ {PLAIN_WORDS} words and "
-            f"≤ {CARD_WIDTH - len(exp_id) - 3} "
+            f"{where}.plain: expected the claim in ≤ {PLAIN_WORDS} words and ≤ {most} "
             f"characters, got {plain!r}"
         )
     quotes = tuple(Quote(q["text"], q["location"]) for q in raw.get("quote", []))
@@ -233,18 +194,12 @@ def _claim(raw: Mapping[str, Any], source: str) -> Claim:
 
 @cache
 def specs(folder: str | None = None) -> dict[str, Claim]:
-    """Every claim of the spec folder, by experiment id.
-
-    Parameters
-    ----------
-    folder : str, optional
-        A folder of ``*.toml`` files (default: :data:`SPEC_DIR`).
+    """Every claim of the spec ``folder`` (default :data:`SPEC_DIR`), by experiment id.
 
     Raises
     ------
     ValueError
-        A malformed entry (the message names the file, the id and the field) or an id that
-        appears twice.
+        A malformed entry (naming the file, the id and the field) or an id given twice.
     """
     out: dict[str, Claim] = {}
     for path in sorted(Path(folder or SPEC_DIR).glob("*.toml")):
@@ -274,14 +229,8 @@ def _numbers(text: str) -> list[float]:
 
 
 def thesis_value(exp_id: str, label: str) -> float:
-    """The thesis's number of the part ``label`` of ``exp_id``: the first number in the
-    part's ``thesis`` text (``"≈ 50 in the top 95%"`` → 50.0).
-
-    Raises
-    ------
-    ValueError
-        ``exp_id`` has no part ``label``, or its ``thesis`` text holds no number.
-    """
+    """The first number in the ``thesis`` text of part ``label`` of ``exp_id`` (``"≈ 50 in the
+    top 95%"`` → 50.0); ValueError without such a part or number."""
     for p in spec(exp_id).parts:
         if p.label == label:
             found = _numbers(p.thesis)
@@ -306,20 +255,9 @@ def quoted_numbers(exp_id: str) -> list[float]:
 # ----------------------------------------------------------------------------- statistics
 @dataclass(frozen=True)
 class Reading:
-    """One part judged on one run.
-
-    Attributes
-    ----------
-    part : Part
-    estimate, lower, upper : float or None
-        The estimate and its 95% interval (None: the run lacks the number).
-    n : int
-        Trials (or, for ``rate``, items) the estimate rests on.
-    outcome : str
-        "holds", "does not hold", "undecided" or "not measured".
-    needed : str
-        For an undecided part, what would decide it ("" otherwise).
-    """
+    """One part judged on one run: the estimate and its 95% interval (None: not measured), the
+    trials (``rate``: items) it rests on, the outcome ("holds", "does not hold", "undecided"
+    or "not measured") and, when undecided, what would decide it."""
 
     part: Part
     estimate: float | None
@@ -341,15 +279,11 @@ class Reading:
 
     def as_dict(self) -> dict[str, Any]:
         p = self.part
+        fields = ("estimate", "lower", "upper", "n", "outcome", "needed")
         return {
             "label": p.label,
             "own": p.own,
-            "estimate": self.estimate,
-            "lower": self.lower,
-            "upper": self.upper,
-            "n": self.n,
-            "outcome": self.outcome,
-            "needed": self.needed,
+            **{k: getattr(self, k) for k in fields},
             "reading": f"{p.statistic} {p.op} {_threshold_text(p)}",
             "thesis": p.thesis,
             "reason": p.reason,
@@ -377,9 +311,9 @@ def _threshold_text(p: Part) -> str:
     return f"{_g(p.threshold * p.factor, 4)[0]} {p.unit}".rstrip()
 
 
-def _cell(text: str) -> str:
-    """Text for a Markdown table cell (a ``|`` would end the cell)."""
-    return text.replace("|", "\\|").replace("\n", " ")
+def markdown_row(cells: list[str]) -> str:
+    """A Markdown table row of ``cells`` (``|`` escaped, line breaks as spaces)."""
+    return "| " + " | ".join(c.replace("|", "\\|").replace("\n", " ") for c in cells) + " |"
 
 
 def _lookup(tree: Mapping[str, Any], path: tuple[str, ...]) -> Any:
@@ -432,8 +366,8 @@ def _trials_needed(spread: float, gap: float, n: int, what: str) -> str:
     return f"≈ {need} {what} would decide it"
 
 
-def _estimate(p: Part, summary: Mapping, settings: Mapping) -> tuple:
-    """(estimate, lower, upper, n, needed-text) or None when the run lacks a number."""
+def _estimate(p: Part, summary: Mapping, settings: Mapping) -> tuple | None:
+    """(estimate, lower, upper, n, needed-text, threshold), or None when the run lacks a number."""
     tree = {**summary, "settings": settings}
     x = _array(_lookup(tree, p.quantity))
     if x is None or not np.all(np.isfinite(x)):
@@ -447,62 +381,48 @@ def _estimate(p: Part, summary: Mapping, settings: Mapping) -> tuple:
             raise ValueError(f"{p.label}: statistic 'value' needs one number, got {x.size}")
         v = float(x[0])
         return v, v, v, 1, "", thr
-    if p.statistic in ("mean", "paired"):
-        if p.statistic == "paired":
-            y = _array(_lookup(tree, p.minus))
-            if y is None or y.size != x.size or not np.all(np.isfinite(y)):
-                return None
-            x = x - y
-        mean, lo, hi, spread = _t_interval(x)
-        needed = "" if x.size >= 2 else "one trial: an interval needs ≥ 2"
-        if x.size >= 2 and lo <= thr <= hi:
-            needed = _trials_needed(spread, abs(mean - thr), x.size, "trials")
-        return mean, lo, hi, x.size, needed, thr
-    if p.statistic == "ratio":
-        y = _array(_lookup(tree, p.over))
+    if p.statistic in ("paired", "ratio"):
+        y = _array(_lookup(tree, p.minus if p.statistic == "paired" else p.over))
         if y is None or y.size != x.size or not np.all(np.isfinite(y)):
             return None
+    n, what = x.size, "trials"
+    if p.statistic in ("mean", "paired"):
+        est, lo, hi, spread = _t_interval(x - y if p.statistic == "paired" else x)
+    elif p.statistic == "ratio":
         with np.errstate(divide="ignore", invalid="ignore"):
             est = float(np.mean(x) / np.mean(y))
         if not np.isfinite(est):
             return None
-        if x.size < 2:
-            return est, math.nan, math.nan, 1, "one trial: an interval needs ≥ 2", thr
-        res = stats.bootstrap(
-            (x, y),
-            lambda a, b, axis=-1: np.mean(a, axis=axis) / np.mean(b, axis=axis),
-            paired=True,
-            vectorized=True,
-            n_resamples=_BOOTSTRAP_RESAMPLES,
-            confidence_level=LEVEL,
-            method="percentile",
-            rng=np.random.default_rng(0),
-        )
-        lo, hi = float(res.confidence_interval.low), float(res.confidence_interval.high)
-        needed = ""
-        if lo <= thr <= hi:
-            needed = _trials_needed(
-                res.standard_error * math.sqrt(x.size), abs(est - thr), x.size, "trials"
+        lo = hi = spread = math.nan
+        if n >= 2:
+            res = stats.bootstrap(
+                (x, y),
+                lambda a, b, axis=-1: np.mean(a, axis=axis) / np.mean(b, axis=axis),
+                paired=True,
+                vectorized=True,
+                n_resamples=_BOOTSTRAP_RESAMPLES,
+                confidence_level=LEVEL,
+                method="percentile",
+                rng=np.random.default_rng(0),
             )
-        return est, lo, hi, x.size, needed, thr
-    if p.statistic == "rate":
-        count = p.count if isinstance(p.count, int) else _lookup(tree, p.count)
-        if count is None:
-            return None
-        counts = np.broadcast_to(np.asarray(count, dtype=float), x.shape)
-        k, n = float(np.sum(x * counts)), float(np.sum(counts))
-        rate, lo, hi = _wilson(k, n)
-        needed = ""
-        if lo <= thr <= hi:
-            needed = _trials_needed(math.sqrt(rate * (1 - rate)), abs(rate - thr), int(n), "items")
-        return rate, lo, hi, int(n), needed, thr
-    # fraction of trials meeting a per-trial condition
-    hits = OPS[p.each_op](x, p.each_threshold)
-    rate, lo, hi = _wilson(float(np.sum(hits)), float(x.size))
-    needed = ""
-    if lo <= thr <= hi:
-        needed = _trials_needed(math.sqrt(rate * (1 - rate)), abs(rate - thr), x.size, "trials")
-    return rate, lo, hi, x.size, needed, thr
+            lo, hi = float(res.confidence_interval.low), float(res.confidence_interval.high)
+            spread = res.standard_error * math.sqrt(x.size)
+    else:  # rate over items, or the fraction of trials meeting a per-trial condition
+        if p.statistic == "rate":
+            count = p.count if isinstance(p.count, int) else _lookup(tree, p.count)
+            if count is None:
+                return None
+            counts = np.broadcast_to(np.asarray(count, dtype=float), x.shape)
+            k, total = float(np.sum(x * counts)), float(np.sum(counts))
+            n, what = int(total), "items"
+        else:
+            k, total = float(np.sum(OPS[p.each_op](x, p.each_threshold))), float(x.size)
+        est, lo, hi = _wilson(k, total)
+        spread = math.sqrt(est * (1 - est))
+    if x.size < 2 and p.statistic in ("mean", "paired", "ratio"):
+        return est, lo, hi, n, "one trial: an interval needs ≥ 2", thr
+    needed = _trials_needed(spread, abs(est - thr), n, what) if lo <= thr <= hi else ""
+    return est, lo, hi, n, needed, thr
 
 
 def read(p: Part, summary: Mapping, settings: Mapping | None = None) -> Reading:
@@ -526,20 +446,8 @@ def read(p: Part, summary: Mapping, settings: Mapping | None = None) -> Reading:
 # ------------------------------------------------------------------------------- verdicts
 @dataclass(frozen=True)
 class Judgement:
-    """The verdict on one run: its readings, the outcome, the card and the details.
-
-    Attributes
-    ----------
-    claim : Claim
-    scale : str
-    outcome : str
-        "holds", "does not hold", "undecided" or "not judged".
-    readings : tuple of Reading
-        Thesis parts first, then our own checks.
-    why_not_judged : str
-        "smoke scale" or the spec's ``no_result`` ("" when judged).
-    n_trials : int or None
-    """
+    """The verdict on one run: the outcome ("holds", "does not hold", "undecided" or "not
+    judged", ``why_not_judged`` saying why), the readings, the card and the details."""
 
     claim: Claim
     scale: str
@@ -557,12 +465,10 @@ class Judgement:
     def key(self) -> Reading | None:
         """The reading the card shows: the first failing, undecided or unmeasured thesis part,
         else the first."""
-        rs = self.thesis_readings
-        for wanted in (FAILS, UNDECIDED, "not measured"):
-            for r in rs:
-                if r.outcome == wanted:
-                    return r
-        return rs[0] if rs else (self.readings[0] if self.readings else None)
+        order = (FAILS, UNDECIDED, "not measured")
+        found = [r for w in order for r in self.thesis_readings if r.outcome == w]
+        found += self.thesis_readings or self.readings
+        return found[0] if found else None
 
     def verdict_line(self) -> str:
         """The card's second line: key number, interval, the thesis's number, outcome."""
@@ -597,10 +503,8 @@ class Judgement:
         c = self.claim
         out = [f"### {c.id}: {c.plain}", ""]
         out += [f"> {q.text}\n>\n> — {q.location}\n" for q in c.quotes]
-        out.append(
-            f"**Verdict:** {self.outcome}"
-            + (f" ({self.why_not_judged})" if self.why_not_judged else "")
-        )
+        why = f" ({self.why_not_judged})" if self.why_not_judged else ""
+        out.append(f"**Verdict:** {self.outcome}{why}")
         if self.readings:
             out += [
                 "",
@@ -613,22 +517,13 @@ class Judgement:
                 outcome = r.outcome + (f"; {r.needed}" if r.needed else "")
                 what = "items" if p.statistic == "rate" else "trials"
                 reading = f"{p.statistic} over {r.n} {what} {p.op} {_threshold_text(p)}"
-                cells = [
-                    name,
-                    r.number(),
-                    p.thesis,
-                    reading,
-                    outcome,
-                    p.reason,
-                    f"{p.fixed} the numbers",
-                ]
-                out.append("| " + " | ".join(_cell(c) for c in cells) + " |")
+                fixed = f"{p.fixed} the numbers"
+                out.append(
+                    markdown_row([name, r.number(), p.thesis, reading, outcome, p.reason, fixed])
+                )
         if c.setup:
             out += ["", "| setting | thesis | ours | why |", "|---|---|---|---|"]
-            out += [
-                "| " + " | ".join(_cell(x) for x in (s.what, s.thesis, s.ours, s.why)) + " |"
-                for s in c.setup
-            ]
+            out += [markdown_row([s.what, s.thesis, s.ours, s.why]) for s in c.setup]
         if c.notes:
             out += [""] + [f"- {n}" for n in c.notes]
         return "\n".join(out)
@@ -660,21 +555,18 @@ def judge(
         why = "smoke scale" if scale == "smoke" else claim.no_result
         return Judgement(claim, scale, NOT_JUDGED, readings, why, n_trials, thesis)
     outcomes = [r.outcome for r in thesis]
-    if FAILS in outcomes:
-        outcome = FAILS
-    elif all(o == HOLDS for o in outcomes):
-        outcome = HOLDS
-    else:
-        outcome = UNDECIDED
+    outcome = (
+        FAILS if FAILS in outcomes else HOLDS if all(o == HOLDS for o in outcomes) else UNDECIDED
+    )
     return Judgement(claim, scale, outcome, readings, "", n_trials, thesis)
 
 
 def quotes_of(exp_id: str) -> list[dict[str, str]]:
     """The thesis's sentences of ``exp_id`` as ``[{"quote", "location"}]`` ([] without a spec)."""
-    table = specs()
-    if exp_id not in table:
-        return []
-    return [{"quote": q.text, "location": q.location} for q in table[exp_id].quotes]
+    claim = specs().get(exp_id)
+    return (
+        [] if claim is None else [{"quote": q.text, "location": q.location} for q in claim.quotes]
+    )
 
 
 def is_judged(exp_id: str) -> bool:

@@ -1,17 +1,14 @@
 """Provenance of a result: which code made it, and whether that code has changed since.
 
-``result.json`` records ``git`` (the commit and whether tracked files were dirty; None outside
-a checkout), ``code_fingerprint`` (a hash of the experiment's module and every skillkit module
-it imports, transitively, found by reading the sources, plus the shipped demonstrations they
-name; without :data:`EXCLUDED` code, and as token streams without comments, docstrings or
-blank lines) and, for quick and paper runs, a ``witness``: the :func:`measurements` of a smoke
-run of the same id and seed by the same code.
+``result.json`` records ``git`` (commit and dirty flag), ``code_fingerprint`` (a hash of the
+experiment's module and every skillkit module it imports, transitively, without
+:data:`EXCLUDED` code, as token streams without comments, docstrings or blank lines, plus the
+shipped demonstrations they name) and, for quick and paper runs, a ``witness``: the
+:func:`measurements` of a smoke run of the same id and seed by the same code.
 
-A result whose fingerprint equals today's is *current*. When the code changed, a fresh smoke
-witness equal to the stored one within round-off (:func:`compare_witness`) *carries* it (a
-carry record in ``result.json`` says so for today's fingerprint); otherwise it is *stale*.
-:func:`staleness` and :func:`check_results` read fingerprints and carry records only;
-:func:`skillkit.experiments.runner.check_witnesses` also runs the witnesses.
+A result whose fingerprint equals today's is *current*; when the code changed, a fresh witness
+equal to the stored one within round-off (:func:`compare_witness`) *carries* it (recorded in
+``result.json``); otherwise it is *stale*.
 """
 
 from __future__ import annotations
@@ -77,16 +74,10 @@ def _is_excluded(name: str) -> bool:
     return any(name == e or name.startswith(e + ".") for e in EXCLUDED)
 
 
-def _imports(path: Path, own_name: str | None) -> dict[str, bool]:
-    stat = path.stat()
-    return _imports_cached(path, own_name, stat.st_mtime_ns, stat.st_size)
-
-
 @lru_cache(maxsize=512)
-def _imports_cached(path: Path, own_name: str | None, mtime_ns: int, size: int) -> dict[str, bool]:
-    """``{module: follow}`` of the skillkit modules imported anywhere in ``path``; ``follow``
-    is False for a package only imported as the parent of a submodule (hashed, not followed).
-    """
+def _imports(path: Path, own_name: str | None, mtime_ns: int, size: int) -> dict[str, bool]:
+    """``{module: follow}`` of the skillkit modules ``path`` imports (``follow`` False for a
+    package only imported as the parent of a submodule)."""
     tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
     is_package = path.name == "__init__.py"
     explicit: set[str] = set()
@@ -123,7 +114,7 @@ def _imports_cached(path: Path, own_name: str | None, mtime_ns: int, size: int) 
 @lru_cache(maxsize=256)
 def _reexports(package: str) -> dict[str, str]:
     """``{name: module}`` of the names a package's ``__init__`` imports or exports lazily
-    (a module-level ``_LAZY`` dict, PEP 562), or an :data:`EXCLUDED` module re-exports."""
+    (``_LAZY``, PEP 562), or an :data:`EXCLUDED` module re-exports."""
     file = _module_file(package)
     if file is None:
         return {}
@@ -172,7 +163,10 @@ def source_closure(path: str | Path) -> list[Path]:
     todo = [start]
     while todo:
         current = todo.pop()
-        for name, follow in _imports(current, _module_name(current)).items():
+        stat = current.stat()
+        for name, follow in _imports(
+            current, _module_name(current), stat.st_mtime_ns, stat.st_size
+        ).items():
             file = _module_file(name)
             if file is None:
                 continue
@@ -185,16 +179,11 @@ def source_closure(path: str | Path) -> list[Path]:
 
 def _docstring_lines(tree: ast.AST) -> set[int]:
     lines: set[int] = set()
+    kinds = (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)
     for node in ast.walk(tree):
-        if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)):
-            body = node.body
-            if (
-                body
-                and isinstance(body[0], ast.Expr)
-                and isinstance(body[0].value, ast.Constant)
-                and isinstance(body[0].value.value, str)
-            ):
-                lines.update(range(body[0].lineno, (body[0].end_lineno or body[0].lineno) + 1))
+        if isinstance(node, kinds) and ast.get_docstring(node, clean=False) is not None:
+            first = node.body[0]
+            lines.update(range(first.lineno, (first.end_lineno or first.lineno) + 1))
     return lines
 
 
@@ -225,24 +214,15 @@ def _normalised(path: Path, mtime_ns: int, size: int) -> bytes:
         dropped = _registration_lines(tree, name)
     out = []
     for tok in tokenize.generate_tokens(io.StringIO(text).readline):
-        if tok.type in _SKIPPED_TOKENS or tok.start[0] in dropped:
-            continue
-        if tok.type == tokenize.STRING and tok.start[0] in skip:
-            continue
-        if tok.type == tokenize.NEWLINE and tok.start[0] in skip:
-            continue
-        out.append(f"{tok.type}:{tok.string}")
+        line = tok.start[0]
+        docstring = tok.type in (tokenize.STRING, tokenize.NEWLINE) and line in skip
+        if not (tok.type in _SKIPPED_TOKENS or line in dropped or docstring):
+            out.append(f"{tok.type}:{tok.string}")
     return "\n".join(out).encode()
 
 
 DATA_FOLDER = PACKAGE_ROOT / "data" / "demonstrations"
 """Shipped data; a file enters a fingerprint (its bytes) when a closure file names it."""
-
-
-def _data_files(files: list[Path]) -> list[Path]:
-    shipped = sorted(DATA_FOLDER.glob("*")) if DATA_FOLDER.is_dir() else []
-    texts = [f.read_text(encoding="utf-8") for f in files]
-    return [d for d in shipped if any(d.name in text for text in texts)]
 
 
 def fingerprint_files(files: list[Path]) -> str:
@@ -254,7 +234,9 @@ def fingerprint_files(files: list[Path]) -> str:
         stat = file.stat()
         digest.update(name.encode() + b"\0")
         digest.update(hashlib.sha256(_normalised(file, stat.st_mtime_ns, stat.st_size)).digest())
-    for data in _data_files(files):
+    shipped = sorted(DATA_FOLDER.glob("*")) if DATA_FOLDER.is_dir() else []
+    texts = [f.read_text(encoding="utf-8") for f in files]
+    for data in (d for d in shipped if any(d.name in text for text in texts)):
         digest.update(f"data/{data.name}".encode() + b"\0")
         digest.update(hashlib.sha256(data.read_bytes()).digest())
     return digest.hexdigest()[:16]
@@ -290,19 +272,15 @@ def git_state(path: str | Path | None = None) -> dict[str, Any]:
     """``{"commit", "dirty"}`` of the checkout holding ``path`` (default: the package);
     both None outside a git checkout."""
     where = Path(path) if path is not None else PACKAGE_ROOT
+
+    def git(*args: str) -> subprocess.CompletedProcess:
+        return subprocess.run(["git", *args], cwd=where, capture_output=True, text=True, timeout=30)
+
     try:
-        commit = subprocess.run(
-            ["git", "rev-parse", "HEAD"], cwd=where, capture_output=True, text=True, timeout=30
-        )
+        commit = git("rev-parse", "HEAD")
         if commit.returncode != 0:
             return {"commit": None, "dirty": None}
-        status = subprocess.run(
-            ["git", "status", "--porcelain", "--untracked-files=no"],
-            cwd=where,
-            capture_output=True,
-            text=True,
-            timeout=30,
-        )
+        status = git("status", "--porcelain", "--untracked-files=no")
     except (OSError, subprocess.SubprocessError):
         return {"commit": None, "dirty": None}
     dirty = bool(status.stdout.strip()) if status.returncode == 0 else None
@@ -428,17 +406,11 @@ def walk_differences(
             if len(stored) != len(fresh):
                 out.append((path, f"{path}: length {len(stored)} -> {len(fresh)}"))
                 return
-            pairs = enumerate(zip(stored, fresh, strict=True))
-            bad = [i for i, (a, b) in pairs if not _equal(a, b)]
+            bad = [i for i, a in enumerate(stored) if not _equal(a, fresh[i])]
             if bad:
-                i = bad[0]
-                out.append(
-                    (
-                        path,
-                        f"{path}: {len(bad)} of {len(stored)} values differ, first "
-                        f"[{i}]: {stored[i]!r} -> {fresh[i]!r}",
-                    )
-                )
+                i, n = bad[0], len(stored)
+                first = f"first [{i}]: {stored[i]!r} -> {fresh[i]!r}"
+                out.append((path, f"{path}: {len(bad)} of {n} values differ, {first}"))
             return
         for i, value in enumerate(stored):  # records: new ones may follow
             where = f"{path}[{i}]"
@@ -473,12 +445,9 @@ def unstable_paths(first: dict[str, Any], second: dict[str, Any]) -> list[str]:
 
 
 def compare_witness(stored: dict[str, Any], fresh: dict[str, Any]) -> tuple[bool, list[str]]:
-    """Whether a fresh witness reproduces a stored one.
-
-    Every numeric leaf of the stored ``summary`` and ``series`` must be in the fresh one and
-    equal within :data:`WITNESS_RTOL` and :data:`WITNESS_ATOL` (a list of numbers keeps its
-    length); leaves only the fresh one has are allowed and listed as ``"added: ..."``; the
-    stored ``unstable`` paths are not compared.
+    """Whether a fresh witness reproduces a stored one: every numeric leaf of the stored
+    ``summary`` and ``series`` (but its ``unstable`` paths) is in the fresh one, equal within
+    :data:`WITNESS_RTOL` and :data:`WITNESS_ATOL`; leaves only the fresh one has are allowed.
 
     Parameters
     ----------
@@ -499,14 +468,6 @@ def compare_witness(stored: dict[str, Any], fresh: dict[str, Any]) -> tuple[bool
 
 
 # ---------------------------------------------------------------------------- staleness
-def _carry(result: dict[str, Any], fingerprint: str) -> dict[str, Any] | None:
-    """The record in ``result["carried"]`` for code of ``fingerprint``, or None."""
-    for record in result.get("carried") or ():
-        if isinstance(record, dict) and record.get("code_fingerprint") == fingerprint:
-            return record
-    return None
-
-
 def carried_reason(record: dict[str, Any]) -> str:
     """The reason :func:`staleness` gives for a result carried by the carry record ``record``."""
     commit = str(record.get("commit") or "?")[:7]
@@ -514,8 +475,7 @@ def carried_reason(record: dict[str, Any]) -> str:
 
 
 def staleness(result: dict[str, Any], known: set[str] | None = None) -> tuple[bool, str]:
-    """Whether today's code would still make ``result`` (a ``result.json`` as a dict),
-    from fingerprints and carry records alone.
+    """Whether today's code would still make ``result``, from fingerprints and carry records.
 
     Returns
     -------
@@ -538,23 +498,16 @@ def staleness(result: dict[str, Any], known: set[str] | None = None) -> tuple[bo
     now = code_fingerprint(exp_id)
     if now == stored:
         return False, "current"
-    record = _carry(result, now)
-    if record is not None:
-        return False, carried_reason(record)
+    for record in result.get("carried") or ():
+        if isinstance(record, dict) and record.get("code_fingerprint") == now:
+            return False, carried_reason(record)
     commit = (result.get("git") or {}).get("commit") or "?"
     return True, f"code changed since commit {commit[:7]} (fingerprint {stored} -> {now})"
 
 
-def _status(stale: bool, reason: str) -> str:
-    if stale:
-        return "stale"
-    return "current" if reason == "current" else "carried"
-
-
 def check_results(root: str | Path) -> list[dict[str, Any]]:
-    """Every ``result.json`` under ``root`` with :func:`staleness` (nothing runs): dicts of
-    ``path``, ``id``, ``status`` (current, carried or stale), ``stale`` and ``reason``, in
-    path order."""
+    """Every ``result.json`` under ``root`` with :func:`staleness`, in path order: ``path``,
+    ``id``, ``status`` (current, carried or stale), ``stale`` and ``reason``."""
     from skillkit.experiments.registry import ids
 
     known = set(ids())
@@ -567,6 +520,7 @@ def check_results(root: str | Path) -> list[dict[str, Any]]:
         if not isinstance(result, dict) or "id" not in result:
             continue
         stale, reason = staleness(result, known)
-        row = {"path": str(path.parent), "id": result["id"], "status": _status(stale, reason)}
+        status = "stale" if stale else "current" if reason == "current" else "carried"
+        row = {"path": str(path.parent), "id": result["id"], "status": status}
         rows.append({**row, "stale": stale, "reason": reason})
     return rows

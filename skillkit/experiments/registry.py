@@ -1,12 +1,6 @@
-"""Experiment registry: every figure/table id of the thesis that skillkit reproduces.
-
-An :class:`Experiment` is data plus two functions: ``run_trial(settings, rng, trial) -> dict``
-runs one independent trial, ``summarize(settings, trials) -> (series, summary)`` makes the
-plotted :class:`Series` and the measurements; the claims spec
-(:mod:`skillkit.experiments.judge`) judges them. ``settings`` has one instance per scale:
-``smoke`` (seconds, for tests), ``quick`` (faithful but small) and ``paper`` (the thesis
-setting). Importing this module imports :mod:`skillkit.experiments`, whose ``__init__``
-registers every chapter module.
+"""Experiment registry: every figure/table id of the thesis that skillkit reproduces, at the
+scales ``smoke`` (seconds, for tests), ``quick`` (faithful but small) and ``paper`` (the
+thesis setting). Importing it imports :mod:`skillkit.experiments`, which registers them all.
 """
 
 from __future__ import annotations
@@ -30,20 +24,18 @@ class Experiment:
     ----------
     id, title : str
         Thesis id (``"fig3.3"``) and what it shows.
-    settings_class : type
-        The experiment's frozen :class:`~skillkit.experiments.settings.Settings` dataclass.
-    settings : dict
-        One instance of ``settings_class`` per scale (``"smoke"``, ``"quick"``, ``"paper"``).
+    settings_class, settings : type, dict
+        The experiment's :class:`~skillkit.experiments.settings.Settings` class and one
+        instance of it per scale.
     run_trial : callable
         ``run_trial(settings, rng, trial) -> dict``, ``trial`` a
-        :class:`~skillkit.trial.TrialContext` (progress, mid-trial checkpoints).
+        :class:`~skillkit.trial.TrialContext`.
     summarize : callable
         ``summarize(settings, trials) -> (list[Series], dict)``.
     trials : dict
         Default number of trials per scale.
     claim : str
-        The claim in plain words (from the spec's ``plain`` when empty; an experiment
-        registered outside this package must give it).
+        The claim in plain words (default: the spec's ``plain``).
     """
 
     id: str

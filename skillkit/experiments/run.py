@@ -1,9 +1,5 @@
-"""A finished experiment run: what :func:`~skillkit.experiments.runner.reproduce` returns and
-:func:`load_run` reads back from a run folder or ``data/results``.
-
-A :class:`Run` holds ``result.json`` and its folder, draws its figure, shows itself in Jupyter
-as a card (claim, verdict, key number) and is path-like (``os.fspath(run)``, ``run / "x"``).
-"""
+"""A finished experiment run (:class:`Run`), as :func:`~skillkit.experiments.runner.reproduce`
+returns it and :func:`load_run` reads it back, and the tables made of the stored runs."""
 
 from __future__ import annotations
 
@@ -13,39 +9,19 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-__all__ = [
-    "Run",
-    "claim_rows",
-    "comparison_markdown",
-    "comparison_section",
-    "comparison_rows",
-    "load_run",
-    "results_root",
-    "scoreboard",
-    "stored_run",
-]
+from skillkit.experiments import judge
 
 
 @dataclass(frozen=True)
 class Run:
-    """One finished run of an experiment.
-
-    Attributes
-    ----------
-    path : Path
-        The run folder (``result.json``, ``figure.png``, optionally ``figure.html`` and
-        ``trials.npz``).
-    result : dict
-        The parsed ``result.json``.
-    """
+    """One finished run: its folder ``path`` and parsed ``result.json``; draws its figure,
+    shows itself in Jupyter as a card (claim, verdict, key number) and is path-like."""
 
     path: Path
     result: dict = field(repr=False)
 
-    # ---------------------------------------------------------------- contents
     @property
     def id(self) -> str:
-        """Experiment id, e.g. ``"fig3.3"``."""
         return str(self.result.get("id", ""))
 
     @property
@@ -58,36 +34,30 @@ class Run:
 
     @property
     def settings(self) -> dict:
-        """The settings the run used, as stored (a JSON dict)."""
         return dict(self.result.get("settings", {}))
 
     @property
     def series(self) -> list[dict]:
-        """The plotted series (dicts of :class:`~skillkit.experiments.registry.Series`)."""
         return list(self.result.get("series", []))
 
     @property
     def summary(self) -> dict:
-        """Headline numbers with ``claim``, ``holds`` and ``statement``."""
         return dict(self.result.get("summary", {}))
 
     @property
     def holds(self) -> bool | None:
-        """True / False when the claim holds / does not hold; None otherwise."""
         return self.summary.get("holds")
 
     @property
     def judgement(self):
         """The :class:`~skillkit.experiments.judge.Judgement` of this run (None: not judged)."""
-        from skillkit.experiments import judge
-
         if not judge.is_judged(self.id):
             return None
         return judge.judge(self.id, self.summary, self.scale, self.settings)
 
     @property
     def outcome(self) -> str:
-        """ "holds", "does not hold", "undecided" or "not judged"."""
+        """ "holds", "does not hold", "undecided", "not judged" or "no verdict recorded"."""
         j = self.judgement
         return "no verdict recorded" if j is None else j.outcome
 
@@ -131,7 +101,6 @@ class Run:
         stale, reason = staleness(self.result)
         return reason if stale else None
 
-    # ---------------------------------------------------------------- figures
     def figure(self):
         """The plotly figure of the run (claim and verdict in its subtitle)."""
         from skillkit.viz.plots import plotly_figure
@@ -145,8 +114,7 @@ class Run:
         return matplotlib_figure(self.result)
 
     def png(self):
-        """The stored ``figure.png`` as an ``IPython.display.Image`` (FileNotFoundError
-        without one)."""
+        """The stored ``figure.png`` as an ``IPython.display.Image``."""
         path = self.path / "figure.png"
         if not path.exists():
             raise FileNotFoundError(f"png: no figure.png in run folder {self.path}")
@@ -154,7 +122,6 @@ class Run:
 
         return Image(filename=str(path))
 
-    # ---------------------------------------------------------------- display
     def _repr_markdown_(self) -> str:
         card = "  \n".join(self.card.split("\n"))
         stale = self.stale
@@ -165,7 +132,6 @@ class Run:
     def __repr__(self) -> str:
         return f"Run({self.id!r}, scale={self.scale!r}, {self.verdict!r}, path='{self.path}')"
 
-    # ---------------------------------------------------------------- path-like
     def __fspath__(self) -> str:
         return os.fspath(self.path)
 
@@ -201,8 +167,6 @@ def load_run(path: str | os.PathLike) -> Run:
 
 def rejudged(result: dict) -> dict:
     """``result`` with its summary judged again by today's claims spec."""
-    from skillkit.experiments import judge
-
     summary = result.get("summary")
     if not isinstance(summary, dict):
         return result
@@ -214,8 +178,7 @@ def rejudged(result: dict) -> dict:
 
 
 def results_root() -> Path:
-    """The folder named by ``SKILLKIT_RESULTS``, else the repository's ``data/results``
-    (FileNotFoundError when neither exists)."""
+    """The folder named by ``SKILLKIT_RESULTS``, else the repository's ``data/results``."""
     env = os.environ.get("SKILLKIT_RESULTS")
     candidates = [Path(env)] if env else []
     candidates.append(Path(__file__).resolve().parents[2] / "data" / "results")
@@ -230,7 +193,7 @@ def results_root() -> Path:
 
 
 def stored_run(exp_id: str, scale: str = "paper", seed: int = 0) -> Run:
-    """The stored run of ``exp_id`` in :func:`results_root` (FileNotFoundError without)."""
+    """The stored run of ``exp_id`` in :func:`results_root`."""
     folder = results_root() / f"{exp_id}-{scale}-s{seed}"
     if not (folder / "result.json").exists():
         raise FileNotFoundError(f"exp_id: no stored {scale}-scale run of {exp_id!r} in {folder}")
@@ -267,7 +230,6 @@ def claim_rows(root: str | os.PathLike | None = None, ids: Any = None) -> list[d
         j = run.judgement
         key = None if j is None else j.key()
         commit = ((run.result.get("git") or {}).get("commit") or "?")[:7]
-        status = row["status"]
         overrides = run.result.get("overrides") or {}
         rows.append(
             {
@@ -278,7 +240,7 @@ def claim_rows(root: str | os.PathLike | None = None, ids: Any = None) -> list[d
                 "ours": "" if key is None else f"{key.part.label} {key.number()}",
                 "thesis": "" if key is None else key.part.thesis,
                 "card": run.card,
-                "made": f"{commit}, {status}",
+                "made": f"{commit}, {row['status']}",
                 "stale": bool(row["stale"]),
                 "path": row["path"],
             }
@@ -350,9 +312,9 @@ def comparison_markdown(summary: dict) -> str:
         rows = [r for r in every if r["task"] == task]
         cols = [c for c in rows[0] if c != "task"]
         out.append(f"**{task}** (REPS and GPREPS as in {t['thesis_settings']})\n")
-        out.append("| " + " | ".join(cols) + " |")
+        out.append(judge.markdown_row(cols))
         out.append("|" + "---|" * len(cols))
-        out.extend("| " + " | ".join(r[c] for c in cols) + " |" for r in rows)
+        out.extend(judge.markdown_row([r[c] for c in cols]) for r in rows)
         out.append(f"\nThresholds: {t['thresholds_source']}.\n")
     return "\n".join(out)
 
@@ -370,6 +332,5 @@ def scoreboard(root: str | os.PathLike | None = None) -> str:
         name = f"{row['id']} ({row['variant']})" if row["variant"] else row["id"]
         verdict = f"**{row['verdict']}**" if row["verdict"] != "not judged" else row["verdict"]
         cells = [name, row["claim"], verdict, row["ours"], row["thesis"], row["made"]]
-        cells = [c.replace("|", "\\|").replace("\n", " ") for c in cells]
-        lines.append("| " + " | ".join(cells) + " |")
+        lines.append(judge.markdown_row(cells))
     return "\n".join(lines) + "\n"

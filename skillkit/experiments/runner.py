@@ -1,15 +1,13 @@
 """``reproduce``: run an experiment's trials (locally, on all cores or on Ray), checkpoint and
 resume them, and write ``result.json``, ``figure.html``, ``figure.png`` and ``trials.npz``.
 
-Trial ``i`` of a run with root seed ``seed`` uses the ``i``-th child of ``SeedSequence(seed)``,
-so the numbers depend neither on the executor nor on interruptions: finished trials and
-mid-trial states (:meth:`~skillkit.trial.TrialContext.save`) are checkpointed atomically under
-``<run folder>/trials/`` and a rerun resumes from there. Each trial runs inside
-:func:`~skillkit.models.gp.record_numerical_events` (counts in ``numerical_events`` and
-``summary["handled_numerical_events"]``); remaining warnings are written above the progress
-bars, and those of worker processes are issued again by the process that started them.
-Quick and paper runs store a smoke *witness* (:func:`smoke_witness`, see
-:mod:`skillkit.experiments.provenance`).
+Trial ``i`` of root seed ``seed`` uses the ``i``-th child of ``SeedSequence(seed)``, so the
+numbers depend neither on the executor nor on interruptions: finished trials and mid-trial
+states (:meth:`~skillkit.trial.TrialContext.save`) are checkpointed under ``<run
+folder>/trials/`` and a rerun resumes there. Each trial counts its numerical events
+(:func:`~skillkit.models.gp.record_numerical_events`); warnings go above the progress bars, a
+worker's are issued again here. Quick and paper runs store a smoke *witness*
+(:mod:`skillkit.experiments.provenance`).
 """
 
 from __future__ import annotations
@@ -22,7 +20,7 @@ import shutil
 import sys
 import time
 import warnings
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from contextlib import contextmanager
 from multiprocessing import get_context
@@ -50,9 +48,15 @@ from skillkit.experiments.registry import get, ids
 from skillkit.experiments.run import Run
 from skillkit.experiments.settings import Settings
 from skillkit.models.gp import NumericalEvents, record_numerical_events
-from skillkit.trial import TrialContext, Writer
+from skillkit.trial import TrialContext
 
 EXECUTORS = ("local", "process", "ray")
+
+WITNESSED_SCALES = ("quick", "paper")
+"""Scales whose results :func:`reproduce` stores with a smoke witness."""
+
+WITNESS_REPEATS = 2
+"""Smoke runs a stored witness is made from (what differs between them is ``unstable``)."""
 
 
 def versions() -> dict[str, str]:
@@ -87,40 +91,28 @@ def to_jsonable(obj):
 
 
 class _Finished(NamedTuple):
-    """The payload of a finished trial's checkpoint (``kind="result"``)."""
+    """A finished trial's checkpoint payload (``kind="result"``)."""
 
     result: dict
-    numerical_events: dict  # NumericalEvents.to_dict() of the whole trial
+    numerical_events: dict
 
 
 class _Partial(NamedTuple):
-    """The payload of a mid-trial checkpoint (``kind="state"``)."""
+    """A mid-trial checkpoint payload (``kind="state"``)."""
 
     states: dict
-    saved_events: dict  # TrialContext.saved_events at the save
-
-
-def _state_writer(path: str, ident: dict | None, saved_events: Callable[[], dict]) -> Writer:
-    """A :class:`~skillkit.trial.TrialContext` writer checkpointing mid-trial states to ``path``
-    with the numerical events of the saved work (``saved_events()``)."""
-
-    def write(snapshots, seconds: float) -> None:
-        payload = _Partial(dict(snapshots), saved_events())
-        checkpoint.save(path, ident, payload, kind="state", seconds=seconds)
-
-    return write
+    saved_events: dict
 
 
 def _show_above_bars(message, category, filename, lineno, file=None, line=None) -> None:
-    """``warnings.showwarning`` through ``tqdm.write``: above the progress bars."""
     text = warnings.formatwarning(message, category, filename, lineno, line)
     tqdm.write(text.rstrip("\n"), file=file or sys.stderr)
 
 
 @contextmanager
 def _trial_warnings(how: str) -> Iterator[list[tuple]]:
-    """Where warnings go: ``"pass"`` as usual, ``"bars"`` above the progress bars,
-    ``"collect"`` into the yielded list as ``(message, category, filename, lineno)``."""
+    """Warnings as usual (``"pass"``), above the bars (``"bars"``) or into the yielded list
+    as ``(message, category, filename, lineno)`` (``"collect"``)."""
     if how == "pass":
         yield []
         return
@@ -135,7 +127,7 @@ def _trial_warnings(how: str) -> Iterator[list[tuple]]:
 
 
 def _replay_warnings(records: list[tuple], progress: bool) -> None:
-    """Issue the warnings a worker collected (:func:`_trial_warnings`) in this process."""
+    """Issue the warnings a worker collected in this process."""
     if not records:
         return
     with _trial_warnings("bars" if progress else "pass"):
@@ -153,28 +145,26 @@ def _execute_trial(
     show_progress: bool,
     in_worker: bool = False,
 ) -> tuple[dict, dict]:
-    """Run (or resume) one trial and checkpoint its result (module-level: workers pickle it).
-
-    Returns the result and ``{"seconds": compute time over all runs of the trial, "resumed",
-    "numerical_events": counts of the trial's work, each piece once over resumed runs,
-    "warnings": collected in a worker}``.
-    """
+    """Run (or resume) one trial and checkpoint it: the result and ``{"seconds" (compute time
+    over all runs), "resumed", "numerical_events" (each piece of work once), "warnings" (a
+    worker's)}``."""
     exp = get(exp_id)
     states, seconds, saved = None, 0.0, {}
-    if ckpt_path is not None:
-        found = checkpoint.load(ckpt_path, ident)
-        if found is not None:
-            if found.kind == "result":
-                done = found.payload
-                info = {"seconds": found.seconds, "resumed": True, "warnings": []}
-                return done.result, {**info, "numerical_events": done.numerical_events}
-            part = found.payload
-            states, seconds, saved = part.states, found.seconds or 0.0, part.saved_events
+    found = None if ckpt_path is None else checkpoint.load(ckpt_path, ident)
+    if found is not None and found.kind == "result":
+        info = {"seconds": found.seconds, "resumed": True, "warnings": []}
+        return found.payload.result, {**info, "numerical_events": found.payload.numerical_events}
+    if found is not None:
+        part = found.payload
+        states, seconds, saved = part.states, found.seconds or 0.0, part.saved_events
+
+    def write(snapshots, secs: float) -> None:
+        payload = _Partial(dict(snapshots), ctx.saved_events)
+        checkpoint.save(ckpt_path, ident, payload, kind="state", seconds=secs)
+
     how = "collect" if in_worker else "bars" if show_progress else "pass"
     with _trial_warnings(how) as caught, record_numerical_events() as events:
-        writer = (
-            None if ckpt_path is None else _state_writer(ckpt_path, ident, lambda: ctx.saved_events)
-        )
+        writer = None if ckpt_path is None else write
         ctx = TrialContext(
             states=states, writer=writer, seconds=seconds, events=events, saved_events=saved
         )
@@ -184,8 +174,7 @@ def _execute_trial(
             result = exp.run_trial(settings, np.random.default_rng(seed_seq), ctx)
         finally:
             ctx.bar.close()
-    seconds = ctx.seconds
-    counts = events.to_dict()
+    seconds, counts = ctx.seconds, events.to_dict()
     if ckpt_path is not None:
         checkpoint.save(ckpt_path, ident, _Finished(result, counts), kind="result", seconds=seconds)
     info = {"seconds": seconds, "resumed": states is not None, "numerical_events": counts}
@@ -202,11 +191,8 @@ def _start_ray(ray, kwargs: dict, attempts: int = 3) -> None:
             if "timed out during startup" not in str(exc) or attempt == attempts:
                 raise
             ray.shutdown()
-            warnings.warn(
-                f"Ray start-up timed out (attempt {attempt}/{attempts}); retrying",
-                RuntimeWarning,
-                stacklevel=2,
-            )
+            msg = f"Ray start-up timed out (attempt {attempt}/{attempts}); retrying"
+            warnings.warn(msg, RuntimeWarning, stacklevel=2)
 
 
 def _exit_with_parent(parent: int, interval: float = 1.0) -> None:
@@ -234,65 +220,58 @@ def _stop_pool(pool: ProcessPoolExecutor) -> None:
 def _run_pending(exp_id, settings, jobs, executor, workers, address, progress) -> dict[int, tuple]:
     """Run jobs = [(index, seed_seq, ckpt_path, ident)]; {index: (result, info)}."""
     results: dict[int, tuple] = {}
-    if not jobs:
-        return results
-    if executor == "local":
+    if executor == "local" or not jobs:
         for i, seq, path, ident in jobs:
             results[i] = _execute_trial(exp_id, settings, seq, i, path, ident, progress)
         return results
+    calls = {
+        i: (exp_id, settings, seq, i, path, ident, False, True) for i, seq, path, ident in jobs
+    }
     outer = tqdm(total=len(jobs), desc=f"{exp_id} trials ({executor})", disable=not progress)
+
+    def done(i: int, got: tuple) -> None:
+        results[i] = got
+        _replay_warnings(got[1]["warnings"], progress)
+        outer.update()
+
     try:
         if executor == "process":
-            n = workers or os.cpu_count() or 1
             pool = ProcessPoolExecutor(
-                max_workers=n,
+                max_workers=workers or os.cpu_count() or 1,
                 mp_context=get_context("spawn"),
                 initializer=_exit_with_parent,
                 initargs=(os.getpid(),),
             )
             try:
-                futures = {
-                    pool.submit(
-                        _execute_trial, exp_id, settings, seq, i, path, ident, False, True
-                    ): i
-                    for i, seq, path, ident in jobs
-                }
+                futures = {pool.submit(_execute_trial, *args): i for i, args in calls.items()}
                 for fut in as_completed(futures):
-                    results[futures[fut]] = fut.result()
-                    _replay_warnings(results[futures[fut]][1]["warnings"], progress)
-                    outer.update()
+                    done(futures[fut], fut.result())
             except BaseException:  # Ctrl-C or a failed trial: stop now, not after every trial
                 _stop_pool(pool)
                 raise
             pool.shutdown()
-        else:
-            try:
-                import ray
-            except ImportError:
-                raise ValueError(
-                    "executor: 'ray' needs the ray extra (pip install -e '.[ray]')"
-                ) from None
-            started = not ray.is_initialized()
+            return results
+        try:
+            import ray
+        except ImportError:
+            raise ValueError(
+                "executor: 'ray' needs the ray extra (pip install -e '.[ray]')"
+            ) from None
+        started = not ray.is_initialized()
+        if started:
+            _start_ray(
+                ray, {"address": address} if address else {"num_cpus": workers or os.cpu_count()}
+            )
+        try:
+            remote = ray.remote(_execute_trial)
+            refs = {remote.remote(*args): i for i, args in calls.items()}
+            pending = list(refs)
+            while pending:
+                finished, pending = ray.wait(pending, num_returns=1)
+                done(refs[finished[0]], ray.get(finished[0]))
+        finally:
             if started:
-                kwargs = (
-                    {"address": address} if address else {"num_cpus": workers or os.cpu_count()}
-                )
-                _start_ray(ray, kwargs)
-            try:
-                remote = ray.remote(_execute_trial)
-                refs = {
-                    remote.remote(exp_id, settings, seq, i, path, ident, False, True): i
-                    for i, seq, path, ident in jobs
-                }
-                pending = list(refs)
-                while pending:
-                    done, pending = ray.wait(pending, num_returns=1)
-                    results[refs[done[0]]] = ray.get(done[0])
-                    _replay_warnings(results[refs[done[0]]][1]["warnings"], progress)
-                    outer.update()
-            finally:
-                if started:
-                    ray.shutdown()
+                ray.shutdown()
     finally:
         outer.close()
     return results
@@ -333,28 +312,24 @@ def run_trials(
 
     Parameters
     ----------
-    exp_id : str
-        Experiment id (``skillkit list`` shows them).
-    scale : {"smoke", "quick", "paper"}
-        Settings scale.
+    exp_id, scale : str
+        Experiment id (``skillkit list``) and settings scale ("smoke", "quick" or "paper").
     trials : int, optional
-        Number of independent trials (default: the experiment's default for the scale).
+        Independent trials (default: the experiment's default for the scale).
     seed : int
         Root seed; trial ``i`` uses the ``i``-th child of ``SeedSequence(seed)``.
     progress : bool
         Show tqdm progress bars.
     executor : {"local", "process", "ray"}
-        Run trials one after another, in a pool of processes (all cores by default) or as Ray
-        tasks (a local Ray instance, or the cluster at ``address``).
+        Trials one after another, in a pool of processes or as Ray tasks.
     workers : int, optional
-        Number of processes / Ray CPUs (default: all cores); not with ``executor="local"``.
+        Processes / Ray CPUs (default: all cores); not with ``executor="local"``.
     address : str, optional
         Address of an existing Ray cluster (``executor="ray"`` only).
     checkpoint_dir : path, optional
         Where trial checkpoints live; existing ones are resumed from (after validation).
     **overrides
-        Replace individual settings: names and types are checked before any work starts
-        (:meth:`~skillkit.experiments.registry.Experiment.settings_for`).
+        Settings to replace, checked before any work starts.
     """
     exp = get(exp_id)
     settings = exp.settings_for(scale, **overrides)
@@ -364,14 +339,12 @@ def run_trials(
     code = checkpoint.code_fingerprint(exp.run_trial)
     jobs = []
     for i, child in enumerate(children):
-        if checkpoint_dir is None:
-            jobs.append((i, child, None, None))
-        else:
+        path = ident = None
+        if checkpoint_dir is not None:
             path = str(Path(checkpoint_dir) / f"trial_{i:03d}.ckpt")
             ident = checkpoint.identity(exp.id, settings.to_dict(), i, int(seed), code)
-            jobs.append((i, child, path, ident))
-    # read before the trials run: the code imported is the code on disk now
-    made_by = provenance(exp.id)
+        jobs.append((i, child, path, ident))
+    made_by = provenance(exp.id)  # before the trials run: the code imported is the code on disk
     t0 = time.perf_counter()
     load_before = _load_average()
     done = _run_pending(exp.id, settings, jobs, executor, workers, address, progress)
@@ -379,7 +352,10 @@ def run_trials(
     timing = [done[i][1] for i in range(n_trials)]
     series, summary = exp.summarize(settings, results)
     summary = judged(summary, exp.id, scale, to_jsonable(settings.to_dict()))
-    events = _event_totals([t["numerical_events"] for t in timing])
+    total = NumericalEvents()
+    for t in timing:
+        total.update(t["numerical_events"])
+    events = {"per_trial": [t["numerical_events"] for t in timing], "total": total.to_dict()}
     # not "numerical_events": fig4.5's summary has its own, per model, under that name
     summary = {**summary, "handled_numerical_events": dict(events["total"])}
     # CPUs used: None on an existing Ray cluster (address is only given with executor "ray")
@@ -398,15 +374,7 @@ def run_trials(
         "git": made_by["git"],
         "code_fingerprint": made_by["code_fingerprint"],
         "versions": versions(),
-        "machine": {
-            "platform": platform.platform(),
-            "processor": platform.machine(),
-            "cpu_model": _cpu_model(),
-            "torch_cpu_capability": _torch_cpu_capability(),
-            "cpus": os.cpu_count(),
-            "load_average_before": load_before,
-            "load_average_after": _load_average(),
-        },
+        "machine": _machine(load_before),
         "wall_time_s": time.perf_counter() - t0,
         "trial_time_s": [t["seconds"] for t in timing],
         "resumed_trials": sum(t["resumed"] for t in timing),
@@ -417,36 +385,6 @@ def run_trials(
     }
 
 
-def _event_totals(per_trial: list[dict]) -> dict:
-    """``{"per_trial", "total"}`` of the trials' numerical events."""
-    total = NumericalEvents()
-    for counts in per_trial:
-        total.update(counts)
-    return {"per_trial": per_trial, "total": total.to_dict()}
-
-
-def _cpu_model() -> str | None:
-    """The CPU's model name (``/proc/cpuinfo``, else :func:`platform.processor`) or None."""
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or None
-
-
-def _torch_cpu_capability() -> str | None:
-    """The SIMD level torch's CPU kernels use."""
-    import torch
-
-    try:
-        return str(torch.backends.cpu.get_cpu_capability())
-    except (AttributeError, RuntimeError):
-        return None
-
-
 def _load_average() -> list[float] | None:
     """1-, 5- and 15-minute load averages (None where the platform has none)."""
     try:
@@ -455,21 +393,40 @@ def _load_average() -> list[float] | None:
         return None
 
 
+def _machine(load_before: list[float] | None) -> dict[str, Any]:
+    """Platform, CPU model, torch's SIMD level, cores and load averages of this machine."""
+    import torch
+
+    cpu_model = None
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as f:
+            names = [line.split(":", 1)[1].strip() for line in f if line.startswith("model name")]
+        cpu_model = names[0] if names else None
+    except OSError:
+        pass
+    try:
+        capability = str(torch.backends.cpu.get_cpu_capability())
+    except (AttributeError, RuntimeError):
+        capability = None
+    return {
+        "platform": platform.platform(),
+        "processor": platform.machine(),
+        "cpu_model": platform.processor() or None if cpu_model is None else cpu_model,
+        "torch_cpu_capability": capability,
+        "cpus": os.cpu_count(),
+        "load_average_before": load_before,
+        "load_average_after": _load_average(),
+    }
+
+
 def run_folder(
     exp_id: str, scale: str, seed: int, out: str | Path, overrides: dict | None = None
 ) -> Path:
-    """The folder a run writes to: ``<out>/<id>-<scale>-s<seed>``, with ``-<hash>`` appended
-    when the settings differ from the scale's (the first 8 hex digits of the SHA-256 of the
-    differing fields as sorted JSON).
-
-    Raises
-    ------
-    ValueError
-        An unknown experiment or scale, or an override of an unknown name or a wrong type.
-    """
+    """``<out>/<id>-<scale>-s<seed>``, with ``-<hash>`` (8 hex digits of the SHA-256 of the
+    overridden fields as sorted JSON) when the settings differ from the scale's; ValueError
+    for an unknown experiment, scale or override."""
     exp = get(exp_id)
-    settings = exp.settings_for(scale, **(overrides or {}))
-    changed = exp.overrides(scale, settings)
+    changed = exp.overrides(scale, exp.settings_for(scale, **(overrides or {})))
     name = f"{exp.id}-{scale}-s{seed}"
     if changed:
         text = json.dumps(to_jsonable(changed), sort_keys=True)
@@ -493,14 +450,12 @@ def reproduce(
     witness: bool = True,
     **overrides,
 ) -> Run:
-    """Run an experiment, resuming from its checkpoints, and write its results.
+    """Run an experiment, resuming from its checkpoints, and write its files into
+    :func:`run_folder`.
 
-    Writes ``result.json``, ``figure.html``, ``figure.png`` and ``trials.npz`` into
-    :func:`run_folder` and returns the :class:`~skillkit.experiments.run.Run`. ``fresh=True``
-    deletes earlier checkpoints first; ``html=False`` skips the HTML figure; at ``quick`` and
-    ``paper`` scale the result gets its witness (:func:`smoke_witness`, kept from the folder's
-    earlier result when the same code made it) unless ``witness=False``. Other arguments as in
-    :func:`run_trials`; all are checked before anything runs or is deleted.
+    ``fresh=True`` deletes earlier checkpoints first, ``html=False`` skips the HTML figure, and
+    quick and paper results get their :func:`smoke_witness` unless ``witness=False``. Other
+    arguments as in :func:`run_trials`; all are checked before anything runs or is deleted.
     """
     from skillkit.viz.plots import write_figures
 
@@ -532,12 +487,15 @@ def reproduce(
             if arr.dtype != object:
                 trial_arrays[f"trial{i}__{k}"] = arr
     np.savez_compressed(folder / "trials.npz", **trial_arrays)
-    previous = _stored_witness(folder)
+    try:  # the witness stored before result.json is rewritten
+        previous = json.loads((folder / "result.json").read_text())["witness"]
+    except (OSError, ValueError, KeyError, TypeError):
+        previous = None
     text = write_result(folder, result)
     write_figures(result, folder, html=html)
     if witness and scale in WITNESSED_SCALES:
         result = json.loads(text)
-        made = _witness_for(result, previous, progress)
+        made = _witness_for(result, previous if isinstance(previous, dict) else None, progress)
         if made is not None:
             result["witness"] = made
             text = write_result(folder, result)
@@ -545,8 +503,7 @@ def reproduce(
 
 
 def write_result(folder: str | Path, result: dict) -> str:
-    """Write ``result`` as ``folder/result.json`` atomically (``json.dumps(result,
-    indent=1)``, no trailing newline) and return the text written."""
+    """Write ``result`` as ``folder/result.json`` atomically and return the text written."""
     folder = Path(folder)
     text = json.dumps(result, indent=1)
     tmp = folder / "result.json.tmp"
@@ -555,19 +512,21 @@ def write_result(folder: str | Path, result: dict) -> str:
     return text
 
 
-def _stored_witness(folder: Path) -> dict | None:
-    """The witness in ``folder/result.json`` before it is rewritten, or None."""
-    try:
-        old = json.loads((folder / "result.json").read_text())
-    except (OSError, ValueError):
-        return None
-    made = old.get("witness") if isinstance(old, dict) else None
-    return made if isinstance(made, dict) else None
+def _new_witness(exp_id: str, seed: int, fingerprint: str, progress: bool) -> dict:
+    """:func:`smoke_witness` of :data:`WITNESS_REPEATS` runs by the code of ``fingerprint``
+    (ValueError when the code changed meanwhile)."""
+    made = smoke_witness(exp_id, seed, repeats=WITNESS_REPEATS, progress=progress)
+    if made["code_fingerprint"] != fingerprint:
+        raise ValueError(
+            f"the code of {exp_id} changed meanwhile (fingerprint {fingerprint} -> "
+            f"{made['code_fingerprint']})"
+        )
+    return made
 
 
 def _witness_for(result: dict, previous: dict | None, progress: bool) -> dict | None:
-    """``previous`` when the same code made it for the same seed, else a new
-    :func:`smoke_witness`; None, with a warning, when that fails or the code changed."""
+    """``previous`` when the same code made it for the same seed, else a new witness; None,
+    with a warning, when that fails or the code changed."""
     fingerprint, seed = result.get("code_fingerprint"), result["seed"]
     if fingerprint is None:
         return None
@@ -578,31 +537,11 @@ def _witness_for(result: dict, previous: dict | None, progress: bool) -> dict | 
     ):
         return previous
     try:
-        made = smoke_witness(result["id"], seed, repeats=WITNESS_REPEATS, progress=progress)
+        return _new_witness(result["id"], seed, fingerprint, progress)
     except Exception as exc:  # the result stays valid without a witness
-        warnings.warn(
-            f"{result['id']}: the smoke witness run failed ({type(exc).__name__}: {exc}); the "
-            "result is stored without a witness",
-            RuntimeWarning,
-            stacklevel=3,
-        )
+        msg = f"{result['id']}: stored without a witness ({type(exc).__name__}: {exc})"
+        warnings.warn(msg, RuntimeWarning, stacklevel=3)
         return None
-    if made["code_fingerprint"] != fingerprint:
-        warnings.warn(
-            f"{result['id']}: the code changed while the run ran (fingerprint {fingerprint} -> "
-            f"{made['code_fingerprint']}); the result is stored without a witness",
-            RuntimeWarning,
-            stacklevel=3,
-        )
-        return None
-    return made
-
-
-WITNESSED_SCALES = ("quick", "paper")
-"""Scales whose results :func:`reproduce` stores with a smoke witness."""
-
-WITNESS_REPEATS = 2
-"""Smoke runs a stored witness is made from (what differs between them is ``unstable``)."""
 
 
 def smoke_witness(
@@ -614,7 +553,7 @@ def smoke_witness(
     progress: bool = False,
 ) -> dict:
     """The measurements of a smoke run of ``exp_id`` by today's code (local executor, one torch
-    thread, no checkpoints, no figures, warnings silenced).
+    thread, no checkpoints or figures, warnings silenced).
 
     Parameters
     ----------
@@ -628,8 +567,8 @@ def smoke_witness(
     Returns
     -------
     dict
-        ``scale``, ``seed``, ``trials``, ``commit``, ``code_fingerprint``, ``summary`` and
-        ``series`` (their measurements) and ``unstable`` (paths).
+        ``scale``, ``seed``, ``trials``, ``commit``, ``code_fingerprint``, ``summary``,
+        ``series`` and ``unstable``.
     """
     import torch
 
@@ -637,8 +576,8 @@ def smoke_witness(
     made = []
     threads = torch.get_num_threads()
     for _ in range(repeats):
-        # one torch thread, as the witnesses are recorded: a parallel reduction sums in another
-        # order (fig2.12's sample spreads move by 1e-5 with two threads); restored afterwards
+        # one torch thread, as the witnesses are recorded (a parallel reduction sums in
+        # another order); restored afterwards
         torch.set_num_threads(1)
         try:
             with warnings.catch_warnings():
@@ -664,15 +603,9 @@ def smoke_witness(
 def check_witnesses(
     root: str | Path, *, record: bool = False, progress: bool = True
 ) -> list[dict[str, Any]]:
-    """Every ``result.json`` under ``root`` with whether today's code would still make it
-    (``skillkit runs --check DIR``): as :func:`~skillkit.experiments.provenance.check_results`,
-    and a result whose code changed without a carry record has its smoke witness run and
-    compared (:func:`~skillkit.experiments.provenance.compare_witness`): equal is carried.
-
-    ``record`` writes a carry record (``code_fingerprint``, ``commit``, ``checked`` date)
-    into each carried ``result.json``; ``progress`` shows a bar over the witness runs.
-    Returns the rows of :func:`~skillkit.experiments.provenance.check_results`, updated.
-    """
+    """:func:`~skillkit.experiments.provenance.check_results` of ``root``, where a result whose
+    code changed has its smoke witness run and compared: equal is carried (``record`` writes
+    a carry record into its ``result.json``)."""
     from datetime import date
 
     known = set(ids())
@@ -684,36 +617,32 @@ def check_witnesses(
             if result.get("code_fingerprint"):
                 todo.append((row, path, result))
     fresh: dict[tuple[str, int], dict | str] = {}
-    bar = tqdm(total=len(todo), desc="witnesses", disable=not progress or not todo)
-    try:
+    with tqdm(total=len(todo), desc="witnesses", disable=not progress or not todo) as bar:
         for row, path, result in todo:
-            stored = result.get("witness")
+            bar.update()
+            stored, made = result.get("witness"), result["code_fingerprint"]
             if not isinstance(stored, dict):
                 row["reason"] += "; no witness to compare"
-                bar.update()
                 continue
-            if stored.get("code_fingerprint") != result["code_fingerprint"]:
-                made, ran = result["code_fingerprint"], stored.get("code_fingerprint")
+            if stored.get("code_fingerprint") != made:
+                ran = stored.get("code_fingerprint")
                 row["reason"] = f"witness made by other code ({ran}) than the result ({made})"
-                bar.update()
                 continue
             key = (result["id"], int(stored.get("seed", result.get("seed", 0))))
             if key not in fresh:
                 bar.set_postfix_str(key[0])
                 try:
                     fresh[key] = smoke_witness(key[0], key[1], trials=stored.get("trials"))
-                except Exception as exc:  # a failing run is a finding, not a crash of the check
+                except Exception as exc:  # a failing run is a finding, not a crash
                     fresh[key] = f"the witness run failed ({type(exc).__name__}: {exc})"
-            bar.update()
             now = fresh[key]
             if isinstance(now, str):
                 row["reason"] = now
                 continue
             equal, differences = compare_witness(stored, now)
             if not equal:
-                shown = "; ".join(differences[:3])
                 more = f" (and {len(differences) - 3} more)" if len(differences) > 3 else ""
-                row["reason"] = f"witness differs: {shown}{more}"
+                row["reason"] = f"witness differs: {'; '.join(differences[:3])}{more}"
                 continue
             carry = {
                 "code_fingerprint": now["code_fingerprint"],
@@ -724,20 +653,12 @@ def check_witnesses(
             if record:
                 result["carried"] = [*(result.get("carried") or []), carry]
                 write_result(path.parent, result)
-    finally:
-        bar.close()
     return rows
 
 
 def add_witness(folder: str | Path, *, progress: bool = False) -> dict:
-    """Give a stored run folder (or its ``result.json``) its smoke witness, written as
-    ``"witness"`` (every other key kept), and return it.
-
-    Raises
-    ------
-    ValueError
-        Today's code fingerprint is not the result's, or the code changed meanwhile.
-    """
+    """Give a stored run folder (or its ``result.json``) its smoke witness and return it;
+    ValueError when today's code is not the code that made the result."""
     folder = Path(folder)
     if folder.name == "result.json":
         folder = folder.parent
@@ -750,16 +671,9 @@ def add_witness(folder: str | Path, *, progress: bool = False) -> dict:
             f"{exp_id} has {now}: a witness must come from the code that made the result "
             "(check out that code, or reproduce the result again)"
         )
-    seed = int(result.get("seed", 0))
-    made = smoke_witness(exp_id, seed, repeats=WITNESS_REPEATS, progress=progress)
-    if made["code_fingerprint"] != made_by:
-        raise ValueError(
-            f"{folder}: the code of {exp_id} changed while its witness ran (fingerprint "
-            f"{made_by} -> {made['code_fingerprint']}); no witness written"
-        )
-    result["witness"] = made
+    result["witness"] = _new_witness(exp_id, int(result.get("seed", 0)), made_by, progress)
     write_result(folder, result)
-    return made
+    return result["witness"]
 
 
 def load_trials(folder: str | Path) -> list[dict[str, np.ndarray]]:
@@ -788,14 +702,9 @@ def _merge_added(stored: dict, fresh: dict) -> list[str]:
 
 
 def remeasure(folder: str | Path, *, write: bool = False) -> list[str]:
-    """Summarise a stored run's ``trials.npz`` again with today's code and add the
-    measurements its summary lacks.
-
-    Today's summary must reproduce every measurement both have (the witness tolerance), else
-    nothing is written; what it cannot make from the stored arrays is kept as stored. The
-    judgement is made again; the run records ``remeasured`` (commit, date, paths added).
-
-    Returns the summary paths added; ``write=False`` only reports them.
+    """Summarise a stored run's ``trials.npz`` again with today's code, add the measurements
+    its summary lacks (every shared one must agree) and judge it again; the paths added
+    (``write=False`` only reports them).
 
     Raises
     ------
@@ -804,7 +713,7 @@ def remeasure(folder: str | Path, *, write: bool = False) -> list[str]:
     """
     from datetime import date
 
-    from skillkit.experiments.provenance import git_state, measurements, walk_differences
+    from skillkit.experiments.provenance import git_state, walk_differences
     from skillkit.experiments.settings import apply_overrides
 
     folder = Path(folder)
@@ -819,19 +728,22 @@ def remeasure(folder: str | Path, *, write: bool = False) -> list[str]:
         msg = f"{folder}: today's summarize cannot read the stored trials ({exc!r})"
         raise ValueError(msg) from None
     fresh = measurements(json.loads(json.dumps(to_jsonable(fresh))))
-    stored = measurements(result["summary"])
     found: list[tuple[str, str]] = []
-    walk_differences(stored, fresh, "summary", set(), found)
-    kept = ("added: ", ": missing (stored")  # new; or not made from the stored arrays
-    changed = [t for _, t in found if not t.startswith(kept[0]) and kept[1] not in t]
-    changed = [t for t in changed if not t.endswith("-> None")]
+    walk_differences(measurements(result["summary"]), fresh, "summary", set(), found)
+    # kept: what only today's summary has, or what it cannot make from the stored arrays
+    changed = [
+        t
+        for _, t in found
+        if not t.startswith("added: ")
+        and ": missing (stored" not in t
+        and not t.endswith("-> None")
+    ]
     if changed:
         raise ValueError(f"{folder}: today's summary differs from the stored one: {changed[:3]}")
-    summary = {k: v for k, v in result["summary"].items()}
+    summary = dict(result["summary"])
     added = _merge_added(summary, fresh)
     if write and added:
-        settings_dict = result["settings"]
-        result["summary"] = judged(summary, exp.id, result["scale"], settings_dict)
+        result["summary"] = judged(summary, exp.id, result["scale"], result["settings"])
         result["remeasured"] = {
             "commit": git_state()["commit"],
             "checked": date.today().isoformat(),

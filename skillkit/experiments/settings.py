@@ -1,13 +1,11 @@
-"""Typed experiment settings: frozen dataclasses whose fields are documented and checked.
+"""Typed experiment settings: frozen dataclasses (:class:`Settings`) whose fields
+(:func:`setting`) are documented and checked.
 
-An experiment declares its settings as a frozen dataclass deriving from :class:`Settings`,
-each field with :func:`setting` (default, description, range); its three scales are instances
-(:func:`scales`). Construction checks every value against the field's annotation and range and
-normalises it: lists become tuples, an ``int`` for a ``float`` field a ``float``, and a mapping
-given for a nested settings field updates that field's instance. Anything else (a string for
-an int, a bool for a number, NaN or ±inf, a value outside a ``Literal`` or the field's range)
-raises :class:`ValueError` naming the field. ``dataclasses.asdict(settings)``
-(:meth:`Settings.to_dict`) is what ``result.json`` stores and checkpoint identities hash.
+Construction checks every value against the field's annotation and range and normalises it
+(lists become tuples, an ``int`` for a ``float`` field a ``float``, a mapping for a nested
+settings field updates that field); anything else (a string for an int, a bool for a number,
+NaN or ±inf, a value outside a ``Literal`` or the range) raises :class:`ValueError` naming the
+field. :meth:`Settings.to_dict` is what ``result.json`` stores and checkpoints hash.
 """
 
 from __future__ import annotations
@@ -35,10 +33,8 @@ def setting(
     above: float | None = None,
     maximum: float | None = None,
 ) -> Any:
-    """A settings field: its ``default`` (the ``quick`` scale's; lists as tuples, a nested
-    :class:`Settings` as an instance), ``doc`` (meaning, unit, thesis section) and range
-    (value ≥ ``minimum``, > ``above``, ≤ ``maximum``; every number of a list field), checked
-    on every construction and shown by ``skillkit settings ID``."""
+    """A settings field: its ``default`` (the ``quick`` scale's), ``doc`` (meaning, unit, thesis
+    section) and range (≥ ``minimum``, > ``above``, ≤ ``maximum``; every number of a list)."""
     if not isinstance(doc, str) or not doc.strip():
         raise ValueError("doc: every settings field needs a description")
     bounds = {"minimum": minimum, "above": above, "maximum": maximum}
@@ -52,14 +48,8 @@ def setting(
 
 def _range_text(metadata: Mapping[str, Any]) -> str:
     """The field's range as ``skillkit settings`` and errors show it ("" without one)."""
-    parts = []
-    if "minimum" in metadata:
-        parts.append(f"≥ {metadata['minimum']:g}")
-    if "above" in metadata:
-        parts.append(f"> {metadata['above']:g}")
-    if "maximum" in metadata:
-        parts.append(f"≤ {metadata['maximum']:g}")
-    return " and ".join(parts)
+    signs = {"minimum": "≥", "above": ">", "maximum": "≤"}
+    return " and ".join(f"{sign} {metadata[k]:g}" for k, sign in signs.items() if k in metadata)
 
 
 def _numbers(value: Any) -> list[float]:
@@ -136,26 +126,20 @@ def _coerce(value: Any, tp: Any, current: Any = None) -> Any:
         if len(value) != len(args):
             raise _Mismatch
         return tuple(_coerce(v, a) for v, a in zip(value, args, strict=True))
-    if tp is bool:
-        if isinstance(value, (bool, np.bool_)):
-            return bool(value)
-        raise _Mismatch
-    if tp is int:
-        if isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_)):
-            return int(value)
-        raise _Mismatch
-    if tp is float:
-        if isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(
-            value, (bool, np.bool_)
-        ):
-            if not np.isfinite(value):  # NaN or ±inf (``--set x=NaN`` parses as JSON)
-                raise _Mismatch
-            return float(value)
-        raise _Mismatch
-    if tp is str:
-        if isinstance(value, str):
-            return value
-        raise _Mismatch
+    if tp in (bool, int, float, str):
+        flag = isinstance(value, (bool, np.bool_))
+        if tp is bool:
+            fits = flag
+        elif tp is int:
+            fits = isinstance(value, (int, np.integer)) and not flag
+        elif tp is float:  # not NaN or ±inf (``--set x=NaN`` parses as JSON)
+            number = isinstance(value, (int, float, np.integer, np.floating)) and not flag
+            fits = number and np.isfinite(value)
+        else:
+            fits = isinstance(value, str)
+        if not fits:
+            raise _Mismatch
+        return value if tp is str else tp(value)
     if isinstance(tp, type) and issubclass(tp, Settings):
         if isinstance(value, tp):
             return value
@@ -200,11 +184,6 @@ class Settings:
     def to_dict(self) -> dict[str, Any]:
         """The settings as a plain dict (``dataclasses.asdict``; sequences stay tuples)."""
         return dataclasses.asdict(self)
-
-    @classmethod
-    def field_docs(cls) -> dict[str, str]:
-        """Field name → description, in declaration order."""
-        return {f.name: f.metadata.get(_DOC, "") for f in dataclasses.fields(cls)}
 
 
 def apply_overrides(settings: Settings, overrides: Mapping[str, Any]) -> Settings:

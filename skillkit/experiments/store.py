@@ -13,8 +13,7 @@ EXPECTED = "expected a run folder or its result.json, as written by `skillkit re
 
 def find_root(cwd: str | Path | None = None) -> Path:
     """The folder ``skillkit runs`` lists when given none: ``runs/`` in ``cwd`` (default: the
-    current folder, paths relative), else ``cwd`` if a ``result.json`` lies below it; else
-    ValueError naming both."""
+    current folder), else ``cwd`` if a ``result.json`` lies below it."""
     base = Path(".") if cwd is None else Path(cwd)
     if (base / "runs").is_dir():
         return base / "runs"
@@ -27,9 +26,8 @@ def find_root(cwd: str | Path | None = None) -> Path:
 
 
 def list_runs(root: str | Path = "runs") -> list[dict]:
-    """Every run below ``root`` (a folder holding a JSON-object ``result.json``), newest
-    first: ``path``, ``id``, ``scale``, ``seed``, ``trials``, ``executor``, ``wall_time_s``
-    and ``summary`` (None where missing)."""
+    """Every run below ``root``, newest first: ``path``, ``id``, ``scale``, ``seed``,
+    ``trials``, ``executor``, ``wall_time_s`` and ``summary`` (None where missing)."""
     root = Path(root)
     if not root.exists():
         raise ValueError(f"root: no results folder at {root}")
@@ -41,11 +39,10 @@ def list_runs(root: str | Path = "runs") -> list[dict]:
             continue
         if not isinstance(r, dict):  # some other tool's result.json: not a run
             continue
-        keys = ("id", "scale", "seed", "trials")
         runs.append(
             {
                 "path": str(path.parent),
-                **{k: r.get(k) for k in keys},
+                **{k: r.get(k) for k in ("id", "scale", "seed", "trials")},
                 "executor": r.get("executor", "local"),
                 "wall_time_s": r.get("wall_time_s"),
                 "summary": r.get("summary", {}),
@@ -65,8 +62,7 @@ def _kind(value) -> str:
 
 
 def read_result(path: str | Path) -> dict:
-    """The ``result.json`` of a run folder (or the file), checked for what :func:`compare`
-    reads.
+    """The ``result.json`` of a run folder (or the file), checked for what :func:`compare` reads.
 
     Raises
     ------
@@ -110,13 +106,10 @@ def read_result(path: str | Path) -> dict:
         where = f"{file}: series[{i}]"
         if not isinstance(s, dict):
             raise ValueError(f"{where}: expected an object, got {_kind(s)}")
-        if not isinstance(s.get("name"), str):
-            got = "missing" if "name" not in s else f"got {_kind(s['name'])}"
-            raise ValueError(f"{where}.name: expected a string, {got}")
-        for axis in ("x", "y"):
-            if not isinstance(s.get(axis), list):
-                got = "missing" if axis not in s else f"got {_kind(s[axis])}"
-                raise ValueError(f"{where}.{axis}: expected a list, {got}")
+        for key, kind in (("name", str), ("x", list), ("y", list)):
+            if not isinstance(s.get(key), kind):
+                got = "missing" if key not in s else f"got {_kind(s[key])}"
+                raise ValueError(f"{where}.{key}: expected {_kind(kind())}, {got}")
     return result
 
 

@@ -1,13 +1,6 @@
-"""Measured wall times of every experiment id at the ``smoke`` and ``quick`` scales.
-
-``benchmarks/bench_scales.py`` writes ``skillkit/data/scale_times.json`` (seconds of a whole
-``reproduce`` call with the default trials)::
-
-    {"machine": "...", "cores": 2, "load_before": 0.1, "commit": "...", "date": "...",
-     "times": {"fig2.10": {"smoke": 5.2, "quick": 41.0}, ...}}
-
-``skillkit settings`` and ``skillkit reproduce`` read it; nothing here imports torch.
-"""
+"""Measured wall times of every experiment id at the ``smoke`` and ``quick`` scales, read from
+``skillkit/data/scale_times.json`` (``benchmarks/bench_scales.py`` writes it: ``{"cores",
+"load_before", "commit", "date", "times": {id: {scale: seconds}}}``); imports no torch."""
 
 from __future__ import annotations
 
@@ -42,9 +35,7 @@ def machine_note() -> str:
     table = _table()
     if not table:
         return "not measured"
-    parts = []
-    if table.get("time_kind") == "cpu":
-        parts.append("CPU time of a shared machine")
+    parts = ["CPU time of a shared machine"] if table.get("time_kind") == "cpu" else []
     if table.get("cores"):
         parts.append(f"{table['cores']} cores")
     if isinstance(table.get("load_before"), (int, float)):
@@ -75,7 +66,5 @@ def estimate(exp_id: str, scale: str, trials: int | None, default_trials: int) -
     n = default_trials if trials is None else trials
     if n != default_trials and default_trials > 0:
         seconds = seconds * n / default_trials
-    return (
-        f"expected wall time about {format_seconds(seconds)} with the local executor "
-        f"({machine_note()})"
-    )
+    took = format_seconds(seconds)
+    return f"expected wall time about {took} with the local executor ({machine_note()})"

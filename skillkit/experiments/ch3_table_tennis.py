@@ -20,6 +20,7 @@ from skillkit.experiments.registry import Series
 from skillkit.experiments.settings import Settings, scales, setting
 from skillkit.policies.features import FeatureName
 from skillkit.policies.gaussian import effective_sample_size
+from skillkit.search.loop import policy_history_arrays
 from skillkit.search.reps import ContextualREPS
 from skillkit.trial import TrialContext
 
@@ -137,6 +138,7 @@ def run_trial(settings: TableTennisSettings, rng: np.random.Generator, trial: Tr
         "final_rewards": shots["rewards"],
         "final_outcomes": shots["outcomes"],
         "final_landing_error": shots["landing_error"],
+        **policy_history_arrays(curves["policies"]),  # Fig. 3.8 animates the last one
     }
 
 

@@ -635,10 +635,12 @@ def handled_events() -> Iterator[HandledEvents]:
 
 @dataclass
 class ModelView:
-    """The viewer with model layers, or their static top view (:func:`gpreps_model_view`)."""
+    """The viewer with model layers, or the same layers drawn as a static ``figure``
+    (:func:`gpreps_model_view`, :func:`prediction_overlay`), which ``drawn`` names."""
 
     shown: Any
     figure: Any = None
+    drawn: str = "the model layers drawn from above"
 
     def _ipython_display_(self) -> None:
         from IPython.display import HTML, display
@@ -647,7 +649,7 @@ class ModelView:
             display(self.shown)
             return
         display(self.figure)
-        why = f"no live viewer ({self.shown.reason}): the model layers drawn from above instead"
+        why = f"no live viewer ({self.shown.reason}): {self.drawn} instead"
         display(HTML(f"<small>{why}</small>"))
 
     def stop(self) -> None:
@@ -674,3 +676,70 @@ def gpreps_model_view(
         shown.viewer.add_model_layers(model, n_samples=n_samples)
         return ModelView(shown)
     return ModelView(shown, gpreps_run_paths_figure(run_dir, trial, n_samples=n_samples))
+
+
+def prediction_overlay(task, predicted, real, *, live: bool, n_shown: int = 20) -> ModelView:
+    """The balancing robot's sampled trajectories (4.3) over its real rollout, for the first
+    controller: with ``live`` the viewer with a prediction layer, else the robot in its plane at
+    t = 0 (Appendix C.1 links) with the hand's real path and ``n_shown`` sampled hand paths.
+
+    ``predicted`` is :func:`~skillkit.search.model_rollouts.predict_trajectories`' output
+    (states (B, L, T + 1, 8), the first four entries the joint angles q) and ``real`` the
+    simulator's rollouts of the same controllers.
+    """
+    import plotly.graph_objects as go
+
+    from skillkit.viz.notebook import show_viewer
+    from skillkit.viz.scenes import kinematic_points, task_model
+
+    n_shown = check_count(n_shown, "n_shown")
+    samples = np.asarray(predicted.states[0], dtype=float)  # (L, T + 1, 8)
+    shown = show_viewer(task.name, live=bool(live))
+    if shown.live:
+        shown.viewer.add_prediction_layer("gp", samples, label="GP samples")
+        return ModelView(shown)
+    model = task_model(task)
+    bodies = [model.body(b).id for b in ("shin", "thigh", "torso", "arm")]
+
+    def points(q):  # ankle, knee, hip, shoulder, hand in the robot's [x, z] plane
+        return kinematic_points(model, q, bodies, [model.site("hand").id])[..., [0, 2]]
+
+    L, T1, _ = samples.shape
+    hands = points(samples[:n_shown, :, :4].reshape(-1, 4))[:, -1]
+    hands = hands.reshape(min(L, n_shown), T1, 2)
+    links = points(np.asarray(real[0].states)[:, :4])
+    fig = go.Figure()
+    for k, path in enumerate(hands):
+        fig.add_scatter(
+            x=path[:, 0],
+            y=path[:, 1],
+            mode="lines",
+            line=dict(color="#1f77b4", width=1),
+            opacity=0.35,
+            name="hand, GP samples",
+            legendgroup="gp",
+            showlegend=k == 0,
+        )
+    fig.add_scatter(
+        x=links[:, -1, 0],
+        y=links[:, -1, 1],
+        mode="lines",
+        line=dict(color="black", width=3),
+        name="hand, real rollout",
+    )
+    fig.add_scatter(
+        x=links[0, :, 0],
+        y=links[0, :, 1],
+        mode="lines+markers",
+        name="robot at t = 0",
+        line=dict(color="grey", width=6),
+        marker=dict(size=8),
+    )
+    fig.update_layout(
+        title="Balancing: sampled hand paths over the real rollout (robot plane)",
+        xaxis_title="x (m)",
+        yaxis_title="z (m)",
+        height=480,
+        yaxis=dict(scaleanchor="x", scaleratio=1),
+    )
+    return ModelView(shown, fig, "the sampled paths drawn in the robot's plane")

@@ -383,3 +383,28 @@ def test_handled_events_counts_expected_and_reissues_the_rest():
     table = events.table()
     assert list(table["count"]) == [1, 1]
     assert "rollout failed" in table["example"].iloc[1]
+
+
+def test_prediction_overlay_draws_rigid_links_and_the_real_hand_path():
+    from types import SimpleNamespace
+
+    from skillkit.tasks.balancing import stable_gains
+
+    task = make("balancing")
+    rng = np.random.default_rng(0)
+    real = [task.rollout(w, rng=rng) for w in stable_gains(task, 2, rng)]
+    states = np.stack([np.stack([r.states] * 3) for r in real])  # (B, L, T + 1, 8)
+    view = ch4.prediction_overlay(task, SimpleNamespace(states=states), real, live=False, n_shown=2)
+    *samples, hand, robot = view.figure.data
+    assert len(samples) == 2 and view.shown.reason == "live=False"
+    for path in samples:  # samples equal to the real rollout trace the real hand path
+        np.testing.assert_allclose(path.x, hand.x, rtol=0, atol=0)
+        np.testing.assert_allclose(path.y, hand.y, rtol=0, atol=0)
+    links = np.stack([robot.x, robot.y], axis=1)  # ankle … hand at t = 0
+    lengths = np.linalg.norm(np.diff(links, axis=0), axis=1)
+    assert np.all(lengths > 0.1)
+    shoulder_to_hand = np.hypot(hand.x - 0, hand.y - 0)  # the hand moves with the posture
+    assert np.ptp(shoulder_to_hand) > 0
+    assert (hand.x[0], hand.y[0]) == (robot.x[-1], robot.y[-1])
+    with pytest.raises(ValueError, match="n_shown"):
+        ch4.prediction_overlay(task, SimpleNamespace(states=states), real, live=False, n_shown=0)

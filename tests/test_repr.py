@@ -85,7 +85,7 @@ def test_exact_and_sparse_gps(data):
     from skillkit.models.sparse import FITC, VFE
 
     X, Y = data
-    check(ExactGP(n_steps=5), "ExactGP(unfitted, n_steps=5, optimizer='lbfgs'")
+    check(ExactGP(n_steps=5), "ExactGP(unfitted, n_steps=5, additive_noise=")
     gp = ExactGP(n_steps=20, additive_noise=0.0).fit(X, Y, rng=0)
     h = gp.hyperparameters
     text = check(gp, "ExactGP(N=40, inputs=2, outputs=2", f"noise_var={span(h['noise'])}")

@@ -54,8 +54,7 @@ def reach_demonstration(
     return times, q[:, None], qd[:, None], qdd[:, None]
 
 
-FORCING_LABEL = "f [rad/s²]"
-"""Y label of the forcing-term panel (f enters q̈ = τ² α_x(…) + τ² f: an acceleration)."""
+FORCING_LABEL = "f [rad/s²]"  # f enters q̈ = τ² α_x(…) + τ² f: an acceleration
 
 
 @dataclass(frozen=True)

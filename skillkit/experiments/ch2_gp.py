@@ -59,8 +59,7 @@ class GPRegressionSettings(Settings):
     n_test: int = setting(2000, "Noisy test points of the 95% band's coverage.", minimum=1)
 
 
-# Every scale is the thesis setting: seconds, nothing scaled down.
-SCALES_2_12 = scales(GPRegressionSettings())
+SCALES_2_12 = scales(GPRegressionSettings())  # seconds: every scale is the thesis setting
 
 
 def _run_2_12(
@@ -126,16 +125,12 @@ def _summarize_2_12(
         for i, s in enumerate(r["samples"]):
             series.append(Series(f"sample {i + 1} of p(f*|x*,D)", grid.tolist(), s.tolist(), **kw))
         series.append(_points("observations", r["X"], r["y"], kw))
-    per_n = {
-        n: {
-            k: float(np.mean([t[f"n{n}"][k] for t in trials]))
-            for k in ("rmse", "mean_std", "sample_spread", "coverage95")
-        }
-        for n in settings.n_points
-    }
     ns = settings.n_points
+    keys = ("rmse", "mean_std", "sample_spread", "coverage95")
     summary = {
-        "per_n_points": {str(n): v for n, v in per_n.items()},
+        "per_n_points": {
+            str(n): {k: float(np.mean([t[f"n{n}"][k] for t in trials])) for k in keys} for n in ns
+        },
         "hyperparameters": {
             k: getattr(settings, k) for k in ("lengthscale", "outputscale", "noise_std")
         },

@@ -1,13 +1,6 @@
-"""Chapter 3, robot hockey: ``fig3.5`` — contextual REPS (ε = 0.5) versus CrKR (linear kernel).
-
-Thesis (Sec. 3.4.2): on the hockey task of Appendix C.2 REPS's policies hit the target puck in
-95% of the contexts, displacement error below 20 cm; CrKR stops improving earlier. Both learn
-through :mod:`skillkit.experiments.curves` from the imitation policy (50 rollouts per update,
-the last 200 reused), scored by :func:`heldout_scores`. CrKR (Eqs. 2.19–2.20) uses
-k(s, s') = zᵀz' + 1 on z = (s − s̄) / h (:class:`NormalisedLinear`) and D = diag(Σ₀) /
-(k(s̄, s̄) + λ), so that its first exploration matches REPS's. Judged in
-``skillkit/data/claims/ch3.toml``.
-"""
+"""Chapter 3, robot hockey (Sec. 3.4.2, App. C.2): ``fig3.5``, contextual REPS (ε = 0.5) versus
+CrKR (Eqs. 2.19–2.20) with k(s, s') = zᵀz' + 1 on z = (s − s̄) / h and D = diag(Σ₀) / (k(s̄, s̄)
++ λ), so that both first explore alike. Judged in ``skillkit/data/claims/ch3.toml``."""
 
 from __future__ import annotations
 
@@ -25,8 +18,6 @@ from skillkit.experiments.settings import Settings, scales, setting
 from skillkit.models.kernels import Linear
 from skillkit.tasks import make
 from skillkit.trial import TrialContext
-
-__all__ = ["HockeySettings", "NormalisedLinear", "heldout_scores", "make_algorithm"]
 
 
 @dataclass(frozen=True)

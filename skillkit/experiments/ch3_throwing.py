@@ -1,13 +1,7 @@
-"""Chapter 3, ball throwing (Sec. 3.4.1, Fig. 3.3): contextual REPS vs REPS + extra context.
-
-Both arms learn through :mod:`skillkit.experiments.curves` (contextual REPS, ε = 0.6, 25
-rollouts per update, the last 200 reused) from the task's imitation policy, its exploration
-wide enough for the farthest targets; the *extra context* arm re-scores every throw in
-``extra_contexts`` fresh targets through the known reward model, with importance weights. The
-summary splits the final ball-to-target distances into near (x < 13 m) and far targets, the
-thesis's "up to 0.5 m further away, otherwise below 10 cm" (judged in
-``skillkit/data/claims/ch3.toml``). The ML fit floors Σ at ``cov_floor`` (few early samples).
-"""
+"""Chapter 3, ball throwing (Sec. 3.4.1, Fig. 3.3): contextual REPS (ε = 0.6) against REPS +
+extra context, which re-scores every throw in ``extra_contexts`` fresh targets with importance
+weights; final distances split into near (x < 13 m) and far targets. Judged in
+``skillkit/data/claims/ch3.toml``."""
 
 from __future__ import annotations
 
@@ -25,8 +19,6 @@ from skillkit.search import ContextualREPS
 from skillkit.search.loop import policy_history_arrays
 from skillkit.tasks import make
 from skillkit.trial import TrialContext
-
-__all__ = ["ThrowingSettings", "run_trial", "summarize", "target_grid"]
 
 METHODS = ("REPS", "REPS + extra context")
 FAR_X = 13.0

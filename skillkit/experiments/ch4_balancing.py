@@ -1,13 +1,8 @@
-"""Chapter 4, Table 4.2: balancing with PILCO, GPREPS and REPS (Sec. 4.3.1).
-
-How much real experience (and computation) each method needs to find a PD controller
-u = G x̃ (ω = the 32 gains of G) that balances the planar 4-link robot. Every method starts
-from the same π₀(ω) (:func:`initial_policy_42`) and is scored after every update by the mean
-reward R = −Σ_t x̃_tᵀ x̃_t of its controller from start states common to a trial. PILCO (FITC
-dynamics, moment matching) and GPREPS (the same model, M gains × L predicted trajectories,
-ε = 1) make one real rollout per update after 6 s of random-policy experience (counted),
-REPS 25. Departures from the thesis: the setup table of ``skillkit/data/claims/ch4.toml``.
-"""
+"""Chapter 4, Table 4.2 (Sec. 4.3.1): the real experience PILCO, GPREPS and REPS need to find
+gains G of u = G x̃ that balance the planar 4-link robot, all from the same π₀
+(:func:`initial_policy_42`), scored by R = −Σ_t x̃_tᵀ x̃_t on common start states. The
+model-based methods start from 6 s of random-policy experience and make one real rollout per
+update, REPS 25; departures from the thesis: ``skillkit/data/claims/ch4.toml``."""
 
 from __future__ import annotations
 
@@ -39,17 +34,6 @@ from skillkit.tasks import make
 from skillkit.tasks.balancing import Balancing, collect_balancing, design_policy
 from skillkit.trial import TrialContext
 from skillkit.viz.series import trial_band
-
-__all__ = [
-    "BalancingComparisonSettings",
-    "experience_to_reach",
-    "fitc_model",
-    "gpreps_algorithm",
-    "initial_policy_42",
-    "random_experience",
-    "random_prior",
-    "reps_algorithm",
-]
 
 METHODS = ("pilco", "gpreps", "reps")
 LINEAR_METHODS = ("pilco_linear", "gpreps_linear")
@@ -188,10 +172,8 @@ def _run_model_based(task, st, pi0, prior, key, make_model, rng, trial, evals, e
 
 
 def random_prior(st: BalancingComparisonSettings, pi0: GaussianPolicy, rng) -> dict:
-    """The random policy's real experience that the model-based methods start from: ``n_random``
-    rollouts of ``random_steps`` steps with gains drawn from π₀ and white torque excitation of
-    ``excitation_std`` (:func:`~skillkit.tasks.balancing.collect_balancing`'s dict:
-    ``trajectories``, ``n_failed``, ...)."""
+    """The random policy's experience the model-based methods start from: gains drawn from π₀
+    with white torque excitation (:func:`~skillkit.tasks.balancing.collect_balancing`)."""
     excited = make(
         "balancing",
         initial_std=st.initial_std,
@@ -348,9 +330,8 @@ def _method_table(st, trials, key) -> dict:
 
 
 def summarize_42(st: BalancingComparisonSettings, trials: list[dict]):
-    """The cost curves of every method and, per method and limit, the experience (and for the
-    model-based methods the computation time) to reach it: per trial (None: never), mean over
-    the trials that reached, median and censored; final rewards; π₀'s start reward."""
+    """Every method's cost curve and, per limit, the experience (and computation time) to reach
+    it: per trial (None: never), mean over the trials that did, median and censored."""
     series, panel = [], "cost of the current controller"
     for key in methods(st):
         costs = [np.maximum(-np.asarray(t[f"{key}_mean_reward"], float), 1e-12) for t in trials]

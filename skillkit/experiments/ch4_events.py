@@ -1,14 +1,7 @@
-"""Chapter 4, GPREPS with discrete-event models: hockey (Sec. 4.3.3) and the GPREPS runs
-shared with table tennis (Sec. 4.3.4, :mod:`skillkit.experiments.ch4_table_tennis`).
-
-GPREPS follows Table 4.1: N₀ = 20 real rollouts (Sec. 4.1), then one per update, M pairs × L
-predicted trajectories, ε = 0.5, μ̂(s) the box of the observed contexts. Every method learns
-from the task's imitation policy through :mod:`skillkit.experiments.curves`, with the task's
-held-out scores every few updates. ``fig4.10``: hockey, GPREPS with the decomposed model of
-4.3.3 against REPS with ``fig3.5``'s settings; ``fig4.11``: the real-robot setting
-(``hockey-real``: noisy 30 Hz puck tracking) with a displacement model, GPREPS only, a 95%
-confidence band. The claims are judged in ``skillkit/data/claims/ch4.toml``.
-"""
+"""Chapter 4, GPREPS with discrete-event models (Table 4.1, N₀ = 20, ε = 0.5): ``fig4.10``,
+hockey (Sec. 4.3.3) against REPS with ``fig3.5``'s settings; ``fig4.11``, the real-robot setting
+(``hockey-real``) with a displacement model; and the runs shared with table tennis
+(:mod:`skillkit.experiments.ch4_table_tennis`). Judged in ``skillkit/data/claims/ch4.toml``."""
 
 from __future__ import annotations
 
@@ -39,8 +32,6 @@ from skillkit.experiments.settings import Settings, scales, setting
 from skillkit.models.gp import ExactGP
 from skillkit.tasks import make
 from skillkit.trial import TrialContext
-
-__all__ = ["HockeyGPREPSSettings", "hockey_reward_model"]
 
 
 @dataclass(frozen=True)
@@ -95,7 +86,6 @@ GPREPS_SMOKE = {
     "n_heldout": 2,
     "heldout_every": 1,
 }
-"""The smoke scale's changes of every GPREPS experiment here."""
 GPREPS_QUICK = {
     "n_updates": 15,
     "n_artificial": 200,
@@ -104,8 +94,6 @@ GPREPS_QUICK = {
     "n_heldout": 20,
     "heldout_every": 5,
 }
-"""The quick scale's changes: updates 100→15 (fig4.11 61→15, table tennis 130→15), M 500→200,
-L 10→5, L-BFGS iterations 100→60, held-out contexts 50→20 (scored every 5 updates)."""
 
 
 def gpreps_scales(cls, smoke: dict, quick: dict, paper: dict | None = None) -> dict:
@@ -116,9 +104,8 @@ def gpreps_scales(cls, smoke: dict, quick: dict, paper: dict | None = None) -> d
 
 
 def hockey_reward_model(task, st: HockeyGPREPSSettings):
-    """The decomposed hockey reward model of GPREPS (Sec. 4.3.3) with ``st``'s GP fits
-    (:class:`~skillkit.tasks.hockey.model.HockeyRewardModel`; the real-robot task slides at
-    its observation frame rate)."""
+    """GPREPS's decomposed hockey model (Sec. 4.3.3) with ``st``'s GP fits; the real-robot task
+    slides at its frame rate (:class:`~skillkit.tasks.hockey.model.HockeyRewardModel`)."""
     from skillkit.tasks.hockey.model import HockeyRewardModel
 
     gp = partial(ExactGP, n_steps=st.gp_steps)
@@ -139,9 +126,8 @@ def hockey_reward_model(task, st: HockeyGPREPSSettings):
 
 
 def gpreps_run(task, st, key, model, rng, trial, eval_contexts, score, keep_model=False):
-    """GPREPS with ``model`` (:func:`~skillkit.experiments.curves.run_gpreps`), with the
-    model's stage and refit starts per update, and with ``keep_model`` the model and the
-    policy history."""
+    """:func:`~skillkit.experiments.curves.run_gpreps` with the model's stage and refit starts
+    per update and, with ``keep_model``, the model and the policy history."""
     out, curves, algo = run_gpreps(task, st, key, model, rng, trial, eval_contexts, score)
     diags = curves["diagnostics"]
     out[f"{key}_stage"] = np.array([str(d.model_fit.get("stage", "")) for d in diags])
@@ -194,9 +180,8 @@ def _reps(task, st: HockeyGPREPSSettings):
 
 
 def gpreps_event_stats(trials, key) -> dict:
-    """:func:`~skillkit.experiments.curves.gpreps_stats` with the median relative error per
-    trial, the share of GP refits that kept the warm start and the update at which the reward
-    schedule switched to returning (where recorded)."""
+    """:func:`~skillkit.experiments.curves.gpreps_stats`, the median relative error per trial,
+    the share of refits that kept the warm start and the update the schedule turned returning."""
     out = gpreps_stats(trials, key)
     rel = [np.asarray(t[f"{key}_relative_error"][1:], dtype=float) for t in trials]
     out["prediction_relative_error_median_per_trial"] = [
@@ -227,10 +212,8 @@ def heldout_curves(trials, key, label, panels, heldout="displacement_error", **k
 
 
 def event_summary(trials, exp_id: str, labels: dict, panels, scores, heldout: str, parts) -> tuple:
-    """Series and summary of fig4.10 and fig4.12: per run of ``labels`` (key → label) its
-    learning curve and held-out ``heldout`` score, its held-out ``scores``, the model
-    statistics of the GPREPS runs, and REPS's rollouts to reach GPREPS's final reward; beside
-    them the thesis's numbers, read from the claims spec's ``parts`` (rollouts, error in cm)."""
+    """Series and summary of fig4.10 and fig4.12 per run of ``labels`` (key → label), REPS's
+    rollouts to GPREPS's final reward, and the thesis's numbers (claims spec ``parts``)."""
     thesis = {
         "gpreps_rollouts": int(thesis_value(exp_id, parts[0])),
         f"gpreps_{heldout}_m": thesis_value(exp_id, parts[1]) / 100,

@@ -1,12 +1,7 @@
-"""Chapter 4, GPREPS on ball throwing (Sec. 4.3.2, Figs 4.6, 4.7 and 4.9).
-
-Every run learns from the task's imitation policy through :mod:`skillkit.experiments.curves`:
-**GPREPS** (Table 4.1; N₀ = 10 real throws, then one per update, the decomposed model of
-Fig. 4.2 refitted at every update, M pairs × L predicted throws, ε = 1), **GP direct** (the
-same loop with one GP from [s, ω] to R) and **REPS** with ``fig3.3``'s settings. ``fig4.6``
-compares the three, ``fig4.7`` runs GPREPS with M = 50 … 1000 and ``fig4.9`` runs REPS and
-GPREPS with and without release noise (7.5 cm and 0.3 m/s).
-"""
+"""Chapter 4, GPREPS on ball throwing (Sec. 4.3.2): ``fig4.6`` compares **GPREPS** (Table 4.1,
+N₀ = 10 real throws then one per update, the decomposed model of Fig. 4.2), **GP direct** (one GP
+from [s, ω] to R) and **REPS** with ``fig3.3``'s settings; ``fig4.7`` runs GPREPS with M = 50 …
+1000; ``fig4.9`` REPS and GPREPS with and without release noise (7.5 cm, 0.3 m/s)."""
 
 from __future__ import annotations
 
@@ -17,14 +12,17 @@ import numpy as np
 
 from skillkit.experiments.ch3_throwing import final_errors, target_grid
 from skillkit.experiments.curves import (
-    COV_FLOOR,
-    MIN_EFFECTIVE_SAMPLES,
+    COV_FLOOR as COV_FLOOR,
+)
+from skillkit.experiments.curves import (
+    MIN_EFFECTIVE_SAMPLES as MIN_EFFECTIVE_SAMPLES,
+)
+from skillkit.experiments.curves import (
     CurveTask,
     curve_series,
     curve_stats,
     experiment,
     finite_or_none,
-    gpreps_algorithm,
     gpreps_stats,
     register_curve_task,
     regularised_reps,
@@ -42,17 +40,6 @@ from skillkit.search.gpreps import DirectRewardModel
 from skillkit.tasks import make
 from skillkit.tasks.throwing_model import ThrowingRewardModel
 from skillkit.trial import TrialContext
-
-__all__ = [
-    "COV_FLOOR",
-    "MIN_EFFECTIVE_SAMPLES",
-    "GPREPSThrowingSettings",
-    "SampleSizeSettings",
-    "StochasticThrowingSettings",
-    "gpreps_algorithm",
-    "reps_algorithm",
-    "throwing_reward_model",
-]
 
 
 @dataclass(frozen=True)
@@ -123,8 +110,7 @@ QUICK = {
     "gp_steps": 60,
     "reps_updates": 40,
 }
-"""The quick scale's changes, shared by the three experiments (the robot GP keeps its 150
-L-BFGS iterations)."""
+"""The quick scale's changes of the three experiments (the robot GP keeps 150 iterations)."""
 
 
 def _scales(cls, smoke: dict | None = None, quick: dict | None = None, paper=None) -> dict:
@@ -143,10 +129,8 @@ def _fitc(n_inducing: int, n_steps: int) -> ForwardModel:
 
 
 def throwing_reward_model(task, st: GPREPSThrowingSettings, model: str = "decomposed"):
-    """The reward model of GPREPS on throwing (Sec. 4.3.2) with ``st``'s GP sizes:
-    ``model="decomposed"``, the robot, release and flight GPs of Fig. 4.2
-    (:class:`~skillkit.tasks.throwing_model.ThrowingRewardModel`), or ``"direct"``, one GP from
-    (s, ω) to the reward."""
+    """GPREPS's throwing model (Sec. 4.3.2) with ``st``'s GP sizes: ``"decomposed"``, Fig. 4.2's
+    :class:`~skillkit.tasks.throwing_model.ThrowingRewardModel`, or ``"direct"``, one GP to R."""
     if model == "decomposed":  # the full 2.5 s flight of every ball, as the results were made
         return ThrowingRewardModel(
             task,
@@ -323,9 +307,8 @@ def summarize_47(st: SampleSizeSettings, trials: list[dict]):
 
 
 def run_trial_49(st: StochasticThrowingSettings, rng: np.random.Generator, trial: TrialContext):
-    """REPS and GPREPS on deterministic and noisy throwing from the same policy and targets;
-    each final policy mean's expected reward under the noise (``n_final_rollouts`` per
-    target)."""
+    """REPS and GPREPS on deterministic and noisy throwing from the same policy and targets,
+    and each final policy mean's expected reward under the noise."""
     det, noisy = make("throwing"), make("throwing", release_noise=st.release_noise)
     runs = [
         (f"{method}{suffix}", "decomposed" if method == "gpreps" else "reps", None, task)
@@ -352,15 +335,11 @@ def summarize_49(st: StochasticThrowingSettings, trials: list[dict]):
     series = _learning_series(trials, keys, labels)
     summary: dict = {"n_trials": len(trials), "thesis_numbers": _thesis_49()}
     for key in keys:
+        per_trial = [float(t[f"{key}_noisy_expected_reward"]) for t in trials]
         summary[key] = _method_summary(trials, key)
-        summary[key]["noisy_expected_reward"] = float(
-            np.mean([t[f"{key}_noisy_expected_reward"] for t in trials])
-        )
+        summary[key]["noisy_expected_reward"] = float(np.mean(per_trial))
+        summary[key]["noisy_expected_reward_per_trial"] = per_trial
     summary["noise_ratio"] = _noise_ratios(summary)
-    for key in keys:
-        summary[key]["noisy_expected_reward_per_trial"] = [
-            float(t[f"{key}_noisy_expected_reward"]) for t in trials
-        ]
     return series, summary
 
 

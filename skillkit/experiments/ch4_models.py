@@ -1,19 +1,10 @@
 """Chapter 4 model experiments on the planar 4-link robot (Secs 4.2.2–4.2.3, Figs 4.3–4.5).
 
-Models are :class:`~skillkit.models.gp.ForwardModel` on transitions (x_t, u_t) → x_{t+1} at
-20 Hz (u_t the commanded torque; the torque noise is part of the dynamics). fig4.3 and fig4.5
-follow the thesis: the GP learns x_{t+1} with PILCO's hyper-parameter curb
-(:class:`~skillkit.models.gp.HyperCurb`) under PD controllers
-(:meth:`~skillkit.tasks.balancing.Balancing.pd_gain`); departures are in
-``skillkit/data/claims/ch4.toml``.
-
-* ``fig4.3``: Σ_t KL(p ‖ p̃) of Gaussians fitted to n sampled trajectories and of moment
-  matching against the ground truth (many samples), normalised so moment matching scores 100
-  (FITC model of a tracking PD controller around a swinging reference).
-* ``fig4.4``: wall time of one moment-matching prediction vs sampling N trajectories (1 and
-  2 torch threads; a model of feedback around upright with Δx targets).
-* ``fig4.5``: reward-prediction error E[(R̂ − R)²] of the standard GP vs FITC (M = N/4) while
-  one training setting varies, with the noise floor Var(R | x_0) and the constant predictor.
+:class:`~skillkit.models.gp.ForwardModel` on transitions (x_t, u_t) → x_{t+1} at 20 Hz under
+PD controllers. ``fig4.3``: Σ_t KL(p ‖ p̃) of Gaussians fitted to n sampled trajectories and
+of moment matching, normalised so moment matching scores 100. ``fig4.4``: wall time of moment
+matching vs sampling N trajectories. ``fig4.5``: reward-prediction error of the standard GP
+vs FITC (M = N/4) as one training setting varies. Departures: ``skillkit/data/claims/ch4.toml``.
 """
 
 from __future__ import annotations
@@ -43,17 +34,12 @@ from skillkit.tasks.balancing import (
 )
 from skillkit.trial import TrialContext
 
-__all__ = ["gaussian_fit", "time_predictions"]
+__all__ = ["gaussian_fit"]
 
-DATA_EXPLORATION = 0.01
-"""Exploration of fig4.4's data controllers: σ = 1% of |G_lqr| (R = 1e-4) entry-wise."""
+DATA_EXPLORATION = 0.01  # fig4.4's data controllers: σ = 1% of |G_lqr| (R = 1e-4) entry-wise
 _ALPHA = "Additive-noise factor α: σ_add = α 10⁻² std(y) (Sec. 4.2.3)."
 _TORQUE_NOISE = "Std of the torque noise of the robot (N m)."
 _TARGET = "What the GP learns: 'next' (x′, the thesis) or 'delta'."
-
-
-def _data_policy(task: Balancing):
-    return task.lqr_policy(exploration_std_fraction=DATA_EXPLORATION)
 
 
 def gaussian_fit(samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -63,24 +49,11 @@ def gaussian_fit(samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return mean, np.einsum("ntd,nte->tde", c, c) / (samples.shape[0] - 1)
 
 
-def _model(
-    kind: str,
-    settings: SamplingAccuracySettings | ComputeTimeSettings | RewardErrorSettings,
-    n_inducing: int,
-    curb: bool,
-    target: str,
-    additive_noise: float | None = None,
-    n_steps: int | None = None,
-) -> ForwardModel:
-    """A standard GP or FITC forward model; noise and steps default to the settings'."""
-    kw = dict(
-        additive_noise=settings.additive_noise if additive_noise is None else additive_noise,
-        n_steps=settings.n_opt_steps if n_steps is None else n_steps,
-        curb=HyperCurb() if curb else None,
-    )
-    if kind == "standard":
-        return ForwardModel(ExactGP(**kw), target=target)
-    return ForwardModel(FITC(n_inducing=n_inducing, **kw), target=target)
+def _model(kind: str, n_inducing: int, curb: bool, target: str, alpha: float, steps: int):
+    """A standard GP or FITC forward model (additive-noise factor ``alpha``, ``steps``)."""
+    kw = dict(additive_noise=alpha, n_steps=steps, curb=HyperCurb() if curb else None)
+    gp = ExactGP(**kw) if kind == "standard" else FITC(n_inducing=n_inducing, **kw)
+    return ForwardModel(gp, target=target)
 
 
 # ---------------------------------------------------------------------------- fig4.3
@@ -140,10 +113,10 @@ def _train_balancing_model(
     """fig4.4's model: feedback around upright, Δx targets, no curb (as its stored result)."""
     T = settings.horizon
     task = make("balancing", n_steps=T, torque_noise_std=settings.torque_noise_std)
-    data = collect_balancing(
-        task, max(1, int(np.ceil(settings.n_data / T))), rng, policy=_data_policy(task)
-    )
-    model = _model("sparse", settings, settings.n_pseudo, False, "delta")
+    policy = task.lqr_policy(exploration_std_fraction=DATA_EXPLORATION)
+    data = collect_balancing(task, max(1, int(np.ceil(settings.n_data / T))), rng, policy=policy)
+    s = settings
+    model = _model("sparse", s.n_pseudo, False, "delta", s.additive_noise, s.n_opt_steps)
     model.fit(data["x"], data["u"], data["x_next"], rng=rng)
     return task, model, data
 
@@ -181,7 +154,8 @@ def _run_4_3(
     st = trial.resume("fig4.3", rng)
     if st is None:
         data = _tracking_data(task, G, ref, ff, max(1, int(np.ceil(settings.n_data / T))), rng)
-        model = _model("sparse", settings, settings.n_pseudo, settings.curb, settings.gp_target)
+        s = settings
+        model = _model("sparse", s.n_pseudo, s.curb, s.gp_target, s.additive_noise, s.n_opt_steps)
         t0 = time.perf_counter()
         model.fit(data["x"], data["u"], data["x_next"], rng=rng)
         lo, hi = np.log(settings.initial_std_range)
@@ -236,11 +210,6 @@ def _loglog(panel: str, ylabel: str) -> dict:
     )
 
 
-def _first_reaching(sizes, values, level=100.0):
-    hit = [n for n, v in zip(sizes, values, strict=True) if v <= level]
-    return hit[0] if hit else None
-
-
 def _summarize_4_3(
     settings: SamplingAccuracySettings, trials: list[dict]
 ) -> tuple[list[Series], dict]:
@@ -255,11 +224,14 @@ def _summarize_4_3(
         Series(name.format(q), sizes, pct[q].tolist(), kind="lines+markers", **kw) for q in pct
     ]
     series.append(Series("moment matching", sizes, [100.0] * len(sizes), **kw))
+    # The first sample size whose percentile reaches moment matching's score.
+    hits = {q: [n for n, v in zip(sizes, pct[q], strict=True) if v <= 100.0] for q in (75, 95)}
+    reach = {q: h[0] if h else None for q, h in hits.items()}
     summary = {
         "percentiles": {
             str(q): dict(zip(map(str, sizes), pct[q].tolist(), strict=True)) for q in pct
         },
-        **{f"samples_to_match_mm_{q}pct": _first_reaching(sizes, pct[q]) for q in (75, 95)},
+        **{f"samples_to_match_mm_{q}pct": reach[q] for q in reach},
         "thesis_numbers": {  # the claims spec's
             f"samples_to_match_mm_{q}pct": int(thesis_value("fig4.3", f"{_MATCH}, {q}%"))
             for q in (75, 95)
@@ -330,38 +302,37 @@ SCALES_4_4 = scales(
 )
 
 
-def time_predictions(
-    model: ForwardModel,
-    m0: np.ndarray,
-    S0: np.ndarray,
-    G: np.ndarray,
-    horizon: int,
-    n_trajectories: list[int],
-    threads: list[int],
-    repeats: int,
-    rng: np.random.Generator,
-) -> dict:
-    """Wall time of one moment-matching prediction and of sampling N trajectories.
+def _timed(fn) -> float:
+    t0 = time.perf_counter()
+    fn()
+    return time.perf_counter() - t0
 
-    Per torch thread count (restored afterwards), same model, u = G x̃ and horizon: the
-    minimum over ``repeats`` (one run above N = 1000) of ``propagate`` and of sampling N
-    trajectories from N(m0, S0). Returns ``mm_time`` {threads: s}, ``sampling_time``
-    {threads: [s per N]} and ``trajectories_in_mm_time`` (N·t_MM / t_sampling at the largest N).
-    """
+
+def _run_4_4(settings: ComputeTimeSettings, rng: np.random.Generator, trial: TrialContext) -> dict:
+    """Per torch thread count, the least wall time over ``repeats`` (one above N = 1000) of
+    ``propagate`` and of sampling N trajectories from N(m0, S0) under u = G x̃."""
+    trial.reset(total=2)
+    task, model, data = _train_balancing_model(settings, rng)
+    trial.update()
+    m0 = X_UP + task.initial_std * rng.standard_normal(8)
+    lqr = task.lqr_policy(exploration_std_fraction=DATA_EXPLORATION)
+    G = stable_gains(task, 1, rng, policy=lqr)[0].reshape(4, 8)
+    S0 = 0.05**2 * np.eye(8)
+    horizon, ns, repeats = settings.horizon, list(settings.n_trajectories), settings.repeats
     policy = feedback_policy(torch.as_tensor(G[None]))
     k = -G @ X_UP
     chol = np.linalg.cholesky(S0)
     before = torch.get_num_threads()
     out = {"mm_time": {}, "sampling_time": {}, "trajectories_in_mm_time": {}}
     try:
-        for th in threads:
+        for th in settings.threads:
             torch.set_num_threads(int(th))
             propagate(model, m0, S0, 2, G, k)  # warm-up
             mm = min(
                 _timed(lambda: propagate(model, m0, S0, horizon, G, k)) for _ in range(repeats)
             )
             times = []
-            for n in n_trajectories:
+            for n in ns:
                 x0 = m0 + rng.standard_normal((1, n, len(m0))) @ chol.T
 
                 def sample(x0=x0, n=n):
@@ -370,27 +341,9 @@ def time_predictions(
                 times.append(min(_timed(sample) for _ in range(repeats if n <= 1000 else 1)))
             out["mm_time"][str(th)] = mm
             out["sampling_time"][str(th)] = times
-            out["trajectories_in_mm_time"][str(th)] = mm * n_trajectories[-1] / times[-1]
+            out["trajectories_in_mm_time"][str(th)] = mm * ns[-1] / times[-1]
     finally:
         torch.set_num_threads(before)
-    return out
-
-
-def _timed(fn) -> float:
-    t0 = time.perf_counter()
-    fn()
-    return time.perf_counter() - t0
-
-
-def _run_4_4(settings: ComputeTimeSettings, rng: np.random.Generator, trial: TrialContext) -> dict:
-    trial.reset(total=2)
-    task, model, data = _train_balancing_model(settings, rng)
-    trial.update()
-    m0 = X_UP + task.initial_std * rng.standard_normal(8)
-    G = stable_gains(task, 1, rng, policy=_data_policy(task))[0].reshape(4, 8)
-    ns, threads = list(settings.n_trajectories), list(settings.threads)
-    S0 = 0.05**2 * np.eye(8)
-    out = time_predictions(model, m0, S0, G, settings.horizon, ns, threads, settings.repeats, rng)
     trial.update()
     return {**out, "n_data": len(data["x"]), "n_pseudo": model.predictor.n_support}
 
@@ -430,10 +383,8 @@ def _summarize_4_4(settings: ComputeTimeSettings, trials: list[dict]) -> tuple[l
         "state_dim": n_x,
         "control_dim": n_u,
     }
-    summary["flops_per_prediction"] = {
-        "moment_matching": mm_flops,
-        "sampling_per_trajectory": sample_flops,
-    }
+    flops = dict(moment_matching=mm_flops, sampling_per_trajectory=sample_flops)
+    summary["flops_per_prediction"] = flops
     return series, summary
 
 
@@ -530,14 +481,11 @@ SCALES_4_5 = scales(
         n_truth=10,
     ),
 )
-REWARD_ERROR_LABEL = "mean squared reward error [reward²]"
-"""Y label of ``fig4.5`` (the balancing reward is unitless)."""
 
 
 def _seed(root: int, *keys) -> np.random.Generator:
-    return np.random.default_rng(
-        np.random.SeedSequence([root, *[int(round(k * 1000)) for k in keys]])
-    )
+    milli = [int(round(k * 1000)) for k in keys]
+    return np.random.default_rng(np.random.SeedSequence([root, *milli]))
 
 
 def _evaluate_4_5(cfg: dict, settings: RewardErrorSettings, root: int, curbs=(True,)) -> dict:
@@ -547,10 +495,8 @@ def _evaluate_4_5(cfg: dict, settings: RewardErrorSettings, root: int, curbs=(Tr
     noise = cfg["torque_noise_std"]
     task = make("balancing", n_steps=T, torque_noise_std=noise, initial_std=settings.initial_std)
     G = task.pd_gain(settings.natural_frequency, settings.damping)
-    train = collect_balancing(
-        task, cfg["n_train"], _seed(root, 1, cfg["torque_noise_std"], cfg["n_train"]), gain=G
-    )
-    test_rng = _seed(root, 2, cfg["torque_noise_std"])
+    train = collect_balancing(task, cfg["n_train"], _seed(root, 1, noise, cfg["n_train"]), gain=G)
+    test_rng = _seed(root, 2, noise)
     x0 = task.initial_states(n=settings.n_pairs, rng=test_rng)
     rollouts = [
         [task.rollout_from(G.ravel(), x, rng=test_rng) for _ in range(settings.n_truth)] for x in x0
@@ -570,7 +516,7 @@ def _evaluate_4_5(cfg: dict, settings: RewardErrorSettings, root: int, curbs=(Tr
     for curb in curbs:
         for kind in ("standard", "sparse"):
             alpha, steps = cfg["additive_noise"], cfg["n_opt_steps"]
-            model = _model(kind, settings, M, curb, settings.gp_target, alpha, steps)
+            model = _model(kind, M, curb, settings.gp_target, alpha, steps)
             t0 = time.perf_counter()
             model.fit(train["x"], train["u"], train["x_next"], rng=_seed(root, 3, *cfg.values()))
             train_time = time.perf_counter() - t0
@@ -594,8 +540,7 @@ def _evaluate_4_5(cfg: dict, settings: RewardErrorSettings, root: int, curbs=(Tr
 def _configs_4_5(settings: RewardErrorSettings) -> list[tuple[dict, bool]]:
     """The panels' distinct training settings, each with whether it is also trained uncurbed."""
     defaults = settings.defaults.to_dict()
-    configs: list[dict] = []
-    uncurbed: list[bool] = []
+    configs, uncurbed = [], []  # the distinct settings; whether each is also trained uncurbed
     for key, _ in _PANELS_4_5:
         for v in getattr(settings, f"{key}_values"):
             cfg = dict(defaults, **{key: v})
@@ -621,6 +566,7 @@ def _run_4_5(settings: RewardErrorSettings, rng: np.random.Generator, trial: Tri
     return {"results": results}
 
 
+_SQ_ERROR = "mean squared reward error [reward²]"  # the balancing reward is unitless
 _KINDS_4_5 = (
     ("standard", "standard GP"),
     ("sparse", "sparse GP (FITC, M = N/4)"),
@@ -663,9 +609,7 @@ def _summarize_4_5(settings: RewardErrorSettings, trials: list[dict]) -> tuple[l
     for key, label in _PANELS_4_5:
         values = list(getattr(settings, f"{key}_values"))
         panel = {}
-        kw = dict(
-            panel=label, xlabel=label, ylabel=REWARD_ERROR_LABEL, log_x=key == "additive_noise"
-        )
+        kw = dict(panel=label, xlabel=label, ylabel=_SQ_ERROR, log_x=key == "additive_noise")
         for kind, name in _KINDS_4_5:
             if kind.endswith("_uncurbed") and key not in settings.uncurbed_panels:
                 continue
@@ -680,9 +624,6 @@ def _summarize_4_5(settings: RewardErrorSettings, trials: list[dict]) -> tuple[l
     default = at(defaults)
     by_steps = {str(v): at(dict(defaults, n_opt_steps=v)) for v in settings.n_opt_steps_values}
 
-    def most(kind, key, rs):
-        return float(np.max([r[kind][key] for r in rs]))
-
     summary |= {
         "default_setting": defaults,
         "default_squared_error": {
@@ -696,7 +637,7 @@ def _summarize_4_5(settings: RewardErrorSettings, trials: list[dict]) -> tuple[l
         },
         "hyperparameters_by_steps": {
             kind: {
-                v: {k: most(kind, k, rs) for k in _HYPER}
+                v: {k: float(np.max([r[kind][k] for r in rs])) for k in _HYPER}
                 for v, rs in by_steps.items()
                 if all(kind in r for r in rs)
             }

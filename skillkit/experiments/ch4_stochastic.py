@@ -1,13 +1,9 @@
 """Chapter 4, learning with stochastic dynamics (Sec. 4.3.2.2, Fig. 4.8).
 
-``fig4.8``: one context–parameter pair (s, ω) of the stochastic pendulum (σ_u = 1.5, T = 30;
-s = [α₀, α̇₀], ω the gains K of u = Kᵀx). Single-rollout rewards R(τ, s) vary widely around
-R(s, ω) = E[R(τ, s)]: model-free REPS scores a pair with one of them, GPREPS with the average
-of L model trajectories (Eq. 4.1). A trial rolls the pair out ``n_real`` times (the Monte Carlo
-R_MC and its standard error, the noise floor), fits a GP forward model (Δx targets, commanded
-torque as input) on ``n_train`` rollouts of nearby pairs, and compares the RMSE against R_MC of
-L-averages of model and of real trajectories (:func:`block_rmse`). The thesis reports no
-result; our readings are in ``skillkit/data/claims/ch4.toml``.
+``fig4.8``: for one context–parameter pair (s, ω) of the stochastic pendulum, the RMSE against
+the Monte Carlo R(s, ω) of averages of L real rollouts (model-free REPS: L = 1) and of L GP
+model trajectories (GPREPS, Eq. 4.1). The thesis reports no result; our readings are in
+``skillkit/data/claims/ch4.toml``.
 """
 
 from __future__ import annotations
@@ -70,16 +66,10 @@ class StochasticRewardSettings(Settings):
         if not sizes or min(sizes) < 1 or list(sizes) != sorted(set(sizes)):
             raise ValueError(f"sample_sizes: expected increasing integers ≥ 1, got {sizes}")
         for name in ("n_model", "n_real"):
-            if getattr(self, name) < 2 * max(sizes):
-                raise ValueError(
-                    f"{name}: need at least two blocks of the largest L = {max(sizes)}, "
-                    f"got {getattr(self, name)}"
-                )
-        if not self.control_noise > 0:
-            raise ValueError(
-                f"control_noise: the experiment needs stochastic dynamics (σ_u > 0), "
-                f"got {self.control_noise}"
-            )
+            if (n := getattr(self, name)) < 2 * max(sizes):
+                raise ValueError(f"{name}: need at least two blocks of L = {max(sizes)}, got {n}")
+        if not (noise := self.control_noise) > 0:
+            raise ValueError(f"control_noise: the experiment needs stochastic σ_u > 0, got {noise}")
 
 
 SCALES = scales(

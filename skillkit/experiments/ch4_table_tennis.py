@@ -1,11 +1,7 @@
-"""Chapter 4, GPREPS with discrete-event models on table tennis (Sec. 4.3.4).
-
-``fig4.12``: GPREPS with the five models of 4.3.4 (reward schedule of Eq. 4.17; the runs of
-:mod:`skillkit.experiments.ch4_events`), GP direct, and REPS with ``fig3.7``'s settings and
-the stored run's fit (``ch3_table_tennis.REGULARISED``). ``fig4.13``: the five models, learned
-from 100 rollouts, against the simulator on held-out rollouts. Judged in
-``skillkit/data/claims/ch4.toml``; the variants tried: ``data/notes/fig4.12.md``.
-"""
+"""Chapter 4, table tennis (Sec. 4.3.4): ``fig4.12``, GPREPS with the five models (Eq. 4.17's
+schedule) against GP direct and REPS with ``fig3.7``'s settings (``REGULARISED`` fit);
+``fig4.13``, the five models against the simulator on held-out rollouts. Judged in
+``skillkit/data/claims/ch4.toml``; the variants tried: ``data/notes/fig4.12.md``."""
 
 from __future__ import annotations
 
@@ -40,13 +36,6 @@ from skillkit.models.gp import ExactGP
 from skillkit.search.gpreps import DirectRewardModel
 from skillkit.tasks import make
 from skillkit.trial import TrialContext
-
-__all__ = [
-    "ModelAccuracySettings",
-    "TableTennisGPREPSSettings",
-    "TableTennisModelSettings",
-    "table_tennis_reward_model",
-]
 
 
 @dataclass(frozen=True)
@@ -88,9 +77,8 @@ class ModelAccuracySettings(TableTennisModelSettings):
 
 
 def table_tennis_reward_model(task, st, schedule: str = "auto"):
-    """The table-tennis reward model of GPREPS (Sec. 4.3.4) with ``st``'s GP fits and contact
-    features, and the c₁ / c₂ ``schedule``
-    (:class:`~skillkit.tasks.table_tennis.model.TableTennisRewardModel`)."""
+    """GPREPS's table-tennis model (Sec. 4.3.4) with ``st``'s GP fits and the c₁ / c₂
+    ``schedule`` (:class:`~skillkit.tasks.table_tennis.model.TableTennisRewardModel`)."""
     from skillkit.tasks.table_tennis.model import TableTennisRewardModel
 
     gp = partial(ExactGP, n_steps=st.gp_steps)

@@ -1,14 +1,9 @@
 """Sec. 4.2.4: trajectory-KL model learning (Eqs 4.5–4.16, Appendix B) against one-step ML.
 
-``sec4.2.4`` trains a linear-Gaussian model x′ ~ N(Ax + Bu + c, diag σ²) and a FITC GP with
-pseudo-data parameters (:mod:`skillkit.models.trajectory_kl`) by one-step maximum likelihood
-and by the trajectory-KL dual (started from the ML fit) on three data sets — a linear system
-with known truth under feedback plus a multi-sine and white excitation, the pendulum of
-Sec. 5.4 and the 4-link robot under a PD controller with torque excitation — and scores them
-on held-out trajectories: the closed-loop multi-step error of the mean prediction (feedback
-on the predicted state, recorded excitation replayed; squared error in training-std units),
-the trajectory log-likelihood under sampled trajectories' moments, and the one-step
-log-likelihood. Floors: the true model (linear system) and the training mean trajectory.
+``sec4.2.4`` fits a linear-Gaussian model and a FITC pseudo-data GP
+(:mod:`skillkit.models.trajectory_kl`) by one-step ML and by the trajectory-KL dual on a
+linear system with known truth, the pendulum and the 4-link robot, and scores closed-loop
+multi-step errors and log-likelihoods on held-out trajectories.
 """
 
 from __future__ import annotations
@@ -40,8 +35,7 @@ __all__ = ["TrajectoryKLSettings", "closed_loop_predictions", "linear_system"]
 SYSTEMS = ("linear", "pendulum", "balancing")
 CLASSES = ("linear", "fitc")
 CLASS_LABELS = {"linear": "linear-Gaussian", "fitc": "FITC pseudo-data GP"}
-DIVERGED = 100.0
-"""Mean squared error (training-std units) above which a prediction has diverged."""
+DIVERGED = 100.0  # mean squared error (training-std units) of a diverged prediction
 
 # The linear system with known truth (data come from the model class).
 LIN_A = np.array([[0.95, 0.10], [-0.10, 0.90]])
@@ -77,8 +71,7 @@ class TrajectoryKLSettings(Settings):
 
     def check(self) -> None:
         """Known systems; ridges with 0 first (the claims spec reads λ = 0)."""
-        bad = sorted(set(self.systems) - set(SYSTEMS))
-        if bad or not self.systems:
+        if not self.systems or not set(self.systems) <= set(SYSTEMS):
             raise ValueError(f"systems: expected a subset of {SYSTEMS}, got {self.systems}")
         if not self.ridges or self.ridges[0] != 0.0 or any(r < 0 for r in self.ridges):
             raise ValueError(f"ridges: expected 0 first, then values ≥ 0, got {self.ridges}")
@@ -98,20 +91,11 @@ class TrajectoryData:
     u_limit: float
     n_failed: int = 0
 
-    @property
-    def offsets(self) -> np.ndarray:
-        """ξ_{i,t} = u_{i,t} − K_i (x_{i,t} − x_ref) (M, T − 1, m): the replayed excitation."""
-        dx = self.states[:, :-1] - self.x_ref
-        return self.controls - np.einsum("imn,itn->itm", self.gains, dx)
-
     def transitions(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(x, u, x′) stacked, shapes (M(T−1), n), (M(T−1), m), (M(T−1), n)."""
-        n, m = self.states.shape[-1], self.controls.shape[-1]
-        return (
-            self.states[:, :-1].reshape(-1, n),
-            self.controls.reshape(-1, m),
-            self.states[:, 1:].reshape(-1, n),
-        )
+        X, n = self.states, self.states.shape[-1]
+        u = self.controls.reshape(-1, self.controls.shape[-1])
+        return X[:, :-1].reshape(-1, n), u, X[:, 1:].reshape(-1, n)
 
 
 def linear_system(n: int, horizon: int, excitation: float, rng: np.random.Generator):
@@ -132,48 +116,42 @@ def linear_system(n: int, horizon: int, excitation: float, rng: np.random.Genera
     return TrajectoryData(X, U, np.broadcast_to(LIN_K, (n, 1, 2)).copy(), np.zeros(2), np.inf)
 
 
-def _pendulum(n: int, st: TrajectoryKLSettings, rng) -> TrajectoryData:
-    task = make("pendulum", horizon=st.horizon - 1, control_noise=st.pendulum_control_noise)
-    X, U = [], []
-    for _ in range(n):
-        traj = task.rollout(THESIS_GAINS, task.sample_context(rng), rng)
-        X.append(traj.states)
-        U.append(traj.controls[:-1])
-    gains = np.broadcast_to(THESIS_GAINS, (n, 1, 2)).copy()
-    return TrajectoryData(np.array(X), np.array(U), gains, np.zeros(2), TORQUE_LIMIT)
+def _data(system: str, n: int, st: TrajectoryKLSettings, rng) -> TrajectoryData:
+    """``n`` trajectories of ``system`` (rollouts that topple the robot are replaced, counted)."""
+    if system == "linear":
+        return linear_system(n, st.horizon, st.linear_excitation, rng)
+    if system == "pendulum":
+        task = make("pendulum", horizon=st.horizon - 1, control_noise=st.pendulum_control_noise)
+        G, x_ref, u_limit = THESIS_GAINS[None], np.zeros(2), TORQUE_LIMIT
 
+        def rollout():
+            return task.rollout(THESIS_GAINS, task.sample_context(rng), rng)
+    else:
+        task = make(
+            "balancing",
+            initial_std=st.balancing_initial_std,
+            excitation_std=st.balancing_excitation,
+            n_steps=st.horizon - 1,
+        )
+        G, x_ref, u_limit = task.pd_gain(), X_UP.copy(), np.inf
 
-def _balancing(n: int, st: TrajectoryKLSettings, rng) -> TrajectoryData:
-    task = make(
-        "balancing",
-        initial_std=st.balancing_initial_std,
-        excitation_std=st.balancing_excitation,
-        n_steps=st.horizon - 1,
-    )
-    G = task.pd_gain()
+        def rollout():
+            return task.rollout(G.ravel(), rng=rng)
+
     X, U, failed = [], [], 0
     while len(X) < n:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
-            traj = task.rollout(G.ravel(), rng=rng)
-        if traj.failed:  # the excitation toppled the robot: replaced and counted
+            traj = rollout()
+        if traj.failed:
             failed += 1
             if failed > n:
-                raise RuntimeError(f"balancing: {failed} rollouts failed for {len(X)} kept")
+                raise RuntimeError(f"{system}: {failed} rollouts failed for {len(X)} kept")
             continue
         X.append(traj.states)
         U.append(traj.controls[:-1])
-    return TrajectoryData(
-        np.array(X), np.array(U), np.broadcast_to(G, (n, 4, 8)).copy(), X_UP.copy(), np.inf, failed
-    )
-
-
-def _data(system: str, n: int, st: TrajectoryKLSettings, rng) -> TrajectoryData:
-    if system == "linear":
-        return linear_system(n, st.horizon, st.linear_excitation, rng)
-    if system == "pendulum":
-        return _pendulum(n, st, rng)
-    return _balancing(n, st, rng)
+    gains = np.broadcast_to(G, (n, *G.shape)).copy()
+    return TrajectoryData(np.array(X), np.array(U), gains, x_ref, u_limit, failed)
 
 
 # --------------------------------------------------------------------------- evaluation
@@ -182,7 +160,8 @@ def closed_loop_predictions(model, theta, data: TrajectoryData, n_samples: int, 
     ``model`` at ``theta`` from each observed x₁, the feedback acting on the predicted state
     and the recorded excitation replayed: û_t = clip(K_i(x̂_t − x_ref) + ξ_{i,t}, ±u_limit).
     """
-    X, xi = data.states, data.offsets
+    X = data.states  # the replayed excitation ξ_{i,t} = u_{i,t} − K_i (x_{i,t} − x_ref):
+    xi = data.controls - np.einsum("imn,itn->itm", data.gains, X[:, :-1] - data.x_ref)
     M, T, n = X.shape
 
     def control(x, t, rows):
@@ -241,20 +220,14 @@ def _score_predictions(mean, samples, data: TrajectoryData, scale) -> dict:
     return out
 
 
-def _model(cls: str, data: TrajectoryData, st: TrajectoryKLSettings):
-    n, m = data.states.shape[-1], data.controls.shape[-1]
-    if cls == "linear":
-        return LinearGaussianTKL(n, m)
-    # Prior mean: the least-squares linear fit (fixed, shared by ML and TKL).
-    x, u, y = data.transitions()
-    z1 = np.hstack([x, u, np.ones((x.shape[0], 1))])
-    W, *_ = np.linalg.lstsq(z1, y, rcond=None)
-    return PseudoDataGP(n, m, min(st.n_inducing, x.shape[0]), mean_weights=W)
-
-
 def _fit_and_score(system, cls, train, test, scale, st, rng, trial) -> dict:
-    model = _model(cls, train, st)
     x, u, y = train.transitions()
+    n, m = x.shape[1], u.shape[1]
+    if cls == "linear":
+        model = LinearGaussianTKL(n, m)
+    else:  # prior mean: the least-squares linear fit (fixed, shared by ML and TKL)
+        W, *_ = np.linalg.lstsq(np.hstack([x, u, np.ones((x.shape[0], 1))]), y, rcond=None)
+        model = PseudoDataGP(n, m, min(st.n_inducing, x.shape[0]), mean_weights=W)
     t0 = time.perf_counter()
     theta0 = model.init_theta(x, u, y, rng)
     if cls == "linear":  # closed form: least squares and residual variances are the MLE
@@ -372,20 +345,19 @@ METRICS = tuple(
 )
 
 
-def _methods(st: TrajectoryKLSettings) -> list[str]:
-    return ["ml"] + [_tkl_key(r) for r in st.ridges]
+def _methods(st: TrajectoryKLSettings) -> dict[str, str]:
+    """The compared trainings: key → label."""
+    out = {"ml": "one-step ML"}
+    for r in st.ridges:
+        out[_tkl_key(r)] = (
+            "trajectory-KL (λ = 0, thesis)" if r == 0 else f"trajectory-KL (λ = {r:g})"
+        )
+    return out
 
 
 def _tkl_key(ridge: float) -> str:
     """``tkl_0``, ``tkl_0p1``, … (no dots: the per-trial numbers are flattened on dots)."""
     return f"tkl_{ridge:g}".replace(".", "p")
-
-
-def _method_label(key: str) -> str:
-    if key == "ml":
-        return "one-step ML"
-    lam = key.removeprefix("tkl_").replace("p", ".")
-    return "trajectory-KL (λ = 0, thesis)" if lam == "0" else f"trajectory-KL (λ = {lam})"
 
 
 def _mean(values) -> float | None:
@@ -402,14 +374,14 @@ def summarize(st: TrajectoryKLSettings, trials: list[dict]):
     T = st.horizon
     for system in st.systems:
         runs = [_unflatten(t)[system] for t in trials]
-        cell_sys: dict = {
-            "trivial_multistep_error": _mean([r["trivial"]["multistep_error"] for r in runs])
-        }
+        trivial = _mean([r["trivial"]["multistep_error"] for r in runs])
+        cell_sys: dict = {"trivial_multistep_error": trivial}
         panel = f"{system}: multi-step error on held-out trajectories"
         kw = dict(panel=panel, xlabel="time step t", ylabel="squared error (training std² units)")
         for cls in CLASSES:
             cell: dict = {}
-            for key in _methods(st) + (["truth"] if "truth" in runs[0][cls] else []):
+            labels = _methods(st) | ({"truth": "true model"} if "truth" in runs[0][cls] else {})
+            for key, label in labels.items():
                 cell[key] = {
                     m: _mean([r[cls][key].get(m) for r in runs])
                     for m in METRICS
@@ -420,7 +392,6 @@ def summarize(st: TrajectoryKLSettings, trials: list[dict]):
                     for v in (r[cls][key].get("multistep_error") for r in runs)
                 ]
                 curve = np.mean([r[cls][key]["error_per_step"] for r in runs], axis=0)
-                label = "true model" if key == "truth" else _method_label(key)
                 y = [float(v) if np.isfinite(v) else None for v in curve]
                 name = f"{CLASS_LABELS[cls]}, {label}"
                 series.append(Series(name, list(range(2, T + 1)), y, log_y=True, **kw))
@@ -432,7 +403,6 @@ def summarize(st: TrajectoryKLSettings, trials: list[dict]):
             cell["tkl_lower_trials"] = int(sum(lower))
             cell_sys[cls] = cell
         cell_sys["failed_rollouts_replaced"] = int(sum(r["n_failed_rollouts"] for r in runs))
-        trivial = cell_sys["trivial_multistep_error"]
         series.append(
             Series("trivial: training mean trajectory", [2, T], [trivial, trivial], panel=panel)
         )

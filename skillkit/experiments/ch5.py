@@ -1,20 +1,12 @@
 """Chapter 5 experiments: kernel embeddings versus GP models (Sec. 5.4).
 
-``fig5.3``–``fig5.5``, the pendulum α̈ = −9.81 sin α + u (Δt = 0.1 s, u ~ N(Kᵀx, 0.05²),
-|u| ≤ 3, K = [−3, −1]): 15 observed trajectories of 20 steps train a conditional embedding
-x → x' (SE length-scales and λ minimise the 10-fold cross-validated state-embedding error,
-Eq. 5.16) and a GP forward model (Eq. 2.28). On a grid of query states both predict the
-expected successor (``fig5.3`` e_α, ``fig5.4`` e_α̇) and the expected 20-step trajectory
-(``fig5.5``, Σ_t e_{x_t}) against a Monte Carlo truth; the embedding predicts E[x'] = X'ᵀβ
-and the pre-image (Eq. 2.45).
-
-``fig5.6``, ``fig5.7``, balancing the planar 4-link robot (T = 40, initial std 0.3) with one
-PD controller: a test pair is a start state x₀ᵢ and R_i = E[R | x₀ᵢ] from ``truth_rollouts``
-real rollouts; e_r = mean_i (R̂_i − R_i)². Predictors: GP sampling, and embeddings over
-z = [x, u] (Table 5.2, linear reward kernel E[r_t] = r'ᵀβ_t) fitted by the step-based
-(Eq. 5.17/5.19) or trajectory-based (Eq. 5.23) cross-validated reward error. Floors: the
-constant predictor and the Monte Carlo variance of the truth. Open setup choices are in
-``skillkit/data/claims/ch5.toml``.
+``fig5.3``–``fig5.5``: on the pendulum (15 trajectories of 20 steps, K = [−3, −1]) a
+conditional embedding x → x' fitted by the cross-validated error of Eq. 5.16 and a GP
+forward model predict E[x'] (``fig5.3`` e_α, ``fig5.4`` e_α̇) and the 20-step trajectory
+(``fig5.5``) on a grid of query states against a Monte Carlo truth. ``fig5.6``, ``fig5.7``:
+on the balancing 4-link robot (T = 40) GP sampling and embeddings over z = [x, u]
+(Table 5.2) fitted by Eq. 5.19 or 5.23 predict R_i = E[R | x₀ᵢ]; e_r = mean_i (R̂_i − R_i)².
+Open setup choices are in ``skillkit/data/claims/ch5.toml``.
 """
 
 from __future__ import annotations
@@ -49,8 +41,6 @@ from skillkit.tasks.pendulum import THESIS_GAINS, feedback_torque, pendulum_dyna
 from skillkit.trial import TrialContext
 from skillkit.viz.series import trial_band
 
-__all__ = ["embedding_expected_rewards"]
-
 _DIAGNOSTICS = ("max_lengthscale_ratio", "max_signal_to_noise", "curb_penalty")
 
 
@@ -65,15 +55,6 @@ def _gp(settings) -> ForwardModel:
 
 
 # =========================================================================== pendulum
-def _target_kernel(kind: str, targets: np.ndarray):
-    """Fixed target kernel of Eq. 5.16: SE with the targets' stds as length-scales, or linear."""
-    if kind == "se":
-        return SquaredExponential(targets.shape[1], lengthscale=_initial_lengthscales(targets))
-    if kind == "linear":
-        return Linear()
-    raise ValueError(f"target_kernel: expected 'se' or 'linear', got {kind!r}")
-
-
 @dataclass(frozen=True)
 class PendulumSettings(Settings):
     """Settings of ``fig5.3``, ``fig5.4`` and ``fig5.5`` (pendulum, Sec. 5.4)."""
@@ -124,9 +105,13 @@ def _pendulum_trial(
     x, xn, groups = transitions(states)
     trial.update()
 
-    # Embedding: Eq. 5.16 with k-fold cross-validation over trajectories.
+    # Embedding: Eq. 5.16 with k-fold cross-validation over trajectories and a fixed target
+    # kernel, linear or SE with the targets' stds as length-scales.
     folds = kfold_splits(len(x), min(settings.cv_folds, n_traj), rng, groups=groups)
-    loss = state_embedding_loss(x, xn, folds, _target_kernel(settings.target_kernel, xn))
+    target = SquaredExponential(2, lengthscale=_initial_lengthscales(xn))
+    if settings.target_kernel == "linear":
+        target = Linear()
+    loss = state_embedding_loss(x, xn, folds, target)
     lam0 = max(settings.lam0, settings.lam_min)
     opts = dict(lam_bounds=(settings.lam_min, 1.0), max_iter=settings.max_iter)
     fit = fit_hyperparameters(loss, _initial_lengthscales(x), lam0, **opts)
@@ -217,8 +202,7 @@ def _near_data(t0: dict, n: int) -> np.ndarray:
     return (nearest <= 0.1).reshape(n, n)
 
 
-_MODELS = (("embedding", "emb"), ("gp", "gp"))
-"""The compared predictors: name in the summary, key of their error maps."""
+_MODELS = (("embedding", "emb"), ("gp", "gp"))  # name in the summary, key of the error maps
 
 _PENDULUM_PANELS = (
     ("emb", "(a) kernel embedding"),
@@ -228,14 +212,12 @@ _PENDULUM_PANELS = (
 )
 
 
-def _median_or_none(values: np.ndarray) -> float | None:
-    return float(np.median(values)) if values.size else None
-
-
 def _medians(maps: dict, near: np.ndarray) -> dict:
     """Median error per model near (``near``) and away from the observed states."""
     return {
-        where: {name: _median_or_none(maps[m][cells]) for name, m in _MODELS}
+        where: {
+            name: float(np.median(maps[m][cells])) if cells.any() else None for name, m in _MODELS
+        }
         for where, cells in (("near_data", near), ("far_from_data", ~near))
     }
 
@@ -289,6 +271,9 @@ def _pendulum_summary(key: str, label: str, unit: str):
         def fraction(cells):
             return float(np.mean(better_map[cells])) if cells.any() else None
 
+        def below(a: str, b: str) -> float:  # fraction of the grid where a's error is lower
+            return float(np.mean(maps[a] < maps[b]))
+
         summary = {
             "n_trials": len(trials),
             "error": label,
@@ -297,9 +282,7 @@ def _pendulum_summary(key: str, label: str, unit: str):
             "mean_error_constant": float(np.mean(maps["const"])),
             "mean_noise_floor": float(np.mean(maps["floor"])),
             "mean_error_embedding_preimage": float(np.mean(maps["emb_preimage"])),
-            "fraction_of_grid_where_embedding_preimage_better": float(
-                np.mean(maps["emb_preimage"] < maps["gp"])
-            ),
+            "fraction_of_grid_where_embedding_preimage_better": below("emb_preimage", "gp"),
             "median_log10_error_embedding": float(np.median(logs["emb"])),
             "median_log10_error_gp": float(np.median(logs["gp"])),
             "fraction_of_grid_where_embedding_better": float(np.mean(better_map)),
@@ -308,10 +291,8 @@ def _pendulum_summary(key: str, label: str, unit: str):
             "fraction_embedding_better_far_from_data": fraction(~near),
             "median_error_near_data": medians["near_data"],
             "median_error_far_from_data": medians["far_from_data"],
-            "fraction_of_grid_where_embedding_beats_constant": float(
-                np.mean(maps["emb"] < maps["const"])
-            ),
-            "fraction_of_grid_where_gp_beats_constant": float(np.mean(maps["gp"] < maps["const"])),
+            "fraction_of_grid_where_embedding_beats_constant": below("emb", "const"),
+            "fraction_of_grid_where_gp_beats_constant": below("gp", "const"),
             "per_trial_mean_error": {
                 m: [float(np.mean(t[f"{m}_{key}"])) for t in trials] for m in maps
             },
@@ -331,8 +312,8 @@ def _pendulum_summary(key: str, label: str, unit: str):
     return summarize
 
 
+# fig5.5's scales: λ ≥ 1e-3 for the 20-step propagation.
 SCALES_PENDULUM_MULTI = {k: replace(v, lam_min=1e-3) for k, v in SCALES_PENDULUM.items()}
-"""fig5.5's scales: λ ≥ 1e-3 for the 20-step propagation."""
 
 for _id, _key, _label, _unit, _what in (
     ("fig5.3", "e_alpha", "e_α", "rad²", "single-step prediction error of α"),
@@ -394,31 +375,11 @@ def _feedback(gain: np.ndarray):
     return lambda s, t: np.einsum("ij,bkj->bki", gain, s - X_UP)
 
 
-def embedding_expected_rewards(
+def _expected_rewards(
     model: ConditionalEmbedding, x0: np.ndarray, gain: np.ndarray, horizon: int, reward
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Expected trajectory rewards Σ_t E[r_t] of the feedback law u = G x̃ by the embedding.
-
-    Table 5.2 with a time-invariant policy: the initial embedding over the observed
-    state-actions (Eq. 5.6) is mapped by Eq. (5.9)'s first step, then β_{t+1} =
-    (G + λI)⁻¹ G̃^π β_t (Eq. 5.14) and E[r_t] = r'ᵀβ_t (linear reward kernel, Sec. 5.4).
-
-    Parameters
-    ----------
-    model : ConditionalEmbedding
-        Embedding of the transitions z = [x, u] → x'.
-    x0 : ndarray, shape (B, 8) or (B, L, 8)
-        Start states (or L samples of each of B start distributions).
-    gain, horizon, reward
-        G (4, 8) of u = G (x − x_up), the number of steps T and r(x, u) (vectorised).
-
-    Returns
-    -------
-    rewards : ndarray, shape (B,)
-        Σ_{t=1}^{T} E[r_t].
-    beta_l1 : ndarray, shape (B,)
-        max_t ‖β_t‖₁ per start (far above 1: the propagation is unstable).
-    """
+    """Σ_{t=1}^T E[r_t] of u = G (x − x_up) from starts ``x0`` (B, 8) by Table 5.2 with Eq.
+    (5.9)'s first step, and max_t ‖β_t‖₁ (B,) (far above 1: the propagation is unstable)."""
     traj = predict(
         model, x0, horizon + 1, policy=_feedback(gain), reward=reward, time_invariant=True
     )
@@ -485,18 +446,13 @@ SCALES_5_7 = scales(
     },
 )
 
-E_R_LABEL = "e_r = mean (R̂ − R)² [reward²]"
-"""Y label of ``fig5.6`` / ``fig5.7`` (the balancing reward is unitless)."""
-
 _METHODS = (
     ("gp", "GP sampling (M={gp_samples})"),
     ("step", "embedding, step-based (5.17)"),
     ("trajectory", "embedding, trajectory-based (5.23)"),
 )
-_COMPARED = ("gp", "step", "trajectory", "constant")
-"""The predictors whose e_r the summary keeps per trial."""
-_FITS = ("step", "trajectory")
-"""The embeddings' two fits (Eqs 5.17 and 5.23)."""
+_COMPARED = ("gp", "step", "trajectory", "constant")  # whose e_r is kept per trial
+_FITS = ("step", "trajectory")  # the embeddings' two fits (Eqs 5.17 and 5.23)
 _FLOORS = (
     ("constant", "constant predictor (mean observed reward)"),
     ("noise", "noise floor: mean Var(R | x₀ᵢ) / truth rollouts"),
@@ -512,21 +468,14 @@ def _task(settings: BalancingSettings, noise: float):
     )
 
 
-def _pd_gain(task, settings: BalancingSettings) -> np.ndarray:
-    return task.pd_gain(settings.pd_frequency, settings.pd_damping)
-
-
 def _observed(task, gain, n_traj: int, rng) -> tuple[np.ndarray, np.ndarray, int]:
     """``n_traj`` working PD rollouts: states, commanded controls and the number redrawn."""
     runs, failed = [], 0
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         while len(runs) < n_traj:
-            if failed > 5 * n_traj + 10:
-                raise RuntimeError(
-                    f"balancing: {failed} PD rollouts diverged while collecting {n_traj}; "
-                    "the controller does not balance this task"
-                )
+            if failed > 5 * n_traj + 10:  # the controller does not balance this task
+                raise RuntimeError(f"balancing: {failed} PD rollouts diverged collecting {n_traj}")
             tr = task.rollout(gain.ravel(), None, rng)
             if tr.failed:
                 failed += 1
@@ -576,24 +525,11 @@ def _balancing_case(task, gain, n_traj: int, starts, truth, settings, rng, trial
         "trajectory_per_start": {},
     }
 
-    def model(f):
-        return ConditionalEmbedding(z, xn, SquaredExponential(12, lengthscale=f.lengthscale), f.lam)
-
-    for key, f in tried.items():  # every start's fit, scored (evidence of the β ≈ 0 plateau)
-        pred, beta_l1 = embedding_expected_rewards(model(f), starts, gain, horizon, reward)
-        out["trajectory_per_start"][key] = {
-            "cv_loss": f.loss,
-            "e_r": float(np.mean((pred - truth) ** 2)),
-            "pred_mean": float(np.mean(pred)),
-            "beta_l1_max": float(np.max(beta_l1)),
-            "lam": f.lam,
-            "n_at_bound": len(f.at_bound),
-        }
-    for name, f in fits.items():
-        emb = model(f)
+    def score(f) -> dict:
+        emb = ConditionalEmbedding(z, xn, SquaredExponential(12, lengthscale=f.lengthscale), f.lam)
         t0 = time.perf_counter()
-        pred, beta_l1 = embedding_expected_rewards(emb, starts, gain, horizon, reward)
-        measured = dict(
+        pred, beta_l1 = _expected_rewards(emb, starts, gain, horizon, reward)
+        return dict(
             time=time.perf_counter() - t0,
             e_r=float(np.mean((pred - truth) ** 2)),
             median_sq_err=float(np.median((pred - truth) ** 2)),
@@ -606,7 +542,13 @@ def _balancing_case(task, gain, n_traj: int, starts, truth, settings, rng, trial
             fit_success=f.success,
             fit_at_bound=f.at_bound,
         )
-        out.update({f"{k}_{name}": v for k, v in measured.items()})
+
+    for key, f in tried.items():  # every start's fit, scored (evidence of the β ≈ 0 plateau)
+        m = score(f)
+        per_start = {k: m[k] for k in ("cv_loss", "e_r", "pred_mean", "beta_l1_max", "lam")}
+        out["trajectory_per_start"][key] = per_start | {"n_at_bound": len(f.at_bound)}
+    for name, f in fits.items():
+        out.update({f"{k}_{name}": v for k, v in score(f).items()})
     trial.update()
 
     gp = _gp(settings)
@@ -647,7 +589,7 @@ def _fig56_trial(
     counts = list(settings.n_trajectories)
     trial.reset(total=1 + 3 * len(counts))
     task = _task(settings, settings.torque_noise)
-    gain = _pd_gain(task, settings)
+    gain = task.pd_gain(settings.pd_frequency, settings.pd_damping)
     # Resumable after the ground truth and after every case.
     st = trial.resume("fig5.6", rng)
     if st is None:
@@ -679,7 +621,7 @@ def _fig57_trial(
     trial.update(4 * len(st["cases"]))
     for noise in levels[len(st["cases"]) :]:
         task = _task(settings, noise)
-        gain = _pd_gain(task, settings)
+        gain = task.pd_gain(settings.pd_frequency, settings.pd_damping)
         truth = _balancing_truth(task, gain, st["starts"], settings, rng)
         st["stats"].append(_truth_stats(truth))
         trial.update()
@@ -687,20 +629,13 @@ def _fig57_trial(
         case = _balancing_case(task, gain, m, st["starts"], truth["truth"], settings, rng, trial)
         st["cases"].append(case)
         trial.save("fig5.7", st, rng)
-    return {
-        "x": levels,
-        "cases": st["cases"],
-        **{k: [s[k] for s in st["stats"]] for k in st["stats"][0]},
-    }
-
-
-def _finite(value: float | None) -> bool:
-    return value is not None and bool(np.isfinite(value))
+    stats = {k: [s[k] for s in st["stats"]] for k in st["stats"][0]}
+    return {"x": levels, "cases": st["cases"], **stats}
 
 
 def _spread(values: list[float | None]) -> float:
     """max / min of positive errors: inf if the smallest is 0, NaN if one is missing."""
-    if not all(_finite(v) for v in values):
+    if not all(v is not None and np.isfinite(v) for v in values):
         return float("nan")
     lo = min(values)
     return float(max(values) / lo) if lo > 0 else float("inf")
@@ -716,7 +651,8 @@ def _reward_summary(xlabel: str, fig: str):
         }
         err["noise"] = np.array([t["truth_mc_floor"] for t in trials], dtype=float)
         series = []
-        kw = dict(panel="reward prediction error", xlabel=xlabel, ylabel=E_R_LABEL, log_y=True)
+        kw = dict(panel="reward prediction error", xlabel=xlabel, log_y=True)
+        kw["ylabel"] = "e_r = mean (R̂ − R)² [reward²]"  # the balancing reward is unitless
         for m, label in _METHODS + _FLOORS:
             y, band = trial_band(err[m])
             kind = "lines+markers" if m in dict(_METHODS) else "line"

@@ -1,16 +1,8 @@
-r"""``cmp.methods``: REPS, GPREPS, CMA-ES and contextual BO on the thesis's tasks.
-
-Not a figure of the thesis: every method runs the learning curve of
-:mod:`skillkit.experiments.curves` on throwing, hockey, table tennis and balancing from the
-task's initial policy (balancing: Table 4.2's π₀ and 6 s of random-policy experience, 1.2
-rollouts, for the model-based methods), evaluated on the same contexts and seed. REPS and
-GPREPS run as the task's thesis experiment runs them (its
-:class:`~skillkit.experiments.curves.CurveTask` profile, at the same scale); **CMA-ES** (cma's
-defaults, m = 4 contexts per candidate) gets REPS's real-rollout budget and **contextual BO**
-(BoTorch's defaults) GPREPS's. The summary gives per task and method the real rollouts to
-reach each threshold, the final reward, the compute time and the ``winners``; the thesis makes
-no claim about CMA-ES or BO (``skillkit/data/claims/comparisons.toml``).
-"""
+r"""``cmp.methods`` (not a thesis figure): REPS, GPREPS, CMA-ES and contextual BO run the learning
+curve of :mod:`skillkit.experiments.curves` on throwing, hockey, table tennis and balancing from
+the same initial policy and evaluation. REPS and GPREPS run as the task's thesis experiment
+(its :class:`~skillkit.experiments.curves.CurveTask`); CMA-ES gets REPS's real-rollout budget,
+contextual BO GPREPS's. See ``skillkit/data/claims/comparisons.toml``."""
 
 from __future__ import annotations
 
@@ -40,8 +32,6 @@ from skillkit.experiments.registry import SCALES, get
 from skillkit.experiments.settings import Settings, scales, setting
 from skillkit.tasks import make
 from skillkit.trial import TrialContext
-
-__all__ = ["METHODS", "TASKS", "MethodComparisonSettings", "thesis_settings"]
 
 TASKS = ("throwing", "hockey", "table-tennis", "balancing")
 """The registered tasks of the comparison."""

@@ -1,12 +1,8 @@
-"""The learning-curve experiment shared by Chapters 3 and 4 and ``cmp.methods``.
-
-A run learns with :func:`~skillkit.search.loop.learn` (Table 3.1; Table 4.1 for GPREPS) from
-the task's imitation policy and records the reward of the policy *mean* on fixed evaluation
-contexts after every update against the real rollouts so far, and optionally the task's
-held-out scores every few updates; a trial's arrays are named ``f"{key}_<name>"`` per run.
-A task's :class:`CurveTask` profile (:func:`register_curve_task`) says how REPS and GPREPS
-run on it; :func:`learning_curves` builds the experiment for a new task.
-"""
+"""The learning-curve experiment shared by Chapters 3 and 4 and ``cmp.methods``: a run learns
+with :func:`~skillkit.search.loop.learn` (Tables 3.1, 4.1) from the task's imitation policy and
+records the policy mean's reward on fixed contexts after every update (arrays
+``f"{key}_<name>"``). A task's :class:`CurveTask` (:func:`register_curve_task`) says how REPS
+and GPREPS run on it; :func:`learning_curves` builds the experiment for a new task."""
 
 from __future__ import annotations
 
@@ -26,33 +22,6 @@ from skillkit.tasks import make, names
 from skillkit.trial import TrialContext
 from skillkit.viz.model_layers import dumps_reward_model
 from skillkit.viz.series import trial_band
-
-__all__ = [
-    "COV_FLOOR",
-    "MIN_EFFECTIVE_SAMPLES",
-    "CurveSettings",
-    "CurveTask",
-    "EvaluationBlock",
-    "GPREPSBlock",
-    "REPSBlock",
-    "curve_series",
-    "curve_stats",
-    "curve_task",
-    "experiment",
-    "finite_or_none",
-    "gpreps_algorithm",
-    "gpreps_stats",
-    "heldout_setup",
-    "heldout_stats",
-    "kept_model",
-    "learning_curves",
-    "nan_mean",
-    "register_curve_task",
-    "regularised_reps",
-    "rollouts_to_reach",
-    "run_curve",
-    "run_gpreps",
-]
 
 COV_FLOOR = 0.1
 """The weighted ML fit of GPREPS and the Chapter 4 REPS baselines keeps each direction of Σ
@@ -303,8 +272,7 @@ def nan_mean(values) -> float:
 
 
 def finite_or_none(value) -> float | None:
-    """``value`` as a float, or None for a missing or non-finite number (as ``result.json``
-    stores NaN)."""
+    """``value`` as a float; None for None or a non-finite number (``result.json``'s NaN)."""
     if value is None:
         return None
     value = float(value)
@@ -328,9 +296,8 @@ def heldout_stats(trials, key: str, names) -> dict:
 
 
 def gpreps_stats(trials, key) -> dict:
-    """What a GPREPS run's trials say about its model and cost: the model's relative error
-    on the next real rollout (median, and the fraction below 10%), the mean seconds per
-    update in training, prediction and the policy update, and the largest KL."""
+    """A GPREPS run's model error on the next real rollout (median, share below 10%), mean
+    seconds per update in training, prediction and the policy update, and largest KL."""
     rel = np.concatenate([t[f"{key}_relative_error"][1:] for t in trials])
     return {
         "prediction_relative_error_median": float(np.nanmedian(rel)) if rel.size else None,

@@ -1,12 +1,7 @@
-"""``sanity3``: contextual policy search on a problem with a known optimal linear policy.
-
-:class:`LinearOptimumTask`: s ~ U([−1, 1]²), ω ∈ R³ and R(s, ω) = −(ω − a* − A* s)ᵀ W
-(ω − a* − A* s) + ν, ν ~ N(0, σ_ν²), so the optimal policy is the linear ω = a* + A* s.
-Contextual REPS (Table 3.1), RWR (2.18) and CrKR (2.19–2.20, linear kernel) learn from the same
-initial policy with :func:`skillkit.search.loop.learn` (25 rollouts per update, 200 reused); a
-policy's error is ‖[a, A] − [a*, A*]‖_F of the least-squares linear fit to its mean on a 5 × 5
-grid. The thesis reports no result here; our checks: ``skillkit/data/claims/ch3.toml``.
-"""
+"""``sanity3``: contextual REPS (Table 3.1), RWR (2.18) and CrKR (2.19–2.20) on
+:class:`LinearOptimumTask`, whose optimal policy is the linear ω = a* + A* s; a policy's error
+is ‖[a, A] − [a*, A*]‖_F of the least-squares linear fit to its mean on a 5 × 5 grid. No thesis
+result; our checks: ``skillkit/data/claims/ch3.toml``."""
 
 from __future__ import annotations
 

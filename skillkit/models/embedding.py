@@ -22,7 +22,6 @@ __all__ = [
     "conditional_weights",
     "initial_weights",
     "regularized_cholesky",
-    "rkhs_expectation",
     "rollout_weights",
 ]
 
@@ -59,9 +58,7 @@ def initial_weights(
     :math:`\\beta = (G + \\lambda I)^{-1} G \\alpha` with :math:`\\alpha = (G + \\lambda I)^{-1}
     \\langle g(z_l) \\rangle_l` (``mean_cross``, (N, B)); ``project=False`` returns α (Eq. 5.7)."""
     alpha = conditional_weights(chol, mean_cross)
-    if not project:
-        return alpha
-    return conditional_weights(chol, gram_matrix @ alpha)
+    return conditional_weights(chol, gram_matrix @ alpha) if project else alpha
 
 
 def rollout_weights(
@@ -86,21 +83,6 @@ def rollout_weights(
         beta = conditional_weights(chol, v)
         betas.append(beta)
     return torch.stack(betas)
-
-
-def rkhs_expectation(beta, alpha, gram_matrix) -> np.ndarray:
-    """:math:`\\mathbb E[f] = \\beta^\\top K \\alpha` for f = Φα under μ = Φβ (Eq. 2.43).
-
-    ``beta`` (N,) or (N, B), ``alpha`` (N,), ``gram_matrix`` (N, N): returns () or (B,)."""
-    k = check_array(gram_matrix, "gram_matrix", ndim=2)
-    n = k.shape[0]
-    if k.shape != (n, n):
-        raise ValueError(f"gram_matrix: expected a square matrix, got shape {k.shape}")
-    a = check_array(alpha, "alpha", shape=(n,))
-    b = check_array(beta, "beta", ndim=(1, 2))
-    if b.shape[0] != n:
-        raise ValueError(f"beta: expected {n} rows like gram_matrix, got shape {b.shape}")
-    return b.T @ (k @ a)
 
 
 class ConditionalEmbedding:
@@ -147,9 +129,11 @@ class ConditionalEmbedding:
         self.target_kernel = target_kernel
         self.inputs = z
         self.targets = y
+        self.n, self.input_dim = z.shape
+        self.target_dim = y.shape[1]
         self.gram = gram(kernel, z)
         self._z = torch.from_numpy(z)
-        self._chol = regularized_cholesky(torch.from_numpy(self.gram), self.lam)
+        self.chol = regularized_cholesky(torch.from_numpy(self.gram), self.lam)
 
     def __repr__(self) -> str:
         kern = type(self.kernel).__name__
@@ -161,22 +145,6 @@ class ConditionalEmbedding:
             f"target_dim={self.target_dim}, lam={number(self.lam)}, kernel={kern})"
         )
 
-    @property
-    def n(self) -> int:
-        return self.inputs.shape[0]
-
-    @property
-    def input_dim(self) -> int:
-        return self.inputs.shape[1]
-
-    @property
-    def target_dim(self) -> int:
-        return self.targets.shape[1]
-
-    @property
-    def chol(self) -> torch.Tensor:
-        return self._chol
-
     def cross_kernel(self, points: torch.Tensor) -> torch.Tensor:
         """g(z_i, p) for ``points`` (M, d_z) or (B, M, d_z): (N, M) or (B, N, M)."""
         self._points(points, "points")
@@ -187,15 +155,13 @@ class ConditionalEmbedding:
         """``value`` (an array unless a Tensor) with ``input_dim`` columns, else ValueError."""
         arr = value if ndim is None else check_array(value, name, ndim=ndim)
         if arr.shape[-1] != self.input_dim:
-            raise ValueError(
-                f"{name}: expected {self.input_dim} columns, got shape {tuple(arr.shape)}"
-            )
+            raise ValueError(f"{name}: expected {self.input_dim} columns, got {tuple(arr.shape)}")
         return arr
 
     def weights(self, queries) -> np.ndarray:
         """Weights (N, B) of :math:`\\mu_{y|z_*}` for queries (B, d_z), Eqs. (2.39)–(2.40)."""
         q = torch.from_numpy(self._points(queries, "queries", 2))
-        return conditional_weights(self._chol, self.cross_kernel(q)).numpy()
+        return conditional_weights(self.chol, self.cross_kernel(q)).numpy()
 
     def weights_from_samples(self, samples) -> np.ndarray:
         """Weights :math:`(G + \\lambda I)^{-1} \\langle g(z_l^*) \\rangle_l` for sample-represented
@@ -204,14 +170,14 @@ class ConditionalEmbedding:
         single = s.ndim == 2
         st = torch.from_numpy(s[None] if single else s)  # (B, L, d)
         mean_k = self.cross_kernel(st).mean(-1).T  # (N, B)
-        beta = conditional_weights(self._chol, mean_k).numpy()
+        beta = conditional_weights(self.chol, mean_k).numpy()
         return beta[:, 0] if single else beta
 
     def operator(self, basis) -> np.ndarray:
         """:math:`C = (G + \\lambda I)^{-1} \\tilde G` (N, M) of Table 5.1 / Eq. (2.42), with
         :math:`\\tilde G_{ij} = g(z_i, \\text{basis}_j)` for ``basis`` (M, d_z)."""
         b = torch.from_numpy(self._points(basis, "basis", 2))
-        return conditional_weights(self._chol, self.cross_kernel(b)).numpy()
+        return conditional_weights(self.chol, self.cross_kernel(b)).numpy()
 
     def apply(self, alpha, basis) -> np.ndarray:
         """Weights (N,) or (N, B) of :math:`\\Phi_y (G + \\lambda I)^{-1} \\tilde G \\alpha`
@@ -222,16 +188,14 @@ class ConditionalEmbedding:
             raise ValueError(f"alpha: expected {b.shape[0]} rows like basis, got shape {a.shape}")
         g = self.cross_kernel(torch.from_numpy(b))
         at = torch.from_numpy(a.reshape(a.shape[0], -1))
-        out = conditional_weights(self._chol, g @ at).numpy()
+        out = conditional_weights(self.chol, g @ at).numpy()
         return out[:, 0] if a.ndim == 1 else out
 
     def _rows(self, value, name: str) -> np.ndarray:
         """``value`` (N,) or (N, k), one row per training pair, else ValueError."""
         arr = check_array(value, name, ndim=(1, 2))
         if arr.shape[0] != self.n:
-            raise ValueError(
-                f"{name}: expected {self.n} rows (one per training pair), got {arr.shape}"
-            )
+            raise ValueError(f"{name}: expected {self.n} rows (training pairs), got {arr.shape}")
         return arr
 
     def expected(self, values, beta) -> np.ndarray:
@@ -255,19 +219,14 @@ class ConditionalEmbedding:
         if isinstance(kern, Linear):
             return self.mean(b)
         if not isinstance(kern, SquaredExponential):
-            raise ValueError(
-                f"target_kernel: expected SquaredExponential or Linear, got {type(kern).__name__}"
-            )
+            raise ValueError(f"target_kernel: expected SE or Linear, got {type(kern).__name__}")
         single = b.ndim == 1
         x, ok = _se_preimage(self.targets, b.reshape(self.n, -1), kern, int(max_iter), float(tol))
         if not np.all(ok):
-            warnings.warn(
-                f"preimage: fixed-point iteration stopped early for {int(np.sum(~ok))} "
-                f"of {ok.size} embedding(s) (non-positive local weight mass or no "
-                "convergence); returned the best iterate",
-                RuntimeWarning,
-                stacklevel=2,
-            )
+            bad = f"{int(np.sum(~ok))} of {ok.size}"
+            msg = f"preimage: fixed-point iteration stopped early for {bad} embedding(s) "
+            msg += "(weight mass ≤ 0 or no convergence); returned the best iterate"
+            warnings.warn(msg, RuntimeWarning, stacklevel=2)
         return x[0] if single else x
 
 

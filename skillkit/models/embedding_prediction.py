@@ -40,16 +40,6 @@ class TrajectoryEmbedding:
             f"total_reward={reward})"
         )
 
-    @property
-    def n_steps(self) -> int:
-        return self.betas.shape[0] + 1
-
-    def total_reward(self) -> np.ndarray:
-        """Expected trajectory reward :math:`\\sum_t \\mathbb E[r_t]`, shape (B,)."""
-        if self.rewards is None:
-            raise ValueError("rewards: this prediction was made without a reward function")
-        return self.rewards.sum(axis=0)
-
     def means(self, model: ConditionalEmbedding) -> np.ndarray:
         """Expected states :math:`X'^\\top \\beta_t`, shape (T, B, n_x)."""
         return np.concatenate([self.initial[None], *(model.mean(b)[None] for b in self.betas)])
@@ -107,9 +97,7 @@ def predict(
     samples = x0 if x0.ndim == 3 else x0[:, None, :]  # (B, L, n_x)
     n_rows = check_count(n_steps, "n_steps", minimum=2)  # initial state + one prediction
     if policy is None and model.input_dim != n_x:
-        raise ValueError(
-            f"policy: needed for a state-action model ({model.input_dim} inputs, {n_x} targets)"
-        )
+        raise ValueError(f"policy: needed for {model.input_dim} inputs and {n_x} targets")
     fixed = policy is None or time_invariant
 
     def inputs_at(states: np.ndarray, t: int) -> tuple[np.ndarray, np.ndarray]:
@@ -126,21 +114,14 @@ def predict(
         c = np.broadcast_to(controls, (b,) + controls.shape[1:])
         z = np.concatenate([s, c], axis=-1)
         if z.shape[-1] != model.input_dim:
-            raise ValueError(
-                f"policy(states, t): gives {z.shape[-1]} input columns, expected {model.input_dim}"
-            )
+            raise ValueError(f"policy(states, t): expected {model.input_dim} inputs, got {z.shape}")
         return z, c
 
-    def rewards_at(states: np.ndarray, controls: np.ndarray) -> np.ndarray:
-        r = check_array(
-            reward(np.broadcast_to(states, controls.shape[:-1] + states.shape[-1:]), controls),
-            "reward(states, controls)",
-            ndim=2,
-        )
-        if r.shape != controls.shape[:-1]:
-            raise ValueError(
-                f"reward(states, controls): expected {controls.shape[:-1]}, got {r.shape}"
-            )
+    def rewards_at(s: np.ndarray, c: np.ndarray) -> np.ndarray:
+        out = reward(np.broadcast_to(s, c.shape[:-1] + s.shape[-1:]), c)
+        r = check_array(out, "reward(states, controls)", ndim=2)
+        if r.shape != c.shape[:-1]:
+            raise ValueError(f"reward(states, controls): expected {c.shape[:-1]}, got {r.shape}")
         return r
 
     successors = model.targets[None]  # (1, N, n_x)
@@ -158,12 +139,6 @@ def predict(
                 reward_vectors[key] = rewards_at(successors, c)
         return grams[key]
 
-    def reward_vector(t: int) -> np.ndarray:
-        key = 1 if fixed else t
-        if key not in reward_vectors:
-            reward_vectors[key] = rewards_at(successors, inputs_at(successors, key)[1])
-        return reward_vectors[key]
-
     n_batch = samples.shape[0]
     with torch.no_grad():
         z1, c1 = inputs_at(samples, 0)  # (B, L, d_z)
@@ -178,6 +153,9 @@ def predict(
         rewards = np.empty((n_rows, n_batch))
         rewards[0] = rewards_at(samples, c1).mean(axis=1)
         for t in range(1, n_rows):
-            r_t = np.broadcast_to(reward_vector(t), (n_batch, model.n))
+            key = 1 if fixed else t
+            if key not in reward_vectors:  # the last step: computed with its (unused) G̃
+                transition(t)
+            r_t = np.broadcast_to(reward_vectors[key], (n_batch, model.n))
             rewards[t] = np.einsum("bn,nb->b", r_t, betas[t - 1])
     return TrajectoryEmbedding(initial=samples.mean(axis=1), betas=betas, rewards=rewards)

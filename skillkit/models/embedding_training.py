@@ -90,10 +90,10 @@ def _unpack(theta: torch.Tensor, dim: int) -> tuple[torch.Tensor, torch.Tensor]:
     return torch.exp(theta[:dim]), torch.exp(theta[dim])
 
 
-def _weights(theta: torch.Tensor, inputs: torch.Tensor, queries: torch.Tensor):
+def _weights(theta: torch.Tensor, inputs: torch.Tensor, queries: torch.Tensor) -> torch.Tensor:
     ls, lam = _unpack(theta, inputs.shape[-1])
     chol = regularized_cholesky(se_kernel(inputs, inputs, ls, 1.0), lam)
-    return chol, ls, conditional_weights(chol, se_kernel(inputs, queries, ls, 1.0))
+    return conditional_weights(chol, se_kernel(inputs, queries, ls, 1.0))
 
 
 def state_embedding_error(
@@ -107,7 +107,7 @@ def state_embedding_error(
     """Squared RKHS error of predicted successor embeddings, Eqs. (5.15)–(5.16):
     J = Σ_v g_y(y_v, y_v) − 2 g_y(y_v)ᵀβ_v + β_vᵀ G_y β_v, β_v = (G + λI)⁻¹ g(z_v), from
     ``target_gram`` G_y (N, N), ``target_cross`` g_y(y_v, y_j) (V, N), ``target_diag`` (V,)."""
-    _, _, beta = _weights(theta, inputs, val_inputs)  # (N, V)
+    beta = _weights(theta, inputs, val_inputs)  # (N, V)
     return (
         target_diag.sum()
         - 2.0 * (target_cross * beta.T).sum()
@@ -124,7 +124,7 @@ def step_reward_error(
 ) -> torch.Tensor:
     """One-step reward error with a linear reward kernel, Eqs. (5.17)–(5.19):
     J = Σ_v (r'_v − r'ᵀβ_v)², β_v = (G + λI)⁻¹ g(z_v)."""
-    _, _, beta = _weights(theta, inputs, val_inputs)
+    beta = _weights(theta, inputs, val_inputs)
     return ((val_rewards - rewards @ beta) ** 2).sum()
 
 
@@ -148,17 +148,13 @@ def trajectory_reward_error(
     beta1 = initial_weights(
         chol, g_train, se_kernel(inputs, initial_inputs, ls, 1.0), project_initial
     )  # (N, M)
-    if bases.ndim == 3:
-        g = se_kernel(inputs, bases, ls, 1.0)  # (M, N, N)
 
-        def transition(t):
-            return g
-    else:
+    def transition(t):
+        return se_kernel(inputs, bases[t - 1], ls, 1.0)
 
-        def transition(t):
-            return se_kernel(inputs, bases[t - 1], ls, 1.0)
-
-    betas = rollout_weights(chol, beta1, transition, n_rows - 1)  # (T-1, N, M)
+    shared = bases.ndim == 3  # one G̃^π (M, N, N) for every step
+    g = se_kernel(inputs, bases, ls, 1.0) if shared else transition
+    betas = rollout_weights(chol, beta1, g, n_rows - 1)  # (T-1, N, M)
     r_basis = basis_rewards if basis_rewards.ndim == 3 else basis_rewards[None]
     predicted = torch.einsum("tmn,tnm->tm", r_basis.expand(n_rows - 1, -1, -1), betas)
     return ((rewards[:, 1:].T - predicted) ** 2).sum()
@@ -212,6 +208,14 @@ def _check_folds(folds: Folds, n: int) -> list[tuple[np.ndarray, np.ndarray]]:
     return out
 
 
+def _fold_loss(error, folds: Folds, z: np.ndarray, parts) -> CrossValidatedLoss:
+    """``error(theta, *parts(train, val))`` summed over the checked folds of the rows of ``z``."""
+    folds = _check_folds(folds, z.shape[0])
+    args = [tuple(_t(v) for v in parts(tr, va)) for tr, va in folds]
+    fns = [lambda th, a=a: error(th, *a) for a in args]
+    return CrossValidatedLoss(fns, z.shape[1], sum(len(va) for _, va in folds))
+
+
 def state_embedding_loss(
     inputs, targets, folds: Folds, target_kernel: gpytorch.kernels.Kernel
 ) -> CrossValidatedLoss:
@@ -222,25 +226,18 @@ def state_embedding_loss(
     if y.shape[0] != z.shape[0]:
         raise ValueError(f"targets: expected {z.shape[0]} rows like inputs, got shape {y.shape}")
     g_y = gram(target_kernel, y)
-    fns = []
-    folds = _check_folds(folds, z.shape[0])
-    for tr, va in folds:
-        parts = (z[tr], z[va], g_y[np.ix_(tr, tr)], g_y[np.ix_(va, tr)], np.diag(g_y)[va])
-        args = tuple(_t(a) for a in parts)
-        fns.append(lambda th, a=args: state_embedding_error(th, *a))
-    return CrossValidatedLoss(fns, z.shape[1], sum(len(va) for _, va in folds))
+
+    def parts(tr, va):
+        return z[tr], z[va], g_y[np.ix_(tr, tr)], g_y[np.ix_(va, tr)], np.diag(g_y)[va]
+
+    return _fold_loss(state_embedding_error, folds, z, parts)
 
 
 def step_reward_loss(inputs, rewards, folds: Folds) -> CrossValidatedLoss:
     """Cross-validated one-step reward error (5.19) for ``inputs`` (N, d) and ``rewards`` (N,)."""
     z = check_array(inputs, "inputs", ndim=2)
     r = check_array(rewards, "rewards", shape=(z.shape[0],))
-    fns = []
-    folds = _check_folds(folds, z.shape[0])
-    for tr, va in folds:
-        args = (_t(z[tr]), _t(r[tr]), _t(z[va]), _t(r[va]))
-        fns.append(lambda th, a=args: step_reward_error(th, *a))
-    return CrossValidatedLoss(fns, z.shape[1], sum(len(va) for _, va in folds))
+    return _fold_loss(step_reward_error, folds, z, lambda tr, va: (z[tr], r[tr], z[va], r[va]))
 
 
 def trajectory_reward_loss(
@@ -251,7 +248,6 @@ def trajectory_reward_loss(
     reward,
     folds: Folds,
     chunk: int = 8,
-    project_initial: bool = True,
 ) -> CrossValidatedLoss:
     """Cross-validated trajectory reward error (5.23), folds over whole trajectories.
 
@@ -281,7 +277,7 @@ def trajectory_reward_loss(
         for lo in range(0, len(va), chunk):
             sl = slice(lo, lo + chunk)
             args = (_t(z_tr), _t(z_all[va][sl, 0]), _t(bases[sl]), _t(basis_r[sl]), _t(r[va][sl]))
-            fns.append(lambda th, a=args: trajectory_reward_error(th, *a, project_initial))
+            fns.append(lambda th, a=args: trajectory_reward_error(th, *a))
         n_val += len(va) * (t_len - 1)
     return CrossValidatedLoss(fns, z_all.shape[-1], n_val)
 
@@ -313,13 +309,12 @@ def fit_hyperparameters(
     loss: CrossValidatedLoss,
     lengthscale,
     lam: float = 1e-3,
-    learn_lam: bool = True,
     lengthscale_factor: float = 100.0,
     lam_bounds: tuple[float, float] = (1e-6, 1.0),
     max_iter: int = 100,
     lengthscale_reference=None,
 ) -> FitResult:
-    """Minimise a cross-validated embedding error over log length-scales (and log λ), L-BFGS-B.
+    """Minimise a cross-validated embedding error over log length-scales and log λ, L-BFGS-B.
 
     Parameters
     ----------
@@ -328,9 +323,7 @@ def fit_hyperparameters(
     lengthscale : float or array_like, shape (d,)
         Initial length-scales (> 0).
     lam : float, default 1e-3
-        Initial (or fixed) λ, inside ``lam_bounds``.
-    learn_lam : bool, default True
-        Optimise λ too; False keeps ``lam`` fixed.
+        Initial λ, inside ``lam_bounds``.
     lengthscale_factor : float, default 100
         Length-scales are searched in [w_ref / factor, w_ref · factor].
     lam_bounds : (float, float), default (1e-6, 1.0)
@@ -365,32 +358,26 @@ def fit_hyperparameters(
     if lengthscale_reference is not None:
         ref = positive(lengthscale_reference, "lengthscale_reference")
         w0 = np.clip(w0, ref / f, ref * f)
-    bounds = [(np.log(w / f), np.log(w * f)) for w in ref]
+    bounds = [(np.log(w / f), np.log(w * f)) for w in ref] + [(np.log(lo_l), np.log(hi_l))]
     theta0 = np.append(np.log(w0), np.log(lam))
-
-    fixed = [] if learn_lam else [np.log(lam)]  # log λ, when not learnt
-
-    def fun(th):
-        v, g = loss.value_and_grad(np.append(th, fixed))
-        return v, g[: len(th)]
-
-    x0 = theta0[: len(theta0) - len(fixed)]
-    bnds = bounds + [(np.log(lo_l), np.log(hi_l))] if learn_lam else bounds
     initial = loss(theta0)
     res = minimize(
-        fun, x0, jac=True, method="L-BFGS-B", bounds=bnds, options={"maxiter": int(max_iter)}
+        loss.value_and_grad,
+        theta0,
+        jac=True,
+        method="L-BFGS-B",
+        bounds=bounds,
+        options={"maxiter": int(max_iter)},
     )
-    theta = np.append(res.x, fixed)
-    names = [f"lengthscale[{i}]" for i in range(d)] + (["lam"] if learn_lam else [])
+    names = [f"lengthscale[{i}]" for i in range(d)] + ["lam"]
     at_bound = [
         n
-        for n, v, (lo, hi) in zip(names, res.x, bnds, strict=True)
+        for n, v, (lo, hi) in zip(names, res.x, bounds, strict=True)
         if np.isclose(v, lo, atol=1e-6) or np.isclose(v, hi, atol=1e-6)
     ]
-    lam_fit = float(np.exp(theta[d])) if learn_lam else lam
     return FitResult(
-        lengthscale=np.exp(theta[:d]),
-        lam=lam_fit,
+        lengthscale=np.exp(res.x[:d]),
+        lam=float(np.exp(res.x[d])),
         loss=float(res.fun),
         initial_loss=float(initial),
         n_evaluations=int(res.nfev),

@@ -15,7 +15,7 @@ import torch
 import torch.nn.functional as F
 
 from skillkit._repr import number
-from skillkit._validation import as_generator, check_array, check_count, check_positive
+from skillkit._validation import as_generator, check_count, check_positive
 from skillkit.models.gp import DTYPE, Moments, TransitionModel, as_device, check_dtype
 
 __all__ = ["LOGVAR_INIT", "LOGVAR_PENALTY", "EnsembleSettings", "ProbabilisticEnsemble"]
@@ -76,8 +76,7 @@ class ProbabilisticEnsemble(TransitionModel):
         device=None,
         dtype: torch.dtype = DTYPE,
     ):
-        if settings is None:
-            settings = EnsembleSettings()
+        settings = EnsembleSettings() if settings is None else settings
         if not isinstance(settings, EnsembleSettings):
             raise ValueError(f"settings: expected EnsembleSettings, got {type(settings).__name__}")
         super().__init__(target)
@@ -85,9 +84,7 @@ class ProbabilisticEnsemble(TransitionModel):
         self.settings = settings
         self.device = as_device(device)
         self.dtype = dtype
-        self.state_dim = 0
-        self.control_dim = 0
-        self.n_data = 0
+        self.state_dim = self.control_dim = self.n_data = 0
         #: Final training loss of each member on its resample (the loss ℓ_k, standardised
         #: units, without the penalties), shape (K,); None before :meth:`fit`.
         self.train_loss: np.ndarray | None = None
@@ -199,11 +196,9 @@ class ProbabilisticEnsemble(TransitionModel):
         """Mean and variance (n, n_x) of the equal-weight mixture (1/K) Σ_k N(μ_k, σ_k²): the mean
         of the σ_k² plus the variance of the μ_k."""
         self._check_fitted()
-        x = check_array(states, "states", shape=(None, self.state_dim))
-        u = check_array(controls, "controls", shape=(x.shape[0], self.control_dim))
-        kw = {"dtype": self.dtype, "device": self.device}
+        x, u = self._queries(states, controls, self.dtype, self.device)
         with torch.no_grad():
-            mean, var = self.member_moments(torch.as_tensor(x, **kw), torch.as_tensor(u, **kw))
+            mean, var = self.member_moments(x, u)
             mu = mean.mean(0)
             total = var.mean(0) + ((mean - mu) ** 2).mean(0)
         return tuple(t.cpu().numpy().astype(np.float64) for t in (mu, total))

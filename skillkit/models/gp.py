@@ -43,7 +43,6 @@ __all__ = [
     "TransitionModel",
     "as_device",
     "check_dtype",
-    "check_transitions",
     "record_numerical_events",
     "report_event",
     "robust_cholesky",
@@ -84,6 +83,12 @@ EVENT_KINDS = {
 }
 
 
+def _check_kind(kind: str) -> str:
+    if kind not in EVENT_KINDS:
+        raise ValueError(f"kind: expected one of {tuple(EVENT_KINDS)}, got {kind!r}")
+    return kind
+
+
 @dataclass
 class NumericalEvents:
     """Handled numerical events counted by kind (:data:`EVENT_KINDS`), and the largest jitter."""
@@ -96,9 +101,7 @@ class NumericalEvents:
         return sum(self.counts.values())
 
     def add(self, kind: str, jitter: float = 0.0) -> None:
-        if kind not in EVENT_KINDS:
-            raise ValueError(f"kind: expected one of {tuple(EVENT_KINDS)}, got {kind!r}")
-        self.counts[kind] = self.counts.get(kind, 0) + 1
+        self.counts[_check_kind(kind)] = self.counts.get(kind, 0) + 1
         self.max_jitter = max(self.max_jitter, float(jitter))
 
     def update(self, other: NumericalEvents | dict) -> NumericalEvents:
@@ -125,11 +128,8 @@ class NumericalEvents:
     def from_dict(cls, data: dict) -> NumericalEvents:
         data = dict(data)
         jitter = float(data.pop("max_jitter", 0.0) or 0.0)
-        for kind in data:
-            if kind not in EVENT_KINDS:
-                raise ValueError(f"kind: expected one of {tuple(EVENT_KINDS)}, got {kind!r}")
         counts = dict.fromkeys(EVENT_KINDS, 0)
-        counts.update({k: int(n) for k, n in data.items()})
+        counts.update({_check_kind(k): int(n) for k, n in data.items()})
         return cls(counts, jitter)
 
     def __repr__(self) -> str:
@@ -158,8 +158,7 @@ def record_numerical_events(quiet: bool = True) -> Iterator[NumericalEvents]:
 
 def report_event(kind: str, message: str, *, jitter: float = 0.0, stacklevel: int = 1) -> None:
     """Count an event of ``kind`` in every active recorder; warn ``message`` unless one is quiet."""
-    if kind not in EVENT_KINDS:
-        raise ValueError(f"kind: expected one of {tuple(EVENT_KINDS)}, got {kind!r}")
+    _check_kind(kind)
     active = _RECORDERS.get()
     for events, _ in active:
         events.add(kind, jitter)
@@ -176,9 +175,7 @@ def as_device(device, name: str = "device") -> torch.device:
     try:
         dev = torch.device(device)
     except (RuntimeError, TypeError):
-        raise ValueError(
-            f"{name}: expected a device such as 'cpu' or 'cuda:0', got {device!r}"
-        ) from None
+        raise ValueError(f"{name}: expected a device like 'cuda:0', got {device!r}") from None
     if dev.type == "cpu":
         return torch.device("cpu")
     if dev.type != "cuda":
@@ -188,9 +185,7 @@ def as_device(device, name: str = "device") -> torch.device:
     if dev.index is None:
         return torch.device("cuda", torch.cuda.current_device())
     if dev.index >= torch.cuda.device_count():
-        raise ValueError(
-            f"{name}: {device!r} but {torch.cuda.device_count()} CUDA device(s) available"
-        )
+        raise ValueError(f"{name}: {device!r} but {torch.cuda.device_count()} CUDA device(s)")
     return dev
 
 
@@ -199,20 +194,6 @@ def check_dtype(dtype) -> torch.dtype:
     if dtype not in (torch.float64, torch.float32):
         raise ValueError(f"dtype: expected torch.float64 or torch.float32, got {dtype!r}")
     return dtype
-
-
-def check_transitions(states, controls, next_states, min_rows: int = 0):
-    """Validated transitions: states (N, n_x), controls (N, n_u), next states (N, n_x)."""
-    x = check_array(states, "states", ndim=2)
-    u = check_array(controls, "controls", ndim=2)
-    xn = check_array(next_states, "next_states", ndim=2)
-    if min_rows and (x.shape[0] < min_rows or x.shape[1] < 1):
-        raise ValueError(f"states: expected at least {min_rows} rows and 1 column, got {x.shape}")
-    if u.shape[0] != x.shape[0]:
-        raise ValueError(f"controls: expected {x.shape[0]} rows like states, got shape {u.shape}")
-    if xn.shape != x.shape:
-        raise ValueError(f"next_states: expected shape {x.shape} like states, got {xn.shape}")
-    return x, u, xn
 
 
 def robust_cholesky(A: torch.Tensor, what: str = "matrix") -> tuple[torch.Tensor, float]:
@@ -488,16 +469,11 @@ TOLERANCE_CHANGE = 1e-12
 
 
 def optimize(
-    parameters: list[torch.nn.Parameter],
-    loss_fn: Callable[[], torch.Tensor],
-    n_steps: int,
-    method: str = "lbfgs",
-    learning_rate: float = 0.05,
+    parameters: list[torch.nn.Parameter], loss_fn: Callable[[], torch.Tensor], n_steps: int
 ) -> dict:
-    """Minimise ``loss_fn`` over ``parameters`` (L-BFGS, one iteration per step, or Adam), ending
-    on a completed iterate: a failed evaluation restores the last one (``"restored_iterate"``).
+    """Minimise ``loss_fn`` over ``parameters`` by L-BFGS (one iteration per step), ending on a
+    completed iterate: a failed evaluation restores the last one (``"restored_iterate"``).
     Returns ``trace``, ``n_evaluations``, ``n_iterations``, ``best`` and ``stopped_early``."""
-    _check_method(method)
     trace: list[float] = []
     stopped = None
     cache: dict[bytes, tuple[float, list[torch.Tensor | None]]] = {}
@@ -505,7 +481,14 @@ def optimize(
     def key() -> bytes:
         return b"".join(p.detach().cpu().numpy().tobytes() for p in parameters)
 
-    def evaluate() -> torch.Tensor:
+    def closure():
+        k = key()
+        if k in cache:  # an accepted point: its value and gradient are known
+            value, grads = cache[k]
+            for p, g in zip(parameters, grads, strict=True):
+                p.grad = None if g is None else g.clone()
+            return torch.tensor(value, dtype=DTYPE)
+        opt.zero_grad()
         try:
             loss = loss_fn()
         except (GPNumericalError, NotPSDError, NanError) as exc:
@@ -514,72 +497,42 @@ def optimize(
         if not math.isfinite(value):
             raise _Diverged(f"non-finite objective {value}")
         trace.append(value)
+        loss.backward()
+        for p in parameters:
+            if p.grad is not None and not torch.isfinite(p.grad).all():
+                raise _Diverged("non-finite gradient")
+        cache[k] = (value, [None if p.grad is None else p.grad.clone() for p in parameters])
         return loss
 
-    def snapshot() -> list[torch.Tensor]:
-        return [p.detach().clone() for p in parameters]
-
-    best_state, best_value = snapshot(), math.nan
+    best_state, best_value = [p.detach().clone() for p in parameters], math.nan
     n_iter = 0
     if n_steps > 0:
+        max_eval = int(n_steps * 1.25) + 5
+        opt = torch.optim.LBFGS(
+            parameters,
+            lr=1.0,
+            max_iter=1,
+            max_eval=max_eval,
+            tolerance_grad=1e-9,
+            tolerance_change=TOLERANCE_CHANGE,
+            history_size=50,
+            line_search_fn="strong_wolfe",
+        )
         try:
-            if method == "lbfgs":
-                max_eval = int(n_steps * 1.25) + 5
-                opt = torch.optim.LBFGS(
-                    parameters,
-                    lr=1.0,
-                    max_iter=1,
-                    max_eval=max_eval,
-                    tolerance_grad=1e-9,
-                    tolerance_change=TOLERANCE_CHANGE,
-                    history_size=50,
-                    line_search_fn="strong_wolfe",
-                )
-
-                def closure():
-                    k = key()
-                    if k in cache:  # an accepted point: its value and gradient are known
-                        value, grads = cache[k]
-                        for p, g in zip(parameters, grads, strict=True):
-                            p.grad = None if g is None else g.clone()
-                        return torch.tensor(value, dtype=DTYPE)
-                    opt.zero_grad()
-                    loss = evaluate()
-                    loss.backward()
-                    for p in parameters:
-                        if p.grad is not None and not torch.isfinite(p.grad).all():
-                            raise _Diverged("non-finite gradient")
-                    cache[k] = (
-                        float(loss.detach()),
-                        [None if p.grad is None else p.grad.clone() for p in parameters],
-                    )
-                    return loss
-
-                k_prev = key()
-                while n_iter < n_steps and len(trace) < max_eval:
-                    opt.step(closure)  # one iteration: the parameters end on an accepted point
-                    k = key()
-                    value0, value = cache[k_prev][0], cache[k][0]
-                    best_state, best_value = snapshot(), value
-                    if k == k_prev:  # no step (gradient or directional derivative ~ 0)
-                        break
-                    n_iter += 1
-                    # torch's lack-of-progress tests (a max_iter=1 call returns before them)
-                    if abs(value - value0) < TOLERANCE_CHANGE:
-                        break
-                    cache = {k: cache[k]}
-                    k_prev = k
-            else:
-                opt = torch.optim.Adam(parameters, lr=learning_rate)
-                best_value = math.inf
-                for _ in range(n_steps):
-                    opt.zero_grad()
-                    loss = evaluate()
-                    if trace[-1] < best_value:
-                        best_state, best_value = snapshot(), trace[-1]
-                    loss.backward()
-                    opt.step()
-                    n_iter += 1
+            k_prev = key()
+            while n_iter < n_steps and len(trace) < max_eval:
+                opt.step(closure)  # one iteration: the parameters end on an accepted point
+                k = key()
+                value0, value = cache[k_prev][0], cache[k][0]
+                best_state, best_value = [p.detach().clone() for p in parameters], value
+                if k == k_prev:  # no step (gradient or directional derivative ~ 0)
+                    break
+                n_iter += 1
+                # torch's lack-of-progress tests (a max_iter=1 call returns before them)
+                if abs(value - value0) < TOLERANCE_CHANGE:
+                    break
+                cache = {k: cache[k]}
+                k_prev = k
         except _Diverged as exc:
             stopped = str(exc)
     with torch.no_grad():
@@ -607,12 +560,6 @@ def optimize(
     }
 
 
-def _check_method(method: str) -> str:
-    if method not in ("lbfgs", "adam"):
-        raise ValueError(f"optimizer: expected 'lbfgs' or 'adam', got {method!r}")
-    return method
-
-
 class GPRegression:
     """Shared base of :class:`ExactGP` and the sparse GPs."""
 
@@ -625,8 +572,6 @@ class GPRegression:
         noise_floor: float = 1e-6,
         additive_noise: float = 1.0,
         n_steps: int = 150,
-        optimizer: str = "lbfgs",
-        learning_rate: float = 0.05,
         standardize: bool = True,
         curb: HyperCurb | None = None,
         device=None,
@@ -649,8 +594,6 @@ class GPRegression:
         if int(n_steps) != n_steps or n_steps < 0:
             raise ValueError(f"n_steps: expected a non-negative integer, got {n_steps!r}")
         self.n_steps = int(n_steps)
-        self.optimizer = _check_method(optimizer)
-        self.learning_rate = check_positive(learning_rate, "learning_rate")
         self.standardize = bool(standardize)
         self.predictor: GPPredictor | None = None
         self.diagnostics: dict = {}
@@ -661,10 +604,8 @@ class GPRegression:
     def __repr__(self) -> str:
         name = type(self).__name__
         if self.predictor is None:
-            return (
-                f"{name}(unfitted, n_steps={self.n_steps}, optimizer={self.optimizer!r}, "
-                f"additive_noise={number(self.additive_noise)})"
-            )
+            noise = number(self.additive_noise)
+            return f"{name}(unfitted, n_steps={self.n_steps}, additive_noise={noise})"
         pred, h = self.predictor, self.hyperparameters
         lml = self.diagnostics.get("log_marginal_likelihood")
         text = (
@@ -738,9 +679,7 @@ class GPRegression:
             return loss / N
 
         with record_numerical_events(quiet=False) as events:
-            res = optimize(
-                self._parameters(), objective, self.n_steps, self.optimizer, self.learning_rate
-            )
+            res = optimize(self._parameters(), objective, self.n_steps)
             with torch.no_grad():
                 self.predictor, extra = self._make_predictor()
             noise = self.predictor.noise.cpu().numpy()
@@ -860,17 +799,14 @@ class GPRegression:
         )
 
     def _hyper_modules(self, E: int, d: int) -> tuple[SquaredExponential, gpytorch.Module]:
-
-        def tensor(name: str) -> torch.Tensor:
-            return torch.as_tensor(self._init[name], dtype=DTYPE, device=self.device)
-
+        init = {k: torch.as_tensor(v, dtype=DTYPE).to(self.device) for k, v in self._init.items()}
         kernel = SquaredExponential(d, batch_shape=torch.Size([E])).to(self.device)
-        kernel.lengthscale = tensor("lengthscale")[:, None, :]
-        kernel.outputscale = tensor("outputscale")
+        kernel.lengthscale = init["lengthscale"][:, None, :]
+        kernel.outputscale = init["outputscale"]
         likelihood = gpytorch.likelihoods.GaussianLikelihood(
             batch_shape=torch.Size([E]), noise_constraint=GreaterThan(self.noise_floor)
         ).to(self.device, DTYPE)
-        likelihood.noise = tensor("noise")[:, None]
+        likelihood.noise = init["noise"][:, None]
         return kernel, likelihood
 
 
@@ -947,9 +883,7 @@ class ExactGP(GPRegression):
     additive_noise : float, default 1.0
         α: adds N(0, (α·10⁻²·std(y))²) to the targets (Sec. 4.2.3); 0 for none.
     n_steps : int, default 150
-        Optimiser steps on −(2.28) (the thesis's 150).
-    optimizer : {"lbfgs", "adam"}
-    learning_rate : float, default 0.05
+        L-BFGS iterations on −(2.28) (the thesis's 150).
     standardize : bool, default True
         Fit on standardised targets (predictions are in raw units).
     curb : HyperCurb, optional
@@ -958,16 +892,21 @@ class ExactGP(GPRegression):
     Raises
     ------
     ValueError
-        On non-positive scales or an unknown optimiser.
+        On non-positive scales or a negative ``n_steps``.
     """
 
     def _build(self, rng: np.random.Generator) -> None:
         E, N = self.Y.shape
         d = self.X.shape[1]
-        self.kernel, self.likelihood = self._hyper_modules(E, d)
-        self.model = _BatchedExactGP(
-            self.X.expand(E, N, d), self.Y, self.likelihood, self.kernel
-        ).to(self.device, DTYPE)
+        kernel, self.likelihood = self._hyper_modules(E, d)
+        self.model = _BatchedExactGP(self.X.expand(E, N, d), self.Y, self.likelihood, kernel).to(
+            self.device, DTYPE
+        )
+
+    @property
+    def kernel(self) -> SquaredExponential:
+        """The SE kernel, ``self.model.covar_module``."""
+        return self.model.covar_module
 
     def _parameters(self) -> list[torch.nn.Parameter]:
         return list(self.model.parameters())
@@ -1005,7 +944,7 @@ class TransitionModel:
     """Base of the forward models p(x_{t+1} | x_t, u_t): ``target`` "delta" learns x_{t+1} − x_t,
     "next" x_{t+1}."""
 
-    _min_rows = 0  # transitions needed by check_transitions
+    _min_rows = 0  # transitions a fit needs
 
     def __init__(self, target: str):
         if target not in ("delta", "next"):
@@ -1026,8 +965,24 @@ class TransitionModel:
         -------
         self
         """
-        self._fit(*check_transitions(states, controls, next_states, self._min_rows), rng)
+        x = check_array(states, "states", ndim=2)
+        u = check_array(controls, "controls", ndim=2)
+        xn = check_array(next_states, "next_states", ndim=2)
+        if self._min_rows and (x.shape[0] < self._min_rows or x.shape[1] < 1):
+            raise ValueError(f"states: expected {self._min_rows}+ rows, 1+ columns, got {x.shape}")
+        if u.shape[0] != x.shape[0]:
+            raise ValueError(f"controls: expected {x.shape[0]} rows like states, got {u.shape}")
+        if xn.shape != x.shape:
+            raise ValueError(f"next_states: expected shape {x.shape} like states, got {xn.shape}")
+        self._fit(x, u, xn, rng)
         return self
+
+    def _queries(self, states, controls, dtype, device) -> tuple[torch.Tensor, torch.Tensor]:
+        """Validated query states (n, n_x) and controls (n, n_u) as tensors."""
+        x = check_array(states, "states", shape=(None, self.state_dim))
+        u = check_array(controls, "controls", shape=(x.shape[0], self.control_dim))
+        kw = {"dtype": dtype, "device": device}
+        return torch.as_tensor(x, **kw), torch.as_tensor(u, **kw)
 
 
 class ForwardModel(TransitionModel):
@@ -1058,16 +1013,12 @@ class ForwardModel(TransitionModel):
         self.gp = gp
         self.mean = mean
         self.linear_weights: torch.Tensor | None = None
-        self.state_dim = 0
-        self.control_dim = 0
+        self.state_dim = self.control_dim = 0
         self._predictor: GPPredictor | None = None
 
     def __repr__(self) -> str:
-        sizes = (
-            f"state_dim={self.state_dim}, control_dim={self.control_dim}"
-            if self._predictor is not None
-            else "unfitted"
-        )
+        sizes = f"state_dim={self.state_dim}, control_dim={self.control_dim}"
+        sizes = sizes if self._predictor is not None else "unfitted"
         mean = "" if self.mean == "zero" else f", mean={self.mean!r}"
         return f"ForwardModel(target={self.target!r}{mean}, {sizes}, gp={self.gp!r})"
 
@@ -1135,12 +1086,7 @@ class ForwardModel(TransitionModel):
             Before :meth:`fit`.
         """
         pred = self.predictor
-        x = check_array(states, "states", shape=(None, self.state_dim))
-        u = check_array(controls, "controls", shape=(x.shape[0], self.control_dim))
         with torch.no_grad():
-            m = self.next_state_moments(
-                torch.as_tensor(x, dtype=pred.dtype, device=pred.device),
-                torch.as_tensor(u, dtype=pred.dtype, device=pred.device),
-            )
+            m = self.next_state_moments(*self._queries(states, controls, pred.dtype, pred.device))
         warn_if_clamped("ForwardModel", m.worst, m.n_clamped)
         return m.mean.cpu().numpy(), m.var.cpu().numpy()

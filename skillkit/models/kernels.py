@@ -155,24 +155,17 @@ class SquaredExponential(gpytorch.kernels.Kernel):
         batch_shape: torch.Size | None = None,
         **kwargs,
     ):
-        if int(input_dim) < 1:
+        d = int(input_dim)
+        if d < 1:
             raise ValueError(f"input_dim: expected a positive integer, got {input_dim}")
-        super().__init__(
-            ard_num_dims=int(input_dim), batch_shape=batch_shape or torch.Size([]), **kwargs
-        )
+        super().__init__(ard_num_dims=d, batch_shape=batch_shape or torch.Size([]), **kwargs)
         _register_positive(self, "outputscale")
-        try:
-            ls = torch.as_tensor(
-                np.broadcast_to(np.asarray(lengthscale, dtype=float), (int(input_dim),)).copy()
-            )
-        except (TypeError, ValueError):
-            raise ValueError(
-                f"lengthscale: expected a scalar or shape ({int(input_dim)},), got {lengthscale!r}"
-            ) from None
-        if torch.any(ls <= 0) or not torch.all(torch.isfinite(ls)):
-            raise ValueError(f"lengthscale: expected positive finite values, got {lengthscale}")
+        ls = check_array(lengthscale, "lengthscale")
+        if ls.shape not in ((), (1,), (d,)) or np.any(ls <= 0):
+            raise ValueError(f"lengthscale: expected a scalar or shape ({d},) > 0, got {ls}")
         check_positive(outputscale, "outputscale")
-        self.lengthscale = ls.expand(*self.batch_shape, 1, int(input_dim)).clone()
+        ls = torch.as_tensor(np.broadcast_to(ls, (d,)).copy())
+        self.lengthscale = ls.expand(*self.batch_shape, 1, d).clone()
         self.outputscale = torch.full(self.batch_shape, float(outputscale), dtype=torch.float64)
 
     outputscale = _positive("outputscale")

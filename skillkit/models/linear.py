@@ -9,7 +9,6 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from skillkit._validation import check_array
 from skillkit.models.gp import DTYPE, Moments, TransitionModel
 
 __all__ = ["LinearGaussianModel"]
@@ -40,33 +39,7 @@ class LinearGaussianModel(TransitionModel):
             raise ValueError(f"ridge: expected a finite number >= 0, got {ridge!r}")
         self.ridge = float(ridge)
         self.dtype = DTYPE
-        self.A: np.ndarray | None = None
-        self.B: np.ndarray | None = None
-        self.c: np.ndarray | None = None
-        self.noise_cov: np.ndarray | None = None
-        self._factor_of: tuple[np.ndarray, np.ndarray] | None = None  # (Σ_w copy, its F)
-
-    @classmethod
-    def from_dynamics(cls, A, B, c, noise_cov) -> LinearGaussianModel:
-        """A model of known A (n_x, n_x), B (n_x, n_u), c (n_x,) and symmetric PSD ``noise_cov``."""
-        a = check_array(A, "A", ndim=2)
-        n_x = a.shape[0]
-        a = check_array(a, "A", shape=(n_x, n_x))
-        model = cls()
-        model.A = a
-        model.B = check_array(B, "B", shape=(n_x, None))
-        model.c = check_array(c, "c", shape=(n_x,))
-        cov = check_array(noise_cov, "noise_cov", shape=(n_x, n_x))
-        scale = max(float(np.abs(cov).max(initial=0.0)), np.finfo(float).tiny)
-        if np.abs(cov - cov.T).max(initial=0.0) > 1e-10 * scale:
-            raise ValueError("noise_cov: expected a symmetric matrix")
-        lam_min = float(np.linalg.eigvalsh(cov).min(initial=0.0)) if n_x else 0.0
-        if lam_min < -1e-10 * scale:
-            raise ValueError(
-                f"noise_cov: expected a positive semi-definite matrix, min eigenvalue {lam_min:.3g}"
-            )
-        model.noise_cov = cov
-        return model
+        self.A = self.B = self.c = self.noise_cov = None  # set by fit() or by hand
 
     @property
     def state_dim(self) -> int:
@@ -80,15 +53,11 @@ class LinearGaussianModel(TransitionModel):
 
     @property
     def noise_factor(self) -> np.ndarray | None:
-        """F, the symmetric square root of Σ_w (n_x, n_x), cached until ``noise_cov`` changes."""
+        """F, the symmetric square root of Σ_w (n_x, n_x), negative round-off eigenvalues as 0."""
         if self.noise_cov is None:
             return None
-        cov = np.asarray(self.noise_cov, dtype=np.float64)
-        cached = self._factor_of
-        if cached is None or cached[0].shape != cov.shape or not np.array_equal(cached[0], cov):
-            cached = (cov.copy(), _psd_sqrt(cov))
-            self._factor_of = cached
-        return cached[1]
+        lam, V = np.linalg.eigh(np.asarray(self.noise_cov, dtype=np.float64))
+        return (V * np.sqrt(np.clip(lam, 0.0, None))) @ V.T
 
     def _fit(self, x: np.ndarray, u: np.ndarray, xn: np.ndarray, rng) -> None:
         """Least squares for A, B, c (≥ n_x + n_u + 1 transitions); Σ_w from the residuals."""
@@ -109,7 +78,7 @@ class LinearGaussianModel(TransitionModel):
 
     def _check_fitted(self) -> None:
         if self.A is None or self.B is None or self.c is None or self.noise_cov is None:
-            raise RuntimeError("LinearGaussianModel: call fit() or from_dynamics() first")
+            raise RuntimeError("LinearGaussianModel: call fit() (or set A, B, c, noise_cov) first")
 
     def to(self, device=None, dtype: torch.dtype | None = None) -> LinearGaussianModel:
         """Itself, with predictions in ``dtype`` (the arrays are converted per call)."""
@@ -141,9 +110,3 @@ class LinearGaussianModel(TransitionModel):
             f"spectral radius of A {rho:.3g}, noise std max "
             f"{float(np.sqrt(np.diag(self.noise_cov).max())):.3g})"
         )
-
-
-def _psd_sqrt(cov: np.ndarray) -> np.ndarray:
-    """Symmetric square root of a PSD matrix (negative round-off eigenvalues as 0)."""
-    lam, V = np.linalg.eigh(cov)
-    return (V * np.sqrt(np.clip(lam, 0.0, None))) @ V.T

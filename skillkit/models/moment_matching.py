@@ -97,23 +97,14 @@ class RoundoffEstimate:
         return max(estimates, key=lambda e: e.relative_error) if estimates else None
 
 
-#: ‖iK_a‖_F cached per iK tensor.
 _IK_NORMS = WeakIdKeyDictionary()
 
 
 @dataclass
 class GaussianPrediction:
-    """A Gaussian approximation of p(y) for z ~ N(m, S), in raw units.
-
-    Attributes
-    ----------
-    mean : Tensor, shape (E,)
-    cov : Tensor, shape (E, E)
-    input_output_cov : Tensor, shape (D, E)
-        cov(z, y).
-    roundoff : RoundoffEstimate or None
-        Bound on the float64 round-off (None from :func:`linearize`).
-    """
+    """A Gaussian approximation of p(y) for z ~ N(m, S) in raw units: ``mean`` (E,), ``cov``
+    (E, E), ``input_output_cov`` cov(z, y) (D, E) and the ``roundoff`` bound (None from
+    :func:`linearize`)."""
 
     mean: torch.Tensor
     cov: torch.Tensor
@@ -305,10 +296,8 @@ def _second_moments(
     block: int = BLOCK_ENTRIES,
     magnitude: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, ...]:
-    """β_aᵀ Q^{ab} β_b for all pairs a ≤ b and σ_{f,a}² − tr(iK_a Q^{aa}), with
-    log Q^{ab}_{ij} = c_ai + c_bj + (Tζ_ai)ᵀζ_bj (T = R⁻¹S, ζ_a = Λ_a⁻¹ν) formed as one product of
-    [Tζ_a, c_a, 1] and [ζ_b, 1, c_b]ᵀ in blocks of ``block`` entries; with ``magnitude`` a third
-    output bounds the round-off."""
+    """β_aᵀ Q^{ab} β_b (a ≤ b) and σ_{f,a}² − tr(iK_a Q^{aa}), log Q^{ab}_{ij} = c_ai + c_bj +
+    (Tζ_ai)ᵀζ_bj as [Tζ_a, c_a, 1][ζ_b, 1, c_b]ᵀ in blocks; ``magnitude``: a round-off bound."""
     E, M, D = nut.shape
     ia, ib = _pair_indices(E)
     P = len(ia)

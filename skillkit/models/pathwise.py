@@ -17,11 +17,10 @@ from dataclasses import dataclass
 
 import torch
 
-from skillkit._validation import as_generator, check_count
 from skillkit.models.gp import GPPredictor, Moments, flush_tiny
 from skillkit.models.kernels import se_kernel
 
-__all__ = ["PathwiseBasis", "PathwiseFunctions", "draw_functions", "pathwise_flops_per_step"]
+__all__ = ["PathwiseBasis", "PathwiseFunctions", "pathwise_flops_per_step"]
 
 
 @dataclass(frozen=True)
@@ -38,9 +37,6 @@ class PathwiseFunctions:
     phases: torch.Tensor
     amplitudes: torch.Tensor
     update: torch.Tensor
-
-    def __len__(self) -> int:
-        return int(self.amplitudes.shape[0])
 
     def latent(self, x: torch.Tensor) -> torch.Tensor:
         """g_i(x_i) in standardised units, Tensor (n, E), for x (n, d)."""
@@ -67,8 +63,7 @@ class PathwiseBasis:
     """The step-invariant part of pathwise sampling for one predictor; draws functions by seed.
 
     ``n_features`` F per function and output; ``shared_seed`` gives all functions one basis
-    (cheaper, but covariances are off by O(σ_f²/√F)). ``psd_clamp`` is the most negative
-    eigenvalue of cov(ξ) relative to its largest, set to 0."""
+    (cheaper, but covariances are off by O(σ_f²/√F))."""
 
     def __init__(
         self,
@@ -91,8 +86,6 @@ class PathwiseBasis:
         Kzz = se_kernel(Z, Z, ls, os)
         C = hi.iK - hi.iK @ Kzz @ hi.iK
         lam, U = torch.linalg.eigh(0.5 * (C + C.transpose(-1, -2)))
-        top = lam.abs().amax(-1, keepdim=True).clamp_min(torch.finfo(lam.dtype).tiny)
-        self.psd_clamp = float((lam / top).min().clamp_max(0.0))
         self.noise_factor = U * lam.clamp_min(0.0).sqrt()[..., None, :]  # (E, M, M): ξ = U √λ ε
         self._shared = None
         if shared_seed is not None:
@@ -162,38 +155,6 @@ class PathwiseBasis:
         arg = torch.bmm(self.setup.support, omega.permute(1, 3, 0, 2).reshape(E, d, r * F))
         arg = arg.view(E, M, r, F)
         return arg.add_(phase.transpose(0, 1)[:, None]).cos_()
-
-
-def draw_functions(
-    predictor: GPPredictor,
-    n: int,
-    n_features: int = 256,
-    rng=None,
-    *,
-    dtype: torch.dtype | None = None,
-) -> PathwiseFunctions:
-    """Draw ``n`` functions from a GP predictor's posterior (RFF prior + exact update).
-
-    Parameters
-    ----------
-    predictor : GPPredictor
-        A fitted SE-kernel GP, E outputs on d inputs, M support points.
-    n : int
-        Number of functions; one seed per function is drawn from ``rng``.
-    n_features : int, default 256
-        F, random Fourier features per function and output.
-    rng : Generator, int, SeedSequence or None
-    dtype : torch.dtype, optional
-        Evaluation dtype (default the predictor's).
-
-    Returns
-    -------
-    PathwiseFunctions
-        Row i of a query batch (n, d) is evaluated by function i.
-    """
-    n = check_count(n, "n")
-    seeds = as_generator(rng).integers(2**63 - 1, size=n)
-    return PathwiseBasis(predictor, n_features, dtype).draw(seeds)
 
 
 def pathwise_flops_per_step(

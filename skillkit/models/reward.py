@@ -6,24 +6,21 @@ from __future__ import annotations
 import abc
 import warnings
 from collections.abc import Callable, Sequence
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 
-from skillkit._validation import as_generator, check_array, check_count
-from skillkit.models.gp import GPRegression, check_dtype
+from skillkit._validation import as_generator, check_array, check_choice, check_count
+from skillkit.models.gp import GPRegression
 from skillkit.trajectory import Trajectory
 
 __all__ = [
-    "REFIT_STARTS",
     "Prediction",
     "RewardModel",
-    "check_choice",
-    "check_factories",
     "check_refit",
-    "check_sample_dtype",
     "gp_stats",
     "refit_gp",
+    "set_factories",
     "subsample",
     "usable_trajectories",
     "warm_start_hypers",
@@ -116,11 +113,13 @@ class RewardModel(abc.ABC):
         return gp, record
 
 
-def check_factories(**factories) -> None:
-    """ValueError naming a ``make_*`` factory that is neither None nor callable."""
-    for name, f in factories.items():
+def set_factories(model: Any, **factories: tuple[Any, Callable[[], Any]]) -> None:
+    """Set ``model.<name>`` to each ``(factory, default)``'s factory, or its default for None;
+    ValueError naming a factory that is neither."""
+    for name, (f, default) in factories.items():
         if f is not None and not callable(f):
             raise ValueError(f"{name}: expected a callable, got {type(f).__name__}")
+        setattr(model, name, f or default)
 
 
 def usable_trajectories(trajectories, what: str) -> list:
@@ -150,20 +149,9 @@ def warm_start_hypers(
     gp.init_noise = np.asarray(hypers["noise"], dtype=np.float64)
 
 
-RefitStart = Literal["cold", "warm", "best"]
-REFIT_STARTS: tuple[str, ...] = ("cold", "warm", "best")
-
-
-def check_choice(value, choices: tuple, name: str):
-    """``value`` if it is one of ``choices``, else a ValueError naming ``name``."""
-    if value not in choices:
-        raise ValueError(f"{name}: expected one of {choices}, got {value!r}")
-    return value
-
-
 def check_refit(refit: str) -> str:
-    """``refit`` if it is one of :data:`REFIT_STARTS`, else a ValueError."""
-    return check_choice(refit, REFIT_STARTS, "refit")
+    """``refit`` if it is "cold", "warm" or "best", else a ValueError."""
+    return check_choice(refit, "refit", ("cold", "warm", "best"))
 
 
 def refit_gp(
@@ -194,21 +182,17 @@ def refit_gp(
     gp, record
         The fitted model kept; ``{start, log_ml_cold, log_ml_warm}``.
     """
-    check_refit(refit)
+    starts = ("cold", "warm") if check_refit(refit) == "best" else (refit,)
     seed = int(rng.integers(2**63))
     record: dict[str, Any] = {"start": "cold", "log_ml_cold": None, "log_ml_warm": None}
-    starts = {"cold": ("cold",), "warm": ("warm",), "best": ("cold", "warm")}[refit]
-    if previous is None:
-        starts = ("cold",)
     best = None
-    for start in starts:
+    for start in starts if previous is not None else ("cold",):
         gp = make_gp()
-        if not isinstance(gp, GPRegression):
-            gp.fit(x, y, np.random.default_rng(seed))
-            return gp, record
-        if start == "warm":
+        if start == "warm" and isinstance(gp, GPRegression):
             warm_start_hypers(gp, previous, x)
         gp.fit(x, y, np.random.default_rng(seed))
+        if not isinstance(gp, GPRegression):
+            return gp, record
         lml = gp.diagnostics.get("log_marginal_likelihood")
         value = -np.inf if lml is None else float(np.sum(lml))
         value = value if np.isfinite(value) else -np.inf
@@ -229,9 +213,6 @@ def gp_stats(gp: GPRegression, n_data: int) -> dict[str, Any]:
         "noise_var_max": float(np.max(gp.hyperparameters["noise"])),
         "numerical_events": gp.diagnostics.get("numerical_events"),
     }
-
-
-check_sample_dtype = check_dtype
 
 
 def subsample(rng: np.random.Generator, n_max: int, *arrays: np.ndarray) -> tuple:

@@ -14,7 +14,7 @@ import numpy as np
 import torch
 
 from skillkit._repr import number, span
-from skillkit._validation import as_generator, check_count, check_positive
+from skillkit._validation import as_generator, check_array, check_count
 from skillkit.models.gp import (
     DTYPE,
     GPNumericalWarning,
@@ -91,10 +91,6 @@ class SampledTrajectories:
             f"worst_variance={number(self.worst_variance)})"
         )
 
-    def numpy(self) -> tuple[np.ndarray, np.ndarray]:
-        """States and controls as numpy arrays."""
-        return self.states.cpu().numpy(), self.controls.cpu().numpy()
-
 
 def sample_trajectories(
     model: StepModel,
@@ -158,21 +154,14 @@ def sample_trajectories(
     device = as_device(device)  # as tensors report it, so the policy's controls can be checked
     check_dtype(dtype)
     if method not in ("per-step", "pathwise", "pathwise-shared"):
-        raise ValueError(
-            f"method: expected 'per-step', 'pathwise' or 'pathwise-shared', got {method!r}"
-        )
+        raise ValueError(f"method: expected 'per-step' or 'pathwise[-shared]', got {method!r}")
     pathwise = method != "per-step"
     if stop is not None and not callable(stop):
         raise ValueError(f"stop: expected a callable or None, got {type(stop).__name__}")
     if stop is not None and pathwise:
         raise ValueError(f"stop: supported with method='per-step' only, got method={method!r}")
-    if pathwise:
-        if not isinstance(getattr(model, "_predictor", None), GPPredictor) or not hasattr(
-            model, "with_predictor"
-        ):
-            raise ValueError(
-                f"model: pathwise sampling needs a fitted ForwardModel, got {type(model).__name__}"
-            )
+    if pathwise and not isinstance(getattr(model, "_predictor", None), GPPredictor):
+        raise ValueError(f"model: pathwise needs a fitted ForwardModel, got {type(model).__name__}")
     n_x, n_u = int(model.state_dim), int(model.control_dim)
     if int(horizon) != horizon or horizon < 1:
         raise ValueError(f"horizon: expected a positive integer, got {horizon!r}")
@@ -196,15 +185,11 @@ def sample_trajectories(
         raise ValueError("x0: expected at least one start state (B >= 1)")
     limit = None
     if control_limit is not None:
-        try:
-            lim = np.broadcast_to(np.asarray(control_limit, dtype=float), (n_u,))
-        except (TypeError, ValueError):
-            raise ValueError(
-                f"control_limit: expected a scalar or shape ({n_u},), got {control_limit!r}"
-            ) from None
-        for v in lim:
-            check_positive(v, "control_limit")
-        limit = torch.as_tensor(lim.copy(), dtype=dtype, device=device)
+        lim = check_array(control_limit, "control_limit")
+        if lim.shape not in ((), (1,), (n_u,)) or np.any(lim <= 0):
+            bad = f"expected a scalar or shape ({n_u},) > 0, got {control_limit!r}"
+            raise ValueError(f"control_limit: {bad}")
+        limit = torch.as_tensor(np.broadcast_to(lim, (n_u,)).copy(), dtype=dtype, device=device)
 
     source = model
     model = model.to(device, dtype)

@@ -40,8 +40,6 @@ def kmeans_pp(X, n: int, rng: np.random.Generator) -> np.ndarray:
 
 
 class _SparseGP(GPRegression):
-    _method = "fitc"
-
     def __init__(
         self,
         n_inducing: int = 100,

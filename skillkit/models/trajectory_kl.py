@@ -39,7 +39,6 @@ __all__ = [
     "gaussian_expected_features_vjp",
     "one_step_log_likelihood",
     "state_features",
-    "trajectory_kl_dual",
     "trajectory_kl_objective",
 ]
 
@@ -87,7 +86,7 @@ def gaussian_expected_features_vjp(
 
 @dataclass(frozen=True)
 class DualValue:
-    """:func:`trajectory_kl_dual`'s result: ``value`` g(γ, θ) (4.16) less (λ/2) Σ ‖γ_t‖²,
+    """The sample-based dual at γ: ``value`` g(γ, θ) (4.16) less (λ/2) Σ ‖γ_t‖²,
     ``grad_gamma`` ∂g/∂γ_t (T, F) (B.4, B.5), ``grad_predicted`` ∂g/∂ψ_{i,t} = p_{t,i} γ_{t+1}
     (T − 1, M, F) (B.6 before ∂ψ/∂θ) and ``weights`` p_t(x_{i,t}) (T, M) of (4.14)."""
 
@@ -98,6 +97,8 @@ class DualValue:
 
 
 def _dual(gammas, features, predicted, phi_hat, ridge) -> DualValue:
+    """g (4.16), its gradients (B.4–B.6) and marginals (4.14) from ``gammas`` (T, F), features
+    φ(x_{i,t}) (T, M, F) time-major, ψ_{i,t} (T − 1, M, F), φ̂ (F,) of (4.9) and λ ≥ 0."""
     T, M, _ = features.shape
     a = np.einsum("tf,tmf->tm", gammas, features)
     a[:-1] -= np.einsum("tf,tmf->tm", gammas[1:], predicted)
@@ -115,41 +116,29 @@ def _dual(gammas, features, predicted, phi_hat, ridge) -> DualValue:
     return DualValue(float(value), grad, grad_pred, p)
 
 
-def trajectory_kl_dual(
-    gammas: ArrayLike,
-    features: ArrayLike,
-    predicted: ArrayLike,
-    phi_hat: ArrayLike | None = None,
-    ridge: float = 0.0,
-) -> DualValue:
-    r"""The sample-based dual (4.16), its gradients (B.4–B.6) and the marginals (4.14).
-
-    ``gammas`` (T, F), ``features`` φ(x_{i,t}) (T, M, F) time-major, ``predicted`` ψ_{i,t}
-    (T − 1, M, F), ``phi_hat`` φ̂ of (4.9) (default: the mean of ``features[0]``), ``ridge``
-    λ ≥ 0."""
-    phi = check_array(features, "features", ndim=3)
-    T, M, F = phi.shape
-    if T < 2:
-        raise ValueError(f"features: expected at least 2 time steps, got {T}")
-    g = check_array(gammas, "gammas", shape=(T, F))
-    psi = check_array(predicted, "predicted", shape=(T - 1, M, F))
-    ph = phi[0].mean(axis=0) if phi_hat is None else check_array(phi_hat, "phi_hat", shape=(F,))
-    lam = check_positive(ridge, "ridge", allow_zero=True)
-    return _dual(g, phi, psi, ph, lam)
-
-
-def _check_inputs(model, x, u) -> tuple[np.ndarray, np.ndarray]:
-    x = check_array(x, "x", shape=(None, model.state_dim))
-    u = check_array(u, "u", shape=(x.shape[0], model.control_dim))
-    return x, u
-
-
-class LinearGaussianTKL:
-    """x′ ~ N(A x + B u + c, diag σ²) with θ = [vec A, vec B, c, log σ²] (row-major)."""
+class Model:
+    """A Gaussian transition model p(x′ | x, u; θ) on ``state_dim`` states and ``control_dim``
+    controls."""
 
     def __init__(self, state_dim: int, control_dim: int):
         self.state_dim = check_count(state_dim, "state_dim")
         self.control_dim = check_count(control_dim, "control_dim", minimum=0)
+
+    def _inputs(self, x, u) -> tuple[np.ndarray, np.ndarray]:
+        x = check_array(x, "x", shape=(None, self.state_dim))
+        return x, check_array(u, "u", shape=(x.shape[0], self.control_dim))
+
+    def __repr__(self) -> str:
+        sizes = ("state_dim", "control_dim", "n_inducing")
+        args = ", ".join(f"{k}={getattr(self, k)}" for k in sizes if hasattr(self, k))
+        return f"{type(self).__name__}({args})"
+
+
+class LinearGaussianTKL(Model):
+    """x′ ~ N(A x + B u + c, diag σ²) with θ = [vec A, vec B, c, log σ²] (row-major)."""
+
+    def __init__(self, state_dim: int, control_dim: int):
+        super().__init__(state_dim, control_dim)
         n, m = self.state_dim, self.control_dim
         self.n_params = n * n + n * m + 2 * n
 
@@ -174,7 +163,7 @@ class LinearGaussianTKL:
     def moments(self, theta: ArrayLike, x: ArrayLike, u: ArrayLike):
         """Mean and variance (N, n) at x (N, n), u (N, m), and their vector–Jacobian product."""
         A, B, c, v = self.unpack(theta)
-        x, u = _check_inputs(self, x, u)
+        x, u = self._inputs(x, u)
         mean = x @ A.T + u @ B.T + c
         var = np.broadcast_to(v, mean.shape).copy()
 
@@ -187,7 +176,7 @@ class LinearGaussianTKL:
 
     def init_theta(self, x, u, x_next, rng=None) -> np.ndarray:
         """Least squares on [x, u, 1] and the residual variances."""
-        x, u = _check_inputs(self, x, u)
+        x, u = self._inputs(x, u)
         y = check_array(x_next, "x_next", shape=x.shape)
         z1 = np.hstack([x, u, np.ones((x.shape[0], 1))])
         w, *_ = np.linalg.lstsq(z1, y, rcond=None)
@@ -196,14 +185,11 @@ class LinearGaussianTKL:
         var = np.maximum(np.mean(res**2, axis=0), 1e-12)
         return self.pack(w[:n].T, w[n : n + m].T, w[-1], var)
 
-    def __repr__(self) -> str:
-        return f"LinearGaussianTKL(state_dim={self.state_dim}, control_dim={self.control_dim})"
 
-
-class PseudoDataGP:
+class PseudoDataGP(Model):
     r"""A FITC GP whose pseudo-inputs Z and pseudo-targets U are parameters (Sec. 4.2.4).
 
-    Per output e, with z = [x, u] and K_e = k_e(Z_e, Z_e) + jitter·σ_f² I,
+    Per output e, with z = [x, u] and K_e = k_e(Z_e, Z_e) + 10⁻⁶ σ_f² I,
     μ_e(z) = m_e(z) + k_e(z, Z_e) K_e⁻¹ U_e and
     v_e(z) = σ_{f,e}² − k_e(z, Z_e) K_e⁻¹ k_e(Z_e, z) + σ_{ε,e}²; θ = [Z, U, log w, log σ_f²,
     log σ_ε²]. The prior mean m(z) = [z, 1] W (``mean_weights``, default: x persists) is fixed."""
@@ -214,10 +200,8 @@ class PseudoDataGP:
         control_dim: int,
         n_inducing: int,
         mean_weights: ArrayLike | None = None,
-        jitter: float = 1e-6,
     ):
-        self.state_dim = check_count(state_dim, "state_dim")
-        self.control_dim = check_count(control_dim, "control_dim", minimum=0)
+        super().__init__(state_dim, control_dim)
         self.n_inducing = check_count(n_inducing, "n_inducing")
         n, d = self.state_dim, self.state_dim + self.control_dim
         if mean_weights is None:
@@ -226,7 +210,7 @@ class PseudoDataGP:
         else:
             W = check_array(mean_weights, "mean_weights", shape=(d + 1, n))
         self.mean_weights = W
-        self.jitter = check_positive(jitter, "jitter")
+        self.jitter = 1e-6
         E, M = n, self.n_inducing
         self._sizes = (E * M * d, E * M, E * d, E, E)
         self.n_params = int(sum(self._sizes))
@@ -260,7 +244,7 @@ class PseudoDataGP:
     def moments(self, theta: ArrayLike, x: ArrayLike, u: ArrayLike):
         """Mean and variance (N, n) at x (N, n), u (N, m), and their vector–Jacobian product."""
         th = torch.tensor(check_array(theta, "theta", shape=(self.n_params,)), requires_grad=True)
-        x, u = _check_inputs(self, x, u)
+        x, u = self._inputs(x, u)
         z = torch.as_tensor(np.hstack([x, u]))
         mean, var = self._torch_moments(th, z)
 
@@ -278,7 +262,7 @@ class PseudoDataGP:
     def init_theta(self, x, u, x_next, rng=None) -> np.ndarray:
         """A starting θ: Z by k-means++, w = std(z), σ_f² the residual variance, σ_ε² = σ_f²/10, U
         by least squares."""
-        x, u = _check_inputs(self, x, u)
+        x, u = self._inputs(x, u)
         y = check_array(x_next, "x_next", shape=x.shape)
         z = np.hstack([x, u])
         N, d = z.shape
@@ -310,15 +294,6 @@ class PseudoDataGP:
             alpha = np.linalg.solve(k.T @ k + reg, k.T @ res[:, e])
             p["U"][e] = Km @ alpha
         return np.concatenate([p[k].ravel() for k in ("Z", "U", "log_w", "log_sf2", "log_sn2")])
-
-    def __repr__(self) -> str:
-        return (
-            f"PseudoDataGP(state_dim={self.state_dim}, control_dim={self.control_dim}, "
-            f"n_inducing={self.n_inducing})"
-        )
-
-
-Model = LinearGaussianTKL | PseudoDataGP
 
 
 @dataclass(frozen=True)
@@ -359,17 +334,8 @@ def _lbfgs(fun, theta0, maxiter):
 
 
 def fit_one_step(model: Model, theta0, x, u, x_next, maxiter: int = 200) -> TKLFit:
-    """One-step maximum likelihood of the transitions by L-BFGS.
-
-    Parameters
-    ----------
-    model : Model
-        P = ``model.n_params``.
-    theta0 : array_like, shape (P,)
-    x : array_like, shape (N, n)
-    u : array_like, shape (N, m)
-    x_next : array_like, shape (N, n)
-    maxiter : int, default 200
+    """One-step maximum likelihood of transitions x (N, n), u (N, m) → ``x_next`` (N, n) by
+    L-BFGS from ``theta0`` (P,), P = ``model.n_params``.
 
     Returns
     -------
@@ -377,7 +343,7 @@ def fit_one_step(model: Model, theta0, x, u, x_next, maxiter: int = 200) -> TKLF
         ``objective`` is the negative mean one-step log-likelihood.
     """
     th0 = check_array(theta0, "theta0", shape=(model.n_params,))
-    x, u = _check_inputs(model, x, u)
+    x, u = model._inputs(x, u)
     y = check_array(x_next, "x_next", shape=x.shape)
     N = x.shape[0]
 
@@ -472,10 +438,8 @@ class _Problem:
     """The standardised features of a data set and the nested evaluation of D(θ)."""
 
     def __init__(self, model, states, controls, cross, ridge):
-        X = check_array(states, "states", ndim=3)
+        X = check_array(states, "states", shape=(None, None, model.state_dim))
         M, T, n = X.shape
-        if n != model.state_dim:
-            raise ValueError(f"states: expected {model.state_dim} state dimensions, got {n}")
         if T < 2:
             raise ValueError(f"states: expected at least 2 time steps, got {T}")
         U = check_array(controls, "controls", shape=(M, T - 1, model.control_dim))
@@ -521,7 +485,6 @@ def fit_trajectory_kl(
     ridge: float = 0.0,
     maxiter: int = 100,
     inner_maxiter: int = 100,
-    first_step: float = 1e-3,
 ) -> TKLFit:
     """Trajectory-KL training: min_θ max_γ g(γ, θ) of (4.16) by L-BFGS over θ.
 
@@ -537,11 +500,9 @@ def fit_trajectory_kl(
     cross : bool, default True
         Cross products in φ (:func:`state_features`, B.7).
     ridge : float, default 0.0
-        λ ≥ 0 of :func:`trajectory_kl_dual`.
+        λ ≥ 0: subtracts (λ/2) Σ_t ‖γ_t‖² from g (soft feature matching).
     maxiter, inner_maxiter : int, default 100
         Outer L-BFGS iterations over θ; Newton iterations over γ per evaluation.
-    first_step : float, default 1e-3
-        Largest first step in θ, divided by 4 until the steepest-descent step lowers D.
 
     Returns
     -------
@@ -563,21 +524,15 @@ def fit_trajectory_kl(
         warm["gammas"] = gammas
         return value, step * grad
 
-    step = check_positive(first_step, "first_step")
+    step = 1e-3  # the largest first step in θ, divided by 4 until steepest descent lowers D
     start = prob.evaluate(th0, None, inner)
     if not np.isfinite(start[0]):
-        T, M = prob.T, prob.M
-        return TKLFit(
-            th0,
-            math.inf,
-            0,
+        msg = (
             "infeasible at theta0: the feature constraints (4.12) "
-            "cannot hold on these samples (D = +inf); theta0 returned",
-            start[3],
-            np.full((T, M), 1.0 / M),
-            np.full(T, np.nan),
-            math.inf,
+            "cannot hold on these samples (D = +inf); theta0 returned"
         )
+        uniform, kl = np.full((prob.T, prob.M), 1.0 / prob.M), np.full(prob.T, np.nan)
+        return TKLFit(th0, math.inf, 0, msg, start[3], uniform, kl, math.inf)
     warm["gammas"] = start[3]
     direction = -start[1] / max(float(np.linalg.norm(start[1])), 1e-300)
     for _ in range(20):

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import copy
 import functools
+import itertools
 import warnings
 from collections.abc import Sequence
 
@@ -211,11 +212,7 @@ class DMP:
 
     def _check_demo(self, times, q, qd, qdd, min_n: int) -> tuple[np.ndarray, ...]:
         """Times (N,) from 0, strictly increasing, and q, qd, qdd (N, J) of a demonstration."""
-        t = check_array(times, "times", ndim=1)
-        if t.shape[0] < min_n:
-            raise ValueError(f"times: expected at least {min_n} time stamps, got {t.shape[0]}")
-        if np.any(np.diff(t) <= 0):
-            raise ValueError("times: expected strictly increasing time stamps")
+        t = self._check_times(times, min_n, uniform=False)
         shape = (t.shape[0], self.n_joints)
         arrays = (check_array(a, n, shape=shape) for a, n in ((q, "q"), (qd, "qd"), (qdd, "qdd")))
         return (t - t[0], *arrays)
@@ -266,7 +263,7 @@ class DMP:
             If the integration overflowed.
         """
         J = self.n_joints
-        times = self._check_times(times)
+        times = self.grid(times) if np.ndim(times) == 0 else self._check_times(times)
         q0 = check_array(q0, "q0", shape=(J,))
         qd0 = np.zeros(J) if qd0 is None else check_array(qd0, "qd0", shape=(J,))
         if goal is None and self.goal is None:
@@ -308,19 +305,18 @@ class DMP:
         shape = (self.n_joints, self.n_basis)
         return self.weights if weights is None else check_array(weights, "weights", shape=shape)
 
-    def _check_times(self, times) -> np.ndarray:
-        if np.ndim(times) == 0:
-            return self.grid(times)
-        times = check_array(times, "times", ndim=1)
-        if times.shape[0] == 0:
-            raise ValueError("times: expected at least one time stamp")
-        if times.shape[0] > 1:
-            steps = np.diff(times)
-            if np.any(steps <= 0):
-                raise ValueError("times: expected strictly increasing time stamps")
-            if np.max(np.abs(steps - steps[0])) > 1e-6 * steps[0]:
-                raise ValueError("times: expected uniformly spaced time stamps")
-        return times
+    @staticmethod
+    def _check_times(times, min_n: int = 1, uniform: bool = True) -> np.ndarray:
+        """At least ``min_n`` strictly increasing (and ``uniform``ly spaced) time stamps (N,)."""
+        t = check_array(times, "times", ndim=1)
+        if t.shape[0] < min_n:
+            raise ValueError(f"times: expected at least {min_n} time stamp(s), got {t.shape[0]}")
+        steps = np.diff(t)
+        if np.any(steps <= 0):
+            raise ValueError("times: expected strictly increasing time stamps")
+        if uniform and steps.size and np.max(np.abs(steps - steps[0])) > 1e-6 * steps[0]:
+            raise ValueError("times: expected uniformly spaced time stamps")
+        return t
 
     @staticmethod
     def _integrate(s0, u, h, stiffness, damping) -> np.ndarray:
@@ -362,9 +358,7 @@ class DMPParameters:
         learn = tuple(learn)
         unknown = [p for p in learn if p not in _LEARNABLE]
         if unknown or not learn or len(set(learn)) != len(learn):
-            raise ValueError(
-                f"learn: expected a non-empty subset of {_LEARNABLE} without repeats, got {learn}"
-            )
+            raise ValueError(f"learn: expected distinct names from {_LEARNABLE}, got {learn}")
         if "goal" in learn and dmp.goal is None:
             raise ValueError("dmp: has no goal to learn from; fit() it or set its goal first")
         self.dmp = dmp
@@ -376,13 +370,11 @@ class DMPParameters:
             "goal_velocity": [f"gd[{j}]" for j in range(J)],
             "tau": ["tau"],
         }
-        self._slices: dict[str, slice] = {}
-        start = 0
-        for p in self.learn:
-            self._slices[p] = slice(start, start + len(labels[p]))
-            start += len(labels[p])
-        self.dim = start
         self.names = [n for p in self.learn for n in labels[p]]
+        self.dim = len(self.names)
+        sizes = {p: len(labels[p]) for p in self.learn}
+        ends = itertools.accumulate(sizes.values())
+        self._slices = {p: slice(e - sizes[p], e) for p, e in zip(sizes, ends, strict=True)}
 
     def __repr__(self) -> str:
         d = self.dmp

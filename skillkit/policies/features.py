@@ -10,7 +10,7 @@ from typing import Literal
 
 import numpy as np
 
-from skillkit._validation import check_array
+from skillkit._validation import check_array, check_choice, check_count
 
 FeatureName = Literal["linear", "quadratic"]
 FEATURES: tuple[str, ...] = ("linear", "quadratic")
@@ -18,38 +18,24 @@ FEATURES: tuple[str, ...] = ("linear", "quadratic")
 
 def check_feature_name(name: str, argname: str = "features") -> str:
     """``name`` if it names a feature map, else a ``ValueError`` naming ``argname``."""
-    if name not in FEATURES:
-        raise ValueError(f"{argname}: expected one of {FEATURES}, got {name!r}")
-    return name
+    return check_choice(name, argname, FEATURES)
 
 
 def feature_dim(context_dim: int, name: FeatureName = "linear") -> int:
     """Number of features F of the map ``name`` for contexts of dimension n = ``context_dim`` ≥ 0:
     n (linear) or n + n(n+1)/2 (quadratic); ``ValueError`` on a bad ``name`` or ``context_dim``."""
     check_feature_name(name)
-    if (
-        isinstance(context_dim, bool)
-        or not isinstance(context_dim, (int, np.integer))
-        or context_dim < 0
-    ):
-        raise ValueError(f"context_dim: expected a non-negative integer, got {context_dim!r}")
-    n = int(context_dim)
+    n = check_count(context_dim, "context_dim", 0)
     return n if name == "linear" else n + n * (n + 1) // 2
 
 
-def context_features(
-    contexts, name: FeatureName = "linear", context_dim: int | None = None
-) -> np.ndarray:
+def context_features(contexts, name: FeatureName = "linear") -> np.ndarray:
     """Context features φ(s) of contexts (n, context_dim) or (context_dim,): shape (n, F), or (F,)
-    for one context. Quadratic products s_i s_j (i ≤ j) follow s in row-major order;
-    ``context_dim``, when given, is checked against the contexts' width (``ValueError``)."""
+    for one context. Quadratic products s_i s_j (i ≤ j) follow s in row-major order."""
     check_feature_name(name)
     s = check_array(contexts, "contexts", ndim=(1, 2))
     single = s.ndim == 1
     s2 = s[None, :] if single else s
-    if context_dim is not None and s2.shape[1] != context_dim:
-        expected = f"({context_dim},)" if single else f"(n, {context_dim})"
-        raise ValueError(f"contexts: expected shape {expected}, got {s.shape}")
     if name == "linear":
         phi = s2.copy()
     else:

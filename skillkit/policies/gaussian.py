@@ -17,7 +17,6 @@ from skillkit._repr import number, span, vector
 from skillkit._validation import as_generator, check_array, check_positive
 from skillkit.policies.features import (
     FeatureName,
-    check_feature_name,
     context_features,
     feature_dim,
 )
@@ -60,9 +59,7 @@ def query_contexts(contexts: ArrayLike | None, context_dim: int) -> tuple[np.nda
         return np.zeros((1, 0)), True
     s = check_array(contexts, "contexts", ndim=(1, 2))
     if s.shape[-1] != context_dim:
-        raise ValueError(
-            f"contexts: expected shape (n, {context_dim}) or ({context_dim},), got {s.shape}"
-        )
+        raise ValueError(f"contexts: expected shape (n, {context_dim}), got {s.shape}")
     return (s[None, :], True) if s.ndim == 1 else (s, False)
 
 
@@ -70,17 +67,6 @@ def _whitened(chol: np.ndarray, cov: np.ndarray) -> np.ndarray:
     """L⁻¹ Σ L⁻ᵀ for the Cholesky factor L of Σ_old, symmetrised."""
     m = linalg.solve_triangular(chol, linalg.solve_triangular(chol, cov, lower=True).T, lower=True)
     return 0.5 * (m + m.T)
-
-
-def _cholesky(cov: np.ndarray, name: str) -> np.ndarray:
-    try:
-        return linalg.cholesky(cov, lower=True)
-    except linalg.LinAlgError:
-        eig = np.linalg.eigvalsh(cov)
-        raise ValueError(
-            f"{name}: expected a symmetric positive definite matrix; "
-            f"smallest eigenvalue is {eig.min():.3g}"
-        ) from None
 
 
 class LinearGaussianPolicy:
@@ -106,8 +92,8 @@ class LinearGaussianPolicy:
     def __init__(
         self, mean, cov, gain=None, context_dim: int = 0, features: FeatureName = "linear"
     ):
-        self._features = check_feature_name(features)
-        n_feat = feature_dim(context_dim, features)  # validates context_dim
+        n_feat = feature_dim(context_dim, features)  # validates both
+        self._features = features
         self._context_dim = int(context_dim)
         a = check_array(mean, "mean", ndim=1)
         d = a.shape[0]
@@ -118,10 +104,13 @@ class LinearGaussianPolicy:
         if np.max(np.abs(cov - cov.T)) > 1e-10 * scale:
             raise ValueError("cov: expected a symmetric matrix")
         cov = 0.5 * (cov + cov.T)
-        self._chol = _cholesky(cov, "cov")
-        gain = (
-            np.zeros((d, n_feat)) if gain is None else check_array(gain, "gain", shape=(d, n_feat))
-        )
+        try:
+            self._chol = linalg.cholesky(cov, lower=True)
+        except linalg.LinAlgError:
+            low = np.linalg.eigvalsh(cov).min()
+            raise ValueError(f"cov: expected positive definite, min eigenvalue {low:.3g}") from None
+        gain = np.zeros((d, n_feat)) if gain is None else gain
+        gain = check_array(gain, "gain", shape=(d, n_feat))
         self._mean, self._cov, self._gain = a.copy(), cov, gain.copy()
         for arr in (self._mean, self._cov, self._gain, self._chol):
             arr.setflags(write=False)
@@ -186,18 +175,14 @@ class LinearGaussianPolicy:
             contexts = np.zeros(0) if single else np.zeros((n, 0))
         phi, one = self.phi(contexts)
         if one != single or phi.shape[0] != n:
-            raise ValueError(
-                f"contexts: expected one context per ω ({n}), got {np.shape(contexts)}"
-            )
+            raise ValueError(f"contexts: expected one per ω ({n}), got {np.shape(contexts)}")
         return phi
 
     def log_prob(self, omegas: ArrayLike, contexts: ArrayLike | None = None) -> np.ndarray | float:
         """log N(ω | a + A φ(s), Σ) of ``omegas`` (n, d) or (d,), one context each."""
         w = check_array(omegas, "omegas", ndim=(1, 2))
         if w.shape[-1] != self.dim:
-            raise ValueError(
-                f"omegas: expected shape (n, {self.dim}) or ({self.dim},), got {w.shape}"
-            )
+            raise ValueError(f"omegas: expected shape (n, {self.dim}), got {w.shape}")
         single = w.ndim == 1
         w2 = w[None, :] if single else w
         diff = w2 - self._mean - self._row_phi(contexts, w2.shape[0], single) @ self._gain.T
@@ -281,9 +266,7 @@ class LinearGaussianPolicy:
         if floor > 1.0:
             raise ValueError(f"cov_floor: expected a value in (0, 1], got {cov_floor!r}")
         d = self.dim
-        B = check_array(omegas, "omegas", ndim=2)
-        if B.shape[1] != d:
-            raise ValueError(f"omegas: expected shape (N, {d}), got {B.shape}")
+        B = check_array(omegas, "omegas", shape=(None, d))
         n = B.shape[0]
         phi = self._row_phi(contexts, n)
         w = check_array(weights, "weights", shape=(n,))
@@ -291,16 +274,10 @@ class LinearGaussianPolicy:
             raise ValueError("weights: expected non-negative weights with a positive sum")
         p = w / w.sum()
         ess = effective_sample_size(p)
-        need = (
-            d + 1.0
-            if min_effective_samples is None
-            else check_positive(min_effective_samples, "min_effective_samples", allow_zero=True)
-        )
+        need = d + 1.0 if min_effective_samples is None else min_effective_samples
+        need = check_positive(need, "min_effective_samples", allow_zero=True)
         if ess < need:
-            raise ValueError(
-                f"weights: effective sample size {ess:.3g} (of {n} samples) is below the "
-                f"{need:g} needed to fit the {d}x{d} covariance Σ (Eq. 3.12)"
-            )
+            raise ValueError(f"weights: effective sample size {ess:.3g} < {need:g} (N={n})")
 
         # 1. mean: weighted, centred ridge regression (Eq. 3.11)
         phibar, wbar = p @ phi, p @ B
@@ -314,17 +291,13 @@ class LinearGaussianPolicy:
             X = (pc * p[:, None]).T @ (B - wbar)
             tr = float(np.trace(C))
             if not tr > 0:
-                raise ValueError(
-                    "contexts: the weighted contexts have no spread, so the gain A cannot be fitted"
-                )
+                raise ValueError("contexts: the weighted contexts have no spread")
             lam = ridge * np.diag(C)
             lam[np.diag(C) <= 0] = tr / n_feat  # constant features: X is 0 there, so A is 0
             try:
                 A = linalg.solve(C + np.diag(lam), X, assume_a="pos").T
             except linalg.LinAlgError:
-                raise ValueError(
-                    "contexts: the weighted feature covariance is singular; use ridge > 0"
-                ) from None
+                raise ValueError("contexts: singular feature covariance; use ridge > 0") from None
             a = wbar - A @ phibar
         else:
             A, a = np.zeros((d, 0)), wbar
@@ -374,21 +347,17 @@ class LinearGaussianPolicy:
     def _new(self, mean: np.ndarray, cov: np.ndarray, gain: np.ndarray) -> LinearGaussianPolicy:
         return LinearGaussianPolicy(mean, cov, gain, self._context_dim, self._features)
 
-    def _summary(self) -> str:
+    def __repr__(self) -> str:
         ev = np.linalg.eigvalsh(self._cov)
+        ctx = f"context_dim={self.context_dim}, features={self.features!r}, "
         text = (
+            f"{type(self).__name__}(dim={self.dim}, {ctx if self.context_dim else ''}"
             f"mean={vector(self._mean)}, std={span(np.sqrt(np.diag(self._cov)))}, "
             f"cond(cov)={number(ev[-1] / ev[0])}"
         )
         if self._gain.size:
             text += f", max|gain|={number(np.abs(self._gain).max())}"
-        return text
-
-    def __repr__(self) -> str:
-        return (
-            f"{type(self).__name__}(dim={self.dim}, context_dim={self.context_dim}, "
-            f"features={self.features!r}, {self._summary()})"
-        )
+        return text + ")"
 
 
 class GaussianPolicy(LinearGaussianPolicy):
@@ -406,9 +375,6 @@ class GaussianPolicy(LinearGaussianPolicy):
 
     def _new(self, mean: np.ndarray, cov: np.ndarray, gain: np.ndarray) -> GaussianPolicy:
         return GaussianPolicy(mean, cov)
-
-    def __repr__(self) -> str:
-        return f"GaussianPolicy(dim={self.dim}, {self._summary()})"
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Any, Generic, TypeVar
 
 import numpy as np
@@ -33,9 +33,7 @@ def check_batch(
 
     ``contexts`` may be ``None`` when ``context_dim`` is 0; rewards must be finite.
     """
-    w = check_array(omegas, "omegas", ndim=2)
-    if w.shape[1] != dim:
-        raise ValueError(f"omegas: expected shape (N, {dim}), got {w.shape}")
+    w = check_array(omegas, "omegas", shape=(None, dim))
     n = w.shape[0]
     if n == 0:
         raise ValueError("omegas: expected at least one sample, got 0 rows")
@@ -79,13 +77,9 @@ class Batch:
         if self.trajectories is not None:
             trajs = tuple(self.trajectories)
             if len(trajs) != r.shape[0] or not all(isinstance(t, Trajectory) for t in trajs):
-                raise ValueError(
-                    f"trajectories: expected {r.shape[0]} Trajectory objects (one per row), "
-                    f"got {len(trajs)} items"
-                )
+                raise ValueError(f"trajectories: expected {len(r)} Trajectories, got {len(trajs)}")
             object.__setattr__(self, "trajectories", trajs)
-        n = r.shape[0]
-        k = n if self.n_rollouts is None else _check_n_rollouts(self.n_rollouts, n)
+        k = len(r) if self.n_rollouts is None else _check_n_rollouts(self.n_rollouts, len(r))
         object.__setattr__(self, "n_rollouts", k)
 
     def __len__(self) -> int:
@@ -120,20 +114,14 @@ def as_batch(batch: Batch, dim: int, context_dim: int) -> Batch:
     if batch.dim != dim:
         raise ValueError(f"omegas: expected shape (N, {dim}), got {batch.omegas.shape}")
     if batch.context_dim != context_dim:
-        raise ValueError(
-            f"contexts: expected shape (N, {context_dim}), got {batch.contexts.shape}"
-            + (" (a contextual policy needs contexts)" if batch.context_dim == 0 else "")
-        )
+        raise ValueError(f"contexts: expected shape (N, {context_dim}), got {batch.contexts.shape}")
     return batch
 
 
 def rollouts_only(batch: Batch, algorithm: str) -> Batch:
     """``batch`` after checking it has no rows re-scored in extra contexts."""
     if batch.n_rollouts != len(batch):
-        raise ValueError(
-            f"batch: {algorithm} takes rollouts only; rows re-scored in extra contexts "
-            "(learn's extra_contexts > 0) were not drawn from its policy in their context"
-        )
+        raise ValueError(f"batch: {algorithm} takes no rows re-scored in extra contexts")
     return batch
 
 
@@ -153,8 +141,9 @@ def check_settings(settings: S | None, cls: type[S]) -> S:
 
 
 def fields_repr(obj: Any, *names: str) -> str:
-    """``Type(name=value, …)`` of some attributes of ``obj``, floats as ``.4g``."""
-    values = ((n, getattr(obj, n)) for n in names)
+    """``Type(name=value, …)`` of some attributes of ``obj`` (default: its dataclass fields),
+    floats as ``.4g``."""
+    values = ((n, getattr(obj, n)) for n in names or [f.name for f in fields(obj)])
     text = ", ".join(f"{n}={v:.4g}" if isinstance(v, float) else f"{n}={v}" for n, v in values)
     return f"{type(obj).__name__}({text})"
 
@@ -230,21 +219,16 @@ class SampleBuffer:
         """Append a batch (the oldest dropped when full); ``importance`` is stored at mean one."""
         if importance is not None:
             importance = importance / importance.mean()
-        self._batches.append((contexts, omegas, rewards, n_rollouts, importance))
+        n = rewards.shape[0] if n_rollouts is None else n_rollouts
+        self._batches.append((contexts, omegas, rewards, n, importance))
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """All kept contexts (N, s), omegas (N, d) and rewards (N,), oldest first."""
-        s, w, r = (np.concatenate([b[i] for b in self._batches]) for i in range(3))
-        return s, w, r
+        return tuple(np.concatenate([b[i] for b in self._batches]) for i in range(3))
 
     def rollout_mask(self) -> np.ndarray:
         """Whether each kept row is a rollout in its own context, shape (N,)."""
-        return np.concatenate(
-            [
-                np.arange(r.shape[0]) < (r.shape[0] if n is None else n)
-                for _, _, r, n, _ in self._batches
-            ]
-        )
+        return np.concatenate([np.arange(r.shape[0]) < n for _, _, r, n, _ in self._batches])
 
     def importance(self) -> np.ndarray | None:
         """The kept rows' importance weights, shape (N,) (``None`` when no batch has any)."""

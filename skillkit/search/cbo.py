@@ -21,7 +21,7 @@ import itertools
 import time
 import warnings
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 import torch
@@ -38,7 +38,7 @@ from numpy.typing import ArrayLike
 
 from skillkit._validation import as_generator, check_array, check_count, check_positive
 from skillkit.policies.gaussian import LinearGaussianPolicy, query_contexts
-from skillkit.search.base import Batch, as_batch, check_policy, check_settings
+from skillkit.search.base import Batch, as_batch, check_policy, check_settings, fields_repr
 
 #: Samples beyond which an update warns (once) that the exact GP's O(N³) fit dominates.
 LARGE_N = 2000
@@ -78,9 +78,7 @@ class CBOSettings:
         check_count(self.initial_batches, "initial_batches")
         check_count(self.num_restarts, "num_restarts")
         if check_count(self.raw_samples, "raw_samples") < self.num_restarts:
-            raise ValueError(
-                f"raw_samples: expected ≥ num_restarts={self.num_restarts}, got {self.raw_samples}"
-            )
+            raise ValueError(f"raw_samples: expected ≥ num_restarts, got {self.raw_samples}")
         check_count(self.rollouts_per_update, "rollouts_per_update")
         if self.max_observations is not None:
             check_count(self.max_observations, "max_observations", 2)
@@ -100,40 +98,33 @@ def _seeded(seed: int, device: torch.device) -> Iterator[None]:
         yield
 
 
+@dataclass(repr=False, eq=False)
 class CBOPolicy:
     """One fitted GP (or none yet) as a policy: UCB proposals and the posterior-mean argmax.
 
     Made by :class:`ContextualBO` after every update: ``model`` is the GP over z = [s, ω]
     (``None`` before data, when the mean is π₀'s clipped to ``omega_bounds`` (2, d)),
     ``explore_randomly`` proposes a Sobol design, ``mean_seed`` seeds every ``mean_of`` search,
-    and BoTorch runs on ``device`` in ``dtype``.
+    and BoTorch runs on ``device`` in ``dtype``; ``sample_seconds`` and ``mean_seconds`` add up
+    the time spent in :meth:`sample` and :meth:`mean_of`.
     """
 
-    def __init__(
-        self,
-        model: SingleTaskGP | None,
-        initial: LinearGaussianPolicy,
-        omega_bounds: np.ndarray,
-        explore_randomly: bool,
-        settings: CBOSettings,
-        mean_seed: int,
-        n_updates: int,
-        device: torch.device,
-        dtype: torch.dtype,
-    ):
-        self.model = model
-        self.initial = initial
-        self.dim, self.context_dim = initial.dim, initial.context_dim
-        self.omega_bounds = np.array(omega_bounds, dtype=np.float64)
+    model: SingleTaskGP | None
+    initial: LinearGaussianPolicy
+    omega_bounds: np.ndarray
+    explore_randomly: bool
+    settings: CBOSettings
+    mean_seed: int
+    n_updates: int
+    device: torch.device
+    dtype: torch.dtype
+    sample_seconds: float = 0.0
+    mean_seconds: float = 0.0
+
+    def __post_init__(self):
+        self.dim, self.context_dim = self.initial.dim, self.initial.context_dim
+        self.omega_bounds = np.array(self.omega_bounds, dtype=np.float64)
         self.omega_bounds.setflags(write=False)
-        self.explore_randomly = bool(explore_randomly)
-        self.settings = settings
-        self.mean_seed = int(mean_seed)
-        self.n_updates = int(n_updates)
-        self.device, self.dtype = device, dtype
-        #: Seconds spent in ``sample`` and in ``mean_of``.
-        self.sample_seconds = 0.0
-        self.mean_seconds = 0.0
 
     def _tensor(self, x) -> torch.Tensor:
         return torch.tensor(np.asarray(x), dtype=self.dtype, device=self.device)
@@ -269,16 +260,7 @@ class CBODiagnostics:
     signal_std: float = float("nan")
 
     def __repr__(self) -> str:
-        ell = np.asarray(self.lengthscales)
-        ls = f"{ell.min():.3g}…{ell.max():.3g}" if ell.size else "-"
-        return (
-            f"CBODiagnostics(updates={self.n_updates}, fitted {self.n_fitted}/"
-            f"{self.n_observations}, mean_reward={self.mean_reward:.4g}, "
-            f"best_reward={self.best_reward:.4g}, failed={self.n_failed}, "
-            f"{'Sobol' if self.random_batch else 'UCB'} batch, fit {self.fit_seconds:.3g} s, "
-            f"acquisition {self.acquisition_seconds:.3g} s, lengthscales {ls}, "
-            f"noise_std={self.noise_std:.3g}, signal_std={self.signal_std:.3g})"
-        )
+        return fields_repr(self, *[f.name for f in fields(self) if f.name != "lengthscales"])
 
 
 class ContextualBO:
@@ -340,10 +322,7 @@ class ContextualBO:
         if n_s == 0:
             return np.zeros((2, 0))
         if low is None or high is None:
-            raise ValueError(
-                "context_low, context_high: a contextual policy needs the context range "
-                "(ContextualBO.for_task takes the task's)"
-            )
+            raise ValueError("context_low, context_high: a contextual policy needs both")
         lo = check_array(low, "context_low", shape=(n_s,))
         hi = check_array(high, "context_high", shape=(n_s,))
         if np.any(hi < lo):
@@ -361,10 +340,7 @@ class ContextualBO:
                 raise ValueError(f"omega_high: expected > omega_low, got {hi} ≤ {lo}")
             return np.vstack([lo, hi])
         if policy.context_dim and policy.features != "linear":
-            raise ValueError(
-                f"policy: the ω box is derived from a mean linear in s; got "
-                f"features={policy.features!r} (give omega_low and omega_high)"
-            )
+            raise ValueError(f"policy: the ω box needs linear features, got {policy.features!r}")
         if policy.context_dim:
             corners = np.array(list(itertools.product(*self._context_bounds.T)))
             means = policy.mean_of(corners)
@@ -478,8 +454,7 @@ class ContextualBO:
             fit_gpytorch_mll(ExactMarginalLogLikelihood(model.likelihood, model))
         return model.eval()
 
-    def _tensor(self, x) -> torch.Tensor:
-        return torch.tensor(np.asarray(x), dtype=self.dtype, device=self.device)
+    _tensor = CBOPolicy._tensor
 
     def __repr__(self) -> str:
         d, n_s = self._initial.dim, self._initial.context_dim

@@ -32,7 +32,7 @@ CMA-ES (h_σ, ℓ_max, weights on the best half only). Samples are drawn by the 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -202,17 +202,9 @@ def adapt_covariance(
 # ----------------------------------------------------------------- settings and state
 @dataclass(frozen=True)
 class CCMAESSettings:
-    """Settings of :class:`CCMAES`.
-
-    Attributes
-    ----------
-    baseline_features : {"linear", "quadratic"}
-        φ_V of the baseline.
-    baseline_ridge, mean_ridge : float
-        λ_V ≥ 0 of the baseline's ridge regression, λ ≥ 0 on the gain A of the mean.
-    max_log_step : float
-        ℓ_max > 0, the largest increase of ln σ in one update.
-    """
+    """Settings of :class:`CCMAES`: φ_V of the baseline (``"linear"`` or ``"quadratic"``), the
+    ridges λ_V ≥ 0 of the baseline and λ ≥ 0 on the mean's gain A, and ℓ_max > 0, the largest
+    increase of ln σ in one update."""
 
     baseline_features: str = "quadratic"
     baseline_ridge: float = 1e-6
@@ -243,7 +235,7 @@ class CCMAESDiagnostics:
     h_sigma: bool
 
     def __repr__(self) -> str:
-        return fields_repr(self, *(f.name for f in fields(self)))
+        return fields_repr(self)
 
 
 class CCMAES:

@@ -5,12 +5,9 @@ CMA-ES searches a linear context mapping of the lower-level parameters,
 .. math:: \omega(s) = b + W \varphi(s), \qquad \varphi(s) = (s - c) / h,
           \qquad \theta = [b, \operatorname{vec}(W)] \in \mathbb{R}^{d (1 + n_s)},
 
-with c, h the centre and half-width of the context range; for a context-free task θ = ω.
-CMA-ES minimises, so it is told −R. One generation is one batch: λ candidates (cma's default
-λ = 4 + ⌊3 ln P⌋), rows m k … m k + m − 1 going to candidate k, each in a fresh context, and the
-fitness of a candidate is its mean reward over its m rows (m = ``contexts_per_candidate``,
-which averages down the spread of R over μ(s)). Hence ``rollouts_per_update`` must be λ m.
-Normal deviates come from the object's own ``rng`` (cma's ``randn`` option).
+with c, h the centre and half-width of the context range (θ = ω without contexts). One
+generation is one batch of λ m rows: rows m k … m k + m − 1 evaluate candidate k in fresh
+contexts, and its fitness is −(mean reward over them) (m = ``contexts_per_candidate``).
 """
 
 from __future__ import annotations
@@ -24,7 +21,7 @@ from numpy.typing import ArrayLike
 
 from skillkit._validation import as_generator, check_array, check_count, check_positive
 from skillkit.policies.gaussian import LinearGaussianPolicy, query_contexts
-from skillkit.search.base import Batch, as_batch, check_policy, rollouts_only
+from skillkit.search.base import Batch, as_batch, check_policy, fields_repr, rollouts_only
 
 #: cma options set here: quiet, and no log files.
 QUIET_OPTIONS: dict[str, Any] = {"verbose": -9, "verb_disp": 0, "verb_log": 0}
@@ -43,6 +40,7 @@ class _Randn:
         return self.rng.standard_normal(shape)
 
 
+@dataclass(repr=False, eq=False)
 class CMAESPolicy:
     """One CMA-ES generation as a policy: its λ candidates and its mean, mapped to ω(s).
 
@@ -52,28 +50,21 @@ class CMAESPolicy:
     ``contexts_per_candidate``.
     """
 
-    def __init__(
-        self,
-        theta_mean: np.ndarray,
-        population: np.ndarray,
-        dim: int,
-        context_dim: int,
-        context_center: np.ndarray,
-        context_scale: np.ndarray,
-        contexts_per_candidate: int,
-        generation: int,
-        sigma: float,
-    ):
-        self.dim, self.context_dim = int(dim), int(context_dim)
-        self.theta_mean = np.array(theta_mean, dtype=np.float64)
-        self.population = np.array(population, dtype=np.float64)
-        self.context_center = np.array(context_center, dtype=np.float64)
-        self.context_scale = np.array(context_scale, dtype=np.float64)
-        for arr in (self.theta_mean, self.population, self.context_center, self.context_scale):
+    theta_mean: np.ndarray
+    population: np.ndarray
+    dim: int
+    context_dim: int
+    context_center: np.ndarray
+    context_scale: np.ndarray
+    contexts_per_candidate: int
+    generation: int
+    sigma: float
+
+    def __post_init__(self):
+        for name in ("theta_mean", "population", "context_center", "context_scale"):
+            arr = np.array(getattr(self, name), dtype=np.float64)
             arr.setflags(write=False)
-        self.contexts_per_candidate = int(contexts_per_candidate)
-        self.generation = int(generation)
-        self.sigma = float(sigma)
+            setattr(self, name, arr)
 
     @property
     def popsize(self) -> int:
@@ -84,12 +75,6 @@ class CMAESPolicy:
     def n_rows(self) -> int:
         """λ m, the rollouts one generation needs."""
         return self.popsize * self.contexts_per_candidate
-
-    def offset_and_gain(self, theta: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
-        """(b, W) of a θ, shapes (d,) and (d, context_dim)."""
-        theta = np.asarray(theta, dtype=np.float64)
-        d = self.dim
-        return theta[:d], theta[d:].reshape(d, self.context_dim)
 
     def _omega(self, thetas: np.ndarray, s: np.ndarray) -> np.ndarray:
         """ω_i = b_i + W_i φ(s_i) for row-wise θ_i (n, P) and s_i (n, context_dim)."""
@@ -111,11 +96,7 @@ class CMAESPolicy:
         """
         s, single = query_contexts(contexts, self.context_dim)
         if s.shape[0] != self.n_rows:
-            raise ValueError(
-                f"contexts: a CMA-ES generation evaluates popsize λ={self.popsize} candidates × "
-                f"{self.contexts_per_candidate} context(s) each = {self.n_rows} rollouts, got "
-                f"{s.shape[0]} context(s): set learn's rollouts_per_update to {self.n_rows}"
-            )
+            raise ValueError(f"contexts: got {len(s)}, set rollouts_per_update to {self.n_rows}")
         thetas = np.repeat(self.population, self.contexts_per_candidate, axis=0)
         omega = self._omega(thetas, s)
         return omega[0] if single else omega
@@ -130,9 +111,8 @@ class CMAESPolicy:
 
 @dataclass(frozen=True)
 class CMAESDiagnostics:
-    """What one :meth:`CMAES.update` (one ``tell``) did: cma's ``countiter`` and ``countevals``, the
-    batch's mean reward and the best candidate's, σ and the axis ratio of the covariance after the
-    update, and cma's termination criteria met (``es.stop()``; the loop carries on regardless)."""
+    """What one :meth:`CMAES.update` did: cma's ``countiter``, ``countevals``, σ, axis ratio and
+    ``es.stop()`` after the ``tell``, the batch's mean reward and the best candidate's."""
 
     generation: int
     n_evaluations: int
@@ -142,20 +122,14 @@ class CMAESDiagnostics:
     axis_ratio: float
     stop: dict = field(default_factory=dict)
 
-    def __repr__(self) -> str:
-        stop = f", stop={sorted(self.stop)}" if self.stop else ""
-        return (
-            f"CMAESDiagnostics(generation={self.generation}, evaluations={self.n_evaluations}, "
-            f"mean_reward={self.mean_reward:.4g}, best_reward={self.best_reward:.4g}, "
-            f"sigma={self.sigma:.4g}, axis_ratio={self.axis_ratio:.4g}{stop})"
-        )
+    __repr__ = fields_repr
 
 
 class CMAES:
     """CMA-ES (the ``cma`` package) as a policy-search algorithm for :func:`learn`.
 
-    It starts at the policy mean with per-coordinate standard deviations √diag Σ (for b and for
-    each column of W); everything else is cma's default unless ``options`` says otherwise.
+    It starts at the policy mean with per-coordinate standard deviations √diag Σ; the rest is
+    cma's default unless ``options`` says otherwise.
 
     Parameters
     ----------
@@ -186,18 +160,14 @@ class CMAES:
         rng: np.random.Generator | int | None = None,
     ):
         if check_policy(policy).context_dim and policy.features != "linear":
-            raise ValueError(
-                f"policy: CMAES maps contexts linearly; got features={policy.features!r}"
-            )
+            raise ValueError(f"policy: CMAES maps contexts linearly, got {policy.features!r}")
         d, n_s = policy.dim, policy.context_dim
         if contexts_per_candidate is None:
             contexts_per_candidate = DEFAULT_CONTEXTS_PER_CANDIDATE if n_s else 1
-        self.contexts_per_candidate = check_count(contexts_per_candidate, "contexts_per_candidate")
-        if n_s == 0 and self.contexts_per_candidate != 1:
-            raise ValueError(
-                "contexts_per_candidate: a context-free task evaluates each candidate once (1), "
-                f"got {contexts_per_candidate}"
-            )
+        m = check_count(contexts_per_candidate, "contexts_per_candidate")
+        if n_s == 0 and m != 1:
+            raise ValueError(f"contexts_per_candidate: expected 1 without contexts, got {m}")
+        self.contexts_per_candidate = m
         c = np.zeros(n_s) if context_center is None else context_center
         h = np.ones(n_s) if context_scale is None else context_scale
         self.context_center = check_array(c, "context_center", shape=(n_s,))
@@ -267,30 +237,22 @@ class CMAES:
             context_center=self.context_center,
             context_scale=self.context_scale,
             contexts_per_candidate=self.contexts_per_candidate,
-            generation=es.countiter,
-            sigma=es.sigma,
+            generation=int(es.countiter),
+            sigma=float(es.sigma),
         )
 
     # ----------------------------------------------------------------- update
     def update(self, batch: Batch) -> CMAESDiagnostics:
-        """Tell CMA-ES this generation's rewards (a batch of λ m rows drawn with
-        ``self.policy.sample``), and ask the next generation; ``ValueError`` naming ``batch`` when
-        it has extra-context rows, not λ m rows, or other parameters than the candidates."""
+        """Tell CMA-ES the rewards of this generation's λ m rows (drawn with ``policy.sample``),
+        and ask the next generation."""
         pol = self._policy
         batch = rollouts_only(as_batch(batch, pol.dim, pol.context_dim), "CMAES")
         if len(batch) != pol.n_rows:
-            raise ValueError(
-                f"batch: expected {pol.n_rows} rows (popsize λ={pol.popsize} × "
-                f"contexts_per_candidate={pol.contexts_per_candidate}; learn's "
-                f"rollouts_per_update), got {len(batch)}"
-            )
+            raise ValueError(f"batch: expected {pol.n_rows} rows (λ m), got {len(batch)}")
         expected = pol.sample(batch.contexts)
         scale = 1.0 + np.abs(expected).max()
         if not np.allclose(batch.omegas, expected, rtol=0, atol=1e-9 * scale):
-            raise ValueError(
-                "batch: its omegas are not this generation's candidates in its contexts "
-                "(draw the batch with algorithm.policy.sample and update once per generation)"
-            )
+            raise ValueError("batch: its omegas are not this generation's candidates")
         reward = batch.rewards.reshape(pol.popsize, pol.contexts_per_candidate).mean(axis=1)
         es = self._es
         es.tell(list(pol.population), (-reward).tolist())

@@ -27,6 +27,7 @@ from skillkit.policies.gaussian import RNG, LinearGaussianPolicy, query_contexts
 from skillkit.search.base import (
     Batch,
     SampleBuffer,
+    WeightedMLSearch,
     as_batch,
     check_batch,
     check_policy,
@@ -71,20 +72,16 @@ class CrKRPolicy:
         variance_scale=None,
     ):
         self.prior = prior
-        self.dim, self.context_dim = prior.dim, prior.context_dim
+        d, s_dim = self.dim, self.context_dim = prior.dim, prior.context_dim
         self.kernel = kernel
         self.lam = check_positive(lam, "lam")
-        d, s_dim = prior.dim, prior.context_dim
         w_omega = check_array(omegas, "omegas", ndim=2)
         s, w_omega, _ = check_batch(contexts, w_omega, np.zeros(w_omega.shape[0]), d, s_dim)
         w = check_array(weights, "weights", shape=(s.shape[0],))
         if np.any(w < 0) or not np.any(w > 0):
             raise ValueError("weights: expected non-negative weights with a positive sum")
-        self.variance_scale = (
-            np.ones(d)
-            if variance_scale is None
-            else check_array(variance_scale, "variance_scale", shape=(d,))
-        )
+        scale = np.ones(d) if variance_scale is None else variance_scale
+        self.variance_scale = check_array(scale, "variance_scale", shape=(d,))
         if np.any(self.variance_scale <= 0):
             raise ValueError("variance_scale: expected positive values")
         self._s = s
@@ -198,12 +195,10 @@ class CrKR:
             n_samples=int(r_all.size), mean_reward=float(batch.rewards.mean()), **weighting
         )
 
-    def __repr__(self) -> str:
-        reuse = self._buffer.max_batches
+    def _settings_repr(self) -> str:
         return (
-            f"CrKR(lam={self.lam:.4g}, beta_scale={self.beta_scale:.4g}, "
-            f"kernel={type(self.kernel).__name__}, dim={self._prior.dim}, "
-            f"context_dim={self._prior.context_dim}, "
-            f"reuse={'all' if reuse is None else reuse} batches, "
-            f"{self.n_updates} updates, {len(self._buffer)} samples kept)"
+            f"lam={self.lam:.4g}, beta_scale={self.beta_scale:.4g}, "
+            f"kernel={type(self.kernel).__name__}"
         )
+
+    __repr__ = WeightedMLSearch.__repr__

@@ -17,16 +17,22 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
-from typing import Any, Literal
+from dataclasses import dataclass, field, fields
+from typing import Any, Literal, get_args
 
 import numpy as np
 import torch
 
 from skillkit._repr import number
-from skillkit._validation import as_generator, check_array, check_count, check_positive
-from skillkit.models.gp import ExactGP, ForwardModel, GPRegression
-from skillkit.models.reward import RewardModel, check_sample_dtype, gp_stats, warm_start_hypers
+from skillkit._validation import (
+    as_generator,
+    check_array,
+    check_choice,
+    check_count,
+    check_positive,
+)
+from skillkit.models.gp import ExactGP, ForwardModel, GPRegression, check_dtype
+from skillkit.models.reward import RewardModel, gp_stats, warm_start_hypers
 from skillkit.policies.features import FeatureName, check_feature_name
 from skillkit.policies.gaussian import LinearGaussianPolicy
 from skillkit.search.base import Batch, SampleBuffer, as_batch, check_settings
@@ -35,8 +41,6 @@ from skillkit.tasks.base import Task
 from skillkit.trajectory import Trajectory
 
 ContextModel = Literal["gaussian", "uniform", "prior"]
-#: The context distributions μ̂(s) GPREPS can fit (Sec. 4.1).
-CONTEXT_MODELS: tuple[str, ...] = ("gaussian", "uniform", "prior")
 
 
 # --------------------------------------------------------------------------- reward models
@@ -131,26 +135,18 @@ class TrajectoryRewardModel(RewardModel):
         if not isinstance(task, Task):
             raise ValueError(f"task: expected a Task, got {type(task).__name__}")
         if not task.supports_model_rollout:
-            raise ValueError(
-                f"task: {task.name!r} has no step-based model rollouts: "
-                f"{task.no_model_rollout_reason}"
-            )
+            raise ValueError(f"task: no step-based model rollouts: {task.no_model_rollout_reason}")
         if make_model is not None and not callable(make_model):
             raise ValueError(f"make_model: expected a callable, got {type(make_model).__name__}")
-        if horizon is not None:
-            check_count(horizon, "horizon")
         if common_start_states and task.context_dim:
-            raise ValueError(
-                "common_start_states: needs a context-free task (start states depend on the "
-                f"context), got {task.name!r} with context_dim={task.context_dim}"
-            )
+            raise ValueError(f"common_start_states: needs a context-free task, got {task.name!r}")
         self.common_start_states = bool(common_start_states)
         self.task = task
         self.make_model = _default_forward_model if make_model is None else make_model
-        self.horizon = None if horizon is None else int(horizon)
+        self.horizon = None if horizon is None else check_count(horizon, "horizon")
         self.warm_start = bool(warm_start)
         self.device = device
-        self.dtype = check_sample_dtype(dtype)
+        self.dtype = check_dtype(dtype)
         self.prior_trajectories = list(prior_trajectories)
         if not all(isinstance(t, Trajectory) for t in self.prior_trajectories):
             raise ValueError("prior_trajectories: expected a sequence of Trajectory objects")
@@ -169,10 +165,7 @@ class TrajectoryRewardModel(RewardModel):
         if self.horizon is None:
             whole = [t for t in ok if not t.failed]
             if not whole:
-                raise ValueError(
-                    "trajectories: every trajectory failed; the horizon of model rollouts "
-                    "is unknown (pass horizon=)"
-                )
+                raise ValueError("trajectories: every one failed, so pass the horizon")
             self.horizon = int(whole[0].states.shape[0] - 1)
         # A trajectory re-scored in extra contexts appears in several rows.
         unique = list({id(t): t for t in ok}.values())
@@ -191,11 +184,6 @@ class TrajectoryRewardModel(RewardModel):
         self.n_data = int(x.shape[0])
         return stats
 
-    def start_states(self, n_pairs: int, n_trajectories: int, rng) -> np.ndarray:
-        """L start states shared by all pairs, shape (n_pairs, L, n_x)."""
-        x0 = self.task.initial_states(None, n_trajectories, as_generator(rng))
-        return np.repeat(x0[None], n_pairs, axis=0)
-
     def expected_rewards(self, contexts, omegas, n_trajectories, rng=None) -> np.ndarray:
         """Mean reward of L predicted trajectories per pair (Eq. 4.1), shape (M,)."""
         from skillkit.search import model_rollouts
@@ -204,9 +192,9 @@ class TrajectoryRewardModel(RewardModel):
             raise RuntimeError("TrajectoryRewardModel: call fit() before predicting")
         rng = as_generator(rng)
         x0 = None
-        if self.common_start_states:
+        if self.common_start_states:  # the same L start states for every pair
             n_pairs = np.atleast_2d(np.asarray(omegas, dtype=float)).shape[0]
-            x0 = self.start_states(n_pairs, n_trajectories, rng)
+            x0 = np.repeat(self.task.initial_states(None, n_trajectories, rng)[None], n_pairs, 0)
         out = model_rollouts.predict_trajectories(
             self.task,
             self.model,
@@ -247,9 +235,7 @@ class KnownRewardModel(RewardModel):
 
     def __init__(self, expected_reward: Callable[[np.ndarray, np.ndarray], np.ndarray]):
         if not callable(expected_reward):
-            raise ValueError(
-                f"expected_reward: expected a callable, got {type(expected_reward).__name__}"
-            )
+            raise ValueError(f"expected_reward: expected a callable, got {expected_reward!r}")
         self.expected_reward = expected_reward
 
     def fit(self, contexts, omegas, rewards, trajectories=None, rng=None) -> dict[str, Any]:
@@ -295,10 +281,7 @@ class GPREPSSettings:
         check_positive(self.epsilon, "epsilon")
         check_count(self.n_artificial, "n_artificial", 2)
         check_count(self.n_trajectories, "n_trajectories")
-        if self.context_model not in CONTEXT_MODELS:
-            raise ValueError(
-                f"context_model: expected one of {CONTEXT_MODELS}, got {self.context_model!r}"
-            )
+        check_choice(self.context_model, "context_model", get_args(ContextModel))
         check_feature_name(self.baseline_features, "baseline_features")
 
 
@@ -365,10 +348,7 @@ class GPREPS:
     ):
         settings = check_settings(settings, GPREPSSettings)
         if not isinstance(reward_model, RewardModel):
-            raise ValueError(
-                "reward_model: expected a skillkit.models.reward.RewardModel (fit and "
-                f"expected_rewards), got {type(reward_model).__name__}"
-            )
+            raise ValueError(f"reward_model: expected a RewardModel, got {reward_model!r}")
         if settings.context_model == "prior" and not isinstance(task, Task):
             raise ValueError("task: context_model='prior' needs the task (its μ(s))")
         if task is not None and not isinstance(task, Task):
@@ -376,16 +356,8 @@ class GPREPS:
         self.settings = settings
         self.reward_model = reward_model
         self.task = task
-        self._reps = ContextualREPS(
-            policy,
-            settings.epsilon,
-            n_reuse_batches=1,
-            baseline_features=settings.baseline_features,
-            ridge=settings.ridge,
-            cov_shrinkage=settings.cov_shrinkage,
-            cov_floor=settings.cov_floor,
-            min_effective_samples=settings.min_effective_samples,
-        )
+        kwargs = {f.name: getattr(settings, f.name) for f in fields(settings)[4:]}  # REPS's fields
+        self._reps = ContextualREPS(policy, settings.epsilon, n_reuse_batches=1, **kwargs)
         self._rng = as_generator(rng)
         self._real = SampleBuffer(None)  # every real batch (GPREPS refits on all data)
         self._trajectories: list[Trajectory] | None = []
@@ -432,13 +404,8 @@ class GPREPS:
             predicted = self.reward_model.expected_rewards(
                 batch.contexts, batch.omegas, st.n_trajectories, rng
             )
-            predicted = check_array(
-                predicted,
-                "reward_model.expected_rewards",
-                shape=(len(batch),),
-                finite=False,
-                dtype=None,
-            )
+            name = "reward_model.expected_rewards"
+            predicted = check_array(predicted, name, shape=(len(batch),), finite=False, dtype=None)
         t_pred0 = time.perf_counter() - t0
 
         self._real.add(batch.contexts, batch.omegas, batch.rewards)
@@ -461,17 +428,14 @@ class GPREPS:
         t_policy = time.perf_counter() - t3
         self.n_updates += 1
         real_mean = float(batch.rewards.mean())
+        sq_err = None if predicted is None else (predicted - batch.rewards) ** 2
         return GPREPSDiagnostics(
             reps=reps,
             n_real=int(r_real.shape[0]),
             predicted_real_reward=None if predicted is None else float(predicted.mean()),
             real_reward=real_mean,
             prediction_bias=None if predicted is None else float(predicted.mean() - real_mean),
-            prediction_rmse=(
-                None
-                if predicted is None
-                else float(np.sqrt(np.mean((predicted - batch.rewards) ** 2)))
-            ),
+            prediction_rmse=None if sq_err is None else float(np.sqrt(np.mean(sq_err))),
             model_fit=dict(fit_stats),
             artificial_reward_mean=float(r_art.mean()),
             time_training=t_train,

@@ -110,10 +110,7 @@ class Evaluator:
         else:
             eval_s = np.asarray(contexts, dtype=np.float64)
             if eval_s.ndim != 2 or eval_s.shape[0] == 0:
-                raise ValueError(
-                    f"eval_contexts: expected shape (m, {task.context_dim}) with m ≥ 1, "
-                    f"got {eval_s.shape}"
-                )
+                raise ValueError(f"eval_contexts: expected shape (m ≥ 1, n_s), got {eval_s.shape}")
             eval_s = np.stack([task.check_context(s, "eval_contexts") for s in eval_s])
         drawn = int(rng.integers(2**63))
         return cls(task, eval_s, drawn if seed is None else check_count(seed, "eval_seed", 0))
@@ -167,16 +164,11 @@ class LoopState:
         self.callback.append(callback)
         self.policies.append(self.algorithm.policy)
 
-    def rollouts(self, n_rollouts: int) -> np.ndarray:
-        """Rollouts after 0, 1, …, k updates, shape (k + 1,): N₀ + (j − 1) N after update j ≥ 1."""
+    def result(self, n_rollouts: int) -> dict:
+        """The curves as :func:`learn` returns them; after update j ≥ 1, N₀ + (j − 1) N rollouts."""
         counts = n_rollouts * np.arange(self.k + 1)
         if self.initial_rollouts is not None and self.k:
             counts[1:] += self.initial_rollouts - n_rollouts
-        return counts
-
-    def result(self, n_rollouts: int) -> dict:
-        """The curves as :func:`learn` returns them."""
-        counts = self.rollouts(n_rollouts)
         return {
             "rollouts": counts,
             "mean_reward": np.array(self.mean_reward),
@@ -250,19 +242,15 @@ def learn(
     if not isinstance(task, Task):
         raise ValueError(f"task: expected a Task, got {type(task).__name__}")
     pol = algorithm.policy
-    if pol.dim != task.parameter_dim or pol.context_dim != task.context_dim:
-        raise ValueError(
-            f"algorithm: policy has dim={pol.dim}, context_dim={pol.context_dim}; task "
-            f"{task.name!r} needs dim={task.parameter_dim}, context_dim={task.context_dim}"
-        )
+    want, got = (task.parameter_dim, task.context_dim), (pol.dim, pol.context_dim)
+    if got != want:
+        raise ValueError(f"algorithm: expected a policy of (dim, context_dim) {want}, got {got}")
     n_updates = check_count(n_updates, "n_updates", 1)
     n = check_count(rollouts_per_update, "rollouts_per_update", 1)
     n0 = n if initial_rollouts is None else check_count(initial_rollouts, "initial_rollouts", 1)
     n_extra = _check_extra_contexts(task, extra_contexts)
     if trial is not None and not isinstance(trial, TrialContext):
-        raise ValueError(
-            f"trial: expected a skillkit.trial.TrialContext or None, got {type(trial).__name__}"
-        )
+        raise ValueError(f"trial: expected a TrialContext or None, got {type(trial).__name__}")
     rng = as_generator(rng)
 
     # The evaluator's draws come first on every run, resumed or not.
@@ -277,22 +265,15 @@ def learn(
         state.policies.append(algorithm.policy)
     else:  # the generator is restored; the caller's algorithm object takes the saved state
         if state.k > n_updates:
-            raise ValueError(
-                f"n_updates: the state saved under checkpoint_key={checkpoint_key!r} has "
-                f"{state.k} updates, more than n_updates={n_updates}"
-            )
+            raise ValueError(f"n_updates: the saved state has {state.k} > {n_updates} updates")
         saved_n = state.rollouts_per_update
-        if saved_n is not None and saved_n != n:
-            raise ValueError(
-                f"rollouts_per_update: the state saved under checkpoint_key={checkpoint_key!r} "
-                f"was collected with {saved_n} rollouts per update, got {n}"
-            )
         saved_n0 = state.initial_rollouts if state.initial_rollouts is not None else saved_n
-        if saved_n0 is not None and saved_n0 != n0:
-            raise ValueError(
-                f"initial_rollouts: the state saved under checkpoint_key={checkpoint_key!r} has "
-                f"a first batch of {saved_n0} rollouts, got {n0}"
-            )
+        for name, saved, got, unit in (
+            ("rollouts_per_update", saved_n, n, " per update"),
+            ("initial_rollouts", saved_n0, n0, ""),
+        ):
+            if saved is not None and saved != got:
+                raise ValueError(f"{name}: the saved state has {saved} rollouts{unit}, got {got}")
         vars(algorithm).update(vars(state.algorithm))
         state.algorithm = algorithm
         evaluator = Evaluator(task, state.eval_contexts, state.eval_seed)
@@ -342,8 +323,5 @@ def _check_extra_contexts(task: Task, extra_contexts: int) -> int:
     n_extra = check_count(extra_contexts, "extra_contexts", 0)
     if n_extra and (task.trajectory_depends_on_context or task.context_dim == 0):
         why = "no context" if task.context_dim == 0 else "trajectories that depend on the context"
-        raise ValueError(
-            f"extra_contexts: task {task.name!r} has {why}; re-scoring a trajectory in other "
-            "contexts is not valid (Sec. 3.4)"
-        )
+        raise ValueError(f"extra_contexts: task {task.name!r} has {why} (Sec. 3.4)")
     return n_extra

@@ -79,17 +79,14 @@ def predict_trajectories(
     if not isinstance(task, Task):
         raise ValueError(f"task: expected a Task, got {type(task).__name__}")
     if not task.supports_model_rollout:
-        raise NotImplementedError(
-            f"task: {task.name!r} has no step-based model rollouts: {task.no_model_rollout_reason}"
-        )
+        reason = task.no_model_rollout_reason
+        raise NotImplementedError(f"task: {task.name!r} has no model rollouts: {reason}")
     if task.model_signals().signals:
         raise NotImplementedError(
             f"task: {task.name!r}'s reward reads the signals {task.model_signals().signals}, "
             "which a state forward model does not predict; use the task's decomposed models"
         )
-    w = check_array(omegas, "omegas", ndim=2)
-    if w.shape[1] != task.parameter_dim:
-        raise ValueError(f"omegas: expected shape (B, {task.parameter_dim}), got {w.shape}")
+    w = check_array(omegas, "omegas", shape=(None, task.parameter_dim))
     B = w.shape[0]
     if contexts is None:
         if task.context_dim:
@@ -97,40 +94,26 @@ def predict_trajectories(
         s = np.zeros((B, 0))
     else:
         s = check_array(contexts, "contexts", shape=(B, task.context_dim))
-    horizon, n_samples = check_count(horizon, "horizon"), check_count(n_samples, "n_samples")
+    T, L = check_count(horizon, "horizon"), check_count(n_samples, "n_samples")
     rng = as_generator(rng)
     n_x = task.model_signals().state_dim
-    if x0 is None:
-        start = np.stack([task.initial_states(s_b, int(n_samples), rng) for s_b in s])
-    else:
-        start = x0  # shape and values are checked by sample_trajectories
+    if x0 is None:  # otherwise checked by sample_trajectories
+        x0 = np.stack([task.initial_states(s_b, L, rng) for s_b in s])
     policy = task.controller(w, s if task.context_dim else None, device=device, dtype=dtype)
     sampled = sample_trajectories(
-        model,
-        start,
-        policy,
-        int(horizon),
-        int(n_samples),
-        rng,
-        control_limit=control_limit,
-        device=device,
-        dtype=dtype,
+        model, x0, policy, T, L, rng, control_limit=control_limit, device=device, dtype=dtype
     )
-    L = int(n_samples)
     x_last = sampled.states[:, :, -1].reshape(B * L, n_x)
     pair = torch.arange(B, device=x_last.device).repeat_interleave(L)
-    u_last = policy(int(horizon), x_last, pair).reshape(B, L, 1, -1)
+    u_last = policy(T, x_last, pair).reshape(B, L, 1, -1)
     if control_limit is not None:
         limit = torch.as_tensor(control_limit, dtype=u_last.dtype, device=u_last.device)
         u_last = torch.clamp(u_last, -limit, limit)
     states = np.asarray(sampled.states.cpu(), dtype=np.float64)  # no copy for float64 on CPU
     controls = np.asarray(torch.cat([sampled.controls, u_last], dim=2).cpu(), dtype=np.float64)
-    flat_s = np.repeat(s, L, axis=0)
-    flat_x = states.reshape(B * L, horizon + 1, n_x)
-    rewards = np.asarray(
-        task.reward_batch(flat_x, controls.reshape(B * L, horizon + 1, -1), {}, flat_s),
-        dtype=np.float64,
-    )
-    rewards, failed = worst_if_failed(rewards, flat_x, task)
+    flat_x = states.reshape(B * L, T + 1, n_x)
+    flat_u = controls.reshape(B * L, T + 1, -1)
+    rewards = task.reward_batch(flat_x, flat_u, {}, np.repeat(s, L, axis=0))
+    rewards, failed = worst_if_failed(np.asarray(rewards, dtype=np.float64), flat_x, task)
     rewards = worst_if_nonfinite(rewards.reshape(B, L), task, "predict_trajectories")
     return ModelRollouts(states, controls, rewards, s, sampled, failed.reshape(B, L))

@@ -1,16 +1,11 @@
 r"""PILCO (Deisenroth & Rasmussen 2011), the model-based baseline of Table 4.2 (Sec. 4.3.1).
 
 PILCO learns the balancing task's linear feedback u = G (x − x_up) (ω = vec G, row-major,
-4 × 8). Each :meth:`PILCO.update` fits a sparse GP (FITC, Sec. 4.2) of the dynamics on every
-real transition so far, propagates p(x_0) = N(m_0, S_0) over the horizon by exact moment
-matching (Sec. 2.1.2; with a linear controller z_t = [x_t; u_t] is Gaussian), scores the
-expected return in closed form (:func:`expected_return`) and maximises it by L-BFGS-B with
-torch autograd gradients (:func:`optimize_gain`), checking the optimised gain's prediction for
-round-off (:func:`~skillkit.models.moment_matching.check_roundoff`).
-
-The first batch comes from ``initial_policy`` (a Gaussian over gains); afterwards the policy
-is the deterministic G, not squashed (the balancing robot has no torque limits). A
-:class:`~skillkit.models.linear.LinearGaussianModel` can replace the GP.
+4 × 8). Each :meth:`PILCO.update` fits a sparse GP (FITC, Sec. 4.2; or a
+:class:`~skillkit.models.linear.LinearGaussianModel`) of the dynamics on every real transition,
+propagates N(m_0, S_0) by moment matching (Sec. 2.1.2), and maximises the closed-form expected
+return (:func:`expected_return`) by L-BFGS-B (:func:`optimize_gain`). The first batch comes
+from ``initial_policy``; afterwards the policy is the deterministic, unsquashed G.
 """
 
 from __future__ import annotations
@@ -47,7 +42,7 @@ def _sym(S: torch.Tensor) -> torch.Tensor:
 
 # --------------------------------------------------------------------------- dynamics steps
 def model_moment_step(model, roundoff: bool = True) -> MomentStep:
-    """The Gaussian transition of a fitted forward model: :func:`gp_moment_step` for a GP, the
+    """The Gaussian transition of a fitted forward model: :class:`GPMomentStep` for a GP, the
     exact :func:`linear_gaussian_step` for a :class:`~skillkit.models.linear.LinearGaussianModel`.
     """
     from skillkit.models.linear import LinearGaussianModel
@@ -97,10 +92,6 @@ class GPMomentStep:
         return f"GPMomentStep(model={type(self.model.gp).__name__}, worst round-off {worst})"
 
 
-#: The :class:`GPMomentStep` of a fitted GP forward model, bounding round-off when ``roundoff``.
-gp_moment_step = GPMomentStep
-
-
 def linear_gaussian_step(A, B, noise_cov, offset=None) -> MomentStep:
     """The exact transition of x' = A x + B u + c + w, w ~ N(0, Σ_w): mean [A B] m_z + c,
     covariance [A B] S_z [A B]ᵀ + Σ_w (A (n, n), B (n, m), Σ_w = ``noise_cov`` symmetric PSD,
@@ -116,15 +107,12 @@ def linear_gaussian_step(A, B, noise_cov, offset=None) -> MomentStep:
         raise ValueError("noise_cov: expected a positive semi-definite matrix")
     F = torch.as_tensor(np.hstack([a, b]), dtype=DTYPE)
     W = torch.as_tensor(w, dtype=DTYPE)
-    c = (
-        None
-        if offset is None
-        else torch.as_tensor(check_array(offset, "offset", shape=(a.shape[0],)), dtype=DTYPE)
-    )
+    if offset is not None:
+        offset = torch.as_tensor(check_array(offset, "offset", shape=(a.shape[0],)), dtype=DTYPE)
 
     def step(mean_z: torch.Tensor, cov_z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         mean = F @ mean_z
-        return (mean if c is None else mean + c), F @ cov_z @ F.T + W
+        return (mean if offset is None else mean + offset), F @ cov_z @ F.T + W
 
     return step
 
@@ -359,10 +347,7 @@ class PILCO:
         from skillkit.tasks.balancing import X_UP, Balancing
 
         if not isinstance(task, Balancing):
-            raise ValueError(
-                f"task: expected a Balancing task (linear feedback, quadratic reward), "
-                f"got {type(task).__name__}"
-            )
+            raise ValueError(f"task: expected a Balancing task, got {type(task).__name__}")
         if not isinstance(initial_policy, GaussianPolicy) or initial_policy.dim != 32:
             raise ValueError("initial_policy: expected a GaussianPolicy over the 32 gains")
         self.settings = check_settings(settings, PILCOSettings)

@@ -6,12 +6,10 @@ returns the weights p_i ∝ exp((R_i − V(s_i))/η) of Eq. (3.10). :class:`Cont
 Table 3.1 on them (:class:`~skillkit.search.base.WeightedMLSearch`); with a context-free policy
 (no features, V ≡ 0) it is episode-based REPS.
 
-Numerics of :func:`reps_weights`: rewards are shifted by their maximum and divided by their
-standard deviation, and the baseline features centred and whitened; the weights are invariant
-to both (g(η, γ; σR + c) = σ g(η/σ, γ/σ; R) + c). η > 0 is optimised as log η within
-:data:`ETA_BOUNDS`. At the optimum ∂g/∂η = ε − KL(p ‖ q), so the bound (3.4) holds with
-equality; where ε exceeds what the samples and constraint (3.5) allow, η runs to its lower
-bound and ``kl_bound_active`` is False (judged from the achieved KL, :data:`KL_TOLERANCE`).
+:func:`reps_weights` solves the dual for standardised rewards and whitened features (the
+weights are invariant to both) over log η within :data:`ETA_BOUNDS`. At the optimum
+∂g/∂η = ε − KL(p ‖ q); where ε exceeds what the samples and constraint (3.5) allow, η runs to
+its lower bound and ``kl_bound_active`` is False.
 """
 
 from __future__ import annotations
@@ -23,8 +21,12 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy import optimize
 
-from skillkit._validation import check_array, check_positive
-from skillkit.policies.features import FeatureName, check_feature_name, context_features
+from skillkit._validation import check_array, check_choice, check_positive
+from skillkit.policies.features import (
+    FeatureName,
+    check_feature_name,
+    context_features,
+)
 from skillkit.policies.gaussian import (
     FitInfo,
     LinearGaussianPolicy,
@@ -212,9 +214,6 @@ class DualSolution:
             f"ess={self.ess:.4g}, success={self.success}"
         )
 
-    def __repr__(self) -> str:
-        return f"{type(self).__name__}({self._summary()})"
-
 
 @dataclass(frozen=True, repr=False)
 class REPSWeights(DualSolution):
@@ -256,7 +255,7 @@ def reps_weights(
     REPSWeights
     """
     eps = check_positive(epsilon, "epsilon")
-    _check_choice(solver, "solver", get_args(DualSolver))
+    check_choice(solver, "solver", get_args(DualSolver))
     r, phi = check_samples(rewards, features)
     n, n_feat = phi.shape
     log_q = _log_base(base_weights, n)
@@ -488,9 +487,7 @@ def check_samples(rewards, features) -> tuple[np.ndarray, np.ndarray]:
         return r, np.zeros((r.shape[0], 0))
     phi = check_array(features, "features", ndim=2)
     if phi.shape[0] != r.shape[0]:
-        raise ValueError(
-            f"features: expected {r.shape[0]} rows (one per reward), got shape {phi.shape}"
-        )
+        raise ValueError(f"features: expected {r.shape[0]} rows, got shape {phi.shape}")
     return r, phi
 
 
@@ -518,17 +515,10 @@ class REPSDiagnostics(DualSolution):
 ExtraContextWeighting = Literal["naive", "importance", "dual_only"]
 MStep = Literal["weighted_ml", "trust_region"]
 
-#: How REPS uses re-scored extra-context rows (Sec. 3.4) by default.
-DEFAULT_EXTRA_CONTEXT_WEIGHTING: ExtraContextWeighting = "importance"
-#: REPS's M-step by default (Eqs. 3.11–3.13 alone).
-DEFAULT_M_STEP: MStep = "weighted_ml"
-
 
 class ContextualREPS(WeightedMLSearch[REPSDiagnostics]):
-    """Contextual (with a context-free policy: episode-based) REPS, Table 3.1.
-
-    :meth:`update` adds a batch, solves the dual (3.9) on the last L batches for the weights (3.10)
-    and refits the policy (3.11–3.13).
+    """Contextual (with a context-free policy: episode-based) REPS, Table 3.1: the weights (3.10)
+    of the dual (3.9) in :class:`~skillkit.search.base.WeightedMLSearch`.
 
     Parameters
     ----------
@@ -566,8 +556,8 @@ class ContextualREPS(WeightedMLSearch[REPSDiagnostics]):
         cov_floor: float = 1e-4,
         min_effective_samples: float | None = None,
         *,
-        extra_context_weighting: ExtraContextWeighting = DEFAULT_EXTRA_CONTEXT_WEIGHTING,
-        m_step: MStep = DEFAULT_M_STEP,
+        extra_context_weighting: ExtraContextWeighting = "importance",
+        m_step: MStep = "weighted_ml",
         entropy_loss_bound: float | None = None,
         dual_solver: DualSolver = DEFAULT_DUAL_SOLVER,
     ):
@@ -576,16 +566,13 @@ class ContextualREPS(WeightedMLSearch[REPSDiagnostics]):
         )
         self.epsilon = check_positive(epsilon, "epsilon")
         self.baseline_features = check_feature_name(baseline_features, "baseline_features")
-        self.extra_context_weighting = _check_choice(
+        self.extra_context_weighting = check_choice(
             extra_context_weighting, "extra_context_weighting", get_args(ExtraContextWeighting)
         )
-        self.m_step = _check_choice(m_step, "m_step", get_args(MStep))
-        self.dual_solver = _check_choice(dual_solver, "dual_solver", get_args(DualSolver))
-        self.entropy_loss_bound = (
-            self.epsilon
-            if entropy_loss_bound is None
-            else check_positive(entropy_loss_bound, "entropy_loss_bound")
-        )
+        self.m_step = check_choice(m_step, "m_step", get_args(MStep))
+        self.dual_solver = check_choice(dual_solver, "dual_solver", get_args(DualSolver))
+        bound = self.epsilon if entropy_loss_bound is None else entropy_loss_bound
+        self.entropy_loss_bound = check_positive(bound, "entropy_loss_bound")
 
     _diagnostics = REPSDiagnostics
 
@@ -620,11 +607,7 @@ class ContextualREPS(WeightedMLSearch[REPSDiagnostics]):
                 weights = np.where(rollout, weights, 0.0)
                 total = weights.sum()
                 if not total > 0:
-                    raise ValueError(
-                        "extra_context_weighting: with 'dual_only' the dual's weights (3.10) "
-                        "of every rollout row underflow to zero (all weight is on extra-context "
-                        f"rows; eta={sol.eta:.3g}); use 'importance' or a smaller epsilon"
-                    )
+                    raise ValueError("extra_context_weighting: with 'dual_only' no weight is left")
                 weights = weights / total
         return weights, {f.name: getattr(sol, f.name) for f in fields(DualSolution)}
 
@@ -636,9 +619,3 @@ class ContextualREPS(WeightedMLSearch[REPSDiagnostics]):
             return fitted, {}
         new, step = trust_region_step(old, fitted, contexts, self.epsilon, self.entropy_loss_bound)
         return new, {"m_step": step}
-
-
-def _check_choice(value: str, name: str, choices: tuple[str, ...]) -> str:
-    if value not in choices:
-        raise ValueError(f"{name}: expected one of {', '.join(map(repr, choices))}, got {value!r}")
-    return value

@@ -1,16 +1,9 @@
 r"""Contextual Reward-Weighted Regression (RWR), Eq. (2.18).
 
-RWR fits the same linear-Gaussian policy N(ω | a + Aφ(s), Σ) as contextual REPS, but with
-the heuristic weights w_i = exp(β R_i) instead of the REPS weights (3.10): no KL bound, no
-context-dependent baseline. The M-step is the weighted maximum-likelihood fit of
-:meth:`~skillkit.policies.gaussian.LinearGaussianPolicy.fit_with_info` (Eq. 2.18 for the mean,
-the weighted residual covariance for Σ).
-
-Choice of β (our rule; the thesis leaves it to the user)
---------------------------------------------------------
-β = ``beta_scale`` / std(R) over the samples used. The weights are then invariant to the
-reward scale, and for roughly Gaussian rewards the weights' KL from uniform is about
-``beta_scale``² / 2 (so ``beta_scale=1`` is comparable to REPS with ε ≈ 0.5, minus the baseline).
+RWR fits the linear-Gaussian policy of contextual REPS by weighted maximum likelihood, with the
+weights w_i ∝ exp(β R_i) instead of (3.10): no KL bound, no baseline. The thesis leaves β open;
+we take β = ``beta_scale`` / std(R) over the samples used, invariant to the reward scale (for
+roughly Gaussian rewards KL(w ‖ uniform) ≈ ``beta_scale``² / 2).
 """
 
 from __future__ import annotations
@@ -52,9 +45,8 @@ def rwr_weighting(rewards: ArrayLike, beta_scale: float = 1.0) -> tuple[np.ndarr
 
 @dataclass(frozen=True)
 class RWRDiagnostics:
-    """What one :meth:`RWR.update` did: the samples used (the last L batches), β, KL(w ‖ uniform)
-    and the Kish effective sample size of the weights, KL(π_new ‖ π_old) averaged over the
-    contexts used, the newest batch's mean reward, and the weighted ML fit's ``FitInfo``."""
+    """What one :meth:`RWR.update` did: :func:`rwr_weighting`'s fields and those of
+    :meth:`~skillkit.search.base.WeightedMLSearch.update`."""
 
     n_samples: int
     beta: float
@@ -70,10 +62,8 @@ class RWRDiagnostics:
 
 
 class RWR(WeightedMLSearch[RWRDiagnostics]):
-    """Contextual Reward-Weighted Regression (Eq. 2.18) on a linear-Gaussian policy.
-
-    :meth:`update` adds a batch, weights the last L batches by exp(βR) (:func:`rwr_weighting`)
-    and refits the policy; see :class:`~skillkit.search.base.WeightedMLSearch`.
+    """Contextual RWR (Eq. 2.18): :class:`~skillkit.search.base.WeightedMLSearch` with the
+    weights of :func:`rwr_weighting`.
 
     Parameters
     ----------

@@ -10,13 +10,7 @@ import scipy.linalg
 
 from skillkit._validation import as_generator, check_array, check_positive
 from skillkit.policies.gaussian import GaussianPolicy
-from skillkit.tasks.base import (
-    ModelSignals,
-    SimulationFailure,
-    Task,
-    check_count,
-    state_transitions,
-)
+from skillkit.tasks.base import ModelSignals, SimulationFailure, Task, check_count
 from skillkit.tasks.controllers import control_substeps, run_feedback
 from skillkit.tasks.planar_model import (
     STATE_NAMES,
@@ -31,7 +25,6 @@ from skillkit.trajectory import Trajectory
 __all__ = [
     "X_UP",
     "Balancing",
-    "balancing_transitions",
     "collect_balancing",
     "design_policy",
     "feedback_policy",
@@ -57,7 +50,6 @@ class Balancing(Task):
     """
 
     name = "balancing"
-    context_dim = 0
     parameter_dim = 32
     trajectory_depends_on_context = False
     worst_reward = -1e7
@@ -89,10 +81,11 @@ class Balancing(Task):
             q_w = np.diag(q_w) if q_w.ndim == 1 else q_w
             if q_w.shape != (8, 8):
                 raise ValueError(f"state_weights: expected shape (8,) or (8, 8), got {q_w.shape}")
-            if np.max(np.abs(q_w - q_w.T)) > 1e-12 * max(1.0, np.max(np.abs(q_w))):
-                raise ValueError("state_weights: expected a symmetric matrix")
-            if np.min(np.linalg.eigvalsh(q_w)) < 0:
-                raise ValueError("state_weights: expected a positive semi-definite matrix")
+            asymmetric = np.max(np.abs(q_w - q_w.T)) > 1e-12 * max(1.0, np.max(np.abs(q_w)))
+            if asymmetric or np.min(np.linalg.eigvalsh(q_w)) < 0:
+                raise ValueError(
+                    "state_weights: expected a symmetric positive semi-definite matrix"
+                )
         self.state_weights = q_w
         self.control_weight = check_positive(control_weight, "control_weight", allow_zero=True)
         self.excitation_std = check_positive(excitation_std, "excitation_std", allow_zero=True)
@@ -190,9 +183,7 @@ class Balancing(Task):
 
     def failed_batch(self, states) -> np.ndarray:
         """Paths (B, T + 1, 8) with a state beyond the divergence limits, shape (B,)."""
-        states = check_array(states, "states", ndim=3, finite=False)
-        if states.shape[2] != 8:
-            raise ValueError(f"states: expected shape (B, T + 1, 8), got {states.shape}")
+        states = check_array(states, "states", shape=(None, None, 8), finite=False)
         return self._beyond_limits(states).any(axis=1)
 
     def _check_state(self, t, states, commanded, noise, excitation) -> None:
@@ -337,11 +328,6 @@ class Balancing(Task):
         return self.lqr_policy()
 
 
-def balancing_transitions(trajectory: Trajectory) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:meth:`Balancing.transitions` without a task: x (T, 8), u (T, 4), x_next (T, 8)."""
-    return state_transitions(trajectory, 8, 4)
-
-
 def feedback_policy(gains, reference=None, feedforward=None):
     """The sampler policy u = G_b (x − r_t) + u_ff,t (default r_t = x_up, u_ff = 0).
 
@@ -424,9 +410,7 @@ def collect_balancing(
     if gain is not None:
         if policy is not None:
             raise ValueError("gain: give either a fixed gain or a policy, not both")
-        fixed = check_array(gain, "gain", ndim=(1, 2)).reshape(-1)
-        if fixed.size != 32:
-            raise ValueError(f"gain: expected shape (4, 8) or (32,), got {np.shape(gain)}")
+        fixed = _gain_vector(gain, "gain")
         candidates = []
     else:
         candidates = list(stable_gains(task, n_trajectories, rng, max_spectral_radius, policy))
@@ -453,6 +437,14 @@ def collect_balancing(
         "x_next": np.vstack([p[2] for p in parts]),
         "n_failed": n_failed,
     }
+
+
+def _gain_vector(value, name: str) -> np.ndarray:
+    """ω (32,) from a gain of shape (4, 8) or (32,)."""
+    g = check_array(value, name, ndim=(1, 2)).reshape(-1)
+    if g.size != 32:
+        raise ValueError(f"{name}: expected shape (4, 8) or (32,), got {np.shape(value)}")
+    return g
 
 
 def random_lqr_gains(
@@ -485,9 +477,7 @@ def design_policy(
     """π(ω) = N(ω | mean, c² Σ_d), Σ_d the sample covariance (+ 10⁻⁶ of its mean variance)
     of ``n_designs`` ω_i = exp(β ξ_i) vec G_i (:func:`random_lqr_gains`), β = ``scale_std``,
     c = ``exploration``, ``mean`` (32,) or (4, 8)."""
-    mu = check_array(mean, "mean", ndim=(1, 2)).reshape(-1)
-    if mu.size != 32:
-        raise ValueError(f"mean: expected shape (32,) or (4, 8), got {np.shape(mean)}")
+    mu = _gain_vector(mean, "mean")
     c = check_positive(exploration, "exploration")
     n = check_count(n_designs, "n_designs")
     if n < 2:

@@ -39,16 +39,11 @@ class SimulationFailure(RuntimeError):
         self.partial = partial
 
 
-def state_transitions(
-    trajectory: Trajectory, state_dim: int, control_dim: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def state_transitions(trajectory: Trajectory, state_dim: int, control_dim: int):
     """(x_t, u_t, x_{t+1}) = states[:−1], controls[:−1], states[1:]; ValueError for a failed
     trajectory without states or shapes other than (T, state_dim), (T, control_dim)."""
     if not trajectory.has_transitions:
-        raise ValueError(
-            "trajectory: a failed trajectory that kept no states has no transitions "
-            f"({trajectory.message})"
-        )
+        raise ValueError(f"trajectory: a failed rollout without states ({trajectory.message})")
     states = check_array(trajectory.states, "trajectory.states", shape=(None, state_dim))
     controls = check_array(
         trajectory.controls, "trajectory.controls", shape=(states.shape[0], control_dim)
@@ -125,10 +120,7 @@ class Task(ABC):
         if context is None:
             if self.context_dim == 0:
                 return np.zeros(0)
-            raise ValueError(
-                f"{name}: task {self.name!r} needs a context of shape ({self.context_dim},), "
-                "got None"
-            )
+            raise ValueError(f"{name}: expected shape ({self.context_dim},), got None")
         s = check_array(context, name, shape=(self.context_dim,))
         low, high = np.asarray(self.context_low), np.asarray(self.context_high)
         tol = 1e-9 * (1.0 + np.abs(high - low))

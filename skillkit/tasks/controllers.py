@@ -1,6 +1,6 @@
-"""Low-level trackers of the robot tasks (Appendix C): the PD law :func:`pd_torque`, the
-zero-order-hold MuJoCo feedback loop :func:`run_feedback` and :func:`track_reference`, which
-tracks a joint reference (a DMP, Eqs. 2.21–2.23). Torques go through ``data.qfrc_applied``.
+"""Low-level trackers of the robot tasks (Appendix C): the zero-order-hold MuJoCo feedback
+loop :func:`run_feedback` and :func:`track_reference`, which PD-tracks a joint reference (a DMP,
+Eqs. 2.21–2.23). Torques go through ``data.qfrc_applied``.
 """
 
 from __future__ import annotations
@@ -10,10 +10,10 @@ from collections.abc import Callable, Sequence
 import mujoco
 import numpy as np
 
-from skillkit._validation import check_array, check_positive
+from skillkit._validation import check_array, check_count, check_positive
 from skillkit.tasks.base import SimulationFailure
 
-__all__ = ["control_substeps", "joint_addresses", "pd_torque", "run_feedback", "track_reference"]
+__all__ = ["control_substeps", "run_feedback", "track_reference"]
 
 _INSTABILITY_WARNINGS = (
     mujoco.mjtWarning.mjWARN_BADQACC,
@@ -22,39 +22,12 @@ _INSTABILITY_WARNINGS = (
 )
 
 
-def pd_torque(q, qd, q_ref, qd_ref, kp, kd, bias=None) -> np.ndarray:
-    """PD tracking torque ``u = kp ⊙ (q_ref − q) + kd ⊙ (q̇_ref − q̇) + bias``.
-
-    Every argument broadcasts against the joint axis (the last one): ``q``, ``qd``, ``q_ref``,
-    ``qd_ref``, ``bias`` (..., n); non-negative ``kp``, ``kd`` scalar or (n,). Returns (..., n).
-    """
-    q = check_array(q, "q")
-    qd = check_array(qd, "qd")
-    q_ref = check_array(q_ref, "q_ref")
-    qd_ref = check_array(qd_ref, "qd_ref")
-    n = q.shape[-1] if q.ndim else 1
-    kp = _gain(kp, "kp", n)
-    kd = _gain(kd, "kd", n)
-    bias = None if bias is None else check_array(bias, "bias")
-    try:
-        return _pd(q, qd, q_ref, qd_ref, kp, kd, bias)
-    except ValueError as exc:
-        raise ValueError(f"q, qd, q_ref, qd_ref, bias: shapes do not broadcast ({exc})") from None
-
-
-def _pd(q, qd, q_ref, qd_ref, kp, kd, bias=None) -> np.ndarray:
-    u = kp * (q_ref - q) + kd * (qd_ref - qd)
-    return u if bias is None else u + bias
-
-
 def _instability_count(data: mujoco.MjData) -> int:
     return sum(data.warning[w].number for w in _INSTABILITY_WARNINGS)
 
 
-def joint_addresses(
-    model: mujoco.MjModel, joint_ids: Sequence[int] | None = None
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Joint ids (default every joint; hinges or slides) and their ``qpos`` and dof addresses."""
+def _joints(model: mujoco.MjModel, joint_ids: Sequence[int] | None):
+    """Joint ids (default every joint; hinges or slides), their ``qpos`` and dof addresses."""
     ids = np.arange(model.njnt) if joint_ids is None else np.asarray(joint_ids, dtype=int).ravel()
     if ids.size == 0:
         raise ValueError("joint_ids: expected at least one joint")
@@ -63,11 +36,8 @@ def joint_addresses(
     one_dof = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
     bad = [int(j) for j in ids if int(model.jnt_type[j]) not in one_dof]
     if bad:
-        raise ValueError(
-            f"joint_ids: joints {bad} are not hinge or slide joints (free/ball joints "
-            "cannot be PD-tracked here)"
-        )
-    return ids, model.jnt_qposadr[ids].copy(), model.jnt_dofadr[ids].copy()
+        raise ValueError(f"joint_ids: joints {bad} are not hinge or slide joints")
+    return ids, _as_slice(model.jnt_qposadr[ids]), _as_slice(model.jnt_dofadr[ids])
 
 
 def run_feedback(
@@ -104,12 +74,9 @@ def run_feedback(
     SimulationFailure
         On a non-finite state or torque, or an instability MuJoCo flagged (and reset).
     """
-    ids, qadr, dadr = joint_addresses(model, joint_ids)
+    ids, qadr, dadr = _joints(model, joint_ids)
     n = ids.size
-    qadr, dadr = _as_slice(qadr), _as_slice(dadr)
-    if int(n_steps) != n_steps or n_steps < 0:
-        raise ValueError(f"n_steps: expected a non-negative integer, got {n_steps!r}")
-    n_steps = int(n_steps)
+    n_steps = check_count(n_steps, "n_steps", 0)
     substeps = control_substeps(model, control_dt)
     rk4 = int(model.opt.integrator) == int(mujoco.mjtIntegrator.mjINT_RK4)
 
@@ -180,9 +147,8 @@ def track_reference(
     dict
         ``q``, ``qd``, ``u`` (T, n) and ``n_saturated``.
     """
-    ids, _, dadr = joint_addresses(model, joint_ids)
+    ids, _, dadr = _joints(model, joint_ids)
     n = ids.size
-    dadr = _as_slice(dadr)
     q_ref = check_array(q_ref, "q_ref", shape=(None, n))
     qd_ref = check_array(qd_ref, "qd_ref", shape=(q_ref.shape[0], n))
     kp = _gain(kp, "kp", n)
@@ -198,16 +164,14 @@ def track_reference(
 
     def pd(t: int, q: np.ndarray, qd: np.ndarray, d: mujoco.MjData) -> np.ndarray:
         nonlocal n_saturated
-        bias = d.qfrc_bias[dadr] if gravity_compensation else None
+        u = kp * (q_ref[t] - q) + kd * (qd_ref[t] - qd)
         if inertia_weighted:
-            acc = _pd(q, qd, q_ref[t], qd_ref[t], kp, kd)
             if qdd_ref is not None:
-                acc = acc + qdd_ref[t]
+                u = u + qdd_ref[t]
             mujoco.mj_fullM(model, d, full_m)
-            u = full_m[block] @ acc
-            u = u if bias is None else u + bias
-        else:
-            u = _pd(q, qd, q_ref[t], qd_ref[t], kp, kd, bias)
+            u = full_m[block] @ u
+        if gravity_compensation:
+            u = u + d.qfrc_bias[dadr]
         if limit is not None:
             n_saturated += int(np.count_nonzero(np.abs(u) > limit))
             u = np.clip(u, -limit, limit)
@@ -221,13 +185,11 @@ def track_reference(
 def control_substeps(model: mujoco.MjModel, control_dt: float) -> int:
     """Physics steps per control period; ``ValueError`` unless a positive whole number."""
     control_dt = check_positive(control_dt, "control_dt")
-    ratio = control_dt / model.opt.timestep
+    step = model.opt.timestep
+    ratio = control_dt / step
     substeps = int(round(ratio))
     if substeps < 1 or abs(ratio - substeps) > 1e-6 * max(ratio, 1.0):
-        raise ValueError(
-            f"control_dt: expected a whole multiple of the model time step "
-            f"{model.opt.timestep:g} s, got {control_dt:g} s"
-        )
+        raise ValueError(f"control_dt: expected a whole multiple of {step:g} s, got {control_dt}")
     return substeps
 
 

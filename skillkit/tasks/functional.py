@@ -44,10 +44,6 @@ def _check_callable(fn, name: str, required: bool = True):
     return fn
 
 
-def _function_name(fn) -> str:
-    return str(getattr(fn, "__qualname__", None) or repr(fn))
-
-
 class FunctionTask(Task):
     """A model-free task from a rollout function that returns the reward (a black box).
 
@@ -73,8 +69,6 @@ class FunctionTask(Task):
     The trajectory keeps only ``info["reward"]`` and its context; other contexts are refused.
     """
 
-    trajectory_depends_on_context = True
-
     def __init__(
         self,
         rollout: Callable[..., Any],
@@ -94,35 +88,30 @@ class FunctionTask(Task):
             raise ValueError(f"name: expected a non-empty str, got {name!r}")
         self.name = name
         self.worst_reward = float(check_array(worst_reward, "worst_reward", shape=()))
-        self._set_contexts(context_low, context_high, context_sampler)
-        d = self.parameter_dim
-        mean = np.zeros(d) if initial_mean is None else initial_mean
-        self._initial_mean = check_array(mean, "initial_mean", shape=(d,))
-        std = np.broadcast_to(check_array(initial_std, "initial_std", ndim=(0, 1)), (d,))
-        if std.shape != (d,) or np.any(std <= 0):
-            raise ValueError(
-                f"initial_std: expected a positive number or shape ({d},), got {initial_std!r}"
-            )
-        self._initial_std = np.array(std)
-
-    def _set_contexts(self, low, high, sampler) -> None:
-        if (low is None) != (high is None):
+        if (context_low is None) != (context_high is None):
             raise ValueError("context_low, context_high: give both bounds, or neither")
-        if low is None:
-            if sampler is not None:
+        if context_low is None:
+            if context_sampler is not None:
                 raise ValueError("context_sampler: a contextual task needs context_low/high")
             self.context_dim = 0
             self.context_low, self.context_high = np.zeros(0), np.zeros(0)
         else:
-            lo = check_array(low, "context_low", ndim=1)
-            hi = check_array(high, "context_high", shape=lo.shape)
+            lo = check_array(context_low, "context_low", ndim=1)
+            hi = check_array(context_high, "context_high", shape=lo.shape)
             if lo.shape[0] == 0:
                 raise ValueError("context_low: expected at least one context dimension")
             if np.any(lo > hi):
                 raise ValueError(f"context_high: expected ≥ context_low, got {hi} < {lo}")
             self.context_dim = int(lo.shape[0])
             self.context_low, self.context_high = lo, hi
-        self._context_sampler = _check_callable(sampler, "context_sampler", required=False)
+        self._context_sampler = _check_callable(context_sampler, "context_sampler", required=False)
+        d = self.parameter_dim
+        mean = np.zeros(d) if initial_mean is None else initial_mean
+        self._initial_mean = check_array(mean, "initial_mean", shape=(d,))
+        std = np.broadcast_to(check_array(initial_std, "initial_std", ndim=(0, 1)), (d,))
+        if np.any(std <= 0):
+            raise ValueError(f"initial_std: expected positive numbers, got {initial_std!r}")
+        self._initial_std = np.array(std)
 
     def sample_context(self, rng=None, n: int | None = None) -> np.ndarray:
         """Draw s ~ μ(s): uniform on the bounds, or ``context_sampler``'s (checked) draws."""
@@ -149,22 +138,19 @@ class FunctionTask(Task):
         out = self._call_rollout(omega, context, rng)
         if isinstance(out, (tuple, list, Trajectory)) or np.ndim(out) != 0:
             raise ValueError(
-                f"rollout: expected a scalar reward (a float), got {type(out).__name__}"
-                + (f" of shape {np.shape(out)}" if isinstance(out, np.ndarray) else "")
-                + "; a rollout that returns (states, controls) makes a TrajectoryTask"
+                f"rollout: expected a scalar reward, got {type(out).__name__} {np.shape(out)}; "
+                "a rollout returning (states, controls) makes a TrajectoryTask"
             )
         kind = np.asarray(out).dtype.kind if isinstance(out, (np.ndarray, np.generic)) else ""
-        if isinstance(out, (str, bytes, bool, complex)) or kind in ("b", "c", "U", "S", "O"):
-            raise ValueError(
-                f"rollout ({_function_name(self._rollout)}): expected a real reward (an int, a "
-                f"float or a numpy real scalar), got {type(out).__name__} {out!r}"
-            )
         try:
+            if isinstance(out, (str, bytes, bool, complex)) or kind in ("b", "c", "U", "S", "O"):
+                raise TypeError
             r = float(out)
         except (TypeError, ValueError):
+            fn = getattr(self._rollout, "__qualname__", None) or repr(self._rollout)
             raise ValueError(
-                f"rollout ({_function_name(self._rollout)}): expected a scalar reward (a float), "
-                f"got {type(out).__name__}"
+                f"rollout ({fn}): expected a real reward (an int, a float or a numpy real "
+                f"scalar), got {type(out).__name__} {out!r}"
             ) from None
         if not np.isfinite(r):
             raise SimulationFailure(f"rollout returned a non-finite reward ({r})")
@@ -251,19 +237,15 @@ class TrajectoryTask(FunctionTask):
         self._initial_states = _check_callable(initial_states, "initial_states", required=False)
         self.dt = check_positive(dt, "dt")
         self.trajectory_depends_on_context = bool(trajectory_depends_on_context)
-        self.supports_model_rollout = controller is not None and initial_states is not None
         named = (("controller", controller), ("initial_states", initial_states))
-        missing = [n for n, f in named if f is None]
-        self.no_model_rollout_reason = (
-            f"the task was built without {' and '.join(missing)}" if missing else ""
-        )
+        missing = " and ".join(n for n, f in named if f is None)
+        self.supports_model_rollout = not missing
+        self.no_model_rollout_reason = f"the task was built without {missing}" if missing else ""
 
     def _simulate(self, omega, context, rng) -> Trajectory:
         out = self._call_rollout(omega, context, rng)
         if isinstance(out, Trajectory) or not isinstance(out, (tuple, list)) or len(out) != 2:
-            raise ValueError(
-                f"rollout: expected a pair (states, controls), got {type(out).__name__}"
-            )
+            raise ValueError(f"rollout: expected (states, controls), got {type(out).__name__}")
         states = check_array(out[0], "rollout (states)", shape=(None, self.state_dim), finite=False)
         if states.shape[0] == 0:
             raise ValueError("rollout (states): expected at least one state, got shape (0, ...)")
@@ -306,9 +288,7 @@ class TrajectoryTask(FunctionTask):
         self._require_model_rollout("controller")
         w = check_array(omegas, "omegas", shape=(None, self.parameter_dim))
         b = w.shape[0]
-        if self.context_dim == 0 or contexts is None:
-            if self.context_dim:
-                raise ValueError(f"contexts: expected shape ({b}, {self.context_dim}), got None")
+        if self.context_dim == 0 and contexts is None:
             s = np.zeros((b, 0))
         else:
             s = check_array(contexts, "contexts", shape=(b, self.context_dim))

@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from skillkit._validation import check_array, check_positive
+from skillkit.policies.gaussian import LinearGaussianPolicy
 from skillkit.tasks.base import ModelSignals, Task, check_count
 from skillkit.tasks.registry import register
 from skillkit.trajectory import Trajectory
@@ -66,8 +67,6 @@ class Pendulum(Task):
     context_names = ("alpha0", "alpha_dot0")
     parameter_dim = 2
     context_dim = 2
-    trajectory_depends_on_context = True
-    worst_reward = -1e6
 
     def __init__(
         self,
@@ -134,13 +133,9 @@ class Pendulum(Task):
         x = states[:, 1:]
         return -(x[..., 0] ** 2 + 0.1 * x[..., 1] ** 2).sum(1)
 
-    def initial_policy(self):
+    def initial_policy(self) -> LinearGaussianPolicy:
         """π(ω|s) = N(K_thesis, diag(0.5², 0.25²)), independent of the context."""
-        from skillkit.policies.gaussian import LinearGaussianPolicy
-
-        return LinearGaussianPolicy(
-            mean=THESIS_GAINS.copy(), cov=np.diag([0.5**2, 0.25**2]), context_dim=self.context_dim
-        )
+        return LinearGaussianPolicy(THESIS_GAINS.copy(), np.diag([0.5**2, 0.25**2]), context_dim=2)
 
 
 @register("pendulum", "pendulum", "contextual")

@@ -33,25 +33,20 @@ __all__ = [
     "ballistic_flight",
     "hand_kinematics",
     "joint_limit_penalty",
-    "path_distance",
     "path_distances",
     "throwing_demonstration",
-    "write_throwing_demonstration",
 ]
 
 DEMONSTRATION_FILE = (
     Path(__file__).resolve().parents[1] / "data" / "demonstrations" / "throwing.npz"
 )
-"""The shipped throwing demonstration (:func:`write_throwing_demonstration`)."""
+"""The shipped demonstration: ``np.savez_compressed(path, **throwing_demonstration())``."""
 
 # Joint and velocity limits of Appendix C.1, x = [q, q̇].
-Q_LOWER = np.array([-0.8, -2.5, -0.1, 0.0])
-Q_UPPER = np.array([0.8, 0.05, 2.0, 1.5 * np.pi])
-QD_LIMIT = 50.0
+X_LOWER = np.array([-0.8, -2.5, -0.1, 0.0, -50.0, -50.0, -50.0, -50.0])
+X_UPPER = np.array([0.8, 0.05, 2.0, 1.5 * np.pi, 50.0, 50.0, 50.0, 50.0])
 #: Numbers per block of the row-wise batch computations (:func:`_by_rows`).
 BLOCK_ENTRIES = 1 << 18
-X_LOWER = np.concatenate([Q_LOWER, np.full(4, -QD_LIMIT)])
-X_UPPER = np.concatenate([Q_UPPER, np.full(4, QD_LIMIT)])
 
 
 def hand_kinematics(q, qd=None) -> tuple[np.ndarray, np.ndarray | None]:
@@ -98,16 +93,9 @@ def ballistic_flight(
     return t, path
 
 
-def path_distance(path, point) -> float:
-    """min_t ‖b_t − s‖ of Appendix C.1: distance from ``point`` (2,) to the polyline ``path``
-    (N, 2)'s segments."""
-    path = check_array(path, "path", shape=(None, 2))
-    point = check_array(point, "point", shape=(2,))
-    return float(path_distances(path[None], point[None])[0])
-
-
 def path_distances(paths, points) -> np.ndarray:
-    """:func:`path_distance` of equally long ``paths`` (B, N, 2) and ``points`` (B, 2), (B,)."""
+    """min_t ‖b_t − s‖ of Appendix C.1: distances (B,) from ``points`` (B, 2) to the polylines
+    ``paths`` (B, N, 2) (segments between the samples)."""
     paths = check_array(paths, "paths", shape=(None, None, 2))
     points = check_array(points, "points", shape=(paths.shape[0], 2))
     if paths.shape[1] == 0:
@@ -144,12 +132,11 @@ def _path_distances(paths: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 def joint_limit_penalty(states) -> np.ndarray:
     """Joint-limit penalty f_c(x) = (x_l − x)ᵀ 1_l (x_l − x) + (x_u − x)ᵀ 1_u (x_u − x) of
-    Appendix C.1 of states (T, 8), (T,); 1_l (1_u) selects entries beyond the lower (upper)
-    limits :data:`X_LOWER`, :data:`X_UPPER`."""
-    return _joint_limit_penalty(check_array(states, "states", shape=(None, 8)))
-
-
-def _joint_limit_penalty(x: np.ndarray) -> np.ndarray:
+    Appendix C.1 of states (..., 8), shape (...); 1_l (1_u) selects entries beyond the lower
+    (upper) limits :data:`X_LOWER`, :data:`X_UPPER`."""
+    x = check_array(states, "states")
+    if x.shape[-1:] != (8,):
+        raise ValueError(f"states: expected shape (..., 8), got {x.shape}")
     low = np.where(x <= X_LOWER, X_LOWER - x, 0.0)
     high = np.where(x >= X_UPPER, X_UPPER - x, 0.0)
     return (low**2).sum(axis=-1) + (high**2).sum(axis=-1)
@@ -159,18 +146,6 @@ def _too_fast(qd: np.ndarray, limit: float) -> np.ndarray:
     """Whether a joint speed exceeds ``limit`` at each step of ``qd`` (..., 4)."""
     with np.errstate(invalid="ignore"):
         return np.abs(qd).max(axis=-1) > limit
-
-
-def _bump(t: np.ndarray, t0: float, t1: float) -> tuple[np.ndarray, ...]:
-    """Bump sin²(π u) on [t0, t1], u = (t − t0)/(t1 − t0), with its derivatives."""
-    T = t1 - t0
-    u = np.clip((t - t0) / T, 0.0, 1.0)
-    inside = (t >= t0) & (t <= t1)
-    w = np.pi / T
-    s = np.sin(np.pi * u) ** 2
-    sd = np.where(inside, w * np.sin(2 * np.pi * u), 0.0)
-    sdd = np.where(inside, 2 * w**2 * np.cos(2 * np.pi * u), 0.0)
-    return s, sd, sdd
 
 
 THROW_START = np.zeros(4)
@@ -188,20 +163,15 @@ def throwing_demonstration(dt: float = 1e-3, duration: float = 1.0) -> dict[str,
     q = np.zeros((t.size, 4))
     qd = np.zeros_like(q)
     qdd = np.zeros_like(q)
+    u, inside, w = np.clip(t / 0.8, 0.0, 1.0), t <= 0.8, np.pi / 0.8  # sin²(π t / 0.8) bumps
+    s = np.sin(np.pi * u) ** 2
+    sd = np.where(inside, w * np.sin(2 * np.pi * u), 0.0)
+    sdd = np.where(inside, 2 * w**2 * np.cos(2 * np.pi * u), 0.0)
     for j, amp in enumerate((0.15, -0.4, 0.3)):
-        s, sd, sdd = _bump(t, 0.0, 0.8)
         q[:, j], qd[:, j], qdd[:, j] = amp * s, amp * sd, amp * sdd
     s, sd, sdd = quintic(t - 0.1, 0.9 - 0.1, clip=True)  # minimum jerk on [0.1, 0.9]
     q[:, 3], qd[:, 3], qdd[:, 3] = np.pi * s, np.pi * sd, np.pi * sdd
     return {"times": t, "q": q, "qd": qd, "qdd": qdd, "release_time": np.array(DEMO_RELEASE_TIME)}
-
-
-def write_throwing_demonstration(path: str | Path = DEMONSTRATION_FILE) -> Path:
-    """Write :func:`throwing_demonstration`'s arrays to ``path`` (the shipped file)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    np.savez_compressed(path, **throwing_demonstration())
-    return path
 
 
 class Throwing(Task):
@@ -217,7 +187,7 @@ class Throwing(Task):
 
         R(τ, s) = −c1 min_t ‖b_t − s‖ − c2 Σ_t f_c(x_t) − c3 Σ_t u_tᵀ u_t,
 
-    c1 = 1e2, c2 = 1e3, c3 = 1e-8 (:func:`path_distance`, :func:`joint_limit_penalty`). A
+    c1 = 1e2, c2 = 1e3, c3 = 1e-8 (:func:`path_distances`, :func:`joint_limit_penalty`). A
     joint faster than ``max_joint_speed`` rad/s fails the rollout. Signals ``end_effector``
     (T, 2), ``ball`` (T_b, 2), ``ball_times`` (T_b,).
     """
@@ -259,9 +229,7 @@ class Throwing(Task):
         self.context_high = np.array([15.0, hi])
         noise = check_array(release_noise, "release_noise", shape=(2,))
         if np.any(noise < 0):
-            raise ValueError(
-                f"release_noise: expected non-negative standard deviations, got {noise}"
-            )
+            raise ValueError(f"release_noise: expected standard deviations >= 0, got {noise}")
         self.release_noise = noise
         self.ball_dt = check_positive(ball_dt, "ball_dt")
         self.max_joint_speed = check_positive(max_joint_speed, "max_joint_speed")
@@ -365,7 +333,7 @@ class Throwing(Task):
         controls = check_array(controls, "controls", shape=(states.shape[0], None, 4))
         return {
             "distance": path_distances(ball, contexts),
-            "joint_penalty": _by_rows(lambda x: _joint_limit_penalty(x).sum(axis=1), states),
+            "joint_penalty": _by_rows(lambda x: joint_limit_penalty(x).sum(axis=1), states),
             "energy": (controls**2).sum(axis=(1, 2)),
         }
 
@@ -388,9 +356,7 @@ class Throwing(Task):
     def failed_batch(self, states) -> np.ndarray:
         """Paths (B, T + 1, 8) with a non-finite state or a joint faster than
         ``max_joint_speed``, shape (B,)."""
-        states = check_array(states, "states", ndim=3, finite=False)
-        if states.shape[2] != 8:
-            raise ValueError(f"states: expected shape (B, T + 1, 8), got {states.shape}")
+        states = check_array(states, "states", shape=(None, None, 8), finite=False)
         fast = _too_fast(states[..., 4:], self.max_joint_speed).any(axis=1)
         return fast | ~np.isfinite(states).all(axis=(1, 2))
 

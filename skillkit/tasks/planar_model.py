@@ -41,8 +41,8 @@ TIMESTEP = 1e-3
 """Physics time step in seconds."""
 
 
-def build_planar_robot(timestep: float = TIMESTEP) -> mjcf.RootElement:
-    """MJCF model (``dm_control.mjcf.RootElement``) of the planar 4-link robot (Appendix C.1)."""
+def compile_planar_robot(timestep: float = TIMESTEP) -> mjcf.Physics:
+    """The planar 4-link robot (Appendix C.1) as a compiled ``dm_control.mjcf.Physics``."""
     root = mjcf_root("planar_4link", timestep, geom_rgba=[0.55, 0.6, 0.7, 1.0])
     root.worldbody.add("light", pos=[0, -6, 4], dir=[0, 1, -0.5])
     root.worldbody.add(
@@ -81,12 +81,7 @@ def build_planar_robot(timestep: float = TIMESTEP) -> mjcf.RootElement:
     parent.add(
         "site", name="hand", pos=[0, 0, -LINK_LENGTHS[3]], size=[0.06], rgba=[0.9, 0.2, 0.2, 1]
     )
-    return root
-
-
-def compile_planar_robot(timestep: float = TIMESTEP) -> mjcf.Physics:
-    """Compile :func:`build_planar_robot` into a ``dm_control.mjcf.Physics``."""
-    return mjcf.Physics.from_mjcf_model(build_planar_robot(timestep))
+    return mjcf.Physics.from_mjcf_model(root)
 
 
 @functools.cache

@@ -19,13 +19,12 @@ import numpy as np
 import torch
 
 from skillkit._validation import as_generator, check_array, check_count, check_positive
-from skillkit.models.gp import ExactGP, ForwardModel, GPRegression
+from skillkit.models.gp import ExactGP, ForwardModel, GPRegression, check_dtype
 from skillkit.models.reward import (
     Prediction,
     RewardModel,
-    check_factories,
-    check_sample_dtype,
     gp_stats,
+    set_factories,
     subsample,
     usable_trajectories,
     warm_start_hypers,
@@ -133,27 +132,23 @@ class ThrowingRewardModel(RewardModel):
     ):
         if not isinstance(task, Throwing):
             raise ValueError(f"task: expected a Throwing task, got {type(task).__name__}")
-        check_factories(
-            make_robot_model=make_robot_model,
-            make_release_model=make_release_model,
-            make_flight_model=make_flight_model,
+        set_factories(
+            self,
+            make_robot_model=(make_robot_model, _robot_model),
+            make_release_model=(make_release_model, _release_model),
+            make_flight_model=(make_flight_model, _flight_model),
         )
         self.task = task
-        self.make_robot_model = make_robot_model or _robot_model
-        self.make_release_model = make_release_model or _release_model
-        self.make_flight_model = make_flight_model or _flight_model
         self.max_robot_points = check_count(max_robot_points, "max_robot_points", 2)
         self.max_release_points = check_count(max_release_points, "max_release_points", 2)
         self.max_flight_points = check_count(max_flight_points, "max_flight_points", 2)
         self.flight_steps = int(np.ceil(check_positive(flight_time, "flight_time") / task.ball_dt))
         self.warm_start = bool(warm_start)
         self.device = device
-        self.dtype = check_sample_dtype(dtype)
+        self.dtype = check_dtype(dtype)
         if not isinstance(stop_flight_at_ground, bool):
-            raise ValueError(
-                "stop_flight_at_ground: expected a bool, got "
-                f"{type(stop_flight_at_ground).__name__}"
-            )
+            got = type(stop_flight_at_ground).__name__
+            raise ValueError(f"stop_flight_at_ground: expected a bool, got {got}")
         self.stop_flight_at_ground = stop_flight_at_ground
         self.robot: Any = None
         self.release: Any = None
@@ -161,49 +156,6 @@ class ThrowingRewardModel(RewardModel):
         self.release_var = np.zeros(4)
         self._hypers: dict[str, dict | None] = {"robot": None, "release": None, "flight": None}
         self.n_data = 0
-
-    def robot_data(self, trajectories) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Transitions (x_t, a_t, x_{t+1}) of the throws, a the commanded accelerations."""
-        parts = [self.task.transitions(t) for t in trajectories]
-        x, u, xn = (np.concatenate(p) for p in zip(*parts, strict=True))
-        return x, self.task.commanded_accelerations(x, u), xn
-
-    def hand_data(self, trajectories) -> tuple[np.ndarray, np.ndarray]:
-        """Arm states x_t (N, 8) and the hand's [p, v] (N, 4) per step."""
-        dt = self.task.control_dt
-        xs, bs = [], []
-        for t in trajectories:
-            p = t.signals["end_effector"]
-            xs.append(t.states)
-            bs.append(np.hstack([p, np.gradient(p, dt, axis=0)]))
-        return np.concatenate(xs), np.concatenate(bs)
-
-    def release_data(self, trajectories) -> tuple[np.ndarray, np.ndarray]:
-        """Arm state at t_r (linear interpolation) and the observed ball state after release."""
-        xs = self._state_at(
-            np.stack([t.states for t in trajectories]),
-            np.array([t.info["release_time"] for t in trajectories]),
-        )
-        bs = np.array(
-            [np.r_[t.info["release_position"], t.info["release_velocity"]] for t in trajectories]
-        )
-        return xs, bs
-
-    def flight_data(self, trajectories) -> tuple[np.ndarray, np.ndarray]:
-        """Ball flight transitions (b_k, b_{k+1}), b = [p, v] every ``ball_dt``."""
-        dt = self.task.ball_dt
-        xs, xns = [], []
-        for t in trajectories:
-            n_held = int(np.sum(t.signals["ball_times"] < t.info["release_time"]))
-            p = t.signals["ball"][n_held:-1]
-            if p.shape[0] < 3:
-                continue
-            b = np.hstack([p, np.gradient(p, dt, axis=0)])
-            xs.append(b[:-1])
-            xns.append(b[1:])
-        if not xs:
-            raise ValueError("trajectories: no ball flight of three or more samples to learn from")
-        return np.concatenate(xs), np.concatenate(xns)
 
     def _state_at(self, states: np.ndarray, times: np.ndarray) -> np.ndarray:
         """States (..., T, 8) linearly interpolated at times (...,) between control steps."""
@@ -234,18 +186,37 @@ class ThrowingRewardModel(RewardModel):
         per GP its :func:`~skillkit.models.reward.gp_stats`."""
         ok = usable_trajectories(trajectories, "throwing")
         rng = as_generator(rng)
-        x, a, xn = self.robot_data(ok)
+        # robot dynamics: transitions (x_t, a_t, x_{t+1}), a the commanded accelerations
+        x, u, xn = (np.concatenate(p) for p in zip(*map(self.task.transitions, ok), strict=True))
         n_robot = x.shape[0]
+        a = self.task.commanded_accelerations(x, u)
         x, a, xn = subsample(rng, self.max_robot_points, x, a, xn)
         self.robot = self._fit_gp("robot", self.make_robot_model(), x, a, xn, rng)
-
-        hx, hb = subsample(rng, self.max_release_points, *self.hand_data(ok))
+        # release: arm state x_t ↦ the hand's [p, v] at every step, plus the observed release error
+        hand = [t.signals["end_effector"] for t in ok]
+        dt = self.task.control_dt
+        hb = np.concatenate([np.hstack([p, np.gradient(p, dt, axis=0)]) for p in hand])
+        hx, hb = subsample(rng, self.max_release_points, np.concatenate([t.states for t in ok]), hb)
         self.release = self._fit_gp("release", self.make_release_model(), hx, hb, rng=rng)
-        rx, rb = self.release_data(ok)
+        rx = self._state_at(
+            np.stack([t.states for t in ok]), np.array([t.info["release_time"] for t in ok])
+        )
+        rb = np.array([np.r_[t.info["release_position"], t.info["release_velocity"]] for t in ok])
         mean, _ = self.release.predict(rx)
         self.release_var = np.mean((rb - mean) ** 2, axis=0)
-
-        fx, fxn = subsample(rng, self.max_flight_points, *self.flight_data(ok))
+        # free flight: transitions (b_k, b_{k+1}), b = [p, v] every ball_dt after the release
+        flights = []
+        for t in ok:
+            n_held = int(np.sum(t.signals["ball_times"] < t.info["release_time"]))
+            p = t.signals["ball"][n_held:-1]
+            if p.shape[0] >= 3:
+                flights.append(np.hstack([p, np.gradient(p, self.task.ball_dt, axis=0)]))
+        if not flights:
+            raise ValueError("trajectories: no ball flight of three or more samples to learn from")
+        fx = np.concatenate([b[:-1] for b in flights])
+        fx, fxn = subsample(
+            rng, self.max_flight_points, fx, np.concatenate([b[1:] for b in flights])
+        )
         self.flight = self._fit_gp(
             "flight", self.make_flight_model(), fx, np.zeros((fx.shape[0], 0)), fxn, rng
         )
@@ -279,10 +250,9 @@ class ThrowingRewardModel(RewardModel):
         x0 = np.broadcast_to(task.initial_states(task.context_low, 1), (B, L, 8))
         dtype = self.dtype
         accel = task.acceleration_controller(w, device=device)  # float64: a_T and the torques
-        if dtype != torch.float64:  # the sampler's controller in its own precision
+        step = accel  # the sampler's controller in its own precision
+        if dtype != torch.float64:
             step = task.acceleration_controller(w, device=device, dtype=dtype)
-        else:
-            step = accel
         arm = sample_trajectories(self.robot, x0, step, T - 1, L, rng, device=device, dtype=dtype)
         states = arm.states.reshape(B * L, T, 8).to(torch.float64)
         pair = torch.arange(B, device=device).repeat_interleave(L)

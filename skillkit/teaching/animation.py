@@ -15,21 +15,21 @@ from skillkit.viz.animation import (
     throwing_animation,
 )
 
-_THESIS = {
-    "fig3.2": {
-        "exp_id": "fig3.3",
-        "task": "throwing",
-        "contexts": THROWING_TARGETS,
-        "animate": throwing_animation,
-        "title": "Throwing for two targets (Fig. 3.2)",
-    },
-    "fig3.8": {
-        "exp_id": "fig3.7",
-        "task": "table-tennis",
-        "contexts": TABLE_TENNIS_CONTEXTS,
-        "animate": table_tennis_animation,
-        "title": "Two table-tennis shots (Fig. 3.8)",
-    },
+_THESIS = {  # figure: (stored run, task, default contexts, animation, title)
+    "fig3.2": (
+        "fig3.3",
+        "throwing",
+        THROWING_TARGETS,
+        throwing_animation,
+        "Throwing for two targets (Fig. 3.2)",
+    ),
+    "fig3.8": (
+        "fig3.7",
+        "table-tennis",
+        TABLE_TENNIS_CONTEXTS,
+        table_tennis_animation,
+        "Two table-tennis shots (Fig. 3.8)",
+    ),
 }
 
 
@@ -41,10 +41,9 @@ def stored_final_policy(exp_id: str, trial: int = 0) -> LinearGaussianPolicy | N
     if isinstance(trial, bool) or not isinstance(trial, (int, np.integer)) or trial < 0:
         raise ValueError(f"trial: expected a trial number >= 0, got {trial!r}")
     try:
-        folder = Path(stored_run(str(exp_id)).path)
+        file = Path(stored_run(str(exp_id)).path) / "trials.npz"
     except FileNotFoundError:
         return None
-    file = folder / "trials.npz"
     if not file.exists():
         return None
     with np.load(file, allow_pickle=False) as data:
@@ -64,36 +63,27 @@ def stored_final_policy(exp_id: str, trial: int = 0) -> LinearGaussianPolicy | N
 
 
 def thesis_animation(figure: str, contexts=None, *, trial: int = 0, n_frames: int = 40, **kwargs):
-    """Fig. 3.2 or 3.8 (``figure``): the policy mean's rollouts at ``contexts`` (k,
-    context_dim) (default the thesis's two) in ``n_frames`` frames, the policy
-    :func:`stored_final_policy` or else the task's initial one; ``kwargs`` go to the animation.
-    """
+    """Fig. 3.2 or 3.8 (``figure``): the mean of :func:`stored_final_policy` (else the task's
+    initial policy) rolled out at ``contexts`` (k, context_dim) (default the thesis's two)."""
     from skillkit.tasks import make
 
     if figure not in _THESIS:
         raise ValueError(f"figure: expected one of {sorted(_THESIS)}, got {figure!r}")
-    spec = _THESIS[figure]
-    task = make(spec["task"])
-    s = spec["contexts"] if contexts is None else contexts
-    s = check_array(s, "contexts", shape=(None, task.context_dim))
-    policy = stored_final_policy(spec["exp_id"], trial)
+    exp_id, name, default, animate, title = _THESIS[figure]
+    task = make(name)
+    s = check_array(
+        default if contexts is None else contexts, "contexts", shape=(None, task.context_dim)
+    )
+    policy = stored_final_policy(exp_id, trial)
     if policy is None:
         policy = task.initial_policy()
-        source = (
-            f"policy: the task's initial policy (the stored {spec['exp_id']} run keeps no "
-            "policy), its mean at each context"
-        )
+        source = f"policy: the task's initial policy (the stored {exp_id} run keeps no policy)"
     else:
         if (policy.dim, policy.context_dim) != (task.parameter_dim, task.context_dim):
-            raise ValueError(
-                f"figure: the stored {spec['exp_id']} policy has dim {policy.dim}, context_dim "
-                f"{policy.context_dim}; task {spec['task']!r} needs {task.parameter_dim}, "
-                f"{task.context_dim}"
-            )
-        source = (
-            f"policy: final contextual REPS policy of the stored {spec['exp_id']} run "
-            f"(trial {trial}), its mean at each context"
-        )
+            raise ValueError(f"figure: the stored {exp_id} policy does not fit task {name!r}")
+        source = f"policy: final contextual REPS policy of the stored {exp_id} run (trial {trial})"
     trajs = [task.rollout(policy.mean_of(row), row, rng=0) for row in s]
-    kwargs.setdefault("title", spec["title"])
-    return spec["animate"](task, trajs, s, n_frames=n_frames, subtitle=source, **kwargs)
+    kwargs.setdefault("title", title)
+    return animate(
+        task, trajs, s, n_frames=n_frames, subtitle=source + ", its mean at each context", **kwargs
+    )

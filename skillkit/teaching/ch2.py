@@ -1,8 +1,7 @@
 r"""Chapter 2 step by step with the library's DMP, ExactGP and moment matching: DMPs
 (Sec. 2.2.1, Eqs. 2.21–2.23), GP noise and hyper-parameters (Sec. 2.3, Eqs. 2.25–2.28) and one
 moment-matching step against Monte Carlo (Sec. 2.1.2, Fig. 2.7). Handled GP events are counted
-in tables and titles, not warned about. Figures take ``backend`` in {"plotly", "matplotlib"}.
-"""
+in tables and titles, not warned about. Figures take ``backend`` in {"plotly", "matplotlib"}."""
 
 from __future__ import annotations
 
@@ -166,7 +165,6 @@ def demonstration_figure(
 def dmp_fit_figure(n_basis: int, *, backend: str = "plotly", **dmp_options):
     """A DMP with ``n_basis`` weights (``dmp_options`` to :class:`DMP`) fitted to the reach of
     Fig. 2.9: its rollout over the demonstration and its RMSE."""
-    n_basis = check_count(n_basis, "n_basis")
     times, q, qd, qdd = reach_demonstration()
     dmp = DMP(n_joints=1, n_basis=n_basis, **dmp_options).fit(times, q, qd, qdd)
     q_dmp = dmp.rollout(times, q0=q[0])[0][:, 0]
@@ -233,13 +231,8 @@ def _data(x: ArrayLike, y: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
 
 @dataclass(frozen=True)
 class NoiseProfile:
-    """The log marginal likelihood (2.28) along σ_ε² (:func:`noise_profile`), raw units.
-
-    Attributes
-    ----------
-    noise_vars, log_ml, lengthscale, signal_var : ndarray, shape (G,)
-        σ_ε², the maximum over ℓ and σ_f² of log p(y | X, θ), and the maximising ℓ, σ_f².
-    """
+    """The log marginal likelihood (2.28) along σ_ε² (:func:`noise_profile`), raw units: per
+    σ_ε² (G,) its maximum over ℓ and σ_f², and the maximising ℓ, σ_f²."""
 
     noise_vars: np.ndarray
     log_ml: np.ndarray
@@ -469,19 +462,9 @@ def gp_posterior_figure(
 
 @dataclass(frozen=True)
 class MomentMatchingCheck:
-    """One step p(x) = N(m, s²) → p(y) through a 1-D GP, three ways (Sec. 2.1.2, Fig. 2.7).
-
-    Attributes
-    ----------
-    input_mean, input_var : float
-        m and s².
-    moment_matched, linearised : GaussianPrediction
-        The exact moments of p(y) and the Gaussian of linearisation at m.
-    samples : ndarray, shape (n,)
-        Exact draws y_j = μ(x_j) + σ(x_j) ε_j, x_j ~ N(m, s²).
-    density_grid, density : ndarray, shape (G,)
-        p(y) by quadrature (:func:`~skillkit.experiments.ch2_gp.successor_density`).
-    """
+    """One step p(x) = N(m, s²) → p(y) through a 1-D GP, three ways (Sec. 2.1.2, Fig. 2.7):
+    the exact moments of p(y), the linearisation at m, Monte Carlo draws y_j = μ(x_j) +
+    σ(x_j) ε_j (n,), and p(y) by quadrature on a grid (G,)."""
 
     input_mean: float
     input_var: float
@@ -493,9 +476,8 @@ class MomentMatchingCheck:
 
     def standard_errors(self) -> tuple[float, float]:
         """Standard errors √(v/n) of the sample mean and √((μ₄ − v²)/n) of the sample variance."""
-        y = self.samples
-        n = y.shape[0]
-        c = y - y.mean()
+        c = self.samples - self.samples.mean()
+        n = c.shape[0]
         v = float(np.mean(c**2))
         m4 = float(np.mean(c**4))
         return float(np.sqrt(v / n)), float(np.sqrt(max(m4 - v * v, 0.0) / n))

@@ -2,8 +2,7 @@ r"""Chapter 3 step by step: one contextual REPS update (Sec. 3.3, Table 3.1) tak
 the library's dual, weights and ML fit: (a) the dual (3.9) along η, (b, c) the weights (3.10),
 KL and ESS against ε, (d) the fit's ellipse (3.11–3.13), and tables. Samples are rewards R_i
 (N,), N ≥ 2, not all equal, with baseline features φ(s_i) (N, F) or ``None`` (Eq. 2.15).
-Figures take ``backend`` in {"plotly", "matplotlib"}.
-"""
+Figures take ``backend`` in {"plotly", "matplotlib"}."""
 
 from __future__ import annotations
 
@@ -45,28 +44,14 @@ def _samples(rewards: ArrayLike, features: ArrayLike | None) -> tuple[np.ndarray
 def _solve(rewards: np.ndarray, phi: np.ndarray, epsilon: float) -> REPSWeights:
     solution = reps_weights(rewards, phi if phi.shape[1] else None, epsilon)
     if not np.isfinite(solution.eta):
-        raise ValueError(
-            "rewards: all rewards are equal, so the weights are uniform and the dual (3.9) has "
-            "no minimiser in η (η → ∞)"
-        )
+        raise ValueError("rewards: all rewards are equal, so the dual (3.9) has no minimiser η")
     return solution
-
-
-def _policy(pol, name: str) -> LinearGaussianPolicy:
-    return expect(pol, LinearGaussianPolicy, name, "a LinearGaussianPolicy")
 
 
 @dataclass(frozen=True)
 class DualSlice:
-    """The REPS dual (3.9) along η with γ at its optimum γ* (:func:`dual_slice`).
-
-    Attributes
-    ----------
-    eta, value, kl : ndarray, shape (n,)
-        The η grid (containing η*), g(η, γ*) and KL(p_η ‖ uniform) = ε − ∂g/∂η (A.11).
-    solution : REPSWeights
-        The joint minimiser (η*, γ*).
-    """
+    """The REPS dual (3.9) along η with γ at γ* (:func:`dual_slice`): the η grid (n,) holding
+    η*, g(η, γ*), KL(p_η ‖ uniform) = ε − ∂g/∂η (A.11) and the joint minimiser (η*, γ*)."""
 
     eta: np.ndarray
     value: np.ndarray
@@ -180,9 +165,7 @@ def weights_and_kl_figure(
     backend: str = "plotly",
 ):
     r"""(b) N p_i (3.10) at ``epsilon`` against R_i and the advantage R_i − γᵀφ(s_i); (c) KL
-    and ESS over ``epsilons`` (default :data:`DEFAULT_EPSILONS`). Weights that underflow to 0
-    are not drawn (the title counts them).
-    """
+    and ESS over ``epsilons`` (default :data:`DEFAULT_EPSILONS`); weights of 0 are not drawn."""
     r, phi = _samples(rewards, features)
     eps = check_positive(epsilon, "epsilon")
     sol = _solve(r, phi, eps)
@@ -239,10 +222,7 @@ def _contexts(policy: LinearGaussianPolicy, contexts: ArrayLike | None, n: int |
         return np.zeros((1 if n is None else n, 0))
     s = check_array(contexts, "contexts", ndim=2)
     if s.shape[1] != policy.context_dim or s.shape[0] == 0 or (n is not None and s.shape[0] != n):
-        rows = "n" if n is None else str(n)
-        raise ValueError(
-            f"contexts: expected shape ({rows}, {policy.context_dim}), got shape {s.shape}"
-        )
+        raise ValueError(f"contexts: expected ({n or 'n'}, {policy.context_dim}), got {s.shape}")
     return s
 
 
@@ -264,17 +244,13 @@ def policy_moments(
         m = \sum_i q_i \mu(s_i), \qquad
         C = \Sigma + \sum_i q_i (\mu(s_i) - m)(\mu(s_i) - m)^T.
     """
-    s = _contexts(_policy(policy, "policy"), contexts)
+    s = _contexts(expect(policy, LinearGaussianPolicy, "policy"), contexts)
     mu = np.atleast_2d(policy.mean_of(s))
     q = np.full(mu.shape[0], 1.0 / mu.shape[0]) if weights is None else _weights(weights, len(mu))
     mean = q @ mu
     centred = mu - mean
     cov = policy.cov + (centred * q[:, None]).T @ centred
     return mean, 0.5 * (cov + cov.T)
-
-
-def _dims(dims, d: int) -> tuple[int, int]:
-    return index_pair(dims, "dims", d, "parameter indices")
 
 
 def ellipse_points(
@@ -284,7 +260,7 @@ def ellipse_points(
     ``dims`` (C = V Λ Vᵀ, ``cov`` symmetric PSD), shape (n_points, 2)."""
     m = check_array(mean, "mean", ndim=1)
     c = check_array(cov, "cov", shape=(m.shape[0], m.shape[0]))
-    i, j = _dims(dims, m.shape[0])
+    i, j = index_pair(dims, "dims", m.shape[0], "parameter indices")
     n_points = check_count(n_points, "n_points", 3)
     block = c[np.ix_([i, j], [i, j])]
     if abs(block[0, 1] - block[1, 0]) > 1e-10 * max(np.abs(block).max(), 1e-300):
@@ -299,8 +275,7 @@ def ellipse_points(
 
 def heaviest_samples(weights: ArrayLike, mass: float = 0.5) -> np.ndarray:
     """Sorted indices of the fewest samples holding ``mass`` ∈ (0, 1] of the weight."""
-    w = check_array(weights, "weights", ndim=1)
-    p = _weights(w, w.shape[0])
+    p = _weights(weights, np.size(weights))
     mass = check_positive(mass, "mass")
     if mass > 1.0:
         raise ValueError(f"mass: expected a fraction in (0, 1], got {mass!r}")
@@ -321,22 +296,15 @@ def ellipse_figure(
     backend: str = "plotly",
 ):
     """(d) The old and new policies' 1-σ ellipses (:func:`policy_moments` over the contexts
-    (N, context_dim); the new one also at the mean context) over the samples ω_i (N, d), those
-    holding ``mass`` of the weights highlighted; axes have equal scales.
-    """
+    (N, context_dim), the new one also at their mean) over the samples ω_i (N, d)."""
     for name, pol in (("old", old), ("new", new)):
-        _policy(pol, name)
+        expect(pol, LinearGaussianPolicy, name)
     if (new.dim, new.context_dim) != (old.dim, old.context_dim):
-        raise ValueError(
-            f"new: expected dim={old.dim}, context_dim={old.context_dim} (as old), "
-            f"got dim={new.dim}, context_dim={new.context_dim}"
-        )
-    w = check_array(omegas, "omegas", ndim=2)
-    if w.shape[1] != old.dim:
-        raise ValueError(f"omegas: expected shape (N, {old.dim}), got {w.shape}")
+        raise ValueError("new: expected the dim and context_dim of old")
+    w = check_array(omegas, "omegas", shape=(None, old.dim))
     s = _contexts(old, contexts, w.shape[0])
     p = _weights(weights, w.shape[0])
-    i, j = _dims(dims, old.dim)
+    i, j = index_pair(dims, "dims", old.dim, "parameter indices")
     heavy = np.zeros(w.shape[0], bool)
     heavy[heaviest_samples(p, mass)] = True
     labels = {"xlabel": f"ω_{i + 1}", "ylabel": f"ω_{j + 1}"}
@@ -398,14 +366,12 @@ def update_table(
     contexts: ArrayLike | None,
     optimum: ArrayLike | None = None,
 ) -> pd.DataFrame:
-    """One REPS update (3.10–3.12) as a row of :data:`COLUMNS`: the dual's ``solution``, mean
-    ``rewards`` (N,), KL(π_new ‖ π_old) over ``contexts``; with ``optimum`` θ* (d, 1 + F) also
-    max |θ − θ*| before and after.
-    """
+    """One REPS update (3.10–3.12) as a row of :data:`COLUMNS` (KL(π_new ‖ π_old) over
+    ``contexts``); with ``optimum`` θ* (d, 1 + F) also max |θ − θ*| before and after."""
     n = expect(solution, REPSWeights, "solution").weights.shape[0]
     r = check_array(rewards, "rewards", shape=(n,))
     for name, pol in (("old", old), ("new", new)):
-        _policy(pol, name)
+        expect(pol, LinearGaussianPolicy, name)
     s = _contexts(old, contexts, n)
     row = _row(solution, n, float(r.mean()), new.kl(old, s))
     if optimum is not None:
@@ -421,10 +387,6 @@ def diagnostics_table(updates: Sequence) -> pd.DataFrame:
         raise ValueError("updates: expected a non-empty list of ContextualREPS.update results")
     rows = []
     for k, d in enumerate(updates):
-        if not isinstance(d, REPSDiagnostics):
-            raise ValueError(
-                f"updates[{k}]: expected REPSDiagnostics (ContextualREPS.update), "
-                f"got {type(d).__name__}"
-            )
+        expect(d, REPSDiagnostics, f"updates[{k}]")
         rows.append(_row(d, int(d.n_samples), float(d.mean_reward), float(d.policy_kl)))
     return pd.DataFrame(rows, index=pd.RangeIndex(1, len(rows) + 1, name="update"))

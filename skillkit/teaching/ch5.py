@@ -1,7 +1,6 @@
 """Chapter 5 step by step: kernel trajectory prediction (Tables 5.1, 5.2, C = (K + λI)⁻¹K̃,
 β_{t+1} = C β_t) and model selection (Sec. 5.3, Eq. 5.16), the library's embedding models
-tabulated and drawn against real samples. Figures are plotly.
-"""
+tabulated and drawn against real samples. Figures are plotly."""
 
 from __future__ import annotations
 
@@ -34,9 +33,8 @@ _WARNING_LINE = re.compile(r"^\S.*:\d+: (\w*Warning): (.*)$")
 def weights_table(
     embedding: ConditionalEmbedding, beta, reference=None, names: Sequence[str] | None = None
 ) -> pd.DataFrame:
-    """What one embedding μ = Φ_y β (N,) says (Eqs. 5.7, 5.8), a column ``value``: E[y_d] =
-    Yᵀβ per dimension (``names``), ``reference`` (d_y,) if given, Σ_j β_j and ‖β‖₁.
-    """
+    """What one embedding μ = Φ_y β (N,) says (Eqs. 5.7, 5.8): E[y_d] = Yᵀβ per dimension
+    (``names``), ``reference`` (d_y,) if given, Σ_j β_j and ‖β‖₁."""
     b = check_array(beta, "beta", shape=(embedding.n,))
     d = embedding.target_dim
     labels = list(names) if names is not None else [f"y[{k}]" for k in range(d)]
@@ -69,6 +67,13 @@ def agreement_table(pairs: Mapping[str, tuple]) -> pd.DataFrame:
     return pd.DataFrame(rows).T.rename_axis("weights")
 
 
+def _predicted(model: ConditionalEmbedding, x0: np.ndarray, n: int, policy) -> np.ndarray:
+    """The weights β_t (T, N) of one distribution started at ``x0`` (L, n_x) (Table 5.1)."""
+    return predict(model, x0[None], n, policy=policy, time_invariant=policy is not None).betas[
+        :, :, 0
+    ]
+
+
 def _mean_paths(embedding: ConditionalEmbedding, betas: np.ndarray) -> np.ndarray:
     """X'ᵀβ_t for t = 1, …, T, shape (T, n_x)."""
     return np.stack([embedding.mean(b) for b in betas])
@@ -77,13 +82,10 @@ def _mean_paths(embedding: ConditionalEmbedding, betas: np.ndarray) -> np.ndarra
 def prediction_table(
     models: Mapping[str, object], initial, real_states, names: Sequence[str] | None = None
 ) -> pd.DataFrame:
-    """How well each model's embedded mean follows the real rollouts (Table 5.1 or 5.2).
-
-    ``models``: label → state model or (state-action model, ``policy(states, t)``). From
-    ``initial`` (L, n_x), per state dimension (``names``): the RMSE of x̂_t = X'ᵀβ_t against
-    the mean of ``real_states`` (L' ≥ 2, T + 1, n_x), its Monte Carlo standard error, the
-    largest ‖β_t‖₁ and Σ_j β_{T,j}.
-    """
+    """How well each model (label → state model or (state-action model, ``policy(states,
+    t)``)) follows the real rollouts from ``initial`` (L, n_x) (Table 5.1 or 5.2): per state
+    dimension the RMSE of x̂_t = X'ᵀβ_t against the mean of ``real_states`` (L' ≥ 2, T + 1,
+    n_x) and its Monte Carlo standard error; the largest ‖β_t‖₁ and Σ_j β_{T,j}."""
     if not isinstance(models, Mapping) or not models:
         raise ValueError("models: expected a non-empty mapping of label to ConditionalEmbedding")
     x0 = check_array(initial, "initial", ndim=2)
@@ -92,9 +94,7 @@ def prediction_table(
     if x0.shape[1] != n_x:
         raise ValueError(f"initial: expected {n_x} columns like real_states, got shape {x0.shape}")
     if real.shape[0] < 2 or real.shape[1] < 2:
-        raise ValueError(
-            f"real_states: expected at least 2 rollouts of at least 2 rows, got {real.shape}"
-        )
+        raise ValueError(f"real_states: expected at least 2 rollouts of 2 rows, got {real.shape}")
     labels = list(names) if names is not None else [f"x[{k}]" for k in range(n_x)]
     if len(labels) != n_x:
         raise ValueError(f"names: expected {n_x} names (one per state dimension)")
@@ -104,14 +104,8 @@ def prediction_table(
     for label, entry in models.items():
         model, policy = entry if isinstance(entry, tuple) else (entry, None)
         if not isinstance(model, ConditionalEmbedding) or not (policy is None or callable(policy)):
-            raise ValueError(
-                f"models[{label!r}]: expected a ConditionalEmbedding or (ConditionalEmbedding, "
-                "policy)"
-            )
-        traj = predict(
-            model, x0[None], real.shape[1], policy=policy, time_invariant=policy is not None
-        )
-        betas = traj.betas[:, :, 0]
+            raise ValueError(f"models[{label!r}]: expected a ConditionalEmbedding or (it, policy)")
+        betas = _predicted(model, x0, real.shape[1], policy)
         err = np.sqrt(((_mean_paths(model, betas) - real_mean) ** 2).mean(axis=0))
         row = {f"RMSE {n}": float(e) for n, e in zip(labels, err, strict=True)}
         row |= {f"MC s.e. {n}": float(v) for n, v in zip(labels, se, strict=True)}
@@ -123,12 +117,7 @@ def prediction_table(
 
 def fit_table(initial_lengthscale, initial_lam: float, fit: FitResult) -> pd.DataFrame:
     """Length-scales w (d,), λ and the CV error per term (Eq. 5.16) before and after ``fit``."""
-    w0 = check_array(initial_lengthscale, "initial_lengthscale", ndim=1)
-    if w0.shape != fit.lengthscale.shape:
-        raise ValueError(
-            f"initial_lengthscale: expected shape {fit.lengthscale.shape} like the fit's, "
-            f"got {w0.shape}"
-        )
+    w0 = check_array(initial_lengthscale, "initial_lengthscale", shape=fit.lengthscale.shape)
     lam0 = check_positive(initial_lam, "initial_lam")
     cols = [f"w[{k}]" for k in range(w0.size)]
     data = {"start": [*w0, lam0, fit.initial_loss], "fitted": [*fit.lengthscale, fit.lam, fit.loss]}
@@ -147,17 +136,14 @@ def pendulum_policy(gains) -> Policy:
 
 
 def marginal_embedding(points, weights, grid, lengthscale: float) -> np.ndarray:
-    r"""Σ_j w_j k_h(p_j, y) on ``grid`` (G,), shape (G,) or (G, B): up to a constant, the
-    embedding of one coordinate's marginal under a product SE kernel (Eq. 2.25). ``points``
-    (N,) carry ``weights`` (N,) or (N, B).
-    """
+    r"""Σ_j w_j k_h(p_j, y) on ``grid`` (G,) for ``points`` (N,) with ``weights`` (N,) or
+    (N, B): up to a constant, one coordinate's marginal embedding under a product SE kernel."""
     p = check_array(points, "points", ndim=1)
     w = check_array(weights, "weights", ndim=(1, 2))
     if w.shape[0] != p.size:
         raise ValueError(f"weights: expected {p.size} rows (one per point), got shape {w.shape}")
     g = check_array(grid, "grid", ndim=1)
-    h = check_positive(lengthscale, "lengthscale")
-    return gram(SquaredExponential(1, lengthscale=h), g[:, None], p[:, None]) @ w
+    return gram(SquaredExponential(1, lengthscale=lengthscale), g[:, None], p[:, None]) @ w
 
 
 def empirical_embedding(samples, grid, lengthscale: float) -> tuple[np.ndarray, np.ndarray]:
@@ -166,8 +152,7 @@ def empirical_embedding(samples, grid, lengthscale: float) -> tuple[np.ndarray, 
     if s.size < 2:
         raise ValueError(f"samples: expected at least 2 samples, got {s.size}")
     g = check_array(grid, "grid", ndim=1)
-    h = check_positive(lengthscale, "lengthscale")
-    k = gram(SquaredExponential(1, lengthscale=h), g[:, None], s[:, None])  # (G, L)
+    k = gram(SquaredExponential(1, lengthscale=lengthscale), g[:, None], s[:, None])  # (G, L)
     return k.mean(axis=1), k.std(axis=1, ddof=1) / np.sqrt(s.size)
 
 
@@ -212,9 +197,7 @@ def _betas(betas) -> np.ndarray:
     b = check_array(betas, "betas", ndim=(2, 3))
     if b.ndim == 3:
         if b.shape[2] != 1:
-            raise ValueError(
-                f"betas: expected shape (T, N) or (T, N, 1) (one distribution), got {b.shape}"
-            )
+            raise ValueError(f"betas: expected shape (T, N) or (T, N, 1), got {b.shape}")
         b = b[:, :, 0]
     if b.shape[0] < 1 or b.shape[1] < 1:
         raise ValueError(f"betas: expected at least one step and one weight, got {b.shape}")
@@ -246,14 +229,6 @@ def weights_figure(betas, *, dt: float | None = None, title: str = ""):
     return fig
 
 
-def _lengthscale(embedding: ConditionalEmbedding, dim: int) -> float:
-    ls = getattr(embedding.kernel, "lengthscale", None)
-    if ls is None:
-        raise ValueError("bandwidth: the embedding's kernel has no length-scale; give one")
-    flat = np.asarray(ls.detach().cpu().numpy(), dtype=float).ravel()
-    return float(flat[dim] if flat.size > 1 else flat[0])
-
-
 def _to_scale(fig) -> None:
     """Undo the robust y range of :func:`~skillkit.viz.plots.plotly_figure` (an embedding is
     ~0 over most of its grid, so its peak would be clipped): every value drawn to scale."""
@@ -278,23 +253,17 @@ def embedding_figure(
     grid_points: int = 121,
     title: str = "",
 ):
-    """Predicted embeddings β_t (T, N) or (T, N, 1) against real rollouts (L ≥ 2, T + 1, n_x).
-
-    First X'ᵀβ_t of coordinate ``dim`` (``label``) over t against the real mean ± 2 s.e.;
-    then per step of ``steps`` (1 … T) :func:`marginal_embedding` of β_t against
-    :func:`empirical_embedding` of the real states. ``bandwidth`` h defaults to the model's
-    length-scale of the coordinate.
-    """
+    """Predicted embeddings β_t (T, N) or (T, N, 1) against real rollouts (L ≥ 2, T + 1, n_x):
+    X'ᵀβ_t of coordinate ``dim`` over t against the real mean ± 2 s.e., then per step of
+    ``steps`` :func:`marginal_embedding` against :func:`empirical_embedding` with bandwidth h
+    (default the model's length-scale of the coordinate)."""
     b = _betas(betas)
     real = check_array(real_states, "real_states", ndim=3)
     n_x = embedding.target_dim
     if b.shape[1] != embedding.n:
         raise ValueError(f"betas: expected {embedding.n} weights per step, got shape {b.shape}")
     if real.shape[2] != n_x or real.shape[1] != b.shape[0] + 1 or real.shape[0] < 2:
-        raise ValueError(
-            f"real_states: expected shape (L >= 2, {b.shape[0] + 1}, {n_x}) for {b.shape[0]} "
-            f"predicted steps, got {real.shape}"
-        )
+        raise ValueError(f"real_states: expected (L≥2, {b.shape[0] + 1}, {n_x}), got {real.shape}")
     index(dim, "dim", n_x)
     if isinstance(steps, (int, np.integer)) or not steps:
         raise ValueError(f"steps: expected a non-empty sequence of steps, got {steps!r}")
@@ -302,9 +271,12 @@ def embedding_figure(
     if max(shown) > b.shape[0]:
         raise ValueError(f"steps: expected steps in 1..{b.shape[0]}, got {list(steps)}")
     if bandwidth is None:
-        h = _lengthscale(embedding, dim)
-    else:
-        h = check_positive(bandwidth, "bandwidth")
+        ls = getattr(embedding.kernel, "lengthscale", None)
+        if ls is None:
+            raise ValueError("bandwidth: the embedding's kernel has no length-scale; give one")
+        flat = np.asarray(ls.detach().cpu().numpy(), dtype=float).ravel()
+        bandwidth = flat[dim] if flat.size > 1 else flat[0]
+    h = check_positive(bandwidth, "bandwidth")
     n_grid = check_count(grid_points, "grid_points", minimum=2)
     pts = embedding.targets[:, dim]
     weights = b[[s - 1 for s in shown]].T  # (N, S)
@@ -357,10 +329,9 @@ def draw_embedding(
     label: str = "α [rad]",
     dt: float | None = None,
 ):
-    """The widget's redraw: ``ConditionalEmbedding`` with SE(``lengthscale_factor`` ×
-    std(inputs)) and ``lam`` on inputs (N, d_z) and ``targets`` (N, n_x), predicted from
-    ``initial`` (L, n_x) and drawn by :func:`embedding_figure` at ``step`` (1 … T).
-    """
+    """The widget's redraw: a ``ConditionalEmbedding`` (SE(``lengthscale_factor`` ×
+    std(inputs)), ``lam``) of ``targets`` (N, n_x) on ``inputs`` (N, d_z), predicted from
+    ``initial`` (L, n_x) and drawn by :func:`embedding_figure` at ``step`` (1 … T)."""
     z = check_array(inputs, "inputs", ndim=2)
     factor = check_positive(lengthscale_factor, "lengthscale_factor")
     lam = check_positive(lam, "lam")
@@ -371,9 +342,8 @@ def draw_embedding(
     sd = z.std(axis=0)
     ls = factor * np.where(sd > 0, sd, 1.0)
     model = ConditionalEmbedding(z, targets, SquaredExponential(z.shape[1], lengthscale=ls), lam)
-    x0 = check_array(initial, "initial", ndim=2)[None]
-    traj = predict(model, x0, real.shape[1], policy=policy, time_invariant=policy is not None)
-    betas = traj.betas[:, :, 0]
+    x0 = check_array(initial, "initial", ndim=2)
+    betas = _predicted(model, x0, real.shape[1], policy)
     widths = ", ".join(f"{v:.3g}" for v in ls)
     title = (
         f"λ = {lam:.3g}, w = [{widths}]: Σβ_{step} = {betas[step - 1].sum():.3g}, "

@@ -1,6 +1,5 @@
 """Notebook 06, your own skill: a reader's task learned by contextual REPS, GPREPS and CMA-ES
-(:func:`~skillkit.search.loop.learn`), sized, evaluated on a context grid, drawn and tabulated.
-"""
+(:func:`~skillkit.search.loop.learn`), sized, evaluated on a context grid, drawn and tabulated."""
 
 from __future__ import annotations
 
@@ -63,10 +62,10 @@ def context_grid(task: Task, n_per_dim: int) -> np.ndarray:
     n = check_count(n_per_dim, "n_per_dim")
     low = np.asarray(task.context_low, dtype=np.float64)
     high = np.asarray(task.context_high, dtype=np.float64)
-    if n == 1:
-        axes = [np.array([(lo + hi) / 2]) for lo, hi in zip(low, high, strict=True)]
-    else:
-        axes = [np.linspace(lo, hi, n) for lo, hi in zip(low, high, strict=True)]
+    axes = [
+        np.linspace(lo, hi, n) if n > 1 else np.array([(lo + hi) / 2])
+        for lo, hi in zip(low, high, strict=True)
+    ]
     return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, task.context_dim)
 
 
@@ -88,16 +87,11 @@ def mapping_figure(
     title: str = "the learned mapping s → ω and where it leads",
     backend: str = "plotly",
 ):
-    """What several policies (label → anything with ``mean_of``) do across ``contexts``
-    (n, 2): the coordinates ``omega_dims`` of ω(s), and a segment from each context to
-    ``outcome(trajectory)`` (2,) of the mean's rollout (one ``seed`` for all policies).
-    """
+    """What policies (label → anything with ``mean_of``) do across ``contexts`` (n, 2): ω(s)
+    on ``omega_dims``, and a segment from each context to ``outcome(trajectory)`` (2,)."""
     _check_task(task)
     if task.context_dim != 2:
-        raise ValueError(
-            f"task: the outcome panel draws contexts in the plane; {task.name!r} has "
-            f"context_dim = {task.context_dim}"
-        )
+        raise ValueError(f"task: expected planar contexts, got context_dim = {task.context_dim}")
     if not isinstance(policies, Mapping) or not policies:
         raise ValueError("policies: expected a non-empty mapping of label to policy")
     if not callable(outcome):
@@ -113,16 +107,9 @@ def mapping_figure(
     mapped, reached_paths = [], []
     for label, policy in policies.items():
         if not callable(getattr(policy, "mean_of", None)):
-            raise ValueError(
-                f"policies[{label!r}]: expected a policy with mean_of(contexts), "
-                f"got {type(policy).__name__}"
-            )
+            raise ValueError(f"policies[{label!r}]: expected a policy with mean_of(contexts)")
         omegas = np.atleast_2d(policy.mean_of(s))
-        if omegas.shape != (s.shape[0], d):
-            raise ValueError(
-                f"policies[{label!r}]: mean_of gave shape {omegas.shape}, "
-                f"expected ({s.shape[0]}, {d})"
-            )
+        check_array(omegas, f"policies[{label!r}].mean_of", shape=(len(s), d), finite=False)
         rng = np.random.default_rng(seed)
         reached = np.full_like(s, np.nan)
         for k, (w, c) in enumerate(zip(omegas, s, strict=True)):
@@ -139,19 +126,15 @@ def mapping_figure(
 
 
 def comparison_table(runs: Mapping, levels: Sequence[float] = ()) -> pd.DataFrame:
-    """:func:`~skillkit.search.loop.learn` results (label → result), a row each: real
-    rollouts, updates, the policy mean's reward before, final and best, the rollouts to reach
-    each of ``levels`` (NaN: never) and the failed rollouts.
-    """
+    """:func:`~skillkit.search.loop.learn` results (label → result), a row each: rollouts,
+    updates, rewards before, final and best, rollouts to reach each of ``levels`` (NaN: never)
+    and failed rollouts."""
     if not isinstance(runs, Mapping) or not runs:
         raise ValueError("runs: expected a non-empty mapping of label to learn() result")
     levels = [float(v) for v in check_array(list(levels), "levels", ndim=1)]
-    rows, index = [], []
+    rows = {}
     for label, run in runs.items():
-        if not isinstance(run, Mapping):
-            raise ValueError(
-                f"runs[{label!r}]: expected a learn() result, got {type(run).__name__}"
-            )
+        expect(run, Mapping, f"runs[{label!r}]", "a learn() result")
         missing = [k for k in ("rollouts", "mean_reward", "n_failed") if k not in run]
         if missing:
             raise ValueError(f"runs[{label!r}]: not a learn() result, missing {missing}")
@@ -172,6 +155,5 @@ def comparison_table(runs: Mapping, levels: Sequence[float] = ()) -> pd.DataFram
             reached = experience_to_reach(x, r, level)
             row[f"rollouts to R ≥ {level:g}"] = np.nan if reached is None else reached
         row["failed rollouts"] = int(np.sum(run["n_failed"]))
-        rows.append(row)
-        index.append(str(label))
-    return pd.DataFrame(rows, index=pd.Index(index, name="method"))
+        rows[str(label)] = row
+    return pd.DataFrame(list(rows.values()), index=pd.Index(list(rows), name="method"))

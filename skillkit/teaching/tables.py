@@ -27,17 +27,11 @@ def claims_table(ids: Iterable[str] | None = None, root=None):
     from skillkit.experiments.run import claim_rows
 
     rows = claim_rows(root, None if ids is None else _known(ids))
-    table = pd.DataFrame(
-        {
-            "id": [f"{r['id']} ({r['variant']})" if r["variant"] else r["id"] for r in rows],
-            "claim": [r["claim"] for r in rows],
-            "verdict": [r["verdict"] for r in rows],
-            "ours [95% interval]": [r["ours"] for r in rows],
-            "thesis": [r["thesis"] for r in rows],
-            "made by": [r["made"] for r in rows],
-        }
-    )
-    return table.set_index("id")
+    names = [f"{r['id']} ({r['variant']})" if r["variant"] else r["id"] for r in rows]
+    columns = {"claim": "claim", "verdict": "verdict", "ours [95% interval]": "ours"}
+    columns |= {"thesis": "thesis", "made by": "made"}
+    data = {column: [r[key] for r in rows] for column, key in columns.items()}
+    return pd.DataFrame(data, index=pd.Index(names, name="id"))
 
 
 def live_run_times(ids: Iterable[str], scale: str):
@@ -81,7 +75,7 @@ def experiments_table():
     from skillkit.experiments import timings
     from skillkit.experiments.registry import get, ids
 
-    rows = []
+    rows, scales = [], ("smoke", "quick")
     for exp_id in ids():
         exp = get(exp_id)
         trials = " / ".join(str(exp.trials[s]) for s in ("smoke", "quick", "paper"))
@@ -90,8 +84,7 @@ def experiments_table():
                 "id": exp_id,
                 "title": exp.title,
                 "trials (smoke / quick / paper)": trials,
-                "smoke": timings.format_seconds(timings.measured_seconds(exp_id, "smoke")),
-                "quick": timings.format_seconds(timings.measured_seconds(exp_id, "quick")),
+                **{s: timings.format_seconds(timings.measured_seconds(exp_id, s)) for s in scales},
             }
         )
     return pd.DataFrame(rows).set_index("id")

@@ -1,21 +1,18 @@
 """Robots moving: task rollouts as plotly animations (Figs 3.2 and 3.8) that play without a kernel.
 
-A figure is a plotly ``Figure`` with ``frames``, play/pause and a time slider, so it plays in a
-notebook and in its exported HTML alike; only the moving traces are repeated per frame. The
-robot's links come from the task's own MuJoCo model (:func:`skillkit.viz.scenes.task_model`),
-ball, racket and targets from the trajectory's signals and the context, interpolated linearly
-on each signal's own clock (:func:`skillkit.viz.scenes.interpolate`,
-:func:`skillkit.viz.scenes.signal_times`).
+A figure is a plotly ``Figure`` with ``frames``, play/pause and a time slider; only the moving
+traces are repeated per frame. The links come from the task's MuJoCo model
+(:func:`skillkit.viz.scenes.task_model`), ball, racket and targets from the trajectory's
+signals, interpolated linearly on each signal's own clock (:mod:`skillkit.viz.scenes`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 
-import mujoco
 import numpy as np
 
-from skillkit._validation import check_array, check_positive
+from skillkit._validation import check_array, check_count, check_positive
 from skillkit.trajectory import Trajectory
 from skillkit.viz.plots import REFERENCE_WIDTH
 from skillkit.viz.scenes import COLORS, interpolate, kinematic_points, signal_times, task_model
@@ -25,7 +22,6 @@ __all__ = [
     "TABLE_TENNIS_CONTEXTS",
     "THROWING_TARGETS",
     "arm_link_points",
-    "frame_times",
     "planar_link_points",
     "racket_rim",
     "table_tennis_animation",
@@ -40,8 +36,11 @@ TABLE_TENNIS_CONTEXTS = np.array([[-5.8, 0.0, 2.5, 0.6, -0.3], [-5.0, 0.0, 2.25,
 """Two contexts s = [v_x, v_y, v_z, b_x, b_y] for Fig. 3.8 (v_y = 0: the initial stroke, without
 context gain, hits only balls coming straight down the table)."""
 
-_PLANAR_BODIES = ("shin", "thigh", "torso", "arm")  # origins: ankle, knee, hip, shoulder
-_ARM_BODIES = ("platform", "upper_arm", "forearm", "hand")  # floor, shoulder, elbow, wrist
+# bodies at the joints (ankle, knee, hip, shoulder; floor, shoulder, elbow, wrist), end site
+_SKELETONS = {
+    "throwing": (("shin", "thigh", "torso", "arm"), "hand"),
+    "table-tennis": (("platform", "upper_arm", "forearm", "hand"), "racket"),
+}
 _SHOT_COLORS = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd")
 
 
@@ -50,12 +49,7 @@ def _rgb(name: str) -> str:
     return f"rgb({r},{g},{b})"
 
 
-def _points(model: mujoco.MjModel, qpos: np.ndarray, bodies: Sequence[str], site: str):
-    """World positions (N, len(bodies) + 1, 3) of the body origins and the site per row of qpos."""
-    return kinematic_points(model, qpos, [model.body(b).id for b in bodies], [model.site(site).id])
-
-
-def _model(task, kind: str) -> mujoco.MjModel:
+def _model(task, kind: str):
     """The MuJoCo model of ``task``, which must be a throwing or table-tennis task."""
     if kind == "throwing":
         from skillkit.tasks.planar import Throwing as cls
@@ -66,17 +60,21 @@ def _model(task, kind: str) -> mujoco.MjModel:
     return task_model(task)
 
 
+def _link_points(task, kind: str, q) -> np.ndarray:
+    """World points (N, 5, 3) of the skeleton of ``kind`` per row of joint positions q."""
+    model = _model(task, kind)
+    q = check_array(q, "q", shape=(None, model.nq))
+    bodies, site = _SKELETONS[kind]
+    return kinematic_points(model, q, [model.body(b).id for b in bodies], [model.site(site).id])
+
+
 def planar_link_points(task, q) -> np.ndarray:
     """Ankle, knee, hip, shoulder and hand of the planar 4-link robot (Appendix C.1) per row of
-    joint angles q (N, 4), shape (N, 5, 2) in the thesis's [x, y] (m).
-
-    The task's MuJoCo model posed with ``mujoco.mj_kinematics`` (body origins of shin, thigh,
-    torso, arm and the ``hand`` site): with θ_k = q_1 + … + q_k, joint k + 1 sits at
-    Σ_{j≤k} l_j (sin θ_j, cos θ_j) and the hand l_4 (−sin θ_4, −cos θ_4) beyond the shoulder.
+    joint angles q (N, 4), shape (N, 5, 2) in the thesis's [x, y] (m), from the task's MuJoCo
+    model: with θ_k = q_1 + … + q_k, joint k + 1 sits at Σ_{j≤k} l_j (sin θ_j, cos θ_j) and the
+    hand l_4 (−sin θ_4, −cos θ_4) beyond the shoulder.
     """
-    model = _model(task, "throwing")
-    q = check_array(q, "q", shape=(None, 4))
-    return _points(model, q, _PLANAR_BODIES, "hand")[..., [0, 2]]
+    return _link_points(task, "throwing", q)[..., [0, 2]]
 
 
 def arm_link_points(task, q) -> np.ndarray:
@@ -84,9 +82,7 @@ def arm_link_points(task, q) -> np.ndarray:
     ([base_x, base_y, shoulder yaw, shoulder pitch, upper-arm roll, elbow, forearm roll, wrist]):
     platform origin, shoulder, elbow, wrist and blade centre (site ``racket``), shape (N, 5, 3).
     """
-    model = _model(task, "table-tennis")
-    q = check_array(q, "q", shape=(None, model.nq))
-    return _points(model, q, _ARM_BODIES, "racket")
+    return _link_points(task, "table-tennis", q)
 
 
 def racket_rim(center, normal, radius: float, n: int = 16) -> np.ndarray:
@@ -111,16 +107,12 @@ def racket_rim(center, normal, radius: float, n: int = 16) -> np.ndarray:
     return c + float(radius) * (np.cos(phi)[:, None] * u + np.sin(phi)[:, None] * v)
 
 
-def _check_input(task, trajectories, contexts, n_frames, frame_ms):
-    """The rollouts, the checked contexts (one row each), ``n_frames`` and ``frame_ms``."""
+def _check_input(task, trajectories, contexts, n_frames, frame_ms, n_states: int):
+    """The rollouts (states (T, ``n_states``)), their checked contexts, n_frames, frame_ms."""
     if isinstance(trajectories, Trajectory):
         trajectories = [trajectories]
-    if not isinstance(trajectories, Sequence) or not trajectories:
-        raise ValueError("trajectories: expected a non-empty sequence of Trajectory")
-    if len(trajectories) > len(_SHOT_COLORS):
-        raise ValueError(
-            f"trajectories: expected at most {len(_SHOT_COLORS)} rollouts, got {len(trajectories)}"
-        )
+    if not isinstance(trajectories, Sequence) or not 0 < len(trajectories) <= len(_SHOT_COLORS):
+        raise ValueError(f"trajectories: expected a sequence of 1 … {len(_SHOT_COLORS)} Trajectory")
     for i, tr in enumerate(trajectories):
         if not isinstance(tr, Trajectory):
             raise ValueError(f"trajectories[{i}]: expected a Trajectory, got {type(tr).__name__}")
@@ -129,7 +121,13 @@ def _check_input(task, trajectories, contexts, n_frames, frame_ms):
             raise ValueError(msg)
     s = check_array(contexts, "contexts", shape=(len(trajectories), task.context_dim))
     s = np.stack([task.check_context(row, "contexts") for row in s])
-    return list(trajectories), s, _check_frames(n_frames), check_positive(frame_ms, "frame_ms")
+    n_frames = check_count(n_frames, "n_frames", minimum=2)
+    if n_frames > MAX_FRAMES:
+        raise ValueError(f"n_frames: expected at most {MAX_FRAMES} frames, got {n_frames}")
+    frame_ms = check_positive(frame_ms, "frame_ms")
+    for i, tr in enumerate(trajectories):
+        check_array(tr.states, f"trajectories[{i}].states", shape=(None, n_states))
+    return list(trajectories), s, n_frames, frame_ms
 
 
 def _check_signal(tr: Trajectory, i: int, key: str, shape: tuple) -> np.ndarray:
@@ -139,27 +137,13 @@ def _check_signal(tr: Trajectory, i: int, key: str, shape: tuple) -> np.ndarray:
     return check_array(tr.signals[key], f"trajectories[{i}].signals[{key!r}]", shape=shape)
 
 
-def _check_frames(n_frames) -> int:
-    if isinstance(n_frames, bool) or not isinstance(n_frames, (int, np.integer)):
-        raise ValueError(f"n_frames: expected an integer, got {n_frames!r}")
-    if not 2 <= int(n_frames) <= MAX_FRAMES:
-        raise ValueError(f"n_frames: expected 2 … {MAX_FRAMES} frames, got {n_frames}")
-    return int(n_frames)
-
-
-def frame_times(start: float, end: float, n_frames: int) -> np.ndarray:
-    """The animation's clock: ``n_frames`` equally spaced times from ``start`` to ``end`` (s)."""
-    n = _check_frames(n_frames)
-    if not np.isfinite(start) or not np.isfinite(end) or end <= start:
-        raise ValueError(f"end: expected a finite end after start = {start:g}, got {end:g}")
-    return np.linspace(float(start), float(end), n)
-
-
 def _clock(trajs: list, clocks: list, n_frames: int) -> np.ndarray:
-    """Frame times from the first start to the last end of the rollouts and their signals."""
+    """``n_frames`` times from the first start to the last end of the rollouts and signals."""
     start = min(float(tr.times[0]) for tr in trajs)
     end = max(max(float(tr.times[-1]), float(t[-1])) for tr, t in zip(trajs, clocks, strict=True))
-    return frame_times(start, end, n_frames)
+    if not np.isfinite(start) or not np.isfinite(end) or end <= start:
+        raise ValueError(f"trajectories: expected an end after start = {start:g}, got {end:g}")
+    return np.linspace(start, end, n_frames)
 
 
 def _at(times: np.ndarray, values: np.ndarray, grid: np.ndarray) -> np.ndarray:
@@ -168,9 +152,8 @@ def _at(times: np.ndarray, values: np.ndarray, grid: np.ndarray) -> np.ndarray:
 
 
 def _finish(fig, play: tuple, title: str, lines, body: float, margin: dict, legend, **layout):
-    """Frames, title (``lines`` under it), layout (height: the margins and ``body``), and
-    play/pause buttons and a time slider at ``y``; ``play`` = (grid, frame, animated traces,
-    frame_ms, redraw, y), frame k's data ``frame(k)``."""
+    """Frames ``play`` = (grid, frame(k) -> data, animated traces, frame_ms, redraw, y), title
+    with ``lines`` under it, layout, and play/pause buttons and a time slider at ``y``."""
     import plotly.graph_objects as go
 
     grid, frame, animated, frame_ms, redraw, y = play
@@ -243,28 +226,25 @@ def throwing_animation(
     """The planar 4-link robot throwing, one panel per target (Fig. 3.2), as a plotly animation.
 
     Each panel shows the links (:func:`planar_link_points`), the ball (signal ``ball`` on
-    ``ball_times``: in the hand until the release time t_r, then ballistic until it lands,
-    Appendix C.1), its path (dotted) and the target s; the panel title gives s, t_r and the
-    distance term min_t ‖b_t − s‖ (``task.reward_terms``). The panels share one clock; a
-    finished rollout holds its last state.
+    ``ball_times``, Appendix C.1), its path and the target s; the panel title gives s, the
+    release time t_r and the distance term min_t ‖b_t − s‖ (``task.reward_terms``). The panels
+    share one clock; a finished rollout holds its last state.
 
     ``trajectories`` are 1–4 non-failed rollouts of ``task`` (states (T, 8) = [q, q̇], signals
     ``ball`` (N, 2) and ``ball_times`` (N,)); ``contexts`` (len(trajectories), 2) their targets
-    [x, y] (m); ``n_frames`` (2 … :data:`MAX_FRAMES`) frames of ``frame_ms`` milliseconds;
-    ``subtitle`` an optional smaller line under the title. The figure has equal scales on x
-    and y and ``frames`` named "0" … "n_frames − 1". ``ValueError`` (naming the argument) for
-    a wrong task, a failed or malformed trajectory, contexts of the wrong shape or outside the
-    task's range, or a bad ``n_frames``.
+    [x, y] (m); ``n_frames`` (2 … :data:`MAX_FRAMES`) frames of ``frame_ms`` milliseconds,
+    named "0" … "n_frames − 1"; ``subtitle`` a smaller line under the title. ``ValueError``
+    (naming the argument) for a wrong task, a failed or malformed trajectory, or a bad
+    context, ``n_frames`` or ``frame_ms``.
     """
     import plotly.graph_objects as go
     from plotly.subplots import make_subplots
 
     _model(task, "throwing")
-    trajs, s, n_frames, frame_ms = _check_input(task, trajectories, contexts, n_frames, frame_ms)
+    trajs, s, n_frames, frame_ms = _check_input(task, trajectories, contexts, n_frames, frame_ms, 8)
     n = len(trajs)
     balls, ball_t = [], []
     for i, tr in enumerate(trajs):
-        check_array(tr.states, f"trajectories[{i}].states", shape=(None, 8))
         ball = _check_signal(tr, i, "ball", (None, 2))
         _check_signal(tr, i, "ball_times", (ball.shape[0],))
         balls.append(ball)
@@ -284,9 +264,8 @@ def throwing_animation(
     for tr, si in zip(trajs, s, strict=True):
         t_r, cm = tr.info.get("release_time"), 100 * task.reward_terms(tr, si)["distance"]
         release = f", release t_r = {t_r:.3f} s" if t_r is not None else ""
-        names.append(
-            f"target s = [{si[0]:g}, {si[1]:g}] m{release}, closest ball–target {cm:.0f} cm"
-        )
+        target = f"target s = [{si[0]:g}, {si[1]:g}] m"
+        names.append(f"{target}{release}, closest ball–target {cm:.0f} cm")
     fig = make_subplots(
         rows=n, cols=1, subplot_titles=names, vertical_spacing=gap / plot_h if n > 1 else 0
     )
@@ -343,9 +322,8 @@ def throwing_animation(
             showlegend=first,
             **quiet,
         )
-        x_title = "x (m)" if row == n else None
         axes = {"constrain": "domain", "row": row, "col": 1, "zeroline": False}
-        fig.update_xaxes(range=[x0, x1], title_text=x_title, **axes)
+        fig.update_xaxes(range=[x0, x1], title_text="x (m)" if row == n else None, **axes)
         anchor = f"x{'' if row == 1 else row}"
         fig.update_yaxes(
             range=[y0, y1], scaleanchor=anchor, scaleratio=1, title_text="y (m)", **axes
@@ -366,7 +344,8 @@ def throwing_animation(
 def _table_traces(go, tt) -> list:
     """Table top, its lines and the net (Appendix C.3's regulation table, +z up)."""
     hx, hy, z = tt.TABLE_LENGTH / 2, tt.TABLE_WIDTH / 2, tt.TABLE_HEIGHT
-    quad = {"i": [0, 0], "j": [1, 2], "k": [2, 3], "showlegend": False, "hoverinfo": "skip"}
+    quiet = {"showlegend": False, "hoverinfo": "skip"}
+    quad = {"i": [0, 0], "j": [1, 2], "k": [2, 3], **quiet}
     top = go.Mesh3d(
         x=[-hx, hx, hx, -hx],
         y=[-hy, -hy, hy, hy],
@@ -379,15 +358,13 @@ def _table_traces(go, tt) -> list:
     )
     # the edge, then (after a break) the centre line; z a hair above the top
     xs = [-hx, hx, hx, -hx, -hx, None, -hx, hx]
-    ys = [-hy, -hy, hy, hy, -hy, None, 0.0, 0.0]
     lines = go.Scatter3d(
         x=xs,
-        y=ys,
+        y=[-hy, -hy, hy, hy, -hy, None, 0.0, 0.0],
         z=[None if v is None else z + 0.002 for v in xs],
         mode="lines",
         line={"color": "white", "width": 3},
-        showlegend=False,
-        hoverinfo="skip",
+        **quiet,
     )
     ny, nz = hy + tt.NET_OVERHANG, z + tt.NET_HEIGHT
     net = go.Mesh3d(
@@ -419,31 +396,30 @@ def table_tennis_animation(
 ):
     """Table-tennis shots overlaid in one 3-D scene (Fig. 3.8), as a plotly animation.
 
-    Drawn: table and net; per shot, in its own colour, the arm's skeleton
-    (:func:`arm_link_points`; dashed from the second shot on), the blade (:func:`racket_rim` of
-    signals ``racket`` and ``racket_normal``), the ball (signal ``ball``) and its path (dotted),
-    the return target b = s[3:5] (diamond) and the landing point p (open circle,
-    ``info["landing_point"]``). A ball landing after the episode ends is continued by a
-    straight segment to p at ``info["landing_time"]`` (at most g Δt²/8 above the parabola).
-    The title lines give each shot's context, outcome and landing error ‖b − p‖.
+    Drawn: table and net; per shot, in its own colour, the arm (:func:`arm_link_points`;
+    dashed from the second shot on), the blade (:func:`racket_rim`), the ball and its path,
+    the return target b = s[3:5] and the landing point p (``info["landing_point"]``). A ball
+    landing after the episode ends is continued by a straight segment to p at
+    ``info["landing_time"]`` (at most g Δt²/8 above the parabola). The title lines give each
+    shot's context, outcome and landing error ‖b − p‖.
 
     ``trajectories`` are 1–4 non-failed rollouts (states (T, 16) = [q, q̇]; signals ``ball``,
     ``racket``, ``racket_normal`` (T, 3)); ``contexts`` (len(trajectories), 5) their
     s = [v_x, v_y, v_z, b_x, b_y]; the rest and the errors as for :func:`throwing_animation`.
-    Returns one 3-D scene (axes fixed, equal scales).
     """
     import plotly.graph_objects as go
 
     from skillkit.tasks import table_tennis as tt
 
     model = _model(task, "table-tennis")
-    trajs, s, n_frames, frame_ms = _check_input(task, trajectories, contexts, n_frames, frame_ms)
+    trajs, s, n_frames, frame_ms = _check_input(
+        task, trajectories, contexts, n_frames, frame_ms, 2 * model.nq
+    )
     n = len(trajs)
     z_land = tt.TABLE_HEIGHT + task.ball.radius
     shots = []
     for i, tr in enumerate(trajs):
         T = tr.times.shape[0]
-        check_array(tr.states, f"trajectories[{i}].states", shape=(None, 2 * model.nq))
         ball = _check_signal(tr, i, "ball", (T, 3))
         racket = _check_signal(tr, i, "racket", (T, 3))
         normal = _check_signal(tr, i, "racket_normal", (T, 3))
@@ -467,14 +443,11 @@ def table_tennis_animation(
     for i, (sh, si) in enumerate(zip(shots, s, strict=True)):
         color, shot = _SHOT_COLORS[i], f"shot {i + 1}"
         info = sh["tr"].info
-        err = float(np.linalg.norm(si[3:5] - sh["p"]))
+        cm = 100 * float(np.linalg.norm(si[3:5] - sh["p"]))
         hit = info.get("hit_time")
-        lines.append(
-            f"{shot}: v = [{si[0]:g}, {si[1]:g}, {si[2]:g}] m/s, b = [{si[3]:g}, {si[4]:g}] m"
-            f" → {info.get('outcome', '?')}"
-            + (f" (hit at {hit:.2f} s)" if hit is not None else "")
-            + f", lands {100 * err:.0f} cm from b"
-        )
+        hit = f" (hit at {hit:.2f} s)" if hit is not None else ""
+        ctx = f"v = [{si[0]:g}, {si[1]:g}, {si[2]:g}] m/s, b = [{si[3]:g}, {si[4]:g}] m"
+        lines.append(f"{shot}: {ctx} → {info.get('outcome', '?')}{hit}, lands {cm:.0f} cm from b")
         group = {"legendgroup": f"shot{i + 1}", "showlegend": False}
         common = {**group, "hoverinfo": "skip"}
         fig.add_scatter3d(
@@ -526,13 +499,11 @@ def table_tennis_animation(
         return out
 
     half = (tt.TABLE_LENGTH / 2, tt.TABLE_WIDTH / 2 + tt.NET_OVERHANG, 0.0)
-    corners = [[-half[0], -half[1], 0.0], half]
     drawn = [*(sh["arm"].reshape(-1, 3) for sh in shots), *(sh["ball"] for sh in shots)]
-    every = np.vstack([*drawn, corners])
+    every = np.vstack([*drawn, [[-half[0], -half[1], 0.0], half]])
     lo, hi = every.min(axis=0) - 0.15, every.max(axis=0) + 0.15
     lo[2] = 0.0
-    span = hi - lo
-    ratio = span / span.max() * 1.6
+    ratio = (hi - lo) / (hi - lo).max() * 1.6
     if n > 1 and all(np.array_equal(sh["tr"].states, shots[0]["tr"].states) for sh in shots):
         lines.append(
             "the arms move alike (one stroke for all contexts: no context gain); later ones dashed"

@@ -1,11 +1,10 @@
 """``skillkit view TASK``: serve a task scene in the browser (:class:`skillkit.viz.viewer.Viewer`).
 
 Wired into ``skillkit/cli.py`` by ``add_view_parser(sub)``; ``python -m skillkit.viz.cli_view
-TASK ...`` runs it alone. Bad input (unknown task, malformed policy file, context out of range,
-port in use, a GPREPS run without a reward model or with one of another task) prints one line
-``skillkit view: error: ...`` and exits with code 2. ``--gpreps RUN_DIR --trial K`` plays back
-trial K's policy history with its reward model's layers (:mod:`skillkit.viz.model_layers`);
-the model file is a pickle: view only runs you trust.
+TASK ...`` runs it alone. Bad input prints one line ``skillkit view: error: ...`` and exits with
+code 2. ``--gpreps RUN_DIR --trial K`` plays back trial K's policy history with its reward
+model's layers (:mod:`skillkit.viz.model_layers`); the model file is a pickle: view only runs you
+trust.
 """
 
 from __future__ import annotations
@@ -22,60 +21,23 @@ def add_view_parser(subparsers) -> argparse.ArgumentParser:
         "view",
         help="serve a task scene in the browser (viser)",
         description="Serve a task's rollouts, model predictions and learning playback in the "
-        "browser. Open the printed URL; Ctrl-C stops the server.",
+        "browser. Open the printed URL; Ctrl-C stops the server. File formats: "
+        "skillkit.viz.history (--policy), skillkit.viz.predictions (--predictions); --gpreps "
+        "unpickles the run's reward model: view only runs you trust.",
     )
     add = p.add_argument
     add("task", help="task name (see `skillkit list`)")
-    add(
-        "--policy",
-        metavar="FILE",
-        help="policy history .npz (skillkit.viz.history."
-        "save_policy_history) or a `skillkit reproduce` run folder; enables learning playback",
-    )
-    add(
-        "--gpreps",
-        metavar="RUN_DIR",
-        help="a GPREPS `skillkit reproduce` run folder: plays "
-        "back its policy history and overlays its reward model's predictions (a pickle: only "
-        "runs you trust)",
-    )
+    add("--policy", metavar="FILE", help="policy history .npz or run folder: learning playback")
+    add("--gpreps", metavar="RUN_DIR", help="GPREPS run folder: its policies and reward model")
     add("--trial", type=int, default=0, help="trial of a run folder (default 0)")
-    add(
-        "--samples",
-        type=int,
-        default=10,
-        metavar="L",
-        help="trajectories each learned model of --gpreps samples (default 10)",
-    )
-    add(
-        "--context",
-        type=float,
-        nargs="+",
-        metavar="S",
-        help="initial context s, one number per context dimension (default: mid-range)",
-    )
-    add(
-        "--predictions",
-        metavar="FILE",
-        help="prediction layers .npz (skillkit.viz.predictions.save_predictions) to overlay",
-    )
+    add("--samples", type=int, default=10, metavar="L", help="trajectories per learned model")
+    add("--context", type=float, nargs="+", metavar="S", help="initial context (default: middle)")
+    add("--predictions", metavar="FILE", help="prediction layers .npz to overlay")
     add("--port", type=int, default=DEFAULT_PORT, help=f"port (default {DEFAULT_PORT})")
-    add(
-        "--host",
-        default=DEFAULT_HOST,
-        help=f"interface to bind (default {DEFAULT_HOST}: this machine only)",
-    )
+    add("--host", default=DEFAULT_HOST, help=f"interface to bind (default {DEFAULT_HOST})")
     add("--seed", type=int, default=0, help="episode seed of the rollouts")
-    add(
-        "--no-envmap",
-        action="store_true",
-        help="light without the HDRI environment map: much faster in browsers without a GPU",
-    )
-    add(
-        "--verbose",
-        action="store_true",
-        help="let viser print its banner and a line per browser connection",
-    )
+    add("--no-envmap", action="store_true", help="no HDRI map: faster in browsers without GPU")
+    add("--verbose", action="store_true", help="let viser print its banner and connections")
     p.set_defaults(func=run_view)
     return p
 
@@ -105,10 +67,7 @@ def run_view(args: argparse.Namespace) -> int:
     try:
         if args.gpreps is not None:
             if args.policy is not None:
-                raise ValueError(
-                    "policy: give --policy or --gpreps, not both (a GPREPS run folder holds "
-                    "its policy history)"
-                )
+                raise ValueError("policy: give --policy or --gpreps, not both")
             history, model = load_gpreps_run(args.gpreps, args.trial)
             check_model_task(model, make(args.task).name)  # before the policy's dimensions
         viewer = build_viewer(args, history)
@@ -129,10 +88,8 @@ def run_view(args: argparse.Namespace) -> int:
         except ValueError as exc:
             print(f"skillkit view: error: {stage}: {exc}", file=sys.stderr)
             return 2
-        print(
-            f"skillkit view: serving {viewer.task.name} at {viewer.url} (Ctrl-C to stop)",
-            flush=True,
-        )
+        msg = f"skillkit view: serving {viewer.task.name} at {viewer.url} (Ctrl-C to stop)"
+        print(msg, flush=True)
         viewer.serve_forever()
     except KeyboardInterrupt:
         pass

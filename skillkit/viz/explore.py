@@ -1,8 +1,7 @@
 """Things to change and watch in a notebook: sliders that redraw a figure made by library calls.
 
-:func:`explore` shows the figure for the default values (for exported pages; hidden where
-widgets are live) and an ``ipywidgets.Output`` holding the figure above the controls, which a
-moved control redraws. Without ipywidgets, or with ``controls=False``, only the static figure.
+:func:`explore` shows the default figure (for exported pages; hidden where widgets are live)
+and an ``ipywidgets.Output`` of the figure above sliders that redraw it.
 
 >>> from skillkit.viz.explore import Slider, explore
 >>> def draw(epsilon):                     # any function returning a figure
@@ -15,11 +14,11 @@ from __future__ import annotations
 
 import contextlib
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-__all__ = ["Choice", "Exploration", "Slider", "explore"]
+__all__ = ["Exploration", "Slider", "explore"]
 
 _WIDGET_VIEW = "application/vnd.jupyter.widget-view+json"
 #: A widget view of no model: ipywidgets front ends hide it, nbconvert skips it.
@@ -53,12 +52,6 @@ class Slider:
         if self.step is not None and not self.step > 0:
             raise ValueError(f"step: expected a positive number, got {self.step!r}")
 
-    @property
-    def integer(self) -> bool:
-        """True when every number given is an int (an ``IntSlider``)."""
-        nums = (self.low, self.high, self.default, self.step if self.step is not None else 1)
-        return not self.log and all(isinstance(v, int) for v in nums)
-
     def widget(self, description: str):
         """The ipywidgets slider."""
         import ipywidgets as w
@@ -70,43 +63,16 @@ class Slider:
             return w.FloatLogSlider(
                 value=self.default, base=10, min=lo, max=hi, step=(hi - lo) / 100, **common
             )
-        kind, step = (w.IntSlider, self.step or 1) if self.integer else (w.FloatSlider, None)
-        step = step or self.step or (self.high - self.low) / 100
+        nums = (self.low, self.high, self.default, self.step or 1)
+        kind = w.IntSlider if all(isinstance(v, int) for v in nums) else w.FloatSlider
+        step = self.step or (1 if kind is w.IntSlider else (self.high - self.low) / 100)
         return kind(value=self.default, min=self.low, max=self.high, step=step, **common)
-
-
-@dataclass(frozen=True)
-class Choice:
-    """A control choosing one of ``options`` (a dropdown); ``default`` is the first."""
-
-    options: Sequence[Any]
-    default: Any = None
-
-    def __post_init__(self) -> None:
-        if len(self.options) == 0:
-            raise ValueError("options: expected at least one option")
-        if self.default is None:
-            object.__setattr__(self, "default", self.options[0])
-        elif self.default not in self.options:
-            raise ValueError(f"default: expected one of {list(self.options)}, got {self.default!r}")
-
-    def widget(self, description: str):
-        """The ipywidgets dropdown."""
-        import ipywidgets as w
-
-        return w.Dropdown(
-            options=list(self.options),
-            value=self.default,
-            description=description,
-            style={"description_width": "initial"},
-        )
 
 
 @dataclass
 class Exploration:
-    """What :func:`explore` returns: ``draw(**values) -> figure``, the current ``values``, the
-    last ``figure`` drawn and the ipywidgets box of the ``controls`` and the figure's
-    ``Output`` (None without ipywidgets); :meth:`set` does what moving a control does."""
+    """What :func:`explore` returns: ``draw``, the current ``values``, the last ``figure`` and
+    the ipywidgets box of the ``controls`` (None without ipywidgets)."""
 
     draw: Callable[..., Any]
     values: dict[str, Any]
@@ -157,17 +123,16 @@ def explore(draw: Callable[..., Any], /, *, controls: bool = True, **specs) -> E
     figure only).
 
     ``draw(**values)`` returns something Jupyter displays (a plotly figure, a
-    :class:`~skillkit.viz.plots.NotebookFigure`, a table) by calling the library; ``specs`` are
-    one :class:`Slider` or :class:`Choice` per keyword argument of ``draw`` (``ValueError``
-    when one is not, or none is given).
+    :class:`~skillkit.viz.plots.NotebookFigure`, a table); ``specs`` are one :class:`Slider`
+    per keyword argument of ``draw`` (``ValueError`` when one is not, or none is given).
     """
     if not callable(draw):
         raise ValueError(f"draw: expected a callable, got {type(draw).__name__}")
     if not specs:
-        raise ValueError("specs: expected at least one control (name=Slider(...) or Choice(...))")
+        raise ValueError("specs: expected at least one control (name=Slider(...))")
     for name, spec in specs.items():
-        if not isinstance(spec, (Slider, Choice)):
-            raise ValueError(f"{name}: expected a Slider or a Choice, got {type(spec).__name__}")
+        if not isinstance(spec, Slider):
+            raise ValueError(f"{name}: expected a Slider, got {type(spec).__name__}")
     shown = Exploration(draw, {k: s.default for k, s in specs.items()})
     shown.figure = draw(**shown.values)
     try:

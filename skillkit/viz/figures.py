@@ -1,7 +1,6 @@
-"""Figures from live objects (learning runs, GP fits, curves, predicted against real paths):
-each builds :class:`~skillkit.series.Series` and draws them as the experiment figures are drawn
-(:func:`skillkit.viz.plots.draw_figure`), as a plotly ``Figure`` or, with
-``backend="matplotlib"``, a :class:`~skillkit.viz.plots.NotebookFigure`.
+"""Figures from live objects (learning runs, GP fits, curves, predicted against real paths),
+drawn as the experiment figures are (:func:`skillkit.viz.plots.draw_figure`): a plotly
+``Figure`` or, with ``backend="matplotlib"``, a :class:`~skillkit.viz.plots.NotebookFigure`.
 """
 
 from __future__ import annotations
@@ -13,7 +12,7 @@ import numpy as np
 
 from skillkit._validation import check_array
 from skillkit.series import Series, trial_band
-from skillkit.viz.plots import check_backend, draw_figure
+from skillkit.viz.plots import draw_figure
 
 __all__ = [
     "gpreps_run_paths_figure",
@@ -43,51 +42,40 @@ def plot_learning(
     ylabel: str = "reward",
 ):
     """Learning curves of :func:`skillkit.search.loop.learn` results: the reward of the policy
-    mean against the number of rollouts so far, one panel.
+    mean against the number of rollouts so far.
 
-    ``runs`` is one ``learn`` result; runs of one setting (drawn as their mean with a mean ± std
-    band; they must share the rollout grid); or ``{label: result or runs}`` to compare settings
-    (``label`` names a single setting). ``explore`` also draws the exploratory rollouts'
-    average reward per batch (``explore_reward`` at ``explore_rollouts``) as markers.
-    ``backend`` is "plotly" (a ``Figure``) or "matplotlib" (a ``NotebookFigure``).
+    ``runs`` is one ``learn`` result; runs of one setting sharing a rollout grid (their mean
+    with a mean ± std band); or ``{label: result or runs}`` to compare settings (``label``
+    names a single setting). ``explore`` adds each batch's mean exploratory reward as markers.
     """
-    check_backend(backend)
     if isinstance(runs, Mapping) and "rollouts" not in runs:
         if not runs:
             raise ValueError("runs: empty mapping")
         groups = {str(k): v for k, v in runs.items()}
     else:
         groups = {label: runs}
-    series, groups_of = [], []
+    series, common = [], {"panel": "", "xlabel": "rollouts", "ylabel": ylabel}
     for name, group in groups.items():
         group_runs = [group] if isinstance(group, Mapping) else group
         if not isinstance(group_runs, Sequence) or isinstance(group_runs, str) or not group_runs:
-            raise ValueError(
-                f"runs: expected a learn() result dict or a non-empty list of them for "
-                f"{name!r}, got {type(group).__name__}"
-            )
+            msg = f"runs[{name!r}]: expected a learn() result or a list of them, got {group!r:.30}"
+            raise ValueError(msg)
         curves = [_check_learn(r, f"runs[{name!r}]") for r in group_runs]
         x, ex = curves[0]["rollouts"], curves[0]["explore_rollouts"]
         for c in curves[1:]:
             if not (np.array_equal(c["rollouts"], x) and np.array_equal(c["explore_rollouts"], ex)):
-                raise ValueError(
-                    f"runs: the runs of {name!r} have different rollout grids; "
-                    "pass runs of the same setting (or a mapping of separate labels)"
-                )
+                raise ValueError(f"runs[{name!r}]: the runs have different rollout grids")
         n = len(curves)
-        common = {"panel": "", "xlabel": "rollouts", "ylabel": ylabel}
-        groups_of.append(name)
         m, band = trial_band(np.stack([c["mean_reward"] for c in curves]), over="runs")
         label = name if n == 1 else f"{name} (mean of {n} runs)"
-        series.append(Series(label, x.tolist(), m, **band, **common))
+        mean = Series(label, x.tolist(), m, **band, **common)
+        series.append({**mean.to_dict(), "_group": name})
         if explore and ex.size:
-            groups_of.append(name)
             ey = np.mean(np.stack([c["explore_reward"] for c in curves]), axis=0)
             what = f"{name}: exploration batches" + (" (mean over runs)" if n > 1 else "")
-            series.append(Series(what, ex.tolist(), ey.tolist(), kind="markers", **common))
-    # a run's exploration markers take the colour of its curve
-    dicts = [{**s.to_dict(), "_group": g} for s, g in zip(series, groups_of, strict=True)]
-    return draw_figure({"title": title, "series": dicts}, backend)
+            dots = Series(what, ex.tolist(), ey.tolist(), kind="markers", **common)
+            series.append({**dots.to_dict(), "_group": name})  # coloured as its curve
+    return draw_figure({"title": title, "series": series}, backend)
 
 
 def _check_learn(r, name: str) -> dict[str, np.ndarray]:
@@ -123,26 +111,16 @@ def plot_gp_fit(
     """A fitted 1-D GP regression: predictive mean, 95% band (mean ± 1.96 σ) and the data.
 
     ``model`` has ``predict(X, include_noise) -> (mean, var)`` as
-    :meth:`skillkit.models.gp.ExactGP.predict` (Eqs 2.26–2.27), fitted on 1-D inputs
-    ``x_train`` (N,) or (N, 1) and one output ``y_train`` (N,), drawn as points. Mean and band
-    are drawn at ``x_test`` (n ≥ 2, sorted); the band is of y = f(x) + ε
-    (``include_noise``) or of the latent f. ``f_true``, the true function, is drawn for
-    comparison; ``label`` names the mean.
+    :meth:`skillkit.models.gp.ExactGP.predict` (Eqs 2.26–2.27), fitted on ``x_train`` (N,) or
+    (N, 1) and ``y_train`` (N,). Mean and band are drawn at the sorted ``x_test`` (n ≥ 2); the
+    band is of y = f(x) + ε (``include_noise``) or of f; ``f_true`` is drawn for comparison.
     """
-    check_backend(backend)
     if not callable(getattr(model, "predict", None)):
-        raise ValueError(
-            "model: expected a fitted GP with predict(X, include_noise), "
-            f"got {type(model).__name__}"
-        )
-    xtr = _column(check_array(x_train, "x_train", ndim=(1, 2)), "x_train")
-    ytr = check_array(y_train, "y_train", ndim=(1, 2))
-    if ytr.ndim == 2 and ytr.shape[1] != 1:
-        raise ValueError(f"y_train: expected one output, got shape {ytr.shape}")
-    ytr = ytr.ravel()
+        raise ValueError(f"model: expected a fitted GP with predict(), got {type(model).__name__}")
+    xtr, ytr = _column(x_train, "x_train"), _column(y_train, "y_train")
     if ytr.size != xtr.size:
         raise ValueError(f"y_train: expected {xtr.size} values (one per x_train), got {ytr.size}")
-    xte = np.sort(_column(check_array(x_test, "x_test", ndim=(1, 2)), "x_test"))
+    xte = np.sort(_column(x_test, "x_test"))
     if xte.size < 2:
         raise ValueError(f"x_test: expected at least 2 points, got {xte.size}")
     mean, var = model.predict(xte[:, None], include_noise=include_noise)
@@ -166,14 +144,11 @@ def plot_gp_fit(
     return _draw(title, series, backend)
 
 
-def _column(x: np.ndarray, name: str) -> np.ndarray:
-    if x.ndim == 2:
-        if x.shape[1] != 1:
-            raise ValueError(f"{name}: expected 1-D inputs, shape (n,) or (n, 1), got {x.shape}")
-        x = x[:, 0]
-    if x.size == 0:
-        raise ValueError(f"{name}: empty")
-    return x
+def _column(x, name: str) -> np.ndarray:
+    x = check_array(x, name, ndim=(1, 2))
+    if (x.ndim == 2 and x.shape[1] != 1) or x.size == 0:
+        raise ValueError(f"{name}: expected a non-empty shape (n,) or (n, 1), got {x.shape}")
+    return x.ravel()
 
 
 def line_figure(
@@ -186,8 +161,7 @@ def line_figure(
     backend: str = "plotly",
 ):
     """One panel of named curves: ``curves`` maps a legend label to a pair (x, y) of 1-D arrays
-    of equal length; ``log_y`` draws a logarithmic y axis. Returns a plotly ``Figure`` or a
-    :class:`~skillkit.viz.plots.NotebookFigure` (``backend="matplotlib"``)."""
+    of equal length; ``log_y`` draws a logarithmic y axis."""
     if not isinstance(curves, Mapping) or not curves:
         raise ValueError("curves: expected a non-empty mapping of label to (x, y)")
     series, axis = [], {"xlabel": xlabel, "ylabel": ylabel, "log_y": log_y}
@@ -212,12 +186,11 @@ def prediction_figure(
     """Model-predicted against real trajectories of state dimension ``dim``, a panel per pair:
     the predicted mean with a 5th–95th percentile band over the L samples, and the real one.
 
-    ``predicted`` is a ``ModelRollouts`` or an array (B, L, T + 1, n_x) of L predicted
-    trajectories for each of B (ω, s) pairs
-    (:func:`skillkit.search.model_rollouts.predict_trajectories`), or (B, T + 1, n_x) of one
-    deterministic prediction per pair (no band); ``real`` the simulator's trajectories
-    (Trajectory or array (B, T_real, n_x)). ``label`` is the y-axis label; ``dt`` the time
-    step (default: the x axis is the step index).
+    ``predicted`` is a ``ModelRollouts`` or an array (B, L, T + 1, n_x) of L trajectories for
+    each of B (ω, s) pairs (:func:`skillkit.search.model_rollouts.predict_trajectories`), or
+    (B, T + 1, n_x) of one prediction per pair (no band); ``real`` the B simulated
+    trajectories (Trajectory or (T_real, n_x) array); ``label`` the y-axis label; ``dt`` the
+    time step (default: the x axis is the step index).
     """
     states = np.asarray(getattr(predicted, "states", predicted), dtype=float)
     if states.ndim == 3:  # one deterministic prediction per pair (e.g. an embedding's means)
@@ -232,8 +205,7 @@ def prediction_figure(
         raise ValueError(msg)
     if isinstance(dim, bool) or not isinstance(dim, (int, np.integer)) or not 0 <= dim < n_x:
         raise ValueError(f"dim: expected an integer in [0, {n_x}), got {dim!r}")
-    step = 1.0 if dt is None else float(dt)
-    xlabel = "step" if dt is None else "t [s]"
+    step, xlabel = (1.0, "step") if dt is None else (float(dt), "t [s]")
     series = []
     for b in range(B):
         x = (step * np.arange(T1)).tolist()
@@ -262,26 +234,20 @@ def model_paths_figure(
     title: str = "",
     backend: str = "plotly",
 ):
-    """A reward model's sampled paths for one (s, ω) over the simulator's, seen from above: what
-    ``skillkit view TASK --gpreps RUN`` overlays in 3-D, as a static figure.
+    """A reward model's sampled paths for one (s, ω) over the simulator's: what ``skillkit view
+    TASK --gpreps RUN`` overlays in 3-D, as a static figure.
 
-    ``model`` has ``prediction_layers`` (:mod:`skillkit.viz.model_layers`); each layer is one
-    legend entry with its ``n_samples`` paths (``rng`` passed on). ``real`` is the simulator's
-    rollout of the pair (its signals in :data:`REAL_PATH_SIGNALS` are drawn) or a mapping of
-    named world paths (T, 2) or (T, 3). ``axes`` are the world axes drawn: (0, 1) the top
-    view x–y, (0, 2) the side view x–z.
+    ``model`` has ``prediction_layers`` (:mod:`skillkit.viz.model_layers`), one legend entry
+    per layer with its ``n_samples`` paths. ``real`` is the simulator's rollout (its signals in
+    :data:`REAL_PATH_SIGNALS`) or a mapping of named world paths (T, 2|3). ``axes`` are the
+    world axes drawn: (0, 1) the top view x–y, (0, 2) the side view x–z.
     """
     from skillkit.viz.model_layers import model_layers
 
-    if (
-        not isinstance(axes, (tuple, list))
-        or len(axes) != 2
-        or any(isinstance(a, bool) or a not in (0, 1, 2) for a in axes)
-        or axes[0] == axes[1]
-    ):
+    pair = isinstance(axes, (tuple, list)) and len(axes) == 2 and axes[0] != axes[1]
+    if not pair or any(isinstance(a, bool) or a not in (0, 1, 2) for a in axes):
         raise ValueError(f"axes: expected two different world axes out of 0, 1, 2, got {axes!r}")
-    names = "xyz"
-    panel = {"xlabel": f"{names[axes[0]]} [m]", "ylabel": f"{names[axes[1]]} [m]"}
+    panel = {"xlabel": f"{'xyz'[axes[0]]} [m]", "ylabel": f"{'xyz'[axes[1]]} [m]"}
     series = []
     for layer in model_layers(model, context, omega, n_samples=n_samples, rng=rng):
         paths = layer["trajectories"][..., list(axes)]  # (L, T, 2)
@@ -294,17 +260,13 @@ def model_paths_figure(
         if signals is not None:
             real = {k: signals[k] for k in REAL_PATH_SIGNALS if k in signals}
         if not isinstance(real, Mapping):
-            raise ValueError(
-                f"real: expected a Trajectory or a mapping of name to (T, 2|3) paths, "
-                f"got {type(real).__name__}"
-            )
+            msg = f"real: expected a Trajectory or a mapping of paths, got {type(real).__name__}"
+            raise ValueError(msg)
         for key, path in real.items():
             p = np.asarray(path, dtype=float)
             if p.ndim != 2 or p.shape[1] not in (2, 3) or max(axes) >= p.shape[1]:
-                raise ValueError(
-                    f"real[{key!r}]: expected a path of shape (T, 2) or (T, 3) holding axes "
-                    f"{tuple(axes)}, got shape {p.shape}"
-                )
+                msg = f"real[{key!r}]: expected a path (T, 2|3) holding axes {axes}, got {p.shape}"
+                raise ValueError(msg)
             what = f"real: {key.replace('_', ' ')}"
             series.append(Series(what, p[:, axes[0]].tolist(), p[:, axes[1]].tolist(), **panel))
     return _draw(title or "predicted paths over the real ones", series, backend)
@@ -323,30 +285,24 @@ def gpreps_run_paths_figure(
 ):
     """A stored GPREPS run's last reward model against the simulator (:func:`model_paths_figure`).
 
-    The policy mean of update ``update`` (Python indexing; -1 the final one) of trial
-    ``trial`` at ``context`` (default: one sampled with ``seed``, which also seeds the real
-    rollout and the model's samples) is rolled out in the model's task and drawn with the
-    model's ``n_samples`` sampled paths per layer over it, on world ``axes``. It unpickles the
-    reward model (:func:`~skillkit.viz.model_layers.load_gpreps_run`): load only runs you trust.
+    The policy mean of update ``update`` (-1 the final one) of trial ``trial`` at ``context``
+    (default: one sampled with ``seed``, which also seeds the rollout and the model's samples)
+    is rolled out in the model's task. It unpickles the reward model
+    (:func:`~skillkit.viz.model_layers.load_gpreps_run`): load only runs you trust.
     """
     from skillkit.viz.model_layers import load_gpreps_run
 
     history, model = load_gpreps_run(run_dir, trial)
-    policies = history.policies
-    if isinstance(update, bool) or not isinstance(update, (int, np.integer)):
-        raise ValueError(f"update: expected an integer index into the history, got {update!r}")
-    if not -len(policies) <= update < len(policies):
-        raise ValueError(
-            f"update: expected an index in [{-len(policies)}, {len(policies)}) (the run has "
-            f"{len(policies)} policies), got {update}"
-        )
+    policies, n = history.policies, len(history.policies)
+    integer = isinstance(update, (int, np.integer)) and not isinstance(update, bool)
+    if not (integer and -n <= update < n):
+        raise ValueError(f"update: expected an integer in [{-n}, {n}), got {update!r}")
     task = model.task
     rng = np.random.default_rng(seed)
     s = task.sample_context(rng) if context is None else task.check_context(context)
     omega = policies[update].mean_of(s)
     real = task.rollout(omega, s, rng)
-    k = update % len(policies)
-    title = f"{Path(run_dir).name}, trial {trial}, update {k}: predicted vs real paths"
+    title = f"{Path(run_dir).name}, trial {trial}, update {update % n}: predicted vs real paths"
     return model_paths_figure(
         model, s, omega, real, n_samples=n_samples, rng=rng, axes=axes, title=title, backend=backend
     )

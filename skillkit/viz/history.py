@@ -100,21 +100,17 @@ class PolicyHistory:
         return f"PolicyHistory({', '.join(parts)})"
 
 
-def read_npz(path: str | Path, name: str) -> dict[str, np.ndarray]:
-    """Every array of an ``.npz`` file, read without pickles (``ValueError`` naming ``name``
-    when it is not a readable archive)."""
+def read_npz(path: str | Path, name: str, key: str, version: str) -> dict[str, np.ndarray]:
+    """Every array of an ``.npz`` file, read without pickles; ``ValueError`` naming ``name``
+    when it is not a readable archive or its entry ``key`` names another format ``version``."""
     try:
         with np.load(Path(path), allow_pickle=False) as data:
-            return {k: data[k] for k in data.files}
+            arrays = {k: data[k] for k in data.files}
     except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
         raise ValueError(f"{name}: {path} is not a readable .npz file ({exc})") from None
-
-
-def _policy_arrays(policies: Sequence[LinearGaussianPolicy]) -> dict[str, np.ndarray]:
-    """The ``policy_*`` arrays of the file format, after validating ``policies``."""
-    from skillkit.search.loop import policy_history_arrays
-
-    return policy_history_arrays(PolicyHistory(tuple(policies)).policies)
+    if key in arrays and str(arrays[key]) != version:
+        raise ValueError(f"{name}: {path} has format {str(arrays[key])!r}, expected {version!r}")
+    return arrays
 
 
 class PolicyRecorder:
@@ -138,7 +134,9 @@ class PolicyRecorder:
 
     def arrays(self) -> dict[str, np.ndarray]:
         """The ``policy_*`` arrays of the file format (see the module docstring)."""
-        return _policy_arrays(self.policies)
+        from skillkit.search.loop import policy_history_arrays
+
+        return policy_history_arrays(PolicyHistory(tuple(self.policies)).policies)
 
     def save(self, path, *, result: Mapping | None = None, task: str = "") -> Path:
         """Write the history; ``result`` (the dict ``learn`` returns) adds rollouts and rewards."""
@@ -158,57 +156,17 @@ def save_policy_history(
     ``.npz`` (``.npz`` appended if missing) with optional ``rollouts``, ``mean_reward`` (K+1,)
     and the task name; returns the file written.
     """
+    from skillkit.search.loop import policy_history_arrays
+
     history = PolicyHistory(tuple(policies), rollouts, mean_reward, str(task))  # validates
-    arrays = _policy_arrays(history.policies)
+    arrays = policy_history_arrays(history.policies)
     arrays.update(format=np.asarray(HISTORY_FORMAT), task=np.asarray(history.task))
-    if history.rollouts is not None:
-        arrays["rollouts"] = history.rollouts
-    if history.mean_reward is not None:
-        arrays["mean_reward"] = history.mean_reward
-    path = Path(path)
-    if path.suffix != ".npz":
-        path = path.with_name(path.name + ".npz")
-    np.savez_compressed(path, **arrays)
-    return path
-
-
-def _history_from(arrays: Mapping[str, np.ndarray], prefix: str, source: str) -> PolicyHistory:
-    """The history held by ``arrays`` under key ``prefix`` (``""`` or ``"trial<i>__"``)."""
-
-    def get(key: str, required: bool = True):
-        full = prefix + key
-        if full not in arrays:
-            if required:
-                raise ValueError(
-                    f"policy: {source} has no {full!r} array (not a skillkit policy "
-                    "history; see skillkit.viz.history)"
-                )
-            return None
-        return np.asarray(arrays[full])
-
-    mean, cov, gain = get("policy_mean"), get("policy_cov"), get("policy_gain")
-    context_dim, features = get("policy_context_dim"), get("policy_features")
-    if (mean.ndim, cov.ndim, gain.ndim) != (2, 3, 3) or not (
-        mean.shape[0] == cov.shape[0] == gain.shape[0]
-    ):
-        raise ValueError(
-            f"policy: {source} has inconsistent shapes policy_mean {mean.shape}, "
-            f"policy_cov {cov.shape}, policy_gain {gain.shape}"
-        )
-    try:
-        policies = tuple(
-            LinearGaussianPolicy(m, c, g, context_dim=int(context_dim), features=str(features))
-            for m, c, g in zip(mean, cov, gain, strict=True)
-        )
-    except (ValueError, TypeError) as exc:
-        raise ValueError(f"policy: {source} holds an invalid policy ({exc})") from None
-    extra = {}
     for key in ("rollouts", "mean_reward"):
-        value = get(key, required=False)
-        if value is not None and value.shape == (len(policies),):
-            extra[key] = value.astype(np.float64)
-    task = get("task", required=False)
-    return PolicyHistory(policies, task="" if task is None else str(task), **extra)
+        if getattr(history, key) is not None:
+            arrays[key] = getattr(history, key)
+    np.savez_compressed(path, **arrays)
+    path = Path(path)
+    return path if path.suffix == ".npz" else path.with_name(path.name + ".npz")
 
 
 def load_policy_history(path, trial: int = 0) -> PolicyHistory:
@@ -222,17 +180,29 @@ def load_policy_history(path, trial: int = 0) -> PolicyHistory:
         or no such trial.
     """
     path = Path(path)
-    if path.is_dir():
-        file, prefix = path / "trials.npz", f"trial{int(trial)}__"
-    else:
-        file, prefix = path, ""
+    file, prefix = (path / "trials.npz", f"trial{int(trial)}__") if path.is_dir() else (path, "")
     if not file.exists():
         raise ValueError(f"policy: no such file {file}")
-    arrays = read_npz(file, "policy")
+    arrays = read_npz(file, "policy", "format", HISTORY_FORMAT)
     if prefix and not any(k.startswith(prefix) for k in arrays):
         n = len({k.split("__")[0] for k in arrays if k.startswith("trial")})
         raise ValueError(f"trial: {file} has no trial {trial} (it has {n} trials)")
-    fmt = arrays.get("format")
-    if not prefix and fmt is not None and str(fmt) != HISTORY_FORMAT:
-        raise ValueError(f"policy: {file} has format {str(fmt)!r}, expected {HISTORY_FORMAT!r}")
-    return _history_from(arrays, prefix, str(file))
+    keys = ("policy_mean", "policy_cov", "policy_gain", "policy_context_dim", "policy_features")
+    for key in keys:
+        if prefix + key not in arrays:
+            msg = f"policy: {file} has no {prefix + key!r} array (not a skillkit policy history)"
+            raise ValueError(msg)
+    mean, cov, gain, context_dim, features = (np.asarray(arrays[prefix + k]) for k in keys)
+    try:
+        policies = tuple(
+            LinearGaussianPolicy(m, c, g, context_dim=int(context_dim), features=str(features))
+            for m, c, g in zip(mean, cov, gain, strict=True)
+        )
+    except (ValueError, TypeError) as exc:
+        raise ValueError(f"policy: {file} holds an invalid policy ({exc})") from None
+    extra = {}
+    for key in ("rollouts", "mean_reward"):
+        value = arrays.get(prefix + key)
+        if value is not None and np.shape(value) == (len(policies),):
+            extra[key] = np.asarray(value, dtype=np.float64)
+    return PolicyHistory(policies, task=str(arrays.get(prefix + "task", "")), **extra)

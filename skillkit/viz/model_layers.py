@@ -5,25 +5,13 @@ several learned models. For the viewer it implements one method, this module's c
 
     def prediction_layers(self, context, omega, n_samples: int, rng=None) -> dict[str, dict]:
         '''For one (s, ω) pair: {layer_name: {"trajectories": ndarray (L, T, 3) world points,
-        "color": (r, g, b) 0–255, "times": ndarray (T,) optional}}; one layer per learned
-        model; the descriptive names serve as the legend.'''
+        "color": (r, g, b) 0–255, "times": ndarray (T,) optional}}, one layer per learned
+        model, the descriptive names as the legend.'''
 
-:func:`model_layers` turns the answer into keyword dicts for
-:meth:`skillkit.viz.viewer.Viewer.add_prediction_layer`.
-
-File format
------------
-1. the line ``skillkit-reward-model-v1`` (ASCII, ending in ``\\n``): the format and version;
-2. one line of JSON: ``{"class": "<module>.<qualname>", "skillkit": "<version>",
-   "task": "<task name or empty>"}``;
-3. the model, pickled (:mod:`pickle`, highest protocol).
-
-The header is read without unpickling, so another format or version is refused before any of
-its code runs.
-
-.. warning::
-   Unpickling runs code named by the file. Load only reward-model files you trust;
-   :func:`load_reward_model` checks the header, not the pickle.
+File format: the line ``skillkit-reward-model-v1``; one line of JSON ``{"class":
+"<module>.<qualname>", "skillkit": "<version>", "task": "<task name or empty>"}``; the model,
+pickled. The header is read without unpickling, so another format or version is refused before
+any of its code runs; the pickle runs code named by the file: load only files you trust.
 """
 
 from __future__ import annotations
@@ -54,7 +42,6 @@ __all__ = [
 
 REWARD_MODEL_FORMAT = "skillkit-reward-model-v1"
 """The first line of a reward-model file (see the module docstring)."""
-_MAGIC_PREFIX = b"skillkit-reward-model-"
 _MAX_LINE = 4096
 
 
@@ -69,12 +56,9 @@ def _model_task_name(model) -> str:
     return name if isinstance(name, str) else ""
 
 
-def check_has_layers(model, argname: str = "model") -> None:
+def check_has_layers(model) -> None:
     if not callable(getattr(model, "prediction_layers", None)):
-        raise ValueError(
-            f"{argname}: a {type(model).__name__} has no prediction_layers(context, omega, "
-            "n_samples, rng) method (see skillkit.viz.model_layers)"
-        )
+        raise ValueError(f"model: a {type(model).__name__} has no prediction_layers method")
 
 
 def reward_model_path(run_dir, trial: int = 0) -> Path:
@@ -87,19 +71,17 @@ def save_reward_model(path, model) -> Path:
     """Write a fitted, picklable reward model (with ``prediction_layers``; its ``task.name``
     goes into the header) to ``path`` (conventionally :func:`reward_model_path`); returns the
     path. ``ValueError`` (argument ``model``) if it has no such method or cannot be pickled."""
-    data = dumps_reward_model(model)
     path = Path(path)
     tmp = path.with_name(path.name + ".tmp")
-    tmp.write_bytes(data)
+    tmp.write_bytes(dumps_reward_model(model))
     tmp.replace(path)
     return path
 
 
 def load_reward_model(path):
     """Read a reward model written by :func:`save_reward_model` (it unpickles the file: load
-    only files you trust). ``ValueError`` (argument ``model``): missing file, not a reward-model
-    file, another format version, a malformed header, a pickle that does not load here, or an
-    object other than the header's class."""
+    only files you trust). ``ValueError`` (argument ``model``): missing file, another format,
+    a malformed header, a pickle that does not load here, or not the header's class."""
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"model: no such file {path}")
@@ -131,13 +113,9 @@ def _rebuilt_gp(cls, state: dict):
 
 
 def dumps_reward_model(model) -> bytes:
-    """The bytes :func:`save_reward_model` writes (header lines and the pickled model).
-
-    A run keeps them in ``trials.npz`` as the uint8 array ``trial<K>__reward_model``
-    (:func:`load_gpreps_run`). A fitted GP inside is stored without what its fit derives from
-    the data and hyper-parameters (Cholesky factor, prediction weights), recomputed on reading.
-    Raises as :func:`save_reward_model`.
-    """
+    """The bytes :func:`save_reward_model` writes (header lines and the pickled model); a run
+    keeps them in ``trials.npz`` as the uint8 array ``trial<K>__reward_model``. A fitted GP is
+    stored without its Cholesky factor and prediction weights, recomputed on reading."""
     import skillkit
 
     check_has_layers(model)
@@ -160,14 +138,9 @@ def loads_reward_model(data: bytes, source: str = "the data"):
     f, path = io.BytesIO(bytes(data)), source
     first = f.readline(_MAX_LINE).rstrip(b"\n")
     if first != REWARD_MODEL_FORMAT.encode("ascii"):
-        if first.startswith(_MAGIC_PREFIX):
-            found = first.decode("ascii", "replace")
-            msg = f"model: {path} has format {found!r}, expected {REWARD_MODEL_FORMAT!r}"
-            raise ValueError(msg)
-        raise ValueError(
-            f"model: {path} is not a skillkit reward-model file (it does not start with "
-            f"{REWARD_MODEL_FORMAT!r}; see skillkit.viz.model_layers)"
-        )
+        found = first[:40].decode("ascii", "replace")
+        msg = f"model: {path} is not a skillkit reward-model file: expected {REWARD_MODEL_FORMAT!r}"
+        raise ValueError(f"{msg}, found format {found!r}")
     try:
         header = json.loads(f.readline(_MAX_LINE).decode("utf-8"))
         cls = str(header["class"])
@@ -177,10 +150,8 @@ def loads_reward_model(data: bytes, source: str = "the data"):
     try:
         model = pickle.load(f)
     except Exception as exc:  # any failure of the pickled code: report, don't crash
-        raise ValueError(
-            f"model: {path} holds a {cls} (skillkit {version}) that does not load here "
-            f"({type(exc).__name__}: {exc})"
-        ) from None
+        msg = f"model: {path} holds a {cls} (skillkit {version}) that does not load here"
+        raise ValueError(f"{msg} ({type(exc).__name__}: {exc})") from None
     if _class_path(model) != cls:
         raise ValueError(f"model: {path} promises a {cls} but holds a {_class_path(model)}")
     check_has_layers(model)
@@ -192,8 +163,7 @@ def check_model_task(model, task_name: str) -> None:
     ``task_name``; models that do not say (no ``task.name``) pass."""
     fitted = _model_task_name(model)
     if fitted and fitted != task_name:
-        msg = f"model: the reward model was fitted on task {fitted!r}, not {task_name!r}"
-        raise ValueError(msg)
+        raise ValueError(f"model: fitted on task {fitted!r}, not {task_name!r}")
 
 
 def model_layers(model, context, omega, n_samples: int = 10, rng=None) -> list[dict]:
@@ -202,26 +172,23 @@ def model_layers(model, context, omega, n_samples: int = 10, rng=None) -> list[d
     ``model.prediction_layers(context, omega, n_samples, rng)`` (module docstring) samples L =
     ``n_samples`` trajectories per learned model. Returns one keyword dict per layer, in the
     model's order, for :meth:`skillkit.viz.viewer.Viewer.add_prediction_layer`: ``name`` (the
-    descriptive name made a unique path component, ``"sliding model: control puck"`` →
-    ``"sliding_model_control_puck"``), ``label`` (the descriptive name), ``trajectories``
-    (L, T, 3), ``color``, ``space="points"`` and, if given, ``times`` (T,) and ``opacity``.
+    label as a unique path component, ``"sliding model: puck"`` → ``"sliding_model_puck"``),
+    ``label``, ``trajectories`` (L, T, 3), ``color``, ``space="points"`` and, if given,
+    ``times`` (T,) and ``opacity``.
 
     Raises
     ------
     ValueError
-        No ``prediction_layers``, or an answer that is not a mapping of non-empty names to
-        dicts with finite ``trajectories`` (L, T, 3), L, T ≥ 1, an RGB ``color`` in 0–255 and
-        non-decreasing ``times`` (T,); each message names the layer.
+        No ``prediction_layers``, or an answer breaking the contract; the message names the
+        layer.
     """
     check_has_layers(model)
     n_samples = check_count(n_samples, "n_samples")
     s, w = np.asarray(context, dtype=np.float64), np.asarray(omega, dtype=np.float64)
     answer = model.prediction_layers(s, w, n_samples, rng=rng)
     if not isinstance(answer, Mapping):
-        raise ValueError(
-            f"model: prediction_layers returned a {type(answer).__name__}, expected a dict "
-            "{layer name: {'trajectories': (L, T, 3), 'color': (r, g, b), 'times': (T,)}}"
-        )
+        got = type(answer).__name__
+        raise ValueError(f"model: prediction_layers returned a {got}, expected a dict of layers")
     specs, used = [], set()
     for label, layer in answer.items():
         if not isinstance(label, str) or not label.strip():
@@ -231,10 +198,8 @@ def model_layers(model, context, omega, n_samples: int = 10, rng=None) -> list[d
             raise ValueError(f"{where}: expected a dict with 'trajectories', got {layer!r:.80}")
         x = check_array(layer["trajectories"], f"{where}: trajectories", ndim=3)
         if x.shape[0] < 1 or x.shape[1] < 1 or x.shape[2] != 3:
-            raise ValueError(
-                f"{where}: trajectories: expected world points of shape (L, T, 3) with "
-                f"L, T >= 1, got {x.shape}"
-            )
+            msg = f"{where}: trajectories: expected shape (L, T, 3) with L, T >= 1, got {x.shape}"
+            raise ValueError(msg)
         name = base = re.sub("_+", "_", node_name(label.strip())).strip("_") or "layer"
         k = 2
         while name in used:
@@ -258,12 +223,11 @@ def load_gpreps_run(run_dir, trial: int = 0):
     """The policy history and the reward model of one trial of a GPREPS run folder (what
     ``skillkit view TASK --gpreps RUN_DIR --trial K`` shows).
 
-    The folder's ``trials.npz`` holds the trial's policy history
-    (:func:`skillkit.viz.history.load_policy_history`); the model is the file at
-    :func:`reward_model_path` or the uint8 array ``trial<K>__reward_model`` in ``trials.npz``
-    (:func:`dumps_reward_model`; what ``fig4.10``–``fig4.12`` store), of the trial's last
-    update. Returns (history, model); ``ValueError`` for no such folder (argument
-    ``gpreps``), no reward model for the trial, or the errors of the two loaders.
+    The history is read from ``trials.npz`` (:func:`skillkit.viz.history.load_policy_history`),
+    the model of the trial's last update from the file at :func:`reward_model_path` or the
+    array ``trial<K>__reward_model`` in ``trials.npz`` (what ``fig4.10``–``fig4.12`` store).
+    Returns (history, model); ``ValueError`` for no such folder (argument ``gpreps``), no reward
+    model for the trial, or the errors of the two loaders.
     """
     from skillkit.viz.history import load_policy_history
 
@@ -281,10 +245,7 @@ def load_gpreps_run(run_dir, trial: int = 0):
             with np.load(npz, allow_pickle=False) as arrays:
                 stored = arrays[key].tobytes() if key in arrays else None
         if stored is None:
-            raise ValueError(
-                f"gpreps: {run_dir} has no reward model of trial {trial} (neither {file.name} "
-                f"nor {key} in trials.npz; a GPREPS event-model run stores it)"
-            )
+            msg = f"gpreps: {run_dir} has no reward model of trial {trial}"
+            raise ValueError(f"{msg} (neither {file.name} nor {key} in trials.npz)")
         model = loads_reward_model(stored, f"{npz}[{key}]")
-    history = load_policy_history(run_dir, trial)
-    return history, model
+    return load_policy_history(run_dir, trial), model

@@ -1,11 +1,5 @@
-"""Checks of an executed notebook: which cells wrote to stderr, and how long each cell ran.
-
-The test suite applies both to every notebook nbmake executes (the root ``conftest.py``)::
-
-    nb = nbformat.read("executed.ipynb", as_version=4)
-    stderr_outputs(nb)        # [(cell index, first line of the text), ...]
-    execution_seconds(nb)     # {cell index: seconds}, from nbclient's record_timing
-"""
+"""Checks of an executed notebook (the root ``conftest.py`` applies them to every notebook
+nbmake executes): which cells wrote to stderr, and how long each cell ran."""
 
 from __future__ import annotations
 
@@ -27,19 +21,12 @@ def stderr_outputs(nb: Mapping) -> list[tuple[int, str]]:
     executed nbformat 4 notebook (``NotebookNode`` or the parsed JSON), in order."""
     found = []
     for i, cell in enumerate(_cells(nb)):
-        if cell.get("cell_type") != "code":
-            continue
-        for out in cell.get("outputs", []):
+        for out in cell.get("outputs", []) if cell.get("cell_type") == "code" else []:
             if out.get("output_type") == "stream" and out.get("name") == "stderr":
                 text = out.get("text", "")
                 text = "".join(text) if isinstance(text, list) else str(text)
-                lines = [line for line in text.splitlines() if line.strip()]
-                found.append((i, lines[0] if lines else ""))
+                found.append((i, next((ln for ln in text.splitlines() if ln.strip()), "")))
     return found
-
-
-def _time(value: str) -> datetime:
-    return datetime.fromisoformat(value.replace("Z", "+00:00"))
 
 
 def execution_seconds(nb: Mapping) -> dict[int, float]:
@@ -50,5 +37,5 @@ def execution_seconds(nb: Mapping) -> dict[int, float]:
         stamps = cell.get("metadata", {}).get("execution", {})
         start, end = stamps.get("iopub.execute_input"), stamps.get("shell.execute_reply")
         if cell.get("cell_type") == "code" and start and end:
-            times[i] = (_time(end) - _time(start)).total_seconds()
+            times[i] = (datetime.fromisoformat(end) - datetime.fromisoformat(start)).total_seconds()
     return times

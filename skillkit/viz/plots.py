@@ -1,11 +1,9 @@
-"""Figures of experiment results, learning curves and GP fits (plotly and matplotlib).
+"""Figures of experiment results (plotly and matplotlib).
 
-A result (the dict :func:`skillkit.experiments.runner.run_trials` returns, ``result.json``) is
-drawn from its ``series`` (:class:`~skillkit.experiments.registry.Series` fields), one subplot
-per panel, by :func:`plotly_figure` (``figure.html``) or :func:`matplotlib_figure`
-(``figure.png``, without pyplot); :func:`write_figures` writes both. Each figure carries the
-verdict line as its subtitle, band names in the legend, and a robust axis range when a few
-values run away (:func:`robust_range`). Figures of live objects: :mod:`skillkit.viz.figures`.
+A result (``result.json``, :func:`skillkit.experiments.runner.run_trials`) is drawn from its
+``series`` (:class:`~skillkit.series.Series` fields), one subplot per panel, by
+:func:`plotly_figure` (``figure.html``) or :func:`matplotlib_figure` (``figure.png``, without
+pyplot). Figures of live objects: :mod:`skillkit.viz.figures`.
 """
 
 from __future__ import annotations
@@ -29,17 +27,9 @@ _BAND_SWATCH = "#9e9e9e"
 BACKENDS = ("plotly", "matplotlib")
 _LEGEND_INSIDE_MAX = 6  # legend entries drawn inside a matplotlib panel; more go below it
 
-#: A log-y panel whose values span more decades than this gets a robust axis range.
-MAX_DECADES = 10.0
-#: The robust range keeps at least this many decades above the median (and below it).
-HEADROOM_DECADES = 6.0
-#: Values within this many decades of a kept value are kept too (a curve is not clipped).
-GAP_DECADES = 2.0
-#: A linear panel whose span exceeds this many times its spread (IQR) gets a robust range.
-LINEAR_SPAN_OVER_SPREAD = 1000.0
-#: Linear analogues of HEADROOM_DECADES and GAP_DECADES, in units of the spread.
-LINEAR_HEADROOM, LINEAR_GAP = 20.0, 5.0
-#: Never clip more than this fraction of a panel's values on one side: they are the data.
+# the thresholds of robust_range (see there)
+MAX_DECADES, HEADROOM_DECADES, GAP_DECADES = 10.0, 6.0, 2.0
+LINEAR_SPAN_OVER_SPREAD, LINEAR_HEADROOM, LINEAR_GAP = 1000.0, 20.0, 5.0
 MAX_CLIPPED_FRACTION = 0.25
 
 _POINT_KINDS = ("line", "markers", "lines+markers")
@@ -51,43 +41,18 @@ REFERENCE_WIDTH = 820
 PANEL_HEIGHT = 300
 
 
-@dataclass(frozen=True)
-class Verdict:
-    """How an experiment result came out, as its summary records it: the ``claim`` in plain
-    words, the ``word`` ("holds", "does not hold", "undecided", "not judged" or "no verdict
-    recorded") and the verdict line ``statement`` (the key number with its interval beside
-    the thesis's); "" where not recorded."""
-
-    claim: str
-    word: str
-    statement: str
-
-
-def verdict(result: Mapping) -> Verdict | None:
-    """The claim and verdict of an experiment result (``summary["claim"]``, ``["verdict"]``,
-    ``["statement"]``, as :func:`skillkit.experiments.judge.apply` writes them); None without
-    a ``summary`` (e.g. a learning curve)."""
+def subtitle(result: Mapping, width: int | None = None) -> str:
+    """The subtitle of an experiment figure: the verdict line ``summary["statement"]`` (as
+    :func:`skillkit.experiments.judge.apply` writes it), else the outcome ``summary["verdict"]``
+    or "no verdict recorded"; "" without a ``summary`` (e.g. a learning curve). ``width`` wraps
+    it (None: no wrapping)."""
     if not isinstance(result, Mapping):
         raise ValueError(f"result: expected a dict, got {type(result).__name__}")
     summary = result.get("summary")
     if not isinstance(summary, Mapping) or not summary:
-        return None
-
-    def text(key: str) -> str:
-        value = summary.get(key)
-        return value.strip() if isinstance(value, str) else ""
-
-    return Verdict(text("claim"), text("verdict") or "no verdict recorded", text("statement"))
-
-
-def subtitle(result: Mapping, width: int | None = None) -> str:
-    """The subtitle of an experiment figure: the verdict line (``summary["statement"]``), or the
-    outcome alone where none is recorded; "" for results without a summary. ``width`` wraps it
-    (None: no wrapping)."""
-    v = verdict(result)
-    if v is None:
         return ""
-    line = v.statement or v.word
+    said = [summary[k].strip() for k in ("statement", "verdict") if isinstance(summary.get(k), str)]
+    line = next(filter(None, said), "no verdict recorded")
     return line if width is None else textwrap.fill(line, width=max(int(width), 20))
 
 
@@ -193,11 +158,7 @@ def _extend(t: np.ndarray, start: float, gap: float) -> float:
 
 
 def _fmt(v: float) -> str:
-    s = f"{v:.2g}"
-    if "e" in s:
-        mant, exp = s.split("e")
-        s = f"{mant}e{int(exp)}"
-    return s
+    return re.sub(r"e\+?(-?)0*(\d)", r"e\1\2", f"{v:.2g}")  # 1e+40 -> 1e40, 1e-05 -> 1e-5
 
 
 @dataclass
@@ -213,11 +174,9 @@ class _Panel:
     note: str
     bands: list[str]
     floor: float  # where a log panel's non-positive band bounds are drawn
-    log_x: bool = False  # drawn log x axis (a log_x panel spanning < 1 decade is drawn linear)
-    xaxis: tuple[float, float] | None = None  # x limits containing the data (None: automatic)
-    yaxis: tuple[float, float] | None = None  # y limits containing the data (None: automatic)
-    kinds: tuple[str, ...] = ()  # the kinds of its series
-    n_named: int = 0  # distinct series names (a panel with >= 2 needs a legend)
+    log_x: bool  # drawn log x axis (a log_x panel spanning < 1 decade is drawn linear)
+    xaxis: tuple[float, float] | None  # x limits containing the data (None: automatic)
+    yaxis: tuple[float, float] | None  # y limits: the robust range's, else around the data
 
     def cell(self, ncols: int) -> dict:
         """plotly's ``row`` and ``col`` of the panel in a grid of ``ncols`` columns."""
@@ -226,23 +185,14 @@ class _Panel:
 
 def _clip_note(points: list[dict], rng: AxisRange) -> str:
     """How many values lie off scale on each side, and the most extreme of them."""
-    masks = [rng.clipped(s["y"]) for s in points]
-    parts = []
-    for side, edge, word, pick, reduce, where in (
-        (0, 1, "above", max, np.max, "(max {}) ▲ at the top edge"),
-        (1, 0, "below", min, np.min, "(min {}) ▼ at the bottom edge"),
-    ):
-        count = sum(int(m[side].sum()) for m in masks)
-        if count:
-            extreme = pick(
-                float(reduce(np.asarray(s["y"], float)[m[side]]))
-                for s, m in zip(points, masks, strict=True)
-                if m[side].any()
-            )
-            parts.append(
-                f"{count} value{'s' if count > 1 else ''} {word} {_fmt(rng.axis[edge])} "
-                + where.format(_fmt(extreme))
-            )
+    pairs = [(np.asarray(s["y"], dtype=float), rng.clipped(s["y"])) for s in points]
+    parts, marks = [], ("(max {}) ▲ at the top edge", "(min {}) ▼ at the bottom edge")
+    for side, word in enumerate(("above", "below")):
+        off = np.concatenate([y[m[side]] for y, m in pairs])
+        if off.size:
+            extreme = _fmt(off.max() if side == 0 else off.min())
+            head = f"{off.size} value{'s' * (off.size > 1)} {word} {_fmt(rng.axis[1 - side])}"
+            parts.append(f"{head} {marks[side].format(extreme)}")
     return "; ".join(parts)
 
 
@@ -263,23 +213,19 @@ def _layout(series: list[dict]) -> list[_Panel]:
             every = every[np.isfinite(every) & (every > 0)]
             floor = rng.axis[0] if rng is not None else (float(every.min()) if every.size else 1.0)
         bands = list(dict.fromkeys(s["band"] for s in members if _has_band(s) and s.get("band")))
-        kinds = tuple(dict.fromkeys(s.get("kind", "line") for s in members))
-        log_x = _draw_log_x(members)
-        xaxis = yaxis = None
-        if points and set(kinds) <= set(_POINT_KINDS):
+        xs = np.concatenate([_floats(s["x"]) for s in members] or [[]])
+        xs = xs[np.isfinite(xs) & (xs > 0)]  # a log x axis needs a positive span of a decade
+        log_x = any(s.get("log_x") for s in members) and bool(xs.size)
+        log_x = log_x and float(xs.max()) >= 10.0 * float(xs.min())
+        xaxis, yaxis = None, (rng.axis if rng is not None else None)
+        if len(points) == len(members):  # no heatmap or bar
             xaxis = _limits(np.concatenate([_floats(s["x"]) for s in points]), log_x, pad=0.03)
             if rng is None:
                 ys = [values] + [a for s in banded for a in _band_arrays(s, log_y, floor)]
                 yaxis = _limits(np.concatenate(ys), log_y, pad=0.06)
-        xl, yl = (next((s[k] for s in members if s.get(k)), "") for k in ("xlabel", "ylabel"))
-        xl, yl = _axis_label(xl, log_x), _axis_label(yl, log_y)
+        xl, yl = _axis_label(members, "xlabel", log_x), _axis_label(members, "ylabel", log_y)
         note = _clip_note(points, rng) if rng is not None else ""
-        n_named = len({s["name"] for s in members})
-        out.append(
-            _Panel(
-                name, i, xl, yl, log_y, rng, note, bands, floor, log_x, xaxis, yaxis, kinds, n_named
-            )
-        )
+        out.append(_Panel(name, i, xl, yl, log_y, rng, note, bands, floor, log_x, xaxis, yaxis))
     return out
 
 
@@ -298,15 +244,6 @@ def _to_float(e) -> float:
         return math.nan
 
 
-def _draw_log_x(members: list[dict]) -> bool:
-    """Whether a log x axis is asked for and the positive x span at least a decade."""
-    if not any(s.get("log_x") for s in members):
-        return False
-    xs = np.concatenate([_floats(s["x"]) for s in members] or [[]])
-    xs = xs[np.isfinite(xs) & (xs > 0)]
-    return bool(xs.size) and float(xs.max()) >= 10.0 * float(xs.min())
-
-
 _LOG_WORDS = re.compile(
     r"\s*\(\s*log(?:arithmic)? scale\s*\)|log(?:arithmic)? scale\s*[;,]\s*|"
     r"\s*[;,]\s*log(?:arithmic)? scale",
@@ -314,8 +251,9 @@ _LOG_WORDS = re.compile(
 )
 
 
-def _axis_label(label: str, log: bool) -> str:
-    """An axis label that agrees with the axis drawn: a linear axis drops "log scale"."""
+def _axis_label(members: list[dict], key: str, log: bool) -> str:
+    """The first ``key`` label of the panel's series; a linear axis drops "log scale"."""
+    label = next((s[key] for s in members if s.get(key)), "")
     return label if log or not label else _LOG_WORDS.sub("", label).strip()
 
 
@@ -340,8 +278,7 @@ def _has_band(s: Mapping) -> bool:
 
 def _band_arrays(s: Mapping, log_y: bool, floor: float) -> tuple[np.ndarray, np.ndarray]:
     """Lower and upper band; on a log axis non-positive lower bounds go to ``floor``."""
-    lower = np.asarray(s["lower"], dtype=float)
-    upper = np.asarray(s["upper"], dtype=float)
+    lower, upper = (np.asarray(s[k], dtype=float) for k in ("lower", "upper"))
     if log_y:
         lower = np.where(np.isfinite(lower) & (lower > 0), lower, floor)
     return lower, upper
@@ -355,8 +292,7 @@ def _band_label(s: Mapping, panel: _Panel) -> str | None:
 
 
 def _off_scale(panel: _Panel, s: Mapping):
-    """(x, y at the axis edge, values, side: 0 above, 1 below) of the values of ``s`` that lie
-    off the panel's robust range, per side holding any."""
+    """(x, y at the axis edge, values, side: 0 above, 1 below) per side with values off scale."""
     if panel.range is None:
         return
     clipped = panel.range.clipped(s["y"])
@@ -366,33 +302,20 @@ def _off_scale(panel: _Panel, s: Mapping):
             yield np.asarray(s["x"])[mask], [edge] * int(mask.sum()), ys, side
 
 
-def _grid(n: int) -> tuple[int, int]:
-    ncols = min(n, 2)
-    return math.ceil(n / ncols), ncols
-
-
-def _axis_range(limits, log: bool) -> list[float] | None:
-    """plotly's range of an axis with these limits (log10 of them on a log axis)."""
-    if limits is None:
-        return None
-    a, b = limits
-    return [math.log10(a), math.log10(b)] if log else [a, b]
-
-
 def plotly_figure(result: dict):
     """A plotly figure with one subplot per panel of ``result["series"]``.
 
-    Title ``"<id>: <title> (<scale>)"``, subtitle the verdict line (:func:`subtitle`), bands
-    named in the legend (``Series.band``); panels with runaway values get a robust axis range
-    (:func:`robust_range`), the clipped values drawn as triangles at the edge and counted in a
-    note. Responsive, its text wrapped for :data:`REFERENCE_WIDTH` pixels.
+    Title ``"<id>: <title> (<scale>)"``, subtitle :func:`subtitle`, bands named in the legend;
+    panels with runaway values get a :func:`robust_range`, the clipped values drawn as
+    triangles at the edge and counted in a note. Text wrapped for :data:`REFERENCE_WIDTH` px.
     """
     from plotly.subplots import make_subplots
 
     series = _check_result(result)
     panels = _layout(series)
-    nrows, ncols = _grid(len(panels))
-    heat = any("heatmap" in p.kinds for p in panels)
+    ncols = min(len(panels), 2)
+    nrows = math.ceil(len(panels) / ncols)
+    heat = any(s.get("kind") == "heatmap" for s in series)
     h_space = 0.2 if heat else 0.14
     col_px = REFERENCE_WIDTH * (1 - h_space * (ncols - 1)) / ncols - 60
     names = [_wrap_html(p.name, int(col_px / 7.2)) for p in panels]
@@ -497,15 +420,14 @@ def plotly_figure(result: dict):
             )
     for panel in panels:
         cell = panel.cell(ncols)
-        limits = panel.range.axis if panel.range is not None else panel.yaxis
         for update, label, log, lims in (
             (fig.update_xaxes, panel.xlabel, panel.log_x, panel.xaxis),
-            (fig.update_yaxes, panel.ylabel, panel.log_y, limits),
+            (fig.update_yaxes, panel.ylabel, panel.log_y, panel.yaxis),
         ):
             update(
                 title_text=label,
                 type="log" if log else None,
-                range=_axis_range(lims, log),
+                range=None if lims is None else [math.log10(v) if log else v for v in lims],
                 exponentformat="power" if log else None,  # 10⁻⁶, not SI's "1µ"
                 automargin=True,
                 **cell,
@@ -525,8 +447,7 @@ def plotly_figure(result: dict):
                 bgcolor="rgba(255,255,255,0.8)",
                 **cell,
             )
-        label = f"shaded: {panel.bands[0]}" if len(panel.bands) == 1 else None
-        if label is not None and label not in shown:
+        if len(panel.bands) == 1 and (label := f"shaded: {panel.bands[0]}") not in shown:
             shown.add(label)
             fig.add_scatter(
                 x=[None],
@@ -546,7 +467,8 @@ def plotly_figure(result: dict):
     for annotation in fig.layout.annotations[: len(panels)]:  # the panel titles
         annotation.font = {"size": 13}
     entries = [t.name for t in fig.data if t.showlegend is not False and t.name]
-    show_legend = len(entries) >= 2 or any(p.n_named >= 2 for p in panels)
+    named = {(s.get("panel", ""), s["name"]) for s in series}  # more than one in some panel
+    show_legend = len(entries) >= 2 or len(named) > len(panels)
     legend_h = _legend_height(entries) if show_legend else 0
     sub = subtitle(result, width=int(REFERENCE_WIDTH / 6.4))
     sub_lines = sub.splitlines() if sub else []
@@ -589,10 +511,8 @@ def plotly_figure(result: dict):
 
 def _colors(series: list[dict]) -> dict[str, str]:
     """The colour of each series group (``_group``, default its name), in order."""
-    colors: dict[str, str] = {}
-    for s in series:
-        colors.setdefault(s.get("_group", s["name"]), _COLORS[len(colors) % len(_COLORS)])
-    return colors
+    groups = dict.fromkeys(s.get("_group", s["name"]) for s in series)
+    return {g: _COLORS[i % len(_COLORS)] for i, g in enumerate(groups)}
 
 
 def _dashed(s: Mapping) -> bool:
@@ -622,7 +542,8 @@ def matplotlib_figure(result: dict):
 
     series = _check_result(result)
     panels = _layout(series)
-    nrows, ncols = _grid(len(panels))
+    ncols = min(len(panels), 2)
+    nrows = math.ceil(len(panels) / ncols)
     fig_w = max(5.6 * ncols, 8.0)  # one panel: wide enough that the verdict wraps to few lines
     sub_fs = 8.5
     chars = int(fig_w * 72 / (0.6 * sub_fs))
@@ -703,8 +624,7 @@ def matplotlib_figure(result: dict):
             ax.legend(handles, labels, fontsize=7, **place)
     for k in range(len(panels), nrows * ncols):
         axes[k // ncols][k % ncols].axis("off")
-    title = head + (f"\n{sub}" if sub else "")
-    fontsize = sub_fs if sub else 10
+    title, fontsize = (f"{head}\n{sub}", sub_fs) if sub else (head, 10)
     fig.suptitle(title, x=0.01, ha="left", fontsize=fontsize, multialignment="left")
     return fig
 
@@ -713,13 +633,11 @@ def write_figures(result: dict, folder: str | Path, html: bool = True) -> tuple[
     """Write ``figure.html`` (plotly, self-contained; skipped with ``html=False``) and
     ``figure.png`` (matplotlib) into ``folder``; returns (html_path or None, png_path)."""
     folder = Path(folder)
-    html_path = None
+    html_path = folder / "figure.html" if html else None
     if html:
-        html_path = folder / "figure.html"
         plotly_figure(result).write_html(html_path, include_plotlyjs=True)
-    png = folder / "figure.png"
-    matplotlib_figure(result).savefig(png, dpi=90)  # an Agg canvas (NotebookFigure)
-    return html_path, png
+    matplotlib_figure(result).savefig(folder / "figure.png", dpi=90)  # an Agg canvas
+    return html_path, folder / "figure.png"
 
 
 def _check_result(result) -> list[dict]:
@@ -734,10 +652,9 @@ def _check_result(result) -> list[dict]:
         s = s.to_dict() if hasattr(s, "to_dict") else s
         if not isinstance(s, Mapping) or not {"name", "x", "y"} <= set(s):
             raise ValueError(f"result: series[{i}] lacks 'name', 'x' or 'y'")
-        s = dict(s)
         if s.get("dash") is not None and s["dash"] not in DASHES:
             raise ValueError(f"result: series[{i}] dash {s['dash']!r} is not one of {DASHES}")
-        out.append(s)
+        out.append(dict(s))
     return out
 
 
@@ -746,13 +663,9 @@ def _single_point(s: Mapping) -> bool:
     return s.get("kind", "line") == "line" and int(np.isfinite(_floats(s["y"])).sum()) == 1
 
 
-def check_backend(backend: str) -> None:
-    """``ValueError`` unless ``backend`` is one of :data:`BACKENDS`."""
+def draw_figure(result: dict, backend: str):
+    """:func:`plotly_figure` or :func:`matplotlib_figure` of ``result``, by ``backend`` (one of
+    :data:`BACKENDS`)."""
     if backend not in BACKENDS:
         raise ValueError(f"backend: expected one of {BACKENDS}, got {backend!r}")
-
-
-def draw_figure(result: dict, backend: str):
-    """:func:`plotly_figure` or :func:`matplotlib_figure` of ``result``, by ``backend``."""
-    check_backend(backend)
     return (plotly_figure if backend == "plotly" else matplotlib_figure)(result)

@@ -80,11 +80,7 @@ def load_predictions(path) -> list[dict]:
     those of ``color``, ``opacity``, ``times``, ``space`` the file holds). ``ValueError``
     (argument ``predictions``): unreadable file, another format version, or no layers."""
     path = Path(path)
-    arrays = read_npz(path, "predictions")
-    fmt = arrays.get(_FORMAT_KEY)
-    if fmt is not None and str(fmt) != PREDICTIONS_FORMAT:
-        msg = f"predictions: {path} has format {str(fmt)!r}, expected {PREDICTIONS_FORMAT!r}"
-        raise ValueError(msg)
+    arrays = read_npz(path, "predictions", _FORMAT_KEY, PREDICTIONS_FORMAT)
     layers = []
     for name in sorted(k for k in arrays if "__" not in k):
         spec = {"name": name, "trajectories": arrays[name]}

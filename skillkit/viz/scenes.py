@@ -10,6 +10,7 @@ clock carries it as another signal (``ball_times`` for ``ball``, :func:`signal_t
 
 from __future__ import annotations
 
+import functools
 import importlib
 import re
 import warnings
@@ -35,9 +36,6 @@ __all__ = [
     "ThrowingScene",
     "add_ball",
     "add_mujoco_model",
-    "add_puck",
-    "add_table",
-    "add_target",
     "add_trail",
     "capsule_mesh",
     "interpolate",
@@ -91,10 +89,6 @@ def check_opacity(opacity, argname: str = "opacity") -> float | None:
     if not 0.0 < v <= 1.0:
         raise ValueError(f"{argname}: expected a value in (0, 1] or None, got {opacity!r}")
     return None if v == 1.0 else v
-
-
-def _position(position, argname: str = "position") -> tuple:
-    return tuple(check_array(position, argname, shape=(3,)))
 
 
 def capsule_mesh(
@@ -190,9 +184,8 @@ def tube_mesh(paths, radius: float, sides: int = 6) -> tuple[np.ndarray, np.ndar
     vertices = (p[:, :, None, :] + radius * ring).reshape(-1, 3)
     k = np.arange(sides)
     k1 = (k + 1) % sides
-    base = (np.arange(n_paths)[:, None] * n_points + np.arange(n_points - 1)[None, :]).reshape(
-        -1, 1
-    ) * sides
+    starts = np.arange(n_paths)[:, None] * n_points + np.arange(n_points - 1)[None, :]
+    base = starts.reshape(-1, 1) * sides
     a, b = base + k, base + k1
     c, d = base + sides + k1, base + sides + k
     faces = np.concatenate([np.stack([a, b, c], -1), np.stack([a, c, d], -1)], axis=1)
@@ -205,10 +198,8 @@ def interpolate(times, values, t: float) -> np.ndarray:
     times = np.asarray(times, dtype=np.float64)
     values = np.asarray(values, dtype=np.float64)
     if times.ndim != 1 or values.shape[:1] != times.shape or times.shape[0] == 0:
-        raise ValueError(
-            f"values: expected shape ({times.shape[0] if times.ndim == 1 else '?'}, ...) "
-            f"matching times of shape (T,), got times {times.shape}, values {values.shape}"
-        )
+        msg = f"times, values: expected shapes (T,), (T, ...); got {times.shape}, {values.shape}"
+        raise ValueError(msg)
     i = int(np.searchsorted(times, t, side="right"))
     if i == 0:
         return values[0].copy()
@@ -252,7 +243,6 @@ def add_ball(
     *,
     opacity: float | None = None,
     position=(0.0, 0.0, 0.0),
-    visible: bool = True,
 ):
     """A ball (icosphere) of ``radius`` metres at ``position``; returns its handle."""
     return scene.add_icosphere(
@@ -261,70 +251,7 @@ def add_ball(
         color=check_rgb(color),
         opacity=check_opacity(opacity),
         subdivisions=2,
-        position=_position(position),
-        visible=visible,
-    )
-
-
-def add_puck(
-    scene,
-    name: str,
-    radius: float,
-    height: float,
-    color=COLORS["control_puck"],
-    *,
-    position=(0.0, 0.0, 0.0),
-):
-    """A puck: a cylinder along z of ``radius`` and ``height``, centred at ``position``."""
-    return scene.add_cylinder(
-        check_path(name),
-        radius=check_positive(radius, "radius"),
-        height=check_positive(height, "height"),
-        color=check_rgb(color),
-        position=_position(position),
-    )
-
-
-def add_target(
-    scene,
-    name: str = "/target",
-    radius: float = 0.1,
-    color=COLORS["target"],
-    *,
-    opacity: float | None = 0.6,
-    position=(0.0, 0.0, 0.0),
-    flat: bool = False,
-):
-    """A target marker: a translucent sphere, or a thin disc on a surface (``flat=True``)."""
-    name, color, opacity = check_path(name), check_rgb(color), check_opacity(opacity)
-    radius = check_positive(radius, "radius")
-    style = {"radius": radius, "color": color, "opacity": opacity}
-    if flat:
-        return scene.add_cylinder(name, height=0.004, **style, position=_position(position))
-    return scene.add_icosphere(name, **style, subdivisions=2, position=_position(position))
-
-
-def add_table(
-    scene,
-    name: str = "/table",
-    size=(2.74, 1.525),
-    height: float = 0.76,
-    *,
-    center=(0.0, 0.0),
-    thickness: float = 0.03,
-    color=COLORS["table"],
-):
-    """A table top: a box of ``size`` (x, y) metres whose upper surface is at ``height``."""
-    size = check_array(size, "size", shape=(2,))
-    if np.any(size <= 0):
-        raise ValueError(f"size: expected positive table dimensions, got {size.tolist()}")
-    thickness = check_positive(thickness, "thickness")
-    cx, cy = check_array(center, "center", shape=(2,))
-    return scene.add_box(
-        check_path(name),
-        color=check_rgb(color),
-        dimensions=(float(size[0]), float(size[1]), thickness),
-        position=(cx, cy, float(height) - thickness / 2),
+        position=tuple(check_array(position, "position", shape=(3,))),
     )
 
 
@@ -336,7 +263,6 @@ def add_trail(
     *,
     radius: float = 0.008,
     opacity: float | None = None,
-    visible: bool = True,
 ):
     """Tubes through each of one or L world-frame paths (T, 3) or (L, T, 3), T ≥ 2, as one mesh
     node (:func:`tube_mesh`) of ``radius`` metres; predictions are drawn translucent
@@ -351,7 +277,6 @@ def add_trail(
         side="double",
         cast_shadow=False,
         receive_shadow=False,
-        visible=visible,
     )
 
 
@@ -379,15 +304,6 @@ class MujocoScene:
         for path, b in self.body_ids.items():
             self.bodies[path].position = self.data.xpos[b].copy()
             self.bodies[path].wxyz = self.data.xquat[b].copy()
-
-    def positions(self, qpos, site: int | None = None) -> np.ndarray:
-        """World position of a site (None: the last body's origin) per row of joint positions,
-        shape (N, nq) → (N, 3); the display is not moved."""
-        q = check_array(qpos, "qpos", ndim=2)
-        if q.shape[1] != self.model.nq:
-            raise ValueError(f"qpos: expected shape (N, {self.model.nq}), got {q.shape}")
-        ids = ([self.model.nbody - 1], []) if site is None else ([], [site])
-        return kinematic_points(self.model, q, *ids)[:, 0]
 
     @property
     def nodes(self) -> dict:
@@ -417,18 +333,16 @@ def _geom_color(model: mujoco.MjModel, g: int) -> tuple[RGB, float]:
     return rgb, float(rgba[3])
 
 
-def add_geom(scene, name: str, model: mujoco.MjModel, geom: int, *, position=None, wxyz=None):
-    """Add MuJoCo geom ``geom`` as a viser primitive at ``name``, or return None if unsupported.
-
-    The pose is the geom's in its body frame unless ``position``/``wxyz`` are given. Sizes
-    follow MuJoCo: sphere (r), capsule (r, half-length), ellipsoid (semi-axes), cylinder (r,
-    half-height), box (half-sizes), plane (half-sizes, 0 = infinite, drawn 10 m), mesh.
+def add_geom(scene, name: str, model: mujoco.MjModel, geom: int):
+    """Add MuJoCo geom ``geom`` as a viser primitive at ``name`` with its pose in its body frame,
+    or return None if unsupported. Sizes follow MuJoCo: sphere (r), capsule (r, half-length),
+    ellipsoid (semi-axes), cylinder (r, half-height), box (half-sizes), plane (half-sizes, 0 =
+    infinite, drawn 10 m), mesh.
     """
     gtype = int(model.geom_type[geom])
     size = np.asarray(model.geom_size[geom], dtype=np.float64)
     color, alpha = _geom_color(model, geom)
-    pos = model.geom_pos[geom] if position is None else position
-    quat = model.geom_quat[geom] if wxyz is None else wxyz
+    pos, quat = model.geom_pos[geom], model.geom_quat[geom]
     kw = {"color": color, "opacity": None if alpha >= 1.0 else alpha}
     kw.update(position=tuple(np.asarray(pos, float)), wxyz=tuple(np.asarray(quat, float)))
     T = mujoco.mjtGeom
@@ -495,24 +409,19 @@ def add_mujoco_model(
         label = node_name(gname) if gname else f"geom{g}"
         b = int(model.geom_bodyid[g])
         group = int(model.geom_group[g])
-        why = (
-            "skipped on request"
-            if gname in skip_geoms
-            else f"group {group} > {max_group}"
-            if group > max_group
-            else "fully transparent"
-            if _geom_color(model, g)[1] <= 0.0
-            else ""
-        )
+        reasons = {
+            "skipped on request": gname in skip_geoms,
+            f"group {group} > {max_group}": group > max_group,
+            "fully transparent": _geom_color(model, g)[1] <= 0.0,
+        }
+        why = next((reason for reason, hit in reasons.items() if hit), "")
         if why:
             out.skipped.append(f"{label}: {why}")
             continue
         if gname in world_paths:
             if b != 0:
-                raise ValueError(
-                    f"world_paths: geom {gname!r} is not static (it belongs to body "
-                    f"{model.body(b).name!r}, not the world body)"
-                )
+                msg = f"world_paths: geom {gname!r} is not static (body {model.body(b).name!r})"
+                raise ValueError(msg)
             path = world_paths[gname]
         else:
             bname = model.body(b).name
@@ -530,11 +439,8 @@ def add_mujoco_model(
             out.geoms[path] = handle
     if unsupported:
         out.skipped += [f"{u}: unsupported geom type" for u in unsupported]
-        warnings.warn(
-            f"add_mujoco_model: geoms of unsupported types not drawn: {unsupported}",
-            RuntimeWarning,
-            stacklevel=2,
-        )
+        msg = f"add_mujoco_model: geoms of unsupported types not drawn: {unsupported}"
+        warnings.warn(msg, RuntimeWarning, stacklevel=2)
     return out
 
 
@@ -553,6 +459,7 @@ class TaskScene(ABC):
     camera_position: tuple[float, float, float] = (3.0, -3.0, 2.0)
     camera_look_at: tuple[float, float, float] = (0.0, 0.0, 0.5)
     task_type: tuple[str, str] | None = None  # (module, class) of the task drawn
+    state_dim: int  # dimension n_x of the states :meth:`points` accepts
 
     def __init__(self, scene, task) -> None:
         self.scene, self.task = scene, task
@@ -561,10 +468,6 @@ class TaskScene(ABC):
     def _add(self, handle):
         self.nodes[handle.name] = handle
         return handle
-
-    def _mid_context(self) -> None:
-        t = self.task
-        self.set_context(0.5 * (np.asarray(t.context_low) + np.asarray(t.context_high)))
 
     @classmethod
     def accepts(cls, task) -> bool:
@@ -594,11 +497,6 @@ class TaskScene(ABC):
             if key.endswith("_times") and trajectory.signals[key].size:
                 t1 = max(t1, float(trajectory.signals[key][-1]))
         return t0, t1
-
-    @property
-    @abstractmethod
-    def state_dim(self) -> int:
-        """Dimension n_x of the states :meth:`points` accepts."""
 
 
 class PendulumScene(TaskScene):
@@ -673,9 +571,9 @@ class MujocoTaskScene(TaskScene):
         )
         self.nodes.update(self.robot.nodes)
         if self.effector_site is not None:
-            self._site = model.site(self.effector_site).id
+            self._ids = ([], [model.site(self.effector_site).id])
         else:
-            self._site = 0 if model.nsite else None
+            self._ids = ([], [0]) if model.nsite else ([model.nbody - 1], [])
 
     @classmethod
     def accepts(cls, task) -> bool:
@@ -691,13 +589,15 @@ class MujocoTaskScene(TaskScene):
         getter = getattr(self.task, "qpos", None)
         if callable(getter):
             return np.asarray(getter(trajectory), dtype=np.float64)
-        m, x = self.robot.model, trajectory.states
-        if x.shape[1] != m.nq + m.nv:
-            raise ValueError(
-                f"trajectory: states have {x.shape[1]} columns; expected [q, q̇] with "
-                f"nq + nv = {m.nq + m.nv} for the model of task {self.task.name!r}"
-            )
-        return x[:, : m.nq]
+        x = trajectory.states
+        if x.shape[1] != self.state_dim:
+            msg = f"trajectory: expected states [q, q̇] of {self.state_dim} columns, got {x.shape}"
+            raise ValueError(msg)
+        return x[:, : self.robot.model.nq]
+
+    def _effector(self, qpos: np.ndarray) -> np.ndarray:
+        """The effector's world position per row of joint positions, (N, nq) → (N, 3)."""
+        return kinematic_points(self.robot.model, qpos, *self._ids)[:, 0]
 
     def show(self, trajectory: Trajectory, t: float) -> None:
         self.robot.set_qpos(interpolate(trajectory.times, self.qpos(trajectory), t))
@@ -711,15 +611,14 @@ class MujocoTaskScene(TaskScene):
         return points
 
     def points(self, states) -> np.ndarray:
-        m = self.robot.model
         x = check_array(states, "states")
-        if x.shape[-1] != m.nq + m.nv:
-            raise ValueError(f"states: expected shape (..., {m.nq + m.nv}) = [q, q̇], got {x.shape}")
-        q = x[..., : m.nq].reshape(-1, m.nq)
-        return self.robot.positions(q, self._site).reshape(*x.shape[:-1], 3)
+        if x.shape[-1] != self.state_dim:
+            raise ValueError(f"states: expected shape (..., {self.state_dim}), got {x.shape}")
+        nq = self.robot.model.nq
+        return self._effector(x[..., :nq].reshape(-1, nq)).reshape(*x.shape[:-1], 3)
 
     def trails(self, trajectory: Trajectory) -> dict[str, np.ndarray]:
-        out = {"effector": self.robot.positions(self.qpos(trajectory), self._site)}
+        out = {"effector": self._effector(self.qpos(trajectory))}
         if self.ball is not None:
             out["ball"] = self._world(trajectory.signals["ball"])
         return out
@@ -746,8 +645,7 @@ class ThrowingScene(PlanarScene):
     def __init__(self, scene, task) -> None:
         super().__init__(scene, task)
         self.ball = self._add(add_ball(scene, "/ball", 0.08))
-        self.target = self._add(add_target(scene, "/target", 0.2))
-        self._mid_context()
+        self.target = self._add(add_ball(scene, "/target", 0.2, COLORS["target"], opacity=0.6))
 
     def set_context(self, context) -> None:
         self.target.position = tuple(self._world(self.task.check_context(context)))
@@ -768,6 +666,7 @@ class HockeyScene(MujocoTaskScene):
     camera_position = (-0.6, -1.8, 1.8)
     camera_look_at = (1.3, 0.4, 0.0)
     task_type = ("skillkit.tasks.hockey", "Hockey")
+    _PUCKS = ("control_puck", "target_puck")
 
     def __init__(self, scene, task) -> None:
         super().__init__(scene, task)
@@ -775,13 +674,12 @@ class HockeyScene(MujocoTaskScene):
 
         r, h = task.physics.puck_radius, task.physics.puck_height
         self._half_height = h / 2
-        start = np.append(CONTROL_PUCK_START, self._half_height)
-        self.control_puck = self._add(
-            add_puck(scene, "/pucks/control", r, h, COLORS["control_puck"], position=start)
-        )
-        self.target_puck = self._add(add_puck(scene, "/pucks/target", r, h, COLORS["target_puck"]))
-        self.target = self._add(add_target(scene, "/target", r, flat=True, opacity=0.35))
-        self._mid_context()
+        puck = functools.partial(scene.add_cylinder, radius=r, height=h)
+        self.control_puck = self._add(puck("/pucks/control", color=COLORS["control_puck"]))
+        self.target_puck = self._add(puck("/pucks/target", color=COLORS["target_puck"]))
+        self.control_puck.position = (*CONTROL_PUCK_START, self._half_height)
+        disc = {"height": 0.004, "color": COLORS["target"], "opacity": 0.35}
+        self.target = self._add(scene.add_cylinder("/target", radius=r, **disc))
 
     def set_context(self, context) -> None:
         s = self.task.check_context(context)
@@ -792,13 +690,13 @@ class HockeyScene(MujocoTaskScene):
     def show(self, trajectory: Trajectory, t: float) -> None:
         super().show(trajectory, t)
         times = signal_times(trajectory, "control_puck", "puck_times")
-        for handle, key in ((self.control_puck, "control_puck"), (self.target_puck, "target_puck")):
+        for handle, key in zip((self.control_puck, self.target_puck), self._PUCKS, strict=True):
             xy = interpolate(times, trajectory.signals[key], t)
             handle.position = (xy[0], xy[1], self._half_height)
 
     def trails(self, trajectory: Trajectory) -> dict[str, np.ndarray]:
         out = super().trails(trajectory)
-        for key in ("control_puck", "target_puck"):
+        for key in self._PUCKS:
             xy = trajectory.signals[key]
             out[key] = np.column_stack([xy, np.full(xy.shape[0], self._half_height)])
         return out
@@ -817,44 +715,34 @@ class TableTennisScene(MujocoTaskScene):
         super().__init__(scene, task)
         from skillkit.tasks import table_tennis as tt
 
-        self._height = tt.TABLE_HEIGHT
-        self._add(add_table(scene, "/table", (tt.TABLE_LENGTH, tt.TABLE_WIDTH), tt.TABLE_HEIGHT))
-        net_width, net_z = tt.TABLE_WIDTH + 2 * tt.NET_OVERHANG, tt.TABLE_HEIGHT + tt.NET_HEIGHT / 2
+        length, width, self._height = tt.TABLE_LENGTH, tt.TABLE_WIDTH, tt.TABLE_HEIGHT
+        top = {"color": COLORS["table"], "position": (0.0, 0.0, self._height - 0.015)}
+        self._add(scene.add_box("/table", dimensions=(length, width, 0.03), **top))
+        net_width, net_z = width + 2 * tt.NET_OVERHANG, self._height + tt.NET_HEIGHT / 2
         net = {"color": (240, 240, 240), "opacity": 0.7, "position": (0.0, 0.0, net_z)}
         self._add(scene.add_box("/net", dimensions=(0.01, net_width, tt.NET_HEIGHT), **net))
         self.ball = self._add(add_ball(scene, "/ball", task.ball.radius))
-        self.target = self._add(
-            add_target(scene, "/target", 0.1, flat=True, position=(0.5, 0.0, self._height + 0.003))
-        )
-        self._mid_context()
+        disc = {"height": 0.004, "color": COLORS["target"], "opacity": 0.6}
+        self.target = self._add(scene.add_cylinder("/target", radius=0.1, **disc))
 
     def set_context(self, context) -> None:
         s = self.task.check_context(context)
         self.target.position = (s[3], s[4], self._height + 0.003)
 
 
-_ADAPTERS: tuple[type[TaskScene], ...] = (
-    PendulumScene,
-    PlanarScene,
-    ThrowingScene,
-    HockeyScene,
-    TableTennisScene,
-    MujocoTaskScene,
-)
-
-
 def task_scene(scene, task) -> TaskScene:
     """Build the scene of ``task`` with the first adapter that accepts it (the specific ones
-    first, then :class:`MujocoTaskScene`); ``ValueError`` (argument ``task``) if none does."""
-    for adapter in _ADAPTERS:
+    first, then :class:`MujocoTaskScene`) and show the mid-range context; ``ValueError``
+    (argument ``task``) if none does."""
+    adapters = (PendulumScene, PlanarScene, ThrowingScene, HockeyScene, TableTennisScene)
+    for adapter in (*adapters, MujocoTaskScene):
         try:
             accepted = adapter.accepts(task)
         except ImportError:  # the task module is not there (yet)
             accepted = False
         if accepted:
-            return adapter(scene, task)
-    raise ValueError(
-        f"task: no viewer scene for {type(task).__name__} {getattr(task, 'name', '')!r}: "
-        "it is not a known task and exposes no MuJoCo model "
-        "(scene_model(), model or robot.model)"
-    )
+            ts = adapter(scene, task)
+            ts.set_context(0.5 * (np.asarray(task.context_low) + np.asarray(task.context_high)))
+            return ts
+    name = f"{type(task).__name__} {getattr(task, 'name', '')!r}"
+    raise ValueError(f"task: no viewer scene for {name}: not a known task, and no scene_model()")

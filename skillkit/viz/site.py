@@ -1,8 +1,6 @@
-"""A browsable site of executed notebooks: one HTML page each, an index, and navigation.
-
-Each page is :func:`~skillkit.viz.notebook.export_html`'s (equations typeset offline by a
-local MathJax), with a bar linking the index and the previous and next notebook. Made by
-``skillkit site OUT`` from the chapter notebooks.
+"""A browsable site of executed notebooks (``skillkit site OUT``): one HTML page each
+(:func:`~skillkit.viz.notebook.export_html`), an index, and a bar linking the index and the
+previous and next notebook.
 """
 
 from __future__ import annotations
@@ -56,13 +54,10 @@ def build_site(
     Parameters
     ----------
     notebooks : sequence of str or Path
-        ``.ipynb`` files, in the order of the site; already executed unless ``execute``.
+        ``.ipynb`` files in the site's order; executed first (in their folder) if ``execute``,
+        ``timeout`` seconds per cell.
     out_dir : str or Path
-        Output folder (created); pages, ``index.html`` and one ``mathjax/`` copy go there.
-    execute : bool
-        Execute each notebook first (in its own folder).
-    timeout : int
-        Seconds per cell when executing.
+        Output folder (created) of the pages, ``index.html`` and one ``mathjax/`` copy.
 
     Returns
     -------

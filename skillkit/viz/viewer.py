@@ -10,6 +10,7 @@ banner and "Server stopped" are silenced unless ``verbose=True``.
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import functools
 import html
@@ -17,12 +18,13 @@ import socket
 import threading
 import time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import TypeVar
 
 import numpy as np
 
-from skillkit._validation import as_generator, check_array, check_count
+from skillkit._validation import as_generator, check_array
 from skillkit.policies.gaussian import LinearGaussianPolicy
 from skillkit.trajectory import Trajectory
 from skillkit.viz import DEFAULT_HOST, DEFAULT_PORT
@@ -32,7 +34,6 @@ from skillkit.viz.scenes import (
     TaskScene,
     add_trail,
     check_opacity,
-    check_path,
     check_rgb,
     interpolate,
     node_name,
@@ -59,9 +60,7 @@ class PortInUseError(OSError):
     """The viewer's port (``port`` on ``host``) is taken by another process (EADDRINUSE)."""
 
     def __init__(self, host: str, port: int, detail: str = "") -> None:
-        super().__init__(
-            f"port {port} on {host} is already in use{detail}; choose another with --port"
-        )
+        super().__init__(f"port {port} on {host} is already in use{detail}; choose another port")
         self.errno, self.host, self.port = errno.EADDRINUSE, host, port
 
 
@@ -70,19 +69,16 @@ class PredictionLayer:
     """One model's predicted trajectories in the scene: world-frame ``points`` (L, T, 3) (T = 1:
     predicted points, drawn as dots) at ``times`` (T,); ``nodes`` ``/predictions/<name>/samples``
     (translucent tubes), ``…/mean`` (the mean path) and ``…/now`` (the L points at the
-    timeline's time); ``label`` names it in the checkbox and the legend (default: ``name``)."""
+    timeline's time); ``label`` names it in the checkbox and the legend."""
 
     name: str
     points: np.ndarray
     times: np.ndarray
     color: tuple
     opacity: float
+    label: str
     nodes: dict = field(default_factory=dict)
     checkbox: object = None
-    label: str = ""
-
-    def __post_init__(self) -> None:
-        self.label = self.label or self.name
 
     @property
     def visible(self) -> bool:
@@ -102,33 +98,20 @@ def _call_silenced(fn: Callable[[], _Result]) -> _Result:
     """``fn()`` in a helper thread whose ``rich`` output is dropped; result or error passed on."""
     import rich
 
-    outcome: dict = {}
-
-    def run() -> None:
+    def run() -> _Result:
         rich.get_console().begin_capture()  # dropped with the thread
-        try:
-            outcome["value"] = fn()
-        except BaseException as exc:  # re-raised in the calling thread
-            outcome["error"] = exc
+        return fn()
 
-    thread = threading.Thread(target=run, name="skillkit-quiet-call", daemon=True)
-    thread.start()
-    thread.join()
-    if "error" in outcome:
-        raise outcome["error"]
-    return outcome["value"]
+    with ThreadPoolExecutor(1, thread_name_prefix="skillkit-quiet-call") as pool:
+        return pool.submit(run).result()
 
 
 def start_server(
     host: str = DEFAULT_HOST, port: int = 0, *, label: str | None = None, verbose: bool = False
 ):
-    """Start a viser server, quiet unless ``verbose``: what :class:`Viewer` serves from, and a
-    server for building scenes by hand (:func:`skillkit.viz.scenes.task_scene`).
-
-    ``port`` 0 takes any free port (viser moves on to the next free one if it is taken;
-    :meth:`Viewer.start` refuses that); ``label`` titles the GUI panel; ``verbose`` lets viser
-    print its banner and a line per connection. Returns the running ``viser.ViserServer``.
-    """
+    """Start and return a ``viser.ViserServer``, quiet unless ``verbose``: what :class:`Viewer`
+    serves from, and a server for building scenes by hand (:func:`~.scenes.task_scene`). ``port``
+    0 takes any free port (a taken one: viser moves on to the next); ``label`` titles the GUI."""
     import viser
 
     make = functools.partial(viser.ViserServer, host=host, port=port, verbose=verbose, label=label)
@@ -137,10 +120,9 @@ def start_server(
     import rich
 
     server = _call_silenced(make)
-    try:  # drop what rich prints from now on in the server's event-loop thread
+    # drop what rich prints from now on in the server's event-loop thread (unless it is closed)
+    with contextlib.suppress(RuntimeError):
         server.get_event_loop().call_soon_threadsafe(rich.get_console().begin_capture)
-    except RuntimeError:  # the loop is already closed: nothing more will print there
-        pass
     return server
 
 
@@ -200,9 +182,8 @@ class Viewer:
         if history is not None and not isinstance(history, PolicyHistory):
             raise ValueError(f"history: expected a PolicyHistory, got {type(history).__name__}")
         if history is not None and history.task and history.task != self.task.name:
-            raise ValueError(
-                f"policy: the history was recorded on task {history.task!r}, not {self.task.name!r}"
-            )
+            msg = f"policy: history recorded on task {history.task!r}, not {self.task.name!r}"
+            raise ValueError(msg)
         self.history = history
         if policy is None:
             policy = history[-1] if history is not None else self.task.initial_policy()
@@ -275,12 +256,8 @@ class Viewer:
                 self.scene.set_context(self.context)
                 if not self.environment:
                     server.scene.configure_environment_map(None)
-                    server.scene.add_light_hemisphere(
-                        "/lights/hemisphere",
-                        sky_color=(255, 255, 255),
-                        ground_color=(120, 120, 120),
-                        intensity=2.0,
-                    )
+                    light = {"sky_color": (255, 255, 255), "ground_color": (120, 120, 120)}
+                    server.scene.add_light_hemisphere("/lights/hemisphere", **light, intensity=2.0)
                 cam = server.initial_camera
                 cam.position, cam.look_at = self.scene.camera_position, self.scene.camera_look_at
                 self._build_gui()
@@ -388,10 +365,8 @@ class Viewer:
         """(ω, trajectory) of ``policy``'s mean (or a sample) in the current context."""
         s = self.context if self.task.context_dim else None
         ctx = self.context[None, :] if self.task.context_dim else np.zeros((1, 0))
-        if sample:
-            omega = np.atleast_2d(policy.sample(ctx, self._omega_rng))[0]
-        else:
-            omega = np.atleast_2d(policy.mean_of(ctx))[0]
+        omega = policy.sample(ctx, self._omega_rng) if sample else policy.mean_of(ctx)
+        omega = np.atleast_2d(omega)[0]
         return omega, self.task.rollout(omega, s, np.random.default_rng(self.seed))
 
     def _rerun(self, sample: bool = False) -> Trajectory:
@@ -442,12 +417,8 @@ class Viewer:
 
     def _context_from_gui(self) -> None:
         values = [float(slider.value) for slider in self.gui["context"]]
-        with self._lock:
-            if np.array_equal(values, self.context):
-                return
-            self.context = self.task.check_context(values)
-            self.scene.set_context(self.context)
-            self._rerun()
+        if not np.array_equal(values, self.context):
+            self.set_context(values)
 
     def set_time(self, t: float) -> None:
         """Show the current rollout and the prediction layers' points at time ``t``."""
@@ -533,28 +504,19 @@ class Viewer:
         self.stepping_updates = not self.stepping_updates
         self.gui["step_updates"].label = "Stop" if self.stepping_updates else "Step through updates"
 
-    def ghost_updates(self) -> list[int]:
-        """The updates whose trails learning playback draws (at most ``MAX_GHOST_UPDATES``)."""
-        K = len(self.history) - 1
-        return sorted(set(np.linspace(0, K, min(K + 1, MAX_GHOST_UPDATES)).round().astype(int)))
-
     def _draw_ghosts(self) -> None:
         """Trails of earlier updates' rollouts, fading from old (light) to new."""
         with self._lock:
             self._remove(self._ghost_nodes)
-            if self.history is not None and self.gui["ghosts"].value:
-                updates = self.ghost_updates()
-                for i, k in enumerate(updates):
-                    _, traj = self._roll_out(self.history[k])
-                    if not traj.failed:
-                        self._add_trails(
-                            self._ghost_nodes,
-                            traj,
-                            f"/history/update{k}",
-                            (120, 120, 120),
-                            radius=0.005,
-                            opacity=0.15 + 0.6 * (i + 1) / len(updates),
-                        )
+            K = len(self.history) - 1
+            ghosts = np.linspace(0, K, min(K + 1, MAX_GHOST_UPDATES)).round().astype(int)
+            updates = sorted(set(ghosts)) if self.gui["ghosts"].value else []
+            for i, k in enumerate(updates):
+                _, traj = self._roll_out(self.history[k])
+                opacity = 0.15 + 0.6 * (i + 1) / len(updates)
+                style = {"color": (120, 120, 120), "radius": 0.005, "opacity": opacity}
+                if not traj.failed:
+                    self._add_trails(self._ghost_nodes, traj, f"/history/update{k}", **style)
             self._refresh_tree()
 
     def add_prediction_layer(
@@ -585,36 +547,23 @@ class Viewer:
             raise ValueError(msg)
         if label is not None and (not isinstance(label, str) or not label.strip()):
             raise ValueError(f"label: expected a non-empty string, got {label!r}")
+        if space not in ("state", "points"):
+            raise ValueError(f"space: expected 'state' or 'points', got {space!r}")
         x = check_array(trajectories, "trajectories", ndim=3)
         L, T, n = x.shape
         min_steps = 1 if space == "points" else 2
         if L < 1 or T < min_steps:
-            raise ValueError(
-                f"trajectories: expected shape (L, T, n) with L >= 1, T >= {min_steps}, "
-                f"got {x.shape}"
-            )
-        if space == "state":
-            if n != self.scene.state_dim:
-                raise ValueError(
-                    f"trajectories: expected states of dimension {self.scene.state_dim} "
-                    f"for task {self.task.name!r}, got shape {x.shape} "
-                    "(pass space='points' for 3-D points)"
-                )
-            points = self.scene.points(x)
-        elif space == "points":
-            if n != 3:
-                msg = f"trajectories: space='points' needs shape (L, T, 3), got {x.shape}"
-                raise ValueError(msg)
-            points = x
-        else:
-            raise ValueError(f"space: expected 'state' or 'points', got {space!r}")
+            msg = f"trajectories: expected shape (L, T, n), L >= 1, T >= {min_steps}, got {x.shape}"
+            raise ValueError(msg)
+        dim = self.scene.state_dim if space == "state" else 3
+        if n != dim:
+            msg = f"trajectories: expected {space} vectors of dimension {dim}, got shape {x.shape}"
+            raise ValueError(msg)
+        points = self.scene.points(x) if space == "state" else x
         if times is None:
-            base = self.trajectory.times if self.trajectory is not None else np.zeros(0)
-            if base.shape[0] >= T:
-                times = base[:T]
-            else:
-                dt = float(base[1] - base[0]) if base.shape[0] > 1 else 1.0
-                times = (base[0] if base.shape[0] else 0.0) + dt * np.arange(T)
+            base = self.trajectory.times
+            dt = float(base[1] - base[0]) if base.shape[0] > 1 else 1.0
+            times = base[:T] if base.shape[0] >= T else base[0] + dt * np.arange(T)
         times = check_array(times, "times", shape=(T,))
         if np.any(np.diff(times) < 0):
             raise ValueError("times: expected non-decreasing time stamps")
@@ -624,35 +573,23 @@ class Viewer:
         opacity = check_opacity(opacity) or 1.0
         with self._lock:
             self.remove_prediction_layer(name)
-            base = check_path(f"/predictions/{name}")
-            scene = self.server.scene
-            layer = PredictionLayer(name, points, times, color, opacity, label=label or name)
-            nodes = layer.nodes
-            dots = functools.partial(scene.add_point_cloud, colors=color)
+            base, scene = f"/predictions/{name}", self.server.scene
+            layer = PredictionLayer(name, points, times, color, opacity, label or name)
+            trail = functools.partial(add_trail, scene, color=color)
+            dots = functools.partial(scene.add_point_cloud, colors=color, point_shape="circle")
             if T >= 2:
-                trail = functools.partial(add_trail, scene, color=color)
-                nodes[f"{base}/samples"] = trail(
-                    f"{base}/samples", points, opacity=opacity, radius=0.004
-                )
-                mean, mean_opacity = points.mean(axis=0), min(1.0, 2 * opacity)
-                nodes[f"{base}/mean"] = trail(
-                    f"{base}/mean", mean, opacity=mean_opacity, radius=0.008
-                )
+                samples = trail(f"{base}/samples", points, opacity=opacity, radius=0.004)
+                m = points.mean(axis=0)
+                mean = trail(f"{base}/mean", m, opacity=min(1.0, 2 * opacity), radius=0.008)
             else:  # predicted points: the L dots and their mean
-                samples, mean = points[:, 0], points[:, 0].mean(axis=0, keepdims=True)
-                nodes[f"{base}/samples"] = dots(
-                    f"{base}/samples", samples, point_size=0.02, point_shape="circle"
-                )
-                nodes[f"{base}/mean"] = dots(
-                    f"{base}/mean", mean, point_size=0.045, point_shape="diamond"
-                )
-            now = layer.at(self.time)
-            nodes[f"{base}/now"] = dots(f"{base}/now", now, point_size=0.03, point_shape="circle")
+                samples = dots(f"{base}/samples", points[:, 0], point_size=0.02)
+                m = points[:, 0].mean(axis=0, keepdims=True)
+                mean = dots(f"{base}/mean", m, point_size=0.045, point_shape="diamond")
+            now = dots(f"{base}/now", layer.at(self.time), point_size=0.03)
+            layer.nodes = {handle.name: handle for handle in (samples, mean, now)}
             layer.visible = visible
-            folder = self.gui["predictions"]
-            folder.visible = True
             what = "trajectories" if T >= 2 else "points"
-            with folder:
+            with self.gui["predictions"]:
                 layer.checkbox = self.server.gui.add_checkbox(
                     f"{layer.label} (L={L})",
                     bool(visible),
@@ -675,7 +612,6 @@ class Viewer:
                 layer.checkbox.remove()
             if name in self.model_layer_names:
                 self.model_layer_names.remove(name)
-            self.gui["predictions"].visible = bool(self.layers) or self.model is not None
             self._refresh_legend()
             self._refresh_tree()
 
@@ -689,8 +625,10 @@ class Viewer:
         return entries + [(layer.label, layer.color) for layer in self.layers.values()]
 
     def _refresh_legend(self) -> None:
+        """The legend and, shown while it holds layers or a model, the Predictions folder."""
         if "legend" not in self.gui:
             return
+        self.gui["predictions"].visible = bool(self.layers) or self.model is not None
         rows = [
             f'<div><span style="color: rgb{tuple(color)}; font-size: 1.2em">&#9632;</span> '
             f"{html.escape(label)}</div>"
@@ -720,12 +658,10 @@ class Viewer:
             The model has no ``prediction_layers(context, omega, n_samples, rng)``, was fitted
             on another task (``task.name``), or its answer has the wrong shapes.
         """
-        from skillkit.viz.model_layers import check_has_layers, check_model_task
+        from skillkit.viz.model_layers import check_model_task
 
         self._require_started()
-        check_has_layers(model)
         check_model_task(model, self.task.name)
-        n_samples = check_count(n_samples, "n_samples")
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
             raise ValueError(f"seed: expected an integer, got {seed!r}")
         with self._lock:
@@ -743,7 +679,6 @@ class Viewer:
         with self._lock:
             self._remove_model_layers()
             self.model, self._model_key, self._model_error = None, None, ""
-            self.gui["predictions"].visible = bool(self.layers)
             self._refresh_legend()
 
     def _remove_model_layers(self) -> None:

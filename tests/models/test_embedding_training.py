@@ -301,12 +301,8 @@ def test_fit_reduces_the_loss_and_finds_the_irrelevant_input():
     fit = fit_hyperparameters(loss, lengthscale=[1.0, 1.0], lam=1e-2, max_iter=30)
     assert fit.loss < 0.2 * fit.initial_loss
     assert fit.lengthscale[1] > 5 * fit.lengthscale[0]
-    fixed = [
-        fit_hyperparameters(loss, lengthscale=[1.0, 1.0], lam=1e-2, learn_lam=False, max_iter=4)
-        for _ in range(2)
-    ]
-    assert fixed[0].lam == 1e-2
-    np.testing.assert_array_equal(fixed[0].lengthscale, fixed[1].lengthscale)  # deterministic
+    again = fit_hyperparameters(loss, lengthscale=[1.0, 1.0], lam=1e-2, max_iter=30)
+    np.testing.assert_array_equal(fit.lengthscale, again.lengthscale)  # deterministic
 
 
 def test_fit_started_elsewhere_searches_the_reference_box():

@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from skillkit.models.gp import ExactGP, ForwardModel, GPNumericalWarning, Moments
-from skillkit.models.pathwise import PathwiseBasis, draw_functions, pathwise_flops_per_step
+from skillkit.models.pathwise import PathwiseBasis, pathwise_flops_per_step
 from skillkit.models.sampling import sample_trajectories
 from skillkit.models.sparse import FITC
 
@@ -45,8 +45,14 @@ def _latent_standardised(p, q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor
 
 def _values(functions, q: torch.Tensor) -> torch.Tensor:
     """g_i(q_j) for every function i and query j: Tensor (n_functions, n_queries, E)."""
-    n = len(functions)
+    n = functions.amplitudes.shape[0]
     return torch.stack([functions.latent(qj.expand(n, -1)) for qj in q], dim=1)
+
+
+def draw_functions(predictor, n: int, n_features: int, rng: int):
+    """``n`` posterior functions, one seed each from ``rng``."""
+    seeds = np.random.default_rng(rng).integers(2**63 - 1, size=n)
+    return PathwiseBasis(predictor, n_features).draw(seeds)
 
 
 def test_one_step_marginals_equal_the_gp_posterior(model):
@@ -173,8 +179,6 @@ def test_bad_input(model):
         PathwiseBasis(model.predictor, 2.5)
     with pytest.raises(ValueError, match="predictor"):
         PathwiseBasis(model, 8)
-    with pytest.raises(ValueError, match="n: expected an integer"):
-        draw_functions(model.predictor, 0)
 
     class NotAGP:
         state_dim, control_dim = 2, 1

@@ -24,13 +24,13 @@ from skillkit.experiments.ch4_trajectory_kl import (
 from skillkit.models.trajectory_kl import (
     LinearGaussianTKL,
     PseudoDataGP,
+    _dual,
     fit_one_step,
     fit_trajectory_kl,
     gaussian_expected_features,
     gaussian_expected_features_vjp,
     one_step_log_likelihood,
     state_features,
-    trajectory_kl_dual,
     trajectory_kl_objective,
 )
 
@@ -120,9 +120,14 @@ def test_expected_feature_gradient_b7_matches_finite_differences(cross):
 
 
 # --------------------------------------------------------------------------- the dual
+def _dual_of(gammas, phi, psi, ridge=0.0):
+    """The dual (4.16) with φ̂ the mean of the first step's features."""
+    return _dual(gammas, phi, psi, phi[0].mean(0), ridge)
+
+
 def test_dual_value_matches_the_naive_sum_and_weights_are_normalised():
     gammas, phi, psi = _toy()
-    d = trajectory_kl_dual(gammas, phi, psi)
+    d = _dual_of(gammas, phi, psi)
     phi_hat = phi[0].mean(0)
     tol = _dual_tol(gammas, phi, psi, phi_hat)
     assert d.value == pytest.approx(_dual_naive(gammas, phi, psi, phi_hat), rel=0, abs=tol)
@@ -131,13 +136,13 @@ def test_dual_value_matches_the_naive_sum_and_weights_are_normalised():
 
 def test_dual_gradients_b4_b5_b6_match_finite_differences():
     gammas, phi, psi = _toy()
-    d = trajectory_kl_dual(gammas, phi, psi, ridge=0.3)
+    d = _dual_of(gammas, phi, psi, ridge=0.3)
 
     def value_gamma(g):
-        return trajectory_kl_dual(g.reshape(gammas.shape), phi, psi, ridge=0.3).value
+        return _dual_of(g.reshape(gammas.shape), phi, psi, ridge=0.3).value
 
     def value_psi(p):
-        return trajectory_kl_dual(gammas, phi, p.reshape(psi.shape), ridge=0.3).value
+        return _dual_of(gammas, phi, p.reshape(psi.shape), ridge=0.3).value
 
     _close(d.grad_gamma, _fd(value_gamma, gammas.ravel()).reshape(gammas.shape))
     _close(d.grad_predicted, _fd(value_psi, psi.ravel()).reshape(psi.shape))
@@ -145,7 +150,7 @@ def test_dual_gradients_b4_b5_b6_match_finite_differences():
 
 def test_dual_is_stable_for_large_multipliers():
     gammas, phi, psi = _toy()
-    d = trajectory_kl_dual(1e4 * gammas, phi, psi)  # exp(a) would overflow without the shift
+    d = _dual_of(1e4 * gammas, phi, psi)  # exp(a) would overflow without the shift
     assert np.isfinite(d.value) and np.all(np.isfinite(d.grad_gamma))
     assert np.allclose(d.weights.sum(1), 1.0)
 
@@ -163,7 +168,7 @@ def test_marginals_4_14_satisfy_the_constraints_and_strong_duality():
     phi = rng.standard_normal((T, M, F))
     psi = phi[1:][:, rng.permutation(M)] * 0.5 + 0.2 * rng.standard_normal((T - 1, M, F))
     gam = _maximise(phi, psi)
-    d = trajectory_kl_dual(gam, phi, psi)
+    d = _dual_of(gam, phi, psi)
     p = d.weights
     assert np.allclose(p[0] @ phi[0], phi[0].mean(0), atol=1e-8)  # (4.11)
     for t in range(1, T):  # (4.12)
@@ -179,19 +184,7 @@ def test_dual_is_zero_when_the_model_predicts_the_next_features_exactly():
     gam = _maximise(phi, phi[1:].copy())
     # γ stays at 0 up to round-off (the constraints hold exactly there: ψ is φ[1:]).
     tol = _dual_tol(gam, phi, phi[1:], phi[0].mean(0))
-    assert trajectory_kl_dual(gam, phi, phi[1:]).value == pytest.approx(0.0, abs=tol)
-
-
-def test_dual_rejects_bad_shapes_naming_the_argument():
-    gammas, phi, psi = _toy()
-    with pytest.raises(ValueError, match="gammas"):
-        trajectory_kl_dual(gammas[:-1], phi, psi)
-    with pytest.raises(ValueError, match="predicted"):
-        trajectory_kl_dual(gammas, phi, psi[:-1])
-    with pytest.raises(ValueError, match="ridge"):
-        trajectory_kl_dual(gammas, phi, psi, ridge=-1.0)
-    with pytest.raises(ValueError, match="features"):
-        trajectory_kl_dual(gammas[:1], phi[:1], psi[:0])
+    assert _dual_of(gam, phi, phi[1:]).value == pytest.approx(0.0, abs=tol)
 
 
 # --------------------------------------------------------------------------- model classes

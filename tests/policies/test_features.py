@@ -22,7 +22,7 @@ def test_quadratic_values():
 def test_dimensions_and_single_vs_batch(name, n):
     rng = np.random.default_rng(n)
     s = rng.normal(size=(4, n))
-    phi = context_features(s, name, context_dim=n)
+    phi = context_features(s, name)
     assert phi.shape == (4, feature_dim(n, name))
     for i in range(4):
         np.testing.assert_array_equal(context_features(s[i], name), phi[i])
@@ -41,8 +41,6 @@ def test_quadratic_second_moments_are_features():
 def test_bad_input():
     with pytest.raises(ValueError, match="features"):
         context_features(np.zeros((2, 2)), "cubic")
-    with pytest.raises(ValueError, match="contexts"):
-        context_features(np.zeros((2, 3)), "linear", context_dim=2)
     with pytest.raises(ValueError, match="contexts"):
         context_features(np.array([[np.nan, 1.0]]), "linear")
     with pytest.raises(ValueError, match="contexts"):

@@ -18,9 +18,9 @@ from skillkit.search import collect, learn
 from skillkit.search.pilco import (
     PILCO,
     DeterministicPolicy,
+    GPMomentStep,
     PILCOSettings,
     expected_return,
-    gp_moment_step,
     linear_gaussian_step,
     optimize_gain,
 )
@@ -88,7 +88,7 @@ def test_gp_moment_step_chain_equals_moment_matching_propagate(target):
     target = np.array([0.1, -0.1, 0.0])
     m0, S0 = np.array([0.2, 0.1, -0.3]), 0.05 * np.eye(3)
     means, covs = propagate(model, m0, S0, 6, G, -G @ target)
-    value = expected_return(gp_moment_step(model), torch.tensor(G), m0, S0, 6, target, np.eye(3))
+    value = expected_return(GPMomentStep(model), torch.tensor(G), m0, S0, 6, target, np.eye(3))
     d = means[1:].numpy() - target
     ref = -(np.trace(covs[1:].numpy(), axis1=1, axis2=2).sum() + (d**2).sum())
     assert float(value) == pytest.approx(ref, rel=1e-8)
@@ -101,7 +101,7 @@ def test_policy_gradient_equals_finite_differences(seed, mean):
     control weights."""
     rng = np.random.default_rng(10 + seed)
     model = _random_fitc(seed, mean=mean)
-    step = gp_moment_step(model)
+    step = GPMomentStep(model)
     G0 = torch.tensor(0.3 * rng.standard_normal((2, 3)), requires_grad=True)
     Q = np.diag(rng.uniform(0.5, 2.0, 3))
 
@@ -251,7 +251,7 @@ def test_bad_input_names_the_argument():
     with pytest.raises(RuntimeError, match="update"):
         PILCO(task, pi0).expected_return(np.zeros((4, 8)))
     with pytest.raises(ValueError, match="model"):
-        gp_moment_step(object())
+        GPMomentStep(object())
 
 
 def test_policy_shapes_and_repr():
@@ -341,7 +341,7 @@ def test_pilco_checks_the_roundoff_of_its_optimised_gain_once_per_update():
     assert issubclass(caught[0].category, GPNumericalWarning)
     with pytest.raises(MomentPrecisionError, match="PILCO.update.*round-off"):
         _pilco_roundoff_run(_linear_limit_model, strict=True)
-    step = gp_moment_step(_random_fitc(5))
+    step = GPMomentStep(_random_fitc(5))
     assert step.roundoff is None and "none" in repr(step)
     J = expected_return(step, torch.zeros(2, 3, dtype=torch.float64), np.zeros(3),
                         0.05 * np.eye(3), 4, np.zeros(3), np.eye(3))  # fmt: skip

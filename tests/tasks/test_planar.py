@@ -14,16 +14,16 @@ import pytest
 from _tolerances import fp_tol
 
 from skillkit.tasks import make
-from skillkit.tasks.balancing import Balancing, balancing_transitions
+from skillkit.tasks.balancing import Balancing
 from skillkit.tasks.base import SimulationFailure
-from skillkit.tasks.controllers import pd_torque, run_feedback, track_reference
+from skillkit.tasks.controllers import run_feedback, track_reference
 from skillkit.tasks.planar import (
     DEMONSTRATION_FILE,
     Throwing,
     ballistic_flight,
     hand_kinematics,
     joint_limit_penalty,
-    path_distance,
+    path_distances,
     throwing_demonstration,
 )
 from skillkit.tasks.planar_model import LINK_LENGTHS, LINK_MASSES, UPRIGHT, compile_planar_robot
@@ -156,16 +156,6 @@ def test_tracker_follows_a_slow_reference(robot):
     assert np.max(np.abs(out["q"] - q_ref)) < 5e-4
 
 
-def test_pd_torque_closed_form_and_bad_input():
-    q = np.array([[0.0, 1.0], [2.0, 3.0]])
-    u = pd_torque(q, np.zeros(2), np.ones(2), np.ones(2), kp=[2.0, 3.0], kd=0.5, bias=[1.0, -1.0])
-    np.testing.assert_allclose(u, [[2 + 0.5 + 1, 0 + 0.5 - 1], [-2 + 0.5 + 1, -6 + 0.5 - 1]])
-    with pytest.raises(ValueError, match="kp"):
-        pd_torque(q, 0, 0, 0, kp=[1.0, 2.0, 3.0], kd=1.0)
-    with pytest.raises(ValueError, match="kd"):
-        pd_torque(q, 0, 0, 0, kp=1.0, kd=-1.0)
-
-
 def test_tracker_bad_input_and_blow_up(robot):
     model, data = robot
     ref = np.zeros((10, 4))
@@ -277,15 +267,14 @@ def test_reward_is_the_weighted_sum_of_its_terms(throwing):
     # closest point a + 1·(b − a) recovers b up to an ulp or two of |b|, the norm adds one).
     landing = np.array([traj.info["landing_x"], 0.0])
     tol = fp_tol(4, scale=np.abs(landing).max())
-    assert path_distance(traj.signals["ball"], landing) == pytest.approx(0.0, abs=tol)
+    assert path_distances(traj.signals["ball"][None], landing[None])[0] == pytest.approx(0, abs=tol)
 
 
 def test_path_distance_to_segments():
     path = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 2.0]])
-    assert path_distance(path, [1.0, 1.0]) == pytest.approx(1.0)
-    assert path_distance(path, [3.0, 1.0]) == pytest.approx(1.0)
-    assert path_distance(path, [-1.0, 0.0]) == pytest.approx(1.0)
-    assert path_distance(path[:1], [3.0, 4.0]) == pytest.approx(5.0)
+    points = np.array([[1.0, 1.0], [3.0, 1.0], [-1.0, 0.0]])
+    np.testing.assert_allclose(path_distances(np.stack([path] * 3), points), 1.0)
+    assert path_distances(path[None, :1], [[3.0, 4.0]])[0] == pytest.approx(5.0)
 
 
 def test_rescoring_in_another_context_equals_the_reward_there(throwing):
@@ -375,7 +364,7 @@ def test_balancing_reward_and_transitions(balancing):
     expected = -np.sum(10 * q**2 + 0.1 * qd**2 + 1e-5 * u**2)
     rel = fp_tol(q.size + qd.size + u.size + 2)  # same-sign weighted squares, as above
     assert noisy.reward(traj) == pytest.approx(expected, rel=rel)
-    x, u, x_next = balancing_transitions(traj)
+    x, u, x_next = noisy.transitions(traj)
     assert x.shape == (40, 8) and u.shape == (40, 4) and x_next.shape == (40, 8)
     np.testing.assert_array_equal(x[1:], x_next[:-1])
     assert traj.signals["torque_noise"].std() == pytest.approx(4.0, rel=0.2)
@@ -415,7 +404,7 @@ def test_balancing_bad_input(balancing):
     with pytest.warns(RuntimeWarning, match="failed"):
         failed = balancing._failed(np.zeros(32), np.zeros(0), "broken")
     with pytest.raises(ValueError, match="trajectory"):
-        balancing_transitions(failed)
+        balancing.transitions(failed)
 
 
 # ------------------------------------------------------------------- initial exploration

@@ -165,13 +165,19 @@ def test_net_stops_a_low_ball_and_lets_a_high_one_pass():
 
 
 # ----------------------------------------------------------------------------- racket impact
+def _resting(center, normal) -> RacketPath:
+    """A racket held still at ``center`` with blade normal ``normal`` over [0, 1] s."""
+    c, n, zeros = np.asarray(center, float), np.asarray(normal, float), np.zeros((2, 3))
+    return RacketPath(np.array([0.0, 1.0]), np.stack([c, c]), np.stack([n, n]), zeros, zeros)
+
+
 @pytest.mark.parametrize("tilt", [0.0, 0.35])
 def test_racket_at_rest_returns_the_ball_by_the_impact_law(tilt):
     e_r = 0.8
     physics = BallPhysics(drag=0.0, racket_restitution=e_r)
     n = np.array([np.cos(tilt), 0.0, np.sin(tilt)])
     center = np.array([-1.5, 0.0, 1.3])
-    racket = RacketPath.at_rest(center, n, 1.0)
+    racket = _resting(center, n)
     v0 = np.array([-4.0, 0.0, 0.0])
     flight = simulate_ball(
         center + [0.4, 0.0, 0.0], v0, 0.5, dt=0.002, physics=physics, racket=racket
@@ -217,7 +223,7 @@ def test_moving_racket_adds_its_normal_velocity():
 
 
 def test_ball_passing_beside_the_blade_is_not_hit():
-    racket = RacketPath.at_rest([-1.5, 0.0, 1.3], [1, 0, 0], 1.0)
+    racket = _resting([-1.5, 0.0, 1.3], [1, 0, 0])
     flight = simulate_ball(
         [-0.9, 0.15, 1.3],
         [-4.0, 0.0, 0.0],
@@ -379,7 +385,7 @@ def test_bad_ball_inputs_raise():
     with pytest.raises(ValueError, match="table_restitution"):
         BallPhysics(table_restitution=1.5)
     with pytest.raises(ValueError, match="normal"):
-        RacketPath.at_rest([0, 0, 1], [0, 0, 0], 1.0)
+        _resting([0, 0, 1], [0, 0, 0])
 
 
 def test_return_zone_is_the_opponents_half_and_near_is_a_variant(task):

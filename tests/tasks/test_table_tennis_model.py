@@ -139,7 +139,7 @@ def test_landing_and_bounce_models_predict_the_incoming_ball(fitted):
 def test_contact_svm_beats_the_majority_class_on_held_out_rollouts(fitted):
     task, model, stats, train, (s, w, _, trajs) = fitted
     x, hit, _ = model._real_contact_data(trajs)
-    acc = np.mean(model.classifier.predict(x) == hit)
+    acc = np.mean(model.contact.classifier.predict(x) == hit)
     majority = max(hit.mean(), 1 - hit.mean())
     assert 0 < hit.sum() < len(hit)
     assert acc > majority, (acc, majority)
@@ -325,7 +325,7 @@ def test_contact_features_are_equal_on_a_real_path_and_its_predicted_reproductio
         x_real, _, _ = model._real_contact_data([tr])
         quat = normal_to_quaternion(tr.signals["racket_normal"])[None]
         # the predicted path's incoming ball runs to the end of the episode
-        x_pred, event, cut = model.contact_inputs(
+        x_pred, event, cut = model.contact.inputs(
             ball[None], tr.signals["racket"][None], quat, np.array([t.size])
         )
         scale = max(np.abs(x_real).max(), 1.0 / task.control_dt)

@@ -17,12 +17,10 @@ from skillkit.experiments.registry import Series
 from skillkit.viz.figures import plot_gp_fit, plot_learning
 from skillkit.viz.plots import (
     MAX_DECADES,
-    Verdict,
     matplotlib_figure,
     plotly_figure,
     robust_range,
     subtitle,
-    verdict,
     write_figures,
 )
 
@@ -117,19 +115,19 @@ def test_the_verdict_line_is_the_subtitle_and_the_claim_stays_out(word):
         flat = _flat(title)
         assert "figX: a test (quick)" in flat and STATEMENT in flat
         assert CLAIM not in flat and "Thesis:" not in flat
-    assert verdict(r) == Verdict(CLAIM, word, STATEMENT)
+    assert subtitle(r) == STATEMENT
 
 
 def test_a_summary_without_a_verdict_line_shows_its_outcome_or_says_none_is_recorded():
     assert subtitle(_result(summary={"claim": CLAIM, "verdict": "undecided"})) == "undecided"
     r = _result(summary={"final": 3.0})
-    assert verdict(r).word == "no verdict recorded" and subtitle(r) == "no verdict recorded"
+    assert subtitle(r) == "no verdict recorded"
     assert "no verdict recorded" in _flat(_mpl_title(matplotlib_figure(r)))
 
 
 def test_results_without_a_claim_get_no_subtitle():
     r = _result()  # e.g. a learning curve or a comparison of two runs
-    assert verdict(r) is None and subtitle(r) == ""
+    assert subtitle(r) == ""
     assert "<span" not in plotly_figure(r).layout.title.text
 
 

@@ -488,6 +488,9 @@ def test_gp_samples_as_a_prediction_layer_follow_the_real_rollout(pendulum):
         states = sampled.states[0].numpy()  # (L, T + 1, 2)
         layer = v.add_prediction_layer("gp", states)
         real = v.scene.points(v.trajectory.states)
-        error = np.linalg.norm(layer.points.mean(axis=0) - real, axis=1)
-        assert error.max() < 0.05, error  # metres: the bob, predicted vs simulated (~0.01)
+        mean, spread = layer.points.mean(axis=0), layer.points.std(axis=0, ddof=1)
+        error = np.linalg.norm(mean - real, axis=1)  # the bob, predicted vs simulated (m)
+        assert error[0] == 0  # every sample starts at the real start state
+        # the real path lies inside the samples' band: within 3 sample std of their mean
+        assert np.all(error[1:] <= 3 * np.linalg.norm(spread[1:], axis=1)), error
         assert v.server.scene.get_handle_by_name("/predictions/gp/samples") is not None

@@ -37,15 +37,9 @@ from skillkit.tasks.hockey.reward import (
     OBSERVATION_NOISE,
     Observation,
     butterworth_smooth,
-    hockey_reward,
     hockey_reward_batch,
 )
-from skillkit.tasks.hockey.table import (
-    CONTROL_PUCK_START,
-    PuckTable,
-    TablePhysics,
-    coulomb_friction,
-)
+from skillkit.tasks.hockey.table import CONTROL_PUCK_START, PuckTable, TablePhysics
 from skillkit.tasks.hockey.task import Hockey
 
 __all__ = [
@@ -70,8 +64,6 @@ __all__ = [
     "arm_model",
     "blade_pose",
     "butterworth_smooth",
-    "coulomb_friction",
-    "hockey_reward",
     "hockey_reward_batch",
     "load_demonstration",
     "make_demonstration",

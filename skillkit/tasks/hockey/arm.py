@@ -6,7 +6,6 @@ import functools
 
 import mujoco
 import numpy as np
-from dm_control import mjcf
 
 from skillkit._validation import check_array
 from skillkit.tasks._mjcf import mjcf_root
@@ -46,11 +45,8 @@ CONTACT_SOLREF = (0.004, 1.0)
 stiffest the step allows)."""
 
 
-def build_arm_mjcf(timestep: float = TIMESTEP) -> mjcf.RootElement:
-    """MJCF model of the arm: bodies ``link1`` … ``link7`` with hinge joints ``j1`` … ``j7``
-    (:data:`JOINT_AXES`, :data:`JOINT_LIMITS`, :data:`ARMATURE`), sites ``flange`` and
-    ``blade``; only the blade box and the table plane collide (:data:`TABLE_FRICTION`,
-    :data:`CONTACT_SOLREF`). ``timestep`` in s; :func:`arm_model` compiles it."""
+@functools.lru_cache(maxsize=4)
+def _arm_xml(timestep: float) -> str:
     root = mjcf_root("lwr_hockey", timestep, geom_rgba=[1.0, 0.55, 0.1, 1.0])
     root.worldbody.add("light", pos=[0, 0, 3], dir=[0, 0, -1])
     contact = {"friction": [TABLE_FRICTION, 0.005, 0.0001], "solref": list(CONTACT_SOLREF)}
@@ -80,17 +76,15 @@ def build_arm_mjcf(timestep: float = TIMESTEP) -> mjcf.RootElement:
     blade.update(rgba=[0.1, 0.1, 0.1, 1], contype=0, conaffinity=1, **contact)
     parent.add("geom", name="blade", type="box", **blade)
     parent.add("site", name="blade", pos=[0, 0, BLADE_OFFSET], size=[0.01])
-    return root
-
-
-@functools.lru_cache(maxsize=4)
-def _compiled_arm_xml(timestep: float) -> str:
-    return build_arm_mjcf(timestep).to_xml_string()
+    return root.to_xml_string()
 
 
 def arm_model(timestep: float = TIMESTEP) -> mujoco.MjModel:
-    """The compiled arm model (:func:`build_arm_mjcf`), a fresh ``MjModel``."""
-    return mujoco.MjModel.from_xml_string(_compiled_arm_xml(float(timestep)))
+    """A fresh compiled ``MjModel`` of the arm: bodies ``link1`` … ``link7`` with hinge joints
+    ``j1`` … ``j7`` (:data:`JOINT_AXES`, :data:`JOINT_LIMITS`, :data:`ARMATURE`), sites
+    ``flange`` and ``blade``; only the blade box and the table plane collide
+    (:data:`TABLE_FRICTION`, :data:`CONTACT_SOLREF`). ``timestep`` in s."""
+    return mujoco.MjModel.from_xml_string(_arm_xml(float(timestep)))
 
 
 def _axis_rotation(axis: tuple[int, int, int], angle: np.ndarray) -> np.ndarray:
@@ -99,10 +93,8 @@ def _axis_rotation(axis: tuple[int, int, int], angle: np.ndarray) -> np.ndarray:
     one, zero = np.ones_like(angle), np.zeros_like(angle)
     if axis == (0, 0, 1):
         rows = [[c, -s, zero], [s, c, zero], [zero, zero, one]]
-    elif axis == (0, 1, 0):
+    else:  # the y axis
         rows = [[c, zero, s], [zero, one, zero], [-s, zero, c]]
-    else:
-        raise ValueError(f"axis: expected the y or z axis, got {axis}")
     return np.moveaxis(np.array(rows), (0, 1), (-2, -1))
 
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from importlib import resources
 from pathlib import Path
 
 import mujoco
@@ -23,7 +22,8 @@ DEMO_BLADE_HEIGHT = 0.045
 """Height of the blade centre above the table during the demonstration, m."""
 DEMO_POSTURE = np.array([-0.5, 0.6, 0.0, 1.5, 0.0, 1.0, 0.0])
 """Nominal posture the demonstration's inverse kinematics stays close to, rad."""
-DEMO_FILE = "hockey.npz"
+DEMO_PATH = Path(__file__).resolve().parents[2] / "data" / "demonstrations" / "hockey.npz"
+"""The shipped demonstration: ``np.savez(path, **make_demonstration())``."""
 
 
 def _ik_blade(model, data, site: int, position, rotation, q, posture) -> np.ndarray:
@@ -90,26 +90,10 @@ def make_demonstration(dt: float = TIMESTEP) -> dict[str, np.ndarray]:
     }
 
 
-def demonstration_path() -> Path:
-    """Path of the shipped demonstration ``skillkit/data/demonstrations/hockey.npz``."""
-    return Path(str(resources.files("skillkit") / "data" / "demonstrations" / DEMO_FILE))
-
-
-def load_demonstration(path: str | Path | None = None) -> dict[str, np.ndarray]:
+def load_demonstration(path: str | Path = DEMO_PATH) -> dict[str, np.ndarray]:
     """Read the demonstration written by ``np.savez(path, **make_demonstration())``."""
-    path = demonstration_path() if path is None else Path(path)
+    path = Path(path)
     if not path.exists():
-        raise ValueError(
-            f"path: no hockey demonstration at {path}; regenerate it with "
-            "np.savez(path, **make_demonstration())"
-        )
+        raise ValueError(f"path: no hockey demonstration at {path} (see make_demonstration)")
     with np.load(path, allow_pickle=False) as data:
         return {k: data[k] for k in data.files}
-
-
-def save_demonstration(path: str | Path | None = None) -> Path:
-    """Regenerate the demonstration and write it (default: the shipped package file)."""
-    path = demonstration_path() if path is None else Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    np.savez(path, **make_demonstration())
-    return path

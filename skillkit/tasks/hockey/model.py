@@ -1,15 +1,13 @@
 """The decomposed reward model of the robot hockey task (Sec. 4.3.3, Appendix C.2).
 
-Event models chained as in Sec. 4.3.3: 1. **launch** (GP ω ↦ the control puck's state where
-it crosses x = :data:`X_LAUNCH`, :class:`LaunchTargets`; once a shot that never crosses is
-seen, a second GP regresses ±1 on ω and a shot launches when a draw is positive); 2. **free
-sliding** (GP v ↦ Δ[p, v] over ``slide_dt``, iterated; slower than ``stop_speed`` or
-reversing stops); 3. **contact detection** from the puck radius (:func:`first_contact`);
-4. **contact** (GP: both velocities after the contact in the frame [n, t]); 5. the task's
-reward on the predicted paths, averaged over L (Eq. 4.1). In the **real setting**
-(``hockey-real``) the models learn from the smoothed observed tracks and the contact model is
-:class:`DisplacementModel`: after a predicted hit the paths run straight to its end points,
-padded with :data:`REST_FRAMES` rest frames for the reward's filter.
+Event models chained as in Sec. 4.3.3: 1. **launch** (GP ω ↦ the control puck's state at
+x = :data:`X_LAUNCH`, :class:`LaunchTargets`; once a shot never crosses, a GP ω ↦ ±1 whose
+positive draws launch); 2. **free sliding** (GP v ↦ Δ[p, v] per ``slide_dt``, iterated until
+slower than ``stop_speed`` or reversing); 3. **contact detection** from the puck radius
+(:func:`first_contact`); 4. **contact** (GP: both velocities after it in the frame [n, t]);
+5. the task's reward, averaged over L (Eq. 4.1). In the **real setting** (``hockey-real``)
+the models learn from the smoothed observed tracks and :class:`DisplacementModel` replaces
+model 4: after a predicted hit the paths run straight to its end points.
 """
 
 from __future__ import annotations
@@ -21,15 +19,20 @@ from typing import Any
 import numpy as np
 import torch
 
-from skillkit._validation import as_generator, check_array, check_count, check_positive
+from skillkit._validation import (
+    as_generator,
+    check_array,
+    check_choice,
+    check_count,
+    check_positive,
+)
 from skillkit.models.gp import ExactGP, GPRegression
 from skillkit.models.reward import (
     Prediction,
     RewardModel,
-    check_choice,
-    check_factories,
     check_refit,
     gp_stats,
+    set_factories,
     subsample,
     usable_trajectories,
     worst_if_nonfinite,
@@ -59,37 +62,29 @@ def _segment_hit(d0: np.ndarray, d1: np.ndarray, distance: float) -> tuple[np.nd
     return hit, np.where(inside, 0.0, np.where(hit, f, 0.0))
 
 
-def first_contact(control, target, radius: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def first_contact(control, target, radius: float) -> tuple[bool, int, float]:
     """First contact ‖d_k + f (d_{k+1} − d_k)‖ = 2r, d = x_c − x_t linear between samples.
 
     Parameters
     ----------
-    control, target : array_like, shape (B, T, 2) or (T, 2)
+    control, target : array_like, shape (T, 2)
         Puck centres at common sample times.
     radius : float
         r, m.
 
     Returns
     -------
-    hit, k, f : ndarray, shape (B,) (or () for one path)
+    hit, k, f : bool, int, float
         Whether they touch, and the contact x_k + f (x_{k+1} − x_k) (0, 0 where no hit).
     """
-    c = check_array(control, "control", ndim=(2, 3))
+    c = check_array(control, "control", ndim=2)
     t = check_array(target, "target", shape=c.shape)
     radius = check_positive(radius, "radius")
-    single = c.ndim == 2
-    if single:
-        c, t = c[None], t[None]
-    if c.shape[-1] != 2 or c.shape[1] < 2:
-        raise ValueError(f"control: expected paths of shape (B, T >= 2, 2), got {c.shape}")
-    d = c - t
-    hits, f = _segment_hit(d[:, :-1], d[:, 1:], 2.0 * radius)
-    hit = hits.any(axis=1)
-    k = np.where(hit, hits.argmax(axis=1), 0)
-    frac = np.where(hit, f[np.arange(len(k)), k], 0.0)
-    if single:
-        return hit[0], k[0], frac[0]
-    return hit, k, frac
+    if c.shape[1] != 2 or c.shape[0] < 2:
+        raise ValueError(f"control: expected a path of shape (T >= 2, 2), got {c.shape}")
+    hits, f = _segment_hit(c[:-1] - t[:-1], c[1:] - t[1:], 2.0 * radius)
+    k = int(hits.argmax())  # 0 with f = 0 where none
+    return bool(hits[k]), k, float(f[k])
 
 
 def _crossing(path: np.ndarray, x_line: float) -> tuple[int, float] | None:
@@ -133,7 +128,7 @@ class LaunchTargets:
     """
 
     def __init__(self, kind: str = "heading"):
-        self.kind = check_choice(kind, LAUNCH_TARGETS, "launch_targets")
+        self.kind = check_choice(kind, "launch_targets", LAUNCH_TARGETS)
 
     def encode(self, state: np.ndarray) -> np.ndarray:
         """GP targets (N, 4) of launch states (N, 4)."""
@@ -202,17 +197,12 @@ class DisplacementModel:
     hit_distance : float
         An approach is a hit when the target puck moved more than this, m.
 
-    Attributes
-    ----------
-    gp : fitted GP regression or None
-    classifier : sklearn estimator or None
-        None while the data hold one class only; then ``hit_rate`` is used.
-    hit_rate : float
-        Fraction of hits in the training data.
+    Once fitted: ``gp``; ``classifier`` (None while the data hold one class: then the
+    fraction of hits ``hit_rate``).
     """
 
     def __init__(self, kind: str = "hit_gp", hit_distance: float = 0.08):
-        self.kind = check_choice(kind, DISPLACEMENT_MODELS, "displacement")
+        self.kind = check_choice(kind, "displacement", DISPLACEMENT_MODELS)
         self.hit_distance = check_positive(hit_distance, "hit_distance")
         self.gp = None
         self.classifier = None
@@ -259,9 +249,7 @@ class DisplacementModel:
     def draw_hits(self, x: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """Bernoulli hit draws for approaches x (N, 4), (N,) bool."""
         p = self.hit_probability(x)
-        if self.kind == "gp":
-            return p > 0
-        return rng.random(p.shape[0]) < p
+        return p > 0 if self.kind == "gp" else rng.random(p.shape[0]) < p
 
     def draw(self, x: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """One draw of [Δy_target, Δx_control] (N, 4), world frame (zeros without a GP)."""
@@ -368,16 +356,14 @@ class HockeyRewardModel(RewardModel):
     ):
         if not isinstance(task, Hockey):
             raise ValueError(f"task: expected a Hockey task, got {type(task).__name__}")
-        factories = {
-            "make_launch_model": make_launch_model,
-            "make_launch_probability_model": make_launch_probability_model,
-            "make_sliding_model": make_sliding_model,
-            "make_contact_model": make_contact_model,
-            "make_displacement_model": make_displacement_model,
-        }
-        check_factories(**factories)
-        for name, f in factories.items():
-            setattr(self, name, f or ExactGP)
+        set_factories(
+            self,
+            make_launch_model=(make_launch_model, ExactGP),
+            make_launch_probability_model=(make_launch_probability_model, ExactGP),
+            make_sliding_model=(make_sliding_model, ExactGP),
+            make_contact_model=(make_contact_model, ExactGP),
+            make_displacement_model=(make_displacement_model, ExactGP),
+        )
         self.task = task
         self.real = task.observation is not None if real is None else bool(real)
         if self.real and task.observation is None:
@@ -411,7 +397,6 @@ class HockeyRewardModel(RewardModel):
         self._hypers: dict[str, dict | None] = dict.fromkeys(self._KEYS)
         self.n_data = 0
 
-    # ------------------------------------------------------------------ data
     def paths(self, trajectory) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The puck paths a model learns from, times (T,), control and target (T, 2): recorded,
         or in the real setting observed and smoothed with the reward's filter."""
@@ -453,19 +438,17 @@ class HockeyRewardModel(RewardModel):
         k = int(hit.argmax())
         return float((1 - f[k]) * times[k] + f[k] * times[k + 1])
 
-    def sliding_data(self, trajectories) -> tuple[np.ndarray, np.ndarray]:
+    def sliding_data(self, trajectories, t_launch) -> tuple[np.ndarray, np.ndarray]:
         """Sliding transitions v_k (N, 2) → Δ[p, v] (N, 4) on a ``slide_dt`` grid (control puck
-        from its launch, target from the contact), none near a contact or slow."""
+        from its launch at ``t_launch``, NaN for none; target from the contact), none near a
+        contact or slow."""
         dt, xs, ys = self.slide_dt, [], []
-        for t in trajectories:
-            times, c, y = self.paths(t)
-            cross = _crossing(c, X_LAUNCH)
-            if cross is None:
+        for t, t0 in zip(trajectories, t_launch, strict=True):
+            if np.isnan(t0):
                 continue
-            k, f = cross
-            t_launch = (1 - f) * times[k - 1] + f * times[k]
+            times, c, y = self.paths(t)
             t_contact = self._contact_time(times, c, y)
-            for path, start in ((c, t_launch), (y, t_contact)):
+            for path, start in ((c, t0), (y, t_contact)):
                 if start is None:
                     continue
                 grid = np.arange(start, times[-1] - dt + 1e-12, dt)
@@ -498,14 +481,11 @@ class HockeyRewardModel(RewardModel):
                 continue
             tc = (1 - f) * times[k] + f * times[k + 1]
             pc = (1 - f) * c[k] + f * c[k + 1]
-            n = y[k] - pc
-            n = n / np.linalg.norm(n)
-            R = _frame(n)
+            R = _frame((y[k] - pc) / np.linalg.norm(y[k] - pc))
             vc = np.gradient(c, times, axis=0)
             vy = np.gradient(y, times, axis=0)
-            before = _interp(times, vc, tc - self.contact_margin)
             after = tc + self.contact_margin + (times[k + 1] - times[k])
-            xs.append(R @ before)
+            xs.append(R @ _interp(times, vc, tc - self.contact_margin))
             ys.append(np.r_[R @ _interp(times, vc, after), R @ _interp(times, vy, after)])
         return np.array(xs).reshape(-1, 2), np.array(ys).reshape(-1, 4)
 
@@ -525,7 +505,6 @@ class HockeyRewardModel(RewardModel):
             ys.append(np.r_[y[-1] - y[0], c[-1] - pc])
         return np.array(xs).reshape(-1, 4), np.array(ys).reshape(-1, 4)
 
-    # ------------------------------------------------------------------ fit
     def _fit_gp(self, key: str, x: np.ndarray, y: np.ndarray, rng) -> tuple[Any, dict]:
         gp, record = self._refit(key, getattr(self, f"make_{key}_model"), x, y, rng)
         if self.device is not None:
@@ -541,16 +520,10 @@ class HockeyRewardModel(RewardModel):
         """
         ok = usable_trajectories(trajectories, "hockey")
         rng = as_generator(rng)
-        omegas = check_array(omegas, "omegas", shape=(None, self.task.parameter_dim))
-        if omegas.shape[0] != len(trajectories):
-            raise ValueError(
-                f"omegas: expected one row per trajectory ({len(trajectories)}), "
-                f"got {omegas.shape[0]}"
-            )
-        keep = [i for i, t in enumerate(trajectories) if not t.failed]
-        _, first = np.unique([id(trajectories[i]) for i in keep], return_index=True)
-        keep = [keep[i] for i in sorted(first)]
-        w = omegas[keep]
+        shape = (len(trajectories), self.task.parameter_dim)  # one row per trajectory
+        omegas = check_array(omegas, "omegas", shape=shape)
+        first = {id(t): i for i, t in reversed(list(enumerate(trajectories)))}
+        w = omegas[[first[id(t)] for t in ok]]
         crossed, launch = self.launch_data(ok)
         if crossed.sum() < 2:
             raise ValueError("trajectories: fewer than two launched shots to learn from")
@@ -566,43 +539,33 @@ class HockeyRewardModel(RewardModel):
         fit("launch", w[crossed], LaunchTargets(self.launch_targets).encode(launch[crossed]))
         if not crossed.all():
             fit("launch_probability", w, np.where(crossed, 1.0, -1.0))
-        x, y = self.sliding_data(ok)
+        x, y = self.sliding_data(ok, launch[:, 3])
         self.n_data = int(x.shape[0])
         fit("sliding", *subsample(rng, self.max_sliding_points, x, y))
         self.models.update({key: f[0] for key, f in fits.items()})
-        if self.real:
-            stats.update(self._fit_displacement(ok, rng, fit))
-        else:
-            cx, cy = self.contact_data(ok)
-            stats["n_contacts"] = int(cx.shape[0])
-            if cx.shape[0] >= 2:
-                cx, cy = subsample(rng, self.max_contact_points, cx, cy)
-                self.models["contact"] = fit("contact", cx, cy)
+        cx, cy = (self.displacement_data if self.real else self.contact_data)(ok)
+        stats["n_contacts"] = int(cx.shape[0])
+        cx, cy = subsample(rng, self.max_contact_points, cx, cy)
+        if not self.real and cx.shape[0] >= 2:
+            self.models["contact"] = fit("contact", cx, cy)
+        elif self.real:
+            model = DisplacementModel(self.displacement)
+            model.fit_classifier(cx, cy)
+            gx, gy = model.gp_data(cx, cy)
+            if gx.shape[0] >= 2:
+                model.gp = fit("displacement", gx, gy)
+                self.models["displacement"] = model
+            if model.kind == "hit_gp":
+                stats["n_hits"] = int(gx.shape[0])
+                if cx.shape[0]:
+                    guess = model.hit_probability(cx) > 0.5  # all misses without a GP
+                    stats["hit_accuracy"] = float(np.mean(guess == model.hits(cy)))
         stats["n_data"] = self.n_data
         for key, (gp, record, n) in fits.items():
             if isinstance(gp, GPRegression):
                 stats[key] = {**gp_stats(gp, n), **record}
         return stats
 
-    def _fit_displacement(self, ok, rng, fit) -> dict[str, Any]:
-        """Fit the real setting's :class:`DisplacementModel`; its own stats."""
-        model = DisplacementModel(self.displacement)
-        cx, cy = self.displacement_data(ok)
-        out: dict[str, Any] = {"n_contacts": int(cx.shape[0])}
-        cx, cy = subsample(rng, self.max_contact_points, cx, cy)
-        model.fit_classifier(cx, cy)
-        gx, gy = model.gp_data(cx, cy)
-        if gx.shape[0] >= 2:
-            model.gp = fit("displacement", gx, gy)
-            self.models["displacement"] = model
-        if model.kind == "hit_gp":
-            out["n_hits"] = int(gx.shape[0])
-            if cx.shape[0]:
-                guess = model.hit_probability(cx) > 0.5  # all misses without a GP
-                out["hit_accuracy"] = float(np.mean(guess == model.hits(cy)))
-        return out
-
-    # ------------------------------------------------------------------ predict
     def _draw(self, key: str, x: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """One draw y ~ N(μ(x), σ²(x)) of GP ``key`` (noisy observation), shape (n, E)."""
         if x.shape[0] == 0:
@@ -631,8 +594,7 @@ class HockeyRewardModel(RewardModel):
         if self.models["launch_probability"] is not None:
             launched = self._draw("launch_probability", w, rng)[:, 0] > 0
         state = np.column_stack([np.full(n, X_LAUNCH), draw[:, :3]])
-        start = np.r_[CONTROL_PUCK_START, 0.0, 0.0]
-        state[~launched] = start
+        state[~launched] = np.r_[CONTROL_PUCK_START, 0.0, 0.0]
         return state, np.maximum(draw[:, 3], 0.0), launched
 
     def predict(self, contexts, omegas, n_trajectories: int, rng=None) -> HockeyPrediction:
@@ -772,7 +734,6 @@ class HockeyRewardModel(RewardModel):
         )
         return pc, pt, contact, index
 
-    # ------------------------------------------------------------------ viewer
     def prediction_layers(self, context, omega, n_samples: int, rng=None) -> dict[str, dict]:
         """``{legend: {"trajectories": (L, T, 3), "color": (r, g, b)}}`` of one pair's predicted
         launch arrows (0.1 s) and puck paths before and after the contact, at :data:`PUCK_Z`."""

@@ -28,41 +28,32 @@ class Observation:
     order: int = BUTTER_ORDER
 
     def __post_init__(self) -> None:
-        rate = check_positive(self.rate, "rate")
+        _filter_settings(self.rate, self.cutoff, self.order)
         check_positive(self.noise, "noise", allow_zero=True)
-        if check_positive(self.cutoff, "cutoff") >= rate / 2:
-            raise ValueError(
-                f"cutoff: expected a frequency below the Nyquist frequency {rate / 2:g} Hz, "
-                f"got {self.cutoff!r}"
-            )
-        check_count(self.order, "order")
 
 
-def hockey_reward(control_puck, target_puck, context) -> float:
-    """R(τ, s) = −min_t ‖x_t − b‖ − |d_T − d*| (Appendix C.2).
+def _filter_settings(rate, cutoff, order) -> tuple[float, float, int]:
+    """Validated Butterworth settings: a cut-off below the Nyquist frequency, an order ≥ 1."""
+    rate = check_positive(rate, "rate")
+    if check_positive(cutoff, "cutoff") >= rate / 2:
+        raise ValueError(f"cutoff: expected < the Nyquist frequency {rate / 2:g} Hz, got {cutoff}")
+    return rate, float(cutoff), check_count(order, "order")
+
+
+def hockey_reward_batch(control_puck, target_puck, contexts) -> np.ndarray:
+    """R(τ, s) = −min_t ‖x_t − b‖ − |d_T − d*| (Appendix C.2) of a batch.
 
     Parameters
     ----------
-    control_puck, target_puck : array_like, shape (T, 2), (T', 2)
+    control_puck, target_puck : array_like, shape (B, T, 2), (B, T', 2)
         Puck paths x and y (m); d_T = ‖y_{T'} − y_1‖.
-    context : array_like, shape (3,)
+    contexts : array_like, shape (B, 3)
         s = [b_x, b_y, d*].
 
     Returns
     -------
-    float
+    ndarray, shape (B,)
     """
-    x = check_array(control_puck, "control_puck", shape=(None, 2))
-    y = check_array(target_puck, "target_puck", shape=(None, 2))
-    s = check_array(context, "context", shape=(3,))
-    if x.shape[0] == 0 or y.shape[0] == 0:
-        raise ValueError("control_puck, target_puck: expected at least one sample")
-    return float(hockey_reward_batch(x[None], y[None], s[None])[0])
-
-
-def hockey_reward_batch(control_puck, target_puck, contexts) -> np.ndarray:
-    """:func:`hockey_reward` of a batch: pucks (B, T, 2) and (B, T', 2), contexts (B, 3);
-    shape (B,)."""
     x = check_array(control_puck, "control_puck", shape=(None, None, 2))
     y = check_array(target_puck, "target_puck", shape=(x.shape[0], None, 2))
     s = check_array(contexts, "contexts", shape=(x.shape[0], 3))
@@ -79,16 +70,8 @@ def butterworth_smooth(
     """Zero-phase Butterworth low-pass (``scipy.signal.filtfilt``) of samples along ``axis`` at
     ``rate`` Hz; ValueError for too few samples."""
     x = check_array(values, "values", ndim=(1, 2, 3))
-    rate = check_positive(rate, "rate")
-    cutoff = check_positive(cutoff, "cutoff")
-    if cutoff >= rate / 2:
-        raise ValueError(
-            f"cutoff: expected a frequency below the Nyquist frequency {rate / 2:g} Hz, "
-            f"got {cutoff:g}"
-        )
-    if isinstance(order, bool) or not isinstance(order, (int, np.integer)) or order < 1:
-        raise ValueError(f"order: expected an integer >= 1, got {order!r}")
-    b, a = signal.butter(int(order), cutoff, btype="low", fs=rate)
+    rate, cutoff, order = _filter_settings(rate, cutoff, order)
+    b, a = signal.butter(order, cutoff, btype="low", fs=rate)
     padlen = 3 * max(len(a), len(b))
     if x.shape[axis] <= padlen:
         raise ValueError(f"values: filtfilt needs more than {padlen} samples, got {x.shape[axis]}")

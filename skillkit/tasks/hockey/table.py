@@ -53,33 +53,16 @@ class TablePhysics:
         for name in ("restitution_pucks", "restitution_racket"):
             e = getattr(self, name)
             if not 0.0 <= e <= 1.0:
-                raise ValueError(
-                    f"{name}: expected a coefficient of restitution in [0, 1], got {e}"
-                )
+                raise ValueError(f"{name}: expected a restitution in [0, 1], got {e}")
 
     @property
     def deceleration(self) -> float:
         """Sliding deceleration μ g, m/s²."""
         return self.friction * self.gravity
 
-    def stopping_distance(self, speed: float) -> float:
-        """Distance v²/(2 μ g) a puck sliding at ``speed`` travels before it stops (μ > 0)."""
-        if self.friction <= 0:
-            raise ValueError("friction: a frictionless puck never stops")
-        return float(speed) ** 2 / (2.0 * self.deceleration)
-
-
-def coulomb_friction(velocity, deceleration: float, dt: float) -> np.ndarray:
-    """One step of Coulomb friction on a velocity (2,): v ← v · max(0, 1 − a Δt / ‖v‖), a = μ g
-    = ``deceleration`` (m/s²)."""
-    v = np.asarray(velocity, dtype=np.float64)
-    speed = math.hypot(v[0], v[1])
-    if speed <= deceleration * dt:
-        return np.zeros(2)
-    return v * (1.0 - deceleration * dt / speed)
-
 
 _PUCK, _RACKET = 1, 2
+_NO_COLLISION = pymunk.ShapeFilter(categories=0, mask=0)
 
 
 class PuckTable:
@@ -131,7 +114,7 @@ class PuckTable:
             body.position = (-10.0, -10.0)
             shape = pymunk.Poly.create_box(body, (2 * BLADE_HALF[0], 2 * BLADE_HALF[1]))
             shape.collision_type = _RACKET
-            shape.filter = pymunk.ShapeFilter(categories=0, mask=0)
+            shape.filter = _NO_COLLISION
             space.add(body, shape)
             self.racket = body
             self._racket_shape = shape
@@ -143,7 +126,7 @@ class PuckTable:
         body.position = (float(position[0]), float(position[1]))
         decel = p.deceleration
 
-        def friction(body, gravity, damping, dt):  # coulomb_friction, inlined for speed
+        def friction(body, gravity, damping, dt):  # Coulomb: v ← v max(0, 1 − μ g Δt / ‖v‖)
             vx, vy = body.velocity
             if vx == 0.0 and vy == 0.0:
                 return
@@ -183,20 +166,19 @@ class PuckTable:
         self.racket.velocity = ((next_pose[0] - pose[0]) / dt, (next_pose[1] - pose[1]) / dt)
         dyaw = math.remainder(float(next_pose[2]) - float(pose[2]), 2 * math.pi)
         self.racket.angular_velocity = dyaw / dt
-        if active != self._racket_active:
-            self._racket_active = active
-            self._racket_shape.filter = (
-                pymunk.ShapeFilter() if active else pymunk.ShapeFilter(categories=0, mask=0)
-            )
+        self._activate(active)
 
     def lift_racket(self) -> None:
         """Take the blade out of play for good."""
         if self.racket is not None:
             self.racket.velocity = (0.0, 0.0)
             self.racket.angular_velocity = 0.0
-            if self._racket_active:
-                self._racket_active = False
-                self._racket_shape.filter = pymunk.ShapeFilter(categories=0, mask=0)
+            self._activate(False)
+
+    def _activate(self, active: bool) -> None:
+        if active != self._racket_active:
+            self._racket_active = active
+            self._racket_shape.filter = pymunk.ShapeFilter() if active else _NO_COLLISION
 
     def step(self, dt: float | None = None) -> None:
         """Advance the table by ``dt`` (default ``physics.dt``)."""

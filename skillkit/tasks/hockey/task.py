@@ -10,6 +10,7 @@ import numpy as np
 
 from skillkit._validation import check_array
 from skillkit.policies.dmp import DMP, DMPParameters
+from skillkit.policies.gaussian import LinearGaussianPolicy
 from skillkit.tasks.base import ModelSignals, SimulationFailure, Task, check_count
 from skillkit.tasks.controllers import control_substeps, track_reference
 from skillkit.tasks.hockey.arm import (
@@ -40,7 +41,11 @@ FOLLOW_THROUGH_TAU = 0.05
 MAX_DURATION = 8.0
 """Longest episode, s (the pucks usually stop earlier)."""
 RECORD_DT = 0.008
-"""Sampling period of the recorded arm and puck signals, s (see :func:`hockey_reward`)."""
+"""Sampling period of the recorded arm and puck signals, s."""
+EXPLORATION_STD = np.concatenate(
+    [[0.06, 0.04, 0.06, 0.05, 0.06, 0.05, 0.2], np.full(N_JOINTS, 0.25), [0.1]]
+)
+"""Default initial exploration standard deviations of ω = [g, ġ, τ], shape (15,)."""
 
 
 class Hockey(Task):
@@ -54,14 +59,13 @@ class Hockey(Task):
     observation : Observation, optional
         Noisy puck tracking of the real-robot setting, read (smoothed) by the reward.
     exploration_std : array_like, shape (15,), optional
-        Of the initial policy (default :meth:`default_exploration`).
+        Of the initial policy (default :data:`EXPLORATION_STD`).
     name : str
     """
 
     context_dim = 3
     parameter_dim = 2 * N_JOINTS + 1
     context_names = ("b_x", "b_y", "d_star")
-    trajectory_depends_on_context = True
     worst_reward = -20.0
     """Below any working rollout (‖x_0 − b‖ < 3 m; a launched puck travels a few metres)."""
 
@@ -82,9 +86,7 @@ class Hockey(Task):
         if not isinstance(physics, TablePhysics):
             raise ValueError(f"physics: expected a TablePhysics, got {type(physics).__name__}")
         if observation is not None and not isinstance(observation, Observation):
-            raise ValueError(
-                f"observation: expected an Observation or None, got {type(observation).__name__}"
-            )
+            raise ValueError(f"observation: expected an Observation, got {observation!r}")
         self.physics = physics
         self.observation = observation
         self.model = arm_model(TIMESTEP)
@@ -100,23 +102,16 @@ class Hockey(Task):
         self.q0 = demo["q"][0].copy()
         self.dmp_parameters = DMPParameters(dmp, learn=("goal", "goal_velocity", "tau"))
         self.demo_omega = self.dmp_parameters.to_vector()
-        std = self.default_exploration() if exploration_std is None else exploration_std
+        std = EXPLORATION_STD.copy() if exploration_std is None else exploration_std
         self.exploration_std = check_array(std, "exploration_std", shape=(self.parameter_dim,))
         if np.any(self.exploration_std <= 0):
             raise ValueError("exploration_std: expected positive standard deviations")
         self._record_every = max(1, int(round(RECORD_DT / physics.dt)))
 
-    @staticmethod
-    def default_exploration() -> np.ndarray:
-        """Initial exploration standard deviations of ω = [g, ġ, τ], shape (15,)."""
-        return np.concatenate(
-            [[0.06, 0.04, 0.06, 0.05, 0.06, 0.05, 0.2], np.full(N_JOINTS, 0.25), [0.1]]
-        )
-
-    def exploration_covariance(self) -> np.ndarray:
-        """Σ₀ = blockdiag(P D_g P + (0.1 σ̄_g)² I, P D_ġ P + (0.1 σ̄_ġ)² I, σ_τ²) (15, 15), D the
-        squared :attr:`exploration_std`, σ̄ their means, P = I − n nᵀ removing the blade-height
-        direction n ∝ ∂z/∂q at the demonstrated goal."""
+    def initial_policy(self):
+        """π(ω|s) = N(ω_demo, Σ₀), zero gain (Sec. 3.4.2): Σ₀ = blockdiag(P D_g P + (0.1 σ̄_g)² I,
+        P D_ġ P + (0.1 σ̄_ġ)² I, σ_τ²), D the squared :attr:`exploration_std`, σ̄ their means,
+        P = I − n nᵀ removing the blade-height direction n ∝ ∂z/∂q at the demonstrated goal."""
         data = mujoco.MjData(self.model)
         data.qpos[:] = self.demo_omega[:N_JOINTS]
         mujoco.mj_kinematics(self.model, data)
@@ -132,17 +127,7 @@ class Hockey(Task):
                 N_JOINTS
             )
         cov[-1, -1] = self.exploration_std[-1] ** 2
-        return cov
-
-    def initial_policy(self):
-        """π(ω|s) = N(ω_demo, Σ₀) (:meth:`exploration_covariance`), zero gain (Sec. 3.4.2)."""
-        from skillkit.policies.gaussian import LinearGaussianPolicy
-
-        return LinearGaussianPolicy(
-            mean=self.demo_omega.copy(),
-            cov=self.exploration_covariance(),
-            context_dim=self.context_dim,
-        )
+        return LinearGaussianPolicy(self.demo_omega.copy(), cov, context_dim=self.context_dim)
 
     # ------------------------------------------------------------------ simulation
     def reference(self, omega: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -301,7 +286,6 @@ class Hockey(Task):
         """The pucks' (x, y) positions; no control input (ω enters the event models)."""
         return ModelSignals(
             state=("control_puck_x", "control_puck_y", "target_puck_x", "target_puck_y"),
-            control=(),
             signals=self._reward_keys(),
         )
 

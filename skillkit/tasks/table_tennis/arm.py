@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from functools import lru_cache
 
+import mujoco
 import numpy as np
 
 from skillkit.tasks._mjcf import mjcf_root
@@ -43,8 +44,9 @@ RACKET_SITE = "racket"
 """Site at the blade centre; its local y axis is the blade normal."""
 
 
-def arm_mjcf(timestep: float = 0.002):
-    """The 8-DoF arm as a ``dm_control.mjcf`` model (``timestep`` in s).
+@lru_cache(maxsize=4)
+def arm_model(timestep: float = 0.002):
+    """The 8-DoF arm as a compiled MuJoCo model (``timestep`` in s; cached, read-only here).
 
     Two prismatic axes move a platform carrying a 1.2 m column with a 6-DoF arm pointing along
     +x at q = 0 (shoulder yaw z and pitch y, upper-arm roll x, elbow y, forearm roll x, wrist
@@ -91,15 +93,7 @@ def arm_mjcf(timestep: float = 0.002):
     blade = {"fromto": [l3, -0.005, 0, l3, 0.005, 0], "size": [0.08], "mass": 0.7 * m_hand}
     hand.add("geom", name="blade", type="cylinder", rgba=[0.8, 0.1, 0.1, 1], **blade)
     hand.add("site", name=RACKET_SITE, pos=[l3, 0, 0], size=[0.01])
-    return root
-
-
-@lru_cache(maxsize=4)
-def arm_model(timestep: float = 0.002):
-    """The compiled MuJoCo model of :func:`arm_mjcf` (cached; MjModel is read-only here)."""
-    import mujoco
-
-    return mujoco.MjModel.from_xml_string(arm_mjcf(timestep).to_xml_string())
+    return mujoco.MjModel.from_xml_string(root.to_xml_string())
 
 
 def racket_pose(model, data) -> tuple[np.ndarray, np.ndarray]:

@@ -21,7 +21,7 @@ from skillkit.tasks.table_tennis.ball import (
 )
 
 DEMO_PATH = Path(__file__).resolve().parents[2] / "data" / "demonstrations" / "table_tennis.npz"
-"""The shipped forehand demonstration (package data); :func:`write_demonstration` rebuilds it."""
+"""The shipped demonstration: ``np.savez_compressed(path, **forehand_demonstration())``."""
 HIT_TIME = 0.72
 """Time (s) at which the demonstrated stroke meets the ball of the nominal context."""
 RETURN_FLIGHT_TIME = 0.55
@@ -128,18 +128,7 @@ def forehand_demonstration(dt: float = 0.002) -> dict[str, np.ndarray]:
     return {"times": times, "q": q, "qd": qd, "qdd": qdd}
 
 
-def write_demonstration(path: str | Path = DEMO_PATH) -> Path:
-    """Regenerate the shipped demonstration file::
-
-    python -c "from skillkit.tasks.table_tennis import write_demonstration as w; w()"
-    """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    np.savez_compressed(path, **forehand_demonstration())
-    return path
-
-
 def load_demonstration(path: str | Path = DEMO_PATH) -> dict[str, np.ndarray]:
-    """Read a demonstration written by :func:`write_demonstration`."""
+    """``times``, ``q``, ``qd``, ``qdd`` of a demonstration file (default the shipped one)."""
     with np.load(Path(path), allow_pickle=False) as f:
         return {k: f[k] for k in ("times", "q", "qd", "qdd")}

@@ -1,17 +1,12 @@
 r"""The decomposed reward model of robot table tennis (Sec. 4.3.4, Fig. 4.13, App. C.3).
 
-Five learned models chained as in Sec. 4.3.4:
-
-1. **landing** (GP): v = s[:3] ↦ the bounce [p_x, p_y, v⁻ (3), v⁺ (3), t_b] on the robot's half
-   (:func:`find_bounce`); before it the ball is the cubic Hermite curve from the serve;
-2. **bounce trajectory** (GP): [p_x, p_y, v⁺] ↦ c (3 × 3) of
-   p(t_b + τ) = p_b + v⁺ τ + ½ g τ² + Σ_{m=2}^{4} c_m τ^m (the parabola far from the data);
-3. **racket position** and 4. **orientation** (quaternion of the blade normal,
-   :func:`normal_to_quaternion`): GPs ω ↦ the PCA scores of the weights W of
-   y(t) ≈ Φ(t) W (:class:`TimeBasis`);
-5. **contact** (:class:`ContactModel`): a linear SVM for hit / miss and a GP for the returned
-   ball's landing point, read at :func:`contact_event`.
-
+Five learned models chained as in Sec. 4.3.4: 1. **landing** (GP): v = s[:3] ↦ the bounce
+[p_x, p_y, v⁻ (3), v⁺ (3), t_b] on the robot's half (:func:`find_bounce`), before it the
+cubic Hermite curve from the serve; 2. **bounce trajectory** (GP): [p_x, p_y, v⁺] ↦ c (3 × 3)
+of p(t_b + τ) = p_b + v⁺ τ + ½ g τ² + Σ_{m=2}^{4} c_m τ^m; 3. **racket position** and
+4. **orientation** (quaternion of the blade normal): GPs ω ↦ the PCA scores of W in
+y(t) ≈ Φ(t) W (:class:`TimeBasis`); 5. **contact** (:class:`ContactModel`): a linear SVM for
+hit / miss and a GP for the returned ball's landing point, read at :func:`contact_event`.
 The reward schedule (Eq. 4.17) is :class:`TableTennisRewardModel`'s.
 """
 
@@ -25,16 +20,21 @@ from typing import Any
 import numpy as np
 import torch
 
-from skillkit._validation import as_generator, check_array, check_count, check_positive
+from skillkit._validation import (
+    as_generator,
+    check_array,
+    check_choice,
+    check_count,
+    check_positive,
+)
 from skillkit.models.gp import ExactGP, GPRegression
 from skillkit.models.reward import (
     Prediction,
     RewardModel,
-    check_choice,
-    check_factories,
     check_refit,
     gp_stats,
     refit_gp,
+    set_factories,
     worst_if_nonfinite,
 )
 from skillkit.tasks.table_tennis import (
@@ -86,8 +86,7 @@ class TimeBasis:
         """Least-squares weights W (n_basis, D) of values (T, D) sampled at times (T,)."""
         phi = self(times)
         y = check_array(values, "values", shape=(phi.shape[0], None))
-        a = phi.T @ phi + self.ridge * np.eye(self.n_basis)
-        return np.linalg.solve(a, phi.T @ y)
+        return np.linalg.solve(phi.T @ phi + self.ridge * np.eye(self.n_basis), phi.T) @ y
 
     def __repr__(self) -> str:
         return f"TimeBasis(n_basis={self.n_basis}, t_end={self.t_end:g}, width={self.width:.4g})"
@@ -147,14 +146,9 @@ def find_bounce(times, ball, plane: float, t_end: float, n_fit: int = 7) -> np.n
     if roots.size == 0:
         return None
     tb = float(roots.min())
-
-    def pos(cf):
-        return cf[0] * tb**2 + cf[1] * tb + cf[2]
-
-    def vel(cf):
-        return 2 * cf[0] * tb + cf[1]
-
-    return np.concatenate([pos(c_pre)[:2], vel(c_pre), vel(c_post), [tb]])
+    p = c_pre[0] * tb**2 + c_pre[1] * tb + c_pre[2]
+    v_pre, v_post = 2 * c_pre[0] * tb + c_pre[1], 2 * c_post[0] * tb + c_post[1]
+    return np.concatenate([p[:2], v_pre, v_post, [tb]])
 
 
 def _hermite(t, t1, p0, v0, p1, v1):
@@ -189,7 +183,6 @@ class _ScoresGP:
         k = int(np.searchsorted(frac, 1.0 - self.tolerance) + 1)
         k = max(1, min(k, self.max_components, vt.shape[0]))
         self.components = vt[:k]  # (k, D)
-        self.explained = float(frac[k - 1])
         scores = (y - self.mean) @ self.components.T
         if previous is not None and np.shape(previous["lengthscale"])[0] != k:
             previous = None
@@ -198,8 +191,7 @@ class _ScoresGP:
 
     def sample(self, x, L: int, rng) -> np.ndarray:
         """Sampled outputs (B, L, D)."""
-        z = self.gp.sample(x, L, rng).reshape(x.shape[0], L, -1)
-        return self.mean + z @ self.components
+        return self.mean + _sample_gp(self.gp, x, L, rng) @ self.components
 
     def mean_prediction(self, x) -> np.ndarray:
         m, _ = self.gp.predict(x)
@@ -240,16 +232,10 @@ def contact_event(ball, racket, quaternion, steps, ball_radius: float):
     (n, T, 3), ``quaternion`` (n, T, 4), the first ``steps`` (n,) samples the incoming ball.
     Returns ``event``, ``cut`` (1 ≤ cut ≤ steps) and the distance at the event (m), each (n,).
     """
-    ball = np.asarray(ball, dtype=np.float64)
-    racket = np.asarray(racket, dtype=np.float64)
-    if ball.ndim != 3 or ball.shape[2] != 3 or racket.shape != ball.shape:
-        raise ValueError(
-            f"ball, racket: expected equal shapes (n, T, 3), got {ball.shape} and {racket.shape}"
-        )
+    ball = check_array(ball, "ball", shape=(None, None, 3), finite=False)
+    racket = check_array(racket, "racket", shape=ball.shape, finite=False)
     n, T, _ = ball.shape
-    quaternion = np.asarray(quaternion, dtype=np.float64)
-    if quaternion.shape != (n, T, 4):
-        raise ValueError(f"quaternion: expected shape {(n, T, 4)}, got {quaternion.shape}")
+    quaternion = check_array(quaternion, "quaternion", shape=(n, T, 4), finite=False)
     steps = np.asarray(steps)
     if steps.shape != (n,) or np.any(steps < 1) or np.any(steps > T):
         raise ValueError(f"steps: expected {n} whole numbers in [1, {T}], got {steps!r:.80}")
@@ -296,11 +282,10 @@ class ContactModel:
         make_return_model: Callable[[], Any] | None = None,
         refit: str = "best",
     ):
-        check_choice(features, CONTACT_FEATURES, "contact_features")
-        check_choice(score, CONTACT_SCORES, "contact_score")
+        self.features = check_choice(features, "contact_features", CONTACT_FEATURES)
+        self.score = check_choice(score, "contact_score", CONTACT_SCORES)
         self.dt = check_positive(dt, "dt")
         self.ball_radius = check_positive(ball_radius, "ball_radius")
-        self.features, self.score = features, score
         self.make_classifier = make_classifier or _linear_svm
         self.make_return_model = make_return_model or _gp
         self.refit = check_refit(refit)
@@ -483,26 +468,21 @@ class TableTennisRewardModel(RewardModel):
     ):
         if not isinstance(task, TableTennis):
             raise ValueError(f"task: expected a TableTennis task, got {type(task).__name__}")
-        check_factories(
-            make_landing_model=make_landing_model,
-            make_bounce_model=make_bounce_model,
-            make_racket_model=make_racket_model,
-            make_return_model=make_return_model,
-            make_classifier=make_classifier,
+        set_factories(
+            self,
+            make_landing_model=(make_landing_model, _gp),
+            make_bounce_model=(make_bounce_model, _gp),
+            make_racket_model=(make_racket_model, _gp),
+            make_return_model=(make_return_model, _gp),
+            make_classifier=(make_classifier, _linear_svm),
         )
         self.task = task
-        self.make_landing_model = make_landing_model or _gp
-        self.make_bounce_model = make_bounce_model or _gp
-        self.make_racket_model = make_racket_model or _gp
-        self.make_return_model = make_return_model or _gp
-        self.make_classifier = make_classifier or _linear_svm
-        self.schedule = check_choice(schedule, SCHEDULES, "schedule")
+        self.schedule = check_choice(schedule, "schedule", SCHEDULES)
         self.refit = check_refit(refit)
         scene = (task.control_dt, task.ball.radius, contact_features, contact_score)
         self.contact = ContactModel(
             *scene, self.make_classifier, self.make_return_model, self.refit
         )
-        self.contact_features, self.contact_score = contact_features, contact_score
         self.stage = "returning" if schedule == "returning" else "hitting"
         self.epsilon = check_positive(epsilon, "epsilon", allow_zero=True)
         self.min_hits = check_count(min_hits, "min_hits", 2)
@@ -524,7 +504,6 @@ class TableTennisRewardModel(RewardModel):
         )
         self.n_data = 0
 
-    # ------------------------------------------------------------------ data
     def bounce_data(self, trajectories) -> tuple[np.ndarray, np.ndarray, list[int]]:
         """Bounces y (n, 9) (:func:`find_bounce`), the least-squares coefficients c (n, 9) of
         the flight after them, and the indices of the trajectories with a bounce."""
@@ -551,33 +530,6 @@ class TableTennisRewardModel(RewardModel):
             used.append(i)
         return np.array(ys).reshape(-1, 9), np.array(cs).reshape(-1, 9), used
 
-    def racket_weights(self, trajectories) -> tuple[np.ndarray, np.ndarray]:
-        """Basis weights of each racket path (N, n·3) and quaternion path (N, n·4)."""
-        phi = self.basis(self.task.times)
-        solve = np.linalg.solve(
-            phi.T @ phi + self.basis.ridge * np.eye(self.basis.n_basis), phi.T
-        )  # (n, T)
-        pos = np.stack([solve @ tr.signals["racket"] for tr in trajectories])
-        quat = np.stack(
-            [solve @ normal_to_quaternion(tr.signals["racket_normal"]) for tr in trajectories]
-        )
-        return pos.reshape(len(trajectories), -1), quat.reshape(len(trajectories), -1)
-
-    # ------------------------------------------------------------------ contact
-    @property
-    def classifier(self):
-        """The contact SVM (model 5)."""
-        return self.contact.classifier
-
-    @property
-    def returns(self):
-        """The returned ball's landing GP (model 5; None before two hits)."""
-        return self.contact.returns
-
-    def contact_inputs(self, ball, racket, quaternion, steps):
-        """Model 5's inputs (:meth:`ContactModel.inputs`)."""
-        return self.contact.inputs(ball, racket, quaternion, steps)
-
     def _real_contact_data(self, trajectories):
         """Model 5's inputs x, labels hit (N,) and landing points p (N, 2) of rollouts."""
         t = self.task.times
@@ -587,12 +539,11 @@ class TableTennisRewardModel(RewardModel):
         steps = np.array(
             [int(np.searchsorted(t, tr.info["incoming_end"], side="right")) for tr in trajectories]
         )
-        x, _, _ = self.contact_inputs(ball, racket, quat, np.maximum(steps, 1))
+        x, _, _ = self.contact.inputs(ball, racket, quat, np.maximum(steps, 1))
         hit = np.array([bool(tr.info["hit"]) for tr in trajectories])
         p = np.array([tr.info["landing_point"] for tr in trajectories], dtype=np.float64)
         return x, hit, p
 
-    # ------------------------------------------------------------------ fit
     def fit(self, contexts, omegas, rewards, trajectories, rng=None) -> dict[str, Any]:
         """Refit the five models on every non-failed rollout and update the reward stage
         (``rewards`` unused). Returns ``n_data``, ``n_bounces``, ``n_hits``, ``stage``, the
@@ -604,18 +555,14 @@ class TableTennisRewardModel(RewardModel):
             raise ValueError("trajectories: the table-tennis model learns from trajectories")
         s = check_array(contexts, "contexts", shape=(None, task.context_dim))
         w = check_array(omegas, "omegas", shape=(s.shape[0], task.parameter_dim))
-        if len(trajectories) != s.shape[0]:
-            raise ValueError(
-                f"trajectories: expected {s.shape[0]} like contexts, got {len(trajectories)}"
-            )
-        keep = [i for i, tr in enumerate(trajectories) if not tr.failed]
+        if len(trajectories) != len(s):
+            raise ValueError(f"trajectories: expected {len(s)}, got {len(trajectories)}")
+        keep = np.flatnonzero([not tr.failed for tr in trajectories])
         if len(keep) < 2:
             raise ValueError("trajectories: fewer than two non-failed rollouts to learn from")
         rng = as_generator(rng)
-        trajs = [trajectories[i] for i in keep]
-        s, w = s[keep], w[keep]
-        pick = np.sort(rng.permutation(len(trajs))[: self.max_points])
-        trajs, s, w = [trajs[i] for i in pick], s[pick], w[pick]
+        keep = keep[np.sort(rng.permutation(len(keep))[: self.max_points])]
+        trajs, s, w = [trajectories[i] for i in keep], s[keep], w[keep]
         stats: dict[str, Any] = {"n_data": len(trajs), "n_trajectories": len(trajs)}
 
         # models 1, 2: landing and bounce trajectory
@@ -628,18 +575,20 @@ class TableTennisRewardModel(RewardModel):
             setattr(self, key, gp)
         stats["n_bounces"] = len(used)
 
-        # models 3, 4: racket position and orientation
-        wp, wq = self.racket_weights(trajs)
-        for key, target in (("position", wp), ("orientation", wq)):
+        # models 3, 4: racket position and orientation, from the basis weights of each path
+        paths = {
+            "position": [tr.signals["racket"] for tr in trajs],
+            "orientation": [normal_to_quaternion(tr.signals["racket_normal"]) for tr in trajs],
+        }
+        stats["pca_components"] = {}
+        for key, ys in paths.items():
+            target = np.stack([self.basis.fit(task.times, y).ravel() for y in ys])
             model = _ScoresGP(self.make_racket_model, self.pca_tolerance, self.max_components)
             refits[key] = model.fit(w, target, rng, self._hypers[key], self.refit)
             if isinstance(model.gp, GPRegression):
                 self._hypers[key] = model.gp.hyperparameters
             setattr(self, f"racket_{key}", model)
-        stats["pca_components"] = {
-            "position": int(self.racket_position.components.shape[0]),
-            "orientation": int(self.racket_orientation.components.shape[0]),
-        }
+            stats["pca_components"][key] = int(model.components.shape[0])
 
         # model 5: contact classifier and returned landing point
         x, hit, p = self._real_contact_data(trajs)
@@ -659,7 +608,7 @@ class TableTennisRewardModel(RewardModel):
             ("bounce", self.bounce),
             ("racket_position", self.racket_position.gp),
             ("racket_orientation", self.racket_orientation.gp),
-            ("returns", self.returns),
+            ("returns", self.contact.returns),
         ):
             if isinstance(model, GPRegression):
                 stats[key] = gp_stats(model, model.X.shape[0])
@@ -703,12 +652,10 @@ class TableTennisRewardModel(RewardModel):
         crit["good"] = bool(bal >= self.min_svm_accuracy and rmse <= self.max_landing_rmse)
         return crit
 
-    # ------------------------------------------------------------------ predict
     def predict(self, contexts, omegas, n_trajectories: int, rng=None) -> TableTennisPrediction:
         """Sample L = ``n_trajectories`` strokes for each of B pairs, contexts (B, 5) and omegas
         (B, 17), through the five models."""
-        fitted = self.landing is not None
-        w, s, L, rng = self._pairs(fitted, contexts, omegas, n_trajectories, rng)
+        w, s, L, rng = self._pairs(self.landing is not None, contexts, omegas, n_trajectories, rng)
         task = self.task
         B, t = w.shape[0], task.times
         T, n = t.shape[0], B * L
@@ -718,8 +665,7 @@ class TableTennisRewardModel(RewardModel):
         yb = _sample_gp(self.landing, s[:, :3], L, rng).reshape(n, 9)
         tb = np.clip(yb[:, 8], 1e-3, None)
         pb = np.column_stack([yb[:, :2], np.full(n, self.plane)])
-        coef = _sample_gp(self.bounce, np.hstack([yb[:, :2], yb[:, 5:8]]), 1, rng)
-        coef = coef.reshape(n, 3, 3)
+        coef = _sample_gp(self.bounce, np.hstack([yb[:, :2], yb[:, 5:8]]), 1, rng).reshape(n, 3, 3)
         tau = np.clip(t[None, :] - tb[:, None], 0.0, None)  # (n, T)
         g = np.array([0.0, 0.0, -task.ball.gravity])
         powers = np.stack([tau**2, tau**3, tau**4], axis=-1)  # (n, T, 3)
@@ -796,9 +742,8 @@ class TableTennisRewardModel(RewardModel):
             raise RuntimeError("TableTennisRewardModel: call fit() before heldout_errors()")
         trajs = list(trajectories)
         w = check_array(omegas, "omegas", shape=(len(trajs), self.task.parameter_dim))
-        s = check_array(contexts, "contexts", shape=(w.shape[0], self.task.context_dim))
         rng = as_generator(rng)
-        pred = self.predict(s, w, n_samples, rng)
+        pred = self.predict(contexts, w, n_samples, rng)  # checks the contexts
         bounce_err, path_err = [], []
         t = self.task.times
         for i, tr in enumerate(trajs):
@@ -812,11 +757,11 @@ class TableTennisRewardModel(RewardModel):
         real_racket = np.stack([tr.signals["racket"] for tr in trajs])
         rmse = float(np.sqrt(np.mean(np.sum((pred.racket - real_racket[:, None]) ** 2, -1))))
         x, hit, p = self._real_contact_data(trajs)
-        decided = np.asarray(self.classifier.predict(x), dtype=bool)
+        decided = np.asarray(self.contact.classifier.predict(x), dtype=bool)
         predicted_hit = pred.contact.mean(axis=1) > 0.5
         landing_err = np.nan
-        if self.returns is not None and hit.any():
-            mean, _ = self.returns.predict(x[hit])
+        if self.contact.returns is not None and hit.any():
+            mean, _ = self.contact.returns.predict(x[hit])
             landing_err = float(np.median(np.linalg.norm(mean - p[hit], axis=1)))
         return {
             "bounce_position_error_m": float(np.median(bounce_err)) if bounce_err else np.nan,
@@ -860,8 +805,7 @@ class TableTennisRewardModel(RewardModel):
         return (
             f"TableTennisRewardModel(task={self.task.name!r}, {state}, stage={self.stage!r}, "
             f"schedule={self.schedule!r}, contact={self.contact!r}, "
-            f"n_basis={self.basis.n_basis}, "
-            f"penalty={self.penalty:.4g} m)"
+            f"n_basis={self.basis.n_basis}, penalty={self.penalty:.4g} m)"
         )
 
 

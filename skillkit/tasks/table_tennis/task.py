@@ -71,7 +71,6 @@ class TableTennis(Task):
     context_names = ("v_x", "v_y", "v_z", "b_x", "b_y")
     worst_reward = -5.0
     """Below any working rollout (drag bounds the flight, so R > −2)."""
-    trajectory_depends_on_context = True
 
     def __init__(
         self,
@@ -113,10 +112,7 @@ class TableTennis(Task):
         self.q0 = np.asarray(demo["q"][0], dtype=np.float64).copy()
         self.times = self.control_dt * np.arange(int(round(self.duration / self.control_dt)) + 1)
         if self.times.shape[0] < 2:
-            raise ValueError(
-                f"duration: expected at least one control period ({self.control_dt:g} s), "
-                f"got {self.duration:g} s"
-            )
+            raise ValueError(f"duration: expected at least one control period, got {duration:g} s")
         self.model = arm_model(self.physics_dt)
         control_substeps(self.model, self.control_dt)  # a whole multiple of physics_dt
         self.data = mujoco.MjData(self.model)
@@ -130,12 +126,10 @@ class TableTennis(Task):
             raise ValueError(f"{name}: its tau entry (index 16) must be > 0, got {omega[-1]:g}")
         return omega
 
-    def initial_policy(self):
+    def initial_policy(self) -> LinearGaussianPolicy:
         """π(ω|s) = N(ω_demo, diag(:data:`INITIAL_STD`²)), zero context gain (Sec. 3.5)."""
         return LinearGaussianPolicy(
-            mean=self.parameters.to_vector(),
-            cov=np.diag(INITIAL_STD**2),
-            context_dim=self.context_dim,
+            self.parameters.to_vector(), np.diag(INITIAL_STD**2), context_dim=5
         )
 
     # ------------------------------------------------------------------ simulation
@@ -237,10 +231,7 @@ class TableTennis(Task):
         )
         steps = check_array(signals["incoming_steps"], "signals['incoming_steps']", shape=(n,))
         if np.any(steps != np.round(steps)) or np.any(steps < 1) or np.any(steps > T):
-            raise ValueError(
-                f"signals['incoming_steps']: expected whole numbers of samples in [1, {T}], "
-                f"got {steps.tolist()}"
-            )
+            raise ValueError(f"incoming_steps: expected integers in [1, {T}], got {steps}")
         steps = steps.astype(int)
         b = check_array(contexts, "contexts", shape=(n, self.context_dim))[:, 3:5]
         return np.array(
@@ -263,7 +254,6 @@ class TableTennis(Task):
         """The ball's position and velocity; no control input (ω enters the event models)."""
         return ModelSignals(
             state=("ball_x", "ball_y", "ball_z", "ball_vx", "ball_vy", "ball_vz"),
-            control=(),
             signals=("ball", "racket", "landing_point", "incoming_steps"),
         )
 

@@ -529,3 +529,18 @@ def test_run_paths_figure_names_a_bad_update(tmp_path):
     run = make_gpreps_run(tmp_path / "run", FakeHockeyModel(), "hockey", updates=2)
     with pytest.raises(ValueError, match="update"):
         gpreps_run_paths_figure(run, 0, update=3)
+
+
+@pytest.mark.parametrize("exp_id", ["fig4.10", "fig4.11", "fig4.12"])
+def test_the_stored_runs_reward_models_load_and_draw_their_layers(exp_id):
+    """The reward models pickled in the shipped paper results load with today's classes and
+    predict: a rename of an attribute or a module-level name they reference breaks this."""
+    from skillkit.experiments import stored_run
+    from skillkit.models.reward import RewardModel
+
+    history, model = load_gpreps_run(stored_run(exp_id).path, 0)
+    assert isinstance(model, RewardModel)
+    context = model.task.sample_context(np.random.default_rng(0))
+    policy = history[-1]
+    layers = model_layers(model, context, policy.mean_of(context), n_samples=2, rng=0)
+    assert layers and all(np.all(np.isfinite(layer["trajectories"])) for layer in layers)

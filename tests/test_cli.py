@@ -307,8 +307,14 @@ def test_runs_check_record_carries_a_result_whose_witness_is_equal(tmp_path, mon
     from skillkit.experiments.provenance import code_fingerprint
 
     old, now = "0" * 16, code_fingerprint("fig2.10")
-    witness = {"seed": 0, "trials": 1, "code_fingerprint": old, "summary": {"e": 1.0},
-               "series": [{"y": [1.0, 2.0]}], "unstable": []}  # fmt: skip
+    witness = {
+        "seed": 0,
+        "trials": 1,
+        "code_fingerprint": old,
+        "summary": {"e": 1.0},
+        "series": [{"y": [1.0, 2.0]}],
+        "unstable": [],
+    }
     result = {"id": "fig2.10", "seed": 0, "code_fingerprint": old, "witness": witness}
     _write_run(tmp_path / "fig2.10-paper-s0", **result)
     calls = []
@@ -342,8 +348,9 @@ def test_demo_comparison_reports_gpreps_against_reps_and_opens_in_the_viewer(tmp
     demo["tasks"] = ("hockey",)  # the same report from a run of seconds
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        run = reproduce("cmp.methods", scale="smoke", out=tmp_path, progress=False, html=False,
-                        **demo)  # fmt: skip
+        run = reproduce(
+            "cmp.methods", scale="smoke", out=tmp_path, progress=False, html=False, **demo
+        )
     lines = cli._comparison_lines(run)
     rows = run.summary["tasks"]["hockey"]["methods"]
     assert [line.split(":")[0].strip() for line in lines[1:3]] == ["gpreps", "reps"]
@@ -356,8 +363,9 @@ def test_demo_comparison_reports_gpreps_against_reps_and_opens_in_the_viewer(tmp
     demo.update(n_artificial=4, n_trajectories=1, gpreps_updates=1, reps_updates=1)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        run = reproduce("cmp.methods", scale="smoke", out=tmp_path, progress=False, html=False,
-                        **demo)  # fmt: skip
+        run = reproduce(
+            "cmp.methods", scale="smoke", out=tmp_path, progress=False, html=False, **demo
+        )
     line = cli._comparison_lines(run)[-1]
     assert line == f"  watch GPREPS learn: skillkit view throwing --policy {run.path}"
     assert len(load_policy_history(run.path, 0).policies) == 2

@@ -121,10 +121,16 @@ def _summary_35(**kw) -> dict:
     """A fig3.5 summary of four trials that meets every part of the thesis's sentences;
     ``kw`` changes one per-trial array (REPS: ``hits``, ``placed``, ``miss_error``,
     ``curve``; CrKR: ``crkr_hit``, ``crkr_placed``, ``crkr_reward``)."""
-    v = {"hits": [0.99, 1.0, 0.98, 0.99], "placed": [0.08, 0.12, 0.10, 0.09],
-         "miss_error": [0.09, 0.12, 0.11, 0.10], "curve": [-0.2, -0.21, -0.19, -0.2],
-         "crkr_hit": [0.8, 0.7, 0.75, 0.8], "crkr_placed": [0.30, 0.28, 0.33, 0.31],
-         "crkr_reward": [-0.4, -0.45, -0.42, -0.41], **kw}  # fmt: skip
+    v = {
+        "hits": [0.99, 1.0, 0.98, 0.99],
+        "placed": [0.08, 0.12, 0.10, 0.09],
+        "miss_error": [0.09, 0.12, 0.11, 0.10],
+        "curve": [-0.2, -0.21, -0.19, -0.2],
+        "crkr_hit": [0.8, 0.7, 0.75, 0.8],
+        "crkr_placed": [0.30, 0.28, 0.33, 0.31],
+        "crkr_reward": [-0.4, -0.45, -0.42, -0.41],
+        **kw,
+    }
     reps = {
         "initial_mean_reward_per_trial": [-0.7] * 4,
         "final_mean_reward_per_trial": v["curve"],

@@ -61,8 +61,12 @@ def test_fig411_hit_rate_is_a_wilson_interval_over_the_held_out_shots():
 def test_fig411_start_against_end_is_paired_by_run():
     """The per-run start the paired reading needs; its interval is Student's t on the
     differences."""
-    summary = {"gpreps": {"final_reward_per_trial": [-0.3, -0.4, -0.6],
-                          "initial_reward_per_trial": [-0.5, -0.6, -0.5]}}  # fmt: skip
+    summary = {
+        "gpreps": {
+            "final_reward_per_trial": [-0.3, -0.4, -0.6],
+            "initial_reward_per_trial": [-0.5, -0.6, -0.5],
+        }
+    }
     r = read(_part("fig4.11", "reward gain, end minus start"), summary)
     d = np.array([0.2, 0.2, -0.1])
     ref = stats.t.interval(0.95, 2, loc=d.mean(), scale=stats.sem(d))
@@ -83,8 +87,9 @@ def test_smoke_hockey_real_is_not_judged_and_records_the_per_run_numbers(tmp_pat
     assert judge("fig4.11", s, "paper").readings[1].outcome != "not measured"
 
 
-@pytest.mark.parametrize(("exp_id", "model"), [("fig4.10", "HockeyRewardModel"),
-                                               ("fig4.12", "TableTennisRewardModel")])  # fmt: skip
+@pytest.mark.parametrize(
+    ("exp_id", "model"), [("fig4.10", "HockeyRewardModel"), ("fig4.12", "TableTennisRewardModel")]
+)
 def test_each_trial_keeps_its_policy_history_and_reward_model(tmp_path, exp_id, model):
     """What ``skillkit view TASK --gpreps RUN`` loads: the GPREPS run's K + 1 policies and its
     last fitted model, whose layers have shapes the viewer accepts; the smoke run is not
@@ -106,8 +111,9 @@ def test_each_trial_keeps_its_policy_history_and_reward_model(tmp_path, exp_id, 
         for key in ("gpreps", "direct", "reps"):
             m = summary[key]
             both = np.add(m["final_net_per_trial"], m["final_missed_per_trial"])
-            np.testing.assert_allclose(m["final_net_or_missed_per_trial"], both, rtol=0,
-                                       atol=fp_tol(1))  # fmt: skip
+            np.testing.assert_allclose(
+                m["final_net_or_missed_per_trial"], both, rtol=0, atol=fp_tol(1)
+            )
 
 
 def test_bad_settings_are_refused_before_any_work():
@@ -154,7 +160,6 @@ def test_bad_hockey_model_settings_name_the_setting():
     from dataclasses import replace
 
     st = get("fig4.10").settings["paper"]
-    for name, bad in (("refit", "sometimes"), ("launch_targets", "polar"),
-                      ("displacement", "svm")):  # fmt: skip
+    for name, bad in (("refit", "sometimes"), ("launch_targets", "polar"), ("displacement", "svm")):
         with pytest.raises(ValueError, match=name):
             replace(st, **{name: bad})

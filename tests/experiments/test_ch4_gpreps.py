@@ -97,9 +97,14 @@ def test_fig4_9_ratio_reading_is_the_bootstrap_of_the_stored_final_rewards():
     r = read(_part("fig4.9", "GPREPS noisy / noise-free"), s)
     assert abs(r.estimate - s["noise_ratio"]["gpreps"]) <= fp_tol(20, scale=r.estimate)
     ci = stats.bootstrap(
-        (x, y), lambda a, b, axis=-1: a.mean(axis=axis) / b.mean(axis=axis), paired=True,
-        vectorized=True, n_resamples=9999, method="percentile", rng=np.random.default_rng(0),
-    ).confidence_interval  # fmt: skip
+        (x, y),
+        lambda a, b, axis=-1: a.mean(axis=axis) / b.mean(axis=axis),
+        paired=True,
+        vectorized=True,
+        n_resamples=9999,
+        method="percentile",
+        rng=np.random.default_rng(0),
+    ).confidence_interval
     assert abs(r.lower - ci.low) <= fp_tol(50, scale=ci.high)
     assert abs(r.upper - ci.high) <= fp_tol(50, scale=ci.high)
     assert r.outcome == "does not hold" and run.outcome == "does not hold"

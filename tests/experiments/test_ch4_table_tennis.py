@@ -80,8 +80,12 @@ def test_switch_update_is_the_first_returning_stage():
     def trial(stages):
         one = np.ones(len(stages))
         arrays = {f"gpreps_time_{p}": one for p in ("training", "prediction", "policy")}
-        return {**arrays, "gpreps_relative_error": one, "gpreps_kl": one,
-                "gpreps_stage": np.array(stages)}  # fmt: skip
+        return {
+            **arrays,
+            "gpreps_relative_error": one,
+            "gpreps_kl": one,
+            "gpreps_stage": np.array(stages),
+        }
 
     trials = [trial(["hitting", "hitting", "returning"]), trial(["hitting", "hitting"])]
     stats_ = gpreps_event_stats(trials, "gpreps")
@@ -91,8 +95,14 @@ def test_switch_update_is_the_first_returning_stage():
 
 def test_setup_table_names_every_choice_with_the_thesis_sentence():
     rows = {r.what: r for r in spec("fig4.12").setup}
-    assert {"contact event", "contact inputs", "contact score", "refit", "reward schedule",
-            "M, L, ε, data"} <= set(rows)  # fmt: skip
+    assert {
+        "contact event",
+        "contact inputs",
+        "contact score",
+        "refit",
+        "reward schedule",
+        "M, L, ε, data",
+    } <= set(rows)
     assert all(r.thesis and r.ours and r.why for r in rows.values())
     # every variant tried is listed with its numbers
     notes = (REPO / "data" / "notes" / "fig4.12.md").read_text()

@@ -83,8 +83,7 @@ def test_winners_on_ties_at_pi0_and_when_no_method_reaches():
 
 
 def test_settings_overrides_reach_the_thesis_experiments_settings():
-    st = get("cmp.methods").settings_for("smoke", gpreps_updates=7, n_artificial=33,
-                                         reps_updates=3)  # fmt: skip
+    st = get("cmp.methods").settings_for("smoke", gpreps_updates=7, n_artificial=33, reps_updates=3)
     throwing = cmp_methods.thesis_settings("throwing", st)
     assert (throwing.n_updates, throwing.n_artificial, throwing.reps_updates) == (7, 33, 3)
     balancing = cmp_methods.thesis_settings("balancing", st)

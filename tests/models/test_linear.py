@@ -93,8 +93,9 @@ def test_moment_matching_with_a_linear_mean_matches_monte_carlo():
     io = zc.T @ (y - y.mean(0)) / len(z)
     assert np.all(np.abs(g.input_output_cov.numpy() - io) < 5 * cov_se(y, z))
     # propagate() adds the linear part the same way.
-    means, _ = propagate(model, m[:2].numpy(), S[:2, :2].numpy(), 1, np.zeros((1, 2)),
-                         np.array([0.1]))  # fmt: skip
+    means, _ = propagate(
+        model, m[:2].numpy(), S[:2, :2].numpy(), 1, np.zeros((1, 2)), np.array([0.1])
+    )
     S0 = S.clone()
     S0[2, 2] = 0.0
     g0 = with_linear_mean(model, moment_match(model.predictor, m, S0), m, S0)
@@ -138,9 +139,13 @@ def _correlated_noise_model(seed=4):
 def _sampler_draws_correlated_noise(model) -> bool:
     """Does sample_trajectories draw the model's correlated noise (``noise_factor_tensor``)?"""
     res = sample_trajectories(
-        model, np.zeros((1, 2)), lambda t, x, p: torch.zeros((x.shape[0], 1), dtype=x.dtype),
-        1, 2000, rng=0,
-    )  # fmt: skip
+        model,
+        np.zeros((1, 2)),
+        lambda t, x, p: torch.zeros((x.shape[0], 1), dtype=x.dtype),
+        1,
+        2000,
+        rng=0,
+    )
     return float(np.corrcoef(res.states[0, :, 1].numpy().T)[0, 1]) > 0.5
 
 
@@ -154,8 +159,7 @@ def test_one_noise_convention_sampled_return_equals_pilcos_closed_form():
     assert fit_corr > 0.95
     # eigh's backward error and the product F Fᵀ: a few n·eps·‖Σ‖ (n = 2).
     tol = fp_tol(4, np.linalg.norm(model.noise_cov, 2))
-    np.testing.assert_allclose(model.noise_factor @ model.noise_factor.T, model.noise_cov,
-                               atol=tol)  # fmt: skip
+    np.testing.assert_allclose(model.noise_factor @ model.noise_factor.T, model.noise_cov, atol=tol)
     assert _sampler_draws_correlated_noise(model)
     G = np.array([[-0.6, -0.8]])
     # Q weighs most the direction v ⟂ B the correlated noise avoids; start at the target.
@@ -219,9 +223,13 @@ def test_a_hand_built_model_samples_its_known_dynamics():
     x0, u0 = np.array([0.5, -1.0]), 0.7
     L = 20_000
     res = sample_trajectories(
-        model, x0[None], lambda t, x, p: torch.full((x.shape[0], 1), u0, dtype=x.dtype), 1, L,
+        model,
+        x0[None],
+        lambda t, x, p: torch.full((x.shape[0], 1), u0, dtype=x.dtype),
+        1,
+        L,
         rng=3,
-    )  # fmt: skip
+    )
     x1 = res.states[0, :, 1].numpy()  # (L, 2)
     expected = A @ x0 + B[:, 0] * u0 + c
     assert np.all(np.abs(x1.mean(0) - expected) < 5 * mean_se(x1))

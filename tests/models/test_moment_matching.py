@@ -316,10 +316,12 @@ def _reference_moments(pred, m, S, digits: int = 40):
             za, zb = [inv_lam[a] * n for n in nu[a]], [inv_lam[b] * n for n in nu[b]]
             zeta = [[za[i] + zb[j] for j in range(M)] for i in range(M)]
             Q = [
-                [ka[i] * kb[j] / root_det * ctx.exp((zeta[i][j].T * T * zeta[i][j])[0] / 2)
-                 for j in range(M)]
+                [
+                    ka[i] * kb[j] / root_det * ctx.exp((zeta[i][j].T * T * zeta[i][j])[0] / 2)
+                    for j in range(M)
+                ]
                 for i in range(M)
-            ]  # fmt: skip
+            ]
             val = (
                 ctx.fsum(
                     f(float(beta[a, i])) * Q[i][j] * f(float(beta[b, j]))
@@ -336,8 +338,9 @@ def _reference_moments(pred, m, S, digits: int = 40):
             V[a, b] = V[b, a] = val
     ym, ys = pred.y_mean.numpy(), pred.y_scale.numpy()
     mean = np.array([float(f(float(ym[a])) + f(float(ys[a])) * mu[a]) for a in range(E)])
-    cov = np.array([[float(f(float(ys[a])) * V[a, b] * f(float(ys[b]))) for b in range(E)]
-                    for a in range(E)])  # fmt: skip
+    cov = np.array(
+        [[float(f(float(ys[a])) * V[a, b] * f(float(ys[b]))) for b in range(E)] for a in range(E)]
+    )
     iom = np.array([[float(io[a][d] * f(float(ys[a]))) for a in range(E)] for d in range(D)])
     return mean, cov, iom
 
@@ -395,11 +398,15 @@ def test_roundoff_bound_on_a_well_conditioned_model(kind):
     assert g.roundoff.relative_error < 1e-8
     actual = _relative_errors(g, _reference_moments(pred, M_IN, S), S)
     assert actual <= g.roundoff.relative_error
-    plain = moment_match_step(pred.to("cpu", torch.float64), torch.as_tensor(M_IN),
-                          torch.as_tensor(S), roundoff=False)  # fmt: skip
+    plain = moment_match_step(
+        pred.to("cpu", torch.float64), torch.as_tensor(M_IN), torch.as_tensor(S), roundoff=False
+    )
     assert plain.roundoff is None
-    for a, b in zip((g.mean, g.cov, g.input_output_cov),
-                    (plain.mean, plain.cov, plain.input_output_cov), strict=True):  # fmt: skip
+    for a, b in zip(
+        (g.mean, g.cov, g.input_output_cov),
+        (plain.mean, plain.cov, plain.input_output_cov),
+        strict=True,
+    ):
         assert torch.equal(a, b)
 
 
@@ -440,8 +447,14 @@ def test_propagate_checks_roundoff_once_per_call():
     xn = x @ np.array([[0.9, 0.1], [-0.1, 0.8]]).T + 0.3 * u + 0.01 * rng.normal(size=(30, 2))
     K = np.array([[-0.2, -0.1]])
     for ell, snr, n_warnings in ((1.5e3, 1.5e3, 1), (1.0, 10.0, 0)):
-        gp = ExactGP(lengthscale=ell, outputscale=snr**2 * 1e-4, noise=1e-4, n_steps=0,
-                     additive_noise=0.0, standardize=False)  # fmt: skip
+        gp = ExactGP(
+            lengthscale=ell,
+            outputscale=snr**2 * 1e-4,
+            noise=1e-4,
+            n_steps=0,
+            additive_noise=0.0,
+            standardize=False,
+        )
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             fm = ForwardModel(gp, target="next").fit(x, u, xn, rng=0)

@@ -174,5 +174,9 @@ def test_cuda_fit_matches_cpu(cls):
         np.testing.assert_allclose(
             outs["cuda"][key], value, rtol=1e-8, atol=1e-8 * np.abs(value).max(), err_msg=key
         )
-    np.testing.assert_allclose(outs["cuda"]["RtR"], outs["cuda"]["iK"], rtol=1e-8,
-                               atol=1e-8 * np.abs(outs["cuda"]["iK"]).max())  # fmt: skip
+    np.testing.assert_allclose(
+        outs["cuda"]["RtR"],
+        outs["cuda"]["iK"],
+        rtol=1e-8,
+        atol=1e-8 * np.abs(outs["cuda"]["iK"]).max(),
+    )

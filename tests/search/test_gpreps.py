@@ -462,8 +462,11 @@ def test_refit_best_keeps_the_larger_marginal_likelihood_of_both_starts():
     x, y = _refit_data()
     make = partial(ExactGP, n_steps=60)
     # a poor previous optimum: input 0 switched off, all variance called noise
-    previous = {"lengthscale": np.array([50.0, 50.0]), "outputscale": np.array(0.01),
-                "noise": np.array(0.5)}  # fmt: skip
+    previous = {
+        "lengthscale": np.array([50.0, 50.0]),
+        "outputscale": np.array(0.01),
+        "noise": np.array(0.5),
+    }
     gp, rec = refit_gp(make, x, y, np.random.default_rng(0), previous, "best")
     assert rec["log_ml_cold"] is not None and rec["log_ml_warm"] is not None
     kept = rec[f"log_ml_{rec['start']}"]

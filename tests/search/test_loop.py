@@ -231,11 +231,19 @@ def test_runs_with_one_eval_seed_are_evaluated_on_the_same_noise():
     """Two context-free runs with different learning streams and one ``eval_seed`` score the
     same initial policy identically; without it, they draw different evaluation noise."""
     task = NoisyBowl()
-    same = [learn(task, _reps(task), 1, 20, s, progress=False, eval_contexts=np.zeros((4, 0)),
-                  eval_seed=7)["mean_reward"][0] for s in (1, 2)]  # fmt: skip
+    same = [
+        learn(
+            task, _reps(task), 1, 20, s, progress=False, eval_contexts=np.zeros((4, 0)), eval_seed=7
+        )["mean_reward"][0]
+        for s in (1, 2)
+    ]
     assert same[0] == same[1]
-    own = [learn(task, _reps(task), 1, 20, s, progress=False,
-                 eval_contexts=np.zeros((4, 0)))["mean_reward"][0] for s in (1, 2)]  # fmt: skip
+    own = [
+        learn(task, _reps(task), 1, 20, s, progress=False, eval_contexts=np.zeros((4, 0)))[
+            "mean_reward"
+        ][0]
+        for s in (1, 2)
+    ]
     assert own[0] != own[1]
 
 

@@ -107,9 +107,15 @@ def test_policy_gradient_equals_finite_differences(seed, mean):
 
     def J(G):
         return expected_return(
-            step, G, np.full(3, 0.2), 0.05 * np.eye(3), 12,
-            np.zeros(3), Q, 0.1,
-        )  # fmt: skip
+            step,
+            G,
+            np.full(3, 0.2),
+            0.05 * np.eye(3),
+            12,
+            np.zeros(3),
+            Q,
+            0.1,
+        )
 
     (grad,) = torch.autograd.grad(J(G0), G0)
     fd = np.zeros((2, 3))
@@ -134,8 +140,9 @@ def test_optimised_gain_equals_the_discrete_lqr_gain_where_moment_matching_is_ex
     step = linear_gaussian_step(A, B, 0.01 * np.eye(3))
 
     def J(G):
-        return expected_return(step, G, np.ones(3), 0.1 * np.eye(3), 300, np.zeros(3), Q, r,
-                               score_initial=True)  # fmt: skip
+        return expected_return(
+            step, G, np.ones(3), 0.1 * np.eye(3), 300, np.zeros(3), Q, r, score_initial=True
+        )
 
     G, info = optimize_gain(J, start, max_iterations=500, tolerance=1e-15)
     assert info["value"] > info["value0"]
@@ -214,9 +221,14 @@ def test_expected_return_of_the_true_linearisation_matches_the_simulator_near_up
     step = linear_gaussian_step(A, B, np.zeros((8, 8)))
     # The linearisation is about x̃ = x − x_up: shift the mean accordingly.
     J = expected_return(
-        step, torch.tensor(G), np.zeros(8), 0.02**2 * np.eye(8), task.n_steps, np.zeros(8),
+        step,
+        torch.tensor(G),
+        np.zeros(8),
+        0.02**2 * np.eye(8),
+        task.n_steps,
+        np.zeros(8),
         task.state_weights,
-    )  # fmt: skip
+    )
     rng = np.random.default_rng(0)
     r = np.array([task.reward(task.rollout(G.ravel(), rng=rng)) for _ in range(400)])
     tol = 3 * r.std() / np.sqrt(r.size) + 0.02 * abs(r.mean())
@@ -294,8 +306,15 @@ def test_expected_return_stops_at_a_failed_step_and_the_optimizer_survives_linal
         calls.append(1)
         return mean_z[:2] + float("nan"), cov_z[:2, :2]
 
-    J = expected_return(step, torch.zeros(1, 2, dtype=torch.float64), np.zeros(2), np.eye(2),
-                        10, np.zeros(2), np.eye(2))  # fmt: skip
+    J = expected_return(
+        step,
+        torch.zeros(1, 2, dtype=torch.float64),
+        np.zeros(2),
+        np.eye(2),
+        10,
+        np.zeros(2),
+        np.eye(2),
+    )
     assert torch.isnan(J) and len(calls) == 1
 
     def J2(G):
@@ -343,8 +362,15 @@ def test_pilco_checks_the_roundoff_of_its_optimised_gain_once_per_update():
         _pilco_roundoff_run(_linear_limit_model, strict=True)
     step = GPMomentStep(_random_fitc(5))
     assert step.roundoff is None and "none" in repr(step)
-    J = expected_return(step, torch.zeros(2, 3, dtype=torch.float64), np.zeros(3),
-                        0.05 * np.eye(3), 4, np.zeros(3), np.eye(3))  # fmt: skip
+    J = expected_return(
+        step,
+        torch.zeros(2, 3, dtype=torch.float64),
+        np.zeros(3),
+        0.05 * np.eye(3),
+        4,
+        np.zeros(3),
+        np.eye(3),
+    )
     assert torch.isfinite(J) and 0.0 < step.roundoff.relative_error < ROUNDOFF_TOL
     step.reset()
     assert step.roundoff is None

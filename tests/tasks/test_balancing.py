@@ -225,8 +225,9 @@ def test_swing_reference_feedforward_is_the_inverse_dynamics_and_tracks():
     open_loop = task.rollout_from(np.zeros(32), ref[0], rng=0, reference=ref, feedforward=ff)
     early = np.abs(open_loop.states[:4, :4] - ref[:4, :4]).max()
     assert early < 0.05
-    tracked = task.rollout_from(task.pd_gain().ravel(), ref[0], rng=0, reference=ref,
-                                feedforward=ff)  # fmt: skip
+    tracked = task.rollout_from(
+        task.pd_gain().ravel(), ref[0], rng=0, reference=ref, feedforward=ff
+    )
     assert np.abs(tracked.states[:, :4] - ref[:, :4]).max() < 0.1
     # the sampler policy is the same law
     G = torch.as_tensor(task.pd_gain()[None])
@@ -347,8 +348,14 @@ def test_the_divergence_rule_on_paths_is_the_rule_a_rollout_is_stopped_by():
     assert not good.failed
     nan = good.states.copy()
     nan[3, 5] = np.nan
-    paths = np.stack([whole.states, np.vstack([failed.states, failed.states[-1:]]),
-                      good.states[: k + 1], nan[: k + 1]])  # fmt: skip
+    paths = np.stack(
+        [
+            whole.states,
+            np.vstack([failed.states, failed.states[-1:]]),
+            good.states[: k + 1],
+            nan[: k + 1],
+        ]
+    )
     np.testing.assert_array_equal(task.failed_batch(paths), [True, False, False, True])
     far = good.states[None, : k + 1].copy()
     far[0, 2, 1] = UPRIGHT[1] + 1.01 * task.max_angle  # beyond the angle limit only

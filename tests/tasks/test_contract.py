@@ -212,9 +212,13 @@ def test_trajectory_save_load_roundtrip(task, tmp_path):
 
 def test_trajectory_save_load_keeps_a_failure_and_refuses_bad_records(tmp_path):
     failed = Trajectory(
-        np.zeros(1), np.zeros((1, 1)), np.zeros((1, 1)), info={"k": [1.5]}, failed=True,
+        np.zeros(1),
+        np.zeros((1, 1)),
+        np.zeros((1, 1)),
+        info={"k": [1.5]},
+        failed=True,
         message="diverged",
-    )  # fmt: skip
+    )
     path = failed.save(tmp_path / "failed")  # ".npz" is appended, as numpy does
     assert path == tmp_path / "failed.npz" and path.exists()
     back = Trajectory.load(path)

@@ -269,9 +269,15 @@ def _returns_a_string(omega, context, rng):
 
 @pytest.mark.parametrize(
     ("value", "type_name"),
-    [("-1.23", "str"), (b"-1", "bytes"), (True, "bool"), (np.bool_(False), "bool"),
-     (1 + 0j, "complex"), (np.array("-1.0"), "ndarray")],
-)  # fmt: skip
+    [
+        ("-1.23", "str"),
+        (b"-1", "bytes"),
+        (True, "bool"),
+        (np.bool_(False), "bool"),
+        (1 + 0j, "complex"),
+        (np.array("-1.0"), "ndarray"),
+    ],
+)
 def test_a_reward_that_is_no_real_number_is_refused_naming_function_and_type(value, type_name):
     task = _model_free(lambda omega, context, rng: value)
     with pytest.raises(ValueError, match=rf"rollout \(.*<lambda>\): expected a real .*{type_name}"):

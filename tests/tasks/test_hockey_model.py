@@ -270,9 +270,13 @@ def test_launch_targets_round_trip():
     component is back within a few eps · ‖v‖ and the heading within a few eps · π."""
     rng = np.random.default_rng(0)
     state = np.column_stack(
-        [rng.uniform(-0.3, 0.3, 50), rng.normal(1.5, 1.0, 50), rng.normal(0, 1.0, 50),
-         rng.uniform(0.2, 0.8, 50)]
-    )  # fmt: skip
+        [
+            rng.uniform(-0.3, 0.3, 50),
+            rng.normal(1.5, 1.0, 50),
+            rng.normal(0, 1.0, 50),
+            rng.uniform(0.2, 0.8, 50),
+        ]
+    )
     speed = np.hypot(state[:, 1], state[:, 2])
     h = LaunchTargets("heading")
     back = h.decode(h.encode(state))

@@ -409,9 +409,13 @@ def test_contact_scores_are_weights_that_order_like_the_svm(data, score):
 
 def test_refit_records_the_start_kept_for_every_gp(data):
     task, (s, w, r, trajs) = data
-    model = _cheap(task, refit="best", make_landing_model=partial(ExactGP, n_steps=5),
-                   make_bounce_model=partial(ExactGP, n_steps=5),
-                   make_return_model=partial(ExactGP, n_steps=5))  # fmt: skip
+    model = _cheap(
+        task,
+        refit="best",
+        make_landing_model=partial(ExactGP, n_steps=5),
+        make_bounce_model=partial(ExactGP, n_steps=5),
+        make_return_model=partial(ExactGP, n_steps=5),
+    )
     first = _fit(model, (s[:40], w[:40], r[:40], trajs[:40]))
     assert set(first["refit"]) == {"landing", "bounce", "position", "orientation", "returns"}
     assert all(v["start"] == "cold" and v["log_ml_warm"] is None for v in first["refit"].values())

@@ -311,7 +311,7 @@ def test_same_seed_same_samples_and_a_density(check):
                 [[0.0], [1.0]], [0.0, 1.0], lengthscale=1, signal_var=1, noise_var=-1
             ),
             "noise_var",
-        ),  # fmt: skip
+        ),
         (lambda d: ch2.noise_profile([[0.0], [1.0]], [0.0, 1.0], [0.0]), "noise_vars"),
         (lambda d: ch2.noise_profile([[0.0], [1.0]], [0.0], [0.1]), "y"),
         (lambda d: ch2.noise_by_size_table(n_draws=1), "n_draws"),

@@ -144,10 +144,15 @@ def test_batch_table_has_one_row_per_throw_with_the_simulators_numbers():
 def test_fit_table_lists_each_gp_and_its_events():
     stats = {
         "n_data": 10,
-        "robot": {"n_data": 10, "log_ml": 1.0, "iterations": 3, "noise_var_max": 1e-6,
-                  "numerical_events": {"noise_at_floor": 2, "jitter_increased": 0}},
+        "robot": {
+            "n_data": 10,
+            "log_ml": 1.0,
+            "iterations": 3,
+            "noise_var_max": 1e-6,
+            "numerical_events": {"noise_at_floor": 2, "jitter_increased": 0},
+        },
         "release": {"n_data": 5, "log_ml": -2.0, "iterations": 3, "noise_var_max": 0.1},
-    }  # fmt: skip
+    }
     table = ch4.fit_table(stats)
     assert list(table.index) == ["robot", "release"]
     assert table.loc["robot", "handled events"] == "noise_at_floor ×2"

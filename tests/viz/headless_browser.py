@@ -276,9 +276,15 @@ class JupyterLab:
         self._log = open(self._home / "server.log", "wb")  # noqa: SIM115  (closed in close())
         self._proc = subprocess.Popen(
             [
-                sys.executable, "-m", "jupyter", "lab", "--no-browser",
-                "--ServerApp.ip=127.0.0.1", f"--ServerApp.port={self.port}",
-                "--ServerApp.port_retries=0", f"--IdentityProvider.token={self.token}",
+                sys.executable,
+                "-m",
+                "jupyter",
+                "lab",
+                "--no-browser",
+                "--ServerApp.ip=127.0.0.1",
+                f"--ServerApp.port={self.port}",
+                "--ServerApp.port_retries=0",
+                f"--IdentityProvider.token={self.token}",
                 f"--ServerApp.root_dir={self.root}",
                 f"--LabApp.user_settings_dir={self._home / 'settings'}",
                 f"--LabApp.workspaces_dir={self._home / 'workspaces'}",
@@ -288,7 +294,7 @@ class JupyterLab:
             stdout=self._log,
             stderr=subprocess.STDOUT,
             env=env,
-        )  # fmt: skip
+        )
         try:
             deadline = time.monotonic() + timeout
             while True:

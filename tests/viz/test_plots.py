@@ -470,8 +470,10 @@ def _axes_of(fig, prefix):
 def test_plotly_figures_fit_the_notebook_width_with_the_legend_below():
     """No fixed width (it would cut legends and colour bars in a notebook cell): the figure
     is responsive, its legend horizontal below the panels, axis labels given room."""
-    series = [Series(f"curve {i}", [1, 2, 3], [i, i + 1, i + 2], panel=f"p{i % 3}").to_dict()
-              for i in range(6)]  # fmt: skip
+    series = [
+        Series(f"curve {i}", [1, 2, 3], [i, i + 1, i + 2], panel=f"p{i % 3}").to_dict()
+        for i in range(6)
+    ]
     fig = plotly_figure(_result(series))
     assert fig.layout.width is None and fig.layout.autosize is True
     assert fig.layout.showlegend is True
@@ -520,8 +522,11 @@ def test_axis_ranges_contain_every_point_and_band():
     assert x0 < 4 and x1 > 25 and y0 < 0.502 and y1 > 0.71
     single = next(t for t in fig.data if t.name == "b")
     assert "markers" in single.mode
-    line = [ln for ln in matplotlib_figure(_result([s.to_dict() for s in series])).axes[0].lines
-            if ln.get_label() == "b"][0]  # fmt: skip
+    line = [
+        ln
+        for ln in matplotlib_figure(_result([s.to_dict() for s in series])).axes[0].lines
+        if ln.get_label() == "b"
+    ][0]
     assert line.get_marker() == "o"
 
 

@@ -9,6 +9,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from skillkit._validation import check_choice
 from skillkit.experiments.settings import Settings, apply_overrides
 from skillkit.series import Series, mean_band  # noqa: F401  (re-exported for experiments)
 
@@ -50,8 +51,7 @@ class Experiment:
     def settings_for(self, scale: str, **overrides) -> Settings:
         """The settings of ``scale`` with ``overrides`` applied; ValueError for an unknown
         scale or name or a value of the wrong type."""
-        if scale not in SCALES:
-            raise ValueError(f"scale: expected one of {SCALES}, got {scale!r}")
+        check_choice(scale, "scale", SCALES)
         try:
             return apply_overrides(self.settings[scale], overrides)
         except ValueError as exc:

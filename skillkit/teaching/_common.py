@@ -7,21 +7,20 @@ from collections.abc import Iterable, Mapping
 
 import numpy as np
 
+from skillkit._validation import check_choice
+from skillkit.experiments.registry import SCALES
 from skillkit.viz.plots import draw_figure
 from skillkit.viz.series import Series
 
 
 def per_scale(cls, **columns: tuple) -> dict:
     """``{scale: cls(**sizes)}`` from columns field → (smoke, quick, paper)."""
-    names = ("smoke", "quick", "paper")
-    return {s: cls(**{k: v[i] for k, v in columns.items()}) for i, s in enumerate(names)}
+    return {s: cls(**{k: v[i] for k, v in columns.items()}) for i, s in enumerate(SCALES)}
 
 
 def at_scale(table: Mapping, scale: str):
     """``table[scale]``, or a ``ValueError`` naming ``scale``."""
-    if scale not in table:
-        raise ValueError(f"scale: expected one of {tuple(table)}, got {scale!r}")
-    return table[scale]
+    return table[check_choice(scale, "scale", tuple(table))]
 
 
 def expect(value, cls, name: str, what: str = ""):

@@ -689,8 +689,8 @@ def prediction_overlay(task, predicted, real, *, live: bool, n_shown: int = 20) 
     """
     import plotly.graph_objects as go
 
+    from skillkit.viz.animation import planar_link_points
     from skillkit.viz.notebook import show_viewer
-    from skillkit.viz.scenes import kinematic_points, task_model
 
     n_shown = check_count(n_shown, "n_shown")
     samples = np.asarray(predicted.states[0], dtype=float)  # (L, T + 1, 8)
@@ -698,16 +698,10 @@ def prediction_overlay(task, predicted, real, *, live: bool, n_shown: int = 20) 
     if shown.live:
         shown.viewer.add_prediction_layer("gp", samples, label="GP samples")
         return ModelView(shown)
-    model = task_model(task)
-    bodies = [model.body(b).id for b in ("shin", "thigh", "torso", "arm")]
-
-    def points(q):  # ankle, knee, hip, shoulder, hand in the robot's [x, z] plane
-        return kinematic_points(model, q, bodies, [model.site("hand").id])[..., [0, 2]]
-
     L, T1, _ = samples.shape
-    hands = points(samples[:n_shown, :, :4].reshape(-1, 4))[:, -1]
+    hands = planar_link_points(task, samples[:n_shown, :, :4].reshape(-1, 4))[:, -1]
     hands = hands.reshape(min(L, n_shown), T1, 2)
-    links = points(np.asarray(real[0].states)[:, :4])
+    links = planar_link_points(task, np.asarray(real[0].states)[:, :4])
     fig = go.Figure()
     for k, path in enumerate(hands):
         fig.add_scatter(

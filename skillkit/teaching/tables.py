@@ -73,12 +73,12 @@ def experiments_table():
     import pandas as pd
 
     from skillkit.experiments import timings
-    from skillkit.experiments.registry import get, ids
+    from skillkit.experiments.registry import SCALES, get, ids
 
     rows, scales = [], ("smoke", "quick")
     for exp_id in ids():
         exp = get(exp_id)
-        trials = " / ".join(str(exp.trials[s]) for s in ("smoke", "quick", "paper"))
+        trials = " / ".join(str(exp.trials[s]) for s in SCALES)
         rows.append(
             {
                 "id": exp_id,

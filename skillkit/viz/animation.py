@@ -38,7 +38,7 @@ context gain, hits only balls coming straight down the table)."""
 
 # bodies at the joints (ankle, knee, hip, shoulder; floor, shoulder, elbow, wrist), end site
 _SKELETONS = {
-    "throwing": (("shin", "thigh", "torso", "arm"), "hand"),
+    "planar": (("shin", "thigh", "torso", "arm"), "hand"),
     "table-tennis": (("platform", "upper_arm", "forearm", "hand"), "racket"),
 }
 _SHOT_COLORS = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd")
@@ -50,13 +50,15 @@ def _rgb(name: str) -> str:
 
 
 def _model(task, kind: str):
-    """The MuJoCo model of ``task``, which must be a throwing or table-tennis task."""
-    if kind == "throwing":
-        from skillkit.tasks.planar import Throwing as cls
-    else:
-        from skillkit.tasks.table_tennis import TableTennis as cls
-    if not isinstance(task, cls):
-        raise ValueError(f"task: expected a {cls.__name__} task, got {type(task).__name__}")
+    """The MuJoCo model of ``task``, which must be a throwing, planar-robot (throwing or
+    balancing) or table-tennis task."""
+    from skillkit.tasks.balancing import Balancing
+    from skillkit.tasks.planar import Throwing
+    from skillkit.tasks.table_tennis import TableTennis
+
+    classes = {"throwing": Throwing, "planar": (Throwing, Balancing), "table-tennis": TableTennis}
+    if not isinstance(task, classes[kind]):
+        raise ValueError(f"task: expected a {kind} task, got {type(task).__name__}")
     return task_model(task)
 
 
@@ -69,12 +71,13 @@ def _link_points(task, kind: str, q) -> np.ndarray:
 
 
 def planar_link_points(task, q) -> np.ndarray:
-    """Ankle, knee, hip, shoulder and hand of the planar 4-link robot (Appendix C.1) per row of
-    joint angles q (N, 4), shape (N, 5, 2) in the thesis's [x, y] (m), from the task's MuJoCo
+    """Ankle, knee, hip, shoulder and hand of the planar 4-link robot (Appendix C.1; throwing
+    or balancing) per row of joint angles q (N, 4), shape (N, 5, 2) in the robot's plane (m),
+    from the task's MuJoCo
     model: with θ_k = q_1 + … + q_k, joint k + 1 sits at Σ_{j≤k} l_j (sin θ_j, cos θ_j) and the
     hand l_4 (−sin θ_4, −cos θ_4) beyond the shoulder.
     """
-    return _link_points(task, "throwing", q)[..., [0, 2]]
+    return _link_points(task, "planar", q)[..., [0, 2]]
 
 
 def arm_link_points(task, q) -> np.ndarray:

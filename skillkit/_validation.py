@@ -102,3 +102,11 @@ def check_choice(value, name: str, choices: Sequence):
     if value not in choices:
         raise ValueError(f"{name}: expected one of {', '.join(map(repr, choices))}, got {value!r}")
     return value
+
+
+def check_type(value, cls, name: str, what: str = ""):
+    """``value`` if it is a ``cls`` (a class or tuple of classes), else a ``ValueError`` naming
+    ``name`` and what was expected (``what``, default the class name)."""
+    if not isinstance(value, cls):
+        raise ValueError(f"{name}: expected {what or cls.__name__}, got {type(value).__name__}")
+    return value

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from skillkit._repr import number
+from skillkit._validation import check_type
 
 
 @dataclass
@@ -56,8 +57,7 @@ class Trajectory:
             raise ValueError(
                 f"signals: expected a dict of str to arrays, got {type(self.signals).__name__}"
             )
-        if not isinstance(self.info, dict):
-            raise ValueError(f"info: expected a dict, got {type(self.info).__name__}")
+        check_type(self.info, dict, "info", "a dict")
         self.signals = {k: np.asarray(v, dtype=np.float64) for k, v in self.signals.items()}
 
     def __repr__(self) -> str:

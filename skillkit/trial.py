@@ -10,7 +10,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from skillkit._validation import check_positive
+from skillkit._validation import check_positive, check_type
 
 #: A saved state: the pickled payload and the generator's ``bit_generator.state`` at the save.
 Snapshot = tuple[bytes, dict]
@@ -132,8 +132,7 @@ class TrialContext:
     def save(self, key: str, state: Any, rng: np.random.Generator) -> None:
         """Snapshot ``state`` (any picklable object) and ``rng``'s state under ``key``, then
         hand every key's latest snapshot to the writer."""
-        if not isinstance(rng, np.random.Generator):
-            raise ValueError(f"rng: expected a numpy Generator, got {type(rng).__name__}")
+        check_type(rng, np.random.Generator, "rng", "a numpy Generator")
         body = pickle.dumps(state, protocol=pickle.HIGHEST_PROTOCOL)
         self._snapshots[str(key)] = (body, rng.bit_generator.state)
         if self._events is not None:  # the events since the last resume or save belong to key

@@ -19,6 +19,8 @@ from typing import Any, Literal, TypeVar, Union
 
 import numpy as np
 
+from skillkit._validation import check_type
+
 __all__ = ["Settings", "apply_overrides", "describe", "scales", "setting", "type_name"]
 
 _DOC = "doc"
@@ -196,8 +198,7 @@ def apply_overrides(settings: Settings, overrides: Mapping[str, Any]) -> Setting
         An unknown name (the message lists the valid ones) or a value of the wrong type (the
         message names the field and the expected type).
     """
-    if not isinstance(settings, Settings):
-        raise ValueError(f"settings: expected a Settings instance, got {type(settings).__name__}")
+    check_type(settings, Settings, "settings", "a Settings instance")
     names = [f.name for f in dataclasses.fields(settings)]
     unknown = sorted(set(overrides) - set(names))
     if unknown:

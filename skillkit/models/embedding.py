@@ -14,7 +14,7 @@ import numpy as np
 import torch
 
 from skillkit._repr import number, span
-from skillkit._validation import check_array, check_count, check_positive
+from skillkit._validation import check_array, check_count, check_positive, check_type
 from skillkit.models.kernels import Linear, SquaredExponential, gram
 
 __all__ = [
@@ -218,8 +218,7 @@ class ConditionalEmbedding:
             raise ValueError("target_kernel: needed for pre-images when targets and inputs differ")
         if isinstance(kern, Linear):
             return self.mean(b)
-        if not isinstance(kern, SquaredExponential):
-            raise ValueError(f"target_kernel: expected SE or Linear, got {type(kern).__name__}")
+        check_type(kern, SquaredExponential, "target_kernel", "SE or Linear")
         single = b.ndim == 1
         x, ok = _se_preimage(self.targets, b.reshape(self.n, -1), kern, int(max_iter), float(tol))
         if not np.all(ok):

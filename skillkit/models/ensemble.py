@@ -15,7 +15,7 @@ import torch
 import torch.nn.functional as F
 
 from skillkit._repr import number
-from skillkit._validation import as_generator, check_count, check_positive
+from skillkit._validation import as_generator, check_count, check_positive, check_type
 from skillkit.models.gp import DTYPE, Moments, TransitionModel, as_device, check_dtype
 
 __all__ = ["LOGVAR_INIT", "LOGVAR_PENALTY", "EnsembleSettings", "ProbabilisticEnsemble"]
@@ -77,8 +77,7 @@ class ProbabilisticEnsemble(TransitionModel):
         dtype: torch.dtype = DTYPE,
     ):
         settings = EnsembleSettings() if settings is None else settings
-        if not isinstance(settings, EnsembleSettings):
-            raise ValueError(f"settings: expected EnsembleSettings, got {type(settings).__name__}")
+        check_type(settings, EnsembleSettings, "settings")
         super().__init__(target)
         check_dtype(dtype)
         self.settings = settings

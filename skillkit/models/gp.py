@@ -24,7 +24,7 @@ from gpytorch.constraints import GreaterThan
 from linear_operator.utils.errors import NanError, NotPSDError
 
 from skillkit._repr import number, span
-from skillkit._validation import as_generator, check_array, check_count, check_positive
+from skillkit._validation import as_generator, check_array, check_count, check_positive, check_type
 from skillkit.models.kernels import SquaredExponential, se_kernel, se_operands
 
 __all__ = [
@@ -1005,8 +1005,7 @@ class ForwardModel(TransitionModel):
     """
 
     def __init__(self, gp: GPRegression, target: str = "next", mean: str = "zero"):
-        if not isinstance(gp, GPRegression):
-            raise ValueError(f"gp: expected an ExactGP, FITC or VFE, got {type(gp).__name__}")
+        check_type(gp, GPRegression, "gp", "an ExactGP, FITC or VFE")
         super().__init__(target)
         if mean not in ("zero", "linear"):
             raise ValueError(f"mean: expected 'zero' or 'linear', got {mean!r}")

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import torch
 
+from skillkit._validation import check_type
 from skillkit.models.gp import GPPredictor, Moments, flush_tiny
 from skillkit.models.kernels import se_kernel
 
@@ -75,8 +76,7 @@ class PathwiseBasis:
     ):
         if isinstance(n_features, bool) or int(n_features) != n_features or n_features < 1:
             raise ValueError(f"n_features: expected a positive integer, got {n_features!r}")
-        if not isinstance(predictor, GPPredictor):
-            raise ValueError(f"predictor: expected a GPPredictor, got {type(predictor).__name__}")
+        check_type(predictor, GPPredictor, "predictor", "a GPPredictor")
         self.n_features = int(n_features)
         self.dtype = predictor.dtype if dtype is None else dtype
         hi = predictor.to(dtype=torch.float64)

@@ -24,7 +24,7 @@ import numpy as np
 from scipy.signal import lfilter
 
 from skillkit._repr import number, span, vector
-from skillkit._validation import check_array, check_count, check_positive
+from skillkit._validation import check_array, check_count, check_positive, check_type
 
 __all__ = ["DMP", "DMPParameters"]
 
@@ -351,8 +351,7 @@ class DMPParameters:
     """
 
     def __init__(self, dmp: DMP, learn: Sequence[str] = _LEARNABLE) -> None:
-        if not isinstance(dmp, DMP):
-            raise ValueError(f"dmp: expected a DMP, got {type(dmp).__name__}")
+        check_type(dmp, DMP, "dmp", "a DMP")
         if isinstance(learn, str):
             learn = (learn,)
         learn = tuple(learn)

@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy import special
 
-from skillkit._validation import check_array, check_count
+from skillkit._validation import check_array, check_count, check_type
 from skillkit.policies.gaussian import LinearGaussianPolicy
 from skillkit.trajectory import Trajectory
 
@@ -109,8 +109,7 @@ class Batch:
 
 def as_batch(batch: Batch, dim: int, context_dim: int) -> Batch:
     """``batch`` after checking it is a :class:`Batch` for ``dim`` and ``context_dim``."""
-    if not isinstance(batch, Batch):
-        raise ValueError(f"batch: expected a skillkit.search.Batch, got {type(batch).__name__}")
+    check_type(batch, Batch, "batch", "a skillkit.search.Batch")
     if batch.dim != dim:
         raise ValueError(f"omegas: expected shape (N, {dim}), got {batch.omegas.shape}")
     if batch.context_dim != context_dim:
@@ -127,17 +126,12 @@ def rollouts_only(batch: Batch, algorithm: str) -> Batch:
 
 def check_policy(policy: LinearGaussianPolicy, name: str = "policy") -> LinearGaussianPolicy:
     """``policy`` after checking it is a :class:`LinearGaussianPolicy`."""
-    if not isinstance(policy, LinearGaussianPolicy):
-        raise ValueError(f"{name}: expected a LinearGaussianPolicy, got {type(policy).__name__}")
-    return policy
+    return check_type(policy, LinearGaussianPolicy, name, "a LinearGaussianPolicy")
 
 
 def check_settings(settings: S | None, cls: type[S]) -> S:
     """``settings`` (``None``: ``cls()``) after checking it is a ``cls``."""
-    settings = cls() if settings is None else settings
-    if not isinstance(settings, cls):
-        raise ValueError(f"settings: expected {cls.__name__}, got {type(settings).__name__}")
-    return settings
+    return check_type(cls() if settings is None else settings, cls, "settings")
 
 
 def fields_repr(obj: Any, *names: str) -> str:

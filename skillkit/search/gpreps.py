@@ -30,6 +30,7 @@ from skillkit._validation import (
     check_choice,
     check_count,
     check_positive,
+    check_type,
 )
 from skillkit.models.gp import ExactGP, ForwardModel, GPRegression, check_dtype
 from skillkit.models.reward import RewardModel, gp_stats, warm_start_hypers
@@ -59,8 +60,7 @@ class DirectRewardModel(RewardModel):
 
     def __init__(self, gp: GPRegression | None = None, warm_start: bool = True):
         gp = ExactGP() if gp is None else gp
-        if not isinstance(gp, GPRegression):
-            raise ValueError(f"gp: expected an ExactGP, FITC or VFE, got {type(gp).__name__}")
+        check_type(gp, GPRegression, "gp", "an ExactGP, FITC or VFE")
         self.gp = gp
         self.warm_start = bool(warm_start)
         self.hyperparameters: dict[str, np.ndarray] | None = None
@@ -132,8 +132,7 @@ class TrajectoryRewardModel(RewardModel):
         dtype: torch.dtype = torch.float64,
         common_start_states: bool = False,
     ):
-        if not isinstance(task, Task):
-            raise ValueError(f"task: expected a Task, got {type(task).__name__}")
+        check_type(task, Task, "task", "a Task")
         if not task.supports_model_rollout:
             raise ValueError(f"task: no step-based model rollouts: {task.no_model_rollout_reason}")
         if make_model is not None and not callable(make_model):

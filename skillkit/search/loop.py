@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from tqdm.auto import tqdm
 
-from skillkit._validation import as_generator, check_count
+from skillkit._validation import as_generator, check_count, check_type
 from skillkit.search.base import Batch
 from skillkit.tasks.base import Task
 from skillkit.trial import TrialContext
@@ -239,8 +239,7 @@ def learn(
         ``explore_rollouts``, ``explore_reward``, ``n_failed`` and ``diagnostics`` (K),
         ``eval_contexts``, ``policy`` (the final one) and ``policies`` (K + 1).
     """
-    if not isinstance(task, Task):
-        raise ValueError(f"task: expected a Task, got {type(task).__name__}")
+    check_type(task, Task, "task", "a Task")
     pol = algorithm.policy
     want, got = (task.parameter_dim, task.context_dim), (pol.dim, pol.context_dim)
     if got != want:

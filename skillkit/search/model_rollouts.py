@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from skillkit._validation import as_generator, check_array, check_count
+from skillkit._validation import as_generator, check_array, check_count, check_type
 from skillkit.models.reward import Prediction, worst_if_failed, worst_if_nonfinite
 from skillkit.models.sampling import SampledTrajectories, StepModel, sample_trajectories
 from skillkit.tasks.base import Task
@@ -76,8 +76,7 @@ def predict_trajectories(
     control_limit, device, dtype
         Passed to :func:`~skillkit.models.sampling.sample_trajectories`.
     """
-    if not isinstance(task, Task):
-        raise ValueError(f"task: expected a Task, got {type(task).__name__}")
+    check_type(task, Task, "task", "a Task")
     if not task.supports_model_rollout:
         reason = task.no_model_rollout_reason
         raise NotImplementedError(f"task: {task.name!r} has no model rollouts: {reason}")

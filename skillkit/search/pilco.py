@@ -20,7 +20,7 @@ import scipy.optimize
 import torch
 
 from skillkit._repr import number
-from skillkit._validation import as_generator, check_array, check_count, check_positive
+from skillkit._validation import as_generator, check_array, check_count, check_positive, check_type
 from skillkit.models.gp import DTYPE, ForwardModel
 from skillkit.models.moment_matching import (
     RoundoffEstimate,
@@ -63,8 +63,7 @@ class GPMomentStep:
     """
 
     def __init__(self, model: ForwardModel, roundoff: bool = True):
-        if not isinstance(model, ForwardModel):
-            raise ValueError(f"model: expected a fitted ForwardModel, got {type(model).__name__}")
+        check_type(model, ForwardModel, "model", "a fitted ForwardModel")
         self.model = model
         self.predictor = model.predictor.to("cpu", DTYPE)
         self.track = bool(roundoff)
@@ -346,8 +345,7 @@ class PILCO:
     ):
         from skillkit.tasks.balancing import X_UP, Balancing
 
-        if not isinstance(task, Balancing):
-            raise ValueError(f"task: expected a Balancing task, got {type(task).__name__}")
+        check_type(task, Balancing, "task", "a Balancing task")
         if not isinstance(initial_policy, GaussianPolicy) or initial_policy.dim != 32:
             raise ValueError("initial_policy: expected a GaussianPolicy over the 32 gains")
         self.settings = check_settings(settings, PILCOSettings)

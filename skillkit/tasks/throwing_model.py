@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from skillkit._validation import as_generator, check_array, check_count, check_positive
+from skillkit._validation import as_generator, check_array, check_count, check_positive, check_type
 from skillkit.models.gp import ExactGP, ForwardModel, GPRegression, check_dtype
 from skillkit.models.reward import (
     Prediction,
@@ -130,8 +130,7 @@ class ThrowingRewardModel(RewardModel):
         dtype: torch.dtype = torch.float64,
         stop_flight_at_ground: bool = True,
     ):
-        if not isinstance(task, Throwing):
-            raise ValueError(f"task: expected a Throwing task, got {type(task).__name__}")
+        check_type(task, Throwing, "task", "a Throwing task")
         set_factories(
             self,
             make_robot_model=(make_robot_model, _robot_model),

@@ -23,13 +23,6 @@ def at_scale(table: Mapping, scale: str):
     return table[check_choice(scale, "scale", tuple(table))]
 
 
-def expect(value, cls, name: str, what: str = ""):
-    """``value`` if it is a ``cls``, else a ``ValueError`` naming ``name``."""
-    if not isinstance(value, cls):
-        raise ValueError(f"{name}: expected {what or cls.__name__}, got {type(value).__name__}")
-    return value
-
-
 def sig(value: float, digits: int = 4) -> float:
     """``value`` rounded to ``digits`` significant digits (for tables)."""
     return float(f"{float(value):.{digits}g}")

@@ -15,7 +15,7 @@ import torch
 from numpy.typing import ArrayLike
 from scipy.optimize import minimize
 
-from skillkit._validation import as_generator, check_array, check_count, check_positive
+from skillkit._validation import as_generator, check_array, check_count, check_positive, check_type
 from skillkit.experiments.ch2 import FORCING_LABEL, reach_demonstration
 from skillkit.experiments.ch2_gp import fig2_12_function, successor_density
 from skillkit.models.gp import (
@@ -27,7 +27,7 @@ from skillkit.models.gp import (
 )
 from skillkit.models.moment_matching import GaussianPrediction, linearize, moment_match
 from skillkit.policies.dmp import DMP
-from skillkit.teaching._common import draw, expect, index, sig
+from skillkit.teaching._common import draw, index, sig
 from skillkit.viz.figures import plot_gp_fit
 from skillkit.viz.series import Series
 
@@ -64,7 +64,7 @@ def _fitted(gp, name: str = "gp") -> ExactGP:
 def phase_figure(dmp: DMP, times: ArrayLike, *, backend: str = "plotly"):
     """The phase z_t = exp(−τ α_z t) (Eq. 2.22) over ``times`` (s), the basis centres c_i
     marked where it passes them."""
-    centres = expect(dmp, DMP, "dmp", "a DMP").centers
+    centres = check_type(dmp, DMP, "dmp", "a DMP").centers
     t = _times(times)
     t_c = -np.log(centres) / (dmp.tau * dmp.alpha_z)
     kw = {"xlabel": "t [s]", "ylabel": "phase z"}
@@ -80,7 +80,7 @@ def phase_figure(dmp: DMP, times: ArrayLike, *, backend: str = "plotly"):
 def basis_figure(dmp: DMP, times: ArrayLike, *, backend: str = "plotly"):
     """The basis φ_i(z) = z ψ_i(z) / Σ_j ψ_j(z) of f(z) = φ(z)ᵀv (Sec. 2.2.1) and their sum z,
     over the phase z(times) and over ``times``."""
-    expect(dmp, DMP, "dmp", "a DMP")
+    check_type(dmp, DMP, "dmp", "a DMP")
     t = _times(times)
     z_t = dmp.phase(t)
     z = np.linspace(float(z_t.min()), 1.0, t.shape[0])
@@ -118,7 +118,7 @@ def forcing_figure(
     joint : int
         The joint drawn.
     """
-    expect(dmp, DMP, "dmp", "a DMP")
+    check_type(dmp, DMP, "dmp", "a DMP")
     joint = index(joint, "joint", dmp.n_joints)
     t = _times(times)
     target = dmp.forcing_target(t, q, qd, qdd)[:, joint]
@@ -153,7 +153,7 @@ def demonstration_figure(
     """Curves (label → values (T,) at ``times``) under the demonstration (T,), as Fig. 2.11."""
     t = _times(times)
     demo = check_array(demonstration, "demonstration", shape=t.shape)
-    expect(curves, Mapping, "curves", "a mapping of label to values")
+    check_type(curves, Mapping, "curves", "a mapping of label to values")
     kw = {"xlabel": "t [s]", "ylabel": ylabel}
     series = [Series("demonstration", t.tolist(), demo.tolist(), dash="dash", **kw)]
     for label, y in curves.items():

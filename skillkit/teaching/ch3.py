@@ -13,7 +13,7 @@ import numpy as np
 import pandas as pd
 from numpy.typing import ArrayLike
 
-from skillkit._validation import check_array, check_count, check_positive
+from skillkit._validation import check_array, check_count, check_positive, check_type
 from skillkit.policies.gaussian import LinearGaussianPolicy
 from skillkit.search.reps import (
     DualSolution,
@@ -23,7 +23,7 @@ from skillkit.search.reps import (
     reps_dual,
     reps_weights,
 )
-from skillkit.teaching._common import draw, expect, index_pair, sig, xy
+from skillkit.teaching._common import draw, index_pair, sig, xy
 from skillkit.viz.plots import PANEL_HEIGHT
 from skillkit.viz.series import Series
 
@@ -244,7 +244,7 @@ def policy_moments(
         m = \sum_i q_i \mu(s_i), \qquad
         C = \Sigma + \sum_i q_i (\mu(s_i) - m)(\mu(s_i) - m)^T.
     """
-    s = _contexts(expect(policy, LinearGaussianPolicy, "policy"), contexts)
+    s = _contexts(check_type(policy, LinearGaussianPolicy, "policy"), contexts)
     mu = np.atleast_2d(policy.mean_of(s))
     q = np.full(mu.shape[0], 1.0 / mu.shape[0]) if weights is None else _weights(weights, len(mu))
     mean = q @ mu
@@ -298,7 +298,7 @@ def ellipse_figure(
     """(d) The old and new policies' 1-σ ellipses (:func:`policy_moments` over the contexts
     (N, context_dim), the new one also at their mean) over the samples ω_i (N, d)."""
     for name, pol in (("old", old), ("new", new)):
-        expect(pol, LinearGaussianPolicy, name)
+        check_type(pol, LinearGaussianPolicy, name)
     if (new.dim, new.context_dim) != (old.dim, old.context_dim):
         raise ValueError("new: expected the dim and context_dim of old")
     w = check_array(omegas, "omegas", shape=(None, old.dim))
@@ -368,10 +368,10 @@ def update_table(
 ) -> pd.DataFrame:
     """One REPS update (3.10–3.12) as a row of :data:`COLUMNS` (KL(π_new ‖ π_old) over
     ``contexts``); with ``optimum`` θ* (d, 1 + F) also max |θ − θ*| before and after."""
-    n = expect(solution, REPSWeights, "solution").weights.shape[0]
+    n = check_type(solution, REPSWeights, "solution").weights.shape[0]
     r = check_array(rewards, "rewards", shape=(n,))
     for name, pol in (("old", old), ("new", new)):
-        expect(pol, LinearGaussianPolicy, name)
+        check_type(pol, LinearGaussianPolicy, name)
     s = _contexts(old, contexts, n)
     row = _row(solution, n, float(r.mean()), new.kl(old, s))
     if optimum is not None:
@@ -387,6 +387,6 @@ def diagnostics_table(updates: Sequence) -> pd.DataFrame:
         raise ValueError("updates: expected a non-empty list of ContextualREPS.update results")
     rows = []
     for k, d in enumerate(updates):
-        expect(d, REPSDiagnostics, f"updates[{k}]")
+        check_type(d, REPSDiagnostics, f"updates[{k}]")
         rows.append(_row(d, int(d.n_samples), float(d.mean_reward), float(d.policy_kl)))
     return pd.DataFrame(rows, index=pd.RangeIndex(1, len(rows) + 1, name="update"))

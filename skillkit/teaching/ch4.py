@@ -19,7 +19,7 @@ import numpy as np
 import pandas as pd
 from numpy.typing import ArrayLike
 
-from skillkit._validation import as_generator, check_array, check_count
+from skillkit._validation import as_generator, check_array, check_count, check_type
 from skillkit.experiments.ch4_balancing import LABELS, median_reached, thesis_42
 from skillkit.experiments.ch4_gpreps import COV_FLOOR, MIN_EFFECTIVE_SAMPLES
 from skillkit.models.gp import EVENT_KINDS, ExactGP, ForwardModel, record_numerical_events
@@ -31,7 +31,7 @@ from skillkit.search.reps import REPSWeights
 from skillkit.tasks.base import Task
 from skillkit.tasks.planar import Throwing
 from skillkit.tasks.throwing_model import ThrowingPrediction, ThrowingRewardModel
-from skillkit.teaching._common import at_scale, draw, expect, per_scale, xy
+from skillkit.teaching._common import at_scale, draw, per_scale, xy
 from skillkit.viz.series import Series
 
 
@@ -86,7 +86,7 @@ def _fitc_model(n_inducing: int, n_steps: int) -> ForwardModel:
 def throwing_model(task: Throwing, sizes: IterationSizes) -> ThrowingRewardModel:
     """The decomposed throwing model of Fig. 4.2 at ``sizes``: FITC robot and flight models,
     an exact release GP (at most 300 points)."""
-    expect(sizes, IterationSizes, "sizes")
+    check_type(sizes, IterationSizes, "sizes")
     return ThrowingRewardModel(
         task,
         make_robot_model=partial(_fitc_model, sizes.robot_inducing, sizes.robot_steps),
@@ -100,7 +100,7 @@ def throwing_model(task: Throwing, sizes: IterationSizes) -> ThrowingRewardModel
 
 def step_settings(sizes: IterationSizes, epsilon: float = 1.0) -> GPREPSSettings:
     """GPREPS's settings: M, L of ``sizes``, ε, μ̂(s) = the task's μ(s) and fig4.6's ML fit."""
-    expect(sizes, IterationSizes, "sizes")
+    check_type(sizes, IterationSizes, "sizes")
     return GPREPSSettings(
         epsilon=epsilon,
         n_artificial=sizes.n_artificial,
@@ -113,7 +113,7 @@ def step_settings(sizes: IterationSizes, epsilon: float = 1.0) -> GPREPSSettings
 
 def batch_table(batch: Batch) -> pd.DataFrame:
     """A batch's real throws: target s, release time, landing x (NaN: failed) and reward."""
-    n = expect(batch, Batch, "batch", "a Batch").n_rollouts
+    n = check_type(batch, Batch, "batch", "a Batch").n_rollouts
     trajs = list(batch.trajectories or [])[:n]
     info = [(t.info or {}) if t is not None and not t.failed else {} for t in trajs]
     info += [{}] * (n - len(info))
@@ -163,7 +163,7 @@ def policy_change_table(
     ``rewards`` R̂ (M,)."""
     if not isinstance(old, LinearGaussianPolicy) or not isinstance(new, LinearGaussianPolicy):
         raise ValueError("old, new: expected LinearGaussianPolicy objects")
-    p = expect(weights, REPSWeights, "weights").weights
+    p = check_type(weights, REPSWeights, "weights").weights
     s = check_array(contexts, "contexts", shape=(p.shape[0], old.context_dim))
     r = check_array(rewards, "rewards", shape=p.shape)
     return pd.DataFrame(
@@ -225,11 +225,11 @@ def update_comparison(
 ) -> pd.DataFrame:
     """The step-through's η, KL, ESS, max |a| and log det Σ beside one ``GPREPS.update`` on
     the same draws, and whether they are exactly equal."""
-    expect(weights, REPSWeights, "weights")
+    check_type(weights, REPSWeights, "weights")
     if not hasattr(diagnostics, "reps"):
         raise ValueError("diagnostics: expected GPREPSDiagnostics")
     for name, pol in (("policy", policy), ("update_policy", update_policy)):
-        expect(pol, LinearGaussianPolicy, name, "a LinearGaussianPolicy")
+        check_type(pol, LinearGaussianPolicy, name, "a LinearGaussianPolicy")
 
     def row(w, pol: LinearGaussianPolicy) -> list:
         return [w.eta, w.kl, w.ess, np.abs(pol.mean).max(), pol.log_det_cov()]
@@ -420,7 +420,7 @@ def weights_figure(
 ):
     """The REPS weights p_j ∝ exp((R̂_j − γᵀφ(s_j))/η) (Eq. 3.10) against the advantage, with
     the closed form and 1/M; ``rewards`` R̂ (M,), ``features`` φ(s_j) (M, F)."""
-    p = expect(weights, REPSWeights, "weights").weights
+    p = check_type(weights, REPSWeights, "weights").weights
     r = check_array(rewards, "rewards", shape=p.shape)
     phi = check_array(features, "features", shape=(p.shape[0], weights.gamma.shape[0]))
     adv = r - phi @ weights.gamma
@@ -465,7 +465,7 @@ def reward_pool(
     """The rewards :func:`reward_estimate_figure` resamples, from ``model.predict``:
     ``pool_repeats × max_trajectories`` at each fixed context (K, context_dim) and
     ``max_trajectories`` at each of ``pool_pairs`` pairs drawn from the task and ``policy``."""
-    expect(sizes, IterationSizes, "sizes")
+    check_type(sizes, IterationSizes, "sizes")
     rng = as_generator(rng)
     s = check_array(contexts, "contexts", shape=(None, policy.context_dim))
     w = np.atleast_2d(policy.mean_of(s))
@@ -490,7 +490,7 @@ def reward_estimates(
         (1/M) Σ_j R̂_j over M pool pairs drawn with replacement, each R̂_j the mean of L of its
         L_max rewards; 1 ≤ L ≤ min(P, L_max).
     """
-    expect(pool, RewardPool, "pool", "a RewardPool")
+    check_type(pool, RewardPool, "pool", "a RewardPool")
     n_artificial = check_count(n_artificial, "n_artificial")
     n_trajectories = check_count(n_trajectories, "n_trajectories")
     if n_trajectories > min(pool.pairs.shape[1], pool.fixed.shape[1]):

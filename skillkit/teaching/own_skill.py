@@ -10,10 +10,10 @@ import numpy as np
 import pandas as pd
 from numpy.typing import ArrayLike
 
-from skillkit._validation import check_array, check_count
+from skillkit._validation import check_array, check_count, check_type
 from skillkit.experiments.ch4_balancing import experience_to_reach
 from skillkit.tasks.base import Task
-from skillkit.teaching._common import at_scale, draw, expect, index_pair, per_scale, xy
+from skillkit.teaching._common import at_scale, draw, index_pair, per_scale, xy
 from skillkit.trajectory import Trajectory
 from skillkit.viz.series import Series
 
@@ -70,7 +70,7 @@ def context_grid(task: Task, n_per_dim: int) -> np.ndarray:
 
 
 def _check_task(task) -> None:
-    if expect(task, Task, "task", "a Task").context_dim == 0:
+    if check_type(task, Task, "task", "a Task").context_dim == 0:
         raise ValueError(f"task: {task.name!r} has no context (context_dim = 0)")
 
 
@@ -134,7 +134,7 @@ def comparison_table(runs: Mapping, levels: Sequence[float] = ()) -> pd.DataFram
     levels = [float(v) for v in check_array(list(levels), "levels", ndim=1)]
     rows = {}
     for label, run in runs.items():
-        expect(run, Mapping, f"runs[{label!r}]", "a learn() result")
+        check_type(run, Mapping, f"runs[{label!r}]", "a learn() result")
         missing = [k for k in ("rollouts", "mean_reward", "n_failed") if k not in run]
         if missing:
             raise ValueError(f"runs[{label!r}]: not a learn() result, missing {missing}")

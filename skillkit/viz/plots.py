@@ -20,6 +20,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from skillkit._validation import check_type
 from skillkit.series import DASHES
 
 _COLORS = ["#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#17becf"]
@@ -46,8 +47,7 @@ def subtitle(result: Mapping, width: int | None = None) -> str:
     :func:`skillkit.experiments.judge.apply` writes it), else the outcome ``summary["verdict"]``
     or "no verdict recorded"; "" without a ``summary`` (e.g. a learning curve). ``width`` wraps
     it (None: no wrapping)."""
-    if not isinstance(result, Mapping):
-        raise ValueError(f"result: expected a dict, got {type(result).__name__}")
+    check_type(result, Mapping, "result", "a dict")
     summary = result.get("summary")
     if not isinstance(summary, Mapping) or not summary:
         return ""
@@ -642,8 +642,7 @@ def write_figures(result: dict, folder: str | Path, html: bool = True) -> tuple[
 
 def _check_result(result) -> list[dict]:
     """The series as dicts; series of one ``"_group"`` (default: name) share a colour."""
-    if not isinstance(result, Mapping):
-        raise ValueError(f"result: expected a result dict, got {type(result).__name__}")
+    check_type(result, Mapping, "result", "a result dict")
     series = result.get("series")
     if not isinstance(series, Sequence) or isinstance(series, str) or not series:
         raise ValueError("result: expected a non-empty 'series' list of Series dicts")

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
-from skillkit._validation import check_array, check_positive
+from skillkit._validation import check_array, check_positive, check_type
 from skillkit.trajectory import Trajectory
 
 __all__ = [
@@ -390,8 +390,7 @@ def add_mujoco_model(
     Geoms of unsupported types (height fields, SDFs) are listed in ``skipped`` and reported
     with a ``RuntimeWarning``.
     """
-    if not isinstance(model, mujoco.MjModel):
-        raise ValueError(f"model: expected a mujoco.MjModel, got {type(model).__name__}")
+    check_type(model, mujoco.MjModel, "model", "a mujoco.MjModel")
     root = check_path(root, "root")
     world_paths = dict(world_paths or {})
     for p in world_paths.values():

@@ -25,6 +25,7 @@ from skillkit._validation import (
     check_choice,
     check_count,
     check_positive,
+    check_type,
 )
 from skillkit.models.gp import ExactGP, GPRegression
 from skillkit.models.reward import (
@@ -354,8 +355,7 @@ class HockeyRewardModel(RewardModel):
         displacement: str = "hit_gp",
         device=None,
     ):
-        if not isinstance(task, Hockey):
-            raise ValueError(f"task: expected a Hockey task, got {type(task).__name__}")
+        check_type(task, Hockey, "task", "a Hockey task")
         set_factories(
             self,
             make_launch_model=(make_launch_model, ExactGP),

@@ -8,7 +8,7 @@ import math
 import mujoco
 import numpy as np
 
-from skillkit._validation import check_array
+from skillkit._validation import check_array, check_type
 from skillkit.policies.dmp import DMP, DMPParameters
 from skillkit.policies.gaussian import LinearGaussianPolicy
 from skillkit.tasks.base import ModelSignals, SimulationFailure, Task, check_count
@@ -83,8 +83,7 @@ class Hockey(Task):
         self.context_high = check_array(context_high, "context_high", shape=(3,)).copy()
         if np.any(self.context_low > self.context_high):
             raise ValueError("context_high: expected context_low <= context_high elementwise")
-        if not isinstance(physics, TablePhysics):
-            raise ValueError(f"physics: expected a TablePhysics, got {type(physics).__name__}")
+        check_type(physics, TablePhysics, "physics", "a TablePhysics")
         if observation is not None and not isinstance(observation, Observation):
             raise ValueError(f"observation: expected an Observation, got {observation!r}")
         self.physics = physics

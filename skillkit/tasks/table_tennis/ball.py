@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from skillkit._validation import check_array, check_count, check_positive
+from skillkit._validation import check_array, check_count, check_positive, check_type
 
 TABLE_LENGTH = 2.74
 """Table length along x (m), regulation size."""
@@ -233,8 +233,7 @@ def simulate_ball(
     BallFlight
     """
     physics = BallPhysics() if physics is None else physics
-    if not isinstance(physics, BallPhysics):
-        raise ValueError(f"physics: expected a BallPhysics, got {type(physics).__name__}")
+    check_type(physics, BallPhysics, "physics", "a BallPhysics")
     if racket is not None and not isinstance(racket, RacketPath):
         raise ValueError(f"racket: expected a RacketPath or None, got {type(racket).__name__}")
     p = tuple(check_array(position, "position", shape=(3,)).tolist())

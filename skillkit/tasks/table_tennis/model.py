@@ -26,6 +26,7 @@ from skillkit._validation import (
     check_choice,
     check_count,
     check_positive,
+    check_type,
 )
 from skillkit.models.gp import ExactGP, GPRegression
 from skillkit.models.reward import (
@@ -466,8 +467,7 @@ class TableTennisRewardModel(RewardModel):
         refit: str = "best",
         device=None,
     ):
-        if not isinstance(task, TableTennis):
-            raise ValueError(f"task: expected a TableTennis task, got {type(task).__name__}")
+        check_type(task, TableTennis, "task", "a TableTennis task")
         set_factories(
             self,
             make_landing_model=(make_landing_model, _gp),

@@ -67,16 +67,21 @@ def _cmd_list(args: argparse.Namespace) -> int:
 
 
 def _overrides(pairs: list[str]) -> dict:
-    """``KEY=VALUE`` strings to settings overrides (VALUE parsed as JSON, else kept as text)."""
-    out = {}
+    """``KEY=VALUE`` strings to settings overrides (VALUE parsed as JSON, else kept as text; a
+    KEY ``block.name`` sets one field of a nested settings block)."""
+    out: dict = {}
     for pair in pairs:
         key, sep, value = pair.partition("=")
         if not sep or not key:
             raise ValueError(f"--set: expected KEY=VALUE, got {pair!r}")
+        *blocks, name = key.split(".")
+        target = out
+        for block in blocks:
+            target = target.setdefault(block, {})
         try:
-            out[key] = json.loads(value)
+            target[name] = json.loads(value)
         except ValueError:
-            out[key] = value
+            target[name] = value
     return out
 
 
@@ -428,7 +433,7 @@ def build_parser() -> argparse.ArgumentParser:
         action="append",
         default=[],
         metavar="KEY=VALUE",
-        help="override one setting (repeatable; VALUE is JSON), e.g. --set n_updates=50; checked "
+        help="override one setting (repeatable; VALUE is JSON), e.g. --set reps.n_updates=50; checked "
         "first, the run gets its own folder <id>-<scale>-s<seed>-<hash>",
     )
 

@@ -369,3 +369,16 @@ def test_demo_comparison_reports_gpreps_against_reps_and_opens_in_the_viewer(tmp
     line = cli._comparison_lines(run)[-1]
     assert line == f"  watch GPREPS learn: skillkit view throwing --policy {run.path}"
     assert len(load_policy_history(run.path, 0).policies) == 2
+
+
+def test_set_changes_one_field_of_a_nested_settings_block():
+    from skillkit.cli import _overrides
+    from skillkit.experiments.registry import get
+
+    got = _overrides(["reps.n_updates=80", "reps.epsilon=0.5", "grid_y=[1, 3]"])
+    assert got == {"reps": {"n_updates": 80, "epsilon": 0.5}, "grid_y": [1, 3]}
+    quick = get("fig3.3").settings["quick"]
+    st = get("fig3.3").settings_for("quick", **_overrides(["reps.n_updates=80"]))
+    assert st.reps.n_updates == 80 and st.reps.n_reuse_batches == quick.reps.n_reuse_batches
+    with pytest.raises(ValueError, match="reps.no_such"):
+        get("fig3.3").settings_for("quick", **_overrides(["reps.no_such=1"]))

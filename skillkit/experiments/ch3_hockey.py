@@ -12,7 +12,14 @@ import numpy as np
 import torch
 
 from skillkit._validation import check_array
-from skillkit.experiments.curves import curve_series, experiment, heldout_setup, run_curve
+from skillkit.experiments.curves import (
+    EvaluationBlock,
+    REPSBlock,
+    curve_series,
+    experiment,
+    heldout_setup,
+    run_curve,
+)
 from skillkit.experiments.registry import Series
 from skillkit.experiments.settings import Settings, scales, setting
 from skillkit.models.kernels import Linear
@@ -27,30 +34,30 @@ class HockeySettings(Settings):
     task: Literal["hockey", "hockey-real"] = setting(
         "hockey", "C.2's simulated task or its real-robot variant."
     )
-    epsilon: float = setting(0.5, "KL bound ε of contextual REPS (Eq. 3.4, Sec. 3.4.2).", above=0)
+    reps: REPSBlock = setting(
+        REPSBlock(n_updates=16, rollouts_per_update=50, epsilon=0.5, n_reuse_batches=4),
+        "Contextual REPS (Sec. 3.4.2); CrKR learns with its K, N and reused batches.",
+    )
     crkr_lam: float = setting(0.2, "CrKR's λ (Eqs 2.19–2.20).", above=0)
     crkr_beta_scale: float = setting(2.0, "CrKR's β = crkr_beta_scale / std(R).", above=0)
-    n_updates: int = setting(16, "Policy updates per algorithm (Table 3.1 loop).", minimum=1)
-    rollouts_per_update: int = setting(50, "Rollouts N between updates.", minimum=1)
-    n_reuse_batches: int = setting(4, "Batches L each update reuses (REPS and CrKR).", minimum=1)
-    n_eval_contexts: int = setting(6, "Fixed contexts of the learning curve.", minimum=1)
-    n_heldout: int = setting(30, "Held-out contexts of the hit rate and error.", minimum=1)
-    heldout_every: int = setting(8, "Held-out evaluation every this many updates.", minimum=1)
+    evaluation: EvaluationBlock = setting(
+        EvaluationBlock(n_eval_contexts=6, n_heldout=30, heldout_every=8),
+        "Learning curve, and hit rate and error on held-out contexts.",
+    )
 
 
 SCALES = scales(
     HockeySettings(),
     # smoke: a gentle bound keeps the effective sample size of 25 samples above 16
     smoke={
-        "n_updates": 1,
-        "rollouts_per_update": 25,
-        "n_eval_contexts": 2,
-        "n_heldout": 3,
-        "heldout_every": 1,
-        "epsilon": 0.2,
+        "reps": {"n_updates": 1, "rollouts_per_update": 25, "epsilon": 0.2},
+        "evaluation": {"n_eval_contexts": 2, "n_heldout": 3, "heldout_every": 1},
     },
     # quick: 16 of 200 updates, 6 of 10 learning-curve contexts, 30 of 100 held-out, 1 trial
-    paper={"n_updates": 200, "n_eval_contexts": 10, "n_heldout": 100, "heldout_every": 40},
+    paper={
+        "reps": {"n_updates": 200},
+        "evaluation": {"n_eval_contexts": 10, "n_heldout": 100, "heldout_every": 40},
+    },
 )
 ALGORITHMS = ("reps", "crkr")
 LABELS = {"reps": "contextual REPS (ε = 0.5)", "crkr": "CrKR (linear kernel)"}
@@ -98,11 +105,9 @@ def make_algorithm(name: str, task, settings: HockeySettings):
     from skillkit.models.kernels import gram
     from skillkit.search import ContextualREPS, CrKR
 
-    prior = task.initial_policy()
+    prior, b = task.initial_policy(), settings.reps
     if name == "reps":
-        return ContextualREPS(
-            prior, epsilon=settings.epsilon, n_reuse_batches=settings.n_reuse_batches
-        )
+        return ContextualREPS(prior, epsilon=b.epsilon, n_reuse_batches=b.n_reuse_batches)
     if name == "crkr":
         low, high = np.asarray(task.context_low), np.asarray(task.context_high)
         centre, half = 0.5 * (low + high), 0.5 * (high - low)
@@ -115,7 +120,7 @@ def make_algorithm(name: str, task, settings: HockeySettings):
             kernel,
             lam=lam,
             beta_scale=settings.crkr_beta_scale,
-            n_reuse_batches=settings.n_reuse_batches,
+            n_reuse_batches=b.n_reuse_batches,
             variance_scale=scale,
         )
     raise ValueError(f"name: expected one of {ALGORITHMS}, got {name!r}")
@@ -159,8 +164,9 @@ def heldout_scores(task, policy, contexts, rng=None) -> dict[str, float]:
 def _run_trial(settings: HockeySettings, rng: np.random.Generator, trial: TrialContext) -> dict:
     """Both algorithms, same task, same evaluation and held-out contexts."""
     task = make(settings.task)
-    K, N = settings.n_updates, settings.rollouts_per_update
-    heldout, eval_contexts, score, seeds = heldout_setup(task, settings, rng, 2, heldout_scores)
+    K, N = settings.reps.n_updates, settings.reps.rollouts_per_update
+    ev = settings.evaluation
+    heldout, eval_contexts, score, seeds = heldout_setup(task, ev, rng, 2, heldout_scores)
     trial.reset(total=len(ALGORITHMS) * K)
     out: dict = {"heldout_contexts": heldout}
     for name, alg_rng in zip(ALGORITHMS, seeds, strict=True):
@@ -176,7 +182,7 @@ def _run_trial(settings: HockeySettings, rng: np.random.Generator, trial: TrialC
             trial,
             eval_contexts,
             score=score,
-            every=settings.heldout_every,
+            every=ev.heldout_every,
         )
         out.update(arrays)
         for key in ("explore_rollouts", "explore_reward", "n_failed"):
@@ -195,7 +201,7 @@ def _summarize(settings: HockeySettings, trials: list[dict]) -> tuple[list[Serie
     series: list[Series] = []
     summary: dict = {
         "n_trials": len(trials),
-        "rollouts_per_algorithm": settings.n_updates * settings.rollouts_per_update,
+        "rollouts_per_algorithm": settings.reps.n_updates * settings.reps.rollouts_per_update,
     }
     panels = [
         ("mean_reward", "rollouts", "reward of the policy mean", "average reward"),

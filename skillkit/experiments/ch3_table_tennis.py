@@ -14,7 +14,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from skillkit.experiments.curves import curve_series, experiment, run_curve
+from skillkit.experiments.curves import (
+    EvaluationBlock,
+    REPSBlock,
+    curve_series,
+    experiment,
+    run_curve,
+)
 from skillkit.experiments.judge import quoted_numbers
 from skillkit.experiments.registry import Series
 from skillkit.experiments.settings import Settings, scales, setting
@@ -36,17 +42,19 @@ class TableTennisSettings(Settings):
     variant run ``fig3.7-paper-s0-f82e2c5b`` and of fig4.12's REPS baseline.
     """
 
-    epsilon: float = setting(0.6, "KL bound ε of contextual REPS (Eq. 3.4, Sec. 3.4.3).", above=0)
-    rollouts_per_update: int = setting(50, "Rollouts N between updates.", minimum=1)
-    n_reuse_batches: int = setting(4, "Batches L each update reuses (Sec. 3.4).", minimum=1)
+    reps: REPSBlock = setting(
+        REPSBlock(n_updates=20, rollouts_per_update=50, epsilon=0.6, n_reuse_batches=4),
+        "Contextual REPS (Table 3.1, Sec. 3.4.3).",
+    )
     baseline_features: FeatureName = setting("linear", "Context features of V(s) (Eq. 3.8).")
     min_effective_samples: float | None = setting(
         None, "Least ESS the ML fit accepts (None: d + 1).", minimum=0
     )
     cov_shrinkage: float = setting(0.0, "Weight of the previous Σ in the new one.", minimum=0)
-    n_updates: int = setting(20, "Policy updates (Table 3.1 loop).", minimum=1)
-    n_eval_contexts: int = setting(8, "Fixed contexts of the learning curve.", minimum=1)
-    n_final_contexts: int = setting(40, "Contexts the final shots are classified on.", minimum=1)
+    evaluation: EvaluationBlock = setting(
+        EvaluationBlock(n_eval_contexts=8, n_heldout=40),
+        "Learning curve; held-out contexts the final shots are classified on.",
+    )
 
 
 REGULARISED = {"cov_shrinkage": 0.2, "min_effective_samples": 10.0}
@@ -55,15 +63,12 @@ REGULARISED = {"cov_shrinkage": 0.2, "min_effective_samples": 10.0}
 SCALES = scales(
     TableTennisSettings(),
     smoke={
-        "rollouts_per_update": 12,
-        "n_reuse_batches": 2,
+        "reps": {"n_updates": 2, "rollouts_per_update": 12, "n_reuse_batches": 2},
         "min_effective_samples": 3.0,
-        "n_updates": 2,
-        "n_eval_contexts": 2,
-        "n_final_contexts": 3,
+        "evaluation": {"n_eval_contexts": 2, "n_heldout": 3},
     },
     # quick: 20 of 120 updates, 8 of 12 learning-curve contexts, 40 of 200 final, 1 trial
-    paper={"n_updates": 120, "n_eval_contexts": 12, "n_final_contexts": 200},
+    paper={"reps": {"n_updates": 120}, "evaluation": {"n_eval_contexts": 12, "n_heldout": 200}},
 )
 
 
@@ -115,19 +120,20 @@ def run_trial(settings: TableTennisSettings, rng: np.random.Generator, trial: Tr
 
     task = make("table-tennis")
     algorithm = make_reps(task, settings)
-    eval_contexts = task.sample_context(rng, n=settings.n_eval_contexts)
-    trial.reset(total=settings.n_updates)
+    b = settings.reps
+    eval_contexts = task.sample_context(rng, n=settings.evaluation.n_eval_contexts)
+    trial.reset(total=b.n_updates)
     _, curves = run_curve(
         task,
         algorithm,
         "learn",
-        settings.n_updates,
-        settings.rollouts_per_update,
+        b.n_updates,
+        b.rollouts_per_update,
         rng,
         trial,
         eval_contexts,
     )
-    contexts = task.sample_context(rng, n=settings.n_final_contexts)
+    contexts = task.sample_context(rng, n=settings.evaluation.n_heldout)
     _, shots = shot_scores(task, curves["policy"], contexts, rng)
     return {
         "rollouts": curves["rollouts"],
@@ -148,8 +154,8 @@ def make_reps(task, settings: TableTennisSettings) -> KeepPolicyREPS:
     update whose weights are too few for the fit keeps the policy (:class:`KeepPolicyREPS`)."""
     return KeepPolicyREPS(
         task.initial_policy(),
-        settings.epsilon,
-        n_reuse_batches=settings.n_reuse_batches,
+        settings.reps.epsilon,
+        n_reuse_batches=settings.reps.n_reuse_batches,
         baseline_features=settings.baseline_features,
         min_effective_samples=settings.min_effective_samples,
         cov_shrinkage=settings.cov_shrinkage,

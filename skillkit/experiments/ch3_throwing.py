@@ -10,7 +10,14 @@ from typing import Literal
 
 import numpy as np
 
-from skillkit.experiments.curves import curve_series, curve_stats, experiment, run_curve
+from skillkit.experiments.curves import (
+    EvaluationBlock,
+    REPSBlock,
+    curve_series,
+    curve_stats,
+    experiment,
+    run_curve,
+)
 from skillkit.experiments.registry import Series
 from skillkit.experiments.settings import Settings, scales, setting
 from skillkit.policies.features import FeatureName
@@ -32,11 +39,13 @@ THESIS = {"near_max_error_m": 0.1, "far_max_error_m": 0.5, "rollouts_to_converge
 class ThrowingSettings(Settings):
     """Settings of ``fig3.3`` (ball throwing with the planar 4-link robot, Sec. 3.4.1)."""
 
-    n_updates: int = setting(40, "Policy updates per method (Table 3.1).", minimum=1)
-    n_eval_contexts: int = setting(8, "Fixed targets of the learning curve.", minimum=1)
-    epsilon: float = setting(0.6, "KL bound ε of contextual REPS (Eq. 3.4, Sec. 3.4.1).", above=0)
-    rollouts_per_update: int = setting(25, "Rollouts N between updates (Sec. 3.4.1).", minimum=1)
-    n_reuse_batches: int = setting(8, "Batches L each update reuses (Sec. 3.4.1).", minimum=1)
+    reps: REPSBlock = setting(
+        REPSBlock(n_updates=40, rollouts_per_update=25, epsilon=0.6, n_reuse_batches=8),
+        "Contextual REPS of both methods (Table 3.1, Sec. 3.4.1).",
+    )
+    evaluation: EvaluationBlock = setting(
+        EvaluationBlock(n_eval_contexts=8), "Fixed targets of the learning curve."
+    )
     extra_contexts: int = setting(20, "Contexts each throw is re-scored in (extra arm).", minimum=0)
     baseline_features: FeatureName = setting("quadratic", "Context features of V(s) (Eq. 3.8).")
     policy_features: FeatureName = setting(
@@ -65,16 +74,14 @@ class ThrowingSettings(Settings):
 SCALES = scales(
     ThrowingSettings(),
     smoke={
-        "n_updates": 2,
-        "rollouts_per_update": 4,
-        "n_reuse_batches": 2,
+        "reps": {"n_updates": 2, "rollouts_per_update": 4, "n_reuse_batches": 2},
         "extra_contexts": 2,
-        "n_eval_contexts": 1,
+        "evaluation": {"n_eval_contexts": 1},
         "grid_x": (6.0, 14.0),
         "grid_y": (2.0,),
     },
     # quick: 40 of the thesis's 200 updates, 8 of 20 learning-curve targets, trials 20→2
-    paper={"n_updates": 200, "n_eval_contexts": 20},
+    paper={"reps": {"n_updates": 200}, "evaluation": {"n_eval_contexts": 20}},
 )
 
 
@@ -107,11 +114,12 @@ def run_trial(settings: ThrowingSettings, rng: np.random.Generator, trial: Trial
         ``{m}_distance`` and ``{m}_penalty`` on ``targets`` (:func:`target_grid`).
     """
     task = make("throwing")
-    eval_contexts = task.sample_context(rng, n=settings.n_eval_contexts)
+    b = settings.reps
+    eval_contexts = task.sample_context(rng, n=settings.evaluation.n_eval_contexts)
     targets = target_grid(settings)
     out: dict = {"targets": targets}
     seeds = rng.spawn(2)
-    trial.reset(total=2 * settings.n_updates)
+    trial.reset(total=2 * b.n_updates)
     for key, extra, child in zip(
         ("reps", "extra"), (0, settings.extra_contexts), seeds, strict=True
     ):
@@ -121,8 +129,8 @@ def run_trial(settings: ThrowingSettings, rng: np.random.Generator, trial: Trial
         )
         algo = ContextualREPS(
             init,
-            settings.epsilon,
-            n_reuse_batches=settings.n_reuse_batches,
+            b.epsilon,
+            n_reuse_batches=b.n_reuse_batches,
             baseline_features=settings.baseline_features,
             cov_floor=settings.cov_floor,
             cov_shrinkage=settings.cov_shrinkage,
@@ -133,8 +141,8 @@ def run_trial(settings: ThrowingSettings, rng: np.random.Generator, trial: Trial
             task,
             algo,
             key,
-            settings.n_updates,
-            settings.rollouts_per_update,
+            b.n_updates,
+            b.rollouts_per_update,
             child,
             trial,
             eval_contexts,

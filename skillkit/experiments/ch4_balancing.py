@@ -16,6 +16,9 @@ from skillkit.experiments.curves import (
     COV_FLOOR,
     MIN_EFFECTIVE_SAMPLES,
     CurveTask,
+    EvaluationBlock,
+    GPREPSBlock,
+    REPSBlock,
     experiment,
     register_curve_task,
     regularised_reps,
@@ -73,21 +76,23 @@ class BalancingComparisonSettings(Settings):
     excitation_std: float = setting(3.0, "σ_ξ (N m) of the random policy's torques.", minimum=0)
     n_random: int = setting(12, "Random-policy rollouts (6 s in all, Sec. 4.3.1).", minimum=1)
     random_steps: int = setting(10, "Control steps of each random-policy rollout.", minimum=1)
-    n_eval: int = setting(50, "Evaluation start states, common to the methods.", minimum=1)
+    evaluation: EvaluationBlock = setting(
+        EvaluationBlock(n_eval_contexts=50), "Evaluation start states, common to the methods."
+    )
     n_inducing: int = setting(100, "Pseudo-inputs of the FITC dynamics model.", minimum=1)
     model_mean: str = setting("linear", "FITC prior mean: 'linear' or 'zero' (PILCO's).")
     linear_variant: bool = setting(True, "Also run PILCO and GPREPS with a linear model.")
     gp_steps: int = setting(100, "L-BFGS iterations of each FITC hyper-parameter fit.", minimum=0)
     pilco_updates: int = setting(10, "PILCO updates (one real rollout each).", minimum=1)
     policy_iterations: int = setting(50, "L-BFGS iterations of each PILCO update.", minimum=1)
-    gpreps_updates: int = setting(20, "GPREPS updates (one real rollout each).", minimum=1)
-    n_artificial: int = setting(500, "M, GPREPS's artificial gains per update.", minimum=2)
-    n_trajectories: int = setting(10, "L, trajectories per artificial gain (Eq. 4.1).", minimum=1)
-    epsilon: float = setting(1.0, "KL bound ε of GPREPS.", above=0)
-    reps_updates: int = setting(100, "REPS updates.", minimum=1)
-    reps_rollouts_per_update: int = setting(25, "REPS rollouts per update (fig3.3).", minimum=1)
-    reps_epsilon: float = setting(0.5, "KL bound of REPS.", above=0)
-    reps_reuse_batches: int = setting(8, "Batches REPS reuses (fig3.3).", minimum=1)
+    gpreps: GPREPSBlock = setting(
+        GPREPSBlock(n_updates=20, n_initial=1, n_artificial=500, n_trajectories=10, epsilon=1.0),
+        "GPREPS, one real rollout per update after the random policy's (no contexts: μ̂ unused).",
+    )
+    reps: REPSBlock = setting(
+        REPSBlock(n_updates=100, rollouts_per_update=25, epsilon=0.5, n_reuse_batches=8),
+        "Model-free REPS, no initial data.",
+    )
 
     def check(self) -> None:
         """Limits negative and rising (harder ones later); a known model mean."""
@@ -145,13 +150,14 @@ def _run_model_based(task, st, pi0, prior, key, make_model, rng, trial, evals, e
         updates, parts = st.pilco_updates, ("training", "policy")
     else:
         algo = gpreps_algorithm(task, st, pi0, prior, make_model, alg_rng)
-        updates, parts = st.gpreps_updates, ("training", "prediction", "policy")
+        updates, parts = st.gpreps.n_updates, ("training", "prediction", "policy")
     c = learn(
         task,
         algo,
         updates,
         1,
         loop_rng,
+        initial_rollouts=1 if key.startswith("pilco") else st.gpreps.n_initial,
         trial=trial,
         checkpoint_key=key,
         eval_contexts=evals,
@@ -187,9 +193,9 @@ def gpreps_algorithm(task, st: BalancingComparisonSettings, pi0, prior, make_mod
     """Table 4.2's GPREPS: ε, M, L of ``st``, the FITC (or ``make_model``) dynamics model
     started from the ``prior`` trajectories, common start states if ``st`` says so."""
     settings = GPREPSSettings(
-        epsilon=st.epsilon,
-        n_artificial=st.n_artificial,
-        n_trajectories=st.n_trajectories,
+        epsilon=st.gpreps.epsilon,
+        n_artificial=st.gpreps.n_artificial,
+        n_trajectories=st.gpreps.n_trajectories,
         cov_floor=COV_FLOOR,
         min_effective_samples=MIN_EFFECTIVE_SAMPLES,
     )
@@ -206,7 +212,7 @@ def gpreps_algorithm(task, st: BalancingComparisonSettings, pi0, prior, make_mod
 
 def reps_algorithm(st: BalancingComparisonSettings, pi0) -> ContextualREPS:
     """Table 4.2's model-free REPS (no initial data)."""
-    return regularised_reps(pi0, st.reps_epsilon, st.reps_reuse_batches, "linear")
+    return regularised_reps(pi0, st.reps.epsilon, st.reps.n_reuse_batches, "linear")
 
 
 def fitc_model(st: BalancingComparisonSettings):
@@ -226,13 +232,13 @@ def run_trial_42(st: BalancingComparisonSettings, rng: np.random.Generator, tria
     pi0 = initial_policy_42(st, task)
     random_rng, pilco_rng, gpreps_rng, reps_rng, lin_p_rng, lin_g_rng = rng.spawn(6)
     eval_seed = int(rng.integers(2**63))  # every method is evaluated on the same start states
-    evals = np.zeros((st.n_eval, 0))
+    evals = np.zeros((st.evaluation.n_eval_contexts, 0))
     # The random policy: gains drawn from π₀ that balance at upright, with torque excitation.
     random = random_prior(st, pi0, random_rng)
     prior = random["trajectories"]
     gp = fitc_model(st)
     n_model_runs = 2 if st.linear_variant else 1
-    trial.reset(total=n_model_runs * (st.pilco_updates + st.gpreps_updates) + st.reps_updates)
+    trial.reset(total=n_model_runs * (st.pilco_updates + st.gpreps.n_updates) + st.reps.n_updates)
     out: dict = {
         "random_policy_rewards": np.array([task.reward(t) for t in prior]),
         "random_policy_failed": random["n_failed"],
@@ -246,8 +252,8 @@ def run_trial_42(st: BalancingComparisonSettings, rng: np.random.Generator, tria
     c = learn(
         task,
         reps,
-        st.reps_updates,
-        st.reps_rollouts_per_update,
+        st.reps.n_updates,
+        st.reps.rollouts_per_update,
         reps_rng,
         trial=trial,
         checkpoint_key="reps",
@@ -370,35 +376,28 @@ def median_reached(per_trial) -> float | None:
     return float(x) if np.isfinite(x) else None
 
 
-_SMOKE = dict(
-    n_inducing=15,
-    gp_steps=5,
-    pilco_updates=2,
-    policy_iterations=2,
-    gpreps_updates=2,
-    n_artificial=20,
-    n_trajectories=2,
-    reps_updates=2,
-    reps_rollouts_per_update=6,
-    n_eval=5,
-)
-
 experiment(
     "tab4.2",
     "Balancing: real experience PILCO, GPREPS and REPS need to reach −100, −10, −1.5",
     scales(
         BalancingComparisonSettings(),
-        smoke=_SMOKE,
-        quick=dict(
-            pilco_updates=6,
-            policy_iterations=30,
-            gp_steps=50,
-            gpreps_updates=10,
-            n_artificial=200,
-            n_trajectories=5,
-            reps_updates=50,
-        ),
-        paper=dict(pilco_updates=12, gpreps_updates=30, reps_updates=400),
+        smoke={
+            "n_inducing": 15,
+            "gp_steps": 5,
+            "pilco_updates": 2,
+            "policy_iterations": 2,
+            "gpreps": {"n_updates": 2, "n_artificial": 20, "n_trajectories": 2},
+            "reps": {"n_updates": 2, "rollouts_per_update": 6},
+            "evaluation": {"n_eval_contexts": 5},
+        },
+        quick={
+            "pilco_updates": 6,
+            "policy_iterations": 30,
+            "gp_steps": 50,
+            "gpreps": {"n_updates": 10, "n_artificial": 200, "n_trajectories": 5},
+            "reps": {"n_updates": 50},
+        },
+        paper={"pilco_updates": 12, "gpreps": {"n_updates": 30}, "reps": {"n_updates": 400}},
     ),
     run_trial_42,
     summarize_42,
@@ -411,7 +410,7 @@ def _balancing_setup(th, rng) -> tuple:
     policy = initial_policy_42(th, task)
     prior = random_prior(th, policy, rng)["trajectories"]
     rollouts = random_experience(task, prior) / (task.n_steps * task.control_dt)
-    return task, policy, np.zeros((th.n_eval, 0)), prior, rollouts
+    return task, policy, np.zeros((th.evaluation.n_eval_contexts, 0)), prior, rollouts
 
 
 register_curve_task(
@@ -424,8 +423,6 @@ register_curve_task(
         gpreps=lambda task, th, policy, prior, rng: gpreps_algorithm(
             task, th, policy, prior, fitc_model(th), rng
         ),
-        gpreps_schedule=lambda th: (th.gpreps_updates, 1, 1),  # one rollout per update
-        gpreps_updates="gpreps_updates",
         setup=_balancing_setup,
     ),
 )

@@ -16,6 +16,9 @@ from skillkit.experiments.ch3_hockey import HOCKEY_SCORES, HockeySettings, heldo
 from skillkit.experiments.ch3_hockey import make_algorithm as hockey_algorithm
 from skillkit.experiments.curves import (
     CurveTask,
+    EvaluationBlock,
+    GPREPSBlock,
+    REPSBlock,
     curve_series,
     experiment,
     gpreps_stats,
@@ -38,18 +41,15 @@ from skillkit.trial import TrialContext
 class EventGPREPSSettings(Settings):
     """GPREPS settings shared by the hockey and table-tennis experiments (Table 4.1)."""
 
-    n_initial: int = setting(20, "N₀, real rollouts before the first update (Sec. 4.1).", minimum=2)
-    n_updates: int = setting(100, "GPREPS updates, one real rollout each.", minimum=1)
-    n_artificial: int = setting(500, "M, artificial (s, ω) pairs per update.", minimum=2)
-    n_trajectories: int = setting(10, "L, predicted trajectories per pair (Eq. 4.1).", minimum=1)
-    epsilon: float = setting(0.5, "KL bound ε of GPREPS (data/notes/fig4.10.md).", above=0)
-    context_model: Literal["gaussian", "uniform", "prior"] = setting(
-        "uniform", "μ̂(s): the box of the observed contexts."
+    gpreps: GPREPSBlock = setting(
+        GPREPSBlock(n_updates=100, n_initial=20, n_artificial=500, n_trajectories=10, epsilon=0.5),
+        "GPREPS, one real rollout per update (Table 4.1; ε: data/notes/fig4.10.md).",
     )
     gp_steps: int = setting(100, "L-BFGS iterations of every GP's hyper-parameter fit.", minimum=0)
-    n_eval_contexts: int = setting(10, "Fixed contexts of the learning curve.", minimum=1)
-    n_heldout: int = setting(50, "Held-out contexts of the shot scores.", minimum=1)
-    heldout_every: int = setting(20, "Held-out scores every this many updates.", minimum=1)
+    evaluation: EvaluationBlock = setting(
+        EvaluationBlock(n_eval_contexts=10, n_heldout=50, heldout_every=20),
+        "Learning curve, and the shot scores on held-out contexts.",
+    )
 
 
 @dataclass(frozen=True)
@@ -70,37 +70,25 @@ class HockeyGPREPSSettings(EventGPREPSSettings):
     displacement: Literal["hit_gp", "gp"] = setting(
         "hit_gp", "hockey-real: a hit classifier and a GP on hits, or one GP."
     )
-    reps_updates: int = setting(200, "REPS updates (0: no REPS run).", minimum=0)
-    reps_rollouts_per_update: int = setting(50, "REPS rollouts per update (fig3.5).", minimum=1)
-    reps_epsilon: float = setting(0.5, "KL bound of REPS (fig3.5).", above=0)
-    reps_reuse_batches: int = setting(4, "Batches REPS reuses (fig3.5).", minimum=1)
-
-
-GPREPS_SMOKE = {
-    "n_initial": 4,
-    "n_updates": 2,
-    "n_artificial": 20,
-    "n_trajectories": 2,
-    "gp_steps": 10,
-    "n_eval_contexts": 1,
-    "n_heldout": 2,
-    "heldout_every": 1,
-}
-GPREPS_QUICK = {
-    "n_updates": 15,
-    "n_artificial": 200,
-    "n_trajectories": 5,
-    "gp_steps": 60,
-    "n_heldout": 20,
-    "heldout_every": 5,
-}
-
-
-def gpreps_scales(cls, smoke: dict, quick: dict, paper: dict | None = None) -> dict:
-    """The three scales of ``cls``: the shared changes plus the experiment's own."""
-    return scales(
-        cls(), smoke={**GPREPS_SMOKE, **smoke}, quick={**GPREPS_QUICK, **quick}, paper=paper
+    reps: REPSBlock = setting(
+        REPSBlock(n_updates=200, rollouts_per_update=50, epsilon=0.5, n_reuse_batches=4),
+        "REPS with fig3.5's settings (0 updates: no REPS run).",
     )
+
+
+GPREPS_SHARED = {
+    "smoke": {
+        "gpreps": {"n_initial": 4, "n_updates": 2, "n_artificial": 20, "n_trajectories": 2},
+        "gp_steps": 10,
+        "evaluation": {"n_eval_contexts": 1, "n_heldout": 2, "heldout_every": 1},
+    },
+    "quick": {
+        "gpreps": {"n_updates": 15, "n_artificial": 200, "n_trajectories": 5},
+        "gp_steps": 60,
+        "evaluation": {"n_heldout": 20, "heldout_every": 5},
+    },
+}
+"""The scales' changes the hockey and table-tennis GPREPS experiments share."""
 
 
 def hockey_reward_model(task, st: HockeyGPREPSSettings):
@@ -143,40 +131,37 @@ def gpreps_run(task, st, key, model, rng, trial, eval_contexts, score, keep_mode
     return out
 
 
-def reps_curve(task, algo, st, rollouts_per_update, rng, trial, eval_contexts, score) -> dict:
-    """REPS's run of ``st.reps_updates`` updates, held-out scores five times over it."""
+def reps_curve(task, algo, st, rng, trial, eval_contexts, score) -> dict:
+    """REPS's run of ``st.reps``, held-out scores five times over it."""
+    b = st.reps
     return run_curve(
         task,
         algo,
         "reps",
-        st.reps_updates,
-        rollouts_per_update,
+        b.n_updates,
+        b.rollouts_per_update,
         rng,
         trial,
         eval_contexts,
         score=score,
-        every=max(1, st.reps_updates // 5),
+        every=max(1, b.n_updates // 5),
     )[0]
 
 
 def run_trial_hockey(st: HockeyGPREPSSettings, rng: np.random.Generator, trial: TrialContext):
     """GPREPS (and, with ``reps_updates``, REPS) on ``st.task`` from the imitation policy."""
     task = make(st.task)
-    heldout, eval_contexts, score, seeds = heldout_setup(task, st, rng, 2, heldout_scores)
-    trial.reset(total=st.n_updates + st.reps_updates)
+    heldout, eval_contexts, score, seeds = heldout_setup(
+        task, st.evaluation, rng, 2, heldout_scores
+    )
+    trial.reset(total=st.gpreps.n_updates + st.reps.n_updates)
     model = hockey_reward_model(task, st)
     out = {"heldout_contexts": heldout}
     out.update(gpreps_run(task, st, "gpreps", model, seeds[0], trial, eval_contexts, score, True))
-    if st.reps_updates:
-        n = st.reps_rollouts_per_update
-        out.update(reps_curve(task, _reps(task, st), st, n, seeds[1], trial, eval_contexts, score))
+    if st.reps.n_updates:
+        reps = hockey_algorithm("reps", task, HockeySettings(reps=st.reps))
+        out.update(reps_curve(task, reps, st, seeds[1], trial, eval_contexts, score))
     return out
-
-
-def _reps(task, st: HockeyGPREPSSettings):
-    """fig3.5's contextual REPS with ``st``'s ε and reuse."""
-    hs = HockeySettings(epsilon=st.reps_epsilon, n_reuse_batches=st.reps_reuse_batches)
-    return hockey_algorithm("reps", task, hs)
 
 
 def gpreps_event_stats(trials, key) -> dict:
@@ -238,7 +223,7 @@ def event_summary(trials, exp_id: str, labels: dict, panels, scores, heldout: st
 
 def summarize_410(st: HockeyGPREPSSettings, trials: list[dict]):
     labels = {"gpreps": "GPREPS", "reps": "REPS (ε = 0.5)"}
-    if not st.reps_updates:
+    if not st.reps.n_updates:
         labels.pop("reps")
     panels = (
         ("learning curves", "reward of the policy mean"),
@@ -276,10 +261,11 @@ def _ci95(values: np.ndarray) -> tuple[float, float]:
 experiment(
     "fig4.10",
     "Robot hockey: GPREPS (decomposed event models) vs REPS",
-    gpreps_scales(
-        HockeyGPREPSSettings,
-        quick={"reps_updates": 20},
-        smoke={"reps_updates": 1, "reps_rollouts_per_update": 25, "reps_epsilon": 0.2},
+    scales(
+        HockeyGPREPSSettings(),
+        shared=GPREPS_SHARED,
+        quick={"reps": {"n_updates": 20}},
+        smoke={"reps": {"n_updates": 1, "rollouts_per_update": 25, "epsilon": 0.2}},
     ),
     run_trial_hockey,
     summarize_410,
@@ -287,11 +273,10 @@ experiment(
 experiment(
     "fig4.11",
     "Robot hockey, real-robot setting: GPREPS with a displacement model",
-    gpreps_scales(
-        HockeyGPREPSSettings,
-        smoke={"task": "hockey-real", "reps_updates": 0},
-        quick={"task": "hockey-real", "reps_updates": 0},
-        paper={"task": "hockey-real", "reps_updates": 0, "n_updates": 61, "n_trajectories": 5},
+    scales(
+        HockeyGPREPSSettings(task="hockey-real", reps={"n_updates": 0}),
+        shared=GPREPS_SHARED,
+        paper={"gpreps": {"n_updates": 61, "n_trajectories": 5}},
     ),
     run_trial_hockey,
     summarize_411,
@@ -305,7 +290,7 @@ register_curve_task(
         thresholds_source="Sec. 3.4.2: REPS's displacement error “remained below 20cm”; "
         "Sec. 4.3.3: GPREPS's “less than 5 cm” (a hit placing the puck d off its target "
         "scores R = −d)",
-        reps=lambda task, st, policy: _reps(task, st),
+        reps=lambda task, st, policy: hockey_algorithm("reps", task, HockeySettings(reps=st.reps)),
         reward_model=hockey_reward_model,
     ),
 )

@@ -19,6 +19,9 @@ from skillkit.experiments.curves import (
 )
 from skillkit.experiments.curves import (
     CurveTask,
+    EvaluationBlock,
+    GPREPSBlock,
+    REPSBlock,
     curve_series,
     curve_stats,
     experiment,
@@ -46,22 +49,22 @@ from skillkit.trial import TrialContext
 class GPREPSThrowingSettings(Settings):
     """Settings of ``fig4.6`` (GPREPS, GP direct and REPS on throwing, Sec. 4.3.2)."""
 
-    n_initial: int = setting(10, "N₀, real throws before the first GPREPS update.", minimum=2)
-    n_updates: int = setting(30, "GPREPS / GP-direct updates, one throw each.", minimum=1)
-    n_artificial: int = setting(500, "M, artificial (s, ω) pairs per update.", minimum=2)
-    n_trajectories: int = setting(25, "L, predicted throws per pair (Eq. 4.1).", minimum=1)
-    epsilon: float = setting(1.0, "KL bound ε of GPREPS and GP direct (Sec. 4.3.2).", above=0)
-    context_model: str = setting("uniform", "μ̂(s): the box of the observed targets.")
+    gpreps: GPREPSBlock = setting(
+        GPREPSBlock(n_updates=30, n_initial=10, n_artificial=500, n_trajectories=25, epsilon=1.0),
+        "GPREPS and GP direct, one throw per update (Table 4.1, Sec. 4.3.2).",
+    )
     gp_steps: int = setting(150, "L-BFGS iterations of the release, flight, direct GPs.", minimum=0)
     robot_steps: int = setting(150, "L-BFGS iterations of the robot GP's fit.", minimum=0)
     robot_inducing: int = setting(50, "Pseudo-inputs of the FITC robot-dynamics GP.", minimum=1)
     flight_inducing: int = setting(50, "Pseudo-inputs of the FITC ball-flight GP.", minimum=1)
     max_robot_points: int = setting(1000, "Robot transitions the FITC GP is fitted on.", minimum=2)
-    reps_updates: int = setting(200, "REPS updates (× 25 = 5000 rollouts).", minimum=1)
-    reps_rollouts_per_update: int = setting(25, "REPS rollouts per update (fig3.3).", minimum=1)
-    reps_epsilon: float = setting(0.6, "KL bound of REPS (fig3.3).", above=0)
-    reps_reuse_batches: int = setting(8, "Batches REPS reuses (fig3.3).", minimum=1)
-    n_eval_contexts: int = setting(8, "Fixed targets of the learning curves.", minimum=1)
+    reps: REPSBlock = setting(
+        REPSBlock(n_updates=200, rollouts_per_update=25, epsilon=0.6, n_reuse_batches=8),
+        "REPS with fig3.3's settings (200 × 25 = 5000 rollouts).",
+    )
+    evaluation: EvaluationBlock = setting(
+        EvaluationBlock(n_eval_contexts=8), "Fixed targets of the learning curves."
+    )
     grid_x: tuple[float, ...] = setting(
         (5.0, 7.5, 10.0, 12.5, 15.0), "Target x (m) of the final distances."
     )
@@ -87,40 +90,26 @@ class StochasticThrowingSettings(GPREPSThrowingSettings):
     n_final_rollouts: int = setting(10, "Noisy rollouts per target per final policy.", minimum=1)
 
 
-SMOKE = {
-    "n_initial": 3,
-    "n_updates": 2,
-    "n_artificial": 20,
-    "n_trajectories": 2,
-    "gp_steps": 10,
-    "robot_inducing": 10,
-    "flight_inducing": 10,
-    "max_robot_points": 200,
-    "reps_updates": 2,
-    "reps_rollouts_per_update": 4,
-    "reps_reuse_batches": 2,
-    "n_eval_contexts": 1,
-    "grid_x": (8.0,),
-    "grid_y": (2.0,),
+SHARED = {
+    "smoke": {
+        "gpreps": {"n_initial": 3, "n_updates": 2, "n_artificial": 20, "n_trajectories": 2},
+        "gp_steps": 10,
+        "robot_inducing": 10,
+        "flight_inducing": 10,
+        "max_robot_points": 200,
+        "reps": {"n_updates": 2, "rollouts_per_update": 4, "n_reuse_batches": 2},
+        "evaluation": {"n_eval_contexts": 1},
+        "grid_x": (8.0,),
+        "grid_y": (2.0,),
+    },
+    "quick": {
+        "gpreps": {"n_updates": 8, "n_artificial": 200, "n_trajectories": 5},
+        "gp_steps": 60,
+        "reps": {"n_updates": 40},
+    },
+    "paper": {"evaluation": {"n_eval_contexts": 20}},
 }
-QUICK = {
-    "n_updates": 8,
-    "n_artificial": 200,
-    "n_trajectories": 5,
-    "gp_steps": 60,
-    "reps_updates": 40,
-}
-"""The quick scale's changes of the three experiments (the robot GP keeps 150 iterations)."""
-
-
-def _scales(cls, smoke: dict | None = None, quick: dict | None = None, paper=None) -> dict:
-    """The three scales of a settings class: the shared changes plus the experiment's own."""
-    return scales(
-        cls(),
-        smoke={**SMOKE, **(smoke or {})},
-        quick={**QUICK, **(quick or {})},
-        paper={"n_eval_contexts": 20, **(paper or {})},
-    )
+"""The scales' changes of the three experiments (the robot GP keeps 150 iterations)."""
 
 
 def _fitc(n_inducing: int, n_steps: int) -> ForwardModel:
@@ -146,7 +135,7 @@ def throwing_reward_model(task, st: GPREPSThrowingSettings, model: str = "decomp
 def reps_algorithm(task, st) -> ContextualREPS:
     """Model-free contextual REPS on throwing with fig3.3's settings (ε, reused batches and
     the quadratic baseline from ``st``), from the task's π₀."""
-    return regularised_reps(task.initial_policy(), st.reps_epsilon, st.reps_reuse_batches)
+    return regularised_reps(task.initial_policy(), st.reps.epsilon, st.reps.n_reuse_batches)
 
 
 def _run(task, st, key, model, rng, trial, eval_contexts, m=None) -> tuple[dict, object]:
@@ -156,8 +145,8 @@ def _run(task, st, key, model, rng, trial, eval_contexts, m=None) -> tuple[dict,
             task,
             reps_algorithm(task, st),
             key,
-            st.reps_updates,
-            st.reps_rollouts_per_update,
+            st.reps.n_updates,
+            st.reps.rollouts_per_update,
             rng,
             trial,
             eval_contexts,
@@ -170,8 +159,9 @@ def _run(task, st, key, model, rng, trial, eval_contexts, m=None) -> tuple[dict,
 
 def _learn(st, rng, trial, runs) -> tuple[dict, dict, np.ndarray]:
     """The runs ``(key, model, M, task)``: arrays with final distances, policies, targets."""
-    eval_contexts = runs[0][3].sample_context(rng, n=st.n_eval_contexts)
-    trial.reset(total=sum(st.reps_updates if r[1] == "reps" else st.n_updates for r in runs))
+    eval_contexts = runs[0][3].sample_context(rng, n=st.evaluation.n_eval_contexts)
+    k = {"reps": st.reps.n_updates}
+    trial.reset(total=sum(k.get(r[1], st.gpreps.n_updates) for r in runs))
     out, policies = {"targets": target_grid(st)}, {}
     for (key, model, m, task), seed in zip(runs, rng.spawn(len(runs)), strict=True):
         arrays, policies[key] = _run(task, st, key, model, seed, trial, eval_contexts, m)
@@ -368,7 +358,7 @@ def _noise_ratios(summary: dict) -> dict[str, float | None]:
 experiment(
     "fig4.6",
     "Ball throwing: GPREPS (decomposed GP models) vs GP direct vs REPS",
-    _scales(GPREPSThrowingSettings),
+    scales(GPREPSThrowingSettings(), shared=SHARED),
     run_trial_46,
     summarize_46,
     (1, 2, 5),
@@ -376,11 +366,12 @@ experiment(
 experiment(
     "fig4.7",
     "Ball throwing: GPREPS with 50 to 1000 artificial samples",
-    _scales(
-        SampleSizeSettings,
+    scales(
+        SampleSizeSettings(),
+        shared=SHARED,
         smoke={"n_artificial_values": (10, 20)},
         quick={"n_artificial_values": (50, 200)},
-        paper={"n_trajectories": 5, "n_updates": 20},
+        paper={"gpreps": {"n_trajectories": 5, "n_updates": 20}},
     ),
     run_trial_47,
     summarize_47,
@@ -388,7 +379,12 @@ experiment(
 experiment(
     "fig4.9",
     "Stochastic ball throwing: REPS and GPREPS with and without release noise",
-    _scales(StochasticThrowingSettings, smoke={"n_final_rollouts": 2}, paper={"n_updates": 20}),
+    scales(
+        StochasticThrowingSettings(),
+        shared=SHARED,
+        smoke={"n_final_rollouts": 2},
+        paper={"gpreps": {"n_updates": 20}},
+    ),
     run_trial_49,
     summarize_49,
 )

@@ -18,14 +18,16 @@ from skillkit.experiments.ch3_table_tennis import (
     shot_scores,
 )
 from skillkit.experiments.ch4_events import (
+    GPREPS_SHARED,
     EventGPREPSSettings,
     event_summary,
     gpreps_run,
-    gpreps_scales,
     reps_curve,
 )
 from skillkit.experiments.curves import (
     CurveTask,
+    GPREPSBlock,
+    REPSBlock,
     experiment,
     heldout_setup,
     register_curve_task,
@@ -58,11 +60,17 @@ class TableTennisModelSettings(Settings):
 class TableTennisGPREPSSettings(EventGPREPSSettings, TableTennisModelSettings):
     """Settings of ``fig4.12`` (table tennis)."""
 
-    n_updates: int = setting(130, "GPREPS / GP-direct updates (N₀ + K = 150 rollouts).", minimum=1)
+    gpreps: GPREPSBlock = setting(
+        GPREPSBlock(n_updates=130, n_initial=20, n_artificial=500, n_trajectories=10, epsilon=0.5),
+        "GPREPS and GP direct, one real rollout per update (N₀ + K = 150 rollouts).",
+    )
     schedule: Literal["auto", "hitting", "returning"] = setting(
         "auto", "Eq. 4.17's c₁ / c₂ schedule ('auto': switch once contacts are modelled)."
     )
-    reps_updates: int = setting(80, "REPS updates (× 50 rollouts = 4000).", minimum=1)
+    reps: REPSBlock = setting(
+        REPSBlock(n_updates=80, rollouts_per_update=50, epsilon=0.6, n_reuse_batches=4),
+        "REPS with fig3.7's settings and its regularised fit (80 × 50 = 4000 rollouts).",
+    )
 
 
 @dataclass(frozen=True)
@@ -98,16 +106,14 @@ def table_tennis_reward_model(task, st, schedule: str = "auto"):
 def run_trial_412(st: TableTennisGPREPSSettings, rng: np.random.Generator, trial: TrialContext):
     """GPREPS (five models), GP direct and REPS on ``table-tennis`` from the imitation policy."""
     task = make("table-tennis")
-    _, eval_contexts, score, seeds = heldout_setup(task, st, rng, 3, _shot_scores)
-    trial.reset(total=2 * st.n_updates + st.reps_updates)
+    _, eval_contexts, score, seeds = heldout_setup(task, st.evaluation, rng, 3, _shot_scores)
+    trial.reset(total=2 * st.gpreps.n_updates + st.reps.n_updates)
     model = table_tennis_reward_model(task, st, st.schedule)
     out = gpreps_run(task, st, "gpreps", model, seeds[0], trial, eval_contexts, score, True)
     direct = DirectRewardModel(ExactGP(n_steps=st.gp_steps))
     out.update(gpreps_run(task, st, "direct", direct, seeds[1], trial, eval_contexts, score))
-    tt = _reps_settings()
-    reps = make_reps(task, tt)
-    n = tt.rollouts_per_update
-    out.update(reps_curve(task, reps, st, n, seeds[2], trial, eval_contexts, score))
+    reps = make_reps(task, _reps_settings(st))
+    out.update(reps_curve(task, reps, st, seeds[2], trial, eval_contexts, score))
     return out
 
 
@@ -227,7 +233,12 @@ def summarize_413(st: ModelAccuracySettings, trials: list[dict]):
 experiment(
     "fig4.12",
     "Robot table tennis: GPREPS (five models) vs GP direct vs REPS",
-    gpreps_scales(TableTennisGPREPSSettings, smoke={"reps_updates": 1}, quick={"reps_updates": 10}),
+    scales(
+        TableTennisGPREPSSettings(),
+        shared=GPREPS_SHARED,
+        smoke={"reps": {"n_updates": 1}},
+        quick={"reps": {"n_updates": 10}},
+    ),
     run_trial_412,
     summarize_412,
 )
@@ -245,9 +256,9 @@ experiment(
 )
 
 
-def _reps_settings() -> TableTennisSettings:
-    """fig3.7's settings with the fit regularisation the stored fig4.12 result was made with."""
-    return replace(TableTennisSettings(), **REGULARISED)
+def _reps_settings(st: TableTennisGPREPSSettings) -> TableTennisSettings:
+    """fig3.7's settings with ``st``'s REPS and the regularised fit (:data:`REGULARISED`)."""
+    return replace(TableTennisSettings(reps=st.reps), **REGULARISED)
 
 
 register_curve_task(
@@ -257,8 +268,7 @@ register_curve_task(
         thresholds=(-0.05, -0.02),
         thresholds_source="Sec. 3.4.3: high-quality policies have “a reward above -0.02”; balls in "
         "the net score “in interval [−0.05, −0.02]”",
-        reps=lambda task, st, policy: make_reps(task, _reps_settings()),
-        reps_schedule=lambda st: (st.reps_updates, *(_reps_settings().rollouts_per_update,) * 2),
+        reps=lambda task, st, policy: make_reps(task, _reps_settings(st)),
         reward_model=lambda task, st: table_tennis_reward_model(task, st, st.schedule),
     ),
 )

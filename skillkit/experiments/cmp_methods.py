@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -29,7 +29,7 @@ from skillkit.experiments.curves import (
     run_curve,
 )
 from skillkit.experiments.registry import SCALES, get
-from skillkit.experiments.settings import Settings, scales, setting
+from skillkit.experiments.settings import Settings, apply_overrides, scales, setting
 from skillkit.tasks import make
 from skillkit.trial import TrialContext
 
@@ -95,15 +95,16 @@ class _Setup:
 def thesis_settings(name: str, st: MethodComparisonSettings) -> Settings:
     """The settings of task ``name``'s thesis experiment at ``st.thesis_scale``, with the
     GPREPS and REPS sizes that ``st`` sets (non-zero) in their place."""
-    profile = curve_task(name)
-    thesis = get(profile.experiment).settings[st.thesis_scale]
+    thesis = get(curve_task(name).experiment).settings[st.thesis_scale]
     sizes = {
-        profile.gpreps_updates: st.gpreps_updates,
-        "n_artificial": st.n_artificial,
-        "n_trajectories": st.n_trajectories,
-        "reps_updates": st.reps_updates,
+        "gpreps": {
+            "n_updates": st.gpreps_updates,
+            "n_artificial": st.n_artificial,
+            "n_trajectories": st.n_trajectories,
+        },
+        "reps": {"n_updates": st.reps_updates},
     }
-    return replace(thesis, **{k: v for k, v in sizes.items() if v})
+    return apply_overrides(thesis, {b: {k: v for k, v in f.items() if v} for b, f in sizes.items()})
 
 
 def _setup(name: str, st: MethodComparisonSettings, rng: np.random.Generator) -> _Setup:
@@ -113,16 +114,23 @@ def _setup(name: str, st: MethodComparisonSettings, rng: np.random.Generator) ->
     else:
         task = make(name)
         policy = task.initial_policy()
-        evals = task.sample_context(rng, n=thesis.n_eval_contexts)
+        evals = task.sample_context(rng, n=thesis.evaluation.n_eval_contexts)
         prior, prior_rollouts = [], 0.0
     return _Setup(
         task, name, profile, thesis, policy, evals, int(rng.integers(2**63)), prior, prior_rollouts
     )
 
 
+def _schedule(method: str, thesis: Settings) -> tuple[int, int, int]:
+    """(updates K, rollouts per update N, first batch N₀) of REPS or GPREPS in ``thesis``."""
+    if method == "reps":
+        return thesis.reps.n_updates, *(thesis.reps.rollouts_per_update,) * 2
+    return thesis.gpreps.n_updates, 1, thesis.gpreps.n_initial
+
+
 def _algorithm(method: str, s: _Setup, st: MethodComparisonSettings, rng):
     """(algorithm, K, N, N₀) of ``method``; CMA-ES gets REPS's rollouts, BO GPREPS's."""
-    reps, gpreps = s.profile.reps_schedule(s.thesis), s.profile.gpreps_schedule(s.thesis)
+    reps, gpreps = _schedule("reps", s.thesis), _schedule("gpreps", s.thesis)
     if method == "reps":
         return (s.profile.reps(s.task, s.thesis, s.policy), *reps)
     if method == "gpreps":
@@ -182,7 +190,7 @@ def _run_method(method: str, s: _Setup, st, rng, trial: TrialContext) -> dict:
 def _updates(method: str, s: _Setup, st) -> int:
     """Updates of ``method`` on ``s`` (the progress bar's share); a peer is built (no fit)."""
     if method in ("reps", "gpreps"):
-        return getattr(s.profile, f"{method}_schedule")(s.thesis)[0]
+        return _schedule(method, s.thesis)[0]
     return _algorithm(method, s, st, np.random.default_rng(0))[1]
 
 

@@ -13,7 +13,7 @@ from typing import Any, Literal
 import numpy as np
 
 from skillkit.experiments.registry import SCALES, Experiment, Series, register
-from skillkit.experiments.settings import Settings, scales, setting
+from skillkit.experiments.settings import Settings, apply_overrides, scales, setting
 from skillkit.policies.features import FeatureName
 from skillkit.search import ContextualREPS, learn
 from skillkit.search.gpreps import GPREPS, GPREPSSettings
@@ -35,36 +35,28 @@ MIN_EFFECTIVE_SAMPLES = 2.0
 class CurveTask:
     """What a registered task supplies to the learning-curve experiments.
 
-    ``experiment``: the thesis experiment whose settings ``st`` (at a scale) REPS and GPREPS
-    use; ``thresholds``: the reward levels whose real-rollout cost is compared. The callables
-    take ``st``: ``reps(task, st, policy)`` builds REPS, ``reps_schedule(st)`` and
-    ``gpreps_schedule(st)`` give (updates K, rollouts per update N, first batch N₀);
-    ``reward_model(task, st)`` is GPREPS's unless ``gpreps(task, st, policy, prior, rng)``
-    builds GPREPS itself; ``gpreps_updates`` names the field of GPREPS's updates; ``setup(st,
-    rng)`` returns ``(task, policy, eval_contexts, prior, prior_rollouts)`` where the default
-    (the task's imitation policy, ``n_eval_contexts`` contexts, no prior data) does not fit.
+    ``experiment``: the thesis experiment whose settings ``st`` (at a scale; its ``reps``,
+    ``gpreps`` and ``evaluation`` blocks) REPS and GPREPS use; ``thresholds``: the reward levels
+    whose real-rollout cost is compared. The callables take ``st``: ``reps(task, st, policy)``
+    builds REPS; ``reward_model(task, st)`` is GPREPS's unless ``gpreps(task, st, policy, prior,
+    rng)`` builds GPREPS itself; ``setup(st, rng)`` returns ``(task, policy, eval_contexts,
+    prior, prior_rollouts)`` where the default (the task's imitation policy,
+    ``evaluation.n_eval_contexts`` contexts, no prior data) does not fit.
     """
 
     experiment: str
     thresholds: tuple[float, ...]
     thresholds_source: str
     reps: Callable[..., Any]
-    reps_schedule: Callable[[Settings], tuple] = lambda st: (
-        st.reps_updates,
-        st.reps_rollouts_per_update,
-        st.reps_rollouts_per_update,
-    )
     reward_model: Callable[..., Any] | None = None
     gpreps: Callable[..., Any] | None = None
-    gpreps_schedule: Callable[[Settings], tuple] = lambda st: (st.n_updates, 1, st.n_initial)
-    gpreps_updates: str = "n_updates"
     setup: Callable[..., tuple] | None = None
 
     def make_gpreps(self, task, settings: Settings, policy, prior, rng) -> GPREPS:
         """GPREPS on ``task`` with ``settings`` (:attr:`gpreps`, or the default)."""
         if self.gpreps is not None:
             return self.gpreps(task, settings, policy, prior, rng)
-        return gpreps_algorithm(task, settings, self.reward_model(task, settings), rng)
+        return gpreps_algorithm(task, settings.gpreps, self.reward_model(task, settings), rng)
 
 
 _PROFILES: dict[str, CurveTask] = {}
@@ -135,11 +127,13 @@ def run_curve(
     return out, curves
 
 
-def heldout_setup(task, st, rng, n_runs: int, scorer) -> tuple:
+def heldout_setup(task, ev: EvaluationBlock, rng, n_runs: int, scorer) -> tuple:
     """Held-out and evaluation contexts, the held-out ``score(policy)`` (``scorer(task,
     policy, heldout, seed)``, one seed for all) and ``n_runs`` seeds."""
-    heldout = task.sample_context(rng, n=st.n_heldout)
-    eval_contexts = task.sample_context(rng, n=st.n_eval_contexts)
+    if ev.n_heldout < 1:
+        raise ValueError(f"evaluation.n_heldout: expected at least 1, got {ev.n_heldout}")
+    heldout = task.sample_context(rng, n=ev.n_heldout)
+    eval_contexts = task.sample_context(rng, n=ev.n_eval_contexts)
     heldout_seed = int(rng.integers(2**63))
 
     def score(policy) -> dict:
@@ -172,15 +166,17 @@ def kept_model(algo: GPREPS, policies) -> dict:
     return out
 
 
-def gpreps_algorithm(task, st, reward_model, rng, n_artificial: int | None = None) -> GPREPS:
+def gpreps_algorithm(
+    task, g: GPREPSBlock, reward_model, rng, n_artificial: int | None = None
+) -> GPREPS:
     """GPREPS (Table 4.1) from the task's π₀ with ``reward_model``: ε, μ̂, M (unless
-    ``n_artificial`` is given) and L from ``st``, the fit regularised by :data:`COV_FLOOR` and
+    ``n_artificial`` is given) and L from ``g``, the fit regularised by :data:`COV_FLOOR` and
     :data:`MIN_EFFECTIVE_SAMPLES`."""
     settings = GPREPSSettings(
-        epsilon=st.epsilon,
-        n_artificial=n_artificial or st.n_artificial,
-        n_trajectories=st.n_trajectories,
-        context_model=st.context_model,
+        epsilon=g.epsilon,
+        n_artificial=n_artificial or g.n_artificial,
+        n_trajectories=g.n_trajectories,
+        context_model=g.context_model,
         cov_floor=COV_FLOOR,
         min_effective_samples=MIN_EFFECTIVE_SAMPLES,
     )
@@ -190,24 +186,25 @@ def gpreps_algorithm(task, st, reward_model, rng, n_artificial: int | None = Non
 def run_gpreps(
     task, st, key, reward_model, rng, trial, eval_contexts, score=None, n_artificial=None
 ) -> tuple[dict, dict, GPREPS]:
-    """One GPREPS run (N₀ = ``st.n_initial`` real rollouts, then one per update):
+    """One GPREPS run of ``st.gpreps`` (N₀ real rollouts, then one per update):
     ``(arrays, curves, algorithm)``, the arrays of :func:`run_curve` (held-out scores every
-    ``st.heldout_every`` updates) with the per-update model error, times and KL."""
+    ``st.evaluation.heldout_every`` updates) with the per-update model error, times and KL."""
+    g = st.gpreps
     algo_rng, loop_rng = rng.spawn(2)
-    algo = gpreps_algorithm(task, st, reward_model, algo_rng, n_artificial)
+    algo = gpreps_algorithm(task, g, reward_model, algo_rng, n_artificial)
     out, curves = run_curve(
         task,
         algo,
         key,
-        st.n_updates,
+        g.n_updates,
         1,
         loop_rng,
         trial,
         eval_contexts,
         score=score,
-        every=getattr(st, "heldout_every", 1),
-        rollouts_after=lambda k: st.n_initial + k - 1,
-        initial_rollouts=st.n_initial,
+        every=st.evaluation.heldout_every,
+        rollouts_after=lambda k: g.n_initial + k - 1,
+        initial_rollouts=g.n_initial,
     )
     diags = curves["diagnostics"]
     rel = [
@@ -353,7 +350,7 @@ class GPREPSBlock(Settings):
     """GPREPS (Table 4.1)."""
 
     n_updates: int = setting(10, "Updates K (0: GPREPS does not run).", minimum=0)
-    n_initial: int = setting(10, "N₀, real rollouts before the first update.", minimum=2)
+    n_initial: int = setting(10, "N₀, real rollouts before the first update.", minimum=1)
     n_artificial: int = setting(200, "M, artificial (s, ω) pairs per update.", minimum=2)
     n_trajectories: int = setting(5, "L, predicted trajectories per pair (Eq. 4.1).", minimum=1)
     epsilon: float = setting(1.0, "KL bound ε (Sec. 4.3.2).", above=0)
@@ -364,9 +361,11 @@ class GPREPSBlock(Settings):
 
 @dataclass(frozen=True)
 class EvaluationBlock(Settings):
-    """The learning curve's evaluation."""
+    """The learning curve's evaluation and the held-out scores."""
 
     n_eval_contexts: int = setting(10, "Fixed contexts the policy mean is scored on.", minimum=1)
+    n_heldout: int = setting(0, "Held-out contexts of the held-out scores (0: none).", minimum=0)
+    heldout_every: int = setting(1, "Held-out scores every this many updates.", minimum=1)
 
 
 @dataclass(frozen=True)
@@ -405,12 +404,6 @@ def learning_curves(
     method's mean curve needs to reach each of ``thresholds``; ``claim`` says what the run
     shows (an id outside the claims spec needs one); ``smoke``, ``quick``, ``paper``: each
     scale's changes of :class:`CurveSettings` (a block as a mapping of some of its fields)."""
-    off = {"gpreps": {"n_updates": 0}} if reward_model is None else {}
-    changes = {
-        "smoke": {**_SMOKE, **off, **(smoke or {})},
-        "quick": {**off, **(quick or {})},
-        "paper": {**off, **(paper or {})},
-    }
 
     def run_trial(st: CurveSettings, rng: np.random.Generator, trial: TrialContext) -> dict:
         made = make(st.task)
@@ -428,7 +421,7 @@ def learning_curves(
                 out.update(arrays)
             else:
                 model = reward_model(made)
-                out.update(run_gpreps(made, st.gpreps, "gpreps", model, r, trial, eval_contexts)[0])
+                out.update(run_gpreps(made, st, "gpreps", model, r, trial, eval_contexts)[0])
         return out
 
     def summarize(st: CurveSettings, trials: list[dict]):
@@ -458,5 +451,10 @@ def learning_curves(
                 summary[m].update(gpreps_stats(trials, m))
         return series, summary
 
-    settings = scales(CurveSettings(task=task), **changes)
+    settings = scales(
+        CurveSettings(task=task), shared={"smoke": _SMOKE}, smoke=smoke, quick=quick, paper=paper
+    )
+    if reward_model is None:  # GPREPS does not run
+        off = {"gpreps": {"n_updates": 0}}
+        settings = {scale: apply_overrides(st, off) for scale, st in settings.items()}
     return experiment(exp_id, title, settings, run_trial, summarize, (1, 1, 1), claim)

@@ -163,7 +163,7 @@ class Settings:
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
             try:
-                norm = _coerce(value, hints[f.name])
+                norm = _coerce(value, hints[f.name], f.default)  # a mapping updates the default
             except _Mismatch:
                 raise ValueError(
                     f"{f.name}: expected {type_name(hints[f.name])}, got {value!r} "
@@ -239,8 +239,15 @@ def scales(
     smoke: Mapping[str, Any] | None = None,
     quick: Mapping[str, Any] | None = None,
     paper: Mapping[str, Any] | None = None,
+    shared: Mapping[str, Mapping[str, Any]] | None = None,
 ) -> dict[str, S]:
     """``{"smoke": ..., "quick": ..., "paper": ...}``: ``base`` with each scale's changes
-    (field name → value, checked as by :func:`apply_overrides`) applied."""
+    (field name → value, checked as by :func:`apply_overrides`) applied, after the changes
+    ``shared[scale]`` that a family of experiments has in common (a nested block's mapping
+    changes only the fields it names, so both may change one block)."""
     changes = {"smoke": smoke, "quick": quick, "paper": paper}
-    return {scale: apply_overrides(base, dict(c or {})) for scale, c in changes.items()}
+    shared = shared or {}
+    return {
+        scale: apply_overrides(apply_overrides(base, dict(shared.get(scale) or {})), dict(c or {}))
+        for scale, c in changes.items()
+    }

@@ -315,8 +315,9 @@ def _exploration(run: Any, method: str) -> tuple[list[np.ndarray], list[np.ndarr
     file = Path(path) / "trials.npz"
     if not file.exists():
         raise ValueError(f"run: {path} has no trials.npz (its policy history is not stored)")
-    if "epsilon" not in settings:
-        raise ValueError(f"run: {run.id} has no KL bound 'epsilon' in its settings")
+    epsilon = settings.get("gpreps", {}).get("epsilon")
+    if epsilon is None:
+        raise ValueError(f"run: {run.id} has no KL bound 'gpreps.epsilon' in its settings")
     scales, kls = [], []
     with np.load(file, allow_pickle=False) as arrays:
         t = 0
@@ -330,7 +331,7 @@ def _exploration(run: Any, method: str) -> tuple[list[np.ndarray], list[np.ndarr
             t += 1
     if not scales:
         raise ValueError(f"run: {file} holds no policy history (trial<i>__policy_cov)")
-    return scales, kls, float(settings["epsilon"])
+    return scales, kls, float(epsilon)
 
 
 def exploration_table(run: Any, method: str = "gpreps") -> pd.DataFrame:

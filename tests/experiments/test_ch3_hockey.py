@@ -26,8 +26,8 @@ def test_registered_with_thesis_settings():
     exp = get("fig3.5")
     for scale in ("quick", "paper"):
         s = exp.settings_for(scale)
-        assert s.epsilon == 0.5 and s.task == "hockey"
-    paper = exp.settings_for("paper")
+        assert s.reps.epsilon == 0.5 and s.task == "hockey"
+    paper = exp.settings_for("paper").reps
     assert paper.n_updates * paper.rollouts_per_update >= 8000  # thesis: up to ~8000
     assert exp.trials["paper"] >= 3
 
@@ -112,7 +112,7 @@ def test_summary_arithmetic_and_its_judgement():
     band = next(s for s in series if s.name == ch.LABELS["reps"] and "hit rate" in s.panel)
     np.testing.assert_allclose(band.y, [0.3, 0.98])
     # 98% of 2 × 1000 held-out contexts: the pooled Wilson interval lies above 95%
-    j = judge.judge("fig3.5", summary, "paper", {"n_heldout": 1000})
+    j = judge.judge("fig3.5", summary, "paper", {"evaluation": {"n_heldout": 1000}})
     assert j.readings[0].outcome == "holds"
     assert j.outcome == "undecided"  # two trials cannot decide the paired comparisons
 
@@ -159,7 +159,7 @@ def _summary_35(**kw) -> dict:
     ],
 )
 def test_spec_decides_each_part_of_the_sentence(change, label):
-    settings = {"n_heldout": 100}
+    settings = {"evaluation": {"n_heldout": 100}}
     assert judge.judge("fig3.5", _summary_35(), "paper", settings).outcome == "holds"
     j = judge.judge("fig3.5", _summary_35(**change), "paper", settings)
     assert j.outcome == "does not hold"
@@ -170,7 +170,9 @@ def test_own_parts_do_not_change_the_verdict():
     """Counting a miss as an error of d* (30 cm) or a REPS curve that ends below its start
     fails our own parts, not the thesis's sentence."""
     for change in ({"miss_error": [0.3, 0.31, 0.32, 0.3]}, {"curve": [-0.8, -0.81, -0.79, -0.8]}):
-        j = judge.judge("fig3.5", _summary_35(**change), "paper", {"n_heldout": 100})
+        j = judge.judge(
+            "fig3.5", _summary_35(**change), "paper", {"evaluation": {"n_heldout": 100}}
+        )
         assert j.outcome == "holds"
         assert any(r.part.own and r.outcome == "does not hold" for r in j.readings)
 
@@ -180,7 +182,7 @@ def test_stored_run_reads_wilson_and_paired_t_intervals():
     the pooled hits (5 × 100 held-out contexts), and its CrKR − REPS placed-puck error equals
     scipy's paired Student-t interval; float64 round-off of a few dozen operations."""
     run = stored_run("fig3.5")
-    n = run.settings["n_heldout"]
+    n = run.settings["evaluation"]["n_heldout"]
     rates = np.asarray(run.summary["reps"]["final_heldout_hit_rate_per_trial"])
     k, total = float(np.sum(rates * n)), n * rates.size
     p, z = k / total, stats.norm.ppf(0.975)

@@ -36,17 +36,17 @@ def tiny_runs():
 def test_registered_with_thesis_settings():
     exp = get("fig3.7")
     for scale in ("quick", "paper"):
-        s = exp.settings_for(scale)
+        s = exp.settings_for(scale).reps
         assert s.epsilon == 0.6
         assert s.rollouts_per_update * s.n_reuse_batches == 200  # reuse the last 200
-    paper = exp.settings_for("paper")
+    paper = exp.settings_for("paper").reps
     assert paper.n_updates * paper.rollouts_per_update >= 4000  # thesis: ~4000 rollouts
     assert exp.trials["paper"] >= 10  # enough runs to count those stuck at the net
 
 
 def test_tiny_run_is_deterministic_and_well_formed(tiny_runs):
     (a, b), bars = tiny_runs
-    assert bars[0].total == TINY.n_updates and bars[0].n == TINY.n_updates
+    assert bars[0].total == TINY.reps.n_updates and bars[0].n == TINY.reps.n_updates
     np.testing.assert_array_equal(a["mean_reward"], b["mean_reward"])
     np.testing.assert_array_equal(a["final_rewards"], b["final_rewards"])
     assert a["final_outcomes"] == b["final_outcomes"]
@@ -192,7 +192,7 @@ def test_fig412_reps_keeps_the_settings_of_its_stored_result(monkeypatch):
         exp.run_trial(exp.settings_for("smoke"), np.random.default_rng(0), TrialContext(_Bar()))
     (tt,) = seen
     # the values fig4.12's stored run was made with (the REGULARISED fit)
-    assert (tt.epsilon, tt.rollouts_per_update, tt.n_reuse_batches) == (0.6, 50, 4)
+    assert (tt.reps.epsilon, tt.reps.rollouts_per_update, tt.reps.n_reuse_batches) == (0.6, 50, 4)
     assert tt.baseline_features == "linear"
     assert (tt.min_effective_samples, tt.cov_shrinkage) == (10.0, 0.2)
 

@@ -26,12 +26,12 @@ def test_registered_with_the_thesis_settings():
     exp = get("fig3.3")
     for scale in ("quick", "paper"):
         s = exp.settings[scale]
-        assert s.epsilon == 0.6 and s.rollouts_per_update == 25
-        assert s.rollouts_per_update * s.n_reuse_batches == 200
+        assert s.reps.epsilon == 0.6 and s.reps.rollouts_per_update == 25
+        assert s.reps.rollouts_per_update * s.reps.n_reuse_batches == 200
         # exploration whose throws reach the farthest targets; Table 3.1's M-step
         assert s.initial_std_fraction == Throwing.covering_std_fraction
         assert s.m_step == "weighted_ml"
-    assert exp.settings["paper"].n_updates * 25 >= 5000
+    assert exp.settings["paper"].reps.n_updates * 25 >= 5000
     assert exp.trials["paper"] == 20
     grid = replace(exp.settings["quick"], grid_x=(5, 6), grid_y=(1,))
     np.testing.assert_array_equal(target_grid(grid), [[5, 1], [6, 1]])
@@ -170,7 +170,7 @@ def test_saved_run_has_the_policy_history_the_viewer_plays_back(tmp_path):
         "fig3.3", "smoke", trials=1, seed=5, out=tmp_path, progress=False, html=False
     )
     history = load_policy_history(folder, trial=0)
-    assert len(history.policies) == get("fig3.3").settings["smoke"].n_updates + 1
+    assert len(history.policies) == get("fig3.3").settings["smoke"].reps.n_updates + 1
     assert history.policies[0].dim == 41 and history.policies[0].context_dim == 2
     # The first entry is the initial policy, the others differ from it (REPS updated them).
     assert not np.allclose(history.policies[-1].mean, history.policies[0].mean)

@@ -19,6 +19,7 @@ from skillkit.experiments.ch4_balancing import (
     random_experience,
 )
 from skillkit.experiments.judge import card_lines_ok, judge, read, spec
+from skillkit.experiments.registry import get
 from skillkit.experiments.run import stored_run
 from skillkit.experiments.runner import run_trials
 from skillkit.models.linear import LinearGaussianModel
@@ -193,8 +194,7 @@ def test_short_random_rollouts_keep_the_learning_horizon(monkeypatch):
     from skillkit.trial import TrialContext
 
     st = replace(
-        BalancingComparisonSettings(),
-        **mod._SMOKE,
+        get("tab4.2").settings["smoke"],
         linear_variant=False,
         random_steps=10,
         n_random=12,

@@ -51,7 +51,10 @@ def test_fig411_hit_rate_is_a_wilson_interval_over_the_held_out_shots():
     run = _stored("fig4.11")
     settings = run.result["settings"]
     rates = np.asarray(run.summary["gpreps"]["final_hit_rate_per_trial"], dtype=float)
-    k, n = float(np.sum(rates * settings["n_heldout"])), rates.size * settings["n_heldout"]
+    k, n = (
+        float(np.sum(rates * settings["evaluation"]["n_heldout"])),
+        rates.size * settings["evaluation"]["n_heldout"],
+    )
     r = read(_part("fig4.11", "hit rate"), run.summary, settings)
     # the pooled count (n flops), the bounds' ~20 flops, on the scale of a rate (≤ 1)
     np.testing.assert_allclose([r.lower, r.upper], _wilson(k, n), rtol=0, atol=fp_tol(n + 20))
@@ -98,12 +101,12 @@ def test_each_trial_keeps_its_policy_history_and_reward_model(tmp_path, exp_id, 
     history, reward_model = load_gpreps_run(run.path, 0)
     assert type(reward_model).__name__ == model
     st = get(exp_id).settings["smoke"]
-    assert len(history.policies) == st.n_updates + 1
+    assert len(history.policies) == st.gpreps.n_updates + 1
     s = reward_model.task.sample_context(0)
     specs = model_layers(reward_model, s, history.policies[-1].mean_of(s), n_samples=3, rng=0)
     assert len(specs) >= 3 and all(spec["trajectories"].shape[2] == 3 for spec in specs)
     summary = run.summary
-    assert summary["gpreps"]["rollouts"] == st.n_initial + st.n_updates - 1
+    assert summary["gpreps"]["rollouts"] == st.gpreps.n_initial + st.gpreps.n_updates - 1
     assert summary["verdict"] == "not judged" and summary["not_judged"] == "smoke scale"
     assert card_lines_ok(summary["judgement"]["card"])
     assert not {"setup", "variants", "claim_parts"} & set(summary)
@@ -124,7 +127,7 @@ def test_bad_settings_are_refused_before_any_work():
     with pytest.raises(ValueError, match="task"):
         replace(get("fig4.10").settings["paper"], task="hockey-fast")
     with pytest.raises(ValueError, match="n_initial"):
-        replace(get("fig4.11").settings["paper"], n_initial=1)
+        replace(get("fig4.11").settings["paper"], gpreps={"n_initial": 0})
 
 
 def test_hockey_setup_names_the_refit_launch_targets_and_displacement_model():

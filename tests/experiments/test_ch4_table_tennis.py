@@ -26,7 +26,7 @@ def test_fig412_net_share_is_a_wilson_interval_over_all_held_out_shots():
     """Not "≤ 5% in every trial" on 50 shots each (a policy at the pooled rate fails that most
     of the time), but the pooled share of every trial's held-out shots."""
     run = _stored("fig4.12")
-    n_heldout = run.settings["n_heldout"]
+    n_heldout = run.settings["evaluation"]["n_heldout"]
     net = np.asarray(run.summary["gpreps"]["final_net_per_trial"], dtype=float)
     k, n = float(np.round(np.sum(net * n_heldout))), net.size * n_heldout
     r = read(_part("fig4.12", "shots into the net"), run.summary, run.settings)

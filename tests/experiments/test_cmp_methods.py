@@ -38,13 +38,13 @@ def test_budgets_follow_the_thesis_methods(result):
     for task in TASKS:
         thesis = cmp_methods.thesis_settings(task, st)
         rollouts = {m: trial[f"{task}/{m}_rollouts"] for m in cmp_methods.METHODS}
-        assert rollouts["reps"][-1] == thesis.reps_updates * thesis.reps_rollouts_per_update
+        assert rollouts["reps"][-1] == thesis.reps.n_updates * thesis.reps.rollouts_per_update
         if task == "balancing":  # Table 4.2's random-policy experience, counted as rollouts
             prior = thesis.n_random * thesis.random_steps / make("balancing").n_steps
             assert rollouts["gpreps"][0] == pytest.approx(prior, rel=fp_tol(4))
-            assert rollouts["gpreps"][-1] == pytest.approx(prior + thesis.gpreps_updates)
+            assert rollouts["gpreps"][-1] == pytest.approx(prior + thesis.gpreps.n_updates)
         else:  # N₀, then one per update after the first batch (the thesis experiments' loop)
-            assert rollouts["gpreps"][-1] == thesis.n_initial + thesis.n_updates - 1
+            assert rollouts["gpreps"][-1] == thesis.gpreps.n_initial + thesis.gpreps.n_updates - 1
         # CMA-ES: whole generations of λ m rollouts, the fewest that cover its budget
         per = np.diff(rollouts["cmaes"])[0]
         assert rollouts["cmaes"][-1] == per * math.ceil(st.cmaes_budget / per)
@@ -85,9 +85,10 @@ def test_winners_on_ties_at_pi0_and_when_no_method_reaches():
 def test_settings_overrides_reach_the_thesis_experiments_settings():
     st = get("cmp.methods").settings_for("smoke", gpreps_updates=7, n_artificial=33, reps_updates=3)
     throwing = cmp_methods.thesis_settings("throwing", st)
-    assert (throwing.n_updates, throwing.n_artificial, throwing.reps_updates) == (7, 33, 3)
+    g = throwing.gpreps
+    assert (g.n_updates, g.n_artificial, throwing.reps.n_updates) == (7, 33, 3)
     balancing = cmp_methods.thesis_settings("balancing", st)
-    assert (balancing.gpreps_updates, balancing.n_artificial) == (7, 33)
+    assert (balancing.gpreps.n_updates, balancing.gpreps.n_artificial) == (7, 33)
     unchanged = cmp_methods.thesis_settings("hockey", get("cmp.methods").settings["smoke"])
     assert unchanged == get("fig4.10").settings["smoke"]
 

@@ -246,7 +246,7 @@ def _exploration_run(tmp_path, widths, kls, epsilon=0.5, method="gpreps"):
         arrays[f"trial{t}__policy_cov"] = w[:, None, None] ** 2 * np.eye(3)
         arrays[f"trial{t}__{method}_kl"] = np.asarray(kl, dtype=float)
     np.savez(tmp_path / "trials.npz", **arrays)
-    return Run(tmp_path, {"id": "figX", "settings": {"epsilon": epsilon}})
+    return Run(tmp_path, {"id": "figX", "settings": {"gpreps": {"epsilon": epsilon}}})
 
 
 def test_exploration_table_is_the_width_ratio_and_the_share_at_the_bound(tmp_path):

@@ -223,13 +223,13 @@ def _wilson(k: int, n: int) -> tuple[float, float]:
 
 
 def test_fig4_5_fractions_over_settings_are_wilson_intervals():
-    """``sparse_minus_standard`` (added to the stored run from its stored panels), built here
-    independently from the panels, reads Wilson intervals over the settings (2 of 3 α above
-    the default, 4 of 4 noise levels above 0), as the stored run's own reading does."""
+    """The (setting, trial) pairs where FITC errs more than the standard GP, built here from
+    the stored one-trial panels, read as Wilson intervals (2 of 3 α above the default, 4 of 4
+    noise levels above 0); the stored run lacks the per-trial keys: not measured, undecided."""
     run = stored_run("fig4.5")
     s = run.summary
     labels = ("α > 1 where FITC > GP", "noise levels where FITC > GP")
-    assert run.outcome == "does not hold"  # FITC's error falls with more optimisation steps
+    assert run.outcome == "undecided"
     p = s["panels"]
     diff = {
         "additive_noise_above_default": [
@@ -241,7 +241,7 @@ def test_fig4_5_fractions_over_settings_are_wilson_intervals():
             for v in ("0.25", "0.5", "1.0", "2.0")
         ],
     }
-    full = {**s, "sparse_minus_standard": diff}
+    full = {**s, "sparse_minus_standard_per_trial": diff}
     for label, (k, n), outcome in zip(
         labels, ((2, 3), (4, 4)), ("undecided", "holds"), strict=True
     ):
@@ -249,9 +249,7 @@ def test_fig4_5_fractions_over_settings_are_wilson_intervals():
         lo, hi = _wilson(k, n)
         assert r.estimate == k / n and r.n == n and r.outcome == outcome
         assert abs(r.lower - lo) <= fp_tol(20) and abs(r.upper - hi) <= fp_tol(20)
-        assert read(_part("fig4.5", label), s).estimate == r.estimate  # the stored reading
-    own = read(_part("fig4.5", "FITC below constant predictor"), s)
-    assert own.outcome == "does not hold"  # 1.81 against the constant predictor's 1.59
+        assert read(_part("fig4.5", label), s).outcome == "not measured"
 
 
 @pytest.mark.parametrize("exp_id", ["fig4.3", "fig4.4", "fig4.5"])

@@ -179,6 +179,24 @@ def test_a_verdict_fails_on_one_failing_thesis_part_and_own_checks_never_decide(
     assert smoke.outcome == "not judged" and "smoke scale: not judged" in smoke.card()
 
 
+def test_a_key_the_run_lacks_leaves_the_verdict_undecided_unless_a_part_fails(monkeypatch):
+    """A part read from a summary key a stored run does not record yet is "not measured": the
+    verdict is undecided (a failing part still decides it), the card names the part."""
+    holds = _part(label="a", op=">", threshold=0.0)
+    fails = _part(label="b", op="<", threshold=0.0)
+    missing = _part(label="new key", quantity="per_trial.new", minus="x", statistic="paired")
+    summary = {"x": [1.0, 1.1, 0.9], "n_trials": 3}
+    for parts, want, key in [
+        ((holds, missing), "undecided", "new key"),
+        ((missing, fails), "does not hold", "b"),
+    ]:
+        monkeypatch.setattr(judge, "spec", lambda _id, p=parts: _claim(*p))
+        j = judge.judge("fig0.0", summary, "paper")
+        assert j.outcome == want and judge.card_lines_ok(j.card())
+        assert [r.outcome for r in j.readings if r.part.label == "new key"] == ["not measured"]
+        assert j.key().part.label == key and j.verdict_line().endswith(f": {want}")
+
+
 def test_changing_a_reading_in_the_spec_changes_the_verdict_without_a_rerun(tmp_path, monkeypatch):
     """fig4.10's placed-puck error is read against 5 cm; a copy of the spec with 20 cm judges
     the same stored numbers again at load: no trial runs."""

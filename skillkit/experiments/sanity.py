@@ -1,7 +1,8 @@
-"""``sanity3``: contextual REPS (Table 3.1), RWR (2.18) and CrKR (2.19–2.20) on
-:class:`LinearOptimumTask`, whose optimal policy is the linear ω = a* + A* s; a policy's error
-is ‖[a, A] − [a*, A*]‖_F of the least-squares linear fit to its mean on a 5 × 5 grid. No thesis
-result; our checks: ``skillkit/data/claims/ch3.toml``."""
+"""``sanity3``: contextual REPS (Table 3.1), RWR (2.18), CrKR (2.19–2.20) and C-CMA-ES
+(:mod:`skillkit.search.ccmaes`) on :class:`LinearOptimumTask`, whose optimal policy is the linear
+ω = a* + A* s, each with the same real rollouts; a policy's error is ‖[a, A] − [a*, A*]‖_F of the
+least-squares linear fit to its mean on a 5 × 5 grid. No thesis result; our checks:
+``skillkit/data/claims/ch3.toml``."""
 
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ from skillkit.experiments.registry import Series
 from skillkit.experiments.settings import Settings, scales, setting
 from skillkit.models.kernels import Linear
 from skillkit.policies.gaussian import LinearGaussianPolicy
+from skillkit.search.ccmaes import CCMAES
 from skillkit.search.crkr import CrKR
 from skillkit.search.loop import learn
 from skillkit.search.reps import ContextualREPS
@@ -28,7 +30,7 @@ from skillkit.viz.series import trial_band
 A_STAR_OFFSET = np.array([1.0, -0.5, 0.3])
 A_STAR_GAIN = np.array([[0.5, -0.3], [0.2, 0.8], [-0.6, 0.1]])
 REWARD_METRIC = np.diag([1.0, 2.0, 0.5])
-ALGORITHMS = ("REPS", "RWR", "CrKR")
+ALGORITHMS = ("REPS", "RWR", "CrKR", "C-CMA-ES")
 
 
 class LinearOptimumTask(Task):
@@ -112,7 +114,7 @@ QUICK = SCALES["quick"]
 
 
 def make_algorithm(name: str, task: LinearOptimumTask, settings: SanitySettings):
-    """Build REPS, RWR or CrKR from the experiment settings."""
+    """Build REPS, RWR, CrKR or C-CMA-ES (its own population per generation) from the settings."""
     init = task.initial_policy()
     reuse = settings.n_reuse_batches
     if name == "REPS":
@@ -123,6 +125,8 @@ def make_algorithm(name: str, task: LinearOptimumTask, settings: SanitySettings)
         kernel = Linear(variance=settings.kernel_variance, bias=settings.kernel_bias)
         lam, beta = settings.crkr_lam, settings.beta_scale
         return CrKR(init, kernel, lam=lam, beta_scale=beta, n_reuse_batches=reuse)
+    if name == "C-CMA-ES":
+        return CCMAES(init)
     raise ValueError(f"name: expected one of {ALGORITHMS}, got {name!r}")
 
 
@@ -134,12 +138,15 @@ def run_trial(settings: SanitySettings, rng: np.random.Generator, trial: TrialCo
     out: dict = {}
     streams = rng.spawn(len(ALGORITHMS))
     trial.reset(total=len(ALGORITHMS) * settings.n_updates)
+    budget = settings.n_updates * settings.rollouts_per_update
     for name, stream in zip(ALGORITHMS, streams, strict=True):
+        algo = make_algorithm(name, task, settings)
+        n = getattr(algo, "rollouts_per_update", settings.rollouts_per_update)
         res = learn(
             task,
-            make_algorithm(name, task, settings),
-            settings.n_updates,
-            settings.rollouts_per_update,
+            algo,
+            -(-budget // n),  # the same real rollouts for every algorithm (whole generations)
+            n,
             stream,
             trial=trial,
             eval_contexts=grid,
@@ -193,7 +200,7 @@ def summarize(settings: SanitySettings, trials: list[dict]) -> tuple[list[Series
 
 experiment(
     "sanity3",
-    "Contextual policy search with a known optimal linear policy: REPS vs RWR vs CrKR",
+    "Contextual policy search with a known optimal linear policy: REPS, RWR, CrKR, C-CMA-ES",
     SCALES,
     run_trial,
     summarize,

@@ -96,9 +96,12 @@ def test_contextual_reps_reaches_the_optimal_policy():
 def test_smoke_series_and_summary():
     a = run_trials("sanity3", "smoke", seed=5, progress=False)  # 2 trials, 3 updates
     names = {s["name"] for s in a["series"]}
-    assert names == {"REPS", "RWR", "CrKR"}
+    assert names == {"REPS", "RWR", "CrKR", "C-CMA-ES"}
     for s in a["series"]:
-        assert len(s["x"]) == 4 and s["x"][0] == 0 and s["x"][-1] == 75
+        if s["name"] == "C-CMA-ES":  # whole generations of N = 40 that cover 3 × 25 rollouts
+            assert s["x"] == [0, 40, 80]
+        else:
+            assert len(s["x"]) == 4 and s["x"][0] == 0 and s["x"][-1] == 75
         assert all(lo <= y <= hi for lo, y, hi in zip(s["lower"], s["y"], s["upper"], strict=True))
     summary = a["summary"]
     assert summary["holds"] is None  # smoke runs are not judged, and sanity3 has no thesis result

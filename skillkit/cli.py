@@ -433,8 +433,9 @@ def build_parser() -> argparse.ArgumentParser:
         action="append",
         default=[],
         metavar="KEY=VALUE",
-        help="override one setting (repeatable; VALUE is JSON), e.g. --set reps.n_updates=50; checked "
-        "first, the run gets its own folder <id>-<scale>-s<seed>-<hash>",
+        help="override one setting (repeatable; VALUE is JSON; block.name for a field of a "
+        "block), e.g. --set reps.n_updates=50; checked first, the run gets its own folder "
+        "<id>-<scale>-s<seed>-<hash>",
     )
 
     p = add("runs", _cmd_runs, "list finished runs (folders holding result.json), newest first")

@@ -249,9 +249,8 @@ class LinearGaussianPolicy:
 
         Returns
         -------
-        policy : LinearGaussianPolicy
-            A new policy of the same type.
-        info : FitInfo
+        policy, info : LinearGaussianPolicy, FitInfo
+            A new policy of the same type, and what the fit did.
 
         Raises
         ------

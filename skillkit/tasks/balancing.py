@@ -74,18 +74,14 @@ class Balancing(Task):
         self.n_steps = check_count(n_steps, "n_steps")
         self.control_dt = check_positive(control_dt, "control_dt")
         control_substeps(self.robot.model, self.control_dt)
-        if state_weights is None:
-            q_w = np.eye(8)
-        else:
-            q_w = check_array(state_weights, "state_weights", ndim=(1, 2))
-            q_w = np.diag(q_w) if q_w.ndim == 1 else q_w
-            if q_w.shape != (8, 8):
-                raise ValueError(f"state_weights: expected shape (8,) or (8, 8), got {q_w.shape}")
-            asymmetric = np.max(np.abs(q_w - q_w.T)) > 1e-12 * max(1.0, np.max(np.abs(q_w)))
-            if asymmetric or np.min(np.linalg.eigvalsh(q_w)) < 0:
-                raise ValueError(
-                    "state_weights: expected a symmetric positive semi-definite matrix"
-                )
+        q_w = np.ones(8) if state_weights is None else state_weights
+        q_w = check_array(q_w, "state_weights", ndim=(1, 2))
+        q_w = np.diag(q_w) if q_w.ndim == 1 else q_w
+        if q_w.shape != (8, 8):
+            raise ValueError(f"state_weights: expected shape (8,) or (8, 8), got {q_w.shape}")
+        asymmetric = np.max(np.abs(q_w - q_w.T)) > 1e-12 * max(1.0, np.max(np.abs(q_w)))
+        if asymmetric or np.min(np.linalg.eigvalsh(q_w)) < 0:
+            raise ValueError("state_weights: expected a symmetric positive semi-definite matrix")
         self.state_weights = q_w
         self.control_weight = check_positive(control_weight, "control_weight", allow_zero=True)
         self.excitation_std = check_positive(excitation_std, "excitation_std", allow_zero=True)
@@ -97,9 +93,7 @@ class Balancing(Task):
         """G (4, 8) from ω (32,), row-major."""
         return check_array(omega, "omega", shape=(32,)).reshape(4, 8)
 
-    def _simulate(
-        self, omega: np.ndarray, context: np.ndarray, rng: np.random.Generator
-    ) -> Trajectory:
+    def _simulate(self, omega, context, rng) -> Trajectory:
         G = self.gain_matrix(omega)
         start, reference, feedforward = getattr(self, "_episode", None) or (None, None, None)
         if start is None:
@@ -246,13 +240,9 @@ class Balancing(Task):
         """u = G_b (x − x_up), G_b = ω_b row-major (:func:`feedback_policy`)."""
         import torch
 
-        omegas = check_array(omegas, "omegas", shape=(None, 32))
-        gains = torch.as_tensor(
-            omegas.reshape(-1, 4, 8),
-            dtype=torch.float64 if dtype is None else dtype,
-            device=device,
-        )
-        return feedback_policy(gains)
+        dtype = torch.float64 if dtype is None else dtype
+        gains = check_array(omegas, "omegas", shape=(None, 32)).reshape(-1, 4, 8)
+        return feedback_policy(torch.as_tensor(gains, dtype=dtype, device=device))
 
     def scene_model(self) -> mujoco.MjModel:
         """The planar robot's compiled MuJoCo model."""
@@ -276,11 +266,8 @@ class Balancing(Task):
         """Discrete LQR gain G = −K = −(R + B_cᵀ P B_c)⁻¹ B_cᵀ P A_c (4, 8) at upright, P the
         Riccati solution for Σ x̃ᵀ Q x̃ + uᵀ R u, Q = ``state_weights`` (default the reward's),
         R = ``control_weight`` I₄."""
-        q_w = (
-            self.state_weights
-            if state_weights is None
-            else check_array(state_weights, "state_weights", shape=(8, 8))
-        )
+        q_w = self.state_weights if state_weights is None else state_weights
+        q_w = check_array(q_w, "state_weights", shape=(8, 8))
         r_w = check_positive(control_weight, "control_weight") * np.eye(4)
         a_c, b_c = self.linearization()
         p = scipy.linalg.solve_discrete_are(a_c, b_c, q_w, r_w)
@@ -315,11 +302,9 @@ class Balancing(Task):
     ) -> GaussianPolicy:
         """N(ω | vec G, Σ) around :meth:`lqr_gain` (R = ``control_weight`` I), Σ diagonal with
         std ``exploration_std_fraction`` (default :attr:`exploration_std_fraction`) × |G|."""
-        frac = (
-            self.exploration_std_fraction
-            if exploration_std_fraction is None
-            else check_positive(exploration_std_fraction, "exploration_std_fraction")
-        )
+        if exploration_std_fraction is None:
+            exploration_std_fraction = self.exploration_std_fraction
+        frac = check_positive(exploration_std_fraction, "exploration_std_fraction")
         g = self.lqr_gain(control_weight=control_weight).ravel()
         return GaussianPolicy(g, np.diag((frac * np.abs(g)) ** 2))
 
@@ -407,19 +392,15 @@ def collect_balancing(
     """
     rng = as_generator(rng)
     omegas, trajs, n_failed = [], [], 0
-    if gain is not None:
-        if policy is not None:
-            raise ValueError("gain: give either a fixed gain or a policy, not both")
-        fixed = _gain_vector(gain, "gain")
-        candidates = []
-    else:
-        candidates = list(stable_gains(task, n_trajectories, rng, max_spectral_radius, policy))
+    if gain is not None and policy is not None:
+        raise ValueError("gain: give either a fixed gain or a policy, not both")
+    fixed = None if gain is None else _gain_vector(gain, "gain")
+    candidates, n_draw = [], n_trajectories  # one batch, then one at a time
     while len(trajs) < n_trajectories:
-        if gain is not None:
-            candidates = [fixed]
-        elif not candidates:
-            candidates = list(stable_gains(task, 1, rng, max_spectral_radius, policy))
-        omega = candidates.pop(0)
+        if fixed is None and not candidates:
+            candidates = list(stable_gains(task, n_draw, rng, max_spectral_radius, policy))
+            n_draw = 1
+        omega = fixed if fixed is not None else candidates.pop(0)
         traj = task.rollout(omega, rng=rng)
         if traj.failed:
             n_failed += 1

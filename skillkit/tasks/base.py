@@ -158,13 +158,7 @@ class Task(ABC):
             return self._failed(omega, s, "non-finite values in the simulated trajectory")
         return traj
 
-    def _failed(
-        self,
-        omega: np.ndarray,
-        context: np.ndarray,
-        message: str,
-        partial: Trajectory | None = None,
-    ) -> Trajectory:
+    def _failed(self, omega, context, message: str, partial=None) -> Trajectory:
         warnings.warn(
             f"{self.name}: rollout failed ({message}); reward set to {self.worst_reward:g}",
             RuntimeWarning,

@@ -195,8 +195,10 @@ class TrajectoryTask(FunctionTask):
         Time between states.
     trajectory_depends_on_context : bool
         False if the context only enters the reward (Sec. 3.4).
-    context_low, context_high, context_sampler, initial_mean, initial_std, name, worst_reward
-        As for :class:`FunctionTask`.
+    name : str
+    **kwargs
+        ``context_low``, ``context_high``, ``context_sampler``, ``initial_mean``,
+        ``initial_std``, ``worst_reward`` as for :class:`FunctionTask`.
     """
 
     def __init__(
@@ -211,25 +213,10 @@ class TrajectoryTask(FunctionTask):
         initial_states: Callable[..., Any] | None = None,
         dt: float = 1.0,
         trajectory_depends_on_context: bool = True,
-        context_low=None,
-        context_high=None,
-        context_sampler: Callable[..., Any] | None = None,
-        initial_mean=None,
-        initial_std=1.0,
         name: str = "trajectory-task",
-        worst_reward: float = -1e6,
+        **kwargs,
     ):
-        super().__init__(
-            rollout,
-            parameter_dim,
-            context_low=context_low,
-            context_high=context_high,
-            context_sampler=context_sampler,
-            initial_mean=initial_mean,
-            initial_std=initial_std,
-            name=name,
-            worst_reward=worst_reward,
-        )
+        super().__init__(rollout, parameter_dim, name=name, **kwargs)
         self._reward_fn = _check_callable(reward, "reward")
         self.state_dim = check_count(state_dim, "state_dim")
         self.control_dim = check_count(control_dim, "control_dim", 0)
@@ -287,11 +274,9 @@ class TrajectoryTask(FunctionTask):
 
         self._require_model_rollout("controller")
         w = check_array(omegas, "omegas", shape=(None, self.parameter_dim))
-        b = w.shape[0]
         if self.context_dim == 0 and contexts is None:
-            s = np.zeros((b, 0))
-        else:
-            s = check_array(contexts, "contexts", shape=(b, self.context_dim))
+            contexts = np.zeros((w.shape[0], 0))
+        s = check_array(contexts, "contexts", shape=(w.shape[0], self.context_dim))
         dtype = torch.float64 if dtype is None else dtype
         w_t = torch.as_tensor(w, dtype=dtype, device=device)
         s_t = torch.as_tensor(s, dtype=dtype, device=device)

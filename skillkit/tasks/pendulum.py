@@ -86,9 +86,7 @@ class Pendulum(Task):
         self.context_low = np.array([-alpha_range, -velocity_range], dtype=float)
         self.context_high = -self.context_low
 
-    def _simulate(
-        self, omega: np.ndarray, context: np.ndarray, rng: np.random.Generator
-    ) -> Trajectory:
+    def _simulate(self, omega, context, rng) -> Trajectory:
         T = self.horizon
         states = np.empty((T + 1, 2))
         controls = np.zeros((T + 1, 1))
@@ -116,11 +114,9 @@ class Pendulum(Task):
         """u = clip(K_bᵀ x, −3, 3), K_b = ω_b; the torque noise belongs to the learned dynamics."""
         import torch
 
-        gains = torch.as_tensor(
-            check_array(omegas, "omegas", shape=(None, 2)),
-            dtype=torch.float64 if dtype is None else dtype,
-            device=device,
-        )
+        dtype = torch.float64 if dtype is None else dtype
+        gains = check_array(omegas, "omegas", shape=(None, 2))
+        gains = torch.as_tensor(gains, dtype=dtype, device=device)
 
         def policy(t: int, x, pair):
             u = (x * gains[pair]).sum(-1, keepdim=True)

@@ -180,10 +180,10 @@ class Throwing(Task):
     The target s = [x, y] is uniform on [5, 15] m × ``target_y`` (Sec. 3.4.1's [1, 3] m; C.1
     says [0, 3]). ω (41): the joint-major weights of a 4-joint, 10-basis DMP from
     :data:`THROW_START` to upright, and the release time t_r (s). The DMP is tracked by
-    u = M(q)(q̈_ref + kp e + kd ė) + c(q, q̇) (:func:`~skillkit.tasks.controllers.track_reference`).
-    At t_r (clamped to [0, horizon]) the ball leaves the hand with its interpolated state plus
-    Gaussian ``release_noise`` (m, m/s; Sec. 4.3.2.2) and flies drag-free to y = 0. Reward
-    (Appendix C.1)
+    u = M(q)(q̈_ref + kp e + kd ė) + c(q, q̇), kp = 900, kd = 60
+    (:func:`~skillkit.tasks.controllers.track_reference`). At t_r (clamped to [0, horizon])
+    the ball leaves the hand with its interpolated state plus Gaussian ``release_noise`` (m,
+    m/s; Sec. 4.3.2.2) and flies drag-free to y = 0. Reward (Appendix C.1)
 
         R(τ, s) = −c1 min_t ‖b_t − s‖ − c2 Σ_t f_c(x_t) − c3 Σ_t u_tᵀ u_t,
 
@@ -205,11 +205,8 @@ class Throwing(Task):
         self,
         control_dt: float = 0.01,
         horizon: float = 1.25,
-        kp=900.0,
-        kd=60.0,
         target_y: tuple[float, float] = (1.0, 3.0),
         release_noise: tuple[float, float] = (0.0, 0.0),
-        ball_dt: float = 0.01,
         max_joint_speed: float = 200.0,
     ) -> None:
         self.robot = PlanarRobot(TIMESTEP)
@@ -220,18 +217,16 @@ class Throwing(Task):
         if self.n_steps < 2:
             raise ValueError(f"horizon: expected at least two control steps, got {horizon:g} s")
         self.times = np.arange(self.n_steps) * self.control_dt
-        self.kp = np.broadcast_to(check_array(kp, "kp", ndim=(0, 1)), (4,)).copy()
-        self.kd = np.broadcast_to(check_array(kd, "kd", ndim=(0, 1)), (4,)).copy()
+        self.kp, self.kd = np.full(4, 900.0), np.full(4, 60.0)
         lo, hi = check_array(target_y, "target_y", shape=(2,))
         if not 0.0 <= lo <= hi:
             raise ValueError(f"target_y: expected 0 <= low <= high, got {target_y}")
-        self.context_low = np.array([5.0, lo])
-        self.context_high = np.array([15.0, hi])
+        self.context_low, self.context_high = np.array([5.0, lo]), np.array([15.0, hi])
         noise = check_array(release_noise, "release_noise", shape=(2,))
         if np.any(noise < 0):
             raise ValueError(f"release_noise: expected standard deviations >= 0, got {noise}")
         self.release_noise = noise
-        self.ball_dt = check_positive(ball_dt, "ball_dt")
+        self.ball_dt = 0.01  # s, the flight's sampling period
         self.max_joint_speed = check_positive(max_joint_speed, "max_joint_speed")
         dmp = DMP(4, n_basis=self.n_basis, dt=1e-3, duration=1.0)
         dmp.goal = UPRIGHT.copy()
@@ -245,9 +240,7 @@ class Throwing(Task):
             self.times, THROW_START, goal=UPRIGHT, goal_velocity=np.zeros(4), tau=1.0
         )
 
-    def _simulate(
-        self, omega: np.ndarray, context: np.ndarray, rng: np.random.Generator
-    ) -> Trajectory:
+    def _simulate(self, omega, context, rng) -> Trajectory:
         q_ref, qd_ref, qdd_ref = self.reference(omega)
         robot = self.robot
         robot.reset(THROW_START, np.zeros(4))
@@ -259,7 +252,6 @@ class Throwing(Task):
             self.control_dt,
             self.kp,
             self.kd,
-            gravity_compensation=True,
             qdd_ref=qdd_ref,
             inertia_weighted=True,
         )
@@ -316,13 +308,9 @@ class Throwing(Task):
     def reward_terms(self, trajectory: Trajectory, context) -> dict[str, float]:
         """The unweighted reward terms ``distance`` min_t ‖b_t − s‖ (m), ``joint_penalty``
         Σ_t f_c(x_t) and ``energy`` Σ_t u_tᵀu_t (Appendix C.1)."""
-        s = self.check_context(context)
-        terms = self.reward_terms_batch(
-            trajectory.states[None],
-            trajectory.controls[None],
-            trajectory.signals["ball"][None],
-            s[None],
-        )
+        s = self.check_context(context)[None]
+        arrays = (trajectory.states, trajectory.controls, trajectory.signals["ball"])
+        terms = self.reward_terms_batch(*(a[None] for a in arrays), s)
         return {k: float(v[0]) for k, v in terms.items()}
 
     @staticmethod
@@ -435,8 +423,7 @@ class Throwing(Task):
             times, q, qd, qdd = demo["times"], demo["q"], demo["qd"], demo["qdd"]
             t_r = float(demo["release_time"])
         dmp = DMP(4, n_basis=self.n_basis, dt=1e-3, duration=1.0).fit(times, q, qd, qdd)
-        weights = self.parameters.to_vector(dmp)
-        return np.append(weights, t_r)
+        return np.append(self.parameters.to_vector(dmp), t_r)
 
     exploration_std_fraction = 0.1
     covering_std_fraction = 0.9
@@ -449,11 +436,9 @@ class Throwing(Task):
         demonstrated weight, t_r :attr:`release_time_std`. :attr:`covering_std_fraction` puts
         the farthest target inside the initial exploration (Sec. 3.5; ``fig3.3``).
         """
-        frac = (
-            self.exploration_std_fraction
-            if exploration_std_fraction is None
-            else check_positive(exploration_std_fraction, "exploration_std_fraction")
-        )
+        if exploration_std_fraction is None:
+            exploration_std_fraction = self.exploration_std_fraction
+        frac = check_positive(exploration_std_fraction, "exploration_std_fraction")
         mean = self.demonstration_omega
         w = mean[:-1].reshape(4, self.n_basis)
         std_w = frac * np.max(np.abs(w), axis=1, keepdims=True)

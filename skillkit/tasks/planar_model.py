@@ -1,22 +1,11 @@
-"""The planar 4-link robot of Appendix C.1 as a MuJoCo model built with ``dm_control.mjcf``.
+"""The planar 4-link robot of Appendix C.1 (Sec. 3.4.1, Fig. 3.1) built with ``dm_control.mjcf``.
 
-A human-like robot with ankle, knee, hip and shoulder joints (Sec. 3.4.1, Fig. 3.1):
-
-==========  =====  ========  ===========================================
-link        mass   length    joint at its lower end (hinge about +y)
-==========  =====  ========  ===========================================
-shin        17.5   0.5 m     ankle, fixed to the ground at the origin
-thigh       17.5   0.5 m     knee
-torso       26.5   1.0 m     hip
-arm          8.5   1.0 m     shoulder, at the top of the torso
-==========  =====  ========  ===========================================
-
-Conventions: MuJoCo's x–z plane is the robot's (+x forward, +z up; the thesis's [x, y]).
-The base is fixed to the ground. All hinge axes are +y, so a positive angle tilts an upward
-link forwards; at q = 0 the legs and torso stand upright and the arm hangs down, so upright is
-q = [0, 0, 0, π]. Links are uniform thin rods (inertia m l²/12, our assumption); no joint
-limits, damping or contacts (the limits of C.1 are soft, in the reward); every joint has a
-unit-gear motor. Time step 1 ms, semi-implicit Euler. A site ``hand`` marks the arm's tip.
+Links shin, thigh, torso, arm (:data:`LINK_MASSES`, :data:`LINK_LENGTHS`) hinge about +y at
+the ankle (fixed at the origin), knee, hip and shoulder (top of the torso). MuJoCo's x–z plane
+is the thesis's [x, y]; a positive angle tilts an upward link forwards; at q = 0 the arm hangs
+down, so upright is q = [0, 0, 0, π]. Uniform thin rods (inertia m l²/12, our assumption), no
+joint limits, damping or contacts (C.1's limits are soft, in the reward), unit-gear motors,
+1 ms semi-implicit Euler steps; a site ``hand`` marks the arm's tip.
 """
 
 from __future__ import annotations

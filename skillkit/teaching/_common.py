@@ -3,14 +3,13 @@ series, and argument checks."""
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Mapping
 
 import numpy as np
 
 from skillkit._validation import check_choice
 from skillkit.experiments.registry import SCALES
-from skillkit.viz.plots import draw_figure
-from skillkit.viz.series import Series
+from skillkit.viz.figures import draw  # noqa: F401  (the chapters draw with it)
 
 
 def per_scale(cls, **columns: tuple) -> dict:
@@ -26,11 +25,6 @@ def at_scale(table: Mapping, scale: str):
 def sig(value: float, digits: int = 4) -> float:
     """``value`` rounded to ``digits`` significant digits (for tables)."""
     return float(f"{float(value):.{digits}g}")
-
-
-def draw(title: str, series: Iterable[Series], backend: str = "plotly"):
-    """:func:`~skillkit.viz.plots.draw_figure` of ``series`` under ``title``."""
-    return draw_figure({"title": title, "series": [s.to_dict() for s in series]}, backend)
 
 
 def xy(points: np.ndarray) -> tuple[list, list]:

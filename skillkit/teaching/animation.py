@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from skillkit._validation import check_array
+from skillkit._validation import check_array, check_choice
 from skillkit.policies.gaussian import LinearGaussianPolicy
 from skillkit.viz.animation import (
     TABLE_TENNIS_CONTEXTS,
@@ -14,22 +14,11 @@ from skillkit.viz.animation import (
     table_tennis_animation,
     throwing_animation,
 )
+from skillkit.viz.history import load_policy_history
 
-_THESIS = {  # figure: (stored run, task, default contexts, animation, title)
-    "fig3.2": (
-        "fig3.3",
-        "throwing",
-        THROWING_TARGETS,
-        throwing_animation,
-        "Throwing for two targets (Fig. 3.2)",
-    ),
-    "fig3.8": (
-        "fig3.7",
-        "table-tennis",
-        TABLE_TENNIS_CONTEXTS,
-        table_tennis_animation,
-        "Two table-tennis shots (Fig. 3.8)",
-    ),
+_THESIS = {  # figure: (stored run, task, default contexts, animation)
+    "fig3.2": ("fig3.3", "throwing", THROWING_TARGETS, throwing_animation),
+    "fig3.8": ("fig3.7", "table-tennis", TABLE_TENNIS_CONTEXTS, table_tennis_animation),
 }
 
 
@@ -41,25 +30,15 @@ def stored_final_policy(exp_id: str, trial: int = 0) -> LinearGaussianPolicy | N
     if isinstance(trial, bool) or not isinstance(trial, (int, np.integer)) or trial < 0:
         raise ValueError(f"trial: expected a trial number >= 0, got {trial!r}")
     try:
-        file = Path(stored_run(str(exp_id)).path) / "trials.npz"
+        folder = Path(stored_run(str(exp_id)).path)
     except FileNotFoundError:
         return None
-    if not file.exists():
+    if not (folder / "trials.npz").exists():
         return None
-    with np.load(file, allow_pickle=False) as data:
-        keys = set(data.files)
-        if not any(k.endswith("__policy_mean") for k in keys):
+    with np.load(folder / "trials.npz", allow_pickle=False) as data:
+        if not any(k.endswith("__policy_mean") for k in data.files):
             return None
-        prefix = f"trial{int(trial)}__"
-        if prefix + "policy_mean" not in keys:
-            raise ValueError(f"trial: the stored {exp_id} run has no policy for trial {trial}")
-        return LinearGaussianPolicy(
-            data[prefix + "policy_mean"][-1],
-            data[prefix + "policy_cov"][-1],
-            data[prefix + "policy_gain"][-1],
-            context_dim=int(data[prefix + "policy_context_dim"]),
-            features=str(data[prefix + "policy_features"]),
-        )
+    return load_policy_history(folder, trial)[-1]
 
 
 def thesis_animation(figure: str, contexts=None, *, trial: int = 0, n_frames: int = 40, **kwargs):
@@ -67,9 +46,7 @@ def thesis_animation(figure: str, contexts=None, *, trial: int = 0, n_frames: in
     initial policy) rolled out at ``contexts`` (k, context_dim) (default the thesis's two)."""
     from skillkit.tasks import make
 
-    if figure not in _THESIS:
-        raise ValueError(f"figure: expected one of {sorted(_THESIS)}, got {figure!r}")
-    exp_id, name, default, animate, title = _THESIS[figure]
+    exp_id, name, default, animate = _THESIS[check_choice(figure, "figure", sorted(_THESIS))]
     task = make(name)
     s = check_array(
         default if contexts is None else contexts, "contexts", shape=(None, task.context_dim)
@@ -83,7 +60,6 @@ def thesis_animation(figure: str, contexts=None, *, trial: int = 0, n_frames: in
             raise ValueError(f"figure: the stored {exp_id} policy does not fit task {name!r}")
         source = f"policy: final contextual REPS policy of the stored {exp_id} run (trial {trial})"
     trajs = [task.rollout(policy.mean_of(row), row, rng=0) for row in s]
-    kwargs.setdefault("title", title)
     return animate(
         task, trajs, s, n_frames=n_frames, subtitle=source + ", its mean at each context", **kwargs
     )

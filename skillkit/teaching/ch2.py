@@ -18,17 +18,11 @@ from scipy.optimize import minimize
 from skillkit._validation import as_generator, check_array, check_count, check_positive, check_type
 from skillkit.experiments.ch2 import FORCING_LABEL, reach_demonstration
 from skillkit.experiments.ch2_gp import fig2_12_function, successor_density
-from skillkit.models.gp import (
-    DTYPE,
-    ExactGP,
-    NumericalEvents,
-    neg_log_marginal_likelihood,
-    record_numerical_events,
-)
+from skillkit.models.gp import DTYPE, ExactGP, neg_log_marginal_likelihood, record_numerical_events
 from skillkit.models.moment_matching import GaussianPrediction, linearize, moment_match
 from skillkit.policies.dmp import DMP
 from skillkit.teaching._common import draw, index, sig
-from skillkit.viz.figures import plot_gp_fit
+from skillkit.viz.figures import gp_band, plot_gp_fit
 from skillkit.viz.series import Series
 
 #: Inputs drawn by :func:`noisy_samples` before the first ``n_points`` are kept, so the data
@@ -47,12 +41,6 @@ def _times(times: ArrayLike) -> np.ndarray:
     if t.shape[0] < 2 or np.any(np.diff(t) <= 0):
         raise ValueError("times: expected at least 2 strictly increasing time stamps")
     return t
-
-
-def _events_text(events: NumericalEvents) -> str:
-    """A title's note on handled events: "" or " (handled: noise at its floor ×1, …)"."""
-    seen = [f"{_EVENT_WORDS.get(k, k)} ×{n}" for k, n in events.counts.items() if n]
-    return f" (handled: {', '.join(seen)})" if seen else ""
 
 
 def _fitted(gp, name: str = "gp") -> ExactGP:
@@ -384,14 +372,6 @@ def hyperparameter_table(
     return pd.DataFrame.from_dict(rows, orient="index")
 
 
-def _band_series(gp: ExactGP, xs: np.ndarray, name: str, kw: dict) -> Series:
-    mean, var = gp.predict(xs[:, None])
-    mean, half = np.ravel(mean), 1.96 * np.sqrt(np.maximum(np.ravel(var), 0.0))
-    lo, hi = (mean - half).tolist(), (mean + half).tolist()
-    band = "95% band of y (mean ± 1.96 σ)"
-    return Series(name, xs.tolist(), mean.tolist(), lower=lo, upper=hi, band=band, **kw)
-
-
 def hyperparameter_figure(
     x: ArrayLike,
     y: ArrayLike,
@@ -429,7 +409,7 @@ def hyperparameter_figure(
         scales = ((f"÷ {factor:g}", 1 / factor), ("learned θ", 1.0), (f"× {factor:g}", factor))
         for name, scale in scales:
             model = gp if scale == 1.0 else gp_with(x, y, **{**theta, key: v * scale})
-            series.append(_band_series(model, xs, name, kw))
+            series.append(gp_band(model, xs, name, **kw))
         series.append(Series("data", x[:, 0].tolist(), y.tolist(), kind="markers", **kw))
     title = f"One hyper-parameter at a time ÷ {factor:g} and × {factor:g}, the others as learned"
     return draw(title, series, backend)
@@ -452,9 +432,11 @@ def gp_posterior_figure(
     with record_numerical_events() as events:
         gp = gp_with(x, y, lengthscale=lengthscale, signal_var=signal_var, noise_var=noise_var)
         gp.predict(xs[:, None])  # counts what plot_gp_fit's prediction will meet
+    seen = [f"{_EVENT_WORDS.get(k, k)} ×{n}" for k, n in events.counts.items() if n]
     title = (
         f"GP posterior, {n_points} point{'s' if n_points > 1 else ''}: ℓ = {lengthscale:.3g}, "
-        f"σ_ε² = {noise_var:.3g}, σ_f² = {signal_var:.3g}" + _events_text(events)
+        f"σ_ε² = {noise_var:.3g}, σ_f² = {signal_var:.3g}"
+        + (f" (handled: {', '.join(seen)})" if seen else "")
     )
     with record_numerical_events():
         return plot_gp_fit(gp, x, y, xs, f_true=fig2_12_function, backend=backend, title=title)

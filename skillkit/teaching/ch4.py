@@ -1,8 +1,7 @@
-"""Chapter 4 step by step: one GPREPS iteration (Sec. 4.1, Table 4.1) taken apart, in the
-order :meth:`GPREPS.update <skillkit.search.gpreps.GPREPS.update>` runs it (model fit, μ̂(s),
-Eq. 4.1, weights 3.10, ML fit 3.11–3.13); the M, L widget's reward estimates and stored runs
-(Table 4.2, Fig. 4.4, fig4.10–4.12). Figures take ``backend`` in {"plotly", "matplotlib"}.
-"""
+"""Chapter 4 step by step: one GPREPS iteration (Sec. 4.1, Table 4.1) in the order
+:meth:`~skillkit.search.gpreps.GPREPS.update` runs it (model fit, μ̂(s), Eq. 4.1, weights 3.10,
+ML fit 3.11–3.13), the M, L widget's reward estimates and stored runs (Table 4.2, Fig. 4.4,
+fig4.10–4.12). Figures take ``backend`` in {"plotly", "matplotlib"}."""
 
 from __future__ import annotations
 
@@ -32,6 +31,7 @@ from skillkit.tasks.base import Task
 from skillkit.tasks.planar import Throwing
 from skillkit.tasks.throwing_model import ThrowingPrediction, ThrowingRewardModel
 from skillkit.teaching._common import at_scale, draw, per_scale, xy
+from skillkit.viz.figures import polyline
 from skillkit.viz.series import Series
 
 
@@ -335,11 +335,9 @@ def _exploration(run: Any, method: str) -> tuple[list[np.ndarray], list[np.ndarr
 
 
 def exploration_table(run: Any, method: str = "gpreps") -> pd.DataFrame:
-    r"""How much a GPREPS run still explores and how much of its bound ε (3.5) each update
-    spends. ``run`` (fig4.10–4.12) stores ``trial<i>__policy_cov`` (K + 1, D, D) and
-    ``trial<i>__<method>_kl`` (K,). A row per trial and a median: √tr Σ_k / √tr Σ_0 after ¼, ½,
-    ¾ and all updates, the last KL and the share of updates at KL ≥ 0.99 ε.
-    """
+    r"""A row per trial of a run (fig4.10–4.12, ``trial<i>__policy_cov`` (K + 1, D, D) and
+    ``trial<i>__<method>_kl`` (K,)) and a median: √tr Σ_k / √tr Σ_0 after ¼, ½, ¾ and all
+    updates, the last KL and the share of updates at KL ≥ 0.99 ε (3.5)."""
     scales, kls, epsilon = _exploration(run, method)
     rows = []
     for scale, kl in zip(scales, kls, strict=True):
@@ -376,14 +374,6 @@ def exploration_figure(run: Any, method: str = "gpreps", backend: str = "plotly"
     return draw(title, series, backend)
 
 
-def _joined(paths) -> tuple[list, list]:
-    """Paths (each (K, 2)) as one polyline broken by NaN gaps."""
-    pieces = []
-    for p in paths:
-        pieces += [np.asarray(p, dtype=float), np.full((1, 2), np.nan)]
-    return xy(np.concatenate(pieces))
-
-
 def contexts_figure(real: ArrayLike, artificial: ArrayLike, backend: str = "plotly"):
     """Targets of the real throws (N, 2) and of the artificial ones from μ̂(s) (M, 2)."""
     s_real = check_array(real, "real", shape=(None, 2))
@@ -407,11 +397,11 @@ def predicted_throws_figure(
     n_pairs = check_count(n_pairs, "n_pairs")
     common = {"xlabel": "x [m]", "ylabel": "height y [m]"}
     balls = [t.signals["ball"] for t in real.trajectories[: real.n_rollouts] if not t.failed]
-    series = [Series(f"real flights ({len(balls)})", *_joined(balls), dash="dash", **common)]
+    series = [Series(f"real flights ({len(balls)})", *polyline(balls), dash="dash", **common)]
     B, L = prediction.rewards.shape
     for j in range(min(n_pairs, B)):
         series.append(
-            Series(f"pair {j + 1}: {L} predicted flights", *_joined(prediction.ball[j]), **common)
+            Series(f"pair {j + 1}: {L} predicted flights", *polyline(prediction.ball[j]), **common)
         )
     return draw("predicted ball flights over the real ones", series, backend)
 
@@ -562,12 +552,8 @@ def reward_estimate_figure(
     )
     fig = draw(title, series, backend)
     if backend == "plotly":
-        means = pool.pairs.mean(axis=1)
-        ranges = {
-            "yaxis": (float(pool.fixed.min()), float(pool.fixed.max())),
-            "yaxis2": (float(means.min()), float(means.max())),
-        }
-        for axis, (lo, hi) in ranges.items():
+        for axis, values in (("yaxis", pool.fixed), ("yaxis2", pool.pairs.mean(axis=1))):
+            lo, hi = float(values.min()), float(values.max())
             pad = 0.05 * (hi - lo) if hi > lo else 1.0
             if axis in fig.layout:
                 fig.layout[axis].range = (lo - pad, hi + pad)
@@ -661,11 +647,9 @@ class ModelView:
 def gpreps_model_view(
     run_dir: str | Path, *, live: bool, trial: int = 0, n_samples: int = 5
 ) -> ModelView:
-    """A stored GPREPS run's last reward model over its final policy: with ``live`` the
-    viewer with a layer per learned model, else the layers drawn from above.
-
-    .. warning:: This unpickles the run's reward model: load only runs you trust.
-    """
+    """A stored GPREPS run's last reward model over its final policy: with ``live`` the viewer
+    with a layer per learned model, else the layers drawn from above. It unpickles the model:
+    load only runs you trust."""
     from skillkit.viz.figures import gpreps_run_paths_figure
     from skillkit.viz.model_layers import load_gpreps_run
     from skillkit.viz.notebook import show_viewer
@@ -680,14 +664,11 @@ def gpreps_model_view(
 
 
 def prediction_overlay(task, predicted, real, *, live: bool, n_shown: int = 20) -> ModelView:
-    """The balancing robot's sampled trajectories (4.3) over its real rollout, for the first
-    controller: with ``live`` the viewer with a prediction layer, else the robot in its plane at
-    t = 0 (Appendix C.1 links) with the hand's real path and ``n_shown`` sampled hand paths.
-
-    ``predicted`` is :func:`~skillkit.search.model_rollouts.predict_trajectories`' output
-    (states (B, L, T + 1, 8), the first four entries the joint angles q) and ``real`` the
-    simulator's rollouts of the same controllers.
-    """
+    """The balancing robot's sampled trajectories (4.3) of the first controller over its real
+    rollout: with ``live`` the viewer with a prediction layer, else the robot's plane with the
+    hand's real and ``n_shown`` sampled paths. ``predicted`` is
+    :func:`~skillkit.search.model_rollouts.predict_trajectories`' output (states (B, L, T + 1,
+    8), q first), ``real`` the simulator's rollouts of the same controllers."""
     import plotly.graph_objects as go
 
     from skillkit.viz.animation import planar_link_points

@@ -69,14 +69,8 @@ def agreement_table(pairs: Mapping[str, tuple]) -> pd.DataFrame:
 
 def _predicted(model: ConditionalEmbedding, x0: np.ndarray, n: int, policy) -> np.ndarray:
     """The weights β_t (T, N) of one distribution started at ``x0`` (L, n_x) (Table 5.1)."""
-    return predict(model, x0[None], n, policy=policy, time_invariant=policy is not None).betas[
-        :, :, 0
-    ]
-
-
-def _mean_paths(embedding: ConditionalEmbedding, betas: np.ndarray) -> np.ndarray:
-    """X'ᵀβ_t for t = 1, …, T, shape (T, n_x)."""
-    return np.stack([embedding.mean(b) for b in betas])
+    out = predict(model, x0[None], n, policy=policy, time_invariant=policy is not None)
+    return out.betas[:, :, 0]
 
 
 def prediction_table(
@@ -106,7 +100,7 @@ def prediction_table(
         if not isinstance(model, ConditionalEmbedding) or not (policy is None or callable(policy)):
             raise ValueError(f"models[{label!r}]: expected a ConditionalEmbedding or (it, policy)")
         betas = _predicted(model, x0, real.shape[1], policy)
-        err = np.sqrt(((_mean_paths(model, betas) - real_mean) ** 2).mean(axis=0))
+        err = np.sqrt(((np.stack([model.mean(b) for b in betas]) - real_mean) ** 2).mean(axis=0))
         row = {f"RMSE {n}": float(e) for n, e in zip(labels, err, strict=True)}
         row |= {f"MC s.e. {n}": float(v) for n, v in zip(labels, se, strict=True)}
         row["max ‖β_t‖₁"] = float(np.abs(betas).sum(axis=1).max())
@@ -229,17 +223,6 @@ def weights_figure(betas, *, dt: float | None = None, title: str = ""):
     return fig
 
 
-def _to_scale(fig) -> None:
-    """Undo the robust y range of :func:`~skillkit.viz.plots.plotly_figure` (an embedding is
-    ~0 over most of its grid, so its peak would be clipped): every value drawn to scale."""
-    fig.data = [t for t in fig.data if not str(t.name or "").endswith("(off scale)")]
-    notes = ("at the top edge", "at the bottom edge")  # plots' note on clipped values
-    fig.layout.annotations = [
-        a for a in fig.layout.annotations if not any(n in str(a.text or "") for n in notes)
-    ]
-    fig.update_yaxes(range=None, autorange=True)
-
-
 def embedding_figure(
     embedding: ConditionalEmbedding,
     betas,
@@ -297,7 +280,7 @@ def embedding_figure(
 
     common = {"panel": f"mean of {label}: X′ᵀβ_t", "xlabel": xlabel, "ylabel": label}
     series = [
-        Series("predicted", t_pred, _mean_paths(embedding, b)[:, dim].tolist(), **common),
+        Series("predicted", t_pred, [float(embedding.mean(v)[dim]) for v in b], **common),
         real_series(t_real, mean, se, common),
     ]
     predicted = marginal_embedding(pts, weights, grid, h)  # (G, S)
@@ -310,8 +293,13 @@ def embedding_figure(
             real_series(grid.tolist(), emp, emp_se, common),
         ]
     fig = draw(title, series)
-    _to_scale(fig)
-    return fig
+    # every value to scale (an embedding is ~0 over most of its grid: no robust range)
+    fig.data = [t for t in fig.data if not str(t.name or "").endswith("(off scale)")]
+    notes = ("at the top edge", "at the bottom edge")  # plots' note on clipped values
+    fig.layout.annotations = [
+        a for a in fig.layout.annotations if not any(n in str(a.text or "") for n in notes)
+    ]
+    return fig.update_yaxes(range=None, autorange=True)
 
 
 def draw_embedding(

@@ -42,12 +42,12 @@ def live_run_times(ids: Iterable[str], scale: str):
     import numpy as np
     import pandas as pd
 
+    from skillkit._validation import check_choice
     from skillkit.experiments import timings
     from skillkit.experiments.registry import SCALES
     from skillkit.experiments.run import stored_run
 
-    if scale not in SCALES:
-        raise ValueError(f"scale: expected one of {list(SCALES)}, got {scale!r}")
+    check_choice(scale, "scale", list(SCALES))
     ids = _known(ids)
     seconds = []
     for exp_id in ids:

@@ -1,10 +1,6 @@
-"""Robots moving: task rollouts as plotly animations (Figs 3.2 and 3.8) that play without a kernel.
-
-A figure is a plotly ``Figure`` with ``frames``, play/pause and a time slider; only the moving
-traces are repeated per frame. The links come from the task's MuJoCo model
-(:func:`skillkit.viz.scenes.task_model`), ball, racket and targets from the trajectory's
-signals, interpolated linearly on each signal's own clock (:mod:`skillkit.viz.scenes`).
-"""
+"""Task rollouts as plotly animations (Figs 3.2 and 3.8) with play/pause and a time slider: links
+from the task's MuJoCo model, ball and racket from the trajectory's signals, each interpolated
+on its own clock (:mod:`skillkit.viz.scenes`)."""
 
 from __future__ import annotations
 
@@ -12,7 +8,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from skillkit._validation import check_array, check_count, check_positive
+from skillkit._validation import check_array, check_count, check_positive, check_type
 from skillkit.trajectory import Trajectory
 from skillkit.viz.plots import REFERENCE_WIDTH
 from skillkit.viz.scenes import COLORS, interpolate, kinematic_points, signal_times, task_model
@@ -50,16 +46,13 @@ def _rgb(name: str) -> str:
 
 
 def _model(task, kind: str):
-    """The MuJoCo model of ``task``, which must be a throwing, planar-robot (throwing or
-    balancing) or table-tennis task."""
+    """The MuJoCo model of a ``task`` of ``kind`` ("throwing", "planar" or "table-tennis")."""
     from skillkit.tasks.balancing import Balancing
     from skillkit.tasks.planar import Throwing
     from skillkit.tasks.table_tennis import TableTennis
 
     classes = {"throwing": Throwing, "planar": (Throwing, Balancing), "table-tennis": TableTennis}
-    if not isinstance(task, classes[kind]):
-        raise ValueError(f"task: expected a {kind} task, got {type(task).__name__}")
-    return task_model(task)
+    return task_model(check_type(task, classes[kind], "task", f"a {kind} task"))
 
 
 def _link_points(task, kind: str, q) -> np.ndarray:
@@ -71,11 +64,9 @@ def _link_points(task, kind: str, q) -> np.ndarray:
 
 
 def planar_link_points(task, q) -> np.ndarray:
-    """Ankle, knee, hip, shoulder and hand of the planar 4-link robot (Appendix C.1; throwing
-    or balancing) per row of joint angles q (N, 4), shape (N, 5, 2) in the robot's plane (m),
-    from the task's MuJoCo
-    model: with θ_k = q_1 + … + q_k, joint k + 1 sits at Σ_{j≤k} l_j (sin θ_j, cos θ_j) and the
-    hand l_4 (−sin θ_4, −cos θ_4) beyond the shoulder.
+    """Ankle, knee, hip, shoulder and hand of the planar 4-link robot (Appendix C.1) per row of
+    joint angles q (N, 4), shape (N, 5, 2) in its plane (m): with θ_k = q_1 + … + q_k, joint
+    k + 1 at Σ_{j≤k} l_j (sin θ_j, cos θ_j), the hand l_4 (−sin θ_4, −cos θ_4) beyond the shoulder.
     """
     return _link_points(task, "planar", q)[..., [0, 2]]
 
@@ -83,16 +74,13 @@ def planar_link_points(task, q) -> np.ndarray:
 def arm_link_points(task, q) -> np.ndarray:
     """Skeleton of the table-tennis arm (Appendix C.3) per row of joint positions q (N, 8)
     ([base_x, base_y, shoulder yaw, shoulder pitch, upper-arm roll, elbow, forearm roll, wrist]):
-    platform origin, shoulder, elbow, wrist and blade centre (site ``racket``), shape (N, 5, 3).
-    """
+    platform origin, shoulder, elbow, wrist and blade centre (site ``racket``), shape (N, 5, 3)."""
     return _link_points(task, "table-tennis", q)
 
 
 def racket_rim(center, normal, radius: float, n: int = 16) -> np.ndarray:
-    """Closed rim of a disc blade: c + r (cos φ u + sin φ v), φ = 0 … 2π, u ⟂ v ⟂ n, for
-    ``center`` and ``normal`` (3,) (any length > 0) and ``n`` ≥ 3 points; shape (n + 1, 3),
-    the first point repeated at the end.
-    """
+    """Closed rim c + r (cos φ u + sin φ v), φ = 0 … 2π, u ⟂ v ⟂ n, of a disc blade with
+    ``center``, ``normal`` (3,) (length > 0), shape (n + 1, 3) for ``n`` ≥ 3 (first = last)."""
     c = check_array(center, "center", shape=(3,))
     nv = check_array(normal, "normal", shape=(3,))
     length = float(np.linalg.norm(nv))
@@ -117,9 +105,7 @@ def _check_input(task, trajectories, contexts, n_frames, frame_ms, n_states: int
     if not isinstance(trajectories, Sequence) or not 0 < len(trajectories) <= len(_SHOT_COLORS):
         raise ValueError(f"trajectories: expected a sequence of 1 … {len(_SHOT_COLORS)} Trajectory")
     for i, tr in enumerate(trajectories):
-        if not isinstance(tr, Trajectory):
-            raise ValueError(f"trajectories[{i}]: expected a Trajectory, got {type(tr).__name__}")
-        if tr.failed:
+        if check_type(tr, Trajectory, f"trajectories[{i}]", "a Trajectory").failed:
             msg = f"trajectories[{i}]: a failed rollout has nothing to show ({tr.message})"
             raise ValueError(msg)
     s = check_array(contexts, "contexts", shape=(len(trajectories), task.context_dim))
@@ -226,19 +212,14 @@ def throwing_animation(
     title: str = "Throwing for two targets (Fig. 3.2)",
     subtitle: str = "",
 ):
-    """The planar 4-link robot throwing, one panel per target (Fig. 3.2), as a plotly animation.
-
-    Each panel shows the links (:func:`planar_link_points`), the ball (signal ``ball`` on
-    ``ball_times``, Appendix C.1), its path and the target s; the panel title gives s, the
-    release time t_r and the distance term min_t ‖b_t − s‖ (``task.reward_terms``). The panels
-    share one clock; a finished rollout holds its last state.
+    """The planar 4-link robot throwing, a panel per target on one clock (Fig. 3.2): links
+    (:func:`planar_link_points`), ball, its path and the target s; the panel title gives s, the
+    release time t_r and min_t ‖b_t − s‖ (``task.reward_terms``).
 
     ``trajectories`` are 1–4 non-failed rollouts of ``task`` (states (T, 8) = [q, q̇], signals
     ``ball`` (N, 2) and ``ball_times`` (N,)); ``contexts`` (len(trajectories), 2) their targets
-    [x, y] (m); ``n_frames`` (2 … :data:`MAX_FRAMES`) frames of ``frame_ms`` milliseconds,
-    named "0" … "n_frames − 1"; ``subtitle`` a smaller line under the title. ``ValueError``
-    (naming the argument) for a wrong task, a failed or malformed trajectory, or a bad
-    context, ``n_frames`` or ``frame_ms``.
+    [x, y] (m); ``n_frames`` (2 … :data:`MAX_FRAMES`) frames "0", "1", … of ``frame_ms``
+    milliseconds; ``subtitle`` a smaller line under the title.
     """
     import plotly.graph_objects as go
     from plotly.subplots import make_subplots
@@ -397,14 +378,11 @@ def table_tennis_animation(
     title: str = "Two table-tennis shots (Fig. 3.8)",
     subtitle: str = "",
 ):
-    """Table-tennis shots overlaid in one 3-D scene (Fig. 3.8), as a plotly animation.
-
-    Drawn: table and net; per shot, in its own colour, the arm (:func:`arm_link_points`;
-    dashed from the second shot on), the blade (:func:`racket_rim`), the ball and its path,
-    the return target b = s[3:5] and the landing point p (``info["landing_point"]``). A ball
-    landing after the episode ends is continued by a straight segment to p at
-    ``info["landing_time"]`` (at most g Δt²/8 above the parabola). The title lines give each
-    shot's context, outcome and landing error ‖b − p‖.
+    """Table-tennis shots overlaid in one 3-D scene (Fig. 3.8): table and net; per shot, in its
+    own colour, the arm (:func:`arm_link_points`; dashed from the second on), the blade
+    (:func:`racket_rim`), the ball and its path, the target b = s[3:5] and the landing point p
+    (``info["landing_point"]``, reached by a straight segment at ``info["landing_time"]`` after
+    the episode); the title lines give each shot's context, outcome and ‖b − p‖.
 
     ``trajectories`` are 1–4 non-failed rollouts (states (T, 16) = [q, q̇]; signals ``ball``,
     ``racket``, ``racket_normal`` (T, 3)); ``contexts`` (len(trajectories), 5) their

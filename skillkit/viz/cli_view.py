@@ -1,11 +1,5 @@
-"""``skillkit view TASK``: serve a task scene in the browser (:class:`skillkit.viz.viewer.Viewer`).
-
-Wired into ``skillkit/cli.py`` by ``add_view_parser(sub)``; ``python -m skillkit.viz.cli_view
-TASK ...`` runs it alone. Bad input prints one line ``skillkit view: error: ...`` and exits with
-code 2. ``--gpreps RUN_DIR --trial K`` plays back trial K's policy history with its reward
-model's layers (:mod:`skillkit.viz.model_layers`); the model file is a pickle: view only runs you
-trust.
-"""
+"""``skillkit view TASK``: serve a task scene in the browser (:class:`skillkit.viz.viewer.Viewer`),
+wired into ``skillkit/cli.py`` by :func:`add_view_parser`; bad input exits with code 2."""
 
 from __future__ import annotations
 

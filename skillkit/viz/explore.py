@@ -1,7 +1,4 @@
-"""Things to change and watch in a notebook: sliders that redraw a figure made by library calls.
-
-:func:`explore` shows the default figure (for exported pages; hidden where widgets are live)
-and an ``ipywidgets.Output`` of the figure above sliders that redraw it.
+"""Sliders that redraw a figure in a notebook (the default figure stays for exported pages).
 
 >>> from skillkit.viz.explore import Slider, explore
 >>> def draw(epsilon):                     # any function returning a figure
@@ -17,6 +14,8 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
+
+from skillkit._validation import check_type
 
 __all__ = ["Exploration", "Slider", "explore"]
 
@@ -119,20 +118,14 @@ def _display_output(obj) -> dict:
 
 
 def explore(draw: Callable[..., Any], /, *, controls: bool = True, **specs) -> Exploration:
-    """Show ``draw(**defaults)`` and controls that redraw it (``controls=False``: the static
-    figure only).
-
-    ``draw(**values)`` returns something Jupyter displays (a plotly figure, a
-    :class:`~skillkit.viz.plots.NotebookFigure`, a table); ``specs`` are one :class:`Slider`
-    per keyword argument of ``draw`` (``ValueError`` when one is not, or none is given).
-    """
+    """Show ``draw(**defaults)`` (anything Jupyter displays) and a :class:`Slider` per keyword
+    of ``draw`` in ``specs`` that redraws it (``controls=False``: the static figure only)."""
     if not callable(draw):
         raise ValueError(f"draw: expected a callable, got {type(draw).__name__}")
     if not specs:
         raise ValueError("specs: expected at least one control (name=Slider(...))")
     for name, spec in specs.items():
-        if not isinstance(spec, Slider):
-            raise ValueError(f"{name}: expected a Slider, got {type(spec).__name__}")
+        check_type(spec, Slider, name, "a Slider")
     shown = Exploration(draw, {k: s.default for k, s in specs.items()})
     shown.figure = draw(**shown.values)
     try:

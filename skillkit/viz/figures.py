@@ -1,16 +1,14 @@
-"""Figures from live objects (learning runs, GP fits, curves, predicted against real paths),
-drawn as the experiment figures are (:func:`skillkit.viz.plots.draw_figure`): a plotly
-``Figure`` or, with ``backend="matplotlib"``, a :class:`~skillkit.viz.plots.NotebookFigure`.
-"""
+"""Figures of live objects (learning runs, GP fits, curves, predicted against real paths), drawn
+by :func:`skillkit.viz.plots.draw_figure` with ``backend`` "plotly" or "matplotlib"."""
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
 
-from skillkit._validation import check_array
+from skillkit._validation import check_array, check_type
 from skillkit.series import Series, trial_band
 from skillkit.viz.plots import draw_figure
 
@@ -28,8 +26,16 @@ _LEARN_KEYS = ("rollouts", "mean_reward", "explore_rollouts", "explore_reward")
 REAL_PATH_SIGNALS: tuple[str, ...] = ("control_puck", "target_puck", "ball")
 
 
-def _draw(title: str, series: list, backend: str):
-    return draw_figure({"title": title, "series": [s.to_dict() for s in series]}, backend)
+def draw(title: str, series: Iterable[Series], backend: str = "plotly"):
+    """:func:`~skillkit.viz.plots.draw_figure` of ``series`` under ``title``."""
+    return draw_figure({"title": title, "series": list(series)}, backend)
+
+
+def polyline(paths) -> tuple[list, list]:
+    """x and y of paths (each (K, 2)) joined into one polyline broken by NaN gaps."""
+    gap = np.full((1, 2), np.nan)
+    joined = np.concatenate([np.concatenate([np.asarray(p, dtype=float), gap]) for p in paths])
+    return joined[:, 0].tolist(), joined[:, 1].tolist()
 
 
 def plot_learning(
@@ -41,13 +47,9 @@ def plot_learning(
     title: str = "learning curve",
     ylabel: str = "reward",
 ):
-    """Learning curves of :func:`skillkit.search.loop.learn` results: the reward of the policy
-    mean against the number of rollouts so far.
-
-    ``runs`` is one ``learn`` result; runs of one setting sharing a rollout grid (their mean
-    with a mean ± std band); or ``{label: result or runs}`` to compare settings (``label``
-    names a single setting). ``explore`` adds each batch's mean exploratory reward as markers.
-    """
+    """The policy mean's reward against rollouts of :func:`skillkit.search.loop.learn` results:
+    ``runs`` is one result, runs on one rollout grid (mean ± std band) or ``{label: result or
+    runs}`` (``label`` names a single setting); ``explore`` adds the batches' mean rewards."""
     if isinstance(runs, Mapping) and "rollouts" not in runs:
         if not runs:
             raise ValueError("runs: empty mapping")
@@ -75,12 +77,11 @@ def plot_learning(
             what = f"{name}: exploration batches" + (" (mean over runs)" if n > 1 else "")
             dots = Series(what, ex.tolist(), ey.tolist(), kind="markers", **common)
             series.append({**dots.to_dict(), "_group": name})  # coloured as its curve
-    return draw_figure({"title": title, "series": series}, backend)
+    return draw(title, series, backend)
 
 
 def _check_learn(r, name: str) -> dict[str, np.ndarray]:
-    if not isinstance(r, Mapping):
-        raise ValueError(f"{name}: expected a learn() result dict, got {type(r).__name__}")
+    check_type(r, Mapping, name, "a learn() result dict")
     missing = [k for k in _LEARN_KEYS if k not in r]
     if missing:
         raise ValueError(f"{name}: not a learn() result, missing keys {missing}")
@@ -108,13 +109,8 @@ def plot_gp_fit(
     xlabel: str = "x",
     ylabel: str = "y",
 ):
-    """A fitted 1-D GP regression: predictive mean, 95% band (mean ± 1.96 σ) and the data.
-
-    ``model`` has ``predict(X, include_noise) -> (mean, var)`` as
-    :meth:`skillkit.models.gp.ExactGP.predict` (Eqs 2.26–2.27), fitted on ``x_train`` (N,) or
-    (N, 1) and ``y_train`` (N,). Mean and band are drawn at the sorted ``x_test`` (n ≥ 2); the
-    band is of y = f(x) + ε (``include_noise``) or of f; ``f_true`` is drawn for comparison.
-    """
+    """A 1-D GP fitted on ``x_train`` (N,) or (N, 1), ``y_train`` (N,): :func:`gp_band` of
+    ``model.predict`` (Eqs 2.26–2.27) at the sorted ``x_test`` (n ≥ 2), the data and ``f_true``."""
     if not callable(getattr(model, "predict", None)):
         raise ValueError(f"model: expected a fitted GP with predict(), got {type(model).__name__}")
     xtr, ytr = _column(x_train, "x_train"), _column(y_train, "y_train")
@@ -123,25 +119,31 @@ def plot_gp_fit(
     xte = np.sort(_column(x_test, "x_test"))
     if xte.size < 2:
         raise ValueError(f"x_test: expected at least 2 points, got {xte.size}")
-    mean, var = model.predict(xte[:, None], include_noise=include_noise)
-    mean, var = np.asarray(mean, dtype=float), np.asarray(var, dtype=float)
-    if mean.ndim == 2 and mean.shape[1] == 1:
-        mean, var = mean[:, 0], var[:, 0]
-    if mean.shape != xte.shape:
-        msg = f"model: expected one output (predictions of shape ({xte.size},)), got {mean.shape}"
-        raise ValueError(msg)
-    half = 1.96 * np.sqrt(np.maximum(var, 0.0))
     common = {"panel": "", "xlabel": xlabel, "ylabel": ylabel}
-    band = f"95% band of {'y' if include_noise else 'f'} (mean ± 1.96 σ)"
-    fit = {"lower": (mean - half).tolist(), "upper": (mean + half).tolist(), "band": band}
     series = [
-        Series(f"{label} mean", xte.tolist(), mean.tolist(), **fit, **common),
+        gp_band(model, xte, f"{label} mean", include_noise=include_noise, **common),
         Series("data", xtr.tolist(), ytr.tolist(), kind="markers", **common),
     ]
     if f_true is not None:
         f = np.asarray(f_true(xte), float).tolist()
         series.append(Series("true function", xte.tolist(), f, **common))
-    return _draw(title, series, backend)
+    return draw(title, series, backend)
+
+
+def gp_band(model, x: np.ndarray, name: str, *, include_noise: bool = True, **fields) -> Series:
+    """``model.predict``'s mean at ``x`` (n,) with its 95% band mean ± 1.96 σ of y
+    (``include_noise``) or of f; ``fields`` go to the :class:`~skillkit.series.Series`."""
+    mean, var = model.predict(x[:, None], include_noise=include_noise)
+    mean, var = np.asarray(mean, dtype=float), np.asarray(var, dtype=float)
+    if mean.ndim == 2 and mean.shape[1] == 1:
+        mean, var = mean[:, 0], var[:, 0]
+    if mean.shape != x.shape:
+        msg = f"model: expected one output (predictions of shape ({x.size},)), got {mean.shape}"
+        raise ValueError(msg)
+    half = 1.96 * np.sqrt(np.maximum(var, 0.0))
+    band = f"95% band of {'y' if include_noise else 'f'} (mean ± 1.96 σ)"
+    lo, hi = (mean - half).tolist(), (mean + half).tolist()
+    return Series(name, x.tolist(), mean.tolist(), lower=lo, upper=hi, band=band, **fields)
 
 
 def _column(x, name: str) -> np.ndarray:
@@ -171,7 +173,7 @@ def line_figure(
         x = check_array(pair[0], f"curves[{label!r}] x", ndim=1)
         y = check_array(pair[1], f"curves[{label!r}] y", shape=x.shape)
         series.append(Series(str(label), x.tolist(), y.tolist(), **axis))
-    return _draw(title, series, backend)
+    return draw(title, series, backend)
 
 
 def prediction_figure(
@@ -183,15 +185,11 @@ def prediction_figure(
     dt: float | None = None,
     backend: str = "plotly",
 ):
-    """Model-predicted against real trajectories of state dimension ``dim``, a panel per pair:
-    the predicted mean with a 5th–95th percentile band over the L samples, and the real one.
-
-    ``predicted`` is a ``ModelRollouts`` or an array (B, L, T + 1, n_x) of L trajectories for
-    each of B (ω, s) pairs (:func:`skillkit.search.model_rollouts.predict_trajectories`), or
-    (B, T + 1, n_x) of one prediction per pair (no band); ``real`` the B simulated
-    trajectories (Trajectory or (T_real, n_x) array); ``label`` the y-axis label; ``dt`` the
-    time step (default: the x axis is the step index).
-    """
+    """Predicted against real trajectories of state dimension ``dim``, a panel per (ω, s) pair:
+    the predicted mean with a 5th–95th percentile band and the real one. ``predicted`` is a
+    ``ModelRollouts`` or an array (B, L, T + 1, n_x) (or (B, T + 1, n_x): no band), ``real``
+    the B simulated trajectories (Trajectory or (T_real, n_x)); ``label`` the y label, ``dt``
+    the time step (default: x is the step index)."""
     states = np.asarray(getattr(predicted, "states", predicted), dtype=float)
     if states.ndim == 3:  # one deterministic prediction per pair (e.g. an embedding's means)
         states = states[:, None]
@@ -219,7 +217,7 @@ def prediction_figure(
         series.append(Series("predicted mean", x, y.mean(axis=0).tolist(), **band, **common))
         n = min(len(reals[b]), T1)
         series.append(Series("real", x[:n], reals[b][:n, dim].tolist(), **common))
-    return _draw("predicted vs real", series, backend)
+    return draw("predicted vs real", series, backend)
 
 
 def model_paths_figure(
@@ -234,14 +232,9 @@ def model_paths_figure(
     title: str = "",
     backend: str = "plotly",
 ):
-    """A reward model's sampled paths for one (s, ω) over the simulator's: what ``skillkit view
-    TASK --gpreps RUN`` overlays in 3-D, as a static figure.
-
-    ``model`` has ``prediction_layers`` (:mod:`skillkit.viz.model_layers`), one legend entry
-    per layer with its ``n_samples`` paths. ``real`` is the simulator's rollout (its signals in
-    :data:`REAL_PATH_SIGNALS`) or a mapping of named world paths (T, 2|3). ``axes`` are the
-    world axes drawn: (0, 1) the top view x–y, (0, 2) the side view x–z.
-    """
+    """A reward model's (``prediction_layers``) ``n_samples`` paths per layer for one (s, ω) over
+    ``real``, the simulator's rollout (signals :data:`REAL_PATH_SIGNALS`) or named world paths
+    (T, 2|3); ``axes`` the world axes drawn ((0, 1) top view, (0, 2) side view)."""
     from skillkit.viz.model_layers import model_layers
 
     pair = isinstance(axes, (tuple, list)) and len(axes) == 2 and axes[0] != axes[1]
@@ -251,17 +244,13 @@ def model_paths_figure(
     series = []
     for layer in model_layers(model, context, omega, n_samples=n_samples, rng=rng):
         paths = layer["trajectories"][..., list(axes)]  # (L, T, 2)
-        gaps = np.full((paths.shape[0], 1, 2), np.nan)
-        joined = np.concatenate([paths, gaps], axis=1).reshape(-1, 2)
         what = f"{layer['label']} ({paths.shape[0]} sampled)"
-        series.append(Series(what, joined[:, 0].tolist(), joined[:, 1].tolist(), **panel))
+        series.append(Series(what, *polyline(paths), **panel))
     if real is not None:
         signals = getattr(real, "signals", None)
         if signals is not None:
             real = {k: signals[k] for k in REAL_PATH_SIGNALS if k in signals}
-        if not isinstance(real, Mapping):
-            msg = f"real: expected a Trajectory or a mapping of paths, got {type(real).__name__}"
-            raise ValueError(msg)
+        real = check_type(real, Mapping, "real", "a Trajectory or a mapping of paths")
         for key, path in real.items():
             p = np.asarray(path, dtype=float)
             if p.ndim != 2 or p.shape[1] not in (2, 3) or max(axes) >= p.shape[1]:
@@ -269,7 +258,7 @@ def model_paths_figure(
                 raise ValueError(msg)
             what = f"real: {key.replace('_', ' ')}"
             series.append(Series(what, p[:, axes[0]].tolist(), p[:, axes[1]].tolist(), **panel))
-    return _draw(title or "predicted paths over the real ones", series, backend)
+    return draw(title or "predicted paths over the real ones", series, backend)
 
 
 def gpreps_run_paths_figure(
@@ -283,12 +272,9 @@ def gpreps_run_paths_figure(
     axes: tuple[int, int] = (0, 1),
     backend: str = "plotly",
 ):
-    """A stored GPREPS run's last reward model against the simulator (:func:`model_paths_figure`).
-
-    The policy mean of update ``update`` (-1 the final one) of trial ``trial`` at ``context``
-    (default: one sampled with ``seed``, which also seeds the rollout and the model's samples)
-    is rolled out in the model's task. It unpickles the reward model
-    (:func:`~skillkit.viz.model_layers.load_gpreps_run`): load only runs you trust.
+    """:func:`model_paths_figure` of a stored GPREPS run's last reward model at the policy mean
+    of ``update`` (-1: the last) of ``trial`` at ``context`` (default: sampled with ``seed``,
+    which seeds the rollout and samples too). It unpickles the model: load only runs you trust.
     """
     from skillkit.viz.model_layers import load_gpreps_run
 

@@ -114,12 +114,8 @@ def read_npz(path: str | Path, name: str, key: str, version: str) -> dict[str, n
 
 
 class PolicyRecorder:
-    """Records ``algorithm.policy`` after every update of a learning run into :attr:`policies`.
-
-    Pass it as ``callback`` to :func:`skillkit.search.loop.learn` (called with
-    ``(k, algorithm)`` for k = 0 … K) and :meth:`save`, or return :meth:`arrays` from an
-    experiment's ``run_trial`` so ``skillkit reproduce`` stores them in ``trials.npz``.
-    """
+    """The ``callback`` of :func:`skillkit.search.loop.learn` recording ``algorithm.policy`` after
+    every update k = 0 … K into :attr:`policies`, for :meth:`save` or :meth:`arrays`."""
 
     def __init__(self) -> None:
         self.policies: list[LinearGaussianPolicy] = []
@@ -152,10 +148,8 @@ def save_policy_history(
     mean_reward=None,
     task: str = "",
 ) -> Path:
-    """Write policies π_0 … π_K (one per update, same dimensions) to a policy-history
-    ``.npz`` (``.npz`` appended if missing) with optional ``rollouts``, ``mean_reward`` (K+1,)
-    and the task name; returns the file written.
-    """
+    """Write policies π_0 … π_K (same dimensions) with optional ``rollouts``, ``mean_reward``
+    (K+1,) and the task name to ``path`` (``.npz`` appended if missing); returns the file."""
     from skillkit.search.loop import policy_history_arrays
 
     history = PolicyHistory(tuple(policies), rollouts, mean_reward, str(task))  # validates
@@ -170,14 +164,13 @@ def save_policy_history(
 
 
 def load_policy_history(path, trial: int = 0) -> PolicyHistory:
-    """Read a policy history: a file written by :func:`save_policy_history`, or trial ``trial``
-    of a ``skillkit reproduce`` run folder whose ``trials.npz`` holds ``trial<i>__policy_*``.
+    """Read a policy history: a file of :func:`save_policy_history`, or trial ``trial`` of a run
+    folder whose ``trials.npz`` holds ``trial<i>__policy_*``.
 
     Raises
     ------
     ValueError
-        Missing, unreadable or malformed file (argument ``policy``), another format version,
-        or no such trial.
+        Missing, unreadable or malformed file (argument ``policy``), another version, no trial.
     """
     path = Path(path)
     file, prefix = (path / "trials.npz", f"trial{int(trial)}__") if path.is_dir() else (path, "")

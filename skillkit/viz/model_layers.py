@@ -167,20 +167,16 @@ def check_model_task(model, task_name: str) -> None:
 
 
 def model_layers(model, context, omega, n_samples: int = 10, rng=None) -> list[dict]:
-    """The model's predicted paths for one (s, ω) pair, as prediction layers.
-
-    ``model.prediction_layers(context, omega, n_samples, rng)`` (module docstring) samples L =
-    ``n_samples`` trajectories per learned model. Returns one keyword dict per layer, in the
-    model's order, for :meth:`skillkit.viz.viewer.Viewer.add_prediction_layer`: ``name`` (the
-    label as a unique path component, ``"sliding model: puck"`` → ``"sliding_model_puck"``),
-    ``label``, ``trajectories`` (L, T, 3), ``color``, ``space="points"`` and, if given,
-    ``times`` (T,) and ``opacity``.
+    """``model.prediction_layers`` (module docstring) for one (s, ω), L = ``n_samples``: a
+    keyword dict per layer, in order, for :meth:`~skillkit.viz.viewer.Viewer.add_prediction_layer`
+    with ``name`` (the label as a unique path component: ``"sliding model: puck"`` →
+    ``"sliding_model_puck"``), ``label``, ``trajectories`` (L, T, 3), ``space="points"`` and
+    ``color``, ``times`` (T,), ``opacity`` if given.
 
     Raises
     ------
     ValueError
-        No ``prediction_layers``, or an answer breaking the contract; the message names the
-        layer.
+        No ``prediction_layers``, or an answer breaking the contract (naming the layer).
     """
     check_has_layers(model)
     n_samples = check_count(n_samples, "n_samples")
@@ -220,15 +216,10 @@ def model_layers(model, context, omega, n_samples: int = 10, rng=None) -> list[d
 
 
 def load_gpreps_run(run_dir, trial: int = 0):
-    """The policy history and the reward model of one trial of a GPREPS run folder (what
-    ``skillkit view TASK --gpreps RUN_DIR --trial K`` shows).
-
-    The history is read from ``trials.npz`` (:func:`skillkit.viz.history.load_policy_history`),
-    the model of the trial's last update from the file at :func:`reward_model_path` or the
-    array ``trial<K>__reward_model`` in ``trials.npz`` (what ``fig4.10``–``fig4.12`` store).
-    Returns (history, model); ``ValueError`` for no such folder (argument ``gpreps``), no reward
-    model for the trial, or the errors of the two loaders.
-    """
+    """(history, reward model) of trial ``trial`` of a GPREPS run folder: the history from
+    ``trials.npz``, the model from :func:`reward_model_path` or the array
+    ``trial<K>__reward_model`` in ``trials.npz``. ``ValueError`` (argument ``gpreps``): no such
+    folder or no reward model for the trial."""
     from skillkit.viz.history import load_policy_history
 
     run_dir = Path(run_dir)

@@ -1,6 +1,5 @@
 """The viewer inside a Jupyter notebook: an inline frame on a running viser server, or the
-task's static screenshot when no server can start (a headless kernel, a taken port, a remote
-kernel whose ports the browser cannot reach); and :func:`export_html` for offline pages.
+task's static screenshot when no server can start; and :func:`export_html` for offline pages.
 
 >>> shown = show_viewer("throwing")             # doctest: +SKIP
 >>> shown                                        # the cell shows the live 3-D scene
@@ -35,9 +34,8 @@ def scene_screenshot(task_name: str) -> Path | None:
 
 @dataclass
 class NotebookViewer:
-    """What :func:`show_viewer` returns: displays as an inline frame on the live ``viewer``, or
-    as the static ``screenshot`` with the ``reason`` the server did not start; ``height`` in
-    pixels."""
+    """What :func:`show_viewer` returns: an inline frame on the live ``viewer``, or the static
+    ``screenshot`` with the ``reason`` the server did not start; ``height`` in pixels."""
 
     viewer: object | None
     screenshot: Path | None
@@ -82,12 +80,9 @@ class NotebookViewer:
 def show_viewer(
     task, *, live: bool = True, height: int = 480, environment: bool = False, **viewer_kwargs
 ) -> NotebookViewer:
-    """Start a :class:`~skillkit.viz.viewer.Viewer` for ``task`` (or its registry name) on a
-    free port and show it inline; fall back to the task's static screenshot when it cannot
-    start, or with ``live=False``. ``height`` is the frame's in pixels; ``environment`` turns on
-    viser's HDRI lighting (slow without a GPU); ``viewer_kwargs`` go to the Viewer. Call
-    ``.stop()`` on the result when done.
-    """
+    """A :class:`~skillkit.viz.viewer.Viewer` for ``task`` (or its name) on a free port, shown
+    inline, else (or with ``live=False``) the task's screenshot; ``height`` in pixels,
+    ``environment`` viser's HDRI lighting, ``viewer_kwargs`` to the Viewer. ``.stop()`` it."""
     from skillkit.viz.viewer import Viewer
 
     if isinstance(height, bool) or not isinstance(height, int) or height <= 0:
@@ -119,14 +114,9 @@ _MATHML_RENDERER = (
 
 
 def export_html(notebook, out_dir=None, *, execute: bool = False, timeout: int = 600):
-    """Export a notebook to HTML whose equations render offline; returns the HTML file.
-
-    Writes ``<out_dir>/<name>.html`` (default ``out_dir``: the notebook's folder, created if
-    missing) loading MathJax from ``<out_dir>/mathjax/`` (copied once from the installed
-    ``jupyter_server_mathjax``), so page and folder work offline and move together.
-    ``execute`` runs the notebook first (in its own folder, nbclient, ``timeout`` seconds per
-    cell), as ``nbconvert --execute`` would.
-    """
+    """Export a notebook to ``<out_dir>/<name>.html`` (default: its folder) loading MathJax from
+    ``<out_dir>/mathjax/`` (copied from ``jupyter_server_mathjax``), so it renders offline;
+    ``execute`` runs it first (nbclient, ``timeout`` seconds a cell). Returns the HTML file."""
     import jupyter_server_mathjax
     import nbformat
     from nbconvert import HTMLExporter

@@ -1,10 +1,6 @@
-"""Figures of experiment results (plotly and matplotlib).
-
-A result (``result.json``, :func:`skillkit.experiments.runner.run_trials`) is drawn from its
-``series`` (:class:`~skillkit.series.Series` fields), one subplot per panel, by
-:func:`plotly_figure` (``figure.html``) or :func:`matplotlib_figure` (``figure.png``, without
-pyplot). Figures of live objects: :mod:`skillkit.viz.figures`.
-"""
+"""Figures of experiment results: a result's ``series`` (:class:`~skillkit.series.Series`
+fields), a subplot per panel, by :func:`plotly_figure` (``figure.html``) or
+:func:`matplotlib_figure` (``figure.png``, without pyplot)."""
 
 from __future__ import annotations
 
@@ -20,7 +16,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from skillkit._validation import check_type
+from skillkit._validation import check_choice, check_type
 from skillkit.series import DASHES
 
 _COLORS = ["#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#17becf"]
@@ -43,10 +39,8 @@ PANEL_HEIGHT = 300
 
 
 def subtitle(result: Mapping, width: int | None = None) -> str:
-    """The subtitle of an experiment figure: the verdict line ``summary["statement"]`` (as
-    :func:`skillkit.experiments.judge.apply` writes it), else the outcome ``summary["verdict"]``
-    or "no verdict recorded"; "" without a ``summary`` (e.g. a learning curve). ``width`` wraps
-    it (None: no wrapping)."""
+    """An experiment figure's subtitle: ``summary["statement"]``, else ``summary["verdict"]`` or
+    "no verdict recorded"; "" without a ``summary``; wrapped to ``width`` unless None."""
     check_type(result, Mapping, "result", "a dict")
     summary = result.get("summary")
     if not isinstance(summary, Mapping) or not summary:
@@ -303,12 +297,9 @@ def _off_scale(panel: _Panel, s: Mapping):
 
 
 def plotly_figure(result: dict):
-    """A plotly figure with one subplot per panel of ``result["series"]``.
-
-    Title ``"<id>: <title> (<scale>)"``, subtitle :func:`subtitle`, bands named in the legend;
-    panels with runaway values get a :func:`robust_range`, the clipped values drawn as
-    triangles at the edge and counted in a note. Text wrapped for :data:`REFERENCE_WIDTH` px.
-    """
+    """A plotly figure, a subplot per panel of ``result["series"]``, titled ``"<id>: <title>
+    (<scale>)"`` over :func:`subtitle`; a panel with runaway values gets a :func:`robust_range`,
+    its clipped values drawn as triangles at the edge and counted in a note."""
     from plotly.subplots import make_subplots
 
     series = _check_result(result)
@@ -469,7 +460,12 @@ def plotly_figure(result: dict):
     entries = [t.name for t in fig.data if t.showlegend is not False and t.name]
     named = {(s.get("panel", ""), s["name"]) for s in series}  # more than one in some panel
     show_legend = len(entries) >= 2 or len(named) > len(panels)
-    legend_h = _legend_height(entries) if show_legend else 0
+    rows, used = 1, 0.0  # of the horizontal legend: ~6.2 px a character + 45 an entry
+    for w in (45 + 6.2 * len(name) for name in entries):
+        if used and used + w > REFERENCE_WIDTH - 90:
+            rows, used = rows + 1, 0.0
+        used += w
+    legend_h = 8 + 20 * rows if show_legend else 0
     sub = subtitle(result, width=int(REFERENCE_WIDTH / 6.4))
     sub_lines = sub.splitlines() if sub else []
     # the title stays left of the mode bar (top right, ~280 px)
@@ -522,17 +518,6 @@ def _dashed(s: Mapping) -> bool:
 def _wrap_html(text: str, width: int) -> str:
     """``text`` wrapped to ``width`` characters with ``<br>`` (plotly's line break)."""
     return "<br>".join(textwrap.wrap(text, width=max(int(width), 12)) or [""])
-
-
-def _legend_height(entries: list[str]) -> int:
-    """Pixels a horizontal legend of these entries needs (~6.2 px a character + 45)."""
-    rows, used, avail = 1, 0.0, REFERENCE_WIDTH - 90
-    for name in entries:
-        w = 45 + 6.2 * len(name)
-        if used and used + w > avail:
-            rows, used = rows + 1, 0.0
-        used += w
-    return 8 + 20 * rows
 
 
 def matplotlib_figure(result: dict):
@@ -665,6 +650,5 @@ def _single_point(s: Mapping) -> bool:
 def draw_figure(result: dict, backend: str):
     """:func:`plotly_figure` or :func:`matplotlib_figure` of ``result``, by ``backend`` (one of
     :data:`BACKENDS`)."""
-    if backend not in BACKENDS:
-        raise ValueError(f"backend: expected one of {BACKENDS}, got {backend!r}")
+    check_choice(backend, "backend", BACKENDS)
     return (plotly_figure if backend == "plotly" else matplotlib_figure)(result)

@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from skillkit._validation import check_array
+from skillkit._validation import check_array, check_choice
 from skillkit.viz.history import read_npz
 
 __all__ = ["PREDICTIONS_FORMAT", "load_predictions", "save_predictions"]
@@ -51,15 +51,10 @@ def save_predictions(
     times: Mapping | None = None,
     space: str = "state",
 ) -> Path:
-    """Write prediction layers ``{name: (L, T, n)}`` (names non-empty, without ``"__"``) to
-    ``path`` (``.npz`` appended if missing) and return the file written.
-
-    ``colors``, ``opacities`` and ``times`` map layer names to an RGB (3,) in 0–255, an opacity
-    in (0, 1] and time stamps (T,); layers not named get the viewer's defaults. ``space``
-    ("state" or "points") says what the last axis of every layer holds.
-    """
-    if space not in ("state", "points"):
-        raise ValueError(f"space: expected 'state' or 'points', got {space!r}")
+    """Write layers ``{name: (L, T, n)}`` (names non-empty, without ``"__"``) with optional
+    ``colors`` (3,), ``opacities`` and ``times`` (T,) by name and the ``space`` of all ("state"
+    or "points") to ``path`` (``.npz`` appended if missing); returns the file written."""
+    check_choice(space, "space", ("state", "points"))
     arrays = {_FORMAT_KEY: np.asarray(PREDICTIONS_FORMAT)}
     for name, value in layers.items():
         if not isinstance(name, str) or "__" in name or not name:

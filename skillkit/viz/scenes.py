@@ -1,12 +1,7 @@
-"""Task scenes for the viser viewer: functions that add scene nodes and return their handles.
-
-Everything works headless on a :class:`viser.SceneApi` (``server.scene``). Node names are paths
-(``/arm/link3``, ``/ball``); +z is up and quaternions are ``wxyz``. Three layers: primitives
-(:func:`add_ball`, :func:`add_trail`, :func:`capsule_mesh`, :func:`tube_mesh`);
-:func:`add_mujoco_model`, one frame per body holding its geoms; and :class:`TaskScene` adapters
-mapping a task's trajectory onto the scene, chosen by :func:`task_scene`. A signal on its own
-clock carries it as another signal (``ball_times`` for ``ball``, :func:`signal_times`).
-"""
+"""Task scenes for the viser viewer: functions that add nodes to a :class:`viser.SceneApi` and
+return their handles. Node names are paths (``/arm/link3``); +z is up, quaternions ``wxyz``.
+Primitives, :func:`add_mujoco_model` (a frame per body) and :class:`TaskScene` adapters of a
+task's trajectories, chosen by :func:`task_scene`."""
 
 from __future__ import annotations
 
@@ -94,13 +89,10 @@ def check_opacity(opacity, argname: str = "opacity") -> float | None:
 def capsule_mesh(
     radius: float, half_length: float, segments: int = 16, rings: int = 4
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Triangle mesh of a capsule along z centred at the origin (MuJoCo's capsule): radius r,
-    cylinder half-length h ≥ 0, spanning z ∈ [−h − r, h + r]; ``segments`` (≥ 3) vertices
-    around the axis, ``rings`` (≥ 1) latitude rings per hemisphere.
-
-    Returns vertices, shape (2 + 2·rings·segments, 3), and faces, shape (4·rings·segments, 3),
-    counter-clockwise seen from outside.
-    """
+    """Triangle mesh of MuJoCo's capsule along z at the origin, z ∈ [−h − r, h + r] (radius r,
+    half-length h ≥ 0) with ``segments`` (≥ 3) vertices around the axis and ``rings`` (≥ 1) per
+    hemisphere: vertices (2 + 2·rings·segments, 3), faces (4·rings·segments, 3), counter-clockwise
+    seen from outside."""
     radius = check_positive(radius, "radius")
     half_length = check_positive(half_length, "half_length", allow_zero=True)
     if int(segments) < 3 or int(rings) < 1:
@@ -132,13 +124,9 @@ def capsule_mesh(
 
 
 def tube_mesh(paths, radius: float, sides: int = 6) -> tuple[np.ndarray, np.ndarray]:
-    """Triangle mesh of tubes of constant ``radius`` along one or L polylines, shape (T, 3) or
-    (L, T, 3), T ≥ 2, with ``sides`` (≥ 3) vertices per cross-section.
-
-    Each cross-section lies in the plane normal to the local tangent (central differences),
-    carried along by parallel transport (no twist); repeated points reuse the previous
-    tangent. Returns vertices (L·T·sides, 3) and faces (2·L·(T−1)·sides, 3) of open-ended
-    tubes (render double-sided).
+    """Open-ended tubes of ``radius`` along one or L polylines (T, 3) or (L, T, 3), T ≥ 2, with
+    ``sides`` (≥ 3) vertices per cross-section normal to the tangent (central differences,
+    parallel transport). Returns vertices (L·T·sides, 3) and faces (2·L·(T−1)·sides, 3).
     """
     p = check_array(paths, "paths", ndim=(2, 3))
     if p.ndim == 2:
@@ -211,12 +199,9 @@ def interpolate(times, values, t: float) -> np.ndarray:
 
 
 def signal_times(trajectory: Trajectory, key: str, times_key: str | None = None) -> np.ndarray:
-    """Time stamps of ``trajectory.signals[key]``, shape (T_s,).
-
-    ``signals[times_key]`` when given (default ``key + "_times"`` if present); else the
-    trajectory's ``times`` when the lengths agree, else samples at the trajectory's period
-    from ``times[0]``.
-    """
+    """Time stamps (T_s,) of ``trajectory.signals[key]``: ``signals[times_key]`` (default
+    ``key + "_times"`` if present), else ``times`` if the lengths agree, else samples at the
+    trajectory's period from ``times[0]``."""
     signals = trajectory.signals
     if key not in signals:
         raise ValueError(f"trajectory: has no signal {key!r} (signals: {sorted(signals)})")
@@ -282,12 +267,9 @@ def add_trail(
 
 @dataclass
 class MujocoScene:
-    """Viser nodes of a MuJoCo model (built by :func:`add_mujoco_model`).
-
-    ``data`` is scratch data for the kinematics; ``bodies`` the ``<root>/<body>`` frame of
-    every body with a visible geom (world pose), ``body_ids`` their MuJoCo body ids, ``geoms``
-    every geom node by path, ``skipped`` the geoms not drawn and why.
-    """
+    """Viser nodes of a MuJoCo model (:func:`add_mujoco_model`): ``bodies`` the ``<root>/<body>``
+    frames (world pose) with their MuJoCo ``body_ids``, ``geoms`` by path, ``skipped`` the geoms
+    not drawn and why; ``data`` is scratch data for the kinematics."""
 
     model: mujoco.MjModel
     data: mujoco.MjData
@@ -334,11 +316,8 @@ def _geom_color(model: mujoco.MjModel, g: int) -> tuple[RGB, float]:
 
 
 def add_geom(scene, name: str, model: mujoco.MjModel, geom: int):
-    """Add MuJoCo geom ``geom`` as a viser primitive at ``name`` with its pose in its body frame,
-    or return None if unsupported. Sizes follow MuJoCo: sphere (r), capsule (r, half-length),
-    ellipsoid (semi-axes), cylinder (r, half-height), box (half-sizes), plane (half-sizes, 0 =
-    infinite, drawn 10 m), mesh.
-    """
+    """MuJoCo geom ``geom`` as a viser primitive at ``name`` posed in its body frame (sizes as
+    MuJoCo's; an infinite plane drawn 10 m), or None for an unsupported type."""
     gtype = int(model.geom_type[geom])
     size = np.asarray(model.geom_size[geom], dtype=np.float64)
     color, alpha = _geom_color(model, geom)
@@ -382,13 +361,11 @@ def add_mujoco_model(
     """Add every visible geom of a MuJoCo model, one frame per body.
 
     Body ``b`` becomes a frame ``<root>/<body name>`` (``body<b>`` if unnamed, ``world`` for
-    the world body) at its world pose (``qpos0``); its geoms are children
-    ``<root>/<body>/<geom name>`` at constant body-local poses, so a time step only moves the
-    body frames (:meth:`MujocoScene.set_qpos`). ``world_paths`` gives named geoms of the world
-    body (static scenery) their own paths, e.g. ``{"table": "/table"}``; ``skip_geoms`` names
-    geoms not to draw; geoms in groups above ``max_group`` are hidden (as in MuJoCo's viewer).
-    Geoms of unsupported types (height fields, SDFs) are listed in ``skipped`` and reported
-    with a ``RuntimeWarning``.
+    the world body) at its world pose; its geoms are children ``<root>/<body>/<geom name>``, so
+    a time step only moves the frames (:meth:`MujocoScene.set_qpos`). ``world_paths`` gives
+    named world-body geoms their own paths (``{"table": "/table"}``); ``skip_geoms`` and geoms
+    in groups above ``max_group`` are not drawn; unsupported types (height fields, SDFs) are
+    listed in ``skipped`` with a ``RuntimeWarning``.
     """
     check_type(model, mujoco.MjModel, "model", "a mujoco.MjModel")
     root = check_path(root, "root")
@@ -499,12 +476,9 @@ class TaskScene(ABC):
 
 
 class PendulumScene(TaskScene):
-    """The single-link pendulum of Sec. 5.4, drawn from primitives (it has no MuJoCo model).
-
-    A rod of length ``LENGTH`` with a bob swings about ``PIVOT`` in the x–z plane: the bob is
-    at pivot + l (sin α, 0, −cos α). Nodes: ``/pendulum/pivot``, ``/pendulum/link1`` (rotates
-    with α), ``/pendulum/link1/rod``, ``/pendulum/link1/bob``.
-    """
+    """The single-link pendulum of Sec. 5.4 from primitives: the bob at pivot + l (sin α, 0,
+    −cos α) in the x–z plane; nodes ``/pendulum/pivot``, ``/pendulum/link1`` (rotates with α),
+    ``…/rod``, ``…/bob``."""
 
     LENGTH = 1.0
     PIVOT = (0.0, 0.0, 1.2)
@@ -547,12 +521,9 @@ class PendulumScene(TaskScene):
 
 
 class MujocoTaskScene(TaskScene):
-    """Any task that exposes its MuJoCo model (:func:`task_model`) with states x = [q, q̇].
-
-    The robot is drawn by :func:`add_mujoco_model` under ``/arm``; the joint positions are
-    ``states[:, :nq]`` (or the task's ``qpos(trajectory)``, shape (T, nq)). The 3-D point of a
-    state is site :attr:`effector_site` (default: the first site, else the last body's origin).
-    """
+    """Any task exposing its MuJoCo model (:func:`task_model`), states x = [q, q̇], drawn under
+    ``/arm``; q = ``states[:, :nq]`` or the task's ``qpos(trajectory)`` (T, nq). A state's 3-D
+    point is site :attr:`effector_site` (default: the first site, else the last body)."""
 
     effector_site: str | None = None
     world_paths: dict[str, str] = {}

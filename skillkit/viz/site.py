@@ -33,15 +33,6 @@ def notebook_title(notebook: str | Path) -> str:
     return Path(notebook).stem
 
 
-def _nav(pages: list[tuple[str, str]], i: int) -> str:
-    links = ['<a href="index.html">index</a>']
-    if i > 0:
-        links.append(f'<a href="{pages[i - 1][0]}">← {html.escape(pages[i - 1][1])}</a>')
-    if i + 1 < len(pages):
-        links.append(f'<a href="{pages[i + 1][0]}">{html.escape(pages[i + 1][1])} →</a>')
-    return f'<nav class="skillkit-site" style="{_NAV_STYLE}">' + " · ".join(links) + "</nav>"
-
-
 def build_site(
     notebooks: Sequence[str | Path],
     out_dir: str | Path,
@@ -78,7 +69,13 @@ def build_site(
         body = re.search(r"<body[^>]*>", text)
         if body is None:
             raise RuntimeError(f"build_site: no <body> in the export of {path.name}")
-        text = text[: body.end()] + _nav(pages, i) + text[body.end() :]
+        links = ['<a href="index.html">index</a>']
+        if i > 0:
+            links.append(f'<a href="{pages[i - 1][0]}">← {html.escape(pages[i - 1][1])}</a>')
+        if i + 1 < len(pages):
+            links.append(f'<a href="{pages[i + 1][0]}">{html.escape(pages[i + 1][1])} →</a>')
+        nav = f'<nav class="skillkit-site" style="{_NAV_STYLE}">' + " · ".join(links) + "</nav>"
+        text = text[: body.end()] + nav + text[body.end() :]
         page.write_text(text, encoding="utf-8")
     items = "\n".join(
         f'<li><a href="{name}">{html.escape(title)}</a></li>' for name, title in pages

@@ -1,12 +1,5 @@
-"""The browser viewer: a viser server showing a task's rollouts, model predictions and learning.
-
-:class:`Viewer` serves one task scene (:mod:`skillkit.viz.scenes`) with a timeline, context
-sliders that re-run the policy mean ω = a + A φ(s) (Eq. 3.13) or a sample ω ~ π(ω|s) (every
-rollout with the same episode seed), switchable prediction layers and learning playback of a
-:class:`~skillkit.viz.history.PolicyHistory`. It binds to 127.0.0.1 unless told otherwise; a
-port in use raises :class:`PortInUseError` (viser would silently take the next one). viser's
-banner and "Server stopped" are silenced unless ``verbose=True``.
-"""
+"""The browser viewer: a viser server showing a task's rollouts, model predictions and learning
+playback (:class:`Viewer`); a port in use raises :class:`PortInUseError`."""
 
 from __future__ import annotations
 
@@ -24,7 +17,7 @@ from typing import TypeVar
 
 import numpy as np
 
-from skillkit._validation import as_generator, check_array
+from skillkit._validation import as_generator, check_array, check_choice, check_type
 from skillkit.policies.gaussian import LinearGaussianPolicy
 from skillkit.trajectory import Trajectory
 from skillkit.viz import DEFAULT_HOST, DEFAULT_PORT
@@ -66,10 +59,9 @@ class PortInUseError(OSError):
 
 @dataclass
 class PredictionLayer:
-    """One model's predicted trajectories in the scene: world-frame ``points`` (L, T, 3) (T = 1:
-    predicted points, drawn as dots) at ``times`` (T,); ``nodes`` ``/predictions/<name>/samples``
-    (translucent tubes), ``…/mean`` (the mean path) and ``…/now`` (the L points at the
-    timeline's time); ``label`` names it in the checkbox and the legend."""
+    """A layer of world-frame ``points`` (L, T, 3) at ``times`` (T,) with ``nodes``
+    ``/predictions/<name>/samples``, ``…/mean`` and ``…/now`` (the L points at the timeline's
+    time); ``label`` names it in the checkbox and the legend."""
 
     name: str
     points: np.ndarray
@@ -109,9 +101,8 @@ def _call_silenced(fn: Callable[[], _Result]) -> _Result:
 def start_server(
     host: str = DEFAULT_HOST, port: int = 0, *, label: str | None = None, verbose: bool = False
 ):
-    """Start and return a ``viser.ViserServer``, quiet unless ``verbose``: what :class:`Viewer`
-    serves from, and a server for building scenes by hand (:func:`~.scenes.task_scene`). ``port``
-    0 takes any free port (a taken one: viser moves on to the next); ``label`` titles the GUI."""
+    """A started ``viser.ViserServer``, quiet unless ``verbose``; ``port`` 0 takes any free port
+    (a taken one: viser moves on to the next); ``label`` titles the GUI."""
     import viser
 
     make = functools.partial(viser.ViserServer, host=host, port=port, verbose=verbose, label=label)
@@ -144,14 +135,11 @@ def _check_port(host: str, port: int) -> None:
 
 
 class Viewer:
-    """A viser server showing one task: rollouts, predictions and learning playback.
-
-    ``task`` is a Task or its registry name; ``policy`` the upper-level policy π(ω|s) (default:
-    the last of ``history``, a :class:`PolicyHistory` for learning playback, else the task's
-    initial policy); ``context`` the initial context (default: mid-range); ``port`` 0 takes any
-    free port; ``seed`` seeds every rollout's episode and the ω samples; ``environment=False``
-    lights with a hemisphere light instead of viser's HDRI map (far faster without a GPU);
-    ``verbose`` lets viser print its banner and a line per browser connection.
+    """A viser server showing a task (or its name): a timeline, context sliders re-running the
+    mean ω = a + A φ(s) (Eq. 3.13) of ``policy`` (default: the last of ``history``, else the
+    task's initial one) or a sample ω ~ π(ω|s), prediction layers and learning playback.
+    ``context`` defaults to mid-range, ``port`` 0 takes any free port, ``seed`` seeds every
+    rollout and ω sample; ``environment=False`` drops viser's HDRI map, ``verbose`` lets it print.
 
     Examples
     --------
@@ -176,11 +164,8 @@ class Viewer:
         from skillkit.tasks import Task, make
 
         self.task = make(task) if isinstance(task, str) else task
-        if not isinstance(self.task, Task):
-            msg = f"task: expected a Task or a registered task name, got {type(task).__name__}"
-            raise ValueError(msg)
-        if history is not None and not isinstance(history, PolicyHistory):
-            raise ValueError(f"history: expected a PolicyHistory, got {type(history).__name__}")
+        check_type(self.task, Task, "task", "a Task or a registered task name")
+        check_type(history, (PolicyHistory, type(None)), "history", "a PolicyHistory")
         if history is not None and history.task and history.task != self.task.name:
             msg = f"policy: history recorded on task {history.task!r}, not {self.task.name!r}"
             raise ValueError(msg)
@@ -214,9 +199,7 @@ class Viewer:
         self._local = threading.local()  # .quiet: this thread is moving a GUI input itself
 
     def _check_policy(self, policy, name: str) -> LinearGaussianPolicy:
-        if not isinstance(policy, LinearGaussianPolicy):
-            msg = f"{name}: expected a LinearGaussianPolicy, got {type(policy).__name__}"
-            raise ValueError(msg)
+        check_type(policy, LinearGaussianPolicy, name, "a LinearGaussianPolicy")
         t = self.task
         if policy.dim != t.parameter_dim or policy.context_dim != t.context_dim:
             raise ValueError(
@@ -531,24 +514,18 @@ class Viewer:
         label: str | None = None,
         visible: bool = True,
     ) -> PredictionLayer:
-        """Overlay a model's predicted trajectories on the real rollout.
-
-        ``name`` is a path component (e.g. ``"gp"``; replaces a layer of the same name);
-        ``trajectories`` (L, T, n) are L sampled trajectories of T steps: states
-        (``space="state"``, drawn at the scene's point of a state; T ≥ 2) or 3-D points
-        (``space="points"``, n = 3; T = 1 gives L points, drawn as dots). ``color`` defaults to
-        the next of :data:`PREDICTION_COLORS`; ``opacity`` is the sampled paths' (the mean path
-        gets twice it, at most 1); ``times`` (T,) default to the rollout's first T times;
-        ``label`` names the layer in its checkbox and the legend (default: ``name``).
-        """
+        """Overlay L predicted trajectories (L, T, n) on the real rollout as layer ``name`` (a
+        path component; replaces one of that name): states (``space="state"``, T ≥ 2) or 3-D
+        points (``space="points"``; T = 1: dots). ``color`` defaults to the next of
+        :data:`PREDICTION_COLORS`; ``opacity`` is the samples' (the mean path's twice it, ≤ 1);
+        ``times`` (T,) default to the rollout's; ``label`` (default ``name``) names it."""
         self._require_started()
         if not isinstance(name, str) or not name or node_name(name) != name:
             msg = f"name: expected a layer name of letters, digits, '_', '.', '-', got {name!r}"
             raise ValueError(msg)
         if label is not None and (not isinstance(label, str) or not label.strip()):
             raise ValueError(f"label: expected a non-empty string, got {label!r}")
-        if space not in ("state", "points"):
-            raise ValueError(f"space: expected 'state' or 'points', got {space!r}")
+        check_choice(space, "space", ("state", "points"))
         x = check_array(trajectories, "trajectories", ndim=3)
         L, T, n = x.shape
         min_steps = 1 if space == "points" else 2
@@ -646,17 +623,14 @@ class Viewer:
         self.gui["legend"].content = f'<div style="font-size: 0.85em">{head}{"".join(rows)}</div>'
 
     def add_model_layers(self, model, n_samples: int = 10, seed: int = 0) -> list[PredictionLayer]:
-        """Overlay a GPREPS reward model's predictions for the shown (s, ω), kept up to date.
-
-        One layer per learned model (:func:`skillkit.viz.model_layers.model_layers`, L =
-        ``n_samples``), recomputed with ``seed`` on every new (s, ω); a layer switched off stays
-        off; a second call replaces the model. Returns the layers in the model's order.
+        """Overlay a GPREPS reward model's layers (:func:`~skillkit.viz.model_layers.model_layers`,
+        L = ``n_samples``), recomputed with ``seed`` for every new (s, ω) and replacing an earlier
+        model's; returns them in order.
 
         Raises
         ------
         ValueError
-            The model has no ``prediction_layers(context, omega, n_samples, rng)``, was fitted
-            on another task (``task.name``), or its answer has the wrong shapes.
+            No ``prediction_layers``, fitted on another task, or an answer of wrong shapes.
         """
         from skillkit.viz.model_layers import check_model_task
 

@@ -373,9 +373,8 @@ def test_refit_reaches_the_cold_fits_marginal_likelihood_on_stored_shots():
         model._hypers["launch"] = warm  # the stored (warm) chain's values
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            _, stats[refit] = model._fit_gp(
-                "launch", x, LaunchTargets("heading").encode(state), np.random.default_rng(0)
-            )
+            y = LaunchTargets("heading").encode(state)
+            _, stats[refit] = model._refit("launch", make_gp, x, y, np.random.default_rng(0))
     cold, best = stats["cold"], stats["best"]
     assert cold["start"] == "cold" and cold["log_ml_warm"] is None
     assert best["log_ml_cold"] == cold["log_ml_cold"]

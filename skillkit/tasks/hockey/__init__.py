@@ -6,14 +6,11 @@ robot must move the target puck by d* (C.2)::
     s = [b_x, b_y, d*],   b_x ∈ [1.5, 2.5] m,  b_y ∈ [0.5, 1] m,  d* ∈ [0, 1] m,
     R(τ, s) = −min_t ‖x_t − b‖ − |d_T − d*|,
 
-x_t the control-puck path, d_T the target puck's displacement. The arm (MuJoCo, a
-KUKA-LWR-4-like chain with a racket) is PD-tracked at 250 Hz; the policy is a 7-joint DMP
-fitted to the demonstration, ω = [g (7), ġ (7), τ] (τ outside :data:`~.task.TAU_RANGE` fails);
-the pucks slide with Coulomb friction in pymunk (:class:`PuckTable`). In the real-robot
-setting (``hockey-real``: b_x ∈ [1.5, 2], b_y ∈ [0.4, 0.8], d* ∈ [0, 0.6] m) the reward reads
-pucks observed at 30 Hz with 1 cm noise, Butterworth-smoothed (:func:`butterworth_smooth`).
-Signals: ``racket`` (T, 4), ``puck_times``, ``control_puck``, ``target_puck`` (T_p, 2) and,
-in the real setting, ``observation_times`` and the ``*_observed`` tracks.
+x_t the control-puck path, d_T the target puck's displacement. A KUKA-LWR-4-like arm with a
+racket (MuJoCo) PD-tracks a 7-joint DMP fitted to the demonstration at 250 Hz, ω = [g (7),
+ġ (7), τ]; the pucks slide with Coulomb friction in pymunk (:class:`PuckTable`). Signals:
+``racket`` (T, 4), ``puck_times``, ``control_puck``, ``target_puck`` (T_p, 2) and, in the
+real-robot setting (``hockey-real``), ``observation_times`` and the ``*_observed`` tracks.
 """
 
 from skillkit.tasks.hockey.arm import (

@@ -3,7 +3,7 @@
 Event models chained as in Sec. 4.3.3: 1. **launch** (GP ω ↦ the control puck's state at
 x = :data:`X_LAUNCH`, :class:`LaunchTargets`; once a shot never crosses, a GP ω ↦ ±1 whose
 positive draws launch); 2. **free sliding** (GP v ↦ Δ[p, v] per ``slide_dt``, iterated until
-slower than ``stop_speed`` or reversing); 3. **contact detection** from the puck radius
+slower than :data:`STOP_SPEED` or reversing); 3. **contact detection** from the puck radius
 (:func:`first_contact`); 4. **contact** (GP: both velocities after it in the frame [n, t]);
 5. the task's reward, averaged over L (Eq. 4.1). In the **real setting** (``hockey-real``)
 the models learn from the smoothed observed tracks and :class:`DisplacementModel` replaces
@@ -47,6 +47,10 @@ PUCK_Z = 0.0125
 """Height of a puck's centre above the table (half its 2.5 cm height), m, for drawing."""
 REST_FRAMES = 15
 """Rest frames appended to predicted real-setting paths (the smoothing's padlen is 9)."""
+STOP_SPEED, HORIZON = 0.03, 6.0
+"""Speed (m/s) below which a predicted puck stops; longest predicted sliding (s)."""
+REAL_THRESHOLD = 0.2
+"""Centre distance (m) at which the real setting's displacement model takes over."""
 
 
 def _segment_hit(d0: np.ndarray, d1: np.ndarray, distance: float) -> tuple[np.ndarray, np.ndarray]:
@@ -88,16 +92,6 @@ def first_contact(control, target, radius: float) -> tuple[bool, int, float]:
     return bool(hits[k]), k, float(f[k])
 
 
-def _crossing(path: np.ndarray, x_line: float) -> tuple[int, float] | None:
-    """First k where path[k, 0] reaches x_line (from below) and the fraction in (k − 1, k)."""
-    above = path[:, 0] >= x_line
-    if not above.any() or above[0]:
-        return None
-    k = int(above.argmax())
-    x0, x1 = path[k - 1, 0], path[k, 0]
-    return k, float((x_line - x0) / (x1 - x0))
-
-
 def _frame(n: np.ndarray) -> np.ndarray:
     """Rotation rows [n, n rotated by +90°], shape (..., 2, 2)."""
     t = np.stack([-n[..., 1], n[..., 0]], axis=-1)
@@ -105,18 +99,13 @@ def _frame(n: np.ndarray) -> np.ndarray:
 
 
 def _rotate(R: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Both (x, y) pairs of the rows of y (N, 4) rotated by R (N, 2, 2)."""
-    return np.concatenate(
-        [np.einsum("nij,nj->ni", R, y[:, :2]), np.einsum("nij,nj->ni", R, y[:, 2:])], 1
-    )
+    """Each (x, y) pair of the rows of y (N, 2k) rotated by R (N, 2, 2)."""
+    return np.einsum("nij,nkj->nki", R, y.reshape(len(y), y.shape[1] // 2, 2)).reshape(y.shape)
 
 
 def _interp(times: np.ndarray, values: np.ndarray, at) -> np.ndarray:
     at = np.asarray(at, dtype=np.float64)
     return np.stack([np.interp(at, times, values[:, i]) for i in range(values.shape[1])], -1)
-
-
-LAUNCH_TARGETS: tuple[str, ...] = ("heading", "velocity")
 
 
 class LaunchTargets:
@@ -129,7 +118,7 @@ class LaunchTargets:
     """
 
     def __init__(self, kind: str = "heading"):
-        self.kind = check_choice(kind, "launch_targets", LAUNCH_TARGETS)
+        self.kind = check_choice(kind, "launch_targets", ("heading", "velocity"))
 
     def encode(self, state: np.ndarray) -> np.ndarray:
         """GP targets (N, 4) of launch states (N, 4)."""
@@ -153,9 +142,6 @@ class LaunchTargets:
 
     def __repr__(self) -> str:
         return f"LaunchTargets({self.kind!r})"
-
-
-DISPLACEMENT_MODELS: tuple[str, ...] = ("hit_gp", "gp")
 
 
 def approach_frame(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -203,7 +189,7 @@ class DisplacementModel:
     """
 
     def __init__(self, kind: str = "hit_gp", hit_distance: float = 0.08):
-        self.kind = check_choice(kind, "displacement", DISPLACEMENT_MODELS)
+        self.kind = check_choice(kind, "displacement", ("hit_gp", "gp"))
         self.hit_distance = check_positive(hit_distance, "hit_distance")
         self.gp = None
         self.classifier = None
@@ -315,15 +301,8 @@ class HockeyRewardModel(RewardModel):
         Learn from the smoothed observed tracks (default: when ``task.observation`` is set).
     slide_dt : float, optional
         Sliding step, s (default 0.04; the observation period when ``real``).
-    stop_speed, horizon : float
-        Speed (m/s) below which a puck stops; longest predicted sliding (s).
-    real_threshold : float
-        Centre distance (m) at which the displacement model takes over.
-    contact_margin : float, optional
-        Sliding transitions this close (s) to a contact are not learned (default 0.02;
-        0.25 in the real setting).
-    max_sliding_points, max_contact_points : int
-        Each GP is fitted on at most this many random points.
+    max_sliding_points : int
+        The sliding GP is fitted on at most this many random points (the contact GP on 300).
     refit : {"best", "cold", "warm"}
         Start of each hyper-parameter optimisation (:func:`refit_gp`).
     launch_targets, displacement : str
@@ -344,12 +323,7 @@ class HockeyRewardModel(RewardModel):
         make_displacement_model: Callable[[], Any] | None = None,
         real: bool | None = None,
         slide_dt: float | None = None,
-        stop_speed: float = 0.03,
-        horizon: float = 6.0,
-        real_threshold: float = 0.2,
-        contact_margin: float | None = None,
         max_sliding_points: int = 400,
-        max_contact_points: int = 300,
         refit: str = "best",
         launch_targets: str = "heading",
         displacement: str = "hit_gp",
@@ -376,19 +350,16 @@ class HockeyRewardModel(RewardModel):
             raise ValueError(
                 f"slide_dt: the real setting slides at the observation period {obs_dt:g} s"
             )
-        self.stop_speed = check_positive(stop_speed, "stop_speed")
-        self.n_slide = int(np.ceil(check_positive(horizon, "horizon") / self.slide_dt))
+        self.stop_speed, self.n_slide = STOP_SPEED, int(np.ceil(HORIZON / self.slide_dt))
         self.radius = task.physics.puck_radius
-        self.real_threshold = check_positive(real_threshold, "real_threshold")
+        self.real_threshold = REAL_THRESHOLD
         if self.real_threshold <= 2 * self.radius:
             raise ValueError(
-                f"real_threshold: expected more than the contact distance {2 * self.radius:g} m"
+                f"task: the contact distance {2 * self.radius:g} m reaches the real threshold"
             )
-        if contact_margin is None:
-            contact_margin = 0.25 if self.real else 0.02
-        self.contact_margin = check_positive(contact_margin, "contact_margin", allow_zero=True)
+        self.contact_margin = 0.25 if self.real else 0.02  # s: no sliding data this near contact
         self.max_sliding_points = check_count(max_sliding_points, "max_sliding_points", 2)
-        self.max_contact_points = check_count(max_contact_points, "max_contact_points", 2)
+        self.max_contact_points = 300
         self.refit = check_refit(refit)
         self.launch_targets = LaunchTargets(launch_targets).kind
         self.displacement = DisplacementModel(displacement).kind
@@ -416,12 +387,13 @@ class HockeyRewardModel(RewardModel):
         crossed, states = [], []
         for t in trajectories:
             times, c, _ = self.paths(t)
-            cross = _crossing(c, X_LAUNCH)
-            crossed.append(cross is not None)
-            if cross is None:
+            above = c[:, 0] >= X_LAUNCH  # the first sample at or past the line, from below
+            crossed.append(bool(above.any() and not above[0]))
+            if not crossed[-1]:
                 states.append(np.full(4, np.nan))
                 continue
-            k, f = cross
+            k = int(above.argmax())
+            f = float((X_LAUNCH - c[k - 1, 0]) / (c[k, 0] - c[k - 1, 0]))
             v = np.gradient(c, times, axis=0)
             p = (1 - f) * c[k - 1] + f * c[k]
             vel = (1 - f) * v[k - 1] + f * v[k]
@@ -505,12 +477,6 @@ class HockeyRewardModel(RewardModel):
             ys.append(np.r_[y[-1] - y[0], c[-1] - pc])
         return np.array(xs).reshape(-1, 4), np.array(ys).reshape(-1, 4)
 
-    def _fit_gp(self, key: str, x: np.ndarray, y: np.ndarray, rng) -> tuple[Any, dict]:
-        gp, record = self._refit(key, getattr(self, f"make_{key}_model"), x, y, rng)
-        if self.device is not None:
-            gp.predictor = gp.predictor.to(torch.device(self.device))
-        return gp, record
-
     def fit(self, contexts, omegas, rewards, trajectories, rng=None) -> dict[str, Any]:
         """Refit the event models on every non-failed real shot.
 
@@ -532,7 +498,9 @@ class HockeyRewardModel(RewardModel):
         fits: dict[str, tuple] = {}  # key: (gp, refit record, points)
 
         def fit(key: str, x: np.ndarray, y: np.ndarray):
-            gp, record = self._fit_gp(key, x, y, rng)
+            gp, record = self._refit(key, getattr(self, f"make_{key}_model"), x, y, rng)
+            if self.device is not None:
+                gp.predictor = gp.predictor.to(torch.device(self.device))
             fits[key] = (gp, record, int(x.shape[0]))
             return gp
 
@@ -642,12 +610,11 @@ class HockeyRewardModel(RewardModel):
                     pc = c[rows, :2] + f * (new_c[rows, :2] - c[rows, :2])
                     v_in = c[rows, 2:] + f * (new_c[rows, 2:] - c[rows, 2:])
                     nvec = y[rows, :2] - pc
-                    nvec /= np.linalg.norm(nvec, axis=1, keepdims=True)
-                    R = _frame(nvec)
-                    out = self._draw("contact", np.einsum("nij,nj->ni", R, v_in), rng)
-                    RT = np.swapaxes(R, 1, 2)
-                    new_c[rows] = np.column_stack([pc, np.einsum("nij,nj->ni", RT, out[:, :2])])
-                    y[rows, 2:] = np.einsum("nij,nj->ni", RT, out[:, 2:])
+                    R = _frame(nvec / np.linalg.norm(nvec, axis=1, keepdims=True))
+                    out = self._draw("contact", _rotate(R, v_in), rng)
+                    out = _rotate(np.swapaxes(R, 1, 2), out)
+                    new_c[rows] = np.column_stack([pc, out[:, :2]])
+                    y[rows, 2:] = out[:, 2:]
                     y_moving[rows] = np.linalg.norm(y[rows, 2:], axis=1) > self.stop_speed
                     c_moving2[rows] = np.linalg.norm(new_c[rows, 2:], axis=1) > self.stop_speed
                     contact[rows] = True
@@ -700,9 +667,8 @@ class HockeyRewardModel(RewardModel):
         for i in range(n):
             pre = np.tile(CONTROL_PUCK_START, (n_pre[i], 1))
             if not near[i]:
-                path = np.vstack([pre, slid[i]])
-                controls.append(path)
-                targets.append(np.tile(b[i], (len(path), 1)))
+                controls.append(np.vstack([pre, slid[i]]))
+                targets.append(np.tile(b[i], (len(controls[-1]), 1)))
                 continue
             p, v = at[i, :2], at[i, 2:]
             speed = max(np.linalg.norm(v), 1e-6)
@@ -721,10 +687,10 @@ class HockeyRewardModel(RewardModel):
             n2 = max(1, int(np.ceil(2 * d2 / speed / dt)))
             prof = 1 - (1 - np.arange(1, n2 + 1) / n2) ** 2
             head = np.vstack([pre, slid[i, : ends[i] + 1], leg1])
-            path = np.vstack([head, mid + np.outer(prof, end_c - mid)])
-            tgt = np.vstack([np.tile(b[i], (len(head), 1)), b[i] + np.outer(prof, end_y - b[i])])
-            controls.append(path)
-            targets.append(tgt)
+            controls.append(np.vstack([head, mid + np.outer(prof, end_c - mid)]))
+            targets.append(
+                np.vstack([np.tile(b[i], (len(head), 1)), b[i] + np.outer(prof, end_y - b[i])])
+            )
             contact[i] = touch or model.kind == "hit_gp"
             index[i] = len(head) - 1
         K = max(len(p) for p in controls) + REST_FRAMES

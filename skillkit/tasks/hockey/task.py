@@ -128,7 +128,6 @@ class Hockey(Task):
         cov[-1, -1] = self.exploration_std[-1] ** 2
         return LinearGaussianPolicy(self.demo_omega.copy(), cov, context_dim=self.context_dim)
 
-    # ------------------------------------------------------------------ simulation
     def reference(self, omega: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Times (T,), q_ref, qd_ref (T, 7) of ω's DMP stroke and follow-through at ``physics.dt``;
         :class:`SimulationFailure` for τ outside :data:`TAU_RANGE`."""
@@ -171,7 +170,6 @@ class Hockey(Task):
             self.physics.dt,
             KP,
             KD,
-            gravity_compensation=True,
             torque_limit=TORQUE_LIMITS,
             on_step=record,
         )
@@ -179,9 +177,7 @@ class Hockey(Task):
         out["blade"] = blade_pose(site_pos, site_mat.reshape(-1, 3, 3))
         return out
 
-    def _simulate(
-        self, omega: np.ndarray, context: np.ndarray, rng: np.random.Generator
-    ) -> Trajectory:
+    def _simulate(self, omega, context, rng) -> Trajectory:
         arm = self.simulate_arm(omega)
         phys = self.physics
         table = PuckTable(CONTROL_PUCK_START, context[:2], phys)
@@ -235,9 +231,7 @@ class Hockey(Task):
             info=info,
         )
 
-    def _observe(
-        self, puck_times: np.ndarray, pucks: np.ndarray, rng: np.random.Generator
-    ) -> dict[str, np.ndarray]:
+    def _observe(self, puck_times, pucks, rng) -> dict[str, np.ndarray]:
         """Noisy samples of both pucks at the observation rate (linear interpolation)."""
         obs = self.observation
         t_obs = np.arange(0.0, puck_times[-1] + 1e-12, 1.0 / obs.rate)
@@ -247,7 +241,6 @@ class Hockey(Task):
             out[key] = clean + obs.noise * rng.standard_normal(clean.shape)
         return out
 
-    # ------------------------------------------------------------------ reward
     def reward_signals(self, trajectory: Trajectory) -> dict[str, np.ndarray]:
         """The puck trajectories (T, 2) the reward reads (observed in the real setting)."""
         sig = trajectory.signals
@@ -273,7 +266,6 @@ class Hockey(Task):
             x, y = smooth(x), smooth(y)
         return hockey_reward_batch(x, y, contexts)
 
-    # ------------------------------------------------------------------ model-based search
     supports_model_rollout = False
     no_model_rollout_reason = (
         "hockey is modelled by decomposed GP models of discrete puck events (Sec. 4.3.3: "

@@ -1,13 +1,9 @@
 """Robot table tennis (Sec. 3.4.3, Appendix C.3): an 8-DoF arm returns balls to a target.
 
 SI units, +z up, the regulation table centred at the origin, the net in the plane x = 0, the
-robot on the −x side. s = [v_x, v_y, v_z, b_x, b_y]: the ball is served from
-:data:`SERVE_POSITION` with velocity v (it clears the net and bounces once in
-:data:`LANDING_ZONE`), b is the return target on the opponent's half. A BioRob-like arm
-(two prismatic axes, six revolute joints) tracks a DMP (Eqs. 2.21–2.23) by PD control; the
-ball flies with drag and exact events (:mod:`.ball`). The landing point p is where the ball
-next touches the table plane (or the net) after its bounce or a racket contact. Reward
-(Eq. C.1): R = −c₁ min_t ‖τ_b,t − τ_r,t‖ − c₂ ‖b − p‖ over the incoming ball, c₁ = c₂ = 0.1 m⁻¹.
+robot on the −x side. The ball is served from :data:`SERVE_POSITION` (it clears the net and
+bounces once in :data:`LANDING_ZONE`) and flies with drag and exact events (:mod:`.ball`); a
+BioRob-like arm (two prismatic axes, six revolute joints) PD-tracks a DMP (Eqs. 2.21–2.23).
 """
 
 from skillkit.tasks.table_tennis.arm import arm_model

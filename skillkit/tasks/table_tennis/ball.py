@@ -210,7 +210,6 @@ def simulate_ball(
     physics: BallPhysics | None = None,
     racket: RacketPath | None = None,
     substeps: int = 2,
-    max_extra_time: float = 3.0,
 ) -> BallFlight:
     """Integrate the ball from its launch state through bounces and racket impacts, in steps
     of ``dt / substeps``, each advanced to its earliest event (table, net, racket face).
@@ -224,9 +223,8 @@ def simulate_ball(
     physics : BallPhysics, optional
     racket : RacketPath, optional
     substeps : int
-        Integration steps per recording period.
-    max_extra_time : float
-        How much longer (s, unrecorded, no racket) to look for a terminal event.
+        Integration steps per recording period; after ``duration`` the ball flies on for up
+        to 3 s (unrecorded, no racket) to find its terminal event.
 
     Returns
     -------
@@ -234,13 +232,11 @@ def simulate_ball(
     """
     physics = BallPhysics() if physics is None else physics
     check_type(physics, BallPhysics, "physics", "a BallPhysics")
-    if racket is not None and not isinstance(racket, RacketPath):
-        raise ValueError(f"racket: expected a RacketPath or None, got {type(racket).__name__}")
+    check_type(racket, (RacketPath, type(None)), "racket", "a RacketPath or None")
     p = tuple(check_array(position, "position", shape=(3,)).tolist())
     v = tuple(check_array(velocity, "velocity", shape=(3,)).tolist())
     duration = check_positive(duration, "duration")
     dt = check_positive(dt, "dt")
-    max_extra_time = check_positive(max_extra_time, "max_extra_time", allow_zero=True)
     substeps = check_count(substeps, "substeps")
     n_rec = int(round(duration / dt)) + 1
     positions = np.empty((n_rec, 3))
@@ -261,7 +257,7 @@ def simulate_ball(
         positions[k], velocities[k] = p, v
     if not sim.done:
         sim.racket = None
-        t_stop = t + max_extra_time
+        t_stop = t + 3.0
         while not sim.done and t < t_stop - 0.5 * h:
             p, v = sim.step(p, v, t, h)
             t += h

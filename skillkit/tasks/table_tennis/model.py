@@ -49,9 +49,6 @@ from skillkit.tasks.table_tennis import (
 REFERENCE_NORMAL = np.array([1.0, 0.0, 0.0])
 """Racket normal of the identity quaternion (+x; the shortest arc is singular at −x)."""
 
-SCHEDULES = ("auto", "hitting", "returning")
-CONTACT_FEATURES = ("thesis", "extended")
-"""Inputs of the contact model (:class:`ContactModel`): the thesis's ten, or ours (fourteen)."""
 CONTACT_SCORES = ("probability", "decision", "margin")
 """How a sampled path's contact enters its reward (:meth:`ContactModel.weights`)."""
 
@@ -66,14 +63,14 @@ class TimeBasis:
         Number of basis functions per dimension (40 in the thesis).
     t_end : float
         End of the execution time (s).
-    ridge : float
-        Ridge λ of the least-squares fit W = (ΦᵀΦ + λI)⁻¹ Φᵀ Y.
     """
 
-    def __init__(self, n_basis: int = 40, t_end: float = 1.2, ridge: float = 1e-10):
+    ridge = 1e-10
+    """λ of the least-squares fit W = (ΦᵀΦ + λI)⁻¹ Φᵀ Y."""
+
+    def __init__(self, n_basis: int = 40, t_end: float = 1.2):
         self.n_basis = check_count(n_basis, "n_basis", 2)
         self.t_end = check_positive(t_end, "t_end")
-        self.ridge = check_positive(ridge, "ridge", allow_zero=True)
         self.centres = np.linspace(0.0, self.t_end, self.n_basis)
         self.width = self.centres[1] - self.centres[0]
 
@@ -169,11 +166,13 @@ def _backward_velocity(paths: np.ndarray, k: np.ndarray, dt: float) -> np.ndarra
 
 
 class _ScoresGP:
-    """A GP from inputs to the PCA scores of many correlated outputs."""
+    """A GP from inputs to the PCA scores of many correlated outputs: at most
+    ``max_components``, the variance fraction dropped at most ``tolerance``."""
 
-    def __init__(self, make_gp: Callable[[], Any], tolerance: float, max_components: int):
-        self.make_gp, self.tolerance, self.max_components = make_gp, tolerance, max_components
-        self.gp: Any = None
+    tolerance, max_components = 1e-6, 20
+
+    def __init__(self, make_gp: Callable[[], Any]):
+        self.make_gp, self.gp = make_gp, None
 
     def fit(self, x, y, rng, previous=None, refit: str = "best") -> dict[str, Any]:
         """PCA of y (N, D), a GP x ↦ the k kept scores (:func:`refit_gp`); the refit record."""
@@ -212,8 +211,6 @@ def _linear_svm():
 
 
 class _Constant:
-    """The classifier of a single observed class."""
-
     def __init__(self, label: bool):
         self.label = bool(label)
 
@@ -283,7 +280,7 @@ class ContactModel:
         make_return_model: Callable[[], Any] | None = None,
         refit: str = "best",
     ):
-        self.features = check_choice(features, "contact_features", CONTACT_FEATURES)
+        self.features = check_choice(features, "contact_features", ("thesis", "extended"))
         self.score = check_choice(score, "contact_score", CONTACT_SCORES)
         self.dt = check_positive(dt, "dt")
         self.ball_radius = check_positive(ball_radius, "ball_radius")
@@ -311,8 +308,8 @@ class ContactModel:
         return np.hstack(parts), event, cut
 
     def fit(self, x, hit, p, rng) -> dict[str, Any]:
-        """Fit the classifier on x (N, d), hit (N,) and the landing GP on the hits' p (N, 2).
-        Returns ``{"n_hits", "calibration_folds", "returns_refit"}``."""
+        """Fit the classifier on x (N, d), hit (N,) and the landing GP on the hits' p (N, 2);
+        ``{"n_hits", "calibration_folds", "returns_refit"}``."""
         x = check_array(x, "x", shape=(None, self.n_features))
         hit = np.asarray(hit, dtype=bool)
         p = check_array(p, "p", shape=(x.shape[0], 2))
@@ -360,12 +357,6 @@ class ContactModel:
         if self.returns is None:
             return np.zeros(len(decision)), np.zeros(len(decision), dtype=bool), margin
         return np.asarray(weight, dtype=np.float64), decision, margin
-
-    def sample_landing(self, x, rng) -> np.ndarray:
-        """One sampled landing point per row, (n, 2) (NaN without a landing model)."""
-        if self.returns is None or len(x) == 0:
-            return np.full((len(x), 2), np.nan)
-        return _sample_gp(self.returns, x, 1, rng).reshape(-1, 2)
 
     def __repr__(self) -> str:
         return f"ContactModel(features={self.features!r}, score={self.score!r})"
@@ -429,14 +420,10 @@ class TableTennisRewardModel(RewardModel):
         Reward stage; "hitting"/"returning" force it.
     contact_features, contact_score : str
         Inputs and reward weight of model 5 (:class:`ContactModel`).
-    epsilon : float
-        ε of the hitting stage.
-    min_hits, min_svm_accuracy, max_landing_rmse
-        The "good contact model" criterion of ``schedule="auto"``.
+    epsilon, min_hits, min_svm_accuracy, max_landing_rmse
+        ε of the hitting stage; the "good contact model" criterion of ``schedule="auto"``.
     n_basis : int
         Basis functions per racket dimension (40 in the thesis).
-    pca_tolerance, max_components : float, int
-        Variance fraction the PCA may drop; most principal scores per racket model.
     max_points : int
         Each GP is fitted on at most this many rollouts (random subset).
     refit : {"cold", "warm", "best"}
@@ -461,8 +448,6 @@ class TableTennisRewardModel(RewardModel):
         min_svm_accuracy: float = 0.8,
         max_landing_rmse: float = 0.3,
         n_basis: int = 40,
-        pca_tolerance: float = 1e-6,
-        max_components: int = 20,
         max_points: int = 400,
         refit: str = "best",
         device=None,
@@ -477,7 +462,7 @@ class TableTennisRewardModel(RewardModel):
             make_classifier=(make_classifier, _linear_svm),
         )
         self.task = task
-        self.schedule = check_choice(schedule, "schedule", SCHEDULES)
+        self.schedule = check_choice(schedule, "schedule", ("auto", "hitting", "returning"))
         self.refit = check_refit(refit)
         scene = (task.control_dt, task.ball.radius, contact_features, contact_score)
         self.contact = ContactModel(
@@ -489,8 +474,6 @@ class TableTennisRewardModel(RewardModel):
         self.min_svm_accuracy = check_positive(min_svm_accuracy, "min_svm_accuracy")
         self.max_landing_rmse = check_positive(max_landing_rmse, "max_landing_rmse")
         self.basis = TimeBasis(n_basis, float(task.times[-1]))
-        self.pca_tolerance = check_positive(pca_tolerance, "pca_tolerance", allow_zero=True)
-        self.max_components = check_count(max_components, "max_components")
         self.max_points = check_count(max_points, "max_points", 2)
         self.device = device
         self.penalty = max_target_distance(task)
@@ -583,7 +566,7 @@ class TableTennisRewardModel(RewardModel):
         stats["pca_components"] = {}
         for key, ys in paths.items():
             target = np.stack([self.basis.fit(task.times, y).ravel() for y in ys])
-            model = _ScoresGP(self.make_racket_model, self.pca_tolerance, self.max_components)
+            model = _ScoresGP(self.make_racket_model)
             refits[key] = model.fit(w, target, rng, self._hypers[key], self.refit)
             if isinstance(model.gp, GPRegression):
                 self._hypers[key] = model.gp.hyperparameters
@@ -701,7 +684,8 @@ class TableTennisRewardModel(RewardModel):
         weight, contact, margin = cm.weights(x)
         landing = np.full((n, 2), np.nan)
         some = weight > 0
-        landing[some] = cm.sample_landing(x[some], rng)
+        if some.any():
+            landing[some] = _sample_gp(cm.returns, x[some], 1, rng).reshape(-1, 2)
         # the incoming ball counts up to its first sample at the face (the task: up to the
         # first sample after a hit)
         incoming = np.minimum(steps, face + 1)

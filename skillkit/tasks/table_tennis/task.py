@@ -5,7 +5,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from skillkit._validation import check_array, check_positive
+from skillkit._validation import check_array, check_positive, check_type
 from skillkit.policies.dmp import DMP, DMPParameters
 from skillkit.policies.gaussian import LinearGaussianPolicy
 from skillkit.tasks.base import ModelSignals, SimulationFailure, Task, check_count
@@ -54,8 +54,6 @@ class TableTennis(Task):
     duration, control_dt, physics_dt : float
         Episode length, control (and recording) period and MuJoCo step (s).
     ball : BallPhysics, optional
-    demonstration : dict, optional
-        ``times``, ``q``, ``qd``, ``qdd`` to imitate (default: the shipped file).
     name : str
 
     Notes
@@ -79,7 +77,6 @@ class TableTennis(Task):
         control_dt: float = 0.004,
         physics_dt: float = 0.002,
         ball: BallPhysics | None = None,
-        demonstration: dict | None = None,
         name: str = "table-tennis",
         return_low=RETURN_LOW,
         return_high=RETURN_HIGH,
@@ -100,11 +97,11 @@ class TableTennis(Task):
         self.duration = check_positive(duration, "duration")
         self.control_dt = check_positive(control_dt, "control_dt")
         self.physics_dt = check_positive(physics_dt, "physics_dt")
-        self.ball = BallPhysics() if ball is None else ball
-        if not isinstance(self.ball, BallPhysics):
-            raise ValueError(f"ball: expected a BallPhysics, got {type(ball).__name__}")
+        self.ball = check_type(
+            BallPhysics() if ball is None else ball, BallPhysics, "ball", "a BallPhysics"
+        )
         self.name = name
-        demo = load_demonstration() if demonstration is None else demonstration
+        demo = load_demonstration()
         self.dmp = DMP(len(JOINT_NAMES), n_basis=10, alpha_z=4.0, dt=self.control_dt).fit(
             demo["times"], demo["q"], demo["qd"], demo["qdd"]
         )
@@ -118,7 +115,6 @@ class TableTennis(Task):
         self.data = mujoco.MjData(self.model)
         self._site = self.model.site(RACKET_SITE).id
 
-    # ------------------------------------------------------------------ parameters
     def check_omega(self, omega, name: str = "omega") -> np.ndarray:
         """Shape (17,), finite, and a positive time scaling τ = ω[16]."""
         omega = super().check_omega(omega, name)
@@ -132,8 +128,7 @@ class TableTennis(Task):
             self.parameters.to_vector(), np.diag(INITIAL_STD**2), context_dim=5
         )
 
-    # ------------------------------------------------------------------ simulation
-    def _simulate(self, omega: np.ndarray, context: np.ndarray, rng: np.random.Generator):
+    def _simulate(self, omega, context, rng) -> Trajectory:
         dmp = self.parameters.from_vector(omega)
         q_ref, qd_ref, _ = dmp.rollout(self.times, self.q0)
         model, data, sid = self.model, self.data, self._site
@@ -203,7 +198,6 @@ class TableTennis(Task):
             info=info,
         )
 
-    # ------------------------------------------------------------------ reward
     def reward_signals(self, trajectory: Trajectory) -> dict[str, np.ndarray]:
         """``ball``, ``racket`` (T, 3), ``landing_point`` p (2,) and ``incoming_steps``, the
         samples up to ``info["incoming_end"]`` and one after it."""
@@ -242,7 +236,6 @@ class TableTennis(Task):
             ]
         )
 
-    # ------------------------------------------------------------------ model-based search
     supports_model_rollout = False
     no_model_rollout_reason = (
         "table tennis is modelled by decomposed GP models of ball events (Sec. 4.3.4: the "

@@ -58,7 +58,8 @@ class Series:
 
 def mean_band(curves: np.ndarray, kind: str = "std") -> tuple[list, list, list]:
     """Mean, lower and upper band (``kind`` "std" or "ci95", :data:`BAND_KINDS`) over curves
-    of shape (n ≥ 1, n_points), as lists; a single curve gets a zero-width band."""
+    of shape (n ≥ 1, n_points), as lists; at each point over the curves with a finite value
+    (NaN where none has one), a single value giving a zero-width band."""
     curves = np.asarray(curves, dtype=float)
     if curves.ndim != 2 or curves.shape[0] < 1:
         raise ValueError(f"curves: expected shape (n >= 1, n_points), got {curves.shape}")
@@ -66,9 +67,13 @@ def mean_band(curves: np.ndarray, kind: str = "std") -> tuple[list, list, list]:
         raise ValueError(
             f"kind: expected 'std' or 'ci95' (for 'gstd' see trial_band), got {kind!r}"
         )
-    m = curves.mean(axis=0)
-    sd = curves.std(axis=0, ddof=1) if curves.shape[0] > 1 else np.zeros_like(m)
-    half = sd if kind == "std" else 1.96 * sd / np.sqrt(max(curves.shape[0], 1))
+    ok = np.isfinite(curves)
+    k = ok.sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        m = np.where(ok, curves, 0.0).sum(axis=0) / k
+        dev = np.where(ok, curves - m, 0.0)
+        sd = np.where(k > 1, np.sqrt((dev * dev).sum(axis=0) / (k - 1)), 0.0)
+    half = sd if kind == "std" else 1.96 * sd / np.sqrt(np.maximum(k, 1))
     return m.tolist(), (m - half).tolist(), (m + half).tolist()
 
 

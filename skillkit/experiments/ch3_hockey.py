@@ -255,4 +255,5 @@ experiment(
     SCALES,
     _run_trial,
     _summarize,
+    (1, 1, 10),
 )

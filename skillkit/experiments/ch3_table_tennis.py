@@ -281,5 +281,5 @@ experiment(
     SCALES,
     run_trial,
     summarize,
-    (1, 1, 10),
+    (1, 1, 25),
 )

@@ -151,6 +151,7 @@ def run_trial(settings: ThrowingSettings, rng: np.random.Generator, trial: Trial
         dist, pen = final_errors(task, curves["policy"], targets)
         out["rollouts"] = curves["rollouts"]
         out[f"{key}_mean_reward"] = curves["mean_reward"]
+        out[f"{key}_eval_failure_rate"] = curves["eval_failure_rate"]
         out[f"{key}_explore_reward"] = curves["explore_reward"]
         out[f"{key}_failed"] = curves["n_failed"]
         out[f"{key}_distance"] = dist

@@ -20,6 +20,7 @@ from skillkit.experiments.curves import (
     GPREPSBlock,
     REPSBlock,
     experiment,
+    nan_mean,
     register_curve_task,
     regularised_reps,
 )
@@ -169,6 +170,7 @@ def _run_model_based(task, st, pi0, prior, key, make_model, rng, trial, evals, e
     return {  # with the model's prediction of each real rollout's reward and the real one
         f"{key}_experience": random_experience(task, prior) + rollout_s * c["rollouts"],
         f"{key}_mean_reward": c["mean_reward"],
+        f"{key}_eval_failure_rate": c["eval_failure_rate"],
         f"{key}_time_cumulative": np.concatenate([[0.0], np.cumsum(per)]),
         f"{key}_predicted": np.array(
             [np.nan if x.predicted_real_reward is None else x.predicted_real_reward for x in d]
@@ -262,6 +264,7 @@ def run_trial_42(st: BalancingComparisonSettings, rng: np.random.Generator, tria
     )
     out["reps_experience"] = task.n_steps * task.control_dt * c["rollouts"].astype(float)
     out["reps_mean_reward"] = c["mean_reward"]
+    out["reps_eval_failure_rate"] = c["eval_failure_rate"]
     out["reps_time_total"] = time.perf_counter() - t0
 
     if st.linear_variant:  # the same searches with a model that can predict the closed loop
@@ -271,24 +274,30 @@ def run_trial_42(st: BalancingComparisonSettings, rng: np.random.Generator, tria
     return out
 
 
-def experience_to_reach(experience, rewards, limit: float) -> float | None:
-    """Experience (s) at the first evaluation whose reward is ≥ ``limit``; None if never.
+def experience_to_reach(experience, rewards, limit: float, failure_rate=None) -> float | None:
+    """Experience (s) at the first evaluation whose reward is ≥ ``limit`` and none of whose
+    rollouts failed; None if never.
 
     Parameters
     ----------
     experience : array_like, shape (K + 1,)
         Seconds of real experience at each evaluation.
     rewards : array_like, shape (K + 1,)
-        The evaluated reward at each.
+        The evaluated reward at each (over the rollouts that did not fail).
     limit : float
+    failure_rate : array_like, shape (K + 1,), optional
+        The share of each evaluation's rollouts that failed (default: none failed).
     """
-    i = _first_index(rewards, limit)
+    i = _first_index(rewards, limit, failure_rate)
     return None if i is None else float(np.asarray(experience, float)[i])
 
 
-def _first_index(rewards, limit) -> int | None:
-    """Index of the first evaluation at or above ``limit``; None if there is none."""
-    hit = np.flatnonzero(np.asarray(rewards, float) >= limit)
+def _first_index(rewards, limit, failure_rate=None) -> int | None:
+    """Index of the first evaluation at or above ``limit`` without a failed rollout."""
+    ok = np.asarray(rewards, float) >= limit
+    if failure_rate is not None:
+        ok &= np.asarray(failure_rate, float) == 0
+    hit = np.flatnonzero(ok)
     return int(hit[0]) if hit.size else None
 
 
@@ -298,7 +307,10 @@ def _method_table(st, trials, key) -> dict:
         cols["compute_time_s"] = "time_cumulative"
     rows = {}
     for limit in st.limits:
-        idx = [_first_index(t[f"{key}_mean_reward"], limit) for t in trials]
+        idx = [
+            _first_index(t[f"{key}_mean_reward"], limit, t.get(f"{key}_eval_failure_rate"))
+            for t in trials
+        ]
         row: dict = {"n_reached": sum(i is not None for i in idx)}
         for name, col in cols.items():
             per = [
@@ -316,10 +328,12 @@ def _method_table(st, trials, key) -> dict:
             ]
         rows[f"{limit:g}"] = row
     final = [float(t[f"{key}_mean_reward"][-1]) for t in trials]
+    rates = [float(t.get(f"{key}_eval_failure_rate", [np.nan])[-1]) for t in trials]
     out = {
         "limits": rows,
-        "final_reward_mean": float(np.mean(final)),
+        "final_reward_mean": nan_mean(final),
         "final_reward_per_trial": final,
+        "final_eval_failure_rate": nan_mean(rates),
         "experience_budget_s": float(trials[0][f"{key}_experience"][-1]),
     }
     if key != "reps":
@@ -401,6 +415,7 @@ experiment(
     ),
     run_trial_42,
     summarize_42,
+    (1, 1, 23),
 )
 
 

@@ -245,12 +245,12 @@ def summarize_411(st: HockeyGPREPSSettings, trials: list[dict]):
     g.update(gpreps_event_stats(trials, "gpreps"))
     for when in ("initial", "final"):
         v = np.array([t["gpreps_heldout_reward"][0 if when == "initial" else -1] for t in trials])
-        g[f"{when}_reward_ci95"] = list(_ci95(v))
+        g[f"{when}_reward_ci95"] = list(ci95(v))
     return series, {"n_trials": len(trials), "gpreps": g}
 
 
-def _ci95(values: np.ndarray) -> tuple[float, float]:
-    """Student-t 95% confidence interval of the mean of ``values``."""
+def ci95(values: np.ndarray) -> tuple[float, float]:
+    """Student-t 95% confidence interval of the mean of ``values`` (the mean itself for one)."""
     values = np.asarray(values, dtype=float)
     if values.size < 2:
         return float(values.mean()), float(values.mean())
@@ -266,9 +266,11 @@ experiment(
         shared=GPREPS_SHARED,
         quick={"reps": {"n_updates": 20}},
         smoke={"reps": {"n_updates": 1, "rollouts_per_update": 25, "epsilon": 0.2}},
+        paper={"gpreps": {"n_trajectories": 25}},
     ),
     run_trial_hockey,
     summarize_410,
+    (1, 1, 6),
 )
 experiment(
     "fig4.11",
@@ -280,7 +282,7 @@ experiment(
     ),
     run_trial_hockey,
     summarize_411,
-    (2, 3, 5),
+    (2, 3, 20),
 )
 register_curve_task(
     "hockey",

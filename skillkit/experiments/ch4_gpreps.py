@@ -5,7 +5,7 @@ from [s, ω] to R) and **REPS** with ``fig3.3``'s settings; ``fig4.7`` runs GPRE
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import partial
 
 import numpy as np
@@ -69,6 +69,13 @@ class GPREPSThrowingSettings(Settings):
         (5.0, 7.5, 10.0, 12.5, 15.0), "Target x (m) of the final distances."
     )
     grid_y: tuple[float, ...] = setting((1.0, 3.0), "Target y (m) of the final distances.")
+
+
+@dataclass(frozen=True)
+class DirectComparisonSettings(GPREPSThrowingSettings):
+    """Settings of ``fig4.6``: GP direct may run longer than GPREPS, as in Fig. 4.6."""
+
+    direct_updates: int = setting(0, "GP direct's updates K (0: GPREPS's).", minimum=0)
 
 
 @dataclass(frozen=True)
@@ -152,6 +159,8 @@ def _run(task, st, key, model, rng, trial, eval_contexts, m=None) -> tuple[dict,
             eval_contexts,
         )
     else:
+        if model == "direct" and getattr(st, "direct_updates", 0):
+            st = replace(st, gpreps=replace(st.gpreps, n_updates=st.direct_updates))
         reward_model = throwing_reward_model(task, st, model)
         out, curves, _ = run_gpreps(task, st, key, reward_model, rng, trial, eval_contexts, None, m)
     return out, curves["policy"]
@@ -160,7 +169,10 @@ def _run(task, st, key, model, rng, trial, eval_contexts, m=None) -> tuple[dict,
 def _learn(st, rng, trial, runs) -> tuple[dict, dict, np.ndarray]:
     """The runs ``(key, model, M, task)``: arrays with final distances, policies, targets."""
     eval_contexts = runs[0][3].sample_context(rng, n=st.evaluation.n_eval_contexts)
-    k = {"reps": st.reps.n_updates}
+    k = {
+        "reps": st.reps.n_updates,
+        "direct": getattr(st, "direct_updates", 0) or st.gpreps.n_updates,
+    }
     trial.reset(total=sum(k.get(r[1], st.gpreps.n_updates) for r in runs))
     out, policies = {"targets": target_grid(st)}, {}
     for (key, model, m, task), seed in zip(runs, rng.spawn(len(runs)), strict=True):
@@ -207,14 +219,14 @@ def _method_summary(trials, key, per_trial: bool = False) -> dict:
     return out
 
 
-def run_trial_46(st: GPREPSThrowingSettings, rng: np.random.Generator, trial: TrialContext):
+def run_trial_46(st: DirectComparisonSettings, rng: np.random.Generator, trial: TrialContext):
     """GPREPS, GP direct and REPS on ``throwing`` from the same policy and targets."""
     task = make("throwing")
     runs = [("gpreps", "decomposed"), ("direct", "direct"), ("reps", "reps")]
     return _learn(st, rng, trial, [(key, model, None, task) for key, model in runs])[0]
 
 
-def summarize_46(st: GPREPSThrowingSettings, trials: list[dict]):
+def summarize_46(st: DirectComparisonSettings, trials: list[dict]):
     """Learning curves of GPREPS, GP direct and REPS and what the claims spec reads of them."""
     keys, labels = ("gpreps", "direct", "reps"), ("GPREPS", "GP direct", "REPS")
     series = _learning_series(trials, keys, labels)
@@ -358,10 +370,10 @@ def _noise_ratios(summary: dict) -> dict[str, float | None]:
 experiment(
     "fig4.6",
     "Ball throwing: GPREPS (decomposed GP models) vs GP direct vs REPS",
-    scales(GPREPSThrowingSettings(), shared=SHARED),
+    scales(DirectComparisonSettings(), shared=SHARED, paper={"direct_updates": 91}),
     run_trial_46,
     summarize_46,
-    (1, 2, 5),
+    (1, 2, 16),
 )
 experiment(
     "fig4.7",
@@ -387,6 +399,7 @@ experiment(
     ),
     run_trial_49,
     summarize_49,
+    (1, 1, 10),
 )
 register_curve_task(
     "throwing",

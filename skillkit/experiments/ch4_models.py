@@ -385,6 +385,7 @@ def _summarize_4_4(settings: ComputeTimeSettings, trials: list[dict]) -> tuple[l
     }
     flops = dict(moment_matching=mm_flops, sampling_per_trajectory=sample_flops)
     summary["flops_per_prediction"] = flops
+    summary["trajectories_in_mm_flops"] = mm_flops / sample_flops
     return series, summary
 
 
@@ -578,13 +579,15 @@ _KINDS_4_5 = (
 
 
 def sparse_minus_standard(panels: dict, settings) -> dict[str, list[float]]:
-    """FITC's reward-prediction error minus the standard GP's (from fig4.5's
-    ``summary["panels"]``) at the additive-noise factors above the default and the
-    control-noise levels above 0, where the thesis compares them."""
+    """FITC's reward-prediction error minus the standard GP's at the additive-noise factors
+    above the default and the control-noise levels above 0, where the thesis compares them:
+    from fig4.5's ``summary["panels"]`` one entry per setting, from ``"panels_per_trial"``
+    one per (setting, trial)."""
 
     def diff(key: str, above: float) -> list[float]:
         p, values = panels[key], sorted(getattr(settings, f"{key}_values"))
-        return [p["sparse"][str(v)] - p["standard"][str(v)] for v in values if v > above]
+        d = [np.subtract(p["sparse"][str(v)], p["standard"][str(v)]) for v in values if v > above]
+        return np.ravel(d).tolist()
 
     return {
         "additive_noise_above_default": diff("additive_noise", settings.defaults.additive_noise),
@@ -594,7 +597,7 @@ def sparse_minus_standard(panels: dict, settings) -> dict[str, list[float]]:
 
 def _summarize_4_5(settings: RewardErrorSettings, trials: list[dict]) -> tuple[list[Series], dict]:
     series: list[Series] = []
-    summary: dict = {"panels": {}}
+    summary: dict = {"panels": {}, "panels_per_trial": {}}
     defaults = settings.defaults.to_dict()
 
     def value(r: dict, kind: str):
@@ -606,30 +609,36 @@ def _summarize_4_5(settings: RewardErrorSettings, trials: list[dict]) -> tuple[l
     def at(cfg: dict) -> list[dict]:
         return [r for r in results if r["config"] == cfg]
 
+    def per_trial(cfg: dict, kind: str) -> list[float]:
+        """Each trial's error at ``cfg`` (its mean over the trial's results there)."""
+        rs = [[r for r in t["results"] if r["config"] == cfg] for t in trials]
+        return [float(np.mean([value(r, kind) for r in x])) for x in rs]
+
     for key, label in _PANELS_4_5:
         values = list(getattr(settings, f"{key}_values"))
-        panel = {}
+        panel, by_trial = {}, {}
         kw = dict(panel=label, xlabel=label, ylabel=_SQ_ERROR, log_x=key == "additive_noise")
         for kind, name in _KINDS_4_5:
             if kind.endswith("_uncurbed") and key not in settings.uncurbed_panels:
                 continue
-            errs = [
-                float(np.mean([value(r, kind) for r in at(dict(defaults, **{key: v}))]))
-                for v in values
-            ]
+            errs = [per_trial(dict(defaults, **{key: v}), kind) for v in values]
+            means = [float(np.mean(e)) for e in errs]
             line = "line" if kind in ("noise_floor", "constant_predictor") else "lines+markers"
-            series.append(Series(name, values, errs, kind=line, log_y=True, **kw))
-            panel[kind] = dict(zip(map(str, values), errs, strict=True))
+            series.append(Series(name, values, means, kind=line, log_y=True, **kw))
+            panel[kind] = dict(zip(map(str, values), means, strict=True))
+            by_trial[kind] = dict(zip(map(str, values), errs, strict=True))
         summary["panels"][key] = panel
+        summary["panels_per_trial"][key] = by_trial
     default = at(defaults)
     by_steps = {str(v): at(dict(defaults, n_opt_steps=v)) for v in settings.n_opt_steps_values}
+    floors = ("standard", "sparse", "noise_floor", "constant_predictor")
+    default_per_trial = {k: per_trial(defaults, k) for k in floors}
 
     summary |= {
+        "n_trials": len(trials),
         "default_setting": defaults,
-        "default_squared_error": {
-            k: float(np.mean([value(r, k) for r in default]))
-            for k in ("standard", "sparse", "noise_floor", "constant_predictor")
-        },
+        "default_squared_error": {k: float(np.mean(v)) for k, v in default_per_trial.items()},
+        "default_squared_error_per_trial": default_per_trial,
         "mean_real_reward": float(np.mean([r["real_reward_mean"] for r in default])),
         "train_time_s_default": {
             k: float(np.mean([r[k]["train_time_s"] for r in default]))
@@ -654,6 +663,9 @@ def _summarize_4_5(settings: RewardErrorSettings, trials: list[dict]) -> tuple[l
         "n_failed_truth_rollouts": sum(r["n_failed_truth"] for r in results),
     }
     summary["sparse_minus_standard"] = sparse_minus_standard(summary["panels"], settings)
+    summary["sparse_minus_standard_per_trial"] = sparse_minus_standard(
+        summary["panels_per_trial"], settings
+    )
     return series, summary
 
 
@@ -665,5 +677,6 @@ register(
         settings=SCALES_4_5,
         run_trial=_run_4_5,
         summarize=_summarize_4_5,
+        trials={"smoke": 1, "quick": 1, "paper": 5},
     )
 )

@@ -20,6 +20,7 @@ from skillkit.experiments.ch3_table_tennis import (
 from skillkit.experiments.ch4_events import (
     GPREPS_SHARED,
     EventGPREPSSettings,
+    ci95,
     event_summary,
     gpreps_run,
     reps_curve,
@@ -118,10 +119,14 @@ def run_trial_412(st: TableTennisGPREPSSettings, rng: np.random.Generator, trial
 
 
 def _shot_scores(task, policy, contexts, seed) -> dict:
-    return shot_scores(task, policy, contexts, seed)[0]
+    """:func:`shot_scores` and ``landing_error_upper``, the 95% Student-t upper bound of the
+    mean landing error over the shots (NaN errors left out)."""
+    scores, shots = shot_scores(task, policy, contexts, seed)
+    errors = shots["landing_error"]
+    return scores | {"landing_error_upper": ci95(errors[np.isfinite(errors)])[1]}
 
 
-TT_SCORES = ("reward", "returned", "net", "missed", "landing_error")
+TT_SCORES = ("reward", "returned", "net", "missed", "landing_error", "landing_error_upper")
 
 
 def summarize_412(st: TableTennisGPREPSSettings, trials: list[dict]):
@@ -238,9 +243,11 @@ experiment(
         shared=GPREPS_SHARED,
         smoke={"reps": {"n_updates": 1}},
         quick={"reps": {"n_updates": 10}},
+        paper={"evaluation": {"n_heldout": 200}},
     ),
     run_trial_412,
     summarize_412,
+    (1, 1, 10),
 )
 experiment(
     "fig4.13",
@@ -249,10 +256,11 @@ experiment(
         ModelAccuracySettings(),
         smoke={"n_rollouts": 20, "n_heldout": 3, "n_samples": 2, "n_shown": 1, "gp_steps": 10},
         quick={"n_heldout": 10, "gp_steps": 60},
+        paper={"n_heldout": 100},
     ),
     run_trial_413,
     summarize_413,
-    (1, 1, 1),
+    (1, 1, 20),
 )
 
 

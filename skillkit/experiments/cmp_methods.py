@@ -1,8 +1,9 @@
-r"""``cmp.methods`` (not a thesis figure): REPS, GPREPS, CMA-ES and contextual BO run the learning
-curve of :mod:`skillkit.experiments.curves` on throwing, hockey, table tennis and balancing from
-the same initial policy and evaluation. REPS and GPREPS run as the task's thesis experiment
-(its :class:`~skillkit.experiments.curves.CurveTask`); CMA-ES gets REPS's real-rollout budget,
-contextual BO GPREPS's. See ``skillkit/data/claims/comparisons.toml``."""
+r"""``cmp.methods`` (not a thesis figure): REPS, GPREPS, CMA-ES, contextual CMA-ES and contextual
+BO run the learning curve of :mod:`skillkit.experiments.curves` on throwing, hockey, table tennis
+and balancing from the same initial policy and evaluation. REPS and GPREPS run as the task's
+thesis experiment (its :class:`~skillkit.experiments.curves.CurveTask`); the evolution strategies
+get REPS's real-rollout budget, contextual BO GPREPS's. See
+``skillkit/data/claims/comparisons.toml``."""
 
 from __future__ import annotations
 
@@ -35,9 +36,15 @@ from skillkit.trial import TrialContext
 
 TASKS = ("throwing", "hockey", "table-tennis", "balancing")
 """The registered tasks of the comparison."""
-METHODS = ("reps", "gpreps", "cmaes", "cbo")
+METHODS = ("reps", "gpreps", "cmaes", "ccmaes", "cbo")
 """The methods, in the order they run."""
-LABELS = {"reps": "REPS", "gpreps": "GPREPS", "cmaes": "CMA-ES", "cbo": "contextual BO"}
+LABELS = {
+    "reps": "REPS",
+    "gpreps": "GPREPS",
+    "cmaes": "CMA-ES",
+    "ccmaes": "C-CMA-ES",
+    "cbo": "contextual BO",
+}
 
 
 @dataclass(frozen=True)
@@ -56,7 +63,10 @@ class MethodComparisonSettings(Settings):
     keep_gpreps_model: bool = setting(
         False, "Store GPREPS's policies and model on the first task (view)."
     )
-    cmaes_budget: int = setting(0, "Real rollouts of CMA-ES (0: REPS's).", minimum=0)
+    cmaes_budget: int = setting(0, "Real rollouts of each ES (0: REPS's).", minimum=0)
+    cmaes_contexts: int = setting(
+        4, "m, contexts each CMA-ES candidate is scored on (a task with contexts).", minimum=1
+    )
     cbo_budget: int = setting(0, "Real rollouts of contextual BO (0: GPREPS's).", minimum=0)
 
 
@@ -129,18 +139,26 @@ def _schedule(method: str, thesis: Settings) -> tuple[int, int, int]:
 
 
 def _algorithm(method: str, s: _Setup, st: MethodComparisonSettings, rng):
-    """(algorithm, K, N, N₀) of ``method``; CMA-ES gets REPS's rollouts, BO GPREPS's."""
+    """(algorithm, K, N, N₀) of ``method``; the evolution strategies get REPS's rollouts, BO
+    GPREPS's, each in whole generations or batches."""
     reps, gpreps = _schedule("reps", s.thesis), _schedule("gpreps", s.thesis)
     if method == "reps":
         return (s.profile.reps(s.task, s.thesis, s.policy), *reps)
     if method == "gpreps":
         return (s.profile.make_gpreps(s.task, s.thesis, s.policy, s.prior, rng), *gpreps)
-    k, n, n0 = reps if method == "cmaes" else gpreps
-    budget = (st.cmaes_budget if method == "cmaes" else st.cbo_budget) or n0 + (k - 1) * n
-    if method == "cmaes":
+    es = method in ("cmaes", "ccmaes")
+    k, n, n0 = reps if es else gpreps
+    budget = (st.cmaes_budget if es else st.cbo_budget) or n0 + (k - 1) * n
+    if es:
+        from skillkit.search.ccmaes import CCMAES
         from skillkit.search.cmaes import CMAES  # here: the cma package imports pyplot
 
-        algo = CMAES.for_task(s.task, policy=s.policy, rng=rng)
+        m = st.cmaes_contexts if s.task.context_dim else None
+        algo = (
+            CMAES.for_task(s.task, policy=s.policy, rng=rng, contexts_per_candidate=m)
+            if method == "cmaes"
+            else CCMAES(s.policy)
+        )
         n = algo.rollouts_per_update
         return algo, max(1, math.ceil(budget / n)), n, n
     from skillkit.search.cbo import CBOSettings, ContextualBO
@@ -179,6 +197,7 @@ def _run_method(method: str, s: _Setup, st, rng, trial: TrialContext) -> dict:
     out = {
         f"{key}_rollouts": c["rollouts"].astype(float) + prior,
         f"{key}_mean_reward": c["mean_reward"],
+        f"{key}_eval_failure_rate": c["eval_failure_rate"],
         f"{key}_time_s": np.cumsum(np.asarray(c["callback"], dtype=float)),
         f"{key}_n_failed": int(np.sum(c["n_failed"])),
     }
@@ -228,7 +247,9 @@ def _method_row(trials: list[dict], key: str, thresholds) -> dict:
 
 def _winners(row: dict, thresholds) -> dict:
     """The best final reward and, per threshold, the methods fastest to reach it (or "π₀")."""
-    best_final = max(row, key=lambda m: row[m]["final_reward_mean"])
+    finals = {m: r["final_reward_mean"] for m, r in row.items()}
+    finals = {m: f for m, f in finals.items() if f is not None and math.isfinite(f)}
+    best_final = max(finals, key=finals.get) if finals else None
     first = {}
     for level in thresholds:
         got = {m: row[m]["thresholds"][f"{level:g}"]["rollouts_mean_curve"] for m in row}
@@ -261,6 +282,19 @@ def summarize(st: MethodComparisonSettings, trials: list[dict]):
             )
             for m in st.methods
         ]
+        if any(np.any(t[f"{name}/{m}_eval_failure_rate"] > 0) for t in trials for m in st.methods):
+            series += [
+                curve_series(
+                    trials,
+                    f"{name}/{m}_rollouts",
+                    f"{name}/{m}_eval_failure_rate",
+                    LABELS[m],
+                    f"{name}: failed evaluations",
+                    "share of evaluation rollouts that failed",
+                    drop_first=True,
+                )
+                for m in st.methods
+            ]
         table[name] = {
             "thresholds": list(levels),
             "thresholds_source": profile.thresholds_source,
@@ -273,7 +307,7 @@ def summarize(st: MethodComparisonSettings, trials: list[dict]):
 
 experiment(
     "cmp.methods",
-    "REPS, GPREPS, CMA-ES and contextual BO on the thesis's tasks (not a thesis figure)",
+    "REPS, GPREPS, CMA-ES, C-CMA-ES and contextual BO on the thesis's tasks (not a thesis figure)",
     SETTINGS,
     run_trial,
     summarize,

@@ -117,6 +117,7 @@ def run_curve(
         **learn_kwargs,
     )
     out = {f"{key}_rollouts": curves["rollouts"], f"{key}_mean_reward": curves["mean_reward"]}
+    out[f"{key}_eval_failure_rate"] = curves["eval_failure_rate"]
     if score is not None:
         after = rollouts_after or (lambda k: k * rollouts_per_update)
         points = [(k, v) for k, v in enumerate(curves["callback"]) if v is not None]
@@ -249,16 +250,23 @@ def curve_series(
 
 
 def curve_stats(trials, key: str) -> dict:
-    """Start and final reward of the curves ``f"{key}_mean_reward"``: mean over trials, the
-    final values' std (ddof 1; 0 for one trial) and per trial."""
+    """Start and final reward of the curves ``f"{key}_mean_reward"`` (the mean over the
+    evaluation rollouts that did not fail; NaN where all failed): mean over the trials with a
+    number, the final values' std (ddof 1; 0 for one) and per trial; and the final share of
+    failed evaluation rollouts (mean over trials) where the run records it."""
     curves = np.array([t[f"{key}_mean_reward"] for t in trials], dtype=float)
     final = curves[:, -1]
-    return {
-        "initial_reward": float(curves[:, 0].mean()),
-        "final_reward_mean": float(final.mean()),
-        "final_reward_std": float(final.std(ddof=1)) if len(trials) > 1 else 0.0,
+    ok = final[np.isfinite(final)]
+    out = {
+        "initial_reward": nan_mean(curves[:, 0]),
+        "final_reward_mean": nan_mean(final),
+        "final_reward_std": float(ok.std(ddof=1)) if ok.size > 1 else 0.0,
         "final_reward_per_trial": final.tolist(),
     }
+    if f"{key}_eval_failure_rate" in trials[0]:
+        rates = [float(t[f"{key}_eval_failure_rate"][-1]) for t in trials]
+        out["final_eval_failure_rate"] = float(np.mean(rates))
+    return out
 
 
 def nan_mean(values) -> float:
@@ -288,7 +296,7 @@ def heldout_stats(trials, key: str, names) -> dict:
         if name == "reward":  # a paired reading of start against end needs both per trial
             out["initial_reward_per_trial"] = v[:, 0].tolist()
     curves = np.array([t[f"{key}_mean_reward"] for t in trials], dtype=float)
-    out["final_mean_reward"] = float(curves[:, -1].mean())
+    out["final_mean_reward"] = nan_mean(curves[:, -1])
     return out
 
 
@@ -311,9 +319,14 @@ def rollouts_to_reach(
     trials, key, level: float, curve: str = "mean_reward", x: str = "rollouts"
 ) -> float | None:
     """Rollouts after which run ``key``'s curve ``f"{key}_{curve}"`` (mean over trials, NaN
-    ignored) first reaches ``level``, read off ``f"{key}_{x}"``; None if it never does."""
+    ignored; an evaluation with failed rollouts counts as not reaching it) first reaches
+    ``level``, read off ``f"{key}_{x}"``; None if it never does."""
     at = np.asarray(trials[0][f"{key}_{x}"], dtype=float)
-    m = np.nanmean([t[f"{key}_{curve}"] for t in trials], axis=0)
+    ys = np.array([t[f"{key}_{curve}"] for t in trials], dtype=float)
+    if curve == "mean_reward" and f"{key}_eval_failure_rate" in trials[0]:
+        failed = np.array([t[f"{key}_eval_failure_rate"] for t in trials]) > 0
+        ys = np.where(failed, -np.inf, ys)
+    m = np.nanmean(ys, axis=0)
     hit = np.flatnonzero(m >= level)
     return float(at[hit[0]]) if hit.size else None
 

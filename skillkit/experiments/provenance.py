@@ -495,6 +495,9 @@ def staleness(result: dict[str, Any], known: set[str] | None = None) -> tuple[bo
         return True, f"experiment {exp_id!r} is not registered"
     if not stored:
         return True, "no code fingerprint (made before provenance was recorded)"
+    changed = settings_changes(result)
+    if changed:
+        return True, f"settings of its scale changed: {changed}"
     now = code_fingerprint(exp_id)
     if now == stored:
         return False, "current"
@@ -503,6 +506,31 @@ def staleness(result: dict[str, Any], known: set[str] | None = None) -> tuple[bo
             return False, carried_reason(record)
     commit = (result.get("git") or {}).get("commit") or "?"
     return True, f"code changed since commit {commit[:7]} (fingerprint {stored} -> {now})"
+
+
+def settings_changes(result: dict[str, Any]) -> str:
+    """The fields (``block.name``: stored → today) where ``result``'s settings differ from
+    today's settings of its scale with its ``overrides``; "" where none does (or the result
+    records no settings and scale)."""
+    from skillkit.experiments.registry import get
+    from skillkit.experiments.settings import apply_overrides
+
+    if "settings" not in result or "scale" not in result:
+        return ""
+    exp = get(result["id"])
+    try:
+        today = apply_overrides(exp.settings[result["scale"]], result.get("overrides") or {})
+    except (KeyError, ValueError) as exc:
+        return f"its overrides no longer apply ({exc})"
+
+    def flat(d: Any, prefix: str = "") -> dict[str, Any]:
+        if not isinstance(d, dict):
+            return {prefix[:-1]: d}
+        return {k: v for name, x in d.items() for k, v in flat(x, f"{prefix}{name}.").items()}
+
+    old, new = flat(result.get("settings") or {}), flat(json.loads(json.dumps(today.to_dict())))
+    keys = [k for k in new if old.get(k, "absent") != new[k]] + [k for k in old if k not in new]
+    return ", ".join(f"{k} {old.get(k, 'absent')} → {new.get(k, 'absent')}" for k in keys)
 
 
 def check_results(root: str | Path) -> list[dict[str, Any]]:

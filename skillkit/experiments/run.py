@@ -4,6 +4,7 @@ returns it and :func:`load_run` reads it back, and the tables made of the stored
 from __future__ import annotations
 
 import json
+import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -258,9 +259,11 @@ def comparison_rows(summary: dict) -> list[dict[str, Any]]:
     Returns
     -------
     list of dict
-        ``task``, ``method``, ``real rollouts``, ``reward π₀``, ``final reward`` (mean ± std),
-        ``to R ≥ level`` per threshold (rollouts until the mean curve reaches it, "—" never;
-        trials whose curve did), ``compute s`` and ``failed``.
+        ``task``, ``method``, ``real rollouts``, ``reward π₀``, ``final reward`` (mean ± std
+        over the evaluation rollouts that did not fail, "—" where all failed), ``eval failed``
+        (their final share), ``to R ≥ level`` per threshold (rollouts until the mean curve
+        reaches it without a failed evaluation, "—" never; trials whose curve did),
+        ``compute s`` and ``failed`` (exploration rollouts).
     """
     from skillkit.experiments.cmp_methods import LABELS
 
@@ -272,8 +275,10 @@ def comparison_rows(summary: dict) -> list[dict[str, Any]]:
                 "task": task,
                 "method": LABELS.get(method, method),
                 "real rollouts": _count(m["real_rollouts"]),
-                "reward π₀": f"{m['initial_reward']:.3g}",
-                "final reward": f"{m['final_reward_mean']:.3g} ± {m['final_reward_std']:.2g}",
+                "reward π₀": _num(m["initial_reward"], ".3g"),
+                "final reward": _num(m["final_reward_mean"], ".3g")
+                + f" ± {m['final_reward_std']:.2g}",
+                "eval failed": _num(m.get("final_eval_failure_rate"), ".0%"),
             }
             for level, r in m["thresholds"].items():
                 at = r["rollouts_mean_curve"]
@@ -284,6 +289,11 @@ def comparison_rows(summary: dict) -> list[dict[str, Any]]:
             row["failed"] = str(m["failed_rollouts"])
             rows.append(row)
     return rows
+
+
+def _num(x: float | None, fmt: str) -> str:
+    """``x`` formatted, "—" for None or NaN."""
+    return "—" if x is None or not math.isfinite(x) else format(x, fmt)
 
 
 def _count(x: float) -> str:

@@ -7,7 +7,8 @@ R over z = [s, ω] after every update. For a context s it proposes
 NIPS 2011); the policy mean is argmax_ω μ([s, ω]) (π₀'s mean in the box without data). The
 box is, per dimension, the range of π₀'s mean over the context corners ± k standard
 deviations; the first ``initial_batches`` batches are a scrambled Sobol design in it. A failed
-rollout enters the GP with the lowest working reward.
+rollout enters the GP with the lowest working reward; while all rewards are equal (e.g. every
+rollout failed) there is no GP, and the Sobol design and π₀'s mean go on.
 
 Randomness: ``policy.sample`` draws one seed per row from the loop's ``rng``; ``mean_of`` and
 the GP fit use seeds from the algorithm's own ``rng``; every BoTorch call runs inside
@@ -426,13 +427,16 @@ class ContextualBO:
         )
 
     def _fit(self) -> SingleTaskGP | None:
-        """The GP on the (most recent ``max_observations``) samples; ``None`` below two."""
+        """The GP on the (most recent ``max_observations``) samples; ``None`` below two or while
+        their rewards are all equal (a constant carries no information)."""
         seed = int(self._rng.integers(_SEED_BOUND))
         cap = self.settings.max_observations
         keep = slice(None) if cap is None else slice(-cap, None)
         s, w = self._contexts[keep], self._omegas[keep]
         r, failed = self._rewards[keep], self._failed[keep]
-        if r.shape[0] < 2:
+        if failed.any() and not failed.all():
+            r = np.where(failed, r[~failed].min(), r)
+        if r.shape[0] < 2 or np.all(r == r[0]):
             return None
         if cap is None and r.shape[0] > LARGE_N and not self._warned_large:
             self._warned_large = True
@@ -442,8 +446,6 @@ class ContextualBO:
                 RuntimeWarning,
                 stacklevel=3,
             )
-        if failed.any() and not failed.all():
-            r = np.where(failed, r[~failed].min(), r)
         z_bounds = np.hstack([self._context_bounds, self._omega_bounds])
         model = SingleTaskGP(
             self._tensor(np.hstack([s, w])),

@@ -3,7 +3,8 @@
 :func:`learn` runs :func:`collect` (one :class:`~skillkit.search.base.Batch` of rollouts, with
 ``extra_contexts=k`` each trajectory also re-scored in k fresh contexts, Sec. 3.4),
 ``algorithm.update(batch)`` and an :class:`Evaluator` (the reward of the policy mean on fixed
-contexts, with its own, identically re-seeded stream), and records a :class:`LoopState`, which
+contexts, with its own, identically re-seeded stream: the mean over the rollouts that did not
+fail, and the fraction that failed), and records a :class:`LoopState`, which
 a :class:`~skillkit.trial.TrialContext` checkpoints after every update.
 """
 
@@ -87,7 +88,8 @@ def collect(
 @dataclass(frozen=True, repr=False)
 class Evaluator:
     """Average reward of a policy's mean on fixed ``contexts`` (m, context_dim), each call with a
-    generator seeded afresh by ``seed`` (common random numbers)."""
+    generator seeded afresh by ``seed`` (common random numbers), and the fraction of failed
+    rollouts (:attr:`~skillkit.trajectory.Trajectory.failed`), which it leaves out of the mean."""
 
     task: Task
     contexts: np.ndarray
@@ -115,11 +117,15 @@ class Evaluator:
         drawn = int(rng.integers(2**63))
         return cls(task, eval_s, drawn if seed is None else check_count(seed, "eval_seed", 0))
 
-    def __call__(self, policy: SearchPolicy) -> float:
-        """Mean of R(τ, s) over the contexts for ω = the policy mean at s."""
+    def __call__(self, policy: SearchPolicy) -> tuple[float, float]:
+        """``(mean_reward, failure_rate)`` for ω = the policy mean at each context s: the mean
+        of R(τ, s) over the rollouts that did not fail (NaN if all m failed) and the fraction
+        of the m rollouts that failed."""
         eval_rng = np.random.default_rng(self.seed)
         pairs = zip(np.atleast_2d(policy.mean_of(self.contexts)), self.contexts, strict=True)
-        return float(np.mean([self.task.evaluate(w, s, eval_rng)[0] for w, s in pairs]))
+        runs = [self.task.evaluate(w, s, eval_rng) for w, s in pairs]
+        ok = [r for r, traj in runs if not traj.failed]
+        return float(np.mean(ok)) if ok else np.nan, (len(runs) - len(ok)) / len(runs)
 
     def __repr__(self) -> str:
         return (
@@ -133,9 +139,10 @@ class Evaluator:
 class LoopState:
     """Everything :func:`learn` has done after ``k`` updates: what it checkpoints.
 
-    ``mean_reward``, ``callback`` and ``policies`` hold k + 1 entries (before the first update and
-    after each); ``explore_reward`` (the rollouts' mean reward), ``n_failed`` and ``diagnostics``
-    hold k. ``initial_rollouts`` is N₀ where the first batch differs from N =
+    ``mean_reward`` and ``eval_failure_rate`` (the :class:`Evaluator`'s pair), ``callback`` and
+    ``policies`` hold k + 1 entries (before the first update and after each);
+    ``explore_reward`` (the rollouts' mean reward), ``n_failed`` (failed rollouts) and
+    ``diagnostics`` hold k. ``initial_rollouts`` is N₀ where the first batch differs from N =
     ``rollouts_per_update`` (``None`` in states saved without it).
     """
 
@@ -144,6 +151,7 @@ class LoopState:
     eval_seed: int
     k: int = 0
     mean_reward: list[float] = field(default_factory=list)
+    eval_failure_rate: list[float] = field(default_factory=list)
     explore_reward: list[float] = field(default_factory=list)
     n_failed: list[int] = field(default_factory=list)
     diagnostics: list[Any] = field(default_factory=list)
@@ -152,17 +160,22 @@ class LoopState:
     initial_rollouts: int | None = None
     rollouts_per_update: int | None = None
 
+    def record_evaluation(self, evaluation: tuple[float, float], callback: Any) -> None:
+        """Append the :class:`Evaluator`'s ``evaluation`` of the current policy."""
+        self.mean_reward.append(evaluation[0])
+        self.eval_failure_rate.append(evaluation[1])
+        self.callback.append(callback)
+        self.policies.append(self.algorithm.policy)
+
     def record_update(
-        self, batch: Batch, n_rollouts: int, diagnostics: Any, mean_reward: float, callback: Any
+        self, batch: Batch, n_rollouts: int, diagnostics: Any, evaluation: tuple, callback: Any
     ) -> None:
         """Append update k + 1 (its first ``n_rollouts`` rows are the rollouts)."""
         self.k += 1
         self.explore_reward.append(float(batch.rewards[:n_rollouts].mean()))
         self.n_failed.append(sum(t.failed for t in batch.trajectories[:n_rollouts]))
         self.diagnostics.append(diagnostics)
-        self.mean_reward.append(mean_reward)
-        self.callback.append(callback)
-        self.policies.append(self.algorithm.policy)
+        self.record_evaluation(evaluation, callback)
 
     def result(self, n_rollouts: int) -> dict:
         """The curves as :func:`learn` returns them; after update j ≥ 1, N₀ + (j − 1) N rollouts."""
@@ -172,6 +185,7 @@ class LoopState:
         return {
             "rollouts": counts,
             "mean_reward": np.array(self.mean_reward),
+            "eval_failure_rate": np.array(self.eval_failure_rate),
             "explore_rollouts": counts[1:],
             "explore_reward": np.array(self.explore_reward),
             "n_failed": np.array(self.n_failed, dtype=int),
@@ -235,7 +249,8 @@ def learn(
     Returns
     -------
     dict
-        :meth:`LoopState.result`: ``rollouts``, ``mean_reward`` and ``callback`` (K + 1),
+        :meth:`LoopState.result`: ``rollouts``, ``mean_reward`` (over the evaluation rollouts
+        that did not fail), ``eval_failure_rate`` and ``callback`` (K + 1),
         ``explore_rollouts``, ``explore_reward``, ``n_failed`` and ``diagnostics`` (K),
         ``eval_contexts``, ``policy`` (the final one) and ``policies`` (K + 1).
     """
@@ -259,9 +274,9 @@ def learn(
         state = LoopState(algorithm, evaluator.contexts, evaluator.seed)
         state.initial_rollouts = None if n0 == n else n0
         state.rollouts_per_update = n
-        state.mean_reward.append(evaluator(algorithm.policy))
-        state.callback.append(None if callback is None else callback(0, algorithm))
-        state.policies.append(algorithm.policy)
+        state.record_evaluation(
+            evaluator(algorithm.policy), None if callback is None else callback(0, algorithm)
+        )
     else:  # the generator is restored; the caller's algorithm object takes the saved state
         if state.k > n_updates:
             raise ValueError(f"n_updates: the saved state has {state.k} > {n_updates} updates")
@@ -288,13 +303,14 @@ def learn(
             n_k = n0 if k == 1 else n
             batch = collect(task, algorithm.policy, n_k, rng, n_extra)
             diagnostics = algorithm.update(batch)
-            mean_reward = evaluator(algorithm.policy)
+            evaluation = evaluator(algorithm.policy)
             value = None if callback is None else callback(k, algorithm)
-            state.record_update(batch, n_k, diagnostics, mean_reward, value)
+            state.record_update(batch, n_k, diagnostics, evaluation, value)
             if trial is not None:
                 trial.save(checkpoint_key, state, rng)
             bar.update(1)
-            bar.set_postfix(mean_reward=f"{mean_reward:.4g}", refresh=False)
+            mean, failed = evaluation
+            bar.set_postfix(mean_reward=f"{mean:.4g}", eval_failed=f"{failed:.0%}", refresh=False)
     finally:
         if trial is None:
             bar.close()

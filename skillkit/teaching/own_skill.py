@@ -127,8 +127,8 @@ def mapping_figure(
 
 def comparison_table(runs: Mapping, levels: Sequence[float] = ()) -> pd.DataFrame:
     """:func:`~skillkit.search.loop.learn` results (label → result), a row each: rollouts,
-    updates, rewards before, final and best, rollouts to reach each of ``levels`` (NaN: never)
-    and failed rollouts."""
+    updates, rewards before, final and best, rollouts to reach each of ``levels`` without a
+    failed evaluation rollout (NaN: never) and failed rollouts."""
     if not isinstance(runs, Mapping) or not runs:
         raise ValueError("runs: expected a non-empty mapping of label to learn() result")
     levels = [float(v) for v in check_array(list(levels), "levels", ndim=1)]
@@ -152,7 +152,7 @@ def comparison_table(runs: Mapping, levels: Sequence[float] = ()) -> pd.DataFram
             "best reward": np.nanmax(r),
         }
         for level in levels:
-            reached = experience_to_reach(x, r, level)
+            reached = experience_to_reach(x, r, level, run.get("eval_failure_rate"))
             row[f"rollouts to R ≥ {level:g}"] = np.nan if reached is None else reached
         row["failed rollouts"] = int(np.sum(run["n_failed"]))
         rows[str(label)] = row

@@ -112,6 +112,19 @@ def test_trial_band_closed_form_and_text():
     assert m == [1.0, 2.0] and none == {}
 
 
+def test_a_band_at_a_point_is_over_the_curves_with_a_number_there():
+    """A trial whose evaluation rollouts all failed has no reward there (NaN): the mean and
+    band at that point are those of the other trials; where none has a number, NaN."""
+    curves = np.array([[1.0, np.nan, np.nan], [3.0, 2.0, np.nan], [5.0, 4.0, np.nan]])
+    m, lo, hi = mean_band(curves)
+    for j, column in enumerate(curves.T[:2]):
+        ok = column[np.isfinite(column)]
+        assert m[j] == ok.mean() and hi[j] - m[j] == pytest.approx(ok.std(ddof=1), rel=1e-15)
+    assert np.isnan(m[2]) and np.isnan(lo[2]) and np.isnan(hi[2])
+    m, lo, hi = mean_band([[np.nan, 7.0]])  # one value: a zero-width band
+    assert np.isnan(m[0]) and (m[1], lo[1], hi[1]) == (7.0, 7.0, 7.0)
+
+
 @pytest.mark.parametrize(
     "call, match",
     [

@@ -150,7 +150,7 @@ def test_hockey_setup_names_the_refit_launch_targets_and_displacement_model():
 
 def test_ci95_is_students_t_interval():
     v = np.array([-0.3, -0.2, -0.25, -0.1, -0.22])
-    lo, hi = ev._ci95(v)
+    lo, hi = ev.ci95(v)
     ref = stats.t.interval(0.95, v.size - 1, loc=v.mean(), scale=stats.sem(v))
     # mean (n flops), standard deviation (2n + 3), the t quantile at 0.975 vs at
     # (1 − 0.95) / 2 (a few ulp each, and p off by an ulp: condition p / (q f(q)) < 1), the

@@ -136,3 +136,18 @@ def test_smoke_runs_are_not_judged_and_cards_are_short(exp_id):
     j = judge(exp_id, summary, "smoke")
     assert j.outcome == "not judged" and card_lines_ok(j.card())
     assert summary["holds"] is None
+
+
+def test_fig4_6_gp_direct_runs_to_the_thesis_curve_end_with_its_own_update_count():
+    """GP direct's N₀ + K − 1 real throws reach the thesis's 100 at paper scale; a smoke run
+    with its own K records that many throws beside GPREPS's unchanged curve."""
+    from skillkit.experiments.registry import get
+
+    paper = get("fig4.6").settings["paper"]
+    assert paper.gpreps.n_initial + paper.direct_updates - 1 == 100
+    r = run_trials("fig4.6", "smoke", seed=0, progress=False, direct_updates=4)
+    t, g = r["_trials"][0], r["settings"]["gpreps"]
+    assert t["direct_rollouts"][-1] == g["n_initial"] + 4 - 1
+    assert t["direct_mean_reward"].shape == (4 + 1,)
+    assert t["gpreps_rollouts"][-1] == g["n_initial"] + g["n_updates"] - 1
+    assert r["summary"]["direct"]["rollouts"] == g["n_initial"] + 4 - 1

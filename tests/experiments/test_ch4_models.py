@@ -10,6 +10,7 @@ from scipy import stats
 
 from skillkit.experiments.ch4_models import gaussian_fit
 from skillkit.experiments.judge import card_lines_ok, judge, read, spec
+from skillkit.experiments.registry import get
 from skillkit.experiments.run import stored_run
 from skillkit.experiments.runner import run_trials
 
@@ -99,6 +100,22 @@ def test_fig4_4_timings_and_thread_count_restored():
     t50 = s["sampling_time_s"]["1"]["50"]
     rate = sampler_flops_per_step(8, 20, 12) * 5 * 50 / t50 / 1e9
     assert s["sampling_gflops"]["1"]["50"] == rate
+    # one prediction's counted flops over one trajectory's: the 5 steps cancel (one rounding)
+    ratio = moment_matching_flops_per_step(8, 20, 12) / sampler_flops_per_step(8, 20, 12)
+    assert abs(s["trajectories_in_mm_flops"] - ratio) <= fp_tol(2, scale=ratio)
+    r = read(_part("fig4.4", "trajectories in one MM's flops"), s)
+    assert r.estimate == s["trajectories_in_mm_flops"] and r.outcome == "does not hold"
+
+
+def test_fig4_4_flop_ratio_at_the_thesis_sizes():
+    """E = 8 outputs, M = 300 pseudo-inputs, D = 12 inputs: the stored run's counted flops."""
+    from skillkit.models.moment_matching import moment_matching_flops_per_step
+    from skillkit.models.sampling import sampler_flops_per_step
+
+    ratio = moment_matching_flops_per_step(8, 300, 12) / sampler_flops_per_step(8, 300, 12)
+    f = stored_run("fig4.4").summary["flops_per_prediction"]
+    assert ratio == f["moment_matching"] / f["sampling_per_trajectory"]
+    assert 67 < ratio < 69
 
 
 def test_fig4_5_panels_share_the_default_setting():
@@ -250,6 +267,68 @@ def test_fig4_5_fractions_over_settings_are_wilson_intervals():
         assert r.estimate == k / n and r.n == n and r.outcome == outcome
         assert abs(r.lower - lo) <= fp_tol(20) and abs(r.upper - hi) <= fp_tol(20)
         assert read(_part("fig4.5", label), s).outcome == "not measured"
+
+
+def _fake_trial_4_5(settings, rng) -> dict:
+    """One fig4.5 trial with a random error per (setting, kind) and the fields the summary
+    reads."""
+    from skillkit.experiments.ch4_models import _configs_4_5
+
+    diag = {"train_time_s": 1.0, "jitter": 0.0, "noise_at_floor": 0, "stopped_early": False}
+    diag |= {"max_signal_to_noise": 1.0, "max_lengthscale_ratio": 1.0}
+    results = []
+    for cfg, uncurbed in _configs_4_5(settings):
+        kinds = ("standard", "sparse") + (("standard_uncurbed", "sparse_uncurbed") * uncurbed)
+        r = {k: {**diag, "squared_error": float(rng.uniform(0.5, 2.0))} for k in kinds}
+        r |= {"noise_floor": float(rng.uniform(0.1, 0.2)), "constant_predictor": 1.5}
+        results.append({"config": cfg, **r, "real_reward_mean": -1.0, "n_failed_truth": 0})
+    return {"results": results}
+
+
+def test_fig4_5_per_trial_keys_are_paired_readings_at_the_paper_settings():
+    """Three trials at the paper settings: every per-trial list holds each trial's error, the
+    panels their means, FITC − GP one entry per (setting, trial), and the paired parts read the
+    Student-t interval of the per-trial differences."""
+    from skillkit.experiments.ch4_models import _summarize_4_5
+
+    settings = get("fig4.5").settings["paper"]
+    rng = np.random.default_rng(5)
+    trials = [_fake_trial_4_5(settings, rng) for _ in range(3)]
+    s = _summarize_4_5(settings, trials)[1]
+    assert s["n_trials"] == 3
+
+    def err(t: dict, cfg: dict, kind: str) -> float:
+        (r,) = [r for r in t["results"] if r["config"] == cfg]
+        v = r[kind]
+        return v if isinstance(v, float) else v["squared_error"]
+
+    defaults = settings.defaults.to_dict()
+    for key, kinds in s["panels_per_trial"].items():
+        for kind, by_value in kinds.items():
+            for v, values in by_value.items():
+                cfg = dict(defaults, **{key: type(defaults[key])(float(v))})
+                assert values == [err(t, cfg, kind) for t in trials]
+                assert s["panels"][key][kind][v] == float(np.mean(values))
+    for kind, values in s["default_squared_error_per_trial"].items():
+        assert values == [err(t, defaults, kind) for t in trials]
+    above = [a for a in settings.additive_noise_values if a > 1.0]
+    expected = [
+        err(t, dict(defaults, additive_noise=a), "sparse")
+        - err(t, dict(defaults, additive_noise=a), "standard")
+        for a in above
+        for t in trials
+    ]
+    assert s["sparse_minus_standard_per_trial"]["additive_noise_above_default"] == expected
+    assert len(s["sparse_minus_standard_per_trial"]["torque_noise_above_zero"]) == 4 * 3
+    judged = judge("fig4.5", s, "paper")
+    assert all(r.outcome != "not measured" for r in judged.readings)
+    p = s["panels_per_trial"]["n_opt_steps"]["sparse"]
+    d = np.subtract(p["250"], p["50"])
+    ref = stats.t.interval(0.95, d.size - 1, loc=d.mean(), scale=stats.sem(d))
+    r = read(_part("fig4.5", "FITC error, 250 − 50 steps"), s)
+    # as test_ci95_is_students_t_interval: ~3n + 16 flops on the interval's scale
+    tol = fp_tol(3 * d.size + 16, scale=float(np.abs(ref).max()))
+    np.testing.assert_allclose([r.lower, r.upper], ref, rtol=0, atol=tol)
 
 
 @pytest.mark.parametrize("exp_id", ["fig4.3", "fig4.4", "fig4.5"])

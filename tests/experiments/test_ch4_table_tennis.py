@@ -68,6 +68,36 @@ def test_fig413_smoke_is_not_judged_and_records_per_trial_errors(tmp_path):
         assert (values[0] is None and errors[name] is None) or values[0] == errors[name]
 
 
+def test_fig412_landing_error_upper_is_the_t_bound_over_the_shots():
+    """The per-evaluation bound against scipy's Student-t interval over the same shots (one
+    seed: the same simulator draws), and its use as fig4.12's per-trial reading."""
+    from skillkit.experiments.ch3_table_tennis import shot_scores
+    from skillkit.tasks import make
+
+    task = make("table-tennis")
+    contexts = task.sample_context(np.random.default_rng(3), n=12)
+    policy = task.initial_policy()
+    got = tt._shot_scores(task, policy, contexts, 7)
+    e = shot_scores(task, policy, contexts, 7)[1]["landing_error"]
+    e = e[np.isfinite(e)]
+    ref = stats.t.interval(0.95, e.size - 1, loc=e.mean(), scale=stats.sem(e))[1]
+    # as test_ci95_is_students_t_interval: ~3n + 16 flops on the bound's scale
+    assert abs(got["landing_error_upper"] - ref) <= fp_tol(3 * e.size + 16, scale=abs(ref))
+    assert got["landing_error_upper"] > got["landing_error"]
+    part = _part("fig4.12", "trials under 30 cm")
+    upper = [0.2, 0.25, 0.35]
+    r = read(part, {"gpreps": {"final_landing_error_upper_per_trial": upper}})
+    assert r.estimate == 2 / 3 and r.n == 3
+
+
+def test_fig412_and_fig413_paper_counts():
+    """fig4.12: ≥ 10 trials, ≥ 200 held-out contexts; fig4.13: ≥ 20 trials × ≥ 100 held-out."""
+    assert get("fig4.12").trials["paper"] >= 10
+    assert get("fig4.12").settings["paper"].evaluation.n_heldout >= 200
+    assert get("fig4.13").trials["paper"] >= 20
+    assert get("fig4.13").settings["paper"].n_heldout >= 100
+
+
 def test_fig412_has_at_least_five_paper_trials_and_own_checks():
     assert get("fig4.12").trials["paper"] >= 5
     own = {p.label for p in spec("fig4.12").parts if p.own}

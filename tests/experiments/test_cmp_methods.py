@@ -1,4 +1,4 @@
-"""``cmp.methods``: REPS, GPREPS, CMA-ES and contextual BO on the thesis's tasks."""
+"""``cmp.methods``: REPS, GPREPS, CMA-ES, C-CMA-ES and contextual BO on the thesis's tasks."""
 
 from __future__ import annotations
 

@@ -113,6 +113,24 @@ def test_a_reproduced_run_records_its_provenance_and_is_current(tmp_path):
     assert [r["stale"] for r in provenance.check_results(tmp_path)] == [True]
 
 
+def test_a_result_whose_scale_settings_changed_is_stale_naming_the_field(tmp_path):
+    """Today's code, but the scale's settings (with the run's overrides) differ from the ones
+    the run stored: stale, with each field's stored and today's value."""
+    from skillkit.experiments import reproduce
+
+    run = reproduce("fig4.12", "smoke", trials=1, out=tmp_path, progress=False, html=False)
+    result = json.loads((run.path / "result.json").read_text())
+    assert provenance.settings_changes(result) == ""
+    n = result["settings"]["evaluation"]["n_heldout"]
+    result["settings"]["evaluation"]["n_heldout"] = n + 7
+    stale, reason = provenance.staleness(result)
+    assert stale and f"evaluation.n_heldout {n + 7} → {n}" in reason
+    result["overrides"] = {"evaluation": {"n_heldout": n + 7}}  # the same run, asked for
+    assert provenance.staleness(result) == (False, "current")
+    result["overrides"] = {"no_such_setting": 1}
+    assert "overrides no longer apply" in provenance.settings_changes(result)
+
+
 def test_readme_scoreboard_is_made_from_the_stored_results():
     """README.md's "What reproduces so far" table is exactly scoreboard() of data/results."""
     from pathlib import Path

@@ -16,6 +16,13 @@ from skillkit.tasks.functional import FunctionTask
 from tests._snapshots import Snapshots
 from tests._tolerances import SAFETY, fp_tol
 
+# The GP's outcomes are standardised and its acquisition values never constant: BoTorch's
+# warnings that they are not fail every test here.
+pytestmark = [
+    pytest.mark.filterwarnings("error::botorch.exceptions.warnings.InputDataWarning"),
+    pytest.mark.filterwarnings("error::botorch.exceptions.warnings.BadInitialCandidatesWarning"),
+]
+
 #: Few evaluation contexts: every one costs a posterior-mean search per update.
 EVAL = np.array([[-0.8, 0.6], [0.0, 0.0], [0.7, -0.9], [0.9, 0.9]])
 
@@ -138,6 +145,32 @@ def test_failed_rollouts_enter_the_gp_at_the_worst_working_reward():
         alg.policy.model.train_targets[:, None]
     )[0]
     assert float(targets.min()) == pytest.approx(batch.rewards[~failed].min(), rel=1e-9)
+
+
+def _always_fails(omega, context, rng):
+    raise RuntimeError("diverged")
+
+
+def test_while_every_rollout_failed_there_is_no_gp_and_the_design_goes_on():
+    """All rewards equal (the worst): no GP is fitted (BoTorch would warn of a zero outcome
+    std and constant acquisition values); the Sobol design and π₀'s mean continue."""
+    task = _contextual(_always_fails)
+    alg = ContextualBO.for_task(task, rng=0)
+    for k in range(2):
+        with pytest.warns(RuntimeWarning, match="rollout failed"):
+            batch = collect(task, alg.policy, 6, rng=k)
+        diag = alg.update(batch)
+        assert diag.n_failed == 6 and diag.n_fitted == 0 and diag.random_batch
+        assert np.isnan(diag.best_reward) and alg.policy.model is None
+    np.testing.assert_array_equal(alg.policy.mean_of(EVAL), task.initial_policy().mean_of(EVAL))
+    low, high = alg.omega_bounds
+    omegas = alg.policy.sample(EVAL, 3)
+    assert np.all((omegas >= low) & (omegas <= high)) and len({tuple(w) for w in omegas}) == 4
+    # the failed rollouts enter at the lowest working reward: one working rollout leaves all
+    # rewards equal, a second, other one makes them differ and the GP is fitted on all 14
+    assert alg.update(Batch(EVAL[:1], omegas[:1], np.array([-1.0]))).n_fitted == 0
+    assert alg.update(Batch(EVAL[1:2], omegas[1:2], np.array([-2.0]))).n_fitted == 14
+    assert alg.policy.model is not None
 
 
 def test_context_free_task_is_plain_bo_and_max_observations_caps_the_fit():

@@ -14,10 +14,12 @@ from skillkit.search.loop import N_EVAL_CONTEXTS, Evaluator, LoopState, collect,
 from skillkit.search.reps import ContextualREPS
 from skillkit.search.rwr import RWR
 from skillkit.tasks.base import Task
+from skillkit.tasks.functional import FunctionTask
 from skillkit.tasks.toy import LinearTarget
 from skillkit.trajectory import Trajectory
 from skillkit.trial import NullBar, TrialContext
 from tests._snapshots import Snapshots
+from tests._tolerances import fp_tol
 
 Target = LinearTarget  # R(s, ω) = −‖ω − 2s‖²; the trajectory is ω itself
 
@@ -213,7 +215,7 @@ def test_evaluator_uses_common_random_numbers():
     pol = task.initial_policy()
     assert ev(pol) == ev(pol)  # same noise every call
     expected = np.mean([-np.sum((0 - 2 * s) ** 2) for s in ev.contexts])
-    assert ev(pol) == pytest.approx(expected)
+    assert ev(pol) == (pytest.approx(expected), 0.0)  # (mean, failure rate)
     with pytest.raises(ValueError, match="eval_contexts"):
         Evaluator.draw(task, rng, np.zeros((0, 2)))
     # A given seed replaces the drawn one, and the stream advances as without it.
@@ -389,3 +391,55 @@ def test_reprs_are_short_and_informative():
     _short(state, "k=2", f"{state.mean_reward[-1]:.4g}", "ContextualREPS")
     _short(Evaluator.draw(task, rng), "20 contexts", "target")
     _short(res_trial, "learn")
+
+
+# --------------------------------------------------------------------------- failed evaluations
+FAIL_P = 0.3
+
+
+def _target_failing_30pc(omega, context, rng):
+    """R = −‖ω − 2s‖², the rollout failing (NaN) with probability 0.3 from its own stream."""
+    if rng.random() < FAIL_P:
+        return np.nan
+    return -float(np.sum((omega - 2 * context) ** 2))
+
+
+def test_evaluation_leaves_failed_rollouts_out_of_the_mean_and_reports_their_rate():
+    task = FunctionTask(_target_failing_30pc, 2, context_low=[-1, -1], context_high=[1, 1])
+    m, seed = 50, 11
+    eval_s = task.sample_context(np.random.default_rng(1), n=m)
+    with pytest.warns(RuntimeWarning, match="rollout failed"):
+        res = learn(task, _reps(task), 12, 30, 0, eval_contexts=eval_s, eval_seed=seed)
+
+    def independent(policy):  # the raw function on the evaluator's re-seeded stream
+        rng = np.random.default_rng(seed)
+        pairs = zip(policy.mean_of(eval_s), eval_s, strict=True)
+        r = np.array([_target_failing_30pc(w, s, rng) for w, s in pairs])
+        ok = r[np.isfinite(r)]
+        return ok.mean(), 1 - ok.size / m
+
+    expected = np.array([independent(p) for p in res["policies"]])
+    # same-sign sums of at most m terms
+    np.testing.assert_allclose(res["mean_reward"], expected[:, 0], rtol=fp_tol(m))
+    np.testing.assert_allclose(res["eval_failure_rate"], expected[:, 1], rtol=fp_tol(2))
+    # one Binomial(m, 0.3) draw (common random numbers): within 4 standard errors of 0.3
+    assert abs(res["eval_failure_rate"][0] - FAIL_P) < 4 * np.sqrt(FAIL_P * (1 - FAIL_P) / m)
+    assert np.all(res["eval_failure_rate"] > 0)
+    # the mean over successes shows the learning that −1e6 per failure would hide
+    assert res["mean_reward"][-1] > 0.5 * res["mean_reward"][0]
+    assert np.all(res["mean_reward"] > task.worst_reward / 1e3)
+    assert res["n_failed"].sum() > 0
+
+
+def _always_fails(omega, context, rng):
+    raise RuntimeError("diverged")
+
+
+def test_evaluation_of_a_policy_whose_rollouts_all_fail_has_a_nan_mean():
+    task = FunctionTask(_always_fails, 2)
+    ev = Evaluator.draw(task, 0, np.zeros((3, 0)))
+    with pytest.warns(RuntimeWarning, match="rollout failed"):
+        mean, rate = ev(task.initial_policy())
+    assert np.isnan(mean) and rate == 1.0
+    mean, rate = Evaluator.draw(Bowl(), 0)(Bowl().initial_policy())
+    assert mean == pytest.approx(-2.0) and rate == 0.0

@@ -42,6 +42,7 @@ from skillkit.experiments.provenance import (
     measurements,
     provenance,
     series_measurements,
+    settings_changes,
     unstable_paths,
 )
 from skillkit.experiments.registry import get, ids
@@ -614,8 +615,8 @@ def check_witnesses(
         path = Path(row["path"]) / "result.json"
         if row["stale"] and row["id"] in known:
             result = json.loads(path.read_text())
-            if result.get("code_fingerprint"):
-                todo.append((row, path, result))
+            if result.get("code_fingerprint") and not settings_changes(result):
+                todo.append((row, path, result))  # a changed setting no witness can carry
     fresh: dict[tuple[str, int], dict | str] = {}
     with tqdm(total=len(todo), desc="witnesses", disable=not progress or not todo) as bar:
         for row, path, result in todo:

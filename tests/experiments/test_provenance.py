@@ -113,10 +113,11 @@ def test_a_reproduced_run_records_its_provenance_and_is_current(tmp_path):
     assert [r["stale"] for r in provenance.check_results(tmp_path)] == [True]
 
 
-def test_a_result_whose_scale_settings_changed_is_stale_naming_the_field(tmp_path):
+def test_a_result_whose_scale_settings_changed_is_stale_naming_the_field(tmp_path, monkeypatch):
     """Today's code, but the scale's settings (with the run's overrides) differ from the ones
-    the run stored: stale, with each field's stored and today's value."""
-    from skillkit.experiments import reproduce
+    the run stored: stale, with each field's stored and today's value; no smoke witness can
+    carry it across a code change."""
+    from skillkit.experiments import reproduce, runner
 
     run = reproduce("fig4.12", "smoke", trials=1, out=tmp_path, progress=False, html=False)
     result = json.loads((run.path / "result.json").read_text())
@@ -129,6 +130,11 @@ def test_a_result_whose_scale_settings_changed_is_stale_naming_the_field(tmp_pat
     assert provenance.staleness(result) == (False, "current")
     result["overrides"] = {"no_such_setting": 1}
     assert "overrides no longer apply" in provenance.settings_changes(result)
+    result["overrides"], result["code_fingerprint"] = {}, "0" * 16
+    (run.path / "result.json").write_text(json.dumps(result))
+    monkeypatch.setattr(runner, "smoke_witness", lambda *a, **k: pytest.fail("witness run"))
+    (row,) = runner.check_witnesses(tmp_path, record=True, progress=False)
+    assert row["stale"] and "evaluation.n_heldout" in row["reason"]
 
 
 def test_readme_scoreboard_is_made_from_the_stored_results():

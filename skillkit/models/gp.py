@@ -76,8 +76,8 @@ EVENT_KINDS = {
     "restored_iterate": "an objective evaluation failed; the optimiser kept its last completed "
     "iterate (optimize)",
     "jitter_increased": "a matrix was factorised only with diagonal jitter (robust_cholesky)",
-    "noise_at_floor": "a fit ended with a noise variance at its floor: the data look noise-free "
-    "to the model",
+    "noise_at_floor": "a fit ended with a noise variance at its floor, below a tenth of the added "
+    "target noise variance: the model fits that noise as signal",
     "negative_variance_clipped": "predictive variances below -1e-6 sigma_f^2 (beyond round-off) "
     "were set to 0",
 }
@@ -464,16 +464,31 @@ class _Diverged(Exception):
     pass
 
 
+def _assign(parameters: list[torch.nn.Parameter], values: list[torch.Tensor]) -> None:
+    with torch.no_grad():
+        for p, v in zip(parameters, values, strict=True):
+            p.copy_(v)
+
+
 #: L-BFGS stops when the objective changes by less than this in one iteration.
 TOLERANCE_CHANGE = 1e-12
+#: The convergence test compares the objective with its value this many iterations earlier.
+CONVERGENCE_WINDOW = 10
 
 
 def optimize(
-    parameters: list[torch.nn.Parameter], loss_fn: Callable[[], torch.Tensor], n_steps: int
+    parameters: list[torch.nn.Parameter],
+    loss_fn: Callable[[], torch.Tensor],
+    n_steps: int,
+    tolerance: float = 0.0,
 ) -> dict:
     """Minimise ``loss_fn`` over ``parameters`` by L-BFGS (one iteration per step), ending on a
     completed iterate: a failed evaluation restores the last one (``"restored_iterate"``).
-    Returns ``trace``, ``n_evaluations``, ``n_iterations``, ``best`` and ``stopped_early``."""
+
+    Stops after ``n_steps`` iterations, or once the objective fell by less than ``tolerance``
+    over the last :data:`CONVERGENCE_WINDOW` iterations (``stop_reason`` "converged"; 0: never),
+    or when L-BFGS makes no progress ("no_progress"). Returns ``trace``, ``n_evaluations``,
+    ``n_iterations``, ``best``, ``stopped_early`` and ``stop_reason``."""
     trace: list[float] = []
     stopped = None
     cache: dict[bytes, tuple[float, list[torch.Tensor | None]]] = {}
@@ -505,7 +520,7 @@ def optimize(
         return loss
 
     best_state, best_value = [p.detach().clone() for p in parameters], math.nan
-    n_iter = 0
+    n_iter, values, reason = 0, [], "n_steps"
     if n_steps > 0:
         max_eval = int(n_steps * 1.25) + 5
         opt = torch.optim.LBFGS(
@@ -525,19 +540,26 @@ def optimize(
                 k = key()
                 value0, value = cache[k_prev][0], cache[k][0]
                 best_state, best_value = [p.detach().clone() for p in parameters], value
-                if k == k_prev:  # no step (gradient or directional derivative ~ 0)
+                # no step (gradient or directional derivative ~ 0), or torch's lack-of-progress
+                # test (a max_iter=1 call returns before it)
+                if k == k_prev or abs(value - value0) < TOLERANCE_CHANGE:
+                    n_iter += k != k_prev
+                    reason = "no_progress"
                     break
                 n_iter += 1
-                # torch's lack-of-progress tests (a max_iter=1 call returns before them)
-                if abs(value - value0) < TOLERANCE_CHANGE:
+                values.append(value)
+                if len(values) > CONVERGENCE_WINDOW and (
+                    values[-1 - CONVERGENCE_WINDOW] - value < tolerance
+                ):
+                    reason = "converged"
                     break
                 cache = {k: cache[k]}
                 k_prev = k
+            else:
+                reason = "n_steps" if n_iter >= n_steps else "max_evaluations"
         except _Diverged as exc:
-            stopped = str(exc)
-    with torch.no_grad():
-        for p, v in zip(parameters, best_state, strict=True):
-            p.copy_(v)
+            stopped, reason = str(exc), "diverged"
+    _assign(parameters, best_state)
     if not math.isfinite(best_value):
         with torch.no_grad():
             try:
@@ -557,6 +579,7 @@ def optimize(
         "n_iterations": n_iter,
         "best": best_value,
         "stopped_early": stopped,
+        "stop_reason": reason,
     }
 
 
@@ -572,6 +595,7 @@ class GPRegression:
         noise_floor: float = 1e-6,
         additive_noise: float = 1.0,
         n_steps: int = 150,
+        tolerance: float = 1e-4,
         standardize: bool = True,
         curb: HyperCurb | None = None,
         device=None,
@@ -594,7 +618,9 @@ class GPRegression:
         if int(n_steps) != n_steps or n_steps < 0:
             raise ValueError(f"n_steps: expected a non-negative integer, got {n_steps!r}")
         self.n_steps = int(n_steps)
+        self.tolerance = check_positive(tolerance, "tolerance", allow_zero=True)
         self.standardize = bool(standardize)
+        self.cold_start: tuple | None = None  # (w, σ_f², σ_ε²) a warm start replaced
         self.predictor: GPPredictor | None = None
         self.diagnostics: dict = {}
 
@@ -678,44 +704,64 @@ class GPRegression:
                 loss = loss + curb.penalty(*self._hypers(), input_std)
             return loss / N
 
+        params, start = self._parameters(), "cold"
+        initial = [p.detach().clone() for p in params]
         with record_numerical_events(quiet=False) as events:
-            res = optimize(self._parameters(), objective, self.n_steps)
+            res = optimize(params, objective, self.n_steps, self.tolerance)
+            if self.cold_start is not None:
+                res, start = self._guard(params, initial, objective, res)
             with torch.no_grad():
                 self.predictor, extra = self._make_predictor()
             noise = self.predictor.noise.cpu().numpy()
             at_floor = np.flatnonzero(noise < 1.01 * self.noise_floor).tolist()
-            if at_floor:
+            effective = extra.get("effective_noise", noise)  # FITC: mean of Λ
+            absorbed = [a for a in at_floor if effective[a] < 0.1 * (sigma_add[a] / s[a]) ** 2]
+            if absorbed:
                 report_event(
                     "noise_at_floor",
-                    f"noise variance of output(s) {at_floor} is at the floor noise_floor="
-                    f"{self.noise_floor:g} (x std(y)^2 when standardised): the data look "
-                    "noise-free to the model",
+                    f"noise variance of output(s) {absorbed} is at its floor, below a tenth of "
+                    "the added target noise variance: the model fits that noise as signal",
                     stacklevel=2,
                 )
         diag["objective_trace"] = res["trace"]
-        diag.update({k: res[k] for k in ("n_evaluations", "n_iterations", "stopped_early")})
+        keys = ("n_evaluations", "n_iterations", "stopped_early", "stop_reason")
+        diag.update({k: res[k] for k in keys})
         diag.update(extra)
         ls, os_, nz = (t.detach() for t in self._hypers())
         diag["max_lengthscale_ratio"] = float((ls / input_std).max())
         diag["max_signal_to_noise"] = float((os_ / nz).sqrt().max())
         diag["curb_penalty"] = None if curb is None else float(curb.penalty(ls, os_, nz, input_std))
-        diag["noise_at_floor"] = at_floor
+        diag.update(noise_at_floor=at_floor, start=start)
         diag["numerical_events"] = events.to_dict()
         self.diagnostics = diag
         return self
 
-    def _initial_hypers(self) -> dict:
-        """PILCO's initial values: w = std(x), σ_f² = var(y), σ_ε² = σ_f²/100."""
+    def _guard(self, params, initial, objective, res: dict) -> tuple[dict, str]:
+        """``res`` and "warm", or a refit from ``cold_start`` and "cold" where the warm fit ended
+        above the cold start's objective and the refit ends lower."""
+        warm = [p.detach().clone() for p in params]
+        _assign(params, initial)
+        self._set_hypers(self.kernel, self.likelihood, self._initial_hypers(self.cold_start))
+        if optimize(params, objective, 0)["best"] < res["best"]:
+            cold = optimize(params, objective, self.n_steps, self.tolerance)
+            if cold["best"] < res["best"]:
+                return cold, "cold"
+        _assign(params, warm)
+        return res, "warm"
+
+    def _initial_hypers(self, init: tuple | None = None) -> dict:
+        """PILCO's initial values: w = std(x), σ_f² = var(y), σ_ε² = σ_f²/100, or the raw
+        ``init`` (w, σ_f², σ_ε²) (default: the constructor's) where not None."""
         E, d = self.Y.shape[0], self._input_sd.shape[0]
-        ls = self._input_sd if self.init_lengthscale is None else self.init_lengthscale
+        ls0, os0, nz0 = init or (self.init_lengthscale, self.init_outputscale, self.init_noise)
         try:
-            ls = np.broadcast_to(ls, (E, d)).copy()
+            ls = np.broadcast_to(self._input_sd if ls0 is None else ls0, (E, d)).copy()
         except ValueError:
-            got = np.shape(self.init_lengthscale)
+            got = np.shape(ls0)
             raise ValueError(f"lengthscale: expected (), ({d},) or ({E}, {d}), got {got}") from None
         scale2 = self.y_scale**2
-        os = np.ones(E) if self.init_outputscale is None else self.init_outputscale / scale2
-        nz = 1e-2 * os if self.init_noise is None else self.init_noise / scale2
+        os = np.ones(E) if os0 is None else os0 / scale2
+        nz = 1e-2 * os if nz0 is None else nz0 / scale2
         nz = np.maximum(nz, 1.5 * self.noise_floor)
         return {"lengthscale": ls, "outputscale": np.broadcast_to(os, (E,)).copy(), "noise": nz}
 
@@ -799,15 +845,18 @@ class GPRegression:
         )
 
     def _hyper_modules(self, E: int, d: int) -> tuple[SquaredExponential, gpytorch.Module]:
-        init = {k: torch.as_tensor(v, dtype=DTYPE).to(self.device) for k, v in self._init.items()}
         kernel = SquaredExponential(d, batch_shape=torch.Size([E])).to(self.device)
-        kernel.lengthscale = init["lengthscale"][:, None, :]
-        kernel.outputscale = init["outputscale"]
         likelihood = gpytorch.likelihoods.GaussianLikelihood(
             batch_shape=torch.Size([E]), noise_constraint=GreaterThan(self.noise_floor)
         ).to(self.device, DTYPE)
-        likelihood.noise = init["noise"][:, None]
+        self._set_hypers(kernel, likelihood, self._init)
         return kernel, likelihood
+
+    def _set_hypers(self, kernel, likelihood, init: dict) -> None:
+        init = {k: torch.as_tensor(v, dtype=DTYPE).to(self.device) for k, v in init.items()}
+        kernel.lengthscale = init["lengthscale"][:, None, :]
+        kernel.outputscale = init["outputscale"]
+        likelihood.noise = init["noise"][:, None]
 
 
 class _SENegLogML(torch.autograd.Function):
@@ -879,11 +928,15 @@ class ExactGP(GPRegression):
     outputscale, noise : float, optional
         Initial σ_f², σ_ε² in raw target units (default var(y), var(y)/100).
     noise_floor : float, default 1e-6
-        σ_ε² ≥ ``noise_floor`` · var(y).
+        σ_ε² ≥ ``noise_floor`` · var(y), a nugget; noise-free targets may end there
+        (``diagnostics["noise_at_floor"]``), an event only where the fitted noise (FITC: mean Λ)
+        is below a tenth of the ``additive_noise`` variance.
     additive_noise : float, default 1.0
         α: adds N(0, (α·10⁻²·std(y))²) to the targets (Sec. 4.2.3); 0 for none.
     n_steps : int, default 150
-        L-BFGS iterations on −(2.28) (the thesis's 150).
+        At most this many L-BFGS iterations on −(2.28) (the thesis's 150).
+    tolerance : float, default 1e-4
+        Stop once −(2.28) / N fell by less than this over the last 10 iterations (0: never).
     standardize : bool, default True
         Fit on standardised targets (predictions are in raw units).
     curb : HyperCurb, optional

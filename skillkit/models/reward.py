@@ -139,9 +139,12 @@ def warm_start_hypers(
     gp: GPRegression, hypers: dict[str, np.ndarray] | None, inputs: np.ndarray
 ) -> None:
     """Start ``gp``'s next optimisation at ``hypers`` (raw units), length-scales capped at
-    :data:`WARM_LENGTHSCALE_CAP` std of ``inputs``."""
+    :data:`WARM_LENGTHSCALE_CAP` std of ``inputs``; the fit refits from the cold start if the warm
+    one ends above the cold start's objective (``diagnostics["start"]``)."""
     if hypers is None:
         return
+    if gp.cold_start is None:
+        gp.cold_start = (gp.init_lengthscale, gp.init_outputscale, gp.init_noise)
     sd = inputs.std(axis=0)
     cap = WARM_LENGTHSCALE_CAP * np.where(sd > 0, sd, 1.0)
     gp.init_lengthscale = np.minimum(np.asarray(hypers["lengthscale"], dtype=np.float64), cap)

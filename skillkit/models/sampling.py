@@ -1,12 +1,14 @@
 """Batched stochastic trajectory prediction with a learned forward model (Secs 2.1.2, 4.2.1):
 u_t = π_ω(t, x_t), x_{t+1} ~ p(x_{t+1} | x_t, u_t) for B (context, ω) pairs × L trajectories
-in one vectorised loop over time (Eq. 4.3, Fig. 2.4). The noise is drawn up front in float64,
-so results do not depend on the chunk size and float32 follows float64's paths."""
+in one vectorised loop over time (Eq. 4.3, Fig. 2.4), chunks of rows on several threads. The
+noise is drawn up front in float64, so results do not depend on the chunk size or the threads
+and float32 follows float64's paths."""
 
 from __future__ import annotations
 
 import warnings
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -31,6 +33,7 @@ __all__ = [
     "StepModel",
     "sample_trajectories",
     "sampler_flops_per_step",
+    "sampling_dtype",
 ]
 
 #: float32 sampling warns when its one-step moments differ from float64's by more than this
@@ -107,6 +110,7 @@ def sample_trajectories(
     method: str = "per-step",
     n_features: int = 256,
     stop: Callable[[int, torch.Tensor], torch.Tensor] | None = None,
+    workers: int | None = None,
 ) -> SampledTrajectories:
     """Sample L trajectories for each of B start states / policies in one vectorised call.
 
@@ -131,7 +135,7 @@ def sample_trajectories(
     dtype : torch.float64 or torch.float32, default float64
         float32 warns when ``precision_error`` exceeds :data:`PRECISION_TOL`.
     max_chunk_bytes : int, default 2**25
-        Bound on the kernel work arrays per chunk (at least one trajectory per chunk).
+        Bound on the kernel work arrays per chunk and worker (at least one row per chunk).
     method : {"per-step", "pathwise", "pathwise-shared"}
         "per-step" (the thesis's, Sec. 4.2.1): independent draws per transition; "pathwise":
         one posterior function per trajectory (:mod:`skillkit.models.pathwise`, GP forward
@@ -141,6 +145,9 @@ def sample_trajectories(
     stop : callable, optional
         ``stop(k, x) -> done``, bool (n,) for states x_k (k = 1 … T − 1): done trajectories
         stop propagating (per-step only; ``stopped_at``).
+    workers : int, optional
+        Threads that propagate chunks of rows at once on the CPU, so ``policy`` and ``stop``
+        are called concurrently (default ``torch.get_num_threads()``).
 
     Returns
     -------
@@ -156,6 +163,7 @@ def sample_trajectories(
     if method not in ("per-step", "pathwise", "pathwise-shared"):
         raise ValueError(f"method: expected 'per-step' or 'pathwise[-shared]', got {method!r}")
     pathwise = method != "per-step"
+    workers = torch.get_num_threads() if workers is None else check_count(workers, "workers")
     if stop is not None and not callable(stop):
         raise ValueError(f"stop: expected a callable or None, got {type(stop).__name__}")
     if stop is not None and pathwise:
@@ -163,11 +171,7 @@ def sample_trajectories(
     if pathwise and not isinstance(getattr(model, "_predictor", None), GPPredictor):
         raise ValueError(f"model: pathwise needs a fitted ForwardModel, got {type(model).__name__}")
     n_x, n_u = int(model.state_dim), int(model.control_dim)
-    if int(horizon) != horizon or horizon < 1:
-        raise ValueError(f"horizon: expected a positive integer, got {horizon!r}")
-    if int(n_trajectories) != n_trajectories or n_trajectories < 1:
-        raise ValueError(f"n_trajectories: expected a positive integer, got {n_trajectories!r}")
-    T, L = int(horizon), int(n_trajectories)
+    T, L = check_count(horizon, "horizon"), check_count(n_trajectories, "n_trajectories")
     max_chunk_bytes = check_count(max_chunk_bytes, "max_chunk_bytes")
     x0 = (
         torch.tensor(np.asarray(x0), dtype=dtype, device=device)  # a copy: x0 may be read-only
@@ -212,23 +216,23 @@ def sample_trajectories(
     controls = torch.empty((n, T, n_u), dtype=dtype, device=device)
     states[:, 0] = x0.reshape(n, n_x)
     chunk = _chunk_rows(model, max_chunk_bytes, n, n_features if method == "pathwise" else 0)
-    n_sat = torch.zeros((), dtype=torch.long, device=device)
-    n_clamp = torch.zeros((), dtype=torch.long, device=device)
-    worst = torch.zeros((), dtype=dtype, device=device)
     stopped_at = None if stop is None else torch.full((n,), T, dtype=torch.long, device=device)
-    with torch.no_grad():
-        for lo in range(0, n, chunk):
-            hi = min(lo + chunk, n)
-            x = states[lo:hi, 0]
-            p = pair[lo:hi]
-            step = model if basis is None else model.with_predictor(basis.draw(seeds[lo:hi]))
-            rows: slice | torch.Tensor = slice(lo, hi)  # the rows still running
+
+    def run(lo: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Propagate rows lo:lo + chunk; their (saturated, clamped, worst variance)."""
+        hi = min(lo + chunk, n)
+        x, p = states[lo:hi, 0], pair[lo:hi]
+        n_sat = n_clamp = torch.zeros((), dtype=torch.long, device=device)
+        worst = torch.zeros((), dtype=dtype, device=device)
+        step = model if basis is None else model.with_predictor(basis.draw(seeds[lo:hi]))
+        rows: slice | torch.Tensor = slice(lo, hi)  # the rows still running
+        with torch.no_grad():  # per thread
             for t in range(T):
                 u = policy(t, x, p)
                 if t == 0 and lo == 0:
                     _check_tensor(u, "policy", (hi - lo, n_u), dtype, device)
                 if limit is not None:
-                    n_sat += (u.abs() > limit).sum()
+                    n_sat = n_sat + (u.abs() > limit).sum()
                     u = torch.maximum(torch.minimum(u, limit), -limit)
                 m = step.next_state_moments(x, u)
                 if factor_t is None:
@@ -238,7 +242,7 @@ def sample_trajectories(
                 states[rows, t + 1] = x
                 controls[rows, t] = u
                 if len(m) > 2:
-                    n_clamp += m[2]
+                    n_clamp = n_clamp + m[2]
                     worst = torch.minimum(worst, m[3])
                 if stop is not None and t + 1 < T:
                     done = _check_tensor(stop(t + 1, x), "stop", (x.shape[0],), torch.bool)
@@ -254,19 +258,19 @@ def sample_trajectories(
                         rows, x, p = rows[keep], x[keep], p[keep]
                         if rows.numel() == 0:
                             break
+        return n_sat, n_clamp, worst
+
+    starts = range(0, n, chunk)
+    with ThreadPoolExecutor(min(workers, len(starts)) if device.type == "cpu" else 1) as pool:
+        parts = list(pool.map(run, starts))
+    n_sat, n_clamp, worst = (torch.stack(v) for v in zip(*parts, strict=True))
     if not torch.isfinite(controls).all():
         raise ValueError("policy: returned non-finite controls")
     precision = 0.0  # float32: the largest one-step moment error against float64, visited states
     if dtype != DTYPE:
-        exact = source.to(device, DTYPE)
-        for t in sorted({0, T // 2, T - 1}):
-            xs, us = states[:64, t], controls[:64, t]
-            a = exact.next_state_moments(xs.to(DTYPE), us.to(DTYPE))
-            b = model.next_state_moments(xs, us)
-            var = a.var.clamp_min(torch.finfo(DTYPE).tiny)
-            err_mean = ((b.mean.to(DTYPE) - a.mean).abs() / var.sqrt()).max()
-            err_var = ((b.var.to(DTYPE) - a.var).abs() / var).max()
-            precision = max(precision, float(err_mean), float(err_var))
+        at = sorted({0, T // 2, T - 1})
+        visited = states[:64, at].flatten(0, 1), controls[:64, at].flatten(0, 1)
+        precision = sampling_dtype(source, *visited, device)[1]
         if precision > PRECISION_TOL:
             warnings.warn(
                 f"sample_trajectories: {dtype} moments differ from float64 by up to "
@@ -274,13 +278,13 @@ def sample_trajectories(
                 GPNumericalWarning,
                 stacklevel=2,
             )
-    worst_f = float(worst)
-    warn_if_clamped("sample_trajectories", worst_f, n_clamp)
+    worst_f = float(worst.min())
+    warn_if_clamped("sample_trajectories", worst_f, n_clamp.sum())
     return SampledTrajectories(
         states.reshape(B, L, T + 1, n_x),
         controls.reshape(B, L, T, n_u),
-        int(n_sat),
-        int(n_clamp),
+        int(n_sat.sum()),
+        int(n_clamp.sum()),
         worst_f,
         precision,
         None if stopped_at is None else stopped_at.reshape(B, L),
@@ -306,8 +310,31 @@ def _check_tensor(value, name: str, shape: tuple, dtype, device=None) -> torch.T
     return value
 
 
+def sampling_dtype(
+    model: StepModel, states, controls, device=None, dtype: torch.dtype | None = None
+) -> tuple[torch.dtype, float | None]:
+    """The precision to sample ``model`` in: float32 if its one-step moments at (states (n,
+    n_x), controls (n, n_u)), at most 64 evenly spaced rows, differ from float64's by at most
+    :data:`PRECISION_TOL` (mean error in predictive standard deviations, or relative variance
+    error), else float64; and that error. A given ``dtype`` is returned unchecked (error None).
+    """
+    if dtype is not None:
+        return check_dtype(dtype), None
+    device = as_device(device)
+    rows = np.unique(np.linspace(0, len(states) - 1, 64).astype(int))
+    x, u = (torch.as_tensor(v, dtype=DTYPE, device=device)[rows] for v in (states, controls))
+    with torch.no_grad():
+        a = model.to(device, DTYPE).next_state_moments(x, u)
+        b = model.to(device, torch.float32).next_state_moments(x.float(), u.float())
+    var = a[1].clamp_min(torch.finfo(DTYPE).tiny)
+    err_mean = ((b[0].to(DTYPE) - a[0]).abs() / var.sqrt()).max()
+    error = max(float(err_mean), float(((b[1].to(DTYPE) - a[1]).abs() / var).max()))
+    return (torch.float32 if error <= PRECISION_TOL else DTYPE), error
+
+
 def _chunk_rows(model, max_bytes: int, n: int, n_features: int = 0) -> int:
-    """Rows per chunk so that the kernel work arrays (and pathwise features) fit."""
+    """Rows per chunk so that the kernel work arrays (and pathwise features) fit, in equal
+    chunks of an even number if several (two workers share them evenly)."""
     pred = getattr(model, "predictor", None)
     if pred is None:
         return n
@@ -315,7 +342,8 @@ def _chunk_rows(model, max_bytes: int, n: int, n_features: int = 0) -> int:
     per_row = 3 * E * M * pred.support.element_size()
     if n_features:
         per_row += 8 * E * (n_features * (d + 2) + M)
-    return int(max(1, min(n, max_bytes // max(per_row, 1))))
+    chunks = -(-n // max(1, min(n, max_bytes // max(per_row, 1))))
+    return -(-n // (chunks + chunks % 2 if chunks > 1 else 1))
 
 
 def sampler_flops_per_step(output_dim: int, n_support: int, input_dim: int) -> int:

@@ -39,6 +39,74 @@ def kmeans_pp(X, n: int, rng: np.random.Generator) -> np.ndarray:
     return np.asarray(idx)
 
 
+def sparse_terms(ls, os, noise, Z, X, Y, jitter: float, fitc: bool, factor=plain_cholesky):
+    """−log p(Y) of FITC (VFE's collapsed bound if not ``fitc``) summed over E outputs, and
+    (L_m, L_A, c, V, Λ (E, N), K_mm, K_mn, mask), for ``ls`` (E, d), ``os``, ``noise`` (E,),
+    ``Z`` (E, M, d), ``X`` (N, d) and standardised ``Y`` (E, N): L_m L_mᵀ = K_mm + jitter·σ_f²I,
+    V = L_m⁻¹K_mn, L_A L_Aᵀ = A = I + VΛ⁻¹Vᵀ, c = L_A⁻¹VΛ⁻¹y, mask: diag(K_nn − Q_nn) ≥ 0."""
+    E, N = Y.shape
+    eye = torch.eye(Z.shape[1], dtype=DTYPE, device=X.device)
+    Kmm = se_kernel(Z, Z, ls[:, None, :], os)
+    Lm = factor(Kmm + (jitter * os)[:, None, None] * eye, "K_mm")
+    Kmn = se_kernel(Z, X.expand(E, *X.shape), ls[:, None, :], os)
+    V = torch.linalg.solve_triangular(Lm, Kmn, upper=False)
+    gap = os[:, None] - (V * V).sum(-2)  # diag(K_nn − Q_nn)
+    mask, gap = gap >= 0, gap.clamp_min(0.0)
+    lam = gap + noise[:, None] if fitc else noise[:, None].expand(E, N)
+    sq = lam.sqrt()
+    Vs, ys = V / sq[:, None, :], Y / sq
+    LA = factor(Vs @ Vs.transpose(-1, -2) + eye, "I + V inv(Lambda) V^T")
+    c = torch.linalg.solve_triangular(LA, Vs @ ys.unsqueeze(-1), upper=False).squeeze(-1)
+    value = (ys * ys).sum() - (c * c).sum() + torch.log(lam).sum() + N * E * math.log(2 * math.pi)
+    value = 0.5 * value + torch.log(LA.diagonal(dim1=-2, dim2=-1)).sum()
+    if not fitc:
+        value = value + (gap.sum(-1) / (2.0 * noise)).sum()
+    return value, Lm, LA, c, V, lam, Kmm, Kmn, mask
+
+
+class _SparseNegLogML(torch.autograd.Function):
+    """:func:`sparse_terms`'s value with its analytic gradient (Snelson & Ghahramani, 2006).
+
+    With Σ_y = Q_nn + Λ, α = Σ_y⁻¹y, W = Σ_y⁻¹ − ααᵀ, w = diag W and G = W − diag(h) (h = w
+    for FITC, 1/σ_ε² for VFE's trace term; 0 where the gap is clamped): ∂/∂V = VG =
+    A⁻¹VΛ⁻¹ − (Vα)αᵀ − V diag(h), ∂/∂K_mn = L_m⁻ᵀVG, ∂/∂K_mm = −½ L_m⁻ᵀVGVᵀL_m⁻¹,
+    ∂/∂σ_ε² = ½Σw (VFE: − Σ gap / 2σ_ε⁴), then the SE kernel's derivatives (App. B.1)."""
+
+    @staticmethod
+    def forward(ctx, ls, os, noise, Z, X, Y, jitter, fitc):
+        value, *terms = sparse_terms(ls, os, noise, Z, X, Y, jitter, fitc)
+        ctx.save_for_backward(ls, os, noise, Z, X, Y, *terms)
+        ctx.fitc, ctx.jitter = fitc, jitter
+        return value
+
+    @staticmethod
+    def backward(ctx, grad):
+        ls, os, noise, Z, X, Y, Lm, LA, c, V, lam, Kmm, Kmn, mask = ctx.saved_tensors
+        Vl = V / lam[:, None, :]
+        gamma = torch.linalg.solve_triangular(LA.mT, c.unsqueeze(-1), upper=True)
+        alpha = (Y - (gamma.mT @ V).squeeze(-2)) / lam  # Σ_y⁻¹y
+        VG = torch.cholesky_solve(Vl, LA)  # A⁻¹VΛ⁻¹ = VΣ_y⁻¹
+        w = 1.0 / lam - (Vl * VG).sum(-2) - alpha * alpha
+        h = (mask * (w if ctx.fitc else 1.0 / noise[:, None])).unsqueeze(-2)
+        VG.baddbmm_(V @ alpha.unsqueeze(-1), alpha.unsqueeze(-2), alpha=-1.0)
+        VG.addcmul_(V, h, value=-1.0)
+        S = torch.linalg.solve_triangular(Lm.mT, VG @ V.mT, upper=True)
+        Kmm_bar = -0.5 * torch.linalg.solve_triangular(Lm, S, upper=False, left=False)
+        Pm = 0.5 * (Kmm_bar + Kmm_bar.mT) * Kmm
+        Pn = torch.linalg.solve_triangular(Lm.mT, VG, upper=True).mul_(Kmn)  # K̄_mn ∘ K_mn
+        g_noise = 0.5 * w.sum(-1)
+        if not ctx.fitc:
+            g_noise -= (os[:, None] - (V * V).sum(-2)).clamp_min(0.0).sum(-1) / (2.0 * noise**2)
+        g_os = 0.5 * h.sum((-2, -1)) + (Pn.sum((-2, -1)) + Pm.sum((-2, -1))) / os
+        g_os += ctx.jitter * Kmm_bar.diagonal(dim1=-2, dim2=-1).sum(-1)
+        rn, rm = Pn.sum(-1, keepdim=True), 2.0 * Pm.sum(-1, keepdim=True)  # (E, M, 1)
+        PX = Pn @ X  # (E, M, d)
+        T = PX + 2.0 * (Pm @ Z) - (rn + rm) * Z  # w² ∂/∂Z
+        g_Z = grad * T / ls[:, None, :] ** 2 if ctx.needs_input_grad[3] else None
+        g_ls = (Pn.sum(-2) @ (X * X) - (Z * (T + PX)).sum(1)) / ls**3
+        return grad * g_ls, grad * g_os, grad * g_noise, g_Z, None, None, None, None
+
+
 class _SparseGP(GPRegression):
     def __init__(
         self,
@@ -87,52 +155,23 @@ class _SparseGP(GPRegression):
         params = list(self.kernel.parameters()) + list(self.likelihood.parameters())
         return params + ([self.inducing] if self.optimize_inducing else [])
 
-    def _terms(self, factor=None):
-        """(negative objective, L_m, L_A, c) with Cholesky routine ``factor``."""
-        factor = factor or plain_cholesky
-        ls, os, noise = self._hypers()
-        E, N = self.Y.shape
-        Z = self.inducing
-        M = Z.shape[1]
-        eye = torch.eye(M, dtype=DTYPE, device=self.device)
-        Kmm = se_kernel(Z, Z, ls[:, None, :], os) + (self.jitter * os)[:, None, None] * eye
-        Lm = factor(Kmm, "K_mm")
-        Kmn = se_kernel(Z, self.X.expand(E, *self.X.shape), ls[:, None, :], os)
-        V = torch.linalg.solve_triangular(Lm, Kmn, upper=False)
-        gap = (os[:, None] - (V * V).sum(-2)).clamp_min(0.0)  # diag(K_nn - Q_nn)
-        if self._method == "fitc":
-            lam = gap + noise[:, None]
-            trace = torch.zeros((), dtype=DTYPE, device=self.device)
-        else:
-            lam = noise[:, None].expand(E, N)
-            trace = (gap.sum(-1) / (2.0 * noise)).sum()
-        sq = lam.sqrt()
-        Vs = V / sq[:, None, :]
-        A = Vs @ Vs.transpose(-1, -2) + eye
-        LA = factor(A, "I + V inv(Lambda) V^T")
-        ys = self.Y / sq
-        c = torch.linalg.solve_triangular(LA, Vs @ ys.unsqueeze(-1), upper=False).squeeze(-1)
-        value = (
-            0.5 * ((ys * ys).sum() - (c * c).sum())
-            + 0.5 * torch.log(lam).sum()
-            + torch.log(LA.diagonal(dim1=-2, dim2=-1)).sum()
-            + 0.5 * N * E * math.log(2 * math.pi)
-            + trace
-        )
-        return value, Lm, LA, c
+    def _args(self) -> tuple:
+        """:func:`sparse_terms`'s arguments (hyper-parameters, Z, X, Y, jitter, FITC or not)."""
+        hypers = self._hypers()
+        return (*hypers, self.inducing, self.X, self.Y, self.jitter, self._method == "fitc")
 
     def _loss(self) -> torch.Tensor:
-        return self._terms()[0]
+        return _SparseNegLogML.apply(*self._args())
 
     def _make_predictor(self) -> tuple[GPPredictor, dict]:
         jit: dict[str, float] = {}
 
         def factor(A, what):
-            L, j = robust_cholesky(A, what)
-            jit[what] = j
+            L, jit[what] = robust_cholesky(A, what)
             return L
 
-        value, Lm, LA, c = self._terms(factor)
+        args = self._args()
+        value, Lm, LA, c, _, lam, *_ = sparse_terms(*args, factor)
         M = Lm.shape[-1]
         eye = torch.eye(M, dtype=DTYPE, device=self.device)
         beta = torch.linalg.solve_triangular(
@@ -149,7 +188,7 @@ class _SparseGP(GPRegression):
         iK = Lm_inv.transpose(-1, -2) @ (eye - torch.cholesky_inverse(LA)) @ Lm_inv
         iK = 0.5 * (iK + iK.transpose(-1, -2))
         y_mean, y_scale = self._standardisation_tensors()
-        hypers = (t.detach() for t in self._hypers())
+        hypers = (t.detach() for t in args[:3])
         pred = GPPredictor(self.inducing.detach().clone(), *hypers, beta, iK, R, y_mean, y_scale)
         N = self.Y.shape[1]
         objective = -float(value) - N * float(torch.log(y_scale).sum())
@@ -157,6 +196,7 @@ class _SparseGP(GPRegression):
             **self.diagnostics_init,
             "jitter": max(jit.values()),
             "log_marginal_likelihood": objective,
+            "effective_noise": lam.mean(-1).cpu().numpy(),
         }
 
 

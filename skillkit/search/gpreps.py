@@ -34,6 +34,7 @@ from skillkit._validation import (
 )
 from skillkit.models.gp import ExactGP, ForwardModel, GPRegression, check_dtype
 from skillkit.models.reward import RewardModel, gp_stats, warm_start_hypers
+from skillkit.models.sampling import sampling_dtype
 from skillkit.policies.features import FeatureName, check_feature_name
 from skillkit.policies.gaussian import LinearGaussianPolicy
 from skillkit.search.base import Batch, SampleBuffer, as_batch, check_settings
@@ -111,7 +112,9 @@ class TrajectoryRewardModel(RewardModel):
     warm_start : bool
         Start each GP refit at the previous hyper-parameters.
     device, dtype
-        Where and in which precision (float64 or float32) trajectories are sampled.
+        Where and in which precision (float64, float32 or None) trajectories are sampled;
+        None: float32 if the model passes :func:`~skillkit.models.sampling.sampling_dtype` at
+        its training inputs, else float64 (at each fit; in its statistics).
     prior_trajectories : sequence of Trajectory, optional
         Real experience from before the search, learned by every fit.
     common_start_states : bool
@@ -129,7 +132,7 @@ class TrajectoryRewardModel(RewardModel):
         warm_start: bool = True,
         device=None,
         prior_trajectories: Sequence[Trajectory] = (),
-        dtype: torch.dtype = torch.float64,
+        dtype: torch.dtype | None = None,
         common_start_states: bool = False,
     ):
         check_type(task, Task, "task", "a Task")
@@ -145,7 +148,7 @@ class TrajectoryRewardModel(RewardModel):
         self.horizon = None if horizon is None else check_count(horizon, "horizon")
         self.warm_start = bool(warm_start)
         self.device = device
-        self.dtype = check_dtype(dtype)
+        self.dtype = self.sample_dtype = None if dtype is None else check_dtype(dtype)
         self.prior_trajectories = list(prior_trajectories)
         if not all(isinstance(t, Trajectory) for t in self.prior_trajectories):
             raise ValueError("prior_trajectories: expected a sequence of Trajectory objects")
@@ -181,6 +184,8 @@ class TrajectoryRewardModel(RewardModel):
             self.hyperparameters = gp.hyperparameters
             stats.update(gp_stats(gp, x.shape[0]))
         self.n_data = int(x.shape[0])
+        self.sample_dtype, error = sampling_dtype(model, x, u, self.device, self.dtype)
+        stats.update(sampling_dtype=str(self.sample_dtype)[6:], precision_error=error)
         return stats
 
     def expected_rewards(self, contexts, omegas, n_trajectories, rng=None) -> np.ndarray:
@@ -204,7 +209,7 @@ class TrajectoryRewardModel(RewardModel):
             rng=rng,
             x0=x0,
             device=self.device,
-            dtype=self.dtype,
+            dtype=self.sample_dtype,
         )
         self.last_failed_fraction = float(out.failed.mean())
         return out.expected_rewards

@@ -31,7 +31,7 @@ from skillkit.models.reward import (
     worst_if_failed,
     worst_if_nonfinite,
 )
-from skillkit.models.sampling import sample_trajectories
+from skillkit.models.sampling import sample_trajectories, sampling_dtype
 from skillkit.tasks.planar import Throwing
 
 __all__ = ["ThrowingPrediction", "ThrowingRewardModel", "land"]
@@ -109,8 +109,10 @@ class ThrowingRewardModel(RewardModel):
         Start each hyper-parameter optimisation at the previous values.
     device : str or torch.device, optional
         Where trajectories are sampled.
-    dtype : torch.dtype
-        Precision of the sampled trajectories (float64 or float32).
+    dtype : torch.float64, torch.float32 or None
+        Precision of the sampled trajectories; None: per sampled model (robot, flight) float32
+        where it passes :func:`~skillkit.models.sampling.sampling_dtype` on its training
+        inputs, else float64 (decided at each fit, recorded in its statistics).
     stop_flight_at_ground : bool
         Stop propagating a landed ball (the stored fig4.6, fig4.7, fig4.9 results pin False).
     """
@@ -127,7 +129,7 @@ class ThrowingRewardModel(RewardModel):
         flight_time: float = 2.5,
         warm_start: bool = True,
         device=None,
-        dtype: torch.dtype = torch.float64,
+        dtype: torch.dtype | None = None,
         stop_flight_at_ground: bool = True,
     ):
         check_type(task, Throwing, "task", "a Throwing task")
@@ -144,7 +146,8 @@ class ThrowingRewardModel(RewardModel):
         self.flight_steps = int(np.ceil(check_positive(flight_time, "flight_time") / task.ball_dt))
         self.warm_start = bool(warm_start)
         self.device = device
-        self.dtype = check_dtype(dtype)
+        self.dtype = None if dtype is None else check_dtype(dtype)
+        self.sample_dtypes = {"robot": self.dtype, "flight": self.dtype}
         if not isinstance(stop_flight_at_ground, bool):
             got = type(stop_flight_at_ground).__name__
             raise ValueError(f"stop_flight_at_ground: expected a bool, got {got}")
@@ -236,6 +239,10 @@ class ThrowingRewardModel(RewardModel):
             gp = getattr(model, "gp", model)
             if isinstance(gp, GPRegression):
                 stats[key] = gp_stats(gp, n)
+        for key, z in (("robot", (x, a)), ("flight", (fx, fx[:, :0]))):
+            dtype, error = sampling_dtype(getattr(self, key), *z, self.device, self.dtype)
+            self.sample_dtypes[key] = dtype
+            stats.setdefault(key, {}).update(sampling_dtype=str(dtype)[6:], precision_error=error)
         return stats
 
     def predict(self, contexts, omegas, n_trajectories: int, rng=None) -> ThrowingPrediction:
@@ -247,7 +254,7 @@ class ThrowingRewardModel(RewardModel):
         device = torch.device("cpu" if self.device is None else self.device)
         # the start does not depend on s (which may lie outside the task's range)
         x0 = np.broadcast_to(task.initial_states(task.context_low, 1), (B, L, 8))
-        dtype = self.dtype
+        dtype = self.sample_dtypes["robot"]
         accel = task.acceleration_controller(w, device=device)  # float64: a_T and the torques
         step = accel  # the sampler's controller in its own precision
         if dtype != torch.float64:
@@ -276,7 +283,7 @@ class ThrowingRewardModel(RewardModel):
             1,
             rng,
             device=device,
-            dtype=dtype,
+            dtype=self.sample_dtypes["flight"],
             stop=_on_ground if self.stop_flight_at_ground else None,
         )
         paths, landed = land(flight.states[:, 0, :, :2].to(torch.float64).cpu().numpy())

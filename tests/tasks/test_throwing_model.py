@@ -211,9 +211,10 @@ def test_float32_sampling_pairs_with_float64(fitted):
     import copy
 
     task, model, _, (s, w, r, _) = fitted
-    single = copy.copy(model)
-    single.dtype = torch.float32
-    a = model.predict(s, w, 4, rng=3)
+    double, single = copy.copy(model), copy.copy(model)
+    double.sample_dtypes = dict.fromkeys(model.sample_dtypes, torch.float64)
+    single.sample_dtypes = dict.fromkeys(model.sample_dtypes, torch.float32)
+    a = double.predict(s, w, 4, rng=3)
     b = single.predict(s, w, 4, rng=3)
     assert b.states.dtype == np.float64 and b.rewards.dtype == np.float64
     rel = np.abs(b.expected_rewards - a.expected_rewards) / np.abs(a.expected_rewards)
@@ -246,3 +247,18 @@ def test_stopping_the_flight_at_the_ground_changes_no_prediction(fitted):
     np.testing.assert_allclose(b.rewards, a.rewards, rtol=0, atol=r_tol)
     with pytest.raises(ValueError, match="stop_flight_at_ground: expected a bool"):
         ThrowingRewardModel(task, stop_flight_at_ground="yes")
+
+
+def test_fit_chooses_each_sampled_models_precision(fitted):
+    """Robot and flight models: float32 exactly where their float32 one-step moment error on
+    the training inputs is within PRECISION_TOL; recorded per model in the fit statistics."""
+    from skillkit.models.sampling import PRECISION_TOL
+
+    task, model, stats, _ = fitted
+    assert model.dtype is None
+    for key in ("robot", "flight"):
+        error, chosen = stats[key]["precision_error"], model.sample_dtypes[key]
+        assert error >= 0 and chosen == (torch.float32 if error <= PRECISION_TOL else torch.float64)
+        assert stats[key]["sampling_dtype"] == str(chosen).removeprefix("torch.")
+    pinned = _model(task, dtype=torch.float64)
+    assert pinned.sample_dtypes == {"robot": torch.float64, "flight": torch.float64}

@@ -218,7 +218,7 @@ def test_noise_by_size_table_counts_and_orders():
 def test_hyperparameter_table_and_figure(gp40):
     x, y, gp = gp40
     with record_numerical_events():
-        gp8 = ExactGP(additive_noise=0.0).fit(x[:8], y[:8], rng=0)
+        gp8 = ExactGP(additive_noise=0.0, tolerance=0.0).fit(x[:8], y[:8], rng=0)
     t = ch2.hyperparameter_table({"8": gp8, "40": gp}, true_noise_var=0.01)
     assert t.loc["8", "noise at its floor"] == "yes" and t.loc["40", "noise at its floor"] == "no"
     # four significant digits

@@ -14,6 +14,8 @@ import pytest
 from skillkit import cli
 from skillkit.cli import build_parser, main
 from skillkit.experiments import timings
+from skillkit.experiments.registry import get
+from skillkit.experiments.runner import to_jsonable
 
 HEAVY = ("torch", "numpy", "scipy", "gpytorch", "plotly", "matplotlib", "skillkit.experiments")
 
@@ -82,7 +84,7 @@ def _write_run(folder, exp_id="fig2.10", seed=0, **extra):
         "seed": seed,
         "trials": 1,
         "summary": {"claim": "c", "holds": True, "statement": "s", "err": 0.5 + seed},
-        "settings": {"n": 3},
+        "settings": json.loads(json.dumps(to_jsonable(get(exp_id).settings["quick"].to_dict()))),
         "series": [{"name": "curve", "x": [0, 1], "y": [1.0, 0.5]}],
         **extra,
     }

@@ -32,7 +32,7 @@ from skillkit._validation import (
     check_positive,
     check_type,
 )
-from skillkit.models.gp import ExactGP, ForwardModel, GPRegression, check_dtype
+from skillkit.models.gp import DTYPE, ExactGP, ForwardModel, GPRegression, check_dtype
 from skillkit.models.reward import RewardModel, gp_stats, warm_start_hypers
 from skillkit.models.sampling import sampling_dtype
 from skillkit.policies.features import FeatureName, check_feature_name
@@ -114,7 +114,8 @@ class TrajectoryRewardModel(RewardModel):
     device, dtype
         Where and in which precision (float64, float32 or None) trajectories are sampled;
         None: float32 if the model passes :func:`~skillkit.models.sampling.sampling_dtype` at
-        its training inputs, else float64 (at each fit; in its statistics).
+        its training inputs, else float64 (at each fit; in its statistics). Default float64:
+        visited states can be worse conditioned than the training inputs.
     prior_trajectories : sequence of Trajectory, optional
         Real experience from before the search, learned by every fit.
     common_start_states : bool
@@ -132,7 +133,7 @@ class TrajectoryRewardModel(RewardModel):
         warm_start: bool = True,
         device=None,
         prior_trajectories: Sequence[Trajectory] = (),
-        dtype: torch.dtype | None = None,
+        dtype: torch.dtype | None = DTYPE,
         common_start_states: bool = False,
     ):
         check_type(task, Task, "task", "a Task")

@@ -19,7 +19,7 @@ import numpy as np
 import torch
 
 from skillkit._validation import as_generator, check_array, check_count, check_positive, check_type
-from skillkit.models.gp import ExactGP, ForwardModel, GPRegression, check_dtype
+from skillkit.models.gp import DTYPE, ExactGP, ForwardModel, GPRegression, check_dtype
 from skillkit.models.reward import (
     Prediction,
     RewardModel,
@@ -109,7 +109,7 @@ class ThrowingRewardModel(RewardModel):
         Start each hyper-parameter optimisation at the previous values.
     device : str or torch.device, optional
         Where trajectories are sampled.
-    dtype : torch.float64, torch.float32 or None
+    dtype : torch.float64 (default), torch.float32 or None
         Precision of the sampled trajectories; None: per sampled model (robot, flight) float32
         where it passes :func:`~skillkit.models.sampling.sampling_dtype` on its training
         inputs, else float64 (decided at each fit, recorded in its statistics).
@@ -129,7 +129,7 @@ class ThrowingRewardModel(RewardModel):
         flight_time: float = 2.5,
         warm_start: bool = True,
         device=None,
-        dtype: torch.dtype | None = None,
+        dtype: torch.dtype | None = DTYPE,
         stop_flight_at_ground: bool = True,
     ):
         check_type(task, Throwing, "task", "a Throwing task")

@@ -29,7 +29,7 @@ def fitted():
     task = Balancing(n_steps=T, torque_noise_std=0.5)
     policy = GaussianPolicy(task.lqr_gain().reshape(-1), 1e-3 * np.eye(32))
     make = partial(ForwardModel, FITC(n_inducing=40, n_steps=20), target="delta")
-    model = TrajectoryRewardModel(task, make_model=make)
+    model = TrajectoryRewardModel(task, make_model=make, dtype=None)  # chosen at each fit
     batch = collect(task, policy, 20, np.random.default_rng(0))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", GPNumericalWarning)

@@ -48,7 +48,7 @@ def _throws(task, n, seed):
 def fitted():
     task = make("throwing")
     s, w, r, trajs = _throws(task, 18, 0)
-    model = _model(task)
+    model = _model(task, dtype=None)  # each sampled model's precision chosen at each fit
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         stats = model.fit(s[:10], w[:10], r[:10], trajs[:10], rng=1)

@@ -5,7 +5,7 @@ Times :meth:`skillkit.search.gpreps.GPREPS.update`, split as its diagnostics spl
 their M · L model trajectories, Eq. 4.1, step 2; also as trajectory-steps per second) and
 **policy** (the REPS dual and weighted ML fit on the M samples, step 3), for each torch thread
 count ``--threads`` (set in this script only; torch's threads share each step's work)
-and sampling precision ``--dtype`` (``auto``: the library default, float32 for a model whose
+and sampling precision ``--dtype`` (``auto``: ``dtype=None``, float32 for a model whose
 float32 one-step moments pass the check, else float64; or pinned). The update timed is the
 first one on the real batch, from a fresh GPREPS with the same seed; the best of
 ``--repeats`` (interleaved) is shown, with the dtypes the update sampled in.
